@@ -1,0 +1,44 @@
+# Two commands do all the set-up on a fresh machine:
+#   make demo   create .venv, install everything pinned, run the main job
+#   make test   create .venv, install everything pinned, run the whole test suite
+# Other targets: make bench (work-precision, stability, fidelity charts), make bags
+# (regenerate reference recordings), make clean.
+
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+# DDS traffic stays on this machine, before any rclpy process starts.
+export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
+export ROS_LOCALHOST_ONLY := 1
+export MPLBACKEND := Agg
+export PYTHONDONTWRITEBYTECODE := 1
+
+.PHONY: demo test bench bags install clean help
+
+help:
+	@sed -n '1,8p' Makefile
+
+$(STAMP): pyproject.toml constraints.txt
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --disable-pip-version-check -c constraints.txt pip
+	$(PY) -m pip install --quiet --disable-pip-version-check -c constraints.txt -e '.[ros,plot,test]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/belt-drive demo
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+bench: $(STAMP)
+	$(VENV)/bin/belt-drive bench all --out docs/bench
+
+bags: $(STAMP)
+	$(VENV)/bin/belt-drive make-bags --out bags --force
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache

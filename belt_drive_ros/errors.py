@@ -1,0 +1,47 @@
+"""Error hierarchy of belt_drive_ros.
+
+Every error derives from :class:`BeltDriveError` and from the built-in that
+fits it, so callers may catch either. Messages name the offending field,
+method or value and, where one exists, the fix.
+"""
+
+from __future__ import annotations
+
+
+class BeltDriveError(Exception):
+    """Base class of every error raised by belt_drive_ros."""
+
+
+class ParameterError(BeltDriveError, ValueError):
+    """A model parameter is missing, unknown, non-finite or out of range.
+
+    Attributes
+    ----------
+    field : str
+        Name of the offending field (the paper's symbol, e.g. ``"r_3"``).
+    """
+
+    def __init__(self, field: str, message: str):
+        self.field = field
+        super().__init__(f"{field}: {message}")
+
+
+class SceneError(BeltDriveError, ValueError):
+    """A scene file or scene mapping is malformed (names the key path)."""
+
+
+class IntegratorError(BeltDriveError, ValueError):
+    """Unknown integrator name or invalid integrator option."""
+
+
+class UnstableStepError(BeltDriveError, ValueError):
+    """A fixed-step method would be unstable at the requested step.
+
+    Raised *before* a run starts by :mod:`belt_drive_ros.stability`; the
+    message names the method, the step, ``h*omega_n``, the method's boundary,
+    a stable step and an unconditionally stable method.
+    """
+
+
+class SimulationDivergedError(BeltDriveError, ArithmeticError):
+    """The state became non-finite or left its physical envelope during a run."""

@@ -1,0 +1,184 @@
+"""Frozen, validated parameters of the belt drive.
+
+Field names mirror the paper's symbols (Dizo et al., eq. 3-20) so that a
+reader can check a YAML file against the paper; ``docs/model.md`` explains
+each default. SI units throughout.
+
+Kinematics (``../shared/design/model.md``)::
+
+    g = (r_M / R_1) * (r_1 / R_2)     phi_2 = g * phi_M       gear train M -> 2
+    i = g * r_2 / r_3                 phi_3 = i * phi_M       rigid belt only
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, fields
+from typing import Any, Mapping
+
+from .errors import ParameterError
+
+#: field -> (unit, description); also the order of the YAML keys.
+FIELD_DOCS: dict[str, tuple[str, str]] = {
+    "I_M": ("kg m^2", "inertia of drive wheel M (engine/motor side, incl. its shaft)"),
+    "I_1": ("kg m^2", "inertia of intermediate gear wheel 1 (may be 0)"),
+    "I_2": ("kg m^2", "inertia of wheel 2 (gear + driving pulley, may be 0)"),
+    "I_3": ("kg m^2", "inertia of loaded pulley 3 incl. the driven device"),
+    "r_M": ("m", "pitch radius of the gear on wheel M"),
+    "R_1": ("m", "pitch radius of wheel 1 meshing with M"),
+    "r_1": ("m", "pitch radius of wheel 1 meshing with wheel 2"),
+    "R_2": ("m", "pitch radius of wheel 2 meshing with wheel 1"),
+    "r_2": ("m", "belt pulley radius on wheel 2"),
+    "r_3": ("m", "belt pulley radius on wheel 3"),
+    "k": ("N/m", "stiffness of one belt span (two spans act in parallel)"),
+    "c": ("N s/m", "viscous damping of one belt span"),
+    "b_M": ("N m s/rad", "bearing damping of wheel M"),
+    "b_1": ("N m s/rad", "bearing damping of wheel 1"),
+    "b_2": ("N m s/rad", "bearing damping of wheel 2"),
+    "b_3": ("N m s/rad", "bearing damping of wheel 3"),
+    "F_0": ("N", "belt installation (pre-)tension of each span"),
+    "mu": ("1", "effective belt-pulley friction coefficient"),
+    "wrap_angle": ("rad", "belt wrap angle on the pulley that slips first"),
+}
+
+_POSITIVE = ("I_M", "I_3", "r_M", "R_1", "r_1", "R_2", "r_2", "r_3", "k", "mu", "wrap_angle")
+_NON_NEGATIVE = ("I_1", "I_2", "c", "b_M", "b_1", "b_2", "b_3", "F_0")
+
+
+@dataclass(frozen=True)
+class BeltDriveParams:
+    """Physical parameters of the accessory belt drive (SI units).
+
+    Defaults describe a truck air-compressor drive; ``docs/model.md`` gives
+    the source or reasoning for each value. Validation happens on
+    construction: non-finite values, non-positive radii, inertias of M and 3,
+    stiffness, friction or wrap angle, and negative damping, tension or
+    intermediate inertias are rejected with a :class:`ParameterError` that
+    names the field.
+    """
+
+    I_M: float = 0.05
+    I_1: float = 0.01
+    I_2: float = 0.005
+    I_3: float = 0.02
+    r_M: float = 0.05
+    R_1: float = 0.06
+    r_1: float = 0.05
+    R_2: float = 0.05
+    r_2: float = 0.08
+    r_3: float = 0.06
+    k: float = 3.0e5
+    c: float = 30.0
+    b_M: float = 1.0e-3
+    b_1: float = 5.0e-4
+    b_2: float = 5.0e-4
+    b_3: float = 1.0e-3
+    F_0: float = 500.0
+    mu: float = 0.5
+    wrap_angle: float = math.pi
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ParameterError(f.name, f"must be a number, got {value!r}")
+            value = float(value)
+            object.__setattr__(self, f.name, value)
+            if not math.isfinite(value):
+                raise ParameterError(f.name, f"must be finite, got {value!r}")
+        for name in _POSITIVE:
+            if getattr(self, name) <= 0.0:
+                unit = FIELD_DOCS[name][0]
+                raise ParameterError(name, f"must be > 0 {unit}, got {getattr(self, name)!r}")
+        for name in _NON_NEGATIVE:
+            if getattr(self, name) < 0.0:
+                unit = FIELD_DOCS[name][0]
+                raise ParameterError(name, f"must be >= 0 {unit}, got {getattr(self, name)!r}")
+        if self.wrap_angle > 2.0 * math.pi:
+            raise ParameterError("wrap_angle", f"must be <= 2*pi rad, got {self.wrap_angle!r}")
+
+    # ------------------------------------------------------------------ mapping
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any] | None) -> "BeltDriveParams":
+        """Build from a mapping keyed by the paper's symbols; unknown keys are errors."""
+        data = dict(data or {})
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ParameterError(
+                unknown[0], f"unknown parameter; known parameters are {', '.join(sorted(known))}"
+            )
+        return cls(**data)
+
+    def to_dict(self) -> dict[str, float]:
+        """Plain ``{symbol: value}`` mapping (YAML-ready, SI units)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def replace(self, **changes: Any) -> "BeltDriveParams":
+        """Copy with ``changes`` applied, validated like the constructor."""
+        known = {f.name for f in fields(self)}
+        for name in changes:
+            if name not in known:
+                raise ParameterError(name, "unknown parameter")
+        return dataclasses.replace(self, **changes)
+
+    # ---------------------------------------------------------------- derived
+    @property
+    def gear_ratio(self) -> float:
+        """g = (r_M/R_1)(r_1/R_2): angle of wheel 2 per angle of wheel M [-]."""
+        return (self.r_M / self.R_1) * (self.r_1 / self.R_2)
+
+    @property
+    def ratio(self) -> float:
+        """i = g r_2/r_3: angle of wheel 3 per angle of wheel M (rigid belt) [-]."""
+        return self.gear_ratio * self.r_2 / self.r_3
+
+    @property
+    def inertia_drive_side(self) -> float:
+        """I_f = I_M + I_1 (r_M/R_1)^2 + I_2 g^2, wheels M, 1, 2 reduced to M [kg m^2]."""
+        return self.I_M + self.I_1 * (self.r_M / self.R_1) ** 2 + self.I_2 * self.gear_ratio**2
+
+    @property
+    def inertia_reduced(self) -> float:
+        """I_red = I_f + I_3 i^2, all four wheels reduced to M (paper eq. 13) [kg m^2]."""
+        return self.inertia_drive_side + self.I_3 * self.ratio**2
+
+    @property
+    def bearing_damping_drive_side(self) -> float:
+        """b_f = b_M + b_1 (r_M/R_1)^2 + b_2 g^2, reduced to M [N m s/rad]."""
+        return self.b_M + self.b_1 * (self.r_M / self.R_1) ** 2 + self.b_2 * self.gear_ratio**2
+
+    @property
+    def bearing_damping_reduced(self) -> float:
+        """b_red = b_f + b_3 i^2, all bearings reduced to M [N m s/rad]."""
+        return self.bearing_damping_drive_side + self.b_3 * self.ratio**2
+
+    @property
+    def belt_torsional_stiffness(self) -> float:
+        """2 k r_3^2: belt torque at wheel 3 per rad of relative deflection [N m/rad]."""
+        return 2.0 * self.k * self.r_3**2
+
+    @property
+    def belt_natural_frequency(self) -> float:
+        """Undamped belt mode omega_n = sqrt(2k (r_2^2 g^2/I_f + r_3^2/I_3)) [rad/s]."""
+        g = self.gear_ratio
+        return math.sqrt(
+            2.0 * self.k * (self.r_2**2 * g**2 / self.inertia_drive_side + self.r_3**2 / self.I_3)
+        )
+
+    @property
+    def belt_damping_ratio(self) -> float:
+        """Damping ratio of the belt mode from span damping c alone [-] (zeta = c omega_n / (2k))."""
+        return self.c * self.belt_natural_frequency / (2.0 * self.k)
+
+    @property
+    def capstan_ratio(self) -> float:
+        """e^(mu * wrap_angle): largest F_tight/F_slack before the belt slips [-]."""
+        return math.exp(self.mu * self.wrap_angle)
+
+
+def describe_fields() -> str:
+    """Human-readable table of the parameter fields with units (for --help and docs)."""
+    width = max(len(n) for n in FIELD_DOCS)
+    return "\n".join(f"  {n:<{width}}  [{u}]  {d}" for n, (u, d) in FIELD_DOCS.items())
