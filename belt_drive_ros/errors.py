@@ -23,6 +23,7 @@ class ParameterError(BeltDriveError, ValueError):
 
     def __init__(self, field: str, message: str):
         self.field = field
+        self.detail = message
         super().__init__(f"{field}: {message}")
 
 

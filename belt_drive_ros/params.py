@@ -81,6 +81,11 @@ class BeltDriveParams:
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
+            if isinstance(value, str):  # YAML 1.1 reads 2.0e4 (no sign in the exponent) as a string
+                try:
+                    value = float(value)
+                except ValueError:
+                    raise ParameterError(f.name, f"must be a number, got {value!r}") from None
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ParameterError(f.name, f"must be a number, got {value!r}")
             value = float(value)

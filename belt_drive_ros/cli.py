@@ -1,0 +1,73 @@
+"""``belt-drive``: command-line entry point.
+
+Each subcommand lives in its own module under :mod:`belt_drive_ros.commands`
+with ``register(subparsers)``; modules must not import rclpy or mcap at
+import time (only inside their run function), so ``belt-drive --help`` and
+``belt-drive sim`` work without ROS.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from .errors import BeltDriveError
+
+#: subcommand modules, in --help order. A module missing here is skipped silently
+#: only if it does not exist yet (commands under construction).
+COMMAND_MODULES = (
+    "sim",
+    "scenes",
+    "demo",
+    "node",
+    "source",
+    "record",
+    "replay",
+    "bench",
+    "make_bags",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="belt-drive",
+        description=(
+            "Vehicle accessory belt drive (engine/motor -> two gear pairs -> belt -> loaded pulley): "
+            "offline simulation, ROS 2 node, torque sources, MCAP recording and replay, benchmarks. "
+            "SI units everywhere (rad, rad/s, N m, s); rpm only in plots and summaries."
+        ),
+        epilog="Run 'belt-drive COMMAND --help' for each command's options and examples.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(f"belt_drive_ros.commands.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"belt_drive_ros.commands.{name}":
+                continue
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except BeltDriveError as exc:
+        print(f"belt-drive: error: {exc}", file=sys.stderr)
+        return 2
+    except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:
+        print(f"belt-drive: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

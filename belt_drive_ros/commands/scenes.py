@@ -1,0 +1,24 @@
+"""``belt-drive scenes``: list the shipped scenes, or print one as YAML."""
+
+from __future__ import annotations
+
+
+def register(sub) -> None:
+    p = sub.add_parser("scenes", help="list shipped scenes or print one (YAML) to start your own",
+                       description="List the shipped scenes; with a NAME, print that scene as YAML.")
+    p.add_argument("name", nargs="?", help="scene to print")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..params import describe_fields
+    from ..scene import load_scene, shipped_scenes
+
+    if args.name:
+        print(load_scene(args.name).to_yaml(), end="")
+        return 0
+    for name in shipped_scenes():
+        print(f"{name:18s} {load_scene(name).description}")
+    print("\nparameters (YAML keys under 'params', the paper's symbols):")
+    print(describe_fields())
+    return 0

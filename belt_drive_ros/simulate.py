@@ -1,0 +1,268 @@
+"""Offline simulation: a model, its torques and an integrator over a time grid.
+
+The :class:`Plant` joins a model with its drive and load profiles into the
+input function ``u(t, x)`` every integrator calls. :class:`Simulator` owns
+the state and the time grid; it takes the vectorized path (one linear
+recurrence for the whole run, :func:`~belt_drive_ros.integrators.propagate_linear`)
+when both torques depend on time only and the method has a fixed step, and
+steps one at a time otherwise. Both paths give the same states to rounding.
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from .errors import SimulationDivergedError
+from .fidelity import ModelChoice, choose_model
+from .integrators import FixedStepIntegrator, make_integrator
+from .model import OUTPUT_UNITS, make_model
+from .scene import Scene
+from .sources import TorqueProfile
+from .stability import StabilityReport, require_stable
+
+#: Speeds beyond this [rad/s] (~955,000 rpm) mean the numerics, not the physics, blew up.
+SPEED_LIMIT = 1.0e5
+#: CSV columns required by the CLI, SI units.
+CSV_COLUMNS = (
+    "time",
+    "phi_M",
+    "omega_M",
+    "phi_3",
+    "omega_3",
+    "drive_torque",
+    "load_torque",
+    "belt_torque",
+    "relative_deflection",
+)
+
+
+class Plant:
+    """Model + drive + load: the input function ``u(t, x) = [drive, load]`` [N m]."""
+
+    def __init__(self, model, drive: TorqueProfile, load: TorqueProfile):
+        self.model, self.drive, self.load = model, drive, load
+        self.open_loop = not (drive.state_dependent or load.state_dependent)
+        if model.name == "flexible":
+
+            def inputs(t, x):
+                return np.array([drive.torque(t, x[0], x[2]), load.torque(t, x[1], x[3])])
+
+        else:
+            i = model.params.ratio
+
+            def inputs(t, x):
+                return np.array([drive.torque(t, x[0], x[1]), load.torque(t, i * x[0], i * x[1])])
+
+        self.inputs = inputs
+
+    def input_array(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Vectorized u for samples ``t`` (N,), ``x`` (N, n) -> (N, 2)."""
+        phi_M, omega_M, phi_3, omega_3 = self.model.wheel_coordinates(x)
+        t = np.asarray(t, dtype=float)
+        d = np.broadcast_to(self.drive.torque(t, phi_M, omega_M), t.shape)
+        l = np.broadcast_to(self.load.torque(t, phi_3, omega_3), t.shape)
+        return np.stack([d, l], axis=-1).astype(float)
+
+
+@dataclass
+class SimResult:
+    """States, inputs and outputs of one run on the grid ``time`` [s].
+
+    ``outputs`` holds every signal of :data:`belt_drive_ros.model.OUTPUT_UNITS`
+    as an (N,) array; ``states`` is (N, n) in the model's state ordering.
+    """
+
+    scene: Scene
+    model: str
+    method: str
+    dt: float
+    time: np.ndarray
+    states: np.ndarray
+    inputs: np.ndarray
+    outputs: dict
+    choice: ModelChoice | None = None
+    stability: StabilityReport | None = None
+    wall_time: float = 0.0
+    vectorized: bool = False
+    energy: dict = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name == "time":
+            return self.time
+        return self.outputs[name]
+
+    def table(self, columns=CSV_COLUMNS) -> np.ndarray:
+        """(N, len(columns)) array of the named signals."""
+        return np.column_stack([np.asarray(self[c], dtype=float) for c in columns])
+
+    def to_csv(self, path, columns=CSV_COLUMNS) -> None:
+        """CSV with a header line of column names; SI units (rad, rad/s, N m, s)."""
+        np.savetxt(path, self.table(columns), delimiter=",", header=",".join(columns), comments="", fmt="%.12g")
+
+    @property
+    def realtime_factor(self) -> float:
+        """Simulated seconds per wall-clock second."""
+        return (self.time[-1] - self.time[0]) / self.wall_time if self.wall_time > 0 else math.inf
+
+
+def _check_finite(states: np.ndarray, time: np.ndarray, model_name: str, method: str, dt: float) -> None:
+    """Raise :class:`SimulationDivergedError` at the first non-finite or runaway sample."""
+    n = states.shape[1] // 2
+    speeds = states[:, n:]
+    bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(speeds) > SPEED_LIMIT, axis=1)
+    if np.any(bad):
+        k = int(np.argmax(bad))
+        raise SimulationDivergedError(
+            f"simulation diverged at t={time[k]:.6g} s (model {model_name}, method {method}, dt={dt:g} s): "
+            f"state {np.array2string(states[k], precision=4)} is non-finite or beyond {SPEED_LIMIT:g} rad/s; "
+            f"reduce dt or use method 'exact' or 'etd2'"
+        )
+
+
+class Simulator:
+    """Runs one model with one integrator from an initial state.
+
+    Parameters
+    ----------
+    model : RigidBeltModel or FlexibleBeltModel.
+    drive, load : torque profiles.
+    method : integrator name; dt : step [s]; method_options : passed to it.
+    check_stability : refuse (``UnstableStepError``) a step the guard predicts unstable.
+    """
+
+    def __init__(self, model, drive, load, method="etd2", dt=1e-3, method_options=None, check_stability=True):
+        self.model = model
+        self.plant = Plant(model, drive, load)
+        self.method, self.dt = method, float(dt)
+        self.integrator = make_integrator(method, model.A, model.B, dt, **dict(method_options or {}))
+        self.stability = require_stable(model.A, model.B, method, dt) if check_stability else None
+
+    def run(
+        self,
+        duration: float,
+        x0: np.ndarray,
+        t0: float = 0.0,
+        progress: Callable[[float], None] | None = None,
+        vectorize: bool | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Integrate over ``duration`` [s]; return (time (N+1,), states (N+1, n)).
+
+        ``vectorize`` forces (True) or forbids (False) the open-loop path; by
+        default it is used whenever it applies.
+        """
+        n_steps = int(round(duration / self.dt))
+        if abs(n_steps * self.dt - duration) > 1e-9 * max(duration, 1.0):
+            n_steps = int(math.ceil(duration / self.dt))
+        time = t0 + self.dt * np.arange(n_steps + 1)
+        x0 = np.asarray(x0, dtype=float)
+        can_vectorize = self.plant.open_loop and isinstance(self.integrator, FixedStepIntegrator)
+        if vectorize and not can_vectorize:
+            raise ValueError("vectorize=True needs time-only torques and a fixed-step method")
+        if can_vectorize and vectorize is not False:
+            states = self._run_open_loop(time, x0)
+            self.vectorized = True
+        else:
+            states = self._run_stepwise(time, x0, progress)
+            self.vectorized = False
+        _check_finite(states, time, self.model.name, self.method, self.dt)
+        if progress:
+            progress(1.0)
+        return time, states
+
+    def _run_open_loop(self, time, x0):
+        from .integrators import propagate_linear
+
+        step = self.integrator.linear_step()
+        t = time[:-1]
+        zeros = np.zeros_like(t)
+        node_inputs = [
+            np.column_stack(
+                [
+                    np.broadcast_to(self.plant.drive.torque(t + c * self.dt, zeros, zeros), t.shape),
+                    np.broadcast_to(self.plant.load.torque(t + c * self.dt, zeros, zeros), t.shape),
+                ]
+            )
+            for c in step.nodes
+        ]
+        return propagate_linear(step, x0, node_inputs)
+
+    def _run_stepwise(self, time, x0, progress):
+        n = time.size - 1
+        states = np.empty((n + 1, x0.size))
+        states[0] = x0
+        x = x0
+        step, inputs = self.integrator.step, self.plant.inputs
+        report_every = max(1, n // 100)
+        for k in range(n):
+            x = step(time[k], x, inputs)
+            states[k + 1] = x
+            if k % 64 == 63 and not (np.all(np.isfinite(x)) and np.max(np.abs(x[x.size // 2 :])) <= SPEED_LIMIT):
+                _check_finite(states[: k + 2], time[: k + 2], self.model.name, self.method, self.dt)
+            if progress and k % report_every == 0:
+                progress(k / n)
+        return states
+
+
+def simulate(
+    scene: Scene,
+    model: str | None = None,
+    method: str | None = None,
+    dt: float | None = None,
+    duration: float | None = None,
+    progress: Callable[[float], None] | None = None,
+    check_stability: bool = True,
+    vectorize: bool | None = None,
+) -> SimResult:
+    """Run ``scene`` (overrides for model, method, dt, duration) and compute all outputs.
+
+    With ``model='auto'`` the choice and its reason are in ``result.choice``.
+    """
+    scene = scene.with_overrides(model=model, method=method, dt=dt, duration=duration)
+    choice = None
+    kind = scene.model
+    if kind == "auto":
+        choice = choose_model(scene)
+        kind = choice.model
+    mdl = make_model(kind, scene.params)
+    sim = Simulator(mdl, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
+    x0 = scene.initial_state.vector(kind, scene.params.ratio)
+    start = _time.perf_counter()
+    time, states = sim.run(scene.duration, x0, progress=progress, vectorize=vectorize)
+    wall = _time.perf_counter() - start
+    u = sim.plant.input_array(time, states)
+    outputs = mdl.outputs(states, u)
+    # Energy balance terms (trapezoidal quadrature of the powers on the output grid).
+    p_in = mdl.input_power(states, u)
+    p_d = mdl.dissipation_power(states)
+    dt_grid = np.diff(time)
+    energy = {
+        "kinetic": mdl.kinetic_energy(states),
+        "potential": mdl.potential_energy(states),
+        "input_work": np.concatenate([[0.0], np.cumsum(0.5 * (p_in[1:] + p_in[:-1]) * dt_grid)]),
+        "dissipated": np.concatenate([[0.0], np.cumsum(0.5 * (p_d[1:] + p_d[:-1]) * dt_grid)]),
+    }
+    return SimResult(
+        scene=scene,
+        model=kind,
+        method=sim.integrator.name,
+        dt=scene.dt,
+        time=time,
+        states=states,
+        inputs=u,
+        outputs=outputs,
+        choice=choice,
+        stability=sim.stability,
+        wall_time=wall,
+        vectorized=sim.vectorized,
+        energy=energy,
+    )
+
+
+def output_names() -> list[str]:
+    """Names of all output signals (see :data:`belt_drive_ros.model.OUTPUT_UNITS`)."""
+    return list(OUTPUT_UNITS)

@@ -1,0 +1,133 @@
+"""Stability guard: predict, before a run, whether a fixed-step method is stable.
+
+A method applied to the mode ``y' = lambda y`` multiplies it by ``R(h lambda)``
+per step; the run is stable when ``|R(h lambda)| <= 1`` for every eigenvalue
+``lambda`` of the model's A (the belt mode ``-zeta omega_n +/- i omega_n
+sqrt(1-zeta^2)``, the rigid-body mode 0 and the slow bearing mode). For an
+undamped belt this is the classical ``h omega_n`` limit on the imaginary
+axis: Euler never, symplectic Euler ``< 2``, RK4 ``<= 2 sqrt(2)``; exact,
+etd2 and trapezoidal have no limit. Torques that depend on state are not part
+of A; the runtime check in the simulator catches what they destabilise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import UnstableStepError
+from .integrators import FixedStepIntegrator, make_integrator, method_class
+
+#: |R| may exceed 1 by this much (rounding of R(0) = 1 for the rigid-body mode).
+GROWTH_TOLERANCE = 1e-12
+
+
+@dataclass(frozen=True)
+class StabilityReport:
+    """Outcome of :func:`check_step`.
+
+    Attributes
+    ----------
+    stable : bool
+    method, dt : the method and step [s] checked.
+    omega_n : fastest mode's |lambda| [rad/s] (the belt mode when flexible).
+    h_omega_n : dt * omega_n [-].
+    growth : max |R(h lambda)| over the eigenvalues [-] (> 1: unstable).
+    limit : the method's h*omega_n boundary for an undamped oscillator (None: no limit).
+    max_stable_dt : largest stable step [s] (inf: any; 0: none), None for adaptive methods.
+    """
+
+    stable: bool
+    method: str
+    dt: float
+    omega_n: float
+    h_omega_n: float
+    growth: float
+    limit: float | None
+    max_stable_dt: float | None
+
+    def describe(self) -> str:
+        """One line for logs, diagnostics and errors."""
+        state = "stable" if self.stable else "UNSTABLE"
+        lim = "none" if self.limit is None else f"{self.limit:.4g}"
+        return (
+            f"{self.method} at dt={self.dt:.4g} s: {state} (h*omega_n={self.h_omega_n:.4g}, "
+            f"boundary {lim}, growth/step {self.growth:.6g}, omega_n={self.omega_n:.4g} rad/s)"
+        )
+
+
+def _eigenvalues(A: np.ndarray) -> np.ndarray:
+    """Eigenvalues of A with the rigid-body mode snapped to exactly 0.
+
+    Without bearing damping the zero eigenvalue is defective (a Jordan block:
+    angle grows linearly with speed) and comes out as +/-1e-8 numerically;
+    |lambda| below 1e-7 of the fastest mode is that rigid-body mode.
+    """
+    lams = np.linalg.eigvals(A)
+    scale = float(np.max(np.abs(lams))) or 1.0
+    return np.where(np.abs(lams) <= 1e-7 * scale, 0.0, lams)
+
+
+def _growth(cls, A, B, dt, eigenvalues) -> float:
+    it = cls(A, B, dt)
+    return max(it.amplification(complex(lam)) for lam in eigenvalues)
+
+
+def max_stable_step(A: np.ndarray, B: np.ndarray, method: str, upper: float = 1.0) -> float:
+    """Largest step [s] for which ``method`` is stable on x' = A x (bisection on |R|).
+
+    Returns ``inf`` for methods stable at any step up to ``upper`` and 0.0
+    when no step is stable (Euler on an undamped belt).
+    """
+    cls = method_class(method)
+    if not issubclass(cls, FixedStepIntegrator):
+        return math.inf
+    lams = _eigenvalues(A)
+    if _growth(cls, A, B, upper, lams) <= 1.0 + GROWTH_TOLERANCE:
+        return math.inf
+    omega = float(np.max(np.abs(lams))) or 1.0
+    lo, hi = 0.0, upper
+    # Smallest probe: a step far below any boundary of interest.
+    probe = 1e-6 / omega
+    if _growth(cls, A, B, probe, lams) > 1.0 + GROWTH_TOLERANCE:
+        return 0.0
+    lo = probe
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        if _growth(cls, A, B, mid, lams) <= 1.0 + GROWTH_TOLERANCE:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-9 * hi:
+            break
+    return lo
+
+
+def check_step(A: np.ndarray, B: np.ndarray, method: str, dt: float) -> StabilityReport:
+    """Predict stability of ``method`` at step ``dt`` [s] on x' = A x + B u."""
+    cls = method_class(method)
+    lams = _eigenvalues(A)
+    omega_n = float(np.max(np.abs(lams)))
+    if not issubclass(cls, FixedStepIntegrator):
+        return StabilityReport(True, cls.name, dt, omega_n, dt * omega_n, 1.0, None, None)
+    growth = _growth(cls, A, B, dt, lams)
+    stable = growth <= 1.0 + GROWTH_TOLERANCE
+    return StabilityReport(
+        stable, cls.name, dt, omega_n, dt * omega_n, growth, cls.imag_axis_limit, max_stable_step(A, B, method)
+    )
+
+
+def require_stable(A: np.ndarray, B: np.ndarray, method: str, dt: float, safety: float = 0.9) -> StabilityReport:
+    """:func:`check_step`, raising :class:`UnstableStepError` that names a stable step or method."""
+    report = check_step(A, B, method, dt)
+    if report.stable:
+        return report
+    if report.max_stable_dt and math.isfinite(report.max_stable_dt):
+        fix = f"use dt <= {safety * report.max_stable_dt:.3g} s (boundary {report.max_stable_dt:.4g} s)"
+    else:
+        fix = "no step is stable for this method on this belt"
+    raise UnstableStepError(
+        f"{report.describe()}; {fix}, or method 'exact' or 'etd2' (unconditionally stable for the belt mode)"
+    )
