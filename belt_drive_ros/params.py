@@ -50,33 +50,34 @@ _NON_NEGATIVE = ("I_1", "I_2", "c", "b_M", "b_1", "b_2", "b_3", "F_0")
 class BeltDriveParams:
     """Physical parameters of the accessory belt drive (SI units).
 
-    Defaults describe a truck air-compressor drive; ``docs/model.md`` gives
-    the source or reasoning for each value. Validation happens on
+    Defaults describe a truck diesel driving an air compressor (the
+    ``truck_compressor`` scene); ``docs/model.md`` gives the source or
+    reasoning for each value. Validation happens on
     construction: non-finite values, non-positive radii, inertias of M and 3,
     stiffness, friction or wrap angle, and negative damping, tension or
     intermediate inertias are rejected with a :class:`ParameterError` that
     names the field.
     """
 
-    I_M: float = 0.05
-    I_1: float = 0.01
-    I_2: float = 0.005
-    I_3: float = 0.02
-    r_M: float = 0.05
-    R_1: float = 0.06
+    I_M: float = 1.0
+    I_1: float = 0.002
+    I_2: float = 0.003
+    I_3: float = 0.012
+    r_M: float = 0.06
+    R_1: float = 0.05
     r_1: float = 0.05
     R_2: float = 0.05
-    r_2: float = 0.08
-    r_3: float = 0.06
+    r_2: float = 0.09
+    r_3: float = 0.07
     k: float = 3.0e5
-    c: float = 30.0
-    b_M: float = 1.0e-3
+    c: float = 20.0
+    b_M: float = 0.05
     b_1: float = 5.0e-4
     b_2: float = 5.0e-4
-    b_3: float = 1.0e-3
-    F_0: float = 500.0
+    b_3: float = 5.0e-3
+    F_0: float = 535.0
     mu: float = 0.5
-    wrap_angle: float = math.pi
+    wrap_angle: float = 3.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
