@@ -1,0 +1,407 @@
+"""``msg-tools``: inspect, export, plot and compare ROS 2 MCAP recordings without ROS.
+
+Exit status: 0 success (``compare``: all signals pass), 1 ``compare`` found
+signals outside tolerance, 2 usage or input/output error. Errors are one line
+on stderr, ``msg-tools: error: ...``; set ``MSG_TOOLS_DEBUG=1`` for tracebacks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import sys
+import warnings
+from typing import IO, Any, Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from .errors import MsgToolsError, RecoveredBagWarning
+from .reader import FLOAT64, JOINT_STATE, TopicData, read_bag, summary
+from .units import RAD_PER_S_TO_RPM, UNITS_METADATA, is_shaft_speed, label, unit_for
+
+PROG = "msg-tools"
+
+EPILOG = """\
+examples:
+  msg-tools info run.mcap
+  msg-tools export run.mcap --topic /joint_states --out joint_states.csv
+  msg-tools plot run.mcap --topics /drive_torque /joint_states --out run.png
+  msg-tools compare fresh.mcap bags/engine_idle_golden.mcap --rtol 1e-6 --atol 1e-9
+
+exit status: 0 ok / compare passed, 1 compare failed, 2 usage or I/O error
+"""
+
+
+class _UsageError(Exception):
+    pass
+
+
+class _Formatter(argparse.HelpFormatter):
+    """Wrap one-paragraph descriptions; keep multi-line epilogs (examples) as written."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if "\n" in text:
+            return "".join(indent + line for line in text.splitlines(keepends=True))
+        return super()._fill_text(text, width, indent)
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose errors are one line and exit with status 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise _UsageError(f"{message} (see '{self.prog} --help')")
+
+
+def _ns_to_s_text(ns: int) -> str:
+    """Exact decimal seconds of an integer nanosecond value."""
+    sign = "-" if ns < 0 else ""
+    whole, frac = divmod(abs(int(ns)), 1_000_000_000)
+    return f"{sign}{whole}.{frac:09d}"
+
+
+def _num(x: float) -> str:
+    return "nan" if math.isnan(x) else repr(float(x))
+
+
+# ---------------------------------------------------------------------- info
+def cmd_info(args: argparse.Namespace, out: IO[str]) -> int:
+    s = summary(args.bag)
+    w = out.write
+    w(f"file:         {s.path} ({s.size_bytes / 1024:.1f} KiB)\n")
+    w(f"profile:      {s.profile or '-'}\n")
+    w(f"library:      {s.library or '-'}\n")
+    if s.complete:
+        w("status:       complete\n")
+    else:
+        w(f"status:       INCOMPLETE, {s.stop_reason}; {s.message_count} messages recovered\n")
+    if s.start_ns is not None:
+        w(f"start:        {_ns_to_s_text(s.start_ns)} s (log time)\n")
+    w(f"duration:     {s.duration_s:.6f} s\n")
+    w(f"messages:     {s.message_count}\n")
+    comp = ", ".join(c or "none" for c in s.compression) or "-"
+    w(f"chunks:       {s.chunk_count} ({comp})\n")
+    w("topics:\n")
+    rows = [("topic", "type", "count", "rate [Hz]", "start [s]", "end [s]")]
+    for t in s.topics:
+        rel = (lambda ns: "-" if ns is None or s.start_ns is None else f"{(ns - s.start_ns) * 1e-9:.3f}")
+        rows.append(
+            (t.topic, t.type_name, str(t.message_count), f"{t.frequency_hz:.1f}",
+             rel(t.start_ns), rel(t.end_ns))
+        )
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    for r in rows:
+        w("  " + "  ".join(c.ljust(widths[i]) if i < 2 else c.rjust(widths[i]) for i, c in enumerate(r)) + "\n")
+    if args.qos:
+        for t in s.topics:
+            w(f"offered_qos_profiles of {t.topic}:\n")
+            for line in (t.offered_qos_profiles or "(none)").splitlines():
+                w(f"    {line}\n")
+    w("metadata:\n" if s.metadata else "metadata:     none\n")
+    for name, values in s.metadata:
+        w(f"  {name}:\n")
+        for key, value in values.items():
+            text = value.replace("\n", "\\n")
+            if len(text) > 70 and not args.full:
+                text = text[:67] + "..."
+            w(f"    {key}: {text}\n")
+    return 0
+
+
+# -------------------------------------------------------------------- columns
+def _columns(data: TopicData, units: Dict[str, str]) -> List[Tuple[str, np.ndarray, str]]:
+    """Return (column name, values (N,), unit) of a topic's numeric fields."""
+    short = data.topic.rsplit("/", 1)[-1] or data.topic
+    cols: List[Tuple[str, np.ndarray, str]] = []
+    if data.decode_error:
+        return cols
+    if data.type_name == FLOAT64:
+        cols.append((short, data.fields["data"], unit_for(data.topic, "data", units)))
+    elif data.type_name == JOINT_STATE:
+        for fname in ("position", "velocity", "effort"):
+            values = data.fields[fname]
+            unit = unit_for(data.topic, fname, units)
+            for j, joint in enumerate(data.names):
+                if values.shape[0] and np.all(np.isnan(values[:, j])):
+                    continue
+                cols.append((f"{fname}[{joint}]", values[:, j], unit))
+    else:
+        for key, values in data.fields.items():
+            unit = unit_for(data.topic, key, units)
+            if values.ndim == 1:
+                cols.append((key, values, unit))
+            else:
+                for k in range(values.shape[1]):
+                    cols.append((f"{key}[{k}]", values[:, k], unit))
+    return cols
+
+
+# -------------------------------------------------------------------- export
+def _check_out_dir(path: Optional[str]) -> None:
+    if path:
+        folder = os.path.dirname(os.path.abspath(path))
+        if not os.path.isdir(folder):
+            raise MsgToolsError(f"cannot write {path}: directory {folder} does not exist")
+
+
+def cmd_export(args: argparse.Namespace, out: IO[str]) -> int:
+    _check_out_dir(args.out)
+    bag = read_bag(args.bag, [args.topic])
+    data = next(iter(bag.topics.values()))
+    units = bag.metadata_dict(UNITS_METADATA)
+    cols = _columns(data, units)
+    if not cols:
+        raise MsgToolsError(
+            f"topic {data.topic} ({data.type_name}) has no numeric fields to export"
+        )
+    header = ["time [s]", "log_time [ns]"]
+    extra: List[List[str]] = []
+    if data.type_name == JOINT_STATE:
+        header.append("stamp [s]")
+        extra.append([_ns_to_s_text(v) for v in data.fields["stamp_ns"]])
+    header += [label(name, unit) for name, _, unit in cols]
+    t0 = int(data.log_time_ns[0]) if len(data) else 0
+    target = open(args.out, "w", newline="", encoding="utf-8") if args.out else out
+    try:
+        writer = csv.writer(target, lineterminator="\n")
+        writer.writerow(header)
+        columns = [c.tolist() for _, c, _ in cols]
+        for i, ns in enumerate(data.log_time_ns.tolist()):
+            row = [_ns_to_s_text(ns - t0), str(ns)]
+            row += [e[i] for e in extra]
+            row += [_num(c[i]) for c in columns]
+            writer.writerow(row)
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        raise MsgToolsError(f"cannot write {args.out or 'stdout'}: {exc.strerror or exc}") from None
+    finally:
+        if args.out:
+            target.close()
+    if args.out:
+        sys.stderr.write(f"{PROG}: wrote {len(data)} rows x {len(header)} columns to {args.out}\n")
+    return 0
+
+
+# ---------------------------------------------------------------------- plot
+def cmd_plot(args: argparse.Namespace, out: IO[str]) -> int:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise MsgToolsError("plot needs matplotlib: pip install matplotlib") from None
+    _check_out_dir(args.out)
+    bag = read_bag(args.bag, args.topics, keep_undecodable=True)
+    units = bag.metadata_dict(UNITS_METADATA)
+    for data in bag.topics.values():
+        if data.decode_error:
+            sys.stderr.write(f"{PROG}: warning: skipping {data.topic}: {data.decode_error}\n")
+    panels: List[Tuple[str, np.ndarray, List[Tuple[str, np.ndarray]], str]] = []
+    order = args.topics or sorted(bag.topics)
+    starts = [int(d.log_time_ns[0]) for d in bag.topics.values() if len(d)]
+    t0 = min(starts) if starts else 0
+    for wanted in order:
+        key = wanted if wanted in bag.topics else ("/" + wanted if "/" + wanted in bag.topics else None)
+        if key is None:
+            continue
+        data = bag.topics[key]
+        t = (data.log_time_ns - t0) * 1e-9
+        cols = _columns(data, units)
+        if not cols:
+            continue
+        if data.type_name == JOINT_STATE:
+            for fname in ("position", "velocity", "effort"):
+                lines = [(n[len(fname) + 1:-1], v) for n, v, _ in cols if n.startswith(fname + "[")]
+                if lines:
+                    panels.append((f"{data.topic} {fname}", t, lines, unit_for(data.topic, fname, units)))
+        else:
+            by_unit: Dict[str, List[Tuple[str, np.ndarray]]] = {}
+            for name, values, unit in cols:
+                by_unit.setdefault(unit, []).append((name, values))
+            for unit, lines in by_unit.items():
+                panels.append((data.topic, t, lines, unit))
+    if not panels:
+        raise MsgToolsError(f"nothing to plot: no numeric signals in {bag.path}")
+    fig, axes = plt.subplots(len(panels), 1, figsize=(10, 2.4 * len(panels) + 0.6),
+                             sharex=True, squeeze=False)
+    for ax, (title, t, lines, unit) in zip(axes[:, 0], panels):
+        step = max(1, len(t) // 200_000)
+        for name, values in lines:
+            ax.plot(t[::step], values[::step], lw=0.8, label=name)
+        ax.set_title(title + ("" if step == 1 else f" (every {step}th sample)"), fontsize=9, loc="left")
+        ax.set_ylabel(f"[{unit}]" if unit else "value")
+        if is_shaft_speed(unit):
+            sec = ax.secondary_yaxis(
+                "right", functions=(lambda w: w * RAD_PER_S_TO_RPM, lambda n: n / RAD_PER_S_TO_RPM)
+            )
+            sec.set_ylabel("[rpm]")
+        if len(lines) > 1:
+            ax.legend(fontsize=7, loc="upper right", ncol=min(4, len(lines)))
+        ax.grid(True, lw=0.3)
+    axes[-1, 0].set_xlabel("time [s]")
+    fig.suptitle(os.path.basename(bag.path), fontsize=10)
+    fig.tight_layout()
+    try:
+        fig.savefig(args.out, dpi=args.dpi)
+    except OSError as exc:
+        raise MsgToolsError(f"cannot write {args.out}: {exc.strerror or exc}") from None
+    finally:
+        plt.close(fig)
+    sys.stderr.write(f"{PROG}: wrote {len(panels)} panels to {args.out}\n")
+    return 0
+
+
+# ------------------------------------------------------------------- compare
+def cmd_compare(args: argparse.Namespace, out: IO[str]) -> int:
+    from .compare import compare
+
+    report = compare(
+        args.a, args.b, topics=args.topics, rtol=args.rtol, atol=args.atol,
+        time_base=args.time_base, min_coverage=args.min_coverage,
+    )
+    out.write(f"A: {report.a_path}\nB: {report.b_path} (reference)\n")
+    out.write(report.table() + "\n")
+    out.write(report.verdict() + "\n")
+    return 0 if report.passed else 1
+
+
+# ---------------------------------------------------------------------- main
+def build_parser() -> argparse.ArgumentParser:
+    """Return the argument parser of ``msg-tools``."""
+    parser = _Parser(
+        prog=PROG,
+        description=(
+            "Inspect, export, plot and compare ROS 2 MCAP recordings (rosbag2 'mcap' "
+            "storage). Works without a ROS installation. Files whose recorder was "
+            "killed are read up to their last complete chunk, with a warning."
+        ),
+        epilog=EPILOG,
+        formatter_class=_Formatter,
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    p = sub.add_parser(
+        "info", help="header, topics (type, count, rate), metadata records",
+        description="Print the header, topics with counts and rates, and the metadata records.",
+        epilog="example:\n  msg-tools info run.mcap --qos",
+        formatter_class=_Formatter,
+    )
+    p.add_argument("bag", metavar="BAG", help="MCAP file")
+    p.add_argument("--qos", action="store_true", help="also print each topic's offered QoS")
+    p.add_argument("--full", action="store_true", help="do not shorten long metadata values")
+    p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser(
+        "export", help="one topic to CSV (time in s, SI units in column names)",
+        description=(
+            "Write one topic as CSV. Columns: 'time [s]' since the topic's first message "
+            "(log time), 'log_time [ns]' (absolute), 'stamp [s]' for JointState, then one "
+            "column per value named with its SI unit, e.g. 'velocity[crank] [rad/s]'."
+        ),
+        epilog="example:\n  msg-tools export run.mcap --topic /joint_states --out js.csv",
+        formatter_class=_Formatter,
+    )
+    p.add_argument("bag", metavar="BAG", help="MCAP file")
+    p.add_argument("--topic", "-t", required=True, help="topic to export, e.g. /drive_torque")
+    p.add_argument("--out", "-o", help="CSV file to write (default: standard output)")
+    p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser(
+        "plot", help="PNG with one panel per topic (rpm as secondary axis for speeds)",
+        description=(
+            "Plot topics against time [s] into a PNG, one panel per topic (per quantity "
+            "for JointState). Angular speeds in rad/s get a secondary rpm axis."
+        ),
+        epilog="example:\n  msg-tools plot run.mcap --topics /drive_torque /joint_states --out run.png",
+        formatter_class=_Formatter,
+    )
+    p.add_argument("bag", metavar="BAG", help="MCAP file")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to plot (default: all)")
+    p.add_argument("--out", "-o", required=True, help="PNG file to write")
+    p.add_argument("--dpi", type=int, default=110, help="resolution (default 110)")
+    p.set_defaults(func=cmd_plot)
+
+    p = sub.add_parser(
+        "compare", help="compare A against reference B in a tolerance tube",
+        description=(
+            "Compare every signal of A (run under test) with B (reference): B is "
+            "interpolated onto A's times (used directly when the times are identical) and "
+            "each sample must satisfy |a-b| <= atol + rtol*|b|. JointState is aligned on "
+            "header stamps, other types on log time. Prints the worst error per signal; "
+            "exit 0 if all pass, 1 if any fails, 2 on usage or I/O errors."
+        ),
+        epilog=(
+            "examples:\n"
+            "  msg-tools compare fresh.mcap golden.mcap\n"
+            "  msg-tools compare a.mcap b.mcap --topics /joint_states --rtol 1e-4 --atol 1e-6\n"
+            "  msg-tools compare live.mcap sim.mcap --time-base relative"
+        ),
+        formatter_class=_Formatter,
+    )
+    p.add_argument("a", metavar="A", help="MCAP file under test")
+    p.add_argument("b", metavar="B", help="reference MCAP file")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to compare (default: all)")
+    p.add_argument("--rtol", type=float, default=1e-6, help="relative tolerance (default 1e-6)")
+    p.add_argument("--atol", type=float, default=1e-9,
+                   help="absolute tolerance in each signal's SI unit (default 1e-9)")
+    p.add_argument("--time-base", choices=("auto", "absolute", "relative"), default="auto",
+                   help="align on the common clock, or each series from its start (default auto)")
+    p.add_argument("--min-coverage", type=float, default=0.99,
+                   help="fraction of samples that must overlap in time (default 0.99)")
+    p.set_defaults(func=cmd_compare)
+    return parser
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Run ``msg-tools`` with ``argv`` (default ``sys.argv[1:]``); return the exit status."""
+    parser = build_parser()
+    debug = bool(os.environ.get("MSG_TOOLS_DEBUG"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RecoveredBagWarning)
+        try:
+            args = parser.parse_args(argv)
+            status = args.func(args, sys.stdout)
+        except _UsageError as exc:
+            sys.stderr.write(f"{PROG}: error: {exc}\n")
+            return 2
+        except SystemExit as exc:  # --help
+            return int(exc.code or 0)
+        except BrokenPipeError:  # output piped into `head`: stop quietly
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+            return 0
+        except (MsgToolsError, OSError, ValueError, TypeError, KeyError) as exc:
+            if debug:
+                raise
+            _print_warnings(caught)
+            text = str(exc) if str(exc) else type(exc).__name__
+            sys.stderr.write(f"{PROG}: error: {' '.join(text.split())}\n")
+            return 2
+        except KeyboardInterrupt:
+            sys.stderr.write(f"{PROG}: interrupted\n")
+            return 130
+        except Exception as exc:  # noqa: BLE001 - last resort: still one line
+            if debug:
+                raise
+            sys.stderr.write(
+                f"{PROG}: error: internal error {type(exc).__name__}: {' '.join(str(exc).split())} "
+                "(set MSG_TOOLS_DEBUG=1 for a traceback)\n"
+            )
+            return 2
+    _print_warnings(caught)
+    return status
+
+
+def _print_warnings(caught: List[Any]) -> None:
+    for item in caught:
+        if not issubclass(item.category, RecoveredBagWarning):
+            continue
+        sys.stderr.write(f"{PROG}: warning: {' '.join(str(item.message).split())}\n")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

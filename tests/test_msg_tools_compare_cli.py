@@ -1,0 +1,247 @@
+"""msg_tools.compare and the msg-tools command line (no ROS needed)."""
+
+import csv
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from msg_tools import Ros2McapWriter, compare, read_topic
+from msg_tools.cli import main
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+JOINTS = ["crank", "alternator", "wheel_3"]
+
+
+def _run(path, *, k=1.0, n=400, dt_ns=1_000_000, t0_ns=10**9, velocity_scale=None, skip_topic=None,
+         metadata=True):
+    """A small 'simulation' bag: torque + joint states; k scales the dynamics."""
+    velocity_scale = velocity_scale or {}
+    with Ros2McapWriter(path, force=True) as w:
+        if metadata:
+            w.add_metadata("units", {"/drive_torque": "N*m"})
+        for i in range(n):
+            t = t0_ns + i * dt_ns
+            s = (t - 10**9) * 1e-9
+            if skip_topic != "/drive_torque":
+                w.write("/drive_torque", "std_msgs/msg/Float64", {"data": 50.0 * np.sin(2 * np.pi * 3 * s)}, t)
+            velocity = np.array([100.0 + 5 * np.sin(2 * np.pi * 3 * s), 250.0 + s, 60.0 * k])
+            for j, joint in enumerate(JOINTS):
+                velocity[j] *= velocity_scale.get(joint, 1.0)
+            if skip_topic != "/joint_states":
+                w.write("/joint_states", "sensor_msgs/msg/JointState", {
+                    "header": {"stamp": {"sec": t // 10**9, "nanosec": t % 10**9}},
+                    "name": JOINTS,
+                    "position": velocity * s,
+                    "velocity": velocity,
+                    "effort": [12.0 * k, -3.0, 0.5],
+                }, t)
+    return path
+
+
+@pytest.fixture
+def golden(tmp_path):
+    return _run(tmp_path / "golden.mcap")
+
+
+# ------------------------------------------------------------------ compare
+def test_identical_runs_pass(tmp_path, golden):
+    fresh = _run(tmp_path / "fresh.mcap")
+    report = compare(fresh, golden)
+    assert report.passed
+    assert len(report.signals) == 1 + 3 * len(JOINTS)
+    assert all(s.time_base == "identical" and s.worst_abs_error == 0.0 for s in report.signals)
+    assert {s.n_compared for s in report.signals} == {400}
+
+
+def test_change_of_one_permille_fails_and_names_worst_signal(tmp_path, golden):
+    changed = _run(tmp_path / "changed.mcap", velocity_scale={"wheel_3": 1.001})
+    report = compare(changed, golden)
+    assert not report.passed
+    failed = {s.name for s in report.failures}
+    assert failed == {"joint_states/velocity[wheel_3]", "joint_states/position[wheel_3]"}
+    worst = {s.name: s for s in report.signals}["joint_states/velocity[wheel_3]"]
+    assert worst.worst_abs_error == pytest.approx(0.06, rel=1e-9)
+    assert worst.worst_rel_error == pytest.approx(1e-3, rel=1e-9)
+    # worst = largest |a-b| / (atol + rtol|b|): ~1000 for both, atol tips velocity
+    assert report.worst.name == "joint_states/velocity[wheel_3]"
+    assert report.worst.tube_ratio == pytest.approx(1e3 / (1 + 1e-9 / (1e-6 * 60.0)), rel=1e-6)
+    position = {s.name: s for s in report.signals}["joint_states/position[wheel_3]"]
+    assert position.worst_abs_error == pytest.approx(0.06 * 0.399, rel=1e-9)
+    assert compare(changed, golden, rtol=2e-3).passed
+
+
+def test_tolerance_tube_edges(tmp_path, golden):
+    rtol = 1e-6
+    inside = _run(tmp_path / "in.mcap", velocity_scale={"crank": 1 + 0.5 * rtol})
+    outside = _run(tmp_path / "out.mcap", velocity_scale={"crank": 1 + 3 * rtol})
+    assert compare(inside, golden, topics=["/joint_states"], rtol=rtol, atol=0).passed
+    assert not compare(outside, golden, topics=["/joint_states"], rtol=rtol, atol=0).passed
+    # absolute tolerance alone: |a-b| up to 3e-6*105 ~ 3.2e-4 rad/s
+    assert compare(outside, golden, topics=["joint_states"], rtol=0, atol=1e-3).passed
+
+
+def test_different_sampling_is_interpolated(tmp_path, golden):
+    # A sampled at 300 Hz on other instants than B (1 kHz): linear interpolation
+    # of the 3 Hz torque sine has error <= (h^2/8) max|f''| = 50*(2*pi*3)^2*(1e-3)^2/8 ~ 2.2e-3
+    a = _run(tmp_path / "a.mcap", n=120, dt_ns=3_333_333, t0_ns=10**9 + 500_000)
+    report = compare(a, golden, topics=["/drive_torque"], rtol=0, atol=3e-3)
+    (signal,) = report.signals
+    assert signal.passed and signal.time_base == "absolute" and signal.n_compared == 120
+    assert 1e-4 < signal.worst_abs_error < 2.3e-3
+    assert not compare(a, golden, topics=["/drive_torque"], rtol=0, atol=1e-4).passed
+
+
+def test_relative_time_base_for_runs_at_other_clock_times(tmp_path, golden):
+    later = _run(tmp_path / "later.mcap", t0_ns=10**9)
+    # same samples recorded 100 s later on the wall clock
+    shifted = tmp_path / "shifted.mcap"
+    data = read_topic(later, "/drive_torque")
+    with Ros2McapWriter(shifted) as w:
+        for t, v in zip(data.log_time_ns, data.data):
+            w.write("/drive_torque", "std_msgs/msg/Float64", {"data": v}, int(t) + 100 * 10**9)
+    report = compare(shifted, golden, topics=["/drive_torque"])
+    assert report.passed and report.signals[0].time_base == "relative"
+    assert not compare(shifted, golden, topics=["/drive_torque"], time_base="absolute").passed
+
+
+def test_missing_topic_and_short_run_fail_with_reason(tmp_path, golden):
+    no_torque = _run(tmp_path / "no_torque.mcap", skip_topic="/drive_torque")
+    report = compare(no_torque, golden)
+    bad = {s.name: s.reason for s in report.failures}
+    assert bad == {"drive_torque": f"topic /drive_torque missing in A ({no_torque})"}
+    short = _run(tmp_path / "short.mcap", n=200)
+    report = compare(short, golden, topics=["/drive_torque"])
+    assert not report.passed and "50.0% of B's samples" in report.signals[0].reason
+
+
+def test_undecodable_topic_is_a_failure_not_a_crash(tmp_path, golden):
+    bad = tmp_path / "bad.mcap"
+    data = read_topic(golden, "/drive_torque")
+    with Ros2McapWriter(bad) as w:
+        for t in data.log_time_ns:  # parameter-list CDR (0x0003) is not supported
+            w.write_raw("/drive_torque", "std_msgs/msg/Float64", b"\x00\x03\x00\x00" + bytes(8), int(t))
+    report = compare(bad, golden, topics=["/drive_torque"])
+    (signal,) = report.signals
+    assert not signal.passed and signal.reason.startswith("cannot decode in A: /drive_torque")
+
+
+# ---------------------------------------------------------------------- CLI
+def _cli(capsys, *argv):
+    status = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def test_cli_compare_exit_codes_and_table(capsys, tmp_path, golden):
+    same = _run(tmp_path / "same.mcap")
+    status, out, err = _cli(capsys, "compare", same, golden)
+    assert status == 0, err
+    assert "PASS: 10 signals" in out and "joint_states/velocity[wheel_3]" in out
+    changed = _run(tmp_path / "changed.mcap", k=1.001)  # the drive's k off by 0.1 %
+    status, out, err = _cli(capsys, "compare", changed, golden, "--rtol", "1e-6")
+    assert status == 1
+    last = out.strip().splitlines()[-1]
+    assert last.startswith("FAIL: 3 of 10 signals outside tolerance; worst: joint_states/")
+    assert "FAIL" in [line.split()[-1] for line in out.splitlines() if line.startswith("joint_states/effort[crank]")][0]
+
+
+def test_cli_info(capsys, golden):
+    status, out, _ = _cli(capsys, "info", golden)
+    assert status == 0
+    assert "profile:      ros2" in out and "status:       complete" in out
+    row = [line.split() for line in out.splitlines() if line.strip().startswith("/joint_states")][0]
+    assert row[1:4] == ["sensor_msgs/msg/JointState", "400", "1000.0"]
+    assert "units:" in out and "rosbag2:" in out
+
+
+def test_cli_export_csv_with_units(capsys, tmp_path, golden):
+    out_csv = tmp_path / "js.csv"
+    status, _, err = _cli(capsys, "export", golden, "--topic", "/joint_states", "--out", out_csv)
+    assert status == 0, err
+    rows = list(csv.reader(out_csv.open()))
+    assert rows[0][:3] == ["time [s]", "log_time [ns]", "stamp [s]"]
+    assert "velocity[wheel_3] [rad/s]" in rows[0] and "effort[crank] [N*m]" in rows[0]
+    assert len(rows) == 401
+    col = rows[0].index("velocity[wheel_3] [rad/s]")
+    assert float(rows[1][col]) == 60.0 and rows[2][0] == "0.001000000"
+    status, out, _ = _cli(capsys, "export", golden, "--topic", "drive_torque")
+    header = out.splitlines()[0].split(",")
+    assert header == ["time [s]", "log_time [ns]", "drive_torque [N*m]"]
+
+
+def test_cli_plot_writes_png(capsys, tmp_path, golden):
+    png = tmp_path / "run.png"
+    status, _, err = _cli(capsys, "plot", golden, "--out", png)
+    assert status == 0, err
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "4 panels" in err
+
+
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (["info", "{missing}"], "bag not found"),
+        (["info", "{garbage}"], "not an MCAP file"),
+        (["export", "{golden}", "--topic", "/nope"], "topic '/nope' not found"),
+        (["compare", "{golden}"], "required: B"),
+        (["frobnicate"], "invalid choice"),
+        (["compare", "{golden}", "{golden}", "--rtol", "-1"], "tolerances must be >= 0"),
+        (["plot", "{golden}", "--out", "{tmp}/no/dir/x.png"], "x.png"),
+    ],
+)
+def test_cli_errors_are_one_line_exit_2(capsys, tmp_path, golden, argv, expected):
+    garbage = tmp_path / "garbage.mcap"
+    garbage.write_bytes(b"this is not an mcap file at all")
+    names = {"missing": tmp_path / "missing.mcap", "garbage": garbage, "golden": golden, "tmp": tmp_path}
+    status, out, err = _cli(capsys, *[a.format(**names) for a in argv])
+    assert status == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("msg-tools: error: ") and expected in lines[0], err
+    assert "Traceback" not in err
+
+
+def test_cli_truncated_bag_warns_and_reads(capsys, tmp_path, golden):
+    raw = golden.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(raw[: len(raw) // 2])
+    status, out, err = _cli(capsys, "info", cut)
+    assert status == 0
+    assert "INCOMPLETE" in out
+    assert err.startswith("msg-tools: warning: ") and "recovered" in err
+
+
+def test_module_entry_point_without_traceback(tmp_path):
+    garbage = tmp_path / "garbage.mcap"
+    garbage.write_bytes(b"\x00" * 64)
+    proc = subprocess.run([sys.executable, "-m", "msg_tools.cli", "info", str(garbage)],
+                          capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("msg-tools: error: ") and "Traceback" not in proc.stderr
+    proc = subprocess.run([sys.executable, "-m", "msg_tools", "--help"],
+                          capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert proc.returncode == 0 and "examples:" in proc.stdout and "compare" in proc.stdout
+
+
+ROS_FREE = """
+import sys
+sys.modules["rclpy"] = None  # any 'import rclpy' now raises ImportError
+import msg_tools, msg_tools.cli, msg_tools.compare
+assert "matplotlib" not in sys.modules, "importing msg_tools must not import matplotlib"
+sys.exit(msg_tools.cli.main(["compare", sys.argv[1], sys.argv[1]]))
+"""
+
+
+def test_works_with_rclpy_unimportable(golden):
+    proc = subprocess.run([sys.executable, "-c", ROS_FREE, str(golden)],
+                          capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert "PASS" in proc.stdout
+
+
+def test_importing_msg_tools_does_not_import_rclpy():
+    code = "import sys, msg_tools, msg_tools.cli, msg_tools.compare; print('rclpy' in sys.modules)"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert proc.stdout.strip() == "False", proc.stderr
