@@ -5,7 +5,10 @@ input function ``u(t, x)`` every integrator calls. :class:`Simulator` owns
 the state and the time grid; it takes the vectorized path (one linear
 recurrence for the whole run, :func:`~belt_drive_ros.integrators.propagate_linear`)
 when both torques depend on time only and the method has a fixed step, and
-steps one at a time otherwise. Both paths give the same states to rounding.
+steps one at a time otherwise: fixed-step methods in a loop compiled for the
+plant (:func:`~belt_drive_ros.integrators.compile_scalar_loop`, plain float
+arithmetic, no numpy per step), adaptive ones through ``integrator.step``.
+All paths give the same states to rounding.
 """
 
 from __future__ import annotations
@@ -42,21 +45,34 @@ CSV_COLUMNS = (
 
 
 class Plant:
-    """Model + drive + load: the input function ``u(t, x) = [drive, load]`` [N m]."""
+    """Model + drive + load: the input function ``u(t, x) = [drive, load]`` [N m].
+
+    ``inputs(t, x)`` takes one state (1-D) and returns a (2,) array; it calls
+    the profiles' scalar closures (:meth:`~belt_drive_ros.sources.TorqueProfile.scalar_torque`),
+    which skip numpy's per-call overhead. ``wheel_map`` is the (4, n) matrix
+    W with ``[phi_M, omega_M, phi_3, omega_3] = W x`` (the compiled loops of
+    :func:`~belt_drive_ros.integrators.compile_scalar_loop` inline it).
+    """
 
     def __init__(self, model, drive: TorqueProfile, load: TorqueProfile):
         self.model, self.drive, self.load = model, drive, load
         self.open_loop = not (drive.state_dependent or load.state_dependent)
+        self.scalar_drive = drive_torque = drive.scalar_torque()
+        self.scalar_load = load_torque = load.scalar_torque()
+        self.wheel_map = np.array(model.wheel_coordinates(np.eye(model.A.shape[0])), dtype=float)
+        array = np.array
         if model.name == "flexible":
 
             def inputs(t, x):
-                return np.array([drive.torque(t, x[0], x[2]), load.torque(t, x[1], x[3])])
+                # x = [phi_M, phi_3, omega_M, omega_3]
+                return array([drive_torque(t, x[0], x[2]), load_torque(t, x[1], x[3])])
 
         else:
             i = model.params.ratio
 
             def inputs(t, x):
-                return np.array([drive.torque(t, x[0], x[1]), load.torque(t, i * x[0], i * x[1])])
+                # x = [phi_M, omega_M]; wheel 3 turns i times as far
+                return array([drive_torque(t, x[0], x[1]), load_torque(t, i * x[0], i * x[1])])
 
         self.inputs = inputs
 
@@ -192,6 +208,49 @@ class Simulator:
         return propagate_linear(step, x0, node_inputs)
 
     def _run_stepwise(self, time, x0, progress):
+        loop = None
+        if isinstance(self.integrator, FixedStepIntegrator):
+            loop = self.integrator.scalar_loop(self.plant.wheel_map)
+        if loop is None:
+            return self._run_stepwise_generic(time, x0, progress)
+        return self._run_compiled(loop, time, x0, progress)
+
+    def _run_compiled(self, loop, time, x0, progress, chunk: int = 4096):
+        """Step with the integrator's compiled float loop, ``chunk`` steps per call.
+
+        Between chunks: copy the states into the array, report progress and
+        check for divergence (the loop itself stops early within 64 steps of
+        a non-finite or runaway state). A chunk the loop cannot finish (a
+        ``math`` domain error on an infinite angle) is redone by the generic
+        numpy path, which reports the divergence as usual.
+        """
+        n, size = time.size - 1, x0.size
+        states = np.empty((n + 1, size))
+        states[0] = x0
+        times = time.tolist()
+        drive, load = self.plant.scalar_drive, self.plant.scalar_load
+        if progress:
+            chunk = min(chunk, max(64, n // 100))
+        x = tuple(x0.tolist())
+        k = 0
+        while k < n:
+            stop = min(k + chunk, n)
+            try:
+                flat = loop(times[k : stop + 1], x, drive, load, SPEED_LIMIT)
+            except (ValueError, OverflowError, ZeroDivisionError):
+                states[k:] = self._run_stepwise_generic(time[k:], states[k], None)
+                return states
+            done = len(flat) // size
+            states[k + 1 : k + 1 + done] = np.array(flat).reshape(done, size)
+            if done < stop - k:  # the loop stopped on a runaway state
+                _check_finite(states[: k + 2 + done], time[: k + 2 + done], self.model.name, self.method, self.dt)
+            x = tuple(flat[-size:])
+            k = stop
+            if progress:
+                progress(k / n)
+        return states
+
+    def _run_stepwise_generic(self, time, x0, progress):
         n = time.size - 1
         states = np.empty((n + 1, x0.size))
         states[0] = x0
