@@ -551,9 +551,11 @@ class ScipyAdaptive(Integrator):
     """A ``scipy.integrate`` adaptive solver advanced to each output time.
 
     The solver object persists across steps while the caller continues from
-    the state it returned; otherwise (a reset, a changed state) it restarts.
-    A torque that changes at step boundaries (a held ROS message) therefore
-    restarts it at each step, which is correct for a discontinuous input.
+    the state it returned with the same torque it saw there; otherwise (a
+    reset, a changed state, a torque that jumped at the step boundary, such
+    as a newly held ROS message) it restarts at ``t``, which is correct for a
+    discontinuous input: the solver never integrates across the jump with
+    the old torque.
     """
 
     explicit = True
@@ -577,12 +579,16 @@ class ScipyAdaptive(Integrator):
 
     def step(self, t, x, inputs):
         t_end = t + self.dt
+        # Continue when the caller resumes where the last step ended. Its time may differ by
+        # rounding (a grid t0 + k dt against the sum t + dt): that is still a continuation.
         if (
             self._solver is None
             or self._last is None
-            or self._last[0] != t
+            or abs(self._last[0] - t) > 1e-9 * self.dt
             or not np.array_equal(self._last[1], x)
             or self._last[2] is not inputs
+            or self._solver.t_bound < t_end
+            or not np.array_equal(self._last[3], inputs(t, x))  # torque jumped (held message changed)
         ):
             A, B = self.A, self.B
 
@@ -594,7 +600,10 @@ class ScipyAdaptive(Integrator):
             kwargs = dict(rtol=self.rtol, atol=self.atol, max_step=self.max_step)
             if self.method in ("Radau", "BDF", "LSODA"):
                 kwargs["jac"] = None
-            self._solver = cls(rhs, t, np.array(x, dtype=float), t_bound=np.inf, **kwargs)
+            # LSODA with t_bound = inf takes an infinite first step when the rhs is 0 at the start
+            # (a drive at rest with a soft start); a finite horizon avoids it (restart beyond it).
+            horizon = t + 1e4 * self.dt if self.method == "LSODA" else np.inf
+            self._solver = cls(rhs, t, np.array(x, dtype=float), t_bound=horizon, **kwargs)
         solver = self._solver
         while solver.t < t_end:
             msg = solver.step()
@@ -606,7 +615,7 @@ class ScipyAdaptive(Integrator):
             if self._dense is None or self._dense[0] is not solver or self._dense[1] != solver.t:
                 self._dense = (solver, solver.t, solver.dense_output())
             out = self._dense[2](t_end)
-        self._last = (t_end, out.copy(), inputs)
+        self._last = (t_end, out.copy(), inputs, np.array(inputs(t_end, out), dtype=float))
         return out
 
 
