@@ -205,11 +205,24 @@ class FlexibleBeltModel(_LinearModel):
         return self.kinetic_energy(x) + self.potential_energy(x)
 
     # -- conversions ----------------------------------------------------------
-    def state_from_rigid(self, x_rigid: np.ndarray, load_torque: float = 0.0) -> np.ndarray:
-        """Flexible state with the rigid motion and the quasi-static belt deflection."""
+    def state_from_rigid(
+        self, x_rigid: np.ndarray, load_torque: float = 0.0, drive_torque: float | None = None
+    ) -> np.ndarray:
+        """Flexible state with the rigid motion and the quasi-static belt deflection.
+
+        With ``drive_torque`` given, the deflection is the rigid model's own
+        quasi-static ``T_b / (2 k r_3^2)`` including the torque that
+        accelerates wheel 3 (no belt transient when switching during a
+        run-up); otherwise the static ``M_L / (2 k r_3^2)``.
+        """
         i = self.params.ratio
         phi, omega = float(x_rigid[0]), float(x_rigid[1])
-        delta = static_deflection(self.params, load_torque)
+        if drive_torque is None:
+            delta = static_deflection(self.params, load_torque)
+        else:
+            rigid = RigidBeltModel(self.params)
+            tb = float(rigid.belt_torque(np.array([phi, omega]), np.array([drive_torque, load_torque])))
+            delta = tb / self.params.belt_torsional_stiffness
         return np.array([phi, i * phi - delta, omega, i * omega])
 
 
