@@ -1,0 +1,163 @@
+"""``belt-drive record``: record ROS 2 topics to a rosbag2-compatible MCAP file."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+EPILOG = """\
+examples:
+  belt-drive record --out run.mcap                       # every topic (not /rosout, /parameter_events)
+  belt-drive record --topics /drive_torque /joint_states --out run.mcap --duration 10
+  belt-drive record --out run.mcap --use-sim-time        # log times from /clock
+  belt-drive record --out run.mcap --ros-args -r __ns:=/truck
+
+Messages are written as received (raw CDR), log time = receive time on the
+recorder's clock [ns] (simulated time with --use-sim-time), with the QoS the
+publishers offer. Topics that appear later are picked up (polled every
+0.5 s). SIGINT/SIGTERM (Ctrl-C) finalize the file; after SIGKILL it reads up
+to its last complete chunk (chunks close every 0.25 s). An existing file is
+never replaced without --force.
+"""
+
+DEFAULT_EXCLUDE = ("/rosout", "/parameter_events")
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "record",
+        help="record topics to an MCAP file (ros2 bag compatible)",
+        description="Record ROS 2 topics (raw CDR) into a rosbag2-compatible MCAP file.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to record (default: all discovered)")
+    p.add_argument("--exclude", nargs="+", metavar="TOPIC", default=list(DEFAULT_EXCLUDE),
+                   help="topics not to record when recording all (default: /rosout /parameter_events)")
+    p.add_argument("--out", "-o", type=Path, required=True, help="output .mcap file")
+    p.add_argument("--force", action="store_true", help="replace an existing output file")
+    p.add_argument("--duration", type=float, help="stop after this many seconds (wall clock)")
+    p.add_argument("--use-sim-time", action="store_true", help="log times on /clock (use_sim_time:=true)")
+    p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd", help="chunk compression")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--ros-args", nargs=argparse.REMAINDER, default=[], dest="ros_args",
+                   help="ROS arguments for the recorder node (everything after it)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import signal
+    import sys
+    import time
+
+    from msg_tools import Ros2McapWriter
+    from msg_tools.errors import MsgToolsError
+
+    from .. import ros_env
+    from ..recording import BagWriteError, TopicRecorder, bag_error
+
+    if args.duration is not None and not args.duration > 0:
+        raise SystemExit("belt-drive: error: --duration must be > 0 s")
+    try:
+        writer = Ros2McapWriter(args.out, force=args.force, compression=args.compression)
+    except MsgToolsError as exc:
+        raise bag_error(exc) from None
+
+    stop = {"signal": None}
+
+    def on_signal(signum, _frame):
+        stop["signal"] = signum
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    ros_env.configure_environment()
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+    from rclpy.signals import SignalHandlerOptions
+
+    def say(text: str) -> None:
+        if not args.quiet:
+            print(text, file=sys.stderr, flush=True)
+
+    context = Context()
+    rclpy.init(args=["belt-drive-record", "--ros-args", *args.ros_args], context=context,
+               signal_handler_options=SignalHandlerOptions.NO)
+    node = executor = recorder = None
+    try:
+        overrides = [Parameter("use_sim_time", value=True)] if args.use_sim_time else []
+        node = rclpy.create_node("belt_drive_recorder", context=context, parameter_overrides=overrides)
+        executor = _executor(context)
+        executor.add_node(node)
+        recorder = TopicRecorder(node, writer)
+        wanted = None if not args.topics else [node.resolve_topic_name(t) for t in args.topics]
+        excluded = {node.resolve_topic_name(t) for t in (args.exclude or [])}
+        skipped: set = set()
+
+        def discover() -> None:
+            for name, types in node.get_topic_names_and_types():
+                if name in recorder.topics or name in skipped:
+                    continue
+                if wanted is not None and name not in wanted:
+                    continue
+                if wanted is None and name in excluded:
+                    continue
+                if len(types) != 1:
+                    skipped.add(name)
+                    say(f"skipping {name}: {len(types)} types advertised ({', '.join(types)})")
+                    continue
+                try:
+                    recorder.add(name, types[0])
+                except ValueError as exc:
+                    skipped.add(name)
+                    say(f"skipping {name}: {exc}")
+                    continue
+                say(f"recording {name} ({types[0]})")
+
+        say(f"recording to {args.out}; Ctrl-C to stop")
+        start = time.monotonic()
+        next_poll = 0.0
+        while stop["signal"] is None:
+            now = time.monotonic()
+            if args.duration is not None and now - start >= args.duration:
+                break
+            if now >= next_poll:
+                discover()
+                next_poll = now + 0.5
+            executor.spin_once(timeout_sec=0.05)
+            if recorder.failed:
+                break
+    finally:
+        if recorder is not None:
+            recorder.close()
+        else:
+            try:
+                writer.finish()
+            except MsgToolsError:
+                pass
+        if executor is not None:
+            try:
+                executor.shutdown()
+            except Exception:  # noqa: BLE001 - shutting down anyway
+                pass
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        for signum, handler in old.items():
+            signal.signal(signum, handler)
+    if recorder.failed:
+        raise BagWriteError(str(recorder.error), getattr(recorder.error, "errno", None))
+    counts = writer.topic_counts()
+    why = f" (signal {signal.Signals(stop['signal']).name})" if stop["signal"] else ""
+    print(f"wrote {args.out}: {sum(counts.values())} messages on {len(counts)} topics{why}")
+    return 0
+
+
+def _executor(context):
+    """EventsExecutor where available (spun from this, the main thread), else single-threaded."""
+    try:
+        from rclpy.experimental import EventsExecutor
+    except ImportError:
+        from rclpy.executors import SingleThreadedExecutor
+
+        return SingleThreadedExecutor(context=context)
+    return EventsExecutor(context=context)

@@ -1,0 +1,96 @@
+"""``belt-drive replay``: publish a recorded drive torque on ROS 2."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+EPILOG = """\
+examples:
+  belt-drive replay bags/engine_idle_torque.mcap
+  belt-drive replay run.mcap --rate 0.5 --loop --start-offset 1.0
+  belt-drive replay run.mcap --clock            # node with use_sim_time:=true follows
+  belt-drive replay run.mcap --clock --sync /joint_states --rate 100   # lockstep, fast, deterministic
+  belt-drive replay run.mcap --ros-args -r /drive_torque:=/truck/drive_torque
+
+Publishes the recorded std_msgs/Float64 messages of --topic (default
+/drive_torque) with their recorded spacing divided by --rate. With --clock it
+publishes /clock = the message's recorded time just before each message, so
+a belt-drive node with use_sim_time ticks to that time, then holds the new
+torque: the same zero-order hold as 'belt-drive sim SCENE --torque-bag BAG'.
+Without --sync the node must keep up (a loaded machine can make it take two
+/clock samples at once); --sync waits for the node's output at each time, so
+the run is deterministic. Looping shifts each pass by the span plus one
+sample period (the clock keeps increasing). Offline and deterministic instead: belt-drive sim --torque-bag.
+"""
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "replay",
+        help="publish the drive_torque recorded in an MCAP file (optionally with /clock)",
+        description="Publish a recorded drive torque with its original timing (scaled by --rate).",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("bag", type=Path, help="MCAP file with std_msgs/Float64 drive torque messages")
+    p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
+    p.add_argument("--loop", action="store_true", help="repeat until interrupted")
+    p.add_argument("--start-offset", type=float, default=0.0, metavar="S",
+                   help="start this many seconds into the recording")
+    p.add_argument("--clock", action="store_true", help="publish /clock before each message")
+    p.add_argument("--topic", default="/drive_torque", help="topic to read from the bag (default /drive_torque)")
+    p.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
+                   help="wait (up to 10 s) for N matched subscribers (on the torque topic and /clock) before starting")
+    p.add_argument("--sync", metavar="TOPIC",
+                   help="with --clock: before each message wait until TOPIC (sensor_msgs/JointState, e.g. "
+                        "/joint_states) is stamped at its time: lockstep, deterministic")
+    p.add_argument("--delay", type=float, default=0.0, metavar="S",
+                   help="wait S seconds (wall clock) before the first message")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.add_argument("--ros-args", nargs=argparse.REMAINDER, default=[], dest="ros_args",
+                   help="ROS arguments for the replay node (everything after it)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import signal
+    import sys
+
+    from ..recording import BagReadError
+    from ..replay import run_replay
+
+    if not (args.rate > 0):
+        raise SystemExit("belt-drive: error: --rate must be > 0")
+    if args.sync and not args.clock:
+        raise SystemExit("belt-drive: error: --sync needs --clock")
+    if not (args.delay >= 0):
+        raise SystemExit("belt-drive: error: --delay must be >= 0 s")
+    stop = {"signal": None}
+
+    def on_signal(signum, _frame):
+        stop["signal"] = signum
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def log(text: str) -> None:
+        if not args.quiet or text.startswith("warning"):
+            print(("belt-drive: " if text.startswith("warning") else "") + text, file=sys.stderr, flush=True)
+
+    try:
+        count = run_replay(
+            args.bag, rate=args.rate, loop=args.loop, start_offset=args.start_offset, clock=args.clock,
+            topic=args.topic, wait_subscribers=args.wait_subscribers, delay=args.delay, sync_topic=args.sync,
+            ros_args=args.ros_args,
+            should_stop=lambda: stop["signal"] is not None, log=log,
+        )
+    except ValueError as exc:  # schedule: offset past the end, ...
+        if isinstance(exc, BagReadError):
+            raise
+        raise BagReadError(f"{args.bag}: {exc}") from None
+    finally:
+        for signum, handler in old.items():
+            signal.signal(signum, handler)
+    if not args.quiet:
+        print(f"published {count} messages", file=sys.stderr)
+    return 0

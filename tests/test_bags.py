@@ -1,0 +1,84 @@
+"""The reference bags in bags/: present, small, self-describing, and reproduced by fresh offline runs."""
+
+import os
+from pathlib import Path
+
+import pytest
+import yaml
+
+from belt_drive_ros.bags import REFERENCE_BAGS, make_bags
+from belt_drive_ros.cli import main as belt_drive
+from belt_drive_ros.recording import scene_from_bag
+from belt_drive_ros.scene import load_scene
+from msg_tools import summary
+from msg_tools.cli import main as msg_tools
+
+BAGS = Path(__file__).resolve().parent.parent / "bags"
+NAMES = list(REFERENCE_BAGS)
+OUTPUTS = {"/drive_torque", "/joint_states", "/shaft_speed", "/load_torque", "/belt_torque", "/relative_deflection"}
+
+
+def test_the_four_reference_cases():
+    assert NAMES == ["engine_idle", "engine_runup", "e_motor_start", "compressor_cycling"]
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_reference_files_are_small_complete_and_self_describing(name):
+    files = REFERENCE_BAGS[name].files(BAGS)
+    for path in files.values():
+        assert path.is_file(), f"{path} missing: run 'make bags'"
+        assert path.stat().st_size < 2 * 1024 * 1024
+    torque, golden = summary(files["torque"]), summary(files["golden"])
+    for info in (torque, golden):
+        assert info.complete and info.profile == "ros2" and info.compression == ["zstd"]
+    assert [t.topic for t in torque.topics] == ["/drive_torque"]
+    assert torque.topics[0].frequency_hz == pytest.approx(1000.0)
+    assert {t.topic for t in golden.topics} == OUTPUTS
+    ref = yaml.safe_load(golden.metadata_dict("scene")["yaml"])["drive"]
+    assert ref["type"] == "recorded" and ref["bag"] == files["torque"].name
+    # the scene file, the golden's metadata and the torque bag describe the same run
+    scene = scene_from_bag(files["golden"])
+    assert scene.params == load_scene(files["scene"]).params
+    assert scene.model == load_scene(files["scene"]).model != "auto"
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_fresh_offline_run_matches_golden(name, tmp_path, capsys):
+    files = REFERENCE_BAGS[name].files(BAGS)
+    fresh = tmp_path / "fresh.mcap"
+    assert belt_drive(["sim", str(files["scene"]), "--torque-bag", str(files["torque"]), "--out", str(fresh),
+                       "--quiet"]) == 0
+    capsys.readouterr()
+    assert msg_tools(["compare", str(fresh), str(files["golden"])]) == 0
+    out = capsys.readouterr().out
+    assert out.strip().splitlines()[-1].startswith("PASS: 17 signals")
+
+
+def test_compare_detects_a_permille_change_of_k(tmp_path, capsys):
+    files = REFERENCE_BAGS["engine_idle"].files(BAGS)
+    data = yaml.safe_load(files["scene"].read_text())
+    data["params"]["k"] *= 1.001
+    changed = tmp_path / "stiffer.yaml"
+    changed.write_text(yaml.safe_dump(data, sort_keys=False))
+    fresh = tmp_path / "fresh.mcap"
+    assert belt_drive(["sim", str(changed), "--torque-bag", str(files["torque"]), "--out", str(fresh),
+                       "--quiet"]) == 0
+    capsys.readouterr()
+    assert msg_tools(["compare", str(fresh), str(files["golden"])]) == 1
+    verdict = capsys.readouterr().out.strip().splitlines()[-1]
+    assert verdict.startswith("FAIL:") and "outside tolerance" in verdict
+
+
+def test_regeneration_reproduces_the_committed_bags(tmp_path, capsys):
+    written = make_bags(tmp_path, only=["engine_idle"], log=lambda line: None)
+    assert [p.name for p in written] == ["engine_idle.yaml", "engine_idle_torque.mcap", "engine_idle_golden.mcap"]
+    assert (tmp_path / "engine_idle.yaml").read_text() == (BAGS / "engine_idle.yaml").read_text()
+    for kind in ("torque", "golden"):
+        assert msg_tools(["compare", str(tmp_path / f"engine_idle_{kind}.mcap"),
+                          str(BAGS / f"engine_idle_{kind}.mcap")]) == 0
+    capsys.readouterr()
+    # never overwrites without force, and says so in one line
+    assert belt_drive(["make-bags", "--out", str(tmp_path), "--only", "engine_idle"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "refusing to overwrite" in err[0]
+    assert os.path.getsize(tmp_path / "engine_idle_golden.mcap") > 0

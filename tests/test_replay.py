@@ -1,0 +1,230 @@
+"""Replay of recorded torque: offline through the model (no ROS) and live on ROS 2."""
+
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from belt_drive_ros.recording import BagReadError
+from belt_drive_ros.replay import RecordedTorque, replay_schedule, scene_with_torque_bag
+from belt_drive_ros.scene import load_scene
+from belt_drive_ros.simulate import simulate
+from msg_tools import Ros2McapWriter, read_topic
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _torque_bag(path, times_ns, values, topic="/drive_torque"):
+    with Ros2McapWriter(path, force=True) as w:
+        for t, v in zip(times_ns, values):
+            w.write(topic, "std_msgs/msg/Float64", {"data": float(v)}, int(t))
+    return path
+
+
+# ------------------------------------------------------------------ offline
+def test_drive_is_the_zero_order_hold_of_the_messages(tmp_path):
+    t0 = 5 * 10**9  # absolute receive times: the table starts at the first message
+    times = [t0, t0 + 1_000_000, t0 + 1_000_000, t0 + 2_500_000, t0 + 4_000_000]
+    bag = _torque_bag(tmp_path / "t.mcap", times, [1.0, 2.0, 3.0, 4.0, 5.0])
+    scene = scene_with_torque_bag(load_scene("paper"), bag)
+    drive = scene.drive
+    assert isinstance(drive, RecordedTorque)
+    np.testing.assert_array_equal(drive.times, [0.0, 0.001, 0.0025, 0.004])
+    np.testing.assert_array_equal(drive.values, [1.0, 3.0, 4.0, 5.0])  # equal times: the later message wins
+    assert scene.duration == pytest.approx(0.004) and scene.dt == 1e-3
+    probe = [0.0, 0.0005, 0.001, 0.0024999, 0.0025, 0.0039, 0.004, 1.0, -1.0]
+    expect = [1.0, 1.0, 3.0, 3.0, 4.0, 4.0, 5.0, 5.0, 1.0]
+    np.testing.assert_array_equal(drive.torque(np.array(probe)), expect)
+    scalar = drive.scalar_torque()
+    assert [scalar(t, 0.0, 0.0) for t in probe] == expect
+    # a step that starts at a message's time uses it, even when the grid time dt*k rounds below it
+    grid = _torque_bag(tmp_path / "grid.mcap", np.arange(40) * 1_000_000, np.arange(40.0))
+    held = scene_with_torque_bag(load_scene("paper"), grid).drive
+    assert 0.001 * 11 < held.times[11]  # float grid a hair below the message time
+    assert held.scalar_torque()(0.001 * 11, 0.0, 0.0) == 11.0 and held.torque(0.001 * 11) == 11.0
+    assert drive.reference()["bag"] == "t.mcap" and drive.reference()["samples"] == 4
+    assert scene_with_torque_bag(load_scene("paper"), bag, duration=2.0).duration == 2.0
+
+
+def test_bag_problems_are_one_line_errors(tmp_path):
+    with Ros2McapWriter(tmp_path / "js.mcap") as w:
+        w.write("/joint_states", "sensor_msgs/msg/JointState", {"name": ["a"], "position": [1.0]}, 0)
+        w.write("/drive_torque", "sensor_msgs/msg/JointState", {"name": ["a"], "position": [1.0]}, 0)
+    with pytest.raises(BagReadError, match="has type sensor_msgs/msg/JointState, expected std_msgs/msg/Float64"):
+        scene_with_torque_bag(load_scene("paper"), tmp_path / "js.mcap")
+    with pytest.raises(BagReadError, match=r"no topic /torque \(topics: /drive_torque, /joint_states\)"):
+        scene_with_torque_bag(load_scene("paper"), tmp_path / "js.mcap", topic="torque")
+    with pytest.raises(BagReadError, match="bag not found"):
+        scene_with_torque_bag(load_scene("paper"), tmp_path / "nope.mcap")
+    _torque_bag(tmp_path / "nan.mcap", [0, 1000], [1.0, float("nan")])
+    with pytest.raises(BagReadError, match="non-finite"):
+        scene_with_torque_bag(load_scene("paper"), tmp_path / "nan.mcap")
+
+
+def test_namespaced_drive_torque_is_found(tmp_path):
+    bag = _torque_bag(tmp_path / "ns.mcap", [0, 10**6, 2 * 10**6], [1.0, 2.0, 3.0], topic="/truck/drive_torque")
+    scene = scene_with_torque_bag(load_scene("paper"), bag)
+    assert scene.drive.topic == "/truck/drive_torque"
+
+
+def test_sim_torque_bag_is_deterministic_and_needs_no_ros(tmp_path):
+    """`belt-drive sim SCENE --torque-bag BAG --out X.mcap` twice: identical files, rclpy never imported."""
+    rng = np.random.default_rng(0)
+    times = np.cumsum(rng.integers(500_000, 1_500_000, size=300))  # irregular, ~1 kHz
+    bag = _torque_bag(tmp_path / "profile.mcap", times, 20 + 5 * rng.normal(size=300))
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    code = (
+        "import sys\n"
+        "from belt_drive_ros.cli import main\n"
+        "for d in ('a', 'b'):\n"
+        f"    assert main(['sim', 'paper', '--torque-bag', {str(bag)!r}, '--quiet',\n"
+        f"                 '--out', {str(tmp_path)!r} + '/' + d + '/out.mcap']) == 0\n"
+        "assert 'rclpy' not in sys.modules, 'rclpy was imported'\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr
+    a, b = (tmp_path / d / "out.mcap" for d in ("a", "b"))
+    assert a.read_bytes() == b.read_bytes()
+    torque = read_topic(a, "/drive_torque")
+    assert torque.log_time_ns[-1] == pytest.approx(times[-1] - times[0], abs=1e6)  # duration = bag span
+
+
+def test_replay_schedule_rate_offset_loop():
+    t = np.array([10, 11, 13, 16]) * 10**9  # seconds in ns
+    plain = list(replay_schedule(t))
+    assert plain == [(0.0, t[0], 0), (1.0, t[1], 1), (3.0, t[2], 2), (6.0, t[3], 3)]
+    fast = list(replay_schedule(t, rate=2.0))
+    assert [f[0] for f in fast] == [0.0, 0.5, 1.5, 3.0] and [f[1] for f in fast] == list(t)
+    late = list(replay_schedule(t, start_offset=1.5))
+    assert [(w, k) for w, _c, k in late] == [(0.0, 2), (3.0, 3)]
+    looped = list(replay_schedule(t, loop=True, max_loops=3))
+    clocks = [c for _w, c, _k in looped]
+    assert [k for *_, k in looped] == [0, 1, 2, 3] * 3
+    assert np.all(np.diff(clocks) > 0)  # /clock keeps increasing across passes
+    assert clocks[4] - clocks[3] == 2 * 10**9  # one median spacing between passes
+    with pytest.raises(ValueError, match="past the end"):
+        list(replay_schedule(t, start_offset=7.0))
+    with pytest.raises(ValueError, match="rate"):
+        list(replay_schedule(t, rate=0.0))
+
+
+# ---------------------------------------------------------------------- ROS
+def _replay(bag, domain_id, *extra):
+    from belt_drive_ros import ros_env
+
+    env = ros_env.child_environment(domain_id)  # UDP only: nothing left in /dev/shm if killed
+    cmd = [os.path.join(os.path.dirname(sys.executable), "belt-drive"), "replay", str(bag), "--quiet", *extra]
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.mark.ros
+def test_replay_publishes_the_recorded_sequence_with_clock(tmp_path, ros_domain_id):
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import Float64
+
+    n = 120
+    times = 2 * 10**9 + np.arange(n) * 2_000_000  # 500 Hz from t = 2 s
+    values = np.sin(np.arange(n) / 7.0) * 50
+    bag = _torque_bag(tmp_path / "profile.mcap", times, values)
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_domain_id)
+    got = {"torque": [], "clock": []}
+    proc = None
+    try:
+        node = rclpy.create_node("replay_probe", context=ctx)
+        qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        node.create_subscription(Float64, "/drive_torque", lambda b: got["torque"].append(b), qos, raw=True)
+        node.create_subscription(Clock, "/clock", lambda m: got["clock"].append(m), qos)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        proc = _replay(bag, ros_domain_id, "--clock", "--rate", "2", "--wait-subscribers", "1", "--delay", "0.3")
+        deadline = time.monotonic() + 30
+        while (len(got["torque"]) < n or len(got["clock"]) < n) and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.02)
+        assert proc.wait(timeout=20) == 0, proc.stderr.read()
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+        rclpy.try_shutdown(context=ctx)
+    assert len(got["torque"]) == n and len(got["clock"]) == n
+    assert [deserialize_message(b, Float64).data for b in got["torque"]] == values.tolist()
+    assert got["torque"][5] == b"\x00\x01\x00\x00" + np.float64(values[5]).tobytes()  # the recorded bytes
+    clock_ns = [m.clock.sec * 10**9 + m.clock.nanosec for m in got["clock"]]
+    assert clock_ns == times.tolist()  # /clock = each message's recorded time
+
+
+@pytest.mark.ros
+def test_node_in_sim_time_follows_replay_like_the_lockstep_harness(tmp_path, ros_domain_id):
+    """replay --clock --sync -> BeltDriveNode(use_sim_time) -> NodeRecorder equals the harness bit for bit.
+
+    The harness publishes the same sequence (/clock t_k, then torque k) and
+    waits for the node after each step; ``--sync /joint_states`` makes the
+    replay wait for the node's outputs stamped t_k too, so the run is
+    deterministic however loaded the machine is, at 10x real time.
+    """
+    from belt_drive_ros.testing import BeltDriveHarness
+
+    n = 60
+    torque = simulate(load_scene("truck_compressor").with_overrides(duration=0.1)).outputs["drive_torque"][::2][:n]
+    times = 10**9 + np.arange(n) * 1_000_000  # 1 kHz from t = 1 s (ROS time 0 means "unset")
+    bag = _torque_bag(tmp_path / "profile.mcap", times, torque)
+    with BeltDriveHarness(scene="truck_compressor", start_time=1.0, domain_id=ros_domain_id) as h:
+        for value in torque[:-1]:
+            h.publish_torque(float(value))
+            h.advance(0.001)
+        reference = h.outputs()
+    ticks, js = _node_following_replay(bag, tmp_path / "live.mcap", ros_domain_id)
+    assert ticks == n
+    np.testing.assert_array_equal(js.stamp_ns, times)
+    np.testing.assert_array_equal(js.stamp_ns / 1e9, reference["stamp"])
+    for j, wheel in enumerate(("M", "1", "2", "3")):
+        np.testing.assert_array_equal(js.position[:, j], reference[f"phi_{wheel}"])
+        np.testing.assert_array_equal(js.velocity[:, j], reference[f"omega_{wheel}"])
+    np.testing.assert_array_equal(js.effort[:, 0], reference["drive_torque"])
+    # /clock t_k, then message k: the tick at t_k+1 holds message k (wheel_M's effort)
+    np.testing.assert_array_equal(js.effort[1:, 0], torque[:-1])
+
+
+def _node_following_replay(bag, out, domain_id):
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+
+    from belt_drive_ros.node import BeltDriveNode, make_executor
+    from belt_drive_ros.recording import NodeRecorder
+
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=domain_id)
+    proc = node = None
+    try:
+        node = BeltDriveNode(context=ctx, scene="truck_compressor",
+                             parameter_overrides=[Parameter("use_sim_time", value=True)])
+        node._recorder = NodeRecorder(node, out, capture="direct")
+        ex = make_executor(ctx, "single")
+        ex.add_node(node)
+        proc = _replay(bag, domain_id, "--clock", "--sync", "/joint_states", "--rate", "10",
+                       "--wait-subscribers", "2", "--delay", "0.3")
+        deadline = time.monotonic() + 30
+        while proc.poll() is None and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.005)
+        end = time.monotonic() + 0.3
+        while time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.01)
+        assert proc.wait(timeout=5) == 0, proc.stderr.read()
+        ticks = node.counters["published"]
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+        if node is not None:
+            node.destroy_node()  # closes the recorder
+        rclpy.try_shutdown(context=ctx)
+    return ticks, read_topic(out, "/joint_states")
