@@ -1,0 +1,203 @@
+"""A drive-torque publisher built on the core's torque sources.
+
+:class:`TorqueSourceNode` publishes ``drive_torque`` (``std_msgs/Float64``,
+N m) at ``rate_hz`` on the node's clock (so ``use_sim_time`` works as for
+the belt node), evaluating any :class:`~belt_drive_ros.sources.TorqueProfile`
+``torque(t, angle, speed)``:
+
+* ``t`` [s] counts from the source's first tick;
+* ``speed`` [rad/s] is the latest ``shaft_speed`` from the belt node (the
+  profile's ``initial_speed`` until the first message);
+* ``angle`` [rad of wheel M] is integrated from that speed over each tick
+  interval (trapezoidal rule between the speed at the previous tick and the
+  latest one; an engine applies its own ``crank_ratio`` for the crank angle).
+
+A speed-dependent profile (``Engine`` with a governor, ``MotorCurve``)
+therefore closes the loop through the belt node; an open-loop profile
+(``Table`` from a CSV, ``Step``, ``Sine`` ...) does not subscribe at all.
+Non-finite torques are never published (counted instead).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from . import ros_env
+
+ros_env.configure_environment()
+
+import rclpy  # noqa: E402
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, ParameterType, SetParametersResult  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from std_msgs.msg import Float64  # noqa: E402
+
+from .errors import BeltDriveError  # noqa: E402
+from .node import INPUT_QOS, OUTPUT_QOS, make_executor, spin_until_signal  # noqa: E402
+from .sources import TorqueProfile  # noqa: E402
+
+SOURCE_NODE_NAME = "torque_source"
+RATE_RANGE = (0.1, 20000.0)
+
+
+class TorqueSourceNode(Node):
+    """Publishes ``drive_torque`` from a torque profile (see the module docstring).
+
+    Parameters
+    ----------
+    profile : TorqueProfile
+        The drive torque as a function of (t, angle, speed).
+    node_name : str
+    rate_hz : float
+        Publish rate [Hz] (ROS parameter ``rate_hz``, changeable at runtime).
+    initial_speed, initial_angle : float
+        Wheel-M speed [rad/s] and angle [rad] assumed before the first
+        ``shaft_speed`` message (e.g. the scene's initial state).
+    autostart : bool
+        False: no timer; the owner calls :meth:`publish_at` (the lockstep
+        harness does, to order source and belt node deterministically).
+    **kwargs
+        Passed to :class:`rclpy.node.Node`.
+    """
+
+    def __init__(
+        self,
+        profile: TorqueProfile,
+        node_name: str = SOURCE_NODE_NAME,
+        *,
+        rate_hz: float = 1000.0,
+        initial_speed: float = 0.0,
+        initial_angle: float = 0.0,
+        autostart: bool = True,
+        **kwargs: Any,
+    ):
+        super().__init__(node_name, **kwargs)
+        self.profile = profile
+        descriptor = ParameterDescriptor(
+            name="rate_hz",
+            type=ParameterType.PARAMETER_DOUBLE,
+            description="drive_torque publish rate [Hz] on the node's clock",
+            floating_point_range=[FloatingPointRange(from_value=RATE_RANGE[0], to_value=RATE_RANGE[1], step=0.0)],
+            dynamic_typing=True,
+        )
+        rate = self.declare_parameter("rate_hz", float(rate_hz), descriptor).value
+        self._rate = self._check_rate(rate)
+        self.speed = float(initial_speed)
+        self._tick_speed = self.speed
+        self.angle = float(initial_angle)
+        self._origin_ns: int | None = None
+        self._last_ns: int | None = None
+        self.counters = {"published": 0, "speed_received": 0, "speed_rejected": 0, "nonfinite_torque": 0}
+        self.last_torque = math.nan
+        self._msg = Float64()
+        self._pub = self.create_publisher(Float64, "drive_torque", OUTPUT_QOS)
+        self._sub = None
+        if profile.state_dependent:
+            self._sub = self.create_subscription(Float64, "shaft_speed", self._on_speed, INPUT_QOS)
+        self._autostart = autostart
+        self._timer = self.create_timer(1.0 / self._rate, self._on_tick) if autostart else None
+        self.add_on_set_parameters_callback(self._on_validate)
+        self.add_post_set_parameters_callback(self._on_post_set)
+
+    @staticmethod
+    def _check_rate(value: Any) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ValueError(f"rate_hz: must be a finite number, got {value!r}")
+        if not RATE_RANGE[0] <= value <= RATE_RANGE[1]:
+            raise ValueError(f"rate_hz: must be in [{RATE_RANGE[0]:g}, {RATE_RANGE[1]:g}] Hz, got {value!r}")
+        return float(value)
+
+    def _on_validate(self, parameters) -> SetParametersResult:
+        for p in parameters:
+            if p.name == "rate_hz":
+                try:
+                    self._check_rate(p.value)
+                except ValueError as exc:
+                    return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _on_post_set(self, parameters) -> None:
+        for p in parameters:
+            if p.name == "rate_hz":
+                self._rate = float(p.value)
+                if self._timer is not None:
+                    self.destroy_timer(self._timer)
+                    self._timer = self.create_timer(1.0 / self._rate, self._on_tick)
+
+    @property
+    def rate_hz(self) -> float:
+        return self._rate
+
+    def _on_speed(self, msg: Float64) -> None:
+        if math.isfinite(msg.data):
+            self.speed = msg.data
+            self.counters["speed_received"] += 1
+        else:
+            self.counters["speed_rejected"] += 1
+
+    def _on_tick(self) -> None:
+        self.publish_at(self.get_clock().now().nanoseconds)
+
+    def publish_at(self, now_ns: int) -> float:
+        """Advance the angle to ``now_ns`` [ns], evaluate the profile and publish; returns the torque [N m]."""
+        if self._origin_ns is None:
+            self._origin_ns = self._last_ns = now_ns
+        if now_ns < self._last_ns:  # clock jumped back: start over
+            self._origin_ns = self._last_ns = now_ns
+        # trapezoidal rule between the speed used at the last tick and the latest one
+        self.angle += 0.5 * (self._tick_speed + self.speed) * (now_ns - self._last_ns) / 1e9
+        self._tick_speed = self.speed
+        self._last_ns = now_ns
+        t = (now_ns - self._origin_ns) / 1e9
+        torque = float(self.profile.torque(t, self.angle, self.speed))
+        if not math.isfinite(torque):
+            self.counters["nonfinite_torque"] += 1
+            return torque
+        self._msg.data = torque
+        self._pub.publish(self._msg)
+        self.counters["published"] += 1
+        self.last_torque = torque
+        return torque
+
+
+def run(
+    profile: TorqueProfile,
+    ros_args: list[str] | None = None,
+    rate_hz: float = 1000.0,
+    initial_speed: float = 0.0,
+    executor: str = "auto",
+    node_name: str = SOURCE_NODE_NAME,
+) -> int:
+    """Run one :class:`TorqueSourceNode` until SIGINT/SIGTERM; return the exit code (0)."""
+    from rclpy.signals import SignalHandlerOptions
+
+    ros_env.configure_environment()
+    ros_env.limit_blas_threads()
+    rclpy.init(args=["belt-drive-source"] + list(ros_args or []), signal_handler_options=SignalHandlerOptions.NO)
+    node = ex = None
+    try:
+        try:
+            node = TorqueSourceNode(profile, node_name, rate_hz=rate_hz, initial_speed=initial_speed)
+        except ValueError as exc:
+            raise SourceConfigError(str(exc)) from None
+        node.get_logger().info(
+            f"publishing drive_torque at {node.rate_hz:g} Hz from a {profile.kind} profile"
+            + (" (closed loop on shaft_speed)" if profile.state_dependent else "")
+        )
+        ex = make_executor(kind=executor)
+        ex.add_node(node)
+        spin_until_signal(ex)
+        return 0
+    finally:
+        if ex is not None:
+            try:
+                ex.shutdown()
+            except Exception:  # noqa: BLE001
+                pass
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+class SourceConfigError(BeltDriveError, ValueError):
+    """Invalid source node configuration (rate, profile)."""
