@@ -51,7 +51,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line_warning(message, category, filename, lineno, file=None, line=None):
+    print(f"belt-drive: warning: {message}", file=file or sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
+    import warnings
+
+    warnings.showwarning = _one_line_warning  # e.g. a truncated bag: say so in one line
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
