@@ -395,7 +395,7 @@ class StageScheme:
     max_iter)`` marks the trapezoidal rule, whose last stage is evaluated at
     x+ itself and solved by fixed-point iteration as :meth:`Trapezoidal.step` does.
     ``final_base = j`` starts the last map from stage j's state instead of x
-    (etd2: x+ = a + G1 (U_1 - U_0), 8 products instead of 24).
+    (etd2: x+ = a + G1 (U_1 - U_0), 16 products instead of 32).
     """
 
     nodes: tuple
@@ -424,8 +424,9 @@ def compile_scalar_loop(scheme: StageScheme, wheel_map: np.ndarray, dt: float, n
     calls per step. The loop below unrolls every matrix-vector product into
     float arithmetic with the matrix entries as literals (zeros dropped) and
     calls the torque profiles' :meth:`~belt_drive_ros.sources.TorqueProfile.scalar_torque`
-    closures, which is 3-10x faster than :meth:`FixedStepIntegrator.step`
-    and equal to it to rounding (same maths, another summation order).
+    closures: 10-20x faster than looping over :meth:`FixedStepIntegrator.step`
+    on the shipped scenes (docs/performance.md), and equal to it to rounding
+    (same maths, another summation order).
 
     Parameters
     ----------
@@ -491,7 +492,10 @@ def compile_scalar_loop(scheme: StageScheme, wheel_map: np.ndarray, dt: float, n
         guess = [f"u{last}_{q}" for q in range(m)]
         lines += [f"        # free response Phi x + G u_0, then u_{last} = u(t + h, x+) by fixed point"]
         lines += [f"        {free[r]} = {_linear_expression(scheme.final[r, : len(known)], known)}" for r in range(n)]
-        lines += [f"        g0, g1 = u{last - 1}_0, u{last - 1}_1", f"        for _ in range({int(max_iter)}):"]
+        lines += [  # first guess: the torque at the step's start, as Trapezoidal.step
+            f"        g0, g1 = u{last - 1}_0, u{last - 1}_1",
+            f"        for _ in range({int(max_iter)}):",
+        ]
         state = [f"y{r}" for r in range(n)]
         gain = scheme.final[:, len(known) :]
         lines += [f"            {state[r]} = {free[r]} + {_linear_expression(gain[r], ['g0', 'g1'])}" for r in range(n)]
@@ -506,10 +510,11 @@ def compile_scalar_loop(scheme: StageScheme, wheel_map: np.ndarray, dt: float, n
         ]
         lines += [f"        x{r} = {free[r]} + {_linear_expression(gain[r], guess)}" for r in range(n)]
     else:
+        base = "x"
         if scheme.final_base is not None and scheme.stages[scheme.final_base] is not None:
-            j = scheme.final_base
-            known = [f"s{j}_{r}" for r in range(n)] + known[n:]
-        lines.append(f"        # end of step: x+ = final @ [{known[0][:-2] if scheme.final_base else 'x'}, U_0, ...]")
+            base = f"s{scheme.final_base}"
+            known = [f"{base}_{r}" for r in range(n)] + known[n:]
+        lines.append(f"        # end of step: x+ = final @ [{base}, U_0, ...]")
         lines.append(f"        {', '.join(xs)} = " + ", ".join(_linear_expression(scheme.final[r], known) for r in range(n)))
     half = n // 2
     finite = " and ".join([f"abs(x{r}) <= limit" for r in range(half, n)] + [f"x{r} - x{r} == 0.0" for r in range(half)])

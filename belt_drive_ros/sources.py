@@ -87,6 +87,13 @@ class TorqueProfile:
                 raise SceneError(f"{self.kind}.{name}: must be > 0, got {getattr(self, name)!r}")
 
 
+def _first_two(harmonics: Sequence[float]) -> tuple:
+    """(A_1, A_2, ((3, A_3), ...)) with absent A_1, A_2 as 0.0: the first two terms of a
+    harmonic series unrolled in the scalar closures (a loop costs more than the sines)."""
+    a1, a2 = (tuple(harmonics) + (0.0, 0.0))[:2]
+    return float(a1), float(a2), tuple((float(k), amp) for k, amp in enumerate(harmonics[2:], start=3))
+
+
 def _interp(x: float, xp: list, fp: list) -> float:
     """``np.interp`` for one float: linear between the points, held beyond the ends."""
     if x <= xp[0]:
@@ -355,7 +362,7 @@ class Engine(TorqueProfile):
     def scalar_torque(self):
         mean, gain, setpoint, top = self.mean_torque, self.governor_gain, self.speed_setpoint, self.max_torque
         ratio, nf, phase, ramp = self.crank_ratio, self.pulses_per_revolution, self.phase, self.ramp_time
-        orders = tuple((float(k), amp) for k, amp in enumerate(self.harmonics, start=1))
+        a1, a2, higher = _first_two(self.harmonics)
         sin = math.sin
 
         def torque(t, angle, speed):
@@ -366,8 +373,8 @@ class Engine(TorqueProfile):
                 base = 0.0 if base < 0.0 else base
                 base = top if base > top else base
             arg = nf * (ratio * angle) + phase  # n_f theta + phase, crank angle theta
-            pulses = 0.0  # sum_k A_k sin(k (n_f theta + phase))
-            for k, amp in orders:
+            pulses = a1 * sin(arg) + a2 * sin(2.0 * arg)  # sum_k A_k sin(k (n_f theta + phase))
+            for k, amp in higher:
                 pulses += amp * sin(k * arg)
             if ramp > 0:
                 fade = t / ramp
@@ -513,13 +520,13 @@ class Compressor(TorqueProfile):
 
     def scalar_torque(self):
         mean, c1, cylinders, phase, ramp = self.mean_torque, self.c1, self.cylinders, self.phase, self.ramp_time
-        orders = tuple((float(k), amp) for k, amp in enumerate(self.harmonics, start=1))
+        a1, a2, higher = _first_two(self.harmonics)
         sin = math.sin
 
         def torque(t, angle, speed):
-            out = mean + c1 * speed  # + sum_k A_k sin(k (cylinders angle + phase))
             arg = cylinders * angle + phase
-            for k, amp in orders:
+            out = mean + c1 * speed + a1 * sin(arg) + a2 * sin(2.0 * arg)  # + sum_k A_k sin(k arg)
+            for k, amp in higher:
                 out += amp * sin(k * arg)
             if ramp > 0:
                 fade = t / ramp

@@ -1,0 +1,264 @@
+"""Stability map: where fixed-step methods diverge, measured, against the guard's prediction.
+
+Measured
+--------
+The flexible model of the ``paper`` parameters without bearing damping
+(proportional damping: the belt mode has exactly the damping ratio
+``zeta = c omega_n / (2k)``, set through the span damping c) rings freely from
+a belt deflection of 1 mrad (zero torques, zero momentum). A run of
+:data:`PERIODS` belt periods with the package's own stepping code
+(``Simulator`` with ``vectorize=False``) is **diverged** when
+
+    max E over the last 10 % of the steps  >  FACTOR * max E over the first 10 %
+
+with ``E`` the model's total (kinetic + potential) energy, or when the
+simulator stops it as non-finite or beyond 1e5 rad/s. Comparing windowed
+maxima keeps bounded energy oscillations (symplectic Euler's energy
+breathes by up to 1/(1 - (h omega_n/2)^2)) from counting as growth. A mode
+growing by |R| per step is caught once |R|^(2 * 0.9 * steps) > FACTOR, so the
+measured boundary lies above the exact one by a margin that shrinks with
+more periods (for RK4 at h omega_n ~ 2.83, 2.2 steps per period: ~0.2 %).
+
+Predicted
+---------
+:func:`belt_drive_ros.stability.max_stable_step` times omega_n: the guard's
+bisection on max |R(h lambda)| over the eigenvalues of A.
+
+Two charts in one PNG: the (h omega_n, zeta) plane for each method (grid of
+measured runs, measured boundary by bisection, predicted boundary), and the
+``truck_compressor`` parameters in the (belt stiffness k, dt) plane for RK4
+and symplectic Euler with the scene's own (k, dt) marked.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SimulationDivergedError
+from ..model import FlexibleBeltModel
+from ..params import BeltDriveParams
+from ..scene import InitialState, load_scene
+from ..simulate import Simulator
+from ..sources import Constant
+from ..stability import max_stable_step
+from .common import log, pyplot, save_figure, write_csv
+
+#: belt periods per run.
+PERIODS = 60
+#: energy growth factor (last 10 % of the run against the first 10 %) that counts as diverged.
+FACTOR = 10.0
+#: initial relative deflection [rad].
+DEFLECTION = 1e-3
+
+COLUMNS = ("study", "method", "zeta", "k", "omega_n", "dt", "h_omega_n", "diverged", "growth", "kind")
+
+
+@dataclass(frozen=True)
+class Config:
+    methods: tuple = ("euler", "symplectic_euler", "rk4", "exact", "etd2", "trapezoidal")
+    zetas: tuple = (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.5)
+    grid: tuple = tuple(np.round(np.logspace(-2, math.log10(5.0), 48), 6))
+    contrast_grid: tuple = tuple(np.round(np.logspace(-2, math.log10(5.0), 12), 6))
+    bisection_steps: int = 14
+    periods: int = PERIODS
+    stiffness_study: bool = True
+    stiffnesses: tuple = tuple(np.logspace(4.5, 7.0, 11))
+
+
+FULL = Config()
+QUICK = Config(
+    methods=("rk4", "symplectic_euler"),
+    zetas=(0.0, 0.05),
+    grid=(0.5, 1.5, 2.5, 3.5),
+    contrast_grid=(1.0,),
+    bisection_steps=12,
+    periods=40,
+    stiffness_study=False,
+)
+
+_CONTRAST = ("exact", "etd2", "trapezoidal")
+
+
+def _paper_params(zeta: float) -> BeltDriveParams:
+    base = load_scene("paper").params.replace(b_M=0.0, b_1=0.0, b_2=0.0, b_3=0.0, c=0.0)
+    return base.replace(c=2.0 * base.k * zeta / base.belt_natural_frequency)
+
+
+def growth(params: BeltDriveParams, method: str, dt: float, periods: int = PERIODS) -> float:
+    """Energy growth ratio of a free belt vibration (module docstring); inf when the run blew up."""
+    model = FlexibleBeltModel(params)
+    omega_n = params.belt_natural_frequency
+    zeta = params.belt_damping_ratio
+    omega_d = omega_n * math.sqrt(max(1.0 - zeta**2, 1e-6))
+    n_steps = max(40, int(math.ceil(periods * 2.0 * math.pi / omega_d / dt)))
+    zero = Constant(0.0)
+    sim = Simulator(model, zero, zero, method, dt, check_stability=False)
+    x0 = InitialState(relative_deflection=DEFLECTION).vector("flexible", params.ratio)
+    try:
+        with np.errstate(all="ignore"):
+            _, states = sim.run(n_steps * dt, x0, vectorize=False)
+    except SimulationDivergedError:
+        return math.inf
+    energy = model.total_energy(states)
+    window = max(1, energy.size // 10)
+    first, last = np.max(energy[:window]), np.max(energy[-window:])
+    if not np.isfinite(last):
+        return math.inf
+    return float(last / first)
+
+
+def measured_boundary(params, method, lo, hi, steps, periods) -> float:
+    """Bisection on dt between a stable ``lo`` and a diverged ``hi`` [s]; returns the midpoint of the last bracket."""
+    for _ in range(steps):
+        mid = math.sqrt(lo * hi)
+        if growth(params, method, mid, periods) > FACTOR:
+            hi = mid
+        else:
+            lo = mid
+    return math.sqrt(lo * hi)
+
+
+def _plane(config: Config, quiet: bool) -> list[dict]:
+    rows = []
+    for method in config.methods:
+        grid = config.contrast_grid if method in _CONTRAST else config.grid
+        for zeta in config.zetas:
+            params = _paper_params(zeta)
+            omega_n = params.belt_natural_frequency
+            model = FlexibleBeltModel(params)
+            pred_dt = max_stable_step(model.A, model.B, method, upper=10.0 / omega_n)
+            base = dict(study="plane", method=method, zeta=zeta, k=params.k, omega_n=omega_n)
+            results = []
+            for y in grid:
+                g = growth(params, method, y / omega_n, config.periods)
+                results.append((y, g > FACTOR))
+                rows.append(dict(base, dt=y / omega_n, h_omega_n=y, diverged=int(g > FACTOR), growth=g, kind="grid"))
+            diverged = sorted(y for y, d in results if d)
+            if not diverged:
+                boundary = math.inf  # stable on the whole grid
+            else:
+                below = [y for y, d in results if not d and y < diverged[0]]
+                lo = max(below) if below else grid[0] / 4.0
+                if not below and growth(params, method, lo / omega_n, config.periods) > FACTOR:
+                    boundary = 0.0  # diverged down to h*omega_n = grid[0]/4
+                else:
+                    boundary = omega_n * measured_boundary(
+                        params, method, lo / omega_n, diverged[0] / omega_n, config.bisection_steps, config.periods
+                    )
+            predicted = pred_dt * omega_n
+            rows.append(dict(base, dt=boundary / omega_n, h_omega_n=boundary, diverged="", growth="", kind="measured boundary"))
+            rows.append(dict(base, dt=pred_dt, h_omega_n=predicted, diverged="", growth="", kind="predicted boundary"))
+            log(f"[stability] {method:16s} zeta={zeta:<5g} boundary h*omega_n: measured {boundary:.4g}, "
+                f"predicted {predicted:.4g}", quiet)  # fmt: skip
+    return rows
+
+
+def _stiffness(config: Config, quiet: bool) -> list[dict]:
+    rows = []
+    scene = load_scene("truck_compressor")
+    for method in ("rk4", "symplectic_euler"):
+        for k in config.stiffnesses:
+            params = scene.params.replace(k=float(k))
+            model = FlexibleBeltModel(params)
+            omega_n = params.belt_natural_frequency
+            pred = max_stable_step(model.A, model.B, method, upper=10.0 / omega_n)
+            # bracket around the prediction, then bisect on the measurement
+            lo, hi = 0.5 * pred, 2.0 * pred
+            if growth(params, method, lo, config.periods) > FACTOR or growth(params, method, hi, config.periods) <= FACTOR:
+                meas = math.nan  # bracket failed: recorded as NaN in the CSV, not plotted
+            else:
+                meas = measured_boundary(params, method, lo, hi, config.bisection_steps, config.periods)
+            base = dict(study="stiffness", method=method, zeta=params.belt_damping_ratio, k=float(k), omega_n=omega_n,
+                        diverged="", growth="")  # fmt: skip
+            rows.append(dict(base, dt=meas, h_omega_n=meas * omega_n, kind="measured boundary"))
+            rows.append(dict(base, dt=pred, h_omega_n=pred * omega_n, kind="predicted boundary"))
+            log(f"[stability] truck {method:16s} k={k:.3g} N/m: max stable dt measured {meas:.4g} s, predicted {pred:.4g} s", quiet)
+    return rows
+
+
+def measure(config: Config = FULL, quiet: bool = False) -> list[dict]:
+    rows = _plane(config, quiet)
+    if config.stiffness_study:
+        rows += _stiffness(config, quiet)
+    return rows
+
+
+def boundaries(rows: list[dict], method: str) -> list[tuple[float, float, float]]:
+    """(zeta, measured, predicted) h*omega_n boundaries of ``method`` in the plane study."""
+    out = {}
+    for r in rows:
+        if r["study"] == "plane" and r["method"] == method and r["kind"] != "grid":
+            out.setdefault(float(r["zeta"]), {})[r["kind"]] = float(r["h_omega_n"])
+    return [(z, v["measured boundary"], v["predicted boundary"]) for z, v in sorted(out.items())]
+
+
+def plot(rows: list[dict], path: Path, stiffness_scene_dt: float | None = None) -> Path:
+    plt = pyplot()
+    methods = list(dict.fromkeys(r["method"] for r in rows if r["study"] == "plane"))
+    has_k = any(r["study"] == "stiffness" for r in rows)
+    ncol = 4 if has_k else min(3, len(methods))
+    nrow = math.ceil((len(methods) + (2 if has_k else 0)) / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.6 * ncol, 3.2 * nrow), squeeze=False)
+    flat = list(axes.flat)
+    for ax, method in zip(flat, methods):
+        grid = [r for r in rows if r["study"] == "plane" and r["method"] == method and r["kind"] == "grid"]
+        st = [r for r in grid if not r["diverged"]]
+        dv = [r for r in grid if r["diverged"]]
+        ax.plot([r["h_omega_n"] for r in st], [r["zeta"] for r in st], ".", color="tab:green", ms=3, label="measured stable")
+        ax.plot([r["h_omega_n"] for r in dv], [r["zeta"] for r in dv], "x", color="tab:red", ms=3, label="measured diverged")
+        b = boundaries(rows, method)
+        meas = [(m, z) for z, m, p in b if math.isfinite(m) and m > 0]
+        pred = [(p, z) for z, m, p in b if math.isfinite(p) and p > 0]
+        if pred:
+            ax.plot(*zip(*pred), "-", color="k", lw=1.5, label="guard: predicted")
+        if meas:
+            ax.plot(*zip(*meas), "o--", color="tab:blue", ms=4, lw=1, mfc="none", label="measured boundary")
+        if not pred and not meas:
+            ax.text(0.5, 0.5, "no boundary:\nstable at every step", transform=ax.transAxes, ha="center", fontsize=8)
+        ax.set_xscale("log")
+        ax.set_title(method, fontsize=9)
+        ax.set_xlabel("h * omega_n")
+        ax.set_ylabel("belt damping ratio zeta")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=6, loc="upper left")
+    if has_k:
+        ax = flat[len(methods)]
+        scene = load_scene("truck_compressor")
+        colors = {"rk4": "tab:green", "symplectic_euler": "tab:olive"}
+        for method in ("rk4", "symplectic_euler"):
+            sel = [r for r in rows if r["study"] == "stiffness" and r["method"] == method]
+            pred = [(r["k"], r["dt"]) for r in sel if r["kind"] == "predicted boundary"]
+            meas = [(r["k"], r["dt"]) for r in sel if r["kind"] == "measured boundary" and math.isfinite(r["dt"])]
+            ax.plot(*zip(*pred), "-", color=colors[method], lw=1.5, label=f"{method}: predicted")
+            if meas:
+                ax.plot(*zip(*meas), "o", color=colors[method], mfc="none", ms=5, label=f"{method}: measured")
+        ax.plot(scene.params.k, scene.dt, "k*", ms=10, label=f"scene: k={scene.params.k:.3g} N/m, dt={scene.dt:g} s")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("belt span stiffness k [N/m]")
+        ax.set_ylabel("largest stable dt [s]")
+        ax.set_title("truck_compressor: stable below the lines", fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=6, loc="upper right")
+        used = len(methods) + 1
+    else:
+        used = len(methods)
+    for ax in flat[used:]:
+        ax.set_visible(False)
+    fig.suptitle(f"Stability: diverged = energy grows > {FACTOR:g}x over the run's {PERIODS}-period span", fontsize=9)
+    fig.tight_layout()
+    save_figure(fig, path)
+    plt.close(fig)
+    return Path(path)
+
+
+def run(out_dir: Path, quick: bool = False, quiet: bool = False) -> dict:
+    rows = measure(QUICK if quick else FULL, quiet=quiet)
+    out_dir = Path(out_dir)
+    csv_path = write_csv(out_dir / "stability_map.csv", rows, COLUMNS)
+    png_path = plot(rows, out_dir / "stability_map.png")
+    return {"rows": rows, "csv": csv_path, "png": png_path}

@@ -1,0 +1,249 @@
+"""Work-precision: error against CPU time for every integrator on every scene.
+
+For each scene (the shipped ones with the model ``auto`` picks, plus the
+open-loop linear variant of ``paper``) and each integrator:
+
+* fixed-step methods (exact, etd2, euler, symplectic_euler, rk4,
+  trapezoidal): the step is swept as ``scene.dt * 2^j``; a step the stability
+  guard predicts unstable is **not run** and recorded as ``unstable (guard)``;
+  a run that diverges anyway is recorded as ``diverged``;
+* adaptive scipy methods (RK45, DOP853, Radau, BDF, LSODA, through the
+  package's registry, outputs every ``scene.dt``): ``rtol`` is swept, with
+  ``atol = 1e-3 rtol``.
+
+Error and timing are defined in :mod:`belt_drive_ros.benchmarks.common`. The
+chart is log-log (error against CPU seconds per simulated second) with one
+panel per scene; the Pareto front (no other run is both faster and more
+accurate) is drawn, and the default (``etd2`` at the scene's step) is ringed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import BeltDriveError, SimulationDivergedError
+from ..integrators import ADAPTIVE_METHODS, FIXED_STEP_METHODS
+from ..model import make_model
+from ..simulate import Simulator
+from ..stability import check_step
+from .common import (
+    LINEAR_SCENE,
+    PLOT_FLOOR,
+    SHIPPED_SCENES,
+    cpu_time,
+    get_scene,
+    log,
+    pareto_mask,
+    pyplot,
+    save_figure,
+    reference_for,
+    resolved_model,
+    run_errors,
+    write_csv,
+)
+
+DEFAULT_METHOD = "etd2"
+
+COLUMNS = (
+    "scene", "model", "method", "kind", "dt", "rtol", "h_omega_n", "status", "cpu_s", "cpu_per_sim_s",
+    "x_realtime", "e_speed", "e_belt", "e_load", "error", "default", "pareto", "reference",
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Config:
+    """What to sweep. ``step_exponents`` j give dt = scene.dt * 2^j."""
+
+    scenes: tuple = (*SHIPPED_SCENES, LINEAR_SCENE)
+    fixed_methods: tuple = FIXED_STEP_METHODS
+    adaptive_methods: tuple = ADAPTIVE_METHODS
+    step_exponents: tuple = (-4, -3, -2, -1, 0, 1, 2, 3)
+    rtols: dict = field(
+        default_factory=lambda: {
+            "RK45": (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10),
+            "DOP853": (1e-3, 1e-5, 1e-7, 1e-9, 1e-11),
+            "LSODA": (1e-3, 1e-5, 1e-7, 1e-9),
+            "Radau": (1e-3, 1e-5, 1e-7),
+            "BDF": (1e-3, 1e-5, 1e-7),
+        }
+    )
+    duration: float | None = None  # None: the scene's
+    repeats: int | None = None  # None: adaptive (see common.cpu_time)
+
+
+FULL = Config()
+QUICK = Config(
+    scenes=("paper", LINEAR_SCENE),
+    fixed_methods=("exact", "etd2", "rk4", "symplectic_euler"),
+    adaptive_methods=("RK45",),
+    step_exponents=(-2, 0, 2),
+    rtols={"RK45": (1e-4, 1e-7)},
+    duration=0.5,
+    repeats=1,
+)
+
+
+def _one_run(scene, model_name, method, dt, options, reference, repeats):
+    mdl = make_model(model_name, scene.params)
+    sim = Simulator(mdl, scene.drive, scene.load, method, dt, options, check_stability=False)
+    x0 = scene.initial_state.vector(model_name, scene.params.ratio)
+    cpu, (times, states) = cpu_time(lambda: sim.run(scene.duration, x0), repeats=repeats)
+    return cpu, run_errors(reference, times, states)
+
+
+def measure(config: Config = FULL, quiet: bool = False) -> list[dict]:
+    """Run the sweep; one row per (scene, method, step or rtol) with the columns of :data:`COLUMNS`."""
+    rows: list[dict] = []
+    for name in config.scenes:
+        scene = get_scene(name)
+        if config.duration is not None:
+            scene = scene.with_overrides(duration=min(config.duration, scene.duration))
+        model_name = resolved_model(scene)
+        reference = reference_for(scene, model_name)
+        mdl = make_model(model_name, scene.params)
+        log(f"[workprecision] {name}: model {model_name}, reference {reference.kind} ({reference.cpu_seconds:.2f} s)", quiet)
+        scene_rows = []
+        base = dict(scene=name, model=model_name, reference=reference.kind)
+        for method in config.fixed_methods:
+            for j in config.step_exponents:
+                dt = scene.dt * 2.0**j
+                report = check_step(mdl.A, mdl.B, method, dt)
+                row = dict(base, method=method, kind="fixed", dt=dt, rtol="", h_omega_n=report.h_omega_n,
+                           default=int(method == DEFAULT_METHOD and j == 0))  # fmt: skip
+                if not report.stable:
+                    row["status"] = "unstable (guard)"
+                else:
+                    try:
+                        cpu, err = _one_run(scene, model_name, method, dt, None, reference, config.repeats)
+                        row.update(err, status="ok", cpu_s=cpu)
+                    except SimulationDivergedError:
+                        row["status"] = "diverged"
+                    except BeltDriveError as exc:
+                        row["status"] = f"failed: {exc}"
+                scene_rows.append(row)
+        for method in config.adaptive_methods:
+            for rtol in config.rtols.get(method, ()):
+                row = dict(base, method=method, kind="adaptive", dt=scene.dt, rtol=rtol, h_omega_n="", default=0)
+                try:
+                    options = dict(rtol=rtol, atol=1e-3 * rtol)
+                    cpu, err = _one_run(scene, model_name, method, scene.dt, options, reference, config.repeats)
+                    row.update(err, status="ok", cpu_s=cpu)
+                except BeltDriveError as exc:
+                    row["status"] = f"failed: {exc}"
+                scene_rows.append(row)
+        ok = [r for r in scene_rows if r["status"] == "ok"]
+        for r in ok:
+            r["cpu_per_sim_s"] = r["cpu_s"] / scene.duration
+            r["x_realtime"] = scene.duration / r["cpu_s"] if r["cpu_s"] > 0 else math.inf
+        front = pareto_mask([r["cpu_per_sim_s"] for r in ok], [r["error"] for r in ok])
+        for r, on in zip(ok, front):
+            r["pareto"] = int(on)
+        for r in scene_rows:
+            if r["status"] == "ok":
+                log(f"  {r['method']:16s} dt={r['dt']:.3g} rtol={r['rtol'] or '-':<6} err={r['error']:.2e} "
+                    f"cpu/sim-s={r['cpu_per_sim_s']:.2e} ({r['x_realtime']:.0f}x real time)", quiet)  # fmt: skip
+            else:
+                log(f"  {r['method']:16s} dt={r['dt']:.3g} rtol={r['rtol'] or '-':<6} {r['status']}", quiet)
+        rows += scene_rows
+    return rows
+
+
+_STYLE = {
+    "exact": ("tab:blue", "o"),
+    "etd2": ("tab:red", "o"),
+    "euler": ("tab:gray", "v"),
+    "symplectic_euler": ("tab:olive", "^"),
+    "rk4": ("tab:green", "s"),
+    "trapezoidal": ("tab:purple", "D"),
+    "RK45": ("tab:orange", "x"),
+    "DOP853": ("tab:brown", "+"),
+    "Radau": ("tab:pink", "1"),
+    "BDF": ("tab:cyan", "2"),
+    "LSODA": ("k", "3"),
+}
+
+
+def plot(rows: list[dict], path: Path) -> Path:
+    """Log-log chart, one panel per scene (see module docstring)."""
+    plt = pyplot()
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    ncol = 2 if len(scenes) > 1 else 1
+    nrow = math.ceil(len(scenes) / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(6.2 * ncol, 4.6 * nrow), squeeze=False)
+    for ax, name in zip(axes.flat, scenes):
+        srows = [r for r in rows if r["scene"] == name]
+        ok = [r for r in srows if r["status"] == "ok"]
+        for method in dict.fromkeys(r["method"] for r in srows):
+            pts = [r for r in ok if r["method"] == method]  # in sweep order: dt or rtol
+            if not pts:
+                continue
+            color, marker = _STYLE.get(method, ("k", "."))
+            x = [r["cpu_per_sim_s"] for r in pts]
+            y = [max(r["error"], PLOT_FLOOR) for r in pts]
+            ax.plot(x, y, marker=marker, color=color, lw=0.8, ms=5, label=method)
+        front = sorted((r for r in ok if r.get("pareto") == 1), key=lambda r: r["cpu_per_sim_s"])
+        if front:
+            ax.step([r["cpu_per_sim_s"] for r in front], [max(r["error"], PLOT_FLOOR) for r in front],
+                    where="post", color="k", lw=2.2, alpha=0.25, label="Pareto front")  # fmt: skip
+        for r in ok:
+            if r.get("default") == 1:
+                ax.plot(r["cpu_per_sim_s"], max(r["error"], PLOT_FLOOR), "o", ms=14, mfc="none", mec="k", mew=1.5,
+                        label="default: etd2 at the scene's dt")  # fmt: skip
+        for limit, label in ((1 / 1000, "1000x real time"), (1 / 200, "200x")):
+            ax.axvline(limit, color="0.6", ls=":", lw=0.8)
+            ax.text(limit, 1.0, label, rotation=90, va="top", ha="right", fontsize=6.5, color="0.4",
+                    transform=ax.get_xaxis_transform())  # fmt: skip
+        skipped = {}
+        for r in srows:
+            if r["status"] != "ok":
+                skipped.setdefault(r["method"], []).append(f"{r['dt']:.2g}" if r["kind"] == "fixed" else f"{r['rtol']:g}")
+        if skipped:
+            text = "not plotted (guard: unstable / diverged / failed):\n" + "\n".join(
+                f"{m}: dt " + ", ".join(v) if m in _FIXED else f"{m}: rtol " + ", ".join(v) for m, v in skipped.items()
+            )
+            ax.text(0.99, 0.01, text, transform=ax.transAxes, fontsize=6, ha="right", va="bottom", color="0.3")
+        model = srows[0]["model"]
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(f"{name} ({model} model; reference {srows[0]['reference']})", fontsize=9)
+        ax.set_xlabel("CPU seconds per simulated second")
+        ax.set_ylabel("error: max rel. error of omega_M, belt torque")
+        ax.grid(True, which="major", alpha=0.3)
+    for ax in list(axes.flat)[len(scenes) :]:
+        ax.set_visible(False)
+    handles = {}
+    for ax in axes.flat:
+        for h, label in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(label, h)
+    fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=7, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.06 if nrow > 1 else 0.1, 1, 1))
+    save_figure(fig, path)
+    plt.close(fig)
+    return Path(path)
+
+
+_FIXED = set(FIXED_STEP_METHODS)
+
+
+def summary(rows: list[dict]) -> dict:
+    """Headline numbers: x real time of each fixed-step method at each scene's own step."""
+    out = {}
+    for r in rows:
+        if r["status"] == "ok" and r["kind"] == "fixed":
+            scene = get_scene(r["scene"])
+            if math.isclose(r["dt"], scene.dt):
+                out[(r["scene"], r["method"])] = r["x_realtime"]
+    return out
+
+
+def run(out_dir: Path, quick: bool = False, quiet: bool = False) -> dict:
+    """Measure, write ``workprecision.csv`` and ``workprecision.png`` into ``out_dir``."""
+    out_dir = Path(out_dir)
+    rows = measure(QUICK if quick else FULL, quiet=quiet)
+    csv_path = write_csv(out_dir / "workprecision.csv", rows, COLUMNS)
+    png_path = plot(rows, out_dir / "workprecision.png")
+    return {"rows": rows, "csv": csv_path, "png": png_path}

@@ -1,0 +1,102 @@
+"""``belt-drive bench``: regenerate the benchmark charts and tables (``make bench``)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+STUDIES = ("workprecision", "stability", "fidelity", "versus")
+
+EPILOG = """\
+studies:
+  workprecision  error vs CPU time, every integrator on every scene (Pareto front, default marked)
+  stability      where fixed-step methods diverge: measured vs the stability guard's prediction
+  fidelity       rigid vs flexible model error vs excitation frequency and belt stiffness
+  versus         default method vs scipy solve_ivp RK45 at matched accuracy; x real time per scene
+  node           the ROS node's real-time figures (needs the ROS extra)
+  all            all of the above, then docs/bench/summary.md
+
+examples:
+  belt-drive bench all --out docs/bench          # what 'make bench' runs (a few minutes)
+  belt-drive bench stability --out /tmp/b --quick
+
+Each study writes a CSV and a PNG into --out. CPU time is process time, the
+minimum of repeats; BLAS runs single-threaded (OPENBLAS_NUM_THREADS=1) so that
+CPU time is not inflated by idle BLAS threads. Definitions:
+docs/performance.md and belt_drive_ros/benchmarks/common.py.
+"""
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "bench",
+        help="benchmarks: work-precision, stability map, fidelity, vs scipy, node",
+        description="Run the benchmark studies and write their CSV tables and PNG charts.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("study", choices=(*STUDIES, "node", "all"), help="which study to run")
+    p.add_argument("--out", type=Path, default=Path("docs/bench"), help="output folder (default: docs/bench)")
+    p.add_argument("--quick", action="store_true", help="small sweeps and short runs (seconds; for tests)")
+    p.add_argument("--quiet", action="store_true", help="no per-run log lines")
+    p.set_defaults(func=run)
+
+
+def _single_threaded_blas() -> str:
+    """Pin BLAS to one thread before numpy loads; say what happened."""
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    if "numpy" in sys.modules:
+        return "numpy was already imported: BLAS threads as configured by the environment"
+    return f"OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}"
+
+
+def _run_node(out: Path, quick: bool) -> int:
+    import importlib
+
+    try:  # written with the ROS node; imported lazily (rclpy only inside it)
+        node = importlib.import_module("belt_drive_ros.benchmarks.node")
+    except ModuleNotFoundError as exc:
+        if exc.name != "belt_drive_ros.benchmarks.node":
+            raise
+        print("belt-drive bench: node benchmark not available (belt_drive_ros/benchmarks/node.py missing); skipped")
+        return 0
+    return int(node.main(["--out", str(out)] + (["--quick"] if quick else [])) or 0)
+
+
+def run(args) -> int:
+    blas = _single_threaded_blas()
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    if args.study == "node":
+        return _run_node(out, args.quick)
+
+    from ..benchmarks import fidelity_chart, report, stability_map, versus_scipy, workprecision
+
+    modules = {
+        "workprecision": workprecision,
+        "stability": stability_map,
+        "fidelity": fidelity_chart,
+        "versus": versus_scipy,
+    }
+    todo = STUDIES if args.study == "all" else (args.study,)
+    results, timings = {}, {}
+    for name in todo:
+        start = time.perf_counter()
+        results[name] = modules[name].run(out, quick=args.quick, quiet=args.quiet)
+        timings[name] = time.perf_counter() - start
+        files = results[name]["csv"] if isinstance(results[name]["csv"], list) else [results[name]["csv"]]
+        print(f"bench {name}: {', '.join(str(f) for f in [*files, results[name]['png']])} ({timings[name]:.0f} s)")
+    status = 0
+    if args.study == "all":
+        try:
+            status = _run_node(out, args.quick)
+        except Exception as exc:  # the offline studies and their summary stand without the node
+            print(f"belt-drive bench: node benchmark failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+            status = 1
+        path = report.write_summary(out, quick=args.quick, blas=blas, timings=timings)
+        print(f"bench summary: {path}")
+    return status

@@ -1,0 +1,64 @@
+"""``belt-drive bench``: the command writes every CSV, PNG and the summary (quick configuration)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from belt_drive_ros.benchmarks.common import read_csv
+from belt_drive_ros.cli import build_parser, main
+
+
+def test_bench_all_quick_writes_every_file(tmp_path, monkeypatch):
+    from belt_drive_ros.commands import bench
+
+    node_calls = []
+    monkeypatch.setattr(bench, "_run_node", lambda out, quick: node_calls.append((out, quick)) or 0)
+    monkeypatch.setattr(bench, "_single_threaded_blas", lambda: "BLAS as configured (test)")
+    status = main(["bench", "all", "--quick", "--quiet", "--out", str(tmp_path)])
+    assert status == 0
+    assert node_calls == [(tmp_path, True)]  # 'all' includes the node's figures
+    for name in ("workprecision", "stability_map", "fidelity", "versus_scipy", "versus_matched", "realtime"):
+        rows = read_csv(tmp_path / f"{name}.csv")
+        assert rows, name
+    for name in ("workprecision", "stability_map", "fidelity", "versus_scipy"):
+        png = tmp_path / f"{name}.png"
+        assert png.read_bytes()[:4] == b"\x89PNG" and png.stat().st_size < 300_000
+    summary = (tmp_path / "summary.md").read_text()
+    for heading in ("x real time", "Matched accuracy", "Work-precision", "Stability boundary", "Fidelity"):
+        assert heading in summary
+    # no NaN is ever written: unstable points carry a status instead
+    for row in read_csv(tmp_path / "workprecision.csv"):
+        assert "nan" not in {str(v).lower() for v in row.values()}
+
+
+def test_bench_node_dispatches_to_the_node_module(tmp_path, monkeypatch):
+    import types
+
+    from belt_drive_ros.commands import bench
+
+    seen = []
+    fake = types.SimpleNamespace(main=lambda argv: seen.append(argv) or 0)
+    monkeypatch.setitem(sys.modules, "belt_drive_ros.benchmarks.node", fake)
+    monkeypatch.setattr(bench, "_single_threaded_blas", lambda: "BLAS as configured (test)")
+    assert main(["bench", "node", "--out", str(tmp_path)]) == 0
+    assert seen == [["--out", str(tmp_path)]]
+
+
+def test_bench_parser_lists_the_studies():
+    parser = build_parser()
+    args = parser.parse_args(["bench", "versus", "--out", "x", "--quick"])
+    assert args.study == "versus" and args.quick
+    with pytest.raises(SystemExit):
+        parser.parse_args(["bench", "nonsense"])
+
+
+def test_bench_command_does_not_import_rclpy_or_numpy_at_import():
+    code = (
+        "import sys; import belt_drive_ros.commands.bench, belt_drive_ros.benchmarks; "
+        "print('rclpy' in sys.modules, 'numpy' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["False", "False"]

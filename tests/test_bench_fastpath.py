@@ -1,0 +1,130 @@
+"""The speed work behind the benchmarks keeps results and behaviour (no timing asserts).
+
+* ``TorqueProfile.scalar_torque()`` equals ``torque()`` on scalars: 1e-13
+  relative (same formulas, ``math`` for numpy; measured: bit-identical).
+* The compiled float loop (``compile_scalar_loop``) equals the numpy
+  ``step()`` loop to rounding: 1e-11 relative to each state's peak over 0.3 s.
+  The two sum the same products in another order; the closed-loop truck
+  scene amplifies a 1-ulp difference of the initial speed to ~1e-12, so
+  1e-11 is rounding, while any slip in the maths is >= 1e-6.
+* Divergence and solver failure still surface as the package's errors.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from belt_drive_ros import sources as S
+from belt_drive_ros.errors import IntegratorError, SimulationDivergedError
+from belt_drive_ros.integrators import FIXED_STEP_METHODS, compile_scalar_loop
+from belt_drive_ros.model import make_model
+from belt_drive_ros.scene import load_scene
+from belt_drive_ros.simulate import Simulator, simulate
+
+PROFILES = [
+    S.Constant(3.0),
+    S.Step(1.0, 2.0, 0.5),
+    S.Ramp(0.0, 5.0, 0.2, 0.7),
+    S.Sine(1.0, 2.0, 3.0, 0.4),
+    S.Table((0.0, 0.5, 1.0), (1.0, 3.0, 2.0)),
+    S.Table((0.0, 0.5, 1.0), (1.0, 3.0, 2.0), "previous"),
+    S.Engine(),
+    S.Engine(speed_setpoint=70.0, governor_gain=3.0, max_torque=50.0, ramp_time=0.3),
+    S.MotorCurve(soft_start_time=0.5),
+    S.MotorCurve(curve=((0.0, 60.0), (150.0, 60.0), (314.0, 28.0), (400.0, 0.0))),
+    S.Polynomial(1.0, 0.1, 0.01),
+    S.Compressor(c1=0.1, ramp_time=0.2),
+    S.Schedule(S.Compressor(), S.Constant(2.0), ((0.2, 0.4),)),
+    S.Schedule(S.Compressor(), S.Constant(2.0), ((0.2, 0.4), (0.6, 0.9))),
+]
+
+
+@pytest.mark.parametrize("profile", PROFILES, ids=lambda p: p.kind)
+def test_scalar_torque_equals_torque(profile):
+    f = profile.scalar_torque()
+    rng = np.random.default_rng(1)
+    points = [(t, a, w) for t in (0.0, 0.2, 0.5, 0.7, 1.0, 1.3) for a, w in ((0.0, 0.0), (1.0, 150.0), (2.0, 400.0))]
+    points += [tuple(v) for v in rng.uniform((-0.2, -300, -500), (1.2, 300, 500), size=(300, 3))]
+    for t, a, w in points:
+        got, want = f(t, a, w), profile.torque(t, a, w)
+        assert isinstance(got, float)
+        assert got == pytest.approx(want, rel=1e-13, abs=1e-13)
+
+
+@pytest.mark.parametrize("scene_name", ["paper", "truck_compressor", "e_motor_start"])
+@pytest.mark.parametrize("model_name", ["rigid", "flexible"])
+@pytest.mark.parametrize("method", FIXED_STEP_METHODS)
+def test_compiled_loop_equals_step_loop(scene_name, model_name, method):
+    scene = load_scene(scene_name)
+    dt = scene.dt / 8 if method == "euler" else scene.dt  # euler: small enough to stay bounded over 0.3 s
+    sim = Simulator(make_model(model_name, scene.params), scene.drive, scene.load, method, dt, check_stability=False)
+    x0 = scene.initial_state.vector(model_name, scene.params.ratio)
+    time = dt * np.arange(int(round(0.3 / dt)) + 1)
+    fast = sim._run_stepwise(time, x0, None)
+    slow = sim._run_stepwise_generic(time, x0, None)
+    scale = np.max(np.abs(slow), axis=0)
+    assert np.max(np.abs(fast - slow) / scale) < 1e-11
+
+
+def test_simulate_uses_the_compiled_loop_and_reports_progress():
+    calls = []
+    result = simulate(load_scene("paper"), duration=0.5, progress=calls.append)
+    assert not result.vectorized
+    assert calls[-1] == 1.0 and calls == sorted(calls) and len(calls) >= 5  # every max(64, n//100) steps
+
+
+def test_generated_source_is_inspectable_and_drops_zero_coefficients():
+    scene = load_scene("paper")
+    model = make_model("rigid", scene.params)
+    sim = Simulator(model, scene.drive, scene.load, "exact", 1e-3)
+    loop = sim.integrator.scalar_loop(sim.plant.wheel_map)
+    assert "def loop(" in loop.__source__ and "drive(t, x0, x1)" in loop.__source__
+    # rigid: the angle row of Phi is [1, h]; x0 appears with coefficient 1 and no torque term multiplied by 0
+    assert "0.0 * " not in loop.__source__
+
+
+def test_divergence_in_the_compiled_loop_raises_the_package_error():
+    scene = load_scene("truck_compressor")  # engine harmonics: math.sin of an exploding angle
+    with pytest.raises(SimulationDivergedError, match="diverged"):
+        simulate(scene, method="euler", dt=2e-3, check_stability=False)
+
+
+def test_trapezoidal_non_convergence_keeps_its_message():
+    scene = load_scene("paper").with_overrides(load=S.Polynomial(c1=2000.0))  # stiff feedback: no fixed point
+    with pytest.raises(IntegratorError, match="did not converge"):
+        simulate(scene, model="flexible", method="trapezoidal", dt=1e-3, duration=0.05, check_stability=False)
+
+
+def test_wheel_map_of_both_models():
+    scene = load_scene("paper")
+    i = scene.params.ratio
+    sim = Simulator(make_model("rigid", scene.params), scene.drive, scene.load, "etd2", 1e-3)
+    np.testing.assert_allclose(sim.plant.wheel_map, [[1, 0], [0, 1], [i, 0], [0, i]])
+    sim = Simulator(make_model("flexible", scene.params), scene.drive, scene.load, "etd2", 1e-3)
+    np.testing.assert_allclose(sim.plant.wheel_map, [[1, 0, 0, 0], [0, 0, 1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
+
+
+def test_compile_rejects_a_plant_it_cannot_inline():
+    scene = load_scene("paper")
+    model = make_model("flexible", scene.params)
+    sim = Simulator(model, scene.drive, scene.load, "etd2", 1e-3)
+    with pytest.raises(IntegratorError):
+        compile_scalar_loop(sim.integrator.stage_scheme(), np.eye(4)[:3], 1e-3)
+
+
+def test_adaptive_solver_continues_across_output_steps():
+    # the grid t0 + k dt and the sum t + dt differ by rounding: still one solver, not one restart per output
+    scene = load_scene("paper").with_overrides(method_options={"rtol": 1e-6, "atol": 1e-9})
+    model = make_model("flexible", scene.params)
+    sim = Simulator(model, scene.drive, scene.load, "RK45", 1e-3, scene.method_options)
+    sim.run(1.0, np.zeros(4))
+    assert sim.integrator.n_rhs < 2000  # measured ~700; one restart per output would be >= 6000
+
+
+def test_lsoda_through_the_registry_starts_from_rest():
+    # rhs = 0 at t = 0 (soft start from rest): LSODA with t_bound = inf jumped to t = inf and returned NaN
+    result = simulate(load_scene("paper"), method="LSODA", duration=0.5)
+    assert np.all(np.isfinite(result.states)) and result.states[-1, 2] > 1.0
