@@ -34,7 +34,7 @@ from belt_drive_ros.fidelity import FREQUENCY_RATIO_THRESHOLD
 def wp_rows():
     config = workprecision.Config(
         scenes=("paper", common.LINEAR_SCENE),
-        fixed_methods=("exact", "etd2", "rk4", "euler"),
+        fixed_methods=("exact", "etd2", "etd4", "rk4", "euler"),
         adaptive_methods=("RK45",),
         step_exponents=(-2, 0, 2),
         rtols={"RK45": (1e-5,)},
@@ -88,7 +88,8 @@ def test_default_is_marked_once_per_scene(wp_rows):
     for scene in ("paper", common.LINEAR_SCENE):
         defaults = [r for r in wp_rows if r["scene"] == scene and r["default"] == 1]
         assert len(defaults) == 1
-        assert defaults[0]["method"] == "etd2" and math.isclose(defaults[0]["dt"], common.get_scene(scene).dt)
+        assert defaults[0]["method"] == common.get_scene(scene).method
+        assert math.isclose(defaults[0]["dt"], common.get_scene(scene).dt)
 
 
 def test_errors_fall_with_the_step_at_each_methods_order(wp_rows):

@@ -71,7 +71,7 @@ def test_compiled_loop_equals_step_loop(scene_name, model_name, method):
 
 def test_simulate_uses_the_compiled_loop_and_reports_progress():
     calls = []
-    result = simulate(load_scene("paper"), duration=0.5, progress=calls.append)
+    result = simulate(load_scene("paper"), dt=1e-3, duration=0.5, progress=calls.append)
     assert not result.vectorized
     assert calls[-1] == 1.0 and calls == sorted(calls) and len(calls) >= 5  # every max(64, n//100) steps
 

@@ -111,6 +111,7 @@ ORDERS = {
     "rk4": (4, [100, 200, 400]),
     "trapezoidal": (2, [200, 400, 800]),
     "etd2": (2, [200, 400, 800]),
+    "etd4": (4, [50, 100, 200]),
     "exact": (1, [200, 400, 800]),  # torque sampled at step start: exponential Euler
 }
 

@@ -91,6 +91,7 @@ def linear_scene() -> Scene:
         load=Constant(2.0),
         duration=2.0,
         dt=2.0**-10,
+        method="exact",  # exact for piecewise-constant torque: this scene's default
         model="flexible",
     )
 

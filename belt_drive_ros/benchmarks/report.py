@@ -69,7 +69,7 @@ def versus_lines(out: Path) -> list[str]:
         for s in dict.fromkeys(r["scene"] for r in rows):
             d = [r for r in rows if r["scene"] == s and r.get("user_default") == 1.0]
             dt = get_scene(s).dt
-            e = [r for r in rows if r["scene"] == s and r["method"] == "etd2" and math.isclose(r["dt"], dt, rel_tol=1e-6)]
+            e = [r for r in rows if r["scene"] == s and r["method"] == get_scene(s).method and math.isclose(r["dt"], dt, rel_tol=1e-6)]
             for r in d + e[:1]:
                 table.append([s, r["method"] + (" (solve_ivp defaults)" if r.get("user_default") == 1.0 else " (package default)"),
                               _fmt(r["rtol"]) if r["rtol"] != "" else f"dt={r['dt']:.3g}", f"{r['error']:.2e}",
