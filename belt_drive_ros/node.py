@@ -72,10 +72,16 @@ message the torque is held or zeroed (``timeout_behavior``) and a WARN
 diagnostic is raised. NaN/Inf messages are rejected and counted; with
 ``torque_limit`` > 0 the torque is clamped to +/- the limit and counted. The
 subscription keeps only the latest message (``KEEP_LAST``, depth 1) and its
-callback does constant work, so a burst cannot build a backlog. Outputs that
-depend on the drive torque itself (``joint_states`` effort, and the rigid
-model's belt torque, which includes wheel 3's inertial share) use the torque
-held at the tick, i.e. the one that acted over the step just integrated.
+callback does constant work, so a burst cannot build a backlog.
+
+A tick sends each output only to topics that have subscribers (tracked with
+the publishers' "matched" events; DDS would deliver to nobody otherwise),
+which saves most of the publishing cost when only a few outputs are used.
+
+Outputs that depend on the drive torque itself (``joint_states`` effort,
+and the rigid model's belt torque, which includes wheel 3's inertial share)
+use the torque held at the tick, i.e. the one that acted over the step just
+integrated.
 
 Failures
 --------
@@ -111,6 +117,7 @@ defaults to the scene's ``dt`` at the default 1 kHz tick.
 
 from __future__ import annotations
 
+import gc
 import math
 import time
 from dataclasses import dataclass, field
@@ -132,6 +139,7 @@ from rcl_interfaces.msg import (  # noqa: E402
     SetParametersResult,
 )
 from rclpy.clock import Clock, ClockType, JumpThreshold  # noqa: E402
+from rclpy.event_handler import PublisherEventCallbacks  # noqa: E402
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
@@ -217,7 +225,7 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("torque_limit", "float", 0.0, "clamp |drive_torque| to this [N m]; 0 = off", range=(0.0, 1.0e7)),
     ParamSpec("publish_clock", "bool", False, "publish /clock from the node's own simulated time (time master)"),
     ParamSpec("real_time_factor", "float", 1.0, "with publish_clock: simulated seconds per wall second; 0 = as fast as possible", range=(0.0, 1.0e4)),
-    ParamSpec("record_path", "str", "", "MCAP file to record the node's topics to ('' = off; recording is not implemented in this node yet)"),
+    ParamSpec("record_path", "str", "", "MCAP file to record the node's input and outputs to ('' = off); set at start only, an existing file is never overwritten"),
 )
 _NODE_SPECS = {s.name: s for s in NODE_PARAMETERS}
 MODEL_PARAMETERS: tuple[str, ...] = tuple(FIELD_DOCS)
@@ -301,6 +309,7 @@ class NodeSettings:
     real_time_factor: float
     record_path: str
     method_options: dict = field(default_factory=dict)
+    output_map: tuple = ()
 
     @property
     def dt(self) -> float:
@@ -437,7 +446,31 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
         real_time_factor=rtf,
         record_path=record_path,
         method_options=options,
+        output_map=output_map(model),
     )
+
+
+#: the signals of one tick, in the order of :func:`output_map`'s rows
+TICK_OUTPUTS = (
+    "phi_M", "phi_1", "phi_2", "phi_3", "omega_M", "omega_1", "omega_2", "omega_3",
+    "drive_torque", "load_torque", "belt_torque", "relative_deflection",
+)
+
+
+def output_map(model) -> tuple[np.ndarray, np.ndarray]:
+    """(C, D) with ``y = C x + D u`` for the signals :data:`TICK_OUTPUTS` of ``model``.
+
+    Every one of them is linear in the state and the torques, so the model's
+    own :meth:`outputs` evaluated on unit vectors gives the matrices exactly;
+    per tick the node then needs one small product instead of a dozen numpy
+    scalar operations (the equality tests against the offline simulator cover
+    the identity to rounding).
+    """
+    n, m = model.n_states, model.B.shape[1]
+    basis = np.vstack([np.hstack([np.eye(n), np.zeros((n, m))]), np.hstack([np.zeros((m, n)), np.eye(m)])])
+    out = model.outputs(basis[:, :n], basis[:, n:])
+    Y = np.column_stack([np.asarray(out[name], dtype=float) for name in TICK_OUTPUTS]).T  # (12, n + m)
+    return np.ascontiguousarray(Y[:, :n]), np.ascontiguousarray(Y[:, n:])
 
 
 def _descriptor(name: str) -> ParameterDescriptor:
@@ -518,7 +551,7 @@ class BeltDriveNode(Node):
             overrides = [p for p in kwargs.pop("parameter_overrides", None) or [] if p.name != "scene"]
             kwargs["parameter_overrides"] = overrides + [Parameter("scene", value=str(scene))]
         super().__init__(node_name, **kwargs)
-        self._recorder = None  # MCAP recording hook (record_path): issue 4 plugs a recorder in here
+        self._recorder = None  # recording.NodeRecorder when record_path is set (created below)
         self._scenes = SceneCache()
         self._pending: tuple[NodeSettings, set] | None = None
         self._tick_timer = None
@@ -559,8 +592,24 @@ class BeltDriveNode(Node):
         self._prev_tick_wall: float | None = None
 
         # -- interface --
-        self._pub_joint = self.create_publisher(JointState, "joint_states", OUTPUT_QOS)
-        self._pub_float = {name: self.create_publisher(Float64, name, OUTPUT_QOS) for name in OUTPUT_TOPICS}
+        # readers per output topic, kept by "matched" events: a tick serializes and sends only
+        # to topics somebody subscribes to (DDS would deliver to nobody anyway)
+        self._readers = dict.fromkeys(("joint_states",) + OUTPUT_TOPICS, 0)
+
+        def matched(name):
+            def on_matched(info):
+                self._readers[name] = info.current_count
+
+            return PublisherEventCallbacks(matched=on_matched)
+
+        self._pub_joint = self.create_publisher(
+            JointState, "joint_states", OUTPUT_QOS, event_callbacks=matched("joint_states")
+        )
+        self._pub_float = {
+            name: self.create_publisher(Float64, name, OUTPUT_QOS, event_callbacks=matched(name))
+            for name in OUTPUT_TOPICS
+        }
+        self.refresh_subscriber_counts()
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._pub_clock = None
         self._msg_joint = JointState(name=list(JOINT_NAMES))
@@ -582,7 +631,13 @@ class BeltDriveNode(Node):
             + (", use_sim_time" if self._use_sim_time() else "")
         )
         if s.record_path:
-            self.get_logger().warn(f"record_path={s.record_path!r}: recording is not implemented in this node yet")
+            from .recording import BagError, NodeRecorder
+
+            try:
+                self._recorder = NodeRecorder(self, s.record_path)
+                self.get_logger().info(f"recording to {s.record_path}")
+            except BagError as exc:  # file exists (never overwritten) or cannot be created
+                self.get_logger().error(f"record_path: {exc}; not recording")
 
     # ------------------------------------------------------------ parameters
     def _declare_all(self) -> NodeSettings:
@@ -627,6 +682,10 @@ class BeltDriveNode(Node):
                 continue  # not ours (use_sim_time, qos overrides, ...)
             if p.type_ == Parameter.Type.NOT_SET:
                 return SetParametersResult(successful=False, reason=f"{p.name}: cannot be undeclared")
+            if p.name == "record_path" and p.value != values[p.name]:
+                return SetParametersResult(
+                    successful=False, reason="record_path: set at start only (restart the node to record elsewhere)"
+                )
             values[p.name] = p.value
             changed.add(p.name)
         if not changed:
@@ -729,6 +788,14 @@ class BeltDriveNode(Node):
         if not self._settings.publish_clock and self._t_ns is not None:
             self._t_ns = None
             self.counters["clock_jumps"] += 1
+
+    def refresh_subscriber_counts(self) -> dict[str, int]:
+        """Query the readers of each output topic now (the "matched" events keep them current
+        afterwards); a driver that has just subscribed calls this before the next tick."""
+        self._readers["joint_states"] = self._pub_joint.get_subscription_count()
+        for name, pub in self._pub_float.items():
+            self._readers[name] = pub.get_subscription_count()
+        return dict(self._readers)
 
     def tick_pending(self) -> bool:
         """True while the tick timer is due but its callback has not run yet (for lockstep drivers)."""
@@ -967,20 +1034,16 @@ class BeltDriveNode(Node):
         model = s.model
         x = self._x
         t = (now_ns - self._origin_ns) / 1e9
+        C, D = s.output_map
         with np.errstate(all="ignore"):
             u = self._plant.inputs(t, x)
-            o = model.outputs(x, u)
-        values = (
-            float(o["phi_M"]), float(o["phi_1"]), float(o["phi_2"]), float(o["phi_3"]),
-            float(o["omega_M"]), float(o["omega_1"]), float(o["omega_2"]), float(o["omega_3"]),
-            float(o["drive_torque"]), float(o["load_torque"]), float(o["belt_torque"]),
-            float(o["relative_deflection"]),
-        )
-        if not all(math.isfinite(v) for v in values):
+            values = (C @ x + D @ u).tolist()
+        if not all(map(math.isfinite, values)):
             self._halt(f"non-finite output at t={t:.6g} s (drive {values[8]!r}, load {values[9]!r} N m)")
             return
         (phi_M, phi_1, phi_2, phi_3, w_M, w_1, w_2, w_3, drive, load, belt, deflection) = values
-        slack, slip = bool(o["slack"]), bool(o["slip"])
+        tight, slack_force, slack, slip = model._span_forces(belt)
+        slack, slip = bool(slack), bool(slip)
         if slack:
             self._window.slack += 1
             self.counters["slack_ticks"] += 1
@@ -992,12 +1055,15 @@ class BeltDriveNode(Node):
         js.position = [phi_M, phi_1, phi_2, phi_3]
         js.velocity = [w_M, w_1, w_2, w_3]
         js.effort = [drive, 0.0, 0.0, -load]
-        self._pub_joint.publish(js)
+        readers = self._readers
+        if readers["joint_states"]:
+            self._pub_joint.publish(js)
         msgs = self._msg_float
         for name, v in zip(OUTPUT_TOPICS, (w_M, load, belt, deflection)):
             m = msgs[name]
             m.data = v
-            self._pub_float[name].publish(m)
+            if readers[name]:
+                self._pub_float[name].publish(m)
         if self._pub_clock is not None and s.publish_clock:
             c = ClockMsg()
             _stamp(c.clock, now_ns)
@@ -1011,8 +1077,8 @@ class BeltDriveNode(Node):
             "load_torque": load,
             "belt_torque": belt,
             "relative_deflection": deflection,
-            "span_force_tight": float(o["span_force_tight"]),
-            "span_force_slack": float(o["span_force_slack"]),
+            "span_force_tight": float(tight),
+            "span_force_slack": float(slack_force),
             "slack": slack,
             "slip": slip,
         }
@@ -1056,6 +1122,8 @@ class BeltDriveNode(Node):
             sim_level, sim_msg = WARN, f"{w.overruns} of {w.ticks} ticks took longer than the period"
         elif realtime and w.ticks and rate < 0.95 * s.step_rate_hz and span > 0.5:
             sim_level, sim_msg = WARN, f"achieved {rate:.1f} Hz < 95% of {s.step_rate_hz:g} Hz"
+        elif self._recorder is not None and self._recorder.failed:
+            sim_level, sim_msg = WARN, f"simulating; {self._recorder.status}"
         sim = DiagnosticStatus(
             level=sim_level,
             name=f"{prefix}: simulation",
@@ -1083,7 +1151,7 @@ class BeltDriveNode(Node):
                 restarts=c["restarts"],
                 clock_jumps=c["clock_jumps"],
                 halts=c["halts"],
-                recording="off" if self._recorder is None else s.record_path,
+                recording="off" if self._recorder is None else self._recorder.status,
             ),
         )
         in_level, in_msg = OK, "ok"
@@ -1266,6 +1334,8 @@ def run(
         ex = make_executor(kind=executor)
         ex.add_node(node)
         node.get_logger().info(f"spinning with the {executor_name(ex)} executor")
+        gc.collect()
+        gc.freeze()  # start-up objects (rclpy, numpy, scipy) leave the collector's scans: shorter GC pauses
         signum = spin_until_signal(ex)
         node.get_logger().info(f"shutting down (signal {signum})" if signum else "shutting down")
         return 0

@@ -243,6 +243,9 @@ class BeltDriveHarness:
             if self.source._sub is not None:
                 checks.append(lambda: self.source._sub.get_publisher_count() >= 1)
         self._spin_until(lambda: all(c() for c in checks), "discovery between the harness and the node")
+        self._spin_until(
+            lambda: all(self.node.refresh_subscriber_counts().values()), "the node to see the probe's subscriptions"
+        )
 
     def close(self) -> None:
         """Destroy the nodes and shut the context down (idempotent)."""

@@ -1,0 +1,157 @@
+"""The node and the torque source as separate OS processes (the CLI), talking over DDS.
+
+Each child runs on a domain private to this test (derived from the pytest
+pid) with Fast DDS's UDP transport only, so a child killed on a failure
+leaves no shared-memory segments behind.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from belt_drive_ros import ros_env
+
+pytestmark = pytest.mark.ros
+
+CLI = [sys.executable, "-m", "belt_drive_ros.cli"]
+
+
+def start(args, domain):
+    return subprocess.Popen(
+        CLI + args, env=ros_env.child_environment(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+
+
+def stop(proc, sig, timeout=10.0):
+    """Send ``sig``; return (exit code, stderr). Kills the child if it does not exit."""
+    if proc.poll() is None:
+        proc.send_signal(sig)
+    try:
+        _, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, err = proc.communicate()
+        pytest.fail(f"child did not exit {timeout} s after signal {sig}:\n{err[-2000:]}")
+    return proc.returncode, err
+
+
+class Probe:
+    """A node in this process on the children's domain, recording what it receives."""
+
+    def __init__(self, domain):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.node import Node
+
+        from belt_drive_ros.node import make_executor
+
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = Node("test_probe", context=self.context)
+        self.executor = make_executor(self.context, "single")
+        self.executor.add_node(self.node)
+        self.received: dict[str, list] = {}
+
+    def subscribe(self, msg_type, topic, depth=1000):
+        self.received[topic] = []
+        self.node.create_subscription(msg_type, topic, self.received[topic].append, depth)
+
+    def spin_until(self, predicate, timeout, what, procs=()):
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            for p in procs:
+                if p.poll() is not None:
+                    pytest.fail(f"child exited early ({p.returncode}) while waiting for {what}:\n{p.stderr.read()[-3000:]}")
+            if time.monotonic() > deadline:
+                pytest.fail(f"timed out waiting for {what}")
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def close(self):
+        import rclpy
+
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def test_node_and_engine_source_processes_close_the_loop():
+    from diagnostic_msgs.msg import DiagnosticArray
+    from std_msgs.msg import Float64
+
+    domain = ros_env.process_domain_id(offset=41)
+    node = start(["node", "truck_compressor", "--ros-args", "-p", "input_timeout:=0.5"], domain)
+    source = start(["source", "engine", "--scene", "truck_compressor", "--rate", "500"], domain)
+    probe = Probe(domain)
+    try:
+        probe.subscribe(Float64, "shaft_speed")
+        probe.subscribe(Float64, "drive_torque")
+        probe.subscribe(DiagnosticArray, "/diagnostics", depth=10)
+        speeds, torques = probe.received["shaft_speed"], probe.received["drive_torque"]
+
+        def node_got_torques():
+            for msg in probe.received["/diagnostics"]:
+                for st in msg.status:
+                    if st.name.endswith(": input"):
+                        values = {kv.key: kv.value for kv in st.values}
+                        if int(values["received"]) > 100:
+                            return True
+            return False
+
+        probe.spin_until(lambda: len(speeds) > 500 and len(torques) > 200, 40.0, "outputs and torques", (node, source))
+        probe.spin_until(node_got_torques, 10.0, "the node's diagnostics to count received torques", (node, source))
+        omega = [m.data for m in speeds[-200:]]
+        tau = [m.data for m in torques[-200:]]
+        # the governor holds the diesel near its 77.5 rad/s set point; the firing pulsations vary the torque
+        assert 40.0 < sum(omega) / len(omega) < 110.0
+        assert max(tau) - min(tau) > 1.0
+    finally:
+        probe.close()
+        rc_node, err_node = stop(node, signal.SIGINT)
+        rc_source, err_source = stop(source, signal.SIGTERM)
+    assert rc_node == 0, err_node[-3000:]
+    assert rc_source == 0, err_source[-3000:]
+    assert "Traceback" not in err_node + err_source
+
+
+def test_node_process_exits_cleanly_on_sigterm():
+    from std_msgs.msg import Float64
+
+    domain = ros_env.process_domain_id(offset=43)
+    node = start(["node", "paper", "--executor", "single"], domain)
+    probe = Probe(domain)
+    try:
+        probe.subscribe(Float64, "shaft_speed")
+        probe.spin_until(lambda: len(probe.received["shaft_speed"]) > 20, 40.0, "shaft_speed", (node,))
+    finally:
+        probe.close()
+        rc, err = stop(node, signal.SIGTERM)
+    assert rc == 0, err[-3000:]
+    assert "shutting down (signal 15)" in err
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["node", "paper", "--ros-args", "-p", "k:=-5.0"], "k"),
+        (["node", "paper", "--ros-args", "-p", "method:=euler"], "UNSTABLE"),
+        (["node", "no_such_scene"], "unknown scene"),
+        (["node", "paper", "--ros-args", "-p", "model:=stiff"], "model: must be one of"),
+    ],
+    ids=["out-of-range", "unstable-method", "unknown-scene", "bad-choice"],
+)
+def test_invalid_parameters_at_start_exit_with_message(args, message):
+    domain = ros_env.process_domain_id(offset=45)
+    proc = start(args, domain)
+    try:
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 2, err[-3000:]
+    assert "belt-drive: error:" in err and message in err
+    assert "Traceback" not in err

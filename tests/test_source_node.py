@@ -1,0 +1,108 @@
+"""TorqueSourceNode and ``belt-drive source``: profiles, angle integration, CSV input, CLI."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from belt_drive_ros.sources import Engine, Table
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture
+def context(ros_domain_id):
+    import rclpy
+    from rclpy.context import Context
+
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_domain_id)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+def test_engine_torque_follows_speed_and_integrated_crank_angle(context):
+    from std_msgs.msg import Float64
+
+    from belt_drive_ros.source_node import TorqueSourceNode
+
+    engine = Engine(mean_torque=20.0, harmonics=(15.0, 5.0), cylinders=6, speed_setpoint=80.0, governor_gain=2.0)
+    node = TorqueSourceNode(engine, context=context, autostart=False, initial_speed=50.0)
+    try:
+        assert node._sub is not None  # closed loop: subscribes to shaft_speed
+        t0 = 3_000_000_000
+        torques, angle = [], 0.0
+        speeds = (50.0, 60.0, 61.0, 75.0)
+        for k, speed in enumerate(speeds):
+            if k:
+                node._on_speed(Float64(data=speed))
+                angle += 0.5 * (speeds[k - 1] + speed) * 0.002  # trapezoidal over the last 2 ms
+            torques.append(node.publish_at(t0 + k * 2_000_000))
+            expect = engine.torque(k * 0.002, angle, speed)
+            assert torques[-1] == pytest.approx(expect, rel=1e-12, abs=1e-12)
+        node._on_speed(Float64(data=math.nan))
+        assert node.counters["speed_rejected"] == 1 and node.speed == 75.0
+        assert node.counters["published"] == 4
+    finally:
+        node.destroy_node()
+
+
+def test_open_loop_profile_does_not_subscribe(context):
+    from belt_drive_ros.source_node import TorqueSourceNode
+
+    table = Table(times=(0.0, 0.5), values=(1.0, 4.0), interpolation="previous")
+    node = TorqueSourceNode(table, context=context, autostart=False)
+    try:
+        assert node._sub is None
+        assert node.publish_at(10**9) == 1.0
+        assert node.publish_at(10**9 + 600_000_000) == 4.0
+    finally:
+        node.destroy_node()
+
+
+def test_rate_parameter_is_validated_at_runtime(context):
+    from rclpy.parameter import Parameter
+
+    from belt_drive_ros.source_node import TorqueSourceNode
+
+    node = TorqueSourceNode(Table(times=(0.0,), values=(1.0,)), context=context, rate_hz=200.0)
+    try:
+        assert not node.set_parameters([Parameter("rate_hz", value=-3.0)])[0].successful
+        assert node.set_parameters([Parameter("rate_hz", value=400)])[0].successful
+        assert node.rate_hz == 400.0 and node._timer.timer_period_ns == 2_500_000
+    finally:
+        node.destroy_node()
+
+
+def test_csv_profiles(tmp_path):
+    from belt_drive_ros.commands.source import read_csv_profile
+    from belt_drive_ros.errors import SceneError
+
+    plain = tmp_path / "plain.csv"
+    plain.write_text("0.0, 1.0\n0.5, 2.0\n1.0, 3.0\n")
+    table = read_csv_profile(plain)
+    assert table.interpolation == "previous" and table.torque(0.7, 0, 0) == 2.0
+    sim = tmp_path / "sim.csv"  # the layout of 'belt-drive sim --out'
+    sim.write_text("time,phi_M,omega_M,drive_torque\n0,0,0,5\n0.1,0,1,6\n")
+    assert np.array_equal(read_csv_profile(sim, interpolation="linear").values, [5.0, 6.0])
+    with pytest.raises(SceneError, match="no column 'torque'"):
+        read_csv_profile(sim, column="torque")
+
+
+def test_cli_prints_the_profile_without_ros():
+    out = subprocess.run(
+        [sys.executable, "-m", "belt_drive_ros.cli", "source", "engine", "--scene", "truck_compressor",
+         "--mean-torque", "25", "--harmonics", "40,12", "--print"],
+        capture_output=True, text=True, timeout=60,
+    )
+    assert out.returncode == 0, out.stderr
+    assert "type: engine" in out.stdout and "mean_torque: 25.0" in out.stdout and "initial_speed: 73.3" in out.stdout
+    bad = subprocess.run(
+        [sys.executable, "-m", "belt_drive_ros.cli", "source", "motor", "--scene", "truck_compressor", "--print"],
+        capture_output=True, text=True, timeout=60,
+    )
+    assert bad.returncode == 2 and "not 'motor'" in bad.stderr
