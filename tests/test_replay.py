@@ -29,7 +29,7 @@ def test_drive_is_the_zero_order_hold_of_the_messages(tmp_path):
     t0 = 5 * 10**9  # absolute receive times: the table starts at the first message
     times = [t0, t0 + 1_000_000, t0 + 1_000_000, t0 + 2_500_000, t0 + 4_000_000]
     bag = _torque_bag(tmp_path / "t.mcap", times, [1.0, 2.0, 3.0, 4.0, 5.0])
-    scene = scene_with_torque_bag(load_scene("paper"), bag)
+    scene = scene_with_torque_bag(load_scene("paper").with_overrides(dt=1e-3), bag)
     drive = scene.drive
     assert isinstance(drive, RecordedTorque)
     np.testing.assert_array_equal(drive.times, [0.0, 0.001, 0.0025, 0.004])
@@ -81,7 +81,7 @@ def test_sim_torque_bag_is_deterministic_and_needs_no_ros(tmp_path):
         "import sys\n"
         "from belt_drive_ros.cli import main\n"
         "for d in ('a', 'b'):\n"
-        f"    assert main(['sim', 'paper', '--torque-bag', {str(bag)!r}, '--quiet',\n"
+        f"    assert main(['sim', 'paper', '--dt', '0.001', '--torque-bag', {str(bag)!r}, '--quiet',\n"
         f"                 '--out', {str(tmp_path)!r} + '/' + d + '/out.mcap']) == 0\n"
         "assert 'rclpy' not in sys.modules, 'rclpy was imported'\n"
     )
