@@ -146,7 +146,7 @@ def test_replay_publishes_the_recorded_sequence_with_clock(tmp_path, ros_domain_
         node.create_subscription(Clock, "/clock", lambda m: got["clock"].append(m), qos)
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(node)
-        proc = _replay(bag, ros_domain_id, "--clock", "--rate", "2", "--wait-subscribers", "1", "--delay", "0.3")
+        proc = _replay(bag, ros_domain_id, "--clock", "--rate", "2", "--wait-subscribers", "1", "--delay", "1.0")
         deadline = time.monotonic() + 30
         while (len(got["torque"]) < n or len(got["clock"]) < n) and time.monotonic() < deadline:
             ex.spin_once(timeout_sec=0.02)
