@@ -212,7 +212,7 @@ def _node_following_replay(bag, out, domain_id):
         ex = make_executor(ctx, "single")
         ex.add_node(node)
         proc = _replay(bag, domain_id, "--clock", "--sync", "/joint_states", "--rate", "10",
-                       "--wait-subscribers", "2", "--delay", "0.3")
+                       "--wait-subscribers", "2", "--delay", "1.0")
         deadline = time.monotonic() + 30
         while proc.poll() is None and time.monotonic() < deadline:
             ex.spin_once(timeout_sec=0.005)
