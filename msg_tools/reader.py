@@ -176,6 +176,16 @@ class TopicInfo:
     offered_qos_profiles: str = ""
 
 
+
+def merged_metadata(metadata: List[Tuple[str, Dict[str, str]]], name: str) -> Dict[str, str]:
+    """Merged key/values of all metadata records called ``name`` (later records win)."""
+    merged: Dict[str, str] = {}
+    for record_name, values in metadata:
+        if record_name == name:
+            merged.update(values)
+    return merged
+
+
 @dataclass
 class BagSummary:
     """What :func:`summary` finds in a bag.
@@ -225,11 +235,7 @@ class BagSummary:
 
     def metadata_dict(self, name: str) -> Dict[str, str]:
         """Return the merged key/values of all metadata records called ``name``."""
-        merged: Dict[str, str] = {}
-        for record_name, values in self.metadata:
-            if record_name == name:
-                merged.update(values)
-        return merged
+        return merged_metadata(self.metadata, name)
 
 
 # --------------------------------------------------------------------------
@@ -1042,11 +1048,7 @@ class Bag:
 
     def metadata_dict(self, name: str) -> Dict[str, str]:
         """Return the merged key/values of all metadata records called ``name``."""
-        merged: Dict[str, str] = {}
-        for record_name, values in self.metadata:
-            if record_name == name:
-                merged.update(values)
-        return merged
+        return merged_metadata(self.metadata, name)
 
 
 def read_bag(
