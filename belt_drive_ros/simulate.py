@@ -60,6 +60,9 @@ class Plant:
         self.scalar_drive = drive_torque = drive.scalar_torque()
         self.scalar_load = load_torque = load.scalar_torque()
         self.wheel_map = np.array(model.wheel_coordinates(np.eye(model.A.shape[0])), dtype=float)
+        #: (drive, load): whether each torque reads its angle; their inlinable sources (or None)
+        self.uses_angle = (bool(drive.uses_angle), bool(load.uses_angle))
+        self.sources = (drive.scalar_source, load.scalar_source)
         array = np.array
         if model.name == "flexible":
 
@@ -210,7 +213,8 @@ class Simulator:
     def _run_stepwise(self, time, x0, progress):
         loop = None
         if isinstance(self.integrator, FixedStepIntegrator):
-            loop = self.integrator.scalar_loop(self.plant.wheel_map)
+            plant = self.plant
+            loop = self.integrator.scalar_loop(plant.wheel_map, plant.uses_angle, plant.sources)
         if loop is None:
             return self._run_stepwise_generic(time, x0, progress)
         return self._run_compiled(loop, time, x0, progress)

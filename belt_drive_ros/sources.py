@@ -35,6 +35,8 @@ class TorqueProfile:
     kind: ClassVar[str] = ""
     #: True when the torque depends on angle or speed (closes a loop).
     state_dependent: ClassVar[bool] = False
+    #: False when the torque ignores its angle argument (the compiled loops then skip computing it).
+    uses_angle: ClassVar[bool] = True
 
     def torque(self, t, angle, speed):
         """Torque [N m] at time ``t`` [s], wheel angle [rad], wheel speed [rad/s]."""
@@ -53,6 +55,17 @@ class TorqueProfile:
         """
         torque = self.torque
         return lambda t, angle, speed: float(torque(t, angle, speed))
+
+    def scalar_source(self, t: str, angle: str, speed: str) -> str | None:
+        """:meth:`scalar_torque` as a Python expression in the variable names given, or None.
+
+        Inlined by :func:`~belt_drive_ros.integrators.compile_scalar_loop`
+        instead of a call; it must compute exactly what :meth:`scalar_torque`
+        computes (same operations in the same order: bitwise equal). The
+        names are identifiers or float literals; constants are written with
+        ``repr`` (exact). None (the default): the loop calls the closure.
+        """
+        return None
 
     def excitation_frequencies(self, speed: float) -> list[tuple[float, str]]:
         """Frequencies [Hz] this profile excites at wheel speed ``speed`` [rad/s].
@@ -113,6 +126,7 @@ class Constant(TorqueProfile):
     """Constant torque ``value`` [N m]."""
 
     kind: ClassVar[str] = "constant"
+    uses_angle: ClassVar[bool] = False
     value: float = 0.0
 
     def __post_init__(self):
@@ -125,6 +139,9 @@ class Constant(TorqueProfile):
         value = float(self.value)
         return lambda t, angle, speed: value
 
+    def scalar_source(self, t, angle, speed):
+        return repr(float(self.value))
+
 
 @_register
 @dataclass(frozen=True)
@@ -132,6 +149,7 @@ class Step(TorqueProfile):
     """``initial`` [N m] before ``time`` [s], ``final`` from then on."""
 
     kind: ClassVar[str] = "step"
+    uses_angle: ClassVar[bool] = False
     initial: float = 0.0
     final: float = 1.0
     time: float = 0.0
@@ -158,6 +176,7 @@ class Ramp(TorqueProfile):
     """Linear ramp from ``start_value`` at ``start_time`` to ``end_value`` at ``end_time``, held outside."""
 
     kind: ClassVar[str] = "ramp"
+    uses_angle: ClassVar[bool] = False
     start_value: float = 0.0
     end_value: float = 1.0
     start_time: float = 0.0
@@ -194,6 +213,7 @@ class Sine(TorqueProfile):
     """``mean + amplitude sin(2 pi frequency t + phase)`` [N m, Hz, rad]."""
 
     kind: ClassVar[str] = "sine"
+    uses_angle: ClassVar[bool] = False
     mean: float = 0.0
     amplitude: float = 1.0
     frequency: float = 1.0
@@ -226,6 +246,7 @@ class Table(TorqueProfile):
     """
 
     kind: ClassVar[str] = "table"
+    uses_angle: ClassVar[bool] = False
     times: tuple = (0.0, 1.0)
     values: tuple = (0.0, 0.0)
     interpolation: str = "linear"
@@ -406,6 +427,7 @@ class MotorCurve(TorqueProfile):
 
     kind: ClassVar[str] = "motor"
     state_dependent: ClassVar[bool] = True
+    uses_angle: ClassVar[bool] = False
     stall_torque: float = 60.0
     no_load_speed: float = 300.0
     curve: tuple | None = None
@@ -453,6 +475,15 @@ class MotorCurve(TorqueProfile):
 
         return torque
 
+    def scalar_source(self, t, angle, speed):
+        if self.curve is not None:
+            return None
+        out = f"{float(self.stall_torque)!r} * (1.0 - {speed} / {float(self.no_load_speed)!r})"
+        soft = float(self.soft_start_time)
+        if soft > 0:  # out * clip(t / t_soft, 0, 1): the closure's value (t < 0 <=> t/T < 0; t/T rounds to 1 near T)
+            return f"{out} * (0.0 if {t} < 0.0 else 1.0 if {t} > {soft!r} else {t} / {soft!r})"
+        return out
+
     def excitation_frequencies(self, speed):
         return [(1.0 / self.soft_start_time, "motor soft start (1/ramp time)")] if self.soft_start_time else []
 
@@ -464,6 +495,7 @@ class Polynomial(TorqueProfile):
 
     kind: ClassVar[str] = "polynomial"
     state_dependent: ClassVar[bool] = True
+    uses_angle: ClassVar[bool] = False
     c0: float = 0.0
     c1: float = 0.0
     c2: float = 0.0
@@ -479,6 +511,10 @@ class Polynomial(TorqueProfile):
     def scalar_torque(self):
         c0, c1, c2 = self.c0, self.c1, self.c2
         return lambda t, angle, speed: c0 + c1 * speed + c2 * speed * abs(speed)
+
+    def scalar_source(self, t, angle, speed):
+        c0, c1, c2 = (float(v) for v in (self.c0, self.c1, self.c2))
+        return f"{c0!r} + {c1!r} * {speed} + {c2!r} * {speed} * abs({speed})"
 
 
 @_register
@@ -573,6 +609,10 @@ class Schedule(TorqueProfile):
     @property
     def state_dependent(self) -> bool:  # type: ignore[override]
         return self.active.state_dependent or self.inactive.state_dependent
+
+    @property
+    def uses_angle(self) -> bool:  # type: ignore[override]
+        return self.active.uses_angle or self.inactive.uses_angle
 
     def is_active(self, t):
         """True where the ``active`` profile applies."""

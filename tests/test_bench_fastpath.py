@@ -54,6 +54,59 @@ def test_scalar_torque_equals_torque(profile):
         assert got == pytest.approx(want, rel=1e-13, abs=1e-13)
 
 
+def _sample_points():
+    rng = np.random.default_rng(2)
+    points = [(t, a, w) for t in (-0.1, 0.0, 0.2, 0.5, 0.7, 1.0, 1.3) for a, w in ((0.0, 0.0), (1.0, 150.0), (2.0, -400.0))]
+    return points + [tuple(v) for v in rng.uniform((-0.2, -300, -500), (1.2, 300, 500), size=(300, 3))]
+
+
+@pytest.mark.parametrize("profile", PROFILES, ids=lambda p: p.kind)
+def test_inlined_source_is_bitwise_the_closure(profile):
+    """``scalar_source`` (inlined into the compiled loops) computes exactly what ``scalar_torque`` does."""
+    source = profile.scalar_source("t", "angle", "speed")
+    if source is None:  # the loop calls the closure: nothing to compare
+        assert profile.kind not in ("constant", "polynomial") and not (profile.kind == "motor" and profile.curve is None)
+        return
+    expression = compile(source, "<source>", "eval")
+    f = profile.scalar_torque()
+    for t, a, w in _sample_points():
+        assert eval(expression, {}, {"t": t, "angle": a, "speed": w}) == f(t, a, w)
+
+
+@pytest.mark.parametrize("profile", PROFILES, ids=lambda p: p.kind)
+def test_profiles_that_skip_the_angle_do_not_read_it(profile):
+    f = profile.scalar_torque()
+    for t, a, w in _sample_points():
+        if not profile.uses_angle:
+            assert f(t, a, w) == f(t, 0.0, w)
+    if profile.kind in ("engine", "compressor"):  # crank/compressor angle: these must keep it
+        assert profile.uses_angle
+        assert any(f(t, a, w) != f(t, 0.0, w) for t, a, w in _sample_points())
+
+
+@pytest.mark.parametrize("scene_name", ["paper", "e_motor_start"])
+@pytest.mark.parametrize("method", ["etd4", "lawson5", "etd2", "rk4", "trapezoidal"])
+def test_loop_with_inlined_torques_and_speed_only_stages_equals_the_call_loop(scene_name, method):
+    """Inlining and skipping unused angles change no torque value: the states agree to rounding of W @ stage."""
+    scene = load_scene(scene_name)
+    model = make_model("flexible", scene.params)
+    sim = Simulator(model, scene.drive, scene.load, method, scene.dt)
+    plant = sim.plant
+    assert plant.uses_angle == (False, False)  # motor curve and polynomial/compressor-free loads
+    fast = sim.integrator.scalar_loop(plant.wheel_map, plant.uses_angle, plant.sources)
+    plain = sim.integrator.scalar_loop(plant.wheel_map)
+    for name, profile in (("drive(", scene.drive), ("load(", scene.load)):
+        inlined = profile.scalar_source("t", "a", "w") is not None
+        assert (name in fast.__source__) == (not inlined) and name in plain.__source__
+    assert scene_name != "paper" or "drive(" not in fast.__source__  # paper: linear motor line, inlined
+    times = (scene.dt * np.arange(400)).tolist()
+    x0 = tuple(scene.initial_state.vector("flexible", scene.params.ratio).tolist())
+    a = np.array(fast(times, x0, plant.scalar_drive, plant.scalar_load, 1e5))
+    b = np.array(plain(times, x0, plant.scalar_drive, plant.scalar_load, 1e5))
+    assert a.shape == b.shape
+    assert np.max(np.abs(a - b)) <= 1e-11 * np.max(np.abs(b))
+
+
 @pytest.mark.parametrize("scene_name", ["paper", "truck_compressor", "e_motor_start"])
 @pytest.mark.parametrize("model_name", ["rigid", "flexible"])
 @pytest.mark.parametrize("method", FIXED_STEP_METHODS)

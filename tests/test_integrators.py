@@ -112,6 +112,7 @@ ORDERS = {
     "trapezoidal": (2, [200, 400, 800]),
     "etd2": (2, [200, 400, 800]),
     "etd4": (4, [50, 100, 200]),
+    "lawson5": (5, [25, 50, 100]),
     "exact": (1, [200, 400, 800]),  # torque sampled at step start: exponential Euler
 }
 
