@@ -67,6 +67,15 @@ class TorqueProfile:
         """
         return None
 
+    def breakpoints(self) -> tuple[float, ...]:
+        """Times [s] at which the torque jumps or kinks in time (a step, a ramp's ends, a soft start's end).
+
+        A one-step method that integrates across one is locally first order
+        there; :class:`~belt_drive_ros.simulate.Simulator` splits such a step
+        at it. Default: none.
+        """
+        return ()
+
     def excitation_frequencies(self, speed: float) -> list[tuple[float, str]]:
         """Frequencies [Hz] this profile excites at wheel speed ``speed`` [rad/s].
 
@@ -166,6 +175,9 @@ class Step(TorqueProfile):
         initial, final, switch = float(self.initial), float(self.final), self.time
         return lambda t, angle, speed: final if t >= switch else initial
 
+    def breakpoints(self):
+        return (float(self.time),) if self.final != self.initial else ()
+
     def excitation_frequencies(self, speed):
         return [(math.inf, "step change")] if self.final != self.initial else []
 
@@ -202,6 +214,9 @@ class Ramp(TorqueProfile):
             return v0 + s * rise
 
         return torque
+
+    def breakpoints(self):
+        return (float(self.start_time), float(self.end_time))
 
     def excitation_frequencies(self, speed):
         return [(1.0 / (self.end_time - self.start_time), "ramp (1/duration)")]
@@ -288,6 +303,9 @@ class Table(TorqueProfile):
             return values[0 if j < 0 else last if j > last else j]
 
         return held
+
+    def breakpoints(self):
+        return tuple(float(t) for t in self.times)  # a jump (previous) or a kink (linear) at every sample
 
     def excitation_frequencies(self, speed):
         if self.times.size < 2:
@@ -405,6 +423,9 @@ class Engine(TorqueProfile):
 
         return torque
 
+    def breakpoints(self):
+        return (float(self.ramp_time),) if self.ramp_time > 0 else ()
+
     def excitation_frequencies(self, speed):
         f_rev = abs(speed) * self.crank_ratio / (2.0 * math.pi)
         return [
@@ -483,6 +504,9 @@ class MotorCurve(TorqueProfile):
         if soft > 0:  # out * clip(t / t_soft, 0, 1): the closure's value (t < 0 <=> t/T < 0; t/T rounds to 1 near T)
             return f"{out} * (0.0 if {t} < 0.0 else 1.0 if {t} > {soft!r} else {t} / {soft!r})"
         return out
+
+    def breakpoints(self):
+        return (float(self.soft_start_time),) if self.soft_start_time > 0 else ()
 
     def excitation_frequencies(self, speed):
         return [(1.0 / self.soft_start_time, "motor soft start (1/ramp time)")] if self.soft_start_time else []
@@ -571,6 +595,9 @@ class Compressor(TorqueProfile):
 
         return torque
 
+    def breakpoints(self):
+        return (float(self.ramp_time),) if self.ramp_time > 0 else ()
+
     def excitation_frequencies(self, speed):
         f_rev = abs(speed) / (2.0 * math.pi)
         return [
@@ -642,6 +669,10 @@ class Schedule(TorqueProfile):
             return inactive(t, angle, speed)
 
         return torque
+
+    def breakpoints(self):
+        edges = {float(v) for period in self.periods for v in period}
+        return tuple(sorted(edges | set(self.active.breakpoints()) | set(self.inactive.breakpoints())))
 
     def excitation_frequencies(self, speed):
         out = self.active.excitation_frequencies(speed) + self.inactive.excitation_frequencies(speed)

@@ -41,10 +41,12 @@ def run_node(domain, scene="paper", schedule=SCHEDULE, duration=DURATION, step=N
 def run_offline(scene, model, method, dt, schedule=SCHEDULE, duration=DURATION):
     """Offline reference: the torque sequence as a zero-order-hold Table.
 
-    Switch times sit a quarter step before each publish time so that the
-    table lookup at the step start is unambiguous in floating point.
+    Switch times are the grid times ``dt * k`` of the publish times, the
+    very floats the simulator's grid holds: the table lookup at that step's
+    start sees the new value, and no switch lies inside a step (the
+    simulator would split such a step there, unlike the node's tick).
     """
-    times = tuple(max(t - dt / 4, 0.0) for t, _ in schedule)
+    times = tuple(dt * round(t / dt) for t, _ in schedule)
     drive = Table(times=times, values=tuple(v for _, v in schedule), interpolation="previous")
     mdl = make_model(model, scene.params)
     sim = Simulator(mdl, drive, scene.load, method, dt)

@@ -48,17 +48,7 @@ from ..fidelity import choose_model
 from ..model import make_model
 from ..scene import Scene, load_scene
 from ..simulate import Plant, Simulator
-from ..sources import (
-    Compressor,
-    Constant,
-    Engine,
-    MotorCurve,
-    Ramp,
-    Schedule,
-    Step,
-    Table,
-    TorqueProfile,
-)
+from ..sources import Constant, Step, TorqueProfile
 
 #: shipped scenes every study covers.
 SHIPPED_SCENES = ("paper", "truck_compressor", "e_motor_start")
@@ -112,22 +102,7 @@ def is_open_loop(scene: Scene) -> bool:
 
 def breakpoints(profile: TorqueProfile) -> set[float]:
     """Times [s] at which ``profile`` jumps or kinks (where a reference solver must restart)."""
-    out: set[float] = set()
-    if isinstance(profile, Step):
-        out.add(profile.time)
-    elif isinstance(profile, Ramp):
-        out |= {profile.start_time, profile.end_time}
-    elif isinstance(profile, Table):
-        out |= set(float(t) for t in profile.times)
-    elif isinstance(profile, MotorCurve) and profile.soft_start_time > 0:
-        out.add(profile.soft_start_time)
-    elif isinstance(profile, (Engine, Compressor)) and profile.ramp_time > 0:
-        out.add(profile.ramp_time)
-    elif isinstance(profile, Schedule):
-        for start, end in profile.periods:
-            out |= {start, end}
-        out |= breakpoints(profile.active) | breakpoints(profile.inactive)
-    return out
+    return set(profile.breakpoints())
 
 
 # --------------------------------------------------------------- reference

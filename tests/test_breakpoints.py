@@ -1,0 +1,78 @@
+"""Steps that contain a torque breakpoint are split there (``Simulator.run``).
+
+A one-step method that integrates across a jump or a kink of its torque is
+locally first order: on ``paper`` a 12.5 ms ``lawson5`` step with the soft
+start's end (0.02 s) inside it is 2000x less accurate than with the step split
+at 0.02 s. These tests check the split against independent references.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from belt_drive_ros import sources as S
+from belt_drive_ros.benchmarks.common import dop853_reference, run_errors
+from belt_drive_ros.model import make_model
+from belt_drive_ros.scene import load_scene
+from belt_drive_ros.simulate import Simulator
+
+
+def test_profiles_report_their_breakpoints():
+    assert S.Step(0.0, 1.0, 0.3).breakpoints() == (0.3,)
+    assert S.Step(1.0, 1.0, 0.3).breakpoints() == ()  # no jump
+    assert S.Ramp(0.0, 5.0, 0.2, 0.7).breakpoints() == (0.2, 0.7)
+    assert S.MotorCurve(soft_start_time=0.02).breakpoints() == (0.02,)
+    assert S.MotorCurve().breakpoints() == () and S.Polynomial(1.0).breakpoints() == ()
+    assert S.Engine(ramp_time=0.5).breakpoints() == (0.5,)
+    assert S.Schedule(S.Compressor(ramp_time=0.1), S.Constant(2.0), ((0.2, 0.4),)).breakpoints() == (0.1, 0.2, 0.4)
+    assert S.Table((0.0, 0.5, 1.0), (1.0, 3.0, 2.0)).breakpoints() == (0.0, 0.5, 1.0)
+
+
+def test_exact_method_is_exact_again_with_a_jump_inside_a_step():
+    """Open loop, piecewise-constant torque jumping off the grid: the split ``exact`` run is the exact solution."""
+    scene = load_scene("paper").with_overrides(
+        drive=S.Step(0.0, 8.0, 0.2503), load=S.Constant(2.0), duration=0.5, model="flexible"
+    )
+    model = make_model("flexible", scene.params)
+    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+    ref = dop853_reference(scene, "flexible")  # restarted at 0.2503 s
+    sim = Simulator(model, scene.drive, scene.load, "exact", 1e-3)
+    t, x = sim.run(0.5, x0)
+    assert sim.split_steps == {250: [0.2503]} and not sim.vectorized  # the split step leaves the vectorized path
+    assert run_errors(ref, t, x)["error"] < 1e-9
+    sim.breakpoints = []  # without the split: the jump is taken 0.7 ms late, a first-order error
+    t, x = sim.run(0.5, x0)
+    assert sim.vectorized and run_errors(ref, t, x)["error"] > 1e-3
+
+
+@pytest.mark.parametrize("method, split_error, unsplit_error", [("lawson5", 3e-6, 1e-4), ("etd4", 2e-4, 1e-3)])
+def test_soft_start_end_inside_a_step(method, split_error, unsplit_error):
+    """paper: the motor's soft start ends at 0.02 s, inside the second 12.5 ms step."""
+    scene = load_scene("paper").with_overrides(duration=1.0)
+    model = make_model("flexible", scene.params)
+    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+    ref = dop853_reference(scene, "flexible")
+    sim = Simulator(model, scene.drive, scene.load, method, 0.0125)
+    t, x = sim.run(1.0, x0)
+    assert sim.split_steps == {1: [0.02]}
+    split = run_errors(ref, t, x)["error"]
+    sim.breakpoints = []
+    t, x = sim.run(1.0, x0)
+    assert sim.split_steps == {}
+    unsplit = run_errors(ref, t, x)["error"]
+    assert split < split_error < unsplit_error < unsplit, (split, unsplit)
+
+
+def test_breakpoints_on_the_grid_are_not_split_and_forced_vectorization_is_refused():
+    scene = load_scene("paper")
+    model = make_model("flexible", scene.params)
+    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+    sim = Simulator(model, scene.drive, scene.load, "etd4", 0.005)  # 0.02 s = 4 steps, up to rounding
+    sim.run(0.1, x0)
+    assert sim.split_steps == {}
+    off_grid = Simulator(model, S.Step(0.0, 5.0, 0.0123), S.Constant(1.0), "etd2", 0.005)
+    with pytest.raises(ValueError, match="breakpoint inside a step"):
+        off_grid.run(0.1, x0, vectorize=True)
+    _, states = off_grid.run(0.1, x0)
+    assert off_grid.split_steps == {2: [0.0123]} and np.all(np.isfinite(states))
