@@ -537,8 +537,12 @@ class Polynomial(TorqueProfile):
         return lambda t, angle, speed: c0 + c1 * speed + c2 * speed * abs(speed)
 
     def scalar_source(self, t, angle, speed):
+        # the closure's sum without its zero terms (value-equal: x + 0.0 == x; only a -0.0 may turn +0.0)
         c0, c1, c2 = (float(v) for v in (self.c0, self.c1, self.c2))
-        return f"{c0!r} + {c1!r} * {speed} + {c2!r} * {speed} * abs({speed})"
+        terms = [f"{c0!r}"] if c0 else []
+        terms += [f"{c1!r} * {speed}"] if c1 else []
+        terms += [f"{c2!r} * {speed} * abs({speed})"] if c2 else []
+        return " + ".join(terms) if terms else "0.0"
 
 
 @_register

@@ -34,7 +34,7 @@ from belt_drive_ros.fidelity import FREQUENCY_RATIO_THRESHOLD
 def wp_rows():
     config = workprecision.Config(
         scenes=("paper", common.LINEAR_SCENE),
-        fixed_methods=("exact", "etd2", "etd4", "rk4", "euler"),
+        fixed_methods=("exact", "etd2", "etd4", "lawson5", "rk4", "euler"),
         adaptive_methods=("RK45",),
         step_exponents=(-2, 0, 2),
         rtols={"RK45": (1e-5,)},

@@ -3,8 +3,8 @@
 For each scene (the shipped ones with the model ``auto`` picks, plus the
 open-loop linear variant of ``paper``) and each integrator:
 
-* fixed-step methods (exact, etd2, euler, symplectic_euler, rk4,
-  trapezoidal): the step is swept as ``scene.dt * 2^j``; a step the stability
+* fixed-step methods (exact, etd2, etd4, lawson5, euler, symplectic_euler,
+  rk4, trapezoidal): the step is swept as ``scene.dt * 2^j``; a step the stability
   guard predicts unstable is **not run** and recorded as ``unstable (guard)``;
   a run that diverges anyway is recorded as ``diverged``;
 * adaptive scipy methods (RK45, DOP853, Radau, BDF, LSODA, through the
@@ -78,7 +78,7 @@ class Config:
 FULL = Config()
 QUICK = Config(
     scenes=("paper", LINEAR_SCENE),
-    fixed_methods=("exact", "etd2", "etd4", "rk4", "symplectic_euler"),
+    fixed_methods=("exact", "etd2", "etd4", "lawson5", "rk4", "symplectic_euler"),
     adaptive_methods=("RK45",),
     step_exponents=(-2, 0, 2),
     rtols={"RK45": (1e-4, 1e-7)},
@@ -156,6 +156,7 @@ _STYLE = {
     "exact": ("tab:blue", "o"),
     "etd2": ("tab:red", "o"),
     "etd4": ("tab:purple", "D"),
+    "lawson5": ("m", "*"),
     "euler": ("tab:gray", "v"),
     "symplectic_euler": ("tab:olive", "^"),
     "rk4": ("tab:green", "s"),

@@ -30,7 +30,7 @@ def register(sub) -> None:
     )
     p.add_argument("scene", help="shipped scene name or path to a scene YAML")
     p.add_argument("--model", choices=("rigid", "flexible", "auto"), help="belt model (default: the scene's, usually auto)")
-    p.add_argument("--method", help="integrator: exact, etd2, etd4, euler, symplectic_euler, rk4, trapezoidal, RK45, DOP853, Radau, BDF, LSODA")
+    p.add_argument("--method", help="integrator: exact, etd2, etd4, lawson5, euler, symplectic_euler, rk4, trapezoidal, RK45, DOP853, Radau, BDF, LSODA")
     p.add_argument("--method-option", action="append", default=[], metavar="KEY=VALUE", help="integrator option, e.g. rtol=1e-8 (repeatable)")
     p.add_argument("--dt", type=float, help="integrator step [s] (output interval for adaptive methods)")
     p.add_argument("--duration", type=float, help="simulated time [s]")
