@@ -969,9 +969,7 @@ class BeltDriveNode(Node):
         cached = self.__dict__.get("_loop_cache")
         if cached is None or cached[0][0] is not plant or cached[0][1] is not integrator:
             key = (plant, integrator)  # the objects themselves: a replaced plant never matches
-            loop = None
-            if hasattr(integrator, "scalar_loop"):
-                loop = integrator.scalar_loop(plant.wheel_map, plant.uses_angle, plant.sources)
+            loop = plant.scalar_loop(integrator)
             fast = None if loop is None else (loop, plant.drive.scalar_torque(), plant.load.scalar_torque())
             cached = self._loop_cache = (key, fast)
         return cached[1]

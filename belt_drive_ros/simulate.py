@@ -79,6 +79,12 @@ class Plant:
 
         self.inputs = inputs
 
+    def scalar_loop(self, integrator) -> Callable | None:
+        """``integrator``'s compiled float loop for this plant (inlined torques, unused angles skipped), or None."""
+        if not isinstance(integrator, FixedStepIntegrator):
+            return None
+        return integrator.scalar_loop(self.wheel_map, self.uses_angle, self.sources)
+
     def input_array(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
         """Vectorized u for samples ``t`` (N,), ``x`` (N, n) -> (N, 2)."""
         phi_M, omega_M, phi_3, omega_3 = self.model.wheel_coordinates(x)
@@ -259,10 +265,7 @@ class Simulator:
         return propagate_linear(step, x0, node_inputs)
 
     def _run_stepwise(self, time, x0, progress):
-        loop = None
-        if isinstance(self.integrator, FixedStepIntegrator):
-            plant = self.plant
-            loop = self.integrator.scalar_loop(plant.wheel_map, plant.uses_angle, plant.sources)
+        loop = self.plant.scalar_loop(self.integrator)
         if loop is None:
             return self._run_stepwise_generic(time, x0, progress)
         return self._run_compiled(loop, time, x0, progress)
