@@ -966,13 +966,11 @@ class BeltDriveNode(Node):
     def _compiled_loop(self):
         """(loop, drive, load) of the integrator's compiled float loop for the current plant, or None."""
         plant, integrator = self._plant, self._settings.integrator
-        cached = self.__dict__.get("_loop_cache")
-        if cached is None or cached[0][0] is not plant or cached[0][1] is not integrator:
-            key = (plant, integrator)  # the objects themselves: a replaced plant never matches
+        cached = self.__dict__.get("_loop_cache")  # (plant, integrator, fast): the objects, so a replaced one never matches
+        if cached is None or cached[0] is not plant or cached[1] is not integrator:
             loop = plant.scalar_loop(integrator)
-            fast = None if loop is None else (loop, plant.drive.scalar_torque(), plant.load.scalar_torque())
-            cached = self._loop_cache = (key, fast)
-        return cached[1]
+            cached = self._loop_cache = (plant, integrator, None if loop is None else (loop, plant.scalar_drive, plant.scalar_load))
+        return cached[2]
 
     def _partial(self, rest_ns: int):
         """Integrator for a partial step of ``rest_ns`` (exact/etd2 share their expm cache)."""
