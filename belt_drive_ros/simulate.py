@@ -63,6 +63,8 @@ class Plant:
         #: (drive, load): whether each torque reads its angle; their inlinable sources (or None)
         self.uses_angle = (bool(drive.uses_angle), bool(load.uses_angle))
         self.sources = (drive.scalar_source, load.scalar_source)
+        #: sorted finite times [s] at which either torque jumps or kinks (TorqueProfile.breakpoints)
+        self.breakpoints = sorted({float(b) for b in (*drive.breakpoints(), *load.breakpoints()) if math.isfinite(b)})
         array = np.array
         if model.name == "flexible":
 
@@ -167,8 +169,8 @@ class Simulator:
         self.method_options = dict(method_options or {})
         self.integrator = make_integrator(method, model.A, model.B, dt, **self.method_options)
         self.stability = require_stable(model.A, model.B, method, dt) if check_stability else None
-        #: times [s] at which a torque jumps or kinks (:meth:`~belt_drive_ros.sources.TorqueProfile.breakpoints`)
-        self.breakpoints = sorted({float(b) for b in (*drive.breakpoints(), *load.breakpoints()) if math.isfinite(b)})
+        #: where steps are split (the plant's breakpoints; a copy, so a caller may change it for one simulator)
+        self.breakpoints = list(self.plant.breakpoints)
         self._partial_steps: dict = {}
         self.split_steps: dict = {}
 

@@ -48,7 +48,7 @@ from ..fidelity import choose_model
 from ..model import make_model
 from ..scene import Scene, load_scene
 from ..simulate import Plant, Simulator
-from ..sources import Constant, Step, TorqueProfile
+from ..sources import Constant, Step
 
 #: shipped scenes every study covers.
 SHIPPED_SCENES = ("paper", "truck_compressor", "e_motor_start")
@@ -100,11 +100,6 @@ def is_open_loop(scene: Scene) -> bool:
     return not (scene.drive.state_dependent or scene.load.state_dependent)
 
 
-def breakpoints(profile: TorqueProfile) -> set[float]:
-    """Times [s] at which ``profile`` jumps or kinks (where a reference solver must restart)."""
-    return set(profile.breakpoints())
-
-
 # --------------------------------------------------------------- reference
 @dataclass
 class Reference:
@@ -133,7 +128,7 @@ def dop853_reference(scene: Scene, model: str, rtol: float = REFERENCE_RTOL, ato
     """DOP853 at ``rtol``, restarted at every torque breakpoint (see module docstring)."""
     mdl, plant, x0 = _plant(scene, model)
     A, B, inputs = mdl.A, mdl.B, plant.inputs
-    cuts = sorted({0.0, scene.duration} | {b for b in breakpoints(scene.drive) | breakpoints(scene.load) if 0 < b < scene.duration})
+    cuts = sorted({0.0, scene.duration} | {b for b in plant.breakpoints if 0 < b < scene.duration})
     pieces = []
     start = time.process_time()
     x = x0
