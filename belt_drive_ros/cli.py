@@ -12,7 +12,7 @@ import argparse
 import importlib
 import sys
 
-from .errors import BeltDriveError
+from .core.errors import BeltDriveError
 
 #: subcommand modules, in --help order. A module missing here is skipped silently
 #: only if it does not exist yet (commands under construction).

@@ -6,10 +6,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from belt_drive_ros.bags import REFERENCE_BAGS, make_bags
+from belt_drive_ros.io.bags import REFERENCE_BAGS, make_bags
 from belt_drive_ros.cli import main as belt_drive
-from belt_drive_ros.recording import scene_from_bag
-from belt_drive_ros.scene import load_scene
+from belt_drive_ros.io.torque_bag import scene_from_bag
+from belt_drive_ros.core.scene import load_scene
 from msg_tools import summary
 from msg_tools.cli import main as msg_tools
 

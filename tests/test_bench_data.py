@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 from belt_drive_ros.benchmarks import common, fidelity_chart, stability_map, versus_scipy, workprecision
-from belt_drive_ros.fidelity import FREQUENCY_RATIO_THRESHOLD
+from belt_drive_ros.core.fidelity import FREQUENCY_RATIO_THRESHOLD
 
 
 @pytest.fixture(scope="module")

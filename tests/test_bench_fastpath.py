@@ -17,12 +17,12 @@ import math
 import numpy as np
 import pytest
 
-from belt_drive_ros import sources as S
-from belt_drive_ros.errors import IntegratorError, SimulationDivergedError
-from belt_drive_ros.integrators import FIXED_STEP_METHODS, compile_scalar_loop
-from belt_drive_ros.model import make_model
-from belt_drive_ros.scene import load_scene
-from belt_drive_ros.simulate import Simulator, simulate
+from belt_drive_ros.core import sources as S
+from belt_drive_ros.core.errors import IntegratorError, SimulationDivergedError
+from belt_drive_ros.core.integrators import FIXED_STEP_METHODS, compile_scalar_loop
+from belt_drive_ros.core.model import make_model
+from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.core.simulate import Simulator, simulate
 
 PROFILES = [
     S.Constant(3.0),

@@ -11,11 +11,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from belt_drive_ros import sources as S
+from belt_drive_ros.core import sources as S
 from belt_drive_ros.benchmarks.common import dop853_reference, run_errors
-from belt_drive_ros.model import make_model
-from belt_drive_ros.scene import load_scene
-from belt_drive_ros.simulate import Simulator
+from belt_drive_ros.core.model import make_model
+from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.core.simulate import Simulator
 
 
 def test_profiles_report_their_breakpoints():

@@ -30,9 +30,9 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from belt_drive_ros.integrators import make_integrator, propagate_linear
-from belt_drive_ros.model import FlexibleBeltModel, RigidBeltModel, paper_as_printed_stiffness
-from belt_drive_ros.params import BeltDriveParams
+from belt_drive_ros.core.integrators import make_integrator, propagate_linear
+from belt_drive_ros.core.model import FlexibleBeltModel, RigidBeltModel, paper_as_printed_stiffness
+from belt_drive_ros.core.params import BeltDriveParams
 
 RTOL_MATRIX = 1e-12  # same rational expressions in float64 on both sides (see module docstring)
 N_RANDOM = 20

@@ -22,11 +22,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from belt_drive_ros.model import FlexibleBeltModel, RigidBeltModel
-from belt_drive_ros.params import BeltDriveParams
-from belt_drive_ros.scene import InitialState, Scene
-from belt_drive_ros.simulate import simulate
-from belt_drive_ros.sources import Constant
+from belt_drive_ros.core.model import FlexibleBeltModel, RigidBeltModel
+from belt_drive_ros.core.params import BeltDriveParams
+from belt_drive_ros.core.scene import InitialState, Scene
+from belt_drive_ros.core.simulate import simulate
+from belt_drive_ros.core.sources import Constant
 
 #: paper-scene geometry written out (g = 0.4), so the tests do not move with the defaults.
 GEOMETRY = dict(

@@ -1,11 +1,11 @@
-"""belt_drive_ros.testing.BeltDriveHarness: the documented API, as a user's test would use it."""
+"""belt_drive_ros.ros.harness.BeltDriveHarness: the documented API, as a user's test would use it."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from belt_drive_ros.testing import BeltDriveHarness
+from belt_drive_ros.ros.harness import BeltDriveHarness
 
 pytestmark = pytest.mark.ros
 
@@ -45,7 +45,7 @@ def test_real_time_mode(ros_domain_id):
 
 
 def test_source_in_the_loop_is_stepped_by_the_harness(ros_domain_id):
-    from belt_drive_ros.sources import MotorCurve
+    from belt_drive_ros.core.sources import MotorCurve
 
     motor = MotorCurve(stall_torque=12.0, no_load_speed=160.0)
     with BeltDriveHarness(domain_id=ros_domain_id, source=motor, input_timeout=0.0) as h:
@@ -59,7 +59,7 @@ def test_source_in_the_loop_is_stepped_by_the_harness(ros_domain_id):
 
 
 def test_timeout_is_reported_when_the_node_cannot_progress(ros_domain_id):
-    from belt_drive_ros.testing import HarnessTimeout
+    from belt_drive_ros.ros.harness import HarnessTimeout
 
     with BeltDriveHarness(domain_id=ros_domain_id, timeout=0.3) as h:
         h.node.destroy_subscription(h.node._sub_torque)  # the node no longer listens

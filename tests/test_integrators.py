@@ -39,8 +39,8 @@ import pytest
 import scipy.integrate
 import scipy.signal
 
-from belt_drive_ros.errors import IntegratorError
-from belt_drive_ros.integrators import (
+from belt_drive_ros.core.errors import IntegratorError
+from belt_drive_ros.core.integrators import (
     ADAPTIVE_METHODS,
     FIXED_STEP_METHODS,
     REGISTRY,
@@ -49,10 +49,10 @@ from belt_drive_ros.integrators import (
     make_integrator,
     propagate_linear,
 )
-from belt_drive_ros.model import FlexibleBeltModel, RigidBeltModel
-from belt_drive_ros.params import BeltDriveParams
-from belt_drive_ros.simulate import Plant, Simulator
-from belt_drive_ros.sources import Compressor, Constant, MotorCurve, Polynomial, Ramp, Sine, Table, TorqueProfile
+from belt_drive_ros.core.model import FlexibleBeltModel, RigidBeltModel
+from belt_drive_ros.core.params import BeltDriveParams
+from belt_drive_ros.core.simulate import Plant, Simulator
+from belt_drive_ros.core.sources import Compressor, Constant, MotorCurve, Polynomial, Ramp, Sine, Table, TorqueProfile
 
 GEOMETRY = dict(I_M=0.02, I_1=0.004, I_2=0.003, I_3=0.03, r_M=0.04, R_1=0.06, r_1=0.03, R_2=0.05, r_2=0.06, r_3=0.05)
 PARAMS = BeltDriveParams(**GEOMETRY, k=2.0e4, c=3.0, b_M=1e-3, b_1=5e-4, b_2=5e-4, b_3=1e-3)

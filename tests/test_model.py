@@ -24,11 +24,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from belt_drive_ros.model import FlexibleBeltModel, OUTPUT_UNITS, RigidBeltModel, make_model, static_deflection
-from belt_drive_ros.params import BeltDriveParams
-from belt_drive_ros.scene import InitialState, Scene
-from belt_drive_ros.simulate import Simulator, simulate
-from belt_drive_ros.sources import Constant, Ramp, Sine, Step
+from belt_drive_ros.core.model import FlexibleBeltModel, OUTPUT_UNITS, RigidBeltModel, make_model, static_deflection
+from belt_drive_ros.core.params import BeltDriveParams
+from belt_drive_ros.core.scene import InitialState, Scene
+from belt_drive_ros.core.simulate import Simulator, simulate
+from belt_drive_ros.core.sources import Constant, Ramp, Sine, Step
 
 #: paper-scene geometry written out (g = 0.4, i = 0.48).
 GEOMETRY = dict(I_M=0.02, I_1=0.004, I_2=0.003, I_3=0.03, r_M=0.04, R_1=0.06, r_1=0.03, R_2=0.05, r_2=0.06, r_3=0.05)

@@ -1,4 +1,4 @@
-"""BeltDriveNode in-process, in lockstep with /clock (belt_drive_ros.testing).
+"""BeltDriveNode in-process, in lockstep with /clock (belt_drive_ros.ros.harness).
 
 Tolerances: the node and the offline simulator run the same integrator on
 the same steps with the same held torques, so states and outputs agree to
@@ -13,11 +13,11 @@ import math
 import numpy as np
 import pytest
 
-from belt_drive_ros.model import make_model
-from belt_drive_ros.scene import load_scene
-from belt_drive_ros.simulate import Simulator
-from belt_drive_ros.sources import Table
-from belt_drive_ros.testing import BeltDriveHarness
+from belt_drive_ros.core.model import make_model
+from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.core.simulate import Simulator
+from belt_drive_ros.core.sources import Table
+from belt_drive_ros.ros.harness import BeltDriveHarness
 
 pytestmark = pytest.mark.ros
 

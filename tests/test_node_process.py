@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from belt_drive_ros import ros_env
+from belt_drive_ros.ros import environment as ros_env
 
 pytestmark = pytest.mark.ros
 
@@ -48,7 +48,7 @@ class Probe:
         from rclpy.context import Context
         from rclpy.node import Node
 
-        from belt_drive_ros.node import make_executor
+        from belt_drive_ros.ros.node import make_executor
 
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain)

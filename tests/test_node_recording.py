@@ -17,7 +17,7 @@ pytestmark = pytest.mark.ros
 
 
 def test_node_records_its_run_when_given_record_path(tmp_path, ros_domain_id):
-    from belt_drive_ros.testing import BeltDriveHarness
+    from belt_drive_ros.ros.harness import BeltDriveHarness
 
     bag = tmp_path / "run.mcap"
     with BeltDriveHarness(scene="paper", model="flexible", method="exact", domain_id=ros_domain_id,
@@ -50,7 +50,7 @@ def test_node_records_its_run_when_given_record_path(tmp_path, ros_domain_id):
 
 
 def test_existing_record_path_is_not_overwritten(tmp_path, ros_domain_id):
-    from belt_drive_ros.testing import BeltDriveHarness
+    from belt_drive_ros.ros.harness import BeltDriveHarness
 
     bag = tmp_path / "keep.mcap"
     bag.write_bytes(b"precious")

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import yaml
 
-from belt_drive_ros.errors import BeltDriveError, ParameterError
-from belt_drive_ros.model import FlexibleBeltModel, RigidBeltModel
-from belt_drive_ros.params import FIELD_DOCS, BeltDriveParams, describe_fields
+from belt_drive_ros.core.errors import BeltDriveError, ParameterError
+from belt_drive_ros.core.model import FlexibleBeltModel, RigidBeltModel
+from belt_drive_ros.core.params import FIELD_DOCS, BeltDriveParams, describe_fields
 
 FIELDS = [f.name for f in dataclasses.fields(BeltDriveParams)]
 RADII = ["r_M", "R_1", "r_1", "R_2", "r_2", "r_3"]

@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from belt_drive_ros.cli import main as belt_drive
-from belt_drive_ros.recording import (
+from belt_drive_ros.io.recording import (
     JOINT_NAMES,
     TOPIC_TYPES,
     BagExistsError,
@@ -24,12 +24,11 @@ from belt_drive_ros.recording import (
     BagWriteError,
     encode_float64,
     encode_joint_states,
-    scene_from_bag,
     write_result_mcap,
 )
-from belt_drive_ros.replay import scene_with_torque_bag
-from belt_drive_ros.scene import load_scene
-from belt_drive_ros.simulate import simulate
+from belt_drive_ros.io.torque_bag import scene_from_bag, scene_with_torque_bag
+from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.core.simulate import simulate
 from msg_tools import encode, read_topic
 from msg_tools.cli import main as msg_tools
 from msg_tools.qos import parse_offered_qos_yaml
@@ -132,7 +131,7 @@ def test_fast_encoders_equal_mcap_ros2_encoding():
 
 
 def test_joint_names_and_topics_match_the_node():
-    node = pytest.importorskip("belt_drive_ros.node")
+    node = pytest.importorskip("belt_drive_ros.ros.node")
     assert tuple(node.JOINT_NAMES) == JOINT_NAMES
     assert set(node.OUTPUT_TOPICS) < set(TOPIC_TYPES)
 

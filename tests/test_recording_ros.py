@@ -40,7 +40,7 @@ def _spin_until(executor, predicate, timeout=10.0):
 
 @pytest.fixture
 def harness(ros_domain_id):
-    from belt_drive_ros.testing import BeltDriveHarness
+    from belt_drive_ros.ros.harness import BeltDriveHarness
 
     with BeltDriveHarness(scene="truck_compressor", domain_id=ros_domain_id) as h:
         yield h
@@ -62,7 +62,8 @@ def _drive(h, recorder, steps=150):
 
 @pytest.mark.parametrize("capture", ["subscription", "direct"])
 def test_node_recording_is_rosbag2_mcap_with_the_bytes_received(harness, tmp_path, capture):
-    from belt_drive_ros.recording import NodeRecorder, scene_from_bag
+    from belt_drive_ros.io.torque_bag import scene_from_bag
+    from belt_drive_ros.ros.recorder import NodeRecorder
 
     h = harness
     path = tmp_path / "node.mcap"
@@ -138,7 +139,7 @@ class _DiskFullAfter(io.BytesIO):
 
 
 def test_write_error_stops_recording_not_the_node(harness):
-    from belt_drive_ros.recording import NodeRecorder
+    from belt_drive_ros.ros.recorder import NodeRecorder
 
     h = harness
     recorder = NodeRecorder(h.node, _DiskFullAfter(16 * 1024), flush_interval_s=0.01, chunk_size=1024)
@@ -159,7 +160,8 @@ def test_write_error_stops_recording_not_the_node(harness):
 
 
 def test_existing_file_refused(harness, tmp_path):
-    from belt_drive_ros.recording import BagExistsError, NodeRecorder
+    from belt_drive_ros.io.recording import BagExistsError
+    from belt_drive_ros.ros.recorder import NodeRecorder
 
     path = tmp_path / "keep.mcap"
     path.write_bytes(b"precious")
@@ -219,7 +221,7 @@ def test_record_command_under_signals(tmp_path, ros_domain_id, sig):
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64
 
-    from belt_drive_ros import ros_env
+    from belt_drive_ros.ros import environment as ros_env
 
     path = tmp_path / "rec.mcap"
     env = ros_env.child_environment(ros_domain_id)  # UDP only: a killed child leaves no shared memory

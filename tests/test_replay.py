@@ -8,10 +8,11 @@ import time
 import numpy as np
 import pytest
 
-from belt_drive_ros.recording import BagReadError
-from belt_drive_ros.replay import RecordedTorque, replay_schedule, scene_with_torque_bag
-from belt_drive_ros.scene import load_scene
-from belt_drive_ros.simulate import simulate
+from belt_drive_ros.io.recording import BagReadError
+from belt_drive_ros.io.torque_bag import RecordedTorque, scene_with_torque_bag
+from belt_drive_ros.ros.replay import replay_schedule
+from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.core.simulate import simulate
 from msg_tools import Ros2McapWriter, read_topic
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -114,7 +115,7 @@ def test_replay_schedule_rate_offset_loop():
 
 # ---------------------------------------------------------------------- ROS
 def _replay(bag, domain_id, *extra):
-    from belt_drive_ros import ros_env
+    from belt_drive_ros.ros import environment as ros_env
 
     env = ros_env.child_environment(domain_id)  # UDP only: nothing left in /dev/shm if killed
     cmd = [os.path.join(os.path.dirname(sys.executable), "belt-drive"), "replay", str(bag), "--quiet", *extra]
@@ -171,7 +172,7 @@ def test_node_in_sim_time_follows_replay_like_the_lockstep_harness(tmp_path, ros
     replay wait for the node's outputs stamped t_k too, so the run is
     deterministic however loaded the machine is, at 10x real time.
     """
-    from belt_drive_ros.testing import BeltDriveHarness
+    from belt_drive_ros.ros.harness import BeltDriveHarness
 
     n = 60
     torque = simulate(load_scene("truck_compressor").with_overrides(duration=0.1)).outputs["drive_torque"][::2][:n]
@@ -199,8 +200,8 @@ def _node_following_replay(bag, out, domain_id):
     from rclpy.context import Context
     from rclpy.parameter import Parameter
 
-    from belt_drive_ros.node import BeltDriveNode, make_executor
-    from belt_drive_ros.recording import NodeRecorder
+    from belt_drive_ros.ros.node import BeltDriveNode, make_executor
+    from belt_drive_ros.ros.recorder import NodeRecorder
 
     ctx = Context()
     rclpy.init(context=ctx, domain_id=domain_id)

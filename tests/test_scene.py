@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import yaml
 
-from belt_drive_ros.errors import ParameterError, SceneError
-from belt_drive_ros.fidelity import FREQUENCY_RATIO_THRESHOLD, choose_model
-from belt_drive_ros.integrators import REGISTRY
-from belt_drive_ros.scene import InitialState, Scene, load_scene, shipped_scenes
-from belt_drive_ros.simulate import simulate
+from belt_drive_ros.core.errors import ParameterError, SceneError
+from belt_drive_ros.core.fidelity import FREQUENCY_RATIO_THRESHOLD, choose_model
+from belt_drive_ros.core.integrators import REGISTRY
+from belt_drive_ros.core.scene import InitialState, Scene, load_scene, shipped_scenes
+from belt_drive_ros.core.simulate import simulate
 
 SHIPPED = ["e_motor_start", "paper", "truck_compressor"]
 

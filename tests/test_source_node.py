@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from belt_drive_ros.sources import Engine, Table
+from belt_drive_ros.core.sources import Engine, Table
 
 pytestmark = pytest.mark.ros
 
@@ -28,7 +28,7 @@ def context(ros_domain_id):
 def test_engine_torque_follows_speed_and_integrated_crank_angle(context):
     from std_msgs.msg import Float64
 
-    from belt_drive_ros.source_node import TorqueSourceNode
+    from belt_drive_ros.ros.source_node import TorqueSourceNode
 
     engine = Engine(mean_torque=20.0, harmonics=(15.0, 5.0), cylinders=6, speed_setpoint=80.0, governor_gain=2.0)
     node = TorqueSourceNode(engine, context=context, autostart=False, initial_speed=50.0)
@@ -52,7 +52,7 @@ def test_engine_torque_follows_speed_and_integrated_crank_angle(context):
 
 
 def test_open_loop_profile_does_not_subscribe(context):
-    from belt_drive_ros.source_node import TorqueSourceNode
+    from belt_drive_ros.ros.source_node import TorqueSourceNode
 
     table = Table(times=(0.0, 0.5), values=(1.0, 4.0), interpolation="previous")
     node = TorqueSourceNode(table, context=context, autostart=False)
@@ -67,7 +67,7 @@ def test_open_loop_profile_does_not_subscribe(context):
 def test_rate_parameter_is_validated_at_runtime(context):
     from rclpy.parameter import Parameter
 
-    from belt_drive_ros.source_node import TorqueSourceNode
+    from belt_drive_ros.ros.source_node import TorqueSourceNode
 
     node = TorqueSourceNode(Table(times=(0.0,), values=(1.0,)), context=context, rate_hz=200.0)
     try:
@@ -80,7 +80,7 @@ def test_rate_parameter_is_validated_at_runtime(context):
 
 def test_csv_profiles(tmp_path):
     from belt_drive_ros.commands.source import read_csv_profile
-    from belt_drive_ros.errors import SceneError
+    from belt_drive_ros.core.errors import SceneError
 
     plain = tmp_path / "plain.csv"
     plain.write_text("0.0, 1.0\n0.5, 2.0\n1.0, 3.0\n")

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from belt_drive_ros.errors import SceneError
-from belt_drive_ros.sources import (
+from belt_drive_ros.core.errors import SceneError
+from belt_drive_ros.core.sources import (
     Compressor,
     Constant,
     Engine,

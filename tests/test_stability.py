@@ -27,14 +27,14 @@ import re
 import numpy as np
 import pytest
 
-from belt_drive_ros.errors import SimulationDivergedError, UnstableStepError
-from belt_drive_ros.integrators import FIXED_STEP_METHODS, make_integrator, propagate_linear
-from belt_drive_ros.model import FlexibleBeltModel
-from belt_drive_ros.params import BeltDriveParams
-from belt_drive_ros.scene import InitialState, Scene
-from belt_drive_ros.simulate import Simulator, simulate
-from belt_drive_ros.sources import Constant, Polynomial
-from belt_drive_ros.stability import check_step, max_stable_step, require_stable
+from belt_drive_ros.core.errors import SimulationDivergedError, UnstableStepError
+from belt_drive_ros.core.integrators import FIXED_STEP_METHODS, make_integrator, propagate_linear
+from belt_drive_ros.core.model import FlexibleBeltModel
+from belt_drive_ros.core.params import BeltDriveParams
+from belt_drive_ros.core.scene import InitialState, Scene
+from belt_drive_ros.core.simulate import Simulator, simulate
+from belt_drive_ros.core.sources import Constant, Polynomial
+from belt_drive_ros.core.stability import check_step, max_stable_step, require_stable
 
 GEOMETRY = dict(I_M=0.02, I_1=0.004, I_2=0.003, I_3=0.03, r_M=0.04, R_1=0.06, r_1=0.03, R_2=0.05, r_2=0.06, r_3=0.05)
 UNDAMPED = BeltDriveParams(**GEOMETRY, k=2.0e4, c=0.0, b_M=0.0, b_1=0.0, b_2=0.0, b_3=0.0)

@@ -44,11 +44,11 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 import scipy.integrate
 
-from ..fidelity import choose_model
-from ..model import make_model
-from ..scene import Scene, load_scene
-from ..simulate import Plant, Simulator
-from ..sources import Constant, Step
+from ..core.fidelity import choose_model
+from ..core.model import make_model
+from ..core.scene import Scene, load_scene
+from ..core.simulate import Plant, Simulator
+from ..core.sources import Constant, Step
 
 #: shipped scenes every study covers.
 SHIPPED_SCENES = ("paper", "truck_compressor", "e_motor_start")

@@ -17,7 +17,7 @@ Both runs use ``etd2`` at 200 steps per period of the faster of f and f_n
 (the belt mode is integrated exactly; the common input interpolation error
 cancels in the difference).
 
-The ``auto`` choice (:func:`belt_drive_ros.fidelity.choose_model`) is asked for
+The ``auto`` choice (:func:`belt_drive_ros.core.fidelity.choose_model`) is asked for
 every point: where it switches, and the error level at its threshold
 ``FREQUENCY_RATIO_THRESHOLD``, are in the chart and the CSV.
 """
@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fidelity import FREQUENCY_RATIO_THRESHOLD, choose_model
-from ..model import FlexibleBeltModel, RigidBeltModel
-from ..scene import Scene, load_scene
-from ..simulate import simulate
-from ..sources import Constant, Sine
+from ..core.fidelity import FREQUENCY_RATIO_THRESHOLD, choose_model
+from ..core.model import FlexibleBeltModel, RigidBeltModel
+from ..core.scene import Scene, load_scene
+from ..core.simulate import simulate
+from ..core.sources import Constant, Sine
 from .common import log, pyplot, save_figure, write_csv
 
 AMPLITUDE = 10.0  # N m (the models are linear: errors do not depend on it)

@@ -74,7 +74,7 @@ def parse_args(argv=None):
 
 def measure(args) -> dict:
     """Run the child node and this process's probe; return the figures."""
-    from .. import ros_env
+    from ..ros import environment as ros_env
 
     ros_env.configure_environment()
     ros_env.limit_blas_threads()
@@ -87,7 +87,7 @@ def measure(args) -> dict:
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
-    from ..node import make_executor
+    from ..ros.node import make_executor
 
     domain = ros_env.process_domain_id(offset=17)
     env = ros_env.child_environment(domain, udp_only=args.udp_only)

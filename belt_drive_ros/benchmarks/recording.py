@@ -4,15 +4,15 @@
 
 1. *Write*: :class:`msg_tools.Ros2McapWriter.write_raw` of Float64 and
    JointState CDR, no DDS (the recorder's cost per message).
-2. *Record live*: a publisher and a :class:`~belt_drive_ros.recording.TopicRecorder`
+2. *Record live*: a publisher and a :class:`~belt_drive_ros.io.recording.TopicRecorder`
    (raw subscription -> MCAP) on one rclpy context and executor, loopback
    DDS: messages recorded per second of wall time, publisher flat out.
 3. *Decode*: :func:`msg_tools.read_topic` (vectorized) of Float64 and
    JointState topics.
 4. *Offline replay*: a 1-hour 1 kHz ``drive_torque`` bag (3.6 M messages,
    generated in a temporary folder, not timed) read and run through the
-   model with :func:`~belt_drive_ros.replay.scene_with_torque_bag` and
-   :func:`~belt_drive_ros.simulate.simulate` on the ``engine_idle``
+   model with :func:`~belt_drive_ros.io.torque_bag.scene_with_torque_bag` and
+   :func:`~belt_drive_ros.core.simulate.simulate` on the ``engine_idle``
    reference scene (flexible belt, compressor load depending on the angle),
    at dt = 1 ms (one step per sample) and at the scene's 0.5 ms. Target: < 60 s.
    With ``--profile`` (or when the target is missed) the top functions of
@@ -44,7 +44,7 @@ def bench_write(n: int = 200_000) -> dict:
     """Messages/s of ``write_raw`` into an MCAP file (Float64, JointState)."""
     from msg_tools import Ros2McapWriter
 
-    from ..recording import encode_float64, encode_joint_states
+    from ..io.recording import encode_float64, encode_joint_states
 
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -71,7 +71,7 @@ def bench_decode(n: int = 1_000_000) -> dict:
     """Messages/s of :func:`msg_tools.read_topic` for Float64 and JointState."""
     from msg_tools import Ros2McapWriter, read_topic
 
-    from ..recording import encode_float64, encode_joint_states
+    from ..io.recording import encode_float64, encode_joint_states
 
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -96,7 +96,7 @@ def bench_decode(n: int = 1_000_000) -> dict:
 
 def bench_record_live(n: int = 20_000, batch: int = 200) -> dict:
     """Messages/s recorded by a raw-subscription recorder from a publisher in the same process."""
-    from .. import ros_env
+    from ..ros import environment as ros_env
 
     ros_env.configure_environment()
     import rclpy
@@ -106,7 +106,7 @@ def bench_record_live(n: int = 20_000, batch: int = 200) -> dict:
 
     from msg_tools import Ros2McapWriter
 
-    from ..recording import TopicRecorder
+    from ..ros.recorder import TopicRecorder
 
     context = Context()
     rclpy.init(context=context, domain_id=ros_env.process_domain_id(offset=37))
@@ -157,7 +157,7 @@ def make_torque_bag(path, minutes: float, rate_hz: float = 1000.0) -> int:
     """An engine-like drive torque [N m] at ``rate_hz`` for ``minutes``: firing ripple on a slow speed sweep."""
     from msg_tools import Ros2McapWriter
 
-    from ..recording import encode_float64
+    from ..io.recording import encode_float64
 
     n = int(round(minutes * 60.0 * rate_hz)) + 1
     t = np.arange(n) / rate_hz
@@ -176,9 +176,9 @@ def make_torque_bag(path, minutes: float, rate_hz: float = 1000.0) -> int:
 
 def replay_through_model(bag, dt: Optional[float]) -> dict:
     """Read the bag, build the scene, simulate; times of each part [s]."""
-    from ..bags import reference_scene
-    from ..replay import scene_with_torque_bag
-    from ..simulate import simulate
+    from ..io.bags import reference_scene
+    from ..io.torque_bag import scene_with_torque_bag
+    from ..core.simulate import simulate
 
     base = reference_scene("engine_idle").with_overrides(model="flexible")
     t0 = time.perf_counter()

@@ -11,7 +11,7 @@ import math
 import platform
 from pathlib import Path
 
-from ..fidelity import FREQUENCY_RATIO_THRESHOLD
+from ..core.fidelity import FREQUENCY_RATIO_THRESHOLD
 from .common import get_scene, read_csv
 
 

@@ -21,7 +21,7 @@ more periods (for RK4 at h omega_n ~ 2.83, 2.2 steps per period: ~0.2 %).
 
 Predicted
 ---------
-:func:`belt_drive_ros.stability.max_stable_step` times omega_n: the guard's
+:func:`belt_drive_ros.core.stability.max_stable_step` times omega_n: the guard's
 bisection on max |R(h lambda)| over the eigenvalues of A.
 
 Two charts in one PNG: the (h omega_n, zeta) plane for each method (grid of
@@ -38,13 +38,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SimulationDivergedError
-from ..model import FlexibleBeltModel
-from ..params import BeltDriveParams
-from ..scene import InitialState, load_scene
-from ..simulate import Simulator
-from ..sources import Constant
-from ..stability import max_stable_step
+from ..core.errors import SimulationDivergedError
+from ..core.model import FlexibleBeltModel
+from ..core.params import BeltDriveParams
+from ..core.scene import InitialState, load_scene
+from ..core.simulate import Simulator
+from ..core.sources import Constant
+from ..core.stability import max_stable_step
 from .common import log, pyplot, save_figure, write_csv
 
 #: belt periods per run.

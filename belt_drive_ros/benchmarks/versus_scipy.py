@@ -6,7 +6,7 @@
    swept over the step (quarter octaves), against a plain ``scipy.integrate.solve_ivp(method=
    "RK45")`` call swept over ``rtol`` (quarter decades, ``atol = 1e-3 rtol``) with ``t_eval``
    on the scene's output grid and the right-hand side ``A x + B u(t, x)`` a
-   user would write (with the package's fast :class:`~belt_drive_ros.simulate.Plant`
+   user would write (with the package's fast :class:`~belt_drive_ros.core.simulate.Plant`
    inputs, so the comparison is of the integrators, not of the torque code).
    For each target error, the CPU time of the **cheapest measured run** of
    each method reaching it (no interpolation) and their ratio.
@@ -26,10 +26,10 @@ from pathlib import Path
 import numpy as np
 import scipy.integrate
 
-from ..integrators import FIXED_STEP_METHODS
-from ..model import make_model
-from ..simulate import Plant, Simulator, simulate
-from ..stability import check_step
+from ..core.integrators import FIXED_STEP_METHODS
+from ..core.model import make_model
+from ..core.simulate import Plant, Simulator, simulate
+from ..core.stability import check_step
 from .common import (
     LINEAR_SCENE,
     PLOT_FLOOR,

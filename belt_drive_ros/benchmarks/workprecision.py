@@ -25,11 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import BeltDriveError, SimulationDivergedError
-from ..integrators import ADAPTIVE_METHODS, FIXED_STEP_METHODS
-from ..model import make_model
-from ..simulate import Simulator
-from ..stability import check_step
+from ..core.errors import BeltDriveError, SimulationDivergedError
+from ..core.integrators import ADAPTIVE_METHODS, FIXED_STEP_METHODS
+from ..core.model import make_model
+from ..core.simulate import Simulator
+from ..core.stability import check_step
 from .common import (
     LINEAR_SCENE,
     PLOT_FLOOR,

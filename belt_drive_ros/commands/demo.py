@@ -56,7 +56,7 @@ def run(args) -> int:
 
 def live_run(scene_name: str = "truck_compressor", duration: float = 4.0, executor: str = "auto") -> dict:
     """Engine source -> belt node for ``duration`` s of real time; print and return the summary figures."""
-    from .. import ros_env
+    from ..ros import environment as ros_env
 
     ros_env.configure_environment()
     ros_env.limit_blas_threads()
@@ -72,9 +72,9 @@ def live_run(scene_name: str = "truck_compressor", duration: float = 4.0, execut
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
-    from ..errors import SceneError
-    from ..node import BeltDriveNode, executor_name, make_executor
-    from ..source_node import TorqueSourceNode
+    from ..core.errors import SceneError
+    from ..ros.node import BeltDriveNode, executor_name, make_executor
+    from ..ros.source_node import TorqueSourceNode
 
     domain = ros_env.process_domain_id()
     context = Context()

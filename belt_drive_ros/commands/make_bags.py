@@ -35,8 +35,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..bags import REFERENCE_BAGS, make_bags
-    from ..recording import BagReadError
+    from ..io.bags import REFERENCE_BAGS, make_bags
+    from ..io.recording import BagReadError
 
     if args.list:
         for name, case in REFERENCE_BAGS.items():

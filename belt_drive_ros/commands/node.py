@@ -47,7 +47,7 @@ def run(args) -> int:
     if args.list_parameters:
         print(describe_parameters(args.scene or "paper"))
         return 0
-    from ..node import run as run_node
+    from ..ros.node import run as run_node
 
     ros_args = ["--ros-args", *args.ros_args] if args.ros_args else []
     return run_node(ros_args, scene=args.scene, executor=args.executor, node_name=args.name)
@@ -55,11 +55,11 @@ def run(args) -> int:
 
 def describe_parameters(scene_name: str) -> str:
     """Text table of the node's parameters (defaults for ``scene_name``); needs no ROS."""
-    from ..params import FIELD_DOCS
-    from ..scene import load_scene
+    from ..core.params import FIELD_DOCS
+    from ..core.scene import load_scene
 
     # the spec table lives with the node; read it without starting ROS
-    from ..node import MODEL_PARAM_RANGES, NODE_PARAMETERS, default_values
+    from ..ros.node import MODEL_PARAM_RANGES, NODE_PARAMETERS, default_values
 
     scene = load_scene(scene_name)
     values = default_values(scene)

@@ -53,8 +53,9 @@ def run(args) -> int:
     from msg_tools import Ros2McapWriter
     from msg_tools.errors import MsgToolsError
 
-    from .. import ros_env
-    from ..recording import BagWriteError, TopicRecorder, bag_error
+    from ..ros import environment as ros_env
+    from ..io.recording import BagWriteError, bag_error
+    from ..ros.recorder import TopicRecorder
 
     if args.duration is not None and not args.duration > 0:
         raise SystemExit("belt-drive: error: --duration must be > 0 s")

@@ -57,8 +57,8 @@ def run(args) -> int:
     import signal
     import sys
 
-    from ..recording import BagReadError
-    from ..replay import run_replay
+    from ..io.recording import BagReadError
+    from ..ros.replay import run_replay
 
     if not (args.rate > 0):
         raise SystemExit("belt-drive: error: --rate must be > 0")

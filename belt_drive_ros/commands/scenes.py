@@ -11,8 +11,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..params import describe_fields
-    from ..scene import load_scene, shipped_scenes
+    from ..core.params import describe_fields
+    from ..core.scene import load_scene, shipped_scenes
 
     if args.name:
         print(load_scene(args.name).to_yaml(), end="")

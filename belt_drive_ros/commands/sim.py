@@ -56,15 +56,15 @@ def _options(pairs):
 
 
 def run(args) -> int:
-    from ..progress import ProgressBar
-    from ..scene import load_scene
-    from ..simulate import simulate
+    from ..io.progress import ProgressBar
+    from ..core.scene import load_scene
+    from ..core.simulate import simulate
 
     scene = load_scene(args.scene)
     if args.method_option:
         scene = scene.with_overrides(method_options=_options(args.method_option))
     if args.torque_bag is not None:
-        from ..replay import scene_with_torque_bag  # issue 4: offline replay of a recorded profile
+        from ..io.torque_bag import scene_with_torque_bag  # issue 4: offline replay of a recorded profile
 
         scene = scene_with_torque_bag(scene, args.torque_bag)
     if args.out is not None and args.out.exists() and not args.force:
@@ -75,14 +75,14 @@ def run(args) -> int:
     print_summary(result)
     if args.out is not None:
         if args.out.suffix == ".mcap":
-            from ..recording import write_result_mcap
+            from ..io.recording import write_result_mcap
 
             write_result_mcap(result, args.out, force=args.force)
         else:
             result.to_csv(args.out)
         print(f"wrote {args.out}")
     if args.plot is not None:
-        from ..plotting import plot_runs
+        from ..io.plotting import plot_runs
 
         comp = _overlay_run(scene, result, args)
         runs = sorted([result, comp], key=lambda r: r.model != "rigid")
@@ -98,9 +98,9 @@ def _overlay_run(scene, result, args):
     (its belt mode); the overlay then falls back to ``etd2`` and says so
     (the legend names the method) rather than failing a valid run.
     """
-    from ..model import make_model
-    from ..simulate import simulate
-    from ..stability import check_step
+    from ..core.model import make_model
+    from ..core.simulate import simulate
+    from ..core.stability import check_step
 
     other = "flexible" if result.model == "rigid" else "rigid"
     method = result.method

@@ -100,8 +100,8 @@ _MOTOR_FIELDS = ("stall_torque", "no_load_speed", "curve", "soft_start_time")
 
 
 def _from_scene(scene_name: str, expected_kind: str | None):
-    from ..errors import SceneError
-    from ..scene import load_scene
+    from ..core.errors import SceneError
+    from ..core.scene import load_scene
 
     scene = load_scene(scene_name)
     if expected_kind is not None and scene.drive.kind != expected_kind:
@@ -116,8 +116,8 @@ def read_csv_profile(path: Path, column: str | None = None, interpolation: str =
     """Table profile from a CSV: time [s] + torque [N m] columns (see the command's help)."""
     import numpy as np
 
-    from ..errors import SceneError
-    from ..sources import Table
+    from ..core.errors import SceneError
+    from ..core.sources import Table
 
     lines = [ln for ln in Path(path).read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
@@ -151,7 +151,7 @@ def read_csv_profile(path: Path, column: str | None = None, interpolation: str =
 
 def build_profile(args):
     """(profile, initial_speed) for the parsed arguments; no ROS involved."""
-    from ..sources import Engine, MotorCurve
+    from ..core.sources import Engine, MotorCurve
 
     kind = args.source_kind
     initial_speed = 0.0
@@ -172,7 +172,7 @@ def build_profile(args):
             value = getattr(args, name, None)
             if value is not None:
                 base[name] = value
-        from ..sources import make_profile
+        from ..core.sources import make_profile
 
         profile = make_profile({"type": cls.kind, **base}, f"source {kind}")
     if args.initial_speed is not None:
@@ -187,7 +187,7 @@ def run(args) -> int:
 
         print(yaml.safe_dump({"drive": profile.to_dict(), "initial_speed": initial_speed}, sort_keys=False), end="")
         return 0
-    from ..source_node import run as run_source
+    from ..ros.source_node import run as run_source
 
     ros_args = ["--ros-args", *args.ros_args] if args.ros_args else []
     return run_source(profile, ros_args, rate_hz=args.rate, initial_speed=initial_speed, executor=args.executor, node_name=args.name)

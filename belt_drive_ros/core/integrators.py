@@ -613,7 +613,7 @@ def compile_scalar_loop(
     arithmetic itself; a closed-loop run of the belt model makes ~10 such
     calls per step. The loop below unrolls every matrix-vector product into
     float arithmetic with the matrix entries as literals (zeros dropped) and
-    calls the torque profiles' :meth:`~belt_drive_ros.sources.TorqueProfile.scalar_torque`
+    calls the torque profiles' :meth:`~belt_drive_ros.core.sources.TorqueProfile.scalar_torque`
     closures: 10-20x faster than looping over :meth:`FixedStepIntegrator.step`
     on the shipped scenes (docs/performance.md), and equal to it to rounding
     (same maths, another summation order).
@@ -625,12 +625,12 @@ def compile_scalar_loop(
         the drive torque sees (phi_M, omega_M), the load (phi_3, omega_3).
     dt : step h [s] (stage times are ``t + c_i h``, as in :meth:`step`).
     uses_angle : (drive, load): False when that torque ignores its angle
-        argument (:attr:`~belt_drive_ros.sources.TorqueProfile.uses_angle`);
+        argument (:attr:`~belt_drive_ros.core.sources.TorqueProfile.uses_angle`);
         then only the speeds of the intermediate stages are computed (the
         stages exist only to feed the torques) and the angle passed is 0.0.
     sources : (drive, load): ``f(t, angle, speed) -> str`` giving the torque
         as a Python expression in those variable names
-        (:meth:`~belt_drive_ros.sources.TorqueProfile.scalar_source`), inlined
+        (:meth:`~belt_drive_ros.core.sources.TorqueProfile.scalar_source`), inlined
         instead of a call (a call costs about as much as 5 multiply-adds), or
         None to call ``drive``/``load``.
 

@@ -3,10 +3,10 @@
 The :class:`Plant` joins a model with its drive and load profiles into the
 input function ``u(t, x)`` every integrator calls. :class:`Simulator` owns
 the state and the time grid; it takes the vectorized path (one linear
-recurrence for the whole run, :func:`~belt_drive_ros.integrators.propagate_linear`)
+recurrence for the whole run, :func:`~belt_drive_ros.core.integrators.propagate_linear`)
 when both torques depend on time only and the method has a fixed step, and
 steps one at a time otherwise: fixed-step methods in a loop compiled for the
-plant (:func:`~belt_drive_ros.integrators.compile_scalar_loop`, plain float
+plant (:func:`~belt_drive_ros.core.integrators.compile_scalar_loop`, plain float
 arithmetic, no numpy per step), adaptive ones through ``integrator.step``.
 All paths give the same states to rounding.
 """
@@ -48,10 +48,10 @@ class Plant:
     """Model + drive + load: the input function ``u(t, x) = [drive, load]`` [N m].
 
     ``inputs(t, x)`` takes one state (1-D) and returns a (2,) array; it calls
-    the profiles' scalar closures (:meth:`~belt_drive_ros.sources.TorqueProfile.scalar_torque`),
+    the profiles' scalar closures (:meth:`~belt_drive_ros.core.sources.TorqueProfile.scalar_torque`),
     which skip numpy's per-call overhead. ``wheel_map`` is the (4, n) matrix
     W with ``[phi_M, omega_M, phi_3, omega_3] = W x`` (the compiled loops of
-    :func:`~belt_drive_ros.integrators.compile_scalar_loop` inline it).
+    :func:`~belt_drive_ros.core.integrators.compile_scalar_loop` inline it).
     """
 
     def __init__(self, model, drive: TorqueProfile, load: TorqueProfile):
@@ -100,7 +100,7 @@ class Plant:
 class SimResult:
     """States, inputs and outputs of one run on the grid ``time`` [s].
 
-    ``outputs`` holds every signal of :data:`belt_drive_ros.model.OUTPUT_UNITS`
+    ``outputs`` holds every signal of :data:`belt_drive_ros.core.model.OUTPUT_UNITS`
     as an (N,) array; ``states`` is (N, n) in the model's state ordering.
     """
 
@@ -388,5 +388,5 @@ def simulate(
 
 
 def output_names() -> list[str]:
-    """Names of all output signals (see :data:`belt_drive_ros.model.OUTPUT_UNITS`)."""
+    """Names of all output signals (see :data:`belt_drive_ros.core.model.OUTPUT_UNITS`)."""
     return list(OUTPUT_UNITS)

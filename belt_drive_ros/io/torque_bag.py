@@ -4,12 +4,12 @@ Offline (no ROS, deterministic)
 -------------------------------
 :func:`scene_with_torque_bag` replaces a scene's drive by the recorded
 ``drive_torque`` of a bag, as a zero-order hold
-(:class:`RecordedTorque`, a :class:`~belt_drive_ros.sources.Table` with
+(:class:`RecordedTorque`, a :class:`~belt_drive_ros.core.sources.Table` with
 ``interpolation='previous'``), which is how the node sees held messages:
 the value of the latest message at or before ``t`` acts at ``t``. Times are
 ``log_time`` relative to the first message; the scene's duration becomes the
 span of the recording unless given. ``belt-drive sim SCENE --torque-bag BAG
---out run.mcap`` is this plus :func:`~belt_drive_ros.recording.write_result_mcap`:
+--out run.mcap`` is this plus :func:`~belt_drive_ros.io.recording.write_result_mcap`:
 the same inputs give a byte-identical output file.
 
 Live (``belt-drive replay``)
@@ -39,19 +39,24 @@ import math
 import os
 import warnings
 from dataclasses import dataclass
-from typing import Any, Dict, Iterator, List, Optional, Tuple
+from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from .recording import RECORDED_DRIVE, BagReadError, _sha256, bag_error
-from .sources import Table
+import yaml
+
+from msg_tools.errors import MsgToolsError, RecoveredBagWarning
+
+from ..core.errors import BeltDriveError
+from ..core.scene import Scene
+from .recording import RECORDED_DRIVE, SCENE_METADATA, BagReadError, _sha256, bag_error
+from ..core.sources import Table
 
 __all__ = [
+    "scene_from_bag",
     "RecordedTorque",
     "TorqueRecording",
     "load_torque_recording",
-    "replay_schedule",
-    "run_replay",
     "scene_with_torque_bag",
 ]
 
@@ -302,242 +307,87 @@ def scene_with_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: O
     return dataclasses.replace(scene, drive=drive, duration=float(duration), dt=dt, description=description)
 
 
-# ----------------------------------------------------------------- live
-def replay_schedule(log_time_ns: np.ndarray, *, rate: float = 1.0, start_offset: float = 0.0,
-                    loop: bool = False, max_loops: Optional[int] = None) -> Iterator[Tuple[float, int, int]]:
-    """Timing of a live replay: ``(wall offset [s], clock [ns], message index)`` in order.
+# --------------------------------------------------------- re-simulation
+def _read_metadata(path) -> Tuple[Dict[str, str], str]:
+    """``scene`` metadata of a bag and its path text; errors as :class:`BagReadError`."""
+    import warnings
+
+    from msg_tools import summary
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RecoveredBagWarning)
+        try:
+            info = summary(path)
+        except MsgToolsError as exc:
+            raise bag_error(exc) from None
+    return info.metadata_dict(SCENE_METADATA), info.path
+
+
+def scene_from_bag(path, *, torque_bag=None):
+    """Rebuild the :class:`~belt_drive_ros.core.scene.Scene` stored in a recording.
 
     Parameters
     ----------
-    log_time_ns : (N,) int, sorted
-        Recorded times.
-    rate : float
-        Playback speed (2: twice as fast); > 0.
-    start_offset : float
-        Skip the first ``start_offset`` seconds of the recording [s]; the
-        first message at or after it is published at wall offset 0.
-    loop : bool
-        Repeat forever (or ``max_loops`` passes). Pass ``k`` is shifted by
-        ``k * (span + period)`` on the clock, ``span`` = last - first
-        published time and ``period`` = the median spacing, so ``/clock``
-        keeps increasing.
+    path : path
+        An MCAP file written by :func:`~belt_drive_ros.io.recording.write_result_mcap`, a
+        :class:`~belt_drive_ros.ros.recorder.NodeRecorder` or ``belt-drive make-bags``.
+    torque_bag : path, optional
+        Where the recorded drive torque is, when the scene refers to one
+        (``drive: {type: recorded, ...}``). By default the bag named in the
+        reference, looked up next to ``path``; a node recording refers to its
+        own ``drive_torque`` topic (``bag: ""``).
 
     Returns
     -------
-    iterator of (float, int, int)
-        Wall-clock offset from the start of the replay [s], the ``/clock``
-        value for the message [ns] (its recorded time, shifted per pass),
-        and the index of the message in ``log_time_ns``.
+    Scene
+        With the model, integrator and step the run used; a recorded drive is
+        the zero-order hold of the referenced bag's ``drive_torque``
+        (:func:`scene_with_torque_bag`), over the stored
+        duration.
 
     Raises
     ------
-    ValueError
-        At once (not on iteration) for a bad rate or an offset past the end.
+    BagReadError
+        If the file has no ``scene`` record, the record is invalid, or the
+        referenced torque bag is missing or has changed (sha256).
     """
-    if not (rate > 0 and math.isfinite(rate)):
-        raise ValueError(f"rate must be a finite number > 0, got {rate!r}")
-    if not (start_offset >= 0 and math.isfinite(start_offset)):
-        raise ValueError(f"start offset must be >= 0 s, got {start_offset!r}")
-    times = np.asarray(log_time_ns, dtype=np.int64)
-    if times.size == 0:
-        return iter(())
-    begin = int(times[0]) + int(round(start_offset * 1e9))
-    first = int(np.searchsorted(times, begin, side="left"))
-    if first >= times.size:
-        raise ValueError(
-            f"start offset {start_offset:g} s is past the end of the recording ({(times[-1] - times[0]) / 1e9:g} s)"
-        )
-    return _schedule(times, first, rate, loop, max_loops)
-
-
-def _schedule(times, first, rate, loop, max_loops):
-    selected = times[first:]
-    span = int(selected[-1] - selected[0])
-    period = int(np.median(np.diff(selected))) if selected.size > 1 else 1_000_000
-    shift = span + max(period, 1)
-    passes = 0
-    while True:
-        base = passes * shift
-        for k in range(first, times.size):
-            clock = int(times[k]) + base
-            yield (clock - int(selected[0])) / 1e9 / rate, clock, k
-        passes += 1
-        if not loop or (max_loops is not None and passes >= max_loops):
-            return
-
-
-def _rclpy_qos(offered_yaml: str):
-    """rclpy QoS from the bag's offered profiles (first one), default reliable depth 10."""
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
-    from msg_tools.qos import parse_offered_qos_yaml
-
+    record, name = _read_metadata(path)
+    if "yaml" not in record:
+        raise BagReadError(f"{name}: no '{SCENE_METADATA}' metadata record; not written by belt_drive_ros")
     try:
-        profiles = parse_offered_qos_yaml(offered_yaml)
-    except ValueError:
-        profiles = []
-    if not profiles:
-        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10)
-    p = profiles[0]
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_ALL if p.history == "keep_all" else HistoryPolicy.KEEP_LAST,
-        depth=max(1, p.depth),
-        reliability=ReliabilityPolicy.BEST_EFFORT if p.reliability == "best_effort" else ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL if p.durability == "transient_local" else DurabilityPolicy.VOLATILE,
+        data = yaml.safe_load(record["yaml"])
+    except yaml.YAMLError as exc:
+        raise BagReadError(f"{name}: scene metadata is not valid YAML: {str(exc).splitlines()[0]}") from None
+    if not isinstance(data, dict):
+        raise BagReadError(f"{name}: scene metadata is not a mapping")
+    drive = data.get("drive")
+    reference = drive if isinstance(drive, dict) and drive.get("type") == RECORDED_DRIVE else None
+    if reference is not None:
+        data = dict(data, drive=0.0)
+    try:
+        scene = Scene.from_mapping(data)
+    except (BeltDriveError, ValueError, TypeError) as exc:
+        raise BagReadError(f"{name}: stored scene is invalid: {exc}") from None
+    if reference is None:
+        return scene
+    source = torque_bag
+    if source is None:
+        ref = str(reference.get("bag", ""))
+        source = path if ref in ("", "self") else os.path.join(os.path.dirname(os.fspath(path)), ref)
+        if not os.path.exists(source):
+            raise BagReadError(
+                f"{name}: the drive torque was recorded in {ref}, which is not next to it "
+                "(pass torque_bag=... / --torque-bag)"
+            )
+        expected = reference.get("sha256")
+        if expected and ref not in ("", "self") and _sha256(source) != expected:
+            raise BagReadError(
+                f"{name}: {source} is not the torque bag this run used (sha256 differs); "
+                "regenerate the pair or pass torque_bag=..."
+            )
+    # a node recording runs as long as it was recorded: its span; an offline run: its duration
+    own = torque_bag is None and str(reference.get("bag", "")) in ("", "self")
+    return scene_with_torque_bag(
+        scene, source, topic=str(reference.get("topic", "/drive_torque")),
+        duration=None if own else scene.duration,
     )
-
-
-def run_replay(bag, *, rate: float = 1.0, loop: bool = False, start_offset: float = 0.0,
-               clock: bool = False, topic: str = DEFAULT_TOPIC, out_topic: Optional[str] = None,
-               wait_subscribers: int = 0, wait_timeout: float = 10.0, delay: float = 0.0,
-               sync_topic: Optional[str] = None, sync_timeout: float = 2.0, max_loops: Optional[int] = None,
-               ros_args: Optional[List[str]] = None, should_stop=None, log=print) -> int:
-    """Publish the recorded drive torque of ``bag`` on ROS 2 (see the module docstring).
-
-    Parameters
-    ----------
-    bag : path
-    rate, loop, start_offset : see :func:`replay_schedule`.
-    clock : bool
-        Also publish ``/clock`` (``rosgraph_msgs/Clock``) before each message.
-    topic : str
-        Topic to read from the bag.
-    out_topic : str, optional
-        Topic to publish on; default the recorded one (remap with ``--ros-args -r``).
-    wait_subscribers : int
-        Wait (up to ``wait_timeout`` s) until this many subscribers match the
-        torque topic (and ``/clock``) before the first message.
-    delay : float
-        Wall seconds to wait before the first message (after the subscribers
-        matched: discovery completes on the subscriber's side a little later,
-        and what is published before is lost to it).
-    sync_topic : str, optional
-        Lockstep with ``clock``: after publishing ``/clock`` = t_k, wait (up
-        to ``sync_timeout`` s) until a ``sensor_msgs/JointState`` stamped at
-        or after t_k arrives on this topic (the node's ``joint_states``, i.e.
-        it has ticked to t_k), and only then publish message k. The node then
-        always ticks before it takes the next torque, so the run is the same
-        however loaded the machine is (and runs as fast as the node allows
-        when ``rate`` is high). Needs every message time to be a tick of the
-        node (bag rate <= node rate, on its tick grid); ``/clock`` = 0 is
-        not waited for (ROS reads it as "unset").
-    ros_args : list of str, optional
-        ROS arguments for the replay node (``--ros-args`` is prepended if absent).
-    should_stop : callable, optional
-        Polled between messages; True ends the replay (signal handlers set it).
-
-    Returns
-    -------
-    int
-        Messages published.
-    """
-    import time
-
-    from . import ros_env
-
-    rec = load_torque_recording(bag, topic, keep_payloads=True, warn=lambda m: log(f"warning: {m}"))
-    schedule = replay_schedule(rec.log_time_ns, rate=rate, start_offset=start_offset, loop=loop,
-                               max_loops=max_loops)
-    ros_env.configure_environment()
-    import rclpy
-    from builtin_interfaces.msg import Time
-    from rclpy.context import Context
-    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from rclpy.signals import SignalHandlerOptions
-    from rosgraph_msgs.msg import Clock
-    from std_msgs.msg import Float64
-
-    args = list(ros_args or [])
-    if args and args[0] != "--ros-args":
-        args = ["--ros-args"] + args
-    context = Context()
-    rclpy.init(args=["belt-drive-replay"] + args, context=context,
-               signal_handler_options=SignalHandlerOptions.NO)
-    stop = should_stop or (lambda: False)
-    published = late = 0
-    node = None
-    try:
-        node = rclpy.create_node("torque_replay", context=context)
-        pub = node.create_publisher(Float64, out_topic or rec.topic, _rclpy_qos(rec.offered_qos))
-        clock_pub = None
-        if clock:
-            clock_pub = node.create_publisher(
-                Clock, "/clock", QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                                            reliability=ReliabilityPolicy.RELIABLE))
-        synced = {"stamp": -1}
-        sync_executor = None
-        if sync_topic:
-            if clock_pub is None:
-                raise ValueError("sync_topic needs clock=True (lockstep is on /clock)")
-            from rclpy.executors import SingleThreadedExecutor
-            from sensor_msgs.msg import JointState
-
-            def on_sync(msg) -> None:
-                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-                synced["stamp"] = max(synced["stamp"], stamp)
-
-            sync_sub = node.create_subscription(JointState, sync_topic, on_sync, QoSProfile(
-                history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE))
-            sync_executor = SingleThreadedExecutor(context=context)
-            sync_executor.add_node(node)
-        if wait_subscribers > 0:
-            publishers = [pub] + ([clock_pub] if clock_pub is not None else [])
-            deadline = time.monotonic() + wait_timeout
-
-            def matched() -> bool:
-                if min(p.get_subscription_count() for p in publishers) < wait_subscribers:
-                    return False
-                return sync_executor is None or sync_sub.get_publisher_count() >= 1
-
-            while not matched() and not stop():
-                if time.monotonic() > deadline:
-                    log(f"warning: {pub.get_subscription_count()} of {wait_subscribers} subscribers after "
-                        f"{wait_timeout:g} s; starting anyway")
-                    break
-                time.sleep(0.01)
-        end = time.monotonic() + max(0.0, delay)
-        while time.monotonic() < end and not stop():
-            time.sleep(0.01)
-        log(f"replaying {rec.topic} of {rec.path} ({rec.log_time_ns.size} messages, "
-            f"{rec.span_ns / 1e9:g} s) on {pub.topic_name} at rate {rate:g}"
-            + (", looping" if loop else "") + (", publishing /clock" if clock else ""))
-        payloads = rec.payloads
-        clock_msg = Clock(clock=Time())
-        start = time.monotonic()
-        for offset, clock_ns, index in schedule:
-            if stop():
-                break
-            while True:
-                wait = start + offset - time.monotonic()
-                if wait <= 0 or stop():
-                    break
-                time.sleep(min(wait, 0.05))
-            if stop():
-                break
-            if clock_pub is not None:
-                clock_msg.clock.sec, clock_msg.clock.nanosec = divmod(clock_ns, 1_000_000_000)
-                clock_pub.publish(clock_msg)
-                if sync_executor is not None and clock_ns > 0:
-                    deadline = time.monotonic() + sync_timeout
-                    resend = time.monotonic() + 0.05
-                    while synced["stamp"] < clock_ns and not stop():
-                        now = time.monotonic()
-                        if now > deadline:
-                            late += 1
-                            break
-                        if now > resend:  # a node takes /clock best effort: resend a lost sample
-                            clock_pub.publish(clock_msg)
-                            resend = now + 0.05
-                        sync_executor.spin_once(timeout_sec=0.005)
-            pub.publish(payloads[index])
-            published += 1
-        if late:
-            log(f"warning: {late} time(s) no {sync_topic} stamped at the /clock time within "
-                f"{sync_timeout:g} s (is each message time a tick of the node?)")
-    finally:
-        if sync_executor is not None:
-            sync_executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
-    return published

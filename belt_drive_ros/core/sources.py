@@ -59,7 +59,7 @@ class TorqueProfile:
     def scalar_source(self, t: str, angle: str, speed: str) -> str | None:
         """:meth:`scalar_torque` as a Python expression in the variable names given, or None.
 
-        Inlined by :func:`~belt_drive_ros.integrators.compile_scalar_loop`
+        Inlined by :func:`~belt_drive_ros.core.integrators.compile_scalar_loop`
         instead of a call; it must compute exactly what :meth:`scalar_torque`
         computes (same operations in the same order: bitwise equal). The
         names are identifiers or float literals; constants are written with
@@ -71,7 +71,7 @@ class TorqueProfile:
         """Times [s] at which the torque jumps or kinks in time (a step, a ramp's ends, a soft start's end).
 
         A one-step method that integrates across one is locally first order
-        there; :class:`~belt_drive_ros.simulate.Simulator` splits such a step
+        there; :class:`~belt_drive_ros.core.simulate.Simulator` splits such a step
         at it. Default: none.
         """
         return ()

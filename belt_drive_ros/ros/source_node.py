@@ -2,7 +2,7 @@
 
 :class:`TorqueSourceNode` publishes ``drive_torque`` (``std_msgs/Float64``,
 N m) at ``rate_hz`` on the node's clock (so ``use_sim_time`` works as for
-the belt node), evaluating any :class:`~belt_drive_ros.sources.TorqueProfile`
+the belt node), evaluating any :class:`~belt_drive_ros.core.sources.TorqueProfile`
 ``torque(t, angle, speed)``:
 
 * ``t`` [s] counts from the source's first tick;
@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from . import ros_env
+from . import environment as ros_env
 
 ros_env.configure_environment()
 
@@ -32,9 +32,9 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, Paramete
 from rclpy.node import Node  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 
-from .errors import BeltDriveError  # noqa: E402
+from ..core.errors import BeltDriveError  # noqa: E402
 from .node import INPUT_QOS, OUTPUT_QOS, make_executor, spin_until_signal  # noqa: E402
-from .sources import TorqueProfile  # noqa: E402
+from ..core.sources import TorqueProfile  # noqa: E402
 
 SOURCE_NODE_NAME = "torque_source"
 RATE_RANGE = (0.1, 20000.0)

@@ -46,7 +46,7 @@ class InitialState:
             object.__setattr__(self, f.name, float(v))
 
     def vector(self, model_name: str, ratio: float) -> np.ndarray:
-        """State vector for ``model_name`` (see :mod:`belt_drive_ros.model` for the ordering)."""
+        """State vector for ``model_name`` (see :mod:`belt_drive_ros.core.model` for the ordering)."""
         if model_name == "rigid":
             return np.array([self.phi_M, self.omega_M])
         return np.array(
@@ -70,8 +70,8 @@ class Scene:
     drive : TorqueProfile on wheel M;  load : TorqueProfile on wheel 3.
     duration : simulated time [s].
     initial_state : InitialState.
-    model : ``rigid``, ``flexible`` or ``auto`` (see :mod:`belt_drive_ros.fidelity`).
-    method : integrator name (:data:`belt_drive_ros.integrators.REGISTRY`).
+    model : ``rigid``, ``flexible`` or ``auto`` (see :mod:`belt_drive_ros.core.fidelity`).
+    method : integrator name (:data:`belt_drive_ros.core.integrators.REGISTRY`).
     dt : integrator step [s] (output interval for adaptive methods).
     output_rate : rate [Hz] at which outputs are consumed (node publish or
         recording rate); the ``auto`` choice compares the belt mode with it.

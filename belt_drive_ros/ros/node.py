@@ -44,7 +44,7 @@ fresh matrix exponential per tick; simulated time is used to the nanosecond.
   a tick makes the timer fire (once, however far it jumps) and the tick
   integrates to the clock's new time, so the outputs are a deterministic
   function of the ``/clock`` and torque sequences (bit-identical reruns).
-  :mod:`belt_drive_ros.testing` drives a node this way.
+  :mod:`belt_drive_ros.ros.harness` drives a node this way.
 * ``publish_clock:=true``: the node is the time master. It keeps its own
   simulated time, advances it by whole ticks, paced by a wall (steady) timer
   at ``real_time_factor`` (0: as fast as the CPU allows, in 2 ms slices of
@@ -86,7 +86,7 @@ integrated.
 Failures
 --------
 The node never publishes a non-finite value. If the state becomes
-non-finite, exceeds :data:`~belt_drive_ros.simulate.SPEED_LIMIT`, or the
+non-finite, exceeds :data:`~belt_drive_ros.core.simulate.SPEED_LIMIT`, or the
 integrator raises, the node *halts*: it keeps the last finite state, stops
 integrating and stops publishing state topics (no stale value is re-stamped
 as new), reports ERROR on ``/diagnostics`` with the reason, and keeps
@@ -97,11 +97,11 @@ Executors
 :func:`make_executor` picks rclpy's ``EventsExecutor`` where present (spun
 from the main thread with :func:`spin_until_signal`) and falls back to the
 ``SingleThreadedExecutor``; lockstep drivers need the latter (see
-:mod:`belt_drive_ros.testing`).
+:mod:`belt_drive_ros.ros.harness`).
 
 Parameters
 ----------
-Every field of :class:`~belt_drive_ros.params.BeltDriveParams` (defaults from
+Every field of :class:`~belt_drive_ros.core.params.BeltDriveParams` (defaults from
 the scene) plus the node parameters in :data:`NODE_PARAMETERS`, all with
 descriptors and ranges, loadable with ``--ros-args --params-file``. Changes
 at runtime are validated as a whole (model, integrator, stability guard) and
@@ -125,7 +125,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from . import ros_env
+from . import environment as ros_env
 
 ros_env.configure_environment()  # loopback discovery, before any context is initialised
 
@@ -150,15 +150,15 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from .errors import BeltDriveError, ParameterError  # noqa: E402
-from .fidelity import choose_model  # noqa: E402
-from .integrators import make_integrator  # noqa: E402
-from .model import make_model  # noqa: E402
-from .params import FIELD_DOCS, BeltDriveParams  # noqa: E402
-from .scene import MODELS, Scene, load_scene  # noqa: E402
-from .simulate import SPEED_LIMIT, Plant  # noqa: E402
-from .sources import TorqueProfile  # noqa: E402
-from .stability import StabilityReport, require_stable  # noqa: E402
+from ..core.errors import BeltDriveError, ParameterError  # noqa: E402
+from ..core.fidelity import choose_model  # noqa: E402
+from ..core.integrators import make_integrator  # noqa: E402
+from ..core.model import make_model  # noqa: E402
+from ..core.params import FIELD_DOCS, BeltDriveParams  # noqa: E402
+from ..core.scene import MODELS, Scene, load_scene  # noqa: E402
+from ..core.simulate import SPEED_LIMIT, Plant  # noqa: E402
+from ..core.sources import TorqueProfile  # noqa: E402
+from ..core.stability import StabilityReport, require_stable  # noqa: E402
 
 NODE_NAME = "belt_drive"
 JOINT_NAMES = ("wheel_M", "wheel_1", "wheel_2", "wheel_3")
@@ -631,7 +631,8 @@ class BeltDriveNode(Node):
             + (", use_sim_time" if self._use_sim_time() else "")
         )
         if s.record_path:
-            from .recording import BagError, NodeRecorder
+            from ..io.recording import BagError
+            from .recorder import NodeRecorder
 
             try:
                 self._recorder = NodeRecorder(self, s.record_path)
@@ -827,7 +828,7 @@ class BeltDriveNode(Node):
 
     @property
     def state(self) -> np.ndarray:
-        """Copy of the model state (ordering: :mod:`belt_drive_ros.model`)."""
+        """Copy of the model state (ordering: :mod:`belt_drive_ros.core.model`)."""
         return np.array(self._x, copy=True)
 
     # ----------------------------------------------------------------- ticks
@@ -1372,7 +1373,7 @@ def run(
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m belt_drive_ros.node [SCENE] [--ros-args ...]``."""
+    """``python -m belt_drive_ros.ros.node [SCENE] [--ros-args ...]``."""
     import sys
 
     args = list(sys.argv[1:] if argv is None else argv)

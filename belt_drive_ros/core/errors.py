@@ -38,7 +38,7 @@ class IntegratorError(BeltDriveError, ValueError):
 class UnstableStepError(BeltDriveError, ValueError):
     """A fixed-step method would be unstable at the requested step.
 
-    Raised *before* a run starts by :mod:`belt_drive_ros.stability`; the
+    Raised *before* a run starts by :mod:`belt_drive_ros.core.stability`; the
     message names the method, the step, ``h*omega_n``, the method's boundary,
     a stable step and an unconditionally stable method.
     """

@@ -13,9 +13,9 @@ For every reference case (:data:`REFERENCE_BAGS`) ``belt-drive make-bags``
     governor, the motor's curve ...), plus the scene metadata.
 ``<name>_golden.mcap``
     The golden output: the scene driven by that recorded torque (zero-order
-    hold, :func:`belt_drive_ros.replay.scene_with_torque_bag`), every output
+    hold, :func:`belt_drive_ros.io.torque_bag.scene_with_torque_bag`), every output
     topic at 1 kHz from the offline simulator
-    (:func:`belt_drive_ros.recording.write_result_mcap`), with the scene
+    (:func:`belt_drive_ros.io.recording.write_result_mcap`), with the scene
     metadata referring to the torque bag by name and sha256.
 
 A fresh run must reproduce the golden file::
@@ -59,7 +59,7 @@ class ReferenceBag:
 
 
 def _truck():
-    from .scene import load_scene
+    from ..core.scene import load_scene
 
     return load_scene("truck_compressor")
 
@@ -88,7 +88,7 @@ def _engine_runup():
 
 
 def _e_motor_start():
-    from .scene import load_scene
+    from ..core.scene import load_scene
 
     s = load_scene("e_motor_start")
     return dataclasses.replace(s, duration=3.0)
@@ -156,8 +156,8 @@ def make_bags(out="bags", *, force: bool = False, only: Optional[Sequence[str]] 
     import yaml
 
     from .recording import BagExistsError, scene_mapping, write_result_mcap
-    from .replay import scene_with_torque_bag
-    from .simulate import simulate
+    from .torque_bag import scene_with_torque_bag
+    from ..core.simulate import simulate
 
     names = list(only) if only else list(REFERENCE_BAGS)
     for name in names:

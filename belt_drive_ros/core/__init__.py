@@ -1,0 +1,1 @@
+"""The numerical core: parameters, model, torques, integrators, stepper, scenes (numpy and scipy only)."""

@@ -1,0 +1,451 @@
+"""Record runs to MCAP: live from a ROS 2 node, or offline from a :class:`SimResult`.
+
+Both paths write the same rosbag2-compatible layout through
+:class:`msg_tools.Ros2McapWriter` (profile ``ros2``, ``ros2msg`` schemas,
+``cdr`` messages, ``offered_qos_profiles`` on every channel, a ``rosbag2``
+metadata record, zstd chunks, a summary section), the same topics and the
+same message layout as :class:`belt_drive_ros.ros.node.BeltDriveNode`:
+
+=========================  ===========================  ======================
+topic                      type                         content [unit]
+=========================  ===========================  ======================
+``/drive_torque``          ``std_msgs/msg/Float64``     torque on wheel M [N m]
+``/joint_states``          ``sensor_msgs/msg/JointState`` wheels ``wheel_M, wheel_1,
+                                                        wheel_2, wheel_3``:
+                                                        position [rad], velocity
+                                                        [rad/s], effort = external
+                                                        torque [N m] (drive, 0, 0,
+                                                        -load)
+``/shaft_speed``           ``std_msgs/msg/Float64``     omega_M [rad/s]
+``/load_torque``           ``std_msgs/msg/Float64``     load torque at wheel 3 [N m]
+``/belt_torque``           ``std_msgs/msg/Float64``     belt torque on wheel 3 [N m]
+``/relative_deflection``   ``std_msgs/msg/Float64``     ``i phi_M - phi_3`` [rad]
+``/diagnostics``           ``diagnostic_msgs/msg/DiagnosticArray`` (live only)
+``/clock``                 ``rosgraph_msgs/msg/Clock``  (live, when the node uses
+                                                        or publishes sim time)
+=========================  ===========================  ======================
+
+Every file is self-describing: metadata records
+
+* ``scene``: ``yaml`` (the scene as :meth:`Scene.to_yaml` writes it, with the
+  model, integrator and step actually used; a drive recorded in a bag is
+  stored as a reference ``{type: recorded, bag, topic, samples, sha256}``
+  instead of its samples), ``name``, ``model``, ``method``, ``dt``,
+  ``drive_source`` and ``source`` (``offline`` or ``node``);
+* ``parameters``: the node's ROS parameters (live) or the model parameters
+  (offline), values as text; a live recording appends one
+  ``parameters`` record per accepted runtime change, with ``time_ns``;
+* ``units``: SI unit of every topic (:mod:`msg_tools.units`).
+
+:func:`belt_drive_ros.io.torque_bag.scene_from_bag` turns these back into a :class:`Scene`, so a recording
+can be re-simulated offline.
+
+Time stamps
+-----------
+*Live* (:class:`NodeRecorder`, ``belt-drive record``): ``log_time`` is the
+receive time on the recording node's clock [ns]: ROS time, i.e. simulated
+time when the node has ``use_sim_time`` (then ``0`` until the first
+``/clock``). ``publish_time`` equals ``log_time``: the Jazzy wheels'
+EventsExecutor cannot deliver the message info that carries the send time.
+*Offline* (:func:`write_result_mcap`): both are the simulated time of the
+sample [ns since scene time 0]; ``joint_states`` stamps carry the same time.
+
+Crash safety
+------------
+Chunks are closed every ``flush_interval_s`` of log time and, live, by a
+wall-clock (steady) timer as well, so after SIGKILL the file reads up to its
+last complete chunk (:func:`msg_tools.read_topic` tolerates the missing
+summary). SIGINT/SIGTERM finalize (``belt-drive record`` and the node's
+shutdown call :meth:`NodeRecorder.close`). An existing file is never
+replaced unless ``force``. A write error (disk full, permission) stops the
+recording, not the node: it is logged once, :attr:`NodeRecorder.failed`
+turns True and :attr:`NodeRecorder.status` says why (for ``/diagnostics``).
+
+This module never imports rclpy: the live recorders that use it are in
+:mod:`belt_drive_ros.ros.recorder`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+
+from msg_tools import Ros2McapWriter
+from msg_tools.errors import MsgToolsError, OverwriteError, WriteError
+from msg_tools.units import UNITS_METADATA
+
+from ..core.errors import BeltDriveError
+
+__all__ = [
+    "BagError",
+    "BagExistsError",
+    "BagReadError",
+    "BagWriteError",
+    "JOINT_NAMES",
+    "TOPIC_TYPES",
+    "TOPIC_UNITS",
+    "bag_error",
+    "encode_float64",
+    "encode_joint_states",
+    "scene_mapping",
+    "write_result_mcap",
+]
+
+FLOAT64 = "std_msgs/msg/Float64"
+JOINT_STATE = "sensor_msgs/msg/JointState"
+DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
+CLOCK = "rosgraph_msgs/msg/Clock"
+
+#: Joint names of ``joint_states`` (as :data:`belt_drive_ros.ros.node.JOINT_NAMES`).
+JOINT_NAMES: Tuple[str, ...] = ("wheel_M", "wheel_1", "wheel_2", "wheel_3")
+#: Float64 outputs in the node's publishing order, with the SimResult signal of each.
+FLOAT_OUTPUTS: Tuple[Tuple[str, str], ...] = (
+    ("shaft_speed", "omega_M"),
+    ("load_torque", "load_torque"),
+    ("belt_torque", "belt_torque"),
+    ("relative_deflection", "relative_deflection"),
+)
+#: Topics of the belt-drive node (names relative to its namespace) and their types.
+TOPIC_TYPES: Dict[str, str] = {
+    "drive_torque": FLOAT64,
+    "joint_states": JOINT_STATE,
+    "shaft_speed": FLOAT64,
+    "load_torque": FLOAT64,
+    "belt_torque": FLOAT64,
+    "relative_deflection": FLOAT64,
+    "/diagnostics": DIAGNOSTIC_ARRAY,
+    "/clock": CLOCK,
+}
+#: SI unit of each topic (field), written as the ``units`` metadata record.
+TOPIC_UNITS: Dict[str, str] = {
+    "drive_torque": "N*m",
+    "shaft_speed": "rad/s",
+    "load_torque": "N*m",
+    "belt_torque": "N*m",
+    "relative_deflection": "rad",
+    "joint_states/position": "rad",
+    "joint_states/velocity": "rad/s",
+    "joint_states/effort": "N*m",
+}
+#: Metadata record names.
+SCENE_METADATA = "scene"
+PARAMETERS_METADATA = "parameters"
+#: ``type`` of the drive mapping that refers to a torque recorded in a bag.
+RECORDED_DRIVE = "recorded"
+
+
+# ----------------------------------------------------------------- errors
+class BagError(BeltDriveError):
+    """A bag cannot be read, written or used; the message is one line naming the file."""
+
+
+class BagReadError(BagError, ValueError):
+    """A bag is missing, not MCAP, cut off before any data, or lacks what is needed."""
+
+
+class BagWriteError(BagError, OSError):
+    """Writing a bag failed (disk full, permission, ...); ``errno`` as the cause's."""
+
+    def __init__(self, message: str, errno: Optional[int] = None):
+        BagError.__init__(self, message)
+        self.errno = errno
+        self.strerror = message
+
+    def __str__(self) -> str:
+        return self.strerror
+
+
+class BagExistsError(BagError, FileExistsError):
+    """The output bag exists and ``force`` was not given."""
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
+def bag_error(exc: BaseException) -> BagError:
+    """The :class:`BagError` for a :mod:`msg_tools` (or OS) error, same one-line message."""
+    if isinstance(exc, BagError):
+        return exc
+    message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    if isinstance(exc, (OverwriteError, FileExistsError)):
+        return BagExistsError(message)
+    if isinstance(exc, (WriteError, PermissionError)) or (
+        isinstance(exc, OSError) and not isinstance(exc, FileNotFoundError)
+    ):
+        return BagWriteError(message, getattr(exc, "errno", None))
+    return BagReadError(message)
+
+
+def _absolute(topic: str, namespace: str = "/") -> str:
+    """``topic`` resolved against ``namespace`` (``~`` is not supported here)."""
+    if topic.startswith("/"):
+        return topic
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    return f"{ns}/{topic}"
+
+
+def units_metadata(namespace: str = "/") -> Dict[str, str]:
+    """The ``units`` record for the node's topics under ``namespace``."""
+    return {_absolute(k, namespace): v for k, v in TOPIC_UNITS.items()}
+
+
+# ------------------------------------------------------------ scene metadata
+def _fmt(value: Any) -> str:
+    """Text of a metadata value: floats with ``repr`` (round-trips exactly)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
+
+
+def scene_mapping(scene, *, model: Optional[str] = None, method: Optional[str] = None,
+                  dt: Optional[float] = None, drive: Optional[Mapping[str, Any]] = None) -> Dict[str, Any]:
+    """Mapping of ``scene`` for the ``scene`` metadata record (YAML-ready).
+
+    ``model``, ``method`` and ``dt`` replace the scene's (the ones a run
+    actually used, e.g. the outcome of ``model: auto``). A drive recorded in a
+    bag (:class:`belt_drive_ros.io.torque_bag.RecordedTorque`) is written as its
+    reference mapping, not as its samples; ``drive`` overrides it.
+    """
+    reference = drive
+    if reference is None and hasattr(scene.drive, "reference"):
+        reference = scene.drive.reference()
+    if reference is not None:
+        from ..core.sources import Constant
+
+        scene = dataclasses.replace(scene, drive=Constant(0.0))
+    data = scene.to_dict()
+    if reference is not None:
+        data["drive"] = dict(reference)
+    if model is not None:
+        data["model"] = model
+    if method is not None:
+        data["method"] = method
+    if dt is not None:
+        data["dt"] = float(dt)
+    return data
+
+
+def _scene_record(mapping: Mapping[str, Any], *, source: str, drive_source: str,
+                  extra: Optional[Mapping[str, Any]] = None) -> Dict[str, str]:
+    import yaml
+
+    record = {
+        "format": "belt_drive_ros scene 1",
+        "source": source,
+        "name": str(mapping.get("name", "")),
+        "model": str(mapping.get("model", "")),
+        "method": str(mapping.get("method", "")),
+        "dt": _fmt(float(mapping.get("dt", math.nan))),
+        "duration": _fmt(float(mapping.get("duration", math.nan))),
+        "drive_source": drive_source,
+        "yaml": yaml.safe_dump(dict(mapping), sort_keys=False),
+    }
+    for key, value in (extra or {}).items():
+        record[key] = _fmt(value)
+    return record
+
+
+def _sha256(path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+# ------------------------------------------------------- offline encoding
+_F64_HEADER = b"\x00\x01\x00\x00"
+
+
+def encode_float64(values: np.ndarray) -> List[bytes]:
+    """CDR of ``std_msgs/Float64`` for each value, as ``mcap_ros2`` encodes it.
+
+    Header ``00 01 00 00`` (little endian) then the IEEE double; byte-identical
+    to :func:`msg_tools.encode` (a test checks), ~50x faster for long runs.
+    """
+    raw = np.ascontiguousarray(values, dtype="<f8").tobytes()
+    return [_F64_HEADER + raw[i : i + 8] for i in range(0, len(raw), 8)]
+
+
+def encode_joint_states(stamp_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray,
+                        effort: np.ndarray, names: Sequence[str] = JOINT_NAMES,
+                        frame_id: str = "") -> List[bytes]:
+    """CDR of ``sensor_msgs/JointState`` messages, as ``mcap_ros2`` encodes them.
+
+    The layout of a JointState with fixed names and array sizes does not
+    change from message to message, so one message is encoded with
+    :func:`msg_tools.encode` (zero padding) as a template and the stamps and
+    values are written into copies of it. Byte-identical to encoding each
+    message with :func:`msg_tools.encode` (a test checks).
+
+    Parameters
+    ----------
+    stamp_ns : (N,) int
+        ``header.stamp`` [ns].
+    position, velocity, effort : (N, J) float
+        One column per joint of ``names``.
+    """
+    from msg_tools import encode
+
+    stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
+    n, joints = len(stamp_ns), len(names)
+    cols = [np.asarray(a, dtype=float).reshape(n, joints) for a in (position, velocity, effort)]
+    # sentinels that cannot collide with the rest of the template
+    sentinels = [[1e300 + 1e290 * (joints * k + j + 1) for j in range(joints)] for k in range(3)]
+    template = encode(JOINT_STATE, {
+        "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": frame_id},
+        "name": list(names),
+        "position": sentinels[0],
+        "velocity": sentinels[1],
+        "effort": sentinels[2],
+    })
+    buf = np.frombuffer(template, dtype=np.uint8)
+    offsets = []
+    for group in sentinels:
+        starts = []
+        for value in group:
+            pattern = np.frombuffer(np.float64(value).astype("<f8").tobytes(), dtype=np.uint8)
+            hits = [i for i in range(len(buf) - 7) if np.array_equal(buf[i : i + 8], pattern)]
+            if len(hits) != 1:
+                raise RuntimeError("JointState template: sentinel not found exactly once")
+            starts.append(hits[0])
+        if any(b - a != 8 for a, b in zip(starts, starts[1:])):
+            raise RuntimeError("JointState template: array not contiguous")
+        offsets.append(starts[0])
+    out = np.tile(buf, (n, 1))
+    sec, nanosec = np.divmod(stamp_ns, 1_000_000_000)
+    out[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
+    out[:, 8:12] = nanosec.astype("<u4").view(np.uint8).reshape(n, 4)
+    for start, values in zip(offsets, cols):
+        out[:, start : start + 8 * joints] = np.ascontiguousarray(values, dtype="<f8").view(np.uint8).reshape(n, 8 * joints)
+    return [row.tobytes() for row in out]
+
+
+def _output_stride(result, output_rate: Optional[float]) -> int:
+    """Samples of ``result`` per output message (1 if the rate does not divide the grid)."""
+    rate = float(output_rate or result.scene.output_rate)
+    if not rate > 0 or not math.isfinite(rate):
+        raise ValueError(f"output_rate must be a finite number > 0 Hz, got {output_rate!r}")
+    stride = int(round(1.0 / (rate * result.dt)))
+    if stride < 1 or abs(stride * result.dt * rate - 1.0) > 1e-9:
+        return 1
+    return stride
+
+
+def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/",
+                      output_rate: Optional[float] = None, topics: Optional[Iterable[str]] = None,
+                      compression: str = "zstd",
+                      extra_metadata: Optional[Mapping[str, Mapping[str, str]]] = None) -> Dict[str, int]:
+    """Write an offline run as a ROS 2 MCAP with the node's topics and layout.
+
+    Parameters
+    ----------
+    result : SimResult
+        From :func:`belt_drive_ros.core.simulate.simulate`.
+    path : path or binary stream
+        Output file (refused if it exists, unless ``force``).
+    force : bool
+        Replace an existing file.
+    namespace : str
+        Namespace of the topics (default ``/``: ``/shaft_speed`` ...).
+    output_rate : float, optional
+        Messages per second [Hz]; default the scene's ``output_rate`` (the
+        node's publish rate). Samples are taken every ``round(1/(rate*dt))``
+        integrator steps; all steps if that does not divide evenly.
+    topics : iterable of str, optional
+        Subset of ``drive_torque``, ``joint_states``, ``shaft_speed``,
+        ``load_torque``, ``belt_torque``, ``relative_deflection`` (default all).
+    compression : {"zstd", "lz4", "none"}
+    extra_metadata : mapping of record name to str dict, optional
+        Further metadata records.
+
+    Returns
+    -------
+    dict
+        Messages written per topic.
+
+    Notes
+    -----
+    Times are simulated time [ns from scene time 0] for ``log_time``,
+    ``publish_time`` and the ``joint_states`` stamps. Messages are encoded as
+    ``mcap_ros2`` encodes them (zero padding), and the file holds no wall-clock
+    time, so the same run gives a byte-identical file (golden files).
+    At each time the order is the node's: ``drive_torque``, ``joint_states``,
+    then the Float64 outputs.
+
+    Raises
+    ------
+    BagExistsError
+        If ``path`` exists and ``force`` is False.
+    BagWriteError
+        If the file cannot be written.
+    """
+    offline_topics = ("drive_torque", "joint_states") + tuple(name for name, _ in FLOAT_OUTPUTS)
+    wanted = offline_topics if topics is None else tuple(t.strip("/") for t in topics)
+    unknown = sorted(set(wanted) - set(offline_topics))
+    if unknown:
+        raise ValueError(f"topics: unknown {', '.join(unknown)}; offline runs have {', '.join(offline_topics)}")
+    stride = _output_stride(result, output_rate)
+    index = np.arange(0, len(result.time), stride)
+    t_ns = np.round(np.asarray(result.time, dtype=float)[index] * 1e9).astype(np.int64)
+    if t_ns.size and t_ns[0] < 0:
+        raise ValueError(f"result starts at negative time {result.time[0]} s; MCAP times must be >= 0")
+    o = {name: np.asarray(values)[index] for name, values in result.outputs.items()}
+    zeros = np.zeros(index.size)
+    position = np.column_stack([o["phi_M"], o["phi_1"], o["phi_2"], o["phi_3"]])
+    velocity = np.column_stack([o["omega_M"], o["omega_1"], o["omega_2"], o["omega_3"]])
+    effort = np.column_stack([o["drive_torque"], zeros, zeros, -o["load_torque"]])
+    payloads: List[Tuple[str, str, List[bytes]]] = []
+    if "drive_torque" in wanted:
+        payloads.append((_absolute("drive_torque", namespace), FLOAT64, encode_float64(o["drive_torque"])))
+    if "joint_states" in wanted:
+        payloads.append((_absolute("joint_states", namespace), JOINT_STATE,
+                         encode_joint_states(t_ns, position, velocity, effort)))
+    for topic, signal in FLOAT_OUTPUTS:
+        if topic in wanted:
+            payloads.append((_absolute(topic, namespace), FLOAT64, encode_float64(o[signal])))
+
+    scene = result.scene
+    mapping = scene_mapping(scene, model=result.model, method=result.method, dt=result.dt)
+    drive_source = "torque_bag" if isinstance(mapping.get("drive"), dict) and mapping["drive"].get("type") == RECORDED_DRIVE else "scene"
+    scene_record = _scene_record(
+        mapping, source="offline", drive_source=drive_source,
+        extra={
+            "model_choice": result.choice.reason if result.choice is not None else f"{result.model}: set explicitly",
+            "output_rate": float(output_rate or scene.output_rate) if stride > 1 else 1.0 / result.dt,
+            "samples": int(index.size),
+        },
+    )
+    parameters = {name: _fmt(float(value)) for name, value in scene.params.to_dict().items()}
+    parameters.update(model=result.model, method=result.method, dt=_fmt(float(result.dt)))
+    counts: Dict[str, int] = {}
+    try:
+        with Ros2McapWriter(path, force=force, compression=compression) as writer:
+            writer.add_metadata(SCENE_METADATA, scene_record)
+            writer.add_metadata(PARAMETERS_METADATA, parameters)
+            written = {topic for topic, _, _ in payloads}
+            writer.add_metadata(UNITS_METADATA, {
+                key: unit for key, unit in units_metadata(namespace).items()
+                if key in written or key.rsplit("/", 1)[0] in written
+            })
+            for extra_name, values in (extra_metadata or {}).items():
+                writer.add_metadata(extra_name, dict(values))
+            for topic, type_name, _ in payloads:
+                writer.add_topic(topic, type_name, "reliable")
+            write = writer.write_raw
+            times = t_ns.tolist()
+            for k, t in enumerate(times):
+                for topic, type_name, data in payloads:
+                    write(topic, type_name, data[k], t)
+            counts = writer.topic_counts()
+    except MsgToolsError as exc:
+        raise bag_error(exc) from None
+    except OSError as exc:
+        raise bag_error(exc) from None
+    return counts

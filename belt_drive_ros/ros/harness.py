@@ -1,0 +1,403 @@
+"""Launch-free test harness: a belt-drive node in-process, driven by exact /clock steps.
+
+:class:`BeltDriveHarness` starts a :class:`~belt_drive_ros.ros.node.BeltDriveNode`
+on its own rclpy ``Context`` and ROS domain (loopback discovery only), plus a
+probe node that publishes ``drive_torque`` and ``/clock`` and records every
+output topic. With ``use_sim_time=True`` (the default) the harness owns time:
+:meth:`~BeltDriveHarness.advance` publishes ``/clock`` in exact integer-
+nanosecond increments and, after each, spins until the node has processed
+that time, ticked, and its outputs have arrived. Nothing waits on wall-clock
+sleeps, so a run is deterministic: the same torque and clock sequence gives
+bit-identical outputs.
+
+Example::
+
+    from belt_drive_ros.ros.harness import BeltDriveHarness
+
+    with BeltDriveHarness(scene="paper", model="flexible", method="exact") as h:
+        h.publish_torque(8.0)            # N m on wheel M, held from now on
+        h.advance(0.5)                   # 500 ticks of 1 ms of simulated time
+        h.publish_torque(0.0)
+        h.advance(0.25)
+        out = h.outputs()                # dict of numpy arrays
+        print(out["time"][-1], out["shaft_speed"][-1], out["relative_deflection"].max())
+        print(h.diagnostics()["simulation"]["values"]["model_reason"])
+        assert not h.set_parameters(k=-1.0).successful   # rejected with a reason
+
+``outputs()`` keys: ``time`` (s since the harness started the clock),
+``stamp`` (s, ROS time), ``phi_M, phi_1, phi_2, phi_3`` [rad],
+``omega_M, omega_1, omega_2, omega_3`` [rad/s], ``drive_torque`` (joint_states
+effort of wheel_M) [N m], ``shaft_speed`` [rad/s], ``load_torque``,
+``belt_torque`` [N m], ``relative_deflection`` [rad], one row per tick.
+
+A torque source can run in the loop as well: ``source=Engine(...)`` (any
+:class:`~belt_drive_ros.core.sources.TorqueProfile`, or ``"scene"`` for the
+scene's drive) adds a :class:`~belt_drive_ros.ros.source_node.TorqueSourceNode`
+that the harness steps itself after each node tick (it publishes a torque
+from the latest ``shaft_speed``; the node applies it over the next tick), so
+closed-loop runs are deterministic too.
+
+Lockstep needs the wait-set executor (``executor="single"``, the default):
+it sees the tick timer become due right after a ``/clock`` update. With
+``use_sim_time=False`` the node runs on the system clock and ``advance``
+simply spins for that much wall time.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from . import environment as ros_env
+
+ros_env.configure_environment()
+
+import rclpy  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from rosgraph_msgs.msg import Clock as ClockMsg  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from std_msgs.msg import Float64  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from .node import NODE_NAME, OUTPUT_TOPICS, BeltDriveNode, make_executor  # noqa: E402
+from ..core.sources import TorqueProfile  # noqa: E402
+
+#: the probe keeps everything it receives between drains
+_PROBE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+_PUB_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
+_LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
+
+
+class HarnessTimeout(TimeoutError):
+    """The node did not reach the expected state within the harness's timeout."""
+
+
+class BeltDriveHarness:
+    """A belt-drive node, a probe node and (optionally) a torque source on a private context.
+
+    Parameters
+    ----------
+    scene : str
+        Scene name or YAML path for the node.
+    use_sim_time : bool
+        True: the harness publishes ``/clock`` (lockstep). False: system time.
+    start_time : float
+        First ``/clock`` value [s] (simulated time must be > 0 to count as set).
+    domain_id : int, optional
+        ROS domain; default :func:`belt_drive_ros.ros.environment.process_domain_id`.
+    executor : str
+        ``single`` (default, needed for lockstep), ``events`` or ``auto``.
+    source : TorqueProfile or "scene", optional
+        A torque source in the loop (see the module docstring).
+    source_rate_hz : float, optional
+        Source publish rate with ``use_sim_time=False`` (default: node rate).
+    namespace, node_name : str
+    timeout : float
+        Wall seconds any single wait may take before :class:`HarnessTimeout`.
+    ros_args : list of str, optional
+        Node command-line arguments, e.g. ``["--ros-args", "--params-file", "p.yaml"]``
+        (``**params`` override them).
+    **params
+        ROS parameters of the node (``model="flexible"``, ``k=2e4``, ...).
+    """
+
+    def __init__(
+        self,
+        scene: str = "paper",
+        *,
+        use_sim_time: bool = True,
+        start_time: float = 1.0,
+        domain_id: int | None = None,
+        executor: str = "single",
+        source: TorqueProfile | str | None = None,
+        source_rate_hz: float | None = None,
+        namespace: str = "",
+        node_name: str = NODE_NAME,
+        timeout: float = 10.0,
+        ros_args: list[str] | None = None,
+        **params: Any,
+    ):
+        if use_sim_time and start_time <= 0:
+            raise ValueError("start_time: simulated time must start > 0 s (ROS reads 0 as 'not set')")
+        if use_sim_time and executor != "single":
+            raise ValueError(
+                f"executor={executor!r}: /clock lockstep needs the wait-set executor ('single'); the events "
+                "executor runs a tick timer made due by /clock asynchronously"
+            )
+        self.scene_name = scene
+        self.use_sim_time = use_sim_time
+        self.start_ns = int(round(start_time * 1e9))
+        self.domain_id = ros_env.process_domain_id() if domain_id is None else int(domain_id)
+        self.executor_kind = executor
+        self.source_spec = source
+        self.source_rate_hz = source_rate_hz
+        self.namespace = namespace
+        self.node_name = node_name
+        self.timeout = float(timeout)
+        self.params = params
+        self.ros_args = list(ros_args or [])
+        self.context: Context | None = None
+        self.node: BeltDriveNode | None = None
+        self.probe: Node | None = None
+        self.source = None
+        self.executor = None
+        self._clock_ns = 0
+        self._rows: list[tuple] = []
+        self._floats: dict[str, list[float]] = {name: [] for name in OUTPUT_TOPICS}
+        self._diagnostics: list[DiagnosticArray] = []
+        self._t0_wall: int | None = None
+
+    # -------------------------------------------------------------- lifecycle
+    def __enter__(self) -> "BeltDriveHarness":
+        self.start()
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+    def start(self) -> None:
+        """Create the context, nodes and executor; wait for discovery and (sim time) the first tick.
+
+        Also runs BLAS single-threaded in this process
+        (:func:`~belt_drive_ros.ros.environment.limit_blas_threads`).
+        """
+        ros_env.configure_environment()
+        ros_env.limit_blas_threads()
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=self.domain_id)
+        try:
+            self._start_nodes()
+        except BaseException:
+            self.close()
+            raise
+
+    def _start_nodes(self) -> None:
+        ctx, ns = self.context, self.namespace
+        overrides = [Parameter(k, value=v) for k, v in self.params.items()]
+        overrides.append(Parameter("use_sim_time", value=bool(self.use_sim_time)))
+        self.node = BeltDriveNode(
+            self.node_name,
+            scene=self.scene_name,
+            context=ctx,
+            namespace=ns,
+            parameter_overrides=overrides,
+            cli_args=self.ros_args or None,
+        )
+        self.probe = Node("belt_drive_harness", context=ctx, namespace=ns)
+        p = self.probe
+        self._pub_torque = p.create_publisher(Float64, "drive_torque", _PUB_QOS)
+        self._pub_clock = p.create_publisher(ClockMsg, "/clock", _PUB_QOS)
+        self._subs = [p.create_subscription(JointState, "joint_states", self._on_joint, _PROBE_QOS)]
+        for name in OUTPUT_TOPICS:
+            self._subs.append(
+                p.create_subscription(Float64, name, lambda m, name=name: self._floats[name].append(m.data), _PROBE_QOS)
+            )
+        self._subs.append(p.create_subscription(DiagnosticArray, "/diagnostics", self._diagnostics.append, 10))
+        self._reset_client = p.create_client(Trigger, f"{self.node.get_fully_qualified_name()}/reset")
+        self.executor = make_executor(ctx, self.executor_kind)
+        if self.source_spec is not None:
+            self._start_source()
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.probe)
+        self._wait_discovery()
+        if self.use_sim_time:
+            self._step_clock(self.start_ns)
+        else:
+            self._t0_wall = time.time_ns()
+
+    def _start_source(self) -> None:
+        from .source_node import TorqueSourceNode
+
+        s = self.node.settings
+        profile = s.scene.drive if self.source_spec == "scene" else self.source_spec
+        if not isinstance(profile, TorqueProfile):
+            raise TypeError(f"source: expected a TorqueProfile or 'scene', got {self.source_spec!r}")
+        rate = self.source_rate_hz or s.step_rate_hz
+        self.source = TorqueSourceNode(
+            profile,
+            context=self.context,
+            namespace=self.namespace,
+            rate_hz=rate,
+            initial_speed=s.scene.initial_state.omega_M,
+            initial_angle=s.scene.initial_state.phi_M,
+            autostart=not self.use_sim_time,  # in lockstep the harness steps it
+        )
+        self.executor.add_node(self.source)
+
+    def _wait_discovery(self) -> None:
+        checks = [
+            lambda: self._pub_torque.get_subscription_count() >= 1,
+            lambda: all(sub.get_publisher_count() >= 1 for sub in self._subs),
+            lambda: self._reset_client.service_is_ready(),
+        ]
+        if self.use_sim_time:
+            checks.append(lambda: self._pub_clock.get_subscription_count() >= 1)
+        if self.source is not None:
+            checks.append(lambda: self.source._pub.get_subscription_count() >= 1)
+            if self.source._sub is not None:
+                checks.append(lambda: self.source._sub.get_publisher_count() >= 1)
+        self._spin_until(lambda: all(c() for c in checks), "discovery between the harness and the node")
+        self._spin_until(
+            lambda: all(self.node.refresh_subscriber_counts().values()), "the node to see the probe's subscriptions"
+        )
+
+    def close(self) -> None:
+        """Destroy the nodes and shut the context down (idempotent)."""
+        if self.executor is not None:
+            try:
+                self.executor.shutdown()
+            except Exception:  # noqa: BLE001
+                pass
+            self.executor = None
+        for attr in ("source", "probe", "node"):
+            obj = getattr(self, attr)
+            if obj is not None:
+                obj.destroy_node()
+                setattr(self, attr, None)
+        if self.context is not None:
+            rclpy.try_shutdown(context=self.context)
+            self.context = None
+
+    # ---------------------------------------------------------------- spinning
+    def _spin_until(self, predicate, what: str, republish=None, timeout: float | None = None) -> None:
+        deadline = time.monotonic() + (self.timeout if timeout is None else timeout)
+        retry = time.monotonic() + 0.05
+        while not predicate():
+            now = time.monotonic()
+            if now > deadline:
+                raise HarnessTimeout(f"harness: timed out waiting for {what}")
+            if republish is not None and now > retry:
+                republish()  # /clock is best effort on the node's side: a lost sample is resent
+                retry = now + 0.05
+            self.executor.spin_once(timeout_sec=0.005)
+
+    def _received_all(self) -> bool:
+        n = self.node.counters["published"]
+        return len(self._rows) >= n and all(len(v) >= n for v in self._floats.values())
+
+    def _publish_clock(self, ns: int) -> None:
+        msg = ClockMsg()
+        msg.clock.sec, msg.clock.nanosec = divmod(ns, 1_000_000_000)
+        self._pub_clock.publish(msg)
+
+    def _step_clock(self, target_ns: int) -> None:
+        """Publish /clock = target and wait until the node (and source) fully processed it."""
+        node = self.node
+        self._publish_clock(target_ns)
+        self._spin_until(
+            lambda: node.get_clock().now().nanoseconds == target_ns,
+            f"the node's clock to reach {target_ns / 1e9:.9f} s",
+            republish=lambda: self._publish_clock(target_ns),
+        )
+        self._spin_until(lambda: not node.tick_pending() and self._received_all(), "the node's tick and outputs")
+        self._clock_ns = target_ns
+        if self.source is not None and node.integrated_ns == target_ns:
+            src = self.source
+            if src._sub is not None:  # closed loop: the source sees this tick's shaft_speed first
+                self._spin_until(
+                    lambda: src.counters["speed_received"] >= node.counters["published"], "the source's shaft_speed"
+                )
+            received = node.counters["received"]
+            src.publish_at(target_ns)
+            self._spin_until(lambda: node.counters["received"] > received, "the node to receive the source's torque")
+
+    # -------------------------------------------------------------- the API
+    @property
+    def now(self) -> float:
+        """Harness time [s]: the last /clock published (sim time) or the system clock."""
+        if self.use_sim_time:
+            return self._clock_ns / 1e9
+        return time.time_ns() / 1e9
+
+    def publish_torque(self, value: float, wait: bool = True) -> None:
+        """Publish ``drive_torque`` [N m]; with ``wait`` spin until the node has taken it in."""
+        received = self.node.counters["received"]
+        self._pub_torque.publish(Float64(data=float(value)))
+        if wait:
+            self._spin_until(lambda: self.node.counters["received"] > received, "the node to receive drive_torque")
+
+    def advance(self, seconds: float, step: float | None = None) -> None:
+        """Advance time by ``seconds``.
+
+        Sim time: ``/clock`` goes up in increments of ``step`` [s] (default:
+        the node's tick period), exactly, in integer nanoseconds (a final
+        shorter increment lands on the target), each one processed before
+        the next. Real time: spin for ``seconds`` of wall time.
+        """
+        if seconds < 0:
+            raise ValueError("advance: seconds must be >= 0")
+        if not self.use_sim_time:
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                self.executor.spin_once(timeout_sec=min(0.01, max(end - time.monotonic(), 0.0)))
+            return
+        step_ns = self.node.settings.tick_ns if step is None else int(round(step * 1e9))
+        if step_ns <= 0:
+            raise ValueError("advance: step must be > 0")
+        target = self._clock_ns + int(round(seconds * 1e9))
+        while self._clock_ns < target:
+            self._step_clock(min(self._clock_ns + step_ns, target))
+
+    def spin(self, seconds: float) -> None:
+        """Spin the executor for ``seconds`` of wall time (time itself does not move in sim time)."""
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def outputs(self) -> dict[str, np.ndarray]:
+        """Everything the node published so far, one row per tick (see the module docstring)."""
+        n = min([len(self._rows)] + [len(v) for v in self._floats.values()])
+        rows = np.array(self._rows[:n], dtype=float).reshape(n, 10)
+        zero = self.start_ns if self.use_sim_time else (self._t0_wall or 0)
+        out = {
+            "stamp": rows[:, 0] / 1e9,
+            "time": (rows[:, 0] - zero) / 1e9,
+        }
+        names = ("phi_M", "phi_1", "phi_2", "phi_3", "omega_M", "omega_1", "omega_2", "omega_3")
+        for i, name in enumerate(names):
+            out[name] = rows[:, 1 + i]
+        out["drive_torque"] = rows[:, 9]
+        for name, values in self._floats.items():
+            out[name] = np.array(values[:n], dtype=float)
+        return out
+
+    def _on_joint(self, msg: JointState) -> None:
+        ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        self._rows.append((ns, *msg.position, *msg.velocity, *msg.effort[:1]))
+
+    def diagnostics(self) -> dict[str, dict[str, Any]]:
+        """Have the node publish ``/diagnostics`` now; return its statuses by short name.
+
+        ``{"simulation": {"level": "OK", "message": ..., "values": {...}}, "input": ..., "belt": ...}``
+        """
+        count = len(self._diagnostics)
+        self.node.publish_diagnostics()
+        self._spin_until(lambda: len(self._diagnostics) > count, "/diagnostics")
+        msg = self._diagnostics[-1]
+        prefix = self.node.get_name() + ": "
+        return {
+            st.name.removeprefix(prefix): {
+                "level": _LEVELS.get(st.level[0] if isinstance(st.level, bytes) else int(st.level), "?"),
+                "message": st.message,
+                "values": {kv.key: kv.value for kv in st.values},
+            }
+            for st in msg.status
+        }
+
+    def set_parameters(self, **params: Any):
+        """Set node parameters atomically; returns the ``SetParametersResult`` (``.successful``, ``.reason``)."""
+        return self.node.set_parameters_atomically([Parameter(k, value=v) for k, v in params.items()])
+
+    def reset(self) -> str:
+        """Call the node's ``~/reset`` service; returns its message."""
+        future = self._reset_client.call_async(Trigger.Request())
+        published = self.node.counters["published"]
+        self._spin_until(future.done, "~/reset")
+        self._spin_until(lambda: self._received_all() or self.node.counters["published"] == published, "reset outputs")
+        return future.result().message

@@ -1,0 +1,455 @@
+"""Live MCAP recording from ROS 2: :class:`TopicRecorder` (any topics) and :class:`NodeRecorder`.
+
+The file layout, metadata and time stamps are those of
+:mod:`belt_drive_ros.io.recording` (read its docstring); this module adds
+what needs rclpy: subscriptions that write serialized messages as received,
+the offered QoS from discovery, and a flush timer on the node.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Callable, Dict, Iterable, List, Mapping, Optional
+
+from msg_tools import Ros2McapWriter
+from msg_tools.errors import MsgToolsError
+
+from msg_tools.units import UNITS_METADATA
+
+from ..io.recording import (
+    FLOAT64,
+    FLOAT_OUTPUTS,
+    JOINT_STATE,
+    PARAMETERS_METADATA,
+    RECORDED_DRIVE,
+    SCENE_METADATA,
+    TOPIC_TYPES,
+    _fmt,
+    _scene_record,
+    bag_error,
+    scene_mapping,
+    units_metadata,
+)
+
+__all__ = ["NodeRecorder", "TopicRecorder", "message_definitions"]
+
+def _message_class(type_name: str):
+    """The rclpy message class of ``pkg/msg/Type``."""
+    import importlib
+
+    package, _, name = type_name.split("/")
+    try:
+        return getattr(importlib.import_module(f"{package}.msg"), name)
+    except (ImportError, AttributeError) as exc:
+        raise ValueError(f"message type {type_name} is not installed ({exc})") from None
+
+
+def message_definitions(type_name: str) -> Dict[str, str]:
+    """``.msg`` texts of ``type_name`` and its dependencies that msg_tools does not know.
+
+    Read from the installed ROS share directory (``share/<pkg>/msg/<Type>.msg``
+    under the ament prefix or this Python's prefix). Raises ``ValueError``
+    when one cannot be found.
+    """
+    import sys
+
+    from msg_tools import schemas
+
+    out: Dict[str, str] = {}
+    todo = [schemas.normalize_type_name(type_name)]
+    while todo:
+        name = todo.pop()
+        if name in out or name in schemas.MESSAGE_DEFINITIONS:
+            continue
+        package, _, short = name.split("/")
+        candidates = []
+        try:
+            from ament_index_python.packages import get_package_share_directory
+
+            candidates.append(get_package_share_directory(package))
+        except Exception:  # noqa: BLE001 - no ament index (pip wheels)
+            pass
+        candidates.append(os.path.join(sys.prefix, "share", package))
+        for share in candidates:
+            file = os.path.join(share, "msg", short + ".msg")
+            if os.path.isfile(file):
+                with open(file, encoding="utf-8") as f:
+                    out[name] = f.read()
+                break
+        else:
+            raise ValueError(f"no .msg definition of {name} found (looked in {', '.join(candidates)})")
+        todo.extend(schemas.dependencies(name, out[name]))
+    return out
+
+
+class TopicRecorder:
+    """Raw subscriptions on an rclpy node whose CDR bytes go to a :class:`Ros2McapWriter`.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        Node that owns the subscriptions and whose clock stamps ``log_time``.
+    writer : Ros2McapWriter
+        Open writer; :meth:`close` finishes it.
+    flush_period : float or None
+        Wall-clock (steady) period [s] of the flush timer; None: no timer.
+    depth : int
+        ``keep_last`` depth of each subscription (messages queued while the
+        executor is busy).
+
+    Notes
+    -----
+    Each message costs one Python callback (~10-20 us) and one
+    :meth:`~msg_tools.Ros2McapWriter.write_raw`. The subscriptions match the
+    publishers' reliability (best effort if any publisher is) and
+    durability (transient local if all publishers are), as ``ros2 bag record``
+    does; what the publishers offered goes into ``offered_qos_profiles``.
+    """
+
+    def __init__(self, node, writer: Ros2McapWriter, *, flush_period: Optional[float] = 0.25, depth: int = 1000):
+        from rclpy.clock import Clock, ClockType
+
+        self.node = node
+        self.writer = writer
+        self.path = writer.path or "<stream>"
+        self.depth = int(depth)
+        self.error: Optional[BaseException] = None
+        self.closed = False
+        self._clock = node.get_clock()
+        self._subs: Dict[str, Any] = {}
+        self._types: Dict[str, str] = {}
+        self._declared: set = set()
+        self._unflushed = 0
+        self._timer = None
+        if flush_period:
+            self._timer = node.create_timer(float(flush_period), self._on_flush_timer,
+                                            clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    # -------------------------------------------------------------- status
+    @property
+    def failed(self) -> bool:
+        """True after a write error (recording stopped)."""
+        return self.error is not None
+
+    @property
+    def topics(self) -> Dict[str, str]:
+        """Recorded topics (resolved names) and their types."""
+        return dict(self._types)
+
+    @property
+    def message_count(self) -> int:
+        return self.writer.message_count
+
+    @property
+    def status(self) -> str:
+        """One line for ``/diagnostics``: where, how much, or why it stopped."""
+        if self.error is not None:
+            return f"FAILED, recording stopped: {self.error}"
+        if self.closed:
+            return f"closed {self.path} ({self.writer.message_count} messages)"
+        return f"recording {self.path} ({self.writer.message_count} messages)"
+
+    # ------------------------------------------------------------- topics
+    def publisher_counts(self) -> Dict[str, int]:
+        """Publishers matched by each subscription (0: nothing recorded from it yet)."""
+        return {topic: sub.get_publisher_count() for topic, sub in self._subs.items()}
+
+    def resolve(self, topic: str) -> str:
+        return self.node.resolve_topic_name(topic)
+
+    def offered_qos(self, topic: str) -> List[Any]:
+        """QoS profiles the current publishers of ``topic`` offer (rclpy profiles)."""
+        try:
+            infos = self.node.get_publishers_info_by_topic(topic)
+        except Exception:  # noqa: BLE001 - graph query failed: fall back to the default
+            return []
+        return [info.qos_profile for info in infos]
+
+    def subscription_qos(self, topic: str):
+        """QoS that matches every current publisher of ``topic`` (see class notes)."""
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+        offered = self.offered_qos(topic)
+        reliability = ReliabilityPolicy.RELIABLE
+        durability = DurabilityPolicy.VOLATILE
+        if topic == "/clock" or any(q.reliability == ReliabilityPolicy.BEST_EFFORT for q in offered):
+            reliability = ReliabilityPolicy.BEST_EFFORT
+        if offered and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered):
+            durability = DurabilityPolicy.TRANSIENT_LOCAL
+        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.depth,
+                          reliability=reliability, durability=durability)
+
+    def add(self, topic: str, type_name: str) -> str:
+        """Subscribe to ``topic`` (relative names resolve against the node) of ``type_name``.
+
+        Returns the resolved topic name. Types msg_tools has no definition of
+        are looked up in the installed ROS share directory (``ValueError`` if
+        absent).
+        """
+        from msg_tools import schemas
+
+        resolved = self.resolve(topic)
+        full_type = schemas.normalize_type_name(type_name)
+        if resolved in self._subs:
+            return resolved
+        if full_type not in schemas.MESSAGE_DEFINITIONS:
+            for name, text in message_definitions(full_type).items():
+                self.writer.register_type(name, text)
+        msg_class = _message_class(full_type)
+        self._types[resolved] = full_type
+        self._subs[resolved] = self.node.create_subscription(
+            msg_class, resolved, self._callback(resolved, full_type), self.subscription_qos(resolved), raw=True
+        )
+        return resolved
+
+    def _callback(self, topic: str, type_name: str) -> Callable[[bytes], None]:
+        now = self._clock.now
+        write = self.writer.write_raw
+
+        def on_message(data: bytes) -> None:
+            if self.error is not None or self.closed:
+                return
+            try:
+                if topic not in self._declared:
+                    self._declare(topic, type_name)
+                write(topic, type_name, data, now().nanoseconds)
+                self._unflushed += 1
+            except (MsgToolsError, OSError) as exc:
+                self._fail(exc)
+
+        return on_message
+
+    def _declare(self, topic: str, type_name: str) -> None:
+        from msg_tools.qos import QosProfile
+
+        offered = [QosProfile.from_rclpy(q) for q in self.offered_qos(topic)]
+        self.writer.add_topic(topic, type_name, offered or "reliable")
+        self._declared.add(topic)
+
+    def write(self, topic: str, type_name: str, data: bytes, log_time_ns: int) -> None:
+        """Write one serialized message directly (no subscription), with the same error handling."""
+        if self.error is not None or self.closed:
+            return
+        try:
+            if topic not in self._declared:
+                self._declare(topic, type_name)
+            self.writer.write_raw(topic, type_name, data, log_time_ns)
+            self._unflushed += 1
+        except (MsgToolsError, OSError) as exc:
+            self._fail(exc)
+
+    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
+        if self.error is not None or self.closed:
+            return
+        try:
+            self.writer.add_metadata(name, dict(data))
+        except (MsgToolsError, OSError) as exc:
+            self._fail(exc)
+
+    # --------------------------------------------------------- flush/close
+    def _on_flush_timer(self) -> None:
+        if self._unflushed and self.error is None and not self.closed:
+            try:
+                self.writer.flush()
+                self._unflushed = 0
+            except (MsgToolsError, OSError) as exc:
+                self._fail(exc)
+
+    def _fail(self, exc: BaseException) -> None:
+        if self.error is None:
+            self.error = bag_error(exc)
+            self.node.get_logger().error(
+                f"recording stopped: {self.error}; the file keeps what was written up to its last "
+                "complete chunk; the node keeps running"
+            )
+
+    def close(self) -> None:
+        """Stop recording and finalize the file (summary, rosbag2 metadata). Idempotent."""
+        if self.closed:
+            return
+        self.closed = True
+        for sub in self._subs.values():
+            try:
+                self.node.destroy_subscription(sub)
+            except Exception:  # noqa: BLE001 - node may be shutting down already
+                pass
+        self._subs.clear()
+        if self._timer is not None:
+            try:
+                self.node.destroy_timer(self._timer)
+            except Exception:  # noqa: BLE001
+                pass
+            self._timer = None
+        try:
+            self.writer.finish()
+        except (MsgToolsError, OSError) as exc:
+            self._fail(exc)
+
+
+def _node_parameters(node) -> Dict[str, str]:
+    """All parameters of ``node`` as text."""
+    out = {}
+    for name, parameter in sorted(node.get_parameters_by_prefix("").items()):
+        value = parameter.value
+        out[name] = _fmt(list(value) if isinstance(value, (list, tuple)) else value)
+    return out
+
+
+class NodeRecorder(TopicRecorder):
+    """Record a belt-drive node's input and outputs into an MCAP file.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node (usually :class:`~belt_drive_ros.ros.node.BeltDriveNode`). Its
+        topics are resolved against its namespace; ``log_time`` comes from
+        its clock (simulated time with ``use_sim_time``).
+    path : path or binary stream
+        Output file; refused if it exists unless ``force``.
+    topics : iterable of str, optional
+        Default: ``drive_torque``, ``joint_states``, ``shaft_speed``,
+        ``load_torque``, ``belt_torque``, ``relative_deflection``,
+        ``/diagnostics``, and ``/clock`` when the node uses or publishes sim
+        time. Names outside :data:`TOPIC_TYPES` are given as ``name:pkg/msg/Type``.
+    force : bool
+        Replace an existing file.
+    capture : {"subscription", "direct"}
+        ``subscription`` (default): every topic through a raw subscription,
+        the bytes as received. ``direct``: the node's state outputs are
+        serialized at publish time through :meth:`record` (log time = tick
+        time exactly, no DDS round trip); the other topics are subscribed.
+    chunk_size, compression, flush_interval_s
+        See :class:`msg_tools.Ros2McapWriter`; the wall-clock flush timer
+        uses ``flush_interval_s`` too.
+
+    Raises
+    ------
+    BagExistsError, BagWriteError
+        If the file exists (without ``force``) or cannot be created.
+
+    Examples
+    --------
+    In :class:`BeltDriveNode.__init__`, once the publishers exist::
+
+        if s.record_path:
+            try:
+                self._recorder = NodeRecorder(self, s.record_path)
+            except BagError as exc:  # exists (never overwritten) or cannot be created
+                self.get_logger().error(f"record_path: {exc}; not recording")
+
+    and ``destroy_node`` calls ``self._recorder.close()``.
+    """
+
+    def __init__(self, node, path, topics: Optional[Iterable[str]] = None, force: bool = False, *,
+                 capture: str = "subscription", chunk_size: int = 128 * 1024, compression: str = "zstd",
+                 flush_interval_s: float = 0.25):
+        if capture not in ("subscription", "direct"):
+            raise ValueError(f"capture must be 'subscription' or 'direct', got {capture!r}")
+        try:
+            writer = Ros2McapWriter(path, force=force, chunk_size=chunk_size, compression=compression,
+                                    flush_interval_s=flush_interval_s)
+        except (MsgToolsError, OSError) as exc:
+            raise bag_error(exc) from None
+        super().__init__(node, writer, flush_period=flush_interval_s)
+        self.capture = capture
+        uses_clock = self._uses_sim_time() or self._publishes_clock()
+        if topics is None:
+            wanted = [t for t in TOPIC_TYPES if t != "/clock" or uses_clock]
+        else:
+            wanted = list(topics)
+        self._direct: Dict[str, str] = {}
+        namespace = node.get_namespace()
+        try:
+            self.add_metadata(UNITS_METADATA, units_metadata(namespace))
+            self._write_scene()
+            self.add_metadata(PARAMETERS_METADATA, _node_parameters(node))
+            for spec in wanted:
+                name, _, type_name = spec.partition(":")
+                type_name = type_name or TOPIC_TYPES.get(name) or TOPIC_TYPES.get(name.lstrip("/"), "")
+                if not type_name:
+                    raise ValueError(f"topic {name!r}: unknown type; give it as '{name}:pkg/msg/Type'")
+                base = name.lstrip("/")
+                if capture == "direct" and (base == "joint_states" or base in dict(FLOAT_OUTPUTS)):
+                    self._direct[base] = self.resolve(name)
+                    self._types[self._direct[base]] = type_name
+                    continue
+                self.add(name, type_name)
+        except BaseException:
+            self.close()
+            raise
+        self._param_callback = self._on_parameters_set
+        node.add_post_set_parameters_callback(self._param_callback)
+        if self._direct:
+            from rclpy.serialization import serialize_message
+
+            self._serialize = serialize_message
+        node.get_logger().info(
+            f"recording {len(self._types)} topics to {self.path} ({capture}; log time = "
+            f"{'simulated' if self._uses_sim_time() else 'node clock'} time)"
+        )
+
+    def _uses_sim_time(self) -> bool:
+        try:
+            return bool(self.node.get_parameter("use_sim_time").value)
+        except Exception:  # noqa: BLE001
+            return False
+
+    def _publishes_clock(self) -> bool:
+        settings = getattr(self.node, "settings", None)
+        return bool(getattr(settings, "publish_clock", False))
+
+    def _write_scene(self) -> None:
+        settings = getattr(self.node, "settings", None)
+        scene = getattr(settings, "scene", None)
+        if scene is None:
+            return
+        drive_source = getattr(settings, "drive_source", "topic")
+        drive = None
+        if drive_source == "topic":
+            drive = {"type": RECORDED_DRIVE, "bag": "", "topic": self.resolve("drive_torque"),
+                     "interpolation": "previous"}
+        mapping = scene_mapping(scene, model=getattr(settings.model, "name", None),
+                                method=getattr(settings, "method", None),
+                                dt=getattr(settings, "dt", None), drive=drive)
+        self.add_metadata(SCENE_METADATA, _scene_record(
+            mapping, source="node", drive_source=drive_source,
+            extra={"node": self.node.get_fully_qualified_name(),
+                   "model_choice": getattr(settings, "model_reason", "")},
+        ))
+
+    def _on_parameters_set(self, parameters) -> None:
+        changed = {p.name: _fmt(p.value) for p in parameters}
+        changed["time_ns"] = str(self._clock.now().nanoseconds)
+        self.add_metadata(PARAMETERS_METADATA, changed)
+        if getattr(getattr(self.node, "settings", None), "scene", None) is not None and (
+            set(changed) & {"scene", "model", "method", "step_rate_hz", "substeps"}
+        ):
+            self._write_scene()
+
+    def record(self, now_ns: int, joint_state, floats: Mapping[str, Any]) -> None:
+        """Hook the node calls after publishing a tick's outputs.
+
+        With ``capture="direct"`` it writes them with ``log_time = now_ns``;
+        with the default ``capture="subscription"`` the subscriptions already
+        receive them and this returns at once.
+        """
+        if not self._direct or self.error is not None or self.closed:
+            return
+        serialize = self._serialize
+        topic = self._direct.get("joint_states")
+        if topic is not None:
+            self.write(topic, JOINT_STATE, serialize(joint_state), now_ns)
+        for name, msg in floats.items():
+            topic = self._direct.get(name)
+            if topic is not None:
+                self.write(topic, FLOAT64, serialize(msg), now_ns)
+
+    def close(self) -> None:
+        callback = getattr(self, "_param_callback", None)
+        if callback is not None:
+            try:
+                self.node.remove_post_set_parameters_callback(callback)
+            except Exception:  # noqa: BLE001
+                pass
+            self._param_callback = None
+        super().close()
