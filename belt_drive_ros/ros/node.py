@@ -143,13 +143,13 @@ from rclpy.event_handler import PublisherEventCallbacks  # noqa: E402
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.task import Future  # noqa: E402
 from rosgraph_msgs.msg import Clock as ClockMsg  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
+from .qos import CLOCK_QOS, INPUT_QOS, OUTPUT_QOS  # noqa: E402,F401 - re-exported
 from ..core.errors import BeltDriveError, ParameterError  # noqa: E402
 from ..core.fidelity import choose_model  # noqa: E402
 from ..core.integrators import make_integrator  # noqa: E402
@@ -168,12 +168,6 @@ DRIVE_SOURCES = ("topic", "scene")
 TIMEOUT_BEHAVIORS = ("hold", "zero")
 DEFAULT_SCENE = "paper"
 
-#: drive_torque: only the latest message matters (zero-order hold); depth 1
-#: bounds memory and latency under any burst.
-INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
-#: state outputs: reliable, a short queue for slow subscribers.
-OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
-CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
 #: [from, to] advertised in the descriptors and enforced on every change
 #: (fields that must be > 0 are also checked by BeltDriveParams).

@@ -33,7 +33,8 @@ from rclpy.node import Node  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 
 from ..core.errors import BeltDriveError  # noqa: E402
-from .node import INPUT_QOS, OUTPUT_QOS, make_executor, spin_until_signal  # noqa: E402
+from .node import make_executor, spin_until_signal  # noqa: E402
+from .qos import INPUT_QOS, OUTPUT_QOS  # noqa: E402
 from ..core.sources import TorqueProfile  # noqa: E402
 
 SOURCE_NODE_NAME = "torque_source"
