@@ -2,7 +2,7 @@
 
 The runtime builds M, K, C and the state-space matrices A, B by hand
 (``belt_drive_ros/model.py``). Here sympy derives them from the Lagrangian
-of ``../shared/design/model.md`` (the paper's eq. 11, 15 and 17, plus a
+written in ``docs/model.md`` (the paper's eq. 11, 15 and 17, plus a
 Rayleigh dissipation function for belt span and bearing damping), with
 Lagrange's equations of the second kind::
 

@@ -12,7 +12,7 @@ with the drive torque acting on wheel M and the load torque on wheel 3
 * flexible: ``x = [phi_M, phi_3, omega_M, omega_3]``  [rad, rad, rad/s, rad/s]
 * rigid:    ``x = [phi_M, omega_M]``                  [rad, rad/s]
 
-Equations of motion (``../shared/design/model.md``; the paper's eq. 18/20
+Equations of motion (derived step by step in ``docs/model.md``; the paper's eq. 18/20
 with its errata corrected, plus belt span damping c and bearing damping b)::
 
     M q'' + C q' + K q = [M_drive, -M_load],   q = [phi_M, phi_3]

@@ -1,0 +1,49 @@
+"""The repository stands on its own: nothing in it points outside the clone.
+
+Users get the repository only. The design notes and the source paper that the
+developers keep beside it are summarised in ``docs/``; no tracked file may
+refer to that folder (``../shared``, ``/work/shared``, ``shared/design``,
+``shared/seed``) or to the developers' machine.
+"""
+
+import re
+import subprocess
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+FORBIDDEN = re.compile(r"\.\./shared|/work/shared|shared/design|shared/seed|/work/main|/work/wt")
+
+
+def _tracked_text_files():
+    out = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True)
+    for name in out.stdout.decode().split("\0"):
+        path = ROOT / name
+        if not name or not path.is_file() or path.suffix in {".mcap", ".png", ".parquet"}:
+            continue
+        try:
+            yield name, path.read_text(encoding="utf-8")
+        except UnicodeDecodeError:
+            continue
+
+
+def test_no_tracked_file_points_outside_the_repository():
+    hits = []
+    for name, text in _tracked_text_files():
+        if name == "tests/test_self_contained.py":
+            continue
+        for number, line in enumerate(text.splitlines(), 1):
+            if FORBIDDEN.search(line):
+                hits.append(f"{name}:{number}: {line.strip()[:100]}")
+    assert not hits, "files point outside the repository:\n" + "\n".join(hits)
+
+
+def test_the_checker_sees_a_reference():
+    assert FORBIDDEN.search("see ../shared/design/model.md")
+    assert FORBIDDEN.search("python /work/main/x.py")
+    assert not FORBIDDEN.search("shared memory segments of Fast DDS")
+
+
+def test_docs_carry_the_derivation_and_errata():
+    model = (ROOT / "docs" / "model.md").read_text(encoding="utf-8")
+    for heading in ("Lagrange", "Errata", "Sign conventions"):
+        assert heading in model, heading
