@@ -26,6 +26,7 @@ COMMAND_MODULES = (
     "replay",
     "bench",
     "make_bags",
+    "urdf",
 )
 
 

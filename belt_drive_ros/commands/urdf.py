@@ -1,0 +1,53 @@
+"""``belt-drive urdf``: the drive's URDF from a scene, and a picture rendered from it."""
+
+from __future__ import annotations
+
+import os
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "urdf", help="write the drive's URDF (wheels M, 1, 2, 3 from the scene's radii) and render it",
+        description=(
+            "Write the URDF of a scene's drive: four continuous joints named as the node's joint_states "
+            "(wheel_M, wheel_1, wheel_2, wheel_3), gears and pulleys with the scene's radii, the belt's "
+            "spans as visuals. Feed it to robot_state_publisher (robot_description) or Foxglove's 3D panel; "
+            "the node publishes it itself with -p publish_robot_description:=true."
+        ),
+        epilog="examples:\n  belt-drive urdf truck_compressor > drive.urdf\n"
+               "  belt-drive urdf paper --out paper.urdf --png paper_drive.png",
+        formatter_class=__import__("argparse").RawDescriptionHelpFormatter,
+    )
+    p.add_argument("scene", help="shipped scene name or scene YAML file")
+    p.add_argument("--out", help="write the URDF here (default: standard output)")
+    p.add_argument("--png", help="also render the URDF seen from +z to this PNG file")
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.set_defaults(func=run)
+
+
+def _check_new(path: str, force: bool) -> None:
+    from ..core.errors import BeltDriveError
+
+    if os.path.exists(path) and not force:
+        raise BeltDriveError(f"{path} exists; pass --force to overwrite it")
+
+
+def run(args) -> int:
+    from ..core.scene import load_scene
+    from ..io.urdf import render_urdf, urdf_from_params
+
+    scene = load_scene(args.scene)
+    text = urdf_from_params(scene.params, name=f"belt_drive_{scene.name}".replace("-", "_"))
+    for path in (args.out, args.png):
+        if path:
+            _check_new(path, args.force)
+    if args.out:
+        tmp = args.out + ".part"
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, args.out)
+    else:
+        print(text, end="")
+    if args.png:
+        render_urdf(text, args.png, title=f"{scene.name}: drive rendered from its URDF")
+    return 0
