@@ -451,7 +451,8 @@ class Stepper:
             node_inputs.append(
                 np.column_stack([np.broadcast_to(drive.torque(ts, zeros, zeros), t.shape), np.broadcast_to(load.torque(ts, zeros, zeros), t.shape)])
             )
-        states = propagate_linear(step, x0, node_inputs)
+        with np.errstate(all="ignore"):  # a diverging run is reported by the caller
+            states = propagate_linear(step, x0, node_inputs)
         if plan["trail"]:
             a, e, whole = self._step_ends(plan, last)
             lo_t, hi_t, cuts = special.get(last, (-math.inf, math.inf, ()))
