@@ -156,8 +156,8 @@ def _coordinate(row: np.ndarray) -> Callable:
 def _healthy(x) -> bool:
     """Finite state with every speed (second half) within :data:`SPEED_LIMIT`."""
     values = x.tolist() if isinstance(x, np.ndarray) else list(x)
-    half = len(values) // 2
-    return all(v - v == 0.0 for v in values) and all(abs(v) <= SPEED_LIMIT for v in values[half:])
+    # the sum is finite only when every entry is (a NaN or an inf propagates; a finite overflow is beyond the limit)
+    return math.isfinite(sum(values)) and max(map(abs, values[len(values) // 2 :])) <= SPEED_LIMIT
 
 
 class Stepper:
@@ -201,6 +201,17 @@ class Stepper:
         x = np.asarray(x, dtype=float)
         if t1 == t0:
             return x
+        k0, k1 = self._snap(t0), self._snap(t1)
+        if k0 is not None and k1 is not None and k1 > k0 and self.loop is not None:
+            # the node's usual tick: whole steps on the grid, no breakpoint near (the plan's common case, fast)
+            tol = snap_tolerance(t1, self.dt)
+            bps = self.breakpoints
+            if not bps or bisect_left(bps, min(t0, self.grid_time(k0)) - tol) == bisect_right(bps, max(t1, self.grid_time(k1)) + tol):
+                self.split_steps = {}
+                out = self._whole_steps(x, k0, k1, None)
+                if not _healthy(out):
+                    raise self._diverged(t1, out)
+                return out
         plan = self._plan(t0, t1)
         out = self._march(x, plan, None, record=False)
         if not _healthy(out):
@@ -235,10 +246,10 @@ class Stepper:
         bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, states.shape[1] // 2 :]) > SPEED_LIMIT, axis=1)
         if np.any(bad):
             k = int(np.argmax(bad))
-            raise self._diverged(times[k], states[k])
+            raise self._diverged(float(times[k]), states[k])
         if progress:
             progress(1.0)
-        return np.array(times), states
+        return times, states
 
     def reset(self) -> None:
         """Forget adaptive solver history and the partial-step integrators."""
@@ -251,9 +262,10 @@ class Stepper:
 
     # ------------------------------------------------------------ planning
     def _snap(self, t: float) -> int | None:
-        """Index k of the grid time within tolerance of ``t``, or None."""
+        """Index k of the grid time within :func:`snap_tolerance` of ``t``, or None."""
         k = round((t - self.origin) / self.dt)
-        return k if abs(self.grid_time(k) - t) <= snap_tolerance(t, self.dt) else None
+        d = abs(self.origin + k * self.dt - t)
+        return k if d <= GRID_TOLERANCE * self.dt or d <= 8.0 * math.ulp(t) else None
 
     def _cell(self, t: float) -> int:
         """Index k of the grid cell [g_k, g_k+1) holding off-grid time ``t``."""
@@ -326,9 +338,16 @@ class Stepper:
     def _knots(self, plan: dict) -> list:
         """Times of the recorded states: t0, the interior grid times, t1."""
         if plan["empty"]:
-            return [plan["t0"]] if plan["t0"] == plan["t1"] else [plan["t0"], plan["t1"]]
-        first, last, o, dt = plan["first"], plan["last"], self.origin, self.dt
-        return [plan["t0"], *(o + k * dt for k in range(first + 1, last + 1)), plan["t1"]]
+            return np.array([plan["t0"]] if plan["t0"] == plan["t1"] else [plan["t0"], plan["t1"]])
+        inner = self.origin + self.dt * np.arange(plan["first"] + 1, plan["last"] + 1, dtype=float)
+        return np.concatenate(([plan["t0"]], inner, [plan["t1"]]))
+
+    def _grid(self, k0: int, k1: int) -> list:
+        """Grid times ``origin + k dt`` for k0 <= k < k1, as floats (numpy for long ranges: the same IEEE operations)."""
+        o, dt = self.origin, self.dt
+        if k1 - k0 > 32:
+            return (o + dt * np.arange(k0, k1, dtype=float)).tolist()
+        return [o + k * dt for k in range(k0, k1)]
 
     # ------------------------------------------------------------ stepping
     def _partial(self, h: float):
@@ -403,8 +422,7 @@ class Stepper:
 
     def _whole_steps(self, x: np.ndarray, c: int, stop: int, out) -> np.ndarray:
         """Whole steps of cells ``c`` .. ``stop - 1`` (no breakpoint touches them); write into ``out``."""
-        o, dt = self.origin, self.dt
-        times = [o + k * dt for k in range(c, stop + 1)]
+        times = self._grid(c, stop + 1)
         size = x.size
         if self.loop is not None:
             try:
@@ -413,12 +431,11 @@ class Stepper:
                 flat = None  # a math domain error on a runaway state: redo with numpy, which gives inf/nan
             if flat is not None:
                 done = len(flat) // size
-                block = np.array(flat).reshape(done, size)
                 if out is not None:
-                    out[:done] = block
+                    out[:done] = np.array(flat).reshape(done, size)
                     if done < len(out):  # stopped early on a runaway state
                         out[done:] = np.nan
-                return block[-1] if done == stop - c else np.full(size, np.nan)
+                return np.array(flat[-size:]) if done == stop - c else np.full(size, np.nan)
         step, inputs = self.integrator.step, self.plant.inputs
         for j, t in enumerate(times[:-1]):
             x = step(t, x, inputs)
