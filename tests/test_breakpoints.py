@@ -1,9 +1,12 @@
-"""Steps that contain a torque breakpoint are split there (``Simulator.run``).
+"""Torque breakpoints in closed-loop scenes (``Simulator.run`` through ``core.stepper``).
 
 A one-step method that integrates across a jump or a kink of its torque is
 locally first order: on ``paper`` a 12.5 ms ``lawson5`` step with the soft
 start's end (0.02 s) inside it is 2000x less accurate than with the step split
-at 0.02 s. These tests check the split against independent references.
+at 0.02 s; a step that *ends* on a jump and samples the torque after it is
+first order too. These tests check both against DOP853 references restarted
+at every breakpoint (``tests/test_stepper.py`` checks open-loop jumps for
+every method against the closed form).
 """
 
 from __future__ import annotations
@@ -76,3 +79,27 @@ def test_breakpoints_on_the_grid_are_not_split_and_forced_vectorization_is_refus
         off_grid.run(0.1, x0, vectorize=True)
     _, states = off_grid.run(0.1, x0)
     assert off_grid.split_steps == {2: [0.0123]} and np.all(np.isfinite(states))
+
+
+def test_load_switch_on_the_grid_keeps_fourth_order():
+    """truck_compressor: the compressor's schedule switches at 0.5 s, on the binary grid of 2^-9 and 2^-10 s.
+
+    Before the stepper sampled left limits, a step ending on the switch read the switched load:
+    etd4 fell to first order there. Tolerance: an observed order within 0.3 of 4, and the same
+    error (within 1.5x) as with the switch moved 1e-7 s off the grid.
+    """
+    base = load_scene("truck_compressor").with_overrides(duration=0.8, model="flexible")
+    assert 0.5 in base.load.breakpoints()
+    model = make_model("flexible", base.params)
+    x0 = base.initial_state.vector("flexible", base.params.ratio)
+    off = base.with_overrides(load=S.Schedule(base.load.active, base.load.inactive,
+                                              tuple((a + 1e-7, b + 1e-7) for a, b in base.load.periods)))
+
+    def error(scene, dt):
+        sim = Simulator(model, scene.drive, scene.load, "etd4", dt)
+        t, x = sim.run(scene.duration, x0)
+        return run_errors(dop853_reference(scene, "flexible"), t, x)["error"]
+
+    coarse, fine = error(base, 2.0**-9), error(base, 2.0**-10)
+    assert np.log2(coarse / fine) >= 3.7, (coarse, fine)
+    assert fine <= 1.5 * error(off, 2.0**-10), fine

@@ -133,7 +133,7 @@ def dop853_reference(scene: Scene, model: str, rtol: float = REFERENCE_RTOL, ato
     start = time.process_time()
     x = x0
     for a, b in zip(cuts[:-1], cuts[1:]):
-        left_of_b = math.nextafter(b, -math.inf)  # a torque that jumps at b is read from the left inside [a, b]
+        left_of_b = plant.left_of(b)  # a torque that jumps at b is read from the left inside [a, b]
 
         def rhs(t, y, lo=a, hi=left_of_b):
             return A @ y + B @ inputs(min(max(t, lo), hi), y)

@@ -26,6 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .model import RigidBeltModel
+from .stepper import Plant, Stepper
+
 #: rigid is chosen while max(f_excitation) / f_n stays below this [-].
 FREQUENCY_RATIO_THRESHOLD = 0.1
 
@@ -54,13 +57,10 @@ class ModelChoice:
 
 def _operating_speeds(scene) -> tuple[float, float]:
     """Largest |omega_M| and |omega_3| [rad/s] of a cheap rigid run of ``scene``."""
-    from .model import RigidBeltModel
-    from .simulate import Simulator
-
     model = RigidBeltModel(scene.params)
     dt = min(scene.duration / 500.0, 5e-3)
-    sim = Simulator(model, scene.drive, scene.load, "exact", dt, check_stability=False)
-    _, states = sim.run(scene.duration, scene.initial_state.vector("rigid", scene.params.ratio))
+    stepper = Stepper(Plant(model, scene.drive, scene.load), "exact", dt)
+    _, states = stepper.run(scene.initial_state.vector("rigid", scene.params.ratio), 0.0, scene.duration)
     w = float(np.max(np.abs(states[:, 1])))
     return w, w * scene.params.ratio
 

@@ -1,14 +1,16 @@
-"""Offline simulation: a model, its torques and an integrator over a time grid.
+"""Offline simulation: a scene's model, torques and integrator over a time grid.
 
-The :class:`Plant` joins a model with its drive and load profiles into the
-input function ``u(t, x)`` every integrator calls. :class:`Simulator` owns
-the state and the time grid; it takes the vectorized path (one linear
-recurrence for the whole run, :func:`~belt_drive_ros.core.integrators.propagate_linear`)
+:class:`Simulator` holds a :class:`~belt_drive_ros.core.stepper.Plant` (model
++ drive + load) and a :class:`~belt_drive_ros.core.stepper.Stepper`, the one
+engine that advances time for every caller (this module, replay of recorded
+torques, the ROS node's tick). The stepper takes the vectorized path (one
+linear recurrence for the whole run, :func:`~belt_drive_ros.core.integrators.propagate_linear`)
 when both torques depend on time only and the method has a fixed step, and
-steps one at a time otherwise: fixed-step methods in a loop compiled for the
-plant (:func:`~belt_drive_ros.core.integrators.compile_scalar_loop`, plain float
+steps otherwise: fixed-step methods in a loop compiled for the plant
+(:func:`~belt_drive_ros.core.integrators.compile_scalar_loop`, plain float
 arithmetic, no numpy per step), adaptive ones through ``integrator.step``.
-All paths give the same states to rounding.
+All paths give the same states to rounding. :func:`simulate` runs a scene
+and computes every output and the energy terms.
 """
 
 from __future__ import annotations
@@ -20,16 +22,13 @@ from typing import Callable
 
 import numpy as np
 
-from .errors import SimulationDivergedError
 from .fidelity import ModelChoice, choose_model
-from .integrators import FixedStepIntegrator, make_integrator
 from .model import OUTPUT_UNITS, make_model
 from .scene import Scene
-from .sources import TorqueProfile
 from .stability import StabilityReport, require_stable
+from .stepper import SPEED_LIMIT, Plant, Stepper
 
-#: Speeds beyond this [rad/s] (~955,000 rpm) mean the numerics, not the physics, blew up.
-SPEED_LIMIT = 1.0e5
+__all__ = ["CSV_COLUMNS", "SPEED_LIMIT", "Plant", "SimResult", "Simulator", "output_names", "simulate"]
 #: CSV columns required by the CLI, SI units.
 CSV_COLUMNS = (
     "time",
@@ -42,58 +41,6 @@ CSV_COLUMNS = (
     "belt_torque",
     "relative_deflection",
 )
-
-
-class Plant:
-    """Model + drive + load: the input function ``u(t, x) = [drive, load]`` [N m].
-
-    ``inputs(t, x)`` takes one state (1-D) and returns a (2,) array; it calls
-    the profiles' scalar closures (:meth:`~belt_drive_ros.core.sources.TorqueProfile.scalar_torque`),
-    which skip numpy's per-call overhead. ``wheel_map`` is the (4, n) matrix
-    W with ``[phi_M, omega_M, phi_3, omega_3] = W x`` (the compiled loops of
-    :func:`~belt_drive_ros.core.integrators.compile_scalar_loop` inline it).
-    """
-
-    def __init__(self, model, drive: TorqueProfile, load: TorqueProfile):
-        self.model, self.drive, self.load = model, drive, load
-        self.open_loop = not (drive.state_dependent or load.state_dependent)
-        self.scalar_drive = drive_torque = drive.scalar_torque()
-        self.scalar_load = load_torque = load.scalar_torque()
-        self.wheel_map = np.array(model.wheel_coordinates(np.eye(model.A.shape[0])), dtype=float)
-        #: (drive, load): whether each torque reads its angle; their inlinable sources (or None)
-        self.uses_angle = (bool(drive.uses_angle), bool(load.uses_angle))
-        self.sources = (drive.scalar_source, load.scalar_source)
-        #: sorted finite times [s] at which either torque jumps or kinks (TorqueProfile.breakpoints)
-        self.breakpoints = sorted({float(b) for b in (*drive.breakpoints(), *load.breakpoints()) if math.isfinite(b)})
-        array = np.array
-        if model.name == "flexible":
-
-            def inputs(t, x):
-                # x = [phi_M, phi_3, omega_M, omega_3]
-                return array([drive_torque(t, x[0], x[2]), load_torque(t, x[1], x[3])])
-
-        else:
-            i = model.params.ratio
-
-            def inputs(t, x):
-                # x = [phi_M, omega_M]; wheel 3 turns i times as far
-                return array([drive_torque(t, x[0], x[1]), load_torque(t, i * x[0], i * x[1])])
-
-        self.inputs = inputs
-
-    def scalar_loop(self, integrator) -> Callable | None:
-        """``integrator``'s compiled float loop for this plant (inlined torques, unused angles skipped), or None."""
-        if not isinstance(integrator, FixedStepIntegrator):
-            return None
-        return integrator.scalar_loop(self.wheel_map, self.uses_angle, self.sources)
-
-    def input_array(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Vectorized u for samples ``t`` (N,), ``x`` (N, n) -> (N, 2)."""
-        phi_M, omega_M, phi_3, omega_3 = self.model.wheel_coordinates(x)
-        t = np.asarray(t, dtype=float)
-        d = np.broadcast_to(self.drive.torque(t, phi_M, omega_M), t.shape)
-        l = np.broadcast_to(self.load.torque(t, phi_3, omega_3), t.shape)
-        return np.stack([d, l], axis=-1).astype(float)
 
 
 @dataclass
@@ -137,22 +84,8 @@ class SimResult:
         return (self.time[-1] - self.time[0]) / self.wall_time if self.wall_time > 0 else math.inf
 
 
-def _check_finite(states: np.ndarray, time: np.ndarray, model_name: str, method: str, dt: float) -> None:
-    """Raise :class:`SimulationDivergedError` at the first non-finite or runaway sample."""
-    n = states.shape[1] // 2
-    speeds = states[:, n:]
-    bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(speeds) > SPEED_LIMIT, axis=1)
-    if np.any(bad):
-        k = int(np.argmax(bad))
-        raise SimulationDivergedError(
-            f"simulation diverged at t={time[k]:.6g} s (model {model_name}, method {method}, dt={dt:g} s): "
-            f"state {np.array2string(states[k], precision=4)} is non-finite or beyond {SPEED_LIMIT:g} rad/s; "
-            f"reduce dt or use method 'exact' or 'etd2'"
-        )
-
-
 class Simulator:
-    """Runs one model with one integrator from an initial state.
+    """Runs one model with one integrator from an initial state (through the :class:`~belt_drive_ros.core.stepper.Stepper`).
 
     Parameters
     ----------
@@ -167,44 +100,24 @@ class Simulator:
         self.plant = Plant(model, drive, load)
         self.method, self.dt = method, float(dt)
         self.method_options = dict(method_options or {})
-        self.integrator = make_integrator(method, model.A, model.B, dt, **self.method_options)
+        self.stepper = Stepper(self.plant, method, self.dt, self.method_options)
+        self.integrator = self.stepper.integrator
         self.stability = require_stable(model.A, model.B, method, dt) if check_stability else None
-        #: where steps are split (the plant's breakpoints; a copy, so a caller may change it for one simulator)
-        self.breakpoints = list(self.plant.breakpoints)
-        self._partial_steps: dict = {}
-        self.split_steps: dict = {}
+        self.vectorized = False
 
-    def _splits(self, time: np.ndarray) -> dict:
-        """{step k: [breakpoints strictly inside (t_k, t_k+1)]} for fixed-step methods (see :meth:`run`)."""
-        if not isinstance(self.integrator, FixedStepIntegrator) or not self.breakpoints:
-            return {}
-        tol = 1e-9 * self.dt  # a breakpoint this close to a grid time is on the grid
-        out: dict = {}
-        for b in self.breakpoints:
-            k = int(np.searchsorted(time, b, side="right")) - 1
-            if 0 <= k < time.size - 1 and b - time[k] > tol and time[k + 1] - b > tol:
-                out.setdefault(k, []).append(b)
-        return out
+    @property
+    def breakpoints(self) -> list:
+        """Where steps are split or bounded (the plant's breakpoints; settable for this simulator)."""
+        return self.stepper.breakpoints
 
-    def _split_step(self, t0: float, t1: float, x: np.ndarray, cuts: list) -> np.ndarray:
-        """One grid step as sub-steps ending at each breakpoint in ``cuts``.
+    @breakpoints.setter
+    def breakpoints(self, value) -> None:
+        self.stepper.breakpoints = sorted(float(b) for b in value)
 
-        Each sub-step reads the torque from the left of its end (a jump at a
-        cut belongs to the next sub-step), so no sub-step integrates across a
-        jump or a kink: the method keeps its order there.
-        """
-        inputs = self.plant.inputs
-        edges = [t0, *cuts, t1]
-        for j, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
-            h = b - a
-            if h not in self._partial_steps:
-                self._partial_steps[h] = make_integrator(self.method, self.model.A, self.model.B, h, **self.method_options)
-            if j < len(cuts):
-                left = math.nextafter(b, -math.inf)
-                x = self._partial_steps[h].step(a, x, lambda t, y, hi=left: inputs(t if t < hi else hi, y))
-            else:
-                x = self._partial_steps[h].step(a, x, inputs)
-        return x
+    @property
+    def split_steps(self) -> dict:
+        """{step k: [breakpoints strictly inside step k]} of the last run."""
+        return self.stepper.split_steps
 
     def run(
         self,
@@ -216,120 +129,23 @@ class Simulator:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Integrate over ``duration`` [s]; return (time (N+1,), states (N+1, n)).
 
-        ``vectorize`` forces (True) or forbids (False) the open-loop path; by
-        default it is used whenever it applies.
-
-        A fixed-step method's step that contains a torque breakpoint (the end
-        of a soft start or ramp, a step's time, a schedule switch) strictly
-        inside is split there (:meth:`_split_step`); the outputs stay on the
-        grid. Without it such a step is locally first order: on ``paper`` a
+        The grid is ``t0 + k dt``; the last time is ``t0 + duration`` exactly
+        (the last step shortened when dt does not divide the duration).
+        Torque breakpoints are handled exactly wherever they fall: a step
+        with one strictly inside is split there, a step that ends on one
+        samples the torque's left limit (see :mod:`belt_drive_ros.core.stepper`).
+        Without that such a step is locally first order: on ``paper`` a
         12.5 ms ``lawson5`` step with the soft start ending inside it makes
         the run 2000x less accurate (tests/test_breakpoints.py).
-        ``split_steps`` lists them after the run.
+        ``split_steps`` lists the split steps after the run.
+
+        ``vectorize`` forces (True) or forbids (False) the open-loop path; by
+        default it is used whenever it applies.
         """
-        n_steps = int(round(duration / self.dt))
-        if abs(n_steps * self.dt - duration) > 1e-9 * max(duration, 1.0):
-            n_steps = int(math.ceil(duration / self.dt))
-        time = t0 + self.dt * np.arange(n_steps + 1)
-        x0 = np.asarray(x0, dtype=float)
-        self.split_steps = self._splits(time)
-        can_vectorize = self.plant.open_loop and isinstance(self.integrator, FixedStepIntegrator) and not self.split_steps
-        if vectorize and not can_vectorize:
-            raise ValueError(
-                "vectorize=True needs time-only torques, a fixed-step method and no torque breakpoint inside a step"
-            )
-        if can_vectorize and vectorize is not False:
-            states = self._run_open_loop(time, x0)
-            self.vectorized = True
-        else:
-            states = self._run_stepwise(time, x0, progress)
-            self.vectorized = False
-        _check_finite(states, time, self.model.name, self.method, self.dt)
-        if progress:
-            progress(1.0)
+        self.stepper.origin = float(t0)
+        time, states = self.stepper.run(x0, float(t0), float(t0) + float(duration), progress, vectorize)
+        self.vectorized = self.stepper.vectorized
         return time, states
-
-    def _run_open_loop(self, time, x0):
-        from .integrators import propagate_linear
-
-        step = self.integrator.linear_step()
-        t = time[:-1]
-        zeros = np.zeros_like(t)
-        node_inputs = [
-            np.column_stack(
-                [
-                    np.broadcast_to(self.plant.drive.torque(t + c * self.dt, zeros, zeros), t.shape),
-                    np.broadcast_to(self.plant.load.torque(t + c * self.dt, zeros, zeros), t.shape),
-                ]
-            )
-            for c in step.nodes
-        ]
-        return propagate_linear(step, x0, node_inputs)
-
-    def _run_stepwise(self, time, x0, progress):
-        loop = self.plant.scalar_loop(self.integrator)
-        if loop is None:
-            return self._run_stepwise_generic(time, x0, progress)
-        return self._run_compiled(loop, time, x0, progress)
-
-    def _run_compiled(self, loop, time, x0, progress, chunk: int = 4096):
-        """Step with the integrator's compiled float loop, ``chunk`` steps per call.
-
-        Between chunks: copy the states into the array, report progress and
-        check for divergence (the loop itself stops early within 64 steps of
-        a non-finite or runaway state). A chunk the loop cannot finish (a
-        ``math`` domain error on an infinite angle) is redone by the generic
-        numpy path, which reports the divergence as usual.
-        """
-        n, size = time.size - 1, x0.size
-        states = np.empty((n + 1, size))
-        states[0] = x0
-        times = time.tolist()
-        drive, load = self.plant.scalar_drive, self.plant.scalar_load
-        if progress:
-            chunk = min(chunk, max(64, n // 100))
-        x = tuple(x0.tolist())
-        splits = self.split_steps
-        k = 0
-        while k < n:
-            if k in splits:
-                states[k + 1] = self._split_step(time[k], time[k + 1], states[k], splits[k])
-                x = tuple(states[k + 1].tolist())
-                k += 1
-                continue
-            stop = min(k + chunk, n, min((j for j in splits if j > k), default=n))
-            try:
-                flat = loop(times[k : stop + 1], x, drive, load, SPEED_LIMIT)
-            except (ValueError, OverflowError, ZeroDivisionError):
-                states[k:] = self._run_stepwise_generic(time[k:], states[k], None, k)
-                return states
-            done = len(flat) // size
-            states[k + 1 : k + 1 + done] = np.array(flat).reshape(done, size)
-            if done < stop - k:  # the loop stopped on a runaway state
-                _check_finite(states[: k + 2 + done], time[: k + 2 + done], self.model.name, self.method, self.dt)
-            x = tuple(flat[-size:])
-            k = stop
-            if progress:
-                progress(k / n)
-        return states
-
-    def _run_stepwise_generic(self, time, x0, progress, offset: int = 0):
-        n = time.size - 1
-        states = np.empty((n + 1, x0.size))
-        states[0] = x0
-        x = x0
-        step, inputs = self.integrator.step, self.plant.inputs
-        splits = self.split_steps
-        report_every = max(1, n // 100)
-        for k in range(n):
-            cuts = splits.get(k + offset)
-            x = step(time[k], x, inputs) if cuts is None else self._split_step(time[k], time[k + 1], x, cuts)
-            states[k + 1] = x
-            if k % 64 == 63 and not (np.all(np.isfinite(x)) and np.max(np.abs(x[x.size // 2 :])) <= SPEED_LIMIT):
-                _check_finite(states[: k + 2], time[: k + 2], self.model.name, self.method, self.dt)
-            if progress and k % report_every == 0:
-                progress(k / n)
-        return states
 
 
 def simulate(

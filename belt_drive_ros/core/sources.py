@@ -71,10 +71,20 @@ class TorqueProfile:
         """Times [s] at which the torque jumps or kinks in time (a step, a ramp's ends, a soft start's end).
 
         A one-step method that integrates across one is locally first order
-        there; :class:`~belt_drive_ros.core.simulate.Simulator` splits such a step
-        at it. Default: none.
+        there; :class:`~belt_drive_ros.core.stepper.Stepper` splits such a step
+        at it (or ends a step on it). Default: none.
         """
         return ()
+
+    def left_of(self, t: float) -> float:
+        """Latest time [s] before ``t`` at which the torque still has its value from the left of ``t``.
+
+        The stepper samples a step that ends at a breakpoint ``t`` no later
+        than this, so it sees the torque's left limit there (the jump itself
+        belongs to the next step). Default: the float just below ``t``
+        (every profile here switches at ``t >= time``).
+        """
+        return math.nextafter(t, -math.inf)
 
     def excitation_frequencies(self, speed: float) -> list[tuple[float, str]]:
         """Frequencies [Hz] this profile excites at wheel speed ``speed`` [rad/s].
@@ -677,6 +687,9 @@ class Schedule(TorqueProfile):
     def breakpoints(self):
         edges = {float(v) for period in self.periods for v in period}
         return tuple(sorted(edges | set(self.active.breakpoints()) | set(self.inactive.breakpoints())))
+
+    def left_of(self, t):
+        return min(math.nextafter(t, -math.inf), self.active.left_of(t), self.inactive.left_of(t))
 
     def excitation_frequencies(self, speed):
         out = self.active.excitation_frequencies(speed) + self.inactive.excitation_frequencies(speed)

@@ -110,6 +110,10 @@ class RecordedTorque(Table):
 
         return held
 
+    def left_of(self, t: float) -> float:
+        # one nanosecond before t's nanosecond: the hold above rounds t to whole ns
+        return (round(t * 1e9) - 1) / 1e9
+
     def to_dict(self) -> Dict[str, Any]:
         return {
             "type": "table",

@@ -1,0 +1,484 @@
+"""The one engine that advances time: a plant from scene time t0 to t1.
+
+Every caller that moves a simulation forward goes through :class:`Stepper`:
+:class:`~belt_drive_ros.core.simulate.Simulator` (offline runs, replay of
+recorded torques, the ``auto`` model choice's rigid estimate) and the ROS
+node's tick. It owns what each of them used to repeat: whole steps through
+the integrator's compiled float loop, partial steps, steps split at torque
+breakpoints, and the divergence check.
+
+API
+---
+``Stepper(plant, method, dt, method_options=None, origin=0.0, integrator=None)``
+
+``stepper.advance(x, t0, t1) -> x1``
+    The state at scene time ``t1`` [s] from state ``x`` at ``t0`` [s]
+    (``t1 >= t0``). What the node's tick calls with the held drive torque in
+    the plant (a profile whose value the node sets).
+``stepper.run(x0, t0, t1, progress=None, vectorize=None) -> (times, states)``
+    The same advance, recording every knot: ``times`` (N+1,) [s] starts at
+    ``t0`` and ends at ``t1`` exactly, ``states`` (N+1, n).
+
+States are 1-D float arrays in the model's own state ordering (the stepper
+is generic over it); the only assumption is that the **second half of the
+state holds speeds** [rad/s], which the divergence check reads. Torques are
+[N m], times scene seconds (float).
+
+The grid
+--------
+Whole steps lie on the fixed grid ``g_k = origin + k dt`` (``k`` integer;
+the float product and sum, computed the same way for every caller, so a
+node ticking on grid times and an offline run see bit-identical times). An
+advance from ``t0`` to ``t1`` takes a partial step from ``t0`` to the next
+grid time when ``t0`` is off the grid, whole steps up to the last grid time
+not after ``t1``, and a partial step to ``t1`` when ``t1`` is off the grid:
+a run of ``duration`` ends at ``duration`` exactly, its last step shortened.
+A time within :func:`snap_tolerance` of a grid time (``1e-9 dt`` or 8 ulps,
+whichever is larger) counts as that grid time.
+
+Breakpoints
+-----------
+``plant.breakpoints`` (times where a torque jumps or kinks) are handled
+exactly wherever they fall. A breakpoint strictly inside a step splits the
+step there (sub-steps by integrators of the sub-step's length). A breakpoint
+on a knot (within the snap tolerance, so also a decimal time the float grid
+misses by an ulp) bounds the steps on either side. In both cases every
+torque sample of a (sub-)step is taken at a time clamped into the step's
+side of the breakpoints: the step that ends at breakpoint ``b`` samples at
+most at ``plant.left_of(b)`` (the torque's left limit), the step that starts
+there at least at ``b``. So no step integrates across a jump or a kink, and
+each fixed-step method keeps its order. Steps that touch a breakpoint go
+through ``integrator.step`` (numpy, one call each); all others through the
+compiled loop.
+
+What is cached
+--------------
+The integrator of step ``dt`` and its compiled loop
+(:meth:`Plant.scalar_loop`, which the integrator caches per plant), and
+integrators of partial-step lengths (keyed by the length [s], at most
+:data:`PARTIAL_CACHE_SIZE`, cleared when full). Plant torques are read at
+every call (a held torque may change between advances). :meth:`reset`
+forgets the adaptive solvers' history and the partial-step integrators.
+
+Divergence
+----------
+A state that is non-finite or has a speed beyond :data:`SPEED_LIMIT`
+raises :class:`~belt_drive_ros.core.errors.SimulationDivergedError` naming
+the time, model, method and step (the compiled loop checks every 64 steps;
+:meth:`run` reports the first bad sample).
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_left, bisect_right
+from typing import Callable
+
+import numpy as np
+
+from .errors import SimulationDivergedError
+from .integrators import FixedStepIntegrator, make_integrator
+
+#: Speeds beyond this [rad/s] (~955,000 rpm) mean the numerics, not the physics, blew up.
+SPEED_LIMIT = 1.0e5
+#: partial-step integrators kept per stepper (one per distinct length)
+PARTIAL_CACHE_SIZE = 4096
+#: a time this close to a grid time, relative to dt, is on the grid
+GRID_TOLERANCE = 1e-9
+#: steps per call of the compiled loop between divergence checks and progress reports
+CHUNK = 4096
+
+
+def snap_tolerance(t: float, dt: float) -> float:
+    """Distance [s] within which time ``t`` counts as on a grid time or a breakpoint: max(1e-9 dt, 8 ulp(t))."""
+    return max(GRID_TOLERANCE * dt, 8.0 * math.ulp(abs(t)))
+
+
+class Plant:
+    """Model + drive + load: the input function ``u(t, x) = [drive, load]`` [N m].
+
+    ``inputs(t, x)`` takes one state (1-D) and returns a (2,) array; it calls
+    the profiles' scalar closures (:meth:`~belt_drive_ros.core.sources.TorqueProfile.scalar_torque`),
+    which skip numpy's per-call overhead. ``wheel_map`` is the (4, n) matrix
+    W with ``[phi_M, omega_M, phi_3, omega_3] = W x`` (the compiled loops of
+    :func:`~belt_drive_ros.core.integrators.compile_scalar_loop` inline it,
+    and :meth:`inputs` applies it, so any state ordering works).
+    """
+
+    def __init__(self, model, drive, load):
+        self.model, self.drive, self.load = model, drive, load
+        self.open_loop = not (drive.state_dependent or load.state_dependent)
+        self.scalar_drive = drive_torque = drive.scalar_torque()
+        self.scalar_load = load_torque = load.scalar_torque()
+        self.wheel_map = W = np.array(model.wheel_coordinates(np.eye(model.A.shape[0])), dtype=float)
+        #: (drive, load): whether each torque reads its angle; their inlinable sources (or None)
+        self.uses_angle = (bool(drive.uses_angle), bool(load.uses_angle))
+        self.sources = (drive.scalar_source, load.scalar_source)
+        #: sorted finite times [s] at which either torque jumps or kinks (TorqueProfile.breakpoints)
+        self.breakpoints = sorted({float(b) for b in (*drive.breakpoints(), *load.breakpoints()) if math.isfinite(b)})
+        array = np.array
+        angle_M, speed_M, angle_3, speed_3 = (_coordinate(row) for row in W)
+
+        def inputs(t, x):
+            return array([drive_torque(t, angle_M(x), speed_M(x)), load_torque(t, angle_3(x), speed_3(x))])
+
+        self.inputs = inputs
+
+    def scalar_loop(self, integrator) -> Callable | None:
+        """``integrator``'s compiled float loop for this plant (inlined torques, unused angles skipped), or None."""
+        if not isinstance(integrator, FixedStepIntegrator):
+            return None
+        return integrator.scalar_loop(self.wheel_map, self.uses_angle, self.sources)
+
+    def left_of(self, b: float) -> float:
+        """Latest time [s] before breakpoint ``b`` at which both torques still give their values from the left."""
+        return min(self.drive.left_of(b), self.load.left_of(b))
+
+    def input_array(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Vectorized u for samples ``t`` (N,), ``x`` (N, n) -> (N, 2)."""
+        phi_M, omega_M, phi_3, omega_3 = self.model.wheel_coordinates(x)
+        t = np.asarray(t, dtype=float)
+        d = np.broadcast_to(self.drive.torque(t, phi_M, omega_M), t.shape)
+        l = np.broadcast_to(self.load.torque(t, phi_3, omega_3), t.shape)
+        return np.stack([d, l], axis=-1).astype(float)
+
+
+def _coordinate(row: np.ndarray) -> Callable:
+    """``x -> row @ x`` for one wheel coordinate, as a plain index or a scaled index when it is one."""
+    nonzero = [(j, float(c)) for j, c in enumerate(row) if c != 0.0]
+    if len(nonzero) == 1:
+        j, c = nonzero[0]
+        return (lambda x: x[j]) if c == 1.0 else (lambda x: c * x[j])
+    row = np.array(row, dtype=float)
+    return lambda x: float(row @ x)
+
+
+def _healthy(x) -> bool:
+    """Finite state with every speed (second half) within :data:`SPEED_LIMIT`."""
+    values = x.tolist() if isinstance(x, np.ndarray) else list(x)
+    # the sum is finite only when every entry is (a NaN or an inf propagates; a finite overflow is beyond the limit)
+    return math.isfinite(sum(values)) and max(map(abs, values[len(values) // 2 :])) <= SPEED_LIMIT
+
+
+class Stepper:
+    """Advances one plant with one method on the grid ``origin + k dt`` (see the module docstring).
+
+    Parameters
+    ----------
+    plant : :class:`Plant`.
+    method : integrator name; dt : step [s]; method_options : passed to it.
+    origin : scene time [s] of grid index 0.
+    integrator : an integrator of ``method`` and ``dt`` already built for the
+        plant's model (the node's settings hold one), else one is made.
+
+    Attributes
+    ----------
+    breakpoints : sorted times [s] where steps are split or bounded (a copy
+        of the plant's; a caller may change it for this stepper).
+    split_steps : ``{grid index k: [breakpoints inside step k]}`` of the last
+        :meth:`run` or :meth:`advance`.
+    vectorized : whether the last :meth:`run` took the vectorized open-loop path.
+    """
+
+    def __init__(self, plant: Plant, method: str, dt: float, method_options=None, origin: float = 0.0, integrator=None):
+        self.plant = plant
+        self.method, self.dt, self.origin = method, float(dt), float(origin)
+        self.method_options = dict(method_options or {})
+        model = plant.model
+        self.integrator = integrator or make_integrator(method, model.A, model.B, self.dt, **self.method_options)
+        self.fixed_step = isinstance(self.integrator, FixedStepIntegrator)
+        self.loop = plant.scalar_loop(self.integrator)
+        self.breakpoints = list(plant.breakpoints)
+        self.split_steps: dict = {}
+        self.vectorized = False
+        self._partials: dict = {}
+
+    # ------------------------------------------------------------ public
+    def advance(self, x: np.ndarray, t0: float, t1: float) -> np.ndarray:
+        """State at ``t1`` [s] from ``x`` at ``t0`` [s]; raises SimulationDivergedError."""
+        if t1 < t0:
+            raise ValueError(f"advance: t1 ({t1!r} s) is before t0 ({t0!r} s)")
+        x = np.asarray(x, dtype=float)
+        if t1 == t0:
+            return x
+        k0, k1 = self._snap(t0), self._snap(t1)
+        if k0 is not None and k1 is not None and k1 > k0 and self.loop is not None:
+            # the node's usual tick: whole steps on the grid, no breakpoint near (the plan's common case, fast)
+            tol = snap_tolerance(t1, self.dt)
+            bps = self.breakpoints
+            if not bps or bisect_left(bps, min(t0, self.grid_time(k0)) - tol) == bisect_right(bps, max(t1, self.grid_time(k1)) + tol):
+                self.split_steps = {}
+                out = self._whole_steps(x, k0, k1, None)
+                if not _healthy(out):
+                    raise self._diverged(t1, out)
+                return out
+        plan = self._plan(t0, t1)
+        out = self._march(x, plan, None, record=False)
+        if not _healthy(out):
+            raise self._diverged(t1, out)
+        return out
+
+    def run(self, x0, t0: float, t1: float, progress: Callable[[float], None] | None = None, vectorize: bool | None = None):
+        """(times (N+1,), states (N+1, n)) at every knot from ``t0`` to ``t1`` [s] (both included).
+
+        ``vectorize`` forces (True) or forbids (False) the vectorized
+        open-loop path (time-only torques, a fixed-step method, no
+        breakpoint strictly inside a step); by default it is used whenever
+        it applies.
+        """
+        x0 = np.asarray(x0, dtype=float)
+        if t1 < t0:
+            raise ValueError(f"run: t1 ({t1!r} s) is before t0 ({t0!r} s)")
+        plan = self._plan(t0, t1)
+        times = self._knots(plan)
+        can_vectorize = (
+            self.plant.open_loop and self.fixed_step and not self.split_steps and not plan["lead"] and not plan["empty"]
+        )
+        if vectorize and not can_vectorize:
+            raise ValueError(
+                "vectorize=True needs time-only torques, a fixed-step method and no torque breakpoint inside a step"
+            )
+        self.vectorized = bool(can_vectorize and vectorize is not False)
+        if self.vectorized:
+            states = self._vectorized(x0, plan)
+        else:
+            states = self._march(x0, plan, progress, record=True)
+        bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, states.shape[1] // 2 :]) > SPEED_LIMIT, axis=1)
+        if np.any(bad):
+            k = int(np.argmax(bad))
+            raise self._diverged(float(times[k]), states[k])
+        if progress:
+            progress(1.0)
+        return times, states
+
+    def reset(self) -> None:
+        """Forget adaptive solver history and the partial-step integrators."""
+        self.integrator.reset()
+        self._partials.clear()
+
+    def grid_time(self, k: int) -> float:
+        """Grid time ``origin + k dt`` [s] (the float every caller computes)."""
+        return self.origin + k * self.dt
+
+    # ------------------------------------------------------------ planning
+    def _snap(self, t: float) -> int | None:
+        """Index k of the grid time within :func:`snap_tolerance` of ``t``, or None."""
+        k = round((t - self.origin) / self.dt)
+        d = abs(self.origin + k * self.dt - t)
+        return k if d <= GRID_TOLERANCE * self.dt or d <= 8.0 * math.ulp(t) else None
+
+    def _cell(self, t: float) -> int:
+        """Index k of the grid cell [g_k, g_k+1) holding off-grid time ``t``."""
+        k = math.floor((t - self.origin) / self.dt)
+        while self.grid_time(k) > t:
+            k -= 1
+        while self.grid_time(k + 1) <= t:
+            k += 1
+        return k
+
+    def _plan(self, t0: float, t1: float) -> dict:
+        """Steps from ``t0`` to ``t1``: grid cells first..last, ends, and the steps that touch breakpoints.
+
+        Returns a dict: ``first``, ``last`` (cell indices), ``start``, ``end``
+        (the times of the first and last knot: the grid time when ``t0``/``t1``
+        snap to the grid, else themselves), ``lead``/``trail`` (whether the
+        first/last step is partial), ``t0``/``t1`` as given, and
+        ``special = {cell: [lo, hi, cuts]}`` for steps whose torque samples are
+        clamped to ``[lo, hi]`` or that are split at ``cuts``.
+        """
+        k0, k1 = self._snap(t0), self._snap(t1)
+        start = self.grid_time(k0) if k0 is not None else t0
+        end = self.grid_time(k1) if k1 is not None else t1
+        first = k0 if k0 is not None else self._cell(t0)
+        last = k1 - 1 if k1 is not None else self._cell(t1)
+        empty = last < first  # t0 and t1 on the same grid time (or within its tolerance)
+        special: dict = {}
+
+        def entry(c):
+            return special.setdefault(c, [-math.inf, math.inf, []])
+
+        bps = self.breakpoints
+        tol0, tol1 = snap_tolerance(start, self.dt), snap_tolerance(end, self.dt)
+        lo_i = bisect_left(bps, min(t0, start) - tol0)
+        hi_i = bisect_right(bps, max(t1, end) + tol1)
+        for b in bps[lo_i:hi_i] if not empty else ():
+            if abs(b - start) <= max(tol0, snap_tolerance(b, self.dt)) or abs(b - t0) <= tol0:
+                e = entry(first)
+                e[0] = max(e[0], b)
+                continue
+            if abs(b - end) <= max(tol1, snap_tolerance(b, self.dt)) or abs(b - t1) <= tol1:
+                e = entry(last)
+                e[1] = min(e[1], self.plant.left_of(b))
+                continue
+            if not start < b < end:
+                continue
+            k = self._snap(b)
+            if k is not None:  # on a grid knot inside the advance
+                if first <= k - 1:
+                    e = entry(k - 1)
+                    e[1] = min(e[1], self.plant.left_of(b))
+                if k <= last:
+                    e = entry(k)
+                    e[0] = max(e[0], b)
+            else:
+                entry(min(max(self._cell(b), first), last))[2].append(b)
+        self.split_steps = {c: list(e[2]) for c, e in special.items() if e[2]}
+        return dict(
+            t0=t0, t1=t1, start=start, end=end, first=first, last=last, empty=empty,
+            lead=k0 is None, trail=k1 is None, special=special,
+        )  # fmt: skip
+
+    def _step_ends(self, plan: dict, c: int) -> tuple[float, float, bool]:
+        """(a, e, whole) of the step in cell ``c``."""
+        a = plan["start"] if c == plan["first"] else self.grid_time(c)
+        e = plan["end"] if c == plan["last"] else self.grid_time(c + 1)
+        whole = not ((c == plan["first"] and plan["lead"]) or (c == plan["last"] and plan["trail"]))
+        return a, e, whole
+
+    def _knots(self, plan: dict) -> list:
+        """Times of the recorded states: t0, the interior grid times, t1."""
+        if plan["empty"]:
+            return np.array([plan["t0"]] if plan["t0"] == plan["t1"] else [plan["t0"], plan["t1"]])
+        inner = self.origin + self.dt * np.arange(plan["first"] + 1, plan["last"] + 1, dtype=float)
+        return np.concatenate(([plan["t0"]], inner, [plan["t1"]]))
+
+    def _grid(self, k0: int, k1: int) -> list:
+        """Grid times ``origin + k dt`` for k0 <= k < k1, as floats (numpy for long ranges: the same IEEE operations)."""
+        o, dt = self.origin, self.dt
+        if k1 - k0 > 32:
+            return (o + dt * np.arange(k0, k1, dtype=float)).tolist()
+        return [o + k * dt for k in range(k0, k1)]
+
+    # ------------------------------------------------------------ stepping
+    def _partial(self, h: float):
+        """Integrator of ``method`` for a step of ``h`` [s] (cached)."""
+        it = self._partials.get(h)
+        if it is None:
+            if len(self._partials) >= PARTIAL_CACHE_SIZE:
+                self._partials.clear()
+            model = self.plant.model
+            it = self._partials[h] = make_integrator(self.method, model.A, model.B, h, **self.method_options)
+        return it
+
+    def _clamped(self, lo: float, hi: float):
+        """The plant's inputs with the torque time clamped into [lo, hi] (left/right limits at breakpoints)."""
+        inputs = self.plant.inputs
+        if lo == -math.inf and hi == math.inf:
+            return inputs
+        return lambda t, x: inputs(lo if t < lo else hi if t > hi else t, x)
+
+    def _special_step(self, x: np.ndarray, a: float, e: float, whole: bool, lo: float, hi: float, cuts: list) -> np.ndarray:
+        """One step from ``a`` to ``e``, split at ``cuts``, torque samples clamped to each piece's side."""
+        edges = [a, *sorted(cuts), e]
+        n = len(edges) - 1
+        for j in range(n):
+            p, q = edges[j], edges[j + 1]
+            lo_j = lo if j == 0 else edges[j]
+            hi_j = hi if j == n - 1 else self.plant.left_of(q)
+            it = self.integrator if whole and n == 1 else self._partial(q - p)
+            x = it.step(p, x, self._clamped(lo_j, hi_j))
+        return x
+
+    def _march(self, x: np.ndarray, plan: dict, progress, record: bool):
+        """Execute ``plan`` from state ``x``: the states at every knot (record) or the last."""
+        size = x.size
+        if plan["empty"]:
+            if plan["t0"] == plan["t1"]:
+                return x[None, :].copy() if record else x
+            # t0 and t1 within the snap tolerance of one grid time: nothing to integrate
+            return np.vstack([x, x]) if record else x
+        first, last, special = plan["first"], plan["last"], plan["special"]
+        n_cells = last - first + 1
+        states = np.empty((n_cells + 1, size)) if record else None
+        if record:
+            states[0] = x
+        chunk = CHUNK if not progress else min(CHUNK, max(64, n_cells // 100))
+        stops = sorted(special)
+        si = 0
+        c = first
+        with np.errstate(all="ignore"):
+            while c <= last:
+                a, e, whole = self._step_ends(plan, c)
+                if c in special or not whole:
+                    lo, hi, cuts = special.get(c, (-math.inf, math.inf, ()))
+                    x = self._special_step(x, a, e, whole, lo, hi, cuts)
+                    if record:
+                        states[c - first + 1] = x
+                    c += 1
+                    if not _healthy(x):
+                        break
+                    continue
+                # a run of plain whole steps: up to the next special cell, the last whole cell, or a chunk
+                while si < len(stops) and stops[si] < c:
+                    si += 1
+                stop = min(c + chunk, stops[si] if si < len(stops) else last + 1, last + 1 if not plan["trail"] else last)
+                x = self._whole_steps(x, c, stop, states[c - first + 1 : stop - first + 1] if record else None)
+                c = stop
+                if not _healthy(x):
+                    break
+                if progress:
+                    progress((c - first) / n_cells)
+        return states if record else x
+
+    def _whole_steps(self, x: np.ndarray, c: int, stop: int, out) -> np.ndarray:
+        """Whole steps of cells ``c`` .. ``stop - 1`` (no breakpoint touches them); write into ``out``."""
+        times = self._grid(c, stop + 1)
+        size = x.size
+        if self.loop is not None:
+            try:
+                flat = self.loop(times, tuple(x.tolist()), self.plant.scalar_drive, self.plant.scalar_load, SPEED_LIMIT)
+            except (ValueError, OverflowError, ZeroDivisionError):
+                flat = None  # a math domain error on a runaway state: redo with numpy, which gives inf/nan
+            if flat is not None:
+                done = len(flat) // size
+                if out is not None:
+                    out[:done] = np.array(flat).reshape(done, size)
+                    if done < len(out):  # stopped early on a runaway state
+                        out[done:] = np.nan
+                return np.array(flat[-size:]) if done == stop - c else np.full(size, np.nan)
+        step, inputs = self.integrator.step, self.plant.inputs
+        for j, t in enumerate(times[:-1]):
+            x = step(t, x, inputs)
+            if out is not None:
+                out[j] = x
+            if j & 63 == 63 and not _healthy(x):
+                if out is not None:
+                    out[j + 1 :] = np.nan
+                return x
+        return x
+
+    def _vectorized(self, x0: np.ndarray, plan: dict) -> np.ndarray:
+        """Open-loop run: one linear recurrence for the whole steps, samples clamped at breakpoints."""
+        from .integrators import propagate_linear
+
+        first, last, special = plan["first"], plan["last"], plan["special"]
+        n_whole = last - first + (0 if plan["trail"] else 1)
+        step = self.integrator.linear_step()
+        t = self.origin + self.dt * np.arange(first, first + n_whole)
+        lo = np.full(n_whole, -np.inf)
+        hi = np.full(n_whole, np.inf)
+        for c, (l, h, _) in special.items():
+            if c - first < n_whole:
+                lo[c - first], hi[c - first] = l, h
+        zeros = np.zeros_like(t)
+        drive, load = self.plant.drive, self.plant.load
+        node_inputs = []
+        for c in step.nodes:
+            ts = np.clip(t + c * self.dt, lo, hi)
+            node_inputs.append(
+                np.column_stack([np.broadcast_to(drive.torque(ts, zeros, zeros), t.shape), np.broadcast_to(load.torque(ts, zeros, zeros), t.shape)])
+            )
+        with np.errstate(all="ignore"):  # a diverging run is reported by the caller
+            states = propagate_linear(step, x0, node_inputs)
+        if plan["trail"]:
+            a, e, whole = self._step_ends(plan, last)
+            lo_t, hi_t, cuts = special.get(last, (-math.inf, math.inf, ()))
+            states = np.vstack([states, self._special_step(states[-1], a, e, whole, lo_t, hi_t, cuts)])
+        return states
+
+    def _diverged(self, t: float, x: np.ndarray) -> SimulationDivergedError:
+        return SimulationDivergedError(
+            f"simulation diverged at t={t:.6g} s (model {self.plant.model.name}, method {self.method}, dt={self.dt:g} s): "
+            f"state {np.array2string(np.asarray(x), precision=4)} is non-finite or beyond {SPEED_LIMIT:g} rad/s; "
+            f"reduce dt or use method 'exact' or 'etd2'"
+        )
