@@ -178,6 +178,8 @@ class Stepper:
     split_steps : ``{grid index k: [breakpoints inside step k]}`` of the last
         :meth:`run` or :meth:`advance`.
     vectorized : whether the last :meth:`run` took the vectorized open-loop path.
+    loop : the compiled float loop used for whole steps away from breakpoints
+        (None: ``integrator.step``, numpy; a test may set it to compare the two).
     """
 
     def __init__(self, plant: Plant, method: str, dt: float, method_options=None, origin: float = 0.0, integrator=None):
