@@ -32,8 +32,6 @@ from functools import lru_cache
 from typing import Callable, ClassVar
 
 import numpy as np
-import scipy.integrate
-import scipy.linalg
 
 from . import stage_scheme as _scheme
 from .errors import IntegratorError
@@ -189,6 +187,8 @@ def _unkey(key: tuple) -> np.ndarray:
 @lru_cache(maxsize=64)
 def _expm_blocks(a_key: tuple, b_key: tuple, h: float):
     """Phi = e^{Ah}, G0 = int_0^h e^{As} ds B, G1 = int_0^h e^{A(h-s)} s ds B / h (cached per h)."""
+    import scipy.linalg  # here, not at import: the registry is read by --help texts
+
     A, B = _unkey(a_key), _unkey(b_key)
     n, m = B.shape
     M = np.zeros((n + 2 * m, n + 2 * m), dtype=np.result_type(A, B))
@@ -211,7 +211,7 @@ class Exact(FixedStepIntegrator):
     name = "exact"
     order = 1
     exact_linear = True
-    summary = "ZOH, Phi = expm(A h): exact for held (piecewise-constant) torque at any step; else exponential Euler"
+    summary = "zero-order hold, Phi = expm(A h): exact for held torque at any step"
 
     def __init__(self, A, B, dt, **options):
         super().__init__(A, B, dt, **options)
@@ -258,6 +258,8 @@ def _phi_blocks(a_key: tuple, b_key: tuple, h: float):
     ``phi_k(z) = (e^z - sum_{j<k} z^j/j!) / z^k`` (works for singular A: the
     rigid-body mode).
     """
+    import scipy.linalg
+
     A, B = _unkey(a_key), _unkey(b_key)
     n, m = B.shape
     M = np.zeros((n + 3 * m, n + 3 * m), dtype=np.result_type(A, B))
@@ -315,6 +317,8 @@ class ExponentialRK4(FixedStepIntegrator):
 @lru_cache(maxsize=256)
 def _expm_at(a_key: tuple, tau: float) -> np.ndarray:
     """e^{tau A} (cached per tau: a Lawson method needs one per distinct stage offset)."""
+    import scipy.linalg
+
     return scipy.linalg.expm(_unkey(a_key) * tau)
 
 
@@ -367,7 +371,7 @@ class Lawson5(LawsonRungeKutta):
 
     name = "lawson5"
     order = 5
-    summary = "integrating-factor Dormand-Prince 5: belt mode exact; cheapest at errors <= 1e-5 for h omega_n <~ 1"
+    summary = "integrating-factor Dormand-Prince 5: belt mode exact; cheapest at errors <= 1e-5"
     C = (0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0)
     A_tab = (
         (),
@@ -506,11 +510,16 @@ class ScipyAdaptive(Integrator):
 
     explicit = True
     adaptive = True
-    #: the scipy.integrate.OdeSolver subclass (public API: scipy.integrate.RK45, ...)
-    solver_class: ClassVar[type]
+    #: name of the scipy.integrate.OdeSolver subclass (public API: scipy.integrate.RK45, ...)
+    solver_name: ClassVar[str]
 
     def __init__(self, A, B, dt, rtol: float = 1e-6, atol: float = 1e-9, max_step: float = np.inf):
+        import scipy.integrate  # here, not at import: the registry is read by --help texts
+
         super().__init__(A, B, dt)
+        #: the solver class, scipy.integrate.<name>
+        self.solver_class = getattr(scipy.integrate, self.solver_name)
+        self._lsoda = self.solver_class is scipy.integrate.LSODA
         for nm, v in (("rtol", rtol), ("atol", atol)):
             if not (math.isfinite(v) and v > 0):
                 raise IntegratorError(f"{self.name}.{nm}: must be > 0, got {v!r}")
@@ -546,7 +555,7 @@ class ScipyAdaptive(Integrator):
             kwargs = dict(rtol=self.rtol, atol=self.atol, max_step=self.max_step)
             # LSODA with t_bound = inf takes an infinite first step when the rhs is 0 at the start
             # (a drive at rest with a soft start); a finite horizon avoids it (restart beyond it).
-            horizon = t + 1e4 * self.dt if self.solver_class is scipy.integrate.LSODA else np.inf
+            horizon = t + 1e4 * self.dt if self._lsoda else np.inf
             self._solver = self.solver_class(rhs, t, np.array(x, dtype=float), t_bound=horizon, **kwargs)
         solver = self._solver
         while solver.t < t_end:
@@ -563,18 +572,17 @@ class ScipyAdaptive(Integrator):
         return out
 
 
-def _scipy_method(solver: type, summary: str) -> type:
-    """Register scipy's public solver class ``solver`` (scipy.integrate.RK45, ...) under its own name."""
-    name = solver.__name__
+def _scipy_method(name: str, summary: str) -> type:
+    """Register scipy's public solver class ``scipy.integrate.<name>`` under its own name."""
     doc = f"scipy.integrate.{name} advanced to each output time (options rtol, atol, max_step)."
-    return register(type(name, (ScipyAdaptive,), {"name": name, "solver_class": solver, "summary": summary, "__doc__": doc}))
+    return register(type(name, (ScipyAdaptive,), {"name": name, "solver_name": name, "summary": summary, "__doc__": doc}))
 
 
-_scipy_method(scipy.integrate.RK45, "scipy Runge-Kutta 5(4), adaptive reference (rtol, atol options)")
-_scipy_method(scipy.integrate.DOP853, "scipy Dormand-Prince 8(5,3), adaptive reference (rtol, atol options)")
-_scipy_method(scipy.integrate.Radau, "scipy implicit Radau IIA 5, adaptive (rtol, atol options)")
-_scipy_method(scipy.integrate.BDF, "scipy variable-order BDF, adaptive (rtol, atol options)")
-_scipy_method(scipy.integrate.LSODA, "scipy LSODA (Adams/BDF switching), adaptive (rtol, atol options)")
+_scipy_method("RK45", "scipy Runge-Kutta 5(4) reference (options rtol, atol)")
+_scipy_method("DOP853", "scipy Dormand-Prince 8(5,3) reference (options rtol, atol)")
+_scipy_method("Radau", "scipy implicit Radau IIA order 5 (options rtol, atol)")
+_scipy_method("BDF", "scipy variable-order BDF (options rtol, atol)")
+_scipy_method("LSODA", "scipy LSODA, Adams/BDF switching (options rtol, atol)")
 
 #: registered names by kind (read from the classes' ``fixed_step``)
 FIXED_STEP_METHODS = tuple(name for name, cls in REGISTRY.items() if cls.fixed_step)
