@@ -19,6 +19,7 @@ import pytest
 
 from belt_drive_ros.core import sources as S
 from belt_drive_ros.core.errors import IntegratorError, SimulationDivergedError
+from belt_drive_ros.core.formula import SCALAR_PRIMITIVES, render
 from belt_drive_ros.core.integrators import FIXED_STEP_METHODS, compile_scalar_loop
 from belt_drive_ros.core.model import make_model
 from belt_drive_ros.core.scene import load_scene
@@ -62,15 +63,15 @@ def _sample_points():
 
 @pytest.mark.parametrize("profile", PROFILES, ids=lambda p: p.kind)
 def test_inlined_source_is_bitwise_the_closure(profile):
-    """``scalar_source`` (inlined into the compiled loops) computes exactly what ``scalar_torque`` does."""
-    source = profile.scalar_source("t", "angle", "speed")
-    if source is None:  # the loop calls the closure: nothing to compare
-        assert profile.kind not in ("constant", "polynomial") and not (profile.kind == "motor" and profile.curve is None)
-        return
+    """The formula text as the loops inline it (other names, prefixed bindings) computes exactly the closure."""
+    formula = profile.formula()
+    assert formula is not None  # every shipped profile is written as one formula
+    source, bindings = render(formula, "tt", "aa", "ww", prefix="d_")
+    assert all(name.startswith("d_") for name in bindings)
     expression = compile(source, "<source>", "eval")
     f = profile.scalar_torque()
     for t, a, w in _sample_points():
-        assert eval(expression, {}, {"t": t, "angle": a, "speed": w}) == f(t, a, w)
+        assert eval(expression, {**SCALAR_PRIMITIVES, **bindings}, {"tt": t, "aa": a, "ww": w}) == f(t, a, w)
 
 
 @pytest.mark.parametrize("profile", PROFILES, ids=lambda p: p.kind)
@@ -93,11 +94,10 @@ def test_loop_with_inlined_torques_and_speed_only_stages_equals_the_call_loop(sc
     sim = Simulator(model, scene.drive, scene.load, method, scene.dt)
     plant = sim.plant
     assert plant.uses_angle == (False, False)  # motor curve and polynomial/compressor-free loads
-    fast = sim.integrator.scalar_loop(plant.wheel_map, plant.uses_angle, plant.sources)
+    fast = sim.integrator.scalar_loop(plant.wheel_map, plant.uses_angle, plant.formulas)
     plain = sim.integrator.scalar_loop(plant.wheel_map)
-    for name, profile in (("drive(", scene.drive), ("load(", scene.load)):
-        inlined = profile.scalar_source("t", "a", "w") is not None
-        assert (name in fast.__source__) == (not inlined) and name in plain.__source__
+    for name in ("drive(", "load("):  # every shipped profile has a formula: inlined, never called
+        assert name not in fast.__source__ and name in plain.__source__
     assert scene_name != "paper" or "drive(" not in fast.__source__  # paper: linear motor line, inlined
     times = (scene.dt * np.arange(400)).tolist()
     x0 = tuple(scene.initial_state.vector("flexible", scene.params.ratio).tolist())
@@ -182,3 +182,44 @@ def test_lsoda_through_the_registry_starts_from_rest():
     # rhs = 0 at t = 0 (soft start from rest): LSODA with t_bound = inf jumped to t = inf and returned NaN
     result = simulate(load_scene("paper"), method="LSODA", duration=0.5)
     assert np.all(np.isfinite(result.states)) and result.states[-1, 2] > 1.0
+
+
+class _Exploding(S.TorqueProfile):
+    """A profile without a formula (the loop calls it) that fails at t >= 0.0735 s: a traceback through the loop."""
+
+    kind = "exploding"
+    state_dependent = True
+
+    def torque(self, t, angle=0.0, speed=0.0):
+        if t >= 0.0735:
+            raise RuntimeError("torque sensor failed")
+        return 1.0
+
+
+@pytest.mark.parametrize("method", ["etd2", "trapezoidal"])
+def test_traceback_through_a_generated_loop_shows_its_source_lines(method):
+    """Generated loops are in linecache: a traceback names the loop and prints the line that called the torque."""
+    import traceback
+
+    scene = load_scene("paper")
+    sim = Simulator(make_model("flexible", scene.params), _Exploding(), scene.load, method, 1e-3)
+    with pytest.raises(RuntimeError) as info:
+        sim.run(0.1, np.zeros(4))
+    frames = [f for f in traceback.extract_tb(info.value.__traceback__) if f.filename.startswith(f"<{method} scalar loop")]
+    assert len(frames) == 1
+    line = frames[0].line
+    assert line.startswith("u") and "= drive(" in line  # the generated statement, e.g. u1_0 = drive(t1, ...)
+    loop = sim.integrator.scalar_loop(sim.plant.wheel_map, sim.plant.uses_angle, sim.plant.formulas)
+    assert line == loop.__source__.splitlines()[frames[0].lineno - 1].strip()
+    assert "= drive(" in "".join(traceback.format_exception(info.value))
+
+
+def test_traceback_through_a_formula_closure_shows_its_text():
+    import traceback
+
+    profile = S.Table((0.0, 1.0), (1.0, 2.0))
+    f = profile.scalar_torque()
+    with pytest.raises(TypeError) as info:
+        f("not a time", 0.0, 0.0)
+    text = "".join(traceback.format_exception(info.value))
+    assert "return interp(t, times, values)" in text

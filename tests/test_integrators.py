@@ -30,6 +30,14 @@ Tolerances (one per quantity, with the reason)
   largest -- measured 0.3..19 rtol for the others, 60..190 rtol for BDF),
   and it falls by > 100x when rtol falls 1000x (the option reaches the
   solver).
+* step() derived from the StageScheme vs the textbook update formula written
+  out in the test: 1e-13 relative (same products, other summation order).
+* mode_growths (read off the one-step map) vs the closed-form |R(h lambda)|:
+  1e-12 relative; 1e-6 for symplectic Euler, whose oscillator for a real
+  lambda has a double root that eigvals resolves to ~sqrt(eps).
+* exact_linear flag: Phi equals expm(A h) to 1e-12 relative at omega_n h = 3.3
+  (rounding of two expm evaluations) exactly for the flagged methods; the
+  others are off by O(1).
 """
 
 from __future__ import annotations
@@ -37,6 +45,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.integrate
+import scipy.linalg
 import scipy.signal
 
 from belt_drive_ros.core.errors import IntegratorError
@@ -46,6 +55,7 @@ from belt_drive_ros.core.integrators import (
     REGISTRY,
     ExplicitRungeKutta,
     FixedStepIntegrator,
+    describe_methods,
     make_integrator,
     propagate_linear,
 )
@@ -104,28 +114,30 @@ def smooth_reference():
     return model, ref, scale
 
 
-#: (nominal order, step counts): the two finest give the measured order.
-ORDERS = {
-    "euler": (1, [1600, 3200, 6400]),
-    "symplectic_euler": (1, [200, 400, 800]),
-    "rk4": (4, [100, 200, 400]),
-    "trapezoidal": (2, [200, 400, 800]),
-    "etd2": (2, [200, 400, 800]),
-    "etd4": (4, [50, 100, 200]),
-    "lawson5": (5, [25, 50, 100]),
-    "exact": (1, [200, 400, 800]),  # torque sampled at step start: exponential Euler
-}
+#: step counts over DURATION by nominal order (the registry's): the two finest give the measured order.
+STEPS_BY_ORDER = {1: [200, 400, 800], 2: [200, 400, 800], 4: [50, 100, 200], 5: [25, 50, 100]}
+#: ... except where the asymptotic range starts later (Euler's error constant grows like
+#: exp(omega_n^2 h t / 2); RK4's next error term is large at omega_n h = 0.4).
+STEPS = {"euler": [1600, 3200, 6400], "rk4": [100, 200, 400]}
 
 
-def test_every_fixed_step_method_has_an_order_test():
-    assert set(ORDERS) == set(FIXED_STEP_METHODS)
+def test_registry_lists_every_method_once_with_its_entry():
     assert {name for name, cls in REGISTRY.items() if issubclass(cls, FixedStepIntegrator)} == set(FIXED_STEP_METHODS)
+    assert set(FIXED_STEP_METHODS) | set(ADAPTIVE_METHODS) == set(REGISTRY)
+    for name, cls in REGISTRY.items():
+        assert cls.name == name and cls.summary and "\n" not in cls.summary
+        assert cls.fixed_step == (name in FIXED_STEP_METHODS)
+        assert (cls.order is not None) == cls.fixed_step
+    assert [n for n in FIXED_STEP_METHODS if REGISTRY[n].exact_linear] == ["exact", "etd2", "etd4", "lawson5"]
+    help_text = describe_methods()
+    assert all(f"  {name} " in help_text for name in REGISTRY)
 
 
-@pytest.mark.parametrize("method", list(ORDERS))
+@pytest.mark.parametrize("method", FIXED_STEP_METHODS)
 def test_measured_order_state_dependent_torque(method, smooth_reference):
     model, ref, scale = smooth_reference
-    nominal, steps = ORDERS[method]
+    nominal = REGISTRY[method].order
+    steps = STEPS.get(method, STEPS_BY_ORDER[nominal])
     errors = []
     for n in steps:
         sim = Simulator(model, DRIVE, LOAD, method, DURATION / n, check_stability=False)
@@ -137,7 +149,18 @@ def test_measured_order_state_dependent_torque(method, smooth_reference):
     assert np.all(np.diff(errors) < 0), errors
     assert orders[-1] == pytest.approx(nominal, abs=ORDER_TOL), (errors, orders)
     assert model.__class__ is FlexibleBeltModel
-    assert REGISTRY[method].order == nominal  # the documented order is the measured one
+
+
+
+@pytest.mark.parametrize("method", FIXED_STEP_METHODS)
+def test_exact_linear_flag_is_true_of_the_one_step_map(method):
+    """``exact_linear``: Phi is e^{Ah} to rounding at a step far beyond any explicit limit; otherwise it is not."""
+    model = FlexibleBeltModel(PARAMS)
+    dt = 0.05  # omega_n h = 3.3
+    Phi = make_integrator(method, model.A, model.B, dt).linear_step().Phi
+    expm = scipy.linalg.expm(model.A * dt)
+    error = np.max(np.abs(Phi - expm)) / np.max(np.abs(expm))
+    assert (error < 1e-12) == REGISTRY[method].exact_linear, error
 
 
 # ------------------------------------------------------------------ exact ZOH
@@ -293,6 +316,145 @@ def test_rk4_amplification_is_its_stability_polynomial():
     for z in (0.3j, 1.7j, -0.5 + 2.0j, -2.0):
         R = 1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24
         assert it.amplification(z / 0.01) == pytest.approx(abs(R), rel=1e-13)
+
+
+# --------------------------------------------- schemes against textbook steps
+# Each method is written once, as its StageScheme; step() is derived from it. These are
+# the methods' published update formulas written out independently (Cox & Matthews 2002
+# for ETD2/ETD4, the Lawson transform of the DOPRI5 tableau, the trapezoidal rule, the
+# velocity-first Euler), as references for the derived step. Tolerance 1e-13 relative
+# per step: the same products summed in another order.
+def _textbook_exact(it, t, x, u):
+    Phi, Gamma, _ = _van_loan(it)
+    return Phi @ x + Gamma @ u(t, x)
+
+
+def _van_loan(it):
+    n, m = it.B.shape
+    M = np.zeros((n + 2 * m, n + 2 * m))
+    M[:n, :n], M[:n, n : n + m], M[n : n + m, n + m :] = it.A, it.B, np.eye(m)
+    E = scipy.linalg.expm(M * it.dt)
+    return E[:n, :n], E[:n, n : n + m], E[:n, n + m :] / it.dt
+
+
+def _textbook_etd2(it, t, x, u):
+    Phi, G0, G1 = _van_loan(it)
+    u0 = u(t, x)
+    a = Phi @ x + G0 @ u0
+    return a + G1 @ (u(t + it.dt, a) - u0)
+
+
+def _phi_k(A, B, h):
+    n, m = B.shape
+    M = np.zeros((n + 3 * m, n + 3 * m))
+    M[:n, :n], M[:n, n : n + m] = h * A, h * B
+    M[n : n + m, n + m : n + 2 * m] = M[n + m : n + 2 * m, n + 2 * m :] = np.eye(m)
+    E = scipy.linalg.expm(M)
+    return E[:n, :n], E[:n, n : n + m], E[:n, n + m : n + 2 * m], E[:n, n + 2 * m :]
+
+
+def _textbook_etd4(it, t, x, u):
+    h = it.dt
+    E, p1, p2, p3 = _phi_k(it.A, it.B, h)
+    E2, P, _, _ = _phi_k(it.A, it.B, h / 2)
+    u0 = u(t, x)
+    a = E2 @ x + P @ u0
+    ua = u(t + h / 2, a)
+    b = E2 @ x + P @ ua
+    ub = u(t + h / 2, b)
+    c = E2 @ a + P @ (2.0 * ub - u0)
+    uc = u(t + h, c)
+    return E @ x + (p1 - 3 * p2 + 4 * p3) @ u0 + 2 * (p2 - 2 * p3) @ (ua + ub) + (4 * p3 - p2) @ uc
+
+
+def _textbook_lawson5(it, t, x, u):
+    h, C, A_tab, b = it.dt, it.C, it.A_tab, it.B_tab
+    U = []
+    for i in range(len(C)):  # X_i = e^{c_i h A} x + h sum_j a_ij e^{(c_i - c_j) h A} B U_j
+        xi = scipy.linalg.expm(C[i] * h * it.A) @ x
+        for j in range(i):
+            xi = xi + h * A_tab[i][j] * scipy.linalg.expm((C[i] - C[j]) * h * it.A) @ it.B @ U[j]
+        U.append(u(t + C[i] * h, xi))
+    out = scipy.linalg.expm(h * it.A) @ x
+    return out + sum(h * b[i] * scipy.linalg.expm((1 - C[i]) * h * it.A) @ it.B @ U[i] for i in range(len(C)))
+
+
+def _textbook_symplectic_euler(it, t, x, u):
+    n2 = x.size // 2
+    w = x[n2:] + it.dt * (it.A @ x + it.B @ u(t, x))[n2:]
+    return np.concatenate([x[:n2] + it.dt * w, w])
+
+
+def _textbook_trapezoidal(it, t, x, u):
+    n, h = x.size, it.dt
+    lhs = np.eye(n) - 0.5 * h * it.A
+    u0, u1 = u(t, x), u(t, x)
+    for _ in range(100):
+        x1 = np.linalg.solve(lhs, (np.eye(n) + 0.5 * h * it.A) @ x + 0.5 * h * it.B @ (u0 + u1))
+        u1 = u(t + h, x1)
+    return np.linalg.solve(lhs, (np.eye(n) + 0.5 * h * it.A) @ x + 0.5 * h * it.B @ (u0 + u1))
+
+
+def _textbook_rk(it, t, x, u):
+    k = []
+    for i in range(len(it.C)):
+        xi = x + it.dt * sum((it.A_tab[i, j] * k[j] for j in range(i)), np.zeros_like(x))
+        k.append(it.A @ xi + it.B @ u(t + it.C[i] * it.dt, xi))
+    return x + it.dt * sum(bi * ki for bi, ki in zip(it.B_tab, k))
+
+
+TEXTBOOK = {
+    "exact": _textbook_exact, "etd2": _textbook_etd2, "etd4": _textbook_etd4, "lawson5": _textbook_lawson5,
+    "euler": _textbook_rk, "rk4": _textbook_rk, "symplectic_euler": _textbook_symplectic_euler,
+    "trapezoidal": _textbook_trapezoidal,
+}  # fmt: skip
+
+
+def test_every_fixed_step_method_has_a_textbook_reference():
+    assert set(TEXTBOOK) == set(FIXED_STEP_METHODS)
+
+
+@pytest.mark.parametrize("method", FIXED_STEP_METHODS)
+def test_step_from_the_scheme_equals_the_textbook_step(method):
+    model = FlexibleBeltModel(PARAMS)
+    plant = Plant(model, DRIVE, LOAD)
+    it = make_integrator(method, model.A, model.B, 2e-3)
+    x = X0 + np.array([0.01, -0.02, 0.5, -0.3])
+    for t in (0.0, 0.0137, 0.2):
+        got, want = it.step(t, x, plant.inputs), TEXTBOOK[method](it, t, x, plant.inputs)
+        assert np.max(np.abs(got - want) / np.abs(want)) < 1e-13, method
+
+
+@pytest.mark.parametrize("method", FIXED_STEP_METHODS)
+def test_amplification_is_the_closed_form(method):
+    """mode_growths, read off the scheme, equals each method's known |R(h lambda)|."""
+    cls = REGISTRY[method]
+    h = 0.01
+    lams = np.array([0.3j, 1.7j, -0.5 + 2.0j, -2.0, 0.0, 40.0j]) / h
+    z = lams * h
+    if cls.exact_linear:
+        want = np.abs(np.exp(z))
+    elif method == "trapezoidal":
+        want = np.abs((1 + z / 2) / (1 - z / 2))
+    elif method == "symplectic_euler":  # the oscillator's one-step matrix, written out
+        want = [np.max(np.abs(np.linalg.eigvals(np.array(
+            [[1.0 - h * h * abs(lam) ** 2, h * (1.0 + 2.0 * h * lam.real)], [-h * abs(lam) ** 2, 1.0 + 2.0 * h * lam.real]]
+        )))) for lam in lams]  # fmt: skip
+    else:  # explicit RK: R(z) = 1 + z b^T (I - z A)^{-1} 1
+        s = len(cls.C)
+        want = [abs(1.0 + zz * cls.B_tab @ np.linalg.solve(np.eye(s) - zz * cls.A_tab, np.ones(s))) for zz in z]
+    got = cls.mode_growths(lams, h)
+    rtol = 1e-6 if method == "symplectic_euler" else 1e-12  # a double root at real lambda: eigvals to sqrt(eps)
+    np.testing.assert_allclose(got, want, rtol=rtol)
+
+
+def test_scipy_solvers_are_the_public_classes():
+    """No private scipy API: each adaptive method is a class exported by scipy.integrate."""
+    model = FlexibleBeltModel(PARAMS)
+    for name in ADAPTIVE_METHODS:
+        solver = make_integrator(name, model.A, model.B, 1e-3).solver_class
+        assert solver is getattr(scipy.integrate, name) and name in scipy.integrate.__all__
+        assert issubclass(solver, scipy.integrate.OdeSolver)
 
 
 # ------------------------------------------------------------------ names, options

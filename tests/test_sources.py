@@ -192,3 +192,47 @@ def test_profile_not_a_mapping():
         make_profile("fast", "load")
     with pytest.raises(SceneError):
         make_profile(True, "load")
+
+
+# ------------------------------------------------- one formula, three forms
+def test_primitives_scalar_and_array_twins_agree():
+    """Each primitive a formula may call has a scalar and a numpy implementation: the same values."""
+    from belt_drive_ros.core.formula import PRIMITIVES
+
+    rng = np.random.default_rng(5)
+    xp = np.sort(rng.uniform(-1.0, 1.0, 9))
+    fp = rng.normal(size=9)
+    xs = np.concatenate([rng.uniform(-1.5, 1.5, 200), xp])  # including every sample point exactly
+    ns = np.round(xp * 1e9).astype(np.int64)
+    for name, (scalar, array) in PRIMITIVES.items():
+        args = {"interp": (xp, fp), "held": (xp, fp), "held_ns": (ns, fp)}.get(name, ())
+        vec = array(xs, *args)
+        one = [scalar(float(x), *(a.tolist() for a in args)) for x in xs]
+        np.testing.assert_allclose(vec, one, rtol=1e-15, atol=0, err_msg=name)  # sin/cos: numpy's may differ by 1 ulp
+
+
+@pytest.mark.parametrize("spec", SPECS, ids=IDS)
+def test_flags_are_read_off_the_formula(spec):
+    """state_dependent / uses_angle come from the names the formula reads, and match what the torque does."""
+    profile = make_profile(spec)
+    f = profile.scalar_torque()
+    rng = np.random.default_rng(6)
+    points = rng.uniform((0.0, -20.0, 0.0), (1.0, 20.0, 300.0), size=(50, 3))
+    moves_angle = any(f(t, a, w) != f(t, a + 0.7, w) for t, a, w in points)
+    moves_speed = any(f(t, a, w) != f(t, a, w + 13.0) for t, a, w in points)
+    assert profile.uses_angle == moves_angle
+    assert profile.state_dependent == (moves_angle or moves_speed)
+
+
+def test_engine_without_pulses_or_governor_is_open_loop():
+    """Derived flags are exact: a pulse-free, ungoverned engine reads neither angle nor speed."""
+    engine = Engine(harmonics=(), speed_setpoint=None, ramp_time=0.2)
+    assert not engine.state_dependent and not engine.uses_angle
+    assert engine.torque(0.1, 5.0, 50.0) == pytest.approx(10.0)
+
+
+def test_formula_rejects_unknown_names():
+    from belt_drive_ros.core.formula import Formula
+
+    with pytest.raises(ValueError, match="unknown name.*omega"):
+        Formula("mean + sin(omega * t)", {"mean": 1.0})

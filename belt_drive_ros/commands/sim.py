@@ -21,16 +21,18 @@ load_torque, belt_torque, relative_deflection.
 
 
 def register(sub) -> None:
+    from ..core.integrators import describe_methods  # the method registry (numpy only; scipy loads on use)
+
     p = sub.add_parser(
         "sim",
         help="simulate a scene offline (no ROS needed)",
         description="Simulate a scene offline and print a summary; optionally write CSV/MCAP and a PNG.",
-        epilog=EPILOG,
+        epilog=EPILOG + "\nintegrators (--method; default: the scene's):\n" + describe_methods() + "\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("scene", help="shipped scene name or path to a scene YAML")
     p.add_argument("--model", choices=("rigid", "flexible", "auto"), help="belt model (default: the scene's, usually auto)")
-    p.add_argument("--method", help="integrator: exact, etd2, etd4, lawson5, euler, symplectic_euler, rk4, trapezoidal, RK45, DOP853, Radau, BDF, LSODA")
+    p.add_argument("--method", help="integrator by name (list below; default: the scene's)")
     p.add_argument("--method-option", action="append", default=[], metavar="KEY=VALUE", help="integrator option, e.g. rtol=1e-8 (repeatable)")
     p.add_argument("--dt", type=float, help="integrator step [s] (output interval for adaptive methods)")
     p.add_argument("--duration", type=float, help="simulated time [s]")

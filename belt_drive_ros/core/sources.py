@@ -13,13 +13,13 @@ the ``type`` key selects the class, the other keys are its fields.
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 import numpy as np
 
 from .errors import SceneError
+from .formula import Formula, array_function, scalar_function
 
 _REGISTRY: dict[str, type["TorqueProfile"]] = {}
 
@@ -29,43 +29,89 @@ def _register(cls):
     return cls
 
 
+class _ReadsArgument:
+    """Flag derived from the profile's formula: True when it reads any of ``arguments``.
+
+    A non-data descriptor: a profile without a formula sets the flag itself
+    (a class attribute or an instance attribute shadows it); without either,
+    ``default``.
+    """
+
+    def __init__(self, arguments: tuple[str, ...], default: bool):
+        self.arguments, self.default = arguments, default
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        formula = obj.forms().formula
+        return self.default if formula is None else any(formula.reads(a) for a in self.arguments)
+
+
+@dataclass(frozen=True)
+class ProfileForms:
+    """What a profile's :class:`~belt_drive_ros.core.formula.Formula` compiles to (cached per profile)."""
+
+    formula: Formula | None
+    scalar: Callable[[float, float, float], float]
+    array: Callable | None
+
+
 class TorqueProfile:
-    """Base class: a torque [N m] as a function of time, angle and speed."""
+    """Base class: a torque [N m] as a function of time, angle and speed.
+
+    A profile writes its torque once, as a :class:`~belt_drive_ros.core.formula.Formula`
+    (:meth:`formula`); :meth:`torque` (scalars and arrays), :meth:`scalar_torque`
+    and the source the compiled loops inline all come from it. A profile
+    without a formula overrides :meth:`torque` (and may override
+    :meth:`scalar_torque`); the loops then call its closure.
+    """
 
     kind: ClassVar[str] = ""
-    #: True when the torque depends on angle or speed (closes a loop).
-    state_dependent: ClassVar[bool] = False
+    #: True when the torque depends on angle or speed (closes a loop): read off the formula.
+    state_dependent = _ReadsArgument(("angle", "speed"), default=True)
     #: False when the torque ignores its angle argument (the compiled loops then skip computing it).
-    uses_angle: ClassVar[bool] = True
+    uses_angle = _ReadsArgument(("angle",), default=True)
 
-    def torque(self, t, angle, speed):
-        """Torque [N m] at time ``t`` [s], wheel angle [rad], wheel speed [rad/s]."""
-        raise NotImplementedError
+    def formula(self) -> Formula | None:
+        """The torque as one expression in ``t``, ``angle``, ``speed`` (None: :meth:`torque` is the definition)."""
+        return None
 
-    __call__ = torque
+    def forms(self) -> ProfileForms:
+        """The formula and the functions compiled from it (built once per profile)."""
+        cached = self.__dict__.get("_forms")
+        if cached is None:
+            formula = self.formula()
+            if formula is None:
+                torque = self.torque
+                cached = ProfileForms(None, lambda t, angle, speed: float(torque(t, angle, speed)), None)
+            else:
+                label = self.kind or type(self).__name__
+                cached = ProfileForms(formula, scalar_function(formula, label), array_function(formula, label))
+            object.__setattr__(self, "_forms", cached)
+        return cached
+
+    def torque(self, t, angle=0.0, speed=0.0):
+        """Torque [N m] at time ``t`` [s], wheel angle [rad], wheel speed [rad/s] (scalars or arrays)."""
+        forms = self.forms()
+        if forms.array is None:
+            raise NotImplementedError(f"{type(self).__name__}: define formula() or torque()")
+        if np.ndim(t) or np.ndim(angle) or np.ndim(speed):
+            shape = np.broadcast(t, angle, speed).shape
+            return np.array(np.broadcast_to(forms.array(t, angle, speed), shape), dtype=float)
+        return float(forms.scalar(float(t), float(angle), float(speed)))
+
+    def __call__(self, t, angle=0.0, speed=0.0):
+        return self.torque(t, angle, speed)
 
     def scalar_torque(self) -> Callable[[float, float, float], float]:
         """A fast ``f(t, angle, speed) -> float`` for Python-float arguments.
 
-        Equal to :meth:`torque` on scalars (to rounding: :mod:`math` instead
-        of numpy), without numpy's per-call overhead (about 1 us per call on
-        a scalar, more than the arithmetic). The closed-loop simulation loop
-        calls it once or more per torque and step, so each profile binds its
-        constants in a closure; this default wraps :meth:`torque`.
+        The closure compiled from :meth:`formula` (the same text the compiled
+        loops inline: bitwise equal to them), without numpy's per-call
+        overhead (about 1 us per call on a scalar, more than the arithmetic).
+        Without a formula: :meth:`torque` wrapped.
         """
-        torque = self.torque
-        return lambda t, angle, speed: float(torque(t, angle, speed))
-
-    def scalar_source(self, t: str, angle: str, speed: str) -> str | None:
-        """:meth:`scalar_torque` as a Python expression in the variable names given, or None.
-
-        Inlined by :func:`~belt_drive_ros.core.integrators.compile_scalar_loop`
-        instead of a call; it must compute exactly what :meth:`scalar_torque`
-        computes (same operations in the same order: bitwise equal). The
-        names are identifiers or float literals; constants are written with
-        ``repr`` (exact). None (the default): the loop calls the closure.
-        """
-        return None
+        return self.forms().scalar
 
     def breakpoints(self) -> tuple[float, ...]:
         """Times [s] at which the torque jumps or kinks in time (a step, a ramp's ends, a soft start's end).
@@ -119,23 +165,28 @@ class TorqueProfile:
                 raise SceneError(f"{self.kind}.{name}: must be > 0, got {getattr(self, name)!r}")
 
 
-def _first_two(harmonics: Sequence[float]) -> tuple:
-    """(A_1, A_2, ((3, A_3), ...)) with absent A_1, A_2 as 0.0: the first two terms of a
-    harmonic series unrolled in the scalar closures (a loop costs more than the sines)."""
-    a1, a2 = (tuple(harmonics) + (0.0, 0.0))[:2]
-    return float(a1), float(a2), tuple((float(k), amp) for k, amp in enumerate(harmonics[2:], start=3))
+def _sum(terms: Sequence[str]) -> str:
+    """``a + b + ...`` of the non-empty terms, "0.0" for none."""
+    terms = [t for t in terms if t]
+    return " + ".join(terms) if terms else "0.0"
 
 
-def _interp(x: float, xp: list, fp: list) -> float:
-    """``np.interp`` for one float: linear between the points, held beyond the ends."""
-    if x <= xp[0]:
-        return fp[0]
-    if x >= xp[-1]:
-        return fp[-1]
-    if x != x:  # NaN in, NaN out (as numpy)
-        return x
-    j = bisect_right(xp, x) - 1
-    return (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j]) * (x - xp[j]) + fp[j]
+def _harmonic_series(harmonics: Sequence[float], argument: str, constants: dict) -> str:
+    """``A_1 sin(arg) + A_2 sin(2 arg) + ...`` [N m] without zero terms; ``arg`` is bound by ``:=`` at first use."""
+    terms, first = [], True
+    for k, amp in enumerate(harmonics, start=1):
+        if not amp:
+            continue
+        constants[f"A{k}"] = float(amp)
+        arg = f"(arg := {argument})" if first else "arg"
+        terms.append(f"A{k} * sin({arg})" if k == 1 else f"A{k} * sin({float(k)!r} * {arg})")
+        first = False
+    return _sum(terms)
+
+
+def _fade(expression: str, duration_name: str) -> str:
+    """``expression * clip(t / T, 0, 1)`` written without a call (T > 0 a constant: t <= T <=> t / T <= 1)."""
+    return f"({expression}) * (0.0 if t < 0.0 else 1.0 if t > {duration_name} else t / {duration_name})"
 
 
 # ---------------------------------------------------------------- open loop
@@ -145,21 +196,13 @@ class Constant(TorqueProfile):
     """Constant torque ``value`` [N m]."""
 
     kind: ClassVar[str] = "constant"
-    uses_angle: ClassVar[bool] = False
     value: float = 0.0
 
     def __post_init__(self):
         self._check_finite("value")
 
-    def torque(self, t, angle=0.0, speed=0.0):
-        return self.value + 0.0 * np.asarray(t, dtype=float) if np.ndim(t) else self.value
-
-    def scalar_torque(self):
-        value = float(self.value)
-        return lambda t, angle, speed: value
-
-    def scalar_source(self, t, angle, speed):
-        return repr(float(self.value))
+    def formula(self):
+        return Formula("value", {"value": float(self.value)})
 
 
 @_register
@@ -168,7 +211,6 @@ class Step(TorqueProfile):
     """``initial`` [N m] before ``time`` [s], ``final`` from then on."""
 
     kind: ClassVar[str] = "step"
-    uses_angle: ClassVar[bool] = False
     initial: float = 0.0
     final: float = 1.0
     time: float = 0.0
@@ -176,14 +218,8 @@ class Step(TorqueProfile):
     def __post_init__(self):
         self._check_finite("initial", "final", "time")
 
-    def torque(self, t, angle=0.0, speed=0.0):
-        return np.where(np.asarray(t) >= self.time, self.final, self.initial) if np.ndim(t) else (
-            self.final if t >= self.time else self.initial
-        )
-
-    def scalar_torque(self):
-        initial, final, switch = float(self.initial), float(self.final), self.time
-        return lambda t, angle, speed: final if t >= switch else initial
+    def formula(self):
+        return Formula("final if t >= time else initial", {"initial": float(self.initial), "final": float(self.final), "time": float(self.time)})
 
     def breakpoints(self):
         return (float(self.time),) if self.final != self.initial else ()
@@ -198,7 +234,6 @@ class Ramp(TorqueProfile):
     """Linear ramp from ``start_value`` at ``start_time`` to ``end_value`` at ``end_time``, held outside."""
 
     kind: ClassVar[str] = "ramp"
-    uses_angle: ClassVar[bool] = False
     start_value: float = 0.0
     end_value: float = 1.0
     start_time: float = 0.0
@@ -209,21 +244,11 @@ class Ramp(TorqueProfile):
         if not self.end_time > self.start_time:
             raise SceneError(f"ramp.end_time: must be > start_time ({self.start_time}), got {self.end_time}")
 
-    def torque(self, t, angle=0.0, speed=0.0):
-        s = np.clip((np.asarray(t, dtype=float) - self.start_time) / (self.end_time - self.start_time), 0.0, 1.0)
-        out = self.start_value + s * (self.end_value - self.start_value)
-        return out if np.ndim(t) else float(out)
-
-    def scalar_torque(self):
-        t0, span = self.start_time, self.end_time - self.start_time
-        v0, rise = self.start_value, self.end_value - self.start_value
-
-        def torque(t, angle, speed):
-            s = (t - t0) / span
-            s = 0.0 if s < 0.0 else 1.0 if s > 1.0 else s  # clip(s, 0, 1)
-            return v0 + s * rise
-
-        return torque
+    def formula(self):
+        # start_value + clip((t - t0) / span, 0, 1) * rise
+        constants = dict(v0=float(self.start_value), rise=float(self.end_value - self.start_value),
+                         t0=float(self.start_time), t1=float(self.end_time), span=float(self.end_time - self.start_time))
+        return Formula("v0 + (0.0 if t < t0 else 1.0 if t > t1 else (t - t0) / span) * rise", constants)
 
     def breakpoints(self):
         return (float(self.start_time), float(self.end_time))
@@ -238,7 +263,6 @@ class Sine(TorqueProfile):
     """``mean + amplitude sin(2 pi frequency t + phase)`` [N m, Hz, rad]."""
 
     kind: ClassVar[str] = "sine"
-    uses_angle: ClassVar[bool] = False
     mean: float = 0.0
     amplitude: float = 1.0
     frequency: float = 1.0
@@ -247,15 +271,10 @@ class Sine(TorqueProfile):
     def __post_init__(self):
         self._check_finite("mean", "amplitude", "frequency", "phase")
 
-    def torque(self, t, angle=0.0, speed=0.0):
-        return self.mean + self.amplitude * np.sin(2.0 * np.pi * self.frequency * np.asarray(t, dtype=float) + self.phase) if np.ndim(t) else (
-            self.mean + self.amplitude * math.sin(2.0 * math.pi * self.frequency * t + self.phase)
-        )
-
-    def scalar_torque(self):
-        mean, amplitude, omega, phase = self.mean, self.amplitude, 2.0 * math.pi * self.frequency, self.phase
-        sin = math.sin
-        return lambda t, angle, speed: mean + amplitude * sin(omega * t + phase)
+    def formula(self):
+        constants = dict(mean=float(self.mean), amplitude=float(self.amplitude),
+                         omega=2.0 * math.pi * self.frequency, phase=float(self.phase))  # omega = 2 pi f [rad/s]
+        return Formula("mean + amplitude * sin(omega * t + phase)", constants)
 
     def excitation_frequencies(self, speed):
         return [(abs(self.frequency), "sine")] if self.amplitude else []
@@ -271,7 +290,6 @@ class Table(TorqueProfile):
     """
 
     kind: ClassVar[str] = "table"
-    uses_angle: ClassVar[bool] = False
     times: tuple = (0.0, 1.0)
     values: tuple = (0.0, 0.0)
     interpolation: str = "linear"
@@ -292,27 +310,9 @@ class Table(TorqueProfile):
         object.__setattr__(self, "times", times)
         object.__setattr__(self, "values", values)
 
-    def torque(self, t, angle=0.0, speed=0.0):
-        ta = np.asarray(t, dtype=float)
-        if self.interpolation == "linear":
-            out = np.interp(ta, self.times, self.values)
-        else:
-            idx = np.clip(np.searchsorted(self.times, ta, side="right") - 1, 0, self.times.size - 1)
-            out = self.values[idx]
-        return out if np.ndim(t) else float(out)
-
-    def scalar_torque(self):
-        times, values = self.times.tolist(), self.values.tolist()
-        if self.interpolation == "linear":
-            return lambda t, angle, speed: _interp(t, times, values)
-        last = len(times) - 1
-
-        def held(t, angle, speed):
-            # values[clip(searchsorted(times, t, 'right') - 1, 0, last)]
-            j = bisect_right(times, t) - 1
-            return values[0 if j < 0 else last if j > last else j]
-
-        return held
+    def formula(self):
+        primitive = "interp" if self.interpolation == "linear" else "held"
+        return Formula(f"{primitive}(t, times, values)", {"times": self.times, "values": self.values})
 
     def breakpoints(self):
         return tuple(float(t) for t in self.times)  # a jump (previous) or a kink (linear) at every sample
@@ -361,7 +361,6 @@ class Engine(TorqueProfile):
     """
 
     kind: ClassVar[str] = "engine"
-    state_dependent: ClassVar[bool] = True
     mean_torque: float = 20.0
     cylinders: int = 6
     strokes: int = 4
@@ -392,46 +391,24 @@ class Engine(TorqueProfile):
         """Firing pulses per crank revolution, 2 cylinders / strokes [-]."""
         return 2.0 * self.cylinders / self.strokes
 
-    def torque(self, t, angle, speed):
-        theta = self.crank_ratio * np.asarray(angle, dtype=float)
+    def formula(self):
+        constants = dict(mean=float(self.mean_torque))
         if self.speed_setpoint is None:
-            base = self.mean_torque + 0.0 * theta
-        else:
-            base = np.clip(self.mean_torque + self.governor_gain * (self.speed_setpoint - speed), 0.0, self.max_torque)
-        pulses = 0.0 * theta
-        nf = self.pulses_per_revolution
-        for k, amp in enumerate(self.harmonics, start=1):
-            pulses = pulses + amp * np.sin(k * (nf * theta + self.phase))
+            base = "mean"
+        elif self.max_torque >= 0.0:  # droop governor, clip(M + K (w_set - w), 0, M_max)
+            constants.update(gain=float(self.governor_gain), setpoint=float(self.speed_setpoint), top=float(self.max_torque))
+            base = "(0.0 if (b := mean + gain * (setpoint - speed)) < 0.0 else top if b > top else b)"
+        else:  # clip(., 0, M_max < 0) is M_max
+            constants.update(top=float(self.max_torque))
+            base = "top"
+        # sum_k A_k sin(k (n_f theta + phase)), crank angle theta = crank_ratio * angle
+        constants.update(nf=self.pulses_per_revolution, ratio=float(self.crank_ratio), phase=float(self.phase))
+        pulses = _harmonic_series(self.harmonics, "nf * (ratio * angle) + phase", constants)
+        expression = _sum([base, pulses if pulses != "0.0" else ""])
         if self.ramp_time > 0:
-            fade = np.clip(np.asarray(t, dtype=float) / self.ramp_time, 0.0, 1.0)
-            base, pulses = base * fade, pulses * fade
-        out = base + pulses
-        return out if np.ndim(out) else float(out)
-
-    def scalar_torque(self):
-        mean, gain, setpoint, top = self.mean_torque, self.governor_gain, self.speed_setpoint, self.max_torque
-        ratio, nf, phase, ramp = self.crank_ratio, self.pulses_per_revolution, self.phase, self.ramp_time
-        a1, a2, higher = _first_two(self.harmonics)
-        sin = math.sin
-
-        def torque(t, angle, speed):
-            if setpoint is None:
-                base = mean
-            else:  # droop governor, clip(M + K (w_set - w), 0, M_max)
-                base = mean + gain * (setpoint - speed)
-                base = 0.0 if base < 0.0 else base
-                base = top if base > top else base
-            arg = nf * (ratio * angle) + phase  # n_f theta + phase, crank angle theta
-            pulses = a1 * sin(arg) + a2 * sin(2.0 * arg)  # sum_k A_k sin(k (n_f theta + phase))
-            for k, amp in higher:
-                pulses += amp * sin(k * arg)
-            if ramp > 0:
-                fade = t / ramp
-                fade = 0.0 if fade < 0.0 else 1.0 if fade > 1.0 else fade  # clip(t / t_ramp, 0, 1)
-                return base * fade + pulses * fade
-            return base + pulses
-
-        return torque
+            constants["ramp"] = float(self.ramp_time)
+            expression = _fade(expression, "ramp")
+        return Formula(expression, constants)
 
     def breakpoints(self):
         return (float(self.ramp_time),) if self.ramp_time > 0 else ()
@@ -457,8 +434,6 @@ class MotorCurve(TorqueProfile):
     """
 
     kind: ClassVar[str] = "motor"
-    state_dependent: ClassVar[bool] = True
-    uses_angle: ClassVar[bool] = False
     stall_torque: float = 60.0
     no_load_speed: float = 300.0
     curve: tuple | None = None
@@ -478,42 +453,17 @@ class MotorCurve(TorqueProfile):
             object.__setattr__(self, "curve", tuple(tuple(map(float, p)) for p in pts))
             object.__setattr__(self, "_pts", pts)
 
-    def torque(self, t, angle, speed):
-        if self.curve is None:
-            out = self.stall_torque * (1.0 - np.asarray(speed, dtype=float) / self.no_load_speed)
+    def formula(self):
+        if self.curve is None:  # linear DC/PMSM line
+            constants = dict(stall=float(self.stall_torque), no_load=float(self.no_load_speed))
+            expression = "stall * (1.0 - speed / no_load)"
         else:
-            out = np.interp(speed, self._pts[:, 0], self._pts[:, 1])
+            constants = dict(speeds=self._pts[:, 0].copy(), torques=self._pts[:, 1].copy())
+            expression = "interp(speed, speeds, torques)"
         if self.soft_start_time > 0:
-            out = out * np.clip(np.asarray(t, dtype=float) / self.soft_start_time, 0.0, 1.0)
-        return out if np.ndim(out) else float(out)
-
-    def scalar_torque(self):
-        stall, no_load, soft = self.stall_torque, self.no_load_speed, self.soft_start_time
-        if self.curve is None:
-            speeds = torques = None
-        else:
-            speeds, torques = self._pts[:, 0].tolist(), self._pts[:, 1].tolist()
-
-        def torque(t, angle, speed):
-            if speeds is None:
-                out = stall * (1.0 - speed / no_load)  # linear DC/PMSM line
-            else:
-                out = _interp(speed, speeds, torques)
-            if soft > 0:
-                fade = t / soft
-                out = out * (0.0 if fade < 0.0 else 1.0 if fade > 1.0 else fade)  # clip(t / t_soft, 0, 1)
-            return out
-
-        return torque
-
-    def scalar_source(self, t, angle, speed):
-        if self.curve is not None:
-            return None
-        out = f"{float(self.stall_torque)!r} * (1.0 - {speed} / {float(self.no_load_speed)!r})"
-        soft = float(self.soft_start_time)
-        if soft > 0:  # out * clip(t / t_soft, 0, 1): the closure's value (t < 0 <=> t/T < 0; t/T rounds to 1 near T)
-            return f"{out} * (0.0 if {t} < 0.0 else 1.0 if {t} > {soft!r} else {t} / {soft!r})"
-        return out
+            constants["soft"] = float(self.soft_start_time)
+            expression = _fade(expression, "soft")
+        return Formula(expression, constants)
 
     def breakpoints(self):
         return (float(self.soft_start_time),) if self.soft_start_time > 0 else ()
@@ -528,8 +478,6 @@ class Polynomial(TorqueProfile):
     """Speed-dependent load ``c0 + c1 speed + c2 speed |speed|`` [N m; N m s/rad; N m s^2/rad^2]."""
 
     kind: ClassVar[str] = "polynomial"
-    state_dependent: ClassVar[bool] = True
-    uses_angle: ClassVar[bool] = False
     c0: float = 0.0
     c1: float = 0.0
     c2: float = 0.0
@@ -537,22 +485,10 @@ class Polynomial(TorqueProfile):
     def __post_init__(self):
         self._check_finite("c0", "c1", "c2")
 
-    def torque(self, t, angle, speed):
-        s = np.asarray(speed, dtype=float)
-        out = self.c0 + self.c1 * s + self.c2 * s * np.abs(s)
-        return out if np.ndim(out) else float(out)
-
-    def scalar_torque(self):
-        c0, c1, c2 = self.c0, self.c1, self.c2
-        return lambda t, angle, speed: c0 + c1 * speed + c2 * speed * abs(speed)
-
-    def scalar_source(self, t, angle, speed):
-        # the closure's sum without its zero terms (value-equal: x + 0.0 == x; only a -0.0 may turn +0.0)
+    def formula(self):
         c0, c1, c2 = (float(v) for v in (self.c0, self.c1, self.c2))
-        terms = [f"{c0!r}"] if c0 else []
-        terms += [f"{c1!r} * {speed}"] if c1 else []
-        terms += [f"{c2!r} * {speed} * abs({speed})"] if c2 else []
-        return " + ".join(terms) if terms else "0.0"
+        terms = ["c0" if c0 else "", "c1 * speed" if c1 else "", "c2 * speed * abs(speed)" if c2 else ""]
+        return Formula(_sum(terms), dict(c0=c0, c1=c1, c2=c2))
 
 
 @_register
@@ -566,7 +502,6 @@ class Compressor(TorqueProfile):
     """
 
     kind: ClassVar[str] = "compressor"
-    state_dependent: ClassVar[bool] = True
     mean_torque: float = 20.0
     c1: float = 0.0
     cylinders: int = 2
@@ -583,31 +518,15 @@ class Compressor(TorqueProfile):
         object.__setattr__(self, "cylinders", int(self.cylinders))
         object.__setattr__(self, "harmonics", _harmonics(self.harmonics, "compressor.harmonics"))
 
-    def torque(self, t, angle, speed):
-        a = np.asarray(angle, dtype=float)
-        out = self.mean_torque + self.c1 * np.asarray(speed, dtype=float) + 0.0 * a
-        for k, amp in enumerate(self.harmonics, start=1):
-            out = out + amp * np.sin(k * (self.cylinders * a + self.phase))
+    def formula(self):
+        # mean + c1 speed + sum_k A_k sin(k (cylinders angle + phase))
+        constants = dict(mean=float(self.mean_torque), c1=float(self.c1), z=float(self.cylinders), phase=float(self.phase))
+        pulses = _harmonic_series(self.harmonics, "z * angle + phase", constants)
+        expression = _sum(["mean" if self.mean_torque else "", "c1 * speed" if self.c1 else "", pulses if pulses != "0.0" else ""])
         if self.ramp_time > 0:
-            out = out * np.clip(np.asarray(t, dtype=float) / self.ramp_time, 0.0, 1.0)
-        return out if np.ndim(out) else float(out)
-
-    def scalar_torque(self):
-        mean, c1, cylinders, phase, ramp = self.mean_torque, self.c1, self.cylinders, self.phase, self.ramp_time
-        a1, a2, higher = _first_two(self.harmonics)
-        sin = math.sin
-
-        def torque(t, angle, speed):
-            arg = cylinders * angle + phase
-            out = mean + c1 * speed + a1 * sin(arg) + a2 * sin(2.0 * arg)  # + sum_k A_k sin(k arg)
-            for k, amp in higher:
-                out += amp * sin(k * arg)
-            if ramp > 0:
-                fade = t / ramp
-                out = out * (0.0 if fade < 0.0 else 1.0 if fade > 1.0 else fade)  # clip(t / t_ramp, 0, 1)
-            return out
-
-        return torque
+            constants["ramp"] = float(self.ramp_time)
+            expression = _fade(expression, "ramp")
+        return Formula(expression, constants)
 
     def breakpoints(self):
         return (float(self.ramp_time),) if self.ramp_time > 0 else ()
@@ -647,14 +566,6 @@ class Schedule(TorqueProfile):
             periods.append((float(p[0]), float(p[1])))
         object.__setattr__(self, "periods", tuple(periods))
 
-    @property
-    def state_dependent(self) -> bool:  # type: ignore[override]
-        return self.active.state_dependent or self.inactive.state_dependent
-
-    @property
-    def uses_angle(self) -> bool:  # type: ignore[override]
-        return self.active.uses_angle or self.inactive.uses_angle
-
     def is_active(self, t):
         """True where the ``active`` profile applies."""
         ta = np.asarray(t, dtype=float)
@@ -663,26 +574,20 @@ class Schedule(TorqueProfile):
             mask |= (ta >= start) & (ta < end)
         return mask if np.ndim(t) else bool(mask)
 
-    def torque(self, t, angle, speed):
-        if np.ndim(t) or np.ndim(angle) or np.ndim(speed):
-            return np.where(self.is_active(t), self.active.torque(t, angle, speed), self.inactive.torque(t, angle, speed))
-        return self.active.torque(t, angle, speed) if self.is_active(t) else self.inactive.torque(t, angle, speed)
-
-    def scalar_torque(self):
-        periods = self.periods
-        active, inactive = self.active.scalar_torque(), self.inactive.scalar_torque()
-
-        if len(periods) == 1:  # the common case, without the loop
-            ((start, end),) = periods
-            return lambda t, angle, speed: (active if start <= t < end else inactive)(t, angle, speed)
-
-        def torque(t, angle, speed):
-            for start, end in periods:
-                if start <= t < end:
-                    return active(t, angle, speed)
-            return inactive(t, angle, speed)
-
-        return torque
+    def formula(self):
+        parts = []
+        for prefix, profile in (("on_", self.active), ("off_", self.inactive)):
+            part = profile.forms().formula
+            parts.append((part or Formula("f(t, angle, speed)", {"f": profile})).prefixed(prefix))
+        active, inactive = parts
+        if not self.periods:
+            return inactive
+        constants = {**active.constants, **inactive.constants}
+        tests = []
+        for j, (start, end) in enumerate(self.periods):
+            constants[f"start{j}"], constants[f"end{j}"] = start, end
+            tests.append(f"start{j} <= t < end{j}")
+        return Formula(f"({active.expression}) if {' or '.join(tests)} else ({inactive.expression})", constants)
 
     def breakpoints(self):
         edges = {float(v) for period in self.periods for v in period}

@@ -5,9 +5,12 @@ per step; the run is stable when ``|R(h lambda)| <= 1`` for every eigenvalue
 ``lambda`` of the model's A (the belt mode ``-zeta omega_n +/- i omega_n
 sqrt(1-zeta^2)``, the rigid-body mode 0 and the slow bearing mode). For an
 undamped belt this is the classical ``h omega_n`` limit on the imaginary
-axis: Euler never, symplectic Euler ``< 2``, RK4 ``<= 2 sqrt(2)``; exact,
-etd2 and trapezoidal have no limit. Torques that depend on state are not part
-of A; the runtime check in the simulator catches what they destabilise.
+axis: Euler never, symplectic Euler ``< 2``, RK4 ``<= 2 sqrt(2)``; the
+methods exact for the belt mode (``exact_linear`` in the registry) and
+trapezoidal have no limit. ``|R|`` is read off each method's own one-step map
+(:meth:`~belt_drive_ros.core.integrators.FixedStepIntegrator.mode_growths`).
+Torques that depend on state are not part of A; the runtime check in the
+simulator catches what they destabilise.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import UnstableStepError
-from .integrators import FixedStepIntegrator, make_integrator, method_class
+from .integrators import REGISTRY, FixedStepIntegrator, method_class
 
 #: |R| may exceed 1 by GROWTH_TOLERANCE * h * omega_n: rounding of R(0) = 1 and of the
 #: eigenvalues (~1e-16 h |lambda|), but not Euler's genuine growth (h omega)^2 / 2.
@@ -72,15 +75,14 @@ def _eigenvalues(A: np.ndarray) -> np.ndarray:
 
 
 def _growth(cls, A, B, dt, eigenvalues) -> float:
-    it = cls(A, B, dt)
-    if cls.name == "symplectic_euler":
+    if cls.second_order_form:
         # A partitioned method: per-eigenvalue oscillators are exact only for proportional
         # damping, so use the spectral radius of its one-step map (rigid-body Jordan block
         # at 1 snapped to 1: its eigenvalues come out as 1 +/- sqrt(eps)).
-        mu = np.linalg.eigvals(it.linear_step().Phi)
+        mu = np.linalg.eigvals(cls(A, B, dt).linear_step().Phi)
         mu = np.where(np.abs(mu - 1.0) <= 1e-6, 1.0, mu)
         return float(np.max(np.abs(mu)))
-    return max(it.amplification(complex(lam)) for lam in eigenvalues)
+    return float(np.max(cls.mode_growths(eigenvalues, dt)))
 
 
 #: Absolute rounding floor of a computed |eigenvalue| that is exactly 1 (a few eps).
@@ -144,6 +146,5 @@ def require_stable(A: np.ndarray, B: np.ndarray, method: str, dt: float, safety:
         fix = f"use dt <= {safety * report.max_stable_dt:.3g} s (boundary {report.max_stable_dt:.4g} s)"
     else:
         fix = "no step is stable for this method on this belt"
-    raise UnstableStepError(
-        f"{report.describe()}; {fix}, or method 'exact' or 'etd2' (unconditionally stable for the belt mode)"
-    )
+    exact = ", ".join(repr(name) for name, cls in REGISTRY.items() if cls.fixed_step and cls.exact_linear)
+    raise UnstableStepError(f"{report.describe()}; {fix}, or a method exact for the belt mode ({exact}): stable at any step")

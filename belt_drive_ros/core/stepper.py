@@ -111,9 +111,9 @@ class Plant:
         self.scalar_drive = drive_torque = drive.scalar_torque()
         self.scalar_load = load_torque = load.scalar_torque()
         self.wheel_map = W = np.array(model.wheel_coordinates(np.eye(model.A.shape[0])), dtype=float)
-        #: (drive, load): whether each torque reads its angle; their inlinable sources (or None)
+        #: (drive, load): whether each torque reads its angle; their formulas the loops inline (or None)
         self.uses_angle = (bool(drive.uses_angle), bool(load.uses_angle))
-        self.sources = (drive.scalar_source, load.scalar_source)
+        self.formulas = (drive.forms().formula, load.forms().formula)
         #: sorted finite times [s] at which either torque jumps or kinks (TorqueProfile.breakpoints)
         self.breakpoints = sorted({float(b) for b in (*drive.breakpoints(), *load.breakpoints()) if math.isfinite(b)})
         array = np.array
@@ -128,7 +128,7 @@ class Plant:
         """``integrator``'s compiled float loop for this plant (inlined torques, unused angles skipped), or None."""
         if not isinstance(integrator, FixedStepIntegrator):
             return None
-        return integrator.scalar_loop(self.wheel_map, self.uses_angle, self.sources)
+        return integrator.scalar_loop(self.wheel_map, self.uses_angle, self.formulas)
 
     def left_of(self, b: float) -> float:
         """Latest time [s] before breakpoint ``b`` at which both torques still give their values from the left."""

@@ -50,6 +50,7 @@ from msg_tools.errors import MsgToolsError, RecoveredBagWarning
 from ..core.errors import BeltDriveError
 from ..core.scene import Scene
 from .recording import RECORDED_DRIVE, SCENE_METADATA, BagReadError, _sha256, bag_error
+from ..core.formula import Formula
 from ..core.sources import Table
 
 __all__ = [
@@ -85,30 +86,11 @@ class RecordedTorque(Table):
             raise ValueError("RecordedTorque: interpolation must be 'previous' (zero-order hold)")
         object.__setattr__(self, "_times_ns", np.round(self.times * 1e9).astype(np.int64))
 
-    # The hold switches at whole nanoseconds: ``t`` is rounded to the nearest
-    # ns before the lookup, so a step that starts at a message's time uses
-    # that message even when the integrator's float time grid (dt * k) lands
-    # a rounding error below it.
-    def torque(self, t, angle=0.0, speed=0.0):
-        t_ns = np.rint(np.asarray(t, dtype=float) * 1e9).astype(np.int64)
-        idx = np.clip(np.searchsorted(self._times_ns, t_ns, side="right") - 1, 0, self.times.size - 1)
-        out = self.values[idx]
-        return out if np.ndim(t) else float(out)
-
-    __call__ = torque
-
-    def scalar_torque(self):
-        from bisect import bisect_right
-
-        times_ns, values = self._times_ns.tolist(), self.values.tolist()
-        last = len(times_ns) - 1
-
-        def held(t, angle, speed):
-            # values[clip(searchsorted(times_ns, round(t [ns]), 'right') - 1, 0, last)]
-            j = bisect_right(times_ns, round(t * 1e9)) - 1
-            return values[0 if j < 0 else last if j > last else j]
-
-        return held
+    def formula(self):
+        # The hold switches at whole nanoseconds: ``t`` is rounded to the nearest ns before the
+        # lookup, so a step that starts at a message's time uses that message even when the
+        # integrator's float time grid (dt * k) lands a rounding error below it.
+        return Formula("held_ns(t, times_ns, values)", {"times_ns": self._times_ns, "values": self.values})
 
     def left_of(self, t: float) -> float:
         # one nanosecond before t's nanosecond: the hold above rounds t to whole ns
