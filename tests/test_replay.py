@@ -200,7 +200,8 @@ def _node_following_replay(bag, out, domain_id):
     from rclpy.context import Context
     from rclpy.parameter import Parameter
 
-    from belt_drive_ros.ros.node import BeltDriveNode, make_executor
+    from belt_drive_ros.ros.executors import make_executor
+    from belt_drive_ros.ros.node import BeltDriveNode
     from belt_drive_ros.ros.recorder import NodeRecorder
 
     ctx = Context()

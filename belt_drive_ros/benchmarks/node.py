@@ -87,7 +87,7 @@ def measure(args) -> dict:
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
-    from ..ros.node import make_executor
+    from ..ros.executors import make_executor
 
     domain = ros_env.process_domain_id(offset=17)
     env = ros_env.child_environment(domain, udp_only=args.udp_only)

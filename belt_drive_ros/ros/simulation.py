@@ -1,0 +1,299 @@
+"""The node's simulation: plant, state and scene time, advanced tick by tick (no rclpy).
+
+:class:`NodeSimulation` is what :class:`~belt_drive_ros.ros.node.BeltDriveNode`
+calls from every tick: :meth:`~NodeSimulation.advance_to` integrates the
+state from the last tick time to the new one, samples the drive input for
+the next interval, and :meth:`~NodeSimulation.outputs` evaluates every
+output signal ``y = C x + D u`` at that time. Times are integers [ns] on the
+node's time base; scene time ``t = (now - origin) / 1e9`` [s] starts at 0
+when the run starts (the first tick, the first ``/clock`` seen, a restart).
+
+Divergence rule
+---------------
+If the integrator raises, or the state becomes non-finite or faster than
+:data:`~belt_drive_ros.core.simulate.SPEED_LIMIT`, the simulation records
+the reason (:attr:`~NodeSimulation.last_divergence`), counts it
+(``divergences``) and restarts from the scene's initial state at that tick
+(scene time 0 again): the node keeps publishing, never a stale or
+non-finite value, and ``/diagnostics`` reports ERROR for the window in which
+it happened.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from ..core.integrators import make_integrator
+from ..core.simulate import SPEED_LIMIT, Plant
+from .inputs import DriveInput
+from .parameter_schema import NodeSettings
+
+__all__ = ["NodeSimulation", "TICK_OUTPUTS", "output_map", "span_forces"]
+
+#: the signals of one tick, in the order of :func:`output_map`'s rows
+TICK_OUTPUTS = (
+    "phi_M", "phi_1", "phi_2", "phi_3", "omega_M", "omega_1", "omega_2", "omega_3",
+    "drive_torque", "load_torque", "belt_torque", "relative_deflection",
+)
+#: partial-step integrators kept (one per distinct remainder) before the cache is dropped
+PARTIAL_CACHE_SIZE = 4096
+
+
+def output_map(model) -> tuple[np.ndarray, np.ndarray]:
+    """(C, D) with ``y = C x + D u`` for the signals :data:`TICK_OUTPUTS` of ``model``.
+
+    The one place the ROS layer derives them (the model has no public
+    output matrices yet): every one of the signals is linear in the state
+    and the torques, so the model's own :meth:`outputs` evaluated on unit
+    vectors gives the matrices exactly.
+    """
+    n, m = model.n_states, model.B.shape[1]
+    basis = np.vstack([np.hstack([np.eye(n), np.zeros((n, m))]), np.hstack([np.zeros((m, n)), np.eye(m)])])
+    out = model.outputs(basis[:, :n], basis[:, n:])
+    Y = np.column_stack([np.asarray(out[name], dtype=float) for name in TICK_OUTPUTS]).T  # (12, n + m)
+    return np.ascontiguousarray(Y[:, :n]), np.ascontiguousarray(Y[:, n:])
+
+
+def span_forces(model, belt_torque: float) -> tuple[float, float, bool, bool]:
+    """(F_tight [N], F_slack [N], slack, slip) for the belt torque at wheel 3 [N m] (the model's rule)."""
+    tight, slack_force, slack, slip = model._span_forces(belt_torque)  # noqa: SLF001 - no public form yet
+    return float(tight), float(slack_force), bool(slack), bool(slip)
+
+
+class NodeSimulation:
+    """Plant, state and scene time of a node (see the module docstring).
+
+    Parameters
+    ----------
+    settings : NodeSettings
+    drive : DriveInput
+        The node's drive-torque input (sampled at each tick).
+    counters : dict
+        Shared counters; ``restarts``, ``divergences`` are added.
+    logger
+        Anything with ``info``, ``warn`` and ``error`` methods taking a line.
+    """
+
+    def __init__(self, settings: NodeSettings, drive: DriveInput, counters: dict, logger):
+        self.drive = drive
+        self.counters = counters
+        for key in ("restarts", "divergences", "clock_jumps"):
+            counters.setdefault(key, 0)
+        self.log = logger
+        self.settings = settings
+        self.plant = self._make_plant(settings)
+        self.output_matrices = output_map(settings.model)
+        self.x = settings.scene.initial_state.vector(settings.model.name, settings.params.ratio)
+        #: integrated-to time [ns, node time base]; None before the run starts
+        self.t_ns: int | None = None
+        #: node time [ns] of scene time 0
+        self.origin_ns = 0
+        #: (reason, node time [ns]) of the last divergence, or None
+        self.last_divergence: tuple[str, int] | None = None
+        self._partials: dict[int, Any] = {}
+        self._loop_cache = None
+
+    # ------------------------------------------------------------- settings
+    def _make_plant(self, s: NodeSettings) -> Plant:
+        drive = s.scene.drive if s.drive_source == "scene" else self.drive.applied
+        return Plant(s.model, drive, s.scene.load)
+
+    def apply(self, new: NodeSettings, changed: set, load_torque: float = 0.0) -> None:
+        """Switch to validated settings ``new`` (``changed``: the parameter names) without a restart.
+
+        A new scene restarts from its initial state; a rigid <-> flexible
+        switch maps the state (``load_torque`` [N m] sets the flexible
+        state's static belt deflection).
+        """
+        old = self.settings
+        self.settings = new
+        self.plant = self._make_plant(new)
+        self.output_matrices = output_map(new.model)
+        self._partials.clear()
+        if new.scene.name != old.scene.name or "scene" in changed:
+            self.restart("scene changed")
+        elif new.model.name != old.model.name:
+            self.x = self._map_state(self.x, old.model, new.model, load_torque)
+        else:
+            new.integrator.reset()
+
+    @staticmethod
+    def _map_state(x: np.ndarray, old_model, new_model, load_torque: float) -> np.ndarray:
+        """State of ``old_model`` expressed for ``new_model`` (rigid <-> flexible)."""
+        if new_model.name == "rigid":
+            return new_model.state_from_flexible(x)
+        return new_model.state_from_rigid(x, load_torque=load_torque)
+
+    # ----------------------------------------------------------------- time
+    @property
+    def started(self) -> bool:
+        return self.t_ns is not None
+
+    def scene_time(self, now_ns: int) -> float:
+        """Scene time [s] of node time ``now_ns``."""
+        return (now_ns - self.origin_ns) / 1e9
+
+    def grid_time(self, now_ns: int) -> int:
+        """The latest tick of the run's grid (origin + k * tick) at or before ``now_ns``."""
+        if self.t_ns is None or now_ns < self.origin_ns:
+            return now_ns
+        tick = self.settings.tick_ns
+        return now_ns - (now_ns - self.origin_ns) % tick
+
+    def start(self, now_ns: int) -> None:
+        """Start (or restart) the run at node time ``now_ns``: scene time 0, the initial state."""
+        s = self.settings
+        self.origin_ns = now_ns
+        self.t_ns = now_ns
+        self.x = s.scene.initial_state.vector(s.model.name, s.params.ratio)
+        s.integrator.reset()
+        self._partials.clear()
+        self.counters["restarts"] += 1
+        self._sample(now_ns)
+
+    def stop(self) -> None:
+        """Forget the time base: the next tick starts the run again (clock source changed)."""
+        if self.t_ns is not None:
+            self.t_ns = None
+            self.counters["clock_jumps"] += 1
+
+    def restart(self, why: str, now_ns: int | None = None) -> bool:
+        """Restart from the initial state at ``now_ns`` (default: the last tick); True if running.
+
+        Before the run has started this only resets the state.
+        """
+        if self.t_ns is None:
+            s = self.settings
+            self.x = s.scene.initial_state.vector(s.model.name, s.params.ratio)
+            return False
+        self.start(self.t_ns if now_ns is None else now_ns)
+        self.log.info(f"restarted from the initial state ({why})")
+        return True
+
+    def _sample(self, now_ns: int) -> None:
+        warning = self.drive.sample(now_ns, self.origin_ns, self.settings)
+        if warning:
+            self.log.warn(warning)
+
+    def advance_to(self, now_ns: int) -> bool:
+        """Integrate to ``now_ns``, then sample the input there; True if there are new outputs at ``now_ns``.
+
+        The first call starts the run at ``now_ns``. A clock that went
+        backwards restarts the run there (counted in ``clock_jumps``).
+        """
+        if self.t_ns is None:
+            self.start(now_ns)
+            return True
+        if now_ns < self.t_ns:
+            self.counters["clock_jumps"] += 1
+            self.log.warn(f"clock jumped back {(self.t_ns - now_ns) / 1e9:.6g} s: restarting from the initial state")
+            self.start(now_ns)
+            return True
+        if now_ns == self.t_ns:
+            return False
+        try:
+            x = self._integrate(self.t_ns, now_ns)
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+            self.diverged(f"integrator failed at t={self.scene_time(self.t_ns):.6g} s: {exc}", now_ns)
+            return True
+        values = x.tolist()
+        if not (all(map(math.isfinite, values)) and max(map(abs, values[len(values) // 2 :])) <= SPEED_LIMIT):
+            self.diverged(
+                f"state diverged at t={self.scene_time(now_ns):.6g} s: {np.array2string(x, precision=4)} "
+                f"is non-finite or beyond {SPEED_LIMIT:g} rad/s (method {self.settings.method}, "
+                f"dt={self.settings.dt:g} s, drive torque {self.drive.applied.value:g} N m)",
+                now_ns,
+            )
+            return True
+        self.x = x
+        self.t_ns = now_ns
+        self._sample(now_ns)
+        return True
+
+    def diverged(self, reason: str, now_ns: int) -> None:
+        """Apply the divergence rule (module docstring) at node time ``now_ns``."""
+        self.counters["divergences"] += 1
+        self.last_divergence = (reason, now_ns)
+        self.log.error(f"{reason}; restarting from the initial state (divergence {self.counters['divergences']})")
+        self.start(now_ns)
+
+    # ------------------------------------------------------------- stepping
+    def _integrate(self, t0_ns: int, t1_ns: int) -> np.ndarray:
+        """Whole substeps of dt_ns, then one partial step to land exactly on ``t1_ns``."""
+        s = self.settings
+        x = self.x
+        t = t0_ns
+        origin = self.origin_ns
+        inputs = self.plant.inputs
+        full = s.integrator
+        dt_ns = s.dt_ns
+        with np.errstate(all="ignore"):
+            n_full = (t1_ns - t) // dt_ns
+            fast = self._compiled_loop() if n_full else None
+            if fast is not None:  # the whole substeps in the compiled float loop (same maths as step())
+                loop, drive, load = fast
+                times = [(t + j * dt_ns - origin) / 1e9 for j in range(n_full + 1)]
+                try:
+                    flat = loop(times, tuple(x.tolist()), drive, load, SPEED_LIMIT)
+                except (ValueError, OverflowError, ZeroDivisionError):
+                    flat = None  # a math domain error on a runaway state: redo with numpy, which gives inf/nan
+                if flat is not None and len(flat) == n_full * x.size:
+                    x = np.array(flat[-x.size :])
+                    t += n_full * dt_ns
+            while t1_ns - t >= dt_ns:
+                x = full.step((t - origin) / 1e9, x, inputs)
+                t += dt_ns
+            rest = t1_ns - t
+            if rest > 0:
+                x = self._partial(rest).step((t - origin) / 1e9, x, inputs)
+        return x
+
+    def _compiled_loop(self):
+        """(loop, drive, load) of the integrator's compiled float loop for the current plant, or None."""
+        plant, integrator = self.plant, self.settings.integrator
+        cached = self._loop_cache  # (plant, integrator, fast): the objects, so a replaced one never matches
+        if cached is None or cached[0] is not plant or cached[1] is not integrator:
+            loop = plant.scalar_loop(integrator)
+            cached = self._loop_cache = (
+                plant, integrator, None if loop is None else (loop, plant.scalar_drive, plant.scalar_load)
+            )
+        return cached[2]
+
+    def _partial(self, rest_ns: int):
+        """Integrator for a partial step of ``rest_ns`` (exact/etd2 share their expm cache)."""
+        it = self._partials.get(rest_ns)
+        if it is None:
+            if len(self._partials) >= PARTIAL_CACHE_SIZE:
+                self._partials.clear()
+            s = self.settings
+            it = make_integrator(s.method, s.model.A, s.model.B, rest_ns / 1e9, **s.method_options)
+            self._partials[rest_ns] = it
+        return it
+
+    # -------------------------------------------------------------- outputs
+    def outputs(self, now_ns: int) -> list[float]:
+        """Every signal of :data:`TICK_OUTPUTS` at ``now_ns`` (the state integrated to it) [SI units].
+
+        Finite by construction: the state was checked by :meth:`advance_to`
+        and the torques are finite (a profile returning NaN counts as a
+        divergence: the run restarts and the initial state's outputs are
+        returned).
+        """
+        C, D = self.output_matrices
+        x = self.x
+        with np.errstate(all="ignore"):
+            u = self.plant.inputs(self.scene_time(now_ns), x)
+            values = (C @ x + D @ u).tolist()
+        if not all(map(math.isfinite, values)):
+            self.diverged(
+                f"non-finite output at t={self.scene_time(now_ns):.6g} s (drive {values[8]!r}, load {values[9]!r} N m)",
+                now_ns,
+            )
+            with np.errstate(all="ignore"):
+                values = (C @ self.x + D @ self.plant.inputs(0.0, self.x)).tolist()
+            if not all(map(math.isfinite, values)):  # the scene's own torque at t=0 is not finite
+                values = [v if math.isfinite(v) else 0.0 for v in values]
+        return values
