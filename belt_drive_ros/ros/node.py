@@ -115,7 +115,7 @@ from .inputs import DriveInput  # noqa: E402
 from .parameter_schema import NodeConfigError, NodeSettings  # noqa: E402,F401 - NodeConfigError re-exported
 from .parameters import NodeParameters  # noqa: E402
 from .qos import INPUT_QOS, OUTPUT_QOS  # noqa: E402
-from .simulation import NodeSimulation, span_forces  # noqa: E402
+from .simulation import NodeSimulation  # noqa: E402
 from .timing import TickSource, TickStats, stamp  # noqa: E402
 
 NODE_NAME = "belt_drive"
@@ -244,35 +244,31 @@ class BeltDriveNode(Node):
             self._publish(now_ns)
 
     def _publish(self, now_ns: int) -> None:
-        values = self.sim.outputs(now_ns)
-        (phi_M, phi_1, phi_2, phi_3, w_M, w_1, w_2, w_3, drive, load, belt, deflection) = values
-        tight, slack_force, slack, slip = span_forces(self.sim.settings.model, belt)
-        if slack:
+        y = self.sim.outputs(now_ns)
+        if y["slack"]:
             self.stats.window.slack += 1
             self.counters["slack_ticks"] += 1
-        if slip:
+        if y["slip"]:
             self.stats.window.slip += 1
             self.counters["slip_ticks"] += 1
         readers = self._readers
         js = self._msg_joint
         stamp(js.header.stamp, now_ns)
-        joints = (phi_M, phi_1, phi_2, phi_3, w_M, w_1, w_2, w_3, drive, 0.0, 0.0, -load)
+        joints = (y["phi_M"], y["phi_1"], y["phi_2"], y["phi_3"], y["omega_M"], y["omega_1"], y["omega_2"],
+                  y["omega_3"], y["drive_torque"], 0.0, 0.0, -y["load_torque"])
         js.position, js.velocity, js.effort = joints[0:4], joints[4:8], joints[8:12]
         if readers["joint_states"]:
             self._pub_joint.publish(js)
-        floats = (w_M, load, belt, deflection)
+        floats = (y["omega_M"], y["load_torque"], y["belt_torque"], y["relative_deflection"])
         for name, pub, msg, v in zip(OUTPUT_TOPICS, self._pub_float, self._msg_float, floats):
             msg.data = v
             if readers[name]:
                 pub.publish(msg)
         if self.recorder is not None:
-            self.recorder.record_tick(now_ns, joints, floats, drive)
-        last = self.last
-        last["time"] = self.sim.scene_time(now_ns)
-        last["stamp_ns"] = now_ns
-        last["omega_M"], last["omega_3"], last["drive_torque"], last["load_torque"] = w_M, w_3, drive, load
-        last["belt_torque"], last["relative_deflection"] = belt, deflection
-        last["span_force_tight"], last["span_force_slack"], last["slack"], last["slip"] = tight, slack_force, slack, slip
+            self.recorder.record_tick(now_ns, joints, floats, y["drive_torque"])
+        y["time"] = self.sim.scene_time(now_ns)
+        y["stamp_ns"] = now_ns
+        self.last = y
         self.counters["published"] += 1
 
     def refresh_subscriber_counts(self) -> dict[str, int]:

@@ -27,40 +27,15 @@ from typing import Any
 import numpy as np
 
 from ..core.integrators import make_integrator
+from ..core.model import OUTPUT_UNITS
 from ..core.simulate import SPEED_LIMIT, Plant
 from .inputs import DriveInput
 from .parameter_schema import NodeSettings
 
-__all__ = ["NodeSimulation", "TICK_OUTPUTS", "output_map", "span_forces"]
+__all__ = ["NodeSimulation", "TICK_OUTPUTS"]
 
-#: the signals of one tick, in the order of :func:`output_map`'s rows
-TICK_OUTPUTS = (
-    "phi_M", "phi_1", "phi_2", "phi_3", "omega_M", "omega_1", "omega_2", "omega_3",
-    "drive_torque", "load_torque", "belt_torque", "relative_deflection",
-)
-#: partial-step integrators kept (one per distinct remainder) before the cache is dropped
-PARTIAL_CACHE_SIZE = 4096
-
-
-def output_map(model) -> tuple[np.ndarray, np.ndarray]:
-    """(C, D) with ``y = C x + D u`` for the signals :data:`TICK_OUTPUTS` of ``model``.
-
-    The one place the ROS layer derives them (the model has no public
-    output matrices yet): every one of the signals is linear in the state
-    and the torques, so the model's own :meth:`outputs` evaluated on unit
-    vectors gives the matrices exactly.
-    """
-    n, m = model.n_states, model.B.shape[1]
-    basis = np.vstack([np.hstack([np.eye(n), np.zeros((n, m))]), np.hstack([np.zeros((m, n)), np.eye(m)])])
-    out = model.outputs(basis[:, :n], basis[:, n:])
-    Y = np.column_stack([np.asarray(out[name], dtype=float) for name in TICK_OUTPUTS]).T  # (12, n + m)
-    return np.ascontiguousarray(Y[:, :n]), np.ascontiguousarray(Y[:, n:])
-
-
-def span_forces(model, belt_torque: float) -> tuple[float, float, bool, bool]:
-    """(F_tight [N], F_slack [N], slack, slip) for the belt torque at wheel 3 [N m] (the model's rule)."""
-    tight, slack_force, slack, slip = model._span_forces(belt_torque)  # noqa: SLF001 - no public form yet
-    return float(tight), float(slack_force), bool(slack), bool(slip)
+#: the signals of one tick, as :meth:`NodeSimulation.outputs` returns them (the model's outputs)
+TICK_OUTPUTS = tuple(OUTPUT_UNITS)
 
 
 class NodeSimulation:
@@ -85,7 +60,6 @@ class NodeSimulation:
         self.log = logger
         self.settings = settings
         self.plant = self._make_plant(settings)
-        self.output_matrices = output_map(settings.model)
         self.x = settings.scene.initial_state.vector(settings.model.name, settings.params.ratio)
         #: integrated-to time [ns, node time base]; None before the run starts
         self.t_ns: int | None = None
@@ -111,7 +85,6 @@ class NodeSimulation:
         old = self.settings
         self.settings = new
         self.plant = self._make_plant(new)
-        self.output_matrices = output_map(new.model)
         self._partials.clear()
         if new.scene.name != old.scene.name or "scene" in changed:
             self.restart("scene changed")
@@ -274,26 +247,27 @@ class NodeSimulation:
         return it
 
     # -------------------------------------------------------------- outputs
-    def outputs(self, now_ns: int) -> list[float]:
+    def outputs(self, now_ns: int) -> dict[str, float]:
         """Every signal of :data:`TICK_OUTPUTS` at ``now_ns`` (the state integrated to it) [SI units].
 
-        Finite by construction: the state was checked by :meth:`advance_to`
-        and the torques are finite (a profile returning NaN counts as a
-        divergence: the run restarts and the initial state's outputs are
-        returned).
+        Evaluated by the model's own ``outputs(x, u)``, the function the
+        offline simulator applies to its whole run, so the node's values
+        equal the offline ones bit for bit. Finite by construction: the
+        state was checked by :meth:`advance_to`; torques that are not finite
+        count as a divergence (the run restarts; the initial state's outputs
+        are returned).
         """
-        C, D = self.output_matrices
-        x = self.x
+        model = self.settings.model
         with np.errstate(all="ignore"):
-            u = self.plant.inputs(self.scene_time(now_ns), x)
-            values = (C @ x + D @ u).tolist()
-        if not all(map(math.isfinite, values)):
+            u = self.plant.inputs(self.scene_time(now_ns), self.x)
+            out = model.outputs(self.x, u)
+        if not (math.isfinite(out["drive_torque"]) and math.isfinite(out["load_torque"])):
             self.diverged(
-                f"non-finite output at t={self.scene_time(now_ns):.6g} s (drive {values[8]!r}, load {values[9]!r} N m)",
+                f"non-finite torque at t={self.scene_time(now_ns):.6g} s "
+                f"(drive {float(out['drive_torque'])!r}, load {float(out['load_torque'])!r} N m)",
                 now_ns,
             )
             with np.errstate(all="ignore"):
-                values = (C @ self.x + D @ self.plant.inputs(0.0, self.x)).tolist()
-            if not all(map(math.isfinite, values)):  # the scene's own torque at t=0 is not finite
-                values = [v if math.isfinite(v) else 0.0 for v in values]
-        return values
+                u = np.nan_to_num(self.plant.inputs(0.0, self.x), nan=0.0, posinf=0.0, neginf=0.0)
+                out = model.outputs(self.x, u)
+        return {name: np.asarray(value).item() for name, value in out.items()}  # Python floats and bools
