@@ -316,21 +316,27 @@ class JointStateEncoder:
 
     def __init__(self, joints: int = 4):
         marks = np.arange(1, 3 * joints + 1, dtype=float) * 1e300 / 7.0  # distinct, cannot occur elsewhere
-        template = encode_joint_states(np.zeros(1, dtype=np.int64), marks[None, :joints],
-                                       marks[None, joints : 2 * joints], marks[None, 2 * joints :])[0]
-        first = template.find(struct.pack("<d", marks[0]))
-        if first < 0 or template[first:first + 8 * len(marks)] != struct.pack(f"<{len(marks)}d", *marks):
-            raise RuntimeError("JointState template: position, velocity and effort are not contiguous")
+        groups = marks.reshape(3, joints)
+        template = encode_joint_states(np.zeros(1, dtype=np.int64), *(g[None, :] for g in groups))[0]
+        self._array = struct.Struct(f"<{joints}d")
+        self._offsets = []
+        for group in groups:  # position, velocity, effort: each a contiguous CDR sequence
+            packed = self._array.pack(*group)
+            offset = template.find(packed)
+            if offset < 0 or template.find(packed, offset + 1) >= 0:
+                raise RuntimeError("JointState template: an array is not found exactly once")
+            self._offsets.append(offset)
         self._template = template
-        self._values = struct.Struct(f"<{len(marks)}d")
-        self._offset = first
+        self._joints = joints
         self._stamp = struct.Struct("<iI")
 
     def encode(self, stamp_ns: int, values) -> bytes:
         """``values`` = position, velocity, effort of the joints, concatenated."""
         buf = bytearray(self._template)
         self._stamp.pack_into(buf, 4, *divmod(stamp_ns, 1_000_000_000))
-        self._values.pack_into(buf, self._offset, *values)
+        j = self._joints
+        for k, offset in enumerate(self._offsets):
+            self._array.pack_into(buf, offset, *values[k * j : (k + 1) * j])
         return bytes(buf)
 
 

@@ -247,7 +247,7 @@ class NodeSimulation:
         return it
 
     # -------------------------------------------------------------- outputs
-    def outputs(self, now_ns: int) -> dict[str, float]:
+    def outputs(self, now_ns: int) -> dict:
         """Every signal of :data:`TICK_OUTPUTS` at ``now_ns`` (the state integrated to it) [SI units].
 
         Evaluated by the model's own ``outputs(x, u)``, the function the
@@ -258,16 +258,11 @@ class NodeSimulation:
         are returned).
         """
         model = self.settings.model
-        with np.errstate(all="ignore"):
-            u = self.plant.inputs(self.scene_time(now_ns), self.x)
-            out = model.outputs(self.x, u)
-        if not (math.isfinite(out["drive_torque"]) and math.isfinite(out["load_torque"])):
+        u = self.plant.inputs(self.scene_time(now_ns), self.x)
+        if not (math.isfinite(u[0]) and math.isfinite(u[1])):
             self.diverged(
-                f"non-finite torque at t={self.scene_time(now_ns):.6g} s "
-                f"(drive {float(out['drive_torque'])!r}, load {float(out['load_torque'])!r} N m)",
-                now_ns,
+                f"non-finite torque at t={self.scene_time(now_ns):.6g} s (drive {u[0]!r}, load {u[1]!r} N m)", now_ns
             )
-            with np.errstate(all="ignore"):
-                u = np.nan_to_num(self.plant.inputs(0.0, self.x), nan=0.0, posinf=0.0, neginf=0.0)
-                out = model.outputs(self.x, u)
-        return {name: np.asarray(value).item() for name, value in out.items()}  # Python floats and bools
+            u = np.nan_to_num(self.plant.inputs(0.0, self.x), nan=0.0, posinf=0.0, neginf=0.0)
+        out = model.outputs(self.x, u)  # a finite state and finite torques: nothing for numpy to warn about
+        return out  # numpy float64 scalars (a float subclass) and numpy bools
