@@ -419,3 +419,47 @@ def test_parameters_from_a_params_file(ros_domain_id, tmp_path):
         assert (s.params.k, s.params.c, s.model.name, s.step_rate_hz, s.timeout_behavior) == (3e4, 4.0, "rigid", 500.0, "zero")
         h.advance(0.01)
         assert h.outputs()["time"].size == 6  # 500 Hz: the initial sample + 5 ticks
+
+
+def test_an_integer_for_a_double_parameter_keeps_it_double(ros_domain_id):
+    from rclpy.parameter import Parameter
+
+    with BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0, ros_args=["--ros-args", "-p", "c:=3"]) as h:
+        assert h.node.get_parameter("c").type_ == Parameter.Type.DOUBLE  # given as an integer at start
+        assert h.set_parameters(k=50000, torque_limit=7).successful
+        for name, value in (("k", 50000.0), ("torque_limit", 7.0), ("c", 3.0)):
+            p = h.node.get_parameter(name)
+            assert p.type_ == Parameter.Type.DOUBLE and p.value == value and isinstance(p.value, float), name
+        assert not h.set_parameters(k="stiff").successful  # a string is still refused
+        assert h.node.get_parameter("k").type_ == Parameter.Type.DOUBLE
+
+
+def test_many_async_resets_all_answered_and_publish_nothing_extra(ros_domain_id):
+    from std_srvs.srv import Trigger
+
+    with BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0) as h:
+        h.publish_torque(5.0)
+        h.advance(0.01)
+        published = h.node.counters["published"]
+        futures = [h._reset_client.call_async(Trigger.Request()) for _ in range(300)]
+        h._spin_until(lambda: all(f.done() for f in futures), "300 ~/reset answers", timeout=60.0)
+        assert all(f.result().success for f in futures)
+        h.spin(0.1)
+        assert h.node.counters["published"] == published  # a reset publishes no output set of its own
+        h.advance(0.002)
+        out = h.outputs()
+        assert out["time"].size == published + 2 and np.all(np.diff(out["stamp"]) > 0)
+        assert abs(out["omega_M"][-1]) < abs(out["omega_M"][published - 1])  # restarted from rest
+
+
+def test_a_second_node_with_the_same_name_is_warned_about(ros_domain_id):
+    from rclpy.node import Node
+
+    with BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0) as h:
+        twin = Node("belt_drive", context=h.context)  # same name, same (root) namespace
+        try:
+            h._spin_until(lambda: len(h.node.get_node_names_and_namespaces()) >= 3, "discovery of the twin")
+            h.node._warn_duplicate_name()
+            assert h.node.counters.get("duplicate_name") == 1
+        finally:
+            twin.destroy_node()

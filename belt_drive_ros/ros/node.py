@@ -254,18 +254,19 @@ class BeltDriveNode(Node):
         readers = self._readers
         js = self._msg_joint
         stamp(js.header.stamp, now_ns)
-        joints = (y["phi_M"], y["phi_1"], y["phi_2"], y["phi_3"], y["omega_M"], y["omega_1"], y["omega_2"],
-                  y["omega_3"], y["drive_torque"], 0.0, 0.0, -y["load_torque"])
+        # Python floats: rclpy reads a numpy float64 assigned to a message field as garbage
+        joints = tuple(map(float, (y["phi_M"], y["phi_1"], y["phi_2"], y["phi_3"], y["omega_M"], y["omega_1"],
+                                   y["omega_2"], y["omega_3"], y["drive_torque"], 0.0, 0.0, -y["load_torque"])))
         js.position, js.velocity, js.effort = joints[0:4], joints[4:8], joints[8:12]
         if readers["joint_states"]:
             self._pub_joint.publish(js)
-        floats = (y["omega_M"], y["load_torque"], y["belt_torque"], y["relative_deflection"])
+        floats = (joints[4], float(y["load_torque"]), float(y["belt_torque"]), float(y["relative_deflection"]))
         for name, pub, msg, v in zip(OUTPUT_TOPICS, self._pub_float, self._msg_float, floats):
             msg.data = v
             if readers[name]:
                 pub.publish(msg)
         if self.recorder is not None:
-            self.recorder.record_tick(now_ns, joints, floats, y["drive_torque"])
+            self.recorder.record_tick(now_ns, joints, floats, joints[8])
         y["time"] = self.sim.scene_time(now_ns)
         y["stamp_ns"] = now_ns
         self.last = y
