@@ -105,10 +105,12 @@ class DriveInput:
         self.stale = False
         return True
 
-    def sample(self, now_ns: int, origin_ns: int, settings) -> str | None:
-        """Sample the input at tick time ``now_ns`` into :attr:`applied`.
+    def sample(self, now_ns: int, origin_ns: int, settings) -> tuple[float, str | None]:
+        """The drive torque sampled at tick time ``now_ns`` [N m] (the timeout rule applied there).
 
-        Returns a one-line warning when the input has just gone stale (the
+        Returns ``(value, warning)``: the caller holds ``value`` in
+        :attr:`applied` once the interval before the tick is integrated;
+        ``warning`` is one line when the input has just gone stale (the
         caller logs it), else None.
         """
         warning = None
@@ -125,8 +127,7 @@ class DriveInput:
                     "holding the last value" if settings.timeout_behavior == "hold" else "drive torque set to 0"
                 )
             self.stale = stale
-        self.applied.value = 0.0 if self.stale and settings.timeout_behavior == "zero" else self.latest
-        return warning
+        return (0.0 if self.stale and settings.timeout_behavior == "zero" else self.latest), warning
 
     def status(self, settings) -> tuple[bool, str]:
         """(warn, message) for the input diagnostic."""

@@ -69,13 +69,17 @@ class NodeSimulation:
         self.origin_ns = 0
         #: (reason, node time [ns]) of the last divergence, or None
         self.last_divergence: tuple[str, int] | None = None
+        #: scene time [s] at which the held drive torque last changed (a breakpoint of the drive), or None
+        self._held_jump: float | None = None
 
     # ------------------------------------------------------------- settings
     def _make_stepper(self, s: NodeSettings) -> Stepper:
         """The core's stepper for the settings' model, torques and integrator (grid origin: scene time 0)."""
         drive = s.scene.drive if s.drive_source == "scene" else self.drive.applied
         plant = Plant(s.model, drive, s.scene.load)
-        return Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
+        stepper = Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
+        self._plant_breakpoints = list(stepper.breakpoints)
+        return stepper
 
     @property
     def plant(self) -> Plant:
@@ -137,7 +141,7 @@ class NodeSimulation:
         self.x = s.scene.initial_state.vector(s.model.name, s.params.ratio)
         self.stepper.reset()
         self.counters["restarts"] += 1
-        self._sample(now_ns)
+        self._hold(self._sample(now_ns), 0.0, first=True)  # held since before 0: no jump at 0
 
     def stop(self) -> None:
         """Forget the time base: the next tick starts the run again (clock source changed)."""
@@ -158,10 +162,40 @@ class NodeSimulation:
         self.log.info(f"restarted from the initial state ({why})")
         return True
 
-    def _sample(self, now_ns: int) -> None:
-        warning = self.drive.sample(now_ns, self.origin_ns, self.settings)
+    def _sample(self, now_ns: int) -> float | None:
+        """The drive torque sampled at ``now_ns`` (None when the scene drives): logs a timeout warning."""
+        if self.settings.drive_source != "topic":
+            return None
+        value, warning = self.drive.sample(now_ns, self.origin_ns, self.settings)
         if warning:
             self.log.warn(warning)
+        return value
+
+    def _hold(self, value: float | None, t: float, first: bool = False) -> None:
+        """Hold the sampled ``value`` from scene time ``t`` on; a change (not the first sample) is a breakpoint."""
+        if value is None:
+            self._held_jump = None
+            return
+        held = self.drive.applied
+        self._held_jump = None if first or value == held.value else t
+        held.value = value
+
+    def _drive_breakpoints(self, t0: float, t1: float, value: float | None) -> None:
+        """The stepper's breakpoints for the advance t0 -> t1: the plant's, plus where the held torque jumps.
+
+        The held drive is a zero-order hold of the samples, a table that
+        jumps at the ticks where the sampled value changes: at ``t0`` if it
+        changed there, at ``t1`` if the new sample differs. The offline
+        re-simulation of the same samples has exactly these breakpoints, so
+        both take the same steps the same way (bit-identical states).
+        """
+        extra = []
+        if self._held_jump is not None and self._held_jump == t0:
+            extra.append(t0)
+        if value is not None and value != self.drive.applied.value:
+            extra.append(t1)
+        base = self._plant_breakpoints
+        self.stepper.breakpoints = sorted(base + extra) if extra else base
 
     def advance_to(self, now_ns: int) -> bool:
         """Integrate to ``now_ns``, then sample the input there; True if there are new outputs at ``now_ns``.
@@ -179,8 +213,11 @@ class NodeSimulation:
             return True
         if now_ns == self.t_ns:
             return False
+        t0, t1 = self.scene_time(self.t_ns), self.scene_time(now_ns)
+        value = self._sample(now_ns)  # needs no state: known before the interval is integrated
+        self._drive_breakpoints(t0, t1, value)
         try:
-            x = self.stepper.advance(self.x, self.scene_time(self.t_ns), self.scene_time(now_ns))
+            x = self.stepper.advance(self.x, t0, t1)
         except SimulationDivergedError as exc:
             self.diverged(f"{exc}; drive torque {self.drive.applied.value:g} N m", now_ns)
             return True
@@ -189,7 +226,7 @@ class NodeSimulation:
             return True
         self.x = x
         self.t_ns = now_ns
-        self._sample(now_ns)
+        self._hold(value, t1)
         return True
 
     def diverged(self, reason: str, now_ns: int) -> None:
