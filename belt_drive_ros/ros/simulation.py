@@ -127,11 +127,16 @@ class NodeSimulation:
         return grid if abs(grid - t) <= snap_tolerance(t, stepper.dt) else t
 
     def grid_time(self, now_ns: int) -> int:
-        """The latest tick of the run's grid (origin + k * tick) at or before ``now_ns``."""
+        """The tick of the run's grid (origin + k * tick) nearest to ``now_ns``.
+
+        A timer that fires a little early or late lands on the tick it was
+        meant for; one that fires late by more than half a period lands on
+        a later tick (the ticks in between are integrated, not published).
+        """
         if self.t_ns is None or now_ns < self.origin_ns:
             return now_ns
         tick = self.settings.tick_ns
-        return now_ns - (now_ns - self.origin_ns) % tick
+        return self.origin_ns + (now_ns - self.origin_ns + tick // 2) // tick * tick
 
     def start(self, now_ns: int) -> None:
         """Start (or restart) the run at node time ``now_ns``: scene time 0, the initial state."""
