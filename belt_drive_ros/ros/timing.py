@@ -4,8 +4,8 @@
 once per tick with the node time to integrate to:
 
 * **system clock** (default): a timer on the node's clock at
-  ``step_rate_hz``. The run starts at the first tick (scene time 0 = that
-  time, truncated to whole microseconds) and every later tick integrates to
+  ``step_rate_hz``. The run starts at the first tick (scene time 0 = the
+  time that call was scheduled for, truncated to whole microseconds) and every later tick integrates to
   the nearest point of the run's tick grid (origin + k / step_rate_hz): a
   late timer integrates every missed tick in one go, the stamps stay on the
   grid (the timer's jitter shows as latency, never as uneven simulated
@@ -249,7 +249,11 @@ class TickSource:
             return
         if sim.started:
             now = sim.grid_time(now)
-        else:
+        else:  # start on the time this call was scheduled for: later calls then land on the grid
+            remaining = self._tick_timer.time_until_next_call()
+            tick = sim.settings.tick_ns
+            if remaining is not None and 0 <= tick - remaining <= tick:
+                now = now + remaining - tick
             now -= now % SYSTEM_TIME_QUANTUM_NS
         self._tick(now)
         self.stats.record(start, time.perf_counter(), self.nominal_period())
