@@ -127,16 +127,21 @@ class NodeSimulation:
         return grid if abs(grid - t) <= snap_tolerance(t, stepper.dt) else t
 
     def grid_time(self, now_ns: int) -> int:
-        """The tick of the run's grid (origin + k * tick) nearest to ``now_ns``.
+        """The tick of the run's grid (origin + k * tick) a timer call at ``now_ns`` integrates to.
 
-        A timer that fires a little early or late lands on the tick it was
-        meant for; one that fires late by more than half a period lands on
-        a later tick (the ticks in between are integrated, not published).
+        The next tick after the last one, also when the call comes a little
+        early (up to half a period) or late (up to a whole period); the
+        latest tick at or before ``now_ns`` when it comes later (the ticks in
+        between are integrated, not published); the last tick (nothing to
+        do) when it comes more than half a period early.
         """
         if self.t_ns is None or now_ns < self.origin_ns:
             return now_ns
         tick = self.settings.tick_ns
-        return self.origin_ns + (now_ns - self.origin_ns + tick // 2) // tick * tick
+        due = self.t_ns + tick - (self.t_ns - self.origin_ns) % tick
+        if now_ns >= due + tick:
+            return now_ns - (now_ns - self.origin_ns) % tick
+        return due if due - now_ns <= tick // 2 else self.t_ns
 
     def start(self, now_ns: int) -> None:
         """Start (or restart) the run at node time ``now_ns``: scene time 0, the initial state."""

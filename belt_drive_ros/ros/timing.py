@@ -6,8 +6,9 @@ once per tick with the node time to integrate to:
 * **system clock** (default): a timer on the node's clock at
   ``step_rate_hz``. The run starts at the first tick (scene time 0 = the
   time that call was scheduled for, truncated to whole microseconds) and every later tick integrates to
-  the nearest point of the run's tick grid (origin + k / step_rate_hz): a
-  late timer integrates every missed tick in one go, the stamps stay on the
+  the next point of the run's tick grid (origin + k / step_rate_hz; the
+  latest one at or before now when the timer is more than a period late):
+  a late timer integrates every missed tick in one go, the stamps stay on the
   grid (the timer's jitter shows as latency, never as uneven simulated
   time), and a recording of the run re-simulates exactly.
 * ``use_sim_time:=true``: the node follows ``/clock``. The run starts at
