@@ -1,9 +1,12 @@
 """BeltDriveNode in-process, in lockstep with /clock (belt_drive_ros.ros.harness).
 
-Tolerances: the node and the offline simulator run the same integrator on
-the same steps with the same held torques, so states and outputs agree to
-rounding; 1e-9 (relative and absolute, SI units) leaves room for the
-offline path's compiled float loop summing in a different order.
+Node equals offline: in /clock lockstep the node's tick and ``simulate()``
+advance time through the same stepper on the same grid, with the same
+torques (the node's drive sampled at each tick and held; offline the same
+samples as a zero-order-hold table), and evaluate the outputs with the same
+model function: every output the node publishes is *bit-identical* to the
+offline run at the tick times (``np.array_equal``, no tolerance), also when
+a torque jumps inside a tick and for every shipped scene.
 """
 
 from __future__ import annotations
@@ -13,19 +16,24 @@ import math
 import numpy as np
 import pytest
 
-from belt_drive_ros.core.model import make_model
-from belt_drive_ros.core.scene import load_scene
-from belt_drive_ros.core.simulate import Simulator
-from belt_drive_ros.core.sources import Table
+from belt_drive_ros.core.scene import load_scene, shipped_scenes
+from belt_drive_ros.core.simulate import simulate
+from belt_drive_ros.core.sources import Constant, Schedule, Step, Table
 from belt_drive_ros.ros.harness import BeltDriveHarness
 
 pytestmark = pytest.mark.ros
 
-TOL = dict(rtol=1e-9, atol=1e-9)
-#: (time [s], drive torque [N m]) published at that simulated time
+#: (time [s], drive torque [N m]) published at that simulated time (sampled at the next tick)
 SCHEDULE = ((0.0, 6.0), (0.15, 12.0), (0.3, -3.0), (0.4, 0.0))
 DURATION = 0.5
 TICK = 1e-3
+#: the signals the harness receives, and the offline output each one equals
+SIGNALS = {
+    "phi_M": "phi_M", "phi_1": "phi_1", "phi_2": "phi_2", "phi_3": "phi_3",
+    "omega_M": "omega_M", "omega_1": "omega_1", "omega_2": "omega_2", "omega_3": "omega_3",
+    "drive_torque": "drive_torque", "shaft_speed": "omega_M", "load_torque": "load_torque",
+    "belt_torque": "belt_torque", "relative_deflection": "relative_deflection",
+}
 
 
 def run_node(domain, scene="paper", schedule=SCHEDULE, duration=DURATION, step=None, **params):
@@ -38,68 +46,138 @@ def run_node(domain, scene="paper", schedule=SCHEDULE, duration=DURATION, step=N
         return h.outputs(), h.node.settings
 
 
-def run_offline(scene, model, method, dt, schedule=SCHEDULE, duration=DURATION):
-    """Offline reference: the torque sequence as a zero-order-hold Table.
+def offline_like(settings, duration, drive=None):
+    """``simulate()`` of the node's scene with the node's model, method and step (and ``drive``)."""
+    scene = settings.scene if drive is None else settings.scene.with_overrides(drive=drive)
+    return simulate(scene, model=settings.model.name, method=settings.method, dt=settings.dt, duration=duration)
 
-    Switch times are the grid times ``dt * k`` of the publish times, the
-    very floats the simulator's grid holds: the table lookup at that step's
-    start sees the new value, and no switch lies inside a step (the
-    simulator would split such a step there, unlike the node's tick).
-    """
-    times = tuple(dt * round(t / dt) for t, _ in schedule)
-    drive = Table(times=times, values=tuple(v for _, v in schedule), interpolation="previous")
-    mdl = make_model(model, scene.params)
-    sim = Simulator(mdl, drive, scene.load, method, dt)
-    time, states = sim.run(duration, scene.initial_state.vector(model, scene.params.ratio))
-    outputs = mdl.outputs(states, sim.plant.input_array(time, states))
-    return time, states, outputs
+
+def sampled(schedule, tick=TICK):
+    """The drive the node applies for ``schedule``: 0 until the tick after each publication, as a ZOH table."""
+    times = (0.0,) + tuple(round((t + tick) / tick) * tick for t, _ in schedule)
+    return Table(times=times, values=(0.0,) + tuple(v for _, v in schedule), interpolation="previous")
+
+
+def assert_bit_identical(out, result, every=1):
+    """Every signal of the node equals the offline output at the tick times, bit for bit."""
+    n = out["time"].size
+    assert result.time.size >= (n - 1) * every + 1
+    np.testing.assert_allclose(out["time"], result.time[: (n - 1) * every + 1 : every], rtol=0, atol=1e-12)
+    for name, signal in SIGNALS.items():
+        ref = np.asarray(result.outputs[signal])[: (n - 1) * every + 1 : every]
+        bad = np.flatnonzero(out[name] != ref)
+        assert bad.size == 0, (
+            f"{name}: {bad.size} of {n} ticks differ, first at t={out['time'][bad[0]]:.6f} s: "
+            f"node {out[name][bad[0]]!r}, offline {ref[bad[0]]!r}"
+        )
 
 
 @pytest.mark.parametrize(
     "model, method, substeps",
-    [("flexible", "exact", 1), ("flexible", "exact", 4), ("flexible", "etd2", 1), ("rigid", "exact", 1)],
+    [("flexible", "exact", 1), ("flexible", "exact", 4), ("flexible", "etd2", 1), ("flexible", "lawson5", 2),
+     ("rigid", "exact", 1)],
 )
 def test_outputs_equal_offline_simulator(ros_domain_id, model, method, substeps):
-    scene = load_scene("paper")
-    schedule = SCHEDULE if method == "exact" else ((0.0, 8.0),)  # etd2 samples the torque at the step end too
-    out, settings = run_node(ros_domain_id, model=model, method=method, substeps=substeps, schedule=schedule)
+    out, settings = run_node(ros_domain_id, model=model, method=method, substeps=substeps)
     assert settings.model.name == model and settings.method == method
-    time, states, ref = run_offline(scene, model, method, TICK / substeps, schedule)
-    time, states = time[::substeps], states[::substeps]
-    ref = {k: v[::substeps] for k, v in ref.items()}
-    assert out["time"].shape == time.shape
-    np.testing.assert_allclose(out["time"], time, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(out["phi_M"], ref["phi_M"], **TOL)
-    np.testing.assert_allclose(out["omega_M"], ref["omega_M"], **TOL)
-    np.testing.assert_allclose(out["shaft_speed"], ref["omega_M"], **TOL)
-    np.testing.assert_allclose(out["phi_3"], ref["phi_3"], **TOL)
-    np.testing.assert_allclose(out["omega_3"], ref["omega_3"], **TOL)
-    np.testing.assert_allclose(out["phi_1"], ref["phi_1"], **TOL)
-    np.testing.assert_allclose(out["omega_2"], ref["omega_2"], **TOL)
-    np.testing.assert_allclose(out["load_torque"], ref["load_torque"], **TOL)
-    if model == "flexible":  # rigid: belt torque depends on the torque held *at* a switch tick
-        np.testing.assert_allclose(out["belt_torque"], ref["belt_torque"], **TOL)
-        np.testing.assert_allclose(out["relative_deflection"], ref["relative_deflection"], **TOL)
+    result = offline_like(settings, DURATION, drive=sampled(SCHEDULE))
+    assert_bit_identical(out, result, every=substeps)
     assert out["omega_M"][-1] > 10.0  # it actually moved
 
 
-def test_partial_steps_land_on_the_clock(ros_domain_id, tmp_path):
-    """/clock in 1.5 ms jumps with a 1 ms tick: each tick integrates 1 ms + a 0.5 ms partial step.
+@pytest.mark.parametrize("name", shipped_scenes())
+def test_every_shipped_scene_equals_offline(ros_domain_id, name):
+    """The scene's own drive and load (closed loop inside the plant), breakpoints and all."""
+    scene = load_scene(name)
+    # past the scene's first breakpoint (soft start end, schedule switch), or 0.3 s
+    duration = max(0.3, min([b + 0.05 for b in scene.drive.breakpoints() + scene.load.breakpoints() if b < 2.0] or [0.3]))
+    rate = min(1000.0, 1.0 / scene.dt)  # paper steps 5 ms: one step per tick at 200 Hz
+    with BeltDriveHarness(name, domain_id=ros_domain_id, drive_source="scene", step_rate_hz=rate,
+                          input_timeout=0.0) as h:
+        h.advance(duration)
+        out, settings = h.outputs(), h.node.settings
+    assert settings.dt == pytest.approx(scene.dt, rel=1e-12)
+    assert_bit_identical(out, offline_like(settings, duration), every=settings.substeps)
 
-    With a constant load the exact method is exact for any partition, so the
-    node equals the offline run on a 0.5 ms grid at the common times.
-    """
-    scene = load_scene("paper").with_overrides(load=Table(times=(0.0,), values=(2.0,)), name="const_load")
-    path = tmp_path / "const_load.yaml"
+
+@pytest.mark.parametrize(
+    "load",
+    [
+        Step(initial=1.0, final=9.0, time=0.1234567),
+        Schedule(active=Constant(value=8.0), inactive=Constant(value=0.5), periods=((0.0375, 0.0917),)),
+    ],
+    ids=["step_at_0.1234567", "schedule_off_grid"],
+)
+@pytest.mark.parametrize("method", ["exact", "lawson5"])
+def test_torque_jumps_inside_a_tick(ros_domain_id, tmp_path, load, method):
+    scene = load_scene("paper").with_overrides(load=load, name="jump", dt=TICK)
+    path = tmp_path / "jump.yaml"
     path.write_text(scene.to_yaml())
-    schedule = ((0.0, 6.0), (0.06, -2.0))
-    out, settings = run_node(ros_domain_id, scene=str(path), model="flexible", method="exact", substeps=1,
-                             schedule=schedule, duration=0.12, step=0.0015)
-    assert np.allclose(np.diff(out["time"]), 0.0015)
-    time, _, ref = run_offline(load_scene(str(path)), "flexible", "exact", 0.0005, schedule, duration=0.12)
-    idx = np.rint(out["time"] / 0.0005).astype(int)
-    for name in ("phi_M", "omega_M", "phi_3", "omega_3", "belt_torque", "relative_deflection"):
-        np.testing.assert_allclose(out[name], ref[name][idx], rtol=1e-9, atol=1e-9, err_msg=name)
+    out, settings = run_node(ros_domain_id, scene=str(path), model="flexible", method=method, substeps=1,
+                             schedule=((0.0, 6.0),), duration=0.15)
+    assert_bit_identical(out, offline_like(settings, 0.15, drive=sampled(((0.0, 6.0),))))
+    before, after = load.torque(0.03, 0.0, 0.0), load.torque(0.14, 0.0, 0.0)
+    assert out["load_torque"][0] == before and out["load_torque"][-1] == after
+
+
+def test_external_client_clock_from_zero_equals_sim(ros_domain_id):
+    """A plain rclpy client: constant torque, then /clock 0, 1 ms, 2 ms ...: no tick late against `sim`."""
+    import time
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+
+    from belt_drive_ros.ros.executors import make_executor
+    from belt_drive_ros.ros.node import BeltDriveNode
+
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_domain_id)
+    rows = []
+    try:
+        node = BeltDriveNode(context=ctx, parameter_overrides=[
+            Parameter("use_sim_time", value=True), Parameter("model", value="flexible"),
+            Parameter("input_timeout", value=0.0)])
+        client = Node("client", context=ctx)
+        torque = client.create_publisher(Float64, "drive_torque", 10)
+        clock = client.create_publisher(Clock, "/clock", 10)
+        client.create_subscription(JointState, "joint_states", rows.append, 1000)
+        ex = make_executor(ctx, "single")
+        ex.add_node(node)
+        ex.add_node(client)
+        deadline = time.monotonic() + 10
+        while clock.get_subscription_count() < 2 or torque.get_subscription_count() < 1 or node.count_subscribers("joint_states") < 1:
+            assert time.monotonic() < deadline, "discovery"
+            ex.spin_once(timeout_sec=0.01)
+        node.refresh_subscriber_counts()
+        torque.publish(Float64(data=7.5))
+        while node.counters["received"] < 1:
+            ex.spin_once(timeout_sec=0.01)
+        for k in range(200):
+            msg = Clock()
+            msg.clock.sec, msg.clock.nanosec = divmod(k * 1_000_000, 1_000_000_000)
+            clock.publish(msg)
+            while len(rows) < k + 1:
+                assert time.monotonic() < deadline + 30, f"tick {k}"
+                ex.spin_once(timeout_sec=0.01)
+        settings = node.settings
+        ex.shutdown()
+        node.destroy_node()
+        client.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+    stamps = [r.header.stamp.sec * 10**9 + r.header.stamp.nanosec for r in rows]
+    assert stamps == [k * 1_000_000 for k in range(200)]  # scene time 0 = the first /clock (0)
+    result = offline_like(settings, 0.199, drive=Constant(value=7.5))
+    speed = np.array([r.velocity[0] for r in rows])
+    assert speed.shape == result.outputs["omega_M"].shape
+    bad = np.flatnonzero(speed != result.outputs["omega_M"])
+    assert bad.size == 0, (bad[:5], speed[bad[:3]], result.outputs["omega_M"][bad[:3]])
+    assert np.array_equal([r.effort[0] for r in rows], result.outputs["drive_torque"])
 
 
 def _lockstep_run(domain):
@@ -193,7 +271,7 @@ def test_burst_of_10000_messages_does_not_queue(ros_domain_id):
         msg.data = 77.0
         start = time.perf_counter()
         pub.publish(msg)
-        h._spin_until(lambda: h.node.drive_torque == 77.0, "the burst's last message")
+        h._spin_until(lambda: h.node.drive.latest == 77.0, "the burst's last message")
         latency = time.perf_counter() - start
         processed = h.node.counters["received"] - received0
         h.advance(0.002)
@@ -260,27 +338,46 @@ def test_runtime_changes_apply_without_restart(ros_domain_id):
         assert h.outputs()["time"].size == n + 5
 
 
-def test_divergence_halts_without_publishing_nonfinite_values(ros_domain_id):
+def test_absurd_torque_is_rejected_and_reported(ros_domain_id):
     with BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0) as h:
+        bound = h.node.settings.torque_bound  # derived from the paper scene
+        assert 10.0 < bound < 1e4
         h.publish_torque(2.0)
         h.advance(0.01)
-        h.publish_torque(1e300)  # finite, accepted, and the state runs away
+        for absurd in (1e6, -1e300, bound * 1.01):
+            h.publish_torque(absurd)
+        h.advance(0.01)
+        assert h.node.drive_torque == 2.0 and np.all(h.outputs()["drive_torque"][1:] == 2.0)
+        diag = h.diagnostics()
+        assert diag["input"]["level"] == "WARN" and "3 message(s) rejected" in diag["input"]["message"]
+        assert diag["input"]["values"]["rejected_bound"] == "3"
+        assert diag["simulation"]["level"] == "OK"
+        h.advance(0.01)
+        assert h.diagnostics()["input"]["level"] == "OK"  # a new window without rejections
+
+
+def test_divergence_restarts_and_reports_error_never_goes_silent(ros_domain_id):
+    with BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0, torque_bound=1e12, method="exact") as h:
+        h.publish_torque(2.0)
+        h.advance(0.01)
+        h.publish_torque(1e12)  # accepted (bound raised), and the state runs away at once
         h.advance(0.01)
         diag = h.diagnostics()["simulation"]
-        assert diag["level"] == "ERROR" and "diverged" in diag["message"]
-        assert h.node.halted
-        n = h.outputs()["time"].size
-        h.advance(0.01)
+        assert diag["level"] == "ERROR" and "diverged" in diag["message"] and "restarted" in diag["message"]
+        divergences = int(diag["values"]["divergences"])
+        assert divergences >= 1
         out = h.outputs()
-        assert out["time"].size == n  # halted: nothing new published
+        assert out["time"].size == 21  # a tick every 1 ms, divergence or not
         assert all(np.all(np.isfinite(v)) for v in out.values())
         assert np.max(np.abs(out["omega_M"])) < 1e5
-        h.publish_torque(1.0)
-        assert "restarted" in h.reset()
-        h.advance(0.01)
-        assert h.node.halted is None
-        assert h.outputs()["time"].size > n
-        assert h.diagnostics()["simulation"]["level"] == "OK"
+        h.publish_torque(1.0)  # normal input again, sampled at the next tick: the run goes on from a restart
+        h.advance(0.001)
+        divergences = int(h.diagnostics()["simulation"]["values"]["divergences"])  # closes the window
+        h.advance(0.02)
+        out = h.outputs()
+        assert out["time"].size == 42 and out["drive_torque"][-1] == 1.0 and out["omega_M"][-1] > 0.0
+        diag = h.diagnostics()["simulation"]
+        assert diag["level"] == "OK" and int(diag["values"]["divergences"]) == divergences
 
 
 @pytest.mark.parametrize("factor", [0.0, 2.0])
@@ -295,9 +392,9 @@ def test_publish_clock_time_master(ros_domain_id, factor):
         clocks = []
         h.probe.create_subscription(Clock, "/clock", lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec), 10000)
         h._spin_until(lambda: len(clocks) >= 5, "/clock")
-        wall0, sim0 = time.perf_counter(), h.node._sim_ns
+        wall0, sim0 = time.perf_counter(), h.node.timing.sim_ns
         h.spin(0.4)
-        ratio = (h.node._sim_ns - sim0) / 1e9 / (time.perf_counter() - wall0)
+        ratio = (h.node.timing.sim_ns - sim0) / 1e9 / (time.perf_counter() - wall0)
         assert h.set_parameters(real_time_factor=1e-4).successful  # all but stop, then drain
         h.spin(0.2)
         stamps = {row[0] for row in h._rows}
@@ -324,3 +421,47 @@ def test_parameters_from_a_params_file(ros_domain_id, tmp_path):
         assert (s.params.k, s.params.c, s.model.name, s.step_rate_hz, s.timeout_behavior) == (3e4, 4.0, "rigid", 500.0, "zero")
         h.advance(0.01)
         assert h.outputs()["time"].size == 6  # 500 Hz: the initial sample + 5 ticks
+
+
+def test_an_integer_for_a_double_parameter_keeps_it_double(ros_domain_id):
+    from rclpy.parameter import Parameter
+
+    with BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0, ros_args=["--ros-args", "-p", "c:=3"]) as h:
+        assert h.node.get_parameter("c").type_ == Parameter.Type.DOUBLE  # given as an integer at start
+        assert h.set_parameters(k=50000, torque_limit=7).successful
+        for name, value in (("k", 50000.0), ("torque_limit", 7.0), ("c", 3.0)):
+            p = h.node.get_parameter(name)
+            assert p.type_ == Parameter.Type.DOUBLE and p.value == value and isinstance(p.value, float), name
+        assert not h.set_parameters(k="stiff").successful  # a string is still refused
+        assert h.node.get_parameter("k").type_ == Parameter.Type.DOUBLE
+
+
+def test_many_async_resets_all_answered_and_publish_nothing_extra(ros_domain_id):
+    from std_srvs.srv import Trigger
+
+    with BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0) as h:
+        h.publish_torque(5.0)
+        h.advance(0.01)
+        published = h.node.counters["published"]
+        futures = [h._reset_client.call_async(Trigger.Request()) for _ in range(300)]
+        h._spin_until(lambda: all(f.done() for f in futures), "300 ~/reset answers", timeout=60.0)
+        assert all(f.result().success for f in futures)
+        h.spin(0.1)
+        assert h.node.counters["published"] == published  # a reset publishes no output set of its own
+        h.advance(0.002)
+        out = h.outputs()
+        assert out["time"].size == published + 2 and np.all(np.diff(out["stamp"]) > 0)
+        assert abs(out["omega_M"][-1]) < abs(out["omega_M"][published - 1])  # restarted from rest
+
+
+def test_a_second_node_with_the_same_name_is_warned_about(ros_domain_id):
+    from rclpy.node import Node
+
+    with BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0) as h:
+        twin = Node("belt_drive", context=h.context)  # same name, same (root) namespace
+        try:
+            h._spin_until(lambda: len(h.node.get_node_names_and_namespaces()) >= 3, "discovery of the twin")
+            h.node._warn_duplicate_name()
+            assert h.node.counters.get("duplicate_name") == 1
+        finally:
+            twin.destroy_node()

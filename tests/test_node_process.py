@@ -48,7 +48,7 @@ class Probe:
         from rclpy.context import Context
         from rclpy.node import Node
 
-        from belt_drive_ros.ros.node import make_executor
+        from belt_drive_ros.ros.executors import make_executor
 
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain)

@@ -27,7 +27,7 @@ from msg_tools.qos import parse_offered_qos_yaml
 
 pytestmark = pytest.mark.ros
 
-NODE_TOPICS = {"/drive_torque", "/joint_states", "/shaft_speed", "/load_torque", "/belt_torque",
+NODE_TOPICS = {"/drive_torque", "/drive_torque_applied", "/joint_states", "/shaft_speed", "/load_torque", "/belt_torque",
                "/relative_deflection", "/diagnostics", "/clock"}
 
 
@@ -60,15 +60,14 @@ def _drive(h, recorder, steps=150):
     return published
 
 
-@pytest.mark.parametrize("capture", ["subscription", "direct"])
-def test_node_recording_is_rosbag2_mcap_with_the_bytes_received(harness, tmp_path, capture):
+def test_node_recording_is_rosbag2_mcap_written_from_the_tick(harness, tmp_path):
     from belt_drive_ros.io.torque_bag import scene_from_bag
     from belt_drive_ros.ros.recorder import NodeRecorder
 
     h = harness
     path = tmp_path / "node.mcap"
-    recorder = NodeRecorder(h.node, path, capture=capture)
-    h.node._recorder = recorder  # the node calls record() after publishing and close() on destroy
+    recorder = NodeRecorder(h.node, path)
+    h.node.recorder = recorder  # the node calls record_input/record_tick and close() on destroy
     published = _drive(h, recorder)
     recorder.close()
     assert not recorder.failed and recorder.status.startswith("closed")
@@ -91,15 +90,16 @@ def test_node_recording_is_rosbag2_mcap_with_the_bytes_received(harness, tmp_pat
     assert "rosbag2" in metadata and "units" in metadata and "parameters" in metadata
     assert metadata["scene"]["source"] == "node" and metadata["scene"]["drive_source"] == "topic"
     assert yaml.safe_load(metadata["scene"]["yaml"])["drive"] == {
-        "type": "recorded", "bag": "", "topic": "/drive_torque", "interpolation": "previous"}
+        "type": "recorded", "bag": "", "topic": "/drive_torque_applied", "interpolation": "previous"}
     assert metadata["parameters"]["use_sim_time"] == "true"
 
     by_topic = {}
     for _schema, channel, message, decoded in messages:
         by_topic.setdefault(channel.topic, []).append((message, decoded))
-    assert len(by_topic["/joint_states"]) == published
+    assert len(by_topic["/joint_states"]) == published == len(by_topic["/drive_torque_applied"])
+    assert len(by_topic["/drive_torque"]) == 150  # as received
     # Float64: the recorded bytes are exactly mcap_ros2's encoding of the decoded value
-    for message, decoded in by_topic["/shaft_speed"] + by_topic["/drive_torque"]:
+    for message, decoded in by_topic["/shaft_speed"] + by_topic["/drive_torque"] + by_topic["/drive_torque_applied"]:
         assert message.data == encode("std_msgs/msg/Float64", {"data": decoded.data})
     # decoded by mcap_ros2 == what the harness's own subscriber received
     out = {k: v[-published:] for k, v in h.outputs().items()}  # the ticks while recording
@@ -109,20 +109,17 @@ def test_node_recording_is_rosbag2_mcap_with_the_bytes_received(harness, tmp_pat
     assert list(js[0].name) == ["wheel_M", "wheel_1", "wheel_2", "wheel_3"]
     np.testing.assert_array_equal([j.velocity[0] for j in js], out["omega_M"])
     np.testing.assert_array_equal([j.effort[0] for j in js], out["drive_torque"])
-    # log time = receive time on the node's clock (sim time); direct capture: exactly the tick time
+    # log time = the tick time exactly (written from the tick, no DDS round trip); also the applied torque
     stamps = np.array([j.header.stamp.sec * 10**9 + j.header.stamp.nanosec for j in js])
-    logs = np.array([m.log_time for m, _d in by_topic["/joint_states"]])
-    tick = h.node.settings.tick_ns
-    if capture == "direct":
-        np.testing.assert_array_equal(logs, stamps)
-    else:
-        assert np.all((logs - stamps >= 0) & (logs - stamps <= tick))
+    np.testing.assert_array_equal([m.log_time for m, _d in by_topic["/joint_states"]], stamps)
+    np.testing.assert_array_equal([m.log_time for m, _d in by_topic["/drive_torque_applied"]], stamps)
+    np.testing.assert_array_equal([d.data for _m, d in by_topic["/drive_torque_applied"]], out["drive_torque"])
     # msg_tools' vectorized reader agrees with mcap_ros2
     np.testing.assert_array_equal(read_topic(path, "/joint_states").velocity[:, 0], [j.velocity[0] for j in js])
     # self-describing: the scene comes back, driven by the recorded torque
     scene = scene_from_bag(path)
     assert scene.params == h.node.settings.params and scene.model == h.node.settings.model.name
-    assert scene.drive.values.size == len(by_topic["/drive_torque"])
+    assert scene.drive.values.size == published
 
 
 class _DiskFullAfter(io.BytesIO):
@@ -143,7 +140,7 @@ def test_write_error_stops_recording_not_the_node(harness):
 
     h = harness
     recorder = NodeRecorder(h.node, _DiskFullAfter(16 * 1024), flush_interval_s=0.01, chunk_size=1024)
-    h.node._recorder = recorder
+    h.node.recorder = recorder
     for k in range(200):
         h.publish_torque(10.0)
         h.advance(0.001)
@@ -154,9 +151,9 @@ def test_write_error_stops_recording_not_the_node(harness):
     assert "No space left on device" in recorder.status and recorder.status.startswith("FAILED")
     ticks = h.node.counters["published"]
     h.advance(0.05)  # the node keeps simulating and publishing
-    assert h.node.counters["published"] == ticks + 50 and h.node.halted is None
+    assert h.node.counters["published"] == ticks + 50 and h.node.counters["divergences"] == 0
     recorder.close()  # no exception: the file keeps what it had up to its last complete chunk
-    h.node._recorder = None
+    h.node.recorder = None
 
 
 def test_existing_file_refused(harness, tmp_path):

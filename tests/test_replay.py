@@ -164,35 +164,32 @@ def test_replay_publishes_the_recorded_sequence_with_clock(tmp_path, ros_domain_
 
 
 @pytest.mark.ros
-def test_node_in_sim_time_follows_replay_like_the_lockstep_harness(tmp_path, ros_domain_id):
-    """replay --clock --sync -> BeltDriveNode(use_sim_time) -> NodeRecorder equals the harness bit for bit.
+def test_node_in_sim_time_following_replay_equals_the_offline_replay(tmp_path, ros_domain_id):
+    """replay --clock --sync -> BeltDriveNode(use_sim_time) -> NodeRecorder equals the offline replay bit for bit.
 
-    The harness publishes the same sequence (/clock t_k, then torque k) and
-    waits for the node after each step; ``--sync /joint_states`` makes the
-    replay wait for the node's outputs stamped t_k too, so the run is
-    deterministic however loaded the machine is, at 10x real time.
+    The replay publishes message k, then /clock t_k, and (``--sync
+    /joint_states``) waits for the node's outputs stamped t_k: the node
+    samples message k at t_k and holds it over [t_k, t_k+1), which is the
+    zero-order hold of ``sim --torque-bag`` (scene_with_torque_bag), so the
+    node's recording equals the offline run at the message times exactly,
+    however loaded the machine is, at 10x real time.
     """
-    from belt_drive_ros.ros.harness import BeltDriveHarness
-
     n = 60
     torque = simulate(load_scene("truck_compressor").with_overrides(duration=0.1)).outputs["drive_torque"][::2][:n]
-    times = 10**9 + np.arange(n) * 1_000_000  # 1 kHz from t = 1 s (ROS time 0 means "unset")
+    times = np.arange(n) * 1_000_000  # 1 kHz from /clock = 0
     bag = _torque_bag(tmp_path / "profile.mcap", times, torque)
-    with BeltDriveHarness(scene="truck_compressor", start_time=1.0, domain_id=ros_domain_id) as h:
-        for value in torque[:-1]:
-            h.publish_torque(float(value))
-            h.advance(0.001)
-        reference = h.outputs()
-    ticks, js = _node_following_replay(bag, tmp_path / "live.mcap", ros_domain_id)
+    ticks, js, settings = _node_following_replay(bag, tmp_path / "live.mcap", ros_domain_id)
     assert ticks == n
     np.testing.assert_array_equal(js.stamp_ns, times)
-    np.testing.assert_array_equal(js.stamp_ns / 1e9, reference["stamp"])
+    np.testing.assert_array_equal(js.effort[:, 0], torque)  # message k is applied from t_k on
+    scene = scene_with_torque_bag(load_scene("truck_compressor"), bag)
+    ref = simulate(scene, model=settings.model.name, method=settings.method, dt=settings.dt)
+    o = {k: np.asarray(v)[:: settings.substeps] for k, v in ref.outputs.items()}
+    assert o["phi_M"].size == n
     for j, wheel in enumerate(("M", "1", "2", "3")):
-        np.testing.assert_array_equal(js.position[:, j], reference[f"phi_{wheel}"])
-        np.testing.assert_array_equal(js.velocity[:, j], reference[f"omega_{wheel}"])
-    np.testing.assert_array_equal(js.effort[:, 0], reference["drive_torque"])
-    # /clock t_k, then message k: the tick at t_k+1 holds message k (wheel_M's effort)
-    np.testing.assert_array_equal(js.effort[1:, 0], torque[:-1])
+        np.testing.assert_array_equal(js.position[:, j], o[f"phi_{wheel}"])
+        np.testing.assert_array_equal(js.velocity[:, j], o[f"omega_{wheel}"])
+    np.testing.assert_array_equal(js.effort[:, 3], -o["load_torque"])
 
 
 def _node_following_replay(bag, out, domain_id):
@@ -200,7 +197,8 @@ def _node_following_replay(bag, out, domain_id):
     from rclpy.context import Context
     from rclpy.parameter import Parameter
 
-    from belt_drive_ros.ros.node import BeltDriveNode, make_executor
+    from belt_drive_ros.ros.executors import make_executor
+    from belt_drive_ros.ros.node import BeltDriveNode
     from belt_drive_ros.ros.recorder import NodeRecorder
 
     ctx = Context()
@@ -209,7 +207,7 @@ def _node_following_replay(bag, out, domain_id):
     try:
         node = BeltDriveNode(context=ctx, scene="truck_compressor",
                              parameter_overrides=[Parameter("use_sim_time", value=True)])
-        node._recorder = NodeRecorder(node, out, capture="direct")
+        node.recorder = NodeRecorder(node, out)
         ex = make_executor(ctx, "single")
         ex.add_node(node)
         proc = _replay(bag, domain_id, "--clock", "--sync", "/joint_states", "--rate", "10",
@@ -222,10 +220,11 @@ def _node_following_replay(bag, out, domain_id):
             ex.spin_once(timeout_sec=0.01)
         assert proc.wait(timeout=5) == 0, proc.stderr.read()
         ticks = node.counters["published"]
+        settings = node.settings
     finally:
         if proc is not None and proc.poll() is None:
             proc.kill()
         if node is not None:
             node.destroy_node()  # closes the recorder
         rclpy.try_shutdown(context=ctx)
-    return ticks, read_topic(out, "/joint_states")
+    return ticks, read_topic(out, "/joint_states"), settings

@@ -56,31 +56,46 @@ def run(args) -> int:
 
 def live_run(scene_name: str = "truck_compressor", duration: float = 4.0, executor: str = "auto") -> dict:
     """Engine source -> belt node for ``duration`` s of real time; print and return the summary figures."""
-    from ..ros import environment as ros_env
-
-    ros_env.configure_environment()
-    ros_env.limit_blas_threads()
-    import signal
     import time
 
-    import numpy as np
-    import rclpy
-    from rclpy.context import Context
+    from ..ros import environment as ros_env
+    from ..ros.executors import executor_name, ros_session, spin_nodes
+
+    domain = ros_env.process_domain_id()
+    with ros_session(["belt-drive-demo"], domain_id=domain) as context:
+        nodes = _live_nodes(scene_name, context)
+        node = nodes[0]
+        s = node.settings
+        clock: dict = {}
+
+        def started(ex) -> None:
+            print(
+                f"== live: engine source -> belt node over ROS 2, scene '{s.scene.name}', {duration:g} s of real "
+                f"time ({executor_name(ex)} executor, ROS domain {domain}, loopback only) =="
+            )
+            clock.update(wall=time.perf_counter(), cpu=time.process_time(), ticks=node.counters["ticks"])
+
+        def stopped(_signum) -> None:
+            clock.update(wall=time.perf_counter() - clock["wall"], cpu=time.process_time() - clock["cpu"])
+            clock["summary"] = _summary(node, nodes[2].seen, clock)
+
+        spin_nodes(nodes, context, executor=executor, started=started, stopped=stopped, duration=duration)
+    return clock["summary"]
+
+
+def _live_nodes(scene_name: str, context) -> list:
+    """[belt node, engine source, monitor] on ``context``; the monitor's ``seen`` collects outputs."""
     from rclpy.node import Node
     from rclpy.parameter import Parameter
-    from rclpy.task import Future
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
     from ..core.errors import SceneError
-    from ..ros.node import BeltDriveNode, executor_name, make_executor
+    from ..ros.executors import destroy
+    from ..ros.node import BeltDriveNode
     from ..ros.source_node import TorqueSourceNode
 
-    domain = ros_env.process_domain_id()
-    context = Context()
-    rclpy.init(context=context, domain_id=domain)
-    nodes = []
-    ex = None
+    nodes: list = []
     try:
         node = BeltDriveNode(
             scene=scene_name, context=context, parameter_overrides=[Parameter("input_timeout", value=0.5)]
@@ -89,93 +104,72 @@ def live_run(scene_name: str = "truck_compressor", duration: float = 4.0, execut
         s = node.settings
         if s.scene.drive.kind != "engine":
             raise SceneError(f"demo: scene '{s.scene.name}' has a {s.scene.drive.kind!r} drive, not an engine")
-        source = TorqueSourceNode(
+        nodes.append(TorqueSourceNode(
             s.scene.drive, context=context, rate_hz=s.step_rate_hz, initial_speed=s.scene.initial_state.omega_M
-        )
-        nodes.append(source)
+        ))
         monitor = Node("demo_monitor", context=context)
-        nodes.append(monitor)
-        joints: list[tuple] = []
-        deflections: list[float] = []
+        monitor.seen = {"joints": [], "deflections": []}
         monitor.create_subscription(
-            JointState, "joint_states", lambda m: joints.append((m.velocity[0], m.effort[0], -m.effort[3])), 100
+            JointState, "joint_states",
+            lambda m: monitor.seen["joints"].append((m.velocity[0], m.effort[0], -m.effort[3])), 100,
         )
-        monitor.create_subscription(Float64, "relative_deflection", lambda m: deflections.append(m.data), 100)
-        ex = make_executor(context, executor)
-        for n in nodes:
-            ex.add_node(n)
-        print(
-            f"== live: engine source -> belt node over ROS 2, scene '{s.scene.name}', {duration:g} s of real time "
-            f"({executor_name(ex)} executor, ROS domain {domain}, loopback only) =="
-        )
-        stop = Future()
+        monitor.create_subscription(Float64, "relative_deflection", lambda m: monitor.seen["deflections"].append(m.data), 100)
+        nodes.append(monitor)
+    except BaseException:
+        destroy(None, nodes)
+        raise
+    return nodes
 
-        def on_signal(signum, frame):
-            if not stop.done():
-                stop.set_result(signum)
 
-        previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-        try:
-            wall0, cpu0 = time.perf_counter(), time.process_time()
-            ticks0 = node.counters["ticks"]
-            end = wall0 + duration
-            while not stop.done() and time.perf_counter() < end:
-                ex.spin_until_future_complete(stop, timeout_sec=min(0.25, max(end - time.perf_counter(), 0.001)))
-            wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
-        status = {st.name.split(": ")[-1]: st for st in node.diagnostic_status()}
-        sim_values = {kv.key: kv.value for kv in status["simulation"].values}
-        ticks = node.counters["ticks"] - ticks0
-        last = node._last
-        data = np.array(joints) if joints else np.zeros((0, 3))
-        tail = data[-max(1, int(0.25 * len(data))):] if len(data) else data
-        p = s.params
-        summary = {
-            "achieved_rate_hz": ticks / wall,
-            "set_rate_hz": s.step_rate_hz,
-            "period_error_ms": tuple(float(sim_values[f"period_error_ms_{q}"]) for q in ("p50", "p99", "max")),
-            "overruns": node.counters["overruns"],
-            "cpu_percent": 100.0 * cpu / wall,
-            "final_speed": last.get("omega_M", math.nan),
-            "load_torque": last.get("load_torque", math.nan),
-            "mean_load_torque": float(tail[:, 2].mean()) if len(tail) else math.nan,
-            "mean_drive_torque": float(tail[:, 1].mean()) if len(tail) else math.nan,
-            "peak_deflection": float(np.max(np.abs(deflections))) if deflections else math.nan,
-            "model": s.model.name,
-            "model_reason": s.model_reason,
-            "received": node.counters["received"],
-            "published": node.counters["published"],
-            "slip_ticks": node.counters["slip_ticks"],
-            "outputs_seen": len(joints),
-        }
-        w = summary["final_speed"]
-        lo, p99, mx = summary["period_error_ms"]
-        print(f"  node rate        {summary['achieved_rate_hz']:.1f} Hz achieved (set {s.step_rate_hz:g} Hz); "
-              f"tick period error p50/p99/max {lo:.3f}/{p99:.3f}/{mx:.3f} ms; overruns {summary['overruns']}")
-        print(f"  process CPU      {summary['cpu_percent']:.0f} % of one core (node + source + this monitor)")
-        print(f"  model            {s.model_reason}")
-        print(f"  integrator       {s.method}, dt={s.dt:g} s ({s.substeps} substep(s) per tick); {s.stability.describe()}")
-        print(f"  drive torque     {summary['mean_drive_torque']:.2f} N m mean over the last quarter "
-              f"(engine: {s.scene.drive.pulses_per_revolution:g} firing pulses per revolution, governor)")
-        print(f"  final speed      {w:.2f} rad/s ({w * RPM_PER_RAD_S:.0f} rpm) at wheel M")
-        print(f"  load torque      {summary['load_torque']:.2f} N m at wheel 3 (final), "
-              f"{summary['mean_load_torque']:.2f} N m mean over the last quarter")
-        print(f"  peak deflection  {summary['peak_deflection']:.5g} rad (i*phi_M - phi_3); static value at the final load "
-              f"{summary['load_torque'] / p.belt_torsional_stiffness:.3g} rad; belt mode "
-              f"{p.belt_natural_frequency / (2 * math.pi):.1f} Hz")
-        slip = summary["slip_ticks"]
-        print(f"  belt             " + ("no slip, no slack" if not slip else f"slips or slackens in {slip} ticks (outside the linear model)"))
-        print(f"  messages         {summary['received']} drive_torque received by the node, {summary['published']} output "
-              f"sets published, {summary['outputs_seen']} joint_states seen by the monitor")
-        return summary
-    finally:
-        if ex is not None:
-            try:
-                ex.shutdown()
-            except Exception:  # noqa: BLE001
-                pass
-        for n in reversed(nodes):
-            n.destroy_node()
-        rclpy.try_shutdown(context=context)
+def _summary(node, seen: dict, clock: dict) -> dict:
+    """Print and return the live run's figures."""
+    import numpy as np
+
+    s = node.settings
+    wall, cpu = clock["wall"], clock["cpu"]
+    status = {st.name.split(": ")[-1]: st for st in node.diagnostic_status()}
+    sim_values = {kv.key: kv.value for kv in status["simulation"].values}
+    ticks = node.counters["ticks"] - clock["ticks"]
+    last = node.last
+    joints, deflections = seen["joints"], seen["deflections"]
+    data = np.array(joints) if joints else np.zeros((0, 3))
+    tail = data[-max(1, int(0.25 * len(data))):] if len(data) else data
+    p = s.params
+    summary = {
+        "achieved_rate_hz": ticks / wall,
+        "set_rate_hz": s.step_rate_hz,
+        "period_error_ms": tuple(float(sim_values[f"period_error_ms_{q}"]) for q in ("p50", "p99", "max")),
+        "overruns": node.counters["overruns"],
+        "cpu_percent": 100.0 * cpu / wall,
+        "final_speed": last.get("omega_M", math.nan),
+        "load_torque": last.get("load_torque", math.nan),
+        "mean_load_torque": float(tail[:, 2].mean()) if len(tail) else math.nan,
+        "mean_drive_torque": float(tail[:, 1].mean()) if len(tail) else math.nan,
+        "peak_deflection": float(np.max(np.abs(deflections))) if deflections else math.nan,
+        "model": s.model.name,
+        "model_reason": s.model_reason,
+        "received": node.counters["received"],
+        "published": node.counters["published"],
+        "slip_ticks": node.counters["slip_ticks"],
+        "outputs_seen": len(joints),
+    }
+    w = summary["final_speed"]
+    lo, p99, mx = summary["period_error_ms"]
+    print(f"  node rate        {summary['achieved_rate_hz']:.1f} Hz achieved (set {s.step_rate_hz:g} Hz); "
+          f"tick period error p50/p99/max {lo:.3f}/{p99:.3f}/{mx:.3f} ms; overruns {summary['overruns']}")
+    print(f"  process CPU      {summary['cpu_percent']:.0f} % of one core (node + source + this monitor)")
+    print(f"  model            {s.model_reason}")
+    print(f"  integrator       {s.method}, dt={s.dt:g} s ({s.substeps} substep(s) per tick); {s.stability.describe()}")
+    print(f"  drive torque     {summary['mean_drive_torque']:.2f} N m mean over the last quarter "
+          f"(engine: {s.scene.drive.pulses_per_revolution:g} firing pulses per revolution, governor)")
+    print(f"  final speed      {w:.2f} rad/s ({w * RPM_PER_RAD_S:.0f} rpm) at wheel M")
+    print(f"  load torque      {summary['load_torque']:.2f} N m at wheel 3 (final), "
+          f"{summary['mean_load_torque']:.2f} N m mean over the last quarter")
+    print(f"  peak deflection  {summary['peak_deflection']:.5g} rad (i*phi_M - phi_3); static value at the final load "
+          f"{summary['load_torque'] / p.belt_torsional_stiffness:.3g} rad; belt mode "
+          f"{p.belt_natural_frequency / (2 * math.pi):.1f} Hz")
+    slip = summary["slip_ticks"]
+    print("  belt             " + ("no slip, no slack" if not slip else f"slips or slackens in {slip} ticks (outside the linear model)"))
+    print(f"  messages         {summary['received']} drive_torque received by the node, {summary['published']} output "
+          f"sets published, {summary['outputs_seen']} joint_states seen by the monitor")
+    return summary

@@ -45,35 +45,11 @@ def register(sub) -> None:
 
 def run(args) -> int:
     if args.list_parameters:
+        from ..ros.parameter_schema import describe_parameters  # the schema imports no rclpy
+
         print(describe_parameters(args.scene or "paper"))
         return 0
     from ..ros.node import run as run_node
 
     ros_args = ["--ros-args", *args.ros_args] if args.ros_args else []
     return run_node(ros_args, scene=args.scene, executor=args.executor, node_name=args.name)
-
-
-def describe_parameters(scene_name: str) -> str:
-    """Text table of the node's parameters (defaults for ``scene_name``); needs no ROS."""
-    from ..core.params import FIELD_DOCS
-    from ..core.scene import load_scene
-
-    # the spec table lives with the node; read it without starting ROS
-    from ..ros.node import MODEL_PARAM_RANGES, NODE_PARAMETERS, default_values
-
-    scene = load_scene(scene_name)
-    values = default_values(scene)
-    lines = [f"parameters of belt-drive node (defaults for scene '{scene.name}'):"]
-    for spec in NODE_PARAMETERS:
-        extra = ""
-        if spec.range:
-            extra = f" range [{spec.range[0]:g}, {spec.range[1]:g}]"
-        elif spec.choices:
-            extra = f" one of {', '.join(spec.choices)}"
-        lines.append(f"  {spec.name:<18} = {values[spec.name]!r:<14}{extra}  {spec.description}")
-    lines.append("model parameters (BeltDriveParams, SI units):")
-    for name, (unit, text) in FIELD_DOCS.items():
-        lo, hi = MODEL_PARAM_RANGES[name]
-        lines.append(f"  {name:<18} = {values[name]!r:<14} [{unit}] range [{lo:g}, {hi:g}]  {text}")
-    lines.append("  use_sim_time       = False          follow /clock (rclpy)")
-    return "\n".join(lines)

@@ -48,14 +48,11 @@ def register(sub) -> None:
 def run(args) -> int:
     import signal
     import sys
-    import time
 
     from msg_tools import Ros2McapWriter
     from msg_tools.errors import MsgToolsError
 
-    from ..ros import environment as ros_env
     from ..io.recording import BagWriteError, bag_error
-    from ..ros.recorder import TopicRecorder
 
     if args.duration is not None and not args.duration > 0:
         raise SystemExit("belt-drive: error: --duration must be > 0 s")
@@ -64,69 +61,52 @@ def run(args) -> int:
     except MsgToolsError as exc:
         raise bag_error(exc) from None
 
-    stop = {"signal": None}
-
-    def on_signal(signum, _frame):
-        stop["signal"] = signum
-
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    ros_env.configure_environment()
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.parameter import Parameter
-    from rclpy.signals import SignalHandlerOptions
+    from ..ros.executors import ros_session, spin_nodes
+    from ..ros.recorder import TopicRecorder
 
     def say(text: str) -> None:
         if not args.quiet:
             print(text, file=sys.stderr, flush=True)
 
-    context = Context()
-    rclpy.init(args=["belt-drive-record", "--ros-args", *args.ros_args], context=context,
-               signal_handler_options=SignalHandlerOptions.NO)
-    node = executor = recorder = None
+    recorder = None
+    signum = 0
     try:
-        overrides = [Parameter("use_sim_time", value=True)] if args.use_sim_time else []
-        node = rclpy.create_node("belt_drive_recorder", context=context, parameter_overrides=overrides)
-        executor = _executor(context)
-        executor.add_node(node)
-        recorder = TopicRecorder(node, writer)
-        wanted = None if not args.topics else [node.resolve_topic_name(t) for t in args.topics]
-        excluded = {node.resolve_topic_name(t) for t in (args.exclude or [])}
-        skipped: set = set()
+        with ros_session(["belt-drive-record", "--ros-args", *args.ros_args]) as context:
+            import rclpy
+            from rclpy.parameter import Parameter
 
-        def discover() -> None:
-            for name, types in node.get_topic_names_and_types():
-                if name in recorder.topics or name in skipped:
-                    continue
-                if wanted is not None and name not in wanted:
-                    continue
-                if wanted is None and name in excluded:
-                    continue
-                if len(types) != 1:
-                    skipped.add(name)
-                    say(f"skipping {name}: {len(types)} types advertised ({', '.join(types)})")
-                    continue
-                try:
-                    recorder.add(name, types[0])
-                except ValueError as exc:
-                    skipped.add(name)
-                    say(f"skipping {name}: {exc}")
-                    continue
-                say(f"recording {name} ({types[0]})")
+            overrides = [Parameter("use_sim_time", value=True)] if args.use_sim_time else []
+            node = rclpy.create_node("belt_drive_recorder", context=context, parameter_overrides=overrides)
+            recorder = TopicRecorder(node, writer)
+            wanted = None if not args.topics else [node.resolve_topic_name(t) for t in args.topics]
+            excluded = {node.resolve_topic_name(t) for t in (args.exclude or [])}
+            skipped: set = set()
 
-        say(f"recording to {args.out}; Ctrl-C to stop")
-        start = time.monotonic()
-        next_poll = 0.0
-        while stop["signal"] is None:
-            now = time.monotonic()
-            if args.duration is not None and now - start >= args.duration:
-                break
-            if now >= next_poll:
-                discover()
-                next_poll = now + 0.5
-            executor.spin_once(timeout_sec=0.05)
-            if recorder.failed:
-                break
+            def discover() -> None:
+                for name, types in node.get_topic_names_and_types():
+                    if name in recorder.topics or name in skipped:
+                        continue
+                    if wanted is not None and name not in wanted:
+                        continue
+                    if wanted is None and name in excluded:
+                        continue
+                    if len(types) != 1:
+                        skipped.add(name)
+                        say(f"skipping {name}: {len(types)} types advertised ({', '.join(types)})")
+                        continue
+                    try:
+                        recorder.add(name, types[0])
+                    except ValueError as exc:
+                        skipped.add(name)
+                        say(f"skipping {name}: {exc}")
+                        continue
+                    say(f"recording {name} ({types[0]})")
+
+            say(f"recording to {args.out}; Ctrl-C to stop")
+            # topics that appear later are picked up every `poll` seconds
+            signum = spin_nodes([node], context, freeze_gc=False, poll=0.5, every=discover,
+                                until=lambda: recorder.failed, duration=args.duration,
+                                stopped=lambda _signum: recorder.close())
     finally:
         if recorder is not None:
             recorder.close()
@@ -135,30 +115,9 @@ def run(args) -> int:
                 writer.finish()
             except MsgToolsError:
                 pass
-        if executor is not None:
-            try:
-                executor.shutdown()
-            except Exception:  # noqa: BLE001 - shutting down anyway
-                pass
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
-        for signum, handler in old.items():
-            signal.signal(signum, handler)
     if recorder.failed:
         raise BagWriteError(str(recorder.error), getattr(recorder.error, "errno", None))
     counts = writer.topic_counts()
-    why = f" (signal {signal.Signals(stop['signal']).name})" if stop["signal"] else ""
+    why = f" (signal {signal.Signals(signum).name})" if signum else ""
     print(f"wrote {args.out}: {sum(counts.values())} messages on {len(counts)} topics{why}")
     return 0
-
-
-def _executor(context):
-    """EventsExecutor where available (spun from this, the main thread), else single-threaded."""
-    try:
-        from rclpy.experimental import EventsExecutor
-    except ImportError:
-        from rclpy.executors import SingleThreadedExecutor
-
-        return SingleThreadedExecutor(context=context)
-    return EventsExecutor(context=context)

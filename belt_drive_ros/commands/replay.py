@@ -15,9 +15,9 @@ examples:
 
 Publishes the recorded std_msgs/Float64 messages of --topic (default
 /drive_torque) with their recorded spacing divided by --rate. With --clock it
-publishes /clock = the message's recorded time just before each message, so
-a belt-drive node with use_sim_time ticks to that time, then holds the new
-torque: the same zero-order hold as 'belt-drive sim SCENE --torque-bag BAG'.
+publishes /clock = the message's recorded time right after each message, so
+a belt-drive node with use_sim_time ticks to that time and samples the new
+torque there: the same zero-order hold as 'belt-drive sim SCENE --torque-bag BAG'.
 Without --sync the node must keep up (a loaded machine can make it take two
 /clock samples at once); --sync waits for the node's output at each time, so
 the run is deterministic. Looping shifts each pass by the span plus one
@@ -38,12 +38,12 @@ def register(sub) -> None:
     p.add_argument("--loop", action="store_true", help="repeat until interrupted")
     p.add_argument("--start-offset", type=float, default=0.0, metavar="S",
                    help="start this many seconds into the recording")
-    p.add_argument("--clock", action="store_true", help="publish /clock before each message")
+    p.add_argument("--clock", action="store_true", help="publish /clock = the message's time after each message")
     p.add_argument("--topic", default="/drive_torque", help="topic to read from the bag (default /drive_torque)")
     p.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
                    help="wait (up to 10 s) for N matched subscribers (on the torque topic and /clock) before starting")
     p.add_argument("--sync", metavar="TOPIC",
-                   help="with --clock: before each message wait until TOPIC (sensor_msgs/JointState, e.g. "
+                   help="with --clock: after each message and its /clock wait until TOPIC (sensor_msgs/JointState, e.g. "
                         "/joint_states) is stamped at its time: lockstep, deterministic")
     p.add_argument("--delay", type=float, default=0.0, metavar="S",
                    help="wait S seconds (wall clock) before the first message")
@@ -54,7 +54,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    import signal
     import sys
 
     from ..io.recording import BagReadError
@@ -66,31 +65,23 @@ def run(args) -> int:
         raise SystemExit("belt-drive: error: --sync needs --clock")
     if not (args.delay >= 0):
         raise SystemExit("belt-drive: error: --delay must be >= 0 s")
-    stop = {"signal": None}
-
-    def on_signal(signum, _frame):
-        stop["signal"] = signum
-
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    from ..ros.executors import stop_on_signals
 
     def log(text: str) -> None:
         if not args.quiet or text.startswith("warning"):
             print(("belt-drive: " if text.startswith("warning") else "") + text, file=sys.stderr, flush=True)
 
-    try:
-        count = run_replay(
-            args.bag, rate=args.rate, loop=args.loop, start_offset=args.start_offset, clock=args.clock,
-            topic=args.topic, wait_subscribers=args.wait_subscribers, delay=args.delay, sync_topic=args.sync,
-            ros_args=args.ros_args,
-            should_stop=lambda: stop["signal"] is not None, log=log,
-        )
-    except ValueError as exc:  # schedule: offset past the end, ...
-        if isinstance(exc, BagReadError):
-            raise
-        raise BagReadError(f"{args.bag}: {exc}") from None
-    finally:
-        for signum, handler in old.items():
-            signal.signal(signum, handler)
+    with stop_on_signals() as stop:
+        try:
+            count = run_replay(
+                args.bag, rate=args.rate, loop=args.loop, start_offset=args.start_offset, clock=args.clock,
+                topic=args.topic, wait_subscribers=args.wait_subscribers, delay=args.delay, sync_topic=args.sync,
+                ros_args=args.ros_args, should_stop=stop.done, log=log,
+            )
+        except ValueError as exc:  # schedule: offset past the end, ...
+            if isinstance(exc, BagReadError):
+                raise
+            raise BagReadError(f"{args.bag}: {exc}") from None
     if not args.quiet:
         print(f"published {count} messages", file=sys.stderr)
     return 0

@@ -315,7 +315,9 @@ class Table(TorqueProfile):
         return Formula(f"{primitive}(t, times, values)", {"times": self.times, "values": self.values})
 
     def breakpoints(self):
-        return tuple(float(t) for t in self.times)  # a jump (previous) or a kink (linear) at every sample
+        if self.interpolation == "previous":  # a jump only where the held value changes (held before the first)
+            return tuple(float(t) for t in self.times[1:][self.values[1:] != self.values[:-1]])
+        return tuple(float(t) for t in self.times)  # a kink at every sample
 
     def excitation_frequencies(self, speed):
         if self.times.size < 2:

@@ -15,7 +15,7 @@ Example::
     from belt_drive_ros.ros.harness import BeltDriveHarness
 
     with BeltDriveHarness(scene="paper", model="flexible", method="exact") as h:
-        h.publish_torque(8.0)            # N m on wheel M, held from now on
+        h.publish_torque(8.0)            # N m on wheel M, sampled at the next tick and held
         h.advance(0.5)                   # 500 ticks of 1 ms of simulated time
         h.publish_torque(0.0)
         h.advance(0.25)
@@ -34,7 +34,7 @@ A torque source can run in the loop as well: ``source=Engine(...)`` (any
 :class:`~belt_drive_ros.core.sources.TorqueProfile`, or ``"scene"`` for the
 scene's drive) adds a :class:`~belt_drive_ros.ros.source_node.TorqueSourceNode`
 that the harness steps itself after each node tick (it publishes a torque
-from the latest ``shaft_speed``; the node applies it over the next tick), so
+from the latest ``shaft_speed``; the node samples it at its next tick), so
 closed-loop runs are deterministic too.
 
 Lockstep needs the wait-set executor (``executor="single"``, the default):
@@ -65,7 +65,8 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from .node import NODE_NAME, OUTPUT_TOPICS, BeltDriveNode, make_executor  # noqa: E402
+from .executors import make_executor  # noqa: E402
+from .node import NODE_NAME, OUTPUT_TOPICS, BeltDriveNode  # noqa: E402
 from ..core.sources import TorqueProfile  # noqa: E402
 
 #: the probe keeps everything it receives between drains
@@ -88,7 +89,7 @@ class BeltDriveHarness:
     use_sim_time : bool
         True: the harness publishes ``/clock`` (lockstep). False: system time.
     start_time : float
-        First ``/clock`` value [s] (simulated time must be > 0 to count as set).
+        First ``/clock`` value [s] (>= 0): the node's scene time 0.
     domain_id : int, optional
         ROS domain; default :func:`belt_drive_ros.ros.environment.process_domain_id`.
     executor : str
@@ -123,8 +124,8 @@ class BeltDriveHarness:
         ros_args: list[str] | None = None,
         **params: Any,
     ):
-        if use_sim_time and start_time <= 0:
-            raise ValueError("start_time: simulated time must start > 0 s (ROS reads 0 as 'not set')")
+        if use_sim_time and start_time < 0:
+            raise ValueError("start_time: simulated time must start >= 0 s")
         if use_sim_time and executor != "single":
             raise ValueError(
                 f"executor={executor!r}: /clock lockstep needs the wait-set executor ('single'); the events "
@@ -236,8 +237,8 @@ class BeltDriveHarness:
             lambda: all(sub.get_publisher_count() >= 1 for sub in self._subs),
             lambda: self._reset_client.service_is_ready(),
         ]
-        if self.use_sim_time:
-            checks.append(lambda: self._pub_clock.get_subscription_count() >= 1)
+        if self.use_sim_time:  # the node's clock, and its one-shot first-/clock watcher
+            checks.append(lambda: self._pub_clock.get_subscription_count() >= 2)
         if self.source is not None:
             checks.append(lambda: self.source._pub.get_subscription_count() >= 1)
             if self.source._sub is not None:
@@ -295,7 +296,10 @@ class BeltDriveHarness:
             f"the node's clock to reach {target_ns / 1e9:.9f} s",
             republish=lambda: self._publish_clock(target_ns),
         )
-        self._spin_until(lambda: not node.tick_pending() and self._received_all(), "the node's tick and outputs")
+        self._spin_until(
+            lambda: node.integrated_ns is not None and not node.tick_pending() and self._received_all(),
+            "the node's tick and outputs",
+        )
         self._clock_ns = target_ns
         if self.source is not None and node.integrated_ns == target_ns:
             src = self.source
@@ -316,7 +320,12 @@ class BeltDriveHarness:
         return time.time_ns() / 1e9
 
     def publish_torque(self, value: float, wait: bool = True) -> None:
-        """Publish ``drive_torque`` [N m]; with ``wait`` spin until the node has taken it in."""
+        """Publish ``drive_torque`` [N m]; with ``wait`` spin until the node has taken it in.
+
+        The node samples it at its next tick and holds it from there (the
+        outputs of that tick show it as ``drive_torque``): publish, then
+        :meth:`advance`, applies the torque from the next tick on.
+        """
         received = self.node.counters["received"]
         self._pub_torque.publish(Float64(data=float(value)))
         if wait:

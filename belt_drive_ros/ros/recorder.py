@@ -9,8 +9,10 @@ the offered QoS from discovery, and a flush timer on the node.
 from __future__ import annotations
 
 import os
+import struct
 from typing import Any, Callable, Dict, Iterable, List, Mapping, Optional
 
+import numpy as np
 from msg_tools import Ros2McapWriter
 from msg_tools.errors import MsgToolsError
 
@@ -27,11 +29,13 @@ from ..io.recording import (
     _fmt,
     _scene_record,
     bag_error,
+    encode_float64,
+    encode_joint_states,
     scene_mapping,
     units_metadata,
 )
 
-__all__ = ["NodeRecorder", "TopicRecorder", "message_definitions"]
+__all__ = ["APPLIED_TOPIC", "DIRECT_TOPICS", "JointStateEncoder", "NodeRecorder", "TopicRecorder", "message_definitions"]
 
 def _message_class(type_name: str):
     """The rclpy message class of ``pkg/msg/Type``."""
@@ -295,8 +299,61 @@ def _node_parameters(node) -> Dict[str, str]:
     return out
 
 
+#: the channel of the drive torque the node applied (after rejection, limit and timeout), one
+#: message per tick at the tick time: what a re-simulation replays (zero-order hold)
+APPLIED_TOPIC = "drive_torque_applied"
+#: topics the node writes itself from its tick or input callback (no subscription, no DDS loop-back)
+DIRECT_TOPICS = ("drive_torque", APPLIED_TOPIC, "joint_states") + tuple(name for name, _ in FLOAT_OUTPUTS)
+
+
+class JointStateEncoder:
+    """CDR of the node's ``sensor_msgs/JointState`` for one tick, without rclpy.
+
+    The bytes of :func:`belt_drive_ros.io.recording.encode_joint_states` (zero
+    padding, as ``mcap_ros2`` encodes), from a template built once: per tick
+    only the stamp and the twelve doubles are packed in (~2 us).
+    """
+
+    def __init__(self, joints: int = 4):
+        marks = np.arange(1, 3 * joints + 1, dtype=float) * 1e300 / 7.0  # distinct, cannot occur elsewhere
+        groups = marks.reshape(3, joints)
+        template = encode_joint_states(np.zeros(1, dtype=np.int64), *(g[None, :] for g in groups))[0]
+        self._array = struct.Struct(f"<{joints}d")
+        self._offsets = []
+        for group in groups:  # position, velocity, effort: each a contiguous CDR sequence
+            packed = self._array.pack(*group)
+            offset = template.find(packed)
+            if offset < 0 or template.find(packed, offset + 1) >= 0:
+                raise RuntimeError("JointState template: an array is not found exactly once")
+            self._offsets.append(offset)
+        self._template = template
+        self._joints = joints
+        self._stamp = struct.Struct("<iI")
+
+    def encode(self, stamp_ns: int, values) -> bytes:
+        """``values`` = position, velocity, effort of the joints, concatenated."""
+        buf = bytearray(self._template)
+        self._stamp.pack_into(buf, 4, *divmod(stamp_ns, 1_000_000_000))
+        j = self._joints
+        for k, offset in enumerate(self._offsets):
+            self._array.pack_into(buf, offset, *values[k * j : (k + 1) * j])
+        return bytes(buf)
+
+
 class NodeRecorder(TopicRecorder):
     """Record a belt-drive node's input and outputs into an MCAP file.
+
+    The node writes its own topics (:data:`DIRECT_TOPICS`) straight to the
+    writer: :meth:`record_input` from its ``drive_torque`` callback (log time
+    = receipt on the node's clock, the value as received) and
+    :meth:`record_tick` from every tick (log time = the tick time exactly):
+    ``joint_states``, the four Float64 outputs and ``drive_torque_applied``,
+    the torque the plant holds from that tick on (after NaN rejection, the
+    bound, the limit and the input timeout). The scene metadata refers to
+    ``drive_torque_applied``, so
+    :func:`~belt_drive_ros.io.torque_bag.scene_from_bag` re-simulates the run
+    from what the node really applied. Other topics (``/diagnostics``,
+    ``/clock``) are subscribed.
 
     Parameters
     ----------
@@ -307,17 +364,11 @@ class NodeRecorder(TopicRecorder):
     path : path or binary stream
         Output file; refused if it exists unless ``force``.
     topics : iterable of str, optional
-        Default: ``drive_torque``, ``joint_states``, ``shaft_speed``,
-        ``load_torque``, ``belt_torque``, ``relative_deflection``,
-        ``/diagnostics``, and ``/clock`` when the node uses or publishes sim
-        time. Names outside :data:`TOPIC_TYPES` are given as ``name:pkg/msg/Type``.
+        Default: :data:`DIRECT_TOPICS`, ``/diagnostics``, and ``/clock``
+        when the node uses or publishes sim time. Names outside
+        :data:`TOPIC_TYPES` are given as ``name:pkg/msg/Type``.
     force : bool
         Replace an existing file.
-    capture : {"subscription", "direct"}
-        ``subscription`` (default): every topic through a raw subscription,
-        the bytes as received. ``direct``: the node's state outputs are
-        serialized at publish time through :meth:`record` (log time = tick
-        time exactly, no DDS round trip); the other topics are subscribed.
     chunk_size, compression, flush_interval_s
         See :class:`msg_tools.Ros2McapWriter`; the wall-clock flush timer
         uses ``flush_interval_s`` too.
@@ -327,64 +378,54 @@ class NodeRecorder(TopicRecorder):
     BagExistsError, BagWriteError
         If the file exists (without ``force``) or cannot be created.
 
-    Examples
-    --------
-    In :class:`BeltDriveNode.__init__`, once the publishers exist::
-
-        if s.record_path:
-            try:
-                self._recorder = NodeRecorder(self, s.record_path)
-            except BagError as exc:  # exists (never overwritten) or cannot be created
-                self.get_logger().error(f"record_path: {exc}; not recording")
-
-    and ``destroy_node`` calls ``self._recorder.close()``.
+    Notes
+    -----
+    A run re-simulates exactly while it is one run: a restart (``~/reset``,
+    a divergence, a clock jump) or a parameter change starts a different
+    one; the ``parameters`` metadata records each change with its time.
     """
 
     def __init__(self, node, path, topics: Optional[Iterable[str]] = None, force: bool = False, *,
-                 capture: str = "subscription", chunk_size: int = 128 * 1024, compression: str = "zstd",
-                 flush_interval_s: float = 0.25):
-        if capture not in ("subscription", "direct"):
-            raise ValueError(f"capture must be 'subscription' or 'direct', got {capture!r}")
+                 chunk_size: int = 128 * 1024, compression: str = "zstd", flush_interval_s: float = 0.25):
         try:
             writer = Ros2McapWriter(path, force=force, chunk_size=chunk_size, compression=compression,
                                     flush_interval_s=flush_interval_s)
         except (MsgToolsError, OSError) as exc:
             raise bag_error(exc) from None
         super().__init__(node, writer, flush_period=flush_interval_s)
-        self.capture = capture
         uses_clock = self._uses_sim_time() or self._publishes_clock()
         if topics is None:
-            wanted = [t for t in TOPIC_TYPES if t != "/clock" or uses_clock]
+            wanted = list(DIRECT_TOPICS) + [t for t in TOPIC_TYPES if t.startswith("/") and (t != "/clock" or uses_clock)]
         else:
             wanted = list(topics)
         self._direct: Dict[str, str] = {}
         namespace = node.get_namespace()
         try:
-            self.add_metadata(UNITS_METADATA, units_metadata(namespace))
+            units = units_metadata(namespace)
+            units[self.resolve(APPLIED_TOPIC)] = units[self.resolve("drive_torque")]
+            self.add_metadata(UNITS_METADATA, units)
             self._write_scene()
             self.add_metadata(PARAMETERS_METADATA, _node_parameters(node))
             for spec in wanted:
                 name, _, type_name = spec.partition(":")
-                type_name = type_name or TOPIC_TYPES.get(name) or TOPIC_TYPES.get(name.lstrip("/"), "")
+                base = name.lstrip("/")
+                if base in DIRECT_TOPICS:
+                    self._direct[base] = self.resolve(name)
+                    self._types[self._direct[base]] = FLOAT64 if base != "joint_states" else JOINT_STATE
+                    continue
+                type_name = type_name or TOPIC_TYPES.get(name) or TOPIC_TYPES.get(base, "")
                 if not type_name:
                     raise ValueError(f"topic {name!r}: unknown type; give it as '{name}:pkg/msg/Type'")
-                base = name.lstrip("/")
-                if capture == "direct" and (base == "joint_states" or base in dict(FLOAT_OUTPUTS)):
-                    self._direct[base] = self.resolve(name)
-                    self._types[self._direct[base]] = type_name
-                    continue
                 self.add(name, type_name)
         except BaseException:
             self.close()
             raise
         self._param_callback = self._on_parameters_set
         node.add_post_set_parameters_callback(self._param_callback)
-        if self._direct:
-            from rclpy.serialization import serialize_message
-
-            self._serialize = serialize_message
+        self._joint_states = JointStateEncoder()
+        self._floats = [(self._direct.get(name), FLOAT64) for name, _ in FLOAT_OUTPUTS]
         node.get_logger().info(
-            f"recording {len(self._types)} topics to {self.path} ({capture}; log time = "
+            f"recording {len(self._types)} topics to {self.path} (log time = "
             f"{'simulated' if self._uses_sim_time() else 'node clock'} time)"
         )
 
@@ -406,7 +447,7 @@ class NodeRecorder(TopicRecorder):
         drive_source = getattr(settings, "drive_source", "topic")
         drive = None
         if drive_source == "topic":
-            drive = {"type": RECORDED_DRIVE, "bag": "", "topic": self.resolve("drive_torque"),
+            drive = {"type": RECORDED_DRIVE, "bag": "", "topic": self.resolve(APPLIED_TOPIC),
                      "interpolation": "previous"}
         mapping = scene_mapping(scene, model=getattr(settings.model, "name", None),
                                 method=getattr(settings, "method", None),
@@ -414,7 +455,8 @@ class NodeRecorder(TopicRecorder):
         self.add_metadata(SCENE_METADATA, _scene_record(
             mapping, source="node", drive_source=drive_source,
             extra={"node": self.node.get_fully_qualified_name(),
-                   "model_choice": getattr(settings, "model_reason", "")},
+                   "model_choice": getattr(settings, "model_reason", ""),
+                   "tick_ns": getattr(settings, "tick_ns", "")},
         ))
 
     def _on_parameters_set(self, parameters) -> None:
@@ -426,23 +468,28 @@ class NodeRecorder(TopicRecorder):
         ):
             self._write_scene()
 
-    def record(self, now_ns: int, joint_state, floats: Mapping[str, Any]) -> None:
-        """Hook the node calls after publishing a tick's outputs.
-
-        With ``capture="direct"`` it writes them with ``log_time = now_ns``;
-        with the default ``capture="subscription"`` the subscriptions already
-        receive them and this returns at once.
-        """
-        if not self._direct or self.error is not None or self.closed:
-            return
-        serialize = self._serialize
-        topic = self._direct.get("joint_states")
+    def record_input(self, value: float, now_ns: int) -> None:
+        """One ``drive_torque`` message as received [N m], at node time ``now_ns``."""
+        topic = self._direct.get("drive_torque")
         if topic is not None:
-            self.write(topic, JOINT_STATE, serialize(joint_state), now_ns)
-        for name, msg in floats.items():
-            topic = self._direct.get(name)
+            self.write(topic, FLOAT64, encode_float64((value,))[0], now_ns)
+
+    def record_tick(self, now_ns: int, joints, floats, applied: float) -> None:
+        """One tick: ``joints`` (position, velocity, effort of the 4 wheels), the Float64 outputs
+        in the order of :data:`FLOAT_OUTPUTS`, and the applied drive torque [N m]."""
+        if self.error is not None or self.closed:
+            return
+        direct = self._direct
+        topic = direct.get("joint_states")
+        if topic is not None:
+            self.write(topic, JOINT_STATE, self._joint_states.encode(now_ns, joints), now_ns)
+        payloads = encode_float64((*floats, applied))
+        for (topic, type_name), data in zip(self._floats, payloads):
             if topic is not None:
-                self.write(topic, FLOAT64, serialize(msg), now_ns)
+                self.write(topic, type_name, data, now_ns)
+        topic = direct.get(APPLIED_TOPIC)
+        if topic is not None:
+            self.write(topic, FLOAT64, payloads[-1], now_ns)
 
     def close(self) -> None:
         callback = getattr(self, "_param_callback", None)

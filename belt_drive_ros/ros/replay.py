@@ -113,7 +113,10 @@ def run_replay(bag, *, rate: float = 1.0, loop: bool = False, start_offset: floa
     bag : path
     rate, loop, start_offset : see :func:`replay_schedule`.
     clock : bool
-        Also publish ``/clock`` (``rosgraph_msgs/Clock``) before each message.
+        Also publish ``/clock`` (``rosgraph_msgs/Clock``) = the message's time
+        right after each message: a node with ``use_sim_time`` that has taken
+        the message in samples it at that tick, so it holds message k over
+        [t_k, t_k+1), the zero-order hold of the offline replay.
     topic : str
         Topic to read from the bag.
     out_topic : str, optional
@@ -126,15 +129,15 @@ def run_replay(bag, *, rate: float = 1.0, loop: bool = False, start_offset: floa
         matched: discovery completes on the subscriber's side a little later,
         and what is published before is lost to it).
     sync_topic : str, optional
-        Lockstep with ``clock``: after publishing ``/clock`` = t_k, wait (up
-        to ``sync_timeout`` s) until a ``sensor_msgs/JointState`` stamped at
-        or after t_k arrives on this topic (the node's ``joint_states``, i.e.
-        it has ticked to t_k), and only then publish message k. The node then
-        always ticks before it takes the next torque, so the run is the same
-        however loaded the machine is (and runs as fast as the node allows
-        when ``rate`` is high). Needs every message time to be a tick of the
-        node (bag rate <= node rate, on its tick grid); ``/clock`` = 0 is
-        not waited for (ROS reads it as "unset").
+        Lockstep with ``clock``: after publishing message k and ``/clock`` =
+        t_k, wait (up to ``sync_timeout`` s) until a ``sensor_msgs/JointState``
+        stamped at or after t_k arrives on this topic (the node's
+        ``joint_states``, i.e. it has ticked to t_k), and only then publish
+        message k+1. The node then always ticks before it takes the next
+        torque, so the run is the same however loaded the machine is (and
+        runs as fast as the node allows when ``rate`` is high). Needs every
+        message time to be a tick of the node (bag rate <= node rate, on its
+        tick grid).
     ros_args : list of str, optional
         ROS arguments for the replay node (``--ros-args`` is prepended if absent).
     should_stop : callable, optional
@@ -147,26 +150,31 @@ def run_replay(bag, *, rate: float = 1.0, loop: bool = False, start_offset: floa
     """
     import time
 
-    from . import environment as ros_env
+    from .executors import ros_session
 
     rec = load_torque_recording(bag, topic, keep_payloads=True, warn=lambda m: log(f"warning: {m}"))
     schedule = replay_schedule(rec.log_time_ns, rate=rate, start_offset=start_offset, loop=loop,
                                max_loops=max_loops)
-    ros_env.configure_environment()
-    import rclpy
-    from builtin_interfaces.msg import Time
-    from rclpy.context import Context
-    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from rclpy.signals import SignalHandlerOptions
-    from rosgraph_msgs.msg import Clock
-    from std_msgs.msg import Float64
-
     args = list(ros_args or [])
     if args and args[0] != "--ros-args":
         args = ["--ros-args"] + args
-    context = Context()
-    rclpy.init(args=["belt-drive-replay"] + args, context=context,
-               signal_handler_options=SignalHandlerOptions.NO)
+    with ros_session(["belt-drive-replay"] + args) as context:
+        return _publish(rec, schedule, context, rate=rate, loop=loop, clock=clock, out_topic=out_topic,
+                        wait_subscribers=wait_subscribers, wait_timeout=wait_timeout, delay=delay,
+                        sync_topic=sync_topic, sync_timeout=sync_timeout, should_stop=should_stop, log=log)
+
+
+def _publish(rec, schedule, context, *, rate, loop, clock, out_topic, wait_subscribers, wait_timeout, delay,
+             sync_topic, sync_timeout, should_stop, log) -> int:
+    """The replay loop of :func:`run_replay` on an initialised ``context``; returns the messages published."""
+    import time
+
+    import rclpy
+    from builtin_interfaces.msg import Time
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import Float64
+
     stop = should_stop or (lambda: False)
     published = late = 0
     node = None
@@ -183,8 +191,9 @@ def run_replay(bag, *, rate: float = 1.0, loop: bool = False, start_offset: floa
         if sync_topic:
             if clock_pub is None:
                 raise ValueError("sync_topic needs clock=True (lockstep is on /clock)")
-            from rclpy.executors import SingleThreadedExecutor
             from sensor_msgs.msg import JointState
+
+            from .executors import make_executor
 
             def on_sync(msg) -> None:
                 stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
@@ -192,7 +201,7 @@ def run_replay(bag, *, rate: float = 1.0, loop: bool = False, start_offset: floa
 
             sync_sub = node.create_subscription(JointState, sync_topic, on_sync, QoSProfile(
                 history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE))
-            sync_executor = SingleThreadedExecutor(context=context)
+            sync_executor = make_executor(context, "single")
             sync_executor.add_node(node)
         if wait_subscribers > 0:
             publishers = [pub] + ([clock_pub] if clock_pub is not None else [])
@@ -228,10 +237,12 @@ def run_replay(bag, *, rate: float = 1.0, loop: bool = False, start_offset: floa
                 time.sleep(min(wait, 0.05))
             if stop():
                 break
+            pub.publish(payloads[index])
+            published += 1
             if clock_pub is not None:
                 clock_msg.clock.sec, clock_msg.clock.nanosec = divmod(clock_ns, 1_000_000_000)
                 clock_pub.publish(clock_msg)
-                if sync_executor is not None and clock_ns > 0:
+                if sync_executor is not None:
                     deadline = time.monotonic() + sync_timeout
                     resend = time.monotonic() + 0.05
                     while synced["stamp"] < clock_ns and not stop():
@@ -243,8 +254,6 @@ def run_replay(bag, *, rate: float = 1.0, loop: bool = False, start_offset: floa
                             clock_pub.publish(clock_msg)
                             resend = now + 0.05
                         sync_executor.spin_once(timeout_sec=0.005)
-            pub.publish(payloads[index])
-            published += 1
         if late:
             log(f"warning: {late} time(s) no {sync_topic} stamped at the /clock time within "
                 f"{sync_timeout:g} s (is each message time a tick of the node?)")
@@ -253,5 +262,4 @@ def run_replay(bag, *, rate: float = 1.0, loop: bool = False, start_offset: floa
             sync_executor.shutdown()
         if node is not None:
             node.destroy_node()
-        rclpy.try_shutdown(context=context)
     return published

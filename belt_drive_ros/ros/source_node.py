@@ -27,13 +27,12 @@ from . import environment as ros_env
 
 ros_env.configure_environment()
 
-import rclpy  # noqa: E402
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, ParameterType, SetParametersResult  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 
 from ..core.errors import BeltDriveError  # noqa: E402
-from .node import make_executor, spin_until_signal  # noqa: E402
+from .executors import ros_session, spin_nodes  # noqa: E402
 from .qos import INPUT_QOS, OUTPUT_QOS  # noqa: E402
 from ..core.sources import TorqueProfile  # noqa: E402
 
@@ -170,34 +169,17 @@ def run(
     node_name: str = SOURCE_NODE_NAME,
 ) -> int:
     """Run one :class:`TorqueSourceNode` until SIGINT/SIGTERM; return the exit code (0)."""
-    from rclpy.signals import SignalHandlerOptions
-
-    ros_env.configure_environment()
-    ros_env.limit_blas_threads()
-    rclpy.init(args=["belt-drive-source"] + list(ros_args or []), signal_handler_options=SignalHandlerOptions.NO)
-    node = ex = None
-    try:
+    with ros_session(["belt-drive-source", *(ros_args or [])]) as context:
         try:
-            node = TorqueSourceNode(profile, node_name, rate_hz=rate_hz, initial_speed=initial_speed)
+            node = TorqueSourceNode(profile, node_name, rate_hz=rate_hz, initial_speed=initial_speed, context=context)
         except ValueError as exc:
             raise SourceConfigError(str(exc)) from None
         node.get_logger().info(
             f"publishing drive_torque at {node.rate_hz:g} Hz from a {profile.kind} profile"
             + (" (closed loop on shaft_speed)" if profile.state_dependent else "")
         )
-        ex = make_executor(kind=executor)
-        ex.add_node(node)
-        spin_until_signal(ex)
-        return 0
-    finally:
-        if ex is not None:
-            try:
-                ex.shutdown()
-            except Exception:  # noqa: BLE001
-                pass
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        spin_nodes([node], context, executor=executor)
+    return 0
 
 
 class SourceConfigError(BeltDriveError, ValueError):

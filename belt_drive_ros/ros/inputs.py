@@ -1,0 +1,141 @@
+"""The node's drive-torque input: validation, limit, timeout, sample-and-hold (no rclpy).
+
+:class:`DriveInput` takes every ``drive_torque`` message in constant time
+(:meth:`~DriveInput.receive`: NaN/Inf rejected, ``torque_limit`` applied,
+a value beyond the plausible ``torque_bound`` rejected, each counted)
+and keeps the latest valid value. At each tick the node
+*samples* it (:meth:`~DriveInput.sample`: the ``input_timeout`` rule
+applied at the tick time) into :attr:`~DriveInput.applied`, the
+zero-order hold the plant reads until the next tick::
+
+    u_drive(t) = applied_k    for  t_k <= t < t_k+1
+
+This is the sampling of a discrete-time controller (python-control's ZOH):
+a message received between ticks k-1 and k acts from tick k on, and the
+outputs published at t_k already show it (``joint_states`` effort of
+``wheel_M``; the rigid model's belt torque). A recording of the sampled
+values (``drive_torque_applied``, one per tick at t_k) therefore replays
+offline as a table with ``interpolation: previous`` to the same numbers.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..core.sources import TorqueProfile
+
+__all__ = ["DriveInput", "HeldTorque"]
+
+INPUT_COUNTERS = ("received", "rejected_nonfinite", "rejected_bound", "clamped", "ignored", "timeouts")
+
+
+class HeldTorque(TorqueProfile):
+    """Zero-order hold of the sampled drive torque: a profile whose value the node sets [N m].
+
+    Mutable on purpose (unlike the scene's frozen profiles): the plant's
+    input function reads :attr:`value` at every call.
+    """
+
+    kind = "held"
+    state_dependent = False
+    uses_angle = False
+
+    def __init__(self, value: float = 0.0):
+        self.value = float(value)
+
+    def torque(self, t, angle=0.0, speed=0.0):
+        return self.value + 0.0 * np.asarray(t, dtype=float) if np.ndim(t) else self.value
+
+    __call__ = torque
+
+    def scalar_torque(self):
+        held = self
+        return lambda t, angle, speed: held.value
+
+    def excitation_frequencies(self, speed):
+        return []
+
+    def to_dict(self):
+        return {"type": "constant", "value": self.value}
+
+
+class DriveInput:
+    """``drive_torque`` as the node takes it in (see the module docstring).
+
+    Parameters
+    ----------
+    counters : dict
+        Shared counter dict; the keys of :data:`INPUT_COUNTERS` are added.
+    """
+
+    def __init__(self, counters: dict):
+        self.counters = counters
+        for key in INPUT_COUNTERS:
+            counters.setdefault(key, 0)
+        #: latest valid message after the limit [N m]
+        self.latest = 0.0
+        #: what the plant reads: the value sampled at the last tick [N m]
+        self.applied = HeldTorque(0.0)
+        #: node time [ns] of the latest valid message (None: none yet)
+        self.last_input_ns: int | None = None
+        #: True while input_timeout has expired
+        self.stale = False
+
+    def receive(self, value: float, now_ns: int, settings) -> bool:
+        """Take one message (constant time); return True if it was accepted."""
+        c = self.counters
+        c["received"] += 1
+        if not math.isfinite(value):
+            c["rejected_nonfinite"] += 1
+            return False
+        if settings.drive_source != "topic":
+            c["ignored"] += 1
+            return False
+        if abs(value) > settings.torque_bound:
+            c["rejected_bound"] += 1
+            return False
+        limit = settings.torque_limit
+        if limit > 0.0 and abs(value) > limit:
+            value = math.copysign(limit, value)
+            c["clamped"] += 1
+        self.latest = value
+        self.last_input_ns = now_ns
+        self.stale = False
+        return True
+
+    def sample(self, now_ns: int, origin_ns: int, settings) -> tuple[float, str | None]:
+        """The drive torque sampled at tick time ``now_ns`` [N m] (the timeout rule applied there).
+
+        Returns ``(value, warning)``: the caller holds ``value`` in
+        :attr:`applied` once the interval before the tick is integrated;
+        ``warning`` is one line when the input has just gone stale (the
+        caller logs it), else None.
+        """
+        warning = None
+        timeout = settings.input_timeout_ns
+        if settings.drive_source != "topic" or timeout <= 0:
+            self.stale = False
+        else:
+            since = self.last_input_ns if self.last_input_ns is not None else origin_ns
+            stale = now_ns - since > timeout
+            if stale and not self.stale:
+                self.counters["timeouts"] += 1
+                what = "no drive_torque received" if self.last_input_ns is None else "drive_torque stale"
+                warning = f"{what} for {(now_ns - since) / 1e9:.3g} s > input_timeout: " + (
+                    "holding the last value" if settings.timeout_behavior == "hold" else "drive torque set to 0"
+                )
+            self.stale = stale
+        return (0.0 if self.stale and settings.timeout_behavior == "zero" else self.latest), warning
+
+    def status(self, settings) -> tuple[bool, str]:
+        """(warn, message) for the input diagnostic."""
+        if settings.drive_source == "scene":
+            return False, "drive from the scene's profile; drive_torque ignored"
+        if self.stale:
+            what = "no drive_torque received" if self.last_input_ns is None else "drive_torque stale"
+            return True, what + (": holding last value" if settings.timeout_behavior == "hold" else ": torque set to 0")
+        if self.last_input_ns is None:
+            return False, "no drive_torque received yet: 0 N m"
+        return False, "ok"

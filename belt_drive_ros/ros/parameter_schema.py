@@ -1,0 +1,341 @@
+"""The belt-drive node's parameters: schema, defaults and validation (no rclpy).
+
+Everything here is plain Python on top of :mod:`belt_drive_ros.core`, so
+``belt-drive node --list-parameters`` and tests read the schema without
+starting ROS; :mod:`belt_drive_ros.ros.parameters` turns it into rclpy
+descriptors and callbacks.
+
+The model parameters are the fields of
+:class:`~belt_drive_ros.core.params.BeltDriveParams`; their ranges are that
+class's rules (:func:`model_range`), and :func:`build_settings` validates
+them by constructing it. The node's own parameters are in
+:data:`NODE_PARAMETERS`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from ..core import params as core_params
+from ..core.errors import BeltDriveError, ParameterError
+from ..core.fidelity import choose_model
+from ..core.integrators import make_integrator
+from ..core.model import make_model
+from ..core.params import FIELD_DOCS, BeltDriveParams
+from ..core.scene import MODELS, Scene, load_scene
+from ..core.stability import StabilityReport, require_stable
+
+__all__ = [
+    "DEFAULT_SCENE",
+    "DRIVE_SOURCES",
+    "MODEL_PARAMETERS",
+    "NODE_PARAMETERS",
+    "NodeConfigError",
+    "NodeSettings",
+    "OWN_PARAMETERS",
+    "ParamSpec",
+    "SCENE_DERIVED",
+    "SceneCache",
+    "TIMEOUT_BEHAVIORS",
+    "build_settings",
+    "default_values",
+    "describe_parameters",
+    "model_range",
+    "scene_defaults",
+    "scene_torque_bound",
+]
+
+DEFAULT_SCENE = "paper"
+DRIVE_SOURCES = ("topic", "scene")
+TIMEOUT_BEHAVIORS = ("hold", "zero")
+
+
+class NodeConfigError(ParameterError):
+    """A node parameter (or the combination) is invalid; ``field`` names the parameter."""
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One node parameter: type, default, range or choices, description."""
+
+    name: str
+    kind: str  # "float", "int", "str", "bool"
+    default: Any
+    description: str
+    range: tuple | None = None
+    choices: tuple | None = None
+
+
+#: Node parameters besides the model parameters. ``None`` defaults come from the scene.
+NODE_PARAMETERS: tuple[ParamSpec, ...] = (
+    ParamSpec("scene", "str", DEFAULT_SCENE, "shipped scene name or path to a scene YAML: parameters, load, initial state"),
+    ParamSpec("model", "str", None, "belt model: rigid, flexible or auto (chosen from the scene's excitation)", choices=MODELS),
+    ParamSpec("method", "str", None, "integrator: exact, etd2, etd4, lawson5, euler, symplectic_euler, rk4, trapezoidal, RK45, DOP853, Radau, BDF, LSODA"),
+    ParamSpec("step_rate_hz", "float", 1000.0, "tick rate on the node's clock [Hz]; outputs are published once per tick", range=(1.0, 20000.0)),
+    ParamSpec("substeps", "int", None, "integrator steps per tick (dt = 1/(step_rate_hz*substeps), whole ns); default: the scene's dt at 1 kHz", range=(1, 1000)),
+    ParamSpec("input_timeout", "float", 1.0, "seconds (node clock) without drive_torque before timeout_behavior applies; 0 = never", range=(0.0, 3600.0)),
+    ParamSpec("timeout_behavior", "str", "hold", "after input_timeout: 'hold' the last torque or 'zero' it", choices=TIMEOUT_BEHAVIORS),
+    ParamSpec("drive_source", "str", "topic", "'topic': drive_torque sampled at each tick and held (0 before the first message); 'scene': the scene's drive profile", choices=DRIVE_SOURCES),
+    ParamSpec("torque_limit", "float", 0.0, "clamp |drive_torque| to this [N m]; 0 = off", range=(0.0, 1.0e7)),
+    ParamSpec("torque_bound", "float", 0.0, "reject drive_torque messages with |value| above this [N m] (counted); 0 = derived from the scene (10x the largest torque of its drive and load profiles)", range=(0.0, 1.0e12)),
+    ParamSpec("publish_clock", "bool", False, "publish /clock from the node's own simulated time (time master)"),
+    ParamSpec("real_time_factor", "float", 1.0, "with publish_clock: simulated seconds per wall second; 0 = as fast as possible", range=(0.0, 1.0e4)),
+    ParamSpec("record_path", "str", "", "MCAP file to record the node's input and outputs to ('' = off); set at start only, an existing file is never overwritten"),
+)
+NODE_SPECS: dict[str, ParamSpec] = {s.name: s for s in NODE_PARAMETERS}
+MODEL_PARAMETERS: tuple[str, ...] = tuple(FIELD_DOCS)
+#: every parameter the node owns (use_sim_time belongs to rclpy's TimeSource)
+OWN_PARAMETERS: tuple[str, ...] = tuple(NODE_SPECS) + MODEL_PARAMETERS
+#: parameters whose default comes from the scene and that a new scene resets
+SCENE_DERIVED: tuple[str, ...] = ("model", "method", "substeps") + MODEL_PARAMETERS
+#: parameters of type double (an integer given for one is stored as a double)
+DOUBLE_PARAMETERS: frozenset[str] = frozenset(MODEL_PARAMETERS) | {s.name for s in NODE_PARAMETERS if s.kind == "float"}
+
+
+def model_range(name: str) -> tuple[float, float]:
+    """[lower, upper] of model parameter ``name`` as :class:`BeltDriveParams` enforces it (SI units).
+
+    The lower bound is 0 (the fields that must be > 0 are refused at 0 by
+    the class itself); the upper bound is the class's plausible maximum.
+    """
+    upper = getattr(core_params, "PLAUSIBLE_MAX", _PLAUSIBLE_MAX_FALLBACK).get(name, math.inf)
+    return 0.0, float(upper)
+
+
+#: used only until core.params publishes PLAUSIBLE_MAX (the same figures the node always advertised)
+_PLAUSIBLE_MAX_FALLBACK: dict[str, float] = {
+    "I_M": 1.0e3, "I_1": 1.0e3, "I_2": 1.0e3, "I_3": 1.0e3,
+    "r_M": 10.0, "R_1": 10.0, "r_1": 10.0, "R_2": 10.0, "r_2": 10.0, "r_3": 10.0,
+    "k": 1.0e10, "c": 1.0e7, "b_M": 1.0e4, "b_1": 1.0e4, "b_2": 1.0e4, "b_3": 1.0e4,
+    "F_0": 1.0e7, "mu": 10.0, "wrap_angle": 2.0 * math.pi,
+}
+
+
+@dataclass
+class NodeSettings:
+    """Everything the node derives from its parameters, validated together.
+
+    Built by :func:`build_settings`; a new instance replaces the old one on
+    every accepted parameter change.
+    """
+
+    values: dict
+    scene: Scene
+    params: BeltDriveParams
+    model: Any
+    model_reason: str
+    method: str
+    tick_ns: int
+    dt_ns: int
+    integrator: Any
+    stability: StabilityReport
+    step_rate_hz: float
+    substeps: int
+    input_timeout_ns: int
+    timeout_behavior: str
+    drive_source: str
+    torque_limit: float
+    torque_bound: float
+    publish_clock: bool
+    real_time_factor: float
+    record_path: str
+    method_options: dict = field(default_factory=dict)
+
+    @property
+    def dt(self) -> float:
+        """Integrator substep [s]."""
+        return self.dt_ns / 1e9
+
+
+def _number(name: str, value: Any, lo: float, hi: float, integer: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise NodeConfigError(name, f"must be a number, got {value!r}")
+    if integer and int(value) != value:
+        raise NodeConfigError(name, f"must be an integer, got {value!r}")
+    if not math.isfinite(value):
+        raise NodeConfigError(name, f"must be finite, got {value!r}")
+    if not lo <= value <= hi:
+        raise NodeConfigError(name, f"must be in [{lo:g}, {hi:g}], got {value!r}")
+    return int(value) if integer else float(value)
+
+
+def _spec_number(name: str, values: Mapping[str, Any]) -> float:
+    spec = NODE_SPECS[name]
+    return _number(name, values[name], *spec.range, integer=spec.kind == "int")
+
+
+def _choice(name: str, value: Any, choices: tuple) -> str:
+    if value not in choices:
+        raise NodeConfigError(name, f"must be one of {', '.join(choices)}, got {value!r}")
+    return value
+
+
+class SceneCache:
+    """Scenes by name or path, each loaded once (a node changing back and forth stays cheap)."""
+
+    def __init__(self, preload: Mapping[str, Scene] | None = None):
+        self._scenes: dict[str, Scene] = dict(preload or {})
+
+    def get(self, name: str) -> Scene:
+        if not isinstance(name, str) or not name:
+            raise NodeConfigError("scene", f"must be a scene name or YAML path, got {name!r}")
+        if name not in self._scenes:
+            try:
+                self._scenes[name] = load_scene(name)
+            except BeltDriveError as exc:
+                raise NodeConfigError("scene", str(exc)) from None
+        return self._scenes[name]
+
+
+def scene_defaults(scene: Scene) -> dict[str, Any]:
+    """Values of the scene-derived parameters for ``scene``.
+
+    The model parameters, ``model`` and ``method`` are the scene's; ``substeps``
+    is chosen so that at the default 1 kHz tick the integrator step is the
+    scene's ``dt`` (at least 1), e.g. 2 for a scene with dt = 0.5 ms.
+    """
+    default_tick = 1.0 / NODE_SPECS["step_rate_hz"].default
+    out = {"model": scene.model, "method": scene.method, "substeps": max(1, int(round(default_tick / scene.dt)))}
+    out.update(scene.params.to_dict())
+    return out
+
+
+#: the derived torque bound is this many times the scene's largest torque
+TORQUE_BOUND_FACTOR = 10.0
+#: ... and at least this [N m]
+TORQUE_BOUND_FLOOR = 1.0
+
+
+def scene_torque_bound(scene: Scene, samples: int = 1000) -> float:
+    """The plausible drive-torque bound of ``scene`` [N m].
+
+    ``TORQUE_BOUND_FACTOR`` times the largest |torque| of the scene's drive
+    and load profiles, sampled at ``samples`` times over its duration (the
+    angle swept over four revolutions, the speed at 0 and at the initial
+    speed), at least ``TORQUE_BOUND_FLOOR``. A message beyond it is an
+    error of the sender, not a load the drive could see; the state would
+    only run away on it.
+    """
+    import numpy as np
+
+    t = np.linspace(0.0, max(scene.duration, 1e-3), samples)
+    angle = np.linspace(0.0, 8.0 * math.pi, samples)
+    peak = 0.0
+    for speed in (0.0, scene.initial_state.omega_M):
+        for profile in (scene.drive, scene.load):
+            with np.errstate(all="ignore"):
+                values = np.abs(np.broadcast_to(profile.torque(t, angle, np.full(samples, speed)), t.shape))
+            finite = values[np.isfinite(values)]
+            if finite.size:
+                peak = max(peak, float(finite.max()))
+    return max(TORQUE_BOUND_FACTOR * peak, TORQUE_BOUND_FLOOR)
+
+
+def default_values(scene: Scene) -> dict[str, Any]:
+    """All node parameter values as a fresh node with ``scene`` would have them."""
+    values = {s.name: s.default for s in NODE_PARAMETERS}
+    values["scene"] = scene.name
+    values.update(scene_defaults(scene))
+    return values
+
+
+def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) -> NodeSettings:
+    """Validate a full set of parameter values and derive the node's settings.
+
+    Raises
+    ------
+    NodeConfigError (a ParameterError, ValueError)
+        naming the parameter and the reason; the stability guard's refusal
+        (``UnstableStepError``) is reported against ``method``.
+    """
+    scenes = scenes or SceneCache()
+    scene = scenes.get(values["scene"])
+    step_rate = _spec_number("step_rate_hz", values)
+    substeps = _spec_number("substeps", values)
+    timeout = _spec_number("input_timeout", values)
+    limit = _spec_number("torque_limit", values)
+    bound = _spec_number("torque_bound", values)
+    rtf = _spec_number("real_time_factor", values)
+    behavior = _choice("timeout_behavior", values["timeout_behavior"], TIMEOUT_BEHAVIORS)
+    drive_source = _choice("drive_source", values["drive_source"], DRIVE_SOURCES)
+    kind = _choice("model", values["model"], MODELS)
+    publish_clock = values["publish_clock"]
+    if not isinstance(publish_clock, bool):
+        raise NodeConfigError("publish_clock", f"must be true or false, got {publish_clock!r}")
+    record_path = values["record_path"]
+    if not isinstance(record_path, str):
+        raise NodeConfigError("record_path", f"must be a string, got {record_path!r}")
+    model_values = {name: values[name] for name in MODEL_PARAMETERS}
+    for name, value in model_values.items():  # BeltDriveParams checks the rest of its rules
+        upper = model_range(name)[1]
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and value > upper:
+            raise NodeConfigError(name, f"must be <= {upper:g} {FIELD_DOCS[name][0]}, got {value!r}")
+    try:
+        params = BeltDriveParams(**model_values)
+    except ParameterError as exc:
+        raise NodeConfigError(exc.field, exc.detail) from None
+    tick_ns = int(round(1e9 / step_rate))
+    dt_ns = tick_ns // substeps
+    if dt_ns < 1000:
+        raise NodeConfigError("substeps", f"step_rate_hz*substeps gives dt={dt_ns} ns; keep dt >= 1 us")
+    scene = scene.with_overrides(params=params, output_rate=step_rate)
+    if kind == "auto":
+        choice = choose_model(scene)
+        kind, reason = choice.model, choice.reason
+    else:
+        reason = f"{kind}: set by parameter 'model'"
+    model = make_model(kind, params)
+    method = values["method"]
+    if not isinstance(method, str):
+        raise NodeConfigError("method", f"must be an integrator name, got {method!r}")
+    options = dict(scene.method_options) if method == scene.method else {}
+    try:
+        integrator = make_integrator(method, model.A, model.B, dt_ns / 1e9, **options)
+        stability = require_stable(model.A, model.B, method, dt_ns / 1e9)
+    except ValueError as exc:  # IntegratorError, UnstableStepError
+        raise NodeConfigError("method", str(exc).removeprefix("method: ")) from None
+    return NodeSettings(
+        values=dict(values),
+        scene=scene,
+        params=params,
+        model=model,
+        model_reason=reason,
+        method=integrator.name,
+        tick_ns=tick_ns,
+        dt_ns=dt_ns,
+        integrator=integrator,
+        stability=stability,
+        step_rate_hz=step_rate,
+        substeps=substeps,
+        input_timeout_ns=int(round(timeout * 1e9)),
+        timeout_behavior=behavior,
+        drive_source=drive_source,
+        torque_limit=limit,
+        torque_bound=bound if bound > 0 else scene_torque_bound(scene),
+        publish_clock=publish_clock,
+        real_time_factor=rtf,
+        record_path=record_path,
+        method_options=options,
+    )
+
+
+def describe_parameters(scene_name: str = DEFAULT_SCENE) -> str:
+    """Text table of the node's parameters (defaults for ``scene_name``): what ``--list-parameters`` prints."""
+    scene = load_scene(scene_name)
+    values = default_values(scene)
+    lines = [f"parameters of belt-drive node (defaults for scene '{scene.name}'):"]
+    for spec in NODE_PARAMETERS:
+        extra = ""
+        if spec.range:
+            extra = f" range [{spec.range[0]:g}, {spec.range[1]:g}]"
+        elif spec.choices:
+            extra = f" one of {', '.join(spec.choices)}"
+        lines.append(f"  {spec.name:<18} = {values[spec.name]!r:<14}{extra}  {spec.description}")
+    lines.append("model parameters (BeltDriveParams, SI units):")
+    for name, (unit, text) in FIELD_DOCS.items():
+        lo, hi = model_range(name)
+        lines.append(f"  {name:<18} = {values[name]!r:<14} [{unit}] range [{lo:g}, {hi:g}]  {text}")
+    lines.append("  use_sim_time       = False          follow /clock (rclpy)")
+    return "\n".join(lines)

@@ -1,0 +1,268 @@
+"""The node's simulation: plant, state and scene time, advanced tick by tick (no rclpy).
+
+:class:`NodeSimulation` is what :class:`~belt_drive_ros.ros.node.BeltDriveNode`
+calls from every tick: :meth:`~NodeSimulation.advance_to` advances the
+state from the last tick time to the new one through the core's one
+engine (:class:`~belt_drive_ros.core.stepper.Stepper`, on the grid
+``k dt`` of scene time, with partial steps and splits at torque
+breakpoints), samples the drive input for the next interval, and
+:meth:`~NodeSimulation.outputs` evaluates every output signal at that time
+with the model's own ``outputs(x, u)``. Times are integers [ns] on the
+node's time base; scene time ``t = (now - origin) / 1e9`` [s] starts at 0
+when the run starts (the first tick, the first ``/clock`` seen, a restart).
+
+Divergence rule
+---------------
+If the integrator raises, or the state becomes non-finite or faster than
+:data:`~belt_drive_ros.core.stepper.SPEED_LIMIT`, the simulation records
+the reason (:attr:`~NodeSimulation.last_divergence`), counts it
+(``divergences``) and restarts from the scene's initial state at that tick
+(scene time 0 again): the node keeps publishing, never a stale or
+non-finite value, and ``/diagnostics`` reports ERROR for the window in which
+it happened.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..core.errors import SimulationDivergedError
+from ..core.model import OUTPUT_UNITS
+from ..core.stepper import Plant, Stepper, snap_tolerance
+from .inputs import DriveInput
+from .parameter_schema import NodeSettings
+
+__all__ = ["NodeSimulation", "TICK_OUTPUTS"]
+
+#: the signals of one tick, as :meth:`NodeSimulation.outputs` returns them (the model's outputs)
+TICK_OUTPUTS = tuple(OUTPUT_UNITS)
+
+
+class NodeSimulation:
+    """Plant, state and scene time of a node (see the module docstring).
+
+    Parameters
+    ----------
+    settings : NodeSettings
+    drive : DriveInput
+        The node's drive-torque input (sampled at each tick).
+    counters : dict
+        Shared counters; ``restarts``, ``divergences`` are added.
+    logger
+        Anything with ``info``, ``warn`` and ``error`` methods taking a line.
+    """
+
+    def __init__(self, settings: NodeSettings, drive: DriveInput, counters: dict, logger):
+        self.drive = drive
+        self.counters = counters
+        for key in ("restarts", "divergences", "clock_jumps"):
+            counters.setdefault(key, 0)
+        self.log = logger
+        self.settings = settings
+        self.stepper = self._make_stepper(settings)
+        self.x = settings.scene.initial_state.vector(settings.model.name, settings.params.ratio)
+        #: integrated-to time [ns, node time base]; None before the run starts
+        self.t_ns: int | None = None
+        #: node time [ns] of scene time 0
+        self.origin_ns = 0
+        #: (reason, node time [ns]) of the last divergence, or None
+        self.last_divergence: tuple[str, int] | None = None
+        #: scene time [s] at which the held drive torque last changed (a breakpoint of the drive), or None
+        self._held_jump: float | None = None
+
+    # ------------------------------------------------------------- settings
+    def _make_stepper(self, s: NodeSettings) -> Stepper:
+        """The core's stepper for the settings' model, torques and integrator (grid origin: scene time 0)."""
+        drive = s.scene.drive if s.drive_source == "scene" else self.drive.applied
+        plant = Plant(s.model, drive, s.scene.load)
+        stepper = Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
+        self._plant_breakpoints = list(stepper.breakpoints)
+        return stepper
+
+    @property
+    def plant(self) -> Plant:
+        return self.stepper.plant
+
+    def apply(self, new: NodeSettings, changed: set, load_torque: float = 0.0) -> None:
+        """Switch to validated settings ``new`` (``changed``: the parameter names) without a restart.
+
+        A new scene restarts from its initial state; a rigid <-> flexible
+        switch maps the state (``load_torque`` [N m] sets the flexible
+        state's static belt deflection).
+        """
+        old = self.settings
+        self.settings = new
+        self.stepper = self._make_stepper(new)
+        if new.scene.name != old.scene.name or "scene" in changed:
+            self.restart("scene changed")
+        elif new.model.name != old.model.name:
+            self.x = self._map_state(self.x, old.model, new.model, load_torque)
+        else:
+            self.stepper.reset()
+
+    @staticmethod
+    def _map_state(x: np.ndarray, old_model, new_model, load_torque: float) -> np.ndarray:
+        """State of ``old_model`` expressed for ``new_model`` (rigid <-> flexible)."""
+        if new_model.name == "rigid":
+            return new_model.state_from_flexible(x)
+        return new_model.state_from_rigid(x, load_torque=load_torque)
+
+    # ----------------------------------------------------------------- time
+    @property
+    def started(self) -> bool:
+        return self.t_ns is not None
+
+    def scene_time(self, now_ns: int) -> float:
+        """Scene time [s] of node time ``now_ns``: the stepper's grid time ``k dt`` when it is one.
+
+        (``k * 1e6 / 1e9`` and ``k * 0.001`` may differ in the last bit; the
+        torques at a tick are evaluated at the very float the offline run
+        uses.)
+        """
+        t = (now_ns - self.origin_ns) / 1e9
+        stepper = self.stepper
+        grid = stepper.grid_time(round(t / stepper.dt))
+        return grid if abs(grid - t) <= snap_tolerance(t, stepper.dt) else t
+
+    def grid_time(self, now_ns: int) -> int:
+        """The tick of the run's grid (origin + k * tick) a timer call at ``now_ns`` integrates to.
+
+        The next tick after the last one, also when the call comes a little
+        early (up to half a period) or late (up to a whole period); the
+        latest tick at or before ``now_ns`` when it comes later (the ticks in
+        between are integrated, not published); the last tick (nothing to
+        do) when it comes more than half a period early.
+        """
+        if self.t_ns is None or now_ns < self.origin_ns:
+            return now_ns
+        tick = self.settings.tick_ns
+        due = self.t_ns + tick - (self.t_ns - self.origin_ns) % tick
+        if now_ns >= due + tick:
+            return now_ns - (now_ns - self.origin_ns) % tick
+        return due if due - now_ns <= tick // 2 else self.t_ns
+
+    def start(self, now_ns: int) -> None:
+        """Start (or restart) the run at node time ``now_ns``: scene time 0, the initial state."""
+        s = self.settings
+        self.origin_ns = now_ns
+        self.t_ns = now_ns
+        self.x = s.scene.initial_state.vector(s.model.name, s.params.ratio)
+        self.stepper.reset()
+        self.counters["restarts"] += 1
+        self._hold(self._sample(now_ns), 0.0, first=True)  # held since before 0: no jump at 0
+
+    def stop(self) -> None:
+        """Forget the time base: the next tick starts the run again (clock source changed)."""
+        if self.t_ns is not None:
+            self.t_ns = None
+            self.counters["clock_jumps"] += 1
+
+    def restart(self, why: str, now_ns: int | None = None) -> bool:
+        """Restart from the initial state at ``now_ns`` (default: the last tick); True if running.
+
+        Before the run has started this only resets the state.
+        """
+        if self.t_ns is None:
+            s = self.settings
+            self.x = s.scene.initial_state.vector(s.model.name, s.params.ratio)
+            return False
+        self.start(self.t_ns if now_ns is None else now_ns)
+        self.log.info(f"restarted from the initial state ({why})")
+        return True
+
+    def _sample(self, now_ns: int) -> float | None:
+        """The drive torque sampled at ``now_ns`` (None when the scene drives): logs a timeout warning."""
+        if self.settings.drive_source != "topic":
+            return None
+        value, warning = self.drive.sample(now_ns, self.origin_ns, self.settings)
+        if warning:
+            self.log.warn(warning)
+        return value
+
+    def _hold(self, value: float | None, t: float, first: bool = False) -> None:
+        """Hold the sampled ``value`` from scene time ``t`` on; a change (not the first sample) is a breakpoint."""
+        if value is None:
+            self._held_jump = None
+            return
+        held = self.drive.applied
+        self._held_jump = None if first or value == held.value else t
+        held.value = value
+
+    def _drive_breakpoints(self, t0: float, t1: float, value: float | None) -> None:
+        """The stepper's breakpoints for the advance t0 -> t1: the plant's, plus where the held torque jumps.
+
+        The held drive is a zero-order hold of the samples, a table that
+        jumps at the ticks where the sampled value changes: at ``t0`` if it
+        changed there, at ``t1`` if the new sample differs. The offline
+        re-simulation of the same samples has exactly these breakpoints, so
+        both take the same steps the same way (bit-identical states).
+        """
+        extra = []
+        if self._held_jump is not None and self._held_jump == t0:
+            extra.append(t0)
+        if value is not None and value != self.drive.applied.value:
+            extra.append(t1)
+        base = self._plant_breakpoints
+        self.stepper.breakpoints = sorted(base + extra) if extra else base
+
+    def advance_to(self, now_ns: int) -> bool:
+        """Integrate to ``now_ns``, then sample the input there; True if there are new outputs at ``now_ns``.
+
+        The first call starts the run at ``now_ns``. A clock that went
+        backwards restarts the run there (counted in ``clock_jumps``).
+        """
+        if self.t_ns is None:
+            self.start(now_ns)
+            return True
+        if now_ns < self.t_ns:
+            self.counters["clock_jumps"] += 1
+            self.log.warn(f"clock jumped back {(self.t_ns - now_ns) / 1e9:.6g} s: restarting from the initial state")
+            self.start(now_ns)
+            return True
+        if now_ns == self.t_ns:
+            return False
+        t0, t1 = self.scene_time(self.t_ns), self.scene_time(now_ns)
+        value = self._sample(now_ns)  # needs no state: known before the interval is integrated
+        self._drive_breakpoints(t0, t1, value)
+        try:
+            x = self.stepper.advance(self.x, t0, t1)
+        except SimulationDivergedError as exc:
+            self.diverged(f"{exc}; drive torque {self.drive.applied.value:g} N m", now_ns)
+            return True
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+            self.diverged(f"integrator failed at t={self.scene_time(self.t_ns):.6g} s: {exc}", now_ns)
+            return True
+        self.x = x
+        self.t_ns = now_ns
+        self._hold(value, t1)
+        return True
+
+    def diverged(self, reason: str, now_ns: int) -> None:
+        """Apply the divergence rule (module docstring) at node time ``now_ns``."""
+        self.counters["divergences"] += 1
+        self.last_divergence = (reason, now_ns)
+        self.log.error(f"{reason}; restarting from the initial state (divergence {self.counters['divergences']})")
+        self.start(now_ns)
+
+    # -------------------------------------------------------------- outputs
+    def outputs(self, now_ns: int) -> dict:
+        """Every signal of :data:`TICK_OUTPUTS` at ``now_ns`` (the state integrated to it) [SI units].
+
+        Evaluated by the model's own ``outputs(x, u)``, the function the
+        offline simulator applies to its whole run, so the node's values
+        equal the offline ones bit for bit. Finite by construction: the
+        state was checked by :meth:`advance_to`; torques that are not finite
+        count as a divergence (the run restarts; the initial state's outputs
+        are returned).
+        """
+        model = self.settings.model
+        u = self.plant.inputs(self.scene_time(now_ns), self.x)
+        if not (math.isfinite(u[0]) and math.isfinite(u[1])):
+            self.diverged(
+                f"non-finite torque at t={self.scene_time(now_ns):.6g} s (drive {u[0]!r}, load {u[1]!r} N m)", now_ns
+            )
+            u = np.nan_to_num(self.plant.inputs(0.0, self.x), nan=0.0, posinf=0.0, neginf=0.0)
+        out = model.outputs(self.x, u)  # a finite state and finite torques: nothing for numpy to warn about
+        return out  # numpy float64 scalars (a float subclass) and numpy bools

@@ -1,0 +1,297 @@
+"""The node's three tick sources and its tick statistics.
+
+:class:`TickSource` owns the timers of a node and calls ``tick(now_ns)``
+once per tick with the node time to integrate to:
+
+* **system clock** (default): a timer on the node's clock at
+  ``step_rate_hz``. The run starts at the first tick (scene time 0 = the
+  time that call was scheduled for, truncated to whole microseconds) and every later tick integrates to
+  the next point of the run's tick grid (origin + k / step_rate_hz; the
+  latest one at or before now when the timer is more than a period late):
+  a late timer integrates every missed tick in one go, the stamps stay on the
+  grid (the timer's jitter shows as latency, never as uneven simulated
+  time), and a recording of the run re-simulates exactly.
+* ``use_sim_time:=true``: the node follows ``/clock``. The run starts at
+  the first ``/clock`` the node sees (also ``/clock`` = 0) and publishes the
+  initial state stamped with it (a one-shot ``/clock`` subscription sees a
+  first ``/clock`` of 0, which leaves the clock itself unchanged); after
+  that each tick integrates exactly to the clock's time. A ``/clock`` jump past a tick makes the timer fire
+  (once, however far it jumps), and the tick integrates to the new time, so
+  the outputs are a deterministic function of the ``/clock`` and torque
+  sequences (bit-identical reruns).
+* ``publish_clock:=true``: the node is the time master. It advances its own
+  simulated time by whole ticks, paced by a wall (steady) timer at
+  ``real_time_factor`` (0: as fast as the CPU allows, in 2 ms slices of
+  back-to-back ticks between which inputs are served), and after each tick
+  publishes the outputs and then ``/clock`` with the *same* time. A late
+  wall timer catches up by several whole ticks in one step (at most 1 s of
+  simulated time; beyond that the pacing re-anchors instead of bursting).
+
+:class:`TickStats` keeps the wall-clock tick periods (a ring of 4096), late
+ticks and overruns for ``/diagnostics``.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+import numpy as np
+from rclpy.clock import Clock, ClockType, JumpThreshold
+from rosgraph_msgs.msg import Clock as ClockMsg
+
+from .qos import CLOCK_QOS
+
+__all__ = ["TickSource", "TickStats", "stamp"]
+
+#: on the system clock the run's origin is truncated to whole microseconds
+SYSTEM_TIME_QUANTUM_NS = 1000
+#: publish_clock as fast as possible: ticks run back to back for this much wall
+#: time per callback of a wall timer of this period, then the executor serves inputs
+FREE_RUN_SLICE_S = 0.002
+FREE_RUN_PERIOD_S = 0.0005
+#: a publish_clock tick may catch up at most this much simulated time [ns]
+#: after the wall timer was late; beyond it the pacing re-anchors.
+MAX_CATCH_UP_NS = 1_000_000_000
+
+
+def stamp(msg_time, ns: int) -> None:
+    """Set a ``builtin_interfaces/Time`` to ``ns`` nanoseconds."""
+    msg_time.sec, msg_time.nanosec = divmod(int(ns), 1_000_000_000)
+
+
+class Window:
+    """Counters of one diagnostics window (reset after each publish)."""
+
+    __slots__ = ("ticks", "overruns", "late_ticks", "slack", "slip", "divergences", "wall")
+
+    def __init__(self):
+        self.ticks = self.overruns = self.late_ticks = self.slack = self.slip = self.divergences = 0
+        self.wall = time.perf_counter()
+
+
+class TickStats:
+    """Wall-clock timing of the ticks: period ring buffer, late ticks, overruns."""
+
+    def __init__(self, counters: dict, size: int = 4096):
+        self.counters = counters
+        for key in ("ticks", "overruns", "late_ticks"):
+            counters.setdefault(key, 0)
+        self.periods = np.zeros(size)  # the last `size` tick intervals [s of wall time]
+        self.n_periods = 0
+        self.window = Window()
+        self.prev_start: float | None = None
+
+    def new_window(self) -> Window:
+        """Return the finished window and start a new one."""
+        w, self.window = self.window, Window()
+        return w
+
+    def record(self, start: float, end: float, nominal: float | None) -> None:
+        """One tick that ran from ``start`` to ``end`` [s, perf_counter]; ``nominal`` period [s] or None (untimed)."""
+        w = self.window
+        w.ticks += 1
+        self.counters["ticks"] += 1
+        prev = self.prev_start
+        self.prev_start = start
+        if prev is None:
+            return
+        interval = start - prev
+        self.periods[self.n_periods % self.periods.size] = interval
+        self.n_periods += 1
+        if nominal is not None:
+            if interval > 1.5 * nominal:
+                w.late_ticks += 1
+                self.counters["late_ticks"] += 1
+            if end - start > nominal:
+                w.overruns += 1
+                self.counters["overruns"] += 1
+
+    def period_error_ms(self, nominal: float) -> tuple[float, float, float]:
+        """|period - nominal| [ms]: p50, p99, max over the ring (NaN without data)."""
+        n = min(self.n_periods, self.periods.size)
+        if not n:
+            return (float("nan"),) * 3
+        err = np.abs(self.periods[:n] - nominal) * 1e3
+        return tuple(float(v) for v in np.percentile(err, [50, 99, 100]))
+
+
+class TickSource:
+    """The timers that tick a node (see the module docstring).
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+    tick : callable
+        ``tick(now_ns)``: integrate to ``now_ns`` and publish.
+    sim : NodeSimulation
+        Its time base (started, origin, grid) decides where a tick integrates to.
+    stats : TickStats
+    """
+
+    def __init__(self, node, tick: Callable[[int], None], sim, stats: TickStats):
+        self.node = node
+        self._tick = tick
+        self.sim = sim
+        self.stats = stats
+        self._timers: list = []
+        self._tick_timer = None
+        self._pub_clock = None
+        self._clock_msg = ClockMsg()
+        self._first_clock = None  # subscription waiting for the first /clock (sim time only)
+        self.sim_ns = 0  # publish_clock: the node's own simulated time
+        self._anchor = (0, 0)  # publish_clock pacing: (sim ns, monotonic ns)
+        self._ros_time: bool | None = None
+        self._jump_handle = node.get_clock().create_jump_callback(
+            JumpThreshold(min_forward=None, min_backward=None, on_clock_change=True), post_callback=self._on_clock_change
+        )
+
+    # ----------------------------------------------------------- queries
+    def use_sim_time(self) -> bool:
+        """True while the node's clock follows /clock (cached; updated on clock changes)."""
+        if self._ros_time is None:
+            self._ros_time = bool(self.node.get_clock().ros_time_is_active)
+        return self._ros_time
+
+    def now_ns(self) -> int:
+        """Now on the node's time base: simulated time with publish_clock, else the node's clock."""
+        if self.sim.settings.publish_clock:
+            return self.sim_ns
+        return self.node.get_clock().now().nanoseconds
+
+    def time_base(self) -> str:
+        if self.sim.settings.publish_clock:
+            return "publish_clock"
+        return "sim_time" if self.use_sim_time() else "system"
+
+    def nominal_period(self) -> float:
+        """Wall-clock period [s] a tick should take on the current time base."""
+        s = self.sim.settings
+        nominal = s.tick_ns / 1e9
+        if s.publish_clock and s.real_time_factor > 0:
+            nominal /= s.real_time_factor
+        return nominal
+
+    def tick_pending(self) -> bool:
+        """True while the tick timer is due but its callback has not run yet (for lockstep drivers)."""
+        timer = self._tick_timer
+        if timer is None or timer.is_canceled():
+            return False
+        remaining = timer.time_until_next_call()
+        return remaining is not None and remaining <= 0
+
+    # ------------------------------------------------------------- setup
+    def configure(self, was_publishing_clock: bool = False) -> None:
+        """(Re)create the timers for the simulation's current settings."""
+        node = self.node
+        for timer in self._timers:
+            node.destroy_timer(timer)
+        self._timers.clear()
+        self._tick_timer = None
+        s = self.sim.settings
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        if s.publish_clock:
+            if self._pub_clock is None:
+                self._pub_clock = node.create_publisher(ClockMsg, "/clock", CLOCK_QOS)
+            if self.sim.started:
+                self.sim_ns = self.sim.t_ns  # continue from where the node's time base was
+            self._anchor = (self.sim_ns, time.monotonic_ns())
+            if s.real_time_factor > 0:
+                period = s.tick_ns / s.real_time_factor / 1e9
+                self._timers.append(node.create_timer(period, self._on_pace, clock=steady))
+            else:  # as fast as possible (no guard conditions: the events executor lacks them)
+                self._timers.append(node.create_timer(FREE_RUN_PERIOD_S, self._on_free_run, clock=steady))
+        else:
+            if was_publishing_clock:
+                self.sim.stop()  # leaving our own time base: restart on the node clock at its next tick
+            self._tick_timer = node.create_timer(s.tick_ns / 1e9, self._on_tick)
+            self._timers.append(self._tick_timer)
+            self._watch_first_clock()
+        self.stats.prev_start = None
+
+    def _watch_first_clock(self) -> None:
+        """With sim time and no run yet: start the run at the first /clock message (also 0)."""
+        if self.use_sim_time() and not self.sim.started and self._first_clock is None:
+            self._first_clock = self.node.create_subscription(ClockMsg, "/clock", self._on_first_clock, CLOCK_QOS)
+
+    def _on_first_clock(self, msg) -> None:
+        sub, self._first_clock = self._first_clock, None
+        if sub is not None:
+            self.node.destroy_subscription(sub)
+        if self.sim.settings.publish_clock or not self.use_sim_time() or self.sim.started:
+            return
+        self._tick(msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
+
+    def _on_clock_change(self, jump) -> None:
+        """ROS time (de)activated (use_sim_time toggled): restart on the new time base."""
+        self._ros_time = None  # re-read on the next use
+        if not self.sim.settings.publish_clock:
+            self.sim.stop()
+            self._watch_first_clock()
+
+    def destroy(self) -> None:
+        for timer in self._timers:
+            self.node.destroy_timer(timer)
+        self._timers.clear()
+        if self._first_clock is not None:
+            self.node.destroy_subscription(self._first_clock)
+            self._first_clock = None
+
+    # ------------------------------------------------------------- ticks
+    def _on_tick(self) -> None:
+        start = time.perf_counter()
+        now = self.node.get_clock().now().nanoseconds
+        sim = self.sim
+        if self.use_sim_time():
+            if not sim.started and now == 0:
+                return  # no /clock yet, or /clock = 0: the first-/clock subscription starts the run
+            self._tick(now)
+            self.stats.record(start, time.perf_counter(), None)
+            return
+        if sim.started:
+            now = sim.grid_time(now)
+        else:  # start on the time this call was scheduled for: later calls then land on the grid
+            remaining = self._tick_timer.time_until_next_call()
+            tick = sim.settings.tick_ns
+            if remaining is not None and 0 <= tick - remaining <= tick:
+                now = now + remaining - tick
+            now -= now % SYSTEM_TIME_QUANTUM_NS
+        self._tick(now)
+        self.stats.record(start, time.perf_counter(), self.nominal_period())
+
+    def _master_tick(self, target_ns: int, start: float, nominal: float | None) -> None:
+        self.sim_ns = target_ns
+        self._tick(target_ns)
+        msg = self._clock_msg
+        stamp(msg.clock, target_ns)
+        self._pub_clock.publish(msg)
+        self.stats.record(start, time.perf_counter(), nominal)
+
+    def _on_pace(self) -> None:
+        """publish_clock with real_time_factor > 0: simulated time follows the wall clock x factor."""
+        start = time.perf_counter()
+        s = self.sim.settings
+        anchor_sim, anchor_wall = self._anchor
+        elapsed = int((time.monotonic_ns() - anchor_wall) * s.real_time_factor)
+        target = anchor_sim + (elapsed // s.tick_ns) * s.tick_ns
+        if target <= self.sim_ns and self.sim.started:
+            return
+        if target - self.sim_ns > MAX_CATCH_UP_NS:  # wall timer starved: re-anchor, do not burst
+            self.stats.counters["late_ticks"] += 1
+            target = self.sim_ns + s.tick_ns
+            self._anchor = (target, time.monotonic_ns())
+        self._master_tick(target, start, self.nominal_period())
+
+    def _on_free_run(self) -> None:
+        """publish_clock with real_time_factor = 0: whole ticks back to back for one slice of wall time.
+
+        Between slices the executor serves inputs, services and parameters.
+        """
+        end = time.perf_counter() + FREE_RUN_SLICE_S
+        tick_ns = self.sim.settings.tick_ns
+        while True:
+            start = time.perf_counter()
+            target = self.sim_ns + tick_ns if self.sim.started else self.sim_ns
+            self._master_tick(target, start, None)
+            if start >= end:
+                break
