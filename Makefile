@@ -9,9 +9,11 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-# DDS traffic stays on this machine, before any rclpy process starts.
-export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
-export ROS_LOCALHOST_ONLY := 1
+# DDS traffic of the demo and the tests stays on this machine, unless you chose a
+# range yourself (ROS_LOCALHOST_ONLY is deprecated in Jazzy and never set here).
+ifeq ($(origin ROS_LOCALHOST_ONLY),undefined)
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+endif
 export MPLBACKEND := Agg
 export PYTHONDONTWRITEBYTECODE := 1
 

@@ -13,7 +13,6 @@ import struct
 import sys
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-os.environ.setdefault("ROS_LOCALHOST_ONLY", "1")
 os.environ.setdefault("ROS_DOMAIN_ID", "57")
 
 import numpy as np  # noqa: E402

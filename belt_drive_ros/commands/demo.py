@@ -58,7 +58,7 @@ def live_run(scene_name: str = "truck_compressor", duration: float = 4.0, execut
     """Engine source -> belt node for ``duration`` s of real time; print and return the summary figures."""
     from ..ros import environment as ros_env
 
-    ros_env.configure_environment()
+    ros_env.configure_environment(loopback=True)
     ros_env.limit_blas_threads()
     import signal
     import time
