@@ -221,13 +221,14 @@ def bag_metadata_yaml(
 
 
 class _Channel:
-    __slots__ = ("channel_id", "topic", "type_name", "qos_yaml", "count", "sequence")
+    __slots__ = ("channel_id", "topic", "type_name", "qos_yaml", "type_hash", "count", "sequence")
 
-    def __init__(self, channel_id: int, topic: str, type_name: str, qos_yaml: str):
+    def __init__(self, channel_id: int, topic: str, type_name: str, qos_yaml: str, type_hash: str):
         self.channel_id = channel_id
         self.topic = topic
         self.type_name = type_name
         self.qos_yaml = qos_yaml
+        self.type_hash = type_hash
         self.count = 0
         self.sequence = 0
 
@@ -429,7 +430,8 @@ class Ros2McapWriter:
             self._schema_ids[type_name] = schema_id
         return schema_id
 
-    def add_topic(self, topic: str, type_name: str, qos: Union[QosLike, List[QosLike], None] = None) -> None:
+    def add_topic(self, topic: str, type_name: str, qos: Union[QosLike, List[QosLike], None] = None,
+                  type_hash: Optional[str] = None) -> None:
         """Declare a topic (channel) before its first message.
 
         Parameters
@@ -441,6 +443,12 @@ class Ros2McapWriter:
         qos : preset name, QosProfile, dict, rclpy QoSProfile or list, optional
             Offered QoS written as ``offered_qos_profiles``; default ``"reliable"``.
             Only used when the channel is created (first call for the topic).
+        type_hash : str, optional
+            ``RIHS01_...`` hash of the type as discovery reports it (a live
+            recorder passes the publishers'); default: computed from the
+            definition (:func:`msg_tools.schemas.type_hash`). Written as the
+            channel's ``topic_type_hash`` and the topic's
+            ``type_description_hash``.
 
         Raises
         ------
@@ -451,9 +459,9 @@ class Ros2McapWriter:
         """
         with self._lock:
             self._check_writable()
-            self._channel(topic, type_name, qos)
+            self._channel(topic, type_name, qos, type_hash)
 
-    def _channel(self, topic: str, type_name: str, qos: Any) -> _Channel:
+    def _channel(self, topic: str, type_name: str, qos: Any, type_hash: Optional[str] = None) -> _Channel:
         channel = self._channels.get(topic)
         full_type = _schemas.normalize_type_name(type_name)
         if channel is not None:
@@ -465,6 +473,8 @@ class Ros2McapWriter:
         if not isinstance(topic, str) or not topic:
             raise ValueError(f"topic must be a non-empty string, got {topic!r}")
         qos_yaml = offered_qos_yaml(as_profiles(qos))
+        if not type_hash:
+            type_hash = _schemas.type_hash(full_type, self._extra_definitions)
         try:
             schema_id = self._schema_id(full_type)
             channel_id = self._mcap.register_channel(
@@ -473,12 +483,12 @@ class Ros2McapWriter:
                 schema_id=schema_id,
                 metadata={
                     "offered_qos_profiles": qos_yaml,
-                    "topic_type_hash": _schemas.type_hash(full_type),
+                    "topic_type_hash": type_hash,
                 },
             )
         except OSError as exc:
             raise self._fail(exc) from exc
-        channel = _Channel(channel_id, topic, full_type, qos_yaml)
+        channel = _Channel(channel_id, topic, full_type, qos_yaml, type_hash)
         self._channels[topic] = channel
         return channel
 
@@ -637,7 +647,7 @@ class Ros2McapWriter:
                     "name": ch.topic,
                     "type": ch.type_name,
                     "offered_qos_profiles": ch.qos_yaml,
-                    "type_description_hash": _schemas.type_hash(ch.type_name),
+                    "type_description_hash": ch.type_hash,
                     "message_count": ch.count,
                 }
                 for ch in self._channels.values()

@@ -143,15 +143,65 @@ def test_clock_and_diagnostics_round_trip_both_ways():
     assert back.status[0].level == DiagnosticStatus.WARN and back.status[0].values[0].key == "slip"
 
 
-@pytest.mark.parametrize("type_name", schemas.known_types())
-def test_definitions_and_hashes_are_the_installed_jazzy_ones(type_name):
-    package, _, name = type_name.split("/")
+def _share(package):
     try:
-        share = get_package_share_directory(package)
+        return get_package_share_directory(package)
     except (OSError, LookupError):  # pip-installed ROS wheels: no AMENT_PREFIX_PATH
-        share = os.path.join(sys.prefix, "share", package)
-    with open(os.path.join(share, "msg", name + ".msg"), encoding="utf-8") as f:
+        return os.path.join(sys.prefix, "share", package)
+
+
+@pytest.mark.parametrize("type_name", schemas.known_types())
+def test_built_in_definitions_are_the_installed_jazzy_ones(type_name):
+    package, _, name = type_name.split("/")
+    with open(os.path.join(_share(package), "msg", name + ".msg"), encoding="utf-8") as f:
         assert schemas.MESSAGE_DEFINITIONS[type_name] == f.read()
-    with open(os.path.join(share, "msg", name + ".json"), encoding="utf-8") as f:
-        hashes = {h["type_name"]: h["hash_string"] for h in json.load(f)["type_hashes"]}
-    assert schemas.TYPE_HASHES[type_name] == hashes[type_name]
+
+
+HASHED_PACKAGES = ("builtin_interfaces", "std_msgs", "sensor_msgs", "diagnostic_msgs", "geometry_msgs",
+                   "rosgraph_msgs", "rcl_interfaces", "lifecycle_msgs", "action_msgs")
+
+
+@pytest.mark.parametrize("package", HASHED_PACKAGES)
+def test_computed_type_hashes_equal_the_ones_rosidl_generated(package):
+    """RIHS01 hashes computed from the .msg texts equal the ones rosidl shipped (share/<pkg>/msg/*.json)."""
+    import glob
+
+    files = sorted(glob.glob(os.path.join(_share(package), "msg", "*.json")))
+    assert files, f"no type description files of {package}"
+    for path in files:
+        with open(path, encoding="utf-8") as f:
+            shipped = json.load(f)["type_hashes"]
+        for entry in shipped:  # the type itself and every type it references
+            assert schemas.type_hash(entry["type_name"]) == entry["hash_string"], entry["type_name"]
+
+
+def test_computed_type_hash_equals_the_one_discovery_reports():
+    """The hash rclpy's discovery reports for a publisher's type (what a live recording stores) is ours."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Twist
+    from rcl_interfaces.msg import Log
+    from rclpy.context import Context
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+
+    from belt_drive_ros.ros.environment import process_domain_id
+
+    types = {"/t_float": (Float64, "std_msgs/msg/Float64"),
+             "/t_joint": (JointState, "sensor_msgs/msg/JointState"),
+             "/t_diag": (DiagnosticArray, "diagnostic_msgs/msg/DiagnosticArray"),
+             "/t_twist": (Twist, "geometry_msgs/msg/Twist"),
+             "/t_log": (Log, "rcl_interfaces/msg/Log")}
+    context = Context()
+    rclpy.init(context=context, domain_id=process_domain_id(offset=71))
+    try:
+        node = rclpy.create_node("hash_probe", context=context)
+        for topic, (cls, _) in types.items():
+            node.create_publisher(cls, topic, 1)
+        for topic, (_, name) in types.items():
+            infos = node.get_publishers_info_by_topic(topic)
+            assert len(infos) == 1
+            assert str(infos[0].topic_type_hash) == schemas.type_hash(name), name
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

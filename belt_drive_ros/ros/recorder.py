@@ -222,8 +222,15 @@ class TopicRecorder:
     def _declare(self, topic: str, type_name: str) -> None:
         from msg_tools.qos import QosProfile
 
-        offered = [QosProfile.from_rclpy(q) for q in self.offered_qos(topic)]
-        self.writer.add_topic(topic, type_name, offered or "reliable")
+        try:
+            infos = self.node.get_publishers_info_by_topic(topic)
+        except Exception:  # noqa: BLE001 - graph query failed: defaults below
+            infos = []
+        offered = [QosProfile.from_rclpy(info.qos_profile) for info in infos]
+        # the type hash as discovery reports it; computed from the definition if none is valid
+        hashes = [str(info.topic_type_hash) for info in infos
+                  if str(getattr(info, "topic_type_hash", "")).startswith("RIHS")]
+        self.writer.add_topic(topic, type_name, offered or "reliable", type_hash=hashes[0] if hashes else None)
         self._declared.add(topic)
 
     def write(self, topic: str, type_name: str, data: bytes, log_time_ns: int) -> None:
