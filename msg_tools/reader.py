@@ -826,14 +826,14 @@ def _decode_joint_state_objects(objs: Sequence[Any]) -> Dict[str, Any]:
 
 
 def _decoder_for(type_name: str, schema: Optional[_Schema]) -> Callable[[bytes], Any]:
-    from mcap_ros2._dynamic import generate_dynamic
+    from ._cdr import decoder_for
 
     if schema is not None and schema.encoding == "ros2msg" and schema.data:
         text = schema.data.decode("utf-8")
     else:
         text = _schemas.schema_text(type_name)
     try:
-        return generate_dynamic(type_name, text)[type_name]
+        return decoder_for(type_name, text)
     except Exception as exc:  # noqa: BLE001 - parser errors of many kinds
         raise DecodeError(f"cannot build a decoder for {type_name}: {exc}") from None
 

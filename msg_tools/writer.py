@@ -102,14 +102,14 @@ def encode(type_name: str, message: Any, schema: Optional[str] = None) -> bytes:
         4-byte encapsulation header ``00 01 00 00`` then the payload. The
         output is deterministic (padding bytes are zero).
     """
-    from mcap_ros2._dynamic import serialize_dynamic
+    from ._cdr import encoder_for
 
     full_name = _schemas.normalize_type_name(type_name)
     key = full_name if schema is None else f"{full_name}\0{schema}"
     encoder = _encoders.get(key)
     if encoder is None:
         text = schema if schema is not None else _schemas.schema_text(full_name)
-        encoder = serialize_dynamic(full_name, text)[full_name]
+        encoder = encoder_for(full_name, text)
         _encoders[key] = encoder
     try:
         return bytes(encoder(_plain(message)))

@@ -29,7 +29,7 @@ from msg_tools import Ros2McapWriter, read_topic  # noqa: E402
 from msg_tools import schemas  # noqa: E402
 from msg_tools.reader import _joint_layout  # noqa: E402
 from msg_tools.writer import encode  # noqa: E402
-from mcap_ros2._dynamic import generate_dynamic  # noqa: E402
+from msg_tools._cdr import decoder_for  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -37,7 +37,7 @@ RNG = np.random.default_rng(7)
 
 
 def _decode(type_name, data):
-    return generate_dynamic(type_name, schemas.schema_text(type_name))[type_name](data)
+    return decoder_for(type_name, schemas.schema_text(type_name))(data)
 
 
 def _non_padding_mask(data: bytes) -> np.ndarray:

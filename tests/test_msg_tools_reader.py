@@ -10,7 +10,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
-from mcap_ros2._dynamic import generate_dynamic
+from msg_tools._cdr import decoder_for
 
 from msg_tools import (
     BagNotFoundError,
@@ -31,7 +31,7 @@ RNG = np.random.default_rng(20240611)
 
 
 def _decoder(type_name):
-    return generate_dynamic(type_name, schema_text(type_name))[type_name]
+    return decoder_for(type_name, schema_text(type_name))
 
 
 def _bits(a):
