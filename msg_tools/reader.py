@@ -32,6 +32,7 @@ from typing import IO, Any, Callable, Dict, Iterable, List, Optional, Sequence, 
 
 import numpy as np
 
+from . import index as _index
 from . import schemas as _schemas
 from .errors import (
     BagNotFoundError,
@@ -216,6 +217,11 @@ class BagSummary:
         False if the file was cut off; ``stop_reason`` says where.
     stop_reason : str
         "" for a complete file.
+    damage : list of str
+        Where the data disagrees with the file's summary section (a chunk
+        missing, duplicated or corrupt); empty for a sound file.
+    from_summary : bool
+        True when read from the summary section alone (no scan of the data).
     """
 
     path: str
@@ -232,6 +238,8 @@ class BagSummary:
     compression: List[str]
     complete: bool
     stop_reason: str
+    damage: List[str] = field(default_factory=list)
+    from_summary: bool = False
 
     def metadata_dict(self, name: str) -> Dict[str, str]:
         """Return the merged key/values of all metadata records called ``name``."""
@@ -614,11 +622,27 @@ class _Source:
 
 
 def _scan(source: Source, want: Optional[Callable[[str], bool]], keep_data: bool) -> Tuple[_Scan, int, str]:
+    """Scan the data section; check what was read against the summary section.
+
+    ``scan.damage`` lists where the data disagrees with a readable summary
+    (the file was finished, so every difference is damage); a file without
+    a readable summary is read up to its last complete chunk, with a
+    :class:`RecoveredBagWarning` when it is incomplete.
+    """
     with _Source(source) as src:
         scan = _Scan(src.buf, src.name, want=want, keep_data=keep_data).run()
         size, name = src.size, src.name
+        indexed, reason = _index.read_summary(src.buf) if size else (None, "")
     scan.buf = None  # release the mapping
-    if not scan.complete:
+    scan.damage = []
+    if indexed is not None:
+        scan.damage = list(indexed.problems)
+        if not scan.complete:
+            scan.damage.insert(0, f"the data stops early ({scan.stop_reason})")
+        counts = {cid: len(acc.log) for cid, acc in scan.accs.items()}
+        topics = {cid: ch.topic for cid, ch in scan.channels.items()}
+        scan.damage += _index.count_problems(indexed, counts, topics)
+    elif not scan.complete:
         warnings.warn(
             RecoveredBagWarning(
                 f"{name} is incomplete ({scan.stop_reason}); recovered {scan.message_count} "
@@ -626,7 +650,15 @@ def _scan(source: Source, want: Optional[Callable[[str], bool]], keep_data: bool
             ),
             stacklevel=3,
         )
+    elif reason:
+        warnings.warn(RecoveredBagWarning(f"{name}: {reason}; read from the data section"), stacklevel=3)
     return scan, size, name
+
+
+def damage_error(name: str, damage: List[str]) -> CorruptBagError:
+    """The one-line error for a file whose data disagrees with its summary."""
+    more = f" (and {len(damage) - 1} more problems)" if len(damage) > 1 else ""
+    return CorruptBagError(f"{name} is damaged: {damage[0]}{more}")
 
 
 # --------------------------------------------------------------------------
@@ -1045,6 +1077,7 @@ class Bag:
     available: List[str]
     complete: bool
     stop_reason: str
+    damage: List[str] = field(default_factory=list)
 
     def metadata_dict(self, name: str) -> Dict[str, str]:
         """Return the merged key/values of all metadata records called ``name``."""
@@ -1057,15 +1090,22 @@ def read_bag(
     *,
     missing_ok: bool = False,
     keep_undecodable: bool = False,
+    allow_damaged: bool = False,
 ) -> Bag:
     """Read topics (all by default) and the metadata records in one pass.
 
     Parameters and errors as :func:`read_topics`; with ``keep_undecodable``
     a topic whose messages cannot be decoded is returned with
     ``decoder="failed"`` and the reason in ``decode_error`` instead of raising.
+    A file whose data disagrees with its own summary section (a chunk
+    missing, duplicated or corrupt; message counts per channel differ)
+    raises :class:`CorruptBagError` unless ``allow_damaged`` (then
+    ``Bag.damage`` lists the problems).
     """
     topics = None if topics is None else list(topics)
     scan, _size, name = _scan(source, _topic_matcher(topics), keep_data=True)
+    if scan.damage and not allow_damaged:
+        raise damage_error(name, scan.damage)
     by_topic: Dict[str, List[int]] = {}
     for cid, channel in scan.channels.items():
         if cid in scan.accs:
@@ -1087,6 +1127,7 @@ def read_bag(
         available=available,
         complete=scan.complete,
         stop_reason=scan.stop_reason,
+        damage=list(scan.damage),
     )
 
 
@@ -1156,10 +1197,69 @@ def read_topic(source: Source, topic: str) -> TopicData:
 def summary(source: Source) -> BagSummary:
     """Summarize a bag: header, topics with counts and rates, metadata records.
 
-    Reads the whole data section (no payloads kept), so it also works on files
-    without a summary section.
+    A finished file is answered from its summary section, read with the mcap
+    library (no data is read; the indexes are checked against the records
+    they point at). A file without a readable summary (writer killed), or
+    whose indexes do not match its records, is scanned record by record;
+    ``damage`` then says what disagrees.
     """
+    with _Source(source) as src:
+        indexed, _reason = _index.read_summary(src.buf) if src.size else (None, "")
+        size, name = src.size, src.name
+    if indexed is not None and indexed.sound:
+        return _summary_from_index(indexed, name, size)
     scan, size, name = _scan(source, None, keep_data=False)
+    return _summary_from_scan(scan, name, size)
+
+
+def _topic_info(topic: str, schema_name: str, schema_encoding: str, encoding: str, qos: str,
+                count: int, start: Optional[int], end: Optional[int]) -> TopicInfo:
+    duration = (end - start) * 1e-9 if count and start is not None and end is not None else 0.0
+    return TopicInfo(
+        topic=topic, type_name=schema_name, message_count=count, start_ns=start, end_ns=end,
+        duration_s=duration,
+        frequency_hz=(count - 1) / duration if count > 1 and duration > 0 else 0.0,
+        message_encoding=encoding, schema_encoding=schema_encoding, offered_qos_profiles=qos,
+    )
+
+
+def _summary_from_index(indexed: "_index.IndexedSummary", name: str, size: int) -> BagSummary:
+    s = indexed.summary
+    stats = s.statistics
+    merged: Dict[str, List[int]] = {}
+    for cid, channel in s.channels.items():
+        merged.setdefault(channel.topic, []).append(cid)
+    topics: List[TopicInfo] = []
+    for topic, cids in merged.items():
+        channel = s.channels[cids[0]]
+        schema = s.schemas.get(channel.schema_id)
+        count = sum(stats.channel_message_counts.get(cid, 0) for cid in cids)
+        times = [indexed.topic_times[cid] for cid in cids if cid in indexed.topic_times]
+        if count and not times:  # no message indexes: the file's time range
+            times = [(stats.message_start_time, stats.message_end_time)]
+        start = min(t[0] for t in times) if count else None
+        end = max(t[1] for t in times) if count else None
+        topics.append(_topic_info(topic, schema.name if schema else "", schema.encoding if schema else "",
+                                  channel.message_encoding, channel.metadata.get("offered_qos_profiles", ""),
+                                  count, start, end))
+    count = stats.message_count
+    start_all = stats.message_start_time if count else None
+    end_all = stats.message_end_time if count else None
+    compression: List[str] = []
+    for ci in s.chunk_indexes:
+        if ci.compression not in compression:
+            compression.append(ci.compression)
+    return BagSummary(
+        path=name, size_bytes=size, profile=indexed.profile, library=indexed.library,
+        topics=topics, metadata=indexed.metadata, message_count=count,
+        start_ns=start_all, end_ns=end_all,
+        duration_s=((end_all - start_all) * 1e-9) if count else 0.0,  # type: ignore[operator]
+        chunk_count=len(s.chunk_indexes), compression=compression,
+        complete=True, stop_reason="", damage=[], from_summary=True,
+    )
+
+
+def _summary_from_scan(scan: _Scan, name: str, size: int) -> BagSummary:
     topics: List[TopicInfo] = []
     start_all: Optional[int] = None
     end_all: Optional[int] = None
@@ -1175,26 +1275,12 @@ def summary(source: Source) -> BagSummary:
         count = int(logs.size)
         start = int(logs.min()) if count else None
         end = int(logs.max()) if count else None
-        duration = (end - start) * 1e-9 if count else 0.0  # type: ignore[operator]
-        frequency = (count - 1) / duration if count > 1 and duration > 0 else 0.0
         if start is not None:
             start_all = start if start_all is None else min(start_all, start)
             end_all = end if end_all is None else max(end_all, end)  # type: ignore[arg-type]
-        type_name = schema.name if schema else ""
-        topics.append(
-            TopicInfo(
-                topic=topic,
-                type_name=type_name,
-                message_count=count,
-                start_ns=start,
-                end_ns=end,
-                duration_s=duration,
-                frequency_hz=frequency,
-                message_encoding=channel.message_encoding,
-                schema_encoding=schema.encoding if schema else "",
-                offered_qos_profiles=channel.metadata.get("offered_qos_profiles", ""),
-            )
-        )
+        topics.append(_topic_info(topic, schema.name if schema else "", schema.encoding if schema else "",
+                                  channel.message_encoding, channel.metadata.get("offered_qos_profiles", ""),
+                                  count, start, end))
     return BagSummary(
         path=name,
         size_bytes=size,
@@ -1210,6 +1296,7 @@ def summary(source: Source) -> BagSummary:
         compression=scan.compression,
         complete=scan.complete,
         stop_reason=scan.stop_reason,
+        damage=list(scan.damage),
     )
 
 

@@ -121,6 +121,10 @@ class TopicRecorder:
         self._declared: set = set()
         self._unflushed = 0
         self._timer = None
+        #: subscribe transient local where every publisher offers it, so the history a
+        #: latched topic kept from before the recording starts is recorded too (as ros2 bag
+        #: record does); NodeRecorder turns it off: a run's recording starts with the run
+        self.record_history = True
         if flush_period:
             self._timer = node.create_timer(float(flush_period), self._on_flush_timer,
                                             clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -174,7 +178,8 @@ class TopicRecorder:
         durability = DurabilityPolicy.VOLATILE
         if topic == "/clock" or any(q.reliability == ReliabilityPolicy.BEST_EFFORT for q in offered):
             reliability = ReliabilityPolicy.BEST_EFFORT
-        if offered and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered):
+        if (self.record_history and offered
+                and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)):
             durability = DurabilityPolicy.TRANSIENT_LOCAL
         return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.depth,
                           reliability=reliability, durability=durability)
@@ -358,6 +363,7 @@ class NodeRecorder(TopicRecorder):
         except (MsgToolsError, OSError) as exc:
             raise bag_error(exc) from None
         super().__init__(node, writer, flush_period=flush_interval_s)
+        self.record_history = False  # the node's outputs keep 10 messages for late joiners: not this run's
         self.capture = capture
         uses_clock = self._uses_sim_time() or self._publishes_clock()
         if topics is None:
