@@ -66,39 +66,80 @@ def _num(x: float) -> str:
 
 
 # ---------------------------------------------------------------------- info
+def _date(ns: int) -> str:
+    """``Nov 23 2026 10:00:00.123456789 (1795...)`` in UTC, as ``ros2 bag info`` lays it out."""
+    import datetime
+
+    sec, frac = divmod(int(ns), 1_000_000_000)
+    when = datetime.datetime.fromtimestamp(sec, tz=datetime.timezone.utc)
+    return f"{when:%b %d %Y %H:%M:%S}.{frac:09d} UTC ({_ns_to_s_text(ns)})"
+
+
+def _size(n: int) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.1f} {unit}" if unit != "B" else f"{n} B"
+        n /= 1024.0
+    return f"{n} B"
+
+
 def cmd_info(args: argparse.Namespace, out: IO[str]) -> int:
-    s = summary(args.bag)
+    from .bagdir import bag_files
+
+    files = bag_files(args.bag)
+    status = 0
+    for k, path in enumerate(files):
+        if k:
+            out.write("\n")
+        status = max(status, _info_one(path, args, out))
+    return status
+
+
+def _info_one(path: str, args: argparse.Namespace, out: IO[str]) -> int:
+    import yaml
+
+    s = summary(path)
     w = out.write
-    w(f"file:         {s.path} ({s.size_bytes / 1024:.1f} KiB)\n")
-    w(f"profile:      {s.profile or '-'}\n")
-    w(f"library:      {s.library or '-'}\n")
-    if s.complete:
-        w("status:       complete\n")
-    else:
-        w(f"status:       INCOMPLETE, {s.stop_reason}; {s.message_count} messages recovered\n")
+    bag_meta = s.metadata_dict("rosbag2").get("serialized_metadata", "")
+    try:
+        distro = (yaml.safe_load(bag_meta) or {}).get("ros_distro", "") if bag_meta else ""
+    except yaml.YAMLError:
+        distro = ""
+    w(f"Files:             {s.path}\n")
+    w(f"Bag size:          {_size(s.size_bytes)}\n")
+    w("Storage id:        mcap\n")
+    w(f"ROS Distro:        {distro or '-'}\n")
+    w(f"Duration:          {_ns_to_s_text(int(round(s.duration_s * 1e9)))}s\n")
     if s.start_ns is not None:
-        w(f"start:        {_ns_to_s_text(s.start_ns)} s (log time)\n")
-    w(f"duration:     {s.duration_s:.6f} s\n")
-    w(f"messages:     {s.message_count}\n")
+        w(f"Start:             {_date(s.start_ns)}\n")
+        w(f"End:               {_date(s.end_ns)}\n")
+    w(f"Messages:          {s.message_count}\n")
+    width = max((len(t.topic) for t in s.topics), default=0)
+    for i, t in enumerate(s.topics):
+        lead = "Topic information: " if i == 0 else " " * 19
+        w(f"{lead}Topic: {t.topic.ljust(width)} | Type: {t.type_name} | Count: {t.message_count} | "
+          f"Serialization Format: {t.message_encoding} | Rate: {t.frequency_hz:.1f} Hz\n")
+    if not s.topics:
+        w("Topic information: \n")
+    w(f"Profile:           {s.profile or '-'}\n")
+    w(f"Library:           {s.library or '-'}\n")
     comp = ", ".join(c or "none" for c in s.compression) or "-"
-    w(f"chunks:       {s.chunk_count} ({comp})\n")
-    w("topics:\n")
-    rows = [("topic", "type", "count", "rate [Hz]", "start [s]", "end [s]")]
-    for t in s.topics:
-        rel = (lambda ns: "-" if ns is None or s.start_ns is None else f"{(ns - s.start_ns) * 1e-9:.3f}")
-        rows.append(
-            (t.topic, t.type_name, str(t.message_count), f"{t.frequency_hz:.1f}",
-             rel(t.start_ns), rel(t.end_ns))
-        )
-    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
-    for r in rows:
-        w("  " + "  ".join(c.ljust(widths[i]) if i < 2 else c.rjust(widths[i]) for i, c in enumerate(r)) + "\n")
+    w(f"Chunks:            {s.chunk_count} ({comp})\n")
+    status = 0
+    if s.damage:
+        w(f"Status:            DAMAGED: {'; '.join(s.damage)}\n")
+        sys.stderr.write(f"{PROG}: warning: {s.path} is damaged: {s.damage[0]}\n")
+        status = 1
+    elif not s.complete:
+        w(f"Status:            INCOMPLETE, {s.stop_reason}; {s.message_count} messages recovered\n")
+    else:
+        w(f"Status:            complete ({'summary section' if s.from_summary else 'read from the data'})\n")
     if args.qos:
         for t in s.topics:
             w(f"offered_qos_profiles of {t.topic}:\n")
             for line in (t.offered_qos_profiles or "(none)").splitlines():
                 w(f"    {line}\n")
-    w("metadata:\n" if s.metadata else "metadata:     none\n")
+    w("Metadata:\n" if s.metadata else "Metadata:          none\n")
     for name, values in s.metadata:
         w(f"  {name}:\n")
         for key, value in values.items():
@@ -106,7 +147,7 @@ def cmd_info(args: argparse.Namespace, out: IO[str]) -> int:
             if len(text) > 70 and not args.full:
                 text = text[:67] + "..."
             w(f"    {key}: {text}\n")
-    return 0
+    return status
 
 
 # -------------------------------------------------------------------- columns

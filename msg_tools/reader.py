@@ -573,12 +573,15 @@ class _Source:
             if not os.path.exists(path):
                 raise BagNotFoundError(path)
             if os.path.isdir(path):
-                found = sorted(f for f in os.listdir(path) if f.endswith(".mcap"))
+                from .bagdir import bag_files
+
+                found = bag_files(path)
                 if len(found) != 1:
                     raise BagNotFoundError(
-                        path, f"is a directory with {len(found)} .mcap files; give the file"
+                        path, f"is a bag folder of {len(found)} files; read it with read_bag() "
+                        "or one file at a time (msg_tools.bagdir.bag_files)"
                     )
-                path = os.path.join(path, found[0])
+                path = found[0]
                 self.name = path
             try:
                 self._file = open(path, "rb")
@@ -1103,6 +1106,19 @@ def read_bag(
     ``Bag.damage`` lists the problems).
     """
     topics = None if topics is None else list(topics)
+    if isinstance(source, (str, os.PathLike)) and os.path.isdir(source):
+        from .bagdir import bag_files
+
+        files = bag_files(source)
+        if len(files) > 1:
+            parts = [read_bag(f, topics, missing_ok=True, keep_undecodable=keep_undecodable,
+                              allow_damaged=allow_damaged) for f in files]
+            bag = _merge_bags(os.fspath(source), parts)
+            if topics is not None and not missing_ok:
+                for topic in topics:
+                    if _resolve(topic, bag.available) is None:
+                        raise TopicNotFoundError(topic, bag.path, bag.available)
+            return bag
     scan, _size, name = _scan(source, _topic_matcher(topics), keep_data=True)
     if scan.damage and not allow_damaged:
         raise damage_error(name, scan.damage)
@@ -1128,6 +1144,53 @@ def read_bag(
         complete=scan.complete,
         stop_reason=scan.stop_reason,
         damage=list(scan.damage),
+    )
+
+
+def _merge_topic(parts: List[TopicData]) -> TopicData:
+    """One topic read from the consecutive files of a split bag, concatenated in time order."""
+    first = parts[0]
+    failed = [p for p in parts if p.decode_error]
+    merged = TopicData(
+        topic=first.topic, type_name=first.type_name,
+        log_time_ns=np.concatenate([p.log_time_ns for p in parts]),
+        publish_time_ns=np.concatenate([p.publish_time_ns for p in parts]),
+        names=list(first.names), decoder=first.decoder,
+        complete=all(p.complete for p in parts),
+        stop_reason="; ".join(p.stop_reason for p in parts if p.stop_reason),
+        decode_error=failed[0].decode_error if failed else "",
+    )
+    if failed:
+        merged.decoder = "failed"
+        return merged
+    if any(p.names != first.names or set(p.fields) != set(first.fields) for p in parts if len(p)):
+        raise DecodeError(f"{first.topic}: the files of the split bag hold different joints or fields")
+    for key in first.fields:
+        merged.fields[key] = np.concatenate([p.fields[key] for p in parts if key in p.fields])
+    if any(p.messages is not None for p in parts):
+        merged.messages = [m for p in parts for m in (p.messages or [])]
+    if merged.log_time_ns.size > 1 and np.any(np.diff(merged.log_time_ns) < 0):
+        order = np.argsort(merged.log_time_ns, kind="stable")
+        merged.log_time_ns, merged.publish_time_ns = merged.log_time_ns[order], merged.publish_time_ns[order]
+        merged.fields = {k: v[order] for k, v in merged.fields.items()}
+        if merged.messages is not None:
+            merged.messages = [merged.messages[i] for i in order]
+    return merged
+
+
+def _merge_bags(name: str, parts: List["Bag"]) -> "Bag":
+    """The files of a split bag as one :class:`Bag` (metadata records of the first file)."""
+    by_topic: Dict[str, List[TopicData]] = {}
+    for bag in parts:
+        for topic, data in bag.topics.items():
+            by_topic.setdefault(topic, []).append(data)
+    return Bag(
+        path=name, profile=parts[0].profile, library=parts[0].library, metadata=parts[0].metadata,
+        topics={topic: _merge_topic(datas) for topic, datas in by_topic.items()},
+        available=sorted({t for bag in parts for t in bag.available}),
+        complete=all(b.complete for b in parts),
+        stop_reason="; ".join(b.stop_reason for b in parts if b.stop_reason),
+        damage=[d for b in parts for d in b.damage],
     )
 
 

@@ -144,6 +144,7 @@ def bag_metadata_yaml(
     relative_file_path: str = "",
     custom_data: Optional[Dict[str, str]] = None,
     ros_distro: str = "jazzy",
+    files: Optional[List[Dict[str, Any]]] = None,
 ) -> str:
     """Return rosbag2 BagMetadata YAML (version 9) as ``YAML::Dump`` lays it out.
 
@@ -165,6 +166,10 @@ def bag_metadata_yaml(
         rosbag2 ``custom_data`` (``~`` when empty).
     ros_distro : str
         ROS distribution name.
+    files : list of dict, optional
+        Several files (a split recording): per file ``path`` (relative),
+        ``starting_time_ns``, ``duration_ns``, ``message_count``; replaces
+        ``relative_file_path``.
     """
     lines = [
         f"version: {BAG_METADATA_VERSION}",
@@ -197,18 +202,22 @@ def bag_metadata_yaml(
     else:
         lines.append("topics_with_message_count: []")
     lines += ['compression_format: ""', 'compression_mode: ""']
-    if relative_file_path:
-        lines += [
-            "relative_file_paths:",
-            f"  - {_yaml_str(relative_file_path)}",
-            "files:",
-            f"  - path: {_yaml_str(relative_file_path)}",
-            "    starting_time:",
-            f"      nanoseconds_since_epoch: {int(starting_time_ns)}",
-            "    duration:",
-            f"      nanoseconds: {int(duration_ns)}",
-            f"    message_count: {int(message_count)}",
-        ]
+    if files is None and relative_file_path:
+        files = [{"path": relative_file_path, "starting_time_ns": starting_time_ns,
+                  "duration_ns": duration_ns, "message_count": message_count}]
+    if files:
+        lines.append("relative_file_paths:")
+        lines += [f"  - {_yaml_str(f['path'])}" for f in files]
+        lines.append("files:")
+        for f in files:
+            lines += [
+                f"  - path: {_yaml_str(f['path'])}",
+                "    starting_time:",
+                f"      nanoseconds_since_epoch: {int(f['starting_time_ns'])}",
+                "    duration:",
+                f"      nanoseconds: {int(f['duration_ns'])}",
+                f"    message_count: {int(f['message_count'])}",
+            ]
     else:
         lines += ["relative_file_paths: []", "files: []"]
     if custom_data:
@@ -393,6 +402,34 @@ class Ros2McapWriter:
         """Return the number of messages written per topic."""
         with self._lock:
             return {topic: ch.count for topic, ch in self._channels.items()}
+
+    def topics_metadata(self) -> List[Dict[str, Any]]:
+        """One dict per topic (name, type, offered_qos_profiles, type_description_hash,
+        message_count), as :func:`bag_metadata_yaml` takes them."""
+        with self._lock:
+            return [
+                {
+                    "name": ch.topic,
+                    "type": ch.type_name,
+                    "offered_qos_profiles": ch.qos_yaml,
+                    "type_description_hash": ch.type_hash,
+                    "message_count": ch.count,
+                }
+                for ch in self._channels.values()
+            ]
+
+    @property
+    def time_range_ns(self) -> "tuple[Optional[int], Optional[int]]":
+        """(earliest, latest) log time written [ns]; (None, None) before the first message."""
+        return self._start_ns, self._end_ns
+
+    @property
+    def bytes_written(self) -> int:
+        """Bytes handed to the output so far (closed chunks; the open chunk is not counted)."""
+        try:
+            return int(self._stream.tell())
+        except (OSError, ValueError):
+            return 0
 
     # ------------------------------------------------------------------ errors
     def _fail(self, exc: BaseException, action: str = "write") -> WriteError:
@@ -642,18 +679,8 @@ class Ros2McapWriter:
         with self._lock:
             start = self._start_ns or 0
             duration = (self._end_ns - self._start_ns) if self._start_ns is not None else 0
-            topics = [
-                {
-                    "name": ch.topic,
-                    "type": ch.type_name,
-                    "offered_qos_profiles": ch.qos_yaml,
-                    "type_description_hash": ch.type_hash,
-                    "message_count": ch.count,
-                }
-                for ch in self._channels.values()
-            ]
             return bag_metadata_yaml(
-                topics,
+                self.topics_metadata(),
                 starting_time_ns=start,
                 duration_ns=duration,
                 message_count=self._message_count,
