@@ -29,6 +29,7 @@ examples:
   msg-tools export run.mcap --topic /joint_states --out joint_states.csv
   msg-tools plot run.mcap --topics /drive_torque /joint_states --out run.png
   msg-tools compare fresh.mcap bags/engine_idle_golden.mcap --rtol 1e-6 --atol 1e-9
+  msg-tools compare new_runs/ golden_runs/
 
 exit status: 0 ok / compare passed, 1 compare failed, 2 usage or I/O error
 """
@@ -297,12 +298,21 @@ def cmd_plot(args: argparse.Namespace, out: IO[str]) -> int:
 
 # ------------------------------------------------------------------- compare
 def cmd_compare(args: argparse.Namespace, out: IO[str]) -> int:
-    from .compare import compare
+    from .compare import compare, compare_folders, is_bag_folder
 
-    report = compare(
-        args.a, args.b, topics=args.topics, rtol=args.rtol, atol=args.atol,
-        time_base=args.time_base, min_coverage=args.min_coverage,
-    )
+    options = dict(topics=args.topics, rtol=args.rtol, atol=args.atol, time_base=args.time_base,
+                   min_coverage=args.min_coverage, max_gap_periods=args.max_gap)
+    folders = [os.path.isdir(p) and not is_bag_folder(p) for p in (args.a, args.b)]
+    if any(folders):
+        if not all(folders):
+            raise MsgToolsError("compare a folder of recordings with a folder of recordings, "
+                                f"a recording with a recording ({args.a}, {args.b})")
+        folder = compare_folders(args.a, args.b, **options)
+        out.write(f"A: {folder.a_dir}\nB: {folder.b_dir} (reference)\n")
+        out.write(folder.table() + "\n")
+        out.write(folder.verdict() + "\n")
+        return 0 if folder.passed else 1
+    report = compare(args.a, args.b, **options)
     out.write(f"A: {report.a_path}\nB: {report.b_path} (reference)\n")
     out.write(report.table() + "\n")
     out.write(report.verdict() + "\n")
@@ -331,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="example:\n  msg-tools info run.mcap --qos",
         formatter_class=_Formatter,
     )
-    p.add_argument("bag", metavar="BAG", help="MCAP file")
+    p.add_argument("bag", metavar="BAG", help="MCAP file or rosbag2 bag folder")
     p.add_argument("--qos", action="store_true", help="also print each topic's offered QoS")
     p.add_argument("--full", action="store_true", help="do not shorten long metadata values")
     p.set_defaults(func=cmd_info)
@@ -346,7 +356,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="example:\n  msg-tools export run.mcap --topic /joint_states --out js.csv",
         formatter_class=_Formatter,
     )
-    p.add_argument("bag", metavar="BAG", help="MCAP file")
+    p.add_argument("bag", metavar="BAG", help="MCAP file or rosbag2 bag folder")
     p.add_argument("--topic", "-t", required=True, help="topic to export, e.g. /drive_torque")
     p.add_argument("--out", "-o", help="CSV file to write (default: standard output)")
     p.set_defaults(func=cmd_export)
@@ -360,7 +370,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="example:\n  msg-tools plot run.mcap --topics /drive_torque /joint_states --out run.png",
         formatter_class=_Formatter,
     )
-    p.add_argument("bag", metavar="BAG", help="MCAP file")
+    p.add_argument("bag", metavar="BAG", help="MCAP file or rosbag2 bag folder")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to plot (default: all)")
     p.add_argument("--out", "-o", required=True, help="PNG file to write")
     p.add_argument("--dpi", type=int, default=110, help="resolution (default 110)")
@@ -379,12 +389,14 @@ def build_parser() -> argparse.ArgumentParser:
             "examples:\n"
             "  msg-tools compare fresh.mcap golden.mcap\n"
             "  msg-tools compare a.mcap b.mcap --topics /joint_states --rtol 1e-4 --atol 1e-6\n"
-            "  msg-tools compare live.mcap sim.mcap --time-base relative"
+            "  msg-tools compare live.mcap sim.mcap --time-base relative\n"
+            "  msg-tools compare new_runs/ golden_runs/      # folders: pairwise by file name, summary table"
         ),
         formatter_class=_Formatter,
     )
-    p.add_argument("a", metavar="A", help="MCAP file under test")
-    p.add_argument("b", metavar="B", help="reference MCAP file")
+    p.add_argument("a", metavar="A", help="recording under test: MCAP file, rosbag2 bag folder, "
+                                         "or a folder of recordings (compared pairwise by name)")
+    p.add_argument("b", metavar="B", help="reference: the same kind as A")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to compare (default: all)")
     p.add_argument("--rtol", type=float, default=1e-6, help="relative tolerance (default 1e-6)")
     p.add_argument("--atol", type=float, default=1e-9,
@@ -393,6 +405,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="align on the common clock, or each series from its start (default auto)")
     p.add_argument("--min-coverage", type=float, default=0.99,
                    help="fraction of samples that must overlap in time (default 0.99)")
+    p.add_argument("--max-gap", type=float, default=5.0, metavar="PERIODS",
+                   help="fail a signal with a gap longer than this many median sample periods "
+                        "(default 5; 0: no gap check); duplicate time stamps always fail")
     p.set_defaults(func=cmd_compare)
     return parser
 

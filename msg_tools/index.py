@@ -134,9 +134,27 @@ def read_summary(buf: Any, *, check: bool = True) -> Tuple[Optional[IndexedSumma
     return out, ""
 
 
+def _summary_crc_ok(buf: Any) -> bool:
+    """The footer's CRC of the summary section (0: not computed) matches the bytes."""
+    import zlib
+
+    size = len(buf)
+    footer = size - 8 - 29  # footer record: opcode, length, summary_start, summary_offset_start, crc
+    summary_start = _u64(buf, footer + 9)[0]
+    (crc,) = _u32(buf, footer + 25)
+    if crc == 0:
+        return True
+    begin = summary_start if summary_start else footer
+    if not 0 < begin <= footer:
+        return False
+    return zlib.crc32(buf[begin:size - 8 - 4]) == crc
+
+
 def _check(buf: Any, summary: Any) -> List[str]:
     problems: List[str] = []
     size = len(buf)
+    if not _summary_crc_ok(buf):
+        problems.append("the summary section fails its CRC check")
     stats = summary.statistics
     indexes = summary.chunk_indexes
     if stats.chunk_count != len(indexes):

@@ -69,6 +69,10 @@ _u64 = struct.Struct("<Q").unpack_from
 _rec_head = struct.Struct("<BQ").unpack_from  # opcode, length
 _msg_head = struct.Struct("<HIQQ").unpack_from  # channel id, sequence, log time, publish time
 
+#: largest uncompressed chunk accepted [bytes]; writers close chunks far below this
+#: (rosbag2: 768 KiB by default, msg_tools: 128 KiB); a larger claim is damage
+MAX_CHUNK_BYTES = 1 << 31
+
 FLOAT64 = "std_msgs/msg/Float64"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 
@@ -394,6 +398,8 @@ class _Scan:
         self.stop_reason = ""
         self.message_count = 0
         self.bytes_read = 0
+        self.data_crc = "none"  # the data section's CRC: "ok", "bad" or "none" (not written)
+        self.damage: List[str] = []
 
     # -- records ----------------------------------------------------------
     def _schema(self, body: Any) -> None:
@@ -433,6 +439,9 @@ class _Scan:
         (n,) = _u64(body, off)
         off += 8
         payload = body[off : off + n]
+        if uncompressed_size > MAX_CHUNK_BYTES:
+            raise _Stop(f"chunk at byte {at} claims {uncompressed_size} bytes uncompressed "
+                        f"(more than {MAX_CHUNK_BYTES}); damaged")
         if compression == "":
             records = payload
         elif compression == "zstd":
@@ -442,7 +451,7 @@ class _Scan:
                 records = zstandard.ZstdDecompressor().decompress(
                     bytes(payload), max_output_size=uncompressed_size
                 )
-            except zstandard.ZstdError as exc:
+            except (zstandard.ZstdError, OverflowError, MemoryError, ValueError) as exc:
                 raise _Stop(f"zstd chunk at byte {at} cannot be decompressed ({exc})") from None
         elif compression == "lz4":
             try:
@@ -451,7 +460,10 @@ class _Scan:
                 raise CorruptBagError(
                     f"{self.name}: chunk compressed with lz4, but the 'lz4' package is not installed"
                 ) from None
-            records = lz4.frame.decompress(bytes(payload))
+            try:
+                records = lz4.frame.decompress(bytes(payload))
+            except (RuntimeError, ValueError, OverflowError, MemoryError) as exc:
+                raise _Stop(f"lz4 chunk at byte {at} cannot be decompressed ({exc})") from None
         else:
             raise CorruptBagError(
                 f"{self.name}: chunk at byte {at} uses unsupported compression {compression!r}"
@@ -520,6 +532,10 @@ class _Scan:
                             f"{self.name}: first record cannot be parsed ({exc}); not an MCAP file?"
                         ) from None
                     raise _Stop(f"record (opcode 0x{opcode:02x}) at byte {pos} is malformed ({exc})")
+                if opcode == _DATA_END:
+                    (crc,) = _u32(buf, start) if length >= 4 else (0,)
+                    # the data section's CRC (0: not computed): bytes before this record
+                    self.data_crc = "none" if crc == 0 else ("ok" if zlib.crc32(buf[:pos]) == crc else "bad")
                 pos = end
                 self.bytes_read = pos
                 if opcode == _DATA_END:
@@ -642,6 +658,8 @@ def _scan(source: Source, want: Optional[Callable[[str], bool]], keep_data: bool
         scan.damage = list(indexed.problems)
         if not scan.complete:
             scan.damage.insert(0, f"the data stops early ({scan.stop_reason})")
+        elif scan.data_crc == "bad":
+            scan.damage.insert(0, "the data section fails its CRC check")
         counts = {cid: len(acc.log) for cid, acc in scan.accs.items()}
         topics = {cid: ch.topic for cid, ch in scan.channels.items()}
         scan.damage += _index.count_problems(indexed, counts, topics)
@@ -653,6 +671,8 @@ def _scan(source: Source, want: Optional[Callable[[str], bool]], keep_data: bool
             ),
             stacklevel=3,
         )
+    elif scan.data_crc == "bad":  # finished file, summary unreadable, and the data fails its CRC
+        scan.damage = ["the data section fails its CRC check"] + ([reason] if reason else [])
     elif reason:
         warnings.warn(RecoveredBagWarning(f"{name}: {reason}; read from the data section"), stacklevel=3)
     return scan, size, name

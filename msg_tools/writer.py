@@ -341,6 +341,7 @@ class Ros2McapWriter:
             self._mcap = _McapWriter(
                 self._stream,
                 chunk_size=2**62,  # chunks are closed by this class, see _after_message
+                enable_data_crcs=True,  # DataEnd carries the data section's CRC: readers detect damage
                 compression=_COMPRESSION[compression],
                 index_types=IndexType.ALL if message_index else IndexType.ALL & ~IndexType.MESSAGE,
             )
