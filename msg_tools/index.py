@@ -101,8 +101,19 @@ class IndexedSummary:
         return not self.problems
 
 
-def read_summary(buf: Any, *, check: bool = True) -> Tuple[Optional[IndexedSummary], str]:
+def read_summary(buf: Any, *, path: Optional[str] = None,
+                 check: bool = True) -> Tuple[Optional[IndexedSummary], str]:
     """Read the summary section of the MCAP file in ``buf`` with the mcap library.
+
+    Parameters
+    ----------
+    buf : bytes-like
+        The whole file (an mmap for files): the checks read from it.
+    path : str, optional
+        The file itself: the library then reads through a buffered file
+        object (fast); without it, through a view of ``buf``.
+    check : bool
+        Check the indexes against the records (:func:`_check`).
 
     Returns
     -------
@@ -111,12 +122,19 @@ def read_summary(buf: Any, *, check: bool = True) -> Tuple[Optional[IndexedSumma
         no footer, damaged summary section); the reason is "" for a file
         that was written without a summary.
     """
-    from mcap.reader import make_reader
+    import io
+
+    from mcap.reader import SeekingReader
 
     if len(buf) < 8 + 9 + 20 + 8:
         return None, "file too short for a footer"
     try:
-        reader = make_reader(_BufferStream(buf))
+        stream: Any = open(path, "rb") if path else _BufferStream(buf)
+    except OSError as exc:
+        return None, f"summary unreadable ({exc.strerror or exc})"
+    try:
+        # no record can be longer than the file: a damaged length fails at once, allocating nothing
+        reader = SeekingReader(stream, record_size_limit=len(buf))
         summary = reader.get_summary()
         if summary is None:
             return None, ""
@@ -127,6 +145,9 @@ def read_summary(buf: Any, *, check: bool = True) -> Tuple[Optional[IndexedSumma
     except Exception as exc:  # noqa: BLE001 - any parse error of a damaged or cut-off file
         text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         return None, f"summary unreadable ({type(exc).__name__}: {text})"
+    finally:
+        if isinstance(stream, io.IOBase):
+            stream.close()
     out = IndexedSummary(summary, header.profile, header.library, metadata)
     if check:
         out.problems = _check(buf, summary)

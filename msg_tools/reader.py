@@ -580,6 +580,7 @@ class _Source:
     def __init__(self, source: Source):
         self._mmap: Optional[mmap.mmap] = None
         self._file: Optional[IO[bytes]] = None
+        self.path: Optional[str] = None  # the file, when the source is one
         if isinstance(source, (bytes, bytearray, memoryview)):
             self.name = "<bytes>"
             self.buf: Any = source
@@ -601,6 +602,7 @@ class _Source:
                 self.name = path
             try:
                 self._file = open(path, "rb")
+                self.path = path
                 size = os.fstat(self._file.fileno()).st_size
                 if size == 0:
                     self.buf = b""
@@ -651,7 +653,7 @@ def _scan(source: Source, want: Optional[Callable[[str], bool]], keep_data: bool
     with _Source(source) as src:
         scan = _Scan(src.buf, src.name, want=want, keep_data=keep_data).run()
         size, name = src.size, src.name
-        indexed, reason = _index.read_summary(src.buf) if size else (None, "")
+        indexed, reason = _index.read_summary(src.buf, path=src.path) if size else (None, "")
     scan.buf = None  # release the mapping
     scan.damage = []
     if indexed is not None:
@@ -1287,7 +1289,7 @@ def summary(source: Source) -> BagSummary:
     ``damage`` then says what disagrees.
     """
     with _Source(source) as src:
-        indexed, _reason = _index.read_summary(src.buf) if src.size else (None, "")
+        indexed, _reason = _index.read_summary(src.buf, path=src.path) if src.size else (None, "")
         size, name = src.size, src.name
     if indexed is not None and indexed.sound:
         return _summary_from_index(indexed, name, size)
