@@ -137,11 +137,7 @@ class CompareReport:
                     ("pass" if s.passed else "FAIL") + (f" ({s.reason})" if s.reason else ""),
                 )
             )
-        widths = [max(len(r[i]) for r in rows) for i in range(len(header) - 1)]
-        lines = []
-        for r in rows:
-            cells = [r[i].ljust(widths[i]) if i == 0 else r[i].rjust(widths[i]) for i in range(len(widths))]
-            lines.append("  ".join(cells + [r[-1]]))
+        lines = _aligned(rows, right=True)
         for topic, why in self.skipped:
             lines.append(f"(skipped {topic}: {why})")
         return "\n".join(lines)
@@ -160,6 +156,14 @@ class CompareReport:
         )
         detail = worst.reason or f"abs err {_fmt(worst.worst_abs_error)}{where}"
         return f"FAIL: {bad} of {n} signals outside tolerance; worst: {worst.name} ({detail})"
+
+
+def _aligned(rows: List[Tuple[str, ...]], right: bool) -> List[str]:
+    """Fixed-width lines of ``rows``: the first column left-aligned, the middle ones right-aligned
+    (``right``) or left-aligned, the last one as is."""
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]) - 1)]
+    return ["  ".join([r[i].rjust(widths[i]) if right and i else r[i].ljust(widths[i])
+                       for i in range(len(widths))] + [r[-1]]) for r in rows]
 
 
 def _fmt(x: float) -> str:
@@ -499,8 +503,7 @@ class FolderReport:
                                                 f"{worst.name}: {worst.reason or _fmt(worst.worst_abs_error)}")
             rows.append((name, str(len(report.signals)), str(len(report.failures)), detail,
                          "pass" if report.passed else "FAIL"))
-        widths = [max(len(r[i]) for r in rows) for i in range(len(header) - 1)]
-        return "\n".join("  ".join([r[i].ljust(widths[i]) for i in range(len(widths))] + [r[-1]]) for r in rows)
+        return "\n".join(_aligned(rows, right=False))
 
     def verdict(self) -> str:
         n, bad = len(self.rows), len(self.failed)
