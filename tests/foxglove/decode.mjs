@@ -18,7 +18,7 @@ function digest(topic, value) {
   if (value && typeof value.data === "number") return [value.data];
   if (value && Array.isArray(value.name) && value.velocity !== undefined) {
     const s = value.header.stamp;
-    return [s.sec + s.nanosec * 1e-9, ...Array.from(value.position), ...Array.from(value.velocity), ...Array.from(value.effort)];
+    return [s.sec, s.nanosec, ...Array.from(value.position), ...Array.from(value.velocity), ...Array.from(value.effort)];
   }
   if (value && Array.isArray(value.status)) return [value.status.length];
   return [];
