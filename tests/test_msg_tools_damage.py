@@ -208,4 +208,5 @@ def test_fuzz_mutated_recordings_give_a_clean_error_or_a_correct_result(original
         except TimeoutError as exc:
             problems.append(f"{name}: {exc}")
     assert not problems, "\n".join(problems[:20]) + f"\n({len(problems)} problems; {tally})"
+    print(f"fuzz: {len(mutants)} mutants: {tally}")
     assert tally["error"] > 50 and tally["correct"] + tally["recovered prefix"] > 10, tally
