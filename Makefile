@@ -9,9 +9,11 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-# DDS traffic stays on this machine, before any rclpy process starts.
-export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
-export ROS_LOCALHOST_ONLY := 1
+# DDS traffic of the demo and the tests stays on this machine, unless you chose a
+# range yourself (ROS_LOCALHOST_ONLY is deprecated in Jazzy and never set here).
+ifeq ($(origin ROS_LOCALHOST_ONLY),undefined)
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+endif
 export MPLBACKEND := Agg
 export PYTHONDONTWRITEBYTECODE := 1
 
@@ -20,7 +22,10 @@ export PYTHONDONTWRITEBYTECODE := 1
 help:
 	@sed -n '1,8p' Makefile
 
-$(STAMP): pyproject.toml constraints.txt
+$(STAMP): pyproject.toml constraints.txt tests/foxglove/package-lock.json
+	@command -v node >/dev/null && command -v npm >/dev/null || { \
+	  echo "error: node and npm are needed (the tests decode recordings with Foxglove's parsers): install nodejs and npm" >&2; exit 1; }
+	npm ci --prefix tests/foxglove --no-audit --no-fund --loglevel=error
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --disable-pip-version-check -c constraints.txt pip
 	$(PY) -m pip install --quiet --disable-pip-version-check -c constraints.txt -e '.[ros,plot,test]'
@@ -41,4 +46,4 @@ bags: $(STAMP)
 	$(VENV)/bin/belt-drive make-bags --out bags --force
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache
+	rm -rf $(VENV) build *.egg-info .pytest_cache tests/foxglove/node_modules

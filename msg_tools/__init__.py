@@ -12,14 +12,20 @@ Main entry points
 :func:`read_topic`, :func:`read_topics`, :func:`read_bag`
     topics as numpy arrays; tolerant of files whose writer was killed.
 :func:`summary`, :func:`list_topics`
-    header, topics with counts and rates, metadata records.
-:func:`compare`
-    signal-by-signal tolerance check of two recordings.
+    header, topics with counts and rates, metadata records, from the
+    summary section when the file has one (checked against the records).
+:func:`compare`, :func:`compare_folders`
+    signal-by-signal tolerance check of two recordings (or folders of them,
+    pairwise); holes and duplicate stamps fail.
+:class:`Ros2BagWriter`, :func:`bag_files`
+    rosbag2's bag folder layout (``NAME/NAME_k.mcap`` + ``metadata.yaml``),
+    split by size or duration; every reader accepts a folder.
 ``msg-tools``
     the command line (:mod:`msg_tools.cli`).
 """
 
-from .compare import CompareReport, SignalResult, compare
+from .bagdir import Ros2BagWriter, bag_files
+from .compare import CompareReport, FolderReport, SignalResult, compare, compare_folders
 from .errors import (
     BagNotFoundError,
     CorruptBagError,
@@ -52,6 +58,7 @@ __all__ = [
     "BagNotFoundError",
     "BagSummary",
     "CompareReport",
+    "FolderReport",
     "CorruptBagError",
     "DecodeError",
     "MsgToolsError",
@@ -59,6 +66,7 @@ __all__ = [
     "QOS_PRESETS",
     "QosProfile",
     "RecoveredBagWarning",
+    "Ros2BagWriter",
     "Ros2McapWriter",
     "SignalResult",
     "TopicData",
@@ -66,7 +74,9 @@ __all__ = [
     "TopicNotFoundError",
     "UnknownMessageTypeError",
     "WriteError",
+    "bag_files",
     "compare",
+    "compare_folders",
     "encode",
     "known_types",
     "list_topics",

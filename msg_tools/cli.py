@@ -29,6 +29,7 @@ examples:
   msg-tools export run.mcap --topic /joint_states --out joint_states.csv
   msg-tools plot run.mcap --topics /drive_torque /joint_states --out run.png
   msg-tools compare fresh.mcap bags/engine_idle_golden.mcap --rtol 1e-6 --atol 1e-9
+  msg-tools compare new_runs/ golden_runs/
 
 exit status: 0 ok / compare passed, 1 compare failed, 2 usage or I/O error
 """
@@ -66,39 +67,80 @@ def _num(x: float) -> str:
 
 
 # ---------------------------------------------------------------------- info
+def _date(ns: int) -> str:
+    """``Nov 23 2026 10:00:00.123456789 (1795...)`` in UTC, as ``ros2 bag info`` lays it out."""
+    import datetime
+
+    sec, frac = divmod(int(ns), 1_000_000_000)
+    when = datetime.datetime.fromtimestamp(sec, tz=datetime.timezone.utc)
+    return f"{when:%b %d %Y %H:%M:%S}.{frac:09d} UTC ({_ns_to_s_text(ns)})"
+
+
+def _size(n: int) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.1f} {unit}" if unit != "B" else f"{n} B"
+        n /= 1024.0
+    return f"{n} B"
+
+
 def cmd_info(args: argparse.Namespace, out: IO[str]) -> int:
-    s = summary(args.bag)
+    from .bagdir import bag_files
+
+    files = bag_files(args.bag)
+    status = 0
+    for k, path in enumerate(files):
+        if k:
+            out.write("\n")
+        status = max(status, _info_one(path, args, out))
+    return status
+
+
+def _info_one(path: str, args: argparse.Namespace, out: IO[str]) -> int:
+    import yaml
+
+    s = summary(path)
     w = out.write
-    w(f"file:         {s.path} ({s.size_bytes / 1024:.1f} KiB)\n")
-    w(f"profile:      {s.profile or '-'}\n")
-    w(f"library:      {s.library or '-'}\n")
-    if s.complete:
-        w("status:       complete\n")
-    else:
-        w(f"status:       INCOMPLETE, {s.stop_reason}; {s.message_count} messages recovered\n")
+    bag_meta = s.metadata_dict("rosbag2").get("serialized_metadata", "")
+    try:
+        distro = (yaml.safe_load(bag_meta) or {}).get("ros_distro", "") if bag_meta else ""
+    except yaml.YAMLError:
+        distro = ""
+    w(f"Files:             {s.path}\n")
+    w(f"Bag size:          {_size(s.size_bytes)}\n")
+    w("Storage id:        mcap\n")
+    w(f"ROS Distro:        {distro or '-'}\n")
+    w(f"Duration:          {_ns_to_s_text(int(round(s.duration_s * 1e9)))}s\n")
     if s.start_ns is not None:
-        w(f"start:        {_ns_to_s_text(s.start_ns)} s (log time)\n")
-    w(f"duration:     {s.duration_s:.6f} s\n")
-    w(f"messages:     {s.message_count}\n")
+        w(f"Start:             {_date(s.start_ns)}\n")
+        w(f"End:               {_date(s.end_ns)}\n")
+    w(f"Messages:          {s.message_count}\n")
+    width = max((len(t.topic) for t in s.topics), default=0)
+    for i, t in enumerate(s.topics):
+        lead = "Topic information: " if i == 0 else " " * 19
+        w(f"{lead}Topic: {t.topic.ljust(width)} | Type: {t.type_name} | Count: {t.message_count} | "
+          f"Serialization Format: {t.message_encoding} | Rate: {t.frequency_hz:.1f} Hz\n")
+    if not s.topics:
+        w("Topic information: \n")
+    w(f"Profile:           {s.profile or '-'}\n")
+    w(f"Library:           {s.library or '-'}\n")
     comp = ", ".join(c or "none" for c in s.compression) or "-"
-    w(f"chunks:       {s.chunk_count} ({comp})\n")
-    w("topics:\n")
-    rows = [("topic", "type", "count", "rate [Hz]", "start [s]", "end [s]")]
-    for t in s.topics:
-        rel = (lambda ns: "-" if ns is None or s.start_ns is None else f"{(ns - s.start_ns) * 1e-9:.3f}")
-        rows.append(
-            (t.topic, t.type_name, str(t.message_count), f"{t.frequency_hz:.1f}",
-             rel(t.start_ns), rel(t.end_ns))
-        )
-    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
-    for r in rows:
-        w("  " + "  ".join(c.ljust(widths[i]) if i < 2 else c.rjust(widths[i]) for i, c in enumerate(r)) + "\n")
+    w(f"Chunks:            {s.chunk_count} ({comp})\n")
+    status = 0
+    if s.damage:
+        w(f"Status:            DAMAGED: {'; '.join(s.damage)}\n")
+        sys.stderr.write(f"{PROG}: warning: {s.path} is damaged: {s.damage[0]}\n")
+        status = 1
+    elif not s.complete:
+        w(f"Status:            INCOMPLETE, {s.stop_reason}; {s.message_count} messages recovered\n")
+    else:
+        w(f"Status:            complete ({'summary section' if s.from_summary else 'read from the data'})\n")
     if args.qos:
         for t in s.topics:
             w(f"offered_qos_profiles of {t.topic}:\n")
             for line in (t.offered_qos_profiles or "(none)").splitlines():
                 w(f"    {line}\n")
-    w("metadata:\n" if s.metadata else "metadata:     none\n")
+    w("Metadata:\n" if s.metadata else "Metadata:          none\n")
     for name, values in s.metadata:
         w(f"  {name}:\n")
         for key, value in values.items():
@@ -106,7 +148,7 @@ def cmd_info(args: argparse.Namespace, out: IO[str]) -> int:
             if len(text) > 70 and not args.full:
                 text = text[:67] + "..."
             w(f"    {key}: {text}\n")
-    return 0
+    return status
 
 
 # -------------------------------------------------------------------- columns
@@ -256,12 +298,21 @@ def cmd_plot(args: argparse.Namespace, out: IO[str]) -> int:
 
 # ------------------------------------------------------------------- compare
 def cmd_compare(args: argparse.Namespace, out: IO[str]) -> int:
-    from .compare import compare
+    from .compare import compare, compare_folders, is_bag_folder
 
-    report = compare(
-        args.a, args.b, topics=args.topics, rtol=args.rtol, atol=args.atol,
-        time_base=args.time_base, min_coverage=args.min_coverage,
-    )
+    options = dict(topics=args.topics, rtol=args.rtol, atol=args.atol, time_base=args.time_base,
+                   min_coverage=args.min_coverage, max_gap_periods=args.max_gap)
+    folders = [os.path.isdir(p) and not is_bag_folder(p) for p in (args.a, args.b)]
+    if any(folders):
+        if not all(folders):
+            raise MsgToolsError("compare a folder of recordings with a folder of recordings, "
+                                f"a recording with a recording ({args.a}, {args.b})")
+        folder = compare_folders(args.a, args.b, **options)
+        out.write(f"A: {folder.a_dir}\nB: {folder.b_dir} (reference)\n")
+        out.write(folder.table() + "\n")
+        out.write(folder.verdict() + "\n")
+        return 0 if folder.passed else 1
+    report = compare(args.a, args.b, **options)
     out.write(f"A: {report.a_path}\nB: {report.b_path} (reference)\n")
     out.write(report.table() + "\n")
     out.write(report.verdict() + "\n")
@@ -290,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="example:\n  msg-tools info run.mcap --qos",
         formatter_class=_Formatter,
     )
-    p.add_argument("bag", metavar="BAG", help="MCAP file")
+    p.add_argument("bag", metavar="BAG", help="MCAP file or rosbag2 bag folder")
     p.add_argument("--qos", action="store_true", help="also print each topic's offered QoS")
     p.add_argument("--full", action="store_true", help="do not shorten long metadata values")
     p.set_defaults(func=cmd_info)
@@ -305,7 +356,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="example:\n  msg-tools export run.mcap --topic /joint_states --out js.csv",
         formatter_class=_Formatter,
     )
-    p.add_argument("bag", metavar="BAG", help="MCAP file")
+    p.add_argument("bag", metavar="BAG", help="MCAP file or rosbag2 bag folder")
     p.add_argument("--topic", "-t", required=True, help="topic to export, e.g. /drive_torque")
     p.add_argument("--out", "-o", help="CSV file to write (default: standard output)")
     p.set_defaults(func=cmd_export)
@@ -319,7 +370,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="example:\n  msg-tools plot run.mcap --topics /drive_torque /joint_states --out run.png",
         formatter_class=_Formatter,
     )
-    p.add_argument("bag", metavar="BAG", help="MCAP file")
+    p.add_argument("bag", metavar="BAG", help="MCAP file or rosbag2 bag folder")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to plot (default: all)")
     p.add_argument("--out", "-o", required=True, help="PNG file to write")
     p.add_argument("--dpi", type=int, default=110, help="resolution (default 110)")
@@ -338,12 +389,14 @@ def build_parser() -> argparse.ArgumentParser:
             "examples:\n"
             "  msg-tools compare fresh.mcap golden.mcap\n"
             "  msg-tools compare a.mcap b.mcap --topics /joint_states --rtol 1e-4 --atol 1e-6\n"
-            "  msg-tools compare live.mcap sim.mcap --time-base relative"
+            "  msg-tools compare live.mcap sim.mcap --time-base relative\n"
+            "  msg-tools compare new_runs/ golden_runs/      # folders: pairwise by file name, summary table"
         ),
         formatter_class=_Formatter,
     )
-    p.add_argument("a", metavar="A", help="MCAP file under test")
-    p.add_argument("b", metavar="B", help="reference MCAP file")
+    p.add_argument("a", metavar="A", help="recording under test: MCAP file, rosbag2 bag folder, "
+                                         "or a folder of recordings (compared pairwise by name)")
+    p.add_argument("b", metavar="B", help="reference: the same kind as A")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to compare (default: all)")
     p.add_argument("--rtol", type=float, default=1e-6, help="relative tolerance (default 1e-6)")
     p.add_argument("--atol", type=float, default=1e-9,
@@ -352,6 +405,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="align on the common clock, or each series from its start (default auto)")
     p.add_argument("--min-coverage", type=float, default=0.99,
                    help="fraction of samples that must overlap in time (default 0.99)")
+    p.add_argument("--max-gap", type=float, default=5.0, metavar="PERIODS",
+                   help="fail a signal with a gap longer than this many median sample periods "
+                        "(default 5; 0: no gap check); duplicate time stamps always fail")
     p.set_defaults(func=cmd_compare)
     return parser
 

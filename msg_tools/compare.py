@@ -13,7 +13,13 @@ inside the common time range,
 
 (the rule of :func:`numpy.isclose`), and both series must cover at least
 ``min_coverage`` of their samples inside the common range, so a run that
-stopped early fails instead of passing on its shorter overlap.
+stopped early fails instead of passing on its shorter overlap. Coverage also
+means no holes: a series with two samples at the same time, or with a gap
+longer than ``max_gap_periods`` times its median sample period, fails
+(a lost or duplicated chunk, a stalled recorder).
+
+Folders of recordings are compared pairwise by file name
+(:func:`compare_folders`).
 """
 
 from __future__ import annotations
@@ -27,7 +33,7 @@ import numpy as np
 from .errors import MsgToolsError
 from .reader import FLOAT64, JOINT_STATE, TopicData, read_bag
 
-__all__ = ["CompareReport", "SignalResult", "compare", "signals_of"]
+__all__ = ["CompareReport", "FolderReport", "SignalResult", "compare", "compare_folders", "signals_of"]
 
 TIME_BASES = ("auto", "absolute", "relative")
 
@@ -131,11 +137,7 @@ class CompareReport:
                     ("pass" if s.passed else "FAIL") + (f" ({s.reason})" if s.reason else ""),
                 )
             )
-        widths = [max(len(r[i]) for r in rows) for i in range(len(header) - 1)]
-        lines = []
-        for r in rows:
-            cells = [r[i].ljust(widths[i]) if i == 0 else r[i].rjust(widths[i]) for i in range(len(widths))]
-            lines.append("  ".join(cells + [r[-1]]))
+        lines = _aligned(rows, right=True)
         for topic, why in self.skipped:
             lines.append(f"(skipped {topic}: {why})")
         return "\n".join(lines)
@@ -154,6 +156,14 @@ class CompareReport:
         )
         detail = worst.reason or f"abs err {_fmt(worst.worst_abs_error)}{where}"
         return f"FAIL: {bad} of {n} signals outside tolerance; worst: {worst.name} ({detail})"
+
+
+def _aligned(rows: List[Tuple[str, ...]], right: bool) -> List[str]:
+    """Fixed-width lines of ``rows``: the first column left-aligned, the middle ones right-aligned
+    (``right``) or left-aligned, the last one as is."""
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]) - 1)]
+    return ["  ".join([r[i].rjust(widths[i]) if right and i else r[i].ljust(widths[i])
+                       for i in range(len(widths))] + [r[-1]]) for r in rows]
 
 
 def _fmt(x: float) -> str:
@@ -211,6 +221,24 @@ def _errors(a: np.ndarray, b: np.ndarray, rtol: float, atol: float) -> Tuple[np.
     return err, rel, ratio
 
 
+def _holes(t: np.ndarray, max_gap_periods: float, origin_ns: int) -> str:
+    """Why the time series ``t`` [ns] has holes ("" if none): duplicate stamps, or a gap
+    longer than ``max_gap_periods`` median periods (0 disables the gap check)."""
+    if t.size < 2:
+        return ""
+    d = np.diff(t)
+    dup = np.flatnonzero(d == 0)
+    if dup.size:
+        return (f"{dup.size} duplicate time stamps (first at t={(int(t[dup[0]]) - origin_ns) * 1e-9:.6g} s)")
+    if max_gap_periods > 0 and t.size >= 3:
+        period = float(np.median(d))
+        worst = int(np.argmax(d))
+        if period > 0 and d[worst] > max_gap_periods * period:
+            return (f"a gap of {d[worst] * 1e-9:.6g} s ({d[worst] / period:.1f} periods) at "
+                    f"t={(int(t[worst]) - origin_ns) * 1e-9:.6g} s")
+    return ""
+
+
 def _compare_signal(
     name: str,
     ta: np.ndarray,
@@ -222,10 +250,15 @@ def _compare_signal(
     time_base: str,
     min_coverage: float,
     origin_ns: int,
+    max_gap_periods: float = 5.0,
 ) -> SignalResult:
     if va.size == 0 or vb.size == 0:
         which = "A" if va.size == 0 else "B"
         return SignalResult(name, False, reason=f"no samples in {which}")
+    for which, t in (("A", ta), ("B", tb)):
+        hole = _holes(t, max_gap_periods, int(ta[0]) if which == "A" else int(tb[0]))
+        if hole:
+            return SignalResult(name, False, time_base="", reason=f"{hole} in {which}")
     identical = ta.shape == tb.shape and np.array_equal(ta, tb)
     if identical:
         base = "identical"
@@ -297,6 +330,7 @@ def compare(
     *,
     time_base: str = "auto",
     min_coverage: float = 0.99,
+    max_gap_periods: float = 5.0,
 ) -> CompareReport:
     """Compare the signals of bag A (under test) against bag B (reference).
 
@@ -318,6 +352,9 @@ def compare(
         ``absolute`` if the series overlap in time, else ``relative``.
     min_coverage : float
         Fraction of each series' samples that must lie in the common time range.
+    max_gap_periods : float
+        A series fails when two samples are further apart than this many
+        median sample periods (0: no gap check); duplicate stamps always fail.
 
     Returns
     -------
@@ -329,6 +366,8 @@ def compare(
         raise ValueError(f"tolerances must be >= 0, got rtol={rtol}, atol={atol}")
     if not 0 < min_coverage <= 1:
         raise ValueError(f"min_coverage must be in (0, 1], got {min_coverage}")
+    if not max_gap_periods >= 0:
+        raise ValueError(f"max_gap_periods must be >= 0 (0: no gap check), got {max_gap_periods}")
     a_name, b_name = os.fspath(a_path), os.fspath(b_path)
     report = CompareReport(a_name, b_name, rtol, atol)
 
@@ -381,9 +420,115 @@ def compare(
             (ta, va), (tb, vb) = sig_a[name], sig_b[name]
             report.signals.append(
                 _compare_signal(
-                    name, ta, va, tb, vb, rtol, atol, time_base, min_coverage, origin_ns
+                    name, ta, va, tb, vb, rtol, atol, time_base, min_coverage, origin_ns,
+                    max_gap_periods,
                 )
             )
     if not report.signals and not report.skipped:
         raise MsgToolsError(f"nothing to compare: no topics in {a_name} or {b_name}")
+    return report
+
+
+# --------------------------------------------------------------------------
+# folders of recordings
+# --------------------------------------------------------------------------
+def is_bag_folder(path: "str | os.PathLike[str]") -> bool:
+    """True for a rosbag2 bag folder (``metadata.yaml``, or files ``NAME_k.mcap``), False
+    for a folder of separate recordings."""
+    path = os.fspath(path)
+    if not os.path.isdir(path):
+        return False
+    if os.path.isfile(os.path.join(path, "metadata.yaml")):
+        return True
+    name = os.path.basename(os.path.normpath(path))
+    mcaps = [f for f in os.listdir(path) if f.endswith(".mcap")]
+    return bool(mcaps) and all(f.startswith(name + "_") and f[len(name) + 1:-5].isdigit() for f in mcaps)
+
+
+def recordings_in(folder: "str | os.PathLike[str]") -> Dict[str, str]:
+    """The recordings in ``folder`` (recursively) by path relative to it: ``.mcap`` files
+    and rosbag2 bag folders (not descended into)."""
+    root = os.fspath(folder)
+    out: Dict[str, str] = {}
+    for dirpath, dirnames, filenames in os.walk(root):
+        keep = []
+        for d in sorted(dirnames):
+            full = os.path.join(dirpath, d)
+            if is_bag_folder(full):
+                out[os.path.relpath(full, root)] = full
+            else:
+                keep.append(d)
+        dirnames[:] = keep
+        for f in sorted(filenames):
+            if f.endswith(".mcap"):
+                full = os.path.join(dirpath, f)
+                out[os.path.relpath(full, root)] = full
+    return dict(sorted(out.items()))
+
+
+@dataclass
+class FolderReport:
+    """Result of :func:`compare_folders`: one row per recording name.
+
+    Attributes
+    ----------
+    a_dir, b_dir : str
+        Folders (A under test, B reference).
+    rows : list of (str, CompareReport or None, str)
+        Name, its report (None when it could not be compared) and the reason
+        it could not (missing on one side, unreadable, damaged).
+    """
+
+    a_dir: str
+    b_dir: str
+    rows: List[Tuple[str, Optional[CompareReport], str]] = field(default_factory=list)
+
+    @property
+    def failed(self) -> List[str]:
+        return [name for name, report, _ in self.rows if report is None or not report.passed]
+
+    @property
+    def passed(self) -> bool:
+        return bool(self.rows) and not self.failed
+
+    def table(self) -> str:
+        header = ("recording", "signals", "failed", "worst", "result")
+        rows = [header]
+        for name, report, why in self.rows:
+            if report is None:
+                rows.append((name, "-", "-", "-", f"FAIL ({why})"))
+                continue
+            worst = report.worst
+            detail = "-" if worst is None else (worst.name if worst.passed else
+                                                f"{worst.name}: {worst.reason or _fmt(worst.worst_abs_error)}")
+            rows.append((name, str(len(report.signals)), str(len(report.failures)), detail,
+                         "pass" if report.passed else "FAIL"))
+        return "\n".join(_aligned(rows, right=False))
+
+    def verdict(self) -> str:
+        n, bad = len(self.rows), len(self.failed)
+        if n == 0:
+            return "FAIL: no recordings to compare"
+        if bad == 0:
+            return f"PASS: {n} recordings"
+        return f"FAIL: {bad} of {n} recordings; first: {self.failed[0]}"
+
+
+def compare_folders(a_dir: "str | os.PathLike[str]", b_dir: "str | os.PathLike[str]",
+                    **options) -> FolderReport:
+    """Compare the recordings of folder A (under test) with those of B (reference), pairwise
+    by relative name, with :func:`compare` and ``options``. A recording on one side only, or
+    one that cannot be read, is a failed row, not an error."""
+    from .errors import MsgToolsError as _Err
+
+    a, b = recordings_in(a_dir), recordings_in(b_dir)
+    report = FolderReport(os.fspath(a_dir), os.fspath(b_dir))
+    for name in sorted(set(a) | set(b)):
+        if name not in a or name not in b:
+            report.rows.append((name, None, f"missing in {'A' if name not in a else 'B'}"))
+            continue
+        try:
+            report.rows.append((name, compare(a[name], b[name], **options), ""))
+        except (_Err, OSError, ValueError) as exc:
+            report.rows.append((name, None, " ".join(str(exc).split())))
     return report

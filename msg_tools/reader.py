@@ -32,6 +32,7 @@ from typing import IO, Any, Callable, Dict, Iterable, List, Optional, Sequence, 
 
 import numpy as np
 
+from . import index as _index
 from . import schemas as _schemas
 from .errors import (
     BagNotFoundError,
@@ -67,6 +68,10 @@ _u32 = struct.Struct("<I").unpack_from
 _u64 = struct.Struct("<Q").unpack_from
 _rec_head = struct.Struct("<BQ").unpack_from  # opcode, length
 _msg_head = struct.Struct("<HIQQ").unpack_from  # channel id, sequence, log time, publish time
+
+#: largest uncompressed chunk accepted [bytes]; writers close chunks far below this
+#: (rosbag2: 768 KiB by default, msg_tools: 128 KiB); a larger claim is damage
+MAX_CHUNK_BYTES = 1 << 31
 
 FLOAT64 = "std_msgs/msg/Float64"
 JOINT_STATE = "sensor_msgs/msg/JointState"
@@ -216,6 +221,11 @@ class BagSummary:
         False if the file was cut off; ``stop_reason`` says where.
     stop_reason : str
         "" for a complete file.
+    damage : list of str
+        Where the data disagrees with the file's summary section (a chunk
+        missing, duplicated or corrupt); empty for a sound file.
+    from_summary : bool
+        True when read from the summary section alone (no scan of the data).
     """
 
     path: str
@@ -232,6 +242,8 @@ class BagSummary:
     compression: List[str]
     complete: bool
     stop_reason: str
+    damage: List[str] = field(default_factory=list)
+    from_summary: bool = False
 
     def metadata_dict(self, name: str) -> Dict[str, str]:
         """Return the merged key/values of all metadata records called ``name``."""
@@ -386,6 +398,8 @@ class _Scan:
         self.stop_reason = ""
         self.message_count = 0
         self.bytes_read = 0
+        self.data_crc = "none"  # the data section's CRC: "ok", "bad" or "none" (not written)
+        self.damage: List[str] = []
 
     # -- records ----------------------------------------------------------
     def _schema(self, body: Any) -> None:
@@ -425,6 +439,9 @@ class _Scan:
         (n,) = _u64(body, off)
         off += 8
         payload = body[off : off + n]
+        if uncompressed_size > MAX_CHUNK_BYTES:
+            raise _Stop(f"chunk at byte {at} claims {uncompressed_size} bytes uncompressed "
+                        f"(more than {MAX_CHUNK_BYTES}); damaged")
         if compression == "":
             records = payload
         elif compression == "zstd":
@@ -434,7 +451,7 @@ class _Scan:
                 records = zstandard.ZstdDecompressor().decompress(
                     bytes(payload), max_output_size=uncompressed_size
                 )
-            except zstandard.ZstdError as exc:
+            except (zstandard.ZstdError, OverflowError, MemoryError, ValueError) as exc:
                 raise _Stop(f"zstd chunk at byte {at} cannot be decompressed ({exc})") from None
         elif compression == "lz4":
             try:
@@ -443,7 +460,10 @@ class _Scan:
                 raise CorruptBagError(
                     f"{self.name}: chunk compressed with lz4, but the 'lz4' package is not installed"
                 ) from None
-            records = lz4.frame.decompress(bytes(payload))
+            try:
+                records = lz4.frame.decompress(bytes(payload))
+            except (RuntimeError, ValueError, OverflowError, MemoryError) as exc:
+                raise _Stop(f"lz4 chunk at byte {at} cannot be decompressed ({exc})") from None
         else:
             raise CorruptBagError(
                 f"{self.name}: chunk at byte {at} uses unsupported compression {compression!r}"
@@ -512,6 +532,10 @@ class _Scan:
                             f"{self.name}: first record cannot be parsed ({exc}); not an MCAP file?"
                         ) from None
                     raise _Stop(f"record (opcode 0x{opcode:02x}) at byte {pos} is malformed ({exc})")
+                if opcode == _DATA_END:
+                    (crc,) = _u32(buf, start) if length >= 4 else (0,)
+                    # the data section's CRC (0: not computed): bytes before this record
+                    self.data_crc = "none" if crc == 0 else ("ok" if zlib.crc32(buf[:pos]) == crc else "bad")
                 pos = end
                 self.bytes_read = pos
                 if opcode == _DATA_END:
@@ -556,6 +580,7 @@ class _Source:
     def __init__(self, source: Source):
         self._mmap: Optional[mmap.mmap] = None
         self._file: Optional[IO[bytes]] = None
+        self.path: Optional[str] = None  # the file, when the source is one
         if isinstance(source, (bytes, bytearray, memoryview)):
             self.name = "<bytes>"
             self.buf: Any = source
@@ -565,15 +590,19 @@ class _Source:
             if not os.path.exists(path):
                 raise BagNotFoundError(path)
             if os.path.isdir(path):
-                found = sorted(f for f in os.listdir(path) if f.endswith(".mcap"))
+                from .bagdir import bag_files
+
+                found = bag_files(path)
                 if len(found) != 1:
                     raise BagNotFoundError(
-                        path, f"is a directory with {len(found)} .mcap files; give the file"
+                        path, f"is a bag folder of {len(found)} files; read it with read_bag() "
+                        "or one file at a time (msg_tools.bagdir.bag_files)"
                     )
-                path = os.path.join(path, found[0])
+                path = found[0]
                 self.name = path
             try:
                 self._file = open(path, "rb")
+                self.path = path
                 size = os.fstat(self._file.fileno()).st_size
                 if size == 0:
                     self.buf = b""
@@ -614,11 +643,29 @@ class _Source:
 
 
 def _scan(source: Source, want: Optional[Callable[[str], bool]], keep_data: bool) -> Tuple[_Scan, int, str]:
+    """Scan the data section; check what was read against the summary section.
+
+    ``scan.damage`` lists where the data disagrees with a readable summary
+    (the file was finished, so every difference is damage); a file without
+    a readable summary is read up to its last complete chunk, with a
+    :class:`RecoveredBagWarning` when it is incomplete.
+    """
     with _Source(source) as src:
         scan = _Scan(src.buf, src.name, want=want, keep_data=keep_data).run()
         size, name = src.size, src.name
+        indexed, reason = _index.read_summary(src.buf, path=src.path) if size else (None, "")
     scan.buf = None  # release the mapping
-    if not scan.complete:
+    scan.damage = []
+    if indexed is not None:
+        scan.damage = list(indexed.problems)
+        if not scan.complete:
+            scan.damage.insert(0, f"the data stops early ({scan.stop_reason})")
+        elif scan.data_crc == "bad":
+            scan.damage.insert(0, "the data section fails its CRC check")
+        counts = {cid: len(acc.log) for cid, acc in scan.accs.items()}
+        topics = {cid: ch.topic for cid, ch in scan.channels.items()}
+        scan.damage += _index.count_problems(indexed, counts, topics)
+    elif not scan.complete:
         warnings.warn(
             RecoveredBagWarning(
                 f"{name} is incomplete ({scan.stop_reason}); recovered {scan.message_count} "
@@ -626,7 +673,17 @@ def _scan(source: Source, want: Optional[Callable[[str], bool]], keep_data: bool
             ),
             stacklevel=3,
         )
+    elif scan.data_crc == "bad":  # finished file, summary unreadable, and the data fails its CRC
+        scan.damage = ["the data section fails its CRC check"] + ([reason] if reason else [])
+    elif reason:
+        warnings.warn(RecoveredBagWarning(f"{name}: {reason}; read from the data section"), stacklevel=3)
     return scan, size, name
+
+
+def damage_error(name: str, damage: List[str]) -> CorruptBagError:
+    """The one-line error for a file whose data disagrees with its summary."""
+    more = f" (and {len(damage) - 1} more problems)" if len(damage) > 1 else ""
+    return CorruptBagError(f"{name} is damaged: {damage[0]}{more}")
 
 
 # --------------------------------------------------------------------------
@@ -826,14 +883,14 @@ def _decode_joint_state_objects(objs: Sequence[Any]) -> Dict[str, Any]:
 
 
 def _decoder_for(type_name: str, schema: Optional[_Schema]) -> Callable[[bytes], Any]:
-    from mcap_ros2._dynamic import generate_dynamic
+    from ._cdr import decoder_for
 
     if schema is not None and schema.encoding == "ros2msg" and schema.data:
         text = schema.data.decode("utf-8")
     else:
         text = _schemas.schema_text(type_name)
     try:
-        return generate_dynamic(type_name, text)[type_name]
+        return decoder_for(type_name, text)
     except Exception as exc:  # noqa: BLE001 - parser errors of many kinds
         raise DecodeError(f"cannot build a decoder for {type_name}: {exc}") from None
 
@@ -1045,6 +1102,7 @@ class Bag:
     available: List[str]
     complete: bool
     stop_reason: str
+    damage: List[str] = field(default_factory=list)
 
     def metadata_dict(self, name: str) -> Dict[str, str]:
         """Return the merged key/values of all metadata records called ``name``."""
@@ -1057,15 +1115,35 @@ def read_bag(
     *,
     missing_ok: bool = False,
     keep_undecodable: bool = False,
+    allow_damaged: bool = False,
 ) -> Bag:
     """Read topics (all by default) and the metadata records in one pass.
 
     Parameters and errors as :func:`read_topics`; with ``keep_undecodable``
     a topic whose messages cannot be decoded is returned with
     ``decoder="failed"`` and the reason in ``decode_error`` instead of raising.
+    A file whose data disagrees with its own summary section (a chunk
+    missing, duplicated or corrupt; message counts per channel differ)
+    raises :class:`CorruptBagError` unless ``allow_damaged`` (then
+    ``Bag.damage`` lists the problems).
     """
     topics = None if topics is None else list(topics)
+    if isinstance(source, (str, os.PathLike)) and os.path.isdir(source):
+        from .bagdir import bag_files
+
+        files = bag_files(source)
+        if len(files) > 1:
+            parts = [read_bag(f, topics, missing_ok=True, keep_undecodable=keep_undecodable,
+                              allow_damaged=allow_damaged) for f in files]
+            bag = _merge_bags(os.fspath(source), parts)
+            if topics is not None and not missing_ok:
+                for topic in topics:
+                    if _resolve(topic, bag.available) is None:
+                        raise TopicNotFoundError(topic, bag.path, bag.available)
+            return bag
     scan, _size, name = _scan(source, _topic_matcher(topics), keep_data=True)
+    if scan.damage and not allow_damaged:
+        raise damage_error(name, scan.damage)
     by_topic: Dict[str, List[int]] = {}
     for cid, channel in scan.channels.items():
         if cid in scan.accs:
@@ -1087,6 +1165,54 @@ def read_bag(
         available=available,
         complete=scan.complete,
         stop_reason=scan.stop_reason,
+        damage=list(scan.damage),
+    )
+
+
+def _merge_topic(parts: List[TopicData]) -> TopicData:
+    """One topic read from the consecutive files of a split bag, concatenated in time order."""
+    first = parts[0]
+    failed = [p for p in parts if p.decode_error]
+    merged = TopicData(
+        topic=first.topic, type_name=first.type_name,
+        log_time_ns=np.concatenate([p.log_time_ns for p in parts]),
+        publish_time_ns=np.concatenate([p.publish_time_ns for p in parts]),
+        names=list(first.names), decoder=first.decoder,
+        complete=all(p.complete for p in parts),
+        stop_reason="; ".join(p.stop_reason for p in parts if p.stop_reason),
+        decode_error=failed[0].decode_error if failed else "",
+    )
+    if failed:
+        merged.decoder = "failed"
+        return merged
+    if any(p.names != first.names or set(p.fields) != set(first.fields) for p in parts if len(p)):
+        raise DecodeError(f"{first.topic}: the files of the split bag hold different joints or fields")
+    for key in first.fields:
+        merged.fields[key] = np.concatenate([p.fields[key] for p in parts if key in p.fields])
+    if any(p.messages is not None for p in parts):
+        merged.messages = [m for p in parts for m in (p.messages or [])]
+    if merged.log_time_ns.size > 1 and np.any(np.diff(merged.log_time_ns) < 0):
+        order = np.argsort(merged.log_time_ns, kind="stable")
+        merged.log_time_ns, merged.publish_time_ns = merged.log_time_ns[order], merged.publish_time_ns[order]
+        merged.fields = {k: v[order] for k, v in merged.fields.items()}
+        if merged.messages is not None:
+            merged.messages = [merged.messages[i] for i in order]
+    return merged
+
+
+def _merge_bags(name: str, parts: List["Bag"]) -> "Bag":
+    """The files of a split bag as one :class:`Bag` (metadata records of the first file)."""
+    by_topic: Dict[str, List[TopicData]] = {}
+    for bag in parts:
+        for topic, data in bag.topics.items():
+            by_topic.setdefault(topic, []).append(data)
+    return Bag(
+        path=name, profile=parts[0].profile, library=parts[0].library, metadata=parts[0].metadata,
+        topics={topic: _merge_topic(datas) for topic, datas in by_topic.items()},
+        available=sorted({t for bag in parts for t in bag.available}),
+        complete=all(b.complete for b in parts),
+        stop_reason="; ".join(b.stop_reason for b in parts if b.stop_reason),
+        damage=[d for b in parts for d in b.damage],
     )
 
 
@@ -1156,10 +1282,69 @@ def read_topic(source: Source, topic: str) -> TopicData:
 def summary(source: Source) -> BagSummary:
     """Summarize a bag: header, topics with counts and rates, metadata records.
 
-    Reads the whole data section (no payloads kept), so it also works on files
-    without a summary section.
+    A finished file is answered from its summary section, read with the mcap
+    library (no data is read; the indexes are checked against the records
+    they point at). A file without a readable summary (writer killed), or
+    whose indexes do not match its records, is scanned record by record;
+    ``damage`` then says what disagrees.
     """
+    with _Source(source) as src:
+        indexed, _reason = _index.read_summary(src.buf, path=src.path) if src.size else (None, "")
+        size, name = src.size, src.name
+    if indexed is not None and indexed.sound:
+        return _summary_from_index(indexed, name, size)
     scan, size, name = _scan(source, None, keep_data=False)
+    return _summary_from_scan(scan, name, size)
+
+
+def _topic_info(topic: str, schema_name: str, schema_encoding: str, encoding: str, qos: str,
+                count: int, start: Optional[int], end: Optional[int]) -> TopicInfo:
+    duration = (end - start) * 1e-9 if count and start is not None and end is not None else 0.0
+    return TopicInfo(
+        topic=topic, type_name=schema_name, message_count=count, start_ns=start, end_ns=end,
+        duration_s=duration,
+        frequency_hz=(count - 1) / duration if count > 1 and duration > 0 else 0.0,
+        message_encoding=encoding, schema_encoding=schema_encoding, offered_qos_profiles=qos,
+    )
+
+
+def _summary_from_index(indexed: "_index.IndexedSummary", name: str, size: int) -> BagSummary:
+    s = indexed.summary
+    stats = s.statistics
+    merged: Dict[str, List[int]] = {}
+    for cid, channel in s.channels.items():
+        merged.setdefault(channel.topic, []).append(cid)
+    topics: List[TopicInfo] = []
+    for topic, cids in merged.items():
+        channel = s.channels[cids[0]]
+        schema = s.schemas.get(channel.schema_id)
+        count = sum(stats.channel_message_counts.get(cid, 0) for cid in cids)
+        times = [indexed.topic_times[cid] for cid in cids if cid in indexed.topic_times]
+        if count and not times:  # no message indexes: the file's time range
+            times = [(stats.message_start_time, stats.message_end_time)]
+        start = min(t[0] for t in times) if count else None
+        end = max(t[1] for t in times) if count else None
+        topics.append(_topic_info(topic, schema.name if schema else "", schema.encoding if schema else "",
+                                  channel.message_encoding, channel.metadata.get("offered_qos_profiles", ""),
+                                  count, start, end))
+    count = stats.message_count
+    start_all = stats.message_start_time if count else None
+    end_all = stats.message_end_time if count else None
+    compression: List[str] = []
+    for ci in s.chunk_indexes:
+        if ci.compression not in compression:
+            compression.append(ci.compression)
+    return BagSummary(
+        path=name, size_bytes=size, profile=indexed.profile, library=indexed.library,
+        topics=topics, metadata=indexed.metadata, message_count=count,
+        start_ns=start_all, end_ns=end_all,
+        duration_s=((end_all - start_all) * 1e-9) if count else 0.0,  # type: ignore[operator]
+        chunk_count=len(s.chunk_indexes), compression=compression,
+        complete=True, stop_reason="", damage=[], from_summary=True,
+    )
+
+
+def _summary_from_scan(scan: _Scan, name: str, size: int) -> BagSummary:
     topics: List[TopicInfo] = []
     start_all: Optional[int] = None
     end_all: Optional[int] = None
@@ -1175,26 +1360,12 @@ def summary(source: Source) -> BagSummary:
         count = int(logs.size)
         start = int(logs.min()) if count else None
         end = int(logs.max()) if count else None
-        duration = (end - start) * 1e-9 if count else 0.0  # type: ignore[operator]
-        frequency = (count - 1) / duration if count > 1 and duration > 0 else 0.0
         if start is not None:
             start_all = start if start_all is None else min(start_all, start)
             end_all = end if end_all is None else max(end_all, end)  # type: ignore[arg-type]
-        type_name = schema.name if schema else ""
-        topics.append(
-            TopicInfo(
-                topic=topic,
-                type_name=type_name,
-                message_count=count,
-                start_ns=start,
-                end_ns=end,
-                duration_s=duration,
-                frequency_hz=frequency,
-                message_encoding=channel.message_encoding,
-                schema_encoding=schema.encoding if schema else "",
-                offered_qos_profiles=channel.metadata.get("offered_qos_profiles", ""),
-            )
-        )
+        topics.append(_topic_info(topic, schema.name if schema else "", schema.encoding if schema else "",
+                                  channel.message_encoding, channel.metadata.get("offered_qos_profiles", ""),
+                                  count, start, end))
     return BagSummary(
         path=name,
         size_bytes=size,
@@ -1210,6 +1381,7 @@ def summary(source: Source) -> BagSummary:
         compression=scan.compression,
         complete=scan.complete,
         stop_reason=scan.stop_reason,
+        damage=list(scan.damage),
     )
 
 

@@ -1,41 +1,69 @@
-"""ROS 2 message definitions (``ros2msg`` schema texts) for the types we record.
+"""ROS 2 message definitions: ``ros2msg`` schema texts and RIHS01 type hashes.
 
-The texts are the ``.msg`` files exactly as shipped in ROS 2 Jazzy
-(``share/<pkg>/msg/<Type>.msg`` of ``builtin_interfaces`` 2.0, ``std_msgs`` /
-``sensor_msgs`` / ``diagnostic_msgs`` 5.3, ``rosgraph_msgs`` 2.0), comments
-included, so the schema stored in a bag is byte-for-byte what ``ros2 bag
-record`` would store apart from the dependency header line.
+Where the texts come from
+-------------------------
+The ``.msg`` file of a type is looked up where ROS installs it,
+``<prefix>/share/<pkg>/msg/<Type>.msg``, for every prefix on
+``AMENT_PREFIX_PATH`` and this Python's own prefix (the ``ros-*`` wheels
+install there); files are only read, nothing from ROS is imported. Without a
+ROS installation the texts of msg_tools' own types (:data:`MESSAGE_DEFINITIONS`,
+the Jazzy files byte for byte; a test compares them with the installed ones)
+are used, so msg_tools works without ROS. Further types can be registered
+(``extra_definitions``, :meth:`msg_tools.Ros2McapWriter.register_type`).
 
-Complete definitions follow the ``ros2msg`` rule of rosbag2
-(``docs/message_definition_encoding.md`` and
-``rosbag2_cpp/src/rosbag2_cpp/message_definitions/local_message_definition_source.cpp``
-in ros2/rosbag2): the root ``.msg`` text first; then, depth-first with the
-dependencies of each type in sorted order and each type once, a line of 80
-``=``, a line ``MSG: pkg/msg/Type`` and that type's text.
+Complete definitions (schema texts)
+-----------------------------------
+Exactly as rosbag2 Jazzy writes them (``docs/message_definition_encoding.md``
+and ``rosbag2_cpp/src/rosbag2_cpp/message_definitions/local_message_definition_source.cpp``
+in ros2/rosbag2): the root ``.msg`` text first; then, depth-first, for the
+dependencies of each type (field types found by rosbag2's regular
+expression, a type without package taken from the enclosing package, in
+sorted order, each type once) a newline, a line of 80 ``=``, a line
+``MSG: <type as the field names it>`` -- ``MSG: std_msgs/Header`` for the
+field ``std_msgs/Header header`` -- and that type's text. Foxglove's parser
+(``@foxglove/rosmsg``) matches these names exactly.
+
+Type hashes
+-----------
+``RIHS01_<sha256>`` of the type description as REP 2011 and
+``rosidl_generator_type_description`` define it: the type and every type it
+references (sorted by name), each as its name and fields (name, type id,
+capacity, string capacity, nested type name; no default values), serialized
+as JSON with ``", "`` and ``": "`` separators. :func:`type_hash` computes it
+from the ``.msg`` texts; a test checks it against the hashes the installed
+ROS packages ship for every message of several packages.
 
 This module is pure Python: it never imports rclpy.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import os
 import re
-from typing import Dict, List, Tuple
+import sys
+from functools import lru_cache
+from typing import Dict, List, Mapping, Optional, Tuple
 
 from .errors import UnknownMessageTypeError
 
 __all__ = [
     "MESSAGE_DEFINITIONS",
-    "TYPE_HASHES",
+    "definition",
+    "installed_definition",
     "known_types",
     "normalize_type_name",
     "schema_text",
+    "type_description",
     "type_hash",
 ]
 
 #: Width of the separator line between definitions (rosbag2 uses exactly 80).
 SEPARATOR = "=" * 80
 
-#: ``.msg`` text of each known type, exactly as in ROS 2 Jazzy.
+#: ``.msg`` text of msg_tools' own types, exactly as in ROS 2 Jazzy: the fallback
+#: when no ROS installation provides them.
 MESSAGE_DEFINITIONS: Dict[str, str] = {
     "builtin_interfaces/msg/Time": (
         "# This message communicates ROS Time defined here:\n"
@@ -144,22 +172,6 @@ MESSAGE_DEFINITIONS: Dict[str, str] = {
     ),
 }
 
-#: REP-2011 type description hashes (``RIHS01_...``) of the Jazzy types, copied
-#: from the ``type_hashes`` entry of each ``share/<pkg>/msg/<Type>.json``. rosbag2
-#: stores this per channel (metadata key ``topic_type_hash``) and in the bag
-#: metadata (``type_description_hash``); playback does not need it.
-TYPE_HASHES: Dict[str, str] = {
-    "builtin_interfaces/msg/Time": "RIHS01_b106235e25a4c5ed35098aa0a61a3ee9c9b18d197f398b0e4206cea9acf9c197",
-    "std_msgs/msg/Header": "RIHS01_f49fb3ae2cf070f793645ff749683ac6b06203e41c891e17701b1cb597ce6a01",
-    "std_msgs/msg/Float64": "RIHS01_705ba9c3d1a09df43737eb67095534de36fd426c0587779bda2bc51fe790182a",
-    "std_msgs/msg/String": "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18",
-    "sensor_msgs/msg/JointState": "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e",
-    "rosgraph_msgs/msg/Clock": "RIHS01_692f7a66e93a3c83e71765d033b60349ba68023a8c689a79e48078bcb5c58564",
-    "diagnostic_msgs/msg/KeyValue": "RIHS01_d68081eaa540288c5440753baecef0c4e16e81a5f78ad68902ded5100413bb42",
-    "diagnostic_msgs/msg/DiagnosticStatus": "RIHS01_b0e3e692ea2d54a8af2f4ef1930e81556a2db55216b771f8a7d2724ed47bf0e4",
-    "diagnostic_msgs/msg/DiagnosticArray": "RIHS01_5a8a36efb05fb25070fa0fb3810290c0e6cd4862b54a8fb975a1ee8dc55a333e",
-}
-
 _PRIMITIVE_TYPES = frozenset(
     [
         "bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16",
@@ -167,15 +179,18 @@ _PRIMITIVE_TYPES = frozenset(
     ]
 )
 
-# Field type at the start of a line, as rosbag2's MSG_FIELD_TYPE_REGEX:
-# "foo_msgs/Bar" in "foo_msgs/Bar[] bar"; bounded strings ("string<=5") too.
-_FIELD_TYPE = re.compile(r"^\s*([a-zA-Z0-9_/]+)(?:<=\d+)?(?:\[[^\]]*\])?\s+", re.MULTILINE)
+# rosbag2's MSG_FIELD_TYPE_REGEX, applied to the whole text ("^" = start of text):
+# "foo_msgs/Bar" in "foo_msgs/Bar[] bar".
+_ROSBAG2_FIELD_TYPE = re.compile(r"(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:\[[^\]]*\])?\s+")
 
 _TYPE_NAME = re.compile(r"^([a-zA-Z][a-zA-Z0-9_]*)/(?:(msg)/)?([a-zA-Z][a-zA-Z0-9_]*)$")
 
+#: deepest nesting of message types followed (rosbag2 stops at 50 too)
+MAX_DEPTH = 50
+
 
 def known_types() -> List[str]:
-    """Return the sorted names of the message types with a built-in definition."""
+    """Return the sorted names of the types msg_tools has a built-in definition of."""
     return sorted(MESSAGE_DEFINITIONS)
 
 
@@ -200,56 +215,100 @@ def normalize_type_name(type_name: str) -> str:
     return f"{match.group(1)}/msg/{match.group(3)}"
 
 
-def dependencies(type_name: str, text: str) -> List[str]:
-    """Return the sorted full names of the non-primitive field types in ``text``.
+def share_directories() -> List[str]:
+    """``share`` folders searched for ``.msg`` files, in order.
 
-    Parameters
-    ----------
-    type_name : str
-        Full name of the type whose definition ``text`` is; a field type
-        without a package (``KeyValue``) is taken from this package.
-    text : str
-        ``.msg`` text of that type.
+    Every prefix on ``AMENT_PREFIX_PATH`` (a sourced ROS install or
+    workspace), then this Python's prefix (where the ``ros-*`` wheels put
+    their files).
     """
-    package = type_name.split("/")[0]
-    found = set()
-    for line in text.splitlines():
-        code = line.split("#", 1)[0]
-        match = _FIELD_TYPE.match(code)
-        if match is None:
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    prefixes.append(sys.prefix)
+    out: List[str] = []
+    for prefix in prefixes:
+        share = os.path.join(prefix, "share")
+        if share not in out:
+            out.append(share)
+    return out
+
+
+@lru_cache(maxsize=512)
+def _read_installed(share_dirs: Tuple[str, ...], full_name: str) -> Optional[str]:
+    package, _, short = full_name.split("/")
+    for share in share_dirs:
+        path = os.path.join(share, package, "msg", short + ".msg")
+        try:
+            with open(path, "rb") as f:
+                return f.read().decode("utf-8")
+        except (OSError, UnicodeDecodeError):
             continue
+    return None
+
+
+def installed_definition(type_name: str) -> Optional[str]:
+    """The installed ``.msg`` text of ``type_name``, or None if no ROS install has it."""
+    return _read_installed(tuple(share_directories()), normalize_type_name(type_name))
+
+
+def definition(type_name: str, extra_definitions: Optional[Mapping[str, str]] = None) -> str:
+    """The ``.msg`` text of ``type_name``: registered, else installed, else built in.
+
+    Raises
+    ------
+    UnknownMessageTypeError
+        If none of the three has it; the message lists the built-in types.
+    """
+    full = normalize_type_name(type_name)
+    if extra_definitions:
+        for key, text in extra_definitions.items():
+            if normalize_type_name(key) == full:
+                return text
+    text = installed_definition(full)
+    if text is None:
+        text = MESSAGE_DEFINITIONS.get(full)
+    if text is None:
+        raise UnknownMessageTypeError(full, set(MESSAGE_DEFINITIONS) | set(extra_definitions or {}))
+    return text
+
+
+def dependencies_as_written(type_name: str, text: str) -> List[str]:
+    """Field types of ``text`` that are messages, named as rosbag2 names them, sorted.
+
+    ``"std_msgs/Header"`` for ``std_msgs/Header header``; a type without a
+    package (``KeyValue[] values`` in ``diagnostic_msgs``) gets the package of
+    ``type_name``: ``"diagnostic_msgs/KeyValue"``.
+    """
+    package = normalize_type_name(type_name).split("/")[0]
+    found = set()
+    for match in _ROSBAG2_FIELD_TYPE.finditer(text):
         field_type = match.group(1)
         if field_type in _PRIMITIVE_TYPES:  # also skips constants ("byte OK=0")
             continue
-        if "/" not in field_type:
-            field_type = f"{package}/{field_type}"
-        found.add(normalize_type_name(field_type))
+        found.add(field_type if "/" in field_type else f"{package}/{field_type}")
     return sorted(found)
 
 
-def _definition(type_name: str, extra: Dict[str, str]) -> str:
-    if type_name in extra:
-        return extra[type_name]
-    if type_name in MESSAGE_DEFINITIONS:
-        return MESSAGE_DEFINITIONS[type_name]
-    raise UnknownMessageTypeError(type_name, set(MESSAGE_DEFINITIONS) | set(extra))
+def dependencies(type_name: str, text: str) -> List[str]:
+    """Sorted full names (``pkg/msg/Type``) of the message types ``text`` uses."""
+    return sorted({normalize_type_name(d) for d in dependencies_as_written(type_name, text)})
 
 
-def schema_text(type_name: str, extra_definitions: Dict[str, str] | None = None) -> str:
-    """Return the complete ``ros2msg`` schema text of ``type_name``.
+def schema_text(type_name: str, extra_definitions: Optional[Mapping[str, str]] = None) -> str:
+    """Return the complete ``ros2msg`` schema text of ``type_name``, as rosbag2 Jazzy writes it.
 
     Parameters
     ----------
     type_name : str
         Message type, ``"sensor_msgs/msg/JointState"`` (or ``"sensor_msgs/JointState"``).
     extra_definitions : dict of str to str, optional
-        ``.msg`` texts of further types (full names), used before the built-in ones.
+        ``.msg`` texts of further types (full names), used before installed
+        and built-in ones.
 
     Returns
     -------
     str
-        The root definition followed by every dependency, each preceded by an
-        80-character ``=`` line and ``MSG: pkg/msg/Type``.
+        The root definition, then for every dependency ``"\n"``, 80 ``=``,
+        ``"\nMSG: pkg/Type\n"`` (the name as the field writes it) and its text.
 
     Raises
     ------
@@ -259,28 +318,20 @@ def schema_text(type_name: str, extra_definitions: Dict[str, str] | None = None)
     """
     extra = {normalize_type_name(k): v for k, v in (extra_definitions or {}).items()}
     root = normalize_type_name(type_name)
-    seen = {root}
+    seen = set()
 
     def append(name: str, depth: int) -> str:
-        if depth > 50:
-            raise RecursionError(f"message definition of {root} nests deeper than 50 levels")
-        text = _definition(name, extra)
+        if depth > MAX_DEPTH:
+            raise RecursionError(f"message definition of {root} nests deeper than {MAX_DEPTH} levels")
+        text = definition(name, extra)
         out = text
-        for dep in dependencies(name, text):
+        for dep in dependencies_as_written(name, text):
             if dep not in seen:
                 seen.add(dep)
                 out += "\n" + SEPARATOR + "\nMSG: " + dep + "\n" + append(dep, depth + 1)
         return out
 
     return append(root, 0)
-
-
-def type_hash(type_name: str) -> str:
-    """Return the ``RIHS01_...`` hash of a known type, or ``""`` if unknown."""
-    try:
-        return TYPE_HASHES.get(normalize_type_name(type_name), "")
-    except ValueError:
-        return ""
 
 
 def split_schema(text: str) -> List[Tuple[str, str]]:
@@ -295,3 +346,128 @@ def split_schema(text: str) -> List[Tuple[str, str]]:
         first, _, body = part.partition("\n")
         out.append((first[len("MSG: "):] if first.startswith("MSG: ") else first, body))
     return out
+
+
+# --------------------------------------------------------------------------
+# type descriptions and RIHS01 hashes (REP 2011)
+# --------------------------------------------------------------------------
+#: FieldType ids of type_description_interfaces (rosidl_generator_type_description)
+_BASE_TYPE_ID = {
+    "nested": 1, "int8": 2, "uint8": 3, "int16": 4, "uint16": 5, "int32": 6, "uint32": 7,
+    "int64": 8, "uint64": 9, "float32": 10, "float64": 11, "char": 3,  # .msg char is IDL uint8
+    "bool": 15, "byte": 16, "string": 17, "wstring": 18,
+    "bounded_string": 21, "bounded_wstring": 22,
+}
+_ARRAY, _BOUNDED_SEQUENCE, _UNBOUNDED_SEQUENCE = 48, 96, 144
+
+_FIELD = re.compile(
+    r"^(?P<type>[a-zA-Z][a-zA-Z0-9_/]*)(?:<=(?P<strcap>\d+))?(?:\[(?P<arr>(?:<=)?\d*)\])?"
+    r"\s+(?P<name>[a-zA-Z][a-zA-Z0-9_]*)(?P<rest>.*)$"
+)
+
+
+def _strip_comment(line: str) -> str:
+    """The code part of a ``.msg`` line (``#`` inside a quoted default is kept)."""
+    quote = None
+    for i, ch in enumerate(line):
+        if quote:
+            if ch == quote:
+                quote = None
+        elif ch in "'\"":
+            quote = ch
+        elif ch == "#":
+            return line[:i].strip()
+    return line.strip()
+
+
+def _fields(type_name: str, text: str) -> List[dict]:
+    """Fields of a ``.msg`` text as type-description dicts (constants skipped)."""
+    package = type_name.split("/")[0]
+    fields: List[dict] = []
+    for raw in text.splitlines():
+        code = _strip_comment(raw)
+        if not code:
+            continue
+        match = _FIELD.match(code)
+        if match is None:
+            raise ValueError(f"{type_name}: cannot parse the line {raw.strip()!r}")
+        if match.group("rest").lstrip().startswith("="):
+            continue  # constant: NAME=VALUE
+        base, strcap, arr = match.group("type"), match.group("strcap"), match.group("arr")
+        nested = ""
+        string_capacity = 0
+        if base in _PRIMITIVE_TYPES:
+            key = base
+            if strcap is not None:
+                key = "bounded_" + base
+                string_capacity = int(strcap)
+        else:
+            key = "nested"
+            nested = normalize_type_name(base if "/" in base else f"{package}/{base}")
+        type_id = _BASE_TYPE_ID[key]
+        capacity = 0
+        if arr is not None:
+            if arr == "":
+                type_id += _UNBOUNDED_SEQUENCE
+            elif arr.startswith("<="):
+                type_id += _BOUNDED_SEQUENCE
+                capacity = int(arr[2:])
+            else:
+                type_id += _ARRAY
+                capacity = int(arr)
+        fields.append({
+            "name": match.group("name"),
+            "type": {"type_id": type_id, "capacity": capacity,
+                     "string_capacity": string_capacity, "nested_type_name": nested},
+        })
+    if not fields:  # rosidl adds a placeholder member to empty structures
+        fields.append({"name": "structure_needs_at_least_one_member",
+                       "type": {"type_id": 3, "capacity": 0, "string_capacity": 0,
+                                "nested_type_name": ""}})
+    return fields
+
+
+def type_description(type_name: str, extra_definitions: Optional[Mapping[str, str]] = None) -> dict:
+    """The hashable type description of ``type_name`` (REP 2011, without default values).
+
+    ``{"type_description": {"type_name", "fields"}, "referenced_type_descriptions": [...]}``
+    with the referenced types sorted by name, as ``rosidl_generator_type_description``
+    builds it.
+    """
+    root = normalize_type_name(type_name)
+    described: Dict[str, dict] = {}
+    todo = [root]
+    while todo:
+        name = todo.pop()
+        if name in described:
+            continue
+        if len(described) > 10 * MAX_DEPTH:
+            raise RecursionError(f"type description of {root} references too many types")
+        fields = _fields(name, definition(name, extra_definitions))
+        described[name] = {"type_name": name, "fields": fields}
+        todo.extend(f["type"]["nested_type_name"] for f in fields if f["type"]["nested_type_name"])
+    return {
+        "type_description": described[root],
+        "referenced_type_descriptions": [described[n] for n in sorted(described) if n != root],
+    }
+
+
+def hash_type_description(description: Mapping) -> str:
+    """``RIHS01_`` + sha256 of the JSON of a hashable type description."""
+    text = json.dumps(description, ensure_ascii=True, allow_nan=False, indent=None,
+                      separators=(", ", ": "), sort_keys=False)
+    return "RIHS01_" + hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def type_hash(type_name: str, extra_definitions: Optional[Mapping[str, str]] = None) -> str:
+    """Return the ``RIHS01_...`` hash of ``type_name``, or ``""`` if its definition is unknown."""
+    try:
+        key = tuple(sorted((extra_definitions or {}).items()))
+        return _type_hash_cached(normalize_type_name(type_name), key, tuple(share_directories()))
+    except (ValueError, UnknownMessageTypeError, RecursionError):
+        return ""
+
+
+@lru_cache(maxsize=512)
+def _type_hash_cached(full_name: str, extra: Tuple[Tuple[str, str], ...], _shares: Tuple[str, ...]) -> str:
+    return hash_type_description(type_description(full_name, dict(extra)))

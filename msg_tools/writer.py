@@ -102,14 +102,14 @@ def encode(type_name: str, message: Any, schema: Optional[str] = None) -> bytes:
         4-byte encapsulation header ``00 01 00 00`` then the payload. The
         output is deterministic (padding bytes are zero).
     """
-    from mcap_ros2._dynamic import serialize_dynamic
+    from ._cdr import encoder_for
 
     full_name = _schemas.normalize_type_name(type_name)
     key = full_name if schema is None else f"{full_name}\0{schema}"
     encoder = _encoders.get(key)
     if encoder is None:
         text = schema if schema is not None else _schemas.schema_text(full_name)
-        encoder = serialize_dynamic(full_name, text)[full_name]
+        encoder = encoder_for(full_name, text)
         _encoders[key] = encoder
     try:
         return bytes(encoder(_plain(message)))
@@ -144,6 +144,7 @@ def bag_metadata_yaml(
     relative_file_path: str = "",
     custom_data: Optional[Dict[str, str]] = None,
     ros_distro: str = "jazzy",
+    files: Optional[List[Dict[str, Any]]] = None,
 ) -> str:
     """Return rosbag2 BagMetadata YAML (version 9) as ``YAML::Dump`` lays it out.
 
@@ -165,6 +166,10 @@ def bag_metadata_yaml(
         rosbag2 ``custom_data`` (``~`` when empty).
     ros_distro : str
         ROS distribution name.
+    files : list of dict, optional
+        Several files (a split recording): per file ``path`` (relative),
+        ``starting_time_ns``, ``duration_ns``, ``message_count``; replaces
+        ``relative_file_path``.
     """
     lines = [
         f"version: {BAG_METADATA_VERSION}",
@@ -197,18 +202,22 @@ def bag_metadata_yaml(
     else:
         lines.append("topics_with_message_count: []")
     lines += ['compression_format: ""', 'compression_mode: ""']
-    if relative_file_path:
-        lines += [
-            "relative_file_paths:",
-            f"  - {_yaml_str(relative_file_path)}",
-            "files:",
-            f"  - path: {_yaml_str(relative_file_path)}",
-            "    starting_time:",
-            f"      nanoseconds_since_epoch: {int(starting_time_ns)}",
-            "    duration:",
-            f"      nanoseconds: {int(duration_ns)}",
-            f"    message_count: {int(message_count)}",
-        ]
+    if files is None and relative_file_path:
+        files = [{"path": relative_file_path, "starting_time_ns": starting_time_ns,
+                  "duration_ns": duration_ns, "message_count": message_count}]
+    if files:
+        lines.append("relative_file_paths:")
+        lines += [f"  - {_yaml_str(f['path'])}" for f in files]
+        lines.append("files:")
+        for f in files:
+            lines += [
+                f"  - path: {_yaml_str(f['path'])}",
+                "    starting_time:",
+                f"      nanoseconds_since_epoch: {int(f['starting_time_ns'])}",
+                "    duration:",
+                f"      nanoseconds: {int(f['duration_ns'])}",
+                f"    message_count: {int(f['message_count'])}",
+            ]
     else:
         lines += ["relative_file_paths: []", "files: []"]
     if custom_data:
@@ -221,13 +230,14 @@ def bag_metadata_yaml(
 
 
 class _Channel:
-    __slots__ = ("channel_id", "topic", "type_name", "qos_yaml", "count", "sequence")
+    __slots__ = ("channel_id", "topic", "type_name", "qos_yaml", "type_hash", "count", "sequence")
 
-    def __init__(self, channel_id: int, topic: str, type_name: str, qos_yaml: str):
+    def __init__(self, channel_id: int, topic: str, type_name: str, qos_yaml: str, type_hash: str):
         self.channel_id = channel_id
         self.topic = topic
         self.type_name = type_name
         self.qos_yaml = qos_yaml
+        self.type_hash = type_hash
         self.count = 0
         self.sequence = 0
 
@@ -331,6 +341,7 @@ class Ros2McapWriter:
             self._mcap = _McapWriter(
                 self._stream,
                 chunk_size=2**62,  # chunks are closed by this class, see _after_message
+                enable_data_crcs=True,  # DataEnd carries the data section's CRC: readers detect damage
                 compression=_COMPRESSION[compression],
                 index_types=IndexType.ALL if message_index else IndexType.ALL & ~IndexType.MESSAGE,
             )
@@ -393,6 +404,34 @@ class Ros2McapWriter:
         with self._lock:
             return {topic: ch.count for topic, ch in self._channels.items()}
 
+    def topics_metadata(self) -> List[Dict[str, Any]]:
+        """One dict per topic (name, type, offered_qos_profiles, type_description_hash,
+        message_count), as :func:`bag_metadata_yaml` takes them."""
+        with self._lock:
+            return [
+                {
+                    "name": ch.topic,
+                    "type": ch.type_name,
+                    "offered_qos_profiles": ch.qos_yaml,
+                    "type_description_hash": ch.type_hash,
+                    "message_count": ch.count,
+                }
+                for ch in self._channels.values()
+            ]
+
+    @property
+    def time_range_ns(self) -> "tuple[Optional[int], Optional[int]]":
+        """(earliest, latest) log time written [ns]; (None, None) before the first message."""
+        return self._start_ns, self._end_ns
+
+    @property
+    def bytes_written(self) -> int:
+        """Bytes handed to the output so far (closed chunks; the open chunk is not counted)."""
+        try:
+            return int(self._stream.tell())
+        except (OSError, ValueError):
+            return 0
+
     # ------------------------------------------------------------------ errors
     def _fail(self, exc: BaseException, action: str = "write") -> WriteError:
         if self.error is None:
@@ -429,7 +468,8 @@ class Ros2McapWriter:
             self._schema_ids[type_name] = schema_id
         return schema_id
 
-    def add_topic(self, topic: str, type_name: str, qos: Union[QosLike, List[QosLike], None] = None) -> None:
+    def add_topic(self, topic: str, type_name: str, qos: Union[QosLike, List[QosLike], None] = None,
+                  type_hash: Optional[str] = None) -> None:
         """Declare a topic (channel) before its first message.
 
         Parameters
@@ -441,6 +481,12 @@ class Ros2McapWriter:
         qos : preset name, QosProfile, dict, rclpy QoSProfile or list, optional
             Offered QoS written as ``offered_qos_profiles``; default ``"reliable"``.
             Only used when the channel is created (first call for the topic).
+        type_hash : str, optional
+            ``RIHS01_...`` hash of the type as discovery reports it (a live
+            recorder passes the publishers'); default: computed from the
+            definition (:func:`msg_tools.schemas.type_hash`). Written as the
+            channel's ``topic_type_hash`` and the topic's
+            ``type_description_hash``.
 
         Raises
         ------
@@ -451,9 +497,9 @@ class Ros2McapWriter:
         """
         with self._lock:
             self._check_writable()
-            self._channel(topic, type_name, qos)
+            self._channel(topic, type_name, qos, type_hash)
 
-    def _channel(self, topic: str, type_name: str, qos: Any) -> _Channel:
+    def _channel(self, topic: str, type_name: str, qos: Any, type_hash: Optional[str] = None) -> _Channel:
         channel = self._channels.get(topic)
         full_type = _schemas.normalize_type_name(type_name)
         if channel is not None:
@@ -465,6 +511,8 @@ class Ros2McapWriter:
         if not isinstance(topic, str) or not topic:
             raise ValueError(f"topic must be a non-empty string, got {topic!r}")
         qos_yaml = offered_qos_yaml(as_profiles(qos))
+        if not type_hash:
+            type_hash = _schemas.type_hash(full_type, self._extra_definitions)
         try:
             schema_id = self._schema_id(full_type)
             channel_id = self._mcap.register_channel(
@@ -473,12 +521,12 @@ class Ros2McapWriter:
                 schema_id=schema_id,
                 metadata={
                     "offered_qos_profiles": qos_yaml,
-                    "topic_type_hash": _schemas.type_hash(full_type),
+                    "topic_type_hash": type_hash,
                 },
             )
         except OSError as exc:
             raise self._fail(exc) from exc
-        channel = _Channel(channel_id, topic, full_type, qos_yaml)
+        channel = _Channel(channel_id, topic, full_type, qos_yaml, type_hash)
         self._channels[topic] = channel
         return channel
 
@@ -632,18 +680,8 @@ class Ros2McapWriter:
         with self._lock:
             start = self._start_ns or 0
             duration = (self._end_ns - self._start_ns) if self._start_ns is not None else 0
-            topics = [
-                {
-                    "name": ch.topic,
-                    "type": ch.type_name,
-                    "offered_qos_profiles": ch.qos_yaml,
-                    "type_description_hash": _schemas.type_hash(ch.type_name),
-                    "message_count": ch.count,
-                }
-                for ch in self._channels.values()
-            ]
             return bag_metadata_yaml(
-                topics,
+                self.topics_metadata(),
                 starting_time_ns=start,
                 duration_ns=duration,
                 message_count=self._message_count,

@@ -1,13 +1,16 @@
 """Shared test set-up: DDS stays on loopback; each test process gets its own ROS domain.
 
-The variables are set here, before any test module imports rclpy, so every
-context a test initialises discovers only this machine.
+The discovery range is set here, before any test module imports rclpy, so
+every context a test initialises discovers only this machine (unless the
+person running the tests chose a range themselves). ``ROS_LOCALHOST_ONLY``
+is deprecated in Jazzy and never set.
 """
 
 import os
 
-os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-os.environ.setdefault("ROS_LOCALHOST_ONLY", "1")
+from belt_drive_ros.ros.environment import configure_environment
+
+configure_environment(loopback=True)
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 import pytest  # noqa: E402

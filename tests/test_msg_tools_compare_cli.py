@@ -151,9 +151,14 @@ def test_cli_compare_exit_codes_and_table(capsys, tmp_path, golden):
 def test_cli_info(capsys, golden):
     status, out, _ = _cli(capsys, "info", golden)
     assert status == 0
-    assert "profile:      ros2" in out and "status:       complete" in out
-    row = [line.split() for line in out.splitlines() if line.strip().startswith("/joint_states")][0]
-    assert row[1:4] == ["sensor_msgs/msg/JointState", "400", "1000.0"]
+    # the fields `ros2 bag info` shows, then ours
+    for field in ("Files:", "Bag size:", "Storage id:        mcap", "ROS Distro:        jazzy", "Duration:",
+                  "Start:", "End:", "Messages:", "Profile:           ros2",
+                  "Status:            complete (summary section)"):
+        assert field in out, field
+    row = [line for line in out.splitlines() if "Topic: /joint_states " in line][0]
+    assert [c.strip() for c in row.split("|")[1:]] == [
+        "Type: sensor_msgs/msg/JointState", "Count: 400", "Serialization Format: cdr", "Rate: 1000.0 Hz"]
     assert "units:" in out and "rosbag2:" in out
 
 

@@ -13,7 +13,6 @@ import struct
 import sys
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-os.environ.setdefault("ROS_LOCALHOST_ONLY", "1")
 os.environ.setdefault("ROS_DOMAIN_ID", "57")
 
 import numpy as np  # noqa: E402
@@ -30,7 +29,7 @@ from msg_tools import Ros2McapWriter, read_topic  # noqa: E402
 from msg_tools import schemas  # noqa: E402
 from msg_tools.reader import _joint_layout  # noqa: E402
 from msg_tools.writer import encode  # noqa: E402
-from mcap_ros2._dynamic import generate_dynamic  # noqa: E402
+from msg_tools._cdr import decoder_for  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -38,7 +37,7 @@ RNG = np.random.default_rng(7)
 
 
 def _decode(type_name, data):
-    return generate_dynamic(type_name, schemas.schema_text(type_name))[type_name](data)
+    return decoder_for(type_name, schemas.schema_text(type_name))(data)
 
 
 def _non_padding_mask(data: bytes) -> np.ndarray:
@@ -144,15 +143,65 @@ def test_clock_and_diagnostics_round_trip_both_ways():
     assert back.status[0].level == DiagnosticStatus.WARN and back.status[0].values[0].key == "slip"
 
 
-@pytest.mark.parametrize("type_name", schemas.known_types())
-def test_definitions_and_hashes_are_the_installed_jazzy_ones(type_name):
-    package, _, name = type_name.split("/")
+def _share(package):
     try:
-        share = get_package_share_directory(package)
+        return get_package_share_directory(package)
     except (OSError, LookupError):  # pip-installed ROS wheels: no AMENT_PREFIX_PATH
-        share = os.path.join(sys.prefix, "share", package)
-    with open(os.path.join(share, "msg", name + ".msg"), encoding="utf-8") as f:
+        return os.path.join(sys.prefix, "share", package)
+
+
+@pytest.mark.parametrize("type_name", schemas.known_types())
+def test_built_in_definitions_are_the_installed_jazzy_ones(type_name):
+    package, _, name = type_name.split("/")
+    with open(os.path.join(_share(package), "msg", name + ".msg"), encoding="utf-8") as f:
         assert schemas.MESSAGE_DEFINITIONS[type_name] == f.read()
-    with open(os.path.join(share, "msg", name + ".json"), encoding="utf-8") as f:
-        hashes = {h["type_name"]: h["hash_string"] for h in json.load(f)["type_hashes"]}
-    assert schemas.TYPE_HASHES[type_name] == hashes[type_name]
+
+
+HASHED_PACKAGES = ("builtin_interfaces", "std_msgs", "sensor_msgs", "diagnostic_msgs", "geometry_msgs",
+                   "rosgraph_msgs", "rcl_interfaces", "lifecycle_msgs", "action_msgs")
+
+
+@pytest.mark.parametrize("package", HASHED_PACKAGES)
+def test_computed_type_hashes_equal_the_ones_rosidl_generated(package):
+    """RIHS01 hashes computed from the .msg texts equal the ones rosidl shipped (share/<pkg>/msg/*.json)."""
+    import glob
+
+    files = sorted(glob.glob(os.path.join(_share(package), "msg", "*.json")))
+    assert files, f"no type description files of {package}"
+    for path in files:
+        with open(path, encoding="utf-8") as f:
+            shipped = json.load(f)["type_hashes"]
+        for entry in shipped:  # the type itself and every type it references
+            assert schemas.type_hash(entry["type_name"]) == entry["hash_string"], entry["type_name"]
+
+
+def test_computed_type_hash_equals_the_one_discovery_reports():
+    """The hash rclpy's discovery reports for a publisher's type (what a live recording stores) is ours."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Twist
+    from rcl_interfaces.msg import Log
+    from rclpy.context import Context
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+
+    from belt_drive_ros.ros.environment import process_domain_id
+
+    types = {"/t_float": (Float64, "std_msgs/msg/Float64"),
+             "/t_joint": (JointState, "sensor_msgs/msg/JointState"),
+             "/t_diag": (DiagnosticArray, "diagnostic_msgs/msg/DiagnosticArray"),
+             "/t_twist": (Twist, "geometry_msgs/msg/Twist"),
+             "/t_log": (Log, "rcl_interfaces/msg/Log")}
+    context = Context()
+    rclpy.init(context=context, domain_id=process_domain_id(offset=71))
+    try:
+        node = rclpy.create_node("hash_probe", context=context)
+        for topic, (cls, _) in types.items():
+            node.create_publisher(cls, topic, 1)
+        for topic, (_, name) in types.items():
+            infos = node.get_publishers_info_by_topic(topic)
+            assert len(infos) == 1
+            assert str(infos[0].topic_type_hash) == schemas.type_hash(name), name
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

@@ -10,9 +10,10 @@ import pytest
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
-from mcap_ros2._dynamic import generate_dynamic
+from msg_tools._cdr import decoder_for
 
 from msg_tools import (
+    read_bag,
     BagNotFoundError,
     CorruptBagError,
     DecodeError,
@@ -31,7 +32,7 @@ RNG = np.random.default_rng(20240611)
 
 
 def _decoder(type_name):
-    return generate_dynamic(type_name, schema_text(type_name))[type_name]
+    return decoder_for(type_name, schema_text(type_name))
 
 
 def _bits(a):
@@ -249,13 +250,17 @@ def test_file_cut_inside_header_has_no_messages():
     assert not s.complete and s.message_count == 0 and s.topics == []
 
 
-def test_corrupted_chunk_stops_reading_with_warning():
+def test_corrupted_chunk_in_a_finished_file_is_damage():
+    """The file has a summary, so a chunk that fails its check is damage, not a cut-off end."""
     raw = bytearray(_long_bag())
     chunks = make_reader(io.BytesIO(bytes(raw))).get_summary().chunk_indexes
     third = chunks[2]
     raw[third.chunk_start_offset + third.chunk_length - 20] ^= 0xFF
-    with pytest.warns(RecoveredBagWarning, match="chunk"):
-        data = read_topic(bytes(raw), "/x")
+    with pytest.raises(CorruptBagError, match="damaged: the data stops early .*chunk"):
+        read_topic(bytes(raw), "/x")
+    bag = read_bag(bytes(raw), ["/x"], allow_damaged=True)  # what is before the damage
+    assert bag.damage and not bag.complete
+    data = bag.topics["/x"]
     assert len(data) == sum(1 for i in range(1000) if i * 1_000_000 <= chunks[1].message_end_time)
 
 

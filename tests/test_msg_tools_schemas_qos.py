@@ -64,27 +64,30 @@ def test_field_lines_match_jazzy(type_name):
 
 def test_joint_state_schema_concatenation_rule():
     parts = schemas.split_schema(schemas.schema_text("sensor_msgs/msg/JointState"))
+    # dependencies named as the field names them (rosbag2 Jazzy; Foxglove needs exactly this)
     assert [name for name, _ in parts] == [
         "",
-        "std_msgs/msg/Header",
-        "builtin_interfaces/msg/Time",
+        "std_msgs/Header",
+        "builtin_interfaces/Time",
     ]
     assert _fields(parts[0][1]) == FIELD_LINES["sensor_msgs/msg/JointState"]
     assert _fields(parts[2][1]) == FIELD_LINES["builtin_interfaces/msg/Time"]
     text = schemas.schema_text("sensor_msgs/msg/JointState")
-    assert "\n" + "=" * 80 + "\nMSG: std_msgs/msg/Header\n" in text
+    assert "\n" + "=" * 80 + "\nMSG: std_msgs/Header\n" in text
+    assert "MSG: std_msgs/msg/" not in text
     assert "=" * 81 not in text
 
 
 def test_diagnostic_array_dependencies_depth_first_each_once():
     names = [n for n, _ in schemas.split_schema(schemas.schema_text("diagnostic_msgs/DiagnosticArray"))]
     # sorted dependencies, depth first, as rosbag2's LocalMessageDefinitionSource
+    # (a field type without package, "KeyValue", gets the enclosing package)
     assert names == [
         "",
-        "diagnostic_msgs/msg/DiagnosticStatus",
-        "diagnostic_msgs/msg/KeyValue",
-        "std_msgs/msg/Header",
-        "builtin_interfaces/msg/Time",
+        "diagnostic_msgs/DiagnosticStatus",
+        "diagnostic_msgs/KeyValue",
+        "std_msgs/Header",
+        "builtin_interfaces/Time",
     ]
 
 
@@ -95,18 +98,17 @@ def test_schema_without_dependencies_is_the_msg_text():
 
 
 def test_schema_parses_with_mcap_ros2():
-    from mcap_ros2._dynamic import generate_dynamic
+    from msg_tools._cdr import decoder_for
 
     for type_name in schemas.known_types():
-        decoders = generate_dynamic(type_name, schemas.schema_text(type_name))
-        assert type_name in decoders
+        assert callable(decoder_for(type_name, schemas.schema_text(type_name)))
 
 
 def test_unknown_type_error_names_type_and_known_ones():
     with pytest.raises(UnknownMessageTypeError) as info:
-        schemas.schema_text("geometry_msgs/msg/Twist")
+        schemas.schema_text("foo_msgs/msg/Bar")
     text = str(info.value)
-    assert "geometry_msgs/msg/Twist" in text
+    assert "foo_msgs/msg/Bar" in text
     assert "std_msgs/msg/Float64" in text and "sensor_msgs/msg/JointState" in text
     assert "\n" not in text
     assert isinstance(info.value, KeyError)
@@ -116,6 +118,31 @@ def test_type_hash_known_and_unknown():
     assert schemas.type_hash("std_msgs/Float64").startswith("RIHS01_")
     assert len(schemas.type_hash("std_msgs/msg/Float64")) == len("RIHS01_") + 64
     assert schemas.type_hash("foo_msgs/msg/Bar") == ""
+
+
+def test_without_ros_the_built_in_definitions_serve(monkeypatch, tmp_path):
+    """No ROS install on the search path: msg_tools' own types still get their schemas and hashes."""
+    monkeypatch.setenv("AMENT_PREFIX_PATH", "")
+    monkeypatch.setattr(schemas.sys, "prefix", str(tmp_path))
+    assert schemas.share_directories() == [str(tmp_path / "share")]
+    for type_name in schemas.known_types():
+        assert schemas.installed_definition(type_name) is None
+        text = schemas.schema_text(type_name)
+        assert text.startswith(schemas.MESSAGE_DEFINITIONS[type_name])
+        assert schemas.type_hash(type_name).startswith("RIHS01_")
+    assert schemas.type_hash("geometry_msgs/msg/Twist") == ""
+
+
+def test_registered_definitions_win_and_hash_changes_with_the_text():
+    extra = {"foo_msgs/msg/Bar": "float64 x\nfloat64[<=3] y\nstring<=8 s\n"}
+    text = schemas.schema_text("foo_msgs/msg/Bar", extra)
+    assert text == extra["foo_msgs/msg/Bar"]
+    h1 = schemas.type_hash("foo_msgs/msg/Bar", extra)
+    h2 = schemas.type_hash("foo_msgs/msg/Bar", {"foo_msgs/msg/Bar": "float64 x\n"})
+    assert h1.startswith("RIHS01_") and h2.startswith("RIHS01_") and h1 != h2
+    # comments and default values do not change the hash (REP 2011)
+    h3 = schemas.type_hash("foo_msgs/msg/Bar", {"foo_msgs/msg/Bar": "# note\nfloat64 x 1.5 # default\n"})
+    assert h3 == h2
 
 
 def test_invalid_type_name_rejected():

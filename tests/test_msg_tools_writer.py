@@ -234,8 +234,8 @@ def test_usage_errors_are_precise():
     w.write("/x", "std_msgs/msg/Float64", {"data": 1.0}, 0)
     with pytest.raises(MsgToolsError, match="/x already has type std_msgs/msg/Float64"):
         w.write("/x", "std_msgs/msg/String", {"data": "a"}, 1)
-    with pytest.raises(UnknownMessageTypeError, match="geometry_msgs/msg/Twist"):
-        w.write_raw("/cmd", "geometry_msgs/msg/Twist", b"\x00\x01\x00\x00", 0)
+    with pytest.raises(UnknownMessageTypeError, match="foo_msgs/msg/Bar"):
+        w.write_raw("/cmd", "foo_msgs/msg/Bar", b"\x00\x01\x00\x00", 0)
     with pytest.raises(ValueError, match="reserved"):
         w.add_metadata("rosbag2", {})
     with pytest.raises(TypeError, match="'k'"):

@@ -29,7 +29,7 @@ from belt_drive_ros.io.recording import (
 from belt_drive_ros.io.torque_bag import scene_from_bag, scene_with_torque_bag
 from belt_drive_ros.core.scene import load_scene
 from belt_drive_ros.core.simulate import simulate
-from msg_tools import encode, read_topic
+from msg_tools import encode, read_bag, read_topic
 from msg_tools.cli import main as msg_tools
 from msg_tools.qos import parse_offered_qos_yaml
 
@@ -46,7 +46,7 @@ def run():
 @pytest.fixture(scope="module")
 def bag(run, tmp_path_factory):
     path = tmp_path_factory.mktemp("offline") / "run.mcap"
-    write_result_mcap(run, path)
+    write_result_mcap(run, path, start_time_ns=0)  # times = simulated time (default: wall time, tested below)
     return path
 
 
@@ -110,8 +110,59 @@ def test_same_run_gives_byte_identical_file(run, tmp_path):
     paths = [tmp_path / d / "golden.mcap" for d in ("a", "b")]
     for path in paths:
         path.parent.mkdir()
-        write_result_mcap(run, path)
+        write_result_mcap(run, path, start_time_ns=1_767_225_600_000_000_000)
     assert paths[0].read_bytes() == paths[1].read_bytes()
+
+
+def test_offline_run_is_stamped_with_the_wall_time_of_the_run_by_default(run, tmp_path):
+    import time
+
+    before = time.time_ns()
+    write_result_mcap(run, tmp_path / "now.mcap")
+    after = time.time_ns()
+    data = read_topic(tmp_path / "now.mcap", "/joint_states")
+    assert before <= data.log_time_ns[0] <= after
+    np.testing.assert_array_equal(data.stamp_ns, data.log_time_ns)  # header stamps follow
+    write_result_mcap(run, tmp_path / "zero.mcap", start_time_ns=0)
+    zero = read_topic(tmp_path / "zero.mcap", "/joint_states")
+    assert zero.log_time_ns[0] == round(run.time[0] * 1e9)
+    # the same sample times, shifted by the start
+    np.testing.assert_array_equal(data.log_time_ns - zero.log_time_ns, data.log_time_ns[0] - zero.log_time_ns[0])
+
+
+def test_offline_run_in_rosbag2_folder_layout_split_by_duration(run, tmp_path):
+    """NAME/NAME_k.mcap + metadata.yaml as rosbag2 Jazzy writes it: rosbags reads it, msg-tools too."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    from msg_tools.bagdir import bag_files
+    from msg_tools.cli import main as msg_tools_main
+
+    folder = tmp_path / "run"
+    single = tmp_path / "single.mcap"
+    start = 1_767_225_600_000_000_000
+    write_result_mcap(run, single, start_time_ns=start)
+    counts = write_result_mcap(run, folder, start_time_ns=start, max_bag_duration=0.1)
+    files = bag_files(folder)
+    assert len(files) >= 3 and [os.path.basename(f) for f in files] == [f"run_{k}.mcap" for k in range(len(files))]
+    assert (folder / "metadata.yaml").is_file()
+    whole = read_bag(single)
+    split = read_bag(folder)
+    for topic, data in whole.topics.items():
+        np.testing.assert_array_equal(split.topics[topic].log_time_ns, data.log_time_ns)
+        for key, values in data.fields.items():
+            np.testing.assert_array_equal(split.topics[topic].fields[key], values)
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(folder) as reader:
+        assert reader.message_count == sum(counts.values()) == sum(len(d) for d in whole.topics.values())
+        assert {c.topic: c.msgcount for c in reader.connections} == {t: len(d) for t, d in whole.topics.items()}
+        assert reader.start_time == start + round(run.time[0] * 1e9)
+        speeds = [store.deserialize_cdr(raw, c.msgtype).data for c, _t, raw in reader.messages()
+                  if c.topic == "/shaft_speed"]
+    np.testing.assert_array_equal(speeds, whole.topics["/shaft_speed"].data)
+    for verb in (["info", str(folder)], ["export", str(folder), "--topic", "/shaft_speed", "--out", str(tmp_path / "s.csv")],
+                 ["compare", str(folder), str(single)]):
+        assert msg_tools_main(verb) == 0, verb
 
 
 def test_fast_encoders_equal_mcap_ros2_encoding():

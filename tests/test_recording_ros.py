@@ -86,7 +86,7 @@ def test_node_recording_is_rosbag2_mcap_written_from_the_tick(harness, tmp_path)
         assert parse_offered_qos_yaml(channel.metadata["offered_qos_profiles"])
     (speed_qos,) = parse_offered_qos_yaml(channels["/shaft_speed"].metadata["offered_qos_profiles"])
     # what discovery tells about the node's publisher (history/depth are not in it, as in ros2 bag record)
-    assert (speed_qos.reliability, speed_qos.durability) == ("reliable", "volatile")
+    assert (speed_qos.reliability, speed_qos.durability) == ("reliable", "transient_local")  # OUTPUT_QOS offers
     assert "rosbag2" in metadata and "units" in metadata and "parameters" in metadata
     assert metadata["scene"]["source"] == "node" and metadata["scene"]["drive_source"] == "topic"
     assert yaml.safe_load(metadata["scene"]["yaml"])["drive"] == {

@@ -82,7 +82,7 @@ def test_sim_torque_bag_is_deterministic_and_needs_no_ros(tmp_path):
         "import sys\n"
         "from belt_drive_ros.cli import main\n"
         "for d in ('a', 'b'):\n"
-        f"    assert main(['sim', 'paper', '--dt', '0.001', '--torque-bag', {str(bag)!r}, '--quiet',\n"
+        f"    assert main(['sim', 'paper', '--dt', '0.001', '--torque-bag', {str(bag)!r}, '--quiet', '--start-time', '0',\n"
         f"                 '--out', {str(tmp_path)!r} + '/' + d + '/out.mcap']) == 0\n"
         "assert 'rclpy' not in sys.modules, 'rclpy was imported'\n"
     )

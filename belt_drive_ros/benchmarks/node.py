@@ -78,7 +78,7 @@ def measure(args) -> dict:
     """Run the child node and this process's probe; return the figures."""
     from ..ros import environment as ros_env
 
-    ros_env.configure_environment()
+    ros_env.configure_environment(loopback=True)
     ros_env.limit_blas_threads()
     import numpy as np
     import rclpy

@@ -98,7 +98,7 @@ def bench_record_live(n: int = 20_000, batch: int = 200) -> dict:
     """Messages/s recorded by a raw-subscription recorder from a publisher in the same process."""
     from ..ros import environment as ros_env
 
-    ros_env.configure_environment()
+    ros_env.configure_environment(loopback=True)
     import rclpy
     from rclpy.context import Context
     from rclpy.qos import QoSProfile, ReliabilityPolicy

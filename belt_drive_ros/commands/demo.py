@@ -59,6 +59,9 @@ def live_run(scene_name: str = "truck_compressor", duration: float = 4.0, execut
     import time
 
     from ..ros import environment as ros_env
+
+    ros_env.configure_environment(loopback=True)  # the demo keeps to this machine
+    ros_env.limit_blas_threads()
     from ..ros.executors import executor_name, ros_session, spin_nodes
 
     domain = ros_env.process_domain_id()

@@ -20,6 +20,18 @@ load_torque, belt_torque, relative_deflection.
 """
 
 
+def _start_time(text: str):
+    """argparse type of --start-time (ns since the epoch, None for 'now')."""
+    import argparse
+
+    from ..io.recording import parse_start_time
+
+    try:
+        return parse_start_time(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def register(sub) -> None:
     from ..core.integrators import describe_methods  # the method registry (numpy only; scipy loads on use)
 
@@ -40,6 +52,11 @@ def register(sub) -> None:
     p.add_argument("--plot", type=Path, help="PNG with the paper's panels, rigid and flexible overlaid")
     p.add_argument("--torque-bag", type=Path, help="drive the model with drive_torque recorded in this MCAP")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+    p.add_argument("--start-time", default=None, metavar="WHEN", type=_start_time,
+                   help="time stamp of scene time 0 in an .mcap: 'now' (default, the wall time of the run, "
+                        "as rosbag2 stamps it), seconds since the epoch (0: simulated time), or an ISO 8601 date")
+    p.add_argument("--bag-folder", action="store_true",
+                   help="write --out as a rosbag2 bag folder (OUT/OUT_0.mcap + metadata.yaml)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -76,10 +93,11 @@ def run(args) -> int:
     result = simulate(scene, model=args.model, method=args.method, dt=args.dt, duration=args.duration, progress=bar)
     print_summary(result)
     if args.out is not None:
-        if args.out.suffix == ".mcap":
+        if args.out.suffix == ".mcap" or args.bag_folder:
             from ..io.recording import write_result_mcap
 
-            write_result_mcap(result, args.out, force=args.force)
+            write_result_mcap(result, args.out, force=args.force, start_time_ns=args.start_time,
+                              bag_folder=args.bag_folder)
         else:
             result.to_csv(args.out)
         print(f"wrote {args.out}")

@@ -58,6 +58,10 @@ class ReferenceBag:
         }
 
 
+#: time stamp of scene time 0 in the reference bags: fixed (2026-01-01T00:00:00Z), so that
+#: `make bags` gives byte-identical files, and viewers show a date rather than 1970
+BAGS_START_NS = 1_767_225_600_000_000_000
+
 def _truck():
     from ..core.scene import load_scene
 
@@ -181,7 +185,7 @@ def make_bags(out="bags", *, force: bool = False, only: Optional[Sequence[str]] 
         # 1. the torque profile: the scene's own drive, recorded at 1 kHz
         source_run = simulate(base)
         write_result_mcap(source_run, files["torque"], force=True, output_rate=OUTPUT_RATE,
-                          topics=("drive_torque",))
+                          topics=("drive_torque",), start_time_ns=BAGS_START_NS)
         # 2. the scene file, with the model fixed to the source run's choice
         scene = dataclasses.replace(base, model=source_run.model, output_rate=OUTPUT_RATE)
         header = (
@@ -193,7 +197,8 @@ def make_bags(out="bags", *, force: bool = False, only: Optional[Sequence[str]] 
         # 3. the golden output: the scene driven by the recorded torque
         replayed = scene_with_torque_bag(scene, files["torque"])
         golden_run = simulate(replayed)
-        write_result_mcap(golden_run, files["golden"], force=True, output_rate=OUTPUT_RATE)
+        write_result_mcap(golden_run, files["golden"], force=True, output_rate=OUTPUT_RATE,
+                          start_time_ns=BAGS_START_NS)
         for key in ("scene", "torque", "golden"):
             path = files[key]
             written.append(path)

@@ -47,8 +47,10 @@ receive time on the recording node's clock [ns]: ROS time, i.e. simulated
 time when the node has ``use_sim_time`` (then ``0`` until the first
 ``/clock``). ``publish_time`` equals ``log_time``: the Jazzy wheels'
 EventsExecutor cannot deliver the message info that carries the send time.
-*Offline* (:func:`write_result_mcap`): both are the simulated time of the
-sample [ns since scene time 0]; ``joint_states`` stamps carry the same time.
+*Offline* (:func:`write_result_mcap`): both are the start time (default the
+wall time of the run, as rosbag2 stamps a recording; ``start_time_ns`` sets
+it) plus the simulated time of the sample; ``joint_states`` stamps carry the
+same time.
 
 Crash safety
 ------------
@@ -70,6 +72,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+import time
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
@@ -338,10 +341,36 @@ def _output_stride(result, output_rate: Optional[float]) -> int:
     return stride
 
 
+def parse_start_time(text: str) -> Optional[int]:
+    """``--start-time``: ``now`` (None: the wall time when writing), seconds since the epoch,
+    or an ISO 8601 date (UTC unless it names a zone); returns ns since the epoch."""
+    import datetime
+
+    text = str(text).strip()
+    if text.lower() == "now":
+        return None
+    try:
+        seconds = float(text)
+    except ValueError:
+        try:
+            when = datetime.datetime.fromisoformat(text.replace("Z", "+00:00"))
+        except ValueError:
+            raise ValueError(f"--start-time {text!r}: expected 'now', seconds since the epoch or an ISO 8601 date") from None
+        if when.tzinfo is None:
+            when = when.replace(tzinfo=datetime.timezone.utc)
+        seconds = when.timestamp()
+    if not (math.isfinite(seconds) and 0 <= seconds < 2**63 / 1e9):
+        raise ValueError(f"--start-time {text!r}: must be between 1970 and 2262")
+    return int(round(seconds * 1e9))
+
+
 def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/",
                       output_rate: Optional[float] = None, topics: Optional[Iterable[str]] = None,
                       compression: str = "zstd",
-                      extra_metadata: Optional[Mapping[str, Mapping[str, str]]] = None) -> Dict[str, int]:
+                      extra_metadata: Optional[Mapping[str, Mapping[str, str]]] = None,
+                      start_time_ns: Optional[int] = None, bag_folder: bool = False,
+                      max_bag_size: Optional[int] = None,
+                      max_bag_duration: Optional[float] = None) -> Dict[str, int]:
     """Write an offline run as a ROS 2 MCAP with the node's topics and layout.
 
     Parameters
@@ -364,6 +393,19 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
     compression : {"zstd", "lz4", "none"}
     extra_metadata : mapping of record name to str dict, optional
         Further metadata records.
+    start_time_ns : int, optional
+        Time stamp [ns since the epoch] of scene time 0. Default: the wall
+        time of the call, as rosbag2 stamps a recording (viewers then show
+        the day of the run, not 1970). Give a fixed value (0 included) for
+        files that must be byte-identical run after run (golden files).
+    bag_folder : bool
+        Write rosbag2's folder layout (``path/NAME_0.mcap`` +
+        ``path/metadata.yaml``, :class:`msg_tools.bagdir.Ros2BagWriter`)
+        instead of one file; implied by the split limits.
+    max_bag_size : int, optional
+        Split into a new file once one holds this many bytes.
+    max_bag_duration : float, optional
+        Split into a new file once one spans this much time [s].
 
     Returns
     -------
@@ -372,10 +414,10 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
 
     Notes
     -----
-    Times are simulated time [ns from scene time 0] for ``log_time``,
-    ``publish_time`` and the ``joint_states`` stamps. Messages are encoded as
-    ``mcap_ros2`` encodes them (zero padding), and the file holds no wall-clock
-    time, so the same run gives a byte-identical file (golden files).
+    ``log_time``, ``publish_time`` and the ``joint_states`` stamps are
+    ``start_time_ns`` + simulated time. Messages are encoded as ``mcap_ros2``
+    encodes them (zero padding), so the same run with the same
+    ``start_time_ns`` gives a byte-identical file (golden files).
     At each time the order is the node's: ``drive_torque``, ``joint_states``,
     then the Float64 outputs.
 
@@ -393,7 +435,12 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
         raise ValueError(f"topics: unknown {', '.join(unknown)}; offline runs have {', '.join(offline_topics)}")
     stride = _output_stride(result, output_rate)
     index = np.arange(0, len(result.time), stride)
-    t_ns = np.round(np.asarray(result.time, dtype=float)[index] * 1e9).astype(np.int64)
+    if start_time_ns is None:
+        start_time_ns = time.time_ns()
+    start_time_ns = int(start_time_ns)
+    if start_time_ns < 0:
+        raise ValueError(f"start_time_ns must be >= 0 ns since the epoch, got {start_time_ns}")
+    t_ns = np.round(np.asarray(result.time, dtype=float)[index] * 1e9).astype(np.int64) + start_time_ns
     if t_ns.size and t_ns[0] < 0:
         raise ValueError(f"result starts at negative time {result.time[0]} s; MCAP times must be >= 0")
     o = {name: np.asarray(values)[index] for name, values in result.outputs.items()}
@@ -426,7 +473,14 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
     parameters.update(model=result.model, method=result.method, dt=_fmt(float(result.dt)))
     counts: Dict[str, int] = {}
     try:
-        with Ros2McapWriter(path, force=force, compression=compression) as writer:
+        if bag_folder or max_bag_size or max_bag_duration:
+            from msg_tools.bagdir import Ros2BagWriter
+
+            writer_cm: Any = Ros2BagWriter(path, force=force, compression=compression,
+                                           max_bag_size=max_bag_size, max_bag_duration=max_bag_duration)
+        else:
+            writer_cm = Ros2McapWriter(path, force=force, compression=compression)
+        with writer_cm as writer:
             writer.add_metadata(SCENE_METADATA, scene_record)
             writer.add_metadata(PARAMETERS_METADATA, parameters)
             written = {topic for topic, _, _ in payloads}

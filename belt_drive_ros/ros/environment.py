@@ -1,13 +1,25 @@
-"""Process environment for ROS 2: loopback-only discovery and a private domain.
+"""Process environment for ROS 2: the discovery rule and a private domain per test process.
 
 Imports nothing from ROS: call :func:`configure_environment` *before* rclpy
 is imported or a context is initialised (rcl reads the variables then).
 
-* DDS discovery stays on this machine: ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``
-  (Jazzy) and ``ROS_LOCALHOST_ONLY=1`` (the older switch, still honoured;
-  rcl prints a deprecation warning when it sees both). Values the user set
-  are kept.
-* Every test process or demo gets its own ROS domain, derived from its pid
+The discovery rule (also in the README's node section):
+
+* The user's explicit environment always wins: ``ROS_AUTOMATIC_DISCOVERY_RANGE``,
+  ``ROS_STATIC_PEERS``, ``ROS_LOCALHOST_ONLY`` and ``ROS_DOMAIN_ID`` are never
+  changed once set, and the package never sets ``ROS_LOCALHOST_ONLY``
+  (deprecated since Jazzy; rcl warns when it sees it, and with it set it
+  ignores the range).
+* The product commands (``belt-drive node``, ``source``, ``record``,
+  ``replay``, and :mod:`belt_drive_ros.ros.node` on import) set nothing:
+  with nothing set they discover like any ROS 2 Jazzy program (range
+  ``SUBNET``, domain 0), so a SIL stack on other hosts or containers reaches
+  them.
+* Throw-away graphs that must not leak onto the network (``belt-drive demo``,
+  the test harness, the benchmarks, the test suite and the Makefile) keep to
+  this machine: they set ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` when
+  neither discovery variable is set (:func:`configure_environment` with
+  ``loopback=True``), and each test process or demo gets its own ROS domain
   (:func:`process_domain_id`), so concurrent runs on one machine do not see
   each other's topics.
 """
@@ -17,11 +29,11 @@ from __future__ import annotations
 import os
 from typing import MutableMapping
 
-#: variables set (when unset) before rclpy starts
-LOOPBACK_ENVIRONMENT = {
-    "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-    "ROS_LOCALHOST_ONLY": "1",
-}
+#: the variables by which a user chooses how far DDS discovery reaches
+DISCOVERY_VARIABLES = ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOCALHOST_ONLY")
+
+#: set by :func:`configure_environment` ``(loopback=True)`` when the user chose no range
+LOOPBACK_ENVIRONMENT = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
 
 #: domain ids handed out by :func:`process_domain_id`: 1 ... 100 (0 is the
 #: default domain every ROS install uses; ids above ~101 collide with the
@@ -29,15 +41,26 @@ LOOPBACK_ENVIRONMENT = {
 DOMAIN_ID_RANGE = (1, 100)
 
 
-def configure_environment(env: MutableMapping[str, str] | None = None) -> MutableMapping[str, str]:
-    """Set the loopback discovery variables in ``env`` (default ``os.environ``) where unset.
+def configure_environment(env: MutableMapping[str, str] | None = None, *,
+                          loopback: bool = False) -> MutableMapping[str, str]:
+    """Apply the discovery rule to ``env`` (default ``os.environ``) and return it.
 
-    Returns ``env``. Call before importing rclpy in a process, or pass a copy
-    of ``os.environ`` to prepare a child process's environment.
+    Parameters
+    ----------
+    env : mutable mapping, optional
+        Environment to prepare: ``os.environ`` before rclpy starts in this
+        process, or a copy for a child process.
+    loopback : bool
+        False (product commands): nothing is changed, ROS 2's defaults apply
+        where the user set nothing. True (demo, harness, benchmarks, tests):
+        ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` when neither
+        ``ROS_AUTOMATIC_DISCOVERY_RANGE`` nor ``ROS_LOCALHOST_ONLY`` is set.
+        ``ROS_LOCALHOST_ONLY`` is never set, and a value the user set is
+        never changed.
     """
     env = os.environ if env is None else env
-    for key, value in LOOPBACK_ENVIRONMENT.items():
-        env.setdefault(key, value)
+    if loopback and not any(env.get(key) for key in DISCOVERY_VARIABLES):
+        env.update(LOOPBACK_ENVIRONMENT)
     return env
 
 
@@ -53,15 +76,16 @@ def process_domain_id(pid: int | None = None, offset: int = 0) -> int:
     return lo + (pid + offset) % (hi - lo + 1)
 
 
-def child_environment(domain_id: int, udp_only: bool = True, **extra: str) -> dict[str, str]:
-    """Environment for a child ROS process on ``domain_id``.
+def child_environment(domain_id: int, udp_only: bool = True, loopback: bool = True,
+                      **extra: str) -> dict[str, str]:
+    """Environment for a child ROS process on ``domain_id`` (tests, demo, benchmarks).
 
     ``udp_only`` selects Fast DDS's UDPv4 transport: a child that is killed
     (rather than shut down) then leaves no shared-memory segments behind in
-    /dev/shm. Loopback discovery is set as in :func:`configure_environment`.
+    /dev/shm. ``loopback``: as in :func:`configure_environment`.
     """
     env = dict(os.environ)
-    configure_environment(env)
+    configure_environment(env, loopback=loopback)
     env["ROS_DOMAIN_ID"] = str(int(domain_id))
     if udp_only:
         env["FASTDDS_BUILTIN_TRANSPORTS"] = "UDPv4"

@@ -26,7 +26,7 @@ from typing import Callable, Iterable, Iterator, Sequence
 
 from . import environment as ros_env
 
-ros_env.configure_environment()  # loopback discovery, before any context is initialised
+ros_env.configure_environment()  # discovery: the user's environment wins (see ros/environment.py), before any context starts
 
 import rclpy  # noqa: E402
 from rclpy.context import Context  # noqa: E402

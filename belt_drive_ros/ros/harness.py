@@ -52,7 +52,7 @@ import numpy as np
 
 from . import environment as ros_env
 
-ros_env.configure_environment()
+ros_env.configure_environment(loopback=True)
 
 import rclpy  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
@@ -168,7 +168,7 @@ class BeltDriveHarness:
         Also runs BLAS single-threaded in this process
         (:func:`~belt_drive_ros.ros.environment.limit_blas_threads`).
         """
-        ros_env.configure_environment()
+        ros_env.configure_environment(loopback=True)
         ros_env.limit_blas_threads()
         self.context = Context()
         rclpy.init(context=self.context, domain_id=self.domain_id)

@@ -97,7 +97,7 @@ from __future__ import annotations
 
 from . import environment as ros_env
 
-ros_env.configure_environment()  # loopback discovery, before any context is initialised
+ros_env.configure_environment()  # discovery: the user's environment wins (see ros/environment.py), before any context starts
 
 from rclpy.clock import Clock, ClockType  # noqa: E402
 from rclpy.event_handler import PublisherEventCallbacks  # noqa: E402

@@ -21,7 +21,7 @@ from typing import Any, Mapping
 from ..core import params as core_params
 from ..core.errors import BeltDriveError, ParameterError
 from ..core.fidelity import choose_model
-from ..core.integrators import make_integrator
+from ..core.integrators import REGISTRY, make_integrator
 from ..core.model import make_model
 from ..core.params import FIELD_DOCS, BeltDriveParams
 from ..core.scene import MODELS, Scene, load_scene
@@ -72,7 +72,7 @@ class ParamSpec:
 NODE_PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("scene", "str", DEFAULT_SCENE, "shipped scene name or path to a scene YAML: parameters, load, initial state"),
     ParamSpec("model", "str", None, "belt model: rigid, flexible or auto (chosen from the scene's excitation)", choices=MODELS),
-    ParamSpec("method", "str", None, "integrator: exact, etd2, etd4, lawson5, euler, symplectic_euler, rk4, trapezoidal, RK45, DOP853, Radau, BDF, LSODA"),
+    ParamSpec("method", "str", None, "integrator: " + ", ".join(REGISTRY)),
     ParamSpec("step_rate_hz", "float", 1000.0, "tick rate on the node's clock [Hz]; outputs are published once per tick", range=(1.0, 20000.0)),
     ParamSpec("substeps", "int", None, "integrator steps per tick (dt = 1/(step_rate_hz*substeps), whole ns); default: the scene's dt at 1 kHz", range=(1, 1000)),
     ParamSpec("input_timeout", "float", 1.0, "seconds (node clock) without drive_torque before timeout_behavior applies; 0 = never", range=(0.0, 3600.0)),

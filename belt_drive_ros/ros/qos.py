@@ -1,17 +1,39 @@
 """Quality of service of every topic the package's nodes publish or subscribe.
 
 One place, so the node, the source node, the harness and the README agree.
+A subscription matches a publisher when it asks for no more than the
+publisher offers (reliable >= best effort, transient local >= volatile), so:
+
+* the input asks for the least (best effort, volatile, keep last 1): it
+  matches reliable and best-effort publishers alike (sensor-data QoS engine
+  models and bridges included), and only the latest torque matters anyway
+  (zero-order hold);
+* the outputs offer the most (reliable, transient local, keep last 10): the
+  common subscriber profiles connect -- reliable (rclpy's default),
+  best-effort sensor data (``qos_profile_sensor_data``), and transient-local
+  subscribers, which also get the last 10 messages at once when they join
+  late (Foxglove, a monitor started after the node);
+* ``/clock`` (published with ``publish_clock``) is reliable keep last 10,
+  volatile: rclpy's and rclcpp's own ``/clock`` subscriptions (best effort,
+  keep last 1) and reliable ones match it; an old clock is never worth
+  replaying to a late joiner.
 """
 
 from __future__ import annotations
 
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 __all__ = ["CLOCK_QOS", "INPUT_QOS", "OUTPUT_QOS"]
 
-#: drive_torque: only the latest message matters (zero-order hold); depth 1
-#: bounds memory and latency under any burst.
-INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
-#: state outputs: reliable, a short queue for slow subscribers.
-OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
-CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
+#: drive_torque (subscription): best effort, volatile, keep last 1.
+INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                       reliability=ReliabilityPolicy.BEST_EFFORT,
+                       durability=DurabilityPolicy.VOLATILE)
+#: state outputs (publishers): reliable, transient local, keep last 10.
+OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: /clock (publisher): reliable, volatile, keep last 10.
+CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)

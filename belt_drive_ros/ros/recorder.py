@@ -125,6 +125,10 @@ class TopicRecorder:
         self._declared: set = set()
         self._unflushed = 0
         self._timer = None
+        #: subscribe transient local where every publisher offers it, so the history a
+        #: latched topic kept from before the recording starts is recorded too (as ros2 bag
+        #: record does); NodeRecorder turns it off: a run's recording starts with the run
+        self.record_history = True
         if flush_period:
             self._timer = node.create_timer(float(flush_period), self._on_flush_timer,
                                             clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -178,7 +182,8 @@ class TopicRecorder:
         durability = DurabilityPolicy.VOLATILE
         if topic == "/clock" or any(q.reliability == ReliabilityPolicy.BEST_EFFORT for q in offered):
             reliability = ReliabilityPolicy.BEST_EFFORT
-        if offered and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered):
+        if (self.record_history and offered
+                and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)):
             durability = DurabilityPolicy.TRANSIENT_LOCAL
         return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.depth,
                           reliability=reliability, durability=durability)
@@ -226,8 +231,15 @@ class TopicRecorder:
     def _declare(self, topic: str, type_name: str) -> None:
         from msg_tools.qos import QosProfile
 
-        offered = [QosProfile.from_rclpy(q) for q in self.offered_qos(topic)]
-        self.writer.add_topic(topic, type_name, offered or "reliable")
+        try:
+            infos = self.node.get_publishers_info_by_topic(topic)
+        except Exception:  # noqa: BLE001 - graph query failed: defaults below
+            infos = []
+        offered = [QosProfile.from_rclpy(info.qos_profile) for info in infos]
+        # the type hash as discovery reports it; computed from the definition if none is valid
+        hashes = [str(info.topic_type_hash) for info in infos
+                  if str(getattr(info, "topic_type_hash", "")).startswith("RIHS")]
+        self.writer.add_topic(topic, type_name, offered or "reliable", type_hash=hashes[0] if hashes else None)
         self._declared.add(topic)
 
     def write(self, topic: str, type_name: str, data: bytes, log_time_ns: int) -> None:
@@ -393,6 +405,7 @@ class NodeRecorder(TopicRecorder):
         except (MsgToolsError, OSError) as exc:
             raise bag_error(exc) from None
         super().__init__(node, writer, flush_period=flush_interval_s)
+        self.record_history = False  # the node's outputs keep 10 messages for late joiners: not this run's
         uses_clock = self._uses_sim_time() or self._publishes_clock()
         if topics is None:
             wanted = list(DIRECT_TOPICS) + [t for t in TOPIC_TYPES if t.startswith("/") and (t != "/clock" or uses_clock)]

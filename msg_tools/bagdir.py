@@ -1,0 +1,284 @@
+"""rosbag2's directory layout: ``NAME/NAME_0.mcap``, ``NAME_1.mcap``, ... and ``NAME/metadata.yaml``.
+
+``ros2 bag record -o NAME`` writes a folder: one MCAP file per split (by
+size or duration, ``--max-bag-size`` / ``--max-bag-duration``) and
+``metadata.yaml``, whose top key ``rosbag2_bagfile_information`` holds the
+BagMetadata (version 9 in Jazzy; ``rosbag2_storage/src/rosbag2_storage/
+metadata_io.cpp`` and ``yaml.hpp`` in ros2/rosbag2): storage id, duration,
+start, message count, topics with counts, ``relative_file_paths`` and per
+file its start, duration and count. rosbag2 tooling and rosbags' directory
+reader open such a folder.
+
+:class:`Ros2BagWriter` writes that layout with the interface of
+:class:`~msg_tools.writer.Ros2McapWriter` and splits when asked.
+:func:`bag_files` lists the files of a bag folder (or returns a single file)
+for the reading side: every ``msg-tools`` verb accepts a folder.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from typing import IO, Any, Dict, List, Optional, Tuple, Union
+
+from .errors import BagNotFoundError, CorruptBagError, MsgToolsError, OverwriteError, WriteError
+from .writer import Ros2McapWriter, bag_metadata_yaml
+
+__all__ = ["METADATA_FILE", "Ros2BagWriter", "bag_files"]
+
+METADATA_FILE = "metadata.yaml"
+
+
+def bag_files(path: Union[str, "os.PathLike[str]"]) -> List[str]:
+    """The MCAP files of a bag: ``[path]`` for a file; for a folder the files its
+    ``metadata.yaml`` lists (``relative_file_paths``), else its ``*.mcap`` files by split index.
+
+    Raises
+    ------
+    BagNotFoundError
+        If the path does not exist, or is a folder without MCAP files.
+    CorruptBagError
+        If ``metadata.yaml`` is unreadable or lists a file that is missing.
+    """
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise BagNotFoundError(path)
+    if not os.path.isdir(path):
+        return [path]
+    meta = os.path.join(path, METADATA_FILE)
+    if os.path.isfile(meta):
+        import yaml
+
+        try:
+            with open(meta, "rb") as f:
+                if os.fstat(f.fileno()).st_size > 16 * 2**20:
+                    raise CorruptBagError(f"{meta}: larger than 16 MiB; not a rosbag2 metadata file")
+                data = yaml.safe_load(f.read().decode("utf-8"))
+            info = data["rosbag2_bagfile_information"]
+            relative = [str(p) for p in info.get("relative_file_paths") or []]
+        except (yaml.YAMLError, UnicodeDecodeError, KeyError, TypeError, AttributeError) as exc:
+            raise CorruptBagError(f"{meta}: not a rosbag2 metadata file ({type(exc).__name__})") from None
+        files = [os.path.join(path, p) for p in relative]
+        missing = [f for f in files if not os.path.isfile(f)]
+        if missing:
+            raise CorruptBagError(f"{meta} lists {missing[0]}, which does not exist")
+        if files:
+            return files
+    found = [f for f in os.listdir(path) if f.endswith(".mcap")]
+    if not found:
+        raise BagNotFoundError(path, "is a directory without .mcap files")
+
+    def split_index(name: str) -> Tuple[int, str]:
+        stem = name[: -len(".mcap")]
+        tail = stem.rsplit("_", 1)[-1]
+        return (int(tail) if tail.isdigit() else -1, name)
+
+    return [os.path.join(path, f) for f in sorted(found, key=split_index)]
+
+
+class Ros2BagWriter:
+    """Write a rosbag2 bag folder, split by size or duration like ``ros2 bag record``.
+
+    Parameters
+    ----------
+    folder : path
+        Bag folder to create (``NAME``); files are ``NAME_0.mcap``, ``NAME_1.mcap``, ...
+    force : bool
+        Replace an existing folder's bag files and metadata.yaml.
+    max_bag_size : int, optional
+        Start a new file once the current one holds this many bytes
+        (rosbag2 ``--max-bag-size``; checked as chunks are written). 0/None: no limit.
+    max_bag_duration : float, optional
+        Start a new file once the current one spans this much log time [s]
+        (``--max-bag-duration``). 0/None: no limit.
+    **writer_options
+        Passed to each :class:`~msg_tools.writer.Ros2McapWriter` (chunk_size,
+        compression, flush_interval_s, ros_distro, custom_data, message_index).
+
+    Notes
+    -----
+    Every file repeats the schemas, channels and metadata records written so
+    far (the scene, parameters, units), so each file is self-describing.
+    ``metadata.yaml`` is written by :meth:`finish`; a killed writer leaves
+    the files without it, which :func:`bag_files` still reads.
+    """
+
+    def __init__(self, folder: Union[str, "os.PathLike[str]"], *, force: bool = False,
+                 max_bag_size: Optional[int] = None, max_bag_duration: Optional[float] = None,
+                 **writer_options: Any):
+        self.folder = os.fspath(folder)
+        if max_bag_size is not None and max_bag_size < 0:
+            raise ValueError(f"max_bag_size must be >= 0 bytes, got {max_bag_size}")
+        if max_bag_duration is not None and not max_bag_duration >= 0:
+            raise ValueError(f"max_bag_duration must be >= 0 s, got {max_bag_duration}")
+        self.max_bag_size = int(max_bag_size or 0)
+        self.max_bag_duration_ns = int(round((max_bag_duration or 0) * 1e9))
+        self._options = dict(writer_options)
+        self._lock = threading.RLock()
+        self.name = os.path.basename(os.path.normpath(self.folder))
+        self._force = force
+        if os.path.exists(self.folder) and not os.path.isdir(self.folder):
+            raise WriteError(self.folder, "exists and is not a folder", action="create bag folder")
+        if os.path.isdir(self.folder) and not force and any(
+                f.endswith(".mcap") or f == METADATA_FILE for f in os.listdir(self.folder)):
+            raise OverwriteError(self.folder)
+        try:
+            os.makedirs(self.folder, exist_ok=True)
+        except OSError as exc:
+            raise WriteError(self.folder, exc, action="create bag folder") from exc
+        self._done: List[Dict[str, Any]] = []  # finished files: path, times, counts, topics
+        self._topics: Dict[str, Tuple[str, Any, Optional[str]]] = {}
+        self._types: Dict[str, str] = {}
+        self._metadata: List[Tuple[str, Dict[str, str]]] = []
+        self._finished = False
+        self._current: Ros2McapWriter = self._open(0)
+
+    # ---------------------------------------------------------------- files
+    @property
+    def path(self) -> str:
+        """The bag folder."""
+        return self.folder
+
+    @property
+    def files(self) -> List[str]:
+        """Paths of the files written so far (the open one last)."""
+        return [f["abs"] for f in self._done] + [self._current.path]  # type: ignore[list-item]
+
+    def _open(self, index: int) -> Ros2McapWriter:
+        path = os.path.join(self.folder, f"{self.name}_{index}.mcap")
+        writer = Ros2McapWriter(path, force=self._force, **self._options)
+        for type_name, text in self._types.items():
+            writer.register_type(type_name, text)
+        for name, data in self._metadata:
+            writer.add_metadata(name, data)
+        for topic, (type_name, qos, type_hash) in self._topics.items():
+            writer.add_topic(topic, type_name, qos, type_hash=type_hash)
+        return writer
+
+    def _split_if_due(self, log_time: int) -> None:
+        w = self._current
+        if not w.message_count:
+            return
+        start, _ = w.time_range_ns
+        due = (self.max_bag_size and w.bytes_written >= self.max_bag_size) or (
+            self.max_bag_duration_ns and start is not None and log_time - start >= self.max_bag_duration_ns)
+        if due:
+            self._close_current()
+            self._current = self._open(len(self._done))
+
+    def _close_current(self) -> None:
+        w = self._current
+        w.finish()
+        start, end = w.time_range_ns
+        self._done.append({
+            "abs": w.path, "path": os.path.basename(w.path or ""),
+            "starting_time_ns": start or 0, "duration_ns": (end - start) if start is not None else 0,
+            "message_count": w.message_count, "topics": w.topics_metadata(),
+        })
+
+    # -------------------------------------------------------- writer interface
+    @property
+    def error(self) -> Optional[WriteError]:
+        return self._current.error
+
+    @property
+    def failed(self) -> bool:
+        return self._current.failed
+
+    @property
+    def finished(self) -> bool:
+        return self._finished
+
+    @property
+    def message_count(self) -> int:
+        return sum(f["message_count"] for f in self._done) + self._current.message_count
+
+    def topic_counts(self) -> Dict[str, int]:
+        counts: Dict[str, int] = {}
+        for f in self._done:
+            for t in f["topics"]:
+                counts[t["name"]] = counts.get(t["name"], 0) + t["message_count"]
+        for topic, n in self._current.topic_counts().items():
+            counts[topic] = counts.get(topic, 0) + n
+        return counts
+
+    def register_type(self, type_name: str, msg_text: str) -> None:
+        with self._lock:
+            self._types[type_name] = msg_text
+            self._current.register_type(type_name, msg_text)
+
+    def add_topic(self, topic: str, type_name: str, qos: Any = None, type_hash: Optional[str] = None) -> None:
+        with self._lock:
+            self._current.add_topic(topic, type_name, qos, type_hash=type_hash)
+            self._topics.setdefault(topic, (type_name, qos, type_hash))
+
+    def add_metadata(self, name: str, data: Dict[str, str]) -> None:
+        with self._lock:
+            self._current.add_metadata(name, data)
+            self._metadata.append((name, dict(data)))
+
+    def write_raw(self, topic: str, type_name: str, cdr_bytes: Any, log_time_ns: int,
+                  publish_time_ns: Optional[int] = None, qos: Any = None) -> None:
+        with self._lock:
+            self._split_if_due(int(log_time_ns))
+            self._current.write_raw(topic, type_name, cdr_bytes, log_time_ns, publish_time_ns, qos)
+            self._topics.setdefault(topic, (type_name, qos, None))
+
+    def write(self, topic: str, type_name: str, message: Any, log_time_ns: int,
+              publish_time_ns: Optional[int] = None, qos: Any = None) -> None:
+        with self._lock:
+            self._split_if_due(int(log_time_ns))
+            self._current.write(topic, type_name, message, log_time_ns, publish_time_ns, qos)
+            self._topics.setdefault(topic, (type_name, qos, None))
+
+    def flush(self) -> None:
+        with self._lock:
+            self._current.flush()
+
+    def metadata_yaml(self) -> str:
+        """``metadata.yaml`` for the files finished so far (all of them after :meth:`finish`)."""
+        files = list(self._done)
+        topics: Dict[str, Dict[str, Any]] = {}
+        for f in files:
+            for t in f["topics"]:
+                entry = topics.setdefault(t["name"], dict(t, message_count=0))
+                entry["message_count"] += t["message_count"]
+        starts = [f["starting_time_ns"] for f in files if f["message_count"]]
+        ends = [f["starting_time_ns"] + f["duration_ns"] for f in files if f["message_count"]]
+        start = min(starts) if starts else 0
+        body = bag_metadata_yaml(
+            list(topics.values()), starting_time_ns=start,
+            duration_ns=(max(ends) - start) if ends else 0,
+            message_count=sum(f["message_count"] for f in files),
+            custom_data=self._options.get("custom_data"),
+            ros_distro=self._options.get("ros_distro", "jazzy"), files=files,
+        )
+        return "rosbag2_bagfile_information:\n" + "\n".join("  " + ln for ln in body.splitlines()) + "\n"
+
+    def finish(self) -> None:
+        """Finish the open file and write ``metadata.yaml``. Idempotent."""
+        with self._lock:
+            if self._finished:
+                return
+            self._finished = True
+            failed = self._current.failed
+            self._close_current()
+            if failed:
+                return  # the files read like a killed recording's; no metadata.yaml
+            path = os.path.join(self.folder, METADATA_FILE)
+            try:
+                with open(path + ".tmp", "w", encoding="utf-8") as f:
+                    f.write(self.metadata_yaml())
+                os.replace(path + ".tmp", path)
+            except OSError as exc:
+                raise WriteError(path, exc) from exc
+
+    def __enter__(self) -> "Ros2BagWriter":
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        try:
+            self.finish()
+        except MsgToolsError:
+            if exc_type is None:
+                raise

@@ -1,0 +1,212 @@
+"""Damaged recordings are reported, never read silently wrong (issue: a chunk removed or
+duplicated passed `info`, `export` and `compare`).
+
+* A chunk dropped or duplicated: ``info`` says DAMAGED (exit 1), ``export`` and ``compare``
+  fail with a one-line error (exit 2).
+* ``compare`` fails on a hole in the middle of a signal and on duplicate time stamps,
+  although the ends still cover the reference.
+* Fuzz: ~200 mutants of a recording (truncated at many places, single bytes flipped
+  anywhere, each chunk dropped or duplicated, record lengths made huge); for every one
+  ``info``, ``export`` and ``compare`` against the intact file give either a clean one-line
+  error (exit 2), a report of damage, or a correct result -- never a traceback, a hang, or
+  data that differs from the original without a warning.
+"""
+
+from __future__ import annotations
+
+import io
+import signal
+import struct
+from contextlib import redirect_stderr, redirect_stdout
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from msg_tools import Ros2McapWriter, compare
+from msg_tools.cli import main
+
+JOINTS = ["wheel_M", "wheel_3"]
+
+
+def _write(path, n=600, skip=(), duplicate=()):
+    """A 1 kHz recording (torque + joint states) in small chunks (~12 of them)."""
+    with Ros2McapWriter(path, force=True, chunk_size=4096, flush_interval_s=None) as w:
+        w.add_metadata("units", {"/drive_torque": "N*m"})
+        for i in range(n):
+            if i in skip:
+                continue
+            for _ in range(2 if i in duplicate else 1):
+                t = 10**9 + i * 1_000_000
+                w.write("/drive_torque", "std_msgs/msg/Float64", {"data": float(np.sin(i / 30))}, t)
+                w.write("/joint_states", "sensor_msgs/msg/JointState", {
+                    "header": {"stamp": {"sec": t // 10**9, "nanosec": t % 10**9}}, "name": JOINTS,
+                    "position": [i * 1e-3, i * 2e-3], "velocity": [1.0 + i, 2.0], "effort": [0.5, -0.5]}, t)
+    return path
+
+
+@pytest.fixture(scope="module")
+def original(tmp_path_factory):
+    return _write(tmp_path_factory.mktemp("damage") / "run.mcap").read_bytes()
+
+
+def _chunks(raw):
+    return sorted(make_reader(io.BytesIO(raw)).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+
+
+def _cli(*argv, timeout=30):
+    """Run msg-tools in-process; (status, stdout, stderr). A run longer than ``timeout`` s is a hang."""
+    out, err = io.StringIO(), io.StringIO()
+
+    def hang(signum, frame):
+        raise TimeoutError(f"msg-tools {' '.join(argv)} did not finish in {timeout} s")
+
+    previous = signal.signal(signal.SIGALRM, hang)
+    signal.setitimer(signal.ITIMER_REAL, timeout)
+    try:
+        with redirect_stdout(out), redirect_stderr(err):
+            status = main(list(argv))
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    return status, out.getvalue(), err.getvalue()
+
+
+def _drop(raw, k):
+    c = _chunks(raw)[k]
+    return raw[: c.chunk_start_offset] + raw[c.chunk_start_offset + c.chunk_length + c.message_index_length:]
+
+
+def _duplicate(raw, k):
+    c = _chunks(raw)[k]
+    end = c.chunk_start_offset + c.chunk_length + c.message_index_length
+    return raw[:end] + raw[c.chunk_start_offset:end] + raw[end:]
+
+
+@pytest.mark.parametrize("mutate", ["drop", "duplicate"])
+def test_dropped_or_duplicated_chunk_is_reported_by_every_verb(original, tmp_path, mutate):
+    good = tmp_path / "good.mcap"
+    good.write_bytes(original)
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes((_drop if mutate == "drop" else _duplicate)(original, 3))
+    status, out, err = _cli("info", str(bad))
+    assert status == 1 and "DAMAGED" in out and err.startswith("msg-tools: warning:"), (out, err)
+    for argv in (["export", str(bad), "--topic", "/joint_states"], ["compare", str(bad), str(good)],
+                 ["compare", str(good), str(bad)]):
+        status, out, err = _cli(*argv)
+        assert status == 2, (argv, out)
+        assert err.count("\n") == 1 and err.startswith("msg-tools: error:") and "damaged" in err, err
+
+
+def test_compare_fails_on_a_hole_in_the_middle_and_on_duplicate_stamps(tmp_path):
+    golden = _write(tmp_path / "golden.mcap")
+    holed = _write(tmp_path / "holed.mcap", skip=range(280, 300))  # 20 ms hole; ends intact
+    report = compare(holed, golden, min_coverage=0.9)
+    assert not report.passed
+    assert all("gap of 0.021 s" in s.reason and "in A" in s.reason for s in report.signals), report.table()
+    # the same hole is tolerated only when asked
+    assert compare(holed, golden, min_coverage=0.9, max_gap_periods=25).passed
+    doubled = _write(tmp_path / "doubled.mcap", duplicate={100})
+    report = compare(doubled, golden)
+    assert not report.passed and all("1 duplicate time stamps" in s.reason for s in report.signals)
+    assert compare(golden, _write(tmp_path / "again.mcap")).passed
+
+
+def test_compare_folders_pairwise_with_a_summary_table(tmp_path):
+    new, gold = tmp_path / "new", tmp_path / "golden"
+    for d in (new, gold):
+        (d / "fleet").mkdir(parents=True)
+    for name in ("a.mcap", "fleet/b.mcap", "fleet/c.mcap"):
+        _write(gold / name)
+        _write(new / name, skip=range(280, 300) if name == "fleet/c.mcap" else ())
+    _write(gold / "only_golden.mcap")
+    status, out, _ = _cli("compare", str(new), str(gold))
+    assert status == 1
+    rows = {line.split()[0]: line for line in out.splitlines()[3:-1]}
+    assert rows["a.mcap"].endswith("pass") and rows["fleet/b.mcap"].endswith("pass")
+    assert rows["fleet/c.mcap"].endswith("FAIL") and "gap" in rows["fleet/c.mcap"]
+    assert "missing in A" in rows["only_golden.mcap"]
+    assert out.splitlines()[-1] == "FAIL: 2 of 4 recordings; first: fleet/c.mcap"
+    (gold / "only_golden.mcap").unlink()
+    status, out, _ = _cli("compare", str(new), str(gold), "--max-gap", "50")
+    assert status == 0 and out.splitlines()[-1] == "PASS: 3 recordings"
+
+
+def _mutants(raw):
+    rng = np.random.default_rng(12)
+    size = len(raw)
+    for cut in sorted(set(np.linspace(1, size - 1, 40).astype(int).tolist())):
+        yield f"truncated at {cut}", raw[:cut]
+    for at in sorted(rng.choice(size, 80, replace=False).tolist()):
+        flipped = bytearray(raw)
+        flipped[at] ^= 1 << int(rng.integers(8))
+        yield f"bit flipped at {at}", bytes(flipped)
+    for k in range(len(_chunks(raw))):
+        yield f"chunk {k} dropped", _drop(raw, k)
+        yield f"chunk {k} duplicated", _duplicate(raw, k)
+    # huge lengths in the headers of top-level records
+    pos = 8
+    starts = []
+    while pos + 9 <= size - 8:
+        starts.append(pos)
+        pos += 9 + struct.unpack_from("<Q", raw, pos + 1)[0]
+    for at in starts[:: max(1, len(starts) // 15)]:
+        for length in (2**63 - 1, 2**40, size):
+            mutant = bytearray(raw)
+            struct.pack_into("<Q", mutant, at + 1, length)
+            yield f"record at {at} claims {length} bytes", bytes(mutant)
+
+
+def _one_line_error(status, err):
+    lines = [ln for ln in err.splitlines() if ln.startswith("msg-tools: error:")]
+    return status == 2 and len(lines) == 1 and "internal error" not in err and "Traceback" not in err
+
+
+def test_fuzz_mutated_recordings_give_a_clean_error_or_a_correct_result(original, tmp_path):
+    good = tmp_path / "good.mcap"
+    good.write_bytes(original)
+    _, golden_csv, _ = _cli("export", str(good), "--topic", "/joint_states")
+    golden_rows = golden_csv.splitlines()
+    tally = {"error": 0, "damage reported": 0, "correct": 0, "recovered prefix": 0}
+    problems = []
+    path = tmp_path / "mutant.mcap"
+    mutants = list(_mutants(original))
+    assert len(mutants) > 150
+    for name, data in mutants:
+        path.write_bytes(data)
+        try:
+            status, out, err = _cli("export", str(path), "--topic", "/joint_states")
+            rows = out.splitlines() if status == 0 else None
+            recovered = "warning:" in err and ("incomplete" in err or "recovered" in err)
+            if status == 0:
+                if rows == golden_rows:
+                    tally["correct"] += 1
+                elif recovered and rows[0] == golden_rows[0] and rows == golden_rows[: len(rows)]:
+                    tally["recovered prefix"] += 1
+                else:
+                    problems.append(f"{name}: export exit 0 with other data, stderr {err!r}")
+            elif _one_line_error(status, err):
+                tally["error"] += 1
+            else:
+                problems.append(f"{name}: export exit {status}, stderr {err!r}")
+            status, out, err = _cli("info", str(path))
+            if status == 1:
+                tally["damage reported"] += 1
+                if "DAMAGED" not in out:
+                    problems.append(f"{name}: info exit 1 without DAMAGED")
+            elif status == 2 and not _one_line_error(status, err):
+                problems.append(f"{name}: info exit 2, stderr {err!r}")
+            elif status not in (0, 1, 2):
+                problems.append(f"{name}: info exit {status}")
+            status, out, err = _cli("compare", str(path), str(good))
+            if status == 0 and rows != golden_rows and not (recovered and "warning:" in err):
+                problems.append(f"{name}: compare PASS on data that differs from the original, no warning")
+            elif status == 2 and not _one_line_error(status, err):
+                problems.append(f"{name}: compare exit 2, stderr {err!r}")
+            elif status not in (0, 1, 2):
+                problems.append(f"{name}: compare exit {status}")
+        except TimeoutError as exc:
+            problems.append(f"{name}: {exc}")
+    assert not problems, "\n".join(problems[:20]) + f"\n({len(problems)} problems; {tally})"
+    print(f"fuzz: {len(mutants)} mutants: {tally}")
+    assert tally["error"] > 50 and tally["correct"] + tally["recovered prefix"] > 10, tally
