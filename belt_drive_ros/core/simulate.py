@@ -41,6 +41,16 @@ CSV_COLUMNS = (
     "belt_torque",
     "relative_deflection",
 )
+#: extra CSV columns of a slipping-model run (SI units; ``slip`` is 1 while the belt slides)
+SLIP_CSV_COLUMNS = (
+    "span_force_tight",
+    "span_force_slack",
+    "friction_use",
+    "slip",
+    "slip_speed",
+    "elastic_deflection",
+    "slip_angle",
+)
 
 
 @dataclass
@@ -64,6 +74,8 @@ class SimResult:
     wall_time: float = 0.0
     vectorized: bool = False
     energy: dict = field(default_factory=dict)
+    #: slipping model: mode switches as (kind 'onset'/'restick', time [s], direction sigma)
+    events: list = field(default_factory=list)
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name == "time":
@@ -74,8 +86,15 @@ class SimResult:
         """(N, len(columns)) array of the named signals."""
         return np.column_stack([np.asarray(self[c], dtype=float) for c in columns])
 
-    def to_csv(self, path, columns=CSV_COLUMNS) -> None:
-        """CSV with a header line of column names; SI units (rad, rad/s, N m, s)."""
+    def to_csv(self, path, columns=None) -> None:
+        """CSV with a header line of column names; SI units (rad, rad/s, N m, s, m, m/s).
+
+        Default columns: :data:`CSV_COLUMNS`, and for the slipping model also
+        :data:`SLIP_CSV_COLUMNS` (span forces, friction use, slip state and speed,
+        elastic and slip parts of the deflection).
+        """
+        if columns is None:
+            columns = CSV_COLUMNS + (SLIP_CSV_COLUMNS if self.model == "slipping" else ())
         np.savetxt(path, self.table(columns), delimiter=",", header=",".join(columns), comments="", fmt="%.12g")
 
     @property
@@ -168,6 +187,10 @@ def simulate(
     if kind == "auto":
         choice = choose_model(scene)
         kind = choice.model
+    if kind == "slipping":
+        from .slip_run import simulate_slipping
+
+        return simulate_slipping(scene, choice, progress, check_stability)
     mdl = make_model(kind, scene.params)
     sim = Simulator(mdl, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
     x0 = scene.initial_state.vector(kind, scene.params.ratio)
@@ -186,6 +209,14 @@ def simulate(
         "input_work": np.concatenate([[0.0], np.cumsum(0.5 * (p_in[1:] + p_in[:-1]) * dt_grid)]),
         "dissipated": np.concatenate([[0.0], np.cumsum(0.5 * (p_d[1:] + p_d[:-1]) * dt_grid)]),
     }
+    if scene.model == "auto":  # past the friction limit the belt slips: the third tier takes over
+        from .slip_run import simulate_slipping, slipping_reason
+
+        why = slipping_reason(scene.params, time, outputs, kind)
+        if why is not None:
+            escalated = ModelChoice("slipping", f"{why} (before: {choice.reason})", choice.belt_frequency,
+                                    choice.excitations, choice.max_ratio, choice.output_rate)
+            return simulate_slipping(scene, escalated, progress, check_stability)
     return SimResult(
         scene=scene,
         model=kind,

@@ -135,6 +135,19 @@ class SlippingBeltModel:
         B[1, 3], B[4, 3] = -1.0 / r3, 1.0
         self.A_reg, self.B_reg = A, B
 
+    @property
+    def A(self):
+        """Stick-mode matrix (what stability checks and generic callers see)."""
+        return self.A_stick
+
+    @property
+    def B(self):
+        return self.B_stick
+
+    def wheel_coordinates(self, y):
+        """(phi_M, omega_M, phi_3, omega_3) of state(s) ``y``."""
+        return y[..., 0], y[..., 2], self.phi_3(y), y[..., 3]
+
     # ----------------------------------------------------------- kinematics
     def phi_3(self, y):
         """phi_3 = i phi_M - theta_e - s / r_3 [rad]."""
@@ -253,6 +266,46 @@ class HybridResult:
     events: list = field(default_factory=list)
 
 
+def _phi12(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """phi_1(z) = (e^z - 1)/z and phi_2(z) = (e^z - 1 - z)/z^2 (complex, series near 0)."""
+    small = np.abs(z) < 1e-3
+    zs = np.where(small, 1.0, z)
+    p1 = np.where(small, 1.0 + z / 2.0 + z * z / 6.0, np.expm1(zs) / zs)
+    p2 = np.where(small, 0.5 + z / 6.0 + z * z / 24.0, (np.expm1(zs) - zs) / (zs * zs))
+    return p1, p2
+
+
+class _ModalFlow:
+    """Exact flow of the sub-state z = [theta_e, omega_M, omega_3] of one mode, by its eigenvalues.
+
+    ``z(tau) = V [e^(L tau) w + tau phi_1(L tau) V^-1 B u_0 + (tau^2/h) phi_2(L tau) V^-1 B (u_1 - u_0)]``
+    for an input linear in time from ``u_0`` to ``u_1`` over ``h``: the
+    continuous extension on which events are located (the switching functions
+    read only z). Costs a few complex multiply-adds per evaluation instead of
+    a matrix exponential. None if the block is (nearly) defective.
+    """
+
+    def __init__(self, A, B):
+        A3, self.B3 = A[1:4, 1:4], B[1:4]
+        lam, V = np.linalg.eig(A3)
+        if not np.all(np.isfinite(lam)) or np.linalg.cond(V) > 1e8:
+            raise np.linalg.LinAlgError("defective")
+        self.lam, self.V, self.Vinv = lam, V, np.linalg.inv(V)
+
+    def prepare(self, y, u0, u1, h):
+        """Coefficients for :meth:`z` from state ``y`` and the input's end values."""
+        w = self.Vinv @ y[1:4]
+        b0 = self.Vinv @ (self.B3 @ u0)
+        db = self.Vinv @ (self.B3 @ (u1 - u0)) / h
+        return w, b0, db
+
+    def z(self, coeffs, tau):
+        w, b0, db = coeffs
+        lt = self.lam * tau
+        p1, p2 = _phi12(lt)
+        return (self.V @ (np.exp(lt) * w + tau * p1 * b0 + tau * tau * p2 * db)).real
+
+
 class HybridStepper:
     """Steps the stick/slip model with one fixed-step method, switching modes at located events.
 
@@ -275,6 +328,12 @@ class HybridStepper:
         self._i, self._r3 = p.ratio, p.r_3
         self._two_k_r3 = 2.0 * p.k * p.r_3
         self.n_located = 0
+        self._modal = {}
+        for mode, (A, B) in ((STICK, (model.A_stick, model.B_stick)), (SLIP, (model.A_slip, model.B_slip))):
+            try:
+                self._modal[mode] = _ModalFlow(A, B)
+            except np.linalg.LinAlgError:
+                pass
 
     # ---------------------------------------------------------- the flows
     def _integrator(self, mode: int, h: float):
@@ -370,12 +429,32 @@ class HybridStepper:
         return SLIP, sigma, y
 
     # ------------------------------------------------------------ stepping
-    def _locate(self, mode, sigma, t, y, h, hi):
-        """First tau in (0, h] where the switching function turns positive along the flow."""
-        def G(tau):
-            return self.switching(mode, sigma, y if tau == 0.0 else self.flow(mode, sigma, t, y, tau, hi))
+    def _locate(self, mode, sigma, t, y, h, hi, y1=None):
+        """First tau in (0, h] where the switching function turns positive along the step.
 
-        # first sign change on a few samples (the flow may cross and return within a step)
+        Located on the continuous extension of the step (:class:`_ModalFlow`:
+        the exact flow with the torques linear in time between their values
+        at the step's start and end; for ``exact`` the torques are held, so
+        this is the method's own flow), else on the method's flow over a
+        partial step. A sign scan over eight sub-steps finds the first
+        crossing (the flow may cross and return within a step), then Brent's
+        method brackets it to ~1e-15 s.
+        """
+        modal = self._modal.get(mode)
+        if modal is not None:
+            u = self.inputs(mode, sigma, hi)
+            u0 = u(t, y)
+            u1 = u0 if (self.method == "exact" or y1 is None) else u(t + h, y1)
+            coeffs = modal.prepare(y, u0, u1, h)
+            base = y.copy()
+
+            def G(tau):
+                base[1:4] = modal.z(coeffs, tau)
+                return self.switching(mode, sigma, base)
+        else:
+            def G(tau):
+                return self.switching(mode, sigma, y if tau == 0.0 else self.flow(mode, sigma, t, y, tau, hi))
+
         lo, g_lo = 0.0, self.switching(mode, sigma, y)
         if g_lo >= 0.0:  # starts on the surface (just switched): find where it is inside
             lo = None
@@ -386,9 +465,9 @@ class HybridStepper:
                     break
             if lo is None:
                 return 0.0
-        taus = [lo + (h - lo) * j / 8.0 for j in range(1, 9)]
         hi_tau = h
-        for tau in taus:
+        for j in range(1, 9):
+            tau = lo + (h - lo) * j / 8.0
             if G(tau) > 0.0:
                 hi_tau = tau
                 break
@@ -418,7 +497,7 @@ class HybridStepper:
                     y, a = y1, b
                     break
                 if self.locate:
-                    tau = self._locate(mode, sigma, a, y, h, hi)
+                    tau = self._locate(mode, sigma, a, y, h, hi, y1)
                     if tau is None:
                         y, a = y1, b
                         break
