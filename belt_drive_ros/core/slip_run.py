@@ -70,6 +70,34 @@ class SlippingSimulator:
             self._loops[key] = (loop, load)
         return self._loops[key]
 
+    def _slip_loop(self):
+        """Compiled loop of the slip mode with the friction force as a 6th, constant state (massless belt only).
+
+        ``[y, Q]' = [[A_slip, b_Q], [0, 0]] [y, Q] + [B_drive, B_load] u``: with
+        ``m' = 0`` the force ``sigma Q_max`` is constant over a slip phase, so
+        the slip mode fits the compiled loops' two-torque form and stays
+        exact for ``exact`` and the exponential methods. None with a belt mass.
+        """
+        if self.model.params.belt_mass != 0.0:
+            return None
+        if "slip" not in self._loops:
+            from .integrators import make_integrator
+
+            m = self.model
+            A = np.zeros((6, 6))
+            A[:5, :5] = m.A_slip
+            A[:5, 5] = m.B_slip[:, 2]
+            B = np.zeros((6, 2))
+            B[:5] = m.B_slip[:, :2]
+            i, r3 = m.params.ratio, m.params.r_3
+            W = np.zeros((4, 6))
+            W[0, 0], W[1, 2], W[3, 3] = 1.0, 1.0, 1.0
+            W[2, 0], W[2, 1], W[2, 4] = i, -1.0, -1.0 / r3  # phi_3 = i phi_M - theta_e - s / r_3
+            integ = make_integrator(self.method, A, B, self.dt, **self.flex_sim.method_options)
+            plant = self.plant
+            self._loops["slip"] = integ.scalar_loop(W, plant.uses_angle, plant.sources)
+        return self._loops["slip"]
+
     def _crossing(self, ys):
         """Index of the first state of ``ys`` beyond the friction limit, or None."""
         m = self.model
@@ -145,12 +173,33 @@ class SlippingSimulator:
                 k += 1
                 chunk = 16
             else:
+                slip_loop = None if k in splits else self._slip_loop()
+                if slip_loop is not None:
+                    stop = min(k + chunk, n, min((j for j in splits if j > k), default=n))
+                    chunk = min(2 * chunk, self.chunk)
+                    Q = sigma * float(self.model.limit(0.0))
+                    flat = slip_loop(times[k : stop + 1], (*y.tolist(), Q), drive, self.plant.scalar_load, SPEED_LIMIT)
+                    ys = np.array(flat).reshape(-1, 6)[:, :5]
+                    g = -sigma * self.model.slip_speed(ys, Q)
+                    bad = np.flatnonzero(g > 0.0)
+                    done = len(ys) if not bad.size else int(bad[0])
+                    states[k + 1 : k + 1 + done] = ys[:done]
+                    modes[k + 1 : k + 1 + done], sigmas[k + 1 : k + 1 + done] = SLIP, sigma
+                    if done:
+                        y = ys[done - 1].copy()
+                    k += done
+                    if not bad.size:
+                        if done < stop - (k - done):
+                            _check_finite(states[: k + 1], time[: k + 1], "slipping", self.method, dt)
+                        continue
+                    chunk = 16
                 y, mode, sigma = hs.advance(time[k], time[k + 1], y, mode, sigma, splits.get(k, ()), events, dt)
                 states[k + 1], modes[k + 1], sigmas[k + 1] = y, mode, sigma
                 if not (np.all(np.isfinite(y)) and abs(y[2]) <= SPEED_LIMIT and abs(y[3]) <= SPEED_LIMIT):
                     _check_finite(states[: k + 2], time[: k + 2], "slipping", self.method, dt)
                 if mode == STICK:
                     x = self.to_flexible(y)
+                    chunk = 16
                 k += 1
         self.events = events
         _check_finite(states, time, "slipping", self.method, dt)
