@@ -300,10 +300,12 @@ class _ModalFlow:
         return w, b0, db
 
     def z(self, coeffs, tau):
+        """z at ``tau`` [s] (a float), or at each of an array of ``tau`` (rows)."""
         w, b0, db = coeffs
+        tau = np.asarray(tau, dtype=float)[..., None]
         lt = self.lam * tau
         p1, p2 = _phi12(lt)
-        return (self.V @ (np.exp(lt) * w + tau * p1 * b0 + tau * tau * p2 * db)).real
+        return ((np.exp(lt) * w + tau * p1 * b0 + tau * tau * p2 * db) @ self.V.T).real
 
 
 class HybridStepper:
@@ -390,6 +392,15 @@ class HybridStepper:
             return abs(float(m.q_row @ y)) - float(m.limit(y[2]))
         return -sigma * float(m.slip_speed(y, sigma * m.limit(y[2])))
 
+    def _switching_many(self, mode, sigma, y, z):
+        """:meth:`switching` for rows ``z`` = [theta_e, omega_M, omega_3] (other states from ``y``)."""
+        m = self.model
+        ys = np.repeat(y[None, :], len(z), axis=0)
+        ys[:, 1:4] = z
+        if mode == STICK:
+            return np.abs(ys @ m.q_row) - m.limit(ys[:, 2])
+        return -sigma * m.slip_speed(ys, sigma * m.limit(ys[:, 2]))
+
     def _stick_keeps(self, t, y) -> bool:
         """True if the stick mode's |Q| does not at once grow past Q_max from (t, y).
 
@@ -458,20 +469,22 @@ class HybridStepper:
         lo, g_lo = 0.0, self.switching(mode, sigma, y)
         if g_lo >= 0.0:  # starts on the surface (just switched): find where it is inside
             lo = None
-            for k in range(1, 40):
-                tau = h * 0.5**k
-                if G(tau) < 0.0:
-                    lo = tau
+            taus = h * 0.5 ** np.arange(1, 40)
+            g = self._switching_many(mode, sigma, y, modal.z(coeffs, taus)) if modal is not None else None
+            for k, tau in enumerate(taus):
+                if (g[k] if g is not None else G(tau)) < 0.0:
+                    lo = float(tau)
                     break
             if lo is None:
                 return 0.0
         hi_tau = h
-        for j in range(1, 9):
-            tau = lo + (h - lo) * j / 8.0
-            if G(tau) > 0.0:
-                hi_tau = tau
+        taus = lo + (h - lo) * np.arange(1, 9) / 8.0
+        g = self._switching_many(mode, sigma, y, modal.z(coeffs, taus)) if modal is not None else None
+        for j, tau in enumerate(taus):
+            if (g[j] if g is not None else G(tau)) > 0.0:
+                hi_tau = float(tau)
                 break
-            lo = tau
+            lo = float(tau)
         if G(hi_tau) <= 0.0:
             return None
         self.n_located += 1
