@@ -25,6 +25,7 @@ import numpy as np
 from .fidelity import ModelChoice, choose_model
 from .model import OUTPUT_UNITS, make_model
 from .scene import Scene
+from .slip_run import SlippingSimulator, slipping_reason
 from .stability import StabilityReport, require_stable
 from .stepper import SPEED_LIMIT, Plant, Stepper
 
@@ -188,8 +189,6 @@ def simulate(
         choice = choose_model(scene)
         kind = choice.model
     if kind == "slipping":
-        from .slip_run import simulate_slipping
-
         return simulate_slipping(scene, choice, progress, check_stability)
     mdl = make_model(kind, scene.params)
     sim = Simulator(mdl, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
@@ -210,8 +209,6 @@ def simulate(
         "dissipated": np.concatenate([[0.0], np.cumsum(0.5 * (p_d[1:] + p_d[:-1]) * dt_grid)]),
     }
     if scene.model == "auto":  # past the friction limit the belt slips: the third tier takes over
-        from .slip_run import simulate_slipping, slipping_reason
-
         why = slipping_reason(scene.params, time, outputs, kind)
         if why is not None:
             escalated = ModelChoice("slipping", f"{why} (before: {choice.reason})", choice.belt_frequency,
@@ -231,6 +228,40 @@ def simulate(
         wall_time=wall,
         vectorized=sim.vectorized,
         energy=energy,
+    )
+
+
+def simulate_slipping(scene, choice=None, progress=None, check_stability=True) -> SimResult:
+    """Run ``scene`` on the slipping model (:mod:`belt_drive_ros.core.slip_run`).
+
+    ``result.outputs`` has every signal of the other models plus
+    :data:`~belt_drive_ros.core.slip.SLIP_OUTPUT_UNITS`; ``result.events``
+    lists the mode switches (kind, time [s], direction); ``result.energy``
+    adds ``friction``, the integral of Q s'.
+    """
+    sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
+    y0 = scene.initial_state.vector("slipping", scene.params.ratio)
+    start = _time.perf_counter()
+    time, states, modes, sigmas = sim.run(scene.duration, y0, progress=progress)
+    wall = _time.perf_counter() - start
+    m = sim.model
+    u = sim.input_array(time, states)
+    dt_grid = np.diff(time)
+
+    def integral(p):
+        return np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * dt_grid)])
+
+    energy = {
+        "kinetic": m.kinetic_energy(states),
+        "potential": m.potential_energy(states),
+        "input_work": integral(m.input_power(states, u)),
+        "dissipated": integral(m.damping_power(states, modes, sigmas)),
+        "friction": integral(m.friction_power(states, modes, sigmas)),
+    }
+    return SimResult(
+        scene=scene, model="slipping", method=sim.integrator.name, dt=scene.dt, time=time, states=states,
+        inputs=u, outputs=m.outputs(states, u, modes, sigmas), choice=choice, stability=sim.stability,
+        wall_time=wall, vectorized=False, energy=energy, events=[(e.kind, e.time, e.sigma) for e in sim.events],
     )
 
 

@@ -490,7 +490,7 @@ class HybridStepper:
         self.n_located += 1
         return scipy.optimize.brentq(G, lo, hi_tau, xtol=1e-15, rtol=4.0 * np.finfo(float).eps, maxiter=200)
 
-    def advance(self, t0, t1, y, mode, sigma, cuts=(), events=None, dt=None):
+    def advance(self, t0, t1, y, mode, sigma, cuts=(), events=None, dt=None, hi_end=math.inf):
         """Integrate from t0 to t1: sub-steps end at each cut, then at each located event.
 
         A sub-step whose end state has a positive switching function holds an
@@ -502,7 +502,7 @@ class HybridStepper:
         n_events = 0
         for j in range(len(edges) - 1):
             a, b = edges[j], edges[j + 1]
-            hi = math.nextafter(b, -math.inf) if j < len(edges) - 2 else math.inf
+            hi = math.nextafter(b, -math.inf) if j < len(edges) - 2 else hi_end
             while a < b:
                 h = dt if (dt is not None and a == t0 and b == t1) else b - a  # a whole grid step: the grid's dt
                 y1 = self.flow(mode, sigma, a, y, h, hi)
@@ -548,7 +548,9 @@ class HybridStepper:
         for k in range(n):
             a, b = time[k], time[k + 1]
             cuts = [c for c in bps if a + tol < c < b - tol]
-            y, mode, sigma = self.advance(a, b, y, mode, sigma, cuts, events, dt if uniform else None)
+            # a step ending on a breakpoint samples the torque's left limit there (as the stepper does)
+            hi_end = math.nextafter(b, -math.inf) if any(abs(c - b) <= tol for c in bps) else math.inf
+            y, mode, sigma = self.advance(a, b, y, mode, sigma, cuts, events, dt if uniform else None, hi_end)
             states[k + 1], modes[k + 1], sigmas[k + 1] = y, mode, sigma
         return HybridResult(time, states, modes, sigmas, events)
 

@@ -1,15 +1,17 @@
-"""Offline runs of the slipping belt: stick phases on the flexible model's compiled loop, events in :mod:`.slip`.
+"""Offline runs of the slipping belt, stepped by the single :class:`~belt_drive_ros.core.stepper.Stepper`.
 
 While the belt sticks, the slipping model *is* the flexible model (with the
 load angle shifted by the accumulated slip, ``phi_3 = i phi_M - theta_e -
-s / r_3``). So a stick phase runs in chunks of the flexible model's compiled
-float loop (:meth:`~belt_drive_ros.core.simulate.Plant.scalar_loop`); after
-each chunk the stick switching function ``|Q| - Q_max`` is checked on all its
-states at once (numpy), the chunk is cut before the first step that crosses,
-and that step is redone by :class:`~belt_drive_ros.core.slip.HybridStepper`,
-which locates the onset and goes on in slip mode step by step until the belt
-re-sticks. A run that never reaches the limit gives the flexible model's
-states bit for bit.
+s / r_3``). While a massless belt slips, the slip mode is linear with the
+constant force ``sigma Q_max``, carried as a sixth, constant state. So both
+phases run in chunks through the stepper (compiled loop, breakpoints
+handled exactly); after each chunk the mode's switching function is checked
+on all its states at once (numpy), the chunk is cut before the first step
+that crosses, and that step is redone by
+:class:`~belt_drive_ros.core.slip.HybridStepper`, which locates the event,
+splits the step there and switches the mode. A run that never reaches the
+limit gives the flexible model's states bit for bit (closed-loop scenes:
+the same compiled loop over the same steps).
 """
 
 from __future__ import annotations
@@ -20,7 +22,54 @@ import numpy as np
 
 from .model import FlexibleBeltModel
 from .slip import SLIP, STICK, HybridStepper, SlippingBeltModel
-from .simulate import SPEED_LIMIT, Simulator, _check_finite
+from .stability import require_stable
+from .stepper import SPEED_LIMIT, Plant, Stepper, snap_tolerance
+
+
+class _ShiftedLoad:
+    """A load profile seen at ``angle - offset`` (the wheel-3 angle lost to slip), for the flexible plant."""
+
+    def __init__(self, inner, offset: float):
+        self.inner, self.offset = inner, float(offset)
+        self.state_dependent = inner.state_dependent
+        self.uses_angle = inner.uses_angle
+        self.scalar_source = None  # called, not inlined: one compiled loop for every offset
+
+    def torque(self, t, angle, speed):
+        return self.inner.torque(t, np.asarray(angle) - self.offset, speed)
+
+    def scalar_torque(self):
+        f, off = self.inner.scalar_torque(), self.offset
+        return lambda t, a, w: f(t, a - off, w)
+
+    def breakpoints(self):
+        return self.inner.breakpoints()
+
+    def left_of(self, t):
+        return self.inner.left_of(t)
+
+
+class _SlipPhase:
+    """The slip mode of a massless belt as a linear model for the stepper: ``[y, Q]`` with ``Q' = 0``."""
+
+    name = "slipping"
+
+    def __init__(self, model: SlippingBeltModel):
+        A = np.zeros((6, 6))
+        A[:5, :5] = model.A_slip
+        A[:5, 5] = model.B_slip[:, 2]
+        B = np.zeros((6, 2))
+        B[:5] = model.B_slip[:, :2]
+        self.A, self.B, self.params = A, B, model.params
+        i, r3 = model.params.ratio, model.params.r_3
+        W = np.zeros((4, 6))
+        W[0, 0], W[1, 2], W[3, 3] = 1.0, 1.0, 1.0
+        W[2, 0], W[2, 1], W[2, 4] = i, -1.0, -1.0 / r3  # phi_3 = i phi_M - theta_e - s / r_3
+        self._W = W
+
+    def wheel_coordinates(self, x):
+        y = x @ self._W.T
+        return y[..., 0], y[..., 1], y[..., 2], y[..., 3]
 
 
 class SlippingSimulator:
@@ -29,17 +78,18 @@ class SlippingSimulator:
     def __init__(self, params, drive, load, method="etd2", dt=1e-3, method_options=None, check_stability=True, chunk=4096):
         self.model = SlippingBeltModel(params)
         self.flexible = FlexibleBeltModel(params)
-        self.flex_sim = Simulator(self.flexible, drive, load, method, dt, method_options, check_stability)
-        self.plant = self.flex_sim.plant
-        self.integrator = self.flex_sim.integrator
-        self.stability = self.flex_sim.stability
+        self.drive, self.load = drive, load
         self.method, self.dt, self.chunk = method, float(dt), int(chunk)
+        self.method_options = dict(method_options or {})
+        self.plant = Plant(self.flexible, drive, load)
+        self.stepper = Stepper(self.plant, method, self.dt, self.method_options)
+        self.integrator = self.stepper.integrator
+        self.stability = require_stable(self.flexible.A, self.flexible.B, method, dt) if check_stability else None
         self.hybrid = HybridStepper(self.model, self.plant.scalar_drive, self.plant.scalar_load, method)
         self.events: list = []
         self.vectorized = False
-        W = self.plant.wheel_map  # [phi_M, omega_M, phi_3, omega_3] = W x
-        self._W_inv = np.linalg.inv(W)
-        self._loops: dict = {}
+        self._W_inv = np.linalg.inv(self.plant.wheel_map)  # [phi_M, omega_M, phi_3, omega_3] = W x
+        self._steppers: dict = {}
 
     # ------------------------------------------------------ conversions
     def to_flexible(self, y):
@@ -53,156 +103,112 @@ class SlippingSimulator:
         i = self.model.params.ratio
         return np.column_stack([phi_M, i * phi_M - phi_3, omega_M, omega_3, np.full(len(phi_M), s)])
 
-    def _loop(self, s):
-        """The compiled flexible loop with the load angle shifted by -s / r_3 (and its load closure)."""
-        off = s / self.model.params.r_3
-        key = off
-        if key not in self._loops:
-            plant = self.plant
-            load, src = plant.scalar_load, plant.sources[1]
-            if off != 0.0:
-                load = (lambda f, o: (lambda t, a, w: f(t, a - o, w)))(plant.scalar_load, off)
-                if src is not None:
-                    src = (lambda f, o: (lambda t, a, w: f(t, f"({a} - {o!r})", w)))(src, off)
-            loop = self.integrator.scalar_loop(plant.wheel_map, plant.uses_angle, (plant.sources[0], src))
-            if len(self._loops) > 64:
-                self._loops.clear()
-            self._loops[key] = (loop, load)
-        return self._loops[key]
+    def _stick_stepper(self, s: float) -> Stepper:
+        """The stepper of the stick phase after slip ``s`` (the flexible plant itself while s = 0)."""
+        if s == 0.0:
+            return self.stepper
+        if len(self._steppers) > 64:
+            self._steppers.clear()
+        key = ("stick", s)
+        if key not in self._steppers:
+            plant = Plant(self.flexible, self.drive, _ShiftedLoad(self.load, s / self.model.params.r_3))
+            self._steppers[key] = Stepper(plant, self.method, self.dt, self.method_options, origin=self.stepper.origin)
+        return self._steppers[key]
 
-    def _slip_loop(self):
-        """Compiled loop of the slip mode with the friction force as a 6th, constant state (massless belt only).
-
-        ``[y, Q]' = [[A_slip, b_Q], [0, 0]] [y, Q] + [B_drive, B_load] u``: with
-        ``m' = 0`` the force ``sigma Q_max`` is constant over a slip phase, so
-        the slip mode fits the compiled loops' two-torque form and stays
-        exact for ``exact`` and the exponential methods. None with a belt mass.
-        """
+    def _slip_stepper(self) -> Stepper | None:
+        """The stepper of the slip phase of a massless belt (None with a belt mass: Q_max varies)."""
         if self.model.params.belt_mass != 0.0:
             return None
-        if "slip" not in self._loops:
-            from .integrators import make_integrator
+        if "slip" not in self._steppers:
+            plant = Plant(_SlipPhase(self.model), self.drive, self.load)
+            self._steppers["slip"] = Stepper(plant, self.method, self.dt, self.method_options, origin=self.stepper.origin)
+        return self._steppers["slip"]
 
-            m = self.model
-            A = np.zeros((6, 6))
-            A[:5, :5] = m.A_slip
-            A[:5, 5] = m.B_slip[:, 2]
-            B = np.zeros((6, 2))
-            B[:5] = m.B_slip[:, :2]
-            i, r3 = m.params.ratio, m.params.r_3
-            W = np.zeros((4, 6))
-            W[0, 0], W[1, 2], W[3, 3] = 1.0, 1.0, 1.0
-            W[2, 0], W[2, 1], W[2, 4] = i, -1.0, -1.0 / r3  # phi_3 = i phi_M - theta_e - s / r_3
-            integ = make_integrator(self.method, A, B, self.dt, **self.flex_sim.method_options)
-            plant = self.plant
-            self._loops["slip"] = integ.scalar_loop(W, plant.uses_angle, plant.sources)
-        return self._loops["slip"]
+    def _grid(self, t0: float, t1: float) -> list:
+        """The stepper's knots: grid times ``t0 + k dt`` and ``t1`` exactly."""
+        st = self.stepper
+        times = [t0]
+        k = 1
+        while True:
+            t = st.grid_time(k)
+            if t >= t1 - snap_tolerance(t1, self.dt):
+                break
+            times.append(t)
+            k += 1
+        times.append(t1)
+        return times
 
-    def _crossing(self, ys):
-        """Index of the first state of ``ys`` beyond the friction limit, or None."""
-        m = self.model
-        g = np.abs(ys @ m.q_row) - m.limit(ys[:, 2])
-        bad = np.flatnonzero(g > 0.0)
-        return int(bad[0]) if bad.size else None
+    def _cuts(self, a: float, b: float):
+        """Breakpoints strictly inside (a, b), and whether b is one (the step then ends at its left limit)."""
+        tol = snap_tolerance(b, self.dt)
+        bps = self.stepper.breakpoints
+        inside = [c for c in bps if a + tol < c < b - tol]
+        return inside, any(abs(c - b) <= tol for c in bps)
 
     # -------------------------------------------------------------- run
     def run(self, duration, y0, t0=0.0, progress=None):
         """Integrate ``duration`` [s] from the slipping state ``y0``; returns (time, states, mode, sigma)."""
-        dt = self.dt
-        n = int(round(duration / dt))
-        if abs(n * dt - duration) > 1e-9 * max(duration, 1.0):
-            n = int(math.ceil(duration / dt))
-        time = t0 + dt * np.arange(n + 1)
-        splits = self.flex_sim._splits(time)
-        self.flex_sim.split_steps = splits
+        self.stepper.origin = float(t0)
+        times = self._grid(float(t0), float(t0) + float(duration))
+        time = np.array(times)
+        n = len(times) - 1
         hs = self.hybrid
         states = np.empty((n + 1, 5))
         modes = np.zeros(n + 1, dtype=np.int8)
         sigmas = np.zeros(n + 1)
         y = np.asarray(y0, dtype=float).copy()
         mode, sigma = STICK, 0.0
-        if hs.switching(mode, sigma, y) > 0.0:
-            mode, sigma, y = hs.switch(mode, sigma, time[0], y)
-            self.events.append(("onset", time[0], sigma))
+        events: list = []
+        if hs.switching(mode, sigma, y) > 0.0:  # starts beyond the limit
+            mode, sigma, y = hs.switch(mode, sigma, times[0], y)
         states[0], modes[0], sigmas[0] = y, mode, sigma
-        x = self.to_flexible(y)  # running flexible state while sticking (no round trips)
-        times = time.tolist()
-        drive = self.plant.scalar_drive
-        k = 0
-        events = []
-        chunk = 16  # grows x2 per chunk without an event, back to 16 after one (an onset wastes < chunk steps)
+        x = self.to_flexible(y)  # the running flexible state while sticking (no round trips)
+        k, chunk = 0, 16  # chunks grow x2 without an event, back to 16 after one
         while k < n:
+            stop = min(k + chunk, n)
+            chunk = min(2 * chunk, self.chunk)
             if mode == STICK:
                 s = float(y[4])
-                if k in splits:  # a torque breakpoint inside the step
-                    if s == 0.0:
-                        x1 = self.flex_sim._split_step(time[k], time[k + 1], x, splits[k])
-                        y1 = self.from_flexible(x1[None, :], s)[0]
-                        if hs.switching(STICK, 0.0, y1) <= 0.0:
-                            x, y = x1, y1
-                            states[k + 1], modes[k + 1] = y, STICK
-                            k += 1
-                            continue
-                    y, mode, sigma = hs.advance(time[k], time[k + 1], y, mode, sigma, splits[k], events, dt)
-                    states[k + 1], modes[k + 1], sigmas[k + 1] = y, mode, sigma
-                    x = self.to_flexible(y)
-                    k += 1
-                    continue
-                stop = min(k + chunk, n, min((j for j in splits if j > k), default=n))
-                chunk = min(2 * chunk, self.chunk)
-                loop, load = self._loop(s)
-                flat = loop(times[k : stop + 1], tuple(x.tolist()), drive, load, SPEED_LIMIT)
-                xs = np.array(flat).reshape(-1, 4)
-                ys = self.from_flexible(xs, s)
-                cross = self._crossing(ys)
-                done = len(xs) if cross is None else cross
-                states[k + 1 : k + 1 + done] = ys[:done]
-                if done:
-                    x, y = xs[done - 1], ys[done - 1]
-                k += done
-                if cross is None:
-                    if done < stop - (k - done):  # the loop stopped on a runaway state
-                        _check_finite(states[: k + 1], time[: k + 1], "slipping", self.method, dt)
-                    if progress:
-                        progress(k / n)
-                    continue
-                # the step k -> k+1 crosses the limit: locate the onset there
-                y, mode, sigma = hs.advance(time[k], time[k + 1], y, STICK, 0.0, (), events, dt)
-                states[k + 1], modes[k + 1], sigmas[k + 1] = y, mode, sigma
-                x = self.to_flexible(y)
-                k += 1
-                chunk = 16
+                _, xs = self._stick_stepper(s).run(x, times[k], times[stop], vectorize=False)
+                ys = self.from_flexible(xs[1:], s)
+                g = np.abs(ys @ self.model.q_row) - self.model.limit(ys[:, 2])
             else:
-                slip_loop = None if k in splits else self._slip_loop()
-                if slip_loop is not None:
-                    stop = min(k + chunk, n, min((j for j in splits if j > k), default=n))
-                    chunk = min(2 * chunk, self.chunk)
+                st = self._slip_stepper()
+                if st is None:
+                    ys = np.empty((0, 5))
+                    g = np.empty(0)
+                else:
                     Q = sigma * float(self.model.limit(0.0))
-                    flat = slip_loop(times[k : stop + 1], (*y.tolist(), Q), drive, self.plant.scalar_load, SPEED_LIMIT)
-                    ys = np.array(flat).reshape(-1, 6)[:, :5]
+                    _, zs = st.run(np.append(y, Q), times[k], times[stop], vectorize=False)
+                    ys = zs[1:, :5]
                     g = -sigma * self.model.slip_speed(ys, Q)
-                    bad = np.flatnonzero(g > 0.0)
-                    done = len(ys) if not bad.size else int(bad[0])
-                    states[k + 1 : k + 1 + done] = ys[:done]
-                    modes[k + 1 : k + 1 + done], sigmas[k + 1 : k + 1 + done] = SLIP, sigma
-                    if done:
-                        y = ys[done - 1].copy()
-                    k += done
-                    if not bad.size:
-                        if done < stop - (k - done):
-                            _check_finite(states[: k + 1], time[: k + 1], "slipping", self.method, dt)
-                        continue
-                    chunk = 16
-                y, mode, sigma = hs.advance(time[k], time[k + 1], y, mode, sigma, splits.get(k, ()), events, dt)
-                states[k + 1], modes[k + 1], sigmas[k + 1] = y, mode, sigma
-                if not (np.all(np.isfinite(y)) and abs(y[2]) <= SPEED_LIMIT and abs(y[3]) <= SPEED_LIMIT):
-                    _check_finite(states[: k + 2], time[: k + 2], "slipping", self.method, dt)
+            bad = np.flatnonzero(g > 0.0)
+            done = len(ys) if not bad.size else int(bad[0])
+            states[k + 1 : k + 1 + done] = ys[:done]
+            modes[k + 1 : k + 1 + done], sigmas[k + 1 : k + 1 + done] = mode, sigma
+            if done:
+                y = ys[done - 1].copy()
                 if mode == STICK:
-                    x = self.to_flexible(y)
-                    chunk = 16
-                k += 1
+                    x = xs[done]
+            k += done
+            if progress:
+                progress(k / n)
+            if k >= n or (done == len(ys) and len(ys)):
+                continue
+            # step k -> k+1 holds an event (or the slip mode has a belt mass): the hybrid stepper takes it
+            cuts, ends_on_breakpoint = self._cuts(times[k], times[k + 1])
+            hi_end = self.plant.left_of(times[k + 1]) if ends_on_breakpoint else math.inf
+            y, new_mode, sigma = hs.advance(times[k], times[k + 1], y, mode, sigma, cuts, events, self.dt, hi_end)
+            if not (np.all(np.isfinite(y)) and max(abs(y[2]), abs(y[3])) <= SPEED_LIMIT):
+                raise self.stepper._diverged(times[k + 1], y)
+            if new_mode != mode or events:
+                chunk = 16
+            mode = new_mode
+            states[k + 1], modes[k + 1], sigmas[k + 1] = y, mode, sigma
+            if mode == STICK:
+                x = self.to_flexible(y)
+            k += 1
         self.events = events
-        _check_finite(states, time, "slipping", self.method, dt)
         if progress:
             progress(1.0)
         return time, states, modes, sigmas
@@ -235,45 +241,3 @@ def slipping_reason(params, time, outputs, model: str) -> str | None:
         f"slipping: peak transmitted force {ratio:.2f} x the capstan limit "
         f"(Q_max = {params.friction_limit(0.0):.0f} N at rest) at t = {t_peak:.3g} s in the {model} run"
     )
-
-
-def simulate_slipping(scene, choice=None, progress=None, check_stability=True):
-    """Run ``scene`` on the slipping model; a :class:`~belt_drive_ros.core.simulate.SimResult` with its outputs.
-
-    ``result.outputs`` has every signal of the other models plus
-    :data:`~belt_drive_ros.core.slip.SLIP_OUTPUT_UNITS`; ``result.events``
-    lists the mode switches (kind, time [s], direction).
-    """
-    import time as _time
-
-    from .simulate import SimResult
-
-    sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
-    y0 = scene.initial_state.vector("slipping", scene.params.ratio)
-    start = _time.perf_counter()
-    time, states, modes, sigmas = sim.run(scene.duration, y0, progress=progress)
-    wall = _time.perf_counter() - start
-    m = sim.model
-    u = sim.input_array(time, states)
-    outputs = m.outputs(states, u, modes, sigmas)
-    p_in = m.input_power(states, u)
-    p_d = m.damping_power(states, modes, sigmas)
-    p_f = m.friction_power(states, modes, sigmas)
-    dt_grid = np.diff(time)
-
-    def integral(p):
-        return np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * dt_grid)])
-
-    energy = {
-        "kinetic": m.kinetic_energy(states),
-        "potential": m.potential_energy(states),
-        "input_work": integral(p_in),
-        "dissipated": integral(p_d),
-        "friction": integral(p_f),
-    }
-    result = SimResult(
-        scene=scene, model="slipping", method=sim.integrator.name, dt=scene.dt, time=time, states=states,
-        inputs=u, outputs=outputs, choice=choice, stability=sim.stability, wall_time=wall, vectorized=False, energy=energy,
-    )
-    result.events = [(e.kind, e.time, e.sigma) for e in sim.events]
-    return result
