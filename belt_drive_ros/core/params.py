@@ -207,8 +207,11 @@ class BeltDriveParams:
         From the capstan law (F_tight - F_c) = (F_slack - F_c) e^(mu_eff beta) with
         F_tight + F_slack = 2 F_0. Clipped at 0 when F_c exceeds F_0 (the belt lifts off).
         """
-        q = 2.0 * (self.F_0 - self.centrifugal_tension(omega_M)) * math.tanh(0.5 * self.mu_effective * self.wrap_angle)
-        return np.maximum(q, 0.0) if np.ndim(q) else max(float(q), 0.0)
+        factor = 2.0 * math.tanh(0.5 * self.mu_effective * self.wrap_angle)
+        if isinstance(omega_M, (int, float)):  # the scalar path of the event handling: no numpy
+            v = self.r_2 * self.gear_ratio * omega_M
+            return max((self.F_0 - self.belt_mass * v * v) * factor, 0.0)
+        return np.maximum((self.F_0 - self.centrifugal_tension(omega_M)) * factor, 0.0)
 
 
 def describe_fields() -> str:

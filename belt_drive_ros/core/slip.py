@@ -269,9 +269,13 @@ class HybridResult:
 def _phi12(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """phi_1(z) = (e^z - 1)/z and phi_2(z) = (e^z - 1 - z)/z^2 (complex, series near 0)."""
     small = np.abs(z) < 1e-3
+    if not small.any():
+        em1 = np.expm1(z)
+        return em1 / z, (em1 - z) / (z * z)
     zs = np.where(small, 1.0, z)
-    p1 = np.where(small, 1.0 + z / 2.0 + z * z / 6.0, np.expm1(zs) / zs)
-    p2 = np.where(small, 0.5 + z / 6.0 + z * z / 24.0, (np.expm1(zs) - zs) / (zs * zs))
+    em1 = np.expm1(zs)
+    p1 = np.where(small, 1.0 + z / 2.0 + z * z / 6.0, em1 / zs)
+    p2 = np.where(small, 0.5 + z / 6.0 + z * z / 24.0, (em1 - zs) / (zs * zs))
     return p1, p2
 
 
