@@ -46,6 +46,9 @@ FIELD_DOCS: dict[str, tuple[str, str]] = {
     "belt_mass": ("kg/m", "belt mass per length m' (centrifugal tension F_c = m' v^2); 0 (default): massless belt"),
 }
 
+#: optional fields and their defaults (the flat, massless belt), left out of to_dict() when at the default
+OPTIONAL_DEFAULTS: dict[str, float] = {"groove_angle": math.pi, "belt_mass": 0.0}
+
 _POSITIVE = ("I_M", "I_3", "r_M", "R_1", "r_1", "R_2", "r_2", "r_3", "k", "mu", "wrap_angle")
 _NON_NEGATIVE = ("I_1", "I_2", "c", "b_M", "b_1", "b_2", "b_3", "F_0", "belt_mass")
 
@@ -126,8 +129,17 @@ class BeltDriveParams:
         return cls(**data)
 
     def to_dict(self) -> dict[str, float]:
-        """Plain ``{symbol: value}`` mapping (YAML-ready, SI units)."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        """Plain ``{symbol: value}`` mapping (YAML-ready, SI units).
+
+        The optional belt fields (:data:`OPTIONAL_DEFAULTS`: groove angle, belt
+        mass) appear only when they differ from the flat massless belt, so
+        scenes and recordings that do not use them read as before.
+        """
+        return {
+            f.name: getattr(self, f.name)
+            for f in fields(self)
+            if not (f.name in OPTIONAL_DEFAULTS and getattr(self, f.name) == OPTIONAL_DEFAULTS[f.name])
+        }
 
     def replace(self, **changes: Any) -> "BeltDriveParams":
         """Copy with ``changes`` applied, validated like the constructor."""

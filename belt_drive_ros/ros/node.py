@@ -191,6 +191,8 @@ MODEL_PARAM_RANGES: dict[str, tuple[float, float]] = {
     "F_0": (0.0, 1.0e7),
     "mu": (0.0, 10.0),
     "wrap_angle": (0.0, 2.0 * math.pi),
+    "groove_angle": (0.0, math.pi),
+    "belt_mass": (0.0, 100.0),
 }
 
 
@@ -409,6 +411,8 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
         kind, reason = choice.model, choice.reason
     else:
         reason = f"{kind}: set by parameter 'model'"
+    if kind == "slipping":  # the slipping tier runs offline (belt-drive sim); the node's tick has no events yet
+        raise NodeConfigError("model", "slipping runs offline only (belt-drive sim); choose rigid, flexible or auto")
     model = make_model(kind, params)
     method = values["method"]
     if not isinstance(method, str):
