@@ -141,6 +141,10 @@ class BeltDriveParams:
             if not (f.name in OPTIONAL_DEFAULTS and getattr(self, f.name) == OPTIONAL_DEFAULTS[f.name])
         }
 
+    def field_values(self) -> dict[str, float]:
+        """Every field ``{symbol: value}``, the optional ones included (e.g. to declare them all as node parameters)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
     def replace(self, **changes: Any) -> "BeltDriveParams":
         """Copy with ``changes`` applied, validated like the constructor."""
         known = {f.name for f in fields(self)}
