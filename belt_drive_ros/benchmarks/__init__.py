@@ -10,10 +10,12 @@ writing a CSV and a PNG):
   excitation frequency and the belt stiffness, with the ``auto`` switch;
 * :mod:`.versus_scipy` -- the default method against ``solve_ivp`` RK45 at
   matched accuracy, and x real time per scene and method;
+* :mod:`.slip_chart` -- the slipping belt: event-driven hybrid against
+  step-end mode switching and regularised friction at several v_eps;
 * ``node`` (written with the ROS node) -- the node's real-time figures.
 
 Shared definitions (error metric, references, timing) are in :mod:`.common`.
 Nothing here imports rclpy.
 """
 
-STUDIES = ("workprecision", "stability", "fidelity", "versus")
+STUDIES = ("workprecision", "stability", "fidelity", "versus", "slip")

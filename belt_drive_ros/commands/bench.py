@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-STUDIES = ("workprecision", "stability", "fidelity", "versus")
+STUDIES = ("workprecision", "stability", "fidelity", "versus", "slip")
 
 EPILOG = """\
 studies:
@@ -16,6 +16,7 @@ studies:
   stability      where fixed-step methods diverge: measured vs the stability guard's prediction
   fidelity       rigid vs flexible model error vs excitation frequency and belt stiffness
   versus         default method vs scipy solve_ivp RK45 at matched accuracy; x real time per scene
+  slip           slipping belt: event-driven hybrid vs step-end switching vs regularised friction
   node           the ROS node's real-time figures (needs the ROS extra)
   all            all of the above, then docs/bench/summary.md
 
@@ -74,13 +75,14 @@ def run(args) -> int:
     if args.study == "node":
         return _run_node(out, args.quick)
 
-    from ..benchmarks import fidelity_chart, report, stability_map, versus_scipy, workprecision
+    from ..benchmarks import fidelity_chart, report, slip_chart, stability_map, versus_scipy, workprecision
 
     modules = {
         "workprecision": workprecision,
         "stability": stability_map,
         "fidelity": fidelity_chart,
         "versus": versus_scipy,
+        "slip": slip_chart,
     }
     todo = STUDIES if args.study == "all" else (args.study,)
     results, timings = {}, {}

@@ -7,6 +7,8 @@ import math
 import sys
 from pathlib import Path
 
+import numpy as np
+
 EPILOG = """\
 examples:
   belt-drive sim paper --plot paper.png --out paper.csv
@@ -16,7 +18,9 @@ examples:
 
 SCENE is a shipped scene name (belt-drive scenes lists them) or a YAML path.
 CSV columns (SI units): time, phi_M, omega_M, phi_3, omega_3, drive_torque,
-load_torque, belt_torque, relative_deflection.
+load_torque, belt_torque, relative_deflection; a slipping-model run adds
+span_force_tight, span_force_slack [N], friction_use [1], slip [0/1],
+slip_speed [m/s], elastic_deflection, slip_angle [rad] (docs/slip.md).
 """
 
 
@@ -43,7 +47,10 @@ def register(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("scene", help="shipped scene name or path to a scene YAML")
-    p.add_argument("--model", choices=("rigid", "flexible", "auto"), help="belt model (default: the scene's, usually auto)")
+    p.add_argument(
+        "--model", choices=("rigid", "flexible", "slipping", "auto"),
+        help="belt model (default: the scene's, usually auto; auto goes on to slipping past the friction limit)",
+    )
     p.add_argument("--method", help="integrator by name (list below; default: the scene's)")
     p.add_argument("--method-option", action="append", default=[], metavar="KEY=VALUE", help="integrator option, e.g. rtol=1e-8 (repeatable)")
     p.add_argument("--dt", type=float, help="integrator step [s] (output interval for adaptive methods)")
@@ -151,4 +158,12 @@ def print_summary(result) -> None:
         f"static M_L/(2 k r_3^2) {o['load_torque'][-1] / p.belt_torsional_stiffness:.5g} rad"
     )
     slip = float(o["slip"].mean())
-    print(f"belt           {'slips or slackens ' + format(100 * slip, '.1f') + '% of the time (linear model outside validity)' if slip else 'no slip, no slack'}")
+    if result.model == "slipping":
+        onsets = sum(1 for e in result.events if e[0] == "onset")
+        print(
+            f"belt           slips {100 * slip:.1f}% of the time ({onsets} slip phases, peak slip speed "
+            f"{np.max(np.abs(o['slip_speed'])):.3g} m/s); wheel 3 lost {o['slip_angle'][-1]:.4g} rad to slip "
+            f"(elastic deflection {o['elastic_deflection'][-1]:.4g} rad at the end)"
+        )
+    else:
+        print(f"belt           {'slips or slackens ' + format(100 * slip, '.1f') + '% of the time (linear model outside validity)' if slip else 'no slip, no slack'}")

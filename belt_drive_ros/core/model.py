@@ -295,13 +295,17 @@ def static_deflection(params: BeltDriveParams, load_torque: float) -> float:
     return load_torque / params.belt_torsional_stiffness
 
 
-def make_model(kind: str, params: BeltDriveParams) -> _LinearModel:
-    """Model by name: ``"rigid"`` or ``"flexible"``."""
+def make_model(kind: str, params: BeltDriveParams):
+    """Model by name: ``"rigid"``, ``"flexible"`` or ``"slipping"`` (:class:`~belt_drive_ros.core.slip.SlippingBeltModel`)."""
     if kind == "rigid":
         return RigidBeltModel(params)
     if kind == "flexible":
         return FlexibleBeltModel(params)
-    raise ValueError(f"model: unknown model {kind!r}; choose 'rigid', 'flexible' or 'auto'")
+    if kind == "slipping":
+        from .slip import SlippingBeltModel
+
+        return SlippingBeltModel(params)
+    raise ValueError(f"model: unknown model {kind!r}; choose 'rigid', 'flexible', 'slipping' or 'auto'")
 
 
 def paper_as_printed_stiffness(params: BeltDriveParams) -> np.ndarray:

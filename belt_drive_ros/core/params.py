@@ -17,6 +17,8 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
+import numpy as np
+
 from .errors import ParameterError
 
 #: field -> (unit, description); also the order of the YAML keys.
@@ -40,10 +42,15 @@ FIELD_DOCS: dict[str, tuple[str, str]] = {
     "F_0": ("N", "belt installation (pre-)tension of each span"),
     "mu": ("1", "effective belt-pulley friction coefficient"),
     "wrap_angle": ("rad", "belt wrap angle on the pulley that slips first"),
+    "groove_angle": ("rad", "included pulley groove angle alpha; pi (flat belt, default), ~0.70 (40 deg) for V and poly-V: mu_eff = mu / sin(alpha/2)"),
+    "belt_mass": ("kg/m", "belt mass per length m' (centrifugal tension F_c = m' v^2); 0 (default): massless belt"),
 }
 
+#: optional fields and their defaults (the flat, massless belt), left out of to_dict() when at the default
+OPTIONAL_DEFAULTS: dict[str, float] = {"groove_angle": math.pi, "belt_mass": 0.0}
+
 _POSITIVE = ("I_M", "I_3", "r_M", "R_1", "r_1", "R_2", "r_2", "r_3", "k", "mu", "wrap_angle")
-_NON_NEGATIVE = ("I_1", "I_2", "c", "b_M", "b_1", "b_2", "b_3", "F_0")
+_NON_NEGATIVE = ("I_1", "I_2", "c", "b_M", "b_1", "b_2", "b_3", "F_0", "belt_mass")
 
 
 @dataclass(frozen=True)
@@ -78,6 +85,8 @@ class BeltDriveParams:
     F_0: float = 535.0
     mu: float = 0.5
     wrap_angle: float = 3.0
+    groove_angle: float = math.pi
+    belt_mass: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -103,6 +112,8 @@ class BeltDriveParams:
                 raise ParameterError(name, f"must be >= 0 {unit}, got {getattr(self, name)!r}")
         if self.wrap_angle > 2.0 * math.pi:
             raise ParameterError("wrap_angle", f"must be <= 2*pi rad, got {self.wrap_angle!r}")
+        if not 0.0 < self.groove_angle <= math.pi:
+            raise ParameterError("groove_angle", f"must be in (0, pi] rad (pi: flat belt), got {self.groove_angle!r}")
 
     # ------------------------------------------------------------------ mapping
     @classmethod
@@ -118,7 +129,20 @@ class BeltDriveParams:
         return cls(**data)
 
     def to_dict(self) -> dict[str, float]:
-        """Plain ``{symbol: value}`` mapping (YAML-ready, SI units)."""
+        """Plain ``{symbol: value}`` mapping (YAML-ready, SI units).
+
+        The optional belt fields (:data:`OPTIONAL_DEFAULTS`: groove angle, belt
+        mass) appear only when they differ from the flat massless belt, so
+        scenes and recordings that do not use them read as before.
+        """
+        return {
+            f.name: getattr(self, f.name)
+            for f in fields(self)
+            if not (f.name in OPTIONAL_DEFAULTS and getattr(self, f.name) == OPTIONAL_DEFAULTS[f.name])
+        }
+
+    def field_values(self) -> dict[str, float]:
+        """Every field ``{symbol: value}``, the optional ones included (e.g. to declare them all as node parameters)."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
     def replace(self, **changes: Any) -> "BeltDriveParams":
@@ -179,9 +203,31 @@ class BeltDriveParams:
         return self.c * self.belt_natural_frequency / (2.0 * self.k)
 
     @property
+    def mu_effective(self) -> float:
+        """mu_eff = mu / sin(alpha/2): friction of a belt wedged in a groove of angle alpha [-] (flat: mu)."""
+        return self.mu / math.sin(0.5 * self.groove_angle)
+
+    @property
     def capstan_ratio(self) -> float:
-        """e^(mu * wrap_angle): largest F_tight/F_slack before the belt slips [-]."""
-        return math.exp(self.mu * self.wrap_angle)
+        """e^(mu_eff * wrap_angle): largest (F_tight - F_c)/(F_slack - F_c) before the belt slips [-]."""
+        return math.exp(self.mu_effective * self.wrap_angle)
+
+    def centrifugal_tension(self, omega_M):
+        """F_c = m' (r_2 g omega_M)^2 [N]: centrifugal tension at belt speed r_2 omega_2 (array or float)."""
+        v = self.r_2 * self.gear_ratio * omega_M
+        return self.belt_mass * v * v
+
+    def friction_limit(self, omega_M=0.0):
+        """Q_max = 2 (F_0 - F_c) tanh(mu_eff beta / 2) [N]: largest net force (tight - slack) friction transmits.
+
+        From the capstan law (F_tight - F_c) = (F_slack - F_c) e^(mu_eff beta) with
+        F_tight + F_slack = 2 F_0. Clipped at 0 when F_c exceeds F_0 (the belt lifts off).
+        """
+        factor = 2.0 * math.tanh(0.5 * self.mu_effective * self.wrap_angle)
+        if isinstance(omega_M, (int, float)):  # the scalar path of the event handling: no numpy
+            v = self.r_2 * self.gear_ratio * omega_M
+            return max((self.F_0 - self.belt_mass * v * v) * factor, 0.0)
+        return np.maximum((self.F_0 - self.centrifugal_tension(omega_M)) * factor, 0.0)
 
 
 def describe_fields() -> str:

@@ -22,7 +22,7 @@ from .integrators import method_class
 from .params import BeltDriveParams
 from .sources import Constant, TorqueProfile, make_profile
 
-MODELS = ("rigid", "flexible", "auto")
+MODELS = ("rigid", "flexible", "slipping", "auto")
 
 
 @dataclass(frozen=True)
@@ -49,6 +49,8 @@ class InitialState:
         """State vector for ``model_name`` (see :mod:`belt_drive_ros.core.model` for the ordering)."""
         if model_name == "rigid":
             return np.array([self.phi_M, self.omega_M])
+        if model_name == "slipping":  # [phi_M, theta_e, omega_M, omega_3, s]: no slip yet
+            return np.array([self.phi_M, self.relative_deflection, self.omega_M, ratio * self.omega_M - self.relative_speed, 0.0])
         return np.array(
             [
                 self.phi_M,
@@ -70,7 +72,9 @@ class Scene:
     drive : TorqueProfile on wheel M;  load : TorqueProfile on wheel 3.
     duration : simulated time [s].
     initial_state : InitialState.
-    model : ``rigid``, ``flexible`` or ``auto`` (see :mod:`belt_drive_ros.core.fidelity`).
+    model : ``rigid``, ``flexible``, ``slipping`` (:mod:`belt_drive_ros.core.slip`) or ``auto``
+        (see :mod:`belt_drive_ros.core.fidelity`; ``auto`` goes on to ``slipping`` when the
+        chosen model's run exceeds the belt's friction limit).
     method : integrator name (:data:`belt_drive_ros.core.integrators.REGISTRY`).
     dt : integrator step [s] (output interval for adaptive methods).
     output_rate : rate [Hz] at which outputs are consumed (node publish or

@@ -25,6 +25,7 @@ import numpy as np
 from .fidelity import ModelChoice, choose_model
 from .model import OUTPUT_UNITS, make_model
 from .scene import Scene
+from .slip_run import SlippingSimulator, slipping_reason
 from .stability import StabilityReport, require_stable
 from .stepper import SPEED_LIMIT, Plant, Stepper
 
@@ -40,6 +41,16 @@ CSV_COLUMNS = (
     "load_torque",
     "belt_torque",
     "relative_deflection",
+)
+#: extra CSV columns of a slipping-model run (SI units; ``slip`` is 1 while the belt slides)
+SLIP_CSV_COLUMNS = (
+    "span_force_tight",
+    "span_force_slack",
+    "friction_use",
+    "slip",
+    "slip_speed",
+    "elastic_deflection",
+    "slip_angle",
 )
 
 
@@ -64,6 +75,8 @@ class SimResult:
     wall_time: float = 0.0
     vectorized: bool = False
     energy: dict = field(default_factory=dict)
+    #: slipping model: mode switches as (kind 'onset'/'restick', time [s], direction sigma)
+    events: list = field(default_factory=list)
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name == "time":
@@ -74,8 +87,15 @@ class SimResult:
         """(N, len(columns)) array of the named signals."""
         return np.column_stack([np.asarray(self[c], dtype=float) for c in columns])
 
-    def to_csv(self, path, columns=CSV_COLUMNS) -> None:
-        """CSV with a header line of column names; SI units (rad, rad/s, N m, s)."""
+    def to_csv(self, path, columns=None) -> None:
+        """CSV with a header line of column names; SI units (rad, rad/s, N m, s, m, m/s).
+
+        Default columns: :data:`CSV_COLUMNS`, and for the slipping model also
+        :data:`SLIP_CSV_COLUMNS` (span forces, friction use, slip state and speed,
+        elastic and slip parts of the deflection).
+        """
+        if columns is None:
+            columns = CSV_COLUMNS + (SLIP_CSV_COLUMNS if self.model == "slipping" else ())
         np.savetxt(path, self.table(columns), delimiter=",", header=",".join(columns), comments="", fmt="%.12g")
 
     @property
@@ -168,6 +188,8 @@ def simulate(
     if kind == "auto":
         choice = choose_model(scene)
         kind = choice.model
+    if kind == "slipping":
+        return simulate_slipping(scene, choice, progress, check_stability)
     mdl = make_model(kind, scene.params)
     sim = Simulator(mdl, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
     x0 = scene.initial_state.vector(kind, scene.params.ratio)
@@ -186,6 +208,12 @@ def simulate(
         "input_work": np.concatenate([[0.0], np.cumsum(0.5 * (p_in[1:] + p_in[:-1]) * dt_grid)]),
         "dissipated": np.concatenate([[0.0], np.cumsum(0.5 * (p_d[1:] + p_d[:-1]) * dt_grid)]),
     }
+    if scene.model == "auto":  # past the friction limit the belt slips: the third tier takes over
+        why = slipping_reason(scene.params, time, outputs, kind)
+        if why is not None:
+            escalated = ModelChoice("slipping", f"{why} (before: {choice.reason})", choice.belt_frequency,
+                                    choice.excitations, choice.max_ratio, choice.output_rate)
+            return simulate_slipping(scene, escalated, progress, check_stability)
     return SimResult(
         scene=scene,
         model=kind,
@@ -200,6 +228,40 @@ def simulate(
         wall_time=wall,
         vectorized=sim.vectorized,
         energy=energy,
+    )
+
+
+def simulate_slipping(scene, choice=None, progress=None, check_stability=True) -> SimResult:
+    """Run ``scene`` on the slipping model (:mod:`belt_drive_ros.core.slip_run`).
+
+    ``result.outputs`` has every signal of the other models plus
+    :data:`~belt_drive_ros.core.slip.SLIP_OUTPUT_UNITS`; ``result.events``
+    lists the mode switches (kind, time [s], direction); ``result.energy``
+    adds ``friction``, the integral of Q s'.
+    """
+    sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
+    y0 = scene.initial_state.vector("slipping", scene.params.ratio)
+    start = _time.perf_counter()
+    time, states, modes, sigmas = sim.run(scene.duration, y0, progress=progress)
+    wall = _time.perf_counter() - start
+    m = sim.model
+    u = sim.input_array(time, states)
+    dt_grid = np.diff(time)
+
+    def integral(p):
+        return np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * dt_grid)])
+
+    energy = {
+        "kinetic": m.kinetic_energy(states),
+        "potential": m.potential_energy(states),
+        "input_work": integral(m.input_power(states, u)),
+        "dissipated": integral(m.damping_power(states, modes, sigmas)),
+        "friction": integral(m.friction_power(states, modes, sigmas)),
+    }
+    return SimResult(
+        scene=scene, model="slipping", method=sim.integrator.name, dt=scene.dt, time=time, states=states,
+        inputs=u, outputs=m.outputs(states, u, modes, sigmas), choice=choice, stability=sim.stability,
+        wall_time=wall, vectorized=False, energy=energy, events=[(e.kind, e.time, e.sigma) for e in sim.events],
     )
 
 

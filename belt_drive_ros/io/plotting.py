@@ -22,7 +22,8 @@ def plot_runs(runs, path, title: str | None = None) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(4, 1, figsize=(9, 10), sharex=True)
-    styles = {"rigid": dict(color="tab:blue", lw=1.6), "flexible": dict(color="tab:red", lw=1.0)}
+    styles = {"rigid": dict(color="tab:blue", lw=1.6), "flexible": dict(color="tab:red", lw=1.0),
+              "slipping": dict(color="tab:green", lw=1.0)}
     for run in runs:
         st = styles.get(run.model, dict(lw=1.0))
         lab = f"{run.model} ({run.method}, dt={run.dt:g} s)"
@@ -32,10 +33,12 @@ def plot_runs(runs, path, title: str | None = None) -> None:
         axes[2].plot(t, run["load_torque"], label=f"load torque, {run.model}", ls="--", **st)
         axes[2].plot(t, run["belt_torque"], label=f"belt torque, {run.model}", alpha=0.8, **st)
         axes[3].plot(t, 1e3 * run["relative_deflection"], label=lab, **st)
+        if run.model == "slipping":  # the part lost to slip, beside the elastic part
+            axes[3].plot(t, 1e3 * run["slip_angle"], label="of it: slip (s / r_3)", ls="--", **st)
         if np.any(run["slip"]):
             axes[3].fill_between(
                 t, 0, 1, where=run["slip"], transform=axes[3].get_xaxis_transform(),
-                color=st.get("color", "gray"), alpha=0.12, label=f"belt slips/slack ({run.model})",
+                color=st.get("color", "gray"), alpha=0.12, label=f"belt slips ({run.model})" if run.model == "slipping" else f"belt slips/slack ({run.model})",
             )
     last = runs[-1]
     static = 1e3 * last["load_torque"] / last.scene.params.belt_torsional_stiffness

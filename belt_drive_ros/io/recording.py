@@ -112,6 +112,16 @@ FLOAT_OUTPUTS: Tuple[Tuple[str, str], ...] = (
     ("belt_torque", "belt_torque"),
     ("relative_deflection", "relative_deflection"),
 )
+#: Float64 outputs of a slipping-model run (written after FLOAT_OUTPUTS when the run has them).
+SLIP_FLOAT_OUTPUTS: Tuple[Tuple[str, str], ...] = (
+    ("span_force_tight", "span_force_tight"),
+    ("span_force_slack", "span_force_slack"),
+    ("friction_use", "friction_use"),
+    ("slip", "slip"),
+    ("slip_speed", "slip_speed"),
+    ("elastic_deflection", "elastic_deflection"),
+    ("slip_angle", "slip_angle"),
+)
 #: Topics of the belt-drive node (names relative to its namespace) and their types.
 TOPIC_TYPES: Dict[str, str] = {
     "drive_torque": FLOAT64,
@@ -133,6 +143,13 @@ TOPIC_UNITS: Dict[str, str] = {
     "joint_states/position": "rad",
     "joint_states/velocity": "rad/s",
     "joint_states/effort": "N*m",
+    "span_force_tight": "N",
+    "span_force_slack": "N",
+    "friction_use": "1",
+    "slip": "1",
+    "slip_speed": "m/s",
+    "elastic_deflection": "rad",
+    "slip_angle": "rad",
 }
 #: Metadata record names.
 SCENE_METADATA = "scene"
@@ -428,7 +445,8 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
     BagWriteError
         If the file cannot be written.
     """
-    offline_topics = ("drive_torque", "joint_states") + tuple(name for name, _ in FLOAT_OUTPUTS)
+    float_outputs = FLOAT_OUTPUTS + tuple(o for o in SLIP_FLOAT_OUTPUTS if getattr(result, "model", "") == "slipping")
+    offline_topics = ("drive_torque", "joint_states") + tuple(name for name, _ in float_outputs)
     wanted = offline_topics if topics is None else tuple(t.strip("/") for t in topics)
     unknown = sorted(set(wanted) - set(offline_topics))
     if unknown:
@@ -454,9 +472,9 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
     if "joint_states" in wanted:
         payloads.append((_absolute("joint_states", namespace), JOINT_STATE,
                          encode_joint_states(t_ns, position, velocity, effort)))
-    for topic, signal in FLOAT_OUTPUTS:
+    for topic, signal in float_outputs:
         if topic in wanted:
-            payloads.append((_absolute(topic, namespace), FLOAT64, encode_float64(o[signal])))
+            payloads.append((_absolute(topic, namespace), FLOAT64, encode_float64(np.asarray(o[signal], dtype=float))))
 
     scene = result.scene
     mapping = scene_mapping(scene, model=result.model, method=result.method, dt=result.dt)

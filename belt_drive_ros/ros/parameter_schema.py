@@ -109,7 +109,7 @@ _PLAUSIBLE_MAX_FALLBACK: dict[str, float] = {
     "I_M": 1.0e3, "I_1": 1.0e3, "I_2": 1.0e3, "I_3": 1.0e3,
     "r_M": 10.0, "R_1": 10.0, "r_1": 10.0, "R_2": 10.0, "r_2": 10.0, "r_3": 10.0,
     "k": 1.0e10, "c": 1.0e7, "b_M": 1.0e4, "b_1": 1.0e4, "b_2": 1.0e4, "b_3": 1.0e4,
-    "F_0": 1.0e7, "mu": 10.0, "wrap_angle": 2.0 * math.pi,
+    "F_0": 1.0e7, "mu": 10.0, "wrap_angle": 2.0 * math.pi, "groove_angle": math.pi, "belt_mass": 100.0,
 }
 
 
@@ -261,6 +261,8 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
     behavior = _choice("timeout_behavior", values["timeout_behavior"], TIMEOUT_BEHAVIORS)
     drive_source = _choice("drive_source", values["drive_source"], DRIVE_SOURCES)
     kind = _choice("model", values["model"], MODELS)
+    if kind == "slipping":  # the slipping tier runs offline (belt-drive sim); the node's tick has no events yet
+        raise NodeConfigError("model", "slipping runs offline only (belt-drive sim); choose rigid, flexible or auto")
     publish_clock = values["publish_clock"]
     if not isinstance(publish_clock, bool):
         raise NodeConfigError("publish_clock", f"must be true or false, got {publish_clock!r}")

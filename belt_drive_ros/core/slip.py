@@ -1,0 +1,704 @@
+"""The slipping belt: stick and slip at the capstan limit (a hybrid system, linear in each mode).
+
+The flexible model (:mod:`.model`) transmits any force. A real belt transmits
+at most what friction on the pulley with the smaller wrap allows
+(capstan / Euler-Eytelwein law, ``docs/slip.md``)::
+
+    Q_max = 2 (F_0 - F_c) tanh(mu_eff beta / 2)      [N]
+    mu_eff = mu / sin(alpha / 2),  F_c = m' (r_2 g omega_M)^2
+
+State (one ordering for both modes; SI units)::
+
+    y = [phi_M, theta_e, omega_M, omega_3, s]        [rad, rad, rad/s, rad/s, m]
+
+``theta_e = delta / r_3`` is the elastic deflection (span stretch delta
+beyond preload, as an angle at wheel 3), ``s`` the accumulated slip of the
+belt on the pulleys [m at the belt]. Wheel 3 is at
+``phi_3 = i phi_M - theta_e - s / r_3``; the published relative deflection
+``i phi_M - phi_3 = theta_e + s / r_3`` splits into the elastic part and the
+slip part. The net force the belt transmits (tight minus slack span) is
+``Q = 2 k delta + 2 c delta'``, and::
+
+    I_f omega_M' + b_f omega_M = M_drive - g r_2 Q
+    I_3 omega_3' + b_3 omega_3 = r_3 Q - M_load
+
+Modes (each ``y' = A y + B u`` with held inputs):
+
+* **stick**: ``s' = 0``, ``theta_e' = i omega_M - omega_3``,
+  ``Q = q . y`` (:attr:`SlippingBeltModel.q_row`); exactly the flexible model.
+  Leaves stick when ``|Q|`` reaches ``Q_max`` (event), sliding with
+  ``sigma = sign(Q)``.
+* **slip**: ``Q = sigma Q_max`` is an input; for ``c > 0`` the span element
+  relaxes, ``theta_e' = (Q - 2 k r_3 theta_e) / (2 c r_3)`` and
+  ``s' = v_rel - r_3 theta_e'`` with the surface speed difference
+  ``v_rel = r_2 g omega_M - r_3 omega_3``; for ``c = 0`` the stretch is held,
+  ``theta_e = sigma Q_max / (2 k r_3)``, and ``s' = v_rel``. Re-sticks when
+  the slip speed ``s'`` reaches zero (event), if the stick-mode force does not
+  at once grow past the limit again.
+
+The switching functions are located as events on the method's own flow over
+a partial step (the exact flow for ``exact``), by root finding on the
+sub-step length; a grid step is split at each event as at a torque
+breakpoint. A regularised alternative, ``Q = Q_max tanh(s' / v_eps)``
+(:class:`RegularisedFriction`), is one smooth but stiff ODE.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import scipy.integrate
+import scipy.optimize
+
+from .errors import BeltDriveError
+from .integrators import make_integrator
+from .params import BeltDriveParams
+
+#: friction laws by name (``friction`` option of the slipping model)
+FRICTION_LAWS = ("coulomb", "regularised")
+STICK, SLIP = 0, 1
+
+#: extra output signals of the slipping model, SI units (beside model.OUTPUT_UNITS)
+SLIP_OUTPUT_UNITS: dict[str, str] = {
+    "elastic_deflection": "rad",
+    "slip_angle": "rad",
+    "slip_distance": "m",
+    "slip_speed": "m/s",
+    "friction_use": "1",
+    "friction_limit": "N",
+}
+
+
+class SlipError(BeltDriveError, ValueError):
+    """Invalid slip-model option, or a hybrid run that cannot make progress."""
+
+
+class SlippingBeltModel:
+    """Flexible belt with Coulomb slip at the capstan limit.
+
+    Parameters
+    ----------
+    params : BeltDriveParams (``mu``, ``wrap_angle``, ``groove_angle``, ``belt_mass``, ``F_0`` set the limit).
+
+    Attributes
+    ----------
+    A_stick, B_stick : (5, 5), (5, 2) stick mode, inputs ``[M_drive, M_load]`` [N m].
+    A_slip, B_slip : (5, 5), (5, 3) slip mode, inputs ``[M_drive, M_load, Q]`` [N m, N m, N].
+    q_row : (5,) stick-mode force ``Q = q_row @ y`` [N].
+    rel_row : (5,) surface speed difference ``v_rel = rel_row @ y`` [m/s].
+    """
+
+    name = "slipping"
+    n_states = 5
+
+    def __init__(self, params: BeltDriveParams):
+        p = self.params = params
+        g, i, r2, r3 = p.gear_ratio, p.ratio, p.r_2, p.r_3
+        If, I3, bf, b3 = p.inertia_drive_side, p.I_3, p.bearing_damping_drive_side, p.b_3
+        self.q_row = np.array([0.0, 2.0 * p.k * r3, 2.0 * p.c * r2 * g, -2.0 * p.c * r3, 0.0])
+        self.rel_row = np.array([0.0, 0.0, r2 * g, -r3, 0.0])
+        # stick: Q = q_row @ y
+        A = np.zeros((5, 5))
+        A[0, 2] = 1.0
+        A[1, 2], A[1, 3] = i, -1.0
+        A[2] = -g * r2 * self.q_row / If
+        A[2, 2] -= bf / If
+        A[3] = r3 * self.q_row / I3
+        A[3, 3] -= b3 / I3
+        B = np.zeros((5, 2))
+        B[2, 0], B[3, 1] = 1.0 / If, -1.0 / I3
+        self.A_stick, self.B_stick = A, B
+        # slip: Q an input
+        A = np.zeros((5, 5))
+        A[0, 2] = 1.0
+        A[2, 2], A[3, 3] = -bf / If, -b3 / I3
+        B = np.zeros((5, 3))
+        B[2, 0], B[3, 1] = 1.0 / If, -1.0 / I3
+        B[2, 2], B[3, 2] = -g * r2 / If, r3 / I3
+        A[4] = self.rel_row
+        if p.c > 0.0:  # theta_e' = (Q - 2 k r3 theta_e) / (2 c r3);  s' = v_rel - r3 theta_e'
+            A[1, 1] = -p.k / p.c
+            B[1, 2] = 1.0 / (2.0 * p.c * r3)
+            A[4, 1] = p.k * r3 / p.c
+            B[4, 2] = -1.0 / (2.0 * p.c)
+        self.A_slip, self.B_slip = A, B
+        # the regularised ODE: Q and the slip speed v_s are inputs; theta_e' = (v_rel - v_s) / r3, s' = v_s
+        A = self.A_slip.copy()
+        A[1] = self.rel_row / r3
+        A[4] = 0.0
+        B = np.zeros((5, 4))
+        B[:, :3] = self.B_slip
+        B[1, 2] = B[4, 2] = 0.0
+        B[1, 3], B[4, 3] = -1.0 / r3, 1.0
+        self.A_reg, self.B_reg = A, B
+
+    @property
+    def A(self):
+        """Stick-mode matrix (what stability checks and generic callers see)."""
+        return self.A_stick
+
+    @property
+    def B(self):
+        return self.B_stick
+
+    def wheel_coordinates(self, y):
+        """(phi_M, omega_M, phi_3, omega_3) of state(s) ``y``."""
+        return y[..., 0], y[..., 2], self.phi_3(y), y[..., 3]
+
+    # ----------------------------------------------------------- kinematics
+    def phi_3(self, y):
+        """phi_3 = i phi_M - theta_e - s / r_3 [rad]."""
+        return self.params.ratio * y[..., 0] - y[..., 1] - y[..., 4] / self.params.r_3
+
+    def limit(self, omega_M):
+        """Q_max at drive speed ``omega_M`` [N] (:meth:`BeltDriveParams.friction_limit`)."""
+        return self.params.friction_limit(omega_M)
+
+    def slip_speed(self, y, Q):
+        """s' in slip mode for transmitted force ``Q`` [m/s] (c = 0: the surface speed difference)."""
+        p = self.params
+        rel = y[..., 2] * self.rel_row[2] + y[..., 3] * self.rel_row[3]
+        if p.c == 0.0:
+            return rel
+        return rel - (Q - 2.0 * p.k * p.r_3 * y[..., 1]) / (2.0 * p.c)
+
+    def state_from_flexible(self, x: np.ndarray) -> np.ndarray:
+        """Slipping state of a flexible state ``[phi_M, phi_3, omega_M, omega_3]`` (no slip yet)."""
+        x = np.asarray(x, dtype=float)
+        return np.array([x[0], self.params.ratio * x[0] - x[1], x[2], x[3], 0.0])
+
+    # -------------------------------------------------------------- outputs
+    def force(self, y, mode, sigma):
+        """Transmitted force Q per sample [N]: ``q_row @ y`` sticking, ``sigma Q_max`` slipping."""
+        y = np.asarray(y, dtype=float)
+        return np.where(np.asarray(mode) == SLIP, sigma * self.limit(y[..., 2]), y @ self.q_row)
+
+    def outputs(self, y, u, mode, sigma) -> dict:
+        """Output signals of samples ``y`` (N, 5), ``u`` (N, 2), ``mode``, ``sigma`` (N,).
+
+        The keys of ``model.OUTPUT_UNITS`` (``slip`` is the slip *mode*,
+        ``slack`` a slack span) plus :data:`SLIP_OUTPUT_UNITS`.
+        """
+        p = self.params
+        y, u = np.asarray(y, dtype=float), np.asarray(u, dtype=float)
+        mode = np.asarray(mode)
+        Q = self.force(y, mode, sigma)
+        qmax = np.broadcast_to(self.limit(y[..., 2]), Q.shape)
+        speed = np.where(mode == SLIP, self.slip_speed(y, Q), 0.0)
+        a1, g = p.r_M / p.R_1, p.gear_ratio
+        slack_force = p.F_0 - 0.5 * Q
+        return {
+            "phi_M": y[..., 0],
+            "omega_M": y[..., 2],
+            "phi_1": a1 * y[..., 0],
+            "omega_1": a1 * y[..., 2],
+            "phi_2": g * y[..., 0],
+            "omega_2": g * y[..., 2],
+            "phi_3": self.phi_3(y),
+            "omega_3": y[..., 3],
+            "drive_torque": u[..., 0],
+            "load_torque": u[..., 1],
+            "belt_torque": p.r_3 * Q,
+            "relative_deflection": y[..., 1] + y[..., 4] / p.r_3,
+            "span_force_tight": p.F_0 + 0.5 * Q,
+            "span_force_slack": slack_force,
+            "slack": np.minimum(slack_force, p.F_0 + 0.5 * Q) <= 0.0,
+            "slip": mode == SLIP,
+            "elastic_deflection": y[..., 1],
+            "slip_angle": y[..., 4] / p.r_3,
+            "slip_distance": y[..., 4],
+            "slip_speed": speed,
+            "friction_use": np.divide(Q, qmax, out=np.full(Q.shape, np.inf), where=qmax > 0),
+            "friction_limit": qmax,
+        }
+
+    # ------------------------------------------------------------- energies
+    def kinetic_energy(self, y):
+        """T = 1/2 I_f omega_M^2 + 1/2 I_3 omega_3^2 [J]."""
+        p = self.params
+        return 0.5 * (p.inertia_drive_side * y[..., 2] ** 2 + p.I_3 * y[..., 3] ** 2)
+
+    def potential_energy(self, y):
+        """V = 2 (1/2) k delta^2 = k (r_3 theta_e)^2 [J] (both spans)."""
+        p = self.params
+        return p.k * (p.r_3 * y[..., 1]) ** 2
+
+    def input_power(self, y, u):
+        """P_in = M_drive omega_M - M_load omega_3 [W]."""
+        return u[..., 0] * y[..., 2] - u[..., 1] * y[..., 3]
+
+    def damping_power(self, y, mode, sigma):
+        """Bearing and span damping losses b_f omega_M^2 + b_3 omega_3^2 + 2 c delta'^2 [W]."""
+        p = self.params
+        Q = self.force(y, mode, sigma)
+        rel = y @ self.rel_row
+        ddelta = np.where(np.asarray(mode) == SLIP, rel - self.slip_speed(y, Q), rel)
+        return p.bearing_damping_drive_side * y[..., 2] ** 2 + p.b_3 * y[..., 3] ** 2 + 2.0 * p.c * ddelta**2
+
+    def friction_power(self, y, mode, sigma):
+        """Friction loss Q s' = Q_max |s'| while slipping [W]."""
+        Q = self.force(y, mode, sigma)
+        return np.where(np.asarray(mode) == SLIP, Q * self.slip_speed(y, Q), 0.0)
+
+
+# ================================================================ hybrid run
+@dataclass
+class Event:
+    """One mode switch: time [s], kind ('onset' or 'restick'), direction sigma, state there."""
+
+    time: float
+    kind: str
+    sigma: float
+    state: np.ndarray
+
+
+@dataclass
+class HybridResult:
+    """States on the grid, the mode and slip direction at each grid time, and the events."""
+
+    time: np.ndarray
+    states: np.ndarray
+    mode: np.ndarray
+    sigma: np.ndarray
+    events: list = field(default_factory=list)
+
+
+def _phi12(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """phi_1(z) = (e^z - 1)/z and phi_2(z) = (e^z - 1 - z)/z^2 (complex, series near 0)."""
+    small = np.abs(z) < 1e-3
+    if not small.any():
+        em1 = np.expm1(z)
+        return em1 / z, (em1 - z) / (z * z)
+    zs = np.where(small, 1.0, z)
+    em1 = np.expm1(zs)
+    p1 = np.where(small, 1.0 + z / 2.0 + z * z / 6.0, em1 / zs)
+    p2 = np.where(small, 0.5 + z / 6.0 + z * z / 24.0, (em1 - zs) / (zs * zs))
+    return p1, p2
+
+
+class _ModalFlow:
+    """Exact flow of the sub-state z = [theta_e, omega_M, omega_3] of one mode, by its eigenvalues.
+
+    ``z(tau) = V [e^(L tau) w + tau phi_1(L tau) V^-1 B u_0 + (tau^2/h) phi_2(L tau) V^-1 B (u_1 - u_0)]``
+    for an input linear in time from ``u_0`` to ``u_1`` over ``h``: the
+    continuous extension on which events are located (the switching functions
+    read only z). Costs a few complex multiply-adds per evaluation instead of
+    a matrix exponential. None if the block is (nearly) defective.
+    """
+
+    def __init__(self, A, B):
+        A3, self.B3 = A[1:4, 1:4], B[1:4]
+        lam, V = np.linalg.eig(A3)
+        if not np.all(np.isfinite(lam)) or np.linalg.cond(V) > 1e8:
+            raise np.linalg.LinAlgError("defective")
+        self.lam, self.V, self.Vinv = lam, V, np.linalg.inv(V)
+
+    def prepare(self, y, u0, u1, h):
+        """Coefficients for :meth:`z` from state ``y`` and the input's end values."""
+        w = self.Vinv @ y[1:4]
+        b0 = self.Vinv @ (self.B3 @ u0)
+        db = self.Vinv @ (self.B3 @ (u1 - u0)) / h
+        return w, b0, db
+
+    def z(self, coeffs, tau):
+        """z at ``tau`` [s] (a float), or at each of an array of ``tau`` (rows)."""
+        w, b0, db = coeffs
+        tau = np.asarray(tau, dtype=float)[..., None]
+        lt = self.lam * tau
+        p1, p2 = _phi12(lt)
+        return ((np.exp(lt) * w + tau * p1 * b0 + tau * tau * p2 * db) @ self.V.T).real
+
+
+class HybridStepper:
+    """Steps the stick/slip model with one fixed-step method, switching modes at located events.
+
+    Parameters
+    ----------
+    model : SlippingBeltModel.
+    drive, load : scalar torque functions ``f(t, angle, speed)`` [N m] (the
+        profiles' ``scalar_torque()``); the load sees ``phi_3``, ``omega_3``.
+    method : fixed-step method name (``exact``, ``etd2``, ``etd4``, ``lawson5``, ``rk4``, ...).
+    locate : True: events located by root finding on the method's flow over a
+        partial step; False: the mode is switched at the end of the step in
+        which the switching function changed sign (sampling on the grid; for
+        comparison only).
+    """
+
+    def __init__(self, model: SlippingBeltModel, drive: Callable, load: Callable, method: str = "exact", locate: bool = True):
+        self.model, self.drive, self.load, self.method, self.locate = model, drive, load, method, locate
+        self._steps: dict = {}
+        p = model.params
+        self._i, self._r3 = p.ratio, p.r_3
+        self._two_k_r3 = 2.0 * p.k * p.r_3
+        self.n_located = 0
+        self._modal = {}
+        for mode, (A, B) in ((STICK, (model.A_stick, model.B_stick)), (SLIP, (model.A_slip, model.B_slip))):
+            try:
+                self._modal[mode] = _ModalFlow(A, B)
+            except np.linalg.LinAlgError:
+                pass
+
+    # ---------------------------------------------------------- the flows
+    def _integrator(self, mode: int, h: float):
+        key = (mode, h)
+        integ = self._steps.get(key)
+        if integ is None:
+            if len(self._steps) > 512:
+                self._steps.clear()
+            m = self.model
+            A, B = (m.A_stick, m.B_stick) if mode == STICK else (m.A_slip, m.B_slip)
+            integ = self._steps[key] = make_integrator(self.method, A, B, h)
+        return integ
+
+    def inputs(self, mode: int, sigma: float, hi: float = math.inf) -> Callable:
+        """u(t, y) of ``mode``; times are clipped at ``hi`` (torque read from the left of a cut)."""
+        drive, load, i, r3, limit = self.drive, self.load, self._i, self._r3, self.model.limit
+
+        if mode == STICK:
+
+            def u(t, y):
+                t = t if t < hi else hi
+                return np.array([drive(t, y[0], y[2]), load(t, i * y[0] - y[1] - y[4] / r3, y[3])])
+
+        else:
+
+            def u(t, y):
+                t = t if t < hi else hi
+                return np.array(
+                    [drive(t, y[0], y[2]), load(t, i * y[0] - y[1] - y[4] / r3, y[3]), sigma * limit(y[2])]
+                )
+
+        return u
+
+    def flow(self, mode, sigma, t, y, h, hi=math.inf):
+        """The method's step of length ``h`` in ``mode`` from (t, y)."""
+        y1 = self._integrator(mode, h).step(t, y, self.inputs(mode, sigma, hi))
+        return self._project(mode, sigma, y1)
+
+    def _project(self, mode, sigma, y):
+        """c = 0 slip: the stretch follows sigma Q_max(omega_M) (keeps the total deflection)."""
+        p = self.model.params
+        if mode == SLIP and p.c == 0.0 and p.belt_mass > 0.0:
+            te = sigma * self.model.limit(y[2]) / self._two_k_r3
+            y = y.copy()
+            y[4] += self._r3 * (y[1] - te)
+            y[1] = te
+        return y
+
+    # ------------------------------------------------- switching functions
+    def switching(self, mode, sigma, y) -> float:
+        """> 0 once the mode must end: ``|Q| - Q_max`` sticking, ``-sigma s'`` slipping [N or m/s]."""
+        m = self.model
+        if mode == STICK:
+            return abs(float(m.q_row @ y)) - float(m.limit(y[2]))
+        return -sigma * float(m.slip_speed(y, sigma * m.limit(y[2])))
+
+    def _switching_many(self, mode, sigma, y, z):
+        """:meth:`switching` for rows ``z`` = [theta_e, omega_M, omega_3] (other states from ``y``)."""
+        m = self.model
+        ys = np.repeat(y[None, :], len(z), axis=0)
+        ys[:, 1:4] = z
+        if mode == STICK:
+            return np.abs(ys @ m.q_row) - m.limit(ys[:, 2])
+        return -sigma * m.slip_speed(ys, sigma * m.limit(ys[:, 2]))
+
+    def _stick_keeps(self, t, y) -> bool:
+        """True if the stick mode's |Q| does not at once grow past Q_max from (t, y).
+
+        Decided by the sign of sigma dQ/dt - dQ_max/dt in stick mode; where that
+        vanishes to rounding (c = 0: dQ/dt = 2 k v_rel = 2 k s' = 0 at the
+        switch) by the second derivative sigma d2Q/dt2 = sigma q . A y'
+        (inputs held over the instant).
+        """
+        m = self.model
+        Q = float(m.q_row @ y)
+        if abs(Q) < float(m.limit(y[2])) * (1.0 - 1e-9):
+            return True
+        sig = math.copysign(1.0, Q)
+        u = self.inputs(STICK, 0.0)(t, y)
+        dy = m.A_stick @ y + m.B_stick @ u
+        p = m.params
+        dlim = -4.0 * p.belt_mass * (p.r_2 * p.gear_ratio) ** 2 * y[2] * dy[2] * math.tanh(0.5 * p.mu_effective * p.wrap_angle)
+        rate = sig * float(m.q_row @ dy) - dlim
+        scale = float(np.abs(m.q_row) @ (np.abs(m.A_stick) @ np.abs(y) + np.abs(m.B_stick) @ np.abs(u))) + abs(dlim)
+        if abs(rate) > 1e-8 * scale:
+            return rate < 0.0
+        return sig * float(m.q_row @ (m.A_stick @ dy)) <= 0.0
+
+    def switch(self, mode, sigma, t, y):
+        """New (mode, sigma, y) after an event at (t, y)."""
+        m = self.model
+        if mode == STICK:
+            sigma = 1.0 if float(m.q_row @ y) >= 0.0 else -1.0
+            if m.params.c == 0.0:  # the stretch sits at the limit exactly
+                te = sigma * float(m.limit(y[2])) / self._two_k_r3
+                y = y.copy()
+                y[4] += self._r3 * (y[1] - te)
+                y[1] = te
+            return SLIP, sigma, y
+        if self._stick_keeps(t, y):
+            return STICK, 0.0, y
+        return SLIP, sigma, y
+
+    # ------------------------------------------------------------ stepping
+    def _locate(self, mode, sigma, t, y, h, hi, y1=None):
+        """First tau in (0, h] where the switching function turns positive along the step.
+
+        Located on the continuous extension of the step (:class:`_ModalFlow`:
+        the exact flow with the torques linear in time between their values
+        at the step's start and end; for ``exact`` the torques are held, so
+        this is the method's own flow), else on the method's flow over a
+        partial step. A sign scan over eight sub-steps finds the first
+        crossing (the flow may cross and return within a step), then Brent's
+        method brackets it to ~1e-15 s.
+        """
+        modal = self._modal.get(mode)
+        if modal is not None:
+            u = self.inputs(mode, sigma, hi)
+            u0 = u(t, y)
+            u1 = u0 if (self.method == "exact" or y1 is None) else u(t + h, y1)
+            coeffs = modal.prepare(y, u0, u1, h)
+            base = y.copy()
+
+            def G(tau):
+                base[1:4] = modal.z(coeffs, tau)
+                return self.switching(mode, sigma, base)
+        else:
+            def G(tau):
+                return self.switching(mode, sigma, y if tau == 0.0 else self.flow(mode, sigma, t, y, tau, hi))
+
+        lo, g_lo = 0.0, self.switching(mode, sigma, y)
+        if g_lo >= 0.0:  # starts on the surface (just switched): find where it is inside
+            lo = None
+            taus = h * 0.5 ** np.arange(1, 40)
+            g = self._switching_many(mode, sigma, y, modal.z(coeffs, taus)) if modal is not None else None
+            for k, tau in enumerate(taus):
+                if (g[k] if g is not None else G(tau)) < 0.0:
+                    lo = float(tau)
+                    break
+            if lo is None:
+                return 0.0
+        hi_tau = h
+        taus = lo + (h - lo) * np.arange(1, 9) / 8.0
+        g = self._switching_many(mode, sigma, y, modal.z(coeffs, taus)) if modal is not None else None
+        for j, tau in enumerate(taus):
+            if (g[j] if g is not None else G(tau)) > 0.0:
+                hi_tau = float(tau)
+                break
+            lo = float(tau)
+        if G(hi_tau) <= 0.0:
+            return None
+        self.n_located += 1
+        return scipy.optimize.brentq(G, lo, hi_tau, xtol=1e-15, rtol=4.0 * np.finfo(float).eps, maxiter=200)
+
+    def advance(self, t0, t1, y, mode, sigma, cuts=(), events=None, dt=None, hi_end=math.inf):
+        """Integrate from t0 to t1: sub-steps end at each cut, then at each located event.
+
+        A sub-step whose end state has a positive switching function holds an
+        event; it is located (:meth:`_locate`), the flow is taken to it, the
+        mode switched (:meth:`switch`) and the rest of the sub-step integrated
+        in the new mode.
+        """
+        edges = [t0, *cuts, t1]
+        n_events = 0
+        for j in range(len(edges) - 1):
+            a, b = edges[j], edges[j + 1]
+            hi = math.nextafter(b, -math.inf) if j < len(edges) - 2 else hi_end
+            while a < b:
+                h = dt if (dt is not None and a == t0 and b == t1) else b - a  # a whole grid step: the grid's dt
+                y1 = self.flow(mode, sigma, a, y, h, hi)
+                if self.switching(mode, sigma, y1) <= 0.0:
+                    y, a = y1, b
+                    break
+                if self.locate:
+                    tau = self._locate(mode, sigma, a, y, h, hi, y1)
+                    if tau is None:
+                        y, a = y1, b
+                        break
+                    if tau > 0.0:
+                        y = self.flow(mode, sigma, a, y, tau, hi)
+                    a = a + tau if tau < h else b
+                else:  # switch at the end of the step (grid sampling, for comparison)
+                    y, a = y1, b
+                old = mode
+                mode, sigma, y = self.switch(mode, sigma, a, y)
+                if events is not None and mode != old:
+                    events.append(Event(a, "onset" if mode == SLIP else "restick", sigma, y.copy()))
+                n_events += 1
+                if n_events > 64:
+                    raise SlipError(f"slip: more than 64 mode switches in one step at t={a:.9g} s (chattering); reduce dt")
+        return y, mode, sigma
+
+    def run(self, time, y0, mode0=STICK, sigma0=0.0, breakpoints=()) -> HybridResult:
+        """Integrate over the grid ``time``; steps are split at ``breakpoints`` and at events."""
+        time = np.asarray(time, dtype=float)
+        n = time.size - 1
+        states = np.empty((n + 1, 5))
+        modes = np.empty(n + 1, dtype=int)
+        sigmas = np.empty(n + 1)
+        y = np.asarray(y0, dtype=float).copy()
+        mode, sigma = mode0, sigma0
+        if mode == STICK and self.switching(mode, sigma, y) > 0.0:  # starts beyond the limit
+            mode, sigma, y = self.switch(mode, sigma, time[0], y)
+        states[0], modes[0], sigmas[0] = y, mode, sigma
+        events: list = []
+        bps = sorted(float(b) for b in breakpoints)
+        dt = float(time[1] - time[0]) if n else 0.0
+        uniform = n > 0 and bool(np.allclose(np.diff(time), dt, rtol=1e-9, atol=0.0))
+        tol = 1e-9 * dt
+        for k in range(n):
+            a, b = time[k], time[k + 1]
+            cuts = [c for c in bps if a + tol < c < b - tol]
+            # a step ending on a breakpoint samples the torque's left limit there (as the stepper does)
+            hi_end = math.nextafter(b, -math.inf) if any(abs(c - b) <= tol for c in bps) else math.inf
+            y, mode, sigma = self.advance(a, b, y, mode, sigma, cuts, events, dt if uniform else None, hi_end)
+            states[k + 1], modes[k + 1], sigmas[k + 1] = y, mode, sigma
+        return HybridResult(time, states, modes, sigmas, events)
+
+
+# ============================================================ regularised
+class RegularisedFriction:
+    """Smooth friction ``Q = Q_max tanh(s' / v_eps)`` in series with the belt span (one ODE, no modes).
+
+    ``y' = A_reg y + B_reg [M_drive, M_load, Q, v_s]``: the slip speed
+    ``v_s`` solves ``2 k r_3 theta_e + 2 c (v_rel - v_s) = Q_max tanh(v_s / v_eps)``
+    (unique: the left side falls, the right side rises in ``v_s``; safeguarded
+    Newton), or for ``c = 0``, ``v_s = v_eps artanh(2 k r_3 theta_e / Q_max)``.
+    The contact is stiff: ``dQ/dv_s = Q_max / v_eps`` at ``v_s = 0``.
+    """
+
+    def __init__(self, model: SlippingBeltModel, v_eps: float):
+        if not (math.isfinite(v_eps) and v_eps > 0.0):
+            raise SlipError(f"v_eps: must be a finite speed > 0 m/s, got {v_eps!r}")
+        self.model, self.v_eps = model, float(v_eps)
+
+    def contact(self, y) -> tuple[float, float]:
+        """(Q [N], v_s [m/s]) at state ``y``."""
+        m, ve = self.model, self.v_eps
+        p = m.params
+        qmax = float(m.limit(y[2]))
+        spring = 2.0 * p.k * p.r_3 * y[1]
+        if qmax <= 0.0:
+            return 0.0, float(m.rel_row @ y) + (spring / (2.0 * p.c) if p.c > 0 else 0.0)
+        if p.c == 0.0:
+            ratio = min(max(spring / qmax, -1.0 + 1e-16), 1.0 - 1e-16)
+            v = ve * math.atanh(ratio)
+            return qmax * math.tanh(v / ve), v
+        F = spring + 2.0 * p.c * float(m.rel_row @ y)
+        lo, hi = (F - qmax) / (2.0 * p.c), (F + qmax) / (2.0 * p.c)
+        v = min(max(0.0, lo), hi)
+        for _ in range(100):
+            th = math.tanh(v / ve)
+            f = F - 2.0 * p.c * v - qmax * th
+            if f > 0.0:
+                lo = v
+            else:
+                hi = v
+            df = -2.0 * p.c - qmax * (1.0 - th * th) / ve
+            v_new = v - f / df
+            if not lo < v_new < hi:
+                v_new = 0.5 * (lo + hi)
+            if abs(v_new - v) <= 1e-15 * (1.0 + abs(v)) or hi - lo <= 1e-15 * (1.0 + abs(v)):
+                v = v_new
+                break
+            v = v_new
+        return qmax * math.tanh(v / ve), v
+
+    def inputs(self, drive, load) -> Callable:
+        m = self.model
+        i, r3 = m.params.ratio, m.params.r_3
+        contact = self.contact
+
+        def u(t, y):
+            Q, v = contact(y)
+            return np.array([drive(t, y[0], y[2]), load(t, i * y[0] - y[1] - y[4] / r3, y[3]), Q, v])
+
+        return u
+
+    def run(self, time, y0, drive, load, method="rk4", breakpoints=()) -> np.ndarray:
+        """States on the grid ``time`` with a fixed-step ``method`` (steps split at breakpoints)."""
+        m = self.model
+        time = np.asarray(time, dtype=float)
+        u = self.inputs(drive, load)
+        out = np.empty((time.size, 5))
+        out[0] = y = np.asarray(y0, dtype=float)
+        cache: dict = {}
+
+        def step(a, b, y, hi):
+            h = b - a
+            if h not in cache:
+                cache[h] = make_integrator(method, m.A_reg, m.B_reg, h)
+            return cache[h].step(a, y, u if hi == math.inf else (lambda t, x: u(t if t < hi else hi, x)))
+
+        bps = sorted(float(b) for b in breakpoints)
+        for k in range(time.size - 1):
+            a, b = time[k], time[k + 1]
+            edges = [a, *[c for c in bps if a < c < b], b]
+            for j in range(len(edges) - 1):
+                hi = math.nextafter(edges[j + 1], -math.inf) if j < len(edges) - 2 else math.inf
+                y = step(edges[j], edges[j + 1], y, hi)
+            out[k + 1] = y
+            if not np.all(np.isfinite(y)) or abs(y[2]) > 1e5 or abs(y[3]) > 1e5:
+                out[k + 1 :] = np.nan
+                break
+        return out
+
+    def outputs_force(self, states) -> tuple[np.ndarray, np.ndarray]:
+        """(Q, v_s) per sample."""
+        qs = np.array([self.contact(y) for y in states])
+        return qs[:, 0], qs[:, 1]
+
+
+# ========================================================= the reference
+def reference_hybrid(model: SlippingBeltModel, drive, load, time, y0, mode0=STICK, sigma0=0.0, breakpoints=(), rtol=1e-12, atol=1e-12):
+    """Independent reference: scipy DOP853 per mode with terminal events, restarted at events and breakpoints.
+
+    Returns a :class:`HybridResult` on the grid ``time`` (dense output between
+    restarts). The mode logic (:meth:`HybridStepper.switch`) is shared, the
+    integration and the event location are scipy's.
+    """
+    hs = HybridStepper(model, drive, load, "exact")
+    time = np.asarray(time, dtype=float)
+    states = np.empty((time.size, 5))
+    modes = np.empty(time.size, dtype=int)
+    sigmas = np.empty(time.size)
+    events: list = []
+    t, y, mode, sigma = float(time[0]), np.asarray(y0, dtype=float).copy(), mode0, sigma0
+    if mode == STICK and hs.switching(mode, sigma, y) > 0.0:
+        mode, sigma, y = hs.switch(mode, sigma, t, y)
+    states[0], modes[0], sigmas[0] = y, mode, sigma
+    stops = sorted({float(b) for b in breakpoints if time[0] < b < time[-1]} | {float(time[-1])})
+    k_out = 1
+    while t < time[-1]:
+        t_stop = next(s for s in stops if s > t)
+        m = model
+        A, B = (m.A_stick, m.B_stick) if mode == STICK else (m.A_slip, m.B_slip)
+        u = hs.inputs(mode, sigma, math.nextafter(t_stop, -math.inf))
+
+        def rhs(tt, yy, A=A, B=B, u=u):
+            return A @ yy + B @ u(tt, yy)
+
+        def ev(tt, yy, mode=mode, sigma=sigma):
+            return hs.switching(mode, sigma, yy)
+
+        ev.terminal, ev.direction = True, 1.0
+        # a slip phase starts on the surface (switching = 0): skip the start point
+        sol = scipy.integrate.solve_ivp(rhs, (t, t_stop), y, method="DOP853", rtol=rtol, atol=atol, events=ev, dense_output=True)
+        t_end = float(sol.t[-1])
+        while k_out < time.size and time[k_out] <= t_end:
+            states[k_out] = hs._project(mode, sigma, sol.sol(time[k_out]))
+            modes[k_out], sigmas[k_out] = mode, sigma
+            k_out += 1
+        y = hs._project(mode, sigma, sol.y[:, -1].copy())
+        if sol.status == 1 and sol.t_events[0].size and t_end < t_stop:
+            old = mode
+            mode, sigma, y = hs.switch(mode, sigma, t_end, y)
+            if mode != old:
+                events.append(Event(t_end, "onset" if mode == SLIP else "restick", sigma, y.copy()))
+            else:  # stayed: nudge past the grazing point
+                pass
+        t = t_end
+    return HybridResult(time, states, modes, sigmas, events)
