@@ -39,8 +39,8 @@ def test_list_parameters_runs_without_rclpy():
 def test_model_ranges_are_the_core_rules(name):
     """Inside the advertised range BeltDriveParams accepts; just outside it refuses (each end)."""
     lo, hi = model_range(name)
-    base = BeltDriveParams().to_dict()
-    assert lo == 0.0 and math.isfinite(hi) and hi > base[name]
+    base = BeltDriveParams().field_values()
+    assert lo == 0.0 and math.isfinite(hi) and hi >= base[name]  # groove_angle: the flat belt (pi) is both default and upper end
     BeltDriveParams(**{**base, name: hi})  # the upper end itself is valid
     with pytest.raises(ParameterError, match=name):
         BeltDriveParams(**{**base, name: -1e-9})

@@ -24,6 +24,7 @@ from .model import FlexibleBeltModel
 from .slip import SLIP, STICK, HybridStepper, SlippingBeltModel
 from .stability import require_stable
 from .stepper import SPEED_LIMIT, Plant, Stepper, snap_tolerance
+from .sources import ProfileForms
 
 
 class _ShiftedLoad:
@@ -33,7 +34,6 @@ class _ShiftedLoad:
         self.inner, self.offset = inner, float(offset)
         self.state_dependent = inner.state_dependent
         self.uses_angle = inner.uses_angle
-        self.scalar_source = None  # called, not inlined: one compiled loop for every offset
 
     def torque(self, t, angle, speed):
         return self.inner.torque(t, np.asarray(angle) - self.offset, speed)
@@ -41,6 +41,10 @@ class _ShiftedLoad:
     def scalar_torque(self):
         f, off = self.inner.scalar_torque(), self.offset
         return lambda t, a, w: f(t, a - off, w)
+
+    def forms(self):
+        # no formula: the compiled loops call the closure (one loop serves every offset)
+        return ProfileForms(None, self.scalar_torque(), None)
 
     def breakpoints(self):
         return self.inner.breakpoints()

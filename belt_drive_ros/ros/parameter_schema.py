@@ -198,7 +198,7 @@ def scene_defaults(scene: Scene) -> dict[str, Any]:
     """
     default_tick = 1.0 / NODE_SPECS["step_rate_hz"].default
     out = {"model": scene.model, "method": scene.method, "substeps": max(1, int(round(default_tick / scene.dt)))}
-    out.update(scene.params.to_dict())
+    out.update(scene.params.field_values())
     return out
 
 
