@@ -186,8 +186,11 @@ def make_bags(out="bags", *, force: bool = False, only: Optional[Sequence[str]] 
         source_run = simulate(base)
         write_result_mcap(source_run, files["torque"], force=True, output_rate=OUTPUT_RATE,
                           topics=("drive_torque",), start_time_ns=BAGS_START_NS)
-        # 2. the scene file, with the model fixed to the source run's choice
-        scene = dataclasses.replace(base, model=source_run.model, output_rate=OUTPUT_RATE)
+        # 2. the scene file, with the model fixed to the source run's choice. The goldens are the
+        #    node's replay references and the node steps the linear tiers only: where auto went on
+        #    to slipping, the golden keeps the flexible belt (the node's model for that scene).
+        model = "flexible" if source_run.model == "slipping" else source_run.model
+        scene = dataclasses.replace(base, model=model, output_rate=OUTPUT_RATE)
         header = (
             f"# Reference case '{name}': {case.description}.\n"
             f"# Written by 'belt-drive make-bags' (belt_drive_ros/bags.py); do not edit, regenerate.\n"

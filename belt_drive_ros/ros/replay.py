@@ -95,8 +95,9 @@ def _rclpy_qos(offered_yaml: str):
     p = profiles[0]
     return QoSProfile(
         history=HistoryPolicy.KEEP_ALL if p.history == "keep_all" else HistoryPolicy.KEEP_LAST,
-        depth=max(1, p.depth),
-        reliability=ReliabilityPolicy.BEST_EFFORT if p.reliability == "best_effort" else ReliabilityPolicy.RELIABLE,
+        depth=max(1000, p.depth),  # a replay bursts: keep every unacknowledged sample (a recorded depth 1 would drop some)
+        # always reliable: a replay must not lose samples, and a reliable writer serves best-effort readers too
+        reliability=ReliabilityPolicy.RELIABLE,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if p.durability == "transient_local" else DurabilityPolicy.VOLATILE,
     )
 
@@ -254,6 +255,11 @@ def _publish(rec, schedule, context, *, rate, loop, clock, out_topic, wait_subsc
                             clock_pub.publish(clock_msg)
                             resend = now + 0.05
                         sync_executor.spin_once(timeout_sec=0.005)
+        from rclpy.duration import Duration
+
+        for publisher in (pub, clock_pub):  # the last samples reach every reader before this process ends
+            if publisher is not None:
+                publisher.wait_for_all_acked(Duration(seconds=2.0))
         if late:
             log(f"warning: {late} time(s) no {sync_topic} stamped at the /clock time within "
                 f"{sync_timeout:g} s (is each message time a tick of the node?)")
