@@ -11,8 +11,8 @@ def register(sub) -> None:
         description=(
             "Write the URDF of a scene's drive: four continuous joints named as the node's joint_states "
             "(wheel_M, wheel_1, wheel_2, wheel_3), gears and pulleys with the scene's radii, the belt's "
-            "spans as visuals. Feed it to robot_state_publisher (robot_description) or Foxglove's 3D panel; "
-            "the node publishes it itself with -p publish_robot_description:=true."
+            "spans as visuals. Feed it to robot_state_publisher (robot_description) or load it in Foxglove's "
+            "3D panel (URDF layer, joint states from /joint_states)."
         ),
         epilog="examples:\n  belt-drive urdf truck_compressor > drive.urdf\n"
                "  belt-drive urdf paper --out paper.urdf --png paper_drive.png",
