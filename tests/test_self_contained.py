@@ -1,9 +1,10 @@
 """The repository stands on its own: nothing in it points outside the clone.
 
 Users get the repository only. The design notes and the source paper that the
-developers keep beside it are summarised in ``docs/``; no tracked file may
-refer to that folder (``../shared``, ``/work/shared``, ``shared/design``,
-``shared/seed``) or to the developers' machine.
+developers keep in a folder beside the clone are summarised in ``docs/``; no
+tracked file may refer to that folder or to the developers' machine. (The
+patterns are assembled from parts so that this file does not itself contain
+the paths it forbids.)
 """
 
 import re
@@ -11,7 +12,9 @@ import subprocess
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-FORBIDDEN = re.compile(r"\.\./shared|/work/shared|shared/design|shared/seed|/work/main|/work/wt")
+_NOTES = "sha" + "red"  # the developers' notes folder beside the clone
+_WORK = "/wo" + "rk"  # the developers' machine
+FORBIDDEN = re.compile(rf"\.\./{_NOTES}|{_WORK}/{_NOTES}|{_NOTES}/design|{_NOTES}/seed|{_WORK}/main|{_WORK}/wt")
 
 
 def _tracked_text_files():
@@ -29,8 +32,6 @@ def _tracked_text_files():
 def test_no_tracked_file_points_outside_the_repository():
     hits = []
     for name, text in _tracked_text_files():
-        if name == "tests/test_self_contained.py":
-            continue
         for number, line in enumerate(text.splitlines(), 1):
             if FORBIDDEN.search(line):
                 hits.append(f"{name}:{number}: {line.strip()[:100]}")
@@ -38,8 +39,8 @@ def test_no_tracked_file_points_outside_the_repository():
 
 
 def test_the_checker_sees_a_reference():
-    assert FORBIDDEN.search("see ../shared/design/model.md")
-    assert FORBIDDEN.search("python /work/main/x.py")
+    assert FORBIDDEN.search(f"see ../{_NOTES}/design/model.md")
+    assert FORBIDDEN.search(f"python {_WORK}/main/x.py")
     assert not FORBIDDEN.search("shared memory segments of Fast DDS")
 
 
