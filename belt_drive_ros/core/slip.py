@@ -56,6 +56,8 @@ import scipy.optimize
 from .errors import BeltDriveError
 from .integrators import make_integrator
 from .params import BeltDriveParams
+from .slip_modal import ModalFlow
+from .stage_scheme import Guard
 
 #: friction laws by name (``friction`` option of the slipping model)
 FRICTION_LAWS = ("coulomb", "regularised")
@@ -156,6 +158,28 @@ class SlippingBeltModel:
     def limit(self, omega_M):
         """Q_max at drive speed ``omega_M`` [N] (:meth:`BeltDriveParams.friction_limit`)."""
         return self.params.friction_limit(omega_M)
+
+    def guard(self, mode: int, sigma: float = 0.0) -> Guard:
+        """The switching function of ``mode`` as a :class:`~belt_drive_ros.core.stage_scheme.Guard` on ``y``.
+
+        Stick: ``|q . y| - Q_max(omega_M)`` with ``Q_max = 2 F_0 f - 2 m' (r_2 g omega_M)^2 f``,
+        ``f = tanh(mu_eff beta / 2)``. Slip (direction sigma): ``-sigma s'`` with
+        ``s' = v_rel - (sigma Q_max - 2 k r_3 theta_e) / (2 c)``, i.e.
+        ``-sigma (rel + (k r_3 / c) e_theta) . y + Q_max / (2 c)`` (c = 0: ``-sigma v_rel``).
+        Positive once the mode must end (what :meth:`HybridStepper.switching`
+        evaluates, without the clip of ``Q_max`` at 0 where the belt lifts off).
+        """
+        p = self.params
+        f2 = 2.0 * math.tanh(0.5 * p.mu_effective * p.wrap_angle)
+        quad = p.belt_mass * (p.r_2 * p.gear_ratio) ** 2 * f2
+        speed = (0.0, 0.0, 1.0, 0.0, 0.0)
+        if mode == STICK:
+            return Guard(tuple(float(v) for v in self.q_row), p.F_0 * f2, True, speed, quad)
+        row = -sigma * self.rel_row
+        if p.c == 0.0:
+            return Guard(tuple(float(v) for v in row))
+        row[1] -= sigma * p.k * p.r_3 / p.c
+        return Guard(tuple(float(v) for v in row), -p.F_0 * f2 / (2.0 * p.c), False, speed, -quad / (2.0 * p.c))
 
     def slip_speed(self, y, Q):
         """s' in slip mode for transmitted force ``Q`` [m/s] (c = 0: the surface speed difference)."""
@@ -266,52 +290,6 @@ class HybridResult:
     events: list = field(default_factory=list)
 
 
-def _phi12(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """phi_1(z) = (e^z - 1)/z and phi_2(z) = (e^z - 1 - z)/z^2 (complex, series near 0)."""
-    small = np.abs(z) < 1e-3
-    if not small.any():
-        em1 = np.expm1(z)
-        return em1 / z, (em1 - z) / (z * z)
-    zs = np.where(small, 1.0, z)
-    em1 = np.expm1(zs)
-    p1 = np.where(small, 1.0 + z / 2.0 + z * z / 6.0, em1 / zs)
-    p2 = np.where(small, 0.5 + z / 6.0 + z * z / 24.0, (em1 - zs) / (zs * zs))
-    return p1, p2
-
-
-class _ModalFlow:
-    """Exact flow of the sub-state z = [theta_e, omega_M, omega_3] of one mode, by its eigenvalues.
-
-    ``z(tau) = V [e^(L tau) w + tau phi_1(L tau) V^-1 B u_0 + (tau^2/h) phi_2(L tau) V^-1 B (u_1 - u_0)]``
-    for an input linear in time from ``u_0`` to ``u_1`` over ``h``: the
-    continuous extension on which events are located (the switching functions
-    read only z). Costs a few complex multiply-adds per evaluation instead of
-    a matrix exponential. None if the block is (nearly) defective.
-    """
-
-    def __init__(self, A, B):
-        A3, self.B3 = A[1:4, 1:4], B[1:4]
-        lam, V = np.linalg.eig(A3)
-        if not np.all(np.isfinite(lam)) or np.linalg.cond(V) > 1e8:
-            raise np.linalg.LinAlgError("defective")
-        self.lam, self.V, self.Vinv = lam, V, np.linalg.inv(V)
-
-    def prepare(self, y, u0, u1, h):
-        """Coefficients for :meth:`z` from state ``y`` and the input's end values."""
-        w = self.Vinv @ y[1:4]
-        b0 = self.Vinv @ (self.B3 @ u0)
-        db = self.Vinv @ (self.B3 @ (u1 - u0)) / h
-        return w, b0, db
-
-    def z(self, coeffs, tau):
-        """z at ``tau`` [s] (a float), or at each of an array of ``tau`` (rows)."""
-        w, b0, db = coeffs
-        tau = np.asarray(tau, dtype=float)[..., None]
-        lt = self.lam * tau
-        p1, p2 = _phi12(lt)
-        return ((np.exp(lt) * w + tau * p1 * b0 + tau * tau * p2 * db) @ self.V.T).real
-
-
 class HybridStepper:
     """Steps the stick/slip model with one fixed-step method, switching modes at located events.
 
@@ -330,6 +308,7 @@ class HybridStepper:
     def __init__(self, model: SlippingBeltModel, drive: Callable, load: Callable, method: str = "exact", locate: bool = True):
         self.model, self.drive, self.load, self.method, self.locate = model, drive, load, method, locate
         self._steps: dict = {}
+        self._guards: dict = {}
         p = model.params
         self._i, self._r3 = p.ratio, p.r_3
         self._two_k_r3 = 2.0 * p.k * p.r_3
@@ -337,9 +316,11 @@ class HybridStepper:
         self._modal = {}
         for mode, (A, B) in ((STICK, (model.A_stick, model.B_stick)), (SLIP, (model.A_slip, model.B_slip))):
             try:
-                self._modal[mode] = _ModalFlow(A, B)
+                self._modal[mode] = ModalFlow(A, B)
             except np.linalg.LinAlgError:
                 pass
+        #: exact and etd2 steps of any length by the modal flow (no matrix exponential per sub-step length)
+        self._modal_steps = method in ("exact", "etd2")
 
     # ---------------------------------------------------------- the flows
     def _integrator(self, mode: int, h: float):
@@ -373,10 +354,46 @@ class HybridStepper:
 
         return u
 
+    def _guard(self, mode: int, sigma: float):
+        """The model's guard of (mode, sigma), cached."""
+        key = (mode, sigma if mode == SLIP else 0.0)
+        guard = self._guards.get(key)
+        if guard is None:
+            guard = self._guards[key] = self.model.guard(*key)
+        return guard
+
+    def scalar_inputs(self, mode: int, sigma: float, hi: float = math.inf) -> Callable:
+        """:meth:`inputs` as a tuple of floats (the event handling's path)."""
+        drive, load, i, r3, limit = self.drive, self.load, self._i, self._r3, self.model.params.friction_limit
+        if mode == STICK:
+
+            def u(t, y):
+                t = t if t < hi else hi
+                return (drive(t, y[0], y[2]), load(t, i * y[0] - y[1] - y[4] / r3, y[3]))
+
+        else:
+
+            def u(t, y):
+                t = t if t < hi else hi
+                return (drive(t, y[0], y[2]), load(t, i * y[0] - y[1] - y[4] / r3, y[3]), sigma * limit(float(y[2])))
+
+        return u
+
     def flow(self, mode, sigma, t, y, h, hi=math.inf):
-        """The method's step of length ``h`` in ``mode`` from (t, y)."""
-        y1 = self._integrator(mode, h).step(t, y, self.inputs(mode, sigma, hi))
-        return self._project(mode, sigma, y1)
+        """The method's step of length ``h`` in ``mode`` from (t, y).
+
+        ``exact`` and ``etd2`` take it on the modal flow
+        (:class:`~belt_drive_ros.core.slip_modal.ModalFlow`: the same maths as
+        their matrix exponentials, for any ``h``), the others by an
+        integrator of step ``h`` (cached per length).
+        """
+        modal = self._modal.get(mode) if self._modal_steps else None
+        if modal is None:
+            y1 = self._integrator(mode, h).step(t, y, self.inputs(mode, sigma, hi))
+            return self._project(mode, sigma, y1)
+        y = y.tolist() if isinstance(y, np.ndarray) else y
+        y1 = modal.step(y, t, h, self.scalar_inputs(mode, sigma, hi), self.method == "etd2")
+        return self._project(mode, sigma, np.array(y1))
 
     def _project(self, mode, sigma, y):
         """c = 0 slip: the stretch follows sigma Q_max(omega_M) (keeps the total deflection)."""
@@ -395,15 +412,6 @@ class HybridStepper:
         if mode == STICK:
             return abs(float(m.q_row @ y)) - float(m.limit(y[2]))
         return -sigma * float(m.slip_speed(y, sigma * m.limit(y[2])))
-
-    def _switching_many(self, mode, sigma, y, z):
-        """:meth:`switching` for rows ``z`` = [theta_e, omega_M, omega_3] (other states from ``y``)."""
-        m = self.model
-        ys = np.repeat(y[None, :], len(z), axis=0)
-        ys[:, 1:4] = z
-        if mode == STICK:
-            return np.abs(ys @ m.q_row) - m.limit(ys[:, 2])
-        return -sigma * m.slip_speed(ys, sigma * m.limit(ys[:, 2]))
 
     def _stick_keeps(self, t, y) -> bool:
         """True if the stick mode's |Q| does not at once grow past Q_max from (t, y).
@@ -447,25 +455,28 @@ class HybridStepper:
     def _locate(self, mode, sigma, t, y, h, hi, y1=None):
         """First tau in (0, h] where the switching function turns positive along the step.
 
-        Located on the continuous extension of the step (:class:`_ModalFlow`:
+        Located on the continuous extension of the step (:class:`~belt_drive_ros.core.slip_modal.ModalFlow`:
         the exact flow with the torques linear in time between their values
         at the step's start and end; for ``exact`` the torques are held, so
         this is the method's own flow), else on the method's flow over a
-        partial step. A sign scan over eight sub-steps finds the first
-        crossing (the flow may cross and return within a step), then Brent's
-        method brackets it to ~1e-15 s.
+        partial step. A sign scan finds the first crossing (the flow may
+        cross and return within a step: 8 points, on the modal flow at least
+        2 and 8 per half period of the fastest oscillation), then a
+        safeguarded Newton iteration (the modal flow gives the derivative;
+        bisection when a step leaves the bracket) or Brent's method brackets
+        it to ~1e-15 s.
         """
         modal = self._modal.get(mode)
+        GD = None
         if modal is not None:
-            u = self.inputs(mode, sigma, hi)
-            u0 = u(t, y)
-            u1 = u0 if (self.method == "exact" or y1 is None) else u(t + h, y1)
-            coeffs = modal.prepare(y, u0, u1, h)
-            base = y.copy()
+            u = self.scalar_inputs(mode, sigma, hi)
+            yl = y.tolist()
+            u0 = u(t, yl)
+            u1 = u0 if (self.method == "exact" or y1 is None) else u(t + h, y1.tolist())
+            GD = modal.guard_function(self._guard(mode, sigma), modal.prepare(yl, u0, u1, h))
 
             def G(tau):
-                base[1:4] = modal.z(coeffs, tau)
-                return self.switching(mode, sigma, base)
+                return GD(tau)[0]
         else:
             def G(tau):
                 return self.switching(mode, sigma, y if tau == 0.0 else self.flow(mode, sigma, t, y, tau, hi))
@@ -473,43 +484,50 @@ class HybridStepper:
         lo, g_lo = 0.0, self.switching(mode, sigma, y)
         if g_lo >= 0.0:  # starts on the surface (just switched): find where it is inside
             lo = None
-            taus = h * 0.5 ** np.arange(1, 40)
-            g = self._switching_many(mode, sigma, y, modal.z(coeffs, taus)) if modal is not None else None
-            for k, tau in enumerate(taus):
-                if (g[k] if g is not None else G(tau)) < 0.0:
-                    lo = float(tau)
+            for k in range(1, 40):
+                tau = h * 0.5**k
+                g = G(tau)
+                if g < 0.0:
+                    lo, g_lo = tau, g
                     break
             if lo is None:
                 return 0.0
-        hi_tau = h
-        taus = lo + (h - lo) * np.arange(1, 9) / 8.0
-        g = self._switching_many(mode, sigma, y, modal.z(coeffs, taus)) if modal is not None else None
-        for j, tau in enumerate(taus):
-            if (g[j] if g is not None else G(tau)) > 0.0:
-                hi_tau = float(tau)
+        hi_tau = g_hi = None
+        n_scan = 8 if modal is None else max(2, math.ceil(8.0 * modal.max_frequency * h / math.pi))
+        for j in range(1, n_scan + 1):
+            tau = lo + (h - lo) * j / n_scan if j < n_scan else h
+            g = G(tau)
+            if g > 0.0:
+                hi_tau, g_hi = tau, g
                 break
-            lo = float(tau)
-        if G(hi_tau) <= 0.0:
+            lo, g_lo = tau, g
+        if hi_tau is None:
             return None
         self.n_located += 1
-        return scipy.optimize.brentq(G, lo, hi_tau, xtol=1e-15, rtol=4.0 * np.finfo(float).eps, maxiter=200)
+        if GD is None:
+            return scipy.optimize.brentq(G, lo, hi_tau, xtol=1e-15, rtol=4.0 * np.finfo(float).eps, maxiter=200)
+        return _newton(GD, lo, g_lo, hi_tau, g_hi)
 
-    def advance(self, t0, t1, y, mode, sigma, cuts=(), events=None, dt=None, hi_end=math.inf):
+    def advance(self, t0, t1, y, mode, sigma, cuts=(), events=None, dt=None, hi_end=math.inf, y1=None):
         """Integrate from t0 to t1: sub-steps end at each cut, then at each located event.
 
         A sub-step whose end state has a positive switching function holds an
         event; it is located (:meth:`_locate`), the flow is taken to it, the
         mode switched (:meth:`switch`) and the rest of the sub-step integrated
-        in the new mode.
+        in the new mode. ``y1``: the method's state at ``t1`` in ``mode``
+        when already known (a step without cuts that a compiled loop took).
         """
         edges = [t0, *cuts, t1]
         n_events = 0
+        given = None if cuts else y1
         for j in range(len(edges) - 1):
             a, b = edges[j], edges[j + 1]
             hi = math.nextafter(b, -math.inf) if j < len(edges) - 2 else hi_end
             while a < b:
                 h = dt if (dt is not None and a == t0 and b == t1) else b - a  # a whole grid step: the grid's dt
-                y1 = self.flow(mode, sigma, a, y, h, hi)
+                if given is None:
+                    y1 = self.flow(mode, sigma, a, y, h, hi)
+                given = None
                 if self.switching(mode, sigma, y1) <= 0.0:
                     y, a = y1, b
                     break
@@ -557,6 +575,31 @@ class HybridStepper:
             y, mode, sigma = self.advance(a, b, y, mode, sigma, cuts, events, dt if uniform else None, hi_end)
             states[k + 1], modes[k + 1], sigmas[k + 1] = y, mode, sigma
         return HybridResult(time, states, modes, sigmas, events)
+
+
+def _newton(GD, lo, g_lo, hi, g_hi, xtol=1e-15):
+    """Root of G in the bracket [lo, hi] (G(lo) < 0 < G(hi)); ``GD(tau) = (G, dG/dtau)``.
+
+    Newton from the secant point, a bisection whenever a step would leave
+    the bracket; stops when the step is below ``xtol + 4 eps |tau|``.
+    """
+    tau = lo - g_lo * (hi - lo) / (g_hi - g_lo)
+    eps4 = 4.0 * np.finfo(float).eps
+    for _ in range(200):
+        if not lo < tau < hi:
+            tau = 0.5 * (lo + hi)
+        g, dg = GD(tau)
+        if g == 0.0:
+            return tau
+        if g > 0.0:
+            hi = tau
+        else:
+            lo = tau
+        new = tau - g / dg if dg != 0.0 else 0.5 * (lo + hi)
+        if abs(new - tau) <= xtol + eps4 * abs(tau) or hi - lo <= xtol + eps4 * abs(hi):
+            return new if lo <= new <= hi else tau
+        tau = new
+    return tau
 
 
 # ============================================================ regularised

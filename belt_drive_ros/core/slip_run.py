@@ -1,56 +1,44 @@
-"""Offline runs of the slipping belt, stepped by the single :class:`~belt_drive_ros.core.stepper.Stepper`.
+"""Runs of the slipping belt, stepped by the single :class:`~belt_drive_ros.core.stepper.Stepper`.
 
-While the belt sticks, the slipping model *is* the flexible model (with the
-load angle shifted by the accumulated slip, ``phi_3 = i phi_M - theta_e -
-s / r_3``). While a massless belt slips, the slip mode is linear with the
-constant force ``sigma Q_max``, carried as a sixth, constant state. So both
-phases run in chunks through the stepper (compiled loop, breakpoints
-handled exactly); after each chunk the mode's switching function is checked
-on all its states at once (numpy), the chunk is cut before the first step
-that crosses, and that step is redone by
+A stick or slip phase of the hybrid model is a linear plant with a guard
+(:class:`~belt_drive_ros.core.stage_scheme.Guard`): the mode's switching
+function, checked by the stepper's compiled loop after every step. Each
+phase runs through the stepper (compiled loop, breakpoints split exactly)
+until the guard turns positive; only that step is redone by
 :class:`~belt_drive_ros.core.slip.HybridStepper`, which locates the event,
-splits the step there and switches the mode. A run that never reaches the
-limit gives the flexible model's states bit for bit (closed-loop scenes:
-the same compiled loop over the same steps).
+splits the step there and switches the mode. The plants:
+
+* sticking without slip so far (``s = 0``): the flexible model itself, in
+  its own coordinates, so a run that never reaches the limit gives the
+  flexible model's states bit for bit;
+* sticking after slip: the slipping model's stick mode (5 states, ``s``
+  constant; the load sees ``phi_3 = i phi_M - theta_e - s / r_3``);
+* slipping, massless belt: the slip mode with the constant force
+  ``sigma Q_max`` as a sixth state (one plant per direction sigma);
+* slipping with a belt mass (``Q_max`` varies with speed): step by step by
+  the hybrid stepper on the stepper's step plan.
+
+:meth:`SlippingSimulator.advance` is the one entry: an offline run is one
+advance from 0 to the duration with recording, the node's tick an advance
+from the last tick to the next; each step is computed the same way in both
+(bit-identical states).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from .model import FlexibleBeltModel
 from .slip import SLIP, STICK, HybridStepper, SlippingBeltModel
 from .stability import require_stable
+from .stage_scheme import Guard
 from .stepper import SPEED_LIMIT, Plant, Stepper, snap_tolerance
-from .sources import ProfileForms
 
-
-class _ShiftedLoad:
-    """A load profile seen at ``angle - offset`` (the wheel-3 angle lost to slip), for the flexible plant."""
-
-    def __init__(self, inner, offset: float):
-        self.inner, self.offset = inner, float(offset)
-        self.state_dependent = inner.state_dependent
-        self.uses_angle = inner.uses_angle
-
-    def torque(self, t, angle, speed):
-        return self.inner.torque(t, np.asarray(angle) - self.offset, speed)
-
-    def scalar_torque(self):
-        f, off = self.inner.scalar_torque(), self.offset
-        return lambda t, a, w: f(t, a - off, w)
-
-    def forms(self):
-        # no formula: the compiled loops call the closure (one loop serves every offset)
-        return ProfileForms(None, self.scalar_torque(), None)
-
-    def breakpoints(self):
-        return self.inner.breakpoints()
-
-    def left_of(self, t):
-        return self.inner.left_of(t)
+#: grid steps per stepper call of a recorded run: the first after an event, and the most (doubling in between)
+WINDOW_FIRST, WINDOW_MAX = 128, 4096
 
 
 class _SlipPhase:
@@ -76,143 +64,209 @@ class _SlipPhase:
         return y[..., 0], y[..., 1], y[..., 2], y[..., 3]
 
 
-class SlippingSimulator:
-    """Runs the slipping model with one fixed-step method (``Simulator``-like interface)."""
+def _mapped(guard: Guard, Y: np.ndarray) -> Guard:
+    """``guard`` (on the slipping state y) as a guard on states x with ``y = Y x``."""
+    speed = None if guard.speed is None else tuple(float(v) for v in np.asarray(guard.speed) @ Y)
+    return Guard(tuple(float(v) for v in np.asarray(guard.row) @ Y), guard.bound, guard.absolute, speed, guard.quad)
 
-    def __init__(self, params, drive, load, method="etd2", dt=1e-3, method_options=None, check_stability=True, chunk=4096):
-        self.model = SlippingBeltModel(params)
+
+@dataclass
+class SlipState:
+    """The hybrid state: mode, slip direction sigma, and the state vector in its phase's own coordinates.
+
+    ``kind``: ``flexible`` (sticking, no slip yet: the flexible model's
+    ``[phi_M, phi_3, omega_M, omega_3]``), ``stick`` (``y``, 5 states),
+    ``slip`` (``[y, Q]``, massless belt) or ``hybrid`` (``y`` while a belt
+    with mass slips).
+    """
+
+    mode: int
+    sigma: float
+    kind: str
+    x: np.ndarray
+
+
+class SlippingSimulator:
+    """Runs the slipping model with one fixed-step method (``Simulator``-like interface).
+
+    Parameters
+    ----------
+    params : BeltDriveParams; drive, load : torque profiles.
+    method, dt, method_options : the fixed-step method and step [s].
+    check_stability : refuse a step the guard predicts unstable (stick mode).
+    origin : scene time [s] of grid index 0.
+    integrator : a flexible-model integrator of ``method`` and ``dt`` to reuse (the node's).
+    """
+
+    def __init__(self, params, drive, load, method="etd2", dt=1e-3, method_options=None, check_stability=True,
+                 origin=0.0, integrator=None):  # fmt: skip
+        self.model = m = SlippingBeltModel(params)
         self.flexible = FlexibleBeltModel(params)
         self.drive, self.load = drive, load
-        self.method, self.dt, self.chunk = method, float(dt), int(chunk)
+        self.method, self.dt = method, float(dt)
         self.method_options = dict(method_options or {})
         self.plant = Plant(self.flexible, drive, load)
-        self.stepper = Stepper(self.plant, method, self.dt, self.method_options)
+        # [phi_M, theta_e, omega_M, omega_3] = M x of a flexible state (wheel map rows: phi_M, omega_M, phi_3, omega_3)
+        self._M = np.array([[1, 0, 0, 0], [params.ratio, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=float) @ self.plant.wheel_map
+        self._M_inv = np.linalg.inv(self._M)
+        Y_flex = np.vstack([self._M, np.zeros((1, 4))])  # y of a flexible state (s = 0)
+        stick = m.guard(STICK)
+        self.stepper = Stepper(self.plant, method, self.dt, self.method_options, origin, integrator, _mapped(stick, Y_flex))
         self.integrator = self.stepper.integrator
         self.stability = require_stable(self.flexible.A, self.flexible.B, method, dt) if check_stability else None
-        self.hybrid = HybridStepper(self.model, self.plant.scalar_drive, self.plant.scalar_load, method)
+        self.hybrid = HybridStepper(m, self.plant.scalar_drive, self.plant.scalar_load, method)
+        self._steppers = {"flexible": self.stepper}
+        self._steppers["stick"] = Stepper(Plant(m, drive, load), method, self.dt, self.method_options, origin, guard=stick)
+        if params.belt_mass == 0.0:  # Q_max constant: the slip mode is linear with Q as a constant state
+            plant = Plant(_SlipPhase(m), drive, load)
+            shared = None
+            for sigma in (1.0, -1.0):
+                guard = _mapped(m.guard(SLIP, sigma), np.eye(5, 6))
+                st = Stepper(plant, method, self.dt, self.method_options, origin, shared, guard)
+                shared = st.integrator
+                self._steppers[("slip", sigma)] = st
         self.events: list = []
         self.vectorized = False
-        self._W_inv = np.linalg.inv(self.plant.wheel_map)  # [phi_M, omega_M, phi_3, omega_3] = W x
-        self._steppers: dict = {}
+        self._window = WINDOW_FIRST
 
     # ------------------------------------------------------ conversions
+    @property
+    def breakpoints(self) -> list:
+        """Times [s] where steps are split or bounded (settable: applies to every phase's stepper)."""
+        return self.stepper.breakpoints
+
+    @breakpoints.setter
+    def breakpoints(self, value) -> None:
+        value = list(value)
+        for st in self._steppers.values():
+            st.breakpoints = value
+
+    @property
+    def origin(self) -> float:
+        return self.stepper.origin
+
+    @origin.setter
+    def origin(self, value: float) -> None:
+        for st in self._steppers.values():
+            st.origin = float(value)
+
+    def reset(self) -> None:
+        """Forget the steppers' partial-step integrators."""
+        for st in self._steppers.values():
+            st.reset()
+
     def to_flexible(self, y):
         """Flexible state with the same motion and a deflection theta_e (phi_3 without the slip part)."""
-        i = self.model.params.ratio
-        return self._W_inv @ np.array([y[0], y[2], i * y[0] - y[1], y[3]])
+        return self._M_inv @ np.asarray(y, dtype=float)[:4]
 
-    def from_flexible(self, xs, s):
+    def from_flexible(self, xs, s=0.0):
         """Slipping states of flexible states ``xs`` (N, 4) with accumulated slip ``s``."""
-        phi_M, omega_M, phi_3, omega_3 = self.flexible.wheel_coordinates(xs)
-        i = self.model.params.ratio
-        return np.column_stack([phi_M, i * phi_M - phi_3, omega_M, omega_3, np.full(len(phi_M), s)])
+        ys = np.empty((len(xs), 5))
+        ys[:, :4] = xs @ self._M.T
+        ys[:, 4] = s
+        return ys
 
-    def _stick_stepper(self, s: float) -> Stepper:
-        """The stepper of the stick phase after slip ``s`` (the flexible plant itself while s = 0)."""
-        if s == 0.0:
-            return self.stepper
-        if len(self._steppers) > 64:
-            self._steppers.clear()
-        key = ("stick", s)
-        if key not in self._steppers:
-            plant = Plant(self.flexible, self.drive, _ShiftedLoad(self.load, s / self.model.params.r_3))
-            self._steppers[key] = Stepper(plant, self.method, self.dt, self.method_options, origin=self.stepper.origin)
-        return self._steppers[key]
-
-    def _slip_stepper(self) -> Stepper | None:
-        """The stepper of the slip phase of a massless belt (None with a belt mass: Q_max varies)."""
-        if self.model.params.belt_mass != 0.0:
-            return None
-        if "slip" not in self._steppers:
-            plant = Plant(_SlipPhase(self.model), self.drive, self.load)
-            self._steppers["slip"] = Stepper(plant, self.method, self.dt, self.method_options, origin=self.stepper.origin)
-        return self._steppers["slip"]
-
-    def _grid(self, t0: float, t1: float) -> list:
-        """The stepper's knots: grid times ``t0 + k dt`` and ``t1`` exactly."""
-        st = self.stepper
-        times = [t0]
-        k = 1
-        while True:
-            t = st.grid_time(k)
-            if t >= t1 - snap_tolerance(t1, self.dt):
-                break
-            times.append(t)
-            k += 1
-        times.append(t1)
-        return times
-
-    def _cuts(self, a: float, b: float):
-        """Breakpoints strictly inside (a, b), and whether b is one (the step then ends at its left limit)."""
-        tol = snap_tolerance(b, self.dt)
-        bps = self.stepper.breakpoints
-        inside = [c for c in bps if a + tol < c < b - tol]
-        return inside, any(abs(c - b) <= tol for c in bps)
-
-    # -------------------------------------------------------------- run
-    def run(self, duration, y0, t0=0.0, progress=None):
-        """Integrate ``duration`` [s] from the slipping state ``y0``; returns (time, states, mode, sigma)."""
-        self.stepper.origin = float(t0)
-        times = self._grid(float(t0), float(t0) + float(duration))
-        time = np.array(times)
-        n = len(times) - 1
-        hs = self.hybrid
-        states = np.empty((n + 1, 5))
-        modes = np.zeros(n + 1, dtype=np.int8)
-        sigmas = np.zeros(n + 1)
+    def initial(self, y0, t0=0.0) -> SlipState:
+        """The hybrid state of slipping state ``y0`` at ``t0`` (sliding at once when it starts beyond the limit)."""
         y = np.asarray(y0, dtype=float).copy()
         mode, sigma = STICK, 0.0
-        events: list = []
-        if hs.switching(mode, sigma, y) > 0.0:  # starts beyond the limit
-            mode, sigma, y = hs.switch(mode, sigma, times[0], y)
-        states[0], modes[0], sigmas[0] = y, mode, sigma
-        x = self.to_flexible(y)  # the running flexible state while sticking (no round trips)
-        k, chunk = 0, 16  # chunks grow x2 without an event, back to 16 after one
-        while k < n:
-            stop = min(k + chunk, n)
-            chunk = min(2 * chunk, self.chunk)
-            if mode == STICK:
-                s = float(y[4])
-                _, xs = self._stick_stepper(s).run(x, times[k], times[stop], vectorize=False)
-                ys = self.from_flexible(xs[1:], s)
-                g = np.abs(ys @ self.model.q_row) - self.model.limit(ys[:, 2])
-            else:
-                st = self._slip_stepper()
-                if st is None:
-                    ys = np.empty((0, 5))
-                    g = np.empty(0)
-                else:
-                    Q = sigma * float(self.model.limit(0.0))
-                    _, zs = st.run(np.append(y, Q), times[k], times[stop], vectorize=False)
-                    ys = zs[1:, :5]
-                    g = -sigma * self.model.slip_speed(ys, Q)
-            bad = np.flatnonzero(g > 0.0)
-            done = len(ys) if not bad.size else int(bad[0])
-            states[k + 1 : k + 1 + done] = ys[:done]
-            modes[k + 1 : k + 1 + done], sigmas[k + 1 : k + 1 + done] = mode, sigma
-            if done:
-                y = ys[done - 1].copy()
-                if mode == STICK:
-                    x = xs[done]
-            k += done
-            if progress:
-                progress(k / n)
-            if k >= n or (done == len(ys) and len(ys)):
+        if self.hybrid.switching(mode, sigma, y) > 0.0:
+            mode, sigma, y = self.hybrid.switch(mode, sigma, t0, y)
+        return self._native(y, mode, sigma)
+
+    def _native(self, y, mode, sigma) -> SlipState:
+        if mode == STICK:
+            if y[4] == 0.0:
+                return SlipState(mode, 0.0, "flexible", self.to_flexible(y))
+            return SlipState(mode, 0.0, "stick", y)
+        if ("slip", sigma) in self._steppers:
+            return SlipState(mode, sigma, "slip", np.append(y, sigma * self.model.params.friction_limit(0.0)))
+        return SlipState(mode, sigma, "hybrid", y)
+
+    def ys(self, kind, xs) -> np.ndarray:
+        """Slipping states ``y`` (N, 5) of states ``xs`` (N, n) of a phase of ``kind``."""
+        if kind == "flexible":
+            return self.from_flexible(xs)
+        return xs[:, :5]
+
+    def state_y(self, state: SlipState) -> np.ndarray:
+        """The slipping state ``y`` (5,) of a hybrid state."""
+        return self.ys(state.kind, state.x[None, :])[0]
+
+    # -------------------------------------------------------------- run
+    def advance(self, state: SlipState, t0: float, t1: float, record=None, events=None) -> SlipState:
+        """The hybrid state at ``t1`` [s] from ``state`` at ``t0`` (``t1 >= t0``).
+
+        ``record``: a list that receives ``(times, ys, mode, sigma)`` per
+        piece (the knots after ``t0``); ``events``: a list that receives the
+        mode switches (:class:`~belt_drive_ros.core.slip.Event`).
+        Raises :class:`~belt_drive_ros.core.errors.SimulationDivergedError`.
+        """
+        t = float(t0)
+        hs = self.hybrid
+        while t < t1:
+            if state.kind == "hybrid":  # a belt with mass slipping: step by step on the stepper's plan
+                a, e, whole, lo, hi, cuts = self.stepper.next_step(t, t1)
+                y, mode, sigma = hs.advance(a, e, state.x, state.mode, state.sigma, cuts, events,
+                                            self.dt if whole else None, hi)  # fmt: skip
+                self._check(e, y)
+                if record is not None:
+                    record.append((np.array([e]), y[None, :], mode, sigma))
+                state, t = self._native(y, mode, sigma), e
                 continue
-            # step k -> k+1 holds an event (or the slip mode has a belt mass): the hybrid stepper takes it
-            cuts, ends_on_breakpoint = self._cuts(times[k], times[k + 1])
-            hi_end = self.plant.left_of(times[k + 1]) if ends_on_breakpoint else math.inf
-            y, new_mode, sigma = hs.advance(times[k], times[k + 1], y, mode, sigma, cuts, events, self.dt, hi_end)
-            if not (np.all(np.isfinite(y)) and max(abs(y[2]), abs(y[3])) <= SPEED_LIMIT):
-                raise self.stepper._diverged(times[k + 1], y)
-            if new_mode != mode or events:
-                chunk = 16
-            mode = new_mode
-            states[k + 1], modes[k + 1], sigmas[k + 1] = y, mode, sigma
-            if mode == STICK:
-                x = self.to_flexible(y)
-            k += 1
+            st = self._steppers[state.kind if state.kind != "slip" else ("slip", state.sigma)]
+            t_end = t1
+            if record is not None:  # a window: what a phase computes past its event is thrown away
+                k = math.floor((t - st.origin) / self.dt) + self._window
+                self._window = min(2 * self._window, WINDOW_MAX)
+                if st.grid_time(k) < t1 - snap_tolerance(t1, self.dt):
+                    t_end = st.grid_time(k)
+            times, xs = st.run(state.x, t, t_end)
+            stop = st.stopped
+            n = len(times) - 1 if stop is None else stop[0]
+            if record is not None and n:
+                record.append((times[1 : n + 1], self.ys(state.kind, xs[1 : n + 1]), state.mode, state.sigma))
+            if stop is None:
+                state, t = SlipState(state.mode, state.sigma, state.kind, xs[-1]), float(times[-1])
+                continue
+            # the guard fired in step j: the hybrid stepper redoes it with the event located
+            j, a, e, whole, lo, hi, cuts = stop
+            self._window = WINDOW_FIRST
+            y0 = self.ys(state.kind, xs[j : j + 1])[0]
+            y1 = None if cuts else self.ys(state.kind, xs[j + 1 : j + 2])[0]
+            y, mode, sigma = hs.advance(a, e, y0, state.mode, state.sigma, cuts, events, self.dt if whole else None, hi, y1)
+            self._check(e, y)
+            if record is not None:
+                record.append((np.array([e]), y[None, :], mode, sigma))
+            state, t = self._native(y, mode, sigma), e
+        return state
+
+    def _check(self, t, y) -> None:
+        if not (np.all(np.isfinite(y)) and max(abs(y[2]), abs(y[3])) <= SPEED_LIMIT):
+            raise self.stepper._diverged(t, y)
+
+    def run(self, duration, y0, t0=0.0, progress=None):
+        """Integrate ``duration`` [s] from the slipping state ``y0``; returns (time, states, mode, sigma)."""
+        self.origin = float(t0)
+        t1 = float(t0) + float(duration)
+        state = self.initial(y0, t0)
+        pieces: list = []
+        events: list = []
+        y = self.state_y(state)
+        pieces.append((np.array([float(t0)]), y[None, :], state.mode, state.sigma))
+        t = float(t0)
+        while t < t1:  # progress between windows
+            k = math.floor((t - self.origin) / self.dt) + 4 * WINDOW_MAX
+            t_next = self.stepper.grid_time(k) if self.stepper.grid_time(k) < t1 - snap_tolerance(t1, self.dt) else t1
+            state = self.advance(state, t, t_next, pieces, events)
+            t = t_next
+            if progress:
+                progress((t - t0) / max(duration, 1e-300))
         self.events = events
+        time = np.concatenate([p[0] for p in pieces])
+        states = np.concatenate([p[1] for p in pieces])
+        modes = np.concatenate([np.full(len(p[0]), p[2], dtype=np.int8) for p in pieces])
+        sigmas = np.concatenate([np.full(len(p[0]), p[3]) for p in pieces])
         if progress:
             progress(1.0)
         return time, states, modes, sigmas

@@ -62,6 +62,46 @@ class LinearStep:
     gains: tuple
 
 
+@dataclass(frozen=True)
+class Guard:
+    """A stop rule for a compiled loop: it stops after the first step whose end state has ``g(x) > 0``.
+
+    ``g(x) = f(row . x) - (bound - quad (speed . x)^2)`` with ``f = abs`` when
+    ``absolute`` else the identity. The slipping belt's switching functions
+    have this form (``|Q| - Q_max(omega_M)`` with ``Q`` linear in the state and
+    ``Q_max = 2 (F_0 - m' v^2) tanh(mu_eff beta / 2)``; ``-sigma s'`` with ``s'``
+    linear), so a stick or slip phase runs in the compiled loop and only the
+    step in which the switching function turns positive is redone with event
+    location. The check costs a few multiply-adds per step.
+    """
+
+    row: tuple
+    bound: float = 0.0
+    absolute: bool = False
+    speed: tuple | None = None
+    quad: float = 0.0
+
+    def value(self, x) -> float:
+        """g(x) for one state (plain floats)."""
+        v = sum(c * float(xi) for c, xi in zip(self.row, x))
+        v = abs(v) if self.absolute else v
+        bound = self.bound
+        if self.speed is not None and self.quad:
+            w = sum(c * float(xi) for c, xi in zip(self.speed, x))
+            bound -= self.quad * w * w
+        return v - bound
+
+    def source(self, names) -> str:
+        """The condition ``g(x) > 0`` as Python source on the state variables ``names``."""
+        lhs = _linear_expression(self.row, names)
+        lhs = f"abs({lhs})" if self.absolute else f"({lhs})"
+        rhs = repr(float(self.bound))
+        if self.speed is not None and self.quad:
+            w = _linear_expression(self.speed, names)
+            rhs = f"({rhs} - {float(self.quad)!r} * ({w}) * ({w}))"
+        return f"{lhs} > {rhs}"
+
+
 def not_converged(name: str, t: float, max_iter: int, dt: float) -> IntegratorError:
     """The error of an implicit stage whose fixed-point iteration failed (one message for every path)."""
     return IntegratorError(
@@ -139,6 +179,7 @@ def compile_scalar_loop(
     name: str = "method",
     uses_angle: tuple = (True, True),
     formulas: tuple = (None, None),
+    guard: Guard | None = None,
 ) -> Callable:
     """Generate and compile a Python loop that runs ``scheme`` on plain floats.
 
@@ -166,6 +207,9 @@ def compile_scalar_loop(
         instead of a call (a call costs about as much as 5 multiply-adds): the
         same text the profile's scalar closure is compiled from, so bitwise
         equal to it; or None to call ``drive``/``load``.
+    guard : a :class:`Guard`: the loop also stops (a shorter list, the last
+        state the one at which ``g > 0``) after the first step that ends with
+        the guard positive.
 
     Returns
     -------
@@ -271,6 +315,7 @@ def compile_scalar_loop(
     finite = " and ".join([f"abs(x{r}) <= limit" for r in range(half, n)] + [f"x{r} - x{r} == 0.0" for r in range(half)])
     lines += [
         f"        extend(({', '.join(xs)},))",
+        *([f"        if {guard.source(xs)}:", "            break"] if guard is not None else []),
         f"        if k & 63 == 63 and not ({finite}):",
         "            break",
         "    return out",

@@ -124,11 +124,14 @@ class Plant:
 
         self.inputs = inputs
 
-    def scalar_loop(self, integrator) -> Callable | None:
-        """``integrator``'s compiled float loop for this plant (inlined torques, unused angles skipped), or None."""
+    def scalar_loop(self, integrator, guard=None) -> Callable | None:
+        """``integrator``'s compiled float loop for this plant (inlined torques, unused angles skipped), or None.
+
+        ``guard``: a :class:`~belt_drive_ros.core.stage_scheme.Guard` the loop checks after every step.
+        """
         if not isinstance(integrator, FixedStepIntegrator):
             return None
-        return integrator.scalar_loop(self.wheel_map, self.uses_angle, self.formulas)
+        return integrator.scalar_loop(self.wheel_map, self.uses_angle, self.formulas, guard)
 
     def left_of(self, b: float) -> float:
         """Latest time [s] before breakpoint ``b`` at which both torques still give their values from the left."""
@@ -153,6 +156,11 @@ def _coordinate(row: np.ndarray) -> Callable:
     return lambda x: float(row @ x)
 
 
+def _finite(x) -> bool:
+    """Every entry of state ``x`` finite."""
+    return math.isfinite(sum(x.tolist() if isinstance(x, np.ndarray) else x))
+
+
 def _healthy(x) -> bool:
     """Finite state with every speed (second half) within :data:`SPEED_LIMIT`."""
     values = x.tolist() if isinstance(x, np.ndarray) else list(x)
@@ -170,6 +178,10 @@ class Stepper:
     origin : scene time [s] of grid index 0.
     integrator : an integrator of ``method`` and ``dt`` already built for the
         plant's model (the node's settings hold one), else one is made.
+    guard : optional :class:`~belt_drive_ros.core.stage_scheme.Guard`: :meth:`run`
+        stops after the first step whose end state makes it positive (a
+        mode switch of the slipping belt lies in that step) and describes
+        that step in :attr:`stopped`.
 
     Attributes
     ----------
@@ -180,17 +192,26 @@ class Stepper:
     vectorized : whether the last :meth:`run` took the vectorized open-loop path.
     loop : the compiled float loop used for whole steps away from breakpoints
         (None: ``integrator.step``, numpy; a test may set it to compare the two).
+    stopped : after a :meth:`run` that the guard stopped, ``(j, a, e, whole,
+        lo, hi, cuts)``: step ``j`` of the run from time ``a`` to ``e`` [s]
+        (``whole``: a full grid step), its torque samples clamped to
+        ``[lo, hi]`` and split at ``cuts``; else None.
     """
 
-    def __init__(self, plant: Plant, method: str, dt: float, method_options=None, origin: float = 0.0, integrator=None):
+    def __init__(
+        self, plant: Plant, method: str, dt: float, method_options=None, origin: float = 0.0, integrator=None, guard=None
+    ):
         self.plant = plant
         self.method, self.dt, self.origin = method, float(dt), float(origin)
         self.method_options = dict(method_options or {})
         model = plant.model
         self.integrator = integrator or make_integrator(method, model.A, model.B, self.dt, **self.method_options)
         self.fixed_step = isinstance(self.integrator, FixedStepIntegrator)
-        self.loop = plant.scalar_loop(self.integrator)
+        self.guard = guard
+        self.loop = plant.scalar_loop(self.integrator, guard)
         self.breakpoints = list(plant.breakpoints)
+        self.stopped: tuple | None = None
+        self._stop_at: int | None = None
         self.split_steps: dict = {}
         self.vectorized = False
         self._partials: dict = {}
@@ -203,12 +224,12 @@ class Stepper:
         x = np.asarray(x, dtype=float)
         if t1 == t0:
             return x
+        if self.guard is not None:
+            raise ValueError("advance: a guarded stepper is run with run() (it may stop early)")
         k0, k1 = self._snap(t0), self._snap(t1)
         if k0 is not None and k1 is not None and k1 > k0 and self.loop is not None:
             # the node's usual tick: whole steps on the grid, no breakpoint near (the plan's common case, fast)
-            tol = snap_tolerance(t1, self.dt)
-            bps = self.breakpoints
-            if not bps or bisect_left(bps, min(t0, self.grid_time(k0)) - tol) == bisect_right(bps, max(t1, self.grid_time(k1)) + tol):
+            if not self._near_breakpoint(t0, t1, k0, k1):
                 self.split_steps = {}
                 out = self._whole_steps(x, k0, k1, None)
                 if not _healthy(out):
@@ -231,6 +252,10 @@ class Stepper:
         x0 = np.asarray(x0, dtype=float)
         if t1 < t0:
             raise ValueError(f"run: t1 ({t1!r} s) is before t0 ({t0!r} s)")
+        if self.guard is not None and self.loop is not None and progress is None:
+            k0, k1 = self._snap(t0), self._snap(t1)
+            if k0 is not None and k1 is not None and k1 > k0 and not self._near_breakpoint(t0, t1, k0, k1):
+                return self._guarded_whole(x0, k0, k1, t0, t1)
         plan = self._plan(t0, t1)
         times = self._knots(plan)
         can_vectorize = (
@@ -240,11 +265,15 @@ class Stepper:
             raise ValueError(
                 "vectorize=True needs time-only torques, a fixed-step method and no torque breakpoint inside a step"
             )
-        self.vectorized = bool(can_vectorize and vectorize is not False)
+        self.vectorized = bool(can_vectorize and vectorize is not False and self.guard is None)
+        self.stopped = None
         if self.vectorized:
             states = self._vectorized(x0, plan)
         else:
             states = self._march(x0, plan, progress, record=True)
+            if self.stopped is not None:
+                j = self.stopped[0]
+                times, states = times[: j + 2], states[: j + 2]
         bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, states.shape[1] // 2 :]) > SPEED_LIMIT, axis=1)
         if np.any(bad):
             k = int(np.argmax(bad))
@@ -253,10 +282,52 @@ class Stepper:
             progress(1.0)
         return times, states
 
+    def _near_breakpoint(self, t0: float, t1: float, k0: int, k1: int) -> bool:
+        """Whether a breakpoint lies in the grid steps k0 .. k1 (within the snap tolerance)."""
+        tol = snap_tolerance(t1, self.dt)
+        bps = self.breakpoints
+        return bool(bps) and bisect_left(bps, min(t0, self.grid_time(k0)) - tol) != bisect_right(
+            bps, max(t1, self.grid_time(k1)) + tol
+        )
+
+    def _guarded_whole(self, x0: np.ndarray, k0: int, k1: int, t0: float, t1: float):
+        """:meth:`run` of whole grid steps k0 .. k1 away from breakpoints with the guard (one loop call)."""
+        self.split_steps, self.vectorized, self.stopped = {}, False, None
+        states = np.empty((k1 - k0 + 1, x0.size))
+        states[0] = x0
+        with np.errstate(all="ignore"):
+            self._whole_steps(x0, k0, k1, states[1:])
+        times = np.array(self._grid(k0, k1 + 1))
+        times[0], times[-1] = t0, t1
+        if self._stop_at is not None:
+            j = self._stop_at
+            self._stop_at = None
+            self.stopped = (j, float(times[j]), float(times[j + 1]), True, -math.inf, math.inf, [])
+            times, states = times[: j + 2], states[: j + 2]
+        if not _healthy(states[-1]):
+            bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, states.shape[1] // 2 :]) > SPEED_LIMIT, axis=1)
+            k = int(np.argmax(bad))
+            raise self._diverged(float(times[k]), states[k])
+        return times, states
+
     def reset(self) -> None:
         """Forget adaptive solver history and the partial-step integrators."""
         self.integrator.reset()
         self._partials.clear()
+
+    def next_step(self, t0: float, t1: float) -> tuple:
+        """The first step of an advance from ``t0`` to ``t1`` [s]: ``(a, e, whole, lo, hi, cuts)``.
+
+        From ``a`` to ``e`` [s] (``whole``: a full grid step), torque samples
+        clamped to ``[lo, hi]``, split at ``cuts`` (the plan :meth:`run` follows).
+        """
+        plan = self._plan(t0, t1)
+        if plan["empty"]:
+            return t0, t1, False, -math.inf, math.inf, []
+        c = plan["first"]
+        a, e, whole = self._step_ends(plan, c)
+        lo, hi, cuts = plan["special"].get(c, (-math.inf, math.inf, []))
+        return a, e, whole, lo, hi, list(cuts)
 
     def grid_time(self, k: int) -> float:
         """Grid time ``origin + k dt`` [s] (the float every caller computes)."""
@@ -409,12 +480,21 @@ class Stepper:
                     c += 1
                     if not _healthy(x):
                         break
+                    if self.guard is not None and _finite(x) and self.guard.value(x) > 0.0:
+                        self.stopped = (c - 1 - first, a, e, whole, lo, hi, list(cuts))
+                        break
                     continue
                 # a run of plain whole steps: up to the next special cell, the last whole cell, or a chunk
                 while si < len(stops) and stops[si] < c:
                     si += 1
                 stop = min(c + chunk, stops[si] if si < len(stops) else last + 1, last + 1 if not plan["trail"] else last)
                 x = self._whole_steps(x, c, stop, states[c - first + 1 : stop - first + 1] if record else None)
+                if self._stop_at is not None:  # the guard fired at the end of cell c + _stop_at
+                    j = c + self._stop_at
+                    self._stop_at = None
+                    a, e, whole = self._step_ends(plan, j)
+                    self.stopped = (j - first, a, e, whole, -math.inf, math.inf, [])
+                    break
                 c = stop
                 if not _healthy(x):
                     break
@@ -433,16 +513,24 @@ class Stepper:
                 flat = None  # a math domain error on a runaway state: redo with numpy, which gives inf/nan
             if flat is not None:
                 done = len(flat) // size
+                last = flat[-size:] if done else []
+                guarded = bool(done) and self.guard is not None and _finite(last) and self.guard.value(last) > 0.0
                 if out is not None:
                     out[:done] = np.array(flat).reshape(done, size)
-                    if done < len(out):  # stopped early on a runaway state
+                    if done < len(out) and not guarded:  # stopped early on a runaway state
                         out[done:] = np.nan
-                return np.array(flat[-size:]) if done == stop - c else np.full(size, np.nan)
+                if guarded:
+                    self._stop_at = done - 1
+                    return np.array(last)
+                return np.array(last) if done == stop - c else np.full(size, np.nan)
         step, inputs = self.integrator.step, self.plant.inputs
         for j, t in enumerate(times[:-1]):
             x = step(t, x, inputs)
             if out is not None:
                 out[j] = x
+            if self.guard is not None and _finite(x) and self.guard.value(x) > 0.0:
+                self._stop_at = j
+                return x
             if j & 63 == 63 and not _healthy(x):
                 if out is not None:
                     out[j + 1 :] = np.nan

@@ -1,0 +1,201 @@
+"""Exact flow of one mode of the slipping belt by its eigenvalues, on plain floats (event handling).
+
+In both modes of :class:`~belt_drive_ros.core.slip.SlippingBeltModel` the
+state ``y = [phi_M, theta_e, omega_M, omega_3, s]`` splits into the
+sub-state ``z = [theta_e, omega_M, omega_3]``, which evolves by itself
+(``z' = A_z z + B_z u``), and the two integrated coordinates ``phi_M`` and
+``s``, whose rates read only ``z`` and ``u`` (columns 0 and 4 of ``A`` are
+zero). With ``A_z = V diag(lambda) V^-1`` and an input linear in time from
+``u_0`` at ``tau = 0`` to ``u_1`` at ``tau = h``, the modal coordinates
+``zeta = V^-1 z`` follow::
+
+    zeta_i(tau) = e^(l tau) w_i + tau phi_1(l tau) b0_i + tau^2 phi_2(l tau) db_i
+    int_0^tau zeta_i = tau phi_1(l tau) w_i + tau^2 phi_2(l tau) b0_i + tau^3 phi_3(l tau) db_i
+
+with ``l = lambda_i``, ``w = V^-1 z(0)``, ``b0 = V^-1 B_z u_0``,
+``db = V^-1 B_z (u_1 - u_0) / h`` and ``phi_k(x) = sum_j x^j / (j + k)!``
+(from ``int_0^tau s^k phi_k(l s) ds = tau^(k+1) phi_(k+1)(l tau)``). The
+integrated coordinates add ``Re(a_j V int zeta) + b_j (tau u_0 + tau^2 (u_1 - u_0) / (2 h))``.
+
+This is the exact solution of the mode's linear ODE with that input: the
+``exact`` method's step (held input, ``u_1 = u_0``) and the ``etd2`` step
+(``u_1`` from the predictor, ``h = tau``) of any length, and the continuous
+extension on which events are located, each for a few dozen complex
+multiply-adds instead of a matrix exponential per sub-step length. Where
+``A_z`` is (nearly) defective the constructor raises ``LinAlgError`` and
+the callers use the integrators instead.
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+from typing import Callable
+
+import numpy as np
+
+#: Taylor coefficients 1/(j+3)! of phi_3, enough for |x| < 0.5 to below 1e-17 relative
+_PHI3 = tuple(1.0 / math.factorial(j + 3) for j in range(15))
+
+
+def phis(x: complex) -> tuple[complex, complex, complex, complex]:
+    """(e^x, phi_1(x), phi_2(x), phi_3(x)): Taylor series below |x| = 0.5, closed forms above."""
+    if abs(x) < 0.5:
+        p3 = 0.0 * x
+        for c in reversed(_PHI3):
+            p3 = p3 * x + c
+        p2 = 0.5 + x * p3
+        p1 = 1.0 + x * p2
+        return 1.0 + x * p1, p1, p2, p3
+    e = cmath.exp(x) if isinstance(x, complex) else math.exp(x)
+    p1 = (e - 1.0) / x
+    p2 = (p1 - 1.0) / x
+    return e, p1, p2, (p2 - 0.5) / x
+
+
+def _dot(P, u) -> complex:
+    """sum_q P[q] u[q] for the 2 or 3 inputs of a mode."""
+    if len(u) == 2:
+        return P[0] * u[0] + P[1] * u[1]
+    return P[0] * u[0] + P[1] * u[1] + P[2] * u[2]
+
+
+class ModalFlow:
+    """Exact flow of ``y' = A y + B u`` (5 states, ``u`` linear in time) by the eigenvalues of ``A[1:4, 1:4]``.
+
+    Parameters
+    ----------
+    A : (5, 5) mode matrix with zero columns 0 and 4.
+    B : (5, m) input matrix.
+
+    A complex pair of eigenvalues is carried once (its partner contributes the
+    complex conjugate: twice the real part); real eigenvalues in real
+    arithmetic.
+    """
+
+    def __init__(self, A, B):
+        A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
+        if np.any(A[:, 0]) or np.any(A[:, 4]):
+            raise np.linalg.LinAlgError("phi_M or s feeds back: no modal split")
+        lam, V = np.linalg.eig(A[1:4, 1:4])
+        if not np.all(np.isfinite(lam)) or np.linalg.cond(V) > 1e8:
+            raise np.linalg.LinAlgError("defective")
+        Vinv = np.linalg.inv(V)
+        P = Vinv @ B[1:4]  # V^-1 B_z, (3, m)
+        C = A[[0, 4], 1:4] @ V  # rates of phi_M and s on zeta
+        self.m = B.shape[1]
+        self.B04 = [[float(v) for v in row] for row in B[[0, 4]]]
+        #: per carried mode: (lambda, weight, V column, V^-1 row, P row, C column)
+        self.modes = []
+        pairs = 0
+        for i in range(3):
+            if lam[i].imag < 0.0:
+                pairs -= 1
+                continue
+            if lam[i].imag > 0.0:
+                pairs += 1
+
+            def conv(values, real=lam[i].imag == 0.0):
+                return [float(v.real) if real else complex(v) for v in values]
+
+            real = lam[i].imag == 0.0
+            self.modes.append((
+                float(lam[i].real) if real else complex(lam[i]), 1.0 if real else 2.0,
+                conv(V[:, i]), conv(Vinv[i]), conv(P[i]), conv(C[:, i]),
+            ))  # fmt: skip
+        if pairs != 0:
+            raise np.linalg.LinAlgError("eigenvalues not in conjugate pairs")
+        self.max_frequency = float(np.max(np.abs(lam.imag)))
+
+    def prepare(self, y, u0, u1, h, w=None, b0=None):
+        """Coefficients (w, b0, db, u0, du) from state ``y`` and the input's values at 0 and ``h`` [s].
+
+        ``w``, ``b0``: those of an earlier call with the same ``y`` and ``u0`` (reused).
+        """
+        if w is None:
+            z0, z1, z2 = float(y[1]), float(y[2]), float(y[3])
+            w = [Vi[0] * z0 + Vi[1] * z1 + Vi[2] * z2 for _, _, _, Vi, _, _ in self.modes]
+            b0 = [_dot(P, u0) for _, _, _, _, P, _ in self.modes]
+        if u1 is u0:
+            return w, b0, [0.0] * len(w), u0, [0.0] * len(u0)
+        du = [(b - a) / h for a, b in zip(u0, u1)]
+        return w, b0, [_dot(P, du) for _, _, _, _, P, _ in self.modes], u0, du
+
+    def _phis(self, tau):
+        return [phis(mode[0] * tau) for mode in self.modes]
+
+    def guard_function(self, guard, coeffs):
+        """``G(tau) = guard.value(y(tau))`` and its derivative, for a guard that reads only z (entries 0 and 4 zero).
+
+        ``row . z = sum_i weight_i Re((row . V_i) zeta_i(tau))``, likewise the speed row.
+        """
+        if guard.row[0] or guard.row[4] or (guard.speed is not None and (guard.speed[0] or guard.speed[4])):
+            raise ValueError("guard reads phi_M or s")
+        w, b0, db = coeffs[0], coeffs[1], coeffs[2]
+
+        def amplitudes(row):
+            out = []
+            for k, (_, weight, Vc, _, _, _) in enumerate(self.modes):
+                r = weight * (row[1] * Vc[0] + row[2] * Vc[1] + row[3] * Vc[2])
+                out.append((r * w[k], r * b0[k], r * db[k]))
+            return out
+
+        a = list(zip([mode[0] for mode in self.modes], amplitudes(guard.row)))
+        quad = guard.quad if guard.speed is not None else 0.0
+        sp = amplitudes(guard.speed) if quad else None
+        absolute, bound = guard.absolute, guard.bound
+
+        def G(tau):
+            """(G, dG/dtau) at tau: d/dtau of (e, tau phi_1, tau^2 phi_2) is (lambda e, e, tau phi_1)."""
+            t2 = tau * tau
+            v = wv = dv = dwv = 0.0
+            for k, (lam, (a0, a1, a2)) in enumerate(a):
+                e, p1, p2, _ = phis(lam * tau)
+                tp1 = tau * p1
+                v += (a0 * e + tp1 * a1 + t2 * p2 * a2).real
+                dv += (a0 * lam * e + a1 * e + a2 * tp1).real
+                if sp is not None:
+                    s0, s1, s2 = sp[k]
+                    wv += (s0 * e + tp1 * s1 + t2 * p2 * s2).real
+                    dwv += (s0 * lam * e + s1 * e + s2 * tp1).real
+            if absolute and v < 0.0:
+                v, dv = -v, -dv
+            return v - (bound - quad * wv * wv), dv + 2.0 * quad * wv * dwv
+
+        return G
+
+    def state(self, y, coeffs, tau: float, ph=None) -> list:
+        """The whole state (5 floats) at ``tau`` [s] (``ph``: :meth:`_phis` of ``tau`` if known)."""
+        w, b0, db, u0, du = coeffs
+        ph = ph or self._phis(tau)
+        t2 = tau * tau
+        z0 = z1 = z2 = i0 = i4 = 0.0
+        for k, (_, weight, Vc, _, _, Cc) in enumerate(self.modes):
+            e, p1, p2, p3 = ph[k]
+            zeta = weight * (e * w[k] + tau * p1 * b0[k] + t2 * p2 * db[k])
+            integral = weight * (tau * p1 * w[k] + t2 * p2 * b0[k] + t2 * tau * p3 * db[k])
+            z0 += (Vc[0] * zeta).real
+            z1 += (Vc[1] * zeta).real
+            z2 += (Vc[2] * zeta).real
+            i0 += (Cc[0] * integral).real
+            i4 += (Cc[1] * integral).real
+        B0, B4 = self.B04
+        for q in range(self.m):
+            ramp = tau * u0[q] + 0.5 * t2 * du[q]
+            i0 += B0[q] * ramp
+            i4 += B4[q] * ramp
+        return [float(y[0]) + i0, z0, z1, z2, float(y[4]) + i4]
+
+    def step(self, y, t: float, h: float, u: Callable, ramp: bool) -> list:
+        """One ``exact`` (``ramp`` False: input held at ``u(t, y)``) or ``etd2`` step of length ``h`` [s].
+
+        etd2 (Cox-Matthews): ``a`` = the held-input flow, ``u_1 = u(t + h, a)``,
+        then the flow with the input ramping from ``u_0`` to ``u_1``.
+        """
+        ph = self._phis(h)
+        u0 = u(t, y)
+        held = self.prepare(y, u0, u0, h)
+        a = self.state(y, held, h, ph)
+        if not ramp:
+            return a
+        return self.state(y, self.prepare(y, u0, u(t + h, a), h, held[0], held[1]), h, ph)
