@@ -186,8 +186,8 @@ def test_initial_state_vector():
 # ------------------------------------------------------------ auto model choice
 def test_auto_picks_flexible_for_truck_compressor():
     scene = load_scene("truck_compressor")
-    choice = choose_model(scene)
-    assert choice.model == "flexible"
+    choice = choose_model(scene, check_slip=False)
+    assert choice.model == choice.linear == "flexible"
     assert choice.reason.startswith("flexible:")
     assert f"{choice.belt_frequency:.1f} Hz" in choice.reason
     assert choice.max_ratio >= FREQUENCY_RATIO_THRESHOLD

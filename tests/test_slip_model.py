@@ -113,3 +113,27 @@ def test_bsg_start_slips_at_breakaway_then_sticks():
     # belt torque at the crank pinned at r_3 Q_max(omega_M) while slipping
     s = o["slip"]
     np.testing.assert_allclose(o["belt_torque"][s], p.r_3 * p.friction_limit(o["omega_M"][s]), rtol=1e-12)
+
+
+def test_choose_model_has_three_tiers_and_names_the_peak():
+    """auto: the frequency rule picks the linear tier, its run's peak |Q| / Q_max decides on slipping."""
+    from belt_drive_ros.core.fidelity import choose_model
+
+    scene = load_scene("truck_compressor").with_overrides(duration=1.0)
+    choice = choose_model(scene)
+    assert (choice.model, choice.linear) == ("slipping", "flexible")
+    # independent check of the peak: the flexible run's net force against the capstan law
+    p = scene.params
+    flex = simulate(scene, model="flexible")
+    v = p.r_2 * p.gear_ratio * flex["omega_M"]
+    q_max = 2.0 * (p.F_0 - p.belt_mass * v**2) * np.tanh(0.5 * p.mu / np.sin(0.5 * p.groove_angle) * p.wrap_angle)
+    ratio = np.abs(flex["belt_torque"] / p.r_3) / q_max
+    k = int(np.argmax(ratio))
+    assert choice.limit_ratio == pytest.approx(ratio[k], rel=1e-12)
+    assert choice.limit_time == flex.time[k]
+    assert choice.reason.startswith(f"slipping: peak transmitted force {ratio[k]:.2f} x the capstan limit")
+    assert f"at t = {flex.time[k]:.3g} s" in choice.reason and "flexible:" in choice.reason
+    # within the limit (before the compressor loads at 0.5 s) the linear tier stays, with its margin
+    calm = choose_model(scene.with_overrides(duration=0.4))
+    assert calm.model == calm.linear == "flexible" and 0.0 < calm.limit_ratio < 1.0
+    assert choose_model(scene, check_slip=False).model == "flexible"

@@ -64,7 +64,7 @@ def fidelity(cfg) -> list:
     """Flexible-model error against the slipping model as the load grows past the capacity (see the module docstring)."""
     from ..core.scene import load_scene
     from ..core.simulate import simulate
-    from ..core.slip_run import limit_exceedance
+    from ..core.fidelity import limit_exceedance
     from ..core.sources import Sine
 
     base = load_scene("truck_compressor")

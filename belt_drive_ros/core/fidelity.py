@@ -1,4 +1,4 @@
-"""Model no more than a scene needs: the ``auto`` choice between rigid and flexible.
+"""Model no more than a scene needs: the ``auto`` choice between rigid, flexible and slipping.
 
 The flexible model differs from the rigid one by the belt mode at
 ``f_n = omega_n / (2 pi)``. A harmonic excitation at ``f`` drives the belt
@@ -15,6 +15,18 @@ at every frequency. Hence:
 
 Excitation frequencies depend on speed (engine firing, compressor strokes),
 so the operating speeds are first estimated with a cheap rigid run.
+
+The linear models transmit any force; a belt transmits at most what
+friction allows, ``Q_max = 2 (F_0 - F_c) tanh(mu_eff beta / 2)`` (the
+capstan limit, ``docs/slip.md``). So the third tier:
+
+* **slipping** when the run of the chosen linear model transmits a net
+  force ``|Q| = |belt torque| / r_3`` beyond ``Q_max`` at any time: the belt
+  would slide there, and what the linear model reports after that is not
+  what the drive does. The reason names the peak ratio and its time.
+
+A scene that stays within the limit keeps its linear model (and that run is
+the result: ``simulate`` passes it in, so the check costs nothing extra).
 ``docs/performance.md`` (fidelity chart) shows the rigid model's measured
 error against these ratios and where the threshold sits.
 """
@@ -22,11 +34,11 @@ error against these ratios and where the threshold sits.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .model import RigidBeltModel
+from .model import RigidBeltModel, make_model
 from .stepper import Plant, Stepper
 
 #: rigid is chosen while max(f_excitation) / f_n stays below this [-].
@@ -45,6 +57,9 @@ class ModelChoice:
     excitations : ((frequency [Hz], label), ...) at the estimated operating speeds.
     max_ratio : max excitation frequency / f_n [-] (inf for a step change).
     output_rate : rate [Hz] outputs are consumed at.
+    linear : the linear tier the frequency rule chose ("rigid" or "flexible").
+    limit_ratio : peak |Q| / Q_max of that linear run [-] (nan: not checked).
+    limit_time : time of that peak [s] (nan: not checked).
     """
 
     model: str
@@ -53,6 +68,9 @@ class ModelChoice:
     excitations: tuple
     max_ratio: float
     output_rate: float
+    linear: str = ""
+    limit_ratio: float = math.nan
+    limit_time: float = math.nan
 
 
 def _operating_speeds(scene) -> tuple[float, float]:
@@ -65,8 +83,59 @@ def _operating_speeds(scene) -> tuple[float, float]:
     return w, w * scene.params.ratio
 
 
-def choose_model(scene, threshold: float = FREQUENCY_RATIO_THRESHOLD) -> ModelChoice:
-    """Rigid or flexible for ``scene``, with the reason (see the module docstring)."""
+def choose_model(scene, threshold: float = FREQUENCY_RATIO_THRESHOLD, check_slip: bool = True, linear_run=None) -> ModelChoice:
+    """Rigid, flexible or slipping for ``scene``, with the reason (see the module docstring).
+
+    Parameters
+    ----------
+    scene : Scene.
+    threshold : frequency ratio from which the belt mode counts.
+    check_slip : also run the chosen linear model and go on to ``slipping``
+        when it passes the capstan limit (False: the two linear tiers only).
+    linear_run : ``f(model_name) -> (time, outputs)`` that runs the scene on
+        that linear model (``simulate`` passes one that keeps the run as its
+        result); default: a run through the stepper with the scene's method.
+    """
+    choice = _linear_choice(scene, threshold)
+    choice = replace(choice, linear=choice.model)
+    if not check_slip:
+        return choice
+    time, outputs = (linear_run or (lambda kind: _linear_outputs(scene, kind)))(choice.model)
+    ratio, t_peak = limit_exceedance(scene.params, time, outputs)
+    choice = replace(choice, limit_ratio=ratio, limit_time=t_peak)
+    if ratio <= 1.0:
+        return choice
+    reason = (
+        f"slipping: peak transmitted force {ratio:.2f} x the capstan limit "
+        f"(Q_max = {scene.params.friction_limit(0.0):.0f} N at rest) at t = {t_peak:.3g} s "
+        f"in the {choice.model} run ({choice.reason})"
+    )
+    return replace(choice, model="slipping", reason=reason)
+
+
+def limit_exceedance(params, time, outputs) -> tuple[float, float]:
+    """(peak |Q| / Q_max, time of the peak [s]) of a rigid or flexible run's outputs.
+
+    ``Q = belt_torque / r_3`` [N] is the net force the belt transmits;
+    ``Q_max(omega_M)`` the capstan limit (:meth:`~belt_drive_ros.core.params.BeltDriveParams.friction_limit`).
+    """
+    q = np.abs(np.asarray(outputs["belt_torque"], dtype=float)) / params.r_3
+    qmax = np.broadcast_to(params.friction_limit(np.asarray(outputs["omega_M"], dtype=float)), q.shape)
+    ratio = np.divide(q, qmax, out=np.full(q.shape, np.inf), where=qmax > 0)
+    k = int(np.argmax(ratio))
+    return float(ratio[k]), float(time[k])
+
+
+def _linear_outputs(scene, kind: str):
+    """(time, outputs) of ``scene`` on the linear model ``kind`` with its method and step."""
+    model = make_model(kind, scene.params)
+    stepper = Stepper(Plant(model, scene.drive, scene.load), scene.method, scene.dt, scene.method_options)
+    time, states = stepper.run(scene.initial_state.vector(kind, scene.params.ratio), 0.0, scene.duration)
+    return time, model.outputs(states, stepper.plant.input_array(time, states))
+
+
+def _linear_choice(scene, threshold: float) -> ModelChoice:
+    """Rigid or flexible for ``scene`` by the frequency rule, with the reason."""
     f_n = scene.params.belt_natural_frequency / (2.0 * math.pi)
     w_M, w_3 = _operating_speeds(scene)
     excitations = list(scene.drive.excitation_frequencies(w_M)) + list(scene.load.excitation_frequencies(w_3))

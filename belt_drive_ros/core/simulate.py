@@ -25,7 +25,7 @@ import numpy as np
 from .fidelity import ModelChoice, choose_model
 from .model import OUTPUT_UNITS, make_model
 from .scene import Scene
-from .slip_run import SlippingSimulator, slipping_reason
+from .slip_run import SlippingSimulator
 from .stability import StabilityReport, require_stable
 from .stepper import SPEED_LIMIT, Plant, Stepper
 
@@ -180,16 +180,32 @@ def simulate(
 ) -> SimResult:
     """Run ``scene`` (overrides for model, method, dt, duration) and compute all outputs.
 
-    With ``model='auto'`` the choice and its reason are in ``result.choice``.
+    With ``model='auto'`` the choice and its reason are in ``result.choice``
+    (:func:`~belt_drive_ros.core.fidelity.choose_model`: rigid or flexible by
+    the frequency rule, slipping when that run passes the capstan limit; a
+    scene that stays within it returns that very run).
     """
     scene = scene.with_overrides(model=model, method=method, dt=dt, duration=duration)
-    choice = None
-    kind = scene.model
-    if kind == "auto":
-        choice = choose_model(scene)
-        kind = choice.model
-    if kind == "slipping":
+    if scene.model != "auto":
+        if scene.model == "slipping":
+            return simulate_slipping(scene, None, progress, check_stability)
+        return _simulate_linear(scene, scene.model, progress, check_stability, vectorize)
+    runs: dict = {}
+
+    def linear_run(kind):  # the choice's check run is the result when the scene stays linear
+        runs[kind] = _simulate_linear(scene, kind, progress, check_stability, vectorize)
+        return runs[kind].time, runs[kind].outputs
+
+    choice = choose_model(scene, linear_run=linear_run)
+    if choice.model == "slipping":
         return simulate_slipping(scene, choice, progress, check_stability)
+    result = runs[choice.model]
+    result.choice = choice
+    return result
+
+
+def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, vectorize) -> SimResult:
+    """``scene`` on the rigid or flexible model ``kind``: states, outputs and energy terms."""
     mdl = make_model(kind, scene.params)
     sim = Simulator(mdl, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
     x0 = scene.initial_state.vector(kind, scene.params.ratio)
@@ -208,12 +224,6 @@ def simulate(
         "input_work": np.concatenate([[0.0], np.cumsum(0.5 * (p_in[1:] + p_in[:-1]) * dt_grid)]),
         "dissipated": np.concatenate([[0.0], np.cumsum(0.5 * (p_d[1:] + p_d[:-1]) * dt_grid)]),
     }
-    if scene.model == "auto":  # past the friction limit the belt slips: the third tier takes over
-        why = slipping_reason(scene.params, time, outputs, kind)
-        if why is not None:
-            escalated = ModelChoice("slipping", f"{why} (before: {choice.reason})", choice.belt_frequency,
-                                    choice.excitations, choice.max_ratio, choice.output_rate)
-            return simulate_slipping(scene, escalated, progress, check_stability)
     return SimResult(
         scene=scene,
         model=kind,
@@ -223,7 +233,6 @@ def simulate(
         states=states,
         inputs=u,
         outputs=outputs,
-        choice=choice,
         stability=sim.stability,
         wall_time=wall,
         vectorized=sim.vectorized,

@@ -278,24 +278,3 @@ class SlippingSimulator:
         d = np.broadcast_to(self.plant.drive.torque(t, phi_M, omega_M), t.shape)
         l = np.broadcast_to(self.plant.load.torque(t, self.model.phi_3(states), states[:, 3]), t.shape)
         return np.stack([d, l], axis=-1).astype(float)
-
-
-# ------------------------------------------------------------ model choice
-def limit_exceedance(params, time, outputs) -> tuple[float, float]:
-    """(peak |Q| / Q_max, time of the peak [s]) of a rigid or flexible run's outputs."""
-    q = np.abs(np.asarray(outputs["belt_torque"], dtype=float)) / params.r_3
-    qmax = np.broadcast_to(params.friction_limit(np.asarray(outputs["omega_M"], dtype=float)), q.shape)
-    ratio = np.divide(q, qmax, out=np.full(q.shape, np.inf), where=qmax > 0)
-    k = int(np.argmax(ratio))
-    return float(ratio[k]), float(time[k])
-
-
-def slipping_reason(params, time, outputs, model: str) -> str | None:
-    """Why ``auto`` goes on to the slipping model, or None when the run stays within the friction limit."""
-    ratio, t_peak = limit_exceedance(params, time, outputs)
-    if ratio <= 1.0:
-        return None
-    return (
-        f"slipping: peak transmitted force {ratio:.2f} x the capstan limit "
-        f"(Q_max = {params.friction_limit(0.0):.0f} N at rest) at t = {t_peak:.3g} s in the {model} run"
-    )

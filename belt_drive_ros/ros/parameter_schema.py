@@ -284,7 +284,7 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
         raise NodeConfigError("substeps", f"step_rate_hz*substeps gives dt={dt_ns} ns; keep dt >= 1 us")
     scene = scene.with_overrides(params=params, output_rate=step_rate)
     if kind == "auto":
-        choice = choose_model(scene)
+        choice = choose_model(scene, check_slip=False)  # the node runs the two linear tiers
         kind, reason = choice.model, choice.reason
     else:
         reason = f"{kind}: set by parameter 'model'"
