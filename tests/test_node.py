@@ -6,7 +6,10 @@ torques (the node's drive sampled at each tick and held; offline the same
 samples as a zero-order-hold table), and evaluate the outputs with the same
 model function: every output the node publishes is *bit-identical* to the
 offline run at the tick times (``np.array_equal``, no tolerance), also when
-a torque jumps inside a tick and for every shipped scene.
+a torque jumps inside a tick and for every shipped scene -- also on the
+slipping model, whose stick/slip events fall inside ticks (located by the
+same engine), with its extra topics (span forces, friction use, slip state,
+slip speed, elastic and slip parts of the deflection).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import pytest
 from belt_drive_ros.core.scene import load_scene, shipped_scenes
 from belt_drive_ros.core.simulate import simulate
 from belt_drive_ros.core.sources import Constant, Schedule, Step, Table
+from belt_drive_ros.io.recording import SLIP_FLOAT_OUTPUTS
 from belt_drive_ros.ros.harness import BeltDriveHarness
 
 pytestmark = pytest.mark.ros
@@ -63,8 +67,12 @@ def assert_bit_identical(out, result, every=1):
     n = out["time"].size
     assert result.time.size >= (n - 1) * every + 1
     np.testing.assert_allclose(out["time"], result.time[: (n - 1) * every + 1 : every], rtol=0, atol=1e-12)
-    for name, signal in SIGNALS.items():
-        ref = np.asarray(result.outputs[signal])[: (n - 1) * every + 1 : every]
+    signals = dict(SIGNALS)
+    if result.model == "slipping":  # its topics too (slip as 0/1)
+        signals.update(SLIP_FLOAT_OUTPUTS)
+    for name, signal in signals.items():
+        assert name in out, f"{name}: not published"
+        ref = np.asarray(result.outputs[signal], dtype=float)[: (n - 1) * every + 1 : every]
         bad = np.flatnonzero(out[name] != ref)
         assert bad.size == 0, (
             f"{name}: {bad.size} of {n} ticks differ, first at t={out['time'][bad[0]]:.6f} s: "
@@ -97,7 +105,12 @@ def test_every_shipped_scene_equals_offline(ros_domain_id, name):
         h.advance(duration)
         out, settings = h.outputs(), h.node.settings
     assert settings.dt == pytest.approx(scene.dt, rel=1e-12)
-    assert_bit_identical(out, offline_like(settings, duration), every=settings.substeps)
+    result = offline_like(settings, duration)
+    assert_bit_identical(out, result, every=settings.substeps)
+    if name in ("truck_compressor", "bsg_start"):  # auto goes on to slipping: events inside ticks, located
+        assert settings.model.name == "slipping" and result.events
+        assert any(abs(t / TICK - round(t / TICK)) > 1e-6 for _, t, _ in result.events)
+        assert np.any(out["slip"] == 1.0) and np.any(out["slip_speed"] != 0.0)
 
 
 @pytest.mark.parametrize(
@@ -465,3 +478,20 @@ def test_a_second_node_with_the_same_name_is_warned_about(ros_domain_id):
             assert h.node.counters.get("duplicate_name") == 1
         finally:
             twin.destroy_node()
+
+
+def test_slipping_node_reports_what_the_belt_did(ros_domain_id):
+    """The belt diagnostic on the slipping model: OK, the events and slip so far, as the offline run has them."""
+    with BeltDriveHarness("truck_compressor", domain_id=ros_domain_id, drive_source="scene", input_timeout=0.0) as h:
+        h.advance(0.6)
+        belt = h.diagnostics()["belt"]
+        settings, out = h.node.settings, h.outputs()
+    assert settings.model.name == "slipping"
+    offline = offline_like(settings, 0.6)
+    assert belt["level"] == "OK" and belt["message"].startswith("slipping model: belt slides in")
+    values = belt["values"]
+    assert int(values["slip_events"]) == len(offline.events) > 0
+    kind, t, _ = offline.events[-1]
+    assert values["last_slip_event"] == f"{kind} at t={t:.9g} s"
+    assert float(values["slip_angle_rad"]) == pytest.approx(out["slip_angle"][-1], rel=1e-5)
+    assert values["slip_state"] == ("sliding" if out["slip"][-1] else "sticking")

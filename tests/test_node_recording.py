@@ -13,6 +13,8 @@ from mcap.reader import make_reader
 
 from msg_tools import read_topic
 
+from belt_drive_ros.io.recording import SLIP_FLOAT_OUTPUTS
+
 pytestmark = pytest.mark.ros
 
 
@@ -69,6 +71,8 @@ REPLAY_CASES = {
     "beyond_bound_rejected": ({}, [(6.0, 20), (1e9, 30), (-4.0, 20)]),
     "timeout_zero": ({"input_timeout": 0.02, "timeout_behavior": "zero"}, [(8.0, 50), (3.0, 60)]),
     "timeout_hold": ({"input_timeout": 0.02, "timeout_behavior": "hold"}, [(8.0, 50), (3.0, 60)]),
+    # a belt at a tenth of its preload (Q_max ~ 68 N) and +/-300 N m at the motor: stick-slip events inside ticks
+    "slips": ({"F_0": 53.5}, [(6.0, 20), (300.0, 30), (-300.0, 30), (6.0, 30)]),
 }
 
 
@@ -123,6 +127,11 @@ def test_recording_resimulates_to_the_recorded_outputs_bit_for_bit(tmp_path, ros
     for topic, signal in (("shaft_speed", "omega_M"), ("load_torque", "load_torque"),
                           ("belt_torque", "belt_torque"), ("relative_deflection", "relative_deflection")):
         assert np.array_equal(read_topic(bag, f"/{topic}").data, o[signal]), topic
+    assert result.model == "slipping"  # truck_compressor: auto goes on to slipping; its topics re-simulate too
+    for topic, signal in SLIP_FLOAT_OUTPUTS:
+        assert np.array_equal(read_topic(bag, f"/{topic}").data, np.asarray(o[signal], dtype=float)), topic
+    if case == "slips":
+        assert len(result.events) >= 2 and np.any(read_topic(bag, "/slip").data == 1.0)
     if case == "clamped":
         assert set(np.unique(js.effort[:, 0])) <= {0.0, 3.0, 5.0, -5.0, 4.0}
     if case == "timeout_zero":

@@ -29,6 +29,9 @@ pytestmark = pytest.mark.ros
 
 NODE_TOPICS = {"/drive_torque", "/drive_torque_applied", "/joint_states", "/shaft_speed", "/load_torque", "/belt_torque",
                "/relative_deflection", "/diagnostics", "/clock"}
+#: the slipping model's topics (truck_compressor runs on it: auto goes on to slipping)
+SLIP_TOPICS = {"/span_force_tight", "/span_force_slack", "/friction_use", "/slip", "/slip_speed", "/elastic_deflection",
+               "/slip_angle"}
 
 
 def _spin_until(executor, predicate, timeout=10.0):
@@ -80,7 +83,8 @@ def test_node_recording_is_rosbag2_mcap_written_from_the_tick(harness, tmp_path)
     assert header.profile == "ros2"
     assert {s.encoding for s in info.schemas.values()} == {"ros2msg"}
     channels = {c.topic: c for c in info.channels.values()}
-    assert set(channels) == NODE_TOPICS
+    assert h.node.settings.model.name == "slipping"
+    assert set(channels) == NODE_TOPICS | SLIP_TOPICS
     for channel in channels.values():
         assert channel.message_encoding == "cdr"
         assert parse_offered_qos_yaml(channel.metadata["offered_qos_profiles"])

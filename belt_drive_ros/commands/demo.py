@@ -55,6 +55,25 @@ def run(args) -> int:
     return 0
 
 
+def belt_statement(summary: dict, tick_s: float) -> str:
+    """What the belt did in the run, as the model computed it (one line)."""
+    slip, slack = summary["slip_ticks"], summary["slack_ticks"]
+    if summary["model"] == "slipping":
+        if not summary["slip_events"]:
+            return "stuck to its pulleys throughout (slipping model: the force stayed within the capstan limit)"
+        return (
+            f"slid on its pulley in {slip} ticks ({slip * tick_s:.3g} s) at the capstan limit, sticking otherwise: "
+            f"{summary['slip_events']} stick/slip events located (slipping model); wheel 3 lost "
+            f"{summary['slip_angle']:.4g} rad to slip"
+        )
+    if slip or slack:
+        return (
+            f"passes the capstan limit in {slip} ticks, slack in {slack} (the {summary['model']} model cannot "
+            "show slip there; model 'slipping' or 'auto' can)"
+        )
+    return "no slip, no slack"
+
+
 def live_run(scene_name: str = "truck_compressor", duration: float = 4.0, executor: str = "auto") -> dict:
     """Engine source -> belt node for ``duration`` s of real time; print and return the summary figures."""
     import time
@@ -155,6 +174,9 @@ def _summary(node, seen: dict, clock: dict) -> dict:
         "received": node.counters["received"],
         "published": node.counters["published"],
         "slip_ticks": node.counters["slip_ticks"],
+        "slack_ticks": node.counters["slack_ticks"],
+        "slip_events": node.counters.get("slip_events", 0),
+        "slip_angle": float(last.get("slip_angle", 0.0)),
         "outputs_seen": len(joints),
     }
     w = summary["final_speed"]
@@ -172,8 +194,7 @@ def _summary(node, seen: dict, clock: dict) -> dict:
     print(f"  peak deflection  {summary['peak_deflection']:.5g} rad (i*phi_M - phi_3); static value at the final load "
           f"{summary['load_torque'] / p.belt_torsional_stiffness:.3g} rad; belt mode "
           f"{p.belt_natural_frequency / (2 * math.pi):.1f} Hz")
-    slip = summary["slip_ticks"]
-    print("  belt             " + ("no slip, no slack" if not slip else f"slips or slackens in {slip} ticks (outside the linear model)"))
+    print("  belt             " + belt_statement(summary, s.tick_ns / 1e9))
     print(f"  messages         {summary['received']} drive_torque received by the node, {summary['published']} output "
           f"sets published, {summary['outputs_seen']} joint_states seen by the monitor")
     return summary

@@ -198,7 +198,9 @@ class SlippingBeltModel:
     def force(self, y, mode, sigma):
         """Transmitted force Q per sample [N]: ``q_row @ y`` sticking, ``sigma Q_max`` slipping."""
         y = np.asarray(y, dtype=float)
-        return np.where(np.asarray(mode) == SLIP, sigma * self.limit(y[..., 2]), y @ self.q_row)
+        q = self.q_row  # elementwise (q_0 = q_4 = 0): one sample and a whole run round alike, unlike a matrix product
+        stick = q[1] * y[..., 1] + q[2] * y[..., 2] + q[3] * y[..., 3]
+        return np.where(np.asarray(mode) == SLIP, sigma * self.limit(y[..., 2]), stick)
 
     def outputs(self, y, u, mode, sigma) -> dict:
         """Output signals of samples ``y`` (N, 5), ``u`` (N, 2), ``mode``, ``sigma`` (N,).

@@ -155,15 +155,25 @@ class SlippingSimulator:
         for st in self._steppers.values():
             st.reset()
 
+    def grid_time(self, k: int) -> float:
+        """Grid time ``origin + k dt`` [s] (the stepper's)."""
+        return self.stepper.grid_time(k)
+
+    def inputs(self, t: float, y) -> np.ndarray:
+        """u = [drive, load] [N m] at time ``t`` [s] and slipping state ``y`` (the load at phi_3 with the slip part)."""
+        i, r3 = self.model.params.ratio, self.model.params.r_3
+        return np.array([self.plant.scalar_drive(t, y[0], y[2]), self.plant.scalar_load(t, i * y[0] - y[1] - y[4] / r3, y[3])])
+
     def to_flexible(self, y):
         """Flexible state with the same motion and a deflection theta_e (phi_3 without the slip part)."""
         return self._M_inv @ np.asarray(y, dtype=float)[:4]
 
     def from_flexible(self, xs, s=0.0):
         """Slipping states of flexible states ``xs`` (N, 4) with accumulated slip ``s``."""
-        ys = np.empty((len(xs), 5))
-        ys[:, :4] = xs @ self._M.T
-        ys[:, 4] = s
+        phi_M, omega_M, phi_3, omega_3 = self.flexible.wheel_coordinates(np.asarray(xs, dtype=float))
+        ys = np.empty((len(phi_M), 5))
+        ys[:, 0], ys[:, 2], ys[:, 3], ys[:, 4] = phi_M, omega_M, omega_3, s
+        ys[:, 1] = self.model.params.ratio * phi_M - phi_3  # elementwise: one sample and a run round alike
         return ys
 
     def initial(self, y0, t0=0.0) -> SlipState:

@@ -130,6 +130,7 @@ TOPIC_TYPES: Dict[str, str] = {
     "load_torque": FLOAT64,
     "belt_torque": FLOAT64,
     "relative_deflection": FLOAT64,
+    **{name: FLOAT64 for name, _ in SLIP_FLOAT_OUTPUTS},  # slipping model only
     "/diagnostics": DIAGNOSTIC_ARRAY,
     "/clock": CLOCK,
 }

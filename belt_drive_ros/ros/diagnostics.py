@@ -11,8 +11,11 @@ since the previous publish:
   counters.
 * ``<node>: input``: WARN while ``input_timeout`` has expired or when
   messages were rejected (non-finite) or clamped in the window; counters.
-* ``<node>: belt``: WARN when the belt went slack or slipped in the window
-  (the linear model is outside its validity); span forces.
+* ``<node>: belt``: on a linear model, WARN when the belt went slack or
+  slipped in the window (the linear model is outside its validity: the
+  ``slipping`` model covers it); on the slipping model, OK with what the
+  belt did (ticks and time sliding, stick/slip events, the last one,
+  accumulated slip); span forces, friction use, slip state and speed.
 """
 
 from __future__ import annotations
@@ -134,11 +137,21 @@ class NodeDiagnostics:
             ),
         )
         level, message = OK, "no slack, no slip"
-        if w.slack or w.slip:
+        slipping = s.model.name == "slipping"
+        if slipping:
+            tick_s = s.tick_ns / 1e9
+            events = sim.slip_events
+            message = (
+                f"slipping model: belt slides in {w.slip} of {max(w.ticks, 1)} ticks ({w.slip * tick_s:.3g} s), "
+                f"sticks otherwise; {c['slip_events']} stick/slip event(s) located so far"
+                + (f", last {events[-1][0]} at t = {events[-1][1]:.6g} s" if events else "")
+                + f"; slip so far {last.get('slip_angle', 0.0):.4g} rad at wheel 3"
+            )
+        elif w.slack or w.slip:
             level = WARN
             message = (
                 f"belt {'slack' if w.slack else 'slips'} in {max(w.slack, w.slip)} of {max(w.ticks, 1)} ticks: "
-                "the linear model is outside its validity"
+                "the linear model is outside its validity (model 'slipping' covers slip)"
             )
         belt = DiagnosticStatus(
             level=level, name=f"{prefix}: belt", message=message, hardware_id=s.scene.name,
@@ -147,6 +160,14 @@ class NodeDiagnostics:
                 slip=last.get("slip", False),
                 slack_ticks=c["slack_ticks"],
                 slip_ticks=c["slip_ticks"],
+                slip_state=("sliding" if last.get("slip", False) else "sticking") if slipping else "not modelled",
+                slip_time_s=f"{c['slip_ticks'] * s.tick_ns / 1e9:.6g}",
+                slip_events=c.get("slip_events", 0),
+                last_slip_event=(f"{sim.slip_events[-1][0]} at t={sim.slip_events[-1][1]:.9g} s"
+                                 if sim.slip_events else "none"),
+                friction_use=f"{last.get('friction_use', math.nan):.6g}",
+                slip_speed_mps=f"{last.get('slip_speed', 0.0):.6g}",
+                slip_angle_rad=f"{last.get('slip_angle', 0.0):.6g}",
                 span_force_tight_N=f"{last.get('span_force_tight', math.nan):.6g}",
                 span_force_slack_N=f"{last.get('span_force_slack', math.nan):.6g}",
                 belt_torque_Nm=f"{last.get('belt_torque', math.nan):.6g}",

@@ -66,7 +66,7 @@ from std_msgs.msg import Float64  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from .executors import make_executor  # noqa: E402
-from .node import NODE_NAME, OUTPUT_TOPICS, BeltDriveNode  # noqa: E402
+from .node import NODE_NAME, OUTPUT_TOPICS, SLIP_OUTPUT_TOPICS, BeltDriveNode  # noqa: E402
 from ..core.sources import TorqueProfile  # noqa: E402
 
 #: the probe keeps everything it receives between drains
@@ -150,7 +150,7 @@ class BeltDriveHarness:
         self.executor = None
         self._clock_ns = 0
         self._rows: list[tuple] = []
-        self._floats: dict[str, list[float]] = {name: [] for name in OUTPUT_TOPICS}
+        self._floats: dict[str, list[float]] = {name: [] for name in OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS}
         self._diagnostics: list[DiagnosticArray] = []
         self._t0_wall: int | None = None
 
@@ -195,7 +195,7 @@ class BeltDriveHarness:
         self._pub_torque = p.create_publisher(Float64, "drive_torque", _PUB_QOS)
         self._pub_clock = p.create_publisher(ClockMsg, "/clock", _PUB_QOS)
         self._subs = [p.create_subscription(JointState, "joint_states", self._on_joint, _PROBE_QOS)]
-        for name in OUTPUT_TOPICS:
+        for name in OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS:
             self._subs.append(
                 p.create_subscription(Float64, name, lambda m, name=name: self._floats[name].append(m.data), _PROBE_QOS)
             )
@@ -279,8 +279,10 @@ class BeltDriveHarness:
             self.executor.spin_once(timeout_sec=0.005)
 
     def _received_all(self) -> bool:
-        n = self.node.counters["published"]
-        return len(self._rows) >= n and all(len(v) >= n for v in self._floats.values())
+        n, n_slip = self.node.counters["published"], self.node.counters["published_slip"]
+        return len(self._rows) >= n and all(
+            len(v) >= (n_slip if name in SLIP_OUTPUT_TOPICS else n) for name, v in self._floats.items()
+        )
 
     def _publish_clock(self, ns: int) -> None:
         msg = ClockMsg()
@@ -361,7 +363,7 @@ class BeltDriveHarness:
 
     def outputs(self) -> dict[str, np.ndarray]:
         """Everything the node published so far, one row per tick (see the module docstring)."""
-        n = min([len(self._rows)] + [len(v) for v in self._floats.values()])
+        n = min([len(self._rows)] + [len(self._floats[name]) for name in OUTPUT_TOPICS])
         rows = np.array(self._rows[:n], dtype=float).reshape(n, 10)
         zero = self.start_ns if self.use_sim_time else (self._t0_wall or 0)
         out = {
@@ -373,7 +375,8 @@ class BeltDriveHarness:
             out[name] = rows[:, 1 + i]
         out["drive_torque"] = rows[:, 9]
         for name, values in self._floats.items():
-            out[name] = np.array(values[:n], dtype=float)
+            if name in OUTPUT_TOPICS or len(values) >= n > 0:  # the slipping model's topics while it runs
+                out[name] = np.array(values[:n], dtype=float)
         return out
 
     def _on_joint(self, msg: JointState) -> None:

@@ -27,6 +27,13 @@ topic                  dir     type / meaning
 ``load_torque``        pub     ``std_msgs/Float64``: load torque at wheel 3 [N m]
 ``belt_torque``        pub     ``std_msgs/Float64``: torque of the belt on wheel 3 [N m]
 ``relative_deflection`` pub    ``std_msgs/Float64``: ``i phi_M - phi_3`` [rad]
+``span_force_tight``   pub     ``std_msgs/Float64``: tight span force [N] (slipping model only)
+``span_force_slack``   pub     ``std_msgs/Float64``: slack span force [N] (slipping model only)
+``friction_use``       pub     ``std_msgs/Float64``: ``Q / Q_max`` [-] (slipping model only)
+``slip``               pub     ``std_msgs/Float64``: 1 while the belt slides, else 0 (slipping model only)
+``slip_speed``         pub     ``std_msgs/Float64``: ``s'`` [m/s at the belt] (slipping model only)
+``elastic_deflection`` pub     ``std_msgs/Float64``: elastic part of the deflection [rad] (slipping model only)
+``slip_angle``         pub     ``std_msgs/Float64``: wheel-3 angle lost to slip ``s / r_3`` [rad] (slipping model only)
 ``joint_states``       pub     ``sensor_msgs/JointState``, stamped with the tick's time
 ``/diagnostics``       pub     ``diagnostic_msgs/DiagnosticArray`` (~1 Hz wall clock)
 ``/clock``             pub     ``rosgraph_msgs/Clock``, only with ``publish_clock``
@@ -109,6 +116,7 @@ from std_msgs.msg import Float64  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from ..core.errors import BeltDriveError  # noqa: E402
+from ..io.recording import SLIP_FLOAT_OUTPUTS  # noqa: E402
 from .diagnostics import NodeDiagnostics  # noqa: E402
 from .executors import executor_name, make_executor, ros_session, spin_nodes  # noqa: E402,F401 - make_executor re-exported
 from .inputs import DriveInput  # noqa: E402
@@ -122,6 +130,8 @@ NODE_NAME = "belt_drive"
 JOINT_NAMES = ("wheel_M", "wheel_1", "wheel_2", "wheel_3")
 #: Float64 output topics, in publishing order (joint_states is published first).
 OUTPUT_TOPICS = ("shaft_speed", "load_torque", "belt_torque", "relative_deflection")
+#: Float64 topics of the slipping model (published after OUTPUT_TOPICS while the model is slipping)
+SLIP_OUTPUT_TOPICS = tuple(name for name, _ in SLIP_FLOAT_OUTPUTS)
 #: ~/reset keeps every request of a burst (the default services QoS keeps 10)
 RESET_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -157,7 +167,7 @@ class BeltDriveNode(Node):
             kwargs["parameter_overrides"] = overrides + [Parameter("scene", value=str(scene))]
         super().__init__(node_name, **kwargs)
         self.recorder = None  # NodeRecorder when record_path is set
-        self.counters = dict.fromkeys(("published", "slack_ticks", "slip_ticks"), 0)
+        self.counters = dict.fromkeys(("published", "published_slip", "slack_ticks", "slip_ticks"), 0)
         self.last: dict = {}  # the latest tick's signals, for diagnostics
         self._duplicate_name_warned = False
         try:
@@ -171,7 +181,7 @@ class BeltDriveNode(Node):
         self.stats = TickStats(self.counters)
 
         # -- outputs: send only to topics somebody subscribes to ("matched" events keep the counts)
-        self._readers = dict.fromkeys(("joint_states",) + OUTPUT_TOPICS, 0)
+        self._readers = dict.fromkeys(("joint_states",) + OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS, 0)
 
         def matched(name):
             def on_matched(info):
@@ -181,10 +191,11 @@ class BeltDriveNode(Node):
 
         self._pub_joint = self.create_publisher(JointState, "joint_states", OUTPUT_QOS, event_callbacks=matched("joint_states"))
         self._pub_float = [
-            self.create_publisher(Float64, name, OUTPUT_QOS, event_callbacks=matched(name)) for name in OUTPUT_TOPICS
+            self.create_publisher(Float64, name, OUTPUT_QOS, event_callbacks=matched(name))
+            for name in OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS
         ]
         self._msg_joint = JointState(name=list(JOINT_NAMES))
-        self._msg_float = [Float64() for _ in OUTPUT_TOPICS]
+        self._msg_float = [Float64() for _ in self._pub_float]
         self.refresh_subscriber_counts()
         # -- input, service, diagnostics, ticks
         self._sub_torque = self.create_subscription(Float64, "drive_torque", self._on_drive_torque, INPUT_QOS)
@@ -261,7 +272,10 @@ class BeltDriveNode(Node):
         if readers["joint_states"]:
             self._pub_joint.publish(js)
         floats = (joints[4], float(y["load_torque"]), float(y["belt_torque"]), float(y["relative_deflection"]))
-        for name, pub, msg, v in zip(OUTPUT_TOPICS, self._pub_float, self._msg_float, floats):
+        if "friction_use" in y:  # the slipping model's outputs
+            floats += tuple(float(y[signal]) for _, signal in SLIP_FLOAT_OUTPUTS)
+            self.counters["published_slip"] += 1
+        for name, pub, msg, v in zip(OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS, self._pub_float, self._msg_float, floats):
             msg.data = v
             if readers[name]:
                 pub.publish(msg)
@@ -276,7 +290,7 @@ class BeltDriveNode(Node):
         """Query the readers of each output topic now (the "matched" events keep them current
         afterwards); a driver that has just subscribed calls this before the next tick."""
         self._readers["joint_states"] = self._pub_joint.get_subscription_count()
-        for name, pub in zip(OUTPUT_TOPICS, self._pub_float):
+        for name, pub in zip(OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS, self._pub_float):
             self._readers[name] = pub.get_subscription_count()
         return dict(self._readers)
 

@@ -261,8 +261,6 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
     behavior = _choice("timeout_behavior", values["timeout_behavior"], TIMEOUT_BEHAVIORS)
     drive_source = _choice("drive_source", values["drive_source"], DRIVE_SOURCES)
     kind = _choice("model", values["model"], MODELS)
-    if kind == "slipping":  # the slipping tier runs offline (belt-drive sim); the node's tick has no events yet
-        raise NodeConfigError("model", "slipping runs offline only (belt-drive sim); choose rigid, flexible or auto")
     publish_clock = values["publish_clock"]
     if not isinstance(publish_clock, bool):
         raise NodeConfigError("publish_clock", f"must be true or false, got {publish_clock!r}")
@@ -284,7 +282,7 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
         raise NodeConfigError("substeps", f"step_rate_hz*substeps gives dt={dt_ns} ns; keep dt >= 1 us")
     scene = scene.with_overrides(params=params, output_rate=step_rate)
     if kind == "auto":
-        choice = choose_model(scene, check_slip=False)  # the node runs the two linear tiers
+        choice = choose_model(scene)  # the scene's own run decides on slipping
         kind, reason = choice.model, choice.reason
     else:
         reason = f"{kind}: set by parameter 'model'"

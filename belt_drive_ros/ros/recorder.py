@@ -21,6 +21,7 @@ from msg_tools.units import UNITS_METADATA
 from ..io.recording import (
     FLOAT64,
     FLOAT_OUTPUTS,
+    SLIP_FLOAT_OUTPUTS,
     JOINT_STATE,
     PARAMETERS_METADATA,
     RECORDED_DRIVE,
@@ -315,7 +316,7 @@ def _node_parameters(node) -> Dict[str, str]:
 #: message per tick at the tick time: what a re-simulation replays (zero-order hold)
 APPLIED_TOPIC = "drive_torque_applied"
 #: topics the node writes itself from its tick or input callback (no subscription, no DDS loop-back)
-DIRECT_TOPICS = ("drive_torque", APPLIED_TOPIC, "joint_states") + tuple(name for name, _ in FLOAT_OUTPUTS)
+DIRECT_TOPICS = ("drive_torque", APPLIED_TOPIC, "joint_states") + tuple(name for name, _ in FLOAT_OUTPUTS + SLIP_FLOAT_OUTPUTS)
 
 
 class JointStateEncoder:
@@ -436,7 +437,7 @@ class NodeRecorder(TopicRecorder):
         self._param_callback = self._on_parameters_set
         node.add_post_set_parameters_callback(self._param_callback)
         self._joint_states = JointStateEncoder()
-        self._floats = [(self._direct.get(name), FLOAT64) for name, _ in FLOAT_OUTPUTS]
+        self._floats = [(self._direct.get(name), FLOAT64) for name, _ in FLOAT_OUTPUTS + SLIP_FLOAT_OUTPUTS]
         node.get_logger().info(
             f"recording {len(self._types)} topics to {self.path} (log time = "
             f"{'simulated' if self._uses_sim_time() else 'node clock'} time)"
@@ -489,7 +490,8 @@ class NodeRecorder(TopicRecorder):
 
     def record_tick(self, now_ns: int, joints, floats, applied: float) -> None:
         """One tick: ``joints`` (position, velocity, effort of the 4 wheels), the Float64 outputs
-        in the order of :data:`FLOAT_OUTPUTS`, and the applied drive torque [N m]."""
+        in the order of :data:`FLOAT_OUTPUTS` (then :data:`SLIP_FLOAT_OUTPUTS` with the slipping
+        model), and the applied drive torque [N m]."""
         if self.error is not None or self.closed:
             return
         direct = self._direct
@@ -497,7 +499,7 @@ class NodeRecorder(TopicRecorder):
         if topic is not None:
             self.write(topic, JOINT_STATE, self._joint_states.encode(now_ns, joints), now_ns)
         payloads = encode_float64((*floats, applied))
-        for (topic, type_name), data in zip(self._floats, payloads):
+        for (topic, type_name), data in zip(self._floats, payloads[:-1]):
             if topic is not None:
                 self.write(topic, type_name, data, now_ns)
         topic = direct.get(APPLIED_TOPIC)

@@ -7,7 +7,11 @@ engine (:class:`~belt_drive_ros.core.stepper.Stepper`, on the grid
 ``k dt`` of scene time, with partial steps and splits at torque
 breakpoints), samples the drive input for the next interval, and
 :meth:`~NodeSimulation.outputs` evaluates every output signal at that time
-with the model's own ``outputs(x, u)``. Times are integers [ns] on the
+with the model's own ``outputs(x, u)``. The slipping model advances through
+the same engine as the offline run (:class:`~belt_drive_ros.core.slip_run.SlippingSimulator`:
+phases in the stepper's compiled loop, mode switches located as events
+inside a tick), so in ``/clock`` lockstep its outputs equal ``belt-drive
+sim`` bit for bit as well. Times are integers [ns] on the
 node's time base; scene time ``t = (now - origin) / 1e9`` [s] starts at 0
 when the run starts (the first tick, the first ``/clock`` seen, a restart).
 
@@ -29,15 +33,19 @@ import math
 import numpy as np
 
 from ..core.errors import SimulationDivergedError
-from ..core.model import OUTPUT_UNITS
+from ..core.model import OUTPUT_UNITS, FlexibleBeltModel
+from ..core.slip import SLIP_OUTPUT_UNITS
+from ..core.slip_run import SlippingSimulator
 from ..core.stepper import Plant, Stepper, snap_tolerance
 from .inputs import DriveInput
 from .parameter_schema import NodeSettings
 
 __all__ = ["NodeSimulation", "TICK_OUTPUTS"]
 
-#: the signals of one tick, as :meth:`NodeSimulation.outputs` returns them (the model's outputs)
+#: the signals of one tick, as :meth:`NodeSimulation.outputs` returns them (the model's outputs;
+#: the slipping model adds :data:`~belt_drive_ros.core.slip.SLIP_OUTPUT_UNITS`)
 TICK_OUTPUTS = tuple(OUTPUT_UNITS)
+SLIP_TICK_OUTPUTS = tuple(SLIP_OUTPUT_UNITS)
 
 
 class NodeSimulation:
@@ -61,8 +69,14 @@ class NodeSimulation:
             counters.setdefault(key, 0)
         self.log = logger
         self.settings = settings
+        #: slipping model: the hybrid state (mode, direction, phase coordinates) beside ``x`` (its y); else None
+        self.hybrid = None
+        #: slipping model: mode switches of the run so far (kind, scene time [s], direction) and the count
+        self.slip_events: list = []
+        counters.setdefault("slip_events", 0)
         self.stepper = self._make_stepper(settings)
         self.x = settings.scene.initial_state.vector(settings.model.name, settings.params.ratio)
+        self._init_hybrid()
         #: integrated-to time [ns, node time base]; None before the run starts
         self.t_ns: int | None = None
         #: node time [ns] of scene time 0
@@ -73,9 +87,16 @@ class NodeSimulation:
         self._held_jump: float | None = None
 
     # ------------------------------------------------------------- settings
-    def _make_stepper(self, s: NodeSettings) -> Stepper:
-        """The core's stepper for the settings' model, torques and integrator (grid origin: scene time 0)."""
+    def _make_stepper(self, s: NodeSettings) -> Stepper | SlippingSimulator:
+        """The core's stepper for the settings' model, torques and integrator (grid origin: scene time 0).
+
+        The slipping model: its engine (a stepper per phase, the same one the offline run uses).
+        """
         drive = s.scene.drive if s.drive_source == "scene" else self.drive.applied
+        if s.model.name == "slipping":
+            engine = SlippingSimulator(s.params, drive, s.scene.load, s.method, s.dt, s.method_options, check_stability=False)
+            self._plant_breakpoints = list(engine.breakpoints)
+            return engine
         plant = Plant(s.model, drive, s.scene.load)
         stepper = Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
         self._plant_breakpoints = list(stepper.breakpoints)
@@ -84,6 +105,10 @@ class NodeSimulation:
     @property
     def plant(self) -> Plant:
         return self.stepper.plant
+
+    def _init_hybrid(self) -> None:
+        """The hybrid state of ``x`` (slipping model; sliding at once if it starts beyond the limit)."""
+        self.hybrid = self.stepper.initial(self.x) if isinstance(self.stepper, SlippingSimulator) else None
 
     def apply(self, new: NodeSettings, changed: set, load_torque: float = 0.0) -> None:
         """Switch to validated settings ``new`` (``changed``: the parameter names) without a restart.
@@ -99,15 +124,28 @@ class NodeSimulation:
             self.restart("scene changed")
         elif new.model.name != old.model.name:
             self.x = self._map_state(self.x, old.model, new.model, load_torque)
+            self._init_hybrid()
         else:
             self.stepper.reset()
+            if self.hybrid is not None:  # new parameters: the same motion, the mode decided afresh
+                self.hybrid = self.stepper.initial(self.x)
 
     @staticmethod
     def _map_state(x: np.ndarray, old_model, new_model, load_torque: float) -> np.ndarray:
-        """State of ``old_model`` expressed for ``new_model`` (rigid <-> flexible)."""
-        if new_model.name == "rigid":
-            return new_model.state_from_flexible(x)
-        return new_model.state_from_rigid(x, load_torque=load_torque)
+        """State of ``old_model`` expressed for ``new_model`` (rigid, flexible, slipping), via the flexible state.
+
+        ``load_torque`` [N m] sets the static belt deflection when leaving
+        the rigid model. Leaving the slipping model keeps the elastic stretch
+        (the linear models have no slip coordinate: the accumulated slip is
+        dropped); entering it starts with no slip.
+        """
+        if old_model.name == "rigid":
+            x = FlexibleBeltModel(new_model.params).state_from_rigid(x, load_torque=load_torque)
+        elif old_model.name == "slipping":
+            x = np.array([x[0], new_model.params.ratio * x[0] - x[1], x[2], x[3]])
+        if new_model.name == "flexible":
+            return x
+        return new_model.state_from_flexible(x)
 
     # ----------------------------------------------------------------- time
     @property
@@ -150,6 +188,8 @@ class NodeSimulation:
         self.t_ns = now_ns
         self.x = s.scene.initial_state.vector(s.model.name, s.params.ratio)
         self.stepper.reset()
+        self._init_hybrid()
+        self.slip_events = []
         self.counters["restarts"] += 1
         self._hold(self._sample(now_ns), 0.0, first=True)  # held since before 0: no jump at 0
 
@@ -167,6 +207,7 @@ class NodeSimulation:
         if self.t_ns is None:
             s = self.settings
             self.x = s.scene.initial_state.vector(s.model.name, s.params.ratio)
+            self._init_hybrid()
             return False
         self.start(self.t_ns if now_ns is None else now_ns)
         self.log.info(f"restarted from the initial state ({why})")
@@ -227,7 +268,12 @@ class NodeSimulation:
         value = self._sample(now_ns)  # needs no state: known before the interval is integrated
         self._drive_breakpoints(t0, t1, value)
         try:
-            x = self.stepper.advance(self.x, t0, t1)
+            if self.hybrid is None:
+                x = self.stepper.advance(self.x, t0, t1)
+            else:  # events inside the tick are located by the engine; the state is y of the new hybrid state
+                events = []
+                hybrid = self.stepper.advance(self.hybrid, t0, t1, events=events)
+                x = self.stepper.state_y(hybrid)
         except SimulationDivergedError as exc:
             self.diverged(f"{exc}; drive torque {self.drive.applied.value:g} N m", now_ns)
             return True
@@ -235,6 +281,12 @@ class NodeSimulation:
             self.diverged(f"integrator failed at t={self.scene_time(self.t_ns):.6g} s: {exc}", now_ns)
             return True
         self.x = x
+        if self.hybrid is not None:
+            self.hybrid = hybrid
+            if events:
+                self.slip_events.extend((e.kind, e.time, e.sigma) for e in events)
+                del self.slip_events[:-64]  # the latest ones (diagnostics)
+                self.counters["slip_events"] += len(events)
         self.t_ns = now_ns
         self._hold(value, t1)
         return True
@@ -258,11 +310,14 @@ class NodeSimulation:
         are returned).
         """
         model = self.settings.model
-        u = self.plant.inputs(self.scene_time(now_ns), self.x)
+        inputs = self.plant.inputs if self.hybrid is None else self.stepper.inputs
+        u = inputs(self.scene_time(now_ns), self.x)
         if not (math.isfinite(u[0]) and math.isfinite(u[1])):
             self.diverged(
                 f"non-finite torque at t={self.scene_time(now_ns):.6g} s (drive {u[0]!r}, load {u[1]!r} N m)", now_ns
             )
-            u = np.nan_to_num(self.plant.inputs(0.0, self.x), nan=0.0, posinf=0.0, neginf=0.0)
+            u = np.nan_to_num(inputs(0.0, self.x), nan=0.0, posinf=0.0, neginf=0.0)
+        if self.hybrid is not None:  # the offline run's function too, on one sample
+            return model.outputs(self.x, u, self.hybrid.mode, self.hybrid.sigma)
         out = model.outputs(self.x, u)  # a finite state and finite torques: nothing for numpy to warn about
         return out  # numpy float64 scalars (a float subclass) and numpy bools
