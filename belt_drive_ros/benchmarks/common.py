@@ -92,8 +92,13 @@ def get_scene(name: str) -> Scene:
 
 
 def resolved_model(scene: Scene) -> str:
-    """The model ``auto`` picks for ``scene`` (or the scene's explicit one)."""
-    return choose_model(scene).model if scene.model == "auto" else scene.model
+    """The linear model ``auto`` picks for ``scene`` by the frequency rule (or the scene's explicit one).
+
+    The integrator studies compare methods on that model; where ``auto`` goes
+    on to slipping, the slip study (``bench slip``) compares the hybrid
+    methods.
+    """
+    return choose_model(scene, check_slip=False).model if scene.model == "auto" else scene.model
 
 
 def is_open_loop(scene: Scene) -> bool:

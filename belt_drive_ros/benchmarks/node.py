@@ -68,6 +68,8 @@ def parse_args(argv=None):
     p.add_argument("--torque-rate", type=float, default=97.0, help="drive_torque publish rate [Hz] (default 97: not a divisor of the tick rate, so send times sweep every tick phase)")
     p.add_argument("--scene", default="paper", help="scene (default paper)")
     p.add_argument("--executor", choices=("auto", "events", "single"), default="auto", help="the node's executor")
+    p.add_argument("--param", "-p", action="append", default=[], metavar="NAME:=VALUE",
+                   help="a node parameter (repeatable), e.g. -p model:=slipping -p drive_source:=scene")
     p.add_argument("--udp-only", action="store_true", help="Fast DDS UDPv4 only (default: its default transports)")
     p.add_argument("--out", type=Path, help="also write node.csv and node.md here")
     p.add_argument("--quick", action="store_true", help="3 s run (smoke test)")
@@ -96,10 +98,11 @@ def measure(args) -> dict:
     cmd = [
         sys.executable, "-m", "belt_drive_ros.cli", "node", args.scene, "--executor", args.executor,
         "--ros-args", "-p", f"step_rate_hz:={float(args.rate)}", "-p", "input_timeout:=0.0", "--log-level", "warn",
+        *[arg for param in args.param for arg in ("-p", param)],
     ]
     child = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     context = Context()
-    rclpy.init(context=context, domain_id=domain)
+    rclpy.init(args=[], context=context, domain_id=domain)  # not this process's argv: its -p options are the node's
     probe = Node("bench_probe", context=context)
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
     rows: list[tuple[int, int, int, float]] = []  # (recv monotonic ns, recv realtime ns, stamp ns, effort M)
@@ -188,6 +191,8 @@ def measure(args) -> dict:
         "cpu_percent": 100.0 * (cpu1 - cpu0) / window,
         "probe_cpu_percent": 100.0 * (own1 - own0) / window,
         "executor": args.executor,
+        "scene": args.scene,
+        "params": " ".join(args.param),
         "transport": "UDPv4" if args.udp_only else "Fast DDS default (SHM + UDP)",
         "load_average": os.getloadavg()[0],
     }
@@ -202,6 +207,7 @@ def report(f: dict) -> str:
     lines = [
         f"belt-drive node benchmark: {f['duration_s']:.1f} s at {f['rate_set_hz']:g} Hz "
         f"(executor {f['executor']}, {f['transport']}, load average {f['load_average']:.2f}, {os.cpu_count()} CPUs)",
+        f"  scene                  {f.get('scene', '?')}" + (f" with {f['params']}" if f.get("params") else ""),
         f"  achieved rate          {f['rate_stamps_hz']:.2f} Hz from the node's stamps, {f['rate_received_hz']:.2f} Hz received; "
         f"{f['ticks_missing']} tick(s) skipped   [target >= {t['rate_hz']:g}: {mark(f['rate_stamps_hz'] >= t['rate_hz'])}]",
         f"  tick period error      p50 {f['period_error_p50_ms']:.4f} ms, p99 {f['period_error_p99_ms']:.4f} ms, "

@@ -24,7 +24,12 @@ over 1 s relative to the speed's maximum.
 
 A run is **failed** when it diverges (non-finite or beyond 1e5 rad/s), a
 chattering error stops it, or its error exceeds 1. The chart: error against
-CPU time (left) and against the step (right), failed runs on the top edge.
+CPU time (left) and against the step (second), failed runs on the top edge;
+the fidelity panel (third); and the slipping scene's stability map (fourth,
+``slip_stability.csv``): per method and friction law, the largest step of
+the sweep that runs and the smallest that fails (explicit ``euler`` and
+``rk4`` against the exponential methods, the regularised contact at each
+``v_eps``).
 """
 
 from __future__ import annotations
@@ -44,15 +49,16 @@ from .common import log, pyplot, save_figure, write_csv
 
 COLUMNS = ("family", "method", "v_eps", "dt", "cpu_s", "error", "failed", "events")
 FIDELITY_COLUMNS = ("load_ratio", "peak_force_ratio", "flexible_error", "slip_fraction", "events")
+STABILITY_COLUMNS = ("family", "method", "v_eps", "largest_running_dt", "smallest_failing_dt")
 DURATION = 0.3
 
 
 @dataclass(frozen=True)
 class Config:
     steps: tuple = (2e-3, 1e-3, 5e-4, 2.5e-4, 1.25e-4, 6.25e-5, 3.125e-5)
-    hybrid_methods: tuple = ("exact", "etd2", "etd4", "rk4")
+    hybrid_methods: tuple = ("exact", "etd2", "etd4", "rk4", "euler")
     v_eps: tuple = (1e-2, 1e-3, 1e-4)
-    regularised_methods: tuple = ("rk4", "etd2")
+    regularised_methods: tuple = ("rk4", "etd2", "euler")
     load_ratios: tuple = (0.3, 0.5, 0.7, 0.8, 0.9, 1.0, 1.1, 1.25, 1.5, 2.0)
 
 
@@ -149,15 +155,35 @@ def run(out_dir: Path, quick: bool = False, quiet: bool = False) -> dict:
     for r in fid:
         log(f"slip: fidelity load {r['load_ratio']:.2f} x capacity: peak force {r['peak_force_ratio']:.2f} x Q_max, "
             f"flexible error {r['flexible_error']:.3g}, slips {100 * r['slip_fraction']:.1f} %", quiet)
+    stable = stability(rows)
+    for r in stable:
+        log(f"slip: stability {r['family']:<12} {r['method']:<6} v_eps={r['v_eps']:<6g} runs up to dt={r['largest_running_dt']:g}, "
+            f"fails from {r['smallest_failing_dt']:g}", quiet)
     csv_path = write_csv(out_dir / "slip.csv", rows, COLUMNS)
     fid_path = write_csv(out_dir / "slip_fidelity.csv", fid, FIDELITY_COLUMNS)
-    png = _plot(rows, fid, out_dir / "slip.png")
-    return {"csv": [csv_path, fid_path], "png": png, "rows": rows, "fidelity": fid}
+    stab_path = write_csv(out_dir / "slip_stability.csv", stable, STABILITY_COLUMNS)
+    png = _plot(rows, fid, stable, out_dir / "slip.png")
+    return {"csv": [csv_path, fid_path, stab_path], "png": png, "rows": rows, "fidelity": fid, "stability": stable}
 
 
-def _plot(rows, fid, path):
+def stability(rows) -> list:
+    """Per (family, method, v_eps): the largest step of the sweep that ran and the smallest that failed (nan: none)."""
+    groups: dict = {}
+    for r in rows:
+        groups.setdefault((r["family"], r["method"], r["v_eps"]), []).append(r)
+    out = []
+    for (family, method, v_eps), rs in groups.items():
+        ran = [r["dt"] for r in rs if not r["failed"]]
+        failed = [r["dt"] for r in rs if r["failed"]]
+        out.append(dict(family=family, method=method, v_eps=v_eps,
+                        largest_running_dt=max(ran) if ran else math.nan,
+                        smallest_failing_dt=min(failed) if failed else math.nan))
+    return out
+
+
+def _plot(rows, fid, stable, path):
     plt = pyplot()
-    fig, (ax_cost, ax_dt, ax_fid) = plt.subplots(1, 3, figsize=(18, 5.5))
+    fig, (ax_cost, ax_dt, ax_fid, ax_stab) = plt.subplots(1, 4, figsize=(24, 5.5))
     series: dict = {}
     for r in rows:
         label = f"{r['family']} {r['method']}" + (f" v_eps={r['v_eps']:g}" if r["family"] == "regularised" else "")
@@ -182,6 +208,22 @@ def _plot(rows, fid, path):
     ax_fid.set_ylabel("relative error of the linear (flexible) model")
     ax_fid.grid(True, which="both", alpha=0.3)
     ax_fid.legend(fontsize=7)
+    labels = [f"{r['family']} {r['method']}" + (f" v_eps={r['v_eps']:g}" if r["family"] == "regularised" else "") for r in stable]
+    y = np.arange(len(stable))
+    steps = [r["dt"] for r in rows]
+    floor = min(steps) / 2.0
+    ran = [r["largest_running_dt"] if math.isfinite(r["largest_running_dt"]) else floor for r in stable]
+    ax_stab.barh(y, ran, color=["C0" if lab.startswith("hybrid") else "C1" if lab.startswith("no_location") else "C3" for lab in labels])
+    for j, r in enumerate(stable):
+        if math.isfinite(r["smallest_failing_dt"]):
+            ax_stab.plot(r["smallest_failing_dt"], j, "kx")
+    ax_stab.set_xscale("log")
+    ax_stab.set_xlim(floor, 2.0 * max(steps))
+    ax_stab.set_yticks(y)
+    ax_stab.set_yticklabels(labels, fontsize=6)
+    ax_stab.set_xlabel("dt [s]: bar = largest that runs, x = smallest that fails")
+    ax_stab.set_title("stability map of the slipping scene", fontsize=9)
+    ax_stab.grid(True, which="both", axis="x", alpha=0.3)
     fig.suptitle("slipping belt, repeated stick-slip: event-driven hybrid vs step-end switching vs regularised friction")
     fig.tight_layout()
     return save_figure(fig, path)
