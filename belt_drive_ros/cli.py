@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
-from .core.errors import BeltDriveError
+from .core.errors import BeltDriveError, OutputError, SimulationDivergedError
 
 #: subcommand modules, in --help order. A module missing here is skipped silently
 #: only if it does not exist yet (commands under construction).
@@ -67,15 +68,37 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args) or 0)
+    except (SimulationDivergedError, OutputError) as exc:
+        return _fail(exc, 1)  # a failed run or a failed write, not bad input
     except BeltDriveError as exc:
-        print(f"belt-drive: error: {exc}", file=sys.stderr)
-        return 2
-    except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:
-        print(f"belt-drive: error: {exc}", file=sys.stderr)
-        return 2
+        return _fail(exc, 2) if not isinstance(exc, OSError) or isinstance(exc, FileExistsError) else _fail(exc, 1)
+    except (FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError, UnicodeError) as exc:
+        return _fail(exc, 2)  # an input that cannot be read as given
+    except RecursionError:
+        return _fail("input nested too deeply", 2)
     except KeyboardInterrupt:
         return 130
+    except MemoryError:
+        return _fail("out of memory (a shorter run, or --out to stream it, needs less)", 1)
+    except OSError as exc:  # disk full, I/O error: the run failed, the input was fine
+        return _fail(exc, 1)
+    except Exception as exc:  # noqa: BLE001 - one line, never a traceback (BELT_DRIVE_DEBUG=1 shows it)
+        if os.environ.get("BELT_DRIVE_DEBUG"):
+            raise
+        return _fail(f"internal error: {type(exc).__name__}: {exc} (BELT_DRIVE_DEBUG=1 shows the traceback)", 1)
 
+
+#: longest error line [characters]; messages quote values short, this only guards the rest
+MESSAGE_LIMIT = 400
+
+
+def _fail(exc, code: int) -> int:
+    """Print ``exc`` as one ``belt-drive: error:`` line (at most :data:`MESSAGE_LIMIT` characters); return ``code``."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    if len(text) > MESSAGE_LIMIT:
+        text = text[:MESSAGE_LIMIT] + "..."
+    print(f"belt-drive: error: {text}", file=sys.stderr)
+    return code
 
 if __name__ == "__main__":
     sys.exit(main())

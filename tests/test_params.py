@@ -11,7 +11,8 @@ import yaml
 
 from belt_drive_ros.core.errors import BeltDriveError, ParameterError
 from belt_drive_ros.core.model import FlexibleBeltModel, RigidBeltModel
-from belt_drive_ros.core.params import FIELD_DOCS, BeltDriveParams, describe_fields
+from belt_drive_ros.core.inputs import parse_yaml
+from belt_drive_ros.core.params import FIELD_DOCS, PLAUSIBLE_MAX, BeltDriveParams, describe_fields
 
 FIELDS = [f.name for f in dataclasses.fields(BeltDriveParams)]
 RADII = ["r_M", "R_1", "r_1", "R_2", "r_2", "r_3"]
@@ -131,16 +132,30 @@ def test_zero_damping_accepted():
     assert p.belt_damping_ratio == 0.0 and p.bearing_damping_reduced == 0.0
 
 
-def test_yaml_exponent_without_sign_is_accepted():
-    """YAML 1.1 (PyYAML) reads 2.0e4 as the *string* '2.0e4'; it must still mean 20000 N/m."""
-    data = yaml.safe_load("k: 2.0e4\nc: 1e1\nI_3: 0.03\n")
-    assert isinstance(data["k"], str)  # the YAML quirk this guards against
+def test_yaml_exponent_without_sign_is_a_number_and_strings_are_refused():
+    """YAML 1.1 (PyYAML) reads 2.0e4 as the *string* '2.0e4'; the project's loader reads YAML 1.2 numbers.
+
+    A string stays a string and is refused with the field named (issue 13: '2e4' quoted was taken as 20000).
+    """
+    assert isinstance(yaml.safe_load("k: 2.0e4")["k"], str)  # the YAML quirk the loader fixes
+    data = parse_yaml("k: 2.0e4\nc: 1e1\nI_3: 0.03\n")
     p = BeltDriveParams.from_mapping(data)
     assert p.k == 20000.0 and isinstance(p.k, float)
     assert p.c == 10.0 and p.I_3 == 0.03
-    with pytest.raises(ParameterError) as info:
-        BeltDriveParams.from_mapping(yaml.safe_load("k: 2.0e4 N/m"))
-    _assert_names(info, "k")
+    for text in ("k: '2e4'", "k: 2.0e4 N/m", "k: [1.0]", "k: true"):
+        with pytest.raises(ParameterError) as info:
+            BeltDriveParams.from_mapping(parse_yaml(text))
+        _assert_names(info, "k")
+        assert "number" in str(info.value)
+
+
+def test_absurd_values_are_refused_with_the_plausible_range():
+    for name, value in (("k", 1e300), ("I_M", 1e9), ("F_0", 1e30), ("r_3", 1e3)):
+        with pytest.raises(ParameterError) as info:
+            BeltDriveParams(**{name: value}).check_plausible()
+        _assert_names(info, name)
+        assert "plausible range" in str(info.value) and f"{PLAUSIBLE_MAX[name]:g}" in str(info.value)
+    assert BeltDriveParams(k=PLAUSIBLE_MAX["k"]).check_plausible().k == PLAUSIBLE_MAX["k"]  # the bound itself is allowed
 
 
 def test_integers_become_floats():

@@ -11,6 +11,7 @@ import yaml
 from belt_drive_ros.core.errors import ParameterError, SceneError
 from belt_drive_ros.core.fidelity import FREQUENCY_RATIO_THRESHOLD, choose_model
 from belt_drive_ros.core.integrators import REGISTRY
+from belt_drive_ros.core.params import BeltDriveParams
 from belt_drive_ros.core.scene import InitialState, Scene, load_scene, shipped_scenes
 from belt_drive_ros.core.simulate import simulate
 
@@ -21,7 +22,7 @@ BASE = {
     "dt": 1e-3,
     "model": "flexible",
     "method": "exact",
-    "params": {"k": 2.0e4},
+    "params": BeltDriveParams(k=2.0e4).to_dict(),
     "drive": {"type": "constant", "value": 1.0},
     "load": {"type": "constant", "value": 0.5},
 }
@@ -115,11 +116,11 @@ def test_initial_state_errors():
 
 def test_params_error_names_field_and_scene():
     with pytest.raises(ParameterError) as info:
-        Scene.from_mapping(_with(params={"r_3": -0.05}))
+        Scene.from_mapping(_with(params={**BASE["params"], "r_3": -0.05}))
     assert info.value.field == "r_3"
     assert "scene.params" in str(info.value)
     with pytest.raises(ParameterError) as info:
-        Scene.from_mapping(_with(params={"kk": 1.0}))
+        Scene.from_mapping(_with(params={**BASE["params"], "kk": 1.0}))
     assert info.value.field == "kk"
 
 
@@ -130,7 +131,7 @@ def test_top_level_not_a_mapping():
 
 def test_yaml_exponent_string_in_scene_file(tmp_path):
     path = tmp_path / "s.yaml"
-    path.write_text("duration: 0.5\ndt: 1.0e-3\nparams:\n  k: 2.0e4\n  c: 1e1\ndrive: 3.0\n")
+    path.write_text("extends: paper\nduration: 0.5\ndt: 1.0e-3\nparams:\n  k: 2.0e4\n  c: 1e1\ndrive: 3.0\n")
     scene = load_scene(path)
     assert scene.params.k == 20000.0 and scene.params.c == 10.0
     assert scene.name == "s"

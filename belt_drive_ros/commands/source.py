@@ -112,14 +112,22 @@ def _from_scene(scene_name: str, expected_kind: str | None):
     return scene
 
 
+#: largest CSV profile [bytes] (~1.5 M rows of "time, torque")
+CSV_LIMIT = 64 << 20
+
+
 def read_csv_profile(path: Path, column: str | None = None, interpolation: str = "previous"):
     """Table profile from a CSV: time [s] + torque [N m] columns (see the command's help)."""
     import numpy as np
 
     from ..core.errors import SceneError
+    from ..core.inputs import short
     from ..core.sources import Table
 
-    lines = [ln for ln in Path(path).read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    from ..core.inputs import read_text
+
+    text = read_text(path, "CSV profile", limit=CSV_LIMIT)
+    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise SceneError(f"{path}: empty CSV")
     first = [c.strip() for c in lines[0].split(",")]
@@ -132,7 +140,7 @@ def read_csv_profile(path: Path, column: str | None = None, interpolation: str =
     try:
         data = np.array([[float(c) for c in ln.split(",")] for ln in lines], dtype=float)
     except ValueError as exc:
-        raise SceneError(f"{path}: not a numeric CSV: {exc}") from None
+        raise SceneError(f"{path}: not a numeric CSV: {short(str(exc), 120)}") from None
     if data.ndim != 2 or data.shape[1] < 2 or data.shape[0] < 1:
         raise SceneError(f"{path}: need a time column and a torque column")
     t_col, v_col = 0, 1
@@ -142,7 +150,7 @@ def read_csv_profile(path: Path, column: str | None = None, interpolation: str =
         wanted = column or ("drive_torque" if "drive_torque" in header else None)
         if wanted is not None:
             if wanted not in header:
-                raise SceneError(f"{path}: no column {wanted!r}; columns: {', '.join(header)}")
+                raise SceneError(f"{path}: no column {short(wanted)}; columns: {short(', '.join(header), 200)}")
             v_col = header.index(wanted)
     elif column is not None:
         raise SceneError(f"{path}: --column needs a header line")

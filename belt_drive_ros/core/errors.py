@@ -31,6 +31,14 @@ class SceneError(BeltDriveError, ValueError):
     """A scene file or scene mapping is malformed (names the key path)."""
 
 
+class InputError(SceneError):
+    """A file from outside is refused before its content is used.
+
+    Not a regular file, too large, not UTF-8, or YAML with aliases, anchors,
+    duplicate keys or too deep nesting (:mod:`belt_drive_ros.core.inputs`).
+    """
+
+
 class IntegratorError(BeltDriveError, ValueError):
     """Unknown integrator name or invalid integrator option."""
 
@@ -46,3 +54,10 @@ class UnstableStepError(BeltDriveError, ValueError):
 
 class SimulationDivergedError(BeltDriveError, ArithmeticError):
     """The state became non-finite or left its physical envelope during a run."""
+
+
+class OutputError(BeltDriveError, OSError):
+    """Writing an output failed (disk full, I/O error); nothing partial is left behind.
+
+    A *failed run* (exit code 1 on the command line), unlike the input errors.
+    """

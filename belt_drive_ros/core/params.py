@@ -20,6 +20,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .errors import ParameterError
+from .inputs import short
 
 #: field -> (unit, description); also the order of the YAML keys.
 FIELD_DOCS: dict[str, tuple[str, str]] = {
@@ -48,6 +49,16 @@ FIELD_DOCS: dict[str, tuple[str, str]] = {
 
 #: optional fields and their defaults (the flat, massless belt), left out of to_dict() when at the default
 OPTIONAL_DEFAULTS: dict[str, float] = {"groove_angle": math.pi, "belt_mass": 0.0}
+
+#: largest plausible value of each field (SI units): past these no belt drive exists, and the
+#: numbers only make the model meaningless (k = 1e300 N/m gives omega_n = inf); the node
+#: advertises the same ranges
+PLAUSIBLE_MAX: dict[str, float] = {
+    "I_M": 1.0e3, "I_1": 1.0e3, "I_2": 1.0e3, "I_3": 1.0e3,
+    "r_M": 10.0, "R_1": 10.0, "r_1": 10.0, "R_2": 10.0, "r_2": 10.0, "r_3": 10.0,
+    "k": 1.0e10, "c": 1.0e7, "b_M": 1.0e4, "b_1": 1.0e4, "b_2": 1.0e4, "b_3": 1.0e4,
+    "F_0": 1.0e7, "mu": 10.0, "wrap_angle": 2.0 * math.pi, "groove_angle": math.pi, "belt_mass": 100.0,
+}
 
 _POSITIVE = ("I_M", "I_3", "r_M", "R_1", "r_1", "R_2", "r_2", "r_3", "k", "mu", "wrap_angle")
 _NON_NEGATIVE = ("I_1", "I_2", "c", "b_M", "b_1", "b_2", "b_3", "F_0", "belt_mass")
@@ -91,13 +102,8 @@ class BeltDriveParams:
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
-            if isinstance(value, str):  # YAML 1.1 reads 2.0e4 (no sign in the exponent) as a string
-                try:
-                    value = float(value)
-                except ValueError:
-                    raise ParameterError(f.name, f"must be a number, got {value!r}") from None
             if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ParameterError(f.name, f"must be a number, got {value!r}")
+                raise ParameterError(f.name, f"must be a number, got {type(value).__name__} {short(value)}")
             value = float(value)
             object.__setattr__(self, f.name, value)
             if not math.isfinite(value):
@@ -119,9 +125,11 @@ class BeltDriveParams:
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any] | None) -> "BeltDriveParams":
         """Build from a mapping keyed by the paper's symbols; unknown keys are errors."""
+        if data is not None and not isinstance(data, Mapping):
+            raise ParameterError("params", f"expected a mapping of parameters, got {type(data).__name__} {short(data)}")
         data = dict(data or {})
         known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
+        unknown = sorted(str(k)[:60] for k in set(data) - known)
         if unknown:
             raise ParameterError(
                 unknown[0], f"unknown parameter; known parameters are {', '.join(sorted(known))}"
@@ -140,6 +148,21 @@ class BeltDriveParams:
             for f in fields(self)
             if not (f.name in OPTIONAL_DEFAULTS and getattr(self, f.name) == OPTIONAL_DEFAULTS[f.name])
         }
+
+    def check_plausible(self) -> "BeltDriveParams":
+        """``self`` if every field is within :data:`PLAUSIBLE_MAX`, else :class:`ParameterError` naming the range.
+
+        Applied to parameters from outside (scene files, recordings, the node's
+        ranges); the constructor alone admits idealised values such as
+        ``F_0 = 1e9`` N (a belt that never slips) for tests and studies.
+        """
+        for name, top in PLAUSIBLE_MAX.items():
+            value = getattr(self, name)
+            if value > top:
+                unit = FIELD_DOCS[name][0]
+                low = "(0" if name in _POSITIVE else "[0"
+                raise ParameterError(name, f"{value:g} {unit} is outside the plausible range {low}, {top:g}] {unit}")
+        return self
 
     def field_values(self) -> dict[str, float]:
         """Every field ``{symbol: value}``, the optional ones included (e.g. to declare them all as node parameters)."""

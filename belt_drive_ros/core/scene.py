@@ -9,6 +9,7 @@ ships ``paper``, ``truck_compressor`` and ``e_motor_start``
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
@@ -18,11 +19,25 @@ import numpy as np
 import yaml
 
 from .errors import ParameterError, SceneError
+from .inputs import parse_yaml, read_text, short
 from .integrators import method_class
-from .params import BeltDriveParams
+from .params import OPTIONAL_DEFAULTS, BeltDriveParams
 from .sources import Constant, TorqueProfile, make_profile
 
 MODELS = ("rigid", "flexible", "slipping", "auto")
+#: keys a scene must state unless it ``extends`` a shipped scene (every parameter too, but the
+#: optional belt fields of :data:`~belt_drive_ros.core.params.OPTIONAL_DEFAULTS`)
+REQUIRED_KEYS = ("params", "drive", "load", "duration", "dt")
+#: plausible ranges (SI units) of the scene's time settings: a step below 0.1 us is below any
+#: clock the node or a recording can represent, a 1 s step resolves no belt mode; an output rate
+#: above 1 MHz is no consumer's; 1e7 s (116 days) is beyond any run this package is meant for
+RANGES: dict[str, tuple[float, float, str]] = {
+    "dt": (1.0e-7, 1.0, "s"),
+    "duration": (1.0e-6, 1.0e7, "s"),
+    "output_rate": (1.0e-3, 1.0e6, "Hz"),
+}
+#: most steps one run may take (duration / dt): ~1e9 steps is hours of computation already
+MAX_STEPS = 1.0e9
 
 
 @dataclass(frozen=True)
@@ -42,7 +57,7 @@ class InitialState:
         for f in fields(self):
             v = getattr(self, f.name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise SceneError(f"initial_state.{f.name}: must be a finite number, got {v!r}")
+                raise SceneError(f"initial_state.{f.name}: must be a finite number, got {type(v).__name__} {short(v)}")
             object.__setattr__(self, f.name, float(v))
 
     def vector(self, model_name: str, ratio: float) -> np.ndarray:
@@ -96,13 +111,30 @@ class Scene:
     method_options: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
-        for name in ("duration", "dt", "output_rate"):
+        for name, (low, high, unit) in RANGES.items():
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise SceneError(f"{name}: must be a finite number > 0, got {v!r}")
+                raise SceneError(f"{name}: must be a finite number > 0, got {type(v).__name__} {short(v)}")
+            if not low <= v <= high:
+                raise SceneError(f"{name}: {v:g} {unit} is outside the plausible range [{low:g}, {high:g}] {unit}")
             object.__setattr__(self, name, float(v))
+        for name in ("name", "description", "model", "method"):
+            v = getattr(self, name)
+            if not isinstance(v, str):
+                raise SceneError(f"{name}: must be a string, got {type(v).__name__} {short(v)}")
+        if not isinstance(self.method_options, Mapping):
+            raise SceneError(
+                f"method_options: expected a mapping of option: number, got {type(self.method_options).__name__} "
+                f"{short(self.method_options)}"
+            )
+        steps = self.duration / self.dt
+        if steps > MAX_STEPS:
+            raise SceneError(
+                f"duration: {self.duration:g} s at dt = {self.dt:g} s is {steps:.3g} steps, more than the "
+                f"{MAX_STEPS:.0e} one run may take; shorten the run or lengthen the step"
+            )
         if self.model not in MODELS:
-            raise SceneError(f"model: must be one of {', '.join(MODELS)}, got {self.model!r}")
+            raise SceneError(f"model: must be one of {', '.join(MODELS)}, got {short(self.model)}")
         try:
             method_class(self.method)
         except ValueError as exc:
@@ -113,29 +145,59 @@ class Scene:
     # ------------------------------------------------------------ mapping
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], name: str | None = None) -> "Scene":
-        """Scene from a mapping (parsed YAML); errors name the key path."""
+        """Scene from a mapping (parsed YAML); errors name the key path.
+
+        The mapping states :data:`REQUIRED_KEYS` and every required parameter,
+        or names a shipped scene with ``extends: NAME`` and gives only what
+        differs: ``params``, ``initial_state`` and ``method_options`` are merged
+        key by key into the shipped scene's, every other key replaces its value.
+        """
         if not isinstance(data, Mapping):
-            raise SceneError(f"scene: expected a mapping at the top level, got {type(data).__name__}")
+            raise SceneError(f"scene: expected a mapping at the top level, got {type(data).__name__} {short(data)}")
         data = dict(data)
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
+        known = {f.name for f in fields(cls)} | {"extends"}
+        unknown = sorted(str(k)[:60] for k in set(data) - known)
         if unknown:
             raise SceneError(f"scene.{unknown[0]}: unknown key; known keys: {', '.join(sorted(known))}")
+        if "extends" in data:
+            data = _extended(data)
+        else:
+            missing = [k for k in REQUIRED_KEYS if k not in data]
+            if missing:
+                raise SceneError(
+                    f"scene: missing required key {missing[0]!r}; a scene states {', '.join(REQUIRED_KEYS)} "
+                    f"or extends a shipped scene ('extends: paper', then only what differs)"
+                )
+            params = data["params"]
+            if isinstance(params, Mapping):
+                required = [f.name for f in fields(BeltDriveParams) if f.name not in OPTIONAL_DEFAULTS]
+                absent = [k for k in required if k not in params]
+                if absent:
+                    raise ParameterError(
+                        absent[0], f"missing (in scene.params); a scene states every parameter "
+                        f"({', '.join(absent)} missing) or extends a shipped scene"
+                    )
+        for key in ("params", "initial_state", "method_options"):
+            value = data.get(key)
+            if value is not None and not isinstance(value, Mapping):
+                raise SceneError(f"{key}: expected a mapping, got {type(value).__name__} {short(value)}")
         try:
-            params = BeltDriveParams.from_mapping(data.pop("params", None))
+            params = BeltDriveParams.from_mapping(data.pop("params", None)).check_plausible()
         except ParameterError as exc:
             raise ParameterError(exc.field, f"{exc.detail} (in scene.params)") from None
         init = data.pop("initial_state", None) or {}
-        if not isinstance(init, Mapping):
-            raise SceneError("initial_state: expected a mapping")
-        bad = sorted(set(init) - {f.name for f in fields(InitialState)})
+        bad = sorted(str(k)[:60] for k in set(init) - {f.name for f in fields(InitialState)})
         if bad:
             raise SceneError(f"initial_state.{bad[0]}: unknown key; known: phi_M, omega_M, relative_deflection, relative_speed")
         drive = make_profile(data.pop("drive", 0.0), "drive")
         load = make_profile(data.pop("load", 0.0), "load")
         if name is not None and "name" not in data:
             data["name"] = name
-        data["method_options"] = dict(data.get("method_options") or {})
+        options = dict(data.get("method_options") or {})
+        for key, value in options.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise SceneError(f"method_options.{str(key)[:60]}: must be a number, got {type(value).__name__} {short(value)}")
+        data["method_options"] = options
         return cls(params=params, drive=drive, load=load, initial_state=InitialState(**init), **data)
 
     def to_dict(self) -> dict[str, Any]:
@@ -156,6 +218,7 @@ class Scene:
         }
 
     def to_yaml(self) -> str:
+        """The scene as YAML (what ``belt-drive scenes NAME`` prints; loads back to an equal scene)."""
         return yaml.safe_dump(self.to_dict(), sort_keys=False)
 
     def with_overrides(self, **changes: Any) -> "Scene":
@@ -169,24 +232,44 @@ def shipped_scenes() -> list[str]:
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
 
 
+def _extended(data: dict) -> dict:
+    """``data`` merged into the shipped scene it ``extends`` (see :meth:`Scene.from_mapping`)."""
+    base_name = data.pop("extends")
+    names = shipped_scenes()
+    if not isinstance(base_name, str) or base_name not in names:
+        raise SceneError(f"extends: must name a shipped scene ({', '.join(names)}), got {short(base_name)}")
+    merged = load_scene(base_name).to_dict()
+    merged["description"] = f"{base_name} with changes"
+    del merged["name"]  # the file's own name, unless it states one
+    for key, value in data.items():
+        if key in ("params", "initial_state", "method_options"):
+            if not isinstance(value, Mapping):
+                raise SceneError(f"{key}: expected a mapping, got {type(value).__name__} {short(value)}")
+            merged[key] = {**merged[key], **value}
+        else:
+            merged[key] = value
+    return merged
+
+
 def load_scene(name_or_path: str | Path) -> Scene:
-    """Scene by shipped name (``paper``) or by path to a YAML file."""
-    text: str
+    """Scene by shipped name (``paper``) or by path to a YAML file.
+
+    Files are read through :mod:`belt_drive_ros.core.inputs` (regular files
+    only, size-limited, UTF-8, YAML without aliases, deep nesting or
+    duplicate keys); the scene must state its keys or ``extends`` a shipped one.
+    """
+    if not isinstance(name_or_path, (str, Path)):
+        raise SceneError(f"scene: expected a name or a path, got {type(name_or_path).__name__} {short(name_or_path)}")
     label = str(name_or_path)
     path = Path(name_or_path)
-    if path.suffix in (".yaml", ".yml") or path.exists():
-        if not path.exists():
-            raise SceneError(f"scene file not found: {path}")
-        text, default_name = path.read_text(), path.stem
+    if path.suffix in (".yaml", ".yml") or os.path.lexists(path) or os.sep in label:
+        text, default_name = read_text(path, "scene file"), path.stem
+        label = f"scene file {short(label, 200)}"
     else:
         resource = resources.files("belt_drive_ros") / "scenes" / f"{label}.yaml"
         if not resource.is_file():
             raise SceneError(
-                f"unknown scene {label!r}: not a file and not a shipped scene ({', '.join(shipped_scenes())})"
+                f"unknown scene {short(label)}: not a file and not a shipped scene ({', '.join(shipped_scenes())})"
             )
-        text, default_name = resource.read_text(), label
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise SceneError(f"{label}: not valid YAML: {str(exc).splitlines()[0]}") from None
-    return Scene.from_mapping(data, name=default_name)
+        text, default_name = resource.read_text(encoding="utf-8"), label
+    return Scene.from_mapping(parse_yaml(text, label), name=default_name)

@@ -19,6 +19,7 @@ from typing import Any, Callable, ClassVar, Mapping, Sequence
 import numpy as np
 
 from .errors import SceneError
+from .inputs import short
 from .formula import Formula, array_function, scalar_function
 
 _REGISTRY: dict[str, type["TorqueProfile"]] = {}
@@ -157,12 +158,12 @@ class TorqueProfile:
         for name in names:
             value = getattr(self, name)
             if not np.all(np.isfinite(np.asarray(value, dtype=float))):
-                raise SceneError(f"{self.kind}.{name}: must be finite, got {value!r}")
+                raise SceneError(f"{self.kind}.{name}: must be finite, got {short(value)}")
 
     def _check_positive(self, *names: str) -> None:
         for name in names:
             if not getattr(self, name) > 0:
-                raise SceneError(f"{self.kind}.{name}: must be > 0, got {getattr(self, name)!r}")
+                raise SceneError(f"{self.kind}.{name}: must be > 0, got {short(getattr(self, name))}")
 
 
 def _sum(terms: Sequence[str]) -> str:
@@ -615,17 +616,20 @@ def make_profile(spec: Mapping[str, Any] | TorqueProfile | float, where: str = "
     if isinstance(spec, (int, float)) and not isinstance(spec, bool):
         return Constant(float(spec))
     if not isinstance(spec, Mapping):
-        raise SceneError(f"{where}: expected a mapping with a 'type' key or a number, got {spec!r}")
+        raise SceneError(f"{where}: expected a mapping with a 'type' key or a number, got {type(spec).__name__} {short(spec)}")
     spec = dict(spec)
     kind = spec.pop("type", None)
     if kind not in _REGISTRY:
-        raise SceneError(f"{where}.type: unknown profile {kind!r}; known: {', '.join(sorted(_REGISTRY))}")
+        raise SceneError(f"{where}.type: unknown profile {short(kind)}; known: {', '.join(sorted(_REGISTRY))}")
     cls = _REGISTRY[kind]
     names = {f.name for f in fields(cls)}
-    unknown = sorted(set(spec) - names)
+    unknown = sorted(str(k)[:60] for k in set(spec) - names)
     if unknown:
         raise SceneError(f"{where}.{unknown[0]}: unknown key for type {kind!r}; known: {', '.join(sorted(names))}")
+    types = {f.name: str(f.type) for f in fields(cls)}
     for key, value in list(spec.items()):
+        if "str" not in types[key] and "TorqueProfile" not in types[key] and _has_text(value):
+            raise SceneError(f"{where}.{key}: must be a number (or numbers), got {short(value)}")
         if isinstance(value, list):
             spec[key] = tuple(tuple(v) if isinstance(v, list) else v for v in value)
     try:
@@ -634,6 +638,15 @@ def make_profile(spec: Mapping[str, Any] | TorqueProfile | float, where: str = "
         raise SceneError(f"{where}: {exc}") from None
     except (TypeError, ValueError) as exc:
         raise SceneError(f"{where} ({kind}): {exc}") from None
+
+
+def _has_text(value, depth: int = 0) -> bool:
+    """True when ``value`` (a number or nested lists of numbers) holds a string anywhere."""
+    if isinstance(value, (str, bytes)):
+        return True
+    if isinstance(value, (list, tuple)) and depth < 4:
+        return any(_has_text(v, depth + 1) for v in value)
+    return False
 
 
 def profile_kinds() -> list[str]:

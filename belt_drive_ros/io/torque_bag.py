@@ -43,11 +43,10 @@ from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 
-import yaml
-
 from msg_tools.errors import MsgToolsError, RecoveredBagWarning
 
-from ..core.errors import BeltDriveError
+from ..core.errors import BeltDriveError, InputError
+from ..core.inputs import parse_yaml
 from ..core.scene import Scene
 from .recording import RECORDED_DRIVE, SCENE_METADATA, BagReadError, _sha256, bag_error
 from ..core.formula import Formula
@@ -341,9 +340,9 @@ def scene_from_bag(path, *, torque_bag=None):
     if "yaml" not in record:
         raise BagReadError(f"{name}: no '{SCENE_METADATA}' metadata record; not written by belt_drive_ros")
     try:
-        data = yaml.safe_load(record["yaml"])
-    except yaml.YAMLError as exc:
-        raise BagReadError(f"{name}: scene metadata is not valid YAML: {str(exc).splitlines()[0]}") from None
+        data = parse_yaml(record["yaml"], "scene metadata")
+    except InputError as exc:
+        raise BagReadError(f"{name}: {exc}") from None
     if not isinstance(data, dict):
         raise BagReadError(f"{name}: scene metadata is not a mapping")
     drive = data.get("drive")

@@ -100,17 +100,8 @@ def model_range(name: str) -> tuple[float, float]:
     The lower bound is 0 (the fields that must be > 0 are refused at 0 by
     the class itself); the upper bound is the class's plausible maximum.
     """
-    upper = getattr(core_params, "PLAUSIBLE_MAX", _PLAUSIBLE_MAX_FALLBACK).get(name, math.inf)
+    upper = core_params.PLAUSIBLE_MAX.get(name, math.inf)
     return 0.0, float(upper)
-
-
-#: used only until core.params publishes PLAUSIBLE_MAX (the same figures the node always advertised)
-_PLAUSIBLE_MAX_FALLBACK: dict[str, float] = {
-    "I_M": 1.0e3, "I_1": 1.0e3, "I_2": 1.0e3, "I_3": 1.0e3,
-    "r_M": 10.0, "R_1": 10.0, "r_1": 10.0, "R_2": 10.0, "r_2": 10.0, "r_3": 10.0,
-    "k": 1.0e10, "c": 1.0e7, "b_M": 1.0e4, "b_1": 1.0e4, "b_2": 1.0e4, "b_3": 1.0e4,
-    "F_0": 1.0e7, "mu": 10.0, "wrap_angle": 2.0 * math.pi, "groove_angle": math.pi, "belt_mass": 100.0,
-}
 
 
 @dataclass

@@ -1,0 +1,205 @@
+"""Bounded reading of files that come from outside: scenes, profiles, parameter files.
+
+Every path the project reads a user's scene or table from goes through
+:func:`read_text`, and every YAML text through :func:`parse_yaml`:
+
+* **regular files only**: ``/dev/zero``, a FIFO or a directory is refused
+  from ``os.stat`` before anything is opened (a FIFO would block ``open``;
+  ``/dev/zero`` never ends); the file is opened with ``O_NONBLOCK`` and checked
+  again on the open descriptor, so a file swapped for a FIFO in between
+  cannot block either;
+* **a size limit** (:data:`SCENE_LIMIT` for YAML, callers choose theirs), read
+  as at most ``limit + 1`` bytes whatever the file claims;
+* **UTF-8**, strictly, with the offset of the first bad byte in the error;
+* **YAML without aliases or anchors** (no "billion laughs" expansion), with
+  nesting at most :data:`MAX_DEPTH` levels (no ``RecursionError``) and
+  **duplicate keys an error** (no silent last-wins);
+* **YAML 1.2 numbers**: ``2.0e4`` and ``1e1`` are floats (PyYAML's YAML 1.1
+  rules read them as strings), so a quoted ``'2e4'`` is a string and numeric
+  fields can refuse strings.
+
+Errors are :class:`~belt_drive_ros.core.errors.InputError` (a
+:class:`~belt_drive_ros.core.errors.SceneError`): one line, naming the file,
+and quoting values through :func:`short`, never a full ``repr`` of something
+large.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import stat
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .errors import InputError
+
+__all__ = ["MAX_DEPTH", "SCENE_LIMIT", "InputError", "parse_yaml", "read_text", "read_yaml", "short"]
+
+#: largest scene / parameter YAML file [bytes]; the shipped scenes are ~2 kB
+SCENE_LIMIT = 1 << 20
+#: deepest nesting of YAML collections (a scene needs 4: schedule -> active -> harmonics -> value)
+MAX_DEPTH = 32
+#: longest quoted value in an error message [characters]
+QUOTE_LIMIT = 60
+
+
+def short(value: Any, limit: int = QUOTE_LIMIT) -> str:
+    """``repr(value)`` cut to ``limit`` characters (``...`` and the full length appended).
+
+    Containers are summarised by type and length before any ``repr`` is
+    built, so a huge value never becomes a huge string.
+    """
+    if isinstance(value, (list, tuple, dict, set)) and len(value) > 8:
+        return f"<{type(value).__name__} of {len(value)} items>"
+    if isinstance(value, (str, bytes)) and len(value) > 4 * limit:
+        value = value[: 4 * limit]
+        text = repr(value)
+        return text[:limit] + f"... ({type(value).__name__}, truncated)"
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def _kind(mode: int) -> str:
+    for test, name in (
+        (stat.S_ISDIR, "a directory"),
+        (stat.S_ISFIFO, "a FIFO (named pipe)"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+    ):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def read_text(path: str | os.PathLike, what: str = "file", limit: int = SCENE_LIMIT) -> str:
+    """UTF-8 text of the regular file ``path``, at most ``limit`` bytes.
+
+    Raises
+    ------
+    InputError
+        ``path`` is missing, not a regular file (device, FIFO, directory,
+        socket), larger than ``limit`` bytes, unreadable or not UTF-8. Never
+        blocks on a FIFO and never reads more than ``limit + 1`` bytes.
+    """
+    path = Path(path)
+    label = f"{what} {short(str(path), 200)}"
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise InputError(f"{label}: not found") from None
+    except OSError as exc:
+        raise InputError(f"{label}: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(f"{label}: {_kind(st.st_mode)}; a regular file is needed")
+    if st.st_size > limit:
+        raise InputError(f"{label}: {st.st_size} bytes, more than the limit of {limit} bytes")
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        raise InputError(f"{label}: {exc.strerror or exc}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):  # swapped between stat and open
+            raise InputError(f"{label}: {_kind(st.st_mode)}; a regular file is needed")
+        chunks, size = [], 0
+        while size <= limit:
+            chunk = os.read(fd, min(1 << 16, limit + 1 - size))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
+    except OSError as exc:
+        raise InputError(f"{label}: {exc.strerror or exc}") from None
+    finally:
+        os.close(fd)
+    if size > limit:
+        raise InputError(f"{label}: more than the limit of {limit} bytes")
+    data = b"".join(chunks)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{label}: not UTF-8 text (byte {exc.start}: {short(data[exc.start:exc.start + 4])})") from None
+
+
+# ------------------------------------------------------------------ YAML
+#: YAML 1.2 floats that YAML 1.1 reads as strings: an exponent without a dot or without a sign
+_FLOAT_12 = re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$")
+
+
+class _BoundedLoader(yaml.SafeLoader):
+    """SafeLoader without aliases/anchors/merge keys, with a depth limit and duplicate keys refused."""
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise InputError(f"line {event.start_mark.line + 1}: YAML aliases (*{short(event.anchor, 40)}) are not allowed")
+        event = self.peek_event()
+        if getattr(event, "anchor", None) is not None:
+            raise InputError(f"line {event.start_mark.line + 1}: YAML anchors (&{short(event.anchor, 40)}) are not allowed")
+        self._depth = getattr(self, "_depth", 0) + 1
+        try:
+            if self._depth > MAX_DEPTH:
+                raise InputError(f"line {event.start_mark.line + 1}: nested deeper than {MAX_DEPTH} levels")
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def construct_mapping(self, node, deep=False):
+        if not isinstance(node, yaml.MappingNode):
+            return super().construct_mapping(node, deep=deep)
+        seen: dict = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                raise InputError(f"line {key_node.start_mark.line + 1}: YAML merge keys (<<) are not allowed")
+            key = self.construct_object(key_node, deep=True)
+            try:
+                hash(key)
+            except TypeError:
+                raise InputError(f"line {key_node.start_mark.line + 1}: a mapping key must be a plain value") from None
+            if key in seen:
+                raise InputError(
+                    f"line {key_node.start_mark.line + 1}: duplicate key {short(key, 40)} "
+                    f"(first on line {seen[key] + 1})"
+                )
+            seen[key] = key_node.start_mark.line
+        return super().construct_mapping(node, deep=deep)
+
+
+_BoundedLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789"))
+
+
+def parse_yaml(text: str, label: str = "YAML") -> Any:
+    """Data of the YAML ``text`` under the bounded rules of this module.
+
+    Raises
+    ------
+    InputError
+        Syntax errors (first line of PyYAML's message), aliases, anchors,
+        merge keys, nesting deeper than :data:`MAX_DEPTH`, duplicate keys,
+        more than one document; the message starts with ``label``.
+    """
+    try:
+        loader = _BoundedLoader(text)
+        try:
+            return loader.get_single_data()
+        finally:
+            loader.dispose()
+    except InputError as exc:
+        raise InputError(f"{label}: {exc}") from None
+    except yaml.YAMLError as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        mark = getattr(exc, "problem_mark", None)
+        where = f" (line {mark.line + 1})" if mark is not None else ""
+        raise InputError(f"{label}: not valid YAML: {short(first, 160)}{where}") from None
+    except RecursionError:
+        raise InputError(f"{label}: nested too deeply") from None
+
+
+def read_yaml(path: str | os.PathLike, what: str = "YAML file", limit: int = SCENE_LIMIT) -> Any:
+    """:func:`read_text` then :func:`parse_yaml` (errors name the file)."""
+    text = read_text(path, what, limit)
+    return parse_yaml(text, f"{what} {short(str(path), 200)}")

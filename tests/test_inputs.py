@@ -1,0 +1,268 @@
+"""Bounded inputs (issue 13): scene and profile files from outside never crash, hang or mislead.
+
+Each case goes through the real loader (:func:`load_scene`) and, where it is
+a CLI promise, through ``belt_drive_ros.cli.main`` (exit 2, one line).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from belt_drive_ros.cli import main
+from belt_drive_ros.core.errors import InputError, ParameterError, SceneError
+from belt_drive_ros.core.inputs import MAX_DEPTH, SCENE_LIMIT, parse_yaml, read_text, short
+from belt_drive_ros.core.scene import RANGES, Scene, load_scene
+from belt_drive_ros.core.simulate import simulate
+
+
+def _paper_dict() -> dict:
+    return load_scene("paper").to_dict()
+
+
+def _write(tmp_path, data, name="s.yaml") -> str:
+    path = tmp_path / name
+    if isinstance(data, (bytes, bytearray)):
+        path.write_bytes(data)
+    else:
+        path.write_text(data if isinstance(data, str) else yaml.safe_dump(data, sort_keys=False))
+    return str(path)
+
+
+def _cli_error(capsys, argv) -> str:
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("belt-drive: error: "), err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+# ------------------------------------------------------------------ what a file is
+def test_device_is_refused_without_reading_it(capsys):
+    with pytest.raises(InputError, match="character device"):
+        load_scene("/dev/zero")
+    line = _cli_error(capsys, ["sim", "/dev/zero", "--quiet"])
+    assert "/dev/zero" in line and "regular file" in line
+
+
+def test_directory_is_refused(tmp_path, capsys):
+    line = _cli_error(capsys, ["sim", str(tmp_path), "--quiet"])
+    assert "directory" in line
+
+
+def test_fifo_does_not_block(tmp_path):
+    """A FIFO nobody writes to: ``open`` would block for ever; the loader refuses it from stat (subprocess: a hang fails)."""
+    fifo = tmp_path / "scene.yaml"
+    os.mkfifo(fifo)
+    proc = subprocess.run(
+        [sys.executable, "-m", "belt_drive_ros.cli", "sim", str(fifo), "--quiet"],
+        capture_output=True, text=True, timeout=120, env={**os.environ, "PYTHONPATH": os.getcwd()},
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.count("\n") == 1 and "FIFO" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_size_limit(tmp_path, capsys):
+    path = _write(tmp_path, "# " + "x" * SCENE_LIMIT + "\n")
+    line = _cli_error(capsys, ["sim", path, "--quiet"])
+    assert "limit" in line and str(SCENE_LIMIT) in line
+
+
+def test_not_utf8(tmp_path, capsys):
+    path = _write(tmp_path, b"name: caf\xe9\nduration: 1\n")
+    line = _cli_error(capsys, ["sim", path, "--quiet"])
+    assert "not UTF-8" in line and "byte 9" in line
+
+
+def test_read_text_reads_at_most_the_limit(tmp_path):
+    path = tmp_path / "t.csv"
+    path.write_text("0,1\n" * 100)
+    assert read_text(path, limit=400) == "0,1\n" * 100
+    with pytest.raises(InputError, match="limit of 399 bytes"):
+        read_text(path, limit=399)
+
+
+# ------------------------------------------------------------------ YAML
+def test_alias_bomb_is_refused_with_a_short_message(tmp_path, capsys):
+    bomb = ["a: &a [x, x, x, x, x, x, x, x, x]"]
+    for k in range(1, 9):
+        bomb.append(f"{chr(97 + k)}: &{chr(97 + k)} [" + ", ".join([f"*{chr(96 + k)}"] * 9) + "]")
+    text = "\n".join(bomb) + "\nparams: {k: *i}\n"
+    with pytest.raises(InputError, match="anchors") as info:
+        parse_yaml(text)
+    assert len(str(info.value)) < 200
+    line = _cli_error(capsys, ["sim", _write(tmp_path, text), "--quiet"])
+    assert len(line) < 300
+
+
+def test_alias_without_anchor_in_scope_and_merge_keys(tmp_path):
+    with pytest.raises(InputError, match="alias|anchor"):
+        parse_yaml("dt: &d 0.001\nduration: *d\n")
+    with pytest.raises(InputError):
+        parse_yaml("base: &b {x: 1}\nother:\n  <<: *b\n")
+
+
+@pytest.mark.parametrize("text", ["[" * 5000 + "]" * 5000, "{a: " * 3000 + "1" + "}" * 3000,
+                                  "".join(f"{' ' * (2 * i)}k{i}:\n" for i in range(200)) + " " * 400 + "x"])
+def test_deep_nesting_is_refused_not_a_recursion_error(tmp_path, capsys, text):
+    with pytest.raises(InputError, match=f"deeper than {MAX_DEPTH}"):
+        parse_yaml(text)
+    _cli_error(capsys, ["sim", _write(tmp_path, text), "--quiet"])
+
+
+def test_nesting_of_a_real_scene_is_allowed():
+    assert parse_yaml("a:\n" + "".join(f"{' ' * (2 * i)}b{i}:\n" for i in range(1, MAX_DEPTH - 1)) + " " * 2 * (MAX_DEPTH - 1) + "1\n")
+
+
+def test_duplicate_keys_are_an_error(tmp_path, capsys):
+    text = yaml.safe_dump(_paper_dict(), sort_keys=False) + "dt: 0.001\n"
+    line = _cli_error(capsys, ["sim", _write(tmp_path, text), "--quiet"])
+    assert "duplicate key 'dt'" in line and "first on line" in line
+    with pytest.raises(InputError, match="duplicate key 'k'"):
+        parse_yaml("params:\n  k: 1.0\n  k: 2.0\n")
+
+
+def test_yaml_12_numbers():
+    data = parse_yaml("a: 2.0e4\nb: 1e1\nc: -3E-2\nd: '2e4'\ne: 5\nf: 1.5\n")
+    assert data == {"a": 2.0e4, "b": 10.0, "c": -0.03, "d": "2e4", "e": 5, "f": 1.5}
+    assert isinstance(data["b"], float) and isinstance(data["e"], int)
+
+
+# ------------------------------------------------------------------ required keys
+@pytest.mark.parametrize("key", ["params", "drive", "load", "duration", "dt"])
+def test_required_keys(tmp_path, capsys, key):
+    data = _paper_dict()
+    del data[key]
+    line = _cli_error(capsys, ["sim", _write(tmp_path, data), "--quiet"])
+    assert f"missing required key '{key}'" in line and "extends" in line
+
+
+def test_every_parameter_is_required(tmp_path, capsys):
+    """Dropping only I_M used to run with the default 1 kg m^2 (final speed 5.7 instead of 110.7 rad/s)."""
+    data = _paper_dict()
+    del data["params"]["I_M"]
+    line = _cli_error(capsys, ["sim", _write(tmp_path, data), "--quiet"])
+    assert line.startswith("belt-drive: error: I_M: missing")
+
+
+def test_optional_belt_fields_stay_optional():
+    data = _paper_dict()
+    assert "groove_angle" not in data["params"] and "belt_mass" not in data["params"]
+    assert Scene.from_mapping(data) == load_scene("paper")
+
+
+def test_extends_a_shipped_scene(tmp_path):
+    path = _write(tmp_path, "extends: paper\nduration: 0.5\nparams: {c: 3.0}\n", name="short_paper.yaml")
+    scene = load_scene(path)
+    paper = load_scene("paper")
+    assert scene.name == "short_paper" and scene.duration == 0.5
+    assert scene.params == paper.params.replace(c=3.0)
+    assert scene.drive == paper.drive and scene.dt == paper.dt and scene.method == paper.method
+    same = load_scene(_write(tmp_path, "extends: paper\n", name="same.yaml"))
+    assert simulate(same).outputs["omega_M"][-1] == simulate(paper).outputs["omega_M"][-1]
+    with pytest.raises(SceneError, match="extends: must name a shipped scene"):
+        load_scene(_write(tmp_path, "extends: /etc/passwd\n"))
+
+
+# ------------------------------------------------------------------ types and ranges
+@pytest.mark.parametrize(
+    "change, named",
+    [
+        ({"params": {"k": "20000.0"}}, "k"),
+        ({"drive": {"type": "motor", "stall_torque": "12", "no_load_speed": 160.0, "soft_start_time": 0.02}}, "drive.stall_torque"),
+        ({"duration": "5"}, "duration"),
+        ({"initial_state": {"omega_M": "1"}}, "initial_state.omega_M"),
+        ({"method_options": {"rtol": "0.001"}}, "method_options.rtol"),
+        ({"load": {"type": "polynomial", "c0": 0.0, "c1": ["0.02"], "c2": 0.0}}, "load.c1"),
+    ],
+)
+def test_numbers_are_numbers(tmp_path, capsys, change, named):
+    data = _paper_dict()
+    for key, value in change.items():
+        data[key] = {**data[key], **value} if key == "params" else value
+    line = _cli_error(capsys, ["sim", _write(tmp_path, data), "--quiet"])
+    assert named in line and ("number" in line or "got" in line)
+
+
+def test_quoted_exponent_is_a_string_not_a_number(tmp_path, capsys):
+    """The issue's case: ``k: '2e4'`` was taken as 20000 N/m."""
+    text = yaml.safe_dump(_paper_dict(), sort_keys=False).replace("k: 20000.0", "k: '2e4'")
+    assert "k: '2e4'" in text
+    line = _cli_error(capsys, ["sim", _write(tmp_path, text), "--quiet"])
+    assert "k: must be a number, got str '2e4'" in line
+
+
+@pytest.mark.parametrize(
+    "key, value, word",
+    [("dt", 1e-300, "plausible range"), ("output_rate", 1e12, "plausible range"),
+     ("duration", 1e9, "plausible range"), ("duration", 1e300, "plausible range")],
+)
+def test_absurd_scene_values(tmp_path, capsys, key, value, word):
+    data = {**_paper_dict(), key: value}
+    line = _cli_error(capsys, ["sim", _write(tmp_path, data), "--quiet"])
+    low, high, unit = RANGES[key]
+    assert line.startswith(f"belt-drive: error: {key}:") and word in line and f"{high:g}" in line
+
+
+def test_absurd_parameter_value(tmp_path, capsys):
+    data = _paper_dict()
+    data["params"]["k"] = 1e300
+    line = _cli_error(capsys, ["sim", _write(tmp_path, data), "--quiet"])
+    assert "k:" in line and "plausible range" in line and "1e+10" in line
+
+
+@pytest.mark.parametrize("params", ["stiff", [1.0, 2.0], 3.0])
+def test_params_not_a_mapping(tmp_path, capsys, params):
+    line = _cli_error(capsys, ["sim", _write(tmp_path, {**_paper_dict(), "params": params}), "--quiet"])
+    assert "params" in line and "mapping" in line
+
+
+def test_method_options_not_a_mapping(tmp_path, capsys):
+    line = _cli_error(capsys, ["sim", _write(tmp_path, {**_paper_dict(), "method_options": [1, 2]}), "--quiet"])
+    assert "method_options" in line and "mapping" in line
+
+
+def test_huge_value_is_quoted_short(tmp_path, capsys):
+    data = _paper_dict()
+    data["params"]["k"] = "9" * 500_000
+    line = _cli_error(capsys, ["sim", _write(tmp_path, data), "--quiet"])
+    assert len(line) < 300 and "truncated" in line
+
+
+def test_short():
+    assert short("abc") == "'abc'"
+    assert len(short("x" * 10**6)) < 120
+    assert short(list(range(1000))) == "<list of 1000 items>"
+
+
+def test_csv_profile_goes_through_the_loader(tmp_path):
+    from belt_drive_ros.commands.source import read_csv_profile
+
+    with pytest.raises(InputError, match="character device"):
+        read_csv_profile("/dev/zero")
+    bad = tmp_path / "p.csv"
+    bad.write_bytes(b"time,drive_torque\n0,\xff\n")
+    with pytest.raises(InputError, match="not UTF-8"):
+        read_csv_profile(bad)
+
+
+def test_node_scene_parameter_uses_the_loader():
+    from belt_drive_ros.ros.parameter_schema import NodeConfigError, SceneCache
+
+    with pytest.raises(NodeConfigError, match="character device"):
+        SceneCache().get("/dev/zero")
+
+
+def test_shipped_scenes_and_bag_scenes_load_strictly():
+    from pathlib import Path
+
+    for path in sorted(Path(__file__).resolve().parents[1].joinpath("bags").glob("*.yaml")):
+        assert load_scene(path).duration > 0
+    with pytest.raises(ParameterError):
+        Scene.from_mapping({**_paper_dict(), "params": {"k": 1.0}})
