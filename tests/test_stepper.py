@@ -204,3 +204,40 @@ def test_left_of_gives_the_left_limit():
         assert left != right
         assert f(profile.left_of(b), 0.0, 0.0) == left and profile.left_of(b) < b
         assert float(profile.torque(np.array([profile.left_of(b)]), 0.0, 0.0)[0]) == left
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_guard_stops_the_run_after_the_first_step_that_ends_past_it(compiled):
+    """Guarded run = the unguarded run's states up to and including the first step whose end has g > 0.
+
+    The guard here is |Q| > 60 N on the paper belt's transmitted force ``Q =
+    2 k r_3 (i phi_M - phi_3) + 2 c r_3 (i omega_M - omega_3)`` (the form of the
+    slipping belt's stick guard); the crossing step is found independently
+    from the unguarded states. ``compiled`` False: the numpy step loop.
+    """
+    from belt_drive_ros.core.stage_scheme import Guard
+
+    scene = load_scene("paper")
+    p = scene.params
+    i, k, c, r3 = p.ratio, p.k, p.c, p.r_3
+    row = (2 * k * r3 * i, -2 * k * r3, 2 * c * r3 * i, -2 * c * r3)  # flexible x = [phi_M, phi_3, omega_M, omega_3]
+    plant = Plant(MODEL, scene.drive, scene.load)
+    free = Stepper(plant, "etd2", 1e-3)
+    guarded = Stepper(plant, "etd2", 1e-3, guard=Guard(row, 60.0, True))
+    if not compiled:
+        free.loop = guarded.loop = None
+    x0 = scene.initial_state.vector("flexible", p.ratio)
+    times, states = free.run(x0, 0.0, 2.0, vectorize=False)
+    q = np.abs(states @ np.array(row))
+    j = int(np.argmax(q[1:] > 60.0))  # first step (j -> j+1) that ends past the guard
+    assert q[j + 1] > 60.0 and np.all(q[1 : j + 1] <= 60.0) and j > 10
+    t_g, s_g = guarded.run(x0, 0.0, 2.0)
+    assert guarded.stopped is not None and guarded.stopped[0] == j
+    assert guarded.stopped[1:3] == (times[j], times[j + 1])
+    assert np.array_equal(t_g, times[: j + 2]) and np.array_equal(s_g, states[: j + 2])
+    # a guard that never fires: the whole run, bit for bit, not stopped
+    never = Stepper(plant, "etd2", 1e-3, guard=Guard(row, 10.0 * q.max(), True))
+    if not compiled:
+        never.loop = None
+    t_n, s_n = never.run(x0, 0.0, 2.0)
+    assert never.stopped is None and np.array_equal(t_n, times) and np.array_equal(s_n, states)
