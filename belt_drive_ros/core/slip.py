@@ -212,7 +212,7 @@ class SlippingBeltModel:
         y, u = np.asarray(y, dtype=float), np.asarray(u, dtype=float)
         mode = np.asarray(mode)
         Q = self.force(y, mode, sigma)
-        qmax = np.broadcast_to(self.limit(y[..., 2]), Q.shape)
+        qmax = np.asarray(self.limit(y[..., 2]), dtype=float)  # (N,) for samples, a float for one
         speed = np.where(mode == SLIP, self.slip_speed(y, Q), 0.0)
         a1, g = p.r_M / p.R_1, p.gear_ratio
         slack_force = p.F_0 - 0.5 * Q
