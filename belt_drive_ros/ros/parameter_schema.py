@@ -164,10 +164,23 @@ def _choice(name: str, value: Any, choices: tuple) -> str:
 
 
 class SceneCache:
-    """Scenes by name or path, each loaded once (a node changing back and forth stays cheap)."""
+    """Scenes by name or path, each loaded once (a node changing back and forth stays cheap),
+    and the ``auto`` model choice per scene, parameters and tick rate (its check runs the scene once)."""
 
     def __init__(self, preload: Mapping[str, Scene] | None = None):
         self._scenes: dict[str, Scene] = dict(preload or {})
+        self._choices: dict = {}
+
+    def model_choice(self, name: str, scene: Scene, params: BeltDriveParams, step_rate: float):
+        """:func:`~belt_drive_ros.core.fidelity.choose_model` of ``scene`` (scene ``name`` with ``params`` and
+        ``step_rate``), computed once per such triple: a runtime change of another parameter (a real-time
+        factor, a torque limit) does not rerun the scene inside the executor's callback."""
+        key = (name, params, float(step_rate))
+        if key not in self._choices:
+            if len(self._choices) >= 32:
+                self._choices.clear()
+            self._choices[key] = choose_model(scene)
+        return self._choices[key]
 
     def get(self, name: str) -> Scene:
         if not isinstance(name, str) or not name:
@@ -273,7 +286,7 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
         raise NodeConfigError("substeps", f"step_rate_hz*substeps gives dt={dt_ns} ns; keep dt >= 1 us")
     scene = scene.with_overrides(params=params, output_rate=step_rate)
     if kind == "auto":
-        choice = choose_model(scene)  # the scene's own run decides on slipping
+        choice = scenes.model_choice(values["scene"], scene, params, step_rate)  # the scene's run decides on slipping
         kind, reason = choice.model, choice.reason
     else:
         reason = f"{kind}: set by parameter 'model'"
