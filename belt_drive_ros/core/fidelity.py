@@ -9,7 +9,15 @@ Step changes (a torque switched on or off) excite the belt's free vibration
 at every frequency. Hence:
 
 * **flexible** when any excitation frequency reaches
-  ``FREQUENCY_RATIO_THRESHOLD * f_n`` or a torque changes stepwise;
+  ``FREQUENCY_RATIO_THRESHOLD * f_n`` or a torque changes stepwise,
+  including at the start: torques applied at t = 0 onto a belt whose
+  initial deflection does not carry them (:func:`start_mismatch`, e.g. a
+  constant drive switched on onto an unloaded belt) are a step of the
+  size of the mismatch, and count as one when it reaches
+  ``START_MISMATCH_THRESHOLD`` of the rigid run's peak belt torque (the
+  belt then rings about the quasi-static value with that amplitude: a
+  constant drive from rest peaks at twice the rigid belt torque). Scenes
+  keep their stated initial deflection;
 * **rigid** otherwise; the quasi-static relative deflection
   ``T_b / (2 k r_3^2)`` is still reported.
 
@@ -43,6 +51,9 @@ from .stepper import Plant, Stepper
 
 #: rigid is chosen while max(f_excitation) / f_n stays below this [-].
 FREQUENCY_RATIO_THRESHOLD = 0.1
+#: a start mismatch |T_qs(0) - T_b(0)| from this fraction of the rigid run's peak belt torque is a step [-]
+#: (the free vibration it starts has that amplitude: ~1 %, the rigid error at FREQUENCY_RATIO_THRESHOLD).
+START_MISMATCH_THRESHOLD = 0.01
 
 
 @dataclass(frozen=True)
@@ -73,14 +84,34 @@ class ModelChoice:
     limit_time: float = math.nan
 
 
-def _operating_speeds(scene) -> tuple[float, float]:
-    """Largest |omega_M| and |omega_3| [rad/s] of a cheap rigid run of ``scene``."""
+def _operating_speeds(scene) -> tuple[float, float, float]:
+    """Largest |omega_M|, |omega_3| [rad/s] and |belt torque| [N m] of a cheap rigid run of ``scene``."""
     model = RigidBeltModel(scene.params)
     dt = min(scene.duration / 500.0, 5e-3)
-    stepper = Stepper(Plant(model, scene.drive, scene.load), "exact", dt)
-    _, states = stepper.run(scene.initial_state.vector("rigid", scene.params.ratio), 0.0, scene.duration)
+    plant = Plant(model, scene.drive, scene.load)
+    stepper = Stepper(plant, "exact", dt)
+    time, states = stepper.run(scene.initial_state.vector("rigid", scene.params.ratio), 0.0, scene.duration)
     w = float(np.max(np.abs(states[:, 1])))
-    return w, w * scene.params.ratio
+    peak = float(np.max(np.abs(model.belt_torque(states, plant.input_array(time, states)))))
+    return w, w * scene.params.ratio, peak
+
+
+def start_mismatch(scene) -> tuple[float, float]:
+    """(quasi-static belt torque the start needs, belt torque the initial state carries) [N m].
+
+    The first is the rigid model's belt torque at t = 0 with the torques
+    applied then, ``T_qs = I_3 i a_M + b_3 i omega_M + M_load``; the second
+    ``2 k r_3^2 delta_0 + 2 c r_3^2 delta_0'`` of the scene's initial
+    deflection and its rate. Their difference is the torque step the belt
+    sees at t = 0.
+    """
+    p = scene.params
+    rigid = RigidBeltModel(p)
+    x0 = scene.initial_state.vector("rigid", p.ratio)
+    needed = float(rigid.belt_torque(x0, Plant(rigid, scene.drive, scene.load).inputs(0.0, x0)))
+    init = scene.initial_state
+    carried = p.belt_torsional_stiffness * init.relative_deflection + 2.0 * p.c * p.r_3**2 * init.relative_speed
+    return needed, carried
 
 
 def choose_model(scene, threshold: float = FREQUENCY_RATIO_THRESHOLD, check_slip: bool = True, linear_run=None) -> ModelChoice:
@@ -137,8 +168,15 @@ def _linear_outputs(scene, kind: str):
 def _linear_choice(scene, threshold: float) -> ModelChoice:
     """Rigid or flexible for ``scene`` by the frequency rule, with the reason."""
     f_n = scene.params.belt_natural_frequency / (2.0 * math.pi)
-    w_M, w_3 = _operating_speeds(scene)
+    w_M, w_3, peak = _operating_speeds(scene)
     excitations = list(scene.drive.excitation_frequencies(w_M)) + list(scene.load.excitation_frequencies(w_3))
+    needed, carried = start_mismatch(scene)
+    if abs(needed - carried) >= START_MISMATCH_THRESHOLD * peak and abs(needed - carried) > 0.0:
+        excitations.append((math.inf, (
+            f"the start (torques at t = 0 need {needed:.3g} N m of belt torque, the initial deflection "
+            f"carries {carried:.3g} N m: a {abs(needed - carried) / peak:.0%} step of the peak; "
+            f"the scene starts at its stated deflection, not the quasi-static one)"
+        )))
     excitations = tuple(sorted(((float(f), label) for f, label in excitations), reverse=True))
     f_max, label = excitations[0] if excitations else (0.0, "none")
     ratio = f_max / f_n
