@@ -342,7 +342,7 @@ def test_runtime_changes_apply_without_restart(ros_domain_id):
         assert h.set_parameters(scene="truck_compressor").successful
         truck = load_scene("truck_compressor")
         assert h.node.get_parameter("k").value == truck.params.k
-        assert h.node.get_parameter("substeps").value == 2  # truck dt = 0.5 ms at 1 kHz
+        assert h.node.get_parameter("substeps").value == round(1e-3 / truck.dt)  # the truck's dt at 1 kHz
         h.advance(0.001)
         assert h.outputs()["shaft_speed"][-1] == pytest.approx(truck.initial_state.omega_M, rel=0.05)
         assert h.set_parameters(step_rate_hz=500).successful

@@ -175,7 +175,8 @@ def test_node_in_sim_time_following_replay_equals_the_offline_replay(tmp_path, r
     however loaded the machine is, at 10x real time.
     """
     n = 60
-    torque = simulate(load_scene("truck_compressor").with_overrides(duration=0.1)).outputs["drive_torque"][::2][:n]
+    truck = load_scene("truck_compressor")
+    torque = simulate(truck.with_overrides(duration=0.1)).outputs["drive_torque"][:: round(1e-3 / truck.dt)][:n]
     times = np.arange(n) * 1_000_000  # 1 kHz from /clock = 0
     bag = _torque_bag(tmp_path / "profile.mcap", times, torque)
     ticks, js, settings = _node_following_replay(bag, tmp_path / "live.mcap", ros_domain_id)
