@@ -18,7 +18,11 @@ process (this one) on a private ROS domain over loopback:
 * one-way state-out latency: receipt time - joint_states stamp (both the
   system clock), p50 / p99: tick start -> integrate -> publish -> delivery;
 * CPU: the node process's user + system time over the window, percent of one
-  core (from /proc/PID/stat), and this measuring process's own.
+  core (from /proc/PID/stat), and this measuring process's own;
+* simulated / wall time: the span of the stamps over the span of their
+  receipt (1 on the system clock; with ``-p publish_clock:=true -p
+  real_time_factor:=F`` the pace the node keeps, F, or how much faster than
+  real time it runs with F = 0).
 
 The first ``--warmup`` seconds are discarded. Targets from the issue (2-core
 machine): >= 999 Hz, p99 period error <= 0.2 ms, latency p99 <= 0.5 ms,
@@ -171,6 +175,7 @@ def measure(args) -> dict:
             latencies.append((recv - sent[effort]) / 1e6)
     one_way = (data[:, 1] - data[:, 2]) / 1e6 if len(data) else np.zeros(0)
     span_s = (stamps[-1] - stamps[0]) / 1e9 if stamps.size > 1 else math.nan
+    received_span_s = (data[-1, 0] - data[0, 0]) / 1e9 if len(data) > 1 else math.nan
     figures = {
         "duration_s": window,
         "rate_set_hz": args.rate,
@@ -188,6 +193,7 @@ def measure(args) -> dict:
         "latency_samples": len(latencies),
         "one_way_p50_ms": _percentiles(one_way)[0],
         "one_way_p99_ms": _percentiles(one_way)[1],
+        "sim_per_wall": span_s / received_span_s if len(data) > 1 else math.nan,
         "cpu_percent": 100.0 * (cpu1 - cpu0) / window,
         "probe_cpu_percent": 100.0 * (own1 - own0) / window,
         "executor": args.executor,
@@ -222,6 +228,7 @@ def report(f: dict) -> str:
         f"  one-way state out      p50 {f['one_way_p50_ms']:.3f} ms, p99 {f['one_way_p99_ms']:.3f} ms "
         f"(tick stamp -> receipt in this process)   [target p99 <= {t['latency_p99_ms']:g} ms: "
         f"{mark(f['one_way_p99_ms'] <= t['latency_p99_ms'])}]",
+        f"  simulated / wall time  {f['sim_per_wall']:.4f} (stamp span / receive span)",
         f"  CPU                    node {f['cpu_percent']:.1f} % of one core   [target <= {t['cpu_percent']:g} %: "
         f"{mark(f['cpu_percent'] <= t['cpu_percent'])}]; measuring process {f['probe_cpu_percent']:.1f} %",
     ]

@@ -138,3 +138,28 @@ def limit_blas_threads(n: int = 1) -> int:
                 done += 1
                 break
     return done
+
+
+#: ``prctl`` option that sets the calling thread's timer slack (linux/prctl.h)
+_PR_SET_TIMERSLACK = 29
+
+
+def reduce_timer_slack(slack_ns: int = 1) -> bool:
+    """Set this thread's timer slack to ``slack_ns`` (Linux); threads it creates later inherit it.
+
+    Linux lets a sleep of an ordinary (``SCHED_OTHER``) thread end up to its
+    timer slack late (default 50 us) so that wake-ups can be merged. A 1 kHz
+    tick wakes twice per period (the executor's timer thread, then the spinning
+    thread), so the default slack alone delays each tick by up to ~0.1 ms:
+    measured in ``belt-drive node`` at 1 kHz, the median delay from the tick's
+    grid time to its callback went from 132 us to 75 us with a slack of 1 ns.
+    Call it before rclpy starts its threads (context, executor). Returns
+    False where ``prctl`` is unavailable (the default slack then stays).
+    """
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(_PR_SET_TIMERSLACK, ctypes.c_ulong(int(slack_ns)), 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False

@@ -158,10 +158,13 @@ def ros_session(args: Sequence[str] | None = None, *, domain_id: int | None = No
     ``args`` are the process's ROS arguments (``["prog", "--ros-args", ...]``);
     rclpy installs no signal handlers (:func:`spin_until_signal` handles
     SIGINT/SIGTERM). BLAS runs single-threaded in the process
-    (:func:`~belt_drive_ros.ros.environment.limit_blas_threads`).
+    (:func:`~belt_drive_ros.ros.environment.limit_blas_threads`), and the
+    threads rclpy starts sleep without timer slack
+    (:func:`~belt_drive_ros.ros.environment.reduce_timer_slack`: ticks wake on time).
     """
     ros_env.configure_environment()
     ros_env.limit_blas_threads()
+    ros_env.reduce_timer_slack()
     context = Context()
     kwargs = {} if domain_id is None else {"domain_id": int(domain_id)}
     rclpy.init(args=list(args) if args else None, context=context,

@@ -240,14 +240,16 @@ class TickSource:
     # ------------------------------------------------------------- ticks
     def _on_tick(self) -> None:
         start = time.perf_counter()
-        now = self.node.get_clock().now().nanoseconds
         sim = self.sim
         if self.use_sim_time():
+            now = self.node.get_clock().now().nanoseconds
             if not sim.started and now == 0:
                 return  # no /clock yet, or /clock = 0: the first-/clock subscription starts the run
             self._tick(now)
             self.stats.record(start, time.perf_counter(), None)
             return
+        # the node's clock without /clock is the system clock (CLOCK_REALTIME), read here without rclpy's Time object
+        now = time.time_ns()
         if sim.started:
             now = sim.grid_time(now)
         else:  # start on the time this call was scheduled for: later calls then land on the grid
