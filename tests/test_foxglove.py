@@ -8,7 +8,9 @@ the system ``node`` (``make install`` runs ``npm ci`` there). Three kinds of fil
 a node recording (with ``/diagnostics``), and a ``belt-drive record`` file of topics outside the
 node's own (``geometry_msgs/Twist``, ``rcl_interfaces/Log``). For every topic: no decode error,
 as many messages as the file's summary counts, and the first and last decoded values equal
-msg_tools' own decode. Every channel carries the type hash of its type.
+msg_tools' own decode. Every channel carries the type hash of its type. Offline runs and node
+recordings start with ``/robot_description`` (the drive's URDF, what Foxglove's 3D panel reads):
+Foxglove decodes it to the very URDF of the scene's parameters.
 """
 
 from __future__ import annotations
@@ -61,6 +63,8 @@ def check_file(path: Path, result: dict) -> dict:
         data = bag.topics[topic]
         if data.type_name == "std_msgs/msg/Float64":
             assert state["first"] == [data.data[0]] and state["last"] == [data.data[-1]], topic
+        elif data.type_name == "std_msgs/msg/String":
+            assert state["first"] == [data.messages[0].data] and state["last"] == [data.messages[-1].data], topic
         elif data.type_name == "sensor_msgs/msg/JointState":
             for k, row in ((0, state["first"]), (-1, state["last"])):
                 sec, nanosec = divmod(int(data.stamp_ns[k]), 1_000_000_000)
@@ -74,23 +78,40 @@ def test_offline_run_decodes_in_foxglove(tmp_path):
     from belt_drive_ros.core.simulate import simulate
     from belt_drive_ros.io.recording import write_result_mcap
 
+    from belt_drive_ros.io.urdf import urdf_from_params
+
     path = tmp_path / "offline.mcap"
-    write_result_mcap(simulate(load_scene("paper").with_overrides(duration=0.3)), path)
-    counts = check_file(path, foxglove_decode(path)[str(path)])
-    assert set(counts) == {"/drive_torque", "/joint_states", "/shaft_speed", "/load_torque",
+    scene = load_scene("paper").with_overrides(duration=0.3)
+    write_result_mcap(simulate(scene), path)
+    result = foxglove_decode(path)[str(path)]
+    counts = check_file(path, result)
+    assert set(counts) == {"/robot_description", "/drive_torque", "/joint_states", "/shaft_speed", "/load_torque",
                            "/belt_torque", "/relative_deflection"}
+    assert counts["/robot_description"] == 1
+    assert result["topics"]["/robot_description"]["first"] == [urdf_from_params(scene.params)]
+    with open(path, "rb") as f:
+        first = next(iter(make_reader(f).iter_messages()))[1]
+    assert first.topic == "/robot_description"  # before the first sample
 
 
 @pytest.mark.ros
 def test_node_recording_decodes_in_foxglove(tmp_path, ros_domain_id):
     from belt_drive_ros.ros.harness import BeltDriveHarness
 
+    from belt_drive_ros.io.urdf import urdf_from_params
+
     path = tmp_path / "node.mcap"
     with BeltDriveHarness(scene="paper", domain_id=ros_domain_id, record_path=str(path)) as h:
+        params = h.node.settings.params
         h.publish_torque(6.0)
         h.advance(1.5)  # diagnostics come once a second
-    counts = check_file(path, foxglove_decode(path)[str(path)])
-    assert {"/joint_states", "/diagnostics", "/drive_torque", "/shaft_speed"} <= set(counts)
+    result = foxglove_decode(path)[str(path)]
+    counts = check_file(path, result)
+    assert {"/robot_description", "/joint_states", "/diagnostics", "/drive_torque", "/shaft_speed"} <= set(counts)
+    assert result["topics"]["/robot_description"]["first"] == [urdf_from_params(params)]
+    with open(path, "rb") as f:
+        first = next(iter(make_reader(f).iter_messages()))[1]
+    assert first.topic == "/robot_description"  # the file starts with it
 
 
 @pytest.mark.ros

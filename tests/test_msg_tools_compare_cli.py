@@ -16,12 +16,14 @@ JOINTS = ["crank", "alternator", "wheel_3"]
 
 
 def _run(path, *, k=1.0, n=400, dt_ns=1_000_000, t0_ns=10**9, velocity_scale=None, skip_topic=None,
-         metadata=True):
-    """A small 'simulation' bag: torque + joint states; k scales the dynamics."""
+         metadata=True, description=None):
+    """A small 'simulation' bag: torque + joint states; k scales the dynamics; a text description first."""
     velocity_scale = velocity_scale or {}
     with Ros2McapWriter(path, force=True) as w:
         if metadata:
             w.add_metadata("units", {"/drive_torque": "N*m"})
+        if description is not None:
+            w.write("/robot_description", "std_msgs/msg/String", {"data": description}, t0_ns)
         for i in range(n):
             t = t0_ns + i * dt_ns
             s = (t - 10**9) * 1e-9
@@ -115,6 +117,19 @@ def test_missing_topic_and_short_run_fail_with_reason(tmp_path, golden):
     short = _run(tmp_path / "short.mcap", n=200)
     report = compare(short, golden, topics=["/drive_torque"])
     assert not report.passed and "50.0% of B's samples" in report.signals[0].reason
+
+
+def test_text_topic_in_one_file_only_is_skipped_not_failed(tmp_path, golden):
+    """A topic without numeric signals (a URDF on /robot_description) that only the newer file has
+    leaves nothing to compare: skipped with the reason; asked for by name it is missing (fails)."""
+    described = _run(tmp_path / "described.mcap", description="<robot name='x'/>")
+    report = compare(described, golden)
+    assert report.passed and len(report.signals) == 1 + 3 * len(JOINTS)
+    assert report.skipped == [("/robot_description", "std_msgs/msg/String has no numeric signals (only in A)")]
+    named = compare(described, golden, topics=["/robot_description", "/drive_torque"])
+    assert not named.passed and "missing in B" in named.failures[0].reason
+    no_torque = _run(tmp_path / "no_torque.mcap", skip_topic="/drive_torque", description="<robot/>")
+    assert not compare(no_torque, golden).passed  # a numeric topic missing still fails
 
 
 def test_undecodable_topic_is_a_failure_not_a_crash(tmp_path, golden):

@@ -529,3 +529,37 @@ def test_slipping_node_reports_what_the_belt_did(ros_domain_id):
     assert values["last_slip_event"] == f"{kind} at t={t:.9g} s"
     assert float(values["slip_angle_rad"]) == pytest.approx(out["slip_angle"][-1], rel=1e-5)
     assert values["slip_state"] == ("sliding" if out["slip"][-1] else "sticking")
+
+
+def test_robot_description_is_latched_for_late_joiners(ros_domain_id):
+    """robot_description (the drive's URDF from the scene's radii) reaches a transient-local subscriber that
+    joins after it was published, once; a change of a radius publishes the new drive, a change that leaves
+    the URDF as it was (damping) publishes nothing."""
+    import xml.etree.ElementTree as ET
+
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import String
+
+    from belt_drive_ros.io.urdf import JOINT_NAMES as URDF_JOINTS
+    from belt_drive_ros.io.urdf import urdf_from_params
+
+    with BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0) as h:
+        h.advance(0.05)  # the node has run a while: the description went out long before this subscriber
+        got = []
+        latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        h.probe.create_subscription(String, "robot_description", lambda m: got.append(m.data), latched)
+        h._spin_until(lambda: got, "the latched robot_description")
+        assert got == [urdf_from_params(h.node.settings.params)]
+        joints = [j.get("name") for j in ET.fromstring(got[0]).iter("joint")]
+        assert joints == list(URDF_JOINTS) == ["wheel_M", "wheel_1", "wheel_2", "wheel_3"]  # joint_states' names
+        assert h.set_parameters(c=h.node.settings.params.c * 2).successful  # not geometry: nothing new
+        h.spin(0.1)
+        assert len(got) == 1
+        r_3 = h.node.settings.params.r_3
+        assert h.set_parameters(r_3=r_3 * 1.5).successful
+        h._spin_until(lambda: len(got) == 2, "the new robot_description")
+        assert got[1] == urdf_from_params(h.node.settings.params) != got[0]
+        pulley = [float(c.get("radius")) for link in ET.fromstring(got[1]).iter("link")
+                  if link.get("name") == "wheel_3_link" for c in link.iter("cylinder")]
+        assert pulley == [pytest.approx(r_3 * 1.5, rel=1e-12)]

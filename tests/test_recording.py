@@ -29,6 +29,7 @@ from belt_drive_ros.io.recording import (
 from belt_drive_ros.io.torque_bag import scene_from_bag, scene_with_torque_bag
 from belt_drive_ros.core.scene import load_scene
 from belt_drive_ros.core.simulate import simulate
+from belt_drive_ros.io.urdf import urdf_from_params
 from msg_tools import encode, read_bag, read_topic
 from msg_tools.cli import main as msg_tools
 from msg_tools.qos import parse_offered_qos_yaml
@@ -66,22 +67,26 @@ def test_independent_reader_sees_rosbag2_layout(bag, run):
     header, summary, metadata, messages = _independent(bag)
     assert header.profile == "ros2"
     assert {s.encoding for s in summary.schemas.values()} == {"ros2msg"}
-    assert {s.name for s in summary.schemas.values()} == {"std_msgs/msg/Float64", "sensor_msgs/msg/JointState"}
+    assert {s.name for s in summary.schemas.values()} == {"std_msgs/msg/Float64", "sensor_msgs/msg/JointState",
+                                                           "std_msgs/msg/String"}
     channels = {c.topic: c for c in summary.channels.values()}
-    assert sorted(channels) == sorted(OUTPUT_TOPICS)
-    for channel in channels.values():
+    assert sorted(channels) == sorted(OUTPUT_TOPICS + ["/robot_description"])
+    for topic, channel in channels.items():
         assert channel.message_encoding == "cdr"
         (qos,) = parse_offered_qos_yaml(channel.metadata["offered_qos_profiles"])
         assert qos.reliability == "reliable" and qos.history == "keep_last"
+        # the URDF is latched as robot_state_publisher latches it; the signals are volatile
+        assert (qos.durability, qos.depth) == (("transient_local", 1) if topic == "/robot_description" else ("volatile", 10))
     assert {ci.compression for ci in summary.chunk_indexes} == {"zstd"}
     stride = round(1.0 / (run.scene.output_rate * run.dt))  # steps per output sample
     n = (run.time.size - 1) // stride + 1
-    assert summary.statistics.message_count == 6 * n
+    assert summary.statistics.message_count == 6 * n + 1  # and one robot_description
     # rosbag2 metadata: what `ros2 bag info` shows
     bag_meta = yaml.safe_load(metadata["rosbag2"]["serialized_metadata"])
     assert bag_meta["version"] == 9 and bag_meta["storage_identifier"] == "mcap"
-    assert bag_meta["message_count"] == 6 * n
-    assert {t["topic_metadata"]["name"] for t in bag_meta["topics_with_message_count"]} == set(OUTPUT_TOPICS)
+    assert bag_meta["message_count"] == 6 * n + 1
+    assert {t["topic_metadata"]["name"] for t in bag_meta["topics_with_message_count"]} == set(OUTPUT_TOPICS) | {
+        "/robot_description"}
     # self-describing: scene, parameters, units
     scene = metadata["scene"]
     assert scene["source"] == "offline" and scene["model"] == run.model == "flexible"
@@ -103,8 +108,10 @@ def test_independent_reader_sees_rosbag2_layout(bag, run):
     assert list(js[7].position) == [o["phi_M"], o["phi_1"], o["phi_2"], o["phi_3"]]
     assert list(js[7].velocity) == [o["omega_M"], o["omega_1"], o["omega_2"], o["omega_3"]]
     assert list(js[7].effort) == [o["drive_torque"], 0.0, 0.0, -o["load_torque"]]
-    # node order at each time: drive_torque, joint_states, then the Float64 outputs
-    assert [topic for topic, *_ in messages[:6]] == OUTPUT_TOPICS
+    # the drive's URDF first (at the start time), then the node's order at each time: drive_torque,
+    # joint_states, then the Float64 outputs
+    assert [topic for topic, *_ in messages[:7]] == ["/robot_description"] + OUTPUT_TOPICS
+    assert messages[0][1] == 0 and messages[0][4].data == urdf_from_params(run.scene.params)
 
 
 def test_same_run_gives_byte_identical_file(run, tmp_path):

@@ -94,6 +94,7 @@ __all__ = [
     "bag_error",
     "encode_float64",
     "encode_joint_states",
+    "encode_robot_description",
     "scene_mapping",
     "write_result_mcap",
 ]
@@ -102,6 +103,11 @@ FLOAT64 = "std_msgs/msg/Float64"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 CLOCK = "rosgraph_msgs/msg/Clock"
+STRING = "std_msgs/msg/String"
+#: the drive's URDF (std_msgs/String), latched: one message at the start of a recording
+ROBOT_DESCRIPTION = "robot_description"
+#: its offered QoS in recordings (as robot_state_publisher offers it: reliable, transient local, keep last 1)
+ROBOT_DESCRIPTION_QOS = "transient_local"
 
 #: Joint names of ``joint_states`` (as :data:`belt_drive_ros.ros.node.JOINT_NAMES`).
 JOINT_NAMES: Tuple[str, ...] = ("wheel_M", "wheel_1", "wheel_2", "wheel_3")
@@ -131,6 +137,7 @@ TOPIC_TYPES: Dict[str, str] = {
     "belt_torque": FLOAT64,
     "relative_deflection": FLOAT64,
     **{name: FLOAT64 for name, _ in SLIP_FLOAT_OUTPUTS},  # slipping model only
+    ROBOT_DESCRIPTION: STRING,
     "/diagnostics": DIAGNOSTIC_ARRAY,
     "/clock": CLOCK,
 }
@@ -294,6 +301,17 @@ def encode_float64(values: np.ndarray) -> List[bytes]:
     return [_F64_HEADER + raw[i : i + 8] for i in range(0, len(raw), 8)]
 
 
+def encode_robot_description(params) -> Tuple[str, bytes]:
+    """The drive's URDF for ``params`` (:func:`~belt_drive_ros.io.urdf.urdf_from_params`) and its
+    ``std_msgs/String`` CDR (as ``mcap_ros2`` and rclpy encode it)."""
+    import msg_tools
+
+    from .urdf import urdf_from_params
+
+    urdf = urdf_from_params(params)
+    return urdf, msg_tools.encode(STRING, {"data": urdf})
+
+
 def encode_joint_states(stamp_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray,
                         effort: np.ndarray, names: Sequence[str] = JOINT_NAMES,
                         frame_id: str = "") -> List[bytes]:
@@ -406,8 +424,13 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
         node's publish rate). Samples are taken every ``round(1/(rate*dt))``
         integrator steps; all steps if that does not divide evenly.
     topics : iterable of str, optional
-        Subset of ``drive_torque``, ``joint_states``, ``shaft_speed``,
-        ``load_torque``, ``belt_torque``, ``relative_deflection`` (default all).
+        Subset of ``robot_description``, ``drive_torque``, ``joint_states``,
+        ``shaft_speed``, ``load_torque``, ``belt_torque``,
+        ``relative_deflection`` (and the slipping model's outputs) (default all).
+        ``robot_description`` is one ``std_msgs/String`` message at the start:
+        the drive's URDF from the scene's radii (:mod:`belt_drive_ros.io.urdf`),
+        offered transient local like ``robot_state_publisher``'s, for
+        Foxglove's 3D panel.
     compression : {"zstd", "lz4", "none"}
     extra_metadata : mapping of record name to str dict, optional
         Further metadata records.
@@ -437,7 +460,7 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
     encodes them (zero padding), so the same run with the same
     ``start_time_ns`` gives a byte-identical file (golden files).
     At each time the order is the node's: ``drive_torque``, ``joint_states``,
-    then the Float64 outputs.
+    then the Float64 outputs; ``robot_description`` comes first of all.
 
     Raises
     ------
@@ -447,7 +470,7 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
         If the file cannot be written.
     """
     float_outputs = FLOAT_OUTPUTS + tuple(o for o in SLIP_FLOAT_OUTPUTS if getattr(result, "model", "") == "slipping")
-    offline_topics = ("drive_torque", "joint_states") + tuple(name for name, _ in float_outputs)
+    offline_topics = (ROBOT_DESCRIPTION, "drive_torque", "joint_states") + tuple(name for name, _ in float_outputs)
     wanted = offline_topics if topics is None else tuple(t.strip("/") for t in topics)
     unknown = sorted(set(wanted) - set(offline_topics))
     if unknown:
@@ -509,10 +532,14 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
             })
             for extra_name, values in (extra_metadata or {}).items():
                 writer.add_metadata(extra_name, dict(values))
+            times = t_ns.tolist()
+            if ROBOT_DESCRIPTION in wanted and times:
+                description = _absolute(ROBOT_DESCRIPTION, namespace)
+                writer.add_topic(description, STRING, ROBOT_DESCRIPTION_QOS)
+                writer.write_raw(description, STRING, encode_robot_description(scene.params)[1], times[0])
             for topic, type_name, _ in payloads:
                 writer.add_topic(topic, type_name, "reliable")
             write = writer.write_raw
-            times = t_ns.tolist()
             for k, t in enumerate(times):
                 for topic, type_name, data in payloads:
                     write(topic, type_name, data[k], t)

@@ -35,6 +35,7 @@ topic                  dir     type / meaning
 ``elastic_deflection`` pub     ``std_msgs/Float64``: elastic part of the deflection [rad] (slipping model only)
 ``slip_angle``         pub     ``std_msgs/Float64``: wheel-3 angle lost to slip ``s / r_3`` [rad] (slipping model only)
 ``joint_states``       pub     ``sensor_msgs/JointState``, stamped with the tick's time
+``robot_description``  pub     ``std_msgs/String``: the drive's URDF from the scene's radii (latched)
 ``/diagnostics``       pub     ``diagnostic_msgs/DiagnosticArray`` (~1 Hz wall clock)
 ``/clock``             pub     ``rosgraph_msgs/Clock``, only with ``publish_clock``
 ``~/reset``            srv     ``std_srvs/Trigger``: restart from the scene's initial state
@@ -114,17 +115,17 @@ from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
-from std_msgs.msg import Float64  # noqa: E402
+from std_msgs.msg import Float64, String  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from ..core.errors import BeltDriveError  # noqa: E402
-from ..io.recording import SLIP_FLOAT_OUTPUTS  # noqa: E402
+from ..io.recording import ROBOT_DESCRIPTION, SLIP_FLOAT_OUTPUTS, STRING, encode_robot_description  # noqa: E402
 from .diagnostics import NodeDiagnostics  # noqa: E402
 from .executors import executor_name, make_executor, ros_session, spin_nodes  # noqa: E402,F401 - make_executor re-exported
 from .inputs import DriveInput  # noqa: E402
 from .parameter_schema import NodeConfigError, NodeSettings  # noqa: E402,F401 - NodeConfigError re-exported
 from .parameters import NodeParameters  # noqa: E402
-from .qos import INPUT_QOS, OUTPUT_QOS  # noqa: E402
+from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS  # noqa: E402
 from .simulation import NodeSimulation  # noqa: E402
 from .timing import TickSource, TickStats, stamp  # noqa: E402
 
@@ -199,6 +200,10 @@ class BeltDriveNode(Node):
         self._msg_joint = JointState(name=list(JOINT_NAMES))  # messages made once, refilled by every tick
         self._msg_float = [Float64() for _ in self._pub_float]
         self.refresh_subscriber_counts()
+        # -- the drive's URDF, latched (published again when the radii or the wrap angle change)
+        self._pub_description = self.create_publisher(String, ROBOT_DESCRIPTION, DESCRIPTION_QOS)
+        self._description = ("", b"")  # (URDF, its CDR) last published
+        self._publish_description()
         # -- input, service, diagnostics, ticks
         self._sub_torque = self.create_subscription(Float64, "drive_torque", self._on_drive_torque, INPUT_QOS)
         self._srv_reset = self.create_service(Trigger, "~/reset", self._on_reset, qos_profile=RESET_QOS)
@@ -228,6 +233,8 @@ class BeltDriveNode(Node):
         self.sim.apply(new, changed, load_torque=self.last.get("load_torque", 0.0))
         if changed & {"step_rate_hz", "publish_clock", "real_time_factor"}:
             self.timing.configure(was_publishing_clock=old.publish_clock)
+        if new.params != old.params:
+            self._publish_description()
         self.get_logger().info(
             f"parameters {', '.join(sorted(changed))} applied: model {new.model.name} ({new.model_reason}); "
             f"{new.stability.describe()}"
@@ -240,6 +247,7 @@ class BeltDriveNode(Node):
         try:
             self.recorder = NodeRecorder(self, path)
             self.get_logger().info(f"recording to {path}")
+            self._record_description()  # first in the file
         except BagError as exc:  # file exists (never overwritten) or cannot be created
             self.get_logger().error(f"record_path: {exc}; not recording")
 
@@ -250,6 +258,19 @@ class BeltDriveNode(Node):
         self.drive.receive(msg.data, now, self.sim.settings)
         if self.recorder is not None:
             self.recorder.record_input(msg.data, now)
+
+    def _publish_description(self) -> None:
+        """Publish (and record) the URDF of the drive in force, if it changed."""
+        description = encode_robot_description(self.sim.settings.params)
+        if description[0] != self._description[0]:
+            self._description = description
+            self._pub_description.publish(String(data=description[0]))
+            self._record_description()
+
+    def _record_description(self) -> None:
+        if self.recorder is not None and self._description[0]:
+            self.recorder.write(self.recorder.resolve(ROBOT_DESCRIPTION), STRING, self._description[1],
+                                self.timing.now_ns())
 
     # ---------------------------------------------------------------- ticks
     def _tick(self, now_ns: int) -> None:

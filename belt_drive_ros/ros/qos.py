@@ -13,6 +13,9 @@ publisher offers (reliable >= best effort, transient local >= volatile), so:
   best-effort sensor data (``qos_profile_sensor_data``), and transient-local
   subscribers, which also get the last 10 messages at once when they join
   late (Foxglove, a monitor started after the node);
+* ``robot_description`` (the drive's URDF) is latched as
+  ``robot_state_publisher`` latches it: reliable, transient local, keep
+  last 1, so a subscriber that joins at any time gets the current one;
 * ``/clock`` (published with ``publish_clock``) is reliable keep last 10,
   volatile: rclpy's and rclcpp's own ``/clock`` subscriptions (best effort,
   keep last 1) and reliable ones match it; an old clock is never worth
@@ -23,7 +26,7 @@ from __future__ import annotations
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-__all__ = ["CLOCK_QOS", "INPUT_QOS", "OUTPUT_QOS"]
+__all__ = ["CLOCK_QOS", "DESCRIPTION_QOS", "INPUT_QOS", "OUTPUT_QOS"]
 
 #: drive_torque (subscription): best effort, volatile, keep last 1.
 INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
@@ -33,6 +36,10 @@ INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: robot_description (publisher): reliable, transient local, keep last 1 (latched).
+DESCRIPTION_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
 #: /clock (publisher): reliable, volatile, keep last 10.
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                        reliability=ReliabilityPolicy.RELIABLE,

@@ -16,6 +16,7 @@ const decompressHandlers = {
 function digest(topic, value) {
   // numbers a test can compare with msg_tools' own decode
   if (value && typeof value.data === "number") return [value.data];
+  if (value && typeof value.data === "string") return [value.data];
   if (value && Array.isArray(value.name) && value.velocity !== undefined) {
     const s = value.header.stamp;
     return [s.sec, s.nanosec, ...Array.from(value.position), ...Array.from(value.velocity), ...Array.from(value.effort)];
