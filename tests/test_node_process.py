@@ -155,3 +155,37 @@ def test_invalid_parameters_at_start_exit_with_message(args, message):
     assert proc.returncode == 2, err[-3000:]
     assert "belt-drive: error:" in err and message in err
     assert "Traceback" not in err
+
+
+def test_node_refuses_an_existing_recording_and_replaces_it_with_force(tmp_path):
+    """``belt-drive node --record X`` on an existing X: exit 2 and one line, X untouched (it never
+    runs unrecorded); with ``--force`` it starts, records, and SIGTERM finalizes the new file."""
+    from std_msgs.msg import Float64
+
+    from msg_tools import read_topic
+
+    bag = tmp_path / "keep.mcap"
+    bag.write_bytes(b"precious")
+    domain = ros_env.process_domain_id(offset=47)
+    proc = start(["node", "paper", "--record", str(bag)], domain)
+    try:
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 2, err[-3000:]
+    errors = [line for line in err.splitlines() if "error" in line.lower()]
+    assert errors == [f"belt-drive: error: record_path: {bag} exists; set record_overwrite:=true "
+                      "(belt-drive node --force) to replace it"], err[-3000:]
+    assert bag.read_bytes() == b"precious"
+
+    node = start(["node", "paper", "--record", str(bag), "--force", "--executor", "single"], domain)
+    probe = Probe(domain)
+    try:
+        probe.subscribe(Float64, "shaft_speed")
+        probe.spin_until(lambda: len(probe.received["shaft_speed"]) > 20, 40.0, "shaft_speed", (node,))
+    finally:
+        probe.close()
+        rc, err = stop(node, signal.SIGTERM)
+    assert rc == 0, err[-3000:]
+    assert read_topic(bag, "/shaft_speed").data.size > 20

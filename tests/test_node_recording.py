@@ -51,15 +51,78 @@ def test_node_records_its_run_when_given_record_path(tmp_path, ros_domain_id):
     assert np.all(np.isfinite(speed))
 
 
-def test_existing_record_path_is_not_overwritten(tmp_path, ros_domain_id):
+def test_existing_record_path_refuses_the_start_unless_overwrite_is_set(tmp_path, ros_domain_id):
+    """Asked to record onto an existing file, the node does not start (it never runs unrecorded);
+    ``record_overwrite`` (``belt-drive node --force``) replaces the file."""
     from belt_drive_ros.ros.harness import BeltDriveHarness
+    from belt_drive_ros.ros.parameter_schema import NodeConfigError
 
     bag = tmp_path / "keep.mcap"
     bag.write_bytes(b"precious")
-    with BeltDriveHarness(scene="paper", domain_id=ros_domain_id, record_path=str(bag)) as h:
-        h.advance(0.01)
-        assert h.diagnostics()["simulation"]["values"]["recording"] == "off"
+    with pytest.raises(NodeConfigError, match=r"record_path: .*keep\.mcap exists; set record_overwrite:=true"):
+        with BeltDriveHarness(scene="paper", domain_id=ros_domain_id, record_path=str(bag)):
+            pass
     assert bag.read_bytes() == b"precious"
+    with pytest.raises(NodeConfigError, match="record_path: .*"):  # cannot be created: refused as well
+        with BeltDriveHarness(scene="paper", domain_id=ros_domain_id, record_path=str(tmp_path / "no" / "x.mcap")):
+            pass
+    with BeltDriveHarness(scene="paper", domain_id=ros_domain_id, record_path=str(bag), record_overwrite=True,
+                          input_timeout=0.0) as h:
+        h.advance(0.01)
+        assert "recording" in h.diagnostics()["simulation"]["values"]["recording"]
+        rejected = h.set_parameters(record_overwrite=False)
+        assert not rejected.successful and "set at start only" in rejected.reason
+    assert read_topic(bag, "/shaft_speed").data.size == 11
+
+
+def test_split_recording_is_a_rosbag2_folder_every_verb_reads(tmp_path, ros_domain_id):
+    """max_bag_duration splits into NAME/NAME_i.mcap + metadata.yaml; the folder holds every tick
+    once, msg-tools info/export/compare read it without damage warnings, and it re-simulates
+    bit for bit."""
+    import io
+    import yaml
+    from contextlib import redirect_stderr, redirect_stdout
+
+    from msg_tools import cli as msg_cli
+
+    from belt_drive_ros.core.simulate import simulate
+    from belt_drive_ros.io.torque_bag import scene_from_bag
+    from belt_drive_ros.ros.harness import BeltDriveHarness
+    from belt_drive_ros.ros.parameter_schema import NodeConfigError
+
+    with pytest.raises(NodeConfigError, match="record_path: .*bag folder"):
+        with BeltDriveHarness(domain_id=ros_domain_id, record_path=str(tmp_path / "x.mcap"), max_bag_duration=1.0):
+            pass
+    folder = tmp_path / "run"
+    with BeltDriveHarness(scene="paper", domain_id=ros_domain_id, record_path=str(folder), max_bag_duration=0.05,
+                          input_timeout=0.0) as h:
+        for value in (6.0, 12.0, -3.0):
+            h.publish_torque(value)
+            h.advance(0.1)
+        out = h.outputs()
+        substeps = h.node.settings.substeps
+    files = sorted(p.name for p in folder.iterdir())
+    assert "metadata.yaml" in files
+    meta = yaml.safe_load((folder / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["relative_file_paths"] == [f"run_{i}.mcap" for i in range(len(meta["relative_file_paths"]))]
+    assert 5 <= len(meta["relative_file_paths"]) <= 8  # 0.3 s in 0.05 s files
+    assert set(files) == set(meta["relative_file_paths"]) | {"metadata.yaml"}
+    speed = read_topic(folder, "/shaft_speed")
+    assert speed.data.size == out["shaft_speed"].size == 301 and np.all(np.diff(speed.log_time_ns) > 0)
+    np.testing.assert_array_equal(speed.data, out["shaft_speed"])
+    counts = {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}
+    assert counts["/shaft_speed"] == 301 and counts["/drive_torque_applied"] == 301
+    for argv in (["info", str(folder)], ["export", str(folder), "--topic", "/shaft_speed", "-o", str(tmp_path / "s.csv")],
+                 ["compare", str(folder), str(folder)]):
+        stdout, stderr = io.StringIO(), io.StringIO()
+        with redirect_stdout(stdout), redirect_stderr(stderr):
+            code = msg_cli.main(argv)
+        assert code == 0, (argv, stdout.getvalue(), stderr.getvalue())
+        assert "damage" not in stderr.getvalue().lower() and "warning" not in stderr.getvalue().lower(), argv
+    assert (tmp_path / "s.csv").read_text().count("\n") == 302  # header + every tick across the files
+    result = simulate(scene_from_bag(folder))
+    o = np.asarray(result.outputs["omega_M"])[::substeps]
+    assert np.array_equal(speed.data, o[: speed.data.size]) and o.size == speed.data.size
 
 
 # ------------------------------------------------------------ exact replay

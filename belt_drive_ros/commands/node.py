@@ -10,14 +10,18 @@ examples:
   belt-drive node truck_compressor --ros-args -p use_sim_time:=true
   belt-drive node paper --ros-args -p publish_clock:=true -p real_time_factor:=10.0
   belt-drive node my_scene.yaml --ros-args --params-file params.yaml -r __ns:=/truck1
+  belt-drive node paper --record run.mcap --force    # record; replace run.mcap if it exists
+  belt-drive node paper --record run --max-bag-duration 600   # bag folder run/run_0.mcap, run_1.mcap, ...
   belt-drive node --list-parameters
 
 topics (relative, SI units): sub drive_torque (std_msgs/Float64, N m on wheel M);
 pub shaft_speed [rad/s], load_torque [N m], belt_torque [N m], relative_deflection
 [rad] (std_msgs/Float64), joint_states (sensor_msgs/JointState), /diagnostics;
 /clock with publish_clock. Service ~/reset (std_srvs/Trigger).
-Stops cleanly (exit code 0) on SIGINT or SIGTERM. Invalid parameters at start:
-exit code 2 with the reason.
+Stops cleanly (exit code 0) on SIGINT or SIGTERM. Invalid parameters at start,
+or a recording that cannot start (record_path exists without --force, cannot be
+created): exit code 2 with the reason; the node never runs without the
+recording it was asked for.
 """
 
 
@@ -35,6 +39,13 @@ def register(sub) -> None:
         "--executor", choices=("auto", "events", "single"), default="auto",
         help="rclpy executor: events (rclpy.experimental), single-threaded, or auto (events if available)",
     )
+    p.add_argument("--record", metavar="PATH", help="record input and outputs to this MCAP file (parameter record_path)")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing recording (parameter record_overwrite); without it the node refuses to start")
+    p.add_argument("--max-bag-duration", type=float, metavar="S",
+                   help="split the recording every S seconds of log time into a bag folder (parameter max_bag_duration)")
+    p.add_argument("--max-bag-size", type=int, metavar="BYTES",
+                   help="split the recording once a file holds BYTES (parameter max_bag_size)")
     p.add_argument("--list-parameters", action="store_true", help="print every parameter with unit, range and default, then exit")
     p.add_argument(
         "--ros-args", dest="ros_args", nargs=argparse.REMAINDER, default=None,
@@ -52,4 +63,13 @@ def run(args) -> int:
     from ..ros.node import run as run_node
 
     ros_args = ["--ros-args", *args.ros_args] if args.ros_args else []
-    return run_node(ros_args, scene=args.scene, executor=args.executor, node_name=args.name)
+    overrides = {}
+    if args.record is not None:
+        overrides["record_path"] = args.record
+    if args.force:
+        overrides["record_overwrite"] = True
+    if args.max_bag_duration is not None:
+        overrides["max_bag_duration"] = float(args.max_bag_duration)
+    if args.max_bag_size is not None:
+        overrides["max_bag_size"] = int(args.max_bag_size)
+    return run_node(ros_args, scene=args.scene, executor=args.executor, node_name=args.name, overrides=overrides)

@@ -11,6 +11,7 @@ examples:
   belt-drive record --topics /drive_torque /joint_states --out run.mcap --duration 10
   belt-drive record --out run.mcap --use-sim-time        # log times from /clock
   belt-drive record --out run.mcap --ros-args -r __ns:=/truck
+  belt-drive record --out run --max-bag-duration 600     # bag folder run/run_0.mcap, run_1.mcap, ... + metadata.yaml
 
 Messages are written as received (raw CDR), log time = receive time on the
 recorder's clock [ns] (simulated time with --use-sim-time), with the QoS the
@@ -34,7 +35,12 @@ def register(sub) -> None:
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to record (default: all discovered)")
     p.add_argument("--exclude", nargs="+", metavar="TOPIC", default=list(DEFAULT_EXCLUDE),
                    help="topics not to record when recording all (default: /rosout /parameter_events)")
-    p.add_argument("--out", "-o", type=Path, required=True, help="output .mcap file")
+    p.add_argument("--out", "-o", type=Path, required=True,
+                   help="output .mcap file (with a split: the bag folder)")
+    p.add_argument("--max-bag-duration", type=float, metavar="S", default=0.0,
+                   help="split into a rosbag2 bag folder, a new file every S seconds of log time")
+    p.add_argument("--max-bag-size", type=int, metavar="BYTES", default=0,
+                   help="split into a rosbag2 bag folder, a new file once one holds BYTES")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
     p.add_argument("--duration", type=float, help="stop after this many seconds (wall clock)")
     p.add_argument("--use-sim-time", action="store_true", help="log times on /clock (use_sim_time:=true)")
@@ -49,15 +55,23 @@ def run(args) -> int:
     import signal
     import sys
 
-    from msg_tools import Ros2McapWriter
     from msg_tools.errors import MsgToolsError
 
     from ..io.recording import BagWriteError, bag_error
 
     if args.duration is not None and not args.duration > 0:
         raise SystemExit("belt-drive: error: --duration must be > 0 s")
+    if not 0 <= args.max_bag_duration < float("inf") or args.max_bag_size < 0:
+        raise SystemExit("belt-drive: error: --max-bag-duration and --max-bag-size must be finite and >= 0")
+    split = bool(args.max_bag_duration or args.max_bag_size)
+    if split and args.out.suffix.lower() == ".mcap":
+        raise SystemExit(f"belt-drive: error: --out {args.out}: a split recording is a bag folder "
+                         "(NAME/NAME_0.mcap, ...); give a folder name without .mcap")
+    from ..ros.recorder import open_writer
+
     try:
-        writer = Ros2McapWriter(args.out, force=args.force, compression=args.compression)
+        writer = open_writer(args.out, force=args.force, compression=args.compression,
+                             max_bag_duration=args.max_bag_duration, max_bag_size=args.max_bag_size)
     except MsgToolsError as exc:
         raise bag_error(exc) from None
 

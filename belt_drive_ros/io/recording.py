@@ -280,10 +280,14 @@ def _scene_record(mapping: Mapping[str, Any], *, source: str, drive_source: str,
 
 
 def _sha256(path) -> str:
+    """sha256 of a file, or of a bag folder's MCAP files in split order, concatenated."""
+    from msg_tools import bag_files
+
     digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
+    for file in bag_files(path):
+        with open(file, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                digest.update(block)
     return digest.hexdigest()
 
 

@@ -294,18 +294,22 @@ def scene_with_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: O
 
 # --------------------------------------------------------- re-simulation
 def _read_metadata(path) -> Tuple[Dict[str, str], str]:
-    """``scene`` metadata of a bag and its path text; errors as :class:`BagReadError`."""
+    """``scene`` metadata of a bag and its path text; errors as :class:`BagReadError`.
+
+    A split bag folder's last file holds every metadata record written
+    (each file repeats those before it).
+    """
     import warnings
 
-    from msg_tools import summary
+    from msg_tools import bag_files, summary
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RecoveredBagWarning)
         try:
-            info = summary(path)
+            info = summary(bag_files(path)[-1])
         except MsgToolsError as exc:
             raise bag_error(exc) from None
-    return info.metadata_dict(SCENE_METADATA), info.path
+    return info.metadata_dict(SCENE_METADATA), os.fspath(path)
 
 
 def scene_from_bag(path, *, torque_bag=None):

@@ -220,7 +220,11 @@ class BeltDriveNode(Node):
             + (", use_sim_time" if self.timing.use_sim_time() else "")
         )
         if s.record_path:
-            self._start_recording(s.record_path)
+            try:
+                self._start_recording(s)
+            except BaseException:
+                self.destroy_node()
+                raise
 
     # ------------------------------------------------------------ settings
     @property
@@ -240,16 +244,25 @@ class BeltDriveNode(Node):
             f"{new.stability.describe()}"
         )
 
-    def _start_recording(self, path: str) -> None:
-        from ..io.recording import BagError
+    def _start_recording(self, s: NodeSettings) -> None:
+        """Open the recording of ``record_path``; a path that exists (without ``record_overwrite``)
+        or cannot be written refuses the start (:class:`NodeConfigError`): asked to record, the
+        node never runs without recording."""
+        from ..io.recording import BagError, BagExistsError
         from .recorder import NodeRecorder
 
         try:
-            self.recorder = NodeRecorder(self, path)
-            self.get_logger().info(f"recording to {path}")
-            self._record_description()  # first in the file
-        except BagError as exc:  # file exists (never overwritten) or cannot be created
-            self.get_logger().error(f"record_path: {exc}; not recording")
+            self.recorder = NodeRecorder(self, s.record_path, force=s.record_overwrite,
+                                         max_bag_duration=s.max_bag_duration, max_bag_size=s.max_bag_size)
+        except BagExistsError:
+            raise NodeConfigError("record_path", f"{s.record_path} exists; set record_overwrite:=true "
+                                  "(belt-drive node --force) to replace it") from None
+        except BagError as exc:  # cannot be created (no such folder, permission, ...)
+            raise NodeConfigError("record_path", str(exc)) from None
+        except ValueError as exc:
+            raise NodeConfigError("record_path", str(exc)) from None
+        self.get_logger().info(f"recording to {s.record_path}")
+        self._record_description()  # first in the file
 
     # ---------------------------------------------------------------- input
     def _on_drive_torque(self, msg: Float64) -> None:
@@ -408,15 +421,18 @@ def run(
     scene: str | None = None,
     executor: str = "auto",
     node_name: str = NODE_NAME,
+    overrides: dict | None = None,
 ) -> int:
     """Run one :class:`BeltDriveNode` until SIGINT/SIGTERM; return the exit code (0).
 
     ``ros_args`` are ROS command-line arguments (``--ros-args -p k:=1e5
-    --params-file f.yaml -r __ns:=/truck``). Invalid parameters raise
-    :class:`NodeConfigError` after rclpy is shut down again.
+    --params-file f.yaml -r __ns:=/truck``); ``overrides`` are parameter
+    values that win over them (the command's own options). Invalid
+    parameters raise :class:`NodeConfigError` after rclpy is shut down again.
     """
     with ros_session(["belt-drive-node", *(ros_args or [])]) as context:
-        node = BeltDriveNode(node_name, scene=scene, context=context)
+        params = [Parameter(name, value=value) for name, value in (overrides or {}).items()]
+        node = BeltDriveNode(node_name, scene=scene, context=context, parameter_overrides=params)
 
         log = node.get_logger()
         spin_nodes(

@@ -37,6 +37,7 @@ __all__ = [
     "OWN_PARAMETERS",
     "ParamSpec",
     "SCENE_DERIVED",
+    "START_ONLY",
     "SceneCache",
     "TIMEOUT_BEHAVIORS",
     "build_settings",
@@ -82,8 +83,13 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("torque_bound", "float", 0.0, "reject drive_torque messages with |value| above this [N m] (counted); 0 = derived from the scene (10x the largest torque of its drive and load profiles)", range=(0.0, 1.0e12)),
     ParamSpec("publish_clock", "bool", False, "publish /clock from the node's own simulated time (time master)"),
     ParamSpec("real_time_factor", "float", 1.0, "with publish_clock: simulated seconds per wall second; 0 = as fast as possible", range=(0.0, 1.0e4)),
-    ParamSpec("record_path", "str", "", "MCAP file to record the node's input and outputs to ('' = off); set at start only, an existing file is never overwritten"),
+    ParamSpec("record_path", "str", "", "MCAP file (or, split, a rosbag2 bag folder) to record the node's input and outputs to ('' = off); set at start only; an existing one refuses the start unless record_overwrite"),
+    ParamSpec("record_overwrite", "bool", False, "replace an existing record_path (belt-drive node --force); set at start only"),
+    ParamSpec("max_bag_duration", "float", 0.0, "split the recording into a rosbag2 bag folder (NAME/NAME_0.mcap, NAME_1.mcap, ..., metadata.yaml), a new file every this many seconds of log time; 0 = no split by time; set at start only", range=(0.0, 1.0e7)),
+    ParamSpec("max_bag_size", "int", 0, "split the recording into a bag folder, a new file once one holds this many bytes; 0 = no split by size; set at start only", range=(0, 2**50)),
 )
+#: parameters that take effect at start only (a runtime change is refused with a reason)
+START_ONLY: tuple[str, ...] = ("record_path", "record_overwrite", "max_bag_duration", "max_bag_size")
 NODE_SPECS: dict[str, ParamSpec] = {s.name: s for s in NODE_PARAMETERS}
 MODEL_PARAMETERS: tuple[str, ...] = tuple(FIELD_DOCS)
 #: every parameter the node owns (use_sim_time belongs to rclpy's TimeSource)
@@ -133,6 +139,14 @@ class NodeSettings:
     real_time_factor: float
     record_path: str
     method_options: dict = field(default_factory=dict)
+    record_overwrite: bool = False
+    max_bag_duration: float = 0.0
+    max_bag_size: int = 0
+
+    @property
+    def record_split(self) -> bool:
+        """True when the recording is a split bag folder (``max_bag_duration`` or ``max_bag_size`` set)."""
+        return bool(self.max_bag_duration or self.max_bag_size)
 
     @property
     def dt(self) -> float:
@@ -271,6 +285,15 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
     record_path = values["record_path"]
     if not isinstance(record_path, str):
         raise NodeConfigError("record_path", f"must be a string, got {record_path!r}")
+    overwrite = values.get("record_overwrite", False)
+    if not isinstance(overwrite, bool):
+        raise NodeConfigError("record_overwrite", f"must be true or false, got {overwrite!r}")
+    bag_duration = _spec_number("max_bag_duration", {"max_bag_duration": values.get("max_bag_duration", 0.0)})
+    bag_size = _spec_number("max_bag_size", {"max_bag_size": values.get("max_bag_size", 0)})
+    if (bag_duration or bag_size) and record_path.lower().endswith(".mcap"):
+        raise NodeConfigError(
+            "record_path", f"{record_path!r}: a split recording (max_bag_duration/max_bag_size) is a bag "
+            "folder NAME/NAME_0.mcap, ...; give a folder name without .mcap")
     model_values = {name: values[name] for name in MODEL_PARAMETERS}
     for name, value in model_values.items():  # BeltDriveParams checks the rest of its rules
         upper = model_range(name)[1]
@@ -322,6 +345,9 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
         real_time_factor=rtf,
         record_path=record_path,
         method_options=options,
+        record_overwrite=overwrite,
+        max_bag_duration=bag_duration,
+        max_bag_size=int(bag_size),
     )
 
 

@@ -37,6 +37,7 @@ from .parameter_schema import (
     OWN_PARAMETERS,
     NodeConfigError,
     NodeSettings,
+    START_ONLY,
     SceneCache,
     build_settings,
     default_values,
@@ -161,9 +162,9 @@ class NodeParameters:
                 continue  # not ours (use_sim_time, qos overrides, ...)
             if p.type_ == Parameter.Type.NOT_SET:
                 return SetParametersResult(successful=False, reason=f"{p.name}: cannot be undeclared")
-            if p.name == "record_path" and p.value != values[p.name]:
+            if p.name in START_ONLY and p.value != values[p.name]:
                 return SetParametersResult(
-                    successful=False, reason="record_path: set at start only (restart the node to record elsewhere)"
+                    successful=False, reason=f"{p.name}: set at start only (restart the node to change the recording)"
                 )
             values[p.name] = p.value
             changed.add(p.name)

@@ -36,7 +36,8 @@ from ..io.recording import (
     units_metadata,
 )
 
-__all__ = ["APPLIED_TOPIC", "DIRECT_TOPICS", "JointStateEncoder", "NodeRecorder", "TopicRecorder", "message_definitions"]
+__all__ = ["APPLIED_TOPIC", "DIRECT_TOPICS", "JointStateEncoder", "NodeRecorder", "TopicRecorder", "message_definitions",
+           "open_writer"]
 
 def _message_class(type_name: str):
     """The rclpy message class of ``pkg/msg/Type``."""
@@ -85,6 +86,40 @@ def message_definitions(type_name: str) -> Dict[str, str]:
             raise ValueError(f"no .msg definition of {name} found (looked in {', '.join(candidates)})")
         todo.extend(schemas.dependencies(name, out[name]))
     return out
+
+
+def open_writer(path, *, force: bool = False, max_bag_duration: float = 0.0, max_bag_size: int = 0,
+                **options: Any):
+    """The writer of a recording: one MCAP file, or a rosbag2 bag folder split by time or size.
+
+    Parameters
+    ----------
+    path : path
+        The ``.mcap`` file; with a split, the bag folder ``NAME`` (files
+        ``NAME/NAME_0.mcap``, ``NAME_1.mcap``, ... and ``metadata.yaml``).
+    force : bool
+        Replace an existing file (or the bag files of an existing folder).
+    max_bag_duration : float
+        New file once the current one spans this much log time [s]; 0: no limit.
+    max_bag_size : int
+        New file once the current one holds this many bytes; 0: no limit.
+    **options
+        Passed to :class:`msg_tools.Ros2McapWriter` (chunk_size, compression, flush_interval_s).
+
+    Notes
+    -----
+    The MCAP writer keeps one chunk index per chunk until the file is
+    finished (the summary needs them): with a chunk every 0.25 s that is
+    ~1.2 KiB per second of recording, ~4 MiB an hour. A split finishes each
+    file and drops its indexes, which bounds a recording's memory by the
+    split size.
+    """
+    from msg_tools.bagdir import Ros2BagWriter
+
+    if max_bag_duration or max_bag_size:
+        return Ros2BagWriter(path, force=force, max_bag_duration=max_bag_duration or None,
+                             max_bag_size=max_bag_size or None, **options)
+    return Ros2McapWriter(path, force=force, **options)
 
 
 class TopicRecorder:
@@ -385,6 +420,9 @@ class NodeRecorder(TopicRecorder):
     chunk_size, compression, flush_interval_s
         See :class:`msg_tools.Ros2McapWriter`; the wall-clock flush timer
         uses ``flush_interval_s`` too.
+    max_bag_duration, max_bag_size
+        Split into a rosbag2 bag folder at ``path`` (see :func:`open_writer`);
+        every file repeats the metadata so far (scene, parameters, units).
 
     Raises
     ------
@@ -399,10 +437,12 @@ class NodeRecorder(TopicRecorder):
     """
 
     def __init__(self, node, path, topics: Optional[Iterable[str]] = None, force: bool = False, *,
-                 chunk_size: int = 128 * 1024, compression: str = "zstd", flush_interval_s: float = 0.25):
+                 chunk_size: int = 128 * 1024, compression: str = "zstd", flush_interval_s: float = 0.25,
+                 max_bag_duration: float = 0.0, max_bag_size: int = 0):
         try:
-            writer = Ros2McapWriter(path, force=force, chunk_size=chunk_size, compression=compression,
-                                    flush_interval_s=flush_interval_s)
+            writer = open_writer(path, force=force, chunk_size=chunk_size, compression=compression,
+                                 flush_interval_s=flush_interval_s, max_bag_duration=max_bag_duration,
+                                 max_bag_size=max_bag_size)
         except (MsgToolsError, OSError) as exc:
             raise bag_error(exc) from None
         super().__init__(node, writer, flush_period=flush_interval_s)
