@@ -489,13 +489,16 @@ def test_many_async_resets_all_answered_and_publish_nothing_extra(ros_domain_id)
     with BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0) as h:
         h.publish_torque(5.0)
         h.advance(0.01)
-        published = h.node.counters["published"]
-        futures = [h._reset_client.call_async(Trigger.Request()) for _ in range(300)]
-        h._spin_until(lambda: all(f.done() for f in futures), "300 ~/reset answers", timeout=60.0)
+        published, restarts = h.node.counters["published"], h.node.counters["restarts"]
+        futures = [h._reset_client.call_async(Trigger.Request()) for _ in range(1000)]
+        h._spin_until(lambda: all(f.done() for f in futures), "1000 ~/reset answers", timeout=60.0)
         assert all(f.result().success for f in futures)
         h.spin(0.1)
         assert h.node.counters["published"] == published  # a reset publishes no output set of its own
+        # a call costs only its answer: the next tick restarts once for the whole burst
+        assert h.node.counters["reset_calls"] == 1000 and h.node.counters["restarts"] == restarts
         h.advance(0.002)
+        assert h.node.counters["restarts"] == restarts + 1
         out = h.outputs()
         assert out["time"].size == published + 2 and np.all(np.diff(out["stamp"]) > 0)
         assert abs(out["omega_M"][-1]) < abs(out["omega_M"][published - 1])  # restarted from rest

@@ -173,6 +173,8 @@ class BeltDriveNode(Node):
         self.counters = dict.fromkeys(("published", "published_slip", "slack_ticks", "slip_ticks"), 0)
         self.last: dict = {}  # the latest tick's signals, for diagnostics
         self._duplicate_name_warned = False
+        self._resets_pending = 0  # ~/reset calls since the last tick (the tick restarts once for all)
+        self.counters["reset_calls"] = 0
         try:
             self.node_parameters = NodeParameters(self, self._apply_settings)
             settings = self.node_parameters.declare()
@@ -287,7 +289,10 @@ class BeltDriveNode(Node):
 
     # ---------------------------------------------------------------- ticks
     def _tick(self, now_ns: int) -> None:
-        """Integrate to ``now_ns`` and publish the outputs there."""
+        """Integrate to ``now_ns`` and publish the outputs there (after a pending ``~/reset``)."""
+        if self._resets_pending:
+            calls, self._resets_pending = self._resets_pending, 0
+            self.sim.restart(f"~/reset, {calls} call(s) since the last tick")
         if self.sim.advance_to(now_ns):
             self._publish(now_ns)
         if self._diagnostics_due:  # after the outputs are out: nearly a period before the next tick
@@ -395,9 +400,20 @@ class BeltDriveNode(Node):
 
     # ------------------------------------------------------------- service
     def _on_reset(self, request, response):
-        self.reset()
+        """Constant time: the restart is done by the next tick (every call until then is one restart).
+
+        A burst of calls therefore costs each one only its answer: the ticks
+        go on, and no call publishes an output set of its own. The answer
+        comes before the restart is published; the outputs of the next tick
+        start from the initial state. (Two nodes of the same name in a domain
+        both serve this one service name: a call reaches either or both, as
+        DDS delivers requests to every matching server.)
+        """
+        self._resets_pending += 1
+        self.counters["reset_calls"] += 1
         response.success = True
-        response.message = f"restarted scene '{self.sim.settings.scene.name}' from its initial state"
+        response.message = (f"scene '{self.sim.settings.scene.name}' restarts from its initial state at the "
+                            "next tick")
         return response
 
     def reset(self) -> None:
