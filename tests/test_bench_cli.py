@@ -62,3 +62,23 @@ def test_bench_command_does_not_import_rclpy_or_numpy_at_import():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert out == ["False", "False"]
+
+
+@pytest.mark.ros
+def test_bench_soak_prints_rss_growth_rates_and_losses(tmp_path):
+    """``bench soak`` runs the recording node (a child process) and reports its figures and the recording's."""
+    import re
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "belt_drive_ros.cli", "bench", "soak", "--seconds", "3", "--quick", "--out", str(tmp_path)],
+        capture_output=True, text=True, timeout=180,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    text = proc.stdout
+    assert "node exit 0" in text and "Traceback" not in proc.stderr
+    assert re.search(r"RSS growth +[+-]\d+\.\d KiB/min .*MiB\)", text)
+    rates = re.search(r"rate per 1 s window +min ([\d.]+) Hz, median ([\d.]+) Hz, max ([\d.]+) Hz \((\d) windows", text)
+    assert rates and float(rates[1]) <= float(rates[2]) <= float(rates[3]) and int(rates[4]) == 3
+    lost = re.search(r"messages lost +(\d+) of the node's (\d+) ticks .* the recording holds all (\d+) \((\d+) in 1 file", text)
+    assert lost and int(lost[1]) <= int(lost[2]) == int(lost[3]) <= int(lost[4]) and int(lost[2]) > 0
+    assert (tmp_path / "soak.md").read_text().count("RSS growth") == 1

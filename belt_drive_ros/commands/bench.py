@@ -18,11 +18,14 @@ studies:
   versus         default method vs scipy solve_ivp RK45 at matched accuracy; x real time per scene
   slip           slipping belt: event-driven hybrid vs step-end switching vs regularised friction
   node           the ROS node's real-time figures (needs the ROS extra)
+  soak           the node recording for --seconds (default 60): RSS growth per minute,
+                 output rate per 10 s window, messages lost (not part of 'all')
   all            all of the above, then docs/bench/summary.md
 
 examples:
   belt-drive bench all --out docs/bench          # what 'make bench' runs (a few minutes)
   belt-drive bench stability --out /tmp/b --quick
+  belt-drive bench soak --seconds 600            # 10 minutes of the recording node
 
 Each study writes a CSV and a PNG into --out. CPU time is process time, the
 minimum of repeats; BLAS runs single-threaded (OPENBLAS_NUM_THREADS=1) so that
@@ -39,10 +42,11 @@ def register(sub) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("study", choices=(*STUDIES, "node", "all"), help="which study to run")
+    p.add_argument("study", choices=(*STUDIES, "node", "soak", "all"), help="which study to run")
     p.add_argument("--out", type=Path, default=Path("docs/bench"), help="output folder (default: docs/bench)")
     p.add_argument("--quick", action="store_true", help="small sweeps and short runs (seconds; for tests)")
     p.add_argument("--quiet", action="store_true", help="no per-run log lines")
+    p.add_argument("--seconds", type=float, default=60.0, help="soak: measured seconds (default 60)")
     p.set_defaults(func=run)
 
 
@@ -74,6 +78,11 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if args.study == "node":
         return _run_node(out, args.quick)
+    if args.study == "soak":
+        from ..benchmarks import soak
+
+        return soak.main(["--seconds", repr(args.seconds), "--out", str(out)]
+                         + (["--warmup", "1", "--window", "1"] if args.quick else []))
 
     from ..benchmarks import fidelity_chart, report, slip_chart, stability_map, versus_scipy, workprecision
 
