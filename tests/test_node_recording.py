@@ -113,13 +113,15 @@ def test_split_recording_is_a_rosbag2_folder_every_verb_reads(tmp_path, ros_doma
     counts = {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}
     assert counts["/shaft_speed"] == 301 and counts["/drive_torque_applied"] == 301
     for argv in (["info", str(folder)], ["export", str(folder), "--topic", "/shaft_speed", "-o", str(tmp_path / "s.csv")],
-                 ["compare", str(folder), str(folder)]):
+                 ["compare", str(folder), str(folder)],
+                 ["plot", str(folder), "--topics", "/shaft_speed", "--out", str(tmp_path / "s.png")]):
         stdout, stderr = io.StringIO(), io.StringIO()
         with redirect_stdout(stdout), redirect_stderr(stderr):
             code = msg_cli.main(argv)
         assert code == 0, (argv, stdout.getvalue(), stderr.getvalue())
         assert "damage" not in stderr.getvalue().lower() and "warning" not in stderr.getvalue().lower(), argv
     assert (tmp_path / "s.csv").read_text().count("\n") == 302  # header + every tick across the files
+    assert (tmp_path / "s.png").read_bytes()[:4] == b"\x89PNG"
     result = simulate(scene_from_bag(folder))
     o = np.asarray(result.outputs["omega_M"])[::substeps]
     assert np.array_equal(speed.data, o[: speed.data.size]) and o.size == speed.data.size
