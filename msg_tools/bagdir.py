@@ -24,7 +24,7 @@ from typing import IO, Any, Dict, List, Optional, Tuple, Union
 from .errors import BagNotFoundError, CorruptBagError, MsgToolsError, OverwriteError, WriteError
 from .writer import Ros2McapWriter, bag_metadata_yaml
 
-__all__ = ["METADATA_FILE", "Ros2BagWriter", "bag_files"]
+__all__ = ["METADATA_FILE", "Ros2BagWriter", "bag_files", "folder_damage"]
 
 METADATA_FILE = "metadata.yaml"
 
@@ -76,6 +76,66 @@ def bag_files(path: Union[str, "os.PathLike[str]"]) -> List[str]:
     return [os.path.join(path, f) for f in sorted(found, key=split_index)]
 
 
+def _listed_files(path: str) -> List[Dict[str, Any]]:
+    """The ``files`` entries of a bag folder's ``metadata.yaml`` (path, start, duration, count); [] if none."""
+    import yaml
+
+    meta = os.path.join(path, METADATA_FILE)
+    if not os.path.isfile(meta):
+        return []
+    with open(meta, "rb") as f:  # bag_files has checked it is small, UTF-8 YAML
+        info = (yaml.safe_load(f.read().decode("utf-8")) or {}).get("rosbag2_bagfile_information") or {}
+    out = []
+    for entry in info.get("files") or []:
+        try:
+            out.append({
+                "path": os.path.join(path, str(entry["path"])),
+                "start": int(entry["starting_time"]["nanoseconds_since_epoch"]),
+                "duration": int(entry["duration"]["nanoseconds"]),
+                "count": int(entry["message_count"]),
+            })
+        except (KeyError, TypeError, ValueError):
+            raise CorruptBagError(f"{meta}: a 'files' entry lacks path, starting_time, duration or message_count") from None
+    return out
+
+
+def folder_damage(path: Union[str, "os.PathLike[str]"]) -> List[str]:
+    """What a bag folder's files disagree with: the per-file message count, start and duration
+    its ``metadata.yaml`` states, and each other (two files holding the same span twice).
+
+    Returns [] for a single file, a consistent folder, or a folder without
+    ``metadata.yaml`` whose files do not repeat each other (a killed recorder's).
+    """
+    from .reader import summary
+
+    path = os.fspath(path)
+    if not os.path.isdir(path):
+        return []
+    files = bag_files(path)
+    listed = {os.path.normpath(e["path"]): e for e in _listed_files(path)}
+    damage: List[str] = []
+    spans: Dict[Tuple[Any, Any, int], str] = {}
+    for file in files:
+        s = summary(file)
+        name = os.path.basename(file)
+        damage.extend(f"{name}: {d}" for d in s.damage)
+        span = (s.start_ns, s.end_ns, s.message_count)
+        if s.message_count and span in spans:
+            damage.append(f"{name} holds the same {s.message_count} messages as {spans[span]} (a file repeated)")
+        spans.setdefault(span, name)
+        entry = listed.get(os.path.normpath(file))
+        if entry is None:
+            continue
+        start = s.start_ns if s.start_ns is not None else 0
+        duration = (s.end_ns - s.start_ns) if s.start_ns is not None and s.end_ns is not None else 0
+        if s.message_count != entry["count"]:
+            damage.append(f"{name} holds {s.message_count} messages, {METADATA_FILE} says {entry['count']}")
+        elif entry["count"] and (start, duration) != (entry["start"], entry["duration"]):
+            damage.append(f"{name} spans {start} ns + {duration} ns, {METADATA_FILE} says "
+                          f"{entry['start']} ns + {entry['duration']} ns")
+    return damage
+
+
 class Ros2BagWriter:
     """Write a rosbag2 bag folder, split by size or duration like ``ros2 bag record``.
 
@@ -124,6 +184,12 @@ class Ros2BagWriter:
             raise OverwriteError(self.folder)
         try:
             os.makedirs(self.folder, exist_ok=True)
+            if force:  # a longer earlier recording's files would otherwise read as this one's
+                for f in os.listdir(self.folder):
+                    stem = f[: -len(".mcap")] if f.endswith(".mcap") else ""
+                    if f == METADATA_FILE or (stem.startswith(self.name + "_")
+                                              and stem[len(self.name) + 1:].isdigit()):
+                        os.remove(os.path.join(self.folder, f))
         except OSError as exc:
             raise WriteError(self.folder, exc, action="create bag folder") from exc
         self._done: List[Dict[str, Any]] = []  # finished files: path, times, counts, topics

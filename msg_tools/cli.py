@@ -93,6 +93,19 @@ def cmd_info(args: argparse.Namespace, out: IO[str]) -> int:
         if k:
             out.write("\n")
         status = max(status, _info_one(path, args, out))
+    if len(files) > 1 or os.path.isdir(args.bag):
+        from .bagdir import folder_damage
+
+        damage = folder_damage(args.bag)
+        out.write(f"\nBag folder:        {args.bag} ({len(files)} files)\n")
+        if damage:
+            out.write(f"Status:            DAMAGED: {'; '.join(damage)}\n")
+            sys.stderr.write(f"{PROG}: warning: {args.bag} is damaged: {damage[0]}\n")
+            status = 1
+        else:
+            out.write("Status:            complete (every file as metadata.yaml lists it)\n"
+                      if os.path.isfile(os.path.join(args.bag, "metadata.yaml")) else
+                      "Status:            no metadata.yaml (a recorder that was killed); files read as found\n")
     return status
 
 

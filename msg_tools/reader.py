@@ -1129,13 +1129,17 @@ def read_bag(
     """
     topics = None if topics is None else list(topics)
     if isinstance(source, (str, os.PathLike)) and os.path.isdir(source):
-        from .bagdir import bag_files
+        from .bagdir import bag_files, folder_damage
 
         files = bag_files(source)
+        damage = folder_damage(source)
+        if damage and not allow_damaged:
+            raise damage_error(os.fspath(source), damage)
         if len(files) > 1:
             parts = [read_bag(f, topics, missing_ok=True, keep_undecodable=keep_undecodable,
                               allow_damaged=allow_damaged) for f in files]
             bag = _merge_bags(os.fspath(source), parts)
+            bag.damage.extend(d for d in damage if d not in bag.damage)
             if topics is not None and not missing_ok:
                 for topic in topics:
                     if _resolve(topic, bag.available) is None:

@@ -5,8 +5,9 @@ duplicated passed `info`, `export` and `compare`).
   fail with a one-line error (exit 2).
 * ``compare`` fails on a hole in the middle of a signal and on duplicate time stamps,
   although the ends still cover the reference.
-* Fuzz: ~200 mutants of a recording (truncated at many places, single bytes flipped
-  anywhere, each chunk dropped or duplicated, record lengths made huge); for every one
+* Fuzz: ~270 mutants of a recording (truncated at many places, single bytes flipped
+  anywhere, each chunk dropped or duplicated, record lengths, chunk uncompressed sizes and
+  chunk records lengths made huge); for every one
   ``info``, ``export`` and ``compare`` against the intact file give either a clean one-line
   error (exit 2), a report of damage, or a correct result -- never a traceback, a hang, or
   data that differs from the original without a warning.
@@ -144,6 +145,17 @@ def _mutants(raw):
     for k in range(len(_chunks(raw))):
         yield f"chunk {k} dropped", _drop(raw, k)
         yield f"chunk {k} duplicated", _duplicate(raw, k)
+    # huge sizes inside each chunk's header: uncompressed size (a decompression bomb claim) and
+    # the compressed records' length (Chunk: start u64, end u64, uncompressed_size u64, crc u32,
+    # compression string u32+bytes, records length u64)
+    for k, c in enumerate(_chunks(raw)):
+        body = c.chunk_start_offset + 9
+        compression_len = struct.unpack_from("<I", raw, body + 28)[0]
+        for field, offset in (("uncompressed size", body + 16), ("records length", body + 32 + compression_len)):
+            for length in (2**62, 2**40, size * 1000):
+                mutant = bytearray(raw)
+                struct.pack_into("<Q", mutant, offset, length)
+                yield f"chunk {k} {field} claims {length} bytes", bytes(mutant)
     # huge lengths in the headers of top-level records
     pos = 8
     starts = []
@@ -210,3 +222,38 @@ def test_fuzz_mutated_recordings_give_a_clean_error_or_a_correct_result(original
     assert not problems, "\n".join(problems[:20]) + f"\n({len(problems)} problems; {tally})"
     print(f"fuzz: {len(mutants)} mutants: {tally}")
     assert tally["error"] > 50 and tally["correct"] + tally["recovered prefix"] > 10, tally
+
+
+def test_damaged_split_bag_folders_give_a_clean_error_or_a_damage_report(tmp_path):
+    """A rosbag2 bag folder (split recording) with a file missing, cut short or duplicated, or a
+    garbage, huge or alias-bomb metadata.yaml: every verb errors in one line or reports damage."""
+    import shutil
+
+    from msg_tools import Ros2BagWriter
+
+    def folder(name):
+        path = tmp_path / name
+        with Ros2BagWriter(path, max_bag_duration=0.1, chunk_size=4096, flush_interval_s=None) as w:
+            for i in range(600):
+                w.write("/drive_torque", "std_msgs/msg/Float64", {"data": float(i)}, 10**9 + i * 1_000_000)
+        return path
+
+    good = folder("good")
+    assert len(list(good.glob("*.mcap"))) == 6
+    damaged = {}
+    d = folder("missing"); (d / "missing_2.mcap").unlink(); damaged["file missing"] = d
+    d = folder("cut"); f = d / "cut_2.mcap"; f.write_bytes(f.read_bytes()[: f.stat().st_size // 2]); damaged["file cut"] = d
+    d = folder("garbage"); (d / "metadata.yaml").write_bytes(b"\xff\xfe{{{ not yaml"); damaged["garbage metadata"] = d
+    d = folder("bomb")
+    (d / "metadata.yaml").write_text("a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+        f"{chr(98 + k)}: &{chr(98 + k)} [*{chr(97 + k)}, *{chr(97 + k)}, *{chr(97 + k)}, *{chr(97 + k)}, "
+        f"*{chr(97 + k)}, *{chr(97 + k)}, *{chr(97 + k)}, *{chr(97 + k)}, *{chr(97 + k)}]\n" for k in range(8)))
+    damaged["alias bomb metadata"] = d
+    d = folder("huge"); (d / "metadata.yaml").write_bytes(b"#" * (17 * 2**20)); damaged["huge metadata"] = d
+    d = folder("dup"); shutil.copy(d / "dup_2.mcap", d / "dup_3.mcap"); damaged["file duplicated"] = d
+    for name, path in damaged.items():
+        for argv in (["info", str(path)], ["export", str(path), "--topic", "/drive_torque"],
+                     ["compare", str(path), str(good)]):
+            status, out, err = _cli(*argv)
+            reported = status == 1 or (status == 0 and "warning:" in err)
+            assert _one_line_error(status, err) or reported, (name, argv, status, out[-500:], err[-500:])
