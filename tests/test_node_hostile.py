@@ -1,0 +1,80 @@
+"""Hostile values for the node's ``scene`` parameter, set over the SetParameters service (issue 13 item 1).
+
+Any process in the domain can set ``scene``. ``/dev/zero`` used to be read
+until memory ran out and a FIFO made the call never return (output stopped,
+SIGTERM ignored). Each is now refused promptly with the reason, the old
+scene is kept and the node goes on ticking. A test that hung would be a
+failure: every service call is bounded by the harness's wait.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+from contextlib import contextmanager
+
+import pytest
+
+from belt_drive_ros.ros.harness import BeltDriveHarness
+
+pytestmark = pytest.mark.ros
+
+
+@contextmanager
+def _no_hang(seconds: float):
+    """Fail (TimeoutError) instead of hanging if the body blocks, e.g. in open() on a FIFO."""
+    def hang(signum, frame):
+        raise TimeoutError(f"still blocked after {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, hang)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def _set_scene_over_the_service(h, value: str):
+    """SetParameters(scene=value) through DDS from the harness's probe node; the result."""
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    from rcl_interfaces.msg import ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    client = h.probe.create_client(SetParameters, f"{h.node.get_fully_qualified_name()}/set_parameters")
+    try:
+        h._spin_until(client.service_is_ready, "the set_parameters service")
+        request = SetParameters.Request(parameters=[ParameterMsg(
+            name="scene", value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value))])
+        future = client.call_async(request)
+        h._spin_until(future.done, f"SetParameters(scene={value!r}) to return", timeout=20.0)
+        return future.result().results[0]
+    finally:
+        h.probe.destroy_client(client)
+
+
+def test_hostile_scene_values_are_refused_promptly_and_the_node_keeps_running(ros_domain_id, tmp_path):
+    fifo = tmp_path / "scene.fifo"
+    os.mkfifo(fifo)  # nobody ever writes: opening it for reading would block
+    big = tmp_path / "big.yaml"
+    big.write_bytes(b"# " + b"x" * (64 * 2**20))
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(bytes(range(256)) * 8)
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text("a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1]\n" + "".join(
+        f"{chr(98 + k)}: &{chr(98 + k)} [" + ", ".join([f"*{chr(97 + k)}"] * 9) + "]\n" for k in range(8)))
+    hostile = {"/dev/zero": "regular file", str(fifo): "regular file", str(tmp_path): "regular file",
+               str(big): "more than the limit", str(binary): "UTF-8", str(bomb): "anchors"}
+    with _no_hang(120.0), BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0) as h:
+        h.publish_torque(3.0)
+        h.advance(0.01)
+        for value, reason in hostile.items():
+            result = _set_scene_over_the_service(h, value)
+            assert not result.successful, value
+            assert result.reason.startswith("scene:") and reason.lower() in result.reason.lower(), (value, result.reason)
+            assert len(result.reason) < 400, result.reason  # quoted values are cut short
+            assert h.node.get_parameter("scene").value == "paper"
+        n = h.outputs()["time"].size
+        h.advance(0.01)
+        assert h.outputs()["time"].size == n + 10  # ticking on the old scene
+        assert h.node.settings.scene.name == "paper"
