@@ -1175,7 +1175,7 @@ def read_bag(
 
 def _merge_topic(parts: List[TopicData]) -> TopicData:
     """One topic read from the consecutive files of a split bag, concatenated in time order."""
-    first = parts[0]
+    first = next((p for p in parts if len(p)), parts[0])  # a file without its messages has no joints/fields
     failed = [p for p in parts if p.decode_error]
     merged = TopicData(
         topic=first.topic, type_name=first.type_name,

@@ -257,3 +257,23 @@ def test_damaged_split_bag_folders_give_a_clean_error_or_a_damage_report(tmp_pat
             status, out, err = _cli(*argv)
             reported = status == 1 or (status == 0 and "warning:" in err)
             assert _one_line_error(status, err) or reported, (name, argv, status, out[-500:], err[-500:])
+
+
+def test_a_split_folder_whose_first_file_lacks_a_topic_reads_whole(tmp_path):
+    """Intact, not damaged: a latched topic alone in the first file (the node's robot_description
+    before its clock runs) leaves joint_states' channel there without messages; the folder reads whole."""
+    from msg_tools import Ros2BagWriter, read_topic
+
+    with Ros2BagWriter(tmp_path / "run", max_bag_duration=0.05) as w:
+        w.add_topic("/joint_states", "sensor_msgs/msg/JointState")
+        w.write("/robot_description", "std_msgs/msg/String", {"data": "<robot/>"}, 0)
+        for i in range(100):
+            t = 10**9 + i * 1_000_000
+            w.write("/joint_states", "sensor_msgs/msg/JointState", {
+                "header": {"stamp": {"sec": t // 10**9, "nanosec": t % 10**9}}, "name": JOINTS,
+                "position": [i * 1e-3, 0.0], "velocity": [1.0, 2.0], "effort": [0.5, -0.5]}, t)
+    assert len(list((tmp_path / "run").glob("*.mcap"))) == 3
+    js = read_topic(tmp_path / "run", "/joint_states")
+    np.testing.assert_array_equal(js.position[:, 0], np.arange(100) * 1e-3)
+    status, out, err = _cli("export", str(tmp_path / "run"), "--topic", "/joint_states")
+    assert status == 0 and len(out.splitlines()) == 101, err
