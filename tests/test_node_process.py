@@ -189,3 +189,24 @@ def test_node_refuses_an_existing_recording_and_replaces_it_with_force(tmp_path)
         rc, err = stop(node, signal.SIGTERM)
     assert rc == 0, err[-3000:]
     assert read_topic(bag, "/shaft_speed").data.size > 20
+
+
+def test_realtime_priority_is_applied_or_refused_with_the_reason():
+    """--priority N: SCHED_FIFO at N for the process (its later threads inherit it), or, without the
+    privilege, a reason naming what is needed; out of range is a one-line error (exit 2)."""
+    code = (
+        "import os; from belt_drive_ros.ros.environment import realtime_priority as rp\n"
+        "print(repr(rp(0)), repr(rp(100)))\n"
+        "why = rp(3); print(repr(why), os.sched_getscheduler(0) == os.SCHED_FIFO, os.sched_getparam(0).sched_priority)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    ranges, applied = out.stdout.splitlines()
+    assert ranges == "'priority must be 1-99, got 0' 'priority must be 1-99, got 100'"
+    if applied.startswith("''"):  # allowed here: the policy and priority are in force
+        assert applied == "'' True 3"
+    else:
+        assert "CAP_SYS_NICE" in applied and applied.endswith("False 0")
+    cli = subprocess.run([sys.executable, "-m", "belt_drive_ros.cli", "node", "--priority", "0"],
+                         capture_output=True, text=True, timeout=60)
+    assert cli.returncode == 2 and cli.stderr.strip() == "belt-drive node: error: --priority must be 1-99, got 0"

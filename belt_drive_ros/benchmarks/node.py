@@ -74,6 +74,8 @@ def parse_args(argv=None):
     p.add_argument("--executor", choices=("auto", "events", "single"), default="auto", help="the node's executor")
     p.add_argument("--param", "-p", action="append", default=[], metavar="NAME:=VALUE",
                    help="a node parameter (repeatable), e.g. -p model:=slipping -p drive_source:=scene")
+    p.add_argument("--node-priority", type=int, metavar="N",
+                   help="run the node with real-time scheduling (belt-drive node --priority N)")
     p.add_argument("--udp-only", action="store_true", help="Fast DDS UDPv4 only (default: its default transports)")
     p.add_argument("--out", type=Path, help="also write node.csv and node.md here")
     p.add_argument("--quick", action="store_true", help="3 s run (smoke test)")
@@ -101,6 +103,7 @@ def measure(args) -> dict:
     env = ros_env.child_environment(domain, udp_only=args.udp_only)
     cmd = [
         sys.executable, "-m", "belt_drive_ros.cli", "node", args.scene, "--executor", args.executor,
+        *(["--priority", str(args.node_priority)] if args.node_priority else []),
         "--ros-args", "-p", f"step_rate_hz:={float(args.rate)}", "-p", "input_timeout:=0.0", "--log-level", "warn",
         *[arg for param in args.param for arg in ("-p", param)],
     ]
@@ -197,6 +200,7 @@ def measure(args) -> dict:
         "cpu_percent": 100.0 * (cpu1 - cpu0) / window,
         "probe_cpu_percent": 100.0 * (own1 - own0) / window,
         "executor": args.executor,
+        "node_priority": f"SCHED_FIFO {args.node_priority}" if args.node_priority else "normal",
         "scene": args.scene,
         "params": " ".join(args.param),
         "transport": "UDPv4" if args.udp_only else "Fast DDS default (SHM + UDP)",
@@ -212,7 +216,8 @@ def report(f: dict) -> str:
     t = TARGETS
     lines = [
         f"belt-drive node benchmark: {f['duration_s']:.1f} s at {f['rate_set_hz']:g} Hz "
-        f"(executor {f['executor']}, {f['transport']}, load average {f['load_average']:.2f}, {os.cpu_count()} CPUs)",
+        f"(executor {f['executor']}, {f['transport']}, scheduling {f.get('node_priority', 'normal')}, "
+        f"load average {f['load_average']:.2f}, {os.cpu_count()} CPUs)",
         f"  scene                  {f.get('scene', '?')}" + (f" with {f['params']}" if f.get("params") else ""),
         f"  achieved rate          {f['rate_stamps_hz']:.2f} Hz from the node's stamps, {f['rate_received_hz']:.2f} Hz received; "
         f"{f['ticks_missing']} tick(s) skipped   [target >= {t['rate_hz']:g}: {mark(f['rate_stamps_hz'] >= t['rate_hz'])}]",

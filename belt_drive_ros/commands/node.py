@@ -13,6 +13,7 @@ examples:
   belt-drive node paper --record run.mcap --force    # record; replace run.mcap if it exists
   belt-drive node paper --record run --max-bag-duration 600   # bag folder run/run_0.mcap, run_1.mcap, ...
   belt-drive node --list-parameters
+  belt-drive node truck_compressor --priority 50     # real-time scheduling on a busy machine
 
 topics (relative, SI units): sub drive_torque (std_msgs/Float64, N m on wheel M);
 pub shaft_speed [rad/s], load_torque [N m], belt_torque [N m], relative_deflection
@@ -48,6 +49,11 @@ def register(sub) -> None:
                    help="split the recording once a file holds BYTES (parameter max_bag_size)")
     p.add_argument("--list-parameters", action="store_true", help="print every parameter with unit, range and default, then exit")
     p.add_argument(
+        "--priority", type=int, metavar="N",
+        help="run with real-time scheduling (SCHED_FIFO) at priority N (1-99), so ticks come on time on a busy "
+             "machine; needs CAP_SYS_NICE or 'ulimit -r N' (refused: a warning, normal scheduling)",
+    )
+    p.add_argument(
         "--ros-args", dest="ros_args", nargs=argparse.REMAINDER, default=None,
         help="ROS arguments, as for any ROS 2 node: -p NAME:=VALUE, --params-file FILE, -r FROM:=TO",
     )
@@ -60,6 +66,17 @@ def run(args) -> int:
 
         print(describe_parameters(args.scene or "paper"))
         return 0
+    if args.priority is not None:
+        import sys
+
+        from ..ros.environment import realtime_priority
+
+        if not 1 <= args.priority <= 99:
+            print(f"belt-drive node: error: --priority must be 1-99, got {args.priority}", file=sys.stderr)
+            return 2
+        refused = realtime_priority(args.priority)  # before rclpy starts its threads: they inherit it
+        if refused:
+            print(f"belt-drive node: warning: {refused}; running with normal scheduling", file=sys.stderr)
     from ..ros.node import run as run_node
 
     ros_args = ["--ros-args", *args.ros_args] if args.ros_args else []
