@@ -209,4 +209,4 @@ def test_realtime_priority_is_applied_or_refused_with_the_reason():
         assert "CAP_SYS_NICE" in applied and applied.endswith("False 0")
     cli = subprocess.run([sys.executable, "-m", "belt_drive_ros.cli", "node", "--priority", "0"],
                          capture_output=True, text=True, timeout=60)
-    assert cli.returncode == 2 and cli.stderr.strip() == "belt-drive node: error: --priority must be 1-99, got 0"
+    assert cli.returncode == 2 and cli.stderr.strip() == "belt-drive: error: --priority must be 1-99, got 0"

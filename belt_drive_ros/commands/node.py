@@ -72,11 +72,11 @@ def run(args) -> int:
         from ..ros.environment import realtime_priority
 
         if not 1 <= args.priority <= 99:
-            print(f"belt-drive node: error: --priority must be 1-99, got {args.priority}", file=sys.stderr)
+            print(f"belt-drive: error: --priority must be 1-99, got {args.priority}", file=sys.stderr)
             return 2
         refused = realtime_priority(args.priority)  # before rclpy starts its threads: they inherit it
         if refused:
-            print(f"belt-drive node: warning: {refused}; running with normal scheduling", file=sys.stderr)
+            print(f"belt-drive: warning: {refused}; running with normal scheduling", file=sys.stderr)
     from ..ros.node import run as run_node
 
     ros_args = ["--ros-args", *args.ros_args] if args.ros_args else []
