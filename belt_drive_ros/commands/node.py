@@ -17,7 +17,8 @@ examples:
 
 topics (relative, SI units): sub drive_torque (std_msgs/Float64, N m on wheel M);
 pub shaft_speed [rad/s], load_torque [N m], belt_torque [N m], relative_deflection
-[rad] (std_msgs/Float64), joint_states (sensor_msgs/JointState), /diagnostics;
+[rad] (std_msgs/Float64), joint_states (sensor_msgs/JointState), robot_description
+(std_msgs/String, the drive's URDF, latched), /diagnostics;
 /clock with publish_clock. Service ~/reset (std_srvs/Trigger).
 Stops cleanly (exit code 0) on SIGINT or SIGTERM. Invalid parameters at start,
 or a recording that cannot start (record_path exists without --force, cannot be
