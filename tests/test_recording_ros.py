@@ -293,3 +293,59 @@ def test_record_command_refuses_to_overwrite(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "refusing to overwrite" in err[0] and "--force" in err[0]
     assert path.read_bytes() == b"precious"
+
+
+def test_record_command_splits_into_a_bag_folder(tmp_path, ros_domain_id, capsys):
+    """``belt-drive record --max-bag-duration`` writes NAME/NAME_i.mcap + metadata.yaml, losslessly;
+    a split onto a ``.mcap`` name or a negative limit is refused in one line (exit 2)."""
+    import rclpy
+    import yaml
+    from rclpy.context import Context
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64
+
+    from belt_drive_ros.cli import main
+    from belt_drive_ros.ros import environment as ros_env
+
+    for argv, what in ((["--out", str(tmp_path / "x.mcap"), "--max-bag-duration", "1"], "--out: "),
+                       (["--out", str(tmp_path / "x"), "--max-bag-size", "-5"], "--max-bag-size: must be >= 0"),
+                       (["--out", str(tmp_path / "x"), "--max-bag-duration", "nan"], "--max-bag-duration: must be")):
+        assert main(["record", *argv, "--duration", "0.1"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("belt-drive: error: " + what), err
+    assert not (tmp_path / "x").exists() and not (tmp_path / "x.mcap").exists()
+
+    folder = tmp_path / "rec"
+    cmd = [os.path.join(os.path.dirname(sys.executable), "belt-drive"), "record", "--out", str(folder),
+           "--topics", "/drive_torque", "--max-bag-duration", "0.2"]
+    proc = subprocess.Popen(cmd, env=ros_env.child_environment(ros_domain_id), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_domain_id)
+    sent = 0
+    try:
+        node = rclpy.create_node("record_probe", context=ctx)
+        pub = node.create_publisher(Float64, "/drive_torque", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        deadline = time.monotonic() + 20
+        while pub.get_subscription_count() < 1:
+            assert time.monotonic() < deadline and proc.poll() is None, proc.stderr.read() if proc.poll() else "no match"
+            time.sleep(0.02)
+        time.sleep(0.2)
+        for _ in range(300):  # ~0.75 s at 400 Hz: about four 0.2 s files
+            pub.publish(Float64(data=float(sent)))
+            sent += 1
+            time.sleep(0.0025)
+        time.sleep(0.3)
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(timeout=20)
+        stderr = proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        rclpy.try_shutdown(context=ctx)
+    assert code == 0 and "Traceback" not in stderr, stderr
+    meta = yaml.safe_load((folder / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert len(meta["relative_file_paths"]) >= 3 and meta["message_count"] == sent
+    data = read_topic(folder, "/drive_torque")
+    np.testing.assert_array_equal(data.data, np.arange(sent))  # every message once, in order, across the files
+    assert msg_tools(["info", str(folder)]) == 0

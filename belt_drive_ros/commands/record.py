@@ -61,12 +61,16 @@ def run(args) -> int:
 
     if args.duration is not None and not args.duration > 0:
         raise SystemExit("belt-drive: error: --duration must be > 0 s")
-    if not 0 <= args.max_bag_duration < float("inf") or args.max_bag_size < 0:
-        raise SystemExit("belt-drive: error: --max-bag-duration and --max-bag-size must be finite and >= 0")
+    from ..core.errors import ParameterError
+
+    if not 0 <= args.max_bag_duration < float("inf"):
+        raise ParameterError("--max-bag-duration", f"must be finite and >= 0 s, got {args.max_bag_duration!r}")
+    if args.max_bag_size < 0:
+        raise ParameterError("--max-bag-size", f"must be >= 0 bytes, got {args.max_bag_size!r}")
     split = bool(args.max_bag_duration or args.max_bag_size)
     if split and args.out.suffix.lower() == ".mcap":
-        raise SystemExit(f"belt-drive: error: --out {args.out}: a split recording is a bag folder "
-                         "(NAME/NAME_0.mcap, ...); give a folder name without .mcap")
+        raise ParameterError("--out", f"{args.out}: a split recording is a bag folder (NAME/NAME_0.mcap, ...); "
+                             "give a folder name without .mcap")
     from ..ros.recorder import open_writer
 
     try:
