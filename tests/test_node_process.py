@@ -210,3 +210,30 @@ def test_realtime_priority_is_applied_or_refused_with_the_reason():
     cli = subprocess.run([sys.executable, "-m", "belt_drive_ros.cli", "node", "--priority", "0"],
                          capture_output=True, text=True, timeout=60)
     assert cli.returncode == 2 and cli.stderr.strip() == "belt-drive: error: --priority must be 1-99, got 0"
+
+
+def test_hostile_params_files_are_refused_in_one_line_without_hanging(tmp_path):
+    """``--params-file`` of /dev/zero, a FIFO nobody writes, a folder, YAML with an alias, or YAML
+    rcl refuses: exit 2 and one error line, promptly (rcl itself would block on the FIFO forever)."""
+    import os
+
+    fifo = tmp_path / "params.fifo"
+    os.mkfifo(fifo)
+    alias = tmp_path / "alias.yaml"
+    alias.write_text("belt_drive:\n  ros__parameters:\n    k: &k 30000.0\n    c: *k\n")
+    mixed = tmp_path / "mixed.yaml"
+    mixed.write_text("belt_drive:\n  ros__parameters:\n    k: [1, 'a']\n")
+    cases = {"/dev/zero": "a character device", str(fifo): "a FIFO", str(tmp_path): "a directory",
+             str(alias): "anchors", str(mixed): "refused by rcl"}
+    domain = ros_env.process_domain_id(offset=49)
+    for path, reason in cases.items():
+        proc = start(["node", "paper", "--ros-args", "--params-file", path], domain)
+        try:
+            _, err = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+        assert proc.returncode == 2, (path, err[-2000:])
+        errors = [line for line in err.splitlines() if line.startswith("belt-drive: error:")]
+        assert len(errors) == 1 and reason in errors[0] and "Traceback" not in err, (path, err[-2000:])

@@ -23,7 +23,8 @@ pub shaft_speed [rad/s], load_torque [N m], belt_torque [N m], relative_deflecti
 Stops cleanly (exit code 0) on SIGINT or SIGTERM. Invalid parameters at start,
 or a recording that cannot start (record_path exists without --force, cannot be
 created): exit code 2 with the reason; the node never runs without the
-recording it was asked for.
+recording it was asked for. A --params-file must be a regular UTF-8 file under
+1 MiB of plain YAML (no aliases); /dev/zero or a FIFO is refused, not read.
 """
 
 
@@ -81,6 +82,7 @@ def run(args) -> int:
     from ..ros.node import run as run_node
 
     ros_args = ["--ros-args", *args.ros_args] if args.ros_args else []
+    check_params_files(ros_args)
     overrides = {}
     if args.record is not None:
         overrides["record_path"] = args.record
@@ -90,4 +92,32 @@ def run(args) -> int:
         overrides["max_bag_duration"] = float(args.max_bag_duration)
     if args.max_bag_size is not None:
         overrides["max_bag_size"] = int(args.max_bag_size)
-    return run_node(ros_args, scene=args.scene, executor=args.executor, node_name=args.name, overrides=overrides)
+    try:
+        return run_node(ros_args, scene=args.scene, executor=args.executor, node_name=args.name, overrides=overrides)
+    except Exception as exc:
+        if type(exc).__name__ != "RCLError":  # rclpy's, for ROS arguments rcl refuses
+            raise
+        from ..core.errors import ParameterError
+
+        text = str(exc).splitlines()[0].split(", at /")[0]
+        raise ParameterError("--ros-args", f"refused by rcl: {text}") from None
+
+
+def check_params_files(ros_args) -> None:
+    """Refuse a ``--params-file`` that rcl would block on or read without bound, before rclpy reads it.
+
+    Each file must be a regular UTF-8 file under 1 MiB with plain YAML (no
+    aliases, nesting at most 32 levels, no duplicate keys):
+    :mod:`belt_drive_ros.core.inputs`. ``/dev/zero`` or a FIFO would
+    otherwise stall the node's start for good.
+
+    Raises
+    ------
+    InputError
+        naming the file and what is wrong with it.
+    """
+    from ..core.inputs import parse_yaml, read_text
+
+    for flag, value in zip(ros_args, ros_args[1:]):
+        if flag == "--params-file":
+            parse_yaml(read_text(value, what="params file"), label=f"params file {value}")
