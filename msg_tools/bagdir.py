@@ -192,7 +192,8 @@ class Ros2BagWriter:
                         os.remove(os.path.join(self.folder, f))
         except OSError as exc:
             raise WriteError(self.folder, exc, action="create bag folder") from exc
-        self._done: List[Dict[str, Any]] = []  # finished files: path, times, counts, topics
+        self._done: List[Dict[str, Any]] = []  # finished files: path, times, message count
+        self._topic_meta: Dict[str, Dict[str, Any]] = {}  # per topic: its metadata, messages in finished files
         self._topics: Dict[str, Tuple[str, Any, Optional[str]]] = {}
         self._types: Dict[str, str] = {}
         self._metadata: List[Tuple[str, Dict[str, str]]] = []
@@ -236,10 +237,15 @@ class Ros2BagWriter:
         w = self._current
         w.finish()
         start, end = w.time_range_ns
+        # per file only its times and count; the topics' descriptions once, their counts summed
+        # (a long split recording keeps a few hundred bytes per file, not every file's QoS texts)
+        for t in w.topics_metadata():
+            entry = self._topic_meta.setdefault(t["name"], dict(t, message_count=0))
+            entry["message_count"] += t["message_count"]
         self._done.append({
             "abs": w.path, "path": os.path.basename(w.path or ""),
             "starting_time_ns": start or 0, "duration_ns": (end - start) if start is not None else 0,
-            "message_count": w.message_count, "topics": w.topics_metadata(),
+            "message_count": w.message_count,
         })
 
     # -------------------------------------------------------- writer interface
@@ -260,10 +266,7 @@ class Ros2BagWriter:
         return sum(f["message_count"] for f in self._done) + self._current.message_count
 
     def topic_counts(self) -> Dict[str, int]:
-        counts: Dict[str, int] = {}
-        for f in self._done:
-            for t in f["topics"]:
-                counts[t["name"]] = counts.get(t["name"], 0) + t["message_count"]
+        counts: Dict[str, int] = {name: t["message_count"] for name, t in self._topic_meta.items()}
         for topic, n in self._current.topic_counts().items():
             counts[topic] = counts.get(topic, 0) + n
         return counts
@@ -304,11 +307,7 @@ class Ros2BagWriter:
     def metadata_yaml(self) -> str:
         """``metadata.yaml`` for the files finished so far (all of them after :meth:`finish`)."""
         files = list(self._done)
-        topics: Dict[str, Dict[str, Any]] = {}
-        for f in files:
-            for t in f["topics"]:
-                entry = topics.setdefault(t["name"], dict(t, message_count=0))
-                entry["message_count"] += t["message_count"]
+        topics = self._topic_meta
         starts = [f["starting_time_ns"] for f in files if f["message_count"]]
         ends = [f["starting_time_ns"] + f["duration_ns"] for f in files if f["message_count"]]
         start = min(starts) if starts else 0
