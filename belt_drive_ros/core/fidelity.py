@@ -84,10 +84,15 @@ class ModelChoice:
     limit_time: float = math.nan
 
 
+def operating_run_step(duration: float) -> float:
+    """Step [s] of the cheap rigid run (method ``exact``) that estimates the operating speeds: <= 500 steps, <= 5 ms."""
+    return min(duration / 500.0, 5e-3)
+
+
 def _operating_speeds(scene) -> tuple[float, float, float]:
     """Largest |omega_M|, |omega_3| [rad/s] and |belt torque| [N m] of a cheap rigid run of ``scene``."""
     model = RigidBeltModel(scene.params)
-    dt = min(scene.duration / 500.0, 5e-3)
+    dt = operating_run_step(scene.duration)
     plant = Plant(model, scene.drive, scene.load)
     stepper = Stepper(plant, "exact", dt)
     time, states = stepper.run(scene.initial_state.vector("rigid", scene.params.ratio), 0.0, scene.duration)
@@ -114,7 +119,9 @@ def start_mismatch(scene) -> tuple[float, float]:
     return needed, carried
 
 
-def choose_model(scene, threshold: float = FREQUENCY_RATIO_THRESHOLD, check_slip: bool = True, linear_run=None) -> ModelChoice:
+def choose_model(
+    scene, threshold: float = FREQUENCY_RATIO_THRESHOLD, check_slip: bool = True, linear_run=None, speeds=None
+) -> ModelChoice:
     """Rigid, flexible or slipping for ``scene``, with the reason (see the module docstring).
 
     Parameters
@@ -126,8 +133,11 @@ def choose_model(scene, threshold: float = FREQUENCY_RATIO_THRESHOLD, check_slip
     linear_run : ``f(model_name) -> (time, outputs)`` that runs the scene on
         that linear model (``simulate`` passes one that keeps the run as its
         result); default: a run through the stepper with the scene's method.
+    speeds : (max |omega_M|, max |omega_3| [rad/s], max |belt torque| [N m]) of the rigid estimate, when
+        the caller already ran it (:mod:`~belt_drive_ros.core.ensemble` runs
+        it for many variants at once); default: run it here.
     """
-    choice = _linear_choice(scene, threshold)
+    choice = _linear_choice(scene, threshold, speeds)
     choice = replace(choice, linear=choice.model)
     if not check_slip:
         return choice
@@ -165,10 +175,10 @@ def _linear_outputs(scene, kind: str):
     return time, model.outputs(states, stepper.plant.input_array(time, states))
 
 
-def _linear_choice(scene, threshold: float) -> ModelChoice:
-    """Rigid or flexible for ``scene`` by the frequency rule, with the reason."""
+def _linear_choice(scene, threshold: float, speeds=None) -> ModelChoice:
+    """Rigid or flexible for ``scene`` by the frequency rule, with the reason (``speeds``: see :func:`choose_model`)."""
     f_n = scene.params.belt_natural_frequency / (2.0 * math.pi)
-    w_M, w_3, peak = _operating_speeds(scene)
+    w_M, w_3, peak = speeds if speeds is not None else _operating_speeds(scene)
     excitations = list(scene.drive.excitation_frequencies(w_M)) + list(scene.load.excitation_frequencies(w_3))
     needed, carried = start_mismatch(scene)
     if abs(needed - carried) >= START_MISMATCH_THRESHOLD * peak and abs(needed - carried) > 0.0:

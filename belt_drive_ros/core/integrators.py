@@ -34,6 +34,7 @@ from typing import Callable, ClassVar
 import numpy as np
 
 from . import stage_scheme as _scheme
+from .batch_expm import expm_stack
 from .errors import IntegratorError
 from .stage_scheme import LinearStep, StageScheme, compile_scalar_loop
 
@@ -187,19 +188,40 @@ def _unkey(key: tuple) -> np.ndarray:
     return np.frombuffer(data, dtype=dtype).reshape(shape)
 
 
-@lru_cache(maxsize=64)
-def _expm_blocks(a_key: tuple, b_key: tuple, h: float):
-    """Phi = e^{Ah}, G0 = int_0^h e^{As} ds B, G1 = int_0^h e^{A(h-s)} s ds B / h (cached per h)."""
+def _expm(M: np.ndarray) -> np.ndarray:
+    """e^M: scipy's for one matrix, :func:`~belt_drive_ros.core.batch_expm.expm_stack` for a stack of variants'."""
+    if M.ndim > 2:
+        return expm_stack(M)
     import scipy.linalg  # here, not at import: the registry is read by --help texts
 
-    A, B = _unkey(a_key), _unkey(b_key)
-    n, m = B.shape
-    M = np.zeros((n + 2 * m, n + 2 * m), dtype=np.result_type(A, B))
-    M[:n, :n] = A
-    M[:n, n : n + m] = B
-    M[n : n + m, n + m :] = np.eye(m)
-    E = scipy.linalg.expm(M * h)  # Van Loan: one exponential gives all three blocks
-    return E[:n, :n].copy(), E[:n, n : n + m].copy(), E[:n, n + m :].copy() / h
+    return scipy.linalg.expm(M)
+
+
+def _hcat(*blocks) -> np.ndarray:
+    """Blocks side by side (last axis), broadcast over any leading batch axes (a stack of variants' matrices)."""
+    batch = np.broadcast_shapes(*(np.shape(b)[:-2] for b in blocks))
+    return np.concatenate([np.broadcast_to(b, batch + np.shape(b)[-2:]) for b in blocks], axis=-1)
+
+
+def _expm_blocks_of(A: np.ndarray, B: np.ndarray, h: float):
+    """Phi = e^{Ah}, G0 = int_0^h e^{As} ds B, G1 = int_0^h e^{A(h-s)} s ds B / h (A, B may carry batch axes)."""
+    n, m = B.shape[-2:]
+    M = np.zeros(A.shape[:-2] + (n + 2 * m, n + 2 * m), dtype=np.result_type(A, B))
+    M[..., :n, :n] = A
+    M[..., :n, n : n + m] = B
+    M[..., n : n + m, n + m :] = np.eye(m)
+    E = _expm(M * h)  # Van Loan: one exponential gives all three blocks
+    return E[..., :n, :n].copy(), E[..., :n, n : n + m].copy(), E[..., :n, n + m :].copy() / h
+
+
+@lru_cache(maxsize=64)
+def _expm_blocks_cached(a_key: tuple, b_key: tuple, h: float):
+    return _expm_blocks_of(_unkey(a_key), _unkey(b_key), h)
+
+
+def _expm_blocks(A: np.ndarray, B: np.ndarray, h: float):
+    """:func:`_expm_blocks_of`, cached per (A, B, h) for one system."""
+    return _expm_blocks_cached(_key(A), _key(B), h) if A.ndim == 2 else _expm_blocks_of(A, B, h)
 
 
 @register
@@ -218,11 +240,11 @@ class Exact(FixedStepIntegrator):
 
     def __init__(self, A, B, dt, **options):
         super().__init__(A, B, dt, **options)
-        self.Phi, self.Gamma, _ = _expm_blocks(_key(self.A), _key(self.B), self.dt)
+        self.Phi, self.Gamma, _ = _expm_blocks(self.A, self.B, self.dt)
 
     def stage_scheme(self):
         # u_0 = u(t, x);  x+ = Phi x + Gamma u_0
-        return StageScheme((0.0,), (None,), np.hstack([self.Phi, self.Gamma]))
+        return StageScheme((0.0,), (None,), _hcat(self.Phi, self.Gamma))
 
 
 @register
@@ -243,17 +265,16 @@ class ExponentialRK2(FixedStepIntegrator):
 
     def __init__(self, A, B, dt, **options):
         super().__init__(A, B, dt, **options)
-        self.Phi, self.G0, self.G1 = _expm_blocks(_key(self.A), _key(self.B), self.dt)
+        self.Phi, self.G0, self.G1 = _expm_blocks(self.A, self.B, self.dt)
 
     def stage_scheme(self):
         # u_0 = u(t, x);  a = Phi x + G0 u_0;  u_1 = u(t + h, a);  x+ = a + G1 (u_1 - u_0)
-        predictor = np.hstack([self.Phi, self.G0])
-        final = np.hstack([np.eye(self.A.shape[0]), -self.G1, self.G1])
+        predictor = _hcat(self.Phi, self.G0)
+        final = _hcat(np.eye(self.A.shape[-1]), -self.G1, self.G1)
         return StageScheme((0.0, 1.0), (None, predictor), final, final_base=1)
 
 
-@lru_cache(maxsize=64)
-def _phi_blocks(a_key: tuple, b_key: tuple, h: float):
+def _phi_blocks_of(A: np.ndarray, B: np.ndarray, h: float):
     """e^{hA} and h phi_k(hA) B for k = 1, 2, 3 from one exponential (cached per h).
 
     ``expm([[hA, hB, 0, 0], [0, 0, I, 0], [0, 0, 0, I], [0, 0, 0, 0]])`` has the
@@ -261,17 +282,24 @@ def _phi_blocks(a_key: tuple, b_key: tuple, h: float):
     ``phi_k(z) = (e^z - sum_{j<k} z^j/j!) / z^k`` (works for singular A: the
     rigid-body mode).
     """
-    import scipy.linalg
+    n, m = B.shape[-2:]
+    M = np.zeros(A.shape[:-2] + (n + 3 * m, n + 3 * m), dtype=np.result_type(A, B))
+    M[..., :n, :n] = h * A
+    M[..., :n, n : n + m] = h * B
+    M[..., n : n + m, n + m : n + 2 * m] = np.eye(m)
+    M[..., n + m : n + 2 * m, n + 2 * m :] = np.eye(m)
+    E = _expm(M)
+    return tuple(E[..., :n, :n].copy() if k == 0 else E[..., :n, n + (k - 1) * m : n + k * m].copy() for k in range(4))
 
-    A, B = _unkey(a_key), _unkey(b_key)
-    n, m = B.shape
-    M = np.zeros((n + 3 * m, n + 3 * m), dtype=np.result_type(A, B))
-    M[:n, :n] = h * A
-    M[:n, n : n + m] = h * B
-    M[n : n + m, n + m : n + 2 * m] = np.eye(m)
-    M[n + m : n + 2 * m, n + 2 * m :] = np.eye(m)
-    E = scipy.linalg.expm(M)
-    return tuple(E[:n, :n].copy() if k == 0 else E[:n, n + (k - 1) * m : n + k * m].copy() for k in range(4))
+
+@lru_cache(maxsize=64)
+def _phi_blocks_cached(a_key: tuple, b_key: tuple, h: float):
+    return _phi_blocks_of(_unkey(a_key), _unkey(b_key), h)
+
+
+def _phi_blocks(A: np.ndarray, B: np.ndarray, h: float):
+    """:func:`_phi_blocks_of`, cached per (A, B, h) for one system."""
+    return _phi_blocks_cached(_key(A), _key(B), h) if A.ndim == 2 else _phi_blocks_of(A, B, h)
 
 
 @register
@@ -300,29 +328,32 @@ class ExponentialRK4(FixedStepIntegrator):
 
     def __init__(self, A, B, dt, **options):
         super().__init__(A, B, dt, **options)
-        a_key, b_key = _key(self.A), _key(self.B)
-        self.E, hp1, hp2, hp3 = _phi_blocks(a_key, b_key, self.dt)
-        self.E2, self.P, _, _ = _phi_blocks(a_key, b_key, 0.5 * self.dt)
+        self.E, hp1, hp2, hp3 = _phi_blocks(self.A, self.B, self.dt)
+        self.E2, self.P, _, _ = _phi_blocks(self.A, self.B, 0.5 * self.dt)
         self.W0 = hp1 - 3.0 * hp2 + 4.0 * hp3
         self.W1 = 2.0 * (hp2 - 2.0 * hp3)
         self.W2 = 4.0 * hp3 - hp2
 
     def stage_scheme(self):
         Z = np.zeros_like(self.P)
-        stage_a = np.hstack([self.E2, self.P])  # a = E2 x + P U0            [x, U0]
-        stage_b = np.hstack([self.E2, Z, self.P])  # b = E2 x + P Ua         [x, U0, Ua]
+        stage_a = _hcat(self.E2, self.P)  # a = E2 x + P U0            [x, U0]
+        stage_b = _hcat(self.E2, Z, self.P)  # b = E2 x + P Ua         [x, U0, Ua]
         # c = E2 a + P (2 Ub - U0) = E2 (E2 x + P U0) + P (2 Ub - U0)         [x, U0, Ua, Ub]
-        stage_c = np.hstack([self.E2 @ self.E2, self.E2 @ self.P - self.P, Z, 2.0 * self.P])
-        final = np.hstack([self.E, self.W0, self.W1, self.W1, self.W2])
+        stage_c = _hcat(self.E2 @ self.E2, self.E2 @ self.P - self.P, Z, 2.0 * self.P)
+        final = _hcat(self.E, self.W0, self.W1, self.W1, self.W2)
         return StageScheme((0.0, 0.5, 0.5, 1.0), (None, stage_a, stage_b, stage_c), final)
 
 
 @lru_cache(maxsize=256)
-def _expm_at(a_key: tuple, tau: float) -> np.ndarray:
-    """e^{tau A} (cached per tau: a Lawson method needs one per distinct stage offset)."""
+def _expm_at_cached(a_key: tuple, tau: float) -> np.ndarray:
     import scipy.linalg
 
     return scipy.linalg.expm(_unkey(a_key) * tau)
+
+
+def _expm_at(A: np.ndarray, tau: float) -> np.ndarray:
+    """e^{tau A} (cached per tau for one system: a Lawson method needs one per distinct stage offset)."""
+    return _expm_at_cached(_key(A), tau) if A.ndim == 2 else expm_stack(A * tau)
 
 
 class LawsonRungeKutta(FixedStepIntegrator):
@@ -347,18 +378,21 @@ class LawsonRungeKutta(FixedStepIntegrator):
     B_tab: ClassVar[tuple]
 
     def stage_scheme(self):
-        n, h, key = self.A.shape[0], self.dt, _key(self.A)
+        n, h = self.A.shape[-1], self.dt
+        memo: dict = {}
 
         def E(c):
-            return np.eye(n) if c == 0.0 else _expm_at(key, c * h)
+            if c not in memo:
+                memo[c] = np.eye(n) if c == 0.0 else _expm_at(self.A, c * h)
+            return memo[c]
 
         C, s = self.C, len(self.C)
         stages = tuple(
             None if i == 0 and C[0] == 0.0
-            else np.hstack([E(C[i]), *(h * self.A_tab[i][j] * (E(C[i] - C[j]) @ self.B) for j in range(i))])
+            else _hcat(E(C[i]), *(h * self.A_tab[i][j] * (E(C[i] - C[j]) @ self.B) for j in range(i)))
             for i in range(s)
         )  # fmt: skip
-        final = np.hstack([E(1.0), *(h * self.B_tab[i] * (E(1.0 - C[i]) @ self.B) for i in range(s))])
+        final = _hcat(E(1.0), *(h * self.B_tab[i] * (E(1.0 - C[i]) @ self.B) for i in range(s)))
         return StageScheme(tuple(float(c) for c in C), stages, final)
 
 
@@ -403,18 +437,18 @@ class ExplicitRungeKutta(FixedStepIntegrator):
     B_tab: ClassVar[np.ndarray]
 
     def stage_scheme(self):
-        h, n, m, s = self.dt, self.A.shape[0], self.B.shape[1], len(self.C)
+        h, n, m, s = self.dt, self.A.shape[-1], self.B.shape[-1], len(self.C)
         dtype = self.A.dtype
         P, Q, stages = [], [], []
         for i in range(s):
             Px = np.eye(n, dtype=dtype) + h * sum((self.A_tab[i, j] * P[j] for j in range(i)), np.zeros((n, n), dtype))
             Qx = [h * sum((self.A_tab[i, j] * Q[j][mm] for j in range(i)), np.zeros((n, m), dtype)) for mm in range(s)]
-            stages.append(None if i == 0 and not self.A_tab[0].any() else np.hstack([Px, *Qx[:i]]))
+            stages.append(None if i == 0 and not self.A_tab[0].any() else _hcat(Px, *Qx[:i]))
             P.append(self.A @ Px)
             Q.append([self.A @ Qx[mm] + (self.B if mm == i else 0.0) for mm in range(s)])
         Phi = np.eye(n, dtype=dtype) + h * sum(self.B_tab[i] * P[i] for i in range(s))
         G = [h * sum(self.B_tab[i] * Q[i][mm] for i in range(s)) for mm in range(s)]
-        return StageScheme(tuple(float(c) for c in self.C), tuple(stages), np.hstack([Phi, *G]))
+        return StageScheme(tuple(float(c) for c in self.C), tuple(stages), _hcat(Phi, *G))
 
 
 @register
@@ -448,14 +482,14 @@ class SymplecticEuler(FixedStepIntegrator):
 
     def stage_scheme(self):
         # u_0 = u(t, x);  omega+ = omega + h (L x + B_w u_0);  phi+ = phi + h omega+   (x = [phi, omega])
-        h, n = self.dt, self.A.shape[0]
+        h, n = self.dt, self.A.shape[-1]
         n2 = n // 2
-        L, BL = self.A[n2:], self.B[n2:]  # acceleration rows
-        Phi = np.zeros((n, n), dtype=self.A.dtype)
-        Phi[n2:] = np.eye(n)[n2:] + h * L
-        Phi[:n2] = np.eye(n)[:n2] + h * Phi[n2:]
-        G = np.vstack([h * h * BL, h * BL])
-        return StageScheme((0.0,), (None,), np.hstack([Phi, G]))
+        L, BL = self.A[..., n2:, :], self.B[..., n2:, :]  # acceleration rows
+        Phi = np.zeros(self.A.shape, dtype=self.A.dtype)
+        Phi[..., n2:, :] = np.eye(n)[n2:] + h * L
+        Phi[..., :n2, :] = np.eye(n)[:n2] + h * Phi[..., n2:, :]
+        G = np.concatenate([h * h * BL, h * BL], axis=-2)
+        return StageScheme((0.0,), (None,), _hcat(Phi, G))
 
 
 @register
@@ -492,11 +526,11 @@ class Trapezoidal(FixedStepIntegrator):
 
     def stage_scheme(self):
         # u_0 = u(t, x);  x+ = Phi x + G u_0 + G u_1 with u_1 = u(t + h, x+) by fixed point
-        n, h = self.A.shape[0], self.dt
+        n, h = self.A.shape[-1], self.dt
         lhs = np.eye(n) - 0.5 * h * self.A
         Phi = np.linalg.solve(lhs, np.eye(n) + 0.5 * h * self.A)
         G = np.linalg.solve(lhs, 0.5 * h * self.B)
-        return StageScheme((0.0, 1.0), (None, None), np.hstack([Phi, G, G]), implicit=(self.tol, self.max_iter))
+        return StageScheme((0.0, 1.0), (None, None), _hcat(Phi, G, G), implicit=(self.tol, self.max_iter))
 
 
 # ------------------------------------------------------------------ scipy

@@ -329,6 +329,28 @@ class Stepper:
         lo, hi, cuts = plan["special"].get(c, (-math.inf, math.inf, []))
         return a, e, whole, lo, hi, list(cuts)
 
+    def steps(self, t0: float, t1: float) -> tuple[np.ndarray, list]:
+        """The plan :meth:`run` executes from ``t0`` to ``t1`` [s], for another executor of it.
+
+        Returns ``(times, steps)``: the knot times (N+1,) [s] of :meth:`run`,
+        and per step ``(a, e, whole, lo, hi, cuts)``: from ``a`` to ``e`` [s]
+        (``whole``: a full grid step of ``dt``), torque samples clamped to
+        ``[lo, hi]``, split at ``cuts`` (each piece's samples clamped to its
+        side, as :meth:`run` does). Empty when ``t0`` and ``t1`` share a knot.
+        :class:`~belt_drive_ros.core.ensemble.Ensemble` steps many variants
+        of a plant along it.
+        """
+        plan = self._plan(t0, t1)
+        times = self._knots(plan)
+        if plan["empty"]:
+            return times, []
+        out = []
+        for c in range(plan["first"], plan["last"] + 1):
+            a, e, whole = self._step_ends(plan, c)
+            lo, hi, cuts = plan["special"].get(c, (-math.inf, math.inf, ()))
+            out.append((a, e, whole, lo, hi, tuple(sorted(cuts))))
+        return times, out
+
     def grid_time(self, k: int) -> float:
         """Grid time ``origin + k dt`` [s] (the float every caller computes)."""
         return self.origin + k * self.dt
@@ -565,6 +587,10 @@ class Stepper:
             lo_t, hi_t, cuts = special.get(last, (-math.inf, math.inf, ()))
             states = np.vstack([states, self._special_step(states[-1], a, e, whole, lo_t, hi_t, cuts)])
         return states
+
+    def diverged_error(self, t: float, x: np.ndarray) -> SimulationDivergedError:
+        """The error a run raises when state ``x`` at ``t`` [s] is non-finite or too fast (one message for every caller)."""
+        return self._diverged(t, x)
 
     def _diverged(self, t: float, x: np.ndarray) -> SimulationDivergedError:
         return SimulationDivergedError(

@@ -1,0 +1,250 @@
+"""Many variants of one plant stepped together: numpy over a variant axis.
+
+A campaign runs thousands of variants of one scene that differ in their
+parameters (belt stiffness, inertias, damping, ...) but share the torque
+profiles, the method, the step and the duration. One run costs a few ms of
+Python per variant (the stepper's compiled float loop); the same arithmetic
+done for all variants at once costs a fraction of that per variant.
+
+:class:`Ensemble` is a second executor of the one stepper's plan
+(:meth:`~belt_drive_ros.core.stepper.Stepper.steps`: the same knots, the
+same steps split and clamped at torque breakpoints) and of the method's one
+:class:`~belt_drive_ros.core.stage_scheme.StageScheme`: the integrator class
+builds the scheme from the *stacked* matrices ``A`` (V, n, n) and ``B``
+(V, n, m) of the V variants (every method's ``stage_scheme`` broadcasts over
+a leading batch axis), so each variant steps with exactly the matrices its
+single run uses. Per step, with ``U_i`` the stage torques (one per variant)::
+
+    X_i = stages[i] @ [x, U_0, ..., U_{i-1}]          (per variant: einsum over the variant axis)
+    U_i = u(t + c_i h, W X_i)                          (the profiles' array formulas on (V,) speeds)
+    x+  = final @ [x or X_j, U_0, ..., U_{s-1}]
+
+with the variant axis last (contiguous). Torques are evaluated by the
+profiles' array formulas (:func:`~belt_drive_ros.core.formula.array_function`),
+the same text the single run's compiled loop inlines; the sums run in
+another order. So each variant's states equal its single run's to rounding
+(tests/test_ensemble.py: <= 1e-12 relative on every shipped scene).
+
+Covered: the rigid and flexible models with any explicit fixed-step method
+(``exact``, ``etd2``, ``etd4``, ``lawson5``, ``euler``,
+``symplectic_euler``, ``rk4``). Not covered (:class:`EnsembleUnsupported`;
+:mod:`~belt_drive_ros.core.ensemble_run` runs those variants singly): the
+slipping model (its mode switches differ per variant), the implicit
+``trapezoidal`` (a fixed-point iteration per variant) and scipy's adaptive
+methods (a step size per variant).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .errors import BeltDriveError
+from .integrators import FixedStepIntegrator, Integrator, method_class
+from .stepper import SPEED_LIMIT, Plant, Stepper
+
+
+class EnsembleUnsupported(BeltDriveError, ValueError):
+    """These variants cannot be stepped together (the reason says why); run them singly."""
+
+
+def _einsum(matrix: np.ndarray, vector: np.ndarray, out=None) -> np.ndarray:
+    """Per variant ``matrix @ vector``: (r, k, V) x (k, V) -> (r, V)."""
+    return np.einsum("rkv,kv->rv", matrix, vector, out=out)
+
+
+class _BatchScheme:
+    """One step of length ``h`` of a method for all variants, in the variant-last layout.
+
+    Only the wheel coordinates a torque reads are computed for the inner
+    stages (``rows`` of the wheel map W), as the compiled loop does.
+    """
+
+    def __init__(self, scheme, h: float, W: np.ndarray, rows: tuple, n: int, m: int):
+        self.nodes, self.h = scheme.nodes, h
+        self.n, self.m = n, m
+        self.base = scheme.final_base
+        Wr = W[:, rows, :]  # (V, R, n)
+        self.stages = []
+        for i, S in enumerate(scheme.stages):
+            if S is None:
+                self.stages.append(("x", np.ascontiguousarray(Wr.transpose(1, 2, 0)), None))
+            elif self.base == i:  # the whole stage state is needed again at the end of the step
+                self.stages.append(
+                    ("full", np.ascontiguousarray(S.transpose(1, 2, 0)), np.ascontiguousarray(Wr.transpose(1, 2, 0)))
+                )
+            else:
+                self.stages.append(("rows", np.ascontiguousarray((Wr @ S).transpose(1, 2, 0)), None))
+        F = scheme.final.transpose(1, 2, 0)
+        if self.base is not None and scheme.stages[self.base] is not None:
+            self.final_base = np.ascontiguousarray(F[:, :n])
+            self.final_inputs = np.ascontiguousarray(F[:, n:])
+            self.final = None
+        else:
+            self.final = np.ascontiguousarray(F)
+
+
+class Ensemble:
+    """V variants of one plant (same profiles, method, step) stepped together.
+
+    Parameters
+    ----------
+    models : sequence of V linear models of one kind (rigid or flexible), one per variant.
+    drive, load : the torque profiles all variants share.
+    method : an explicit fixed-step method of the registry; dt : step [s];
+        method_options : passed to it.
+
+    Raises
+    ------
+    EnsembleUnsupported : for a method the ensemble does not cover (the
+        module docstring), or models of different kinds.
+    """
+
+    def __init__(self, models, drive, load, method: str, dt: float, method_options=None):
+        models = list(models)
+        if not models:
+            raise EnsembleUnsupported("ensemble: no variants")
+        kinds = {m.name for m in models}
+        if len(kinds) != 1 or models[0].name not in ("rigid", "flexible"):
+            raise EnsembleUnsupported(f"ensemble: needs variants of one linear model (rigid or flexible), got {sorted(kinds)}")
+        cls = method_class(method)
+        if not issubclass(cls, FixedStepIntegrator):
+            raise EnsembleUnsupported(f"ensemble: {cls.name} is adaptive (a step size per variant)")
+        self.method_class = cls
+        self.models = models
+        self.method, self.dt = cls.name, float(dt)
+        self.method_options = dict(method_options or {})
+        self.A = np.stack([m.A for m in models]).astype(float)
+        self.B = np.stack([m.B for m in models]).astype(float)
+        self.n, self.m = self.B.shape[1:]
+        self.plant = Plant(models[0], drive, load)  # the profiles, breakpoints and plan all variants share
+        self.W = np.stack([m.wheel_coordinates(np.eye(self.n)) for m in models]).astype(float)  # (V, 4, n)
+        self.drive, self.load = drive, load
+        self._torques = tuple(p.forms().array or p.torque for p in (drive, load))
+        rows = []
+        for q, profile in enumerate((drive, load)):
+            angle = 2 * q if profile.uses_angle else None
+            speed = 2 * q + 1 if profile.state_dependent else None
+            rows.append((angle, speed))
+        used = sorted({r for pair in rows for r in pair if r is not None})
+        self._rows = tuple(used)
+        self._slot = [tuple(None if r is None else used.index(r) for r in pair) for pair in rows]
+        self._schemes: dict = {}
+        self._scheme(self.dt)  # also validates the options; implicit methods are refused here
+
+    def __len__(self) -> int:
+        return len(self.models)
+
+    def _scheme(self, h: float) -> _BatchScheme:
+        """The batched scheme of a step of ``h`` [s] (cached per length)."""
+        cached = self._schemes.get(h)
+        if cached is None:
+            scheme = self.method_class(self.A, self.B, h, **self.method_options).scheme
+            if scheme.implicit:
+                raise EnsembleUnsupported(f"ensemble: {self.method} is implicit (a fixed-point iteration per variant)")
+            if len(self._schemes) >= 256:
+                self._schemes.clear()
+            cached = self._schemes[h] = _BatchScheme(scheme, h, self.W, self._rows, self.n, self.m)
+        return cached
+
+    def run(self, x0: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(times (N+1,), states (N+1, n, V))`` from states ``x0`` (V, n) at ``t0`` to ``t1`` [s].
+
+        States are time-major with the variant axis last (as they were
+        computed); variant v's run is ``states[:, :, v]`` (N+1, n).
+
+        The knots are those of a single run on the grid ``t0 + k dt``
+        (:meth:`~belt_drive_ros.core.stepper.Stepper.run`). A variant that
+        diverges gets non-finite states from there on (:meth:`diverged`
+        finds them); the others are unaffected.
+        """
+        x0 = np.asarray(x0, dtype=float)
+        V = len(self.models)
+        if x0.shape != (V, self.n):
+            raise ValueError(f"ensemble: x0 must be ({V}, {self.n}), got {x0.shape}")
+        stepper = Stepper(self.plant, self.method, self.dt, self.method_options, origin=t0, integrator=_NoIntegrator())
+        times, steps = stepper.steps(float(t0), float(t1))
+        out = np.empty((len(times), self.n, V))
+        out[0] = x0.T
+        if len(times) == 2 and not steps:  # t0 and t1 on one grid time: nothing to integrate
+            out[1] = out[0]
+        s_max = max(len(self._scheme(self.dt).nodes), 1)
+        Z = np.empty((self.n + self.m * s_max + self.m * 8, V))  # [x, U_0, U_1, ...]
+        x = out[0]
+        left_of = self.plant.left_of
+        with np.errstate(all="ignore"):  # a diverging variant is reported afterwards
+            for k, (a, e, whole, lo, hi, cuts) in enumerate(steps):
+                if not cuts:
+                    x = self._step(self._scheme(self.dt if whole else e - a), a, x, lo, hi, Z)
+                else:
+                    edges = [a, *cuts, e]
+                    for j in range(len(edges) - 1):
+                        p, q = edges[j], edges[j + 1]
+                        lo_j = lo if j == 0 else p
+                        hi_j = hi if j == len(edges) - 2 else left_of(q)
+                        x = self._step(self._scheme(q - p), p, x, lo_j, hi_j, Z)
+                out[k + 1] = x
+        return times, out
+
+    def _step(self, sch: _BatchScheme, t: float, x: np.ndarray, lo: float, hi: float, Z: np.ndarray) -> np.ndarray:
+        """One step of ``sch`` from states ``x`` (n, V) at ``t`` [s], torque times clamped to [lo, hi]."""
+        n, m = self.n, self.m
+        Z[:n] = x
+        base_state = None
+        for i, (kind, M, Wr) in enumerate(sch.stages):
+            c = sch.nodes[i]
+            ti = t + c * sch.h if c else t
+            ti = lo if ti < lo else hi if ti > hi else ti
+            K = n + m * i
+            if kind == "x":
+                coords = _einsum(M, Z[:n])
+            elif kind == "full":
+                base_state = _einsum(M, Z[:K])
+                coords = _einsum(Wr, base_state)
+            else:
+                coords = _einsum(M, Z[:K])
+            for q, torque in enumerate(self._torques):
+                a_slot, w_slot = self._slot[q]
+                angle = coords[a_slot] if a_slot is not None else 0.0
+                speed = coords[w_slot] if w_slot is not None else 0.0
+                Z[K + q] = torque(ti, angle, speed)
+        K = n + m * len(sch.stages)
+        if sch.final is None:
+            return _einsum(sch.final_base, base_state) + _einsum(sch.final_inputs, Z[n:K])
+        return _einsum(sch.final, Z[:K])
+
+    def diverged(self, times: np.ndarray, states: np.ndarray) -> dict:
+        """``{variant: SimulationDivergedError}`` for every variant whose run left the finite, plausible range.
+
+        The first bad sample (non-finite, or a speed beyond
+        :data:`~belt_drive_ros.core.stepper.SPEED_LIMIT`) names the time, as a
+        single run reports it.
+        """
+        half = states.shape[1] // 2
+        with np.errstate(invalid="ignore"):
+            bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, half:]) > SPEED_LIMIT, axis=1)  # (N+1, V)
+        out = {}
+        for v in np.flatnonzero(bad.any(axis=0)):
+            k = int(np.argmax(bad[:, v]))
+            stepper = Stepper(Plant(self.models[v], self.drive, self.load), self.method, self.dt, self.method_options)
+            out[int(v)] = stepper.diverged_error(float(times[k]), states[k, :, v])
+        return out
+
+    def inputs(self, times: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """Torques ``u`` (N+1, m, V) [N m] at the knots, as :meth:`Plant.input_array` gives a single run."""
+        coords = np.einsum("vrn,knv->rkv", self.W, states)  # (4, N+1, V): phi_M, omega_M, phi_3, omega_3
+        t = np.asarray(times, dtype=float)[:, None]
+        u = np.empty((len(times), self.m, coords.shape[2]))
+        u[:, 0] = self.drive.torque(t, coords[0], coords[1])
+        u[:, 1] = self.load.torque(t, coords[2], coords[3])
+        return u
+
+
+class _NoIntegrator(Integrator):
+    """Stands in for the integrator of the planning stepper (the ensemble steps with its own batched schemes)."""
+
+    name = "plan only"
+
+    def __init__(self):  # nothing to build: the planning stepper never steps
+        self.dt = math.nan
