@@ -28,7 +28,7 @@ $(STAMP): pyproject.toml constraints.txt tests/foxglove/package-lock.json
 	npm ci --prefix tests/foxglove --no-audit --no-fund --loglevel=error
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --disable-pip-version-check -c constraints.txt pip
-	$(PY) -m pip install --quiet --disable-pip-version-check -c constraints.txt -e '.[ros,plot,test]'
+	$(PY) -m pip install --quiet --disable-pip-version-check -c constraints.txt -e '.[ros,plot,test,campaign]'
 	touch $(STAMP)
 
 install: $(STAMP)
