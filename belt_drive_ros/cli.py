@@ -19,6 +19,7 @@ from .core.errors import BeltDriveError, OutputError, SimulationDivergedError
 #: only if it does not exist yet (commands under construction).
 COMMAND_MODULES = (
     "sim",
+    "sweep",
     "scenes",
     "demo",
     "node",

@@ -5,6 +5,7 @@
 * ``belt_drive_ros.io``: ROS-free input and output; may use core and msg_tools/mcap,
   never ``ros`` or rclpy.
 * ``belt_drive_ros.ros``: the rclpy adapters; may use core and io.
+* ``belt_drive_ros.campaign``: sweeps on Dask; may use core, io, msg_tools, pandas, dask; never ``ros``.
 * No import circles between modules of the package (module level or inside functions).
 
 The static checks read every ``import`` statement (also those inside functions)
@@ -26,6 +27,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "belt_drive_ros"
 MAY_IMPORT = {
     "core": ({"core"}, {"numpy", "scipy", "yaml"}),
     "io": ({"core", "io"}, {"numpy", "scipy", "yaml", "mcap", "mcap_ros2", "msg_tools", "zstandard", "matplotlib"}),
+    "campaign": ({"core", "io", "campaign"}, {"numpy", "scipy", "yaml", "msg_tools", "matplotlib", "pandas", "pyarrow",
+                                                "dask", "distributed"}),
 }
 
 

@@ -233,12 +233,23 @@ class Ensemble:
 
     def inputs(self, times: np.ndarray, states: np.ndarray) -> np.ndarray:
         """Torques ``u`` (N+1, m, V) [N m] at the knots, as :meth:`Plant.input_array` gives a single run."""
-        coords = np.einsum("vrn,knv->rkv", self.W, states)  # (4, N+1, V): phi_M, omega_M, phi_3, omega_3
         t = np.asarray(times, dtype=float)[:, None]
-        u = np.empty((len(times), self.m, coords.shape[2]))
-        u[:, 0] = self.drive.torque(t, coords[0], coords[1])
-        u[:, 1] = self.load.torque(t, coords[2], coords[3])
+        u = np.empty((len(times), self.m, states.shape[2]))
+        for q, torque in enumerate(self._torques):
+            angle, speed = (self._coordinate(states, r) for r in (2 * q, 2 * q + 1))
+            u[:, q] = torque(t, angle, speed)
         return u
+
+    def _coordinate(self, states: np.ndarray, r: int) -> np.ndarray:
+        """Wheel coordinate ``r`` of W (phi_M, omega_M, phi_3, omega_3) at every knot: (N+1, V)."""
+        out = None
+        for j in range(self.n):
+            w = self.W[:, r, j]
+            if not np.any(w):
+                continue
+            term = states[:, j, :] if np.all(w == 1.0) else w * states[:, j, :]
+            out = term if out is None else out + term
+        return out if out is not None else np.zeros(states[:, 0, :].shape)
 
 
 class _NoIntegrator(Integrator):

@@ -159,6 +159,7 @@ def _run_group(members: list, check_stability: bool) -> Iterator[Outcome]:
     if first.model in ("rigid", "flexible"):
         kinds = {i: first.model for i, _ in members}
         speeds: dict = {}
+        linear: dict = {}
     else:  # auto: the rigid estimate of the operating speeds, for all variants at once
         rigid = [make_model("rigid", s.params) for _, s in members]
         ens = Ensemble(rigid, drive, load, "exact", operating_run_step(T))
@@ -171,13 +172,14 @@ def _run_group(members: list, check_stability: bool) -> Iterator[Outcome]:
                 float(np.max(np.abs(rigid[v].belt_torque(states[:, :, v], u[:, :, v])))))
             for v, (i, s) in enumerate(members)
         }  # fmt: skip
-        kinds = {}
+        kinds, linear = {}, {}
         for v, (i, s) in enumerate(members):
             if not math.isfinite(w[v]):  # the estimate diverged: simulate reports it
                 yield _single(i, s, check_stability, "the rigid estimate of the operating speeds diverged")
                 continue
             try:
-                kinds[i] = choose_model(s, check_slip=False, speeds=speeds[i]).model
+                linear[i] = choose_model(s, check_slip=False, speeds=speeds[i])
+                kinds[i] = linear[i].model
             except BeltDriveError as exc:
                 yield Outcome(i, None, _error_line(exc), True)
     for kind in ("rigid", "flexible"):
@@ -204,7 +206,7 @@ def _run_group(members: list, check_stability: bool) -> Iterator[Outcome]:
             outputs = model.outputs(x_v, u_v)
             choice = None
             if scene.model == "auto":
-                choice = choose_model(scene, speeds=speeds[i], linear_run=lambda _kind: (times, outputs))
+                choice = choose_model(scene, linear=linear[i], linear_run=lambda _kind: (times, outputs))
                 if choice.model == "slipping":
                     yield _single(i, scene, check_stability, "slipping model (the capstan limit is passed)")
                     continue

@@ -120,7 +120,8 @@ def start_mismatch(scene) -> tuple[float, float]:
 
 
 def choose_model(
-    scene, threshold: float = FREQUENCY_RATIO_THRESHOLD, check_slip: bool = True, linear_run=None, speeds=None
+    scene, threshold: float = FREQUENCY_RATIO_THRESHOLD, check_slip: bool = True, linear_run=None, speeds=None,
+    linear: ModelChoice | None = None,
 ) -> ModelChoice:
     """Rigid, flexible or slipping for ``scene``, with the reason (see the module docstring).
 
@@ -136,8 +137,10 @@ def choose_model(
     speeds : (max |omega_M|, max |omega_3| [rad/s], max |belt torque| [N m]) of the rigid estimate, when
         the caller already ran it (:mod:`~belt_drive_ros.core.ensemble` runs
         it for many variants at once); default: run it here.
+    linear : the frequency rule's choice when the caller has it already
+        (``choose_model(scene, check_slip=False, ...)``); default: apply the rule here.
     """
-    choice = _linear_choice(scene, threshold, speeds)
+    choice = linear if linear is not None else _linear_choice(scene, threshold, speeds)
     choice = replace(choice, linear=choice.model)
     if not check_slip:
         return choice

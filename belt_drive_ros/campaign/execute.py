@@ -1,0 +1,370 @@
+"""Running a campaign on a Dask cluster: batches, streamed results, resume.
+
+The variants (:meth:`~belt_drive_ros.campaign.spec.Campaign.variants`) go
+out in batches, one Dask task each (Dask's per-task overhead is ~1 ms, a
+run ~0.3-6 ms: one task per run would be mostly overhead). A task
+(:func:`run_batch`) builds its variants' scenes, runs them with
+:func:`~belt_drive_ros.core.ensemble_run.simulate_many` (ensembles where
+variants share profiles and settings, single runs otherwise), computes the
+metrics (:mod:`~belt_drive_ros.campaign.metrics`) and returns a table, one
+row per variant. A variant that fails (invalid parameters, an unstable
+step, a diverging run) is a row with its ``error``; the campaign goes on.
+
+Output folder::
+
+    OUT/manifest.json          campaign digest, variant count, batch bounds
+    OUT/variants.parquet       the variant table
+    OUT/parts/part-NNNNN.parquet   one per finished batch (written as it finishes)
+    OUT/results.parquet        all rows by variant (pandas.read_parquet), + results.csv with csv=True
+    OUT/recordings/NAME.mcap   fleet campaigns: each replayed run (compare with msg-tools compare)
+
+An interrupted campaign resumes: the same command finds the manifest and
+runs only the batches without a part file.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+from ..core.errors import BeltDriveError
+from .metrics import METRICS, run_metrics
+from .spec import Campaign, CampaignError
+
+#: a task should compute at least this long [s] (Dask's per-task overhead is ~1 ms)
+MIN_TASK_SECONDS = 0.1
+#: at most this many variants per task (an ensemble holds their states: ~32 kB per variant and 1000 steps)
+MAX_BATCH = 2000
+#: variants of the first (sizing) batch
+FIRST_BATCH = 64
+
+
+# ------------------------------------------------------------------ worker side
+_CAMPAIGNS: dict = {}
+
+
+def _campaign(portable: dict) -> Campaign:
+    """The campaign of a portable mapping, parsed once per worker process."""
+    key = portable["digest"]
+    if key not in _CAMPAIGNS:
+        _CAMPAIGNS.clear()
+        _CAMPAIGNS[key] = Campaign.from_mapping(portable["data"], base_dir=portable["base_dir"], text=portable["text"])
+    return _CAMPAIGNS[key]
+
+
+def run_batch(portable: dict, rows: list, recordings_dir: str | None = None) -> dict:
+    """Run one batch of variants (``rows`` of the variant table) and return its result table as columns.
+
+    Every row comes back: the variant's columns, ``model`` (the model its
+    run used), ``ran`` (``ensemble`` or ``single``), ``single_reason``,
+    ``error`` ("" when it ran), the metrics (NaN on error), and for a
+    fleet with goldens ``compare_passed``, ``worst_signal``,
+    ``worst_rel_error``, ``worst_errors`` (JSON: signal -> worst absolute error).
+    ``seconds`` is the batch's compute time (the same in every row).
+    """
+    start = time.perf_counter()
+    campaign = _campaign(portable)
+    scenes, built, out = [], [], []
+    for row in rows:
+        record = dict(row)
+        record.update(model="", ran="", single_reason="", error="")
+        record.update({name: math.nan for name in METRICS})
+        try:
+            scenes.append(campaign.scene_of(row))
+            built.append(record)
+        except (BeltDriveError, ValueError, TypeError) as exc:
+            record.update(ran="none", error=f"{type(exc).__name__}: {exc}")
+        out.append(record)
+    from ..core.ensemble_run import simulate_many
+
+    for outcome in simulate_many(scenes):
+        record = built[outcome.index]
+        record["ran"] = "ensemble" if outcome.ensemble else "single"
+        record["single_reason"] = outcome.single_reason or ""
+        if outcome.error:
+            record["error"] = outcome.error
+            continue
+        result = outcome.result
+        record["model"] = result.model
+        record.update(run_metrics(result))
+        if campaign.fleet_folder is not None and recordings_dir:
+            _fleet_outputs(campaign, result, record, Path(recordings_dir))
+    seconds = time.perf_counter() - start
+    for record in out:
+        record["seconds"] = seconds
+    return out
+
+
+def _fleet_outputs(campaign: Campaign, result, record: dict, recordings_dir: Path) -> None:
+    """Write the replayed run as MCAP; with goldens, compare (msg_tools.compare, the engine of ``msg-tools compare``)."""
+    from msg_tools.compare import compare
+
+    from ..io.recording import write_result_mcap
+
+    name = str(record["recording"])
+    path = recordings_dir / name
+    write_result_mcap(result, path, force=True, start_time_ns=0)
+    if campaign.golden_folder is None:
+        return
+    golden = campaign.golden_folder / name
+    if not golden.exists():
+        record.update(compare_passed=False, worst_signal="", worst_rel_error=math.inf, worst_errors="{}",
+                      error=f"no golden {golden}")
+        return
+    report = compare(path, golden)
+    worst = report.worst
+    record.update(
+        compare_passed=bool(report.passed),
+        worst_signal=worst.name if worst else "",
+        worst_rel_error=float(worst.worst_rel_error) if worst else math.nan,
+        worst_errors=json.dumps({s.name: s.worst_abs_error for s in report.signals}),
+    )
+
+
+# ------------------------------------------------------------------ client side
+@dataclass
+class CampaignRun:
+    """What :func:`run_campaign` did.
+
+    ``table``: the results (pandas DataFrame, one row per variant, by variant);
+    ``wall``: seconds of this invocation; ``computed``: variants run now
+    (the others came from an earlier, interrupted invocation); ``workers``.
+    """
+
+    table: object
+    out_dir: Path
+    wall: float
+    computed: int
+    workers: int
+    interrupted: bool = False
+    notes: list = field(default_factory=list)
+
+
+class _Progress:
+    """One line on stderr: runs done, rate, time left."""
+
+    def __init__(self, total: int, done: int, enabled: bool, stream=None):
+        self.total, self.done, self.enabled = total, done, enabled
+        self.stream = stream or sys.stderr
+        self.start, self.start_done = time.perf_counter(), done
+
+    def update(self, n: int) -> None:
+        self.done += n
+        if not self.enabled:
+            return
+        elapsed = time.perf_counter() - self.start
+        rate = (self.done - self.start_done) / elapsed if elapsed > 0 else 0.0
+        left = (self.total - self.done) / rate if rate > 0 else math.inf
+        width = 30
+        filled = int(width * self.done / max(self.total, 1))
+        self.stream.write(
+            f"\rsweep [{'#' * filled}{'.' * (width - filled)}] {self.done}/{self.total} runs "
+            f"{rate:7.0f} runs/s  {left:5.1f} s left"
+        )
+        if self.done >= self.total:
+            self.stream.write("\n")
+        self.stream.flush()
+
+
+def _portable(campaign: Campaign) -> dict:
+    """What a worker needs to rebuild the campaign: the base scene inline, folders absolute."""
+    data = yaml_safe(campaign)
+    return {"data": data, "base_dir": ".", "text": campaign.text, "digest": campaign.digest()}
+
+
+def yaml_safe(campaign: Campaign) -> dict:
+    """The campaign as a mapping with its (overridden) base scene inline."""
+    data = {
+        "name": campaign.name, "scene": campaign.base_mapping, "grid": campaign.grid, "profiles": campaign.profiles,
+        "metrics": list(campaign.metrics), "limits": campaign.limits,
+    }  # fmt: skip
+    if campaign.vary:
+        vary = {k: {d.kind: [d.a, d.b], "absolute": d.absolute} for k, d in campaign.vary.items()}
+        data["monte_carlo"] = {"samples": campaign.samples, "seed": campaign.seed, "vary": vary}
+    if campaign.fleet_folder is not None:
+        data["fleet"] = {"folder": str(campaign.fleet_folder)}
+        if campaign.golden_folder is not None:
+            data["fleet"]["golden"] = str(campaign.golden_folder)
+    return data
+
+
+def _cluster(scheduler: str | None, workers: int | None):
+    """(client, cluster or None): a LocalCluster on loopback sized to the machine, or the scheduler at ``scheduler``."""
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="10s")
+        except OSError as exc:
+            raise CampaignError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+        return client, None
+    n = workers or os.cpu_count() or 1
+    cluster = LocalCluster(
+        n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
+        silence_logs=logging.ERROR,
+    )  # fmt: skip
+    return Client(cluster), cluster
+
+
+def _write_part(path: Path, rows: list) -> None:
+    import pandas as pd
+
+    tmp = path.with_suffix(".tmp")
+    pd.DataFrame(rows).to_parquet(tmp, index=False)
+    os.replace(tmp, path)  # a part is there whole or not at all
+
+
+def _bounds(n: int, first: int, size: int) -> list:
+    edges = [0, min(first, n)]
+    while edges[-1] < n:
+        edges.append(min(edges[-1] + size, n))
+    return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+def run_campaign(
+    campaign: Campaign, out_dir, *, scheduler: str | None = None, workers: int | None = None,
+    client=None, csv: bool = False, progress: bool | None = None, force: bool = False,
+    stop_after: int | None = None, batch_size: int | None = None,
+) -> CampaignRun:  # fmt: skip
+    """Run ``campaign`` into ``out_dir`` (see the module docstring) and return the result table.
+
+    Parameters
+    ----------
+    scheduler : address of a running ``dask.distributed`` scheduler
+        (``tcp://host:8786``); default: a LocalCluster on 127.0.0.1 with
+        ``workers`` worker processes (default: one per CPU), started and
+        stopped here. ``client``: an existing ``distributed.Client`` instead.
+    csv : also write ``results.csv``.
+    progress : draw the progress line (default: when stderr is a terminal).
+    force : start afresh even if ``out_dir`` holds (part of) another run.
+    stop_after : stop after this many batches (an interruption on purpose; run again to resume).
+    batch_size : variants per task (default: sized so a task computes >= 0.1 s).
+    """
+    import pandas as pd
+
+    start = time.perf_counter()
+    out_dir = Path(out_dir)
+    parts_dir = out_dir / "parts"
+    manifest_path = out_dir / "manifest.json"
+    table = campaign.variants()
+    n = len(table)
+    digest = campaign.digest()
+    manifest = None
+    if manifest_path.exists() and not force:
+        manifest = json.loads(manifest_path.read_text())
+        if manifest.get("digest") != digest:
+            raise CampaignError(
+                f"{out_dir}: holds results of another campaign (or of an edited file); use another --out or --force"
+            )
+    if manifest is None:
+        if force and out_dir.exists():
+            for p in list(parts_dir.glob("part-*.parquet")) if parts_dir.exists() else []:
+                p.unlink()
+        parts_dir.mkdir(parents=True, exist_ok=True)
+        table.to_parquet(out_dir / "variants.parquet", index=False)
+        manifest = {"digest": digest, "name": campaign.name, "variants": n, "bounds": None}
+        manifest_path.write_text(json.dumps(manifest))
+    recordings_dir = None
+    if campaign.fleet_folder is not None:
+        recordings_dir = out_dir / "recordings"
+        recordings_dir.mkdir(parents=True, exist_ok=True)
+    records = table.to_dict("records")
+    portable = _portable(campaign)
+    own = client is None
+    cluster = None
+    if own:
+        client, cluster = _cluster(scheduler, workers)
+    n_workers = max(len(client.scheduler_info().get("workers", {})), 1)
+    draw = progress if progress is not None else sys.stderr.isatty()
+    interrupted = False
+    computed = 0
+    notes = []
+    try:
+        bounds = manifest.get("bounds")
+        if bounds is None:  # size the batches from a first one
+            first = batch_size or min(FIRST_BATCH, n)
+            if batch_size is None and n > first:
+                t0 = time.perf_counter()
+                rows = client.submit(run_batch, portable, records[:first], str(recordings_dir) if recordings_dir else None,
+                                     pure=False).result()
+                per_variant = max(rows[0]["seconds"] if rows else 0.0, time.perf_counter() - t0) / first
+                _write_part(parts_dir / "part-00000.parquet", rows)
+                computed += first
+                size = max(math.ceil(MIN_TASK_SECONDS / max(per_variant, 1e-9)), math.ceil((n - first) / (4 * n_workers)))
+                size = min(size, MAX_BATCH)
+            else:
+                size = batch_size or n
+            bounds = _bounds(n, first, size)
+            manifest["bounds"] = bounds
+            manifest_path.write_text(json.dumps(manifest))
+        pending = [(k, a, b) for k, (a, b) in enumerate(bounds) if not (parts_dir / f"part-{k:05d}.parquet").exists()]
+        done_before = n - sum(b - a for _, a, b in pending)
+        bar = _Progress(n, done_before, draw)
+        if stop_after is not None:
+            pending = pending[: max(stop_after, 0)]
+        from distributed import as_completed
+
+        futures = {
+            client.submit(run_batch, portable, records[a:b], str(recordings_dir) if recordings_dir else None, pure=False): (k, a, b)
+            for k, a, b in pending
+        }  # fmt: skip
+        for future in as_completed(futures):
+            k, a, b = futures[future]
+            try:
+                rows = future.result()
+            except Exception as exc:  # a batch that broke as a whole: its variants are recorded with the reason
+                rows = [dict(r, model="", ran="none", single_reason="", error=f"batch failed: {type(exc).__name__}: {exc}",
+                             seconds=math.nan, **{m: math.nan for m in METRICS}) for r in records[a:b]]
+            _write_part(parts_dir / f"part-{k:05d}.parquet", rows)
+            computed += b - a
+            bar.update(b - a)
+    except KeyboardInterrupt:
+        interrupted = True
+        notes.append("interrupted: run the same command again to resume")
+    finally:
+        if own:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    parts = sorted(parts_dir.glob("part-*.parquet"))
+    frames = [pd.read_parquet(p) for p in parts]
+    result = pd.concat(frames, ignore_index=True).sort_values("variant", kind="stable").reset_index(drop=True) if frames else table.iloc[:0]
+    complete = len(result) == n
+    if complete:
+        result.to_parquet(out_dir / "results.parquet", index=False)
+        if csv:
+            result.to_csv(out_dir / "results.csv", index=False)
+    else:
+        interrupted = True
+    return CampaignRun(result, out_dir, time.perf_counter() - start, computed, n_workers, interrupted, notes)
+
+
+def loop_of_single_runs(campaign: Campaign, rows) -> list:
+    """The reference: each variant through ``simulate`` in a plain loop, metrics per row (tests, benchmarks)."""
+    from ..core.simulate import simulate
+
+    out = []
+    for row in rows:
+        record = dict(row)
+        try:
+            result = simulate(campaign.scene_of(row))
+        except BeltDriveError as exc:
+            record["error"] = f"{type(exc).__name__}: {exc}"
+            record.update({name: math.nan for name in METRICS})
+        else:
+            record["error"] = ""
+            record["model"] = result.model
+            record.update(run_metrics(result))
+        out.append(record)
+    return out
+
+
+__all__ = ["CampaignRun", "MAX_BATCH", "MIN_TASK_SECONDS", "loop_of_single_runs", "run_batch", "run_campaign"]

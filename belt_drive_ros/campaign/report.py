@@ -1,0 +1,146 @@
+"""A campaign's summary text and pictures.
+
+* per metric a histogram with its limit drawn (``limits``: slack force 0 N, friction use 1);
+* each metric against each varied parameter (scatter);
+* for fleets, the worst recordings with their worst signal (text and a bar chart).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .metrics import METRICS
+
+#: columns of the result table that are not varied inputs
+RESULT_COLUMNS = {
+    "variant", "model", "ran", "single_reason", "error", "seconds", "compare_passed", "worst_signal",
+    "worst_rel_error", "worst_errors", "recording", "profile", *METRICS,
+}  # fmt: skip
+
+
+def varied_columns(table) -> list[str]:
+    """The table's varied numeric inputs (key paths)."""
+    from pandas.api.types import is_numeric_dtype
+
+    return [c for c in table.columns if c not in RESULT_COLUMNS and is_numeric_dtype(table[c])]
+
+
+def summary(table, campaign, wall: float | None = None, workers: int | None = None, worst: int = 10) -> str:
+    """Plain-text summary: counts (ensemble, single with reasons, failed), metric ranges, limit violations, fleet verdicts."""
+    n = len(table)
+    lines = [f"campaign {campaign.name}: {n} runs" + (f" in {wall:.2f} s on {workers} worker(s)" if wall is not None else "")]
+    ran = table["ran"].value_counts().to_dict() if n else {}
+    lines.append(f"  ensemble: {ran.get('ensemble', 0)}   single: {ran.get('single', 0)}   not built: {ran.get('none', 0)}")
+    if ran.get("single", 0):
+        reasons = table.loc[table["ran"] == "single", "single_reason"].value_counts()
+        for reason, count in reasons.items():
+            lines.append(f"    single, {count}: {reason}")
+    failed = table[table["error"] != ""]
+    lines.append(f"  failed: {len(failed)}")
+    for _, row in failed.head(worst).iterrows():
+        lines.append(f"    variant {int(row['variant'])}: {row['error']}")
+    if len(failed) > worst:
+        lines.append(f"    ... {len(failed) - worst} more (column 'error' of the table)")
+    if "model" in table and n:
+        models = table.loc[table["model"] != "", "model"].value_counts().to_dict()
+        lines.append("  models: " + ", ".join(f"{k} {v}" for k, v in models.items()))
+    lines.append(f"  {'metric':<20s}{'unit':>7s}{'min':>13s}{'median':>13s}{'max':>13s}  limit")
+    for name in campaign.metrics:
+        values = table[name].to_numpy(dtype=float)
+        finite = values[np.isfinite(values)]
+        unit = METRICS[name][0]
+        limit = campaign.limits.get(name)
+        stats = (np.min(finite), np.median(finite), np.max(finite)) if finite.size else (math.nan,) * 3
+        beyond = ""
+        if limit is not None and finite.size:
+            count = int(np.sum(finite < limit)) if name.startswith("min_") else int(np.sum(finite > limit))
+            beyond = f"{limit:g}: {count} beyond"
+        lines.append(f"  {name:<20s}{unit:>7s}" + "".join(f"{v:13.5g}" for v in stats) + f"  {beyond}")
+    if "compare_passed" in table:
+        compared = table[table["compare_passed"].notna()]
+        bad = compared[~compared["compare_passed"].astype(bool)]
+        lines.append(f"  fleet compare: {len(compared) - len(bad)} of {len(compared)} recordings pass")
+        lines += ["  worst recordings (worst signal, worst relative error):"]
+        for _, row in worst_recordings(table, worst).iterrows():
+            verdict = "pass" if row["compare_passed"] else "FAIL"
+            lines.append(f"    {row['recording']:<32s} {verdict}  {row['worst_signal']:<36s} {row['worst_rel_error']:.3g}")
+    return "\n".join(lines)
+
+
+def worst_recordings(table, count: int = 10):
+    """The fleet's recordings by worst relative error, failures first."""
+    rows = table[table["compare_passed"].notna()].copy()
+    rows["_fail"] = ~rows["compare_passed"].astype(bool)
+    return rows.sort_values(["_fail", "worst_rel_error"], ascending=[False, False]).head(count)
+
+
+def plot(table, campaign, out_dir) -> list[Path]:
+    """Write the pictures into ``out_dir`` (PNG); return their paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    metrics = [m for m in campaign.metrics if np.isfinite(table[m].to_numpy(dtype=float)).any()]
+    if metrics:
+        cols = min(3, len(metrics))
+        rows = math.ceil(len(metrics) / cols)
+        fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
+        for ax, name in zip(axes.flat, metrics):
+            values = table[name].to_numpy(dtype=float)
+            ax.hist(values[np.isfinite(values)], bins=40, color="tab:blue", alpha=0.8)
+            limit = campaign.limits.get(name)
+            if limit is not None:
+                ax.axvline(limit, color="tab:red", lw=2, label=f"limit {limit:g}")
+                ax.legend(fontsize=8)
+            ax.set_xlabel(f"{name} [{METRICS[name][0]}]")
+            ax.set_ylabel("runs")
+        for ax in list(axes.flat)[len(metrics):]:
+            ax.axis("off")
+        fig.suptitle(f"{campaign.name}: {len(table)} runs")
+        fig.tight_layout()
+        path = out_dir / "histograms.png"
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        written.append(path)
+    varied = varied_columns(table)
+    if varied and metrics:
+        fig, axes = plt.subplots(len(metrics), len(varied), figsize=(3.4 * len(varied), 2.6 * len(metrics)), squeeze=False)
+        for i, name in enumerate(metrics):
+            for j, key in enumerate(varied):
+                ax = axes[i, j]
+                ax.plot(table[key].to_numpy(dtype=float), table[name].to_numpy(dtype=float), ".", ms=2, alpha=0.5)
+                limit = campaign.limits.get(name)
+                if limit is not None:
+                    ax.axhline(limit, color="tab:red", lw=1)
+                if i == len(metrics) - 1:
+                    ax.set_xlabel(key)
+                if j == 0:
+                    ax.set_ylabel(f"{name}\n[{METRICS[name][0]}]", fontsize=8)
+        fig.tight_layout()
+        path = out_dir / "metrics_vs_parameters.png"
+        fig.savefig(path, dpi=90)
+        plt.close(fig)
+        written.append(path)
+    if "compare_passed" in table and table["compare_passed"].notna().any():
+        worst = worst_recordings(table, 15)
+        fig, ax = plt.subplots(figsize=(8, 0.35 * len(worst) + 1.2))
+        colors = ["tab:red" if not p else "tab:green" for p in worst["compare_passed"]]
+        labels = [f"{r} ({s})" for r, s in zip(worst["recording"], worst["worst_signal"])]
+        ax.barh(range(len(worst)), worst["worst_rel_error"].to_numpy(dtype=float), color=colors)
+        ax.set_yticks(range(len(worst)), labels, fontsize=7)
+        ax.invert_yaxis()
+        ax.set_xscale("log")
+        ax.set_xlabel("worst relative error against the golden (red: fails the tube)")
+        fig.tight_layout()
+        path = out_dir / "fleet_worst.png"
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        written.append(path)
+    return written
