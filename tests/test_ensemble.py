@@ -1,0 +1,146 @@
+"""The ensemble core against single runs: batched schemes, batched exponentials, whole runs.
+
+Each variant of an ensemble must give what ``simulate`` gives for it alone.
+The reference is always the single run (the stepper's compiled loop), never
+the ensemble itself.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from belt_drive_ros.core.batch_expm import expm_stack
+from belt_drive_ros.core.ensemble import Ensemble, EnsembleUnsupported
+from belt_drive_ros.core.ensemble_run import simulate_many
+from belt_drive_ros.core.integrators import REGISTRY
+from belt_drive_ros.core.model import make_model
+from belt_drive_ros.core.scene import load_scene, shipped_scenes
+from belt_drive_ros.core.simulate import Simulator, simulate
+
+#: relative agreement of an ensemble variant's states with its single run (norm-wise over the trajectory) ...
+STATE_RTOL = 1e-12
+#: ... or within this factor of the single run's own rounding spread: its compiled loop against its numpy
+#: step path (the same maths summed in another order). On scenes whose closed loop amplifies rounding
+#: (engine firing torque read at the crank angle, a stiff belt) that spread alone is 1e-12 .. 3e-12 over 1 s.
+SPREAD_FACTOR = 50.0
+
+
+def _variants(scene, count: int, seed: int):
+    """``count`` copies of ``scene`` with belt stiffness, damping, inertias, pre-tension and start speed perturbed."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(count):
+        p = scene.params
+        params = p.replace(
+            k=p.k * (1 + 0.1 * rng.standard_normal()), c=p.c * rng.uniform(0.5, 1.5), I_3=p.I_3 * rng.uniform(0.8, 1.2),
+            I_M=p.I_M * rng.uniform(0.8, 1.2), F_0=p.F_0 * rng.uniform(0.9, 1.1),
+        )  # fmt: skip
+        init = scene.initial_state.__class__(
+            phi_M=scene.initial_state.phi_M, omega_M=scene.initial_state.omega_M * rng.uniform(0.95, 1.05),
+            relative_deflection=scene.initial_state.relative_deflection, relative_speed=scene.initial_state.relative_speed,
+        )  # fmt: skip
+        out.append(scene.with_overrides(params=params, initial_state=init))
+    return out
+
+
+def _state_error(a: np.ndarray, b: np.ndarray) -> float:
+    """max |a - b| / max |b| over the trajectory (norm-wise relative)."""
+    return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
+
+
+def _assert_equal_to_single(states: np.ndarray, single) -> None:
+    """The ensemble's states agree with the single run to STATE_RTOL, or as closely as the single run's two paths do."""
+    error = _state_error(states, single.states)
+    if error <= STATE_RTOL:
+        return
+    scene = single.scene
+    sim = Simulator(make_model(single.model, scene.params), scene.drive, scene.load, scene.method, scene.dt, scene.method_options)
+    sim.stepper.loop = None  # integrator.step on numpy arrays: the other summation order
+    _, numpy_path = sim.run(scene.duration, scene.initial_state.vector(single.model, scene.params.ratio))
+    spread = _state_error(numpy_path, single.states)
+    assert error <= SPREAD_FACTOR * spread, (error, spread)
+
+
+def test_expm_stack_equals_scipy_per_matrix():
+    rng = np.random.default_rng(0)
+    A = rng.standard_normal((50, 6, 6)) * rng.uniform(0.01, 3.0, (50, 1, 1))
+    E = expm_stack(A)
+    for a, e in zip(A, E):
+        ref = scipy.linalg.expm(a)
+        assert np.max(np.abs(e - ref)) <= 1e-13 * np.max(np.abs(ref))
+    jordan = np.array([[0.0, 1.0], [0.0, 0.0]]) * 7.0  # the rigid-body mode's defective block: e^J = I + J
+    assert np.max(np.abs(expm_stack(jordan[None])[0] - (np.eye(2) + jordan))) <= 1e-14 * 7.0
+
+
+@pytest.mark.parametrize("method", [n for n, c in REGISTRY.items() if c.fixed_step])
+def test_batched_stage_scheme_is_each_variants_scheme(method):
+    scene = load_scene("truck_compressor")
+    models = [make_model("flexible", s.params) for s in _variants(scene, 4, seed=1)]
+    A, B = np.stack([m.A for m in models]), np.stack([m.B for m in models])
+    batched = REGISTRY[method](A, B, 5e-4).scheme
+    for v, m in enumerate(models):
+        single = REGISTRY[method](m.A, m.B, 5e-4).scheme
+        assert batched.nodes == single.nodes and batched.final_base == single.final_base
+        pairs = [(batched.final[v], single.final)] + [(b[v], s) for b, s in zip(batched.stages, single.stages) if s is not None]
+        assert [s is None for s in batched.stages] == [s is None for s in single.stages]
+        for b, s in pairs:
+            assert b.shape == s.shape
+            assert np.max(np.abs(b - s)) <= 1e-13 * np.max(np.abs(s))  # batched Pade vs scipy's expm: rounding
+
+
+@pytest.mark.parametrize("name", shipped_scenes())
+@pytest.mark.parametrize("model", ["rigid", "flexible"])
+def test_ensemble_equals_single_runs_on_every_shipped_scene(name, model):
+    scene = load_scene(name).with_overrides(model=model, duration=min(load_scene(name).duration, 1.0))
+    scenes = _variants(scene, 9, seed=hash((name, model)) % 1000)
+    outcomes = sorted(simulate_many(scenes), key=lambda o: o.index)
+    assert all(o.ensemble and o.error is None for o in outcomes)
+    for outcome, s in zip(outcomes, scenes):
+        single = simulate(s)
+        got = outcome.result
+        assert got.model == single.model == model
+        assert np.array_equal(got.time, single.time)  # the stepper's own knots
+        _assert_equal_to_single(got.states, single)
+        for signal, values in single.outputs.items():  # the model's own output function on those states
+            assert np.asarray(got.outputs[signal]).shape == np.asarray(values).shape, signal
+
+
+@pytest.mark.parametrize("name", shipped_scenes())
+def test_auto_choice_in_the_ensemble_is_the_single_runs(name):
+    """model auto: the same tier per variant (rigid, flexible, or slipping run singly) and the same reason."""
+    scene = load_scene(name).with_overrides(duration=min(load_scene(name).duration, 0.6))
+    scenes = _variants(scene, 8, seed=7)
+    outcomes = sorted(simulate_many(scenes), key=lambda o: o.index)
+    for outcome, s in zip(outcomes, scenes):
+        single = simulate(s)
+        assert outcome.error is None
+        assert outcome.result.model == single.model
+        assert outcome.result.choice.reason.split(":")[0] == single.choice.reason.split(":")[0]
+        assert outcome.ensemble == (single.model != "slipping")
+        if outcome.ensemble:
+            _assert_equal_to_single(outcome.result.states, single)
+        else:
+            assert "slipping" in outcome.single_reason
+
+
+def test_a_failing_variant_is_reported_and_the_others_run():
+    scene = load_scene("truck_compressor").with_overrides(model="flexible", method="rk4", dt=2e-3, duration=0.2)
+    good = _variants(scene.with_overrides(params=scene.params.replace(k=2e4)), 8, seed=3)
+    stiff = scene.with_overrides(params=scene.params.replace(k=3e6))  # rk4 at 2 ms cannot hold this belt mode
+    outcomes = sorted(simulate_many([*good, stiff]), key=lambda o: o.index)
+    assert [o.error is None for o in outcomes] == [True] * 8 + [False]
+    assert outcomes[-1].error.startswith("UnstableStepError") and "rk4" in outcomes[-1].error
+    with pytest.raises(Exception) as single:
+        simulate(stiff)
+    assert str(single.value) in outcomes[-1].error
+
+
+def test_methods_the_ensemble_does_not_cover_run_singly():
+    scene = load_scene("paper").with_overrides(model="flexible", method="RK45", dt=0.01, duration=0.3)
+    outcomes = list(simulate_many(_variants(scene, 8, seed=4)))
+    assert all(not o.ensemble and o.error is None and "adaptive" in o.single_reason for o in outcomes)
+    with pytest.raises(EnsembleUnsupported, match="implicit"):
+        models = [make_model("flexible", scene.params)]
+        Ensemble(models, scene.drive, scene.load, "trapezoidal", 0.01)
