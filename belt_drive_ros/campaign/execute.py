@@ -208,7 +208,7 @@ def _cluster(scheduler: str | None, workers: int | None):
         return client, None
     n = workers or os.cpu_count() or 1
     cluster = LocalCluster(
-        n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
+        n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0",
         silence_logs=logging.ERROR,
     )  # fmt: skip
     return Client(cluster), cluster

@@ -1,0 +1,150 @@
+"""Campaigns on a real dask.distributed LocalCluster (worker processes on 127.0.0.1), no mocks.
+
+The reference for every table is a plain loop of single ``simulate`` runs
+(:func:`~belt_drive_ros.campaign.execute.loop_of_single_runs`).
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from distributed import Client, LocalCluster
+
+from belt_drive_ros.campaign.execute import loop_of_single_runs, run_campaign
+from belt_drive_ros.campaign.metrics import METRICS
+from belt_drive_ros.campaign.spec import Campaign, CampaignError
+
+BAGS = Path(__file__).resolve().parents[1] / "bags"
+
+CAMPAIGN = {
+    "name": "paper_small",
+    "scene": "paper",
+    "set": {"duration": 0.8},
+    "grid": {"params.k": [1.6e4, 2.4e4]},
+    "monte_carlo": {
+        "samples": 12,
+        "seed": 5,
+        "vary": {"params.I_3": {"uniform": [0.9, 1.1]}, "c": {"normal": 0.1}, "params.F_0": {"normal": [400.0, 10.0], "absolute": True}},
+    },
+}
+
+
+@pytest.fixture(scope="module")
+def client():
+    """Two worker processes on loopback (the campaign tests share them)."""
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0") as cluster:
+        with Client(cluster) as c:
+            yield c
+
+
+def _campaign(tmp_path: Path, data: dict = CAMPAIGN) -> Campaign:
+    path = tmp_path / "campaign.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return Campaign.load(path)
+
+
+def _metrics_close(a: pd.DataFrame, b: pd.DataFrame, rtol: float) -> None:
+    for name in METRICS:
+        x, y = a[name].to_numpy(dtype=float), b[name].to_numpy(dtype=float)
+        assert np.array_equal(np.isnan(x), np.isnan(y)), name
+        ok = ~np.isnan(y)
+        assert np.all(np.abs(x[ok] - y[ok]) <= rtol * np.maximum(np.abs(y[ok]), 1e-300) + 1e-12), name
+
+
+def test_variant_table_is_reproducible_and_follows_the_distributions(tmp_path):
+    campaign = _campaign(tmp_path)
+    table = campaign.variants()
+    assert len(table) == 2 * 12 and list(table["variant"]) == list(range(24))
+    assert set(table["params.k"]) == {1.6e4, 2.4e4}
+    i3 = table["params.I_3"] / campaign.base.params.I_3
+    assert i3.between(0.9, 1.1).all()
+    again = _campaign(tmp_path).variants()
+    pd.testing.assert_frame_equal(table, again)
+    seed = np.random.default_rng(5)  # the documented draw order: key by key in file order
+    np.testing.assert_array_equal(table["params.I_3"], campaign.base.params.I_3 * seed.uniform(0.9, 1.1, 24))
+
+
+def test_cluster_default_and_loop_of_single_runs_give_one_table(tmp_path, client):
+    campaign = _campaign(tmp_path)
+    on_cluster = run_campaign(campaign, tmp_path / "cluster", client=client, progress=False).table
+    by_default = run_campaign(campaign, tmp_path / "default", workers=1, progress=False).table
+    loop = pd.DataFrame(loop_of_single_runs(campaign, campaign.variants().to_dict("records")))
+    assert len(on_cluster) == len(by_default) == len(loop) == 24
+    assert (on_cluster["error"] == "").all() and (on_cluster["ran"] == "ensemble").all()
+    pd.testing.assert_frame_equal(on_cluster[list(METRICS)], by_default[list(METRICS)])
+    assert list(on_cluster["model"]) == list(loop["model"])
+    _metrics_close(on_cluster, loop, rtol=1e-9)
+    stored = pd.read_parquet(tmp_path / "cluster" / "results.parquet")
+    pd.testing.assert_frame_equal(stored, on_cluster)
+
+
+def test_interrupted_campaign_resumes_where_it_stopped(tmp_path, client):
+    campaign = _campaign(tmp_path)
+    out = tmp_path / "run"
+    first = run_campaign(campaign, out, client=client, progress=False, batch_size=5, stop_after=2)
+    assert first.interrupted and first.computed == 10
+    parts = {p.name: p.stat().st_mtime_ns for p in (out / "parts").glob("part-*.parquet")}
+    assert len(parts) == 2 and not (out / "results.parquet").exists()
+    second = run_campaign(campaign, out, client=client, progress=False, batch_size=5)
+    assert not second.interrupted and second.computed == 14
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "parts").glob("part-*.parquet") if p.name in parts} == parts
+    whole = run_campaign(campaign, tmp_path / "whole", client=client, progress=False, batch_size=5).table
+    pd.testing.assert_frame_equal(second.table.drop(columns="seconds"), whole.drop(columns="seconds"))
+    edited = dict(CAMPAIGN, name="another")
+    with pytest.raises(CampaignError, match="another campaign"):
+        run_campaign(_campaign(tmp_path / "x" if (tmp_path / "x").mkdir() is None else tmp_path, edited), out,
+                     client=client, progress=False)
+
+
+def test_a_failing_variant_is_recorded_and_the_campaign_goes_on(tmp_path, client):
+    data = {
+        "scene": "truck_compressor", "set": {"model": "flexible", "method": "rk4", "dt": 2e-3, "duration": 0.1},
+        "grid": {"params.k": [2.0e4, 3.0e6, -5.0]},
+    }  # fmt: skip
+    campaign = _campaign(tmp_path, data)
+    table = run_campaign(campaign, tmp_path / "out", client=client, progress=False).table
+    assert list(table["error"] == "") == [True, False, False]
+    assert table["error"][1].startswith("UnstableStepError") and "rk4" in table["error"][1]
+    assert table["error"][2].startswith("ParameterError") and "k" in table["error"][2]
+    assert math.isnan(table["peak_belt_torque"][1]) and table["peak_belt_torque"][0] > 0
+
+
+def test_fleet_replays_and_compares_against_goldens(tmp_path, client):
+    recordings = tmp_path / "recordings"
+    recordings.mkdir()
+    for k in range(3):
+        shutil.copy(BAGS / "engine_idle_torque.mcap", recordings / f"truck_{k}.mcap")
+    data = {"scene": str(BAGS / "engine_idle.yaml"), "set": {"model": "flexible"}, "fleet": {"folder": "recordings"}}
+    first = run_campaign(_campaign(tmp_path, data), tmp_path / "golden_run", client=client, progress=False)
+    assert (first.table["error"] == "").all() and len(first.table) == 3
+    golden = tmp_path / "golden_run" / "recordings"
+    data["fleet"]["golden"] = str(golden)
+    second = run_campaign(_campaign(tmp_path, data), tmp_path / "new_run", client=client, progress=False).table
+    assert second["compare_passed"].all() and (second["worst_rel_error"] == 0.0).all()
+    # the folder written is what msg-tools compare reads, pairwise by name
+    cli = subprocess.run([sys.executable, "-m", "msg_tools", "compare", str(tmp_path / "new_run" / "recordings"), str(golden)],
+                         capture_output=True, text=True)
+    assert cli.returncode == 0, cli.stdout + cli.stderr
+
+
+def test_campaign_file_errors_name_the_key(tmp_path):
+    for data, key in (
+        ({"scene": "paper", "grid": {"params.kk": [1.0]}}, "params.kk"),
+        ({"scene": "paper", "monte_carlo": {"samples": 3, "vary": {"k": {"gauss": 0.1}}}}, "monte_carlo.vary.k"),
+        ({"scene": "paper", "metrics": ["peak_torque"]}, "metrics"),
+        ({"scene": "paper", "bogus": 1}, "bogus"),
+    ):
+        with pytest.raises(CampaignError, match=key.replace(".", r"\.")):
+            _campaign(tmp_path, data)
+    path = tmp_path / "bad.yaml"
+    path.write_text("scene: paper\ngrid: {params.kk: [1.0]}\n")
+    cli = subprocess.run([sys.executable, "-m", "belt_drive_ros.cli", "sweep", str(path)], capture_output=True, text=True)
+    assert cli.returncode == 2 and cli.stderr.count("\n") == 1 and "params.kk" in cli.stderr
