@@ -20,6 +20,8 @@ studies:
   node           the ROS node's real-time figures (needs the ROS extra)
   soak           the node recording for --seconds (default 60): RSS growth per minute,
                  output rate per 10 s window, messages lost (not part of 'all')
+  campaign       10,000-variant Monte Carlo of paper on Dask vs a loop of single runs, 1 vs 2 workers,
+                 a fleet of 100 recordings replayed and compared (needs the campaign extra; not in 'all')
   all            all of the above, then docs/bench/summary.md
 
 examples:
@@ -42,7 +44,7 @@ def register(sub) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("study", choices=(*STUDIES, "node", "soak", "all"), help="which study to run")
+    p.add_argument("study", choices=(*STUDIES, "node", "soak", "campaign", "all"), help="which study to run")
     p.add_argument("--out", type=Path, default=Path("docs/bench"), help="output folder (default: docs/bench)")
     p.add_argument("--quick", action="store_true", help="small sweeps and short runs (seconds; for tests)")
     p.add_argument("--quiet", action="store_true", help="no per-run log lines")
@@ -83,6 +85,13 @@ def run(args) -> int:
 
         return soak.main(["--seconds", repr(args.seconds), "--out", str(out)]
                          + (["--warmup", "1", "--window", "1"] if args.quick else []))
+    if args.study == "campaign":
+        from ..benchmarks import campaign
+
+        print("bench campaign: figures measured side by side in this run")
+        result = campaign.run(out, quick=args.quick, quiet=args.quiet)
+        print(f"bench campaign: {result['csv']}")
+        return 0
 
     from ..benchmarks import fidelity_chart, report, slip_chart, stability_map, versus_scipy, workprecision
 

@@ -1,0 +1,145 @@
+"""``belt-drive bench campaign``: the campaign figures, measured side by side in one run.
+
+1. A tolerance Monte Carlo of ``paper`` (5 s each; belt stiffness and
+   damping, inertias, pre-tension, friction vary) on the default local
+   cluster (one worker per CPU), wall time from the command's start
+   (cluster start and stop included) and of the batches alone.
+2. The same variants as a plain loop of single ``simulate()`` calls (a
+   sample of them; runs/s), and the ratio of the two throughputs.
+3. The campaign on 1 and on 2 workers: throughput ratio.
+4. A fleet of 100 torque recordings generated from the shipped ones (the
+   three truck bags, each scaled by 0.9 .. 1.1), replayed through
+   ``bags/engine_idle.yaml`` and compared against their goldens (written
+   by a first run) in one campaign.
+
+Prints one table and writes ``campaign.csv``.
+"""
+
+from __future__ import annotations
+
+import csv
+import tempfile
+import time
+from pathlib import Path
+
+MC = {
+    "name": "paper_tolerances",
+    "scene": "paper",
+    "monte_carlo": {
+        "samples": 10000,
+        "seed": 1,
+        "vary": {
+            "params.k": {"normal": 0.05},
+            "params.c": {"normal": 0.1},
+            "params.I_M": {"uniform": [0.95, 1.05]},
+            "params.I_3": {"uniform": [0.9, 1.1]},
+            "params.F_0": {"normal": 0.05},
+            "params.mu": {"uniform": [0.9, 1.1]},
+        },
+    },
+}
+BAGS = Path(__file__).resolve().parents[2] / "bags"
+FLEET_SOURCES = ("engine_idle", "engine_runup", "compressor_cycling")
+
+
+def _campaign(data: dict, folder: Path):
+    import yaml
+
+    from ..campaign.spec import Campaign
+
+    path = folder / f"{data['name']}.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return Campaign.load(path)
+
+
+def make_fleet(folder: Path, count: int = 100) -> Path:
+    """``count`` torque recordings (``/drive_torque``, 1 kHz) from the shipped truck bags, scaled 0.9 .. 1.1."""
+    import dataclasses
+
+    from ..core.scene import load_scene
+    from ..core.simulate import simulate
+    from ..io.recording import write_result_mcap
+    from ..io.torque_bag import scene_with_torque_bag
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for k in range(count):
+        name = FLEET_SOURCES[k % len(FLEET_SOURCES)]
+        scene = scene_with_torque_bag(load_scene(BAGS / f"{name}.yaml"), BAGS / f"{name}_torque.mcap")
+        factor = 0.9 + 0.2 * k / max(count - 1, 1)
+        drive = dataclasses.replace(scene.drive, values=scene.drive.values * factor)
+        run = simulate(dataclasses.replace(scene, drive=drive, model="flexible"))
+        write_result_mcap(run, folder / f"{name}_{k:03d}.mcap", force=True, output_rate=1000.0,
+                          topics=("drive_torque",), start_time_ns=0)
+    return folder
+
+
+def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
+    from ..campaign.execute import loop_of_single_runs, run_campaign
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        data = dict(MC)
+        if quick:
+            data = dict(MC, monte_carlo=dict(MC["monte_carlo"], samples=400))
+        campaign = _campaign(data, tmp)
+        n = campaign.samples
+        # 1. the Monte Carlo on the default cluster (one worker per CPU)
+        t0 = time.perf_counter()
+        default = run_campaign(campaign, tmp / "mc_default", progress=not quiet)
+        wall_default = time.perf_counter() - t0
+        ensemble = int((default.table["ran"] == "ensemble").sum())
+        single = int((default.table["ran"] == "single").sum())
+        failed = int((default.table["error"] != "").sum())
+        # 2. a loop of single simulate() calls on a sample of the same variants
+        sample = default.table.drop(columns=[c for c in default.table.columns if not c.startswith("params.") and c != "variant"])
+        sample = sample.iloc[:: max(n // (50 if quick else 300), 1)].to_dict("records")
+        t0 = time.perf_counter()
+        loop_of_single_runs(campaign, sample)
+        loop_rate = len(sample) / (time.perf_counter() - t0)
+        # 3. 1 worker against 2
+        rates = {}
+        for w in (1, 2):
+            t0 = time.perf_counter()
+            run_campaign(campaign, tmp / f"mc_{w}", workers=w, progress=False)
+            rates[w] = n / (time.perf_counter() - t0)
+        # 4. the fleet: 100 recordings, goldens from a first run, then replay and compare
+        count = 12 if quick else 100
+        fleet_dir = make_fleet(tmp / "fleet", count)
+        fleet = {"name": "fleet", "scene": str(BAGS / "engine_idle.yaml"), "set": {"model": "flexible"},
+                 "fleet": {"folder": str(fleet_dir)}}  # fmt: skip
+        golden = run_campaign(_campaign(fleet, tmp), tmp / "fleet_golden", progress=False)
+        fleet["fleet"]["golden"] = str(tmp / "fleet_golden" / "recordings")
+        t0 = time.perf_counter()
+        replay = run_campaign(_campaign(fleet, tmp), tmp / "fleet_new", progress=False)
+        wall_fleet = time.perf_counter() - t0
+        passed = int(replay.table["compare_passed"].astype(bool).sum())
+        del golden
+    rate_default = n / wall_default
+    rows = [
+        ("mc_variants", n, "paper, 5 s each, 6 tolerances"),
+        ("mc_wall_s", wall_default, f"default cluster ({default.workers} workers), start to results.parquet"),
+        ("mc_batches_wall_s", default.wall, "the same without starting the cluster"),
+        ("mc_ran_ensemble", ensemble, "variants stepped in an ensemble"),
+        ("mc_ran_single", single, "variants run singly"),
+        ("mc_failed", failed, ""),
+        ("mc_rate_runs_per_s", rate_default, ""),
+        ("loop_rate_runs_per_s", loop_rate, f"loop of single simulate() calls ({len(sample)} variants, 1 process)"),
+        ("throughput_ratio", rate_default / loop_rate, "campaign / loop of single runs"),
+        ("workers_2_vs_1", rates[2] / rates[1], f"{rates[1]:.0f} -> {rates[2]:.0f} runs/s (cluster start included)"),
+        ("fleet_recordings", count, "truck torque bags x 0.9 .. 1.1"),
+        ("fleet_wall_s", wall_fleet, "replay + MCAP + compare against goldens, one campaign"),
+        ("fleet_passed", passed, "recordings within the tube"),
+    ]
+    path = out / "campaign.csv"
+    with open(path, "w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["figure", "value", "note"])
+        writer.writerows(rows)
+    for name, value, note in rows:
+        text = f"{value:.3g}" if isinstance(value, float) and not float(value).is_integer() else f"{value}"
+        print(f"  {name:<22s} {text:>10s}  {note}")
+    return {"csv": path, "png": path, "rows": rows}
+
