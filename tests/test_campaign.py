@@ -148,3 +148,20 @@ def test_campaign_file_errors_name_the_key(tmp_path):
     path.write_text("scene: paper\ngrid: {params.kk: [1.0]}\n")
     cli = subprocess.run([sys.executable, "-m", "belt_drive_ros.cli", "sweep", str(path)], capture_output=True, text=True)
     assert cli.returncode == 2 and cli.stderr.count("\n") == 1 and "params.kk" in cli.stderr
+
+
+def test_summary_and_pictures(tmp_path, client):
+    data = {"scene": "paper", "set": {"duration": 0.5}, "grid": {"params.k": [1.5e4, 2.0e4, -1.0]},
+            "monte_carlo": {"samples": 4, "seed": 2, "vary": {"params.F_0": {"uniform": [0.1, 1.0]}}}}  # fmt: skip
+    campaign = _campaign(tmp_path, data)
+    done = run_campaign(campaign, tmp_path / "out", client=client, progress=False)
+    from belt_drive_ros.campaign.report import plot, summary
+
+    text = summary(done.table, campaign)
+    assert "12 runs" in text and "failed: 4" in text and "ParameterError" in text
+    slack = done.table["min_slack_force"].to_numpy(dtype=float)
+    beyond = int(np.sum(slack[np.isfinite(slack)] < 0.0))
+    assert f"0: {beyond} beyond" in text  # the slack-force limit line counts the runs below 0 N
+    written = plot(done.table, campaign, tmp_path / "out")
+    assert {p.name for p in written} == {"histograms.png", "metrics_vs_parameters.png"}
+    assert all(p.stat().st_size > 10_000 for p in written)

@@ -209,7 +209,7 @@ def _cluster(scheduler: str | None, workers: int | None):
     n = workers or os.cpu_count() or 1
     cluster = LocalCluster(
         n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0",
-        silence_logs=logging.ERROR,
+        silence_logs=logging.CRITICAL,
     )  # fmt: skip
     return Client(cluster), cluster
 
