@@ -133,7 +133,9 @@ class CampaignRun:
     """What :func:`run_campaign` did.
 
     ``table``: the results (pandas DataFrame, one row per variant, by variant);
-    ``wall``: seconds of this invocation; ``computed``: variants run now
+    ``wall``: seconds of this invocation; ``compute_wall``: of its batches
+    (from the first task sent to the last part written: without starting
+    and stopping a cluster); ``computed``: variants run now
     (the others came from an earlier, interrupted invocation); ``workers``.
     """
 
@@ -144,6 +146,7 @@ class CampaignRun:
     workers: int
     interrupted: bool = False
     notes: list = field(default_factory=list)
+    compute_wall: float = 0.0
 
 
 class _Progress:
@@ -287,6 +290,8 @@ def run_campaign(
     interrupted = False
     computed = 0
     notes = []
+    compute_start = time.perf_counter()
+    compute_end = compute_start
     try:
         bounds = manifest.get("bounds")
         if bounds is None:  # size the batches from a first one
@@ -326,6 +331,7 @@ def run_campaign(
             _write_part(parts_dir / f"part-{k:05d}.parquet", rows)
             computed += b - a
             bar.update(b - a)
+        compute_end = time.perf_counter()
     except KeyboardInterrupt:
         interrupted = True
         notes.append("interrupted: run the same command again to resume")
@@ -344,7 +350,9 @@ def run_campaign(
             result.to_csv(out_dir / "results.csv", index=False)
     else:
         interrupted = True
-    return CampaignRun(result, out_dir, time.perf_counter() - start, computed, n_workers, interrupted, notes)
+    return CampaignRun(
+        result, out_dir, time.perf_counter() - start, computed, n_workers, interrupted, notes, compute_end - compute_start
+    )
 
 
 def loop_of_single_runs(campaign: Campaign, rows) -> list:
