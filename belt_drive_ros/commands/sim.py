@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -55,10 +54,10 @@ def register(sub) -> None:
     p.add_argument("--method-option", action="append", default=[], metavar="KEY=VALUE", help="integrator option, e.g. rtol=1e-8 (repeatable)")
     p.add_argument("--dt", type=float, help="integrator step [s] (output interval for adaptive methods)")
     p.add_argument("--duration", type=float, help="simulated time [s]")
-    p.add_argument("--out", type=Path, help="write the run: .csv, or .mcap (ROS 2 bag)")
+    p.add_argument("--out", type=Path, help="write the run: .csv, or .mcap (ROS 2 bag); by extension, any case")
     p.add_argument("--plot", type=Path, help="PNG with the paper's panels, rigid and flexible overlaid")
     p.add_argument("--torque-bag", type=Path, help="drive the model with drive_torque recorded in this MCAP")
-    p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs (--out and --plot)")
     p.add_argument("--start-time", default=None, metavar="WHEN", type=_start_time,
                    help="time stamp of scene time 0 in an .mcap: 'now' (default, the wall time of the run, "
                         "as rosbag2 stamps it), seconds since the epoch (0: simulated time), or an ISO 8601 date")
@@ -93,29 +92,73 @@ def run(args) -> int:
         from ..io.torque_bag import scene_with_torque_bag  # issue 4: offline replay of a recorded profile
 
         scene = scene_with_torque_bag(scene, args.torque_bag)
-    if args.out is not None and args.out.exists() and not args.force:
-        print(f"belt-drive: error: {args.out} exists; pass --force to overwrite", file=sys.stderr)
-        return 2
+    out_format = check_outputs(args)
     bar = ProgressBar(f"sim {scene.name}", force=False) if not args.quiet else None
     result = simulate(scene, model=args.model, method=args.method, dt=args.dt, duration=args.duration, progress=bar)
     print_summary(result)
     if args.out is not None:
-        if args.out.suffix == ".mcap" or args.bag_folder:
+        from ..io.atomic import atomic_output
+
+        if out_format == "mcap" and args.bag_folder:
             from ..io.recording import write_result_mcap
 
-            write_result_mcap(result, args.out, force=args.force, start_time_ns=args.start_time,
-                              bag_folder=args.bag_folder)
+            write_result_mcap(result, args.out, force=args.force, start_time_ns=args.start_time, bag_folder=True)
+        elif out_format == "mcap":
+            from ..io.recording import write_result_mcap
+
+            with atomic_output(args.out, args.force, "wb", what="--out") as f:
+                write_result_mcap(result, f, start_time_ns=args.start_time)
         else:
-            result.to_csv(args.out)
+            with atomic_output(args.out, args.force, "w", what="--out") as f:
+                result.to_csv(f)
         print(f"wrote {args.out}")
     if args.plot is not None:
+        from ..io.atomic import atomic_output
         from ..io.plotting import plot_runs
 
         comp = _overlay_run(scene, result, args)
         runs = sorted([result, comp], key=lambda r: r.model != "rigid")
-        plot_runs(runs, args.plot, title=f"scene '{scene.name}': rigid vs flexible belt")
+        with atomic_output(args.plot, args.force, "wb", what="--plot") as f:
+            plot_runs(runs, f, title=f"scene '{scene.name}': rigid vs flexible belt")
         print(f"wrote {args.plot}")
     return 0
+
+
+#: --out formats by extension (compared case-insensitively)
+OUT_FORMATS = {".csv": "csv", ".mcap": "mcap"}
+
+
+def check_outputs(args) -> str | None:
+    """Refuse bad outputs before the run; return the --out format (``csv``/``mcap``) or None.
+
+    The format follows the extension, case-insensitively (``run.MCAP`` is
+    MCAP); an unknown one is an error. ``--force`` governs every output, the
+    plot included; devices, FIFOs and directories are refused
+    (:func:`belt_drive_ros.io.atomic.check_output`).
+    """
+    from ..io.atomic import OutputRefused, check_output
+
+    out_format = None
+    if args.out is not None:
+        if args.bag_folder:
+            out_format = "mcap"
+            if args.out.exists() and not args.out.is_dir():
+                raise OutputRefused(f"--out {args.out}: exists and is not a folder (--bag-folder writes a folder)")
+        else:
+            check_output(args.out, args.force, "--out")
+            out_format = OUT_FORMATS.get(args.out.suffix.lower())
+            if out_format is None:
+                raise OutputRefused(
+                    f"--out {args.out}: unknown format {args.out.suffix or '(no extension)'!r}; "
+                    f"use .csv or .mcap (any case), or --bag-folder"
+                )
+    if args.plot is not None:
+        check_output(args.plot, args.force, "--plot")
+        if args.plot.suffix.lower() != ".png":
+            raise OutputRefused(f"--plot {args.plot}: the plot is a PNG; give a .png path (got {args.plot.suffix or 'no extension'!r})")
+        if args.out is not None and args.plot.resolve() == args.out.resolve():
+            raise OutputRefused("--plot and --out name the same file")
+    return out_format
 
 
 def _overlay_run(scene, result, args):

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import os
-
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -25,29 +23,24 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _check_new(path: str, force: bool) -> None:
-    from ..core.errors import BeltDriveError
-
-    if os.path.exists(path) and not force:
-        raise BeltDriveError(f"{path} exists; pass --force to overwrite it")
-
-
 def run(args) -> int:
     from ..core.scene import load_scene
+    from ..io.atomic import OutputRefused, atomic_output, check_output
     from ..io.urdf import render_urdf, urdf_from_params
 
     scene = load_scene(args.scene)
     text = urdf_from_params(scene.params, name=f"belt_drive_{scene.name}".replace("-", "_"))
-    for path in (args.out, args.png):
+    for option, path in (("--out", args.out), ("--png", args.png)):
         if path:
-            _check_new(path, args.force)
+            check_output(path, args.force, option)
+    if args.png and not args.png.lower().endswith(".png"):
+        raise OutputRefused(f"--png {args.png}: the picture is a PNG; give a .png path")
     if args.out:
-        tmp = args.out + ".part"
-        with open(tmp, "w", encoding="utf-8") as f:
+        with atomic_output(args.out, args.force, "w", what="--out") as f:
             f.write(text)
-        os.replace(tmp, args.out)
     else:
         print(text, end="")
     if args.png:
-        render_urdf(text, args.png, title=f"{scene.name}: drive rendered from its URDF")
+        with atomic_output(args.png, args.force, "wb", what="--png") as f:
+            render_urdf(text, f, title=f"{scene.name}: drive rendered from its URDF")
     return 0

@@ -53,5 +53,7 @@ def plot_runs(runs, path, title: str | None = None) -> None:
         ax.legend(fontsize=7, loc="best")
     fig.suptitle(title or f"scene '{last.scene.name}'")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        fig.savefig(path, dpi=110, format="png")  # path or binary file (an atomic output)
+    finally:
+        plt.close(fig)

@@ -244,5 +244,7 @@ def render_urdf(urdf: str, path, title: str = "") -> None:
     ax.set_ylabel("y [m]")
     ax.set_title(title or f"{root.get('name')}: URDF seen from +z (joint positions 0)")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    try:
+        fig.savefig(path, dpi=120, format="png")  # path or binary file (an atomic output)
+    finally:
+        plt.close(fig)

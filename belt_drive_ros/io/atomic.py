@@ -1,0 +1,108 @@
+"""Outputs that appear whole or not at all.
+
+:func:`check_output` decides up front (before a run) whether a path may be
+written: an existing regular file only with ``force``, never a device, FIFO
+or directory (``--out /dev/full`` would otherwise "succeed" into nothing, and
+replacing a device node by a file would be worse), and the parent folder
+must exist. :func:`atomic_output` then writes to a temporary file in the
+same folder and renames it onto the path only when everything was written
+and flushed to disk: a full disk, an I/O error or an interrupted run leaves
+no partial file (and the temporary one is removed).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import stat
+import tempfile
+from pathlib import Path
+from typing import IO, Iterator
+
+from ..core.errors import BeltDriveError, OutputError
+
+__all__ = ["OutputRefused", "atomic_output", "check_output"]
+
+
+class OutputRefused(BeltDriveError, ValueError):
+    """An output path is refused before anything runs (exists without --force, not a regular file, no folder)."""
+
+
+def check_output(path: str | os.PathLike, force: bool = False, what: str = "output") -> Path:
+    """``path`` as a :class:`~pathlib.Path` if it may be written, else :class:`OutputRefused`.
+
+    Refused: an existing path that is not a regular file (device, FIFO,
+    directory, socket), an existing file without ``force``, a missing folder.
+    """
+    path = Path(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        st = None
+    except OSError as exc:
+        raise OutputRefused(f"{what} {path}: {exc.strerror or exc}") from None
+    if st is not None:
+        if not stat.S_ISREG(st.st_mode):
+            kind = "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file (device, FIFO or socket)"
+            raise OutputRefused(f"{what} {path}: {kind}; outputs are written to regular files only")
+        if not force:
+            raise OutputRefused(f"{what} {path} exists; pass --force to overwrite")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise OutputRefused(f"{what} {path}: folder {parent} does not exist")
+    return path
+
+
+def _temporary(path: Path, mode: str) -> tuple[IO, str]:
+    """A new temporary file next to ``path`` opened in ``mode``, and its name."""
+    fd, name = tempfile.mkstemp(dir=path.parent if str(path.parent) else ".", prefix=f".{path.name}.", suffix=".part")
+    try:
+        if "b" in mode:
+            return os.fdopen(fd, mode), name
+        return os.fdopen(fd, mode, encoding="utf-8", newline=""), name
+    except BaseException:
+        os.close(fd)
+        os.unlink(name)
+        raise
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | os.PathLike, force: bool = False, mode: str = "wb", what: str = "output") -> Iterator[IO]:
+    """Context manager yielding a file that becomes ``path`` only if the block succeeds.
+
+    The data goes to a temporary file in ``path``'s folder, is flushed and
+    ``fsync``-ed, and is renamed onto ``path`` (atomic on POSIX). On any
+    exception the temporary file is removed and ``path`` is untouched; an
+    :class:`OSError` (disk full, I/O error) becomes :class:`OutputError`
+    naming the output.
+
+    Parameters
+    ----------
+    path : output path (checked by :func:`check_output`).
+    force : replace an existing regular file.
+    mode : ``"wb"`` (binary) or ``"w"`` (UTF-8 text, ``\\n`` line ends).
+    """
+    path = check_output(path, force, what)
+    try:
+        handle, name = _temporary(path, mode)
+    except OSError as exc:
+        raise OutputError(f"{what} {path}: {exc.strerror or exc}; nothing written") from None
+    done = False
+    try:
+        with handle:
+            yield handle
+            handle.flush()
+            os.fsync(handle.fileno())
+        if not force and os.path.lexists(path):
+            raise OutputRefused(f"{what} {path} appeared while writing; pass --force to overwrite")
+        os.replace(name, path)
+        done = True
+    except OSError as exc:
+        if isinstance(exc, OutputRefused):
+            raise
+        reason = os.strerror(exc.errno) if isinstance(exc.errno, int) and exc.errno > 0 else str(exc)
+        raise OutputError(f"{what} {path}: {reason}; nothing written") from None
+    finally:
+        if not done:
+            with contextlib.suppress(OSError):
+                os.unlink(name)

@@ -1,0 +1,161 @@
+"""Output safety (issue 13): formats by extension, --force for every output, no partial files, one-line errors."""
+
+from __future__ import annotations
+
+import errno
+import os
+
+import pytest
+
+from belt_drive_ros.cli import main
+from belt_drive_ros.core.errors import OutputError
+from belt_drive_ros.io import atomic
+from belt_drive_ros.io.atomic import OutputRefused, atomic_output
+
+RUN = ["sim", "paper", "--duration", "0.2", "--quiet"]
+
+
+def _run(capsys, argv, code):
+    got = main(argv)
+    captured = capsys.readouterr()
+    assert got == code, captured.err
+    assert "Traceback" not in captured.err
+    if code:
+        lines = captured.err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("belt-drive: error: "), captured.err
+        return lines[0]
+    return captured.out
+
+
+def _leftovers(folder):
+    return sorted(p.name for p in folder.iterdir() if p.name.endswith(".part"))
+
+
+# ------------------------------------------------------------------ formats
+def test_format_follows_the_extension_case_insensitively(tmp_path, capsys):
+    _run(capsys, RUN + ["--out", str(tmp_path / "x.MCAP")], 0)
+    assert (tmp_path / "x.MCAP").read_bytes()[:5] == b"\x89MCAP"
+    _run(capsys, RUN + ["--out", str(tmp_path / "x.Csv")], 0)
+    assert (tmp_path / "x.Csv").read_text().startswith("time,phi_M,")
+
+
+@pytest.mark.parametrize("name", ["x.txt", "x", "x.mcap.bak"])
+def test_unknown_extension_is_refused_before_the_run(tmp_path, capsys, name):
+    line = _run(capsys, RUN + ["--out", str(tmp_path / name)], 2)
+    assert "unknown format" in line and ".csv or .mcap" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_plot_must_be_png(tmp_path, capsys):
+    line = _run(capsys, RUN + ["--plot", str(tmp_path / "x.csv")], 2)
+    assert "--plot" in line and ".png" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------ --force
+def test_force_governs_the_plot(tmp_path, capsys):
+    keep = tmp_path / "keep.png"
+    keep.write_bytes(b"precious")
+    line = _run(capsys, RUN + ["--plot", str(keep)], 2)
+    assert "exists; pass --force" in line and keep.read_bytes() == b"precious"
+    _run(capsys, RUN + ["--plot", str(keep), "--force"], 0)
+    assert keep.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_existing_out_is_refused_before_the_run(tmp_path, capsys):
+    keep = tmp_path / "keep.csv"
+    keep.write_text("keep me\n")
+    line = _run(capsys, RUN + ["--out", str(keep)], 2)
+    assert "exists; pass --force" in line and keep.read_text() == "keep me\n"
+
+
+@pytest.mark.parametrize("option", ["--out", "--plot"])
+def test_device_outputs_are_refused(capsys, option):
+    target = "/dev/full.png" if option == "--plot" and os.path.exists("/dev/full.png") else "/dev/full"
+    line = _run(capsys, RUN + [option, target, "--force"], 2)
+    assert "/dev/full" in line
+    assert "regular file" in line or ".png" in line
+
+
+def test_plot_device_with_png_name_is_refused(tmp_path, capsys):
+    fifo = tmp_path / "pipe.png"
+    os.mkfifo(fifo)
+    line = _run(capsys, RUN + ["--plot", str(fifo), "--force"], 2)
+    assert "not a regular file" in line
+
+
+def test_missing_folder(tmp_path, capsys):
+    line = _run(capsys, RUN + ["--out", str(tmp_path / "no" / "x.csv")], 2)
+    assert "does not exist" in line
+
+
+# ------------------------------------------------------------------ full disk
+class _FullDisk:
+    """A temporary file whose disk fills after ``room`` bytes (ENOSPC), like a real full file system."""
+
+    def __init__(self, handle, room):
+        self._handle, self._room = handle, room
+
+    def write(self, data):
+        self._room -= len(data)
+        if self._room < 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return self._handle.write(data)
+
+    def __getattr__(self, name):
+        return getattr(self._handle, name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self._handle.close()
+
+
+@pytest.fixture
+def full_disk(monkeypatch):
+    real = atomic._temporary
+
+    def temporary(path, mode):
+        handle, name = real(path, mode)
+        return _FullDisk(handle, 3000), name
+
+    monkeypatch.setattr(atomic, "_temporary", temporary)
+
+
+@pytest.mark.parametrize("option, name", [("--out", "run.csv"), ("--out", "run.mcap"), ("--plot", "run.png")])
+def test_full_disk_fails_in_one_line_and_leaves_nothing(tmp_path, capsys, full_disk, option, name):
+    line = _run(capsys, RUN + [option, str(tmp_path / name)], 1)
+    assert name in line and "No space left on device" in line and "nothing written" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_full_disk_keeps_the_old_file_with_force(tmp_path, capsys, full_disk):
+    old = tmp_path / "run.csv"
+    old.write_text("previous run\n")
+    _run(capsys, RUN + ["--out", str(old), "--force"], 1)
+    assert old.read_text() == "previous run\n" and _leftovers(tmp_path) == []
+
+
+# ------------------------------------------------------------------ the helper
+def test_atomic_output_renames_only_on_success(tmp_path):
+    path = tmp_path / "a.bin"
+    with pytest.raises(RuntimeError):
+        with atomic_output(path) as f:
+            f.write(b"half")
+            raise RuntimeError("interrupted")
+    assert list(tmp_path.iterdir()) == []
+    with atomic_output(path) as f:
+        f.write(b"whole")
+        assert not path.exists()  # invisible until complete
+    assert path.read_bytes() == b"whole" and _leftovers(tmp_path) == []
+    with pytest.raises(OutputRefused, match="exists"):
+        with atomic_output(path) as f:
+            pass
+    with atomic_output(path, force=True, mode="w") as f:
+        f.write("text\n")
+    assert path.read_text() == "text\n"
+
+
+def test_output_error_is_a_failed_run_not_bad_input():
+    assert issubclass(OutputError, OSError)
