@@ -49,7 +49,7 @@ def run(args) -> int:
         ns = argparse.Namespace(
             scene="paper", model=None, method=None, method_option=[], dt=None, duration=None,
             out=args.out_dir / "paper.csv", plot=args.out_dir / "paper.png", torque_bag=None, force=True, quiet=False,
-            start_time=None, bag_folder=False,
+            start_time=None, bag_folder=False, plot_every=1,
         )
         return run_sim(ns)
     return 0

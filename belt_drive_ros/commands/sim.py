@@ -35,6 +35,17 @@ def _start_time(text: str):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text[:40]!r}")
+    return value
+
+
 def register(sub) -> None:
     from ..core.integrators import describe_methods  # the method registry (numpy only; scipy loads on use)
 
@@ -63,27 +74,38 @@ def register(sub) -> None:
                         "as rosbag2 stamps it), seconds since the epoch (0: simulated time), or an ISO 8601 date")
     p.add_argument("--bag-folder", action="store_true",
                    help="write --out as a rosbag2 bag folder (OUT/OUT_0.mcap + metadata.yaml)")
+    p.add_argument("--plot-every", type=_positive_int, default=1, metavar="N",
+                   help="draw every Nth sample in --plot (a plot holds what it draws in memory; "
+                        f"runs of more than {PLOT_SAMPLES:,} samples need it)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
 def _options(pairs):
+    from ..core.errors import IntegratorError
+    from ..core.inputs import short
+
     out = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
         if not sep:
-            raise SystemExit(f"belt-drive: error: --method-option expects KEY=VALUE, got {pair!r}")
+            raise IntegratorError(f"--method-option expects KEY=VALUE, got {short(pair)}")
         try:
             out[key] = float(value) if key not in ("max_iter",) else int(value)
         except ValueError:
-            raise SystemExit(f"belt-drive: error: --method-option {key}: not a number: {value!r}") from None
+            raise IntegratorError(f"--method-option {short(key)}: not a number: {short(value)}") from None
     return out
+
+
+#: runs with more samples than this stream (window by window, bounded memory); fewer: in memory (~300 B/sample)
+STREAM_ABOVE = 250_000
+#: most samples a plot takes (a plot holds every sample it draws in memory)
+PLOT_SAMPLES = 250_000
 
 
 def run(args) -> int:
     from ..io.progress import ProgressBar
     from ..core.scene import load_scene
-    from ..core.simulate import simulate
 
     scene = load_scene(args.scene)
     if args.method_option:
@@ -92,20 +114,55 @@ def run(args) -> int:
         from ..io.torque_bag import scene_with_torque_bag  # issue 4: offline replay of a recorded profile
 
         scene = scene_with_torque_bag(scene, args.torque_bag)
+    scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration)
     out_format = check_outputs(args)
+    samples = scene.duration / scene.dt + 1.0
+    check_plot_size(args, samples)
     bar = ProgressBar(f"sim {scene.name}", force=False) if not args.quiet else None
-    result = simulate(scene, model=args.model, method=args.method, dt=args.dt, duration=args.duration, progress=bar)
-    print_summary(result)
+    if samples <= STREAM_ABOVE:
+        return _run_in_memory(scene, args, out_format, bar)
+    return _run_streamed(scene, args, out_format, bar)
+
+
+def check_plot_size(args, samples: float) -> None:
+    """Refuse up front a plot of more than :data:`PLOT_SAMPLES` samples, offering ``--plot-every``."""
+    from ..io.atomic import OutputRefused
+
+    if args.plot is None or samples / args.plot_every <= PLOT_SAMPLES:
+        return
+    every = math.ceil(samples / PLOT_SAMPLES)
+    raise OutputRefused(
+        f"--plot: a plot holds every sample it draws in memory and this run has {samples:.3g} "
+        f"(~{samples * 300 / 2**30:.2g} GiB with both models); pass --plot-every {every} (or more) to draw every "
+        f"{every}th sample, or plot a shorter --duration (--out streams at full rate)"
+    )
+
+
+def _write_plot(scene, runs, args) -> None:
+    from ..io.atomic import atomic_output
+    from ..io.plotting import plot_runs
+
+    runs = sorted(runs, key=lambda r: r.model != "rigid")
+    with atomic_output(args.plot, args.force, "wb", what="--plot") as f:
+        plot_runs(runs, f, title=f"scene '{scene.name}': rigid vs flexible belt"
+                  + (f" (every {args.plot_every}th sample)" if args.plot_every > 1 else ""))
+    print(f"wrote {args.plot}")
+
+
+def _run_in_memory(scene, args, out_format, bar) -> int:
+    from ..core.simulate import simulate
+    from ..core.stream import RunSummary
+    from ..io.atomic import atomic_output
+    from ..io.run_writers import Decimator
+
+    result = simulate(scene, progress=bar)
+    print_summary(RunSummary().add(result))
     if args.out is not None:
-        from ..io.atomic import atomic_output
+        from ..io.recording import write_result_mcap
 
         if out_format == "mcap" and args.bag_folder:
-            from ..io.recording import write_result_mcap
-
             write_result_mcap(result, args.out, force=args.force, start_time_ns=args.start_time, bag_folder=True)
         elif out_format == "mcap":
-            from ..io.recording import write_result_mcap
-
             with atomic_output(args.out, args.force, "wb", what="--out") as f:
                 write_result_mcap(result, f, start_time_ns=args.start_time)
         else:
@@ -113,14 +170,62 @@ def run(args) -> int:
                 result.to_csv(f)
         print(f"wrote {args.out}")
     if args.plot is not None:
-        from ..io.atomic import atomic_output
-        from ..io.plotting import plot_runs
+        from ..core.simulate import simulate as run_other
 
-        comp = _overlay_run(scene, result, args)
-        runs = sorted([result, comp], key=lambda r: r.model != "rigid")
-        with atomic_output(args.plot, args.force, "wb", what="--plot") as f:
-            plot_runs(runs, f, title=f"scene '{scene.name}': rigid vs flexible belt")
-        print(f"wrote {args.plot}")
+        other, method = _overlay_method(scene, result.model, result.method, result.dt)
+        comp = run_other(scene, model=other, method=method, dt=result.dt)
+        runs = []
+        for run in (result, comp):
+            keep = Decimator(args.plot_every)
+            keep.add(run)
+            runs.append(keep.result() if args.plot_every > 1 else run)
+        _write_plot(scene, runs, args)
+    return 0
+
+
+def _run_streamed(scene, args, out_format, bar) -> int:
+    """The run window by window (:func:`belt_drive_ros.core.stream.stream`): outputs written as it goes."""
+    import contextlib
+
+    from ..core.stream import Restart, RunSummary, stream
+    from ..io.atomic import atomic_output
+    from ..io.run_writers import CsvWindows, Decimator, McapWindows
+
+    summary = RunSummary()
+    keep = Decimator(args.plot_every) if args.plot is not None else None
+    with contextlib.ExitStack() as stack:
+        sinks = []
+        if args.out is not None and out_format == "mcap" and args.bag_folder:
+            sinks.append(McapWindows(args.out, bag_folder=True, force=args.force, start_time_ns=args.start_time))
+        elif args.out is not None:
+            f = stack.enter_context(atomic_output(args.out, args.force, "wb" if out_format == "mcap" else "w", what="--out"))
+            sinks.append(McapWindows(f, start_time_ns=args.start_time) if out_format == "mcap" else CsvWindows(f))
+        try:
+            for window in stream(scene, progress=bar):
+                if isinstance(window, Restart):
+                    summary = RunSummary()
+                    for sink in sinks + ([keep] if keep else []):
+                        sink.restart()
+                    continue
+                summary.add(window)
+                for sink in sinks + ([keep] if keep else []):
+                    sink.add(window)
+            for sink in sinks:
+                sink.close()
+        except BaseException:
+            for sink in sinks:
+                if hasattr(sink, "abort"):
+                    sink.abort()
+            raise
+    print_summary(summary)
+    if args.out is not None:
+        print(f"wrote {args.out}")
+    if keep is not None:
+        other, method = _overlay_method(scene, summary.model, summary.method, summary.dt)
+        comp = Decimator(args.plot_every)
+        for window in stream(scene, model=other, method=method):
+            comp.add(window)
+        _write_plot(scene, [keep.result(), comp.result()], args)
     return 0
 
 
@@ -161,52 +266,49 @@ def check_outputs(args) -> str | None:
     return out_format
 
 
-def _overlay_run(scene, result, args):
-    """The other model for the plot overlay, with the same method where that is stable.
+def _overlay_method(scene, model: str, method: str, dt: float) -> tuple[str, str]:
+    """The other model for the plot overlay and its method: the run's where that is stable.
 
     A step that is stable for the rigid model may not be for the flexible one
     (its belt mode); the overlay then falls back to ``etd2`` and says so
     (the legend names the method) rather than failing a valid run.
     """
     from ..core.model import make_model
-    from ..core.simulate import simulate
     from ..core.stability import check_step
 
-    other = "flexible" if result.model == "rigid" else "rigid"
-    method = result.method
-    model = make_model(other, scene.params)
-    report = check_step(model.A, model.B, method, result.dt)
+    other = "flexible" if model == "rigid" else "rigid"
+    report = check_step(make_model(other, scene.params).A, make_model(other, scene.params).B, method, dt)
     if not report.stable:
         print(f"note: overlay {other} model uses etd2: {report.describe()}")
         method = "etd2"
-    return simulate(scene, model=other, method=method, dt=result.dt, duration=args.duration)
+    return other, method
 
 
-def print_summary(result) -> None:
-    """Short human summary of a run (rpm for people, SI otherwise)."""
+def print_summary(summary) -> None:
+    """Short human summary of a run (:class:`~belt_drive_ros.core.stream.RunSummary`; rpm for people, SI otherwise)."""
     rpm = 60.0 / (2.0 * math.pi)
-    o = result.outputs
-    p = result.scene.params
-    print(f"scene          {result.scene.name}: {result.scene.description}".rstrip())
-    print(f"model          {result.model}" + (f"  ({result.choice.reason})" if result.choice else ""))
-    print(f"integrator     {result.method}, dt={result.dt:g} s" + (" (vectorized open-loop path)" if result.vectorized else ""))
-    if result.stability is not None:
-        print(f"stability      {result.stability.describe()}")
+    o = summary.final
+    scene = summary.scene
+    p = scene.params
+    print(f"scene          {scene.name}: {scene.description}".rstrip())
+    print(f"model          {summary.model}" + (f"  ({summary.choice.reason})" if summary.choice else ""))
+    print(f"integrator     {summary.method}, dt={summary.dt:g} s" + (" (vectorized open-loop path)" if summary.vectorized else ""))
+    if summary.stability is not None:
+        print(f"stability      {summary.stability.describe()}")
     print(f"belt mode      {p.belt_natural_frequency / (2 * math.pi):.1f} Hz, damping ratio {p.belt_damping_ratio:.4f}")
-    print(f"simulated      {result.time[-1] - result.time[0]:g} s in {result.wall_time * 1e3:.1f} ms ({result.realtime_factor:,.0f}x real time)")
-    print(f"final speed    {o['omega_M'][-1]:.3f} rad/s ({o['omega_M'][-1] * rpm:.1f} rpm) at wheel M")
-    print(f"load torque    {o['load_torque'][-1]:.3f} N m (final), belt torque {o['belt_torque'][-1]:.3f} N m")
+    print(f"simulated      {summary.t_end - summary.t_start:g} s in {summary.wall_time * 1e3:.1f} ms ({summary.realtime_factor:,.0f}x real time)")
+    print(f"final speed    {o['omega_M']:.3f} rad/s ({o['omega_M'] * rpm:.1f} rpm) at wheel M")
+    print(f"load torque    {o['load_torque']:.3f} N m (final), belt torque {o['belt_torque']:.3f} N m")
     print(
-        f"deflection     final {o['relative_deflection'][-1]:.5g} rad, peak {o['relative_deflection'].max():.5g} rad, "
-        f"static M_L/(2 k r_3^2) {o['load_torque'][-1] / p.belt_torsional_stiffness:.5g} rad"
+        f"deflection     final {o['relative_deflection']:.5g} rad, peak {summary.peak_deflection:.5g} rad, "
+        f"static M_L/(2 k r_3^2) {o['load_torque'] / p.belt_torsional_stiffness:.5g} rad"
     )
-    slip = float(o["slip"].mean())
-    if result.model == "slipping":
-        onsets = sum(1 for e in result.events if e[0] == "onset")
+    slip = summary.slip_fraction
+    if summary.model == "slipping":
         print(
-            f"belt           slips {100 * slip:.1f}% of the time ({onsets} slip phases, peak slip speed "
-            f"{np.max(np.abs(o['slip_speed'])):.3g} m/s); wheel 3 lost {o['slip_angle'][-1]:.4g} rad to slip "
-            f"(elastic deflection {o['elastic_deflection'][-1]:.4g} rad at the end)"
+            f"belt           slips {100 * slip:.1f}% of the time ({summary.onsets} slip phases, peak slip speed "
+            f"{summary.peak_slip_speed:.3g} m/s); wheel 3 lost {o['slip_angle']:.4g} rad to slip "
+            f"(elastic deflection {o['elastic_deflection']:.4g} rad at the end)"
         )
     else:
         print(f"belt           {'slips or slackens ' + format(100 * slip, '.1f') + '% of the time (linear model outside validity)' if slip else 'no slip, no slack'}")

@@ -257,29 +257,47 @@ class SlippingSimulator:
 
     def run(self, duration, y0, t0=0.0, progress=None):
         """Integrate ``duration`` [s] from the slipping state ``y0``; returns (time, states, mode, sigma)."""
+        events: list = []
+        parts = list(self.windows(duration, y0, t0, progress, events=events))
+        self.events = events
+        time = np.concatenate([p[0] for p in parts])
+        states = np.concatenate([p[1] for p in parts])
+        modes = np.concatenate([p[2] for p in parts])
+        sigmas = np.concatenate([p[3] for p in parts])
+        return time, states, modes, sigmas
+
+    def windows(self, duration, y0, t0=0.0, progress=None, window_steps: int | None = None, events=None):
+        """:meth:`run` in pieces: yields (time, states, mode, sigma) of consecutive windows.
+
+        The first window starts with the sample at ``t0``; each later one
+        starts after the previous one's last sample, so the windows put
+        together are :meth:`run`'s arrays. A window spans ``window_steps``
+        grid steps (default ``4 * WINDOW_MAX``) plus the event samples in
+        it: memory is bounded by the window, not the run. ``events``
+        receives the mode switches.
+        """
         self.origin = float(t0)
         t1 = float(t0) + float(duration)
+        steps = int(window_steps or 4 * WINDOW_MAX)
         state = self.initial(y0, t0)
-        pieces: list = []
-        events: list = []
+        events = [] if events is None else events
         y = self.state_y(state)
-        pieces.append((np.array([float(t0)]), y[None, :], state.mode, state.sigma))
+        pieces: list = [(np.array([float(t0)]), y[None, :], state.mode, state.sigma)]
         t = float(t0)
         while t < t1:  # progress between windows
-            k = math.floor((t - self.origin) / self.dt) + 4 * WINDOW_MAX
+            k = math.floor((t - self.origin) / self.dt) + steps
             t_next = self.stepper.grid_time(k) if self.stepper.grid_time(k) < t1 - snap_tolerance(t1, self.dt) else t1
             state = self.advance(state, t, t_next, pieces, events)
             t = t_next
+            yield _joined(pieces)
+            pieces = []
             if progress:
                 progress((t - t0) / max(duration, 1e-300))
+        if pieces:
+            yield _joined(pieces)
         self.events = events
-        time = np.concatenate([p[0] for p in pieces])
-        states = np.concatenate([p[1] for p in pieces])
-        modes = np.concatenate([np.full(len(p[0]), p[2], dtype=np.int8) for p in pieces])
-        sigmas = np.concatenate([np.full(len(p[0]), p[3]) for p in pieces])
         if progress:
             progress(1.0)
-        return time, states, modes, sigmas
 
     def input_array(self, time, states):
         """u = [drive, load] per sample (the load at phi_3 with the slip part)."""
@@ -288,3 +306,12 @@ class SlippingSimulator:
         d = np.broadcast_to(self.plant.drive.torque(t, phi_M, omega_M), t.shape)
         l = np.broadcast_to(self.plant.load.torque(t, self.model.phi_3(states), states[:, 3]), t.shape)
         return np.stack([d, l], axis=-1).astype(float)
+
+
+def _joined(pieces):
+    """(time, states, mode, sigma) of ``advance``'s recorded pieces put together."""
+    time = np.concatenate([p[0] for p in pieces])
+    states = np.concatenate([p[1] for p in pieces])
+    modes = np.concatenate([np.full(len(p[0]), p[2], dtype=np.int8) for p in pieces])
+    sigmas = np.concatenate([np.full(len(p[0]), p[3]) for p in pieces])
+    return time, states, modes, sigmas

@@ -473,83 +473,168 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
     BagWriteError
         If the file cannot be written.
     """
-    float_outputs = FLOAT_OUTPUTS + tuple(o for o in SLIP_FLOAT_OUTPUTS if getattr(result, "model", "") == "slipping")
-    offline_topics = (ROBOT_DESCRIPTION, "drive_torque", "joint_states") + tuple(name for name, _ in float_outputs)
-    wanted = offline_topics if topics is None else tuple(t.strip("/") for t in topics)
-    unknown = sorted(set(wanted) - set(offline_topics))
-    if unknown:
-        raise ValueError(f"topics: unknown {', '.join(unknown)}; offline runs have {', '.join(offline_topics)}")
-    stride = _output_stride(result, output_rate)
-    index = np.arange(0, len(result.time), stride)
-    if start_time_ns is None:
-        start_time_ns = time.time_ns()
-    start_time_ns = int(start_time_ns)
-    if start_time_ns < 0:
-        raise ValueError(f"start_time_ns must be >= 0 ns since the epoch, got {start_time_ns}")
-    t_ns = np.round(np.asarray(result.time, dtype=float)[index] * 1e9).astype(np.int64) + start_time_ns
-    if t_ns.size and t_ns[0] < 0:
-        raise ValueError(f"result starts at negative time {result.time[0]} s; MCAP times must be >= 0")
-    o = {name: np.asarray(values)[index] for name, values in result.outputs.items()}
-    zeros = np.zeros(index.size)
-    position = np.column_stack([o["phi_M"], o["phi_1"], o["phi_2"], o["phi_3"]])
-    velocity = np.column_stack([o["omega_M"], o["omega_1"], o["omega_2"], o["omega_3"]])
-    effort = np.column_stack([o["drive_torque"], zeros, zeros, -o["load_torque"]])
-    payloads: List[Tuple[str, str, List[bytes]]] = []
-    if "drive_torque" in wanted:
-        payloads.append((_absolute("drive_torque", namespace), FLOAT64, encode_float64(o["drive_torque"])))
-    if "joint_states" in wanted:
-        payloads.append((_absolute("joint_states", namespace), JOINT_STATE,
-                         encode_joint_states(t_ns, position, velocity, effort)))
-    for topic, signal in float_outputs:
-        if topic in wanted:
-            payloads.append((_absolute(topic, namespace), FLOAT64, encode_float64(np.asarray(o[signal], dtype=float))))
-
-    scene = result.scene
-    mapping = scene_mapping(scene, model=result.model, method=result.method, dt=result.dt)
-    drive_source = "torque_bag" if isinstance(mapping.get("drive"), dict) and mapping["drive"].get("type") == RECORDED_DRIVE else "scene"
-    scene_record = _scene_record(
-        mapping, source="offline", drive_source=drive_source,
-        extra={
-            "model_choice": result.choice.reason if result.choice is not None else f"{result.model}: set explicitly",
-            "output_rate": float(output_rate or scene.output_rate) if stride > 1 else 1.0 / result.dt,
-            "samples": int(index.size),
-        },
-    )
-    parameters = {name: _fmt(float(value)) for name, value in scene.params.to_dict().items()}
-    parameters.update(model=result.model, method=result.method, dt=_fmt(float(result.dt)))
-    counts: Dict[str, int] = {}
+    writer = ResultMcapWriter(path, result, force=force, namespace=namespace, output_rate=output_rate,
+                              topics=topics, compression=compression, extra_metadata=extra_metadata,
+                              start_time_ns=start_time_ns, bag_folder=bag_folder, max_bag_size=max_bag_size,
+                              max_bag_duration=max_bag_duration,
+                              samples=len(range(0, len(result.time), _output_stride(result, output_rate))))
     try:
-        if bag_folder or max_bag_size or max_bag_duration:
-            from msg_tools.bagdir import Ros2BagWriter
+        writer.write(result)
+    except BaseException:
+        writer.abort()
+        raise
+    return writer.close()
 
-            writer_cm: Any = Ros2BagWriter(path, force=force, compression=compression,
-                                           max_bag_size=max_bag_size, max_bag_duration=max_bag_duration)
-        else:
-            writer_cm = Ros2McapWriter(path, force=force, compression=compression)
-        with writer_cm as writer:
-            writer.add_metadata(SCENE_METADATA, scene_record)
-            writer.add_metadata(PARAMETERS_METADATA, parameters)
-            written = {topic for topic, _, _ in payloads}
-            writer.add_metadata(UNITS_METADATA, {
+
+class ResultMcapWriter:
+    """The one writer of offline runs to MCAP: :func:`write_result_mcap` for a whole run, window by window for a streamed one.
+
+    ``ResultMcapWriter(path, first_window, ...)`` opens the output (options as
+    :func:`write_result_mcap`), :meth:`write` appends a window of the run
+    (a :class:`~belt_drive_ros.core.simulate.SimResult` continuing the
+    previous one, see :mod:`belt_drive_ros.core.stream`), :meth:`close`
+    finishes the file and returns the messages per topic. Output samples are
+    every ``stride``-th sample of the whole run, counted across windows, so a
+    streamed run writes what the whole run would. With ``samples`` given (a
+    whole run), the scene record goes first, as always; otherwise (a stream,
+    whose length is known only at the end) it is written at :meth:`close`
+    with the count. ``chunk_size`` [bytes] (default the writer's 128 KiB,
+    closed every 0.25 s of log time) sets size-only chunks: the MCAP writer
+    keeps one chunk index entry per chunk until it finishes, so a day-long
+    stream uses a few MiB chunks to keep that small.
+    """
+
+    def __init__(self, path, result, force: bool = False, *, namespace: str = "/",
+                 output_rate: Optional[float] = None, topics: Optional[Iterable[str]] = None,
+                 compression: str = "zstd", extra_metadata: Optional[Mapping[str, Mapping[str, str]]] = None,
+                 start_time_ns: Optional[int] = None, bag_folder: bool = False,
+                 max_bag_size: Optional[int] = None, max_bag_duration: Optional[float] = None,
+                 samples: Optional[int] = None, chunk_size: Optional[int] = None):
+        self.float_outputs = FLOAT_OUTPUTS + tuple(o for o in SLIP_FLOAT_OUTPUTS if getattr(result, "model", "") == "slipping")
+        offline_topics = (ROBOT_DESCRIPTION, "drive_torque", "joint_states") + tuple(name for name, _ in self.float_outputs)
+        self.wanted = offline_topics if topics is None else tuple(t.strip("/") for t in topics)
+        unknown = sorted(set(self.wanted) - set(offline_topics))
+        if unknown:
+            raise ValueError(f"topics: unknown {', '.join(unknown)}; offline runs have {', '.join(offline_topics)}")
+        self.stride = _output_stride(result, output_rate)
+        if start_time_ns is None:
+            start_time_ns = time.time_ns()
+        self.start_time_ns = int(start_time_ns)
+        if self.start_time_ns < 0:
+            raise ValueError(f"start_time_ns must be >= 0 ns since the epoch, got {start_time_ns}")
+        if len(result.time) and result.time[0] < 0:
+            raise ValueError(f"result starts at negative time {result.time[0]} s; MCAP times must be >= 0")
+        self.namespace = namespace
+        self.seen = 0  # samples of the run so far (all windows)
+        self.samples = 0  # of them written
+        scene = result.scene
+        mapping = scene_mapping(scene, model=result.model, method=result.method, dt=result.dt)
+        drive_source = "torque_bag" if isinstance(mapping.get("drive"), dict) and mapping["drive"].get("type") == RECORDED_DRIVE else "scene"
+        self._record = lambda count: _scene_record(
+            mapping, source="offline", drive_source=drive_source,
+            extra={
+                "model_choice": result.choice.reason if result.choice is not None else f"{result.model}: set explicitly",
+                "output_rate": float(output_rate or scene.output_rate) if self.stride > 1 else 1.0 / result.dt,
+                "samples": int(count),
+            },
+        )
+        parameters = {name: _fmt(float(value)) for name, value in scene.params.to_dict().items()}
+        parameters.update(model=result.model, method=result.method, dt=_fmt(float(result.dt)))
+        self._deferred = samples is None
+        # a long stream: fewer, larger chunks (the writer keeps one index entry per chunk until the end)
+        chunking = {} if chunk_size is None else {"chunk_size": int(chunk_size), "flush_interval_s": None}
+        try:
+            if bag_folder or max_bag_size or max_bag_duration:
+                from msg_tools.bagdir import Ros2BagWriter
+
+                self.writer: Any = Ros2BagWriter(path, force=force, compression=compression,
+                                                 max_bag_size=max_bag_size, max_bag_duration=max_bag_duration,
+                                                 **chunking)
+            else:
+                self.writer = Ros2McapWriter(path, force=force, compression=compression, **chunking)
+            w = self.writer
+            if not self._deferred:
+                w.add_metadata(SCENE_METADATA, self._record(samples))
+            self.payload_topics = []
+            if "drive_torque" in self.wanted:
+                self.payload_topics.append((_absolute("drive_torque", namespace), FLOAT64, "drive_torque"))
+            if "joint_states" in self.wanted:
+                self.payload_topics.append((_absolute("joint_states", namespace), JOINT_STATE, None))
+            for topic, signal in self.float_outputs:
+                if topic in self.wanted:
+                    self.payload_topics.append((_absolute(topic, namespace), FLOAT64, signal))
+            w.add_metadata(PARAMETERS_METADATA, parameters)
+            written = {topic for topic, _, _ in self.payload_topics}
+            w.add_metadata(UNITS_METADATA, {
                 key: unit for key, unit in units_metadata(namespace).items()
                 if key in written or key.rsplit("/", 1)[0] in written
             })
             for extra_name, values in (extra_metadata or {}).items():
-                writer.add_metadata(extra_name, dict(values))
-            times = t_ns.tolist()
-            if ROBOT_DESCRIPTION in wanted and times:
-                description = _absolute(ROBOT_DESCRIPTION, namespace)
-                writer.add_topic(description, STRING, ROBOT_DESCRIPTION_QOS)
-                writer.write_raw(description, STRING, encode_robot_description(scene.params)[1], times[0])
-            for topic, type_name, _ in payloads:
-                writer.add_topic(topic, type_name, "reliable")
-            write = writer.write_raw
-            for k, t in enumerate(times):
-                for topic, type_name, data in payloads:
+                w.add_metadata(extra_name, dict(values))
+        except (MsgToolsError, OSError) as exc:
+            raise bag_error(exc) from None
+        self._params = scene.params
+        self._topics_added = False
+
+    def _add_topics(self, t0_ns: Optional[int]) -> None:
+        """Channels in the file's order: robot_description with its one message (at the first sample), then the signals."""
+        w = self.writer
+        if ROBOT_DESCRIPTION in self.wanted and t0_ns is not None:
+            description = _absolute(ROBOT_DESCRIPTION, self.namespace)
+            w.add_topic(description, STRING, ROBOT_DESCRIPTION_QOS)
+            w.write_raw(description, STRING, encode_robot_description(self._params)[1], t0_ns)
+        for topic, type_name, _ in self.payload_topics:
+            w.add_topic(topic, type_name, "reliable")
+        self._topics_added = True
+
+    def write(self, result) -> None:
+        """Append the window ``result`` (the samples after the previous window's last)."""
+        n = len(result.time)
+        first = (-self.seen) % self.stride
+        index = np.arange(first, n, self.stride)
+        self.seen += n
+        if not index.size:
+            return
+        self.samples += int(index.size)
+        t_ns = np.round(np.asarray(result.time, dtype=float)[index] * 1e9).astype(np.int64) + self.start_time_ns
+        o = {name: np.asarray(values)[index] for name, values in result.outputs.items()}
+        payloads: List[List[bytes]] = []
+        for topic, type_name, signal in self.payload_topics:
+            if signal is None:
+                zeros = np.zeros(index.size)
+                position = np.column_stack([o["phi_M"], o["phi_1"], o["phi_2"], o["phi_3"]])
+                velocity = np.column_stack([o["omega_M"], o["omega_1"], o["omega_2"], o["omega_3"]])
+                effort = np.column_stack([o["drive_torque"], zeros, zeros, -o["load_torque"]])
+                payloads.append(encode_joint_states(t_ns, position, velocity, effort))
+            else:
+                payloads.append(encode_float64(np.asarray(o[signal], dtype=float)))
+        try:
+            if not self._topics_added:
+                self._add_topics(int(t_ns[0]))
+            write = self.writer.write_raw
+            topics = self.payload_topics
+            for k, t in enumerate(t_ns.tolist()):
+                for (topic, type_name, _), data in zip(topics, payloads):
                     write(topic, type_name, data[k], t)
-            counts = writer.topic_counts()
-    except MsgToolsError as exc:
-        raise bag_error(exc) from None
-    except OSError as exc:
-        raise bag_error(exc) from None
-    return counts
+        except (MsgToolsError, OSError) as exc:
+            raise bag_error(exc) from None
+
+    def close(self) -> Dict[str, int]:
+        """Finish the file (the scene record now, for a stream); returns messages per topic."""
+        try:
+            if not self._topics_added:
+                self._add_topics(None)
+            if self._deferred:
+                self.writer.add_metadata(SCENE_METADATA, self._record(self.samples))
+            counts = self.writer.topic_counts()
+            self.writer.__exit__(None, None, None)
+        except (MsgToolsError, OSError) as exc:
+            raise bag_error(exc) from None
+        return counts
+
+    def abort(self) -> None:
+        """Close after a failure (the file is not completed; :mod:`belt_drive_ros.io.atomic` removes it)."""
+        try:
+            self.writer.__exit__(RuntimeError, RuntimeError("aborted"), None)
+        except Exception:  # noqa: BLE001 - the original error is the one to report
+            pass

@@ -1,0 +1,243 @@
+"""Streamed runs: a scene's run in windows, in memory that does not grow with its duration.
+
+:func:`simulate` keeps every sample of a run (N samples of the states,
+inputs, ~20 outputs and 4 energy terms: about 300 bytes each, so a day of
+``paper`` at 5 ms would be 5 GB). :func:`stream` yields the same run as
+consecutive :class:`~belt_drive_ros.core.simulate.SimResult` windows of
+``window_steps`` grid steps: the first starts with the sample at t = 0,
+each later one with the sample after the previous window's last, so the
+windows put together are :func:`simulate`'s arrays (to rounding: the
+vectorized path restarts its recurrence per window). The energy terms run
+on from window to window (trapezoidal quadrature across the seam).
+
+Consumers write each window out (CSV, MCAP) and keep a :class:`RunSummary`.
+The ``auto`` model choice streams too: the frequency rule's operating speeds
+come from a windowed rigid run, and the chosen linear run is checked against
+the capstan limit window by window; when it passes the limit the stream
+yields a :class:`Restart` and starts over on the slipping model (consumers
+discard what they wrote), as :func:`~belt_drive_ros.core.fidelity.choose_model`
+decides on the whole run.
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from dataclasses import dataclass, field, replace
+from typing import Callable, Iterator
+
+import numpy as np
+
+from .fidelity import FREQUENCY_RATIO_THRESHOLD, ModelChoice, _linear_choice, limit_exceedance
+from .model import make_model
+from .scene import Scene
+from .simulate import SimResult, Simulator
+from .slip_run import SlippingSimulator
+from .stepper import snap_tolerance
+
+__all__ = ["WINDOW_STEPS", "Restart", "RunSummary", "stream"]
+
+#: grid steps per window (~15 MB of arrays per window)
+WINDOW_STEPS = 50_000
+
+
+@dataclass(frozen=True)
+class Restart:
+    """Yielded by :func:`stream` when an ``auto`` run turns out to slip: discard the windows so far."""
+
+    choice: ModelChoice
+
+
+def stream(
+    scene: Scene,
+    model: str | None = None,
+    method: str | None = None,
+    dt: float | None = None,
+    duration: float | None = None,
+    progress: Callable[[float], None] | None = None,
+    check_stability: bool = True,
+    window_steps: int | None = None,
+) -> Iterator[SimResult | Restart]:
+    """Windows of the run of ``scene`` (overrides as for :func:`~belt_drive_ros.core.simulate.simulate`).
+
+    Yields :class:`~belt_drive_ros.core.simulate.SimResult` windows and, for
+    ``model='auto'`` only, at most one :class:`Restart` (after which the
+    windows start again at t = 0 on the slipping model). ``result.choice``
+    of every window is the choice in force; ``window_steps`` defaults to
+    :data:`WINDOW_STEPS`.
+    """
+    scene = scene.with_overrides(model=model, method=method, dt=dt, duration=duration)
+    window_steps = WINDOW_STEPS if window_steps is None else int(window_steps)
+    if window_steps < 1:
+        raise ValueError(f"window_steps must be >= 1, got {window_steps}")
+    if scene.model == "slipping":
+        yield from _slipping(scene, None, progress, check_stability, window_steps)
+        return
+    if scene.model != "auto":
+        yield from _linear(scene, scene.model, None, progress, check_stability, window_steps)
+        return
+    choice = _linear_choice(scene, FREQUENCY_RATIO_THRESHOLD)
+    choice = replace(choice, linear=choice.model)
+    peak, t_peak = 0.0, 0.0
+    for window in _linear(scene, choice.model, choice, progress, check_stability, window_steps):
+        ratio, t_at = limit_exceedance(scene.params, window.time, window.outputs)
+        if ratio > peak:
+            peak, t_peak = ratio, t_at
+        if peak > 1.0:
+            reason = (
+                f"slipping: transmitted force {peak:.2f} x the capstan limit "
+                f"(Q_max = {scene.params.friction_limit(0.0):.0f} N at rest) at t = {t_peak:.3g} s "
+                f"in the {choice.model} run ({choice.reason})"
+            )
+            slip_choice = replace(choice, model="slipping", reason=reason, limit_ratio=peak, limit_time=t_peak)
+            yield Restart(slip_choice)
+            yield from _slipping(scene, slip_choice, progress, check_stability, window_steps)
+            return
+        window.choice = replace(choice, limit_ratio=peak, limit_time=t_peak)
+        yield window
+
+
+def _ends(stepper, duration: float, window_steps: int) -> Iterator[tuple[float, float]]:
+    """(t0, t1) of consecutive windows of ``window_steps`` grid steps over [0, duration]."""
+    t, k = 0.0, 0
+    while t < duration:
+        k += window_steps
+        t_next = stepper.grid_time(k)
+        if t_next >= duration - snap_tolerance(duration, stepper.dt):
+            t_next = duration
+        yield t, t_next
+        t = t_next
+
+
+def _running_integral(p: np.ndarray, time: np.ndarray, start: float) -> np.ndarray:
+    """``start`` + trapezoidal integral of ``p`` over ``time`` from its first sample (same rule as simulate)."""
+    return start + np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * np.diff(time))])
+
+
+def _linear(scene, kind, choice, progress, check_stability, window_steps) -> Iterator[SimResult]:
+    mdl = make_model(kind, scene.params)
+    sim = Simulator(mdl, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
+    stepper = sim.stepper
+    stepper.origin = 0.0
+    x = scene.initial_state.vector(kind, scene.params.ratio)
+    work = dissipated = 0.0
+    first = True
+    ends = list(_ends(stepper, scene.duration, window_steps)) or [(0.0, 0.0)]
+    for t0, t1 in ends:
+        start = _time.perf_counter()
+        time, states = stepper.run(x, t0, t1)
+        wall = _time.perf_counter() - start
+        u = sim.plant.input_array(time, states)
+        energy_in = _running_integral(mdl.input_power(states, u), time, work)
+        energy_d = _running_integral(mdl.dissipation_power(states), time, dissipated)
+        work, dissipated, x = float(energy_in[-1]), float(energy_d[-1]), states[-1]
+        keep = slice(0, None) if first else slice(1, None)
+        first = False
+        time, states, u = time[keep], states[keep], u[keep]
+        yield SimResult(
+            scene=scene, model=kind, method=sim.integrator.name, dt=scene.dt, time=time, states=states, inputs=u,
+            outputs=mdl.outputs(states, u), choice=choice, stability=sim.stability, wall_time=wall,
+            vectorized=stepper.vectorized,
+            energy={
+                "kinetic": mdl.kinetic_energy(states), "potential": mdl.potential_energy(states),
+                "input_work": energy_in[keep], "dissipated": energy_d[keep],
+            },
+        )
+        if progress:
+            progress(t1 / scene.duration)
+
+
+def _slipping(scene, choice, progress, check_stability, window_steps) -> Iterator[SimResult]:
+    sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
+    m = sim.model
+    y0 = scene.initial_state.vector("slipping", scene.params.ratio)
+    totals = {"input_work": 0.0, "dissipated": 0.0, "friction": 0.0}
+    last = None  # (time, state, mode, sigma) of the previous window's last sample: the quadrature's seam
+    events: list = []
+    start = _time.perf_counter()
+    for time, states, modes, sigmas in sim.windows(scene.duration, y0, 0.0, progress, window_steps, events):
+        wall = _time.perf_counter() - start
+        if last is not None:
+            t_all = np.concatenate([[last[0]], time])
+            s_all = np.concatenate([last[1][None, :], states])
+            m_all = np.concatenate([[last[2]], modes]).astype(np.int8)
+            g_all = np.concatenate([[last[3]], sigmas])
+        else:
+            t_all, s_all, m_all, g_all = time, states, modes, sigmas
+        u_all = sim.input_array(t_all, s_all)
+        energy = {}
+        for name, p in (
+            ("input_work", m.input_power(s_all, u_all)),
+            ("dissipated", m.damping_power(s_all, m_all, g_all)),
+            ("friction", m.friction_power(s_all, m_all, g_all)),
+        ):
+            integral = _running_integral(p, t_all, totals[name])
+            totals[name] = float(integral[-1])
+            energy[name] = integral[-len(time):]
+        u = u_all[-len(time):]
+        energy["kinetic"], energy["potential"] = m.kinetic_energy(states), m.potential_energy(states)
+        last = (float(time[-1]), states[-1].copy(), int(modes[-1]), float(sigmas[-1]))
+        window_events = [(e.kind, e.time, e.sigma) for e in events]
+        events.clear()
+        yield SimResult(
+            scene=scene, model="slipping", method=sim.integrator.name, dt=scene.dt, time=time, states=states,
+            inputs=u, outputs=m.outputs(states, u, modes, sigmas), choice=choice, stability=sim.stability,
+            wall_time=wall, vectorized=False, energy=energy, events=window_events,
+        )
+        start = _time.perf_counter()
+
+
+@dataclass
+class RunSummary:
+    """What the run's summary needs, accumulated window by window (or from one whole run).
+
+    ``final`` holds each output's last value; ``peak_deflection`` the largest
+    relative deflection [rad]; ``slip_samples``/``samples`` the fraction of
+    samples the belt slips (or slackens); ``onsets`` the slip phases;
+    ``peak_slip_speed`` the largest |slip speed| [m/s].
+    """
+
+    scene: Scene | None = None
+    model: str = ""
+    method: str = ""
+    dt: float = math.nan
+    choice: ModelChoice | None = None
+    stability: object = None
+    vectorized: bool = False
+    wall_time: float = 0.0
+    t_start: float = math.nan
+    t_end: float = math.nan
+    samples: int = 0
+    slip_samples: float = 0.0
+    onsets: int = 0
+    peak_deflection: float = -math.inf
+    peak_slip_speed: float = 0.0
+    final: dict = field(default_factory=dict)
+
+    def add(self, window: SimResult) -> "RunSummary":
+        """Take in the next window of the run; returns ``self``."""
+        if not self.samples:
+            self.scene, self.t_start = window.scene, float(window.time[0])
+        self.model, self.method, self.dt = window.model, window.method, window.dt
+        self.choice, self.stability, self.vectorized = window.choice, window.stability, window.vectorized
+        self.wall_time += window.wall_time
+        self.t_end = float(window.time[-1])
+        o = window.outputs
+        self.samples += len(window.time)
+        self.slip_samples += float(np.sum(o["slip"]))
+        self.onsets += sum(1 for e in window.events if e[0] == "onset")
+        self.peak_deflection = max(self.peak_deflection, float(np.max(o["relative_deflection"])))
+        if "slip_speed" in o:
+            self.peak_slip_speed = max(self.peak_slip_speed, float(np.max(np.abs(o["slip_speed"]))))
+        self.final = {name: float(np.asarray(values)[-1]) for name, values in o.items()}
+        return self
+
+    @property
+    def slip_fraction(self) -> float:
+        """Fraction of samples with the belt slipping (or slack, linear models) [-]."""
+        return self.slip_samples / self.samples if self.samples else 0.0
+
+    @property
+    def realtime_factor(self) -> float:
+        """Simulated seconds per wall-clock second."""
+        return (self.t_end - self.t_start) / self.wall_time if self.wall_time > 0 else math.inf

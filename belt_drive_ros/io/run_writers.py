@@ -1,0 +1,124 @@
+"""Writers that take a run window by window (:mod:`belt_drive_ros.core.stream`).
+
+Each writes into an open file of :func:`belt_drive_ros.io.atomic.atomic_output`
+(or a bag folder), takes windows with :meth:`add`, starts over on
+:meth:`restart` (an ``auto`` run that turned out to slip) and is finished
+by :meth:`close`. :class:`Decimator` keeps every ``N``-th sample of a run
+for a plot, the one output that needs the whole run at once.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from ..core.simulate import CSV_COLUMNS, SLIP_CSV_COLUMNS, SimResult
+
+__all__ = ["CsvWindows", "Decimator", "McapWindows"]
+
+#: MCAP chunk size of a streamed run [bytes]: one chunk index entry (~1 KB) stays in memory per chunk
+STREAM_CHUNK = 2 << 20
+
+
+class CsvWindows:
+    """CSV of a streamed run: the header of :meth:`SimResult.to_csv`, then each window's rows as they come."""
+
+    def __init__(self, handle):
+        self.handle = handle
+        self.columns = None
+
+    def add(self, window: SimResult) -> None:
+        if self.columns is None:
+            self.columns = CSV_COLUMNS + (SLIP_CSV_COLUMNS if window.model == "slipping" else ())
+            self.handle.write(",".join(self.columns) + "\n")
+        np.savetxt(self.handle, window.table(self.columns), delimiter=",", fmt="%.12g")
+
+    def restart(self) -> None:
+        self.handle.seek(0)
+        self.handle.truncate()
+        self.columns = None
+
+    def close(self) -> None:
+        """Nothing to finish (the atomic output flushes and renames)."""
+
+
+class McapWindows:
+    """MCAP (or rosbag2 bag folder) of a streamed run through :class:`~belt_drive_ros.io.recording.ResultMcapWriter`.
+
+    ``target`` is the open binary file of an atomic output, or the bag
+    folder's path with ``bag_folder=True``; ``options`` go to the writer
+    (start time, split limits ...). The scene record is written at the end
+    with the sample count.
+    """
+
+    def __init__(self, target, bag_folder: bool = False, force: bool = False, **options):
+        self.target, self.bag_folder, self.force, self.options = target, bag_folder, force, options
+        self.writer = None
+        self.counts: dict = {}
+
+    def add(self, window: SimResult) -> None:
+        if self.writer is None:
+            from .recording import ResultMcapWriter
+
+            self.writer = ResultMcapWriter(self.target, window, force=self.force, bag_folder=self.bag_folder,
+                                           chunk_size=STREAM_CHUNK, **self.options)
+        self.writer.write(window)
+
+    def restart(self) -> None:
+        if self.writer is not None:
+            self.writer.abort()
+            self.writer = None
+        if self.bag_folder:
+            shutil.rmtree(Path(self.target), ignore_errors=True)
+            self.force = True
+        else:
+            self.target.seek(0)
+            self.target.truncate()
+
+    def close(self) -> dict:
+        if self.writer is not None:
+            self.counts = self.writer.close()
+        return self.counts
+
+    def abort(self) -> None:
+        if self.writer is not None:
+            self.writer.abort()
+
+
+class Decimator:
+    """Every ``every``-th sample of a run (counted across windows) as one :class:`SimResult`, for plots."""
+
+    def __init__(self, every: int = 1):
+        if int(every) < 1:
+            raise ValueError(f"every must be >= 1, got {every}")
+        self.every = int(every)
+        self.restart()
+
+    def restart(self) -> None:
+        self.seen = 0
+        self.parts: list = []
+        self.last: SimResult | None = None
+
+    def add(self, window: SimResult) -> None:
+        index = np.arange((-self.seen) % self.every, len(window.time), self.every)
+        self.seen += len(window.time)
+        self.last = window
+        if index.size:
+            self.parts.append((window.time[index], window.states[index], window.inputs[index],
+                               {k: np.asarray(v)[index] for k, v in window.outputs.items()},
+                               {k: np.asarray(v)[index] for k, v in window.energy.items()}))
+
+    def result(self) -> SimResult:
+        """The kept samples as one run (scene, model, method and choice of the last window)."""
+        w = self.last
+        cat = np.concatenate
+        return SimResult(
+            scene=w.scene, model=w.model, method=w.method, dt=w.dt,
+            time=cat([p[0] for p in self.parts]), states=cat([p[1] for p in self.parts]),
+            inputs=cat([p[2] for p in self.parts]),
+            outputs={k: cat([p[3][k] for p in self.parts]) for k in self.parts[0][3]},
+            choice=w.choice, stability=w.stability, vectorized=w.vectorized,
+            energy={k: cat([p[4][k] for p in self.parts]) for k in self.parts[0][4]},
+        )

@@ -1,0 +1,179 @@
+"""Long runs stream (issue 13): windows equal the whole run, outputs are written as the run goes, memory stays flat."""
+
+from __future__ import annotations
+
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from belt_drive_ros.cli import main
+from belt_drive_ros.commands import sim as sim_command
+from belt_drive_ros.core import stream as stream_module
+from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.core.simulate import simulate
+from belt_drive_ros.core.stream import Restart, RunSummary, stream
+from belt_drive_ros.io import run_writers
+
+
+def _joined(windows):
+    windows = [w for w in windows if not isinstance(w, Restart)]
+    time = np.concatenate([w.time for w in windows])
+    outputs = {k: np.concatenate([w.outputs[k] for w in windows]) for k in windows[0].outputs}
+    energy = {k: np.concatenate([w.energy[k] for w in windows]) for k in windows[0].energy}
+    return windows, time, outputs, energy
+
+
+def _assert_same_run(whole, time, outputs, energy):
+    np.testing.assert_allclose(time, whole.time, rtol=0, atol=1e-12)
+    for name, values in whole.outputs.items():
+        scale = max(1.0, float(np.max(np.abs(values))))
+        np.testing.assert_allclose(outputs[name], values, rtol=0, atol=1e-9 * scale, err_msg=name)
+    for name, values in whole.energy.items():
+        scale = max(1.0, float(np.max(np.abs(values))))
+        np.testing.assert_allclose(energy[name], values, rtol=0, atol=1e-9 * scale, err_msg=name)
+
+
+@pytest.mark.parametrize("name, model", [("paper", "flexible"), ("e_motor_start", "rigid"), ("truck_compressor", "slipping")])
+def test_windows_put_together_are_the_whole_run(name, model):
+    scene = load_scene(name).with_overrides(duration=1.0)
+    whole = simulate(scene, model=model)
+    windows, time, outputs, energy = _joined(stream(scene, model=model, window_steps=23))
+    assert len(windows) > 5 and len(time) == len(whole.time)
+    _assert_same_run(whole, time, outputs, energy)
+    summary = RunSummary()
+    for w in windows:
+        summary.add(w)
+    assert summary.samples == len(whole.time)
+    assert summary.final["omega_M"] == outputs["omega_M"][-1]
+    assert summary.peak_deflection == np.max(whole.outputs["relative_deflection"])
+    assert summary.onsets == sum(1 for e in whole.events if e[0] == "onset")
+
+
+def test_auto_restarts_on_the_slipping_model_when_the_limit_is_passed():
+    """truck_compressor's flexible run passes the capstan limit at ~0.58 s: the stream starts over, slipping."""
+    scene = load_scene("truck_compressor").with_overrides(duration=1.0)
+    items = list(stream(scene, window_steps=200))
+    restarts = [i for i, w in enumerate(items) if isinstance(w, Restart)]
+    assert len(restarts) == 1 and restarts[0] > 0
+    assert all(w.model == "flexible" for w in items[: restarts[0]])
+    after = items[restarts[0] + 1 :]
+    assert after[0].time[0] == 0.0 and all(w.model == "slipping" for w in after)
+    whole = simulate(scene)
+    assert whole.model == "slipping"
+    _, time, outputs, energy = _joined(after)
+    _assert_same_run(whole, time, outputs, energy)
+
+
+def test_auto_without_slip_streams_once():
+    scene = load_scene("paper").with_overrides(duration=2.0)
+    items = list(stream(scene, window_steps=50))
+    assert not any(isinstance(w, Restart) for w in items)
+    assert items[-1].choice.model == simulate(scene).choice.model == "flexible"
+
+
+# ------------------------------------------------------------------ the command
+@pytest.fixture
+def streamed(monkeypatch):
+    """Make `belt-drive sim` stream every run, in small windows."""
+    monkeypatch.setattr(sim_command, "STREAM_ABOVE", 0)
+    monkeypatch.setattr(stream_module, "WINDOW_STEPS", 64)
+
+
+@pytest.mark.parametrize("scene", ["paper", "truck_compressor"])
+def test_streamed_csv_equals_the_in_memory_csv(tmp_path, capsys, monkeypatch, scene):
+    assert main(["sim", scene, "--duration", "1", "--quiet", "--out", str(tmp_path / "memory.csv")]) == 0
+    monkeypatch.setattr(sim_command, "STREAM_ABOVE", 0)
+    monkeypatch.setattr(stream_module, "WINDOW_STEPS", 64)
+    assert main(["sim", scene, "--duration", "1", "--quiet", "--out", str(tmp_path / "streamed.csv")]) == 0
+    a = (tmp_path / "memory.csv").read_text().splitlines()
+    b = (tmp_path / "streamed.csv").read_text().splitlines()
+    assert a[0] == b[0] and len(a) == len(b)
+    np.testing.assert_allclose(np.loadtxt(b[1:], delimiter=","), np.loadtxt(a[1:], delimiter=","), rtol=1e-9, atol=1e-9)
+    out = capsys.readouterr().out
+    memory, streamed_ = out.split("wrote")[0], out.split("wrote")[1]
+    model = memory.splitlines()[1].split()[:2]
+    assert model == streamed_.splitlines()[2].split()[:2]  # the same model (slipping for the truck)
+
+
+def test_streamed_mcap_has_the_whole_runs_messages(tmp_path, monkeypatch):
+    from msg_tools import summary as mcap_summary
+
+    argv = ["sim", "paper", "--duration", "2", "--quiet", "--start-time", "0"]
+    assert main(argv + ["--out", str(tmp_path / "memory.mcap")]) == 0
+    monkeypatch.setattr(sim_command, "STREAM_ABOVE", 0)
+    monkeypatch.setattr(stream_module, "WINDOW_STEPS", 37)
+    assert main(argv + ["--out", str(tmp_path / "streamed.MCAP")]) == 0
+    a, b = mcap_summary(tmp_path / "memory.mcap"), mcap_summary(tmp_path / "streamed.MCAP")
+    counts = {t.topic: t.message_count for t in a.topics}
+    assert counts == {t.topic: t.message_count for t in b.topics} and sum(counts.values()) > 0
+    assert a.start_ns == b.start_ns and a.end_ns == b.end_ns and b.complete
+    assert a.metadata_dict("scene")["samples"] == b.metadata_dict("scene")["samples"]
+    from belt_drive_ros.io.torque_bag import scene_from_bag
+
+    assert scene_from_bag(tmp_path / "streamed.MCAP") == scene_from_bag(tmp_path / "memory.mcap")
+
+
+def _peak_bytes(argv) -> int:
+    tracemalloc.start()
+    try:
+        assert main(argv) == 0
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+@pytest.mark.parametrize("ext", ["csv", "mcap"])
+def test_memory_does_not_grow_with_the_duration(tmp_path, monkeypatch, ext):
+    """A run 20x longer peaks at about the same memory (in memory it would need 20x: ~300 B per sample).
+
+    Time-only torques keep the run on the vectorized path, so tracing every
+    allocation stays cheap; windows of 500 steps (and the auto choice's
+    speed estimate in windows of 500) make 20 s and 400 s both many windows.
+    """
+    from belt_drive_ros.core import fidelity
+
+    monkeypatch.setattr(sim_command, "STREAM_ABOVE", 0)
+    monkeypatch.setattr(stream_module, "WINDOW_STEPS", 500)
+    monkeypatch.setattr(fidelity, "SPEED_WINDOW", 500)
+    monkeypatch.setattr(run_writers, "STREAM_CHUNK", 64 << 10)  # both runs fill many MCAP chunks
+    scene = tmp_path / "steady.yaml"
+    scene.write_text("extends: paper\ndrive: {type: ramp, start_value: 0.0, end_value: 3.0, start_time: 0.0, end_time: 1.0}\n"
+                     "load: 1.0\n")
+    duration = 200 if ext == "csv" else 100  # MCAP encoding allocates per message: slow under tracemalloc
+    short = _peak_bytes(["sim", str(scene), "--duration", str(duration / 20), "--quiet", "--out", str(tmp_path / f"short.{ext}")])
+    long = _peak_bytes(["sim", str(scene), "--duration", str(duration), "--quiet", "--out", str(tmp_path / f"long.{ext}")])
+    rows = duration / load_scene("paper").dt
+    assert long < 1.3 * short, (short, long)
+    if ext == "csv":
+        assert long < rows * 8 * 4  # less than 4 floats per sample of the run
+        assert len((tmp_path / "long.csv").read_text().splitlines()) == rows + 2
+
+
+def test_plot_of_a_long_run_is_refused_up_front_with_a_decimation(tmp_path, capsys):
+    code = main(["sim", "paper", "--duration", "86400", "--plot", str(tmp_path / "p.png"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "--plot-every 70" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_plot_every_draws_a_streamed_run(tmp_path, capsys, streamed, monkeypatch):
+    monkeypatch.setattr(sim_command, "PLOT_SAMPLES", 300)
+    argv = ["sim", "paper", "--duration", "5", "--quiet", "--plot", str(tmp_path / "p.png")]
+    assert main(argv) == 2 and "--plot-every 4" in capsys.readouterr().err
+    assert main(argv + ["--plot-every", "4", "--out", str(tmp_path / "run.csv")]) == 0
+    assert (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
+    assert len((tmp_path / "run.csv").read_text().splitlines()) == 1002  # the CSV keeps every sample
+
+
+@pytest.mark.parametrize("duration", ["1e9", "1e300", "inf", "nan", "-1"])
+def test_impossible_durations_are_one_line(capsys, duration):
+    code = main(["sim", "paper", "--duration", duration, "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and err.startswith("belt-drive: error: duration:")
+
+
+def test_step_count_limit(capsys):
+    code = main(["sim", "paper", "--duration", "1e6", "--dt", "1e-4", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "steps, more than" in err and err.count("\n") == 1
