@@ -169,6 +169,16 @@ class _BoundedLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+def _construct_int(loader, node):
+    value = yaml.SafeLoader.construct_yaml_int(loader, node)
+    if abs(value) > MAX_INT:
+        raise InputError(f"line {node.start_mark.line + 1}: integer {short(node.value, 40)} is too large (|n| > 2^63)")
+    return value
+
+
+#: largest integer a file may hold (beyond, floats overflow and no setting means anything)
+MAX_INT = 2**63
+_BoundedLoader.add_constructor("tag:yaml.org,2002:int", _construct_int)
 _BoundedLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789"))
 
 

@@ -104,7 +104,10 @@ class BeltDriveParams:
             value = getattr(self, f.name)
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ParameterError(f.name, f"must be a number, got {type(value).__name__} {short(value)}")
-            value = float(value)
+            try:
+                value = float(value)
+            except OverflowError:
+                raise ParameterError(f.name, f"must be finite, got an integer of {len(str(abs(value)))} digits") from None
             object.__setattr__(self, f.name, value)
             if not math.isfinite(value):
                 raise ParameterError(f.name, f"must be finite, got {value!r}")

@@ -40,6 +40,14 @@ RANGES: dict[str, tuple[float, float, str]] = {
 MAX_STEPS = 1.0e9
 
 
+def _finite(v) -> bool:
+    """``math.isfinite`` that says False for integers beyond the float range (instead of raising)."""
+    try:
+        return math.isfinite(v)
+    except OverflowError:
+        return False
+
+
 @dataclass(frozen=True)
 class InitialState:
     """Initial condition: wheel M angle [rad] and speed [rad/s], belt deflection [rad] and its rate [rad/s].
@@ -56,7 +64,7 @@ class InitialState:
     def __post_init__(self):
         for f in fields(self):
             v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
                 raise SceneError(f"initial_state.{f.name}: must be a finite number, got {type(v).__name__} {short(v)}")
             object.__setattr__(self, f.name, float(v))
 
@@ -113,7 +121,7 @@ class Scene:
     def __post_init__(self):
         for name, (low, high, unit) in RANGES.items():
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v) or v <= 0:
                 raise SceneError(f"{name}: must be a finite number > 0, got {type(v).__name__} {short(v)}")
             if not low <= v <= high:
                 raise SceneError(f"{name}: {v:g} {unit} is outside the plausible range [{low:g}, {high:g}] {unit}")
@@ -168,6 +176,9 @@ class Scene:
                     f"scene: missing required key {missing[0]!r}; a scene states {', '.join(REQUIRED_KEYS)} "
                     f"or extends a shipped scene ('extends: paper', then only what differs)"
                 )
+            for key in REQUIRED_KEYS:
+                if data[key] is None:
+                    raise SceneError(f"{key}: is empty (null); state it or extend a shipped scene")
             params = data["params"]
             if isinstance(params, Mapping):
                 required = [f.name for f in fields(BeltDriveParams) if f.name not in OPTIONAL_DEFAULTS]

@@ -558,14 +558,18 @@ class Schedule(TorqueProfile):
     periods: tuple = ()
 
     def __post_init__(self):
-        if isinstance(self.active, Mapping):
-            object.__setattr__(self, "active", make_profile(self.active, "schedule.active"))
-        if isinstance(self.inactive, Mapping):
-            object.__setattr__(self, "inactive", make_profile(self.inactive, "schedule.inactive"))
+        for name in ("active", "inactive"):  # a mapping or a number (constant), as for drive and load
+            object.__setattr__(self, name, make_profile(getattr(self, name), f"schedule.{name}"))
         periods = []
+        if not isinstance(self.periods, (list, tuple)):
+            raise SceneError(f"schedule.periods: expected a list of [start, end], got {short(self.periods)}")
         for p in self.periods:
-            if len(p) != 2 or not (math.isfinite(p[0]) and math.isfinite(p[1])) or not p[1] > p[0]:
-                raise SceneError(f"schedule.periods: each period must be [start, end] with end > start, got {p!r}")
+            if (
+                not isinstance(p, (list, tuple)) or len(p) != 2
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in p)
+                or not (math.isfinite(p[0]) and math.isfinite(p[1])) or not p[1] > p[0]
+            ):
+                raise SceneError(f"schedule.periods: each period must be [start, end] with end > start, got {short(p)}")
             periods.append((float(p[0]), float(p[1])))
         object.__setattr__(self, "periods", tuple(periods))
 
