@@ -321,8 +321,10 @@ class HybridStepper:
                 self._modal[mode] = ModalFlow(A, B)
             except np.linalg.LinAlgError:
                 pass
-        #: exact and etd2 steps of any length by the modal flow (no matrix exponential per sub-step length)
-        self._modal_steps = method in ("exact", "etd2")
+        #: exact, etd2 and etd4 steps of any length by the modal flow (no matrix exponential per sub-step length)
+        self._modal_steps = method in ("exact", "etd2", "etd4")
+        self._project_slip = p.c == 0.0 and p.belt_mass > 0.0
+        self._rel2, self._rel3 = float(model.rel_row[2]), float(model.rel_row[3])
 
     # ---------------------------------------------------------- the flows
     def _integrator(self, mode: int, h: float):
@@ -384,7 +386,7 @@ class HybridStepper:
     def flow(self, mode, sigma, t, y, h, hi=math.inf):
         """The method's step of length ``h`` in ``mode`` from (t, y).
 
-        ``exact`` and ``etd2`` take it on the modal flow
+        ``exact``, ``etd2`` and ``etd4`` take it on the modal flow
         (:class:`~belt_drive_ros.core.slip_modal.ModalFlow`: the same maths as
         their matrix exponentials, for any ``h``), the others by an
         integrator of step ``h`` (cached per length).
@@ -394,7 +396,7 @@ class HybridStepper:
             y1 = self._integrator(mode, h).step(t, y, self.inputs(mode, sigma, hi))
             return self._project(mode, sigma, y1)
         y = y.tolist() if isinstance(y, np.ndarray) else y
-        y1 = modal.step(y, t, h, self.scalar_inputs(mode, sigma, hi), self.method == "etd2")
+        y1 = modal.step(y, t, h, self.scalar_inputs(mode, sigma, hi), self.method)
         return self._project(mode, sigma, np.array(y1))
 
     def _project(self, mode, sigma, y):
@@ -468,47 +470,68 @@ class HybridStepper:
         bisection when a step leaves the bracket) or Brent's method brackets
         it to ~1e-15 s.
         """
-        modal = self._modal.get(mode)
-        GD = None
-        if modal is not None:
+        if mode in self._modal:
             u = self.scalar_inputs(mode, sigma, hi)
-            yl = y.tolist()
-            u0 = u(t, yl)
-            u1 = u0 if (self.method == "exact" or y1 is None) else u(t + h, y1.tolist())
-            GD = modal.guard_function(self._guard(mode, sigma), modal.prepare(yl, u0, u1, h))
+            return self._locate_modal(mode, sigma, t, y.tolist(), h, u, u(t, y.tolist()), y1)[0]
 
-            def G(tau):
-                return GD(tau)[0]
-        else:
-            def G(tau):
-                return self.switching(mode, sigma, y if tau == 0.0 else self.flow(mode, sigma, t, y, tau, hi))
+        def G(tau):
+            return self.switching(mode, sigma, y if tau == 0.0 else self.flow(mode, sigma, t, y, tau, hi))
 
-        lo, g_lo = 0.0, self.switching(mode, sigma, y)
-        if g_lo >= 0.0:  # starts on the surface (just switched): find where it is inside
-            lo = None
-            for k in range(1, 40):
-                tau = h * 0.5**k
-                g = G(tau)
-                if g < 0.0:
-                    lo, g_lo = tau, g
-                    break
-            if lo is None:
-                return 0.0
-        hi_tau = g_hi = None
-        n_scan = 8 if modal is None else max(2, math.ceil(8.0 * modal.max_frequency * h / math.pi))
+        lo, g_lo = self._inside(G, self.switching(mode, sigma, y), h)
+        if lo is None:
+            return 0.0
+        bracket = self._scan(G, lo, g_lo, h, 8)
+        if bracket is None:
+            return None
+        self.n_located += 1
+        return scipy.optimize.brentq(G, bracket[0], bracket[2], xtol=1e-15, rtol=_EPS4, maxiter=200)
+
+    def _locate_modal(self, mode, sigma, t, yl, h, u, u0, y1=None):
+        """:meth:`_locate` on the modal flow, state ``yl`` and input ``u0 = u(t, yl)`` given (lists).
+
+        Returns ``(tau, w, b0)``: the located time (None: no crossing, 0.0:
+        at the start) and the modal coefficients of ``(yl, u0)`` for the
+        partial step to it.
+        """
+        modal = self._modal[mode]
+        u1 = u0 if (self.method == "exact" or y1 is None) else u(t + h, y1 if isinstance(y1, list) else y1.tolist())
+        w, b0, db, _, _ = coeffs = modal.prepare(yl, u0, u1, h)
+        GD = modal.guard_function(self._guard(mode, sigma), coeffs)
+
+        def G(tau):
+            return GD(tau)[0]
+
+        lo, g_lo = self._inside(G, self.switching(mode, sigma, np.array(yl)), h)
+        if lo is None:
+            return 0.0, w, b0
+        bracket = self._scan(G, lo, g_lo, h, max(2, math.ceil(8.0 * modal.max_frequency * h / math.pi)))
+        if bracket is None:
+            return None, w, b0
+        self.n_located += 1
+        return _newton(GD, *bracket), w, b0
+
+    @staticmethod
+    def _inside(G, g_lo, h):
+        """(lo, G(lo)): 0 when the step starts inside (G < 0), else the first h 2^-k inside, or (None, None)."""
+        if g_lo < 0.0:
+            return 0.0, g_lo
+        for k in range(1, 40):  # starts on the surface (just switched): find where it is inside
+            tau = h * 0.5**k
+            g = G(tau)
+            if g < 0.0:
+                return tau, g
+        return None, None
+
+    @staticmethod
+    def _scan(G, lo, g_lo, h, n_scan):
+        """(lo, G(lo), hi, G(hi)) around the first sign change on n_scan points from lo to h, or None."""
         for j in range(1, n_scan + 1):
             tau = lo + (h - lo) * j / n_scan if j < n_scan else h
             g = G(tau)
             if g > 0.0:
-                hi_tau, g_hi = tau, g
-                break
+                return lo, g_lo, tau, g
             lo, g_lo = tau, g
-        if hi_tau is None:
-            return None
-        self.n_located += 1
-        if GD is None:
-            return scipy.optimize.brentq(G, lo, hi_tau, xtol=1e-15, rtol=4.0 * np.finfo(float).eps, maxiter=200)
-        return _newton(GD, lo, g_lo, hi_tau, g_hi)
+        return None
 
     def advance(self, t0, t1, y, mode, sigma, cuts=(), events=None, dt=None, hi_end=math.inf, y1=None):
         """Integrate from t0 to t1: sub-steps end at each cut, then at each located event.
@@ -519,6 +542,8 @@ class HybridStepper:
         in the new mode. ``y1``: the method's state at ``t1`` in ``mode``
         when already known (a step without cuts that a compiled loop took).
         """
+        if self.locate and self._modal_steps and len(self._modal) == 2:
+            return self._advance_modal(t0, t1, y, mode, sigma, cuts, events, dt, hi_end, y1)
         edges = [t0, *cuts, t1]
         n_events = 0
         given = None if cuts else y1
@@ -543,14 +568,81 @@ class HybridStepper:
                     a = a + tau if tau < h else b
                 else:  # switch at the end of the step (grid sampling, for comparison)
                     y, a = y1, b
-                old = mode
-                mode, sigma, y = self.switch(mode, sigma, a, y)
-                if events is not None and mode != old:
-                    events.append(Event(a, "onset" if mode == SLIP else "restick", sigma, y.copy()))
+                mode, sigma, y = self._switched(mode, sigma, a, y, events)
                 n_events += 1
                 if n_events > 64:
                     raise SlipError(f"slip: more than 64 mode switches in one step at t={a:.9g} s (chattering); reduce dt")
         return y, mode, sigma
+
+    def _switched(self, mode, sigma, a, y, events):
+        """:meth:`switch` at an event at (a, y), recorded in ``events`` when the mode changes."""
+        old = mode
+        mode, sigma, y = self.switch(mode, sigma, a, y)
+        if events is not None and mode != old:
+            events.append(Event(a, "onset" if mode == SLIP else "restick", sigma, y.copy()))
+        return mode, sigma, y
+
+    def _advance_modal(self, t0, t1, y, mode, sigma, cuts, events, dt, hi_end, y1):
+        """:meth:`advance` for ``exact``, ``etd2`` and ``etd4`` with both modes on the modal flow, on lists of floats.
+
+        The same operations as the generic path (the flows, the location,
+        the switch), without numpy between them: the input at a sub-step's
+        start and its modal coefficients serve both the location and the
+        partial step to the event.
+        """
+        edges = (t0, *cuts, t1)
+        n_events = 0
+        yl = y.tolist() if isinstance(y, np.ndarray) else list(y)
+        given = None if cuts or y1 is None else (y1.tolist() if isinstance(y1, np.ndarray) else list(y1))
+        method = self.method
+        last = len(edges) - 2
+        for j in range(last + 1):
+            a, b = edges[j], edges[j + 1]
+            hi = math.nextafter(b, -math.inf) if j < last else hi_end
+            while a < b:
+                h = dt if (dt is not None and a == t0 and b == t1) else b - a  # a whole grid step: the grid's dt
+                modal = self._modal[mode]
+                u = self.scalar_inputs(mode, sigma, hi)
+                u0 = u(a, yl)
+                if given is None:
+                    y1l = self._project_list(mode, sigma, modal.step_from(yl, a, h, u, method, u0))
+                else:
+                    y1l, given = given, None
+                if self._switching_list(mode, sigma, y1l) <= 0.0:
+                    yl, a = y1l, b
+                    break
+                tau, w, b0 = self._locate_modal(mode, sigma, a, yl, h, u, u0, y1l)
+                if tau is None:
+                    yl, a = y1l, b
+                    break
+                if tau > 0.0:
+                    yl = self._project_list(mode, sigma, modal.step_from(yl, a, tau, u, method, u0, w, b0))
+                a = a + tau if tau < h else b
+                mode, sigma, ya = self._switched(mode, sigma, a, np.array(yl), events)
+                yl = ya.tolist()
+                n_events += 1
+                if n_events > 64:
+                    raise SlipError(f"slip: more than 64 mode switches in one step at t={a:.9g} s (chattering); reduce dt")
+        return np.array(yl), mode, sigma
+
+    def _project_list(self, mode, sigma, y: list) -> list:
+        """:meth:`_project` on a list (the same operations)."""
+        if mode == SLIP and self._project_slip:
+            te = sigma * self.model.limit(y[2]) / self._two_k_r3
+            y[4] += self._r3 * (y[1] - te)
+            y[1] = te
+        return y
+
+    def _switching_list(self, mode, sigma, y: list) -> float:
+        """:meth:`switching` of a state given as a list (the same value)."""
+        if mode == STICK:
+            return self.switching(mode, sigma, np.array(y))
+        m, p = self.model, self.model.params
+        Q = sigma * m.limit(y[2])
+        rel = y[2] * self._rel2 + y[3] * self._rel3
+        if p.c != 0.0:
+            rel = rel - (Q - 2.0 * p.k * p.r_3 * y[1]) / (2.0 * p.c)
+        return -sigma * rel
 
     def run(self, time, y0, mode0=STICK, sigma0=0.0, breakpoints=()) -> HybridResult:
         """Integrate over the grid ``time``; steps are split at ``breakpoints`` and at events."""
@@ -579,6 +671,10 @@ class HybridStepper:
         return HybridResult(time, states, modes, sigmas, events)
 
 
+#: relative tolerance of the event location (4 machine epsilons)
+_EPS4 = 4.0 * float(np.finfo(float).eps)
+
+
 def _newton(GD, lo, g_lo, hi, g_hi, xtol=1e-15):
     """Root of G in the bracket [lo, hi] (G(lo) < 0 < G(hi)); ``GD(tau) = (G, dG/dtau)``.
 
@@ -586,7 +682,7 @@ def _newton(GD, lo, g_lo, hi, g_hi, xtol=1e-15):
     the bracket; stops when the step is below ``xtol + 4 eps |tau|``.
     """
     tau = lo - g_lo * (hi - lo) / (g_hi - g_lo)
-    eps4 = 4.0 * np.finfo(float).eps
+    eps4 = _EPS4
     for _ in range(200):
         if not lo < tau < hi:
             tau = 0.5 * (lo + hi)

@@ -19,7 +19,8 @@ integrated coordinates add ``Re(a_j V int zeta) + b_j (tau u_0 + tau^2 (u_1 - u_
 
 This is the exact solution of the mode's linear ODE with that input: the
 ``exact`` method's step (held input, ``u_1 = u_0``) and the ``etd2`` step
-(``u_1`` from the predictor, ``h = tau``) of any length, and the continuous
+(``u_1`` from the predictor, ``h = tau``) of any length (and, with a
+quadratic input, the ``etd4`` step: :meth:`ModalFlow.step_etd4`), and the continuous
 extension on which events are located, each for a few dozen complex
 multiply-adds instead of a matrix exponential per sub-step length. Where
 ``A_z`` is (nearly) defective the constructor raises ``LinAlgError`` and
@@ -51,6 +52,24 @@ def phis(x: complex) -> tuple[complex, complex, complex, complex]:
     p1 = (e - 1.0) / x
     p2 = (p1 - 1.0) / x
     return e, p1, p2, (p2 - 0.5) / x
+
+
+#: Taylor coefficients 1/(j+4)! of phi_4
+_PHI4 = tuple(1.0 / math.factorial(j + 4) for j in range(15))
+
+
+def phis4(x: complex) -> tuple:
+    """(e^x, phi_1(x), ..., phi_4(x)) (the etd4 step's quadratic input needs phi_4 for the integrated coordinates)."""
+    if abs(x) < 0.5:
+        p4 = 0.0 * x
+        for c in reversed(_PHI4):
+            p4 = p4 * x + c
+        p3 = 1.0 / 6.0 + x * p4
+        p2 = 0.5 + x * p3
+        p1 = 1.0 + x * p2
+        return 1.0 + x * p1, p1, p2, p3, p4
+    e, p1, p2, p3 = phis(x)
+    return e, p1, p2, p3, (p3 - 1.0 / 6.0) / x
 
 
 def _dot(P, u) -> complex:
@@ -106,6 +125,8 @@ class ModalFlow:
         if pairs != 0:
             raise np.linalg.LinAlgError("eigenvalues not in conjugate pairs")
         self.max_frequency = float(np.max(np.abs(lam.imag)))
+        self._lams = tuple(mode[0] for mode in self.modes)
+        self._weights: dict = {}
 
     def prepare(self, y, u0, u1, h, w=None, b0=None):
         """Coefficients (w, b0, db, u0, du) from state ``y`` and the input's values at 0 and ``h`` [s].
@@ -122,7 +143,17 @@ class ModalFlow:
         return w, b0, [_dot(P, du) for _, _, _, _, P, _ in self.modes], u0, du
 
     def _phis(self, tau):
-        return [phis(mode[0] * tau) for mode in self.modes]
+        return [phis(lam * tau) for lam in self._lams]
+
+    def _row_weights(self, row) -> list:
+        """``weight_i (row . V_i)`` per carried mode for a row on ``y`` (cached: a guard's rows are fixed)."""
+        key = tuple(row)
+        r = self._weights.get(key)
+        if r is None:
+            r = self._weights[key] = [
+                weight * (row[1] * Vc[0] + row[2] * Vc[1] + row[3] * Vc[2]) for _, weight, Vc, _, _, _ in self.modes
+            ]
+        return r
 
     def guard_function(self, guard, coeffs):
         """``G(tau) = guard.value(y(tau))`` and its derivative, for a guard that reads only z (entries 0 and 4 zero).
@@ -134,13 +165,9 @@ class ModalFlow:
         w, b0, db = coeffs[0], coeffs[1], coeffs[2]
 
         def amplitudes(row):
-            out = []
-            for k, (_, weight, Vc, _, _, _) in enumerate(self.modes):
-                r = weight * (row[1] * Vc[0] + row[2] * Vc[1] + row[3] * Vc[2])
-                out.append((r * w[k], r * b0[k], r * db[k]))
-            return out
+            return [(r * w[k], r * b0[k], r * db[k]) for k, r in enumerate(self._row_weights(row))]
 
-        a = list(zip([mode[0] for mode in self.modes], amplitudes(guard.row)))
+        a = list(zip(self._lams, amplitudes(guard.row)))
         quad = guard.quad if guard.speed is not None else 0.0
         sp = amplitudes(guard.speed) if quad else None
         absolute, bound = guard.absolute, guard.bound
@@ -186,16 +213,85 @@ class ModalFlow:
             i4 += B4[q] * ramp
         return [float(y[0]) + i0, z0, z1, z2, float(y[4]) + i4]
 
-    def step(self, y, t: float, h: float, u: Callable, ramp: bool) -> list:
-        """One ``exact`` (``ramp`` False: input held at ``u(t, y)``) or ``etd2`` step of length ``h`` [s].
+    def step(self, y, t: float, h: float, u: Callable, method: str) -> list:
+        """One ``exact`` (input held at ``u(t, y)``), ``etd2`` or ``etd4`` step of length ``h`` [s].
 
         etd2 (Cox-Matthews): ``a`` = the held-input flow, ``u_1 = u(t + h, a)``,
-        then the flow with the input ramping from ``u_0`` to ``u_1``.
+        then the flow with the input ramping from ``u_0`` to ``u_1``. etd4:
+        :meth:`step_etd4`.
         """
+        return self.step_from(y, t, h, u, method, u(t, y))
+
+    def step_from(self, y, t: float, h: float, u: Callable, method: str, u0, w=None, b0=None) -> list:
+        """:meth:`step` with the input at the start ``u0 = u(t, y)`` known (and ``w``, ``b0`` of :meth:`prepare` for it)."""
+        if method == "etd4":
+            return self.step_etd4(y, t, h, u, u0, w)
         ph = self._phis(h)
-        u0 = u(t, y)
-        held = self.prepare(y, u0, u0, h)
+        held = self.prepare(y, u0, u0, h, w, b0)
         a = self.state(y, held, h, ph)
-        if not ramp:
+        if method != "etd2":
             return a
         return self.state(y, self.prepare(y, u0, u(t + h, a), h, held[0], held[1]), h, ph)
+
+    def _w(self, y) -> list:
+        """Modal coordinates ``V^-1 z`` of state ``y``."""
+        z0, z1, z2 = float(y[1]), float(y[2]), float(y[3])
+        return [Vi[0] * z0 + Vi[1] * z1 + Vi[2] * z2 for _, _, _, Vi, _, _ in self.modes]
+
+    def _held(self, w, u) -> tuple:
+        """:meth:`prepare`'s coefficients of modal coordinates ``w`` and the input ``u`` held."""
+        return w, [_dot(P, u) for _, _, _, _, P, _ in self.modes], [0.0] * len(w), u, [0.0] * len(u)
+
+    def step_etd4(self, y, t: float, h: float, u: Callable, u0, w=None) -> list:
+        """The ``etd4`` step (Cox-Matthews ETDRK4, as :class:`~belt_drive_ros.core.integrators.ExponentialRK4`) of length ``h``.
+
+        Its stages are held-input flows over ``h/2``: ``a`` from y with
+        ``U_0``, ``b`` from y with ``U_a = u(t + h/2, a)``, ``c`` from ``a``
+        with ``2 U_b - U_0`` (``U_b = u(t + h/2, b)``); the end is the exact
+        flow from y over ``h`` with the input polynomial
+        ``p(s) = c_0 + c_1 s/h + c_2 (s/h)^2``, ``c_0 = U_0``,
+        ``c_1 = -3 U_0 + 2 (U_a + U_b) - U_c``, ``c_2 = 2 (U_0 - U_a - U_b + U_c)``
+        (``U_c = u(t + h, c)``): its Duhamel integral
+        ``h [phi_1 c_0 + phi_2 c_1 + 2 phi_3 c_2] B`` is the method's
+        ``h [(phi_1 - 3 phi_2 + 4 phi_3) U_0 + 2 (phi_2 - 2 phi_3) (U_a + U_b) + (4 phi_3 - phi_2) U_c] B``.
+        """
+        half = 0.5 * h
+        ph2 = self._phis(half)
+        w = self._w(y) if w is None else w
+        a = self.state(y, self._held(w, u0), half, ph2)
+        ua = u(t + half, a)
+        b = self.state(y, self._held(w, ua), half, ph2)
+        ub = u(t + half, b)
+        c = self.state(a, self._held(self._w(a), [2.0 * q - p for p, q in zip(u0, ub)]), half, ph2)
+        uc = u(t + h, c)
+        c1 = [-3.0 * p + 2.0 * (qa + qb) - qc for p, qa, qb, qc in zip(u0, ua, ub, uc)]
+        c2 = [2.0 * (p - qa - qb + qc) for p, qa, qb, qc in zip(u0, ua, ub, uc)]
+        return self.state_quadratic(y, w, u0, [v / h for v in c1], [v / (h * h) for v in c2], h)
+
+    def state_quadratic(self, y, w, u0, d1, d2, tau: float) -> list:
+        """The state at ``tau`` [s] from ``y`` (modal coordinates ``w``) with the input ``u0 + d1 s + d2 s^2``.
+
+        ``zeta_i = e^(l tau) w_i + tau phi_1 b0_i + tau^2 phi_2 b1_i + 2 tau^3 phi_3 b2_i``
+        (``b_k = V^-1 B_z d_k``), its integral adds one power of tau and one
+        phi index; the direct input terms integrate to
+        ``tau u0 + tau^2 d1 / 2 + tau^3 d2 / 3``.
+        """
+        t2 = tau * tau
+        t3 = t2 * tau
+        z0 = z1 = z2 = i0 = i4 = 0.0
+        for (lam, weight, Vc, _, P, Cc), wk in zip(self.modes, w):
+            e, p1, p2, p3, p4 = phis4(lam * tau)
+            b0, b1, b2 = _dot(P, u0), _dot(P, d1), _dot(P, d2)
+            zeta = weight * (e * wk + tau * p1 * b0 + t2 * p2 * b1 + 2.0 * t3 * p3 * b2)
+            integral = weight * (tau * p1 * wk + t2 * p2 * b0 + t3 * p3 * b1 + 2.0 * t2 * t2 * p4 * b2)
+            z0 += (Vc[0] * zeta).real
+            z1 += (Vc[1] * zeta).real
+            z2 += (Vc[2] * zeta).real
+            i0 += (Cc[0] * integral).real
+            i4 += (Cc[1] * integral).real
+        B0, B4 = self.B04
+        for q in range(self.m):
+            ramp = tau * u0[q] + 0.5 * t2 * d1[q] + t3 * d2[q] / 3.0
+            i0 += B0[q] * ramp
+            i4 += B4[q] * ramp
+        return [float(y[0]) + i0, z0, z1, z2, float(y[4]) + i4]
