@@ -249,11 +249,21 @@ class BeltDriveParams:
         From the capstan law (F_tight - F_c) = (F_slack - F_c) e^(mu_eff beta) with
         F_tight + F_slack = 2 F_0. Clipped at 0 when F_c exceeds F_0 (the belt lifts off).
         """
-        factor = 2.0 * math.tanh(0.5 * self.mu_effective * self.wrap_angle)
         if isinstance(omega_M, (int, float)):  # the scalar path of the event handling: no numpy
-            v = self.r_2 * self.gear_ratio * omega_M
-            return max((self.F_0 - self.belt_mass * v * v) * factor, 0.0)
+            return self.scalar_friction_limit()(omega_M)
+        factor = 2.0 * math.tanh(0.5 * self.mu_effective * self.wrap_angle)
         return np.maximum((self.F_0 - self.centrifugal_tension(omega_M)) * factor, 0.0)
+
+    def scalar_friction_limit(self):
+        """:meth:`friction_limit` of one float ``omega_M`` [rad/s] as a closure with the constants bound [N]."""
+        factor = 2.0 * math.tanh(0.5 * self.mu_effective * self.wrap_angle)
+        speed, F_0, mass = self.r_2 * self.gear_ratio, self.F_0, self.belt_mass
+
+        def limit(omega_M: float) -> float:
+            v = speed * omega_M
+            return max((F_0 - mass * v * v) * factor, 0.0)
+
+        return limit
 
 
 def describe_fields() -> str:

@@ -324,6 +324,7 @@ class HybridStepper:
         #: exact, etd2 and etd4 steps of any length by the modal flow (no matrix exponential per sub-step length)
         self._modal_steps = method in ("exact", "etd2", "etd4")
         self._project_slip = p.c == 0.0 and p.belt_mass > 0.0
+        self._limit = p.scalar_friction_limit()
         self._rel2, self._rel3 = float(model.rel_row[2]), float(model.rel_row[3])
 
     # ---------------------------------------------------------- the flows
@@ -368,7 +369,7 @@ class HybridStepper:
 
     def scalar_inputs(self, mode: int, sigma: float, hi: float = math.inf) -> Callable:
         """:meth:`inputs` as a tuple of floats (the event handling's path)."""
-        drive, load, i, r3, limit = self.drive, self.load, self._i, self._r3, self.model.params.friction_limit
+        drive, load, i, r3, limit = self.drive, self.load, self._i, self._r3, self._limit
         if mode == STICK:
 
             def u(t, y):
@@ -628,7 +629,7 @@ class HybridStepper:
     def _project_list(self, mode, sigma, y: list) -> list:
         """:meth:`_project` on a list (the same operations)."""
         if mode == SLIP and self._project_slip:
-            te = sigma * self.model.limit(y[2]) / self._two_k_r3
+            te = sigma * self._limit(y[2]) / self._two_k_r3
             y[4] += self._r3 * (y[1] - te)
             y[1] = te
         return y
@@ -637,8 +638,8 @@ class HybridStepper:
         """:meth:`switching` of a state given as a list (the same value)."""
         if mode == STICK:
             return self.switching(mode, sigma, np.array(y))
-        m, p = self.model, self.model.params
-        Q = sigma * m.limit(y[2])
+        p = self.model.params
+        Q = sigma * self._limit(y[2])
         rel = y[2] * self._rel2 + y[3] * self._rel3
         if p.c != 0.0:
             rel = rel - (Q - 2.0 * p.k * p.r_3 * y[1]) / (2.0 * p.c)

@@ -295,15 +295,16 @@ class Stepper:
         self.split_steps, self.vectorized, self.stopped = {}, False, None
         states = np.empty((k1 - k0 + 1, x0.size))
         states[0] = x0
+        grid = self._grid(k0, k1 + 1)
         with np.errstate(all="ignore"):
-            self._whole_steps(x0, k0, k1, states[1:])
-        times = np.array(self._grid(k0, k1 + 1))
-        times[0], times[-1] = t0, t1
+            self._whole_steps(x0, k0, k1, states[1:], grid)
+        grid[0], grid[-1] = t0, t1  # the knots' times (the loop stepped on the grid's)
         if self._stop_at is not None:
             j = self._stop_at
             self._stop_at = None
-            self.stopped = (j, float(times[j]), float(times[j + 1]), True, -math.inf, math.inf, [])
-            times, states = times[: j + 2], states[: j + 2]
+            self.stopped = (j, grid[j], grid[j + 1], True, -math.inf, math.inf, [])
+            grid, states = grid[: j + 2], states[: j + 2]
+        times = np.array(grid)
         if not _healthy(states[-1]):
             bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, states.shape[1] // 2 :]) > SPEED_LIMIT, axis=1)
             k = int(np.argmax(bad))
@@ -524,9 +525,12 @@ class Stepper:
                     progress((c - first) / n_cells)
         return states if record else x
 
-    def _whole_steps(self, x: np.ndarray, c: int, stop: int, out) -> np.ndarray:
-        """Whole steps of cells ``c`` .. ``stop - 1`` (no breakpoint touches them); write into ``out``."""
-        times = self._grid(c, stop + 1)
+    def _whole_steps(self, x: np.ndarray, c: int, stop: int, out, times=None) -> np.ndarray:
+        """Whole steps of cells ``c`` .. ``stop - 1`` (no breakpoint touches them); write into ``out``.
+
+        ``times``: their grid times ``self._grid(c, stop + 1)`` if the caller has them.
+        """
+        times = self._grid(c, stop + 1) if times is None else times
         size = x.size
         if self.loop is not None:
             try:
