@@ -102,6 +102,7 @@ class SlippingBeltModel:
         If, I3, bf, b3 = p.inertia_drive_side, p.I_3, p.bearing_damping_drive_side, p.b_3
         self.q_row = np.array([0.0, 2.0 * p.k * r3, 2.0 * p.c * r2 * g, -2.0 * p.c * r3, 0.0])
         self.rel_row = np.array([0.0, 0.0, r2 * g, -r3, 0.0])
+        self._q = self.q_row.tolist()
         # stick: Q = q_row @ y
         A = np.zeros((5, 5))
         A[0, 2] = 1.0
@@ -197,10 +198,11 @@ class SlippingBeltModel:
     # -------------------------------------------------------------- outputs
     def force(self, y, mode, sigma):
         """Transmitted force Q per sample [N]: ``q_row @ y`` sticking, ``sigma Q_max`` slipping."""
-        y = np.asarray(y, dtype=float)
-        q = self.q_row  # elementwise (q_0 = q_4 = 0): one sample and a whole run round alike, unlike a matrix product
+        if not isinstance(y, _Sample):
+            y, mode = np.asarray(y, dtype=float), np.asarray(mode)
+        q = self._q  # elementwise (q_0 = q_4 = 0): one sample and a whole run round alike, unlike a matrix product
         stick = q[1] * y[..., 1] + q[2] * y[..., 2] + q[3] * y[..., 3]
-        return np.where(np.asarray(mode) == SLIP, sigma * self.limit(y[..., 2]), stick)
+        return _where(mode == SLIP, sigma * self.limit(y[..., 2]), stick)
 
     def outputs(self, y, u, mode, sigma) -> dict:
         """Output signals of samples ``y`` (N, 5), ``u`` (N, 2), ``mode``, ``sigma`` (N,).
@@ -210,10 +212,13 @@ class SlippingBeltModel:
         """
         p = self.params
         y, u = np.asarray(y, dtype=float), np.asarray(u, dtype=float)
-        mode = np.asarray(mode)
+        if y.ndim == 1:  # one sample (the node's tick): the same formulas on plain floats
+            y, u, mode, sigma = _Sample(y.tolist()), _Sample(u.tolist()), int(mode), float(sigma)
+        else:
+            mode = np.asarray(mode)
         Q = self.force(y, mode, sigma)
-        qmax = np.asarray(self.limit(y[..., 2]), dtype=float)  # (N,) for samples, a float for one
-        speed = np.where(mode == SLIP, self.slip_speed(y, Q), 0.0)
+        qmax = self.limit(y[..., 2])
+        speed = _where(mode == SLIP, self.slip_speed(y, Q), 0.0)
         a1, g = p.r_M / p.R_1, p.gear_ratio
         slack_force = p.F_0 - 0.5 * Q
         return {
@@ -231,13 +236,13 @@ class SlippingBeltModel:
             "relative_deflection": y[..., 1] + y[..., 4] / p.r_3,
             "span_force_tight": p.F_0 + 0.5 * Q,
             "span_force_slack": slack_force,
-            "slack": np.minimum(slack_force, p.F_0 + 0.5 * Q) <= 0.0,
+            "slack": _minimum(slack_force, p.F_0 + 0.5 * Q) <= 0.0,
             "slip": mode == SLIP,
             "elastic_deflection": y[..., 1],
             "slip_angle": y[..., 4] / p.r_3,
             "slip_distance": y[..., 4],
             "slip_speed": speed,
-            "friction_use": np.divide(Q, qmax, out=np.full(Q.shape, np.inf), where=qmax > 0),
+            "friction_use": _ratio(Q, qmax),
             "friction_limit": qmax,
         }
 
@@ -268,6 +273,43 @@ class SlippingBeltModel:
         """Friction loss Q s' = Q_max |s'| while slipping [W]."""
         Q = self.force(y, mode, sigma)
         return np.where(np.asarray(mode) == SLIP, Q * self.slip_speed(y, Q), 0.0)
+
+
+class _Sample:
+    """One state (or input) as plain floats, indexed like an array of samples (``y[..., k]``).
+
+    :meth:`SlippingBeltModel.outputs` of one sample (the node's tick) runs
+    its formulas on it: the same IEEE operations as on arrays, so the same
+    values, without a numpy scalar per operation.
+    """
+
+    __slots__ = ("values",)
+
+    def __init__(self, values: list):
+        self.values = values
+
+    def __getitem__(self, key):
+        return self.values[key[1]]
+
+
+def _where(condition, a, b):
+    """``np.where`` for arrays, the conditional for one sample."""
+    if isinstance(condition, np.ndarray):
+        return np.where(condition, a, b)
+    return a if condition else b
+
+
+def _minimum(a, b):
+    """``np.minimum`` for arrays, ``min`` for one sample."""
+    return np.minimum(a, b) if isinstance(a, np.ndarray) else min(a, b)
+
+
+def _ratio(Q, qmax):
+    """Q / Q_max, inf where the limit is 0 (the belt lifted off)."""
+    if isinstance(Q, np.ndarray):
+        qmax = np.asarray(qmax, dtype=float)
+        return np.divide(Q, qmax, out=np.full(Q.shape, np.inf), where=qmax > 0)
+    return Q / qmax if qmax > 0 else math.inf
 
 
 # ================================================================ hybrid run
