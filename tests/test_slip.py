@@ -27,14 +27,8 @@ from belt_drive_ros.core.model import FlexibleBeltModel
 from belt_drive_ros.core.params import BeltDriveParams
 from belt_drive_ros.core.scene import load_scene
 from belt_drive_ros.core.simulate import Simulator
-from belt_drive_ros.core.slip import (
-    SLIP,
-    STICK,
-    HybridStepper,
-    RegularisedFriction,
-    SlippingBeltModel,
-    reference_hybrid,
-)
+from belt_drive_ros.core.slip import SLIP, STICK, HybridStepper, SlippingBeltModel
+from belt_drive_ros.core.slip_reference import RegularisedFriction, reference_hybrid
 
 
 def _const(value):
@@ -258,3 +252,29 @@ def test_regularised_friction_approaches_coulomb_as_v_eps_shrinks():
         states = RegularisedFriction(m, v_eps).run(np.linspace(0.0, 0.05, 501), np.zeros(5), drive, load, "Radau")
         errs.append(np.max(np.abs(states[::50, 2:4] - ref.states[:, 2:4])))
     assert errs[0] > errs[1] > errs[2] and errs[2] < 0.05 * errs[0]
+
+
+@pytest.mark.parametrize("scene", ["truck_compressor", "bsg_start"])
+@pytest.mark.parametrize("mode", [STICK, SLIP])
+def test_modal_etd4_step_equals_the_matrix_etd4_step(scene, mode):
+    """The etd4 step on the modal flow (partial steps of any length) is the integrator's ETDRK4 step, to rounding.
+
+    Inputs depend on time and state (the belt-mass friction force as the slip mode's third input).
+    """
+    from belt_drive_ros.core.integrators import make_integrator
+    from belt_drive_ros.core.slip_modal import ModalFlow
+
+    m = SlippingBeltModel(load_scene(scene).params)
+    A, B = (m.A_stick, m.B_stick) if mode == STICK else (m.A_slip, m.B_slip)
+    flow = ModalFlow(A, B)
+
+    def u(t, y):
+        values = [30.0 * math.sin(40.0 * t) + 0.1 * y[2], 10.0 + 5.0 * math.cos(0.01 * y[3] + t), 500.0 - 0.01 * y[2] ** 2]
+        return values[: B.shape[1]]
+
+    rng = np.random.default_rng(3)
+    for h in (1e-5, 3e-4, 1e-3, 2e-3):
+        y = rng.normal(size=5) * np.array([1.0, 1e-3, 50.0, 50.0, 1e-3])
+        modal = np.array(flow.step(y.tolist(), 0.1, h, u, "etd4"))
+        matrix = make_integrator("etd4", A, B, h).step(0.1, y, lambda t, x: np.array(u(t, x)))
+        np.testing.assert_allclose(modal, matrix, rtol=1e-13, atol=1e-13 * np.max(np.abs(matrix)))

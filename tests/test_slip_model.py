@@ -138,3 +138,17 @@ def test_choose_model_has_three_tiers_and_names_the_peak():
     calm = choose_model(scene.with_overrides(duration=0.4))
     assert calm.model == calm.linear == "flexible" and 0.0 < calm.limit_ratio < 1.0
     assert choose_model(scene, check_slip=False).model == "flexible"
+
+
+def test_outputs_of_one_sample_equal_the_run_outputs_bit_for_bit(truck):
+    """The node's one-sample outputs (plain floats) equal the offline array outputs at every sample, bit for bit."""
+    m = SlippingBeltModel(truck.scene.params)
+    modes = truck.outputs["slip"].astype(int)
+    Q = truck.outputs["belt_torque"] / truck.scene.params.r_3
+    sigmas = np.where(modes == 1, np.sign(Q), 0.0)
+    full = m.outputs(truck.states, truck.inputs, modes, sigmas)
+    assert np.any(modes == 1) and np.any(modes == 0)
+    for k in range(0, truck.time.size, 7):
+        one = m.outputs(truck.states[k], truck.inputs[k], modes[k], sigmas[k])
+        for name, values in full.items():
+            assert np.asarray(one[name]).tobytes() == np.asarray(values[k]).tobytes(), (name, k)

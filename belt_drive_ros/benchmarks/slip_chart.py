@@ -4,7 +4,7 @@ Scene: the ``truck_compressor`` parameters with a softer preload (F_0 = 300 N,
 mu = 0.3: Q_max = 253 N), a constant 30 N m drive and a load of
 15 +/- 10 N m at 8 Hz on wheel 3 (peaks above r_3 Q_max = 17.7 N m), 0.3 s:
 repeated stick-slip (about a dozen events). Reference: scipy DOP853 per mode
-with located events (rtol = atol = 1e-12, :func:`~belt_drive_ros.core.slip.reference_hybrid`).
+with located events (rtol = atol = 1e-12, :func:`~belt_drive_ros.core.slip_reference.reference_hybrid`).
 Error: max |omega - omega_ref| / max |omega_ref| over both speeds on a 2 ms grid.
 
 Runs, each over a sweep of steps:
@@ -44,7 +44,8 @@ import numpy as np
 
 from ..core.errors import BeltDriveError
 from ..core.params import BeltDriveParams
-from ..core.slip import HybridStepper, RegularisedFriction, SlippingBeltModel, reference_hybrid
+from ..core.slip import HybridStepper, SlippingBeltModel
+from ..core.slip_reference import RegularisedFriction, reference_hybrid
 from .common import log, pyplot, save_figure, write_csv
 
 COLUMNS = ("family", "method", "v_eps", "dt", "cpu_s", "error", "failed", "events")
