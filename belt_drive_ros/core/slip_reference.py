@@ -19,7 +19,7 @@ import numpy as np
 import scipy.integrate
 
 from .integrators import make_integrator
-from .slip import STICK, Event, HybridResult, HybridStepper, SlipError, SlippingBeltModel
+from .slip import SLIP, STICK, Event, HybridResult, HybridStepper, SlipError, SlippingBeltModel
 
 
 # ============================================================ regularised
