@@ -183,8 +183,12 @@ def test_flexible_matrices_equal_lagrange_derivation(flexible_symbolic):
         np.testing.assert_allclose(model.mass_matrix, flexible_symbolic["M"](*a), rtol=RTOL_MATRIX, atol=0)
         np.testing.assert_allclose(model.stiffness_matrix, flexible_symbolic["K"](*a), rtol=RTOL_MATRIX, atol=0)
         np.testing.assert_allclose(model.damping_matrix, flexible_symbolic["C"](*a), rtol=RTOL_MATRIX, atol=0)
-        np.testing.assert_allclose(model.A, flexible_symbolic["A"](*a), rtol=RTOL_MATRIX, atol=0)
-        np.testing.assert_allclose(model.B, flexible_symbolic["B"](*a), rtol=RTOL_MATRIX, atol=0)
+        # the model's state is [phi_M, delta, omega_M, omega_3]; T maps it to Lagrange's [phi_M, phi_3, ...]
+        T = model.lagrange_map
+        np.testing.assert_array_equal(T @ T, np.eye(4))
+        A_sym = flexible_symbolic["A"](*a)
+        np.testing.assert_allclose(T @ model.A @ T, A_sym, rtol=RTOL_MATRIX, atol=RTOL_MATRIX * np.max(np.abs(A_sym)))
+        np.testing.assert_allclose(T @ model.B, flexible_symbolic["B"](*a), rtol=RTOL_MATRIX, atol=0)
 
 
 def test_rigid_matrices_equal_lagrange_derivation(rigid_symbolic):
@@ -207,10 +211,11 @@ def test_energy_functions_equal_lagrangian_terms(flexible_symbolic):
         a = _args(p)
         x = rng.normal(size=(5, 4)) * np.array([0.1, 0.1, 50.0, 50.0])
         e = flexible_symbolic["energies"]
-        for row in x:
-            assert model.kinetic_energy(row) == pytest.approx(e["T"](a, row), rel=1e-12)
-            assert model.potential_energy(row) == pytest.approx(e["V"](a, row), rel=1e-12)
-            assert model.dissipation_power(row) == pytest.approx(e["P_d"](a, row), rel=1e-12)
+        for row in x:  # row in Lagrange's coordinates; the model reads its own state T row
+            assert model.kinetic_energy(model.lagrange_map @ row) == pytest.approx(e["T"](a, row), rel=1e-12)
+            assert model.potential_energy(model.lagrange_map @ row) == pytest.approx(e["V"](a, row), rel=1e-12)
+            assert model.dissipation_power(model.lagrange_map @ row) == pytest.approx(e["P_d"](a, row), rel=1e-12)
+
 
 
 def test_symbolic_stiffness_matches_design_note(flexible_symbolic):
@@ -258,7 +263,7 @@ def _free_energy_history(params, stiffness, n_periods=60, steps_per_period=50):
     n = n_periods * steps_per_period
     x0 = np.array([0.0, -1e-3, 0.0, 0.0])  # wheel 3 lags by 1 mrad, everything at rest
     states = propagate_linear(integ.linear_step(), x0, [np.zeros((n, 2))])
-    energy = model.total_energy(states)  # the paper's own energy: eq. 17 + eq. 15
+    energy = model.total_energy(states @ model.lagrange_map.T)  # the paper's own energy: eq. 17 + eq. 15
     return energy
 
 

@@ -85,7 +85,8 @@ def test_power_identity_at_random_states(model_cls):
         u = rng.normal(size=2) * 10.0
         xdot = model.A @ x + model.B @ u
         if model_cls is FlexibleBeltModel:
-            dE = xdot[2:] @ model.mass_matrix @ x[2:] + x[2:] @ model.stiffness_matrix @ x[:2]
+            q = model.lagrange_map @ x  # [phi_M, phi_3, omega_M, omega_3]
+            dE = xdot[2:] @ model.mass_matrix @ x[2:] + x[2:] @ model.stiffness_matrix @ q[:2]
         else:
             dE = p.inertia_reduced * x[1] * xdot[1]
         expected = model.input_power(x, u) - model.dissipation_power(x)

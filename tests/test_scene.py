@@ -180,7 +180,7 @@ def test_with_overrides_validates():
 def test_initial_state_vector():
     init = InitialState(phi_M=0.5, omega_M=10.0, relative_deflection=1e-3, relative_speed=-0.2)
     i = 0.48
-    np.testing.assert_allclose(init.vector("flexible", i), [0.5, i * 0.5 - 1e-3, 10.0, i * 10.0 + 0.2], rtol=1e-15)
+    np.testing.assert_allclose(init.vector("flexible", i), [0.5, 1e-3, 10.0, i * 10.0 + 0.2], rtol=1e-15)
     np.testing.assert_allclose(init.vector("rigid", i), [0.5, 10.0])
 
 

@@ -481,14 +481,20 @@ class SymplecticEuler(FixedStepIntegrator):
     second_order_form = True
 
     def stage_scheme(self):
-        # u_0 = u(t, x);  omega+ = omega + h (L x + B_w u_0);  phi+ = phi + h omega+   (x = [phi, omega])
+        # u_0 = u(t, x);  omega+ = omega + h (L x + B_w u_0);  q+ = q + h T omega+   (x = [q, omega])
+        # T = A[:n2, n2:] is the kinematics block (q' = T omega: the identity for [phi_M, phi_3],
+        # [[1, 0], [i, -1]] for the flexible model's [phi_M, delta]); A[:n2, :n2] must be 0.
+        # Stacked matrices (a leading variant axis) are stepped alike.
         h, n = self.dt, self.A.shape[-1]
         n2 = n // 2
+        if np.any(self.A[..., :n2, :n2]):
+            raise ValueError("symplectic_euler: the state must be [coordinates, speeds] with q' = T omega")
+        T = self.A[..., :n2, n2:]
         L, BL = self.A[..., n2:, :], self.B[..., n2:, :]  # acceleration rows
         Phi = np.zeros(self.A.shape, dtype=self.A.dtype)
         Phi[..., n2:, :] = np.eye(n)[n2:] + h * L
-        Phi[..., :n2, :] = np.eye(n)[:n2] + h * Phi[..., n2:, :]
-        G = np.concatenate([h * h * BL, h * BL], axis=-2)
+        Phi[..., :n2, :] = np.eye(n)[:n2] + h * (T @ Phi[..., n2:, :])
+        G = np.concatenate([h * h * (T @ BL), h * BL], axis=-2)
         return StageScheme((0.0,), (None,), _hcat(Phi, G))
 
 

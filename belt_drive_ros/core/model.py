@@ -4,13 +4,24 @@ Both models are stateless: every function takes the state ``x`` (and the
 input ``u``) and returns derived quantities; the simulator or the ROS node
 owns the state. Both are linear time-invariant systems::
 
-    x' = A x + B u,      u = [drive_torque, load_torque]   [N m]
+    x' = A x + B u,      y = C x + D u,      u = [drive_torque, load_torque]   [N m]
 
 with the drive torque acting on wheel M and the load torque on wheel 3
-(opposing positive rotation). State ordering, written down once:
+(opposing positive rotation), and ``y`` the linear outputs
+:data:`LINEAR_OUTPUTS` (:meth:`~_LinearModel.output_matrices`). State
+ordering, written down once (everything else reads it through the model:
+``wheel_coordinates``, ``wheel_map``, ``angle_map``, ``relative_deflection``):
 
-* flexible: ``x = [phi_M, phi_3, omega_M, omega_3]``  [rad, rad, rad/s, rad/s]
+* flexible: ``x = [phi_M, delta, omega_M, omega_3]``  [rad, rad, rad/s, rad/s]
 * rigid:    ``x = [phi_M, omega_M]``                  [rad, rad/s]
+
+The flexible model integrates the relative deflection
+``delta = i phi_M - phi_3`` [rad at wheel 3] itself, not wheel 3's angle:
+delta stays small while both angles grow with run length, and forming it
+as the difference of two large angles would lose digits (1e-8 rad after
+300 s at 500 rad/s, against ~1e-11 as a state). ``phi_3 = i phi_M - delta``
+is an output. The slipping model (:mod:`belt_drive_ros.core.slip`) extends
+this state by the accumulated slip ``s``.
 
 Equations of motion (derived step by step in ``docs/model.md``; the paper's eq. 18/20
 with its errata corrected, plus belt span damping c and bearing damping b)::
@@ -22,8 +33,9 @@ with its errata corrected, plus belt span damping c and bearing damping b)::
 
     rigid:  I_red phi_M'' + b_red phi_M' = M_drive - i M_load
 
-The relative deflection ``delta = i phi_M - phi_3`` [rad at wheel 3] is the
-lag of wheel 3 behind the position a rigid belt would give it; the belt
+Since ``r_2 g = i r_3``, ``K q = 2k r_3 [i r_3 delta, -r_3 delta]``: in the
+state coordinates the stiffness acts on delta alone (exactly, with no
+rounding residue on phi_M), and ``delta' = i omega_M - omega_3``. The belt
 torque on wheel 3 is ``T_b = 2 k r_3^2 delta + 2 c r_3^2 delta'``.
 """
 
@@ -56,6 +68,12 @@ OUTPUT_UNITS: dict[str, str] = {
     "slip": "bool",
 }
 
+#: outputs linear in (x, u), the rows of the models' ``C`` and ``D`` (:meth:`_LinearModel.output_matrices`)
+LINEAR_OUTPUTS = (
+    "phi_M", "omega_M", "phi_1", "omega_1", "phi_2", "omega_2", "phi_3", "omega_3",
+    "drive_torque", "load_torque", "belt_torque", "relative_deflection",
+)  # fmt: skip
+
 
 @dataclass(frozen=True)
 class _LinearModel:
@@ -68,21 +86,65 @@ class _LinearModel:
     name: ClassVar[str] = ""
     n_states: ClassVar[int] = 0
 
-    # -- torque coordinates -------------------------------------------------
+    def _init(self, params, A, B, C, D) -> None:
+        """Set the frozen fields and ``C``, ``D`` (with the gear and input rows filled in)."""
+        object.__setattr__(self, "params", params)
+        self._gear_rows(C, D)
+        for name, value in (("A", A), ("B", B), ("C", C), ("D", D)):
+            object.__setattr__(self, name, value)
+
+    # -- output maps --------------------------------------------------------
+    def output_matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """(C, D): the outputs :data:`LINEAR_OUTPUTS` are ``y = C x + D u`` (SI units)."""
+        return self.C, self.D
+
+    @property
+    def wheel_map(self) -> np.ndarray:
+        """(4, n) matrix W with ``[phi_M, omega_M, phi_3, omega_3] = W x`` (what the torques see)."""
+        rows = [LINEAR_OUTPUTS.index(name) for name in ("phi_M", "omega_M", "phi_3", "omega_3")]
+        return self.C[rows]
+
+    @property
+    def angle_map(self) -> np.ndarray:
+        """(4, n) matrix with ``[phi_M, phi_1, phi_2, phi_3] = angle_map @ x`` [rad] (the four wheels)."""
+        rows = [LINEAR_OUTPUTS.index(name) for name in ("phi_M", "phi_1", "phi_2", "phi_3")]
+        return self.C[rows]
+
     def wheel_coordinates(self, x: np.ndarray) -> tuple:
         """(phi_M, omega_M, phi_3, omega_3) of state(s) ``x`` (last axis = state)."""
-        raise NotImplementedError
+        y = np.asarray(x, dtype=float) @ self.wheel_map.T
+        return y[..., 0], y[..., 1], y[..., 2], y[..., 3]
 
     def derivatives(self, t: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """x' = A x + B u (``t`` unused: the model is time-invariant)."""
         return self.A @ x + self.B @ u
 
     def outputs(self, x: np.ndarray, u: np.ndarray) -> dict[str, np.ndarray]:
-        """All output signals of :data:`OUTPUT_UNITS` for samples ``x`` (N, n), ``u`` (N, 2)."""
-        raise NotImplementedError
+        """All output signals of :data:`OUTPUT_UNITS` for samples ``x`` (N, n), ``u`` (N, 2).
+
+        The linear ones are ``y = C x + D u``; the span forces and the
+        slack/slip flags follow from the belt torque (:meth:`span_forces`).
+        """
+        x = np.asarray(x, dtype=float)
+        u = np.asarray(u, dtype=float)
+        y = x @ self.C.T + u @ self.D.T
+        out = {name: y[..., j] for j, name in enumerate(LINEAR_OUTPUTS)}
+        out["drive_torque"], out["load_torque"] = u[..., 0], u[..., 1]  # the inputs themselves, bit for bit
+        tight, slack_force, slack, slip = self.span_forces(out["belt_torque"])
+        out.update(span_force_tight=tight, span_force_slack=slack_force, slack=slack, slip=slip)
+        return {name: out[name] for name in OUTPUT_UNITS}
+
+    def _gear_rows(self, C: np.ndarray, D: np.ndarray) -> None:
+        """Fill the rows of C for wheels 1 and 2 from wheel M's, and the input rows of D."""
+        p = self.params
+        for wheel, ratio in (("1", p.r_M / p.R_1), ("2", p.gear_ratio)):
+            C[LINEAR_OUTPUTS.index("phi_" + wheel)] = ratio * C[LINEAR_OUTPUTS.index("phi_M")]
+            C[LINEAR_OUTPUTS.index("omega_" + wheel)] = ratio * C[LINEAR_OUTPUTS.index("omega_M")]
+        D[LINEAR_OUTPUTS.index("drive_torque"), 0] = 1.0
+        D[LINEAR_OUTPUTS.index("load_torque"), 1] = 1.0
 
     # -- helpers shared by both models --------------------------------------
-    def _span_forces(self, belt_torque: np.ndarray) -> tuple:
+    def span_forces(self, belt_torque: np.ndarray) -> tuple:
         """Span forces and slack/slip flags from the belt torque at wheel 3.
 
         The transmitted force Q = T_b / r_3 splits symmetrically about the
@@ -100,37 +162,14 @@ class _LinearModel:
         slip = slack | (tight > slack_force * p.capstan_ratio)
         return tight, slack_force, slack, slip
 
-    def _wheels(self, phi_M, omega_M, phi_3, omega_3, u, belt_torque, deflection):
-        p = self.params
-        a1 = p.r_M / p.R_1
-        g = p.gear_ratio
-        tight, slack_force, slack, slip = self._span_forces(belt_torque)
-        return {
-            "phi_M": phi_M,
-            "omega_M": omega_M,
-            "phi_1": a1 * phi_M,
-            "omega_1": a1 * omega_M,
-            "phi_2": g * phi_M,
-            "omega_2": g * omega_M,
-            "phi_3": phi_3,
-            "omega_3": omega_3,
-            "drive_torque": u[..., 0],
-            "load_torque": u[..., 1],
-            "belt_torque": belt_torque,
-            "relative_deflection": deflection,
-            "span_force_tight": tight,
-            "span_force_slack": slack_force,
-            "slack": slack,
-            "slip": slip,
-        }
-
 
 class FlexibleBeltModel(_LinearModel):
     """Two-degree-of-freedom model: elastic, damped belt between wheels 2 and 3.
 
-    ``x = [phi_M, phi_3, omega_M, omega_3]``. See the module docstring for the
-    equations; :attr:`mass_matrix`, :attr:`stiffness_matrix` and
-    :attr:`damping_matrix` are M, K, C there.
+    ``x = [phi_M, delta, omega_M, omega_3]`` (module docstring). See the
+    module docstring for the equations; :attr:`mass_matrix`,
+    :attr:`stiffness_matrix` and :attr:`damping_matrix` are M, K, C there
+    (in the wheel coordinates ``q = [phi_M, phi_3]``).
     """
 
     name: ClassVar[str] = "flexible"
@@ -138,47 +177,52 @@ class FlexibleBeltModel(_LinearModel):
 
     def __init__(self, params: BeltDriveParams):
         p = params
-        g = p.gear_ratio
+        g, i = p.gear_ratio, p.ratio
         shape = np.array([[p.r_2**2 * g**2, -p.r_2 * p.r_3 * g], [-p.r_2 * p.r_3 * g, p.r_3**2]])
         mass = np.diag([p.inertia_drive_side, p.I_3])
         stiffness = 2.0 * p.k * shape  # K, symmetric PSD (erratum 1 fixed)
         damping = 2.0 * p.c * shape + np.diag([p.bearing_damping_drive_side, p.b_3])
         minv = np.diag(1.0 / np.diag(mass))
         A = np.zeros((4, 4))
-        A[0:2, 2:4] = np.eye(2)  # phi' = omega
-        A[2:4, 0:2] = -minv @ stiffness  # omega' = -M^-1 K phi - M^-1 C omega + ...
-        A[2:4, 2:4] = -minv @ damping
+        A[0, 2] = 1.0  # phi_M' = omega_M
+        A[1, 2], A[1, 3] = i, -1.0  # delta' = i omega_M - omega_3
+        # K q = 2k r_3 [r_2 g delta, -r_3 delta]: the stiffness acts on delta alone (r_2 g = i r_3)
+        A[2:4, 1] = -minv @ (2.0 * p.k * p.r_3 * np.array([p.r_2 * g, -p.r_3]))
+        A[2:4, 2:4] = -minv @ damping  # omega' = ... - M^-1 C omega + M^-1 [M_drive, -M_load]
         B = np.zeros((4, 2))
         B[2, 0] = 1.0 / p.inertia_drive_side  # drive torque on M
         B[3, 1] = -1.0 / p.I_3  # load torque opposes wheel 3 (erratum 2 fixed)
-        object.__setattr__(self, "params", params)
-        object.__setattr__(self, "A", A)
-        object.__setattr__(self, "B", B)
+        C = np.zeros((len(LINEAR_OUTPUTS), 4))
+        D = np.zeros((len(LINEAR_OUTPUTS), 2))
+        row = LINEAR_OUTPUTS.index
+        C[row("phi_M"), 0] = C[row("omega_M"), 2] = C[row("omega_3"), 3] = 1.0
+        C[row("phi_3"), 0:2] = (i, -1.0)  # phi_3 = i phi_M - delta
+        C[row("relative_deflection"), 1] = 1.0
+        # T_b = 2 k r_3^2 delta + 2 c r_3^2 (i omega_M - omega_3)
+        C[row("belt_torque")] = 2.0 * p.r_3**2 * np.array([0.0, p.k, p.c * i, -p.c])
+        self._init(params, A, B, C, D)
         object.__setattr__(self, "mass_matrix", mass)
         object.__setattr__(self, "stiffness_matrix", stiffness)
         object.__setattr__(self, "damping_matrix", damping)
 
-    def wheel_coordinates(self, x):
-        return x[..., 0], x[..., 2], x[..., 1], x[..., 3]
+    @property
+    def lagrange_map(self) -> np.ndarray:
+        """(4, 4) T with ``[phi_M, phi_3, omega_M, omega_3] = T x`` (Lagrange's coordinates and speeds).
+
+        T is its own inverse (``phi_3 = i phi_M - delta`` and ``delta = i phi_M - phi_3``),
+        so ``T A T`` and ``T B`` are A and B in the coordinates of ``docs/model.md``.
+        """
+        T = np.eye(4)
+        T[1, 0:2] = (self.params.ratio, -1.0)
+        return T
 
     def relative_deflection(self, x: np.ndarray) -> np.ndarray:
-        """delta = i phi_M - phi_3 [rad]."""
-        return self.params.ratio * x[..., 0] - x[..., 1]
+        """delta = i phi_M - phi_3 [rad] (a state coordinate)."""
+        return np.asarray(x, dtype=float)[..., 1]
 
     def belt_torque(self, x: np.ndarray) -> np.ndarray:
         """T_b = 2 k r_3^2 delta + 2 c r_3^2 delta' [N m], torque of the belt on wheel 3."""
-        p = self.params
-        i = p.ratio
-        delta = i * x[..., 0] - x[..., 1]
-        delta_dot = i * x[..., 2] - x[..., 3]
-        return 2.0 * p.r_3**2 * (p.k * delta + p.c * delta_dot)
-
-    def outputs(self, x, u):
-        x = np.asarray(x, dtype=float)
-        u = np.asarray(u, dtype=float)
-        return self._wheels(
-            x[..., 0], x[..., 2], x[..., 1], x[..., 3], u, self.belt_torque(x), self.relative_deflection(x)
-        )
+        return np.asarray(x, dtype=float) @ self.C[LINEAR_OUTPUTS.index("belt_torque")]
 
     # -- energies -------------------------------------------------------------
     def kinetic_energy(self, x: np.ndarray) -> np.ndarray:
@@ -187,9 +231,9 @@ class FlexibleBeltModel(_LinearModel):
         return 0.5 * np.einsum("...i,ij,...j->...", w, self.mass_matrix, w)
 
     def potential_energy(self, x: np.ndarray) -> np.ndarray:
-        """V = 1/2 q^T K q = 2 (1/2) k (r_2 phi_2 - r_3 phi_3)^2 [J] (paper eq. 15)."""
-        q = x[..., 0:2]
-        return 0.5 * np.einsum("...i,ij,...j->...", q, self.stiffness_matrix, q)
+        """V = 2 (1/2) k (r_2 phi_2 - r_3 phi_3)^2 = k r_3^2 delta^2 [J] (paper eq. 15; = 1/2 q^T K q)."""
+        p = self.params
+        return p.k * p.r_3**2 * np.asarray(x, dtype=float)[..., 1] ** 2
 
     def dissipation_power(self, x: np.ndarray) -> np.ndarray:
         """P_d = q'^T C q' = 2 D_D (Rayleigh) [W], power lost in belt and bearings."""
@@ -223,7 +267,7 @@ class FlexibleBeltModel(_LinearModel):
             rigid = RigidBeltModel(self.params)
             tb = float(rigid.belt_torque(np.array([phi, omega]), np.array([drive_torque, load_torque])))
             delta = tb / self.params.belt_torsional_stiffness
-        return np.array([phi, i * phi - delta, omega, i * omega])
+        return np.array([phi, delta, omega, i * omega])
 
 
 class RigidBeltModel(_LinearModel):
@@ -240,31 +284,26 @@ class RigidBeltModel(_LinearModel):
 
     def __init__(self, params: BeltDriveParams):
         p = params
+        i = p.ratio
         A = np.array([[0.0, 1.0], [0.0, -p.bearing_damping_reduced / p.inertia_reduced]])
-        B = np.array([[0.0, 0.0], [1.0 / p.inertia_reduced, -p.ratio / p.inertia_reduced]])
-        object.__setattr__(self, "params", params)
-        object.__setattr__(self, "A", A)
-        object.__setattr__(self, "B", B)
-
-    def wheel_coordinates(self, x):
-        i = self.params.ratio
-        return x[..., 0], x[..., 1], i * x[..., 0], i * x[..., 1]
+        B = np.array([[0.0, 0.0], [1.0 / p.inertia_reduced, -i / p.inertia_reduced]])
+        C = np.zeros((len(LINEAR_OUTPUTS), 2))
+        D = np.zeros((len(LINEAR_OUTPUTS), 2))
+        row = LINEAR_OUTPUTS.index
+        C[row("phi_M"), 0] = C[row("omega_M"), 1] = 1.0
+        C[row("phi_3"), 0] = C[row("omega_3"), 1] = i
+        # T_b = I_3 i a_M + b_3 i omega_M + M_load, a_M = the second row of A x + B u
+        C[row("belt_torque")] = p.I_3 * i * A[1] + np.array([0.0, p.b_3 * i])
+        D[row("belt_torque")] = p.I_3 * i * B[1] + np.array([0.0, 1.0])
+        # quasi-static deflection T_b / (2 k r_3^2)
+        C[row("relative_deflection")] = C[row("belt_torque")] / p.belt_torsional_stiffness
+        D[row("relative_deflection")] = D[row("belt_torque")] / p.belt_torsional_stiffness
+        self._init(params, A, B, C, D)
 
     def belt_torque(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """T_b = I_3 i a_M + b_3 i omega_M + M_load [N m] (wheel 3's equation)."""
-        p = self.params
-        i = p.ratio
-        accel = (u[..., 0] - i * u[..., 1] - p.bearing_damping_reduced * x[..., 1]) / p.inertia_reduced
-        return p.I_3 * i * accel + p.b_3 * i * x[..., 1] + u[..., 1]
-
-    def outputs(self, x, u):
-        x = np.asarray(x, dtype=float)
-        u = np.asarray(u, dtype=float)
-        i = self.params.ratio
-        tb = self.belt_torque(x, u)
-        return self._wheels(
-            x[..., 0], x[..., 1], i * x[..., 0], i * x[..., 1], u, tb, tb / self.params.belt_torsional_stiffness
-        )
+        j = LINEAR_OUTPUTS.index("belt_torque")
+        return np.asarray(x, dtype=float) @ self.C[j] + np.asarray(u, dtype=float) @ self.D[j]
 
     def kinetic_energy(self, x: np.ndarray) -> np.ndarray:
         """T = 1/2 I_red omega_M^2 [J] (paper eq. 11)."""

@@ -74,14 +74,7 @@ class InitialState:
             return np.array([self.phi_M, self.omega_M])
         if model_name == "slipping":  # [phi_M, theta_e, omega_M, omega_3, s]: no slip yet
             return np.array([self.phi_M, self.relative_deflection, self.omega_M, ratio * self.omega_M - self.relative_speed, 0.0])
-        return np.array(
-            [
-                self.phi_M,
-                ratio * self.phi_M - self.relative_deflection,
-                self.omega_M,
-                ratio * self.omega_M - self.relative_speed,
-            ]
-        )
+        return np.array([self.phi_M, self.relative_deflection, self.omega_M, ratio * self.omega_M - self.relative_speed])
 
 
 @dataclass(frozen=True)

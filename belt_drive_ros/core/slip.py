@@ -191,9 +191,9 @@ class SlippingBeltModel:
         return rel - (Q - 2.0 * p.k * p.r_3 * y[..., 1]) / (2.0 * p.c)
 
     def state_from_flexible(self, x: np.ndarray) -> np.ndarray:
-        """Slipping state of a flexible state ``[phi_M, phi_3, omega_M, omega_3]`` (no slip yet)."""
+        """Slipping state of a flexible state ``[phi_M, delta, omega_M, omega_3]`` (no slip yet: theta_e = delta)."""
         x = np.asarray(x, dtype=float)
-        return np.array([x[0], self.params.ratio * x[0] - x[1], x[2], x[3], 0.0])
+        return np.array([x[0], x[1], x[2], x[3], 0.0])
 
     # -------------------------------------------------------------- outputs
     def force(self, y, mode, sigma):

@@ -75,7 +75,7 @@ class SlipState:
     """The hybrid state: mode, slip direction sigma, and the state vector in its phase's own coordinates.
 
     ``kind``: ``flexible`` (sticking, no slip yet: the flexible model's
-    ``[phi_M, phi_3, omega_M, omega_3]``), ``stick`` (``y``, 5 states),
+    ``[phi_M, theta, omega_M, omega_3]``), ``stick`` (``y``, 5 states),
     ``slip`` (``[y, Q]``, massless belt) or ``hybrid`` (``y`` while a belt
     with mass slips).
     """
@@ -173,7 +173,7 @@ class SlippingSimulator:
         phi_M, omega_M, phi_3, omega_3 = self.flexible.wheel_coordinates(np.asarray(xs, dtype=float))
         ys = np.empty((len(phi_M), 5))
         ys[:, 0], ys[:, 2], ys[:, 3], ys[:, 4] = phi_M, omega_M, omega_3, s
-        ys[:, 1] = self.model.params.ratio * phi_M - phi_3  # elementwise: one sample and a run round alike
+        ys[:, 1] = self.flexible.relative_deflection(np.asarray(xs, dtype=float))  # a state coordinate: no rounding
         return ys
 
     def initial(self, y0, t0=0.0) -> SlipState:

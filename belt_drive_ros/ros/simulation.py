@@ -142,7 +142,7 @@ class NodeSimulation:
         if old_model.name == "rigid":
             x = FlexibleBeltModel(new_model.params).state_from_rigid(x, load_torque=load_torque)
         elif old_model.name == "slipping":
-            x = np.array([x[0], new_model.params.ratio * x[0] - x[1], x[2], x[3]])
+            x = np.array(x[:4], dtype=float)  # [phi_M, theta_e, omega_M, omega_3]: the flexible state with delta = theta_e
         if new_model.name == "flexible":
             return x
         return new_model.state_from_flexible(x)
