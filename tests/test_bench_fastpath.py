@@ -158,7 +158,7 @@ def test_wheel_map_of_both_models():
     sim = Simulator(make_model("rigid", scene.params), scene.drive, scene.load, "etd2", 1e-3)
     np.testing.assert_allclose(sim.plant.wheel_map, [[1, 0], [0, 1], [i, 0], [0, i]])
     sim = Simulator(make_model("flexible", scene.params), scene.drive, scene.load, "etd2", 1e-3)
-    np.testing.assert_allclose(sim.plant.wheel_map, [[1, 0, 0, 0], [0, 0, 1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
+    np.testing.assert_allclose(sim.plant.wheel_map, [[1, 0, 0, 0], [0, 0, 1, 0], [i, -1, 0, 0], [0, 0, 0, 1]])  # phi_3 = i phi_M - theta
 
 
 def test_compile_rejects_a_plant_it_cannot_inline():

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.fidelity import FREQUENCY_RATIO_THRESHOLD, choose_model
-from ..core.model import FlexibleBeltModel, RigidBeltModel
+from ..core.model import LINEAR_OUTPUTS, FlexibleBeltModel, RigidBeltModel
 from ..core.scene import Scene, load_scene
 from ..core.simulate import simulate
 from ..core.sources import Constant, Sine
@@ -76,7 +76,7 @@ def frequency_response(params, f: float) -> dict[str, float]:
     xf = np.linalg.solve(s * np.eye(4) - flex.A, flex.B[:, 0])  # per N m of drive torque
     xr = np.linalg.solve(s * np.eye(2) - rigid.A, rigid.B[:, 0])
     i = params.ratio
-    belt_f = 2.0 * params.r_3**2 * (params.k * (i * xf[0] - xf[1]) + params.c * (i * xf[2] - xf[3]))
+    belt_f = flex.C[LINEAR_OUTPUTS.index("belt_torque")] @ xf  # 2 k r_3^2 theta + 2 c r_3^2 theta'
     accel_r = s * xr[1]
     belt_r = params.I_3 * i * accel_r + params.b_3 * i * xr[1]  # wheel 3's equation, no load
     return {

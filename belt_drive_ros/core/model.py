@@ -127,7 +127,7 @@ class _LinearModel:
         """
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)
-        y = x @ self.C.T + u @ self.D.T
+        y = _affine(self.C, x) + _affine(self.D, u)
         out = {name: y[..., j] for j, name in enumerate(LINEAR_OUTPUTS)}
         out["drive_torque"], out["load_torque"] = u[..., 0], u[..., 1]  # the inputs themselves, bit for bit
         tight, slack_force, slack, slip = self.span_forces(out["belt_torque"])
@@ -222,7 +222,7 @@ class FlexibleBeltModel(_LinearModel):
 
     def belt_torque(self, x: np.ndarray) -> np.ndarray:
         """T_b = 2 k r_3^2 delta + 2 c r_3^2 delta' [N m], torque of the belt on wheel 3."""
-        return np.asarray(x, dtype=float) @ self.C[LINEAR_OUTPUTS.index("belt_torque")]
+        return _affine(self.C[LINEAR_OUTPUTS.index("belt_torque")][None, :], np.asarray(x, dtype=float))[..., 0]
 
     # -- energies -------------------------------------------------------------
     def kinetic_energy(self, x: np.ndarray) -> np.ndarray:
@@ -302,8 +302,8 @@ class RigidBeltModel(_LinearModel):
 
     def belt_torque(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """T_b = I_3 i a_M + b_3 i omega_M + M_load [N m] (wheel 3's equation)."""
-        j = LINEAR_OUTPUTS.index("belt_torque")
-        return np.asarray(x, dtype=float) @ self.C[j] + np.asarray(u, dtype=float) @ self.D[j]
+        j = slice(LINEAR_OUTPUTS.index("belt_torque"), LINEAR_OUTPUTS.index("belt_torque") + 1)
+        return (_affine(self.C[j], np.asarray(x, dtype=float)) + _affine(self.D[j], np.asarray(u, dtype=float)))[..., 0]
 
     def kinetic_energy(self, x: np.ndarray) -> np.ndarray:
         """T = 1/2 I_red omega_M^2 [J] (paper eq. 11)."""
@@ -327,6 +327,19 @@ class RigidBeltModel(_LinearModel):
     def state_from_flexible(self, x_flex: np.ndarray) -> np.ndarray:
         """Rigid state [phi_M, omega_M] of a flexible state (drops the belt mode)."""
         return np.array([float(x_flex[0]), float(x_flex[2])])
+
+
+def _affine(M: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``x @ M.T`` summed column by column, elementwise: the same floats for one sample as for a whole run.
+
+    (A BLAS product may sum in another order for another number of rows; the
+    node computes its outputs one tick at a time and must equal the offline
+    run bit for bit.)
+    """
+    y = x[..., 0, None] * M[:, 0]
+    for k in range(1, M.shape[1]):
+        y = y + x[..., k, None] * M[:, k]
+    return y
 
 
 def static_deflection(params: BeltDriveParams, load_torque: float) -> float:
