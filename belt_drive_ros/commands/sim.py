@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -295,6 +296,10 @@ def print_summary(summary) -> None:
     print(f"integrator     {summary.method}, dt={summary.dt:g} s" + (" (vectorized open-loop path)" if summary.vectorized else ""))
     if summary.stability is not None:
         print(f"stability      {summary.stability.describe()}")
+    if summary.accuracy is not None:
+        print(f"accuracy       {summary.accuracy.describe()}")
+        if not summary.accuracy.accurate:
+            print(f"warning: {summary.accuracy.describe()}", file=sys.stderr)
     print(f"belt mode      {p.belt_natural_frequency / (2 * math.pi):.1f} Hz, damping ratio {p.belt_damping_ratio:.4f}")
     print(f"simulated      {summary.t_end - summary.t_start:g} s in {summary.wall_time * 1e3:.1f} ms ({summary.realtime_factor:,.0f}x real time)")
     print(f"final speed    {o['omega_M']:.3f} rad/s ({o['omega_M'] * rpm:.1f} rpm) at wheel M")

@@ -22,6 +22,7 @@ from typing import Callable
 
 import numpy as np
 
+from .accuracy import AccuracyReport, require_accurate
 from .fidelity import ModelChoice, choose_model
 from .model import OUTPUT_UNITS, make_model
 from .scene import Scene
@@ -72,6 +73,8 @@ class SimResult:
     outputs: dict
     choice: ModelChoice | None = None
     stability: StabilityReport | None = None
+    #: the accuracy guard's verdict on the closed loop (core/accuracy.py); None when not checked
+    accuracy: AccuracyReport | None = None
     wall_time: float = 0.0
     vectorized: bool = False
     energy: dict = field(default_factory=dict)
@@ -209,6 +212,11 @@ def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, v
     mdl = make_model(kind, scene.params)
     sim = Simulator(mdl, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
     x0 = scene.initial_state.vector(kind, scene.params.ratio)
+    # closed loop (torque slopes): refuses an unstable step, reports an inaccurate one (the CLI warns)
+    accuracy = (
+        require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, method_options=scene.method_options)
+        if check_stability else None
+    )  # fmt: skip
     start = _time.perf_counter()
     time, states = sim.run(scene.duration, x0, progress=progress, vectorize=vectorize)
     wall = _time.perf_counter() - start
@@ -234,6 +242,7 @@ def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, v
         inputs=u,
         outputs=outputs,
         stability=sim.stability,
+        accuracy=accuracy,
         wall_time=wall,
         vectorized=sim.vectorized,
         energy=energy,

@@ -28,6 +28,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from .accuracy import require_accurate
 from .fidelity import FREQUENCY_RATIO_THRESHOLD, ModelChoice, _linear_choice, limit_exceedance
 from .model import make_model
 from .scene import Scene
@@ -120,6 +121,11 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps) -> Ite
     stepper = sim.stepper
     stepper.origin = 0.0
     x = scene.initial_state.vector(kind, scene.params.ratio)
+    # closed loop (torque slopes): refuses an unstable step, reports an inaccurate one (as simulate does)
+    accuracy = (
+        require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x, method_options=scene.method_options)
+        if check_stability else None
+    )  # fmt: skip
     work = dissipated = 0.0
     first = True
     ends = list(_ends(stepper, scene.duration, window_steps)) or [(0.0, 0.0)]
@@ -136,8 +142,8 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps) -> Ite
         time, states, u = time[keep], states[keep], u[keep]
         yield SimResult(
             scene=scene, model=kind, method=sim.integrator.name, dt=scene.dt, time=time, states=states, inputs=u,
-            outputs=mdl.outputs(states, u), choice=choice, stability=sim.stability, wall_time=wall,
-            vectorized=stepper.vectorized,
+            outputs=mdl.outputs(states, u), choice=choice, stability=sim.stability, accuracy=accuracy,
+            wall_time=wall, vectorized=stepper.vectorized,
             energy={
                 "kinetic": mdl.kinetic_energy(states), "potential": mdl.potential_energy(states),
                 "input_work": energy_in[keep], "dissipated": energy_d[keep],
@@ -203,6 +209,7 @@ class RunSummary:
     dt: float = math.nan
     choice: ModelChoice | None = None
     stability: object = None
+    accuracy: object = None
     vectorized: bool = False
     wall_time: float = 0.0
     t_start: float = math.nan
@@ -220,6 +227,7 @@ class RunSummary:
             self.scene, self.t_start = window.scene, float(window.time[0])
         self.model, self.method, self.dt = window.model, window.method, window.dt
         self.choice, self.stability, self.vectorized = window.choice, window.stability, window.vectorized
+        self.accuracy = getattr(window, "accuracy", None)
         self.wall_time += window.wall_time
         self.t_end = float(window.time[-1])
         o = window.outputs

@@ -1,0 +1,126 @@
+"""The accuracy guard (``core/accuracy.py``) against independent references.
+
+Reference: DOP853 at rtol 1e-13 restarted at every breakpoint
+(:func:`belt_drive_ros.benchmarks.common.dop853_reference`); metric: max
+error of drive speed and belt torque relative to their peaks. The scenes are
+closed loops whose torques are constant or linear in speed, so the guard's
+linearization is the plant itself and its estimate must match the measured
+error (within a factor 2); the step it names must reach its tolerance.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from belt_drive_ros.benchmarks.common import dop853_reference, run_errors
+from belt_drive_ros.core import sources as S
+from belt_drive_ros.core.accuracy import ACCURACY_TOLERANCE, check_accuracy, require_accurate
+from belt_drive_ros.core.errors import UnstableStepError
+from belt_drive_ros.core.integrators import FIXED_STEP_METHODS
+from belt_drive_ros.core.model import make_model
+from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.core.simulate import Simulator, simulate
+from belt_drive_ros.core.stability import check_step
+from belt_drive_ros.core.stepper import Plant
+
+
+def _measured(scene, method, dt, kind="flexible"):
+    model = make_model(kind, scene.params)
+    x0 = scene.initial_state.vector(kind, scene.params.ratio)
+    sim = Simulator(model, scene.drive, scene.load, method, dt, check_stability=False)
+    t, x = sim.run(scene.duration, x0)
+    return run_errors(dop853_reference(scene, kind), t, x)["error"]
+
+
+def _report(scene, method, dt, kind="flexible", **kw):
+    model = make_model(kind, scene.params)
+    plant = Plant(model, scene.drive, scene.load)
+    return check_accuracy(plant, method, dt, scene.duration, scene.initial_state.vector(kind, scene.params.ratio), **kw)
+
+
+def _constant_torques():
+    """paper's soft belt with constant torques from rest (a step onto the belt)."""
+    return load_scene("paper").with_overrides(drive=S.Constant(6.0), load=S.Constant(2.0), duration=2.0)
+
+
+@pytest.mark.parametrize("h_omega", [8.0, 16.0])
+def test_lawson5_at_large_steps_is_flagged_and_the_named_step_works(h_omega):
+    """lawson5 integrates e^{hA} exactly but not the held torque's convolution: the free-belt guard said 'stable'."""
+    scene = _constant_torques()
+    dt = h_omega / scene.params.belt_natural_frequency
+    assert check_step(make_model("flexible", scene.params).A, None, "lawson5", dt).stable  # the old guard's view
+    report = _report(scene, "lawson5", dt)
+    measured = _measured(scene, "lawson5", dt)
+    assert report.stable and not report.accurate and measured > 0.1  # 0.71 at 8, 7.7 at 16
+    assert 0.5 * measured <= report.error <= 2.0 * measured, (report.error, measured)
+    assert report.suggestion is not None and _measured(scene, "lawson5", report.suggestion) <= ACCURACY_TOLERANCE
+    assert "INACCURATE" in report.describe() and f"{report.suggestion:.3g}" in report.describe()
+
+
+def test_exact_with_a_steep_speed_dependent_load():
+    """Load 10 omega_3 at dt = 2 ms with ``exact`` (holds the torque over the step): the guard sees the slope."""
+    truck = load_scene("truck_compressor")
+    scene = truck.with_overrides(drive=S.Constant(50.0), load=S.Polynomial(0.0, 10.0), duration=1.0, model="flexible")
+    report = _report(scene, "exact", 2e-3)
+    measured = _measured(scene, "exact", 2e-3)
+    assert report.slopes == pytest.approx((0.0, 10.0), abs=1e-6)
+    assert not report.accurate and measured > 0.1
+    assert 0.5 * measured <= report.error <= 2.0 * measured, (report.error, measured)
+    # named: a step of exact, and (exact needs a tiny one: first order in the slope) another method's step
+    assert report.suggestion is not None and report.alternative is not None
+    method, dt = report.alternative
+    assert _measured(scene, method, dt) <= ACCURACY_TOLERANCE
+
+
+def test_an_unstable_closed_loop_is_refused_naming_a_step_that_works():
+    """A load slope 200 N m s/rad on wheel 3 (I_3 = 12 g m^2) at 2 ms: exact's held torque over-corrects and grows."""
+    truck = load_scene("truck_compressor")
+    scene = truck.with_overrides(drive=S.Constant(50.0), load=S.Polynomial(0.0, 200.0), duration=0.5, model="flexible")
+    assert check_step(make_model("flexible", scene.params).A, None, "exact", 2e-3).stable  # free belt: fine
+    with pytest.raises(UnstableStepError, match="UNSTABLE") as err:
+        require_accurate(Plant(make_model("flexible", scene.params), scene.drive, scene.load), "exact", 2e-3,
+                         scene.duration, scene.initial_state.vector("flexible", scene.params.ratio))
+    assert "stable and accurate" in str(err.value)
+    report = _report(scene, "exact", 2e-3)
+    method, dt = report.alternative
+    assert _measured(scene, method, dt) <= ACCURACY_TOLERANCE
+
+
+def test_symplectic_euler_on_a_closed_loop_scene():
+    """paper (motor curve, fan load: both speed-dependent) with symplectic Euler: flagged; the named steps work."""
+    scene = load_scene("paper").with_overrides(duration=0.5)
+    report = _report(scene, "symplectic_euler", 5e-3)
+    assert not report.ok
+    assert _measured(scene, "symplectic_euler", 5e-3) > ACCURACY_TOLERANCE
+    assert report.suggestion is not None and _measured(scene, "symplectic_euler", report.suggestion) <= ACCURACY_TOLERANCE
+    method, dt = report.alternative
+    assert _measured(scene, method, dt) <= ACCURACY_TOLERANCE
+
+
+@pytest.mark.parametrize("method", FIXED_STEP_METHODS)
+def test_estimate_matches_measurement_for_every_method(method):
+    """Linear closed loop (constant drive, load 0.05 omega_3): the guard's step response is the run itself."""
+    scene = load_scene("paper").with_overrides(drive=S.Constant(6.0), load=S.Polynomial(0.0, 0.05), duration=1.0)
+    dt = 4e-3
+    report = _report(scene, method, dt, suggest=False)
+    try:
+        measured = _measured(scene, method, dt)
+    except Exception:  # a run that diverges
+        measured = np.inf
+    if not report.stable:
+        assert measured > 1.0 or not np.isfinite(measured)
+    elif measured > 1e-9:
+        assert 0.5 * measured <= report.error <= 2.0 * measured, (report.error, measured)
+    else:
+        assert report.error <= 1e-8
+
+
+def test_simulate_carries_the_report_and_the_defaults_pass_it():
+    for name in ("paper", "e_motor_start"):
+        result = simulate(load_scene(name))
+        assert result.accuracy is not None and result.accuracy.ok, result.accuracy.describe()
+    scene = _constant_torques()
+    dt = 8.0 / scene.params.belt_natural_frequency
+    result = simulate(scene, model="flexible", method="lawson5", dt=dt)
+    assert not result.accuracy.accurate  # a stable step that is inaccurate runs, with the report saying so
