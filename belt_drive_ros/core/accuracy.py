@@ -61,6 +61,8 @@ ACCURACY_TOLERANCE = 1e-4
 MAX_STEPS = 1200
 #: times along the scene at which the torques' slopes are probed
 N_PROBES = 5
+#: steps per advance of the probes' rigid run (bounds the stepper's plan, so memory does not grow with the duration)
+PROBE_CHUNK = 1000
 #: growth beyond max(1, exact growth) by this much (relative) is instability, not rounding
 GROWTH_TOLERANCE = 1e-9
 #: halvings tried when naming a step that is both stable and accurate
@@ -152,10 +154,16 @@ def _probes(plant, duration: float, x0) -> list[tuple]:
     wm = plant.wheel_map
     phi0, w0 = float(wm[0] @ x0), float(wm[1] @ x0)
     dt = min(duration / 500.0, 5e-3) if duration > 0 else 1e-3
-    try:
-        times, states = Stepper(Plant(rigid, plant.drive, plant.load), "exact", dt).run(np.array([phi0, w0]), 0.0, duration)
-        pick = np.linspace(0, len(times) - 1, N_PROBES).round().astype(int)
-        t_probe, w_probe = times[pick], states[pick, 1]
+    try:  # advance from probe to probe (memory independent of the duration: runs may stream)
+        stepper = Stepper(Plant(rigid, plant.drive, plant.load), "exact", dt)
+        t_probe = np.linspace(0.0, duration, N_PROBES) if duration > 0 else np.array([0.0])
+        x, speeds = np.array([phi0, w0]), []
+        for t0, t1 in zip(np.concatenate([[0.0], t_probe[:-1]]), t_probe):
+            # in pieces of PROBE_CHUNK steps: the stepper plans each advance whole
+            for a, b in zip(np.arange(t0, t1, PROBE_CHUNK * dt), np.append(np.arange(t0, t1, PROBE_CHUNK * dt)[1:], t1)):
+                x = stepper.advance(x, float(a), float(b))
+            speeds.append(float(x[1]))
+        w_probe = np.array(speeds)
     except Exception:  # a rigid estimate that diverges: probe at the start only
         t_probe, w_probe = np.array([0.0]), np.array([w0])
     gains, seen = [], set()
