@@ -194,7 +194,7 @@ def plot(rows: list[dict], path: Path) -> Path:
         for r in ok:
             if r.get("default") == 1:
                 ax.plot(r["cpu_per_sim_s"], max(r["error"], PLOT_FLOOR), "o", ms=14, mfc="none", mec="k", mew=1.5,
-                        label="default: etd2 at the scene's dt")  # fmt: skip
+                        label="default: the scene's method and dt")  # fmt: skip
         for limit, label in ((1 / 1000, "1000x real time"), (1 / 200, "200x")):
             ax.axvline(limit, color="0.6", ls=":", lw=0.8)
             ax.text(limit, 1.0, label, rotation=90, va="top", ha="right", fontsize=6.5, color="0.4",
