@@ -1,4 +1,4 @@
-"""Shared test set-up: DDS stays on loopback; each test process gets its own ROS domain.
+"""Shared test set-up: DDS stays on loopback; each test process holds its own ROS domain.
 
 The discovery range is set here, before any test module imports rclpy, so
 every context a test initialises discovers only this machine (unless the
@@ -8,7 +8,7 @@ is deprecated in Jazzy and never set.
 
 import os
 
-from belt_drive_ros.ros.environment import configure_environment
+from belt_drive_ros.ros.environment import configure_environment, process_domain_id
 
 configure_environment(loopback=True)
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -18,5 +18,10 @@ import pytest  # noqa: E402
 
 @pytest.fixture(scope="session")
 def ros_domain_id() -> int:
-    """A ROS domain id private to this pytest process (1 + pid % 100; ROS_DOMAIN_ID is ignored)."""
-    return 1 + os.getpid() % 100
+    """A ROS domain id private to this pytest process, locked for its life (ROS_DOMAIN_ID is ignored).
+
+    See :func:`belt_drive_ros.ros.environment.process_domain_id`: concurrent
+    suites on one machine (other worktrees, other users) never share it.
+    Child processes a test starts get it through ``child_environment``.
+    """
+    return process_domain_id()

@@ -22,11 +22,21 @@ The discovery rule (also in the README's node section):
   ``loopback=True``), and each test process or demo gets its own ROS domain
   (:func:`process_domain_id`), so concurrent runs on one machine do not see
   each other's topics.
+
+Private domains are allocated, not derived: an id is taken by holding an
+exclusive ``flock`` on ``/tmp/belt_drive_ros-domains/<id>.lock`` for
+the life of the process (the kernel drops the lock when the process ends,
+however it ends), so two processes of this package on one machine never get
+the same id while both run. A ROS program that does not take these locks
+(e.g. one started by hand with ``ROS_DOMAIN_ID`` set) is not seen.
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
+import tempfile
+from pathlib import Path
 from typing import MutableMapping
 
 #: the variables by which a user chooses how far DDS discovery reaches
@@ -35,9 +45,11 @@ DISCOVERY_VARIABLES = ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOCALHOST_ONLY")
 #: set by :func:`configure_environment` ``(loopback=True)`` when the user chose no range
 LOOPBACK_ENVIRONMENT = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
 
-#: domain ids handed out by :func:`process_domain_id`: 1 ... 100 (0 is the
-#: default domain every ROS install uses; ids above ~101 collide with the
-#: ephemeral port range on Linux).
+#: domain ids handed out by :func:`process_domain_id`: 1 ... 100. 0 is the
+#: default domain every ROS install uses. Fast DDS maps domain d to UDP ports
+#: 7400 + 250 d (+ 10, + 11 + 2 participant): up to d = 101 they stay below
+#: Linux's ephemeral port range (32768-60999); the ROS 2 docs give 0-101 as
+#: the safe range on Linux.
 DOMAIN_ID_RANGE = (1, 100)
 
 
@@ -64,16 +76,83 @@ def configure_environment(env: MutableMapping[str, str] | None = None, *,
     return env
 
 
-def process_domain_id(pid: int | None = None, offset: int = 0) -> int:
-    """A ROS domain id private to this process: ``1 + (pid + offset) % 100``.
+#: the ids this process holds: (pid, offset) -> (domain id, locked file descriptor)
+_HELD: dict[tuple[int, int], tuple[int, int]] = {}
 
-    Deliberately ignores ``ROS_DOMAIN_ID``: in-process harnesses and demos
-    must not share a domain with whatever else runs on the machine. ``offset``
-    gives further ids for the same process (e.g. one per child process).
+
+def domain_lock_dir() -> Path:
+    """The directory of the per-id lock files (``/tmp/belt_drive_ros-domains``), created if absent.
+
+    ``/tmp`` rather than ``$TMPDIR``: every process on the machine must find
+    the same files, whatever its environment (``tempfile.gettempdir()`` only
+    where there is no /tmp). Shared by every user (mode 1777, like /tmp
+    itself), since DDS domains are too.
     """
+    base = Path("/tmp") if Path("/tmp").is_dir() else Path(tempfile.gettempdir())
+    path = base / "belt_drive_ros-domains"
+    if not path.is_dir():
+        path.mkdir(exist_ok=True)
+        try:
+            path.chmod(0o1777)
+        except OSError:
+            pass
+    return path
+
+
+def _try_lock(path: Path) -> int | None:
+    """An open descriptor holding an exclusive flock on ``path``, or None if another holder has it."""
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    except PermissionError:  # another user's lock file: flock works on a read-only descriptor too
+        fd = os.open(path, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        return None
+    except BaseException:
+        os.close(fd)
+        raise
+    try:
+        os.fchmod(fd, 0o666)  # let other users lock the file too
+    except OSError:
+        pass
+    return fd
+
+
+def process_domain_id(offset: int = 0) -> int:
+    """A ROS domain id held by this process for its life; each ``offset`` gives a further id.
+
+    The first call for an ``offset`` tries the ids of :data:`DOMAIN_ID_RANGE`
+    in turn, starting at ``1 + (pid + offset) % 100``, and keeps the first
+    whose lock file (in :func:`domain_lock_dir`) it can lock exclusively;
+    later calls return the same id. The lock lasts until the process ends, so
+    no other process of this package on the machine gets that id meanwhile
+    (child processes started on it, e.g. through :func:`child_environment`,
+    share it). A forked child allocates its own ids. Deliberately ignores
+    ``ROS_DOMAIN_ID``: in-process harnesses and demos must not share a domain
+    with whatever else runs on the machine.
+
+    Raises
+    ------
+    RuntimeError
+        If every id of the range is held by another process.
+    """
+    pid = os.getpid()
+    held = _HELD.get((pid, int(offset)))
+    if held is not None:
+        return held[0]
     lo, hi = DOMAIN_ID_RANGE
-    pid = os.getpid() if pid is None else pid
-    return lo + (pid + offset) % (hi - lo + 1)
+    count = hi - lo + 1
+    start = (pid + int(offset)) % count
+    folder = domain_lock_dir()
+    for k in range(count):
+        domain = lo + (start + k) % count
+        fd = _try_lock(folder / f"{domain}.lock")
+        if fd is not None:
+            _HELD[(pid, int(offset))] = (domain, fd)
+            return domain
+    raise RuntimeError(f"no free ROS domain id: all of {lo}-{hi} are held by other processes (locks in {folder})")
 
 
 def child_environment(domain_id: int, udp_only: bool = True, loopback: bool = True,
