@@ -149,6 +149,27 @@ def test_slack_and_slip_flags():
     assert out["slack"].tolist() == [False, False, False, False, True]
 
 
+def test_outputs_of_one_sample_are_the_run_rows_bit_for_bit():
+    """The node's tick computes the outputs of one sample on plain floats: each value must be the
+    double the whole-run (array) evaluation gives for that row, signed zeros included."""
+    rng = np.random.default_rng(7)
+    for model in (FlexibleBeltModel(BeltDriveParams(**GEOMETRY, k=2.0e4, c=3.0, **NO_BEARINGS)),
+                  RigidBeltModel(BeltDriveParams(**GEOMETRY, k=2.0e4, c=3.0, **NO_BEARINGS))):
+        n = model.A.shape[0]
+        xs = rng.normal(size=(400, n)) * rng.choice([1e-9, 1.0, 1e4], size=(400, n))
+        xs[::9] = 0.0
+        xs[1::9] = -0.0
+        u = rng.normal(size=(400, 2)) * 30.0
+        u[::5] = -0.0
+        run = model.outputs(xs, u)
+        for j in range(len(xs)):
+            one = model.outputs(xs[j], u[j])
+            assert set(one) == set(OUTPUT_UNITS)
+            for name, value in one.items():
+                assert type(value) is (bool if run[name].dtype == bool else float), name
+                assert np.asarray(value, dtype=run[name].dtype).tobytes() == run[name][j].tobytes(), (model.name, name, j)
+
+
 # ------------------------------------------------------------ k -> infinity
 def _speed_difference(k, drive, load, duration=0.5, dt=1e-4):
     p = BeltDriveParams(**GEOMETRY, k=k, c=1.0, b_M=1e-3, b_1=0.0, b_2=0.0, b_3=1e-3)

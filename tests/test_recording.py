@@ -189,6 +189,26 @@ def test_fast_encoders_equal_mcap_ros2_encoding():
         assert fast[k] == ref
 
 
+def test_joint_state_encoder_matches_the_batch_encoder_and_reads_back_in_rclpy():
+    """The node publishes these bytes as its joint_states (rclpy's publish of a serialized message):
+    they must be the batch encoder's and what rclpy deserializes to the same message."""
+    from rclpy import serialization
+    from sensor_msgs.msg import JointState
+
+    from belt_drive_ros.io.recording import JointStateEncoder
+
+    rng = np.random.default_rng(3)
+    encoder = JointStateEncoder(len(JOINT_NAMES))
+    for stamp in (0, 1, 999_999_999, 1_763_916_000_123_456_789):
+        values = rng.normal(scale=100, size=12).tolist()
+        data = encoder.encode(stamp, values)
+        assert data == encode_joint_states([stamp], *(np.array(values[k:k + 4])[None, :] for k in (0, 4, 8)))[0]
+        msg = serialization.deserialize_message(data, JointState)
+        assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == divmod(stamp, 10**9)
+        assert msg.header.frame_id == "" and list(msg.name) == list(JOINT_NAMES)
+        assert list(msg.position) + list(msg.velocity) + list(msg.effort) == values
+
+
 def test_joint_names_and_topics_match_the_node():
     node = pytest.importorskip("belt_drive_ros.ros.node")
     assert tuple(node.JOINT_NAMES) == JOINT_NAMES

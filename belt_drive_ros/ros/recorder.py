@@ -9,10 +9,8 @@ the offered QoS from discovery, and a flush timer on the node.
 from __future__ import annotations
 
 import os
-import struct
 from typing import Any, Callable, Dict, Iterable, List, Mapping, Optional
 
-import numpy as np
 from msg_tools import Ros2McapWriter
 from msg_tools.errors import MsgToolsError
 
@@ -31,7 +29,7 @@ from ..io.recording import (
     _scene_record,
     bag_error,
     encode_float64,
-    encode_joint_states,
+    JointStateEncoder,  # re-exported: it lived here
     scene_mapping,
     units_metadata,
 )
@@ -354,40 +352,6 @@ APPLIED_TOPIC = "drive_torque_applied"
 DIRECT_TOPICS = ("drive_torque", APPLIED_TOPIC, "joint_states") + tuple(name for name, _ in FLOAT_OUTPUTS + SLIP_FLOAT_OUTPUTS)
 
 
-class JointStateEncoder:
-    """CDR of the node's ``sensor_msgs/JointState`` for one tick, without rclpy.
-
-    The bytes of :func:`belt_drive_ros.io.recording.encode_joint_states` (zero
-    padding, as ``mcap_ros2`` encodes), from a template built once: per tick
-    only the stamp and the twelve doubles are packed in (~2 us).
-    """
-
-    def __init__(self, joints: int = 4):
-        marks = np.arange(1, 3 * joints + 1, dtype=float) * 1e300 / 7.0  # distinct, cannot occur elsewhere
-        groups = marks.reshape(3, joints)
-        template = encode_joint_states(np.zeros(1, dtype=np.int64), *(g[None, :] for g in groups))[0]
-        self._array = struct.Struct(f"<{joints}d")
-        self._offsets = []
-        for group in groups:  # position, velocity, effort: each a contiguous CDR sequence
-            packed = self._array.pack(*group)
-            offset = template.find(packed)
-            if offset < 0 or template.find(packed, offset + 1) >= 0:
-                raise RuntimeError("JointState template: an array is not found exactly once")
-            self._offsets.append(offset)
-        self._template = template
-        self._joints = joints
-        self._stamp = struct.Struct("<iI")
-
-    def encode(self, stamp_ns: int, values) -> bytes:
-        """``values`` = position, velocity, effort of the joints, concatenated."""
-        buf = bytearray(self._template)
-        self._stamp.pack_into(buf, 4, *divmod(stamp_ns, 1_000_000_000))
-        j = self._joints
-        for k, offset in enumerate(self._offsets):
-            self._array.pack_into(buf, offset, *values[k * j : (k + 1) * j])
-        return bytes(buf)
-
-
 class NodeRecorder(TopicRecorder):
     """Record a belt-drive node's input and outputs into an MCAP file.
 
@@ -528,17 +492,19 @@ class NodeRecorder(TopicRecorder):
         if topic is not None:
             self.write(topic, FLOAT64, encode_float64((value,))[0], now_ns)
 
-    def record_tick(self, now_ns: int, joints, floats, applied: float) -> None:
+    def record_tick(self, now_ns: int, joints, floats, applied: float, joint_cdr: bytes | None = None,
+                    float_cdr=None) -> None:
         """One tick: ``joints`` (position, velocity, effort of the 4 wheels), the Float64 outputs
         in the order of :data:`FLOAT_OUTPUTS` (then :data:`SLIP_FLOAT_OUTPUTS` with the slipping
-        model), and the applied drive torque [N m]."""
+        model), and the applied drive torque [N m]. ``joint_cdr`` and ``float_cdr`` (the CDR of
+        the joint states and of ``(*floats, applied)``) when the caller has encoded them already."""
         if self.error is not None or self.closed:
             return
         direct = self._direct
         topic = direct.get("joint_states")
         if topic is not None:
-            self.write(topic, JOINT_STATE, self._joint_states.encode(now_ns, joints), now_ns)
-        payloads = encode_float64((*floats, applied))
+            self.write(topic, JOINT_STATE, joint_cdr or self._joint_states.encode(now_ns, joints), now_ns)
+        payloads = float_cdr if float_cdr is not None else encode_float64((*floats, applied))
         for (topic, type_name), data in zip(self._floats, payloads[:-1]):
             if topic is not None:
                 self.write(topic, type_name, data, now_ns)

@@ -74,6 +74,7 @@ class NodeSimulation:
         #: slipping model: mode switches of the run so far (kind, scene time [s], direction) and the count
         self.slip_events: list = []
         counters.setdefault("slip_events", 0)
+        self._scene_time: tuple = (None, 0.0)  # (node time, origin, stepper) -> scene time of the last call
         self.stepper = self._make_stepper(settings)
         self.x = settings.scene.initial_state.vector(settings.model.name, settings.params.ratio)
         self._init_hybrid()
@@ -159,10 +160,15 @@ class NodeSimulation:
         torques at a tick are evaluated at the very float the offline run
         uses.)
         """
-        t = (now_ns - self.origin_ns) / 1e9
         stepper = self.stepper
+        key = (now_ns, self.origin_ns, stepper)
+        if key == self._scene_time[0]:  # a tick asks up to four times for the same time
+            return self._scene_time[1]
+        t = (now_ns - self.origin_ns) / 1e9
         grid = stepper.grid_time(round(t / stepper.dt))
-        return grid if abs(grid - t) <= snap_tolerance(t, stepper.dt) else t
+        t = grid if abs(grid - t) <= snap_tolerance(t, stepper.dt) else t
+        self._scene_time = (key, t)
+        return t
 
     def grid_time(self, now_ns: int) -> int:
         """The tick of the run's grid (origin + k * tick) a timer call at ``now_ns`` integrates to.
