@@ -78,3 +78,26 @@ def test_timeout_is_reported_when_the_node_cannot_progress(ros_domain_id):
         h.node.destroy_subscription(h.node._sub_torque)  # the node no longer listens
         with pytest.raises(HarnessTimeout, match="drive_torque"):
             h.publish_torque(1.0)
+
+
+def test_a_second_graph_on_the_same_domain_is_reported_not_mixed_in(ros_domain_id):
+    """Two harnesses on one domain (what a domain id shared by two test processes does): the second's
+    /clock drives the first's node too, whose joint_states reach the second's probe; outputs() says so
+    instead of returning the mixed rows; diagnostics() returns the second node's own statuses (an array of
+    the first node's, published just before, may arrive in between)."""
+    import time
+
+    from belt_drive_ros.ros.harness import DomainShared
+
+    with BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0, node_name="other") as other, \
+            BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0) as h:
+        other.node.publish_diagnostics()
+        assert set(h.diagnostics()) == {"simulation", "input", "belt"}  # not "other: simulation", ...
+        deadline = time.monotonic() + 60.0
+        with pytest.raises(DomainShared, match=f"shares ROS domain {ros_domain_id}"):
+            while time.monotonic() < deadline:
+                h.advance(0.01)
+                other.spin(0.01)
+                h.spin(0.01)
+                h.outputs()
+        assert other.node.counters["published"] > 1  # it did tick on h's /clock

@@ -79,6 +79,10 @@ class HarnessTimeout(TimeoutError):
     """The node did not reach the expected state within the harness's timeout."""
 
 
+class DomainShared(RuntimeError):
+    """Another publisher on the harness's ROS domain mixed its messages into the node's outputs."""
+
+
 class BeltDriveHarness:
     """A belt-drive node, a probe node and (optionally) a torque source on a private context.
 
@@ -362,7 +366,19 @@ class BeltDriveHarness:
             self.executor.spin_once(timeout_sec=0.01)
 
     def outputs(self) -> dict[str, np.ndarray]:
-        """Everything the node published so far, one row per tick (see the module docstring)."""
+        """Everything the node published so far, one row per tick (see the module docstring).
+
+        Raises :class:`DomainShared` when more ``joint_states`` arrived than
+        the node published: another process publishes on this ROS domain (its
+        rows would be mixed with the node's, and a slipping model's topics
+        would look incomplete).
+        """
+        published = self.node.counters["published"]
+        if len(self._rows) > published:
+            raise DomainShared(
+                f"harness: {len(self._rows)} joint_states received but the node published {published}: "
+                f"another publisher shares ROS domain {self.domain_id}"
+            )
         n = min([len(self._rows)] + [len(self._floats[name]) for name in OUTPUT_TOPICS])
         rows = np.array(self._rows[:n], dtype=float).reshape(n, 10)
         zero = self.start_ns if self.use_sim_time else (self._t0_wall or 0)
@@ -387,12 +403,19 @@ class BeltDriveHarness:
         """Have the node publish ``/diagnostics`` now; return its statuses by short name.
 
         ``{"simulation": {"level": "OK", "message": ..., "values": {...}}, "input": ..., "belt": ...}``
+
+        Waits for the node's own array (its statuses are named ``<node>: ...``);
+        arrays of other nodes on ``/diagnostics`` are passed over.
         """
+        prefix = self.node.get_name() + ": "
+
+        def own(m: DiagnosticArray) -> bool:
+            return bool(m.status) and all(st.name.startswith(prefix) for st in m.status)
+
         count = len(self._diagnostics)
         self.node.publish_diagnostics()
-        self._spin_until(lambda: len(self._diagnostics) > count, "/diagnostics")
-        msg = self._diagnostics[-1]
-        prefix = self.node.get_name() + ": "
+        self._spin_until(lambda: any(own(m) for m in self._diagnostics[count:]), "/diagnostics")
+        msg = [m for m in self._diagnostics[count:] if own(m)][-1]
         return {
             st.name.removeprefix(prefix): {
                 "level": _LEVELS.get(st.level[0] if isinstance(st.level, bytes) else int(st.level), "?"),
