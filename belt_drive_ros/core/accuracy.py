@@ -61,6 +61,12 @@ ACCURACY_TOLERANCE = 1e-4
 MAX_STEPS = 1200
 #: times along the scene at which the torques' slopes are probed
 N_PROBES = 5
+#: steps of the method in each forcing window (run at dt and dt / 2, Richardson)
+WINDOW_STEPS = 48
+#: probe windows closer than this in drive speed (relative to the run's top speed) to another: one of them
+SPEED_SPREAD = 0.1
+#: torque breakpoints inside the run that get a forcing window of their own (the first ones)
+MAX_BREAKPOINT_WINDOWS = 4
 #: steps per advance of the probes' rigid run (bounds the stepper's plan, so memory does not grow with the duration)
 PROBE_CHUNK = 1000
 #: growth beyond max(1, exact growth) by this much (relative) is instability, not rounding
@@ -103,6 +109,8 @@ class AccuracyReport:
     slopes: tuple
     suggestion: float | None = None
     alternative: tuple | None = None
+    linear_error: float = math.nan
+    forcing_error: float = math.nan
 
     @property
     def ok(self) -> bool:
@@ -145,34 +153,91 @@ def speed_slopes(plant, times, speeds_M) -> list[np.ndarray]:
     return gains
 
 
-def _probes(plant, duration: float, x0) -> list[tuple]:
-    """(K, slopes) at :data:`N_PROBES` times along a cheap rigid run (drive speed from it), distinct ones only."""
+@dataclass(frozen=True)
+class Probes:
+    """What the guard reads off a cheap rigid run of the scene (:func:`probe_scene`).
+
+    gains : distinct ``(K, slopes)`` of the torques' speed slopes at the probes (see :func:`speed_slopes`).
+    x0 : the scene's initial state (the first forcing window starts there at t = 0).
+    windows : further forcing windows as ``(t [s], phi_M [rad], omega_M [rad/s], anchor)``: the rigid run's
+        motion at t; ``anchor`` a torque breakpoint [s] the window straddles (None: the window starts at t).
+    duration : the scene's duration [s].
+    """
+
+    gains: tuple
+    x0: np.ndarray
+    windows: tuple
+    duration: float
+
+    def window_starts(self, plant, dt: float):
+        """``(t0, x)`` of every window for step ``dt``: t0 on the grid k dt, x the plant model's state.
+
+        A breakpoint's window starts a quarter window (:data:`WINDOW_STEPS` dt) before it; the rigid
+        motion is carried there at constant speed; the deflection is the quasi-static one.
+        """
+        yield 0.0, self.x0
+        for t, phi, omega, anchor in self.windows:
+            t0 = t if anchor is None else max(0.0, dt * math.floor((anchor - 0.25 * WINDOW_STEPS * dt) / dt))
+            if t0 > 0.0:
+                yield t0, _model_state(plant, t0, phi + omega * (t0 - t), omega)
+
+
+def _model_state(plant, t: float, phi: float, omega: float) -> np.ndarray:
+    """The plant model's state with the rigid motion (phi_M, omega_M) at time t and the quasi-static deflection."""
+    model = plant.model
+    if model.A.shape[0] == 2:
+        return np.array([phi, omega])
+    i = model.params.ratio
+    drive = plant.scalar_drive(t, phi, omega)
+    load = plant.scalar_load(t, i * phi, i * omega)
+    return model.state_from_rigid(np.array([phi, omega]), load_torque=load, drive_torque=drive)
+
+
+def probe_scene(plant, duration: float, x0, dt: float) -> Probes:
+    """Speed slopes at :data:`N_PROBES` times and the forcing windows' starts, from one cheap rigid run.
+
+    Windows start at t = 0 (from ``x0``), at the probe times before the end,
+    and about each of the first :data:`MAX_BREAKPOINT_WINDOWS` torque
+    breakpoints inside the run (see :meth:`Probes.window_starts`).
+    """
     from .stepper import Plant, Stepper
 
-    p = plant.model.params
-    rigid = RigidBeltModel(p)
+    x0 = np.asarray(x0, dtype=float)
     wm = plant.wheel_map
     phi0, w0 = float(wm[0] @ x0), float(wm[1] @ x0)
-    dt = min(duration / 500.0, 5e-3) if duration > 0 else 1e-3
-    try:  # advance from probe to probe (memory independent of the duration: runs may stream)
-        stepper = Stepper(Plant(rigid, plant.drive, plant.load), "exact", dt)
-        t_probe = np.linspace(0.0, duration, N_PROBES) if duration > 0 else np.array([0.0])
-        x, speeds = np.array([phi0, w0]), []
-        for t0, t1 in zip(np.concatenate([[0.0], t_probe[:-1]]), t_probe):
+    t_probe = np.linspace(0.0, duration, N_PROBES) if duration > 0 else np.array([0.0])
+    inner = [b for b in plant.breakpoints if 0.0 < b < duration][:MAX_BREAKPOINT_WINDOWS]
+    early = {b: max(0.0, dt * math.floor((b - 0.25 * WINDOW_STEPS * dt) / dt)) for b in inner}
+    plain = [float(t) for t in t_probe[1:] if t < duration - 2.0 * dt]
+    stops = sorted(set(plain) | set(early.values()) | {float(t) for t in t_probe})
+    rdt = min(duration / 500.0, 5e-3) if duration > 0 else 1e-3
+    states = {0.0: (phi0, w0)}
+    try:  # advance from stop to stop (memory independent of the duration: runs may stream)
+        stepper = Stepper(Plant(RigidBeltModel(plant.model.params), plant.drive, plant.load), "exact", rdt)
+        x, t = np.array([phi0, w0]), 0.0
+        for t1 in stops:
             # in pieces of PROBE_CHUNK steps: the stepper plans each advance whole
-            for a, b in zip(np.arange(t0, t1, PROBE_CHUNK * dt), np.append(np.arange(t0, t1, PROBE_CHUNK * dt)[1:], t1)):
+            edges = np.append(np.arange(t, t1, PROBE_CHUNK * rdt), t1)
+            for a, b in zip(edges[:-1], edges[1:]):
                 x = stepper.advance(x, float(a), float(b))
-            speeds.append(float(x[1]))
-        w_probe = np.array(speeds)
+            states[t1], t = (float(x[0]), float(x[1])), t1
+        probe_times = t_probe
     except Exception:  # a rigid estimate that diverges: probe at the start only
-        t_probe, w_probe = np.array([0.0]), np.array([w0])
+        probe_times, plain, early = np.array([0.0]), [], {}
     gains, seen = [], set()
-    for K, slopes in speed_slopes(plant, t_probe, w_probe):
+    speeds = [states[float(t)][1] for t in probe_times]
+    for K, slopes in speed_slopes(plant, probe_times, speeds):
         key = tuple(float(f"{s:.3g}") for s in slopes)  # slopes equal to 3 digits: the same verdict
         if key not in seen:
             seen.add(key)
             gains.append((K, slopes))
-    return gains
+    # a probe window at a speed within SPEED_SPREAD of one already windowed sees the same harmonics: skipped
+    kept, scale = [0.0], max(abs(w) for _, w in states.values()) or 1.0
+    for t in plain:
+        if all(abs(states[t][1] - states[k][1]) > SPEED_SPREAD * scale for k in kept):
+            kept.append(t)
+    windows = [(t, *states[t], None) for t in kept[1:]] + [(t, *states[t], b) for b, t in early.items()]
+    return Probes(tuple(gains), x0, tuple(windows), float(duration))
 
 
 def closed_loop_maps(integrator, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -204,6 +269,22 @@ def _spectral_radius(M: np.ndarray) -> float:
     return float(np.max(np.abs(mu)))
 
 
+def _orbits(P: np.ndarray, X0: np.ndarray, count: int) -> np.ndarray:
+    """``[P X0, P^2 X0, ..., P^count X0]`` for a stack of maps P (b, m, m): (b, m, count * c), by doubling.
+
+    ``log2(count)`` batched products instead of ``count`` (the orbit of
+    length 2 l is the one of length l followed by ``P^l`` times it); sample
+    k's columns are ``k c .. (k + 1) c - 1``.
+    """
+    c = X0.shape[-1]
+    S = np.matmul(P, X0)
+    Pl = P
+    while S.shape[2] < count * c:
+        S = np.concatenate([S, np.matmul(Pl, S)], axis=2)
+        Pl = np.matmul(Pl, Pl)
+    return S[:, :, : count * c]
+
+
 def step_response_error(M, G, E, F, rows: np.ndarray, n_steps: int) -> float:
     """Max over unit inputs and output rows of max_k |y_k - y*_k| / max_k |y*_k|, k = 1 .. ``n_steps``.
 
@@ -211,82 +292,169 @@ def step_response_error(M, G, E, F, rows: np.ndarray, n_steps: int) -> float:
     once), ``X_{k+1} = M X_k + G`` against ``Z_{k+1} = E Z_k + F``. The
     first :data:`MAX_STEPS` / 2 steps are taken one by one; the rest, when
     there are more, in strides of ``s`` steps with the s-th powers of the
-    augmented maps (exact, only samples between strides are skipped).
+    augmented maps (exact, only samples between strides are skipped). Both
+    recurrences are evaluated at once by doubling (:func:`_orbits`).
     """
     n = M.shape[0]
     Ma = np.block([[M, G], [np.zeros((2, n)), np.eye(2)]])
     Ea = np.block([[E, F], [np.zeros((2, n)), np.eye(2)]])
-    X = np.vstack([np.zeros((n, 2)), np.eye(2)])
-    Z = X.copy()
-    err = np.zeros((rows.shape[0], 2))
-    peak = np.zeros((rows.shape[0], 2))
+    P = np.stack([Ma, Ea])
+    X0 = np.broadcast_to(np.vstack([np.zeros((n, 2)), np.eye(2)]), (2, n + 2, 2))
     head = min(n_steps, MAX_STEPS // 2)
     stride = max(1, math.ceil((n_steps - head) / (MAX_STEPS // 2)))
-    schedule = [(Ma, Ea, head)]
-    if n_steps > head:
-        schedule.append((np.linalg.matrix_power(Ma, stride), np.linalg.matrix_power(Ea, stride), (n_steps - head) // stride))
     with np.errstate(all="ignore"):
-        for P, Q, count in schedule:
-            for _ in range(count):
-                X, Z = P @ X, Q @ Z
-                y, ystar = rows @ X[:n], rows @ Z[:n]
-                err = np.maximum(err, np.abs(y - ystar))
-                peak = np.maximum(peak, np.abs(ystar))
-            if not np.all(np.isfinite(X)):
-                return math.inf
+        orbit = _orbits(P, X0, head)
+        if n_steps > head and (n_steps - head) // stride > 0:
+            Ps = np.stack([np.linalg.matrix_power(Ma, stride), np.linalg.matrix_power(Ea, stride)])
+            orbit = np.concatenate([orbit, _orbits(Ps, orbit[:, :, -2:], (n_steps - head) // stride)], axis=2)
+        if not np.all(np.isfinite(orbit)):
+            return math.inf
+        y = np.matmul(rows, orbit[:, :n])  # (method/exact, row, samples x inputs)
+        y = y.reshape(2, rows.shape[0], -1, 2)
+        err = np.max(np.abs(y[0] - y[1]), axis=1)
+        peak = np.max(np.abs(y[1]), axis=1)
     # a unit input that does not move an output at all (peak 0) carries no error either
     return float(np.max(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0)))
 
 
+def _output_rows(model) -> tuple[np.ndarray, np.ndarray]:
+    """(C rows, D rows) of drive speed and belt torque (the guard's two signals)."""
+    j = [LINEAR_OUTPUTS.index("omega_M"), LINEAR_OUTPUTS.index("belt_torque")]
+    return model.C[j], model.D[j]
+
+
+#: the linear (belt mode and slopes) verdicts already computed: key -> (stable, error, growth, exact growth, h omega)
+_LINEAR_CACHE: dict = {}
+_LINEAR_CACHE_SIZE = 512
+
+
+def linear_verdict(integrator, A, B, rows, K, n_steps: int) -> tuple:
+    """(stable, error, growth, exact growth, h omega) of the method's closed-loop map ``A + B K`` (cached).
+
+    The key is every number the verdict depends on (matrices, method and its
+    options through the integrator's one-step map, step, gains, horizon), so a
+    hit is the same computation.
+    """
+    dt = integrator.dt
+    key = (integrator.name, dt, A.tobytes(), B.tobytes(), rows.tobytes(), K.tobytes(), n_steps,
+           repr(sorted(getattr(integrator, "options", {}).items())))  # fmt: skip
+    hit = _LINEAR_CACHE.get(key)
+    if hit is not None:
+        return hit
+    A_cl = A + B @ K
+    E, F = exact_maps(A_cl, B, dt)
+    try:
+        M, G = closed_loop_maps(integrator, K)
+    except IntegratorError:
+        M, G = np.full_like(E, np.inf), np.full_like(F, np.inf)
+    growth = _spectral_radius(M) if np.all(np.isfinite(M)) else math.inf
+    exact_growth = _spectral_radius(E)
+    stable = growth <= max(1.0, exact_growth) * (1.0 + GROWTH_TOLERANCE) + 1e-15
+    error = step_response_error(M, G, E, F, rows, n_steps) if stable else math.inf
+    verdict = (stable, error, growth, exact_growth, dt * float(np.max(np.abs(np.linalg.eigvals(A_cl)))))
+    if len(_LINEAR_CACHE) >= _LINEAR_CACHE_SIZE:
+        _LINEAR_CACHE.pop(next(iter(_LINEAR_CACHE)))
+    _LINEAR_CACHE[key] = verdict
+    return verdict
+
+
+def forcing_error(plant, method: str, dt: float, probes: Probes, method_options=None, stepper=None) -> float:
+    """A posteriori error [-] of the method at ``dt`` on the scene's real torques (time, angle, speed), by Richardson.
+
+    Each window of :data:`WINDOW_STEPS` steps (``probes.windows``) is run at
+    ``dt`` and at ``dt / 2`` from the same state; for a method of order p
+    the error of the ``dt`` run is ``|y_dt - y_dt/2| 2^p / (2^p - 1)``.
+    Signals: drive speed and belt torque, each relative to its peak over all
+    windows' ``dt / 2`` runs; the worst signal and window counts. This sees
+    what the linearization does not: firing and compressor harmonics in
+    crank angle, schedules, profiles (their bandwidth at the operating speed
+    against the step). A run that diverges: inf.
+    """
+    windows = window_errors(plant, method, dt, probes, method_options, stepper)
+    if windows is None:
+        return math.inf
+    err = np.max([e for _, e, _ in windows], axis=0)
+    peak = np.max([p for _, _, p in windows], axis=0)
+    return float(np.max(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0)))
+
+
+def window_errors(plant, method: str, dt: float, probes: Probes, method_options=None, stepper=None) -> list | None:
+    """``[(t0, Richardson error (2,), peak (2,))]`` per forcing window (see :func:`forcing_error`); None: diverged."""
+    from .errors import SimulationDivergedError
+    from .stepper import Stepper
+
+    order = method_class(method).order or 1
+    factor = 2.0**order / (2.0**order - 1.0)
+    C, D = _output_rows(plant.model)
+    coarse = stepper or Stepper(plant, method, dt, method_options)
+    fine = Stepper(plant, method, dt / 2.0, method_options)
+    out = []
+    for t0, x in probes.window_starts(plant, dt):
+        t1 = min(t0 + WINDOW_STEPS * dt, probes.duration)
+        if t1 <= t0 + 0.5 * dt:
+            continue
+        try:
+            tc, xc = coarse.run(x, t0, t1, vectorize=False)
+            tf, xf = fine.run(x, t0, t1, vectorize=False)
+        except SimulationDivergedError:
+            return None
+        idx = np.clip(np.searchsorted(tf, tc - 1e-9 * dt), 0, tf.size - 1)
+        same = np.abs(tf[idx] - tc) <= 1e-9 * dt + 8.0 * np.spacing(np.abs(tc) + dt)
+        tc, xc, tf, xf = tc[same], xc[same], tf[idx[same]], xf[idx[same]]
+        yc = xc @ C.T + plant.input_array(tc, xc) @ D.T
+        yf = xf @ C.T + plant.input_array(tf, xf) @ D.T
+        if not (np.all(np.isfinite(yc)) and np.all(np.isfinite(yf))):
+            return None
+        out.append((t0, factor * np.max(np.abs(yc - yf), axis=0), np.max(np.abs(yf), axis=0)))
+    return out
+
+
 def check_accuracy(
     plant, method: str, dt: float, duration: float, x0, tolerance: float = ACCURACY_TOLERANCE,
-    method_options=None, suggest: bool = True,
+    method_options=None, suggest: bool = True, probes: Probes | None = None, stepper=None,
 ) -> AccuracyReport | None:  # fmt: skip
-    """Stability and accuracy of ``method`` at ``dt`` [s] on the plant's linearized closed loop.
+    """Stability and accuracy of ``method`` at ``dt`` [s] on the plant's closed loop.
 
-    Returns None for adaptive methods (they control their own error).
-    ``suggest``: when the step fails, search halvings of it for one that is
-    both (each candidate checked with ``suggest=False``, so the search never
-    searches again).
+    The estimated error is the larger of the linearized closed loop's step
+    response error (:func:`linear_verdict`: the belt mode and the torques'
+    speed slopes over the whole duration) and the a-posteriori error on the
+    real torques in short windows (:func:`forcing_error`: their variation in
+    time and angle). Returns None for adaptive methods (they control their
+    own error). ``suggest``: when the step fails, search halvings of it for
+    one that is both (each candidate checked with ``suggest=False``, so the
+    search never searches again). ``probes``: a :func:`probe_scene` of this
+    plant already made; ``stepper``: a Stepper of this plant, method and dt
+    to reuse for the windows' ``dt`` runs.
     """
     cls = method_class(method)
     if not issubclass(cls, FixedStepIntegrator):
         return None
     model = plant.model
     A, B = model.A, model.B
-    C = model.C
-    rows = C[[LINEAR_OUTPUTS.index("omega_M"), LINEAR_OUTPUTS.index("belt_torque")]]
+    rows = _output_rows(model)[0]
     if not np.any(rows[1]):  # rigid: the belt torque is C x + D u; its x part alone carries the dynamics
         rows = rows[:1]
     n_steps = max(1, math.ceil(duration / dt - 1e-9))
-    gains = _probes(plant, duration, np.asarray(x0, dtype=float))
-    integrator = make_integrator(method, A, B, dt, **dict(method_options or {}))
+    if probes is None:
+        probes = probe_scene(plant, duration, x0, dt)
+    integrator = stepper.integrator if stepper is not None else make_integrator(method, A, B, dt, **dict(method_options or {}))
     worst = None
-    for K, slopes in gains:
-        A_cl = A + B @ K
-        E, F = exact_maps(A_cl, B, dt)
-        try:
-            M, G = closed_loop_maps(integrator, K)
-        except IntegratorError:
-            M, G = np.full_like(E, np.inf), np.full_like(F, np.inf)
-        growth = _spectral_radius(M) if np.all(np.isfinite(M)) else math.inf
-        exact_growth = _spectral_radius(E)
-        stable = growth <= max(1.0, exact_growth) * (1.0 + GROWTH_TOLERANCE) + 1e-15
-        error = step_response_error(M, G, E, F, rows, n_steps) if stable else math.inf
-        lam = np.linalg.eigvals(A_cl)
-        report = AccuracyReport(
-            cls.name, dt, stable, error <= tolerance, error, tolerance, growth, exact_growth,
-            dt * float(np.max(np.abs(lam))), slopes,
-        )  # fmt: skip
+    for K, slopes in probes.gains:
+        stable, error, growth, exact_growth, h_omega = linear_verdict(integrator, A, B, rows, K, n_steps)
+        report = AccuracyReport(cls.name, dt, stable, error <= tolerance, error, tolerance, growth, exact_growth, h_omega, slopes, linear_error=error)
         if worst is None or (not report.stable and worst.stable) or (report.stable == worst.stable and report.error > worst.error):
             worst = report
+    if worst.stable:
+        forcing = forcing_error(plant, method, dt, probes, method_options, stepper)
+        error = max(worst.error, forcing)
+        worst = AccuracyReport(**{**worst.__dict__, "error": error, "accurate": error <= tolerance, "forcing_error": forcing})
     if suggest and not worst.ok:
-        found = _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, range(1, MAX_HALVINGS + 1))
+        found = _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, range(1, MAX_HALVINGS + 1), probes)
         alternative = None
         if found is None or found < dt / 2.0**ALTERNATIVE_HALVINGS:  # this method needs a tiny step: name another too
             for other in ALTERNATIVES:
                 if other != cls.name:
-                    h = _largest_ok(plant, other, dt, duration, x0, tolerance, None, range(0, MAX_HALVINGS + 1))
+                    h = _largest_ok(plant, other, dt, duration, x0, tolerance, None, range(0, MAX_HALVINGS + 1), probes)
                     if h is not None and (found is None or h > found):
                         alternative = (other, h)
                         break
@@ -294,24 +462,25 @@ def check_accuracy(
     return worst
 
 
-def _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, exponents) -> float | None:
+def _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, exponents, probes) -> float | None:
     """Largest step dt / 2^j (j in ``exponents``, increasing) at which ``method`` is stable and accurate, or None.
 
-    Each candidate is checked with ``suggest=False``: the search never searches again.
+    Each candidate is checked with ``suggest=False``: the search never searches again. The windows of the
+    forcing check start where ``probes`` says (their length follows the candidate step).
     """
     for j in exponents:
         h = dt / 2.0**j
-        if check_accuracy(plant, method, h, duration, x0, tolerance, method_options, suggest=False).ok:
+        if check_accuracy(plant, method, h, duration, x0, tolerance, method_options, suggest=False, probes=probes).ok:
             return h
     return None
 
 
-def require_accurate(plant, method, dt, duration, x0, tolerance=ACCURACY_TOLERANCE, method_options=None):
+def require_accurate(plant, method, dt, duration, x0, tolerance=ACCURACY_TOLERANCE, method_options=None, stepper=None):
     """:func:`check_accuracy`; raises :class:`UnstableStepError` (naming a stable, accurate step) when unstable.
 
     An inaccurate but stable step is returned (``report.accurate`` False): the caller warns.
     """
-    report = check_accuracy(plant, method, dt, duration, x0, tolerance, method_options)
+    report = check_accuracy(plant, method, dt, duration, x0, tolerance, method_options, stepper=stepper)
     if report is not None and not report.stable:
         raise UnstableStepError(report.describe())
     return report

@@ -117,7 +117,13 @@ class Formula:
         object.__setattr__(self, "_bound", frozenset(bound))
 
     def reads(self, argument: str) -> bool:
-        """True when the torque depends on ``argument`` (``t``, ``angle`` or ``speed``)."""
+        """True when the torque depends on ``argument`` (``t``, ``angle`` or ``speed``); cached per formula (immutable)."""
+        cache = self.__dict__.setdefault("_reads_cache", {})
+        if argument not in cache:
+            cache[argument] = self._reads(argument)
+        return cache[argument]
+
+    def _reads(self, argument: str) -> bool:
         if any(isinstance(n, ast.Name) and n.id == argument for n in ast.walk(self._tree)):
             return True
         parts = [v for v in self.constants.values() if _is_profile(v)]

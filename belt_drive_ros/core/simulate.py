@@ -214,7 +214,9 @@ def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, v
     x0 = scene.initial_state.vector(kind, scene.params.ratio)
     # closed loop (torque slopes): refuses an unstable step, reports an inaccurate one (the CLI warns)
     accuracy = (
-        require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, method_options=scene.method_options)
+        require_accurate(
+            sim.plant, scene.method, scene.dt, scene.duration, x0, method_options=scene.method_options, stepper=sim.stepper
+        )
         if check_stability else None
     )  # fmt: skip
     start = _time.perf_counter()

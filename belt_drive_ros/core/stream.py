@@ -123,7 +123,7 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps) -> Ite
     x = scene.initial_state.vector(kind, scene.params.ratio)
     # closed loop (torque slopes): refuses an unstable step, reports an inaccurate one (as simulate does)
     accuracy = (
-        require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x, method_options=scene.method_options)
+        require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x, method_options=scene.method_options, stepper=stepper)
         if check_stability else None
     )  # fmt: skip
     work = dissipated = 0.0
