@@ -63,6 +63,10 @@ MAX_STEPS = 1200
 N_PROBES = 5
 #: steps of the method in each forcing window (run at dt and dt / 2, Richardson)
 WINDOW_STEPS = 48
+#: a smaller step (the search for one that works) keeps the window's length up to this many of its steps
+MAX_WINDOW_STEPS = 8 * WINDOW_STEPS
+#: a step named as working has an estimated error at most this fraction of the tolerance (the estimate's spread)
+SUGGEST_MARGIN = 0.25
 #: probe windows closer than this in drive speed (relative to the run's top speed) to another: one of them
 SPEED_SPREAD = 0.1
 #: torque breakpoints inside the run that get a forcing window of their own (the first ones)
@@ -122,7 +126,8 @@ class AccuracyReport:
         line = (
             f"{self.method} at dt={self.dt:.4g} s on the closed loop: {state} (estimated error {self.error:.2g} "
             f"of the peak, tolerance {self.tolerance:.2g}; growth/step {self.growth:.6g} vs exact "
-            f"{self.exact_growth:.6g}; h*omega={self.h_omega:.4g}; torque slopes {self.slopes[0]:.3g}, "
+            f"{self.exact_growth:.6g}; belt mode and slopes {self.linear_error:.2g}, forcing {self.forcing_error:.2g}; "
+            f"h*omega={self.h_omega:.4g}; torque slopes {self.slopes[0]:.3g}, "
             f"{self.slopes[1]:.3g} N m s/rad)"
         )
         if self.suggestion is not None:
@@ -130,7 +135,8 @@ class AccuracyReport:
         elif not self.ok:
             line += f"; no step down to {self.dt / 2.0**MAX_HALVINGS:.2g} s of this method is"
         if self.alternative is not None:
-            line += f"; so is {self.alternative[0]} at dt = {self.alternative[1]:.3g} s"
+            other = f"{self.alternative[0]} at dt = {self.alternative[1]:.3g} s"
+            line += f"; so is {other}" if self.suggestion is not None else f"; {other} is stable and accurate"
         return line
 
 
@@ -162,22 +168,29 @@ class Probes:
     windows : further forcing windows as ``(t [s], phi_M [rad], omega_M [rad/s], anchor)``: the rigid run's
         motion at t; ``anchor`` a torque breakpoint [s] the window straddles (None: the window starts at t).
     duration : the scene's duration [s].
+    window : length [s] of a forcing window (:data:`WINDOW_STEPS` steps of the step probed with; a smaller
+        step keeps it, up to :data:`MAX_WINDOW_STEPS` of its steps).
     """
 
     gains: tuple
     x0: np.ndarray
     windows: tuple
     duration: float
+    window: float
+
+    def span(self, dt: float) -> float:
+        """Window length [s] for step ``dt``: :attr:`window`, at most :data:`MAX_WINDOW_STEPS` steps."""
+        return min(self.window, MAX_WINDOW_STEPS * dt)
 
     def window_starts(self, plant, dt: float):
         """``(t0, x)`` of every window for step ``dt``: t0 on the grid k dt, x the plant model's state.
 
-        A breakpoint's window starts a quarter window (:data:`WINDOW_STEPS` dt) before it; the rigid
+        A breakpoint's window starts a quarter window before it; the rigid
         motion is carried there at constant speed; the deflection is the quasi-static one.
         """
         yield 0.0, self.x0
         for t, phi, omega, anchor in self.windows:
-            t0 = t if anchor is None else max(0.0, dt * math.floor((anchor - 0.25 * WINDOW_STEPS * dt) / dt))
+            t0 = t if anchor is None else max(0.0, dt * math.floor((anchor - 0.25 * self.span(dt)) / dt))
             if t0 > 0.0:
                 yield t0, _model_state(plant, t0, phi + omega * (t0 - t), omega)
 
@@ -237,7 +250,7 @@ def probe_scene(plant, duration: float, x0, dt: float) -> Probes:
         if all(abs(states[t][1] - states[k][1]) > SPEED_SPREAD * scale for k in kept):
             kept.append(t)
     windows = [(t, *states[t], None) for t in kept[1:]] + [(t, *states[t], b) for b, t in early.items()]
-    return Probes(tuple(gains), x0, tuple(windows), float(duration))
+    return Probes(tuple(gains), x0, tuple(windows), float(duration), WINDOW_STEPS * dt)
 
 
 def closed_loop_maps(integrator, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -390,7 +403,7 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
     fine = Stepper(plant, method, dt / 2.0, method_options)
     out = []
     for t0, x in probes.window_starts(plant, dt):
-        t1 = min(t0 + WINDOW_STEPS * dt, probes.duration)
+        t1 = min(t0 + probes.span(dt), probes.duration)
         if t1 <= t0 + 0.5 * dt:
             continue
         try:
@@ -470,7 +483,8 @@ def _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, expo
     """
     for j in exponents:
         h = dt / 2.0**j
-        if check_accuracy(plant, method, h, duration, x0, tolerance, method_options, suggest=False, probes=probes).ok:
+        report = check_accuracy(plant, method, h, duration, x0, tolerance, method_options, suggest=False, probes=probes)
+        if report.stable and report.error <= SUGGEST_MARGIN * tolerance:
             return h
     return None
 
