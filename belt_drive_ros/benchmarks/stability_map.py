@@ -24,6 +24,11 @@ Predicted
 :func:`belt_drive_ros.core.stability.max_stable_step` times omega_n: the guard's
 bisection on max |R(h lambda)| over the eigenvalues of A.
 
+The accuracy guard's regions (:func:`guarantees`, ``guarantees.csv`` and a
+printed table): per method and scene (``paper``, ``truck_compressor``), the
+largest ``h omega_n`` up to which the guard rates the method accurate to 1e-4
+on the scene's closed loop and torques, and the first it rates unstable.
+
 Two charts in one PNG: the (h omega_n, zeta) plane for each method (grid of
 measured runs, measured boundary by bisection, predicted boundary), and the
 ``truck_compressor`` parameters in the (belt stiffness k, dt) plane for RK4
@@ -256,9 +261,75 @@ def plot(rows: list[dict], path: Path, stiffness_scene_dt: float | None = None) 
     return Path(path)
 
 
+#: scenes of the guarantee table and the h*omega_n grid it scans (quarter octaves)
+GUARANTEE_SCENES = ("paper", "truck_compressor")
+GUARANTEE_GRID = tuple(2.0 ** (k / 4.0) for k in range(-28, 25))
+GUARANTEE_COLUMNS = ("scene", "method", "accurate_h_omega_n", "unstable_h_omega_n", "tolerance", "grid_start")
+
+
+def guarantees(scenes=GUARANTEE_SCENES, methods=None, grid=GUARANTEE_GRID, quiet: bool = False) -> list[dict]:
+    """Each fixed-step method's accuracy region as the accuracy guard states it, per scene (flexible model).
+
+    Scanning ``h omega_n`` upward on ``grid``: ``accurate_h_omega_n`` is the
+    largest value up to which every grid step is rated stable and accurate to
+    :data:`~belt_drive_ros.core.accuracy.ACCURACY_TOLERANCE` on the scene's own
+    closed loop and torques (:func:`~belt_drive_ros.core.accuracy.check_accuracy`,
+    belt mode, slopes and forcing windows; 0: not even at ``grid_start``); ``unstable_h_omega_n`` the
+    first value rated unstable (inf: none on the grid).
+    """
+    from ..core.accuracy import ACCURACY_TOLERANCE, check_accuracy
+    from ..core.integrators import FIXED_STEP_METHODS
+    from ..core.model import make_model
+    from ..core.stepper import Plant
+
+    rows = []
+    for name in scenes:
+        scene = load_scene(name)
+        model = make_model("flexible", scene.params)
+        plant = Plant(model, scene.drive, scene.load)
+        x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+        w_n = scene.params.belt_natural_frequency
+        for method in methods or FIXED_STEP_METHODS:
+            accurate, unstable, region = 0.0, math.inf, True
+            for hw in grid:
+                r = check_accuracy(plant, method, hw / w_n, scene.duration, x0, suggest=False)
+                if not r.stable:
+                    unstable = hw
+                    break
+                region = region and r.accurate
+                if region:
+                    accurate = hw
+            rows.append({"scene": name, "method": method, "accurate_h_omega_n": accurate,
+                         "unstable_h_omega_n": unstable, "tolerance": ACCURACY_TOLERANCE, "grid_start": grid[0]})  # fmt: skip
+            log(f"[guarantee] {name:16s} {method:16s} accurate to {ACCURACY_TOLERANCE:g} up to h*omega_n "
+                f"{accurate:.3g}; first unstable {unstable:.3g}", quiet)  # fmt: skip
+    return rows
+
+
+def guarantee_table(rows: list[dict]) -> str:
+    """Markdown table: method x scene, ``accurate up to / first unstable`` h*omega_n."""
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    cell = {(r["scene"], r["method"]): r for r in rows}
+    lines = ["| method | " + " | ".join(f"{s}: accurate to 1e-4 up to / first unstable h*omega_n" for s in scenes) + " |",
+             "|---|" + "---|" * len(scenes)]  # fmt: skip
+    for m in methods:
+        parts = []
+        for s in scenes:
+            r = cell[(s, m)]
+            acc = f"{r['accurate_h_omega_n']:.3g}" if r["accurate_h_omega_n"] > 0 else f"< {r['grid_start']:.3g}"
+            parts.append(f"{acc} / {r['unstable_h_omega_n']:.3g}")
+        lines.append(f"| {m} | " + " | ".join(parts) + " |")
+    return "\n".join(lines)
+
+
 def run(out_dir: Path, quick: bool = False, quiet: bool = False) -> dict:
     rows = measure(QUICK if quick else FULL, quiet=quiet)
     out_dir = Path(out_dir)
     csv_path = write_csv(out_dir / "stability_map.csv", rows, COLUMNS)
     png_path = plot(rows, out_dir / "stability_map.png")
-    return {"rows": rows, "csv": csv_path, "png": png_path}
+    table = guarantees(methods=("etd2", "rk4") if quick else None, grid=GUARANTEE_GRID[::4] if quick else GUARANTEE_GRID,
+                       quiet=quiet)  # fmt: skip
+    table_csv = write_csv(out_dir / "guarantees.csv", table, GUARANTEE_COLUMNS)
+    log("[guarantee] the accuracy guard's regions (scene's own torques, flexible model):\n" + guarantee_table(table), quiet)
+    return {"rows": rows, "csv": csv_path, "png": png_path, "guarantees": table, "guarantees_csv": table_csv}

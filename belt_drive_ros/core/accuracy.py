@@ -115,6 +115,7 @@ class AccuracyReport:
     alternative: tuple | None = None
     linear_error: float = math.nan
     forcing_error: float = math.nan
+    mode: str = ""
 
     @property
     def ok(self) -> bool:
@@ -123,8 +124,9 @@ class AccuracyReport:
     def describe(self) -> str:
         """One line for logs and errors."""
         state = "UNSTABLE" if not self.stable else ("accurate" if self.accurate else "INACCURATE")
+        where = f" ({self.mode} mode)" if self.mode else ""
         line = (
-            f"{self.method} at dt={self.dt:.4g} s on the closed loop: {state} (estimated error {self.error:.2g} "
+            f"{self.method} at dt={self.dt:.4g} s on the closed loop{where}: {state} (estimated error {self.error:.2g} "
             f"of the peak, tolerance {self.tolerance:.2g}; growth/step {self.growth:.6g} vs exact "
             f"{self.exact_growth:.6g}; belt mode and slopes {self.linear_error:.2g}, forcing {self.forcing_error:.2g}; "
             f"h*omega={self.h_omega:.4g}; torque slopes {self.slopes[0]:.3g}, "
@@ -261,16 +263,17 @@ def closed_loop_maps(integrator, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     def run(x, u0):
         return _scheme.step(scheme, h, 0.0, x, lambda t, y: K @ y + u0, integrator.name)
 
-    zero_u = np.zeros(2)
+    m = K.shape[0]
+    zero_u = np.zeros(m)
     M = np.column_stack([run(e, zero_u) for e in np.eye(n)])
-    G = np.column_stack([run(np.zeros(n), e) for e in np.eye(2)])
+    G = np.column_stack([run(np.zeros(n), e) for e in np.eye(m)])
     return M, G
 
 
 def exact_maps(A_cl: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
     """(E, F): the exact step of x' = A_cl x + B u_0 with constant u_0 (augmented matrix exponential)."""
-    n = A_cl.shape[0]
-    aug = np.zeros((n + 2, n + 2))
+    n, m = B.shape
+    aug = np.zeros((n + m, n + m))
     aug[:n, :n], aug[:n, n:] = A_cl, B
     expo = scipy.linalg.expm(aug * h)
     return expo[:n, :n], expo[:n, n:]
@@ -308,22 +311,22 @@ def step_response_error(M, G, E, F, rows: np.ndarray, n_steps: int) -> float:
     augmented maps (exact, only samples between strides are skipped). Both
     recurrences are evaluated at once by doubling (:func:`_orbits`).
     """
-    n = M.shape[0]
-    Ma = np.block([[M, G], [np.zeros((2, n)), np.eye(2)]])
-    Ea = np.block([[E, F], [np.zeros((2, n)), np.eye(2)]])
+    n, m = G.shape
+    Ma = np.block([[M, G], [np.zeros((m, n)), np.eye(m)]])
+    Ea = np.block([[E, F], [np.zeros((m, n)), np.eye(m)]])
     P = np.stack([Ma, Ea])
-    X0 = np.broadcast_to(np.vstack([np.zeros((n, 2)), np.eye(2)]), (2, n + 2, 2))
+    X0 = np.broadcast_to(np.vstack([np.zeros((n, m)), np.eye(m)]), (2, n + m, m))
     head = min(n_steps, MAX_STEPS // 2)
     stride = max(1, math.ceil((n_steps - head) / (MAX_STEPS // 2)))
     with np.errstate(all="ignore"):
         orbit = _orbits(P, X0, head)
         if n_steps > head and (n_steps - head) // stride > 0:
             Ps = np.stack([np.linalg.matrix_power(Ma, stride), np.linalg.matrix_power(Ea, stride)])
-            orbit = np.concatenate([orbit, _orbits(Ps, orbit[:, :, -2:], (n_steps - head) // stride)], axis=2)
+            orbit = np.concatenate([orbit, _orbits(Ps, orbit[:, :, -m:], (n_steps - head) // stride)], axis=2)
         if not np.all(np.isfinite(orbit)):
             return math.inf
         y = np.matmul(rows, orbit[:, :n])  # (method/exact, row, samples x inputs)
-        y = y.reshape(2, rows.shape[0], -1, 2)
+        y = y.reshape(2, rows.shape[0], -1, m)
         err = np.max(np.abs(y[0] - y[1]), axis=1)
         peak = np.max(np.abs(y[1]), axis=1)
     # a unit input that does not move an output at all (peak 0) carries no error either
@@ -409,7 +412,7 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
         try:
             tc, xc = coarse.run(x, t0, t1, vectorize=False)
             tf, xf = fine.run(x, t0, t1, vectorize=False)
-        except SimulationDivergedError:
+        except (SimulationDivergedError, IntegratorError):  # diverged, or an implicit stage did not converge
             return None
         idx = np.clip(np.searchsorted(tf, tc - 1e-9 * dt), 0, tf.size - 1)
         same = np.abs(tf[idx] - tc) <= 1e-9 * dt + 8.0 * np.spacing(np.abs(tc) + dt)
@@ -495,6 +498,82 @@ def require_accurate(plant, method, dt, duration, x0, tolerance=ACCURACY_TOLERAN
     An inaccurate but stable step is returned (``report.accurate`` False): the caller warns.
     """
     report = check_accuracy(plant, method, dt, duration, x0, tolerance, method_options, stepper=stepper)
+    if report is not None and not report.stable:
+        raise UnstableStepError(report.describe())
+    return report
+
+
+def check_slipping(
+    params, drive, load, method: str, dt: float, duration: float, x0_flexible, tolerance: float = ACCURACY_TOLERANCE,
+    method_options=None, stepper=None, suggest: bool = True,
+) -> AccuracyReport | None:  # fmt: skip
+    """The guard for a run on the slipping model: each mode linearized, the worse verdict counts.
+
+    * **stick**: the belt holds; the flexible model with the scene's torques
+      (:func:`check_accuracy`: closed loop and forcing windows), named
+      ``stick`` in the report;
+    * **slip** (each direction sigma = +/-1): ``A_slip`` with the friction
+      force an input ``Q = sigma Q_max(omega_M)`` (belt mass makes ``Q_max``
+      grow with speed: its slope is a feedback on omega_M beside the torques'
+      slopes), ``A_cl = A_slip + B_slip K``; the method's map against the
+      exact one (:func:`linear_verdict`; unit steps of drive, load and Q;
+      signals drive and wheel-3 speed). The slip mode carries the elastic
+      creep ``theta_e' = -(k / c) theta_e + ...``: a fast real mode that
+      explicit methods must resolve.
+
+    ``stepper``: the flexible-model stepper of the run (its integrator is reused).
+    """
+    from .model import FlexibleBeltModel
+    from .slip import SlippingBeltModel
+    from .stepper import Plant
+
+    cls = method_class(method)
+    if not issubclass(cls, FixedStepIntegrator):
+        return None
+    plant = Plant(FlexibleBeltModel(params), drive, load)
+    probes = probe_scene(plant, duration, x0_flexible, dt)
+    stick = check_accuracy(plant, method, dt, duration, x0_flexible, tolerance, method_options, suggest=False,
+                           probes=probes, stepper=stepper)  # fmt: skip
+    stick = AccuracyReport(**{**stick.__dict__, "mode": "stick"})
+    model = SlippingBeltModel(params)
+    A, B = model.A_slip, model.B_slip
+    integrator = make_integrator(method, A, B, dt, **dict(method_options or {}))
+    rows = np.zeros((2, 5))
+    rows[0, 2] = rows[1, 3] = 1.0  # omega_M, omega_3
+    n_steps = max(1, math.ceil(duration / dt - 1e-9))
+    worst = stick
+    for K2, slopes in probes.gains:
+        for sigma in (1.0, -1.0):
+            K = np.zeros((3, 5))
+            K[0, 2], K[1, 3] = slopes
+            w = max(abs(float(plant.wheel_map[1] @ probes.x0)), *(abs(w_) for _, _, w_, _ in probes.windows), 1.0)
+            d = 1e-6 * w
+            K[2, 2] = sigma * (model.limit(w + d) - model.limit(w - d)) / (2.0 * d)
+            stable, error, growth, exact_growth, h_omega = linear_verdict(integrator, A, B, rows, K, n_steps)
+            report = AccuracyReport(cls.name, dt, stable, error <= tolerance, error, tolerance, growth, exact_growth,
+                                    h_omega, slopes, linear_error=error, mode="slip")  # fmt: skip
+            if (not report.stable and worst.stable) or (report.stable == worst.stable and report.error > worst.error):
+                worst = report
+    if suggest and not worst.ok:  # a step of this method that passes in both modes, else another method's
+        for j in range(1, ALTERNATIVE_HALVINGS + 1):
+            h = dt / 2.0**j
+            other = check_slipping(params, drive, load, method, h, duration, x0_flexible, tolerance * SUGGEST_MARGIN,
+                                   method_options, suggest=False)  # fmt: skip
+            if other.ok:
+                return AccuracyReport(**{**worst.__dict__, "suggestion": h})
+        for name in ALTERNATIVES:
+            if name != cls.name:
+                other = check_slipping(params, drive, load, name, dt, duration, x0_flexible, tolerance * SUGGEST_MARGIN,
+                                       suggest=False)  # fmt: skip
+                if other.ok:
+                    return AccuracyReport(**{**worst.__dict__, "alternative": (name, dt)})
+    return worst
+
+
+def require_accurate_slipping(params, drive, load, method, dt, duration, x0_flexible, tolerance=ACCURACY_TOLERANCE,
+                              method_options=None, stepper=None):  # fmt: skip
+    """:func:`check_slipping`; raises :class:`UnstableStepError` when either mode is unstable."""
+    report = check_slipping(params, drive, load, method, dt, duration, x0_flexible, tolerance, method_options, stepper)
     if report is not None and not report.stable:
         raise UnstableStepError(report.describe())
     return report

@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from .accuracy import AccuracyReport, require_accurate
+from .accuracy import AccuracyReport, require_accurate, require_accurate_slipping
 from .fidelity import ModelChoice, choose_model
 from .model import OUTPUT_UNITS, make_model
 from .scene import Scene
@@ -261,6 +261,13 @@ def simulate_slipping(scene, choice=None, progress=None, check_stability=True) -
     """
     sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
     y0 = scene.initial_state.vector("slipping", scene.params.ratio)
+    # each mode linearized (stick: the flexible closed loop and forcing windows; slip: the slip-mode dynamics)
+    accuracy = (
+        require_accurate_slipping(
+            scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.duration,
+            scene.initial_state.vector("flexible", scene.params.ratio), scene.method_options, stepper=sim.stepper,
+        ) if check_stability else None
+    )  # fmt: skip
     start = _time.perf_counter()
     time, states, modes, sigmas = sim.run(scene.duration, y0, progress=progress)
     wall = _time.perf_counter() - start
@@ -282,6 +289,7 @@ def simulate_slipping(scene, choice=None, progress=None, check_stability=True) -
         scene=scene, model="slipping", method=sim.integrator.name, dt=scene.dt, time=time, states=states,
         inputs=u, outputs=m.outputs(states, u, modes, sigmas), choice=choice, stability=sim.stability,
         wall_time=wall, vectorized=False, energy=energy, events=[(e.kind, e.time, e.sigma) for e in sim.events],
+        accuracy=accuracy,
     )
 
 

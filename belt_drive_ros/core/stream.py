@@ -28,7 +28,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from .accuracy import require_accurate
+from .accuracy import require_accurate, require_accurate_slipping
 from .fidelity import FREQUENCY_RATIO_THRESHOLD, ModelChoice, _linear_choice, limit_exceedance
 from .model import make_model
 from .scene import Scene
@@ -157,6 +157,7 @@ def _slipping(scene, choice, progress, check_stability, window_steps) -> Iterato
     sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
     m = sim.model
     y0 = scene.initial_state.vector("slipping", scene.params.ratio)
+    accuracy = _slipping_accuracy(scene, sim) if check_stability else None
     totals = {"input_work": 0.0, "dissipated": 0.0, "friction": 0.0}
     last = None  # (time, state, mode, sigma) of the previous window's last sample: the quadrature's seam
     events: list = []
@@ -188,9 +189,16 @@ def _slipping(scene, choice, progress, check_stability, window_steps) -> Iterato
         yield SimResult(
             scene=scene, model="slipping", method=sim.integrator.name, dt=scene.dt, time=time, states=states,
             inputs=u, outputs=m.outputs(states, u, modes, sigmas), choice=choice, stability=sim.stability,
-            wall_time=wall, vectorized=False, energy=energy, events=window_events,
+            wall_time=wall, vectorized=False, energy=energy, events=window_events, accuracy=accuracy,
         )
         start = _time.perf_counter()
+
+
+def _slipping_accuracy(scene, sim):
+    """The accuracy guard of a slipping run, each mode linearized (refuses an unstable step; see core/accuracy.py)."""
+    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+    return require_accurate_slipping(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.duration, x0,
+                                     method_options=scene.method_options, stepper=sim.stepper)  # fmt: skip
 
 
 @dataclass

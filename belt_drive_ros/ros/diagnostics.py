@@ -81,6 +81,8 @@ class NodeDiagnostics:
             level, message = WARN, f"{w.overruns} of {w.ticks} ticks took longer than the period"
         elif realtime and w.ticks and rate < 0.95 * s.step_rate_hz and span > 0.5:
             level, message = WARN, f"achieved {rate:.1f} Hz < 95% of {s.step_rate_hz:g} Hz"
+        elif s.accuracy is not None and not s.accuracy.accurate:
+            level, message = WARN, f"step inaccurate: estimated error {s.accuracy.error:.2g} > {s.accuracy.tolerance:.2g}"
         elif recorder is not None and recorder.failed:
             level, message = WARN, f"simulating; {recorder.status}"
         simulation = DiagnosticStatus(
@@ -95,6 +97,7 @@ class NodeDiagnostics:
                 step_rate_hz=f"{s.step_rate_hz:g}",
                 achieved_rate_hz=f"{rate:.2f}",
                 stability=s.stability.describe(),
+                accuracy=s.accuracy.describe() if s.accuracy is not None else "adaptive method (own error control)",
                 time_base=timing.time_base(),
                 sim_time=f"{last.get('time', 0.0):.6f}",
                 ticks=c["ticks"],

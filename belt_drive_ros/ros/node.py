@@ -223,10 +223,13 @@ class BeltDriveNode(Node):
         s = settings
         self.get_logger().info(
             f"scene '{s.scene.name}', model {s.model.name} ({s.model_reason}); {s.stability.describe()}; "
+            + (f"{s.accuracy.describe()}; " if s.accuracy is not None else "")
+            + f"
             f"{s.step_rate_hz:g} Hz x {s.substeps} substep(s); drive torque bound {s.torque_bound:g} N m"
             + (", publishing /clock" if s.publish_clock else "")
             + (", use_sim_time" if self.timing.use_sim_time() else "")
         )
+        self._warn_inaccurate(s)
         if s.record_path:
             try:
                 self._start_recording(s)
@@ -249,8 +252,14 @@ class BeltDriveNode(Node):
             self._publish_description()
         self.get_logger().info(
             f"parameters {', '.join(sorted(changed))} applied: model {new.model.name} ({new.model_reason}); "
-            f"{new.stability.describe()}"
+            f"{new.stability.describe()}" + (f"; {new.accuracy.describe()}" if new.accuracy is not None else "")
         )
+        self._warn_inaccurate(new)
+
+    def _warn_inaccurate(self, s: NodeSettings) -> None:
+        """A warning when the accuracy guard rates the step stable but not accurate (the node runs it)."""
+        if s.accuracy is not None and not s.accuracy.accurate:
+            self.get_logger().warn(f"step inaccurate: {s.accuracy.describe()}")
 
     def _start_recording(self, s: NodeSettings) -> None:
         """Open the recording of ``record_path``; a path that exists (without ``record_overwrite``)

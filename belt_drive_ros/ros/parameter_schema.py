@@ -25,7 +25,9 @@ from ..core.integrators import REGISTRY, make_integrator
 from ..core.model import make_model
 from ..core.params import FIELD_DOCS, BeltDriveParams
 from ..core.scene import MODELS, Scene, load_scene
+from ..core.accuracy import AccuracyReport, require_accurate, require_accurate_slipping
 from ..core.stability import StabilityReport, require_stable
+from ..core.stepper import Plant
 
 __all__ = [
     "DEFAULT_SCENE",
@@ -139,6 +141,8 @@ class NodeSettings:
     real_time_factor: float
     record_path: str
     method_options: dict = field(default_factory=dict)
+    #: the accuracy guard's verdict (core/accuracy.py) on the node's model, method and step; None: adaptive method
+    accuracy: AccuracyReport | None = None
     record_overwrite: bool = False
     max_bag_duration: float = 0.0
     max_bag_size: int = 0
@@ -259,6 +263,38 @@ def default_values(scene: Scene) -> dict[str, Any]:
     return values
 
 
+#: accuracy verdicts by (scene, model, drive source, method, step, options): a change of another parameter reuses it
+_ACCURACY: dict = {}
+
+
+def node_accuracy(scene: Scene, model, drive_source: str, method: str, dt: float, options: dict) -> AccuracyReport | None:
+    """The accuracy guard on the node's model, method and step (raises ``UnstableStepError`` when unstable).
+
+    Rigid and flexible models: :func:`~belt_drive_ros.core.accuracy.require_accurate`
+    (closed loop and forcing windows over the scene's duration); the slipping
+    model: :func:`~belt_drive_ros.core.accuracy.require_accurate_slipping`
+    (stick and slip modes). With ``drive_source`` topic the drive torque is
+    held between messages (steps, which the closed-loop check's step response
+    covers): the guard reads the drive as 0 plus those steps.
+    """
+    from ..core.sources import Constant
+
+    drive = scene.drive if drive_source == "scene" else Constant(0.0)
+    key = (scene.name, repr(scene.params), model.name, drive_source, method, dt, repr(sorted(options.items())),
+           repr(drive), repr(scene.load), scene.duration, repr(scene.initial_state))  # fmt: skip
+    if key not in _ACCURACY:
+        if len(_ACCURACY) > 64:
+            _ACCURACY.clear()
+        if model.name == "slipping":
+            x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+            report = require_accurate_slipping(scene.params, drive, scene.load, method, dt, scene.duration, x0, method_options=options)
+        else:
+            x0 = scene.initial_state.vector(model.name, scene.params.ratio)
+            report = require_accurate(Plant(model, drive, scene.load), method, dt, scene.duration, x0, method_options=options)
+        _ACCURACY[key] = report
+    return _ACCURACY[key]
+
+
 def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) -> NodeSettings:
     """Validate a full set of parameter values and derive the node's settings.
 
@@ -321,6 +357,7 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
     try:
         integrator = make_integrator(method, model.A, model.B, dt_ns / 1e9, **options)
         stability = require_stable(model.A, model.B, method, dt_ns / 1e9)
+        accuracy = node_accuracy(scene, model, drive_source, method, dt_ns / 1e9, options)
     except ValueError as exc:  # IntegratorError, UnstableStepError
         raise NodeConfigError("method", str(exc).removeprefix("method: ")) from None
     return NodeSettings(
@@ -334,6 +371,7 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
         dt_ns=dt_ns,
         integrator=integrator,
         stability=stability,
+        accuracy=accuracy,
         step_rate_hz=step_rate,
         substeps=substeps,
         input_timeout_ns=int(round(timeout * 1e9)),
