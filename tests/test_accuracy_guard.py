@@ -167,3 +167,23 @@ def test_random_engine_scenes_estimate_and_named_step(seed, method):
         assert measured / 3.0 <= report.error <= 3.0 * measured, (report.error, measured)
     if not report.ok:
         assert _measured(scene, method, report.suggestion) <= ACCURACY_TOLERANCE
+
+
+def test_slipping_run_checks_the_slip_mode():
+    """truck_compressor slips when the compressor loads (0.5 s); in slip the elastic creep is a fast real mode
+    (-k/c = -1.5e4 1/s): rk4 at 1 ms (h k/c = 15) diverges there although the stick (flexible) mode is stable."""
+    from belt_drive_ros.core.accuracy import check_slipping
+    from belt_drive_ros.core.errors import SimulationDivergedError
+
+    scene = load_scene("truck_compressor").with_overrides(model="slipping", method="rk4", dt=1e-3)
+    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+    report = check_slipping(scene.params, scene.drive, scene.load, "rk4", 1e-3, scene.duration, x0)
+    assert not report.stable and report.mode == "slip" and "slip mode" in report.describe()
+    assert check_step(make_model("flexible", scene.params).A, None, "rk4", 1e-3).stable  # the stick mode alone: fine
+    with pytest.raises(SimulationDivergedError):
+        simulate(scene, check_stability=False)
+    with pytest.raises(UnstableStepError, match="slip mode"):
+        simulate(scene)
+    assert report.suggestion is not None
+    result = simulate(scene, dt=report.suggestion)  # the named step runs (and slips)
+    assert result.accuracy.stable and any(kind == "onset" for kind, _, _ in result.events)

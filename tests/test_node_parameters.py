@@ -55,3 +55,28 @@ def test_torque_bound_is_derived_from_the_scene_or_set():
     derived = build_settings(values).torque_bound
     assert derived == scene_torque_bound(scene) >= 10.0 * max(abs(scene.load.torque(0.0, 0.0, 0.0)), 1e-3)
     assert build_settings({**values, "torque_bound": 50.0}).torque_bound == 50.0
+
+
+def test_node_settings_carry_the_accuracy_guard():
+    """The node runs the core's accuracy guard on its model, method and step (scene torques)."""
+    from belt_drive_ros.benchmarks.common import dop853_reference, run_errors
+    from belt_drive_ros.core.model import make_model
+    from belt_drive_ros.core.simulate import Simulator
+
+    scene = load_scene("paper")
+    values = {**default_values(scene), "drive_source": "scene", "model": "flexible"}
+    settings = build_settings(values)
+    assert settings.accuracy is not None and settings.accuracy.ok, settings.accuracy.describe()
+    # exact holds the motor curve's and the fan's speed slopes over the step: unstable at h*omega_n ~ 4.5
+    rate = scene.params.belt_natural_frequency / 4.5
+    with pytest.raises(NodeConfigError, match="UNSTABLE") as err:
+        build_settings({**values, "method": "exact", "step_rate_hz": rate})
+    assert "method" in str(err.value) and "stable and accurate" in str(err.value)
+    model = make_model("flexible", scene.params)
+    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+    # the refused step: the belt mode grows (1.004 per step) into a sustained swing, 0.8 of the peak off DOP853
+    t, x = Simulator(model, scene.drive, scene.load, "exact", 1.0 / rate, check_stability=False).run(scene.duration, x0)
+    assert run_errors(dop853_reference(scene.with_overrides(model="flexible"), "flexible"), t, x)["error"] > 0.3
+    inaccurate = build_settings({**values, "method": "etd2", "step_rate_hz": 200.0})  # 5 ms: stable, not accurate
+    assert inaccurate.accuracy.stable and not inaccurate.accuracy.accurate
+    assert "INACCURATE" in inaccurate.accuracy.describe()

@@ -265,7 +265,8 @@ def simulate_slipping(scene, choice=None, progress=None, check_stability=True) -
     accuracy = (
         require_accurate_slipping(
             scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.duration,
-            scene.initial_state.vector("flexible", scene.params.ratio), scene.method_options, stepper=sim.stepper,
+            scene.initial_state.vector("flexible", scene.params.ratio), method_options=scene.method_options,
+            stepper=sim.stepper,
         ) if check_stability else None
     )  # fmt: skip
     start = _time.perf_counter()

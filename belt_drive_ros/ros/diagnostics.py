@@ -81,10 +81,10 @@ class NodeDiagnostics:
             level, message = WARN, f"{w.overruns} of {w.ticks} ticks took longer than the period"
         elif realtime and w.ticks and rate < 0.95 * s.step_rate_hz and span > 0.5:
             level, message = WARN, f"achieved {rate:.1f} Hz < 95% of {s.step_rate_hz:g} Hz"
-        elif s.accuracy is not None and not s.accuracy.accurate:
-            level, message = WARN, f"step inaccurate: estimated error {s.accuracy.error:.2g} > {s.accuracy.tolerance:.2g}"
         elif recorder is not None and recorder.failed:
             level, message = WARN, f"simulating; {recorder.status}"
+        if level == OK and s.accuracy is not None and not s.accuracy.accurate:  # runs, but said (and logged at the change)
+            message += f" (step rated inaccurate: estimated error {s.accuracy.error:.2g} > {s.accuracy.tolerance:.2g})"
         simulation = DiagnosticStatus(
             level=level, name=f"{prefix}: simulation", message=message, hardware_id=s.scene.name,
             values=_kv(
