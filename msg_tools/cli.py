@@ -17,8 +17,9 @@ from typing import IO, Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from .decode import FLOAT64, JOINT_STATE
 from .errors import MsgToolsError, RecoveredBagWarning
-from .reader import FLOAT64, JOINT_STATE, TopicData, read_bag, summary
+from .reader import TopicData, read_bag, summary
 from .units import RAD_PER_S_TO_RPM, UNITS_METADATA, is_shaft_speed, label, unit_for
 
 PROG = "msg-tools"

@@ -30,8 +30,9 @@ from typing import Dict, Iterable, List, Optional, Tuple
 
 import numpy as np
 
+from .decode import FLOAT64, JOINT_STATE
 from .errors import MsgToolsError
-from .reader import FLOAT64, JOINT_STATE, TopicData, read_bag
+from .reader import TopicData, read_bag
 
 __all__ = ["CompareReport", "FolderReport", "SignalResult", "compare", "compare_folders", "signals_of"]
 

@@ -7,7 +7,7 @@ library's seeking reader (:func:`mcap.reader.make_reader`,
 module reads it that way, checks that the indexes agree with the records
 they point at, and answers ``msg-tools info`` from it; only a file without a
 (readable) summary, e.g. one whose writer was killed, is scanned record by
-record (:mod:`msg_tools.reader`).
+record (:mod:`msg_tools.scan`).
 
 Checks (cheap: one small read per chunk):
 

@@ -27,7 +27,7 @@ from std_msgs.msg import Float64  # noqa: E402
 
 from msg_tools import Ros2McapWriter, read_topic  # noqa: E402
 from msg_tools import schemas  # noqa: E402
-from msg_tools.reader import _joint_layout  # noqa: E402
+from msg_tools.decode import joint_layout  # noqa: E402
 from msg_tools.writer import encode  # noqa: E402
 from msg_tools._cdr import decoder_for  # noqa: E402
 
@@ -42,7 +42,7 @@ def _decode(type_name, data):
 
 def _non_padding_mask(data: bytes) -> np.ndarray:
     """Bytes of a JointState that carry values (not alignment padding)."""
-    layout = _joint_layout(data)
+    layout = joint_layout(data)
     mask = layout.meaningful.copy()
     mask[4:12] = True  # stamp
     for offset, count in layout.arrays.values():
