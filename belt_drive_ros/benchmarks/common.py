@@ -54,6 +54,8 @@ from ..core.sources import Constant, Step
 SHIPPED_SCENES = ("paper", "truck_compressor", "e_motor_start")
 #: name of the open-loop linear variant of ``paper`` (see :func:`linear_scene`).
 LINEAR_SCENE = "paper_open_loop"
+#: name of ``truck_compressor`` on the slipping model (see :func:`slip_scene`).
+SLIP_SCENE = "truck_compressor_slipping"
 #: step of the open-loop reference [s] (binary: every 2^-j grid is a subgrid).
 LINEAR_REFERENCE_DT = 2.0**-16
 #: DOP853 tolerances of the closed-loop reference.
@@ -86,17 +88,30 @@ def linear_scene() -> Scene:
     )
 
 
+def slip_scene() -> Scene:
+    """``truck_compressor`` on the slipping model: what ``auto`` picks for it (112 stick/slip events in 3 s)."""
+    return load_scene("truck_compressor").with_overrides(
+        name=SLIP_SCENE,
+        description="truck_compressor on the slipping model (auto's choice: the belt slips after the load switch)",
+        model="slipping",
+    )
+
+
 def get_scene(name: str) -> Scene:
-    """A shipped scene or the linear variant by name."""
-    return linear_scene() if name == LINEAR_SCENE else load_scene(name)
+    """A shipped scene, the linear variant or the slipping variant by name."""
+    if name == LINEAR_SCENE:
+        return linear_scene()
+    if name == SLIP_SCENE:
+        return slip_scene()
+    return load_scene(name)
 
 
 def resolved_model(scene: Scene) -> str:
     """The linear model ``auto`` picks for ``scene`` by the frequency rule (or the scene's explicit one).
 
     The integrator studies compare methods on that model; where ``auto`` goes
-    on to slipping, the slip study (``bench slip``) compares the hybrid
-    methods.
+    on to slipping, the studies' slipping scene (:data:`SLIP_SCENE`,
+    :mod:`.slip_runs`) compares the hybrid methods.
     """
     return choose_model(scene, check_slip=False).model if scene.model == "auto" else scene.model
 
@@ -194,7 +209,8 @@ def signals(scene: Scene, model: str, times: np.ndarray, states: np.ndarray) -> 
     return {"omega_M": out["omega_M"], "belt_torque": out["belt_torque"], "load_torque": out["load_torque"]}
 
 
-def _relative(a: np.ndarray, b: np.ndarray) -> float:
+def relative_error(a: np.ndarray, b: np.ndarray) -> float:
+    """max |a - b| / max |b| (max |a - b| when b is all zero): the error of every chart."""
     scale = float(np.max(np.abs(b)))
     diff = float(np.max(np.abs(a - b)))
     return diff / scale if scale > 0 else diff
@@ -205,9 +221,9 @@ def run_errors(reference: Reference, times: np.ndarray, states: np.ndarray) -> d
     run = signals(reference.scene, reference.model, times, states)
     ref = signals(reference.scene, reference.model, times, reference.states(times))
     e = {
-        "e_speed": _relative(run["omega_M"], ref["omega_M"]),
-        "e_belt": _relative(run["belt_torque"], ref["belt_torque"]),
-        "e_load": _relative(run["load_torque"], ref["load_torque"]),
+        "e_speed": relative_error(run["omega_M"], ref["omega_M"]),
+        "e_belt": relative_error(run["belt_torque"], ref["belt_torque"]),
+        "e_load": relative_error(run["load_torque"], ref["load_torque"]),
     }
     e["error"] = max(e["e_speed"], e["e_belt"])
     return e

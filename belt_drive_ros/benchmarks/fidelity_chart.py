@@ -20,17 +20,28 @@ cancels in the difference).
 The ``auto`` choice (:func:`belt_drive_ros.core.fidelity.choose_model`) is asked for
 every point: where it switches, and the error level at its threshold
 ``FREQUENCY_RATIO_THRESHOLD``, are in the chart and the CSV.
+
+Linear against slipping (third panel, ``slip_fidelity.csv``)
+------------------------------------------------------------
+The flexible (linear) model against the slipping one on ``truck_compressor``
+(engine drive with a tenth of its firing ripple, F_0 = 300 N, mu = 0.3) with
+a load ``L (1 + 0.3 sin(2 pi 8 t))`` whose mean ``L`` is swept through the
+belt's capacity ``r_3 Q_max``: error of the flexible model's wheel-3 speed,
+max over 1 s relative to the speed's maximum, against the peak force the
+flexible run asks of the belt (``auto`` goes on to slipping beyond 1). Both
+runs with the scene's default method and step.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..core.fidelity import FREQUENCY_RATIO_THRESHOLD, choose_model
+from ..core.fidelity import FREQUENCY_RATIO_THRESHOLD, choose_model, limit_exceedance
 from ..core.model import LINEAR_OUTPUTS, FlexibleBeltModel, RigidBeltModel
 from ..core.scene import Scene, load_scene
 from ..core.simulate import simulate
@@ -40,6 +51,7 @@ from .common import log, pyplot, save_figure, write_csv
 AMPLITUDE = 10.0  # N m (the models are linear: errors do not depend on it)
 COLUMNS = ("study", "params", "k", "f_n", "zeta", "f_exc", "ratio", "auto", "e_speed", "e_speed3", "e_belt",
            "h_speed", "h_speed3", "h_belt")  # fmt: skip
+SLIP_COLUMNS = ("load_ratio", "peak_force_ratio", "flexible_error", "slip_fraction", "events")
 
 
 @dataclass(frozen=True)
@@ -50,6 +62,7 @@ class Config:
     stiffnesses: tuple = tuple(np.logspace(4, 8, 25))  # N/m, at the truck's firing frequency
     settle_e_folds: float = 8.0
     periods: int = 5
+    load_ratios: tuple = (0.3, 0.5, 0.7, 0.8, 0.9, 1.0, 1.1, 1.25, 1.5, 2.0)  # slip study: mean load / r_3 Q_max
 
 
 FULL = Config()
@@ -60,6 +73,7 @@ QUICK = Config(
     stiffnesses=(),
     settle_e_folds=6.0,
     periods=3,
+    load_ratios=(0.3, 0.7),
 )
 
 
@@ -140,6 +154,29 @@ def measure(config: Config = FULL, quiet: bool = False) -> list[dict]:
     return rows
 
 
+def slip_fidelity(config: Config = FULL, quiet: bool = False) -> list[dict]:
+    """Flexible-model error against the slipping model as the load passes the capacity (module docstring)."""
+    base = load_scene("truck_compressor")
+    params = base.params.replace(F_0=300.0, mu=0.3)
+    capacity = params.r_3 * params.friction_limit(0.0)
+    drive = dataclasses.replace(base.drive, harmonics=tuple(0.1 * a for a in base.drive.harmonics))  # smoother engine
+    rows = []
+    for ratio in config.load_ratios:
+        mean = ratio * capacity
+        scene = base.with_overrides(params=params, drive=drive, load=Sine(mean=mean, amplitude=0.3 * mean, frequency=8.0), duration=1.0)
+        flex = simulate(scene, model="flexible")
+        slip = simulate(scene, model="slipping")
+        w_f, w_s = flex.outputs["omega_3"], slip.outputs["omega_3"]
+        peak, _ = limit_exceedance(params, flex.time, flex.outputs)
+        rows.append(dict(load_ratio=ratio, peak_force_ratio=peak,
+                         flexible_error=float(np.max(np.abs(w_f - w_s)) / np.max(np.abs(w_s))),
+                         slip_fraction=float(np.mean(slip.outputs["slip"])), events=len(slip.events)))  # fmt: skip
+        r = rows[-1]
+        log(f"[fidelity] slipping: load {ratio:.2f} x capacity: peak force {peak:.2f} x Q_max, flexible error "
+            f"{r['flexible_error']:.3g}, slides {100 * r['slip_fraction']:.1f} % of the time", quiet)  # fmt: skip
+    return rows
+
+
 def threshold_error(rows: list[dict], key: str = "e_belt", threshold: float = FREQUENCY_RATIO_THRESHOLD) -> float:
     """Rigid-model error at the auto threshold (log-log interpolation on the reference stiffness)."""
     sel = sorted((r["ratio"], r[key]) for r in rows if r["study"] == "frequency" and r["params"] == "truck k x1")
@@ -159,10 +196,13 @@ def ratio_at_error(rows: list[dict], target: float, key: str = "e_belt") -> floa
     return math.nan
 
 
-def plot(rows: list[dict], path: Path) -> Path:
+def plot(rows: list[dict], path: Path, slip_rows: list[dict] = ()) -> Path:
     plt = pyplot()
     has_k = any(r["study"] == "stiffness" for r in rows)
-    fig, axes = plt.subplots(1, 2 if has_k else 1, figsize=(12 if has_k else 6.5, 4.6), squeeze=False)
+    n = 1 + int(has_k) + int(bool(slip_rows))
+    fig, axes = plt.subplots(1, n, figsize=(6 * n, 4.6), squeeze=False)
+    if slip_rows:
+        _plot_slip(axes[0, -1], slip_rows)
     ax = axes[0, 0]
     labels = list(dict.fromkeys(r["params"] for r in rows if r["study"] == "frequency"))
     colors = dict(zip(labels, ("tab:blue", "tab:red", "tab:green", "tab:purple")))
@@ -216,9 +256,28 @@ def plot(rows: list[dict], path: Path) -> Path:
     return Path(path)
 
 
+def _plot_slip(ax, slip_rows: list[dict]) -> None:
+    ratio = [r["peak_force_ratio"] for r in slip_rows]
+    ax.semilogy(ratio, [max(r["flexible_error"], 1e-16) for r in slip_rows], "o-", color="tab:red", ms=4,
+                label="wheel-3 speed (error 0 drawn at 1e-16)")  # fmt: skip
+    ax.axvline(1.0, color="k", ls="--", lw=1)
+    ax.axvspan(0.0, 1.0, color="tab:blue", alpha=0.06)
+    ax.text(1.0, 0.02, " auto: slipping ->", transform=ax.get_xaxis_transform(), fontsize=7)
+    ax.set_xlim(0.0, max(ratio) * 1.05)
+    ax.set_xlabel("peak force the flexible run asks of the belt / capstan limit Q_max")
+    ax.set_ylabel("flexible-model error / max speed")
+    ax.set_title("flexible (linear) vs slipping, truck belt F_0 = 300 N, mu = 0.3, load swept", fontsize=8)
+    ax.grid(True, which="major", alpha=0.3)
+    ax.legend(fontsize=7, loc="center right")
+
+
 def run(out_dir: Path, quick: bool = False, quiet: bool = False) -> dict:
-    rows = measure(QUICK if quick else FULL, quiet=quiet)
+    config = QUICK if quick else FULL
+    rows = measure(config, quiet=quiet)
+    slip_rows = slip_fidelity(config, quiet=quiet)
     out_dir = Path(out_dir)
     csv_path = write_csv(out_dir / "fidelity.csv", rows, COLUMNS)
-    png_path = plot(rows, out_dir / "fidelity.png")
-    return {"rows": rows, "csv": csv_path, "png": png_path, "threshold_error": threshold_error(rows)}
+    slip_path = write_csv(out_dir / "slip_fidelity.csv", slip_rows, SLIP_COLUMNS)
+    png_path = plot(rows, out_dir / "fidelity.png", slip_rows)
+    return {"rows": rows, "slip_rows": slip_rows, "csv": [csv_path, slip_path], "png": png_path,
+            "threshold_error": threshold_error(rows)}  # fmt: skip

@@ -82,6 +82,8 @@ def workprecision_lines(out: Path) -> list[str]:
     path = out / "workprecision.csv"
     if not path.exists():
         return []
+    from .workprecision import row_label
+
     rows = read_csv(path)
     lines = ["## Work-precision: default method and Pareto front", ""]
     table = []
@@ -89,7 +91,7 @@ def workprecision_lines(out: Path) -> list[str]:
         srows = [r for r in rows if r["scene"] == s and r["status"] == "ok"]
         default = [r for r in srows if r["default"] == 1.0]
         front = sorted((r for r in srows if r["pareto"] == 1.0), key=lambda r: r["cpu_per_sim_s"])
-        members = ", ".join(dict.fromkeys(r["method"] for r in front))
+        members = ", ".join(dict.fromkeys(row_label(r) for r in front))
         skipped = sum(1 for r in rows if r["scene"] == s and r["status"] != "ok")
         d = default[0] if default else None
         table.append([s, srows[0]["model"], f"{d['error']:.2e}" if d else "-", f"{d['x_realtime']:.0f}x" if d else "-",
@@ -120,6 +122,16 @@ def stability_lines(out: Path) -> list[str]:
         table.append([m, _fmt(z0.get("predicted boundary", "-"), ".4g"), _fmt(z0.get("measured boundary", "-"), ".4g"),
                       f"{max(devs):.2%}" if devs else "no boundary (stable at every step)"])  # fmt: skip
     lines += _table(["method", "predicted (zeta=0)", "measured (zeta=0)", "max deviation over zeta > 0 values"], table)
+    slip = {}
+    for r in rows:
+        if r["study"] == "slipping" and r["kind"] != "grid":
+            slip.setdefault(r["method"], {})[r["kind"]] = r["dt"]
+    if slip:
+        lines += ["Slipping scene (`truck_compressor` on the slipping model): step [s] from which a run fails, "
+                  "measured vs predicted (inf: none)", ""]  # fmt: skip
+        table = [[m, _fmt(v.get("measured boundary", "-")), _fmt(v.get("guard (stick mode)", "-")),
+                  _fmt(v.get("slip mode", v.get("regularised, linearized", "-")))] for m, v in slip.items()]  # fmt: skip
+        lines += _table(["variant", "measured", "guard (stick mode)", "slip mode / regularised linearized"], table)
     return lines
 
 

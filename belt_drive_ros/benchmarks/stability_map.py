@@ -29,10 +29,26 @@ printed table): per method and scene (``paper``, ``truck_compressor``), the
 largest ``h omega_n`` up to which the guard rates the method accurate to 1e-4
 on the scene's closed loop and torques, and the first it rates unstable.
 
-Two charts in one PNG: the (h omega_n, zeta) plane for each method (grid of
-measured runs, measured boundary by bisection, predicted boundary), and the
+Slipping scene
+--------------
+``truck_compressor`` on the slipping model (the first second: the load
+switches at 0.5 s and the belt sticks and slips 38 times), run by every
+variant of :mod:`belt_drive_ros.benchmarks.slip_runs` (event-driven hybrid,
+regularised friction at each ``v_eps``) over the work-precision chart's steps
+``scene.dt * 2^j``; a run **fails** when it diverges (non-finite, beyond
+1e5 rad/s) or cannot make progress. The measured boundary is bisected between
+the largest step of the grid that runs and the smallest that fails. Predicted
+(:mod:`~belt_drive_ros.benchmarks.slip_runs`): the run's own guard (stick
+mode = the flexible belt), the slip mode's matrix (the span element's
+relaxation ``k / c``), and for regularised friction the method's one-step map
+on the ODE linearized along the run (where ``v_eps`` would bring its
+stiffness).
+
+Three charts in one PNG: the (h omega_n, zeta) plane for each method (grid of
+measured runs, measured boundary by bisection, predicted boundary), the
 ``truck_compressor`` parameters in the (belt stiffness k, dt) plane for RK4
-and symplectic Euler with the scene's own (k, dt) marked.
+and symplectic Euler with the scene's own (k, dt) marked, and the slipping
+scene's steps (bottom row).
 """
 
 from __future__ import annotations
@@ -50,7 +66,8 @@ from ..core.scene import InitialState, load_scene
 from ..core.simulate import Simulator
 from ..core.sources import Constant
 from ..core.stability import max_stable_step
-from .common import log, pyplot, save_figure, write_csv
+from . import slip_runs
+from .common import SLIP_SCENE, get_scene, log, pyplot, save_figure, write_csv
 
 #: belt periods per run.
 PERIODS = 60
@@ -59,7 +76,7 @@ FACTOR = 10.0
 #: initial relative deflection [rad].
 DEFLECTION = 1e-3
 
-COLUMNS = ("study", "method", "zeta", "k", "omega_n", "dt", "h_omega_n", "diverged", "growth", "kind")
+COLUMNS = ("study", "method", "zeta", "k", "omega_n", "dt", "h_omega_n", "diverged", "growth", "kind", "family", "v_eps", "status")
 
 
 @dataclass(frozen=True)
@@ -72,6 +89,14 @@ class Config:
     periods: int = PERIODS
     stiffness_study: bool = True
     stiffnesses: tuple = tuple(np.logspace(4.5, 7.0, 11))
+    slip_study: bool = True
+    slip_duration: float = 1.0
+    slip_exponents: tuple = (-4, -3, -2, -1, 0, 1, 2, 3)  # dt = scene.dt * 2^j
+    slip_methods: tuple = ("exact", "etd2", "etd4", "lawson5", "trapezoidal", "rk4", "euler")
+    slip_regularised: tuple = ("rk4", "etd2", "euler")
+    slip_v_eps: tuple = (1e-2, 1e-3, 1e-4)
+    slip_bisection_steps: int = 8
+    slip_probes: int = 40
 
 
 FULL = Config()
@@ -83,6 +108,13 @@ QUICK = Config(
     bisection_steps=12,
     periods=40,
     stiffness_study=False,
+    slip_duration=0.7,
+    slip_exponents=(-2, 0, 2),
+    slip_methods=("etd2", "rk4"),
+    slip_regularised=("rk4",),
+    slip_v_eps=(1e-3,),
+    slip_bisection_steps=2,
+    slip_probes=8,
 )
 
 _CONTRAST = ("exact", "etd2", "trapezoidal")
@@ -185,10 +217,51 @@ def _stiffness(config: Config, quiet: bool) -> list[dict]:
     return rows
 
 
+def _slipping(config: Config, quiet: bool) -> list[dict]:
+    """Measured and predicted step limits of the slipping scene's variants (module docstring)."""
+    scene = get_scene(SLIP_SCENE)
+    case = slip_runs.case_from_scene(scene).with_duration(min(config.slip_duration, scene.duration))
+    m = case.model
+    rate = float(np.max(np.abs(np.linalg.eigvals(m.A_slip))))  # the slip mode's fastest rate (k / c)
+    steps = [scene.dt * 2.0**j for j in config.slip_exponents]
+    variants = [("hybrid", mt, 0.0) for mt in config.slip_methods]
+    variants += [("regularised", mt, v) for mt in config.slip_regularised for v in config.slip_v_eps]
+    probes = {v: slip_runs.probe_states(case, v, config.slip_probes) for v in config.slip_v_eps}
+    rows = []
+    for family, method, v_eps in variants:
+        label = slip_runs.variant_label(family, method, v_eps)
+        base = dict(study="slipping", method=label, zeta="", k=case.params.k, omega_n=rate, diverged="", growth="",
+                    family=family, v_eps=v_eps)  # fmt: skip
+        status = {dt: slip_runs.run(case, family, method, dt, v_eps, repeats=1).status for dt in steps}
+        for dt, st in status.items():
+            rows.append(dict(base, dt=dt, h_omega_n=dt * rate, kind="grid", status=st, diverged=int(st != "ok")))
+        failing = [dt for dt in steps if status[dt] != "ok"]
+        if not failing:
+            boundary = math.inf  # runs at every step of the grid
+        else:
+            running = [dt for dt in steps if status[dt] == "ok" and dt < min(failing)]
+            boundary = 0.0 if not running else slip_runs.failure_boundary(
+                case, family, method, v_eps, max(running), min(failing), config.slip_bisection_steps)  # fmt: skip
+        rows.append(dict(base, dt=boundary, h_omega_n=boundary * rate, kind="measured boundary"))
+        predicted = {"guard (stick mode)": slip_runs.guard_step(case, method)}
+        if family == "hybrid":
+            predicted["slip mode"] = slip_runs.slip_mode_step(case, method)
+        else:
+            times, states = probes[v_eps]
+            predicted["regularised, linearized"] = slip_runs.regularised_step(case, method, v_eps, states, times)
+        for kind, dt in predicted.items():
+            rows.append(dict(base, dt=dt, h_omega_n=dt * rate, kind=kind))
+        log(f"[stability] slipping {label:24s} fails from dt {boundary:.3g} s (measured); predicted: "
+            + ", ".join(f"{k} {v:.3g} s" for k, v in predicted.items()), quiet)  # fmt: skip
+    return rows
+
+
 def measure(config: Config = FULL, quiet: bool = False) -> list[dict]:
     rows = _plane(config, quiet)
     if config.stiffness_study:
         rows += _stiffness(config, quiet)
+    if config.slip_study:
+        rows += _slipping(config, quiet)
     return rows
 
 
@@ -205,9 +278,19 @@ def plot(rows: list[dict], path: Path, stiffness_scene_dt: float | None = None) 
     plt = pyplot()
     methods = list(dict.fromkeys(r["method"] for r in rows if r["study"] == "plane"))
     has_k = any(r["study"] == "stiffness" for r in rows)
+    has_slip = any(r["study"] == "slipping" for r in rows)
     ncol = 4 if has_k else min(3, len(methods))
-    nrow = math.ceil((len(methods) + (2 if has_k else 0)) / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(3.6 * ncol, 3.2 * nrow), squeeze=False)
+    nrow = math.ceil((len(methods) + (2 if has_k else 0)) / ncol) + int(has_slip)
+    ratios = [1.0] * nrow
+    if has_slip:
+        ratios[-1] = 1.6
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.6 * ncol, 3.2 * sum(ratios)), squeeze=False,
+                             gridspec_kw=dict(height_ratios=ratios))  # fmt: skip
+    if has_slip:
+        for ax in axes[-1]:
+            ax.remove()
+        _plot_slipping(fig.add_subplot(axes[-1, 0].get_gridspec()[-1, :]), rows)
+        axes = axes[:-1]
     flat = list(axes.flat)
     for ax, method in zip(flat, methods):
         grid = [r for r in rows if r["study"] == "plane" and r["method"] == method and r["kind"] == "grid"]
@@ -321,6 +404,58 @@ def guarantee_table(rows: list[dict]) -> str:
             parts.append(f"{acc} / {r['unstable_h_omega_n']:.3g}")
         lines.append(f"| {m} | " + " | ".join(parts) + " |")
     return "\n".join(lines)
+
+
+_PREDICTED_STYLE = {
+    "guard (stick mode)": dict(marker="|", color="k", ms=14, mew=2),
+    "slip mode": dict(marker="x", color="tab:red", ms=8, mew=2),
+    "regularised, linearized": dict(marker="x", color="tab:purple", ms=8, mew=2),
+}
+
+
+def _plot_slipping(ax, rows: list[dict]) -> None:
+    """One line per variant: grid runs (ran / failed), measured boundary, predictions (module docstring)."""
+    sel = [r for r in rows if r["study"] == "slipping"]
+    labels = list(dict.fromkeys(r["method"] for r in sel))
+    grid = [r for r in sel if r["kind"] == "grid"]
+    lo, hi = min(r["dt"] for r in grid) / 3.0, max(r["dt"] for r in grid) * 3.0
+    seen = set()
+
+    def once(name):
+        seen_before = name in seen
+        seen.add(name)
+        return None if seen_before else name
+
+    for y, label in enumerate(labels):
+        rs = [r for r in sel if r["method"] == label]
+        for r in rs:
+            if r["kind"] == "grid":
+                ok = not r["diverged"]
+                ax.plot(r["dt"], y, "." if ok else "x", color="tab:green" if ok else "tab:red", ms=6 if ok else 5,
+                        label=once("grid: runs" if ok else "grid: diverged / failed"))  # fmt: skip
+            elif r["kind"] == "measured boundary":
+                dt = r["dt"]
+                if math.isfinite(dt) and dt > 0:
+                    ax.plot(dt, y, "o", mfc="none", mec="tab:blue", ms=9, mew=1.5, label=once("measured boundary"))
+                else:
+                    ax.annotate("runs at every step" if dt == math.inf else "fails at every step", (hi if dt else lo, y),
+                                fontsize=6, va="center", ha="right" if dt else "left", color="tab:blue")  # fmt: skip
+            elif math.isfinite(r["dt"]):  # an infinite prediction (any step is stable) is not drawn
+                style = dict(_PREDICTED_STYLE.get(r["kind"], dict(marker="+", color="k")))
+                ax.plot(max(r["dt"], lo), y, ls="none", label=once(f"predicted: {r['kind']}"), **style)
+    scene = get_scene(SLIP_SCENE)
+    ax.axvline(scene.dt, color="0.5", ls=":", lw=1)
+    ax.text(scene.dt, 1.0, f" scene dt {scene.dt * 1e3:g} ms", transform=ax.get_xaxis_transform(), fontsize=7, color="0.4", va="bottom")
+    ax.set_xscale("log")
+    ax.set_xlim(lo, hi)
+    ax.set_yticks(range(len(labels)))
+    ax.set_yticklabels(labels, fontsize=7)
+    ax.set_ylim(-0.7, len(labels) - 0.3)
+    ax.set_xlabel("step dt [s]")
+    ax.set_title("truck_compressor on the slipping model: where each variant fails, measured and predicted "
+                 "(no marker: no predicted limit)", fontsize=9)  # fmt: skip
+    ax.grid(True, which="major", axis="x", alpha=0.3)
+    ax.legend(fontsize=6.5, loc="center left", bbox_to_anchor=(1.0, 0.5))
 
 
 def run(out_dir: Path, quick: bool = False, quiet: bool = False) -> dict:

@@ -11,6 +11,15 @@ open-loop linear variant of ``paper``) and each integrator:
   package's registry, outputs every ``scene.dt``): ``rtol`` is swept, with
   ``atol = 1e-3 rtol``.
 
+The slipping scene (``truck_compressor`` on the slipping model, what ``auto``
+picks for it; :data:`~belt_drive_ros.benchmarks.common.SLIP_SCENE`) has its
+own variants (:mod:`belt_drive_ros.benchmarks.slip_runs`): the event-driven
+hybrid with every fixed-step method, the hybrid without event location, and
+regularised friction at several ``v_eps``, against DOP853 with located
+events. Its stability guard is the run's own (stick mode): a step it refuses
+is not run; a run that diverges in the slip mode is recorded as
+``diverged``.
+
 Error and timing are defined in :mod:`belt_drive_ros.benchmarks.common`. The
 chart is log-log (error against CPU seconds per simulated second) with one
 panel per scene; the Pareto front (no other run is both faster and more
@@ -30,8 +39,10 @@ from ..core.integrators import ADAPTIVE_METHODS, FIXED_STEP_METHODS
 from ..core.model import make_model
 from ..core.simulate import Simulator
 from ..core.stability import check_step
+from . import slip_runs
 from .common import (
     LINEAR_SCENE,
+    SLIP_SCENE,
     PLOT_FLOOR,
     SHIPPED_SCENES,
     cpu_time,
@@ -50,8 +61,12 @@ from .common import (
 
 COLUMNS = (
     "scene", "model", "method", "kind", "dt", "rtol", "h_omega_n", "status", "cpu_s", "cpu_per_sim_s",
-    "x_realtime", "e_speed", "e_belt", "e_load", "error", "default", "pareto", "reference",
+    "x_realtime", "e_speed", "e_belt", "e_load", "error", "default", "pareto", "reference", "family", "v_eps", "events",
 )  # fmt: skip
+
+#: fixed-step methods of the slipping scene (symplectic Euler needs the [angles, speeds] state form, which the
+#: slip mode's stretch and slip coordinates do not have)
+SLIP_METHODS = tuple(m for m in FIXED_STEP_METHODS if m != "symplectic_euler")
 
 
 @dataclass(frozen=True)
@@ -73,9 +88,15 @@ class Config:
     )
     duration: float | None = None  # None: the scene's
     repeats: int | None = None  # None: adaptive (see common.cpu_time)
+    slip_scenes: tuple = ()  # scenes on the slipping model (module docstring)
+    slip_methods: tuple = SLIP_METHODS
+    slip_no_location: tuple = ("etd2",)
+    slip_regularised: tuple = ("rk4", "etd2")
+    slip_v_eps: tuple = (1e-2, 1e-3, 1e-4)
+    slip_duration: float | None = None  # None: the scene's
 
 
-FULL = Config()
+FULL = Config(slip_scenes=(SLIP_SCENE,))
 QUICK = Config(
     scenes=("paper", LINEAR_SCENE),
     fixed_methods=("exact", "etd2", "etd4", "lawson5", "rk4", "symplectic_euler"),
@@ -84,6 +105,11 @@ QUICK = Config(
     rtols={"RK45": (1e-4, 1e-7)},
     duration=0.5,
     repeats=1,
+    slip_scenes=(SLIP_SCENE,),
+    slip_methods=("etd2", "rk4"),
+    slip_regularised=("rk4",),
+    slip_v_eps=(1e-3,),
+    slip_duration=0.7,  # the load switches at 0.5 s; slip follows
 )
 
 
@@ -135,21 +161,62 @@ def measure(config: Config = FULL, quiet: bool = False) -> list[dict]:
                 except BeltDriveError as exc:
                     row["status"] = f"failed: {exc}"
                 scene_rows.append(row)
-        ok = [r for r in scene_rows if r["status"] == "ok"]
-        for r in ok:
-            r["cpu_per_sim_s"] = r["cpu_s"] / scene.duration
-            r["x_realtime"] = scene.duration / r["cpu_s"] if r["cpu_s"] > 0 else math.inf
-        front = pareto_mask([r["cpu_per_sim_s"] for r in ok], [r["error"] for r in ok])
-        for r, on in zip(ok, front):
-            r["pareto"] = int(on)
-        for r in scene_rows:
-            if r["status"] == "ok":
-                log(f"  {r['method']:16s} dt={r['dt']:.3g} rtol={r['rtol'] or '-':<6} err={r['error']:.2e} "
-                    f"cpu/sim-s={r['cpu_per_sim_s']:.2e} ({r['x_realtime']:.0f}x real time)", quiet)  # fmt: skip
-            else:
-                log(f"  {r['method']:16s} dt={r['dt']:.3g} rtol={r['rtol'] or '-':<6} {r['status']}", quiet)
-        rows += scene_rows
+        rows += _finish(scene_rows, scene.duration, quiet)
+    for name in config.slip_scenes:
+        rows += _finish(*_slip_rows(name, config, quiet), quiet)
     return rows
+
+
+def _finish(scene_rows: list[dict], duration: float, quiet: bool) -> list[dict]:
+    """x real time and the Pareto front of one scene's rows; log them."""
+    ok = [r for r in scene_rows if r["status"] == "ok"]
+    for r in ok:
+        r["cpu_per_sim_s"] = r["cpu_s"] / duration
+        r["x_realtime"] = duration / r["cpu_s"] if r["cpu_s"] > 0 else math.inf
+    front = pareto_mask([r["cpu_per_sim_s"] for r in ok], [r["error"] for r in ok])
+    for r, on in zip(ok, front):
+        r["pareto"] = int(on)
+    for r in scene_rows:
+        label = r.get("label", r["method"])
+        if r["status"] == "ok":
+            log(f"  {label:30s} dt={r['dt']:.3g} rtol={r['rtol'] or '-':<6} err={r['error']:.2e} "
+                f"cpu/sim-s={r['cpu_per_sim_s']:.2e} ({r['x_realtime']:.0f}x real time)", quiet)  # fmt: skip
+        else:
+            log(f"  {label:30s} dt={r['dt']:.3g} rtol={r['rtol'] or '-':<6} {r['status']}", quiet)
+    return scene_rows
+
+
+def _slip_rows(name: str, config: Config, quiet: bool) -> tuple[list[dict], float]:
+    """Rows of a slipping scene: hybrid, hybrid without event location, regularised (module docstring)."""
+    scene = get_scene(name)
+    if config.slip_duration is not None:
+        scene = scene.with_overrides(duration=min(config.slip_duration, scene.duration))
+    case = slip_runs.case_from_scene(scene)
+    steps = [scene.dt * 2.0**j for j in config.step_exponents]
+    reference = slip_runs.reference(case, min(steps))
+    kind = f"DOP853 + events rtol {slip_runs.REFERENCE_TOL:g}"
+    log(f"[workprecision] {name}: slipping model, reference {kind} ({reference.events} events)", quiet)
+    flex = make_model("flexible", scene.params)
+    variants = [("hybrid", m, 0.0) for m in config.slip_methods]
+    variants += [("no_location", m, 0.0) for m in config.slip_no_location]
+    variants += [("regularised", m, v) for m in config.slip_regularised for v in config.slip_v_eps]
+    rows = []
+    for family, method, v_eps in variants:
+        for j, dt in zip(config.step_exponents, steps):
+            report = check_step(flex.A, flex.B, method, dt)
+            row = dict(scene=name, model="slipping" if family != "regularised" else "regularised", method=method,
+                       kind="fixed", dt=dt, rtol="", h_omega_n=report.h_omega_n, reference=kind, family=family,
+                       v_eps=v_eps, label=slip_runs.variant_label(family, method, v_eps),
+                       default=int(family == "hybrid" and method == scene.method and j == 0))  # fmt: skip
+            if family == "hybrid" and not report.stable:
+                row["status"] = "unstable (guard)"
+            else:
+                r = slip_runs.run(case, family, method, dt, v_eps, config.repeats)
+                row["status"] = r.status
+                if r.status == "ok":
+                    row.update(slip_runs.errors(reference, r), cpu_s=r.cpu_s, events=r.events)
+            rows.append(row)
+    return rows, scene.duration
 
 
 _STYLE = {
@@ -179,14 +246,19 @@ def plot(rows: list[dict], path: Path) -> Path:
     for ax, name in zip(axes.flat, scenes):
         srows = [r for r in rows if r["scene"] == name]
         ok = [r for r in srows if r["status"] == "ok"]
-        for method in dict.fromkeys(r["method"] for r in srows):
-            pts = [r for r in ok if r["method"] == method]  # in sweep order: dt or rtol
+        for label in dict.fromkeys(row_label(r) for r in srows):
+            pts = [r for r in ok if row_label(r) == label]  # in sweep order: dt or rtol
             if not pts:
                 continue
-            color, marker = _STYLE.get(method, ("k", "."))
+            color, marker = _STYLE.get(pts[0]["method"], ("k", "."))
+            family, ls = pts[0].get("family", "hybrid"), "-"
+            if family == "no_location":
+                ls = ":"
+            elif family == "regularised":
+                ls, marker = "--", _V_EPS_MARKERS.get(float(pts[0]["v_eps"]), ".")
             x = [r["cpu_per_sim_s"] for r in pts]
             y = [max(r["error"], PLOT_FLOOR) for r in pts]
-            ax.plot(x, y, marker=marker, color=color, lw=0.8, ms=5, label=method)
+            ax.plot(x, y, marker=marker, color=color, ls=ls, lw=0.8, ms=5, label=label, mfc="none" if family != "hybrid" else None)
         front = sorted((r for r in ok if r.get("pareto") == 1), key=lambda r: r["cpu_per_sim_s"])
         if front:
             ax.step([r["cpu_per_sim_s"] for r in front], [max(r["error"], PLOT_FLOOR) for r in front],
@@ -202,13 +274,15 @@ def plot(rows: list[dict], path: Path) -> Path:
         skipped = {}
         for r in srows:
             if r["status"] != "ok":
-                skipped.setdefault(r["method"], []).append(f"{r['dt']:.2g}" if r["kind"] == "fixed" else f"{r['rtol']:g}")
+                mark = "" if r["status"] == "unstable (guard)" else "*"
+                skipped.setdefault((row_label(r), r["kind"]), []).append(
+                    f"{r['dt']:.2g}{mark}" if r["kind"] == "fixed" else f"{r['rtol']:g}{mark}")  # fmt: skip
         if skipped:
-            text = "not plotted (guard: unstable / diverged / failed):\n" + "\n".join(
-                f"{m}: dt " + ", ".join(v) if m in _FIXED else f"{m}: rtol " + ", ".join(v) for m, v in skipped.items()
+            text = "not plotted (refused by the guard; *: diverged or failed):\n" + "\n".join(
+                f"{m}: dt " + ", ".join(v) if kind == "fixed" else f"{m}: rtol " + ", ".join(v) for (m, kind), v in skipped.items()
             )
             ax.text(0.99, 0.01, text, transform=ax.transAxes, fontsize=6, ha="right", va="bottom", color="0.3")
-        model = srows[0]["model"]
+        model = "slipping" if any(r.get("family") for r in srows) else srows[0]["model"]
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_title(f"{name} ({model} model; reference {srows[0]['reference']})", fontsize=9)
@@ -228,14 +302,20 @@ def plot(rows: list[dict], path: Path) -> Path:
     return Path(path)
 
 
-_FIXED = set(FIXED_STEP_METHODS)
+_V_EPS_MARKERS = {1e-2: ">", 1e-3: "<", 1e-4: "p"}
+
+
+def row_label(row: dict) -> str:
+    """Legend label of a row: the method, or the slipping scene's variant (:func:`.slip_runs.variant_label`)."""
+    family = row.get("family")
+    return slip_runs.variant_label(family, row["method"], float(row["v_eps"])) if family else row["method"]
 
 
 def summary(rows: list[dict]) -> dict:
     """Headline numbers: x real time of each fixed-step method at each scene's own step."""
     out = {}
     for r in rows:
-        if r["status"] == "ok" and r["kind"] == "fixed":
+        if r["status"] == "ok" and r["kind"] == "fixed" and r.get("family") in (None, "", "hybrid"):
             scene = get_scene(r["scene"])
             if math.isclose(r["dt"], scene.dt):
                 out[(r["scene"], r["method"])] = r["x_realtime"]

@@ -12,11 +12,14 @@ STUDIES = ("workprecision", "stability", "fidelity", "versus", "slip")
 
 EPILOG = """\
 studies:
-  workprecision  error vs CPU time, every integrator on every scene (Pareto front, default marked)
-  stability      where fixed-step methods diverge: measured vs the stability guard's prediction
-  fidelity       rigid vs flexible model error vs excitation frequency and belt stiffness
+  workprecision  error vs CPU time, every integrator on every scene (Pareto front, default marked),
+                 truck_compressor on the slipping model among them (regularised friction beside)
+  stability      where fixed-step methods diverge: measured vs the stability guard's prediction,
+                 and on the slipping scene per method and friction law
+  fidelity       rigid vs flexible model error vs excitation frequency and belt stiffness;
+                 linear vs slipping model as the load passes the capstan limit
   versus         default method vs scipy solve_ivp RK45 at matched accuracy; x real time per scene
-  slip           slipping belt: event-driven hybrid vs step-end switching vs regularised friction
+  slip           a harder stick-slip case: event-driven hybrid vs step-end switching vs regularised
   node           the ROS node's real-time figures (needs the ROS extra)
   soak           the node recording for --seconds (default 60): RSS growth per minute,
                  output rate per 10 s window, messages lost (not part of 'all')
