@@ -15,7 +15,8 @@ v_eps = 1e-2, 1e-3, 1e-4 m/s with ``rk4``, ``etd2``, ``euler``). Here a run
 also counts as **failed** when its error exceeds 1.
 
 The chart: error against CPU time (left) and against the step (middle),
-failed runs on the top edge; and the scene's step limits (right,
+failed runs on the top edge (a run stopped as diverged has no CPU time and is
+only in the middle panel); and the scene's step limits (right,
 ``slip_stability.csv``): per variant, the largest step of the sweep that
 runs and the smallest that fails. The linear model's error against the
 slipping one as the load grows past the limit is the fidelity chart's third
@@ -97,9 +98,10 @@ def _plot(rows, stable, path):
         family = rs[0]["family"]
         ls = "-" if family == "hybrid" else ":" if family == "no_location" else "--"
         err = np.array([top if r["failed"] else r["error"] for r in rs])
-        cpu = [r["cpu_s"] if math.isfinite(r["cpu_s"]) and r["cpu_s"] > 1e-4 else 1e-4 for r in rs]
-        ax_cost.loglog(cpu, err, ls, marker="o", ms=3, label=label)
-        ax_dt.loglog([r["dt"] for r in rs], err, ls, marker="o", ms=3, label=label)
+        timed = [(max(r["cpu_s"], 1e-4), e) for r, e in zip(rs, err) if math.isfinite(r["cpu_s"])]  # diverged: no time
+        line = ax_dt.loglog([r["dt"] for r in rs], err, ls, marker="o", ms=3, label=label)[0]
+        if timed:
+            ax_cost.loglog(*zip(*timed), ls, marker="o", ms=3, color=line.get_color())
     for ax in (ax_cost, ax_dt):
         ax.axhline(1.0, color="k", lw=0.6)
         ax.grid(True, which="both", alpha=0.3)
