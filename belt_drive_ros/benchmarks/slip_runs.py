@@ -45,7 +45,9 @@ Predicted largest stable step
 * ``guard``: :func:`~belt_drive_ros.core.stability.max_stable_step` on the
   stick mode (the flexible model's A): what the run's stability guard checks;
 * ``slip mode``: the same on the slip mode's A (with ``c > 0`` it holds the
-  span element's relaxation ``-k/c``; the guard does not check it);
+  span element's relaxation ``-k/c``; the accuracy guard,
+  :func:`~belt_drive_ros.core.accuracy.check_slipping`, checks it with the
+  friction limit's slope added);
 * regularised: the method's one-step map on the regularised ODE linearized
   about states along the reference (``u = K y`` with ``K = du/dy`` by central
   differences of the torques, the contact force and the slip speed), stable

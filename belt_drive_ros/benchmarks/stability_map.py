@@ -38,9 +38,9 @@ regularised friction at each ``v_eps``) over the work-precision chart's steps
 ``scene.dt * 2^j``; a run **fails** when it diverges (non-finite, beyond
 1e5 rad/s) or cannot make progress. The measured boundary is bisected between
 the largest step of the grid that runs and the smallest that fails. Predicted
-(:mod:`~belt_drive_ros.benchmarks.slip_runs`): the run's own guard (stick
+(:mod:`~belt_drive_ros.benchmarks.slip_runs`): the stability guard (stick
 mode = the flexible belt), the slip mode's matrix (the span element's
-relaxation ``k / c``), and for regularised friction the method's one-step map
+relaxation ``k / c``, which the accuracy guard checks on slipping runs), and for regularised friction the method's one-step map
 on the ODE linearized along the run (where ``v_eps`` would bring its
 stiffness).
 
