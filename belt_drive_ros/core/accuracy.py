@@ -264,6 +264,9 @@ def closed_loop_maps(integrator, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]
         return _scheme.step(scheme, h, 0.0, x, lambda t, y: K @ y + u0, integrator.name)
 
     m = K.shape[0]
+    if not scheme.implicit:  # affine in (x, u_0): every unit column in one call, as a matrix
+        MG = run(np.eye(n, n + m), np.eye(m, n + m, n))
+        return MG[:, :n], MG[:, n:]
     zero_u = np.zeros(m)
     M = np.column_stack([run(e, zero_u) for e in np.eye(n)])
     G = np.column_stack([run(np.zeros(n), e) for e in np.eye(m)])
@@ -394,6 +397,22 @@ def forcing_error(plant, method: str, dt: float, probes: Probes, method_options=
     return float(np.max(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0)))
 
 
+#: integrators of the windows' half steps, by (method, step, options, A, B): built once (their stage schemes cost expm)
+_INTEGRATORS: dict = {}
+
+
+def _integrator(model, method: str, dt: float, method_options=None):
+    """``make_integrator`` for ``model``'s A, B, cached (up to 64)."""
+    options = dict(method_options or {})
+    key = (method, dt, repr(sorted(options.items())), model.A.tobytes(), model.B.tobytes(), model.A.shape)
+    hit = _INTEGRATORS.get(key)
+    if hit is None:
+        if len(_INTEGRATORS) >= 64:
+            _INTEGRATORS.pop(next(iter(_INTEGRATORS)))
+        hit = _INTEGRATORS[key] = make_integrator(method, model.A, model.B, dt, **options)
+    return hit
+
+
 def window_errors(plant, method: str, dt: float, probes: Probes, method_options=None, stepper=None) -> list | None:
     """``[(t0, Richardson error (2,), peak (2,))]`` per forcing window (see :func:`forcing_error`); None: diverged."""
     from .errors import SimulationDivergedError
@@ -403,7 +422,7 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
     factor = 2.0**order / (2.0**order - 1.0)
     C, D = _output_rows(plant.model)
     coarse = stepper or Stepper(plant, method, dt, method_options)
-    fine = Stepper(plant, method, dt / 2.0, method_options)
+    fine = Stepper(plant, method, dt / 2.0, method_options, integrator=_integrator(plant.model, method, dt / 2.0, method_options))
     out = []
     for t0, x in probes.window_starts(plant, dt):
         t1 = min(t0 + probes.span(dt), probes.duration)
@@ -505,7 +524,7 @@ def require_accurate(plant, method, dt, duration, x0, tolerance=ACCURACY_TOLERAN
 
 def check_slipping(
     params, drive, load, method: str, dt: float, duration: float, x0_flexible, tolerance: float = ACCURACY_TOLERANCE,
-    method_options=None, stepper=None, suggest: bool = True,
+    method_options=None, stepper=None, suggest: bool = True, stick: AccuracyReport | None = None,
 ) -> AccuracyReport | None:  # fmt: skip
     """The guard for a run on the slipping model: each mode linearized, the worse verdict counts.
 
@@ -521,7 +540,8 @@ def check_slipping(
       creep ``theta_e' = -(k / c) theta_e + ...``: a fast real mode that
       explicit methods must resolve.
 
-    ``stepper``: the flexible-model stepper of the run (its integrator is reused).
+    ``stepper``: the flexible-model stepper of the run (its integrator is reused); ``stick``: the
+    flexible model's report for this method, step and tolerance already made (``auto``'s check run).
     """
     from .model import FlexibleBeltModel
     from .slip import SlippingBeltModel
@@ -532,9 +552,10 @@ def check_slipping(
         return None
     plant = Plant(FlexibleBeltModel(params), drive, load)
     probes = probe_scene(plant, duration, x0_flexible, dt)
-    stick = check_accuracy(plant, method, dt, duration, x0_flexible, tolerance, method_options, suggest=False,
-                           probes=probes, stepper=stepper)  # fmt: skip
-    stick = AccuracyReport(**{**stick.__dict__, "mode": "stick"})
+    if stick is None:
+        stick = check_accuracy(plant, method, dt, duration, x0_flexible, tolerance, method_options, suggest=False,
+                               probes=probes, stepper=stepper)  # fmt: skip
+    stick = AccuracyReport(**{**stick.__dict__, "mode": "stick", "suggestion": None, "alternative": None})
     model = SlippingBeltModel(params)
     A, B = model.A_slip, model.B_slip
     integrator = make_integrator(method, A, B, dt, **dict(method_options or {}))
@@ -571,9 +592,10 @@ def check_slipping(
 
 
 def require_accurate_slipping(params, drive, load, method, dt, duration, x0_flexible, tolerance=ACCURACY_TOLERANCE,
-                              method_options=None, stepper=None):  # fmt: skip
+                              method_options=None, stepper=None, stick=None):  # fmt: skip
     """:func:`check_slipping`; raises :class:`UnstableStepError` when either mode is unstable."""
-    report = check_slipping(params, drive, load, method, dt, duration, x0_flexible, tolerance, method_options, stepper)
+    report = check_slipping(params, drive, load, method, dt, duration, x0_flexible, tolerance, method_options, stepper,
+                            stick=stick)  # fmt: skip
     if report is not None and not report.stable:
         raise UnstableStepError(report.describe())
     return report

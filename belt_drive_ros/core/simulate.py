@@ -201,7 +201,8 @@ def simulate(
 
     choice = choose_model(scene, linear_run=linear_run)
     if choice.model == "slipping":
-        return simulate_slipping(scene, choice, progress, check_stability)
+        checked = runs.get("flexible")  # its guard verdict is the stick mode's
+        return simulate_slipping(scene, choice, progress, check_stability, checked.accuracy if checked else None)
     result = runs[choice.model]
     result.choice = choice
     return result
@@ -251,13 +252,14 @@ def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, v
     )
 
 
-def simulate_slipping(scene, choice=None, progress=None, check_stability=True) -> SimResult:
+def simulate_slipping(scene, choice=None, progress=None, check_stability=True, stick=None) -> SimResult:
     """Run ``scene`` on the slipping model (:mod:`belt_drive_ros.core.slip_run`).
 
     ``result.outputs`` has every signal of the other models plus
     :data:`~belt_drive_ros.core.slip.SLIP_OUTPUT_UNITS`; ``result.events``
     lists the mode switches (kind, time [s], direction); ``result.energy``
-    adds ``friction``, the integral of Q s'.
+    adds ``friction``, the integral of Q s'. ``stick``: the accuracy guard's report on the flexible model
+    already made (the stick mode's; ``auto``'s check run).
     """
     sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
     y0 = scene.initial_state.vector("slipping", scene.params.ratio)
@@ -266,7 +268,7 @@ def simulate_slipping(scene, choice=None, progress=None, check_stability=True) -
         require_accurate_slipping(
             scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.duration,
             scene.initial_state.vector("flexible", scene.params.ratio), method_options=scene.method_options,
-            stepper=sim.stepper,
+            stepper=sim.stepper, stick=stick,
         ) if check_stability else None
     )  # fmt: skip
     start = _time.perf_counter()

@@ -123,8 +123,23 @@ def max_stable_step(A: np.ndarray, B: np.ndarray, method: str, upper: float = 1.
     return lo
 
 
+#: reports already computed, by (A, B, method, dt): the same numbers give the same report
+_REPORTS: dict = {}
+
+
 def check_step(A: np.ndarray, B: np.ndarray, method: str, dt: float) -> StabilityReport:
-    """Predict stability of ``method`` at step ``dt`` [s] on x' = A x + B u."""
+    """Predict stability of ``method`` at step ``dt`` [s] on x' = A x + B u (cached per A, B, method, dt)."""
+    A = np.asarray(A, dtype=float)
+    key = (A.tobytes(), A.shape, None if B is None else np.asarray(B, dtype=float).tobytes(), method, float(dt))
+    report = _REPORTS.get(key)
+    if report is None:
+        if len(_REPORTS) >= 256:
+            _REPORTS.pop(next(iter(_REPORTS)))
+        report = _REPORTS[key] = _check_step(A, B, method, dt)
+    return report
+
+
+def _check_step(A: np.ndarray, B: np.ndarray, method: str, dt: float) -> StabilityReport:
     cls = method_class(method)
     lams = _eigenvalues(A)
     omega_n = float(np.max(np.abs(lams)))
