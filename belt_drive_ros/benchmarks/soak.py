@@ -50,6 +50,11 @@ def parse_args(argv=None):
                    help="split the recording every this many seconds (default 60; 0: one file)")
     p.add_argument("--record", type=Path, help="recording path (default: a temporary folder, removed afterwards)")
     p.add_argument("--out", type=Path, help="also write soak.md here")
+    p.add_argument("--memprobe", type=Path, metavar="DIR",
+                   help="run the node with its memory probe (belt_drive_ros.ros.memprobe) writing to DIR, and report "
+                        "where RSS grows: Python blocks, malloc in-use and free bytes (growth per minute)")
+    p.add_argument("--memprobe-frames", type=int, default=0, metavar="N",
+                   help="with --memprobe: tracemalloc with N frames, snapshots diffed first to last (slows the node)")
     return p.parse_args(argv)
 
 
@@ -99,7 +104,13 @@ def measure(args) -> dict:
         *(["--max-bag-duration", str(args.max_bag_duration)] if args.max_bag_duration else []),
         "--ros-args", "-p", f"step_rate_hz:={float(args.rate)}", "-p", "input_timeout:=0.0", "--log-level", "warn",
     ]
-    child = subprocess.Popen(cmd, env=ros_env.child_environment(domain), stdout=subprocess.DEVNULL,
+    probe_env = {}
+    if args.memprobe is not None:
+        from ..ros import memprobe
+
+        probe_env = {memprobe.ENV: str(args.memprobe), memprobe.ENV_PERIOD: str(max(min(args.window, 60.0), 1.0)),
+                     memprobe.ENV_FRAMES: str(args.memprobe_frames)}
+    child = subprocess.Popen(cmd, env=ros_env.child_environment(domain, **probe_env), stdout=subprocess.DEVNULL,
                              stderr=subprocess.PIPE, text=True)
     context = Context()
     rclpy.init(args=[], context=context, domain_id=domain)
@@ -186,7 +197,27 @@ def measure(args) -> dict:
         "ticks": int(in_span.size), "grid_ticks": expected, "skipped": skipped, "lost_dds": lost,
         "recorded": int(recorded.size), "files": files,
         "load_average": os.getloadavg()[0],
+        "memprobe": _memprobe_figures(args.memprobe, args.warmup) if args.memprobe is not None else None,
     }
+
+
+def _memprobe_figures(folder: Path, warmup: float) -> dict:
+    """Growth per minute of each memory probe column after the warm-up, and the top tracemalloc growth."""
+    import numpy as np
+
+    from ..ros import memprobe
+
+    rows = [r for r in memprobe.read_rows(folder)]
+    late = [r for r in rows if r["elapsed_s"] >= warmup + 10.0] or rows
+    out = {"samples": len(late)}
+    if len(late) > 2:
+        t = np.array([r["elapsed_s"] for r in late]) / 60.0
+        for column in memprobe.COLUMNS[1:]:
+            scale = 1024.0 if column == "rss_kib" else 1.0
+            out[column] = float(np.polyfit(t, np.array([r[column] for r in late]) * scale, 1)[0])
+    snaps = sorted(folder.glob("snap_*.bin"))
+    out["top"] = memprobe.growth(snaps[1 if len(snaps) > 2 else 0], snaps[-1]) if len(snaps) >= 2 else []
+    return out
 
 
 def report(f: dict) -> str:
@@ -203,7 +234,18 @@ def report(f: dict) -> str:
         f"with warm-up and stop)",
         f"  ticks skipped          {f['skipped']} of {f['grid_ticks']} on the 1/rate grid (late timer calls "
         "integrate to the latest tick; not lost, never made)",
-    ])
+    ] + _memprobe_lines(f.get("memprobe")))
+
+
+def _memprobe_lines(m) -> list:
+    if not m or "rss_kib" not in m:
+        return []
+    lines = [f"  memory probe (per minute, {m['samples']} samples after warm-up): RSS {m['rss_kib'] / 1024:+.1f} KiB, "
+             f"Python blocks {m['py_blocks']:+.0f}, malloc in use {m['malloc_used'] / 1024:+.1f} KiB, "
+             f"malloc free {m['malloc_free'] / 1024:+.1f} KiB, mmap {m['malloc_mmap'] / 1024:+.1f} KiB, "
+             f"traced {m['traced'] / 1024:+.1f} KiB"]
+    lines += [f"    {size:+d} B in {count:+d} blocks: {where}" for size, count, where in m.get("top", [])[:5]]
+    return lines
 
 
 def main(argv=None) -> int:

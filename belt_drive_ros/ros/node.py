@@ -473,7 +473,9 @@ def run(
     with ros_session(["belt-drive-node", *(ros_args or [])]) as context:
         params = [Parameter(name, value=value) for name, value in (overrides or {}).items()]
         node = BeltDriveNode(node_name, scene=scene, context=context, parameter_overrides=params)
+        from . import memprobe
 
+        memprobe.install(node)  # only with BELT_DRIVE_MEMPROBE set (a debugging switch)
         log = node.get_logger()
         spin_nodes(
             [node], context, executor=executor,
