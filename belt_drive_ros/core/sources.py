@@ -24,6 +24,37 @@ from .formula import Formula, array_function, scalar_function
 
 _REGISTRY: dict[str, type["TorqueProfile"]] = {}
 
+# ----------------------------------------------------------- plausible ranges
+#: largest plausible magnitude of each kind of profile field (SI units), applied by
+#: :func:`make_profile` to profiles from outside (scene files, recordings' scenes, campaigns):
+#: past these no belt drive exists and the numbers only make a run meaningless (a 1e300 N m
+#: harmonic diverges the state, a 1e300 rad phase leaves no digit of the sine). The
+#: constructors alone admit any finite value (idealised studies), as BeltDriveParams does.
+#: A torque: no belt transmits 1 MN m (a truck accessory drive carries ~100 N m).
+TORQUE_MAX = 1.0e6
+#: A speed [rad/s]: ~1 million rpm.
+SPEED_MAX = 1.0e5
+#: A frequency [Hz]: the highest plausible output rate (core.scene.RANGES).
+FREQUENCY_MAX = 1.0e6
+#: A time or period [s]: the longest scene (core.scene.RANGES).
+TIME_MAX = 1.0e7
+#: A phase [rad] (beyond it sin(phase) keeps few correct digits).
+PHASE_MAX = 1.0e3
+#: A speed gain or damping-like coefficient [N m s/rad].
+GAIN_MAX = 1.0e6
+#: A quadratic speed coefficient [N m s^2/rad^2].
+QUADRATIC_MAX = 1.0e3
+#: A transmission ratio [-].
+RATIO_MAX = 1.0e2
+#: Cylinders of an engine or compressor, harmonics of a profile, periods of a schedule.
+COUNT_MAX = {"cylinders": 64, "harmonics": 64, "periods": 1000}
+#: the kinds of field: (largest magnitude, unit)
+_KINDS: dict[str, tuple[float, str]] = {
+    "torque": (TORQUE_MAX, "N m"), "speed": (SPEED_MAX, "rad/s"), "frequency": (FREQUENCY_MAX, "Hz"),
+    "time": (TIME_MAX, "s"), "phase": (PHASE_MAX, "rad"), "gain": (GAIN_MAX, "N m s/rad"),
+    "quadratic": (QUADRATIC_MAX, "N m s^2/rad^2"), "ratio": (RATIO_MAX, "1"),
+}
+
 
 def _register(cls):
     _REGISTRY[cls.kind] = cls
@@ -165,6 +196,33 @@ class TorqueProfile:
             if not getattr(self, name) > 0:
                 raise SceneError(f"{self.kind}.{name}: must be > 0, got {short(getattr(self, name))}")
 
+    #: field -> kind of :data:`_KINDS` (a column of a 2-D field: ``field[j]``)
+    PLAUSIBLE: ClassVar[dict[str, str]] = {}
+
+    def check_plausible(self, where: str = "profile") -> "TorqueProfile":
+        """``self`` if every field is within its plausible range (:data:`TORQUE_MAX` ...), else
+        :class:`SceneError` naming ``where``, the field, its value and the range."""
+        for key, kind in self.PLAUSIBLE.items():
+            name, _, column = key.partition("[")
+            value = getattr(self, name)
+            if value is None:
+                continue
+            values = np.asarray(value, dtype=float)
+            if column:
+                values = values[:, int(column.rstrip("]"))] if values.ndim == 2 else values
+            top, unit = _KINDS[kind]
+            if values.size:
+                worst = float(np.max(np.abs(values)))
+                if worst > top:
+                    raise SceneError(f"{where}.{key}: {worst:g} {unit} is outside the plausible range "
+                                     f"[-{top:g}, {top:g}] {unit}")
+        for name, top in COUNT_MAX.items():
+            value = getattr(self, name, None)
+            count = len(value) if isinstance(value, (tuple, list)) else value
+            if isinstance(count, int) and count > top:
+                raise SceneError(f"{where}.{name}: {count} is more than the plausible {top}")
+        return self
+
 
 def _sum(terms: Sequence[str]) -> str:
     """``a + b + ...`` of the non-empty terms, "0.0" for none."""
@@ -198,6 +256,7 @@ class Constant(TorqueProfile):
 
     kind: ClassVar[str] = "constant"
     value: float = 0.0
+    PLAUSIBLE = {"value": "torque"}
 
     def __post_init__(self):
         self._check_finite("value")
@@ -215,6 +274,7 @@ class Step(TorqueProfile):
     initial: float = 0.0
     final: float = 1.0
     time: float = 0.0
+    PLAUSIBLE = {"initial": "torque", "final": "torque", "time": "time"}
 
     def __post_init__(self):
         self._check_finite("initial", "final", "time")
@@ -239,6 +299,7 @@ class Ramp(TorqueProfile):
     end_value: float = 1.0
     start_time: float = 0.0
     end_time: float = 1.0
+    PLAUSIBLE = {"start_value": "torque", "end_value": "torque", "start_time": "time", "end_time": "time"}
 
     def __post_init__(self):
         self._check_finite("start_value", "end_value", "start_time", "end_time")
@@ -268,6 +329,7 @@ class Sine(TorqueProfile):
     amplitude: float = 1.0
     frequency: float = 1.0
     phase: float = 0.0
+    PLAUSIBLE = {"mean": "torque", "amplitude": "torque", "frequency": "frequency", "phase": "phase"}
 
     def __post_init__(self):
         self._check_finite("mean", "amplitude", "frequency", "phase")
@@ -294,6 +356,7 @@ class Table(TorqueProfile):
     times: tuple = (0.0, 1.0)
     values: tuple = (0.0, 0.0)
     interpolation: str = "linear"
+    PLAUSIBLE = {"times": "time", "values": "torque"}
 
     def __post_init__(self):
         times = np.asarray(self.times, dtype=float)
@@ -374,6 +437,9 @@ class Engine(TorqueProfile):
     governor_gain: float = 1.0
     max_torque: float = 1.0e9
     ramp_time: float = 0.0
+    #: max_torque is a clip of the governor's torque: its default 1e9 N m (no clip in practice) is allowed
+    PLAUSIBLE = {"mean_torque": "torque", "harmonics": "torque", "phase": "phase", "crank_ratio": "ratio",
+                 "speed_setpoint": "speed", "governor_gain": "gain", "ramp_time": "time"}
 
     def __post_init__(self):
         self._check_finite("mean_torque", "phase", "crank_ratio", "governor_gain", "max_torque", "ramp_time")
@@ -441,6 +507,8 @@ class MotorCurve(TorqueProfile):
     no_load_speed: float = 300.0
     curve: tuple | None = None
     soft_start_time: float = 0.0
+    PLAUSIBLE = {"stall_torque": "torque", "no_load_speed": "speed", "curve[0]": "speed", "curve[1]": "torque",
+                 "soft_start_time": "time"}
 
     def __post_init__(self):
         self._check_finite("stall_torque", "no_load_speed", "soft_start_time")
@@ -484,6 +552,7 @@ class Polynomial(TorqueProfile):
     c0: float = 0.0
     c1: float = 0.0
     c2: float = 0.0
+    PLAUSIBLE = {"c0": "torque", "c1": "gain", "c2": "quadratic"}
 
     def __post_init__(self):
         self._check_finite("c0", "c1", "c2")
@@ -511,6 +580,7 @@ class Compressor(TorqueProfile):
     harmonics: tuple = (15.0, 5.0)
     phase: float = 0.0
     ramp_time: float = 0.0
+    PLAUSIBLE = {"mean_torque": "torque", "c1": "gain", "harmonics": "torque", "phase": "phase", "ramp_time": "time"}
 
     def __post_init__(self):
         self._check_finite("mean_torque", "c1", "phase", "ramp_time")
@@ -556,6 +626,7 @@ class Schedule(TorqueProfile):
     active: TorqueProfile = field(default_factory=Constant)
     inactive: TorqueProfile = field(default_factory=Constant)
     periods: tuple = ()
+    PLAUSIBLE = {"periods": "time"}
 
     def __post_init__(self):
         for name in ("active", "inactive"):  # a mapping or a number (constant), as for drive and load
@@ -572,6 +643,12 @@ class Schedule(TorqueProfile):
                 raise SceneError(f"schedule.periods: each period must be [start, end] with end > start, got {short(p)}")
             periods.append((float(p[0]), float(p[1])))
         object.__setattr__(self, "periods", tuple(periods))
+
+    def check_plausible(self, where: str = "profile") -> "Schedule":
+        super().check_plausible(where)
+        self.active.check_plausible(f"{where}.active")
+        self.inactive.check_plausible(f"{where}.inactive")
+        return self
 
     def is_active(self, t):
         """True where the ``active`` profile applies."""
@@ -613,12 +690,14 @@ class Schedule(TorqueProfile):
 def make_profile(spec: Mapping[str, Any] | TorqueProfile | float, where: str = "profile") -> TorqueProfile:
     """Profile from a mapping with a ``type`` key (or a number: constant).
 
-    Raises :class:`SceneError` naming ``where``, the bad key and the valid ones.
+    Raises :class:`SceneError` naming ``where``, the bad key and the valid ones, or a value
+    outside its plausible range (:meth:`TorqueProfile.check_plausible`: profiles from mappings
+    come from outside).
     """
     if isinstance(spec, TorqueProfile):
         return spec
     if isinstance(spec, (int, float)) and not isinstance(spec, bool):
-        return Constant(float(spec))
+        return Constant(float(spec)).check_plausible(where)
     if not isinstance(spec, Mapping):
         raise SceneError(f"{where}: expected a mapping with a 'type' key or a number, got {type(spec).__name__} {short(spec)}")
     spec = dict(spec)
@@ -637,11 +716,12 @@ def make_profile(spec: Mapping[str, Any] | TorqueProfile | float, where: str = "
         if isinstance(value, list):
             spec[key] = tuple(tuple(v) if isinstance(v, list) else v for v in value)
     try:
-        return cls(**spec)
+        profile = cls(**spec)
     except SceneError as exc:
         raise SceneError(f"{where}: {exc}") from None
     except (TypeError, ValueError) as exc:
         raise SceneError(f"{where} ({kind}): {exc}") from None
+    return profile.check_plausible(where)
 
 
 def _has_text(value, depth: int = 0) -> bool:
