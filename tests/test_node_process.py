@@ -237,3 +237,30 @@ def test_hostile_params_files_are_refused_in_one_line_without_hanging(tmp_path):
         assert proc.returncode == 2, (path, err[-2000:])
         errors = [line for line in err.splitlines() if line.startswith("belt-drive: error:")]
         assert len(errors) == 1 and reason in errors[0] and "Traceback" not in err, (path, err[-2000:])
+
+
+def test_params_file_is_handed_to_rcl_as_the_checked_copy(tmp_path):
+    """rcl re-reads a ``--params-file`` after the check; it is given a private copy of the checked
+    text, so the file swapped afterwards (for a FIFO, or for YAML with an alias bomb) cannot
+    bypass the check."""
+    import os
+
+    from belt_drive_ros.commands.node import check_params_files
+    from belt_drive_ros.core.inputs import InputError
+
+    path = tmp_path / "params.yaml"
+    text = "belt_drive:\n  ros__parameters:\n    c: 4.0\n"
+    path.write_text(text)
+    copies = tmp_path / "copies"
+    copies.mkdir()
+    args = ["--ros-args", "-p", "k:=2.0e4", "--params-file", str(path)]
+    assert check_params_files(args) == args  # without a folder: only the check
+    checked = check_params_files(args, str(copies))
+    assert checked[:4] == args[:4] and checked[4] != str(path)
+    copy = checked[4]
+    assert os.path.dirname(copy) == str(copies) and open(copy).read() == text
+    path.unlink()  # swapped between the check and rcl's read
+    os.mkfifo(path)
+    assert open(copy).read() == text  # what rcl reads: the checked text, not the FIFO
+    with pytest.raises(InputError, match="a FIFO"):
+        check_params_files(args, str(copies))

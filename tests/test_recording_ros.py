@@ -349,3 +349,43 @@ def test_record_command_splits_into_a_bag_folder(tmp_path, ros_domain_id, capsys
     data = read_topic(folder, "/drive_torque")
     np.testing.assert_array_equal(data.data, np.arange(sent))  # every message once, in order, across the files
     assert msg_tools(["info", str(folder)]) == 0
+
+
+def test_record_duration_ends_by_itself_with_exit_0(tmp_path, ros_domain_id):
+    """``belt-drive record --duration S`` is a normal end: the file is finished, exit 0 (not 1)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64
+
+    from msg_tools import read_topic
+
+    from belt_drive_ros.ros import environment as ros_env
+
+    path = tmp_path / "timed.mcap"
+    cmd = [os.path.join(os.path.dirname(sys.executable), "belt-drive"), "record", "--out", str(path),
+           "--topics", "/drive_torque", "--duration", "3"]
+    proc = subprocess.Popen(cmd, env=ros_env.child_environment(ros_domain_id), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_domain_id)
+    sent = 0
+    try:
+        node = rclpy.create_node("record_probe", context=ctx)
+        pub = node.create_publisher(Float64, "/drive_torque", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        deadline = time.monotonic() + 60
+        while proc.poll() is None:  # publish until the recorder stops by itself
+            assert time.monotonic() < deadline, "belt-drive record --duration 3 did not end"
+            pub.publish(Float64(data=float(sent)))
+            sent += 1
+            time.sleep(0.005)
+        code = proc.wait(timeout=20)
+        out, err = proc.stdout.read(), proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        rclpy.try_shutdown(context=ctx)
+    assert code == 0, err
+    assert "Traceback" not in err and out.startswith(f"wrote {path}: ")
+    data = read_topic(path, "/drive_torque").data  # a finished file with what arrived
+    assert data.size > 0 and np.all(np.diff(data) > 0)

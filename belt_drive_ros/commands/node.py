@@ -81,8 +81,19 @@ def run(args) -> int:
             print(f"belt-drive: warning: {refused}; running with normal scheduling", file=sys.stderr)
     from ..ros.node import run as run_node
 
+    import shutil
+    import tempfile
+
     ros_args = ["--ros-args", *args.ros_args] if args.ros_args else []
-    check_params_files(ros_args)
+    copies = tempfile.mkdtemp(prefix="belt_drive_params_")
+    try:
+        ros_args = check_params_files(ros_args, copies)
+        return _run(args, ros_args, run_node)
+    finally:
+        shutil.rmtree(copies, ignore_errors=True)
+
+
+def _run(args, ros_args, run_node) -> int:
     overrides = {}
     if args.record is not None:
         overrides["record_path"] = args.record
@@ -103,7 +114,7 @@ def run(args) -> int:
         raise ParameterError("--ros-args", f"refused by rcl: {text}") from None
 
 
-def check_params_files(ros_args) -> None:
+def check_params_files(ros_args, copies: str | None = None) -> list:
     """Refuse a ``--params-file`` that rcl would block on or read without bound, before rclpy reads it.
 
     Each file must be a regular UTF-8 file under 1 MiB with plain YAML (no
@@ -111,13 +122,33 @@ def check_params_files(ros_args) -> None:
     :mod:`belt_drive_ros.core.inputs`. ``/dev/zero`` or a FIFO would
     otherwise stall the node's start for good.
 
+    With ``copies`` (a private folder), each file's checked text is written
+    there and the returned arguments name the copy: rcl reads exactly what
+    was checked, so a file swapped or changed between the check and rcl's
+    read (e.g. for a FIFO) cannot bypass the check.
+
+    Returns
+    -------
+    list
+        ``ros_args``, with ``--params-file`` values replaced by the copies.
+
     Raises
     ------
     InputError
         naming the file and what is wrong with it.
     """
+    import os
+
     from ..core.inputs import parse_yaml, read_text
 
-    for flag, value in zip(ros_args, ros_args[1:]):
+    out = list(ros_args)
+    for k, (flag, value) in enumerate(zip(ros_args, ros_args[1:])):
         if flag == "--params-file":
-            parse_yaml(read_text(value, what="params file"), label=f"params file {value}")
+            text = read_text(value, what="params file")
+            parse_yaml(text, label=f"params file {value}")
+            if copies is not None:
+                copy = os.path.join(copies, f"{k}_{os.path.basename(value) or 'params'}")
+                with open(copy, "x", encoding="utf-8") as f:
+                    f.write(text)
+                out[k + 1] = copy
+    return out
