@@ -8,6 +8,7 @@ on stderr, ``msg-tools: error: ...``; set ``MSG_TOOLS_DEBUG=1`` for tracebacks.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import math
 import os
@@ -194,15 +195,52 @@ def _columns(data: TopicData, units: Dict[str, str]) -> List[Tuple[str, np.ndarr
 
 
 # -------------------------------------------------------------------- export
-def _check_out_dir(path: Optional[str]) -> None:
-    if path:
-        folder = os.path.dirname(os.path.abspath(path))
-        if not os.path.isdir(folder):
-            raise MsgToolsError(f"cannot write {path}: directory {folder} does not exist")
+def _check_out_dir(path: Optional[str], force: bool = False, suffix: str = "") -> None:
+    """Refuse ``--out`` up front: a missing folder, an existing path without ``--force``, or anything
+    but a regular file (a device such as /dev/full, a FIFO, a folder); ``suffix``: the extension it must have."""
+    if not path:
+        return
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise MsgToolsError(f"cannot write {path}: directory {folder} does not exist")
+    if suffix and not path.lower().endswith(suffix):
+        raise MsgToolsError(f"cannot write {path}: the output must be a {suffix} file")
+    if os.path.lexists(path):
+        if not os.path.isfile(path) or os.path.islink(path):
+            raise MsgToolsError(f"cannot write {path}: not a regular file; outputs are written to regular files only")
+        if not force:
+            raise MsgToolsError(f"{path} exists; pass --force to overwrite")
+
+
+@contextlib.contextmanager
+def _atomic(path: str, force: bool, mode: str):
+    """A file in ``path``'s folder that is renamed onto ``path`` only when the block succeeds:
+    a failed write (disk full) leaves neither a partial file nor the temporary one."""
+    import tempfile
+
+    _check_out_dir(path, force)
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, name = tempfile.mkstemp(dir=folder, prefix=f".{os.path.basename(path)}.", suffix=".part")
+    done = False
+    try:
+        with (os.fdopen(fd, mode, newline="", encoding="utf-8") if "b" not in mode else os.fdopen(fd, mode)) as f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        if not force and os.path.lexists(path):
+            raise MsgToolsError(f"{path} appeared while writing; pass --force to overwrite")
+        os.replace(name, path)
+        done = True
+    except OSError as exc:
+        raise MsgToolsError(f"cannot write {path}: {exc.strerror or exc}; nothing written") from None
+    finally:
+        if not done:
+            with contextlib.suppress(OSError):
+                os.unlink(name)
 
 
 def cmd_export(args: argparse.Namespace, out: IO[str]) -> int:
-    _check_out_dir(args.out)
+    _check_out_dir(args.out, args.force)
     bag = read_bag(args.bag, [args.topic])
     data = next(iter(bag.topics.values()))
     units = bag.metadata_dict(UNITS_METADATA)
@@ -218,8 +256,7 @@ def cmd_export(args: argparse.Namespace, out: IO[str]) -> int:
         extra.append([_ns_to_s_text(v) for v in data.fields["stamp_ns"]])
     header += [label(name, unit) for name, _, unit in cols]
     t0 = int(data.log_time_ns[0]) if len(data) else 0
-    target = open(args.out, "w", newline="", encoding="utf-8") if args.out else out
-    try:
+    def write(target: IO[str]) -> None:
         writer = csv.writer(target, lineterminator="\n")
         writer.writerow(header)
         columns = [c.tolist() for _, c, _ in cols]
@@ -228,13 +265,17 @@ def cmd_export(args: argparse.Namespace, out: IO[str]) -> int:
             row += [e[i] for e in extra]
             row += [_num(c[i]) for c in columns]
             writer.writerow(row)
-    except BrokenPipeError:
-        raise
-    except OSError as exc:
-        raise MsgToolsError(f"cannot write {args.out or 'stdout'}: {exc.strerror or exc}") from None
-    finally:
-        if args.out:
-            target.close()
+
+    if args.out:  # whole or not at all
+        with _atomic(args.out, args.force, "w") as target:
+            write(target)
+    else:
+        try:
+            write(out)
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            raise MsgToolsError(f"cannot write stdout: {exc.strerror or exc}") from None
     if args.out:
         sys.stderr.write(f"{PROG}: wrote {len(data)} rows x {len(header)} columns to {args.out}\n")
     return 0
@@ -249,7 +290,7 @@ def cmd_plot(args: argparse.Namespace, out: IO[str]) -> int:
         import matplotlib.pyplot as plt
     except ImportError:
         raise MsgToolsError("plot needs matplotlib: pip install matplotlib") from None
-    _check_out_dir(args.out)
+    _check_out_dir(args.out, args.force, suffix=".png")
     bag = read_bag(args.bag, args.topics, keep_undecodable=True)
     units = bag.metadata_dict(UNITS_METADATA)
     for data in bag.topics.values():
@@ -301,9 +342,8 @@ def cmd_plot(args: argparse.Namespace, out: IO[str]) -> int:
     fig.suptitle(os.path.basename(bag.path), fontsize=10)
     fig.tight_layout()
     try:
-        fig.savefig(args.out, dpi=args.dpi)
-    except OSError as exc:
-        raise MsgToolsError(f"cannot write {args.out}: {exc.strerror or exc}") from None
+        with _atomic(args.out, args.force, "wb") as f:
+            fig.savefig(f, dpi=args.dpi, format="png")
     finally:
         plt.close(fig)
     sys.stderr.write(f"{PROG}: wrote {len(panels)} panels to {args.out}\n")
@@ -372,7 +412,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("bag", metavar="BAG", help="MCAP file or rosbag2 bag folder")
     p.add_argument("--topic", "-t", required=True, help="topic to export, e.g. /drive_torque")
-    p.add_argument("--out", "-o", help="CSV file to write (default: standard output)")
+    p.add_argument("--out", "-o", help="CSV file to write (default: standard output); written whole or not at all")
+    p.add_argument("--force", action="store_true", help="replace an existing --out file")
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser(
@@ -386,7 +427,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("bag", metavar="BAG", help="MCAP file or rosbag2 bag folder")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to plot (default: all)")
-    p.add_argument("--out", "-o", required=True, help="PNG file to write")
+    p.add_argument("--out", "-o", required=True, help="PNG file to write (whole or not at all)")
+    p.add_argument("--force", action="store_true", help="replace an existing --out file")
     p.add_argument("--dpi", type=int, default=110, help="resolution (default 110)")
     p.set_defaults(func=cmd_plot)
 

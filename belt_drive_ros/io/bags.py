@@ -162,6 +162,7 @@ def make_bags(out="bags", *, force: bool = False, only: Optional[Sequence[str]] 
     """
     import yaml
 
+    from .atomic import atomic_output
     from .recording import BagExistsError, scene_mapping, write_result_mcap
     from .torque_bag import scene_with_torque_bag
     from ..core.simulate import simulate
@@ -187,8 +188,9 @@ def make_bags(out="bags", *, force: bool = False, only: Optional[Sequence[str]] 
         base = case.build()
         # 1. the torque profile: the scene's own drive, recorded at 1 kHz
         source_run = simulate(base)
-        write_result_mcap(source_run, files["torque"], force=True, output_rate=OUTPUT_RATE,
-                          topics=("drive_torque",), start_time_ns=BAGS_START_NS)
+        with atomic_output(files["torque"], force=force, what="reference bag") as f:  # whole or not at all
+            write_result_mcap(source_run, f, output_rate=OUTPUT_RATE, topics=("drive_torque",),
+                              start_time_ns=BAGS_START_NS)
         # 2. the scene file, with the model fixed to the source run's choice. The goldens are the
         #    node's replay references and the node steps the linear tiers only: where auto went on
         #    to slipping, the golden keeps the flexible belt (the node's model for that scene).
@@ -199,12 +201,14 @@ def make_bags(out="bags", *, force: bool = False, only: Optional[Sequence[str]] 
             f"# Written by 'belt-drive make-bags' (belt_drive_ros/bags.py); do not edit, regenerate.\n"
             f"# Drive this scene with {files['torque'].name} to reproduce {files['golden'].name}.\n"
         )
-        files["scene"].write_text(header + yaml.safe_dump(scene_mapping(scene), sort_keys=False))
+        with atomic_output(files["scene"], force=force, mode="w", what="reference scene") as f:
+            f.write(header + yaml.safe_dump(scene_mapping(scene), sort_keys=False))
         # 3. the golden output: the scene driven by the recorded torque
         replayed = scene_with_torque_bag(scene, files["torque"])
         golden_run = simulate(replayed)
-        write_result_mcap(golden_run, files["golden"], force=True, output_rate=OUTPUT_RATE,
-                          start_time_ns=BAGS_START_NS, topics=GOLDEN_TOPICS)
+        with atomic_output(files["golden"], force=force, what="golden bag") as f:
+            write_result_mcap(golden_run, f, output_rate=OUTPUT_RATE, start_time_ns=BAGS_START_NS,
+                              topics=GOLDEN_TOPICS)
         for key in ("scene", "torque", "golden"):
             path = files[key]
             written.append(path)
