@@ -82,3 +82,30 @@ def test_bench_soak_prints_rss_growth_rates_and_losses(tmp_path):
     lost = re.search(r"messages lost +(\d+) of the node's (\d+) ticks .* the recording holds all (\d+) \((\d+) in 1 file", text)
     assert lost and int(lost[1]) <= int(lost[2]) == int(lost[3]) <= int(lost[4]) and int(lost[2]) > 0
     assert (tmp_path / "soak.md").read_text().count("RSS growth") == 1
+
+
+@pytest.mark.ros
+def test_bench_hostile_quick_writes_the_table(tmp_path, ros_domain_id):
+    """``bench hostile --quick`` runs a sample of every category through the real entry points
+    and writes the table (CSV and markdown): the counts add up, nothing crashed or hung, and the
+    only silent wrong answers allowed are ``msg-tools info``'s (it reads the summary, not every
+    chunk: a flipped bit inside a chunk is "complete" to it; export and compare refuse the file)."""
+    import csv
+
+    from belt_drive_ros.benchmarks import hostile
+
+    argv = ["--quick", "--out", str(tmp_path), "--domain-id", str(ros_domain_id)]
+    status = hostile.main(argv)
+    rows = {r["category"]: r for r in csv.DictReader((tmp_path / "hostile.csv").open())}
+    assert set(rows) == {"scene file", "cli", "mcap export", "mcap info", "mcap compare", "node torque",
+                         "node parameter", "node reset flood"}
+    for category, row in rows.items():
+        counts = {k: int(v) for k, v in row.items() if k != "category"}
+        assert counts["inputs tried"] == sum(counts[o] for o in hostile.OUTCOMES) > 0, category
+        assert counts["crash"] == counts["hang"] == 0, (category, (tmp_path / "hostile_details.txt").read_text())
+        if category != "mcap info":
+            assert counts["silent wrong"] == 0, (category, (tmp_path / "hostile_details.txt").read_text())
+    assert int(rows["scene file"]["clean error"]) > 20 and int(rows["node torque"]["clean error"]) > 0
+    bad = sum(int(r["silent wrong"]) + int(r["crash"]) + int(r["hang"]) for r in rows.values())
+    assert status == (1 if bad else 0)
+    assert "| category | inputs tried |" in (tmp_path / "hostile.md").read_text()

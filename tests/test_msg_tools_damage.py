@@ -17,42 +17,28 @@ from __future__ import annotations
 
 import io
 import signal
-import struct
 from contextlib import redirect_stderr, redirect_stdout
 
 import numpy as np
 import pytest
-from mcap.reader import make_reader
 
 from msg_tools import Ros2McapWriter, compare
 from msg_tools.cli import main
 
+from belt_drive_ros.benchmarks.hostile import (  # the generators, shared with `belt-drive bench hostile`
+    chunk_indexes as _chunks,
+    drop_chunk as _drop,
+    duplicate_chunk as _duplicate,
+    mcap_mutants as _mutants,
+    write_recording as _write,
+)
+
 JOINTS = ["wheel_M", "wheel_3"]
-
-
-def _write(path, n=600, skip=(), duplicate=()):
-    """A 1 kHz recording (torque + joint states) in small chunks (~12 of them)."""
-    with Ros2McapWriter(path, force=True, chunk_size=4096, flush_interval_s=None) as w:
-        w.add_metadata("units", {"/drive_torque": "N*m"})
-        for i in range(n):
-            if i in skip:
-                continue
-            for _ in range(2 if i in duplicate else 1):
-                t = 10**9 + i * 1_000_000
-                w.write("/drive_torque", "std_msgs/msg/Float64", {"data": float(np.sin(i / 30))}, t)
-                w.write("/joint_states", "sensor_msgs/msg/JointState", {
-                    "header": {"stamp": {"sec": t // 10**9, "nanosec": t % 10**9}}, "name": JOINTS,
-                    "position": [i * 1e-3, i * 2e-3], "velocity": [1.0 + i, 2.0], "effort": [0.5, -0.5]}, t)
-    return path
 
 
 @pytest.fixture(scope="module")
 def original(tmp_path_factory):
     return _write(tmp_path_factory.mktemp("damage") / "run.mcap").read_bytes()
-
-
-def _chunks(raw):
-    return sorted(make_reader(io.BytesIO(raw)).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
 
 
 def _cli(*argv, timeout=30):
@@ -71,17 +57,6 @@ def _cli(*argv, timeout=30):
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
     return status, out.getvalue(), err.getvalue()
-
-
-def _drop(raw, k):
-    c = _chunks(raw)[k]
-    return raw[: c.chunk_start_offset] + raw[c.chunk_start_offset + c.chunk_length + c.message_index_length:]
-
-
-def _duplicate(raw, k):
-    c = _chunks(raw)[k]
-    end = c.chunk_start_offset + c.chunk_length + c.message_index_length
-    return raw[:end] + raw[c.chunk_start_offset:end] + raw[end:]
 
 
 @pytest.mark.parametrize("mutate", ["drop", "duplicate"])
@@ -131,42 +106,6 @@ def test_compare_folders_pairwise_with_a_summary_table(tmp_path):
     (gold / "only_golden.mcap").unlink()
     status, out, _ = _cli("compare", str(new), str(gold), "--max-gap", "50")
     assert status == 0 and out.splitlines()[-1] == "PASS: 3 recordings"
-
-
-def _mutants(raw):
-    rng = np.random.default_rng(12)
-    size = len(raw)
-    for cut in sorted(set(np.linspace(1, size - 1, 40).astype(int).tolist())):
-        yield f"truncated at {cut}", raw[:cut]
-    for at in sorted(rng.choice(size, 80, replace=False).tolist()):
-        flipped = bytearray(raw)
-        flipped[at] ^= 1 << int(rng.integers(8))
-        yield f"bit flipped at {at}", bytes(flipped)
-    for k in range(len(_chunks(raw))):
-        yield f"chunk {k} dropped", _drop(raw, k)
-        yield f"chunk {k} duplicated", _duplicate(raw, k)
-    # huge sizes inside each chunk's header: uncompressed size (a decompression bomb claim) and
-    # the compressed records' length (Chunk: start u64, end u64, uncompressed_size u64, crc u32,
-    # compression string u32+bytes, records length u64)
-    for k, c in enumerate(_chunks(raw)):
-        body = c.chunk_start_offset + 9
-        compression_len = struct.unpack_from("<I", raw, body + 28)[0]
-        for field, offset in (("uncompressed size", body + 16), ("records length", body + 32 + compression_len)):
-            for length in (2**62, 2**40, size * 1000):
-                mutant = bytearray(raw)
-                struct.pack_into("<Q", mutant, offset, length)
-                yield f"chunk {k} {field} claims {length} bytes", bytes(mutant)
-    # huge lengths in the headers of top-level records
-    pos = 8
-    starts = []
-    while pos + 9 <= size - 8:
-        starts.append(pos)
-        pos += 9 + struct.unpack_from("<Q", raw, pos + 1)[0]
-    for at in starts[:: max(1, len(starts) // 15)]:
-        for length in (2**63 - 1, 2**40, size):
-            mutant = bytearray(raw)
-            struct.pack_into("<Q", mutant, at + 1, length)
-            yield f"record at {at} claims {length} bytes", bytes(mutant)
 
 
 def _one_line_error(status, err):

@@ -23,6 +23,9 @@ studies:
   node           the ROS node's real-time figures (needs the ROS extra)
   soak           the node recording for --seconds (default 60): RSS growth per minute,
                  output rate per 10 s window, messages lost (not part of 'all')
+  hostile        the hostile-input table: ~1,300 scene files, command lines, damaged MCAP files and
+                 node inputs, each a clean error, ok, data lost, silent wrong, crash or hang
+                 (hostile.csv, hostile.md; not part of 'all')
   campaign       10,000-variant Monte Carlo of paper on Dask vs a loop of single runs, 1 vs 2 workers,
                  a fleet of 100 recordings replayed and compared (needs the campaign extra; not in 'all')
   all            all of the above, then docs/bench/summary.md
@@ -31,6 +34,7 @@ examples:
   belt-drive bench all --out docs/bench          # what 'make bench' runs (a few minutes)
   belt-drive bench stability --out /tmp/b --quick
   belt-drive bench soak --seconds 600            # 10 minutes of the recording node
+  belt-drive bench hostile --out /tmp/hostile    # the hostile-input table (minutes)
 
 Each study writes a CSV and a PNG into --out. CPU time is process time, the
 minimum of repeats; BLAS runs single-threaded (OPENBLAS_NUM_THREADS=1) so that
@@ -47,7 +51,7 @@ def register(sub) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("study", choices=(*STUDIES, "node", "soak", "campaign", "all"), help="which study to run")
+    p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "all"), help="which study to run")
     p.add_argument("--out", type=Path, default=Path("docs/bench"), help="output folder (default: docs/bench)")
     p.add_argument("--quick", action="store_true", help="small sweeps and short runs (seconds; for tests)")
     p.add_argument("--quiet", action="store_true", help="no per-run log lines")
@@ -88,6 +92,10 @@ def run(args) -> int:
 
         return soak.main(["--seconds", repr(args.seconds), "--out", str(out)]
                          + (["--warmup", "1", "--window", "1"] if args.quick else []))
+    if args.study == "hostile":
+        from ..benchmarks import hostile
+
+        return hostile.main(["--out", str(out)] + (["--quick"] if args.quick else []))
     if args.study == "campaign":
         from ..benchmarks import campaign
 
