@@ -138,6 +138,20 @@ def test_full_disk_keeps_the_old_file_with_force(tmp_path, capsys, full_disk):
 
 
 # ------------------------------------------------------------------ the helper
+def test_outputs_get_the_permissions_a_plain_write_gives(tmp_path, capsys):
+    """A new output is 0o666 less the umask, as open() makes it (not mkstemp's 0o600); a replaced one keeps its mode."""
+    old = os.umask(0o022)
+    try:
+        _run(capsys, RUN + ["--out", str(tmp_path / "x.csv"), "--plot", str(tmp_path / "x.png")], 0)
+        assert oct((tmp_path / "x.csv").stat().st_mode & 0o777) == oct(0o644)
+        assert oct((tmp_path / "x.png").stat().st_mode & 0o777) == oct(0o644)
+        os.chmod(tmp_path / "x.csv", 0o640)
+        _run(capsys, RUN + ["--out", str(tmp_path / "x.csv"), "--force"], 0)
+        assert oct((tmp_path / "x.csv").stat().st_mode & 0o777) == oct(0o640)
+    finally:
+        os.umask(old)
+
+
 def test_atomic_output_renames_only_on_success(tmp_path):
     path = tmp_path / "a.bin"
     with pytest.raises(RuntimeError):
