@@ -175,7 +175,7 @@ def run(
         except ValueError as exc:
             raise SourceConfigError(str(exc)) from None
         node.get_logger().info(
-            f"publishing drive_torque at {node.rate_hz:g} Hz from a {profile.kind} profile"
+            f"publishing drive_torque at {node.rate_hz:g} Hz from the {profile.kind} profile"
             + (" (closed loop on shaft_speed)" if profile.state_dependent else "")
         )
         spin_nodes([node], context, executor=executor)
