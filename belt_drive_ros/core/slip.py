@@ -103,6 +103,7 @@ class SlippingBeltModel:
         self.q_row = np.array([0.0, 2.0 * p.k * r3, 2.0 * p.c * r2 * g, -2.0 * p.c * r3, 0.0])
         self.rel_row = np.array([0.0, 0.0, r2 * g, -r3, 0.0])
         self._q = self.q_row.tolist()
+        self._scalar_limit = p.scalar_friction_limit()  # friction_limit's own float path, built once
         # stick: Q = q_row @ y
         A = np.zeros((5, 5))
         A[0, 2] = 1.0
@@ -158,6 +159,8 @@ class SlippingBeltModel:
 
     def limit(self, omega_M):
         """Q_max at drive speed ``omega_M`` [N] (:meth:`BeltDriveParams.friction_limit`)."""
+        if isinstance(omega_M, (int, float)):  # one sample: the closure friction_limit would build per call
+            return self._scalar_limit(omega_M)
         return self.params.friction_limit(omega_M)
 
     def guard(self, mode: int, sigma: float = 0.0) -> Guard:
@@ -196,13 +199,14 @@ class SlippingBeltModel:
         return np.array([x[0], x[1], x[2], x[3], 0.0])
 
     # -------------------------------------------------------------- outputs
-    def force(self, y, mode, sigma):
-        """Transmitted force Q per sample [N]: ``q_row @ y`` sticking, ``sigma Q_max`` slipping."""
+    def force(self, y, mode, sigma, qmax=None):
+        """Transmitted force Q per sample [N]: ``q_row @ y`` sticking, ``sigma Q_max`` slipping
+        (``qmax``: :meth:`limit` of ``y``'s drive speed, when the caller has it)."""
         if not isinstance(y, _Sample):
             y, mode = np.asarray(y, dtype=float), np.asarray(mode)
         q = self._q  # elementwise (q_0 = q_4 = 0): one sample and a whole run round alike, unlike a matrix product
         stick = q[1] * y[..., 1] + q[2] * y[..., 2] + q[3] * y[..., 3]
-        return _where(mode == SLIP, sigma * self.limit(y[..., 2]), stick)
+        return _where(mode == SLIP, sigma * (self.limit(y[..., 2]) if qmax is None else qmax), stick)
 
     def outputs(self, y, u, mode, sigma) -> dict:
         """Output signals of samples ``y`` (N, 5), ``u`` (N, 2), ``mode``, ``sigma`` (N,).
@@ -216,8 +220,8 @@ class SlippingBeltModel:
             y, u, mode, sigma = _Sample(y.tolist()), _Sample(u.tolist()), int(mode), float(sigma)
         else:
             mode = np.asarray(mode)
-        Q = self.force(y, mode, sigma)
         qmax = self.limit(y[..., 2])
+        Q = self.force(y, mode, sigma, qmax)
         speed = _where(mode == SLIP, self.slip_speed(y, Q), 0.0)
         a1, g = p.r_M / p.R_1, p.gear_ratio
         slack_force = p.F_0 - 0.5 * Q
