@@ -16,7 +16,14 @@ process (this one) on a private ROS domain over loopback:
   (CLOCK_MONOTONIC in this process). It includes the wait for the next tick
   (on average half a period): the node's zero-order hold is on the tick grid;
 * one-way state-out latency: receipt time - joint_states stamp (both the
-  system clock), p50 / p99: tick start -> integrate -> publish -> delivery;
+  system clock), p50 / p99. The stamp is the tick's grid time, so this is
+  everything between the instant a tick is due and a client holding its
+  state: the node's timer waking its executor, the tick (integrate, outputs,
+  encode), the publish, Fast DDS delivery (shared memory on one host) and
+  this process's executor waking its callback. The probe is a lean client:
+  an events executor, a raw subscription whose callback only stamps the
+  receipt and keeps the bytes (decoded after the run), timer slack 1 ns,
+  garbage collection off during the window;
 * CPU: the node process's user + system time over the window, percent of one
   core (from /proc/PID/stat), and this measuring process's own;
 * simulated / wall time: the span of the stamps over the span of their
@@ -37,6 +44,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import gc
 import math
 import os
 import signal
@@ -93,6 +101,7 @@ def measure(args) -> dict:
     from rclpy.context import Context
     from rclpy.node import Node
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.serialization import deserialize_message
     from rclpy.task import Future
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
@@ -108,17 +117,18 @@ def measure(args) -> dict:
         *[arg for param in args.param for arg in ("-p", param)],
     ]
     child = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    ros_env.reduce_timer_slack()  # the probe's threads wake on time, as the node's do
     context = Context()
     rclpy.init(args=[], context=context, domain_id=domain)  # not this process's argv: its -p options are the node's
     probe = Node("bench_probe", context=context)
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-    rows: list[tuple[int, int, int, float]] = []  # (recv monotonic ns, recv realtime ns, stamp ns, effort M)
+    received: list[tuple[int, int, bytes]] = []  # (recv monotonic ns, recv realtime ns, the message's CDR)
 
-    def on_joint(msg):
-        rows.append((time.perf_counter_ns(), time.time_ns(),
-                     msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec, msg.effort[0]))
+    def on_joint(data):
+        # a lean client: the receipt is stamped first, the bytes are decoded after the run
+        received.append((time.perf_counter_ns(), time.time_ns(), data))
 
-    probe.create_subscription(JointState, "joint_states", on_joint, qos)
+    probe.create_subscription(JointState, "joint_states", on_joint, qos, raw=True)
     pub = probe.create_publisher(Float64, "drive_torque", QoSProfile(depth=10))
     sent: dict[float, int] = {}
     counter = [0]
@@ -134,7 +144,7 @@ def measure(args) -> dict:
     never = Future()
     try:
         deadline = time.monotonic() + 60.0
-        while not rows:  # the child is up and publishing
+        while not received:  # the child is up and publishing
             if child.poll() is not None:
                 raise RuntimeError(f"the node exited ({child.returncode}):\n{child.stderr.read()[-2000:]}")
             if time.monotonic() > deadline:
@@ -144,14 +154,17 @@ def measure(args) -> dict:
         end_warmup = time.perf_counter() + args.warmup
         while time.perf_counter() < end_warmup:
             ex.spin_until_future_complete(never, timeout_sec=0.1)
-        first = len(rows)
+        gc.collect()
+        gc.disable()  # no collection pauses in the measuring process during the window
+        first = len(received)
         cpu0, own0, wall0 = _cpu_seconds(child.pid), time.process_time(), time.perf_counter()
         end = wall0 + args.duration
         while time.perf_counter() < end:
             ex.spin_until_future_complete(never, timeout_sec=min(0.1, max(end - time.perf_counter(), 0.001)))
         cpu1, own1, wall1 = _cpu_seconds(child.pid), time.process_time(), time.perf_counter()
-        last = len(rows)
+        last = len(received)
     finally:
+        gc.enable()
         if child.poll() is None:
             child.send_signal(signal.SIGINT)
         try:
@@ -161,6 +174,11 @@ def measure(args) -> dict:
         ex.shutdown()
         probe.destroy_node()
         rclpy.try_shutdown(context=context)
+    rows = []  # (recv monotonic ns, recv realtime ns, stamp ns, effort of wheel_M) of the window
+    for recv, real, raw in received[first:last]:
+        msg = deserialize_message(raw, JointState)
+        rows.append((recv, real, msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec, msg.effort[0]))
+    first, last = 0, len(rows)
     data = np.array(rows[first:last], dtype=np.float64) if last > first else np.zeros((0, 4))
     window = wall1 - wall0
     stamps = np.array([r[2] for r in rows[first:last]], dtype=np.int64)
