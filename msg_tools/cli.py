@@ -20,6 +20,7 @@ import numpy as np
 
 from .decode import FLOAT64, JOINT_STATE
 from .errors import MsgToolsError, RecoveredBagWarning
+from .files import output_mode
 from .reader import TopicData, read_bag, summary
 from .units import RAD_PER_S_TO_RPM, UNITS_METADATA, is_shaft_speed, label, unit_for
 
@@ -223,6 +224,7 @@ def _atomic(path: str, force: bool, mode: str):
     fd, name = tempfile.mkstemp(dir=folder, prefix=f".{os.path.basename(path)}.", suffix=".part")
     done = False
     try:
+        os.fchmod(fd, output_mode(path))  # as open() would leave it, not mkstemp's 0o600
         with (os.fdopen(fd, mode, newline="", encoding="utf-8") if "b" not in mode else os.fdopen(fd, mode)) as f:
             yield f
             f.flush()

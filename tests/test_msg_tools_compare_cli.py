@@ -192,6 +192,25 @@ def test_cli_export_csv_with_units(capsys, tmp_path, golden):
     assert header == ["time [s]", "log_time [ns]", "drive_torque [N*m]"]
 
 
+def test_cli_outputs_get_the_permissions_a_plain_write_gives(capsys, tmp_path, golden):
+    """export/plot write through a temporary file; the result is 0o666 less the umask as open() makes it
+    (not mkstemp's 0o600), and a file replaced with --force keeps its mode."""
+    old = os.umask(0o022)
+    try:
+        for argv, path in ((("export", golden, "--topic", "/joint_states"), tmp_path / "js.csv"),
+                           (("plot", golden), tmp_path / "run.png")):
+            status, _, err = _cli(capsys, *argv, "--out", path)
+            assert status == 0, err
+            assert oct(path.stat().st_mode & 0o777) == oct(0o644)
+        os.chmod(tmp_path / "js.csv", 0o640)
+        status, _, err = _cli(capsys, "export", golden, "--topic", "/joint_states", "--out", tmp_path / "js.csv",
+                              "--force")
+        assert status == 0, err
+        assert oct((tmp_path / "js.csv").stat().st_mode & 0o777) == oct(0o640)
+    finally:
+        os.umask(old)
+
+
 def test_cli_plot_writes_png(capsys, tmp_path, golden):
     png = tmp_path / "run.png"
     status, _, err = _cli(capsys, "plot", golden, "--out", png)

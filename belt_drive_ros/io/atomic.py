@@ -53,26 +53,18 @@ def check_output(path: str | os.PathLike, force: bool = False, what: str = "outp
     return path
 
 
-def _permissions(path: Path) -> int:
-    """The permission bits ``path`` gets: those of the file it replaces, else 0o666 less the umask (as ``open``)."""
-    try:
-        return stat.S_IMODE(os.stat(path).st_mode)
-    except OSError:
-        mask = os.umask(0)
-        os.umask(mask)
-        return 0o666 & ~mask
-
-
 def _temporary(path: Path, mode: str) -> tuple[IO, str]:
     """A new temporary file next to ``path`` opened in ``mode``, and its name.
 
     ``mkstemp`` creates it readable by its owner only; it gets the
     permissions ``path`` would have had if written directly
-    (:func:`_permissions`) before anything is written.
+    (:func:`msg_tools.files.output_mode`) before anything is written.
     """
+    from msg_tools.files import output_mode  # on use: `belt-drive sim` without --out loads no msg_tools
+
     fd, name = tempfile.mkstemp(dir=path.parent if str(path.parent) else ".", prefix=f".{path.name}.", suffix=".part")
     try:
-        os.fchmod(fd, _permissions(path))
+        os.fchmod(fd, output_mode(path))
         if "b" in mode:
             return os.fdopen(fd, mode), name
         return os.fdopen(fd, mode, encoding="utf-8", newline=""), name
