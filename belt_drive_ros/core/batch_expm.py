@@ -56,12 +56,18 @@ def _pade(m: int, X: dict, eye: np.ndarray):
 
 
 def expm_stack(A: np.ndarray) -> np.ndarray:
-    """e^{A[k]} for each matrix of a stack ``A`` (..., n, n) of real or complex matrices.
+    """e^{A[k]} for each matrix of a stack ``A`` (..., n, n) of real or complex matrices (or one (n, n) matrix).
 
     Per matrix, the degree m and the scaling s follow Al-Mohy and Higham
     (2009, Algorithm 3.1 without its backward-error correction ell): the
     lowest of m = 3, 5 whose theta_m bounds max(d4, d6), else 7, 9 bounding
     max(d6, d8), else 13 with s = ceil(log2(eta / theta_13)).
+
+    Each matrix's result depends on that matrix alone, bit for bit: the
+    products and solves run per matrix (numpy's stacked ``matmul`` and
+    ``solve`` call BLAS/LAPACK matrix by matrix) and everything else is
+    elementwise. So a single run (a stack of one) and an ensemble of
+    thousands get the very same floats (tests/test_ensemble.py).
     """
     A = np.asarray(A)
     if A.ndim == 2:
@@ -77,7 +83,7 @@ def expm_stack(A: np.ndarray) -> np.ndarray:
     P[10] = P[8] @ P[2]
 
     def d(p):  # ||A^p||_1^(1/p)
-        return np.max(np.sum(np.abs(P[p]), axis=-2), axis=-1) ** (1.0 / p)
+        return np.abs(P[p]).sum(axis=-2).max(axis=-1) ** (1.0 / p)
 
     d4, d6, d8, d10 = d(4), d(6), d(8), d(10)
     eta1, eta3 = np.maximum(d4, d6), np.maximum(d6, d8)
@@ -89,15 +95,21 @@ def expm_stack(A: np.ndarray) -> np.ndarray:
         s = np.ceil(np.log2(eta5 / _THETA_13))
     s = np.where((m == 13) & np.isfinite(s), np.maximum(s, 0), 0).astype(int)
     R = np.empty_like(A, dtype=np.result_type(A, float))
-    for degree in (3, 5, 7, 9, 13):
-        idx = np.flatnonzero(m == degree)
-        if idx.size == 0:
-            continue
-        scale = np.ldexp(1.0, -s[idx])[:, None, None]
-        X = {p: P[p][idx] * scale**p for p in (1, 2, 4, 6, 8)}
-        U, V = _pade(degree, X, eye)
+    degrees = np.unique(m)
+    for degree in degrees:
+        every = len(degrees) == 1
+        idx = slice(None) if every else np.flatnonzero(m == degree)
+        if degree == 13 and np.any(s[idx]):
+            scale = np.ldexp(1.0, -s[idx])[:, None, None]  # a power of two: X = A / 2^s exactly
+            X = {p: P[p][idx] * scale**p for p in (1, 2, 4, 6, 8)}
+        else:
+            X = {p: P[p][idx] for p in (1, 2, 4, 6, 8)} if not every else P
+        U, V = _pade(int(degree), X, eye)
         R[idx] = np.linalg.solve(V - U, V + U)
     for j in range(int(s.max(initial=0))):
-        squared = R @ R
-        R = np.where((j < s)[:, None, None], squared, R)
+        squared = j < s
+        if squared.all():
+            R = R @ R
+        else:
+            R[squared] = R[squared] @ R[squared]
     return R.reshape(shape)

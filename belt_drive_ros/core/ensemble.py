@@ -57,11 +57,15 @@ def _einsum(matrix: np.ndarray, vector: np.ndarray, out=None) -> np.ndarray:
 class _BatchScheme:
     """One step of length ``h`` of a method for all variants, in the variant-last layout.
 
-    Only the wheel coordinates a torque reads are computed for the inner
-    stages (``rows`` of the wheel map W), as the compiled loop does.
+    As the single run's two step paths: ``plain=False`` computes only the
+    wheel coordinates a torque reads for the inner stages (``rows`` of
+    ``W S``), as the compiled loop does for whole steps; ``plain=True``
+    computes each stage's whole state and then its coordinates (``W (S z)``),
+    as :func:`~belt_drive_ros.core.stage_scheme.step` does for the steps
+    at breakpoints and the partial ones. Each sum runs from the left.
     """
 
-    def __init__(self, scheme, h: float, W: np.ndarray, rows: tuple, n: int, m: int):
+    def __init__(self, scheme, h: float, W: np.ndarray, rows: tuple, n: int, m: int, plain: bool = False):
         self.nodes, self.h = scheme.nodes, h
         self.n, self.m = n, m
         self.base = scheme.final_base
@@ -70,19 +74,15 @@ class _BatchScheme:
         for i, S in enumerate(scheme.stages):
             if S is None:
                 self.stages.append(("x", np.ascontiguousarray(Wr.transpose(1, 2, 0)), None))
-            elif self.base == i:  # the whole stage state is needed again at the end of the step
+            elif self.base == i or plain:  # the whole stage state (needed again at the end of the step)
                 self.stages.append(
                     ("full", np.ascontiguousarray(S.transpose(1, 2, 0)), np.ascontiguousarray(Wr.transpose(1, 2, 0)))
                 )
             else:
                 self.stages.append(("rows", np.ascontiguousarray((Wr @ S).transpose(1, 2, 0)), None))
-        F = scheme.final.transpose(1, 2, 0)
-        if self.base is not None and scheme.stages[self.base] is not None:
-            self.final_base = np.ascontiguousarray(F[:, :n])
-            self.final_inputs = np.ascontiguousarray(F[:, n:])
-            self.final = None
-        else:
-            self.final = np.ascontiguousarray(F)
+        #: x+ = final @ [x or the base stage's state, U_0, ...] in one left-to-right sum (as the compiled loop)
+        self.final = np.ascontiguousarray(scheme.final.transpose(1, 2, 0))
+        self.from_base = self.base is not None and scheme.stages[self.base] is not None
 
 
 class Ensemble:
@@ -131,21 +131,26 @@ class Ensemble:
         self._rows = tuple(used)
         self._slot = [tuple(None if r is None else used.index(r) for r in pair) for pair in rows]
         self._schemes: dict = {}
+        self._method_schemes: dict = {}
         self._scheme(self.dt)  # also validates the options; implicit methods are refused here
 
     def __len__(self) -> int:
         return len(self.models)
 
-    def _scheme(self, h: float) -> _BatchScheme:
-        """The batched scheme of a step of ``h`` [s] (cached per length)."""
-        cached = self._schemes.get(h)
+    def _scheme(self, h: float, plain: bool = False) -> _BatchScheme:
+        """The batched scheme of a step of ``h`` [s] (cached per length; ``plain``: see :class:`_BatchScheme`)."""
+        cached = self._schemes.get((h, plain))
         if cached is None:
-            scheme = self.method_class(self.A, self.B, h, **self.method_options).scheme
-            if scheme.implicit:
-                raise EnsembleUnsupported(f"ensemble: {self.method} is implicit (a fixed-point iteration per variant)")
+            scheme = self._method_schemes.get(h)
+            if scheme is None:
+                scheme = self.method_class(self.A, self.B, h, **self.method_options).scheme
+                if scheme.implicit:
+                    raise EnsembleUnsupported(f"ensemble: {self.method} is implicit (a fixed-point iteration per variant)")
+                self._method_schemes[h] = scheme
             if len(self._schemes) >= 256:
                 self._schemes.clear()
-            cached = self._schemes[h] = _BatchScheme(scheme, h, self.W, self._rows, self.n, self.m)
+                self._method_schemes.clear()
+            cached = self._schemes[(h, plain)] = _BatchScheme(scheme, h, self.W, self._rows, self.n, self.m, plain)
         return cached
 
     def run(self, x0: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
@@ -175,15 +180,17 @@ class Ensemble:
         left_of = self.plant.left_of
         with np.errstate(all="ignore"):  # a diverging variant is reported afterwards
             for k, (a, e, whole, lo, hi, cuts) in enumerate(steps):
-                if not cuts:
-                    x = self._step(self._scheme(self.dt if whole else e - a), a, x, lo, hi, Z)
+                if whole and not cuts and lo == -math.inf and hi == math.inf:  # the compiled loop's steps
+                    x = self._step(self._scheme(self.dt), a, x, lo, hi, Z)
+                elif not cuts:  # the stepper's special steps: integrator.step, stage states whole
+                    x = self._step(self._scheme(self.dt if whole else e - a, plain=True), a, x, lo, hi, Z)
                 else:
                     edges = [a, *cuts, e]
                     for j in range(len(edges) - 1):
                         p, q = edges[j], edges[j + 1]
                         lo_j = lo if j == 0 else p
                         hi_j = hi if j == len(edges) - 2 else left_of(q)
-                        x = self._step(self._scheme(q - p), p, x, lo_j, hi_j, Z)
+                        x = self._step(self._scheme(q - p, plain=True), p, x, lo_j, hi_j, Z)
                 out[k + 1] = x
         return times, out
 
@@ -210,8 +217,8 @@ class Ensemble:
                 speed = coords[w_slot] if w_slot is not None else 0.0
                 Z[K + q] = torque(ti, angle, speed)
         K = n + m * len(sch.stages)
-        if sch.final is None:
-            return _einsum(sch.final_base, base_state) + _einsum(sch.final_inputs, Z[n:K])
+        if sch.from_base:
+            Z[:n] = base_state
         return _einsum(sch.final, Z[:K])
 
     def diverged(self, times: np.ndarray, states: np.ndarray) -> dict:

@@ -189,12 +189,14 @@ def _unkey(key: tuple) -> np.ndarray:
 
 
 def _expm(M: np.ndarray) -> np.ndarray:
-    """e^M: scipy's for one matrix, :func:`~belt_drive_ros.core.batch_expm.expm_stack` for a stack of variants'."""
-    if M.ndim > 2:
-        return expm_stack(M)
-    import scipy.linalg  # here, not at import: the registry is read by --help texts
+    """e^M of one matrix or of a stack of variants' matrices (:func:`~belt_drive_ros.core.batch_expm.expm_stack`).
 
-    return scipy.linalg.expm(M)
+    One routine for both: a single run and an ensemble of its variants then
+    step with bit-identical matrices (each matrix's exponential depends on
+    that matrix alone), so their states agree to the last bit on the same
+    summation order (:mod:`belt_drive_ros.core.ensemble`).
+    """
+    return expm_stack(M)
 
 
 def _hcat(*blocks) -> np.ndarray:
@@ -346,14 +348,12 @@ class ExponentialRK4(FixedStepIntegrator):
 
 @lru_cache(maxsize=256)
 def _expm_at_cached(a_key: tuple, tau: float) -> np.ndarray:
-    import scipy.linalg
-
-    return scipy.linalg.expm(_unkey(a_key) * tau)
+    return _expm(_unkey(a_key) * tau)
 
 
 def _expm_at(A: np.ndarray, tau: float) -> np.ndarray:
     """e^{tau A} (cached per tau for one system: a Lawson method needs one per distinct stage offset)."""
-    return _expm_at_cached(_key(A), tau) if A.ndim == 2 else expm_stack(A * tau)
+    return _expm_at_cached(_key(A), tau) if A.ndim == 2 else _expm(A * tau)
 
 
 class LawsonRungeKutta(FixedStepIntegrator):

@@ -114,7 +114,7 @@ class _LinearModel:
 
     def wheel_coordinates(self, x: np.ndarray) -> tuple:
         """(phi_M, omega_M, phi_3, omega_3) of state(s) ``x`` (last axis = state)."""
-        y = np.asarray(x, dtype=float) @ self.wheel_map.T
+        y = _affine(self.wheel_map, np.asarray(x, dtype=float))  # summed as the steppers sum (bit for bit)
         return y[..., 0], y[..., 1], y[..., 2], y[..., 3]
 
     def derivatives(self, t: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:

@@ -110,29 +110,44 @@ def not_converged(name: str, t: float, max_iter: int, dt: float) -> IntegratorEr
     )
 
 
+def affine(M: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``M @ v`` summed column by column from the left: ``((M[:, 0] v[0] + M[:, 1] v[1]) + ...)``.
+
+    The order of the compiled loop's unrolled expressions
+    (:func:`compile_scalar_loop`) and of the ensemble's per-variant sums
+    (:mod:`~belt_drive_ros.core.ensemble`), so a step taken here, in the
+    compiled loop or in an ensemble gives the same floats (a BLAS product may
+    sum in another order). ``add.accumulate`` is sequential by definition.
+    """
+    return np.cumsum(M * v, axis=-1)[..., -1]
+
+
 def step(scheme: StageScheme, dt: float, t: float, x: np.ndarray, inputs: Inputs, name: str = "method") -> np.ndarray:
-    """One step of ``scheme`` (step ``dt`` [s]) from state ``x`` at time ``t`` [s] with torques ``inputs(t, x)`` [N m]."""
+    """One step of ``scheme`` (step ``dt`` [s]) from state ``x`` at time ``t`` [s] with torques ``inputs(t, x)`` [N m].
+
+    Sums run column by column from the left (:func:`affine`), as in the compiled loop.
+    """
     s = len(scheme.nodes)
     explicit = s - 1 if scheme.implicit else s
     states, U = [], []
     for i in range(explicit):
         M = scheme.stages[i]
-        xi = x if M is None else M @ np.concatenate([x, *U])
+        xi = x if M is None else affine(M, np.concatenate([x, *U]))
         states.append(xi)
         U.append(np.asarray(inputs(t + scheme.nodes[i] * dt if scheme.nodes[i] else t, xi), dtype=float))
     base = x if scheme.final_base is None else states[scheme.final_base]
     if not scheme.implicit:
-        return scheme.final @ np.concatenate([base, *U])
+        return affine(scheme.final, np.concatenate([base, *U]))
     tol, max_iter = scheme.implicit
     known = np.concatenate([base, *U])
-    free = scheme.final[:, : known.size] @ known  # x+ without the implicit stage
+    free = affine(scheme.final[:, : known.size], known)  # x+ without the implicit stage
     gain = scheme.final[:, known.size :]
     t_last = t + scheme.nodes[-1] * dt
     guess = U[-1]  # first guess: the previous stage's torque
     for _ in range(max_iter):
-        u_new = np.asarray(inputs(t_last, free + gain @ guess), dtype=float)
+        u_new = np.asarray(inputs(t_last, free + affine(gain, guess)), dtype=float)
         if np.all(np.abs(u_new - guess) <= tol * (1.0 + np.abs(u_new))):
-            return free + gain @ u_new
+            return free + affine(gain, u_new)
         guess = u_new
     raise not_converged(name, t, max_iter, dt)
 

@@ -152,8 +152,14 @@ def _coordinate(row: np.ndarray) -> Callable:
     if len(nonzero) == 1:
         j, c = nonzero[0]
         return (lambda x: x[j]) if c == 1.0 else (lambda x: c * x[j])
-    row = np.array(row, dtype=float)
-    return lambda x: float(row @ x)
+
+    def coordinate(x):  # summed from the left, as the compiled loop's expression (a BLAS dot may pair terms)
+        total = 0.0
+        for j, c in nonzero:
+            total = total + c * float(x[j])
+        return total
+
+    return coordinate
 
 
 def _finite(x) -> bool:
