@@ -34,7 +34,7 @@ from pathlib import Path
 
 
 from ..core.errors import BeltDriveError
-from .metrics import METRICS, run_metrics
+from .metrics import METRICS, group_metrics, run_metrics
 from .spec import Campaign, CampaignError
 
 #: a task should compute at least this long [s] (Dask's per-task overhead is ~1 ms)
@@ -81,19 +81,27 @@ def run_batch(portable: dict, rows: list, recordings_dir: str | None = None) -> 
         except (BeltDriveError, ValueError, TypeError) as exc:
             record.update(ran="none", error=f"{type(exc).__name__}: {exc}")
         out.append(record)
-    from ..core.ensemble_run import simulate_many
+    from ..core.ensemble_run import GroupRun, run_groups
 
-    for outcome in simulate_many(scenes):
-        record = built[outcome.index]
-        record["ran"] = "ensemble" if outcome.ensemble else "single"
-        record["single_reason"] = outcome.single_reason or ""
-        if outcome.error:
-            record["error"] = outcome.error
+    fleet = campaign.fleet_folder is not None and recordings_dir
+    for item in run_groups(scenes):
+        if isinstance(item, GroupRun):  # an ensemble: metrics of all its variants at once
+            for v, (i, values) in enumerate(zip(item.indices, group_metrics(item))):
+                record = built[i]
+                record.update(values, ran="ensemble", model=item.kind)
+                if fleet:
+                    _fleet_outputs(campaign, item.result(v), record, Path(recordings_dir))
             continue
-        result = outcome.result
+        record = built[item.index]
+        record["ran"] = "ensemble" if item.ensemble else "single"
+        record["single_reason"] = item.single_reason or ""
+        if item.error:
+            record["error"] = item.error
+            continue
+        result = item.result
         record["model"] = result.model
         record.update(run_metrics(result))
-        if campaign.fleet_folder is not None and recordings_dir:
+        if fleet:
             _fleet_outputs(campaign, result, record, Path(recordings_dir))
     seconds = time.perf_counter() - start
     for record in out:
@@ -294,20 +302,27 @@ def run_campaign(
     compute_end = compute_start
     try:
         bounds = manifest.get("bounds")
-        if bounds is None:  # size the batches from a first one
+        if bounds is None:  # size the batches from first ones, one per worker at once (no worker idles meanwhile)
             first = batch_size or min(FIRST_BATCH, n)
-            if batch_size is None and n > first:
-                t0 = time.perf_counter()
-                rows = client.submit(run_batch, portable, records[:first], str(recordings_dir) if recordings_dir else None,
-                                     pure=False).result()
-                per_variant = max(rows[0]["seconds"] if rows else 0.0, time.perf_counter() - t0) / first
-                _write_part(parts_dir / "part-00000.parquet", rows)
-                computed += first
-                size = max(math.ceil(MIN_TASK_SECONDS / max(per_variant, 1e-9)), math.ceil((n - first) / (4 * n_workers)))
+            sizing = min(n_workers, n // first) if batch_size is None else 0
+            if sizing and n > sizing * first:
+                where = str(recordings_dir) if recordings_dir else None
+                batches = [client.submit(run_batch, portable, records[k * first : (k + 1) * first], where, pure=False)
+                           for k in range(sizing)]  # fmt: skip
+                per_variant = math.inf
+                for k, future in enumerate(batches):
+                    rows = future.result()
+                    per_variant = min(per_variant, (rows[0]["seconds"] if rows else 0.0) / first)
+                    _write_part(parts_dir / f"part-{k:05d}.parquet", rows)
+                    computed += first
+                rest = n - sizing * first
+                size = max(math.ceil(MIN_TASK_SECONDS / max(per_variant, 1e-9)), math.ceil(rest / (4 * n_workers)))
                 size = min(size, MAX_BATCH)
+                bounds = [(k * first, (k + 1) * first) for k in range(sizing)]
+                bounds += [(a + sizing * first, b + sizing * first) for a, b in _bounds(rest, size, size)]
             else:
                 size = batch_size or n
-            bounds = _bounds(n, first, size)
+                bounds = _bounds(n, first, size)
             manifest["bounds"] = bounds
             manifest_path.write_text(json.dumps(manifest))
         pending = [(k, a, b) for k, (a, b) in enumerate(bounds) if not (parts_dir / f"part-{k:05d}.parquet").exists()]
@@ -355,7 +370,7 @@ def run_campaign(
     )
 
 
-def loop_of_single_runs(campaign: Campaign, rows) -> list:
+def loop_of_single_runs(campaign: Campaign, rows, check_stability: bool = True) -> list:
     """The reference: each variant through ``simulate`` in a plain loop, metrics per row (tests, benchmarks)."""
     from ..core.simulate import simulate
 
@@ -363,7 +378,7 @@ def loop_of_single_runs(campaign: Campaign, rows) -> list:
     for row in rows:
         record = dict(row)
         try:
-            result = simulate(campaign.scene_of(row))
+            result = simulate(campaign.scene_of(row), check_stability=check_stability)
         except BeltDriveError as exc:
             record["error"] = f"{type(exc).__name__}: {exc}"
             record.update({name: math.nan for name in METRICS})

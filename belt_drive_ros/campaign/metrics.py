@@ -30,6 +30,8 @@ import math
 
 import numpy as np
 
+from ..core.fidelity import friction_use
+
 #: metric -> (unit, one-line description)
 METRICS: dict[str, tuple[str, str]] = {
     "peak_belt_torque": ("N m", "peak |belt torque| on wheel 3"),
@@ -52,28 +54,46 @@ def run_metrics(result) -> dict[str, float]:
     t = np.asarray(result.time, dtype=float)
     belt = np.asarray(out["belt_torque"], dtype=float)
     omega = np.asarray(out["omega_M"], dtype=float)
-    q = np.abs(belt) / p.r_3
     if "friction_use" in out:
         use = np.asarray(out["friction_use"], dtype=float)
     else:
-        qmax = np.broadcast_to(p.friction_limit(omega), q.shape)
-        use = np.divide(q, qmax, out=np.full(q.shape, np.inf), where=qmax > 0)
-    peak_use = float(np.max(use))
+        use = friction_use(belt, p.r_3, np.broadcast_to(p.friction_limit(omega), belt.shape))
+    values = _reduce(belt, omega, np.asarray(out["span_force_slack"], dtype=float),
+                     np.asarray(out["relative_deflection"], dtype=float), use)  # fmt: skip
     if result.model == "slipping":
         sliding = np.asarray(out["slip"], dtype=bool)
         dt = np.diff(t)
-        slip_time = float(np.sum(dt[sliding[1:] & sliding[:-1]]))
+        values["slip_time"] = np.sum(dt[sliding[1:] & sliding[:-1]])
         speed = np.abs(np.asarray(out["slip_speed"], dtype=float))
-        accumulated = float(np.sum(0.5 * (speed[1:] + speed[:-1]) * dt))
-    else:
-        slip_time = accumulated = 0.0 if peak_use <= 1.0 else math.nan
+        values["accumulated_slip"] = np.sum(0.5 * (speed[1:] + speed[:-1]) * dt)
+    return {name: float(values[name]) for name in METRICS}
+
+
+def group_metrics(run) -> list[dict[str, float]]:
+    """:func:`run_metrics` of every variant of a :class:`~belt_drive_ros.core.ensemble_run.GroupRun` at once.
+
+    The same formulas as array reductions over the time axis of the (N+1, V)
+    signals (so each row equals :func:`run_metrics` of that variant's single
+    run bit for bit); one dict per variant, in the block's order.
+    """
+    belt, omega = run.output("belt_torque"), run.output("omega_M")
+    use = friction_use(belt, run.param("r_3"), run.friction_limit())
+    values = _reduce(belt, omega, run.output("span_force_slack"), run.output("relative_deflection"), use)
+    columns = {name: values[name].tolist() for name in METRICS}
+    return [{name: float(columns[name][v]) for name in METRICS} for v in range(len(run))]
+
+
+def _reduce(belt, omega, slack_force, deflection, use) -> dict:
+    """The metrics of a linear run, reduced over the time axis 0 (trailing axes: variants)."""
+    peak_use = np.max(use, axis=0)
+    beyond = np.where(peak_use <= 1.0, 0.0, math.nan)  # slip is not modelled by a linear run
     return {
-        "peak_belt_torque": float(np.max(np.abs(belt))),
-        "min_slack_force": float(np.min(np.asarray(out["span_force_slack"], dtype=float))),
+        "peak_belt_torque": np.max(np.abs(belt), axis=0),
+        "min_slack_force": np.min(slack_force, axis=0),
         "peak_friction_use": peak_use,
-        "slip_time": slip_time,
-        "accumulated_slip": accumulated,
-        "peak_deflection": float(np.max(np.abs(np.asarray(out["relative_deflection"], dtype=float)))),
-        "final_speed": float(omega[-1]),
-        "min_speed": float(np.min(omega)),
+        "slip_time": beyond,
+        "accumulated_slip": beyond,
+        "peak_deflection": np.max(np.abs(deflection), axis=0),
+        "final_speed": omega[-1],
+        "min_speed": np.min(omega, axis=0),
     }

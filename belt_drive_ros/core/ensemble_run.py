@@ -23,8 +23,15 @@ ensemble does not cover (adaptive, implicit), and groups smaller than
 says which way it ran and, for a single run, why.
 
 Ensemble results carry states, inputs, outputs and the model choice; not
-the energy terms or the stability report of a single run (``energy`` is
-empty, ``stability`` None).
+the energy terms, the stability and accuracy reports of a single run
+(``energy`` is empty, ``stability`` and ``accuracy`` None).
+
+:func:`run_groups` gives the same runs as :class:`GroupRun` blocks (arrays
+with the variant axis last: states (N+1, n, V), any output signal as
+(N+1, V) by :meth:`GroupRun.output`), for callers that reduce them over
+the variants at once (campaign metrics) instead of building one
+:class:`~belt_drive_ros.core.simulate.SimResult` per variant;
+:func:`simulate_many` builds those results from the blocks.
 """
 
 from __future__ import annotations
@@ -37,9 +44,10 @@ import numpy as np
 
 from .ensemble import Ensemble, EnsembleUnsupported
 from .errors import BeltDriveError
-from .fidelity import choose_model, operating_run_step
+from .fidelity import choose_model, friction_use, operating_run_step
 from .integrators import method_class
-from .model import make_model
+from .model import LINEAR_OUTPUTS, OUTPUT_UNITS, make_model, span_forces
+from .params import friction_limit_array
 from .scene import Scene
 from .simulate import SimResult, simulate
 from .stability import require_stable
@@ -68,6 +76,82 @@ class Outcome:
     single_reason: str | None = None
 
 
+class GroupRun:
+    """Variants of one group run together on one linear model, with the variant axis last.
+
+    Attributes
+    ----------
+    indices : positions of the V variants in the input; scenes, models : theirs.
+    kind : "rigid" or "flexible"; method : the method's name.
+    times : (N+1,) knots [s] (shared); states : (N+1, n, V); inputs : (N+1, m, V) [N m].
+    choices : per variant the :class:`~belt_drive_ros.core.fidelity.ModelChoice` (model auto) or None.
+    """
+
+    def __init__(self, indices, scenes, models, kind, method, times, states, inputs, choices=None):
+        self.indices, self.scenes, self.models = list(indices), list(scenes), list(models)
+        self.kind, self.method = kind, method
+        self.times, self.states, self.inputs = times, states, inputs
+        self.choices = list(choices) if choices is not None else [None] * len(self.indices)
+        self._outputs: dict = {}
+        self._C = np.stack([m.C for m in self.models], axis=-1)  # (O, n, V)
+        self._D = np.stack([m.D for m in self.models], axis=-1)  # (O, m, V)
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def param(self, name: str) -> np.ndarray:
+        """Parameter or derived quantity ``name`` of :class:`~belt_drive_ros.core.params.BeltDriveParams` per variant: (V,)."""
+        return np.array([getattr(s.params, name) for s in self.scenes], dtype=float)
+
+    def output(self, name: str) -> np.ndarray:
+        """Output signal ``name`` of :data:`~belt_drive_ros.core.model.OUTPUT_UNITS` for every variant: (N+1, V).
+
+        The same operations per element as the model's :meth:`outputs` on
+        one run (``y = C x + D u`` summed column by column from the left;
+        the span forces from the belt torque), so column v equals
+        ``models[v].outputs(states[:, :, v], inputs[:, :, v])[name]`` bit for bit.
+        """
+        cached = self._outputs.get(name)
+        if cached is not None:
+            return cached
+        if name in ("drive_torque", "load_torque"):  # the inputs themselves, as the model reports them
+            out = self.inputs[:, 0 if name == "drive_torque" else 1, :]
+        elif name in LINEAR_OUTPUTS:
+            j = LINEAR_OUTPUTS.index(name)
+            out = None
+            for block, rows in ((self.states, self._C[j]), (self.inputs, self._D[j])):
+                y = block[:, 0, :] * rows[0]
+                for k in range(1, rows.shape[0]):
+                    y = y + block[:, k, :] * rows[k]
+                out = y if out is None else out + y
+        elif name in ("span_force_tight", "span_force_slack", "slack", "slip"):
+            forces = span_forces(self.param("F_0"), self.param("r_3"), self.param("capstan_ratio"), self.output("belt_torque"))
+            for key, value in zip(("span_force_tight", "span_force_slack", "slack", "slip"), forces):
+                self._outputs[key] = value
+            return self._outputs[name]
+        else:
+            raise KeyError(f"output: unknown signal {name!r}; known: {', '.join(OUTPUT_UNITS)}")
+        self._outputs[name] = out
+        return out
+
+    def friction_limit(self) -> np.ndarray:
+        """Q_max [N] at every knot of every variant (N+1, V) (:meth:`~belt_drive_ros.core.params.BeltDriveParams.friction_limit`)."""
+        ratio = np.array([s.params.r_2 * s.params.gear_ratio for s in self.scenes])
+        return friction_limit_array(
+            self.param("F_0"), ratio, self.param("belt_mass"), self.param("capstan_factor"), self.output("omega_M")
+        )
+
+    def result(self, v: int) -> SimResult:
+        """Variant v's run as :func:`~belt_drive_ros.core.simulate.simulate` gives it (see the module docstring)."""
+        scene, model = self.scenes[v], self.models[v]
+        x_v = np.ascontiguousarray(self.states[:, :, v])
+        u_v = np.ascontiguousarray(self.inputs[:, :, v])
+        return SimResult(
+            scene=scene, model=self.kind, method=self.method, dt=scene.dt, time=self.times, states=x_v, inputs=u_v,
+            outputs=model.outputs(x_v, u_v), choice=self.choices[v], wall_time=math.nan,
+        )  # fmt: skip
+
+
 def _error_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"
 
@@ -91,11 +175,21 @@ def simulate_many(scenes: Sequence[Scene], check_stability: bool = True, min_gro
     """Yield one :class:`Outcome` per scene (in an order of its own; ``index`` says which).
 
     Each successful outcome's result equals ``simulate(scene)`` to rounding
-    (<= 1e-12 relative, tests/test_ensemble.py); a failing scene yields the
-    error ``simulate`` raises, as one line, and does not stop the others.
-    Results are built as they are yielded, so a caller that keeps only
-    metrics holds one group's states at a time.
+    (<= 1e-12 relative, tests/test_ensemble.py; bit for bit in practice); a
+    failing scene yields the error ``simulate`` raises, as one line, and
+    does not stop the others. Results are built as they are yielded, so a
+    caller that keeps only metrics holds one group's states at a time.
     """
+    for item in run_groups(scenes, check_stability, min_group):
+        if isinstance(item, Outcome):
+            yield item
+            continue
+        for v, i in enumerate(item.indices):
+            yield Outcome(i, item.result(v), None, True)
+
+
+def run_groups(scenes: Sequence[Scene], check_stability: bool = True, min_group: int = MIN_GROUP) -> Iterator:
+    """:func:`simulate_many` by blocks: yields :class:`Outcome` (single runs, failures) and :class:`GroupRun` (ensembles)."""
     memo: dict = {}
     groups: dict = {}
     for i, scene in enumerate(scenes):
@@ -152,33 +246,33 @@ def _stable(scenes, kind: str, check_stability: bool) -> tuple[list, list]:
     return ok, failed
 
 
-def _run_group(members: list, check_stability: bool) -> Iterator[Outcome]:
+def _run_group(members: list, check_stability: bool) -> Iterator:
     """One group (shared profiles and settings): see the module docstring."""
     first = members[0][1]
     drive, load, T = first.drive, first.load, first.duration
     if first.model in ("rigid", "flexible"):
         kinds = {i: first.model for i, _ in members}
-        speeds: dict = {}
         linear: dict = {}
     else:  # auto: the rigid estimate of the operating speeds, for all variants at once
         rigid = [make_model("rigid", s.params) for _, s in members]
         ens = Ensemble(rigid, drive, load, "exact", operating_run_step(T))
         x0 = np.stack([s.initial_state.vector("rigid", s.params.ratio) for _, s in members])
         times, states = ens.run(x0, 0.0, T)
-        u = ens.inputs(times, states)
+        estimate = GroupRun([i for i, _ in members], [s for _, s in members], rigid, "rigid", "exact", times, states,
+                            ens.inputs(times, states))  # fmt: skip
         w = np.max(np.abs(states[:, 1, :]), axis=0)
-        speeds = {  # as fidelity's rigid estimate: max |omega_M|, max |omega_3|, max |belt torque|
-            i: (float(w[v]), float(w[v]) * s.params.ratio,
-                float(np.max(np.abs(rigid[v].belt_torque(states[:, :, v], u[:, :, v])))))
-            for v, (i, s) in enumerate(members)
-        }  # fmt: skip
+        belt = estimate.output("belt_torque")
+        peak = np.max(np.abs(belt), axis=0)
+        start = belt[0].tolist()  # the belt torque the start needs: rigid belt torque at t = 0 (fidelity.start_mismatch)
         kinds, linear = {}, {}
         for v, (i, s) in enumerate(members):
             if not math.isfinite(w[v]):  # the estimate diverged: simulate reports it
                 yield _single(i, s, check_stability, "the rigid estimate of the operating speeds diverged")
                 continue
+            # as fidelity's rigid estimate: max |omega_M|, max |omega_3|, max |belt torque|
+            speeds = (float(w[v]), float(w[v]) * s.params.ratio, float(peak[v]))
             try:
-                linear[i] = choose_model(s, check_slip=False, speeds=speeds[i])
+                linear[i] = choose_model(s, check_slip=False, speeds=speeds, start_torque=start[v])
                 kinds[i] = linear[i].model
             except BeltDriveError as exc:
                 yield Outcome(i, None, _error_line(exc), True)
@@ -196,22 +290,39 @@ def _run_group(members: list, check_stability: bool) -> Iterator[Outcome]:
             continue
         x0 = np.stack([s.initial_state.vector(kind, s.params.ratio) for _, s, _ in chosen])
         times, states = ens.run(x0, 0.0, T)
-        u = ens.inputs(times, states)
         diverged = ens.diverged(times, states)
-        for v, (i, scene, model) in enumerate(chosen):
+        for v, (i, _, _) in enumerate(chosen):
             if v in diverged:
                 yield Outcome(i, None, _error_line(diverged[v]), True)
-                continue
-            x_v, u_v = states[:, :, v], u[:, :, v]
-            outputs = model.outputs(x_v, u_v)
-            choice = None
-            if scene.model == "auto":
-                choice = choose_model(scene, linear=linear[i], linear_run=lambda _kind: (times, outputs))
+        keep = [v for v in range(len(chosen)) if v not in diverged]
+        if len(keep) < len(chosen):
+            chosen, states = [chosen[v] for v in keep], states[:, :, keep]
+        if not chosen:
+            continue
+        run = GroupRun([i for i, _, _ in chosen], [s for _, s, _ in chosen], [m for _, _, m in chosen], kind, ens.method,
+                       times, states, ens.inputs(times, states))  # fmt: skip
+        if first.model == "auto":  # the capstan check of each variant's linear run (the single run's choice)
+            ratio = friction_use(run.output("belt_torque"), run.param("r_3"), run.friction_limit())
+            peak_k = np.argmax(ratio, axis=0)  # as fidelity.limit_exceedance, for every variant at once
+            limits = list(zip(ratio[peak_k, np.arange(len(run))].tolist(), times[peak_k].tolist()))
+            keep = []
+            for v, (i, scene, _) in enumerate(chosen):
+                choice = choose_model(scene, linear=linear[i], limit=limits[v])
                 if choice.model == "slipping":
                     yield _single(i, scene, check_stability, "slipping model (the capstan limit is passed)")
                     continue
-            result = SimResult(
-                scene=scene, model=kind, method=ens.method, dt=scene.dt, time=times, states=x_v, inputs=u_v,
-                outputs=outputs, choice=choice, wall_time=math.nan,
-            )  # fmt: skip
-            yield Outcome(i, result, None, True)
+                run.choices[v] = choice
+                keep.append(v)
+            if len(keep) < len(run):
+                run = _subset(run, keep)
+            if not len(run):
+                continue
+        yield run
+
+
+def _subset(run: GroupRun, keep: list) -> GroupRun:
+    """The variants ``keep`` of ``run`` (a new block; outputs are recomputed on demand)."""
+    return GroupRun(
+        [run.indices[v] for v in keep], [run.scenes[v] for v in keep], [run.models[v] for v in keep], run.kind,
+        run.method, run.times, run.states[:, :, keep], run.inputs[:, :, keep], [run.choices[v] for v in keep],
+    )  # fmt: skip

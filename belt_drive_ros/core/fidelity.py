@@ -112,19 +112,21 @@ def _operating_speeds(scene) -> tuple[float, float, float]:
             return w, w * scene.params.ratio, peak
 
 
-def start_mismatch(scene) -> tuple[float, float]:
+def start_mismatch(scene, needed: float | None = None) -> tuple[float, float]:
     """(quasi-static belt torque the start needs, belt torque the initial state carries) [N m].
 
     The first is the rigid model's belt torque at t = 0 with the torques
     applied then, ``T_qs = I_3 i a_M + b_3 i omega_M + M_load``; the second
     ``2 k r_3^2 delta_0 + 2 c r_3^2 delta_0'`` of the scene's initial
     deflection and its rate. Their difference is the torque step the belt
-    sees at t = 0.
+    sees at t = 0. ``needed``: the first when the caller has it (the rigid
+    estimate's belt torque at its first knot, as an ensemble computes it).
     """
     p = scene.params
-    rigid = RigidBeltModel(p)
-    x0 = scene.initial_state.vector("rigid", p.ratio)
-    needed = float(rigid.belt_torque(x0, Plant(rigid, scene.drive, scene.load).inputs(0.0, x0)))
+    if needed is None:
+        rigid = RigidBeltModel(p)
+        x0 = scene.initial_state.vector("rigid", p.ratio)
+        needed = float(rigid.belt_torque(x0, Plant(rigid, scene.drive, scene.load).inputs(0.0, x0)))
     init = scene.initial_state
     carried = p.belt_torsional_stiffness * init.relative_deflection + 2.0 * p.c * p.r_3**2 * init.relative_speed
     return needed, carried
@@ -132,7 +134,7 @@ def start_mismatch(scene) -> tuple[float, float]:
 
 def choose_model(
     scene, threshold: float = FREQUENCY_RATIO_THRESHOLD, check_slip: bool = True, linear_run=None, speeds=None,
-    linear: ModelChoice | None = None,
+    linear: ModelChoice | None = None, start_torque: float | None = None, limit: tuple | None = None,
 ) -> ModelChoice:
     """Rigid, flexible or slipping for ``scene``, with the reason (see the module docstring).
 
@@ -150,13 +152,17 @@ def choose_model(
         it for many variants at once); default: run it here.
     linear : the frequency rule's choice when the caller has it already
         (``choose_model(scene, check_slip=False, ...)``); default: apply the rule here.
+    start_torque : the belt torque the start needs (:func:`start_mismatch`) when the caller has it.
+    limit : :func:`limit_exceedance` of the linear run when the caller has it (then it is not run).
     """
-    choice = linear if linear is not None else _linear_choice(scene, threshold, speeds)
+    choice = linear if linear is not None else _linear_choice(scene, threshold, speeds, start_torque)
     choice = replace(choice, linear=choice.model)
     if not check_slip:
         return choice
-    time, outputs = (linear_run or (lambda kind: _linear_outputs(scene, kind)))(choice.model)
-    ratio, t_peak = limit_exceedance(scene.params, time, outputs)
+    if limit is None:
+        time, outputs = (linear_run or (lambda kind: _linear_outputs(scene, kind)))(choice.model)
+        limit = limit_exceedance(scene.params, time, outputs)
+    ratio, t_peak = limit
     choice = replace(choice, limit_ratio=ratio, limit_time=t_peak)
     if ratio <= 1.0:
         return choice
@@ -174,11 +180,21 @@ def limit_exceedance(params, time, outputs) -> tuple[float, float]:
     ``Q = belt_torque / r_3`` [N] is the net force the belt transmits;
     ``Q_max(omega_M)`` the capstan limit (:meth:`~belt_drive_ros.core.params.BeltDriveParams.friction_limit`).
     """
-    q = np.abs(np.asarray(outputs["belt_torque"], dtype=float)) / params.r_3
-    qmax = np.broadcast_to(params.friction_limit(np.asarray(outputs["omega_M"], dtype=float)), q.shape)
-    ratio = np.divide(q, qmax, out=np.full(q.shape, np.inf), where=qmax > 0)
+    belt = np.asarray(outputs["belt_torque"], dtype=float)
+    omega = np.asarray(outputs["omega_M"], dtype=float)
+    ratio = friction_use(belt, params.r_3, np.broadcast_to(params.friction_limit(omega), belt.shape))
     k = int(np.argmax(ratio))
     return float(ratio[k]), float(time[k])
+
+
+def friction_use(belt_torque, r_3, q_max):
+    """|Q| / Q_max [-] with Q = T_b / r_3 the net force the belt transmits (inf where Q_max = 0: lifted off).
+
+    Arrays broadcast (an ensemble's variants on the last axis, ``r_3`` and
+    ``q_max`` per variant): the same operations per element as for one run.
+    """
+    q = np.abs(belt_torque) / r_3
+    return np.divide(q, q_max, out=np.full(q.shape, np.inf), where=q_max > 0)
 
 
 def _linear_outputs(scene, kind: str):
@@ -189,12 +205,12 @@ def _linear_outputs(scene, kind: str):
     return time, model.outputs(states, stepper.plant.input_array(time, states))
 
 
-def _linear_choice(scene, threshold: float, speeds=None) -> ModelChoice:
-    """Rigid or flexible for ``scene`` by the frequency rule, with the reason (``speeds``: see :func:`choose_model`)."""
+def _linear_choice(scene, threshold: float, speeds=None, start_torque=None) -> ModelChoice:
+    """Rigid or flexible for ``scene`` by the frequency rule, with the reason (``speeds``, ``start_torque``: see :func:`choose_model`)."""
     f_n = scene.params.belt_natural_frequency / (2.0 * math.pi)
     w_M, w_3, peak = speeds if speeds is not None else _operating_speeds(scene)
     excitations = list(scene.drive.excitation_frequencies(w_M)) + list(scene.load.excitation_frequencies(w_3))
-    needed, carried = start_mismatch(scene)
+    needed, carried = start_mismatch(scene, start_torque)
     if abs(needed - carried) >= START_MISMATCH_THRESHOLD * peak and abs(needed - carried) > 0.0:
         excitations.append((math.inf, (
             f"the start (torques at t = 0 need {needed:.3g} N m of belt torque, the initial deflection "

@@ -165,12 +165,7 @@ class _LinearModel:
         validity.
         """
         p = self.params
-        half = 0.5 * abs(belt_torque) / p.r_3  # abs: np.abs on arrays, the float's own on one sample
-        tight = p.F_0 + half
-        slack_force = p.F_0 - half
-        slack = slack_force <= 0.0
-        slip = slack | (tight > slack_force * p.capstan_ratio)
-        return tight, slack_force, slack, slip
+        return span_forces(p.F_0, p.r_3, p.capstan_ratio, belt_torque)
 
 
 class FlexibleBeltModel(_LinearModel):
@@ -378,6 +373,21 @@ def _affine_sample(rows, x: list, u: list) -> list:
             b = b + u[k] * d[k]
         out.append(a + b)
     return out
+
+
+def span_forces(F_0, r_3, capstan_ratio, belt_torque) -> tuple:
+    """(F_tight, F_slack [N], slack, slip flags) from the belt torque [N m] (:meth:`_LinearModel.span_forces`).
+
+    ``F_0`` [N], ``r_3`` [m] and ``capstan_ratio`` [-] may be arrays that
+    broadcast against ``belt_torque`` (an ensemble's variants on the last
+    axis), or all be floats (one sample): the same operations per element.
+    """
+    half = 0.5 * abs(belt_torque) / r_3  # abs: np.abs on arrays, the float's own on one sample
+    tight = F_0 + half
+    slack_force = F_0 - half
+    slack = slack_force <= 0.0
+    slip = slack | (tight > slack_force * capstan_ratio)
+    return tight, slack_force, slack, slip
 
 
 def static_deflection(params: BeltDriveParams, load_torque: float) -> float:

@@ -251,12 +251,16 @@ class BeltDriveParams:
         """
         if isinstance(omega_M, (int, float)):  # the scalar path of the event handling: no numpy
             return self.scalar_friction_limit()(omega_M)
-        factor = 2.0 * math.tanh(0.5 * self.mu_effective * self.wrap_angle)
-        return np.maximum((self.F_0 - self.centrifugal_tension(omega_M)) * factor, 0.0)
+        return friction_limit_array(self.F_0, self.r_2 * self.gear_ratio, self.belt_mass, self.capstan_factor, omega_M)
+
+    @property
+    def capstan_factor(self) -> float:
+        """2 tanh(mu_eff beta / 2): Q_max per net span tension F_0 - F_c [-]."""
+        return 2.0 * math.tanh(0.5 * self.mu_effective * self.wrap_angle)
 
     def scalar_friction_limit(self):
         """:meth:`friction_limit` of one float ``omega_M`` [rad/s] as a closure with the constants bound [N]."""
-        factor = 2.0 * math.tanh(0.5 * self.mu_effective * self.wrap_angle)
+        factor = self.capstan_factor
         speed, F_0, mass = self.r_2 * self.gear_ratio, self.F_0, self.belt_mass
 
         def limit(omega_M: float) -> float:
@@ -264,6 +268,17 @@ class BeltDriveParams:
             return max((F_0 - mass * v * v) * factor, 0.0)
 
         return limit
+
+
+def friction_limit_array(F_0, belt_speed_ratio, belt_mass, capstan_factor, omega_M):
+    """Q_max = max((F_0 - m' v^2) 2 tanh(mu_eff beta / 2), 0) [N] at belt speed v = (r_2 g) omega_M, on arrays.
+
+    :meth:`BeltDriveParams.friction_limit` of an array of speeds; the
+    parameters may be arrays too (an ensemble's variants on the last axis),
+    with the same operations per element as for one run.
+    """
+    v = belt_speed_ratio * omega_M
+    return np.maximum((F_0 - belt_mass * v * v) * capstan_factor, 0.0)
 
 
 def describe_fields() -> str:
