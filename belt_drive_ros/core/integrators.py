@@ -34,6 +34,7 @@ from typing import Callable, ClassVar
 import numpy as np
 
 from . import stage_scheme as _scheme
+from .batch_expm import expm_stack
 from .errors import IntegratorError
 from .stage_scheme import LinearStep, StageScheme, compile_scalar_loop
 
@@ -188,16 +189,14 @@ def _unkey(key: tuple) -> np.ndarray:
 
 
 def _expm(M: np.ndarray) -> np.ndarray:
-    """e^M of one matrix or of a stack (..., n, n) of variants' matrices: ``scipy.linalg.expm``.
+    """e^M of one matrix or of a stack of variants' matrices (:func:`~belt_drive_ros.core.batch_expm.expm_stack`).
 
-    One routine for both: scipy computes each matrix of a stack on its own
-    (its compiled loop over the stack), so a single run and an ensemble of
-    its variants step with bit-identical matrices, and their states agree to
-    the last bit on the same summation order (:mod:`belt_drive_ros.core.ensemble`).
+    One routine for both: a single run and an ensemble of its variants then
+    step with bit-identical matrices (each matrix's exponential depends on
+    that matrix alone), so their states agree to the last bit on the same
+    summation order (:mod:`belt_drive_ros.core.ensemble`).
     """
-    import scipy.linalg  # here, not at import: the registry is read by --help texts
-
-    return scipy.linalg.expm(M)
+    return expm_stack(M)
 
 
 def _hcat(*blocks) -> np.ndarray:
