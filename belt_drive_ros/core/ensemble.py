@@ -21,9 +21,28 @@ single run uses. Per step, with ``U_i`` the stage torques (one per variant)::
 
 with the variant axis last (contiguous). Torques are evaluated by the
 profiles' array formulas (:func:`~belt_drive_ros.core.formula.array_function`),
-the same text the single run's compiled loop inlines; the sums run in
-another order. So each variant's states equal its single run's to rounding
-(tests/test_ensemble.py: <= 1e-12 relative on every shipped scene).
+the same text the single run's compiled loop inlines. Each variant gets the
+very floats of its single run:
+
+* the same matrices: one exponential routine for one matrix and for a
+  stack (:func:`~belt_drive_ros.core.batch_expm.expm_stack`: each matrix's
+  result depends on that matrix alone), and numpy's stacked ``matmul``
+  multiplies matrix by matrix;
+* the same sums: ``einsum`` over the variant-last layout accumulates
+  ``sum_k M[r, k] z[k]`` from k = 0 upwards, the order of the compiled
+  loop's unrolled expressions and of
+  :func:`~belt_drive_ros.core.stage_scheme.affine` (the numpy step);
+* the same paths: whole steps away from breakpoints compute only the
+  torques' wheel coordinates ``(W S) z``, as the compiled loop does; the
+  steps at breakpoints and the partial ones each stage's whole state and
+  then ``W (S z)``, as :func:`~belt_drive_ros.core.stage_scheme.step` does.
+
+So ensemble and single runs agree bit for bit in practice
+(tests/test_ensemble.py asserts <= 1e-12 relative on every shipped scene,
+every explicit method, states, inputs and every output). Not covered: the
+vectorized open-loop path of a single run (time-only torques,
+:func:`~belt_drive_ros.core.integrators.propagate_linear`), which sums in
+blocks; there the two agree to rounding.
 
 Covered: the rigid and flexible models with any explicit fixed-step method
 (``exact``, ``etd2``, ``etd4``, ``lawson5``, ``euler``,
