@@ -313,10 +313,10 @@ def _run_group(members: list, check_stability: bool) -> Iterator:
                     continue
                 run.choices[v] = choice
                 keep.append(v)
+            if not keep:
+                continue
             if len(keep) < len(run):
                 run = _subset(run, keep)
-            if not len(run):
-                continue
         yield run
 
 
