@@ -118,7 +118,10 @@ def affine(M: np.ndarray, v: np.ndarray) -> np.ndarray:
     (:mod:`~belt_drive_ros.core.ensemble`), so a step taken here, in the
     compiled loop or in an ensemble gives the same floats (a BLAS product may
     sum in another order). ``add.accumulate`` is sequential by definition.
+    ``v`` may be a matrix (k, c): each column as a vector.
     """
+    if np.ndim(v) == 2:
+        return np.cumsum(M[:, :, None] * v[None, :, :], axis=1)[:, -1, :]
     return np.cumsum(M * v, axis=-1)[..., -1]
 
 
