@@ -10,8 +10,6 @@ from __future__ import annotations
 
 from typing import Dict, List, Optional
 
-import numpy as np
-
 from . import index as _index
 from .results import BagSummary, TopicInfo
 from .scan import Scan, Source, SourceBuffer, scan_source
@@ -19,21 +17,30 @@ from .scan import Scan, Source, SourceBuffer, scan_source
 __all__ = ["list_topics", "summary"]
 
 
-def summary(source: Source) -> BagSummary:
+def summary(source: Source, *, verify: bool = True) -> BagSummary:
     """Summarize a bag: header, topics with counts and rates, metadata records.
 
-    A finished file is answered from its summary section, read with the mcap
-    library (no data is read; the indexes are checked against the records
-    they point at). A file without a readable summary (writer killed), or
-    whose indexes do not match its records, is scanned record by record;
-    ``damage`` then says what disagrees.
+    With ``verify`` (default) the data section is scanned record by record
+    (:func:`msg_tools.scan.scan_source`: record lengths, decompression, chunk
+    CRCs, the data section's CRC) and checked against the summary section
+    (chunk indexes pointing at their chunks, message counts per channel);
+    ``damage`` lists every disagreement. The scan streams the file (an mmap,
+    one chunk at a time) and keeps a count and a time range per channel, so
+    its memory does not grow with the file.
+
+    Without ``verify`` a finished file is answered from its summary section
+    alone, read with the mcap library (fast; no data is read, only the
+    indexes are checked against the records they point at): damage inside a
+    chunk goes unseen. A file without a readable summary (writer killed), or
+    whose indexes do not match its records, is scanned all the same.
     """
-    with SourceBuffer(source) as src:
-        indexed, _reason = _index.read_summary(src.buf, path=src.path) if src.size else (None, "")
-        size, name = src.size, src.name
-    if indexed is not None and indexed.sound:
-        return _summary_from_index(indexed, name, size)
-    scan, size, name = scan_source(source, None, keep_data=False)
+    if not verify:
+        with SourceBuffer(source) as src:
+            indexed, _reason = _index.read_summary(src.buf, path=src.path) if src.size else (None, "")
+            size, name = src.size, src.name
+        if indexed is not None and indexed.sound:
+            return _summary_from_index(indexed, name, size)
+    scan, size, name = scan_source(source, None, keep_data=False, keep_times=False)
     return _summary_from_scan(scan, name, size)
 
 
@@ -94,12 +101,10 @@ def _summary_from_scan(scan: Scan, name: str, size: int) -> BagSummary:
     for topic, cids in merged.items():
         channel = scan.channels[cids[0]]
         schema = scan.schemas.get(channel.schema_id)
-        parts = [np.frombuffer(scan.accs[cid].log, dtype=np.int64) for cid in cids
-                 if cid in scan.accs and len(scan.accs[cid].log)]
-        logs = np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
-        count = int(logs.size)
-        start = int(logs.min()) if count else None
-        end = int(logs.max()) if count else None
+        accs = [scan.accs[cid] for cid in cids if cid in scan.accs and scan.accs[cid].count]
+        count = sum(acc.count for acc in accs)
+        start = min(acc.span()[0] for acc in accs) if accs else None
+        end = max(acc.span()[1] for acc in accs) if accs else None
         if start is not None:
             start_all = start if start_all is None else min(start_all, start)
             end_all = end if end_all is None else max(end_all, end)  # type: ignore[arg-type]
@@ -122,9 +127,10 @@ def _summary_from_scan(scan: Scan, name: str, size: int) -> BagSummary:
         complete=scan.complete,
         stop_reason=scan.stop_reason,
         damage=list(scan.damage),
+        verified=scan.checked_against_summary,
     )
 
 
-def list_topics(source: Source) -> List[TopicInfo]:
-    """Return the topics of a bag (see :class:`TopicInfo`)."""
-    return summary(source).topics
+def list_topics(source: Source, *, verify: bool = True) -> List[TopicInfo]:
+    """Return the topics of a bag (see :class:`TopicInfo`; ``verify`` as :func:`summary`)."""
+    return summary(source, verify=verify).topics

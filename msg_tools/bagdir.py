@@ -99,12 +99,15 @@ def _listed_files(path: str) -> List[Dict[str, Any]]:
     return out
 
 
-def folder_damage(path: Union[str, "os.PathLike[str]"]) -> List[str]:
+def folder_damage(path: Union[str, "os.PathLike[str]"], *, summaries: Optional[Dict[str, Any]] = None) -> List[str]:
     """What a bag folder's files disagree with: the per-file message count, start and duration
     its ``metadata.yaml`` states, and each other (two files holding the same span twice).
 
     Returns [] for a single file, a consistent folder, or a folder without
     ``metadata.yaml`` whose files do not repeat each other (a killed recorder's).
+    ``summaries``: the files' :class:`BagSummary` by path when the caller has them
+    (``msg-tools info``); otherwise each file's summary section is read
+    (``verify=False``: its data is checked when it is read).
     """
     from .reader import summary
 
@@ -116,7 +119,7 @@ def folder_damage(path: Union[str, "os.PathLike[str]"]) -> List[str]:
     damage: List[str] = []
     spans: Dict[Tuple[Any, Any, int], str] = {}
     for file in files:
-        s = summary(file)
+        s = summaries[file] if summaries and file in summaries else summary(file, verify=False)
         name = os.path.basename(file)
         damage.extend(f"{name}: {d}" for d in s.damage)
         span = (s.start_ns, s.end_ns, s.message_count)

@@ -1,7 +1,8 @@
 """``msg-tools``: inspect, export, plot and compare ROS 2 MCAP recordings without ROS.
 
 Exit status: 0 success (``compare``: all signals pass), 1 ``compare`` found
-signals outside tolerance, 2 usage or input/output error. Errors are one line
+signals outside tolerance or ``info`` found the file damaged, 2 usage or
+input/output error (``export``/``plot``/``compare`` refuse a damaged file). Errors are one line
 on stderr, ``msg-tools: error: ...``; set ``MSG_TOOLS_DEBUG=1`` for tracebacks.
 """
 
@@ -34,7 +35,8 @@ examples:
   msg-tools compare fresh.mcap bags/engine_idle_golden.mcap --rtol 1e-6 --atol 1e-9
   msg-tools compare new_runs/ golden_runs/
 
-exit status: 0 ok / compare passed, 1 compare failed, 2 usage or I/O error
+exit status: 0 ok / compare passed, 1 compare failed or info found damage, 2 usage or I/O error
+(a damaged file: export/plot/compare refuse it)
 """
 
 
@@ -92,18 +94,21 @@ def cmd_info(args: argparse.Namespace, out: IO[str]) -> int:
 
     files = bag_files(args.bag)
     status = 0
+    summaries = {}
     for k, path in enumerate(files):
         if k:
             out.write("\n")
-        status = max(status, _info_one(path, args, out))
+        file_status, summaries[path] = _info_one(path, args, out)
+        status = max(status, file_status)
     if len(files) > 1 or os.path.isdir(args.bag):
         from .bagdir import folder_damage
 
-        damage = folder_damage(args.bag)
+        damage = folder_damage(args.bag, summaries=summaries)
         out.write(f"\nBag folder:        {args.bag} ({len(files)} files)\n")
         if damage:
-            out.write(f"Status:            DAMAGED: {'; '.join(damage)}\n")
-            sys.stderr.write(f"{PROG}: warning: {args.bag} is damaged: {damage[0]}\n")
+            _write_damage(out, damage)
+            out.write(f"Status:            DAMAGED ({_problems(damage)})\n")
+            sys.stderr.write(f"{PROG}: warning: {args.bag} is damaged: {damage[0]}{_more(damage)}\n")
             status = 1
         else:
             out.write("Status:            complete (every file as metadata.yaml lists it)\n"
@@ -112,10 +117,24 @@ def cmd_info(args: argparse.Namespace, out: IO[str]) -> int:
     return status
 
 
-def _info_one(path: str, args: argparse.Namespace, out: IO[str]) -> int:
+def _problems(damage: List[str]) -> str:
+    return f"{len(damage)} problem{'s' if len(damage) != 1 else ''}"
+
+
+def _more(damage: List[str]) -> str:
+    return f" (and {len(damage) - 1} more problems)" if len(damage) > 1 else ""
+
+
+def _write_damage(out: IO[str], damage: List[str]) -> None:
+    """One line per problem."""
+    for i, problem in enumerate(damage):
+        out.write(f"{'Damage:' if i == 0 else '':<19}{' '.join(problem.split())}\n")
+
+
+def _info_one(path: str, args: argparse.Namespace, out: IO[str]) -> Tuple[int, Any]:
     import yaml
 
-    s = summary(path)
+    s = summary(path, verify=not args.summary_only)
     w = out.write
     bag_meta = s.metadata_dict("rosbag2").get("serialized_metadata", "")
     try:
@@ -144,13 +163,18 @@ def _info_one(path: str, args: argparse.Namespace, out: IO[str]) -> int:
     w(f"Chunks:            {s.chunk_count} ({comp})\n")
     status = 0
     if s.damage:
-        w(f"Status:            DAMAGED: {'; '.join(s.damage)}\n")
-        sys.stderr.write(f"{PROG}: warning: {s.path} is damaged: {s.damage[0]}\n")
+        _write_damage(out, s.damage)
+        w(f"Status:            DAMAGED ({_problems(s.damage)}; counts above are what the data holds)\n")
+        sys.stderr.write(f"{PROG}: warning: {s.path} is damaged: {s.damage[0]}{_more(s.damage)}\n")
         status = 1
     elif not s.complete:
         w(f"Status:            INCOMPLETE, {s.stop_reason}; {s.message_count} messages recovered\n")
+    elif s.from_summary:
+        w("Status:            complete (summary section only; the data was not checked)\n")
+    elif s.verified:
+        w("Status:            complete (data checked against the summary section)\n")
     else:
-        w(f"Status:            complete ({'summary section' if s.from_summary else 'read from the data'})\n")
+        w("Status:            complete (read from the data; no summary section to check it against)\n")
     if args.qos:
         for t in s.topics:
             w(f"offered_qos_profiles of {t.topic}:\n")
@@ -164,7 +188,7 @@ def _info_one(path: str, args: argparse.Namespace, out: IO[str]) -> int:
             if len(text) > 70 and not args.full:
                 text = text[:67] + "..."
             w(f"    {key}: {text}\n")
-    return status
+    return status, s
 
 
 # -------------------------------------------------------------------- columns
@@ -392,12 +416,25 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
 
     p = sub.add_parser(
-        "info", help="header, topics (type, count, rate), metadata records",
-        description="Print the header, topics with counts and rates, and the metadata records.",
-        epilog="example:\n  msg-tools info run.mcap --qos",
+        "info", help="header, topics (type, count, rate), metadata records; checks the data",
+        description=(
+            "Print the header, topics with counts and rates, and the metadata records. By default "
+            "the whole data section is read (streamed, one chunk at a time) and checked against the "
+            "file's summary section: record lengths, decompression, chunk CRCs, the data section's "
+            "CRC, chunk indexes and message counts per channel. Each problem is one 'Damage:' line, "
+            "then a verdict: 'Status: complete', 'INCOMPLETE' (recorder killed: what was recovered) "
+            "or 'DAMAGED' (exit 1). --summary-only reads only the footer and summary section: "
+            "fast, but a damaged chunk goes unseen."
+        ),
+        epilog=("examples:\n  msg-tools info run.mcap --qos\n"
+                "  msg-tools info huge.mcap --summary-only   # no data read, nothing verified\n\n"
+                "exit status: 0 complete or incomplete (recovered, with a warning), "
+                "1 damaged, 2 unreadable or not MCAP"),
         formatter_class=_Formatter,
     )
     p.add_argument("bag", metavar="BAG", help="MCAP file or rosbag2 bag folder")
+    p.add_argument("--summary-only", action="store_true",
+                   help="read only the footer and summary section (fast); does NOT verify the data")
     p.add_argument("--qos", action="store_true", help="also print each topic's offered QoS")
     p.add_argument("--full", action="store_true", help="do not shorten long metadata values")
     p.set_defaults(func=cmd_info)

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 __all__ = ["IndexedSummary", "count_problems", "read_summary"]
 
@@ -241,12 +241,18 @@ def _topic_times(buf: Any, summary: Any, trust_message_indexes: bool) -> Dict[in
     return out
 
 
-def count_problems(indexed: IndexedSummary, counts: Dict[int, int], topics: Dict[int, str]) -> List[str]:
-    """Channels whose messages read (``counts``) differ from the summary's per-channel counts."""
+def count_problems(indexed: IndexedSummary, counts: Dict[int, int], topics: Dict[int, str],
+                   want: Optional[Callable[[str], bool]] = None) -> List[str]:
+    """Channels whose messages read (``counts``) differ from the summary's per-channel counts,
+    including channels the summary counts that the data never showed (``want``: the topics read)."""
     expected = indexed.summary.statistics.channel_message_counts
+    channels = indexed.summary.channels
     out = []
-    for cid, got in sorted(counts.items()):
-        want = expected.get(cid, 0)
+    absent = {c for c, n in expected.items()
+              if n and c not in counts and (want is None or (c in channels and want(channels[c].topic)))}
+    for cid in sorted(set(counts) | absent):
+        got, want = counts.get(cid, 0), expected.get(cid, 0)
         if got != want:
-            out.append(f"{topics.get(cid, cid)} has {got} messages in the data, the summary says {want}")
+            name = topics.get(cid) or (channels[cid].topic if cid in channels else f"channel {cid}")
+            out.append(f"{name} has {got} messages in the data, the summary says {want}")
     return out

@@ -160,6 +160,9 @@ class BagSummary:
         missing, duplicated or corrupt); empty for a sound file.
     from_summary : bool
         True when read from the summary section alone (no scan of the data).
+    verified : bool
+        True when the data was scanned and checked against a readable
+        summary section (``damage`` then lists every disagreement).
     """
 
     path: str
@@ -178,6 +181,7 @@ class BagSummary:
     stop_reason: str
     damage: List[str] = field(default_factory=list)
     from_summary: bool = False
+    verified: bool = False
 
     def metadata_dict(self, name: str) -> Dict[str, str]:
         """Return the merged key/values of all metadata records called ``name``."""

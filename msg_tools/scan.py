@@ -42,6 +42,7 @@ _u32 = struct.Struct("<I").unpack_from
 _u64 = struct.Struct("<Q").unpack_from
 _rec_head = struct.Struct("<BQ").unpack_from  # opcode, length
 _msg_head = struct.Struct("<HIQQ").unpack_from  # channel id, sequence, log time, publish time
+_rec_msg_head = struct.Struct("<BQHIQ").unpack_from  # opcode, length, channel id, sequence, log time
 
 #: largest uncompressed chunk accepted [bytes]; writers close chunks far below this
 #: (rosbag2: 768 KiB by default, msg_tools: 128 KiB); a larger claim is damage
@@ -81,6 +82,29 @@ class _Acc:
         self.blob: Optional[bytearray] = bytearray() if keep_data else None
         self.ends = array("q")
 
+    @property
+    def count(self) -> int:
+        return len(self.log)
+
+    def span(self) -> Tuple[Optional[int], Optional[int]]:
+        """First and last log time [ns] (None, None without messages)."""
+        return (min(self.log), max(self.log)) if len(self.log) else (None, None)
+
+
+class _Tally:
+    """Per-channel message count and log-time range: constant memory whatever the file's length
+    (what :func:`msg_tools.bag_summary.summary` needs from a scan)."""
+
+    __slots__ = ("count", "first", "last")
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.first: Optional[int] = None
+        self.last: Optional[int] = None
+
+    def span(self) -> Tuple[Optional[int], Optional[int]]:
+        return self.first, self.last
+
 
 
 def _read_str(buf: Any, off: int) -> Tuple[str, int]:
@@ -117,6 +141,9 @@ class Scan:
         Channels whose topic passes are accumulated (all if None).
     keep_data : bool
         Keep message payloads (else only times).
+    keep_times : bool
+        Keep every message's times (else, with ``keep_data`` False, only a
+        count and the first and last log time per channel: bounded memory).
     """
 
     def __init__(
@@ -125,8 +152,10 @@ class Scan:
         name: str,
         want: Optional[Callable[[str], bool]] = None,
         keep_data: bool = True,
+        keep_times: bool = True,
     ):
         self.buf = buf
+        self.keep_times = keep_times or keep_data
         self.name = name
         self.want = want
         self.keep_data = keep_data
@@ -144,6 +173,7 @@ class Scan:
         self.bytes_read = 0
         self.data_crc = "none"  # the data section's CRC: "ok", "bad" or "none" (not written)
         self.damage: List[str] = []
+        self.checked_against_summary = False  # scan_source found a readable summary section
 
     # -- records ----------------------------------------------------------
     def _schema(self, body: Any) -> None:
@@ -163,18 +193,26 @@ class Scan:
         if cid not in self.channels:
             self.channels[cid] = ChannelRecord(cid, sid, topic, encoding, meta)
             if self.want is None or self.want(topic):
-                self.accs[cid] = _Acc(self.keep_data)
+                self.accs[cid] = _Acc(self.keep_data) if self.keep_times else _Tally()
 
     def _message(self, buf: Any, start: int, end: int) -> None:
         cid, _seq, log_time, pub_time = _msg_head(buf, start)
         acc = self.accs.get(cid)
         self.message_count += 1
-        if acc is not None:
-            acc.log.append(log_time)
-            acc.pub.append(pub_time)
-            if acc.blob is not None:
-                acc.blob += buf[start + 22 : end]
-                acc.ends.append(len(acc.blob))
+        if acc is None:
+            return
+        if not self.keep_times:
+            acc.count += 1
+            if acc.first is None or log_time < acc.first:
+                acc.first = log_time
+            if acc.last is None or log_time > acc.last:
+                acc.last = log_time
+            return
+        acc.log.append(log_time)
+        acc.pub.append(pub_time)
+        if acc.blob is not None:
+            acc.blob += buf[start + 22 : end]
+            acc.ends.append(len(acc.blob))
 
     def _chunk(self, body: Any, at: int) -> None:
         (uncompressed_size,) = _u64(body, 16)
@@ -218,6 +256,10 @@ class Scan:
             raise _Stop(f"chunk at byte {at} fails its CRC check")
         if compression not in self.compression:
             self.compression.append(compression)
+        if not self.keep_times:
+            self._tally_chunk(records, at)
+            self.chunk_count += 1
+            return
         # check the record structure of the whole chunk before using any of it
         items: List[Tuple[int, int, int]] = []
         pos, size = 0, len(records)
@@ -234,6 +276,49 @@ class Scan:
             if opcode in (_MESSAGE, _SCHEMA, _CHANNEL):  # what a chunk may hold (message indexes are skipped)
                 self._record(opcode, records, start, end, at)
         self.chunk_count += 1
+
+    def _tally_chunk(self, records: Any, at: int) -> None:
+        """Count-only walk of a decompressed chunk (one ``unpack`` per message): the record
+        structure of the whole chunk is checked before any of it is used, as in :meth:`_chunk`."""
+        tallies: Dict[int, List[int]] = {}
+        others: List[Tuple[int, int, int]] = []
+        pos, size, n = 0, len(records), 0
+        rec_head, msg_head = _rec_head, _rec_msg_head
+        while pos < size:
+            if pos + 9 > size:
+                raise _Stop(f"chunk at byte {at} ends inside a record header")
+            opcode, length = rec_head(records, pos)
+            end = pos + 9 + length
+            if end > size:
+                raise _Stop(f"chunk at byte {at} has a record longer than the chunk")
+            if opcode == _MESSAGE:
+                if length < 22:
+                    raise _Stop(f"chunk at byte {at} holds a message record of {length} bytes "
+                                "(shorter than a message header)")
+                cid, log_time = msg_head(records, pos)[2::2]
+                tally = tallies.get(cid)
+                if tally is None:
+                    tallies[cid] = [1, log_time, log_time]
+                else:
+                    tally[0] += 1
+                    if log_time < tally[1]:
+                        tally[1] = log_time
+                    elif log_time > tally[2]:
+                        tally[2] = log_time
+                n += 1
+            elif opcode in (_SCHEMA, _CHANNEL):
+                others.append((opcode, pos + 9, end))
+            pos = end
+        for opcode, start, end in others:
+            self._record(opcode, records, start, end, at)
+        self.message_count += n
+        for cid, (count, first, last) in tallies.items():
+            acc = self.accs.get(cid)
+            if acc is None:
+                continue
+            acc.count += count
+            acc.first = first if acc.first is None else min(acc.first, first)
+            acc.last = last if acc.last is None else max(acc.last, last)
 
     # -- driver -----------------------------------------------------------
     def run(self) -> "Scan":
@@ -275,7 +360,7 @@ class Scan:
                 if opcode == _DATA_END:
                     (crc,) = _u32(buf, start) if length >= 4 else (0,)
                     # the data section's CRC (0: not computed): bytes before this record
-                    self.data_crc = "none" if crc == 0 else ("ok" if zlib.crc32(buf[:pos]) == crc else "bad")
+                    self.data_crc = "none" if crc == 0 else ("ok" if _crc32(buf, pos) == crc else "bad")
                 pos = end
                 self.bytes_read = pos
                 if opcode == _DATA_END:
@@ -309,6 +394,18 @@ class Scan:
         elif at == 8:
             raise ValueError(f"first record has opcode 0x{opcode:02x}, expected a header (0x01)")
 
+
+
+def _crc32(buf: Any, end: int, step: int = 1 << 24) -> int:
+    """CRC-32 of ``buf[:end]``, read in slices of ``step`` bytes (an mmap is never copied whole)."""
+    crc = 0
+    view = memoryview(buf)
+    try:
+        for at in range(0, end, step):
+            crc = zlib.crc32(view[at:min(end, at + step)], crc)
+    finally:
+        view.release()
+    return crc
 
 
 class _Stop(Exception):
@@ -384,7 +481,8 @@ class SourceBuffer:
 
 
 
-def scan_source(source: Source, want: Optional[Callable[[str], bool]], keep_data: bool) -> Tuple[Scan, int, str]:
+def scan_source(source: Source, want: Optional[Callable[[str], bool]], keep_data: bool,
+                keep_times: bool = True) -> Tuple[Scan, int, str]:
     """Scan the data section; check what was read against the summary section.
 
     ``scan.damage`` lists where the data disagrees with a readable summary
@@ -393,20 +491,21 @@ def scan_source(source: Source, want: Optional[Callable[[str], bool]], keep_data
     :class:`RecoveredBagWarning` when it is incomplete.
     """
     with SourceBuffer(source) as src:
-        scan = Scan(src.buf, src.name, want=want, keep_data=keep_data).run()
+        scan = Scan(src.buf, src.name, want=want, keep_data=keep_data, keep_times=keep_times).run()
         size, name = src.size, src.name
         indexed, reason = _index.read_summary(src.buf, path=src.path) if size else (None, "")
     scan.buf = None  # release the mapping
     scan.damage = []
     if indexed is not None:
+        scan.checked_against_summary = True
         scan.damage = list(indexed.problems)
         if not scan.complete:
             scan.damage.insert(0, f"the data stops early ({scan.stop_reason})")
         elif scan.data_crc == "bad":
             scan.damage.insert(0, "the data section fails its CRC check")
-        counts = {cid: len(acc.log) for cid, acc in scan.accs.items()}
+        counts = {cid: acc.count for cid, acc in scan.accs.items()}
         topics = {cid: ch.topic for cid, ch in scan.channels.items()}
-        scan.damage += _index.count_problems(indexed, counts, topics)
+        scan.damage += _index.count_problems(indexed, counts, topics, want)
     elif not scan.complete:
         warnings.warn(
             RecoveredBagWarning(

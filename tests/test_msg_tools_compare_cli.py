@@ -169,8 +169,13 @@ def test_cli_info(capsys, golden):
     # the fields `ros2 bag info` shows, then ours
     for field in ("Files:", "Bag size:", "Storage id:        mcap", "ROS Distro:        jazzy", "Duration:",
                   "Start:", "End:", "Messages:", "Profile:           ros2",
-                  "Status:            complete (summary section)"):
+                  "Status:            complete (data checked against the summary section)"):
         assert field in out, field
+    # the fast path reads the summary section alone and says that the data was not checked
+    status, fast, _ = _cli(capsys, "info", golden, "--summary-only")
+    assert status == 0
+    assert "Status:            complete (summary section only; the data was not checked)" in fast
+    assert [ln for ln in fast.splitlines() if "Count:" in ln] == [ln for ln in out.splitlines() if "Count:" in ln]
     row = [line for line in out.splitlines() if "Topic: /joint_states " in line][0]
     assert [c.strip() for c in row.split("|")[1:]] == [
         "Type: sensor_msgs/msg/JointState", "Count: 400", "Serialization Format: cdr", "Rate: 1000.0 Hz"]

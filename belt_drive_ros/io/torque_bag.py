@@ -197,7 +197,7 @@ def load_torque_recording(bag, topic: str = DEFAULT_TOPIC, *, keep_payloads: boo
                 data_bag = read_bag(bag, [name], missing_ok=True)
             offered = ""
             if keep_payloads:
-                offered = next((t.offered_qos_profiles for t in summary(bag).topics if t.topic == name), "")
+                offered = next((t.offered_qos_profiles for t in summary(bag, verify=False).topics if t.topic == name), "")
         except MsgToolsError as exc:
             raise bag_error(exc) from None
     path = data_bag.path
@@ -306,7 +306,7 @@ def _read_metadata(path) -> Tuple[Dict[str, str], str]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RecoveredBagWarning)
         try:
-            info = summary(bag_files(path)[-1])
+            info = summary(bag_files(path)[-1], verify=False)
         except MsgToolsError as exc:
             raise bag_error(exc) from None
     return info.metadata_dict(SCENE_METADATA), os.fspath(path)
