@@ -12,8 +12,9 @@ Main entry points
 :func:`read_topic`, :func:`read_topics`, :func:`read_bag`
     topics as numpy arrays; tolerant of files whose writer was killed.
 :func:`summary`, :func:`list_topics`
-    header, topics with counts and rates, metadata records, from the
-    summary section when the file has one (checked against the records).
+    header, topics with counts and rates, metadata records; the data is
+    scanned and checked against the summary section (``verify=False``: the
+    summary section alone, unchecked).
 :func:`compare`, :func:`compare_folders`
     signal-by-signal tolerance check of two recordings (or folders of them,
     pairwise); holes and duplicate stamps fail.

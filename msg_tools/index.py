@@ -5,9 +5,9 @@ with per-channel message counts, chunk and metadata indexes) that the mcap
 library's seeking reader (:func:`mcap.reader.make_reader`,
 ``get_summary()``) reads from the footer without touching the data. This
 module reads it that way, checks that the indexes agree with the records
-they point at, and answers ``msg-tools info`` from it; only a file without a
-(readable) summary, e.g. one whose writer was killed, is scanned record by
-record (:mod:`msg_tools.scan`).
+they point at, and answers ``msg-tools info --summary-only`` from it; by
+default ``info`` (and every reader) also scans the data record by record
+(:mod:`msg_tools.scan`) and compares it with this summary.
 
 Checks (cheap: one small read per chunk):
 

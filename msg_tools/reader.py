@@ -11,8 +11,9 @@ folder, and concatenates them in time order; :func:`summary` and
   summary section (damage);
 * :mod:`msg_tools.decode` -- vectorized CDR decoding (``Float64``,
   ``JointState``) and ``mcap_ros2`` for every other type;
-* :mod:`msg_tools.bag_summary` -- summaries, from the summary section through
-  the mcap library (:mod:`msg_tools.index`) or from a scan;
+* :mod:`msg_tools.bag_summary` -- summaries, from a count-only scan checked
+  against the summary section, or (``verify=False``) from the summary section
+  through the mcap library (:mod:`msg_tools.index`);
 * :mod:`msg_tools.results` -- the dataclasses returned.
 """
 

@@ -3,6 +3,10 @@ duplicated passed `info`, `export` and `compare`).
 
 * A chunk dropped or duplicated: ``info`` says DAMAGED (exit 1), ``export`` and ``compare``
   fail with a one-line error (exit 2).
+* ``info`` reads the data by default: a bit flipped inside a chunk (which the summary
+  section cannot show) is DAMAGED with one ``Damage:`` line per problem;
+  ``--summary-only`` reads the footer alone and says the data was not checked; a
+  verified summary keeps a count and time range per channel, not per message.
 * ``compare`` fails on a hole in the middle of a signal and on duplicate time stamps,
   although the ends still cover the reference.
 * Fuzz: ~270 mutants of a recording (truncated at many places, single bytes flipped
@@ -74,6 +78,68 @@ def test_dropped_or_duplicated_chunk_is_reported_by_every_verb(original, tmp_pat
         assert err.count("\n") == 1 and err.startswith("msg-tools: error:") and "damaged" in err, err
 
 
+def _compressed_payload_offset(raw, k):
+    """Byte offset of chunk ``k``'s compressed records (Chunk: start u64, end u64, uncompressed size
+    u64, crc u32, compression u32+bytes, records length u64, records)."""
+    import struct
+
+    body = _chunks(raw)[k].chunk_start_offset + 9
+    return body + 28 + 4 + struct.unpack_from("<I", raw, body + 28)[0] + 8
+
+
+def test_info_reads_the_data_a_flipped_bit_inside_a_chunk_is_damage(original, tmp_path):
+    good = tmp_path / "good.mcap"
+    good.write_bytes(original)
+    status, out, err = _cli("info", str(good))
+    assert status == 0 and err == "", err
+    assert "Status:            complete (data checked against the summary section)" in out
+    assert "Damage:" not in out
+    flipped = bytearray(original)
+    flipped[_compressed_payload_offset(original, 5) + 40] ^= 0x10  # inside chunk 5's zstd payload
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(flipped))
+    status, out, err = _cli("info", str(bad))
+    assert status == 1, (out, err)
+    damage = [ln[19:] for ln in out.splitlines()
+              if ln.startswith("Damage:") or (ln.startswith(" " * 19) and ln[19:20] != " " and "Topic:" not in ln)]
+    # what stops the scan is named first (the chunk cannot be decompressed or fails its CRC) ...
+    at = _chunks(original)[5].chunk_start_offset
+    assert damage[0].startswith("the data stops early") and f"chunk at byte {at}" in damage[0], damage
+    # ... then each channel whose count differs from the summary's, one line each
+    assert any(d.startswith("/joint_states has ") and d.endswith("the summary says 600") for d in damage), damage
+    assert any(d.startswith("/drive_torque has ") and d.endswith("the summary says 600") for d in damage), damage
+    verdict = [ln for ln in out.splitlines() if ln.startswith("Status:")]
+    assert verdict == [f"Status:            DAMAGED ({len(damage)} problems; counts above are what the data holds)"]
+    assert err.count("\n") == 1 and err.startswith(f"msg-tools: warning: {bad} is damaged: the data stops early")
+    # export refuses the same file
+    assert _cli("export", str(bad), "--topic", "/joint_states")[0] == 2
+    # the fast path reads the footer alone: it cannot see this, and says so
+    status, out, _ = _cli("info", str(bad), "--summary-only")
+    assert status == 0 and "complete (summary section only; the data was not checked)" in out
+
+
+def test_verified_summary_keeps_a_count_per_channel_not_per_message(tmp_path):
+    """The scan behind ``info`` holds one count and time range per channel: its peak Python memory
+    stays below 8 bytes per message (the time arrays export keeps cost 16 bytes per message)."""
+    import tracemalloc
+
+    from msg_tools import summary
+
+    n = 40_000
+    with Ros2McapWriter(tmp_path / "long.mcap", flush_interval_s=None) as w:
+        for i in range(n):
+            w.write("/drive_torque", "std_msgs/msg/Float64", {"data": float(i)}, 10**9 + i * 1_000_000)
+    tracemalloc.start()
+    try:
+        s = summary(tmp_path / "long.mcap")
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert s.verified and not s.damage and s.message_count == n
+    assert (s.topics[0].start_ns, s.topics[0].end_ns) == (10**9, 10**9 + (n - 1) * 1_000_000)
+    assert peak < 8 * n, f"peak {peak} bytes for {n} messages"
+
+
 def test_compare_fails_on_a_hole_in_the_middle_and_on_duplicate_stamps(tmp_path):
     golden = _write(tmp_path / "golden.mcap")
     holed = _write(tmp_path / "holed.mcap", skip=range(280, 300))  # 20 ms hole; ends intact
@@ -140,11 +206,18 @@ def test_fuzz_mutated_recordings_give_a_clean_error_or_a_correct_result(original
                 tally["error"] += 1
             else:
                 problems.append(f"{name}: export exit {status}, stderr {err!r}")
+            export_damaged = rows is None and "is damaged" in err
             status, out, err = _cli("info", str(path))
+            if status == 0 and rows != golden_rows and "warning:" not in err:
+                problems.append(f"{name}: info exit 0 without a warning on data export does not read whole")
+            if status == 0 and "DAMAGED" in out:
+                problems.append(f"{name}: info says DAMAGED with exit 0")
+            if export_damaged and status != 1:
+                problems.append(f"{name}: export refuses the file as damaged, info exits {status}")
             if status == 1:
                 tally["damage reported"] += 1
-                if "DAMAGED" not in out:
-                    problems.append(f"{name}: info exit 1 without DAMAGED")
+                if "DAMAGED" not in out or "Damage:" not in out:
+                    problems.append(f"{name}: info exit 1 without its Damage lines and DAMAGED verdict")
             elif status == 2 and not _one_line_error(status, err):
                 problems.append(f"{name}: info exit 2, stderr {err!r}")
             elif status not in (0, 1, 2):

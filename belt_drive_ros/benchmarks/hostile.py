@@ -22,10 +22,9 @@ Categories (the issue's): ``scene file`` (the seeded mutants of
 durations and steps, bad outputs: /dev/full, folders, unknown extensions,
 existing files), ``mcap info`` / ``mcap export`` / ``mcap compare`` (:func:`mcap_mutants` of a
 recording through each verb, compare against the intact file, as
-``tests/test_msg_tools_damage.py``; ``info`` reads the summary and the
-records' framing, not every chunk's contents, so a flipped bit inside a
-chunk is "complete" to it and a silent wrong in the table, while
-``export`` and ``compare`` refuse such a file),
+``tests/test_msg_tools_damage.py``; ``info`` checks the data against the
+summary section as ``export`` and ``compare`` do, so all three refuse or
+report the same files),
 ``node torque`` (absurd and non-finite drive torques), ``node parameter``
 (hostile scene files over ``scene``, absurd values) and ``node reset flood``.
 The table goes to stdout, ``hostile.csv`` and ``hostile.md`` in ``--out``;
