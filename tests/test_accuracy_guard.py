@@ -187,3 +187,15 @@ def test_slipping_run_checks_the_slip_mode():
     assert report.suggestion is not None
     result = simulate(scene, dt=report.suggestion)  # the named step runs (and slips)
     assert result.accuracy.stable and any(kind == "onset" for kind, _, _ in result.events)
+
+
+@pytest.mark.parametrize("name, kind", [("e_motor_start", "rigid"), ("bsg_start", "flexible")])
+def test_smooth_starts_are_rated_by_their_own_steps(name, kind):
+    """Torques that ramp on (soft start, ramped load) excite the belt mode far less than a unit step at t = 0:
+    the step response is weighted by the scene's own steps (start mismatch, jumps, ramp rates), still >= measured."""
+    scene = load_scene(name)
+    weighted = _report(scene, scene.method, scene.dt, kind, suggest=False)
+    unit = _report(scene, scene.method, scene.dt, kind, suggest=False, stated_inputs=False)  # torques from outside
+    measured = _measured(scene, scene.method, scene.dt, kind)
+    assert unit.linear_error > 5.0 * weighted.linear_error  # 4.5e-5 -> 2.3e-6, 1.3e-4 -> 1e-5
+    assert weighted.accurate and weighted.error >= 0.5 * measured, (weighted.describe(), measured)

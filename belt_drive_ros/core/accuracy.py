@@ -75,6 +75,8 @@ MAX_BREAKPOINT_WINDOWS = 4
 PROBE_CHUNK = 1000
 #: growth beyond max(1, exact growth) by this much (relative) is instability, not rounding
 GROWTH_TOLERANCE = 1e-9
+#: least weight of the step response (perturbations the scene does not state: torques from the node, re-excitation)
+MIN_INPUT_WEIGHT = 0.05
 #: halvings tried when naming a step that is both stable and accurate
 MAX_HALVINGS = 16
 #: when the method itself needs more halvings than this, another method is named as well
@@ -174,6 +176,7 @@ class Probes:
     duration : the scene's duration [s].
     window : length [s] of a forcing window (:data:`WINDOW_STEPS` steps of the step probed with; a smaller
         step keeps it, up to :data:`MAX_WINDOW_STEPS` of its steps).
+    input_weight : what the unit step response's error is scaled by for this scene (:func:`input_weight`).
     """
 
     gains: tuple
@@ -181,6 +184,7 @@ class Probes:
     windows: tuple
     duration: float
     window: float
+    input_weight: float = 1.0
 
     def span(self, dt: float) -> float:
         """Window length [s] for step ``dt``: :attr:`window`, at most :data:`MAX_WINDOW_STEPS` steps."""
@@ -210,12 +214,15 @@ def _model_state(plant, t: float, phi: float, omega: float) -> np.ndarray:
     return model.state_from_rigid(np.array([phi, omega]), load_torque=load, drive_torque=drive)
 
 
-def probe_scene(plant, duration: float, x0, dt: float) -> Probes:
+def probe_scene(plant, duration: float, x0, dt: float, stated_inputs: bool = True) -> Probes:
     """Speed slopes at :data:`N_PROBES` times and the forcing windows' starts, from one cheap rigid run.
 
     Windows start at t = 0 (from ``x0``), at the probe times before the end,
     and about each of the first :data:`MAX_BREAKPOINT_WINDOWS` torque
     breakpoints inside the run (see :meth:`Probes.window_starts`).
+    ``stated_inputs``: the plant's torques are all the inputs (the step
+    response is weighted by their steps, :func:`input_weight`); False
+    (torques from outside, e.g. a node's topic): unit steps, weight 1.
     """
     from .stepper import Plant, Stepper
 
@@ -254,7 +261,67 @@ def probe_scene(plant, duration: float, x0, dt: float) -> Probes:
         if all(abs(states[t][1] - states[k][1]) > SPEED_SPREAD * scale for k in kept):
             kept.append(t)
     windows = [(t, *states[t], None) for t in kept[1:]] + [(t, *states[t], b) for b, t in early.items()]
-    return Probes(tuple(gains), x0, tuple(windows), float(duration), WINDOW_STEPS * dt)
+    weight = 1.0 if not stated_inputs else input_weight(plant, x0, dt, [(float(t), *states[float(t)]) for t in probe_times],
+                          [(b, *states[t]) for b, t in early.items()])  # fmt: skip
+    return Probes(tuple(gains), x0, tuple(windows), float(duration), WINDOW_STEPS * dt, weight)
+
+
+def input_weight(plant, x0, dt: float, probes, jumps) -> float:
+    """Scale [-] of the unit step response's error for this scene: ``min(1, 2 dB / T_peak)``, at least
+    :data:`MIN_INPUT_WEIGHT`.
+
+    The step response (:func:`step_response_error`) switches a unit torque
+    on at once; its error relative to its own peak (``2`` steps of belt
+    torque: the undamped overshoot) becomes, in the scene, that times
+    ``2 dB / T_peak``, with ``dB`` [N m] the largest step of belt torque
+    the scene's inputs make:
+
+    * at the start, the quasi-static belt torque the torques at t = 0 need
+      (rigid model) less what the initial state carries
+      (:func:`~belt_drive_ros.core.fidelity.start_mismatch`'s sizes);
+    * at each torque breakpoint ``jumps`` ``(b, phi_M, omega_M)``, the jump
+      of the rigid belt torque across it;
+    * a ramp of the quasi-static belt torque at rate ``R`` [N m/s] (a soft
+      start, a motor curve) moves the belt mode by ``R / omega_n``: an
+      equivalent step (forward difference over ``dt`` at each probe
+      ``(t, phi_M, omega_M)``, the start included).
+
+    ``T_peak``: the largest |quasi-static belt torque| at the probes. Rigid
+    model (no belt mode): 1. The floor keeps perturbations the scene does
+    not state (a node's torques) rated.
+    """
+    model = plant.model
+    p = model.params
+    rigid = RigidBeltModel(p)
+    i = p.ratio
+
+    def quasi_static(t, phi, omega):
+        u = np.array([plant.scalar_drive(t, phi, omega), plant.scalar_load(t, i * phi, i * omega)])
+        return float(rigid.belt_torque(np.array([phi, omega]), u))
+
+    wm = plant.wheel_map
+    x0 = np.asarray(x0, dtype=float)
+    phi0, w0 = float(wm[0] @ x0), float(wm[1] @ x0)
+    rigid_model = model.A.shape[0] == 2
+    j = LINEAR_OUTPUTS.index("belt_torque")
+    carried = 0.0 if rigid_model else float(model.C[j] @ x0)  # rigid: the torques at t = 0 switch on from none
+    steps = [abs(quasi_static(0.0, phi0, w0) - carried)]
+    levels = [abs(quasi_static(0.0, phi0, w0))]
+    omega_n = 1.0 / dt if rigid_model else p.belt_natural_frequency  # rigid: a ramp held over a step is a step R dt
+    with np.errstate(all="ignore"):
+        for t, phi, omega in probes:
+            here = quasi_static(t, phi, omega)
+            levels.append(abs(here))
+            steps.append(abs(quasi_static(t + dt, phi, omega) - here) / dt / omega_n)
+        for b, phi, omega in jumps:
+            eps = 1e-6 * dt
+            before, after = quasi_static(b - eps, phi, omega), quasi_static(b + eps, phi, omega)
+            levels += [abs(before), abs(after)]
+            steps.append(abs(after - before))
+    peak, step = max(levels), max(steps)
+    if not (math.isfinite(peak) and math.isfinite(step)) or peak <= 0.0:
+        return 1.0
+    return float(min(1.0, max(MIN_INPUT_WEIGHT, 2.0 * step / peak)))
 
 
 def closed_loop_maps(integrator, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -448,7 +515,7 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
 
 def check_accuracy(
     plant, method: str, dt: float, duration: float, x0, tolerance: float = ACCURACY_TOLERANCE,
-    method_options=None, suggest: bool = True, probes: Probes | None = None, stepper=None,
+    method_options=None, suggest: bool = True, probes: Probes | None = None, stepper=None, stated_inputs: bool = True,
 ) -> AccuracyReport | None:  # fmt: skip
     """Stability and accuracy of ``method`` at ``dt`` [s] on the plant's closed loop.
 
@@ -473,11 +540,12 @@ def check_accuracy(
         rows = rows[:1]
     n_steps = max(1, math.ceil(duration / dt - 1e-9))
     if probes is None:
-        probes = probe_scene(plant, duration, x0, dt)
+        probes = probe_scene(plant, duration, x0, dt, stated_inputs)
     integrator = stepper.integrator if stepper is not None else make_integrator(method, A, B, dt, **dict(method_options or {}))
     worst = None
     for K, slopes in probes.gains:
         stable, error, growth, exact_growth, h_omega = linear_verdict(integrator, A, B, rows, K, n_steps)
+        error *= probes.input_weight  # the scene's own steps onto the belt, not a unit step (input_weight)
         report = AccuracyReport(cls.name, dt, stable, error <= tolerance, error, tolerance, growth, exact_growth, h_omega, slopes, linear_error=error)
         if worst is None or (not report.stable and worst.stable) or (report.stable == worst.stable and report.error > worst.error):
             worst = report
@@ -513,12 +581,14 @@ def _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, expo
     return None
 
 
-def require_accurate(plant, method, dt, duration, x0, tolerance=ACCURACY_TOLERANCE, method_options=None, stepper=None):
+def require_accurate(plant, method, dt, duration, x0, tolerance=ACCURACY_TOLERANCE, method_options=None, stepper=None,
+                     stated_inputs=True):  # fmt: skip
     """:func:`check_accuracy`; raises :class:`UnstableStepError` (naming a stable, accurate step) when unstable.
 
     An inaccurate but stable step is returned (``report.accurate`` False): the caller warns.
     """
-    report = check_accuracy(plant, method, dt, duration, x0, tolerance, method_options, stepper=stepper)
+    report = check_accuracy(plant, method, dt, duration, x0, tolerance, method_options, stepper=stepper,
+                            stated_inputs=stated_inputs)  # fmt: skip
     if report is not None and not report.stable:
         raise UnstableStepError(report.describe())
     return report
@@ -527,6 +597,7 @@ def require_accurate(plant, method, dt, duration, x0, tolerance=ACCURACY_TOLERAN
 def check_slipping(
     params, drive, load, method: str, dt: float, duration: float, x0_flexible, tolerance: float = ACCURACY_TOLERANCE,
     method_options=None, stepper=None, suggest: bool = True, stick: AccuracyReport | None = None,
+    stated_inputs: bool = True,
 ) -> AccuracyReport | None:  # fmt: skip
     """The guard for a run on the slipping model: each mode linearized, the worse verdict counts.
 
@@ -553,7 +624,7 @@ def check_slipping(
     if not issubclass(cls, FixedStepIntegrator):
         return None
     plant = Plant(FlexibleBeltModel(params), drive, load)
-    probes = probe_scene(plant, duration, x0_flexible, dt)
+    probes = probe_scene(plant, duration, x0_flexible, dt, stated_inputs)
     if stick is None:
         stick = check_accuracy(plant, method, dt, duration, x0_flexible, tolerance, method_options, suggest=False,
                                probes=probes, stepper=stepper)  # fmt: skip
@@ -581,23 +652,23 @@ def check_slipping(
         for j in range(1, ALTERNATIVE_HALVINGS + 1):
             h = dt / 2.0**j
             other = check_slipping(params, drive, load, method, h, duration, x0_flexible, tolerance * SUGGEST_MARGIN,
-                                   method_options, suggest=False)  # fmt: skip
+                                   method_options, suggest=False, stated_inputs=stated_inputs)  # fmt: skip
             if other.ok:
                 return AccuracyReport(**{**worst.__dict__, "suggestion": h})
         for name in ALTERNATIVES:
             if name != cls.name:
                 other = check_slipping(params, drive, load, name, dt, duration, x0_flexible, tolerance * SUGGEST_MARGIN,
-                                       suggest=False)  # fmt: skip
+                                       suggest=False, stated_inputs=stated_inputs)  # fmt: skip
                 if other.ok:
                     return AccuracyReport(**{**worst.__dict__, "alternative": (name, dt)})
     return worst
 
 
 def require_accurate_slipping(params, drive, load, method, dt, duration, x0_flexible, tolerance=ACCURACY_TOLERANCE,
-                              method_options=None, stepper=None, stick=None):  # fmt: skip
+                              method_options=None, stepper=None, stick=None, stated_inputs=True):  # fmt: skip
     """:func:`check_slipping`; raises :class:`UnstableStepError` when either mode is unstable."""
     report = check_slipping(params, drive, load, method, dt, duration, x0_flexible, tolerance, method_options, stepper,
-                            stick=stick)  # fmt: skip
+                            stick=stick, stated_inputs=stated_inputs)  # fmt: skip
     if report is not None and not report.stable:
         raise UnstableStepError(report.describe())
     return report

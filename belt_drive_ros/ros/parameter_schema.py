@@ -275,7 +275,8 @@ def node_accuracy(scene: Scene, model, drive_source: str, method: str, dt: float
     model: :func:`~belt_drive_ros.core.accuracy.require_accurate_slipping`
     (stick and slip modes). With ``drive_source`` topic the drive torque is
     held between messages (steps, which the closed-loop check's step response
-    covers): the guard reads the drive as 0 plus those steps.
+    covers): the guard reads the drive as 0 plus those steps, rated as unit steps (``stated_inputs=False``;
+    the scene's own torques weigh the step response by their steps).
     """
     from ..core.sources import Constant
 
@@ -287,10 +288,12 @@ def node_accuracy(scene: Scene, model, drive_source: str, method: str, dt: float
             _ACCURACY.clear()
         if model.name == "slipping":
             x0 = scene.initial_state.vector("flexible", scene.params.ratio)
-            report = require_accurate_slipping(scene.params, drive, scene.load, method, dt, scene.duration, x0, method_options=options)
+            report = require_accurate_slipping(scene.params, drive, scene.load, method, dt, scene.duration, x0,
+                                               method_options=options, stated_inputs=drive_source == "scene")  # fmt: skip
         else:
             x0 = scene.initial_state.vector(model.name, scene.params.ratio)
-            report = require_accurate(Plant(model, drive, scene.load), method, dt, scene.duration, x0, method_options=options)
+            report = require_accurate(Plant(model, drive, scene.load), method, dt, scene.duration, x0, method_options=options,
+                                      stated_inputs=drive_source == "scene")  # fmt: skip
         _ACCURACY[key] = report
     return _ACCURACY[key]
 
