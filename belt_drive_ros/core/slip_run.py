@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .errors import IntegratorError
+from .integrators import REGISTRY, method_class
 from .model import FlexibleBeltModel
 from .slip import SLIP, STICK, HybridStepper, SlippingBeltModel
 from .stability import require_stable
@@ -86,6 +88,23 @@ class SlipState:
     x: np.ndarray
 
 
+def require_first_order_method(method: str) -> None:
+    """Refuse (:class:`~belt_drive_ros.core.errors.IntegratorError`) a method the slip mode cannot be stepped with.
+
+    A ``second_order_form`` method (``symplectic_euler``) needs the state as
+    [coordinates, speeds] with ``q' = T omega``; the slip mode's span
+    relaxation ``theta_e' = (Q - 2 k r_3 theta_e) / (2 c r_3)`` is a
+    first-order equation in a coordinate, so that split does not exist.
+    """
+    cls = method_class(method)
+    if getattr(cls, "second_order_form", False):
+        usable = ", ".join(n for n, c in REGISTRY.items() if c.fixed_step and not getattr(c, "second_order_form", False))
+        raise IntegratorError(
+            f"{cls.name}: cannot step the slipping model (its slip mode relaxes the span stretch by a first-order "
+            f"equation, not [coordinates, speeds]); use one of {usable}, or model rigid/flexible"
+        )
+
+
 class SlippingSimulator:
     """Runs the slipping model with one fixed-step method (``Simulator``-like interface).
 
@@ -100,6 +119,7 @@ class SlippingSimulator:
 
     def __init__(self, params, drive, load, method="etd2", dt=1e-3, method_options=None, check_stability=True,
                  origin=0.0, integrator=None):  # fmt: skip
+        require_first_order_method(method)
         self.model = m = SlippingBeltModel(params)
         self.flexible = FlexibleBeltModel(params)
         self.drive, self.load = drive, load
