@@ -64,9 +64,9 @@ from typing import Callable
 import numpy as np
 
 from ..core.errors import BeltDriveError, SimulationDivergedError
-from ..core.integrators import make_integrator
 from ..core.model import FlexibleBeltModel
 from ..core.params import BeltDriveParams
+from ..core.regularised import one_step_stable
 from ..core.simulate import Plant
 from ..core.slip import HybridStepper, SlippingBeltModel
 from ..core.slip_reference import RegularisedFriction, reference_hybrid
@@ -267,29 +267,20 @@ def _regularised_jacobian_gains(case: SlipCase, v_eps: float, states: np.ndarray
     return gains
 
 
-def _one_step_stable(method: str, A: np.ndarray, B: np.ndarray, K: np.ndarray, h: float) -> bool:
-    integ = make_integrator(method, A, B, h)
-    M = np.column_stack([integ.step(0.0, e, lambda t, y: K @ y) for e in np.eye(A.shape[0])])
-    mu = np.linalg.eigvals(M)
-    mu = np.where(np.abs(mu - 1.0) <= 1e-6, 1.0, mu)  # the angle and slip integrators' eigenvalue 1
-    growth = float(np.max(np.real(np.linalg.eigvals(A + B @ K))))
-    return float(np.max(np.abs(mu))) <= max(1.0, math.exp(h * growth)) + 1e-9
-
-
 def regularised_step(case: SlipCase, method: str, v_eps: float, states: np.ndarray, times: np.ndarray,
                      lo: float = 1e-7, hi: float = 1e-1, iterations: int = 24) -> float:  # fmt: skip
     """Largest step [s] for which ``method`` is stable on the regularised ODE linearized at every probe state."""
     m = case.model
     best = hi
     for K in _regularised_jacobian_gains(case, v_eps, states, times):
-        if _one_step_stable(method, m.A_reg, m.B_reg, K, best):
+        if one_step_stable(method, m, K, best):
             continue
         a, b = lo, best
-        if not _one_step_stable(method, m.A_reg, m.B_reg, K, a):
+        if not one_step_stable(method, m, K, a):
             return 0.0
         for _ in range(iterations):
             mid = math.sqrt(a * b)
-            if _one_step_stable(method, m.A_reg, m.B_reg, K, mid):
+            if one_step_stable(method, m, K, mid):
                 a = mid
             else:
                 b = mid

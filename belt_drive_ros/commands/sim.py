@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.scene import MODELS
+
 EPILOG = """\
 examples:
   belt-drive sim paper --plot paper.png --out paper.csv
@@ -59,9 +61,11 @@ def register(sub) -> None:
     )
     p.add_argument("scene", help="shipped scene name or path to a scene YAML")
     p.add_argument(
-        "--model", choices=("rigid", "flexible", "slipping", "auto"),
+        "--model", choices=MODELS,
         help="belt model (default: the scene's, usually auto; auto goes on to slipping past the friction limit)",
     )
+    p.add_argument("--v-eps", type=float, metavar="M_PER_S",
+                   help="regularisation speed of --model regularised [m/s] (Q = Q_max tanh(v_slip / v_eps); default 1e-3)")
     p.add_argument("--method", help="integrator by name (list below; default: the scene's)")
     p.add_argument("--method-option", action="append", default=[], metavar="KEY=VALUE", help="integrator option, e.g. rtol=1e-8 (repeatable)")
     p.add_argument("--dt", type=float, help="integrator step [s] (output interval for adaptive methods)")
@@ -115,7 +119,7 @@ def run(args) -> int:
         from ..io.torque_bag import scene_with_torque_bag  # issue 4: offline replay of a recorded profile
 
         scene = scene_with_torque_bag(scene, args.torque_bag)
-    scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration)
+    scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration, v_eps=args.v_eps)
     out_format = check_outputs(args)
     samples = scene.duration / scene.dt + 1.0
     check_plot_size(args, samples)
@@ -309,7 +313,7 @@ def print_summary(summary) -> None:
         f"static M_L/(2 k r_3^2) {o['load_torque'] / p.belt_torsional_stiffness:.5g} rad"
     )
     slip = summary.slip_fraction
-    if summary.model == "slipping":
+    if summary.model in ("slipping", "regularised"):
         print(
             f"belt           slips {100 * slip:.1f}% of the time ({summary.onsets} slip phases, peak slip speed "
             f"{summary.peak_slip_speed:.3g} m/s); wheel 3 lost {o['slip_angle']:.4g} rad to slip "

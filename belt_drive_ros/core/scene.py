@@ -24,7 +24,11 @@ from .integrators import method_class
 from .params import OPTIONAL_DEFAULTS, BeltDriveParams
 from .sources import Constant, TorqueProfile, make_profile
 
-MODELS = ("rigid", "flexible", "slipping", "auto")
+MODELS = ("rigid", "flexible", "slipping", "regularised", "auto")
+#: models whose runs carry the slip outputs (span forces, friction use, slip state and speed, slip angle)
+SLIP_MODELS = ("slipping", "regularised")
+#: default regularisation speed of model ``regularised`` [m/s] (:mod:`belt_drive_ros.core.regularised`)
+V_EPS_DEFAULT = 1e-3
 #: keys a scene must state unless it ``extends`` a shipped scene (every parameter too, but the
 #: optional belt fields of :data:`~belt_drive_ros.core.params.OPTIONAL_DEFAULTS`)
 REQUIRED_KEYS = ("params", "drive", "load", "duration", "dt")
@@ -35,6 +39,9 @@ RANGES: dict[str, tuple[float, float, str]] = {
     "dt": (1.0e-7, 1.0, "s"),
     "duration": (1.0e-6, 1.0e7, "s"),
     "output_rate": (1.0e-3, 1.0e6, "Hz"),
+    # model regularised: Q = Q_max tanh(v_s / v_eps); below 1 um/s the contact is a switch no fixed step
+    # resolves, above 1 m/s the "stick" creeps at speeds comparable to the belt's own
+    "v_eps": (1.0e-6, 1.0, "m/s"),
 }
 #: most steps one run may take (duration / dt): ~1e9 steps is hours of computation already
 MAX_STEPS = 1.0e9
@@ -72,7 +79,7 @@ class InitialState:
         """State vector for ``model_name`` (see :mod:`belt_drive_ros.core.model` for the ordering)."""
         if model_name == "rigid":
             return np.array([self.phi_M, self.omega_M])
-        if model_name == "slipping":  # [phi_M, theta_e, omega_M, omega_3, s]: no slip yet
+        if model_name in ("slipping", "regularised"):  # [phi_M, theta_e, omega_M, omega_3, s]: no slip yet
             return np.array([self.phi_M, self.relative_deflection, self.omega_M, ratio * self.omega_M - self.relative_speed, 0.0])
         return np.array([self.phi_M, self.relative_deflection, self.omega_M, ratio * self.omega_M - self.relative_speed])
 
@@ -96,6 +103,8 @@ class Scene:
     output_rate : rate [Hz] at which outputs are consumed (node publish or
         recording rate); the ``auto`` choice compares the belt mode with it.
     method_options : extra integrator options (e.g. rtol for scipy methods).
+    v_eps : regularisation speed [m/s] of model ``regularised`` (``Q = Q_max tanh(v_s / v_eps)``,
+        :mod:`belt_drive_ros.core.regularised`); unused by the other models.
     """
 
     name: str = "custom"
@@ -110,6 +119,7 @@ class Scene:
     dt: float = 1e-3
     output_rate: float = 1000.0
     method_options: Mapping[str, Any] = field(default_factory=dict)
+    v_eps: float = V_EPS_DEFAULT
 
     def __post_init__(self):
         for name, (low, high, unit) in RANGES.items():
@@ -215,6 +225,7 @@ class Scene:
             "duration": self.duration,
             "output_rate": self.output_rate,
             "method_options": dict(self.method_options),
+            **({"v_eps": self.v_eps} if self.model == "regularised" or self.v_eps != V_EPS_DEFAULT else {}),
             "initial_state": {f.name: getattr(self.initial_state, f.name) for f in fields(InitialState)},
             "params": self.params.to_dict(),
             "drive": self.drive.to_dict(),

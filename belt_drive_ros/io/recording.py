@@ -83,6 +83,7 @@ from msg_tools.errors import MsgToolsError, OverwriteError, WriteError
 from msg_tools.units import UNITS_METADATA
 
 from ..core.errors import BeltDriveError
+from ..core.scene import SLIP_MODELS
 
 __all__ = [
     "BagError",
@@ -552,7 +553,7 @@ class ResultMcapWriter:
                  start_time_ns: Optional[int] = None, bag_folder: bool = False,
                  max_bag_size: Optional[int] = None, max_bag_duration: Optional[float] = None,
                  samples: Optional[int] = None, chunk_size: Optional[int] = None):
-        self.float_outputs = FLOAT_OUTPUTS + tuple(o for o in SLIP_FLOAT_OUTPUTS if getattr(result, "model", "") == "slipping")
+        self.float_outputs = FLOAT_OUTPUTS + tuple(o for o in SLIP_FLOAT_OUTPUTS if getattr(result, "model", "") in SLIP_MODELS)
         offline_topics = (ROBOT_DESCRIPTION, "drive_torque", "joint_states") + tuple(name for name, _ in self.float_outputs)
         self.wanted = offline_topics if topics is None else tuple(t.strip("/") for t in topics)
         unknown = sorted(set(self.wanted) - set(offline_topics))

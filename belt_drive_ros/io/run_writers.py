@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.simulate import CSV_COLUMNS, SLIP_CSV_COLUMNS, SimResult
+from ..core.simulate import CSV_COLUMNS, SLIP_CSV_COLUMNS, SLIP_MODELS, SimResult
 
 __all__ = ["CsvWindows", "Decimator", "McapWindows"]
 
@@ -31,7 +31,7 @@ class CsvWindows:
 
     def add(self, window: SimResult) -> None:
         if self.columns is None:
-            self.columns = CSV_COLUMNS + (SLIP_CSV_COLUMNS if window.model == "slipping" else ())
+            self.columns = CSV_COLUMNS + (SLIP_CSV_COLUMNS if window.model in SLIP_MODELS else ())
             self.handle.write(",".join(self.columns) + "\n")
         np.savetxt(self.handle, window.table(self.columns), delimiter=",", fmt="%.12g")
 
