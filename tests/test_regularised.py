@@ -167,3 +167,16 @@ def test_node_refuses_the_regularised_model_with_a_reason():
     with pytest.raises(NodeConfigError, match="regularised: offline only"):
         build_settings(values)
     assert build_settings({**values, "model": "slipping"}).model.name == "slipping"
+
+
+def test_ensembles_and_campaign_metrics_take_the_regularised_model_one_run_at_a_time():
+    from belt_drive_ros.campaign.metrics import run_metrics
+    from belt_drive_ros.core.ensemble_run import simulate_many
+
+    scenes = [_stick_slip(duration=0.1, params=BeltDriveParams(mu=0.3, F_0=f0)) for f0 in (280.0, 300.0, 320.0)]
+    outcomes = sorted(simulate_many(scenes), key=lambda o: o.index)
+    for o, scene in zip(outcomes, scenes):
+        assert o.error is None and o.result.model == "regularised", o.error
+        np.testing.assert_array_equal(o.result.states, simulate(scene).states)
+        m = run_metrics(o.result)
+        assert m["slip_time"] > 0.0 and m["accumulated_slip"] > 0.0

@@ -31,6 +31,7 @@ import math
 import numpy as np
 
 from ..core.fidelity import friction_use
+from ..core.scene import SLIP_MODELS
 
 #: metric -> (unit, one-line description)
 METRICS: dict[str, tuple[str, str]] = {
@@ -60,7 +61,7 @@ def run_metrics(result) -> dict[str, float]:
         use = friction_use(belt, p.r_3, np.broadcast_to(p.friction_limit(omega), belt.shape))
     values = _reduce(belt, omega, np.asarray(out["span_force_slack"], dtype=float),
                      np.asarray(out["relative_deflection"], dtype=float), use)  # fmt: skip
-    if result.model == "slipping":
+    if result.model in SLIP_MODELS:
         sliding = np.asarray(out["slip"], dtype=bool)
         dt = np.diff(t)
         values["slip_time"] = np.sum(dt[sliding[1:] & sliding[:-1]])
