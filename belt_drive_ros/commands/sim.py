@@ -119,7 +119,7 @@ def run(args) -> int:
         from ..io.torque_bag import scene_with_torque_bag  # issue 4: offline replay of a recorded profile
 
         scene = scene_with_torque_bag(scene, args.torque_bag)
-    scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration, v_eps=args.v_eps)
+    scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration, v_eps=getattr(args, "v_eps", None))
     out_format = check_outputs(args)
     samples = scene.duration / scene.dt + 1.0
     check_plot_size(args, samples)
