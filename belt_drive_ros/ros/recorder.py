@@ -35,7 +35,7 @@ from ..io.recording import (
 )
 
 __all__ = ["APPLIED_TOPIC", "DIRECT_TOPICS", "JointStateEncoder", "NodeRecorder", "TopicRecorder", "message_definitions",
-           "open_writer"]
+           "open_writer", "release_free_heap"]
 
 def _message_class(type_name: str):
     """The rclpy message class of ``pkg/msg/Type``."""
@@ -84,6 +84,42 @@ def message_definitions(type_name: str) -> Dict[str, str]:
             raise ValueError(f"no .msg definition of {name} found (looked in {', '.join(candidates)})")
         todo.extend(schemas.dependencies(name, out[name]))
     return out
+
+
+def release_free_heap() -> bool:
+    """Give malloc's free heap pages back to the system: glibc ``malloc_trim(0)`` (through ctypes).
+
+    A split recording finishes a file every ``max_bag_duration``: its chunk
+    indexes and buffers are freed, but glibc keeps the freed pages in its
+    arenas, fragmented by what stayed allocated between them, so the RSS
+    creeps up while Python's own memory is flat. Called when a split file has
+    been finished. Returns True if glibc reported memory released; False on
+    any other C library (musl, macOS) or if the call is unavailable: never
+    raises.
+    """
+    global _MALLOC_TRIM
+    if _MALLOC_TRIM is None:
+        _MALLOC_TRIM = False
+        try:
+            import ctypes
+            import platform
+
+            if platform.libc_ver()[0] == "glibc":
+                libc = ctypes.CDLL("libc.so.6", use_errno=True)
+                trim = libc.malloc_trim
+                trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+                _MALLOC_TRIM = trim
+        except (OSError, AttributeError, ValueError):
+            _MALLOC_TRIM = False
+    if not _MALLOC_TRIM:
+        return False
+    try:
+        return bool(_MALLOC_TRIM(0))
+    except Exception:  # noqa: BLE001 - an optimisation, never fatal
+        return False
+
+
+_MALLOC_TRIM: Any = None  # resolved on first use: the ctypes function, or False
 
 
 def open_writer(path, *, force: bool = False, max_bag_duration: float = 0.0, max_bag_size: int = 0,
@@ -159,6 +195,8 @@ class TopicRecorder:
         self._types: Dict[str, str] = {}
         self._declared: set = set()
         self._unflushed = 0
+        self._files_done = 0  # split files finished so far (a bag folder)
+        self.heap_trims = 0
         self._timer = None
         #: subscribe transient local where every publisher offers it, so the history a
         #: latched topic kept from before the recording starts is recorded too (as ros2 bag
@@ -305,6 +343,11 @@ class TopicRecorder:
                 self._unflushed = 0
             except (MsgToolsError, OSError) as exc:
                 self._fail(exc)
+        files = getattr(self.writer, "files", None)  # a split recording (Ros2BagWriter)
+        if files is not None and len(files) - 1 > self._files_done:
+            self._files_done = len(files) - 1
+            release_free_heap()  # a file was finished: its freed memory back to the system
+            self.heap_trims += 1
 
     def _fail(self, exc: BaseException) -> None:
         if self.error is None:
