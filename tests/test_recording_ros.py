@@ -364,7 +364,7 @@ def test_record_duration_ends_by_itself_with_exit_0(tmp_path, ros_domain_id):
 
     path = tmp_path / "timed.mcap"
     cmd = [os.path.join(os.path.dirname(sys.executable), "belt-drive"), "record", "--out", str(path),
-           "--topics", "/drive_torque", "--duration", "3"]
+           "--topics", "/drive_torque", "--duration", "8"]  # long enough for discovery on a loaded machine
     proc = subprocess.Popen(cmd, env=ros_env.child_environment(ros_domain_id), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     ctx = Context()
@@ -375,7 +375,7 @@ def test_record_duration_ends_by_itself_with_exit_0(tmp_path, ros_domain_id):
         pub = node.create_publisher(Float64, "/drive_torque", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         deadline = time.monotonic() + 60
         while proc.poll() is None:  # publish until the recorder stops by itself
-            assert time.monotonic() < deadline, "belt-drive record --duration 3 did not end"
+            assert time.monotonic() < deadline, "belt-drive record --duration 8 did not end"
             pub.publish(Float64(data=float(sent)))
             sent += 1
             time.sleep(0.005)
