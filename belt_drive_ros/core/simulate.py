@@ -17,13 +17,15 @@ from __future__ import annotations
 
 import math
 import time as _time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
 
 from .accuracy import AccuracyReport, require_accurate, require_accurate_slipping, slip_run_error, with_slip_run_error
-from .fidelity import ModelChoice, choose_model
+from .errors import SimulationDivergedError
+from .fidelity import ModelChoice, choose_model, limit_exceedance
+from .integrators import method_class
 from .model import OUTPUT_UNITS, make_model
 from .regularised import MODEL_NAME as REGULARISED, RegularisedSimulator
 from .slip import SLIP
@@ -187,7 +189,15 @@ def simulate(
     With ``model='auto'`` the choice and its reason are in ``result.choice``
     (:func:`~belt_drive_ros.core.fidelity.choose_model`: rigid or flexible by
     the frequency rule, slipping when that run passes the capstan limit; a
-    scene that stays within it returns that very run).
+    scene that stays within it returns that very run). When the rule picks
+    the flexible model and its run would be stepped (state-dependent
+    torques, a fixed-step method), the scene runs once, on the slipping
+    engine: its first phase *is* the flexible model's compiled loop with the
+    capstan check after each step (:mod:`~belt_drive_ros.core.slip_run`), so
+    a scene that never reaches the limit gets the flexible run bit for bit
+    for the price of that check, and one that does goes on slipping from the
+    located onset instead of running twice. The reason then names the onset
+    time (the linear run past it is not computed).
     """
     scene = scene.with_overrides(model=model, method=method, dt=dt, duration=duration)
     if scene.model != "auto":
@@ -196,19 +206,64 @@ def simulate(
         if scene.model == "slipping":
             return simulate_slipping(scene, None, progress, check_stability)
         return _simulate_linear(scene, scene.model, progress, check_stability, vectorize)
+    linear = choose_model(scene, check_slip=False)
+    if linear.model == "flexible" and _steps_flexible(scene, vectorize):
+        return _simulate_auto_flexible(scene, linear, progress, check_stability)
     runs: dict = {}
 
     def linear_run(kind):  # the choice's check run is the result when the scene stays linear
         runs[kind] = _simulate_linear(scene, kind, progress, check_stability, vectorize)
         return runs[kind].time, runs[kind].outputs
 
-    choice = choose_model(scene, linear_run=linear_run)
+    choice = choose_model(scene, linear_run=linear_run, linear=linear)
     if choice.model == "slipping":
         checked = runs.get("flexible")  # its guard verdict is the stick mode's
         return simulate_slipping(scene, choice, progress, check_stability, checked.accuracy if checked else None)
     result = runs[choice.model]
     result.choice = choice
     return result
+
+
+def _steps_flexible(scene: Scene, vectorize) -> bool:
+    """Whether a flexible run of ``scene`` goes through the stepper's loop (not the vectorized open-loop path)."""
+    if not method_class(scene.method).fixed_step or vectorize:
+        return False
+    return vectorize is False or scene.drive.state_dependent or scene.load.state_dependent
+
+
+def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_stability: bool) -> SimResult:
+    """``auto`` with the flexible tier: one run on the slipping engine, a flexible result if it never slipped."""
+    sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
+    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+    accuracy = (
+        require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, method_options=scene.method_options)
+        if check_stability else None
+    )  # fmt: skip
+    sim.flexible_record = kept = []
+    start = _time.perf_counter()
+    try:
+        time, states, modes, sigmas = sim.run(scene.duration, scene.initial_state.vector("slipping", scene.params.ratio), progress=progress)
+    except SimulationDivergedError:
+        if check_stability and sim.events:  # diverged after slipping: the slip mode's guard names the step that works
+            _slipping_accuracy(scene, sim, accuracy)
+        raise
+    wall = _time.perf_counter() - start
+    if sum(len(t) for t, _ in kept) == len(time):  # the flexible model throughout: its run, bit for bit
+        flex = np.concatenate([x for _, x in kept])
+        result = _linear_result(scene, sim.flexible, sim.plant, time, flex, sim.stability, accuracy, wall, False)
+        ratio, t_peak = limit_exceedance(scene.params, time, result.outputs)
+        result.choice = replace(linear, limit_ratio=ratio, limit_time=t_peak)
+        return result
+    onset = sim.events[0].time if sim.events else float(time[0])
+    reason = (
+        f"slipping: transmitted force reaches the capstan limit "
+        f"(Q_max = {scene.params.friction_limit(0.0):.0f} N at rest) at t = {onset:.3g} s "
+        f"in the {linear.model} run ({linear.reason})"
+    )
+    choice = replace(linear, model="slipping", reason=reason, limit_ratio=1.0, limit_time=onset)
+    # the guard on both modes once the run has slipped (its stick part is the check made before the run)
+    accuracy = _slipping_accuracy(scene, sim, accuracy) if check_stability else None
+    return _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy)
 
 
 def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, vectorize) -> SimResult:
@@ -226,7 +281,12 @@ def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, v
     start = _time.perf_counter()
     time, states = sim.run(scene.duration, x0, progress=progress, vectorize=vectorize)
     wall = _time.perf_counter() - start
-    u = sim.plant.input_array(time, states)
+    return _linear_result(scene, mdl, sim.plant, time, states, sim.stability, accuracy, wall, sim.vectorized)
+
+
+def _linear_result(scene, mdl, plant, time, states, stability, accuracy, wall, vectorized) -> SimResult:
+    """The result of a rigid or flexible run: outputs and energy terms of its states on the grid ``time``."""
+    u = plant.input_array(time, states)
     outputs = mdl.outputs(states, u)
     # Energy balance terms (trapezoidal quadrature of the powers on the output grid).
     p_in = mdl.input_power(states, u)
@@ -240,17 +300,17 @@ def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, v
     }
     return SimResult(
         scene=scene,
-        model=kind,
-        method=sim.integrator.name,
+        model=mdl.name,
+        method=method_class(scene.method).name,
         dt=scene.dt,
         time=time,
         states=states,
         inputs=u,
         outputs=outputs,
-        stability=sim.stability,
+        stability=stability,
         accuracy=accuracy,
         wall_time=wall,
-        vectorized=sim.vectorized,
+        vectorized=vectorized,
         energy=energy,
     )
 
@@ -266,17 +326,28 @@ def simulate_slipping(scene, choice=None, progress=None, check_stability=True, s
     """
     sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
     y0 = scene.initial_state.vector("slipping", scene.params.ratio)
-    # each mode linearized (stick: the flexible closed loop and forcing windows; slip: the slip-mode dynamics)
-    accuracy = (
-        require_accurate_slipping(
-            scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.duration,
-            scene.initial_state.vector("flexible", scene.params.ratio), method_options=scene.method_options,
-            stepper=sim.stepper, stick=stick,
-        ) if check_stability else None
-    )  # fmt: skip
+    accuracy = _slipping_accuracy(scene, sim, stick) if check_stability else None
     start = _time.perf_counter()
     time, states, modes, sigmas = sim.run(scene.duration, y0, progress=progress)
     wall = _time.perf_counter() - start
+    return _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy)
+
+
+def _slipping_accuracy(scene, sim, stick=None):
+    """The accuracy guard on both modes of the slipping model (:func:`~belt_drive_ros.core.accuracy.require_accurate_slipping`).
+
+    ``stick``: the flexible check's verdict when already made (it is the stick mode's).
+    """
+    # each mode linearized (stick: the flexible closed loop and forcing windows; slip: the slip-mode dynamics)
+    return require_accurate_slipping(
+        scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.duration,
+        scene.initial_state.vector("flexible", scene.params.ratio), method_options=scene.method_options,
+        stepper=sim.stepper, stick=stick,
+    )  # fmt: skip
+
+
+def _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy=None) -> SimResult:
+    """The result of a slipping-model run of ``sim``: outputs, energy terms (with friction) and events."""
     if accuracy is not None:  # the slipping run itself, rerun over its slipping stretch (what the modes alone miss)
         accuracy = with_slip_run_error(accuracy, slip_run_error(
             scene.params, scene.drive, scene.load, scene.method, scene.dt, time, states, modes, sigmas,

@@ -148,6 +148,9 @@ class SlippingSimulator:
         self.events: list = []
         self.vectorized = False
         self._window = WINDOW_FIRST
+        #: a list to receive ``(times, xs)`` of the recorded pieces run on the flexible model itself (no slip
+        #: so far), in its own coordinates: the states a flexible-model run gives, bit for bit (None: not kept)
+        self.flexible_record: list | None = None
 
     # ------------------------------------------------------ conversions
     @property
@@ -256,6 +259,8 @@ class SlippingSimulator:
             n = len(times) - 1 if stop is None else stop[0]
             if record is not None and n:
                 record.append((times[1 : n + 1], self.ys(state.kind, xs[1 : n + 1]), state.mode, state.sigma))
+                if state.kind == "flexible" and self.flexible_record is not None:
+                    self.flexible_record.append((times[1 : n + 1], xs[1 : n + 1]))
             if stop is None:
                 state, t = SlipState(state.mode, state.sigma, state.kind, xs[-1]), float(times[-1])
                 continue
@@ -301,8 +306,11 @@ class SlippingSimulator:
         steps = int(window_steps or 4 * WINDOW_MAX)
         state = self.initial(y0, t0)
         events = [] if events is None else events
+        self.events = events  # filled as the run goes (a caller sees them also when the run raises)
         y = self.state_y(state)
         pieces: list = [(np.array([float(t0)]), y[None, :], state.mode, state.sigma)]
+        if state.kind == "flexible" and self.flexible_record is not None:
+            self.flexible_record.append((pieces[0][0], state.x[None, :]))
         t = float(t0)
         while t < t1:  # progress between windows
             k = math.floor((t - self.origin) / self.dt) + steps
