@@ -125,16 +125,18 @@ class FixedStepIntegrator(Integrator):
         """``x+ = Phi x + sum_j G_j u(t + c_j h)`` for a torque of time only (from the scheme)."""
         return _scheme.linear_step(self.scheme, self.A.shape[0])
 
-    def scalar_loop(self, wheel_map: np.ndarray, uses_angle=(True, True), formulas=(None, None), guard=None) -> Callable:
+    def scalar_loop(
+        self, wheel_map: np.ndarray, uses_angle=(True, True), formulas=(None, None), guard=None, extra=()
+    ) -> Callable:
         """Compiled fast loop of :meth:`step` for one plant (see :func:`compile_scalar_loop`), cached per plant and guard."""
         wheel_map = np.asarray(wheel_map, dtype=float)
         key = (
             wheel_map.tobytes(), tuple(bool(u) for u in uses_angle),
-            tuple(None if f is None else f.key() for f in formulas), guard,
+            tuple(None if f is None else f.key() for f in formulas), guard, tuple(f("w", "v") for f in extra),
         )  # fmt: skip
         cache = self.__dict__.setdefault("_scalar_loops", {})
         if key not in cache:
-            cache[key] = compile_scalar_loop(self.scheme, wheel_map, self.dt, self.name, uses_angle, formulas, guard)
+            cache[key] = compile_scalar_loop(self.scheme, wheel_map, self.dt, self.name, uses_angle, formulas, guard, extra)
         return cache[key]
 
     @classmethod

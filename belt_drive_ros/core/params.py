@@ -258,16 +258,21 @@ class BeltDriveParams:
         """2 tanh(mu_eff beta / 2): Q_max per net span tension F_0 - F_c [-]."""
         return 2.0 * math.tanh(0.5 * self.mu_effective * self.wrap_angle)
 
+    def friction_limit_source(self, omega_M: str, v: str = "v") -> str:
+        """:meth:`friction_limit` as Python source at the speed expression ``omega_M`` [rad/s] (constants written in).
+
+        ``v`` names the belt speed [m/s] (an assignment expression, so a
+        generated loop can inline it at several stages under distinct names).
+        The one scalar formula: :meth:`scalar_friction_limit` is compiled from it;
+        :func:`friction_limit_array` does the same operations in the same order
+        on arrays (same :attr:`capstan_factor`, so the same floats).
+        """
+        factor, speed = self.capstan_factor, self.r_2 * self.gear_ratio
+        return f"max(({float(self.F_0)!r} - {float(self.belt_mass)!r} * ({v} := {speed!r} * ({omega_M})) * {v}) * {factor!r}, 0.0)"
+
     def scalar_friction_limit(self):
-        """:meth:`friction_limit` of one float ``omega_M`` [rad/s] as a closure with the constants bound [N]."""
-        factor = self.capstan_factor
-        speed, F_0, mass = self.r_2 * self.gear_ratio, self.F_0, self.belt_mass
-
-        def limit(omega_M: float) -> float:
-            v = speed * omega_M
-            return max((F_0 - mass * v * v) * factor, 0.0)
-
-        return limit
+        """:meth:`friction_limit` of one float ``omega_M`` [rad/s] as a function with the constants written in [N]."""
+        return eval(compile(f"lambda omega_M: {self.friction_limit_source('omega_M')}", "<friction limit>", "eval"))
 
 
 def friction_limit_array(F_0, belt_speed_ratio, belt_mass, capstan_factor, omega_M):

@@ -15,8 +15,12 @@ splits the step there and switches the mode. The plants:
   constant; the load sees ``phi_3 = i phi_M - theta_e - s / r_3``);
 * slipping, massless belt: the slip mode with the constant force
   ``sigma Q_max`` as a sixth state (one plant per direction sigma);
-* slipping with a belt mass (``Q_max`` varies with speed): step by step by
-  the hybrid stepper on the stepper's step plan.
+* slipping with a belt mass (``Q_max`` varies with speed) and span damping:
+  the slip mode with ``Q = sigma Q_max(omega_M)`` as a third input of the
+  drive speed, evaluated at every stage in the compiled loop;
+* slipping with a belt mass and ``c = 0`` (the stretch is projected onto
+  the limit after each step): step by step by the hybrid stepper on the
+  stepper's step plan.
 
 :meth:`SlippingSimulator.advance` is the one entry: an offline run is one
 advance from 0 to the duration with recording, the node's tick an advance
@@ -66,6 +70,22 @@ class _SlipPhase:
         return y[..., 0], y[..., 1], y[..., 2], y[..., 3]
 
 
+class _MassSlipPhase:
+    """The slip mode of a belt with mass (c > 0) as a model for the stepper: ``y``, inputs ``[drive, load, Q]``.
+
+    ``Q = sigma Q_max(omega_M)`` varies with the belt speed (centrifugal
+    tension): the stepper's loop evaluates it at every stage like a
+    state-dependent torque (:class:`~belt_drive_ros.core.stepper.Plant` ``extra``),
+    as the hybrid stepper's flow does.
+    """
+
+    name = "slipping"
+
+    def __init__(self, model: SlippingBeltModel):
+        self.A, self.B, self.params = model.A_slip, model.B_slip, model.params
+        self.wheel_coordinates = model.wheel_coordinates
+
+
 def _mapped(guard: Guard, Y: np.ndarray) -> Guard:
     """``guard`` (on the slipping state y) as a guard on states x with ``y = Y x``."""
     speed = None if guard.speed is None else tuple(float(v) for v in np.asarray(guard.speed) @ Y)
@@ -78,8 +98,9 @@ class SlipState:
 
     ``kind``: ``flexible`` (sticking, no slip yet: the flexible model's
     ``[phi_M, theta, omega_M, omega_3]``), ``stick`` (``y``, 5 states),
-    ``slip`` (``[y, Q]``, massless belt) or ``hybrid`` (``y`` while a belt
-    with mass slips).
+    ``slip`` (``[y, Q]``, massless belt), ``mass`` (``y`` while a belt with
+    mass and span damping slips) or ``hybrid`` (``y`` while a belt with mass
+    and no span damping slips: step by step).
     """
 
     mode: int
@@ -145,6 +166,18 @@ class SlippingSimulator:
                 st = Stepper(plant, method, self.dt, self.method_options, origin, shared, guard)
                 shared = st.integrator
                 self._steppers[("slip", sigma)] = st
+        elif params.c > 0.0:  # Q_max falls with the belt speed: Q an input of the drive speed, in the loop
+            phase = _MassSlipPhase(m)
+            shared = None
+            for sigma in (1.0, -1.0):
+
+                def force(speed, name, sigma=sigma):
+                    return f"{sigma!r} * {params.friction_limit_source(speed, name)}"
+
+                st = Stepper(Plant(phase, drive, load, (force,)), method, self.dt, self.method_options, origin, shared,
+                             m.guard(SLIP, sigma))  # fmt: skip
+                shared = st.integrator
+                self._steppers[("mass", sigma)] = st
         self.events: list = []
         self.vectorized = False
         self._window = WINDOW_FIRST
@@ -214,6 +247,8 @@ class SlippingSimulator:
             return SlipState(mode, 0.0, "stick", y)
         if ("slip", sigma) in self._steppers:
             return SlipState(mode, sigma, "slip", np.append(y, sigma * self.model.params.friction_limit(0.0)))
+        if ("mass", sigma) in self._steppers:
+            return SlipState(mode, sigma, "mass", y)
         return SlipState(mode, sigma, "hybrid", y)
 
     def ys(self, kind, xs) -> np.ndarray:
@@ -247,7 +282,7 @@ class SlippingSimulator:
                     record.append((np.array([e]), y[None, :], mode, sigma))
                 state, t = self._native(y, mode, sigma), e
                 continue
-            st = self._steppers[state.kind if state.kind != "slip" else ("slip", state.sigma)]
+            st = self._steppers[(state.kind, state.sigma) if state.kind in ("slip", "mass") else state.kind]
             t_end = t1
             if record is not None:  # a window: what a phase computes past its event is thrown away
                 k = math.floor((t - st.origin) / self.dt) + self._window

@@ -198,6 +198,7 @@ def compile_scalar_loop(
     uses_angle: tuple = (True, True),
     formulas: tuple = (None, None),
     guard: Guard | None = None,
+    extra: tuple = (),
 ) -> Callable:
     """Generate and compile a Python loop that runs ``scheme`` on plain floats.
 
@@ -228,6 +229,11 @@ def compile_scalar_loop(
     guard : a :class:`Guard`: the loop also stops (a shorter list, the last
         state the one at which ``g > 0``) after the first step that ends with
         the guard positive.
+    extra : inputs after the two torques that depend on the drive speed
+        omega_M only, each ``f(speed, name) -> source`` of its value at the
+        speed expression ``speed`` (``name``: a free variable name it may
+        assign): the slipping belt's force ``sigma Q_max(omega_M)`` while a belt
+        with mass slides. Not for implicit schemes.
 
     Returns
     -------
@@ -245,8 +251,8 @@ def compile_scalar_loop(
     n = W.shape[1]
     s = len(scheme.nodes)
     m = (scheme.final.shape[1] - n) // s
-    if W.shape[0] != 4 or m != 2 or scheme.final.shape != (n, n + m * s):
-        raise IntegratorError(f"{name}: scalar loop needs 4 wheel coordinates and 2 torques")
+    if W.shape[0] != 4 or m != 2 + len(extra) or scheme.final.shape != (n, n + m * s) or (extra and scheme.implicit):
+        raise IntegratorError(f"{name}: scalar loop needs 4 wheel coordinates, 2 torques and its extra inputs (explicit)")
     xs = [f"x{r}" for r in range(n)]
     lines = [
         "def loop(times, x, drive, load, limit, abs=abs):",
@@ -262,6 +268,7 @@ def compile_scalar_loop(
         """Lines computing u{i}_0, u{i}_1 from the wheel coordinates ``wheel_rows @ inputs``."""
         lines = [] if at == "t" else [f"        t{i} = {at}"]
         at = "t" if at == "t" else f"t{i}"
+        speed = None
         for q, fn in enumerate(("drive", "load")):
             args = []
             for role, row in (("a", 2 * q), ("w", 2 * q + 1)):
@@ -273,12 +280,15 @@ def compile_scalar_loop(
                     lines.append(f"        {role}{i}_{q} = {expr}")
                     expr = f"{role}{i}_{q}"
                 args.append(expr)
+            if q == 0:
+                speed = args[1]
             if formulas[q] is None:
                 call = f"{fn}({at}, {args[0]}, {args[1]})"
             else:
                 call, names = render(formulas[q], at, args[0], args[1], prefix=f"{fn[0]}_")
                 bindings.update(names)
             lines.append(f"        u{i}_{q} = {call}")
+        lines += [f"        u{i}_{2 + e} = {source(speed, f'v{i}_{e}')}" for e, source in enumerate(extra)]
         return lines
 
     def at(c):
@@ -339,7 +349,7 @@ def compile_scalar_loop(
         "    return out",
     ]
     source = "\n".join(lines) + "\n"
-    key = (source, name, dt, tuple(None if f is None else f.key() for f in formulas))
+    key = (source, name, dt, tuple(None if f is None else f.key() for f in formulas))  # extra inputs: in the source
     if key not in _COMPILED_LOOPS:
         if len(_COMPILED_LOOPS) >= 256:  # sweeps over many steps: keep the cache small
             for old in _COMPILED_LOOPS.values():

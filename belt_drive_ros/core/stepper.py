@@ -105,9 +105,11 @@ class Plant:
     and :meth:`inputs` applies it, so any state ordering works).
     """
 
-    def __init__(self, model, drive, load):
+    def __init__(self, model, drive, load, extra=()):
         self.model, self.drive, self.load = model, drive, load
-        self.open_loop = not (drive.state_dependent or load.state_dependent)
+        #: inputs after the two torques, functions of the drive speed given as source (see compile_scalar_loop)
+        self.extra = tuple(extra)
+        self.open_loop = not (drive.state_dependent or load.state_dependent or self.extra)
         self.scalar_drive = drive_torque = drive.scalar_torque()
         self.scalar_load = load_torque = load.scalar_torque()
         self.wheel_map = W = np.array(model.wheel_coordinates(np.eye(model.A.shape[0])), dtype=float)
@@ -122,6 +124,13 @@ class Plant:
         def inputs(t, x):
             return array([drive_torque(t, angle_M(x), speed_M(x)), load_torque(t, angle_3(x), speed_3(x))])
 
+        if self.extra:  # the same source as the compiled loop's, as functions of omega_M
+            extras = [eval(compile(f"lambda omega_M: {f('omega_M', 'v')}", "<extra input>", "eval")) for f in self.extra]
+
+            def inputs(t, x):  # noqa: F811
+                w = speed_M(x)
+                return array([drive_torque(t, angle_M(x), w), load_torque(t, angle_3(x), speed_3(x)), *(f(w) for f in extras)])
+
         self.inputs = inputs
 
     def scalar_loop(self, integrator, guard=None) -> Callable | None:
@@ -129,9 +138,9 @@ class Plant:
 
         ``guard``: a :class:`~belt_drive_ros.core.stage_scheme.Guard` the loop checks after every step.
         """
-        if not isinstance(integrator, FixedStepIntegrator):
+        if not isinstance(integrator, FixedStepIntegrator) or (self.extra and integrator.scheme.implicit):
             return None
-        return integrator.scalar_loop(self.wheel_map, self.uses_angle, self.formulas, guard)
+        return integrator.scalar_loop(self.wheel_map, self.uses_angle, self.formulas, guard, self.extra)
 
     def left_of(self, b: float) -> float:
         """Latest time [s] before breakpoint ``b`` at which both torques still give their values from the left."""
