@@ -332,13 +332,16 @@ class SlippingSimulator:
         The first window starts with the sample at ``t0``; each later one
         starts after the previous one's last sample, so the windows put
         together are :meth:`run`'s arrays. A window spans ``window_steps``
-        grid steps (default ``4 * WINDOW_MAX``) plus the event samples in
+        grid steps (default ``4 * WINDOW_MAX``, with ``progress`` about 1 %
+        of the run, at least 64 steps) plus the event samples in
         it: memory is bounded by the window, not the run. ``events``
         receives the mode switches.
         """
         self.origin = float(t0)
         t1 = float(t0) + float(duration)
         steps = int(window_steps or 4 * WINDOW_MAX)
+        if progress and not window_steps:  # report about every 1 % (as the stepper's chunks do), at least every 64 steps
+            steps = min(steps, max(64, int(float(duration) / self.dt) // 100))
         state = self.initial(y0, t0)
         events = [] if events is None else events
         self.events = events  # filled as the run goes (a caller sees them also when the run raises)
