@@ -272,7 +272,17 @@ class BeltDriveParams:
 
     def scalar_friction_limit(self):
         """:meth:`friction_limit` of one float ``omega_M`` [rad/s] as a function with the constants written in [N]."""
-        return eval(compile(f"lambda omega_M: {self.friction_limit_source('omega_M')}", "<friction limit>", "eval"))
+        source = self.friction_limit_source("omega_M")
+        limit = _SCALAR_LIMITS.get(source)
+        if limit is None:
+            if len(_SCALAR_LIMITS) >= 256:
+                _SCALAR_LIMITS.clear()
+            limit = _SCALAR_LIMITS[source] = eval(compile(f"lambda omega_M: {source}", "<friction limit>", "eval"))
+        return limit
+
+
+#: compiled friction limits by their source (parameter sweeps: kept small)
+_SCALAR_LIMITS: dict = {}
 
 
 def friction_limit_array(F_0, belt_speed_ratio, belt_mass, capstan_factor, omega_M):
