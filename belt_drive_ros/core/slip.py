@@ -372,6 +372,7 @@ class HybridStepper:
         self._project_slip = p.c == 0.0 and p.belt_mass > 0.0
         self._limit = p.scalar_friction_limit()
         self._rel2, self._rel3 = float(model.rel_row[2]), float(model.rel_row[3])
+        self._q1, self._q2, self._q3 = model._q[1:4]
 
     # ---------------------------------------------------------- the flows
     def _integrator(self, mode: int, h: float):
@@ -548,7 +549,7 @@ class HybridStepper:
         def G(tau):
             return GD(tau)[0]
 
-        lo, g_lo = self._inside(G, self.switching(mode, sigma, np.array(yl)), h)
+        lo, g_lo = self._inside(G, self._switching_list(mode, sigma, yl), h)
         if lo is None:
             return 0.0, w, b0
         bracket = self._scan(G, lo, g_lo, h, max(2, math.ceil(8.0 * modal.max_frequency * h / math.pi)))
@@ -682,8 +683,8 @@ class HybridStepper:
 
     def _switching_list(self, mode, sigma, y: list) -> float:
         """:meth:`switching` of a state given as a list (the same value)."""
-        if mode == STICK:
-            return self.switching(mode, sigma, np.array(y))
+        if mode == STICK:  # |Q| - Q_max with Q summed as SlippingBeltModel.force does (q_0 = q_4 = 0)
+            return abs(self._q1 * y[1] + self._q2 * y[2] + self._q3 * y[3]) - self._limit(float(y[2]))
         p = self.model.params
         Q = sigma * self._limit(y[2])
         rel = y[2] * self._rel2 + y[3] * self._rel3

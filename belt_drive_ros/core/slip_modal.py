@@ -258,15 +258,41 @@ class ModalFlow:
         half = 0.5 * h
         ph2 = self._phis(half)
         w = self._w(y) if w is None else w
-        a = self.state(y, self._held(w, u0), half, ph2)
+        y0, y4 = float(y[0]), float(y[4])
+        a = self._held_state(y0, y4, w, u0, half, ph2)
         ua = u(t + half, a)
-        b = self.state(y, self._held(w, ua), half, ph2)
+        b = self._held_state(y0, y4, w, ua, half, ph2)
         ub = u(t + half, b)
-        c = self.state(a, self._held(self._w(a), [2.0 * q - p for p, q in zip(u0, ub)]), half, ph2)
+        c = self._held_state(a[0], a[4], self._w(a), [2.0 * q - p for p, q in zip(u0, ub)], half, ph2)
         uc = u(t + h, c)
         c1 = [-3.0 * p + 2.0 * (qa + qb) - qc for p, qa, qb, qc in zip(u0, ua, ub, uc)]
         c2 = [2.0 * (p - qa - qb + qc) for p, qa, qb, qc in zip(u0, ua, ub, uc)]
         return self.state_quadratic(y, w, u0, [v / h for v in c1], [v / (h * h) for v in c2], h)
+
+    def _held_state(self, y0: float, y4: float, w, u, tau: float, ph) -> list:
+        """:meth:`state` at ``tau`` [s] from phi_M = ``y0``, modal coordinates ``w``, s = ``y4`` with the input ``u`` held.
+
+        The same sums as :meth:`state` with ``db = du = 0`` (those terms left out, not added as zeros).
+        """
+        t2 = tau * tau
+        z0 = z1 = z2 = i0 = i4 = 0.0
+        three = self.m == 3
+        for (_, weight, Vc, _, P, Cc), wk, (e, p1, p2, _) in zip(self.modes, w, ph):
+            b0 = P[0] * u[0] + P[1] * u[1] + P[2] * u[2] if three else P[0] * u[0] + P[1] * u[1]
+            tp1 = tau * p1
+            zeta = weight * (e * wk + tp1 * b0)
+            integral = weight * (tp1 * wk + t2 * p2 * b0)
+            z0 += (Vc[0] * zeta).real
+            z1 += (Vc[1] * zeta).real
+            z2 += (Vc[2] * zeta).real
+            i0 += (Cc[0] * integral).real
+            i4 += (Cc[1] * integral).real
+        B0, B4 = self.B04
+        for q in range(self.m):
+            ramp = tau * u[q]
+            i0 += B0[q] * ramp
+            i4 += B4[q] * ramp
+        return [y0 + i0, z0, z1, z2, y4 + i4]
 
     def state_quadratic(self, y, w, u0, d1, d2, tau: float) -> list:
         """The state at ``tau`` [s] from ``y`` (modal coordinates ``w``) with the input ``u0 + d1 s + d2 s^2``.
@@ -279,9 +305,15 @@ class ModalFlow:
         t2 = tau * tau
         t3 = t2 * tau
         z0 = z1 = z2 = i0 = i4 = 0.0
+        three = self.m == 3
         for (lam, weight, Vc, _, P, Cc), wk in zip(self.modes, w):
             e, p1, p2, p3, p4 = phis4(lam * tau)
-            b0, b1, b2 = _dot(P, u0), _dot(P, d1), _dot(P, d2)
+            if three:
+                b0 = P[0] * u0[0] + P[1] * u0[1] + P[2] * u0[2]
+                b1 = P[0] * d1[0] + P[1] * d1[1] + P[2] * d1[2]
+                b2 = P[0] * d2[0] + P[1] * d2[1] + P[2] * d2[2]
+            else:
+                b0, b1, b2 = P[0] * u0[0] + P[1] * u0[1], P[0] * d1[0] + P[1] * d1[1], P[0] * d2[0] + P[1] * d2[1]
             zeta = weight * (e * wk + tau * p1 * b0 + t2 * p2 * b1 + 2.0 * t3 * p3 * b2)
             integral = weight * (tau * p1 * wk + t2 * p2 * b0 + t3 * p3 * b1 + 2.0 * t2 * t2 * p4 * b2)
             z0 += (Vc[0] * zeta).real

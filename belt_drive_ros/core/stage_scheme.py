@@ -264,10 +264,41 @@ def compile_scalar_loop(
         "        t = times[k]",
     ]
 
+    # Stages whose wheel coordinates share their part in x (etd4: a and b are both E2 x + P U) sum that part once:
+    # the prefix is the same left-to-right sum the whole expression starts with, so the values are bit for bit the same.
+    needed = [r for q in range(2) for r in ((2 * q, 2 * q + 1) if uses_angle[q] else (2 * q + 1,))]
+    uses: dict = {}
+    for i in range(s - 1 if scheme.implicit else s):
+        if scheme.stages[i] is not None and scheme.final_base != i:
+            rows = W @ scheme.stages[i]
+            for r in needed:
+                if np.any(rows[r, :n]) and np.any(rows[r, n:]):
+                    key = (r, rows[r, :n].tobytes())
+                    uses[key] = uses.get(key, 0) + 1
+    prefixes = {key: f"p{j}" for j, key in enumerate(k for k, c in uses.items() if c > 1)}
+    defined: set = set()
+    times_at: dict = {}
+
+    def wheel_expression(lines, wheel_rows, r, inputs):
+        """Source of wheel coordinate ``wheel_rows[r] @ inputs``, its x part named once when stages share it."""
+        key = (r, np.asarray(wheel_rows[r, :n]).tobytes()) if inputs[:n] == xs else None
+        if key not in prefixes:
+            return _linear_expression(wheel_rows[r], inputs)
+        if key not in defined:
+            lines.append(f"        {prefixes[key]} = {_linear_expression(wheel_rows[r, :n], xs)}")
+            defined.add(key)
+        return f"{prefixes[key]} + {_linear_expression(wheel_rows[r, n:], inputs[n:])}"
+
     def torques(i, wheel_rows, inputs, at):
         """Lines computing u{i}_0, u{i}_1 from the wheel coordinates ``wheel_rows @ inputs``."""
-        lines = [] if at == "t" else [f"        t{i} = {at}"]
-        at = "t" if at == "t" else f"t{i}"
+        if at == "t":
+            lines = []
+        elif at in times_at:  # stages at one time (etd4's two at t + h/2): one sum
+            lines, at = [], times_at[at]
+        else:
+            lines = [f"        t{i} = {at}"]
+            times_at[at] = f"t{i}"
+            at = f"t{i}"
         speed = None
         for q, fn in enumerate(("drive", "load")):
             args = []
@@ -275,7 +306,7 @@ def compile_scalar_loop(
                 if role == "a" and not uses_angle[q]:
                     args.append("0.0")
                     continue
-                expr = _linear_expression(wheel_rows[row], inputs)
+                expr = wheel_expression(lines, wheel_rows, row, inputs)
                 if formulas[q] is not None and not expr.isidentifier():  # inlined: named once, used maybe twice
                     lines.append(f"        {role}{i}_{q} = {expr}")
                     expr = f"{role}{i}_{q}"
