@@ -373,6 +373,9 @@ class HybridStepper:
         self._limit = p.scalar_friction_limit()
         self._rel2, self._rel3 = float(model.rel_row[2]), float(model.rel_row[3])
         self._q1, self._q2, self._q3 = model._q[1:4]
+        # dQ_max/dt = dlim * omega_M * omega_M' (the centrifugal part), and |q|, |A|, |B| of stick for the rounding scale
+        self._dlim = -4.0 * p.belt_mass * (p.r_2 * p.gear_ratio) ** 2 * math.tanh(0.5 * p.mu_effective * p.wrap_angle)
+        self._abs_stick = (np.abs(model.q_row), np.abs(model.A_stick), np.abs(model.B_stick))
 
     # ---------------------------------------------------------- the flows
     def _integrator(self, mode: int, h: float):
@@ -462,8 +465,8 @@ class HybridStepper:
         """> 0 once the mode must end: ``|Q| - Q_max`` sticking, ``-sigma s'`` slipping [N or m/s]."""
         m = self.model
         if mode == STICK:
-            return abs(float(m.q_row @ y)) - float(m.limit(y[2]))
-        return -sigma * float(m.slip_speed(y, sigma * m.limit(y[2])))
+            return abs(float(m.q_row @ y)) - self._limit(float(y[2]))
+        return -sigma * float(m.slip_speed(y, sigma * self._limit(float(y[2]))))
 
     def _stick_keeps(self, t, y) -> bool:
         """True if the stick mode's |Q| does not at once grow past Q_max from (t, y).
@@ -475,15 +478,15 @@ class HybridStepper:
         """
         m = self.model
         Q = float(m.q_row @ y)
-        if abs(Q) < float(m.limit(y[2])) * (1.0 - 1e-9):
+        if abs(Q) < self._limit(float(y[2])) * (1.0 - 1e-9):
             return True
         sig = math.copysign(1.0, Q)
         u = self.inputs(STICK, 0.0)(t, y)
         dy = m.A_stick @ y + m.B_stick @ u
-        p = m.params
-        dlim = -4.0 * p.belt_mass * (p.r_2 * p.gear_ratio) ** 2 * y[2] * dy[2] * math.tanh(0.5 * p.mu_effective * p.wrap_angle)
+        dlim = self._dlim * y[2] * dy[2]
         rate = sig * float(m.q_row @ dy) - dlim
-        scale = float(np.abs(m.q_row) @ (np.abs(m.A_stick) @ np.abs(y) + np.abs(m.B_stick) @ np.abs(u))) + abs(dlim)
+        q_abs, A_abs, B_abs = self._abs_stick
+        scale = float(q_abs @ (A_abs @ np.abs(y) + B_abs @ np.abs(u))) + abs(dlim)
         if abs(rate) > 1e-8 * scale:
             return rate < 0.0
         return sig * float(m.q_row @ (m.A_stick @ dy)) <= 0.0
@@ -494,7 +497,7 @@ class HybridStepper:
         if mode == STICK:
             sigma = 1.0 if float(m.q_row @ y) >= 0.0 else -1.0
             if m.params.c == 0.0:  # the stretch sits at the limit exactly
-                te = sigma * float(m.limit(y[2])) / self._two_k_r3
+                te = sigma * self._limit(float(y[2])) / self._two_k_r3
                 y = y.copy()
                 y[4] += self._r3 * (y[1] - te)
                 y[1] = te

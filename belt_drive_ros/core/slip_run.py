@@ -246,7 +246,7 @@ class SlippingSimulator:
                 return SlipState(mode, 0.0, "flexible", self.to_flexible(y))
             return SlipState(mode, 0.0, "stick", y)
         if ("slip", sigma) in self._steppers:
-            return SlipState(mode, sigma, "slip", np.append(y, sigma * self.model.params.friction_limit(0.0)))
+            return SlipState(mode, sigma, "slip", np.append(y, sigma * self.hybrid._limit(0.0)))
         if ("mass", sigma) in self._steppers:
             return SlipState(mode, sigma, "mass", y)
         return SlipState(mode, sigma, "hybrid", y)
