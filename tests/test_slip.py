@@ -291,7 +291,7 @@ def test_slip_phases_of_a_belt_with_mass_in_the_loop_equal_the_hybrid_stepper(me
     sim = SlippingSimulator(scene.params, scene.drive, scene.load, method, dt, check_stability=False)
     y0 = scene.initial_state.vector("slipping", scene.params.ratio)
     time, states, modes, _ = sim.run(scene.duration, y0)
-    assert ("mass", 1.0) in sim._steppers and sim._steppers[("mass", 1.0)].loop is not None
+    assert sim.phase_stepper(("mass", 1.0)).loop is not None
     assert np.any(modes == SLIP) and sum(e.kind == "onset" for e in sim.events) >= 2
     hs = HybridStepper(sim.model, sim.plant.scalar_drive, sim.plant.scalar_load, method)
     ref = hs.run(time, y0, breakpoints=sim.breakpoints)

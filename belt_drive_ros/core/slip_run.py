@@ -155,35 +155,52 @@ class SlippingSimulator:
         self.stepper = Stepper(self.plant, method, self.dt, self.method_options, origin, integrator, _mapped(stick, Y_flex))
         self.integrator = self.stepper.integrator
         self.stability = require_stable(self.flexible.A, self.flexible.B, method, dt) if check_stability else None
-        self.hybrid = HybridStepper(m, self.plant.scalar_drive, self.plant.scalar_load, method)
+        self._hybrid: HybridStepper | None = None
         self._steppers = {"flexible": self.stepper}
-        self._steppers["stick"] = Stepper(Plant(m, drive, load), method, self.dt, self.method_options, origin, guard=stick)
+        # the other phases' steppers are built when a run first needs them (a scene within the limit never does)
+        self._factories: dict = {"stick": lambda: Stepper(Plant(m, drive, load), method, self.dt, self.method_options, guard=stick)}
         if params.belt_mass == 0.0:  # Q_max constant: the slip mode is linear with Q as a constant state
-            plant = Plant(_SlipPhase(m), drive, load)
-            shared = None
             for sigma in (1.0, -1.0):
-                guard = _mapped(m.guard(SLIP, sigma), np.eye(5, 6))
-                st = Stepper(plant, method, self.dt, self.method_options, origin, shared, guard)
-                shared = st.integrator
-                self._steppers[("slip", sigma)] = st
+                self._factories[("slip", sigma)] = lambda sigma=sigma: Stepper(
+                    Plant(_SlipPhase(m), drive, load), method, self.dt, self.method_options, 0.0,
+                    self._sibling(("slip", -sigma)), _mapped(m.guard(SLIP, sigma), np.eye(5, 6)),
+                )  # fmt: skip
         elif params.c > 0.0:  # Q_max falls with the belt speed: Q an input of the drive speed, in the loop
-            phase = _MassSlipPhase(m)
-            shared = None
             for sigma in (1.0, -1.0):
 
                 def force(speed, name, sigma=sigma):
                     return f"{sigma!r} * {params.friction_limit_source(speed, name)}"
 
-                st = Stepper(Plant(phase, drive, load, (force,)), method, self.dt, self.method_options, origin, shared,
-                             m.guard(SLIP, sigma))  # fmt: skip
-                shared = st.integrator
-                self._steppers[("mass", sigma)] = st
+                self._factories[("mass", sigma)] = lambda sigma=sigma, force=force: Stepper(
+                    Plant(_MassSlipPhase(m), drive, load, (force,)), method, self.dt, self.method_options, 0.0,
+                    self._sibling(("mass", -sigma)), m.guard(SLIP, sigma),
+                )  # fmt: skip
         self.events: list = []
         self.vectorized = False
         self._window = WINDOW_FIRST
         #: a list to receive ``(times, xs)`` of the recorded pieces run on the flexible model itself (no slip
         #: so far), in its own coordinates: the states a flexible-model run gives, bit for bit (None: not kept)
         self.flexible_record: list | None = None
+
+    @property
+    def hybrid(self) -> HybridStepper:
+        """The hybrid stepper that redoes a step with an event (built at the first event)."""
+        if self._hybrid is None:
+            self._hybrid = HybridStepper(self.model, self.plant.scalar_drive, self.plant.scalar_load, self.method)
+        return self._hybrid
+
+    def phase_stepper(self, key) -> Stepper:
+        """The stepper of phase ``key`` (``"flexible"``, ``"stick"``, ``("slip", sigma)``, ``("mass", sigma)``), built once."""
+        st = self._steppers.get(key)
+        if st is None:
+            st = self._steppers[key] = self._factories[key]()
+            st.origin, st.breakpoints = self.stepper.origin, list(self.stepper.breakpoints)
+        return st
+
+    def _sibling(self, key):
+        """The integrator of phase ``key`` when built (the two slip directions share one), else None."""
+        st = self._steppers.get(key)
+        return None if st is None else st.integrator
 
     # ------------------------------------------------------ conversions
     @property
@@ -236,7 +253,7 @@ class SlippingSimulator:
         """The hybrid state of slipping state ``y0`` at ``t0`` (sliding at once when it starts beyond the limit)."""
         y = np.asarray(y0, dtype=float).copy()
         mode, sigma = STICK, 0.0
-        if self.hybrid.switching(mode, sigma, y) > 0.0:
+        if abs(float(self.model.q_row @ y)) - self.model.params.friction_limit(float(y[2])) > 0.0:  # the stick switching
             mode, sigma, y = self.hybrid.switch(mode, sigma, t0, y)
         return self._native(y, mode, sigma)
 
@@ -245,9 +262,9 @@ class SlippingSimulator:
             if y[4] == 0.0:
                 return SlipState(mode, 0.0, "flexible", self.to_flexible(y))
             return SlipState(mode, 0.0, "stick", y)
-        if ("slip", sigma) in self._steppers:
+        if ("slip", sigma) in self._factories:
             return SlipState(mode, sigma, "slip", np.append(y, sigma * self.hybrid._limit(0.0)))
-        if ("mass", sigma) in self._steppers:
+        if ("mass", sigma) in self._factories:
             return SlipState(mode, sigma, "mass", y)
         return SlipState(mode, sigma, "hybrid", y)
 
@@ -282,7 +299,7 @@ class SlippingSimulator:
                     record.append((np.array([e]), y[None, :], mode, sigma))
                 state, t = self._native(y, mode, sigma), e
                 continue
-            st = self._steppers[(state.kind, state.sigma) if state.kind in ("slip", "mass") else state.kind]
+            st = self.phase_stepper((state.kind, state.sigma) if state.kind in ("slip", "mass") else state.kind)
             t_end = t1
             if record is not None:  # a window: what a phase computes past its event is thrown away
                 k = math.floor((t - st.origin) / self.dt) + self._window
