@@ -233,7 +233,8 @@ def _steps_flexible(scene: Scene, vectorize) -> bool:
 
 def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_stability: bool) -> SimResult:
     """``auto`` with the flexible tier: one run on the slipping engine, a flexible result if it never slipped."""
-    sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
+    sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability,
+                            lazy=True)  # fmt: skip
     x0 = scene.initial_state.vector("flexible", scene.params.ratio)
     accuracy = (
         require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, method_options=scene.method_options)
@@ -324,7 +325,8 @@ def simulate_slipping(scene, choice=None, progress=None, check_stability=True, s
     adds ``friction``, the integral of Q s'. ``stick``: the accuracy guard's report on the flexible model
     already made (the stick mode's; ``auto``'s check run).
     """
-    sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
+    sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability,
+                            lazy=True)  # fmt: skip
     y0 = scene.initial_state.vector("slipping", scene.params.ratio)
     accuracy = _slipping_accuracy(scene, sim, stick) if check_stability else None
     start = _time.perf_counter()

@@ -136,10 +136,13 @@ class SlippingSimulator:
     check_stability : refuse a step the guard predicts unstable (stick mode).
     origin : scene time [s] of grid index 0.
     integrator : a flexible-model integrator of ``method`` and ``dt`` to reuse (the node's).
+    lazy : build the stick and slip phases' steppers and the hybrid stepper when a run first needs
+        them (offline runs: a scene within the limit never does); False (the node) builds them
+        here, so no tick pays for a set-up when the belt first slips.
     """
 
     def __init__(self, params, drive, load, method="etd2", dt=1e-3, method_options=None, check_stability=True,
-                 origin=0.0, integrator=None):  # fmt: skip
+                 origin=0.0, integrator=None, lazy=False):  # fmt: skip
         require_first_order_method(method)
         self.model = m = SlippingBeltModel(params)
         self.flexible = FlexibleBeltModel(params)
@@ -181,6 +184,10 @@ class SlippingSimulator:
         #: a list to receive ``(times, xs)`` of the recorded pieces run on the flexible model itself (no slip
         #: so far), in its own coordinates: the states a flexible-model run gives, bit for bit (None: not kept)
         self.flexible_record: list | None = None
+        if not lazy:
+            for key in self._factories:
+                self.phase_stepper(key)
+            _ = self.hybrid
 
     @property
     def hybrid(self) -> HybridStepper:
