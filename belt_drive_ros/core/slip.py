@@ -174,7 +174,7 @@ class SlippingBeltModel:
         evaluates, without the clip of ``Q_max`` at 0 where the belt lifts off).
         """
         p = self.params
-        f2 = 2.0 * math.tanh(0.5 * p.mu_effective * p.wrap_angle)
+        f2 = p.capstan_factor
         quad = p.belt_mass * (p.r_2 * p.gear_ratio) ** 2 * f2
         speed = (0.0, 0.0, 1.0, 0.0, 0.0)
         if mode == STICK:
@@ -374,7 +374,7 @@ class HybridStepper:
         self._rel2, self._rel3 = float(model.rel_row[2]), float(model.rel_row[3])
         self._q1, self._q2, self._q3 = model._q[1:4]
         # dQ_max/dt = dlim * omega_M * omega_M' (the centrifugal part), and |q|, |A|, |B| of stick for the rounding scale
-        self._dlim = -4.0 * p.belt_mass * (p.r_2 * p.gear_ratio) ** 2 * math.tanh(0.5 * p.mu_effective * p.wrap_angle)
+        self._dlim = -2.0 * p.belt_mass * (p.r_2 * p.gear_ratio) ** 2 * p.capstan_factor
         self._abs_stick = (np.abs(model.q_row), np.abs(model.A_stick), np.abs(model.B_stick))
 
     # ---------------------------------------------------------- the flows
