@@ -226,7 +226,8 @@ def simulate(
 
 def _steps_flexible(scene: Scene, vectorize) -> bool:
     """Whether a flexible run of ``scene`` goes through the stepper's loop (not the vectorized open-loop path)."""
-    if not method_class(scene.method).fixed_step or vectorize:
+    cls = method_class(scene.method)
+    if not cls.fixed_step or getattr(cls, "second_order_form", False) or vectorize:  # the slipping engine refuses those
         return False
     return vectorize is False or scene.drive.state_dependent or scene.load.state_dependent
 
