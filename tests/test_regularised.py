@@ -24,6 +24,30 @@ def test_symplectic_euler_on_the_slipping_model_is_a_one_line_refusal(capsys):
     assert code == 0, capsys.readouterr().err
 
 
+
+def test_auto_with_symplectic_euler_runs_a_scene_within_the_limit_on_the_linear_model():
+    # auto's single slipping pass cannot take a [coordinates, speeds] method: such a method keeps the
+    # two-run path, so a scene that never reaches the capstan limit runs exactly as on its linear model
+    from belt_drive_ros.core.scene import load_scene
+    from belt_drive_ros.core.simulate import simulate
+    import numpy as np
+
+    scene = load_scene("paper")
+    auto = simulate(scene, method="symplectic_euler", dt=1e-3)
+    assert auto.choice.model == "flexible"
+    linear = simulate(scene, model="flexible", method="symplectic_euler", dt=1e-3)
+    assert np.array_equal(auto.states, linear.states)
+    assert auto.outputs.keys() == linear.outputs.keys()
+    assert all(np.array_equal(auto.outputs[k], linear.outputs[k]) for k in auto.outputs)
+
+
+def test_auto_with_symplectic_euler_on_a_slipping_scene_is_a_one_line_refusal(capsys):
+    # truck_compressor reaches the capstan limit at ~0.5 s: the slipping model is needed and refuses the method
+    code = main(["sim", "truck_compressor", "--method", "symplectic_euler", "--duration", "1", "--quiet"])
+    line = _one_line_error(capsys.readouterr().err)
+    assert code == 2 and "symplectic_euler" in line and "slipping" in line
+
+
 # ------------------------------------------------------------------ regularised friction as a model
 import math  # noqa: E402
 
