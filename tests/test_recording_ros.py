@@ -6,6 +6,7 @@ uninitialised, so JointState is compared by decoded values; Float64 has no
 padding, so its recorded bytes must equal ``mcap_ros2``'s encoding.
 """
 
+import contextlib
 import errno
 import io
 import os
@@ -62,6 +63,34 @@ def _drive(h, recorder, steps=150):
     _spin_until(h.executor, lambda: recorder.writer.topic_counts().get("/diagnostics", 0) >= 1)
     return published
 
+
+
+@contextlib.contextmanager
+def _recorder_and_torque_publisher(record_args, domain_id):
+    """``belt-drive record --topics /drive_torque *record_args`` in a child process, and a reliable
+    Float64 publisher on ``/drive_torque`` in a private rclpy context on the same domain: yields
+    ``(proc, pub)``; the recorder is killed if still running and the context shut down on exit."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64
+
+    from belt_drive_ros.ros import environment as ros_env
+
+    cmd = [os.path.join(os.path.dirname(sys.executable), "belt-drive"), "record", "--topics", "/drive_torque",
+           *record_args]
+    proc = subprocess.Popen(cmd, env=ros_env.child_environment(domain_id), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=domain_id)
+    try:
+        node = rclpy.create_node("record_probe", context=ctx)
+        yield proc, node.create_publisher(Float64, "/drive_torque",
+                                          QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        rclpy.try_shutdown(context=ctx)
 
 def test_node_recording_is_rosbag2_mcap_written_from_the_tick(harness, tmp_path):
     from belt_drive_ros.io.torque_bag import scene_from_bag
@@ -298,14 +327,10 @@ def test_record_command_refuses_to_overwrite(tmp_path, capsys):
 def test_record_command_splits_into_a_bag_folder(tmp_path, ros_domain_id, capsys):
     """``belt-drive record --max-bag-duration`` writes NAME/NAME_i.mcap + metadata.yaml, losslessly;
     a split onto a ``.mcap`` name or a negative limit is refused in one line (exit 2)."""
-    import rclpy
     import yaml
-    from rclpy.context import Context
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64
 
     from belt_drive_ros.cli import main
-    from belt_drive_ros.ros import environment as ros_env
 
     for argv, what in ((["--out", str(tmp_path / "x.mcap"), "--max-bag-duration", "1"], "--out: "),
                        (["--out", str(tmp_path / "x"), "--max-bag-size", "-5"], "--max-bag-size: must be >= 0"),
@@ -316,16 +341,8 @@ def test_record_command_splits_into_a_bag_folder(tmp_path, ros_domain_id, capsys
     assert not (tmp_path / "x").exists() and not (tmp_path / "x.mcap").exists()
 
     folder = tmp_path / "rec"
-    cmd = [os.path.join(os.path.dirname(sys.executable), "belt-drive"), "record", "--out", str(folder),
-           "--topics", "/drive_torque", "--max-bag-duration", "0.2"]
-    proc = subprocess.Popen(cmd, env=ros_env.child_environment(ros_domain_id), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=ros_domain_id)
     sent = 0
-    try:
-        node = rclpy.create_node("record_probe", context=ctx)
-        pub = node.create_publisher(Float64, "/drive_torque", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    with _recorder_and_torque_publisher(["--out", str(folder), "--max-bag-duration", "0.2"], ros_domain_id) as (proc, pub):
         deadline = time.monotonic() + 20
         while pub.get_subscription_count() < 1:
             assert time.monotonic() < deadline and proc.poll() is None, proc.stderr.read() if proc.poll() else "no match"
@@ -339,10 +356,6 @@ def test_record_command_splits_into_a_bag_folder(tmp_path, ros_domain_id, capsys
         proc.send_signal(signal.SIGINT)
         code = proc.wait(timeout=20)
         stderr = proc.stderr.read()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        rclpy.try_shutdown(context=ctx)
     assert code == 0 and "Traceback" not in stderr, stderr
     meta = yaml.safe_load((folder / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert len(meta["relative_file_paths"]) >= 3 and meta["message_count"] == sent
@@ -353,26 +366,14 @@ def test_record_command_splits_into_a_bag_folder(tmp_path, ros_domain_id, capsys
 
 def test_record_duration_ends_by_itself_with_exit_0(tmp_path, ros_domain_id):
     """``belt-drive record --duration S`` is a normal end: the file is finished, exit 0 (not 1)."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64
 
     from msg_tools import read_topic
 
-    from belt_drive_ros.ros import environment as ros_env
-
     path = tmp_path / "timed.mcap"
-    cmd = [os.path.join(os.path.dirname(sys.executable), "belt-drive"), "record", "--out", str(path),
-           "--topics", "/drive_torque", "--duration", "8"]  # long enough for discovery on a loaded machine
-    proc = subprocess.Popen(cmd, env=ros_env.child_environment(ros_domain_id), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=ros_domain_id)
     sent = 0
-    try:
-        node = rclpy.create_node("record_probe", context=ctx)
-        pub = node.create_publisher(Float64, "/drive_torque", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    # 8 s: long enough for discovery on a loaded machine
+    with _recorder_and_torque_publisher(["--out", str(path), "--duration", "8"], ros_domain_id) as (proc, pub):
         deadline = time.monotonic() + 60
         while proc.poll() is None:  # publish until the recorder stops by itself
             assert time.monotonic() < deadline, "belt-drive record --duration 8 did not end"
@@ -381,10 +382,6 @@ def test_record_duration_ends_by_itself_with_exit_0(tmp_path, ros_domain_id):
             time.sleep(0.005)
         code = proc.wait(timeout=20)
         out, err = proc.stdout.read(), proc.stderr.read()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        rclpy.try_shutdown(context=ctx)
     assert code == 0, err
     assert "Traceback" not in err and out.startswith(f"wrote {path}: ")
     data = read_topic(path, "/drive_torque").data  # a finished file with what arrived
