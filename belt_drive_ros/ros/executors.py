@@ -14,7 +14,16 @@ Measured pitfalls they encode (ROS 2 Jazzy wheels):
   handlers only complete a future, and shutdown happens after the spin
   returns;
 * a signal arriving while no callback runs waits for the interpreter:
-  the spin polls every ``poll`` seconds.
+  the spin polls every ``poll`` seconds;
+* a Python signal handler runs in the main thread between two bytecodes,
+  possibly while that thread holds one of the ``threading.Lock`` objects
+  rclpy takes on every spin (the executor's task list, a ``Future``'s
+  state): a handler that completes a ``Future`` takes both and can
+  deadlock the process for good (seen once in CI: a node ignored SIGTERM).
+  The handler here only stores the signal number (:class:`StopSignal`);
+* ``SingleThreadedExecutor.spin_until_future_complete`` adds a done
+  callback to the future on every call and never removes it: the spin
+  waits on a fresh future per poll, so nothing accumulates over a long run.
 """
 
 from __future__ import annotations
@@ -36,12 +45,14 @@ from rclpy.task import Future  # noqa: E402
 
 __all__ = [
     "EXECUTORS",
+    "StopSignal",
     "executor_name",
     "make_executor",
     "ros_session",
     "spin_nodes",
     "spin_until",
     "spin_until_signal",
+    "stop_on_signals",
 ]
 
 EXECUTORS = ("auto", "events", "single")
@@ -85,14 +96,36 @@ def spin_until(executor, predicate: Callable[[], bool], timeout: float, step: fl
     return True
 
 
-@contextmanager
-def stop_on_signals() -> Iterator[Future]:
-    """A future that SIGINT/SIGTERM complete with the signal number (handlers restored on exit)."""
-    stop = Future()
+class StopSignal:
+    """The first SIGINT/SIGTERM a process received, recorded without taking any lock.
 
-    def on_signal(signum, frame):
-        if not stop.done():
-            stop.set_result(signum)
+    ``done()`` is True once a signal came; ``result()`` is its number (0
+    before). The handler that sets it runs between two bytecodes of the main
+    thread, whatever that thread holds, so it only assigns an attribute.
+    """
+
+    __slots__ = ("signum",)
+
+    def __init__(self) -> None:
+        self.signum = 0
+
+    def done(self) -> bool:
+        return self.signum != 0
+
+    def result(self) -> int:
+        return self.signum
+
+    def handle(self, signum, frame=None) -> None:
+        """Signal handler: keeps the first signal number."""
+        if not self.signum:
+            self.signum = int(signum)
+
+
+@contextmanager
+def stop_on_signals() -> Iterator[StopSignal]:
+    """A :class:`StopSignal` that SIGINT/SIGTERM set (the previous handlers are restored on exit)."""
+    stop = StopSignal()
+    on_signal = stop.handle
 
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
@@ -119,8 +152,9 @@ def spin_until_signal(
     context : rclpy Context, optional
         Default: rclpy's default context.
     poll : float
-        [s] bound on how long a signal can wait for the interpreter when no
-        callback runs, and the period of ``every``.
+        [s] longest wait between a signal and the end of the spin (the
+        handler wakes nothing: see the module notes), and the period of
+        ``every``.
     duration : float, optional
         Stop after this many wall seconds.
     until : callable, optional
@@ -145,10 +179,11 @@ def spin_until_signal(
                 timeout = poll if end is None else min(poll, end - time.monotonic())
                 if timeout <= 0:
                     break
-                executor.spin_until_future_complete(stop, timeout_sec=timeout)
+                # a fresh, never-completed future: the executor's done callbacks die with it
+                executor.spin_until_future_complete(Future(), timeout_sec=timeout)
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
-    return int(stop.result()) if stop.done() else 0
+    return stop.result()
 
 
 @contextmanager
