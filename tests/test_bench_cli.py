@@ -44,7 +44,9 @@ def test_bench_node_dispatches_to_the_node_module(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "belt_drive_ros.benchmarks.node", fake)
     monkeypatch.setattr(bench, "_single_threaded_blas", lambda: "BLAS as configured (test)")
     assert main(["bench", "node", "--out", str(tmp_path)]) == 0
-    assert seen == [["--out", str(tmp_path)]]
+    assert main(["bench", "node", "--out", str(tmp_path), "--duration", "12", "--floor", "-p", "model:=rigid"]) == 0
+    assert seen == [["--out", str(tmp_path), "--duration", "30.0"],
+                    ["--out", str(tmp_path), "--duration", "12.0", "--floor", "-p", "model:=rigid"]]
 
 
 def test_bench_parser_lists_the_studies():
@@ -109,3 +111,23 @@ def test_bench_hostile_quick_writes_the_table(tmp_path, ros_domain_id):
     bad = sum(int(r["silent wrong"]) + int(r["crash"]) + int(r["hang"]) for r in rows.values())
     assert status == (1 if bad else 0)
     assert "| category | inputs tried |" in (tmp_path / "hostile.md").read_text()
+
+
+@pytest.mark.ros
+def test_bench_node_floor_measures_the_node_and_a_model_free_twin_the_same_way(tmp_path):
+    """``bench node --floor``: two children measured one after the other by the same probe; the
+    floor publishes the node's joint_states on its tick grid and echoes drive_torque as the node does."""
+    import csv
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "belt_drive_ros.cli", "bench", "node", "--quick", "--floor", "--out", str(tmp_path)],
+        capture_output=True, text=True, timeout=240,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "node against its floor" in proc.stdout and "machine steal" in proc.stdout
+    rows = list(csv.DictReader((tmp_path / "node.csv").open()))
+    assert [r["process"] for r in rows] == ["node", "floor (rclpy + DDS, no model)"]
+    for r in rows:
+        assert float(r["rate_received_hz"]) > 0 and int(r["latency_samples"]) > 0, r  # stamps decoded, torque echoed
+        assert float(r["period_error_p50_ms"]) == 0.0, r  # stamps on the 1 ms grid
+        assert 0.0 <= float(r["steal_percent"]) <= 100.0

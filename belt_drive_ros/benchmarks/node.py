@@ -31,13 +31,23 @@ process (this one) on a private ROS domain over loopback:
   real_time_factor:=F`` the pace the node keeps, F, or how much faster than
   real time it runs with F = 0).
 
+* CPU steal: the share of the machine's CPU time its hypervisor took during
+  the window (``/proc/stat``), which no process on it can win back.
+
 The first ``--warmup`` seconds are discarded. Targets from the issue (2-core
 machine): >= 999 Hz, p99 period error <= 0.2 ms, latency p99 <= 0.5 ms,
 CPU <= 30 % of one core.
 
+``--floor`` then measures, in the same run and the same way, the floor
+under those figures (:mod:`.node_floor`): a process shaped like the node
+(same session, executor, timer, QoS and ``joint_states`` bytes) without the
+model. What the node spends beyond the floor is its own; what the floor
+misses, no rclpy node reaches on this machine.
+
 Usage::
 
     python -m belt_drive_ros.benchmarks.node --duration 30
+    python -m belt_drive_ros.benchmarks.node --duration 30 --floor
     belt-drive bench node --out docs/bench          # writes node.csv and node.md too
 """
 
@@ -64,6 +74,14 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / ticks  # utime, stime (fields 14, 15 of stat)
 
 
+def _cpu_jiffies() -> tuple[int, int]:
+    """(steal, total) CPU time of the machine so far, in clock ticks (Linux /proc/stat)."""
+    with open("/proc/stat") as f:
+        fields = [int(v) for v in f.readline().split()[1:]]
+    steal = fields[7] if len(fields) > 7 else 0
+    return steal, sum(fields[:8])  # user nice system idle iowait irq softirq steal (guest is inside user)
+
+
 def _percentiles(values, qs=(50, 99)):
     import numpy as np
 
@@ -85,13 +103,15 @@ def parse_args(argv=None):
     p.add_argument("--node-priority", type=int, metavar="N",
                    help="run the node with real-time scheduling (belt-drive node --priority N)")
     p.add_argument("--udp-only", action="store_true", help="Fast DDS UDPv4 only (default: its default transports)")
+    p.add_argument("--floor", action="store_true",
+                   help="then measure the floor: the same process without the model (rclpy + DDS only)")
     p.add_argument("--out", type=Path, help="also write node.csv and node.md here")
     p.add_argument("--quick", action="store_true", help="3 s run (smoke test)")
     return p.parse_args(argv)
 
 
-def measure(args) -> dict:
-    """Run the child node and this process's probe; return the figures."""
+def measure(args, floor: bool = False) -> dict:
+    """Run the child node (or, with ``floor``, :mod:`.node_floor`) and this process's probe; return the figures."""
     from ..ros import environment as ros_env
 
     ros_env.configure_environment(loopback=True)
@@ -111,6 +131,9 @@ def measure(args) -> dict:
     domain = ros_env.process_domain_id(offset=17)
     env = ros_env.child_environment(domain, udp_only=args.udp_only)
     cmd = [
+        sys.executable, "-m", "belt_drive_ros.benchmarks.node_floor", "--rate", str(float(args.rate)),
+        "--executor", args.executor,
+    ] if floor else [
         sys.executable, "-m", "belt_drive_ros.cli", "node", args.scene, "--executor", args.executor,
         *(["--priority", str(args.node_priority)] if args.node_priority else []),
         "--ros-args", "-p", f"step_rate_hz:={float(args.rate)}", "-p", "input_timeout:=0.0", "--log-level", "warn",
@@ -157,11 +180,13 @@ def measure(args) -> dict:
         gc.collect()
         gc.disable()  # no collection pauses in the measuring process during the window
         first = len(received)
+        steal0 = _cpu_jiffies()
         cpu0, own0, wall0 = _cpu_seconds(child.pid), time.process_time(), time.perf_counter()
         end = wall0 + args.duration
         while time.perf_counter() < end:
             ex.spin_until_future_complete(never, timeout_sec=min(0.1, max(end - time.perf_counter(), 0.001)))
         cpu1, own1, wall1 = _cpu_seconds(child.pid), time.process_time(), time.perf_counter()
+        steal1 = _cpu_jiffies()
         last = len(received)
     finally:
         gc.enable()
@@ -217,10 +242,12 @@ def measure(args) -> dict:
         "sim_per_wall": span_s / received_span_s if len(data) > 1 else math.nan,
         "cpu_percent": 100.0 * (cpu1 - cpu0) / window,
         "probe_cpu_percent": 100.0 * (own1 - own0) / window,
+        "steal_percent": 100.0 * (steal1[0] - steal0[0]) / max(steal1[1] - steal0[1], 1),
+        "process": "floor (rclpy + DDS, no model)" if floor else "node",
         "executor": args.executor,
-        "node_priority": f"SCHED_FIFO {args.node_priority}" if args.node_priority else "normal",
-        "scene": args.scene,
-        "params": " ".join(args.param),
+        "node_priority": f"SCHED_FIFO {args.node_priority}" if args.node_priority and not floor else "normal",
+        "scene": "-" if floor else args.scene,
+        "params": "" if floor else " ".join(args.param),
         "transport": "UDPv4" if args.udp_only else "Fast DDS default (SHM + UDP)",
         "load_average": os.getloadavg()[0],
     }
@@ -233,7 +260,7 @@ def report(f: dict) -> str:
 
     t = TARGETS
     lines = [
-        f"belt-drive node benchmark: {f['duration_s']:.1f} s at {f['rate_set_hz']:g} Hz "
+        f"belt-drive node benchmark, {f.get('process', 'node')}: {f['duration_s']:.1f} s at {f['rate_set_hz']:g} Hz "
         f"(executor {f['executor']}, {f['transport']}, scheduling {f.get('node_priority', 'normal')}, "
         f"load average {f['load_average']:.2f}, {os.cpu_count()} CPUs)",
         f"  scene                  {f.get('scene', '?')}" + (f" with {f['params']}" if f.get("params") else ""),
@@ -253,8 +280,28 @@ def report(f: dict) -> str:
         f"{mark(f['one_way_p99_ms'] <= t['latency_p99_ms'])}]",
         f"  simulated / wall time  {f['sim_per_wall']:.4f} (stamp span / receive span)",
         f"  CPU                    node {f['cpu_percent']:.1f} % of one core   [target <= {t['cpu_percent']:g} %: "
-        f"{mark(f['cpu_percent'] <= t['cpu_percent'])}]; measuring process {f['probe_cpu_percent']:.1f} %",
+        f"{mark(f['cpu_percent'] <= t['cpu_percent'])}]; measuring process {f['probe_cpu_percent']:.1f} %; "
+        f"machine steal {f.get('steal_percent', math.nan):.2f} %",
     ]
+    return "\n".join(lines)
+
+
+def compare(node: dict, floor: dict) -> str:
+    """The node's figures beside the floor's, measured one after the other in one run."""
+    rows = [
+        ("ticks skipped", "ticks_missing", "{:.0f}"),
+        ("achieved rate [Hz]", "rate_stamps_hz", "{:.2f}"),
+        ("one-way p50 [ms]", "one_way_p50_ms", "{:.3f}"),
+        ("one-way p99 [ms]", "one_way_p99_ms", "{:.3f}"),
+        ("torque -> state p99 [ms]", "latency_p99_ms", "{:.3f}"),
+        ("CPU [% of a core]", "cpu_percent", "{:.1f}"),
+        ("machine steal [%]", "steal_percent", "{:.2f}"),
+    ]
+    lines = ["node against its floor (same run, one after the other):",
+             f"  {'':26s}{'node':>10s}{'floor':>10s}{'node - floor':>14s}"]
+    for label, key, fmt in rows:
+        a, b = node.get(key, math.nan), floor.get(key, math.nan)
+        lines.append(f"  {label:26s}{fmt.format(a):>10s}{fmt.format(b):>10s}{fmt.format(a - b):>14s}")
     return "\n".join(lines)
 
 
@@ -264,11 +311,23 @@ def main(argv=None) -> int:
         args.duration, args.warmup = 3.0, 1.0
     figures = measure(args)
     text = report(figures)
-    print(text)
+    print(text, flush=True)
+    runs = [figures]
+    if args.floor:
+        floor = measure(args, floor=True)
+        runs.append(floor)
+        text += "\n" + report(floor) + "\n" + compare(figures, floor)
+        print(report(floor) + "\n" + compare(figures, floor))
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
-        keys = list(figures)
-        (args.out / "node.csv").write_text(",".join(keys) + "\n" + ",".join(str(figures[k]) for k in keys) + "\n")
+        import csv
+        import io
+
+        table = io.StringIO()
+        writer = csv.DictWriter(table, fieldnames=list(figures), lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(runs)
+        (args.out / "node.csv").write_text(table.getvalue())
         (args.out / "node.md").write_text("```\n" + text + "\n```\n")
         print(f"wrote {args.out / 'node.csv'} and {args.out / 'node.md'}")
     return 0

@@ -33,6 +33,7 @@ studies:
 examples:
   belt-drive bench all --out docs/bench          # what 'make bench' runs (a few minutes)
   belt-drive bench stability --out /tmp/b --quick
+  belt-drive bench node --duration 30 --floor    # the node's figures beside its model-free floor
   belt-drive bench soak --seconds 600            # 10 minutes of the recording node
   belt-drive bench hostile --out /tmp/hostile    # the hostile-input table (minutes)
 
@@ -56,6 +57,11 @@ def register(sub) -> None:
     p.add_argument("--quick", action="store_true", help="small sweeps and short runs (seconds; for tests)")
     p.add_argument("--quiet", action="store_true", help="no per-run log lines")
     p.add_argument("--seconds", type=float, default=60.0, help="soak: measured seconds (default 60)")
+    p.add_argument("--duration", type=float, default=30.0, help="node: measured seconds (default 30)")
+    p.add_argument("--floor", action="store_true",
+                   help="node: then measure the same process without the model (rclpy + DDS only) for comparison")
+    p.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
+                   help="node: a node parameter (repeatable), e.g. -p model:=slipping")
     p.set_defaults(func=run)
 
 
@@ -68,7 +74,7 @@ def _single_threaded_blas() -> str:
     return f"OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}"
 
 
-def _run_node(out: Path, quick: bool) -> int:
+def _run_node(out: Path, quick: bool, extra: list[str] | None = None) -> int:
     import importlib
 
     try:  # written with the ROS node; imported lazily (rclpy only inside it)
@@ -78,7 +84,7 @@ def _run_node(out: Path, quick: bool) -> int:
             raise
         print("belt-drive bench: node benchmark not available (belt_drive_ros/benchmarks/node.py missing); skipped")
         return 0
-    return int(node.main(["--out", str(out)] + (["--quick"] if quick else [])) or 0)
+    return int(node.main(["--out", str(out)] + (["--quick"] if quick else []) + list(extra or [])) or 0)
 
 
 def run(args) -> int:
@@ -86,7 +92,8 @@ def run(args) -> int:
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     if args.study == "node":
-        return _run_node(out, args.quick)
+        extra = ["--duration", repr(args.duration)] + (["--floor"] if args.floor else [])
+        return _run_node(out, args.quick, extra + [a for param in args.param for a in ("-p", param)])
     if args.study == "soak":
         from ..benchmarks import soak
 
