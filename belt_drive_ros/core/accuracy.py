@@ -696,6 +696,7 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     ``sigmas``: the run's samples). No events: 0; both reruns diverge: inf.
     """
     from .errors import SimulationDivergedError
+    from .slip import SlippingBeltModel
     from .slip_run import SlippingSimulator, _joined
 
     event_times = sorted(float(t) for t in event_times)
@@ -703,7 +704,7 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     if not event_times or order is None:
         return 0.0
     time = np.asarray(time, dtype=float)
-    model, r3 = SlippingSimulator(params, drive, load, method, dt, method_options, check_stability=False).model, params.r_3
+    model, r3 = SlippingBeltModel(params), params.r_3
 
     def outputs(ys, m, s):
         return np.column_stack([ys[:, 2], r3 * model.force(ys, m, s)])
@@ -718,7 +719,8 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     if i < 0 or abs(time[i] - t0) > 1e-9 * dt or t1 <= t0 + dt:
         return 0.0
     for h, factor in ((2.0 * dt, 1.0 / (2.0**order - 1.0)), (dt / 2.0, 2.0**order / (2.0**order - 1.0))):
-        sim = SlippingSimulator(params, drive, load, method, h, method_options, check_stability=False)
+        # lazy: each phase's stepper is built when the rerun first enters that phase
+        sim = SlippingSimulator(params, drive, load, method, h, method_options, check_stability=False, lazy=True)
         state = sim._native(np.asarray(states[i], dtype=float), int(modes[i]), float(sigmas[i]))
         pieces = [(np.array([t0]), sim.state_y(state)[None, :], state.mode, state.sigma)]
         try:
