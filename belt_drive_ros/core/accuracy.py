@@ -582,13 +582,14 @@ def _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, expo
 
 
 def require_accurate(plant, method, dt, duration, x0, tolerance=ACCURACY_TOLERANCE, method_options=None, stepper=None,
-                     stated_inputs=True):  # fmt: skip
+                     stated_inputs=True, probes=None):  # fmt: skip
     """:func:`check_accuracy`; raises :class:`UnstableStepError` (naming a stable, accurate step) when unstable.
 
     An inaccurate but stable step is returned (``report.accurate`` False): the caller warns.
+    ``probes``: a :func:`probe_scene` of this plant, duration, state and step already made.
     """
     report = check_accuracy(plant, method, dt, duration, x0, tolerance, method_options, stepper=stepper,
-                            stated_inputs=stated_inputs)  # fmt: skip
+                            stated_inputs=stated_inputs, probes=probes)  # fmt: skip
     if report is not None and not report.stable:
         raise UnstableStepError(report.describe())
     return report
@@ -597,7 +598,7 @@ def require_accurate(plant, method, dt, duration, x0, tolerance=ACCURACY_TOLERAN
 def check_slipping(
     params, drive, load, method: str, dt: float, duration: float, x0_flexible, tolerance: float = ACCURACY_TOLERANCE,
     method_options=None, stepper=None, suggest: bool = True, stick: AccuracyReport | None = None,
-    stated_inputs: bool = True,
+    stated_inputs: bool = True, probes: Probes | None = None,
 ) -> AccuracyReport | None:  # fmt: skip
     """The guard for a run on the slipping model: each mode linearized, the worse verdict counts.
 
@@ -614,7 +615,8 @@ def check_slipping(
       explicit methods must resolve.
 
     ``stepper``: the flexible-model stepper of the run (its integrator is reused); ``stick``: the
-    flexible model's report for this method, step and tolerance already made (``auto``'s check run).
+    flexible model's report for this method, step and tolerance already made (``auto``'s check run);
+    ``probes``: the :func:`probe_scene` of the flexible plant at this step already made (that check's).
     """
     from .model import FlexibleBeltModel
     from .slip import SlippingBeltModel
@@ -624,7 +626,8 @@ def check_slipping(
     if not issubclass(cls, FixedStepIntegrator):
         return None
     plant = Plant(FlexibleBeltModel(params), drive, load)
-    probes = probe_scene(plant, duration, x0_flexible, dt, stated_inputs)
+    if probes is None:
+        probes = probe_scene(plant, duration, x0_flexible, dt, stated_inputs)
     if stick is None:
         stick = check_accuracy(plant, method, dt, duration, x0_flexible, tolerance, method_options, suggest=False,
                                probes=probes, stepper=stepper)  # fmt: skip
@@ -665,10 +668,10 @@ def check_slipping(
 
 
 def require_accurate_slipping(params, drive, load, method, dt, duration, x0_flexible, tolerance=ACCURACY_TOLERANCE,
-                              method_options=None, stepper=None, stick=None, stated_inputs=True):  # fmt: skip
+                              method_options=None, stepper=None, stick=None, stated_inputs=True, probes=None):  # fmt: skip
     """:func:`check_slipping`; raises :class:`UnstableStepError` when either mode is unstable."""
     report = check_slipping(params, drive, load, method, dt, duration, x0_flexible, tolerance, method_options, stepper,
-                            stick=stick, stated_inputs=stated_inputs)  # fmt: skip
+                            stick=stick, stated_inputs=stated_inputs, probes=probes)  # fmt: skip
     if report is not None and not report.stable:
         raise UnstableStepError(report.describe())
     return report

@@ -22,7 +22,9 @@ from typing import Callable
 
 import numpy as np
 
-from .accuracy import AccuracyReport, require_accurate, require_accurate_slipping, slip_run_error, with_slip_run_error
+from .accuracy import (
+    AccuracyReport, probe_scene, require_accurate, require_accurate_slipping, slip_run_error, with_slip_run_error,
+)  # fmt: skip
 from .errors import SimulationDivergedError
 from .fidelity import ModelChoice, choose_model, limit_exceedance
 from .integrators import method_class
@@ -237,8 +239,11 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
     sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability,
                             lazy=True)  # fmt: skip
     x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+    # one probe run for both checks (the stick mode's now, both modes' if the run slips)
+    probes = probe_scene(sim.plant, scene.duration, x0, scene.dt) if check_stability else None
     accuracy = (
-        require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, method_options=scene.method_options)
+        require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, method_options=scene.method_options,
+                         probes=probes)
         if check_stability else None
     )  # fmt: skip
     sim.flexible_record = kept = []
@@ -247,7 +252,7 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
         time, states, modes, sigmas = sim.run(scene.duration, scene.initial_state.vector("slipping", scene.params.ratio), progress=progress)
     except SimulationDivergedError:
         if check_stability and sim.events:  # diverged after slipping: the slip mode's guard names the step that works
-            _slipping_accuracy(scene, sim, accuracy)
+            _slipping_accuracy(scene, sim, accuracy, probes)
         raise
     wall = _time.perf_counter() - start
     if sum(len(t) for t, _ in kept) == len(time):  # the flexible model throughout: its run, bit for bit
@@ -264,7 +269,7 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
     )
     choice = replace(linear, model="slipping", reason=reason, limit_ratio=1.0, limit_time=onset)
     # the guard on both modes once the run has slipped (its stick part is the check made before the run)
-    accuracy = _slipping_accuracy(scene, sim, accuracy) if check_stability else None
+    accuracy = _slipping_accuracy(scene, sim, accuracy, probes) if check_stability else None
     return _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy)
 
 
@@ -336,16 +341,16 @@ def simulate_slipping(scene, choice=None, progress=None, check_stability=True, s
     return _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy)
 
 
-def _slipping_accuracy(scene, sim, stick=None):
+def _slipping_accuracy(scene, sim, stick=None, probes=None):
     """The accuracy guard on both modes of the slipping model (:func:`~belt_drive_ros.core.accuracy.require_accurate_slipping`).
 
-    ``stick``: the flexible check's verdict when already made (it is the stick mode's).
+    ``stick``: the flexible check's verdict when already made (it is the stick mode's); ``probes``: its probe run.
     """
     # each mode linearized (stick: the flexible closed loop and forcing windows; slip: the slip-mode dynamics)
     return require_accurate_slipping(
         scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.duration,
         scene.initial_state.vector("flexible", scene.params.ratio), method_options=scene.method_options,
-        stepper=sim.stepper, stick=stick,
+        stepper=sim.stepper, stick=stick, probes=probes,
     )  # fmt: skip
 
 
