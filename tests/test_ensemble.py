@@ -13,7 +13,7 @@ import scipy.linalg
 
 from belt_drive_ros.core.batch_expm import expm_stack
 from belt_drive_ros.core.ensemble import Ensemble, EnsembleUnsupported
-from belt_drive_ros.core.ensemble_run import simulate_many
+from belt_drive_ros.core.ensemble_run import GroupRun, GroupSummary, peak_over_time, run_groups, simulate_many
 from belt_drive_ros.core.integrators import REGISTRY
 from belt_drive_ros.core.model import make_model
 from belt_drive_ros.core.scene import load_scene, shipped_scenes
@@ -158,3 +158,42 @@ def test_expm_of_a_matrix_does_not_depend_on_its_stack():
     E = expm_stack(A)
     for a, e in zip(A, E):
         assert np.array_equal(expm_stack(a), e)
+
+
+@pytest.mark.parametrize("name", ["paper", "truck_compressor", "bsg_start"])
+def test_windows_are_the_whole_run_and_reductions_over_them_its_reductions(name):
+    """Ensemble.windows gives run()'s knots and states bit for bit; run_groups(reduce=...) over windows of 23 steps
+    gives per variant what the whole run's arrays reduce to (max, min, first, last, first argmax), with the same
+    model choices (auto) and the same outcomes."""
+    scene = load_scene(name).with_overrides(duration=min(load_scene(name).duration, 0.5))
+    scenes = _variants(scene, 9, seed=13)
+    ens = Ensemble([make_model("flexible", s.params) for s in scenes], scene.drive, scene.load, scene.method, scene.dt)
+    x0 = np.stack([s.initial_state.vector("flexible", s.params.ratio) for s in scenes])
+    times, states = ens.run(x0, 0.0, scene.duration)
+    parts = [(t.copy(), x.copy()) for t, x in ens.windows(x0, 0.0, scene.duration, 23)]
+    assert len(parts) > 2 and all(np.array_equal(a[0][-1], b[0][0]) for a, b in zip(parts, parts[1:]))
+    assert np.array_equal(np.concatenate([parts[0][0]] + [t[1:] for t, _ in parts[1:]]), times)
+    assert np.array_equal(np.concatenate([parts[0][1]] + [x[1:] for _, x in parts[1:]]), states)
+
+    def window(run):
+        belt = run.output("belt_torque")
+        return {"peak": np.max(np.abs(belt), axis=0), "low": np.min(run.output("omega_M"), axis=0),
+                "first": belt[0], "last": belt[-1], "at": peak_over_time(np.abs(belt), run.times)}  # fmt: skip
+
+    kinds = {"peak": "max", "low": "min", "first": "first", "last": "last", "at": "argmax"}
+    for model_name in ("flexible", "auto"):
+        group = [s.with_overrides(model=model_name) for s in scenes]
+        whole = {o.indices[0] if hasattr(o, "indices") else o.index: o for o in run_groups(group)}
+        reduced = {o.indices[0] if hasattr(o, "indices") else o.index: o for o in run_groups(group, reduce=(kinds, window), window=23)}
+        assert whole.keys() == reduced.keys()
+        for key, full in whole.items():
+            summary = reduced[key]
+            if isinstance(full, GroupRun):
+                assert isinstance(summary, GroupSummary) and summary.indices == full.indices and summary.kind == full.kind
+                expected = window(full)
+                for k in ("peak", "low", "first", "last"):
+                    assert np.array_equal(summary.values[k], expected[k]), k
+                assert all(np.array_equal(a, b) for a, b in zip(summary.values["at"], expected["at"]))
+                assert [c.reason if c else None for c in summary.choices] == [c.reason if c else None for c in full.choices]
+            else:
+                assert (summary.index, summary.error, summary.single_reason) == (full.index, full.error, full.single_reason)

@@ -34,7 +34,7 @@ from pathlib import Path
 
 
 from ..core.errors import BeltDriveError
-from .metrics import METRICS, group_metrics, run_metrics
+from .metrics import GROUP_REDUCTION, METRICS, group_metrics, run_metrics, summary_metrics
 from .spec import Campaign, CampaignError
 
 #: a task should compute at least this long [s] (Dask's per-task overhead is ~1 ms)
@@ -81,14 +81,16 @@ def run_batch(portable: dict, rows: list, recordings_dir: str | None = None) -> 
         except (BeltDriveError, ValueError, TypeError) as exc:
             record.update(ran="none", error=f"{type(exc).__name__}: {exc}")
         out.append(record)
-    from ..core.ensemble_run import GroupRun, run_groups
+    from ..core.ensemble_run import GroupRun, GroupSummary, run_groups
 
     fleet = campaign.fleet_folder is not None and recordings_dir
-    for item in run_groups(scenes):
-        if isinstance(item, GroupRun):  # an ensemble: metrics of all its variants at once
-            for v, (i, values) in enumerate(zip(item.indices, group_metrics(item))):
+    # without recordings to write, ensembles keep only the metrics' reductions over time (memory: one window)
+    for item in run_groups(scenes, reduce=None if fleet else GROUP_REDUCTION):
+        if isinstance(item, (GroupRun, GroupSummary)):  # an ensemble: metrics of all its variants at once
+            values = group_metrics(item) if isinstance(item, GroupRun) else summary_metrics(item.values, len(item))
+            for v, (i, row) in enumerate(zip(item.indices, values)):
                 record = built[i]
-                record.update(values, ran="ensemble", model=item.kind)
+                record.update(row, ran="ensemble", model=item.kind)
                 if fleet:
                     _fleet_outputs(campaign, item.result(v), record, Path(recordings_dir))
             continue

@@ -59,8 +59,8 @@ def run_metrics(result) -> dict[str, float]:
         use = np.asarray(out["friction_use"], dtype=float)
     else:
         use = friction_use(belt, p.r_3, np.broadcast_to(p.friction_limit(omega), belt.shape))
-    values = _reduce(belt, omega, np.asarray(out["span_force_slack"], dtype=float),
-                     np.asarray(out["relative_deflection"], dtype=float), use)  # fmt: skip
+    values = _finish(_reduce(belt, omega, np.asarray(out["span_force_slack"], dtype=float),
+                             np.asarray(out["relative_deflection"], dtype=float), use))  # fmt: skip
     if result.model in SLIP_MODELS:
         sliding = np.asarray(out["slip"], dtype=bool)
         dt = np.diff(t)
@@ -77,24 +77,49 @@ def group_metrics(run) -> list[dict[str, float]]:
     signals (so each row equals :func:`run_metrics` of that variant's single
     run bit for bit); one dict per variant, in the block's order.
     """
+    return summary_metrics(_finish(_window(run)), len(run))
+
+
+#: how the linear-run metrics of windows of one run combine (:class:`~belt_drive_ros.core.ensemble_run.Reductions`)
+WINDOW_KINDS = {
+    "peak_belt_torque": "max", "min_slack_force": "min", "peak_friction_use": "max", "peak_deflection": "max",
+    "final_speed": "last", "min_speed": "min",
+}  # fmt: skip
+
+
+def _window(run) -> dict:
+    """The linear-run metrics of one window of a :class:`~belt_drive_ros.core.ensemble_run.GroupRun` (before :func:`_finish`)."""
     belt, omega = run.output("belt_torque"), run.output("omega_M")
     use = friction_use(belt, run.param("r_3"), run.friction_limit())
-    values = _reduce(belt, omega, run.output("span_force_slack"), run.output("relative_deflection"), use)
-    columns = {name: values[name].tolist() for name in METRICS}
-    return [{name: float(columns[name][v]) for name in METRICS} for v in range(len(run))]
+    return _reduce(belt, omega, run.output("span_force_slack"), run.output("relative_deflection"), use)
+
+
+#: ``reduce`` of :func:`~belt_drive_ros.core.ensemble_run.run_groups` for the campaign metrics (then :func:`summary_metrics`)
+GROUP_REDUCTION = (WINDOW_KINDS, _window)
+
+
+def summary_metrics(values: dict, count: int | None = None) -> list[dict[str, float]]:
+    """One metrics dict per variant from reductions over whole runs (``GroupSummary.values`` of :data:`GROUP_REDUCTION`)."""
+    if "slip_time" not in values:
+        values = _finish(values)
+    columns = {name: np.asarray(values[name]).tolist() for name in METRICS}
+    count = len(columns[next(iter(METRICS))]) if count is None else count
+    return [{name: float(columns[name][v]) for name in METRICS} for v in range(count)]
 
 
 def _reduce(belt, omega, slack_force, deflection, use) -> dict:
-    """The metrics of a linear run, reduced over the time axis 0 (trailing axes: variants)."""
-    peak_use = np.max(use, axis=0)
-    beyond = np.where(peak_use <= 1.0, 0.0, math.nan)  # slip is not modelled by a linear run
+    """The metrics of a linear run (or a window of it), reduced over the time axis 0 (trailing axes: variants)."""
     return {
         "peak_belt_torque": np.max(np.abs(belt), axis=0),
         "min_slack_force": np.min(slack_force, axis=0),
-        "peak_friction_use": peak_use,
-        "slip_time": beyond,
-        "accumulated_slip": beyond,
+        "peak_friction_use": np.max(use, axis=0),
         "peak_deflection": np.max(np.abs(deflection), axis=0),
         "final_speed": omega[-1],
         "min_speed": np.min(omega, axis=0),
     }
+
+
+def _finish(values: dict) -> dict:
+    """``values`` of :func:`_reduce` over the whole run with the slip metrics: 0 within the limit, NaN past it."""
+    beyond = np.where(values["peak_friction_use"] <= 1.0, 0.0, math.nan)  # slip is not modelled by a linear run
+    return dict(values, slip_time=beyond, accumulated_slip=beyond)

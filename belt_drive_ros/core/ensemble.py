@@ -183,20 +183,38 @@ class Ensemble:
         diverges gets non-finite states from there on (:meth:`diverged`
         finds them); the others are unaffected.
         """
+        return next(self.windows(x0, t0, t1, None))
+
+    def windows(self, x0: np.ndarray, t0: float, t1: float, size: int | None = 256):
+        """:meth:`run` in windows of at most ``size`` steps: yields ``(times (K+1,), states (K+1, n, V))``.
+
+        Consecutive windows share their end knot (the last knot of one is the
+        first of the next), so the windows together are :meth:`run`'s knots
+        and states, the very same floats (one time loop, the same steps);
+        memory holds one window, whatever the duration. ``size=None``: one
+        window (:meth:`run`). The arrays are reused: a caller keeps copies.
+        """
         x0 = np.asarray(x0, dtype=float)
         V = len(self.models)
         if x0.shape != (V, self.n):
             raise ValueError(f"ensemble: x0 must be ({V}, {self.n}), got {x0.shape}")
         stepper = Stepper(self.plant, self.method, self.dt, self.method_options, origin=t0, integrator=_NoIntegrator())
         times, steps = stepper.steps(float(t0), float(t1))
-        out = np.empty((len(times), self.n, V))
+        size = len(times) - 1 if size is None else max(int(size), 1)
+        out = np.empty((min(size, max(len(times) - 1, 1)) + 1, self.n, V))
         out[0] = x0.T
         if len(times) == 2 and not steps:  # t0 and t1 on one grid time: nothing to integrate
             out[1] = out[0]
+            yield times, out[:2]
+            return
+        if not steps:
+            yield times, out[:1]
+            return
         s_max = max(len(self._scheme(self.dt).nodes), 1)
         Z = np.empty((self.n + self.m * s_max + self.m * 8, V))  # [x, U_0, U_1, ...]
         x = out[0]
         left_of = self.plant.left_of
+        first, j = 0, 0  # knot index of out[0]; knots filled after it
         with np.errstate(all="ignore"):  # a diverging variant is reported afterwards
             for k, (a, e, whole, lo, hi, cuts) in enumerate(steps):
                 if whole and not cuts and lo == -math.inf and hi == math.inf:  # the compiled loop's steps
@@ -205,13 +223,19 @@ class Ensemble:
                     x = self._step(self._scheme(self.dt if whole else e - a, plain=True), a, x, lo, hi, Z)
                 else:
                     edges = [a, *cuts, e]
-                    for j in range(len(edges) - 1):
-                        p, q = edges[j], edges[j + 1]
-                        lo_j = lo if j == 0 else p
-                        hi_j = hi if j == len(edges) - 2 else left_of(q)
-                        x = self._step(self._scheme(q - p, plain=True), p, x, lo_j, hi_j, Z)
-                out[k + 1] = x
-        return times, out
+                    for q in range(len(edges) - 1):
+                        p, r = edges[q], edges[q + 1]
+                        lo_q = lo if q == 0 else p
+                        hi_q = hi if q == len(edges) - 2 else left_of(r)
+                        x = self._step(self._scheme(r - p, plain=True), p, x, lo_q, hi_q, Z)
+                j += 1
+                out[j] = x
+                if k == len(steps) - 1:
+                    yield times[first : first + j + 1], out[: j + 1]
+                elif j == len(out) - 1:
+                    yield times[first : first + j + 1], out
+                    out[0] = out[j]  # the next window starts at this window's last knot
+                    first, j = first + j, 0
 
     def _step(self, sch: _BatchScheme, t: float, x: np.ndarray, lo: float, hi: float, Z: np.ndarray) -> np.ndarray:
         """One step of ``sch`` from states ``x`` (n, V) at ``t`` [s], torque times clamped to [lo, hi]."""
@@ -247,14 +271,31 @@ class Ensemble:
         :data:`~belt_drive_ros.core.stepper.SPEED_LIMIT`) names the time, as a
         single run reports it.
         """
+        return self.diverged_errors(self.first_bad(times, states))
+
+    def first_bad(self, times: np.ndarray, states: np.ndarray, found: dict | None = None) -> dict:
+        """``{variant: (time, state)}``: each variant's first bad sample (see :meth:`diverged`).
+
+        ``found``: what earlier windows of the run found (updated in place;
+        a variant found there keeps its sample), so the windows of
+        :meth:`windows` give what one whole run gives.
+        """
+        found = {} if found is None else found
         half = states.shape[1] // 2
         with np.errstate(invalid="ignore"):
             bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, half:]) > SPEED_LIMIT, axis=1)  # (N+1, V)
-        out = {}
         for v in np.flatnonzero(bad.any(axis=0)):
-            k = int(np.argmax(bad[:, v]))
+            if int(v) not in found:
+                k = int(np.argmax(bad[:, v]))
+                found[int(v)] = (float(times[k]), states[k, :, v].copy())
+        return found
+
+    def diverged_errors(self, found: dict) -> dict:
+        """``{variant: SimulationDivergedError}`` of :meth:`first_bad`'s samples, as a single run reports them."""
+        out = {}
+        for v, (t, x) in sorted(found.items()):
             stepper = Stepper(Plant(self.models[v], self.drive, self.load), self.method, self.dt, self.method_options)
-            out[int(v)] = stepper.diverged_error(float(times[k]), states[k, :, v])
+            out[v] = stepper.diverged_error(t, x)
         return out
 
     def inputs(self, times: np.ndarray, states: np.ndarray) -> np.ndarray:

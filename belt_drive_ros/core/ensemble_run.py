@@ -36,6 +36,7 @@ the variants at once (campaign metrics) instead of building one
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 from typing import Iterator, Sequence
@@ -93,15 +94,30 @@ class GroupRun:
         self.times, self.states, self.inputs = times, states, inputs
         self.choices = list(choices) if choices is not None else [None] * len(self.indices)
         self._outputs: dict = {}
+        self._params: dict = {}
         self._C = np.stack([m.C for m in self.models], axis=-1)  # (O, n, V)
         self._D = np.stack([m.D for m in self.models], axis=-1)  # (O, m, V)
 
     def __len__(self) -> int:
         return len(self.indices)
 
+    def window(self, times, states, inputs) -> "GroupRun":
+        """The same variants over other knots (a window of :meth:`~belt_drive_ros.core.ensemble.Ensemble.windows`).
+
+        Shares the output matrices and parameters; outputs are computed
+        afresh for the window's samples.
+        """
+        out = copy.copy(self)
+        out.times, out.states, out.inputs = times, states, inputs
+        out._outputs = {}
+        return out
+
     def param(self, name: str) -> np.ndarray:
         """Parameter or derived quantity ``name`` of :class:`~belt_drive_ros.core.params.BeltDriveParams` per variant: (V,)."""
-        return np.array([getattr(s.params, name) for s in self.scenes], dtype=float)
+        cached = self._params.get(name)
+        if cached is None:
+            cached = self._params[name] = np.array([getattr(s.params, name) for s in self.scenes], dtype=float)
+        return cached
 
     def output(self, name: str) -> np.ndarray:
         """Output signal ``name`` of :data:`~belt_drive_ros.core.model.OUTPUT_UNITS` for every variant: (N+1, V).
@@ -136,7 +152,9 @@ class GroupRun:
 
     def friction_limit(self) -> np.ndarray:
         """Q_max [N] at every knot of every variant (N+1, V) (:meth:`~belt_drive_ros.core.params.BeltDriveParams.friction_limit`)."""
-        ratio = np.array([s.params.r_2 * s.params.gear_ratio for s in self.scenes])
+        ratio = self._params.get("r_2 g")
+        if ratio is None:
+            ratio = self._params["r_2 g"] = np.array([s.params.r_2 * s.params.gear_ratio for s in self.scenes])
         return friction_limit_array(
             self.param("F_0"), ratio, self.param("belt_mass"), self.param("capstan_factor"), self.output("omega_M")
         )
@@ -150,6 +168,72 @@ class GroupRun:
             scene=scene, model=self.kind, method=self.method, dt=scene.dt, time=self.times, states=x_v, inputs=u_v,
             outputs=model.outputs(x_v, u_v), choice=self.choices[v], wall_time=math.nan,
         )  # fmt: skip
+
+
+class Reductions:
+    """Reductions over the time axis of an ensemble run, merged window by window (:meth:`Ensemble.windows`).
+
+    ``kinds``: name -> ``"max"``, ``"min"`` (NaN propagates, as ``np.max``
+    over the whole run), ``"first"``, ``"last"`` (the value at the first /
+    last knot) or ``"argmax"`` (``update`` gives ``(values, times)``: the
+    peak and the time of its first occurrence, as ``np.argmax`` over the
+    whole run: a NaN counts as the peak). Windows share their end knots,
+    which these reductions tolerate. ``values``: name -> (V,) array
+    (``argmax``: a pair of arrays).
+    """
+
+    def __init__(self, kinds: dict):
+        self.kinds = dict(kinds)
+        self.values: dict = {}
+
+    def update(self, window: dict) -> None:
+        """Merge one window's reductions (name -> (V,) array, or ``(values, times)`` for argmax)."""
+        for name, new in window.items():
+            kind = self.kinds[name]
+            old = self.values.get(name)
+            if old is None or kind == "last":
+                self.values[name] = tuple(np.array(a, dtype=float) for a in new) if kind == "argmax" else np.array(new)
+            elif kind == "max":
+                self.values[name] = np.maximum(old, new)
+            elif kind == "min":
+                self.values[name] = np.minimum(old, new)
+            elif kind == "argmax":
+                (v_old, t_old), (v_new, t_new) = old, new
+                with np.errstate(invalid="ignore"):
+                    better = (v_new > v_old) | (np.isnan(v_new) & ~np.isnan(v_old))
+                self.values[name] = (np.where(better, v_new, v_old), np.where(better, t_new, t_old))
+
+    def subset(self, keep: list) -> dict:
+        """``values`` of the variants ``keep`` (positions)."""
+        return {k: tuple(a[keep] for a in v) if isinstance(v, tuple) else v[keep] for k, v in self.values.items()}
+
+
+def peak_over_time(values: np.ndarray, times: np.ndarray) -> tuple:
+    """(peak (V,), its time (V,) [s]) of ``values`` (N+1, V) over the time axis: the first ``np.argmax``."""
+    k = np.argmax(values, axis=0)
+    cols = np.arange(values.shape[1])
+    return values[k, cols], np.asarray(times, dtype=float)[k]
+
+
+@dataclass
+class GroupSummary:
+    """Variants of one group run together on one linear model, kept as reductions over time only.
+
+    What :func:`run_groups` yields instead of a :class:`GroupRun` when given
+    ``reduce``: the run went window by window (memory: one window), and
+    ``values`` holds the reductions ``reduce`` asked for (name -> (V,)
+    array), in the order of ``indices``.
+    """
+
+    indices: list
+    scenes: list
+    kind: str
+    method: str
+    choices: list
+    values: dict
+
+    def __len__(self) -> int:
+        return len(self.indices)
 
 
 def _error_line(exc: BaseException) -> str:
@@ -188,8 +272,20 @@ def simulate_many(scenes: Sequence[Scene], check_stability: bool = True, min_gro
             yield Outcome(i, item.result(v), None, True)
 
 
-def run_groups(scenes: Sequence[Scene], check_stability: bool = True, min_group: int = MIN_GROUP) -> Iterator:
-    """:func:`simulate_many` by blocks: yields :class:`Outcome` (single runs, failures) and :class:`GroupRun` (ensembles)."""
+def run_groups(
+    scenes: Sequence[Scene], check_stability: bool = True, min_group: int = MIN_GROUP, reduce=None, window: int = 64,
+) -> Iterator:  # fmt: skip
+    """:func:`simulate_many` by blocks: yields :class:`Outcome` (single runs, failures) and :class:`GroupRun` (ensembles).
+
+    ``reduce``: keep only reductions over time of each ensemble run, not its
+    states: a pair ``(kinds, values)`` with ``kinds`` the
+    :class:`Reductions` kinds (name -> kind) and ``values(run)`` the
+    reductions of one window (a :class:`GroupRun` over the window's knots)
+    as name -> (V,) array. The runs then go ``window`` steps at a time
+    (memory: one window of states, whatever the duration) and
+    :class:`GroupSummary` blocks come out instead of :class:`GroupRun`;
+    each variant's values equal those of its whole run.
+    """
     memo: dict = {}
     groups: dict = {}
     for i, scene in enumerate(scenes):
@@ -214,7 +310,7 @@ def run_groups(scenes: Sequence[Scene], check_stability: bool = True, min_group:
             for i in members:
                 yield _single(i, scenes[i], check_stability, reason)
             continue
-        yield from _run_group([(i, scenes[i]) for i in members], check_stability)
+        yield from _run_group([(i, scenes[i]) for i in members], check_stability, reduce, window)
 
 
 def _unsupported(scene: Scene) -> str | None:
@@ -248,10 +344,11 @@ def _stable(scenes, kind: str, check_stability: bool) -> tuple[list, list]:
     return ok, failed
 
 
-def _run_group(members: list, check_stability: bool) -> Iterator:
-    """One group (shared profiles and settings): see the module docstring."""
+def _run_group(members: list, check_stability: bool, reduce=None, window: int = 64) -> Iterator:
+    """One group (shared profiles and settings): see the module docstring and :func:`run_groups`."""
     first = members[0][1]
     drive, load, T = first.drive, first.load, first.duration
+    size = window if reduce is not None else None
     if first.model in ("rigid", "flexible"):
         kinds = {i: first.model for i, _ in members}
         linear: dict = {}
@@ -259,19 +356,23 @@ def _run_group(members: list, check_stability: bool) -> Iterator:
         rigid = [make_model("rigid", s.params) for _, s in members]
         ens = Ensemble(rigid, drive, load, "exact", operating_run_step(T))
         x0 = np.stack([s.initial_state.vector("rigid", s.params.ratio) for _, s in members])
-        times, states = ens.run(x0, 0.0, T)
-        estimate = GroupRun([i for i, _ in members], [s for _, s in members], rigid, "rigid", "exact", times, states,
-                            ens.inputs(times, states))  # fmt: skip
-        w = np.max(np.abs(states[:, 1, :]), axis=0)
-        belt = estimate.output("belt_torque")
-        peak = np.max(np.abs(belt), axis=0)
-        start = belt[0].tolist()  # the belt torque the start needs: rigid belt torque at t = 0 (fidelity.start_mismatch)
+        block = GroupRun([i for i, _ in members], [s for _, s in members], rigid, "rigid", "exact", None, None, None)
+        # as fidelity's rigid estimate: max |omega_M|, max |omega_3|, max |belt torque|; and the belt torque
+        # the start needs: the rigid belt torque at t = 0 (fidelity.start_mismatch)
+        estimate = Reductions({"w": "max", "peak": "max", "start": "first"})
+        for times, states in ens.windows(x0, 0.0, T, size):
+            belt = block.window(times, states, ens.inputs(times, states)).output("belt_torque")
+            with np.errstate(invalid="ignore"):
+                estimate.update(
+                    {"w": np.max(np.abs(states[:, 1, :]), axis=0), "peak": np.max(np.abs(belt), axis=0), "start": belt[0]}
+                )
+        w, peak = estimate.values["w"], estimate.values["peak"]
+        start = estimate.values["start"].tolist()
         kinds, linear = {}, {}
         for v, (i, s) in enumerate(members):
             if not math.isfinite(w[v]):  # the estimate diverged: simulate reports it
                 yield _single(i, s, check_stability, "the rigid estimate of the operating speeds diverged")
                 continue
-            # as fidelity's rigid estimate: max |omega_M|, max |omega_3|, max |belt torque|
             speeds = (float(w[v]), float(w[v]) * s.params.ratio, float(peak[v]))
             try:
                 linear[i] = choose_model(s, check_slip=False, speeds=speeds, start_torque=start[v])
@@ -291,35 +392,47 @@ def _run_group(members: list, check_stability: bool) -> Iterator:
                 yield _single(i, s, check_stability, str(exc))
             continue
         x0 = np.stack([s.initial_state.vector(kind, s.params.ratio) for _, s, _ in chosen])
-        times, states = ens.run(x0, 0.0, T)
-        diverged = ens.diverged(times, states)
+        block = GroupRun([i for i, _, _ in chosen], [s for _, s, _ in chosen], [m for _, _, m in chosen], kind, ens.method,
+                         None, None, None)  # fmt: skip
+        found: dict = {}
+        capstan = Reductions({"use": "argmax"})
+        reduced = Reductions(reduce[0]) if reduce is not None else None
+        run = None
+        for times, states in ens.windows(x0, 0.0, T, size):
+            ens.first_bad(times, states, found)
+            run = block.window(times, states, ens.inputs(times, states))
+            with np.errstate(all="ignore"):  # diverged variants (dropped below) give NaN
+                if first.model == "auto":  # the capstan check of each variant's linear run (fidelity.limit_exceedance)
+                    ratio = friction_use(run.output("belt_torque"), run.param("r_3"), run.friction_limit())
+                    capstan.update({"use": peak_over_time(ratio, times)})
+                if reduced is not None:
+                    reduced.update(reduce[1](run))
+        diverged = ens.diverged_errors(found)
         for v, (i, _, _) in enumerate(chosen):
             if v in diverged:
                 yield Outcome(i, None, _error_line(diverged[v]), True)
         keep = [v for v in range(len(chosen)) if v not in diverged]
-        if len(keep) < len(chosen):
-            chosen, states = [chosen[v] for v in keep], states[:, :, keep]
-        if not chosen:
-            continue
-        run = GroupRun([i for i, _, _ in chosen], [s for _, s, _ in chosen], [m for _, _, m in chosen], kind, ens.method,
-                       times, states, ens.inputs(times, states))  # fmt: skip
-        if first.model == "auto":  # the capstan check of each variant's linear run (the single run's choice)
-            ratio = friction_use(run.output("belt_torque"), run.param("r_3"), run.friction_limit())
-            peak_k = np.argmax(ratio, axis=0)  # as fidelity.limit_exceedance, for every variant at once
-            limits = list(zip(ratio[peak_k, np.arange(len(run))].tolist(), times[peak_k].tolist()))
-            keep = []
-            for v, (i, scene, _) in enumerate(chosen):
+        if first.model == "auto":  # the single run's choice per variant
+            ratios, peaks = capstan.values["use"]
+            limits = list(zip(ratios.tolist(), peaks.tolist()))
+            choices = {}
+            for v in keep:
+                i, scene, _ = chosen[v]
                 choice = choose_model(scene, linear=linear[i], limit=limits[v])
                 if choice.model == "slipping":
                     yield _single(i, scene, check_stability, "slipping model (the capstan limit is passed)")
                     continue
-                run.choices[v] = choice
-                keep.append(v)
-            if not keep:
-                continue
-            if len(keep) < len(run):
-                run = _subset(run, keep)
-        yield run
+                choices[v] = choice
+            keep = [v for v in keep if v in choices]
+            block.choices = [choices.get(v) for v in range(len(chosen))]
+        if not keep:
+            continue
+        if reduced is not None:
+            yield GroupSummary([block.indices[v] for v in keep], [block.scenes[v] for v in keep], kind, ens.method,
+                               [block.choices[v] for v in keep], reduced.subset(keep))  # fmt: skip
+            continue
+        run.choices = block.choices
+        yield run if len(keep) == len(chosen) else _subset(run, keep)
 
 
 def _subset(run: GroupRun, keep: list) -> GroupRun:
