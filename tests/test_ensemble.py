@@ -197,3 +197,33 @@ def test_windows_are_the_whole_run_and_reductions_over_them_its_reductions(name)
                 assert [c.reason if c else None for c in summary.choices] == [c.reason if c else None for c in full.choices]
             else:
                 assert (summary.index, summary.error, summary.single_reason) == (full.index, full.error, full.single_reason)
+
+
+@pytest.mark.parametrize("kind", ["rigid", "flexible"])
+def test_model_stack_is_each_variants_model(kind):
+    """ModelStack builds V models' matrices at once from parameter columns: each is make_model's, bit for bit
+    (zero signs included), also for undamped belts and bearings; the derived parameters are each variant's own."""
+    from belt_drive_ros.core.model import ModelStack
+    from belt_drive_ros.core.params import ParamColumns
+
+    rng = np.random.default_rng(21)
+    params = []
+    for name in shipped_scenes():
+        p = load_scene(name).params
+        params += [p.replace(k=p.k * rng.uniform(0.5, 2), c=p.c * rng.uniform(0, 2), I_3=p.I_3 * rng.uniform(0.5, 2),
+                             I_1=p.I_1 * rng.uniform(0, 2), b_3=p.b_3 * rng.uniform(0, 2), r_2=p.r_2 * rng.uniform(0.8, 1.2),
+                             R_1=p.R_1 * rng.uniform(0.8, 1.2)) for _ in range(6)]  # fmt: skip
+        params.append(p.replace(c=0.0, b_M=0.0, b_1=0.0, b_2=0.0, b_3=0.0))
+    stack = ModelStack(kind, params)
+    columns = ParamColumns(params)
+    for v, p in enumerate(params):
+        model = make_model(kind, p)
+        for name in ("A", "B", "C", "D"):
+            got, want = getattr(stack, name)[v], getattr(model, name)
+            assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want)), name
+        assert np.array_equal(stack.W[v], model.wheel_map)
+        for name in ("ratio", "inertia_reduced", "bearing_damping_drive_side", "belt_torsional_stiffness"):
+            assert getattr(columns, name)[v] == getattr(p, name)
+    keep = [3, 0, 5]
+    part = stack.subset(keep)
+    assert np.array_equal(part.A, stack.A[keep]) and part.model(1).params == params[0]

@@ -246,3 +246,14 @@ def test_paper_scene_reproduces_figs_3_and_4_qualitatively():
     assert settle["rigid"] < 2.0 < 3.0 < settle["flexible"] < scene.duration, settle
     # Both models agree on the drive-side end state (the belt carries the same mean torque).
     assert runs["flexible"]["omega_M"][-1] == pytest.approx(runs["rigid"]["omega_M"][-1], rel=1e-3)
+
+
+def test_with_params_is_the_scene_with_those_parameters():
+    import dataclasses
+
+    scene = load_scene("paper")
+    params = scene.params.replace(k=1.5e4, I_3=0.04)
+    assert scene.with_params(params) == dataclasses.replace(scene, params=params)
+    assert scene.with_params(params).params is params and scene.params.k == 2.0e4  # a copy; the base unchanged
+    with pytest.raises(SceneError, match="params: expected BeltDriveParams"):
+        scene.with_params({"k": 1.5e4})

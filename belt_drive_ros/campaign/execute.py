@@ -58,8 +58,9 @@ def _campaign(portable: dict) -> Campaign:
     return _CAMPAIGNS[key]
 
 
-def run_batch(portable: dict, rows: list, recordings_dir: str | None = None) -> dict:
-    """Run one batch of variants (``rows`` of the variant table) and return its result table as columns.
+def run_batch(portable: dict, rows, recordings_dir: str | None = None):
+    """Run one batch of variants (``rows`` of the variant table: a DataFrame slice or a list of
+    row mappings) and return its result table (a pandas DataFrame, one row per variant).
 
     Every row comes back: the variant's columns, ``model`` (the model its
     run used), ``ran`` (``ensemble`` or ``single``), ``single_reason``,
@@ -68,8 +69,12 @@ def run_batch(portable: dict, rows: list, recordings_dir: str | None = None) -> 
     ``worst_rel_error``, ``worst_errors`` (JSON: signal -> worst absolute error).
     ``seconds`` is the batch's compute time (the same in every row).
     """
+    import pandas as pd
+
     start = time.perf_counter()
     campaign = _campaign(portable)
+    if isinstance(rows, pd.DataFrame):
+        rows = rows.to_dict("records")
     scenes, built, out = [], [], []
     for row in rows:
         record = dict(row)
@@ -108,7 +113,7 @@ def run_batch(portable: dict, rows: list, recordings_dir: str | None = None) -> 
     seconds = time.perf_counter() - start
     for record in out:
         record["seconds"] = seconds
-    return out
+    return pd.DataFrame(out)  # built here, on the worker: the client only writes it (and pickled as columns)
 
 
 def _fleet_outputs(campaign: Campaign, result, record: dict, recordings_dir: Path) -> None:
@@ -227,11 +232,11 @@ def _cluster(scheduler: str | None, workers: int | None):
     return Client(cluster), cluster
 
 
-def _write_part(path: Path, rows: list) -> None:
+def _write_part(path: Path, rows) -> None:
     import pandas as pd
 
     tmp = path.with_suffix(".tmp")
-    pd.DataFrame(rows).to_parquet(tmp, index=False)
+    (rows if isinstance(rows, pd.DataFrame) else pd.DataFrame(rows)).to_parquet(tmp, index=False)
     os.replace(tmp, path)  # a part is there whole or not at all
 
 
@@ -289,7 +294,6 @@ def run_campaign(
     if campaign.fleet_folder is not None:
         recordings_dir = out_dir / "recordings"
         recordings_dir.mkdir(parents=True, exist_ok=True)
-    records = table.to_dict("records")
     portable = _portable(campaign)
     own = client is None
     cluster = None
@@ -309,12 +313,12 @@ def run_campaign(
             sizing = min(n_workers, n // first) if batch_size is None else 0
             if sizing and n > sizing * first:
                 where = str(recordings_dir) if recordings_dir else None
-                batches = [client.submit(run_batch, portable, records[k * first : (k + 1) * first], where, pure=False)
+                batches = [client.submit(run_batch, portable, table.iloc[k * first : (k + 1) * first], where, pure=False)
                            for k in range(sizing)]  # fmt: skip
                 per_variant = math.inf
                 for k, future in enumerate(batches):
                     rows = future.result()
-                    per_variant = min(per_variant, (rows[0]["seconds"] if rows else 0.0) / first)
+                    per_variant = min(per_variant, (float(rows["seconds"].iloc[0]) if len(rows) else 0.0) / first)
                     _write_part(parts_dir / f"part-{k:05d}.parquet", rows)
                     computed += first
                 rest = n - sizing * first
@@ -335,7 +339,7 @@ def run_campaign(
         from distributed import as_completed
 
         futures = {
-            client.submit(run_batch, portable, records[a:b], str(recordings_dir) if recordings_dir else None, pure=False): (k, a, b)
+            client.submit(run_batch, portable, table.iloc[a:b], str(recordings_dir) if recordings_dir else None, pure=False): (k, a, b)
             for k, a, b in pending
         }  # fmt: skip
         for future in as_completed(futures):
@@ -344,7 +348,7 @@ def run_campaign(
                 rows = future.result()
             except Exception as exc:  # a batch that broke as a whole: its variants are recorded with the reason
                 rows = [dict(r, model="", ran="none", single_reason="", error=f"batch failed: {type(exc).__name__}: {exc}",
-                             seconds=math.nan, **{m: math.nan for m in METRICS}) for r in records[a:b]]
+                             seconds=math.nan, **{m: math.nan for m in METRICS}) for r in table.iloc[a:b].to_dict("records")]
             _write_part(parts_dir / f"part-{k:05d}.parquet", rows)
             computed += b - a
             bar.update(b - a)

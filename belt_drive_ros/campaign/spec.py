@@ -296,6 +296,8 @@ class Campaign:
                 spec = dict(roles.get(role) or self.base_mapping[role])
                 spec.update(parts[role])
                 changes[role] = _profile(spec, role)
+        if set(changes) == {"params"}:  # a tolerance sweep: only the (self-validating) parameters change
+            return self.base.with_params(changes["params"])
         return dataclasses.replace(self.base, **changes) if changes else self.base
 
     def digest(self) -> str:

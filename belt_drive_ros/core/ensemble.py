@@ -61,6 +61,7 @@ import numpy as np
 
 from .errors import BeltDriveError
 from .integrators import FixedStepIntegrator, Integrator, method_class
+from .model import ModelStack
 from .stepper import SPEED_LIMIT, Plant, Stepper
 
 
@@ -109,7 +110,9 @@ class Ensemble:
 
     Parameters
     ----------
-    models : sequence of V linear models of one kind (rigid or flexible), one per variant.
+    models : V linear models of one kind (rigid or flexible): a
+        :class:`~belt_drive_ros.core.model.ModelStack` (matrices built at once
+        from the variants' parameters) or a sequence of model objects.
     drive, load : the torque profiles all variants share.
     method : an explicit fixed-step method of the registry; dt : step [s];
         method_options : passed to it.
@@ -121,24 +124,30 @@ class Ensemble:
     """
 
     def __init__(self, models, drive, load, method: str, dt: float, method_options=None):
-        models = list(models)
-        if not models:
+        if not isinstance(models, ModelStack):
+            models = list(models)
+            if not models:
+                raise EnsembleUnsupported("ensemble: no variants")
+            kinds = {m.name for m in models}
+            if len(kinds) != 1 or models[0].name not in ("rigid", "flexible"):
+                raise EnsembleUnsupported(
+                    f"ensemble: needs variants of one linear model (rigid or flexible), got {sorted(kinds)}"
+                )
+            models = ModelStack.of_models(models)
+        if not len(models):
             raise EnsembleUnsupported("ensemble: no variants")
-        kinds = {m.name for m in models}
-        if len(kinds) != 1 or models[0].name not in ("rigid", "flexible"):
-            raise EnsembleUnsupported(f"ensemble: needs variants of one linear model (rigid or flexible), got {sorted(kinds)}")
         cls = method_class(method)
         if not issubclass(cls, FixedStepIntegrator):
             raise EnsembleUnsupported(f"ensemble: {cls.name} is adaptive (a step size per variant)")
         self.method_class = cls
-        self.models = models
+        self.models = models  # a ModelStack: the variants' matrices stacked
         self.method, self.dt = cls.name, float(dt)
         self.method_options = dict(method_options or {})
-        self.A = np.stack([m.A for m in models]).astype(float)
-        self.B = np.stack([m.B for m in models]).astype(float)
+        self.A = np.ascontiguousarray(models.A, dtype=float)
+        self.B = np.ascontiguousarray(models.B, dtype=float)
         self.n, self.m = self.B.shape[1:]
-        self.plant = Plant(models[0], drive, load)  # the profiles, breakpoints and plan all variants share
-        self.W = np.stack([m.wheel_coordinates(np.eye(self.n)) for m in models]).astype(float)  # (V, 4, n)
+        self.plant = Plant(models.model(0), drive, load)  # the profiles, breakpoints and plan all variants share
+        self.W = np.ascontiguousarray(models.W, dtype=float)  # (V, 4, n)
         self.drive, self.load = drive, load
         self._torques = tuple(p.forms().array or p.torque for p in (drive, load))
         rows = []
@@ -294,7 +303,7 @@ class Ensemble:
         """``{variant: SimulationDivergedError}`` of :meth:`first_bad`'s samples, as a single run reports them."""
         out = {}
         for v, (t, x) in sorted(found.items()):
-            stepper = Stepper(Plant(self.models[v], self.drive, self.load), self.method, self.dt, self.method_options)
+            stepper = Stepper(Plant(self.models.model(v), self.drive, self.load), self.method, self.dt, self.method_options)
             out[v] = stepper.diverged_error(t, x)
         return out
 

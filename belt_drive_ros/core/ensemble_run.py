@@ -47,8 +47,8 @@ from .ensemble import Ensemble, EnsembleUnsupported
 from .errors import BeltDriveError
 from .fidelity import choose_model, friction_use, operating_run_step
 from .integrators import method_class
-from .model import LINEAR_OUTPUTS, OUTPUT_UNITS, make_model, span_forces
-from .params import friction_limit_array
+from .model import LINEAR_OUTPUTS, OUTPUT_UNITS, ModelStack, span_forces
+from .params import ParamColumns, friction_limit_array
 from .scene import Scene
 from .simulate import SimResult, simulate
 from .stability import require_stable
@@ -89,14 +89,15 @@ class GroupRun:
     """
 
     def __init__(self, indices, scenes, models, kind, method, times, states, inputs, choices=None):
-        self.indices, self.scenes, self.models = list(indices), list(scenes), list(models)
+        self.indices, self.scenes = list(indices), list(scenes)
+        self.models = models if isinstance(models, ModelStack) else ModelStack.of_models(models)
         self.kind, self.method = kind, method
         self.times, self.states, self.inputs = times, states, inputs
         self.choices = list(choices) if choices is not None else [None] * len(self.indices)
         self._outputs: dict = {}
         self._params: dict = {}
-        self._C = np.stack([m.C for m in self.models], axis=-1)  # (O, n, V)
-        self._D = np.stack([m.D for m in self.models], axis=-1)  # (O, m, V)
+        self._C = np.ascontiguousarray(self.models.C.transpose(1, 2, 0))  # (O, n, V)
+        self._D = np.ascontiguousarray(self.models.D.transpose(1, 2, 0))  # (O, m, V)
 
     def __len__(self) -> int:
         return len(self.indices)
@@ -116,7 +117,10 @@ class GroupRun:
         """Parameter or derived quantity ``name`` of :class:`~belt_drive_ros.core.params.BeltDriveParams` per variant: (V,)."""
         cached = self._params.get(name)
         if cached is None:
-            cached = self._params[name] = np.array([getattr(s.params, name) for s in self.scenes], dtype=float)
+            column = getattr(self.models.columns, name, None)  # the fields and the arithmetic derived quantities
+            if column is None:  # others (exp, tanh of fields) per variant, by the parameters' own properties
+                column = [getattr(p, name) for p in self.models.params]
+            cached = self._params[name] = np.asarray(column, dtype=float)
         return cached
 
     def output(self, name: str) -> np.ndarray:
@@ -154,14 +158,14 @@ class GroupRun:
         """Q_max [N] at every knot of every variant (N+1, V) (:meth:`~belt_drive_ros.core.params.BeltDriveParams.friction_limit`)."""
         ratio = self._params.get("r_2 g")
         if ratio is None:
-            ratio = self._params["r_2 g"] = np.array([s.params.r_2 * s.params.gear_ratio for s in self.scenes])
+            ratio = self._params["r_2 g"] = self.param("r_2") * self.param("gear_ratio")
         return friction_limit_array(
             self.param("F_0"), ratio, self.param("belt_mass"), self.param("capstan_factor"), self.output("omega_M")
         )
 
     def result(self, v: int) -> SimResult:
         """Variant v's run as :func:`~belt_drive_ros.core.simulate.simulate` gives it (see the module docstring)."""
-        scene, model = self.scenes[v], self.models[v]
+        scene, model = self.scenes[v], self.models.model(v)
         x_v = np.ascontiguousarray(self.states[:, :, v])
         u_v = np.ascontiguousarray(self.inputs[:, :, v])
         return SimResult(
@@ -330,17 +334,17 @@ def _single(i: int, scene: Scene, check_stability: bool, reason: str) -> Outcome
         return Outcome(i, None, _error_line(exc), False, reason)
 
 
-def _stable(scenes, kind: str, check_stability: bool) -> tuple[list, list]:
-    """Split ``[(i, scene, model)]`` into runnable ones and failed Outcomes (the single run's stability guard)."""
+def _stable(members: list, models: ModelStack, check_stability: bool) -> tuple[list, list]:
+    """(positions of ``members`` ``[(i, scene)]`` that may run, failed Outcomes): the single run's stability guard."""
     ok, failed = [], []
-    for i, scene, model in scenes:
+    for v, (i, scene) in enumerate(members):
         if check_stability and not method_class(scene.method).exact_linear:  # exact-linear methods pass at any step
             try:
-                require_stable(model.A, model.B, scene.method, scene.dt)
+                require_stable(models.A[v], models.B[v], scene.method, scene.dt)
             except BeltDriveError as exc:
                 failed.append(Outcome(i, None, _error_line(exc), True))
                 continue
-        ok.append((i, scene, model))
+        ok.append(v)
     return ok, failed
 
 
@@ -349,11 +353,12 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
     first = members[0][1]
     drive, load, T = first.drive, first.load, first.duration
     size = window if reduce is not None else None
+    columns = ParamColumns([s.params for _, s in members])  # every model stack of the group is built from these
     if first.model in ("rigid", "flexible"):
         kinds = {i: first.model for i, _ in members}
         linear: dict = {}
     else:  # auto: the rigid estimate of the operating speeds, for all variants at once
-        rigid = [make_model("rigid", s.params) for _, s in members]
+        rigid = ModelStack("rigid", [s.params for _, s in members], columns)
         ens = Ensemble(rigid, drive, load, "exact", operating_run_step(T))
         x0 = np.stack([s.initial_state.vector("rigid", s.params.ratio) for _, s in members])
         block = GroupRun([i for i, _ in members], [s for _, s in members], rigid, "rigid", "exact", None, None, None)
@@ -380,20 +385,25 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
             except BeltDriveError as exc:
                 yield Outcome(i, None, _error_line(exc), True)
     for kind in ("rigid", "flexible"):
-        chosen = [(i, s, make_model(kind, s.params)) for i, s in members if kinds.get(i) == kind]
-        chosen, failed = _stable(chosen, kind, check_stability)
-        yield from failed
-        if not chosen:
+        picked = [v for v, (i, _) in enumerate(members) if kinds.get(i) == kind]
+        if not picked:
             continue
+        chosen = [members[v] for v in picked]
+        models = ModelStack(kind, [s.params for _, s in chosen], columns.subset(picked))
+        ok, failed = _stable(chosen, models, check_stability)
+        yield from failed
+        if not ok:
+            continue
+        if len(ok) < len(chosen):
+            chosen, models = [chosen[v] for v in ok], models.subset(ok)
         try:
-            ens = Ensemble([m for _, _, m in chosen], drive, load, first.method, first.dt, first.method_options)
+            ens = Ensemble(models, drive, load, first.method, first.dt, first.method_options)
         except EnsembleUnsupported as exc:
-            for i, s, _ in chosen:
+            for i, s in chosen:
                 yield _single(i, s, check_stability, str(exc))
             continue
-        x0 = np.stack([s.initial_state.vector(kind, s.params.ratio) for _, s, _ in chosen])
-        block = GroupRun([i for i, _, _ in chosen], [s for _, s, _ in chosen], [m for _, _, m in chosen], kind, ens.method,
-                         None, None, None)  # fmt: skip
+        x0 = np.stack([s.initial_state.vector(kind, s.params.ratio) for _, s in chosen])
+        block = GroupRun([i for i, _ in chosen], [s for _, s in chosen], models, kind, ens.method, None, None, None)
         found: dict = {}
         capstan = Reductions({"use": "argmax"})
         reduced = Reductions(reduce[0]) if reduce is not None else None
@@ -408,7 +418,7 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
                 if reduced is not None:
                     reduced.update(reduce[1](run))
         diverged = ens.diverged_errors(found)
-        for v, (i, _, _) in enumerate(chosen):
+        for v, (i, _) in enumerate(chosen):
             if v in diverged:
                 yield Outcome(i, None, _error_line(diverged[v]), True)
         keep = [v for v in range(len(chosen)) if v not in diverged]
@@ -417,7 +427,7 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
             limits = list(zip(ratios.tolist(), peaks.tolist()))
             choices = {}
             for v in keep:
-                i, scene, _ = chosen[v]
+                i, scene = chosen[v]
                 choice = choose_model(scene, linear=linear[i], limit=limits[v])
                 if choice.model == "slipping":
                     yield _single(i, scene, check_stability, "slipping model (the capstan limit is passed)")
@@ -438,6 +448,6 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
 def _subset(run: GroupRun, keep: list) -> GroupRun:
     """The variants ``keep`` of ``run`` (a new block; outputs are recomputed on demand)."""
     return GroupRun(
-        [run.indices[v] for v in keep], [run.scenes[v] for v in keep], [run.models[v] for v in keep], run.kind,
+        [run.indices[v] for v in keep], [run.scenes[v] for v in keep], run.models.subset(keep), run.kind,
         run.method, run.times, run.states[:, :, keep], run.inputs[:, :, keep], [run.choices[v] for v in keep],
     )  # fmt: skip

@@ -87,9 +87,8 @@ class _LinearModel:
     n_states: ClassVar[int] = 0
 
     def _init(self, params, A, B, C, D) -> None:
-        """Set the frozen fields and ``C``, ``D`` (with the gear and input rows filled in)."""
+        """Set the frozen fields (``C``, ``D`` with every row filled in: :func:`_output_rows`)."""
         object.__setattr__(self, "params", params)
-        self._gear_rows(C, D)
         for name, value in (("A", A), ("B", B), ("C", C), ("D", D)):
             object.__setattr__(self, name, value)
         # C and D as rows of plain floats: the outputs of one sample (the node's tick) without numpy
@@ -144,15 +143,6 @@ class _LinearModel:
         out.update(span_force_tight=tight, span_force_slack=slack_force, slack=slack, slip=slip)
         return {name: out[name] for name in OUTPUT_UNITS}
 
-    def _gear_rows(self, C: np.ndarray, D: np.ndarray) -> None:
-        """Fill the rows of C for wheels 1 and 2 from wheel M's, and the input rows of D."""
-        p = self.params
-        for wheel, ratio in (("1", p.r_M / p.R_1), ("2", p.gear_ratio)):
-            C[LINEAR_OUTPUTS.index("phi_" + wheel)] = ratio * C[LINEAR_OUTPUTS.index("phi_M")]
-            C[LINEAR_OUTPUTS.index("omega_" + wheel)] = ratio * C[LINEAR_OUTPUTS.index("omega_M")]
-        D[LINEAR_OUTPUTS.index("drive_torque"), 0] = 1.0
-        D[LINEAR_OUTPUTS.index("load_torque"), 1] = 1.0
-
     # -- helpers shared by both models --------------------------------------
     def span_forces(self, belt_torque: np.ndarray) -> tuple:
         """Span forces and slack/slip flags from the belt torque at wheel 3.
@@ -181,34 +171,11 @@ class FlexibleBeltModel(_LinearModel):
     n_states: ClassVar[int] = 4
 
     def __init__(self, params: BeltDriveParams):
-        p = params
-        g, i = p.gear_ratio, p.ratio
-        shape = np.array([[p.r_2**2 * g**2, -p.r_2 * p.r_3 * g], [-p.r_2 * p.r_3 * g, p.r_3**2]])
-        mass = np.diag([p.inertia_drive_side, p.I_3])
-        stiffness = 2.0 * p.k * shape  # K, symmetric PSD (erratum 1 fixed)
-        damping = 2.0 * p.c * shape + np.diag([p.bearing_damping_drive_side, p.b_3])
-        minv = np.diag(1.0 / np.diag(mass))
-        A = np.zeros((4, 4))
-        A[0, 2] = 1.0  # phi_M' = omega_M
-        A[1, 2], A[1, 3] = i, -1.0  # delta' = i omega_M - omega_3
-        # K q = 2k r_3 [r_2 g delta, -r_3 delta]: the stiffness acts on delta alone (r_2 g = i r_3)
-        A[2:4, 1] = -minv @ (2.0 * p.k * p.r_3 * np.array([p.r_2 * g, -p.r_3]))
-        A[2:4, 2:4] = -minv @ damping  # omega' = ... - M^-1 C omega + M^-1 [M_drive, -M_load]
-        B = np.zeros((4, 2))
-        B[2, 0] = 1.0 / p.inertia_drive_side  # drive torque on M
-        B[3, 1] = -1.0 / p.I_3  # load torque opposes wheel 3 (erratum 2 fixed)
-        C = np.zeros((len(LINEAR_OUTPUTS), 4))
-        D = np.zeros((len(LINEAR_OUTPUTS), 2))
-        row = LINEAR_OUTPUTS.index
-        C[row("phi_M"), 0] = C[row("omega_M"), 2] = C[row("omega_3"), 3] = 1.0
-        C[row("phi_3"), 0:2] = (i, -1.0)  # phi_3 = i phi_M - delta
-        C[row("relative_deflection"), 1] = 1.0
-        # T_b = 2 k r_3^2 delta + 2 c r_3^2 (i omega_M - omega_3)
-        C[row("belt_torque")] = 2.0 * p.r_3**2 * np.array([0.0, p.k, p.c * i, -p.c])
-        self._init(params, A, B, C, D)
-        object.__setattr__(self, "mass_matrix", mass)
-        object.__setattr__(self, "stiffness_matrix", stiffness)
-        object.__setattr__(self, "damping_matrix", damping)
+        m = flexible_matrices(params)
+        self._init(params, m["A"], m["B"], m["C"], m["D"])
+        object.__setattr__(self, "mass_matrix", m["mass"])
+        object.__setattr__(self, "stiffness_matrix", m["stiffness"])
+        object.__setattr__(self, "damping_matrix", m["damping"])
 
     @property
     def lagrange_map(self) -> np.ndarray:
@@ -288,22 +255,8 @@ class RigidBeltModel(_LinearModel):
     n_states: ClassVar[int] = 2
 
     def __init__(self, params: BeltDriveParams):
-        p = params
-        i = p.ratio
-        A = np.array([[0.0, 1.0], [0.0, -p.bearing_damping_reduced / p.inertia_reduced]])
-        B = np.array([[0.0, 0.0], [1.0 / p.inertia_reduced, -i / p.inertia_reduced]])
-        C = np.zeros((len(LINEAR_OUTPUTS), 2))
-        D = np.zeros((len(LINEAR_OUTPUTS), 2))
-        row = LINEAR_OUTPUTS.index
-        C[row("phi_M"), 0] = C[row("omega_M"), 1] = 1.0
-        C[row("phi_3"), 0] = C[row("omega_3"), 1] = i
-        # T_b = I_3 i a_M + b_3 i omega_M + M_load, a_M = the second row of A x + B u
-        C[row("belt_torque")] = p.I_3 * i * A[1] + np.array([0.0, p.b_3 * i])
-        D[row("belt_torque")] = p.I_3 * i * B[1] + np.array([0.0, 1.0])
-        # quasi-static deflection T_b / (2 k r_3^2)
-        C[row("relative_deflection")] = C[row("belt_torque")] / p.belt_torsional_stiffness
-        D[row("relative_deflection")] = D[row("belt_torque")] / p.belt_torsional_stiffness
-        self._init(params, A, B, C, D)
+        m = rigid_matrices(params)
+        self._init(params, m["A"], m["B"], m["C"], m["D"])
 
     def belt_torque(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """T_b = I_3 i a_M + b_3 i omega_M + M_load [N m] (wheel 3's equation)."""
@@ -332,6 +285,160 @@ class RigidBeltModel(_LinearModel):
     def state_from_flexible(self, x_flex: np.ndarray) -> np.ndarray:
         """Rigid state [phi_M, omega_M] of a flexible state (drops the belt mode)."""
         return np.array([float(x_flex[0]), float(x_flex[2])])
+
+
+def _lead(p) -> tuple:
+    """Leading shape of parameters ``p``: () for one set (floats), (V,) for columns."""
+    return np.shape(p.k)
+
+
+def _column(value) -> np.ndarray:
+    """A float or a (V,) column as an array that broadcasts against rows of the leading shape (..., 1)."""
+    return np.asarray(value, dtype=float)[..., None]
+
+
+def flexible_matrices(p) -> dict:
+    """A, B, C, D (and the mass, stiffness, damping matrices) of :class:`FlexibleBeltModel` (module docstring).
+
+    ``p``: one :class:`~belt_drive_ros.core.params.BeltDriveParams` (floats: matrices of one model) or a
+    :class:`~belt_drive_ros.core.params.ParamColumns` ((V,) columns: stacks with a leading variant axis);
+    the same operations per element either way, so a stack's matrices are each variant's own.
+    """
+    lead = _lead(p)
+    g, i = p.gear_ratio, p.ratio
+    I_f, b_f = p.inertia_drive_side, p.bearing_damping_drive_side
+    # the belt's shape S: K = 2k S (symmetric PSD, erratum 1 fixed), belt damping 2c S
+    s00, s01, s11 = p.r_2**2 * g**2, -p.r_2 * p.r_3 * g, p.r_3**2
+    two_k, two_c = 2.0 * p.k, 2.0 * p.c
+    d00, d01, d11 = two_c * s00 + b_f, two_c * s01 + 0.0, two_c * s11 + p.b_3  # C = 2c S + diag(b_f, b_3)
+    m_f, m_3 = 1.0 / I_f, 1.0 / p.I_3  # M^-1 = diag(1/I_f, 1/I_3)
+    A = np.zeros(lead + (4, 4))
+    A[..., 0, 2] = 1.0  # phi_M' = omega_M
+    A[..., 1, 2], A[..., 1, 3] = i, -1.0  # delta' = i omega_M - omega_3
+    # K q = 2k r_3 [r_2 g delta, -r_3 delta]: the stiffness acts on delta alone (r_2 g = i r_3)
+    kr = two_k * p.r_3
+    A[..., 2, 1], A[..., 3, 1] = -(m_f * (kr * (p.r_2 * g))), -(m_3 * (kr * -p.r_3))
+    # omega' = ... - M^-1 C omega + M^-1 [M_drive, -M_load]
+    # (0 - x: a zero entry is +0, as the matrix product -M^-1 C gives it)
+    A[..., 2, 2], A[..., 2, 3] = 0.0 - m_f * d00, 0.0 - m_f * d01
+    A[..., 3, 2], A[..., 3, 3] = 0.0 - m_3 * d01, 0.0 - m_3 * d11
+    B = np.zeros(lead + (4, 2))
+    B[..., 2, 0] = 1.0 / I_f  # drive torque on M
+    B[..., 3, 1] = -1.0 / p.I_3  # load torque opposes wheel 3 (erratum 2 fixed)
+    C = np.zeros(lead + (len(LINEAR_OUTPUTS), 4))
+    row = LINEAR_OUTPUTS.index
+    C[..., row("phi_M"), 0] = C[..., row("omega_M"), 2] = C[..., row("omega_3"), 3] = 1.0
+    C[..., row("phi_3"), 0], C[..., row("phi_3"), 1] = i, -1.0  # phi_3 = i phi_M - delta
+    C[..., row("relative_deflection"), 1] = 1.0
+    # T_b = 2 k r_3^2 delta + 2 c r_3^2 (i omega_M - omega_3)
+    two_r2 = 2.0 * p.r_3**2
+    belt = row("belt_torque")
+    C[..., belt, 1], C[..., belt, 2], C[..., belt, 3] = two_r2 * p.k, two_r2 * (p.c * i), two_r2 * -p.c
+    D = np.zeros(lead + (len(LINEAR_OUTPUTS), 2))
+    _output_rows(p, C, D)
+    out = {"A": A, "B": B, "C": C, "D": D}
+    if not lead:  # one model: the matrices of its energies
+        shape = np.array([[s00, s01], [s01, s11]])
+        out.update(mass=np.diag([I_f, p.I_3]), stiffness=two_k * shape, damping=np.array([[d00, d01], [d01, d11]]))
+    return out
+
+
+def rigid_matrices(p) -> dict:
+    """A, B, C, D of :class:`RigidBeltModel` for parameters ``p`` (one set or columns: see :func:`flexible_matrices`)."""
+    lead = _lead(p)
+    i, I_red = p.ratio, p.inertia_reduced
+    A = np.zeros(lead + (2, 2))
+    A[..., 0, 1] = 1.0
+    A[..., 1, 1] = -p.bearing_damping_reduced / I_red
+    B = np.zeros(lead + (2, 2))
+    B[..., 1, 0], B[..., 1, 1] = 1.0 / I_red, -i / I_red
+    C = np.zeros(lead + (len(LINEAR_OUTPUTS), 2))
+    D = np.zeros(lead + (len(LINEAR_OUTPUTS), 2))
+    row = LINEAR_OUTPUTS.index
+    C[..., row("phi_M"), 0] = C[..., row("omega_M"), 1] = 1.0
+    C[..., row("phi_3"), 0] = C[..., row("omega_3"), 1] = i
+    # T_b = I_3 i a_M + b_3 i omega_M + M_load, a_M = the second row of A x + B u
+    ii = _column(p.I_3 * i)
+    belt, deflection = row("belt_torque"), row("relative_deflection")
+    C[..., belt, :] = ii * A[..., 1, :] + np.stack(np.broadcast_arrays(0.0, p.b_3 * i), axis=-1)
+    D[..., belt, :] = ii * B[..., 1, :] + np.array([0.0, 1.0])
+    # quasi-static deflection T_b / (2 k r_3^2)
+    stiffness = _column(p.belt_torsional_stiffness)
+    C[..., deflection, :] = C[..., belt, :] / stiffness
+    D[..., deflection, :] = D[..., belt, :] / stiffness
+    _output_rows(p, C, D)
+    return {"A": A, "B": B, "C": C, "D": D}
+
+
+def _output_rows(p, C: np.ndarray, D: np.ndarray) -> None:
+    """Fill the rows of C for wheels 1 and 2 from wheel M's (the gear ratios), and the input rows of D."""
+    for wheel, ratio in (("1", p.r_M / p.R_1), ("2", p.gear_ratio)):
+        r = _column(ratio)
+        C[..., LINEAR_OUTPUTS.index("phi_" + wheel), :] = r * C[..., LINEAR_OUTPUTS.index("phi_M"), :]
+        C[..., LINEAR_OUTPUTS.index("omega_" + wheel), :] = r * C[..., LINEAR_OUTPUTS.index("omega_M"), :]
+    D[..., LINEAR_OUTPUTS.index("drive_torque"), 0] = 1.0
+    D[..., LINEAR_OUTPUTS.index("load_torque"), 1] = 1.0
+
+
+#: the rows of C that the torques see: [phi_M, omega_M, phi_3, omega_3] = W x (:attr:`_LinearModel.wheel_map`)
+WHEEL_ROWS = tuple(LINEAR_OUTPUTS.index(name) for name in ("phi_M", "omega_M", "phi_3", "omega_3"))
+
+
+class ModelStack:
+    """V linear models of one kind (rigid or flexible) as stacked matrices, built at once from their parameters.
+
+    ``A`` (V, n, n), ``B`` (V, n, m), ``C`` (V, O, n), ``D`` (V, O, m) and
+    ``W`` (V, 4, n) (the wheel map) are, element for element, the matrices
+    of ``make_model(kind, params[v])``: :func:`flexible_matrices` and
+    :func:`rigid_matrices` on the parameters as columns
+    (:class:`~belt_drive_ros.core.params.ParamColumns`), without a model
+    object per variant. :meth:`model` builds variant v's model when one is
+    needed (a result, an error message). ``columns``: the parameter columns.
+    """
+
+    def __init__(self, kind: str, params, columns=None, matrices: dict | None = None):
+        from .params import ParamColumns
+
+        if kind not in ("rigid", "flexible"):
+            raise ValueError(f"ModelStack: a linear model (rigid or flexible), got {kind!r}")
+        self.name, self.params = kind, list(params)
+        self.columns = columns if columns is not None else ParamColumns(self.params)
+        if matrices is None:
+            matrices = (flexible_matrices if kind == "flexible" else rigid_matrices)(self.columns)
+        self.A, self.B, self.C, self.D = (matrices[k] for k in ("A", "B", "C", "D"))
+        self.W = self.C[:, WHEEL_ROWS, :]
+        self.n_states = self.A.shape[-1]
+        self._models: dict = {}
+
+    @classmethod
+    def of_models(cls, models) -> "ModelStack":
+        """The stack of model objects already built (their own matrices)."""
+        models = list(models)
+        kinds = {m.name for m in models}
+        if len(kinds) != 1:
+            raise ValueError(f"ModelStack: models of one kind, got {sorted(kinds)}")
+        matrices = {k: np.stack([getattr(m, k) for m in models]) for k in ("A", "B", "C", "D")}
+        stack = cls(models[0].name, [m.params for m in models], matrices=matrices)
+        stack._models = dict(enumerate(models))
+        return stack
+
+    def __len__(self) -> int:
+        return len(self.params)
+
+    def model(self, v: int):
+        """Variant v's model object (:func:`make_model`; built once)."""
+        found = self._models.get(v)
+        if found is None:
+            found = self._models[v] = make_model(self.name, self.params[v])
+        return found
+
+    def subset(self, keep) -> "ModelStack":
+        """The variants ``keep`` (positions), a new stack."""
+        keep = list(keep)
+        matrices = {k: getattr(self, k)[keep] for k in ("A", "B", "C", "D")}
+        out = ModelStack(self.name, [self.params[v] for v in keep], self.columns.subset(keep), matrices)
+        out._models = {j: self._models[v] for j, v in enumerate(keep) if v in self._models}
+        return out
 
 
 def _affine(M: np.ndarray, x: np.ndarray) -> np.ndarray:

@@ -12,7 +12,6 @@ Kinematics (``docs/model.md``)::
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, fields
 from typing import Any, Mapping
@@ -100,17 +99,18 @@ class BeltDriveParams:
     belt_mass: float = 0.0
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ParameterError(f.name, f"must be a number, got {type(value).__name__} {short(value)}")
-            try:
-                value = float(value)
-            except OverflowError:
-                raise ParameterError(f.name, f"must be finite, got an integer of {len(str(abs(value)))} digits") from None
-            object.__setattr__(self, f.name, value)
+        for name in _FIELDS:
+            value = getattr(self, name)
+            if type(value) is not float:  # (a float passes the first two checks as it is)
+                if isinstance(value, bool) or not isinstance(value, (int, float)):
+                    raise ParameterError(name, f"must be a number, got {type(value).__name__} {short(value)}")
+                try:
+                    value = float(value)
+                except OverflowError:
+                    raise ParameterError(name, f"must be finite, got an integer of {len(str(abs(value)))} digits") from None
+                object.__setattr__(self, name, value)
             if not math.isfinite(value):
-                raise ParameterError(f.name, f"must be finite, got {value!r}")
+                raise ParameterError(name, f"must be finite, got {value!r}")
         for name in _POSITIVE:
             if getattr(self, name) <= 0.0:
                 unit = FIELD_DOCS[name][0]
@@ -173,11 +173,12 @@ class BeltDriveParams:
 
     def replace(self, **changes: Any) -> "BeltDriveParams":
         """Copy with ``changes`` applied, validated like the constructor."""
-        known = {f.name for f in fields(self)}
         for name in changes:
-            if name not in known:
+            if name not in FIELD_DOCS:
                 raise ParameterError(name, "unknown parameter")
-        return dataclasses.replace(self, **changes)
+        values = {name: getattr(self, name) for name in _FIELDS}
+        values.update(changes)
+        return BeltDriveParams(**values)
 
     # ---------------------------------------------------------------- derived
     @property
@@ -279,6 +280,43 @@ class BeltDriveParams:
                 _SCALAR_LIMITS.clear()
             limit = _SCALAR_LIMITS[source] = eval(compile(f"lambda omega_M: {source}", "<friction limit>", "eval"))
         return limit
+
+
+#: the fields in declaration order (validation walks them in this order)
+_FIELDS = tuple(f.name for f in fields(BeltDriveParams))
+
+
+class ParamColumns:
+    """The fields of V :class:`BeltDriveParams` as (V,) float arrays, with their derived quantities.
+
+    The derived quantities are :class:`BeltDriveParams`' own properties
+    (the same formulas, evaluated on the columns element by element), so
+    column v is what ``params[v]`` computes. What stacks of models are
+    built from (:class:`~belt_drive_ros.core.model.ModelStack`). The
+    parameters were validated when each was constructed.
+    """
+
+    gear_ratio = BeltDriveParams.gear_ratio
+    ratio = BeltDriveParams.ratio
+    inertia_drive_side = BeltDriveParams.inertia_drive_side
+    inertia_reduced = BeltDriveParams.inertia_reduced
+    bearing_damping_drive_side = BeltDriveParams.bearing_damping_drive_side
+    bearing_damping_reduced = BeltDriveParams.bearing_damping_reduced
+    belt_torsional_stiffness = BeltDriveParams.belt_torsional_stiffness
+
+    def __init__(self, params=(), columns: dict | None = None):
+        if columns is None:
+            params = list(params)
+            columns = {name: np.array([getattr(q, name) for q in params], dtype=float) for name in FIELD_DOCS}
+        for name in FIELD_DOCS:
+            setattr(self, name, columns[name])
+
+    def __len__(self) -> int:
+        return len(self.k)
+
+    def subset(self, keep) -> "ParamColumns":
+        """The columns of the variants ``keep`` (positions)."""
+        return ParamColumns(columns={name: getattr(self, name)[keep] for name in FIELD_DOCS})
 
 
 #: compiled friction limits by their source (parameter sweeps: kept small)

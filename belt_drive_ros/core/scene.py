@@ -8,6 +8,7 @@ ships ``paper``, ``truck_compressor`` and ``e_motor_start``
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 from dataclasses import dataclass, field, fields, replace
@@ -239,6 +240,20 @@ class Scene:
     def with_overrides(self, **changes: Any) -> "Scene":
         """Copy with top-level fields replaced (``None`` values are ignored)."""
         return replace(self, **{k: v for k, v in changes.items() if v is not None})
+
+    def with_params(self, params: BeltDriveParams) -> "Scene":
+        """Copy with other parameters (a campaign's variant), the scene's own fields as they are.
+
+        Nothing of :meth:`__post_init__` reads the parameters, and a
+        :class:`BeltDriveParams` validated itself on construction: the copy
+        skips re-checking the unchanged fields (a parameter sweep builds
+        thousands of these).
+        """
+        if not isinstance(params, BeltDriveParams):
+            raise SceneError(f"params: expected BeltDriveParams, got {type(params).__name__} {short(params)}")
+        scene = copy.copy(self)
+        object.__setattr__(scene, "params", params)
+        return scene
 
 
 def shipped_scenes() -> list[str]:
