@@ -9,8 +9,10 @@ import time (only inside their run function), so ``belt-drive --help`` and
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
+import signal
 import sys
 
 from .core.errors import BeltDriveError, OutputError, SimulationDivergedError
@@ -30,6 +32,10 @@ COMMAND_MODULES = (
     "make_bags",
     "urdf",
 )
+
+
+#: commands without a ROS context: SIGTERM raises (io.atomic.Terminated) so that an output in progress is removed
+OFFLINE_COMMANDS = frozenset({"sim", "sweep", "scenes", "make-bags", "urdf"})
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -67,8 +73,12 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    from .io.atomic import Terminated, terminate_raises
+
+    on_term = terminate_raises() if args.command in OFFLINE_COMMANDS else contextlib.nullcontext()
     try:
-        return int(args.func(args) or 0)
+        with on_term:
+            return int(args.func(args) or 0)
     except (SimulationDivergedError, OutputError) as exc:
         return _fail(exc, 1)  # a failed run or a failed write, not bad input
     except BeltDriveError as exc:
@@ -77,8 +87,10 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(exc, 2)  # an input that cannot be read as given
     except RecursionError:
         return _fail("input nested too deeply", 2)
-    except KeyboardInterrupt:
-        return 130
+    except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM as Terminated: outputs in progress were removed
+        signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
+        print(f"belt-drive: interrupted by {signal.Signals(signum).name}; unfinished outputs removed", file=sys.stderr)
+        return 128 + int(signum)
     except MemoryError:
         return _fail("out of memory (a shorter run, or --out to stream it, needs less)", 1)
     except OSError as exc:  # disk full, I/O error: the run failed, the input was fine

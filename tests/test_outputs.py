@@ -2,8 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 
@@ -173,3 +179,71 @@ def test_atomic_output_renames_only_on_success(tmp_path):
 
 def test_output_error_is_a_failed_run_not_bad_input():
     assert issubclass(OutputError, OSError)
+
+
+@pytest.mark.parametrize("sig, name", [(signal.SIGTERM, "run.csv"), (signal.SIGTERM, "run.mcap"), (signal.SIGINT, "run.csv")])
+def test_a_run_killed_while_writing_leaves_no_partial_file_and_keeps_the_old_one(tmp_path, sig, name):
+    """A real ``belt-drive sim`` child streaming --out is signalled once its temporary file holds data:
+    it exits 128 + the signal number with one line, the temporary file is gone and the old output
+    (replaced only on success, --force) is untouched."""
+    out = tmp_path / name
+    out.write_bytes(b"old")
+    cmd = [sys.executable, "-m", "belt_drive_ros.cli", "sim", "paper", "--duration", "5000", "--quiet",
+           "--force", "--out", str(out)]
+    child = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=tmp_path.parent,
+                             env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        deadline = time.monotonic() + 300.0
+        while not any(p.stat().st_size > 0 for p in tmp_path.glob(f".{name}.*.part")):
+            assert child.poll() is None, child.stderr.read()
+            assert time.monotonic() < deadline, "no temporary output appeared"
+            time.sleep(0.05)
+        child.send_signal(sig)
+        err = child.communicate(timeout=120)[1]
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    assert child.returncode == 128 + sig, err
+    lines = err.strip().splitlines()
+    assert lines == [f"belt-drive: interrupted by {signal.Signals(sig).name}; unfinished outputs removed"], err
+    assert _leftovers(tmp_path) == [] and sorted(p.name for p in tmp_path.iterdir()) == [name]
+    assert out.read_bytes() == b"old"
+
+
+def test_benchmark_tables_and_charts_appear_whole_or_not_at_all(tmp_path, monkeypatch):
+    """A study interrupted while writing its CSV or PNG keeps the previous file and leaves no temporary one."""
+    from belt_drive_ros.benchmarks.common import pyplot, save_figure, write_csv
+
+    table, chart = tmp_path / "study.csv", tmp_path / "study.png"
+    table.write_text("old\n"), chart.write_bytes(b"old")
+
+    def rows():
+        yield {"a": 1.0}
+        raise KeyboardInterrupt  # the study stopped while the table was being written
+
+    with pytest.raises(KeyboardInterrupt):
+        write_csv(table, rows(), ["a"])
+    assert table.read_text() == "old\n" and _leftovers(tmp_path) == []
+    write_csv(table, [{"a": 0.5}, {"a": 2.0}], ["a"])
+    assert table.read_text().splitlines() == ["a", "0.5", "2"]
+
+    from PIL import Image
+
+    def half_written(image, fp, *args, **kwargs):  # PIL stopped after the first bytes of the PNG
+        with contextlib.ExitStack() as stack:
+            f = stack.enter_context(open(fp, "wb")) if isinstance(fp, (str, os.PathLike)) else fp
+            f.write(b"\x89PNG")
+            raise KeyboardInterrupt
+
+    plt = pyplot()
+    with monkeypatch.context() as m:
+        m.setattr(Image.Image, "save", half_written)
+        with pytest.raises(KeyboardInterrupt):
+            save_figure(plt.figure(), chart)
+    assert chart.read_bytes() == b"old" and _leftovers(tmp_path) == []
+    fig = plt.figure()
+    save_figure(fig, chart)
+    plt.close("all")
+    assert chart.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and _leftovers(tmp_path) == []

@@ -8,24 +8,66 @@ must exist. :func:`atomic_output` then writes to a temporary file in the
 same folder and renames it onto the path only when everything was written
 and flushed to disk: a full disk, an I/O error or an interrupted run leaves
 no partial file (and the temporary one is removed).
+
+An interrupted run is such a failure too: SIGINT raises
+:class:`KeyboardInterrupt` by Python's default, and :func:`terminate_raises`
+makes SIGTERM (which would end the process without running any ``finally``)
+raise :class:`Terminated`, so the temporary file of an output in progress is
+removed before the process exits (``belt-drive sim`` then exits 128 + the
+signal number, as a shell reports a process ended by that signal).
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import stat
+import threading
 import tempfile
 from pathlib import Path
 from typing import IO, Iterator
 
 from ..core.errors import BeltDriveError, OutputError
 
-__all__ = ["OutputRefused", "atomic_output", "check_output"]
+__all__ = ["OutputRefused", "Terminated", "atomic_output", "check_output", "terminate_raises", "write_output"]
 
 
 class OutputRefused(BeltDriveError, ValueError):
     """An output path is refused before anything runs (exists without --force, not a regular file, no folder)."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread by :func:`terminate_raises` (``signum`` is its number)."""
+
+    def __init__(self, signum: int = signal.SIGTERM):
+        super().__init__(f"terminated by {signal.Signals(signum).name}")
+        self.signum = int(signum)
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated(signum)
+
+
+@contextlib.contextmanager
+def terminate_raises() -> Iterator[None]:
+    """While the block runs, SIGTERM raises :class:`Terminated` in the main thread.
+
+    Without it SIGTERM ends the process on the spot and an
+    :func:`atomic_output` in progress leaves its ``.NAME.*.part`` file
+    behind; with it the ``finally`` clauses run (the temporary file is
+    removed, the old file kept). The previous handler is restored on exit;
+    outside the main thread (where Python cannot set handlers) nothing changes.
+    For commands without a ROS context only (rclpy installs its own handlers).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def check_output(path: str | os.PathLike, force: bool = False, what: str = "output") -> Path:
@@ -114,3 +156,10 @@ def atomic_output(path: str | os.PathLike, force: bool = False, mode: str = "wb"
         if not done:
             with contextlib.suppress(OSError):
                 os.unlink(name)
+
+
+def write_output(path: str | os.PathLike, data: str | bytes, force: bool = False, what: str = "output") -> Path:
+    """Write ``data`` (text as UTF-8, or bytes) to ``path`` through :func:`atomic_output`; return the path."""
+    with atomic_output(path, force, "w" if isinstance(data, str) else "wb", what) as f:
+        f.write(data)
+    return Path(path)
