@@ -176,7 +176,9 @@ def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
         ("fleet_passed", passed, "recordings within the tube"),
     ]
     path = out / "campaign.csv"
-    with open(path, "w", newline="") as fh:
+    from ..io.atomic import atomic_output
+
+    with atomic_output(path, force=True, mode="w") as fh:  # whole or not at all
         writer = csv.writer(fh)
         writer.writerow(["figure", "value", "note"])
         writer.writerows(rows)

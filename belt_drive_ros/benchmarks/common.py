@@ -48,6 +48,7 @@ from ..core.fidelity import choose_model
 from ..core.model import make_model
 from ..core.scene import Scene, load_scene
 from ..core.simulate import Plant, Simulator
+from ..io.atomic import atomic_output
 from ..core.sources import Constant, Step
 
 #: shipped scenes every study covers.
@@ -264,7 +265,8 @@ def save_figure(fig, path: Path) -> Path:
     image = Image.open(buf).convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    image.save(path, optimize=True)
+    with atomic_output(path, force=True) as f:  # whole or not at all (an interrupted study keeps the old chart)
+        image.save(f, format="PNG", optimize=True)
     return path
 
 
@@ -284,7 +286,7 @@ def write_csv(path: Path, rows: Iterable[dict], columns: Sequence[str]) -> Path:
     """CSV with a header line; floats with 6 significant digits (timings are not better than that)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as fh:
+    with atomic_output(path, force=True, mode="w") as fh:  # whole or not at all
         writer = csv.DictWriter(fh, fieldnames=list(columns), extrasaction="ignore")
         writer.writeheader()
         for row in rows:

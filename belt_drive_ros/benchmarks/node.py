@@ -323,12 +323,14 @@ def main(argv=None) -> int:
         import csv
         import io
 
+        from ..io.atomic import write_output
+
         table = io.StringIO()
         writer = csv.DictWriter(table, fieldnames=list(figures), lineterminator="\n")
         writer.writeheader()
         writer.writerows(runs)
-        (args.out / "node.csv").write_text(table.getvalue())
-        (args.out / "node.md").write_text("```\n" + text + "\n```\n")
+        write_output(args.out / "node.csv", table.getvalue(), force=True)
+        write_output(args.out / "node.md", "```\n" + text + "\n```\n", force=True)
         print(f"wrote {args.out / 'node.csv'} and {args.out / 'node.md'}")
     return 0
 

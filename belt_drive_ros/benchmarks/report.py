@@ -174,6 +174,6 @@ def write_summary(out: Path, quick: bool = False, blas: str = "", timings: dict 
         lines += ["Study run times: " + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()) + ".", ""]
     for part in (realtime_lines, versus_lines, workprecision_lines, stability_lines, fidelity_lines):
         lines += part(out)
-    path = out / "summary.md"
-    path.write_text("\n".join(lines))
-    return path
+    from ..io.atomic import write_output
+
+    return write_output(out / "summary.md", "\n".join(lines), force=True)

@@ -257,7 +257,9 @@ def main(argv=None) -> int:
     print(text)
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "soak.md").write_text("```\n" + text + "\n```\n")
+        from ..io.atomic import write_output
+
+        write_output(args.out / "soak.md", "```\n" + text + "\n```\n", force=True)
         print(f"wrote {args.out / 'soak.md'}")
     return 0 if figures["exit_code"] == 0 else 1
 
