@@ -128,6 +128,7 @@ def _summary_from_scan(scan: Scan, name: str, size: int) -> BagSummary:
         stop_reason=scan.stop_reason,
         damage=list(scan.damage),
         verified=scan.checked_against_summary,
+        recovered=scan.recovered,
     )
 
 

@@ -169,6 +169,8 @@ def _info_one(path: str, args: argparse.Namespace, out: IO[str]) -> Tuple[int, A
         status = 1
     elif not s.complete:
         w(f"Status:            INCOMPLETE, {s.stop_reason}; {s.message_count} messages recovered\n")
+    elif s.recovered:
+        w(f"Status:            RECOVERED, {s.recovered}; all {s.message_count} messages the summary counts read\n")
     elif s.from_summary:
         w("Status:            complete (summary section only; the data was not checked)\n")
     elif s.verified:
@@ -422,13 +424,14 @@ def build_parser() -> argparse.ArgumentParser:
             "the whole data section is read (streamed, one chunk at a time) and checked against the "
             "file's summary section: record lengths, decompression, chunk CRCs, the data section's "
             "CRC, chunk indexes and message counts per channel. Each problem is one 'Damage:' line, "
-            "then a verdict: 'Status: complete', 'INCOMPLETE' (recorder killed: what was recovered) "
+            "then a verdict: 'Status: complete', 'INCOMPLETE' (recorder killed: what was recovered), "
+            "'RECOVERED' (a damaged record before the end, every message read through the chunk index) "
             "or 'DAMAGED' (exit 1). --summary-only reads only the footer and summary section: "
             "fast, but a damaged chunk goes unseen."
         ),
         epilog=("examples:\n  msg-tools info run.mcap --qos\n"
                 "  msg-tools info huge.mcap --summary-only   # no data read, nothing verified\n\n"
-                "exit status: 0 complete or incomplete (recovered, with a warning), "
+                "exit status: 0 complete, incomplete or recovered (with a warning), "
                 "1 damaged, 2 unreadable or not MCAP"),
         formatter_class=_Formatter,
     )

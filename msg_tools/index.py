@@ -30,7 +30,7 @@ import struct
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
-__all__ = ["IndexedSummary", "count_problems", "read_summary"]
+__all__ = ["IndexedSummary", "chunks_readable", "count_problems", "read_summary"]
 
 _CHUNK, _MESSAGE_INDEX = 0x06, 0x07
 _rec_head = struct.Struct("<BQ").unpack_from
@@ -141,18 +141,32 @@ def read_summary(buf: Any, *, path: Optional[str] = None,
         if summary.statistics is None:
             return None, "summary section has no statistics record"
         metadata = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
-        header = reader.get_header()
+        try:
+            header, header_problem = reader.get_header(), ""
+        except Exception as exc:  # noqa: BLE001 - a damaged header record: the summary stands on its own
+            header, header_problem = None, f"the header record cannot be read ({_first_line(exc)})"
     except Exception as exc:  # noqa: BLE001 - any parse error of a damaged or cut-off file
-        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        return None, f"summary unreadable ({type(exc).__name__}: {text})"
+        return None, f"summary unreadable ({_first_line(exc)})"
     finally:
         if isinstance(stream, io.IOBase):
             stream.close()
-    out = IndexedSummary(summary, header.profile, header.library, metadata)
+    out = IndexedSummary(summary, header.profile if header else "", header.library if header else "", metadata)
     if check:
-        out.problems = _check(buf, summary)
+        out.problems = ([header_problem] if header_problem else []) + _check(buf, summary)
+    elif header_problem:
+        out.problems = [header_problem]
     out.topic_times = _topic_times(buf, summary, trust_message_indexes=not out.problems)
     return out, ""
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).splitlines()[0] if str(exc) else ""
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def chunks_readable(indexed: IndexedSummary) -> bool:
+    """The chunk index can be followed: every problem found is the header record's, not the indexes'."""
+    return all(p.startswith("the header record") for p in indexed.problems)
 
 
 def _summary_crc_ok(buf: Any) -> bool:

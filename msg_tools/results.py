@@ -163,6 +163,9 @@ class BagSummary:
     verified : bool
         True when the data was scanned and checked against a readable
         summary section (``damage`` then lists every disagreement).
+    recovered : str
+        Set when the data section is damaged before its end but every chunk was read through
+        the summary's chunk index and the counts agree: what was damaged ("" otherwise).
     """
 
     path: str
@@ -182,6 +185,7 @@ class BagSummary:
     damage: List[str] = field(default_factory=list)
     from_summary: bool = False
     verified: bool = False
+    recovered: str = ""
 
     def metadata_dict(self, name: str) -> Dict[str, str]:
         """Return the merged key/values of all metadata records called ``name``."""

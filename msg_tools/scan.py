@@ -174,6 +174,7 @@ class Scan:
         self.data_crc = "none"  # the data section's CRC: "ok", "bad" or "none" (not written)
         self.damage: List[str] = []
         self.checked_against_summary = False  # scan_source found a readable summary section
+        self.recovered = ""  # what stopped the scan, when the chunk index read the rest (scan_source)
 
     # -- records ----------------------------------------------------------
     def _schema(self, body: Any) -> None:
@@ -190,6 +191,9 @@ class Scan:
         topic, off = _read_str(body, 4)
         encoding, off = _read_str(body, off)
         meta, _ = _read_map(body, off)
+        self._add_channel(cid, sid, topic, encoding, meta)
+
+    def _add_channel(self, cid: int, sid: int, topic: str, encoding: str, meta: Dict[str, str]) -> None:
         if cid not in self.channels:
             self.channels[cid] = ChannelRecord(cid, sid, topic, encoding, meta)
             if self.want is None or self.want(topic):
@@ -321,6 +325,30 @@ class Scan:
             acc.last = last if acc.last is None else max(acc.last, last)
 
     # -- driver -----------------------------------------------------------
+    def resume(self, summary: Any, metadata: List[Tuple[str, Dict[str, str]]]) -> int:
+        """Read the chunks the summary section indexes that the scan did not reach; return how many.
+
+        For a finished file whose scan stopped at a damaged record (a record
+        length, the header): the chunk index (checked against the records by
+        :mod:`msg_tools.index`) points past it. Schemas, channels and metadata
+        records come from the summary. Raises :class:`_Stop` if an indexed
+        chunk cannot be read (decompression, CRC, structure).
+        """
+        for sid, sc in summary.schemas.items():
+            if sid != 0 and sid not in self.schemas:
+                self.schemas[sid] = SchemaRecord(sid, sc.name, sc.encoding, bytes(sc.data))
+        for cid, ch in summary.channels.items():
+            self._add_channel(cid, ch.schema_id, ch.topic, ch.message_encoding, dict(ch.metadata))
+        if len(metadata) > len(self.metadata):
+            self.metadata = list(metadata)
+        n = 0
+        for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+            at = ci.chunk_start_offset
+            if at >= self.bytes_read:
+                self._record(_CHUNK, self.buf, at + 9, at + ci.chunk_length, at)
+                n += 1
+        return n
+
     def run(self) -> "Scan":
         buf = self.buf
         size = len(buf)
@@ -494,17 +522,32 @@ def scan_source(source: Source, want: Optional[Callable[[str], bool]], keep_data
         scan = Scan(src.buf, src.name, want=want, keep_data=keep_data, keep_times=keep_times).run()
         size, name = src.size, src.name
         indexed, reason = _index.read_summary(src.buf, path=src.path) if size else (None, "")
+        resumed = None
+        if indexed is not None and not scan.complete and scan.stop_reason and _index.chunks_readable(indexed):
+            try:  # a finished file damaged before its end: its chunk index reads what follows the damage
+                resumed = scan.resume(indexed.summary, indexed.metadata)
+            except _Stop:
+                resumed = None
     scan.buf = None  # release the mapping
     scan.damage = []
     if indexed is not None:
         scan.checked_against_summary = True
+        counts = {cid: acc.count for cid, acc in scan.accs.items()}
+        topics = {cid: ch.topic for cid, ch in scan.channels.items()}
+        if resumed is not None and not _index.count_problems(indexed, counts, topics, want):
+            # every message the summary counts was read: the data is whole, the damage is said
+            scan.recovered = "; ".join(indexed.problems + [
+                f"the data stops early ({scan.stop_reason}); the {resumed} chunks after it read through "
+                "the summary's chunk index"])
+            scan.complete, scan.stop_reason = True, ""
+            warnings.warn(RecoveredBagWarning(f"{name} is damaged but whole: {scan.recovered}; "
+                                              f"{scan.message_count} messages, as the summary counts"), stacklevel=3)
+            return scan, size, name
         scan.damage = list(indexed.problems)
         if not scan.complete:
             scan.damage.insert(0, f"the data stops early ({scan.stop_reason})")
         elif scan.data_crc == "bad":
             scan.damage.insert(0, "the data section fails its CRC check")
-        counts = {cid: acc.count for cid, acc in scan.accs.items()}
-        topics = {cid: ch.topic for cid, ch in scan.channels.items()}
         scan.damage += _index.count_problems(indexed, counts, topics, want)
     elif not scan.complete:
         warnings.warn(

@@ -289,3 +289,65 @@ def test_a_split_folder_whose_first_file_lacks_a_topic_reads_whole(tmp_path):
     np.testing.assert_array_equal(js.position[:, 0], np.arange(100) * 1e-3)
     status, out, err = _cli("export", str(tmp_path / "run"), "--topic", "/joint_states")
     assert status == 0 and len(out.splitlines()) == 101, err
+
+
+def _records(raw):
+    """(offset, opcode) of the top-level records of the MCAP bytes ``raw`` in file order."""
+    import struct
+
+    pos, out = 8, []
+    while pos + 9 <= len(raw) - 8:
+        opcode, length = struct.unpack_from("<BQ", raw, pos)
+        out.append((pos, opcode))
+        pos += 9 + length
+    return out
+
+
+@pytest.mark.parametrize("where", ["header", "message index"])
+def test_damage_before_the_end_of_a_finished_file_is_read_through_the_chunk_index(original, tmp_path, where):
+    """A record length made huge stops the record-by-record scan, though every chunk after it is
+    intact and indexed by the summary section: all verbs read the whole data through the chunk
+    index (counts checked against the summary) and say what was damaged. Before, ``info`` said
+    INCOMPLETE with '0 messages recovered' (header) or DAMAGED, and ``export`` refused."""
+    import struct
+
+    good = tmp_path / "good.mcap"
+    good.write_bytes(original)
+    records = _records(original)
+    if where == "header":
+        at = 8
+    else:  # a message index in the middle of the data section
+        indexes = [pos for pos, opcode in records if opcode == 0x07]
+        at = indexes[len(indexes) // 2]
+    mutant = bytearray(original)
+    struct.pack_into("<Q", mutant, at + 1, 2**40)
+    path = tmp_path / "mutant.mcap"
+    path.write_bytes(bytes(mutant))
+    for topic in ("/joint_states", "/drive_torque"):
+        _, golden, _ = _cli("export", str(good), "--topic", topic)
+        status, out, err = _cli("export", str(path), "--topic", topic)
+        assert status == 0 and out == golden, err
+        assert err.count("\n") == 1 and "damaged but whole" in err and f"at byte {at}" in err and "chunk index" in err, err
+    status, out, err = _cli("info", str(path))
+    assert status == 0 and "Status:            RECOVERED," in out and "Messages:          1200" in out, out
+    assert "units:" in out and "damaged but whole" in err  # metadata records come from the summary section
+    status, out, err = _cli("compare", str(path), str(good))
+    assert status == 0 and "PASS" in out and "damaged but whole" in err, out + err
+
+
+def test_a_damaged_chunk_after_the_stop_is_still_refused(original, tmp_path):
+    """The chunk index reads only what verifies: a header damaged and a chunk whose bytes no longer
+    decompress is damage (exit 1 / refused), not a silent partial read."""
+    import struct
+
+    chunks = _chunks(original)
+    mutant = bytearray(original)
+    struct.pack_into("<Q", mutant, 9, 2**40)  # the header record's length
+    c = chunks[len(chunks) // 2]
+    mutant[c.chunk_start_offset + c.chunk_length - 5] ^= 0xFF  # inside the chunk's compressed records
+    path = tmp_path / "mutant.mcap"
+    path.write_bytes(bytes(mutant))
+    status, out, err = _cli("info", str(path))
+    assert status == 1 and "DAMAGED" in out and "RECOVERED" not in out, out + err
+    status, out, err = _cli("export", str(path), "--topic", "/joint_states")
+    assert status == 2 and _one_line_error(status, err) and out == "", err
