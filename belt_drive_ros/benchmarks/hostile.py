@@ -20,7 +20,8 @@ Categories (the issue's): ``scene file`` (the seeded mutants of
 :func:`scene_mutants`, which ``tests/test_fuzz_scenes.py`` runs too, plus
 /dev/zero, a FIFO, a folder, a 2 MiB file), ``cli`` (huge and invalid
 durations and steps, bad outputs: /dev/full, folders, unknown extensions,
-existing files), ``mcap info`` / ``mcap export`` / ``mcap compare`` (:func:`mcap_mutants` of a
+existing files; a streaming run stopped by SIGTERM or SIGINT while it writes, in a
+child process), ``mcap info`` / ``mcap export`` / ``mcap compare`` (:func:`mcap_mutants` of a
 recording through each verb, compare against the intact file, as
 ``tests/test_msg_tools_damage.py``; ``info`` checks the data against the
 summary section as ``export`` and ``compare`` do, so all three refuse or
@@ -402,6 +403,48 @@ def run_cli(table: Table, tmp: Path, quick: bool) -> None:
         if leftovers:
             outcome = "data lost"
         table.add("cli", outcome, " ".join(str(a) for a in argv[1:]), err)
+    if not quick:
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            label, outcome, note = _signalled_run(tmp, sig)
+            table.add("cli", outcome, label, note)
+
+
+def _signalled_run(tmp: Path, sig) -> tuple:
+    """``belt-drive sim paper --duration 5000 --out F.csv --force`` (a child process, streaming) sent
+    ``sig`` once its temporary file holds data: (label, outcome, note). Clean: exit 128 + signal,
+    one line, the old F.csv kept and no temporary file left; data lost: a temporary file left
+    behind or the old file gone; hang: the child neither finished nor stopped."""
+    import subprocess
+
+    out = tmp / f"signalled_{sig.name}.csv"
+    out.write_bytes(b"keep")
+    label = f"sim paper --duration 5000 --out {out.name} --force, {sig.name} while writing"
+    cmd = [sys.executable, "-m", "belt_drive_ros.cli", "sim", "paper", "--duration", "5000", "--quiet", "--force",
+           "--out", str(out)]
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    child = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        deadline = time.monotonic() + 300.0
+        while not any(p.stat().st_size > 0 for p in tmp.glob(f".{out.name}.*.part")):
+            if child.poll() is not None or time.monotonic() > deadline:
+                return label, "hang" if child.poll() is None else "crash", "no temporary output while running"
+            time.sleep(0.05)
+        child.send_signal(sig)
+        err = child.communicate(timeout=BUDGET_S)[1]
+    except subprocess.TimeoutExpired:
+        return label, "hang", f"no exit {BUDGET_S:g} s after {sig.name}"
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    left = [p.name for p in tmp.glob(f".{out.name}.*.part")]
+    if left or out.read_bytes() != b"keep":
+        return label, "data lost", f"exit {child.returncode}, left {left}, old file kept: {out.read_bytes() == b'keep'}"
+    lines = err.strip().splitlines()
+    if child.returncode == 128 + sig and len(lines) == 1 and lines[0].startswith("belt-drive: interrupted"):
+        return label, "clean error", err
+    return label, "crash", f"exit {child.returncode}: {err}"
 
 
 def run_mcap(table: Table, tmp: Path, quick: bool) -> None:
