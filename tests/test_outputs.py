@@ -181,23 +181,31 @@ def test_output_error_is_a_failed_run_not_bad_input():
     assert issubclass(OutputError, OSError)
 
 
-@pytest.mark.parametrize("sig, name", [(signal.SIGTERM, "run.csv"), (signal.SIGTERM, "run.mcap"), (signal.SIGINT, "run.csv")])
+@pytest.mark.parametrize("sig, name", [(signal.SIGTERM, "run.csv"), (signal.SIGTERM, "run.mcap"), (signal.SIGINT, "run.csv"),
+                                       (signal.SIGTERM, "bag")])
 def test_a_run_killed_while_writing_leaves_no_partial_file_and_keeps_the_old_one(tmp_path, sig, name):
     """A real ``belt-drive sim`` child streaming --out is signalled once its temporary file holds data:
     it exits 128 + the signal number with one line, the temporary file is gone and the old output
-    (replaced only on success, --force) is untouched."""
+    (replaced only on success, --force) is untouched. A bag folder (--bag-folder, written in place)
+    is removed, files of others in it kept."""
     out = tmp_path / name
-    out.write_bytes(b"old")
+    if name == "bag":
+        out.mkdir()
+        (out / "notes.txt").write_text("mine")
+        growing = lambda: list(out.glob("bag_*.mcap"))  # noqa: E731
+    else:
+        out.write_bytes(b"old")
+        growing = lambda: list(tmp_path.glob(f".{name}.*.part"))  # noqa: E731
     cmd = [sys.executable, "-m", "belt_drive_ros.cli", "sim", "paper", "--duration", "5000", "--quiet",
-           "--force", "--out", str(out)]
+           "--force", "--out", str(out)] + (["--bag-folder"] if name == "bag" else [])
     child = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=tmp_path.parent,
                              env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
                              preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 300.0
-        while not any(p.stat().st_size > 0 for p in tmp_path.glob(f".{name}.*.part")):
+        while not any(p.stat().st_size > 0 for p in growing()):
             assert child.poll() is None, child.stderr.read()
-            assert time.monotonic() < deadline, "no temporary output appeared"
+            assert time.monotonic() < deadline, "no output appeared"
             time.sleep(0.05)
         child.send_signal(sig)
         err = child.communicate(timeout=120)[1]
@@ -209,7 +217,29 @@ def test_a_run_killed_while_writing_leaves_no_partial_file_and_keeps_the_old_one
     lines = err.strip().splitlines()
     assert lines == [f"belt-drive: interrupted by {signal.Signals(sig).name}; unfinished outputs removed"], err
     assert _leftovers(tmp_path) == [] and sorted(p.name for p in tmp_path.iterdir()) == [name]
-    assert out.read_bytes() == b"old"
+    if name == "bag":
+        assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+    else:
+        assert out.read_bytes() == b"old"
+
+
+def test_a_failed_bag_folder_write_removes_the_bag_and_an_existing_one_is_refused_untouched(tmp_path, capsys, monkeypatch):
+    from belt_drive_ros.io import recording
+
+    bag = tmp_path / "bag"
+    _run(capsys, RUN + ["--out", str(bag), "--bag-folder"], 0)
+    before = sorted(p.name for p in bag.iterdir())
+    assert "metadata.yaml" in before
+    line = _run(capsys, RUN + ["--out", str(bag), "--bag-folder"], 2)  # exists, no --force: untouched
+    assert "exist" in line and sorted(p.name for p in bag.iterdir()) == before
+
+    def full(self, *args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(recording.ResultMcapWriter, "write", full)
+    fresh = tmp_path / "fresh"
+    _run(capsys, RUN + ["--out", str(fresh), "--bag-folder"], 1)
+    assert not fresh.exists()
 
 
 def test_benchmark_tables_and_charts_appear_whole_or_not_at_all(tmp_path, monkeypatch):

@@ -166,7 +166,15 @@ def _run_in_memory(scene, args, out_format, bar) -> int:
         from ..io.recording import write_result_mcap
 
         if out_format == "mcap" and args.bag_folder:
-            write_result_mcap(result, args.out, force=args.force, start_time_ns=args.start_time, bag_folder=True)
+            from ..io.run_writers import remove_bag_folder
+
+            had_bag = args.out.is_dir() and any(f.suffix == ".mcap" or f.name == "metadata.yaml" for f in args.out.iterdir())
+            try:
+                write_result_mcap(result, args.out, force=args.force, start_time_ns=args.start_time, bag_folder=True)
+            except BaseException:  # a failed or interrupted write leaves no partial bag behind
+                if args.force or not had_bag:  # (an existing bag without --force was refused untouched)
+                    remove_bag_folder(args.out)
+                raise
         elif out_format == "mcap":
             with atomic_output(args.out, args.force, "wb", what="--out") as f:
                 write_result_mcap(result, f, start_time_ns=args.start_time)

@@ -9,14 +9,13 @@ for a plot, the one output that needs the whole run at once.
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import numpy as np
 
 from ..core.simulate import CSV_COLUMNS, SLIP_CSV_COLUMNS, SLIP_MODELS, SimResult
 
-__all__ = ["CsvWindows", "Decimator", "McapWindows"]
+__all__ = ["CsvWindows", "Decimator", "McapWindows", "remove_bag_folder"]
 
 #: MCAP chunk size of a streamed run [bytes]: one chunk index entry (~1 KB) stays in memory per chunk
 STREAM_CHUNK = 2 << 20
@@ -71,7 +70,7 @@ class McapWindows:
             self.writer.abort()
             self.writer = None
         if self.bag_folder:
-            shutil.rmtree(Path(self.target), ignore_errors=True)
+            remove_bag_folder(self.target)
             self.force = True
         else:
             self.target.seek(0)
@@ -83,8 +82,27 @@ class McapWindows:
         return self.counts
 
     def abort(self) -> None:
+        """After a failure or an interruption: no partial output is left (a bag folder's files are removed)."""
         if self.writer is not None:
             self.writer.abort()
+            self.writer = None
+            if self.bag_folder:
+                remove_bag_folder(self.target)
+
+
+def remove_bag_folder(folder) -> None:
+    """Remove what a bag writer puts in ``folder`` (``metadata.yaml``, ``NAME_<i>.mcap``), then the
+    folder if nothing else is left in it; other files stay. Never raises."""
+    folder = Path(folder)
+    name = folder.resolve().name
+    try:
+        for f in folder.iterdir():
+            stem = f.name[: -len(".mcap")] if f.name.endswith(".mcap") else ""
+            if f.name == "metadata.yaml" or (stem.startswith(name + "_") and stem[len(name) + 1:].isdigit()):
+                f.unlink()
+        folder.rmdir()
+    except OSError:
+        pass
 
 
 class Decimator:
