@@ -7,6 +7,7 @@ The reference for every table is a plain loop of single ``simulate`` runs
 from __future__ import annotations
 
 import math
+import os
 import shutil
 import subprocess
 import sys
@@ -165,3 +166,20 @@ def test_summary_and_pictures(tmp_path, client):
     written = plot(done.table, campaign, tmp_path / "out")
     assert {p.name for p in written} == {"histograms.png", "metrics_vs_parameters.png"}
     assert all(p.stat().st_size > 10_000 for p in written)
+
+
+def test_local_cluster_workers_keep_blas_single_threaded_and_glibc_malloc_adaptive(monkeypatch):
+    """belt-drive sweep's LocalCluster: no MALLOC_TRIM_THRESHOLD_ in the workers (it turns every array over 128 kB
+    into a fresh mmap), also when an earlier Dask nanny left it in this process's environment; OPENBLAS_NUM_THREADS=1
+    as Dask sets it; the client's Dask config and environment are left as they were."""
+    import dask
+
+    from belt_drive_ros.campaign.execute import local_cluster
+
+    monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")  # what a default LocalCluster's nanny leaves behind
+    before = dask.config.get("distributed.nanny.pre-spawn-environ")
+    with local_cluster(1) as cluster, Client(cluster) as c:
+        env = next(iter(c.run(lambda: dict(os.environ)).values()))
+    assert "MALLOC_TRIM_THRESHOLD_" not in env and env.get("OPENBLAS_NUM_THREADS") == "1"
+    assert dask.config.get("distributed.nanny.pre-spawn-environ") == before
+    assert os.environ["MALLOC_TRIM_THRESHOLD_"] == "65536"
