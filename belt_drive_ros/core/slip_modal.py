@@ -35,16 +35,35 @@ from typing import Callable
 
 import numpy as np
 
+from .formula import compile_source
+
 #: Taylor coefficients 1/(j+3)! of phi_3, enough for |x| < 0.5 to below 1e-17 relative
 _PHI3 = tuple(1.0 / math.factorial(j + 3) for j in range(15))
+#: Taylor coefficients 1/(j+4)! of phi_4
+_PHI4 = tuple(1.0 / math.factorial(j + 4) for j in range(15))
+
+
+def _horner(coefficients) -> str:
+    """Source of ``p = 0 x; p = p x + c`` for each ``c`` of ``coefficients`` from the last, as one expression.
+
+    The same operations in the same order as that loop (so the same floats),
+    without its per-term interpreter overhead (an event evaluates these
+    series ~20 times: ~0.15 us each saved).
+    """
+    return "(" * len(coefficients) + "0.0 * x" + "".join(f" * x + {c!r})" for c in reversed(coefficients))
+
+
+_SERIES = compile_source(
+    f"def _series3(x):\n    return {_horner(_PHI3)}\n\n\ndef _series4(x):\n    return {_horner(_PHI4)}\n",
+    "phi series", {},
+)
+_series3, _series4 = _SERIES["_series3"], _SERIES["_series4"]
 
 
 def phis(x: complex) -> tuple[complex, complex, complex, complex]:
     """(e^x, phi_1(x), phi_2(x), phi_3(x)): Taylor series below |x| = 0.5, closed forms above."""
     if abs(x) < 0.5:
-        p3 = 0.0 * x
-        for c in reversed(_PHI3):
-            p3 = p3 * x + c
+        p3 = _series3(x)
         p2 = 0.5 + x * p3
         p1 = 1.0 + x * p2
         return 1.0 + x * p1, p1, p2, p3
@@ -54,16 +73,10 @@ def phis(x: complex) -> tuple[complex, complex, complex, complex]:
     return e, p1, p2, (p2 - 0.5) / x
 
 
-#: Taylor coefficients 1/(j+4)! of phi_4
-_PHI4 = tuple(1.0 / math.factorial(j + 4) for j in range(15))
-
-
 def phis4(x: complex) -> tuple:
     """(e^x, phi_1(x), ..., phi_4(x)) (the etd4 step's quadratic input needs phi_4 for the integrated coordinates)."""
     if abs(x) < 0.5:
-        p4 = 0.0 * x
-        for c in reversed(_PHI4):
-            p4 = p4 * x + c
+        p4 = _series4(x)
         p3 = 1.0 / 6.0 + x * p4
         p2 = 0.5 + x * p3
         p1 = 1.0 + x * p2
