@@ -87,7 +87,12 @@ class ModelChoice:
 
 
 def operating_run_step(duration: float) -> float:
-    """Step [s] of the cheap rigid run (method ``exact``) that estimates the operating speeds: <= 500 steps, <= 5 ms."""
+    """Step [s] of the cheap rigid run (method ``exact``) that estimates the operating speeds.
+
+    ``min(duration / 500, 5 ms)``: at least 500 steps, and steps of at most
+    5 ms, so a long run's survey grows with its duration (max(500,
+    duration / 5 ms) steps: 2e7 for 1e5 s, tens of seconds before the run).
+    """
     return min(duration / 500.0, 5e-3)
 
 
