@@ -8,7 +8,12 @@ is deprecated in Jazzy and never set.
 
 import os
 
-from belt_drive_ros.ros.environment import configure_environment, process_domain_id
+from belt_drive_ros.ros.environment import (
+    configure_environment,
+    fast_dds_segments,
+    process_domain_id,
+    remove_orphan_segments,
+)
 
 configure_environment(loopback=True)
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -25,3 +30,15 @@ def ros_domain_id() -> int:
     Child processes a test starts get it through ``child_environment``.
     """
     return process_domain_id()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def no_orphan_shared_memory():
+    """After the session: remove the Fast DDS segments left in /dev/shm by processes the tests killed.
+
+    Only segments that appeared during the session and that no live process
+    (another suite's included) has mapped or open.
+    """
+    before = fast_dds_segments()
+    yield
+    remove_orphan_segments(fast_dds_segments() - before)

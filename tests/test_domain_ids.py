@@ -64,3 +64,29 @@ def test_an_id_is_held_while_its_process_lives_and_free_once_it_has_ended():
     holder.wait(timeout=30)
     holder.stdin.close()
     assert _lockable(first) and _lockable(second)
+
+
+def test_orphan_fast_dds_segments_are_removed_and_segments_in_use_are_kept():
+    """What a killed participant leaves in /dev/shm goes; a segment a live process holds, and the
+    shared port segments, stay."""
+    import secrets
+
+    from belt_drive_ros.ros import environment as ros_env
+
+    orphan, held = (f"fastrtps_{secrets.token_hex(8)}" for _ in range(2))
+    port = f"fastrtps_port{secrets.randbelow(10**6) + 10**6}"
+    paths = [os.path.join(ros_env.SHM_DIR, n) for n in (orphan, orphan + "_el", held, port)]
+    for p in paths:
+        open(p, "wb").close()
+    keep_open = open(paths[2], "rb")  # a live process (this one) has it open
+    try:
+        assert {orphan, orphan + "_el", held} <= ros_env.fast_dds_segments()
+        assert port not in ros_env.fast_dds_segments()
+        removed = ros_env.remove_orphan_segments({orphan, orphan + "_el", held, port})
+        assert removed == {orphan, orphan + "_el"}
+        assert [os.path.exists(p) for p in paths] == [False, False, True, True]
+    finally:
+        keep_open.close()
+        for p in paths:
+            if os.path.exists(p):
+                os.unlink(p)

@@ -10,7 +10,6 @@ import contextlib
 import errno
 import io
 import os
-import re
 import signal
 import subprocess
 import sys
@@ -202,48 +201,6 @@ def test_existing_file_refused(harness, tmp_path):
 
 
 # ---------------------------------------------------------- belt-drive record
-def _shared_memory_of(pid):
-    """/dev/shm files process ``pid`` has mapped or open (what a SIGKILL would leave behind)."""
-    found = set()
-    with open(f"/proc/{pid}/maps") as f:
-        found |= {line.rsplit("/dev/shm/", 1)[1].strip() for line in f if "/dev/shm/" in line}
-    for fd in os.listdir(f"/proc/{pid}/fd"):
-        try:
-            target = os.readlink(f"/proc/{pid}/fd/{fd}")
-        except OSError:
-            continue
-        if target.startswith("/dev/shm/"):
-            found.add(target[len("/dev/shm/"):])
-    return found
-
-
-def _shared_memory_in_use():
-    """/dev/shm files some live process has mapped or open."""
-    found = set()
-    for pid in filter(str.isdigit, os.listdir("/proc")):
-        try:
-            found |= _shared_memory_of(pid)
-        except OSError:  # gone, or not ours to read
-            continue
-    return found
-
-
-def _remove_segments_of_killed(names):
-    """Delete the killed process's own Fast DDS segments (``fastrtps_<guid>``, ``_el``) nobody uses.
-
-    The shared port segments (``fastrtps_port*``, their semaphores) are
-    reused by every participant and stay, as after a clean exit.
-    """
-    own = {n for n in names if re.fullmatch(r"fastrtps_[0-9a-f]{16}(_el)?", n)}
-    orphans = own - _shared_memory_in_use()  # not a live peer's segment that it had mapped
-    for name in orphans:
-        try:
-            os.unlink(os.path.join("/dev/shm", name))
-        except FileNotFoundError:
-            pass
-    return orphans
-
-
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGKILL])
 def test_record_command_under_signals(tmp_path, ros_domain_id, sig):
     import rclpy
@@ -277,7 +234,7 @@ def test_record_command_under_signals(tmp_path, ros_domain_id, sig):
         while path.stat().st_size < 200 and time.monotonic() < deadline:  # a chunk was flushed
             time.sleep(0.05)
         time.sleep(0.3)
-        shm = _shared_memory_of(proc.pid)
+        shm = ros_env.shared_memory_of(proc.pid)
         proc.send_signal(sig)
         code = proc.wait(timeout=20)
         stderr = proc.stderr.read()
@@ -296,7 +253,7 @@ def test_record_command_under_signals(tmp_path, ros_domain_id, sig):
         assert msg_tools(["info", str(path)]) == 0  # readable, reported INCOMPLETE
         # Fast DDS keeps using shared memory under ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (even with
         # FASTDDS_BUILTIN_TRANSPORTS=UDPv4): clean up what the killed recorder left behind
-        orphans = _remove_segments_of_killed(shm)
+        orphans = ros_env.remove_orphan_segments(shm)
         assert orphans, "expected the killed recorder's own Fast DDS segment"
         left = orphans & set(os.listdir("/dev/shm"))
         assert not left, f"shared memory of the killed recorder still in /dev/shm: {sorted(left)}"

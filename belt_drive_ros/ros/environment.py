@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import MutableMapping
@@ -265,3 +266,60 @@ def realtime_priority(priority: int) -> str:
     except (OSError, AttributeError) as exc:
         return f"SCHED_FIFO {priority} refused ({exc}); needs CAP_SYS_NICE or 'ulimit -r {priority}'"
     return ""
+
+
+# ------------------------------------------------------- Fast DDS shared memory
+#: a participant's own Fast DDS segment in /dev/shm and its lock file (the shared
+#: ``fastrtps_port*`` segments and their semaphores are reused by every participant)
+_OWN_SEGMENT = re.compile(r"fastrtps_[0-9a-f]{16}(_el)?")
+SHM_DIR = "/dev/shm"
+
+
+def shared_memory_of(pid) -> set[str]:
+    """Names of the /dev/shm files process ``pid`` has mapped or open (raises OSError if unreadable)."""
+    found = set()
+    with open(f"/proc/{pid}/maps") as f:
+        found |= {line.rsplit("/dev/shm/", 1)[1].strip() for line in f if "/dev/shm/" in line}
+    for fd in os.listdir(f"/proc/{pid}/fd"):
+        try:
+            target = os.readlink(f"/proc/{pid}/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith("/dev/shm/"):
+            found.add(target[len("/dev/shm/"):])
+    return found
+
+
+def shared_memory_in_use() -> set[str]:
+    """Names of the /dev/shm files some live process (that this one may inspect) has mapped or open."""
+    found: set[str] = set()
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            found |= shared_memory_of(pid)
+        except OSError:  # gone, or not ours to read
+            continue
+    return found
+
+
+def fast_dds_segments() -> set[str]:
+    """Names of the participants' own Fast DDS segments now in /dev/shm (``fastrtps_<16 hex>``, ``_el``)."""
+    try:
+        return {n for n in os.listdir(SHM_DIR) if _OWN_SEGMENT.fullmatch(n)}
+    except OSError:
+        return set()
+
+
+def remove_orphan_segments(names) -> set[str]:
+    """Delete those of ``names`` that are a participant's own Fast DDS segment and no live process uses.
+
+    A participant killed (SIGKILL, or a crash) leaves its segment behind;
+    one that shuts down removes it itself. Returns the names removed.
+    """
+    own = {n for n in names if _OWN_SEGMENT.fullmatch(n)}
+    orphans = own - shared_memory_in_use() if own else set()
+    for name in orphans:
+        try:
+            os.unlink(os.path.join(SHM_DIR, name))
+        except FileNotFoundError:
+            pass
+    return orphans
