@@ -235,6 +235,7 @@ class Stepper:
         self.split_steps: dict = {}
         self.vectorized = False
         self._partials: dict = {}
+        self._called: Callable | None | bool = False  # _called_loop(), built at first use (False: not yet)
 
     # ------------------------------------------------------------ public
     def advance(self, x: np.ndarray, t0: float, t1: float) -> np.ndarray:
@@ -490,7 +491,7 @@ class Stepper:
         whole step whose torque times are clamped at a breakpoint runs in it
         with clamped functions (:meth:`_special_step`).
         """
-        loop = self.__dict__.get("_called", False)
+        loop = self._called
         if loop is False:
             plant = self.plant
             loop = None
