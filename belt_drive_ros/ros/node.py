@@ -218,7 +218,7 @@ class BeltDriveNode(Node):
         self.diagnostics = NodeDiagnostics(self)
         self._diagnostics_due = False  # set by the diagnostics timer while ticking on the system clock
         self._diag_timer = self.create_timer(1.0, self._on_diagnostics_timer, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.timing = TickSource(self, self._tick, self.sim, self.stats)
+        self.timing = TickSource(self, self._tick, self.sim, self.stats, after_tick=self._after_tick)
         self.timing.configure()
         s = settings
         self.get_logger().info(
@@ -243,9 +243,13 @@ class BeltDriveNode(Node):
         return self.sim.settings
 
     def _apply_settings(self, new: NodeSettings, changed: set) -> None:
+        with self.timing.lock:  # not between two steps of the tick thread
+            self._apply_settings_locked(new, changed)
+
+    def _apply_settings_locked(self, new: NodeSettings, changed: set) -> None:
         old = self.sim.settings
         self.sim.apply(new, changed, load_torque=self.last.get("load_torque", 0.0))
-        if changed & {"step_rate_hz", "publish_clock", "real_time_factor"}:
+        if changed & {"step_rate_hz", "publish_clock", "real_time_factor", "tick_thread"}:
             self.timing.configure(was_publishing_clock=old.publish_clock)
         if new.params != old.params:
             self._publish_description()
@@ -283,10 +287,11 @@ class BeltDriveNode(Node):
     # ---------------------------------------------------------------- input
     def _on_drive_torque(self, msg: Float64) -> None:
         """Constant time: validate, bound, clamp, hold (sampled at the next tick)."""
-        now = self.timing.now_ns()
-        self.drive.receive(msg.data, now, self.sim.settings)
-        if self.recorder is not None:
-            self.recorder.record_input(msg.data, now)
+        with self.timing.lock:
+            now = self.timing.now_ns()
+            self.drive.receive(msg.data, now, self.sim.settings)
+            if self.recorder is not None:
+                self.recorder.record_input(msg.data, now)
 
     def _publish_description(self) -> None:
         """Publish (and record) the URDF of the drive in force, if it changed."""
@@ -302,19 +307,31 @@ class BeltDriveNode(Node):
                                 self.timing.now_ns())
 
     # ---------------------------------------------------------------- ticks
-    def _tick(self, now_ns: int) -> None:
-        """Integrate to ``now_ns`` and publish the outputs there (after a pending ``~/reset``)."""
+    def _tick(self, now_ns: int, defer: bool = False) -> list | None:
+        """Integrate to ``now_ns`` and publish the outputs there (after a pending ``~/reset``).
+
+        ``defer`` (the tick thread, which publishes at the tick's due time):
+        return the ``(publish, data)`` calls instead of making them, and leave
+        a due diagnostics publish to :meth:`_after_tick`.
+        """
         if self._resets_pending:
             calls, self._resets_pending = self._resets_pending, 0
             self.sim.restart(f"~/reset, {calls} call(s) since the last tick")
-        if self.sim.advance_to(now_ns):
-            self._publish(now_ns)
-        if self._diagnostics_due:  # after the outputs are out: nearly a period before the next tick
+        sends = self._publish(now_ns, defer) if self.sim.advance_to(now_ns) else None
+        if not defer:
+            self._after_tick()
+        return sends
+
+    def _after_tick(self) -> None:
+        """Work that waits until the outputs are out: nearly a period before the next tick."""
+        if self._diagnostics_due:
             self._diagnostics_due = False
             self._diagnostics_now()
 
-    def _publish(self, now_ns: int) -> None:
+    def _publish(self, now_ns: int, defer: bool = False) -> list | None:
         """Publish (and record) the outputs at ``now_ns``: ``joint_states`` first, then the Float64 topics.
+
+        ``defer``: record them, and return the ``(publish, data)`` calls in order instead of making them.
 
         Each message goes out as its CDR bytes (rclpy's ``publish`` takes a
         serialized message): packed into a template (~3 us for all), where
@@ -328,10 +345,11 @@ class BeltDriveNode(Node):
         joints = tuple(map(float, (y["phi_M"], y["phi_1"], y["phi_2"], y["phi_3"], y["omega_M"], y["omega_1"],
                                    y["omega_2"], y["omega_3"], y["drive_torque"], 0.0, 0.0, -y["load_torque"])))
         joint_cdr = None
+        sends = []
         if readers["joint_states"] or recorder is not None:
             joint_cdr = self._joint_cdr.encode(now_ns, joints)
             if readers["joint_states"]:
-                self._pub_joint.publish(joint_cdr)
+                sends.append((self._pub_joint.publish, joint_cdr))
         floats = (joints[4], float(y["load_torque"]), float(y["belt_torque"]), float(y["relative_deflection"]))
         if "friction_use" in y:  # the slipping model's outputs
             floats += tuple(float(y[signal]) for _, signal in SLIP_FLOAT_OUTPUTS)
@@ -342,7 +360,10 @@ class BeltDriveNode(Node):
             payloads = encode_float64((*floats, joints[8]))
             for name, pub, data in zip(topics, self._pub_float, payloads[:-1]):
                 if readers[name]:
-                    pub.publish(data)
+                    sends.append((pub.publish, data))
+        if not defer:
+            for publish, data in sends:
+                publish(data)
         if y["slack"]:
             self.stats.window.slack += 1
             self.counters["slack_ticks"] += 1
@@ -355,6 +376,7 @@ class BeltDriveNode(Node):
         y["stamp_ns"] = now_ns
         self.last = y
         self.counters["published"] += 1
+        return sends if defer else None
 
     def refresh_subscriber_counts(self) -> dict[str, int]:
         """Query the readers of each output topic now (the "matched" events keep them current
@@ -391,13 +413,18 @@ class BeltDriveNode(Node):
 
     def diagnostic_status(self):
         """The node's health now (see :mod:`.diagnostics`; starts a new window)."""
-        return self.diagnostics.status()
+        with self.timing.lock:
+            return self.diagnostics.status()
 
     def publish_diagnostics(self) -> None:
         """Publish ``/diagnostics`` now (the 1 Hz wall timer calls this too)."""
-        self.diagnostics.publish()
+        with self.timing.lock:
+            self.diagnostics.publish()
 
     def _on_diagnostics_timer(self) -> None:
+        failure = self.timing.failure
+        if failure is not None:  # the tick thread ended with an exception: the process must not go on without ticks
+            raise RuntimeError(f"the tick thread stopped: {type(failure).__name__}: {failure}") from failure
         if self.sim.started and self.timing.time_base() == "system":
             # building them takes 0.2-0.7 ms: the next tick does it right after its outputs are
             # out, instead of now, at any phase of the period, where it would delay that tick
@@ -406,8 +433,9 @@ class BeltDriveNode(Node):
         self._diagnostics_now()
 
     def _diagnostics_now(self) -> None:
-        self._warn_duplicate_name()
-        self.diagnostics.publish()
+        with self.timing.lock:
+            self._warn_duplicate_name()
+            self.diagnostics.publish()
 
     def _warn_duplicate_name(self) -> None:
         """Warn (once) when another node in the domain has this node's name and namespace."""
@@ -433,8 +461,9 @@ class BeltDriveNode(Node):
         both serve this one service name: a call reaches either or both, as
         DDS delivers requests to every matching server.)
         """
-        self._resets_pending += 1
-        self.counters["reset_calls"] += 1
+        with self.timing.lock:
+            self._resets_pending += 1
+            self.counters["reset_calls"] += 1
         response.success = True
         response.message = (f"scene '{self.sim.settings.scene.name}' restarts from its initial state at the "
                             "next tick")
@@ -442,7 +471,8 @@ class BeltDriveNode(Node):
 
     def reset(self) -> None:
         """Restart from the scene's initial state at the last tick (published by the next tick)."""
-        self.sim.restart("reset requested")
+        with self.timing.lock:
+            self.sim.restart("reset requested")
 
     def destroy_node(self):
         timing = getattr(self, "timing", None)

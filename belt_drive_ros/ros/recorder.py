@@ -181,9 +181,14 @@ class TopicRecorder:
     does; what the publishers offered goes into ``offered_qos_profiles``.
     """
 
-    def __init__(self, node, writer: Ros2McapWriter, *, flush_period: Optional[float] = 0.25, depth: int = 1000):
+    def __init__(self, node, writer: Ros2McapWriter, *, flush_period: Optional[float] = 0.25, depth: int = 1000,
+                 lock=None):
+        import threading
+
         from rclpy.clock import Clock, ClockType
 
+        #: held around every use of the writer (a node's tick thread writes beside the executor's callbacks)
+        self.lock = lock if lock is not None else threading.RLock()
         self.node = node
         self.writer = writer
         self.path = writer.path or "<stream>"
@@ -288,16 +293,19 @@ class TopicRecorder:
         now = self._clock.now
         write = self.writer.write_raw
 
+        lock = self.lock
+
         def on_message(data: bytes) -> None:
             if self.error is not None or self.closed:
                 return
-            try:
-                if topic not in self._declared:
-                    self._declare(topic, type_name)
-                write(topic, type_name, data, now().nanoseconds)
-                self._unflushed += 1
-            except (MsgToolsError, OSError) as exc:
-                self._fail(exc)
+            with lock:
+                try:
+                    if topic not in self._declared:
+                        self._declare(topic, type_name)
+                    write(topic, type_name, data, now().nanoseconds)
+                    self._unflushed += 1
+                except (MsgToolsError, OSError) as exc:
+                    self._fail(exc)
 
         return on_message
 
@@ -319,24 +327,30 @@ class TopicRecorder:
         """Write one serialized message directly (no subscription), with the same error handling."""
         if self.error is not None or self.closed:
             return
-        try:
-            if topic not in self._declared:
-                self._declare(topic, type_name)
-            self.writer.write_raw(topic, type_name, data, log_time_ns)
-            self._unflushed += 1
-        except (MsgToolsError, OSError) as exc:
-            self._fail(exc)
+        with self.lock:
+            try:
+                if topic not in self._declared:
+                    self._declare(topic, type_name)
+                self.writer.write_raw(topic, type_name, data, log_time_ns)
+                self._unflushed += 1
+            except (MsgToolsError, OSError) as exc:
+                self._fail(exc)
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
         if self.error is not None or self.closed:
             return
-        try:
-            self.writer.add_metadata(name, dict(data))
-        except (MsgToolsError, OSError) as exc:
-            self._fail(exc)
+        with self.lock:
+            try:
+                self.writer.add_metadata(name, dict(data))
+            except (MsgToolsError, OSError) as exc:
+                self._fail(exc)
 
     # --------------------------------------------------------- flush/close
     def _on_flush_timer(self) -> None:
+        with self.lock:
+            self._flush()
+
+    def _flush(self) -> None:
         if self._unflushed and self.error is None and not self.closed:
             try:
                 self.writer.flush()
@@ -359,6 +373,10 @@ class TopicRecorder:
 
     def close(self) -> None:
         """Stop recording and finalize the file (summary, rosbag2 metadata). Idempotent."""
+        with self.lock:
+            self._close()
+
+    def _close(self) -> None:
         if self.closed:
             return
         self.closed = True
@@ -453,7 +471,8 @@ class NodeRecorder(TopicRecorder):
                                  max_bag_size=max_bag_size)
         except (MsgToolsError, OSError) as exc:
             raise bag_error(exc) from None
-        super().__init__(node, writer, flush_period=flush_interval_s)
+        timing = getattr(node, "timing", None)
+        super().__init__(node, writer, flush_period=flush_interval_s, lock=getattr(timing, "lock", None))
         self.record_history = False  # the node's outputs keep 10 messages for late joiners: not this run's
         uses_clock = self._uses_sim_time() or self._publishes_clock()
         if topics is None:

@@ -3,14 +3,19 @@
 :class:`TickSource` owns the timers of a node and calls ``tick(now_ns)``
 once per tick with the node time to integrate to:
 
-* **system clock** (default): a timer on the node's clock at
-  ``step_rate_hz``. The run starts at the first tick (scene time 0 = the
-  time that call was scheduled for, truncated to whole microseconds) and every later tick integrates to
-  the next point of the run's tick grid (origin + k / step_rate_hz; the
-  latest one at or before now when the timer is more than a period late):
-  a late timer integrates every missed tick in one go, the stamps stay on the
-  grid (the timer's jitter shows as latency, never as uneven simulated
-  time), and a recording of the run re-simulates exactly.
+* **system clock** (default): ticks at ``step_rate_hz`` on the run's tick
+  grid (origin + k / step_rate_hz); the stamps stay on the grid (wake-up
+  jitter shows as latency, never as uneven simulated time), and a
+  recording of the run re-simulates exactly. With ``tick_thread:=true``
+  (default) a thread of the node's own (:class:`TickThread`) sleeps to each
+  tick's deadline and ticks; a late wake publishes every missed tick in turn
+  (up to :data:`MAX_THREAD_CATCH_UP_NS` behind). The executor is not woken
+  per tick: it serves inputs, parameters and services only. With
+  ``tick_thread:=false`` an executor timer ticks instead; a call more than a
+  period late integrates every missed tick in one go and publishes the
+  latest only. Either way the run starts at the first tick after the
+  executor first serves the node (scene time 0 = that tick's due time,
+  truncated to whole microseconds).
 * ``use_sim_time:=true``: the node follows ``/clock``. The run starts at
   the first ``/clock`` the node sees (also ``/clock`` = 0) and publishes the
   initial state stamped with it (a one-shot ``/clock`` subscription sees a
@@ -33,6 +38,7 @@ ticks and overruns for ``/diagnostics``.
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Callable
 
@@ -40,9 +46,10 @@ import numpy as np
 from rclpy.clock import Clock, ClockType, JumpThreshold
 from rosgraph_msgs.msg import Clock as ClockMsg
 
+from . import environment as ros_env
 from .qos import CLOCK_QOS
 
-__all__ = ["TickSource", "TickStats", "stamp"]
+__all__ = ["TickSource", "TickStats", "TickThread", "stamp"]
 
 #: on the system clock the run's origin is truncated to whole microseconds
 SYSTEM_TIME_QUANTUM_NS = 1000
@@ -53,6 +60,11 @@ FREE_RUN_PERIOD_S = 0.0005
 #: a publish_clock tick may catch up at most this much simulated time [ns]
 #: after the wall timer was late; beyond it the pacing re-anchors.
 MAX_CATCH_UP_NS = 1_000_000_000
+#: the tick thread publishes each missed tick when it wakes up to this late [ns];
+#: later (the process was stopped, the clock stepped) it integrates to the latest tick in one go
+MAX_THREAD_CATCH_UP_NS = 50_000_000
+#: the tick thread sleeps at most this long at once [s] (a stop or a clock step is seen within it)
+MAX_SLEEP_S = 0.05
 
 
 def stamp(msg_time, ns: int) -> None:
@@ -116,6 +128,100 @@ class TickStats:
         return tuple(float(v) for v in np.percentile(err, [50, 99, 100]))
 
 
+class TickThread:
+    """System-clock ticks from a thread of the node's own (``tick_thread:=true``, the default).
+
+    The thread sleeps to the deadline of the next tick of the run's grid
+    (the system clock, CLOCK_REALTIME, as the node stamps), takes the
+    source's lock (every callback that touches the simulation holds it too)
+    and ticks. An executor timer instead wakes the executor for every tick
+    (``rcl_wait``, then its Python dispatch: about 0.2 ms of CPU per tick
+    measured in ``belt-drive bench node --floor``) and drops a tick it
+    serves more than a period late. Here a late wake ticks every missed
+    grid point in turn, each published with its own stamp, when it is at
+    most :data:`MAX_THREAD_CATCH_UP_NS` behind; further behind, it
+    integrates to the latest grid point in one go (counted as a late tick).
+    The lock is released between ticks, so inputs received meanwhile apply
+    from the next one, as with a timer.
+
+    An exception inside a tick ends the thread; it is kept in ``failure``
+    (the node raises it from its executor: the process does not go on
+    silently without ticks).
+    """
+
+    def __init__(self, source: "TickSource"):
+        self.source = source
+        self.failure: BaseException | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="belt_drive_tick", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def stop(self, join: bool = True) -> None:
+        """Ask the thread to end (before its next tick); ``join``: wait for it (not while holding the lock)."""
+        self._stop.set()
+        if join and self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(timeout=10.0)
+
+    def _next(self, now: int) -> int | None:
+        """The grid time to tick to at system time ``now`` [ns], or None when the next tick is not due yet."""
+        sim = self.source.sim
+        if not sim.started:
+            return now - now % SYSTEM_TIME_QUANTUM_NS
+        t, origin, tick = sim.t_ns, sim.origin_ns, sim.settings.tick_ns
+        if now < t:  # the system clock stepped back: the simulation restarts there
+            return now - now % SYSTEM_TIME_QUANTUM_NS
+        due = t + tick - (t - origin) % tick
+        if now < due:
+            return None
+        if now - due > MAX_THREAD_CATCH_UP_NS:
+            self.source.stats.counters["late_ticks"] += 1
+            return now - (now - origin) % tick
+        return due
+
+    def _run(self) -> None:
+        ros_env.reduce_timer_slack()  # per thread: wake at the deadline, not up to 50 us after it
+        source = self.source
+        sim, lock, stats, stop, after = source.sim, source.lock, source.stats, self._stop, source._after_tick
+        now_ns, perf, sleep = time.time_ns, time.perf_counter, time.sleep
+        try:
+            while not stop.is_set():
+                lead = sim.settings.tick_lead_ns
+                if sim.started:  # read without the lock: rechecked under it
+                    t, tick = sim.t_ns, sim.settings.tick_ns
+                    wait = (t + tick - (t - sim.origin_ns) % tick - lead - now_ns()) * 1e-9
+                    if wait > 0:
+                        sleep(min(wait, MAX_SLEEP_S))
+                with lock:
+                    if stop.is_set():
+                        break
+                    start = perf()
+                    target = self._next(now_ns() + lead)
+                    if target is None:
+                        continue
+                    sends = source._tick(target, True)
+                    stats.record(start, perf(), source.nominal_period())
+                if sends:
+                    wait = (target - now_ns()) * 1e-9
+                    if wait > 0:  # computed ahead: out at the due time
+                        sleep(wait)
+                    for publish, data in sends:
+                        publish(data)
+                if after is not None:
+                    with lock:
+                        after()
+        except BaseException as exc:  # noqa: BLE001 - kept and raised by the node's executor
+            self.failure = exc
+            try:
+                source.node.get_logger().error(f"the tick thread stopped: {type(exc).__name__}: {exc}")
+            except Exception:  # noqa: BLE001 - a dying context
+                pass
+
+
 class TickSource:
     """The timers that tick a node (see the module docstring).
 
@@ -123,19 +229,27 @@ class TickSource:
     ----------
     node : rclpy.node.Node
     tick : callable
-        ``tick(now_ns)``: integrate to ``now_ns`` and publish.
+        ``tick(now_ns)``: integrate to ``now_ns`` and publish; ``tick(now_ns, True)``:
+        integrate, and return the ``(publish, data)`` calls (the tick thread makes them at the due time).
+    after_tick : callable, optional
+        Called by the tick thread (holding the lock) after a tick's outputs are out.
     sim : NodeSimulation
         Its time base (started, origin, grid) decides where a tick integrates to.
     stats : TickStats
     """
 
-    def __init__(self, node, tick: Callable[[int], None], sim, stats: TickStats):
+    def __init__(self, node, tick: Callable[..., list | None], sim, stats: TickStats,
+                 after_tick: Callable[[], None] | None = None):
         self.node = node
         self._tick = tick
+        self._after_tick = after_tick
         self.sim = sim
         self.stats = stats
         self._timers: list = []
         self._tick_timer = None
+        #: held by every tick and by every callback that touches the simulation (the tick thread runs beside the executor)
+        self.lock = threading.RLock()
+        self._thread: TickThread | None = None
         self._pub_clock = None
         self._clock_msg = ClockMsg()
         self._first_clock = None  # subscription waiting for the first /clock (sim time only)
@@ -172,6 +286,15 @@ class TickSource:
             nominal /= s.real_time_factor
         return nominal
 
+    @property
+    def failure(self) -> BaseException | None:
+        """The exception that ended the tick thread (None while it ticks or without one)."""
+        return None if self._thread is None else self._thread.failure
+
+    def threaded(self) -> bool:
+        """True while system-clock ticks come from the tick thread."""
+        return self._thread is not None and self._thread.alive()
+
     def tick_pending(self) -> bool:
         """True while the tick timer is due but its callback has not run yet (for lockstep drivers)."""
         timer = self._tick_timer
@@ -184,6 +307,7 @@ class TickSource:
     def configure(self, was_publishing_clock: bool = False) -> None:
         """(Re)create the timers for the simulation's current settings."""
         node = self.node
+        self._stop_thread(join=False)
         for timer in self._timers:
             node.destroy_timer(timer)
         self._timers.clear()
@@ -209,6 +333,12 @@ class TickSource:
             self._watch_first_clock()
         self.stats.prev_start = None
 
+    def _stop_thread(self, join: bool) -> None:
+        if self._thread is not None:
+            self._thread.stop(join=join)
+            if self._thread.failure is None:
+                self._thread = None
+
     def _watch_first_clock(self) -> None:
         """With sim time and no run yet: start the run at the first /clock message (also 0)."""
         if self.use_sim_time() and not self.sim.started and self._first_clock is None:
@@ -220,16 +350,23 @@ class TickSource:
             self.node.destroy_subscription(sub)
         if self.sim.settings.publish_clock or not self.use_sim_time() or self.sim.started:
             return
-        self._tick(msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
+        with self.lock:
+            self._tick(msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
 
     def _on_clock_change(self, jump) -> None:
         """ROS time (de)activated (use_sim_time toggled): restart on the new time base."""
         self._ros_time = None  # re-read on the next use
-        if not self.sim.settings.publish_clock:
-            self.sim.stop()
-            self._watch_first_clock()
+        with self.lock:
+            if self._thread is not None:  # the executor timer ticks on /clock
+                self._stop_thread(join=False)
+                if self._tick_timer is not None:
+                    self._tick_timer.reset()
+            if not self.sim.settings.publish_clock:
+                self.sim.stop()
+                self._watch_first_clock()
 
     def destroy(self) -> None:
+        self._stop_thread(join=True)
         for timer in self._timers:
             self.node.destroy_timer(timer)
         self._timers.clear()
@@ -239,6 +376,10 @@ class TickSource:
 
     # ------------------------------------------------------------- ticks
     def _on_tick(self) -> None:
+        with self.lock:
+            self._on_tick_locked()
+
+    def _on_tick_locked(self) -> None:
         start = time.perf_counter()
         sim = self.sim
         if self.use_sim_time():
@@ -247,6 +388,12 @@ class TickSource:
                 return  # no /clock yet, or /clock = 0: the first-/clock subscription starts the run
             self._tick(now)
             self.stats.record(start, time.perf_counter(), None)
+            return
+        if sim.settings.tick_thread:  # the thread ticks from now on; this timer rests until /clock takes over
+            if self._thread is None:
+                self._thread = TickThread(self)
+                self._thread.start()
+            self._tick_timer.cancel()
             return
         # the node's clock without /clock is the system clock (CLOCK_REALTIME), read here without rclpy's Time object
         now = time.time_ns()
@@ -263,7 +410,8 @@ class TickSource:
 
     def _master_tick(self, target_ns: int, start: float, nominal: float | None) -> None:
         self.sim_ns = target_ns
-        self._tick(target_ns)
+        with self.lock:
+            self._tick(target_ns)
         msg = self._clock_msg
         stamp(msg.clock, target_ns)
         self._pub_clock.publish(msg)

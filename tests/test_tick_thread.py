@@ -1,0 +1,154 @@
+"""The node's tick thread (``tick_thread:=true``, the default on the system clock).
+
+It publishes every tick of the run's grid (a late wake catches up, each tick
+with its own stamp), never before the tick's due time (it computes
+``tick_lead`` ahead and waits), gives way to the executor timer on ``/clock``,
+hands an exception in a tick to the executor instead of dying silently, and
+ends with the node. How fast and how evenly it ticks is a benchmark figure
+(``belt-drive bench node``), not asserted here.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from belt_drive_ros.ros.harness import BeltDriveHarness
+from belt_drive_ros.ros.timing import MAX_THREAD_CATCH_UP_NS
+
+pytestmark = pytest.mark.ros
+
+TICK_NS = 1_000_000
+
+
+def stamps(h) -> np.ndarray:
+    return np.array([row[0] for row in h._rows], dtype=np.int64)
+
+
+def tick_threads() -> list[threading.Thread]:
+    return [t for t in threading.enumerate() if t.name == "belt_drive_tick" and t.is_alive()]
+
+
+def test_a_late_wake_publishes_every_missed_tick(ros_domain_id):
+    """The thread is kept from ticking for 20 ms (the node's lock held, as a long callback would):
+    afterwards the 20 missed ticks come out one by one, each on the grid; nothing is skipped."""
+    with BeltDriveHarness(use_sim_time=False, domain_id=ros_domain_id, input_timeout=0.0) as h:
+        node = h.node
+        h._spin_until(lambda: len(h._rows) >= 20, "20 ticks")
+        assert node.timing.threaded() and node.timing.time_base() == "system"
+        with node.timing.lock:
+            held_from = node.integrated_ns
+            time.sleep(0.02)
+        h._spin_until(lambda: len(h._rows) and h._rows[-1][0] >= held_from + 60 * TICK_NS, "60 ticks after the stall")
+        s = stamps(h)
+        window = s[(s >= held_from - 5 * TICK_NS) & (s <= held_from + 60 * TICK_NS)]
+        assert window.size == 66
+        assert np.all(np.diff(window) == TICK_NS)
+        assert np.all((s - node.origin_ns) % TICK_NS == 0)
+
+
+def test_a_stall_beyond_the_catch_up_limit_integrates_in_one_go(ros_domain_id):
+    """Held 4x the catch-up limit: the thread integrates to the latest grid point at once (one
+    published tick, counted late), the run goes on on its grid and is not restarted."""
+    with BeltDriveHarness(use_sim_time=False, domain_id=ros_domain_id, input_timeout=0.0) as h:
+        node = h.node
+        h._spin_until(lambda: len(h._rows) >= 20, "20 ticks")
+        late = node.counters["late_ticks"]
+        with node.timing.lock:
+            held_from = node.integrated_ns
+            time.sleep(4 * MAX_THREAD_CATCH_UP_NS / 1e9)
+        h._spin_until(lambda: h._rows[-1][0] >= held_from + 4 * MAX_THREAD_CATCH_UP_NS + 10 * TICK_NS, "ticks after")
+        s = stamps(h)
+        gaps = np.diff(s[s >= held_from])
+        assert gaps.max() >= 4 * MAX_THREAD_CATCH_UP_NS - 10 * TICK_NS  # one jump over the stall
+        assert np.all((s - node.origin_ns) % TICK_NS == 0)
+        assert node.counters["late_ticks"] > late and node.counters["restarts"] == 1
+
+
+def test_ticks_are_published_at_their_due_time_never_before(ros_domain_id):
+    """Computed ``tick_lead`` (2 ms) ahead, each tick leaves at its stamp: a client receives it after it."""
+    from sensor_msgs.msg import JointState
+
+    received = []  # (receipt on the system clock [ns], stamp [ns])
+    with BeltDriveHarness(use_sim_time=False, domain_id=ros_domain_id, input_timeout=0.0, step_rate_hz=250.0,
+                          tick_lead=0.002) as h:
+        assert h.node.settings.tick_lead_ns == 2_000_000
+        h.probe.create_subscription(
+            JointState, "joint_states",
+            lambda m: received.append((time.time_ns(), m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec)),
+            10)
+        h._spin_until(lambda: len(received) >= 100, "100 ticks")
+    r = np.array(received, dtype=np.int64)
+    assert np.all(r[:, 0] >= r[:, 1])
+
+
+def test_tick_lead_is_at_most_half_a_period():
+    from belt_drive_ros.ros.parameter_schema import build_settings, default_values
+    from belt_drive_ros.core.scene import load_scene
+
+    values = default_values(load_scene("paper"))
+    values.update(step_rate_hz=5000.0, tick_lead=0.01)
+    assert build_settings(values).tick_lead_ns == 100_000
+
+
+@pytest.mark.parametrize("thread", [True, False])
+def test_input_applies_from_a_later_tick_either_way(ros_domain_id, thread):
+    """With the thread and with the executor timer (``tick_thread:=false``): a drive torque sent
+    while the node ticks is applied from a later tick on and held."""
+    with BeltDriveHarness(use_sim_time=False, domain_id=ros_domain_id, input_timeout=0.0, tick_thread=thread) as h:
+        h._spin_until(lambda: len(h._rows) >= 10, "10 ticks")
+        assert h.node.timing.threaded() is thread
+        h.publish_torque(7.5)
+        h._spin_until(lambda: len(h._rows) and h._rows[-1][9] == 7.5, "the torque applied")
+        n = len(h._rows)
+        h._spin_until(lambda: len(h._rows) >= n + 20, "20 ticks more")
+        s = stamps(h)
+        assert all(row[9] == 7.5 for row in h._rows[n - 1:])
+        assert np.all(np.diff(s) > 0) and np.all((s - h.node.origin_ns) % TICK_NS == 0)
+
+
+def test_an_exception_in_a_tick_reaches_the_executor(ros_domain_id):
+    """A tick that raises ends the thread, and the node's executor raises it within a second:
+    the process does not go on silently without ticks."""
+    with BeltDriveHarness(use_sim_time=False, domain_id=ros_domain_id, input_timeout=0.0) as h:
+        node = h.node
+        h._spin_until(lambda: len(h._rows) >= 5, "5 ticks")
+
+        def broken(now_ns):
+            raise KeyError("injected")
+
+        with node.timing.lock:
+            node.sim.advance_to = broken
+        with pytest.raises(RuntimeError, match="tick thread stopped: KeyError"):
+            end = time.monotonic() + 5.0
+            while time.monotonic() < end:
+                h.executor.spin_once(timeout_sec=0.05)
+        assert isinstance(node.timing.failure, KeyError)
+
+
+def test_sim_time_hands_the_ticks_to_the_executor_and_back(ros_domain_id):
+    """use_sim_time switched on at runtime: the thread ends and /clock drives the ticks; switched
+    off again, a thread ticks on the system clock."""
+    from rclpy.parameter import Parameter
+
+    with BeltDriveHarness(use_sim_time=False, domain_id=ros_domain_id, input_timeout=0.0) as h:
+        node = h.node
+        h._spin_until(lambda: len(h._rows) >= 5, "5 ticks")
+        assert node.timing.threaded()
+        node.set_parameters([Parameter("use_sim_time", value=True)])
+        h._spin_until(lambda: not node.timing.threaded(), "the thread to end")
+        assert node.timing.time_base() == "sim_time"
+        node.set_parameters([Parameter("use_sim_time", value=False)])
+        n = len(h._rows)
+        h._spin_until(lambda: node.timing.threaded() and len(h._rows) >= n + 10, "ticks from a thread again")
+
+
+def test_the_thread_ends_with_the_node(ros_domain_id):
+    before = len(tick_threads())
+    with BeltDriveHarness(use_sim_time=False, domain_id=ros_domain_id, input_timeout=0.0) as h:
+        h._spin_until(lambda: len(h._rows) >= 5, "5 ticks")
+        assert len(tick_threads()) == before + 1
+    assert len(tick_threads()) == before
