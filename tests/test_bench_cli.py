@@ -131,3 +131,21 @@ def test_bench_node_floor_measures_the_node_and_a_model_free_twin_the_same_way(t
         assert float(r["rate_received_hz"]) > 0 and int(r["latency_samples"]) > 0, r  # stamps decoded, torque echoed
         assert float(r["period_error_p50_ms"]) == 0.0, r  # stamps on the 1 ms grid
         assert 0.0 <= float(r["steal_percent"]) <= 100.0
+    # the node's own publish periods come from its /diagnostics (the floor publishes none)
+    assert 0.0 <= float(rows[0]["own_period_error_p50_ms"]) <= float(rows[0]["own_period_error_p99_ms"])
+    assert rows[1]["own_period_error_p99_ms"] == "nan"
+
+
+def test_bench_node_reads_the_nodes_own_period_error_from_its_latest_diagnostics():
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+    from belt_drive_ros.benchmarks.node import _own_period_error
+
+    def array(name, p99):
+        values = [KeyValue(key=f"period_error_ms_{q}", value=v) for q, v in (("p50", "0.01"), ("p99", p99), ("max", "2.5"))]
+        return DiagnosticArray(status=[DiagnosticStatus(name="belt_drive: input"),
+                                       DiagnosticStatus(name=name, values=values)])
+
+    assert _own_period_error([array("belt_drive: simulation", "0.9"), array("belt_drive: simulation", "0.12")]) == (
+        0.01, 0.12, 2.5)
+    assert all(v != v for v in _own_period_error([array("other: thing", "0.1")]))  # NaN: no node diagnostics

@@ -7,8 +7,10 @@ process (this one) on a private ROS domain over loopback:
 * achieved tick rate: joint_states received per second, and from the node's
   own stamps (which are the tick times);
 * tick period error: |stamp_k - stamp_{k-1} - 1/rate|, p50 / p99 / max (the
-  node stamps on its tick grid, so this shows skipped ticks only), and the
-  same for the receive times in this process (timer jitter + delivery);
+  node stamps on its tick grid, so this shows skipped ticks only); the
+  node's own figure from its ``/diagnostics`` (the periods between the
+  instants it published, its last ~4 s); and the same for the receive times
+  in this process (wake-up jitter + delivery);
 * torque-in -> state-out latency: this process publishes ``drive_torque``
   with a unique value (at ``--torque-rate``), the node takes it in, applies it
   at its next tick and publishes ``joint_states`` whose wheel_M effort is that
@@ -114,6 +116,23 @@ def parse_args(argv=None):
     return p.parse_args(argv)
 
 
+def _own_period_error(arrays) -> tuple[float, float, float]:
+    """The node's own tick period error [ms] (p50, p99, max) from its latest ``/diagnostics`` in the window.
+
+    The node keeps the wall-clock periods of its last 4096 ticks (with the
+    tick thread: between the instants it publishes); NaN without diagnostics.
+    """
+    for msg in reversed(arrays):
+        for status in msg.status:
+            if status.name.endswith(": simulation"):
+                values = {kv.key: kv.value for kv in status.values}
+                try:
+                    return tuple(float(values[f"period_error_ms_{q}"]) for q in ("p50", "p99", "max"))
+                except (KeyError, ValueError):
+                    break
+    return (math.nan,) * 3
+
+
 def _floor_tick_options(params: list[str]) -> list[str]:
     """The floor's tick options for the node's ``-p`` parameters (``tick_thread``, ``tick_lead``)."""
     values = dict(p.split(":=", 1) for p in params if ":=" in p)
@@ -167,6 +186,10 @@ def measure(args, floor: bool = False) -> dict:
         received.append((time.perf_counter_ns(), time.time_ns(), data))
 
     probe.create_subscription(JointState, "joint_states", on_joint, qos, raw=True)
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    diagnostics: list = []  # (receipt perf_counter [s], DiagnosticArray): the node's own tick statistics
+    probe.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diagnostics.append((time.perf_counter(), m)), 10)
     pub = probe.create_publisher(Float64, "drive_torque", QoSProfile(depth=10))
     sent: dict[float, int] = {}
     counter = [0]
@@ -237,6 +260,7 @@ def measure(args, floor: bool = False) -> dict:
     one_way = (data[:, 1] - data[:, 2]) / 1e6 if len(data) else np.zeros(0)
     span_s = (stamps[-1] - stamps[0]) / 1e9 if stamps.size > 1 else math.nan
     received_span_s = (data[-1, 0] - data[0, 0]) / 1e9 if len(data) > 1 else math.nan
+    own = _own_period_error([m for t, m in diagnostics if wall0 <= t <= wall1])
     figures = {
         "duration_s": window,
         "rate_set_hz": args.rate,
@@ -249,6 +273,9 @@ def measure(args, floor: bool = False) -> dict:
         "receive_period_error_p50_ms": _percentiles(receive_ms)[0],
         "receive_period_error_p99_ms": _percentiles(receive_ms)[1],
         "receive_period_error_max_ms": float(receive_ms.max()) if receive_ms.size else math.nan,
+        "own_period_error_p50_ms": own[0],
+        "own_period_error_p99_ms": own[1],
+        "own_period_error_max_ms": own[2],
         "latency_p50_ms": _percentiles(latencies)[0],
         "latency_p99_ms": _percentiles(latencies)[1],
         "latency_samples": len(latencies),
@@ -284,6 +311,9 @@ def report(f: dict) -> str:
         f"  tick period error      p50 {f['period_error_p50_ms']:.4f} ms, p99 {f['period_error_p99_ms']:.4f} ms, "
         f"max {f['period_error_max_ms']:.3f} ms   [target p99 <= {t['period_error_p99_ms']:g} ms: "
         f"{mark(f['period_error_p99_ms'] <= t['period_error_p99_ms'])}]",
+        f"  node's own periods     p50 {f.get('own_period_error_p50_ms', math.nan):.4f} ms, p99 "
+        f"{f.get('own_period_error_p99_ms', math.nan):.4f} ms, max {f.get('own_period_error_max_ms', math.nan):.3f} ms "
+        "(|period - nominal| between its publishes, its last /diagnostics: ~4 s of ticks)",
         f"  receive period error   p50 {f['receive_period_error_p50_ms']:.4f} ms, p99 "
         f"{f['receive_period_error_p99_ms']:.4f} ms, max {f['receive_period_error_max_ms']:.3f} ms "
         "(joint_states arrivals in this process: timer jitter + delivery)",

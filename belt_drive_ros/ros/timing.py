@@ -204,15 +204,19 @@ class TickThread:
                     if target is None:
                         continue
                     sends = source._tick(target, True)
-                    stats.record(start, perf(), source.nominal_period())
+                    busy = perf() - start
                 if sends:
                     wait = (target - now_ns()) * 1e-9
                     if wait > 0:  # computed ahead: out at the due time
                         sleep(wait)
+                    start = perf()
                     for publish, data in sends:
                         publish(data)
-                if after is not None:
-                    with lock:
+                with lock:
+                    # the period statistics see the publish instants (their jitter is what subscribers
+                    # get); an overrun is a tick whose computation took longer than the period
+                    stats.record(start, start + busy, source.nominal_period())
+                    if after is not None:
                         after()
         except BaseException as exc:  # noqa: BLE001 - kept and raised by the node's executor
             self.failure = exc
