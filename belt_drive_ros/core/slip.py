@@ -220,31 +220,34 @@ class SlippingBeltModel:
             y, u, mode, sigma = _Sample(y.tolist()), _Sample(u.tolist()), int(mode), float(sigma)
         else:
             mode = np.asarray(mode)
-        qmax = self.limit(y[..., 2])
+        phi_M, theta_e, omega_M, omega_3, s = (y[..., k] for k in range(5))  # each column read once
+        qmax = self.limit(omega_M)
         Q = self.force(y, mode, sigma, qmax)
         speed = _where(mode == SLIP, self.slip_speed(y, Q), 0.0)
-        a1, g = p.r_M / p.R_1, p.gear_ratio
+        a1, g, r_3 = p.r_M / p.R_1, p.gear_ratio, p.r_3
         slack_force = p.F_0 - 0.5 * Q
+        tight = p.F_0 + 0.5 * Q
+        slip_angle = s / r_3
         return {
-            "phi_M": y[..., 0],
-            "omega_M": y[..., 2],
-            "phi_1": a1 * y[..., 0],
-            "omega_1": a1 * y[..., 2],
-            "phi_2": g * y[..., 0],
-            "omega_2": g * y[..., 2],
+            "phi_M": phi_M,
+            "omega_M": omega_M,
+            "phi_1": a1 * phi_M,
+            "omega_1": a1 * omega_M,
+            "phi_2": g * phi_M,
+            "omega_2": g * omega_M,
             "phi_3": self.phi_3(y),
-            "omega_3": y[..., 3],
+            "omega_3": omega_3,
             "drive_torque": u[..., 0],
             "load_torque": u[..., 1],
-            "belt_torque": p.r_3 * Q,
-            "relative_deflection": y[..., 1] + y[..., 4] / p.r_3,
-            "span_force_tight": p.F_0 + 0.5 * Q,
+            "belt_torque": r_3 * Q,
+            "relative_deflection": theta_e + slip_angle,
+            "span_force_tight": tight,
             "span_force_slack": slack_force,
-            "slack": _minimum(slack_force, p.F_0 + 0.5 * Q) <= 0.0,
+            "slack": _minimum(slack_force, tight) <= 0.0,
             "slip": mode == SLIP,
-            "elastic_deflection": y[..., 1],
-            "slip_angle": y[..., 4] / p.r_3,
-            "slip_distance": y[..., 4],
+            "elastic_deflection": theta_e,
+            "slip_angle": slip_angle,
+            "slip_distance": s,
             "slip_speed": speed,
             "friction_use": _ratio(Q, qmax),
             "friction_limit": qmax,

@@ -107,6 +107,7 @@ class NodeDiagnostics:
                 period_error_ms_p50=f"{p50:.4f}",
                 period_error_ms_p99=f"{p99:.4f}",
                 period_error_ms_max=f"{pmax:.4f}",
+                tick_lead_ms="-" if timing.lead_ns() is None else f"{timing.lead_ns() / 1e6:.3f}",
                 restarts=c["restarts"],
                 clock_jumps=c["clock_jumps"],
                 divergences=c["divergences"],

@@ -57,7 +57,7 @@ nanoseconds, and a final partial step if the interval is not a multiple),
 samples the drive input there and publishes every output stamped with that
 time. On the system clock a thread of the node's own ticks
 (``tick_thread``, default true; :class:`~.timing.TickThread`): it computes
-each tick ``tick_lead`` ahead, publishes it at its due time, and publishes
+each tick ahead (``tick_lead`` at least), publishes it at its due time, and publishes
 every missed tick after a late wake; every callback that touches the
 simulation holds the tick source's lock. Scene time 0 is when the run starts: the first tick on the system
 clock, the first ``/clock`` the node sees with ``use_sim_time``, the first
@@ -70,8 +70,9 @@ Inputs (:mod:`.inputs`)
 -----------------------
 The drive torque is sampled at each tick and held until the next (a
 message received between ticks k-1 and k acts from tick k on; on the
-system clock the tick thread computes tick k ``tick_lead`` before its due
-time, so a message in that last stretch acts from tick k+1).
+system clock the tick thread computes tick k ahead of its due time, by
+``tick_lead`` or more (:class:`~.timing.TickThread`), so a message in that
+last stretch acts from tick k+1).
 ``drive_source:=scene`` instead drives wheel M with the scene's drive
 profile (messages then are counted and ignored). Before the first message
 the torque is 0 N m. NaN/Inf messages and messages beyond ``torque_bound``

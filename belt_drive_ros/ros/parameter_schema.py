@@ -92,7 +92,7 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("torque_bound", "float", 0.0, "reject drive_torque messages with |value| above this [N m] (counted); 0 = derived from the scene (10x the largest torque of its drive and load profiles)", range=(0.0, 1.0e12)),
     ParamSpec("publish_clock", "bool", False, "publish /clock from the node's own simulated time (time master)"),
     ParamSpec("tick_thread", "bool", True, "on the system clock: tick from a thread of the node's own that sleeps to each tick's deadline and publishes every tick (a late wake catches up, at most 50 ms); false: from an executor timer (a tick more than a period late is integrated but not published)"),
-    ParamSpec("tick_lead", "float", 0.0003, "with tick_thread: each tick is computed this long before its due time [s] and published at it (a drive_torque received within the lead acts from the next tick); at most half a period is used; 0 = computed at the due time", range=(0.0, 0.1)),
+    ParamSpec("tick_lead", "float", 0.0003, "with tick_thread: each tick is computed at least this long before its due time [s] and published at it (a drive_torque received within the lead acts from the next tick); the thread leads by more when its recent ticks took longer (their 99th percentile + 0.1 ms); at most 3/4 of a period", range=(0.0, 0.1)),
     ParamSpec("real_time_factor", "float", 1.0, "with publish_clock: simulated seconds per wall second; 0 = as fast as possible", range=(0.0, 1.0e4)),
     ParamSpec("record_path", "str", "", "MCAP file (or, split, a rosbag2 bag folder) to record the node's input and outputs to ('' = off); set at start only; an existing one refuses the start unless record_overwrite"),
     ParamSpec("record_overwrite", "bool", False, "replace an existing record_path (belt-drive node --force); set at start only"),
@@ -157,7 +157,7 @@ class NodeSettings:
     max_bag_size: int = 0
     #: on the system clock, tick from the node's own thread (timing.TickThread) instead of an executor timer
     tick_thread: bool = True
-    #: with tick_thread: compute each tick this long before its due time [ns] (at most half a period)
+    #: with tick_thread: compute each tick at least this long before its due time [ns] (at most 3/4 of a period)
     tick_lead_ns: int = 0
 
     @property
@@ -403,7 +403,7 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
         torque_bound=bound if bound > 0 else scene_torque_bound(scene),
         publish_clock=publish_clock,
         tick_thread=tick_thread,
-        tick_lead_ns=min(int(round(tick_lead * 1e9)), tick_ns // 2),
+        tick_lead_ns=min(int(round(tick_lead * 1e9)), tick_ns * 3 // 4),
         real_time_factor=rtf,
         record_path=record_path,
         method_options=options,

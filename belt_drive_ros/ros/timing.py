@@ -65,6 +65,11 @@ MAX_CATCH_UP_NS = 1_000_000_000
 MAX_THREAD_CATCH_UP_NS = 50_000_000
 #: the tick thread sleeps at most this long at once [s] (a stop or a clock step is seen within it)
 MAX_SLEEP_S = 0.05
+#: the tick thread's lead covers the 99th percentile of its last LEAD_WINDOW ticks' computation
+#: plus LEAD_MARGIN_NS (re-estimated every LEAD_UPDATE ticks; at most 3/4 of a period)
+LEAD_WINDOW = 1024
+LEAD_UPDATE = 256
+LEAD_MARGIN_NS = 100_000
 
 
 def stamp(msg_time, ns: int) -> None:
@@ -144,6 +149,13 @@ class TickThread:
     The lock is released between ticks, so inputs received meanwhile apply
     from the next one, as with a timer.
 
+    Each tick is computed ahead of its due time and published at it. The
+    lead is ``tick_lead`` or, when the thread's recent ticks took longer
+    (the slipping model's ticks with stick/slip events cost several times a
+    plain one), the 99th percentile of the last :data:`LEAD_WINDOW` ticks'
+    computation plus :data:`LEAD_MARGIN_NS`; at most 3/4 of a period. ``lead_ns``
+    is the lead in force (``/diagnostics`` shows it).
+
     An exception inside a tick ends the thread; it is kept in ``failure``
     (the node raises it from its executor: the process does not go on
     silently without ticks).
@@ -152,6 +164,10 @@ class TickThread:
     def __init__(self, source: "TickSource"):
         self.source = source
         self.failure: BaseException | None = None
+        self.lead_ns = 0  # the lead in force [ns]
+        self._busy = np.zeros(LEAD_WINDOW)  # computation time of the latest ticks [s] (a ring)
+        self._n_busy = 0
+        self._next_update, self._settings = 0, None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="belt_drive_tick", daemon=True)
 
@@ -183,6 +199,18 @@ class TickThread:
             return now - (now - origin) % tick
         return due
 
+    def _lead(self, settings) -> int:
+        """The lead [ns] for the next tick (class docstring); re-estimated every LEAD_UPDATE ticks
+        and whenever the settings change."""
+        n = self._n_busy
+        if n >= self._next_update or settings is not self._settings:
+            lead = settings.tick_lead_ns
+            if n >= LEAD_UPDATE:
+                lead = max(lead, int(np.percentile(self._busy[: min(n, LEAD_WINDOW)], 99) * 1e9) + LEAD_MARGIN_NS)
+            self.lead_ns = min(lead, settings.tick_ns * 3 // 4)
+            self._next_update, self._settings = n + LEAD_UPDATE, settings
+        return self.lead_ns
+
     def _run(self) -> None:
         ros_env.reduce_timer_slack()  # per thread: wake at the deadline, not up to 50 us after it
         source = self.source
@@ -190,7 +218,7 @@ class TickThread:
         now_ns, perf, sleep = time.time_ns, time.perf_counter, time.sleep
         try:
             while not stop.is_set():
-                lead = sim.settings.tick_lead_ns
+                lead = self._lead(sim.settings)
                 if sim.started:  # read without the lock: rechecked under it
                     t, tick = sim.t_ns, sim.settings.tick_ns
                     wait = (t + tick - (t - sim.origin_ns) % tick - lead - now_ns()) * 1e-9
@@ -205,6 +233,8 @@ class TickThread:
                         continue
                     sends = source._tick(target, True)
                     busy = perf() - start
+                    self._busy[self._n_busy % LEAD_WINDOW] = busy
+                    self._n_busy += 1
                 if sends:
                     wait = (target - now_ns()) * 1e-9
                     if wait > 0:  # computed ahead: out at the due time
@@ -289,6 +319,10 @@ class TickSource:
         if s.publish_clock and s.real_time_factor > 0:
             nominal /= s.real_time_factor
         return nominal
+
+    def lead_ns(self) -> int | None:
+        """The tick thread's lead in force [ns] (None without the thread)."""
+        return None if self._thread is None else self._thread.lead_ns
 
     @property
     def failure(self) -> BaseException | None:
