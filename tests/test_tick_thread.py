@@ -182,3 +182,63 @@ def test_the_thread_ends_with_the_node(ros_domain_id):
         h._spin_until(lambda: len(h._rows) >= 5, "5 ticks")
         assert len(tick_threads()) == before + 1
     assert len(tick_threads()) == before
+
+
+def test_a_tick_computed_ahead_goes_out_before_the_source_that_replaces_the_thread(ros_domain_id):
+    """Switched to publish_clock while the thread holds a tick computed ahead (a 12 ms lead at
+    50 Hz): that tick is published at once, and the stamps never go back."""
+    from rclpy.parameter import Parameter
+
+    with BeltDriveHarness(use_sim_time=False, domain_id=ros_domain_id, input_timeout=0.0, step_rate_hz=50.0,
+                          tick_lead=0.012) as h:
+        node = h.node
+        h._spin_until(lambda: len(h._rows) >= 3, "3 ticks")
+        deadline = time.monotonic() + 5.0
+        while not (node.integrated_ns and node.integrated_ns > time.time_ns() + 3_000_000):  # computed ahead
+            assert time.monotonic() < deadline, "no tick computed ahead"
+            time.sleep(0.0002)
+        ahead = node.integrated_ns
+        node.set_parameters([Parameter("real_time_factor", value=0.0), Parameter("publish_clock", value=True)])
+        h._spin_until(lambda: len(h._rows) and h._rows[-1][0] >= ahead + 20 * 20_000_000, "20 ticks after")
+        s = stamps(h)
+        assert ahead in s
+        assert np.all(np.diff(s) > 0)
+
+
+def test_threads_stopped_by_a_reconfiguration_end_with_the_node(ros_domain_id):
+    """step_rate_hz changed at runtime stops the thread from inside a callback (no join there);
+    the new rate ticks from a new thread, and ending the tick source right after a change leaves
+    no tick thread running (it joins the stopped ones too)."""
+    from rclpy.parameter import Parameter
+
+    before = len(tick_threads())
+    with BeltDriveHarness(use_sim_time=False, domain_id=ros_domain_id, input_timeout=0.0, step_rate_hz=50.0,
+                          tick_lead=0.012) as h:
+        node = h.node
+        h._spin_until(lambda: len(h._rows) >= 3, "3 ticks")
+        first = node.timing._thread
+        node.set_parameters([Parameter("step_rate_hz", value=40.0)])
+        n = len(h._rows)
+        h._spin_until(lambda: len(h._rows) >= n + 3 and node.timing.threaded(), "ticks from the new thread")
+        assert node.timing._thread is not first and not first.alive()
+        node.set_parameters([Parameter("step_rate_hz", value=50.0)])  # and at once:
+        node.timing.destroy()
+        assert len(tick_threads()) == before and node.timing.failure is None
+
+
+def test_a_recording_is_flushed_from_the_tick_thread_after_a_tick(ros_domain_id, tmp_path):
+    """Compressing a chunk takes ~1 ms: with the tick thread the flush timer only marks it due and
+    the thread flushes right after a tick is out (not while a tick waits for the lock)."""
+    callers = []
+    with BeltDriveHarness(use_sim_time=False, domain_id=ros_domain_id, input_timeout=0.0,
+                          record_path=str(tmp_path / "run.mcap")) as h:
+        recorder = h.node.recorder
+        flush = recorder._flush
+
+        def traced():
+            callers.append(threading.current_thread().name)
+            flush()
+
+        recorder._flush = traced
+        h._spin_until(lambda: len(callers) >= 3, "3 flushes", timeout=10.0)
+    assert set(callers) == {"belt_drive_tick"}

@@ -330,7 +330,11 @@ class BeltDriveNode(Node):
         return sends
 
     def _after_tick(self) -> None:
-        """Work that waits until the outputs are out: nearly a period before the next tick."""
+        """Work that waits until the outputs are out: nearly a period before the next tick
+        (a due recording flush, a due diagnostics publish)."""
+        recorder = self.recorder
+        if recorder is not None and recorder.flush_due:
+            recorder.flush_if_due()
         if self._diagnostics_due:
             self._diagnostics_due = False
             self._diagnostics_now()

@@ -189,6 +189,10 @@ class TopicRecorder:
 
         #: held around every use of the writer (a node's tick thread writes beside the executor's callbacks)
         self.lock = lock if lock is not None else threading.RLock()
+        #: when it returns True the flush timer only marks a flush due (``flush_due``) and the owner
+        #: calls :meth:`flush_if_due` at a better moment (a node's tick thread: right after a tick is out)
+        self.defer_flush: Optional[Callable[[], bool]] = None
+        self.flush_due = False
         self.node = node
         self.writer = writer
         self.path = writer.path or "<stream>"
@@ -347,8 +351,18 @@ class TopicRecorder:
 
     # --------------------------------------------------------- flush/close
     def _on_flush_timer(self) -> None:
+        if self.defer_flush is not None and self.defer_flush():
+            self.flush_due = True
+            return
         with self.lock:
             self._flush()
+
+    def flush_if_due(self) -> None:
+        """Flush now if the flush timer marked a flush due (see ``defer_flush``)."""
+        if self.flush_due:
+            self.flush_due = False
+            with self.lock:
+                self._flush()
 
     def _flush(self) -> None:
         if self._unflushed and self.error is None and not self.closed:
@@ -473,6 +487,8 @@ class NodeRecorder(TopicRecorder):
             raise bag_error(exc) from None
         timing = getattr(node, "timing", None)
         super().__init__(node, writer, flush_period=flush_interval_s, lock=getattr(timing, "lock", None))
+        if timing is not None:  # compressing a chunk takes ~1 ms: not while a tick waits for the lock
+            self.defer_flush = timing.threaded
         self.record_history = False  # the node's outputs keep 10 messages for late joiners: not this run's
         uses_clock = self._uses_sim_time() or self._publishes_clock()
         if topics is None:

@@ -156,6 +156,11 @@ class TickThread:
     computation plus :data:`LEAD_MARGIN_NS`; at most 3/4 of a period. ``lead_ns``
     is the lead in force (``/diagnostics`` shows it).
 
+    A tick computed but not yet published when the thread is stopped (a
+    reconfiguration, ``/clock`` taking over, the node's end) is published by
+    :meth:`stop` at once, under the lock, so it goes out before any tick of
+    the source that replaces the thread.
+
     An exception inside a tick ends the thread; it is kept in ``failure``
     (the node raises it from its executor: the process does not go on
     silently without ticks).
@@ -169,6 +174,7 @@ class TickThread:
         self._n_busy = 0
         self._next_update, self._settings = 0, None
         self._stop = threading.Event()
+        self._pending: list | None = None  # the (publish, data) calls of the tick computed ahead
         self._thread = threading.Thread(target=self._run, name="belt_drive_tick", daemon=True)
 
     def start(self) -> None:
@@ -177,11 +183,25 @@ class TickThread:
     def alive(self) -> bool:
         return self._thread.is_alive()
 
-    def stop(self, join: bool = True) -> None:
-        """Ask the thread to end (before its next tick); ``join``: wait for it (not while holding the lock)."""
-        self._stop.set()
+    def stop(self, join: bool = True) -> bool:
+        """End the thread before its next tick: publish the tick it computed ahead, if any, now.
+
+        ``join``: wait for the thread (never while holding the lock). Returns
+        False when a join timed out (the thread is still running).
+        """
+        with self.source.lock:
+            self._stop.set()
+            pending, self._pending = self._pending, None
+            if pending:
+                try:
+                    for publish, data in pending:
+                        publish(data)
+                except Exception:  # noqa: BLE001 - the node or its context is going away: nothing to send to
+                    pass
         if join and self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout=10.0)
+            return not self._thread.is_alive()
+        return True
 
     def _next(self, now: int) -> int | None:
         """The grid time to tick to at system time ``now`` [ns], or None when the next tick is not due yet."""
@@ -194,8 +214,7 @@ class TickThread:
         due = t + tick - (t - origin) % tick
         if now < due:
             return None
-        if now - due > MAX_THREAD_CATCH_UP_NS:
-            self.source.stats.counters["late_ticks"] += 1
+        if now - due > MAX_THREAD_CATCH_UP_NS:  # counted as a late tick by TickStats.record
             return now - (now - origin) % tick
         return due
 
@@ -219,9 +238,9 @@ class TickThread:
         try:
             while not stop.is_set():
                 lead = self._lead(sim.settings)
-                if sim.started:  # read without the lock: rechecked under it
-                    t, tick = sim.t_ns, sim.settings.tick_ns
-                    wait = (t + tick - (t - sim.origin_ns) % tick - lead - now_ns()) * 1e-9
+                t, origin, tick = sim.t_ns, sim.origin_ns, sim.settings.tick_ns  # without the lock: rechecked under it
+                if t is not None:
+                    wait = (t + tick - (t - origin) % tick - lead - now_ns()) * 1e-9
                     if wait > 0:
                         sleep(min(wait, MAX_SLEEP_S))
                 with lock:
@@ -231,20 +250,21 @@ class TickThread:
                     target = self._next(now_ns() + lead)
                     if target is None:
                         continue
-                    sends = source._tick(target, True)
+                    self._pending = source._tick(target, True)
                     busy = perf() - start
                     self._busy[self._n_busy % LEAD_WINDOW] = busy
                     self._n_busy += 1
-                if sends:
-                    wait = (target - now_ns()) * 1e-9
-                    if wait > 0:  # computed ahead: out at the due time
-                        sleep(wait)
-                    start = perf()
-                    for publish, data in sends:
-                        publish(data)
+                wait = (target - now_ns()) * 1e-9
+                if wait > 0:  # computed ahead: out at the due time
+                    sleep(wait)
                 with lock:
-                    # the period statistics see the publish instants (their jitter is what subscribers
-                    # get); an overrun is a tick whose computation took longer than the period
+                    start = perf()
+                    pending, self._pending = self._pending, None
+                    if pending:  # (None: stop() has published it already)
+                        for publish, data in pending:
+                            publish(data)
+                    # the period statistics see the instants the ticks are due and published (their
+                    # jitter is what subscribers get); an overrun is a computation longer than the period
                     stats.record(start, start + busy, source.nominal_period())
                     if after is not None:
                         after()
@@ -284,6 +304,7 @@ class TickSource:
         #: held by every tick and by every callback that touches the simulation (the tick thread runs beside the executor)
         self.lock = threading.RLock()
         self._thread: TickThread | None = None
+        self._retired: list[TickThread] = []  # stopped without a join (from a callback holding the lock)
         self._pub_clock = None
         self._clock_msg = ClockMsg()
         self._first_clock = None  # subscription waiting for the first /clock (sim time only)
@@ -326,8 +347,11 @@ class TickSource:
 
     @property
     def failure(self) -> BaseException | None:
-        """The exception that ended the tick thread (None while it ticks or without one)."""
-        return None if self._thread is None else self._thread.failure
+        """The exception that ended a tick thread (None while it ticks or without one)."""
+        for thread in ([self._thread] if self._thread is not None else []) + self._retired:
+            if thread.failure is not None:
+                return thread.failure
+        return None
 
     def threaded(self) -> bool:
         """True while system-clock ticks come from the tick thread."""
@@ -372,10 +396,20 @@ class TickSource:
         self.stats.prev_start = None
 
     def _stop_thread(self, join: bool) -> None:
-        if self._thread is not None:
-            self._thread.stop(join=join)
-            if self._thread.failure is None:
+        """Stop the tick thread; ``join`` (never while holding the lock): also wait for every thread
+        stopped earlier without a join."""
+        thread = self._thread
+        if thread is not None:
+            if thread.failure is None:
                 self._thread = None
+            thread.stop(join=join)
+            if not join:
+                self._retired.append(thread)
+        if join:
+            for old in self._retired:
+                if not old.stop(join=True):
+                    self.node.get_logger().warn("a stopped tick thread did not end within 10 s")
+            self._retired = [old for old in self._retired if old.alive() or old.failure is not None]
 
     def _watch_first_clock(self) -> None:
         """With sim time and no run yet: start the run at the first /clock message (also 0)."""
@@ -450,10 +484,10 @@ class TickSource:
         self.sim_ns = target_ns
         with self.lock:
             self._tick(target_ns)
-        msg = self._clock_msg
-        stamp(msg.clock, target_ns)
-        self._pub_clock.publish(msg)
-        self.stats.record(start, time.perf_counter(), nominal)
+            msg = self._clock_msg
+            stamp(msg.clock, target_ns)
+            self._pub_clock.publish(msg)
+            self.stats.record(start, time.perf_counter(), nominal)
 
     def _on_pace(self) -> None:
         """publish_clock with real_time_factor > 0: simulated time follows the wall clock x factor."""
