@@ -95,7 +95,7 @@ def test_tick_lead_is_at_most_three_quarters_of_a_period():
 
 
 def test_the_lead_grows_to_cover_slow_ticks(ros_domain_id):
-    """Ticks that take 0.6 ms (a model made slow here): the thread leads by their 99th percentile
+    """Ticks that take 0.6 ms (a model made slow here): the thread leads by their 99.9th percentile
     plus 0.1 ms (at least 0.7 ms, at most 3/4 of the 2 ms period), and still publishes no tick before
     its due time."""
     from sensor_msgs.msg import JointState

@@ -220,7 +220,7 @@ class SlippingBeltModel:
             y, u, mode, sigma = _Sample(y.tolist()), _Sample(u.tolist()), int(mode), float(sigma)
         else:
             mode = np.asarray(mode)
-        phi_M, theta_e, omega_M, omega_3, s = (y[..., k] for k in range(5))  # each column read once
+        phi_M, theta_e, omega_M, omega_3, s = y[..., 0], y[..., 1], y[..., 2], y[..., 3], y[..., 4]  # read once
         qmax = self.limit(omega_M)
         Q = self.force(y, mode, sigma, qmax)
         speed = _where(mode == SLIP, self.slip_speed(y, Q), 0.0)
