@@ -294,22 +294,10 @@ class TopicRecorder:
         return resolved
 
     def _callback(self, topic: str, type_name: str) -> Callable[[bytes], None]:
-        now = self._clock.now
-        write = self.writer.write_raw
-
-        lock = self.lock
+        now, write = self._clock.now, self.write
 
         def on_message(data: bytes) -> None:
-            if self.error is not None or self.closed:
-                return
-            with lock:
-                try:
-                    if topic not in self._declared:
-                        self._declare(topic, type_name)
-                    write(topic, type_name, data, now().nanoseconds)
-                    self._unflushed += 1
-                except (MsgToolsError, OSError) as exc:
-                    self._fail(exc)
+            write(topic, type_name, data, now().nanoseconds)
 
         return on_message
 
