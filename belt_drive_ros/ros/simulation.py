@@ -40,12 +40,17 @@ from ..core.stepper import Plant, Stepper, snap_tolerance
 from .inputs import DriveInput
 from .parameter_schema import NodeSettings
 
-__all__ = ["NodeSimulation", "TICK_OUTPUTS"]
+__all__ = ["NodeSimulation", "TICK_OUTPUTS", "next_tick_ns"]
 
 #: the signals of one tick, as :meth:`NodeSimulation.outputs` returns them (the model's outputs;
 #: the slipping model adds :data:`~belt_drive_ros.core.slip.SLIP_OUTPUT_UNITS`)
 TICK_OUTPUTS = tuple(OUTPUT_UNITS)
 SLIP_TICK_OUTPUTS = tuple(SLIP_OUTPUT_UNITS)
+
+
+def next_tick_ns(t_ns: int, origin_ns: int, tick_ns: int) -> int:
+    """The first point of the tick grid ``origin_ns + k tick_ns`` after node time ``t_ns`` [ns]."""
+    return t_ns + tick_ns - (t_ns - origin_ns) % tick_ns
 
 
 class NodeSimulation:
@@ -182,7 +187,7 @@ class NodeSimulation:
         if self.t_ns is None or now_ns < self.origin_ns:
             return now_ns
         tick = self.settings.tick_ns
-        due = self.t_ns + tick - (self.t_ns - self.origin_ns) % tick
+        due = next_tick_ns(self.t_ns, self.origin_ns, tick)
         if now_ns >= due + tick:
             return now_ns - (now_ns - self.origin_ns) % tick
         return due if due - now_ns <= tick // 2 else self.t_ns

@@ -48,6 +48,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 
 from . import environment as ros_env
 from .qos import CLOCK_QOS
+from .simulation import next_tick_ns
 
 __all__ = ["TickSource", "TickStats", "TickThread", "stamp"]
 
@@ -213,7 +214,7 @@ class TickThread:
         t, origin, tick = sim.t_ns, sim.origin_ns, sim.settings.tick_ns
         if now < t:  # the system clock stepped back: the simulation restarts there
             return now - now % SYSTEM_TIME_QUANTUM_NS
-        due = t + tick - (t - origin) % tick
+        due = next_tick_ns(t, origin, tick)
         if now < due:
             return None
         if now - due > MAX_THREAD_CATCH_UP_NS:  # counted as a late tick by TickStats.record
@@ -242,7 +243,7 @@ class TickThread:
                 lead = self._lead(sim.settings)
                 t, origin, tick = sim.t_ns, sim.origin_ns, sim.settings.tick_ns  # without the lock: rechecked under it
                 if t is not None:
-                    wait = (t + tick - (t - origin) % tick - lead - now_ns()) * 1e-9
+                    wait = (next_tick_ns(t, origin, tick) - lead - now_ns()) * 1e-9
                     if wait > 0:
                         sleep(min(wait, MAX_SLEEP_S))
                 with lock:
