@@ -336,8 +336,8 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
     publish_clock = values["publish_clock"]
     if not isinstance(publish_clock, bool):
         raise NodeConfigError("publish_clock", f"must be true or false, got {publish_clock!r}")
-    tick_lead = _spec_number("tick_lead", {"tick_lead": values.get("tick_lead", 0.0003)})
-    tick_thread = values.get("tick_thread", True)
+    tick_lead = _spec_number("tick_lead", {"tick_lead": values.get("tick_lead", NODE_SPECS["tick_lead"].default)})
+    tick_thread = values.get("tick_thread", NODE_SPECS["tick_thread"].default)
     if not isinstance(tick_thread, bool):
         raise NodeConfigError("tick_thread", f"must be true or false, got {tick_thread!r}")
     record_path = values["record_path"]
