@@ -38,21 +38,34 @@ def test_real_time_mode(ros_domain_id):
     following them. How many ticks a wall second brings is a benchmark figure (``belt-drive bench node``)."""
     import time
 
-    with BeltDriveHarness(use_sim_time=False, domain_id=ros_domain_id, step_rate_hz=500.0) as h:
+    # 50 Hz: the harness's single-threaded spin receives every output of every tick even on a loaded machine
+    # (at 500 Hz it falls behind the keep-last-10 queues there, and a dropped message never arrives)
+    with BeltDriveHarness(use_sim_time=False, domain_id=ros_domain_id, step_rate_hz=50.0) as h:
         node = h.node
         h.publish_torque(10.0)
         applied_from = len(h._rows) + 1  # the next tick samples it (a tick already under way may not)
         h._spin_until(lambda: len(h._rows) >= applied_from + 30, "30 ticks on the system clock")
         h._spin_until(h._received_all, "the outputs of the last tick")
         stamps = np.array([row[0] for row in h._rows], dtype=np.int64)
-        tick_ns = 2_000_000
+        tick_ns = 20_000_000
         assert node.timing.time_base() == "system" and node.counters["restarts"] == 1  # one run, never restarted
         assert stamps[0] == node.origin_ns  # the run starts at its first tick: scene time 0
         assert np.all(np.diff(stamps) > 0) and np.all((stamps - node.origin_ns) % tick_ns == 0)  # on the grid
         assert abs(stamps[-1] - time.time_ns()) < 60e9  # the system clock (not a clock from 0)
-        assert node.integrated_ns == stamps[-1]  # the state is integrated to the last stamp, not beyond
-        assert float(h.diagnostics()["simulation"]["values"]["sim_time"]) == pytest.approx(
-            (stamps[-1] - node.origin_ns) / 1e9, abs=1e-6)
+        # The tick thread goes on while the test runs (and computes each tick ahead of its due time), so the
+        # state may be ahead of the last stamp received; every tick it was integrated to is then published
+        # with its own stamp: the state is never integrated past a tick that goes out.
+        with node.timing.lock:  # no tick is computed while the time is read
+            integrated = node.integrated_ns
+        assert integrated >= stamps[-1] and (integrated - node.origin_ns) % tick_ns == 0
+        h._spin_until(lambda: h._rows[-1][0] >= integrated, "the tick the state was integrated to")
+        stamps = np.array([row[0] for row in h._rows], dtype=np.int64)
+        assert integrated in stamps and np.all(np.diff(stamps) > 0)  # published, in order
+        sim_time = float(h.diagnostics()["simulation"]["values"]["sim_time"])  # scene time of a tick
+        with node.timing.lock:
+            latest = node.integrated_ns
+        assert (integrated - node.origin_ns) / 1e9 - 1e-6 <= sim_time <= (latest - node.origin_ns) / 1e9 + 1e-6
+        assert round(sim_time * 1e9) % tick_ns == 0  # on the grid
         out = h.outputs()
         assert np.all(out["drive_torque"][applied_from + 1:] == 10.0) and out["shaft_speed"][-1] > 0.0
 
