@@ -1,16 +1,17 @@
 """Launch the belt-drive node, a torque source that drives it, and a recording of the run.
 
     ros2 launch belt_drive_ros belt_drive.launch.py
-    ros2 launch belt_drive_ros belt_drive.launch.py record_path:=run2.mcap mean_torque:=20.0
-    ros2 launch belt_drive_ros belt_drive.launch.py record_path:=''        # no recording
+    ros2 launch belt_drive_ros belt_drive.launch.py record_path:=run2.mcap scene:=my_scene.yaml
 
 Needs the package built into a workspace (colcon build) and sourced. The node
 reads its parameters from config/belt_drive.yaml (installed to
 share/belt_drive_ros/config; params_file:=... for your own) and records its
 input and outputs to record_path (MCAP; an existing file stops the node from
-starting unless record_overwrite:=true). The source is a combustion engine
-whose governor holds wheel M near speed_setpoint [rad/s] (it subscribes to
-the node's shaft_speed); without a torque source the drive stands still.
+starting unless record_overwrite:=true). The source is the scene's own
+drive (``belt-drive source engine --scene SCENE``: truck_compressor's diesel,
+whose governor holds wheel M near its speed setpoint from the node's
+shaft_speed); without a torque source the node applies 0 N m and the drive
+coasts to a stop.
 """
 
 import os
@@ -33,10 +34,8 @@ def generate_launch_description():
                               description="MCAP file the node records to; '' records nothing"),
         DeclareLaunchArgument("record_overwrite", default_value="false",
                               description="replace an existing record_path"),
-        DeclareLaunchArgument("mean_torque", default_value="15.0",
-                              description="the engine's mean torque [N m]"),
-        DeclareLaunchArgument("speed_setpoint", default_value="77.5",
-                              description="the engine governor's speed setpoint [rad/s of wheel M]"),
+        DeclareLaunchArgument("scene", default_value="truck_compressor",
+                              description="scene of the node and of the source's engine (a shipped name or a YAML path)"),
         Node(
             package=PACKAGE,
             executable="node",
@@ -45,6 +44,7 @@ def generate_launch_description():
             parameters=[
                 LaunchConfiguration("params_file"),
                 {
+                    "scene": LaunchConfiguration("scene"),
                     "record_path": LaunchConfiguration("record_path"),
                     "record_overwrite": LaunchConfiguration("record_overwrite"),
                 },
@@ -55,10 +55,6 @@ def generate_launch_description():
             executable="source",
             name="torque_source",
             output="screen",
-            arguments=[
-                "engine",
-                "--mean-torque", LaunchConfiguration("mean_torque"),
-                "--speed-setpoint", LaunchConfiguration("speed_setpoint"),
-            ],
+            arguments=["engine", "--scene", LaunchConfiguration("scene")],
         ),
     ])

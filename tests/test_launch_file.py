@@ -160,13 +160,13 @@ def test_launch_file_starts_the_packages_node_and_source_with_parameters_it_decl
 
     args = build_parser().parse_args(
         [executables[source.executable], *(str(_resolve(a, defaults)) for a in source.arguments)])
-    assert args.source_kind == "engine" and args.mean_torque == 15.0 and args.speed_setpoint == 77.5
+    assert args.source_kind == "engine" and args.scene == values["scene"] == "truck_compressor"
     assert node.name == "belt_drive" and source.name == "torque_source"
 
 
 def test_parameters_example_is_accepted_by_the_node_schema():
     values = _file_parameters(str(PARAMS_FILE), "belt_drive")
-    assert values["scene"] == "paper" and values["k"] == 20000.0
+    assert values["scene"] == "truck_compressor" and values["k"] == 300000.0
     _check_node_parameters(values, str(PARAMS_FILE))
 
 
@@ -175,6 +175,6 @@ def test_the_check_refuses_a_parameter_the_node_does_not_have(tmp_path):
     bad.write_text(PARAMS_FILE.read_text(encoding="utf-8") + "    stiffness: 3.0\n", encoding="utf-8")
     with pytest.raises(AssertionError, match="stiffness"):
         _check_node_parameters(_file_parameters(str(bad), "belt_drive"), str(bad))
-    bad.write_text(PARAMS_FILE.read_text(encoding="utf-8").replace("k: 20000.0", "k: -5.0"), encoding="utf-8")
+    bad.write_text(PARAMS_FILE.read_text(encoding="utf-8").replace("k: 300000.0", "k: -5.0"), encoding="utf-8")
     with pytest.raises(ValueError, match="k"):
         _check_node_parameters(_file_parameters(str(bad), "belt_drive"), str(bad))
