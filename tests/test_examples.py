@@ -64,7 +64,7 @@ def test_tolerance_monte_carlo_example_runs(tree):
         points *= len(values)
     assert len(table) == points * len(data["profiles"]) * 2
     assert table["error"].fillna("").eq("").all(), table["error"].unique()
-    assert (table["peak_belt_torque"] > 0).all() and table["params.k"].nunique() == len(table)  # k drawn per run
+    assert (table["peak_belt_torque"] > 0).all() and table["params.c"].nunique() == len(table)  # c drawn per run
     assert (tree / "examples" / "paper_tolerances.campaign" / "results.csv").is_file()
 
 
