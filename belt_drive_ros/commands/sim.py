@@ -126,6 +126,11 @@ def run(args) -> int:
     bar = ProgressBar(f"sim {scene.name}", force=False) if not args.quiet else None
     if samples <= STREAM_ABOVE:
         return _run_in_memory(scene, args, out_format, bar)
+    if not args.quiet:  # a long run: say up front what it will write and take
+        from ..io.progress import estimate_run
+
+        print(estimate_run(scene, out_format).describe(f"sim {scene.name}", args.out), file=sys.stderr, flush=True)
+        bar = ProgressBar(f"sim {scene.name}", force=False)  # timed from here, not from before the trials
     return _run_streamed(scene, args, out_format, bar)
 
 

@@ -1,0 +1,180 @@
+"""launch/belt_drive.launch.py and config/belt_drive.yaml name only what exists.
+
+launch and launch_ros are not installed here (no wheels), so the launch file
+runs against a small stand-in of their documented API put into
+``sys.modules``: ``launch.LaunchDescription``,
+``launch.actions.DeclareLaunchArgument``,
+``launch.substitutions.LaunchConfiguration`` and
+``launch_ros.actions.Node``, whose keyword arguments are launch_ros's own
+(an unknown one is a TypeError, as in launch_ros). The stand-in records
+the actions; the test then checks each node's package and executable
+against what setup.py installs, every parameter name against the node's
+schema (belt_drive_ros/ros/parameter_schema.py), the values by the
+node's own validation (``build_settings``), and the source's arguments by
+``belt-drive source``'s parser. Launch arguments resolve to their defaults;
+parameter values given as substitutions are read as YAML, as launch_ros
+reads them.
+"""
+
+from __future__ import annotations
+
+import ast
+import runpy
+import sys
+import types
+from pathlib import Path
+
+import pytest
+import yaml
+
+from belt_drive_ros.cli import build_parser
+from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.ros.parameter_schema import OWN_PARAMETERS, build_settings, default_values
+
+ROOT = Path(__file__).resolve().parents[1]
+LAUNCH_FILE = ROOT / "launch" / "belt_drive.launch.py"
+PARAMS_FILE = ROOT / "config" / "belt_drive.yaml"
+#: parameters a node has besides its own (rclpy's)
+RCLPY_PARAMETERS = {"use_sim_time"}
+
+
+def _setup_py_executables() -> dict:
+    """``ROS_EXECUTABLES`` of setup.py (read, not run: running it would run setuptools)."""
+    tree = ast.parse((ROOT / "setup.py").read_text(encoding="utf-8"))
+    for node in tree.body:
+        if isinstance(node, ast.AnnAssign | ast.Assign):
+            targets = [node.target] if isinstance(node, ast.AnnAssign) else node.targets
+            if any(getattr(t, "id", None) == "ROS_EXECUTABLES" for t in targets):
+                return ast.literal_eval(node.value)
+    raise AssertionError("setup.py has no ROS_EXECUTABLES")
+
+
+class LaunchConfiguration:
+    def __init__(self, variable_name, *, default=None):
+        self.variable_name, self.default = variable_name, default
+
+
+class DeclareLaunchArgument:
+    def __init__(self, name, *, default_value=None, description=None, choices=None, **kwargs):
+        self.name, self.default_value, self.description = name, default_value, description
+
+
+class Node:
+    """launch_ros.actions.Node's keywords (its own and ExecuteProcess's that launch files use)."""
+
+    def __init__(self, *, executable, package=None, name=None, namespace=None, exec_name=None, parameters=None,
+                 remappings=None, ros_arguments=None, arguments=None, output="log", respawn=False,
+                 respawn_delay=None, emulate_tty=False, additional_env=None, sigterm_timeout=None,
+                 sigkill_timeout=None, cwd=None, env=None):
+        self.executable, self.package, self.name, self.namespace = executable, package, name, namespace
+        self.parameters, self.arguments, self.remappings = list(parameters or []), list(arguments or []), remappings
+
+
+class LaunchDescription:
+    def __init__(self, initial_entities=None):
+        self.entities = list(initial_entities or [])
+
+
+@pytest.fixture
+def description(monkeypatch):
+    """The launch file's LaunchDescription, built against the stand-in modules."""
+    modules = {
+        "launch": types.ModuleType("launch"),
+        "launch.actions": types.ModuleType("launch.actions"),
+        "launch.substitutions": types.ModuleType("launch.substitutions"),
+        "launch_ros": types.ModuleType("launch_ros"),
+        "launch_ros.actions": types.ModuleType("launch_ros.actions"),
+        "ament_index_python": types.ModuleType("ament_index_python"),
+        "ament_index_python.packages": types.ModuleType("ament_index_python.packages"),
+    }
+    modules["launch"].LaunchDescription = LaunchDescription
+    modules["launch.actions"].DeclareLaunchArgument = DeclareLaunchArgument
+    modules["launch.substitutions"].LaunchConfiguration = LaunchConfiguration
+    modules["launch_ros.actions"].Node = Node
+
+    def share(package):  # the source tree is laid out as the installed share/belt_drive_ros
+        assert package == "belt_drive_ros", package
+        return str(ROOT)
+
+    modules["ament_index_python.packages"].get_package_share_directory = share
+    for name, module in modules.items():
+        monkeypatch.setitem(sys.modules, name, module)
+    return runpy.run_path(str(LAUNCH_FILE))["generate_launch_description"]()
+
+
+def _resolve(value, defaults: dict):
+    """A launch value with every LaunchConfiguration replaced by its argument's default (a string)."""
+    if isinstance(value, LaunchConfiguration):
+        assert value.variable_name in defaults, f"launch argument {value.variable_name!r} is not declared"
+        return defaults[value.variable_name]
+    if isinstance(value, list):
+        return "".join(str(_resolve(v, defaults)) for v in value)
+    return value
+
+
+def _file_parameters(path: str, node_name: str) -> dict:
+    """``ros__parameters`` of ``node_name`` (or of ``/**``) in a ROS 2 parameters file."""
+    data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    assert isinstance(data, dict), path
+    for key in data:
+        assert key in (node_name, f"/{node_name}", "/**"), f"{path}: {key!r} matches no node of the launch file"
+        assert list(data[key]) == ["ros__parameters"], data[key]
+    out = {}
+    for key in ("/**", node_name, f"/{node_name}"):
+        out.update((data.get(key) or {}).get("ros__parameters") or {})
+    return out
+
+
+def _check_node_parameters(values: dict, where: str) -> None:
+    unknown = set(values) - set(OWN_PARAMETERS) - RCLPY_PARAMETERS
+    assert not unknown, f"{where}: parameters the node does not declare: {sorted(unknown)}"
+    own = {k: v for k, v in values.items() if k not in RCLPY_PARAMETERS}
+    scene = load_scene(own.get("scene", "paper"))
+    build_settings({**default_values(scene), **own})  # raises NodeConfigError naming a bad value
+
+
+def test_launch_file_starts_the_packages_node_and_source_with_parameters_it_declares(description):
+    actions = description.entities
+    defaults = {a.name: a.default_value for a in actions if isinstance(a, DeclareLaunchArgument)}
+    nodes = [a for a in actions if isinstance(a, Node)]
+    assert {n.executable for n in nodes} == {"node", "source"}
+    executables = _setup_py_executables()
+    for n in nodes:
+        assert n.package == "belt_drive_ros"
+        assert n.executable in executables, f"setup.py installs no lib/belt_drive_ros/{n.executable}"
+    (node,) = [n for n in nodes if n.executable == "node"]
+    (source,) = [n for n in nodes if n.executable == "source"]
+
+    values = {}
+    for entry in node.parameters:
+        entry = _resolve(entry, defaults)
+        if isinstance(entry, dict):
+            values.update({k: yaml.safe_load(_resolve(v, defaults)) if isinstance(v, LaunchConfiguration) else v
+                           for k, v in entry.items()})
+        else:
+            assert Path(entry).is_file(), entry
+            values.update(_file_parameters(entry, node.name))
+    assert values["record_path"].endswith(".mcap")  # the launch file records the run
+    assert values["record_overwrite"] is False
+    _check_node_parameters(values, str(LAUNCH_FILE))
+
+    args = build_parser().parse_args(
+        [executables[source.executable], *(str(_resolve(a, defaults)) for a in source.arguments)])
+    assert args.source_kind == "engine" and args.scene == values["scene"] == "truck_compressor"
+    assert node.name == "belt_drive" and source.name == "torque_source"
+
+
+def test_parameters_example_is_accepted_by_the_node_schema():
+    values = _file_parameters(str(PARAMS_FILE), "belt_drive")
+    assert values["scene"] == "truck_compressor" and values["k"] == 300000.0
+    _check_node_parameters(values, str(PARAMS_FILE))
+
+
+def test_the_check_refuses_a_parameter_the_node_does_not_have(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(PARAMS_FILE.read_text(encoding="utf-8") + "    stiffness: 3.0\n", encoding="utf-8")
+    with pytest.raises(AssertionError, match="stiffness"):
+        _check_node_parameters(_file_parameters(str(bad), "belt_drive"), str(bad))
+    bad.write_text(PARAMS_FILE.read_text(encoding="utf-8").replace("k: 300000.0", "k: -5.0"), encoding="utf-8")
+    with pytest.raises(ValueError, match="k"):
+        _check_node_parameters(_file_parameters(str(bad), "belt_drive"), str(bad))

@@ -1,0 +1,159 @@
+"""The ROS 2 package: ``colcon build`` in a fresh workspace installs what ``ros2 run`` / ``ros2 launch`` look for.
+
+A copy of the package's sources is built with colcon (colcon-core,
+colcon-ros, colcon-python-setup-py: pinned in constraints.txt) into a
+temporary workspace. The install must hold the ament index marker,
+``share/belt_drive_ros/package.xml``, the launch and parameter files, and
+the executables ``lib/belt_drive_ros/node`` and ``source``; run with the
+workspace's own environment (``install/local_setup.sh``) they must start
+and import the installed copy. A wheel of the same sources must not carry
+those executables (pip would put a ``node`` on the PATH). Takes ~5 s.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = "belt_drive_ros"
+#: what the package is built from (pyproject.toml's readme is README.md)
+SOURCES = ("package.xml", "setup.py", "setup.cfg", "pyproject.toml", "README.md",
+           "resource", "launch", "config", PACKAGE, "msg_tools")
+#: the package's executables in lib/belt_drive_ros and the belt-drive command each one is
+EXECUTABLES = {"node": "belt-drive node", "source": "belt-drive source"}
+
+
+def _copy_sources(dest: Path) -> Path:
+    pkg = dest / "src" / PACKAGE
+    pkg.mkdir(parents=True)
+    for name in SOURCES:
+        src = ROOT / name
+        if src.is_dir():
+            shutil.copytree(src, pkg / name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+        else:
+            shutil.copy2(src, pkg / name)
+    return pkg
+
+
+def _clean_env(tmp: Path) -> dict:
+    """The test's environment without any ROS workspace in it (a sourced workspace would be an underlay)."""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("AMENT_PREFIX_PATH", "COLCON_PREFIX_PATH", "CMAKE_PREFIX_PATH", "PYTHONPATH")}
+    env["COLCON_HOME"] = str(tmp / "colcon_home")  # no user defaults or mixins
+    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
+    return env
+
+
+@pytest.fixture(scope="module")
+def workspace(tmp_path_factory):
+    """A colcon workspace with the package built (``colcon build``, no symlink install)."""
+    ws = tmp_path_factory.mktemp("ws")
+    _copy_sources(ws)
+    env = _clean_env(ws)
+    colcon = Path(sys.executable).parent / "colcon"
+    proc = subprocess.run(
+        [str(colcon), "--log-base", str(ws / "log"), "build", "--base-paths", str(ws / "src"),
+         "--build-base", str(ws / "build"), "--install-base", str(ws / "install"),
+         "--event-handlers", "console_direct-"],
+        cwd=ws, env=env, capture_output=True, text=True, timeout=300,
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return ws, env, proc.stdout + proc.stderr
+
+
+def _in_workspace(ws: Path, env: dict, command: str) -> subprocess.CompletedProcess:
+    """Run ``command`` with the workspace's environment (``. install/local_setup.sh``) in ``sh``."""
+    return subprocess.run(["sh", "-c", f". {ws}/install/local_setup.sh && {command}"], cwd=ws, env=env,
+                          capture_output=True, text=True, timeout=120)
+
+
+def _lib(ws: Path) -> str:
+    """The folder ``ros2 run`` takes the package's executables from."""
+    return str(ws / "install" / PACKAGE / "lib" / PACKAGE)
+
+
+def test_colcon_finds_the_ros_package_and_installs_its_files(workspace):
+    ws, _, log = workspace
+    prefix = ws / "install" / PACKAGE
+    assert "Finished <<< belt_drive_ros" in log
+    assert "doesn't explicitly install" not in log  # marker and package.xml installed by setup.py, not colcon's fallback
+    assert (prefix / "share" / "ament_index" / "resource_index" / "packages" / PACKAGE).is_file()
+    manifest = prefix / "share" / PACKAGE / "package.xml"
+    assert manifest.read_bytes() == (ROOT / "package.xml").read_bytes()
+    assert (prefix / "share" / PACKAGE / "launch" / "belt_drive.launch.py").is_file()
+    assert (prefix / "share" / PACKAGE / "config" / "belt_drive.yaml").is_file()
+    for name in EXECUTABLES:
+        exe = prefix / "lib" / PACKAGE / name
+        assert exe.is_file() and os.access(exe, os.X_OK), exe
+
+
+def test_package_xml_is_format_3_with_the_dependencies_the_code_imports():
+    root = ET.parse(ROOT / "package.xml").getroot()
+    assert root.tag == "package" and root.get("format") == "3"
+    assert root.findtext("name") == PACKAGE
+    assert root.find("export").findtext("build_type") == "ament_python"
+    deps = {e.text for e in root.iter("exec_depend")}
+    for dep in ("rclpy", "std_msgs", "sensor_msgs", "diagnostic_msgs", "rosgraph_msgs", "builtin_interfaces",
+                "std_srvs", "launch_ros", "python3-numpy", "python3-scipy", "python3-yaml"):
+        assert dep in deps, dep
+    # every ROS message package the node's code imports is declared
+    imported = set()
+    for path in (ROOT / PACKAGE).rglob("*.py"):
+        for line in path.read_text(encoding="utf-8").splitlines():
+            words = line.split()
+            if len(words) >= 2 and words[0] in ("from", "import") and words[1].split(".")[0].endswith(("_msgs", "_srvs")):
+                imported.add(words[1].split(".")[0])
+    assert imported and imported <= deps | {"tf2_msgs"}, imported - deps  # tf2_msgs: used only where importable
+
+
+def test_installed_executables_run_from_the_workspace_environment(workspace):
+    ws, env, _ = workspace
+    for name, command in EXECUTABLES.items():
+        proc = _in_workspace(ws, env, f"{_lib(ws)}/{name} --help")
+        assert proc.returncode == 0, proc.stderr
+        assert proc.stdout.startswith(f"usage: {command}"), proc.stdout[:200]
+    proc = _in_workspace(ws, env, f"{_lib(ws)}/node --list-parameters")
+    assert proc.returncode == 0 and "record_path" in proc.stdout, proc.stderr
+    # the executables import the workspace's copy of the package, not the development tree
+    proc = _in_workspace(ws, env, f"{sys.executable} -c 'import belt_drive_ros; print(belt_drive_ros.__file__)'")
+    assert proc.stdout.strip().startswith(str(ws / "install" / PACKAGE)), proc.stdout + proc.stderr
+
+
+def test_ament_index_finds_the_package_and_its_executables_as_ros2_run_does(workspace):
+    """``ros2 run PKG EXE`` runs ``<prefix of PKG in the ament index>/lib/PKG/EXE``."""
+    ws, env, _ = workspace
+    code = (
+        "import os; from ament_index_python.packages import get_package_prefix, get_package_share_directory; "
+        f"p = get_package_prefix('{PACKAGE}'); print(p); print(get_package_share_directory('{PACKAGE}')); "
+        f"print(sorted(f for f in os.listdir(os.path.join(p, 'lib', '{PACKAGE}')) "
+        f"if os.access(os.path.join(p, 'lib', '{PACKAGE}', f), os.X_OK)))"
+    )
+    proc = _in_workspace(ws, env, f"{sys.executable} -c \"{code}\"")
+    assert proc.returncode == 0, proc.stderr
+    prefix, share, executables = proc.stdout.splitlines()
+    assert Path(prefix) == ws / "install" / PACKAGE
+    assert Path(share) == ws / "install" / PACKAGE / "share" / PACKAGE
+    assert set(EXECUTABLES) <= set(eval(executables))  # noqa: S307 - a list literal printed above
+
+
+def test_a_wheel_carries_no_ros_executables(tmp_path):
+    """pip builds wheels: its commands are pyproject.toml's alone (no ``node`` to shadow Node.js on a PATH)."""
+    pkg = _copy_sources(tmp_path)
+    proc = subprocess.run([sys.executable, "setup.py", "-q", "bdist_wheel", "-d", str(tmp_path / "dist")],
+                          cwd=pkg, env=_clean_env(tmp_path), capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    (wheel,) = (tmp_path / "dist").glob("*.whl")
+    with zipfile.ZipFile(wheel) as z:
+        names = z.namelist()
+        entry_points = next(z.read(n).decode() for n in names if n.endswith("entry_points.txt"))
+    assert not [n for n in names if "/scripts/" in n or n.endswith(("/node", "/source"))], names
+    scripts = {line.split("=")[0].strip() for line in entry_points.splitlines() if "=" in line}
+    assert scripts == {"belt-drive", "msg-tools"}, entry_points
