@@ -30,6 +30,7 @@ from .compare import CompareReport, FolderReport, SignalResult, compare, compare
 from .errors import (
     BagNotFoundError,
     CorruptBagError,
+    NotAFileError,
     DecodeError,
     MsgToolsError,
     OverwriteError,
@@ -61,6 +62,7 @@ __all__ = [
     "CompareReport",
     "FolderReport",
     "CorruptBagError",
+    "NotAFileError",
     "DecodeError",
     "MsgToolsError",
     "OverwriteError",

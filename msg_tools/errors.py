@@ -39,6 +39,10 @@ class BagNotFoundError(MsgToolsError, FileNotFoundError):
         MsgToolsError.__init__(self, f"bag not found: {self.filename} ({detail})")
 
 
+class NotAFileError(MsgToolsError, ValueError):
+    """The path cannot be read as a bag: a FIFO, a device, a socket, or a name the OS refuses."""
+
+
 class CorruptBagError(MsgToolsError, ValueError):
     """The input is not an MCAP file, or a record in it cannot be decoded."""
 

@@ -26,9 +26,13 @@ damage. Comparing the messages actually read with the per-channel counts
 
 from __future__ import annotations
 
+import os
 import struct
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Optional, Tuple
+
+from .errors import NotAFileError
+from .files import open_regular
 
 __all__ = ["IndexedSummary", "chunks_readable", "count_problems", "read_summary"]
 
@@ -129,8 +133,8 @@ def read_summary(buf: Any, *, path: Optional[str] = None,
     if len(buf) < 8 + 9 + 20 + 8:
         return None, "file too short for a footer"
     try:
-        stream: Any = open(path, "rb") if path else _BufferStream(buf)
-    except OSError as exc:
+        stream: Any = os.fdopen(open_regular(path), "rb") if path else _BufferStream(buf)
+    except (OSError, NotAFileError) as exc:
         return None, f"summary unreadable ({exc.strerror or exc})"
     try:
         # no record can be longer than the file: a damaged length fails at once, allocating nothing

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import mmap
 import os
+import stat
 import struct
 import warnings
 import zlib
@@ -25,6 +26,7 @@ from typing import IO, Any, Callable, Dict, List, Optional, Tuple, Union
 
 from . import index as _index
 from .errors import BagNotFoundError, CorruptBagError, RecoveredBagWarning
+from .files import open_regular, regular_path
 
 __all__ = ["MAGIC", "MAX_CHUNK_BYTES", "ChannelRecord", "SchemaRecord", "Scan", "Source", "SourceBuffer",
            "damage_error", "scan_source"]
@@ -455,7 +457,8 @@ class SourceBuffer:
             self.name = path
             if not os.path.exists(path):
                 raise BagNotFoundError(path)
-            if os.path.isdir(path):
+            st = regular_path(path, folder=True)
+            if stat.S_ISDIR(st.st_mode):
                 from .bagdir import bag_files
 
                 found = bag_files(path)
@@ -466,8 +469,8 @@ class SourceBuffer:
                     )
                 path = found[0]
                 self.name = path
+            self._file = os.fdopen(open_regular(path), "rb")  # a FIFO would block open(): refused before it
             try:
-                self._file = open(path, "rb")
                 self.path = path
                 size = os.fstat(self._file.fileno()).st_size
                 if size == 0:

@@ -78,3 +78,42 @@ def test_hostile_scene_values_are_refused_promptly_and_the_node_keeps_running(ro
         h.advance(0.01)
         assert h.outputs()["time"].size == n + 10  # ticking on the old scene
         assert h.node.settings.scene.name == "paper"
+
+
+def test_names_the_os_refuses_are_answered_with_a_reason_and_the_node_keeps_ticking(ros_domain_id, tmp_path):
+    """Issue 24: a ``scene`` of 300 characters without a slash raised "File name too long" inside the
+    callback; the node's executor ended (exit 1) and the SetParameters call was never answered."""
+    fifo = tmp_path / "x.fifo"
+    os.mkfifo(fifo)
+    hostile = {
+        "a" * 300: "unknown scene",                                  # too long a name, no slash
+        "b" * 5000: "unknown scene",                                 # far longer than PATH_MAX
+        str(tmp_path / ("c" * 300)) + ".yaml": "file name too long",  # one component past 255 bytes
+        "/".join(["d" * 200] * 30) + ".yaml": "file name too long",  # the whole path past PATH_MAX
+        str(tmp_path): "directory",
+        str(fifo): "fifo",
+        "/dev/zero": "character device",
+    }
+    with _no_hang(120.0), BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0) as h:
+        h.advance(0.01)
+        for value, reason in hostile.items():
+            result = _set_scene_over_the_service(h, value)
+            assert not result.successful, value[:80]
+            assert reason in result.reason.lower(), (value[:80], result.reason)
+            assert result.reason.startswith("scene:") and len(result.reason) < 400, result.reason
+            assert h.node.get_parameter("scene").value == "paper"
+        n = h.outputs()["time"].size
+        h.advance(0.01)
+        assert h.outputs()["time"].size == n + 10  # ticking on the old scene
+        # strings the wire cannot carry (DDS strings end at a NUL; unpaired surrogates are not UTF-8)
+        # reach the callbacks only in-process: refused with a reason there too, never raised
+        from rclpy.parameter import Parameter
+
+        for value, reason in {"x\x00y": "unknown scene", str(tmp_path / "x\x00y.yaml"): "nul byte",
+                              "\ud800.yaml": "cannot be encoded", "\udcff" * 300: "unknown scene",
+                              "\ud800": "unknown scene"}.items():
+            result = h.node.set_parameters([Parameter("scene", value=value)])[0]
+            assert not result.successful and result.reason.startswith("scene:"), (value, result.reason)
+            assert reason in result.reason.lower(), (value[:80], result.reason)
+        h.advance(0.01)
+        assert h.outputs()["time"].size == n + 20

@@ -36,7 +36,8 @@ import yaml
 
 from .errors import InputError
 
-__all__ = ["MAX_DEPTH", "SCENE_LIMIT", "InputError", "parse_yaml", "read_text", "read_yaml", "short"]
+__all__ = ["MAX_DEPTH", "SCENE_LIMIT", "InputError", "check_path", "open_regular", "parse_yaml", "read_text", "read_yaml",
+           "short"]
 
 #: largest scene / parameter YAML file [bytes]; the shipped scenes are ~2 kB
 SCENE_LIMIT = 1 << 20
@@ -75,6 +76,57 @@ def _kind(mode: int) -> str:
     return "not a regular file"
 
 
+def check_path(path: str | os.PathLike, what: str = "file", folder: bool = False) -> os.stat_result:
+    """``os.stat`` of ``path`` when it is a regular file (or, with ``folder``, a directory).
+
+    The one check every read of a user's path goes through before ``open()``
+    (a FIFO blocks ``open`` for reading until a writer comes, ``/dev/zero``
+    never ends). Names the OS refuses (too long, a component longer than 255
+    bytes, a NUL byte, unpaired surrogates, a loop of links) are refused the
+    same way, with one line.
+
+    Raises
+    ------
+    InputError
+        ``path`` is missing, refused by the OS, or of another kind (device,
+        FIFO, socket, a directory where a file is needed).
+    """
+    label = f"{what} {short(os.fspath(path), 200)}"
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise InputError(f"{label}: not found") from None
+    except OSError as exc:
+        raise InputError(f"{label}: {exc.strerror or exc}") from None
+    except ValueError as exc:  # a NUL byte; str with unpaired surrogates (UnicodeEncodeError)
+        reason = "a NUL byte in the name" if "null" in str(exc) else "a name that cannot be encoded"
+        raise InputError(f"{label}: not a usable path ({reason})") from None
+    if stat.S_ISREG(st.st_mode) or (folder and stat.S_ISDIR(st.st_mode)):
+        return st
+    need = "a regular file or a folder" if folder else "a regular file"
+    raise InputError(f"{label}: {_kind(st.st_mode)}; {need} is needed")
+
+
+def open_regular(path: str | os.PathLike, what: str = "file") -> int:
+    """A read-only descriptor of the regular file ``path`` (:func:`check_path` first).
+
+    Opened with ``O_NONBLOCK`` and checked again on the descriptor, so a file
+    swapped for a FIFO between the check and the open cannot block either.
+    The caller closes it (``os.fdopen(fd, "rb")`` makes it a file object).
+    """
+    check_path(path, what)
+    label = f"{what} {short(os.fspath(path), 200)}"
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        raise InputError(f"{label}: {exc.strerror or exc}") from None
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode):  # swapped between stat and open
+        os.close(fd)
+        raise InputError(f"{label}: {_kind(st.st_mode)}; a regular file is needed")
+    return fd
+
+
 def read_text(path: str | os.PathLike, what: str = "file", limit: int = SCENE_LIMIT) -> str:
     """UTF-8 text of the regular file ``path``, at most ``limit`` bytes.
 
@@ -85,26 +137,12 @@ def read_text(path: str | os.PathLike, what: str = "file", limit: int = SCENE_LI
         socket), larger than ``limit`` bytes, unreadable or not UTF-8. Never
         blocks on a FIFO and never reads more than ``limit + 1`` bytes.
     """
-    path = Path(path)
-    label = f"{what} {short(str(path), 200)}"
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        raise InputError(f"{label}: not found") from None
-    except OSError as exc:
-        raise InputError(f"{label}: {exc.strerror or exc}") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise InputError(f"{label}: {_kind(st.st_mode)}; a regular file is needed")
+    label = f"{what} {short(os.fspath(path), 200)}"
+    st = check_path(path, what)
     if st.st_size > limit:
         raise InputError(f"{label}: {st.st_size} bytes, more than the limit of {limit} bytes")
+    fd = open_regular(path, what)
     try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
-    except OSError as exc:
-        raise InputError(f"{label}: {exc.strerror or exc}") from None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):  # swapped between stat and open
-            raise InputError(f"{label}: {_kind(st.st_mode)}; a regular file is needed")
         chunks, size = [], 0
         while size <= limit:
             chunk = os.read(fd, min(1 << 16, limit + 1 - size))

@@ -29,6 +29,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.parameter import Parameter
 
 from ..core.errors import BeltDriveError
+from ..core.inputs import short
 from ..core.params import FIELD_DOCS
 from .parameter_schema import (
     DEFAULT_SCENE,
@@ -147,13 +148,24 @@ class NodeParameters:
             return parameters
         try:
             scene = self.scenes.get(new_scene.value)
-        except BeltDriveError:
-            return parameters  # _on_validate reports it
+        except Exception:  # noqa: BLE001 - never raise inside rclpy's set_parameters: _on_validate reports it
+            return parameters
         named = {p.name for p in parameters}
         extra = [_as_double(Parameter(n, value=v)) for n, v in scene_defaults(scene).items() if n not in named]
         return parameters + extra
 
     def _on_validate(self, parameters: list[Parameter]) -> SetParametersResult:
+        """Accept or refuse the change with a reason; never raises (an exception here would end the
+        node's executor, and the SetParameters call would never be answered)."""
+        try:
+            return self._validate(parameters)
+        except Exception as exc:  # noqa: BLE001 - any failure is a refusal with its reason
+            self._pending = None
+            reason = f"refused: {type(exc).__name__}: {short(str(exc), 300)}"
+            self.node.get_logger().error(f"rejected parameter change: {reason}")
+            return SetParametersResult(successful=False, reason=reason)
+
+    def _validate(self, parameters: list[Parameter]) -> SetParametersResult:
         self._pending = None
         values = self.values()
         changed = set()
@@ -172,7 +184,7 @@ class NodeParameters:
             return SetParametersResult(successful=True)
         try:
             settings = build_settings(values, self.scenes)
-        except (BeltDriveError, ValueError) as exc:
+        except (BeltDriveError, ValueError, OSError) as exc:
             self.node.get_logger().warn(f"rejected parameter change: {exc}")
             return SetParametersResult(successful=False, reason=str(exc))
         self._pending = (settings, changed)
@@ -183,4 +195,8 @@ class NodeParameters:
             return
         settings, changed = self._pending
         self._pending = None
-        self._apply(settings, changed)
+        try:
+            self._apply(settings, changed)
+        except Exception as exc:  # noqa: BLE001 - the values are set: say so, do not end the executor
+            self.node.get_logger().error(
+                f"parameters {', '.join(sorted(changed))} accepted but not applied: {type(exc).__name__}: {exc}")
