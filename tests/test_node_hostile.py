@@ -37,20 +37,7 @@ def _no_hang(seconds: float):
 
 def _set_scene_over_the_service(h, value: str):
     """SetParameters(scene=value) through DDS from the harness's probe node; the result."""
-    from rcl_interfaces.msg import Parameter as ParameterMsg
-    from rcl_interfaces.msg import ParameterType, ParameterValue
-    from rcl_interfaces.srv import SetParameters
-
-    client = h.probe.create_client(SetParameters, f"{h.node.get_fully_qualified_name()}/set_parameters")
-    try:
-        h._spin_until(client.service_is_ready, "the set_parameters service")
-        request = SetParameters.Request(parameters=[ParameterMsg(
-            name="scene", value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value))])
-        future = client.call_async(request)
-        h._spin_until(future.done, f"SetParameters(scene={value!r}) to return", timeout=20.0)
-        return future.result().results[0]
-    finally:
-        h.probe.destroy_client(client)
+    return h.set_parameters_over_the_service(scene=value)[0]
 
 
 def test_hostile_scene_values_are_refused_promptly_and_the_node_keeps_running(ros_domain_id, tmp_path):

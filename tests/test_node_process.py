@@ -264,3 +264,44 @@ def test_params_file_is_handed_to_rcl_as_the_checked_copy(tmp_path):
     assert open(copy).read() == text  # what rcl reads: the checked text, not the FIFO
     with pytest.raises(InputError, match="a FIFO"):
         check_params_files(args, str(copies))
+
+
+def test_ticks_resume_at_once_after_use_sim_time_goes_true_and_back_to_false():
+    """Issue 24: ``use_sim_time`` set true and back to false through SetParameters left the node (events
+    executor, the default) silent for 2-20 s: its tick timer kept its schedule on simulated time. Now the
+    first tick is stamped within a second of the switch back (a period is 1 ms; the bound is far from both)."""
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    from sensor_msgs.msg import JointState
+
+    domain = ros_env.process_domain_id(offset=43)
+    node = start(["node", "paper", "--ros-args", "-p", "input_timeout:=0.0"], domain)
+    probe = Probe(domain)
+    try:
+        probe.subscribe(JointState, "joint_states", depth=10000)
+        client = probe.node.create_client(SetParameters, "/belt_drive/set_parameters")
+
+        def set_sim_time(value: bool):
+            request = SetParameters.Request(parameters=[Parameter(name="use_sim_time", value=ParameterValue(
+                type=ParameterType.PARAMETER_BOOL, bool_value=value))])
+            future = client.call_async(request)
+            probe.spin_until(future.done, 10.0, f"use_sim_time:={value} to be answered", (node,))
+            assert future.result().results[0].successful
+
+        def stamps():
+            return [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in probe.received["joint_states"]]
+
+        probe.spin_until(lambda: client.service_is_ready() and len(stamps()) > 100, 40.0, "ticks", (node,))
+        for _ in range(2):
+            set_sim_time(True)
+            on_sim_time = time.time_ns()
+            probe.spin_until(lambda: time.time_ns() > on_sim_time + 300_000_000, 5.0, "a while on sim time")
+            back = time.time_ns()
+            set_sim_time(False)
+            probe.spin_until(lambda: max(stamps()) > back, 25.0, "a tick back on the system clock", (node,))
+            assert not [s for s in stamps() if on_sim_time < s < back]  # no /clock: no ticks
+            assert min(s for s in stamps() if s > back) - back < 1_000_000_000
+    finally:
+        probe.close()
+        rc, err = stop(node, signal.SIGINT)
+    assert rc == 0, err[-3000:]

@@ -429,6 +429,23 @@ class BeltDriveHarness:
         """Set node parameters atomically; returns the ``SetParametersResult`` (``.successful``, ``.reason``)."""
         return self.node.set_parameters_atomically([Parameter(k, value=v) for k, v in params.items()])
 
+    def set_parameters_over_the_service(self, **params: Any) -> list:
+        """Set node parameters as another process would: a ``SetParameters`` request from the probe
+        node through DDS (the node's standard ``~/set_parameters`` service). Returns the
+        ``SetParametersResult`` of each, in order (:class:`HarnessTimeout` if the call is never answered)."""
+        from rcl_interfaces.srv import SetParameters
+
+        client = self.probe.create_client(SetParameters, f"{self.node.get_fully_qualified_name()}/set_parameters")
+        try:
+            self._spin_until(client.service_is_ready, "the set_parameters service")
+            request = SetParameters.Request(parameters=[Parameter(k, value=v).to_parameter_msg()
+                                                        for k, v in params.items()])
+            future = client.call_async(request)
+            self._spin_until(future.done, f"SetParameters({', '.join(params)}) to return", timeout=20.0)
+            return list(future.result().results)
+        finally:
+            self.probe.destroy_client(client)
+
     def reset(self) -> str:
         """Call the node's ``~/reset`` service; returns its message."""
         future = self._reset_client.call_async(Trigger.Request())

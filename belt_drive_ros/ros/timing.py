@@ -429,16 +429,30 @@ class TickSource:
             self._tick(msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
 
     def _on_clock_change(self, jump) -> None:
-        """ROS time (de)activated (use_sim_time toggled): restart on the new time base."""
+        """ROS time (de)activated (use_sim_time toggled): restart on the new time base.
+
+        Back on the system clock the ticks resume within one period: the tick
+        thread starts here (or the executor timer is reset to now + one
+        period). Left to itself, the tick timer, created on the node's ROS
+        clock, kept the schedule it had on simulated time, and the events
+        executor first served it 2-20 s later: the node was silent meanwhile.
+        """
         self._ros_time = None  # re-read on the next use
         with self.lock:
             if self._thread is not None:  # the executor timer ticks on /clock
                 self._stop_thread(join=False)
-                if self._tick_timer is not None:
-                    self._tick_timer.reset()
             if not self.sim.settings.publish_clock:
                 self.sim.stop()
                 self._watch_first_clock()
+            timer = self._tick_timer
+            if timer is None:
+                return
+            if not self.use_sim_time() and self.sim.settings.tick_thread and not self.sim.settings.publish_clock:
+                timer.cancel()
+                self._thread = TickThread(self)
+                self._thread.start()
+            else:
+                timer.reset()
 
     def destroy(self) -> None:
         self._stop_thread(join=True)
