@@ -1,7 +1,8 @@
 """``msg-tools``: inspect, export, plot and compare ROS 2 MCAP recordings without ROS.
 
 Exit status: 0 success (``compare``: all signals pass), 1 ``compare`` found
-signals outside tolerance or ``info`` found the file damaged, 2 usage or
+signals outside tolerance or a file incomplete, or ``info`` found the file damaged or
+incomplete (data lost), 2 usage or
 input/output error (``export``/``plot``/``compare`` refuse a damaged file). Errors are one line
 on stderr, ``msg-tools: error: ...``; set ``MSG_TOOLS_DEBUG=1`` for tracebacks.
 """
@@ -35,8 +36,8 @@ examples:
   msg-tools compare fresh.mcap bags/engine_idle_golden.mcap --rtol 1e-6 --atol 1e-9
   msg-tools compare new_runs/ golden_runs/
 
-exit status: 0 ok / compare passed, 1 compare failed or info found damage, 2 usage or I/O error
-(a damaged file: export/plot/compare refuse it)
+exit status: 0 ok / compare passed, 1 compare failed or info found damage or an incomplete file
+(data lost), 2 usage or I/O error (a damaged file: export/plot/compare refuse it)
 """
 
 
@@ -167,8 +168,9 @@ def _info_one(path: str, args: argparse.Namespace, out: IO[str]) -> Tuple[int, A
         w(f"Status:            DAMAGED ({_problems(s.damage)}; counts above are what the data holds)\n")
         sys.stderr.write(f"{PROG}: warning: {s.path} is damaged: {s.damage[0]}{_more(s.damage)}\n")
         status = 1
-    elif not s.complete:
+    elif not s.complete:  # data lost at the end (the writer was killed): exit 1, as for damage
         w(f"Status:            INCOMPLETE, {s.stop_reason}; {s.message_count} messages recovered\n")
+        status = 1
     elif s.recovered:
         w(f"Status:            RECOVERED, {s.recovered}; all {s.message_count} messages the summary counts read\n")
     elif s.from_summary:
@@ -383,7 +385,8 @@ def cmd_compare(args: argparse.Namespace, out: IO[str]) -> int:
     from .compare import compare, compare_folders, is_bag_folder
 
     options = dict(topics=args.topics, rtol=args.rtol, atol=args.atol, time_base=args.time_base,
-                   min_coverage=args.min_coverage, max_gap_periods=args.max_gap)
+                   min_coverage=args.min_coverage, max_gap_periods=args.max_gap,
+                   allow_incomplete=args.allow_incomplete)
     folders = [os.path.isdir(p) and not is_bag_folder(p) for p in (args.a, args.b)]
     if any(folders):
         if not all(folders):
@@ -426,13 +429,13 @@ def build_parser() -> argparse.ArgumentParser:
             "CRC, chunk indexes and message counts per channel. Each problem is one 'Damage:' line, "
             "then a verdict: 'Status: complete', 'INCOMPLETE' (recorder killed: what was recovered), "
             "'RECOVERED' (a damaged record before the end, every message read through the chunk index) "
-            "or 'DAMAGED' (exit 1). --summary-only reads only the footer and summary section: "
+            "or 'DAMAGED'; INCOMPLETE and DAMAGED exit 1. --summary-only reads only the footer and summary section: "
             "fast, but a damaged chunk goes unseen."
         ),
         epilog=("examples:\n  msg-tools info run.mcap --qos\n"
                 "  msg-tools info huge.mcap --summary-only   # no data read, nothing verified\n\n"
-                "exit status: 0 complete, incomplete or recovered (with a warning), "
-                "1 damaged, 2 unreadable or not MCAP"),
+                "exit status: 0 complete, or recovered with every message the summary counts (a warning); "
+                "1 damaged or incomplete (data lost: DAMAGED or INCOMPLETE); 2 unreadable or not MCAP"),
         formatter_class=_Formatter,
     )
     p.add_argument("bag", metavar="BAG", help="MCAP file or rosbag2 bag folder")
@@ -481,7 +484,8 @@ def build_parser() -> argparse.ArgumentParser:
             "interpolated onto A's times (used directly when the times are identical) and "
             "each sample must satisfy |a-b| <= atol + rtol*|b|. JointState is aligned on "
             "header stamps, other types on log time. Prints the worst error per signal; "
-            "exit 0 if all pass, 1 if any fails, 2 on usage or I/O errors."
+            "a file cut off (recorder killed) fails, naming the topics whose last samples are missing, "
+            "unless --allow-incomplete; exit 0 if all pass, 1 if any fails, 2 on usage or I/O errors."
         ),
         epilog=(
             "examples:\n"
@@ -506,6 +510,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-gap", type=float, default=5.0, metavar="PERIODS",
                    help="fail a signal with a gap longer than this many median sample periods "
                         "(default 5; 0: no gap check); duplicate time stamps always fail")
+    p.add_argument("--allow-incomplete", action="store_true",
+                   help="compare a file that was cut off (recorder killed) as far as it was read; "
+                        "by default it fails (exit 1) with the topics whose last samples are missing")
     p.set_defaults(func=cmd_compare)
     return parser
 

@@ -18,6 +18,13 @@ means no holes: a series with two samples at the same time, or with a gap
 longer than ``max_gap_periods`` times its median sample period, fails
 (a lost or duplicated chunk, a stalled recorder).
 
+A file that is not whole (cut off: its writer was killed, the last chunk
+lost) fails the comparison, whatever its signals show: its last samples are
+missing, and a tolerance tube cannot see what is not there (a golden file
+cut after the last complete chunk lacked the last sample of six topics and
+passed). ``allow_incomplete=True`` compares what was read instead, with the
+missing samples named as a note.
+
 Folders of recordings are compared pairwise by file name
 (:func:`compare_folders`).
 """
@@ -98,11 +105,15 @@ class CompareReport:
     atol: float
     signals: List[SignalResult] = field(default_factory=list)
     skipped: List[Tuple[str, str]] = field(default_factory=list)
+    incomplete: List[str] = field(default_factory=list)
+    allow_incomplete: bool = False
 
     @property
     def passed(self) -> bool:
-        """True when there is at least one signal and every signal passed."""
-        return bool(self.signals) and all(s.passed for s in self.signals)
+        """True when there is at least one signal, every signal passed, and both files are whole
+        (or ``allow_incomplete``)."""
+        whole = not self.incomplete or self.allow_incomplete
+        return bool(self.signals) and all(s.passed for s in self.signals) and whole
 
     @property
     def failures(self) -> List[SignalResult]:
@@ -141,6 +152,8 @@ class CompareReport:
         lines = _aligned(rows, right=True)
         for topic, why in self.skipped:
             lines.append(f"(skipped {topic}: {why})")
+        for note in self.incomplete:
+            lines.append(f"({'note' if self.allow_incomplete else 'FAIL'}: {note})")
         return "\n".join(lines)
 
     def verdict(self) -> str:
@@ -148,8 +161,12 @@ class CompareReport:
         n, bad = len(self.signals), len(self.failures)
         if n == 0:
             return "FAIL: no signals to compare"
+        if bad == 0 and self.incomplete and not self.allow_incomplete:
+            return (f"FAIL: {self.incomplete[0]}" + (f" (and {len(self.incomplete) - 1} more)" if len(self.incomplete) > 1
+                                                    else "") + "; --allow-incomplete compares what was read")
         if bad == 0:
-            return f"PASS: {n} signals within atol={self.atol:g}, rtol={self.rtol:g}"
+            return (f"PASS: {n} signals within atol={self.atol:g}, rtol={self.rtol:g}"
+                    + (" (of what was read: a file is incomplete)" if self.incomplete else ""))
         worst = self.worst
         assert worst is not None
         where = (
@@ -332,6 +349,7 @@ def compare(
     time_base: str = "auto",
     min_coverage: float = 0.99,
     max_gap_periods: float = 5.0,
+    allow_incomplete: bool = False,
 ) -> CompareReport:
     """Compare the signals of bag A (under test) against bag B (reference).
 
@@ -356,6 +374,10 @@ def compare(
     max_gap_periods : float
         A series fails when two samples are further apart than this many
         median sample periods (0: no gap check); duplicate stamps always fail.
+    allow_incomplete : bool
+        Compare a file that was cut off (its last chunk lost) as far as it
+        was read. Default: such a file fails the comparison, its missing
+        samples named per topic (``report.incomplete``).
 
     Returns
     -------
@@ -370,7 +392,7 @@ def compare(
     if not max_gap_periods >= 0:
         raise ValueError(f"max_gap_periods must be >= 0 (0: no gap check), got {max_gap_periods}")
     a_name, b_name = os.fspath(a_path), os.fspath(b_path)
-    report = CompareReport(a_name, b_name, rtol, atol)
+    report = CompareReport(a_name, b_name, rtol, atol, allow_incomplete=allow_incomplete)
 
     def norm(t: str) -> str:
         return t if t.startswith("/") else "/" + t
@@ -385,6 +407,7 @@ def compare(
     else:
         wanted = wanted_in
 
+    report.incomplete = _incomplete(bag_a, data_a, "A", bag_b, data_b) + _incomplete(bag_b, data_b, "B", bag_a, data_a)
     starts = [int(d.log_time_ns[0]) for d in data_a.values() if len(d)]
     origin_ns = min(starts) if starts else 0
 
@@ -434,6 +457,22 @@ def compare(
     if not report.signals and not report.skipped:
         raise MsgToolsError(f"nothing to compare: no topics in {a_name} or {b_name}")
     return report
+
+
+def _incomplete(bag, data: Dict[str, TopicData], side: str, other, other_data: Dict[str, TopicData]) -> List[str]:
+    """One line when ``bag`` (file ``side``) was cut off: where it stopped and, against the other
+    file (when that one is whole), the samples it lacks per topic ([] for a whole file)."""
+    if bag.complete:
+        return []
+    lost = []
+    if other.complete:
+        for topic, d in data.items():
+            o = other_data.get(topic)
+            if o is not None and len(o) > len(d):
+                lost.append(f"{topic} {len(o) - len(d)}")
+    what = (f"lacks the last samples of {len(lost)} topic{'s' if len(lost) != 1 else ''} against "
+            f"{'B' if side == 'A' else 'A'}: {', '.join(lost)}" if lost else "its last samples are missing")
+    return [f"{side} ({bag.path}) is incomplete ({bag.stop_reason or 'cut off'}): {what}"]
 
 
 # --------------------------------------------------------------------------
@@ -508,6 +547,8 @@ class FolderReport:
             worst = report.worst
             detail = "-" if worst is None else (worst.name if worst.passed else
                                                 f"{worst.name}: {worst.reason or _fmt(worst.worst_abs_error)}")
+            if report.incomplete and not report.allow_incomplete and not report.failures:
+                detail = report.incomplete[0].split(" (", 1)[0] + " incomplete"
             rows.append((name, str(len(report.signals)), str(len(report.failures)), detail,
                          "pass" if report.passed else "FAIL"))
         return "\n".join(_aligned(rows, right=False))

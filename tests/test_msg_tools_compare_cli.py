@@ -4,6 +4,8 @@ import csv
 import os
 import subprocess
 import sys
+import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -247,14 +249,71 @@ def test_cli_errors_are_one_line_exit_2(capsys, tmp_path, golden, argv, expected
     assert "Traceback" not in err
 
 
-def test_cli_truncated_bag_warns_and_reads(capsys, tmp_path, golden):
+def test_cli_truncated_bag_warns_reads_and_exits_1(capsys, tmp_path, golden):
     raw = golden.read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(raw[: len(raw) // 2])
     status, out, err = _cli(capsys, "info", cut)
-    assert status == 0
-    assert "INCOMPLETE" in out
+    assert status == 1  # data lost (issue 24: exit 0 before)
+    assert "Status:            INCOMPLETE" in out
     assert err.startswith("msg-tools: warning: ") and "recovered" in err
+
+
+#: a recording of the node's six topics (make bags)
+SHIPPED_GOLDEN = Path(__file__).resolve().parents[1] / "bags" / "engine_idle_golden.mcap"
+
+
+def _cut_golden(tmp_path, golden):
+    """The golden file cut inside its last data chunk (the summary and the last samples lost), as a
+    recorder killed before it finished leaves it; and what it lacks per topic."""
+    from msg_tools import read_bag
+
+    raw = golden.read_bytes()
+    whole = {t: len(d) for t, d in read_bag(golden).topics.items()}
+    cut = tmp_path / "cut.mcap"
+    for end in range(len(raw) - 1000, 0, -1000):
+        cut.write_bytes(raw[:end])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            bag = read_bag(cut)
+        if not bag.complete:
+            lost = {t: n - len(bag.topics[t]) for t, n in whole.items() if n > len(bag.topics.get(t, ()))}
+            if lost:
+                return cut, lost
+    raise AssertionError("no cut lost samples")
+
+
+@pytest.mark.parametrize("order", ["golden second", "golden first"])
+def test_compare_fails_on_a_truncated_file_naming_what_it_lacks(capsys, tmp_path, order):
+    """Issue 24: a golden file without its last samples passed (exit 0, a warning)."""
+    golden = SHIPPED_GOLDEN
+    cut, lost = _cut_golden(tmp_path, golden)
+    assert len(lost) >= 5 and set(lost.values()) == {1}  # the last sample of most topics
+    a, b = (golden, cut) if order == "golden second" else (cut, golden)
+    status, out, err = _cli(capsys, "compare", a, b)
+    assert status == 1, out
+    verdict = out.splitlines()[-1]
+    side = "B" if order == "golden second" else "A"
+    assert verdict.startswith(f"FAIL: {side} ({cut}) is incomplete") and "--allow-incomplete" in verdict, verdict
+    assert f"lacks the last samples of {len(lost)} topics" in verdict
+    assert all(f"{topic} {n}" in verdict for topic, n in lost.items()), verdict
+    status, out, err = _cli(capsys, "compare", a, b, "--allow-incomplete")
+    assert status == 0 and out.splitlines()[-1].endswith("(of what was read: a file is incomplete)"), out
+    assert "(note: " in out
+    status, out, err = _cli(capsys, "compare", cut, cut)  # both cut: nothing to say what is lost
+    assert status == 1 and "its last samples are missing" in out.splitlines()[-1]
+
+
+def test_compare_folders_fail_a_row_with_a_truncated_file(capsys, tmp_path):
+    golden = SHIPPED_GOLDEN
+    cut, _ = _cut_golden(tmp_path, golden)
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    (tmp_path / "a" / "run.mcap").write_bytes(golden.read_bytes())
+    (tmp_path / "b" / "run.mcap").write_bytes(cut.read_bytes())
+    status, out, err = _cli(capsys, "compare", tmp_path / "a", tmp_path / "b")
+    assert status == 1 and "B incomplete" in out and out.splitlines()[-1] == "FAIL: 1 of 1 recordings; first: run.mcap"
+    assert _cli(capsys, "compare", tmp_path / "a", tmp_path / "b", "--allow-incomplete")[0] == 0
 
 
 def test_module_entry_point_without_traceback(tmp_path):
