@@ -292,7 +292,7 @@ def test_corrupt_and_truncated_files_one_line_error_in_process(bag, tmp_path, ca
         if name in ("garbage", "empty"):
             assert code == 2 and len(err) == 1 and err[0].startswith("msg-tools: error: "), (name, err)
         else:  # a valid start, cut off: reported as an incomplete bag with 0 messages
-            assert code == 0 and len(err) == 1 and err[0].startswith("msg-tools: warning: "), (name, err)
+            assert code == 1 and len(err) == 1 and err[0].startswith("msg-tools: warning: "), (name, err)
 
 
 def test_file_cut_mid_data_reads_up_to_last_chunk(bag, tmp_path, capsys):
