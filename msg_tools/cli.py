@@ -24,6 +24,7 @@ from .decode import FLOAT64, JOINT_STATE
 from .errors import MsgToolsError, RecoveredBagWarning
 from .files import output_mode
 from .reader import TopicData, read_bag, summary
+from .results import tick_gaps
 from .units import RAD_PER_S_TO_RPM, UNITS_METADATA, is_shaft_speed, label, unit_for
 
 PROG = "msg-tools"
@@ -179,6 +180,7 @@ def _info_one(path: str, args: argparse.Namespace, out: IO[str]) -> Tuple[int, A
         w("Status:            complete (data checked against the summary section)\n")
     else:
         w("Status:            complete (read from the data; no summary section to check it against)\n")
+    _write_tick_gaps(out, s)
     if args.qos:
         for t in s.topics:
             w(f"offered_qos_profiles of {t.topic}:\n")
@@ -193,6 +195,28 @@ def _info_one(path: str, args: argparse.Namespace, out: IO[str]) -> Tuple[int, A
                 text = text[:67] + "..."
             w(f"    {key}: {text}\n")
     return status, s
+
+
+#: ``info`` lists at most this many tick gaps one by one (then a count)
+GAPS_LISTED = 20
+
+
+def _write_tick_gaps(out: IO[str], s: Any) -> None:
+    """The gaps in a node's ticks it recorded (``tick_gap`` metadata records): a count, then one line each."""
+    gaps = tick_gaps(s.metadata)
+    if not gaps:
+        return
+    missed = sum(int(g.get("ticks_missed", 0) or 0) for g in gaps)
+    out.write(f"Tick gaps:         {len(gaps)} recorded by the node, {missed} ticks never published\n")
+    for g in gaps[:GAPS_LISTED]:
+        try:
+            span = f"{_ns_to_s_text(int(g['start_ns']))} s to {_ns_to_s_text(int(g['end_ns']))} s"
+        except (KeyError, ValueError):
+            span = "?"
+        out.write(f"{'':19}{g.get('ticks_missed', '?')} missed, {span} ({g.get('time_base', '?')}): "
+                  f"{' '.join(str(g.get('cause', '')).split())}\n")
+    if len(gaps) > GAPS_LISTED:
+        out.write(f"{'':19}... and {len(gaps) - GAPS_LISTED} more (tick_gap records below)\n")
 
 
 # -------------------------------------------------------------------- columns

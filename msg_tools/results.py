@@ -11,7 +11,11 @@ from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 
-__all__ = ["Bag", "BagSummary", "TopicData", "TopicInfo", "merged_metadata"]
+__all__ = ["Bag", "BagSummary", "TICK_GAP_METADATA", "TopicData", "TopicInfo", "merged_metadata", "tick_gaps"]
+
+#: the metadata records a belt_drive_ros node writes for each gap in its ticks (``start_ns``, ``end_ns``,
+#: ``ticks_missed``, ``cause``, ``time_base``; see belt_drive_ros.ros.gaps)
+TICK_GAP_METADATA = "tick_gap"
 
 
 @dataclass
@@ -123,6 +127,18 @@ def merged_metadata(metadata: List[Tuple[str, Dict[str, str]]], name: str) -> Di
         if record_name == name:
             merged.update(values)
     return merged
+
+
+def tick_gaps(metadata: List[Tuple[str, Dict[str, str]]]) -> List[Dict[str, str]]:
+    """The :data:`TICK_GAP_METADATA` records, in file order, each once (a split bag's files repeat
+    the records before them)."""
+    seen, out = set(), []
+    for name, values in metadata:
+        key = tuple(sorted(values.items()))
+        if name == TICK_GAP_METADATA and key not in seen:
+            seen.add(key)
+            out.append(dict(values))
+    return out
 
 
 @dataclass

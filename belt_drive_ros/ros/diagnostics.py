@@ -5,7 +5,9 @@ once a second of wall time (and on demand). Each status covers the window
 since the previous publish:
 
 * ``<node>: simulation``: ERROR if the state diverged in the window (the
-  reason; the run restarted from its initial state), WARN for overruns,
+  reason; the run restarted from its initial state), WARN for a gap in the
+  ticks (:mod:`.gaps`: the last one; ``tick_gaps``, ``ticks_missed`` and
+  ``last_gap`` count and describe them since the start), for overruns,
   a rate below 95 % on the system clock, or a failed recording; the values
   carry the model, method, step, stability, time base, tick statistics and
   counters.
@@ -63,7 +65,8 @@ class NodeDiagnostics:
         sim, drive, timing = node.sim, node.drive, node.timing
         w = node.stats.new_window()
         span = max(time.perf_counter() - w.wall, 1e-9)
-        deltas = {k: self._delta(k) for k in ("divergences", "rejected_nonfinite", "clamped", "rejected_bound")}
+        deltas = {k: self._delta(k) for k in ("divergences", "rejected_nonfinite", "clamped", "rejected_bound",
+                                              "tick_gaps")}
         self._seen = dict(c)
         prefix = node.get_name()
         last = node.last
@@ -75,6 +78,8 @@ class NodeDiagnostics:
         if deltas["divergences"]:
             reason = sim.last_divergence[0] if sim.last_divergence else "diverged"
             level, message = ERROR, f"{deltas['divergences']} divergence(s), restarted from the initial state: {reason}"
+        elif deltas["tick_gaps"]:
+            level, message = WARN, f"{deltas['tick_gaps']} gap(s) in the ticks; last: {timing.gaps.last.describe()}"
         elif not sim.started:
             message = "waiting for the first tick" + (" (no /clock yet)" if timing.use_sim_time() else "")
         elif w.overruns > max(1, 0.01 * w.ticks):
@@ -110,6 +115,9 @@ class NodeDiagnostics:
                 tick_lead_ms="-" if timing.lead_ns() is None else f"{timing.lead_ns() / 1e6:.3f}",
                 restarts=c["restarts"],
                 clock_jumps=c["clock_jumps"],
+                tick_gaps=c["tick_gaps"],
+                ticks_missed=c["ticks_missed"],
+                last_gap=timing.gaps.last.describe() if timing.gaps.last is not None else "none",
                 divergences=c["divergences"],
                 last_divergence=sim.last_divergence[0] if sim.last_divergence else "none",
                 recording="off" if recorder is None else recorder.status,

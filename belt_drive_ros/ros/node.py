@@ -89,7 +89,12 @@ the publishers' "matched" events; DDS would deliver to nobody otherwise).
 
 Failures
 --------
-The node never publishes a non-finite value and never stops silently. If
+The node never publishes a non-finite value and never stops silently. A
+stretch of its tick grid it could not publish (the process stopped or
+starved beyond the tick thread's 50 ms catch-up, the system clock stepped
+forward, a clock switch) is a *gap* (:mod:`.gaps`): logged, counted on
+``/diagnostics`` (``tick_gaps``, ``ticks_missed``, ``last_gap``; WARN in
+its window) and recorded as a ``tick_gap`` metadata record. If
 the integrator raises or the state becomes non-finite or exceeds
 :data:`~belt_drive_ros.core.simulate.SPEED_LIMIT`, it restarts from the
 scene's initial state at that tick (counted as ``divergences``) and reports
@@ -136,6 +141,7 @@ from ..io.recording import (  # noqa: E402
 )
 from .diagnostics import NodeDiagnostics  # noqa: E402
 from .executors import executor_name, make_executor, ros_session, spin_nodes  # noqa: E402,F401 - make_executor re-exported
+from .gaps import TICK_GAP_METADATA  # noqa: E402
 from .inputs import DriveInput  # noqa: E402
 from .parameter_schema import NodeConfigError, NodeSettings  # noqa: E402,F401 - NodeConfigError re-exported
 from .parameters import NodeParameters  # noqa: E402
@@ -226,6 +232,7 @@ class BeltDriveNode(Node):
         self._diagnostics_due = False  # set by the diagnostics timer while ticking on the system clock
         self._diag_timer = self.create_timer(1.0, self._on_diagnostics_timer, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.timing = TickSource(self, self._tick, self.sim, self.stats, after_tick=self._after_tick)
+        self.timing.gaps.on_gap = self._record_gap  # every gap in the ticks: a metadata record (see .gaps)
         self.timing.configure()
         s = settings
         self.get_logger().info(
@@ -307,6 +314,11 @@ class BeltDriveNode(Node):
             self._description = description
             self._pub_description.publish(String(data=description[0]))
             self._record_description()
+
+    def _record_gap(self, gap) -> None:
+        """A gap in the ticks (:mod:`.gaps`) as a ``tick_gap`` metadata record of the recording."""
+        if self.recorder is not None:
+            self.recorder.add_metadata(TICK_GAP_METADATA, gap.metadata())
 
     def _record_description(self) -> None:
         if self.recorder is not None and self._description[0]:

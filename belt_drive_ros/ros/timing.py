@@ -47,6 +47,7 @@ from rclpy.clock import Clock, ClockType, JumpThreshold
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from . import environment as ros_env
+from .gaps import TickGaps
 from .qos import CLOCK_QOS
 from .simulation import next_tick_ns
 
@@ -253,6 +254,7 @@ class TickThread:
                     target = self._next(now_ns() + lead)
                     if target is None:
                         continue
+                    source.gaps.tick(sim.t_ns, target, sim.settings.tick_ns, "system", "tick thread")
                     self._pending = source._tick(target, True)
                     busy = perf() - start
                     self._busy[self._n_busy % LEAD_WINDOW] = busy
@@ -314,6 +316,8 @@ class TickSource:
         self.sim_ns = 0  # publish_clock: the node's own simulated time
         self._anchor = (0, 0)  # publish_clock pacing: (sim ns, monotonic ns)
         self._ros_time: bool | None = None
+        #: gaps in the ticks (:mod:`.gaps`): counted, the last kept, each handed to ``gaps.on_gap``
+        self.gaps = TickGaps(stats.counters, lambda line: node.get_logger().warn(line))
         self._jump_handle = node.get_clock().create_jump_callback(
             JumpThreshold(min_forward=None, min_backward=None, on_clock_change=True), post_callback=self._on_clock_change
         )
@@ -392,6 +396,7 @@ class TickSource:
                 self._timers.append(node.create_timer(FREE_RUN_PERIOD_S, self._on_free_run, clock=steady))
         else:
             if was_publishing_clock:
+                self.gaps.switched(self.sim.t_ns, "publish_clock", self.time_base())
                 self.sim.stop()  # leaving our own time base: restart on the node clock at its next tick
             self._tick_timer = node.create_timer(s.tick_ns / 1e9, self._on_tick)
             self._timers.append(self._tick_timer)
@@ -426,7 +431,9 @@ class TickSource:
         if self.sim.settings.publish_clock or not self.use_sim_time() or self.sim.started:
             return
         with self.lock:
-            self._tick(msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
+            now = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+            self.gaps.tick(self.sim.t_ns, now, self.sim.settings.tick_ns, "sim_time", "first /clock")
+            self._tick(now)
 
     def _on_clock_change(self, jump) -> None:
         """ROS time (de)activated (use_sim_time toggled): restart on the new time base.
@@ -442,6 +449,8 @@ class TickSource:
             if self._thread is not None:  # the executor timer ticks on /clock
                 self._stop_thread(join=False)
             if not self.sim.settings.publish_clock:
+                new = self.time_base()
+                self.gaps.switched(self.sim.t_ns, "system" if new == "sim_time" else "sim_time", new)
                 self.sim.stop()
                 self._watch_first_clock()
             timer = self._tick_timer
@@ -475,6 +484,7 @@ class TickSource:
             now = self.node.get_clock().now().nanoseconds
             if not sim.started and now == 0:
                 return  # no /clock yet, or /clock = 0: the first-/clock subscription starts the run
+            self.gaps.tick(sim.t_ns, now, sim.settings.tick_ns, "sim_time", "executor timer")
             self._tick(now)
             self.stats.record(start, time.perf_counter(), None)
             return
@@ -494,12 +504,14 @@ class TickSource:
             if remaining is not None and 0 <= tick - remaining <= tick:
                 now = now + remaining - tick
             now -= now % SYSTEM_TIME_QUANTUM_NS
+        self.gaps.tick(sim.t_ns, now, sim.settings.tick_ns, "system", "executor timer")
         self._tick(now)
         self.stats.record(start, time.perf_counter(), self.nominal_period())
 
     def _master_tick(self, target_ns: int, start: float, nominal: float | None) -> None:
         self.sim_ns = target_ns
         with self.lock:
+            self.gaps.tick(self.sim.t_ns, target_ns, self.sim.settings.tick_ns, "publish_clock", "publish_clock")
             self._tick(target_ns)
             msg = self._clock_msg
             stamp(msg.clock, target_ns)

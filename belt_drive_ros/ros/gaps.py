@@ -1,0 +1,149 @@
+"""Gaps in the node's ticks: stretches of its tick grid never published (no rclpy).
+
+On the system clock the node publishes every tick of its grid
+``origin + k / step_rate_hz``; a tick thread that wakes late catches up
+tick by tick up to :data:`~belt_drive_ros.ros.timing.MAX_THREAD_CATCH_UP_NS`
+behind. Beyond that (the process was stopped by SIGSTOP or a suspend,
+starved of CPU, or the system clock stepped forward) it integrates to the
+latest grid point in one go, and the executor timer (``tick_thread:=false``)
+does so whenever it runs more than a period late: the ticks in between are
+never published. A clock switch (``use_sim_time`` toggled, ``publish_clock``
+turned off) restarts the run on the new time base, with no ticks in between
+either. Each such stretch is a :class:`TickGap`:
+
+* ``start_ns``: the last tick made before it, ``end_ns``: the first after it
+  [ns, the node's time base; across a clock switch the two are on different
+  bases];
+* ``missed``: the ticks of the grid never published in between,
+  ``(end - start) / tick - 1`` on one grid; across a clock switch the ticks
+  the node would have made in the wall (monotonic) time that passed;
+* ``cause``: what is known: a clock switch (which), the system clock stepped
+  forward (its step exceeds the monotonic time that passed), or the process
+  not running (monotonic time passed as well: SIGSTOP, suspend, starvation).
+
+On ``/clock`` the ticks follow the time master: a ``/clock`` jump is its
+decision, the node integrates exactly to the new time and reports no gap;
+with ``publish_clock`` the node's simulated time never skips a tick.
+
+:class:`TickGaps` finds them (:meth:`TickGaps.tick` before every tick,
+:meth:`TickGaps.switched` at a clock switch), counts them (``tick_gaps``,
+``ticks_missed``), keeps the last one for ``/diagnostics``, logs them (at
+most one line a second; the rest are counted in the next line) and hands
+each to ``on_gap`` (the node records it as an MCAP metadata record named
+:data:`TICK_GAP_METADATA`, which ``msg-tools info`` lists).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+from msg_tools.results import TICK_GAP_METADATA
+
+__all__ = ["TICK_GAP_METADATA", "TickGap", "TickGaps"]
+
+#: at most one log line per this many ns of monotonic time (the gaps in between are counted in it)
+LOG_EVERY_NS = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class TickGap:
+    """One stretch of the tick grid never published (module docstring)."""
+
+    start_ns: int
+    end_ns: int
+    missed: int
+    cause: str
+    time_base: str
+
+    @property
+    def duration_s(self) -> float:
+        """``end - start`` [s] (across a clock switch: of the two time bases, as stamped)."""
+        return (self.end_ns - self.start_ns) / 1e9
+
+    def describe(self) -> str:
+        return (f"{self.missed} tick(s) missed between {self.start_ns / 1e9:.6f} s and {self.end_ns / 1e9:.6f} s "
+                f"({self.time_base}): {self.cause}")
+
+    def metadata(self) -> dict[str, str]:
+        """The MCAP metadata record's values (strings; times in integer ns)."""
+        return {"start_ns": str(self.start_ns), "end_ns": str(self.end_ns), "ticks_missed": str(self.missed),
+                "cause": self.cause, "time_base": self.time_base}
+
+
+class TickGaps:
+    """Finds, counts and reports the gaps in a node's ticks (module docstring).
+
+    Parameters
+    ----------
+    counters : dict
+        The node's counters; ``tick_gaps`` and ``ticks_missed`` are added.
+    warn : callable
+        Takes one log line.
+    """
+
+    def __init__(self, counters: dict, warn: Callable[[str], None]):
+        self.counters = counters
+        counters.setdefault("tick_gaps", 0)
+        counters.setdefault("ticks_missed", 0)
+        self.warn = warn
+        #: called with each gap found (the node records it)
+        self.on_gap: Callable[[TickGap], None] | None = None
+        self.last: TickGap | None = None
+        self._mono: int | None = None  # monotonic time of the last tick made [ns]
+        self._switch: tuple | None = None  # (last tick [ns], its monotonic time [ns], bases so far)
+        self._logged_at: int | None = None
+        self._unlogged = 0
+
+    def tick(self, t_ns: int | None, now_ns: int, tick_ns: int, time_base: str, source: str) -> None:
+        """Before a tick integrates from ``t_ns`` (None: the run starts) to ``now_ns`` on ``time_base``.
+
+        A gap is the first tick after a clock switch, or, on the system clock,
+        a tick more than one period after the last one (``source`` names the
+        tick source: "tick thread", "executor timer").
+        """
+        mono = time.monotonic_ns()
+        if t_ns is None:
+            if self._switch is not None:
+                last, last_mono, bases = self._switch
+                self._switch = None
+                wall = mono - last_mono
+                chain = bases if bases[-1] == time_base else bases + [time_base]
+                self._add(TickGap(last, now_ns, max(0, wall // tick_ns - 1),
+                                  f"clock switched ({' -> '.join(chain)}); the run restarted after "
+                                  f"{wall / 1e9:.3f} s of wall time without ticks", f"{bases[0]} -> {time_base}"))
+        elif time_base == "system" and now_ns - t_ns > tick_ns:
+            step = now_ns - t_ns
+            wall = None if self._mono is None else mono - self._mono
+            if wall is not None and step - wall > max(tick_ns, step // 2):
+                cause = (f"the system clock stepped forward ({step / 1e9:.3f} s of node time in "
+                         f"{wall / 1e9:.3f} s of monotonic time); the {source} integrated to the latest tick")
+            else:
+                cause = (f"no tick for {step / 1e9:.3f} s: the process was stopped (SIGSTOP, suspend) or starved "
+                         f"of CPU; the {source} integrated to the latest tick")
+            self._add(TickGap(t_ns, now_ns, step // tick_ns - 1, cause, time_base))
+        self._mono = mono
+
+    def switched(self, t_ns: int | None, old_base: str, new_base: str) -> None:
+        """The node's clock switched from ``old_base`` to ``new_base``; the last tick was at ``t_ns``
+        (None: no tick since the previous switch, which stays the start of the gap)."""
+        if self._switch is not None:
+            last, last_mono, bases = self._switch
+            self._switch = (last, last_mono, bases + [new_base])
+        elif t_ns is not None:
+            self._switch = (t_ns, self._mono if self._mono is not None else time.monotonic_ns(), [old_base, new_base])
+
+    def _add(self, gap: TickGap) -> None:
+        self.counters["tick_gaps"] += 1
+        self.counters["ticks_missed"] += gap.missed
+        self.last = gap
+        if self.on_gap is not None:
+            self.on_gap(gap)
+        mono = time.monotonic_ns()
+        if self._logged_at is not None and mono - self._logged_at < LOG_EVERY_NS:
+            self._unlogged += 1
+            return
+        more = f" (and {self._unlogged} more gap(s) since the last line)" if self._unlogged else ""
+        self._logged_at, self._unlogged = mono, 0
+        self.warn(f"gap in the ticks: {gap.describe()}{more}")

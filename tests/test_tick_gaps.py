@@ -1,0 +1,153 @@
+"""Gaps in the node's ticks are reported (issue 24): logged, on ``/diagnostics``, in the recording,
+and by ``msg-tools info``.
+
+A stall past the tick thread's 50 ms catch-up (simulated as in
+``tests/test_tick_thread.py``: the node's lock held, as a stopped or starved
+process would leave it) and a clock switch each leave ticks never made;
+before, neither was logged nor flagged. One real SIGSTOP/SIGCONT of a node
+process checks the same end to end.
+"""
+
+from __future__ import annotations
+
+import io
+import signal
+import subprocess
+import sys
+import time
+from contextlib import redirect_stderr, redirect_stdout
+
+import numpy as np
+import pytest
+
+from belt_drive_ros.ros import environment as ros_env
+from belt_drive_ros.ros.gaps import TickGaps
+from belt_drive_ros.ros.harness import BeltDriveHarness
+from belt_drive_ros.ros.timing import MAX_THREAD_CATCH_UP_NS
+from msg_tools import summary
+from msg_tools.cli import main as msg_tools
+from msg_tools.results import TICK_GAP_METADATA, tick_gaps
+
+TICK_NS = 1_000_000
+
+
+def _info(path) -> tuple[int, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        code = msg_tools(["info", str(path)])
+    return code, out.getvalue()
+
+
+# ------------------------------------------------------------------ no ROS
+def test_gap_rules_without_ros():
+    counters, lines = {}, []
+    gaps = TickGaps(counters, lines.append)
+    found = []
+    gaps.on_gap = found.append
+    gaps.tick(None, 0, TICK_NS, "system", "tick thread")  # the run starts: no gap
+    for k in range(1, 5):
+        gaps.tick((k - 1) * TICK_NS, k * TICK_NS, TICK_NS, "system", "tick thread")  # one period each: none
+    assert counters == {"tick_gaps": 0, "ticks_missed": 0} and not found
+    gaps.tick(4 * TICK_NS, 3004 * TICK_NS, TICK_NS, "system", "tick thread")  # 3 s of node time at once
+    assert counters == {"tick_gaps": 1, "ticks_missed": 2999}
+    gap = found[-1]
+    assert (gap.start_ns, gap.end_ns, gap.missed) == (4 * TICK_NS, 3004 * TICK_NS, 2999)
+    # 3 s of node time in ~0 s of monotonic time: the system clock stepped, not a stopped process
+    assert "system clock stepped forward" in gap.cause and len(lines) == 1
+    gaps.tick(3004 * TICK_NS, 3006 * TICK_NS, TICK_NS, "sim_time", "executor timer")  # /clock jumps: its master's
+    assert counters["tick_gaps"] == 1
+    gaps.switched(3006 * TICK_NS, "system", "sim_time")
+    gaps.switched(None, "sim_time", "system")
+    gaps.tick(None, 9_000 * TICK_NS, TICK_NS, "system", "tick thread")
+    assert counters["tick_gaps"] == 2 and "system -> sim_time -> system" in found[-1].cause
+    assert found[-1].metadata()["start_ns"] == str(3006 * TICK_NS)
+    assert len(lines) == 1  # a second gap within a second: counted in the next line, not logged now
+
+
+def test_tick_gap_records_are_listed_once_each():
+    record = {"start_ns": "1", "end_ns": "5", "ticks_missed": "3", "cause": "x", "time_base": "system"}
+    metadata = [("scene", {}), (TICK_GAP_METADATA, record), (TICK_GAP_METADATA, record),
+                (TICK_GAP_METADATA, {**record, "start_ns": "7"})]
+    assert [g["start_ns"] for g in tick_gaps(metadata)] == ["1", "7"]
+
+
+# ------------------------------------------------------------------ in-process node
+@pytest.mark.ros
+def test_a_stall_is_a_gap_on_diagnostics_in_the_recording_and_in_msg_tools_info(ros_domain_id, tmp_path):
+    path = tmp_path / "run.mcap"
+    stall_ns = 4 * MAX_THREAD_CATCH_UP_NS
+    with BeltDriveHarness(use_sim_time=False, domain_id=ros_domain_id, input_timeout=0.0,
+                          record_path=str(path)) as h:
+        node = h.node
+        h._spin_until(lambda: len(h._rows) >= 20, "20 ticks")
+        before = node.counters["tick_gaps"]
+        with node.timing.lock:  # the tick thread cannot tick: a stopped or starved process
+            held_from = node.integrated_ns
+            time.sleep(stall_ns / 1e9)
+        h._spin_until(lambda: node.counters["tick_gaps"] > before, "the gap to be found")
+        gap = node.timing.gaps.last
+        assert gap.start_ns >= held_from and gap.end_ns - gap.start_ns >= stall_ns - 10 * TICK_NS
+        assert gap.missed == (gap.end_ns - gap.start_ns) // TICK_NS - 1 and gap.time_base == "system"
+        assert "stopped" in gap.cause and "tick thread" in gap.cause
+        assert node.counters["ticks_missed"] >= gap.missed
+        status = {s.name: s for s in node.diagnostic_status()}["belt_drive: simulation"]
+        values = {kv.key: kv.value for kv in status.values}
+        assert int(values["tick_gaps"]) >= 1 and values["last_gap"] == gap.describe()
+        assert status.level == status.WARN and "gap(s) in the ticks" in status.message
+        n_gaps = node.counters["tick_gaps"]
+    records = tick_gaps(summary(path).metadata)
+    assert len(records) == n_gaps
+    assert {"start_ns": str(gap.start_ns), "end_ns": str(gap.end_ns), "ticks_missed": str(gap.missed)}.items() \
+        <= records[-1].items()
+    code, out = _info(path)
+    assert code == 0 and f"Tick gaps:         {n_gaps} recorded by the node" in out
+    assert f"{gap.missed} missed" in out
+
+
+@pytest.mark.ros
+def test_a_clock_switch_is_a_gap(ros_domain_id, tmp_path):
+    with BeltDriveHarness(use_sim_time=False, domain_id=ros_domain_id, input_timeout=0.0) as h:
+        node = h.node
+        h._spin_until(lambda: len(h._rows) >= 20, "20 ticks")
+        before = node.counters["tick_gaps"]
+        assert h.set_parameters_over_the_service(use_sim_time=True)[0].successful
+        h.spin(0.3)
+        assert h.set_parameters_over_the_service(use_sim_time=False)[0].successful
+        h._spin_until(lambda: node.counters["tick_gaps"] > before, "the switch's gap")
+        gap = node.timing.gaps.last
+        assert "clock switched (system -> sim_time -> system)" in gap.cause
+        assert gap.time_base == "system -> system" and gap.missed >= 250  # ~0.3 s at 1 kHz without ticks
+
+
+# ------------------------------------------------------------------ a real SIGSTOP
+@pytest.mark.ros
+def test_sigstop_of_a_recording_node_is_a_recorded_gap(tmp_path):
+    path = tmp_path / "stopped.mcap"
+    domain = ros_env.process_domain_id(offset=47)
+    child = subprocess.Popen([sys.executable, "-m", "belt_drive_ros.cli", "node", "paper", "--ros-args", "-p",
+                              "input_timeout:=0.0", "-p", f"record_path:={path}"],
+                             env=ros_env.child_environment(domain), stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not path.exists() and time.monotonic() < deadline and child.poll() is None:
+            time.sleep(0.1)
+        time.sleep(1.0)
+        child.send_signal(signal.SIGSTOP)
+        time.sleep(1.5)
+        child.send_signal(signal.SIGCONT)
+        time.sleep(1.0)
+    finally:
+        child.send_signal(signal.SIGINT)
+        try:
+            _, err = child.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            _, err = child.communicate()
+    assert child.returncode == 0, err[-2000:]
+    assert "gap in the ticks" in err and "stopped" in err
+    records = tick_gaps(summary(path).metadata)
+    stopped = [g for g in records if int(g["ticks_missed"]) >= 1000]
+    assert len(stopped) == 1 and "stopped" in stopped[0]["cause"], records
+    code, out = _info(path)
+    assert code == 0 and "Tick gaps:" in out
