@@ -22,7 +22,8 @@ A file that is not whole (cut off: its writer was killed, the last chunk
 lost) fails the comparison, whatever its signals show: its last samples are
 missing, and a tolerance tube cannot see what is not there (a golden file
 cut after the last complete chunk lacked the last sample of six topics and
-passed). ``allow_incomplete=True`` compares what was read instead, with the
+passed). A cut file that holds every sample the other, whole, file has (cut
+after its data) lost nothing to compare and is not a failure. ``allow_incomplete=True`` compares what was read instead, with the
 missing samples named as a note.
 
 Folders of recordings are compared pairwise by file name
@@ -461,15 +462,18 @@ def compare(
 
 def _incomplete(bag, data: Dict[str, TopicData], side: str, other, other_data: Dict[str, TopicData]) -> List[str]:
     """One line when ``bag`` (file ``side``) was cut off: where it stopped and, against the other
-    file (when that one is whole), the samples it lacks per topic ([] for a whole file)."""
+    file (when that one is whole), the samples it lacks per topic. [] for a whole file, and for a
+    cut one that holds every sample of every topic the whole other file has (cut after its data)."""
     if bag.complete:
         return []
     lost = []
     if other.complete:
-        for topic, d in data.items():
-            o = other_data.get(topic)
-            if o is not None and len(o) > len(d):
-                lost.append(f"{topic} {len(o) - len(d)}")
+        for topic, o in other_data.items():
+            d = data.get(topic)
+            if d is None or len(o) > len(d):
+                lost.append(f"{topic} {len(o) - (0 if d is None else len(d))}")
+        if not lost:
+            return []
     what = (f"lacks the last samples of {len(lost)} topic{'s' if len(lost) != 1 else ''} against "
             f"{'B' if side == 'A' else 'A'}: {', '.join(lost)}" if lost else "its last samples are missing")
     return [f"{side} ({bag.path}) is incomplete ({bag.stop_reason or 'cut off'}): {what}"]

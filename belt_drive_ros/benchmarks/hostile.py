@@ -62,6 +62,7 @@ from msg_tools import Ros2McapWriter
 
 from ..core.params import OPTIONAL_DEFAULTS
 from ..core.scene import REQUIRED_KEYS
+from .hostile_paths import EXTRA_CATEGORIES  # issue 24: node SetParameters, FIFO read paths, truncated files
 
 OUTCOMES = ("clean error", "ok", "data lost", "silent wrong", "crash", "hang")
 #: seconds one input may take
@@ -481,8 +482,8 @@ def _classify_mcap(verb, status, out, err, intact: bool, prefix: bool) -> str:
     if status == 2:
         lines = [ln for ln in err.splitlines() if ln.startswith("msg-tools: error:")]
         return "clean error" if len(lines) == 1 else "crash"
-    if status == 1:  # info: DAMAGED; compare: FAIL
-        return "clean error" if ("DAMAGED" in out or verb == "compare") else "crash"
+    if status == 1:  # info: DAMAGED or INCOMPLETE; compare: FAIL
+        return "clean error" if ("DAMAGED" in out or "INCOMPLETE" in out or verb == "compare") else "crash"
     if intact:
         return "ok"
     return "data lost" if prefix and "warning:" in err else "silent wrong"
@@ -602,7 +603,8 @@ def parse_args(argv=None):
     p = argparse.ArgumentParser(prog="belt-drive bench hostile", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=Path("docs/bench"), help="folder for hostile.csv/.md (default docs/bench)")
     p.add_argument("--quick", action="store_true", help="a sample of each category (seconds to a minute)")
-    p.add_argument("--only", nargs="+", choices=("scene", "cli", "mcap", "node"), help="run only these categories")
+    p.add_argument("--only", nargs="+", choices=("scene", "cli", "mcap", "node", *EXTRA_CATEGORIES),
+                   help="run only these categories")
     p.add_argument("--domain-id", type=int, help="ROS domain of the node category (default: private to this process)")
     return p.parse_args(argv)
 
@@ -613,7 +615,7 @@ def main(argv=None) -> int:
 
     ros_env.configure_environment(loopback=True)
     table = Table()
-    todo = args.only or ("scene", "cli", "mcap", "node")
+    todo = args.only or ("scene", "cli", "mcap", "node", *EXTRA_CATEGORIES)
     start = time.monotonic()
     timings = {}
     with tempfile.TemporaryDirectory(prefix="belt_drive_hostile_") as tmp:
@@ -627,6 +629,9 @@ def main(argv=None) -> int:
                 run_cli(table, folder, args.quick)
             elif name == "mcap":
                 run_mcap(table, folder, args.quick)
+            elif name in EXTRA_CATEGORIES:
+                domain = args.domain_id if args.domain_id is not None else ros_env.process_domain_id(offset=37)
+                EXTRA_CATEGORIES[name](table, folder, args.quick, domain, sys.modules[__name__])
             else:
                 domain = args.domain_id if args.domain_id is not None else ros_env.process_domain_id(offset=37)
                 run_node(table, folder, args.quick, domain)
