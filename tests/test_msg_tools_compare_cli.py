@@ -263,22 +263,23 @@ def test_cli_truncated_bag_warns_reads_and_exits_1(capsys, tmp_path, golden):
 SHIPPED_GOLDEN = Path(__file__).resolve().parents[1] / "bags" / "engine_idle_golden.mcap"
 
 
-def _cut_golden(tmp_path, golden):
-    """The golden file cut inside its last data chunk (the summary and the last samples lost), as a
-    recorder killed before it finished leaves it; and what it lacks per topic."""
+def _cut_golden(tmp_path, golden, step=1000, lost_samples=True):
+    """The golden file cut from its end back in ``step`` bytes until it reads incomplete and (with
+    ``lost_samples``) lacks samples, as a recorder killed before it finished leaves it; the cut file
+    and what it lacks per topic."""
     from msg_tools import read_bag
 
     raw = golden.read_bytes()
     whole = {t: len(d) for t, d in read_bag(golden).topics.items()}
     cut = tmp_path / "cut.mcap"
-    for end in range(len(raw) - 1000, 0, -1000):
+    for end in range(len(raw) - step, 0, -step):
         cut.write_bytes(raw[:end])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             bag = read_bag(cut)
         if not bag.complete:
             lost = {t: n - len(bag.topics[t]) for t, n in whole.items() if n > len(bag.topics.get(t, ()))}
-            if lost:
+            if lost or not lost_samples:
                 return cut, lost
     raise AssertionError("no cut lost samples")
 
@@ -352,19 +353,8 @@ def test_importing_msg_tools_does_not_import_rclpy():
 
 def test_compare_passes_a_cut_file_that_holds_every_sample(capsys, tmp_path):
     """Cut after its last data chunk (the summary lost): incomplete, but nothing to compare is missing."""
-    from msg_tools import read_bag
-
-    raw = SHIPPED_GOLDEN.read_bytes()
-    whole = {t: len(d) for t, d in read_bag(SHIPPED_GOLDEN).topics.items()}
-    cut = tmp_path / "cut.mcap"
-    for end in range(len(raw) - 16, 0, -16):
-        cut.write_bytes(raw[:end])
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            bag = read_bag(cut)
-        if not bag.complete:
-            break
-    assert {t: len(d) for t, d in bag.topics.items()} == whole
+    cut, lost = _cut_golden(tmp_path, SHIPPED_GOLDEN, step=16, lost_samples=False)
+    assert lost == {}
     status, out, err = _cli(capsys, "compare", SHIPPED_GOLDEN, cut)
     assert status == 0 and out.splitlines()[-1].startswith("PASS"), out
     assert _cli(capsys, "info", cut)[0] == 1  # info cannot know what the lost end held: INCOMPLETE
