@@ -104,3 +104,27 @@ def test_names_the_os_refuses_are_answered_with_a_reason_and_the_node_keeps_tick
             assert reason in result.reason.lower(), (value[:80], result.reason)
         h.advance(0.01)
         assert h.outputs()["time"].size == n + 20
+
+
+def test_an_unexpected_exception_in_the_callbacks_is_an_answer_not_the_end_of_the_node(ros_domain_id, monkeypatch):
+    """Whatever fails inside validation (here: a RuntimeError injected into it) is a refusal with the
+    reason; a failure while applying an accepted change is logged; the node keeps ticking either way."""
+    from belt_drive_ros.ros import parameters
+
+    def boom(*args, **kwargs):
+        raise RuntimeError("injected failure")
+
+    with _no_hang(120.0), BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0) as h:
+        h.advance(0.01)
+        k = h.node.get_parameter("k").value
+        with monkeypatch.context() as m:
+            m.setattr(parameters, "build_settings", boom)
+            result = h.set_parameters_over_the_service(k=k * 1.1)[0]
+        assert not result.successful and "RuntimeError: injected failure" in result.reason
+        assert h.node.get_parameter("k").value == k
+        h.node.node_parameters._apply = boom
+        result = h.set_parameters_over_the_service(k=k * 1.2)[0]
+        assert result.successful  # validated and set; applying it failed, which the log says
+        n = h.outputs()["time"].size
+        h.advance(0.01)
+        assert h.outputs()["time"].size == n + 10

@@ -29,7 +29,6 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.parameter import Parameter
 
 from ..core.errors import BeltDriveError
-from ..core.inputs import short
 from ..core.params import FIELD_DOCS
 from .parameter_schema import (
     DEFAULT_SCENE,
@@ -142,14 +141,22 @@ class NodeParameters:
         return {name: self.node.get_parameter(name).value for name in OWN_PARAMETERS}
 
     def _on_pre_set(self, parameters: list[Parameter]) -> list[Parameter]:
+        """The request with a new scene's defaults added; never raises (as given, on any failure:
+        :meth:`_on_validate` then refuses it with the reason)."""
+        try:
+            return self._with_scene_defaults(parameters)
+        except Exception:  # noqa: BLE001 - an exception here would end the node's executor
+            return parameters
+
+    def _with_scene_defaults(self, parameters: list[Parameter]) -> list[Parameter]:
         parameters = [_as_double(p) for p in parameters]
         new_scene = next((p for p in parameters if p.name == "scene"), None)
         if new_scene is None or new_scene.value == self.node.get_parameter("scene").value:
             return parameters
         try:
             scene = self.scenes.get(new_scene.value)
-        except Exception:  # noqa: BLE001 - never raise inside rclpy's set_parameters: _on_validate reports it
-            return parameters
+        except BeltDriveError:
+            return parameters  # _on_validate reports it
         named = {p.name for p in parameters}
         extra = [_as_double(Parameter(n, value=v)) for n, v in scene_defaults(scene).items() if n not in named]
         return parameters + extra
@@ -161,7 +168,7 @@ class NodeParameters:
             return self._validate(parameters)
         except Exception as exc:  # noqa: BLE001 - any failure is a refusal with its reason
             self._pending = None
-            reason = f"refused: {type(exc).__name__}: {short(str(exc), 300)}"
+            reason = f"refused: {type(exc).__name__}: {' '.join(str(exc).split())[:300]}"
             self.node.get_logger().error(f"rejected parameter change: {reason}")
             return SetParametersResult(successful=False, reason=reason)
 
