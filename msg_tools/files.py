@@ -17,7 +17,8 @@ from __future__ import annotations
 import os
 import stat
 
-from belt_drive_ros.core import inputs as _inputs
+from belt_drive_ros.core.inputs import InputError, check_path
+from belt_drive_ros.core.inputs import open_regular as _open_regular
 
 from .errors import NotAFileError
 
@@ -28,8 +29,8 @@ def regular_path(path: str | os.PathLike, folder: bool = False, what: str = "bag
     """``os.stat`` of ``path`` if it is a regular file (or, with ``folder``, a directory), else
     :class:`NotAFileError` naming what it is (FIFO, device, socket, a name the OS refuses)."""
     try:
-        return _inputs.check_path(path, what, folder=folder)
-    except _inputs.InputError as exc:
+        return check_path(path, what, folder=folder)
+    except InputError as exc:
         raise NotAFileError(str(exc)) from None
 
 
@@ -37,8 +38,8 @@ def open_regular(path: str | os.PathLike, what: str = "bag") -> int:
     """A read-only descriptor of the regular file ``path`` (never blocks on a FIFO swapped in);
     refusals as :class:`NotAFileError`."""
     try:
-        return _inputs.open_regular(path, what)
-    except _inputs.InputError as exc:
+        return _open_regular(path, what)
+    except InputError as exc:
         raise NotAFileError(str(exc)) from None
 
 
