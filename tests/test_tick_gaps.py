@@ -151,3 +151,24 @@ def test_sigstop_of_a_recording_node_is_a_recorded_gap(tmp_path):
     assert len(stopped) == 1 and "stopped" in stopped[0]["cause"], records
     code, out = _info(path)
     assert code == 0 and "Tick gaps:" in out
+
+
+def test_short_gaps_are_each_counted_and_handed_on_together():
+    """An executor timer a few periods late (``tick_thread:=false`` on a loaded machine: ~100 a second)
+    is a gap each time, counted one by one; the recording gets one aggregate record per second at most."""
+    counters, found = {}, []
+    gaps = TickGaps(counters, lambda line: None)
+    gaps.on_gap = found.append
+    t = 0
+    gaps.tick(None, t, TICK_NS, "system", "executor timer")
+    for k in range(100):
+        gaps.tick(t, t + 3 * TICK_NS, TICK_NS, "system", "executor timer")  # 2 ticks missed each
+        t += 3 * TICK_NS
+    assert counters == {"tick_gaps": 100, "ticks_missed": 200} and found == []  # collected, not yet handed on
+    assert "ran 3 ms after the last tick" in gaps.last.cause
+    gaps.tick(t, t + 2_000 * TICK_NS, TICK_NS, "system", "tick thread")  # a long one: the short ones first
+    assert [g.missed for g in found] == [200, 1999]
+    assert found[0].start_ns == 0 and found[0].end_ns == 300 * TICK_NS and "100 short gaps" in found[0].cause
+    gaps.tick(t + 2_000 * TICK_NS, t + 2_003 * TICK_NS, TICK_NS, "system", "executor timer")
+    gaps.flush()  # the node's end
+    assert found[-1].missed == 2 and len(found) == 3

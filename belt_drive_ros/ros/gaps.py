@@ -30,7 +30,10 @@ with ``publish_clock`` the node's simulated time never skips a tick.
 ``ticks_missed``), keeps the last one for ``/diagnostics``, logs them (at
 most one line a second; the rest are counted in the next line) and hands
 each to ``on_gap`` (the node records it as an MCAP metadata record named
-:data:`TICK_GAP_METADATA`, which ``msg-tools info`` lists).
+:data:`TICK_GAP_METADATA`, which ``msg-tools info`` lists). Short gaps (under
+:data:`SHORT_GAP_NS`: an executor timer a few periods late, as
+``tick_thread:=false`` has on a loaded machine) are each counted, but handed
+on together, one aggregate gap per second at most (:meth:`TickGaps.flush`).
 """
 
 from __future__ import annotations
@@ -45,6 +48,11 @@ __all__ = ["TICK_GAP_METADATA", "TickGap", "TickGaps"]
 
 #: at most one log line per this many ns of monotonic time (the gaps in between are counted in it)
 LOG_EVERY_NS = 1_000_000_000
+#: a gap shorter than this [ns of node time] is *short* (an executor timer a few periods late, ~100 a
+#: second on a loaded machine with ``tick_thread:=false``): the short ones of up to SHORT_WINDOW_NS of
+#: monotonic time are handed on as one aggregate gap, so that a recording gets at most a record a second
+SHORT_GAP_NS = 50_000_000
+SHORT_WINDOW_NS = 1_000_000_000
 
 
 @dataclass(frozen=True)
@@ -95,6 +103,7 @@ class TickGaps:
         self._switch: tuple | None = None  # (last tick [ns], its monotonic time [ns], bases so far)
         self._logged_at: int | None = None
         self._unlogged = 0
+        self._short: list | None = None  # [first gap, its monotonic time, count, ticks missed, last end, longest]
 
     def tick(self, t_ns: int | None, now_ns: int, tick_ns: int, time_base: str, source: str) -> None:
         """Before a tick integrates from ``t_ns`` (None: the run starts) to ``now_ns`` on ``time_base``.
@@ -104,6 +113,8 @@ class TickGaps:
         tick source: "tick thread", "executor timer").
         """
         mono = time.monotonic_ns()
+        if self._short is not None and mono - self._short[1] > SHORT_WINDOW_NS:
+            self.flush()
         if t_ns is None:
             if self._switch is not None:
                 last, last_mono, bases = self._switch
@@ -116,13 +127,15 @@ class TickGaps:
         elif time_base == "system" and now_ns - t_ns > tick_ns:
             step = now_ns - t_ns
             wall = None if self._mono is None else mono - self._mono
-            if wall is not None and step - wall > max(tick_ns, step // 2):
+            if step < SHORT_GAP_NS:
+                cause = f"the {source} ran {step / 1e6:.3g} ms after the last tick and integrated to the latest tick"
+            elif wall is not None and step - wall > max(tick_ns, step // 2):
                 cause = (f"the system clock stepped forward ({step / 1e9:.3f} s of node time in "
                          f"{wall / 1e9:.3f} s of monotonic time); the {source} integrated to the latest tick")
             else:
                 cause = (f"no tick for {step / 1e9:.3f} s: the process was stopped (SIGSTOP, suspend) or starved "
                          f"of CPU; the {source} integrated to the latest tick")
-            self._add(TickGap(t_ns, now_ns, step // tick_ns - 1, cause, time_base))
+            self._add(TickGap(t_ns, now_ns, step // tick_ns - 1, cause, time_base), short=step < SHORT_GAP_NS)
         self._mono = mono
 
     def switched(self, t_ns: int | None, old_base: str, new_base: str) -> None:
@@ -134,13 +147,36 @@ class TickGaps:
         elif t_ns is not None:
             self._switch = (t_ns, self._mono if self._mono is not None else time.monotonic_ns(), [old_base, new_base])
 
-    def _add(self, gap: TickGap) -> None:
+    def flush(self) -> None:
+        """Hand on the short gaps collected so far as one aggregate gap (also when the node ends)."""
+        short, self._short = self._short, None
+        if short is None or self.on_gap is None:
+            return
+        first, _, count, missed, end, longest = short
+        if count == 1:
+            self.on_gap(first)
+            return
+        self.on_gap(TickGap(first.start_ns, end, missed, f"{count} short gaps (each under "
+                            f"{SHORT_GAP_NS / 1e6:g} ms, the longest {longest / 1e6:.3g} ms; first: {first.cause})",
+                            first.time_base))
+
+    def _add(self, gap: TickGap, short: bool = False) -> None:
         self.counters["tick_gaps"] += 1
         self.counters["ticks_missed"] += gap.missed
         self.last = gap
-        if self.on_gap is not None:
-            self.on_gap(gap)
         mono = time.monotonic_ns()
+        if short:
+            if self._short is None:
+                self._short = [gap, mono, 0, 0, 0, 0]
+            agg = self._short
+            agg[2] += 1
+            agg[3] += gap.missed
+            agg[4] = gap.end_ns
+            agg[5] = max(agg[5], gap.end_ns - gap.start_ns)
+        else:
+            self.flush()
+            if self.on_gap is not None:
+                self.on_gap(gap)
         if self._logged_at is not None and mono - self._logged_at < LOG_EVERY_NS:
             self._unlogged += 1
             return

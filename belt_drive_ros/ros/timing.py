@@ -465,6 +465,7 @@ class TickSource:
 
     def destroy(self) -> None:
         self._stop_thread(join=True)
+        self.gaps.flush()  # short gaps still collected: to the recording before it closes
         for timer in self._timers:
             self.node.destroy_timer(timer)
         self._timers.clear()
