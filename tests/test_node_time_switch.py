@@ -45,8 +45,6 @@ def test_ticks_resume_at_once_after_use_sim_time_goes_back_to_false(ros_domain_i
             assert not np.any((s > on_sim_time) & (s < back))  # no /clock: no ticks
             after = np.sort(s[s >= back])
             assert after[0] - back < 1_000_000_000  # resumed at once (the bug: 2-20 s later)
-            if tick_thread:  # the thread publishes every tick of its grid
-                assert np.all(np.diff(after[:50]) == TICK_NS)
             assert np.all((after - node.origin_ns) % TICK_NS == 0)  # a new run on its own grid
             assert node.timing.threaded() == tick_thread
 
