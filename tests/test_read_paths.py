@@ -49,6 +49,9 @@ def fifo(tmp_path):
     "sim paper --duration 0.1 --quiet --torque-bag {fifo}",
     "sim {fifo} --duration 0.1 --quiet",
     "sim paper --duration 0.1 --quiet --torque-bag /dev/zero",
+    "source profile --csv {fifo}",
+    "replay {fifo}",
+    "urdf {fifo}",
 ])
 def test_belt_drive_refuses_a_fifo_or_device_without_opening_it(fifo, command):
     code, err = _run(BELT_DRIVE + command.format(fifo=fifo).split())

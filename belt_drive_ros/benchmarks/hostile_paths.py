@@ -11,8 +11,8 @@
 * ``fifo read paths``: every command that reads a user's path, given a FIFO
   nobody writes to (``open()`` would block), ``/dev/zero`` and a folder:
   ``sim`` (scene, ``--torque-bag``), ``urdf``, ``scenes``, ``source profile``
-  (CSV), ``node --params-file`` and ``msg-tools info|export|plot|compare``
-  (either side). Clean: one error line, exit 2.
+  (CSV, scene), ``replay``, ``node --params-file`` and ``msg-tools
+  info|export|plot|compare`` (either side). Clean: one error line, exit 2.
 * ``truncated files``: a node recording and the shipped golden runs cut at
   many points through ``msg-tools info`` and ``compare`` (either side).
   ``info`` must exit 1 (INCOMPLETE or DAMAGED) when messages were lost and
@@ -124,6 +124,9 @@ def run_fifo_reads(table, tmp: Path, quick: bool, domain_id: int, tools) -> None
         "urdf SCENE": (belt_drive, ["urdf", "{p}", "--out", str(out / "x.urdf")], "belt-drive: error:"),
         "scenes SCENE": (belt_drive, ["scenes", "{p}"], "belt-drive: error:"),
         "node --params-file": (belt_drive, ["node", "paper", "--ros-args", "--params-file", "{p}"], "belt-drive"),
+        "source profile --csv": (belt_drive, ["source", "profile", "--csv", "{p}"], "belt-drive: error:"),
+        "source profile --scene": (belt_drive, ["source", "profile", "--scene", "{p}"], "belt-drive: error:"),
+        "replay": (belt_drive, ["replay", "{p}"], "belt-drive: error:"),
         "msg-tools info": (msg_tools, ["info", "{p}"], "msg-tools: error:"),
         "msg-tools export": (msg_tools, ["export", "{p}", "--topic", "/joint_states"], "msg-tools: error:"),
         "msg-tools plot": (msg_tools, ["plot", "{p}", "--out", str(out / "x.png")], "msg-tools: error:"),
