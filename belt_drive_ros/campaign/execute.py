@@ -24,16 +24,19 @@ runs only the batches without a part file.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import signal
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 
-from ..core.errors import BeltDriveError
+from ..core.errors import BeltDriveError, InputError
+from ..core.inputs import read_text
 from .metrics import GROUP_REDUCTION, METRICS, group_metrics, run_metrics, summary_metrics
 from .spec import Campaign, CampaignError
 
@@ -43,6 +46,8 @@ MIN_TASK_SECONDS = 0.1
 MAX_BATCH = 2000
 #: variants of the first (sizing) batch
 FIRST_BATCH = 64
+#: largest manifest.json read back on resume [bytes] (its batch bounds: ~20 bytes per batch)
+MANIFEST_LIMIT = 64 << 20
 
 
 # ------------------------------------------------------------------ worker side
@@ -83,8 +88,8 @@ def run_batch(portable: dict, rows, recordings_dir: str | None = None):
         try:
             scenes.append(campaign.scene_of(row))
             built.append(record)
-        except (BeltDriveError, ValueError, TypeError) as exc:
-            record.update(ran="none", error=f"{type(exc).__name__}: {exc}")
+        except Exception as exc:  # noqa: BLE001 - whatever a variant's values break, it is that variant's row
+            record.update(ran="none", error=f"{type(exc).__name__}: {' '.join(str(exc).split())[:400]}")
         out.append(record)
     from ..core.ensemble_run import GroupRun, GroupSummary, run_groups
 
@@ -151,7 +156,8 @@ class CampaignRun:
     ``wall``: seconds of this invocation; ``compute_wall``: of its batches
     (from the first task sent to the last part written: without starting
     and stopping a cluster); ``computed``: variants run now
-    (the others came from an earlier, interrupted invocation); ``workers``.
+    (the others came from an earlier, interrupted invocation); ``workers``;
+    ``signum``: the signal that interrupted it (SIGINT, SIGTERM), else 0.
     """
 
     table: object
@@ -162,6 +168,7 @@ class CampaignRun:
     interrupted: bool = False
     notes: list = field(default_factory=list)
     compute_wall: float = 0.0
+    signum: int = 0
 
 
 class _Progress:
@@ -191,15 +198,17 @@ class _Progress:
 
 
 def _portable(campaign: Campaign) -> dict:
-    """What a worker needs to rebuild the campaign: the base scene inline, folders absolute."""
+    """What a worker needs to rebuild the campaign: the base scene inline, folders absolute (not the file's
+    text: the digest names it; the mapping goes to each worker once, :func:`run_campaign` scatters it)."""
     data = yaml_safe(campaign)
-    return {"data": data, "base_dir": ".", "text": campaign.text, "digest": campaign.digest()}
+    return {"data": data, "base_dir": ".", "text": "", "digest": campaign.digest()}
 
 
 def yaml_safe(campaign: Campaign) -> dict:
     """The campaign as a mapping with its (overridden) base scene inline."""
+    grid = {k: [campaign.decode[k][v] for v in values] if k in campaign.decode else values for k, values in campaign.grid.items()}
     data = {
-        "name": campaign.name, "scene": campaign.base_mapping, "grid": campaign.grid, "profiles": campaign.profiles,
+        "name": campaign.name, "scene": campaign.base_mapping, "grid": grid, "profiles": campaign.profiles,
         "metrics": list(campaign.metrics), "limits": campaign.limits,
     }  # fmt: skip
     if campaign.vary:
@@ -219,8 +228,9 @@ def _cluster(scheduler: str | None, workers: int | None):
     if scheduler:
         try:
             client = Client(scheduler, timeout="10s")
-        except OSError as exc:
-            raise CampaignError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+        except (OSError, ValueError, TypeError, KeyError) as exc:  # unreachable, refused, an unknown protocol
+            text = " ".join(str(exc).split())[:200] or type(exc).__name__
+            raise CampaignError(f"--scheduler {scheduler[:200]}: cannot connect ({text})") from None
         return client, None
     cluster = local_cluster(workers or os.cpu_count() or 1)
     return Client(cluster), cluster
@@ -303,8 +313,11 @@ def run_campaign(
     digest = campaign.digest()
     manifest = None
     if manifest_path.exists() and not force:
-        manifest = json.loads(manifest_path.read_text())
-        if manifest.get("digest") != digest:
+        try:
+            manifest = json.loads(read_text(manifest_path, "manifest", limit=MANIFEST_LIMIT))
+        except (InputError, ValueError) as exc:
+            raise CampaignError(f"{out_dir}: its manifest.json is unreadable ({exc}); use another --out or --force") from None
+        if not isinstance(manifest, dict) or manifest.get("digest") != digest:
             raise CampaignError(
                 f"{out_dir}: holds results of another campaign (or of an edited file); use another --out or --force"
             )
@@ -320,19 +333,21 @@ def run_campaign(
     if campaign.fleet_folder is not None:
         recordings_dir = out_dir / "recordings"
         recordings_dir.mkdir(parents=True, exist_ok=True)
-    portable = _portable(campaign)
     own = client is None
     cluster = None
     if own:
         client, cluster = _cluster(scheduler, workers)
     n_workers = max(len(client.scheduler_info().get("workers", {})), 1)
+    portable = _portable(campaign)
     draw = progress if progress is not None else sys.stderr.isatty()
     interrupted = False
+    signum = 0
     computed = 0
     notes = []
     compute_start = time.perf_counter()
     compute_end = compute_start
     try:
+        portable = client.scatter(portable, broadcast=True, hash=False)  # once per worker, not in every task
         bounds = manifest.get("bounds")
         if bounds is None:  # size the batches from first ones, one per worker at once (no worker idles meanwhile)
             first = batch_size or min(FIRST_BATCH, n)
@@ -379,14 +394,13 @@ def run_campaign(
             computed += b - a
             bar.update(b - a)
         compute_end = time.perf_counter()
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM as io.atomic.Terminated
         interrupted = True
+        signum = int(getattr(exc, "signum", signal.SIGINT))
         notes.append("interrupted: run the same command again to resume")
     finally:
         if own:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+            _close(client, cluster)
     parts = sorted(parts_dir.glob("part-*.parquet"))
     frames = [pd.read_parquet(p) for p in parts]
     result = pd.concat(frames, ignore_index=True).sort_values("variant", kind="stable").reset_index(drop=True) if frames else table.iloc[:0]
@@ -398,8 +412,33 @@ def run_campaign(
     else:
         interrupted = True
     return CampaignRun(
-        result, out_dir, time.perf_counter() - start, computed, n_workers, interrupted, notes, compute_end - compute_start
+        result, out_dir, time.perf_counter() - start, computed, n_workers, interrupted, notes, compute_end - compute_start,
+        signum,
     )
+
+
+def _close(client, cluster) -> None:
+    """Close the client and the local cluster; a second interrupt meanwhile does not leave the workers running."""
+    with _signals_held():
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+@contextlib.contextmanager
+def _signals_held():
+    """SIGINT and SIGTERM ignored in the block (main thread only): closing the cluster is not cut short."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def loop_of_single_runs(campaign: Campaign, rows, check_stability: bool = True) -> list:

@@ -35,9 +35,10 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import itertools
 import json
 import math
+import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -45,7 +46,10 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from ..core.errors import BeltDriveError
+from ..core.errors import BeltDriveError, InputError
+from ..core.inputs import boolean, number, parse_yaml, read_text, sequence, short
+from ..core.inputs import mapping as as_mapping
+from ..core.inputs import text as string
 from ..core.params import FIELD_DOCS
 from ..core.scene import Scene, load_scene
 from ..core.sources import make_profile
@@ -59,9 +63,18 @@ class CampaignError(BeltDriveError, ValueError):
     """A campaign file is malformed (the message names the key)."""
 
 
-def _path_of(key: str) -> tuple:
-    """Canonical key path: ``k`` -> ``("params", "k")``; errors name the key."""
-    parts = tuple(str(key).split("."))
+#: largest campaign file [bytes]: a campaign is a page of YAML (profiles inline included)
+CAMPAIGN_LIMIT = 1 << 20
+#: largest ``monte_carlo.seed`` (numpy's generators take any non-negative integer; YAML's stop at 2^63)
+MAX_SEED = 2**63
+
+
+def _path_of(key, where: str = "") -> tuple:
+    """Canonical key path: ``k`` -> ``("params", "k")``; errors name the key (under ``where``)."""
+    label = f"{where}{short(key, 60) if not isinstance(key, str) else key[:80]}"
+    if not isinstance(key, str):
+        raise CampaignError(f"{label}: a key path must be text (params.NAME, drive.FIELD, ...)")
+    parts = tuple(key.split("."))
     if len(parts) == 1:
         if parts[0] in FIELD_DOCS:
             return ("params", parts[0])
@@ -69,12 +82,26 @@ def _path_of(key: str) -> tuple:
             return parts
     elif len(parts) == 2 and parts[0] in ("params", "drive", "load", "initial_state"):
         if parts[0] == "params" and parts[1] not in FIELD_DOCS:
-            raise CampaignError(f"{key}: unknown parameter; known: {', '.join(FIELD_DOCS)}")
-        return parts
+            raise CampaignError(f"{label}: unknown parameter; known: {', '.join(FIELD_DOCS)}")
+        if parts[1]:
+            return parts
     raise CampaignError(
-        f"{key}: not a key path; use params.NAME (or NAME), drive.FIELD, load.FIELD, initial_state.FIELD "
+        f"{label}: not a key path; use params.NAME (or NAME), drive.FIELD, load.FIELD, initial_state.FIELD "
         f"or one of {', '.join(TOP_LEVEL)}"
     )
+
+
+def _key_paths(entries: Mapping, where: str) -> list:
+    """``(canonical key path, key as given, value)`` of a mapping of key paths; ``k`` and ``params.k`` both
+    given is an error."""
+    out, given = [], {}
+    for key, value in entries.items():
+        path = ".".join(_path_of(key, where))
+        if path in given:
+            raise CampaignError(f"{where}{path}: given twice (as {given[path]} and {key})")
+        given[path] = key
+        out.append((path, key, value))
+    return out
 
 
 @dataclass(frozen=True)
@@ -88,37 +115,51 @@ class Distribution:
 
     @classmethod
     def parse(cls, key: str, spec: Any) -> "Distribution":
+        where = f"monte_carlo.vary.{key}"
         if not isinstance(spec, Mapping):
-            raise CampaignError(f"monte_carlo.vary.{key}: expected {{normal: ...}} or {{uniform: ...}}")
+            raise CampaignError(f"{where}: expected {{normal: ...}} or {{uniform: ...}}, got {type(spec).__name__} {short(spec)}")
         kinds = [k for k in ("normal", "uniform") if k in spec]
-        unknown = sorted(set(spec) - {"normal", "uniform", "absolute"})
+        unknown = sorted(str(k)[:60] for k in set(spec) - {"normal", "uniform", "absolute"})
         if len(kinds) != 1 or unknown:
-            raise CampaignError(f"monte_carlo.vary.{key}: give exactly one of normal, uniform (and optionally absolute)")
+            raise CampaignError(f"{where}: give exactly one of normal, uniform (and optionally absolute)")
         kind, value = kinds[0], spec[kinds[0]]
-        absolute = bool(spec.get("absolute", False))
+        absolute = boolean(spec.get("absolute", False), f"{where}.absolute", CampaignError)
         if kind == "normal":
-            if isinstance(value, (int, float)) and not absolute:
-                a, b = 1.0, float(value)  # relative standard deviation about the base value
+            if isinstance(value, (int, float)) and not isinstance(value, bool) and not absolute:
+                a, b = 1.0, number(value, f"{where}.normal", low=0.0, error=CampaignError)  # relative std
             elif isinstance(value, (list, tuple)) and len(value) == 2:
-                a, b = float(value[0]), float(value[1])
+                a = number(value[0], f"{where}.normal[0] (mean)", error=CampaignError)
+                b = number(value[1], f"{where}.normal[1] (std)", low=0.0, error=CampaignError)
             else:
-                raise CampaignError(f"monte_carlo.vary.{key}.normal: a relative std, or [mean, std]")
-            if not b >= 0:
-                raise CampaignError(f"monte_carlo.vary.{key}.normal: std must be >= 0, got {b}")
+                form = "[mean, std]" if absolute else "a relative std, or [mean, std]"
+                raise CampaignError(f"{where}.normal: {form}, got {type(value).__name__} {short(value)}")
+            if not math.isfinite(abs(a) + 10.0 * b):
+                raise CampaignError(f"{where}.normal: mean and std too large (|mean| + 10 std overflows)")
         else:
             if not (isinstance(value, (list, tuple)) and len(value) == 2):
-                raise CampaignError(f"monte_carlo.vary.{key}.uniform: [low, high]")
-            a, b = float(value[0]), float(value[1])
+                raise CampaignError(f"{where}.uniform: [low, high], got {type(value).__name__} {short(value)}")
+            a = number(value[0], f"{where}.uniform[0] (low)", error=CampaignError)
+            b = number(value[1], f"{where}.uniform[1] (high)", error=CampaignError)
             if not b >= a:
-                raise CampaignError(f"monte_carlo.vary.{key}.uniform: high must be >= low, got [{a}, {b}]")
-        if not (math.isfinite(a) and math.isfinite(b)):
-            raise CampaignError(f"monte_carlo.vary.{key}: values must be finite")
+                raise CampaignError(f"{where}.uniform: high must be >= low, got [{a:g}, {b:g}]")
+            if not math.isfinite(b - a):
+                raise CampaignError(f"{where}.uniform: [{a:g}, {b:g}] is wider than a float can hold")
         return cls(kind, a, b, absolute)
 
     def sample(self, rng: np.random.Generator, base: float, size: int) -> np.ndarray:
         """``size`` draws [unit of the field]: normal(mean, std) or uniform(low, high), times ``base`` when relative."""
         x = rng.normal(self.a, self.b, size) if self.kind == "normal" else rng.uniform(self.a, self.b, size)
         return x if self.absolute else base * x
+
+
+def _column(key: str, values: list) -> tuple[list, dict | None]:
+    """A grid key's values as a column of one type: numbers, booleans or strings as they are; anything else
+    (a mix of types, null, lists, mappings) as each value's JSON text, with the map back to the values."""
+    kinds = {bool if isinstance(v, bool) else (float if isinstance(v, (int, float)) else type(v)) for v in values}
+    if len(kinds) == 1 and kinds <= {bool, float, str}:
+        return list(values), None
+    texts = [json.dumps(v, sort_keys=True, default=str) for v in values]
+    return texts, dict(zip(texts, values))
 
 
 @dataclass
@@ -138,97 +179,141 @@ class Campaign:
     metrics: tuple = tuple(METRICS)
     limits: dict = field(default_factory=lambda: dict(DEFAULT_LIMITS))
     text: str = ""
+    #: per grid key whose values mix types: the table's JSON text -> the value (:func:`_column`)
+    decode: dict = field(default_factory=dict)
+    #: fleet campaigns: (name, size, mtime_ns) of every recording and golden file, for the digest
+    fleet_state: list = field(default_factory=list)
 
     # ------------------------------------------------------------------ loading
     @classmethod
     def load(cls, path) -> "Campaign":
-        """Parse a campaign file; every error names the key."""
+        """Parse a campaign file; every error names the key.
+
+        The file is read through :mod:`belt_drive_ros.core.inputs` as a scene
+        file is: a regular UTF-8 file of at most :data:`CAMPAIGN_LIMIT` bytes
+        (its size checked before anything is read), YAML without aliases,
+        anchors, deep nesting or duplicate keys, YAML 1.2 numbers.
+        """
         path = Path(path)
-        if not path.is_file():
-            raise CampaignError(f"campaign file not found: {path}")
-        text = path.read_text()
+        label = f"campaign file {short(str(path), 200)}"
         try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            raise CampaignError(f"{path}: not valid YAML: {str(exc).splitlines()[0]}") from None
+            text = read_text(path, "campaign file", limit=CAMPAIGN_LIMIT)
+            data = parse_yaml(text, label)
+        except InputError as exc:
+            raise CampaignError(str(exc)) from None
         return cls.from_mapping(data, base_dir=path.parent, text=text)
 
     @classmethod
     def from_mapping(cls, data: Mapping, base_dir=".", text: str | None = None) -> "Campaign":
         if not isinstance(data, Mapping):
-            raise CampaignError("campaign: expected a mapping at the top level")
-        unknown = sorted(set(data) - set(KEYS))
+            raise CampaignError(f"campaign: expected a mapping at the top level, got {type(data).__name__} {short(data)}")
+        unknown = sorted(str(k)[:60] for k in set(data) - set(KEYS))
         if unknown:
             raise CampaignError(f"{unknown[0]}: unknown key; known keys: {', '.join(KEYS)}")
         base_dir = Path(base_dir)
+        for key in ("name", "description"):
+            if data.get(key) is not None:
+                value = string(data[key], key, CampaignError)
+                if len(value) > 200 or any(c in value for c in "\n\r\0/"):
+                    raise CampaignError(f"{key}: one line of at most 200 characters, without '/', got {short(value)}")
         scene_ref = data.get("scene")
-        if not scene_ref:
-            raise CampaignError("scene: a shipped scene name or a scene file is required")
         if isinstance(scene_ref, Mapping):  # inline (what a worker receives)
             base = Scene.from_mapping(scene_ref)
+        elif isinstance(scene_ref, str) and scene_ref:
+            candidate = base_dir / scene_ref
+            by_path = candidate.suffix in (".yaml", ".yml") or os.sep in scene_ref
+            base = load_scene(candidate if by_path else scene_ref)
         else:
-            candidate = base_dir / str(scene_ref)
-            base = load_scene(candidate if candidate.suffix in (".yaml", ".yml") else scene_ref)
+            raise CampaignError(f"scene: a shipped scene name or a scene file is required, got {short(scene_ref)}")
         mapping = base.to_dict()
-        for key, value in (data.get("set") or {}).items():
-            _assign(mapping, _path_of(key), value)
+        for path, _, value in _key_paths(_mapping(data, "set"), "set."):
+            _assign(mapping, tuple(path.split(".")), value)
         base = Scene.from_mapping(mapping)
-        grid = {}
-        for key, values in (data.get("grid") or {}).items():
-            if not isinstance(values, (list, tuple)) or not values:
-                raise CampaignError(f"grid.{key}: a non-empty list of values")
-            grid[".".join(_path_of(key))] = list(values)
-        profiles = list(data.get("profiles") or [])
+        grid, decode = {}, {}
+        for key, given, values in _key_paths(_mapping(data, "grid"), "grid."):
+            column, back = _column(key, sequence(values, f"grid.{given}", CampaignError, nonempty=True))
+            grid[key] = column
+            if back is not None:
+                decode[key] = back
+        profiles = sequence(data.get("profiles") or [], "profiles", CampaignError)
         for j, entry in enumerate(profiles):
             if not isinstance(entry, Mapping) or not entry or set(entry) - {"drive", "load"}:
-                raise CampaignError(f"profiles[{j}]: a mapping with drive and/or load")
+                raise CampaignError(f"profiles[{j}]: a mapping with drive and/or load, got {short(entry)}")
             for role, spec in entry.items():
-                make_profile(spec, role)  # validated here, by the profile's own rules
-        mc = data.get("monte_carlo") or {}
-        bad = sorted(set(mc) - {"samples", "seed", "vary"})
+                try:
+                    make_profile(spec, role)  # validated here, by the profile's own rules
+                except BeltDriveError as exc:
+                    raise CampaignError(f"profiles[{j}].{exc}") from None
+        mc = _mapping(data, "monte_carlo")
+        bad = sorted(str(k)[:60] for k in set(mc) - {"samples", "seed", "vary"})
         if bad:
             raise CampaignError(f"monte_carlo.{bad[0]}: unknown key; known: samples, seed, vary")
-        samples = int(mc.get("samples", 0) or 0)
-        if mc and samples < 1:
-            raise CampaignError("monte_carlo.samples: must be >= 1")
-        vary = {".".join(_path_of(k)): Distribution.parse(k, v) for k, v in (mc.get("vary") or {}).items()}
-        if mc and not vary:
-            raise CampaignError("monte_carlo.vary: name at least one key path and its distribution")
+        samples = seed = 0
+        vary = {}
+        if mc:
+            samples = number(mc.get("samples"), "monte_carlo.samples", low=1, integer=True, error=CampaignError)
+            seed = number(mc.get("seed", 0), "monte_carlo.seed", low=0, high=MAX_SEED, integer=True, error=CampaignError)
+            entries = _key_paths(_mapping(mc, "vary", "monte_carlo."), "monte_carlo.vary.")
+            vary = {path: Distribution.parse(given, spec) for path, given, spec in entries}
+            if not vary:
+                raise CampaignError("monte_carlo.vary: name at least one key path and its distribution")
+        for key, dist in vary.items():
+            if key in grid:
+                raise CampaignError(
+                    f"monte_carlo.vary.{key}: also a grid key; a key varies by the grid or by the Monte Carlo "
+                    "draws, not both (a draw would replace the grid value)"
+                )
+            base_value = _lookup(mapping, tuple(key.split(".")))
+            if not dist.absolute and (isinstance(base_value, bool) or not isinstance(base_value, (int, float))):
+                raise CampaignError(
+                    f"monte_carlo.vary.{key}: a relative tolerance needs a numeric base value, got {short(base_value)}; "
+                    "give absolute: true"
+                )
         fleet = data.get("fleet")
         fleet_folder = golden = None
         if fleet is not None:
             if not isinstance(fleet, Mapping) or "folder" not in fleet or set(fleet) - {"folder", "golden"}:
-                raise CampaignError("fleet: a mapping with folder (and optionally golden)")
+                raise CampaignError(f"fleet: a mapping with folder (and optionally golden), got {short(fleet)}")
             if grid or profiles or mc:
                 raise CampaignError("fleet: a fleet campaign has no grid, profiles or monte_carlo")
-            fleet_folder = (base_dir / str(fleet["folder"])).resolve()
-            if not fleet_folder.is_dir():
-                raise CampaignError(f"fleet.folder: not a folder: {fleet_folder}")
-            if fleet.get("golden"):
-                golden = (base_dir / str(fleet["golden"])).resolve()
-                if not golden.is_dir():
-                    raise CampaignError(f"fleet.golden: not a folder: {golden}")
-        metrics = tuple(data.get("metrics") or METRICS)
+            fleet_folder = _folder(base_dir, fleet["folder"], "fleet.folder")
+            if fleet.get("golden") is not None:
+                golden = _folder(base_dir, fleet["golden"], "fleet.golden")
+        names = data.get("metrics")
+        metrics = tuple(METRICS) if names is None else tuple(sequence(names, "metrics", CampaignError, nonempty=True))
         for name in metrics:
-            if name not in METRICS:
-                raise CampaignError(f"metrics: unknown metric {name!r}; known: {', '.join(METRICS)}")
+            if not isinstance(name, str) or name not in METRICS:
+                raise CampaignError(f"metrics: unknown metric {short(name)}; known: {', '.join(METRICS)}")
+        if len(set(metrics)) != len(metrics):
+            raise CampaignError(f"metrics: a metric named twice in {short(list(metrics))}")
         limits = dict(DEFAULT_LIMITS)
-        for name, value in (data.get("limits") or {}).items():
-            if name not in METRICS:
-                raise CampaignError(f"limits.{name}: not a metric; known: {', '.join(METRICS)}")
-            limits[name] = float(value)
+        for name, value in _mapping(data, "limits").items():
+            if not isinstance(name, str) or name not in METRICS:
+                raise CampaignError(f"limits.{short(name, 60)}: not a metric; known: {', '.join(METRICS)}")
+            limits[name] = number(value, f"limits.{name}", error=CampaignError)
         if text is None:
             text = yaml.safe_dump(dict(data), sort_keys=True)
-        return cls(
-            name=str(data.get("name") or base.name), base=base, base_mapping=mapping, grid=grid, profiles=profiles,
-            samples=samples, seed=int(mc.get("seed", 0) or 0), vary=vary, fleet_folder=fleet_folder,
-            golden_folder=golden, metrics=metrics, limits=limits, text=text,
+        campaign = cls(
+            name=data.get("name") or base.name, base=base, base_mapping=mapping, grid=grid, profiles=profiles,
+            samples=samples, seed=seed, vary=vary, fleet_folder=fleet_folder, golden_folder=golden,
+            metrics=metrics, limits=limits, text=text, decode=decode,
         )  # fmt: skip
+        if fleet_folder is not None:
+            campaign.fleet_state = _fleet_state(campaign.fleet_files(), golden)
+        return campaign
+
+    @property
+    def size(self) -> int:
+        """Number of variants (grid points x profiles x samples; fleet: recordings), without building the table."""
+        if self.fleet_folder is not None:
+            return sum(1 for entry in self.fleet_state if entry[0] == "recording")
+        n = math.prod(len(v) for v in self.grid.values())
+        return n * max(len(self.profiles), 1) * (self.samples if self.vary else 1)
 
     # ------------------------------------------------------------------ variants
     def fleet_files(self) -> list[Path]:
-        """The fleet's recordings (``*.mcap`` in the folder, sorted by name)."""
-        return sorted(p for p in self.fleet_folder.iterdir() if p.suffix == ".mcap") if self.fleet_folder else []
+        """The fleet's recordings (``*.mcap`` in the folder, sorted by name; each checked to be a regular file)."""
+        return _recordings(self.fleet_folder, "fleet.folder") if self.fleet_folder else []
 
     def variants(self):
         """The variant table: one row per variant, a column per varied key path (a pandas DataFrame).
@@ -236,30 +321,33 @@ class Campaign:
         Fleet campaigns have one column, ``recording`` (file name). Others:
         the grid's key paths, ``profile`` (index into ``profiles``) when
         profiles are listed, and the Monte Carlo key paths; ``variant`` is
-        the row number. Monte Carlo draws come from one
+        the row number. Variants are grid points (the last grid key
+        varying fastest) x profiles x samples. Monte Carlo draws come from one
         ``numpy.random.default_rng(seed)``, key by key in file order, so
-        the table is reproducible.
+        the table is reproducible. Every column holds one type (a grid key
+        whose values mix types holds their JSON text: :func:`_column`).
         """
         import pandas as pd
 
         if self.fleet_folder is not None:
-            files = self.fleet_files()
-            return pd.DataFrame({"variant": np.arange(len(files)), "recording": [p.name for p in files]})
-        points = list(itertools.product(*self.grid.values())) if self.grid else [()]
-        profiles = list(range(len(self.profiles))) if self.profiles else [None]
+            names = [name for role, name, *_ in self.fleet_state if role == "recording"]
+            return pd.DataFrame({"variant": np.arange(len(names)), "recording": pd.Series(names, dtype=object)})
+        lengths = [len(v) for v in self.grid.values()]
+        profiles = len(self.profiles)
         samples = self.samples if self.vary else 1
-        n = len(points) * len(profiles) * samples
+        n = self.size
         columns: dict = {"variant": np.arange(n)}
-        combos = list(itertools.product(points, profiles))
-        for j, key in enumerate(self.grid):
-            columns[key] = np.repeat([c[0][j] for c in combos], samples)
+        combo = np.arange(n) // samples  # the grid point and profile of each row
+        point = combo // max(profiles, 1)
+        index = np.unravel_index(point, lengths) if lengths else ()
+        for j, (key, values) in enumerate(self.grid.items()):
+            column = _array(values)
+            columns[key] = column[index[j]]
         if self.profiles:
-            columns["profile"] = np.repeat([c[1] for c in combos], samples)
+            columns["profile"] = combo % profiles
         rng = np.random.default_rng(self.seed)
         for key, dist in self.vary.items():
             base = _lookup(self.base_mapping, tuple(key.split(".")))
-            if not dist.absolute and not isinstance(base, (int, float)):
-                raise CampaignError(f"monte_carlo.vary.{key}: relative tolerance needs a numeric base value, got {base!r}")
             columns[key] = dist.sample(rng, float(base or 0.0), n)
         return pd.DataFrame(columns)
 
@@ -284,6 +372,8 @@ class Campaign:
             if key in ("variant", "profile"):
                 continue
             value = value.item() if hasattr(value, "item") else value
+            if key in self.decode:
+                value = self.decode[key][value]
             path = key.split(".")
             parts["top" if len(path) == 1 else path[0]][path[-1]] = value
         changes = {k: v for k, v in parts["top"].items()}
@@ -301,8 +391,10 @@ class Campaign:
         return dataclasses.replace(self.base, **changes) if changes else self.base
 
     def digest(self) -> str:
-        """Identity of the campaign (its file text and base scene): a resumed run must match it."""
-        blob = json.dumps([self.text, self.base_mapping], sort_keys=True, default=str)
+        """Identity of the campaign: its file text, base scene and, for a fleet, the name, size and modification
+        time of every recording and golden file. A resumed run must match it (a recording renamed, added,
+        removed or rewritten since the interrupted run is another campaign)."""
+        blob = json.dumps([self.text, self.base_mapping, self.fleet_state], sort_keys=True, default=str)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
@@ -318,6 +410,76 @@ def _profile(spec: Mapping, role: str):
             _PROFILES.clear()
         found = _PROFILES[key] = make_profile(spec, role)
     return found
+
+
+def _array(values: list) -> np.ndarray:
+    """A grid key's values (one type, :func:`_column`) as an array: int64, float64, bool or str objects."""
+    if isinstance(values[0], str):
+        return np.asarray(values, dtype=object)
+    if isinstance(values[0], bool):
+        return np.asarray(values, dtype=bool)
+    if all(isinstance(v, int) and -(2**63) <= v < 2**63 for v in values):
+        return np.asarray(values, dtype=np.int64)
+    return np.asarray([float(v) for v in values], dtype=float)
+
+
+def _mapping(data: Mapping, key: str, where: str = "") -> dict:
+    """``data[key]`` as a dict ({} when absent or null), else an error naming ``where + key``."""
+    return as_mapping(data.get(key), f"{where}{key}", CampaignError, empty={})
+
+
+def _kind(mode: int) -> str:
+    for test, name in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a device"),
+                       (stat.S_ISBLK, "a device"), (stat.S_ISSOCK, "a socket")):  # fmt: skip
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def _folder(base_dir: Path, value, key: str) -> Path:
+    """The folder ``value`` (relative to the campaign file), which must exist and be a folder."""
+    if not isinstance(value, str) or not value:
+        raise CampaignError(f"{key}: a folder path, got {type(value).__name__} {short(value)}")
+    folder = (base_dir / value).resolve()
+    try:
+        mode = os.stat(folder).st_mode
+    except OSError as exc:
+        raise CampaignError(f"{key}: {short(str(folder), 200)}: {exc.strerror or exc}") from None
+    if not stat.S_ISDIR(mode):
+        raise CampaignError(f"{key}: {short(str(folder), 200)} is {_kind(mode)}, not a folder")
+    return folder
+
+
+def _recordings(folder: Path, key: str, *, empty_ok: bool = False) -> list[Path]:
+    """The ``*.mcap`` files of ``folder`` by name, each checked (``os.stat``, nothing opened) to be a regular file:
+    a FIFO would block its reader forever, a device never end."""
+    try:
+        names = sorted(entry.name for entry in os.scandir(folder) if entry.name.endswith(".mcap"))
+    except OSError as exc:
+        raise CampaignError(f"{key}: {short(str(folder), 200)}: {exc.strerror or exc}") from None
+    files = []
+    for name in names:
+        path = folder / name
+        try:
+            mode = os.stat(path).st_mode
+        except OSError as exc:
+            raise CampaignError(f"{key}: {short(name)}: {exc.strerror or exc}") from None
+        if not stat.S_ISREG(mode):
+            raise CampaignError(f"{key}: {short(name)} is {_kind(mode)}; a recording must be a regular file")
+        files.append(path)
+    if not files and not empty_ok:
+        raise CampaignError(f"{key}: no .mcap recordings in {short(str(folder), 200)}")
+    return files
+
+
+def _fleet_state(recordings: list[Path], golden: Path | None) -> list:
+    """(role, name, size, mtime_ns) of every recording and golden file: what a fleet's digest covers."""
+    out = []
+    for role, files in (("recording", recordings), ("golden", _recordings(golden, "fleet.golden", empty_ok=True) if golden else [])):
+        for path in files:
+            st = os.stat(path)
+            out.append((role, path.name, st.st_size, st.st_mtime_ns))
+    return out
 
 
 def _lookup(mapping: Mapping, path: tuple):

@@ -16,7 +16,19 @@ Every path the project reads a user's scene or table from goes through
   **duplicate keys an error** (no silent last-wins);
 * **YAML 1.2 numbers**: ``2.0e4`` and ``1e1`` are floats (PyYAML's YAML 1.1
   rules read them as strings), so a quoted ``'2e4'`` is a string and numeric
-  fields can refuse strings.
+  fields can refuse strings;
+* **values checked with the key named** (:func:`number`, :func:`boolean`,
+  :func:`mapping`, :func:`sequence`, :func:`text`): a string is not a number
+  nor a boolean, a boolean is not a number, ``2.7`` is not a count, ``.inf``
+  and ``.nan`` are not finite.
+
+Every YAML file the project reads goes through here: scene files
+(:mod:`belt_drive_ros.core.scene`), campaign files
+(:mod:`belt_drive_ros.campaign.spec`), a bag folder's ``metadata.yaml`` and
+the YAML inside MCAP metadata and channel records (:mod:`msg_tools`), and
+``--params-file`` files of ``belt-drive node``. The module uses the standard
+library and PyYAML only, so that :mod:`msg_tools` (which never imports the
+rest of this package) can use it too.
 
 Errors are :class:`~belt_drive_ros.core.errors.InputError` (a
 :class:`~belt_drive_ros.core.errors.SceneError`): one line, naming the file,
@@ -26,9 +38,11 @@ large.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import stat
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -36,8 +50,10 @@ import yaml
 
 from .errors import InputError
 
-__all__ = ["MAX_DEPTH", "SCENE_LIMIT", "InputError", "check_path", "open_regular", "parse_yaml", "read_text", "read_yaml",
-           "short"]
+__all__ = [
+    "MAX_DEPTH", "SCENE_LIMIT", "InputError", "boolean", "check_path", "mapping", "number", "open_regular", "parse_yaml",
+    "read_text", "read_yaml", "sequence", "short", "text",
+]  # fmt: skip
 
 #: largest scene / parameter YAML file [bytes]; the shipped scenes are ~2 kB
 SCENE_LIMIT = 1 << 20
@@ -251,3 +267,70 @@ def read_yaml(path: str | os.PathLike, what: str = "YAML file", limit: int = SCE
     """:func:`read_text` then :func:`parse_yaml` (errors name the file)."""
     text = read_text(path, what, limit)
     return parse_yaml(text, f"{what} {short(str(path), 200)}")
+
+
+# ------------------------------------------------------------------ typed values, the key named
+def _refuse(error, key: str, expected: str, value: Any):
+    return error(f"{key}: must be {expected}, got {type(value).__name__} {short(value)}")
+
+
+def number(
+    value: Any, key: str, *, low: float | None = None, high: float | None = None, integer: bool = False,
+    error: type[Exception] = InputError,
+) -> float | int:  # fmt: skip
+    """``value`` as a finite number in ``[low, high]`` (an ``int`` when ``integer``), else ``error`` naming ``key``.
+
+    Booleans and strings are refused (``'2e4'`` is text, ``true`` is not 1);
+    with ``integer`` a float is taken only when whole (``1e3`` is 1000,
+    ``2.7`` is refused, never truncated).
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _refuse(error, key, "a whole number" if integer else "a number", value)
+    if isinstance(value, float) and not math.isfinite(value):
+        raise _refuse(error, key, "a finite number", value)
+    if integer:
+        if isinstance(value, float):
+            if not value.is_integer():
+                raise _refuse(error, key, "a whole number", value)
+            value = int(value)
+    elif abs(value) > MAX_INT:
+        raise _refuse(error, key, "a finite number", value)
+    else:
+        value = float(value)
+    if (low is not None and value < low) or (high is not None and value > high):
+        lo = "-inf" if low is None else f"{low:g}"
+        hi = "inf" if high is None else f"{high:g}"
+        raise error(f"{key}: {value:g} is outside [{lo}, {hi}]")
+    return value
+
+
+def boolean(value: Any, key: str, error: type[Exception] = InputError) -> bool:
+    """``value`` if it is ``true`` or ``false`` (a string such as ``'false'`` is refused), else ``error``."""
+    if not isinstance(value, bool):
+        raise _refuse(error, key, "true or false", value)
+    return value
+
+
+def text(value: Any, key: str, error: type[Exception] = InputError) -> str:
+    """``value`` if it is a string, else ``error`` naming ``key``."""
+    if not isinstance(value, str):
+        raise _refuse(error, key, "a string", value)
+    return value
+
+
+def mapping(value: Any, key: str, error: type[Exception] = InputError, *, empty: dict | None = None) -> dict:
+    """``value`` as a dict; ``None`` (the key given empty) is ``empty`` when that is given, else ``error``."""
+    if value is None and empty is not None:
+        return dict(empty)
+    if not isinstance(value, Mapping):
+        raise _refuse(error, key, "a mapping (key: value)", value)
+    return dict(value)
+
+
+def sequence(value: Any, key: str, error: type[Exception] = InputError, *, nonempty: bool = False) -> list:
+    """``value`` as a list (a YAML sequence), non-empty if asked, else ``error`` naming ``key``."""
+    if not isinstance(value, (list, tuple)):
+        raise _refuse(error, key, "a non-empty list" if nonempty else "a list", value)
+    if nonempty and not value:
+        raise error(f"{key}: must be a non-empty list, got []")
+    return list(value)

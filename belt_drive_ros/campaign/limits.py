@@ -1,0 +1,128 @@
+"""Up-front limits of a campaign, checked against the machine before anything runs, and its estimate.
+
+A campaign's size is known from its file alone (:attr:`~belt_drive_ros.campaign.spec.Campaign.size`:
+grid points x profiles x samples, or the recordings of a fleet), so a campaign
+that cannot fit is refused in one line, with what it would have cost, before
+its variant table is built or a worker started:
+
+* **variants**: at most :data:`MAX_VARIANTS` per campaign (a larger study is
+  several campaigns, each with its own ``--out``);
+* **memory**: the client holds the variant table and the result table
+  (~:data:`ROW_BYTES` per variant and column, twice while the parts are joined);
+  they must fit in half the memory the machine has available;
+* **workers** of the local cluster: at most :data:`WORKERS_PER_CPU` per CPU
+  (more only take turns on the same CPUs), each ~:data:`WORKER_BYTES` of
+  memory, all within the memory available.
+
+The time estimate is the ensemble's measured cost (``belt-drive bench
+campaign``: ~0.45 us of worker CPU per variant and step on ``paper``, plus
+~0.1 ms per variant) over the workers; runs that go singly (slipping,
+adaptive methods, fleets) take longer, so it is a lower bound for those.
+"""
+
+from __future__ import annotations
+
+import os
+
+from .spec import Campaign, CampaignError
+
+#: most variants one campaign may hold
+MAX_VARIANTS = 1_000_000
+#: client memory per variant and table column [bytes] (numbers; strings ~60 bytes, counted as such)
+ROW_BYTES = 8
+#: memory of one worker process with numpy, scipy, pandas and the package loaded [bytes]
+WORKER_BYTES = 200 * 2**20
+#: most local worker processes per CPU
+WORKERS_PER_CPU = 2
+#: worker CPU per variant and step of an ensemble [s], and per variant [s] (scene, metrics, table row)
+STEP_SECONDS, VARIANT_SECONDS = 0.5e-6, 1.0e-4
+
+
+def available_memory() -> int:
+    """Memory the machine has available now [bytes] (``MemAvailable`` of /proc/meminfo, else free pages)."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, AttributeError):
+        return 2**40  # unknown: no memory limit
+
+
+def _size(n: float) -> str:
+    for unit, scale in (("TB", 2**40), ("GB", 2**30), ("MB", 2**20), ("kB", 2**10)):
+        if n >= scale:
+            return f"{n / scale:.3g} {unit}"
+    return f"{n:.0f} bytes"
+
+
+def _duration(s: float) -> str:
+    if s >= 2 * 86400:
+        return f"{s / 86400:.3g} days"
+    if s >= 2 * 3600:
+        return f"{s / 3600:.3g} h"
+    if s >= 120:
+        return f"{s / 60:.3g} min"
+    return f"{s:.2g} s"
+
+
+def table_bytes(campaign: Campaign, n: int) -> int:
+    """Client memory of the variant and result tables of ``n`` variants [bytes] (peak: while the parts are joined)."""
+    varied = len(campaign.grid) + len(campaign.vary) + (1 if campaign.profiles else 0) + 1
+    strings = 4 + (4 if campaign.golden_folder is not None else 0) + (1 if campaign.fleet_folder else 0)
+    per_row = ROW_BYTES * (2 * varied + len(campaign.metrics) + 2) + 60 * strings
+    return 2 * n * per_row
+
+
+def seconds(campaign: Campaign, n: int, workers: int) -> float:
+    """Estimated wall time of ``n`` variants on ``workers`` workers [s] (a lower bound for runs that go singly)."""
+    steps = campaign.base.duration / campaign.base.dt
+    return n * (VARIANT_SECONDS + steps * STEP_SECONDS) / max(workers, 1)
+
+
+def estimate(campaign: Campaign, workers: int) -> str:
+    """``N variants (...): ~T on W workers, ~M of tables``: what the campaign costs, in one phrase."""
+    n = campaign.size
+    if campaign.fleet_folder is not None:
+        shape = "recordings"
+    else:
+        axes = [str(len(v)) for v in campaign.grid.values()]
+        axes += [f"{len(campaign.profiles)} profiles"] if campaign.profiles else []
+        axes += [f"{campaign.samples} samples"] if campaign.vary else []
+        shape = " x ".join(axes) if axes else "the base scene"
+    return (f"{n:,} variants ({shape}): ~{_duration(seconds(campaign, n, workers))} on {workers} "
+            f"worker{'s' if workers != 1 else ''}, ~{_size(table_bytes(campaign, n))} of tables")  # fmt: skip
+
+
+def check(campaign: Campaign, workers: int | None, local: bool = True) -> int:
+    """Refuse (:class:`CampaignError`, one line with the estimate) a campaign or a worker count beyond the
+    machine; return the number of workers the estimate assumes (``workers``, default one per CPU)."""
+    cpus = os.cpu_count() or 1
+    memory = available_memory()
+    if workers is not None:
+        if not local:
+            raise CampaignError("--workers: sizes the local cluster; with --scheduler the cluster has its own workers")
+        most = max(1, min(WORKERS_PER_CPU * cpus, memory // WORKER_BYTES))
+        if workers > most:
+            raise CampaignError(
+                f"--workers {workers}: {workers:,} worker processes need ~{_size(workers * WORKER_BYTES)} of memory "
+                f"(~{_size(WORKER_BYTES)} each); this machine has {cpus} CPUs and {_size(memory)} available: "
+                f"use at most {most}"
+            )
+    workers = workers or cpus
+    n = campaign.size
+    if n > MAX_VARIANTS:
+        raise CampaignError(
+            f"campaign: {estimate(campaign, workers)}; more than the {MAX_VARIANTS:,} variants one campaign may "
+            "hold: split it into campaigns (each with its own --out) or draw fewer samples"
+        )
+    if table_bytes(campaign, n) > memory // 2:
+        raise CampaignError(
+            f"campaign: {estimate(campaign, workers)}; more than half the {_size(memory)} of memory this machine "
+            "has available: split it into campaigns or vary fewer keys"
+        )
+    return workers
