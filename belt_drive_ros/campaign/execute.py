@@ -239,8 +239,8 @@ def _cluster(scheduler: str | None, workers: int | None):
 def local_cluster(workers: int):
     """A ``LocalCluster`` on 127.0.0.1: ``workers`` single-threaded worker processes, BLAS single-threaded.
 
-    Without Dask's ``MALLOC_TRIM_THRESHOLD_=65536`` in the workers'
-    environment (``distributed.nanny.pre-spawn-environ``; meant against
+    The workers ignore SIGINT (:func:`dask_setup`). Without Dask's
+    ``MALLOC_TRIM_THRESHOLD_=65536`` in the workers' environment (``distributed.nanny.pre-spawn-environ``; meant against
     fragmentation in long-lived workers): setting it switches off glibc's
     adaptive mmap threshold, so every array over 128 kB (a window of an
     ensemble's outputs) is a fresh mmap, faulted in page by page and
@@ -253,6 +253,7 @@ def local_cluster(workers: int):
     import dask
     from distributed import LocalCluster
 
+    _quiet_resource_tracker()
     env = dict(dask.config.get("distributed.nanny.pre-spawn-environ", default={}) or {})
     env["MALLOC_TRIM_THRESHOLD_"] = None  # None: not set (Dask's way to unset a pre-spawn variable)
     # a nanny started earlier in this process left it in os.environ (it updates the parent's environment)
@@ -261,11 +262,54 @@ def local_cluster(workers: int):
         with dask.config.set({"distributed.nanny.pre-spawn-environ": env}):
             return LocalCluster(
                 n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL,
+                dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL, preload=[__name__],
             )  # fmt: skip
     finally:
         if inherited is not None:
             os.environ["MALLOC_TRIM_THRESHOLD_"] = inherited
+
+
+def _quiet_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker (if this process has none yet) with its stderr on /dev/null.
+
+    The worker processes' queues and locks are semaphores the tracker
+    removes when this process ends; if the process is killed (SIGKILL, out
+    of memory) it still removes them, but first warns of "leaked semaphore
+    objects" on the terminal, after the command has gone. Nothing is
+    leaked: the warning only is kept off the terminal.
+    """
+    from multiprocessing import resource_tracker
+
+    try:
+        saved = os.dup(2)
+    except OSError:
+        return
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, 2)
+            resource_tracker.ensure_running()
+        finally:
+            os.dup2(saved, 2)
+            os.close(null)
+    except OSError:
+        pass
+    finally:
+        os.close(saved)
+
+
+def dask_setup(worker) -> None:
+    """Dask preload hook of the local cluster's workers (``preload=[this module]``): SIGINT ignored.
+
+    Ctrl-C in a terminal goes to the whole process group, the workers
+    included; each would print a traceback of its event loop. The client
+    alone handles it (the batches finished are kept, the cluster is closed,
+    one line; exit 130) and closes the workers.
+    """
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _write_part(path: Path, rows) -> None:
@@ -347,7 +391,8 @@ def run_campaign(
     compute_start = time.perf_counter()
     compute_end = compute_start
     try:
-        portable = client.scatter(portable, broadcast=True, hash=False)  # once per worker, not in every task
+        # once per worker, not inside every task (a list: a dict would be scattered value by value)
+        portable = client.scatter([portable], broadcast=True, hash=False)[0]
         bounds = manifest.get("bounds")
         if bounds is None:  # size the batches from first ones, one per worker at once (no worker idles meanwhile)
             first = batch_size or min(FIRST_BATCH, n)

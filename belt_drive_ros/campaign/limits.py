@@ -15,9 +15,10 @@ its variant table is built or a worker started:
   memory, all within the memory available.
 
 The time estimate is the ensemble's measured cost (``belt-drive bench
-campaign``: ~0.45 us of worker CPU per variant and step on ``paper``, plus
-~0.1 ms per variant) over the workers; runs that go singly (slipping,
-adaptive methods, fleets) take longer, so it is a lower bound for those.
+campaign``: ~1.3 ms of worker wall time per 1000-step run of ``paper``,
+taken as ~1 us per variant and step plus ~0.2 ms per variant) over the
+workers; a machine busy with other work is slower, and runs that go singly
+(slipping, adaptive methods, fleets) take longer: it is a lower bound for those.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ WORKER_BYTES = 200 * 2**20
 #: most local worker processes per CPU
 WORKERS_PER_CPU = 2
 #: worker CPU per variant and step of an ensemble [s], and per variant [s] (scene, metrics, table row)
-STEP_SECONDS, VARIANT_SECONDS = 0.5e-6, 1.0e-4
+STEP_SECONDS, VARIANT_SECONDS = 1.0e-6, 2.0e-4
 
 
 def available_memory() -> int:
@@ -67,7 +68,7 @@ def _duration(s: float) -> str:
         return f"{s / 3600:.3g} h"
     if s >= 120:
         return f"{s / 60:.3g} min"
-    return f"{s:.2g} s"
+    return f"{s:.2g} s" if s >= 1 else "<1 s"
 
 
 def table_bytes(campaign: Campaign, n: int) -> int:
