@@ -46,25 +46,21 @@ def bag_files(path: Union[str, "os.PathLike[str]"]) -> List[str]:
     if not os.path.isdir(path):
         return [path]
     meta = os.path.join(path, METADATA_FILE)
-    if os.path.isfile(meta):
-        import yaml
-
-        try:
-            with open(meta, "rb") as f:
-                if os.fstat(f.fileno()).st_size > 16 * 2**20:
-                    raise CorruptBagError(f"{meta}: larger than 16 MiB; not a rosbag2 metadata file")
-                data = yaml.safe_load(f.read().decode("utf-8"))
-            info = data["rosbag2_bagfile_information"]
-            relative = [str(p) for p in info.get("relative_file_paths") or []]
-        except (yaml.YAMLError, UnicodeDecodeError, KeyError, TypeError, AttributeError) as exc:
-            raise CorruptBagError(f"{meta}: not a rosbag2 metadata file ({type(exc).__name__})") from None
+    info = _metadata(path)
+    if info is not None:
+        relative = info.get("relative_file_paths")
+        if relative is None:
+            relative = []
+        if not isinstance(relative, list) or not all(isinstance(p, str) and p for p in relative):
+            raise CorruptBagError(f"{meta}: relative_file_paths is not a list of file names")
         files = [os.path.join(path, p) for p in relative]
-        missing = [f for f in files if not os.path.isfile(f)]
-        if missing:
-            raise CorruptBagError(f"{meta} lists {missing[0]}, which does not exist")
+        for file in files:
+            _check_regular(file, f"{meta} lists")
         if files:
             return files
     found = [f for f in os.listdir(path) if f.endswith(".mcap")]
+    for name in found:
+        _check_regular(os.path.join(path, name), "the folder holds")
     if not found:
         raise BagNotFoundError(path, "is a directory without .mcap files")
 
@@ -76,17 +72,56 @@ def bag_files(path: Union[str, "os.PathLike[str]"]) -> List[str]:
     return [os.path.join(path, f) for f in sorted(found, key=split_index)]
 
 
-def _listed_files(path: str) -> List[Dict[str, Any]]:
-    """The ``files`` entries of a bag folder's ``metadata.yaml`` (path, start, duration, count); [] if none."""
-    import yaml
+#: largest metadata.yaml read [bytes] (rosbag2 writes ~300 bytes per split file and topic)
+METADATA_LIMIT = 16 * 2**20
+
+
+def _metadata(path: str) -> Optional[Dict[str, Any]]:
+    """The ``rosbag2_bagfile_information`` mapping of the folder's ``metadata.yaml``; None without one.
+
+    Read through the package's bounded loader (``belt_drive_ros.core.inputs``:
+    a regular UTF-8 file under :data:`METADATA_LIMIT`, YAML without aliases,
+    anchors, deep nesting or duplicate keys), so a hostile file (a "billion
+    laughs" of aliases, a FIFO, /dev/zero linked in) is refused in one line.
+    """
+    from belt_drive_ros.core.inputs import InputError, read_yaml
 
     meta = os.path.join(path, METADATA_FILE)
-    if not os.path.isfile(meta):
+    if not os.path.lexists(meta):
+        return None
+    try:
+        data = read_yaml(meta, "bag metadata", limit=METADATA_LIMIT)
+    except InputError as exc:
+        raise CorruptBagError(f"{exc}; not a rosbag2 metadata file") from None
+    info = data.get("rosbag2_bagfile_information") if isinstance(data, dict) else None
+    if not isinstance(info, dict):
+        raise CorruptBagError(f"{meta}: not a rosbag2 metadata file (no rosbag2_bagfile_information mapping)")
+    return info
+
+
+def _check_regular(file: str, how: str) -> None:
+    """Refuse (CorruptBagError) a bag file that is missing or not a regular file (a FIFO would block ``open``)."""
+    import stat
+
+    try:
+        mode = os.stat(file).st_mode
+    except OSError:
+        raise CorruptBagError(f"{how} {file}, which does not exist") from None
+    if not stat.S_ISREG(mode):
+        raise CorruptBagError(f"{how} {file}, which is not a regular file (a FIFO, device or folder)")
+
+
+def _listed_files(path: str) -> List[Dict[str, Any]]:
+    """The ``files`` entries of a bag folder's ``metadata.yaml`` (path, start, duration, count); [] if none."""
+    meta = os.path.join(path, METADATA_FILE)
+    info = _metadata(path)
+    if info is None:
         return []
-    with open(meta, "rb") as f:  # bag_files has checked it is small, UTF-8 YAML
-        info = (yaml.safe_load(f.read().decode("utf-8")) or {}).get("rosbag2_bagfile_information") or {}
+    entries = info.get("files") or []
+    if not isinstance(entries, list):
+        raise CorruptBagError(f"{meta}: 'files' is not a list")
     out = []
-    for entry in info.get("files") or []:
+    for entry in entries:
         try:
             out.append({
                 "path": os.path.join(path, str(entry["path"])),
@@ -94,7 +129,7 @@ def _listed_files(path: str) -> List[Dict[str, Any]]:
                 "duration": int(entry["duration"]["nanoseconds"]),
                 "count": int(entry["message_count"]),
             })
-        except (KeyError, TypeError, ValueError):
+        except (KeyError, TypeError, ValueError, OverflowError):
             raise CorruptBagError(f"{meta}: a 'files' entry lacks path, starting_time, duration or message_count") from None
     return out
 

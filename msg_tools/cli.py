@@ -134,15 +134,17 @@ def _write_damage(out: IO[str], damage: List[str]) -> None:
 
 
 def _info_one(path: str, args: argparse.Namespace, out: IO[str]) -> Tuple[int, Any]:
-    import yaml
+    from belt_drive_ros.core.inputs import InputError, parse_yaml
 
     s = summary(path, verify=not args.summary_only)
     w = out.write
     bag_meta = s.metadata_dict("rosbag2").get("serialized_metadata", "")
-    try:
-        distro = (yaml.safe_load(bag_meta) or {}).get("ros_distro", "") if bag_meta else ""
-    except yaml.YAMLError:
+    try:  # bounded: the file's YAML may be hostile (aliases, nesting)
+        data = parse_yaml(bag_meta, "rosbag2 metadata") if bag_meta else None
+        distro = data.get("ros_distro", "") if isinstance(data, dict) else ""
+    except InputError:
         distro = ""
+    distro = distro if isinstance(distro, str) else ""
     w(f"Files:             {s.path}\n")
     w(f"Bag size:          {_size(s.size_bytes)}\n")
     w("Storage id:        mcap\n")

@@ -297,14 +297,15 @@ def parse_offered_qos_yaml(text: str) -> List[QosProfile]:
     ValueError
         If the text is not a YAML list of QoS mappings.
     """
-    import yaml  # PyYAML; imported here so that writing needs no YAML parser
+    # the package's bounded YAML loader (no aliases, bounded nesting): the text comes from a file
+    from belt_drive_ros.core.inputs import InputError, parse_yaml
 
     if not text or not text.strip():
         return []
     try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ValueError(f"offered_qos_profiles is not valid YAML: {exc}".splitlines()[0]) from None
+        data = parse_yaml(text, "offered_qos_profiles")
+    except InputError as exc:
+        raise ValueError(str(exc)) from None
     if data is None:
         return []
     if not isinstance(data, list) or not all(isinstance(item, dict) for item in data):

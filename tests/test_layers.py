@@ -142,3 +142,21 @@ def test_command_modules_import_rclpy_only_when_run(command):
 
 def test_cli_parser_does_not_import_rclpy():
     assert _loaded_after("from belt_drive_ros.cli import build_parser\nbuild_parser()", ("rclpy",)) == []
+
+
+def test_msg_tools_takes_only_the_bounded_loader_from_the_package():
+    """msg_tools is a sibling package over core's stdlib+PyYAML loader (core.inputs), nothing else of belt_drive_ros:
+    every YAML it reads from a file (metadata.yaml, rosbag2 and QoS metadata) goes through the same bounded loader."""
+    allowed = {"belt_drive_ros.core.inputs"}
+    used, bad = set(), []
+    for path in sorted((PACKAGE.parent / "msg_tools").glob("*.py")):
+        for target, line in _imports(path):
+            if target.split(".")[0] == "belt_drive_ros":
+                used.add(target)
+                if target not in allowed:
+                    bad.append(f"msg_tools/{path.name}:{line} imports {target}")
+    assert not bad, "\n".join(bad)
+    assert used == allowed
+    code = "from belt_drive_ros.core.inputs import parse_yaml\nparse_yaml('a: 1')"
+    assert _loaded_after(code, ("belt_drive_ros",)) == ["belt_drive_ros", "belt_drive_ros.core", "belt_drive_ros.core.errors",
+                                                        "belt_drive_ros.core.inputs"]
