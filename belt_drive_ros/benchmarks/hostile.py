@@ -26,6 +26,10 @@ recording through each verb, compare against the intact file, as
 ``tests/test_msg_tools_damage.py``; ``info`` checks the data against the
 summary section as ``export`` and ``compare`` do, so all three refuse or
 report the same files),
+``campaign file`` (the campaign mutants, special files and ``sweep`` options of
+:mod:`~belt_drive_ros.benchmarks.hostile_campaign`, through ``belt-drive sweep
+--check``), ``bag folder`` (a split rosbag2 folder with its ``metadata.yaml``
+or files damaged, through ``msg-tools info``, ``export`` and ``compare``),
 ``node torque`` (absurd and non-finite drive torques), ``node parameter``
 (hostile scene files over ``scene``, absurd values) and ``node reset flood``.
 The table goes to stdout, ``hostile.csv`` and ``hostile.md`` in ``--out``;
@@ -65,6 +69,8 @@ from ..core.scene import REQUIRED_KEYS
 from .hostile_paths import EXTRA_CATEGORIES  # issue 24: node SetParameters, FIFO read paths, truncated files
 
 OUTCOMES = ("clean error", "ok", "data lost", "silent wrong", "crash", "hang")
+#: the categories of ``--only`` (campaign files and bag folders: :mod:`belt_drive_ros.benchmarks.hostile_campaign`)
+CATEGORIES = ("scene", "cli", "mcap", "campaign", "bagdir", "node", *EXTRA_CATEGORIES)
 #: seconds one input may take
 BUDGET_S = 20.0
 
@@ -603,8 +609,7 @@ def parse_args(argv=None):
     p = argparse.ArgumentParser(prog="belt-drive bench hostile", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=Path("docs/bench"), help="folder for hostile.csv/.md (default docs/bench)")
     p.add_argument("--quick", action="store_true", help="a sample of each category (seconds to a minute)")
-    p.add_argument("--only", nargs="+", choices=("scene", "cli", "mcap", "node", *EXTRA_CATEGORIES),
-                   help="run only these categories")
+    p.add_argument("--only", nargs="+", choices=CATEGORIES, help="run only these categories")
     p.add_argument("--domain-id", type=int, help="ROS domain of the node category (default: private to this process)")
     return p.parse_args(argv)
 
@@ -615,7 +620,7 @@ def main(argv=None) -> int:
 
     ros_env.configure_environment(loopback=True)
     table = Table()
-    todo = args.only or ("scene", "cli", "mcap", "node", *EXTRA_CATEGORIES)
+    todo = args.only or CATEGORIES
     start = time.monotonic()
     timings = {}
     with tempfile.TemporaryDirectory(prefix="belt_drive_hostile_") as tmp:
@@ -629,6 +634,14 @@ def main(argv=None) -> int:
                 run_cli(table, folder, args.quick)
             elif name == "mcap":
                 run_mcap(table, folder, args.quick)
+            elif name == "campaign":
+                from .hostile_campaign import run_campaign_files
+
+                run_campaign_files(table, folder, args.quick)
+            elif name == "bagdir":
+                from .hostile_campaign import run_bag_folders
+
+                run_bag_folders(table, folder, args.quick)
             elif name in EXTRA_CATEGORIES:
                 domain = args.domain_id if args.domain_id is not None else ros_env.process_domain_id(offset=37)
                 EXTRA_CATEGORIES[name](table, folder, args.quick, domain, sys.modules[__name__])

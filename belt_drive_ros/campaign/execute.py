@@ -365,24 +365,11 @@ def run_campaign(
             raise CampaignError(
                 f"{out_dir}: holds results of another campaign (or of an edited file); use another --out or --force"
             )
-    if manifest is None:
-        if force and out_dir.exists():
-            for p in list(parts_dir.glob("part-*.parquet")) if parts_dir.exists() else []:
-                p.unlink()
-        parts_dir.mkdir(parents=True, exist_ok=True)
-        table.to_parquet(out_dir / "variants.parquet", index=False)
-        manifest = {"digest": digest, "name": campaign.name, "variants": n, "bounds": None}
-        manifest_path.write_text(json.dumps(manifest))
-    recordings_dir = None
-    if campaign.fleet_folder is not None:
-        recordings_dir = out_dir / "recordings"
-        recordings_dir.mkdir(parents=True, exist_ok=True)
     own = client is None
     cluster = None
-    if own:
+    if own:  # before anything is written: a scheduler that cannot be reached leaves no folder behind
         client, cluster = _cluster(scheduler, workers)
     n_workers = max(len(client.scheduler_info().get("workers", {})), 1)
-    portable = _portable(campaign)
     draw = progress if progress is not None else sys.stderr.isatty()
     interrupted = False
     signum = 0
@@ -390,7 +377,20 @@ def run_campaign(
     notes = []
     compute_start = time.perf_counter()
     compute_end = compute_start
+    recordings_dir = None
     try:
+        if manifest is None:
+            if force and out_dir.exists():
+                for p in list(parts_dir.glob("part-*.parquet")) if parts_dir.exists() else []:
+                    p.unlink()
+            parts_dir.mkdir(parents=True, exist_ok=True)
+            table.to_parquet(out_dir / "variants.parquet", index=False)
+            manifest = {"digest": digest, "name": campaign.name, "variants": n, "bounds": None}
+            manifest_path.write_text(json.dumps(manifest))
+        if campaign.fleet_folder is not None:
+            recordings_dir = out_dir / "recordings"
+            recordings_dir.mkdir(parents=True, exist_ok=True)
+        portable = _portable(campaign)
         # once per worker, not inside every task (a list: a dict would be scattered value by value)
         portable = client.scatter([portable], broadcast=True, hash=False)[0]
         bounds = manifest.get("bounds")
