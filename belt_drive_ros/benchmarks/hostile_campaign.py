@@ -315,6 +315,8 @@ def bag_folder_mutants(folder: Path, seed: int = 24):
     bomb = "a: &a [x,x,x,x,x,x,x,x,x]\n" + "".join(
         f"{chr(98 + i)}: &{chr(98 + i)} [" + ",".join([f"*{chr(97 + i)}"] * 9) + "]\n" for i in range(8))
     yield "metadata billion laughs", meta(bomb + meta_text)
+    for key in ("relative_file_paths", "files"):  # the expansion where the reader walks it
+        yield f"metadata billion laughs in {key}", meta(bomb + meta_text.replace(f"  {key}:", f"  {key}: *i\n  old_{key}:", 1))
     yield "metadata alias", meta(meta_text.replace("rosbag2_bagfile_information:", "x: &x 1\nrosbag2_bagfile_information:", 1))
     for depth in (40, 100_000):
         yield f"metadata nest {depth}", meta(meta_text + "extra: " + "[" * depth + "]" * depth + "\n")
