@@ -9,8 +9,10 @@ from __future__ import annotations
 import math
 import os
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -183,3 +185,96 @@ def test_local_cluster_workers_keep_blas_single_threaded_and_glibc_malloc_adapti
     assert "MALLOC_TRIM_THRESHOLD_" not in env and env.get("OPENBLAS_NUM_THREADS") == "1"
     assert dask.config.get("distributed.nanny.pre-spawn-environ") == before
     assert os.environ["MALLOC_TRIM_THRESHOLD_"] == "65536"
+
+
+def test_a_grid_of_bad_methods_gives_one_failing_row_each(tmp_path, client):
+    """Mixed types in a grid column (text, a number, null) are tabulated as JSON text: every variant is a row
+    with its own error, the table is written (no ArrowTypeError aborting the campaign)."""
+    data = {"scene": "paper", "set": {"duration": 0.05}, "grid": {"method": ["nosuch", 7, None, "etd2"]}}
+    done = run_campaign(_campaign(tmp_path, data), tmp_path / "out", client=client, progress=False)
+    table = pd.read_parquet(tmp_path / "out" / "results.parquet")
+    assert list(table["method"]) == ['"nosuch"', "7", "null", '"etd2"']
+    assert [e.split(":")[0] for e in table["error"]] == ["SceneError"] * 3 + [""]
+    assert "nosuch" in table["error"][0] and "int 7" in table["error"][1] and "None" in table["error"][2]
+    assert table["peak_belt_torque"][3] > 0 and len(done.table) == 4
+
+
+def test_a_fleet_resumed_after_its_folder_changed_is_refused(tmp_path, client):
+    """The digest covers the fleet's file list, sizes and times: renaming, removing or adding a recording
+    after an interrupted run makes the old parts another campaign's (refused), never reused."""
+    recordings = tmp_path / "recordings"
+    recordings.mkdir()
+    for k in range(3):
+        shutil.copy(BAGS / "engine_idle_torque.mcap", recordings / f"truck_{k}.mcap")
+    data = {"scene": str(BAGS / "engine_idle.yaml"), "set": {"model": "flexible"}, "fleet": {"folder": "recordings"}}
+    out = tmp_path / "run"
+    first = run_campaign(_campaign(tmp_path, data), out, client=client, progress=False, batch_size=1, stop_after=1)
+    assert first.interrupted and first.computed == 1
+    for change in (lambda: (recordings / "truck_2.mcap").rename(recordings / "truck_9.mcap"),
+                   lambda: (recordings / "truck_9.mcap").unlink(),
+                   lambda: shutil.copy(BAGS / "engine_idle_torque.mcap", recordings / "truck_5.mcap")):
+        change()
+        with pytest.raises(CampaignError, match="another campaign"):
+            run_campaign(_campaign(tmp_path, data), out, client=client, progress=False, batch_size=1)
+    done = run_campaign(_campaign(tmp_path, data), out, client=client, progress=False, batch_size=1, force=True)
+    assert list(done.table["recording"]) == ["truck_0.mcap", "truck_1.mcap", "truck_5.mcap"]
+    assert (done.table["error"] == "").all()
+
+
+def test_campaigns_beyond_the_machine_are_refused_up_front_with_an_estimate(tmp_path, capsys):
+    from belt_drive_ros.cli import main
+
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(CAMPAIGN))
+    assert main(["sweep", str(path), "--workers", "1000000", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "1,000,000 worker processes need" in err and "use at most" in err
+    big = dict(CAMPAIGN, grid={f"params.{k}": [1.0 + j * 1e-3 for j in range(57)] for k in ("k", "b_M", "I_M", "mu")})
+    path.write_text(yaml.safe_dump(big))
+    assert main(["sweep", str(path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "126,672,012 variants" in err and " on " in err and "of tables" in err
+    assert not (tmp_path / "o").exists()
+    assert main(["sweep", "/dev/zero"]) == 2
+    assert "character device; a regular file is needed" in capsys.readouterr().err
+
+
+def _group(pgid: int) -> list:
+    """Processes of the process group ``pgid`` still running (ps: pgid, state, args)."""
+    rows = subprocess.run(["ps", "-eo", "pgid=,stat=,args="], capture_output=True, text=True).stdout.splitlines()
+    return [r for r in rows if r.split()[0] == str(pgid) and not r.split()[1].startswith("Z")]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_an_interrupted_sweep_exits_128_plus_the_signal_in_one_line(tmp_path, sig):
+    """SIGINT to the whole process group (Ctrl-C in a terminal: the workers get it too) or SIGTERM to the
+    command: exit 130 / 143, one line, no worker traceback, no worker left, the parts kept for a resume."""
+    data = {"scene": "paper", "monte_carlo": {"samples": 200_000, "seed": 1, "vary": {"params.k": {"normal": 0.05}}}}
+    path = tmp_path / "long.yaml"
+    path.write_text(yaml.safe_dump(data))
+    child = subprocess.Popen(
+        [sys.executable, "-m", "belt_drive_ros.cli", "sweep", str(path), "--workers", "2", "--quiet"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
+    parts = tmp_path / "long.campaign" / "parts"
+    try:
+        while not (parts.is_dir() and any(parts.glob("part-*.parquet"))):
+            assert child.poll() is None, child.stderr.read()
+            time.sleep(0.1)
+        if sig == signal.SIGINT:
+            os.killpg(child.pid, sig)
+        else:
+            child.send_signal(sig)
+        err = child.communicate(timeout=120)[1]
+    finally:
+        if child.poll() is None:
+            os.killpg(child.pid, signal.SIGKILL)
+            child.wait()
+    assert child.returncode == 128 + sig, err
+    assert err.count("\n") == 1 and err.startswith(f"belt-drive: interrupted by {sig.name}: ") and "Traceback" not in err
+    deadline = time.monotonic() + 30.0  # the workers and multiprocessing's resource tracker end on their own
+    while (left := _group(child.pid)) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert left == []
+    assert any(parts.glob("part-*.parquet"))
