@@ -23,9 +23,10 @@ studies:
   node           the ROS node's real-time figures (needs the ROS extra)
   soak           the node recording for --seconds (default 60): RSS growth per minute,
                  output rate per 10 s window, messages lost (not part of 'all')
-  hostile        the hostile-input table: ~1,300 scene files, command lines, damaged MCAP files and
-                 node inputs, each a clean error, ok, data lost, silent wrong, crash or hang
-                 (hostile.csv, hostile.md; not part of 'all')
+  hostile        the hostile-input table: ~1,800 scene files, command lines, damaged MCAP files,
+                 campaign files, bag folders and node inputs, each a clean error, ok, data lost,
+                 silent wrong, crash or hang (hostile.csv, hostile.md; not part of 'all';
+                 --only CATEGORY... for some of them)
   campaign       10,000-variant Monte Carlo of paper on Dask vs a loop of single runs, 1 vs 2 workers,
                  a fleet of 100 recordings replayed and compared (needs the campaign extra; not in 'all')
   all            all of the above, then docs/bench/summary.md
@@ -36,6 +37,7 @@ examples:
   belt-drive bench node --duration 30 --floor    # the node's figures beside its model-free floor
   belt-drive bench soak --seconds 600            # 10 minutes of the recording node
   belt-drive bench hostile --out /tmp/hostile    # the hostile-input table (minutes)
+  belt-drive bench hostile --only campaign bagdir --out /tmp/hostile
 
 Each study writes a CSV and a PNG into --out. CPU time is process time, the
 minimum of repeats; BLAS runs single-threaded (OPENBLAS_NUM_THREADS=1) so that
@@ -60,6 +62,8 @@ def register(sub) -> None:
     p.add_argument("--duration", type=float, default=30.0, help="node: measured seconds (default 30)")
     p.add_argument("--floor", action="store_true",
                    help="node: then measure the same process without the model (rclpy + DDS only) for comparison")
+    p.add_argument("--only", nargs="+", metavar="CATEGORY",
+                   help="hostile: only these categories (scene, cli, mcap, campaign, bagdir, node)")
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                    help="node: a node parameter (repeatable), e.g. -p model:=slipping")
     p.set_defaults(func=run)
@@ -102,7 +106,7 @@ def run(args) -> int:
     if args.study == "hostile":
         from ..benchmarks import hostile
 
-        return hostile.main(["--out", str(out)] + (["--quick"] if args.quick else []))
+        return hostile.main(["--out", str(out)] + (["--quick"] if args.quick else []) + (["--only", *args.only] if args.only else []))
     if args.study == "campaign":
         from ..benchmarks import campaign
 
