@@ -266,3 +266,32 @@ def test_shipped_scenes_and_bag_scenes_load_strictly():
         assert load_scene(path).duration > 0
     with pytest.raises(ParameterError):
         Scene.from_mapping({**_paper_dict(), "params": {"k": 1.0}})
+
+
+def test_typed_values_name_the_key():
+    """The checks campaign files (and any caller) use: text is not a number nor a boolean, a boolean is not a
+    number, 2.7 is not a count (refused, never truncated), 1e3 is; .inf and .nan are not finite."""
+    from belt_drive_ros.core.inputs import boolean, mapping, number, sequence, text
+
+    assert number(1.5e4, "k") == 1.5e4 and number(parse_yaml("n: 1.5e4")["n"], "n") == 15000.0
+    count = number(parse_yaml("n: 1e3")["n"], "n", integer=True, low=1)
+    assert count == 1000 and isinstance(count, int)
+    for value, word in (("12", "a whole number"), (True, "a whole number"), (2.7, "a whole number"),
+                        (float("inf"), "a finite number"), ([1], "a whole number")):
+        with pytest.raises(InputError, match=f"monte_carlo.samples: must be {word}, got"):
+            number(value, "monte_carlo.samples", integer=True)
+    with pytest.raises(InputError, match=r"seed: -1 is outside \[0, inf\]"):
+        number(-1, "seed", low=0, integer=True)
+    with pytest.raises(InputError, match="a finite number"):
+        number(float("nan"), "x")
+    assert boolean(False, "absolute") is False
+    for value in ("false", 0, None):
+        with pytest.raises(InputError, match="absolute: must be true or false"):
+            boolean(value, "absolute")
+    assert mapping(None, "grid", empty={}) == {} and sequence((1,), "v") == [1] and text("a", "name") == "a"
+    with pytest.raises(InputError, match="grid: must be a mapping"):
+        mapping([1], "grid", empty={})
+    with pytest.raises(InputError, match=r"grid.k: must be a non-empty list, got \[\]"):
+        sequence([], "grid.k", nonempty=True)
+    with pytest.raises(InputError, match="name: must be a string"):
+        text(5, "name")
