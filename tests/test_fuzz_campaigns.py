@@ -1,8 +1,8 @@
 """Fuzzed campaign files and bag folders (issue 24): every mutant is a clean error or a valid result; none crashes,
 hangs, or is taken silently wrong.
 
-The generators and runners are the ones ``belt-drive bench hostile --only campaign bagdir`` tabulates
-(:mod:`belt_drive_ros.benchmarks.hostile_campaign`): campaign mutants go through the real command line,
+The generators (:mod:`belt_drive_ros.benchmarks.hostile_campaign`) and runners are the ones
+``belt-drive bench hostile --only campaign bagdir`` tabulates: campaign mutants go through the real command line,
 ``belt-drive sweep FILE --check`` (validation, up-front limits, the variant table and up to 8 variants run
 in-process, their rows written as a Parquet part; no cluster), bag-folder mutants through ``msg-tools info``,
 ``export`` and ``compare``. Outcomes as in :mod:`belt_drive_ros.benchmarks.hostile`: a **crash** is a
@@ -18,7 +18,8 @@ import collections
 import pytest
 
 from belt_drive_ros.benchmarks import hostile
-from belt_drive_ros.benchmarks.hostile_campaign import campaign_mutants, run_bag_folders, run_campaign_files
+from belt_drive_ros.benchmarks.hostile import run_bag_folders, run_campaign_files
+from belt_drive_ros.benchmarks.hostile_campaign import campaign_mutants
 
 
 def _table(run, tmp_path) -> hostile.Table:

@@ -51,6 +51,7 @@ import io
 import math
 import os
 import random
+import shutil
 import signal
 import struct
 import sys
@@ -467,17 +468,25 @@ def run_mcap(table: Table, tmp: Path, quick: bool) -> None:
     path = tmp / "mutant.mcap"
     for label, data in mutants:
         path.write_bytes(data)
-        status, out, err = _call(main, ["export", path, "--topic", "/joint_states"])
-        rows = out.splitlines() if status == 0 else None
-        warned = "warning:" in err
-        intact = rows == golden
-        prefix = rows is not None and warned and rows[:1] == golden[:1] and rows == golden[: len(rows)]
-        table.add("mcap export", _classify_mcap("export", status, out, err, intact, prefix), f"export {label}", err)
-        status, out, err = _call(main, ["info", path])
-        table.add("mcap info", _classify_mcap("info", status, out, err, intact, prefix or (warned and rows is None)),
-                  f"info {label}", err + out[-200:])
-        status, out, err = _call(main, ["compare", path, good])
-        table.add("mcap compare", _classify_mcap("compare", status, out, err, intact, prefix), f"compare {label}", err)
+        three_verbs(table, ("mcap export", "mcap info", "mcap compare"), path, good, golden, label)
+
+
+def three_verbs(table: Table, categories, path, good, golden: list, label: str) -> None:
+    """``msg-tools export`` (the joint states, against ``golden``: the intact file's export), ``info`` and
+    ``compare`` against ``good`` of the damaged ``path``, classified into ``categories`` (export, info, compare)."""
+    from msg_tools.cli import main
+
+    status, out, err = _call(main, ["export", path, "--topic", "/joint_states"])
+    rows = out.splitlines() if status == 0 else None
+    warned = "warning:" in err
+    intact = rows == golden
+    prefix = rows is not None and warned and rows[:1] == golden[:1] and rows == golden[: len(rows)]
+    table.add(categories[0], _classify_mcap("export", status, out, err, intact, prefix), f"export {label}", err)
+    status, out, err = _call(main, ["info", path])
+    table.add(categories[1], _classify_mcap("info", status, out, err, intact, prefix or (warned and rows is None)),
+              f"info {label}", err + out[-200:])
+    status, out, err = _call(main, ["compare", path, good])
+    table.add(categories[2], _classify_mcap("compare", status, out, err, intact, prefix), f"compare {label}", err)
 
 
 def _classify_mcap(verb, status, out, err, intact: bool, prefix: bool) -> str:
@@ -604,6 +613,82 @@ def run_node(table: Table, tmp: Path, quick: bool, domain_id: int) -> None:
         table.add("node reset flood", outcome, f"{calls} asynchronous ~/reset calls")
 
 
+# ------------------------------------------------------------------ campaign files and bag folders
+def classify_check(status, out: str, err: str, must_fail: bool, variants: int | None) -> str:
+    """Outcome of ``belt-drive sweep FILE --check``: clean error, ok, crash, hang or silent wrong."""
+    outcome = _classify_cli(status, err, "belt-drive: error: ", must_fail)
+    if outcome in ("ok", "clean error") and variants is not None and status in (0, 1):
+        # the variant count --check reports must be the one the file states
+        if f"{variants:,} variants" not in out:
+            return "silent wrong"
+    return outcome
+
+
+def run_campaign_files(table, tmp: Path, quick: bool) -> None:
+    """The campaign mutants, special files and command-line values through ``belt-drive sweep FILE --check``."""
+    from ..cli import main
+    from .hostile_campaign import GRID_MC, campaign_mutants, dump_campaign, make_fleet, special_campaign_files
+
+    mutants = list(campaign_mutants())
+    if quick:
+        mutants = mutants[::10]
+    for k, (category, must_fail, label, data, variants, setup) in enumerate(mutants):
+        folder = tmp / f"m{k}"
+        folder.mkdir()
+        make_fleet(folder, setup)
+        path = folder / "campaign.yaml"
+        path.write_bytes(data)
+        status, out, err = _call(main, ["sweep", path, "--check", "--quiet"])
+        table.add("campaign file", classify_check(status, out, err, must_fail, variants), f"{category} [{label}]", err)
+        shutil.rmtree(folder, ignore_errors=True)
+    good = tmp / "good.yaml"
+    good.write_bytes(dump_campaign(GRID_MC))
+    for label, path in special_campaign_files(tmp):
+        status, out, err = _call(main, ["sweep", path, "--check", "--quiet"])
+        table.add("campaign file", classify_check(status, out, err, True, None), f"special [{label}]", err)
+    for argv in (["--workers", "1000000"], ["--workers", "0"], ["--workers", "-3"], ["--batch-size", "0"],
+                 ["--scheduler", "nonsense://x"], ["--scheduler", "tcp://127.0.0.1:1", "--workers", "2"],
+                 ["--workers", "x"]):  # fmt: skip
+        # without --check: refused before a cluster starts (a scheduler address is tried, the rest checked up front)
+        status, out, err = _call(main, ["sweep", good, "--quiet", "--out", tmp / "cli.campaign", *argv])
+        table.add("campaign file", classify_check(status, out, err, True, None), f"cli [{' '.join(argv)}]", err)
+    status, out, err = _call(main, ["sweep", tmp / "no_such.yaml", "--check"])
+    table.add("campaign file", classify_check(status, out, err, True, None), "cli [missing file]", err)
+
+
+def write_bag_folder(folder: Path) -> Path:
+    """A rosbag2 folder of three split files (1 kHz torque and joint states, 0.6 s), written by Ros2BagWriter."""
+    from msg_tools.bagdir import Ros2BagWriter
+
+    with Ros2BagWriter(folder, force=True, max_bag_duration=0.2, chunk_size=4096) as w:
+        for i in range(600):
+            t = 10**9 + i * 1_000_000
+            w.write("/drive_torque", "std_msgs/msg/Float64", {"data": float(np.sin(i / 30))}, t)
+            w.write("/joint_states", "sensor_msgs/msg/JointState", {
+                "header": {"stamp": {"sec": t // 10**9, "nanosec": t % 10**9}}, "name": JOINTS,
+                "position": [i * 1e-3, i * 2e-3], "velocity": [1.0 + i, 2.0], "effort": [0.5, -0.5]}, t)
+    return folder
+
+
+def run_bag_folders(table, tmp: Path, quick: bool) -> None:
+    """Bag-folder mutants through ``msg-tools info``, ``export`` and ``compare`` against the intact folder."""
+    from msg_tools.cli import main
+
+    from .hostile_campaign import bag_folder_mutants
+
+    good = write_bag_folder(tmp / "good")
+    golden = _call(main, ["export", good, "--topic", "/joint_states"])[1].splitlines()
+    mutants = list(bag_folder_mutants(good))
+    if quick:
+        mutants = mutants[::5]
+    for k, (label, change) in enumerate(mutants):
+        path = tmp / f"bag{k}"
+        shutil.copytree(good, path)
+        change(path)
+        three_verbs(table, ("bag folder",) * 3, path, good, golden, label)
+        shutil.rmtree(path, ignore_errors=True)
+
+
 # ------------------------------------------------------------------ main
 def parse_args(argv=None):
     p = argparse.ArgumentParser(prog="belt-drive bench hostile", description=__doc__.split("\n\n")[0])
@@ -635,12 +720,8 @@ def main(argv=None) -> int:
             elif name == "mcap":
                 run_mcap(table, folder, args.quick)
             elif name == "campaign":
-                from .hostile_campaign import run_campaign_files
-
                 run_campaign_files(table, folder, args.quick)
             elif name == "bagdir":
-                from .hostile_campaign import run_bag_folders
-
                 run_bag_folders(table, folder, args.quick)
             elif name in EXTRA_CATEGORIES:
                 domain = args.domain_id if args.domain_id is not None else ros_env.process_domain_id(offset=37)

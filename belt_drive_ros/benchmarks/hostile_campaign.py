@@ -1,6 +1,7 @@
-"""Hostile campaign files and bag folders: the seeded mutants and their runners (``belt-drive bench hostile``).
+"""Hostile campaign files and bag folders: the seeded mutants behind two categories of ``belt-drive bench hostile``.
 
-Two categories of :mod:`belt_drive_ros.benchmarks.hostile`, shared with
+The generators of two categories of :mod:`belt_drive_ros.benchmarks.hostile`
+(which runs them: ``run_campaign_files``, ``run_bag_folders``), shared with
 ``tests/test_fuzz_campaigns.py``:
 
 * ``campaign file``: :func:`campaign_mutants`, mutants of three small
@@ -14,8 +15,8 @@ Two categories of :mod:`belt_drive_ros.benchmarks.hostile`, shared with
 * ``bag folder``: :func:`bag_folder_mutants`, a split rosbag2 folder
   (``metadata.yaml`` + three MCAP files) with its ``metadata.yaml`` or its
   files damaged, through ``msg-tools info``, ``export`` and ``compare``
-  against the intact folder, classified as the MCAP file mutants are
-  (:func:`~belt_drive_ros.benchmarks.hostile._classify_mcap`).
+  against the intact folder (``hostile.write_bag_folder``), classified as
+  the MCAP file mutants are.
 """
 
 from __future__ import annotations
@@ -58,7 +59,8 @@ class _Quoting(yaml.SafeDumper):
 _Quoting.add_representer(str, lambda d, v: d.represent_scalar("tag:yaml.org,2002:str", v, style="'"))
 
 
-def _dump(data) -> bytes:
+def dump_campaign(data) -> bytes:
+    """``data`` as YAML with every string quoted (a mutant's text stays text)."""
     return yaml.dump(data, Dumper=_Quoting, sort_keys=False).encode()
 
 
@@ -100,16 +102,16 @@ def campaign_mutants(seed: int = 24):
                   ) or (key == "scene" and bad == "12")  # fmt: skip
             if key == "scene" and bad == "12":
                 continue  # an unknown scene name: refused anyway, listed below
-            yield "wrong type", not ok, f"{key}={str(bad)[:12]!r}", _dump(_with(base, key, bad)), 6 if ok else None, None
+            yield "wrong type", not ok, f"{key}={str(bad)[:12]!r}", dump_campaign(_with(base, key, bad)), 6 if ok else None, None
         optional = key in ("name", "set", "grid", "profiles", "monte_carlo", "metrics", "limits", "description", "fleet")
         count = {"grid": 3, "monte_carlo": 2}.get(key, 6)
-        yield "wrong type", not optional, f"{key}=null", _dump(_with(base, key, None)), count if optional else None, None
+        yield "wrong type", not optional, f"{key}=null", dump_campaign(_with(base, key, None)), count if optional else None, None
     # Monte Carlo: counts, seeds, distributions
     for value, count in (("many", None), (float("inf"), None), ([1], None), (2.7, None), (-1, None), (0, None), (True, None),
                          (None, None), (1e9, None), (1e3, 2000), (4.0, 8), ("4", None)):
-        yield "monte carlo", count is None, f"samples={value!r}", _dump(_with(base, "monte_carlo/samples", value)), count, None
+        yield "monte carlo", count is None, f"samples={value!r}", dump_campaign(_with(base, "monte_carlo/samples", value)), count, None
     for value, count in ((-1, None), (2.5, None), ("x", None), (2**64, None), (1e3, 6), (None, None), (0, 6)):
-        data = _dump(_with(base, "monte_carlo/seed", value)) if value != 2**64 else (
+        data = dump_campaign(_with(base, "monte_carlo/seed", value)) if value != 2**64 else (
             yaml.safe_dump(base, sort_keys=False).replace("seed: 1", f"seed: {2**64}").encode())
         yield "monte carlo", count is None, f"seed={value!r}", data, count, None
     vary = "monte_carlo/vary/params.I_3"
@@ -119,63 +121,63 @@ def campaign_mutants(seed: int = 24):
                  {"uniform": [float("nan"), 1]}, {"uniform": [0.9, 1.1], "absolute": "false"},
                  {"uniform": [0.9, 1.1], "absolute": "yes"}, {"uniform": [0.9, 1.1], "absolute": 1}, {"gauss": 0.1},
                  {}, {"normal": 0.1, "uniform": [0.9, 1.1]}, {"normal": 0.1, "absolute": True}, 0.1, [0.9, 1.1]):
-        yield "monte carlo", True, f"vary {spec!r}"[:60], _dump(_with(base, vary, spec)), None, None
+        yield "monte carlo", True, f"vary {spec!r}"[:60], dump_campaign(_with(base, vary, spec)), None, None
     for spec, count in (({"normal": 0.0}, 6), ({"uniform": [1.0, 1.0]}, 6), ({"normal": [0.1, 0.0], "absolute": True}, 6),
                         ({"uniform": [0.9, 1.1], "absolute": False}, 6)):
-        yield "monte carlo", False, f"vary {spec!r}"[:60], _dump(_with(base, vary, spec)), count, None
-    yield "monte carlo", True, "vary {}", _dump(_with(base, "monte_carlo/vary", {})), None, None
-    yield "monte carlo", True, "monte_carlo.bogus", _dump(_with(base, "monte_carlo/bogus", 1)), None, None
+        yield "monte carlo", False, f"vary {spec!r}"[:60], dump_campaign(_with(base, vary, spec)), count, None
+    yield "monte carlo", True, "vary {}", dump_campaign(_with(base, "monte_carlo/vary", {})), None, None
+    yield "monte carlo", True, "monte_carlo.bogus", dump_campaign(_with(base, "monte_carlo/bogus", 1)), None, None
     # key paths and semantics
     for key in ("params.kk", "a.b.c", "drive", "params.", "", "k.k"):
-        yield "key path", True, f"grid {key!r}", _dump(_with(base, f"grid/{key}", [1.0])), None, None
+        yield "key path", True, f"grid {key!r}", dump_campaign(_with(base, f"grid/{key}", [1.0])), None, None
     yield "key path", True, "grid 5: [1]", yaml.safe_dump({**base, "grid": {5: [1.0]}}).encode(), None, None
-    yield "key path", True, "grid and vary: params.k", _dump(_with(base, "monte_carlo/vary/params.k", {"normal": 0.05})), None, None
-    yield "key path", True, "grid and vary: k and params.k", _dump(_with(base, "monte_carlo/vary/k", {"normal": 0.05})), None, None
-    yield "key path", True, "grid k and params.k", _dump(_with(base, "grid/k", [1.0e4])), None, None
-    yield "key path", True, "vary I_3 and params.I_3", _dump(_with(base, "monte_carlo/vary/I_3", {"normal": 0.1})), None, None
-    yield "key path", True, "vary drive.type (text base)", _dump(_with(base, "monte_carlo/vary/drive.type", {"normal": 0.1})), None, None
+    yield "key path", True, "grid and vary: params.k", dump_campaign(_with(base, "monte_carlo/vary/params.k", {"normal": 0.05})), None, None
+    yield "key path", True, "grid and vary: k and params.k", dump_campaign(_with(base, "monte_carlo/vary/k", {"normal": 0.05})), None, None
+    yield "key path", True, "grid k and params.k", dump_campaign(_with(base, "grid/k", [1.0e4])), None, None
+    yield "key path", True, "vary I_3 and params.I_3", dump_campaign(_with(base, "monte_carlo/vary/I_3", {"normal": 0.1})), None, None
+    yield "key path", True, "vary drive.type (text base)", dump_campaign(_with(base, "monte_carlo/vary/drive.type", {"normal": 0.1})), None, None
     for values in ([], 5, "x", {"a": 1}):
-        yield "key path", True, f"grid params.k={values!r}", _dump(_with(base, "grid/params.k", values)), None, None
+        yield "key path", True, f"grid params.k={values!r}", dump_campaign(_with(base, "grid/params.k", values)), None, None
     # grids whose variants fail one by one: a row each (exit 1), never an abort
     for values in (["nosuch", 7, None], [["a"], {"b": 1}, "rk4"], [True, 1.5, "x"]):
-        yield "variant rows", False, f"grid method={values!r}", _dump(_with(base, "grid", {"method": values})), len(values) * 3, None
-    yield "variant rows", False, "grid params.k=[-5, 2e4, .nan]", _dump(_with(base, "grid", {"params.k": [-5.0, 2e4, float("nan")]})), 9, None
-    yield "variant rows", False, "grid drive.nosuch=[1, 2]", _dump(_with(base, "grid", {"drive.nosuch": [1, 2]})), 6, None
-    yield "variant rows", False, "set method=nosuch", _dump(_with(base, "set/method", "nosuch")), None, None
+        yield "variant rows", False, f"grid method={values!r}", dump_campaign(_with(base, "grid", {"method": values})), len(values) * 3, None
+    yield "variant rows", False, "grid params.k=[-5, 2e4, .nan]", dump_campaign(_with(base, "grid", {"params.k": [-5.0, 2e4, float("nan")]})), 9, None
+    yield "variant rows", False, "grid drive.nosuch=[1, 2]", dump_campaign(_with(base, "grid", {"drive.nosuch": [1, 2]})), 6, None
+    yield "variant rows", False, "set method=nosuch", dump_campaign(_with(base, "set/method", "nosuch")), None, None
     # sizes beyond the machine: refused up front with an estimate
-    yield "limits", True, "grid of 1e7 points", _dump(_with(base, "grid", {f"params.{k}": [1.0 + j * 1e-3 for j in range(57)]
+    yield "limits", True, "grid of 1e7 points", dump_campaign(_with(base, "grid", {f"params.{k}": [1.0 + j * 1e-3 for j in range(57)]
                                                                            for k in ("k", "c", "F_0", "mu")})), None, None
-    yield "limits", True, "samples 1e9", _dump(_with(base, "monte_carlo/samples", 10**9)), None, None
-    yield "limits", True, "samples 2e6", _dump(_with(base, "monte_carlo/samples", 2_000_000)), None, None
-    yield "limits", False, "samples 50000", _dump(_with(base, "monte_carlo/samples", 50_000)), 100_000, None
+    yield "limits", True, "samples 1e9", dump_campaign(_with(base, "monte_carlo/samples", 10**9)), None, None
+    yield "limits", True, "samples 2e6", dump_campaign(_with(base, "monte_carlo/samples", 2_000_000)), None, None
+    yield "limits", False, "samples 50000", dump_campaign(_with(base, "monte_carlo/samples", 50_000)), 100_000, None
     # metrics and limits
     for value in (5, [], ["nosuch"], ["peak_belt_torque", "peak_belt_torque"], "x", [5]):
-        yield "metrics", True, f"metrics={value!r}", _dump(_with(base, "metrics", value)), None, None
+        yield "metrics", True, f"metrics={value!r}", dump_campaign(_with(base, "metrics", value)), None, None
     for value in ([1], {"nosuch": 1}, {"min_slack_force": "x"}, {"min_slack_force": float("inf")}, {"min_slack_force": True}):
-        yield "metrics", True, f"limits={value!r}", _dump(_with(base, "limits", value)), None, None
+        yield "metrics", True, f"limits={value!r}", dump_campaign(_with(base, "limits", value)), None, None
     # profiles and set
     for value, count in ((5, None), ([5], None), ([{}], None), ([{"drive": 5.0}], 1), ([{"drive": {"type": "nosuch"}}], None),
                          ([{"bogus": 1}], None), ([{"load": {"type": "polynomial", "c0": "x"}}], None)):
-        yield "profiles", count is None, f"profiles={value!r}"[:60], _dump(_with(PROFILES, "profiles", value)), count, None
-    yield "profiles", False, "profiles", _dump(PROFILES), 2, None
+        yield "profiles", count is None, f"profiles={value!r}"[:60], dump_campaign(_with(PROFILES, "profiles", value)), count, None
+    yield "profiles", False, "profiles", dump_campaign(PROFILES), 2, None
     for value in ({"k": -1.0}, {"dt": "x"}, {"nosuch": 1}, {"params.k": "2e4"}, [1], {"duration": float("nan")}):
-        yield "set", True, f"set={value!r}", _dump(_with(base, "set", value)), None, None
+        yield "set", True, f"set={value!r}", dump_campaign(_with(base, "set", value)), None, None
     yield "set", False, "set params.k=1.5e4 (a number in YAML 1.2)", yaml.safe_dump(base, sort_keys=False).replace(
         "duration: 0.05", "duration: 0.05\n  params.k: 1.5e4").encode(), 6, None
     for value in (5, "", "nosuch", "no/such.yaml", "/dev/zero", {}, {"extends": "nosuch"}):
-        yield "scene", True, f"scene={value!r}", _dump(_with(base, "scene", value)), None, None
-    yield "scene", False, "scene={extends: paper} inline", _dump(_with(base, "scene", {"extends": "paper"})), 6, None
+        yield "scene", True, f"scene={value!r}", dump_campaign(_with(base, "scene", value)), None, None
+    yield "scene", False, "scene={extends: paper} inline", dump_campaign(_with(base, "scene", {"extends": "paper"})), 6, None
     # fleets
     fleet = dict(FLEET, scene=str(BAGS / "engine_idle.yaml"))
-    yield "fleet", False, "fleet of 2", _dump(fleet), 2, "fleet"
+    yield "fleet", False, "fleet of 2", dump_campaign(fleet), 2, "fleet"
     for label, setup in (("empty folder", "empty"), ("x.mcap a FIFO", "fifo"), ("no .mcap files", "other")):
-        yield "fleet", True, label, _dump(fleet), None, setup
+        yield "fleet", True, label, dump_campaign(fleet), None, setup
     for folder in ("/dev", "/proc/self", "no/such", "/dev/null"):
-        yield "fleet", True, f"folder {folder}", _dump(_with(fleet, "fleet/folder", folder)), None, "fleet"
+        yield "fleet", True, f"folder {folder}", dump_campaign(_with(fleet, "fleet/folder", folder)), None, "fleet"
     for value in (5, {"golden": "fleet"}, [1], {"folder": 5}, {"folder": "fleet", "bogus": 1}):
-        yield "fleet", True, f"fleet={value!r}", _dump(_with(fleet, "fleet", value)), None, "fleet"
-    yield "fleet", True, "fleet golden missing", _dump(_with(fleet, "fleet/golden", "nosuch")), None, "fleet"
-    yield "fleet", True, "fleet and grid", _dump(_with(fleet, "grid", {"params.k": [1e4]})), None, "fleet"
+        yield "fleet", True, f"fleet={value!r}", dump_campaign(_with(fleet, "fleet", value)), None, "fleet"
+    yield "fleet", True, "fleet golden missing", dump_campaign(_with(fleet, "fleet/golden", "nosuch")), None, "fleet"
+    yield "fleet", True, "fleet and grid", dump_campaign(_with(fleet, "grid", {"params.k": [1e4]})), None, "fleet"
     # YAML itself: aliases, nesting, duplicates, binary, cut-off files
     text = yaml.safe_dump(base, sort_keys=False)
     bomb = "a: &a [x,x,x,x,x,x,x,x,x]\n" + "".join(
@@ -237,69 +239,7 @@ def special_campaign_files(tmp: Path):
     return out
 
 
-def classify_check(status, out: str, err: str, must_fail: bool, variants: int | None) -> str:
-    """Outcome of ``belt-drive sweep FILE --check``: clean error, ok, crash, hang or silent wrong."""
-    from .hostile import _classify_cli
-
-    outcome = _classify_cli(status, err, "belt-drive: error: ", must_fail)
-    if outcome in ("ok", "clean error") and variants is not None and status in (0, 1):
-        # the variant count --check reports must be the one the file states
-        if f"{variants:,} variants" not in out:
-            return "silent wrong"
-    return outcome
-
-
-def run_campaign_files(table, tmp: Path, quick: bool) -> None:
-    """The campaign mutants, special files and command-line values through ``belt-drive sweep FILE --check``."""
-    from ..cli import main
-    from .hostile import _call
-
-    mutants = list(campaign_mutants())
-    if quick:
-        mutants = mutants[::10]
-    for k, (category, must_fail, label, data, variants, setup) in enumerate(mutants):
-        folder = tmp / f"m{k}"
-        folder.mkdir()
-        make_fleet(folder, setup)
-        path = folder / "campaign.yaml"
-        path.write_bytes(data)
-        status, out, err = _call(main, ["sweep", path, "--check", "--quiet"])
-        table.add("campaign file", classify_check(status, out, err, must_fail, variants), f"{category} [{label}]", err)
-        shutil.rmtree(folder, ignore_errors=True)
-    good = tmp / "good.yaml"
-    good.write_bytes(_dump(GRID_MC))
-    for label, path in special_campaign_files(tmp):
-        status, out, err = _call(main, ["sweep", path, "--check", "--quiet"])
-        table.add("campaign file", classify_check(status, out, err, True, None), f"special [{label}]", err)
-    for argv in (["--workers", "1000000"], ["--workers", "0"], ["--workers", "-3"], ["--batch-size", "0"],
-                 ["--scheduler", "nonsense://x"], ["--scheduler", "tcp://127.0.0.1:1", "--workers", "2"],
-                 ["--workers", "x"]):  # fmt: skip
-        # without --check: refused before a cluster starts (a scheduler address is tried, the rest checked up front)
-        status, out, err = _call(main, ["sweep", good, "--quiet", "--out", tmp / "cli.campaign", *argv])
-        table.add("campaign file", classify_check(status, out, err, True, None), f"cli [{' '.join(argv)}]", err)
-    status, out, err = _call(main, ["sweep", tmp / "no_such.yaml", "--check"])
-    table.add("campaign file", classify_check(status, out, err, True, None), "cli [missing file]", err)
-
-
 # ------------------------------------------------------------------ bag folders
-def write_bag_folder(folder: Path) -> Path:
-    """A rosbag2 folder of three split files (1 kHz torque and joint states, 0.6 s), written by Ros2BagWriter."""
-    import numpy as np
-
-    from msg_tools.bagdir import Ros2BagWriter
-
-    from .hostile import JOINTS
-
-    with Ros2BagWriter(folder, force=True, max_bag_duration=0.2, chunk_size=4096) as w:
-        for i in range(600):
-            t = 10**9 + i * 1_000_000
-            w.write("/drive_torque", "std_msgs/msg/Float64", {"data": float(np.sin(i / 30))}, t)
-            w.write("/joint_states", "sensor_msgs/msg/JointState", {
-                "header": {"stamp": {"sec": t // 10**9, "nanosec": t % 10**9}}, "name": JOINTS,
-                "position": [i * 1e-3, i * 2e-3], "velocity": [1.0 + i, 2.0], "effort": [0.5, -0.5]}, t)
-    return folder
-
-
 def bag_folder_mutants(folder: Path, seed: int = 24):
     """(label, change) of every bag-folder mutant: ``change(copy)`` damages a copy of the intact ``folder``."""
     rng = random.Random(seed)
@@ -375,32 +315,3 @@ def bag_folder_mutants(folder: Path, seed: int = 24):
         yield f"{name} cut in half", lambda d, n=name: (d / n).write_bytes((d / n).read_bytes()[: (d / n).stat().st_size // 2])
     yield "a split file copied in twice", lambda d: shutil.copy(d / files[0], d / "copy_9.mcap")
     yield "no metadata, a file copied in twice", lambda d: ((d / "metadata.yaml").unlink(), shutil.copy(d / files[0], d / "copy_9.mcap"))
-
-
-def run_bag_folders(table, tmp: Path, quick: bool) -> None:
-    """Bag-folder mutants through ``msg-tools info``, ``export`` and ``compare`` against the intact folder."""
-    from msg_tools.cli import main
-
-    from .hostile import _call, _classify_mcap
-
-    good = write_bag_folder(tmp / "good")
-    golden = _call(main, ["export", good, "--topic", "/joint_states"])[1].splitlines()
-    mutants = list(bag_folder_mutants(good))
-    if quick:
-        mutants = mutants[::5]
-    for k, (label, change) in enumerate(mutants):
-        path = tmp / f"bag{k}"
-        shutil.copytree(good, path)
-        change(path)
-        status, out, err = _call(main, ["export", path, "--topic", "/joint_states"])
-        rows = out.splitlines() if status == 0 else None
-        warned = "warning:" in err
-        intact = rows == golden
-        prefix = rows is not None and warned and rows[:1] == golden[:1] and rows == golden[: len(rows)]
-        table.add("bag folder", _classify_mcap("export", status, out, err, intact, prefix), f"export {label}", err)
-        status, out, err = _call(main, ["info", path])
-        table.add("bag folder", _classify_mcap("info", status, out, err, intact, prefix or (warned and rows is None)),
-                  f"info {label}", err + out[-200:])
-        status, out, err = _call(main, ["compare", path, good])
-        table.add("bag folder", _classify_mcap("compare", status, out, err, intact, prefix), f"compare {label}", err)
-        shutil.rmtree(path, ignore_errors=True)

@@ -38,7 +38,6 @@ import hashlib
 import json
 import math
 import os
-import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -47,7 +46,7 @@ import numpy as np
 import yaml
 
 from ..core.errors import BeltDriveError, InputError
-from ..core.inputs import boolean, number, parse_yaml, read_text, sequence, short
+from ..core.inputs import boolean, check_path, number, parse_yaml, read_text, sequence, short
 from ..core.inputs import mapping as as_mapping
 from ..core.inputs import text as string
 from ..core.params import FIELD_DOCS
@@ -428,12 +427,12 @@ def _mapping(data: Mapping, key: str, where: str = "") -> dict:
     return as_mapping(data.get(key), f"{where}{key}", CampaignError, empty={})
 
 
-def _kind(mode: int) -> str:
-    for test, name in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a device"),
-                       (stat.S_ISBLK, "a device"), (stat.S_ISSOCK, "a socket")):  # fmt: skip
-        if test(mode):
-            return name
-    return "not a regular file"
+def _checked(path: Path, key: str, what: str, folder: bool = False) -> None:
+    """``core.inputs.check_path`` (``os.stat`` only, nothing opened) with the error naming ``key``."""
+    try:
+        check_path(path, what, folder=folder)
+    except InputError as exc:
+        raise CampaignError(f"{key}: {exc}") from None
 
 
 def _folder(base_dir: Path, value, key: str) -> Path:
@@ -441,12 +440,9 @@ def _folder(base_dir: Path, value, key: str) -> Path:
     if not isinstance(value, str) or not value:
         raise CampaignError(f"{key}: a folder path, got {type(value).__name__} {short(value)}")
     folder = (base_dir / value).resolve()
-    try:
-        mode = os.stat(folder).st_mode
-    except OSError as exc:
-        raise CampaignError(f"{key}: {short(str(folder), 200)}: {exc.strerror or exc}") from None
-    if not stat.S_ISDIR(mode):
-        raise CampaignError(f"{key}: {short(str(folder), 200)} is {_kind(mode)}, not a folder")
+    _checked(folder, key, "folder", folder=True)
+    if not folder.is_dir():
+        raise CampaignError(f"{key}: {short(str(folder), 200)} is a file, not a folder")
     return folder
 
 
@@ -457,19 +453,11 @@ def _recordings(folder: Path, key: str, *, empty_ok: bool = False) -> list[Path]
         names = sorted(entry.name for entry in os.scandir(folder) if entry.name.endswith(".mcap"))
     except OSError as exc:
         raise CampaignError(f"{key}: {short(str(folder), 200)}: {exc.strerror or exc}") from None
-    files = []
     for name in names:
-        path = folder / name
-        try:
-            mode = os.stat(path).st_mode
-        except OSError as exc:
-            raise CampaignError(f"{key}: {short(name)}: {exc.strerror or exc}") from None
-        if not stat.S_ISREG(mode):
-            raise CampaignError(f"{key}: {short(name)} is {_kind(mode)}; a recording must be a regular file")
-        files.append(path)
-    if not files and not empty_ok:
+        _checked(folder / name, key, "recording")
+    if not names and not empty_ok:
         raise CampaignError(f"{key}: no .mcap recordings in {short(str(folder), 200)}")
-    return files
+    return [folder / name for name in names]
 
 
 def _fleet_state(recordings: list[Path], golden: Path | None) -> list:
