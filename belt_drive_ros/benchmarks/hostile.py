@@ -30,6 +30,8 @@ report the same files),
 :mod:`~belt_drive_ros.benchmarks.hostile_campaign`, through ``belt-drive sweep
 --check``), ``bag folder`` (a split rosbag2 folder with its ``metadata.yaml``
 or files damaged, through ``msg-tools info``, ``export`` and ``compare``),
+``campaign run`` (whole sweeps in child processes: failing variants, SIGINT,
+SIGTERM, SIGKILL and a resume, a fleet changed before its resume),
 ``node torque`` (absurd and non-finite drive torques), ``node parameter``
 (hostile scene files over ``scene``, absurd values) and ``node reset flood``.
 The table goes to stdout, ``hostile.csv`` and ``hostile.md`` in ``--out``;
@@ -71,7 +73,7 @@ from .hostile_paths import EXTRA_CATEGORIES  # issue 24: node SetParameters, FIF
 
 OUTCOMES = ("clean error", "ok", "data lost", "silent wrong", "crash", "hang")
 #: the categories of ``--only`` (campaign files and bag folders: :mod:`belt_drive_ros.benchmarks.hostile_campaign`)
-CATEGORIES = ("scene", "cli", "mcap", "campaign", "bagdir", "node", *EXTRA_CATEGORIES)
+CATEGORIES = ("scene", "cli", "mcap", "campaign", "bagdir", "sweep", "node", *EXTRA_CATEGORIES)
 #: seconds one input may take
 BUDGET_S = 20.0
 
@@ -723,6 +725,10 @@ def main(argv=None) -> int:
                 run_campaign_files(table, folder, args.quick)
             elif name == "bagdir":
                 run_bag_folders(table, folder, args.quick)
+            elif name == "sweep":
+                from .hostile_campaign import run_campaign_runs
+
+                run_campaign_runs(table, folder, args.quick)
             elif name in EXTRA_CATEGORIES:
                 domain = args.domain_id if args.domain_id is not None else ros_env.process_domain_id(offset=37)
                 EXTRA_CATEGORIES[name](table, folder, args.quick, domain, sys.modules[__name__])

@@ -315,3 +315,129 @@ def bag_folder_mutants(folder: Path, seed: int = 24):
         yield f"{name} cut in half", lambda d, n=name: (d / n).write_bytes((d / n).read_bytes()[: (d / n).stat().st_size // 2])
     yield "a split file copied in twice", lambda d: shutil.copy(d / files[0], d / "copy_9.mcap")
     yield "no metadata, a file copied in twice", lambda d: ((d / "metadata.yaml").unlink(), shutil.copy(d / files[0], d / "copy_9.mcap"))
+
+
+# ------------------------------------------------------------------ whole sweeps (a cluster each)
+#: a campaign long enough to interrupt (200,000 runs of paper: minutes on two workers)
+LONG = {"scene": "paper", "monte_carlo": {"samples": 200_000, "seed": 1, "vary": {"params.k": {"normal": 0.05}}}}
+
+
+def _sweep(path: Path, *args, signal_after_part=None, group: bool = False, timeout: float = 300.0):
+    """(exit status or None for a hang, stderr) of ``belt-drive sweep PATH --quiet ARGS`` in a child process (its own
+    process group); ``signal_after_part``: a signal sent (to the group with ``group``) once a part is written."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    cmd = [sys.executable, "-m", "belt_drive_ros.cli", "sweep", str(path), "--quiet", *map(str, args)]
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    child = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env,
+                             start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        if signal_after_part is not None:
+            parts = path.with_suffix(".campaign") / "parts"
+            deadline = time.monotonic() + timeout
+            while not (parts.is_dir() and any(parts.glob("part-*.parquet"))):
+                if child.poll() is not None or time.monotonic() > deadline:
+                    break
+                time.sleep(0.1)
+            if child.poll() is None:
+                (os.killpg if group else os.kill)(child.pid, signal_after_part)
+        err = child.communicate(timeout=timeout)[1]
+        return child.returncode, err
+    except subprocess.TimeoutExpired:
+        return None, "no exit within the budget"
+    finally:
+        if child.poll() is None:
+            os.killpg(child.pid, signal.SIGKILL)
+            child.wait()
+        deadline = time.monotonic() + 30.0  # the workers and the resource tracker end with the command
+        while _group_alive(child.pid) and time.monotonic() < deadline:
+            time.sleep(0.2)
+
+
+def _group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+        return True
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+
+
+def run_campaign_runs(table, tmp: Path, quick: bool) -> None:
+    """Whole sweeps through ``belt-drive sweep`` in child processes: a grid of bad methods (a failing row
+    each, exit 1), Ctrl-C to the process group and SIGTERM (exit 130 / 143, one line, nothing left running,
+    the parts kept), SIGKILL then the same command (resumes to the whole table, no warning), a fleet resumed
+    after a recording was renamed (refused). Category ``campaign run``."""
+    import signal
+
+    import pandas as pd
+
+    category = "campaign run"
+    bad = tmp / "methods.yaml"
+    bad.write_bytes(dump_campaign({"scene": "paper", "set": {"duration": 0.05}, "grid": {"method": ["nosuch", 7, None, "etd2"]}}))
+    status, err = _sweep(bad, "--workers", "1")
+    result = bad.with_suffix(".campaign") / "results.parquet"
+    if status is None:
+        outcome = "hang"
+    elif status == 1 and result.is_file():
+        rows = pd.read_parquet(result)
+        errors = [e != "" for e in rows["error"]]
+        outcome = "clean error" if errors == [True, True, True, False] and len(err.strip().splitlines()) == 0 else "silent wrong"
+    else:
+        outcome = "crash"
+    table.add(category, outcome, "grid method [nosuch, 7, null, etd2]: a row each, exit 1", err)
+    signals = [(signal.SIGINT, True), (signal.SIGTERM, False)] if not quick else [(signal.SIGINT, True)]
+    for sig, group in signals:
+        long = tmp / f"long_{sig.name}.yaml"
+        long.write_bytes(dump_campaign(LONG))
+        status, err = _sweep(long, "--workers", "2", signal_after_part=sig, group=group)
+        lines = err.strip().splitlines()
+        kept = any((long.with_suffix(".campaign") / "parts").glob("part-*.parquet"))
+        if status is None:
+            outcome = "hang"
+        elif status == 128 + sig and len(lines) == 1 and lines[0].startswith(f"belt-drive: interrupted by {sig.name}"):
+            outcome = "clean error" if kept else "data lost"
+        else:
+            outcome = "crash"
+        table.add(category, outcome, f"{sig.name} to the {'process group' if group else 'command'} mid-run", err)
+    if quick:
+        return
+    long = tmp / "long_kill.yaml"
+    small = dict(LONG, monte_carlo=dict(LONG["monte_carlo"], samples=20_000))
+    long.write_bytes(dump_campaign(small))
+    status, err = _sweep(long, "--workers", "2", signal_after_part=signal.SIGKILL)
+    noise = err.strip().splitlines()
+    status, err = _sweep(long, "--workers", "2")
+    result = long.with_suffix(".campaign") / "results.parquet"
+    if status is None:
+        outcome = "hang"
+    elif noise or err.strip():
+        outcome = "crash"  # a leaked-semaphore warning after the kill, or an error on resume
+    elif status == 0 and result.is_file() and sorted(pd.read_parquet(result)["variant"]) == list(range(20_000)):
+        outcome = "ok"
+    else:
+        outcome = "data lost"
+    table.add(category, outcome, "SIGKILL mid-run, then the same command resumes", " ".join(noise) + err)
+    folder = tmp / "fleet_resume"
+    folder.mkdir()
+    make_fleet(folder, "fleet")
+    shutil.copy(BAGS / "engine_idle_torque.mcap", folder / "fleet" / "truck_2.mcap")
+    fleet = folder / "fleet.yaml"
+    fleet.write_bytes(dump_campaign(dict(FLEET, scene=str(BAGS / "engine_idle.yaml"))))
+    _sweep(fleet, "--workers", "1", "--batch-size", "1", signal_after_part=signal.SIGTERM)
+    (folder / "fleet" / "truck_1.mcap").rename(folder / "fleet" / "truck_7.mcap")
+    status, err = _sweep(fleet, "--workers", "1", "--batch-size", "1")
+    lines = err.strip().splitlines()
+    if status is None:
+        outcome = "hang"
+    elif status == 2 and len(lines) == 1 and "another campaign" in lines[0]:
+        outcome = "clean error"
+    elif status == 0:
+        outcome = "silent wrong"  # old parts of a renamed recording reused
+    else:
+        outcome = "crash"
+    table.add(category, outcome, "fleet resumed after a recording was renamed", err)

@@ -463,11 +463,22 @@ def run_campaign(
 
 
 def _close(client, cluster) -> None:
-    """Close the client and the local cluster; a second interrupt meanwhile does not leave the workers running."""
+    """Close the client and the local cluster; a second interrupt meanwhile does not leave the workers running.
+
+    Dask's own log lines are off meanwhile: after an interrupt its scheduler
+    logs (at CRITICAL, with a traceback) messages to workers already gone,
+    which says nothing about the campaign (its parts are written or not).
+    """
+    import logging
+
     with _signals_held():
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        logging.disable(logging.CRITICAL)
+        try:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+        finally:
+            logging.disable(logging.NOTSET)
 
 
 @contextlib.contextmanager
