@@ -99,14 +99,14 @@ def _scaling_run(campaign, out: Path, workers: int, batch_size: int) -> tuple[fl
     """(runs/s of the batches, cluster start [s], workers' CPU [s], of it system [s]) on ``workers`` warm workers."""
     from distributed import Client, wait
 
-    from ..campaign.execute import _portable, local_cluster, run_batch, run_campaign
+    from ..campaign.execute import local_cluster, portable_of, run_batch, run_campaign
 
     t0 = time.perf_counter()
     cluster = local_cluster(workers)  # as belt-drive sweep starts it
     client = Client(cluster)
     start = time.perf_counter() - t0
     try:
-        portable, rows = _portable(campaign), campaign.variants().to_dict("records")[:64]
+        portable, rows = portable_of(campaign), campaign.variants().to_dict("records")[:64]
         warm = [client.submit(run_batch, portable, rows, None, pure=False, workers=[addr])
                 for addr in client.scheduler_info()["workers"]]  # fmt: skip
         wait(warm)

@@ -197,7 +197,7 @@ class _Progress:
         self.stream.flush()
 
 
-def _portable(campaign: Campaign) -> dict:
+def portable_of(campaign: Campaign) -> dict:
     """What a worker needs to rebuild the campaign: the base scene inline, folders absolute (not the file's
     text: the digest names it; the mapping goes to each worker once, :func:`run_campaign` scatters it)."""
     data = yaml_safe(campaign)
@@ -312,7 +312,8 @@ def dask_setup(worker) -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _write_part(path: Path, rows) -> None:
+def write_part(path: Path, rows) -> None:
+    """``rows`` (a DataFrame or row mappings) as the Parquet file ``path``, whole or not at all."""
     import pandas as pd
 
     tmp = path.with_suffix(".tmp")
@@ -390,7 +391,7 @@ def run_campaign(
         if campaign.fleet_folder is not None:
             recordings_dir = out_dir / "recordings"
             recordings_dir.mkdir(parents=True, exist_ok=True)
-        portable = _portable(campaign)
+        portable = portable_of(campaign)
         # once per worker, not inside every task (a list: a dict would be scattered value by value)
         portable = client.scatter([portable], broadcast=True, hash=False)[0]
         bounds = manifest.get("bounds")
@@ -405,7 +406,7 @@ def run_campaign(
                 for k, future in enumerate(batches):
                     rows = future.result()
                     per_variant = min(per_variant, (float(rows["seconds"].iloc[0]) if len(rows) else 0.0) / first)
-                    _write_part(parts_dir / f"part-{k:05d}.parquet", rows)
+                    write_part(parts_dir / f"part-{k:05d}.parquet", rows)
                     computed += first
                 rest = n - sizing * first
                 size = max(math.ceil(MIN_TASK_SECONDS / max(per_variant, 1e-9)), math.ceil(rest / (4 * n_workers)))
@@ -435,7 +436,7 @@ def run_campaign(
             except Exception as exc:  # a batch that broke as a whole: its variants are recorded with the reason
                 rows = [dict(r, model="", ran="none", single_reason="", error=f"batch failed: {type(exc).__name__}: {exc}",
                              seconds=math.nan, **{m: math.nan for m in METRICS}) for r in table.iloc[a:b].to_dict("records")]
-            _write_part(parts_dir / f"part-{k:05d}.parquet", rows)
+            write_part(parts_dir / f"part-{k:05d}.parquet", rows)
             computed += b - a
             bar.update(b - a)
         compute_end = time.perf_counter()
@@ -517,4 +518,7 @@ def loop_of_single_runs(campaign: Campaign, rows, check_stability: bool = True) 
     return out
 
 
-__all__ = ["CampaignRun", "MAX_BATCH", "MIN_TASK_SECONDS", "local_cluster", "loop_of_single_runs", "run_batch", "run_campaign"]
+__all__ = [
+    "CampaignRun", "MAX_BATCH", "MIN_TASK_SECONDS", "local_cluster", "loop_of_single_runs", "portable_of", "run_batch",
+    "run_campaign", "write_part",
+]  # fmt: skip

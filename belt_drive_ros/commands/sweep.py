@@ -100,7 +100,7 @@ def check(campaign, workers: int) -> int:
     import numpy as np
 
     from ..campaign import limits
-    from ..campaign.execute import _portable, _write_part, run_batch
+    from ..campaign.execute import portable_of, run_batch, write_part
 
     table = campaign.variants()
     picks = sorted(set(np.linspace(0, len(table) - 1, min(CHECK_VARIANTS, len(table))).round().astype(int).tolist()))
@@ -108,8 +108,8 @@ def check(campaign, workers: int) -> int:
         recordings = Path(tmp) / "recordings" if campaign.fleet_folder is not None else None
         if recordings is not None:
             recordings.mkdir()
-        rows = run_batch(_portable(campaign), table.iloc[picks], str(recordings) if recordings else None)
-        _write_part(Path(tmp) / "part-00000.parquet", rows)  # the rows' columns must be typed as a part needs
+        rows = run_batch(portable_of(campaign), table.iloc[picks], str(recordings) if recordings else None)
+        write_part(Path(tmp) / "part-00000.parquet", rows)  # the rows' columns must be typed as a part needs
     failed = rows[rows["error"] != ""]
     print(f"campaign {campaign.name}: {limits.estimate(campaign, workers)}")
     print(f"checked {len(rows)} of {len(table)} variants here: {len(rows) - len(failed)} ran, {len(failed)} failed")
