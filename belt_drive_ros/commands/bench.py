@@ -63,7 +63,8 @@ def register(sub) -> None:
     p.add_argument("--floor", action="store_true",
                    help="node: then measure the same process without the model (rclpy + DDS only) for comparison")
     p.add_argument("--only", nargs="+", metavar="CATEGORY",
-                   help="hostile: only these categories (scene, cli, mcap, campaign, bagdir, sweep, node)")
+                   help="hostile: only these categories (scene, cli, mcap, campaign, bagdir, sweep, node, setparameters, "
+                   "fifo, truncated)")
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                    help="node: a node parameter (repeatable), e.g. -p model:=slipping")
     p.set_defaults(func=run)
