@@ -69,6 +69,7 @@ from msg_tools import Ros2McapWriter
 
 from ..core.params import OPTIONAL_DEFAULTS
 from ..core.scene import REQUIRED_KEYS
+from .hostile_campaign import run_campaign_runs
 from .hostile_paths import EXTRA_CATEGORIES  # issue 24: node SetParameters, FIFO read paths, truncated files
 
 OUTCOMES = ("clean error", "ok", "data lost", "silent wrong", "crash", "hang")
@@ -715,25 +716,14 @@ def main(argv=None) -> int:
             folder = Path(tmp) / name
             folder.mkdir()
             t0 = time.monotonic()
-            if name == "scene":
-                run_scene_files(table, folder, args.quick)
-            elif name == "cli":
-                run_cli(table, folder, args.quick)
-            elif name == "mcap":
-                run_mcap(table, folder, args.quick)
-            elif name == "campaign":
-                run_campaign_files(table, folder, args.quick)
-            elif name == "bagdir":
-                run_bag_folders(table, folder, args.quick)
-            elif name == "sweep":
-                from .hostile_campaign import run_campaign_runs
-
-                run_campaign_runs(table, folder, args.quick)
+            offline = {"scene": run_scene_files, "cli": run_cli, "mcap": run_mcap, "campaign": run_campaign_files,
+                       "bagdir": run_bag_folders, "sweep": run_campaign_runs}
+            domain = args.domain_id if args.domain_id is not None else ros_env.process_domain_id(offset=37)
+            if name in offline:
+                offline[name](table, folder, args.quick)
             elif name in EXTRA_CATEGORIES:
-                domain = args.domain_id if args.domain_id is not None else ros_env.process_domain_id(offset=37)
                 EXTRA_CATEGORIES[name](table, folder, args.quick, domain, sys.modules[__name__])
             else:
-                domain = args.domain_id if args.domain_id is not None else ros_env.process_domain_id(offset=37)
                 run_node(table, folder, args.quick, domain)
             timings[name] = time.monotonic() - t0
     text = table.text()
