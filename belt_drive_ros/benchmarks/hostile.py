@@ -622,7 +622,7 @@ def classify_check(status, out: str, err: str, must_fail: bool, variants: int | 
     outcome = _classify_cli(status, err, "belt-drive: error: ", must_fail)
     if outcome in ("ok", "clean error") and variants is not None and status in (0, 1):
         # the variant count --check reports must be the one the file states
-        if f"{variants:,} variants" not in out:
+        if f"{variants:,} variant{'s' if variants != 1 else ''} (" not in out:
             return "silent wrong"
     return outcome
 

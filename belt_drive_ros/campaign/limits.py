@@ -95,7 +95,7 @@ def estimate(campaign: Campaign, workers: int) -> str:
         axes += [f"{len(campaign.profiles)} profiles"] if campaign.profiles else []
         axes += [f"{campaign.samples} samples"] if campaign.vary else []
         shape = " x ".join(axes) if axes else "the base scene"
-    return (f"{n:,} variants ({shape}): ~{_duration(seconds(campaign, n, workers))} on {workers} "
+    return (f"{n:,} variant{'s' if n != 1 else ''} ({shape}): ~{_duration(seconds(campaign, n, workers))} on {workers} "
             f"worker{'s' if workers != 1 else ''}, ~{_size(table_bytes(campaign, n))} of tables")  # fmt: skip
 
 

@@ -234,7 +234,7 @@ class Campaign:
             grid[key] = column
             if back is not None:
                 decode[key] = back
-        profiles = sequence(data.get("profiles") or [], "profiles", CampaignError)
+        profiles = [] if data.get("profiles") is None else sequence(data["profiles"], "profiles", CampaignError)
         for j, entry in enumerate(profiles):
             if not isinstance(entry, Mapping) or not entry or set(entry) - {"drive", "load"}:
                 raise CampaignError(f"profiles[{j}]: a mapping with drive and/or load, got {short(entry)}")
