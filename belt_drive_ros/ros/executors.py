@@ -23,12 +23,21 @@ Measured pitfalls they encode (ROS 2 Jazzy wheels):
   The handler here only stores the signal number (:class:`StopSignal`);
 * ``SingleThreadedExecutor.spin_until_future_complete`` adds a done
   callback to the future on every call and never removes it: the spin
-  waits on a fresh future per poll, so nothing accumulates over a long run.
+  waits on a fresh future per poll, so nothing accumulates over a long run;
+* the ``EventsExecutor`` (rclpy 7.1, its ``EventsQueue::RunUntil``) checks a
+  spin's timeout only when its event queue is empty: a timer whose callback
+  outlasts its period (``publish_clock`` at ``real_time_factor:=0``, a
+  1 kHz tick timer on an overloaded machine) keeps the queue non-empty, the
+  spin never returns to the poll, and SIGINT/SIGTERM were recorded but never
+  acted on. :class:`SpinDeadline` completes each spin's future from a thread
+  of its own at the spin's deadline (a queue stop, thread-safe), so every
+  spin ends within ``poll`` however busy the executor is.
 """
 
 from __future__ import annotations
 
 import signal
+import threading
 import time
 from contextlib import contextmanager
 from typing import Callable, Iterable, Iterator, Sequence
@@ -45,6 +54,7 @@ from rclpy.task import Future  # noqa: E402
 
 __all__ = [
     "EXECUTORS",
+    "SpinDeadline",
     "StopSignal",
     "executor_name",
     "make_executor",
@@ -135,6 +145,57 @@ def stop_on_signals() -> Iterator[StopSignal]:
             signal.signal(sig, handler)
 
 
+class SpinDeadline:
+    """Ends each spin at its deadline from a thread, even when the executor never runs out of work.
+
+    ``arm(future, timeout)`` before a spin on ``future``: once ``timeout`` [s]
+    has passed the thread completes the future (if the spin has not ended),
+    which stops the executor after the callback it is running (the events
+    executor's done callback stops its queue; the single-threaded one is
+    woken). Only this thread and the spinning one take its lock; a signal
+    handler never does. ``close()`` ends the thread.
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._armed: tuple | None = None  # (future, deadline [s, monotonic])
+        self._closed = False
+        self._thread = threading.Thread(target=self._run, name="belt_drive_spin_deadline", daemon=True)
+        self._thread.start()
+
+    def arm(self, future: Future, timeout: float) -> None:
+        with self._cond:
+            self._armed = (future, time.monotonic() + timeout)
+            self._cond.notify()
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._armed = None
+            self._cond.notify()
+        self._thread.join(timeout=5.0)
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._closed:
+                    if self._armed is None:
+                        self._cond.wait()
+                        continue
+                    left = self._armed[1] - time.monotonic()
+                    if left <= 0:
+                        break
+                    self._cond.wait(left)
+                if self._closed:
+                    return
+                future, self._armed = self._armed[0], None
+            if not future.done():  # outside the lock: the done callbacks run here
+                try:
+                    future.set_result(None)
+                except Exception:  # noqa: BLE001 - a future completed meanwhile, a dying executor
+                    pass
+
+
 def spin_until_signal(
     executor,
     context=None,
@@ -169,6 +230,7 @@ def spin_until_signal(
     """
     context = context or rclpy.get_default_context()
     end = None if duration is None else time.monotonic() + duration
+    deadline = SpinDeadline()
     with stop_on_signals() as stop:
         try:
             while not stop.done() and context.ok():
@@ -179,10 +241,14 @@ def spin_until_signal(
                 timeout = poll if end is None else min(poll, end - time.monotonic())
                 if timeout <= 0:
                     break
-                # a fresh, never-completed future: the executor's done callbacks die with it
-                executor.spin_until_future_complete(Future(), timeout_sec=timeout)
+                # a fresh future, completed at the deadline only: the executor's done callbacks die with it
+                future = Future()
+                deadline.arm(future, timeout)
+                executor.spin_until_future_complete(future, timeout_sec=timeout)
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
+        finally:
+            deadline.close()
     return stop.result()
 
 
