@@ -201,3 +201,71 @@ def test_recording_resimulates_to_the_recorded_outputs_bit_for_bit(tmp_path, ros
         assert set(np.unique(js.effort[:, 0])) <= {0.0, 3.0, 5.0, -5.0, 4.0}
     if case == "timeout_zero":
         assert np.any(js.effort[:, 0] == 0.0) and js.effort[-1, 0] == 0.0
+
+
+def test_sim_time_recording_stamps_latched_and_early_messages_at_the_first_clock(tmp_path, ros_domain_id):
+    """With use_sim_time, what the node records before its first /clock (the latched
+    robot_description, a torque received, a /diagnostics published while it waits) is stamped
+    at the run's first /clock time, not at 0: the file spans the run, not 56 years."""
+    from msg_tools import summary
+
+    from belt_drive_ros.ros.harness import BeltDriveHarness
+
+    start = 1_767_225_600.0  # 2026-01-01, as `belt-drive replay --clock` of a shipped bag starts
+    bag = tmp_path / "sim.mcap"
+    with BeltDriveHarness(scene="paper", domain_id=ros_domain_id, record_path=str(bag), start_time=start,
+                          input_timeout=0.0) as h:
+        h.publish_torque(5.0)
+        h.advance(0.2)
+        h.node.publish_diagnostics()
+        h.advance(0.05)
+    info = summary(bag)
+    start_ns = int(start * 1e9)
+    assert info.start_ns == start_ns and info.end_ns == start_ns + 250_000_000, (info.start_ns, info.end_ns)
+    described = read_topic(bag, "/robot_description")
+    assert described.log_time_ns.tolist() == [start_ns]
+    with open(bag, "rb") as f:  # first message of the file (log-time order): the URDF, at the first /clock
+        first = next(make_reader(f).iter_messages(log_time_order=True))
+    assert first[1].topic == "/robot_description" and first[2].log_time == start_ns
+
+
+def test_recorder_holds_messages_until_the_first_clock_and_bounds_what_it_holds():
+    """TopicRecorder on simulated time: messages at time 0 before any /clock wait for the first
+    time of the run (a later message's, or run_started's, 0 included), and at most MAX_HELD_BYTES wait."""
+    import io
+    from types import SimpleNamespace
+
+    from msg_tools import Ros2McapWriter
+
+    from belt_drive_ros.ros import recorder as rec
+
+    class Clock:
+        ros_time_is_active = True
+
+    def make():
+        node = SimpleNamespace(get_clock=Clock, get_publishers_info_by_topic=lambda topic: [],
+                               get_logger=lambda: SimpleNamespace(error=print))
+        return rec.TopicRecorder(node, Ros2McapWriter(io.BytesIO()), flush_period=None)
+
+    data = b"\x00\x01\x00\x00" + b"\x00" * 8
+    r = make()
+    r.write("/a", "std_msgs/msg/Float64", data, 0)
+    r.write("/b", "std_msgs/msg/Float64", data, 0)
+    assert r.writer.message_count == 0
+    r.write("/a", "std_msgs/msg/Float64", data, 7_000)
+    assert r.writer.message_count == 3 and r.writer.time_range_ns == (7_000, 7_000)
+    r.write("/a", "std_msgs/msg/Float64", data, 0)  # after the start, time 0 is a time like any other
+    assert r.writer.message_count == 4
+
+    r = make()
+    r.write("/a", "std_msgs/msg/Float64", data, 0)
+    r.run_started(0)  # a run whose /clock starts at 0
+    assert r.writer.message_count == 1 and r.writer.time_range_ns == (0, 0)
+
+    r = make()
+    big = b"\x00\x01\x00\x00" + b"\x00" * (rec.MAX_HELD_BYTES // 3)
+    for _ in range(5):
+        r.write("/s", "std_msgs/msg/String", big, 0)
+    assert r.held_dropped == 3
+    r.close()  # never a /clock: what is held is written at 0
+    assert r.writer.message_count == 2

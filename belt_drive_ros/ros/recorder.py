@@ -121,6 +121,9 @@ def release_free_heap() -> bool:
 
 _MALLOC_TRIM: Any = None  # resolved on first use: the ctypes function, or False
 
+#: messages held on simulated time until the first /clock (TopicRecorder.write) keep at most this many bytes
+MAX_HELD_BYTES = 8 * 2**20
+
 
 def open_writer(path, *, force: bool = False, max_bag_duration: float = 0.0, max_bag_size: int = 0,
                 **options: Any):
@@ -205,6 +208,11 @@ class TopicRecorder:
         self._declared: set = set()
         self._unflushed = 0
         self._files_done = 0  # split files finished so far (a bag folder)
+        self._time_known = False  # False until the first message with a time of the run (see write)
+        self._first_ns = 0  # that time [ns]
+        self._held: List[tuple] = []  # (topic, type, data) written on sim time before the first /clock
+        self._held_bytes = 0
+        self.held_dropped = 0
         self.heap_trims = 0
         self._timer = None
         #: subscribe transient local where every publisher offers it, so the history a
@@ -316,17 +324,57 @@ class TopicRecorder:
         self._declared.add(topic)
 
     def write(self, topic: str, type_name: str, data: bytes, log_time_ns: int) -> None:
-        """Write one serialized message directly (no subscription), with the same error handling."""
+        """Write one serialized message directly (no subscription), with the same error handling.
+
+        On simulated time before the first ``/clock`` (``log_time_ns`` 0 while
+        ROS time is active) the message is held and written, in order, with
+        the first time of the run: that of the first message written at a later
+        time, or the time :meth:`run_started` gives (a node's first tick, whose
+        time is the run's even when ``/clock`` started at 0). A latched ``robot_description`` and the
+        first ``/diagnostics`` therefore do not sit at the epoch, decades before
+        the rest. Held messages are bounded (:data:`MAX_HELD_BYTES`: the oldest
+        are dropped beyond, counted in ``held_dropped``); :meth:`close` writes
+        what is still held at time 0 (no ``/clock`` ever came).
+        """
         if self.error is not None or self.closed:
             return
         with self.lock:
-            try:
-                if topic not in self._declared:
-                    self._declare(topic, type_name)
-                self.writer.write_raw(topic, type_name, data, log_time_ns)
-                self._unflushed += 1
-            except (MsgToolsError, OSError) as exc:
-                self._fail(exc)
+            if log_time_ns == 0 and self._clock.ros_time_is_active:  # the node's clock has no /clock yet
+                if not self._time_known:
+                    self._hold(topic, type_name, data)
+                    return
+                log_time_ns = self._first_ns
+            elif not self._time_known:
+                self.run_started(log_time_ns)
+            self._write(topic, type_name, data, log_time_ns)
+
+    def run_started(self, log_time_ns: int) -> None:
+        """The run's time base is known from ``log_time_ns`` on (0 included): write what was held there."""
+        with self.lock:
+            if not self._time_known and self.error is None and not self.closed:
+                self._time_known, self._first_ns = True, int(log_time_ns)
+                self._write_held(log_time_ns)
+
+    def _write(self, topic: str, type_name: str, data: bytes, log_time_ns: int) -> None:
+        try:
+            if topic not in self._declared:
+                self._declare(topic, type_name)
+            self.writer.write_raw(topic, type_name, data, log_time_ns)
+            self._unflushed += 1
+        except (MsgToolsError, OSError) as exc:
+            self._fail(exc)
+
+    def _hold(self, topic: str, type_name: str, data: bytes) -> None:
+        self._held.append((topic, type_name, data))
+        self._held_bytes += len(data)
+        while self._held_bytes > MAX_HELD_BYTES and len(self._held) > 1:
+            self._held_bytes -= len(self._held.pop(0)[2])
+            self.held_dropped += 1
+
+    def _write_held(self, log_time_ns: int) -> None:
+        held, self._held, self._held_bytes = self._held, [], 0
+        for topic, type_name, data in held:
+            self._write(topic, type_name, data, log_time_ns)
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
         if self.error is not None or self.closed:
@@ -381,6 +429,8 @@ class TopicRecorder:
     def _close(self) -> None:
         if self.closed:
             return
+        if self._held and self.error is None:  # no /clock ever came: time 0 is all there is
+            self.run_started(0)
         self.closed = True
         for sub in self._subs.values():
             try:
@@ -568,6 +618,8 @@ class NodeRecorder(TopicRecorder):
         if self.error is not None or self.closed:
             return
         direct = self._direct
+        if not self._time_known:  # the run's first tick: what was held is written at its time
+            self.run_started(now_ns)
         topic = direct.get("joint_states")
         if topic is not None:
             self.write(topic, JOINT_STATE, joint_cdr or self._joint_states.encode(now_ns, joints), now_ns)
