@@ -197,6 +197,12 @@ class Ros2BagWriter:
     -----
     Every file repeats the schemas, channels and metadata records written so
     far (the scene, parameters, units), so each file is self-describing.
+    Latched topics (:meth:`latch`: a ``robot_description``, ``/tf_static``)
+    are repeated too: each new file starts with the latest message of each,
+    stamped with the file's first log time (as ROS 1's ``--repeat-latched``
+    and rosbag2's ``--repeat-transient-local`` do), so one file alone shows
+    the drive. Those copies are messages of their file: counted in its
+    ``message_count`` and in ``metadata.yaml``, read by every reader.
     ``metadata.yaml`` is written by :meth:`finish`; a killed writer leaves
     the files without it, which :func:`bag_files` still reads.
     """
@@ -235,6 +241,7 @@ class Ros2BagWriter:
         self._topics: Dict[str, Tuple[str, Any, Optional[str]]] = {}
         self._types: Dict[str, str] = {}
         self._metadata: List[Tuple[str, Dict[str, str]]] = []
+        self._latched: Dict[str, Optional[Tuple[str, bytes]]] = {}  # topic -> (type, CDR) of its latest message
         self._finished = False
         self._current: Ros2McapWriter = self._open(0)
 
@@ -270,6 +277,9 @@ class Ros2BagWriter:
         if due:
             self._close_current()
             self._current = self._open(len(self._done))
+            for topic, latest in self._latched.items():  # each file starts with the latched topics
+                if latest is not None:
+                    self._current.write_raw(topic, latest[0], latest[1], log_time)
 
     def _close_current(self) -> None:
         w = self._current
@@ -301,13 +311,22 @@ class Ros2BagWriter:
 
     @property
     def message_count(self) -> int:
-        return sum(f["message_count"] for f in self._done) + self._current.message_count
+        """Messages in every file (after :meth:`finish` the last file is among the finished ones)."""
+        open_file = 0 if self._finished else self._current.message_count
+        return sum(f["message_count"] for f in self._done) + open_file
 
     def topic_counts(self) -> Dict[str, int]:
+        """Messages per topic in every file (equal to ``metadata.yaml`` once finished)."""
         counts: Dict[str, int] = {name: t["message_count"] for name, t in self._topic_meta.items()}
-        for topic, n in self._current.topic_counts().items():
-            counts[topic] = counts.get(topic, 0) + n
+        if not self._finished:
+            for topic, n in self._current.topic_counts().items():
+                counts[topic] = counts.get(topic, 0) + n
         return counts
+
+    def latch(self, topic: str) -> None:
+        """Repeat ``topic``'s latest message at the start of every later file (see the class notes)."""
+        with self._lock:
+            self._latched.setdefault(topic, None)
 
     def register_type(self, type_name: str, msg_text: str) -> None:
         with self._lock:
@@ -330,13 +349,17 @@ class Ros2BagWriter:
             self._split_if_due(int(log_time_ns))
             self._current.write_raw(topic, type_name, cdr_bytes, log_time_ns, publish_time_ns, qos)
             self._topics.setdefault(topic, (type_name, qos, None))
+            if topic in self._latched:
+                self._latched[topic] = (type_name, bytes(cdr_bytes))
 
     def write(self, topic: str, type_name: str, message: Any, log_time_ns: int,
               publish_time_ns: Optional[int] = None, qos: Any = None) -> None:
-        with self._lock:
-            self._split_if_due(int(log_time_ns))
-            self._current.write(topic, type_name, message, log_time_ns, publish_time_ns, qos)
-            self._topics.setdefault(topic, (type_name, qos, None))
+        from . import schemas
+        from .writer import encode
+
+        full_type = schemas.normalize_type_name(type_name)
+        schema = schemas.schema_text(full_type, self._types) if self._types else None
+        self.write_raw(topic, full_type, encode(full_type, message, schema=schema), log_time_ns, publish_time_ns, qos)
 
     def flush(self) -> None:
         with self._lock:

@@ -125,6 +125,39 @@ def test_split_recording_is_a_rosbag2_folder_every_verb_reads(tmp_path, ros_doma
     result = simulate(scene_from_bag(folder))
     o = np.asarray(result.outputs["omega_M"])[::substeps]
     assert np.array_equal(speed.data, o[: speed.data.size]) and o.size == speed.data.size
+    check_split_folder(folder, "/robot_description")
+
+
+def check_split_folder(folder, latched, printed_total=None, first_at_start=True):
+    """A split bag folder as the mcap library and rosbags read it: every file starts with ``latched``
+    (one message, at the file's first log time; in the first file anywhere unless ``first_at_start``), and ``metadata.yaml`` states exactly what they hold
+    (per file, per topic, in total; ``printed_total`` too when given)."""
+    import collections
+
+    import yaml
+    from rosbags.rosbag2 import Reader
+
+    meta = yaml.safe_load((folder / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    per_topic = collections.Counter()
+    assert len(meta["files"]) >= 2
+    for k, entry in enumerate(meta["files"]):
+        with open(folder / entry["path"], "rb") as f:
+            messages = [(c.topic, m.log_time) for _, c, m in make_reader(f).iter_messages(log_time_order=True)]
+        start = entry["starting_time"]["nanoseconds_since_epoch"]
+        times = [t for topic, t in messages if topic == latched]
+        assert messages[0][1] == start and len(times) == 1, entry["path"]
+        if k or first_at_start:  # (a recorder's first file has it when DDS delivers it)
+            assert times == [start], entry["path"]
+        assert len(messages) == entry["message_count"], entry["path"]
+        per_topic.update(topic for topic, _ in messages)
+    stated = {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}
+    assert stated == dict(per_topic) and meta["message_count"] == sum(per_topic.values())
+    with Reader(folder) as reader:  # rosbags: from metadata.yaml, and message by message
+        assert reader.message_count == meta["message_count"]
+        assert {c.topic: c.msgcount for c in reader.connections} == stated
+        assert sum(1 for _ in reader.messages()) == meta["message_count"]
+    if printed_total is not None:
+        assert printed_total == meta["message_count"]
 
 
 # ------------------------------------------------------------ exact replay

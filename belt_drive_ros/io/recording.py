@@ -625,6 +625,8 @@ class ResultMcapWriter:
         if ROBOT_DESCRIPTION in self.wanted and t0_ns is not None:
             description = _absolute(ROBOT_DESCRIPTION, self.namespace)
             w.add_topic(description, STRING, ROBOT_DESCRIPTION_QOS)
+            if hasattr(w, "latch"):  # a split run starts every file with it
+                w.latch(description)
             w.write_raw(description, STRING, encode_robot_description(self._params)[1], t0_ns)
         for topic, type_name, _ in self.payload_topics:
             w.add_topic(topic, type_name, "reliable")

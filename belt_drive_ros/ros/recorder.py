@@ -121,6 +121,8 @@ def release_free_heap() -> bool:
 
 _MALLOC_TRIM: Any = None  # resolved on first use: the ctypes function, or False
 
+#: latched topics (by their last name segment): a split recording starts every file with the latest message of each
+LATCHED_TOPICS = ("robot_description", "tf_static")
 #: messages held on simulated time until the first /clock (TopicRecorder.write) keep at most this many bytes
 MAX_HELD_BYTES = 8 * 2**20
 
@@ -321,6 +323,8 @@ class TopicRecorder:
         hashes = [str(info.topic_type_hash) for info in infos
                   if str(getattr(info, "topic_type_hash", "")).startswith("RIHS")]
         self.writer.add_topic(topic, type_name, offered or "reliable", type_hash=hashes[0] if hashes else None)
+        if topic.rsplit("/", 1)[-1] in LATCHED_TOPICS and hasattr(self.writer, "latch"):
+            self.writer.latch(topic)  # a split recording repeats it at the start of every file
         self._declared.add(topic)
 
     def write(self, topic: str, type_name: str, data: bytes, log_time_ns: int) -> None:
