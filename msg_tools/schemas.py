@@ -169,6 +169,54 @@ MESSAGE_DEFINITIONS: Dict[str, str] = {
         "# This message is used to send diagnostic information about the state of the robot.\n"
         "std_msgs/Header header # for timestamp\n"
         "DiagnosticStatus[] status # an array of components being reported on\n"
+    ),    "geometry_msgs/msg/TransformStamped": (
+        '# This expresses a transform from coordinate frame header.frame_id\n'
+        '# to the coordinate frame child_frame_id at the time of header.stamp\n'
+        '#\n'
+        '# This message is mostly used by the\n'
+        '# <a href="https://docs.ros.org/en/rolling/p/tf2/">tf2</a> package.\n'
+        '# See its documentation for more information.\n'
+        '#\n'
+        '# The child_frame_id is necessary in addition to the frame_id\n'
+        '# in the Header to communicate the full reference for the transform\n'
+        '# in a self contained message.\n'
+        '\n'
+        '# The frame id in the header is used as the reference frame of this transform.\n'
+        'std_msgs/Header header\n'
+        '\n'
+        '# The frame id of the child frame to which this transform points.\n'
+        'string child_frame_id\n'
+        '\n'
+        '# Translation and rotation in 3-dimensions of child_frame_id from header.frame_id.\n'
+        'Transform transform\n'
+    ),
+    "geometry_msgs/msg/Transform": (
+        '# This represents the transform between two coordinate frames in free space.\n'
+        '\n'
+        'Vector3 translation\n'
+        'Quaternion rotation\n'
+    ),
+    "geometry_msgs/msg/Vector3": (
+        '# This represents a vector in free space.\n'
+        '\n'
+        '# This is semantically different than a point.\n'
+        '# A vector is always anchored at the origin.\n'
+        '# When a transform is applied to a vector, only the rotational component is applied.\n'
+        '\n'
+        'float64 x\n'
+        'float64 y\n'
+        'float64 z\n'
+    ),
+    "geometry_msgs/msg/Quaternion": (
+        '# This represents an orientation in free space in quaternion form.\n'
+        '\n'
+        'float64 x 0\n'
+        'float64 y 0\n'
+        'float64 z 0\n'
+        'float64 w 1\n'
+    ),
+    "tf2_msgs/msg/TFMessage": (
+        'geometry_msgs/TransformStamped[] transforms\n'
     ),
 }
 

@@ -70,7 +70,46 @@ def check_file(path: Path, result: dict) -> dict:
                 sec, nanosec = divmod(int(data.stamp_ns[k]), 1_000_000_000)
                 ours = [sec, nanosec, *data.position[k], *data.velocity[k], *data.effort[k]]
                 assert row == ours  # stamp and values bit for bit
+        elif data.type_name == "tf2_msgs/msg/TFMessage":
+            for k, row in ((0, state["first"]), (-1, state["last"])):
+                ours = []
+                for t in data.messages[k].transforms:
+                    tr, rot = t.transform.translation, t.transform.rotation
+                    ours += [t.header.stamp.sec, t.header.stamp.nanosec, t.header.frame_id, t.child_frame_id,
+                             tr.x, tr.y, tr.z, rot.x, rot.y, rot.z, rot.w]
+                assert row == ours and len(row) == 4 * 11, topic  # every wheel, bit for bit
     return counts
+
+
+def check_tf_moves_the_urdf(path, params):
+    """The /tf of ``path`` is the URDF's joints at the recorded angles: parent base_link, child
+    ``<joint>_link``, translation the joint origin, rotation the angle of joint_states about the
+    joint axis, stamped as joint_states (the 3D panel's transform tree)."""
+    import xml.etree.ElementTree as ET
+
+    import numpy as np
+
+    from belt_drive_ros.io.urdf import urdf_from_params
+
+    bag = read_bag(path)
+    js, tf = bag.topics["/joint_states"], bag.topics["/tf"]
+    assert len(tf.messages) == js.stamp_ns.size > 0
+    np.testing.assert_array_equal(tf.log_time_ns, js.log_time_ns)
+    joints = {j.get("name"): j for j in ET.fromstring(urdf_from_params(params)).findall("joint")}
+    for k in (0, js.stamp_ns.size // 2, -1):
+        transforms = tf.messages[k].transforms
+        assert [t.child_frame_id for t in transforms] == [joints[n].find("child").get("link") for n in js.names]
+        for j, (name, t) in enumerate(zip(js.names, transforms)):
+            joint = joints[name]
+            assert t.header.frame_id == joint.find("parent").get("link") == "base_link"
+            assert t.header.stamp.sec * 1_000_000_000 + t.header.stamp.nanosec == js.stamp_ns[k]
+            origin = [float(v) for v in joint.find("origin").get("xyz").split()]
+            np.testing.assert_allclose([t.transform.translation.x, t.transform.translation.y,
+                                        t.transform.translation.z], origin, rtol=1e-11, atol=0)  # URDF: 12 digits
+            axis = np.array([float(v) for v in joint.find("axis").get("xyz").split()])
+            q, angle = t.transform.rotation, js.position[k, j]
+            np.testing.assert_allclose([q.x, q.y, q.z, q.w], [*(axis * np.sin(angle / 2)), np.cos(angle / 2)],
+                                       rtol=0, atol=1e-15)
 
 
 def test_offline_run_decodes_in_foxglove(tmp_path):
@@ -85,9 +124,10 @@ def test_offline_run_decodes_in_foxglove(tmp_path):
     write_result_mcap(simulate(scene), path)
     result = foxglove_decode(path)[str(path)]
     counts = check_file(path, result)
-    assert set(counts) == {"/robot_description", "/drive_torque", "/joint_states", "/shaft_speed", "/load_torque",
-                           "/belt_torque", "/relative_deflection"}
+    assert set(counts) == {"/robot_description", "/drive_torque", "/joint_states", "/tf", "/shaft_speed",
+                           "/load_torque", "/belt_torque", "/relative_deflection"}
     assert counts["/robot_description"] == 1
+    check_tf_moves_the_urdf(path, scene.params)
     assert result["topics"]["/robot_description"]["first"] == [urdf_from_params(scene.params)]
     with open(path, "rb") as f:
         first = next(iter(make_reader(f).iter_messages()))[1]
@@ -107,7 +147,8 @@ def test_node_recording_decodes_in_foxglove(tmp_path, ros_domain_id):
         h.advance(1.5)  # diagnostics come once a second
     result = foxglove_decode(path)[str(path)]
     counts = check_file(path, result)
-    assert {"/robot_description", "/joint_states", "/diagnostics", "/drive_torque", "/shaft_speed"} <= set(counts)
+    assert {"/robot_description", "/joint_states", "/tf", "/diagnostics", "/drive_torque", "/shaft_speed"} <= set(counts)
+    check_tf_moves_the_urdf(path, params)
     assert result["topics"]["/robot_description"]["first"] == [urdf_from_params(params)]
     with open(path, "rb") as f:
         first = next(iter(make_reader(f).iter_messages()))[1]

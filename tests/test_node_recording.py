@@ -302,3 +302,43 @@ def test_recorder_holds_messages_until_the_first_clock_and_bounds_what_it_holds(
     assert r.held_dropped == 3
     r.close()  # never a /clock: what is held is written at 0
     assert r.writer.message_count == 2
+
+
+def test_node_recording_resimulates_from_the_command_line(tmp_path, ros_domain_id, capsys):
+    """A node recording with a NaN the node rejected: `belt-drive sim rec.mcap --out re.mcap` re-simulates it
+    from its own scene record and `msg-tools compare rec.mcap re.mcap` passes (every output within 1e-9 of
+    its peak); `belt-drive sim SCENE --torque-bag rec.mcap` takes /drive_torque_applied and says so."""
+    from msg_tools import compare
+    from msg_tools.cli import main as msg_tools
+
+    from belt_drive_ros.cli import main as belt_drive
+    from belt_drive_ros.ros.harness import BeltDriveHarness
+
+    rec = tmp_path / "rec.mcap"
+    with BeltDriveHarness(scene="truck_compressor", domain_id=ros_domain_id, record_path=str(rec),
+                          input_timeout=0.0) as h:
+        for value, ticks in ((6.0, 30), (float("nan"), 20), (9.0, 25), (-2.0, 15)):
+            h.publish_torque(value)
+            h.advance(ticks * 0.001)
+        assert h.node.counters["rejected_nonfinite"] == 1
+    assert np.isnan(read_topic(rec, "/drive_torque").data).sum() == 1
+    capsys.readouterr()
+    re = tmp_path / "re.mcap"
+    assert belt_drive(["sim", str(rec), "--out", str(re), "--quiet"]) == 0
+    said = capsys.readouterr().out
+    assert f"re-simulating {rec}" in said and "drive torque: /drive_torque_applied" in said
+    assert msg_tools(["compare", str(rec), str(re)]) == 0, capsys.readouterr().out
+    capsys.readouterr()
+    report = compare(rec, re, rtol=0.0, atol=0.0)  # the outputs themselves: equal to 1e-9 of each peak
+    by_name = {s.name: s for s in report.signals}
+    for name in ("shaft_speed/data", "belt_torque/data", "relative_deflection/data", "joint_states/position[wheel_3]",
+                 "drive_torque_applied/data", "slip_speed/data"):
+        recorded = read_topic(rec, "/" + name.split("/")[0])
+        peak = np.nanmax(np.abs(recorded.position if "position" in name else recorded.data))
+        assert by_name[name].n_compared == 91 and by_name[name].worst_abs_error <= 1e-9 * peak, by_name[name]
+    # SCENE --torque-bag rec.mcap: the applied torque, not the raw one with its NaN
+    other = tmp_path / "other.mcap"
+    assert belt_drive(["sim", "truck_compressor", "--torque-bag", str(rec), "--out", str(other), "--quiet"]) == 0
+    said = capsys.readouterr().out
+    assert "torque from /drive_torque_applied" in said
+    np.testing.assert_array_equal(np.unique(read_topic(other, "/drive_torque").data), [-2.0, 0.0, 6.0, 9.0])

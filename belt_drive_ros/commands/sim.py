@@ -17,6 +17,7 @@ examples:
   belt-drive sim truck_compressor --model flexible --method rk4 --dt 2e-4
   belt-drive sim my_scene.yaml --duration 10 --out run.mcap
   belt-drive sim paper --method RK45 --method-option rtol=1e-8
+  belt-drive sim rec.mcap --out re.mcap     # re-simulate a recording; msg-tools compare rec.mcap re.mcap
 
 SCENE is a shipped scene name (belt-drive scenes lists them) or a YAML path.
 CSV columns (SI units): time, phi_M, omega_M, phi_3, omega_3, drive_torque,
@@ -59,7 +60,8 @@ def register(sub) -> None:
         epilog=EPILOG + "\nintegrators (--method; default: the scene's):\n" + describe_methods() + "\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("scene", help="shipped scene name or path to a scene YAML")
+    p.add_argument("scene", help="shipped scene name, path to a scene YAML, or a recording (.mcap or bag folder) "
+                                 "to re-simulate from its own scene record")
     p.add_argument(
         "--model", choices=MODELS,
         help="belt model (default: the scene's, usually auto; auto goes on to slipping past the friction limit)",
@@ -72,7 +74,9 @@ def register(sub) -> None:
     p.add_argument("--duration", type=float, help="simulated time [s]")
     p.add_argument("--out", type=Path, help="write the run: .csv, or .mcap (ROS 2 bag); by extension, any case")
     p.add_argument("--plot", type=Path, help="PNG with the paper's panels, rigid and flexible overlaid")
-    p.add_argument("--torque-bag", type=Path, help="drive the model with drive_torque recorded in this MCAP")
+    p.add_argument("--torque-bag", type=Path,
+                   help="drive the model with the torque recorded in this MCAP: drive_torque_applied where the "
+                        "file has it (a node recording: the torque the node applied), else drive_torque")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs (--out and --plot)")
     p.add_argument("--start-time", default=None, metavar="WHEN", type=_start_time,
                    help="time stamp of scene time 0 in an .mcap: 'now' (default, the wall time of the run, "
@@ -112,13 +116,22 @@ def run(args) -> int:
     from ..io.progress import ProgressBar
     from ..core.scene import load_scene
 
-    scene = load_scene(args.scene)
+    from ..io.torque_bag import is_recording
+
+    args.writer_options = {}
+    if is_recording(args.scene):  # a recording re-simulated from its own scene record
+        scene = _resimulation(args)
+    else:
+        scene = load_scene(args.scene)
     if args.method_option:
         scene = scene.with_overrides(method_options=_options(args.method_option))
     if args.torque_bag is not None:
-        from ..io.torque_bag import scene_with_torque_bag  # issue 4: offline replay of a recorded profile
+        from ..io.torque_bag import scene_with_torque_bag, torque_topic  # offline replay of a recorded profile
 
-        scene = scene_with_torque_bag(scene, args.torque_bag)
+        topic, note = torque_topic(args.torque_bag)  # a node recording: the torque it applied
+        if note:
+            print(note)
+        scene = scene_with_torque_bag(scene, args.torque_bag, topic=topic)
     scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration, v_eps=getattr(args, "v_eps", None))
     out_format = check_outputs(args)
     samples = scene.duration / scene.dt + 1.0
@@ -132,6 +145,24 @@ def run(args) -> int:
         print(estimate_run(scene, out_format).describe(f"sim {scene.name}", args.out), file=sys.stderr, flush=True)
         bar = ProgressBar(f"sim {scene.name}", force=False)  # timed from here, not from before the trials
     return _run_streamed(scene, args, out_format, bar)
+
+
+def _resimulation(args):
+    """The scene of the recording ``args.scene``; ``args.writer_options`` make ``--out`` comparable with it
+    (same start time, one sample per tick, the recorded inputs passed through)."""
+    from ..io.recording import FLOAT_OUTPUTS, ROBOT_DESCRIPTION, SLIP_FLOAT_OUTPUTS, TF_TOPIC
+    from ..io.torque_bag import resimulation
+
+    computed = (ROBOT_DESCRIPTION, "joint_states", TF_TOPIC) + tuple(n for n, _ in FLOAT_OUTPUTS + SLIP_FLOAT_OUTPUTS)
+    resim = resimulation(args.scene, computed=computed)
+    args.writer_options = {"namespace": resim.namespace, "drive_topic": resim.drive_topic,
+                           "passthrough": resim.passthrough, "output_rate": resim.output_rate}
+    if args.start_time is None and resim.start_time_ns is not None:
+        args.start_time = resim.start_time_ns  # the recording's time stamps, so the files line up
+    drive = getattr(resim.scene.drive, "topic", "the scene's profile")
+    print(f"re-simulating {args.scene} from its scene record (drive torque: {drive}; "
+          f"{len(resim.passthrough)} more recorded topic(s) copied to --out as recorded)")
+    return resim.scene
 
 
 def check_plot_size(args, samples: float) -> None:
@@ -175,14 +206,15 @@ def _run_in_memory(scene, args, out_format, bar) -> int:
 
             had_bag = args.out.is_dir() and any(f.suffix == ".mcap" or f.name == "metadata.yaml" for f in args.out.iterdir())
             try:
-                write_result_mcap(result, args.out, force=args.force, start_time_ns=args.start_time, bag_folder=True)
+                write_result_mcap(result, args.out, force=args.force, start_time_ns=args.start_time, bag_folder=True,
+                                  **args.writer_options)
             except BaseException:  # a failed or interrupted write leaves no partial bag behind
                 if args.force or not had_bag:  # (an existing bag without --force was refused untouched)
                     remove_bag_folder(args.out)
                 raise
         elif out_format == "mcap":
             with atomic_output(args.out, args.force, "wb", what="--out") as f:
-                write_result_mcap(result, f, start_time_ns=args.start_time)
+                write_result_mcap(result, f, start_time_ns=args.start_time, **args.writer_options)
         else:
             with atomic_output(args.out, args.force, "w", what="--out") as f:
                 result.to_csv(f)
@@ -214,10 +246,12 @@ def _run_streamed(scene, args, out_format, bar) -> int:
     with contextlib.ExitStack() as stack:
         sinks = []
         if args.out is not None and out_format == "mcap" and args.bag_folder:
-            sinks.append(McapWindows(args.out, bag_folder=True, force=args.force, start_time_ns=args.start_time))
+            sinks.append(McapWindows(args.out, bag_folder=True, force=args.force, start_time_ns=args.start_time,
+                                     **args.writer_options))
         elif args.out is not None:
             f = stack.enter_context(atomic_output(args.out, args.force, "wb" if out_format == "mcap" else "w", what="--out"))
-            sinks.append(McapWindows(f, start_time_ns=args.start_time) if out_format == "mcap" else CsvWindows(f))
+            sinks.append(McapWindows(f, start_time_ns=args.start_time, **args.writer_options)
+                         if out_format == "mcap" else CsvWindows(f))
         try:
             for window in stream(scene, progress=bar):
                 if isinstance(window, Restart):

@@ -92,7 +92,10 @@ __all__ = [
     "BagWriteError",
     "JOINT_NAMES",
     "JointStateEncoder",
+    "TF_MESSAGE",
+    "TF_TOPIC",
     "TOPIC_TYPES",
+    "TfEncoder",
     "TOPIC_UNITS",
     "bag_error",
     "encode_float64",
@@ -111,6 +114,16 @@ STRING = "std_msgs/msg/String"
 ROBOT_DESCRIPTION = "robot_description"
 #: its offered QoS in recordings (as robot_state_publisher offers it: reliable, transient local, keep last 1)
 ROBOT_DESCRIPTION_QOS = "transient_local"
+
+#: the wheels' transforms (tf2_msgs/TFMessage, one TransformStamped per wheel joint): what 3D panels move the URDF with
+TF_TOPIC = "/tf"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+#: its offered QoS (as tf2_ros's TransformBroadcaster: reliable, volatile, keep last 100)
+TF_QOS = "reliable"
+
+#: the channel of the drive torque a node applied (after rejection, limit and timeout), one
+#: message per tick at the tick time: what a re-simulation replays (zero-order hold)
+APPLIED_TOPIC = "drive_torque_applied"
 
 #: Joint names of ``joint_states`` (as :data:`belt_drive_ros.ros.node.JOINT_NAMES`).
 JOINT_NAMES: Tuple[str, ...] = ("wheel_M", "wheel_1", "wheel_2", "wheel_3")
@@ -141,6 +154,7 @@ TOPIC_TYPES: Dict[str, str] = {
     "relative_deflection": FLOAT64,
     **{name: FLOAT64 for name, _ in SLIP_FLOAT_OUTPUTS},  # slipping model only
     ROBOT_DESCRIPTION: STRING,
+    TF_TOPIC: TF_MESSAGE,
     "/diagnostics": DIAGNOSTIC_ARRAY,
     "/clock": CLOCK,
 }
@@ -348,6 +362,86 @@ class JointStateEncoder:
 
 
 
+class TfEncoder:
+    """CDR of ``tf2_msgs/TFMessage`` for the drive's wheels at their joint angles, without rclpy.
+
+    One ``geometry_msgs/TransformStamped`` per wheel joint, as
+    ``robot_state_publisher`` publishes a continuous joint: parent
+    ``base_link``, child ``<joint>_link`` (the links of
+    :func:`~belt_drive_ros.io.urdf.urdf_from_params`), translation the joint
+    origin ``(x, y, 0)`` [m], rotation the joint angle ``q`` [rad] about the
+    joint axis ``(0, 0, s)`` (``s = +/-1``): the quaternion
+    ``(x, y, z, w) = (0, 0, s sin(q/2), cos(q/2))``. Every transform is
+    stamped with the tick's time.
+
+    The bytes come from a template encoded once (:func:`msg_tools.encode`):
+    per message only the stamps and the ``z, w`` of each rotation are packed
+    in. ``params`` fix the joint origins (a new encoder when the radii change).
+    """
+
+    def __init__(self, params, joints: Sequence[str] = JOINT_NAMES):
+        import msg_tools
+
+        from .urdf import drive_layout
+
+        wheels = drive_layout(params).wheels
+        self.joints = tuple(joints)
+        self.signs = np.array([wheels[j][2] for j in self.joints], dtype=float)
+        n = len(self.joints)
+        sec_marks = [0x5A5A0000 + k for k in range(n)]
+        nsec_marks = [0x3C3C0000 + k for k in range(n)]
+        rot_marks = np.arange(1, 2 * n + 1, dtype=float).reshape(n, 2) * 1e300 / 7.0  # (z, w) per wheel
+        transforms = [{
+            "header": {"stamp": {"sec": sec_marks[k], "nanosec": nsec_marks[k]}, "frame_id": "base_link"},
+            "child_frame_id": f"{joint}_link",
+            "transform": {"translation": {"x": float(wheels[joint][0]), "y": float(wheels[joint][1]), "z": 0.0},
+                          "rotation": {"x": 0.0, "y": 0.0, "z": float(rot_marks[k, 0]), "w": float(rot_marks[k, 1])}},
+        } for k, joint in enumerate(self.joints)]
+        template = msg_tools.encode(TF_MESSAGE, {"transforms": transforms})
+
+        def find(packed: bytes) -> int:
+            offset = template.find(packed)
+            if offset < 0 or template.find(packed, offset + 1) >= 0:
+                raise RuntimeError("TFMessage template: a field is not found exactly once")
+            return offset
+
+        self._stamps = [find(struct.pack("<iI", sec_marks[k], nsec_marks[k])) for k in range(n)]
+        self._rotations = [find(struct.pack("<2d", *rot_marks[k])) for k in range(n)]
+        self._template = template
+
+    def quaternions(self, angles) -> np.ndarray:
+        """``(z, w)`` of each wheel's rotation for joint angles ``angles`` [rad] (last axis: the wheels)."""
+        half = 0.5 * np.asarray(angles, dtype=float)
+        return np.stack([self.signs * np.sin(half), np.cos(half)], axis=-1)
+
+    def encode(self, stamp_ns: int, angles) -> bytes:
+        """The message at ``stamp_ns`` [ns] for the wheels' joint angles ``angles`` [rad]."""
+        buf = bytearray(self._template)
+        sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+        q = self.quaternions(angles)
+        for k, (stamp, rotation) in enumerate(zip(self._stamps, self._rotations)):
+            struct.pack_into("<iI", buf, stamp, sec, nsec)
+            struct.pack_into("<2d", buf, rotation, q[k, 0], q[k, 1])
+        return bytes(buf)
+
+    def encode_many(self, stamp_ns: np.ndarray, angles: np.ndarray) -> List[bytes]:
+        """One message per row: ``stamp_ns`` (n,) [ns], ``angles`` (n, wheels) [rad]."""
+        stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
+        n = stamp_ns.size
+        if not n:
+            return []
+        out = np.tile(np.frombuffer(self._template, dtype=np.uint8), (n, 1))
+        sec, nsec = np.divmod(stamp_ns, 1_000_000_000)
+        sec_bytes = sec.astype("<i4").view(np.uint8).reshape(n, 4)
+        nsec_bytes = nsec.astype("<u4").view(np.uint8).reshape(n, 4)
+        q = np.ascontiguousarray(self.quaternions(angles), dtype="<f8")  # (n, wheels, 2)
+        for k, (stamp, rotation) in enumerate(zip(self._stamps, self._rotations)):
+            out[:, stamp : stamp + 4] = sec_bytes
+            out[:, stamp + 4 : stamp + 8] = nsec_bytes
+            out[:, rotation : rotation + 16] = q[:, k, :].view(np.uint8).reshape(n, 16)
+        return [row.tobytes() for row in out]
+
+
 def encode_robot_description(params) -> Tuple[str, bytes]:
     """The drive's URDF for ``params`` (:func:`~belt_drive_ros.io.urdf.urdf_from_params`) and its
     ``std_msgs/String`` CDR (as ``mcap_ros2`` and rclpy encode it)."""
@@ -453,7 +547,8 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
                       extra_metadata: Optional[Mapping[str, Mapping[str, str]]] = None,
                       start_time_ns: Optional[int] = None, bag_folder: bool = False,
                       max_bag_size: Optional[int] = None,
-                      max_bag_duration: Optional[float] = None) -> Dict[str, int]:
+                      max_bag_duration: Optional[float] = None, drive_topic: str = "drive_torque",
+                      passthrough: Sequence[tuple] = ()) -> Dict[str, int]:
     """Write an offline run as a ROS 2 MCAP with the node's topics and layout.
 
     Parameters
@@ -494,6 +589,13 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
         Split into a new file once one holds this many bytes.
     max_bag_duration : float, optional
         Split into a new file once one spans this much time [s].
+    drive_topic : str
+        Topic of the run's drive torque (a re-simulated node recording:
+        ``drive_torque_applied``, beside the recording's raw ``drive_torque``).
+    passthrough : sequence of tuple
+        Recorded topics copied as they are, ``(topic, type, offered QoS YAML,
+        type hash, [(log time [ns], CDR bytes)])``, written in time order
+        between the samples (:func:`~belt_drive_ros.io.torque_bag.resimulation`).
 
     Returns
     -------
@@ -519,7 +621,7 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
     writer = ResultMcapWriter(path, result, force=force, namespace=namespace, output_rate=output_rate,
                               topics=topics, compression=compression, extra_metadata=extra_metadata,
                               start_time_ns=start_time_ns, bag_folder=bag_folder, max_bag_size=max_bag_size,
-                              max_bag_duration=max_bag_duration,
+                              max_bag_duration=max_bag_duration, drive_topic=drive_topic, passthrough=passthrough,
                               samples=len(range(0, len(result.time), _output_stride(result, output_rate))))
     try:
         writer.write(result)
@@ -552,9 +654,11 @@ class ResultMcapWriter:
                  compression: str = "zstd", extra_metadata: Optional[Mapping[str, Mapping[str, str]]] = None,
                  start_time_ns: Optional[int] = None, bag_folder: bool = False,
                  max_bag_size: Optional[int] = None, max_bag_duration: Optional[float] = None,
-                 samples: Optional[int] = None, chunk_size: Optional[int] = None):
+                 samples: Optional[int] = None, chunk_size: Optional[int] = None,
+                 drive_topic: str = "drive_torque", passthrough: Sequence[tuple] = ()):
         self.float_outputs = FLOAT_OUTPUTS + tuple(o for o in SLIP_FLOAT_OUTPUTS if getattr(result, "model", "") in SLIP_MODELS)
-        offline_topics = (ROBOT_DESCRIPTION, "drive_torque", "joint_states") + tuple(name for name, _ in self.float_outputs)
+        offline_topics = (ROBOT_DESCRIPTION, "drive_torque", "joint_states", TF_TOPIC.strip("/")) + tuple(
+            name for name, _ in self.float_outputs)
         self.wanted = offline_topics if topics is None else tuple(t.strip("/") for t in topics)
         unknown = sorted(set(self.wanted) - set(offline_topics))
         if unknown:
@@ -600,9 +704,12 @@ class ResultMcapWriter:
                 w.add_metadata(SCENE_METADATA, self._record(samples))
             self.payload_topics = []
             if "drive_torque" in self.wanted:
-                self.payload_topics.append((_absolute("drive_torque", namespace), FLOAT64, "drive_torque"))
+                self.payload_topics.append((_absolute(drive_topic, namespace), FLOAT64, "drive_torque"))
             if "joint_states" in self.wanted:
                 self.payload_topics.append((_absolute("joint_states", namespace), JOINT_STATE, None))
+            if TF_TOPIC.strip("/") in self.wanted:  # /tf is absolute, as tf2 broadcasts it
+                self.payload_topics.append((TF_TOPIC, TF_MESSAGE, TF_TOPIC))
+                self._tf = TfEncoder(scene.params)
             for topic, signal in self.float_outputs:
                 if topic in self.wanted:
                     self.payload_topics.append((_absolute(topic, namespace), FLOAT64, signal))
@@ -618,6 +725,11 @@ class ResultMcapWriter:
             raise bag_error(exc) from None
         self._params = scene.params
         self._topics_added = False
+        # recorded messages copied as they are, in time order between the samples: (time, topic, type, CDR)
+        self._passthrough = sorted(((t, topic, type_name, data) for topic, type_name, _, _, messages in passthrough
+                                    for t, data in messages), key=lambda m: m[0])
+        self._passthrough_qos = [(topic, type_name, qos, type_hash) for topic, type_name, qos, type_hash, _ in passthrough]
+        self._next_passthrough = 0
 
     def _add_topics(self, t0_ns: Optional[int]) -> None:
         """Channels in the file's order: robot_description with its one message (at the first sample), then the signals."""
@@ -629,8 +741,25 @@ class ResultMcapWriter:
                 w.latch(description)
             w.write_raw(description, STRING, encode_robot_description(self._params)[1], t0_ns)
         for topic, type_name, _ in self.payload_topics:
-            w.add_topic(topic, type_name, "reliable")
+            w.add_topic(topic, type_name, TF_QOS if topic == TF_TOPIC else "reliable")
+        for topic, type_name, qos, type_hash in self._passthrough_qos:
+            from msg_tools import parse_offered_qos_yaml
+
+            try:
+                profiles = parse_offered_qos_yaml(qos) if qos else "reliable"
+            except ValueError:
+                profiles = "reliable"
+            w.add_topic(topic, type_name, profiles or "reliable", type_hash=type_hash)
         self._topics_added = True
+
+    def _write_passthrough(self, until_ns: Optional[int]) -> None:
+        """The passed-through messages up to ``until_ns`` (all with None)."""
+        messages, k = self._passthrough, self._next_passthrough
+        while k < len(messages) and (until_ns is None or messages[k][0] <= until_ns):
+            t, topic, type_name, data = messages[k]
+            self.writer.write_raw(topic, type_name, data, t)
+            k += 1
+        self._next_passthrough = k
 
     def write(self, result) -> None:
         """Append the window ``result`` (the samples after the previous window's last)."""
@@ -651,6 +780,9 @@ class ResultMcapWriter:
                 velocity = np.column_stack([o["omega_M"], o["omega_1"], o["omega_2"], o["omega_3"]])
                 effort = np.column_stack([o["drive_torque"], zeros, zeros, -o["load_torque"]])
                 payloads.append(encode_joint_states(t_ns, position, velocity, effort))
+            elif signal == TF_TOPIC:
+                phi = np.column_stack([o["phi_M"], o["phi_1"], o["phi_2"], o["phi_3"]])
+                payloads.append(self._tf.encode_many(t_ns, phi))
             else:
                 payloads.append(encode_float64(np.asarray(o[signal], dtype=float)))
         try:
@@ -658,7 +790,10 @@ class ResultMcapWriter:
                 self._add_topics(int(t_ns[0]))
             write = self.writer.write_raw
             topics = self.payload_topics
+            passthrough = self._passthrough
             for k, t in enumerate(t_ns.tolist()):
+                if self._next_passthrough < len(passthrough) and passthrough[self._next_passthrough][0] <= t:
+                    self._write_passthrough(t)
                 for (topic, type_name, _), data in zip(topics, payloads):
                     write(topic, type_name, data[k], t)
         except (MsgToolsError, OSError) as exc:
@@ -669,6 +804,7 @@ class ResultMcapWriter:
         try:
             if not self._topics_added:
                 self._add_topics(None)
+            self._write_passthrough(None)
             if self._deferred:
                 self.writer.add_metadata(SCENE_METADATA, self._record(self.samples))
             counts = self.writer.topic_counts()

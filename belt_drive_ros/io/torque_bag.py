@@ -48,12 +48,16 @@ from msg_tools.errors import MsgToolsError, RecoveredBagWarning
 from ..core.errors import BeltDriveError, InputError
 from ..core.inputs import parse_yaml
 from ..core.scene import Scene
-from .recording import RECORDED_DRIVE, SCENE_METADATA, BagReadError, _sha256, bag_error
+from .recording import APPLIED_TOPIC, RECORDED_DRIVE, SCENE_METADATA, BagReadError, _sha256, bag_error
 from ..core.formula import Formula
 from ..core.sources import Table
 
 __all__ = [
+    "Resimulation",
+    "is_recording",
+    "resimulation",
     "scene_from_bag",
+    "torque_topic",
     "RecordedTorque",
     "TorqueRecording",
     "load_torque_recording",
@@ -380,3 +384,104 @@ def scene_from_bag(path, *, torque_bag=None):
         scene, source, topic=str(reference.get("topic", "/drive_torque")),
         duration=None if own else scene.duration,
     )
+
+
+# ------------------------------------------------- re-simulation from the command line
+def is_recording(text) -> bool:
+    """True when ``text`` names a recording (an ``.mcap`` file in any case, or a bag folder), not a scene."""
+    path = os.fspath(text)
+    if path.lower().endswith(".mcap"):
+        return True
+    return os.path.isdir(path) and any(f.endswith(".mcap") or f == "metadata.yaml" for f in os.listdir(path))
+
+
+def torque_topic(bag) -> Tuple[str, str]:
+    """The torque topic ``--torque-bag`` reads from ``bag``, and a line saying why.
+
+    A node recording holds ``drive_torque`` as received (a NaN the node
+    rejected included) and ``drive_torque_applied``, the torque the node
+    applied at each tick: the latter, when present, is what re-simulates
+    the run. Otherwise ``/drive_torque`` (any namespace).
+    """
+    from msg_tools import bag_files, summary
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RecoveredBagWarning)
+        try:
+            topics = [t.topic for t in summary(bag_files(bag)[-1], verify=False).topics]
+        except MsgToolsError as exc:
+            raise bag_error(exc) from None
+    applied = [t for t in topics if t.rsplit("/", 1)[-1] == APPLIED_TOPIC]
+    if len(applied) == 1:
+        return applied[0], (f"torque from {applied[0]} (the torque the node applied at each tick; "
+                            f"{DEFAULT_TOPIC} holds what it received)")
+    return DEFAULT_TOPIC, ""
+
+
+@dataclass
+class Resimulation:
+    """What ``belt-drive sim RECORDING --out re.mcap`` needs to write a file comparable with the recording.
+
+    ``scene``: the recording's own (:func:`scene_from_bag`); ``start_time_ns``:
+    the time of its first sample (scene time 0); ``output_rate`` [Hz]: one
+    sample per tick of a node recording (None: the scene's); ``namespace``:
+    its topics'; ``drive_topic``: where the run's drive torque goes
+    (``drive_torque_applied`` for a node recording, whose ``drive_torque`` is
+    the raw input); ``passthrough``: the recorded topics the run does not
+    compute (the raw ``drive_torque``, ``/clock``, ``/diagnostics``), copied
+    as recorded: ``(topic, type, offered QoS YAML, type hash, [(log time, CDR)])``.
+    """
+
+    scene: Any
+    start_time_ns: Optional[int]
+    output_rate: Optional[float]
+    namespace: str
+    drive_topic: str
+    passthrough: List[tuple]
+
+
+def resimulation(path, computed=()) -> Resimulation:
+    """The :class:`Resimulation` of the recording ``path`` (file or bag folder).
+
+    ``computed``: topic names (relative) the re-simulation writes itself; every
+    other topic of the recording is passed through. Types msg_tools has no
+    definition of are left out.
+    """
+    from mcap.reader import make_reader
+
+    from msg_tools import bag_files, schemas
+
+    scene = scene_from_bag(path)
+    record, _ = _read_metadata(path)
+    drive = scene.drive
+    start = int(drive.start_ns) if isinstance(drive, RecordedTorque) and drive.start_ns is not None else None
+    tick_ns = record.get("tick_ns", "")
+    output_rate = 1e9 / float(tick_ns) if tick_ns.strip().isdigit() and int(tick_ns) > 0 else None
+    namespace, drive_topic = "/", "drive_torque"
+    if isinstance(drive, RecordedTorque) and drive.topic.rsplit("/", 1)[-1] == APPLIED_TOPIC:
+        namespace = drive.topic.rsplit("/", 1)[0] or "/"
+        drive_topic = APPLIED_TOPIC
+    written = {name.strip("/") for name in computed} | {drive_topic}
+    channels: Dict[str, list] = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RecoveredBagWarning)
+        try:
+            for file in bag_files(path):
+                with open(file, "rb") as f:
+                    for schema, channel, message in make_reader(f).iter_messages(log_time_order=True):
+                        relative = channel.topic[len(namespace):] if channel.topic.startswith(namespace) else channel.topic
+                        if relative.strip("/") in written or channel.topic.strip("/") in written:
+                            continue
+                        entry = channels.get(channel.topic)
+                        if entry is None:
+                            type_name = schema.name if schema is not None else ""
+                            if not schemas.type_hash(type_name):
+                                continue  # no definition here: cannot be written
+                            entry = channels[channel.topic] = [
+                                channel.topic, type_name, channel.metadata.get("offered_qos_profiles", ""),
+                                channel.metadata.get("topic_type_hash") or None, []]
+                        entry[4].append((int(message.log_time), bytes(message.data)))
+        except (MsgToolsError, OSError, ValueError) as exc:
+            raise bag_error(exc) from None
+    return Resimulation(scene, start, output_rate, namespace, drive_topic,
+                        [tuple(entry) for entry in channels.values()])

@@ -135,7 +135,9 @@ from ..io.recording import (  # noqa: E402
     ROBOT_DESCRIPTION,
     SLIP_FLOAT_OUTPUTS,
     STRING,
+    TF_TOPIC,
     JointStateEncoder,
+    TfEncoder,
     encode_float64,
     encode_robot_description,
 )
@@ -145,7 +147,7 @@ from .gaps import TICK_GAP_METADATA  # noqa: E402
 from .inputs import DriveInput  # noqa: E402
 from .parameter_schema import NodeConfigError, NodeSettings  # noqa: E402,F401 - NodeConfigError re-exported
 from .parameters import NodeParameters  # noqa: E402
-from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS  # noqa: E402
+from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS, TF_QOS  # noqa: E402
 from .simulation import NodeSimulation  # noqa: E402
 from .timing import TickSource, TickStats, stamp  # noqa: E402
 
@@ -157,6 +159,20 @@ OUTPUT_TOPICS = ("shaft_speed", "load_torque", "belt_torque", "relative_deflecti
 SLIP_OUTPUT_TOPICS = tuple(name for name, _ in SLIP_FLOAT_OUTPUTS)
 #: ~/reset keeps every request of a burst (the default services QoS keeps 10)
 RESET_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def tf_message_type():
+    """``tf2_msgs.msg.TFMessage`` where tf2_msgs is installed (a system ROS 2), else None.
+
+    The pip wheels this package installs have no tf2_msgs: the node then
+    records ``/tf`` (its own encoder writes the bytes) but publishes none;
+    ``robot_state_publisher`` on ``joint_states`` fills in.
+    """
+    try:
+        from tf2_msgs.msg import TFMessage
+    except ImportError:
+        return None
+    return TFMessage
 
 
 class BeltDriveNode(Node):
@@ -220,6 +236,16 @@ class BeltDriveNode(Node):
             for name in OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS
         ]
         self._joint_cdr = JointStateEncoder(len(JOINT_NAMES))  # joint_states as CDR bytes (see _publish)
+        # -- /tf of the wheels (the same CDR bytes, recorded and, with tf2_msgs installed, published)
+        self._tf_cdr = TfEncoder(settings.params)
+        tf_type = tf_message_type()
+        self._pub_tf = None
+        if tf_type is not None:
+            self._readers["tf"] = 0
+            self._pub_tf = self.create_publisher(tf_type, TF_TOPIC, TF_QOS, event_callbacks=matched("tf"))
+        else:
+            self.get_logger().info("tf2_msgs is not installed: /tf is recorded, not published "
+                                   "(robot_state_publisher on joint_states publishes it)")
         self.refresh_subscriber_counts()
         # -- the drive's URDF, latched (published again when the radii or the wrap angle change)
         self._pub_description = self.create_publisher(String, ROBOT_DESCRIPTION, DESCRIPTION_QOS)
@@ -312,6 +338,7 @@ class BeltDriveNode(Node):
         description = encode_robot_description(self.sim.settings.params)
         if description[0] != self._description[0]:
             self._description = description
+            self._tf_cdr = TfEncoder(self.sim.settings.params)  # the joint origins move with the radii
             self._pub_description.publish(String(data=description[0]))
             self._record_description()
 
@@ -373,6 +400,11 @@ class BeltDriveNode(Node):
             joint_cdr = self._joint_cdr.encode(now_ns, joints)
             if readers["joint_states"]:
                 sends.append((self._pub_joint.publish, joint_cdr))
+        tf_cdr = None
+        if recorder is not None or readers.get("tf"):
+            tf_cdr = self._tf_cdr.encode(now_ns, joints[:4])
+            if readers.get("tf"):
+                sends.append((self._pub_tf.publish, tf_cdr))
         floats = (joints[4], float(y["load_torque"]), float(y["belt_torque"]), float(y["relative_deflection"]))
         if "friction_use" in y:  # the slipping model's outputs
             floats += tuple(float(y[signal]) for _, signal in SLIP_FLOAT_OUTPUTS)
@@ -394,7 +426,8 @@ class BeltDriveNode(Node):
             self.stats.window.slip += 1
             self.counters["slip_ticks"] += 1
         if recorder is not None:
-            recorder.record_tick(now_ns, joints, floats, joints[8], joint_cdr=joint_cdr, float_cdr=payloads)
+            recorder.record_tick(now_ns, joints, floats, joints[8], joint_cdr=joint_cdr, float_cdr=payloads,
+                                 tf_cdr=tf_cdr)
         y["time"] = self.sim.scene_time(now_ns)
         y["stamp_ns"] = now_ns
         self.last = y
@@ -405,9 +438,11 @@ class BeltDriveNode(Node):
         """Query the readers of each output topic now (the "matched" events keep them current
         afterwards); a driver that has just subscribed calls this before the next tick."""
         self._readers["joint_states"] = self._pub_joint.get_subscription_count()
+        if self._pub_tf is not None:
+            self._readers["tf"] = self._pub_tf.get_subscription_count()
         for name, pub in zip(OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS, self._pub_float):
             self._readers[name] = pub.get_subscription_count()
-        return dict(self._readers)
+        return {name: n for name, n in self._readers.items() if name != "tf"}  # /tf: nobody need listen
 
     def tick_pending(self) -> bool:
         """True while the tick timer is due but its callback has not run yet (for lockstep drivers)."""

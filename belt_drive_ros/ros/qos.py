@@ -16,6 +16,8 @@ publisher offers (reliable >= best effort, transient local >= volatile), so:
 * ``robot_description`` (the drive's URDF) is latched as
   ``robot_state_publisher`` latches it: reliable, transient local, keep
   last 1, so a subscriber that joins at any time gets the current one;
+* ``/tf`` (published where ``tf2_msgs`` is installed) as tf2_ros's
+  ``TransformBroadcaster`` offers it: reliable, volatile, keep last 100;
 * ``/clock`` (published with ``publish_clock``) is reliable keep last 10,
   volatile: rclpy's and rclcpp's own ``/clock`` subscriptions (best effort,
   keep last 1) and reliable ones match it; an old clock is never worth
@@ -26,7 +28,7 @@ from __future__ import annotations
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-__all__ = ["CLOCK_QOS", "DESCRIPTION_QOS", "INPUT_QOS", "OUTPUT_QOS"]
+__all__ = ["CLOCK_QOS", "DESCRIPTION_QOS", "INPUT_QOS", "OUTPUT_QOS", "TF_QOS"]
 
 #: drive_torque (subscription): best effort, volatile, keep last 1.
 INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
@@ -44,3 +46,7 @@ DESCRIPTION_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
+#: /tf (publisher): reliable, volatile, keep last 100 (tf2_ros's DynamicBroadcasterQoS).
+TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                    reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.VOLATILE)

@@ -17,6 +17,7 @@ from msg_tools.errors import MsgToolsError
 from msg_tools.units import UNITS_METADATA
 
 from ..io.recording import (
+    APPLIED_TOPIC,
     FLOAT64,
     FLOAT_OUTPUTS,
     SLIP_FLOAT_OUTPUTS,
@@ -24,6 +25,8 @@ from ..io.recording import (
     PARAMETERS_METADATA,
     RECORDED_DRIVE,
     SCENE_METADATA,
+    TF_MESSAGE,
+    TF_TOPIC,
     TOPIC_TYPES,
     _fmt,
     _scene_record,
@@ -463,11 +466,10 @@ def _node_parameters(node) -> Dict[str, str]:
     return out
 
 
-#: the channel of the drive torque the node applied (after rejection, limit and timeout), one
-#: message per tick at the tick time: what a re-simulation replays (zero-order hold)
-APPLIED_TOPIC = "drive_torque_applied"
 #: topics the node writes itself from its tick or input callback (no subscription, no DDS loop-back)
-DIRECT_TOPICS = ("drive_torque", APPLIED_TOPIC, "joint_states") + tuple(name for name, _ in FLOAT_OUTPUTS + SLIP_FLOAT_OUTPUTS)
+DIRECT_TOPICS = ("drive_torque", APPLIED_TOPIC, "joint_states", TF_TOPIC) + tuple(
+    name for name, _ in FLOAT_OUTPUTS + SLIP_FLOAT_OUTPUTS)
+_DIRECT_TYPES = {"joint_states": JOINT_STATE, TF_TOPIC.lstrip("/"): TF_MESSAGE}
 
 
 class NodeRecorder(TopicRecorder):
@@ -534,7 +536,8 @@ class NodeRecorder(TopicRecorder):
         self.record_history = False  # the node's outputs keep 10 messages for late joiners: not this run's
         uses_clock = self._uses_sim_time() or self._publishes_clock()
         if topics is None:
-            wanted = list(DIRECT_TOPICS) + [t for t in TOPIC_TYPES if t.startswith("/") and (t != "/clock" or uses_clock)]
+            wanted = list(DIRECT_TOPICS) + [t for t in TOPIC_TYPES if t.startswith("/") and t not in DIRECT_TOPICS
+                                            and (t != "/clock" or uses_clock)]
         else:
             wanted = list(topics)
         self._direct: Dict[str, str] = {}
@@ -548,9 +551,9 @@ class NodeRecorder(TopicRecorder):
             for spec in wanted:
                 name, _, type_name = spec.partition(":")
                 base = name.lstrip("/")
-                if base in DIRECT_TOPICS:
+                if base in DIRECT_TOPICS or "/" + base in DIRECT_TOPICS:
                     self._direct[base] = self.resolve(name)
-                    self._types[self._direct[base]] = FLOAT64 if base != "joint_states" else JOINT_STATE
+                    self._types[self._direct[base]] = _DIRECT_TYPES.get(base, FLOAT64)
                     continue
                 type_name = type_name or TOPIC_TYPES.get(name) or TOPIC_TYPES.get(base, "")
                 if not type_name:
@@ -614,11 +617,12 @@ class NodeRecorder(TopicRecorder):
             self.write(topic, FLOAT64, encode_float64((value,))[0], now_ns)
 
     def record_tick(self, now_ns: int, joints, floats, applied: float, joint_cdr: bytes | None = None,
-                    float_cdr=None) -> None:
+                    float_cdr=None, tf_cdr: bytes | None = None) -> None:
         """One tick: ``joints`` (position, velocity, effort of the 4 wheels), the Float64 outputs
         in the order of :data:`FLOAT_OUTPUTS` (then :data:`SLIP_FLOAT_OUTPUTS` with the slipping
         model), and the applied drive torque [N m]. ``joint_cdr`` and ``float_cdr`` (the CDR of
-        the joint states and of ``(*floats, applied)``) when the caller has encoded them already."""
+        the joint states and of ``(*floats, applied)``) when the caller has encoded them already;
+        ``tf_cdr``: the wheels' ``/tf`` (:class:`~belt_drive_ros.io.recording.TfEncoder`), recorded when given."""
         if self.error is not None or self.closed:
             return
         direct = self._direct
@@ -627,6 +631,9 @@ class NodeRecorder(TopicRecorder):
         topic = direct.get("joint_states")
         if topic is not None:
             self.write(topic, JOINT_STATE, joint_cdr or self._joint_states.encode(now_ns, joints), now_ns)
+        topic = direct.get("tf")
+        if topic is not None and tf_cdr is not None:
+            self.write(topic, TF_MESSAGE, tf_cdr, now_ns)
         payloads = float_cdr if float_cdr is not None else encode_float64((*floats, applied))
         for (topic, type_name), data in zip(self._floats, payloads[:-1]):
             if topic is not None:

@@ -22,6 +22,12 @@ function digest(topic, value) {
     return [s.sec, s.nanosec, ...Array.from(value.position), ...Array.from(value.velocity), ...Array.from(value.effort)];
   }
   if (value && Array.isArray(value.status)) return [value.status.length];
+  if (value && Array.isArray(value.transforms)) {
+    // per transform: stamp, parent and child frame, translation, rotation
+    return value.transforms.flatMap((t) => [t.header.stamp.sec, t.header.stamp.nanosec, t.header.frame_id,
+      t.child_frame_id, t.transform.translation.x, t.transform.translation.y, t.transform.translation.z,
+      t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z, t.transform.rotation.w]);
+  }
   return [];
 }
 
