@@ -28,7 +28,7 @@ from msg_tools.qos import parse_offered_qos_yaml
 pytestmark = pytest.mark.ros
 
 NODE_TOPICS = {"/drive_torque", "/drive_torque_applied", "/joint_states", "/shaft_speed", "/load_torque", "/belt_torque",
-               "/relative_deflection", "/diagnostics", "/clock"}
+               "/relative_deflection", "/tf", "/diagnostics", "/clock"}
 #: the slipping model's topics (truck_compressor runs on it: auto goes on to slipping)
 SLIP_TOPICS = {"/span_force_tight", "/span_force_slack", "/friction_use", "/slip", "/slip_speed", "/elastic_deflection",
                "/slip_angle"}
