@@ -408,6 +408,8 @@ class TfEncoder:
         self._stamps = [find(struct.pack("<iI", sec_marks[k], nsec_marks[k])) for k in range(n)]
         self._rotations = [find(struct.pack("<2d", *rot_marks[k])) for k in range(n)]
         self._template = template
+        self._stamp, self._rotation = struct.Struct("<iI"), struct.Struct("<2d")
+        self._sign_list = [float(v) for v in self.signs]
 
     def quaternions(self, angles) -> np.ndarray:
         """``(z, w)`` of each wheel's rotation for joint angles ``angles`` [rad] (last axis: the wheels)."""
@@ -415,13 +417,15 @@ class TfEncoder:
         return np.stack([self.signs * np.sin(half), np.cos(half)], axis=-1)
 
     def encode(self, stamp_ns: int, angles) -> bytes:
-        """The message at ``stamp_ns`` [ns] for the wheels' joint angles ``angles`` [rad]."""
+        """The message at ``stamp_ns`` [ns] for the wheels' joint angles ``angles`` [rad] (a node's tick:
+        plain floats, no numpy)."""
         buf = bytearray(self._template)
         sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
-        q = self.quaternions(angles)
-        for k, (stamp, rotation) in enumerate(zip(self._stamps, self._rotations)):
-            struct.pack_into("<iI", buf, stamp, sec, nsec)
-            struct.pack_into("<2d", buf, rotation, q[k, 0], q[k, 1])
+        pack_stamp, pack_rotation, sin, cos = self._stamp.pack_into, self._rotation.pack_into, math.sin, math.cos
+        for stamp, rotation, sign, angle in zip(self._stamps, self._rotations, self._sign_list, angles):
+            half = 0.5 * angle
+            pack_stamp(buf, stamp, sec, nsec)
+            pack_rotation(buf, rotation, sign * sin(half), cos(half))
         return bytes(buf)
 
     def encode_many(self, stamp_ns: np.ndarray, angles: np.ndarray) -> List[bytes]:
