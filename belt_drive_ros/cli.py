@@ -78,7 +78,10 @@ def main(argv: list[str] | None = None) -> int:
     on_term = terminate_raises() if args.command in OFFLINE_COMMANDS else contextlib.nullcontext()
     try:
         with on_term:
-            return int(args.func(args) or 0)
+            code = int(args.func(args) or 0)
+        if argv is None and args.command in QUICK_EXIT_COMMANDS:
+            _exit_now(code)
+        return code
     except (SimulationDivergedError, OutputError) as exc:
         return _fail(exc, 1)  # a failed run or a failed write, not bad input
     except BeltDriveError as exc:
@@ -99,6 +102,23 @@ def main(argv: list[str] | None = None) -> int:
         if os.environ.get("BELT_DRIVE_DEBUG"):
             raise
         return _fail(f"internal error: {type(exc).__name__}: {exc} (BELT_DRIVE_DEBUG=1 shows the traceback)", 1)
+
+
+#: ROS commands that, run as a program, end the process as soon as they have stopped cleanly (nodes
+#: destroyed, recordings finished, rclpy shut down: Fast DDS has released its shared memory by then).
+#: The interpreter's own teardown of numpy, scipy and rclpy adds ~0.2 s idle and 1-2 s on a loaded
+#: machine between SIGINT/SIGTERM and the exit, for nothing left to do.
+QUICK_EXIT_COMMANDS = frozenset({"node", "record", "source", "replay"})
+
+
+def _exit_now(code: int) -> None:
+    """Flush stdout and stderr, then end the process with ``code`` without the interpreter's teardown."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
 
 
 #: longest error line [characters]; messages quote values short, this only guards the rest

@@ -129,6 +129,10 @@ def test_node_exits_on_sigint_and_sigterm_with_its_recording_finished(mode, tmp_
                 clocks.append(ClockPublisher(domain))
         for child in children.values():
             child.wait_for("spinning with the")
+        for clock in clocks:  # the node has discovered the /clock publisher (it ticks from then on)
+            deadline = time.monotonic() + 60.0
+            while clock.pub.get_subscription_count() < 1 and time.monotonic() < deadline:
+                time.sleep(0.05)
         time.sleep(1.5)  # ticking (or, on /clock with no publisher, waiting) for a while
         results = {sig: child.stop(sig) for sig, child in children.items()}
     finally:

@@ -33,7 +33,7 @@ def test_split_recording_counts_equal_its_metadata_and_every_file_has_the_urdf(t
         node.wait_for("spinning with the")
         folder = tmp_path / "rf"
         record = subprocess.run(
-            CLI + ["record", "--out", str(folder), "--max-bag-duration", "1", "--duration", "3.5",
+            CLI + ["record", "--out", str(folder), "--max-bag-duration", "1", "--duration", "6",
                    "--topics", "/robot_description", "/shaft_speed", "/joint_states"],
             env=ros_env.child_environment(domain), capture_output=True, text=True, timeout=120,
         )
