@@ -108,6 +108,8 @@ def run(args) -> int:
                         continue
                     if wanted is None and name in excluded:
                         continue
+                    if not node.get_publishers_info_by_topic(name):
+                        continue  # its publishers' QoS not known yet (a latched topic needs it): next poll
                     if len(types) != 1:
                         skipped.add(name)
                         say(f"skipping {name}: {len(types)} types advertised ({', '.join(types)})")
