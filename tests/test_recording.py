@@ -34,7 +34,7 @@ from msg_tools import encode, read_bag, read_topic
 from msg_tools.cli import main as msg_tools
 from msg_tools.qos import parse_offered_qos_yaml
 
-OUTPUT_TOPICS = ["/drive_torque", "/joint_states", "/shaft_speed", "/load_torque", "/belt_torque",
+OUTPUT_TOPICS = ["/drive_torque", "/joint_states", "/tf", "/shaft_speed", "/load_torque", "/belt_torque",
                  "/relative_deflection"]
 
 
@@ -68,7 +68,7 @@ def test_independent_reader_sees_rosbag2_layout(bag, run):
     assert header.profile == "ros2"
     assert {s.encoding for s in summary.schemas.values()} == {"ros2msg"}
     assert {s.name for s in summary.schemas.values()} == {"std_msgs/msg/Float64", "sensor_msgs/msg/JointState",
-                                                           "std_msgs/msg/String"}
+                                                           "std_msgs/msg/String", "tf2_msgs/msg/TFMessage"}
     channels = {c.topic: c for c in summary.channels.values()}
     assert sorted(channels) == sorted(OUTPUT_TOPICS + ["/robot_description"])
     for topic, channel in channels.items():
@@ -80,11 +80,11 @@ def test_independent_reader_sees_rosbag2_layout(bag, run):
     assert {ci.compression for ci in summary.chunk_indexes} == {"zstd"}
     stride = round(1.0 / (run.scene.output_rate * run.dt))  # steps per output sample
     n = (run.time.size - 1) // stride + 1
-    assert summary.statistics.message_count == 6 * n + 1  # and one robot_description
+    assert summary.statistics.message_count == len(OUTPUT_TOPICS) * n + 1  # and one robot_description
     # rosbag2 metadata: what `ros2 bag info` shows
     bag_meta = yaml.safe_load(metadata["rosbag2"]["serialized_metadata"])
     assert bag_meta["version"] == 9 and bag_meta["storage_identifier"] == "mcap"
-    assert bag_meta["message_count"] == 6 * n + 1
+    assert bag_meta["message_count"] == len(OUTPUT_TOPICS) * n + 1
     assert {t["topic_metadata"]["name"] for t in bag_meta["topics_with_message_count"]} == set(OUTPUT_TOPICS) | {
         "/robot_description"}
     # self-describing: scene, parameters, units
@@ -109,8 +109,8 @@ def test_independent_reader_sees_rosbag2_layout(bag, run):
     assert list(js[7].velocity) == [o["omega_M"], o["omega_1"], o["omega_2"], o["omega_3"]]
     assert list(js[7].effort) == [o["drive_torque"], 0.0, 0.0, -o["load_torque"]]
     # the drive's URDF first (at the start time), then the node's order at each time: drive_torque,
-    # joint_states, then the Float64 outputs
-    assert [topic for topic, *_ in messages[:7]] == ["/robot_description"] + OUTPUT_TOPICS
+    # joint_states, /tf, then the Float64 outputs
+    assert [topic for topic, *_ in messages[:8]] == ["/robot_description"] + OUTPUT_TOPICS
     assert messages[0][1] == 0 and messages[0][4].data == urdf_from_params(run.scene.params)
 
 
