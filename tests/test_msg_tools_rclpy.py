@@ -150,7 +150,9 @@ def _share(package):
         return os.path.join(sys.prefix, "share", package)
 
 
-@pytest.mark.parametrize("type_name", schemas.known_types())
+# tf2_msgs has no wheel on PyPI (nothing to read its .msg files from here): its definition and type hash are
+# checked against rosbags' Jazzy type store in tests/test_tf.py.
+@pytest.mark.parametrize("type_name", [t for t in schemas.known_types() if not t.startswith("tf2_msgs/")])
 def test_built_in_definitions_are_the_installed_jazzy_ones(type_name):
     package, _, name = type_name.split("/")
     with open(os.path.join(_share(package), "msg", name + ".msg"), encoding="utf-8") as f:
