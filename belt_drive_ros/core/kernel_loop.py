@@ -1,0 +1,130 @@
+"""The arrays one plant and one fixed-step method hand to the compiled loop, built once.
+
+:class:`KernelLoop` is the thin Python object around
+:func:`belt_drive_ros.core.kernel.linear_steps`: it turns the method's
+:class:`~belt_drive_ros.core.stage_scheme.StageScheme` (matrices computed by
+numpy/scipy once per model and step), the plant's wheel map, both torque
+profiles' data, the extra input and a guard into the kernel's sparse arrays,
+and calls the kernel with them. Nothing here depends on the scene's values
+except the arrays: the kernel is compiled once per installed version.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: status codes of :func:`~belt_drive_ros.core.kernel.linear_steps`: all steps done; the last state written
+#: diverged; the last state written is the first past the guard; the implicit stage of the next step did not converge
+OK, DIVERGED, GUARDED, NOT_CONVERGED = 0, 1, 2, 3
+
+
+def sparse_rows(M: np.ndarray, rows: int, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(count (rows,), index (rows, width), value (rows, width)): the nonzero entries of each row of ``M``, left to right."""
+    count = np.zeros(rows, dtype=np.int64)
+    index = np.zeros((rows, width), dtype=np.int64)
+    value = np.zeros((rows, width), dtype=np.float64)
+    for r in range(M.shape[0]):
+        nz = np.flatnonzero(M[r])
+        count[r] = nz.size
+        index[r, : nz.size] = nz
+        value[r, : nz.size] = M[r, nz]
+    return count, index, value
+
+
+class FrictionForce:
+    """The slipping belt's extra input ``sigma Q_max(omega_M)`` [N] as data for the kernel.
+
+    ``Q_max = max((F_0 - m' v^2) k_c, 0)`` with ``v = r omega_M`` (``r`` = r_2
+    times the gear ratio, ``k_c`` the capstan factor; see
+    :meth:`~belt_drive_ros.core.params.BeltDriveParams.friction_limit`);
+    :meth:`value` is the same operations in Python.
+    """
+
+    def __init__(self, sigma: float, params):
+        self.row = np.array([float(sigma), float(params.F_0), float(params.belt_mass),
+                             float(params.r_2 * params.gear_ratio), float(params.capstan_factor)])
+
+    def value(self, omega_M: float) -> float:
+        sigma, force, mass, radius, factor = self.row.tolist()
+        v = radius * omega_M
+        return sigma * max((force - mass * v * v) * factor, 0.0)
+
+
+def guard_array(guard, n: int) -> np.ndarray:
+    """A :class:`~belt_drive_ros.core.stage_scheme.Guard` (or None) as the kernel's ``(5 + 2n,)`` array."""
+    out = np.zeros(5 + 2 * n)
+    if guard is None:
+        return out
+    out[0], out[1], out[2], out[3] = 1.0, float(bool(guard.absolute)), float(guard.bound), float(guard.quad)
+    out[5 : 5 + n] = np.asarray(guard.row, dtype=float)
+    if guard.speed is not None:
+        out[4] = 1.0
+        out[5 + n :] = np.asarray(guard.speed, dtype=float)
+    return out
+
+
+class KernelLoop:
+    """``loop(times, x, out, lo, hi) -> (done, status, t)``: :func:`~belt_drive_ros.core.kernel.linear_steps` for one plant.
+
+    Parameters
+    ----------
+    scheme : the method's StageScheme; dt : its step [s] (stage times ``t + c_i dt``).
+    wheel_map : (4, n); uses_angle : (drive, load) flags.
+    drive, load : :class:`~belt_drive_ros.core.profile_data.ProfileData`.
+    extra : tuple of :class:`FrictionForce` (the inputs after the two torques).
+    guard : optional Guard.
+    """
+
+    def __init__(self, scheme, dt: float, wheel_map, uses_angle, drive, load, extra=(), guard=None):
+        from . import kernel
+
+        self._steps = kernel.linear_steps
+        W = np.asarray(wheel_map, dtype=float)
+        n = W.shape[1]
+        s = len(scheme.nodes)
+        m = 2 + len(extra)
+        cols = n + m * s
+        if scheme.final.shape != (n, cols):
+            raise ValueError(f"kernel loop: the scheme's final map is {scheme.final.shape}, expected {(n, cols)}")
+        rows = max(4, n)
+        self.w = sparse_rows(W, 4, cols)
+        kinds = np.zeros(s, dtype=np.int64)
+        s_count = np.zeros((s, rows), dtype=np.int64)
+        s_index = np.zeros((s, rows, cols), dtype=np.int64)
+        s_value = np.zeros((s, rows, cols))
+        for i, M in enumerate(scheme.stages):
+            if M is None or (scheme.implicit and i == s - 1):
+                continue
+            padded = np.zeros((M.shape[0], cols))
+            padded[:, : M.shape[1]] = M
+            if scheme.final_base == i:
+                kinds[i] = 2
+            else:  # only the wheel coordinates feed the torques: W @ the stage map (as the reference step applies W)
+                kinds[i], padded = 1, W @ padded
+            s_count[i], s_index[i], s_value[i] = sparse_rows(padded, rows, cols)
+        self.kinds = kinds
+        self.offsets = np.array([float(c * dt) if c else 0.0 for c in scheme.nodes])
+        self.stages = (s_count, s_index, s_value)
+        self.final = sparse_rows(np.asarray(scheme.final, dtype=float), n, cols)
+        self.final_base = -1 if scheme.final_base is None else int(scheme.final_base)
+        self.tol, self.max_iter = (float(scheme.implicit[0]), int(scheme.implicit[1])) if scheme.implicit else (0.0, 0)
+        self.uses_angle = np.array([bool(u) for u in uses_angle], dtype=np.int64)
+        self.drive, self.load = drive, load
+        self.extra = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
+        self.guard = guard_array(guard, n)
+
+    def __call__(self, times, x, out, lo: float = -math.inf, hi: float = math.inf, limit: float = 1.0e5):
+        d, l = self.drive, self.load
+        done, status, t = self._steps(
+            times, x, out, lo, hi, limit, *self.w, self.kinds, self.offsets, *self.stages, *self.final,
+            self.final_base, self.tol, self.max_iter, self.uses_angle,
+            d.kinds, d.params, d.tx, d.ty, l.kinds, l.params, l.tx, l.ty, self.extra, self.guard,
+        )  # fmt: skip
+        return int(done), int(status), float(t)
+
+    @staticmethod
+    def usable(scheme) -> bool:
+        """Whether a scheme's matrices are real (the kernel's arrays are float64)."""
+        return not np.iscomplexobj(scheme.final) and all(M is None or not np.iscomplexobj(M) for M in scheme.stages)
