@@ -20,8 +20,8 @@ single run uses. Per step, with ``U_i`` the stage torques (one per variant)::
     x+  = final @ [x or X_j, U_0, ..., U_{s-1}]
 
 with the variant axis last (contiguous). Torques are evaluated by the
-profiles' array formulas (:func:`~belt_drive_ros.core.formula.array_function`),
-the same text the single run's compiled loop inlines. Each variant gets the
+profiles' array evaluation (:func:`~belt_drive_ros.core.kernel.profile_torque_array`),
+the same function the single run's compiled loop calls. Each variant gets the
 very floats of its single run:
 
 * the same matrices: one exponential routine for one matrix and for a
@@ -149,7 +149,7 @@ class Ensemble:
         self.plant = Plant(models.model(0), drive, load)  # the profiles, breakpoints and plan all variants share
         self.W = np.ascontiguousarray(models.W, dtype=float)  # (V, 4, n)
         self.drive, self.load = drive, load
-        self._torques = tuple(p.forms().array or p.torque for p in (drive, load))
+        self._torques = tuple(p.torque for p in (drive, load))
         rows = []
         for q, profile in enumerate((drive, load)):
             angle = 2 * q if profile.uses_angle else None

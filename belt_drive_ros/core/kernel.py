@@ -33,7 +33,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .kernel_loop import DIVERGED, GUARDED, NOT_CONVERGED, OK
+from .profile_data import DIVERGED, GUARDED, NOT_CONVERGED, OK
 
 _JIT = dict(cache=True, nogil=True)
 

@@ -15,9 +15,7 @@ import math
 
 import numpy as np
 
-#: status codes of :func:`~belt_drive_ros.core.kernel.linear_steps`: all steps done; the last state written
-#: diverged; the last state written is the first past the guard; the implicit stage of the next step did not converge
-OK, DIVERGED, GUARDED, NOT_CONVERGED = 0, 1, 2, 3
+from .profile_data import DIVERGED, GUARDED, NOT_CONVERGED, OK  # noqa: F401 (re-exported for the stepper)
 
 
 def sparse_rows(M: np.ndarray, rows: int, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -45,11 +43,10 @@ class FrictionForce:
     def __init__(self, sigma: float, params):
         self.row = np.array([float(sigma), float(params.F_0), float(params.belt_mass),
                              float(params.r_2 * params.gear_ratio), float(params.capstan_factor)])
+        self.sigma, self._limit = float(sigma), params.scalar_friction_limit()
 
     def value(self, omega_M: float) -> float:
-        sigma, force, mass, radius, factor = self.row.tolist()
-        v = radius * omega_M
-        return sigma * max((force - mass * v * v) * factor, 0.0)
+        return self.sigma * self._limit(omega_M)
 
 
 def guard_array(guard, n: int) -> np.ndarray:

@@ -48,6 +48,9 @@ import numpy as np
 CONSTANT, STEP, RAMP, SINE = 0, 1, 2, 3
 TABLE_LINEAR, TABLE_HELD, TABLE_HELD_NS = 4, 5, 6
 ENGINE, MOTOR_LINE, MOTOR_CURVE, POLYNOMIAL, COMPRESSOR, SCHEDULE = 7, 8, 9, 10, 11, 12
+#: status codes of :func:`~belt_drive_ros.core.kernel.linear_steps`: all steps done; the last state written
+#: diverged; the last state written is the first past the guard; the implicit stage of the next step did not converge
+OK, DIVERGED, GUARDED, NOT_CONVERGED = 0, 1, 2, 3
 #: numbers per row of ``params``
 WIDTH = 12
 #: code -> name (for messages and docs)

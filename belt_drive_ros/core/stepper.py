@@ -3,9 +3,11 @@
 Every caller that moves a simulation forward goes through :class:`Stepper`:
 :class:`~belt_drive_ros.core.simulate.Simulator` (offline runs, replay of
 recorded torques, the ``auto`` model choice's rigid estimate) and the ROS
-node's tick. It owns what each of them used to repeat: whole steps through
-the integrator's compiled float loop, partial steps, steps split at torque
-breakpoints, and the divergence check.
+node's tick. It plans the steps (the grid, partial steps, steps split or
+clamped at torque breakpoints) and hands them to the one compiled time loop
+(:func:`~belt_drive_ros.core.kernel.linear_steps` through
+:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`), which steps, clamps
+the torque times, checks divergence and the guard.
 
 API
 ---
@@ -47,15 +49,16 @@ torque sample of a (sub-)step is taken at a time clamped into the step's
 side of the breakpoints: the step that ends at breakpoint ``b`` samples at
 most at ``plant.left_of(b)`` (the torque's left limit), the step that starts
 there at least at ``b``. So no step integrates across a jump or a kink, and
-each fixed-step method keeps its order. Steps that touch a breakpoint go
-through ``integrator.step`` (numpy, one call each); all others through the
-compiled loop.
+each fixed-step method keeps its order. A step that touches a breakpoint is
+one kernel call per piece (the integrator of the piece's length, its torque
+times clamped); runs of whole steps are one kernel call each. Only an
+adaptive method or a Python-only torque profile steps through
+``integrator.step`` instead.
 
 What is cached
 --------------
-The integrator of step ``dt`` and its compiled loop
-(:meth:`Plant.scalar_loop`, which the integrator caches per plant), and
-integrators of partial-step lengths (keyed by the length [s], at most
+The integrator of step ``dt`` and its kernel loop's arrays
+(:meth:`Plant.kernel_loop`), and integrators (and their kernel loops) of partial-step lengths (keyed by the length [s], at most
 :data:`PARTIAL_CACHE_SIZE`, cleared when full). Plant torques are read at
 every call (a held torque may change between advances). :meth:`reset`
 forgets the adaptive solvers' history and the partial-step integrators.
@@ -64,8 +67,8 @@ Divergence
 ----------
 A state that is non-finite or has a speed beyond :data:`SPEED_LIMIT`
 raises :class:`~belt_drive_ros.core.errors.SimulationDivergedError` naming
-the time, model, method and step (the compiled loop checks every 64 steps;
-:meth:`run` reports the first bad sample).
+the time, model, method and step (the kernel checks after every step and
+stops there; :meth:`run` reports the first bad sample).
 """
 
 from __future__ import annotations
@@ -101,9 +104,9 @@ class Plant:
     ``inputs(t, x)`` takes one state (1-D) and returns a (2,) array; it calls
     the profiles' scalar closures (:meth:`~belt_drive_ros.core.sources.TorqueProfile.scalar_torque`),
     which skip numpy's per-call overhead. ``wheel_map`` is the (4, n) matrix
-    W with ``[phi_M, omega_M, phi_3, omega_3] = W x`` (the compiled loops of
-    :func:`~belt_drive_ros.core.integrators.compile_scalar_loop` inline it,
-    and :meth:`inputs` applies it, so any state ordering works).
+    W with ``[phi_M, omega_M, phi_3, omega_3] = W x`` (the kernel loop reads
+    it as a sparse matrix and :meth:`inputs` applies it, so any state
+    ordering works).
     """
 
     def __init__(self, model, drive, load, extra=()):
