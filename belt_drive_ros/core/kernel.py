@@ -10,8 +10,8 @@ Python: ``NUMBA_DISABLE_JIT=1`` runs them interpreted, with the same floats.
   (:mod:`~belt_drive_ros.core.profile_data`), one dispatcher for every kind;
 * :func:`profile_torque_array` -- the same on arrays of samples;
 * :func:`linear_steps` -- steps of a fixed-step method (its
-  :class:`~belt_drive_ros.core.stage_scheme.StageScheme` as sparse matrices,
-  :func:`scheme_arrays`) on ``x' = A x + B u(t, x)``: stage torques from the
+  :class:`~belt_drive_ros.core.stage_scheme.StageScheme` as zero-padded
+  matrices, :class:`~belt_drive_ros.core.kernel_loop.KernelLoop`) on ``x' = A x + B u(t, x)``: stage torques from the
   profiles' data, the torque time clamped into ``[lo, hi]`` (a step next to a
   breakpoint), the implicit stage by fixed point, the speed-dependent extra
   input of a slipping belt with mass, the divergence check and an optional
@@ -21,9 +21,9 @@ This module imports numba; the rest of the core imports it only where a run
 starts (``belt-drive --help``, ``scenes`` and ``msg-tools`` never load it).
 
 Summation order: every matrix-vector product is summed column by column from
-the left over the nonzero entries only, the order
-:func:`~belt_drive_ros.core.stage_scheme.affine` documents, so a step here
-equals the numpy reference step where the matrices are the same.
+the left (zero entries included: adding a zero product changes no nonzero
+sum), the order :func:`~belt_drive_ros.core.stage_scheme.affine` documents,
+so a step here equals the numpy reference step where the matrices are the same.
 """
 
 from __future__ import annotations
@@ -36,6 +36,8 @@ from numba import njit
 from .profile_data import DIVERGED, GUARDED, NOT_CONVERGED, OK
 
 _JIT = dict(cache=True, nogil=True)
+#: small helpers are inlined into their callers (no call, no reference counting of the arrays passed)
+_INLINE = dict(cache=True, nogil=True, inline="always")
 
 
 # ------------------------------------------------------------- profiles
@@ -94,81 +96,80 @@ def _harmonics(total, have, amplitudes, offset, n, arg):
     return total, have
 
 
-@njit(**_JIT)
-def torque(kind, p, tx, ty, t, angle, speed):
-    """Torque [N m] of one profile row of ``kind`` with numbers ``p`` at ``t`` [s], ``angle`` [rad], ``speed`` [rad/s].
+@njit(**_INLINE)
+def torque(kind, params, row, tx, ty, t, angle, speed):
+    """Torque [N m] of row ``row`` of a profile (``kind``, its numbers ``p = params[row]``) at ``t`` [s], ``angle`` [rad], ``speed`` [rad/s].
 
     The row layouts are :mod:`~belt_drive_ros.core.profile_data`'s table. A
     schedule row is resolved by :func:`profile_torque` before this is called.
     """
     if kind == 0:  # CONSTANT
-        return p[0]
+        return params[row, 0]
     if kind == 1:  # STEP
-        return p[1] if t >= p[2] else p[0]
+        return params[row, 1] if t >= params[row, 2] else params[row, 0]
     if kind == 2:  # RAMP: v0 + clip((t - t0) / span, 0, 1) * rise
-        return p[0] + (0.0 if t < p[2] else 1.0 if t > p[3] else (t - p[2]) / p[4]) * p[1]
+        return params[row, 0] + (0.0 if t < params[row, 2] else 1.0 if t > params[row, 3] else (t - params[row, 2]) / params[row, 4]) * params[row, 1]
     if kind == 3:  # SINE: mean + amplitude sin(omega t + phase)
-        return p[0] + p[1] * math.sin(p[2] * t + p[3])
+        return params[row, 0] + params[row, 1] * math.sin(params[row, 2] * t + params[row, 3])
     if kind == 4:  # TABLE_LINEAR
-        return _interp(t, tx, ty, int(p[0]), int(p[1]))
+        return _interp(t, tx, ty, int(params[row, 0]), int(params[row, 1]))
     if kind == 5:  # TABLE_HELD
-        return _held(t, tx, ty, int(p[0]), int(p[1]))
+        return _held(t, tx, ty, int(params[row, 0]), int(params[row, 1]))
     if kind == 6:  # TABLE_HELD_NS: switching at whole nanoseconds (t rounded half to even)
-        return _held(np.rint(t * 1e9), tx, ty, int(p[0]), int(p[1]))
+        return _held(np.rint(t * 1e9), tx, ty, int(params[row, 0]), int(params[row, 1]))
     if kind == 7:  # ENGINE
-        mode = p[0]
+        mode = params[row, 0]
         if mode == 0.0:
-            base = p[1]
+            base = params[row, 1]
         elif mode == 1.0:  # droop governor clip(mean + gain (setpoint - speed), 0, top)
-            b = p[1] + p[2] * (p[3] - speed)
-            base = 0.0 if b < 0.0 else p[4] if b > p[4] else b
+            b = params[row, 1] + params[row, 2] * (params[row, 3] - speed)
+            base = 0.0 if b < 0.0 else params[row, 4] if b > params[row, 4] else b
         else:
-            base = p[4]
-        value, _ = _harmonics(base, True, ty, int(p[9]), int(p[10]), p[5] * (p[6] * angle) + p[7])
-        return _fade(value, t, p[8]) if p[8] > 0.0 else value
+            base = params[row, 4]
+        value, _ = _harmonics(base, True, ty, int(params[row, 9]), int(params[row, 10]), params[row, 5] * (params[row, 6] * angle) + params[row, 7])
+        return _fade(value, t, params[row, 8]) if params[row, 8] > 0.0 else value
     if kind == 8:  # MOTOR_LINE: stall (1 - speed / no_load)
-        value = p[0] * (1.0 - speed / p[1])
-        return _fade(value, t, p[2]) if p[2] > 0.0 else value
+        value = params[row, 0] * (1.0 - speed / params[row, 1])
+        return _fade(value, t, params[row, 2]) if params[row, 2] > 0.0 else value
     if kind == 9:  # MOTOR_CURVE
-        value = _interp(speed, tx, ty, int(p[0]), int(p[1]))
-        return _fade(value, t, p[2]) if p[2] > 0.0 else value
+        value = _interp(speed, tx, ty, int(params[row, 0]), int(params[row, 1]))
+        return _fade(value, t, params[row, 2]) if params[row, 2] > 0.0 else value
     if kind == 10:  # POLYNOMIAL: c0 + c1 speed + c2 speed |speed|, zero terms dropped
         value, have = 0.0, False
-        if p[0] != 0.0:
-            value, have = p[0], True
-        if p[1] != 0.0:
-            term = p[1] * speed
+        if params[row, 0] != 0.0:
+            value, have = params[row, 0], True
+        if params[row, 1] != 0.0:
+            term = params[row, 1] * speed
             value, have = (value + term if have else term), True
-        if p[2] != 0.0:
-            term = p[2] * speed * abs(speed)
+        if params[row, 2] != 0.0:
+            term = params[row, 2] * speed * abs(speed)
             value, have = (value + term if have else term), True
         return value
     if kind == 11:  # COMPRESSOR: mean + c1 speed + sum_k A_k sin(k (z angle + phase)), zero terms dropped
         value, have = 0.0, False
-        if p[0] != 0.0:
-            value, have = p[0], True
-        if p[1] != 0.0:
-            term = p[1] * speed
+        if params[row, 0] != 0.0:
+            value, have = params[row, 0], True
+        if params[row, 1] != 0.0:
+            term = params[row, 1] * speed
             value, have = (value + term if have else term), True
-        value, have = _harmonics(value, have, ty, int(p[5]), int(p[6]), p[2] * angle + p[3])
-        return _fade(value, t, p[4]) if p[4] > 0.0 else value
+        value, have = _harmonics(value, have, ty, int(params[row, 5]), int(params[row, 6]), params[row, 2] * angle + params[row, 3])
+        return _fade(value, t, params[row, 4]) if params[row, 4] > 0.0 else value
     return math.nan
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def profile_torque(kinds, params, tx, ty, t, angle, speed):
     """Torque [N m] of the profile whose data are ``kinds, params, tx, ty`` (row 0; schedules resolved)."""
     row = 0
     while kinds[row] == 12:  # SCHEDULE: the active row inside a period [start, end), else the inactive one
-        p = params[row]
-        offset, n = int(p[0]), int(p[1])
+        offset, n = int(params[row, 0]), int(params[row, 1])
         inside = False
         for j in range(n):
             if tx[offset + j] <= t < ty[offset + j]:
                 inside = True
                 break
-        row = int(p[2]) if inside else int(p[3])
-    return torque(kinds[row], params[row], tx, ty, t, angle, speed)
+        row = int(params[row, 2]) if inside else int(params[row, 3])
+    return torque(kinds[row], params, row, tx, ty, t, angle, speed)
 
 
 @njit(**_JIT)
@@ -179,26 +180,23 @@ def profile_torque_array(kinds, params, tx, ty, t, angle, speed, out):
 
 
 # ------------------------------------------------------------- the loop
-@njit(**_JIT)
-def _row_dot(count, index, value, r, v):
-    """Row ``r`` of a sparse matrix (its nonzero entries ``index[r, :count[r]]``, ``value``) times ``v``, from the left."""
-    c = count[r]
-    if c == 0:
-        return 0.0
-    total = value[r, 0] * v[index[r, 0]]
-    for j in range(1, c):
-        total = total + value[r, j] * v[index[r, j]]
+@njit(**_INLINE)
+def _dot(M, i, r, cols, v, offset):
+    """``sum_j M[i, r, j] v[offset + j]`` over ``j < cols``, summed from the left (zeros included: exact)."""
+    total = 0.0
+    for j in range(cols):
+        total = total + M[i, r, j] * v[offset + j]
     return total
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _friction_force(e, omega):
     """Extra input ``sigma max((F_0 - m' v^2) k_c, 0)`` at drive speed ``omega``, ``v = r omega`` (``e`` = [sigma, F_0, m', r, k_c])."""
     v = e[3] * omega
     return e[0] * max((e[1] - e[2] * v * v) * e[4], 0.0)
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _stage_inputs(buf, base, coords, time, lo, hi, uses_angle,
                   dk, dp, dx, dy, lk, lp, lx, ly, extra):  # fmt: skip
     """Write the stage torques ``u = [drive, load, extras...]`` at ``time`` clamped to [lo, hi] into ``buf[base:]``."""
@@ -210,10 +208,7 @@ def _stage_inputs(buf, base, coords, time, lo, hi, uses_angle,
 
 
 @njit(**_JIT)
-def linear_steps(times, x, out, lo, hi, limit,
-                 w_count, w_index, w_value,
-                 kinds, offsets, s_count, s_index, s_value,
-                 f_count, f_index, f_value, final_base, tol, max_iter,
+def linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
                  uses_angle, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):  # fmt: skip
     """Steps ``times[k] -> times[k+1]`` of one fixed-step method from state ``x``; states into ``out[k]``.
 
@@ -222,18 +217,21 @@ def linear_steps(times, x, out, lo, hi, limit,
     times : (N+1,) step ends [s]; x : (n,) state at ``times[0]``; out : (N, n).
     lo, hi : torque times are clamped into [lo, hi] (-inf, inf: no clamp) [s].
     limit : speed [rad/s] beyond which the state counts as diverged (second half of x holds speeds).
-    w_* : the wheel map W (4, n) sparse: ``[phi_M, omega_M, phi_3, omega_3] = W x``.
+    W : (1, 4, n) the wheel map: ``[phi_M, omega_M, phi_3, omega_3] = W x``.
     kinds : (s,) per stage: 0 the stage state is x; 1 only its wheel coordinates
-        (rows ``W @ stages[i]``); 2 the whole stage state (rows ``stages[i]``, then W).
+        (``S[i]`` holds ``W @ stages[i]``); 2 the whole stage state (``S[i]`` holds ``stages[i]``, then W).
     offsets : (s,) ``c_i h`` [s]; a stage at ``c_i = 0`` samples at ``t`` itself.
-    s_* : (s, rows, cols) sparse stage rows; f_* : the final map's rows (n) sparse.
-    final_base : -1 (``x+ = final @ [x, U...]``) or the stage j whose state starts the final map.
+    S : (s, max(4, n), n + m s) the stage maps, zero-padded; F : (1, n, n + m s) the final map.
+    final_base : -1 (``x+ = F @ [x, U...]``) or the stage j whose state starts the final map.
     tol, max_iter : the implicit last stage's fixed point (max_iter 0: explicit method).
     uses_angle : (2,) int: whether drive/load read their angle (else 0.0 is passed).
     dk, dp, dx, dy / lk, lp, lx, ly : drive and load profile data.
     extra : (E, 5) speed-dependent extra inputs (:func:`_friction_force`), E = 0 or 1.
     guard : (5 + 2n,) ``[active, absolute, bound, quad, has_speed, row..., speed...]``:
         stop after the first step whose end state has ``f(row x) > bound - quad (speed x)^2``.
+
+    Every product sums over the columns from the left, the stage's own
+    columns ``[x, U_0 .. U_{i-1}]`` only.
 
     Returns
     -------
@@ -246,12 +244,12 @@ def linear_steps(times, x, out, lo, hi, limit,
     s = kinds.size
     m = 2 + extra.shape[0]
     half = n // 2
-    v = np.empty(n + m * s)  # [x (or the base stage's state), U_0, ..., U_{s-1}]
+    cols = n + m * s
+    v = np.zeros(cols)  # [x (or the base stage's state), U_0, ..., U_{s-1}]
     xs = np.empty(n)
     state = np.empty(n)
     coords = np.empty(4)
-    full = np.empty((s, n))
-    free = np.empty(n)
+    full = np.empty(s * n)  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
     for r in range(n):
         xs[r] = x[r]
     n_explicit = s - 1 if max_iter > 0 else s
@@ -262,53 +260,40 @@ def linear_steps(times, x, out, lo, hi, limit,
             v[r] = xs[r]
         for i in range(n_explicit):
             time = t if offsets[i] == 0.0 else t + offsets[i]
+            width = n + m * i
             if kinds[i] == 0:
                 for q in range(4):
-                    coords[q] = _row_dot(w_count, w_index, w_value, q, v)
+                    coords[q] = _dot(W, 0, q, n, v, 0)
             elif kinds[i] == 1:
                 for q in range(4):
-                    coords[q] = _row_dot(s_count[i], s_index[i], s_value[i], q, v)
+                    coords[q] = _dot(S, i, q, width, v, 0)
             else:
                 for r in range(n):
-                    full[i, r] = _row_dot(s_count[i], s_index[i], s_value[i], r, v)
+                    full[i * n + r] = _dot(S, i, r, width, v, 0)
                 for q in range(4):
-                    coords[q] = _row_dot(w_count, w_index, w_value, q, full[i])
-            _stage_inputs(v, n + m * i, coords, time, lo, hi, uses_angle, dk, dp, dx, dy, lk, lp, lx, ly, extra)
+                    coords[q] = _dot(W, 0, q, n, full, i * n)
+            _stage_inputs(v, width, coords, time, lo, hi, uses_angle, dk, dp, dx, dy, lk, lp, lx, ly, extra)
         if final_base >= 0:
             for r in range(n):
-                v[r] = full[final_base, r]
+                v[r] = full[final_base * n + r]
         if max_iter == 0:
             for r in range(n):
-                state[r] = _row_dot(f_count, f_index, f_value, r, v)
+                state[r] = _dot(F, 0, r, cols, v, 0)
         else:  # x+ = free + G u_last, u_last = u(t + h, x+) by fixed point from the previous stage's torque
-            last = s - 1
-            known = n + m * last
-            for r in range(n):  # the free part: the final row's entries over [x, U_0 .. U_{last-1}]
-                c = f_count[r]
-                total = 0.0
-                started = False
-                for j in range(c):
-                    col = f_index[r, j]
-                    if col < known:
-                        term = f_value[r, j] * v[col]
-                        total = total + term if started else term
-                        started = True
-                free[r] = total
+            known = n + m * (s - 1)
             for q in range(m):
                 v[known + q] = v[known - m + q]
             converged = False
-            time = t if offsets[last] == 0.0 else t + offsets[last]
+            time = t if offsets[s - 1] == 0.0 else t + offsets[s - 1]
             for _ in range(max_iter):
                 g0, g1 = v[known], v[known + 1]
-                for r in range(n):
-                    total = free[r]
-                    for j in range(f_count[r]):
-                        col = f_index[r, j]
-                        if col >= known:
-                            total = total + f_value[r, j] * v[col]
+                for r in range(n):  # the free part [x, U_0 .. U_{s-2}], then the implicit stage's columns
+                    total = _dot(F, 0, r, known, v, 0)
+                    for j in range(known, cols):
+                        total = total + F[0, r, j] * v[j]
                     state[r] = total
                 for q in range(4):
-                    coords[q] = _row_dot(w_count, w_index, w_value, q, state)
+                    coords[q] = _dot(W, 0, q, n, state, 0)
                 _stage_inputs(v, known, coords, time, lo, hi, uses_angle, dk, dp, dx, dy, lk, lp, lx, ly, extra)
                 if abs(v[known] - g0) <= tol * (1.0 + abs(v[known])) and abs(v[known + 1] - g1) <= tol * (1.0 + abs(v[known + 1])):
                     converged = True
@@ -316,11 +301,9 @@ def linear_steps(times, x, out, lo, hi, limit,
             if not converged:
                 return k, NOT_CONVERGED, t
             for r in range(n):
-                total = free[r]
-                for j in range(f_count[r]):
-                    col = f_index[r, j]
-                    if col >= known:
-                        total = total + f_value[r, j] * v[col]
+                total = _dot(F, 0, r, known, v, 0)
+                for j in range(known, cols):
+                    total = total + F[0, r, j] * v[j]
                 state[r] = total
         healthy = True
         for r in range(n):
@@ -336,16 +319,14 @@ def linear_steps(times, x, out, lo, hi, limit,
         if guard[0] != 0.0:
             g = 0.0
             for r in range(n):
-                if guard[5 + r] != 0.0:
-                    g = g + guard[5 + r] * xs[r]
+                g = g + guard[5 + r] * xs[r]
             if guard[1] != 0.0:
                 g = abs(g)
             bound = guard[2]
             if guard[4] != 0.0 and guard[3] != 0.0:
                 w = 0.0
                 for r in range(n):
-                    if guard[5 + n + r] != 0.0:
-                        w = w + guard[5 + n + r] * xs[r]
+                    w = w + guard[5 + n + r] * xs[r]
                 bound = bound - guard[3] * w * w
             if g > bound:
                 return k + 1, GUARDED, t

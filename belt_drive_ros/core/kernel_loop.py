@@ -4,7 +4,7 @@
 :func:`belt_drive_ros.core.kernel.linear_steps`: it turns the method's
 :class:`~belt_drive_ros.core.stage_scheme.StageScheme` (matrices computed by
 numpy/scipy once per model and step), the plant's wheel map, both torque
-profiles' data, the extra input and a guard into the kernel's sparse arrays,
+profiles' data, the extra input and a guard into the kernel's arrays,
 and calls the kernel with them. Nothing here depends on the scene's values
 except the arrays: the kernel is compiled once per installed version.
 """
@@ -16,19 +16,6 @@ import math
 import numpy as np
 
 from .profile_data import DIVERGED, GUARDED, NOT_CONVERGED, OK  # noqa: F401 (re-exported for the stepper)
-
-
-def sparse_rows(M: np.ndarray, rows: int, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(count (rows,), index (rows, width), value (rows, width)): the nonzero entries of each row of ``M``, left to right."""
-    count = np.zeros(rows, dtype=np.int64)
-    index = np.zeros((rows, width), dtype=np.int64)
-    value = np.zeros((rows, width), dtype=np.float64)
-    for r in range(M.shape[0]):
-        nz = np.flatnonzero(M[r])
-        count[r] = nz.size
-        index[r, : nz.size] = nz
-        value[r, : nz.size] = M[r, nz]
-    return count, index, value
 
 
 class FrictionForce:
@@ -86,11 +73,9 @@ class KernelLoop:
         if scheme.final.shape != (n, cols):
             raise ValueError(f"kernel loop: the scheme's final map is {scheme.final.shape}, expected {(n, cols)}")
         rows = max(4, n)
-        self.w = sparse_rows(W, 4, cols)
+        self.W = np.ascontiguousarray(W.reshape(1, 4, n))
         kinds = np.zeros(s, dtype=np.int64)
-        s_count = np.zeros((s, rows), dtype=np.int64)
-        s_index = np.zeros((s, rows, cols), dtype=np.int64)
-        s_value = np.zeros((s, rows, cols))
+        S = np.zeros((s, rows, cols))
         for i, M in enumerate(scheme.stages):
             if M is None or (scheme.implicit and i == s - 1):
                 continue
@@ -98,13 +83,13 @@ class KernelLoop:
             padded[:, : M.shape[1]] = M
             if scheme.final_base == i:
                 kinds[i] = 2
-            else:  # only the wheel coordinates feed the torques: W @ the stage map (as the reference step applies W)
+            else:  # only the wheel coordinates feed the torques: W @ the stage map
                 kinds[i], padded = 1, W @ padded
-            s_count[i], s_index[i], s_value[i] = sparse_rows(padded, rows, cols)
+            S[i, : padded.shape[0]] = padded
         self.kinds = kinds
         self.offsets = np.array([float(c * dt) if c else 0.0 for c in scheme.nodes])
-        self.stages = (s_count, s_index, s_value)
-        self.final = sparse_rows(np.asarray(scheme.final, dtype=float), n, cols)
+        self.S = S
+        self.F = np.ascontiguousarray(np.asarray(scheme.final, dtype=float).reshape(1, n, cols))
         self.final_base = -1 if scheme.final_base is None else int(scheme.final_base)
         self.tol, self.max_iter = (float(scheme.implicit[0]), int(scheme.implicit[1])) if scheme.implicit else (0.0, 0)
         self.uses_angle = np.array([bool(u) for u in uses_angle], dtype=np.int64)
@@ -115,8 +100,7 @@ class KernelLoop:
     def __call__(self, times, x, out, lo: float = -math.inf, hi: float = math.inf, limit: float = 1.0e5):
         d, l = self.drive, self.load
         done, status, t = self._steps(
-            times, x, out, lo, hi, limit, *self.w, self.kinds, self.offsets, *self.stages, *self.final,
-            self.final_base, self.tol, self.max_iter, self.uses_angle,
+            times, x, out, lo, hi, limit, self.W, self.kinds, self.offsets, self.S, self.F, self.final_base, self.tol, self.max_iter, self.uses_angle,
             d.kinds, d.params, d.tx, d.ty, l.kinds, l.params, l.tx, l.ty, self.extra, self.guard,
         )  # fmt: skip
         return int(done), int(status), float(t)
