@@ -97,6 +97,18 @@ def _harmonics(total, have, amplitudes, offset, n, arg):
 
 
 @njit(**_INLINE)
+def _affine_in_speed(c0, c1, speed):
+    """``(c0 + c1 speed, any term)`` without the zero terms (nothing added for a zero coefficient)."""
+    value, have = 0.0, False
+    if c0 != 0.0:
+        value, have = c0, True
+    if c1 != 0.0:
+        term = c1 * speed
+        value, have = (value + term if have else term), True
+    return value, have
+
+
+@njit(**_INLINE)
 def torque(kind, params, row, tx, ty, t, angle, speed):
     """Torque [N m] of row ``row`` of a profile (``kind``, its numbers ``p = params[row]``) at ``t`` [s], ``angle`` [rad], ``speed`` [rad/s].
 
@@ -135,23 +147,13 @@ def torque(kind, params, row, tx, ty, t, angle, speed):
         value = _interp(speed, tx, ty, int(params[row, 0]), int(params[row, 1]))
         return _fade(value, t, params[row, 2]) if params[row, 2] > 0.0 else value
     if kind == 10:  # POLYNOMIAL: c0 + c1 speed + c2 speed |speed|, zero terms dropped
-        value, have = 0.0, False
-        if params[row, 0] != 0.0:
-            value, have = params[row, 0], True
-        if params[row, 1] != 0.0:
-            term = params[row, 1] * speed
-            value, have = (value + term if have else term), True
+        value, have = _affine_in_speed(params[row, 0], params[row, 1], speed)
         if params[row, 2] != 0.0:
             term = params[row, 2] * speed * abs(speed)
-            value, have = (value + term if have else term), True
+            value = value + term if have else term
         return value
     if kind == 11:  # COMPRESSOR: mean + c1 speed + sum_k A_k sin(k (z angle + phase)), zero terms dropped
-        value, have = 0.0, False
-        if params[row, 0] != 0.0:
-            value, have = params[row, 0], True
-        if params[row, 1] != 0.0:
-            term = params[row, 1] * speed
-            value, have = (value + term if have else term), True
+        value, have = _affine_in_speed(params[row, 0], params[row, 1], speed)
         value, have = _harmonics(value, have, ty, int(params[row, 5]), int(params[row, 6]), params[row, 2] * angle + params[row, 3])
         return _fade(value, t, params[row, 4]) if params[row, 4] > 0.0 else value
     return math.nan
@@ -248,7 +250,7 @@ def linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_ba
     v = np.zeros(cols)  # [x (or the base stage's state), U_0, ..., U_{s-1}]
     xs = np.empty(n)
     state = np.empty(n)
-    coords = np.empty(4)
+    coords = np.zeros(4)
     full = np.empty(s * n)  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
     for r in range(n):
         xs[r] = x[r]
