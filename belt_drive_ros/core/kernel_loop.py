@@ -98,6 +98,8 @@ class KernelLoop:
         self.guard = guard_array(guard, n)
 
     def __call__(self, times, x, out, lo: float = -math.inf, hi: float = math.inf, limit: float = 1.0e5):
+        # numba types a read-only array apart: a writable copy keeps the kernel's one signature
+        times, x = (a if a.flags.writeable else a.copy() for a in (times, x))
         d, l = self.drive, self.load
         done, status, t = self._steps(
             times, x, out, lo, hi, limit, self.W, self.kinds, self.offsets, self.S, self.F, self.final_base, self.tol, self.max_iter, self.uses_angle,
