@@ -96,16 +96,19 @@ class KernelLoop:
         self.drive, self.load = drive, load
         self.extra = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
         self.guard = guard_array(guard, n)
+        d, l = drive, load  # the same arrays each call: a held torque's value written in place is read
+        self._tail = (
+            self.W, self.kinds, self.offsets, self.S, self.F, self.final_base, self.tol, self.max_iter, self.uses_angle,
+            d.kinds, d.params, d.tx, d.ty, l.kinds, l.params, l.tx, l.ty, self.extra, self.guard,
+        )  # fmt: skip
 
     def __call__(self, times, x, out, lo: float = -math.inf, hi: float = math.inf, limit: float = 1.0e5):
         # numba types a read-only array apart: a writable copy keeps the kernel's one signature
-        times, x = (a if a.flags.writeable else a.copy() for a in (times, x))
-        d, l = self.drive, self.load
-        done, status, t = self._steps(
-            times, x, out, lo, hi, limit, self.W, self.kinds, self.offsets, self.S, self.F, self.final_base, self.tol, self.max_iter, self.uses_angle,
-            d.kinds, d.params, d.tx, d.ty, l.kinds, l.params, l.tx, l.ty, self.extra, self.guard,
-        )  # fmt: skip
-        return int(done), int(status), float(t)
+        if not x.flags.writeable:
+            x = x.copy()
+        if not times.flags.writeable:
+            times = times.copy()
+        return self._steps(times, x, out, lo, hi, limit, *self._tail)
 
     @staticmethod
     def usable(scheme) -> bool:

@@ -105,8 +105,7 @@ class Plant:
     the profiles' scalar closures (:meth:`~belt_drive_ros.core.sources.TorqueProfile.scalar_torque`),
     which skip numpy's per-call overhead. ``wheel_map`` is the (4, n) matrix
     W with ``[phi_M, omega_M, phi_3, omega_3] = W x`` (the kernel loop reads
-    it as a sparse matrix and :meth:`inputs` applies it, so any state
-    ordering works).
+    it as a matrix and :meth:`inputs` applies it, so any state ordering works).
     """
 
     def __init__(self, model, drive, load, extra=()):
