@@ -114,3 +114,26 @@ class KernelLoop:
     def usable(scheme) -> bool:
         """Whether a scheme's matrices are real (the kernel's arrays are float64)."""
         return not np.iscomplexobj(scheme.final) and all(M is None or not np.iscomplexobj(M) for M in scheme.stages)
+
+
+def warm() -> None:
+    """Compile (or load from the disk cache) every kernel entry point with the one signature runs use.
+
+    ``make install`` calls it so that a first run compiles nothing: every
+    argument type is fixed (float64/int64 C arrays and floats), so this one
+    call per kernel covers every scene.
+    """
+    from .kernel import profile_torque, profile_torque_array
+    from .profile_data import CONSTANT, ProfileBuilder
+    from .stage_scheme import StageScheme
+
+    builder = ProfileBuilder()
+    builder.row(CONSTANT, 1.0)
+    data = builder.build()
+    profile_torque(data.kinds, data.params, data.tx, data.ty, 0.0, 0.0, 0.0)
+    one = np.zeros(1)
+    profile_torque_array(data.kinds, data.params, data.tx, data.ty, one, one, one, np.empty(1))
+    n = 2
+    scheme = StageScheme((0.0,), (None,), np.hstack([np.eye(n), np.zeros((n, 2))]))
+    loop = KernelLoop(scheme, 1e-3, np.vstack([np.eye(n), np.eye(n)]), (False, False), data, data)
+    loop(np.array([0.0, 1e-3]), np.zeros(n), np.empty((1, n)))
