@@ -1,12 +1,16 @@
-"""The speed work behind the benchmarks keeps results and behaviour (no timing asserts).
+"""The compiled kernel keeps results and behaviour (no timing asserts).
 
-* ``TorqueProfile.scalar_torque()`` equals ``torque()`` on scalars: 1e-13
-  relative (same formulas, ``math`` for numpy; measured: bit-identical).
-* The compiled float loop (``compile_scalar_loop``) equals the numpy
+* ``TorqueProfile.scalar_torque()`` equals ``torque()`` on scalars and on
+  arrays bit for bit (one compiled dispatcher behind all three).
+* The compiled time loop (``kernel.linear_steps``) equals the numpy reference
   ``step()`` loop to rounding: 1e-11 relative to each state's peak over 0.3 s.
-  The two sum the same products in another order; the closed-loop truck
-  scene amplifies a 1-ulp difference of the initial speed to ~1e-12, so
-  1e-11 is rounding, while any slip in the maths is >= 1e-6.
+  The two sum the same products in another order (the kernel applies
+  ``W @ stage`` as one matrix); the closed-loop truck scene amplifies a 1-ulp
+  difference of the initial speed to ~1e-12, so 1e-11 is rounding, while any
+  slip in the maths is >= 1e-6.
+* The kernel compiles once per installed version: its number of compiled
+  signatures stays fixed whatever scenes run.
+* ``NUMBA_DISABLE_JIT=1`` runs the same kernel interpreted, with the same floats.
 * Divergence and solver failure still surface as the package's errors.
 """
 
@@ -19,8 +23,8 @@ import pytest
 
 from belt_drive_ros.core import sources as S
 from belt_drive_ros.core.errors import IntegratorError, SimulationDivergedError
-from belt_drive_ros.core.formula import SCALAR_PRIMITIVES, render
-from belt_drive_ros.core.integrators import FIXED_STEP_METHODS, compile_scalar_loop
+from belt_drive_ros.core.integrators import FIXED_STEP_METHODS
+from belt_drive_ros.core.kernel_loop import KernelLoop
 from belt_drive_ros.core.model import make_model
 from belt_drive_ros.core.scene import load_scene
 from belt_drive_ros.core.simulate import Simulator, simulate
@@ -52,26 +56,15 @@ def test_scalar_torque_equals_torque(profile):
     for t, a, w in points:
         got, want = f(t, a, w), profile.torque(t, a, w)
         assert isinstance(got, float)
-        assert got == pytest.approx(want, rel=1e-13, abs=1e-13)
+        assert got == want
+    ts, angles, speeds = (np.array(c) for c in zip(*points))
+    assert np.array_equal(profile.torque(ts, angles, speeds), [f(*p) for p in points])
 
 
 def _sample_points():
     rng = np.random.default_rng(2)
     points = [(t, a, w) for t in (-0.1, 0.0, 0.2, 0.5, 0.7, 1.0, 1.3) for a, w in ((0.0, 0.0), (1.0, 150.0), (2.0, -400.0))]
     return points + [tuple(v) for v in rng.uniform((-0.2, -300, -500), (1.2, 300, 500), size=(300, 3))]
-
-
-@pytest.mark.parametrize("profile", PROFILES, ids=lambda p: p.kind)
-def test_inlined_source_is_bitwise_the_closure(profile):
-    """The formula text as the loops inline it (other names, prefixed bindings) computes exactly the closure."""
-    formula = profile.formula()
-    assert formula is not None  # every shipped profile is written as one formula
-    source, bindings = render(formula, "tt", "aa", "ww", prefix="d_")
-    assert all(name.startswith("d_") for name in bindings)
-    expression = compile(source, "<source>", "eval")
-    f = profile.scalar_torque()
-    for t, a, w in _sample_points():
-        assert eval(expression, {**SCALAR_PRIMITIVES, **bindings}, {"tt": t, "aa": a, "ww": w}) == f(t, a, w)
 
 
 @pytest.mark.parametrize("profile", PROFILES, ids=lambda p: p.kind)
@@ -83,28 +76,6 @@ def test_profiles_that_skip_the_angle_do_not_read_it(profile):
     if profile.kind in ("engine", "compressor"):  # crank/compressor angle: these must keep it
         assert profile.uses_angle
         assert any(f(t, a, w) != f(t, 0.0, w) for t, a, w in _sample_points())
-
-
-@pytest.mark.parametrize("scene_name", ["paper", "e_motor_start"])
-@pytest.mark.parametrize("method", ["etd4", "lawson5", "etd2", "rk4", "trapezoidal"])
-def test_loop_with_inlined_torques_and_speed_only_stages_equals_the_call_loop(scene_name, method):
-    """Inlining and skipping unused angles change no torque value: the states agree to rounding of W @ stage."""
-    scene = load_scene(scene_name)
-    model = make_model("flexible", scene.params)
-    sim = Simulator(model, scene.drive, scene.load, method, scene.dt)
-    plant = sim.plant
-    assert plant.uses_angle == (False, False)  # motor curve and polynomial/compressor-free loads
-    fast = sim.integrator.scalar_loop(plant.wheel_map, plant.uses_angle, plant.formulas)
-    plain = sim.integrator.scalar_loop(plant.wheel_map)
-    for name in ("drive(", "load("):  # every shipped profile has a formula: inlined, never called
-        assert name not in fast.__source__ and name in plain.__source__
-    assert scene_name != "paper" or "drive(" not in fast.__source__  # paper: linear motor line, inlined
-    times = (scene.dt * np.arange(400)).tolist()
-    x0 = tuple(scene.initial_state.vector("flexible", scene.params.ratio).tolist())
-    a = np.array(fast(times, x0, plant.scalar_drive, plant.scalar_load, 1e5))
-    b = np.array(plain(times, x0, plant.scalar_drive, plant.scalar_load, 1e5))
-    assert a.shape == b.shape
-    assert np.max(np.abs(a - b)) <= 1e-11 * np.max(np.abs(b))
 
 
 @pytest.mark.parametrize("scene_name", ["paper", "truck_compressor", "e_motor_start"])
@@ -130,16 +101,6 @@ def test_simulate_uses_the_compiled_loop_and_reports_progress():
     assert calls[-1] == 1.0 and calls == sorted(calls) and len(calls) >= 5  # every max(64, n//100) steps
 
 
-def test_generated_source_is_inspectable_and_drops_zero_coefficients():
-    scene = load_scene("paper")
-    model = make_model("rigid", scene.params)
-    sim = Simulator(model, scene.drive, scene.load, "exact", 1e-3)
-    loop = sim.integrator.scalar_loop(sim.plant.wheel_map)
-    assert "def loop(" in loop.__source__ and "drive(t, x0, x1)" in loop.__source__
-    # rigid: the angle row of Phi is [1, h]; x0 appears with coefficient 1 and no torque term multiplied by 0
-    assert "0.0 * " not in loop.__source__
-
-
 def test_divergence_in_the_compiled_loop_raises_the_package_error():
     scene = load_scene("truck_compressor")  # engine harmonics: math.sin of an exploding angle
     with pytest.raises(SimulationDivergedError, match="diverged"):
@@ -161,12 +122,12 @@ def test_wheel_map_of_both_models():
     np.testing.assert_allclose(sim.plant.wheel_map, [[1, 0, 0, 0], [0, 0, 1, 0], [i, -1, 0, 0], [0, 0, 0, 1]])  # phi_3 = i phi_M - theta
 
 
-def test_compile_rejects_a_plant_it_cannot_inline():
+def test_kernel_loop_rejects_a_scheme_of_another_shape():
     scene = load_scene("paper")
-    model = make_model("flexible", scene.params)
-    sim = Simulator(model, scene.drive, scene.load, "etd2", 1e-3)
-    with pytest.raises(IntegratorError):
-        compile_scalar_loop(sim.integrator.stage_scheme(), np.eye(4)[:3], 1e-3)
+    sim = Simulator(make_model("flexible", scene.params), scene.drive, scene.load, "etd2", 1e-3)
+    plant = sim.plant
+    with pytest.raises(ValueError, match="final map"):
+        KernelLoop(sim.integrator.stage_scheme(), 1e-3, plant.wheel_map, plant.uses_angle, *plant.data, extra=(None,))
 
 
 def test_adaptive_solver_continues_across_output_steps():
@@ -185,7 +146,7 @@ def test_lsoda_through_the_registry_starts_from_rest():
 
 
 class _Exploding(S.TorqueProfile):
-    """A profile without a formula (the loop calls it) that fails at t >= 0.0735 s: a traceback through the loop."""
+    """A profile without a data form (Python only) that fails at t >= 0.0735 s."""
 
     kind = "exploding"
     state_dependent = True
@@ -197,29 +158,55 @@ class _Exploding(S.TorqueProfile):
 
 
 @pytest.mark.parametrize("method", ["etd2", "trapezoidal"])
-def test_traceback_through_a_generated_loop_shows_its_source_lines(method):
-    """Generated loops are in linecache: a traceback names the loop and prints the line that called the torque."""
-    import traceback
-
+def test_a_python_only_profile_steps_through_the_reference_step(method):
+    """No data form: no kernel loop; the run steps through integrator.step and the profile's error propagates."""
     scene = load_scene("paper")
     sim = Simulator(make_model("flexible", scene.params), _Exploding(), scene.load, method, 1e-3)
-    with pytest.raises(RuntimeError) as info:
+    assert sim.stepper.loop is None
+    with pytest.raises(RuntimeError, match="torque sensor failed"):
         sim.run(0.1, np.zeros(4))
-    frames = [f for f in traceback.extract_tb(info.value.__traceback__) if f.filename.startswith(f"<{method} scalar loop")]
-    assert len(frames) == 1
-    line = frames[0].line
-    assert line.startswith("u") and "= drive(" in line  # the generated statement, e.g. u1_0 = drive(t1, ...)
-    loop = sim.integrator.scalar_loop(sim.plant.wheel_map, sim.plant.uses_angle, sim.plant.formulas)
-    assert line == loop.__source__.splitlines()[frames[0].lineno - 1].strip()
-    assert "= drive(" in "".join(traceback.format_exception(info.value))
 
 
-def test_traceback_through_a_formula_closure_shows_its_text():
-    import traceback
+def test_the_kernel_compiles_once_whatever_the_scene():
+    """Profiles are data: running every shipped scene and every kind of profile adds no compiled specialisation."""
+    from belt_drive_ros.core import kernel
+    from belt_drive_ros.core.scene import shipped_scenes
 
-    profile = S.Table((0.0, 1.0), (1.0, 2.0))
-    f = profile.scalar_torque()
-    with pytest.raises(TypeError) as info:
-        f("not a time", 0.0, 0.0)
-    text = "".join(traceback.format_exception(info.value))
-    assert "return interp(t, times, values)" in text
+    def counts():
+        return {name: len(getattr(kernel, name).signatures) for name in ("linear_steps", "profile_torque", "profile_torque_array")}
+
+    simulate(load_scene("paper"), duration=0.01)
+    for profile in PROFILES:
+        profile.torque(0.1, 1.0, 2.0), profile.torque(np.array([0.1, 0.2]), 1.0, 2.0)
+    first = counts()
+    assert first == {"linear_steps": 1, "profile_torque": 1, "profile_torque_array": 1}
+    for name in shipped_scenes():
+        scene = load_scene(name)
+        simulate(scene, duration=min(scene.duration, 0.05))
+    for profile in PROFILES:
+        profile.torque(0.3, 2.0, 5.0)
+    assert counts() == first
+
+
+def test_the_kernel_interpreted_gives_the_same_floats(tmp_path):
+    """NUMBA_DISABLE_JIT=1 runs the kernels as Python: a short closed-loop slipping scene, both ways, bit for bit."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, numpy as np\n"
+        "from belt_drive_ros.core.simulate import simulate\n"
+        "from belt_drive_ros.core.scene import load_scene\n"
+        "r = simulate(load_scene('truck_compressor'), duration=0.05)\n"
+        "np.save(sys.argv[1], r.states)\n"
+    )
+    states = {}
+    for jit in ("0", "1"):
+        env = dict(os.environ, NUMBA_DISABLE_JIT=jit)
+        path = tmp_path / f"states_{jit}.npy"
+        done = subprocess.run([sys.executable, "-c", code, str(path)], env=env, capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, done.stderr
+        states[jit] = np.load(path)
+    assert states["0"].shape == states["1"].shape and len(states["0"]) > 10
+    assert np.array_equal(states["0"], states["1"])

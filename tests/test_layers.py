@@ -1,7 +1,8 @@
 """The package's three layers, as the folders show them, and their import rules.
 
-* ``belt_drive_ros.core``: numpy, scipy, PyYAML and the standard library only;
-  never ``io``, ``ros``, rclpy, mcap or msg_tools.
+* ``belt_drive_ros.core``: numpy, scipy, numba, PyYAML and the standard library only;
+  never ``io``, ``ros``, rclpy, mcap or msg_tools. numba is imported only where a run
+  starts: ``belt-drive --help``, ``belt-drive scenes`` and ``msg-tools`` never load it.
 * ``belt_drive_ros.io``: ROS-free input and output; may use core and msg_tools/mcap,
   never ``ros`` or rclpy.
 * ``belt_drive_ros.ros``: the rclpy adapters; may use core and io.
@@ -25,7 +26,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "belt_drive_ros"
 #: per layer: the package's own layers it may import, and the third-party top-level modules
 MAY_IMPORT = {
-    "core": ({"core"}, {"numpy", "scipy", "yaml"}),
+    "core": ({"core"}, {"numpy", "scipy", "numba", "yaml"}),
     "io": ({"core", "io"}, {"numpy", "scipy", "yaml", "mcap", "mcap_ros2", "msg_tools", "zstandard", "matplotlib"}),
     "campaign": ({"core", "io", "campaign"}, {"numpy", "scipy", "yaml", "msg_tools", "matplotlib", "pandas", "pyarrow",
                                                 "dask", "distributed"}),
@@ -160,3 +161,20 @@ def test_msg_tools_takes_only_the_bounded_loader_from_the_package():
     code = "from belt_drive_ros.core.inputs import parse_yaml\nparse_yaml('a: 1')"
     assert _loaded_after(code, ("belt_drive_ros",)) == ["belt_drive_ros", "belt_drive_ros.core", "belt_drive_ros.core.errors",
                                                         "belt_drive_ros.core.inputs"]
+
+
+@pytest.mark.parametrize("code", [
+    "from belt_drive_ros.cli import main\ntry:\n    main(['--help'])\nexcept SystemExit:\n    pass",
+    "from belt_drive_ros.cli import main\nmain(['scenes'])",
+    "from msg_tools.cli import main\ntry:\n    main(['--help'])\nexcept SystemExit:\n    pass",
+    "import belt_drive_ros.core.scene, belt_drive_ros.core.sources, belt_drive_ros.core.integrators",
+], ids=["belt-drive --help", "belt-drive scenes", "msg-tools --help", "core imports"])
+def test_numba_is_imported_only_where_a_run_starts(code):
+    # numba (and llvmlite under it) costs ~0.3 s of import: commands that never step a model never pay it
+    assert _loaded_after(code, ("numba", "llvmlite")) == []
+
+
+def test_a_run_does_use_the_compiled_kernel():
+    code = "from belt_drive_ros.core.simulate import simulate\nfrom belt_drive_ros.core.scene import load_scene\n"
+    code += "simulate(load_scene('paper'), duration=0.01)"
+    assert "numba" in _loaded_after(code, ("numba",))

@@ -195,25 +195,22 @@ def test_profile_not_a_mapping():
 
 
 # ------------------------------------------------- one formula, three forms
-def test_primitives_scalar_and_array_twins_agree():
-    """Each primitive a formula may call has a scalar and a numpy implementation: the same values."""
-    from belt_drive_ros.core.formula import PRIMITIVES
-
+def test_tables_interpolate_and_hold_as_numpy_does():
+    """The kernel's table lookups against numpy's interp and searchsorted (sample points included exactly)."""
     rng = np.random.default_rng(5)
     xp = np.sort(rng.uniform(-1.0, 1.0, 9))
     fp = rng.normal(size=9)
-    xs = np.concatenate([rng.uniform(-1.5, 1.5, 200), xp])  # including every sample point exactly
-    ns = np.round(xp * 1e9).astype(np.int64)
-    for name, (scalar, array) in PRIMITIVES.items():
-        args = {"interp": (xp, fp), "held": (xp, fp), "held_ns": (ns, fp)}.get(name, ())
-        vec = array(xs, *args)
-        one = [scalar(float(x), *(a.tolist() for a in args)) for x in xs]
-        np.testing.assert_allclose(vec, one, rtol=1e-15, atol=0, err_msg=name)  # sin/cos: numpy's may differ by 1 ulp
+    xs = np.concatenate([rng.uniform(-1.5, 1.5, 200), xp])
+    linear, held = Table(xp, fp, "linear"), Table(xp, fp, "previous")
+    np.testing.assert_allclose(linear.torque(xs), np.interp(xs, xp, fp), rtol=1e-15, atol=0)
+    index = np.clip(np.searchsorted(xp, xs, side="right") - 1, 0, len(fp) - 1)
+    assert np.array_equal(held.torque(xs), fp[index])
+    assert [held.torque(float(x)) for x in xs] == fp[index].tolist()
 
 
 @pytest.mark.parametrize("spec", SPECS, ids=IDS)
-def test_flags_are_read_off_the_formula(spec):
-    """state_dependent / uses_angle come from the names the formula reads, and match what the torque does."""
+def test_flags_match_what_the_torque_reads(spec):
+    """state_dependent / uses_angle, stated per profile, match what the torque does."""
     profile = make_profile(spec)
     f = profile.scalar_torque()
     rng = np.random.default_rng(6)
@@ -231,8 +228,12 @@ def test_engine_without_pulses_or_governor_is_open_loop():
     assert engine.torque(0.1, 5.0, 50.0) == pytest.approx(10.0)
 
 
-def test_formula_rejects_unknown_names():
-    from belt_drive_ros.core.formula import Formula
+def test_every_kind_has_a_data_form_and_a_kernel_branch():
+    """Each registered profile encodes to kernel data; an unknown kind code evaluates to NaN, never to a number."""
+    from belt_drive_ros.core import kernel, profile_data as D
 
-    with pytest.raises(ValueError, match="unknown name.*omega"):
-        Formula("mean + sin(omega * t)", {"mean": 1.0})
+    for spec in SPECS:
+        assert make_profile(spec).data() is not None
+    row = np.zeros((1, D.WIDTH))
+    assert math.isnan(kernel.profile_torque(np.array([99]), row, np.zeros(1), np.zeros(1), 0.0, 0.0, 0.0))
+

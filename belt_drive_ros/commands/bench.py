@@ -27,6 +27,8 @@ studies:
                  campaign files, bag folders and node inputs, each a clean error, ok, data lost,
                  silent wrong, crash or hang (hostile.csv, hostile.md; not part of 'all';
                  --only CATEGORY... for some of them)
+  kernel         the compiled time loop: ns per step (kernel vs plain CPython vs C -O2), methods vs exact,
+                 whole warm simulate() x real time, start-up CPU of 'belt-drive sim paper --quiet' (not in 'all')
   campaign       10,000-variant Monte Carlo of paper on Dask vs a loop of single runs, 1 vs 2 workers,
                  a fleet of 100 recordings replayed and compared (needs the campaign extra; not in 'all')
   all            all of the above, then docs/bench/summary.md
@@ -38,6 +40,7 @@ examples:
   belt-drive bench soak --seconds 600            # 10 minutes of the recording node
   belt-drive bench hostile --out /tmp/hostile    # the hostile-input table (minutes)
   belt-drive bench hostile --only campaign bagdir --out /tmp/hostile
+  belt-drive bench kernel --out /tmp/k           # the compiled kernel's figures (a minute)
 
 Each study writes a CSV and a PNG into --out. CPU time is process time, the
 minimum of repeats; BLAS runs single-threaded (OPENBLAS_NUM_THREADS=1) so that
@@ -54,7 +57,7 @@ def register(sub) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "all"), help="which study to run")
+    p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "kernel", "all"), help="which study to run")
     p.add_argument("--out", type=Path, default=Path("docs/bench"), help="output folder (default: docs/bench)")
     p.add_argument("--quick", action="store_true", help="small sweeps and short runs (seconds; for tests)")
     p.add_argument("--quiet", action="store_true", help="no per-run log lines")
@@ -108,6 +111,12 @@ def run(args) -> int:
         from ..benchmarks import hostile
 
         return hostile.main(["--out", str(out)] + (["--quick"] if args.quick else []) + (["--only", *args.only] if args.only else []))
+    if args.study == "kernel":
+        from ..benchmarks import kernel
+
+        result = kernel.run(out, quick=args.quick, quiet=args.quiet)
+        print(f"bench kernel: {result['csv']}")
+        return 0
     if args.study == "campaign":
         from ..benchmarks import campaign
 

@@ -20,8 +20,8 @@ single run uses. Per step, with ``U_i`` the stage torques (one per variant)::
     x+  = final @ [x or X_j, U_0, ..., U_{s-1}]
 
 with the variant axis last (contiguous). Torques are evaluated by the
-profiles' array formulas (:func:`~belt_drive_ros.core.formula.array_function`),
-the same text the single run's compiled loop inlines. Each variant gets the
+profiles' array evaluation (:func:`~belt_drive_ros.core.kernel.profile_torque_array`),
+the same function the single run's compiled loop calls. Each variant gets the
 very floats of its single run:
 
 * the same matrices: one exponential routine for one matrix and for a
@@ -30,12 +30,16 @@ very floats of its single run:
   multiplies matrix by matrix;
 * the same sums: ``einsum`` over the variant-last layout accumulates
   ``sum_k M[r, k] z[k]`` from k = 0 upwards, the order of the compiled
-  loop's unrolled expressions and of
+  loop (:func:`~belt_drive_ros.core.kernel.linear_steps`) and of
   :func:`~belt_drive_ros.core.stage_scheme.affine` (the numpy step);
-* the same paths: whole steps away from breakpoints compute only the
-  torques' wheel coordinates ``(W S) z``, as the compiled loop does; the
-  steps at breakpoints and the partial ones each stage's whole state and
-  then ``W (S z)``, as :func:`~belt_drive_ros.core.stage_scheme.step` does.
+* the same paths: every step (whole, partial, clamped at a breakpoint)
+  computes only the torques' wheel coordinates ``(W S) z`` of the inner
+  stages, as the compiled loop does.
+
+This is the one stepping loop outside the kernel: the kernel run once per
+variant was measured 2x slower per variant-step than numpy over the
+variant axis (465 against 244 ns, ``lawson5`` on ``paper``), so the variant
+axis stays here until the kernel takes it innermost.
 
 So ensemble and single runs agree bit for bit in practice
 (tests/test_ensemble.py asserts <= 1e-12 relative on every shipped scene,
@@ -77,15 +81,13 @@ def _einsum(matrix: np.ndarray, vector: np.ndarray, out=None) -> np.ndarray:
 class _BatchScheme:
     """One step of length ``h`` of a method for all variants, in the variant-last layout.
 
-    As the single run's two step paths: ``plain=False`` computes only the
-    wheel coordinates a torque reads for the inner stages (``rows`` of
-    ``W S``), as the compiled loop does for whole steps; ``plain=True``
-    computes each stage's whole state and then its coordinates (``W (S z)``),
-    as :func:`~belt_drive_ros.core.stage_scheme.step` does for the steps
-    at breakpoints and the partial ones. Each sum runs from the left.
+    As the single run's kernel loop: the inner stages compute only the wheel
+    coordinates a torque reads (``rows`` of ``W S``), the stage that starts
+    the final map its whole state and then its coordinates; whole, partial
+    and clamped steps alike. Each sum runs from the left.
     """
 
-    def __init__(self, scheme, h: float, W: np.ndarray, rows: tuple, n: int, m: int, plain: bool = False):
+    def __init__(self, scheme, h: float, W: np.ndarray, rows: tuple, n: int, m: int):
         self.nodes, self.h = scheme.nodes, h
         self.n, self.m = n, m
         self.base = scheme.final_base
@@ -94,7 +96,7 @@ class _BatchScheme:
         for i, S in enumerate(scheme.stages):
             if S is None:
                 self.stages.append(("x", np.ascontiguousarray(Wr.transpose(1, 2, 0)), None))
-            elif self.base == i or plain:  # the whole stage state (needed again at the end of the step)
+            elif self.base == i:  # the whole stage state (needed again at the end of the step)
                 self.stages.append(
                     ("full", np.ascontiguousarray(S.transpose(1, 2, 0)), np.ascontiguousarray(Wr.transpose(1, 2, 0)))
                 )
@@ -149,7 +151,7 @@ class Ensemble:
         self.plant = Plant(models.model(0), drive, load)  # the profiles, breakpoints and plan all variants share
         self.W = np.ascontiguousarray(models.W, dtype=float)  # (V, 4, n)
         self.drive, self.load = drive, load
-        self._torques = tuple(p.forms().array or p.torque for p in (drive, load))
+        self._torques = tuple(p.torque for p in (drive, load))
         rows = []
         for q, profile in enumerate((drive, load)):
             angle = 2 * q if profile.uses_angle else None
@@ -165,9 +167,9 @@ class Ensemble:
     def __len__(self) -> int:
         return len(self.models)
 
-    def _scheme(self, h: float, plain: bool = False) -> _BatchScheme:
-        """The batched scheme of a step of ``h`` [s] (cached per length; ``plain``: see :class:`_BatchScheme`)."""
-        cached = self._schemes.get((h, plain))
+    def _scheme(self, h: float) -> _BatchScheme:
+        """The batched scheme of a step of ``h`` [s] (cached per length)."""
+        cached = self._schemes.get(h)
         if cached is None:
             scheme = self._method_schemes.get(h)
             if scheme is None:
@@ -178,7 +180,7 @@ class Ensemble:
             if len(self._schemes) >= 256:
                 self._schemes.clear()
                 self._method_schemes.clear()
-            cached = self._schemes[(h, plain)] = _BatchScheme(scheme, h, self.W, self._rows, self.n, self.m, plain)
+            cached = self._schemes[h] = _BatchScheme(scheme, h, self.W, self._rows, self.n, self.m)
         return cached
 
     def run(self, x0: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
@@ -228,15 +230,15 @@ class Ensemble:
             for k, (a, e, whole, lo, hi, cuts) in enumerate(steps):
                 if whole and not cuts and lo == -math.inf and hi == math.inf:  # the compiled loop's steps
                     x = self._step(self._scheme(self.dt), a, x, lo, hi, Z)
-                elif not cuts:  # the stepper's special steps: integrator.step, stage states whole
-                    x = self._step(self._scheme(self.dt if whole else e - a, plain=True), a, x, lo, hi, Z)
+                elif not cuts:  # the stepper's special steps: a partial or clamped step
+                    x = self._step(self._scheme(self.dt if whole else e - a), a, x, lo, hi, Z)
                 else:
                     edges = [a, *cuts, e]
                     for q in range(len(edges) - 1):
                         p, r = edges[q], edges[q + 1]
                         lo_q = lo if q == 0 else p
                         hi_q = hi if q == len(edges) - 2 else left_of(r)
-                        x = self._step(self._scheme(r - p, plain=True), p, x, lo_q, hi_q, Z)
+                        x = self._step(self._scheme(r - p), p, x, lo_q, hi_q, Z)
                 j += 1
                 out[j] = x
                 if k == len(steps) - 1:

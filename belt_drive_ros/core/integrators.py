@@ -9,8 +9,8 @@ A fixed-step method is written once, as data: its :class:`StageScheme`
 (affine maps between torque samples; a Runge-Kutta method gives only its
 Butcher tableau, as scipy's ``rk.py`` does). Everything else is derived from
 the scheme (:mod:`belt_drive_ros.core.stage_scheme`): :meth:`~FixedStepIntegrator.step`
-on numpy arrays, the compiled float loop of the simulator and the node
-(:meth:`~FixedStepIntegrator.scalar_loop`), the *linear one-step map*
+on numpy arrays (the reference), the compiled time loop of every run
+(:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`), the *linear one-step map*
 (:meth:`~FixedStepIntegrator.linear_step`; with a torque that depends on
 time only every method is exactly ``x_{n+1} = Phi x_n + sum_j G_j u(t_n + c_j h)``),
 which drives the vectorized open-loop propagation (:func:`propagate_linear`),
@@ -36,11 +36,11 @@ import numpy as np
 from . import stage_scheme as _scheme
 from .batch_expm import expm_stack
 from .errors import IntegratorError
-from .stage_scheme import LinearStep, StageScheme, compile_scalar_loop
+from .stage_scheme import LinearStep, StageScheme
 
 __all__ = [
     "ADAPTIVE_METHODS", "ALIASES", "FIXED_STEP_METHODS", "REGISTRY", "FixedStepIntegrator", "Integrator",
-    "LinearStep", "StageScheme", "compile_scalar_loop", "describe_methods", "make_integrator", "method_class",
+    "LinearStep", "StageScheme", "describe_methods", "make_integrator", "method_class",
     "propagate_linear", "register",
 ]  # fmt: skip
 
@@ -125,31 +125,6 @@ class FixedStepIntegrator(Integrator):
         """``x+ = Phi x + sum_j G_j u(t + c_j h)`` for a torque of time only (from the scheme)."""
         return _scheme.linear_step(self.scheme, self.A.shape[0])
 
-    def scalar_loop(
-        self, wheel_map: np.ndarray, uses_angle=(True, True), formulas=(None, None), guard=None, extra=()
-    ) -> Callable:
-        """Compiled fast loop of :meth:`step` for one plant (see :func:`compile_scalar_loop`), cached per plant and guard."""
-        wheel_map = np.asarray(wheel_map, dtype=float)
-        key = (
-            wheel_map.tobytes(), tuple(bool(u) for u in uses_angle),
-            tuple(None if f is None else f.key() for f in formulas), guard, tuple(f("w", "v") for f in extra),
-        )  # fmt: skip
-        cache = self.__dict__.setdefault("_scalar_loops", {})
-        if key not in cache:
-            # across integrators too (a run builds its own; the source need not be generated again, ~0.3 ms)
-            sc = self.scheme
-            shared = (
-                self.name, self.dt, sc.nodes, sc.implicit, sc.final_base, sc.final.tobytes(),
-                tuple(None if m is None else m.tobytes() for m in sc.stages), key,
-            )  # fmt: skip
-            loop = _SHARED_LOOPS.get(shared)
-            if loop is None:
-                if len(_SHARED_LOOPS) >= 256:
-                    _SHARED_LOOPS.clear()
-                loop = _SHARED_LOOPS[shared] = compile_scalar_loop(sc, wheel_map, self.dt, self.name, uses_angle, formulas, guard, extra)
-            cache[key] = loop
-        return cache[key]
-
     @classmethod
     def mode_growths(cls, lams, dt: float) -> np.ndarray:
         """|growth factor| per step of step ``dt`` [s] of each mode with continuous eigenvalue ``lams[i]`` [1/s].
@@ -179,10 +154,6 @@ class FixedStepIntegrator(Integrator):
     def amplification(self, lam: complex) -> float:
         """|growth factor| per step of the mode with continuous eigenvalue ``lam`` [1/s] (:meth:`mode_growths`)."""
         return float(type(self).mode_growths([lam], self.dt)[0])
-
-
-#: compiled loops by method, step, scheme and plant key (FixedStepIntegrator.scalar_loop)
-_SHARED_LOOPS: dict = {}
 
 
 def describe_methods() -> str:

@@ -259,26 +259,19 @@ class BeltDriveParams:
         """2 tanh(mu_eff beta / 2): Q_max per net span tension F_0 - F_c [-]."""
         return 2.0 * math.tanh(0.5 * self.mu_effective * self.wrap_angle)
 
-    def friction_limit_source(self, omega_M: str, v: str = "v") -> str:
-        """:meth:`friction_limit` as Python source at the speed expression ``omega_M`` [rad/s] (constants written in).
-
-        ``v`` names the belt speed [m/s] (an assignment expression, so a
-        generated loop can inline it at several stages under distinct names).
-        The one scalar formula: :meth:`scalar_friction_limit` is compiled from it;
-        :func:`friction_limit_array` does the same operations in the same order
-        on arrays (same :attr:`capstan_factor`, so the same floats).
-        """
-        factor, speed = self.capstan_factor, self.r_2 * self.gear_ratio
-        return f"max(({float(self.F_0)!r} - {float(self.belt_mass)!r} * ({v} := {speed!r} * ({omega_M})) * {v}) * {factor!r}, 0.0)"
-
     def scalar_friction_limit(self):
-        """:meth:`friction_limit` of one float ``omega_M`` [rad/s] as a function with the constants written in [N]."""
-        source = self.friction_limit_source("omega_M")
-        limit = _SCALAR_LIMITS.get(source)
-        if limit is None:
-            if len(_SCALAR_LIMITS) >= 256:
-                _SCALAR_LIMITS.clear()
-            limit = _SCALAR_LIMITS[source] = eval(compile(f"lambda omega_M: {source}", "<friction limit>", "eval"))
+        """:meth:`friction_limit` of one float ``omega_M`` [rad/s] with the constants bound [N].
+
+        ``max((F_0 - m' v^2) k_c, 0)`` with ``v = r_2 g omega_M``: the operations of
+        :func:`friction_limit_array` and of the compiled loop's slip force
+        (:class:`~belt_drive_ros.core.kernel_loop.FrictionForce`), in the same order.
+        """
+        force, mass, speed, factor = float(self.F_0), float(self.belt_mass), self.r_2 * self.gear_ratio, self.capstan_factor
+
+        def limit(omega_M):
+            v = speed * omega_M
+            return max((force - mass * v * v) * factor, 0.0)
+
         return limit
 
 
@@ -317,10 +310,6 @@ class ParamColumns:
     def subset(self, keep) -> "ParamColumns":
         """The columns of the variants ``keep`` (positions)."""
         return ParamColumns(columns={name: getattr(self, name)[keep] for name in FIELD_DOCS})
-
-
-#: compiled friction limits by their source (parameter sweeps: kept small)
-_SCALAR_LIMITS: dict = {}
 
 
 def friction_limit_array(F_0, belt_speed_ratio, belt_mass, capstan_factor, omega_M):

@@ -6,9 +6,9 @@ engine that advances time for every caller (this module, replay of recorded
 torques, the ROS node's tick). The stepper takes the vectorized path (one
 linear recurrence for the whole run, :func:`~belt_drive_ros.core.integrators.propagate_linear`)
 when both torques depend on time only and the method has a fixed step, and
-steps otherwise: fixed-step methods in a loop compiled for the plant
-(:func:`~belt_drive_ros.core.integrators.compile_scalar_loop`, plain float
-arithmetic, no numpy per step), adaptive ones through ``integrator.step``.
+steps otherwise: fixed-step methods in the one compiled time loop
+(:func:`~belt_drive_ros.core.kernel.linear_steps`, numba, compiled once per
+installed version), adaptive ones through ``integrator.step``.
 All paths give the same states to rounding. :func:`simulate` runs a scene
 and computes every output and the energy terms.
 """

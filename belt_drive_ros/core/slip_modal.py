@@ -35,7 +35,6 @@ from typing import Callable
 
 import numpy as np
 
-from .formula import compile_source
 
 #: Taylor coefficients 1/(j+3)! of phi_3, enough for |x| < 0.5 to below 1e-17 relative
 _PHI3 = tuple(1.0 / math.factorial(j + 3) for j in range(15))
@@ -43,21 +42,20 @@ _PHI3 = tuple(1.0 / math.factorial(j + 3) for j in range(15))
 _PHI4 = tuple(1.0 / math.factorial(j + 4) for j in range(15))
 
 
-def _horner(coefficients) -> str:
-    """Source of ``p = 0 x; p = p x + c`` for each ``c`` of ``coefficients`` from the last, as one expression.
-
-    The same operations in the same order as that loop (so the same floats),
-    without its per-term interpreter overhead (an event evaluates these
-    series ~20 times: ~0.15 us each saved).
-    """
-    return "(" * len(coefficients) + "0.0 * x" + "".join(f" * x + {c!r})" for c in reversed(coefficients))
+def _horner(coefficients, x):
+    """``p = 0 x; p = p x + c`` for each ``c`` of ``coefficients`` from the last (the series' value at ``x``)."""
+    p = 0.0 * x
+    for c in reversed(coefficients):
+        p = p * x + c
+    return p
 
 
-_SERIES = compile_source(
-    f"def _series3(x):\n    return {_horner(_PHI3)}\n\n\ndef _series4(x):\n    return {_horner(_PHI4)}\n",
-    "phi series", {},
-)
-_series3, _series4 = _SERIES["_series3"], _SERIES["_series4"]
+def _series3(x):
+    return _horner(_PHI3, x)
+
+
+def _series4(x):
+    return _horner(_PHI4, x)
 
 
 def phis(x: complex) -> tuple[complex, complex, complex, complex]:

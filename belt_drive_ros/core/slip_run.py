@@ -37,6 +37,7 @@ import numpy as np
 
 from .errors import IntegratorError
 from .integrators import REGISTRY, method_class
+from .kernel_loop import FrictionForce
 from .model import FlexibleBeltModel
 from .slip import SLIP, STICK, HybridStepper, SlippingBeltModel
 from .stability import require_stable
@@ -170,12 +171,8 @@ class SlippingSimulator:
                 )  # fmt: skip
         elif params.c > 0.0:  # Q_max falls with the belt speed: Q an input of the drive speed, in the loop
             for sigma in (1.0, -1.0):
-
-                def force(speed, name, sigma=sigma):
-                    return f"{sigma!r} * {params.friction_limit_source(speed, name)}"
-
-                self._factories[("mass", sigma)] = lambda sigma=sigma, force=force: Stepper(
-                    Plant(_MassSlipPhase(m), drive, load, (force,)), method, self.dt, self.method_options, 0.0,
+                self._factories[("mass", sigma)] = lambda sigma=sigma: Stepper(
+                    Plant(_MassSlipPhase(m), drive, load, (FrictionForce(sigma, params),)), method, self.dt, self.method_options, 0.0,
                     self._sibling(("mass", -sigma)), m.guard(SLIP, sigma),
                 )  # fmt: skip
         self.events: list = []

@@ -19,8 +19,8 @@ from typing import Any, Callable, ClassVar, Mapping, Sequence
 import numpy as np
 
 from .errors import SceneError
+from . import profile_data as D
 from .inputs import short
-from .formula import Formula, array_function, scalar_function
 
 _REGISTRY: dict[str, type["TorqueProfile"]] = {}
 
@@ -61,89 +61,70 @@ def _register(cls):
     return cls
 
 
-class _ReadsArgument:
-    """Flag derived from the profile's formula: True when it reads any of ``arguments``.
-
-    A non-data descriptor: a profile without a formula sets the flag itself
-    (a class attribute or an instance attribute shadows it); without either,
-    ``default``.
-    """
-
-    def __init__(self, arguments: tuple[str, ...], default: bool):
-        self.arguments, self.default = arguments, default
-
-    def __get__(self, obj, owner=None):
-        if obj is None:
-            return self
-        formula = obj.forms().formula
-        return self.default if formula is None else any(formula.reads(a) for a in self.arguments)
-
-
-@dataclass(frozen=True)
-class ProfileForms:
-    """What a profile's :class:`~belt_drive_ros.core.formula.Formula` compiles to (cached per profile)."""
-
-    formula: Formula | None
-    scalar: Callable[[float, float, float], float]
-    array: Callable | None
-
-
 class TorqueProfile:
     """Base class: a torque [N m] as a function of time, angle and speed.
 
-    A profile writes its torque once, as a :class:`~belt_drive_ros.core.formula.Formula`
-    (:meth:`formula`); :meth:`torque` (scalars and arrays), :meth:`scalar_torque`
-    and the source the compiled loops inline all come from it. A profile
-    without a formula overrides :meth:`torque` (and may override
-    :meth:`scalar_torque`); the loops then call its closure.
+    A profile states its torque once, as data (:meth:`encode`: a kind code of
+    :mod:`~belt_drive_ros.core.profile_data`, its numbers and tables); the
+    compiled kernel evaluates it (:func:`~belt_drive_ros.core.kernel.profile_torque`)
+    for :meth:`torque` (scalars and arrays), :meth:`scalar_torque` and inside
+    the time loop alike. A profile without a data form (a test's own Python
+    profile) overrides :meth:`torque`; a run with it steps through the
+    integrator's reference ``step`` instead of the kernel.
     """
 
     kind: ClassVar[str] = ""
-    #: True when the torque depends on angle or speed (closes a loop): read off the formula.
-    state_dependent = _ReadsArgument(("angle", "speed"), default=True)
-    #: False when the torque ignores its angle argument (the compiled loops then skip computing it).
-    uses_angle = _ReadsArgument(("angle",), default=True)
 
-    def formula(self) -> Formula | None:
-        """The torque as one expression in ``t``, ``angle``, ``speed`` (None: :meth:`torque` is the definition)."""
+    #: True when the torque depends on angle or speed (closes a loop); a subclass states its own.
+    state_dependent = True
+    #: False when the torque ignores its angle argument (the kernel then passes 0.0).
+    uses_angle = True
+
+    def encode(self, builder: D.ProfileBuilder) -> int | None:
+        """Append this profile's row(s) to ``builder``; its row index (None: no data form, Python only)."""
         return None
 
-    def forms(self) -> ProfileForms:
-        """The formula and the functions compiled from it (built once per profile)."""
-        cached = self.__dict__.get("_forms")
-        if cached is None:
-            formula = self.formula()
-            if formula is None:
-                torque = self.torque
-                cached = ProfileForms(None, lambda t, angle, speed: float(torque(t, angle, speed)), None)
-            else:
-                label = self.kind or type(self).__name__
-                cached = ProfileForms(formula, scalar_function(formula, label), array_function(formula, label))
-            object.__setattr__(self, "_forms", cached)
+    def data(self) -> D.ProfileData | None:
+        """The profile as the kernel's data (:mod:`~belt_drive_ros.core.profile_data`), built once; None: Python only."""
+        cached = self.__dict__.get("_data", False)
+        if cached is False:
+            builder = D.ProfileBuilder()
+            cached = None if self.encode(builder) is None else builder.build()
+            object.__setattr__(self, "_data", cached)
         return cached
 
     def torque(self, t, angle=0.0, speed=0.0):
-        """Torque [N m] at time ``t`` [s], wheel angle [rad], wheel speed [rad/s] (scalars or arrays)."""
-        forms = self.forms()
-        if forms.array is None:
-            raise NotImplementedError(f"{type(self).__name__}: define formula() or torque()")
+        """Torque [N m] at time ``t`` [s], wheel angle [rad], wheel speed [rad/s] (scalars or arrays).
+
+        Evaluated by the compiled kernel from :meth:`data` (the same function
+        the time loop calls: bitwise the same values).
+        """
+        from . import kernel
+
+        data = self.data()
+        if data is None:
+            raise NotImplementedError(f"{type(self).__name__}: define encode() or torque()")
         if np.ndim(t) or np.ndim(angle) or np.ndim(speed):
-            shape = np.broadcast(t, angle, speed).shape
-            return np.array(np.broadcast_to(forms.array(t, angle, speed), shape), dtype=float)
-        return float(forms.scalar(float(t), float(angle), float(speed)))
+            ts, angles, speeds = (np.ascontiguousarray(a, dtype=np.float64).ravel() for a in np.broadcast_arrays(
+                np.asarray(t, dtype=float), np.asarray(angle, dtype=float), np.asarray(speed, dtype=float)))
+            out = np.empty(ts.size)
+            kernel.profile_torque_array(data.kinds, data.params, data.tx, data.ty, ts, angles, speeds, out)
+            return out.reshape(np.broadcast(t, angle, speed).shape)
+        return float(kernel.profile_torque(data.kinds, data.params, data.tx, data.ty, float(t), float(angle), float(speed)))
 
     def __call__(self, t, angle=0.0, speed=0.0):
         return self.torque(t, angle, speed)
 
     def scalar_torque(self) -> Callable[[float, float, float], float]:
-        """A fast ``f(t, angle, speed) -> float`` for Python-float arguments.
+        """A fast ``f(t, angle, speed) -> float`` for Python-float arguments (the kernel's dispatcher, data bound)."""
+        data = self.data()
+        if data is None:
+            torque = self.torque
+            return lambda t, angle, speed: float(torque(t, angle, speed))
+        from .kernel import profile_torque
 
-        The closure compiled from :meth:`formula` (the same text the compiled
-        loops inline: bitwise equal to them), without numpy's per-call
-        overhead (about 1 us per call on a scalar, more than the arithmetic).
-        Without a formula: :meth:`torque` wrapped.
-        """
-        return self.forms().scalar
+        kinds, params, tx, ty = data.kinds, data.params, data.tx, data.ty
+        return lambda t, angle, speed: profile_torque(kinds, params, tx, ty, t, angle, speed)
 
     def breakpoints(self) -> tuple[float, ...]:
         """Times [s] at which the torque jumps or kinks in time (a step, a ramp's ends, a soft start's end).
@@ -224,28 +205,17 @@ class TorqueProfile:
         return self
 
 
-def _sum(terms: Sequence[str]) -> str:
-    """``a + b + ...`` of the non-empty terms, "0.0" for none."""
-    terms = [t for t in terms if t]
-    return " + ".join(terms) if terms else "0.0"
+def _fade_time(value: float) -> float:
+    """A fade-in duration for the kernel: 0.0 means none."""
+    return float(value) if value > 0 else 0.0
 
 
-def _harmonic_series(harmonics: Sequence[float], argument: str, constants: dict) -> str:
-    """``A_1 sin(arg) + A_2 sin(2 arg) + ...`` [N m] without zero terms; ``arg`` is bound by ``:=`` at first use."""
-    terms, first = [], True
-    for k, amp in enumerate(harmonics, start=1):
-        if not amp:
-            continue
-        constants[f"A{k}"] = float(amp)
-        arg = f"(arg := {argument})" if first else "arg"
-        terms.append(f"A{k} * sin({arg})" if k == 1 else f"A{k} * sin({float(k)!r} * {arg})")
-        first = False
-    return _sum(terms)
+def _harmonic_table(builder: D.ProfileBuilder, harmonics) -> tuple[int, int]:
+    """The amplitudes [N m] as a table (offset, count) for the kernel."""
+    return builder.table(np.zeros(len(harmonics)), np.asarray(harmonics, dtype=float))
 
 
-def _fade(expression: str, duration_name: str) -> str:
-    """``expression * clip(t / T, 0, 1)`` written without a call (T > 0 a constant: t <= T <=> t / T <= 1)."""
-    return f"({expression}) * (0.0 if t < 0.0 else 1.0 if t > {duration_name} else t / {duration_name})"
+_TIME_ONLY = dict(state_dependent=False, uses_angle=False)
 
 
 # ---------------------------------------------------------------- open loop
@@ -261,9 +231,11 @@ class Constant(TorqueProfile):
     def __post_init__(self):
         self._check_finite("value")
 
-    def formula(self):
-        return Formula("value", {"value": float(self.value)})
+    state_dependent = False
+    uses_angle = False
 
+    def encode(self, builder):
+        return builder.row(D.CONSTANT, self.value)
 
 @_register
 @dataclass(frozen=True)
@@ -279,8 +251,12 @@ class Step(TorqueProfile):
     def __post_init__(self):
         self._check_finite("initial", "final", "time")
 
-    def formula(self):
-        return Formula("final if t >= time else initial", {"initial": float(self.initial), "final": float(self.final), "time": float(self.time)})
+    state_dependent = False
+    uses_angle = False
+
+    def encode(self, builder):
+        # final if t >= time else initial
+        return builder.row(D.STEP, self.initial, self.final, self.time)
 
     def breakpoints(self):
         return (float(self.time),) if self.final != self.initial else ()
@@ -306,11 +282,13 @@ class Ramp(TorqueProfile):
         if not self.end_time > self.start_time:
             raise SceneError(f"ramp.end_time: must be > start_time ({self.start_time}), got {self.end_time}")
 
-    def formula(self):
+    state_dependent = False
+    uses_angle = False
+
+    def encode(self, builder):
         # start_value + clip((t - t0) / span, 0, 1) * rise
-        constants = dict(v0=float(self.start_value), rise=float(self.end_value - self.start_value),
-                         t0=float(self.start_time), t1=float(self.end_time), span=float(self.end_time - self.start_time))
-        return Formula("v0 + (0.0 if t < t0 else 1.0 if t > t1 else (t - t0) / span) * rise", constants)
+        return builder.row(D.RAMP, self.start_value, self.end_value - self.start_value, self.start_time, self.end_time,
+                           self.end_time - self.start_time)
 
     def breakpoints(self):
         return (float(self.start_time), float(self.end_time))
@@ -334,10 +312,12 @@ class Sine(TorqueProfile):
     def __post_init__(self):
         self._check_finite("mean", "amplitude", "frequency", "phase")
 
-    def formula(self):
-        constants = dict(mean=float(self.mean), amplitude=float(self.amplitude),
-                         omega=2.0 * math.pi * self.frequency, phase=float(self.phase))  # omega = 2 pi f [rad/s]
-        return Formula("mean + amplitude * sin(omega * t + phase)", constants)
+    state_dependent = False
+    uses_angle = False
+
+    def encode(self, builder):
+        # mean + amplitude sin(omega t + phase), omega = 2 pi f [rad/s]
+        return builder.row(D.SINE, self.mean, self.amplitude, 2.0 * math.pi * self.frequency, self.phase)
 
     def excitation_frequencies(self, speed):
         return [(abs(self.frequency), "sine")] if self.amplitude else []
@@ -374,9 +354,12 @@ class Table(TorqueProfile):
         object.__setattr__(self, "times", times)
         object.__setattr__(self, "values", values)
 
-    def formula(self):
-        primitive = "interp" if self.interpolation == "linear" else "held"
-        return Formula(f"{primitive}(t, times, values)", {"times": self.times, "values": self.values})
+    state_dependent = False
+    uses_angle = False
+
+    def encode(self, builder):
+        offset, n = builder.table(self.times, self.values)
+        return builder.row(D.TABLE_LINEAR if self.interpolation == "linear" else D.TABLE_HELD, offset, n)
 
     def breakpoints(self):
         if self.interpolation == "previous":  # a jump only where the held value changes (held before the first)
@@ -460,24 +443,26 @@ class Engine(TorqueProfile):
         """Firing pulses per crank revolution, 2 cylinders / strokes [-]."""
         return 2.0 * self.cylinders / self.strokes
 
-    def formula(self):
-        constants = dict(mean=float(self.mean_torque))
-        if self.speed_setpoint is None:
-            base = "mean"
-        elif self.max_torque >= 0.0:  # droop governor, clip(M + K (w_set - w), 0, M_max)
-            constants.update(gain=float(self.governor_gain), setpoint=float(self.speed_setpoint), top=float(self.max_torque))
-            base = "(0.0 if (b := mean + gain * (setpoint - speed)) < 0.0 else top if b > top else b)"
-        else:  # clip(., 0, M_max < 0) is M_max
-            constants.update(top=float(self.max_torque))
-            base = "top"
-        # sum_k A_k sin(k (n_f theta + phase)), crank angle theta = crank_ratio * angle
-        constants.update(nf=self.pulses_per_revolution, ratio=float(self.crank_ratio), phase=float(self.phase))
-        pulses = _harmonic_series(self.harmonics, "nf * (ratio * angle) + phase", constants)
-        expression = _sum([base, pulses if pulses != "0.0" else ""])
-        if self.ramp_time > 0:
-            constants["ramp"] = float(self.ramp_time)
-            expression = _fade(expression, "ramp")
-        return Formula(expression, constants)
+    @property
+    def state_dependent(self):
+        return self.uses_angle or self._governed
+
+    @property
+    def uses_angle(self):
+        return any(self.harmonics)
+
+    @property
+    def _governed(self) -> bool:
+        return self.speed_setpoint is not None and self.max_torque >= 0.0
+
+    def encode(self, builder):
+        # base + sum_k A_k sin(k (n_f theta + phase)), crank angle theta = crank_ratio * angle; base: the mean, the
+        # droop governor clip(M + K (w_set - w), 0, M_max), or M_max (clip(., 0, M_max < 0) is M_max)
+        mode = 0 if self.speed_setpoint is None else 1 if self.max_torque >= 0.0 else 2
+        offset, n = _harmonic_table(builder, self.harmonics)
+        return builder.row(D.ENGINE, mode, self.mean_torque, self.governor_gain,
+                           0.0 if self.speed_setpoint is None else self.speed_setpoint, self.max_torque,
+                           self.pulses_per_revolution, self.crank_ratio, self.phase, _fade_time(self.ramp_time), offset, n)
 
     def breakpoints(self):
         return (float(self.ramp_time),) if self.ramp_time > 0 else ()
@@ -524,17 +509,14 @@ class MotorCurve(TorqueProfile):
             object.__setattr__(self, "curve", tuple(tuple(map(float, p)) for p in pts))
             object.__setattr__(self, "_pts", pts)
 
-    def formula(self):
+    state_dependent = True
+    uses_angle = False
+
+    def encode(self, builder):
         if self.curve is None:  # linear DC/PMSM line
-            constants = dict(stall=float(self.stall_torque), no_load=float(self.no_load_speed))
-            expression = "stall * (1.0 - speed / no_load)"
-        else:
-            constants = dict(speeds=self._pts[:, 0].copy(), torques=self._pts[:, 1].copy())
-            expression = "interp(speed, speeds, torques)"
-        if self.soft_start_time > 0:
-            constants["soft"] = float(self.soft_start_time)
-            expression = _fade(expression, "soft")
-        return Formula(expression, constants)
+            return builder.row(D.MOTOR_LINE, self.stall_torque, self.no_load_speed, _fade_time(self.soft_start_time))
+        offset, n = builder.table(self._pts[:, 0], self._pts[:, 1])
+        return builder.row(D.MOTOR_CURVE, offset, n, _fade_time(self.soft_start_time))
 
     def breakpoints(self):
         return (float(self.soft_start_time),) if self.soft_start_time > 0 else ()
@@ -557,11 +539,14 @@ class Polynomial(TorqueProfile):
     def __post_init__(self):
         self._check_finite("c0", "c1", "c2")
 
-    def formula(self):
-        c0, c1, c2 = (float(v) for v in (self.c0, self.c1, self.c2))
-        terms = ["c0" if c0 else "", "c1 * speed" if c1 else "", "c2 * speed * abs(speed)" if c2 else ""]
-        return Formula(_sum(terms), dict(c0=c0, c1=c1, c2=c2))
+    uses_angle = False
 
+    @property
+    def state_dependent(self):
+        return bool(self.c1 or self.c2)
+
+    def encode(self, builder):
+        return builder.row(D.POLYNOMIAL, self.c0, self.c1, self.c2)
 
 @_register
 @dataclass(frozen=True)
@@ -591,15 +576,19 @@ class Compressor(TorqueProfile):
         object.__setattr__(self, "cylinders", int(self.cylinders))
         object.__setattr__(self, "harmonics", _harmonics(self.harmonics, "compressor.harmonics"))
 
-    def formula(self):
+    @property
+    def state_dependent(self):
+        return self.uses_angle or bool(self.c1)
+
+    @property
+    def uses_angle(self):
+        return any(self.harmonics)
+
+    def encode(self, builder):
         # mean + c1 speed + sum_k A_k sin(k (cylinders angle + phase))
-        constants = dict(mean=float(self.mean_torque), c1=float(self.c1), z=float(self.cylinders), phase=float(self.phase))
-        pulses = _harmonic_series(self.harmonics, "z * angle + phase", constants)
-        expression = _sum(["mean" if self.mean_torque else "", "c1 * speed" if self.c1 else "", pulses if pulses != "0.0" else ""])
-        if self.ramp_time > 0:
-            constants["ramp"] = float(self.ramp_time)
-            expression = _fade(expression, "ramp")
-        return Formula(expression, constants)
+        offset, n = _harmonic_table(builder, self.harmonics)
+        return builder.row(D.COMPRESSOR, self.mean_torque, self.c1, self.cylinders, self.phase, _fade_time(self.ramp_time),
+                           offset, n)
 
     def breakpoints(self):
         return (float(self.ramp_time),) if self.ramp_time > 0 else ()
@@ -658,20 +647,23 @@ class Schedule(TorqueProfile):
             mask |= (ta >= start) & (ta < end)
         return mask if np.ndim(t) else bool(mask)
 
-    def formula(self):
-        parts = []
-        for prefix, profile in (("on_", self.active), ("off_", self.inactive)):
-            part = profile.forms().formula
-            parts.append((part or Formula("f(t, angle, speed)", {"f": profile})).prefixed(prefix))
-        active, inactive = parts
-        if not self.periods:
-            return inactive
-        constants = {**active.constants, **inactive.constants}
-        tests = []
-        for j, (start, end) in enumerate(self.periods):
-            constants[f"start{j}"], constants[f"end{j}"] = start, end
-            tests.append(f"start{j} <= t < end{j}")
-        return Formula(f"({active.expression}) if {' or '.join(tests)} else ({inactive.expression})", constants)
+    @property
+    def state_dependent(self):
+        return self.inactive.state_dependent or bool(self.periods) and self.active.state_dependent
+
+    @property
+    def uses_angle(self):
+        return self.inactive.uses_angle or bool(self.periods) and self.active.uses_angle
+
+    def encode(self, builder):
+        # the active part inside a period [start, end), the inactive part outside
+        row = builder.reserve()
+        offset, n = builder.table([p[0] for p in self.periods], [p[1] for p in self.periods])
+        active, inactive = self.active.encode(builder), self.inactive.encode(builder)
+        if active is None or inactive is None:
+            return None
+        builder.fill(row, D.SCHEDULE, offset, n, active, inactive)
+        return row
 
     def breakpoints(self):
         edges = {float(v) for period in self.periods for v in period}
@@ -685,6 +677,53 @@ class Schedule(TorqueProfile):
         if self.periods and self.active != self.inactive:
             out.append((math.inf, "schedule switching (step change)"))
         return out
+
+
+class HeldTorque(TorqueProfile):
+    """Zero-order hold of a sampled torque whose value the caller sets [N m] (the node's drive input).
+
+    Mutable on purpose (unlike the scene's frozen profiles): :attr:`value`
+    writes the one number of its kernel data in place, so a stepper built
+    once reads the new value at its next call (no object of a higher layer
+    inside the time loop).
+    """
+
+    kind = "held"
+    state_dependent = False
+    uses_angle = False
+
+    def __init__(self, value: float = 0.0):
+        self._data = D.ProfileBuilder()
+        self._data.row(D.CONSTANT, 0.0)
+        self._data = self._data.build()
+        self.value = value
+
+    @property
+    def value(self) -> float:
+        """The held torque [N m]."""
+        return float(self._data.params[0, 0])
+
+    @value.setter
+    def value(self, value: float) -> None:
+        self._data.params[0, 0] = float(value)
+
+    def encode(self, builder):
+        return builder.row(D.CONSTANT, self.value)
+
+    def data(self) -> D.ProfileData:
+        return self._data
+
+    def torque(self, t, angle=0.0, speed=0.0):
+        return self.value + 0.0 * np.asarray(t, dtype=float) if np.ndim(t) else self.value
+
+    __call__ = torque
+
+    def scalar_torque(self):
+        params = self._data.params
+        return lambda t, angle, speed: float(params[0, 0])
+
+    def to_dict(self):
+        return {"type": "constant", "value": self.value}
 
 
 def make_profile(spec: Mapping[str, Any] | TorqueProfile | float, where: str = "profile") -> TorqueProfile:

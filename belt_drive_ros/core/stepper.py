@@ -3,9 +3,11 @@
 Every caller that moves a simulation forward goes through :class:`Stepper`:
 :class:`~belt_drive_ros.core.simulate.Simulator` (offline runs, replay of
 recorded torques, the ``auto`` model choice's rigid estimate) and the ROS
-node's tick. It owns what each of them used to repeat: whole steps through
-the integrator's compiled float loop, partial steps, steps split at torque
-breakpoints, and the divergence check.
+node's tick. It plans the steps (the grid, partial steps, steps split or
+clamped at torque breakpoints) and hands them to the one compiled time loop
+(:func:`~belt_drive_ros.core.kernel.linear_steps` through
+:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`), which steps, clamps
+the torque times, checks divergence and the guard.
 
 API
 ---
@@ -47,15 +49,16 @@ torque sample of a (sub-)step is taken at a time clamped into the step's
 side of the breakpoints: the step that ends at breakpoint ``b`` samples at
 most at ``plant.left_of(b)`` (the torque's left limit), the step that starts
 there at least at ``b``. So no step integrates across a jump or a kink, and
-each fixed-step method keeps its order. Steps that touch a breakpoint go
-through ``integrator.step`` (numpy, one call each); all others through the
-compiled loop.
+each fixed-step method keeps its order. A step that touches a breakpoint is
+one kernel call per piece (the integrator of the piece's length, its torque
+times clamped); runs of whole steps are one kernel call each. Only an
+adaptive method or a Python-only torque profile steps through
+``integrator.step`` instead.
 
 What is cached
 --------------
-The integrator of step ``dt`` and its compiled loop
-(:meth:`Plant.scalar_loop`, which the integrator caches per plant), and
-integrators of partial-step lengths (keyed by the length [s], at most
+The integrator of step ``dt`` and its kernel loop's arrays
+(:meth:`Plant.kernel_loop`), and integrators (and their kernel loops) of partial-step lengths (keyed by the length [s], at most
 :data:`PARTIAL_CACHE_SIZE`, cleared when full). Plant torques are read at
 every call (a held torque may change between advances). :meth:`reset`
 forgets the adaptive solvers' history and the partial-step integrators.
@@ -64,8 +67,8 @@ Divergence
 ----------
 A state that is non-finite or has a speed beyond :data:`SPEED_LIMIT`
 raises :class:`~belt_drive_ros.core.errors.SimulationDivergedError` naming
-the time, model, method and step (the compiled loop checks every 64 steps;
-:meth:`run` reports the first bad sample).
+the time, model, method and step (the kernel checks after every step and
+stops there; :meth:`run` reports the first bad sample).
 """
 
 from __future__ import annotations
@@ -78,6 +81,7 @@ import numpy as np
 
 from .errors import SimulationDivergedError
 from .integrators import FixedStepIntegrator, make_integrator
+from .kernel_loop import DIVERGED, GUARDED, NOT_CONVERGED
 
 #: Speeds beyond this [rad/s] (~955,000 rpm) mean the numerics, not the physics, blew up.
 SPEED_LIMIT = 1.0e5
@@ -100,22 +104,21 @@ class Plant:
     ``inputs(t, x)`` takes one state (1-D) and returns a (2,) array; it calls
     the profiles' scalar closures (:meth:`~belt_drive_ros.core.sources.TorqueProfile.scalar_torque`),
     which skip numpy's per-call overhead. ``wheel_map`` is the (4, n) matrix
-    W with ``[phi_M, omega_M, phi_3, omega_3] = W x`` (the compiled loops of
-    :func:`~belt_drive_ros.core.integrators.compile_scalar_loop` inline it,
-    and :meth:`inputs` applies it, so any state ordering works).
+    W with ``[phi_M, omega_M, phi_3, omega_3] = W x`` (the kernel loop reads
+    it as a matrix and :meth:`inputs` applies it, so any state ordering works).
     """
 
     def __init__(self, model, drive, load, extra=()):
         self.model, self.drive, self.load = model, drive, load
-        #: inputs after the two torques, functions of the drive speed given as source (see compile_scalar_loop)
+        #: inputs after the two torques, functions of the drive speed (:class:`~belt_drive_ros.core.kernel_loop.FrictionForce`)
         self.extra = tuple(extra)
         self.open_loop = not (drive.state_dependent or load.state_dependent or self.extra)
         self.scalar_drive = drive_torque = drive.scalar_torque()
         self.scalar_load = load_torque = load.scalar_torque()
         self.wheel_map = W = np.array(model.wheel_coordinates(np.eye(model.A.shape[0])), dtype=float)
-        #: (drive, load): whether each torque reads its angle; their formulas the loops inline (or None)
+        #: (drive, load): whether each torque reads its angle; their kernel data (None: a Python-only profile)
         self.uses_angle = (bool(drive.uses_angle), bool(load.uses_angle))
-        self.formulas = (drive.forms().formula, load.forms().formula)
+        self.data = (drive.data(), load.data())
         #: sorted finite times [s] at which either torque jumps or kinks (TorqueProfile.breakpoints)
         self.breakpoints = sorted({float(b) for b in (*drive.breakpoints(), *load.breakpoints()) if math.isfinite(b)})
         array = np.array
@@ -124,8 +127,8 @@ class Plant:
         def inputs(t, x):
             return array([drive_torque(t, angle_M(x), speed_M(x)), load_torque(t, angle_3(x), speed_3(x))])
 
-        if self.extra:  # the same source as the compiled loop's, as functions of omega_M
-            extras = [eval(compile(f"lambda omega_M: {f('omega_M', 'v')}", "<extra input>", "eval")) for f in self.extra]
+        if self.extra:  # the same operations as the kernel's, as functions of omega_M
+            extras = [f.value for f in self.extra]
 
             def inputs(t, x):  # noqa: F811
                 w = speed_M(x)
@@ -133,14 +136,21 @@ class Plant:
 
         self.inputs = inputs
 
-    def scalar_loop(self, integrator, guard=None) -> Callable | None:
-        """``integrator``'s compiled float loop for this plant (inlined torques, unused angles skipped), or None.
+    def kernel_loop(self, integrator, guard=None):
+        """The compiled loop (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`) of ``integrator`` for this plant, or None.
 
+        None for an adaptive method, a Python-only profile, complex matrices or
+        an implicit method with extra inputs: those step through ``integrator.step``.
         ``guard``: a :class:`~belt_drive_ros.core.stage_scheme.Guard` the loop checks after every step.
         """
-        if not isinstance(integrator, FixedStepIntegrator) or (self.extra and integrator.scheme.implicit):
+        if not isinstance(integrator, FixedStepIntegrator) or None in self.data:
             return None
-        return integrator.scalar_loop(self.wheel_map, self.uses_angle, self.formulas, guard, self.extra)
+        from .kernel_loop import KernelLoop
+
+        scheme = integrator.scheme
+        if (self.extra and scheme.implicit) or not KernelLoop.usable(scheme):
+            return None
+        return KernelLoop(scheme, integrator.dt, self.wheel_map, self.uses_angle, *self.data, self.extra, guard)
 
     def left_of(self, b: float) -> float:
         """Latest time [s] before breakpoint ``b`` at which both torques still give their values from the left."""
@@ -169,11 +179,6 @@ def _coordinate(row: np.ndarray) -> Callable:
         return total
 
     return coordinate
-
-
-def _clamp_time(torque: Callable, lo: float, hi: float) -> Callable:
-    """Scalar torque ``torque(t, angle, speed)`` with its time clamped into [lo, hi] (as :meth:`Stepper._clamped`)."""
-    return lambda t, angle, speed: torque(lo if t < lo else hi if t > hi else t, angle, speed)
 
 
 def _finite(x) -> bool:
@@ -228,14 +233,14 @@ class Stepper:
         self.integrator = integrator or make_integrator(method, model.A, model.B, self.dt, **self.method_options)
         self.fixed_step = isinstance(self.integrator, FixedStepIntegrator)
         self.guard = guard
-        self.loop = plant.scalar_loop(self.integrator, guard)
+        self.loop = plant.kernel_loop(self.integrator, guard)
         self.breakpoints = list(plant.breakpoints)
         self.stopped: tuple | None = None
         self._stop_at: int | None = None
         self.split_steps: dict = {}
         self.vectorized = False
         self._partials: dict = {}
-        self._called: Callable | None | bool = False  # _called_loop(), built at first use (False: not yet)
+        self._loops: dict = {}  # kernel loops of the partial-step integrators, by step length
 
     # ------------------------------------------------------------ public
     def advance(self, x: np.ndarray, t0: float, t1: float) -> np.ndarray:
@@ -319,6 +324,7 @@ class Stepper:
         grid = self._grid(k0, k1 + 1)
         with np.errstate(all="ignore"):
             self._whole_steps(x0, k0, k1, states[1:], grid)
+        grid = grid.tolist()
         grid[0], grid[-1] = t0, t1  # the knots' times (the loop stepped on the grid's)
         if self._stop_at is not None:
             j = self._stop_at
@@ -459,12 +465,9 @@ class Stepper:
         inner = self.origin + self.dt * np.arange(plan["first"] + 1, plan["last"] + 1, dtype=float)
         return np.concatenate(([plan["t0"]], inner, [plan["t1"]]))
 
-    def _grid(self, k0: int, k1: int) -> list:
-        """Grid times ``origin + k dt`` for k0 <= k < k1, as floats (numpy for long ranges: the same IEEE operations)."""
-        o, dt = self.origin, self.dt
-        if k1 - k0 > 32:
-            return (o + dt * np.arange(k0, k1, dtype=float)).tolist()
-        return [o + k * dt for k in range(k0, k1)]
+    def _grid(self, k0: int, k1: int) -> np.ndarray:
+        """Grid times ``origin + k dt`` for k0 <= k < k1 (the float product and sum every caller computes)."""
+        return self.origin + self.dt * np.arange(k0, k1, dtype=float)
 
     # ------------------------------------------------------------ stepping
     def _partial(self, h: float):
@@ -473,9 +476,19 @@ class Stepper:
         if it is None:
             if len(self._partials) >= PARTIAL_CACHE_SIZE:
                 self._partials.clear()
+                self._loops.clear()
             model = self.plant.model
             it = self._partials[h] = make_integrator(self.method, model.A, model.B, h, **self.method_options)
         return it
+
+    def _loop_of(self, integrator):
+        """The kernel loop of ``integrator`` (the stepper's own or a partial step's) for this plant, or None."""
+        if integrator is self.integrator:
+            return self.loop
+        key = integrator.dt
+        if key not in self._loops:
+            self._loops[key] = self.plant.kernel_loop(integrator) if self.loop is not None else None
+        return self._loops[key]
 
     def _clamped(self, lo: float, hi: float):
         """The plant's inputs with the torque time clamped into [lo, hi] (left/right limits at breakpoints)."""
@@ -484,42 +497,22 @@ class Stepper:
             return inputs
         return lambda t, x: inputs(lo if t < lo else hi if t > hi else t, x)
 
-    def _called_loop(self):
-        """The plant's compiled loop with both torques called, not inlined (None where there is no loop).
-
-        Built at first use: it takes the torque functions as arguments, so a
-        whole step whose torque times are clamped at a breakpoint runs in it
-        with clamped functions (:meth:`_special_step`).
-        """
-        loop = self._called
-        if loop is False:
-            plant = self.plant
-            loop = None
-            if self.loop is not None:
-                loop = self.integrator.scalar_loop(plant.wheel_map, plant.uses_angle, (None, None), None, plant.extra)
-            self._called = loop
-        return loop
+    def _kernel_step(self, loop, x: np.ndarray, p: float, q: float, lo: float, hi: float) -> np.ndarray:
+        """One step from ``p`` to ``q`` [s] in the kernel, torque times clamped to [lo, hi]."""
+        out = np.empty((1, x.size))
+        done, status, t = loop(np.array([p, q]), np.ascontiguousarray(x, dtype=np.float64), out, lo, hi, SPEED_LIMIT)
+        if status == NOT_CONVERGED:
+            self._not_converged(t)
+        return out[0]
 
     def _special_step(self, x: np.ndarray, a: float, e: float, whole: bool, lo: float, hi: float, cuts: list) -> np.ndarray:
         """One step from ``a`` to ``e``, split at ``cuts``, torque samples clamped to each piece's side.
 
-        A whole grid step that is only clamped (a breakpoint on one of its
-        knots: where the node's held torque changes, every tick a new sample
-        arrives) runs in the compiled loop with the clamped torque functions,
-        the same operations as the integrator's ``step`` (~5 us instead of
-        ~60-120 us of numpy); split steps and a runaway state take ``step``.
+        Each piece is one kernel call (the integrator of the piece's length,
+        its torque times clamped into the piece's side of the breakpoints);
+        without a kernel loop (adaptive method, Python-only profile) the
+        integrator's reference ``step``.
         """
-        if whole and not cuts and self.loop is not None:
-            loop = self._called_loop()
-            drive, load = self.plant.scalar_drive, self.plant.scalar_load
-            if lo != -math.inf or hi != math.inf:
-                drive, load = _clamp_time(drive, lo, hi), _clamp_time(load, lo, hi)
-            try:
-                flat = loop([a, e], tuple(x.tolist()), drive, load, SPEED_LIMIT)
-            except (ValueError, OverflowError, ZeroDivisionError):
-                flat = ()  # a math domain error on a runaway state: numpy's step gives inf/nan
-            if len(flat) == x.size:
-                return np.array(flat)
         edges = [a, *sorted(cuts), e]
         n = len(edges) - 1
         for j in range(n):
@@ -527,8 +520,18 @@ class Stepper:
             lo_j = lo if j == 0 else edges[j]
             hi_j = hi if j == n - 1 else self.plant.left_of(q)
             it = self.integrator if whole and n == 1 else self._partial(q - p)
-            x = it.step(p, x, self._clamped(lo_j, hi_j))
+            loop = self._loop_of(it)
+            if loop is not None:
+                x = self._kernel_step(loop, x, p, q, lo_j, hi_j)
+            else:
+                x = it.step(p, x, self._clamped(lo_j, hi_j))
         return x
+
+    def _not_converged(self, t: float):
+        from .stage_scheme import not_converged
+
+        scheme = self.integrator.scheme
+        raise not_converged(self.method, t, scheme.implicit[1], self.dt)
 
     def _march(self, x: np.ndarray, plan: dict, progress, record: bool):
         """Execute ``plan`` from state ``x``: the states at every knot (record) or the last."""
@@ -584,28 +587,25 @@ class Stepper:
         """Whole steps of cells ``c`` .. ``stop - 1`` (no breakpoint touches them); write into ``out``.
 
         ``times``: their grid times ``self._grid(c, stop + 1)`` if the caller has them.
+        One kernel call; after a diverged state the rest of ``out`` is NaN.
         """
         times = self._grid(c, stop + 1) if times is None else times
         size = x.size
         if self.loop is not None:
-            try:
-                flat = self.loop(times, tuple(x.tolist()), self.plant.scalar_drive, self.plant.scalar_load, SPEED_LIMIT)
-            except (ValueError, OverflowError, ZeroDivisionError):
-                flat = None  # a math domain error on a runaway state: redo with numpy, which gives inf/nan
-            if flat is not None:
-                done = len(flat) // size
-                last = flat[-size:] if done else []
-                guarded = bool(done) and self.guard is not None and _finite(last) and self.guard.value(last) > 0.0
-                if out is not None:
-                    out[:done] = np.array(flat).reshape(done, size)
-                    if done < len(out) and not guarded:  # stopped early on a runaway state
-                        out[done:] = np.nan
-                if guarded:
-                    self._stop_at = done - 1
-                    return np.array(last)
-                return np.array(last) if done == stop - c else np.full(size, np.nan)
+            buffer = out if out is not None else np.empty((stop - c, size))
+            done, status, t = self.loop(times, np.ascontiguousarray(x, dtype=np.float64), buffer, -math.inf, math.inf,
+                                        SPEED_LIMIT)
+            if status == NOT_CONVERGED:
+                self._not_converged(t)
+            if done == 0:
+                return x
+            if status == GUARDED:
+                self._stop_at = done - 1
+            elif status == DIVERGED and out is not None:
+                out[done:] = np.nan
+            return buffer[done - 1].copy()
         step, inputs = self.integrator.step, self.plant.inputs
-        for j, t in enumerate(times[:-1]):
+        for j, t in enumerate(times[:-1].tolist()):
             x = step(t, x, inputs)
             if out is not None:
                 out[j] = x

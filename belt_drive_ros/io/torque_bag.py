@@ -49,7 +49,7 @@ from ..core.errors import BeltDriveError, InputError
 from ..core.inputs import parse_yaml
 from ..core.scene import Scene
 from .recording import APPLIED_TOPIC, RECORDED_DRIVE, SCENE_METADATA, BagReadError, _sha256, bag_error
-from ..core.formula import Formula
+from ..core.profile_data import TABLE_HELD_NS
 from ..core.sources import Table
 
 __all__ = [
@@ -89,11 +89,13 @@ class RecordedTorque(Table):
             raise ValueError("RecordedTorque: interpolation must be 'previous' (zero-order hold)")
         object.__setattr__(self, "_times_ns", np.round(self.times * 1e9).astype(np.int64))
 
-    def formula(self):
+    def encode(self, builder):
         # The hold switches at whole nanoseconds: ``t`` is rounded to the nearest ns before the
         # lookup, so a step that starts at a message's time uses that message even when the
-        # integrator's float time grid (dt * k) lands a rounding error below it.
-        return Formula("held_ns(t, times_ns, values)", {"times_ns": self._times_ns, "values": self.values})
+        # integrator's float time grid (dt * k) lands a rounding error below it. The switching
+        # times are whole ns as floats (exact below 2**53 ns, 104 days).
+        offset, n = builder.table(self._times_ns.astype(np.float64), self.values)
+        return builder.row(TABLE_HELD_NS, offset, n)
 
     def left_of(self, t: float) -> float:
         # one nanosecond before t's nanosecond: the hold above rounds t to whole ns

@@ -22,43 +22,12 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 
-from ..core.sources import TorqueProfile
+from ..core.sources import HeldTorque
 
 __all__ = ["DriveInput", "HeldTorque"]
 
 INPUT_COUNTERS = ("received", "rejected_nonfinite", "rejected_bound", "clamped", "ignored", "timeouts")
-
-
-class HeldTorque(TorqueProfile):
-    """Zero-order hold of the sampled drive torque: a profile whose value the node sets [N m].
-
-    Mutable on purpose (unlike the scene's frozen profiles): the plant's
-    input function reads :attr:`value` at every call.
-    """
-
-    kind = "held"
-    state_dependent = False
-    uses_angle = False
-
-    def __init__(self, value: float = 0.0):
-        self.value = float(value)
-
-    def torque(self, t, angle=0.0, speed=0.0):
-        return self.value + 0.0 * np.asarray(t, dtype=float) if np.ndim(t) else self.value
-
-    __call__ = torque
-
-    def scalar_torque(self):
-        held = self
-        return lambda t, angle, speed: held.value
-
-    def excitation_frequencies(self, speed):
-        return []
-
-    def to_dict(self):
-        return {"type": "constant", "value": self.value}
 
 
 class DriveInput:

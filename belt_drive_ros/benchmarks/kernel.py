@@ -1,0 +1,207 @@
+"""``belt-drive bench kernel``: the compiled time loop's figures, side by side in one run.
+
+1. **ns per step**, closed-loop ``paper`` (flexible model, motor line with soft
+   start on the drive, speed-dependent load) with ``exact`` at 1 ms, through
+   the kernel (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`), beside
+   the same step written as a plain CPython float loop (what the generated
+   loop of the previous design did: ~1,500 ns) and a C loop compiled here with
+   ``cc -O2`` where a C compiler exists; the three final speeds printed to 12
+   digits. Then ``etd2``, ``etd4``, ``lawson5``, ``rk4`` and ``trapezoidal``
+   through the kernel, as a multiple of ``exact``.
+2. **Whole warm simulate()** (guards, model choice, accuracy check, outputs
+   included): x real time of ``paper``, ``e_motor_start``, ``bsg_start``,
+   ``truck_compressor`` (process CPU time, minimum of repeats).
+3. **Start-up**: ``belt-drive sim paper --quiet`` process CPU time (children's
+   rusage, median of 5, caches warm).
+
+Prints a table and writes ``kernel.csv`` into ``--out``. Timings only; the
+tests assert correctness, never time.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import resource
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..core.model import make_model
+from ..core.scene import load_scene
+from ..core.simulate import Simulator, simulate
+from .common import write_csv
+
+STEPS = 1_000_000
+QUICK_STEPS = 50_000
+SCENES = ("paper", "e_motor_start", "bsg_start", "truck_compressor")
+METHODS = ("exact", "etd2", "etd4", "lawson5", "rk4", "trapezoidal")
+
+
+def _cpu() -> float:
+    return time.process_time()
+
+
+def _kernel_ns(method: str, steps: int) -> tuple[float, float]:
+    """(ns per step, final omega_M) of the paper drive, flexible, ``method`` at 1 ms, through the kernel."""
+    scene = load_scene("paper")
+    sim = Simulator(make_model("flexible", scene.params), scene.drive, scene.load, method, 1e-3, check_stability=False)
+    loop = sim.stepper.loop
+    x0 = np.ascontiguousarray(scene.initial_state.vector("flexible", scene.params.ratio), dtype=float)
+    times = 1e-3 * np.arange(steps + 1, dtype=float)
+    out = np.empty((steps, x0.size))
+    loop(times[:3], x0, out[:2])  # compiled or loaded from the cache before timing
+    best = math.inf
+    for _ in range(3):
+        start = _cpu()
+        done, status, _ = loop(times, x0, out)
+        best = min(best, _cpu() - start)
+    assert done == steps and status == 0, (method, done, status)
+    return best / steps * 1e9, float(out[-1, 2])
+
+
+def _matrices():
+    scene = load_scene("paper")
+    sim = Simulator(make_model("flexible", scene.params), scene.drive, scene.load, "exact", 1e-3, check_stability=False)
+    integrator = sim.integrator
+    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+    drive, load = scene.drive, scene.load
+    # motor line stall (1 - w / w0) faded in over T; load c1 w + c2 w |w| (the paper scene's profiles)
+    constants = (drive.stall_torque, drive.no_load_speed, drive.soft_start_time, load.c1, load.c2)
+    return integrator.Phi, integrator.Gamma, x0, constants, sim.plant.wheel_map
+
+
+def _cpython_ns(steps: int) -> tuple[float, float]:
+    """The same exact step as a plain CPython float loop (matrix entries as locals, torques inline)."""
+    Phi, G, x0, (stall, w0, soft, c1, c2), W = _matrices()
+    P = Phi.tolist()
+    Gm = G.tolist()
+    x = list(map(float, x0))
+    start = _cpu()
+    for k in range(steps):
+        t = k * 1e-3
+        wM, w3 = x[2], x[3]  # flexible state [phi_M, theta, omega_M, omega_3]
+        d = stall * (1.0 - wM / w0) * (0.0 if t < 0.0 else 1.0 if t > soft else t / soft)
+        lo = c1 * w3 + c2 * w3 * abs(w3)
+        x = [P[r][0] * x[0] + P[r][1] * x[1] + P[r][2] * x[2] + P[r][3] * x[3] + Gm[r][0] * d + Gm[r][1] * lo
+             for r in range(4)]
+    return (_cpu() - start) / steps * 1e9, x[2]
+
+
+C_SOURCE = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+int main(int argc, char **argv) {
+    long steps = atol(argv[1]);
+    double P[4][4], G[4][2], x[4], y[4], c[5];
+    for (int r = 0; r < 4; r++) for (int j = 0; j < 4; j++) P[r][j] = atof(argv[2 + 4 * r + j]);
+    for (int r = 0; r < 4; r++) for (int j = 0; j < 2; j++) G[r][j] = atof(argv[18 + 2 * r + j]);
+    for (int r = 0; r < 4; r++) x[r] = atof(argv[26 + r]);
+    for (int j = 0; j < 5; j++) c[j] = atof(argv[30 + j]);
+    struct timespec a, b;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &a);
+    for (long k = 0; k < steps; k++) {
+        double t = k * 1e-3, wM = x[2], w3 = x[3];
+        double fade = t < 0.0 ? 0.0 : t > c[2] ? 1.0 : t / c[2];
+        double d = c[0] * (1.0 - wM / c[1]) * fade;
+        double l = c[3] * w3 + c[4] * w3 * (w3 < 0 ? -w3 : w3);
+        for (int r = 0; r < 4; r++)
+            y[r] = P[r][0] * x[0] + P[r][1] * x[1] + P[r][2] * x[2] + P[r][3] * x[3] + G[r][0] * d + G[r][1] * l;
+        for (int r = 0; r < 4; r++) x[r] = y[r];
+    }
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &b);
+    double s = (b.tv_sec - a.tv_sec) + 1e-9 * (b.tv_nsec - a.tv_nsec);
+    printf("%.3f %.17g\n", s / steps * 1e9, x[2]);
+    return 0;
+}
+"""
+
+
+def _c_ns(steps: int) -> tuple[float, float] | None:
+    """The same loop in C (-O2), or None without a C compiler."""
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        return None
+    Phi, G, x0, constants, _ = _matrices()
+    with tempfile.TemporaryDirectory() as tmp:
+        src, exe = Path(tmp) / "loop.c", Path(tmp) / "loop"
+        src.write_text(C_SOURCE)
+        built = subprocess.run([cc, "-O2", "-o", str(exe), str(src)], capture_output=True, text=True)
+        if built.returncode != 0:
+            return None
+        args = [str(steps)] + [repr(float(v)) for v in (*Phi.ravel(), *G.ravel(), *x0, *constants)]
+        best = None
+        for _ in range(3):
+            out = subprocess.run([str(exe), *args], capture_output=True, text=True, check=True).stdout.split()
+            ns, speed = float(out[0]), float(out[1])
+            best = (ns, speed) if best is None or ns < best[0] else best
+        return best
+
+
+def _simulate_rtf(name: str, repeats: int) -> tuple[float, float]:
+    """(x real time, CPU s) of the whole warm simulate() of scene ``name`` (minimum of ``repeats``)."""
+    scene = load_scene(name)
+    simulate(scene)  # warm: caches, compiled kernel
+    best = math.inf
+    for _ in range(repeats):
+        start = _cpu()
+        simulate(scene)
+        best = min(best, _cpu() - start)
+    return scene.duration / best, best
+
+
+def _startup_cpu(repeats: int) -> float | None:
+    """Median process CPU [s] of ``belt-drive sim paper --quiet`` (children's rusage)."""
+    exe = Path(sys.executable).with_name("belt-drive")
+    if not exe.exists():
+        return None
+    samples = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(repeats):
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            subprocess.run([str(exe), "sim", "paper", "--quiet"], check=True, cwd=tmp,
+                           capture_output=True, env=dict(os.environ, MPLBACKEND="Agg"))
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            samples.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
+    return statistics.median(samples)
+
+
+def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
+    steps = QUICK_STEPS if quick else STEPS
+    rows = []
+
+    def report(what: str, value: float, unit: str, note: str = "") -> None:
+        rows.append({"measure": what, "value": value, "unit": unit, "note": note})
+        print(f"  {what:<46s} {value:>12.4g} {unit:<6s} {note}")
+
+    print(f"bench kernel: closed-loop paper, flexible, 1 ms, {steps} steps (CPU time, best of 3)")
+    exact_ns, exact_speed = _kernel_ns("exact", steps)
+    report("exact, kernel", exact_ns, "ns", f"final omega_M {exact_speed:.12g}")
+    py_ns, py_speed = _cpython_ns(min(steps, 200_000))
+    report("exact, plain CPython loop (old design ~1,500)", py_ns, "ns", f"final omega_M {py_speed:.12g}")
+    c = _c_ns(steps)
+    if c is None:
+        print("  exact, C -O2: no C compiler found")
+    else:
+        report("exact, C -O2 reference", c[0], "ns", f"final omega_M {c[1]:.12g}")
+    for method in METHODS[1:]:
+        ns, _ = _kernel_ns(method, steps)
+        report(f"{method}, kernel", ns, "ns", f"{ns / exact_ns:.2f} x exact")
+    print("bench kernel: whole warm simulate() (guards, model choice, accuracy check, outputs)")
+    for name in SCENES:
+        rtf, cpu = _simulate_rtf(name, 2 if quick else 5)
+        report(f"simulate({name})", rtf, "x rt", f"{cpu * 1e3:.1f} ms CPU")
+    startup = _startup_cpu(2 if quick else 5)
+    if startup is not None:
+        report("belt-drive sim paper --quiet", startup, "s CPU", "median, caches warm")
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "kernel.csv"
+    write_csv(path, rows, ("measure", "value", "unit", "note"))
+    return {"csv": path, "rows": rows}

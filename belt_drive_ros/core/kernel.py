@@ -1,0 +1,336 @@
+"""The compiled kernel: torque profiles as data and the one time loop of the linear family.
+
+Every function here is ``@njit(cache=True, nogil=True)`` over plain arrays
+and floats: compiled once per installed version (the argument types never
+change with the scene), cached on disk, and run without the GIL (the node's
+tick thread computes while the executor serves callbacks). They stay valid
+Python: ``NUMBA_DISABLE_JIT=1`` runs them interpreted, with the same floats.
+
+* :func:`profile_torque` -- a torque profile's value from its data
+  (:mod:`~belt_drive_ros.core.profile_data`), one dispatcher for every kind;
+* :func:`profile_torque_array` -- the same on arrays of samples;
+* :func:`linear_steps` -- steps of a fixed-step method (its
+  :class:`~belt_drive_ros.core.stage_scheme.StageScheme` as zero-padded
+  matrices, :class:`~belt_drive_ros.core.kernel_loop.KernelLoop`) on ``x' = A x + B u(t, x)``: stage torques from the
+  profiles' data, the torque time clamped into ``[lo, hi]`` (a step next to a
+  breakpoint), the implicit stage by fixed point, the speed-dependent extra
+  input of a slipping belt with mass, the divergence check and an optional
+  guard (a slipping belt's switching function) after every step.
+
+This module imports numba; the rest of the core imports it only where a run
+starts (``belt-drive --help``, ``scenes`` and ``msg-tools`` never load it).
+
+Summation order: every matrix-vector product is summed column by column from
+the left (zero entries included: adding a zero product changes no nonzero
+sum), the order :func:`~belt_drive_ros.core.stage_scheme.affine` documents,
+so a step here equals the numpy reference step where the matrices are the same.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .profile_data import DIVERGED, GUARDED, NOT_CONVERGED, OK
+
+_JIT = dict(cache=True, nogil=True)
+#: small helpers are inlined into their callers (no call, no reference counting of the arrays passed)
+_INLINE = dict(cache=True, nogil=True, inline="always")
+
+
+# ------------------------------------------------------------- profiles
+@njit(**_JIT)
+def _bisect_right(xs, offset, n, x):
+    """Index ``i`` in ``[0, n]`` with ``xs[offset + j] <= x`` for all j < i (as :func:`bisect.bisect_right`)."""
+    lo, hi = 0, n
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if x < xs[offset + mid]:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+@njit(**_JIT)
+def _interp(x, xs, ys, offset, n):
+    """``np.interp(x, xp, fp)`` for one float: linear between the points, held beyond the ends."""
+    if x <= xs[offset]:
+        return ys[offset]
+    if x >= xs[offset + n - 1]:
+        return ys[offset + n - 1]
+    if x != x:
+        return x
+    j = offset + _bisect_right(xs, offset, n, x) - 1
+    return (ys[j + 1] - ys[j]) / (xs[j + 1] - xs[j]) * (x - xs[j]) + ys[j]
+
+
+@njit(**_JIT)
+def _held(x, xs, ys, offset, n):
+    """Zero-order hold: the value of the last switching time <= x (the first before the table)."""
+    j = _bisect_right(xs, offset, n, x) - 1
+    if j < 0:
+        j = 0
+    elif j >= n:
+        j = n - 1
+    return ys[offset + j]
+
+
+@njit(**_JIT)
+def _fade(value, t, duration):
+    """``value * clip(t / duration, 0, 1)`` (duration > 0; written without a call, as the branches)."""
+    return value * (0.0 if t < 0.0 else 1.0 if t > duration else t / duration)
+
+
+@njit(**_JIT)
+def _harmonics(total, have, amplitudes, offset, n, arg):
+    """``total + sum_k A_k sin(k arg)`` over the nonzero A_k, summed from the left; ``have``: total holds a term."""
+    for k in range(n):
+        a = amplitudes[offset + k]
+        if a != 0.0:
+            term = a * math.sin((k + 1.0) * arg)
+            total = total + term if have else term
+            have = True
+    return total, have
+
+
+@njit(**_INLINE)
+def _affine_in_speed(c0, c1, speed):
+    """``(c0 + c1 speed, any term)`` without the zero terms (nothing added for a zero coefficient)."""
+    value, have = 0.0, False
+    if c0 != 0.0:
+        value, have = c0, True
+    if c1 != 0.0:
+        term = c1 * speed
+        value, have = (value + term if have else term), True
+    return value, have
+
+
+@njit(**_INLINE)
+def torque(kind, params, row, tx, ty, t, angle, speed):
+    """Torque [N m] of row ``row`` of a profile (``kind``, its numbers ``p = params[row]``) at ``t`` [s], ``angle`` [rad], ``speed`` [rad/s].
+
+    The row layouts are :mod:`~belt_drive_ros.core.profile_data`'s table. A
+    schedule row is resolved by :func:`profile_torque` before this is called.
+    """
+    if kind == 0:  # CONSTANT
+        return params[row, 0]
+    if kind == 1:  # STEP
+        return params[row, 1] if t >= params[row, 2] else params[row, 0]
+    if kind == 2:  # RAMP: v0 + clip((t - t0) / span, 0, 1) * rise
+        return params[row, 0] + (0.0 if t < params[row, 2] else 1.0 if t > params[row, 3] else (t - params[row, 2]) / params[row, 4]) * params[row, 1]
+    if kind == 3:  # SINE: mean + amplitude sin(omega t + phase)
+        return params[row, 0] + params[row, 1] * math.sin(params[row, 2] * t + params[row, 3])
+    if kind == 4:  # TABLE_LINEAR
+        return _interp(t, tx, ty, int(params[row, 0]), int(params[row, 1]))
+    if kind == 5:  # TABLE_HELD
+        return _held(t, tx, ty, int(params[row, 0]), int(params[row, 1]))
+    if kind == 6:  # TABLE_HELD_NS: switching at whole nanoseconds (t rounded half to even)
+        return _held(np.rint(t * 1e9), tx, ty, int(params[row, 0]), int(params[row, 1]))
+    if kind == 7:  # ENGINE
+        mode = params[row, 0]
+        if mode == 0.0:
+            base = params[row, 1]
+        elif mode == 1.0:  # droop governor clip(mean + gain (setpoint - speed), 0, top)
+            b = params[row, 1] + params[row, 2] * (params[row, 3] - speed)
+            base = 0.0 if b < 0.0 else params[row, 4] if b > params[row, 4] else b
+        else:
+            base = params[row, 4]
+        value, _ = _harmonics(base, True, ty, int(params[row, 9]), int(params[row, 10]), params[row, 5] * (params[row, 6] * angle) + params[row, 7])
+        return _fade(value, t, params[row, 8]) if params[row, 8] > 0.0 else value
+    if kind == 8:  # MOTOR_LINE: stall (1 - speed / no_load)
+        value = params[row, 0] * (1.0 - speed / params[row, 1])
+        return _fade(value, t, params[row, 2]) if params[row, 2] > 0.0 else value
+    if kind == 9:  # MOTOR_CURVE
+        value = _interp(speed, tx, ty, int(params[row, 0]), int(params[row, 1]))
+        return _fade(value, t, params[row, 2]) if params[row, 2] > 0.0 else value
+    if kind == 10:  # POLYNOMIAL: c0 + c1 speed + c2 speed |speed|, zero terms dropped
+        value, have = _affine_in_speed(params[row, 0], params[row, 1], speed)
+        if params[row, 2] != 0.0:
+            term = params[row, 2] * speed * abs(speed)
+            value = value + term if have else term
+        return value
+    if kind == 11:  # COMPRESSOR: mean + c1 speed + sum_k A_k sin(k (z angle + phase)), zero terms dropped
+        value, have = _affine_in_speed(params[row, 0], params[row, 1], speed)
+        value, have = _harmonics(value, have, ty, int(params[row, 5]), int(params[row, 6]), params[row, 2] * angle + params[row, 3])
+        return _fade(value, t, params[row, 4]) if params[row, 4] > 0.0 else value
+    return math.nan
+
+
+@njit(**_INLINE)
+def profile_torque(kinds, params, tx, ty, t, angle, speed):
+    """Torque [N m] of the profile whose data are ``kinds, params, tx, ty`` (row 0; schedules resolved)."""
+    row = 0
+    while kinds[row] == 12:  # SCHEDULE: the active row inside a period [start, end), else the inactive one
+        offset, n = int(params[row, 0]), int(params[row, 1])
+        inside = False
+        for j in range(n):
+            if tx[offset + j] <= t < ty[offset + j]:
+                inside = True
+                break
+        row = int(params[row, 2]) if inside else int(params[row, 3])
+    return torque(kinds[row], params, row, tx, ty, t, angle, speed)
+
+
+@njit(**_JIT)
+def profile_torque_array(kinds, params, tx, ty, t, angle, speed, out):
+    """:func:`profile_torque` at each sample of the equal-length 1-D arrays ``t``, ``angle``, ``speed`` into ``out``."""
+    for i in range(t.size):
+        out[i] = profile_torque(kinds, params, tx, ty, t[i], angle[i], speed[i])
+
+
+# ------------------------------------------------------------- the loop
+@njit(**_INLINE)
+def _dot(M, i, r, cols, v, offset):
+    """``sum_j M[i, r, j] v[offset + j]`` over ``j < cols``, summed from the left (zeros included: exact)."""
+    total = 0.0
+    for j in range(cols):
+        total = total + M[i, r, j] * v[offset + j]
+    return total
+
+
+@njit(**_INLINE)
+def _friction_force(e, omega):
+    """Extra input ``sigma max((F_0 - m' v^2) k_c, 0)`` at drive speed ``omega``, ``v = r omega`` (``e`` = [sigma, F_0, m', r, k_c])."""
+    v = e[3] * omega
+    return e[0] * max((e[1] - e[2] * v * v) * e[4], 0.0)
+
+
+@njit(**_INLINE)
+def _stage_inputs(buf, base, coords, time, lo, hi, uses_angle,
+                  dk, dp, dx, dy, lk, lp, lx, ly, extra):  # fmt: skip
+    """Write the stage torques ``u = [drive, load, extras...]`` at ``time`` clamped to [lo, hi] into ``buf[base:]``."""
+    tc = lo if time < lo else hi if time > hi else time
+    buf[base] = profile_torque(dk, dp, dx, dy, tc, coords[0] if uses_angle[0] else 0.0, coords[1])
+    buf[base + 1] = profile_torque(lk, lp, lx, ly, tc, coords[2] if uses_angle[1] else 0.0, coords[3])
+    for e in range(extra.shape[0]):
+        buf[base + 2 + e] = _friction_force(extra[e], coords[1])
+
+
+@njit(**_JIT)
+def linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
+                 uses_angle, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):  # fmt: skip
+    """Steps ``times[k] -> times[k+1]`` of one fixed-step method from state ``x``; states into ``out[k]``.
+
+    Parameters (all arrays float64/int64, C order)
+    ----------
+    times : (N+1,) step ends [s]; x : (n,) state at ``times[0]``; out : (N, n).
+    lo, hi : torque times are clamped into [lo, hi] (-inf, inf: no clamp) [s].
+    limit : speed [rad/s] beyond which the state counts as diverged (second half of x holds speeds).
+    W : (1, 4, n) the wheel map: ``[phi_M, omega_M, phi_3, omega_3] = W x``.
+    kinds : (s,) per stage: 0 the stage state is x; 1 only its wheel coordinates
+        (``S[i]`` holds ``W @ stages[i]``); 2 the whole stage state (``S[i]`` holds ``stages[i]``, then W).
+    offsets : (s,) ``c_i h`` [s]; a stage at ``c_i = 0`` samples at ``t`` itself.
+    S : (s, max(4, n), n + m s) the stage maps, zero-padded; F : (1, n, n + m s) the final map.
+    final_base : -1 (``x+ = F @ [x, U...]``) or the stage j whose state starts the final map.
+    tol, max_iter : the implicit last stage's fixed point (max_iter 0: explicit method).
+    uses_angle : (2,) int: whether drive/load read their angle (else 0.0 is passed).
+    dk, dp, dx, dy / lk, lp, lx, ly : drive and load profile data.
+    extra : (E, 5) speed-dependent extra inputs (:func:`_friction_force`), E = 0 or 1.
+    guard : (5 + 2n,) ``[active, absolute, bound, quad, has_speed, row..., speed...]``:
+        stop after the first step whose end state has ``f(row x) > bound - quad (speed x)^2``.
+
+    Every product sums over the columns from the left, the stage's own
+    columns ``[x, U_0 .. U_{i-1}]`` only.
+
+    Returns
+    -------
+    (steps done, status, time [s] of the failing step): status :data:`OK`,
+    :data:`DIVERGED` (the last state written is non-finite or too fast),
+    :data:`GUARDED` (the last state written is the first past the guard) or
+    :data:`NOT_CONVERGED` (the implicit stage of the step after the last one written).
+    """
+    n = x.size
+    s = kinds.size
+    m = 2 + extra.shape[0]
+    half = n // 2
+    cols = n + m * s
+    v = np.zeros(cols)  # [x (or the base stage's state), U_0, ..., U_{s-1}]
+    xs = np.empty(n)
+    state = np.empty(n)
+    coords = np.zeros(4)
+    full = np.empty(s * n)  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
+    for r in range(n):
+        xs[r] = x[r]
+    n_explicit = s - 1 if max_iter > 0 else s
+    steps = times.size - 1
+    for k in range(steps):
+        t = times[k]
+        for r in range(n):
+            v[r] = xs[r]
+        for i in range(n_explicit):
+            time = t if offsets[i] == 0.0 else t + offsets[i]
+            width = n + m * i
+            if kinds[i] == 0:
+                for q in range(4):
+                    coords[q] = _dot(W, 0, q, n, v, 0)
+            elif kinds[i] == 1:
+                for q in range(4):
+                    coords[q] = _dot(S, i, q, width, v, 0)
+            else:
+                for r in range(n):
+                    full[i * n + r] = _dot(S, i, r, width, v, 0)
+                for q in range(4):
+                    coords[q] = _dot(W, 0, q, n, full, i * n)
+            _stage_inputs(v, width, coords, time, lo, hi, uses_angle, dk, dp, dx, dy, lk, lp, lx, ly, extra)
+        if final_base >= 0:
+            for r in range(n):
+                v[r] = full[final_base * n + r]
+        if max_iter == 0:
+            for r in range(n):
+                state[r] = _dot(F, 0, r, cols, v, 0)
+        else:  # x+ = free + G u_last, u_last = u(t + h, x+) by fixed point from the previous stage's torque
+            known = n + m * (s - 1)
+            for q in range(m):
+                v[known + q] = v[known - m + q]
+            converged = False
+            time = t if offsets[s - 1] == 0.0 else t + offsets[s - 1]
+            for _ in range(max_iter):
+                g0, g1 = v[known], v[known + 1]
+                for r in range(n):  # the free part [x, U_0 .. U_{s-2}], then the implicit stage's columns
+                    total = _dot(F, 0, r, known, v, 0)
+                    for j in range(known, cols):
+                        total = total + F[0, r, j] * v[j]
+                    state[r] = total
+                for q in range(4):
+                    coords[q] = _dot(W, 0, q, n, state, 0)
+                _stage_inputs(v, known, coords, time, lo, hi, uses_angle, dk, dp, dx, dy, lk, lp, lx, ly, extra)
+                if abs(v[known] - g0) <= tol * (1.0 + abs(v[known])) and abs(v[known + 1] - g1) <= tol * (1.0 + abs(v[known + 1])):
+                    converged = True
+                    break
+            if not converged:
+                return k, NOT_CONVERGED, t
+            for r in range(n):
+                total = _dot(F, 0, r, known, v, 0)
+                for j in range(known, cols):
+                    total = total + F[0, r, j] * v[j]
+                state[r] = total
+        healthy = True
+        for r in range(n):
+            xs[r] = state[r]
+            out[k, r] = state[r]
+            if r < half:
+                if xs[r] - xs[r] != 0.0:
+                    healthy = False
+            elif not abs(xs[r]) <= limit:
+                healthy = False
+        if not healthy:
+            return k + 1, DIVERGED, t
+        if guard[0] != 0.0:
+            g = 0.0
+            for r in range(n):
+                g = g + guard[5 + r] * xs[r]
+            if guard[1] != 0.0:
+                g = abs(g)
+            bound = guard[2]
+            if guard[4] != 0.0 and guard[3] != 0.0:
+                w = 0.0
+                for r in range(n):
+                    w = w + guard[5 + n + r] * xs[r]
+                bound = bound - guard[3] * w * w
+            if g > bound:
+                return k + 1, GUARDED, t
+    return steps, OK, times[steps] if steps >= 0 else 0.0
+

@@ -1,0 +1,139 @@
+"""The arrays one plant and one fixed-step method hand to the compiled loop, built once.
+
+:class:`KernelLoop` is the thin Python object around
+:func:`belt_drive_ros.core.kernel.linear_steps`: it turns the method's
+:class:`~belt_drive_ros.core.stage_scheme.StageScheme` (matrices computed by
+numpy/scipy once per model and step), the plant's wheel map, both torque
+profiles' data, the extra input and a guard into the kernel's arrays,
+and calls the kernel with them. Nothing here depends on the scene's values
+except the arrays: the kernel is compiled once per installed version.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .profile_data import DIVERGED, GUARDED, NOT_CONVERGED, OK  # noqa: F401 (re-exported for the stepper)
+
+
+class FrictionForce:
+    """The slipping belt's extra input ``sigma Q_max(omega_M)`` [N] as data for the kernel.
+
+    ``Q_max = max((F_0 - m' v^2) k_c, 0)`` with ``v = r omega_M`` (``r`` = r_2
+    times the gear ratio, ``k_c`` the capstan factor; see
+    :meth:`~belt_drive_ros.core.params.BeltDriveParams.friction_limit`);
+    :meth:`value` is the same operations in Python.
+    """
+
+    def __init__(self, sigma: float, params):
+        self.row = np.array([float(sigma), float(params.F_0), float(params.belt_mass),
+                             float(params.r_2 * params.gear_ratio), float(params.capstan_factor)])
+        self.sigma, self._limit = float(sigma), params.scalar_friction_limit()
+
+    def value(self, omega_M: float) -> float:
+        return self.sigma * self._limit(omega_M)
+
+
+def guard_array(guard, n: int) -> np.ndarray:
+    """A :class:`~belt_drive_ros.core.stage_scheme.Guard` (or None) as the kernel's ``(5 + 2n,)`` array."""
+    out = np.zeros(5 + 2 * n)
+    if guard is None:
+        return out
+    out[0], out[1], out[2], out[3] = 1.0, float(bool(guard.absolute)), float(guard.bound), float(guard.quad)
+    out[5 : 5 + n] = np.asarray(guard.row, dtype=float)
+    if guard.speed is not None:
+        out[4] = 1.0
+        out[5 + n :] = np.asarray(guard.speed, dtype=float)
+    return out
+
+
+class KernelLoop:
+    """``loop(times, x, out, lo, hi) -> (done, status, t)``: :func:`~belt_drive_ros.core.kernel.linear_steps` for one plant.
+
+    Parameters
+    ----------
+    scheme : the method's StageScheme; dt : its step [s] (stage times ``t + c_i dt``).
+    wheel_map : (4, n); uses_angle : (drive, load) flags.
+    drive, load : :class:`~belt_drive_ros.core.profile_data.ProfileData`.
+    extra : tuple of :class:`FrictionForce` (the inputs after the two torques).
+    guard : optional Guard.
+    """
+
+    def __init__(self, scheme, dt: float, wheel_map, uses_angle, drive, load, extra=(), guard=None):
+        from . import kernel
+
+        self._steps = kernel.linear_steps
+        W = np.asarray(wheel_map, dtype=float)
+        n = W.shape[1]
+        s = len(scheme.nodes)
+        m = 2 + len(extra)
+        cols = n + m * s
+        if scheme.final.shape != (n, cols):
+            raise ValueError(f"kernel loop: the scheme's final map is {scheme.final.shape}, expected {(n, cols)}")
+        rows = max(4, n)
+        self.W = np.ascontiguousarray(W.reshape(1, 4, n))
+        kinds = np.zeros(s, dtype=np.int64)
+        S = np.zeros((s, rows, cols))
+        for i, M in enumerate(scheme.stages):
+            if M is None or (scheme.implicit and i == s - 1):
+                continue
+            padded = np.zeros((M.shape[0], cols))
+            padded[:, : M.shape[1]] = M
+            if scheme.final_base == i:
+                kinds[i] = 2
+            else:  # only the wheel coordinates feed the torques: W @ the stage map
+                kinds[i], padded = 1, W @ padded
+            S[i, : padded.shape[0]] = padded
+        self.kinds = kinds
+        self.offsets = np.array([float(c * dt) if c else 0.0 for c in scheme.nodes])
+        self.S = S
+        self.F = np.ascontiguousarray(np.asarray(scheme.final, dtype=float).reshape(1, n, cols))
+        self.final_base = -1 if scheme.final_base is None else int(scheme.final_base)
+        self.tol, self.max_iter = (float(scheme.implicit[0]), int(scheme.implicit[1])) if scheme.implicit else (0.0, 0)
+        self.uses_angle = np.array([bool(u) for u in uses_angle], dtype=np.int64)
+        self.drive, self.load = drive, load
+        self.extra = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
+        self.guard = guard_array(guard, n)
+        d, l = drive, load  # the same arrays each call: a held torque's value written in place is read
+        self._tail = (
+            self.W, self.kinds, self.offsets, self.S, self.F, self.final_base, self.tol, self.max_iter, self.uses_angle,
+            d.kinds, d.params, d.tx, d.ty, l.kinds, l.params, l.tx, l.ty, self.extra, self.guard,
+        )  # fmt: skip
+
+    def __call__(self, times, x, out, lo: float = -math.inf, hi: float = math.inf, limit: float = 1.0e5):
+        # numba types a read-only array apart: a writable copy keeps the kernel's one signature
+        if not x.flags.writeable:
+            x = x.copy()
+        if not times.flags.writeable:
+            times = times.copy()
+        return self._steps(times, x, out, lo, hi, limit, *self._tail)
+
+    @staticmethod
+    def usable(scheme) -> bool:
+        """Whether a scheme's matrices are real (the kernel's arrays are float64)."""
+        return not np.iscomplexobj(scheme.final) and all(M is None or not np.iscomplexobj(M) for M in scheme.stages)
+
+
+def warm() -> None:
+    """Compile (or load from the disk cache) every kernel entry point with the one signature runs use.
+
+    ``make install`` calls it so that a first run compiles nothing: every
+    argument type is fixed (float64/int64 C arrays and floats), so this one
+    call per kernel covers every scene.
+    """
+    from .kernel import profile_torque, profile_torque_array
+    from .profile_data import CONSTANT, ProfileBuilder
+    from .stage_scheme import StageScheme
+
+    builder = ProfileBuilder()
+    builder.row(CONSTANT, 1.0)
+    data = builder.build()
+    profile_torque(data.kinds, data.params, data.tx, data.ty, 0.0, 0.0, 0.0)
+    one = np.zeros(1)
+    profile_torque_array(data.kinds, data.params, data.tx, data.ty, one, one, one, np.empty(1))
+    n = 2
+    scheme = StageScheme((0.0,), (None,), np.hstack([np.eye(n), np.zeros((n, 2))]))
+    loop = KernelLoop(scheme, 1e-3, np.vstack([np.eye(n), np.eye(n)]), (False, False), data, data)
+    loop(np.array([0.0, 1e-3]), np.zeros(n), np.empty((1, n)))

@@ -1,0 +1,116 @@
+"""Torque profiles as data: the arrays the compiled kernel reads (numpy only, no numba here).
+
+A profile (:mod:`~belt_drive_ros.core.sources`) encodes itself as rows of a
+small program (:class:`ProfileData`):
+
+* ``kinds`` (R,) int64: one of the codes below per row; row 0 is evaluated;
+* ``params`` (R, :data:`WIDTH`) float64: the row's numbers (layout per code below);
+* ``tx``, ``ty`` (K,) float64: every table of the profile, end to end (a row
+  holds its table's offset and length in ``params``).
+
+One compiled dispatcher (:func:`belt_drive_ros.core.kernel.profile_torque`)
+evaluates any profile from these four arrays: the kernel compiles once per
+installed version, never per scene (the arrays' types never change). A new
+kind is one code here, one ``encode`` method and one branch in the kernel.
+
+Row layouts (``p`` = ``params[row]``; ``t`` [s], ``angle`` [rad], ``speed`` [rad/s], torques [N m]):
+
+=============  ==============================================================================
+code           torque
+=============  ==============================================================================
+CONSTANT       ``p0``
+STEP           ``p1 if t >= p2 else p0``
+RAMP           ``p0 + clip((t - p2) / p4, 0, 1) * p1`` (``p3`` = end time; written as the branches)
+SINE           ``p0 + p1 sin(p2 t + p3)``
+TABLE_LINEAR   ``interp(t, tx[o:o+n], ty[o:o+n])``, ``o, n = p0, p1``
+TABLE_HELD     zero-order hold of ``ty`` at ``t`` (``tx`` the switching times)
+TABLE_HELD_NS  the same at ``rint(t 1e9)`` with ``tx`` in whole nanoseconds (a recording)
+ENGINE         base(``p0`` mode: 0 ``p1``; 1 ``clip(p1 + p2 (p3 - speed), 0, p4)``; 2 ``p4``)
+               ``+ sum_k A_k sin(k (p5 (p6 angle) + p7))``, ``A = ty[p9:p9+p10]``; faded by ``p8``
+MOTOR_LINE     ``p0 (1 - speed / p1)``, faded by ``p2``
+MOTOR_CURVE    ``interp(speed, tx[o:o+n], ty[o:o+n])``, ``o, n = p0, p1``, faded by ``p2``
+POLYNOMIAL     ``p0 + p1 speed + p2 speed |speed|`` (zero terms dropped)
+COMPRESSOR     ``p0 + p1 speed + sum_k A_k sin(k (p2 angle + p3))``, ``A = ty[p5:p5+p6]``; faded by ``p4``
+SCHEDULE       row ``p2`` if ``tx[j] <= t < ty[j]`` for a period ``j`` in ``[p0, p0 + p1)``, else row ``p3``
+=============  ==============================================================================
+
+"faded by T" (T > 0): the torque times ``0 if t < 0, 1 if t > T, else t / T``;
+T = 0: no fade. Terms with a zero coefficient are dropped (not added as
+zeros), as the profiles' formulas write them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+CONSTANT, STEP, RAMP, SINE = 0, 1, 2, 3
+TABLE_LINEAR, TABLE_HELD, TABLE_HELD_NS = 4, 5, 6
+ENGINE, MOTOR_LINE, MOTOR_CURVE, POLYNOMIAL, COMPRESSOR, SCHEDULE = 7, 8, 9, 10, 11, 12
+#: status codes of :func:`~belt_drive_ros.core.kernel.linear_steps`: all steps done; the last state written
+#: diverged; the last state written is the first past the guard; the implicit stage of the next step did not converge
+OK, DIVERGED, GUARDED, NOT_CONVERGED = 0, 1, 2, 3
+#: numbers per row of ``params``
+WIDTH = 12
+#: code -> name (for messages and docs)
+KIND_NAMES = {
+    CONSTANT: "constant", STEP: "step", RAMP: "ramp", SINE: "sine", TABLE_LINEAR: "table (linear)",
+    TABLE_HELD: "table (previous)", TABLE_HELD_NS: "recorded table", ENGINE: "engine", MOTOR_LINE: "motor (line)",
+    MOTOR_CURVE: "motor (curve)", POLYNOMIAL: "polynomial", COMPRESSOR: "compressor", SCHEDULE: "schedule",
+}  # fmt: skip
+
+
+@dataclass(frozen=True, eq=False)
+class ProfileData:
+    """A profile's program for the kernel (see the module docstring); arrays C-contiguous.
+
+    ``params`` is writable on purpose: :class:`~belt_drive_ros.core.sources.HeldTorque`
+    (the node's sampled drive torque) sets ``params[0, 0]`` at each tick and the
+    kernel reads the new value at its next call.
+    """
+
+    kinds: np.ndarray
+    params: np.ndarray
+    tx: np.ndarray
+    ty: np.ndarray
+
+
+class ProfileBuilder:
+    """Collects rows and tables while profiles encode themselves (nested ones: a schedule's parts)."""
+
+    def __init__(self):
+        self.kinds: list[int] = []
+        self.rows: list[list[float]] = []
+        self.tx: list[float] = []
+        self.ty: list[float] = []
+
+    def row(self, kind: int, *values: float) -> int:
+        """Append a row of ``kind`` with ``values`` (at most :data:`WIDTH`); returns its index."""
+        if len(values) > WIDTH:
+            raise ValueError(f"profile row of kind {kind}: {len(values)} numbers, at most {WIDTH}")
+        self.kinds.append(int(kind))
+        self.rows.append([float(v) for v in values] + [0.0] * (WIDTH - len(values)))
+        return len(self.kinds) - 1
+
+    def reserve(self) -> int:
+        """Index of a row filled in later by :meth:`fill` (a schedule is row 0, its parts after it)."""
+        return self.row(CONSTANT)
+
+    def fill(self, index: int, kind: int, *values: float) -> None:
+        self.kinds[index] = int(kind)
+        self.rows[index] = [float(v) for v in values] + [0.0] * (WIDTH - len(values))
+
+    def table(self, xs, ys) -> tuple[int, int]:
+        """Append a table; returns ``(offset, length)`` into ``tx``/``ty``."""
+        xs = np.asarray(xs, dtype=float).ravel()
+        ys = np.asarray(ys, dtype=float).ravel()
+        offset = len(self.tx)
+        self.tx.extend(xs.tolist())
+        self.ty.extend(ys.tolist())
+        return offset, xs.size
+
+    def build(self) -> ProfileData:
+        tx = np.array(self.tx if self.tx else [0.0], dtype=np.float64)
+        ty = np.array(self.ty if self.ty else [0.0], dtype=np.float64)
+        return ProfileData(np.array(self.kinds, dtype=np.int64), np.array(self.rows, dtype=np.float64).reshape(-1, WIDTH), tx, ty)
