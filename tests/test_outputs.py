@@ -277,3 +277,33 @@ def test_benchmark_tables_and_charts_appear_whole_or_not_at_all(tmp_path, monkey
     save_figure(fig, chart)
     plt.close("all")
     assert chart.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and _leftovers(tmp_path) == []
+
+
+def test_a_bag_folder_interrupted_while_its_first_file_is_begun_is_removed_and_someone_elses_is_kept(tmp_path, monkeypatch):
+    """SIGTERM (Terminated) inside the writer's constructor, after it created NAME_0.mcap: the stream's abort()
+    never saw a writer, so the begun file stayed behind (seen once in a loaded parallel run of the test above).
+    A bag already in the folder that the writer would refuse (no --force) is never removed."""
+    from belt_drive_ros.io import recording
+    from belt_drive_ros.io.atomic import Terminated
+    from belt_drive_ros.io.run_writers import McapWindows
+
+    def begun_then_terminated(path, window, **options):
+        first = Path(path) / (Path(path).name + "_0.mcap")
+        if not first.exists():  # (the real writer checks before it writes)
+            first.write_bytes(b"\x89MCAP0\r\n")
+        raise Terminated(signal.SIGTERM)
+
+    monkeypatch.setattr(recording, "ResultMcapWriter", begun_then_terminated)
+    ours = tmp_path / "ours"
+    ours.mkdir()
+    (ours / "notes.txt").write_text("mine")
+    with pytest.raises(Terminated):
+        McapWindows(ours, bag_folder=True).add(None)
+    assert sorted(p.name for p in ours.iterdir()) == ["notes.txt"]
+
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "theirs_0.mcap").write_bytes(b"recorded")
+    with pytest.raises(Terminated):
+        McapWindows(theirs, bag_folder=True).add(None)  # (the real writer refuses it; an interrupt must not remove it)
+    assert (theirs / "theirs_0.mcap").read_bytes() == b"recorded"

@@ -61,8 +61,15 @@ class McapWindows:
         if self.writer is None:
             from .recording import ResultMcapWriter
 
-            self.writer = ResultMcapWriter(self.target, window, force=self.force, bag_folder=self.bag_folder,
-                                           chunk_size=STREAM_CHUNK, **self.options)
+            # a bag of someone else's that the writer will refuse (no --force) is never removed below
+            theirs = self.bag_folder and not self.force and bool(_bag_files(self.target))
+            try:
+                self.writer = ResultMcapWriter(self.target, window, force=self.force, bag_folder=self.bag_folder,
+                                               chunk_size=STREAM_CHUNK, **self.options)
+            except KeyboardInterrupt:  # (Terminated too) while the first file was begun: abort() cannot see it
+                if self.bag_folder and not theirs:
+                    remove_bag_folder(self.target)
+                raise
         self.writer.write(window)
 
     def restart(self) -> None:
@@ -90,17 +97,28 @@ class McapWindows:
                 remove_bag_folder(self.target)
 
 
-def remove_bag_folder(folder) -> None:
-    """Remove what a bag writer puts in ``folder`` (``metadata.yaml``, ``NAME_<i>.mcap``), then the
-    folder if nothing else is left in it; other files stay. Never raises."""
+def _bag_files(folder) -> list[Path]:
+    """What a bag writer puts in ``folder``: ``metadata.yaml`` and ``NAME_<i>.mcap`` (none if it is no folder)."""
     folder = Path(folder)
     name = folder.resolve().name
+    found = []
     try:
         for f in folder.iterdir():
             stem = f.name[: -len(".mcap")] if f.name.endswith(".mcap") else ""
             if f.name == "metadata.yaml" or (stem.startswith(name + "_") and stem[len(name) + 1:].isdigit()):
-                f.unlink()
-        folder.rmdir()
+                found.append(f)
+    except OSError:
+        pass
+    return found
+
+
+def remove_bag_folder(folder) -> None:
+    """Remove what a bag writer puts in ``folder`` (``metadata.yaml``, ``NAME_<i>.mcap``), then the
+    folder if nothing else is left in it; other files stay. Never raises."""
+    try:
+        for f in _bag_files(folder):
+            f.unlink()
+        Path(folder).rmdir()
     except OSError:
         pass
 
