@@ -39,8 +39,11 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/belt-drive demo
 
+# The suite runs on TEST_WORKERS processes (pytest-xdist; 2 = this project's machines' cores); each
+# worker holds a ROS domain of its own. TEST_WORKERS=0 runs it in one process.
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS)
 
 bench: $(STAMP)
 	$(VENV)/bin/belt-drive bench all --out docs/bench
