@@ -12,13 +12,19 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from ..core.params import describe_fields
+    from ..core.network.scene import is_network, load_network, shipped_networks
     from ..core.scene import load_scene, shipped_scenes
 
+    if args.name and is_network(args.name):  # a belt network: its computed geometry
+        print(load_network(args.name).describe(), end="")
+        return 0
     if args.name:
         print(load_scene(args.name).to_yaml(), end="")
         return 0
     for name in shipped_scenes():
         print(f"{name:18s} {load_scene(name).description}")
+    for name in shipped_networks():
+        print(f"{name:18s} (belt network) {load_network(name).description}")
     print("\nparameters (YAML keys under 'params', the paper's symbols):")
     print(describe_fields())
     return 0

@@ -1,0 +1,136 @@
+"""Geometry of a belt network: tangent spans, wrap angles, belt length (SI units).
+
+Conventions (``docs/serpentine.md``): pulleys ``P_0 .. P_{n-1}`` in the order
+the belt travels; the loop runs counter-clockwise, so a pulley on the belt's
+inner face (``side = +1``) lies to the left of the travel direction and a
+backside pulley (``side = -1``) to the right. Signed radius ``rho = side r``.
+
+Span ``j`` leaves ``P_j`` and arrives at ``P_{j+1}`` (index mod n). With
+``d = c_{j+1} - c_j``, ``D = |d|``, ``dr = rho_{j+1} - rho_j`` and the left
+normal ``n(e) = (-e_y, e_x)`` of the span direction ``e``, the tangent points
+are ``c - rho n`` and::
+
+    d = L e + dr n      =>   L = sqrt(D^2 - dr^2),   angle(e) = angle(d) - asin(dr / D)
+
+(inner/inner: an external tangent; inner/backside: an internal tangent). The
+wrap on pulley i is the turning from ``e_{i-1}`` to ``e_i`` in the pulley's
+sense (left for an inner pulley, right for a backside one), in ``[0, 2 pi)``;
+a simple loop turns once in total: ``sum_i side_i beta_i = 2 pi``. Belt length
+``sum_j L_j + sum_i r_i beta_i``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import SceneError
+
+TWO_PI = 2.0 * math.pi
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Computed geometry of a loop of circles.
+
+    Attributes (n pulleys, n spans; span j leaves pulley j)
+    ----------
+    directions : (n, 2) unit span directions ``e_j``.
+    lengths : (n,) span lengths ``L_j`` [m].
+    leave, arrive : (n, 2) tangent points of span j on ``P_j`` and ``P_{j+1}`` [m].
+    wraps : (n,) wrap angle ``beta_i`` [rad] of pulley i (between span i-1 arriving and span i leaving).
+    belt_length : ``sum L_j + sum r_i beta_i`` [m].
+    """
+
+    directions: np.ndarray
+    lengths: np.ndarray
+    leave: np.ndarray
+    arrive: np.ndarray
+    wraps: np.ndarray
+    belt_length: float
+
+
+def _left(e: np.ndarray) -> np.ndarray:
+    return np.array([-e[1], e[0]])
+
+
+def tangent(c0, rho0, c1, rho1) -> tuple[np.ndarray, float] | None:
+    """Direction ``e`` and length ``L`` of the span from circle (c0, rho0) to (c1, rho1); None if it does not exist."""
+    d = np.asarray(c1, dtype=float) - np.asarray(c0, dtype=float)
+    D = math.hypot(d[0], d[1])
+    dr = rho1 - rho0
+    if D <= abs(dr):
+        return None
+    L = math.sqrt(D * D - dr * dr)
+    psi = math.atan2(d[1], d[0]) - math.asin(dr / D)
+    return np.array([math.cos(psi), math.sin(psi)]), L
+
+
+def layout(names, centres, radii, sides) -> Layout:
+    """Geometry of the loop, or :class:`SceneError` naming the pulley (overlap, crossing, wrap <= 0, not a simple loop)."""
+    c = np.asarray(centres, dtype=float).reshape(-1, 2)
+    r = np.asarray(radii, dtype=float)
+    s = np.asarray(sides, dtype=float)
+    n = len(names)
+    if n < 2:
+        raise SceneError(f"pulleys: a belt network needs at least 2 pulleys, got {n}")
+    rho = s * r
+    for i in range(n):  # overlapping circles: no belt runs between them
+        for k in range(i + 1, n):
+            gap = math.hypot(*(c[k] - c[i])) - r[i] - r[k]
+            if gap <= 0.0:
+                raise SceneError(f"pulleys.{names[k]}: overlaps pulley {names[i]} "
+                                 f"(centres {math.hypot(*(c[k] - c[i])):.4g} m apart, radii {r[i]:.4g} + {r[k]:.4g} m)")
+    e = np.zeros((n, 2))
+    L = np.zeros(n)
+    for j in range(n):
+        k = (j + 1) % n
+        found = tangent(c[j], rho[j], c[k], rho[k])
+        if found is None:  # (cannot happen without an overlap; kept as the formula's own guard)
+            raise SceneError(f"pulleys.{names[k]}: no tangent span from {names[j]} (circles too close)")
+        e[j], L[j] = found
+    leave = np.array([c[j] - rho[j] * _left(e[j]) for j in range(n)])
+    arrive = np.array([c[(j + 1) % n] - rho[(j + 1) % n] * _left(e[j]) for j in range(n)])
+    ang = np.arctan2(e[:, 1], e[:, 0])
+    wraps = np.array([(s[i] * (ang[i] - ang[i - 1])) % TWO_PI for i in range(n)])
+    for i in range(n):
+        if wraps[i] <= 1e-9:
+            raise SceneError(f"pulleys.{names[i]}: wrap angle {wraps[i]:.3g} rad <= 0 (the belt runs straight past it)")
+    total = float(np.sum(s * wraps))
+    if abs(total - TWO_PI) > 1e-6:
+        # the belt would have to turn the other way round one pulley: the one wrapped more than half a turn
+        # against the sense of the others is on the wrong side of the belt (its side or position is wrong)
+        wrong = [i for i in range(n) if wraps[i] > math.pi and abs(total - s[i] * TWO_PI - TWO_PI) < 1e-6]
+        if wrong:
+            i = max(wrong, key=lambda q: wraps[q])
+            raise SceneError(f"pulleys.{names[i]}: wrap angle <= 0: the belt passes on its other side "
+                             f"(side {'inner' if s[i] > 0 else 'backside'} or its position is wrong)")
+        raise SceneError(f"pulleys: not a simple loop (the belt turns {total / TWO_PI:.3g} times, 1 expected; "
+                         "list the pulleys in the order the belt travels, counter-clockwise)")
+    for j in range(n):  # a span must not cut another pulley nor cross another span
+        k = (j + 1) % n
+        a, b = leave[j], arrive[j]
+        for q in range(n):
+            if q in (j, k):
+                continue
+            t = np.clip(np.dot(c[q] - a, b - a) / np.dot(b - a, b - a), 0.0, 1.0)
+            if math.hypot(*(a + t * (b - a) - c[q])) < r[q] * (1.0 - 1e-9):
+                raise SceneError(f"pulleys.{names[q]}: the span {names[j]} -> {names[k]} crosses it")
+        for m in range(j + 2, n):
+            if (m + 1) % n == j:
+                continue
+            if _segments_cross(a, b, leave[m], arrive[m]):
+                raise SceneError(f"pulleys.{names[k]}: not a simple loop: the span {names[j]} -> {names[k]} crosses "
+                                 f"the span {names[m]} -> {names[(m + 1) % n]}")
+    length = float(np.sum(L) + np.sum(r * wraps))
+    return Layout(e, L, leave, arrive, wraps, length)
+
+
+def _segments_cross(a, b, p, q) -> bool:
+    """Whether the open segments a-b and p-q cross (properly)."""
+    def orient(u, v, w):
+        return (v[0] - u[0]) * (w[1] - u[1]) - (v[1] - u[1]) * (w[0] - u[0])
+    o1, o2, o3, o4 = orient(a, b, p), orient(a, b, q), orient(p, q, a), orient(p, q, b)
+    return o1 * o2 < 0.0 and o3 * o4 < 0.0

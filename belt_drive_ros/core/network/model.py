@@ -1,0 +1,342 @@
+"""The linear (flexible) tier of a belt network: ``M q'' + C q' + K q = f(t, q, q')``.
+
+Coordinates ``q = [theta_0 .. theta_{n-1}, theta_a]``: the rotation [rad] of
+every pulley, positive in the sense that moves the belt forward (its surface
+moves ``r_i theta_i`` along the belt), and the tensioner arm's angle [rad]
+from its installed angle (when the scene has a tensioner). Span j (from
+pulley j to j+1) stretches by (``docs/serpentine.md``)::
+
+    delta_j = r_{j+1} theta_{j+1} - r_j theta_j + g_j theta_a = a_j . q
+    g_j = (dc_{j+1}/dtheta_a - dc_j/dtheta_a) . e_j      (the arm moves the tensioner's centre c_t)
+
+and carries ``T_j = T_0 + k_j delta_j + c_j delta_j'`` with ``k_j = EA / L_j``,
+``c_j = damping / L_j``. Pulley i: ``J_i theta_i'' = Q_i - b_i theta_i' + r_i (T_i - T_{i-1})``;
+arm: ``J_a theta_a'' = P - k_a theta_a - c_a theta_a' - sum_j T_j g_j(theta_a)``, where the
+spring preload ``P = T_0 sum_j g_j(theta_0)`` holds the installed state. Linearised
+about an operating point with span tensions ``T_j*`` the arm gains the geometric
+stiffness ``k_geo = sum_j T_j* dg_j/dtheta_a`` (with ``T_j* = T_0``: ``T_0 d^2 Lambda / dtheta_a^2``,
+Lambda the belt length of the exact geometry). Hence::
+
+    M = diag(J_i, J_a)    K = sum_j k_j a_j a_j^T + (k_a + k_geo) e_a e_a^T
+    C = sum_j c_j a_j a_j^T + diag(b_i, c_a)          f_i = Q_i(t, theta_i, theta_i')
+
+K is symmetric with one zero mode (the belt turning all pulleys, no stretch).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import SceneError
+from ..integrators import method_class
+
+
+# ---------------------------------------------------------------------- tensioner arm geometry
+def _arm(geo, pulleys, tensioner):
+    """(tensioner index, pivot, arm length, installed angle)."""
+    t = [p.name for p in pulleys].index(tensioner.pulley)
+    c = np.asarray(pulleys[t].centre, dtype=float)
+    p = np.asarray(tensioner.pivot, dtype=float)
+    return t, p, float(np.hypot(*(c - p))), float(math.atan2(c[1] - p[1], c[0] - p[0]))
+
+
+def arm_terms(geo, pulleys, tensioner) -> tuple[np.ndarray, np.ndarray]:
+    """``(g, dg)``: per span, ``g_j = d delta_j / d theta_a`` [m/rad] and ``dg_j/dtheta_a`` [m/rad^2] at the installed angle.
+
+    Only the two spans touching the tensioner pulley t have them: with the arm
+    ``La``, ``c_t' = La (-sin, cos)``, ``c_t'' = -La (cos, sin)``, and the span
+    direction turning at ``psi' = (d x d')/D^2 + dr (d . d') / (D^2 L)`` (from
+    ``psi = atan2(d) - asin(dr / D)``, ``d`` the span's centre difference).
+    """
+    n = len(pulleys)
+    t, _, La, th = _arm(geo, pulleys, tensioner)
+    c1 = La * np.array([-math.sin(th), math.cos(th)])
+    c2 = -La * np.array([math.cos(th), math.sin(th)])
+    g, dg = np.zeros(n), np.zeros(n)
+    rho = np.array([p.side * p.radius for p in pulleys])
+    for j, sgn in (((t - 1) % n, 1.0), (t, -1.0)):  # arriving at t: d' = +c1; leaving t: d' = -c1
+        k = (j + 1) % n
+        d = np.asarray(pulleys[k].centre, dtype=float) - np.asarray(pulleys[j].centre, dtype=float)
+        D2, dr, L = float(d @ d), rho[k] - rho[j], geo.lengths[j]
+        e = geo.directions[j]
+        nrm = np.array([-e[1], e[0]])
+        dd = sgn * c1
+        psi1 = (d[0] * dd[1] - d[1] * dd[0]) / D2 + dr * float(d @ dd) / (D2 * L)
+        g[j] = float(dd @ e)
+        dg[j] = float(sgn * c2 @ e) + float(dd @ nrm) * psi1
+    return g, dg
+
+
+def arm_preload(geo, pulleys, tensioner, T0: float) -> float:
+    """Spring torque [N m] (in +theta_a) that holds the arm at its installed angle against a uniform tension T0 [N]:
+    ``P = T_0 sum_j g_j`` (the belt's pull on the arm is ``-sum_j T_j g_j``)."""
+    return float(T0 * np.sum(arm_terms(geo, pulleys, tensioner)[0]))
+
+
+# ---------------------------------------------------------------------- the linear model
+@dataclass(frozen=True)
+class NetworkModel:
+    """Matrices of the linear tier for one scene (see the module docstring).
+
+    ``stretch`` (n_spans, m): rows ``a_j``; ``k``, ``c``: per-span stiffness [N/m] and damping [N s/m];
+    ``M``, ``C``, ``K`` (m, m) with ``K`` excluding the arm's geometric stiffness (``k_geo`` per tension: :meth:`stiffness`);
+    ``g``, ``dg``: the arm terms per span (zeros without a tensioner); ``arm``: index of theta_a or -1.
+    """
+
+    scene: object
+    stretch: np.ndarray
+    k: np.ndarray
+    c: np.ndarray
+    M: np.ndarray
+    C: np.ndarray
+    K_belt: np.ndarray
+    g: np.ndarray
+    dg: np.ndarray
+    arm: int
+
+    @classmethod
+    def build(cls, scene) -> "NetworkModel":
+        P, geo, n = scene.pulleys, scene.geometry, len(scene.pulleys)
+        m = n + (1 if scene.tensioner else 0)
+        a = np.zeros((n, m))
+        for j in range(n):
+            k = (j + 1) % n
+            a[j, k] += P[k].radius
+            a[j, j] -= P[j].radius
+        g = dg = np.zeros(n)
+        arm = -1
+        if scene.tensioner:
+            g, dg = arm_terms(geo, P, scene.tensioner)
+            arm = n
+            a[:, arm] = g
+        kj = scene.belt.EA / geo.lengths
+        cj = scene.belt.damping / geo.lengths
+        M = np.diag([p.inertia for p in P] + ([scene.tensioner.inertia] if scene.tensioner else []))
+        C = a.T @ (cj[:, None] * a) + np.diag([p.damping for p in P] + ([scene.tensioner.damping] if scene.tensioner else []))
+        K = a.T @ (kj[:, None] * a)
+        if scene.tensioner:
+            K[arm, arm] += scene.tensioner.spring_rate
+        return cls(scene, a, kj, cj, M, C, K, g, dg, arm)
+
+    # ------------------------------------------------------------------ pieces
+    def geometric_stiffness(self, tensions) -> float:
+        """``k_geo = sum_j T_j dg_j/dtheta_a`` [N m/rad] at span tensions ``tensions`` [N] (0 without a tensioner)."""
+        return float(np.dot(tensions, self.dg)) if self.arm >= 0 else 0.0
+
+    def stiffness(self, tensions=None) -> np.ndarray:
+        """K with the arm's geometric stiffness at ``tensions`` (default: the installed tension everywhere)."""
+        K = self.K_belt.copy()
+        if self.arm >= 0:
+            T = np.full(len(self.k), self.scene.belt.installed_tension) if tensions is None else np.asarray(tensions)
+            K[self.arm, self.arm] += self.geometric_stiffness(T)
+        return K
+
+    def tensions(self, q, qd) -> np.ndarray:
+        """Span tensions [N] ``T_0 + k_j delta_j + c_j delta_j'`` for states ``q, qd`` ((m,) or (N, m))."""
+        q, qd = np.asarray(q, dtype=float), np.asarray(qd, dtype=float)
+        return self.scene.belt.installed_tension + self.k * (q @ self.stretch.T) + self.c * (qd @ self.stretch.T)
+
+    def speeds_at(self, driver_speed: float) -> np.ndarray:
+        """Pulley speeds [rad/s] of the belt running without stretch: ``omega_i = omega_d r_d / r_i``."""
+        P = self.scene.pulleys
+        return np.array([driver_speed * P[self.scene.driver].radius / p.radius for p in P])
+
+    def operating_loads(self, driver_speed: float, t: float | None = None, samples: int = 64) -> np.ndarray:
+        """Mean torque [N m] of each pulley's profile (signed: + drives the belt) at the belt speed of ``driver_speed``.
+
+        Each profile is averaged over two revolutions of its pulley at time ``t``
+        (default: the scene's end, after ramps and soft starts); idlers 0.
+        """
+        t = self.scene.duration if t is None else t
+        w = self.speeds_at(driver_speed)
+        out = np.zeros(len(self.scene.pulleys))
+        angles = np.linspace(0.0, 4.0 * math.pi, samples, endpoint=False)
+        for i, p in enumerate(self.scene.pulleys):
+            if p.sign:
+                out[i] = p.sign * float(np.mean(p.torque.torque(t, angles, w[i])))
+        return out
+
+    def load_damping(self, driver_speed: float, t: float | None = None) -> np.ndarray:
+        """Per pulley ``-dQ_i/domega_i`` [N m s/rad] of the profiles at the operating speed (central difference)."""
+        t = self.scene.duration if t is None else t
+        w = self.speeds_at(driver_speed)
+        out = np.zeros(len(self.scene.pulleys))
+        for i, p in enumerate(self.scene.pulleys):
+            if p.sign:
+                h = 1e-4 * max(1.0, abs(w[i]))
+                angles = np.linspace(0.0, 4.0 * math.pi, 64, endpoint=False)
+                hi = np.mean(p.torque.torque(t, angles, w[i] + h))
+                lo = np.mean(p.torque.torque(t, angles, w[i] - h))
+                out[i] = -p.sign * (hi - lo) / (2.0 * h)
+        return out
+
+    # ------------------------------------------------------------------ statics
+    def static(self, loads, iterations: int = 20):
+        """Static state under constant pulley torques ``loads`` [N m] (signed, + drives; the driver's entry is replaced
+        by the torque that balances the others: ``sum_i Q_i / r_i = 0``).
+
+        Returns ``(q, tensions, Q)``: the coordinates (up to the rigid turning, removed: least squares), span
+        tensions [N] and the torques used. The arm's geometric stiffness is iterated to the static tensions.
+        """
+        P = self.scene.pulleys
+        Q = np.asarray(loads, dtype=float).copy()
+        d = self.scene.driver
+        Q[d] = 0.0
+        Q[d] = -P[d].radius * sum(Q[i] / P[i].radius for i in range(len(P)))
+        f = np.zeros(self.M.shape[0])
+        f[: len(P)] = Q
+        T = np.full(len(self.k), self.scene.belt.installed_tension)
+        q = np.zeros_like(f)
+        for _ in range(iterations):
+            # K_lin q = f - (geometric preload change): the arm sees -sum_j (T_j - T_0) g_j through K_belt already;
+            # the geometric term linearises sum_j T_j g_j(theta) about theta_0 with T_j at the current tensions
+            q_new = np.linalg.lstsq(self.stiffness(T), f, rcond=None)[0]
+            T_new = self.tensions(q_new, np.zeros_like(q_new))
+            done = np.max(np.abs(T_new - T)) <= 1e-12 * max(1.0, np.max(np.abs(T_new)))
+            q, T = q_new, T_new
+            if done:
+                break
+        return q, T, Q
+
+    def operating_point(self, driver_speed: float):
+        """``(K, C, tensions)`` linearised at the operating speed: static tensions under the mean loads, the arm's
+        geometric stiffness at them, the profiles' speed slopes as damping."""
+        _, T, _ = self.static(self.operating_loads(driver_speed))
+        C = self.C.copy()
+        C[: len(self.scene.pulleys), : len(self.scene.pulleys)] += np.diag(self.load_damping(driver_speed))
+        return self.stiffness(T), C, T
+
+    # ------------------------------------------------------------------ first-order form
+    def state_space(self, K=None, C=None):
+        """``(A, B)`` of ``x = [q, q']``, ``x' = A x + B u`` with ``u`` the n pulley torques [N m]."""
+        K = self.stiffness() if K is None else K
+        C = self.C if C is None else C
+        m, n = self.M.shape[0], len(self.scene.pulleys)
+        Minv = np.diag(1.0 / np.diag(self.M))
+        A = np.zeros((2 * m, 2 * m))
+        A[:m, m:] = np.eye(m)
+        A[m:, :m] = -Minv @ K
+        A[m:, m:] = -Minv @ C
+        B = np.zeros((2 * m, n))
+        B[m:, :n] = Minv[:, :n]
+        return A, B
+
+
+# ---------------------------------------------------------------------- modes
+@dataclass(frozen=True)
+class Mode:
+    """One vibration mode: damped frequency [Hz], undamped natural frequency [Hz], damping ratio, shape.
+
+    ``shape``: per coordinate the belt-direction amplitude (``r_i theta_i``, ``La theta_a``), largest = 1.
+    """
+
+    frequency: float
+    natural: float
+    damping_ratio: float
+    shape: np.ndarray
+
+
+def modes(model: NetworkModel, driver_speed: float | None = None) -> list[Mode]:
+    """Oscillating modes at the operating point (eigenvalues of A with Im > 0), lowest first."""
+    speed = model.scene.operating_speed if driver_speed is None else driver_speed
+    K, C, _ = model.operating_point(speed)
+    A, _ = model.state_space(K, C)
+    lam, vec = np.linalg.eig(A)
+    m = model.M.shape[0]
+    scale = np.array([p.radius for p in model.scene.pulleys] + ([_arm_length(model.scene)] if model.arm >= 0 else []))
+    out = []
+    for i in np.argsort(np.abs(lam)):
+        if lam[i].imag <= 1e-9 * max(1.0, abs(lam[i])):
+            continue
+        v = vec[:m, i] * scale
+        v = v / v[np.argmax(np.abs(v))]
+        out.append(Mode(lam[i].imag / (2 * math.pi), abs(lam[i]) / (2 * math.pi), -lam[i].real / abs(lam[i]), v.real))
+    return out
+
+
+def _arm_length(scene) -> float:
+    c = scene.pulleys[scene.index(scene.tensioner.pulley)].centre
+    return math.hypot(c[0] - scene.tensioner.pivot[0], c[1] - scene.tensioner.pivot[1])
+
+
+def undamped_frequencies(model: NetworkModel, tensions=None) -> np.ndarray:
+    """Natural frequencies [Hz] of ``K v = w^2 M v`` (the zero mode left out), ascending."""
+    K = model.stiffness(tensions)
+    s = 1.0 / np.sqrt(np.diag(model.M))
+    w2 = np.linalg.eigvalsh(s[:, None] * K * s[None, :])
+    return np.sqrt(np.clip(np.sort(w2)[1:], 0.0, None)) / (2 * math.pi)
+
+
+# ---------------------------------------------------------------------- runs
+@dataclass(frozen=True)
+class NetworkRun:
+    """A run's outputs (SI): times (N,), per pulley angle/speed/belt torque/hub load (N, n), per span tension (N, n)
+    and slack flag, arm angle [rad] (absolute, N,) or None."""
+
+    time: np.ndarray
+    angle: np.ndarray
+    speed: np.ndarray
+    belt_torque: np.ndarray
+    hub_load: np.ndarray
+    tension: np.ndarray
+    slack: np.ndarray
+    arm_angle: np.ndarray | None
+    states: np.ndarray
+
+
+def simulate(scene, duration: float | None = None, dt: float | None = None, method: str | None = None,
+             model: NetworkModel | None = None) -> NetworkRun:
+    """Run the linear tier with the scene's fixed-step method from the belt turning at ``initial_speed`` unstretched.
+
+    The pulley torques enter as inputs ``u_i = sign_i profile_i(t, theta_i, theta_i')`` through the method's own
+    step (``Integrator.step``: exact on the linear part for the exponential methods). The compiled time loop
+    does not take the network yet (its interface carries two torque profiles, the network n).
+    """
+    model = NetworkModel.build(scene) if model is None else model
+    duration = scene.duration if duration is None else duration
+    dt = scene.dt if dt is None else dt
+    steps = int(round(duration / dt))
+    if steps < 1:
+        raise SceneError(f"duration: {duration:g} s is shorter than one step of {dt:g} s")
+    A, B = model.state_space()
+    integ = method_class(method or scene.method)(A, B, dt)
+    P = scene.pulleys
+    n, m = len(P), model.M.shape[0]
+    active = [(i, p.sign, p.torque.scalar_torque()) for i, p in enumerate(P) if p.sign]
+
+    def inputs(t, x):
+        u = np.zeros(n)
+        for i, s, f in active:
+            u[i] = s * f(t, float(x[i]), float(x[m + i]))
+        return u
+
+    x = np.zeros(2 * m)
+    x[m : m + n] = model.speeds_at(scene.initial_speed)
+    out = np.empty((steps + 1, 2 * m))
+    out[0] = x
+    for k in range(steps):
+        x = integ.step(k * dt, x, inputs)
+        out[k + 1] = x
+    return outputs(model, np.arange(steps + 1) * dt, out)
+
+
+def outputs(model: NetworkModel, time, states) -> NetworkRun:
+    """Per pulley and per span outputs from states ``[q, q']`` (N, 2m)."""
+    scene, m, n = model.scene, model.M.shape[0], len(model.scene.pulleys)
+    q, qd = states[:, :m], states[:, m:]
+    T = model.tensions(q, qd)
+    r = np.array([p.radius for p in scene.pulleys])
+    T_in = np.roll(T, 1, axis=1)  # span i-1 arrives at pulley i
+    torque = r * (T - T_in)
+    e = scene.geometry.directions  # hub load: |T_i e_i - T_{i-1} e_{i-1}| (first order: directions fixed)
+    e_in = np.roll(e, 1, axis=0)
+    hub = np.hypot(T * e[:, 0] - T_in * e_in[:, 0], T * e[:, 1] - T_in * e_in[:, 1])
+    v = qd[:, scene.driver] * r[scene.driver]
+    slack = T < (scene.belt.mass_per_length * v * v)[:, None]
+    arm = None
+    if model.arm >= 0:
+        arm = q[:, model.arm] + _arm(scene.geometry, scene.pulleys, scene.tensioner)[3]
+    return NetworkRun(time, q[:, :n], qd[:, :n], torque, hub, T, slack, arm, states)

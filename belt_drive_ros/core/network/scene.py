@@ -1,0 +1,323 @@
+"""Network scenes: a serpentine belt around named pulleys, an optional tensioner arm (frozen, validated).
+
+A network scene file states ``kind: network`` (see ``docs/serpentine.md`` for
+every key, its unit and the shipped examples). Errors are one line naming the
+pulley or key. Pulleys are listed in the order the belt travels, the loop
+counter-clockwise (:mod:`.geometry`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping
+
+
+from ..errors import SceneError
+from ..inputs import parse_yaml, read_text, short
+from ..integrators import method_class
+from ..sources import TorqueProfile, make_profile
+from .geometry import Layout, layout
+
+SIDES = {"inner": 1.0, "backside": -1.0}
+ROLES = ("driver", "accessory", "idler", "tensioner")
+#: torque sign per role: a driver's profile drives the belt, an accessory's loads it
+ROLE_SIGN = {"driver": 1.0, "accessory": -1.0}
+
+
+def _number(where: str, value, low: float = 0.0, strict: bool = False, top: float = 1.0e9) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SceneError(f"{where}: must be a number, got {type(value).__name__} {short(value)}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise SceneError(f"{where}: must be finite, got {value!r}")
+    if value < low or (strict and value == low):
+        raise SceneError(f"{where}: must be {'>' if strict else '>='} {low:g}, got {value!r}")
+    if value > top:
+        raise SceneError(f"{where}: {value:g} is outside the plausible range (up to {top:g})")
+    return value
+
+
+def _point(where: str, value) -> tuple[float, float]:
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise SceneError(f"{where}: expected [x, y] in m, got {short(value)}")
+    return (_number(f"{where}[0]", value[0], low=-1.0e3), _number(f"{where}[1]", value[1], low=-1.0e3))
+
+
+def _keys(where: str, data, allowed: tuple, required: tuple) -> dict:
+    if not isinstance(data, Mapping):
+        raise SceneError(f"{where}: expected a mapping, got {type(data).__name__} {short(data)}")
+    unknown = sorted(str(k)[:60] for k in set(data) - set(allowed))
+    if unknown:
+        raise SceneError(f"{where}.{unknown[0]}: unknown key; known: {', '.join(allowed)}")
+    missing = [k for k in required if k not in data]
+    if missing:
+        raise SceneError(f"{where}.{missing[0]}: missing")
+    return dict(data)
+
+
+@dataclass(frozen=True)
+class Pulley:
+    """One pulley: name, centre [m], radius [m], inertia [kg m^2], bearing damping [N m s/rad],
+    side (+1 inner face, -1 backside), role, torque profile (driver: drive; accessory: load), friction coefficient."""
+
+    name: str
+    centre: tuple[float, float]
+    radius: float
+    inertia: float
+    damping: float = 0.0
+    side: float = 1.0
+    role: str = "idler"
+    torque: TorqueProfile | None = None
+    mu: float = 0.5
+
+    @property
+    def sign(self) -> float:
+        """+1: the profile drives the belt (driver), -1: it loads it (accessory), 0: no torque."""
+        return ROLE_SIGN.get(self.role, 0.0) if self.torque is not None else 0.0
+
+
+@dataclass(frozen=True)
+class Belt:
+    """Belt: axial stiffness EA [N], Kelvin-Voigt damping [N s] (span damping = damping / L_j [N s/m]),
+    mass per length [kg/m], installed tension T_0 [N] (uniform, no load)."""
+
+    EA: float
+    damping: float
+    mass_per_length: float
+    installed_tension: float
+
+
+@dataclass(frozen=True)
+class Tensioner:
+    """Tensioner arm: pulley (its name), pivot [m], arm inertia about the pivot [kg m^2] (pulley mass included),
+    spring rate [N m/rad], damping [N m s/rad]; its length and installed angle come from the pulley's centre.
+    ``preload`` [N m] is the spring torque at the installed angle (computed from T_0 when the scene gives T_0)."""
+
+    pulley: str
+    pivot: tuple[float, float]
+    inertia: float
+    spring_rate: float
+    damping: float
+    preload: float
+
+
+@dataclass(frozen=True)
+class Engine:
+    """The engine turning the driver: cylinders, strokes per cycle, speed range [rad/s] of the driver (Campbell axis).
+    Firing order (excitations per revolution) = cylinders * 2 / strokes."""
+
+    cylinders: int = 4
+    strokes: int = 4
+    speed_range: tuple[float, float] = (70.0, 630.0)
+
+    @property
+    def firing_order(self) -> float:
+        return self.cylinders * 2.0 / self.strokes
+
+
+@dataclass(frozen=True)
+class NetworkScene:
+    """A belt network scene (SI units): pulleys in travel order, belt, optional tensioner, engine, run settings."""
+
+    name: str
+    description: str
+    pulleys: tuple[Pulley, ...]
+    belt: Belt
+    tensioner: Tensioner | None
+    engine: Engine
+    initial_speed: float
+    operating_speed: float
+    duration: float
+    dt: float
+    method: str
+    geometry: Layout
+
+    def index(self, name: str) -> int:
+        return [p.name for p in self.pulleys].index(name)
+
+    @property
+    def driver(self) -> int:
+        return [p.role for p in self.pulleys].index("driver")
+
+    def span_names(self) -> list[str]:
+        n = len(self.pulleys)
+        return [f"{self.pulleys[j].name}_{self.pulleys[(j + 1) % n].name}" for j in range(n)]
+
+    # ------------------------------------------------------------------ reading
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any], name: str = "custom") -> "NetworkScene":
+        from .model import arm_preload  # the arm's equilibrium (model: the tensioner's equation)
+
+        allowed = ("kind", "name", "description", "pulleys", "belt", "tensioner", "engine",
+                   "initial_speed", "operating_speed", "duration", "dt", "method")
+        data = _keys("scene", data, allowed, ("kind", "pulleys", "belt", "duration", "dt", "initial_speed"))
+        if data["kind"] != "network":
+            raise SceneError(f"kind: must be 'network' for a belt network scene, got {short(data['kind'])}")
+        raw = data["pulleys"]
+        if not isinstance(raw, list) or len(raw) < 2:
+            raise SceneError(f"pulleys: expected a list of at least 2 pulleys, got {short(raw)}")
+        pulleys, names = [], []
+        keys = ("name", "centre", "radius", "inertia", "damping", "side", "role", "torque", "mu")
+        for k, item in enumerate(raw):
+            label = item.get("name") if isinstance(item, Mapping) and isinstance(item.get("name"), str) else f"[{k}]"
+            where = f"pulleys.{label}"
+            item = _keys(where, item, keys, ("name", "centre", "radius", "inertia", "role"))
+            pname = item["name"]
+            if not pname.replace("_", "").isalnum() or not pname[0].isalpha():
+                raise SceneError(f"{where}.name: letters, digits and _ only, starting with a letter")
+            if pname in names:
+                raise SceneError(f"{where}: duplicate pulley name")
+            names.append(pname)
+            role = item["role"]
+            if role not in ROLES:
+                raise SceneError(f"{where}.role: must be one of {', '.join(ROLES)}, got {short(role)}")
+            side = item.get("side", "inner")
+            if side not in SIDES:
+                raise SceneError(f"{where}.side: must be inner or backside, got {short(side)}")
+            torque = item.get("torque")
+            if torque is not None and role not in ROLE_SIGN:
+                raise SceneError(f"{where}.torque: an {role} carries no torque profile (driver or accessory only)")
+            if role in ROLE_SIGN and torque is None:
+                raise SceneError(f"{where}.torque: missing (a {role} states its {'drive' if role == 'driver' else 'load'} torque)")
+            pulleys.append(Pulley(
+                name=pname, centre=_point(f"{where}.centre", item["centre"]),
+                radius=_number(f"{where}.radius", item["radius"], strict=True, top=10.0),
+                inertia=_number(f"{where}.inertia", item["inertia"], strict=True, top=1.0e3),
+                damping=_number(f"{where}.damping", item.get("damping", 0.0), top=1.0e4),
+                side=SIDES[side], role=role,
+                torque=None if torque is None else make_profile(torque, f"{where}.torque"),
+                mu=_number(f"{where}.mu", item.get("mu", 0.5), strict=True, top=10.0),
+            ))
+        roles = [p.role for p in pulleys]
+        if roles.count("driver") != 1:
+            raise SceneError(f"pulleys: exactly one pulley has role driver, got {roles.count('driver')}")
+        if roles.count("tensioner") > 1:
+            raise SceneError("pulleys: at most one pulley has role tensioner")
+        geo = layout(names, [p.centre for p in pulleys], [p.radius for p in pulleys], [p.side for p in pulleys])
+        b = _keys("belt", data["belt"], ("EA", "damping", "mass_per_length", "installed_tension"), ("EA", "damping"))
+        EA = _number("belt.EA", b["EA"], strict=True, top=1.0e9)
+        damping = _number("belt.damping", b["damping"], top=1.0e6)
+        mass = _number("belt.mass_per_length", b.get("mass_per_length", 0.0), top=100.0)
+        tensioner = None
+        T0 = b.get("installed_tension")
+        if "tensioner" in roles:
+            if "tensioner" not in data:
+                raise SceneError(f"tensioner: missing (pulley {names[roles.index('tensioner')]} has role tensioner)")
+            t = _keys("tensioner", data["tensioner"], ("pivot", "inertia", "spring_rate", "damping", "preload"),
+                      ("pivot", "inertia", "spring_rate", "damping"))
+            if (T0 is None) == ("preload" not in t):
+                raise SceneError("belt.installed_tension: give either it or tensioner.preload (one gives the other)")
+            pivot = _point("tensioner.pivot", t["pivot"])
+            tp = pulleys[roles.index("tensioner")]
+            if math.hypot(tp.centre[0] - pivot[0], tp.centre[1] - pivot[1]) <= 1e-6:
+                raise SceneError(f"tensioner.pivot: coincides with the centre of pulley {tp.name} (arm length 0)")
+            tensioner = Tensioner(pulley=tp.name, pivot=pivot,
+                                  inertia=_number("tensioner.inertia", t["inertia"], strict=True, top=1.0e3),
+                                  spring_rate=_number("tensioner.spring_rate", t["spring_rate"], strict=True, top=1.0e7),
+                                  damping=_number("tensioner.damping", t["damping"], top=1.0e5), preload=0.0)
+            per_newton = arm_preload(geo, pulleys, tensioner, 1.0)  # preload torque per N of T_0
+            if T0 is None:
+                preload = _number("tensioner.preload", t["preload"], strict=True, top=1.0e5)
+                if per_newton <= 0.0:
+                    raise SceneError(f"tensioner.pivot: the arm of {tp.name} does not tension the belt at its installed angle")
+                T0 = preload / per_newton
+            T0 = _number("belt.installed_tension", T0, strict=True, top=1.0e6)
+            object.__setattr__(tensioner, "preload", T0 * per_newton)
+        elif "tensioner" in data:
+            raise SceneError("tensioner: given, but no pulley has role tensioner")
+        if T0 is None:
+            raise SceneError("belt.installed_tension: missing")
+        T0 = _number("belt.installed_tension", T0, strict=True, top=1.0e6)
+        e = _keys("engine", data.get("engine", {}), ("cylinders", "strokes", "speed_range"), ())
+        rng = e.get("speed_range", [70.0, 630.0])
+        if not isinstance(rng, (list, tuple)) or len(rng) != 2:
+            raise SceneError(f"engine.speed_range: expected [low, high] in rad/s, got {short(rng)}")
+        lo, hi = _number("engine.speed_range[0]", rng[0], strict=True), _number("engine.speed_range[1]", rng[1], strict=True)
+        if hi <= lo:
+            raise SceneError(f"engine.speed_range: high {hi:g} must exceed low {lo:g} rad/s")
+        cyl, strokes = e.get("cylinders", 4), e.get("strokes", 4)
+        if not isinstance(cyl, int) or isinstance(cyl, bool) or not 1 <= cyl <= 32:
+            raise SceneError(f"engine.cylinders: an integer 1..32, got {short(cyl)}")
+        if strokes not in (2, 4):
+            raise SceneError(f"engine.strokes: 2 or 4, got {short(strokes)}")
+        method = data.get("method", "exact")
+        try:
+            method_class(method)
+        except Exception as exc:  # noqa: BLE001 - the registry's own one-line message
+            raise SceneError(f"method: {exc}") from None
+        dt = _number("dt", data["dt"], strict=True, top=1.0)
+        duration = _number("duration", data["duration"], strict=True, top=1.0e7)
+        if duration / dt > 1.0e8:
+            raise SceneError(f"dt: {dt:g} s over {duration:g} s is more than 1e8 steps")
+        speed = _number("initial_speed", data["initial_speed"], low=-1.0e4, top=1.0e4)
+        return cls(
+            name=str(data.get("name", name)), description=str(data.get("description", "")).strip(),
+            pulleys=tuple(pulleys), belt=Belt(EA, damping, mass, T0), tensioner=tensioner,
+            engine=Engine(cyl, strokes, (lo, hi)), initial_speed=speed,
+            operating_speed=_number("operating_speed", data.get("operating_speed", speed), low=-1.0e4, top=1.0e4),
+            duration=duration, dt=dt, method=method, geometry=geo,
+        )
+
+    # ---------------------------------------------------------------- printing
+    def describe(self) -> str:
+        """The computed geometry as text: spans, wraps, belt length, tensioner (``belt-drive scenes NAME``)."""
+        g, n = self.geometry, len(self.pulleys)
+        lines = [f"# {self.name}: belt network ({n} pulleys){' -- ' + self.description if self.description else ''}",
+                 f"{'pulley':14s} {'role':10s} {'side':9s} {'x [m]':>8s} {'y [m]':>8s} {'r [m]':>7s} {'wrap [deg]':>10s}"]
+        for i, p in enumerate(self.pulleys):
+            lines.append(f"{p.name:14s} {p.role:10s} {'inner' if p.side > 0 else 'backside':9s} "
+                         f"{p.centre[0]:8.4f} {p.centre[1]:8.4f} {p.radius:7.4f} {math.degrees(g.wraps[i]):10.2f}")
+        lines.append(f"{'span':28s} {'length [m]':>10s} {'k = EA/L [N/m]':>15s}")
+        for j, s in enumerate(self.span_names()):
+            lines.append(f"{s:28s} {g.lengths[j]:10.4f} {self.belt.EA / g.lengths[j]:15.4g}")
+        lines.append(f"belt length {g.belt_length:.4f} m; installed tension {self.belt.installed_tension:.4g} N")
+        if self.tensioner:
+            t = self.tensioner
+            c = self.pulleys[self.index(t.pulley)].centre
+            arm = math.hypot(c[0] - t.pivot[0], c[1] - t.pivot[1])
+            ang = math.degrees(math.atan2(c[1] - t.pivot[1], c[0] - t.pivot[0]))
+            lines.append(f"tensioner arm {t.pulley}: pivot ({t.pivot[0]:.4f}, {t.pivot[1]:.4f}) m, length {arm:.4f} m, "
+                         f"installed at {ang:.2f} deg, spring preload {t.preload:.4g} N m ({t.spring_rate:.4g} N m/rad)")
+        return "\n".join(lines) + "\n"
+
+
+def shipped_networks() -> list[str]:
+    """Names of the network scenes shipped in the package (``belt_drive_ros/scenes/networks``)."""
+    folder = resources.files("belt_drive_ros") / "scenes" / "networks"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
+
+
+def is_network(name_or_path: str | Path) -> bool:
+    """Whether ``name_or_path`` names a shipped network scene or a YAML file stating ``kind: network``."""
+    label = str(name_or_path)
+    if label in shipped_networks():
+        return True
+    path = Path(label)
+    if path.suffix in (".yaml", ".yml") and path.is_file():
+        data = parse_yaml(read_text(path, "scene file"), f"scene file {short(label, 200)}")
+        return isinstance(data, Mapping) and data.get("kind") == "network"
+    return False
+
+
+def load_network(name_or_path: str | Path) -> NetworkScene:
+    """A network scene by shipped name or path (read like every scene file: regular, UTF-8, size-limited)."""
+    label = str(name_or_path)
+    if label in shipped_networks():
+        text = (resources.files("belt_drive_ros") / "scenes" / "networks" / f"{label}.yaml").read_text(encoding="utf-8")
+        default, where = label, label
+    else:
+        path = Path(label)
+        if not (path.suffix in (".yaml", ".yml") or os.path.lexists(path)):
+            raise SceneError(f"unknown network scene {short(label)}: not a file and not shipped ({', '.join(shipped_networks())})")
+        text, default, where = read_text(path, "scene file"), path.stem, f"scene file {short(label, 200)}"
+    data = parse_yaml(text, where)
+    if not isinstance(data, Mapping):
+        raise SceneError(f"{where}: expected a mapping, got {type(data).__name__}")
+    return NetworkScene.from_mapping(data, name=default)
+
+
+__all__ = ["Belt", "Engine", "NetworkScene", "Pulley", "Tensioner", "is_network", "load_network", "shipped_networks"]
