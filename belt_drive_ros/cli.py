@@ -23,6 +23,7 @@ COMMAND_MODULES = (
     "sim",
     "sweep",
     "scenes",
+    "modes",
     "demo",
     "node",
     "source",
@@ -35,7 +36,7 @@ COMMAND_MODULES = (
 
 
 #: commands without a ROS context: SIGTERM raises (io.atomic.Terminated) so that an output in progress is removed
-OFFLINE_COMMANDS = frozenset({"sim", "sweep", "scenes", "make-bags", "urdf"})
+OFFLINE_COMMANDS = frozenset({"sim", "sweep", "scenes", "modes", "make-bags", "urdf"})
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,62 @@
+"""Campbell data of a belt network: natural frequencies against engine speed, firing orders, crossings.
+
+At each driver speed the linear tier is linearised afresh (``NetworkModel.operating_point``):
+the static span tensions under the accessories' loads at that speed set the
+arm's geometric stiffness, the profiles' speed slopes add damping. An engine
+order ``k`` excites at ``k * speed / (2 pi)`` [Hz]; where a mode's frequency
+curve crosses an order line, that order drives the mode at resonance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .model import NetworkModel, modes
+
+
+@dataclass(frozen=True)
+class Crossing:
+    """A mode (1-based, lowest first) meeting an engine order at driver speed [rad/s] and frequency [Hz]."""
+
+    mode: int
+    order: float
+    speed: float
+    frequency: float
+
+
+@dataclass(frozen=True)
+class Campbell:
+    """speeds (S,) [rad/s]; frequencies (S, n_modes) [Hz] (damped, NaN where a mode is overdamped); orders; crossings."""
+
+    speeds: np.ndarray
+    frequencies: np.ndarray
+    orders: tuple
+    crossings: tuple
+
+
+def campbell(model: NetworkModel, points: int = 60, harmonics: int = 3) -> Campbell:
+    """Frequencies over the scene's ``engine.speed_range`` and their crossings with the firing orders
+    ``k * firing_order``, k = 1 .. ``harmonics``."""
+    engine = model.scene.engine
+    speeds = np.linspace(engine.speed_range[0], engine.speed_range[1], points)
+    per = [[md.frequency for md in modes(model, w)] for w in speeds]
+    count = max(len(p) for p in per)
+    F = np.full((points, count), np.nan)
+    for i, p in enumerate(per):
+        F[i, : len(p)] = p
+    orders = tuple(k * engine.firing_order for k in range(1, harmonics + 1))
+    found = []
+    for order in orders:
+        line = order * speeds / (2.0 * math.pi)
+        for j in range(count):
+            diff = F[:, j] - line
+            for i in range(points - 1):
+                a, b = diff[i], diff[i + 1]
+                if np.isfinite(a) and np.isfinite(b) and a * b <= 0.0 and a != b:
+                    s = a / (a - b)
+                    w = speeds[i] + s * (speeds[i + 1] - speeds[i])
+                    found.append(Crossing(j + 1, order, float(w), float(order * w / (2.0 * math.pi))))
+    return Campbell(speeds, F, orders, tuple(sorted(found, key=lambda c: c.speed)))
