@@ -1,0 +1,242 @@
+"""Belt networks (first tier): geometry, statics, arm stiffness, modes, energy, the paper's drive as a network.
+
+Every reference here is computed in the test from the geometry and the
+equations written out by hand (docs/serpentine.md), not by the package's
+network code.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from belt_drive_ros.core.errors import SceneError
+from belt_drive_ros.core.network.model import NetworkModel, simulate, undamped_frequencies
+from belt_drive_ros.core.network.scene import NetworkScene, load_network
+
+
+def _pulley(name, centre, radius, role="idler", side="inner", inertia=1e-3, torque=None, damping=0.0):
+    p = {"name": name, "centre": list(centre), "radius": radius, "inertia": inertia, "role": role,
+         "side": side, "damping": damping}
+    if torque is not None:
+        p["torque"] = torque
+    return p
+
+
+def _scene(pulleys, tensioner=None, T0=300.0, EA=1.0e5, damping=0.0, **extra):
+    data = {"kind": "network", "pulleys": pulleys, "duration": 0.1, "dt": 1e-4, "initial_speed": 0.0,
+            "belt": {"EA": EA, "damping": damping, "mass_per_length": 0.0}}
+    if tensioner is None:
+        data["belt"]["installed_tension"] = T0
+    else:
+        data["tensioner"] = tensioner
+        if "preload" not in tensioner:
+            data["belt"]["installed_tension"] = T0
+    data.update(extra)
+    return NetworkScene.from_mapping(data)
+
+
+# ---------------------------------------------------------------------- hand geometry of the test
+def _span(c0, rho0, c1, rho1):
+    """Tangent from circle 0 to circle 1 (signed radii; belt on the left of travel for rho > 0), by the tangent
+    points: a unit normal u with u . (c1 - c0) = rho1 - rho0 ... solved here as a 2x2 rotation, independently:
+    the direction e makes angle gamma with the centre line, sin(gamma) = (rho0 - rho1) / D."""
+    d = np.subtract(c1, c0)
+    D = math.hypot(*d)
+    gamma = math.asin((rho0 - rho1) / D)
+    cg, sg = math.cos(gamma), math.sin(gamma)
+    e = np.array([cg * d[0] - sg * d[1], sg * d[0] + cg * d[1]]) / D
+    a = np.asarray(c0) - rho0 * np.array([-e[1], e[0]])
+    b = np.asarray(c1) - rho1 * np.array([-e[1], e[0]])
+    return e, a, b
+
+
+def _belt_length(centres, radii, sides):
+    """Sum of tangent lengths (|b - a|) plus arcs; wraps as turning angles of the tangent directions."""
+    n = len(centres)
+    rho = [s * r for s, r in zip(sides, radii)]
+    spans = [_span(centres[j], rho[j], centres[(j + 1) % n], rho[(j + 1) % n]) for j in range(n)]
+    total = sum(math.hypot(*(b - a)) for _, a, b in spans)
+    for i in range(n):
+        e0, e1 = spans[i - 1][0], spans[i][0]
+        turn = math.atan2(e0[0] * e1[1] - e0[1] * e1[0], e0 @ e1)  # (-pi, pi]
+        wrap = (sides[i] * turn) % (2 * math.pi)
+        total += radii[i] * wrap
+    return total
+
+
+# ---------------------------------------------------------------------- geometry
+def test_rectangle_of_four_equal_pulleys():
+    a, b, r = 0.4, 0.25, 0.05
+    scene = _scene([_pulley("p0", (0, 0), r, "driver", torque=0.0), _pulley("p1", (a, 0), r),
+                    _pulley("p2", (a, b), r), _pulley("p3", (0, b), r)])
+    g = scene.geometry
+    np.testing.assert_allclose(g.lengths, [a, b, a, b], rtol=1e-14)
+    np.testing.assert_allclose(g.wraps, [math.pi / 2] * 4, rtol=1e-14)
+    assert g.belt_length == pytest.approx(2 * a + 2 * b + 2 * math.pi * r, rel=1e-14)
+    np.testing.assert_allclose(g.directions, [[1, 0], [0, 1], [-1, 0], [0, -1]], atol=1e-15)
+
+
+def test_backside_idler_dents_the_span():
+    d, r, ri, h = 0.4, 0.05, 0.03, 0.07
+    scene = _scene([_pulley("left", (0, 0), r, "driver", torque=0.0), _pulley("right", (d, 0), r),
+                    _pulley("idler", (d / 2, h), ri, side="backside")])
+    g = scene.geometry
+    D = math.hypot(d / 2, h)
+    L = math.sqrt(D * D - (r + ri) ** 2)  # internal tangent, by Pythagoras
+    alpha = math.asin((r + ri) / D) - math.atan2(h, d / 2)  # how far the belt slopes down into the idler
+    assert alpha > 0
+    np.testing.assert_allclose(g.lengths, [d, L, L], rtol=1e-13)
+    np.testing.assert_allclose(g.wraps, [math.pi + alpha, math.pi + alpha, 2 * alpha], rtol=1e-12)
+    assert g.belt_length == pytest.approx(d + 2 * L + 2 * r * (math.pi + alpha) + 2 * ri * alpha, rel=1e-13)
+
+
+@pytest.mark.parametrize("pulleys, named", [
+    ([_pulley("a", (0, 0), 0.05, "driver", torque=0.0), _pulley("b", (0.08, 0), 0.05)], "pulleys.b: overlaps pulley a"),
+    ([_pulley("l", (0, 0), 0.05, "driver", torque=0.0), _pulley("r", (0.4, 0), 0.05),
+      _pulley("idler", (0.2, 0.2), 0.03, side="backside")], "pulleys.idler: wrap angle <= 0"),
+    ([_pulley("a", (0, 0), 0.05, "driver", torque=0.0), _pulley("b", (0.4, 0), 0.05),
+      _pulley("c", (0, 0.3), 0.05), _pulley("d", (0.4, 0.3), 0.05)], "pulleys"),
+    ([_pulley("a", (0, 0), 0.05, "driver", torque=0.0), _pulley("b", (0.4, 0), 0.05),
+      _pulley("c", (0.2, 0.3), 0.05), _pulley("mid", (0.2, 0.02), 0.04)], "pulleys"),
+])
+def test_bad_layouts_are_one_line_errors_naming_the_pulley(pulleys, named):
+    with pytest.raises(SceneError) as info:
+        _scene(pulleys)
+    text = str(info.value)
+    assert named in text and "\n" not in text
+
+
+# ---------------------------------------------------------------------- a drive with a tensioner
+CRANK = {"type": "constant", "value": 0.0}
+
+
+def _tensioned(damping=0.0, loads=(2.0, 1.0), bearing=0.0):
+    """Crank, alternator, A/C and a backside tensioner on the crank's slack side (leaving the crank)."""
+    return _scene([
+        _pulley("crank", (0, 0), 0.08, "driver", inertia=0.2, torque=CRANK, damping=bearing),
+        _pulley("tens", (0.13, 0.05), 0.035, "tensioner", side="backside", inertia=1e-4, damping=bearing),
+        _pulley("alt", (0.26, 0.15), 0.03, "accessory", inertia=3e-3, torque={"type": "constant", "value": loads[0]},
+                damping=bearing),
+        _pulley("ac", (-0.12, 0.22), 0.06, "accessory", inertia=2e-3, torque={"type": "constant", "value": loads[1]},
+                damping=bearing),
+    ], tensioner={"pivot": [0.17, -0.01], "inertia": 1.5e-3, "spring_rate": 25.0, "damping": damping},
+        T0=300.0, EA=1.2e5, damping=damping)
+
+
+def _arm_lambda(scene, theta):
+    """Exact belt length with the tensioner's arm at ``theta`` (the test's own geometry)."""
+    t = scene.index(scene.tensioner.pulley)
+    piv = np.asarray(scene.tensioner.pivot)
+    c_t = np.asarray(scene.pulleys[t].centre)
+    La = math.hypot(*(c_t - piv))
+    centres = [np.asarray(p.centre, dtype=float) for p in scene.pulleys]
+    centres[t] = piv + La * np.array([math.cos(theta), math.sin(theta)])
+    return _belt_length(centres, [p.radius for p in scene.pulleys], [p.side for p in scene.pulleys])
+
+
+def _arm_angle(scene):
+    t = scene.index(scene.tensioner.pulley)
+    c = np.subtract(scene.pulleys[t].centre, scene.tensioner.pivot)
+    return math.atan2(c[1], c[0])
+
+
+def _derivatives(f, x, h):
+    return (f(x + h) - f(x - h)) / (2 * h), (f(x + h) - 2 * f(x) + f(x - h)) / (h * h)
+
+
+def test_arm_preload_and_stiffness_against_finite_differences_of_the_exact_geometry():
+    scene = _tensioned()
+    model = NetworkModel.build(scene)
+    th0 = _arm_angle(scene)
+    d1, d2 = _derivatives(lambda th: _arm_lambda(scene, th), th0, 1e-4)
+    T0 = scene.belt.installed_tension
+    # the spring preload holds the arm against a uniform T0: P = T0 dLambda/dtheta
+    assert scene.tensioner.preload == pytest.approx(T0 * d1, rel=1e-6)
+    # the arm's geometric stiffness at T0: T0 d2Lambda/dtheta2 (a few per cent of the spring: not negligible)
+    k_geo = model.geometric_stiffness(np.full(4, T0))
+    assert k_geo == pytest.approx(T0 * d2, rel=1e-5)
+    assert abs(k_geo) > 0.01 * scene.tensioner.spring_rate
+
+
+def test_static_tensions_and_arm_equilibrium_under_constant_loads():
+    scene = _tensioned(loads=(2.5, 1.2))
+    model = NetworkModel.build(scene)
+    q, T, Q = model.static([0.0, 0.0, -2.5, -1.2])
+    r = [p.radius for p in scene.pulleys]
+    # each pulley: r_i (T_i - T_{i-1}) = -Q_i  (the span leaving minus the span arriving)
+    for i in range(4):
+        assert r[i] * (T[i] - T[i - 1]) == pytest.approx(-Q[i], abs=1e-9 * 300)
+    assert Q[0] == pytest.approx(r[0] * (2.5 / r[2] + 1.2 / r[3]), rel=1e-14)  # the crank carries both
+    assert T[3] > T[0]  # the span arriving at the driver is the tight one
+    assert T[0] == pytest.approx(T[1], rel=1e-12)  # the tensioner (no torque) passes its tension on
+    # the arm: spring (preload - k_a dtheta) against the belt's pull T_t dLambda/dtheta at the displaced angle,
+    # to first order in dtheta (the linear tier)
+    th0, dth = _arm_angle(scene), q[-1]
+    d1, d2 = _derivatives(lambda th: _arm_lambda(scene, th), th0, 1e-4)
+    spring = scene.tensioner.preload - scene.tensioner.spring_rate * dth
+    assert spring == pytest.approx(T[0] * (d1 + d2 * dth), rel=1e-6)
+    assert dth != 0.0
+
+
+def test_natural_frequencies_against_an_eigen_analysis_from_the_equations():
+    scene = _tensioned()
+    P = scene.pulleys
+    r = np.array([p.radius for p in P])
+    n = len(P)
+    th0 = _arm_angle(scene)
+    t = scene.index(scene.tensioner.pulley)
+    La = math.hypot(*np.subtract(P[t].centre, scene.tensioner.pivot))
+    n_a = La * np.array([-math.sin(th0), math.cos(th0)])  # d c_t / d theta_a
+    rho = [p.side * p.radius for p in P]
+    a = np.zeros((n, n + 1))
+    lengths = []
+    for j in range(n):
+        k = (j + 1) % n
+        e, pa, pb = _span(P[j].centre, rho[j], P[k].centre, rho[k])
+        lengths.append(math.hypot(*(pb - pa)))
+        a[j, k] += r[k]
+        a[j, j] -= r[j]
+        a[j, n] = (n_a @ e) * ((k == t) - (j == t))  # (u_{j+1} - u_j) . e_j per unit arm angle
+    kj = scene.belt.EA / np.array(lengths)
+    K = a.T @ np.diag(kj) @ a
+    _, d2 = _derivatives(lambda th: _arm_lambda(scene, th), th0, 1e-4)
+    K[n, n] += scene.tensioner.spring_rate + scene.belt.installed_tension * d2
+    M = np.diag([p.inertia for p in P] + [scene.tensioner.inertia])
+    w2 = np.sort(np.linalg.eigvals(np.linalg.solve(M, K)).real)
+    assert abs(w2[0]) < 1e-6 * w2[-1]  # the belt turning every pulley: no stretch
+    expected = np.sqrt(w2[1:]) / (2 * math.pi)
+    np.testing.assert_allclose(undamped_frequencies(NetworkModel.build(scene)), expected, rtol=1e-6)
+
+
+def test_energy_balance_on_an_undamped_run():
+    scene = NetworkScene.from_mapping({**_raw_tensioned(), "method": "exact", "initial_speed": 60.0,
+                                       "duration": 0.2, "dt": 1e-4})
+    run = simulate(scene)
+    P = scene.pulleys
+    J = np.array([p.inertia for p in P])
+    kinetic = 0.5 * (run.speed**2 @ J) + 0.5 * scene.tensioner.inertia * run.states[:, -1] ** 2
+    lengths = scene.geometry.lengths
+    T0 = scene.belt.installed_tension
+    strain = (run.tension - T0) ** 2 @ (lengths / scene.belt.EA) / 2.0  # sum (T - T0)^2 / (2 k_j)
+    th0 = _arm_angle(scene)
+    dth = run.arm_angle - th0
+    _, d2 = _derivatives(lambda th: _arm_lambda(scene, th), th0, 1e-4)
+    arm = 0.5 * (scene.tensioner.spring_rate + T0 * d2) * dth**2
+    work = (run.angle - run.angle[0]) @ np.array([3.0, 0.0, -2.0, -1.0])  # the crank's drive, the loads on alt and ac
+    E = kinetic + strain + arm - work
+    assert np.ptp(E) <= 1e-9 * np.ptp(kinetic)  # 3e-11 measured (method exact, constant torques)
+    assert np.ptp(strain) > 1e-2  # the belt did ring (0.032 J)
+
+
+def _raw_tensioned():
+    return {"kind": "network", "belt": {"EA": 1.2e5, "damping": 0.0, "mass_per_length": 0.0, "installed_tension": 300.0},
+            "tensioner": {"pivot": [0.17, -0.01], "inertia": 1.5e-3, "spring_rate": 25.0, "damping": 0.0},
+            "pulleys": [
+                _pulley("crank", (0, 0), 0.08, "driver", inertia=0.2, torque={"type": "constant", "value": 3.0}),
+                _pulley("tens", (0.13, 0.05), 0.035, "tensioner", side="backside", inertia=1e-4),
+                _pulley("alt", (0.26, 0.15), 0.03, "accessory", inertia=3e-3, torque={"type": "constant", "value": 2.0}),
+                _pulley("ac", (-0.12, 0.22), 0.06, "accessory", inertia=2e-3, torque={"type": "constant", "value": 1.0}),
+            ]}
