@@ -240,3 +240,66 @@ def _raw_tensioned():
                 _pulley("alt", (0.26, 0.15), 0.03, "accessory", inertia=3e-3, torque={"type": "constant", "value": 2.0}),
                 _pulley("ac", (-0.12, 0.22), 0.06, "accessory", inertia=2e-3, torque={"type": "constant", "value": 1.0}),
             ]}
+
+
+# ---------------------------------------------------------------------- the paper's drive as a network
+def test_paper_drive_as_a_two_pulley_network_equals_the_flexible_model():
+    from belt_drive_ros.core.scene import load_scene
+    from belt_drive_ros.core.simulate import simulate as simulate_paper
+
+    paper = load_scene("paper")
+    today = simulate_paper(paper, model="flexible", method="etd2", dt=1e-3)
+    net = simulate(load_network("paper_network"))
+    g = paper.params.gear_ratio
+    np.testing.assert_array_equal(net.time, today.time)
+    for ours, theirs in ((net.speed[:, 1], today["omega_3"]), (net.speed[:, 0], g * today["omega_M"]),
+                         (net.belt_torque[:, 1], today["belt_torque"])):
+        assert np.max(np.abs(ours - theirs)) <= 1e-10 * np.max(np.abs(theirs))  # 3e-12 (speeds), 2e-11 measured
+    assert not net.slack.any()
+
+
+# ---------------------------------------------------------------------- the commands
+def test_scenes_prints_a_networks_geometry(capsys):
+    from belt_drive_ros.cli import main
+
+    assert main(["scenes", "fead_i4"]) == 0
+    out = capsys.readouterr().out
+    scene = load_network("fead_i4")
+    for p in scene.pulleys:
+        assert p.name in out
+    assert f"belt length {scene.geometry.belt_length:.4f} m" in out
+    assert main(["scenes"]) == 0
+    assert "fead_i4" in capsys.readouterr().out
+
+
+def test_modes_and_campbell(tmp_path, capsys):
+    from belt_drive_ros.cli import main
+
+    png = tmp_path / "campbell.png"
+    assert main(["modes", "fead_i4", "--campbell", str(png), "--points", "12"]) == 0
+    out = capsys.readouterr().out
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    scene = load_network("fead_i4")
+    rows = [line.split() for line in out.splitlines() if line[:4].strip().isdigit()]
+    undamped = undamped_frequencies(NetworkModel.build(scene))
+    assert len(rows) >= 5
+    # the printed undamped frequencies of the stiff modes sit near the bare K-M ones (operating tensions differ a bit)
+    assert float(rows[-1][2]) == pytest.approx(undamped[-1], rel=0.02)
+    assert "crossing: mode" in out and "order 2" in out
+    assert main(["modes", "fead_i4", "--campbell", str(png)]) == 2  # exists: --force
+    assert main(["modes", "paper"]) == 2  # not a network scene
+    err = capsys.readouterr().err
+    assert err.count("\n") == 2 and "unknown network scene 'paper'" in err
+
+
+def test_a_bad_network_file_is_one_error_line(tmp_path, capsys):
+    from belt_drive_ros.cli import main
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("kind: network\nduration: 1\ndt: 0.001\ninitial_speed: 0\n"
+                   "belt: {EA: 1.0e5, damping: 0, installed_tension: 200}\n"
+                   "pulleys:\n  - {name: crank, role: driver, centre: [0, 0], radius: 0.08, inertia: 0.2, torque: 1.0}\n"
+                   "  - {name: alt, role: accessory, centre: [0.1, 0], radius: 0.03, inertia: 0.003, torque: 1.0}\n")
+    assert main(["scenes", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err == "belt-drive: error: pulleys.alt: overlaps pulley crank (centres 0.1 m apart, radii 0.08 + 0.03 m)\n"
