@@ -125,7 +125,7 @@ def _loaded_after(code: str, prefixes: tuple[str, ...]) -> list[str]:
 
 
 def test_core_runs_without_rclpy_or_mcap():
-    code = "\n".join(f"import belt_drive_ros.core.{p.stem}" for p in _modules("core") if p.stem != "__init__")
+    code = "\n".join(f"import {_module_name(p)}" for p in _modules("core") if p.stem != "__init__")
     code += "\nfrom belt_drive_ros.core.simulate import simulate\nfrom belt_drive_ros.core.scene import load_scene\n"
     code += "simulate(load_scene('paper'), duration=0.01)"
     assert _loaded_after(code, ("rclpy", "mcap", "mcap_ros2", "msg_tools")) == []
