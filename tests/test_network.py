@@ -97,10 +97,16 @@ def test_backside_idler_dents_the_span():
     ([_pulley("a", (0, 0), 0.05, "driver", torque=0.0), _pulley("b", (0.08, 0), 0.05)], "pulleys.b: overlaps pulley a"),
     ([_pulley("l", (0, 0), 0.05, "driver", torque=0.0), _pulley("r", (0.4, 0), 0.05),
       _pulley("idler", (0.2, 0.2), 0.03, side="backside")], "pulleys.idler: wrap angle <= 0"),
+    ([_pulley("a", (0, 0), 0.05, "driver", torque=0.0), _pulley("b", (0.4, 0), 0.05),  # a figure eight
+      _pulley("c", (0, 0.3), 0.05), _pulley("d", (0.4, 0.3), 0.05)], "pulleys.c: wrap angle <= 0"),
+    ([_pulley("a", (0, 0), 0.05, "driver", torque=0.0), _pulley("b", (0.4, 0), 0.05),  # inside the loop
+      _pulley("c", (0.2, 0.3), 0.05), _pulley("mid", (0.2, 0.02), 0.04)], "pulleys.mid: wrap angle <= 0"),
     ([_pulley("a", (0, 0), 0.05, "driver", torque=0.0), _pulley("b", (0.4, 0), 0.05),
-      _pulley("c", (0, 0.3), 0.05), _pulley("d", (0.4, 0.3), 0.05)], "pulleys"),
+      _pulley("c", (0.2, 0.35), 0.05), _pulley("d", (0.2, -0.03), 0.03, side="backside")],
+     "pulleys.d: the span a -> b crosses it"),
     ([_pulley("a", (0, 0), 0.05, "driver", torque=0.0), _pulley("b", (0.4, 0), 0.05),
-      _pulley("c", (0.2, 0.3), 0.05), _pulley("mid", (0.2, 0.02), 0.04)], "pulleys"),
+      _pulley("c", (0.2, 0.3), 0.05), _pulley("far", (0.2, -0.3), 0.04, side="backside")],
+     "pulleys.b: not a simple loop: the span a -> b crosses the span c -> far"),
 ])
 def test_bad_layouts_are_one_line_errors_naming_the_pulley(pulleys, named):
     with pytest.raises(SceneError) as info:
