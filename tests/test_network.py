@@ -309,3 +309,23 @@ def test_a_bad_network_file_is_one_error_line(tmp_path, capsys):
     assert main(["scenes", str(bad)]) == 2
     err = capsys.readouterr().err
     assert err == "belt-drive: error: pulleys.alt: overlaps pulley crank (centres 0.1 m apart, radii 0.08 + 0.03 m)\n"
+
+
+def test_sim_runs_a_network_and_writes_its_csv_by_pulley_and_span(tmp_path, capsys):
+    from belt_drive_ros.cli import main
+
+    out = tmp_path / "fead.csv"
+    assert main(["sim", "fead_i4", "--duration", "0.02", "--out", str(out)]) == 0
+    scene = load_network("fead_i4")
+    names = out.read_text().splitlines()[0].split(",")
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    run = simulate(scene, duration=0.02)
+    assert table.shape == (201, len(names))
+    np.testing.assert_array_equal(table[:, names.index("alternator/speed")], run.speed[:, scene.index("alternator")])
+    np.testing.assert_array_equal(table[:, names.index("spans/ac_compressor_crank/tension")], run.tension[:, -1])
+    np.testing.assert_array_equal(table[:, names.index("tensioner_arm/angle")], run.arm_angle)
+    assert "tensioner arm:" in capsys.readouterr().out
+    assert main(["sim", "fead_i4", "--out", str(tmp_path / "x.mcap")]) == 2
+    assert main(["sim", "fead_i4", "--plot", str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 2 and "MCAP for networks is not built yet" in err

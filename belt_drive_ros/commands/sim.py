@@ -122,6 +122,12 @@ def run(args) -> int:
     if is_recording(args.scene):  # a recording re-simulated from its own scene record
         scene = _resimulation(args)
     else:
+        from ..core.network.scene import is_network
+
+        if is_network(args.scene):  # a belt network: its own run (commands/network_sim.py)
+            from .network_sim import run_network
+
+            return run_network(args)
         scene = load_scene(args.scene)
     if args.method_option:
         scene = scene.with_overrides(method_options=_options(args.method_option))

@@ -1,0 +1,90 @@
+"""``belt-drive sim NETWORK``: a belt network's run (linear tier), its summary and a CSV named by pulley and span."""
+
+from __future__ import annotations
+
+import math
+import time
+
+#: most samples a network run keeps in memory (network runs do not stream yet)
+MAX_SAMPLES = 5_000_000
+
+
+def _refuse_unsupported(args) -> None:
+    from ..core.errors import SceneError
+
+    given = [flag for flag, value in (("--model", args.model), ("--v-eps", getattr(args, "v_eps", None)),
+                                      ("--method-option", args.method_option), ("--torque-bag", args.torque_bag),
+                                      ("--plot", args.plot), ("--bag-folder", args.bag_folder),
+                                      ("--start-time", args.start_time)) if value]
+    if given:
+        raise SceneError(f"{given[0]}: not available for a belt network scene yet (its linear tier runs; "
+                         "see docs/serpentine.md)")
+
+
+def columns(scene, run):
+    """``(names, table)``: time, per pulley angle/speed/belt torque/hub load, per span tension and slack, arm angle."""
+    import numpy as np
+
+    names, cols = ["time"], [run.time]
+    for i, p in enumerate(scene.pulleys):
+        for what, data in (("angle", run.angle), ("speed", run.speed), ("belt_torque", run.belt_torque),
+                           ("hub_load", run.hub_load)):
+            names.append(f"{p.name}/{what}")
+            cols.append(data[:, i])
+    for j, span in enumerate(scene.span_names()):
+        names += [f"spans/{span}/tension", f"spans/{span}/slack"]
+        cols += [run.tension[:, j], run.slack[:, j].astype(float)]
+    if run.arm_angle is not None:
+        names.append("tensioner_arm/angle")
+        cols.append(run.arm_angle)
+    return names, np.column_stack(cols)
+
+
+def run_network(args) -> int:
+    import numpy as np
+
+    from ..core.errors import SceneError
+    from ..core.integrators import method_class
+    from ..core.network.model import simulate
+    from ..core.network.scene import load_network
+    from ..io.atomic import atomic_output, check_output
+
+    _refuse_unsupported(args)
+    scene = load_network(args.scene)
+    dt = scene.dt if args.dt is None else args.dt
+    duration = scene.duration if args.duration is None else args.duration
+    if not (math.isfinite(dt) and 1e-7 <= dt <= 1.0):
+        raise SceneError(f"--dt: {dt!r} s is outside [1e-07, 1] s")
+    if not (math.isfinite(duration) and 0.0 < duration <= 1.0e7):
+        raise SceneError(f"--duration: {duration!r} s is outside (0, 1e7] s")
+    if duration / dt + 1 > MAX_SAMPLES:
+        raise SceneError(f"--duration: {duration / dt:.3g} steps; a network run keeps at most {MAX_SAMPLES:,} "
+                         "samples in memory (it does not stream yet)")
+    method = args.method or scene.method
+    method_class(method)
+    if args.out is not None:
+        if args.out.suffix.lower() != ".csv":
+            raise SceneError(f"--out {args.out}: a network run writes .csv only (MCAP for networks is not built yet)")
+        check_output(args.out, args.force, "output")
+    start = time.perf_counter()
+    run = simulate(scene, duration=duration, dt=dt, method=method)
+    wall = time.perf_counter() - start
+    print(f"{scene.name}: belt network, linear tier, {method} at dt = {dt:g} s, {duration:g} s simulated "
+          f"in {wall:.2f} s ({duration / wall:.2f}x real time)")
+    print(f"{'pulley':16s} {'speed end [rad/s]':>18s} {'belt torque end [N m]':>22s} {'hub load max [N]':>17s}")
+    for i, p in enumerate(scene.pulleys):
+        print(f"{p.name:16s} {run.speed[-1, i]:18.3f} {run.belt_torque[-1, i]:22.3f} {run.hub_load[:, i].max():17.1f}")
+    print(f"{'span':30s} {'tension min [N]':>16s} {'max [N]':>9s}  slack")
+    for j, span in enumerate(scene.span_names()):
+        slack = "yes" if run.slack[:, j].any() else "no"
+        print(f"{span:30s} {run.tension[:, j].min():16.1f} {run.tension[:, j].max():9.1f}  {slack}")
+    if run.arm_angle is not None:
+        lo, hi = np.degrees(run.arm_angle.min()), np.degrees(run.arm_angle.max())
+        print(f"tensioner arm: {lo:.3f} .. {hi:.3f} deg ({hi - lo:.3f} deg swing)")
+    if args.out is not None:
+        names, table = columns(scene, run)
+        with atomic_output(args.out, args.force, mode="w") as fh:
+            fh.write(",".join(names) + "\n")
+            np.savetxt(fh, table, delimiter=",", fmt="%.17g")
+        print(f"wrote {args.out} ({len(table)} rows, {len(names)} columns)")
+    return 0
