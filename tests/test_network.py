@@ -329,3 +329,38 @@ def test_sim_runs_a_network_and_writes_its_csv_by_pulley_and_span(tmp_path, caps
     assert main(["sim", "fead_i4", "--plot", str(tmp_path / "x.png")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 2 and "MCAP for networks is not built yet" in err
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d["pulleys"][1].update(name=["x"]), "pulleys.[1].name: letters"),
+    (lambda d: d["pulleys"][1].update(side=["inner"]), "pulleys.tens.side: must be inner or backside"),
+    (lambda d: d["pulleys"][2].update(role={"a": 1}), "pulleys.alt.role: must be one of"),
+    (lambda d: d["pulleys"][2].update(centre=["0", 1]), "pulleys.alt.centre[0]: must be a number"),
+    (lambda d: d["pulleys"][2].update(radius=-0.03), "pulleys.alt.radius: must be > 0"),
+    (lambda d: d["pulleys"][2].pop("torque"), "pulleys.alt.torque: missing"),
+    (lambda d: d["pulleys"][1].update(torque=1.0), "pulleys.tens.torque: an tensioner carries no torque"),
+    (lambda d: d["pulleys"].append("x"), "pulleys.[4]: expected a mapping"),
+    (lambda d: d.pop("tensioner"), "tensioner: missing (pulley tens has role tensioner)"),
+    (lambda d: d["tensioner"].update(preload=5.0), "belt.installed_tension: give either it or tensioner.preload"),
+    (lambda d: d["belt"].update(EA="1e5"), "belt.EA: must be a number"),
+    (lambda d: d.update(method="nope"), "method:"),
+    (lambda d: d.update(engine=[4]), "engine: expected a mapping"),
+    (lambda d: d.update(pulleys={"a": 1}), "pulleys: expected a list"),
+])
+def test_bad_network_values_are_one_line_errors(change, message):
+    data = _raw_tensioned()
+    data.update(duration=0.1, dt=1e-4, initial_speed=0.0)
+    change(data)
+    with pytest.raises(SceneError) as info:
+        NetworkScene.from_mapping(data)
+    assert message in str(info.value) and "\n" not in str(info.value)
+
+
+def test_preload_gives_the_installed_tension():
+    data = _raw_tensioned()
+    data.update(duration=0.1, dt=1e-4, initial_speed=0.0)
+    base = NetworkScene.from_mapping(data)
+    del data["belt"]["installed_tension"]
+    data["tensioner"]["preload"] = base.tensioner.preload
+    again = NetworkScene.from_mapping(data)
+    assert again.belt.installed_tension == pytest.approx(300.0, rel=1e-12)

@@ -167,16 +167,17 @@ class NetworkScene:
             where = f"pulleys.{label}"
             item = _keys(where, item, keys, ("name", "centre", "radius", "inertia", "role"))
             pname = item["name"]
-            if not pname.replace("_", "").isalnum() or not pname[0].isalpha():
-                raise SceneError(f"{where}.name: letters, digits and _ only, starting with a letter")
+            if not isinstance(pname, str) or not pname.isascii() or not pname.replace("_", "").isalnum() \
+                    or not pname[0].isalpha() or len(pname) > 64:
+                raise SceneError(f"{where}.name: letters, digits and _ only (at most 64), starting with a letter, got {short(pname)}")
             if pname in names:
                 raise SceneError(f"{where}: duplicate pulley name")
             names.append(pname)
             role = item["role"]
-            if role not in ROLES:
+            if not isinstance(role, str) or role not in ROLES:
                 raise SceneError(f"{where}.role: must be one of {', '.join(ROLES)}, got {short(role)}")
             side = item.get("side", "inner")
-            if side not in SIDES:
+            if not isinstance(side, str) or side not in SIDES:
                 raise SceneError(f"{where}.side: must be inner or backside, got {short(side)}")
             torque = item.get("torque")
             if torque is not None and role not in ROLE_SIGN:
@@ -220,11 +221,11 @@ class NetworkScene:
                                   spring_rate=_number("tensioner.spring_rate", t["spring_rate"], strict=True, top=1.0e7),
                                   damping=_number("tensioner.damping", t["damping"], top=1.0e5), preload=0.0)
             per_newton = arm_preload(geo, pulleys, tensioner, 1.0)  # preload torque per N of T_0
-            if T0 is None:
-                preload = _number("tensioner.preload", t["preload"], strict=True, top=1.0e5)
-                if per_newton <= 0.0:
-                    raise SceneError(f"tensioner.pivot: the arm of {tp.name} does not tension the belt at its installed angle")
-                T0 = preload / per_newton
+            if abs(per_newton) < 1e-9:
+                raise SceneError(f"tensioner.pivot: the arm of {tp.name} does not move the belt at its installed angle "
+                                 "(it swings along the belt)")
+            if T0 is None:  # the spring's torque [N m] at the installed angle, in whichever sense tensions the belt
+                T0 = _number("tensioner.preload", t["preload"], strict=True, top=1.0e5) / abs(per_newton)
             T0 = _number("belt.installed_tension", T0, strict=True, top=1.0e6)
             object.__setattr__(tensioner, "preload", T0 * per_newton)
         elif "tensioner" in data:
