@@ -364,3 +364,31 @@ def test_preload_gives_the_installed_tension():
     data["tensioner"]["preload"] = base.tensioner.preload
     again = NetworkScene.from_mapping(data)
     assert again.belt.installed_tension == pytest.approx(300.0, rel=1e-12)
+
+
+def test_hub_loads_and_slack_flags_of_a_rectangle():
+    a, b, r, T0, m = 0.4, 0.25, 0.05, 300.0, 0.1
+    data = {"kind": "network", "duration": 0.01, "dt": 1e-4, "initial_speed": 0.0, "method": "exact",
+            "belt": {"EA": 1.0e5, "damping": 0.0, "mass_per_length": m, "installed_tension": T0},
+            "pulleys": [_pulley("p0", (0, 0), r, "driver", torque=0.0), _pulley("p1", (a, 0), r),
+                        _pulley("p2", (a, b), r), _pulley("p3", (0, b), r)]}
+    run = simulate(NetworkScene.from_mapping(data))
+    np.testing.assert_allclose(run.tension, T0, rtol=1e-12)  # nothing loads the belt: it stays at T_0
+    np.testing.assert_allclose(run.hub_load, T0 * math.sqrt(2.0), rtol=1e-12)  # two spans at right angles
+    assert not run.slack.any()
+    v = 1.01 * math.sqrt(T0 / m)  # belt speed past which the centrifugal tension m' v^2 exceeds T_0
+    run = simulate(NetworkScene.from_mapping({**data, "initial_speed": v / r}))
+    assert run.slack.all()
+    run = simulate(NetworkScene.from_mapping({**data, "initial_speed": 0.99 * v / r}))
+    assert not run.slack.any()
+
+
+def test_campbell_crossings_lie_on_both_lines():
+    from belt_drive_ros.core.network.campbell import campbell
+
+    data = campbell(NetworkModel.build(load_network("fead_i4")), points=15)
+    assert data.orders == (2.0, 4.0, 6.0)
+    assert len(data.crossings) >= 3
+    for c in data.crossings:
+        assert c.frequency == pytest.approx(c.order * c.speed / (2 * math.pi), rel=1e-12)
+        assert c.frequency == pytest.approx(np.interp(c.speed, data.speeds, data.frequencies[:, c.mode - 1]), rel=1e-9)
