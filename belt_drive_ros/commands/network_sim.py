@@ -14,7 +14,7 @@ def _refuse_unsupported(args) -> None:
 
     given = [flag for flag, value in (("--model", args.model), ("--v-eps", getattr(args, "v_eps", None)),
                                       ("--method-option", args.method_option), ("--torque-bag", args.torque_bag),
-                                      ("--plot", args.plot), ("--bag-folder", args.bag_folder),
+                                      ("--bag-folder", args.bag_folder),
                                       ("--start-time", args.start_time)) if value]
     if given:
         raise SceneError(f"{given[0]}: not available for a belt network scene yet (its linear tier runs; "
@@ -66,6 +66,10 @@ def run_network(args) -> int:
         if args.out.suffix.lower() != ".csv":
             raise SceneError(f"--out {args.out}: a network run writes .csv only (MCAP for networks is not built yet)")
         check_output(args.out, args.force, "output")
+    if args.plot is not None:
+        if args.plot.suffix.lower() != ".png":
+            raise SceneError(f"--plot {args.plot}: a PNG file (.png)")
+        check_output(args.plot, args.force, "plot")
     start = time.perf_counter()
     run = simulate(scene, duration=duration, dt=dt, method=method)
     wall = time.perf_counter() - start
@@ -87,4 +91,10 @@ def run_network(args) -> int:
             fh.write(",".join(names) + "\n")
             np.savetxt(fh, table, delimiter=",", fmt="%.17g")
         print(f"wrote {args.out} ({len(table)} rows, {len(names)} columns)")
+    if args.plot is not None:
+        from ..io.network_plot import plot_network_run
+
+        with atomic_output(args.plot, args.force, what="plot") as fh:
+            plot_network_run(scene, run, fh)
+        print(f"wrote {args.plot}")
     return 0

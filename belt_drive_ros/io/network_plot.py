@@ -36,3 +36,36 @@ def plot_campbell(data, path, title: str) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110, format="png")
     plt.close(fig)
+
+
+def plot_network_run(scene, run, path) -> None:
+    """Three panels over time: pulley speeds [rpm], span tensions [N] (slack threshold dashed), arm angle [deg]."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = 3 if run.arm_angle is not None else 2
+    fig, axes = plt.subplots(panels, 1, figsize=(9, 2.8 * panels), sharex=True)
+    for i, p in enumerate(scene.pulleys):
+        axes[0].plot(run.time, run.speed[:, i] * 30.0 / math.pi, lw=1.0, label=p.name)
+    axes[0].set_ylabel("pulley speed [rpm]")
+    axes[0].legend(fontsize=7, ncol=4, loc="lower right")
+    for j, span in enumerate(scene.span_names()):
+        axes[1].plot(run.time, run.tension[:, j], lw=1.0, label=span)
+    m = scene.belt.mass_per_length
+    if m:
+        v = run.speed[:, scene.driver] * scene.pulleys[scene.driver].radius
+        axes[1].plot(run.time, m * v * v, "k--", lw=0.8, label="slack below (m' v^2)")
+    axes[1].set_ylabel("span tension [N]")
+    axes[1].legend(fontsize=7, ncol=3, loc="upper right")
+    if run.arm_angle is not None:
+        axes[2].plot(run.time, np.degrees(run.arm_angle), "C3", lw=1.0)
+        axes[2].set_ylabel("tensioner arm [deg]")
+    axes[-1].set_xlabel("time [s]")
+    axes[0].set_title(f"{scene.name}: belt network, linear tier")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
