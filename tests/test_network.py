@@ -395,3 +395,13 @@ def test_campbell_crossings_lie_on_both_lines():
     for c in data.crossings:
         assert c.frequency == pytest.approx(c.order * c.speed / (2 * math.pi), rel=1e-12)
         assert c.frequency == pytest.approx(np.interp(c.speed, data.speeds, data.frequencies[:, c.mode - 1]), rel=1e-9)
+
+
+def test_an_unstable_step_is_refused_before_the_run():
+    from belt_drive_ros.core.errors import UnstableStepError
+
+    scene = load_network("fead_i4")
+    with pytest.raises(UnstableStepError, match=r"method rk4 at dt = 0.001 s grows the 976.6 Hz mode.*dt <= 0.00025 s"):
+        simulate(scene, duration=0.01, dt=1e-3, method="rk4")
+    run = simulate(scene, duration=0.01, dt=2.5e-4, method="rk4")  # the step it names runs, bounded
+    assert np.all(np.isfinite(run.states)) and np.max(np.abs(run.speed)) < 300.0

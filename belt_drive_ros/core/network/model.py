@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import SceneError
+from ..errors import SceneError, SimulationDivergedError, UnstableStepError
 from ..integrators import method_class
 
 
@@ -302,7 +302,10 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
     if steps < 1:
         raise SceneError(f"duration: {duration:g} s is shorter than one step of {dt:g} s")
     A, B = model.state_space()
-    integ = method_class(method or scene.method)(A, B, dt)
+    name = method or scene.method
+    cls = method_class(name)
+    check_step(cls, name, A, dt)
+    integ = cls(A, B, dt)
     P = scene.pulleys
     n, m = len(P), model.M.shape[0]
     active = [(i, p.sign, p.torque.scalar_torque()) for i, p in enumerate(P) if p.sign]
@@ -319,8 +322,36 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
     out[0] = x
     for k in range(steps):
         x = integ.step(k * dt, x, inputs)
+        if not np.all(np.isfinite(x)):
+            raise SimulationDivergedError(f"{scene.name}: the state became non-finite at t = {k * dt:.6g} s "
+                                          f"({name} at dt = {dt:g} s)")
         out[k + 1] = x
     return outputs(model, np.arange(steps + 1) * dt, out)
+
+
+def check_step(cls, name: str, A, dt: float) -> None:
+    """:class:`UnstableStepError` if the fixed-step method ``cls`` grows a mode of ``A`` at step ``dt`` [s].
+
+    The growth per step of each eigenvalue comes from the method's own one-step map
+    (``mode_growths``); a mode that decays (or is neutral) must not grow by more than 1e-9 per step.
+    Adaptive methods (no ``mode_growths``) are not checked.
+    """
+    growths = getattr(cls, "mode_growths", None)
+    if growths is None:
+        return
+    lam = np.linalg.eigvals(A)
+    lam = lam[lam.imag >= 0.0]
+    g = growths(lam, dt)
+    bad = np.flatnonzero(g > np.maximum(1.0, np.exp(lam.real * dt)) + 1e-9)
+    if bad.size:
+        worst = bad[np.argmax(np.abs(lam[bad]))]
+        fastest = float(np.max(np.abs(lam)))
+        stable = dt
+        while stable > 1e-9 and np.any(growths(lam, stable) > np.maximum(1.0, np.exp(lam.real * stable)) + 1e-9):
+            stable /= 2.0
+        raise UnstableStepError(f"method {name} at dt = {dt:g} s grows the {abs(lam[worst]) / (2 * math.pi):.4g} Hz mode "
+                                f"(h omega = {dt * abs(lam[worst]):.3g}; fastest mode {fastest / (2 * math.pi):.4g} Hz): "
+                                f"dt <= {stable:.3g} s is stable, or use exact, etd2 or etd4")
 
 
 def outputs(model: NetworkModel, time, states) -> NetworkRun:
