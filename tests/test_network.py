@@ -405,3 +405,16 @@ def test_an_unstable_step_is_refused_before_the_run():
         simulate(scene, duration=0.01, dt=1e-3, method="rk4")
     run = simulate(scene, duration=0.01, dt=2.5e-4, method="rk4")  # the step it names runs, bounded
     assert np.all(np.isfinite(run.states)) and np.max(np.abs(run.speed)) < 300.0
+
+
+def test_the_tensioner_side_flips_when_the_bsg_drives():
+    """Crank driving: the tensioner's spans are the slack ones; the BSG cranking the engine: the tight ones."""
+    for name, tight in (("fead_i4", False), ("bsg_start_network", True)):
+        scene = load_network(name)
+        model = NetworkModel.build(scene)
+        q, T, _ = model.static(model.operating_loads(scene.operating_speed))
+        t = scene.index(scene.tensioner.pulley)
+        at_arm = [T[t - 1], T[t]]  # arriving at and leaving the tensioner
+        others = np.delete(T, [(t - 1) % len(T), t])
+        assert (min(at_arm) > max(others)) if tight else (max(at_arm) < min(others))
+        assert (q[-1] < 0) if tight else (q[-1] > 0)  # the arm pushed back / let out

@@ -19,7 +19,7 @@ from .model import NetworkModel, modes
 
 @dataclass(frozen=True)
 class Crossing:
-    """A mode (1-based, lowest first) meeting an engine order at driver speed [rad/s] and frequency [Hz]."""
+    """A mode (1-based, lowest first) meeting an engine order at crank speed [rad/s] and frequency [Hz]."""
 
     mode: int
     order: float
@@ -29,7 +29,8 @@ class Crossing:
 
 @dataclass(frozen=True)
 class Campbell:
-    """speeds (S,) [rad/s]; frequencies (S, n_modes) [Hz] (damped, NaN where a mode is overdamped); orders; crossings."""
+    """speeds (S,) [rad/s] of the engine's pulley (the crank); frequencies (S, n_modes) [Hz]: the damped frequency of
+    the j-th lowest oscillating mode at each speed (NaN where fewer modes oscillate); orders; crossings."""
 
     speeds: np.ndarray
     frequencies: np.ndarray
@@ -38,11 +39,14 @@ class Campbell:
 
 
 def campbell(model: NetworkModel, points: int = 60, harmonics: int = 3) -> Campbell:
-    """Frequencies over the scene's ``engine.speed_range`` and their crossings with the firing orders
-    ``k * firing_order``, k = 1 .. ``harmonics``."""
-    engine = model.scene.engine
+    """Frequencies over the scene's ``engine.speed_range`` (of the engine's pulley; each linearised at the
+    driver's speed with the belt unstretched) and their crossings with the firing orders ``k * firing_order``
+    (per crank revolution), k = 1 .. ``harmonics``."""
+    scene = model.scene
+    engine = scene.engine
     speeds = np.linspace(engine.speed_range[0], engine.speed_range[1], points)
-    per = [[md.frequency for md in modes(model, w)] for w in speeds]
+    to_driver = scene.pulleys[scene.index(engine.pulley)].radius / scene.pulleys[scene.driver].radius
+    per = [[md.frequency for md in modes(model, w * to_driver)] for w in speeds]
     count = max(len(p) for p in per)
     F = np.full((points, count), np.nan)
     for i, p in enumerate(per):

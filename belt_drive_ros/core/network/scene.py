@@ -107,12 +107,13 @@ class Tensioner:
 
 @dataclass(frozen=True)
 class Engine:
-    """The engine turning the driver: cylinders, strokes per cycle, speed range [rad/s] of the driver (Campbell axis).
-    Firing order (excitations per revolution) = cylinders * 2 / strokes."""
+    """The engine: the pulley on its crankshaft (default: the driver), cylinders, strokes per cycle, and the
+    crank's speed range [rad/s] (the Campbell axis). Firing order (pulses per crank revolution) = 2 cylinders / strokes."""
 
     cylinders: int = 4
     strokes: int = 4
     speed_range: tuple[float, float] = (70.0, 630.0)
+    pulley: str = ""
 
     @property
     def firing_order(self) -> float:
@@ -233,7 +234,10 @@ class NetworkScene:
         if T0 is None:
             raise SceneError("belt.installed_tension: missing")
         T0 = _number("belt.installed_tension", T0, strict=True, top=1.0e6)
-        e = _keys("engine", data.get("engine", {}), ("cylinders", "strokes", "speed_range"), ())
+        e = _keys("engine", data.get("engine", {}), ("pulley", "cylinders", "strokes", "speed_range"), ())
+        crank = e.get("pulley", names[roles.index("driver")])
+        if not isinstance(crank, str) or crank not in names:
+            raise SceneError(f"engine.pulley: must name a pulley ({', '.join(names)}), got {short(crank)}")
         rng = e.get("speed_range", [70.0, 630.0])
         if not isinstance(rng, (list, tuple)) or len(rng) != 2:
             raise SceneError(f"engine.speed_range: expected [low, high] in rad/s, got {short(rng)}")
@@ -258,7 +262,7 @@ class NetworkScene:
         return cls(
             name=str(data.get("name", name)), description=str(data.get("description", "")).strip(),
             pulleys=tuple(pulleys), belt=Belt(EA, damping, mass, T0), tensioner=tensioner,
-            engine=Engine(cyl, strokes, (lo, hi)), initial_speed=speed,
+            engine=Engine(cyl, strokes, (lo, hi), crank), initial_speed=speed,
             operating_speed=_number("operating_speed", data.get("operating_speed", speed), low=-1.0e4, top=1.0e4),
             duration=duration, dt=dt, method=method, geometry=geo,
         )
