@@ -418,3 +418,22 @@ def test_the_tensioner_side_flips_when_the_bsg_drives():
         others = np.delete(T, [(t - 1) % len(T), t])
         assert (min(at_arm) > max(others)) if tight else (max(at_arm) < min(others))
         assert (q[-1] < 0) if tight else (q[-1] > 0)  # the arm pushed back / let out
+
+
+def test_a_damped_run_under_balanced_constant_torques_settles_on_the_static_tensions():
+    data = _raw_tensioned()
+    r = {p["name"]: p["radius"] for p in data["pulleys"]}
+    drive = r["crank"] * (2.0 / r["alt"] + 1.0 / r["ac"])  # balances the loads: sum Q_i / r_i = 0
+    data["pulleys"][0]["torque"] = {"type": "constant", "value": drive}
+    data["belt"]["damping"] = 2.0
+    data["tensioner"]["damping"] = 0.5
+    data.update(duration=1.0, dt=1e-4, initial_speed=50.0, method="etd2")
+    scene = NetworkScene.from_mapping(data)
+    run = simulate(scene)
+    model = NetworkModel.build(scene)
+    q, T, _ = model.static([drive, 0.0, -2.0, -1.0], iterations=1)  # the run's linearisation: k_geo at T_0
+    np.testing.assert_allclose(run.tension[-1], T, rtol=1e-6)
+    assert run.arm_angle[-1] - _arm_angle(scene) == pytest.approx(q[-1], rel=1e-5)
+    _, T_op, _ = model.static([drive, 0.0, -2.0, -1.0])  # k_geo at the static tensions: a second-order shift
+    assert 0.0 < np.max(np.abs(T_op - T)) < 2e-3 * np.max(T)  # 0.52 N of 368 N measured
+    np.testing.assert_allclose(run.speed[-1] * [p.radius for p in scene.pulleys], 50.0 * 0.08, rtol=1e-6)

@@ -179,7 +179,9 @@ class NetworkModel:
         by the torque that balances the others: ``sum_i Q_i / r_i = 0``).
 
         Returns ``(q, tensions, Q)``: the coordinates (up to the rigid turning, removed: least squares), span
-        tensions [N] and the torques used. The arm's geometric stiffness is iterated to the static tensions.
+        tensions [N] and the torques used. The arm's geometric stiffness is iterated to the static tensions
+        (``iterations = 1``: kept at the installed tension, the equilibrium of a run's equations, which are
+        linearised about the installed state; the two differ by ``(T_j - T_0) dg_j/dtheta_a theta_a``, second order).
         """
         P = self.scene.pulleys
         Q = np.asarray(loads, dtype=float).copy()
