@@ -28,7 +28,7 @@ def columns(scene, run):
     names, cols = ["time"], [run.time]
     for i, p in enumerate(scene.pulleys):
         for what, data in (("angle", run.angle), ("speed", run.speed), ("belt_torque", run.belt_torque),
-                           ("hub_load", run.hub_load)):
+                           ("hub_load", run.hub_load), ("friction_use", run.friction_use)):
             names.append(f"{p.name}/{what}")
             cols.append(data[:, i])
     for j, span in enumerate(scene.span_names()):
@@ -75,9 +75,11 @@ def run_network(args) -> int:
     wall = time.perf_counter() - start
     print(f"{scene.name}: belt network, linear tier, {method} at dt = {dt:g} s, {duration:g} s simulated "
           f"in {wall:.2f} s ({duration / wall:.2f}x real time)")
-    print(f"{'pulley':16s} {'speed end [rad/s]':>18s} {'belt torque end [N m]':>22s} {'hub load max [N]':>17s}")
+    print(f"{'pulley':16s} {'speed end [rad/s]':>18s} {'belt torque end [N m]':>22s} {'hub load max [N]':>17s} "
+          f"{'friction use max':>17s}")
     for i, p in enumerate(scene.pulleys):
-        print(f"{p.name:16s} {run.speed[-1, i]:18.3f} {run.belt_torque[-1, i]:22.3f} {run.hub_load[:, i].max():17.1f}")
+        print(f"{p.name:16s} {run.speed[-1, i]:18.3f} {run.belt_torque[-1, i]:22.3f} {run.hub_load[:, i].max():17.1f} "
+              f"{run.friction_use[:, i].max():17.3f}")
     print(f"{'span':30s} {'tension min [N]':>16s} {'max [N]':>9s}  slack")
     for j, span in enumerate(scene.span_names()):
         slack = "yes" if run.slack[:, j].any() else "no"
@@ -85,6 +87,10 @@ def run_network(args) -> int:
     if run.arm_angle is not None:
         lo, hi = np.degrees(run.arm_angle.min()), np.degrees(run.arm_angle.max())
         print(f"tensioner arm: {lo:.3f} .. {hi:.3f} deg ({hi - lo:.3f} deg swing)")
+    onset = run.capstan_onset(scene)
+    if onset:
+        print(f"capstan limit: {onset[0]} reaches it first at t = {onset[1]:.6g} s (friction use {onset[2]:.3g}); "
+              "the slipping tier is not built for networks: past that time this run is not valid")
     if args.out is not None:
         names, table = columns(scene, run)
         with atomic_output(args.out, args.force, mode="w") as fh:

@@ -287,6 +287,15 @@ class NetworkRun:
     slack: np.ndarray
     arm_angle: np.ndarray | None
     states: np.ndarray
+    friction_use: np.ndarray | None = None
+
+    def capstan_onset(self, scene):
+        """``(pulley name, time [s], friction use)`` of the first sample where a pulley's friction use reaches 1, or None."""
+        over = np.argwhere(self.friction_use >= 1.0)
+        if not over.size:
+            return None
+        k, i = over[0]
+        return scene.pulleys[i].name, float(self.time[k]), float(self.friction_use[k, i])
 
 
 def simulate(scene, duration: float | None = None, dt: float | None = None, method: str | None = None,
@@ -356,6 +365,23 @@ def check_step(cls, name: str, A, dt: float) -> None:
                                 f"dt <= {stable:.3g} s is stable, or use exact, etd2 or etd4")
 
 
+def friction_use(scene, tensions, belt_speed) -> np.ndarray:
+    """Per pulley ``|T_i - T_{i-1}| / ((T_i + T_{i-1} - 2 m' v^2) tanh(mu_i beta_i / 2))`` (inf past lift-off).
+
+    The capstan law at pulley i, ``(T_tight - m' v^2) = (T_slack - m' v^2) e^(mu beta)``, lets friction pass
+    at most that tension difference; a use of 1 is where the pulley would start to slip (the slipping tier
+    that would take over there is not built). ``tensions`` (..., n) [N], ``belt_speed`` (...) [m/s].
+    """
+    T = np.asarray(tensions, dtype=float)
+    T_in = np.roll(T, 1, axis=-1)
+    v = np.asarray(belt_speed, dtype=float)[..., None]
+    factor = np.tanh(0.5 * np.array([p.mu for p in scene.pulleys]) * scene.geometry.wraps)
+    limit = np.maximum(T + T_in - 2.0 * scene.belt.mass_per_length * v * v, 0.0) * factor
+    diff = np.abs(T - T_in)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(limit > 0.0, diff / np.where(limit > 0.0, limit, 1.0), np.where(diff > 0.0, np.inf, 0.0))
+
+
 def outputs(model: NetworkModel, time, states) -> NetworkRun:
     """Per pulley and per span outputs from states ``[q, q']`` (N, 2m)."""
     scene, m, n = model.scene, model.M.shape[0], len(model.scene.pulleys)
@@ -372,4 +398,4 @@ def outputs(model: NetworkModel, time, states) -> NetworkRun:
     arm = None
     if model.arm >= 0:
         arm = q[:, model.arm] + _arm(scene.geometry, scene.pulleys, scene.tensioner)[3]
-    return NetworkRun(time, q[:, :n], qd[:, :n], torque, hub, T, slack, arm, states)
+    return NetworkRun(time, q[:, :n], qd[:, :n], torque, hub, T, slack, arm, states, friction_use(scene, T, v))
