@@ -35,8 +35,8 @@ from ..integrators import method_class
 
 
 # ---------------------------------------------------------------------- tensioner arm geometry
-def _arm(geo, pulleys, tensioner):
-    """(tensioner index, pivot, arm length, installed angle)."""
+def arm(pulleys, tensioner) -> tuple[int, np.ndarray, float, float]:
+    """``(index of the tensioner pulley, pivot [m], arm length L_a [m], installed arm angle theta_0 [rad])``."""
     t = [p.name for p in pulleys].index(tensioner.pulley)
     c = np.asarray(pulleys[t].centre, dtype=float)
     p = np.asarray(tensioner.pivot, dtype=float)
@@ -52,7 +52,7 @@ def arm_terms(geo, pulleys, tensioner) -> tuple[np.ndarray, np.ndarray]:
     ``psi = atan2(d) - asin(dr / D)``, ``d`` the span's centre difference).
     """
     n = len(pulleys)
-    t, _, La, th = _arm(geo, pulleys, tensioner)
+    t, _, La, th = arm(pulleys, tensioner)
     c1 = La * np.array([-math.sin(th), math.cos(th)])
     c2 = -La * np.array([math.cos(th), math.sin(th)])
     g, dg = np.zeros(n), np.zeros(n)
@@ -248,7 +248,8 @@ def modes(model: NetworkModel, driver_speed: float | None = None) -> list[Mode]:
     A, _ = model.state_space(K, C)
     lam, vec = np.linalg.eig(A)
     m = model.M.shape[0]
-    scale = np.array([p.radius for p in model.scene.pulleys] + ([_arm_length(model.scene)] if model.arm >= 0 else []))
+    scene = model.scene
+    scale = np.array([p.radius for p in scene.pulleys] + ([arm(scene.pulleys, scene.tensioner)[2]] if model.arm >= 0 else []))
     out = []
     for i in np.argsort(np.abs(lam)):
         if lam[i].imag <= 1e-9 * max(1.0, abs(lam[i])):
@@ -257,11 +258,6 @@ def modes(model: NetworkModel, driver_speed: float | None = None) -> list[Mode]:
         v = v / v[np.argmax(np.abs(v))]
         out.append(Mode(lam[i].imag / (2 * math.pi), abs(lam[i]) / (2 * math.pi), -lam[i].real / abs(lam[i]), v.real))
     return out
-
-
-def _arm_length(scene) -> float:
-    c = scene.pulleys[scene.index(scene.tensioner.pulley)].centre
-    return math.hypot(c[0] - scene.tensioner.pivot[0], c[1] - scene.tensioner.pivot[1])
 
 
 def undamped_frequencies(model: NetworkModel, tensions=None) -> np.ndarray:
@@ -395,7 +391,7 @@ def outputs(model: NetworkModel, time, states) -> NetworkRun:
     hub = np.hypot(T * e[:, 0] - T_in * e_in[:, 0], T * e[:, 1] - T_in * e_in[:, 1])
     v = qd[:, scene.driver] * r[scene.driver]
     slack = T < (scene.belt.mass_per_length * v * v)[:, None]
-    arm = None
+    angle = None
     if model.arm >= 0:
-        arm = q[:, model.arm] + _arm(scene.geometry, scene.pulleys, scene.tensioner)[3]
-    return NetworkRun(time, q[:, :n], qd[:, :n], torque, hub, T, slack, arm, states, friction_use(scene, T, v))
+        angle = q[:, model.arm] + arm(scene.pulleys, scene.tensioner)[3]
+    return NetworkRun(time, q[:, :n], qd[:, :n], torque, hub, T, slack, angle, states, friction_use(scene, T, v))

@@ -281,10 +281,11 @@ class NetworkScene:
             lines.append(f"{s:28s} {g.lengths[j]:10.4f} {self.belt.EA / g.lengths[j]:15.4g}")
         lines.append(f"belt length {g.belt_length:.4f} m; installed tension {self.belt.installed_tension:.4g} N")
         if self.tensioner:
+            from .model import arm as arm_of
+
             t = self.tensioner
-            c = self.pulleys[self.index(t.pulley)].centre
-            arm = math.hypot(c[0] - t.pivot[0], c[1] - t.pivot[1])
-            ang = math.degrees(math.atan2(c[1] - t.pivot[1], c[0] - t.pivot[0]))
+            _, _, arm, ang = arm_of(self.pulleys, t)
+            ang = math.degrees(ang)
             lines.append(f"tensioner arm {t.pulley}: pivot ({t.pivot[0]:.4f}, {t.pivot[1]:.4f}) m, length {arm:.4f} m, "
                          f"installed at {ang:.2f} deg, spring preload {t.preload:.4g} N m ({t.spring_rate:.4g} N m/rad)")
         return "\n".join(lines) + "\n"
