@@ -318,10 +318,11 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
     active = [(i, p.sign, p.torque.scalar_torque()) for i, p in enumerate(P) if p.sign]
 
     def inputs(t, x):
-        u = np.zeros(n)
+        xs = x.tolist()
+        u = [0.0] * n
         for i, s, f in active:
-            u[i] = s * f(t, float(x[i]), float(x[m + i]))
-        return u
+            u[i] = s * f(t, xs[i], xs[m + i])
+        return np.array(u)
 
     x = np.zeros(2 * m)
     x[m : m + n] = model.speeds_at(scene.initial_speed)
@@ -329,7 +330,7 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
     out[0] = x
     for k in range(steps):
         x = integ.step(k * dt, x, inputs)
-        if not np.all(np.isfinite(x)):
+        if not math.isfinite(x.sum()):  # a NaN or an overflow anywhere makes the sum non-finite
             raise SimulationDivergedError(f"{scene.name}: the state became non-finite at t = {k * dt:.6g} s "
                                           f"({name} at dt = {dt:g} s)")
         out[k + 1] = x
