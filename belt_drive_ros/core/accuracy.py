@@ -52,6 +52,7 @@ import scipy.linalg
 
 from . import stage_scheme as _scheme
 from .errors import IntegratorError, UnstableStepError
+from .forced_response import harmonic_error, profile_harmonics
 from .integrators import FixedStepIntegrator, make_integrator, method_class
 from .model import LINEAR_OUTPUTS, RigidBeltModel
 
@@ -119,6 +120,7 @@ class AccuracyReport:
     forcing_error: float = math.nan
     mode: str = ""
     slip_run_error: float = math.nan
+    harmonic_error: float = math.nan
 
     @property
     def ok(self) -> bool:
@@ -132,6 +134,7 @@ class AccuracyReport:
             f"{self.method} at dt={self.dt:.4g} s on the closed loop{where}: {state} (estimated error {self.error:.2g} "
             f"of the peak, tolerance {self.tolerance:.2g}; growth/step {self.growth:.6g} vs exact "
             f"{self.exact_growth:.6g}; belt mode and slopes {self.linear_error:.2g}, forcing {self.forcing_error:.2g}; "
+            + (f"harmonics over the run {self.harmonic_error:.2g}; " if not math.isnan(self.harmonic_error) else "")
             + (f"slipping run {self.slip_run_error:.2g}; " if not math.isnan(self.slip_run_error) else "")
             + f"h*omega={self.h_omega:.4g}; torque slopes {self.slopes[0]:.3g}, "
             f"{self.slopes[1]:.3g} N m s/rad)"
@@ -177,6 +180,9 @@ class Probes:
     window : length [s] of a forcing window (:data:`WINDOW_STEPS` steps of the step probed with; a smaller
         step keeps it, up to :data:`MAX_WINDOW_STEPS` of its steps).
     input_weight : what the unit step response's error is scaled by for this scene (:func:`input_weight`).
+    harmonics : ``(input, frequency [Hz], amplitude [N m])`` the torques excite
+        (:func:`~belt_drive_ros.core.forced_response.profile_harmonics`).
+    peaks : estimated peaks of drive speed [rad/s] and quasi-static belt torque [N m] at the probes.
     """
 
     gains: tuple
@@ -185,6 +191,8 @@ class Probes:
     duration: float
     window: float
     input_weight: float = 1.0
+    harmonics: tuple = ()
+    peaks: tuple = (0.0, 0.0)
 
     def span(self, dt: float) -> float:
         """Window length [s] for step ``dt``: :attr:`window`, at most :data:`MAX_WINDOW_STEPS` steps."""
@@ -261,9 +269,23 @@ def probe_scene(plant, duration: float, x0, dt: float, stated_inputs: bool = Tru
         if all(abs(states[t][1] - states[k][1]) > SPEED_SPREAD * scale for k in kept):
             kept.append(t)
     windows = [(t, *states[t], None) for t in kept[1:]] + [(t, *states[t], b) for b, t in early.items()]
-    weight = 1.0 if not stated_inputs else input_weight(plant, x0, dt, [(float(t), *states[float(t)]) for t in probe_times],
-                          [(b, *states[t]) for b, t in early.items()])  # fmt: skip
-    return Probes(tuple(gains), x0, tuple(windows), float(duration), WINDOW_STEPS * dt, weight)
+    at = [(float(t), *states[float(t)]) for t in probe_times]
+    weight = 1.0 if not stated_inputs else input_weight(plant, x0, dt, at, [(b, *states[t]) for b, t in early.items()])
+    harmonics = tuple(profile_harmonics(plant, at))
+    return Probes(tuple(gains), x0, tuple(windows), float(duration), WINDOW_STEPS * dt, weight, harmonics,
+                  _peaks(plant, at))  # fmt: skip
+
+
+def _peaks(plant, at) -> tuple[float, float]:
+    """(max |omega_M| [rad/s], max |quasi-static belt torque| [N m]) over the probes ``(t, phi_M, omega_M)``."""
+    p = plant.model.params
+    rigid, i = RigidBeltModel(p), p.ratio
+    w, tb = 0.0, 0.0
+    with np.errstate(all="ignore"):
+        for t, phi, omega in at:
+            u = np.array([plant.scalar_drive(t, phi, omega), plant.scalar_load(t, i * phi, i * omega)])
+            w, tb = max(w, abs(omega)), max(tb, abs(float(rigid.belt_torque(np.array([phi, omega]), u))))
+    return (w if math.isfinite(w) else 0.0, tb if math.isfinite(tb) else 0.0)
 
 
 def input_weight(plant, x0, dt: float, probes, jumps) -> float:
@@ -542,17 +564,21 @@ def check_accuracy(
     if probes is None:
         probes = probe_scene(plant, duration, x0, dt, stated_inputs)
     integrator = stepper.integrator if stepper is not None else make_integrator(method, A, B, dt, **dict(method_options or {}))
-    worst = None
+    worst, harmonic = None, 0.0
     for K, slopes in probes.gains:
         stable, error, growth, exact_growth, h_omega = linear_verdict(integrator, A, B, rows, K, n_steps)
         error *= probes.input_weight  # the scene's own steps onto the belt, not a unit step (input_weight)
         report = AccuracyReport(cls.name, dt, stable, error <= tolerance, error, tolerance, growth, exact_growth, h_omega, slopes, linear_error=error)
         if worst is None or (not report.stable and worst.stable) or (report.stable == worst.stable and report.error > worst.error):
             worst = report
+        if stable:  # periodic torques over the whole run on this closed loop (forced_response)
+            harmonic = max(harmonic, harmonic_error(integrator, A, B, rows, K, n_steps, probes.harmonics,
+                                                    probes.peaks[: rows.shape[0]]))  # fmt: skip
     if worst.stable:
         forcing = forcing_error(plant, method, dt, probes, method_options, stepper)
-        error = max(worst.error, forcing)
-        worst = AccuracyReport(**{**worst.__dict__, "error": error, "accurate": error <= tolerance, "forcing_error": forcing})
+        error = max(worst.error, forcing, harmonic)
+        worst = AccuracyReport(**{**worst.__dict__, "error": error, "accurate": error <= tolerance, "forcing_error": forcing,
+                                  "harmonic_error": harmonic})  # fmt: skip
     if suggest and not worst.ok:
         found = _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, range(1, MAX_HALVINGS + 1), probes)
         alternative = None
