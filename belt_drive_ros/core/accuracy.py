@@ -597,10 +597,15 @@ def _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, expo
     """Largest step dt / 2^j (j in ``exponents``, increasing) at which ``method`` is stable and accurate, or None.
 
     Each candidate is checked with ``suggest=False``: the search never searches again. The windows of the
-    forcing check start where ``probes`` says (their length follows the candidate step).
+    forcing check start where ``probes`` says (their length follows the candidate step). A candidate the
+    stability guard (free belt) refuses is skipped: a step named is accepted by both guards.
     """
+    from .stability import check_step
+
     for j in exponents:
         h = dt / 2.0**j
+        if not check_step(plant.model.A, plant.model.B, method, h).stable:  # the stability guard's view too
+            continue
         report = check_accuracy(plant, method, h, duration, x0, tolerance, method_options, suggest=False, probes=probes)
         if report.stable and report.error <= SUGGEST_MARGIN * tolerance:
             return h

@@ -152,3 +152,44 @@ def resolve(scene, kind: str | None = None):
             kind = scene.model
     choice = choose_for_scene(scene, kind)
     return scene.with_overrides(method=choice.method, dt=choice.dt), choice
+
+
+def good_step_error(scene, kind: str, error):
+    """The stability guard's refusal ``error`` for ``scene`` on ``kind``, naming a step both guards accept.
+
+    The stability guard sees the free belt only; the step it would name
+    (0.9 of its boundary) can be far from accurate on the closed loop. The
+    accuracy guard's search (halvings of the step, then another method,
+    :func:`~belt_drive_ros.core.accuracy.check_accuracy`) names one that is
+    stable for both and within a quarter of the tolerance. Returns the new
+    error (the original when that search names nothing).
+    """
+    from .errors import UnstableStepError
+    from .model import make_model
+    from .stepper import Plant
+
+    report = getattr(error, "stability", None)
+    if report is None:
+        return error
+    p = scene.params
+    base = "rigid" if kind == "rigid" else "flexible"
+    x0 = scene.initial_state.vector(base, p.ratio)
+    if kind == "slipping":
+        rated = check_slipping(p, scene.drive, scene.load, scene.method, scene.dt, scene.duration, x0, scene.tolerance,
+                               scene.method_options)  # fmt: skip
+    else:
+        plant = Plant(make_model(base, p), scene.drive, scene.load)
+        rated = check_accuracy(plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance, scene.method_options)
+    if rated is None or (rated.suggestion is None and rated.alternative is None):
+        return error
+    where = f"stable and accurate to {scene.tolerance:.2g} on this scene's closed loop (both guards)"
+    if rated.suggestion is not None:
+        fix = f"dt = {rated.suggestion:.3g} s is {where}"
+        if rated.alternative is not None:
+            fix += f"; so is {rated.alternative[0]} at dt = {rated.alternative[1]:.3g} s"
+    else:
+        fix = f"no step of {rated.method} is accurate down to {scene.dt / 2.0**16:.2g} s; {rated.alternative[0]} at dt = " \
+              f"{rated.alternative[1]:.3g} s is {where}"
+    fresh = UnstableStepError(f"{report.describe()}; {fix}")
+    fresh.stability = report
+    return fresh

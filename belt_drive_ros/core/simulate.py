@@ -25,10 +25,10 @@ import numpy as np
 from .accuracy import (
     AccuracyReport, probe_scene, require_accurate, require_accurate_slipping, slip_run_error, with_slip_run_error,
 )  # fmt: skip
-from .errors import SimulationDivergedError
+from .errors import SimulationDivergedError, UnstableStepError
 from .fidelity import ModelChoice, choose_model, limit_exceedance
 from .integrators import method_class
-from .method_choice import MethodChoice, resolve as resolve_method
+from .method_choice import MethodChoice, good_step_error, resolve as resolve_method
 from .model import OUTPUT_UNITS, make_model
 from .regularised import MODEL_NAME as REGULARISED, RegularisedSimulator
 from .slip import SLIP
@@ -207,7 +207,10 @@ def simulate(
     scene = scene.with_overrides(model=model, method=method, dt=dt, duration=duration)
     linear = choose_model(scene, check_slip=False) if scene.model == "auto" else None
     scene, method_choice = resolve_method(scene, linear.model if linear is not None else None)
-    result = _simulate(scene, linear, progress, check_stability, vectorize)
+    try:
+        result = _simulate(scene, linear, progress, check_stability, vectorize)
+    except UnstableStepError as exc:  # the stability guard's refusal names a step the accuracy guard accepts too
+        raise good_step_error(scene, linear.model if linear is not None else scene.model, exc) from None
     if method_choice is None:
         return result
     report = result.accuracy
