@@ -52,14 +52,14 @@ import scipy.linalg
 
 from . import stage_scheme as _scheme
 from .errors import IntegratorError, UnstableStepError
-from .forced_response import harmonic_error, profile_harmonics
+from .forced_response import ORBIT_SAMPLES, harmonic_error, orbit_error, profile_harmonics
 from .integrators import FixedStepIntegrator, make_integrator, method_class
 from .model import LINEAR_OUTPUTS, RigidBeltModel
 
 #: default relative tolerance of the guard (speed and belt torque, relative to peak)
 ACCURACY_TOLERANCE = 1e-4
 #: step-response samples compared (beyond them the horizon is sampled in strides, see step_response_error)
-MAX_STEPS = 1200
+MAX_STEPS = ORBIT_SAMPLES
 #: times along the scene at which the torques' slopes are probed
 N_PROBES = 5
 #: steps of the method in each forcing window (run at dt and dt / 2, Richardson)
@@ -379,22 +379,6 @@ def _spectral_radius(M: np.ndarray) -> float:
     return float(np.max(np.abs(mu)))
 
 
-def _orbits(P: np.ndarray, X0: np.ndarray, count: int) -> np.ndarray:
-    """``[P X0, P^2 X0, ..., P^count X0]`` for a stack of maps P (b, m, m): (b, m, count * c), by doubling.
-
-    ``log2(count)`` batched products instead of ``count`` (the orbit of
-    length 2 l is the one of length l followed by ``P^l`` times it); sample
-    k's columns are ``k c .. (k + 1) c - 1``.
-    """
-    c = X0.shape[-1]
-    S = np.matmul(P, X0)
-    Pl = P
-    while S.shape[2] < count * c:
-        S = np.concatenate([S, np.matmul(Pl, S)], axis=2)
-        Pl = np.matmul(Pl, Pl)
-    return S[:, :, : count * c]
-
-
 def step_response_error(M, G, E, F, rows: np.ndarray, n_steps: int) -> float:
     """Max over unit inputs and output rows of max_k |y_k - y*_k| / max_k |y*_k|, k = 1 .. ``n_steps``.
 
@@ -403,26 +387,14 @@ def step_response_error(M, G, E, F, rows: np.ndarray, n_steps: int) -> float:
     first :data:`MAX_STEPS` / 2 steps are taken one by one; the rest, when
     there are more, in strides of ``s`` steps with the s-th powers of the
     augmented maps (exact, only samples between strides are skipped). Both
-    recurrences are evaluated at once by doubling (:func:`_orbits`).
+    recurrences are evaluated at once by doubling (:func:`~belt_drive_ros.core.forced_response.orbit_error`).
     """
     n, m = G.shape
     Ma = np.block([[M, G], [np.zeros((m, n)), np.eye(m)]])
     Ea = np.block([[E, F], [np.zeros((m, n)), np.eye(m)]])
-    P = np.stack([Ma, Ea])
-    X0 = np.broadcast_to(np.vstack([np.zeros((n, m)), np.eye(m)]), (2, n + m, m))
-    head = min(n_steps, MAX_STEPS // 2)
-    stride = max(1, math.ceil((n_steps - head) / (MAX_STEPS // 2)))
-    with np.errstate(all="ignore"):
-        orbit = _orbits(P, X0, head)
-        if n_steps > head and (n_steps - head) // stride > 0:
-            Ps = np.stack([np.linalg.matrix_power(Ma, stride), np.linalg.matrix_power(Ea, stride)])
-            orbit = np.concatenate([orbit, _orbits(Ps, orbit[:, :, -m:], (n_steps - head) // stride)], axis=2)
-        if not np.all(np.isfinite(orbit)):
-            return math.inf
-        y = np.matmul(rows, orbit[:, :n])  # (method/exact, row, samples x inputs)
-        y = y.reshape(2, rows.shape[0], -1, m)
-        err = np.max(np.abs(y[0] - y[1]), axis=1)
-        peak = np.max(np.abs(y[1]), axis=1)
+    err, peak = orbit_error(Ma, Ea, n, rows, n_steps)
+    if not np.all(np.isfinite(err)):
+        return math.inf
     # a unit input that does not move an output at all (peak 0) carries no error either
     return float(np.max(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0)))
 

@@ -54,8 +54,8 @@ FREQUENCY_MERGE = 0.02
 AMPLITUDE_SAMPLES = 32
 #: a profile repeats over the next period within this fraction of its range: periodic (else not a harmonic)
 PERIODIC_TOLERANCE = 0.05
-#: frequency response samples compared (one by one up to half; beyond, in strides: the envelope is smooth)
-MAX_STEPS = 1200
+#: samples of a response compared over the run (one by one up to half; beyond, in strides)
+ORBIT_SAMPLES = 1200
 
 
 def stage_gains(integrator, K: np.ndarray) -> tuple[np.ndarray, list]:
@@ -90,8 +90,13 @@ def stage_gains(integrator, K: np.ndarray) -> tuple[np.ndarray, list]:
     return M, gains
 
 
-def _orbits(P: np.ndarray, X0: np.ndarray, count: int) -> np.ndarray:
-    """``[P X0, ..., P^count X0]`` by doubling (complex-safe copy of the step response's)."""
+def orbits(P: np.ndarray, X0: np.ndarray, count: int) -> np.ndarray:
+    """``[P X0, P^2 X0, ..., P^count X0]`` for a stack of maps P (b, m, m): (b, m, count * c), by doubling.
+
+    ``log2(count)`` batched products instead of ``count`` (the orbit of
+    length 2 l is the one of length l followed by ``P^l`` times it); sample
+    k's columns are ``k c .. (k + 1) c - 1``. Real or complex.
+    """
     c = X0.shape[-1]
     S = np.matmul(P, X0)
     Pl = P
@@ -99,6 +104,33 @@ def _orbits(P: np.ndarray, X0: np.ndarray, count: int) -> np.ndarray:
         S = np.concatenate([S, np.matmul(Pl, S)], axis=2)
         Pl = np.matmul(Pl, Pl)
     return S[:, :, : count * c]
+
+
+def orbit_error(Ma: np.ndarray, Ea: np.ndarray, n: int, rows: np.ndarray, n_steps: int):
+    """(err, peak), each (rows, inputs): the method's augmented map ``Ma`` against the exact ``Ea`` from rest.
+
+    Both are ``[[M, G], [0, Z]]`` on ``[x; v]`` (``n`` states, ``m`` inputs
+    ``v`` that start at 1, one per column), stepped ``n_steps`` times:
+    ``err = max_k |C (x_k - x*_k)|``, ``peak = max_k |C x*_k|`` for each row
+    ``C`` of ``rows``. The first :data:`ORBIT_SAMPLES` / 2 steps one by one,
+    the rest in strides of ``s`` steps with the s-th powers of the maps
+    (exact; only samples between strides are skipped). Non-finite: err inf.
+    """
+    m = Ma.shape[0] - n
+    P = np.stack([Ma, Ea])
+    X0 = np.broadcast_to(np.vstack([np.zeros((n, m)), np.eye(m)]).astype(Ma.dtype), (2, n + m, m))
+    head = min(n_steps, ORBIT_SAMPLES // 2)
+    stride = max(1, math.ceil((n_steps - head) / (ORBIT_SAMPLES // 2)))
+    with np.errstate(all="ignore"):
+        orbit = orbits(P, X0, head)
+        if n_steps > head and (n_steps - head) // stride > 0:
+            Ps = np.stack([np.linalg.matrix_power(Ma, stride), np.linalg.matrix_power(Ea, stride)])
+            orbit = np.concatenate([orbit, orbits(Ps, orbit[:, :, -m:], (n_steps - head) // stride)], axis=2)
+        if not np.all(np.isfinite(orbit)):
+            inf = np.full((rows.shape[0], m), np.inf)
+            return inf, inf
+        y = np.matmul(rows, orbit[:, :n]).reshape(2, rows.shape[0], -1, m)  # (method/exact, row, samples, inputs)
+        return np.max(np.abs(y[0] - y[1]), axis=1), np.max(np.abs(y[1]), axis=1)
 
 
 def harmonic_response_error(integrator, A, B, rows, K, n_steps: int, omega: float, stage=None) -> tuple[np.ndarray, np.ndarray]:
@@ -116,24 +148,10 @@ def harmonic_response_error(integrator, A, B, rows, K, n_steps: int, omega: floa
     aug[:n, :n], aug[:n, n:] = A_cl, B
     aug[n:, n:] = 1j * omega * np.eye(m)
     expo = scipy.linalg.expm(aug * h)
-    E, F = expo[:n, :n], expo[:n, n:]
     z = np.exp(1j * omega * h) * np.eye(m)
     Ma = np.block([[M.astype(complex), G], [np.zeros((m, n)), z]])
-    Ea = np.block([[E, F], [np.zeros((m, n)), z]])
-    P = np.stack([Ma, Ea])
-    X0 = np.broadcast_to(np.vstack([np.zeros((n, m)), np.eye(m)]).astype(complex), (2, n + m, m))
-    head = min(n_steps, MAX_STEPS // 2)
-    stride = max(1, math.ceil((n_steps - head) / (MAX_STEPS // 2)))
-    with np.errstate(all="ignore"):
-        orbit = _orbits(P, X0, head)
-        if n_steps > head and (n_steps - head) // stride > 0:
-            Ps = np.stack([np.linalg.matrix_power(Ma, stride), np.linalg.matrix_power(Ea, stride)])
-            orbit = np.concatenate([orbit, _orbits(Ps, orbit[:, :, -m:], (n_steps - head) // stride)], axis=2)
-        if not np.all(np.isfinite(orbit)):
-            inf = np.full((rows.shape[0], m), np.inf)
-            return inf, inf
-        y = np.matmul(rows, orbit[:, :n]).reshape(2, rows.shape[0], -1, m)
-        return np.max(np.abs(y[0] - y[1]), axis=1), np.max(np.abs(y[1]), axis=1)
+    Ea = np.block([[expo[:n, :n], expo[:n, n:]], [np.zeros((m, n)), z]])
+    return orbit_error(Ma, Ea, n, rows, n_steps)
 
 
 def profile_harmonics(plant, probes) -> list[tuple[int, float, float]]:
