@@ -539,9 +539,10 @@ def _phase_drift(plant, xc, xf, tf, yf, factor: float, duration: float) -> np.nd
     5.6e-5 rad after 48 steps, 6.8e-4 after 800 on an engine and compressor
     scene). Torques by angle then run early or late by ``d t = d phi / |omega|``,
     which moves each output by ``|dy/dt| d t``. Here ``d phi(t)`` is the
-    Richardson error of the window's angles (drive and wheel 3, each over its
-    speed); its growth over the window, ``g = log2(max over the window /
-    max over its first half)`` in [0, 1] (1: linear, 0: not growing), sets
+    Richardson error of the window's angles (drive and wheel 3, each over
+    its top speed in the window: a wheel rocking about rest barely turns);
+    its growth over the window, ``g = log2(max over the window / max over
+    its first half)`` in [0, 1] (1: linear, 0: not growing), sets
     the growth over the time a speed error lasts (``duration``,
     :func:`_drift_time`), ``(duration / window)^g``; ``|dy/dt|`` is the
     fine run's largest rate. ``xc``, ``xf``: the window's states at dt and
@@ -553,8 +554,8 @@ def _phase_drift(plant, xc, xf, tf, yf, factor: float, duration: float) -> np.nd
     worst = np.zeros_like(rate)
     half = max(1, tf.size // 2)
     for row_phi, row_w in ((W[0], W[1]), (W[2], W[3])):
-        w = np.abs(xf @ row_w)
-        if not np.all(w > 1e-9):
+        w = float(np.max(np.abs(xf @ row_w)))  # the window's top speed: a wheel rocking about rest barely turns
+        if not w > 1e-9:
             continue
         shift = factor * np.abs((xc - xf) @ row_phi) / w
         first, whole = float(np.max(shift[: half + 1])), float(np.max(shift))
