@@ -18,13 +18,14 @@ import numpy as np
 import pytest
 import scipy.integrate
 
+from belt_drive_ros.benchmarks.auto_choice import varied_scene
 from belt_drive_ros.core import sources as S
 from belt_drive_ros.core.accuracy import check_accuracy
 from belt_drive_ros.core.errors import SceneError
 from belt_drive_ros.core.method_choice import CANDIDATES, choose_for_scene
 from belt_drive_ros.core.model import make_model
 from belt_drive_ros.core.scene import Scene, load_scene
-from belt_drive_ros.core.simulate import Simulator, simulate
+from belt_drive_ros.core.simulate import simulate
 from belt_drive_ros.core.stepper import Plant
 
 TOL = 1e-4
@@ -149,46 +150,15 @@ def test_substeps_when_no_method_meets_it_at_the_scene_dt():
 
 
 # ------------------------------------------------------------------ 20+ scenes that name no method
-def _varied_scene(k: int) -> Scene:
-    """Scene k of a family with time-varying torques: sine drives from 0.7 to 3.5 times the belt mode, an engine,
-    a compressor load by angle, a sine load; truck and paper belts; 0.4 s, dt 0.5 or 1 ms, no method named."""
-    rng = np.random.default_rng(100 + k)
-    base = load_scene("truck_compressor" if k % 3 else "paper")
-    p = replace(base.params, c=float(base.params.c * rng.choice([0.1, 0.5, 1.0, 2.0])))
-    f_n = p.belt_natural_frequency / (2.0 * math.pi)
-    kind = k % 4
-    start = base.initial_state
-    if kind == 0:
-        drive = S.Sine(mean=float(rng.uniform(5, 30)), amplitude=float(rng.uniform(2, 20)),
-                       frequency=float(rng.uniform(0.7, 3.5) * f_n))  # fmt: skip
-        load = S.Polynomial(0.0, float(rng.uniform(0.02, 0.3)))
-    elif kind == 1:
-        drive = S.Engine(mean_torque=float(rng.uniform(5, 40)), cylinders=int(rng.choice([3, 4, 6])),
-                         harmonics=(float(rng.uniform(10, 200)), float(rng.uniform(3, 60))),
-                         speed_setpoint=float(rng.uniform(40, 120)), governor_gain=float(rng.uniform(2, 15)), max_torque=400.0)
-        load = S.Compressor(mean_torque=float(rng.uniform(2, 15)), c1=float(rng.uniform(0.001, 0.2)), cylinders=2,
-                            harmonics=(float(rng.uniform(1, 10)),))  # fmt: skip
-        start = replace(start, omega_M=0.9 * drive.speed_setpoint)
-    elif kind == 2:
-        drive = S.Constant(float(rng.uniform(5, 30)))
-        load = S.Sine(mean=float(rng.uniform(1, 5)), amplitude=float(rng.uniform(1, 5)),
-                      frequency=float(rng.uniform(0.7, 3.5) * f_n))  # fmt: skip
-    else:
-        drive = S.Sine(mean=0.0, amplitude=float(rng.uniform(2, 20)), frequency=float(rng.uniform(0.7, 1.3) * f_n))
-        load = S.Compressor(mean_torque=float(rng.uniform(1, 5)), c1=float(rng.uniform(0.01, 0.2)), cylinders=1,
-                            harmonics=(float(rng.uniform(1, 5)),))  # fmt: skip
-    dt = float(rng.choice([5e-4, 1e-3]))
-    return replace(base, name=f"varied_{k}", params=p, drive=drive, load=load, initial_state=start, duration=0.4,
-                   model="flexible", method="auto", dt=dt)  # fmt: skip
-
-
+# the family: belt_drive_ros.benchmarks.auto_choice.varied_scene (sine drives 0.7-3.5 x the belt mode, engines with
+# compressor loads by angle, sine loads, drives forced near their mode; truck and paper belts)
 VARIED = 22
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("k", range(VARIED))
 def test_default_run_meets_its_tolerance(k):
-    scene = _varied_scene(k)
+    scene = varied_scene(k)
     result = _run(scene)
     measured = _error(result, "flexible")
     assert result.method_choice is not None

@@ -16,7 +16,9 @@ by the frequency rule; slipping where that run passes the capstan limit):
 ``python -m belt_drive_ros.benchmarks.auto_choice [--out DIR] [--quick]``
 prints the markdown table of docs/performance.md ("The automatic choice
 against a sweep") and writes ``auto_choice.csv``; ``--quick`` sweeps j = -1 .. 1
-on a shortened run (seconds, for a smoke test).
+on a shortened run (seconds, for a smoke test). ``--varied N``: instead, the
+figures over N time-varying scenes that name no method (:func:`varied_scene`,
+the family ``tests/test_method_choice.py`` checks).
 """
 
 from __future__ import annotations
@@ -29,9 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core import sources as S
 from ..core.integrators import FIXED_STEP_METHODS
 from ..core.simulate import simulate
 from ..core.model import make_model
+from ..core.scene import load_scene
 from ..core.simulate import Simulator
 from ..core.stability import check_step
 from . import slip_runs
@@ -69,8 +73,6 @@ def study(scenes=SCENES, exponents=range(-3, 3), duration: float | None = None) 
     """Rows of :data:`COLUMNS`: per scene the choice (kind ``auto``) and every sweep run (kind ``sweep``)."""
     rows = []
     for name in scenes:
-        from ..core.scene import load_scene
-
         scene = load_scene(name).with_overrides(method="auto", duration=duration)
         slipping = name in SLIPPING
         kind = "slipping" if slipping else resolved_model(scene)
@@ -132,13 +134,81 @@ def table(rows, tolerance: float = 1e-4) -> str:
     return "\n".join(lines)
 
 
+def varied_scene(k: int):
+    """Scene k of a family with time-varying torques: sine drives from 0.7 to 3.5 times the belt mode, an engine,
+    a compressor load by angle, a sine load; truck and paper belts; 0.4 s, dt 0.5 or 1 ms, no method named."""
+    rng = np.random.default_rng(100 + k)
+    base = load_scene("truck_compressor" if k % 3 else "paper")
+    p = replace(base.params, c=float(base.params.c * rng.choice([0.1, 0.5, 1.0, 2.0])))
+    f_n = p.belt_natural_frequency / (2.0 * math.pi)
+    kind = k % 4
+    start = base.initial_state
+    if kind == 0:
+        drive = S.Sine(mean=float(rng.uniform(5, 30)), amplitude=float(rng.uniform(2, 20)),
+                       frequency=float(rng.uniform(0.7, 3.5) * f_n))  # fmt: skip
+        load = S.Polynomial(0.0, float(rng.uniform(0.02, 0.3)))
+    elif kind == 1:
+        drive = S.Engine(mean_torque=float(rng.uniform(5, 40)), cylinders=int(rng.choice([3, 4, 6])),
+                         harmonics=(float(rng.uniform(10, 200)), float(rng.uniform(3, 60))),
+                         speed_setpoint=float(rng.uniform(40, 120)), governor_gain=float(rng.uniform(2, 15)), max_torque=400.0)
+        load = S.Compressor(mean_torque=float(rng.uniform(2, 15)), c1=float(rng.uniform(0.001, 0.2)), cylinders=2,
+                            harmonics=(float(rng.uniform(1, 10)),))  # fmt: skip
+        start = replace(start, omega_M=0.9 * drive.speed_setpoint)
+    elif kind == 2:
+        drive = S.Constant(float(rng.uniform(5, 30)))
+        load = S.Sine(mean=float(rng.uniform(1, 5)), amplitude=float(rng.uniform(1, 5)),
+                      frequency=float(rng.uniform(0.7, 3.5) * f_n))  # fmt: skip
+    else:
+        drive = S.Sine(mean=0.0, amplitude=float(rng.uniform(2, 20)), frequency=float(rng.uniform(0.7, 1.3) * f_n))
+        load = S.Compressor(mean_torque=float(rng.uniform(1, 5)), c1=float(rng.uniform(0.01, 0.2)), cylinders=1,
+                            harmonics=(float(rng.uniform(1, 5)),))  # fmt: skip
+    dt = float(rng.choice([5e-4, 1e-3]))
+    return replace(base, name=f"varied_{k}", params=p, drive=drive, load=load, initial_state=start, duration=0.4,
+                   model="flexible", method="auto", dt=dt)  # fmt: skip
+
+
+def varied(count: int, tolerance: float = 1e-4) -> dict:
+    """Figures over :func:`varied_scene` 0 .. count - 1 against DOP853 (rtol 1e-13): the default run's worst
+    error / tolerance and choices; with each stated method, the guard's verdicts and the worst measured error
+    among its "accurate" ones; estimate / measured over the runs (measured > 1e-8)."""
+    from collections import Counter
+
+    worst, choices, verdicts, worst_ok, ratios = 0.0, Counter(), Counter(), 0.0, []
+    for k in range(count):
+        scene = varied_scene(k)
+        ref = dop853_reference(scene.with_overrides(method="etd2"), "flexible")
+        result = simulate(scene)
+        worst = max(worst, run_errors(ref, result.time, result.states)["error"] / tolerance)
+        choices[f"{result.method} x{result.method_choice.substeps}"] += 1
+        for method in ("exact", "etd2", "etd4", "lawson5", "rk4"):
+            try:
+                run = simulate(scene.with_overrides(method=method))
+            except Exception:  # refused (unstable): a verdict too
+                verdicts[f"{method} refused"] += 1
+                continue
+            error = run_errors(ref, run.time, run.states)["error"]
+            verdicts[f"{method} {'accurate' if run.accuracy.accurate else 'inaccurate'}"] += 1
+            if run.accuracy.accurate:
+                worst_ok = max(worst_ok, error / tolerance)
+            if error > 1e-8:
+                ratios.append(run.accuracy.error / error)
+    return dict(cases=count, worst_default=worst, choices=dict(choices), verdicts=dict(verdicts),
+                worst_accurate=worst_ok, ratio_min=min(ratios), ratio_median=float(np.median(ratios)),
+                ratio_max=max(ratios))  # fmt: skip
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, help="folder for auto_choice.csv")
     parser.add_argument("--quick", action="store_true", help="j = -1..1 on 0.3 s runs (a smoke test)")
     parser.add_argument("--scene", action="append", help="only these scenes (repeatable)")
+    parser.add_argument("--varied", type=int, metavar="N", help="instead: figures over N scenes that name no method")
     args = parser.parse_args(argv)
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    if args.varied:
+        for key, value in varied(args.varied).items():
+            print(f"{key:16s} {value}")
+        return 0
     rows = study(tuple(args.scene or SCENES), range(-1, 2) if args.quick else range(-3, 3), 0.3 if args.quick else None)
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
