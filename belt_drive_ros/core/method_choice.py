@@ -137,19 +137,16 @@ def choose_for_scene(scene, kind: str) -> MethodChoice:
 def resolve(scene, kind: str | None = None):
     """``(scene, choice)``: the scene with method and dt chosen when it says ``method: auto``, else ``(scene, None)``.
 
-    ``kind``: the model the run uses when the caller knows it (``auto``'s linear tier); default: the
-    scene's model, or for ``model: auto`` the frequency rule's rigid or flexible
-    (:func:`~belt_drive_ros.core.fidelity.choose_model`; a run that then slips is checked in both modes after it).
+    ``kind``: the model the run uses (rigid, flexible, slipping, regularised); default the scene's own.
+    For ``model: auto`` the caller passes the frequency rule's rigid or flexible
+    (:func:`~belt_drive_ros.core.fidelity.choose_model` with ``check_slip=False``); a run that then slips is
+    checked in both modes after it.
     """
     if scene.method != AUTO:
         return scene, None
-    if kind is None:
-        if scene.model == "auto":
-            from .fidelity import choose_model
-
-            kind = choose_model(scene, check_slip=False).model
-        else:
-            kind = scene.model
+    kind = kind or scene.model
+    if kind == "auto":
+        raise ValueError("resolve: model auto needs the linear tier the frequency rule chose (kind)")
     choice = choose_for_scene(scene, kind)
     return scene.with_overrides(method=choice.method, dt=choice.dt), choice
 

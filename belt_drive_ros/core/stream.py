@@ -68,7 +68,9 @@ def stream(
     of every window is the choice in force; ``window_steps`` defaults to
     :data:`WINDOW_STEPS`.
     """
-    scene, method_choice = resolve_method(scene.with_overrides(model=model, method=method, dt=dt, duration=duration))
+    scene = scene.with_overrides(model=model, method=method, dt=dt, duration=duration)
+    kind = _linear_choice(scene, FREQUENCY_RATIO_THRESHOLD).model if scene.model == "auto" and scene.method == "auto" else None
+    scene, method_choice = resolve_method(scene, kind)
     if method_choice is not None:  # method: auto, chosen once: every window says how
         for window in stream(scene, progress=progress, check_stability=check_stability, window_steps=window_steps):
             if not isinstance(window, Restart):
