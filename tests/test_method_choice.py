@@ -200,3 +200,16 @@ def test_sim_cli_tolerance_and_choice(tmp_path, capsys):
     assert main(["sim", str(scene), "--quiet", "--tolerance", "0"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "tolerance" in err[0]
+
+
+def test_recording_metadata_says_how_the_method_was_chosen(tmp_path):
+    from mcap.reader import make_reader
+
+    from belt_drive_ros.cli import main
+
+    scene, out = tmp_path / "s.yaml", tmp_path / "run.mcap"
+    scene.write_text("extends: paper\nmethod: auto\nduration: 0.3\n", encoding="utf-8")
+    assert main(["sim", str(scene), "--quiet", "--out", str(out)]) == 0
+    with open(out, "rb") as f:
+        record = next(m.metadata for m in make_reader(f).iter_metadata() if "method_choice" in m.metadata)
+    assert record["method"] in CANDIDATES and record["method_choice"].startswith(record["method"])
