@@ -76,7 +76,7 @@ def test_unstable_step_is_a_one_line_error_naming_a_fix(capsys):
     err = capsys.readouterr().err
     assert code == 2
     line = _one_line_error(err)
-    assert "UNSTABLE" in line and "use dt <=" in line and "exact" in line
+    assert "UNSTABLE" in line and "is stable and accurate" in line and "etd4 at dt" in line  # both guards accept it
 
 
 def test_model_and_method_overrides(tmp_path, capsys):

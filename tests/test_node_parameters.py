@@ -80,3 +80,16 @@ def test_node_settings_carry_the_accuracy_guard():
     inaccurate = build_settings({**values, "method": "etd2", "step_rate_hz": 200.0})  # 5 ms: stable, not accurate
     assert inaccurate.accuracy.stable and not inaccurate.accuracy.accurate
     assert "INACCURATE" in inaccurate.accuracy.describe()
+
+
+def test_node_method_auto_chooses_and_says_why():
+    """method auto on the node: the guard's choice at the tick's step (substeps raised when none meets it there)."""
+    scene = load_scene("paper")
+    values = {**default_values(scene), "drive_source": "scene", "model": "flexible", "method": "auto"}
+    settings = build_settings(values)
+    assert settings.method in ("exact", "etd2", "etd4", "lawson5") and settings.accuracy.ok
+    assert settings.method in settings.method_reason and "tolerance" in settings.method_reason
+    coarse = build_settings({**values, "step_rate_hz": 20.0, "substeps": 1})  # 50 ms ticks: one step is not enough
+    assert coarse.substeps > 1 and coarse.accuracy.accurate, coarse.method_reason
+    stated = build_settings({**values, "method": "etd2"})
+    assert stated.method_reason == "etd2: set by parameter 'method'"

@@ -23,7 +23,9 @@ is not run; a run that diverges in the slip mode is recorded as
 Error and timing are defined in :mod:`belt_drive_ros.benchmarks.common`. The
 chart is log-log (error against CPU seconds per simulated second) with one
 panel per scene; the Pareto front (no other run is both faster and more
-accurate) is drawn, and the default (the scene's method at its step) is ringed.
+accurate) is drawn, the default (the scene's method at its step) is ringed,
+and what ``method: auto`` picks for the scene (:mod:`belt_drive_ros.core.method_choice`;
+column ``auto``) is boxed.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ import numpy as np
 
 from ..core.errors import BeltDriveError, SimulationDivergedError
 from ..core.integrators import ADAPTIVE_METHODS, FIXED_STEP_METHODS
+from ..core.method_choice import choose_for_scene
 from ..core.model import make_model
 from ..core.simulate import Simulator
 from ..core.stability import check_step
@@ -62,7 +65,18 @@ from .common import (
 COLUMNS = (
     "scene", "model", "method", "kind", "dt", "rtol", "h_omega_n", "status", "cpu_s", "cpu_per_sim_s",
     "x_realtime", "e_speed", "e_belt", "e_load", "error", "default", "pareto", "reference", "family", "v_eps", "events",
+    "auto",
 )  # fmt: skip
+
+
+def _auto_choice(scene, kind: str) -> tuple[str, float]:
+    """(method, dt) ``method: auto`` picks for ``scene`` on the model ``kind`` (:mod:`belt_drive_ros.core.method_choice`)."""
+    choice = choose_for_scene(scene.with_overrides(method="auto"), kind)
+    return choice.method, choice.dt
+
+
+def _is(choice, method: str, dt: float) -> int:
+    return int(choice[0] == method and math.isclose(choice[1], dt, rel_tol=1e-9))
 
 #: fixed-step methods of the slipping scene (symplectic Euler needs the [angles, speeds] state form, which the
 #: slip mode's stretch and slip coordinates do not have)
@@ -131,6 +145,7 @@ def measure(config: Config = FULL, quiet: bool = False) -> list[dict]:
         model_name = resolved_model(scene)
         reference = reference_for(scene, model_name)
         mdl = make_model(model_name, scene.params)
+        auto = _auto_choice(scene, model_name)
         log(f"[workprecision] {name}: model {model_name}, reference {reference.kind} ({reference.cpu_seconds:.2f} s)", quiet)
         scene_rows = []
         base = dict(scene=name, model=model_name, reference=reference.kind)
@@ -139,7 +154,7 @@ def measure(config: Config = FULL, quiet: bool = False) -> list[dict]:
                 dt = scene.dt * 2.0**j
                 report = check_step(mdl.A, mdl.B, method, dt)
                 row = dict(base, method=method, kind="fixed", dt=dt, rtol="", h_omega_n=report.h_omega_n,
-                           default=int(method == scene.method and j == 0))  # fmt: skip
+                           default=int(method == scene.method and j == 0), auto=_is(auto, method, dt))  # fmt: skip
                 if not report.stable:
                     row["status"] = "unstable (guard)"
                 else:
@@ -197,6 +212,7 @@ def _slip_rows(name: str, config: Config, quiet: bool) -> tuple[list[dict], floa
     kind = f"DOP853 + events rtol {slip_runs.REFERENCE_TOL:g}"
     log(f"[workprecision] {name}: slipping model, reference {kind} ({reference.events} events)", quiet)
     flex = make_model("flexible", scene.params)
+    auto = _auto_choice(scene, "slipping")
     variants = [("hybrid", m, 0.0) for m in config.slip_methods]
     variants += [("no_location", m, 0.0) for m in config.slip_no_location]
     variants += [("regularised", m, v) for m in config.slip_regularised for v in config.slip_v_eps]
@@ -207,7 +223,8 @@ def _slip_rows(name: str, config: Config, quiet: bool) -> tuple[list[dict], floa
             row = dict(scene=name, model="slipping" if family != "regularised" else "regularised", method=method,
                        kind="fixed", dt=dt, rtol="", h_omega_n=report.h_omega_n, reference=kind, family=family,
                        v_eps=v_eps, label=slip_runs.variant_label(family, method, v_eps),
-                       default=int(family == "hybrid" and method == scene.method and j == 0))  # fmt: skip
+                       default=int(family == "hybrid" and method == scene.method and j == 0),
+                       auto=_is(auto, method, dt) if family == "hybrid" else 0)  # fmt: skip
             if family == "hybrid" and not report.stable:
                 row["status"] = "unstable (guard)"
             else:
@@ -267,6 +284,9 @@ def plot(rows: list[dict], path: Path) -> Path:
             if r.get("default") == 1:
                 ax.plot(r["cpu_per_sim_s"], max(r["error"], PLOT_FLOOR), "o", ms=14, mfc="none", mec="k", mew=1.5,
                         label="default: the scene's method and dt")  # fmt: skip
+            if r.get("auto") in (1, "1"):
+                ax.plot(r["cpu_per_sim_s"], max(r["error"], PLOT_FLOOR), "s", ms=18, mfc="none", mec="tab:orange",
+                        mew=1.5, label="method: auto (the guard's choice)")  # fmt: skip
         for limit, label in ((1 / 1000, "1000x real time"), (1 / 200, "200x")):
             ax.axvline(limit, color="0.6", ls=":", lw=0.8)
             ax.text(limit, 1.0, label, rotation=90, va="top", ha="right", fontsize=6.5, color="0.4",

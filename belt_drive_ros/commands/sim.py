@@ -68,7 +68,12 @@ def register(sub) -> None:
     )
     p.add_argument("--v-eps", type=float, metavar="M_PER_S",
                    help="regularisation speed of --model regularised [m/s] (Q = Q_max tanh(v_slip / v_eps); default 1e-3)")
-    p.add_argument("--method", help="integrator by name (list below; default: the scene's)")
+    p.add_argument("--method", help="integrator by name (list below), or auto: the cheapest method and fewest substeps "
+                                    "the accuracy guard rates within --tolerance (default: the scene's; a scene that "
+                                    "names none: auto)")
+    p.add_argument("--tolerance", type=float, metavar="REL",
+                   help="relative error of drive speed and belt torque (to their peaks) the accuracy guard checks "
+                        "and --method auto aims at (default: the scene's, 1e-4)")
     p.add_argument("--method-option", action="append", default=[], metavar="KEY=VALUE", help="integrator option, e.g. rtol=1e-8 (repeatable)")
     p.add_argument("--dt", type=float, help="integrator step [s] (output interval for adaptive methods)")
     p.add_argument("--duration", type=float, help="simulated time [s]")
@@ -138,7 +143,8 @@ def run(args) -> int:
         if note:
             print(note)
         scene = scene_with_torque_bag(scene, args.torque_bag, topic=topic)
-    scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration, v_eps=getattr(args, "v_eps", None))
+    scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration, v_eps=getattr(args, "v_eps", None),
+                                 tolerance=getattr(args, "tolerance", None))  # fmt: skip
     out_format = check_outputs(args)
     samples = scene.duration / scene.dt + 1.0
     check_plot_size(args, samples)
@@ -351,6 +357,8 @@ def print_summary(summary) -> None:
     print(f"scene          {scene.name}: {scene.description}".rstrip())
     print(f"model          {summary.model}" + (f"  ({summary.choice.reason})" if summary.choice else ""))
     print(f"integrator     {summary.method}, dt={summary.dt:g} s" + (" (vectorized open-loop path)" if summary.vectorized else ""))
+    if getattr(summary, "method_choice", None) is not None:
+        print(f"method choice  {summary.method_choice.reason}")
     if summary.stability is not None:
         print(f"stability      {summary.stability.describe()}")
     if summary.accuracy is not None:

@@ -47,9 +47,10 @@ from .ensemble import Ensemble, EnsembleUnsupported
 from .errors import BeltDriveError
 from .fidelity import choose_model, friction_use, operating_run_step
 from .integrators import method_class
+from .method_choice import good_step_error
 from .model import LINEAR_OUTPUTS, OUTPUT_UNITS, ModelStack, span_forces
 from .params import ParamColumns, friction_limit_array
-from .scene import Scene
+from .scene import AUTO_METHOD, Scene
 from .simulate import SimResult, simulate
 from .stability import require_stable
 
@@ -253,7 +254,7 @@ def _profile_key(profile, memo: dict):
 
 def _group_key(scene: Scene, memo: dict) -> tuple:
     return (
-        scene.model, method_class(scene.method).name, scene.dt, scene.duration, scene.output_rate,
+        scene.model, scene.method if scene.method == AUTO_METHOD else method_class(scene.method).name, scene.dt, scene.duration, scene.output_rate,
         tuple(sorted((k, repr(v)) for k, v in scene.method_options.items())),
         _profile_key(scene.drive, memo), _profile_key(scene.load, memo),
     )  # fmt: skip
@@ -319,6 +320,8 @@ def run_groups(
 
 def _unsupported(scene: Scene) -> str | None:
     """Why ``scene``'s method cannot run in an ensemble, or None."""
+    if scene.method == AUTO_METHOD:  # method and step are chosen per variant (core/method_choice.py)
+        return "method auto (chosen per variant by the accuracy guard)"
     cls = method_class(scene.method)
     if not cls.fixed_step:
         return f"{cls.name} is adaptive (a step size per variant)"
@@ -341,8 +344,8 @@ def _stable(members: list, models: ModelStack, check_stability: bool) -> tuple[l
         if check_stability and not method_class(scene.method).exact_linear:  # exact-linear methods pass at any step
             try:
                 require_stable(models.A[v], models.B[v], scene.method, scene.dt)
-            except BeltDriveError as exc:
-                failed.append(Outcome(i, None, _error_line(exc), True))
+            except BeltDriveError as exc:  # named as the single run names it: a step both guards accept
+                failed.append(Outcome(i, None, _error_line(good_step_error(scene, models.name, exc)), True))
                 continue
         ok.append(v)
     return ok, failed

@@ -203,7 +203,10 @@ def friction_use(belt_torque, r_3, q_max):
 
 
 def _linear_outputs(scene, kind: str):
-    """(time, outputs) of ``scene`` on the linear model ``kind`` with its method and step."""
+    """(time, outputs) of ``scene`` on the linear model ``kind`` with its method and step (``auto``: chosen for ``kind``)."""
+    from .method_choice import resolve
+
+    scene = resolve(scene, kind)[0]
     model = make_model(kind, scene.params)
     stepper = Stepper(Plant(model, scene.drive, scene.load), scene.method, scene.dt, scene.method_options)
     time, states = stepper.run(scene.initial_state.vector(kind, scene.params.ratio), 0.0, scene.duration)

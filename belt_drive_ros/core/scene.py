@@ -43,7 +43,14 @@ RANGES: dict[str, tuple[float, float, str]] = {
     # model regularised: Q = Q_max tanh(v_s / v_eps); below 1 um/s the contact is a switch no fixed step
     # resolves, above 1 m/s the "stick" creeps at speeds comparable to the belt's own
     "v_eps": (1.0e-6, 1.0, "m/s"),
+    # accuracy the guard and method: auto aim at, relative to each signal's peak: below 1e-12 is rounding,
+    # above 0.5 no accuracy at all
+    "tolerance": (1.0e-12, 0.5, "of the peak"),
 }
+#: default ``tolerance``: relative error of drive speed and belt torque (to their peaks) the guard aims at
+TOLERANCE_DEFAULT = 1e-4
+#: the method name that lets the accuracy guard choose method and step (:mod:`belt_drive_ros.core.method_choice`)
+AUTO_METHOD = "auto"
 #: most steps one run may take (duration / dt): ~1e9 steps is hours of computation already
 MAX_STEPS = 1.0e9
 
@@ -99,13 +106,17 @@ class Scene:
     model : ``rigid``, ``flexible``, ``slipping`` (:mod:`belt_drive_ros.core.slip`) or ``auto``
         (see :mod:`belt_drive_ros.core.fidelity`; ``auto`` goes on to ``slipping`` when the
         chosen model's run exceeds the belt's friction limit).
-    method : integrator name (:data:`belt_drive_ros.core.integrators.REGISTRY`).
+    method : integrator name (:data:`belt_drive_ros.core.integrators.REGISTRY`), or ``auto`` (the default:
+        the cheapest method and fewest substeps the accuracy guard rates within ``tolerance``,
+        :mod:`belt_drive_ros.core.method_choice`).
     dt : integrator step [s] (output interval for adaptive methods).
     output_rate : rate [Hz] at which outputs are consumed (node publish or
         recording rate); the ``auto`` choice compares the belt mode with it.
     method_options : extra integrator options (e.g. rtol for scipy methods).
     v_eps : regularisation speed [m/s] of model ``regularised`` (``Q = Q_max tanh(v_s / v_eps)``,
         :mod:`belt_drive_ros.core.regularised`); unused by the other models.
+    tolerance : relative error [-] of drive speed and belt torque (to their peaks) the accuracy guard
+        checks against and ``method: auto`` aims at.
     """
 
     name: str = "custom"
@@ -116,11 +127,12 @@ class Scene:
     duration: float = 1.0
     initial_state: InitialState = field(default_factory=InitialState)
     model: str = "auto"
-    method: str = "etd2"
+    method: str = AUTO_METHOD
     dt: float = 1e-3
     output_rate: float = 1000.0
     method_options: Mapping[str, Any] = field(default_factory=dict)
     v_eps: float = V_EPS_DEFAULT
+    tolerance: float = TOLERANCE_DEFAULT
 
     def __post_init__(self):
         for name, (low, high, unit) in RANGES.items():
@@ -148,9 +160,10 @@ class Scene:
         if self.model not in MODELS:
             raise SceneError(f"model: must be one of {', '.join(MODELS)}, got {short(self.model)}")
         try:
-            method_class(self.method)
+            if self.method != AUTO_METHOD:
+                method_class(self.method)
         except ValueError as exc:
-            raise SceneError(str(exc)) from None
+            raise SceneError(f"{exc} (or {AUTO_METHOD!r}: chosen by accuracy)") from None
         if self.dt > self.duration:
             raise SceneError(f"dt: must not exceed duration ({self.duration} s), got {self.dt}")
 
@@ -227,6 +240,7 @@ class Scene:
             "output_rate": self.output_rate,
             "method_options": dict(self.method_options),
             **({"v_eps": self.v_eps} if self.model == "regularised" or self.v_eps != V_EPS_DEFAULT else {}),
+            **({"tolerance": self.tolerance} if self.tolerance != TOLERANCE_DEFAULT else {}),
             "initial_state": {f.name: getattr(self.initial_state, f.name) for f in fields(InitialState)},
             "params": self.params.to_dict(),
             "drive": self.drive.to_dict(),

@@ -25,9 +25,10 @@ import numpy as np
 from .accuracy import (
     AccuracyReport, probe_scene, require_accurate, require_accurate_slipping, slip_run_error, with_slip_run_error,
 )  # fmt: skip
-from .errors import SimulationDivergedError
+from .errors import SimulationDivergedError, UnstableStepError
 from .fidelity import ModelChoice, choose_model, limit_exceedance
 from .integrators import method_class
+from .method_choice import MethodChoice, good_step_error, resolve as resolve_method
 from .model import OUTPUT_UNITS, make_model
 from .regularised import MODEL_NAME as REGULARISED, RegularisedSimulator
 from .slip import SLIP
@@ -85,6 +86,8 @@ class SimResult:
     energy: dict = field(default_factory=dict)
     #: slipping model: mode switches as (kind 'onset'/'restick', time [s], direction sigma)
     events: list = field(default_factory=list)
+    #: how method and step were chosen when the scene named none (``method: auto``); None: stated
+    method_choice: MethodChoice | None = None
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name == "time":
@@ -202,13 +205,38 @@ def simulate(
     time (the linear run past it is not computed).
     """
     scene = scene.with_overrides(model=model, method=method, dt=dt, duration=duration)
+    linear = choose_model(scene, check_slip=False) if scene.model == "auto" else None
+    scene, method_choice = resolve_method(scene, linear.model if linear is not None else None)
+    try:
+        result = _simulate(scene, linear, progress, check_stability, vectorize)
+    except UnstableStepError as exc:  # the stability guard's refusal names a step the accuracy guard accepts too
+        raise good_step_error(scene, linear.model if linear is not None else scene.model, exc) from None
+    if method_choice is None:
+        return result
+    report = result.accuracy
+    if report is not None and not report.accurate and report.suggestion is not None and report.suggestion < scene.dt:
+        # the slipping run's own estimate (events, error across slip phases) is only known after it: once more
+        # at the step it names, the chosen method kept
+        first = f"{method_choice.method} at dt={scene.dt:.3g} s rated {report.error:.2g} on the run itself"
+        result = _simulate(scene.with_overrides(dt=report.suggestion), linear, progress, check_stability, vectorize)
+        n = max(1, round(method_choice.dt * method_choice.substeps / report.suggestion))
+        method_choice = replace(method_choice, dt=report.suggestion, substeps=n,
+                                error=result.accuracy.error if result.accuracy else math.nan,
+                                met=bool(result.accuracy and result.accuracy.accurate),
+                                reason=f"{method_choice.reason}; {first} ({report.mode} mode), so run again at "
+                                       f"dt={report.suggestion:.3g} s")  # fmt: skip
+    result.method_choice = method_choice
+    return result
+
+
+def _simulate(scene: Scene, linear, progress, check_stability: bool, vectorize) -> SimResult:
+    """:func:`simulate` of a scene with its method stated (``linear``: auto's frequency-rule choice, or None)."""
     if scene.model != "auto":
         if scene.model == "regularised":
             return simulate_regularised(scene, progress, check_stability)
         if scene.model == "slipping":
             return simulate_slipping(scene, None, progress, check_stability)
         return _simulate_linear(scene, scene.model, progress, check_stability, vectorize)
-    linear = choose_model(scene, check_slip=False)
     if linear.model == "flexible" and _steps_flexible(scene, vectorize):
         return _simulate_auto_flexible(scene, linear, progress, check_stability)
     runs: dict = {}
@@ -242,8 +270,8 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
     # one probe run for both checks (the stick mode's now, both modes' if the run slips)
     probes = probe_scene(sim.plant, scene.duration, x0, scene.dt) if check_stability else None
     accuracy = (
-        require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, method_options=scene.method_options,
-                         probes=probes)
+        require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance,
+                         method_options=scene.method_options, probes=probes)
         if check_stability else None
     )  # fmt: skip
     sim.flexible_record = kept = []
@@ -281,7 +309,8 @@ def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, v
     # closed loop (torque slopes): refuses an unstable step, reports an inaccurate one (the CLI warns)
     accuracy = (
         require_accurate(
-            sim.plant, scene.method, scene.dt, scene.duration, x0, method_options=scene.method_options, stepper=sim.stepper
+            sim.plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance, method_options=scene.method_options,
+            stepper=sim.stepper,
         )
         if check_stability else None
     )  # fmt: skip
@@ -349,7 +378,7 @@ def _slipping_accuracy(scene, sim, stick=None, probes=None):
     # each mode linearized (stick: the flexible closed loop and forcing windows; slip: the slip-mode dynamics)
     return require_accurate_slipping(
         scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.duration,
-        scene.initial_state.vector("flexible", scene.params.ratio), method_options=scene.method_options,
+        scene.initial_state.vector("flexible", scene.params.ratio), scene.tolerance, method_options=scene.method_options,
         stepper=sim.stepper, stick=stick, probes=probes,
     )  # fmt: skip
 

@@ -162,4 +162,6 @@ def require_stable(A: np.ndarray, B: np.ndarray, method: str, dt: float, safety:
     else:
         fix = "no step is stable for this method on this belt"
     exact = ", ".join(repr(name) for name, cls in REGISTRY.items() if cls.fixed_step and cls.exact_linear)
-    raise UnstableStepError(f"{report.describe()}; {fix}, or a method exact for the belt mode ({exact}): stable at any step")
+    error = UnstableStepError(f"{report.describe()}; {fix}, or a method exact for the belt mode ({exact}): stable at any step")
+    error.stability = report  # a caller that knows the closed loop names a step both guards accept instead
+    raise error

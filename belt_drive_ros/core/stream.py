@@ -29,6 +29,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from .accuracy import require_accurate, require_accurate_slipping
+from .method_choice import resolve as resolve_method
 from .fidelity import FREQUENCY_RATIO_THRESHOLD, ModelChoice, _linear_choice, limit_exceedance
 from .model import make_model
 from .scene import Scene
@@ -68,6 +69,14 @@ def stream(
     :data:`WINDOW_STEPS`.
     """
     scene = scene.with_overrides(model=model, method=method, dt=dt, duration=duration)
+    kind = _linear_choice(scene, FREQUENCY_RATIO_THRESHOLD).model if scene.model == "auto" and scene.method == "auto" else None
+    scene, method_choice = resolve_method(scene, kind)
+    if method_choice is not None:  # method: auto, chosen once: every window says how
+        for window in stream(scene, progress=progress, check_stability=check_stability, window_steps=window_steps):
+            if not isinstance(window, Restart):
+                window.method_choice = method_choice
+            yield window
+        return
     window_steps = WINDOW_STEPS if window_steps is None else int(window_steps)
     if window_steps < 1:
         raise ValueError(f"window_steps must be >= 1, got {window_steps}")
@@ -126,7 +135,8 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps) -> Ite
     x = scene.initial_state.vector(kind, scene.params.ratio)
     # closed loop (torque slopes): refuses an unstable step, reports an inaccurate one (as simulate does)
     accuracy = (
-        require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x, method_options=scene.method_options, stepper=stepper)
+        require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x, scene.tolerance,
+                         method_options=scene.method_options, stepper=stepper)
         if check_stability else None
     )  # fmt: skip
     work = dissipated = 0.0
@@ -201,7 +211,7 @@ def _slipping_accuracy(scene, sim):
     """The accuracy guard of a slipping run, each mode linearized (refuses an unstable step; see core/accuracy.py)."""
     x0 = scene.initial_state.vector("flexible", scene.params.ratio)
     return require_accurate_slipping(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.duration, x0,
-                                     method_options=scene.method_options, stepper=sim.stepper)  # fmt: skip
+                                     scene.tolerance, method_options=scene.method_options, stepper=sim.stepper)  # fmt: skip
 
 
 @dataclass
@@ -219,6 +229,7 @@ class RunSummary:
     method: str = ""
     dt: float = math.nan
     choice: ModelChoice | None = None
+    method_choice: object = None
     stability: object = None
     accuracy: object = None
     vectorized: bool = False
@@ -239,6 +250,7 @@ class RunSummary:
         self.model, self.method, self.dt = window.model, window.method, window.dt
         self.choice, self.stability, self.vectorized = window.choice, window.stability, window.vectorized
         self.accuracy = getattr(window, "accuracy", None)
+        self.method_choice = getattr(window, "method_choice", None)
         self.wall_time += window.wall_time
         self.t_end = float(window.time[-1])
         o = window.outputs

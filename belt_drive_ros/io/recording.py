@@ -685,6 +685,8 @@ class ResultMcapWriter:
             mapping, source="offline", drive_source=drive_source,
             extra={
                 "model_choice": result.choice.reason if result.choice is not None else f"{result.model}: set explicitly",
+                "method_choice": (result.method_choice.reason if getattr(result, "method_choice", None) is not None
+                                  else f"{result.method}: set explicitly"),  # fmt: skip
                 "output_rate": float(output_rate or scene.output_rate) if self.stride > 1 else 1.0 / result.dt,
                 "samples": int(count),
             },

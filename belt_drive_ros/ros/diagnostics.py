@@ -97,6 +97,7 @@ class NodeDiagnostics:
                 model=s.model.name,
                 model_reason=s.model_reason,
                 method=s.method,
+                method_reason=s.method_reason,
                 dt=f"{s.dt:.9g}",
                 substeps=s.substeps,
                 step_rate_hz=f"{s.step_rate_hz:g}",

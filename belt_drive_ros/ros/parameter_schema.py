@@ -24,7 +24,7 @@ from ..core.fidelity import choose_model
 from ..core.integrators import REGISTRY, make_integrator
 from ..core.model import make_model
 from ..core.params import FIELD_DOCS, BeltDriveParams
-from ..core.scene import MODELS, Scene, load_scene
+from ..core.scene import AUTO_METHOD as AUTO, MODELS, Scene, load_scene
 from ..core.accuracy import AccuracyReport, require_accurate, require_accurate_slipping
 from ..core.stability import StabilityReport, require_stable
 from ..core.stepper import Plant
@@ -82,7 +82,7 @@ NODE_MODELS = tuple(m for m in MODELS if m != "regularised")
 NODE_PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("scene", "str", DEFAULT_SCENE, "shipped scene name or path to a scene YAML: parameters, load, initial state"),
     ParamSpec("model", "str", None, "belt model: rigid, flexible, slipping or auto (chosen from the scene's excitation)", choices=NODE_MODELS),
-    ParamSpec("method", "str", None, "integrator: " + ", ".join(REGISTRY)),
+    ParamSpec("method", "str", None, "integrator: auto (the cheapest method and fewest substeps the accuracy guard rates within the scene's tolerance) or " + ", ".join(REGISTRY)),
     ParamSpec("step_rate_hz", "float", 1000.0, "tick rate on the node's clock [Hz]; outputs are published once per tick", range=(1.0, 20000.0)),
     ParamSpec("substeps", "int", None, "integrator steps per tick (dt = 1/(step_rate_hz*substeps), whole ns); default: the scene's dt at 1 kHz", range=(1, 1000)),
     ParamSpec("input_timeout", "float", 1.0, "seconds (node clock) without drive_torque before timeout_behavior applies; 0 = never", range=(0.0, 3600.0)),
@@ -152,6 +152,8 @@ class NodeSettings:
     method_options: dict = field(default_factory=dict)
     #: the accuracy guard's verdict (core/accuracy.py) on the node's model, method and step; None: adaptive method
     accuracy: AccuracyReport | None = None
+    #: how method and step were chosen (method auto, core/method_choice.py), or that they were set
+    method_reason: str = ""
     record_overwrite: bool = False
     max_bag_duration: float = 0.0
     max_bag_size: int = 0
@@ -280,6 +282,31 @@ def default_values(scene: Scene) -> dict[str, Any]:
 _ACCURACY: dict = {}
 
 
+_CHOICES: dict = {}
+
+
+def node_method_choice(scene: Scene, model, drive_source: str, dt: float):
+    """:func:`~belt_drive_ros.core.method_choice.choose_method` on the node's model, drive and step (cached).
+
+    With ``drive_source`` topic the drive is read as 0 plus held steps (as :func:`node_accuracy` does).
+    """
+    from ..core.method_choice import choose_method
+    from ..core.sources import Constant
+
+    drive = scene.drive if drive_source == "scene" else Constant(0.0)
+    key = (scene.name, repr(scene.params), model.name, drive_source, dt, repr(drive), repr(scene.load), scene.duration,
+           repr(scene.initial_state), scene.tolerance)  # fmt: skip
+    if key not in _CHOICES:
+        if len(_CHOICES) > 64:
+            _CHOICES.clear()
+        base = "rigid" if model.name == "rigid" else "flexible"
+        x0 = scene.initial_state.vector(base, scene.params.ratio)
+        plant = Plant(make_model(base, scene.params), drive, scene.load)
+        slipping = (scene.params, drive, scene.load) if model.name == "slipping" else None
+        _CHOICES[key] = choose_method(plant, scene.duration, x0, dt, scene.tolerance, drive_source == "scene", slipping)
+    return _CHOICES[key]
+
+
 def node_accuracy(scene: Scene, model, drive_source: str, method: str, dt: float, options: dict) -> AccuracyReport | None:
     """The accuracy guard on the node's model, method and step (raises ``UnstableStepError`` when unstable).
 
@@ -295,17 +322,18 @@ def node_accuracy(scene: Scene, model, drive_source: str, method: str, dt: float
 
     drive = scene.drive if drive_source == "scene" else Constant(0.0)
     key = (scene.name, repr(scene.params), model.name, drive_source, method, dt, repr(sorted(options.items())),
-           repr(drive), repr(scene.load), scene.duration, repr(scene.initial_state))  # fmt: skip
+           repr(drive), repr(scene.load), scene.duration, repr(scene.initial_state), scene.tolerance)  # fmt: skip
     if key not in _ACCURACY:
         if len(_ACCURACY) > 64:
             _ACCURACY.clear()
         if model.name == "slipping":
             x0 = scene.initial_state.vector("flexible", scene.params.ratio)
             report = require_accurate_slipping(scene.params, drive, scene.load, method, dt, scene.duration, x0,
-                                               method_options=options, stated_inputs=drive_source == "scene")  # fmt: skip
+                                               scene.tolerance, method_options=options, stated_inputs=drive_source == "scene")  # fmt: skip
         else:
             x0 = scene.initial_state.vector(model.name, scene.params.ratio)
-            report = require_accurate(Plant(model, drive, scene.load), method, dt, scene.duration, x0, method_options=options,
+            report = require_accurate(Plant(model, drive, scene.load), method, dt, scene.duration, x0, scene.tolerance,
+                                      method_options=options,
                                       stated_inputs=drive_source == "scene")  # fmt: skip
         _ACCURACY[key] = report
     return _ACCURACY[key]
@@ -375,6 +403,13 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
     method = values["method"]
     if not isinstance(method, str):
         raise NodeConfigError("method", f"must be an integrator name, got {method!r}")
+    method_reason = f"{method}: set by parameter 'method'" if method != AUTO else ""
+    if method == AUTO:  # the guard chooses method and substeps at this tick (core/method_choice.py)
+        choice = node_method_choice(scene, model, drive_source, dt_ns / 1e9)
+        method, method_reason = choice.method, choice.reason
+        if choice.substeps > 1 and tick_ns // (substeps * choice.substeps) >= 1000:
+            substeps *= choice.substeps
+            dt_ns = tick_ns // substeps
     options = dict(scene.method_options) if method == scene.method else {}
     try:
         integrator = make_integrator(method, model.A, model.B, dt_ns / 1e9, **options)
@@ -394,6 +429,7 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
         integrator=integrator,
         stability=stability,
         accuracy=accuracy,
+        method_reason=method_reason,
         step_rate_hz=step_rate,
         substeps=substeps,
         input_timeout_ns=int(round(timeout * 1e9)),

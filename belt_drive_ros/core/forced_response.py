@@ -1,0 +1,224 @@
+"""The accuracy guard's harmonic term: the error a periodic forcing builds up over the whole run.
+
+The guard's other terms see a unit torque step over the run's duration and
+the scene's real torques over short windows. Neither sees what a torque that
+varies periodically does over hundreds of periods on a lightly damped belt:
+near the belt mode the response grows over ``~1 / (zeta omega_n)`` seconds,
+and so does the method's error. Two mechanisms add up there: the method's
+quadrature of the forcing over a step (etd2 takes it as linear in time, an
+error ``~(h omega)^2 / 12`` per step), and, on a closed loop whose torques
+depend on speed, a small shift of the discrete belt mode; near a resonance of
+quality ``Q = 1 / (2 zeta)`` a shift ``delta`` of the pole moves the response
+by ``~delta Q / omega_n`` of itself.
+
+Both are in the forced response of the linearized closed loop
+``x' = A_cl x + B u``, ``A_cl = A + B K`` (:mod:`~belt_drive_ros.core.accuracy`),
+to a harmonic torque ``u = e^{j omega t}`` on one input, from rest, over the
+run's duration. The method maps ``x_{k+1} = M x_k + G(omega) e^{j omega t_k}``
+with ``G(omega) = sum_i G_i e^{j omega c_i h}``: ``G_i`` the gain of stage
+``i`` (node ``c_i``) read off the method's own stage scheme. The exact map is
+``x_{k+1} = E x_k + F(omega) e^{j omega t_k}`` with ``E = e^{h A_cl}`` and
+``F(omega) = int_0^h e^{(h - s) A_cl} B e^{j omega s} ds`` (one matrix
+exponential of the system augmented with the oscillator ``v' = j omega v``).
+Both orbits are evaluated by doubling (as the step response); the error of
+an output row is ``max_k |y_k - y*_k|`` (complex modulus: the envelope of a
+cosine or sine forcing), its scale ``max_k |y*_k|``.
+
+The harmonics: every excitation frequency the scene's torque profiles name
+at the probed operating speeds (engine firing orders, compressor strokes, a
+sine, a ramp or table's rate), each with an amplitude ``a`` [N m] read off
+the profile itself (half its range over one period at that operating point).
+The error of output ``i`` relative to the run's peak ``P_i`` is
+
+    e_i = err_i(omega) a / max(P_i, peak_i(omega) a)
+
+(a resonance that builds up past the rigid estimate of the peak raises the
+peak with it). The worst harmonic, output and probe counts.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.linalg
+
+from . import stage_scheme as _scheme
+from .errors import IntegratorError
+
+#: most distinct harmonics checked per input (lowest first after the largest amplitude ones)
+MAX_HARMONICS = 8
+#: harmonics closer than this (relative) in frequency count as one
+FREQUENCY_MERGE = 0.02
+#: samples of a profile over one period to read its amplitude
+AMPLITUDE_SAMPLES = 32
+#: a profile repeats over the next period within this fraction of its range: periodic (else not a harmonic)
+PERIODIC_TOLERANCE = 0.05
+#: samples of a response compared over the run (one by one up to half; beyond, in strides)
+ORBIT_SAMPLES = 1200
+
+
+def stage_gains(integrator, K: np.ndarray) -> tuple[np.ndarray, list]:
+    """(M, [(c_i, G_i)]): the method's closed-loop step with the input applied at stage i only.
+
+    On ``x' = A x + B (K x + v)``: ``x+ = M x + sum_i G_i v_i`` with ``v_i``
+    the value of ``v`` the method samples at stage ``i`` (node ``c_i``).
+    Read off :func:`~belt_drive_ros.core.stage_scheme.step` (the calls to the
+    torque function come in stage order; the implicit stage's iterations all
+    count as the last stage).
+    """
+    scheme, h = integrator.scheme, integrator.dt
+    n, m = integrator.A.shape[0], K.shape[0]
+    s = len(scheme.nodes)
+
+    def run(x, v, stage):
+        calls = [0]
+
+        def inputs(t, y):
+            i = min(calls[0], s - 1)
+            calls[0] += 1
+            return K @ y + (v if i == stage else 0.0 * v)
+
+        return _scheme.step(scheme, h, 0.0, x, inputs, integrator.name)
+
+    if not scheme.implicit:
+        M = run(np.eye(n), np.zeros((m, n)), -1)
+        gains = [(float(scheme.nodes[i]), run(np.zeros((n, m)), np.eye(m), i)) for i in range(s)]
+    else:
+        M = np.column_stack([run(e, np.zeros(m), -1) for e in np.eye(n)])
+        gains = [(float(scheme.nodes[i]), np.column_stack([run(np.zeros(n), e, i) for e in np.eye(m)])) for i in range(s)]
+    return M, gains
+
+
+def orbits(P: np.ndarray, X0: np.ndarray, count: int) -> np.ndarray:
+    """``[P X0, P^2 X0, ..., P^count X0]`` for a stack of maps P (b, m, m): (b, m, count * c), by doubling.
+
+    ``log2(count)`` batched products instead of ``count`` (the orbit of
+    length 2 l is the one of length l followed by ``P^l`` times it); sample
+    k's columns are ``k c .. (k + 1) c - 1``. Real or complex.
+    """
+    c = X0.shape[-1]
+    S = np.matmul(P, X0)
+    Pl = P
+    while S.shape[2] < count * c:
+        S = np.concatenate([S, np.matmul(Pl, S)], axis=2)
+        Pl = np.matmul(Pl, Pl)
+    return S[:, :, : count * c]
+
+
+def orbit_error(Ma: np.ndarray, Ea: np.ndarray, n: int, rows: np.ndarray, n_steps: int):
+    """(err, peak), each (rows, inputs): the method's augmented map ``Ma`` against the exact ``Ea`` from rest.
+
+    Both are ``[[M, G], [0, Z]]`` on ``[x; v]`` (``n`` states, ``m`` inputs
+    ``v`` that start at 1, one per column), stepped ``n_steps`` times:
+    ``err = max_k |C (x_k - x*_k)|``, ``peak = max_k |C x*_k|`` for each row
+    ``C`` of ``rows``. The first :data:`ORBIT_SAMPLES` / 2 steps one by one,
+    the rest in strides of ``s`` steps with the s-th powers of the maps
+    (exact; only samples between strides are skipped). Non-finite: err inf.
+    """
+    m = Ma.shape[0] - n
+    P = np.stack([Ma, Ea])
+    X0 = np.broadcast_to(np.vstack([np.zeros((n, m)), np.eye(m)]).astype(Ma.dtype), (2, n + m, m))
+    head = min(n_steps, ORBIT_SAMPLES // 2)
+    stride = max(1, math.ceil((n_steps - head) / (ORBIT_SAMPLES // 2)))
+    with np.errstate(all="ignore"):
+        orbit = orbits(P, X0, head)
+        if n_steps > head and (n_steps - head) // stride > 0:
+            Ps = np.stack([np.linalg.matrix_power(Ma, stride), np.linalg.matrix_power(Ea, stride)])
+            orbit = np.concatenate([orbit, orbits(Ps, orbit[:, :, -m:], (n_steps - head) // stride)], axis=2)
+        if not np.all(np.isfinite(orbit)):
+            inf = np.full((rows.shape[0], m), np.inf)
+            return inf, inf
+        y = np.matmul(rows, orbit[:, :n]).reshape(2, rows.shape[0], -1, m)  # (method/exact, row, samples, inputs)
+        return np.max(np.abs(y[0] - y[1]), axis=1), np.max(np.abs(y[1]), axis=1)
+
+
+def harmonic_response_error(integrator, A, B, rows, K, n_steps: int, omega: float, stage=None) -> tuple[np.ndarray, np.ndarray]:
+    """(err, peak), each (rows, inputs): max_k |y_k - y*_k| and max_k |y*_k| for a unit ``e^{j omega t}`` on each input.
+
+    ``stage``: :func:`stage_gains` of this integrator and K when already made.
+    Unstable or non-finite: err inf.
+    """
+    h = integrator.dt
+    n, m = B.shape
+    M, gains = stage if stage is not None else stage_gains(integrator, K)
+    G = sum(Gi * np.exp(1j * omega * c * h) for c, Gi in gains)
+    A_cl = A + B @ K
+    aug = np.zeros((n + m, n + m), dtype=complex)
+    aug[:n, :n], aug[:n, n:] = A_cl, B
+    aug[n:, n:] = 1j * omega * np.eye(m)
+    expo = scipy.linalg.expm(aug * h)
+    z = np.exp(1j * omega * h) * np.eye(m)
+    Ma = np.block([[M.astype(complex), G], [np.zeros((m, n)), z]])
+    Ea = np.block([[expo[:n, :n], expo[:n, n:]], [np.zeros((m, n)), z]])
+    return orbit_error(Ma, Ea, n, rows, n_steps)
+
+
+def profile_harmonics(plant, probes) -> list[tuple[int, float, float]]:
+    """``[(input 0 drive / 1 load, frequency [Hz], amplitude [N m])]`` the scene's torques excite at its operating points.
+
+    ``probes``: ``(t [s], phi_M [rad], omega_M [rad/s])`` along the rigid
+    estimate. Frequencies from each profile's ``excitation_frequencies`` at
+    the wheel's speed (finite and > 0: steps are the step response's);
+    amplitude half the profile's range over one period from that state, the
+    wheel turning at its speed. Only what repeats over the next period
+    counts (within :data:`PERIODIC_TOLERANCE` of the range): a ramp's or
+    soft start's "frequency" is a single event, rated by the step response
+    and the forcing windows. Close frequencies merge (largest amplitude
+    kept); at most :data:`MAX_HARMONICS` per input, largest amplitude first.
+    """
+    i = plant.model.params.ratio
+    profiles = ((plant.drive, plant.scalar_drive, 1.0), (plant.load, plant.scalar_load, i))
+    out = []
+    for channel, (profile, torque, gear) in enumerate(profiles):
+        found: list[tuple[float, float]] = []
+        for t, phi, omega in probes:
+            speed = gear * omega
+            try:
+                freqs = profile.excitation_frequencies(abs(speed))
+            except Exception:  # a profile that cannot say: none
+                freqs = []
+            for f, _ in freqs:
+                f = float(f)
+                if not (math.isfinite(f) and f > 0.0):
+                    continue
+                s = np.linspace(0.0, 2.0 / f, 2 * AMPLITUDE_SAMPLES, endpoint=False)
+                with np.errstate(all="ignore"):
+                    values = np.array([torque(t + dt_, gear * phi + speed * dt_, speed) for dt_ in s], dtype=float)
+                if not np.all(np.isfinite(values)):
+                    continue
+                first, second = values[:AMPLITUDE_SAMPLES], values[AMPLITUDE_SAMPLES:]
+                a = 0.5 * float(np.max(first) - np.min(first))
+                if a <= 0.0 or np.max(np.abs(second - first)) > PERIODIC_TOLERANCE * 2.0 * a:
+                    continue  # not periodic here (a ramp, a soft start, a table): the step response and windows see it
+                for k, (f_old, a_old) in enumerate(found):
+                    if abs(f - f_old) <= FREQUENCY_MERGE * max(f, f_old):
+                        found[k] = (f_old, max(a, a_old))
+                        break
+                else:
+                    found.append((f, a))
+        found.sort(key=lambda fa: -fa[1])
+        out += [(channel, f, a) for f, a in found[:MAX_HARMONICS]]
+    return out
+
+
+def harmonic_error(integrator, A, B, rows, K, n_steps: int, harmonics, peaks) -> float:
+    """The harmonic term [-]: max over ``harmonics`` ``(input, f [Hz], a [N m])`` and output rows of
+    ``err a / max(P, peak a)`` (module docstring); ``peaks`` (rows,): the run's estimated peak per output."""
+    if not harmonics:
+        return 0.0
+    try:
+        stage = stage_gains(integrator, K)
+    except IntegratorError:
+        return math.inf
+    worst = 0.0
+    peaks = np.asarray(peaks, dtype=float)
+    for channel, f, a in harmonics:
+        err, peak = harmonic_response_error(integrator, A, B, rows, K, n_steps, 2.0 * math.pi * f, stage)
+        err, peak = err[:, channel] * a, peak[:, channel] * a
+        if not np.all(np.isfinite(err)):
+            return math.inf
+        scale = np.maximum(peaks[: err.size], peak)
+        rel = np.where(scale > 0, err / np.where(scale > 0, scale, 1.0), 0.0)
+        worst = max(worst, float(np.max(rel)))
+    return worst

@@ -1,0 +1,192 @@
+"""Method and step by accuracy: what a scene that names no method (or says ``method: auto``) runs with.
+
+The candidates are the fixed-step methods exact for the belt mode (stable
+at any step on it), cheapest first by torque evaluations per step:
+``exact`` (1), ``etd2`` (2), ``etd4`` (4), ``lawson5`` (6). The explicit
+Runge-Kutta and Euler methods cost as much per step as one of these and are
+both less accurate on the belt mode and only conditionally stable, so they
+are never the cheapest that is accurate.
+
+The choice: at the scene's ``dt``, the cheapest candidate the accuracy guard
+(:func:`~belt_drive_ros.core.accuracy.check_accuracy`, on this scene's
+model, closed loop and torques; for the slipping model
+:func:`~belt_drive_ros.core.accuracy.check_slipping`, both modes) rates
+stable and within :data:`~belt_drive_ros.core.accuracy.SUGGEST_MARGIN` of
+the tolerance (the same rule as every step the tool names: the estimate's
+spread). If none is, the fewest substeps ``n`` (step ``dt / n``, from
+:data:`SUBSTEPS`) at which one is, again the cheapest at that ``n``. If none
+is up to the last, the candidate with the smallest estimate at the finest
+step is taken and the reason says that the tolerance is not met (the run's
+report then warns as for a stated method).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .accuracy import ACCURACY_TOLERANCE, SUGGEST_MARGIN, check_accuracy, check_slipping, probe_scene
+
+#: the method name that asks for this choice
+AUTO = "auto"
+#: candidates, cheapest first (torque evaluations per step)
+CANDIDATES = ("exact", "etd2", "etd4", "lawson5")
+#: substeps tried when no candidate is accurate at the scene's dt
+SUBSTEPS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)
+
+
+@dataclass(frozen=True)
+class MethodChoice:
+    """Outcome of :func:`choose_method`.
+
+    method : the chosen integrator; dt : its step [s] (the scene's dt / substeps).
+    substeps : steps per scene dt [-]; tolerance : the tolerance aimed at [-].
+    error : the guard's estimate for the choice [-]; met : within the tolerance.
+    reason : one sentence a person can check (what was tried, what each rated).
+    tried : ((method, dt [s], estimated error [-]), ...) in the order checked.
+    """
+
+    method: str
+    dt: float
+    substeps: int
+    tolerance: float
+    error: float
+    met: bool
+    reason: str
+    tried: tuple = ()
+
+
+def _rate(report) -> float:
+    return report.error if report is not None and report.stable else math.inf
+
+
+def choose_method(plant, duration: float, x0, dt: float, tolerance: float = ACCURACY_TOLERANCE, stated_inputs: bool = True,
+                  slipping: tuple | None = None, substeps=SUBSTEPS) -> MethodChoice:  # fmt: skip
+    """The cheapest candidate (and fewest substeps) the guard rates accurate on ``plant`` (module docstring).
+
+    ``plant``: the model the run uses (rigid or flexible; for the slipping
+    model its flexible plant with ``slipping = (params, drive, load)``).
+    ``x0``: the plant model's initial state; ``dt`` [s]: the scene's step.
+    """
+    bar = SUGGEST_MARGIN * tolerance
+    tried = []
+    probes = probe_scene(plant, duration, x0, dt, stated_inputs)
+
+    def rate(method, h):
+        if slipping is not None:
+            report = check_slipping(*slipping, method, h, duration, x0, tolerance, suggest=False,
+                                    stated_inputs=stated_inputs, probes=probes)  # fmt: skip
+        else:
+            report = check_accuracy(plant, method, h, duration, x0, tolerance, suggest=False, probes=probes,
+                                    stated_inputs=stated_inputs)  # fmt: skip
+        error = _rate(report)
+        tried.append((method, h, error))
+        return error
+
+    for n in substeps:
+        h = dt / n
+        if n > 1 and duration / h > 1e9:  # a step count the scene itself would refuse
+            break
+        # the most accurate first: when neither passes, the cheaper ones are not checked at this step
+        best = {m: rate(m, h) for m in ("etd4", "lawson5")}
+        if min(best.values()) > bar:
+            continue
+        for method in CANDIDATES:
+            error = best[method] if method in best else rate(method, h)
+            if error <= bar:
+                return MethodChoice(method, h, n, tolerance, error, True, _reason(method, h, n, dt, error, tolerance, tried), tuple(tried))
+    method, h, error = min(tried, key=lambda r: (r[2], -r[1]))
+    n = round(dt / h)
+    reason = (
+        f"{method} at dt={h:.3g} s ({n} substep(s) of {dt:.3g} s): no candidate ({', '.join(CANDIDATES)}) is rated within "
+        f"{bar:.2g} (a quarter of the tolerance {tolerance:.2g}) down to {dt / substeps[-1]:.3g} s; this is the most "
+        f"accurate found (estimated {error:.2g} of the peak)"
+    )
+    return MethodChoice(method, h, n, tolerance, error, error <= tolerance, reason, tuple(tried))
+
+
+def _reason(method, h, n, dt, error, tolerance, tried) -> str:
+    cheaper = [f"{m} {e:.2g}" for m, hh, e in tried if hh == h and CANDIDATES.index(m) < CANDIDATES.index(method)]
+    step = f"dt={h:.3g} s" + (f" ({n} substeps of the scene's {dt:.3g} s: none is accurate at {dt:.3g} s)" if n > 1 else " (the scene's)")
+    line = (
+        f"{method} at {step}: the cheapest of {', '.join(CANDIDATES)} the accuracy guard rates within a quarter of the "
+        f"tolerance {tolerance:.2g} on this scene (estimated {error:.2g} of the peak)"
+    )
+    if cheaper:
+        line += f"; cheaper ones rate {', '.join(cheaper)}"
+    return line
+
+
+def choose_for_scene(scene, kind: str) -> MethodChoice:
+    """:func:`choose_method` for ``scene`` on the model ``kind`` (rigid, flexible, slipping or regularised).
+
+    Slipping: the flexible plant with both modes checked; regularised: the flexible plant (its own
+    stability guard still checks the chosen step on the regularised contact).
+    """
+    from .model import make_model
+    from .stepper import Plant
+
+    p = scene.params
+    base = "rigid" if kind == "rigid" else "flexible"
+    plant = Plant(make_model(base, p), scene.drive, scene.load)
+    x0 = scene.initial_state.vector(base, p.ratio)
+    slipping = (p, scene.drive, scene.load) if kind == "slipping" else None
+    return choose_method(plant, scene.duration, x0, scene.dt, scene.tolerance, slipping=slipping)
+
+
+def resolve(scene, kind: str | None = None):
+    """``(scene, choice)``: the scene with method and dt chosen when it says ``method: auto``, else ``(scene, None)``.
+
+    ``kind``: the model the run uses (rigid, flexible, slipping, regularised); default the scene's own.
+    For ``model: auto`` the caller passes the frequency rule's rigid or flexible
+    (:func:`~belt_drive_ros.core.fidelity.choose_model` with ``check_slip=False``); a run that then slips is
+    checked in both modes after it.
+    """
+    if scene.method != AUTO:
+        return scene, None
+    kind = kind or scene.model
+    if kind == "auto":
+        raise ValueError("resolve: model auto needs the linear tier the frequency rule chose (kind)")
+    choice = choose_for_scene(scene, kind)
+    return scene.with_overrides(method=choice.method, dt=choice.dt), choice
+
+
+def good_step_error(scene, kind: str, error):
+    """The stability guard's refusal ``error`` for ``scene`` on ``kind``, naming a step both guards accept.
+
+    The stability guard sees the free belt only; the step it would name
+    (0.9 of its boundary) can be far from accurate on the closed loop. The
+    accuracy guard's search (halvings of the step, then another method,
+    :func:`~belt_drive_ros.core.accuracy.check_accuracy`) names one that is
+    stable for both and within a quarter of the tolerance. Returns the new
+    error (the original when that search names nothing).
+    """
+    from .errors import UnstableStepError
+    from .model import make_model
+    from .stepper import Plant
+
+    report = getattr(error, "stability", None)
+    if report is None:
+        return error
+    p = scene.params
+    base = "rigid" if kind == "rigid" else "flexible"
+    x0 = scene.initial_state.vector(base, p.ratio)
+    if kind == "slipping":
+        rated = check_slipping(p, scene.drive, scene.load, scene.method, scene.dt, scene.duration, x0, scene.tolerance,
+                               scene.method_options)  # fmt: skip
+    else:
+        plant = Plant(make_model(base, p), scene.drive, scene.load)
+        rated = check_accuracy(plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance, scene.method_options)
+    if rated is None or (rated.suggestion is None and rated.alternative is None):
+        return error
+    where = f"stable and accurate to {scene.tolerance:.2g} on this scene's closed loop (both guards)"
+    if rated.suggestion is not None:
+        fix = f"dt = {rated.suggestion:.3g} s is {where}"
+        if rated.alternative is not None:
+            fix += f"; so is {rated.alternative[0]} at dt = {rated.alternative[1]:.3g} s"
+    else:
+        fix = f"no step of {rated.method} is accurate down to {scene.dt / 2.0**16:.2g} s; {rated.alternative[0]} at dt = " \
+              f"{rated.alternative[1]:.3g} s is {where}"
+    fresh = UnstableStepError(f"{report.describe()}; {fix}")
+    fresh.stability = report
+    return fresh
