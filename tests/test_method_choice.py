@@ -213,3 +213,34 @@ def test_recording_metadata_says_how_the_method_was_chosen(tmp_path):
     with open(out, "rb") as f:
         record = next(m.metadata for m in make_reader(f).iter_metadata() if "method_choice" in m.metadata)
     assert record["method"] in CANDIDATES and record["method_choice"].startswith(record["method"])
+
+
+def test_exact_forcing_map_equals_the_exponential_of_the_system_augmented_with_the_oscillator():
+    """F(omega) = int_0^h e^{(h-s)A} B e^{j omega s} ds by the solve (j omega I - A)^{-1}(e^{j omega h} I - e^{hA}) B
+    against Van Loan's augmented exponential, written here: damped random systems, and an undamped oscillator
+    forced exactly at its frequency (the solve is singular there: the exponential is taken)."""
+    import scipy.linalg
+
+    from belt_drive_ros.core.forced_response import exact_forcing_map
+
+    def augmented(A, B, h, omega):
+        n, m = B.shape
+        aug = np.zeros((n + m, n + m), dtype=complex)
+        aug[:n, :n], aug[:n, n:], aug[n:, n:] = A, B, 1j * omega * np.eye(m)
+        return scipy.linalg.expm(aug * h)[:n, n:]
+
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        n, m = 4, 2
+        A = rng.normal(size=(n, n)) * 50.0
+        A -= (np.max(np.linalg.eigvals(A).real) + rng.uniform(0.1, 20.0)) * np.eye(n)  # stable, damped
+        B = rng.normal(size=(n, m))
+        h, omega = rng.uniform(1e-4, 5e-3), rng.uniform(1.0, 3000.0)
+        F = exact_forcing_map(A, B, scipy.linalg.expm(h * A), h, omega)
+        ref = augmented(A, B, h, omega)
+        assert np.max(np.abs(F - ref)) <= 1e-10 * np.max(np.abs(ref))
+    w = 66.0
+    A = np.array([[0.0, 1.0], [-w * w, 0.0]])  # undamped, eigenvalues +-j w
+    B = np.array([[0.0], [1.0]])
+    F = exact_forcing_map(A, B, scipy.linalg.expm(1e-3 * A), 1e-3, w)
+    assert np.allclose(F, augmented(A, B, 1e-3, w), rtol=0, atol=1e-14)

@@ -18,8 +18,9 @@ run's duration. The method maps ``x_{k+1} = M x_k + G(omega) e^{j omega t_k}``
 with ``G(omega) = sum_i G_i e^{j omega c_i h}``: ``G_i`` the gain of stage
 ``i`` (node ``c_i``) read off the method's own stage scheme. The exact map is
 ``x_{k+1} = E x_k + F(omega) e^{j omega t_k}`` with ``E = e^{h A_cl}`` and
-``F(omega) = int_0^h e^{(h - s) A_cl} B e^{j omega s} ds`` (one matrix
-exponential of the system augmented with the oscillator ``v' = j omega v``).
+``F(omega) = int_0^h e^{(h - s) A_cl} B e^{j omega s} ds`` (one linear solve
+per frequency, :func:`exact_forcing_map`; ``E`` is one matrix exponential
+for every frequency).
 Both orbits are evaluated by doubling (as the step response); the error of
 an output row is ``max_k |y_k - y*_k|`` (complex modulus: the envelope of a
 cosine or sine forcing), its scale ``max_k |y*_k|``.
@@ -133,25 +134,47 @@ def orbit_error(Ma: np.ndarray, Ea: np.ndarray, n: int, rows: np.ndarray, n_step
         return np.max(np.abs(y[0] - y[1]), axis=1), np.max(np.abs(y[1]), axis=1)
 
 
-def harmonic_response_error(integrator, A, B, rows, K, n_steps: int, omega: float, stage=None) -> tuple[np.ndarray, np.ndarray]:
+def harmonic_response_error(integrator, A, B, rows, K, n_steps: int, omega: float, stage=None,
+                            E_cl=None) -> tuple[np.ndarray, np.ndarray]:
     """(err, peak), each (rows, inputs): max_k |y_k - y*_k| and max_k |y*_k| for a unit ``e^{j omega t}`` on each input.
 
-    ``stage``: :func:`stage_gains` of this integrator and K when already made.
-    Unstable or non-finite: err inf.
+    ``stage``: :func:`stage_gains` of this integrator and K when already made;
+    ``E_cl``: ``e^{h (A + B K)}`` when already made. Unstable or non-finite: err inf.
     """
     h = integrator.dt
     n, m = B.shape
     M, gains = stage if stage is not None else stage_gains(integrator, K)
     G = sum(Gi * np.exp(1j * omega * c * h) for c, Gi in gains)
     A_cl = A + B @ K
+    E = scipy.linalg.expm(h * A_cl) if E_cl is None else E_cl
+    F = exact_forcing_map(A_cl, B, E, h, omega)
+    z = np.exp(1j * omega * h) * np.eye(m)
+    Ma = np.block([[M.astype(complex), G], [np.zeros((m, n)), z]])
+    Ea = np.block([[E.astype(complex), F], [np.zeros((m, n)), z]])
+    return orbit_error(Ma, Ea, n, rows, n_steps)
+
+
+#: above this condition number of ``j omega I - A_cl`` (a forcing at an undamped mode) F comes from expm instead
+FORCING_CONDITION_LIMIT = 1e10
+
+
+def exact_forcing_map(A_cl: np.ndarray, B: np.ndarray, E: np.ndarray, h: float, omega: float) -> np.ndarray:
+    """``F(omega) = int_0^h e^{(h - s) A_cl} B e^{j omega s} ds`` (n, m), given ``E = e^{h A_cl}``.
+
+    Since ``d/ds [e^{(h - s) A} e^{j omega s}] = e^{(h - s) A} (j omega I - A) e^{j omega s}``,
+    ``F = (j omega I - A)^{-1} (e^{j omega h} I - E) B``: one linear solve
+    per frequency instead of a matrix exponential of the system augmented
+    with the oscillator. Where ``j omega I - A`` is (nearly) singular (the
+    forcing on an undamped mode) the augmented exponential is used.
+    """
+    n, m = B.shape
+    S = 1j * omega * np.eye(n) - A_cl
+    if np.linalg.cond(S) < FORCING_CONDITION_LIMIT:
+        return np.linalg.solve(S, (np.exp(1j * omega * h) * np.eye(n) - E) @ B)
     aug = np.zeros((n + m, n + m), dtype=complex)
     aug[:n, :n], aug[:n, n:] = A_cl, B
     aug[n:, n:] = 1j * omega * np.eye(m)
-    expo = scipy.linalg.expm(aug * h)
-    z = np.exp(1j * omega * h) * np.eye(m)
-    Ma = np.block([[M.astype(complex), G], [np.zeros((m, n)), z]])
-    Ea = np.block([[expo[:n, :n], expo[:n, n:]], [np.zeros((m, n)), z]])
-    return orbit_error(Ma, Ea, n, rows, n_steps)
+    return scipy.linalg.expm(aug * h)[:n, n:]
 
 
 def profile_harmonics(plant, probes) -> list[tuple[int, float, float]]:
@@ -213,8 +236,9 @@ def harmonic_error(integrator, A, B, rows, K, n_steps: int, harmonics, peaks) ->
         return math.inf
     worst = 0.0
     peaks = np.asarray(peaks, dtype=float)
+    E_cl = scipy.linalg.expm(integrator.dt * (A + B @ K))  # once for every harmonic
     for channel, f, a in harmonics:
-        err, peak = harmonic_response_error(integrator, A, B, rows, K, n_steps, 2.0 * math.pi * f, stage)
+        err, peak = harmonic_response_error(integrator, A, B, rows, K, n_steps, 2.0 * math.pi * f, stage, E_cl)
         err, peak = err[:, channel] * a, peak[:, channel] * a
         if not np.all(np.isfinite(err)):
             return math.inf
