@@ -1,0 +1,340 @@
+"""The accuracy guard's probes and its closed-loop step-response term (see :mod:`belt_drive_ros.core.accuracy`).
+
+Probes: speeds, times and torque slopes taken along a cheap rigid run of the
+scene; the step-response term: the method's one-step map on the linearized
+closed loop against the exact map, and the error of the step response.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from . import stage_scheme as _scheme
+from .errors import IntegratorError
+from .forced_response import ORBIT_SAMPLES, orbit_error, profile_harmonics
+from .model import LINEAR_OUTPUTS, RigidBeltModel
+
+#: default relative tolerance of the guard (speed and belt torque, relative to peak)
+ACCURACY_TOLERANCE = 1e-4
+#: step-response samples compared (beyond them the horizon is sampled in strides, see step_response_error)
+MAX_STEPS = ORBIT_SAMPLES
+#: times along the scene at which the torques' slopes are probed
+N_PROBES = 5
+#: steps of the method in each forcing window (run at dt and dt / 2, Richardson)
+WINDOW_STEPS = 48
+#: a smaller step (the search for one that works) keeps the window's length up to this many of its steps
+MAX_WINDOW_STEPS = 8 * WINDOW_STEPS
+#: a step named as working has an estimated error at most this fraction of the tolerance (the estimate's spread)
+SUGGEST_MARGIN = 0.25
+#: probe windows closer than this in drive speed (relative to the run's top speed) to another: one of them
+SPEED_SPREAD = 0.1
+#: torque breakpoints inside the run that get a forcing window of their own (the first ones)
+MAX_BREAKPOINT_WINDOWS = 4
+#: steps per advance of the probes' rigid run (bounds the stepper's plan, so memory does not grow with the duration)
+PROBE_CHUNK = 1000
+#: growth beyond max(1, exact growth) by this much (relative) is instability, not rounding
+GROWTH_TOLERANCE = 1e-9
+#: least weight of the step response (perturbations the scene does not state: torques from the node, re-excitation)
+MIN_INPUT_WEIGHT = 0.05
+#: halvings tried when naming a step that is both stable and accurate
+MAX_HALVINGS = 16
+#: when the method itself needs more halvings than this, another method is named as well
+ALTERNATIVE_HALVINGS = 3
+#: methods tried as the alternative, in this order (exact for the belt mode, high order)
+ALTERNATIVES = ("etd4", "lawson5", "etd2")
+
+def speed_slopes(plant, times, speeds_M) -> list[np.ndarray]:
+    """(K, (d drive/d omega_M, d load/d omega_3)) per probe: feedback gains K (2, n) from the torques' speed slopes.
+
+    ``plant`` is a :class:`~belt_drive_ros.core.stepper.Plant`; the drive's
+    slope acts on omega_M, the load's on omega_3 (rows of the model's
+    wheel map), evaluated at (t, phi_M, omega_M) and (t, i phi_M, i omega_M).
+    """
+    W = plant.wheel_map
+    i = plant.model.params.ratio
+    gains = []
+    for t, w in zip(times, speeds_M):
+        slopes = []
+        for torque, speed in ((plant.scalar_drive, w), (plant.scalar_load, i * w)):
+            d = 1e-6 * max(1.0, abs(speed))
+            slopes.append((torque(t, 0.0, speed + d) - torque(t, 0.0, speed - d)) / (2.0 * d))
+        gains.append((np.vstack([slopes[0] * W[1], slopes[1] * W[3]]), tuple(slopes)))
+    return gains
+
+
+@dataclass(frozen=True)
+class Probes:
+    """What the guard reads off a cheap rigid run of the scene (:func:`probe_scene`).
+
+    gains : distinct ``(K, slopes)`` of the torques' speed slopes at the probes (see :func:`speed_slopes`).
+    x0 : the scene's initial state (the first forcing window starts there at t = 0).
+    windows : further forcing windows as ``(t [s], phi_M [rad], omega_M [rad/s], anchor)``: the rigid run's
+        motion at t; ``anchor`` a torque breakpoint [s] the window straddles (None: the window starts at t).
+    duration : the scene's duration [s].
+    window : length [s] of a forcing window (:data:`WINDOW_STEPS` steps of the step probed with; a smaller
+        step keeps it, up to :data:`MAX_WINDOW_STEPS` of its steps).
+    input_weight : what the unit step response's error is scaled by for this scene (:func:`input_weight`).
+    harmonics : ``(input, frequency [Hz], amplitude [N m])`` the torques excite
+        (:func:`~belt_drive_ros.core.forced_response.profile_harmonics`).
+    peaks : estimated peaks of drive speed [rad/s] and quasi-static belt torque [N m] at the probes.
+    """
+
+    gains: tuple
+    x0: np.ndarray
+    windows: tuple
+    duration: float
+    window: float
+    input_weight: float = 1.0
+    harmonics: tuple = ()
+    peaks: tuple = (0.0, 0.0)
+
+    def span(self, dt: float) -> float:
+        """Window length [s] for step ``dt``: :attr:`window`, at most :data:`MAX_WINDOW_STEPS` steps."""
+        return min(self.window, MAX_WINDOW_STEPS * dt)
+
+    def window_starts(self, plant, dt: float):
+        """``(t0, x)`` of every window for step ``dt``: t0 on the grid k dt, x the plant model's state.
+
+        A breakpoint's window starts a quarter window before it; the rigid
+        motion is carried there at constant speed; the deflection is the quasi-static one.
+        """
+        yield 0.0, self.x0
+        for t, phi, omega, anchor in self.windows:
+            t0 = t if anchor is None else max(0.0, dt * math.floor((anchor - 0.25 * self.span(dt)) / dt))
+            if t0 > 0.0:
+                yield t0, _model_state(plant, t0, phi + omega * (t0 - t), omega)
+
+
+def _model_state(plant, t: float, phi: float, omega: float) -> np.ndarray:
+    """The plant model's state with the rigid motion (phi_M, omega_M) at time t and the quasi-static deflection."""
+    model = plant.model
+    if model.A.shape[0] == 2:
+        return np.array([phi, omega])
+    i = model.params.ratio
+    drive = plant.scalar_drive(t, phi, omega)
+    load = plant.scalar_load(t, i * phi, i * omega)
+    return model.state_from_rigid(np.array([phi, omega]), load_torque=load, drive_torque=drive)
+
+
+def probe_scene(plant, duration: float, x0, dt: float, stated_inputs: bool = True) -> Probes:
+    """Speed slopes at :data:`N_PROBES` times and the forcing windows' starts, from one cheap rigid run.
+
+    Windows start at t = 0 (from ``x0``), at the probe times before the end,
+    and about each of the first :data:`MAX_BREAKPOINT_WINDOWS` torque
+    breakpoints inside the run (see :meth:`Probes.window_starts`).
+    ``stated_inputs``: the plant's torques are all the inputs (the step
+    response is weighted by their steps, :func:`input_weight`); False
+    (torques from outside, e.g. a node's topic): unit steps, weight 1.
+    """
+    from .stepper import Plant, Stepper
+
+    x0 = np.asarray(x0, dtype=float)
+    wm = plant.wheel_map
+    phi0, w0 = float(wm[0] @ x0), float(wm[1] @ x0)
+    t_probe = np.linspace(0.0, duration, N_PROBES) if duration > 0 else np.array([0.0])
+    inner = [b for b in plant.breakpoints if 0.0 < b < duration][:MAX_BREAKPOINT_WINDOWS]
+    early = {b: max(0.0, dt * math.floor((b - 0.25 * WINDOW_STEPS * dt) / dt)) for b in inner}
+    plain = [float(t) for t in t_probe[1:] if t < duration - 2.0 * dt]
+    stops = sorted(set(plain) | set(early.values()) | {float(t) for t in t_probe})
+    rdt = min(duration / 500.0, 5e-3) if duration > 0 else 1e-3
+    states = {0.0: (phi0, w0)}
+    try:  # advance from stop to stop (memory independent of the duration: runs may stream)
+        stepper = Stepper(Plant(RigidBeltModel(plant.model.params), plant.drive, plant.load), "exact", rdt)
+        x, t = np.array([phi0, w0]), 0.0
+        for t1 in stops:
+            # in pieces of PROBE_CHUNK steps: the stepper plans each advance whole
+            edges = np.append(np.arange(t, t1, PROBE_CHUNK * rdt), t1)
+            for a, b in zip(edges[:-1], edges[1:]):
+                x = stepper.advance(x, float(a), float(b))
+            states[t1], t = (float(x[0]), float(x[1])), t1
+        probe_times = t_probe
+    except Exception:  # a rigid estimate that diverges: probe at the start only
+        probe_times, plain, early = np.array([0.0]), [], {}
+    gains, seen = [], set()
+    speeds = [states[float(t)][1] for t in probe_times]
+    for K, slopes in speed_slopes(plant, probe_times, speeds):
+        key = tuple(float(f"{s:.3g}") for s in slopes)  # slopes equal to 3 digits: the same verdict
+        if key not in seen:
+            seen.add(key)
+            gains.append((K, slopes))
+    # a probe window at a speed within SPEED_SPREAD of one already windowed sees the same harmonics: skipped
+    kept, scale = [0.0], max(abs(w) for _, w in states.values()) or 1.0
+    for t in plain:
+        if all(abs(states[t][1] - states[k][1]) > SPEED_SPREAD * scale for k in kept):
+            kept.append(t)
+    windows = [(t, *states[t], None) for t in kept[1:]] + [(t, *states[t], b) for b, t in early.items()]
+    at = [(float(t), *states[float(t)]) for t in probe_times]
+    weight = 1.0 if not stated_inputs else input_weight(plant, x0, dt, at, [(b, *states[t]) for b, t in early.items()])
+    harmonics = tuple(profile_harmonics(plant, at))
+    return Probes(tuple(gains), x0, tuple(windows), float(duration), WINDOW_STEPS * dt, weight, harmonics,
+                  _peaks(plant, at))  # fmt: skip
+
+
+def _peaks(plant, at) -> tuple[float, float]:
+    """(max |omega_M| [rad/s], max |quasi-static belt torque| [N m]) over the probes ``(t, phi_M, omega_M)``."""
+    p = plant.model.params
+    rigid, i = RigidBeltModel(p), p.ratio
+    w, tb = 0.0, 0.0
+    with np.errstate(all="ignore"):
+        for t, phi, omega in at:
+            u = np.array([plant.scalar_drive(t, phi, omega), plant.scalar_load(t, i * phi, i * omega)])
+            w, tb = max(w, abs(omega)), max(tb, abs(float(rigid.belt_torque(np.array([phi, omega]), u))))
+    return (w if math.isfinite(w) else 0.0, tb if math.isfinite(tb) else 0.0)
+
+
+def input_weight(plant, x0, dt: float, probes, jumps) -> float:
+    """Scale [-] of the unit step response's error for this scene: ``min(1, 2 dB / T_peak)``, at least
+    :data:`MIN_INPUT_WEIGHT`.
+
+    The step response (:func:`step_response_error`) switches a unit torque
+    on at once; its error relative to its own peak (``2`` steps of belt
+    torque: the undamped overshoot) becomes, in the scene, that times
+    ``2 dB / T_peak``, with ``dB`` [N m] the largest step of belt torque
+    the scene's inputs make:
+
+    * at the start, the quasi-static belt torque the torques at t = 0 need
+      (rigid model) less what the initial state carries
+      (:func:`~belt_drive_ros.core.fidelity.start_mismatch`'s sizes);
+    * at each torque breakpoint ``jumps`` ``(b, phi_M, omega_M)``, the jump
+      of the rigid belt torque across it;
+    * a ramp of the quasi-static belt torque at rate ``R`` [N m/s] (a soft
+      start, a motor curve) moves the belt mode by ``R / omega_n``: an
+      equivalent step (forward difference over ``dt`` at each probe
+      ``(t, phi_M, omega_M)``, the start included).
+
+    ``T_peak``: the largest |quasi-static belt torque| at the probes. Rigid
+    model (no belt mode): 1. The floor keeps perturbations the scene does
+    not state (a node's torques) rated.
+    """
+    model = plant.model
+    p = model.params
+    rigid = RigidBeltModel(p)
+    i = p.ratio
+
+    def quasi_static(t, phi, omega):
+        u = np.array([plant.scalar_drive(t, phi, omega), plant.scalar_load(t, i * phi, i * omega)])
+        return float(rigid.belt_torque(np.array([phi, omega]), u))
+
+    wm = plant.wheel_map
+    x0 = np.asarray(x0, dtype=float)
+    phi0, w0 = float(wm[0] @ x0), float(wm[1] @ x0)
+    rigid_model = model.A.shape[0] == 2
+    j = LINEAR_OUTPUTS.index("belt_torque")
+    carried = 0.0 if rigid_model else float(model.C[j] @ x0)  # rigid: the torques at t = 0 switch on from none
+    steps = [abs(quasi_static(0.0, phi0, w0) - carried)]
+    levels = [abs(quasi_static(0.0, phi0, w0))]
+    omega_n = 1.0 / dt if rigid_model else p.belt_natural_frequency  # rigid: a ramp held over a step is a step R dt
+    with np.errstate(all="ignore"):
+        for t, phi, omega in probes:
+            here = quasi_static(t, phi, omega)
+            levels.append(abs(here))
+            steps.append(abs(quasi_static(t + dt, phi, omega) - here) / dt / omega_n)
+        for b, phi, omega in jumps:
+            eps = 1e-6 * dt
+            before, after = quasi_static(b - eps, phi, omega), quasi_static(b + eps, phi, omega)
+            levels += [abs(before), abs(after)]
+            steps.append(abs(after - before))
+    peak, step = max(levels), max(steps)
+    if not (math.isfinite(peak) and math.isfinite(step)) or peak <= 0.0:
+        return 1.0
+    return float(min(1.0, max(MIN_INPUT_WEIGHT, 2.0 * step / peak)))
+
+
+def closed_loop_maps(integrator, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(M, G): the method's step on x' = A x + B (K x + u_0) is ``x+ = M x + G u_0`` (from its stage scheme)."""
+    n = integrator.A.shape[0]
+    scheme, h = integrator.scheme, integrator.dt
+
+    def run(x, u0):
+        return _scheme.step(scheme, h, 0.0, x, lambda t, y: K @ y + u0, integrator.name)
+
+    m = K.shape[0]
+    if not scheme.implicit:  # affine in (x, u_0): every unit column in one call, as a matrix
+        MG = run(np.eye(n, n + m), np.eye(m, n + m, n))
+        return MG[:, :n], MG[:, n:]
+    zero_u = np.zeros(m)
+    M = np.column_stack([run(e, zero_u) for e in np.eye(n)])
+    G = np.column_stack([run(np.zeros(n), e) for e in np.eye(m)])
+    return M, G
+
+
+def exact_maps(A_cl: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """(E, F): the exact step of x' = A_cl x + B u_0 with constant u_0 (augmented matrix exponential)."""
+    n, m = B.shape
+    aug = np.zeros((n + m, n + m))
+    aug[:n, :n], aug[:n, n:] = A_cl, B
+    expo = scipy.linalg.expm(aug * h)
+    return expo[:n, :n], expo[:n, n:]
+
+
+def _spectral_radius(M: np.ndarray) -> float:
+    mu = np.linalg.eigvals(M)
+    mu = np.where(np.abs(mu - 1.0) <= 1e-6, 1.0, mu)  # rigid-body Jordan block at 1: 1 +/- sqrt(eps)
+    return float(np.max(np.abs(mu)))
+
+
+def step_response_error(M, G, E, F, rows: np.ndarray, n_steps: int) -> float:
+    """Max over unit inputs and output rows of max_k |y_k - y*_k| / max_k |y*_k|, k = 1 .. ``n_steps``.
+
+    From rest with a unit drive and a unit load torque (two columns at
+    once), ``X_{k+1} = M X_k + G`` against ``Z_{k+1} = E Z_k + F``. The
+    first :data:`MAX_STEPS` / 2 steps are taken one by one; the rest, when
+    there are more, in strides of ``s`` steps with the s-th powers of the
+    augmented maps (exact, only samples between strides are skipped). Both
+    recurrences are evaluated at once by doubling (:func:`~belt_drive_ros.core.forced_response.orbit_error`).
+    """
+    n, m = G.shape
+    Ma = np.block([[M, G], [np.zeros((m, n)), np.eye(m)]])
+    Ea = np.block([[E, F], [np.zeros((m, n)), np.eye(m)]])
+    err, peak = orbit_error(Ma, Ea, n, rows, n_steps)
+    if not np.all(np.isfinite(err)):
+        return math.inf
+    # a unit input that does not move an output at all (peak 0) carries no error either
+    return float(np.max(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0)))
+
+
+def _output_rows(model) -> tuple[np.ndarray, np.ndarray]:
+    """(C rows, D rows) of drive speed and belt torque (the guard's two signals)."""
+    j = [LINEAR_OUTPUTS.index("omega_M"), LINEAR_OUTPUTS.index("belt_torque")]
+    return model.C[j], model.D[j]
+
+
+#: the linear (belt mode and slopes) verdicts already computed: key -> (stable, error, growth, exact growth, h omega)
+_LINEAR_CACHE: dict = {}
+_LINEAR_CACHE_SIZE = 512
+
+
+def linear_verdict(integrator, A, B, rows, K, n_steps: int) -> tuple:
+    """(stable, error, growth, exact growth, h omega) of the method's closed-loop map ``A + B K`` (cached).
+
+    The key is every number the verdict depends on (matrices, method and its
+    options through the integrator's one-step map, step, gains, horizon), so a
+    hit is the same computation.
+    """
+    dt = integrator.dt
+    key = (integrator.name, dt, A.tobytes(), B.tobytes(), rows.tobytes(), K.tobytes(), n_steps,
+           repr(sorted(getattr(integrator, "options", {}).items())))  # fmt: skip
+    hit = _LINEAR_CACHE.get(key)
+    if hit is not None:
+        return hit
+    A_cl = A + B @ K
+    E, F = exact_maps(A_cl, B, dt)
+    try:
+        M, G = closed_loop_maps(integrator, K)
+    except IntegratorError:
+        M, G = np.full_like(E, np.inf), np.full_like(F, np.inf)
+    growth = _spectral_radius(M) if np.all(np.isfinite(M)) else math.inf
+    exact_growth = _spectral_radius(E)
+    stable = growth <= max(1.0, exact_growth) * (1.0 + GROWTH_TOLERANCE) + 1e-15
+    error = step_response_error(M, G, E, F, rows, n_steps) if stable else math.inf
+    verdict = (stable, error, growth, exact_growth, dt * float(np.max(np.abs(np.linalg.eigvals(A_cl)))))
+    if len(_LINEAR_CACHE) >= _LINEAR_CACHE_SIZE:
+        _LINEAR_CACHE.pop(next(iter(_LINEAR_CACHE)))
+    _LINEAR_CACHE[key] = verdict
+    return verdict
+
+
