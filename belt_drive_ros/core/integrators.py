@@ -189,6 +189,8 @@ def _expm(M: np.ndarray) -> np.ndarray:
 
 def _hcat(*blocks) -> np.ndarray:
     """Blocks side by side (last axis), broadcast over any leading batch axes (a stack of variants' matrices)."""
+    if all(np.ndim(b) == 2 for b in blocks):  # one model (the common case): no broadcasting to set up
+        return np.concatenate(blocks, axis=-1)
     batch = np.broadcast_shapes(*(np.shape(b)[:-2] for b in blocks))
     return np.concatenate([np.broadcast_to(b, batch + np.shape(b)[-2:]) for b in blocks], axis=-1)
 
