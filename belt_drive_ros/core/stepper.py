@@ -160,9 +160,10 @@ class Plant:
         """Vectorized u for samples ``t`` (N,), ``x`` (N, n) -> (N, 2)."""
         phi_M, omega_M, phi_3, omega_3 = self.model.wheel_coordinates(x)
         t = np.asarray(t, dtype=float)
-        d = np.broadcast_to(self.drive.torque(t, phi_M, omega_M), t.shape)
-        l = np.broadcast_to(self.load.torque(t, phi_3, omega_3), t.shape)
-        return np.stack([d, l], axis=-1).astype(float)
+        u = np.empty(t.shape + (2,))
+        u[..., 0] = self.drive.torque(t, phi_M, omega_M)
+        u[..., 1] = self.load.torque(t, phi_3, omega_3)
+        return u
 
 
 def _coordinate(row: np.ndarray) -> Callable:
