@@ -571,3 +571,20 @@ def test_scipy_methods_reach_their_tolerance(method, constant_torque_exact):
         factor = ADAPTIVE_GLOBAL_FACTOR_BDF if method == "BDF" else ADAPTIVE_GLOBAL_FACTOR
         assert errors[rtol] <= factor * rtol, (method, rtol, errors[rtol])
     assert errors[1e-6] / errors[1e-9] > 100.0, errors
+
+
+def test_a_fixed_step_integrator_is_shared_per_model_and_an_adaptive_one_never():
+    """make_integrator builds a fixed-step method once per (method, dt, options, A, B) (read-only matrices);
+    scipy's adaptive methods hold a solver's state, so every call gets its own."""
+    A = np.array([[0.0, 1.0], [-4.0, -0.1]])
+    B = np.array([[0.0, 0.0], [1.0, -1.0]])
+    first = make_integrator("etd2", A, B, 1e-3)
+    assert make_integrator("etd2", A.copy(), B.copy(), 1e-3) is first
+    assert make_integrator("etd2", A, B, 2e-3) is not first
+    assert make_integrator("trapezoidal", A, B, 1e-3, tol=1e-12) is not make_integrator("trapezoidal", A, B, 1e-3)
+    other = A.copy()
+    other[1, 0] = -5.0
+    assert make_integrator("etd2", other, B, 1e-3) is not first
+    assert make_integrator("RK45", A, B, 1e-3) is not make_integrator("RK45", A, B, 1e-3)
+    stack = np.stack([A, other])  # an ensemble's stack of variants' matrices: not cached
+    assert make_integrator("etd2", stack, B, 1e-3) is not make_integrator("etd2", stack, B, 1e-3)

@@ -164,6 +164,22 @@ def test_advance_in_grid_ticks_is_bit_identical_to_one_run():
             assert np.array_equal(x, states[(j + 1) * every]), (method, j)
 
 
+def test_ticks_see_breakpoints_set_after_the_stepper_remembered_a_free_interval():
+    """The tick's breakpoint check remembers the last breakpoint-free interval; a new breakpoint list (the node's
+    torque changes) inside it must split the next tick as a new stepper does."""
+    drive, load = S.Step(0.0, 8.0, 0.0105), S.Constant(1.0)
+    stepper = Stepper(Plant(MODEL, drive, load), "exact", 1e-3)
+    x = X0
+    for k in range(5):  # the interval (-inf, 0.0105) remembered
+        x = stepper.advance(x, k * 1e-3, (k + 1) * 1e-3)
+    stepper.breakpoints = [0.0055]
+    moved = Stepper(Plant(MODEL, drive, load), "exact", 1e-3)
+    moved.breakpoints = [0.0055]
+    after = stepper.advance(x, 0.005, 0.006)
+    assert stepper.split_steps  # split at 0.0055, not taken as a whole step
+    assert np.array_equal(after, moved.advance(x, 0.005, 0.006))
+
+
 def test_advance_with_off_grid_ticks_against_closed_form():
     """Ticks of 1.5 ms on a 1 ms grid (partial steps), jumps at 0.1234567 s and at a tick time."""
     drive, load = S.Step(0.0, 8.0, 0.1234567), S.Step(2.0, -1.0, 0.0045)

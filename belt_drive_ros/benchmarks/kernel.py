@@ -8,10 +8,12 @@
    ``cc -O2`` where a C compiler exists; the three final speeds printed to 12
    digits. Then ``etd2``, ``etd4``, ``lawson5``, ``rk4`` and ``trapezoidal``
    through the kernel, as a multiple of ``exact``.
-2. **Whole warm simulate()** (guards, model choice, accuracy check, outputs
+2. **The node's tick**: :meth:`Stepper.advance` of one 1 ms step with the
+   held drive torque set before each (the call the tick makes), median and p99.
+3. **Whole warm simulate()** (guards, model choice, accuracy check, outputs
    included): x real time of ``paper``, ``e_motor_start``, ``bsg_start``,
    ``truck_compressor`` (process CPU time, minimum of repeats).
-3. **Start-up**: ``belt-drive sim paper --quiet`` process CPU time (children's
+4. **Start-up**: ``belt-drive sim paper --quiet`` process CPU time (children's
    rusage, median of 5, caches warm).
 
 Prints a table and writes ``kernel.csv`` into ``--out``. Timings only; the
@@ -145,6 +147,27 @@ def _c_ns(steps: int) -> tuple[float, float] | None:
         return best
 
 
+def _tick_us(ticks: int) -> tuple[float, float]:
+    """(median, p99) [us] of one node tick's advance: ``paper``, flexible, ``exact`` at 1 ms, held drive torque
+    set before every tick (:meth:`~belt_drive_ros.core.stepper.Stepper.advance`, the call the node's tick makes)."""
+    from ..core.sources import HeldTorque
+    from ..core.stepper import Plant, Stepper
+
+    scene = load_scene("paper")
+    held = HeldTorque(0.0)
+    stepper = Stepper(Plant(make_model("flexible", scene.params), held, scene.load), "exact", 1e-3)
+    x = np.ascontiguousarray(scene.initial_state.vector("flexible", scene.params.ratio), dtype=float)
+    samples = []
+    clock = time.perf_counter_ns
+    for k in range(ticks):
+        held.value = 5.0 + math.sin(1e-3 * k)
+        start = clock()
+        x = stepper.advance(x, k * 1e-3, (k + 1) * 1e-3)
+        samples.append(clock() - start)
+    samples = sorted(samples[ticks // 10 :])
+    return statistics.median(samples) / 1e3, samples[int(0.99 * len(samples))] / 1e3
+
+
 def _simulate_rtf(name: str, repeats: int) -> tuple[float, float]:
     """(x real time, CPU s) of the whole warm simulate() of scene ``name`` (minimum of ``repeats``)."""
     scene = load_scene(name)
@@ -194,6 +217,8 @@ def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
     for method in METHODS[1:]:
         ns, _ = _kernel_ns(method, steps)
         report(f"{method}, kernel", ns, "ns", f"{ns / exact_ns:.2f} x exact")
+    median, p99 = _tick_us(2_000 if quick else 20_000)
+    report("node tick: Stepper.advance one 1 ms step", median, "us", f"median (p99 {p99:.2f} us), held torque set each tick")
     print("bench kernel: whole warm simulate() (guards, model choice, accuracy check, outputs)")
     for name in SCENES:
         rtf, cpu = _simulate_rtf(name, 2 if quick else 5)

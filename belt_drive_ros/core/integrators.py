@@ -189,6 +189,8 @@ def _expm(M: np.ndarray) -> np.ndarray:
 
 def _hcat(*blocks) -> np.ndarray:
     """Blocks side by side (last axis), broadcast over any leading batch axes (a stack of variants' matrices)."""
+    if all(np.ndim(b) == 2 for b in blocks):  # one model (the common case): no broadcasting to set up
+        return np.concatenate(blocks, axis=-1)
     batch = np.broadcast_shapes(*(np.shape(b)[:-2] for b in blocks))
     return np.concatenate([np.broadcast_to(b, batch + np.shape(b)[-2:]) for b in blocks], axis=-1)
 
@@ -631,9 +633,30 @@ def method_class(name: str) -> type[Integrator]:
         ) from None
 
 
+#: fixed-step integrators by (method, step, options, A, B): read-only once built (their matrices and stage
+#: scheme), so every run of one model shares them; the oldest of more than 64 is dropped
+_FIXED: dict = {}
+
+
 def make_integrator(name: str, A: np.ndarray, B: np.ndarray, dt: float, **options) -> Integrator:
-    """Build integrator ``name`` for x' = A x + B u with step ``dt`` [s]."""
-    return method_class(name)(A, B, dt, **options)
+    """Build integrator ``name`` for x' = A x + B u with step ``dt`` [s].
+
+    A fixed-step method on one model (2-D real ``A``) is built once per
+    ``(name, dt, options, A, B)`` and shared (it holds only matrices; a run
+    repeated on the same model skips its matrices and stage scheme). scipy's
+    adaptive methods keep a solver's state: a new one each call.
+    """
+    cls = method_class(name)
+    if not issubclass(cls, FixedStepIntegrator) or np.ndim(A) != 2 or np.iscomplexobj(A):
+        return cls(A, B, dt, **options)
+    A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
+    key = (name, float(dt), repr(sorted(options.items())), A.shape, B.shape, A.tobytes(), B.tobytes())
+    hit = _FIXED.get(key)
+    if hit is None:
+        if len(_FIXED) >= 64:
+            _FIXED.pop(next(iter(_FIXED)), None)
+        hit = _FIXED[key] = cls(A, B, dt, **options)
+    return hit
 
 
 # ------------------------------------------------ vectorized open-loop runs

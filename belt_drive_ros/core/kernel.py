@@ -209,10 +209,42 @@ def _stage_inputs(buf, base, coords, time, lo, hi, uses_angle,
         buf[base + 2 + e] = _friction_force(extra[e], coords[1])
 
 
+#: ``ints`` header of :func:`linear_steps`: n, s, E (extra inputs), rows, cols, final_base, max_iter,
+#: uses_angle (2), then the start of each section of ``reals`` (and its end), then kinds, dk, lk
+HEADER = 9
+SECTIONS = ("W", "offsets", "S", "F", "tol", "extra", "guard", "dx", "dy", "lx", "ly")
+
+
 @njit(**_JIT)
-def linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
-                 uses_angle, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):  # fmt: skip
+def linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp):
     """Steps ``times[k] -> times[k+1]`` of one fixed-step method from state ``x``; states into ``out[k]``.
+
+    The one compiled entry point of the loop: the plant's and method's
+    constant arrays are packed into ``reals`` (float64) and ``ints`` (int64)
+    once per loop (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`;
+    layout :data:`HEADER`, :data:`SECTIONS`), so a call type-checks ten
+    arguments, not twenty-five (a node tick's single step is mostly the
+    call). ``dp``, ``lp``: the drive's and load's profile parameters, passed
+    as themselves (a held torque writes its value into them in place).
+    Unpacked into views, then :func:`_linear_steps` (same operations).
+    """
+    n, s, E, rows, cols = ints[0], ints[1], ints[2], ints[3], ints[4]
+    at = ints[HEADER : HEADER + len(SECTIONS) + 1]
+    k0 = HEADER + len(SECTIONS) + 1
+    nd = dp.shape[0]
+    kinds, dk, lk = ints[k0 : k0 + s], ints[k0 + s : k0 + s + nd], ints[k0 + s + nd :]
+    return _linear_steps(
+        times, x, out, lo, hi, limit, reals[at[0] : at[1]].reshape((1, 4, n)), kinds, reals[at[1] : at[2]],
+        reals[at[2] : at[3]].reshape((s, rows, cols)), reals[at[3] : at[4]].reshape((1, n, cols)), ints[5],
+        reals[at[4]], ints[6], ints[7:9], dk, dp, reals[at[7] : at[8]], reals[at[8] : at[9]], lk, lp,
+        reals[at[9] : at[10]], reals[at[10] : at[11]], reals[at[5] : at[6]].reshape((E, 5)), reals[at[6] : at[7]],
+    )  # fmt: skip
+
+
+@njit(**_INLINE)
+def _linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
+                  uses_angle, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):  # fmt: skip
+    """The loop of :func:`linear_steps` on its unpacked arrays.
 
     Parameters (all arrays float64/int64, C order)
     ----------
@@ -247,11 +279,12 @@ def linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_ba
     m = 2 + extra.shape[0]
     half = n // 2
     cols = n + m * s
-    v = np.zeros(cols)  # [x (or the base stage's state), U_0, ..., U_{s-1}]
-    xs = np.empty(n)
-    state = np.empty(n)
-    coords = np.zeros(4)
-    full = np.empty(s * n)  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
+    work = np.zeros(cols + 2 * n + 4 + s * n)  # one allocation, cut into:
+    v = work[:cols]  # [x (or the base stage's state), U_0, ..., U_{s-1}]
+    xs = work[cols : cols + n]
+    state = work[cols + n : cols + 2 * n]
+    coords = work[cols + 2 * n : cols + 2 * n + 4]
+    full = work[cols + 2 * n + 4 :]  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
     for r in range(n):
         xs[r] = x[r]
     n_explicit = s - 1 if max_iter > 0 else s

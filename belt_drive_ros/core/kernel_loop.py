@@ -96,11 +96,14 @@ class KernelLoop:
         self.drive, self.load = drive, load
         self.extra = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
         self.guard = guard_array(guard, n)
-        d, l = drive, load  # the same arrays each call: a held torque's value written in place is read
-        self._tail = (
-            self.W, self.kinds, self.offsets, self.S, self.F, self.final_base, self.tol, self.max_iter, self.uses_angle,
-            d.kinds, d.params, d.tx, d.ty, l.kinds, l.params, l.tx, l.ty, self.extra, self.guard,
-        )  # fmt: skip
+        d, l = drive, load
+        sections = (self.W, self.offsets, S, self.F, np.array([self.tol]), self.extra, self.guard, d.tx, d.ty, l.tx, l.ty)
+        starts = np.cumsum([0] + [a.size for a in sections])
+        self.reals = np.concatenate([np.ravel(a) for a in sections]).astype(np.float64)
+        header = [n, s, len(extra), rows, cols, self.final_base, self.max_iter, *self.uses_angle]
+        self.ints = np.concatenate([header, starts, kinds, d.kinds, l.kinds]).astype(np.int64)
+        # the profiles' parameters stay their own arrays: a held torque's value written in place is read
+        self._dp, self._lp = d.params, l.params
 
     def __call__(self, times, x, out, lo: float = -math.inf, hi: float = math.inf, limit: float = 1.0e5):
         # numba types a read-only array apart: a writable copy keeps the kernel's one signature
@@ -108,7 +111,11 @@ class KernelLoop:
             x = x.copy()
         if not times.flags.writeable:
             times = times.copy()
-        return self._steps(times, x, out, lo, hi, limit, *self._tail)
+        return self._steps(times, x, out, lo, hi, limit, self.reals, self.ints, self._dp, self._lp)
+
+    def fresh(self, times, x, out, limit: float):
+        """:meth:`__call__` without clamps on arrays known writable (``times`` and ``out`` just made; the tick's call)."""
+        return self._steps(times, x, out, -math.inf, math.inf, limit, self.reals, self.ints, self._dp, self._lp)
 
     @staticmethod
     def usable(scheme) -> bool:

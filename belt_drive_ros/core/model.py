@@ -101,9 +101,13 @@ class _LinearModel:
 
     @property
     def wheel_map(self) -> np.ndarray:
-        """(4, n) matrix W with ``[phi_M, omega_M, phi_3, omega_3] = W x`` (what the torques see)."""
-        rows = [LINEAR_OUTPUTS.index(name) for name in ("phi_M", "omega_M", "phi_3", "omega_3")]
-        return self.C[rows]
+        """(4, n) matrix W with ``[phi_M, omega_M, phi_3, omega_3] = W x`` (what the torques see; built once, read-only)."""
+        cached = self.__dict__.get("_wheel_map")
+        if cached is None:
+            cached = self.C[[LINEAR_OUTPUTS.index(name) for name in ("phi_M", "omega_M", "phi_3", "omega_3")]]
+            cached.flags.writeable = False
+            object.__setattr__(self, "_wheel_map", cached)
+        return cached
 
     @property
     def angle_map(self) -> np.ndarray:

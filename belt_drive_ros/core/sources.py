@@ -104,6 +104,12 @@ class TorqueProfile:
         data = self.data()
         if data is None:
             raise NotImplementedError(f"{type(self).__name__}: define encode() or torque()")
+        if (type(t) is type(angle) is type(speed) is np.ndarray and t.ndim == 1 and angle.shape == speed.shape == t.shape
+                and t.dtype == angle.dtype == speed.dtype == np.float64):  # a run's samples (the common case)
+            out = np.empty(t.size)
+            c = np.ascontiguousarray
+            kernel.profile_torque_array(data.kinds, data.params, data.tx, data.ty, c(t), c(angle), c(speed), out)
+            return out
         if np.ndim(t) or np.ndim(angle) or np.ndim(speed):
             ts, angles, speeds = (np.ascontiguousarray(a, dtype=np.float64).ravel() for a in np.broadcast_arrays(
                 np.asarray(t, dtype=float), np.asarray(angle, dtype=float), np.asarray(speed, dtype=float)))

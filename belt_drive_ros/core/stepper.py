@@ -160,9 +160,10 @@ class Plant:
         """Vectorized u for samples ``t`` (N,), ``x`` (N, n) -> (N, 2)."""
         phi_M, omega_M, phi_3, omega_3 = self.model.wheel_coordinates(x)
         t = np.asarray(t, dtype=float)
-        d = np.broadcast_to(self.drive.torque(t, phi_M, omega_M), t.shape)
-        l = np.broadcast_to(self.load.torque(t, phi_3, omega_3), t.shape)
-        return np.stack([d, l], axis=-1).astype(float)
+        u = np.empty(t.shape + (2,))
+        u[..., 0] = self.drive.torque(t, phi_M, omega_M)
+        u[..., 1] = self.load.torque(t, phi_3, omega_3)
+        return u
 
 
 def _coordinate(row: np.ndarray) -> Callable:
@@ -211,7 +212,9 @@ class Stepper:
     Attributes
     ----------
     breakpoints : sorted times [s] where steps are split or bounded (a copy
-        of the plant's; a caller may change it for this stepper).
+        of the plant's; a caller may change it for this stepper by assigning
+        a new list, never by editing the list in place: the tick remembers
+        the breakpoint-free interval it last fell in, keyed by the list).
     split_steps : ``{grid index k: [breakpoints inside step k]}`` of the last
         :meth:`run` or :meth:`advance`.
     vectorized : whether the last :meth:`run` took the vectorized open-loop path.
@@ -241,26 +244,36 @@ class Stepper:
         self.vectorized = False
         self._partials: dict = {}
         self._loops: dict = {}  # kernel loops of the partial-step integrators, by step length
+        self._free: tuple | None = None  # the breakpoint-free interval the last tick fell in (_near_breakpoint)
 
     # ------------------------------------------------------------ public
     def advance(self, x: np.ndarray, t0: float, t1: float) -> np.ndarray:
         """State at ``t1`` [s] from ``x`` at ``t0`` [s]; raises SimulationDivergedError."""
         if t1 < t0:
             raise ValueError(f"advance: t1 ({t1!r} s) is before t0 ({t0!r} s)")
-        x = np.asarray(x, dtype=float)
+        x = np.ascontiguousarray(x, dtype=np.float64)
         if t1 == t0:
             return x
         if self.guard is not None:
             raise ValueError("advance: a guarded stepper is run with run() (it may stop early)")
         k0, k1 = self._snap(t0), self._snap(t1)
-        if k0 is not None and k1 is not None and k1 > k0 and self.loop is not None:
-            # the node's usual tick: whole steps on the grid, no breakpoint near (the plan's common case, fast)
+        loop = self.loop
+        if k0 is not None and k1 is not None and k1 > k0 and loop is not None:
+            # the node's usual tick: whole steps on the grid, no breakpoint near (the plan's common case):
+            # one kernel call, its status instead of a second look at the state
             if not self._near_breakpoint(t0, t1, k0, k1):
                 self.split_steps = {}
-                out = self._whole_steps(x, k0, k1, None)
-                if not _healthy(out):
-                    raise self._diverged(t1, out)
-                return out
+                if k1 == k0 + 1:  # the floats of _grid(k0, k0 + 2)
+                    times = np.array((self.origin + self.dt * k0, self.origin + self.dt * k1))
+                else:
+                    times = self._grid(k0, k1 + 1)
+                out = np.empty((k1 - k0, x.size))
+                done, status, t = loop.fresh(times, x if x.flags.writeable else x.copy(), out, SPEED_LIMIT)
+                if status == NOT_CONVERGED:
+                    self._not_converged(t)
+                if status == DIVERGED:
+                    raise self._diverged(t1, out[done - 1])
+                return out[0] if k1 == k0 + 1 else out[-1].copy()
         plan = self._plan(t0, t1)
         out = self._march(x, plan, None, record=False)
         if not _healthy(out):
@@ -310,11 +323,19 @@ class Stepper:
 
     def _near_breakpoint(self, t0: float, t1: float, k0: int, k1: int) -> bool:
         """Whether a breakpoint lies in the grid steps k0 .. k1 (within the snap tolerance)."""
-        tol = snap_tolerance(t1, self.dt)
         bps = self.breakpoints
-        return bool(bps) and bisect_left(bps, min(t0, self.grid_time(k0)) - tol) != bisect_right(
-            bps, max(t1, self.grid_time(k1)) + tol
-        )
+        if not bps:
+            return False
+        tol = snap_tolerance(t1, self.dt)
+        a, b = min(t0, self.grid_time(k0)) - tol, max(t1, self.grid_time(k1)) + tol
+        free = self._free  # (breakpoints, L, R): no breakpoint in the open interval (L, R) of that list
+        if free is not None and free[0] is bps and free[1] < a and b < free[2]:
+            return False
+        i = bisect_left(bps, a)
+        if i != bisect_right(bps, b):
+            return True
+        self._free = (bps, bps[i - 1] if i else -math.inf, bps[i] if i < len(bps) else math.inf)
+        return False
 
     def _guarded_whole(self, x0: np.ndarray, k0: int, k1: int, t0: float, t1: float):
         """:meth:`run` of whole grid steps k0 .. k1 away from breakpoints with the guard (one loop call)."""
