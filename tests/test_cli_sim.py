@@ -109,3 +109,19 @@ def test_plot_overlay_does_not_fail_a_valid_run(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 0, err
     assert png.exists() and png.read_bytes()[:8] == PNG_MAGIC
+
+
+@pytest.mark.parametrize("cut", ["60%", "last 30 bytes"])
+def test_resimulating_a_cut_recording_is_a_one_line_error(tmp_path, capsys, cut):
+    """``belt-drive sim REC.mcap`` on a recording cut off mid-write (a killed writer, a truncated copy): the mcap
+    library's reader raised RecordLengthLimitExceeded through the command ('internal error', exit 1)."""
+    rec = tmp_path / "rec.mcap"
+    assert main(["sim", "paper", "--duration", "0.5", "--quiet", "--out", str(rec)]) == 0
+    data = rec.read_bytes()
+    cut_file = tmp_path / "cut.mcap"
+    cut_file.write_bytes(data[: int(len(data) * 0.6)] if cut == "60%" else data[:-30])
+    capsys.readouterr()
+    assert main(["sim", str(cut_file), "--quiet", "--out", str(tmp_path / "re.mcap")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cut.mcap" in err[0] and "internal error" not in err[0], err
+    assert not (tmp_path / "re.mcap").exists()

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
+from mcap.exceptions import McapError
 
 from msg_tools.errors import MsgToolsError, RecoveredBagWarning
 
@@ -465,6 +466,7 @@ def resimulation(path, computed=()) -> Resimulation:
         drive_topic = APPLIED_TOPIC
     written = {name.strip("/") for name in computed} | {drive_topic}
     channels: Dict[str, list] = {}
+    file = path
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RecoveredBagWarning)
         try:
@@ -483,6 +485,10 @@ def resimulation(path, computed=()) -> Resimulation:
                                 channel.topic, type_name, channel.metadata.get("offered_qos_profiles", ""),
                                 channel.metadata.get("topic_type_hash") or None, []]
                         entry[4].append((int(message.log_time), bytes(message.data)))
+        except McapError as exc:  # the mcap library's reader needs a whole file (a summary, intact records)
+            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise BagReadError(f"{file}: cannot re-simulate a damaged or incomplete recording ({first}); "
+                               f"'msg-tools info {file}' says what is missing") from None
         except (MsgToolsError, OSError, ValueError) as exc:
             raise bag_error(exc) from None
     return Resimulation(scene, start, output_rate, namespace, drive_topic,
