@@ -23,8 +23,9 @@ lost) fails the comparison, whatever its signals show: its last samples are
 missing, and a tolerance tube cannot see what is not there (a golden file
 cut after the last complete chunk lacked the last sample of six topics and
 passed). A cut file that holds every sample the other, whole, file has (cut
-after its data) lost nothing to compare and is not a failure. ``allow_incomplete=True`` compares what was read instead, with the
-missing samples named as a note.
+after its data, in its summary or footer) fails too: it was not finished, and
+nothing in it checks that what it holds is all it had. ``allow_incomplete=True``
+compares what was read instead, with the missing samples named as a note.
 
 Folders of recordings are compared pairwise by file name
 (:func:`compare_folders`).
@@ -462,20 +463,22 @@ def compare(
 
 def _incomplete(bag, data: Dict[str, TopicData], side: str, other, other_data: Dict[str, TopicData]) -> List[str]:
     """One line when ``bag`` (file ``side``) was cut off: where it stopped and, against the other
-    file (when that one is whole), the samples it lacks per topic. [] for a whole file, and for a
-    cut one that holds every sample of every topic the whole other file has (cut after its data)."""
+    file (when that one is whole), the samples it lacks per topic (or that it holds every one of them
+    but was not finished). [] for a whole file."""
     if bag.complete:
         return []
     lost = []
+    other_side = "B" if side == "A" else "A"
     if other.complete:
         for topic, o in other_data.items():
             d = data.get(topic)
             if d is None or len(o) > len(d):
                 lost.append(f"{topic} {len(o) - (0 if d is None else len(d))}")
         if not lost:
-            return []
+            return [f"{side} ({bag.path}) is incomplete ({bag.stop_reason or 'cut off'}): it holds every sample "
+                    f"{other_side} has, but it was not finished (nothing in it says that is all it had)"]
     what = (f"lacks the last samples of {len(lost)} topic{'s' if len(lost) != 1 else ''} against "
-            f"{'B' if side == 'A' else 'A'}: {', '.join(lost)}" if lost else "its last samples are missing")
+            f"{other_side}: {', '.join(lost)}" if lost else "its last samples are missing")
     return [f"{side} ({bag.path}) is incomplete ({bag.stop_reason or 'cut off'}): {what}"]
 
 

@@ -562,6 +562,14 @@ def scan_source(source: Source, want: Optional[Callable[[str], bool]], keep_data
         )
     elif scan.data_crc == "bad":  # finished file, summary unreadable, and the data fails its CRC
         scan.damage = ["the data section fails its CRC check"] + ([reason] if reason else [])
+    elif reason.startswith("summary unreadable"):
+        # the data section ends (Data End record) but the file's end does not read: the writer did not finish
+        # (killed while writing the summary) or the end was cut off. Nothing checks the data: incomplete.
+        scan.complete = False
+        scan.stop_reason = f"its end is cut or damaged, {reason}; the data section reads to its Data End record"
+        warnings.warn(RecoveredBagWarning(f"{name} is incomplete ({scan.stop_reason}); recovered "
+                                          f"{scan.message_count} messages in {scan.chunk_count} complete chunks"),
+                      stacklevel=3)
     elif reason:
         warnings.warn(RecoveredBagWarning(f"{name}: {reason}; read from the data section"), stacklevel=3)
     return scan, size, name

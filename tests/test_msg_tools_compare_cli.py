@@ -351,10 +351,14 @@ def test_importing_msg_tools_does_not_import_rclpy():
     assert proc.stdout.strip() == "False", proc.stderr
 
 
-def test_compare_passes_a_cut_file_that_holds_every_sample(capsys, tmp_path):
-    """Cut after its last data chunk (the summary lost): incomplete, but nothing to compare is missing."""
+def test_compare_fails_a_cut_file_that_holds_every_sample_unless_allowed(capsys, tmp_path):
+    """Cut after its last data chunk (the summary lost): nothing the whole file has is missing, but the cut file
+    was not finished and nothing in it says that what it holds is all it had: an incomplete file fails (issue:
+    'compare fails when either file is incomplete, unless --allow-incomplete'); allowed, it passes."""
     cut, lost = _cut_golden(tmp_path, SHIPPED_GOLDEN, step=16, lost_samples=False)
     assert lost == {}
     status, out, err = _cli(capsys, "compare", SHIPPED_GOLDEN, cut)
+    assert status == 1 and out.splitlines()[-1].startswith("FAIL") and "not finished" in out, out
+    status, out, err = _cli(capsys, "compare", SHIPPED_GOLDEN, cut, "--allow-incomplete")
     assert status == 0 and out.splitlines()[-1].startswith("PASS"), out
     assert _cli(capsys, "info", cut)[0] == 1  # info cannot know what the lost end held: INCOMPLETE

@@ -199,7 +199,10 @@ def _judge(verb: str, status, out: str, err: str, lost: bool, tools) -> str:
         return tools._classify_cli(status, err, "msg-tools: error:", must_fail=True)
     if verb == "info":  # exit 1: a verdict that says why (a cut file is INCOMPLETE even when no message was lost)
         return "clean error" if ("INCOMPLETE" in out or "DAMAGED" in out) else "silent wrong"
-    return "clean error" if lost else "silent wrong"  # compare FAIL without a lost sample would be wrong
+    # compare FAIL: right when samples were lost, or when it names the cut file as incomplete (a file cut after
+    # its data, in its summary or footer, was not finished: it fails unless --allow-incomplete); a FAIL for
+    # anything else on a file that lost nothing would be wrong
+    return "clean error" if lost or "is incomplete" in out else "silent wrong"
 
 
 #: category runners by the name ``--only`` takes

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import stat
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -303,7 +304,13 @@ def is_network(name_or_path: str | Path) -> bool:
     if label in shipped_networks():
         return True
     path = Path(label)
-    if path.suffix in (".yaml", ".yml") and path.is_file():
+    if path.suffix not in (".yaml", ".yml"):
+        return False
+    try:
+        regular = stat.S_ISREG(os.stat(path).st_mode)
+    except (OSError, ValueError):  # a name the OS refuses (too long, NUL byte ...): the scene loader says so in one line
+        return False
+    if regular:
         data = parse_yaml(read_text(path, "scene file"), f"scene file {short(label, 200)}")
         return isinstance(data, Mapping) and data.get("kind") == "network"
     return False
