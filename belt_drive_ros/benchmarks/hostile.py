@@ -429,7 +429,7 @@ def _signalled_run(tmp: Path, sig) -> tuple:
 
     out = tmp / f"signalled_{sig.name}.csv"
     out.write_bytes(b"keep")
-    label = f"sim paper --duration 5000 --out {out.name} --force, {sig.name} while writing"
+    label = f"sim paper --duration 100000 --out {out.name} --force, {sig.name} while writing"
     cmd = [sys.executable, "-m", "belt_drive_ros.cli", "sim", "paper", "--duration", "100000", "--quiet", "--force",
            "--out", str(out)]
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
