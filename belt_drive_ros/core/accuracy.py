@@ -75,7 +75,8 @@ class AccuracyReport:
     growth, exact_growth : spectral radius per step of the method's and the exact closed-loop map [-].
     h_omega : dt times the fastest closed-loop eigenvalue's modulus [-].
     slopes : (d drive / d omega_M, d load / d omega_3) of the worst probe [N m s/rad].
-    suggestion : a step [s] that is both stable and accurate for this method (None: not searched or none found).
+    suggestion : a step [s] that is both stable and accurate for this method (None: not searched or none found);
+        when ``suggestion_checked`` is False it is extrapolated from the slipping run's own error (not yet run).
     alternative : (method, step [s]) of another method that is both at a larger step, or None.
     """
 
@@ -96,6 +97,7 @@ class AccuracyReport:
     mode: str = ""
     slip_run_error: float = math.nan
     harmonic_error: float = math.nan
+    suggestion_checked: bool = True
 
     @property
     def ok(self) -> bool:
@@ -114,7 +116,10 @@ class AccuracyReport:
             + f"h*omega={self.h_omega:.4g}; torque slopes {self.slopes[0]:.3g}, "
             f"{self.slopes[1]:.3g} N m s/rad)"
         )
-        if self.suggestion is not None:
+        if self.suggestion is not None and not self.suggestion_checked:
+            line += (f"; dt = {self.suggestion:.3g} s would meet it by the slipping run's own error at first order "
+                     "(extrapolated, not yet run: run it to check; `method: auto` does so by itself)")
+        elif self.suggestion is not None:
             line += f"; dt = {self.suggestion:.3g} s is stable and accurate"
         elif not self.ok:
             line += f"; no step down to {self.dt / 2.0**MAX_HALVINGS:.2g} s of this method is"
@@ -369,17 +374,20 @@ def with_slip_run_error(report: AccuracyReport, run_error: float) -> AccuracyRep
     """``report`` (of :func:`check_slipping`) with the slipping run's own a-posteriori error (:func:`slip_run_error`).
 
     The estimate counts when larger; when it fails the tolerance, the step
-    named is the largest ``dt / 2^j`` at which it would fall (order p) to
-    :data:`SUGGEST_MARGIN` of the tolerance.
+    named is the largest ``dt / 2^j`` at which it would fall to
+    :data:`SUGGEST_MARGIN` of the tolerance at first order (not the method's
+    order p: across stick/slip events and through a slipping stretch a run
+    converges at first order in the step; extrapolating at p named steps that
+    the run then refused). It is an extrapolation, not a checked step
+    (``suggestion_checked`` False, and the report says so).
     """
     error = max(report.error, run_error)
     fields = {**report.__dict__, "error": error, "accurate": error <= report.tolerance, "slip_run_error": run_error}
     if run_error > report.error:  # the verdict is the hybrid run's, not one mode's
         fields["mode"] = "hybrid"
     if run_error > report.tolerance and math.isfinite(run_error):
-        p = method_class(report.method).order or 1
-        j = max(1, math.ceil(math.log2(run_error / (SUGGEST_MARGIN * report.tolerance)) / p))
+        j = max(1, math.ceil(math.log2(run_error / (SUGGEST_MARGIN * report.tolerance))))
         h = report.dt / 2.0**j
         if report.suggestion is None or report.suggestion > h:
-            fields["suggestion"] = h
+            fields["suggestion"], fields["suggestion_checked"] = h, False
     return AccuracyReport(**fields)
