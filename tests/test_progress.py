@@ -77,7 +77,7 @@ def test_estimate_is_near_the_size_written(tmp_path, fmt):
 def test_a_streamed_sim_says_its_estimate_then_progress_lines(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(sim_command, "STREAM_ABOVE", 1000)  # stream a short run, as a long one is,
     monkeypatch.setattr(stream_module, "WINDOW_STEPS", 500)  # in windows of 2.5 s (progress after each)
-    monkeypatch.setattr(ProgressBar, "__init__", functools.partialmethod(ProgressBar.__init__, delay=0.0))
+    monkeypatch.setattr(ProgressBar, "__init__", functools.partialmethod(ProgressBar.__init__, delay=0.0, line_delay=0.0))
     out = tmp_path / "run.mcap"
     assert main(["sim", "paper", "--duration", "30", "--out", str(out)]) == 0
     err = capsys.readouterr().err.splitlines()
@@ -86,3 +86,19 @@ def test_a_streamed_sim_says_its_estimate_then_progress_lines(tmp_path, monkeypa
     assert len([line for line in err if "% after" in line]) >= 2
     assert main(["sim", "paper", "--duration", "30", "--out", str(out), "--force", "--quiet"]) == 0
     assert capsys.readouterr().err == ""
+
+
+def test_a_run_that_ends_within_the_line_delay_prints_no_progress_lines():
+    """Not a terminal: a 1 s run printed ten progress lines (review); lines start after line_delay (5 s)."""
+    clock, out = FakeClock(), io.StringIO()
+    bar = ProgressBar("sim short", stream=out, clock=clock)
+    for k in range(1, 11):
+        clock.now += 0.1
+        bar(k / 10)
+    assert out.getvalue() == ""
+    slow = ProgressBar("sim long", stream=out, clock=clock)
+    for k in range(1, 11):
+        clock.now += 1.0
+        slow(k / 10)
+    lines = out.getvalue().splitlines()
+    assert lines and lines[0].startswith("sim long: 50% after") and lines[-1].startswith("sim long: 100% after"), lines

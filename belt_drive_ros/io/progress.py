@@ -39,15 +39,19 @@ class ProgressBar:
     Nothing before ``delay`` s. On a terminal (or ``force``) a bar redrawn in
     place; otherwise, unless ``lines=False``, a line each ``line_step`` of
     the run (10 %) or each ``line_interval`` s (30 s), whichever is first,
-    with the time elapsed and left. ``clock`` [s] is replaceable for tests.
+    with the time elapsed and left, from ``line_delay`` s on (5 s: a run that
+    ends sooner fills no log with lines). ``clock`` [s] is replaceable for tests.
     """
 
     def __init__(self, label: str, delay: float = 0.5, stream=None, force: bool = False, width: int = 30,
-                 lines: bool = True, line_step: float = 0.1, line_interval: float = 30.0, clock=time.perf_counter):
+                 lines: bool = True, line_step: float = 0.1, line_interval: float = 30.0, clock=time.perf_counter,
+                 line_delay: float = 5.0):
         self.label, self.delay, self.width = label, delay, width
         self.stream = stream or sys.stderr
         self.bar = force or getattr(self.stream, "isatty", lambda: False)()
         self.lines = lines and not self.bar
+        if self.lines:
+            self.delay = max(delay, line_delay)
         self.enabled = self.bar or self.lines
         self.line_step, self.line_interval, self.clock = line_step, line_interval, clock
         self.start = clock()
