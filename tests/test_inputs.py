@@ -295,3 +295,21 @@ def test_typed_values_name_the_key():
         sequence([], "grid.k", nonempty=True)
     with pytest.raises(InputError, match="name: must be a string"):
         text(5, "name")
+
+
+def test_an_extended_scene_with_its_own_torques_gets_the_method_chosen_for_them(tmp_path):
+    """Review of issue 22: 'extends: paper' with a sine drive at the belt mode inherited paper's lawson5 (chosen for
+    paper's soft start), so the automatic choice never ran and the run was INACCURATE; new torques without a stated
+    method get method: auto at the inherited dt. A stated method, or a change of parameters only, keeps what is given."""
+    paper = load_scene("paper")
+    sine = "drive: {type: sine, mean: 5.0, amplitude: 10.0, frequency: 10.5}\n"
+    scene = load_scene(_write(tmp_path, "extends: paper\n" + sine, name="sine.yaml"))
+    assert scene.method == "auto" and scene.dt == paper.dt and scene.method_options == {}
+    result = simulate(scene.with_overrides(duration=1.0))
+    assert result.method_choice is not None and result.method != "auto"  # a real method, chosen and said why
+    stated = load_scene(_write(tmp_path, "extends: paper\nmethod: etd2\n" + sine, name="stated.yaml"))
+    assert stated.method == "etd2"
+    load_only = load_scene(_write(tmp_path, "extends: truck_compressor\nload: 1.0\n", name="load.yaml"))
+    assert load_only.method == "auto"
+    params_only = load_scene(_write(tmp_path, "extends: paper\nparams: {c: 3.0}\n", name="c.yaml"))
+    assert params_only.method == paper.method

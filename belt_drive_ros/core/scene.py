@@ -176,6 +176,9 @@ class Scene:
         or names a shipped scene with ``extends: NAME`` and gives only what
         differs: ``params``, ``initial_state`` and ``method_options`` are merged
         key by key into the shipped scene's, every other key replaces its value.
+        A scene that gives its own ``drive`` or ``load`` but no ``method`` gets
+        ``method: auto`` (the method chosen for its torques, at the inherited
+        ``dt``), not the shipped scene's method, which was chosen for other torques.
         """
         if not isinstance(data, Mapping):
             raise SceneError(f"scene: expected a mapping at the top level, got {type(data).__name__} {short(data)}")
@@ -285,6 +288,10 @@ def _extended(data: dict) -> dict:
     merged = load_scene(base_name).to_dict()
     merged["description"] = f"{base_name} with changes"
     del merged["name"]  # the file's own name, unless it states one
+    if ("drive" in data or "load" in data) and "method" not in data:
+        # the base's method and its options were chosen for the base's torques: new torques get the method
+        # chosen for them (method: auto, at the inherited dt), unless the file states one
+        merged["method"], merged["method_options"] = AUTO_METHOD, {}
     for key, value in data.items():
         if key in ("params", "initial_state", "method_options"):
             if not isinstance(value, Mapping):
