@@ -12,7 +12,7 @@ import numpy as np
 
 from .accuracy_probes import Probes, _output_rows
 from .errors import IntegratorError
-from .integrators import make_integrator, method_class
+from .integrators import method_class
 
 def forcing_error(plant, method: str, dt: float, probes: Probes, method_options=None, stepper=None) -> float:
     """A posteriori error [-] of the method at ``dt`` on the scene's real torques (time, angle, speed), by Richardson.
@@ -34,22 +34,6 @@ def forcing_error(plant, method: str, dt: float, probes: Probes, method_options=
     return float(np.max(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0)))
 
 
-#: integrators of the windows' half steps, by (method, step, options, A, B): built once (their stage schemes cost expm)
-_INTEGRATORS: dict = {}
-
-
-def _integrator(model, method: str, dt: float, method_options=None):
-    """``make_integrator`` for ``model``'s A, B, cached (up to 64)."""
-    options = dict(method_options or {})
-    key = (method, dt, repr(sorted(options.items())), model.A.tobytes(), model.B.tobytes(), model.A.shape)
-    hit = _INTEGRATORS.get(key)
-    if hit is None:
-        if len(_INTEGRATORS) >= 64:
-            _INTEGRATORS.pop(next(iter(_INTEGRATORS)))
-        hit = _INTEGRATORS[key] = make_integrator(method, model.A, model.B, dt, **options)
-    return hit
-
-
 def window_errors(plant, method: str, dt: float, probes: Probes, method_options=None, stepper=None) -> list | None:
     """``[(t0, Richardson error (2,), peak (2,))]`` per forcing window (see :func:`forcing_error`); None: diverged."""
     from .errors import SimulationDivergedError
@@ -59,7 +43,7 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
     factor = 2.0**order / (2.0**order - 1.0)
     C, D = _output_rows(plant.model)
     coarse = stepper or Stepper(plant, method, dt, method_options)
-    fine = Stepper(plant, method, dt / 2.0, method_options, integrator=_integrator(plant.model, method, dt / 2.0, method_options))
+    fine = Stepper(plant, method, dt / 2.0, method_options)  # (make_integrator shares the half-step integrator)
     out = []
     for t0, x in probes.window_starts(plant, dt):
         t1 = min(t0 + probes.span(dt), probes.duration)
