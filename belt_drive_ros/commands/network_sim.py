@@ -1,4 +1,5 @@
-"""``belt-drive sim NETWORK``: a belt network's run (linear tier), its summary and a CSV named by pulley and span."""
+"""``belt-drive sim NETWORK``: a belt network's run (linear tier), its summary, a CSV or MCAP named by pulley and span;
+``belt-drive sim REC.mcap`` of a network node's recording: its exact re-simulation."""
 
 from __future__ import annotations
 
@@ -63,8 +64,8 @@ def run_network(args) -> int:
     method = args.method or scene.method
     method_class(method)
     if args.out is not None:
-        if args.out.suffix.lower() != ".csv":
-            raise SceneError(f"--out {args.out}: a network run writes .csv only (MCAP for networks is not built yet)")
+        if args.out.suffix.lower() not in (".csv", ".mcap"):
+            raise SceneError(f"--out {args.out}: a network run writes .csv or .mcap")
         check_output(args.out, args.force, "output")
     if args.plot is not None:
         if args.plot.suffix.lower() != ".png":
@@ -91,7 +92,9 @@ def run_network(args) -> int:
     if onset:
         print(f"capstan limit: {onset[0]} reaches it first at t = {onset[1]:.6g} s (friction use {onset[2]:.3g}); "
               "the slipping tier is not built for networks: past that time this run is not valid")
-    if args.out is not None:
+    if args.out is not None and args.out.suffix.lower() == ".mcap":
+        _write_mcap(args, scene, run, method, dt)
+    elif args.out is not None:
         names, table = columns(scene, run)
         with atomic_output(args.out, args.force, mode="w") as fh:
             fh.write(",".join(names) + "\n")
@@ -103,4 +106,69 @@ def run_network(args) -> int:
         with atomic_output(args.plot, args.force, what="plot") as fh:
             plot_network_run(scene, run, fh)
         print(f"wrote {args.plot}")
+    return 0
+
+
+#: messages per second of a network MCAP (the node's default tick rate) [Hz]
+OUTPUT_RATE = 1000.0
+
+
+def _write_mcap(args, scene, run, method: str, dt: float) -> None:
+    """The run as the node publishes it: one sample per 1 ms tick (every step if dt does not divide it)."""
+    import time as _time
+
+    from ..io.atomic import atomic_output
+    from ..io.network_bag import scene_text, write_network_mcap
+    from ..ros.network_stepper import NetworkStepper
+
+    stride = max(1, int(round(1.0 / (OUTPUT_RATE * dt))))
+    if abs(stride * dt * OUTPUT_RATE - 1.0) > 1e-9:
+        stride = 1
+    rows = range(0, len(run.time), stride)
+    stepper = NetworkStepper(scene, method, dt)
+    start = _time.time_ns() if args.start_time is None else int(args.start_time)
+    with atomic_output(args.out, args.force, what="output") as fh:
+        counts = write_network_mcap(stepper, scene_text(args.scene), run.states[rows.start::stride], list(rows), fh,
+                                    force=True, start_time_ns=start)
+    print(f"wrote {args.out} ({sum(counts.values())} messages on {len(counts)} topics)")
+
+
+def resimulate(args) -> int:
+    """``belt-drive sim REC.mcap``: step a network recording's scene tick by tick with the inputs it applied."""
+    import numpy as np
+
+    from ..core.errors import SceneError
+    from ..io.atomic import atomic_output, check_output
+    from ..io.network_bag import read_network_recording, write_network_mcap
+    from ..ros.network_stepper import NetworkStepper
+
+    rec = read_network_recording(args.scene)
+    if args.out is not None:
+        if args.out.suffix.lower() != ".mcap":
+            raise SceneError(f"--out {args.out}: the re-simulation of a recording writes .mcap")
+        check_output(args.out, args.force, "output")
+    stepper = NetworkStepper(rec.scene, rec.method, rec.dt)
+    sub = int(round(rec.tick_ns * 1e-9 / rec.dt))
+    ticks = int(round((rec.end_ns - rec.start_ns) / rec.tick_ns))
+    x = stepper.initial()
+    states = np.empty((ticks + 1, x.size))
+    changes, c = sorted(rec.held), 0
+    start = time.perf_counter()
+    for j in range(ticks + 1):
+        while c < len(changes) and changes[c][0] <= j * sub:
+            stepper.hold(changes[c][1], changes[c][2])
+            c += 1
+        states[j] = x
+        if j < ticks:
+            x = stepper.advance(x, j * sub, (j + 1) * sub)
+    wall = time.perf_counter() - start
+    print(f"re-simulated {args.scene}: {rec.scene.name}, {rec.method} at dt = {rec.dt:g} s, {ticks} ticks of "
+          f"{rec.tick_ns / 1e9:g} s, {len(changes)} input changes, in {wall:.2f} s")
+    if args.out is not None:
+        for i in range(len(stepper.held)):
+            stepper.hold(i, None)
+        with atomic_output(args.out, args.force, what="output") as fh:
+            counts = write_network_mcap(stepper, rec.text, states, [j * sub for j in range(ticks + 1)], fh, force=True,
+                                        start_time_ns=rec.start_ns, held=changes)
+        print(f"wrote {args.out} ({sum(counts.values())} messages on {len(counts)} topics)")
     return 0

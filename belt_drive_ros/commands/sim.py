@@ -124,6 +124,12 @@ def run(args) -> int:
     from ..io.torque_bag import is_recording
 
     args.writer_options = {}
+    from ..io.network_bag import is_network_recording
+
+    if is_network_recording(args.scene):  # a belt network node's recording (commands/network_sim.py)
+        from .network_sim import resimulate
+
+        return resimulate(args)
     if is_recording(args.scene):  # a recording re-simulated from its own scene record
         scene = _resimulation(args)
     else:

@@ -41,10 +41,12 @@ class JointStateEncoder:
     CDR reader skips them (a test deserializes these bytes with rclpy).
     """
 
-    def __init__(self, joints: int = 4):
+    def __init__(self, joints: int = 4, names: Sequence[str] | None = None):
+        names = JOINT_NAMES if names is None else tuple(names)  # a belt network: its pulleys and the arm
+        joints = len(names)
         marks = np.arange(1, 3 * joints + 1, dtype=float) * 1e300 / 7.0  # distinct, cannot occur elsewhere
         groups = marks.reshape(3, joints)
-        template = encode_joint_states(np.zeros(1, dtype=np.int64), *(g[None, :] for g in groups))[0]
+        template = encode_joint_states(np.zeros(1, dtype=np.int64), *(g[None, :] for g in groups), names=names)[0]
         self._array = struct.Struct(f"<{joints}d")
         self._offsets = []
         for group in groups:  # position, velocity, effort: each a contiguous CDR sequence
@@ -83,22 +85,28 @@ class TfEncoder:
     The bytes come from a template encoded once (:func:`msg_tools.encode`):
     per message only the stamps and the ``z, w`` of each rotation are packed
     in. ``params`` fix the joint origins (a new encoder when the radii change).
+    ``frames`` instead gives them directly, one ``(joint, parent link, x, y, sign)``
+    per joint (a belt network: the tensioner pulley hangs on its arm's link).
     """
 
-    def __init__(self, params, joints: Sequence[str] = JOINT_NAMES):
+    def __init__(self, params, joints: Sequence[str] = JOINT_NAMES, frames: Sequence[tuple] | None = None):
         import msg_tools
 
-        from .urdf import drive_layout
+        if frames is None:
+            from .urdf import drive_layout
 
-        wheels = drive_layout(params).wheels
-        self.joints = tuple(joints)
+            wheels = drive_layout(params).wheels
+            frames = [(j, "base_link", wheels[j][0], wheels[j][1], wheels[j][2]) for j in joints]
+        parents = {f[0]: f[1] for f in frames}
+        wheels = {f[0]: (f[2], f[3], f[4]) for f in frames}
+        self.joints = tuple(f[0] for f in frames)
         self.signs = np.array([wheels[j][2] for j in self.joints], dtype=float)
         n = len(self.joints)
         sec_marks = [0x5A5A0000 + k for k in range(n)]
         nsec_marks = [0x3C3C0000 + k for k in range(n)]
         rot_marks = np.arange(1, 2 * n + 1, dtype=float).reshape(n, 2) * 1e300 / 7.0  # (z, w) per wheel
         transforms = [{
-            "header": {"stamp": {"sec": sec_marks[k], "nanosec": nsec_marks[k]}, "frame_id": "base_link"},
+            "header": {"stamp": {"sec": sec_marks[k], "nanosec": nsec_marks[k]}, "frame_id": parents[joint]},
             "child_frame_id": f"{joint}_link",
             "transform": {"translation": {"x": float(wheels[joint][0]), "y": float(wheels[joint][1]), "z": 0.0},
                           "rotation": {"x": 0.0, "y": 0.0, "z": float(rot_marks[k, 0]), "w": float(rot_marks[k, 1])}},

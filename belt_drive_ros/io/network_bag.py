@@ -1,0 +1,395 @@
+"""A belt network's topics, messages and recordings (no rclpy): one layout for the node and the offline run.
+
+Topics (relative names, SI units; ``P`` a pulley's name, ``S`` a span's
+``<from>_<to>``; every value ``std_msgs/Float64`` unless said):
+
+====================================  ========================================================
+topic                                 content [unit]
+====================================  ========================================================
+``drive_torque``                      input: torque on the driver (crank) [N m] (node: subscribed)
+``P/load_torque``                     input: torque accessory P takes from the belt [N m] (node: subscribed)
+``P/angle``, ``P/speed``              rotation [rad], speed [rad/s], positive moving the belt forward
+``P/belt_torque``                     torque of the belt on P, ``r (T_leave - T_arrive)`` [N m]
+``P/hub_load``                        magnitude of the two span tensions' sum on P's bearing [N]
+``P/friction_use``                    ``|dT| / capstan limit`` [-] (1: P would start to slip)
+``P/slip``, ``P/slip_speed``          1 while P slides, else 0 [-]; belt ahead of P's surface [m/s]
+``spans/S/tension``                   span tension [N]
+``spans/S/slack``                     1 while the span would go slack (``T < m' v^2``), else 0 [-]
+``tensioner_arm/angle``               the arm's angle about its pivot [rad] (absolute, x axis = 0)
+``joint_states``                      ``sensor_msgs/JointState``: every pulley, then ``tensioner_arm``
+``/tf``                               ``tf2_msgs/TFMessage``: one transform per joint
+``robot_description``                 ``std_msgs/String``: the layout's URDF (:mod:`.network_urdf`)
+====================================  ========================================================
+
+``joint_states``: position and velocity of each pulley, effort the
+external torque along its positive rotation ``u_i`` [N m] (drive +, load
+-); the arm's position is its angle from the installed one [rad] (the URDF
+draws the installed layout at 0), its effort 0. The linear tier has no
+slip: ``slip`` and ``slip_speed`` are 0 there (``friction_use`` says
+where a pulley would slip).
+
+A recording is self-describing: a metadata record ``network_scene`` holds
+the scene's YAML text, the method, step and tick, and the node records,
+besides what it received, the inputs it *applied*: ``drive_torque_applied``
+and ``P/load_torque_applied`` once per tick while a value from the topic
+was held (before a pulley's first message its profile acts). Those replay
+the run exactly (``belt-drive sim REC.mcap``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from msg_tools import Ros2McapWriter
+from msg_tools.errors import MsgToolsError
+from msg_tools.units import UNITS_METADATA
+
+from .bag_layout import FLOAT64, JOINT_STATE, ROBOT_DESCRIPTION_QOS, STRING, TF_MESSAGE, TF_QOS, TF_TOPIC, _fmt, bag_error
+from .cdr_encoders import JointStateEncoder, TfEncoder, encode_float64
+
+__all__ = ["NETWORK_METADATA", "NetworkLayout", "NetworkBagWriter", "read_network_recording", "scene_text",
+           "write_network_mcap"]
+
+#: metadata record of a network recording (the scene and how it was stepped)
+NETWORK_METADATA = "network_scene"
+DRIVE_TOPIC = "drive_torque"
+APPLIED = "_applied"
+ARM_JOINT = "tensioner_arm"
+PULLEY_SIGNALS = (("angle", "rad"), ("speed", "rad/s"), ("belt_torque", "N*m"), ("hub_load", "N"),
+                  ("friction_use", "1"), ("slip", "1"), ("slip_speed", "m/s"))
+SPAN_SIGNALS = (("tension", "N"), ("slack", "1"))
+
+
+def scene_text(label: str) -> str:
+    """The YAML text of a network scene, by shipped name or path (what a recording stores)."""
+    from ..core.inputs import read_text
+    from ..core.network.scene import shipped_networks
+
+    if str(label) in shipped_networks():
+        return (resources.files("belt_drive_ros") / "scenes" / "networks" / f"{label}.yaml").read_text(encoding="utf-8")
+    return read_text(Path(label), "scene file")
+
+
+def scene_from_text(text: str, name: str):
+    from ..core.inputs import parse_yaml
+    from ..core.network.scene import NetworkScene
+
+    return NetworkScene.from_mapping(parse_yaml(text, f"network scene {name}"), name=name)
+
+
+def _absolute(topic: str, namespace: str) -> str:
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    return topic if topic.startswith("/") else f"{ns}/{topic}"
+
+
+class NetworkLayout:
+    """The topics, joints and frames of one network scene, and the messages of one sample.
+
+    ``floats``: the Float64 output topics in publishing order, each ``(topic, (what, index))``;
+    ``joints``: joint names; ``inputs``: ``[(topic, pulley index)]`` of the subscribed inputs.
+    """
+
+    def __init__(self, scene):
+        from ..core.network.model import arm
+
+        self.scene = scene
+        P = scene.pulleys
+        self.floats: List[Tuple[str, Tuple[str, int]]] = []
+        for i, p in enumerate(P):
+            self.floats += [(f"{p.name}/{what}", (what, i)) for what, _ in PULLEY_SIGNALS]
+        for j, span in enumerate(scene.span_names()):
+            self.floats += [(f"spans/{span}/{what}", (what, j)) for what, _ in SPAN_SIGNALS]
+        self.units = {f"{p.name}/{what}": unit for p in P for what, unit in PULLEY_SIGNALS}
+        self.units.update({f"spans/{s}/{what}": unit for s in scene.span_names() for what, unit in SPAN_SIGNALS})
+        self.joints = [p.name for p in P]
+        self.arm = None
+        if scene.tensioner is not None:
+            self.floats.append(("tensioner_arm/angle", ("arm_angle", 0)))
+            self.units["tensioner_arm/angle"] = "rad"
+            self.joints.append(ARM_JOINT)
+            self.arm = arm(P, scene.tensioner)  # (pulley index, pivot, length, installed angle)
+        self.inputs = [(DRIVE_TOPIC, scene.driver)] + [(f"{p.name}/load_torque", i) for i, p in enumerate(P)
+                                                       if p.role == "accessory"]
+        self.units.update({topic: "N*m" for topic, _ in self.inputs})
+        self.units.update({topic + APPLIED: "N*m" for topic, _ in self.inputs})
+
+    # ----------------------------------------------------------------- frames
+    def senses(self) -> List[float]:
+        """Per pulley the sense of rotation about +z of a positive angle (+1 counter-clockwise), from the belt:
+        at the tangent point ``a`` where the belt leaves along ``e``, ``omega z x (a - c) = v e``."""
+        geo = self.scene.geometry
+        out = []
+        for i, p in enumerate(self.scene.pulleys):
+            a = np.asarray(geo.leave[i]) - np.asarray(p.centre, dtype=float)
+            e = geo.directions[i]
+            out.append(1.0 if a[0] * e[1] - a[1] * e[0] > 0 else -1.0)
+        return out
+
+    def frames(self) -> List[tuple]:
+        """``(joint, parent link, x, y, sense)`` of every joint (the tensioner pulley hangs on the arm's link)."""
+        out = []
+        t = self.arm[0] if self.arm else -1
+        for i, (p, sense) in enumerate(zip(self.scene.pulleys, self.senses())):
+            if i == t:
+                _, _, length, angle = self.arm  # in the arm's link (at the pivot, not turned at 0)
+                out.append((p.name, f"{ARM_JOINT}_link", length * math.cos(angle), length * math.sin(angle), sense))
+            else:
+                out.append((p.name, "base_link", float(p.centre[0]), float(p.centre[1]), sense))
+        if self.arm:
+            out.append((ARM_JOINT, "base_link", float(self.arm[1][0]), float(self.arm[1][1]), 1.0))
+        return out
+
+    def tf_encoder(self) -> TfEncoder:
+        return TfEncoder(None, frames=self.frames())
+
+    def joint_encoder(self) -> JointStateEncoder:
+        return JointStateEncoder(names=self.joints)
+
+    def urdf(self) -> str:
+        from .network_urdf import network_urdf
+
+        return network_urdf(self)
+
+    # ---------------------------------------------------------------- samples
+    def values(self, run, u) -> Tuple[list, list]:
+        """``(joints, floats)`` of a one-sample run and its pulley torques ``u``: the JointState's position,
+        velocity and effort concatenated, and the Float64 topics' values, as Python floats."""
+        n = len(self.scene.pulleys)
+        pos = [float(v) for v in run.angle[0]]
+        vel = [float(v) for v in run.speed[0]]
+        eff = [float(v) for v in u]
+        if self.arm:
+            pos.append(float(run.arm_angle[0]) - self.arm[3])
+            vel.append(float(run.states[0, -1]))
+            eff.append(0.0)
+        zeros = np.zeros((1, n))
+        signals = {"angle": run.angle, "speed": run.speed, "belt_torque": run.belt_torque, "hub_load": run.hub_load,
+                   "friction_use": run.friction_use, "slip": getattr(run, "slip", None),
+                   "slip_speed": getattr(run, "slip_speed", None), "tension": run.tension, "slack": run.slack}
+        signals = {k: zeros if v is None else v for k, v in signals.items()}
+        floats = []
+        for _, (what, i) in self.floats:
+            floats.append(float(run.arm_angle[0]) if what == "arm_angle" else float(signals[what][0, i]))
+        return pos + vel + eff, floats
+
+
+# ---------------------------------------------------------------------- writing
+class NetworkBagWriter:
+    """A network run or recording as a ROS 2 MCAP (profile ros2, cdr, offered QoS, zstd chunks).
+
+    Channels in order: ``robot_description`` (one latched message at the first sample), ``joint_states``,
+    ``/tf``, the Float64 outputs; inputs (``record_inputs``: received and applied) when first written.
+    """
+
+    def __init__(self, path, layout: NetworkLayout, record: Dict[str, str], *, force: bool = False,
+                 namespace: str = "/", compression: str = "zstd"):
+        self.layout = layout
+        self.namespace = namespace
+        try:
+            self.writer = Ros2McapWriter(path, force=force, compression=compression)
+            self.writer.add_metadata(NETWORK_METADATA, record)
+            units = {_absolute(t, namespace): u for t, u in layout.units.items()}
+            units[_absolute("joint_states", namespace)] = "rad, rad/s, N*m"
+            self.writer.add_metadata(UNITS_METADATA, units)
+        except (MsgToolsError, OSError) as exc:
+            raise bag_error(exc) from None
+        self._joint = layout.joint_encoder()
+        self._tf = layout.tf_encoder()
+        self._joint_topic = _absolute("joint_states", namespace)
+        self._float_topics = [_absolute(t, namespace) for t, _ in layout.floats]
+        self._started = False
+        self._inputs: set = set()
+
+    def _start(self, t_ns: int) -> None:
+        w = self.writer
+        description = _absolute("robot_description", self.namespace)
+        w.add_topic(description, STRING, ROBOT_DESCRIPTION_QOS)
+        import msg_tools
+
+        w.write_raw(description, STRING, msg_tools.encode(STRING, {"data": self.layout.urdf()}), t_ns)
+        w.add_topic(self._joint_topic, JOINT_STATE, "reliable")
+        w.add_topic(TF_TOPIC, TF_MESSAGE, TF_QOS)
+        for topic in self._float_topics:
+            w.add_topic(topic, FLOAT64, "reliable")
+        self._started = True
+
+    def write_sample(self, t_ns: int, joints: Sequence[float], floats: Sequence[float]) -> None:
+        """One sample at ``t_ns`` [ns]: joint_states, /tf and every Float64 output."""
+        self.write_encoded(t_ns, *self.encode(t_ns, joints, floats))
+
+    def encode(self, t_ns: int, joints: Sequence[float], floats: Sequence[float]):
+        """``(joint_states CDR, /tf CDR, [Float64 CDR])`` of one sample (the node publishes these bytes)."""
+        n = len(self.layout.joints)
+        return self._joint.encode(t_ns, joints), self._tf.encode(t_ns, joints[:n]), encode_float64(np.array(floats))
+
+    def write_encoded(self, t_ns: int, joint_cdr: bytes, tf_cdr: bytes, float_cdr: Sequence[bytes]) -> None:
+        try:
+            if not self._started:
+                self._start(t_ns)
+            w = self.writer
+            w.write_raw(self._joint_topic, JOINT_STATE, joint_cdr, t_ns)
+            w.write_raw(TF_TOPIC, TF_MESSAGE, tf_cdr, t_ns)
+            for topic, data in zip(self._float_topics, float_cdr):
+                w.write_raw(topic, FLOAT64, data, t_ns)
+        except (MsgToolsError, OSError) as exc:
+            raise bag_error(exc) from None
+
+    def write_input(self, topic: str, value: float, t_ns: int) -> None:
+        """An input value (received, or ``..._applied`` at a tick) [N m]."""
+        name = _absolute(topic, self.namespace)
+        try:
+            if name not in self._inputs:
+                self.writer.add_topic(name, FLOAT64, "reliable")
+                self._inputs.add(name)
+            self.writer.write_raw(name, FLOAT64, encode_float64(np.array([value]))[0], t_ns)
+        except (MsgToolsError, OSError) as exc:
+            raise bag_error(exc) from None
+
+    def flush(self) -> None:
+        flush = getattr(self.writer, "flush", None)
+        if flush is not None:
+            flush()
+
+    def close(self) -> Dict[str, int]:
+        try:
+            counts = self.writer.topic_counts()
+            self.writer.__exit__(None, None, None)
+        except (MsgToolsError, OSError) as exc:
+            raise bag_error(exc) from None
+        return counts
+
+
+def network_record(scene, text: str, *, method: str, dt: float, tick_ns: int, source: str,
+                   drive_source: str) -> Dict[str, str]:
+    """The ``network_scene`` metadata record."""
+    return {"format": "belt_drive_ros network 1", "kind": "network", "name": scene.name, "yaml": text,
+            "method": method, "dt": _fmt(float(dt)), "tick_ns": str(int(tick_ns)), "source": source,
+            "drive_source": drive_source}
+
+
+def write_network_mcap(stepper, text: str, states, steps: Sequence[int], path, *, force: bool = False,
+                       start_time_ns: int = 0, held: Optional[Sequence[Tuple[int, int, float]]] = None,
+                       source: str = "offline") -> Dict[str, int]:
+    """Write a run's states ``(N, 2m)`` at the grid steps ``steps`` (``k dt``) as the node would publish them.
+
+    Each sample's outputs come from the stepper's one-sample evaluation (the node's), so a node run and its
+    offline twin give equal bytes. ``held``: ``(step, pulley, value)`` where a held input took effect (a
+    re-simulated recording); they are written as ``..._applied`` at each written sample while in force.
+    """
+    scene = stepper.scene
+    layout = NetworkLayout(scene)
+    record = network_record(scene, text, method=stepper.method, dt=stepper.dt,
+                            tick_ns=int(round((steps[1] - steps[0] if len(steps) > 1 else 1) * stepper.dt * 1e9)),
+                            source=source,
+                            drive_source="recorded" if held else "scene")
+    writer = NetworkBagWriter(path, layout, record, force=force)
+    topic_of = {i: topic for topic, i in layout.inputs}
+    changes = sorted(held or [])
+    now: Dict[int, float] = {}
+    c = 0
+    try:
+        for row, k in enumerate(steps):
+            while c < len(changes) and changes[c][0] <= k:
+                now[changes[c][1]] = changes[c][2]
+                c += 1
+            for i, value in now.items():
+                stepper.hold(i, value)
+            t_ns = start_time_ns + int(round(k * stepper.dt * 1e9))
+            run, u = stepper.sample(k, states[row])
+            joints, floats = layout.values(run, u)
+            writer.write_sample(t_ns, joints, floats)
+            for i, value in now.items():
+                writer.write_input(topic_of[i] + APPLIED, value, t_ns)
+    except BaseException:
+        try:
+            writer.writer.__exit__(RuntimeError, RuntimeError("aborted"), None)
+        except Exception:  # noqa: BLE001 - the original error is the one to report
+            pass
+        raise
+    return writer.close()
+
+
+# ---------------------------------------------------------------------- reading
+@dataclass
+class NetworkRecording:
+    """What a network recording holds for its re-simulation."""
+
+    scene: object
+    text: str
+    method: str
+    dt: float
+    tick_ns: int
+    start_ns: int
+    end_ns: int
+    #: (step index, pulley index, value [N m]) where an applied input changed (at a tick)
+    held: List[Tuple[int, int, float]]
+
+
+def is_network_recording(path) -> bool:
+    """Whether ``path`` is an MCAP file holding a ``network_scene`` record."""
+    p = Path(str(path))
+    if p.suffix.lower() != ".mcap" or not p.is_file():
+        return False
+    try:
+        return NETWORK_METADATA in _metadata(p)
+    except Exception:  # noqa: BLE001 - not readable: the recording path says why
+        return False
+
+
+def _metadata(path) -> Dict[str, Dict[str, str]]:
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        return {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+
+
+def read_network_recording(path) -> NetworkRecording:
+    """The scene, step, tick and applied inputs of a network recording (:class:`BagReadError` naming the file)."""
+    from mcap.reader import make_reader
+
+    from .bag_layout import BagReadError
+
+    try:
+        record = _metadata(path)[NETWORK_METADATA]
+        scene = scene_from_text(record["yaml"], record["name"])
+        layout = NetworkLayout(scene)
+        pulley_of = {_absolute(topic + APPLIED, "/"): i for topic, i in layout.inputs}
+        dt, tick_ns = float(record["dt"]), int(record["tick_ns"])
+        times: List[int] = []
+        applied: List[Tuple[int, int, float]] = []
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            for _, channel, message in reader.iter_messages(topics=None, log_time_order=True):
+                topic = channel.topic
+                if topic.endswith("/joint_states"):
+                    times.append(message.log_time)
+                elif topic in pulley_of or any(topic.endswith(t) for t in pulley_of):
+                    i = pulley_of.get(topic)
+                    if i is None:
+                        i = next(v for t, v in pulley_of.items() if topic.endswith(t))
+                    applied.append((message.log_time, i, float(np.frombuffer(message.data[4:12], "<f8")[0])))
+    except BagReadError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - damaged or foreign file: one line
+        raise BagReadError(f"{path}: not a readable network recording ({type(exc).__name__}: {exc})") from None
+    if not times:
+        raise BagReadError(f"{path}: a network recording without samples (joint_states)")
+    start = times[0]
+    substeps = int(round(tick_ns * 1e-9 / dt))
+    held, last = [], {}
+    for t, i, value in applied:  # in steps: the value acts from its tick on
+        k = int(round((t - start) / tick_ns)) * substeps
+        if last.get(i) != value:
+            held.append((k, i, value))
+            last[i] = value
+    return NetworkRecording(scene, record["yaml"], record["method"], dt, tick_ns, start, times[-1], held)
+
+
+__all__ += ["NetworkRecording", "is_network_recording", "network_record", "scene_from_text"]

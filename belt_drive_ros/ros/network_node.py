@@ -1,0 +1,419 @@
+"""The belt-drive node for a belt network scene (``belt-drive node fead_i4``): wiring only, no physics.
+
+Topics (relative names, SI units, the layout of :mod:`belt_drive_ros.io.network_bag`):
+
+* subscribed: ``drive_torque`` (torque on the driver pulley, the crank [N m])
+  and, per accessory ``P``, ``P/load_torque`` (the torque P takes from the
+  belt [N m], e.g. an alternator whose current comes from a SIL stack). All
+  ``std_msgs/Float64``, QoS as the paper node's input (best effort, keep last
+  1). A value is sampled at each tick and held until the next (zero-order
+  hold: a message received between ticks k-1 and k acts from tick k on).
+  Until its first message an accessory follows its profile in the scene;
+  the crank's torque is 0 N m until the first ``drive_torque``
+  (``drive_source:=scene``: the crank follows its profile and the topic is
+  ignored). Non-finite values are rejected and counted.
+* published every tick: per pulley ``P/angle, speed, belt_torque, hub_load,
+  friction_use, slip, slip_speed``, per span ``spans/S/tension, slack``,
+  ``tensioner_arm/angle``, ``joint_states`` (every pulley and the arm),
+  ``/tf`` (where tf2_msgs is installed) and ``robot_description`` (the
+  layout's URDF, latched); ``/diagnostics`` at 1 Hz (WARN while a span
+  would go slack or a pulley reaches its capstan limit).
+
+Time: the paper node's tick sources (:class:`~.timing.TickSource`: system
+clock with the tick thread, ``/clock`` lockstep with ``use_sim_time``, or
+``publish_clock``). Each tick integrates the network from the previous tick
+with the scene's method and step through
+:class:`~.network_stepper.NetworkStepper`, the adapter the offline
+re-simulation uses too: on ``/clock`` the outputs equal
+``belt-drive sim REC.mcap`` of the recording bit for bit.
+
+Recording (``record_path``): the published bytes of every output, the
+inputs as received and as applied at each tick
+(``drive_torque_applied``, ``P/load_torque_applied``), and the scene
+(``network_scene`` metadata), in one MCAP.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass
+
+from . import environment as ros_env
+
+ros_env.configure_environment()
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+from rclpy.clock import Clock, ClockType  # noqa: E402
+from rclpy.event_handler import PublisherEventCallbacks  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from std_msgs.msg import Float64, String  # noqa: E402
+
+from ..core.errors import BeltDriveError, SimulationDivergedError  # noqa: E402
+from ..io.network_bag import APPLIED, NetworkBagWriter, NetworkLayout, network_record, scene_text  # noqa: E402
+from .executors import executor_name, ros_session, spin_nodes  # noqa: E402
+from .network_stepper import NetworkStepper  # noqa: E402
+from .parameter_schema import NodeConfigError  # noqa: E402
+from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS, TF_QOS  # noqa: E402
+from .simulation import next_tick_ns  # noqa: E402
+from .timing import TickSource, TickStats  # noqa: E402
+
+__all__ = ["NetworkNode", "NetworkSettings", "run"]
+
+#: parameters of the network node: (name, default, description); read at start (changes are refused with a reason)
+PARAMETERS = (
+    ("scene", "fead_i4", "network scene: shipped name or YAML file with kind: network"),
+    ("step_rate_hz", 1000.0, "tick rate on the node's clock [Hz]; the scene's dt must divide the tick"),
+    ("drive_source", "topic", "topic: the crank's torque from drive_torque; scene: from the scene's profile"),
+    ("publish_clock", False, "publish /clock from the node's own simulated time (time master)"),
+    ("real_time_factor", 1.0, "with publish_clock: simulated seconds per wall second; 0 = as fast as possible"),
+    ("tick_thread", True, "on the system clock: tick from a thread of the node's own"),
+    ("tick_lead", 0.0003, "with tick_thread: compute each tick this long before its due time [s]"),
+    ("record_path", "", "record inputs and outputs to this MCAP file ('' = no recording)"),
+    ("record_overwrite", False, "replace an existing record_path"),
+)
+
+
+@dataclass(frozen=True)
+class NetworkSettings:
+    """What the tick sources and the simulation read (names as the paper node's settings)."""
+
+    scene: object
+    text: str
+    method: str
+    dt: float
+    tick_ns: int
+    substeps: int
+    step_rate_hz: float
+    drive_source: str
+    publish_clock: bool
+    real_time_factor: float
+    tick_thread: bool
+    tick_lead_ns: int
+    record_path: str
+    record_overwrite: bool
+
+    @classmethod
+    def from_values(cls, v: dict) -> "NetworkSettings":
+        from ..core.network.scene import is_network, load_network
+
+        label = str(v["scene"])
+        if not is_network(label):
+            raise NodeConfigError("scene", f"{label} is not a network scene (kind: network)")
+        try:
+            scene = load_network(label)
+        except BeltDriveError as exc:
+            raise NodeConfigError("scene", str(exc)) from None
+        rate = float(v["step_rate_hz"])
+        if not (math.isfinite(rate) and 1.0 <= rate <= 20000.0):
+            raise NodeConfigError("step_rate_hz", f"{rate!r} Hz is outside [1, 20000] Hz")
+        tick_ns = int(round(1e9 / rate))
+        dt_ns = int(round(scene.dt * 1e9))
+        if dt_ns <= 0 or tick_ns % dt_ns or abs(dt_ns - scene.dt * 1e9) > 1e-6:
+            raise NodeConfigError("step_rate_hz", f"a tick of {tick_ns} ns is not a whole number of the scene's "
+                                  f"steps of {scene.dt:g} s")
+        if v["drive_source"] not in ("topic", "scene"):
+            raise NodeConfigError("drive_source", f"topic or scene, got {v['drive_source']!r}")
+        rtf = float(v["real_time_factor"])
+        if not (math.isfinite(rtf) and 0.0 <= rtf <= 1e4):
+            raise NodeConfigError("real_time_factor", f"{rtf!r} is outside [0, 10000]")
+        lead = float(v["tick_lead"])
+        if not (math.isfinite(lead) and 0.0 <= lead <= 0.1):
+            raise NodeConfigError("tick_lead", f"{lead!r} s is outside [0, 0.1] s")
+        return cls(scene, scene_text(label), scene.method, scene.dt, tick_ns, tick_ns // dt_ns, rate,
+                   v["drive_source"], bool(v["publish_clock"]), rtf, bool(v["tick_thread"]),
+                   int(round(lead * 1e9)), str(v["record_path"]), bool(v["record_overwrite"]))
+
+
+class NetworkSimulation:
+    """The network's state on the node's tick grid (the time base :class:`~.timing.TickSource` reads)."""
+
+    def __init__(self, settings: NetworkSettings, layout: NetworkLayout, counters: dict, logger):
+        self.settings = settings
+        self.layout = layout
+        self.counters = counters
+        for key in ("restarts", "divergences", "clock_jumps", "received", "rejected_nonfinite", "ignored"):
+            counters.setdefault(key, 0)
+        self.log = logger
+        self.stepper = NetworkStepper(settings.scene, settings.method, settings.dt)
+        #: latest valid value per input pulley index (None: none received yet)
+        self.latest: dict = {i: None for _, i in layout.inputs}
+        self.x = self.stepper.initial()
+        self.k = 0  # steps since scene time 0
+        self.t_ns: int | None = None
+        self.origin_ns = 0
+        self.last_divergence = None
+        self.applied: list = []  # (input topic, value) applied at the last tick (recorded)
+
+    @property
+    def started(self) -> bool:
+        return self.t_ns is not None
+
+    def stop(self) -> None:
+        if self.t_ns is not None:
+            self.t_ns = None
+            self.counters["clock_jumps"] += 1
+
+    def grid_time(self, now_ns: int) -> int:
+        """The tick a call at ``now_ns`` integrates to (as the paper node's :meth:`NodeSimulation.grid_time`)."""
+        if self.t_ns is None or now_ns < self.origin_ns:
+            return now_ns
+        tick = self.settings.tick_ns
+        due = next_tick_ns(self.t_ns, self.origin_ns, tick)
+        if now_ns >= due + tick:
+            return now_ns - (now_ns - self.origin_ns) % tick
+        return due if due - now_ns <= tick // 2 else self.t_ns
+
+    def receive(self, pulley: int, value: float) -> bool:
+        self.counters["received"] += 1
+        if not math.isfinite(value):
+            self.counters["rejected_nonfinite"] += 1
+            return False
+        if pulley == self.settings.scene.driver and self.settings.drive_source == "scene":
+            self.counters["ignored"] += 1
+            return False
+        self.latest[pulley] = float(value)
+        return True
+
+    def _sample(self) -> None:
+        """Hold the latest inputs from this tick on (the driver at 0 N m before its first message)."""
+        s, stepper = self.settings, self.stepper
+        self.applied = []
+        for topic, i in self.layout.inputs:
+            value = self.latest[i]
+            if i == s.scene.driver and s.drive_source == "topic" and value is None:
+                value = 0.0
+            if value is not None:
+                stepper.hold(i, value)
+                self.applied.append((topic + APPLIED, value))
+
+    def start(self, now_ns: int) -> None:
+        self.origin_ns = self.t_ns = now_ns
+        self.k = 0
+        self.x = self.stepper.initial()
+        self.stepper.reset()
+        self.counters["restarts"] += 1
+        self._sample()
+
+    def advance_to(self, now_ns: int) -> bool:
+        """Integrate to the tick ``now_ns`` with the inputs held since the last tick, then sample the inputs."""
+        if self.t_ns is None:
+            self.start(now_ns)
+            return True
+        if now_ns < self.t_ns:
+            self.counters["clock_jumps"] += 1
+            self.log.warn(f"clock jumped back {(self.t_ns - now_ns) / 1e9:.6g} s: restarting from the initial state")
+            self.start(now_ns)
+            return True
+        if now_ns == self.t_ns:
+            return False
+        k1 = round((now_ns - self.origin_ns) / (self.settings.dt * 1e9))
+        try:
+            self.x = self.stepper.advance(self.x, self.k, k1)
+        except (SimulationDivergedError, ArithmeticError, ValueError) as exc:
+            self.counters["divergences"] += 1
+            self.last_divergence = (str(exc), now_ns)
+            self.log.error(f"{exc}; restarting from the initial state")
+            self.start(now_ns)
+            return True
+        self.k = k1
+        self.t_ns = now_ns
+        self._sample()
+        return True
+
+    def outputs(self):
+        """``(joints, floats, run)`` at the current tick (the core's one-sample outputs)."""
+        run, u = self.stepper.sample(self.k, self.x)
+        joints, floats = self.layout.values(run, u)
+        return joints, floats, run
+
+
+class NetworkNode(Node):
+    """A belt network as a ROS 2 node (see the module docstring)."""
+
+    def __init__(self, node_name: str = "belt_drive", *, scene: str | None = None, **kwargs):
+        if scene is not None:
+            overrides = [p for p in kwargs.pop("parameter_overrides", None) or [] if p.name != "scene"]
+            kwargs["parameter_overrides"] = overrides + [Parameter("scene", value=str(scene))]
+        super().__init__(node_name, **kwargs)
+        self.recorder = None
+        self.timing = None
+        try:
+            values = {name: self.declare_parameter(name, default, ParameterDescriptor(description=text)).value
+                      for name, default, text in PARAMETERS}
+            settings = NetworkSettings.from_values(values)
+        except BaseException:
+            self.destroy_node()
+            raise
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.counters: dict = {"published": 0}
+        self.layout = NetworkLayout(settings.scene)
+        self.sim = NetworkSimulation(settings, self.layout, self.counters, self.get_logger())
+        self.stats = TickStats(self.counters)
+        self.last_run = None
+        # -- outputs, only to topics with readers ("matched" events keep the counts)
+        self._readers = {}
+
+        def matched(name):
+            self._readers[name] = 0
+
+            def on_matched(info):
+                self._readers[name] = info.current_count
+
+            return PublisherEventCallbacks(matched=on_matched)
+
+        self._pub_joint = self.create_publisher(JointState, "joint_states", OUTPUT_QOS, event_callbacks=matched("joint_states"))
+        self._pub_float = [self.create_publisher(Float64, topic, OUTPUT_QOS, event_callbacks=matched(topic))
+                           for topic, _ in self.layout.floats]
+        self._pub_tf = None
+        try:
+            from tf2_msgs.msg import TFMessage
+        except ImportError:
+            TFMessage = None
+        if TFMessage is not None:
+            self._pub_tf = self.create_publisher(TFMessage, "/tf", TF_QOS, event_callbacks=matched("/tf"))
+        self._pub_description = self.create_publisher(String, "robot_description", DESCRIPTION_QOS)
+        self._urdf = self.layout.urdf()
+        self._pub_description.publish(String(data=self._urdf))
+        self._joint_cdr = self.layout.joint_encoder()
+        self._tf_cdr = self.layout.tf_encoder()
+        from ..io.cdr_encoders import encode_float64
+
+        self._encode_floats = encode_float64
+        # -- inputs
+        self._subs = [self.create_subscription(Float64, topic, self._input_callback(topic, i), INPUT_QOS)
+                      for topic, i in self.layout.inputs]
+        # -- diagnostics, ticks
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._diag_timer = self.create_timer(1.0, self._diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        if settings.record_path:
+            try:
+                self._start_recording(settings)
+            except BaseException:
+                self.destroy_node()
+                raise
+        self.timing = TickSource(self, self._tick, self.sim, self.stats, after_tick=lambda: None)
+        self.timing.configure()
+        names = ", ".join(p.name for p in settings.scene.pulleys)
+        self.get_logger().info(f"belt network '{settings.scene.name}' ({names}); {settings.method} at dt = "
+                               f"{settings.dt:g} s, {settings.step_rate_hz:g} Hz x {settings.substeps} step(s); "
+                               f"crank torque from {settings.drive_source}")
+
+    @property
+    def settings(self) -> NetworkSettings:
+        return self.sim.settings
+
+    def _on_set_parameters(self, params):
+        names = [p.name for p in params if p.name != "use_sim_time"]
+        if names and self.timing is not None:
+            return SetParametersResult(successful=False, reason=f"{', '.join(names)}: a network node takes its "
+                                       "parameters at start; restart the node to change them")
+        return SetParametersResult(successful=True)
+
+    def _start_recording(self, s: NetworkSettings) -> None:
+        from ..io.recording import BagError, BagExistsError
+
+        record = network_record(s.scene, s.text, method=s.method, dt=s.dt, tick_ns=s.tick_ns, source="node",
+                                drive_source=s.drive_source)
+        try:
+            self.recorder = NetworkBagWriter(s.record_path, self.layout, record, force=s.record_overwrite,
+                                             namespace=self.get_namespace())
+        except BagExistsError:
+            raise NodeConfigError("record_path", f"{s.record_path} exists; set record_overwrite:=true "
+                                  "(belt-drive node --force) to replace it") from None
+        except BagError as exc:
+            raise NodeConfigError("record_path", str(exc)) from None
+        self.get_logger().info(f"recording to {s.record_path}")
+
+    def _input_callback(self, topic: str, pulley: int):
+        def on_message(msg):
+            lock = self.timing.lock if self.timing is not None else threading.RLock()
+            with lock:
+                self.sim.receive(pulley, msg.data)
+                if self.recorder is not None:
+                    self.recorder.write_input(topic, msg.data, self.timing.now_ns())
+
+        return on_message
+
+    # ---------------------------------------------------------------- ticks
+    def _tick(self, now_ns: int, defer: bool = False):
+        if not self.sim.advance_to(now_ns):
+            return None
+        joints, floats, run = self.sim.outputs()
+        self.last_run = run
+        t = self.sim.t_ns
+        readers, recorder = self._readers, self.recorder
+        sends = []
+        joint_cdr = self._joint_cdr.encode(t, joints)
+        if readers["joint_states"]:
+            sends.append((self._pub_joint.publish, joint_cdr))
+        tf_cdr = self._tf_cdr.encode(t, joints[: len(self.layout.joints)])
+        if self._pub_tf is not None and readers.get("/tf"):
+            sends.append((self._pub_tf.publish, tf_cdr))
+        float_cdr = self._encode_floats(floats)
+        for (topic, _), pub, data in zip(self.layout.floats, self._pub_float, float_cdr):
+            if readers[topic]:
+                sends.append((pub.publish, data))
+        if recorder is not None:
+            for topic, value in self.sim.applied:
+                recorder.write_input(topic, value, t)
+            recorder.write_encoded(t, joint_cdr, tf_cdr, float_cdr)
+        self.counters["published"] += 1
+        if defer:
+            return sends
+        for publish, data in sends:
+            publish(data)
+        return None
+
+    def _diagnostics(self) -> None:
+        run, s = self.last_run, self.settings
+        status = DiagnosticStatus(name=f"{self.get_name()}: belt network {s.scene.name}", hardware_id=s.scene.name)
+        level, message = DiagnosticStatus.OK, "running"
+        values = {k: str(v) for k, v in self.counters.items() if isinstance(v, int)}
+        if run is None:
+            message = "waiting for the first tick"
+        else:
+            use = run.friction_use[0]
+            worst = int(use.argmax())
+            values["friction_use_max"] = f"{use[worst]:.4g} ({s.scene.pulleys[worst].name})"
+            slack = [name for name, flag in zip(s.scene.span_names(), run.slack[0]) if flag]
+            if slack:
+                level, message = DiagnosticStatus.WARN, f"span(s) would go slack: {', '.join(slack)}"
+            elif use[worst] >= 1.0:
+                level, message = DiagnosticStatus.WARN, f"{s.scene.pulleys[worst].name} at its capstan limit"
+        if self.sim.last_divergence is not None:
+            values["last_divergence"] = self.sim.last_divergence[0]
+        status.level, status.message = level, message
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._pub_diag.publish(msg)
+
+    def destroy_node(self):
+        if self.timing is not None:
+            self.timing.destroy()
+        if self.recorder is not None:
+            try:
+                self.recorder.close()
+            finally:
+                self.recorder = None
+        return super().destroy_node()
+
+
+def run(ros_args: list[str] | None = None, scene: str | None = None, executor: str = "auto",
+        node_name: str = "belt_drive", overrides: dict | None = None) -> int:
+    """Run one :class:`NetworkNode` until SIGINT/SIGTERM; return the exit code (0)."""
+    with ros_session(["belt-drive-node", *(ros_args or [])]) as context:
+        params = [Parameter(name, value=value) for name, value in (overrides or {}).items()
+                  if name in ("record_path", "record_overwrite")]
+        node = NetworkNode(node_name, scene=scene, context=context, parameter_overrides=params)
+        log = node.get_logger()
+        spin_nodes(
+            [node], context, executor=executor,
+            started=lambda ex: log.info(f"spinning with the {executor_name(ex)} executor"),
+            stopped=lambda signum: log.info(f"shutting down (signal {signum})" if signum else "shutting down"),
+        )
+    return 0
