@@ -14,6 +14,8 @@ examples:
   belt-drive node paper --record run --max-bag-duration 600   # bag folder run/run_0.mcap, run_1.mcap, ...
   belt-drive node --list-parameters
   belt-drive node truck_compressor --priority 50     # real-time scheduling on a busy machine
+  belt-drive node fead_i4 --record fead.mcap         # a belt network: drive_torque + <pulley>/load_torque in,
+                                                     # <pulley>/speed, spans/<span>/tension, ... out (docs/serpentine.md)
 
 topics (relative, SI units): sub drive_torque (std_msgs/Float64, N m on wheel M);
 pub shaft_speed [rad/s], load_torque [N m], belt_torque [N m], relative_deflection
@@ -79,7 +81,12 @@ def run(args) -> int:
         refused = realtime_priority(args.priority)  # before rclpy starts its threads: they inherit it
         if refused:
             print(f"belt-drive: warning: {refused}; running with normal scheduling", file=sys.stderr)
-    from ..ros.node import run as run_node
+    from ..core.network.scene import is_network
+
+    if args.scene and is_network(args.scene):  # a belt network scene: its own node (ros/network_node.py)
+        from ..ros.network_node import run as run_node
+    else:
+        from ..ros.node import run as run_node
 
     import shutil
     import tempfile
