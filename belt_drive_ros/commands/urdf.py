@@ -13,7 +13,8 @@ def register(sub) -> None:
             "3D panel (URDF layer, joint states from /joint_states)."
         ),
         epilog="examples:\n  belt-drive urdf truck_compressor > drive.urdf\n"
-               "  belt-drive urdf paper --out paper.urdf --png paper_drive.png",
+               "  belt-drive urdf paper --out paper.urdf --png paper_drive.png\n"
+               "  belt-drive urdf fead_i4 --png fead.png    # a belt network: pulleys, belt path, tensioner arm",
         formatter_class=__import__("argparse").RawDescriptionHelpFormatter,
     )
     p.add_argument("scene", help="shipped scene name or scene YAML file")
@@ -28,8 +29,16 @@ def run(args) -> int:
     from ..io.atomic import OutputRefused, atomic_output, check_output
     from ..io.urdf import render_urdf, urdf_from_params
 
-    scene = load_scene(args.scene)
-    text = urdf_from_params(scene.params, name=f"belt_drive_{scene.name}".replace("-", "_"))
+    from ..core.network.scene import is_network, load_network
+
+    if is_network(args.scene):  # a belt network: its layout, a joint per pulley and the tensioner arm
+        from ..io.network_bag import NetworkLayout
+
+        scene = load_network(args.scene)
+        text = NetworkLayout(scene).urdf()
+    else:
+        scene = load_scene(args.scene)
+        text = urdf_from_params(scene.params, name=f"belt_drive_{scene.name}".replace("-", "_"))
     for option, path in (("--out", args.out), ("--png", args.png)):
         if path:
             check_output(path, args.force, option)

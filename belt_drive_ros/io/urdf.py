@@ -182,10 +182,13 @@ def _parse(urdf: str):
     colours = {m.get("name"): tuple(float(v) for v in m.find("color").get("rgba").split())
                for m in root.findall("material") if m.find("color") is not None}
     link_origin = {"base_link": (0.0, 0.0, 0.0)}
-    for joint in root.findall("joint"):
+    for joint in root.findall("joint"):  # parents before children (a network's tensioner pulley hangs on its arm)
         xyz = [float(v) for v in joint.find("origin").get("xyz").split()]
         rpy = [float(v) for v in joint.find("origin").get("rpy").split()]
-        link_origin[joint.find("child").get("link")] = (xyz[0], xyz[1], rpy[2])
+        px, py, pyaw = link_origin.get(joint.find("parent").get("link"), (0.0, 0.0, 0.0))
+        c, s = math.cos(pyaw), math.sin(pyaw)
+        link_origin[joint.find("child").get("link")] = (px + c * xyz[0] - s * xyz[1], py + s * xyz[0] + c * xyz[1],
+                                                        pyaw + rpy[2])
     shapes: List[tuple] = []
     for link in root.findall("link"):
         ox, oy, oyaw = link_origin.get(link.get("name"), (0.0, 0.0, 0.0))
@@ -233,8 +236,12 @@ def render_urdf(urdf: str, path, title: str = "") -> None:
             ax.add_patch(Circle((x, y), dims[0], facecolor="none", edgecolor="black", linewidth=0.7,
                                 linestyle="-" if z == max(sh[6] for sh in shapes if sh[0] == "cylinder") else "--"))
     root = ET.fromstring(urdf)
+    origins = {j.find("child").get("link"): j for j in root.findall("joint")}
     for joint in root.findall("joint"):
         xyz = [float(v) for v in joint.find("origin").get("xyz").split()]
+        parent = origins.get(joint.find("parent").get("link"))
+        if parent is not None:  # one level down (a network's tensioner pulley on its arm)
+            xyz = [a + float(b) for a, b in zip(xyz, parent.find("origin").get("xyz").split())]
         ax.annotate(joint.get("name"), (xyz[0], xyz[1]), textcoords="offset points", xytext=(0, -14),
                     ha="center", fontsize=8, color="black", weight="bold")
     ax.set_aspect("equal")
