@@ -174,3 +174,29 @@ def test_scene_driven_node_equals_offline_sim(tmp_path, ros_domain_id):
         assert a[topic][1] == b[topic][1], topic
     report = compare(rec, off, rtol=0.0, atol=0.0)
     assert report.passed, [str(f) for f in report.failures]
+
+
+def test_runup_chart_takes_the_crank_through_the_engine_speed_range(tmp_path, capsys):
+    """``belt-drive modes fead_i4 --runup``: the crank starts at the bottom of the engine's range and ends near
+    its top (the mean torque is chosen for it), a tension line per span is summarised, the chart is a PNG."""
+    import math
+
+    from belt_drive_ros.cli import main
+    from belt_drive_ros.commands.modes import runup_scene
+    from belt_drive_ros.core.network.model import NetworkModel, simulate
+    from belt_drive_ros.core.network.scene import load_network
+
+    scene = load_network(SCENE)
+    ramp = runup_scene(SCENE, scene, NetworkModel.build(scene), 1.0)
+    run = simulate(ramp)
+    lo, hi = scene.engine.speed_range
+    crank = run.speed[:, ramp.driver]
+    assert crank[0] == lo and abs(crank[-1] - hi) < 0.15 * (hi - lo)
+    png = tmp_path / "runup.png"
+    assert main(["modes", SCENE, "--runup", str(png), "--runup-time", "0.5"]) == 0
+    out = capsys.readouterr().out
+    assert all(f"span {span}" in out for span in scene.span_names()) and "tensioner arm" in out
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert main(["modes", SCENE, "--runup", str(png), "--runup-time", "0.5"]) == 2  # exists, no --force
+    assert main(["modes", SCENE, "--runup", str(tmp_path / "x.png"), "--runup-time", "nan"]) == 2
+    assert math.isfinite(float(ramp.pulleys[ramp.driver].torque.mean_torque))

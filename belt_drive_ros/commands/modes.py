@@ -15,6 +15,10 @@ def register(sub) -> None:
     p.add_argument("--speed", type=float, help="driver speed [rad/s] of the operating point (default: the scene's)")
     p.add_argument("--campbell", metavar="PNG", help="write the Campbell diagram to this PNG")
     p.add_argument("--points", type=int, default=60, help="engine speeds in the Campbell diagram (default 60)")
+    p.add_argument("--runup", metavar="PNG", help="run the engine up through its speed range and chart the span "
+                   "tensions and the tensioner arm against crank speed to this PNG")
+    p.add_argument("--runup-time", type=float, default=4.0, metavar="S",
+                   help="seconds the run-up takes from the bottom to the top of the engine's speed range (default 4)")
     p.add_argument("--force", action="store_true", help="replace an existing PNG")
     p.set_defaults(func=run)
 
@@ -29,10 +33,14 @@ def run(args) -> int:
         raise SceneError(f"--speed: a finite driver speed within +-1e4 rad/s, got {args.speed!r}")
     if not 3 <= args.points <= 2000:
         raise SceneError(f"--points: 3 .. 2000, got {args.points}")
-    if args.campbell:
-        from ..io.atomic import check_output
+    from ..io.atomic import check_output
 
+    if args.campbell:
         check_output(args.campbell, args.force, "Campbell plot")
+    if args.runup:
+        if not (math.isfinite(args.runup_time) and 0.1 <= args.runup_time <= 600.0):
+            raise SceneError(f"--runup-time: 0.1 .. 600 s, got {args.runup_time!r}")
+        check_output(args.runup, args.force, "run-up chart")
     model = NetworkModel.build(scene)
     speed = scene.operating_speed if args.speed is None else args.speed
     names = [p.name for p in scene.pulleys] + (["tensioner_arm"] if scene.tensioner else [])
@@ -53,4 +61,62 @@ def run(args) -> int:
         with atomic_output(args.campbell, args.force, what="Campbell plot") as fh:
             plot_campbell(data, fh, f"{scene.name}: Campbell diagram")
         print(f"wrote {args.campbell}")
+    if args.runup:
+        runup(args, scene, model)
     return 0
+
+
+def runup_scene(label: str, scene, model, seconds: float):
+    """The scene with the crank run up: from the bottom of the engine's speed range, its drive replaced by the
+    engine's firing pulsations on a constant mean torque that takes the belt to the top of the range in about
+    ``seconds``: ``T = J_eff (w_hi - w_lo) / seconds + (the accessories' loads at the crank, mean over the range)``,
+    ``J_eff = sum_i J_i (r_d / r_i)^2`` (the belt turning every pulley without stretch)."""
+    import numpy as np
+
+    from ..core.inputs import parse_yaml
+    from ..core.network.scene import NetworkScene
+    from ..io.network_bag import scene_text
+
+    lo, hi = scene.engine.speed_range
+    d = scene.driver
+    ratio = model.speeds_at(1.0)  # omega_i per unit crank speed: r_d / r_i
+    j_eff = sum(p.inertia * ratio[i] ** 2 for i, p in enumerate(scene.pulleys))
+    loads = sum(model.operating_loads(w) for w in np.linspace(lo, hi, 9)) / 9.0  # mean over the range
+    reflected = -sum(loads[i] * ratio[i] for i in range(len(scene.pulleys)) if i != d)
+    data = dict(parse_yaml(scene_text(label), label))
+    pulleys = [dict(p) for p in data["pulleys"]]
+    old = pulleys[d].get("torque") or {}
+    pulleys[d]["torque"] = {"type": "engine", "cylinders": scene.engine.cylinders, "strokes": scene.engine.strokes,
+                            "mean_torque": j_eff * (hi - lo) / seconds + reflected,
+                            "harmonics": list(old.get("harmonics", [])) if old.get("type") == "engine" else []}
+    data.update(pulleys=pulleys, initial_speed=lo, duration=seconds, name=f"{scene.name}_runup")
+    return NetworkScene.from_mapping(data, name=f"{scene.name}_runup")
+
+
+def runup(args, scene, model) -> None:
+    """``--runup``: the run-up's span tensions and arm angle against crank speed (summary printed, chart written)."""
+    import numpy as np
+
+    from ..core.network.model import simulate
+    from ..io.atomic import atomic_output
+    from ..io.network_plot import plot_runup
+
+    ramp = runup_scene(args.scene, scene, model, args.runup_time)
+    run = simulate(ramp)
+    rpm = run.speed[:, ramp.driver] * 30.0 / math.pi
+    print(f"# run-up {rpm[0]:.0f} -> {rpm[-1]:.0f} rpm in {ramp.duration:g} s (crank mean torque "
+          f"{ramp.pulleys[ramp.driver].torque.mean_torque:.1f} N m, {scene.engine.cylinders} cylinders)")
+    for j, span in enumerate(ramp.span_names()):
+        k = int(np.argmax(run.tension[:, j]))
+        print(f"span {span:30s} {run.tension[:, j].min():8.1f} .. {run.tension[:, j].max():8.1f} N "
+              f"(max at {rpm[k]:.0f} rpm){'  SLACK' if run.slack[:, j].any() else ''}")
+    if run.arm_angle is not None:
+        a = np.degrees(run.arm_angle)
+        print(f"tensioner arm {a.min():.3f} .. {a.max():.3f} deg (swing {np.ptp(a):.3f} deg, widest near "
+              f"{rpm[int(np.argmax(np.abs(a - a.mean())))]:.0f} rpm)")
+    onset = run.capstan_onset(ramp)
+    if onset:
+        print(f"capstan limit: {onset[0]} reaches it first at {rpm[int(round(onset[1] / ramp.dt))]:.0f} rpm")
+    with atomic_output(args.runup, args.force, what="run-up chart") as fh:
+        plot_runup(ramp, run, fh)
+    print(f"wrote {args.runup}")

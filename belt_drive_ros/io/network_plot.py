@@ -69,3 +69,34 @@ def plot_network_run(scene, run, path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110, format="png")
     plt.close(fig)
+
+
+def plot_runup(scene, run, path, points: int = 4000) -> None:
+    """A run-up against crank speed [rpm]: span tensions [N] with the slack threshold, the tensioner arm [deg]."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    every = max(1, len(run.time) // points)
+    rpm = run.speed[::every, scene.driver] * 30.0 / math.pi
+    panels = 2 if run.arm_angle is not None else 1
+    fig, axes = plt.subplots(panels, 1, figsize=(9, 3.2 * panels), sharex=True, squeeze=False)
+    axes = axes[:, 0]
+    for j, span in enumerate(scene.span_names()):
+        axes[0].plot(rpm, run.tension[::every, j], lw=0.8, label=span)
+    m = scene.belt.mass_per_length
+    v = run.speed[::every, scene.driver] * scene.pulleys[scene.driver].radius
+    axes[0].plot(rpm, m * v * v, "k--", lw=0.8, label="slack below (m' v^2)")
+    axes[0].set_ylabel("span tension [N]")
+    axes[0].legend(fontsize=7, ncol=3, loc="upper left")
+    if run.arm_angle is not None:
+        axes[1].plot(rpm, np.degrees(run.arm_angle[::every]), "C3", lw=0.8)
+        axes[1].set_ylabel("tensioner arm [deg]")
+    axes[-1].set_xlabel("crank speed [rpm]")
+    axes[0].set_title(f"{scene.name}: engine run-up in {scene.duration:g} s, belt network, linear tier")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
