@@ -7,6 +7,9 @@
    chosen and why.
 2. Offline: the paper scene (rigid and flexible), ``out/paper.csv`` and
    ``out/paper.png``.
+3. Offline: the shipped serpentine FEAD (``fead_i4``): what each pulley,
+   span and the tensioner arm did, and ``out/fead_i4.mcap`` (every topic the
+   network node publishes, for Foxglove).
 """
 
 from __future__ import annotations
@@ -35,12 +38,14 @@ def register(sub) -> None:
     p.add_argument("--executor", choices=("auto", "events", "single"), default="auto", help="rclpy executor (default auto: events)")
     p.add_argument("--no-live", action="store_true", help="skip the ROS part")
     p.add_argument("--no-offline", action="store_true", help="skip the offline paper scene")
+    p.add_argument("--no-network", action="store_true", help="skip the serpentine FEAD (fead_i4)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     if not args.no_live:
         live_run(args.scene, args.duration, args.executor)
+    code = 0
     if not args.no_offline:
         from .sim import run as run_sim
 
@@ -51,8 +56,14 @@ def run(args) -> int:
             out=args.out_dir / "paper.csv", plot=args.out_dir / "paper.png", torque_bag=None, force=True, quiet=False,
             start_time=None, bag_folder=False, plot_every=1,
         )
-        return run_sim(ns)
-    return 0
+        code = run_sim(ns)
+    if not args.no_network and code == 0:
+        from .network_sim import demo_network
+
+        args.out_dir.mkdir(parents=True, exist_ok=True)
+        print("\n== offline: the serpentine FEAD fead_i4 (belt network), what each pulley did ==")
+        demo_network("fead_i4", args.out_dir / "fead_i4.mcap")
+    return code
 
 
 def belt_statement(summary: dict, tick_s: float) -> str:

@@ -172,3 +172,55 @@ def resimulate(args) -> int:
                                         start_time_ns=rec.start_ns, held=changes)
         print(f"wrote {args.out} ({sum(counts.values())} messages on {len(counts)} topics)")
     return 0
+
+
+def pulley_statements(scene, run) -> list:
+    """One line per pulley, span group and the arm: what each did in ``run`` (the demo's words, SI + rpm)."""
+    import numpy as np
+
+    rpm = 30.0 / math.pi
+    tail = slice(len(run.time) // 2, None)  # the second half: after the start
+    lines = []
+    for i, p in enumerate(scene.pulleys):
+        w = run.speed[tail, i]
+        torque = run.belt_torque[tail, i]
+        use = run.friction_use[:, i]
+        power = float(np.mean(torque * w))  # the belt's power into the pulley [W] (the belt torque acts on it)
+        flow = ("gives {:.2f} kW to the belt" if power < 0 else "takes {:.2f} kW from the belt").format(abs(power) / 1e3)
+        flow = flow if abs(power) >= 5.0 else "no power"
+        what = {"driver": "drives the belt", "accessory": "is driven", "tensioner": "tensions the belt",
+                "idler": "guides the belt"}.get(p.role, p.role)
+        grip = (f"sticks ({use.max():.0%} of its capstan limit at most)" if use.max() < 1.0 else
+                f"reaches its capstan limit at t = {run.time[int(np.argmax(use >= 1.0))]:.4g} s: it would slip there")
+        lines.append(f"  {p.name:15s} {what:17s} {np.mean(w) * rpm:7.0f} rpm mean ({np.ptp(w) * rpm:6.1f} rpm "
+                     f"ripple), belt torque {round(float(np.mean(torque)), 2) + 0.0:+7.2f} N m ({flow}), "
+                     f"hub load up to {run.hub_load[:, i].max():5.0f} N; {grip}")
+    lo, hi = run.tension.min(axis=0), run.tension.max(axis=0)
+    tight, slack = int(np.argmax(hi)), int(np.argmin(lo))
+    names = scene.span_names()
+    lines.append(f"  spans           tightest {names[tight]} up to {hi[tight]:.0f} N, slackest {names[slack]} down to "
+                 f"{lo[slack]:.0f} N; " + ("no span goes slack" if not run.slack.any() else
+                                          "SLACK: " + ", ".join(n for j, n in enumerate(names) if run.slack[:, j].any())))
+    if run.arm_angle is not None:
+        a = np.degrees(run.arm_angle[tail])
+        lines.append(f"  tensioner arm   at {a.mean():.2f} deg, swinging {np.ptp(a):.3f} deg")
+    return lines
+
+
+def demo_network(name: str, mcap_path) -> None:
+    """``make demo``'s network part: the scene's run, what each pulley did, and its MCAP."""
+    import argparse
+
+    from ..core.network.model import simulate
+    from ..core.network.scene import load_network
+
+    scene = load_network(name)
+    start = time.perf_counter()
+    run = simulate(scene)
+    wall = time.perf_counter() - start
+    print(f"  {scene.description}")
+    print(f"  {scene.duration:g} s simulated ({scene.method} at dt = {scene.dt:g} s, linear tier) in {wall:.2f} s")
+    for line in pulley_statements(scene, run):
+        print(line)
+    args = argparse.Namespace(scene=name, force=True, out=mcap_path, start_time=None)
+    _write_mcap(args, scene, run, scene.method, scene.dt)
