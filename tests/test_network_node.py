@@ -117,7 +117,7 @@ def test_network_node_records_and_resimulates_bit_for_bit(tmp_path, ros_domain_i
     h = Lockstep(ros_domain_id, record_path=str(rec))
     try:
         h.step(START_NS)
-        for k in range(1, 41):
+        for k in [*range(1, 31), *range(33, 41)]:  # /clock jumps 31, 32: integrated over, not published
             if k == 3:
                 h.send(h.drive, 14.0)
             if k == 12:
@@ -129,14 +129,14 @@ def test_network_node_records_and_resimulates_bit_for_bit(tmp_path, ros_domain_i
     finally:
         h.close()
     recorded = _decode(rec)
-    assert len(recorded["/alternator/speed"][1]) == 41
+    assert len(recorded["/alternator/speed"][1]) == 39
     for topic, values in got.items():  # what subscribers got is what was recorded
         assert values == recorded["/" + topic][1]
     # the inputs act from the tick after they were received (joint_states effort: u = +drive, -load)
     effort = np.array(recorded["/joint_states"][1])[:, 2 * 8: 3 * 8]
     crank, alternator = 0, 2
     assert effort[:3, crank].tolist() == [0.0, 0.0, 0.0] and effort[3, crank] == 14.0 and effort[25, crank] == 9.5
-    assert effort[11, alternator] != -6.0 and effort[12:, alternator].tolist() == [-6.0] * 29
+    assert effort[11, alternator] != -6.0 and effort[12:, alternator].tolist() == [-6.0] * 27
     # the arm and every pulley are joints; the belt moved the alternator
     assert np.ptp(recorded["/alternator/speed"][1]) > 0.0
     out = tmp_path / "resim.mcap"

@@ -65,6 +65,15 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    if args.list_parameters and args.scene:
+        from ..core.network.scene import is_network
+
+        if is_network(args.scene):  # the network node's parameters (taken at start)
+            from ..ros.network_node import PARAMETERS
+
+            for name, default, text in PARAMETERS:
+                print(f"{name:18s} default {default!r:12s} {text}")
+            return 0
     if args.list_parameters:
         from ..ros.parameter_schema import describe_parameters  # the schema imports no rclpy
 

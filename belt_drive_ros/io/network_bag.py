@@ -329,6 +329,9 @@ class NetworkRecording:
     end_ns: int
     #: (step index, pulley index, value [N m]) where an applied input changed (at a tick)
     held: List[Tuple[int, int, float]]
+    #: the ticks (index from the first) the recording has samples of: the node publishes a tick it integrated
+    #: to; ticks it had to skip (a gap: the process starved) were integrated over, not published
+    ticks: List[int]
 
 
 def is_network_recording(path) -> bool:
@@ -389,7 +392,8 @@ def read_network_recording(path) -> NetworkRecording:
         if last.get(i) != value:
             held.append((k, i, value))
             last[i] = value
-    return NetworkRecording(scene, record["yaml"], record["method"], dt, tick_ns, start, times[-1], held)
+    ticks = [int(round((t - start) / tick_ns)) for t in times]
+    return NetworkRecording(scene, record["yaml"], record["method"], dt, tick_ns, start, times[-1], held, ticks)
 
 
 __all__ += ["NetworkRecording", "is_network_recording", "network_record", "scene_from_text"]
