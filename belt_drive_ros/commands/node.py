@@ -93,7 +93,13 @@ def run(args) -> int:
     from ..core.network.scene import is_network
 
     if args.scene and is_network(args.scene):  # a belt network scene: its own node (ros/network_node.py)
+        from ..core.errors import ParameterError
         from ..ros.network_node import run as run_node
+
+        for flag, value in (("--max-bag-duration", args.max_bag_duration), ("--max-bag-size", args.max_bag_size)):
+            if value is not None:
+                raise ParameterError(flag, "a belt network's recording is one MCAP file (split bags are not built "
+                                     "for networks)")
     else:
         from ..ros.node import run as run_node
 

@@ -38,6 +38,34 @@ def plot_campbell(data, path, title: str) -> None:
     plt.close(fig)
 
 
+def _tensions(ax, x, scene, run, rows: slice, legend: str, lw: float) -> None:
+    """Span tensions [N] against ``x`` (samples ``rows`` of the run), with the slack threshold ``m' v^2`` dashed."""
+    for j, span in enumerate(scene.span_names()):
+        ax.plot(x, run.tension[rows, j], lw=lw, label=span)
+    m = scene.belt.mass_per_length
+    if m:
+        v = run.speed[rows, scene.driver] * scene.pulleys[scene.driver].radius
+        ax.plot(x, m * v * v, "k--", lw=0.8, label="slack below (m' v^2)")
+    ax.set_ylabel("span tension [N]")
+    ax.legend(fontsize=7, ncol=3, loc=legend)
+
+
+def _finish(fig, axes, x, run, rows: slice, lw: float, xlabel: str, title: str, path) -> None:
+    """The arm's panel (last, when there is an arm), labels, grid, and the PNG written."""
+    import matplotlib.pyplot as plt
+
+    if run.arm_angle is not None:
+        axes[-1].plot(x, np.degrees(run.arm_angle[rows]), "C3", lw=lw)
+        axes[-1].set_ylabel("tensioner arm [deg]")
+    axes[-1].set_xlabel(xlabel)
+    axes[0].set_title(title)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+
+
 def plot_network_run(scene, run, path) -> None:
     """Three panels over time: pulley speeds [rpm], span tensions [N] (slack threshold dashed), arm angle [deg]."""
     import matplotlib
@@ -51,24 +79,8 @@ def plot_network_run(scene, run, path) -> None:
         axes[0].plot(run.time, run.speed[:, i] * 30.0 / math.pi, lw=1.0, label=p.name)
     axes[0].set_ylabel("pulley speed [rpm]")
     axes[0].legend(fontsize=7, ncol=4, loc="lower right")
-    for j, span in enumerate(scene.span_names()):
-        axes[1].plot(run.time, run.tension[:, j], lw=1.0, label=span)
-    m = scene.belt.mass_per_length
-    if m:
-        v = run.speed[:, scene.driver] * scene.pulleys[scene.driver].radius
-        axes[1].plot(run.time, m * v * v, "k--", lw=0.8, label="slack below (m' v^2)")
-    axes[1].set_ylabel("span tension [N]")
-    axes[1].legend(fontsize=7, ncol=3, loc="upper right")
-    if run.arm_angle is not None:
-        axes[2].plot(run.time, np.degrees(run.arm_angle), "C3", lw=1.0)
-        axes[2].set_ylabel("tensioner arm [deg]")
-    axes[-1].set_xlabel("time [s]")
-    axes[0].set_title(f"{scene.name}: belt network, linear tier")
-    for ax in axes:
-        ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
+    _tensions(axes[1], run.time, scene, run, slice(None), "upper right", 1.0)
+    _finish(fig, axes, run.time, run, slice(None), 1.0, "time [s]", f"{scene.name}: belt network, linear tier", path)
 
 
 def plot_runup(scene, run, path, points: int = 4000) -> None:
@@ -83,20 +95,7 @@ def plot_runup(scene, run, path, points: int = 4000) -> None:
     panels = 2 if run.arm_angle is not None else 1
     fig, axes = plt.subplots(panels, 1, figsize=(9, 3.2 * panels), sharex=True, squeeze=False)
     axes = axes[:, 0]
-    for j, span in enumerate(scene.span_names()):
-        axes[0].plot(rpm, run.tension[::every, j], lw=0.8, label=span)
-    m = scene.belt.mass_per_length
-    v = run.speed[::every, scene.driver] * scene.pulleys[scene.driver].radius
-    axes[0].plot(rpm, m * v * v, "k--", lw=0.8, label="slack below (m' v^2)")
-    axes[0].set_ylabel("span tension [N]")
-    axes[0].legend(fontsize=7, ncol=3, loc="upper left")
-    if run.arm_angle is not None:
-        axes[1].plot(rpm, np.degrees(run.arm_angle[::every]), "C3", lw=0.8)
-        axes[1].set_ylabel("tensioner arm [deg]")
-    axes[-1].set_xlabel("crank speed [rpm]")
-    axes[0].set_title(f"{scene.name}: engine run-up in {scene.duration:g} s, belt network, linear tier")
-    for ax in axes:
-        ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
+    rows = slice(None, None, every)
+    _tensions(axes[0], rpm, scene, run, rows, "upper left", 0.8)
+    _finish(fig, axes, rpm, run, rows, 0.8, "crank speed [rpm]",
+            f"{scene.name}: engine run-up in {scene.duration:g} s, belt network, linear tier", path)

@@ -54,11 +54,10 @@ from std_msgs.msg import Float64, String  # noqa: E402
 
 from ..core.errors import BeltDriveError, SimulationDivergedError  # noqa: E402
 from ..io.network_bag import APPLIED, NetworkBagWriter, NetworkLayout, network_record, scene_text  # noqa: E402
-from .executors import executor_name, ros_session, spin_nodes  # noqa: E402
 from .network_stepper import NetworkStepper  # noqa: E402
 from .parameter_schema import NodeConfigError  # noqa: E402
 from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS, TF_QOS  # noqa: E402
-from .simulation import next_tick_ns  # noqa: E402
+from .simulation import NodeSimulation  # noqa: E402
 from .timing import TickSource, TickStats  # noqa: E402
 
 __all__ = ["NetworkNode", "NetworkSettings", "run"]
@@ -148,24 +147,10 @@ class NetworkSimulation:
         self.last_divergence = None
         self.applied: list = []  # (input topic, value) applied at the last tick (recorded)
 
-    @property
-    def started(self) -> bool:
-        return self.t_ns is not None
-
-    def stop(self) -> None:
-        if self.t_ns is not None:
-            self.t_ns = None
-            self.counters["clock_jumps"] += 1
-
-    def grid_time(self, now_ns: int) -> int:
-        """The tick a call at ``now_ns`` integrates to (as the paper node's :meth:`NodeSimulation.grid_time`)."""
-        if self.t_ns is None or now_ns < self.origin_ns:
-            return now_ns
-        tick = self.settings.tick_ns
-        due = next_tick_ns(self.t_ns, self.origin_ns, tick)
-        if now_ns >= due + tick:
-            return now_ns - (now_ns - self.origin_ns) % tick
-        return due if due - now_ns <= tick // 2 else self.t_ns
+    # the time base of the paper node's simulation (the same attributes: t_ns, origin_ns, settings.tick_ns)
+    started = NodeSimulation.started
+    stop = NodeSimulation.stop
+    grid_time = NodeSimulation.grid_time
 
     def receive(self, pulley: int, value: float) -> bool:
         self.counters["received"] += 1
@@ -200,16 +185,14 @@ class NetworkSimulation:
 
     def advance_to(self, now_ns: int) -> bool:
         """Integrate to the tick ``now_ns`` with the inputs held since the last tick, then sample the inputs."""
-        if self.t_ns is None:
-            self.start(now_ns)
-            return True
-        if now_ns < self.t_ns:
+        if self.t_ns is not None and now_ns == self.t_ns:
+            return False
+        if self.t_ns is not None and now_ns < self.t_ns:  # restart there, as the paper node does
             self.counters["clock_jumps"] += 1
             self.log.warn(f"clock jumped back {(self.t_ns - now_ns) / 1e9:.6g} s: restarting from the initial state")
+        if self.t_ns is None or now_ns < self.t_ns:
             self.start(now_ns)
             return True
-        if now_ns == self.t_ns:
-            return False
         k1 = round((now_ns - self.origin_ns) / (self.settings.dt * 1e9))
         try:
             self.x = self.stepper.advance(self.x, self.k, k1)
@@ -405,15 +388,8 @@ class NetworkNode(Node):
 
 def run(ros_args: list[str] | None = None, scene: str | None = None, executor: str = "auto",
         node_name: str = "belt_drive", overrides: dict | None = None) -> int:
-    """Run one :class:`NetworkNode` until SIGINT/SIGTERM; return the exit code (0)."""
-    with ros_session(["belt-drive-node", *(ros_args or [])]) as context:
-        params = [Parameter(name, value=value) for name, value in (overrides or {}).items()
-                  if name in ("record_path", "record_overwrite")]
-        node = NetworkNode(node_name, scene=scene, context=context, parameter_overrides=params)
-        log = node.get_logger()
-        spin_nodes(
-            [node], context, executor=executor,
-            started=lambda ex: log.info(f"spinning with the {executor_name(ex)} executor"),
-            stopped=lambda signum: log.info(f"shutting down (signal {signum})" if signum else "shutting down"),
-        )
-    return 0
+    """Run one :class:`NetworkNode` until SIGINT/SIGTERM (the paper node's :func:`~.node.run`); exit code 0."""
+    from .node import run as run_node
+
+    return run_node(ros_args, scene=scene, executor=executor, node_name=node_name, overrides=overrides,
+                    node_class=NetworkNode)

@@ -550,8 +550,9 @@ def run(
     executor: str = "auto",
     node_name: str = NODE_NAME,
     overrides: dict | None = None,
+    node_class=None,
 ) -> int:
-    """Run one :class:`BeltDriveNode` until SIGINT/SIGTERM; return the exit code (0).
+    """Run one :class:`BeltDriveNode` (or ``node_class``: a belt network's node) until SIGINT/SIGTERM; return the exit code (0).
 
     ``ros_args`` are ROS command-line arguments (``--ros-args -p k:=1e5
     --params-file f.yaml -r __ns:=/truck``); ``overrides`` are parameter
@@ -560,7 +561,7 @@ def run(
     """
     with ros_session(["belt-drive-node", *(ros_args or [])]) as context:
         params = [Parameter(name, value=value) for name, value in (overrides or {}).items()]
-        node = BeltDriveNode(node_name, scene=scene, context=context, parameter_overrides=params)
+        node = (node_class or BeltDriveNode)(node_name, scene=scene, context=context, parameter_overrides=params)
         from . import memprobe
 
         memprobe.install(node)  # only with BELT_DRIVE_MEMPROBE set (a debugging switch)
