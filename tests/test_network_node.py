@@ -26,7 +26,7 @@ TICK_NS = 1_000_000
 class Lockstep:
     """A NetworkNode and a probe on a private context, /clock stepped by the probe."""
 
-    def __init__(self, domain_id: int, **params):
+    def __init__(self, domain_id: int, namespace: str = "", **params):
         import rclpy
         from rclpy.context import Context
         from rclpy.node import Node
@@ -41,8 +41,8 @@ class Lockstep:
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         overrides = [Parameter(k, value=v) for k, v in params.items()] + [Parameter("use_sim_time", value=True)]
-        self.node = NetworkNode(scene=SCENE, context=self.context, parameter_overrides=overrides)
-        self.probe = Node("probe", context=self.context)
+        self.node = NetworkNode(scene=SCENE, context=self.context, parameter_overrides=overrides, namespace=namespace)
+        self.probe = Node("probe", context=self.context, namespace=namespace)
         reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
         self.clock = self.probe.create_publisher(Clock, "/clock", reliable)
         self.drive = self.probe.create_publisher(Float64, "drive_torque", reliable)
@@ -98,7 +98,7 @@ def _decode(path) -> dict:
     out: dict = {}
     with open(path, "rb") as f:
         for _, channel, message, decoded in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
-            if channel.topic == "/joint_states":
+            if channel.topic.endswith("/joint_states"):
                 value = tuple(decoded.position) + tuple(decoded.velocity) + tuple(decoded.effort)
             elif hasattr(decoded, "data") and isinstance(decoded.data, float):
                 value = decoded.data
@@ -157,22 +157,36 @@ def test_network_node_records_and_resimulates_bit_for_bit(tmp_path, ros_domain_i
 
 
 def test_scene_driven_node_equals_offline_sim(tmp_path, ros_domain_id):
+    from diagnostic_msgs.msg import DiagnosticArray
+
     from belt_drive_ros.cli import main
     from msg_tools.compare import compare
 
     rec = tmp_path / "node.mcap"
-    h = Lockstep(ros_domain_id, record_path=str(rec), drive_source="scene")
+    h = Lockstep(ros_domain_id, namespace="car1", record_path=str(rec), drive_source="scene")
+    diagnostics = []
+    h.probe.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 10)
     try:
         for k in range(0, 31):
             h.step(START_NS + k * TICK_NS)
+        h.node._diagnostics()  # its 1 Hz timer's call, now
+        h.until(lambda: diagnostics, "/diagnostics")
     finally:
         h.close()
+    status = diagnostics[-1].status[0]
+    assert status.level == b"\x00" and "fead_i4" in status.name
+    assert {kv.key for kv in status.values} >= {"published", "received", "friction_use_max"}
     off = tmp_path / "offline.mcap"
     assert main(["sim", SCENE, "--duration", "0.03", "--out", str(off)]) == 0
     a, b = _decode(rec), _decode(off)
-    for topic in b:
-        assert a[topic][1] == b[topic][1], topic
-    report = compare(rec, off, rtol=0.0, atol=0.0)
+    assert set(a) == {"/car1" + topic for topic in b}  # the node's topics under its namespace
+    for topic in b:  # equal to the offline run bit for bit
+        assert a["/car1" + topic][1] == b[topic][1], topic
+    again = tmp_path / "again.mcap"  # a namespaced recording re-simulates under its namespace
+    assert main(["sim", str(rec), "--out", str(again)]) == 0
+    c = _decode(again)
+    assert all(c[t] == a[t] for t in a), [t for t in a if c.get(t) != a[t]]
+    report = compare(again, rec, rtol=0.0, atol=0.0)
     assert report.passed, [str(f) for f in report.failures]
 
 

@@ -50,7 +50,8 @@ from msg_tools import Ros2McapWriter
 from msg_tools.errors import MsgToolsError
 from msg_tools.units import UNITS_METADATA
 
-from .bag_layout import FLOAT64, JOINT_STATE, ROBOT_DESCRIPTION_QOS, STRING, TF_MESSAGE, TF_QOS, TF_TOPIC, _fmt, bag_error
+from .bag_layout import (FLOAT64, JOINT_STATE, ROBOT_DESCRIPTION_QOS, STRING, TF_MESSAGE, TF_QOS, TF_TOPIC, _absolute,
+                         _fmt, bag_error)
 from .cdr_encoders import JointStateEncoder, TfEncoder, encode_float64
 
 __all__ = ["NETWORK_METADATA", "NetworkLayout", "NetworkBagWriter", "read_network_recording", "scene_text",
@@ -81,11 +82,6 @@ def scene_from_text(text: str, name: str):
     from ..core.network.scene import NetworkScene
 
     return NetworkScene.from_mapping(parse_yaml(text, f"network scene {name}"), name=name)
-
-
-def _absolute(topic: str, namespace: str) -> str:
-    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
-    return topic if topic.startswith("/") else f"{ns}/{topic}"
 
 
 class NetworkLayout:
@@ -266,16 +262,16 @@ class NetworkBagWriter:
 
 
 def network_record(scene, text: str, *, method: str, dt: float, tick_ns: int, source: str,
-                   drive_source: str) -> Dict[str, str]:
+                   drive_source: str, namespace: str = "/") -> Dict[str, str]:
     """The ``network_scene`` metadata record."""
     return {"format": "belt_drive_ros network 1", "kind": "network", "name": scene.name, "yaml": text,
             "method": method, "dt": _fmt(float(dt)), "tick_ns": str(int(tick_ns)), "source": source,
-            "drive_source": drive_source}
+            "drive_source": drive_source, "namespace": namespace}
 
 
 def write_network_mcap(stepper, text: str, states, steps: Sequence[int], path, *, force: bool = False,
                        start_time_ns: int = 0, held: Optional[Sequence[Tuple[int, int, float]]] = None,
-                       source: str = "offline") -> Dict[str, int]:
+                       source: str = "offline", namespace: str = "/") -> Dict[str, int]:
     """Write a run's states ``(N, 2m)`` at the grid steps ``steps`` (``k dt``) as the node would publish them.
 
     Each sample's outputs come from the stepper's one-sample evaluation (the node's), so a node run and its
@@ -286,9 +282,8 @@ def write_network_mcap(stepper, text: str, states, steps: Sequence[int], path, *
     layout = NetworkLayout(scene)
     record = network_record(scene, text, method=stepper.method, dt=stepper.dt,
                             tick_ns=int(round((steps[1] - steps[0] if len(steps) > 1 else 1) * stepper.dt * 1e9)),
-                            source=source,
-                            drive_source="recorded" if held else "scene")
-    writer = NetworkBagWriter(path, layout, record, force=force)
+                            source=source, drive_source="recorded" if held else "scene", namespace=namespace)
+    writer = NetworkBagWriter(path, layout, record, force=force, namespace=namespace)
     topic_of = {i: topic for topic, i in layout.inputs}
     changes = sorted(held or [])
     now: Dict[int, float] = {}
@@ -332,6 +327,8 @@ class NetworkRecording:
     #: the ticks (index from the first) the recording has samples of: the node publishes a tick it integrated
     #: to; ticks it had to skip (a gap: the process starved) were integrated over, not published
     ticks: List[int]
+    #: the node's namespace (its topics' prefix)
+    namespace: str = "/"
 
 
 def is_network_recording(path) -> bool:
@@ -363,7 +360,9 @@ def read_network_recording(path) -> NetworkRecording:
         record = _metadata(path)[NETWORK_METADATA]
         scene = scene_from_text(record["yaml"], record["name"])
         layout = NetworkLayout(scene)
-        pulley_of = {_absolute(topic + APPLIED, "/"): i for topic, i in layout.inputs}
+        namespace = record.get("namespace", "/")
+        pulley_of = {_absolute(topic + APPLIED, namespace): i for topic, i in layout.inputs}
+        joint_states = _absolute("joint_states", namespace)
         dt, tick_ns = float(record["dt"]), int(record["tick_ns"])
         times: List[int] = []
         applied: List[Tuple[int, int, float]] = []
@@ -371,13 +370,10 @@ def read_network_recording(path) -> NetworkRecording:
             reader = make_reader(f)
             for _, channel, message in reader.iter_messages(topics=None, log_time_order=True):
                 topic = channel.topic
-                if topic.endswith("/joint_states"):
+                if topic == joint_states:
                     times.append(message.log_time)
-                elif topic in pulley_of or any(topic.endswith(t) for t in pulley_of):
-                    i = pulley_of.get(topic)
-                    if i is None:
-                        i = next(v for t, v in pulley_of.items() if topic.endswith(t))
-                    applied.append((message.log_time, i, float(np.frombuffer(message.data[4:12], "<f8")[0])))
+                elif topic in pulley_of:
+                    applied.append((message.log_time, pulley_of[topic], float(np.frombuffer(message.data[4:12], "<f8")[0])))
     except BagReadError:
         raise
     except Exception as exc:  # noqa: BLE001 - damaged or foreign file: one line
@@ -393,7 +389,7 @@ def read_network_recording(path) -> NetworkRecording:
             held.append((k, i, value))
             last[i] = value
     ticks = [int(round((t - start) / tick_ns)) for t in times]
-    return NetworkRecording(scene, record["yaml"], record["method"], dt, tick_ns, start, times[-1], held, ticks)
+    return NetworkRecording(scene, record["yaml"], record["method"], dt, tick_ns, start, times[-1], held, ticks, namespace)
 
 
 __all__ += ["NetworkRecording", "is_network_recording", "network_record", "scene_from_text"]

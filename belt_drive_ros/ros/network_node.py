@@ -300,7 +300,7 @@ class NetworkNode(Node):
         from ..io.recording import BagError, BagExistsError
 
         record = network_record(s.scene, s.text, method=s.method, dt=s.dt, tick_ns=s.tick_ns, source="node",
-                                drive_source=s.drive_source)
+                                drive_source=s.drive_source, namespace=self.get_namespace())
         try:
             self.recorder = NetworkBagWriter(s.record_path, self.layout, record, force=s.record_overwrite,
                                              namespace=self.get_namespace())
