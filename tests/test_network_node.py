@@ -214,3 +214,15 @@ def test_runup_chart_takes_the_crank_through_the_engine_speed_range(tmp_path, ca
     assert main(["modes", SCENE, "--runup", str(png), "--runup-time", "0.5"]) == 2  # exists, no --force
     assert main(["modes", SCENE, "--runup", str(tmp_path / "x.png"), "--runup-time", "nan"]) == 2
     assert math.isfinite(float(ramp.pulleys[ramp.driver].torque.mean_torque))
+
+
+def test_node_command_with_a_network_scene_refuses_what_it_cannot_do(capsys):
+    from belt_drive_ros.cli import main
+
+    assert main(["node", SCENE, "--list-parameters"]) == 0
+    listed = capsys.readouterr().out
+    assert "drive_source" in listed and "record_path" in listed and "substeps" not in listed
+    assert main(["node", SCENE, "--max-bag-duration", "5"]) == 2
+    assert "one MCAP file" in capsys.readouterr().err
+    assert main(["node", SCENE, "--ros-args", "-p", "step_rate_hz:=3000.0"]) == 2  # 1/3 ms is no whole number of steps
+    assert "step_rate_hz" in capsys.readouterr().err

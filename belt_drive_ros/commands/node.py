@@ -92,7 +92,8 @@ def run(args) -> int:
             print(f"belt-drive: warning: {refused}; running with normal scheduling", file=sys.stderr)
     from ..core.network.scene import is_network
 
-    if args.scene and is_network(args.scene):  # a belt network scene: its own node (ros/network_node.py)
+    named = args.scene or next((a.split(":=", 1)[1] for a in args.ros_args or [] if a.startswith("scene:=")), None)
+    if named and is_network(named):  # a belt network scene: its own node (ros/network_node.py)
         from ..core.errors import ParameterError
         from ..ros.network_node import run as run_node
 
