@@ -15,8 +15,7 @@ def _refuse_unsupported(args) -> None:
 
     given = [flag for flag, value in (("--model", args.model), ("--v-eps", getattr(args, "v_eps", None)),
                                       ("--method-option", args.method_option), ("--torque-bag", args.torque_bag),
-                                      ("--bag-folder", args.bag_folder),
-                                      ("--start-time", args.start_time)) if value]
+                                      ("--bag-folder", args.bag_folder)) if value]
     if given:
         raise SceneError(f"{given[0]}: not available for a belt network scene yet (its linear tier runs; "
                          "see docs/serpentine.md)")
