@@ -58,3 +58,21 @@ def test_network_run_decodes_in_foxglove_and_its_tf_moves_the_urdf(tmp_path):
                                        rtol=0, atol=1e-15)
     assert joints["tensioner"].find("parent").get("link") == "tensioner_arm_link"
     assert np.ptp(js.position[:, -1]) > 0.0  # the arm swings
+
+
+def test_network_layout_reads_topics_a_network_recording_has(tmp_path):
+    import json
+    from pathlib import Path
+
+    from msg_tools import summary
+    from test_foxglove_layout import layout_topics
+
+    from belt_drive_ros.cli import main
+
+    layout = json.loads((Path(__file__).resolve().parents[1] / "docs" / "foxglove" / "fead_i4_layout.json").read_text())
+    wanted = layout_topics(layout)
+    assert {"/robot_description", "/joint_states", "/alternator/speed", "/tensioner_arm/angle",
+            "/spans/crank_tensioner/tension"} <= wanted
+    path = tmp_path / "fead.mcap"
+    assert main(["sim", "fead_i4", "--duration", "0.01", "--out", str(path)]) == 0
+    assert wanted <= {t.topic for t in summary(path).topics}
