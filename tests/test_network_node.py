@@ -226,3 +226,21 @@ def test_node_command_with_a_network_scene_refuses_what_it_cannot_do(capsys):
     assert "one MCAP file" in capsys.readouterr().err
     assert main(["node", SCENE, "--ros-args", "-p", "step_rate_hz:=3000.0"]) == 2  # 1/3 ms is no whole number of steps
     assert "step_rate_hz" in capsys.readouterr().err
+
+
+def test_a_recording_cut_off_mid_write_resimulates_up_to_its_last_complete_sample(tmp_path):
+    """A node killed while recording leaves no summary: the re-simulation reads the file as a stream."""
+    from belt_drive_ros.cli import main
+
+    full, cut, again = tmp_path / "full.mcap", tmp_path / "cut.mcap", tmp_path / "again.mcap"
+    assert main(["sim", SCENE, "--duration", "0.6", "--out", str(full), "--start-time", "0"]) == 0
+    data = full.read_bytes()
+    cut.write_bytes(data[: len(data) * 6 // 10])
+    assert main(["sim", str(cut), "--out", str(again)]) == 0
+    a, b = _decode(full), _decode(again)
+    rows = len(b["/joint_states"][1])
+    assert 0 < rows < len(a["/joint_states"][1])
+    for topic in b:  # the samples the cut file still has, re-made bit for bit
+        assert b[topic][1] == a[topic][1][: len(b[topic][1])] and len(b[topic][1]) == rows, topic
+    cut.write_bytes(data[:200])  # nothing but the header: one line, exit 2
+    assert main(["sim", str(cut), "--out", str(tmp_path / "x.mcap")]) == 2

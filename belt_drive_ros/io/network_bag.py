@@ -332,58 +332,80 @@ class NetworkRecording:
 
 
 def is_network_recording(path) -> bool:
-    """Whether ``path`` is an MCAP file holding a ``network_scene`` record."""
+    """Whether ``path`` is an MCAP file holding a ``network_scene`` record (also a file cut off mid-write)."""
     p = Path(str(path))
     if p.suffix.lower() != ".mcap" or not p.is_file():
         return False
     try:
-        return NETWORK_METADATA in _metadata(p)
+        for record in _records(p):
+            if type(record).__name__ == "Metadata" and record.name == NETWORK_METADATA:
+                return True
+            if type(record).__name__ == "Message":  # the record comes before the first message
+                return False
     except Exception:  # noqa: BLE001 - not readable: the recording path says why
         return False
+    return False
 
 
-def _metadata(path) -> Dict[str, Dict[str, str]]:
-    from mcap.reader import make_reader
+def _records(path):
+    """The file's records in order, read as a stream (no summary needed); a file cut off mid-write ends at
+    its last complete record (a node killed while recording)."""
+    from mcap.stream_reader import StreamReader
 
     with open(path, "rb") as f:
-        reader = make_reader(f)
-        return {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        reader = StreamReader(f, record_size_limit=1 << 30).records
+        while True:
+            try:
+                record = next(reader)
+            except StopIteration:
+                return
+            except Exception:  # noqa: BLE001 - cut off or damaged here: what came before stands
+                return
+            yield record
 
 
 def read_network_recording(path) -> NetworkRecording:
-    """The scene, step, tick and applied inputs of a network recording (:class:`BagReadError` naming the file)."""
-    from mcap.reader import make_reader
+    """The scene, step, tick and applied inputs of a network recording (:class:`BagReadError` naming the file).
 
+    Read as a stream, so a recording cut off mid-write (the node killed) re-simulates up to its last
+    complete sample."""
     from .bag_layout import BagReadError
 
+    metadata: Dict[str, Dict[str, str]] = {}
+    topics: Dict[int, str] = {}
+    messages: List[Tuple[str, int, bytes]] = []
     try:
-        record = _metadata(path)[NETWORK_METADATA]
+        for record in _records(path):
+            kind = type(record).__name__
+            if kind == "Metadata":
+                metadata[record.name] = dict(record.metadata)
+            elif kind == "Channel":
+                topics[record.id] = record.topic
+            elif kind == "Message":
+                messages.append((topics.get(record.channel_id, ""), record.log_time, record.data))
+        record = metadata[NETWORK_METADATA]
         scene = scene_from_text(record["yaml"], record["name"])
         layout = NetworkLayout(scene)
         namespace = record.get("namespace", "/")
         pulley_of = {_absolute(topic + APPLIED, namespace): i for topic, i in layout.inputs}
         joint_states = _absolute("joint_states", namespace)
         dt, tick_ns = float(record["dt"]), int(record["tick_ns"])
-        times: List[int] = []
-        applied: List[Tuple[int, int, float]] = []
-        with open(path, "rb") as f:
-            reader = make_reader(f)
-            for _, channel, message in reader.iter_messages(topics=None, log_time_order=True):
-                topic = channel.topic
-                if topic == joint_states:
-                    times.append(message.log_time)
-                elif topic in pulley_of:
-                    applied.append((message.log_time, pulley_of[topic], float(np.frombuffer(message.data[4:12], "<f8")[0])))
     except BagReadError:
         raise
     except Exception as exc:  # noqa: BLE001 - damaged or foreign file: one line
         raise BagReadError(f"{path}: not a readable network recording ({type(exc).__name__}: {exc})") from None
+    messages.sort(key=lambda m: m[1])  # log time order (stable: a tick's order kept)
+    times = [t for topic, t, _ in messages if topic == joint_states]
+    applied = [(t, pulley_of[topic], float(np.frombuffer(data[4:12], "<f8")[0]))
+               for topic, t, data in messages if topic in pulley_of]
     if not times:
         raise BagReadError(f"{path}: a network recording without samples (joint_states)")
     start = times[0]
     substeps = int(round(tick_ns * 1e-9 / dt))
     held, last = [], {}
     for t, i, value in applied:  # in steps: the value acts from its tick on
+        if t > times[-1]:
+            break  # applied at a tick whose sample was cut off
         k = int(round((t - start) / tick_ns)) * substeps
         if last.get(i) != value:
             held.append((k, i, value))

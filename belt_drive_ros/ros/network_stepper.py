@@ -29,6 +29,7 @@ import numpy as np
 from ..core.errors import SceneError, SimulationDivergedError
 from ..core.integrators import method_class
 from ..core.network.model import NetworkModel, check_step, outputs
+from ..core.network.scene import ROLE_SIGN
 
 __all__ = ["NetworkStepper"]
 
@@ -51,15 +52,13 @@ class NetworkStepper:
         self.method = method or scene.method
         self.dt = float(scene.dt if dt is None else dt)
         cls = method_class(self.method)
-        if getattr(cls, "mode_growths", None) is None and not hasattr(cls, "step"):
-            raise SceneError(f"method {self.method}: a network steps with a fixed-step method")
         A, B = self.model.state_space()
         check_step(cls, self.method, A, self.dt)
         self._cls, self._A, self._B = cls, A, B
         self.n = len(scene.pulleys)
         self.m = self.model.M.shape[0]
-        self.signs = [p.sign if p.sign else (1.0 if p.role == "driver" else (-1.0 if p.role == "accessory" else 0.0))
-                      for p in scene.pulleys]
+        #: per pulley the sign of its torque on the belt (driver +1, accessory -1, else 0), with or without a profile
+        self.signs = [ROLE_SIGN.get(p.role, 0.0) for p in scene.pulleys]
         self._profiles = [(i, p.sign, p.torque.scalar_torque()) for i, p in enumerate(scene.pulleys) if p.sign]
         #: per pulley the held torque [N m] (profile sign convention) or None: the scene's profile
         self.held: list[float | None] = [None] * self.n
