@@ -47,10 +47,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .model import RigidBeltModel, make_model
-from .stepper import Plant, Stepper, snap_tolerance
+from .stepper import Plant, Stepper
 
-#: grid steps per window of the operating-speed estimate (a run of any length in bounded memory)
-SPEED_WINDOW = 50_000
 #: rigid is chosen while max(f_excitation) / f_n stays below this [-].
 FREQUENCY_RATIO_THRESHOLD = 0.1
 #: a start mismatch |T_qs(0) - T_b(0)| from this fraction of the rigid run's peak belt torque is a step [-]
@@ -96,25 +94,95 @@ def operating_run_step(duration: float) -> float:
     return min(duration / 500.0, 5e-3)
 
 
-def _operating_speeds(scene) -> tuple[float, float, float]:
-    """Largest |omega_M|, |omega_3| [rad/s] and |belt torque| [N m] of a cheap rigid run of ``scene``."""
-    model = RigidBeltModel(scene.params)
-    dt = operating_run_step(scene.duration)
-    plant = Plant(model, scene.drive, scene.load)
-    stepper = Stepper(plant, "exact", dt)
-    x = scene.initial_state.vector("rigid", scene.params.ratio)
-    t, k, w, peak = 0.0, 0, 0.0, 0.0
-    while True:  # in windows: memory does not grow with the duration
-        k += SPEED_WINDOW
-        t_next = stepper.grid_time(k)
-        if t_next >= scene.duration - snap_tolerance(scene.duration, dt):
-            t_next = scene.duration
-        time, states = stepper.run(x, t, t_next)
-        w = max(w, float(np.max(np.abs(states[:, 1]))))
-        peak = max(peak, float(np.max(np.abs(model.belt_torque(states, plant.input_array(time, states))))))
-        x, t = states[-1], t_next
-        if t >= scene.duration:
-            return w, w * scene.params.ratio, peak
+class RigidSurvey:
+    """One cheap rigid run of a scene that the model choice and the accuracy guard both read.
+
+    Method ``exact`` at :func:`operating_run_step` from the scene's initial
+    motion ``(phi_M, omega_M)`` over ``[0, duration]``, advanced from stop to
+    stop: the guard's probe times ``linspace(0, duration, N_PROBES)`` and,
+    for a scene step ``dt``, a quarter forcing window (``WINDOW_STEPS dt / 4``,
+    on the grid ``k dt``) before each of the first ``MAX_BREAKPOINT_WINDOWS``
+    torque breakpoints inside the run. It records
+
+    * ``states``: ``{stop time [s]: (phi_M [rad], omega_M [rad/s])}``;
+    * ``speeds``: (max |omega_M|, max |omega_3| [rad/s], max |belt torque| [N m])
+      over every knot, what the frequency rule reads the operating point from.
+
+    Run on first use (in pieces of at most ``PROBE_CHUNK`` steps: memory does not
+    grow with the duration); a run that diverges leaves ``error`` set (the
+    probes then fall back to the start, ``speeds`` raises it).
+    """
+
+    def __init__(self, params, drive, load, motion, duration: float, dt: float):
+        self.params, self.drive, self.load = params, drive, load
+        self.motion = (float(motion[0]), float(motion[1]))
+        self.duration, self.dt = float(duration), float(dt)
+        self._done = False
+        #: the accuracy guard's probes made from this run, by plant (:func:`~belt_drive_ros.core.accuracy.probe_scene`)
+        self.probes: dict = {}
+
+    @classmethod
+    def of_scene(cls, scene, dt: float | None = None) -> "RigidSurvey":
+        x0 = scene.initial_state.vector("rigid", scene.params.ratio)
+        return cls(scene.params, scene.drive, scene.load, x0, scene.duration, scene.dt if dt is None else dt)
+
+    def stops(self, breakpoints) -> tuple:
+        """(probe times (N_PROBES,), plain probe times before the end, {breakpoint: window start})."""
+        from .accuracy_probes import MAX_BREAKPOINT_WINDOWS, N_PROBES, WINDOW_STEPS
+
+        duration, dt = self.duration, self.dt
+        t_probe = np.linspace(0.0, duration, N_PROBES) if duration > 0 else np.array([0.0])
+        inner = [b for b in breakpoints if 0.0 < b < duration][:MAX_BREAKPOINT_WINDOWS]
+        early = {b: max(0.0, dt * math.floor((b - 0.25 * WINDOW_STEPS * dt) / dt)) for b in inner}
+        plain = [float(t) for t in t_probe[1:] if t < duration - 2.0 * dt]
+        return t_probe, plain, early
+
+    def _run(self) -> None:
+        from .accuracy_probes import PROBE_CHUNK
+
+        self._done = True
+        model = RigidBeltModel(self.params)
+        plant = Plant(model, self.drive, self.load)
+        self.t_probe, self.plain, self.early = self.stops(plant.breakpoints)
+        stops = sorted(set(self.plain) | set(self.early.values()) | {float(t) for t in self.t_probe})
+        rdt = operating_run_step(self.duration) if self.duration > 0 else 1e-3
+        self.states = {0.0: self.motion}
+        self.error, self._speeds = None, None
+        w, peak = abs(self.motion[1]), 0.0
+        try:
+            stepper = Stepper(plant, "exact", rdt)
+            x, t = np.array(self.motion), 0.0
+            for t1 in stops:
+                # in pieces of PROBE_CHUNK steps: the stepper plans each advance whole
+                edges = np.append(np.arange(t, t1, PROBE_CHUNK * rdt), t1)
+                for a, b in zip(edges[:-1], edges[1:]):
+                    time, states = stepper.run(x, float(a), float(b))
+                    w = max(w, float(np.max(np.abs(states[:, 1]))))
+                    peak = max(peak, float(np.max(np.abs(model.belt_torque(states, plant.input_array(time, states))))))
+                    x = states[-1]
+                self.states[t1], t = (float(x[0]), float(x[1])), t1
+            if self.duration <= 0:
+                peak = abs(float(model.belt_torque(x, plant.inputs(0.0, x))))
+            self._speeds = (w, w * self.params.ratio, peak)
+        except Exception as exc:  # noqa: BLE001 - a rigid estimate that diverges: the probes fall back to the start
+            self.error = exc
+
+    @property
+    def speeds(self) -> tuple[float, float, float]:
+        """(max |omega_M|, max |omega_3| [rad/s], max |belt torque| [N m]) of the run."""
+        if not self._done:
+            self._run()
+        if self.error is not None:
+            raise self.error
+        return self._speeds
+
+    def probe_states(self):
+        """``(probe times, plain, early, states)`` for the guard's probes (start only when the run diverged)."""
+        if not self._done:
+            self._run()
+        if self.error is not None:
+            return np.array([0.0]), [], {}, {0.0: self.motion}
+        return self.t_probe, self.plain, self.early, self.states
 
 
 def start_mismatch(scene, needed: float | None = None) -> tuple[float, float]:
@@ -140,6 +208,7 @@ def start_mismatch(scene, needed: float | None = None) -> tuple[float, float]:
 def choose_model(
     scene, threshold: float = FREQUENCY_RATIO_THRESHOLD, check_slip: bool = True, linear_run=None, speeds=None,
     linear: ModelChoice | None = None, start_torque: float | None = None, limit: tuple | None = None,
+    survey: RigidSurvey | None = None,
 ) -> ModelChoice:
     """Rigid, flexible or slipping for ``scene``, with the reason (see the module docstring).
 
@@ -159,7 +228,10 @@ def choose_model(
         (``choose_model(scene, check_slip=False, ...)``); default: apply the rule here.
     start_torque : the belt torque the start needs (:func:`start_mismatch`) when the caller has it.
     limit : :func:`limit_exceedance` of the linear run when the caller has it (then it is not run).
+    survey : the scene's :class:`RigidSurvey` when the caller shares it with the accuracy guard's probes.
     """
+    if speeds is None and linear is None:
+        speeds = (survey or RigidSurvey.of_scene(scene)).speeds
     choice = linear if linear is not None else _linear_choice(scene, threshold, speeds, start_torque)
     choice = replace(choice, linear=choice.model)
     if not check_slip:
@@ -213,10 +285,10 @@ def _linear_outputs(scene, kind: str):
     return time, model.outputs(states, stepper.plant.input_array(time, states))
 
 
-def _linear_choice(scene, threshold: float, speeds=None, start_torque=None) -> ModelChoice:
+def _linear_choice(scene, threshold: float, speeds, start_torque=None) -> ModelChoice:
     """Rigid or flexible for ``scene`` by the frequency rule, with the reason (``speeds``, ``start_torque``: see :func:`choose_model`)."""
     f_n = scene.params.belt_natural_frequency / (2.0 * math.pi)
-    w_M, w_3, peak = speeds if speeds is not None else _operating_speeds(scene)
+    w_M, w_3, peak = speeds
     excitations = list(scene.drive.excitation_frequencies(w_M)) + list(scene.load.excitation_frequencies(w_3))
     needed, carried = start_mismatch(scene, start_torque)
     if abs(needed - carried) >= START_MISMATCH_THRESHOLD * peak and abs(needed - carried) > 0.0:

@@ -191,37 +191,41 @@ def profile_harmonics(plant, probes) -> list[tuple[int, float, float]]:
     kept); at most :data:`MAX_HARMONICS` per input, largest amplitude first.
     """
     i = plant.model.params.ratio
-    profiles = ((plant.drive, plant.scalar_drive, 1.0), (plant.load, plant.scalar_load, i))
     out = []
-    for channel, (profile, torque, gear) in enumerate(profiles):
-        found: list[tuple[float, float]] = []
+    for channel, (profile, gear) in enumerate(((plant.drive, 1.0), (plant.load, i))):
+        points = []  # (frequency, t, angle, speed) of every candidate: sampled all at once below
         for t, phi, omega in probes:
             speed = gear * omega
             try:
                 freqs = profile.excitation_frequencies(abs(speed))
-            except Exception:  # a profile that cannot say: none
+            except Exception:  # noqa: BLE001 - a profile that cannot say: none
                 freqs = []
-            for f, _ in freqs:
-                f = float(f)
-                if not (math.isfinite(f) and f > 0.0):
-                    continue
-                s = np.linspace(0.0, 2.0 / f, 2 * AMPLITUDE_SAMPLES, endpoint=False)
-                with np.errstate(all="ignore"):
-                    values = np.array([torque(t + dt_, gear * phi + speed * dt_, speed) for dt_ in s], dtype=float)
-                if not np.all(np.isfinite(values)):
-                    continue
-                first, second = values[:AMPLITUDE_SAMPLES], values[AMPLITUDE_SAMPLES:]
-                a = 0.5 * float(np.max(first) - np.min(first))
-                if a <= 0.0 or np.max(np.abs(second - first)) > PERIODIC_TOLERANCE * 2.0 * a:
-                    continue  # not periodic here (a ramp, a soft start, a table): the step response and windows see it
-                for k, (f_old, a_old) in enumerate(found):
-                    if abs(f - f_old) <= FREQUENCY_MERGE * max(f, f_old):
-                        found[k] = (f_old, max(a, a_old))
-                        break
-                else:
-                    found.append((f, a))
+            points += [(float(f), t, gear * phi, speed) for f, _ in freqs if math.isfinite(float(f)) and float(f) > 0.0]
+        if not points:
+            continue
+        f, t, angle, speed = (np.array(c, dtype=float)[:, None] for c in zip(*points))
+        offsets = np.linspace(0.0, 2.0 / f[:, 0], 2 * AMPLITUDE_SAMPLES, endpoint=False, axis=1)  # two periods [s]
+        with np.errstate(all="ignore"):
+            values = np.asarray(profile.torque(t + offsets, angle + speed * offsets, np.broadcast_to(speed, offsets.shape)),
+                                dtype=float)  # fmt: skip
+        found: list[tuple[float, float]] = []
+        for k in range(len(points)):
+            row = values[k]
+            if not np.all(np.isfinite(row)):
+                continue
+            first, second = row[:AMPLITUDE_SAMPLES], row[AMPLITUDE_SAMPLES:]
+            a = 0.5 * float(np.max(first) - np.min(first))
+            if a <= 0.0 or np.max(np.abs(second - first)) > PERIODIC_TOLERANCE * 2.0 * a:
+                continue  # not periodic here (a ramp, a soft start, a table): the step response and windows see it
+            fk = points[k][0]
+            for j, (f_old, a_old) in enumerate(found):
+                if abs(fk - f_old) <= FREQUENCY_MERGE * max(fk, f_old):
+                    found[j] = (f_old, max(a, a_old))
+                    break
+            else:
+                found.append((fk, a))
         found.sort(key=lambda fa: -fa[1])
-        out += [(channel, f, a) for f, a in found[:MAX_HARMONICS]]
+        out += [(channel, f_, a_) for f_, a_ in found[:MAX_HARMONICS]]
     return out
 
 

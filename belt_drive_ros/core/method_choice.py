@@ -61,16 +61,17 @@ def _rate(report) -> float:
 
 
 def choose_method(plant, duration: float, x0, dt: float, tolerance: float = ACCURACY_TOLERANCE, stated_inputs: bool = True,
-                  slipping: tuple | None = None, substeps=SUBSTEPS) -> MethodChoice:  # fmt: skip
+                  slipping: tuple | None = None, substeps=SUBSTEPS, survey=None) -> MethodChoice:  # fmt: skip
     """The cheapest candidate (and fewest substeps) the guard rates accurate on ``plant`` (module docstring).
 
     ``plant``: the model the run uses (rigid or flexible; for the slipping
     model its flexible plant with ``slipping = (params, drive, load)``).
-    ``x0``: the plant model's initial state; ``dt`` [s]: the scene's step.
+    ``x0``: the plant model's initial state; ``dt`` [s]: the scene's step; ``survey``: the scene's
+    :class:`~belt_drive_ros.core.fidelity.RigidSurvey` the probes are read from (shared with the run's guard).
     """
     bar = SUGGEST_MARGIN * tolerance
     tried = []
-    probes = probe_scene(plant, duration, x0, dt, stated_inputs)
+    probes = probe_scene(plant, duration, x0, dt, stated_inputs, survey)
 
     def rate(method, h):
         if slipping is not None:
@@ -117,7 +118,7 @@ def _reason(method, h, n, dt, error, tolerance, tried) -> str:
     return line
 
 
-def choose_for_scene(scene, kind: str) -> MethodChoice:
+def choose_for_scene(scene, kind: str, survey=None) -> MethodChoice:
     """:func:`choose_method` for ``scene`` on the model ``kind`` (rigid, flexible, slipping or regularised).
 
     Slipping: the flexible plant with both modes checked; regularised: the flexible plant (its own
@@ -131,23 +132,23 @@ def choose_for_scene(scene, kind: str) -> MethodChoice:
     plant = Plant(make_model(base, p), scene.drive, scene.load)
     x0 = scene.initial_state.vector(base, p.ratio)
     slipping = (p, scene.drive, scene.load) if kind == "slipping" else None
-    return choose_method(plant, scene.duration, x0, scene.dt, scene.tolerance, slipping=slipping)
+    return choose_method(plant, scene.duration, x0, scene.dt, scene.tolerance, slipping=slipping, survey=survey)
 
 
-def resolve(scene, kind: str | None = None):
+def resolve(scene, kind: str | None = None, survey=None):
     """``(scene, choice)``: the scene with method and dt chosen when it says ``method: auto``, else ``(scene, None)``.
 
     ``kind``: the model the run uses (rigid, flexible, slipping, regularised); default the scene's own.
     For ``model: auto`` the caller passes the frequency rule's rigid or flexible
     (:func:`~belt_drive_ros.core.fidelity.choose_model` with ``check_slip=False``); a run that then slips is
-    checked in both modes after it.
+    checked in both modes after it. ``survey``: the scene's rigid survey, shared (see :func:`choose_method`).
     """
     if scene.method != AUTO:
         return scene, None
     kind = kind or scene.model
     if kind == "auto":
         raise ValueError("resolve: model auto needs the linear tier the frequency rule chose (kind)")
-    choice = choose_for_scene(scene, kind)
+    choice = choose_for_scene(scene, kind, survey)
     return scene.with_overrides(method=choice.method, dt=choice.dt), choice
 
 

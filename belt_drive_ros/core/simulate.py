@@ -26,7 +26,7 @@ from .accuracy import (
     AccuracyReport, probe_scene, require_accurate, require_accurate_slipping, slip_run_error, with_slip_run_error,
 )  # fmt: skip
 from .errors import SimulationDivergedError, UnstableStepError
-from .fidelity import ModelChoice, choose_model, limit_exceedance
+from .fidelity import ModelChoice, RigidSurvey, choose_model, limit_exceedance
 from .integrators import method_class
 from .method_choice import MethodChoice, good_step_error, resolve as resolve_method
 from .model import OUTPUT_UNITS, make_model
@@ -205,10 +205,14 @@ def simulate(
     time (the linear run past it is not computed).
     """
     scene = scene.with_overrides(model=model, method=method, dt=dt, duration=duration)
-    linear = choose_model(scene, check_slip=False) if scene.model == "auto" else None
-    scene, method_choice = resolve_method(scene, linear.model if linear is not None else None)
+    # one rigid run for the model choice, the method choice and the guard's probes (at the scene's step)
+    survey = RigidSurvey.of_scene(scene)
+    linear = choose_model(scene, check_slip=False, survey=survey) if scene.model == "auto" else None
+    scene, method_choice = resolve_method(scene, linear.model if linear is not None else None, survey)
+    if scene.dt != survey.dt:  # auto chose substeps: the probes follow the step
+        survey = RigidSurvey.of_scene(scene)
     try:
-        result = _simulate(scene, linear, progress, check_stability, vectorize)
+        result = _simulate(scene, linear, progress, check_stability, vectorize, survey)
     except UnstableStepError as exc:  # the stability guard's refusal names a step the accuracy guard accepts too
         raise good_step_error(scene, linear.model if linear is not None else scene.model, exc) from None
     if method_choice is None:
@@ -218,7 +222,7 @@ def simulate(
         # the slipping run's own estimate (events, error across slip phases) is only known after it: once more
         # at the step it names, the chosen method kept
         first = f"{method_choice.method} at dt={scene.dt:.3g} s rated {report.error:.2g} on the run itself"
-        result = _simulate(scene.with_overrides(dt=report.suggestion), linear, progress, check_stability, vectorize)
+        result = _simulate(scene.with_overrides(dt=report.suggestion), linear, progress, check_stability, vectorize, None)
         n = max(1, round(method_choice.dt * method_choice.substeps / report.suggestion))
         method_choice = replace(method_choice, dt=report.suggestion, substeps=n,
                                 error=result.accuracy.error if result.accuracy else math.nan,
@@ -229,26 +233,29 @@ def simulate(
     return result
 
 
-def _simulate(scene: Scene, linear, progress, check_stability: bool, vectorize) -> SimResult:
-    """:func:`simulate` of a scene with its method stated (``linear``: auto's frequency-rule choice, or None)."""
+def _simulate(scene: Scene, linear, progress, check_stability: bool, vectorize, survey=None) -> SimResult:
+    """:func:`simulate` of a scene with its method stated (``linear``: auto's frequency-rule choice, or None;
+    ``survey``: the scene's :class:`~belt_drive_ros.core.fidelity.RigidSurvey` at its step, read by every guard)."""
+    survey = survey or RigidSurvey.of_scene(scene)
     if scene.model != "auto":
         if scene.model == "regularised":
             return simulate_regularised(scene, progress, check_stability)
         if scene.model == "slipping":
-            return simulate_slipping(scene, None, progress, check_stability)
-        return _simulate_linear(scene, scene.model, progress, check_stability, vectorize)
+            return simulate_slipping(scene, None, progress, check_stability, survey=survey)
+        return _simulate_linear(scene, scene.model, progress, check_stability, vectorize, survey)
     if linear.model == "flexible" and _steps_flexible(scene, vectorize):
-        return _simulate_auto_flexible(scene, linear, progress, check_stability)
+        return _simulate_auto_flexible(scene, linear, progress, check_stability, survey)
     runs: dict = {}
 
     def linear_run(kind):  # the choice's check run is the result when the scene stays linear
-        runs[kind] = _simulate_linear(scene, kind, progress, check_stability, vectorize)
+        runs[kind] = _simulate_linear(scene, kind, progress, check_stability, vectorize, survey)
         return runs[kind].time, runs[kind].outputs
 
     choice = choose_model(scene, linear_run=linear_run, linear=linear)
     if choice.model == "slipping":
         checked = runs.get("flexible")  # its guard verdict is the stick mode's
-        return simulate_slipping(scene, choice, progress, check_stability, checked.accuracy if checked else None)
+        return simulate_slipping(scene, choice, progress, check_stability, checked.accuracy if checked else None,
+                                 survey)  # fmt: skip
     result = runs[choice.model]
     result.choice = choice
     return result
@@ -262,13 +269,13 @@ def _steps_flexible(scene: Scene, vectorize) -> bool:
     return vectorize is False or scene.drive.state_dependent or scene.load.state_dependent
 
 
-def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_stability: bool) -> SimResult:
+def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_stability: bool, survey) -> SimResult:
     """``auto`` with the flexible tier: one run on the slipping engine, a flexible result if it never slipped."""
     sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability,
                             lazy=True)  # fmt: skip
     x0 = scene.initial_state.vector("flexible", scene.params.ratio)
     # one probe run for both checks (the stick mode's now, both modes' if the run slips)
-    probes = probe_scene(sim.plant, scene.duration, x0, scene.dt) if check_stability else None
+    probes = probe_scene(sim.plant, scene.duration, x0, scene.dt, survey=survey) if check_stability else None
     accuracy = (
         require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance,
                          method_options=scene.method_options, probes=probes)
@@ -301,7 +308,7 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
     return _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy)
 
 
-def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, vectorize) -> SimResult:
+def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, vectorize, survey=None) -> SimResult:
     """``scene`` on the rigid or flexible model ``kind``: states, outputs and energy terms."""
     mdl = make_model(kind, scene.params)
     sim = Simulator(mdl, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
@@ -310,7 +317,7 @@ def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, v
     accuracy = (
         require_accurate(
             sim.plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance, method_options=scene.method_options,
-            stepper=sim.stepper,
+            stepper=sim.stepper, probes=probe_scene(sim.plant, scene.duration, x0, scene.dt, survey=survey),
         )
         if check_stability else None
     )  # fmt: skip
@@ -351,19 +358,23 @@ def _linear_result(scene, mdl, plant, time, states, stability, accuracy, wall, v
     )
 
 
-def simulate_slipping(scene, choice=None, progress=None, check_stability=True, stick=None) -> SimResult:
+def simulate_slipping(scene, choice=None, progress=None, check_stability=True, stick=None, survey=None) -> SimResult:
     """Run ``scene`` on the slipping model (:mod:`belt_drive_ros.core.slip_run`).
 
     ``result.outputs`` has every signal of the other models plus
     :data:`~belt_drive_ros.core.slip.SLIP_OUTPUT_UNITS`; ``result.events``
     lists the mode switches (kind, time [s], direction); ``result.energy``
     adds ``friction``, the integral of Q s'. ``stick``: the accuracy guard's report on the flexible model
-    already made (the stick mode's; ``auto``'s check run).
+    already made (the stick mode's; ``auto``'s check run); ``survey``: the scene's rigid survey (the probes').
     """
     sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability,
                             lazy=True)  # fmt: skip
     y0 = scene.initial_state.vector("slipping", scene.params.ratio)
-    accuracy = _slipping_accuracy(scene, sim, stick) if check_stability else None
+    probes = None
+    if check_stability:
+        x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+        probes = probe_scene(sim.plant, scene.duration, x0, scene.dt, survey=survey)
+    accuracy = _slipping_accuracy(scene, sim, stick, probes) if check_stability else None
     start = _time.perf_counter()
     time, states, modes, sigmas = sim.run(scene.duration, y0, progress=progress)
     wall = _time.perf_counter() - start
