@@ -52,7 +52,7 @@ import numpy as np
 # the guard's terms live beside this module; their names stay importable from here
 from .accuracy_probes import (  # noqa: F401 - re-exported
     ACCURACY_TOLERANCE, ALTERNATIVE_HALVINGS, ALTERNATIVES, GROWTH_TOLERANCE, MAX_BREAKPOINT_WINDOWS, MAX_HALVINGS,
-    MAX_STEPS, MAX_WINDOW_STEPS, MIN_INPUT_WEIGHT, N_PROBES, PROBE_CHUNK, SPEED_SPREAD, SUGGEST_MARGIN, WINDOW_STEPS,
+    MAX_STEPS, MAX_WINDOW_STEPS, MIN_INPUT_WEIGHT, N_PROBES, SPEED_SPREAD, SUGGEST_MARGIN, WINDOW_STEPS,
     Probes, _output_rows, closed_loop_maps, exact_maps, input_weight, linear_verdict, probe_scene, speed_slopes,
     step_response_error,
 )  # fmt: skip

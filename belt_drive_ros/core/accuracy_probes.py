@@ -34,8 +34,6 @@ SUGGEST_MARGIN = 0.25
 SPEED_SPREAD = 0.1
 #: torque breakpoints inside the run that get a forcing window of their own (the first ones)
 MAX_BREAKPOINT_WINDOWS = 4
-#: steps per advance of the probes' rigid run (bounds the stepper's plan, so memory does not grow with the duration)
-PROBE_CHUNK = 1000
 #: growth beyond max(1, exact growth) by this much (relative) is instability, not rounding
 GROWTH_TOLERANCE = 1e-9
 #: least weight of the step response (perturbations the scene does not state: torques from the node, re-excitation)
@@ -56,14 +54,15 @@ def speed_slopes(plant, times, speeds_M) -> list[np.ndarray]:
     """
     W = plant.wheel_map
     i = plant.model.params.ratio
-    gains = []
-    for t, w in zip(times, speeds_M):
-        slopes = []
-        for torque, speed in ((plant.scalar_drive, w), (plant.scalar_load, i * w)):
-            d = 1e-6 * max(1.0, abs(speed))
-            slopes.append((torque(t, 0.0, speed + d) - torque(t, 0.0, speed - d)) / (2.0 * d))
-        gains.append((np.vstack([slopes[0] * W[1], slopes[1] * W[3]]), tuple(slopes)))
-    return gains
+    t = np.asarray(times, dtype=float)
+    slopes = []
+    with np.errstate(all="ignore"):
+        for profile, speed in ((plant.drive, np.asarray(speeds_M, dtype=float)), (plant.load, i * np.asarray(speeds_M, dtype=float))):
+            d = 1e-6 * np.maximum(1.0, np.abs(speed))  # every probe at once: the torques' own array form
+            zero = np.zeros_like(t)
+            slopes.append(((np.asarray(profile.torque(t, zero, speed + d), dtype=float)
+                            - np.asarray(profile.torque(t, zero, speed - d), dtype=float)) / (2.0 * d)).tolist())  # fmt: skip
+    return [(np.vstack([a * W[1], b * W[3]]), (a, b)) for a, b in zip(*slopes)]
 
 
 @dataclass(frozen=True)
@@ -163,25 +162,32 @@ def _probes(plant, duration, x0, dt, stated_inputs, probe_times, plain, early, s
             kept.append(t)
     windows = [(t, *states[t], None) for t in kept[1:]] + [(t, *states[t], b) for b, t in early.items()]
     at = [(float(t), *states[float(t)]) for t in probe_times]
-    weight = 1.0 if not stated_inputs else input_weight(plant, x0, dt, at, [(b, *states[t]) for b, t in early.items()])
+    rigid = RigidBeltModel(plant.model.params)
+    jumps = [(b, *states[t]) for b, t in early.items()]
+    weight = 1.0 if not stated_inputs else input_weight(plant, x0, dt, at, jumps, rigid)
     harmonics = tuple(profile_harmonics(plant, at))
     return Probes(tuple(gains), x0, tuple(windows), float(duration), WINDOW_STEPS * dt, weight, harmonics,
-                  _peaks(plant, at))  # fmt: skip
+                  _peaks(plant, rigid, at))  # fmt: skip
 
 
-def _peaks(plant, at) -> tuple[float, float]:
-    """(max |omega_M| [rad/s], max |quasi-static belt torque| [N m]) over the probes ``(t, phi_M, omega_M)``."""
-    p = plant.model.params
-    rigid, i = RigidBeltModel(p), p.ratio
-    w, tb = 0.0, 0.0
+def _quasi_static(plant, rigid, t, phi, omega) -> np.ndarray:
+    """The rigid model's belt torque [N m] with the plant's torques at ``(t, phi_M, omega_M)`` (arrays, one per point)."""
+    i = rigid.params.ratio
+    t, phi, omega = (np.asarray(a, dtype=float) for a in (t, phi, omega))
     with np.errstate(all="ignore"):
-        for t, phi, omega in at:
-            u = np.array([plant.scalar_drive(t, phi, omega), plant.scalar_load(t, i * phi, i * omega)])
-            w, tb = max(w, abs(omega)), max(tb, abs(float(rigid.belt_torque(np.array([phi, omega]), u))))
+        u = np.column_stack([plant.drive.torque(t, phi, omega), plant.load.torque(t, i * phi, i * omega)])
+        return rigid.belt_torque(np.column_stack([phi, omega]), u)
+
+
+def _peaks(plant, rigid, at) -> tuple[float, float]:
+    """(max |omega_M| [rad/s], max |quasi-static belt torque| [N m]) over the probes ``(t, phi_M, omega_M)``."""
+    t, phi, omega = (np.array(c, dtype=float) for c in zip(*at))
+    w = float(np.fmax.reduce(np.abs(omega), initial=0.0))  # a NaN probe is passed over
+    tb = float(np.fmax.reduce(np.abs(_quasi_static(plant, rigid, t, phi, omega)), initial=0.0))
     return (w if math.isfinite(w) else 0.0, tb if math.isfinite(tb) else 0.0)
 
 
-def input_weight(plant, x0, dt: float, probes, jumps) -> float:
+def input_weight(plant, x0, dt: float, probes, jumps, rigid=None) -> float:
     """Scale [-] of the unit step response's error for this scene: ``min(1, 2 dB / T_peak)``, at least
     :data:`MIN_INPUT_WEIGHT`.
 
@@ -203,37 +209,29 @@ def input_weight(plant, x0, dt: float, probes, jumps) -> float:
 
     ``T_peak``: the largest |quasi-static belt torque| at the probes. Rigid
     model (no belt mode): 1. The floor keeps perturbations the scene does
-    not state (a node's torques) rated.
+    not state (a node's torques) rated. ``rigid``: the rigid model of the plant's parameters when made.
     """
     model = plant.model
     p = model.params
-    rigid = RigidBeltModel(p)
-    i = p.ratio
-
-    def quasi_static(t, phi, omega):
-        u = np.array([plant.scalar_drive(t, phi, omega), plant.scalar_load(t, i * phi, i * omega)])
-        return float(rigid.belt_torque(np.array([phi, omega]), u))
-
+    rigid = rigid or RigidBeltModel(p)
     wm = plant.wheel_map
     x0 = np.asarray(x0, dtype=float)
     phi0, w0 = float(wm[0] @ x0), float(wm[1] @ x0)
     rigid_model = model.A.shape[0] == 2
     j = LINEAR_OUTPUTS.index("belt_torque")
     carried = 0.0 if rigid_model else float(model.C[j] @ x0)  # rigid: the torques at t = 0 switch on from none
-    steps = [abs(quasi_static(0.0, phi0, w0) - carried)]
-    levels = [abs(quasi_static(0.0, phi0, w0))]
     omega_n = 1.0 / dt if rigid_model else p.belt_natural_frequency  # rigid: a ramp held over a step is a step R dt
-    with np.errstate(all="ignore"):
-        for t, phi, omega in probes:
-            here = quasi_static(t, phi, omega)
-            levels.append(abs(here))
-            steps.append(abs(quasi_static(t + dt, phi, omega) - here) / dt / omega_n)
-        for b, phi, omega in jumps:
-            eps = 1e-6 * dt
-            before, after = quasi_static(b - eps, phi, omega), quasi_static(b + eps, phi, omega)
-            levels += [abs(before), abs(after)]
-            steps.append(abs(after - before))
-    peak, step = max(levels), max(steps)
+    eps = 1e-6 * dt
+    # every point at once: the start, each probe and a step after it, each jump's two sides
+    pts = [(0.0, phi0, w0)] + list(probes) + [(t + dt, phi, omega) for t, phi, omega in probes]
+    pts += [(b + side, phi, omega) for b, phi, omega in jumps for side in (-eps, eps)]
+    qs = _quasi_static(plant, rigid, *zip(*pts)).tolist()
+    n = len(probes)
+    here, ahead, sides = qs[1 : 1 + n], qs[1 + n : 1 + 2 * n], qs[1 + 2 * n :]
+    steps = [abs(qs[0] - carried)] + [abs(a - h) / dt / omega_n for h, a in zip(here, ahead)]
+    levels = [abs(qs[0])] + [abs(h) for h in here] + [abs(v) for v in sides]
+    steps += [abs(after - before) for before, after in zip(sides[::2], sides[1::2])]
+    peak, step = max(levels), max(steps)  # (Python's max, in this order: a NaN after the first is passed over)
     if not (math.isfinite(peak) and math.isfinite(step)) or peak <= 0.0:
         return 1.0
     return float(min(1.0, max(MIN_INPUT_WEIGHT, 2.0 * step / peak)))

@@ -47,8 +47,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .model import RigidBeltModel, make_model
-from .stepper import Plant, Stepper
+from .stepper import Plant, Stepper, snap_tolerance
 
+#: steps per piece of the rigid survey run (a run of any length in bounded memory)
+SURVEY_CHUNK = 50_000
 #: rigid is chosen while max(f_excitation) / f_n stays below this [-].
 FREQUENCY_RATIO_THRESHOLD = 0.1
 #: a start mismatch |T_qs(0) - T_b(0)| from this fraction of the rigid run's peak belt torque is a step [-]
@@ -108,7 +110,7 @@ class RigidSurvey:
     * ``speeds``: (max |omega_M|, max |omega_3| [rad/s], max |belt torque| [N m])
       over every knot, what the frequency rule reads the operating point from.
 
-    Run on first use (in pieces of at most ``PROBE_CHUNK`` steps: memory does not
+    Run on first use (in pieces of at most :data:`SURVEY_CHUNK` steps: memory does not
     grow with the duration); a run that diverges leaves ``error`` set (the
     probes then fall back to the start, ``speeds`` raises it).
     """
@@ -138,8 +140,6 @@ class RigidSurvey:
         return t_probe, plain, early
 
     def _run(self) -> None:
-        from .accuracy_probes import PROBE_CHUNK
-
         self._done = True
         model = RigidBeltModel(self.params)
         plant = Plant(model, self.drive, self.load)
@@ -151,16 +151,25 @@ class RigidSurvey:
         w, peak = abs(self.motion[1]), 0.0
         try:
             stepper = Stepper(plant, "exact", rdt)
-            x, t = np.array(self.motion), 0.0
-            for t1 in stops:
-                # in pieces of PROBE_CHUNK steps: the stepper plans each advance whole
-                edges = np.append(np.arange(t, t1, PROBE_CHUNK * rdt), t1)
-                for a, b in zip(edges[:-1], edges[1:]):
-                    time, states = stepper.run(x, float(a), float(b))
-                    w = max(w, float(np.max(np.abs(states[:, 1]))))
-                    peak = max(peak, float(np.max(np.abs(model.belt_torque(states, plant.input_array(time, states))))))
-                    x = states[-1]
-                self.states[t1], t = (float(x[0]), float(x[1])), t1
+
+            def on_grid(t):
+                return abs(stepper.grid_time(round(t / rdt)) - t) <= snap_tolerance(t, rdt)
+
+            # one run, in pieces that end at the stops off the grid and every SURVEY_CHUNK steps (memory does not
+            # grow with the duration); a stop on the grid is read off the run's knots
+            ends = {t for t in stops if t > 0.0 and not on_grid(t)} | {self.duration}
+            ends |= {stepper.grid_time(k) for k in range(SURVEY_CHUNK, math.ceil(self.duration / rdt), SURVEY_CHUNK)}
+            x, t, pending = np.array(self.motion), 0.0, [s for s in stops if s > 0.0]
+            for e in sorted(ends):
+                if e <= t:
+                    continue
+                time, states = stepper.run(x, t, e, vectorize=False)
+                w = max(w, float(np.max(np.abs(states[:, 1]))))
+                peak = max(peak, float(np.max(np.abs(model.belt_torque(states, plant.input_array(time, states))))))
+                while pending and pending[0] <= e + snap_tolerance(e, rdt):
+                    k = int(np.argmin(np.abs(time - pending[0])))
+                    self.states[pending.pop(0)] = (float(states[k, 0]), float(states[k, 1]))
+                x, t = states[-1], e
             if self.duration <= 0:
                 peak = abs(float(model.belt_torque(x, plant.inputs(0.0, x))))
             self._speeds = (w, w * self.params.ratio, peak)
