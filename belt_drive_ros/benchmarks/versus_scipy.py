@@ -13,6 +13,12 @@
 2. **x real time**: every fixed-step method at each scene's own step,
    ``Simulator.run`` only, minimum of 15 repeats; and the whole
    ``simulate()`` call (model choice, outputs, energy terms) of the default.
+3. **Whole calls, side by side** (printed first, also with ``--quick``): the
+   whole warm ``simulate()`` (model and method choice, both guards, the
+   accuracy check, outputs, energy terms) of each shipped scene as x real
+   time, and ``simulate(paper)`` against the user's whole ``solve_ivp`` RK45
+   call at the largest ``rtol`` (quarter decades) whose error is at most
+   :data:`RK45_TARGET`, each the minimum CPU time of repeats in one process.
 
 Error and timing definitions: :mod:`belt_drive_ros.benchmarks.common`.
 """
@@ -53,6 +59,11 @@ MATCH_COLUMNS = ("scene", "target_error", "method", "cpu_per_sim_s", "setting", 
 REALTIME_COLUMNS = ("scene", "model", "method", "dt", "open_loop", "run_cpu_s", "x_realtime", "simulate_cpu_s", "x_realtime_simulate")
 
 TARGETS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7)
+#: the whole-call comparison's accuracy: RK45 at the largest rtol reaching it
+RK45_TARGET = 1e-6
+WHOLE_COLUMNS = ("measure", "cpu_s", "x_realtime", "error", "note")
+#: scenes of the whole-call table (issue targets: paper and e_motor_start, bsg_start, truck_compressor)
+WHOLE_SCENES = ("paper", "e_motor_start", "bsg_start", "truck_compressor")
 RK45_USER_DEFAULT = dict(rtol=1e-3, atol=1e-6)  # solve_ivp's defaults
 
 
@@ -194,6 +205,41 @@ def realtime(config: Config, quiet: bool) -> list[dict]:
     return rows
 
 
+def whole_calls(repeats: int, quiet: bool) -> list[dict]:
+    """Whole warm simulate() per shipped scene, and ``paper``'s against the user's RK45 call (module docstring, 3)."""
+    rows = []
+    for name in WHOLE_SCENES:
+        scene = get_scene(name)
+        simulate(scene)  # warm: compiled kernels, imports
+        cpu, result = cpu_time(lambda: simulate(scene), repeats=repeats)
+        rows.append(dict(measure=f"simulate({name})", cpu_s=cpu, x_realtime=scene.duration / cpu, error="",
+                         note=f"{result.model}, {result.method} dt={result.dt:.3g} s"))  # fmt: skip
+        log(f"[versus] whole warm simulate({name}): {cpu * 1e3:.2f} ms CPU, {scene.duration / cpu:.0f}x real time "
+            f"({rows[-1]['note']})", quiet)  # fmt: skip
+    scene = get_scene("paper")
+    model_name = resolved_model(scene)
+    ref = reference_for(scene, model_name)
+    ours = next(r for r in rows if r["measure"] == "simulate(paper)")
+    result = simulate(scene)
+    ours["error"] = run_errors(ref, result.time, result.states)["error"]
+    for e in range(16, 45):  # rtol 1e-4 ... 1e-11 in quarter decades, atol = 1e-3 rtol (as the sweep)
+        rtol = 10.0 ** (-e / 4)
+        call = solve_ivp_run(scene, model_name, rtol, 1e-3 * rtol)
+        sol = call()
+        error = run_errors(ref, sol.t, sol.y.T)["error"]
+        if error <= RK45_TARGET:
+            cpu, _ = cpu_time(call, repeats=max(1, repeats // 3))
+            rows.append(dict(measure="solve_ivp RK45 (paper)", cpu_s=cpu, x_realtime=scene.duration / cpu, error=error,
+                             note=f"rtol {rtol:.3g}, atol {1e-3 * rtol:.3g}: the largest reaching {RK45_TARGET:g}"))  # fmt: skip
+            ratio = cpu / ours["cpu_s"]
+            rows.append(dict(measure="paper: RK45 / simulate, whole calls", cpu_s="", x_realtime=ratio, error="",
+                             note=f"simulate error {ours['error']:.2g}, RK45 error {error:.2g}"))  # fmt: skip
+            log(f"[versus] paper at error <= {RK45_TARGET:g}: solve_ivp RK45 rtol {rtol:.3g} {cpu * 1e3:.1f} ms vs whole "
+                f"simulate() {ours['cpu_s'] * 1e3:.2f} ms (error {ours['error']:.2g}): {ratio:.1f}x", quiet)  # fmt: skip
+            break
+    return rows
+
+
 def plot(rows: list[dict], path: Path) -> Path:
     plt = pyplot()
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
@@ -231,6 +277,7 @@ def plot(rows: list[dict], path: Path) -> Path:
 def run(out_dir: Path, quick: bool = False, quiet: bool = False) -> dict:
     config = QUICK if quick else FULL
     out_dir = Path(out_dir)
+    whole = whole_calls(5 if quick else 15, quiet)
     sweep = _sweep(config, quiet)
     match = matched(sweep)
     rt = realtime(config, quiet)
@@ -242,7 +289,9 @@ def run(out_dir: Path, quick: bool = False, quiet: bool = False) -> dict:
         "sweep": sweep,
         "matched": match,
         "realtime": rt,
+        "whole": whole,
         "csv": [
+            write_csv(out_dir / "whole_call.csv", whole, WHOLE_COLUMNS),
             write_csv(out_dir / "versus_scipy.csv", sweep, SWEEP_COLUMNS),
             write_csv(out_dir / "versus_matched.csv", match, MATCH_COLUMNS),
             write_csv(out_dir / "realtime.csv", rt, REALTIME_COLUMNS),
