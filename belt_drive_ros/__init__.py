@@ -14,4 +14,12 @@ Three layers, one folder each:
 ``tests/test_layers.py`` enforces the import rules.
 """
 
+import os as _os
+
 __version__ = "0.1.0"
+
+# BLAS and LAPACK on this package's matrices (4x4 to 12x12: matrix exponentials, eigenvalues, solves) run
+# fastest on one thread: OpenBLAS's worker threads cost far more than such a product, and on a busy machine
+# waking them costs milliseconds per call (a 6x6 scipy.linalg.expm: 15 us on one thread, up to 30 ms with
+# them on two loaded cores). Set before numpy or scipy load their OpenBLAS; a value you set yourself is kept.
+_os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
