@@ -142,11 +142,11 @@ def probe_scene(plant, duration: float, x0, dt: float, stated_inputs: bool = Tru
     key = (plant.model.name, x0.tobytes(), bool(stated_inputs))
     made = survey.probes.get(key)  # the model choice, the method choice and the run's guard read the same probes
     if made is None:
-        made = survey.probes[key] = _probes(plant, duration, x0, dt, stated_inputs, *survey.probe_states())
+        made = survey.probes[key] = _probes(plant, duration, x0, dt, stated_inputs, survey.rigid, *survey.probe_states())
     return made
 
 
-def _probes(plant, duration, x0, dt, stated_inputs, probe_times, plain, early, states) -> Probes:
+def _probes(plant, duration, x0, dt, stated_inputs, rigid, probe_times, plain, early, states) -> Probes:
     """:func:`probe_scene` from the rigid survey's states at its stops."""
     gains, seen = [], set()
     speeds = [states[float(t)][1] for t in probe_times]
@@ -162,7 +162,6 @@ def _probes(plant, duration, x0, dt, stated_inputs, probe_times, plain, early, s
             kept.append(t)
     windows = [(t, *states[t], None) for t in kept[1:]] + [(t, *states[t], b) for b, t in early.items()]
     at = [(float(t), *states[float(t)]) for t in probe_times]
-    rigid = RigidBeltModel(plant.model.params)
     jumps = [(b, *states[t]) for b, t in early.items()]
     weight = 1.0 if not stated_inputs else input_weight(plant, x0, dt, at, jumps, rigid)
     harmonics = tuple(profile_harmonics(plant, at))

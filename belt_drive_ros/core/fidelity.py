@@ -139,10 +139,27 @@ class RigidSurvey:
         plain = [float(t) for t in t_probe[1:] if t < duration - 2.0 * dt]
         return t_probe, plain, early
 
+    @property
+    def rigid(self) -> RigidBeltModel:
+        """The rigid model of the survey's parameters (made once; the probes and the start check read it too)."""
+        model = self.__dict__.get("_rigid")
+        if model is None:
+            model = self._rigid = RigidBeltModel(self.params)
+        return model
+
+    @property
+    def start_torque(self) -> float:
+        """The quasi-static belt torque [N m] the torques at t = 0 need from the initial motion (:func:`start_mismatch`)."""
+        if not self._done:
+            self._run()
+        return self._start_torque
+
     def _run(self) -> None:
         self._done = True
-        model = RigidBeltModel(self.params)
+        model = self.rigid
         plant = Plant(model, self.drive, self.load)
+        x0 = np.array(self.motion)
+        self._start_torque = float(model.belt_torque(x0, plant.inputs(0.0, x0)))
         self.t_probe, self.plain, self.early = self.stops(plant.breakpoints)
         stops = sorted(set(self.plain) | set(self.early.values()) | {float(t) for t in self.t_probe})
         rdt = operating_run_step(self.duration) if self.duration > 0 else 1e-3
@@ -240,7 +257,8 @@ def choose_model(
     survey : the scene's :class:`RigidSurvey` when the caller shares it with the accuracy guard's probes.
     """
     if speeds is None and linear is None:
-        speeds = (survey or RigidSurvey.of_scene(scene)).speeds
+        survey = survey or RigidSurvey.of_scene(scene)
+        speeds, start_torque = survey.speeds, survey.start_torque if start_torque is None else start_torque
     choice = linear if linear is not None else _linear_choice(scene, threshold, speeds, start_torque)
     choice = replace(choice, linear=choice.model)
     if not check_slip:

@@ -310,7 +310,7 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
 
 def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, vectorize, survey=None) -> SimResult:
     """``scene`` on the rigid or flexible model ``kind``: states, outputs and energy terms."""
-    mdl = make_model(kind, scene.params)
+    mdl = survey.rigid if kind == "rigid" and survey is not None else make_model(kind, scene.params)
     sim = Simulator(mdl, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
     x0 = scene.initial_state.vector(kind, scene.params.ratio)
     # closed loop (torque slopes): refuses an unstable step, reports an inaccurate one (the CLI warns)
