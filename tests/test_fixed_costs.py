@@ -1,0 +1,105 @@
+"""The fixed work of a whole ``simulate()``: one rigid survey run shared by the model choice, the method choice
+and the accuracy guard's probes, with the numbers the separate runs gave.
+
+The survey (:class:`~belt_drive_ros.core.fidelity.RigidSurvey`) replaces two cheap rigid runs per call: the
+frequency rule's operating-speed estimate and the guard's probe run. Its states at the probe stops must be
+those of the probe run advanced from stop to stop (bit for bit: every verdict figure is computed from them);
+its operating speeds those of a plain run on the survey grid, up to the rigid estimate's own step error (the
+survey also stops at a breakpoint window's start, a partial step there).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from belt_drive_ros.core import accuracy_probes, fidelity
+from belt_drive_ros.core.fidelity import RigidSurvey, operating_run_step
+from belt_drive_ros.core.model import RigidBeltModel
+from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.core.simulate import simulate
+from belt_drive_ros.core.stepper import Plant, Stepper
+
+
+@pytest.mark.parametrize("name, overrides", [
+    ("paper", {}), ("e_motor_start", {}), ("paper", {"method": "auto", "duration": 1.0}),
+    ("e_motor_start", {"model": "flexible", "method": "auto", "duration": 2.0}),
+])  # fmt: skip
+def test_one_rigid_survey_and_one_probe_set_per_simulate(monkeypatch, name, overrides):
+    runs, probe_sets = [], []
+    run, probes = RigidSurvey._run, accuracy_probes._probes
+    monkeypatch.setattr(RigidSurvey, "_run", lambda self: (runs.append(self), run(self))[1])
+    monkeypatch.setattr(accuracy_probes, "_probes", lambda *a: (probe_sets.append(a[0].model.name), probes(*a))[1])
+    result = simulate(load_scene(name).with_overrides(**overrides))
+    assert result.accuracy is not None and result.accuracy.stable
+    assert len(runs) == 1, "the model choice, the method choice and the guard read one rigid run"
+    # the method choice's probes are the run's guard's (one per model checked)
+    assert len(probe_sets) == len(set(probe_sets)) == 1
+
+
+def _probe_run_states(scene, stops, rdt):
+    """The guard's former probe run: the rigid model advanced from stop to stop (1000 steps per advance)."""
+    x0 = scene.initial_state.vector("rigid", scene.params.ratio)
+    stepper = Stepper(Plant(RigidBeltModel(scene.params), scene.drive, scene.load), "exact", rdt)
+    states, x, t = {0.0: (float(x0[0]), float(x0[1]))}, np.array(x0, dtype=float), 0.0
+    for t1 in stops:
+        edges = np.append(np.arange(t, t1, 1000 * rdt), t1)
+        for a, b in zip(edges[:-1], edges[1:]):
+            x = stepper.advance(x, float(a), float(b))
+        states[t1], t = (float(x[0]), float(x[1])), t1
+    return states
+
+
+@pytest.mark.parametrize("name", ["paper", "e_motor_start", "bsg_start", "truck_compressor"])
+def test_survey_states_are_the_probe_runs_bit_for_bit(name):
+    scene = load_scene(name)
+    survey = RigidSurvey.of_scene(scene)
+    t_probe, plain, early, states = survey.probe_states()
+    stops = sorted(set(plain) | set(early.values()) | {float(t) for t in t_probe})
+    assert len(stops) >= 5
+    assert states == _probe_run_states(scene, stops, operating_run_step(scene.duration))
+
+
+@pytest.mark.parametrize("name", ["paper", "e_motor_start", "bsg_start", "truck_compressor"])
+def test_survey_speeds_are_those_of_a_plain_rigid_run(name):
+    scene = load_scene(name)
+    model = RigidBeltModel(scene.params)
+    plant = Plant(model, scene.drive, scene.load)
+    stepper = Stepper(plant, "exact", operating_run_step(scene.duration))
+    time, states = stepper.run(scene.initial_state.vector("rigid", scene.params.ratio), 0.0, scene.duration)
+    w = float(np.max(np.abs(states[:, 1])))
+    peak = float(np.max(np.abs(model.belt_torque(states, plant.input_array(time, states)))))
+    got = RigidSurvey.of_scene(scene).speeds
+    # the survey also stops at a breakpoint window's start (a partial exact step) and samples its knot: the peak
+    # belt torque is also read there (truck_compressor: 3e-4 higher, next to a schedule switch), the speeds move by
+    # the estimate's own step error
+    assert got[:2] == pytest.approx((w, w * scene.params.ratio), rel=1e-5)
+    assert got[2] == pytest.approx(peak, rel=1e-3)
+    assert fidelity.choose_model(scene, check_slip=False).model == fidelity.choose_model(
+        scene, check_slip=False, speeds=(w, w * scene.params.ratio, peak)).model  # fmt: skip
+
+
+def test_a_survey_that_diverges_probes_the_start_and_the_choice_raises():
+    from belt_drive_ros.core import sources as S
+    from belt_drive_ros.core.errors import SimulationDivergedError
+
+    scene = load_scene("paper").with_overrides(drive=S.Constant(1e12), duration=1.0)
+    survey = RigidSurvey.of_scene(scene)
+    t_probe, plain, early, states = survey.probe_states()
+    assert list(t_probe) == [0.0] and plain == [] and early == {} and list(states) == [0.0]
+    with pytest.raises(SimulationDivergedError):
+        survey.speeds
+
+
+@pytest.mark.parametrize("given, expected", [(None, "1"), ("3", "3")])
+def test_blas_runs_on_one_thread_unless_the_user_says(given, expected):
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if given is not None:
+        env["OPENBLAS_NUM_THREADS"] = given
+    code = "import belt_drive_ros, os; print(os.environ['OPENBLAS_NUM_THREADS'])"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert out.strip() == expected
