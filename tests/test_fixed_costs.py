@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from belt_drive_ros.core import accuracy_probes, fidelity
-from belt_drive_ros.core.fidelity import RigidSurvey, operating_run_step
+from belt_drive_ros.core.accuracy_probes import RigidSurvey, operating_run_step
 from belt_drive_ros.core.model import RigidBeltModel
 from belt_drive_ros.core.scene import load_scene
 from belt_drive_ros.core.simulate import simulate

@@ -46,11 +46,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .accuracy_probes import RigidSurvey, operating_run_step  # noqa: F401 - operating_run_step re-exported
 from .model import RigidBeltModel, make_model
-from .stepper import Plant, Stepper, snap_tolerance
+from .stepper import Plant, Stepper
 
-#: steps per piece of the rigid survey run (a run of any length in bounded memory)
-SURVEY_CHUNK = 50_000
 #: rigid is chosen while max(f_excitation) / f_n stays below this [-].
 FREQUENCY_RATIO_THRESHOLD = 0.1
 #: a start mismatch |T_qs(0) - T_b(0)| from this fraction of the rigid run's peak belt torque is a step [-]
@@ -84,131 +83,6 @@ class ModelChoice:
     linear: str = ""
     limit_ratio: float = math.nan
     limit_time: float = math.nan
-
-
-def operating_run_step(duration: float) -> float:
-    """Step [s] of the cheap rigid run (method ``exact``) that estimates the operating speeds.
-
-    ``min(duration / 500, 5 ms)``: at least 500 steps, and steps of at most
-    5 ms, so a long run's survey grows with its duration (max(500,
-    duration / 5 ms) steps: 2e7 for 1e5 s, tens of seconds before the run).
-    """
-    return min(duration / 500.0, 5e-3)
-
-
-class RigidSurvey:
-    """One cheap rigid run of a scene that the model choice and the accuracy guard both read.
-
-    Method ``exact`` at :func:`operating_run_step` from the scene's initial
-    motion ``(phi_M, omega_M)`` over ``[0, duration]``, advanced from stop to
-    stop: the guard's probe times ``linspace(0, duration, N_PROBES)`` and,
-    for a scene step ``dt``, a quarter forcing window (``WINDOW_STEPS dt / 4``,
-    on the grid ``k dt``) before each of the first ``MAX_BREAKPOINT_WINDOWS``
-    torque breakpoints inside the run. It records
-
-    * ``states``: ``{stop time [s]: (phi_M [rad], omega_M [rad/s])}``;
-    * ``speeds``: (max |omega_M|, max |omega_3| [rad/s], max |belt torque| [N m])
-      over every knot, what the frequency rule reads the operating point from.
-
-    Run on first use (in pieces of at most :data:`SURVEY_CHUNK` steps: memory does not
-    grow with the duration); a run that diverges leaves ``error`` set (the
-    probes then fall back to the start, ``speeds`` raises it).
-    """
-
-    def __init__(self, params, drive, load, motion, duration: float, dt: float):
-        self.params, self.drive, self.load = params, drive, load
-        self.motion = (float(motion[0]), float(motion[1]))
-        self.duration, self.dt = float(duration), float(dt)
-        self._done = False
-        #: the accuracy guard's probes made from this run, by plant (:func:`~belt_drive_ros.core.accuracy.probe_scene`)
-        self.probes: dict = {}
-
-    @classmethod
-    def of_scene(cls, scene, dt: float | None = None) -> "RigidSurvey":
-        x0 = scene.initial_state.vector("rigid", scene.params.ratio)
-        return cls(scene.params, scene.drive, scene.load, x0, scene.duration, scene.dt if dt is None else dt)
-
-    def stops(self, breakpoints) -> tuple:
-        """(probe times (N_PROBES,), plain probe times before the end, {breakpoint: window start})."""
-        from .accuracy_probes import MAX_BREAKPOINT_WINDOWS, N_PROBES, WINDOW_STEPS
-
-        duration, dt = self.duration, self.dt
-        t_probe = np.linspace(0.0, duration, N_PROBES) if duration > 0 else np.array([0.0])
-        inner = [b for b in breakpoints if 0.0 < b < duration][:MAX_BREAKPOINT_WINDOWS]
-        early = {b: max(0.0, dt * math.floor((b - 0.25 * WINDOW_STEPS * dt) / dt)) for b in inner}
-        plain = [float(t) for t in t_probe[1:] if t < duration - 2.0 * dt]
-        return t_probe, plain, early
-
-    @property
-    def rigid(self) -> RigidBeltModel:
-        """The rigid model of the survey's parameters (made once; the probes and the start check read it too)."""
-        model = self.__dict__.get("_rigid")
-        if model is None:
-            model = self._rigid = RigidBeltModel(self.params)
-        return model
-
-    @property
-    def start_torque(self) -> float:
-        """The quasi-static belt torque [N m] the torques at t = 0 need from the initial motion (:func:`start_mismatch`)."""
-        if not self._done:
-            self._run()
-        return self._start_torque
-
-    def _run(self) -> None:
-        self._done = True
-        model = self.rigid
-        plant = Plant(model, self.drive, self.load)
-        x0 = np.array(self.motion)
-        self._start_torque = float(model.belt_torque(x0, plant.inputs(0.0, x0)))
-        self.t_probe, self.plain, self.early = self.stops(plant.breakpoints)
-        stops = sorted(set(self.plain) | set(self.early.values()) | {float(t) for t in self.t_probe})
-        rdt = operating_run_step(self.duration) if self.duration > 0 else 1e-3
-        self.states = {0.0: self.motion}
-        self.error, self._speeds = None, None
-        w, peak = abs(self.motion[1]), 0.0
-        try:
-            stepper = Stepper(plant, "exact", rdt)
-
-            def on_grid(t):
-                return abs(stepper.grid_time(round(t / rdt)) - t) <= snap_tolerance(t, rdt)
-
-            # one run, in pieces that end at the stops off the grid and every SURVEY_CHUNK steps (memory does not
-            # grow with the duration); a stop on the grid is read off the run's knots
-            ends = {t for t in stops if t > 0.0 and not on_grid(t)} | {self.duration}
-            ends |= {stepper.grid_time(k) for k in range(SURVEY_CHUNK, math.ceil(self.duration / rdt), SURVEY_CHUNK)}
-            x, t, pending = np.array(self.motion), 0.0, [s for s in stops if s > 0.0]
-            for e in sorted(ends):
-                if e <= t:
-                    continue
-                time, states = stepper.run(x, t, e, vectorize=False)
-                w = max(w, float(np.max(np.abs(states[:, 1]))))
-                peak = max(peak, float(np.max(np.abs(model.belt_torque(states, plant.input_array(time, states))))))
-                while pending and pending[0] <= e + snap_tolerance(e, rdt):
-                    k = int(np.argmin(np.abs(time - pending[0])))
-                    self.states[pending.pop(0)] = (float(states[k, 0]), float(states[k, 1]))
-                x, t = states[-1], e
-            if self.duration <= 0:
-                peak = abs(float(model.belt_torque(x, plant.inputs(0.0, x))))
-            self._speeds = (w, w * self.params.ratio, peak)
-        except Exception as exc:  # noqa: BLE001 - a rigid estimate that diverges: the probes fall back to the start
-            self.error = exc
-
-    @property
-    def speeds(self) -> tuple[float, float, float]:
-        """(max |omega_M|, max |omega_3| [rad/s], max |belt torque| [N m]) of the run."""
-        if not self._done:
-            self._run()
-        if self.error is not None:
-            raise self.error
-        return self._speeds
-
-    def probe_states(self):
-        """``(probe times, plain, early, states)`` for the guard's probes (start only when the run diverged)."""
-        if not self._done:
-            self._run()
-        if self.error is not None:
-            return np.array([0.0]), [], {}, {0.0: self.motion}
-        return self.t_probe, self.plain, self.early, self.states
 
 
 def start_mismatch(scene, needed: float | None = None) -> tuple[float, float]:
