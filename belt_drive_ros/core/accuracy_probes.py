@@ -93,15 +93,6 @@ class RigidSurvey:
         x0 = scene.initial_state.vector("rigid", scene.params.ratio)
         return cls(scene.params, scene.drive, scene.load, x0, scene.duration, scene.dt if dt is None else dt)
 
-    def stops(self, breakpoints) -> tuple:
-        """(probe times (N_PROBES,), plain probe times before the end, {breakpoint: window start})."""
-        duration, dt = self.duration, self.dt
-        t_probe = np.linspace(0.0, duration, N_PROBES) if duration > 0 else np.array([0.0])
-        inner = [b for b in breakpoints if 0.0 < b < duration][:MAX_BREAKPOINT_WINDOWS]
-        early = {b: max(0.0, dt * math.floor((b - 0.25 * WINDOW_STEPS * dt) / dt)) for b in inner}
-        plain = [float(t) for t in t_probe[1:] if t < duration - 2.0 * dt]
-        return t_probe, plain, early
-
     @property
     def rigid(self) -> RigidBeltModel:
         """The rigid model of the survey's parameters (made once; the probes and the start check read it too)."""
@@ -123,7 +114,11 @@ class RigidSurvey:
         plant = Plant(model, self.drive, self.load)
         x0 = np.array(self.motion)
         self._start_torque = float(model.belt_torque(x0, plant.inputs(0.0, x0)))
-        self.t_probe, self.plain, self.early = self.stops(plant.breakpoints)
+        duration, dt = self.duration, self.dt  # the stops: probe times, then a quarter window before breakpoints
+        self.t_probe = np.linspace(0.0, duration, N_PROBES) if duration > 0 else np.array([0.0])
+        inner = [b for b in plant.breakpoints if 0.0 < b < duration][:MAX_BREAKPOINT_WINDOWS]
+        self.early = {b: max(0.0, dt * math.floor((b - 0.25 * WINDOW_STEPS * dt) / dt)) for b in inner}
+        self.plain = [float(t) for t in self.t_probe[1:] if t < duration - 2.0 * dt]
         stops = sorted(set(self.plain) | set(self.early.values()) | {float(t) for t in self.t_probe})
         rdt = operating_run_step(self.duration) if self.duration > 0 else 1e-3
         self.states = {0.0: self.motion}
@@ -151,7 +146,7 @@ class RigidSurvey:
                     self.states[pending.pop(0)] = (float(states[k, 0]), float(states[k, 1]))
                 x, t = states[-1], e
             if self.duration <= 0:
-                peak = abs(float(model.belt_torque(x, plant.inputs(0.0, x))))
+                peak = abs(self._start_torque)
             self._speeds = (w, w * self.params.ratio, peak)
         except Exception as exc:  # noqa: BLE001 - a rigid estimate that diverges: the probes fall back to the start
             self.error = exc

@@ -29,7 +29,7 @@ from .errors import SimulationDivergedError, UnstableStepError
 from .fidelity import ModelChoice, RigidSurvey, choose_model, limit_exceedance
 from .integrators import method_class
 from .method_choice import MethodChoice, good_step_error, resolve as resolve_method
-from .model import OUTPUT_UNITS, make_model
+from .model import make_model
 from .regularised import MODEL_NAME as REGULARISED, RegularisedSimulator
 from .slip import SLIP
 from .scene import SLIP_MODELS, Scene
@@ -37,7 +37,7 @@ from .slip_run import SlippingSimulator
 from .stability import StabilityReport, require_stable
 from .stepper import SPEED_LIMIT, Plant, Stepper
 
-__all__ = ["CSV_COLUMNS", "SPEED_LIMIT", "Plant", "SimResult", "Simulator", "output_names", "simulate"]
+__all__ = ["CSV_COLUMNS", "SPEED_LIMIT", "Plant", "SimResult", "Simulator", "simulate"]
 #: CSV columns required by the CLI, SI units.
 CSV_COLUMNS = (
     "time",
@@ -459,8 +459,3 @@ def simulate_regularised(scene, progress=None, check_stability=True):
         scene=scene, model=REGULARISED, method=sim.method, dt=scene.dt, time=time, states=states, inputs=u,
         outputs=outputs, stability=sim.stability, wall_time=wall, vectorized=False, energy=energy, events=events,
     )  # fmt: skip
-
-
-def output_names() -> list[str]:
-    """Names of all output signals (see :data:`belt_drive_ros.core.model.OUTPUT_UNITS`)."""
-    return list(OUTPUT_UNITS)
