@@ -131,11 +131,11 @@ def test_memory_does_not_grow_with_the_duration(tmp_path, monkeypatch, ext):
     allocation stays cheap; windows of 500 steps (and the auto choice's
     speed estimate in windows of 500) make 20 s and 400 s both many windows.
     """
-    from belt_drive_ros.core import fidelity
+    from belt_drive_ros.core import accuracy_probes
 
     monkeypatch.setattr(sim_command, "STREAM_ABOVE", 0)
     monkeypatch.setattr(stream_module, "WINDOW_STEPS", 500)
-    monkeypatch.setattr(fidelity, "SPEED_WINDOW", 500)
+    monkeypatch.setattr(accuracy_probes, "SURVEY_CHUNK", 500)
     monkeypatch.setattr(run_writers, "STREAM_CHUNK", 64 << 10)  # both runs fill many MCAP chunks
     scene = tmp_path / "steady.yaml"
     scene.write_text("extends: paper\ndrive: {type: ramp, start_value: 0.0, end_value: 3.0, start_time: 0.0, end_time: 1.0}\n"

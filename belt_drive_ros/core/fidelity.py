@@ -130,10 +130,7 @@ def choose_model(
     limit : :func:`limit_exceedance` of the linear run when the caller has it (then it is not run).
     survey : the scene's :class:`RigidSurvey` when the caller shares it with the accuracy guard's probes.
     """
-    if speeds is None and linear is None:
-        survey = survey or RigidSurvey.of_scene(scene)
-        speeds, start_torque = survey.speeds, survey.start_torque if start_torque is None else start_torque
-    choice = linear if linear is not None else _linear_choice(scene, threshold, speeds, start_torque)
+    choice = linear if linear is not None else _linear_choice(scene, threshold, speeds, start_torque, survey)
     choice = replace(choice, linear=choice.model)
     if not check_slip:
         return choice
@@ -186,8 +183,12 @@ def _linear_outputs(scene, kind: str):
     return time, model.outputs(states, stepper.plant.input_array(time, states))
 
 
-def _linear_choice(scene, threshold: float, speeds, start_torque=None) -> ModelChoice:
-    """Rigid or flexible for ``scene`` by the frequency rule, with the reason (``speeds``, ``start_torque``: see :func:`choose_model`)."""
+def _linear_choice(scene, threshold: float, speeds=None, start_torque=None, survey=None) -> ModelChoice:
+    """Rigid or flexible for ``scene`` by the frequency rule, with the reason (``speeds``, ``start_torque``,
+    ``survey``: see :func:`choose_model`; without speeds the survey, default one run here, gives them)."""
+    if speeds is None:
+        survey = survey or RigidSurvey.of_scene(scene)
+        speeds, start_torque = survey.speeds, survey.start_torque if start_torque is None else start_torque
     f_n = scene.params.belt_natural_frequency / (2.0 * math.pi)
     w_M, w_3, peak = speeds
     excitations = list(scene.drive.excitation_frequencies(w_M)) + list(scene.load.excitation_frequencies(w_3))
