@@ -103,3 +103,28 @@ def test_blas_runs_on_one_thread_unless_the_user_says(given, expected):
     code = "import belt_drive_ros, os; print(os.environ['OPENBLAS_NUM_THREADS'])"
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
     assert out.strip() == expected
+
+
+@pytest.mark.parametrize("name, overrides", [
+    ("paper", {"method": "auto", "duration": 1.0}), ("e_motor_start", {"method": "auto"}),
+    ("e_motor_start", {"model": "flexible", "method": "auto", "duration": 2.0}),
+])  # fmt: skip
+def test_method_auto_checks_its_choice_once_and_the_run_reports_that_check(monkeypatch, name, overrides):
+    from belt_drive_ros.core import accuracy, method_choice
+    from belt_drive_ros.core.model import make_model
+
+    checks = []
+    check = accuracy.check_accuracy
+    for module in (accuracy, method_choice):  # the choice's checks and the run's guard (require_accurate)
+        monkeypatch.setattr(module, "check_accuracy", lambda *a, **k: (checks.append((a[1], a[2])), check(*a, **k))[1])
+    scene = load_scene(name).with_overrides(**overrides)
+    result = simulate(scene)
+    choice = result.method_choice
+    assert choice.met and result.accuracy.ok
+    assert len(checks) == len(set(checks)) == len(choice.tried), "each (method, step) rated once, the run's too"
+    # the report is what the run's own guard would say (a fresh check, nothing shared)
+    kind = result.model
+    x0 = scene.initial_state.vector(kind, scene.params.ratio)
+    fresh = check(Plant(make_model(kind, scene.params), scene.drive, scene.load), choice.method, choice.dt,
+                  scene.duration, x0, scene.tolerance)  # fmt: skip
+    assert result.accuracy == fresh

@@ -44,6 +44,8 @@ class MethodChoice:
     error : the guard's estimate for the choice [-]; met : within the tolerance.
     reason : one sentence a person can check (what was tried, what each rated).
     tried : ((method, dt [s], estimated error [-]), ...) in the order checked.
+    report : the accuracy guard's report of the choice at its step on a rigid or flexible plant (None: slipping);
+        the run's own guard reuses it when it is stable and accurate (the same check, not made twice).
     """
 
     method: str
@@ -54,6 +56,7 @@ class MethodChoice:
     met: bool
     reason: str
     tried: tuple = ()
+    report: object = None
 
 
 def _rate(report) -> float:
@@ -70,7 +73,7 @@ def choose_method(plant, duration: float, x0, dt: float, tolerance: float = ACCU
     :class:`~belt_drive_ros.core.fidelity.RigidSurvey` the probes are read from (shared with the run's guard).
     """
     bar = SUGGEST_MARGIN * tolerance
-    tried = []
+    tried, reports = [], {}
     probes = probe_scene(plant, duration, x0, dt, stated_inputs, survey)
 
     def rate(method, h):
@@ -82,6 +85,7 @@ def choose_method(plant, duration: float, x0, dt: float, tolerance: float = ACCU
                                     stated_inputs=stated_inputs)  # fmt: skip
         error = _rate(report)
         tried.append((method, h, error))
+        reports[method, h] = report if slipping is None else None
         return error
 
     for n in substeps:
@@ -95,7 +99,8 @@ def choose_method(plant, duration: float, x0, dt: float, tolerance: float = ACCU
         for method in CANDIDATES:
             error = best[method] if method in best else rate(method, h)
             if error <= bar:
-                return MethodChoice(method, h, n, tolerance, error, True, _reason(method, h, n, dt, error, tolerance, tried), tuple(tried))
+                return MethodChoice(method, h, n, tolerance, error, True, _reason(method, h, n, dt, error, tolerance, tried),
+                                    tuple(tried), reports[method, h])  # fmt: skip
     method, h, error = min(tried, key=lambda r: (r[2], -r[1]))
     n = round(dt / h)
     reason = (

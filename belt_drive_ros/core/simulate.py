@@ -211,8 +211,12 @@ def simulate(
     scene, method_choice = resolve_method(scene, linear.model if linear is not None else None, survey)
     if scene.dt != survey.dt:  # auto chose substeps: the probes follow the step
         survey = RigidSurvey.of_scene(scene)
+    # the choice's own check of the method it chose is the run's (same plant, step, probes) when it passed
+    checked = getattr(method_choice, "report", None)
+    if checked is not None and (not checked.ok or method_choice.substeps != 1 or scene.method_options):
+        checked = None
     try:
-        result = _simulate(scene, linear, progress, check_stability, vectorize, survey)
+        result = _simulate(scene, linear, progress, check_stability, vectorize, survey, checked)
     except UnstableStepError as exc:  # the stability guard's refusal names a step the accuracy guard accepts too
         raise good_step_error(scene, linear.model if linear is not None else scene.model, exc) from None
     if method_choice is None:
@@ -233,28 +237,29 @@ def simulate(
     return result
 
 
-def _simulate(scene: Scene, linear, progress, check_stability: bool, vectorize, survey=None) -> SimResult:
+def _simulate(scene: Scene, linear, progress, check_stability: bool, vectorize, survey=None, checked=None) -> SimResult:
     """:func:`simulate` of a scene with its method stated (``linear``: auto's frequency-rule choice, or None;
-    ``survey``: the scene's :class:`~belt_drive_ros.core.fidelity.RigidSurvey` at its step, read by every guard)."""
+    ``survey``: the scene's :class:`~belt_drive_ros.core.fidelity.RigidSurvey` at its step, read by every guard;
+    ``checked``: the accuracy guard's report on the rigid or flexible run already made by ``method: auto``)."""
     survey = survey or RigidSurvey.of_scene(scene)
     if scene.model != "auto":
         if scene.model == "regularised":
             return simulate_regularised(scene, progress, check_stability)
         if scene.model == "slipping":
             return simulate_slipping(scene, None, progress, check_stability, survey=survey)
-        return _simulate_linear(scene, scene.model, progress, check_stability, vectorize, survey)
+        return _simulate_linear(scene, scene.model, progress, check_stability, vectorize, survey, checked)
     if linear.model == "flexible" and _steps_flexible(scene, vectorize):
-        return _simulate_auto_flexible(scene, linear, progress, check_stability, survey)
+        return _simulate_auto_flexible(scene, linear, progress, check_stability, survey, checked)
     runs: dict = {}
 
     def linear_run(kind):  # the choice's check run is the result when the scene stays linear
-        runs[kind] = _simulate_linear(scene, kind, progress, check_stability, vectorize, survey)
+        runs[kind] = _simulate_linear(scene, kind, progress, check_stability, vectorize, survey, checked)
         return runs[kind].time, runs[kind].outputs
 
     choice = choose_model(scene, linear_run=linear_run, linear=linear)
     if choice.model == "slipping":
-        checked = runs.get("flexible")  # its guard verdict is the stick mode's
-        return simulate_slipping(scene, choice, progress, check_stability, checked.accuracy if checked else None,
+        flexible = runs.get("flexible")  # its guard verdict is the stick mode's
+        return simulate_slipping(scene, choice, progress, check_stability, flexible.accuracy if flexible else None,
                                  survey)  # fmt: skip
     result = runs[choice.model]
     result.choice = choice
@@ -269,7 +274,8 @@ def _steps_flexible(scene: Scene, vectorize) -> bool:
     return vectorize is False or scene.drive.state_dependent or scene.load.state_dependent
 
 
-def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_stability: bool, survey) -> SimResult:
+def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_stability: bool, survey,
+                            checked=None) -> SimResult:  # fmt: skip
     """``auto`` with the flexible tier: one run on the slipping engine, a flexible result if it never slipped."""
     sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability,
                             lazy=True)  # fmt: skip
@@ -277,8 +283,8 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
     # one probe run for both checks (the stick mode's now, both modes' if the run slips)
     probes = probe_scene(sim.plant, scene.duration, x0, scene.dt, survey=survey) if check_stability else None
     accuracy = (
-        require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance,
-                         method_options=scene.method_options, probes=probes)
+        checked or require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance,
+                                    method_options=scene.method_options, probes=probes)
         if check_stability else None
     )  # fmt: skip
     sim.flexible_record = kept = []
@@ -308,14 +314,15 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
     return _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy)
 
 
-def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, vectorize, survey=None) -> SimResult:
+def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, vectorize, survey=None,
+                     checked=None) -> SimResult:  # fmt: skip
     """``scene`` on the rigid or flexible model ``kind``: states, outputs and energy terms."""
     mdl = survey.rigid if kind == "rigid" and survey is not None else make_model(kind, scene.params)
     sim = Simulator(mdl, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
     x0 = scene.initial_state.vector(kind, scene.params.ratio)
     # closed loop (torque slopes): refuses an unstable step, reports an inaccurate one (the CLI warns)
     accuracy = (
-        require_accurate(
+        checked or require_accurate(
             sim.plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance, method_options=scene.method_options,
             stepper=sim.stepper, probes=probe_scene(sim.plant, scene.duration, x0, scene.dt, survey=survey),
         )
