@@ -18,7 +18,8 @@ studies:
                  and on the slipping scene per method and friction law
   fidelity       rigid vs flexible model error vs excitation frequency and belt stiffness;
                  linear vs slipping model as the load passes the capstan limit
-  versus         default method vs scipy solve_ivp RK45 at matched accuracy; x real time per scene
+  versus         default method vs scipy solve_ivp RK45 at matched accuracy; x real time per scene; whole
+                 warm simulate() per shipped scene and paper vs the user's whole RK45 call at error 1e-6 (first)
   slip           a harder stick-slip case: event-driven hybrid vs step-end switching vs regularised
   node           the ROS node's real-time figures (needs the ROS extra)
   soak           the node recording for --seconds (default 60): RSS growth per minute,
