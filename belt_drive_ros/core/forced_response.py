@@ -95,16 +95,22 @@ def orbits(P: np.ndarray, X0: np.ndarray, count: int) -> np.ndarray:
     """``[P X0, P^2 X0, ..., P^count X0]`` for a stack of maps P (b, m, m): (b, m, count * c), by doubling.
 
     ``log2(count)`` batched products instead of ``count`` (the orbit of
-    length 2 l is the one of length l followed by ``P^l`` times it); sample
-    k's columns are ``k c .. (k + 1) c - 1``. Real or complex.
+    length 2 l is the one of length l followed by ``P^l`` times it, the last
+    block only as long as needed), written into one array; sample k's columns
+    are ``k c .. (k + 1) c - 1``. Real or complex.
     """
     c = X0.shape[-1]
-    S = np.matmul(P, X0)
-    Pl = P
-    while S.shape[2] < count * c:
-        S = np.concatenate([S, np.matmul(Pl, S)], axis=2)
-        Pl = np.matmul(Pl, Pl)
-    return S[:, :, : count * c]
+    total = count * c
+    S = np.empty(P.shape[:2] + (max(total, c),), dtype=np.result_type(P, X0))
+    S[:, :, :c] = np.matmul(P, X0)
+    Pl, filled = P, c
+    while filled < total:
+        k = min(filled, total - filled)
+        S[:, :, filled : filled + k] = np.matmul(Pl, S[:, :, :k])
+        filled += k
+        if filled < total:
+            Pl = np.matmul(Pl, Pl)
+    return S[:, :, :total]
 
 
 def orbit_error(Ma: np.ndarray, Ea: np.ndarray, n: int, rows: np.ndarray, n_steps: int):
