@@ -50,8 +50,8 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
         if t1 <= t0 + 0.5 * dt:
             continue
         try:
-            tc, xc = _window_run(coarse, x, t0, t1)
-            tf, xf = _window_run(fine, x, t0, t1)
+            tc, xc = coarse.run(x, t0, t1, vectorize=False)
+            tf, xf = fine.run(x, t0, t1, vectorize=False)
         except (SimulationDivergedError, IntegratorError):  # diverged, or an implicit stage did not converge
             return None
         idx = np.clip(np.searchsorted(tf, tc - 1e-9 * dt), 0, tf.size - 1)
@@ -76,38 +76,6 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
             err = np.maximum(err, _phase_drift(plant, xc, xf, tf, yf, factor, drift))
         out.append((t0, err, np.max(np.abs(yf), axis=0)))
     return out
-
-
-def _window_run(stepper, x, t0: float, t1: float):
-    """``stepper.run(x, t0, t1, vectorize=False)``: one call of its compiled loop when the window is whole grid
-    steps clear of every breakpoint and the stepper has no guard (the run's own plan, without planning it)."""
-    from bisect import bisect_left
-
-    from .errors import SimulationDivergedError
-    from .kernel_loop import DIVERGED, NOT_CONVERGED
-    from .stepper import SPEED_LIMIT, snap_tolerance
-
-    loop, dt, origin = stepper.loop, stepper.dt, stepper.origin
-    if loop is not None and stepper.guard is None:
-        k0, k1 = round((t0 - origin) / dt), round((t1 - origin) / dt)
-        g0, g1 = stepper.grid_time(k0), stepper.grid_time(k1)
-        tol = snap_tolerance(t1, dt)
-        bps = stepper.breakpoints
-        i = bisect_left(bps, min(t0, g0) - tol)
-        if (k1 > k0 and abs(g0 - t0) <= snap_tolerance(t0, dt) and abs(g1 - t1) <= tol
-                and (i == len(bps) or bps[i] > max(t1, g1) + tol)):
-            times = origin + dt * np.arange(k0, k1 + 1, dtype=float)  # the stepper's grid floats
-            states = np.empty((k1 - k0 + 1, x.size))
-            states[0] = x
-            with np.errstate(all="ignore"):
-                _, status, t = loop(times, np.array(x, dtype=np.float64), states[1:], -math.inf, math.inf, SPEED_LIMIT)
-            if status == NOT_CONVERGED:
-                raise IntegratorError(f"an implicit stage did not converge at t = {t:.6g} s")
-            if status == DIVERGED:
-                raise SimulationDivergedError(f"diverged at t = {t:.6g} s")
-            times[0], times[-1] = t0, t1
-            return times, states
-    return stepper.run(x, t0, t1, vectorize=False)
 
 
 def _drift_time(plant, probes) -> float:
