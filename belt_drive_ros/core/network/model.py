@@ -379,11 +379,12 @@ def friction_use(scene, tensions, belt_speed) -> np.ndarray:
         return np.where(limit > 0.0, diff / np.where(limit > 0.0, limit, 1.0), np.where(diff > 0.0, np.inf, 0.0))
 
 
-def outputs(model: NetworkModel, time, states) -> NetworkRun:
-    """Per pulley and per span outputs from states ``[q, q']`` (N, 2m)."""
+def outputs(model: NetworkModel, time, states, tensions=None) -> NetworkRun:
+    """Per pulley and per span outputs from states ``[q, q']`` (N, 2m) (``tensions`` (N, n): given by a tier
+    whose spans also stretch by slip; default: the linear tier's)."""
     scene, m, n = model.scene, model.M.shape[0], len(model.scene.pulleys)
     q, qd = states[:, :m], states[:, m:]
-    T = model.tensions(q, qd)
+    T = model.tensions(q, qd) if tensions is None else tensions
     r = np.array([p.radius for p in scene.pulleys])
     T_in = np.roll(T, 1, axis=1)  # span i-1 arrives at pulley i
     torque = r * (T - T_in)

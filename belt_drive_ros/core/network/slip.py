@@ -1,0 +1,214 @@
+"""The slipping tier of a belt network: stick or slip at every pulley, at the capstan limit.
+
+The linear tier (:mod:`.model`) lets friction pass any tension difference. At
+pulley i the capstan law passes at most (``docs/serpentine.md``)::
+
+    |T_i - T_{i-1}| <= f_i (T_i + T_{i-1} - 2 w),    f_i = tanh(mu_i beta_i / 2),  w = m' v^2
+
+(``T_i`` the span leaving, ``T_{i-1}`` the span arriving, ``v`` the belt speed
+at the driver). Each pulley gets a slip coordinate ``s_i`` [m], the belt's
+displacement ahead of the pulley surface, so span j stretches by
+``delta_j = (r_{j+1} theta_{j+1} + s_{j+1}) - (r_j theta_j + s_j) + g_j theta_a``. The state is
+``x = [q, q', s]`` and a mode names per pulley ``sig_i``: 0 sticking (``s_i' = 0``)
+or the direction ``+-1`` of ``s_i'`` while it slides. The belt is massless, so on
+a sliding pulley the tension difference sits at the limit,
+``T_i - T_{i-1} = sig_i f_i (T_i + T_{i-1} - 2 w)``: with Kelvin-Voigt spans
+``T_j = T_0 + k_j delta_j + c_j delta_j'`` these equalities are linear in the
+sliding pulleys' ``s'`` (one small linear system per mode); with undamped spans
+their time derivative is, and ``s`` is put back onto them after each step.
+Every mode is an affine ODE ``x' = A x + B u + c (T_0 - w)``.
+
+Switching (per pulley, several at once):
+
+* stick -> slip when ``|T_i - T_{i-1}|`` reaches the limit, in the direction
+  ``sign(T_i - T_{i-1})`` (the belt runs ahead of the pulley where the leaving span is the tighter);
+* slip -> stick when ``s_i'`` crosses zero, if the stick mode's friction then stays inside the limit
+  (else it slides on).
+
+Events are located inside the step (:mod:`.slip_kernel`: interpolant scan and bisection, Newton on the
+exact flow). A step is the exact flow of its mode with the torques and ``w`` held from the step's (or
+sub-step's) start: the zero-order-hold ``exact`` method, stable at any step however stiff the span
+relaxation ``k_j / c_j`` of a sliding pulley is.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import SceneError, SimulationDivergedError
+from .model import NetworkModel, NetworkRun, outputs
+
+#: modes kept with their step exponentials per run
+CACHE_SLOTS = 8
+#: the one method of the slipping tier (zero-order hold: the exact flow of each mode)
+METHODS = ("exact", "zoh")
+
+
+@dataclass(frozen=True)
+class SlipEvent:
+    """A mode switch: time [s], pulley name, ``"onset"`` or ``"restick"``, slip direction (+1: the belt runs
+    ahead of the pulley surface, -1: behind it; the direction it had for a re-stick)."""
+
+    time: float
+    pulley: str
+    kind: str
+    direction: int
+
+
+@dataclass(frozen=True)
+class SlipNetworkRun(NetworkRun):
+    """A slipping-tier run: :class:`~.model.NetworkRun` (states ``[q, q']``) plus, per sample and pulley,
+    ``slip_state`` (0 stick, +-1 slip direction), ``slip_speed`` s' [m/s], ``slip_distance`` s [m],
+    ``friction_work`` (the friction loss so far [J]), ``input_work`` (the work of its torque so far [J]),
+    and the ``events`` in time order."""
+
+    slip_state: np.ndarray | None = None
+    slip_speed: np.ndarray | None = None
+    slip_distance: np.ndarray | None = None
+    friction_work: np.ndarray | None = None
+    input_work: np.ndarray | None = None
+    events: tuple = ()
+
+    def first_slip(self) -> SlipEvent | None:
+        """The first onset, or None if every pulley stuck throughout."""
+        return next((e for e in self.events if e.kind == "onset"), None)
+
+
+class SlipArrays:
+    """The kernel's constant arrays of one network model (SI units)."""
+
+    def __init__(self, model: NetworkModel, dt: float):
+        scene = model.scene
+        P = scene.pulleys
+        self.n = n = len(P)
+        self.m = m = model.M.shape[0]
+        self.N = 2 * m + n
+        belt = scene.belt
+        self.a = np.ascontiguousarray(model.stretch, dtype=float)
+        self.k = np.ascontiguousarray(model.k, dtype=float)
+        self.c = np.ascontiguousarray(model.c, dtype=float)
+        self.Minv = 1.0 / np.diag(model.M)
+        # the arm's spring and geometric stiffness, bearing and arm damping: K and C without the spans
+        self.Karm = np.zeros((m, m))
+        self.Cb = np.diag([p.damping for p in P] + ([scene.tensioner.damping] if scene.tensioner else []))
+        if model.arm >= 0:
+            self.Karm[model.arm, model.arm] = scene.tensioner.spring_rate + model.geometric_stiffness(np.full(n, belt.installed_tension))
+        self.f = np.tanh(0.5 * np.array([p.mu for p in P]) * scene.geometry.wraps)
+        self.r = np.array([p.radius for p in P])
+        self.sgn = np.array([p.sign for p in P])
+        self.driver = int(scene.driver)
+        damped = 1.0 if belt.damping > 0.0 else 0.0
+        self.par = np.array([belt.installed_tension, belt.mass_per_length, float(dt), 1.0e5, damped])
+        kinds, params, tx, ty, off = [], [], [], [], np.zeros((n, 4), dtype=np.int64)
+        rows = tables = 0
+        for i, p in enumerate(P):
+            d = p.torque.data() if p.sign else None
+            if p.sign and d is None:
+                raise SceneError(f"pulleys.{p.name}.torque: this profile has no data form; the slipping tier runs compiled profiles only")
+            if d is not None:
+                kinds.append(d.kinds), params.append(d.params), tx.append(d.tx), ty.append(d.ty)
+                off[i] = (rows, rows + d.kinds.size, tables, tables + d.tx.size)
+                rows, tables = rows + d.kinds.size, tables + d.tx.size
+        self.pk = np.concatenate(kinds) if kinds else np.zeros(1, dtype=np.int64)
+        self.pp = np.ascontiguousarray(np.concatenate(params) if params else np.zeros((1, 12)))
+        self.ptx = np.concatenate(tx) if tx else np.zeros(1)
+        self.pty = np.concatenate(ty) if ty else np.zeros(1)
+        self.poff = off
+        K, N = CACHE_SLOTS, self.N
+        self.cache = (np.full(K, -1, dtype=np.int64), np.full(K, -1, dtype=np.int64), np.zeros((K, N, N)), np.zeros((K, N)),
+                      np.zeros((K, n, N)), np.zeros((K, n)), np.zeros((K, n, N)), np.zeros((K, n)), np.zeros((K, n, n)),
+                      np.zeros((K, N, N)), np.zeros((K, N, N)), np.zeros((K, N, N)), np.zeros((K, N, N)))
+
+    def plant(self):
+        """The kernel's plant arguments, in :func:`~.slip_kernel.slip_steps`'s order."""
+        return (self.par, self.Minv, self.Karm, self.Cb, self.a, self.k, self.c, self.f, self.r, self.sgn, self.driver,
+                self.pk, self.pp, self.ptx, self.pty, self.poff)
+
+
+def simulate_slipping(model: NetworkModel | None, scene, duration: float | None = None, dt: float | None = None,
+                      method: str | None = None, initial=None) -> SlipNetworkRun:
+    """Run the slipping tier from the belt turning at ``scene.initial_speed`` unstretched, every pulley sticking.
+
+    ``method``: ``exact`` (default; the tier's one method). ``initial``: optional state ``x`` (2m + n,).
+    Raises :class:`~belt_drive_ros.core.errors.SimulationDivergedError` (non-finite state, a speed past
+    1e5 rad/s, or more than 64 switches inside one step: chattering) and :class:`SceneError`.
+    """
+    from . import slip_kernel as K
+
+    model = NetworkModel.build(scene) if model is None else model
+    duration = scene.duration if duration is None else float(duration)
+    dt = scene.dt if dt is None else float(dt)
+    if method is not None and method not in METHODS:
+        raise SceneError(f"method: the slipping tier steps the exact flow of each stick/slip mode (exact); {method} is not available for it")
+    steps = int(round(duration / dt))
+    if steps < 1:
+        raise SceneError(f"duration: {duration:g} s is shorter than one step of {dt:g} s")
+    arr = SlipArrays(model, dt)
+    n, m, N = arr.n, arr.m, arr.N
+    x = np.zeros(N)
+    if initial is None:
+        x[m : m + n] = model.speeds_at(scene.initial_speed)
+    else:
+        x[:] = initial
+    sig = np.zeros(n, dtype=np.int64)
+    out = np.empty((steps + 1, N))
+    out_sig = np.zeros((steps + 1, n), dtype=np.int64)
+    out_T = np.empty((steps + 1, n))
+    out_sd = np.zeros((steps + 1, n))
+    out_wf = np.zeros((steps + 1, n))
+    out_win = np.zeros((steps + 1, n))
+    out[0] = x
+    out_T[0] = model.scene.belt.installed_tension + arr.k * (arr.a @ x[:m])
+    events = np.empty((2 * (K.MAX_SWITCHES + 1) * n + 256, 4))
+    count = np.zeros(1, dtype=np.int64)
+    wf, win = np.zeros(n), np.zeros(n)
+    k = 0
+    while k < steps:
+        status, k_end = K.slip_steps(k, steps, 0.0, x, sig, out[k:], out_sig[k:], out_T[k:], out_sd[k:], out_wf[k:],
+                                     out_win[k:], events, count, *arr.plant(), *arr.cache, wf, win)  # fmt: skip
+        if status == K.OK:
+            break
+        if status == K.EVENTS_FULL:  # stopped before step k_end (x, sig as there): room for more, go on
+            events = np.concatenate([events, np.empty_like(events)])
+            k = k_end
+            continue
+        where = f"t = {k_end * dt:.6g} s"
+        if status == K.CHATTER:
+            names = [scene.pulleys[int(e[1])].name for e in events[max(0, count[0] - 4) : count[0]]]
+            raise SimulationDivergedError(f"{scene.name}: more than {K.MAX_SWITCHES} stick/slip switches inside one step at {where} "
+                                          f"({', '.join(dict.fromkeys(names)) or 'no pulley'}: chattering); reduce dt")
+        if status == K.ALL_SLIP:
+            raise SimulationDivergedError(f"{scene.name}: the belt slides on every pulley at once at {where} (a massless belt "
+                                          "has no motion then: the capstan limits cannot all hold); raise belt.installed_tension")
+        raise SimulationDivergedError(f"{scene.name}: the state became non-finite or too fast at {where} (slipping tier at dt = {dt:g} s)")
+    time = np.arange(steps + 1) * dt
+    base = outputs(model, time, out[:, : 2 * m], out_T)
+    names = [p.name for p in scene.pulleys]
+    evs = tuple(SlipEvent(float(e[0]), names[int(e[1])], "onset" if e[3] != 0 else "restick",
+                          int(e[3] if e[3] != 0 else e[2])) for e in events[: count[0]])  # fmt: skip
+    fields = {f: getattr(base, f) for f in NetworkRun.__dataclass_fields__}
+    return SlipNetworkRun(**fields, slip_state=out_sig.astype(np.int8), slip_speed=out_sd, slip_distance=out[:, 2 * m :],
+                          friction_work=out_wf, input_work=out_win, events=evs)
+
+
+def warm() -> None:
+    """Compile (or load from the disk cache) the slipping tier's kernel: a two-pulley belt that slips."""
+    from .scene import NetworkScene
+
+    scene = NetworkScene.from_mapping({
+        "kind": "network", "duration": 0.02, "dt": 1e-3, "initial_speed": 0.0,
+        "belt": {"EA": 1000.0, "damping": 0.1, "installed_tension": 10.0},
+        "pulleys": [
+            {"name": "a", "role": "driver", "centre": [0.0, 0.0], "radius": 0.05, "inertia": 0.01,
+             "torque": {"type": "constant", "value": 5.0}},
+            {"name": "b", "role": "accessory", "centre": [0.3, 0.0], "radius": 0.05, "inertia": 0.01,
+             "torque": {"type": "constant", "value": 0.0}},
+        ],
+    })  # fmt: skip
+    simulate_slipping(None, scene)
+
+
+__all__ = ["SlipEvent", "SlipNetworkRun", "simulate_slipping", "warm"]

@@ -1,0 +1,670 @@
+"""The compiled loop of a belt network's slipping tier (stick or slip at every pulley, events located).
+
+Every function is ``@njit(cache=True, nogil=True)`` over float64/int64 arrays
+and floats: compiled once per installed version, never per scene, valid
+Python under ``NUMBA_DISABLE_JIT=1`` (the same operations; every sum is an
+explicit loop from the left, so no BLAS call differs between the two).
+
+State ``x = [q (m), q' (m), s (n)]`` (:mod:`.slip`): pulley angles and the
+arm angle, their speeds, the belt's slip ahead of each pulley surface [m].
+A *mode* is ``sig`` (n,): 0 where the pulley sticks (``s_i' = 0``), +-1 the
+slip direction ``sign(s_i')`` where it slides. In a mode the dynamics are
+affine, ``x' = A x + B u + c (T_0 - w)`` with ``u`` the pulley torques and
+``w = m' v^2`` the centrifugal tension; both are held over a step (zero-order
+hold), so a step is the exact flow ``x+ = Phi x + Gamma b`` of the mode.
+
+Per step: the flow, the switching function of every pulley at its end
+(stick: ``|T_i - T_{i-1}| - tanh(mu_i beta_i / 2)(T_i + T_{i-1} - 2 w)``;
+slip: ``-sig_i s_i'``); where one turns positive, a scan of the step's cubic
+Hermite interpolant brackets the first crossing, bisection on it and Newton
+on the exact flow locate it, the flow is taken there, every pulley whose
+switching function is then zero switches (several at once), and the rest
+of the step runs in the new mode. Mode matrices and their step exponentials
+are cached per mode in caller-owned arrays (a run chattering between a few
+modes builds each once).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..kernel import profile_torque
+
+_JIT = dict(cache=True, nogil=True)
+
+#: status codes of :func:`slip_steps`
+OK, DIVERGED, CHATTER, EVENTS_FULL, ALL_SLIP = 0, 1, 4, 5, 6
+#: most mode switches inside one grid step before the run is refused as chattering
+MAX_SWITCHES = 64
+#: interpolant points scanned for the first crossing in a step whose end lies past a switching surface
+N_SCAN = 8
+#: Taylor terms of the scaled exponential (||A h|| <= 1/2: the remainder is below 1e-19)
+N_TAYLOR = 18
+#: layout of ``par``: T_0 [N], m' [kg/m], dt [s], speed limit [rad/s], damped (1.0: span damping > 0)
+P_T0, P_MASS, P_DT, P_LIMIT, P_DAMPED = 0, 1, 2, 3, 4
+
+
+# --------------------------------------------------------------------------- small linear algebra
+@njit(**_JIT)
+def _matmul(A, B, out):
+    """``out = A B`` (square, summed from the left)."""
+    N = A.shape[0]
+    for i in range(N):
+        for j in range(N):
+            total = 0.0
+            for l in range(N):
+                total += A[i, l] * B[l, j]
+            out[i, j] = total
+
+
+@njit(**_JIT)
+def expm_gamma(A, h, Phi, Gam):
+    """``Phi = e^(A h)``, ``Gam = int_0^h e^(A s) ds`` into the given arrays.
+
+    Taylor series on ``h / 2^j`` with ``||A h / 2^j||_inf <= 1/2`` (:data:`N_TAYLOR` terms),
+    then ``j`` doublings ``Gam(2t) = Gam(t) + Phi(t) Gam(t)``, ``Phi(2t) = Phi(t)^2``.
+    """
+    N = A.shape[0]
+    norm = 0.0
+    for i in range(N):
+        row = 0.0
+        for l in range(N):
+            row += abs(A[i, l])
+        norm = max(norm, row)
+    norm *= h
+    j = 0
+    while norm > 0.5 and j < 200:
+        norm *= 0.5
+        j += 1
+    hs = h / 2.0**j
+    term = np.eye(N)
+    nxt = np.empty((N, N))
+    Ah = A * hs
+    for i in range(N):
+        for l in range(N):
+            Phi[i, l] = term[i, l]
+            Gam[i, l] = hs * term[i, l]
+    for k in range(1, N_TAYLOR + 1):
+        _matmul(term, Ah, nxt)
+        for i in range(N):
+            for l in range(N):
+                term[i, l] = nxt[i, l] / k
+                Phi[i, l] += term[i, l]
+                Gam[i, l] += hs * term[i, l] / (k + 1)
+    for _ in range(j):
+        _matmul(Phi, Gam, nxt)
+        for i in range(N):
+            for l in range(N):
+                Gam[i, l] += nxt[i, l]
+        _matmul(Phi, Phi, nxt)
+        for i in range(N):
+            for l in range(N):
+                Phi[i, l] = nxt[i, l]
+
+
+@njit(**_JIT)
+def _flow(Phi, Gam, x, b, out):
+    """``out = Phi x + Gam b``."""
+    N = x.shape[0]
+    for i in range(N):
+        total = 0.0
+        for l in range(N):
+            total += Phi[i, l] * x[l]
+        for l in range(N):
+            total += Gam[i, l] * b[l]
+        out[i] = total
+
+
+@njit(**_JIT)
+def _rate(A, x, b, out):
+    """``out = A x + b`` (the mode's x')."""
+    N = x.shape[0]
+    for i in range(N):
+        total = b[i]
+        for l in range(N):
+            total += A[i, l] * x[l]
+        out[i] = total
+
+
+# --------------------------------------------------------------------------- modes
+@njit(**_JIT)
+def mode_key(sig):
+    """An integer naming the mode ``sig`` (base 3)."""
+    key = 0
+    for i in range(sig.shape[0] - 1, -1, -1):
+        key = 3 * key + int(sig[i]) + 1
+    return key
+
+
+@njit(**_JIT)
+def build_mode(sig, par, Minv, Karm, Cb, a, k, c, f, A, cvec, Gt, gt, Ls, ls, Hk):
+    """The mode ``sig``'s matrices (see the module docstring and :mod:`.slip`).
+
+    ``s_S'`` of the sliding pulleys S solves the capstan equalities
+    ``(1 - sig_i f_i) T_i - (1 + sig_i f_i) T_{i-1} = -2 sig_i f_i w`` (damped spans; undamped: their
+    time derivative with w held), tensions ``T = T_0 + Gt x + gt (T_0 - w)``, slip speeds
+    ``s' = Ls x + ls (T_0 - w)``. ``Hk`` (n, n) receives ``E_S diag(k) D_S`` (projection of undamped slip).
+    Returns the number of sliding pulleys, -1 if their equations are singular.
+    """
+    n, m = a.shape[0], a.shape[1]
+    N = 2 * m + n
+    damped = par[P_DAMPED] > 0.0
+    S = np.empty(n, dtype=np.int64)
+    ns = 0
+    for i in range(n):
+        if sig[i] != 0:
+            S[ns] = i
+            ns += 1
+    # stretch rows: P x = a q + D s (D[j, j+1] = 1, D[j, j] = -1), Pd x = a q'
+    P = np.zeros((n, N))
+    Pd = np.zeros((n, N))
+    for j in range(n):
+        for l in range(m):
+            P[j, l] = a[j, l]
+            Pd[j, m + l] = a[j, l]
+        P[j, 2 * m + (j + 1) % n] += 1.0
+        P[j, 2 * m + j] -= 1.0
+    for i in range(n):
+        ls[i] = 0.0
+        for l in range(N):
+            Ls[i, l] = 0.0
+    if ns == n:  # the massless belt sliding on every pulley: sum_i (T_i - T_{i-1}) = 0 leaves no motion
+        return -1
+    if ns > 0:
+        H = np.zeros((ns, ns))
+        R = np.zeros((ns, N + 1))
+        for r in range(ns):
+            i = S[r]
+            prev = (i - 1) % n
+            ei, ep = 1.0 - sig[i] * f[i], -(1.0 + sig[i] * f[i])
+            for q in range(ns):  # column of s_l: +1 in span l-1, -1 in span l
+                l = S[q]
+                w = c if damped else k
+                col = 0.0
+                if (l - 1) % n == i:
+                    col += ei * w[i]
+                if l == i:
+                    col -= ei * w[i]
+                if (l - 1) % n == prev:
+                    col += ep * w[prev]
+                if l == prev:
+                    col -= ep * w[prev]
+                H[r, q] = col
+                kcol = 0.0
+                if (l - 1) % n == i:
+                    kcol += ei * k[i]
+                if l == i:
+                    kcol -= ei * k[i]
+                if (l - 1) % n == prev:
+                    kcol += ep * k[prev]
+                if l == prev:
+                    kcol -= ep * k[prev]
+                Hk[r, q] = kcol
+            for l in range(N):
+                if damped:
+                    R[r, l] = -(ei * (k[i] * P[i, l] + c[i] * Pd[i, l]) + ep * (k[prev] * P[prev, l] + c[prev] * Pd[prev, l]))
+                else:
+                    R[r, l] = -(ei * k[i] * Pd[i, l] + ep * k[prev] * Pd[prev, l])
+            R[r, N] = 2.0 * sig[i] * f[i] if damped else 0.0
+        det = np.linalg.det(H)
+        if not det != 0.0 or not math.isfinite(det):
+            return -1
+        for r in range(ns):
+            for q in range(N + 1):
+                if not math.isfinite(R[r, q]):
+                    return -1
+        X = np.linalg.solve(H, R)
+        for r in range(ns):
+            i = S[r]
+            for l in range(N):
+                Ls[i, l] = X[r, l]
+            ls[i] = X[r, N]
+    # tensions: T - T_0 = k (P x) + c (Pd x + D s')
+    for j in range(n):
+        nxt, cur = (j + 1) % n, j
+        for l in range(N):
+            Gt[j, l] = k[j] * P[j, l] + c[j] * (Pd[j, l] + Ls[nxt, l] - Ls[cur, l])
+        gt[j] = c[j] * (ls[nxt] - ls[cur])
+    # x' = A x + B u + cvec (T_0 - w)
+    for i in range(N):
+        cvec[i] = 0.0
+        for l in range(N):
+            A[i, l] = 0.0
+    for l in range(m):
+        A[l, m + l] = 1.0
+        for col in range(m):
+            A[m + l, col] = -Minv[l] * Karm[l, col]
+            A[m + l, m + col] = -Minv[l] * Cb[l, col]
+        for col in range(N):
+            total = 0.0
+            for j in range(n):
+                total += a[j, l] * Gt[j, col]
+            A[m + l, col] -= Minv[l] * total
+        total = 0.0
+        for j in range(n):
+            total += a[j, l] * gt[j]
+        cvec[m + l] = -Minv[l] * total
+    for i in range(n):
+        for l in range(N):
+            A[2 * m + i, l] = Ls[i, l]
+        cvec[2 * m + i] = ls[i]
+    return ns
+
+
+@njit(**_JIT)
+def _slot(sig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, cPh2, cGa2, clock):
+    """The cache slot of mode ``sig`` (built with its step exponentials when new; the least recently used is
+    replaced); -1 if the mode's equations are singular."""
+    key = mode_key(sig)
+    K = ckey.shape[0]
+    for s in range(K):
+        if ckey[s] == key:
+            cuse[s] = clock
+            return s
+    s = 0
+    for j in range(1, K):
+        if cuse[j] < cuse[s]:
+            s = j
+    ns = build_mode(sig, par, Minv, Karm, Cb, a, k, c, f, cA[s], cc[s], cGt[s], cgt[s], cLs[s], cls[s], cHk[s])
+    if ns < 0:
+        return -1
+    dt = par[P_DT]
+    expm_gamma(cA[s], 0.5 * dt, cPh2[s], cGa2[s])
+    _matmul(cPh2[s], cGa2[s], cGa[s])
+    N = cA.shape[1]
+    for i in range(N):
+        for l in range(N):
+            cGa[s, i, l] += cGa2[s, i, l]
+    _matmul(cPh2[s], cPh2[s], cPh[s])
+    ckey[s] = key
+    cuse[s] = clock
+    return s
+
+
+# --------------------------------------------------------------------------- inputs and guards
+@njit(**_JIT)
+def _inputs(t, x, m, sgn, pk, pp, ptx, pty, poff, Minv, driver, r, par, cvec, b, u):
+    """Pulley torques ``u`` at (t, x), and ``b = B u + cvec (T_0 - w)``; returns ``w = m' v^2``."""
+    n = sgn.shape[0]
+    N = b.shape[0]
+    for i in range(n):
+        if sgn[i] != 0.0:
+            k0, k1, t0, t1 = poff[i, 0], poff[i, 1], poff[i, 2], poff[i, 3]
+            u[i] = sgn[i] * profile_torque(pk[k0:k1], pp[k0:k1], ptx[t0:t1], pty[t0:t1], t, x[i], x[m + i])
+        else:
+            u[i] = 0.0
+    v = r[driver] * x[m + driver]
+    w = par[P_MASS] * v * v
+    for i in range(N):
+        b[i] = cvec[i] * (par[P_T0] - w)
+    for i in range(n):
+        b[m + i] += Minv[i] * u[i]
+    return w
+
+
+@njit(**_JIT)
+def _tensions(Gt, gt, x, T0w, T0, T):
+    n, N = Gt.shape[0], Gt.shape[1]
+    for j in range(n):
+        total = T0
+        for l in range(N):
+            total += Gt[j, l] * x[l]
+        T[j] = total + gt[j] * T0w
+
+
+@njit(**_JIT)
+def _slip_speed(Ls, ls, x, T0w, i):
+    total = 0.0
+    for l in range(x.shape[0]):
+        total += Ls[i, l] * x[l]
+    return total + ls[i] * T0w
+
+
+@njit(**_JIT)
+def guards(sig, x, xd, T0w, par, f, r, driver, m, Gt, gt, Ls, ls, T, Td, g, dg):
+    """Switching functions ``g`` (n,) at state ``x`` (positive once the pulley's mode must end) and their
+    rates ``dg`` along ``xd`` (skipped when ``xd`` is empty); tensions into ``T`` (``Td``: their rates)."""
+    n = sig.shape[0]
+    T0, mass = par[P_T0], par[P_MASS]
+    _tensions(Gt, gt, x, T0w, T0, T)
+    rates = xd.shape[0] > 0
+    if rates:
+        _tensions(Gt, gt, xd, 0.0, 0.0, Td)
+    v = r[driver] * x[m + driver]
+    dv = r[driver] * xd[m + driver] if rates else 0.0
+    for i in range(n):
+        if sig[i] == 0:
+            p = (i - 1) % n
+            D = T[i] - T[p]
+            g[i] = abs(D) - f[i] * (T[i] + T[p] - 2.0 * mass * v * v)
+            if rates:
+                sd = 1.0 if D >= 0.0 else -1.0
+                dg[i] = sd * (Td[i] - Td[p]) - f[i] * (Td[i] + Td[p] - 4.0 * mass * v * dv)
+        else:
+            g[i] = -sig[i] * _slip_speed(Ls, ls, x, T0w, i)
+            if rates:
+                dg[i] = -sig[i] * _slip_speed(Ls, ls, xd, 0.0, i)
+
+
+@njit(**_JIT)
+def _add_friction_work(weight, sig, x, T0w, par, Gt, gt, Ls, ls, T, work):
+    """``work_i += weight (T_i - T_{i-1}) s_i'`` for the sliding pulleys at state ``x``."""
+    n = sig.shape[0]
+    _tensions(Gt, gt, x, T0w, par[P_T0], T)
+    for i in range(n):
+        if sig[i] != 0:
+            work[i] += weight * (T[i] - T[(i - 1) % n]) * _slip_speed(Ls, ls, x, T0w, i)
+
+
+@njit(**_JIT)
+def _project(sig, x, w, par, a, k, f, Hk, m):
+    """Undamped spans: put the sliding pulleys' ``s`` where their capstan equalities hold exactly at ``w``."""
+    n = sig.shape[0]
+    ns = 0
+    for i in range(n):
+        if sig[i] != 0:
+            ns += 1
+    if ns == 0 or par[P_DAMPED] > 0.0:
+        return
+    H = Hk[:ns, :ns].copy()
+    rhs = np.empty(ns)
+    S = np.empty(ns, dtype=np.int64)
+    r = 0
+    for i in range(n):
+        if sig[i] != 0:
+            S[r] = i
+            r += 1
+    # stretch without the sliding pulleys' s
+    delta = np.empty(n)
+    for j in range(n):
+        total = 0.0
+        for l in range(m):
+            total += a[j, l] * x[l]
+        nxt = (j + 1) % n
+        if sig[nxt] == 0:
+            total += x[2 * m + nxt]
+        if sig[j] == 0:
+            total -= x[2 * m + j]
+        delta[j] = total
+    for r in range(ns):
+        i = S[r]
+        p = (i - 1) % n
+        ei, ep = 1.0 - sig[i] * f[i], -(1.0 + sig[i] * f[i])
+        rhs[r] = 2.0 * sig[i] * f[i] * (par[P_T0] - w) - (ei * k[i] * delta[i] + ep * k[p] * delta[p])
+    s = np.linalg.solve(H, rhs)
+    for r in range(ns):
+        x[2 * m + S[r]] = s[r]
+
+
+# --------------------------------------------------------------------------- the loop
+@njit(**_JIT)
+def _hermite(x0, d0, x1, d1, h, theta, out):
+    """Cubic Hermite interpolant of the step at ``tau = theta h``."""
+    t2 = theta * theta
+    t3 = t2 * theta
+    h00, h10, h01, h11 = 2 * t3 - 3 * t2 + 1, t3 - 2 * t2 + theta, -2 * t3 + 3 * t2, t3 - t2
+    for i in range(x0.shape[0]):
+        out[i] = h00 * x0[i] + h10 * h * d0[i] + h01 * x1[i] + h11 * h * d1[i]
+
+
+@njit(**_JIT)
+def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_win, events, n_events,
+               par, Minv, Karm, Cb, a, k, c, f, r, sgn, driver, pk, pp, ptx, pty, poff,
+               ckey, cuse, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, cPh2, cGa2,
+               wf, win):  # fmt: skip
+    """Grid steps ``k0 .. k1-1`` (times ``t0 + k dt``) from state ``x`` in mode ``sig`` (both updated in place).
+
+    Writes sample ``k + 1 - k0`` of: ``out`` (state), ``out_sig`` (mode), ``out_T`` (span tensions [N]),
+    ``out_sdot`` (slip speeds [m/s]), ``out_wf`` / ``out_win`` (cumulative friction work and input work per pulley
+    [J], running totals ``wf``, ``win``). ``events`` rows ``[time, pulley, old sig, new sig]`` from row ``n_events[0]``.
+    Returns ``(status, k)``: :data:`OK` with ``k = k1``, else the status and the step that stopped.
+    """
+    n, m = a.shape[0], a.shape[1]
+    N = x.shape[0]
+    dt = par[P_DT]
+    T0 = par[P_T0]
+    b = np.empty(N)
+    u = np.empty(n)
+    x1 = np.empty(N)
+    xm = np.empty(N)
+    d0 = np.empty(N)
+    d1 = np.empty(N)
+    xs = np.empty(N)
+    Phw = np.empty((N, N))
+    Gaw = np.empty((N, N))
+    Phh = np.empty((N, N))
+    Gah = np.empty((N, N))
+    T = np.empty(n)
+    Td = np.empty(n)
+    g = np.empty(n)
+    dg = np.empty(n)
+    g0 = np.empty(n)
+    dg0 = np.empty(n)
+    none = np.empty(0)
+    none_b = np.zeros(N)
+    fresh = np.zeros(n, dtype=np.bool_)
+    newsig = sig.copy()
+    clock = 0
+    for step in range(k0, k1):
+        if n_events[0] + (MAX_SWITCHES + 1) * n > events.shape[0]:  # room for a whole step's switches
+            return EVENTS_FULL, step
+        ta = t0 + step * dt
+        a_t = ta
+        rem = dt
+        whole = True
+        switches = 0
+        while True:
+            clock += 1
+            s = _slot(sig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, cPh2, cGa2, clock)
+            if s < 0:
+                return ALL_SLIP, step
+            A = cA[s]
+            w = _inputs(a_t, x, m, sgn, pk, pp, ptx, pty, poff, Minv, driver, r, par, cc[s], b, u)
+            T0w = T0 - w
+            if whole:
+                Ph, Ga, Ph2, Ga2 = cPh[s], cGa[s], cPh2[s], cGa2[s]
+            else:
+                expm_gamma(A, 0.5 * rem, Phh, Gah)
+                _matmul(Phh, Gah, Gaw)
+                for i in range(N):
+                    for l in range(N):
+                        Gaw[i, l] += Gah[i, l]
+                _matmul(Phh, Phh, Phw)
+                Ph, Ga, Ph2, Ga2 = Phw, Gaw, Phh, Gah
+            _flow(Ph, Ga, x, b, x1)
+            guards(sig, x1, none, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
+            fire = False
+            for i in range(n):
+                if g[i] > 0.0:
+                    fire = True
+            tau = rem
+            first = -1
+            if fire:
+                # the step's interpolant: the first crossing of any pulley (one on its surface counts once it is inside)
+                _rate(A, x, b, d0)
+                _rate(A, x1, b, d1)
+                guards(sig, x, d0, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g0, dg0)
+                inside = np.empty(n, dtype=np.bool_)
+                for i in range(n):
+                    # a pulley switched at this sub-step's start was found inside its new mode there
+                    inside[i] = g0[i] < 0.0 or dg0[i] < 0.0 or fresh[i]
+                    if not inside[i]:  # already past and moving out: switches at once
+                        tau = 0.0
+                        first = i
+                        break
+                if first < 0:
+                    lo = 0.0
+                    for j in range(1, N_SCAN + 1):
+                        th = j / N_SCAN
+                        if j < N_SCAN:
+                            _hermite(x, d0, x1, d1, rem, th, xm)
+                            guards(sig, xm, none, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
+                        else:
+                            guards(sig, x1, none, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
+                        crossed = np.empty(n, dtype=np.bool_)
+                        anyc = False
+                        for i in range(n):
+                            crossed[i] = g[i] > 0.0
+                            anyc = anyc or crossed[i]
+                        if anyc:
+                            # bisection on the interpolant for each pulley across; the earliest wins
+                            best = 2.0
+                            for i in range(n):
+                                if not crossed[i]:
+                                    continue
+                                lo_i, hi_i = lo, th
+                                for _ in range(50):
+                                    mid = 0.5 * (lo_i + hi_i)
+                                    _hermite(x, d0, x1, d1, rem, mid, xm)
+                                    guards(sig, xm, none, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
+                                    if g[i] > 0.0:
+                                        hi_i = mid
+                                    else:
+                                        lo_i = mid
+                                if hi_i < best:
+                                    best, first = hi_i, i
+                            tau = best * rem
+                            break
+                        lo = th
+                    # Newton on the exact flow of the mode
+                    if first >= 0:
+                        for _ in range(8):
+                            expm_gamma(A, tau, Phh, Gah)
+                            _flow(Phh, Gah, x, b, xs)
+                            _rate(A, xs, b, d1)
+                            guards(sig, xs, d1, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
+                            if dg[first] == 0.0:
+                                break
+                            new = tau - g[first] / dg[first]
+                            new = min(max(new, 0.0), rem)
+                            done = abs(new - tau) <= 1e-15 + 4.4e-16 * tau
+                            tau = new
+                            if done:
+                                break
+            if first < 0:
+                # no switch in the rest of the step
+                for i in range(n):
+                    fresh[i] = False
+                _flow(Ph2, Ga2, x, b, xm)
+                _add_friction_work(rem / 6.0, sig, x, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
+                _add_friction_work(4.0 * rem / 6.0, sig, xm, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
+                _add_friction_work(rem / 6.0, sig, x1, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
+                for i in range(n):
+                    win[i] += u[i] * (x1[i] - x[i])
+                for i in range(N):
+                    x[i] = x1[i]
+                _project(sig, x, w, par, a, k, f, cHk[s], m)
+                break
+            # to the event
+            if tau > 0.0:
+                expm_gamma(A, 0.5 * tau, Phh, Gah)
+                _flow(Phh, Gah, x, b, xm)
+                expm_gamma(A, tau, Phw, Gaw)
+                _flow(Phw, Gaw, x, b, xs)
+                _add_friction_work(tau / 6.0, sig, x, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
+                _add_friction_work(4.0 * tau / 6.0, sig, xm, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
+                _add_friction_work(tau / 6.0, sig, xs, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
+                for i in range(n):
+                    win[i] += u[i] * (xs[i] - x[i])
+                for i in range(N):
+                    x[i] = xs[i]
+            a_t = ta + (dt - rem) + tau
+            rem = rem - tau
+            whole = False
+            # which pulleys switch: the located one and every one whose switching function is zero to rounding
+            v = r[driver] * x[m + driver]
+            w = par[P_MASS] * v * v
+            guards(sig, x, none, T0 - w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
+            for i in range(n):
+                newsig[i] = sig[i]
+                p = (i - 1) % n
+                if sig[i] == 0:
+                    scale = abs(T[i] - T[p]) + f[i] * abs(T[i] + T[p])
+                else:
+                    scale = abs(v) + 1.0
+                if i == first or g[i] > -1e-12 * scale:
+                    if sig[i] == 0:
+                        newsig[i] = 1 if T[i] - T[p] >= 0.0 else -1
+                    else:
+                        newsig[i] = 0
+            # a re-stick holds if the stick mode's friction stays inside the limit (else it slides on)
+            resticks = False
+            for i in range(n):
+                if sig[i] != 0 and newsig[i] == 0:
+                    resticks = True
+            if resticks:
+                clock += 1
+                s2 = _slot(newsig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, cPh2, cGa2, clock)
+                if s2 < 0:
+                    return ALL_SLIP, step
+                _inputs(a_t, x, m, sgn, pk, pp, ptx, pty, poff, Minv, driver, r, par, cc[s2], b, u)
+                _rate(cA[s2], x, b, d0)
+                _rate(cA[s2], d0, none_b, d1)  # x'' = A x' (inputs held)
+                guards(newsig, x, d1, T0 - w, par, f, r, driver, m, cGt[s2], cgt[s2], cLs[s2], cls[s2], T, Td, g0, dg0)
+                guards(newsig, x, d0, T0 - w, par, f, r, driver, m, cGt[s2], cgt[s2], cLs[s2], cls[s2], T, Td, g, dg)
+                vd = r[driver] * d0[m + driver]
+                for i in range(n):
+                    if sig[i] != 0 and newsig[i] == 0:
+                        p = (i - 1) % n
+                        lim = f[i] * (T[i] + T[p] - 2.0 * w)
+                        scale = (1.0 + f[i]) * (abs(Td[i]) + abs(Td[p])) + 4.0 * f[i] * par[P_MASS] * abs(v * vd)
+                        if g[i] < -1e-9 * lim:
+                            continue
+                        if abs(dg[i]) > 1e-8 * scale:  # the friction needed to stick leaves the limit at once, or not
+                            keep = dg[i] < 0.0
+                        else:  # tangent (undamped spans: the rate is the slip mode's at s' = 0): the curvature decides
+                            keep = dg0[i] + 4.0 * f[i] * par[P_MASS] * vd * vd <= 0.0
+                        if not keep:
+                            newsig[i] = sig[i]
+            changed = False
+            for i in range(n):
+                fresh[i] = newsig[i] != sig[i]
+                if newsig[i] != sig[i]:
+                    changed = True
+                    e = n_events[0]
+                    if e >= events.shape[0]:
+                        return EVENTS_FULL, step
+                    events[e, 0] = a_t
+                    events[e, 1] = i
+                    events[e, 2] = sig[i]
+                    events[e, 3] = newsig[i]
+                    n_events[0] = e + 1
+                    sig[i] = newsig[i]
+            if changed:
+                clock += 1
+                s = _slot(sig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, cPh2, cGa2, clock)
+                if s < 0:
+                    return ALL_SLIP, step
+                _project(sig, x, w, par, a, k, f, cHk[s], m)
+            switches += 1
+            if switches > MAX_SWITCHES:
+                return CHATTER, step
+            if rem <= 1e-12 * dt:
+                break
+        # the sample at the end of the step
+        total = 0.0
+        for i in range(N):
+            total += x[i]
+        fast = False
+        for i in range(m):
+            if abs(x[m + i]) > par[P_LIMIT]:
+                fast = True
+        j = step + 1 - k0
+        for i in range(N):
+            out[j, i] = x[i]
+        s = _slot(sig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, cPh2, cGa2, clock)
+        v = r[driver] * x[m + driver]
+        T0w = T0 - par[P_MASS] * v * v
+        _tensions(cGt[s], cgt[s], x, T0w, T0, T)
+        for i in range(n):
+            out_sig[j, i] = sig[i]
+            out_T[j, i] = T[i]
+            out_sdot[j, i] = _slip_speed(cLs[s], cls[s], x, T0w, i) if sig[i] != 0 else 0.0
+            out_wf[j, i] = wf[i]
+            out_win[j, i] = win[i]
+        if not math.isfinite(total) or fast:
+            return DIVERGED, step + 1
+    return OK, k1
