@@ -187,8 +187,8 @@ def simulate_slipping(model: NetworkModel | None, scene, duration: float | None 
     time = np.arange(steps + 1) * dt
     base = outputs(model, time, out[:, : 2 * m], out_T)
     names = [p.name for p in scene.pulleys]
-    evs = tuple(SlipEvent(float(e[0]), names[int(e[1])], "onset" if e[3] != 0 else "restick",
-                          int(e[3] if e[3] != 0 else e[2])) for e in events[: count[0]])  # fmt: skip
+    evs = tuple(SlipEvent(float(e[0]), names[int(e[1])], "onset" if e[3] != 0 else "restick", int(e[3] if e[3] != 0 else e[2]))
+                for e in events[: count[0]])  # fmt: skip
     fields = {f: getattr(base, f) for f in NetworkRun.__dataclass_fields__}
     return SlipNetworkRun(**fields, slip_state=out_sig.astype(np.int8), slip_speed=out_sd, slip_distance=out[:, 2 * m :],
                           friction_work=out_wf, input_work=out_win, events=evs)

@@ -548,10 +548,14 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
                 # no switch in the rest of the step
                 for i in range(n):
                     fresh[i] = False
-                _flow(Ph2, Ga2, x, b, xm)
-                _add_friction_work(rem / 6.0, sig, x, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
-                _add_friction_work(4.0 * rem / 6.0, sig, xm, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
-                _add_friction_work(rem / 6.0, sig, x1, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
+                sliding = False
+                for i in range(n):
+                    sliding = sliding or sig[i] != 0
+                if sliding:  # Simpson's rule over the sub-step
+                    _flow(Ph2, Ga2, x, b, xm)
+                    _add_friction_work(rem / 6.0, sig, x, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
+                    _add_friction_work(4.0 * rem / 6.0, sig, xm, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
+                    _add_friction_work(rem / 6.0, sig, x1, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
                 for i in range(n):
                     win[i] += u[i] * (x1[i] - x[i])
                 for i in range(N):
@@ -617,7 +621,7 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
                             keep = dg[i] < 0.0
                         else:  # tangent (undamped spans: the rate is the slip mode's at s' = 0): the curvature decides
                             keep = dg0[i] + 4.0 * f[i] * par[P_MASS] * vd * vd <= 0.0
-                        if not keep:
+                        if not keep:  # the friction to stick would leave the limit at once: it slides on
                             newsig[i] = sig[i]
             changed = False
             for i in range(n):
@@ -655,7 +659,6 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
         j = step + 1 - k0
         for i in range(N):
             out[j, i] = x[i]
-        s = _slot(sig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, cPh2, cGa2, clock)
         v = r[driver] * x[m + driver]
         T0w = T0 - par[P_MASS] * v * v
         _tensions(cGt[s], cgt[s], x, T0w, T0, T)
