@@ -195,20 +195,20 @@ def simulate_slipping(model: NetworkModel | None, scene, duration: float | None 
 
 
 def warm() -> None:
-    """Compile (or load from the disk cache) the slipping tier's kernel: a two-pulley belt that slips."""
+    """Compile (or load from the disk cache) the slipping tier's kernel (one signature: any scene), on a two-pulley belt."""
     from .scene import NetworkScene
 
     scene = NetworkScene.from_mapping({
         "kind": "network", "duration": 0.02, "dt": 1e-3, "initial_speed": 0.0,
-        "belt": {"EA": 1000.0, "damping": 0.1, "installed_tension": 10.0},
+        "belt": {"EA": 1000.0, "damping": 0.1, "installed_tension": 100.0},
         "pulleys": [
             {"name": "a", "role": "driver", "centre": [0.0, 0.0], "radius": 0.05, "inertia": 0.01,
-             "torque": {"type": "constant", "value": 5.0}},
+             "torque": {"type": "sine", "mean": 0.0, "amplitude": 20.0, "frequency": 50.0}},
             {"name": "b", "role": "accessory", "centre": [0.3, 0.0], "radius": 0.05, "inertia": 0.01,
-             "torque": {"type": "constant", "value": 0.0}},
+             "torque": {"type": "constant", "value": 1.0}},
         ],
     })  # fmt: skip
-    simulate_slipping(None, scene)
+    return simulate_slipping(None, scene)
 
 
 __all__ = ["SlipEvent", "SlipNetworkRun", "simulate_slipping", "warm"]
