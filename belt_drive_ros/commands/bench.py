@@ -32,6 +32,8 @@ studies:
                  whole warm simulate() x real time, start-up CPU of 'belt-drive sim paper --quiet' (not in 'all')
   campaign       10,000-variant Monte Carlo of paper on Dask vs a loop of single runs, 1 vs 2 workers,
                  a fleet of 100 recordings replayed and compared (needs the campaign extra; not in 'all')
+  network_slip   a belt network's slipping tier: x real time on fead_i4 sticking and slipping, the paper's
+                 drive slipping, beside the linear tier's Python step (not in 'all')
   all            all of the above, then docs/bench/summary.md
 
 examples:
@@ -58,7 +60,8 @@ def register(sub) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "kernel", "all"), help="which study to run")
+    p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "kernel", "network_slip", "all"),
+                   help="which study to run")
     p.add_argument("--out", type=Path, default=Path("docs/bench"), help="output folder (default: docs/bench)")
     p.add_argument("--quick", action="store_true", help="small sweeps and short runs (seconds; for tests)")
     p.add_argument("--quiet", action="store_true", help="no per-run log lines")
@@ -117,6 +120,12 @@ def run(args) -> int:
 
         result = kernel.run(out, quick=args.quick, quiet=args.quiet)
         print(f"bench kernel: {result['csv']}")
+        return 0
+    if args.study == "network_slip":
+        from ..benchmarks import network_slip
+
+        result = network_slip.run(out, quick=args.quick, quiet=args.quiet)
+        print(f"bench network_slip: {result['csv']}")
         return 0
     if args.study == "campaign":
         from ..benchmarks import campaign

@@ -34,6 +34,8 @@ from numba import njit
 from ..kernel import profile_torque
 
 _JIT = dict(cache=True, nogil=True)
+#: small helpers of the step are inlined into it (no call, no reference counting of the arrays passed)
+_INLINE = dict(cache=True, nogil=True, inline="always")
 
 #: status codes of :func:`slip_steps`
 OK, DIVERGED, CHATTER, EVENTS_FULL, ALL_SLIP = 0, 1, 4, 5, 6
@@ -50,14 +52,15 @@ P_T0, P_MASS, P_DT, P_LIMIT, P_DAMPED = 0, 1, 2, 3, 4
 # --------------------------------------------------------------------------- small linear algebra
 @njit(**_JIT)
 def _matmul(A, B, out):
-    """``out = A B`` (square, summed from the left)."""
+    """``out = A B`` (square; each entry summed from the left, row by row so the inner loop runs along memory)."""
     N = A.shape[0]
     for i in range(N):
         for j in range(N):
-            total = 0.0
-            for l in range(N):
-                total += A[i, l] * B[l, j]
-            out[i, j] = total
+            out[i, j] = 0.0
+        for l in range(N):
+            ail = A[i, l]
+            for j in range(N):
+                out[i, j] += ail * B[l, j]
 
 
 @njit(**_JIT)
@@ -105,7 +108,7 @@ def expm_gamma(A, h, Phi, Gam):
                 Phi[i, l] = nxt[i, l]
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _flow(Phi, Gam, x, b, out):
     """``out = Phi x + Gam b``."""
     N = x.shape[0]
@@ -118,7 +121,7 @@ def _flow(Phi, Gam, x, b, out):
         out[i] = total
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _rate(A, x, b, out):
     """``out = A x + b`` (the mode's x')."""
     N = x.shape[0]
@@ -285,7 +288,7 @@ def _slot(sig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cL
 
 
 # --------------------------------------------------------------------------- inputs and guards
-@njit(**_JIT)
+@njit(**_INLINE)
 def _inputs(t, x, m, sgn, pk, pp, ptx, pty, poff, Minv, driver, r, par, cvec, b, u):
     """Pulley torques ``u`` at (t, x), and ``b = B u + cvec (T_0 - w)``; returns ``w = m' v^2``."""
     n = sgn.shape[0]
@@ -305,7 +308,7 @@ def _inputs(t, x, m, sgn, pk, pp, ptx, pty, poff, Minv, driver, r, par, cvec, b,
     return w
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _tensions(Gt, gt, x, T0w, T0, T):
     n, N = Gt.shape[0], Gt.shape[1]
     for j in range(n):
@@ -315,7 +318,7 @@ def _tensions(Gt, gt, x, T0w, T0, T):
         T[j] = total + gt[j] * T0w
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _slip_speed(Ls, ls, x, T0w, i):
     total = 0.0
     for l in range(x.shape[0]):
@@ -323,7 +326,7 @@ def _slip_speed(Ls, ls, x, T0w, i):
     return total + ls[i] * T0w
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def guards(sig, x, xd, T0w, par, f, r, driver, m, Gt, gt, Ls, ls, T, Td, g, dg):
     """Switching functions ``g`` (n,) at state ``x`` (positive once the pulley's mode must end) and their
     rates ``dg`` along ``xd`` (skipped when ``xd`` is empty); tensions into ``T`` (``Td``: their rates)."""
@@ -349,7 +352,7 @@ def guards(sig, x, xd, T0w, par, f, r, driver, m, Gt, gt, Ls, ls, T, Td, g, dg):
                 dg[i] = -sig[i] * _slip_speed(Ls, ls, xd, 0.0, i)
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _add_friction_work(weight, sig, x, T0w, par, Gt, gt, Ls, ls, T, work):
     """``work_i += weight (T_i - T_{i-1}) s_i'`` for the sliding pulleys at state ``x``."""
     n = sig.shape[0]
@@ -400,7 +403,7 @@ def _project(sig, x, w, par, a, k, f, Hk, m):
 
 
 # --------------------------------------------------------------------------- the loop
-@njit(**_JIT)
+@njit(**_INLINE)
 def _hermite(x0, d0, x1, d1, h, theta, out):
     """Cubic Hermite interpolant of the step at ``tau = theta h``."""
     t2 = theta * theta
