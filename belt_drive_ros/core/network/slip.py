@@ -117,10 +117,12 @@ class SlipArrays:
         self.ptx = np.concatenate(tx) if tx else np.zeros(1)
         self.pty = np.concatenate(ty) if ty else np.zeros(1)
         self.poff = off
+        from .slip_kernel import LEVELS  # (imports numba: only where a run starts)
+
         K, N = CACHE_SLOTS, self.N
         self.cache = (np.full(K, -1, dtype=np.int64), np.full(K, -1, dtype=np.int64), np.zeros((K, N, N)), np.zeros((K, N)),
                       np.zeros((K, n, N)), np.zeros((K, n)), np.zeros((K, n, N)), np.zeros((K, n)), np.zeros((K, n, n)),
-                      np.zeros((K, N, N)), np.zeros((K, N, N)), np.zeros((K, N, N)), np.zeros((K, N, N)))
+                      np.zeros((K, LEVELS + 1, N, N)), np.zeros((K, LEVELS + 1, N, N)))
 
     def plant(self):
         """The kernel's plant arguments, in :func:`~.slip_kernel.slip_steps`'s order."""

@@ -15,13 +15,15 @@ hold), so a step is the exact flow ``x+ = Phi x + Gamma b`` of the mode.
 
 Per step: the flow, the switching function of every pulley at its end
 (stick: ``|T_i - T_{i-1}| - tanh(mu_i beta_i / 2)(T_i + T_{i-1} - 2 w)``;
-slip: ``-sig_i s_i'``); where one turns positive, a scan of the step's cubic
-Hermite interpolant brackets the first crossing, bisection on it and Newton
-on the exact flow locate it, the flow is taken there, every pulley whose
-switching function is then zero switches (several at once), and the rest
-of the step runs in the new mode. Mode matrices and their step exponentials
-are cached per mode in caller-owned arrays (a run chattering between a few
-modes builds each once).
+slip: ``-sig_i s_i'``); where one turns positive, the event is located on
+the mode's exact flow: a step is ``2^L`` units (:data:`LEVELS`), each mode
+keeps the flows over ``dt / 2^i`` for every level i (:func:`step_chain`), a
+scan at :data:`N_SCAN` points brackets the first crossing of any pulley and
+halving it level by level (one matrix-vector product per level) finds the
+last unit inside. One unit later every pulley past or on its surface
+switches (several at once), and the rest of the step runs in the new mode.
+Mode matrices and their flows are cached per mode in caller-owned arrays (a
+run switching between a few modes builds each once).
 """
 
 from __future__ import annotations
@@ -41,10 +43,12 @@ _INLINE = dict(cache=True, nogil=True, inline="always")
 OK, DIVERGED, CHATTER, EVENTS_FULL, ALL_SLIP = 0, 1, 4, 5, 6
 #: most mode switches inside one grid step before the run is refused as chattering
 MAX_SWITCHES = 64
-#: interpolant points scanned for the first crossing in a step whose end lies past a switching surface
+#: points scanned (on the exact flow) for the first crossing in a step whose end lies past a switching surface
 N_SCAN = 8
-#: Taylor terms of the scaled exponential (||A h|| <= 1/2: the remainder is below 1e-19)
+#: most Taylor terms of the scaled exponential (||A h|| <= 1/2: the remainder is below 1e-19)
 N_TAYLOR = 18
+#: a step is 2^LEVELS units: events are located to dt / 2^LEVELS (1e-13 s at dt = 0.1 ms)
+LEVELS = 30
 #: layout of ``par``: T_0 [N], m' [kg/m], dt [s], speed limit [rad/s], damped (1.0: span damping > 0)
 P_T0, P_MASS, P_DT, P_LIMIT, P_DAMPED = 0, 1, 2, 3, 4
 
@@ -64,48 +68,60 @@ def _matmul(A, B, out):
 
 
 @njit(**_JIT)
-def expm_gamma(A, h, Phi, Gam):
-    """``Phi = e^(A h)``, ``Gam = int_0^h e^(A s) ds`` into the given arrays.
+def _taylor(A, h, Phi, Gam, term, nxt):
+    """``Phi = e^(A h)``, ``Gam = int_0^h e^(A s) ds`` by their Taylor series (``||A h||_inf <= 1/2``): terms
+    until the next one is below 1e-18 of 1 (at most :data:`N_TAYLOR`)."""
+    N = A.shape[0]
+    for i in range(N):
+        for l in range(N):
+            term[i, l] = 1.0 if i == l else 0.0
+            Phi[i, l] = term[i, l]
+            Gam[i, l] = h * term[i, l]
+    for k in range(1, N_TAYLOR + 1):
+        _matmul(term, A, nxt)
+        big = 0.0
+        for i in range(N):
+            for l in range(N):
+                term[i, l] = nxt[i, l] * (h / k)
+                Phi[i, l] += term[i, l]
+                Gam[i, l] += h * term[i, l] / (k + 1)
+                big = max(big, abs(term[i, l]))
+        if big < 1e-18:
+            break
 
-    Taylor series on ``h / 2^j`` with ``||A h / 2^j||_inf <= 1/2`` (:data:`N_TAYLOR` terms),
-    then ``j`` doublings ``Gam(2t) = Gam(t) + Phi(t) Gam(t)``, ``Phi(2t) = Phi(t)^2``.
+
+@njit(**_JIT)
+def step_chain(A, dt, Phs, Gas):
+    """Per level ``i = 0 .. L``: ``Phs[i] = e^(A h_i)``, ``Gas[i] = int_0^h_i e^(A s) ds``, ``h_i = dt / 2^i``.
+
+    The level ``j`` where ``||A h_j||_inf <= 1/2`` and every finer one by their Taylor series; the coarser
+    ones by doubling, ``Gam(2h) = Gam(h) + Phi(h) Gam(h)``, ``Phi(2h) = Phi(h)^2`` (scaling and squaring;
+    the finer levels are not squared up from tinier ones, which would lose their small parts to rounding).
+    A flow over any whole number of units ``dt / 2^L`` is a product of levels (:func:`_advance`).
     """
     N = A.shape[0]
+    L = Phs.shape[0] - 1
     norm = 0.0
     for i in range(N):
         row = 0.0
         for l in range(N):
             row += abs(A[i, l])
         norm = max(norm, row)
-    norm *= h
+    norm *= dt
     j = 0
-    while norm > 0.5 and j < 200:
+    while norm > 0.5 and j < L:
         norm *= 0.5
         j += 1
-    hs = h / 2.0**j
-    term = np.eye(N)
+    term = np.empty((N, N))
     nxt = np.empty((N, N))
-    Ah = A * hs
-    for i in range(N):
-        for l in range(N):
-            Phi[i, l] = term[i, l]
-            Gam[i, l] = hs * term[i, l]
-    for k in range(1, N_TAYLOR + 1):
-        _matmul(term, Ah, nxt)
-        for i in range(N):
+    for i in range(j, L + 1):
+        _taylor(A, dt / 2.0**i, Phs[i], Gas[i], term, nxt)
+    for i in range(j - 1, -1, -1):
+        _matmul(Phs[i + 1], Gas[i + 1], Gas[i])
+        for q in range(N):
             for l in range(N):
-                term[i, l] = nxt[i, l] / k
-                Phi[i, l] += term[i, l]
-                Gam[i, l] += hs * term[i, l] / (k + 1)
-    for _ in range(j):
-        _matmul(Phi, Gam, nxt)
-        for i in range(N):
-            for l in range(N):
-                Gam[i, l] += nxt[i, l]
-        _matmul(Phi, Phi, nxt)
-        for i in range(N):
-            for l in range(N):
-                Phi[i, l] = nxt[i, l]
+                Gas[i, q, l] += Gas[i + 1, q, l]
+        _matmul(Phs[i + 1], Phs[i + 1], Phs[i])
 
 
 @njit(**_INLINE)
@@ -119,6 +135,19 @@ def _flow(Phi, Gam, x, b, out):
         for l in range(N):
             total += Gam[i, l] * b[l]
         out[i] = total
+
+
+@njit(**_INLINE)
+def _advance(Phs, Gas, x, b, units, tmp):
+    """``x`` moved in place along the mode's exact flow by ``units`` of ``dt / 2^L`` (one level per set bit)."""
+    L = Phs.shape[0] - 1
+    N = x.shape[0]
+    for i in range(L + 1):
+        bit = np.int64(1) << (L - i)
+        if units & bit:
+            _flow(Phs[i], Gas[i], x, b, tmp)
+            for q in range(N):
+                x[q] = tmp[q]
 
 
 @njit(**_INLINE)
@@ -258,7 +287,7 @@ def build_mode(sig, par, Minv, Karm, Cb, a, k, c, f, A, cvec, Gt, gt, Ls, ls, Hk
 
 
 @njit(**_JIT)
-def _slot(sig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, cPh2, cGa2, clock):
+def _slot(sig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, clock):
     """The cache slot of mode ``sig`` (built with its step exponentials when new; the least recently used is
     replaced); -1 if the mode's equations are singular."""
     key = mode_key(sig)
@@ -274,14 +303,7 @@ def _slot(sig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cL
     ns = build_mode(sig, par, Minv, Karm, Cb, a, k, c, f, cA[s], cc[s], cGt[s], cgt[s], cLs[s], cls[s], cHk[s])
     if ns < 0:
         return -1
-    dt = par[P_DT]
-    expm_gamma(cA[s], 0.5 * dt, cPh2[s], cGa2[s])
-    _matmul(cPh2[s], cGa2[s], cGa[s])
-    N = cA.shape[1]
-    for i in range(N):
-        for l in range(N):
-            cGa[s, i, l] += cGa2[s, i, l]
-    _matmul(cPh2[s], cPh2[s], cPh[s])
+    step_chain(cA[s], par[P_DT], cPh[s], cGa[s])
     ckey[s] = key
     cuse[s] = clock
     return s
@@ -403,21 +425,10 @@ def _project(sig, x, w, par, a, k, f, Hk, m):
 
 
 # --------------------------------------------------------------------------- the loop
-@njit(**_INLINE)
-def _hermite(x0, d0, x1, d1, h, theta, out):
-    """Cubic Hermite interpolant of the step at ``tau = theta h``."""
-    t2 = theta * theta
-    t3 = t2 * theta
-    h00, h10, h01, h11 = 2 * t3 - 3 * t2 + 1, t3 - 2 * t2 + theta, -2 * t3 + 3 * t2, t3 - t2
-    for i in range(x0.shape[0]):
-        out[i] = h00 * x0[i] + h10 * h * d0[i] + h01 * x1[i] + h11 * h * d1[i]
-
-
 @njit(**_JIT)
 def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_win, events, n_events,
                par, Minv, Karm, Cb, a, k, c, f, r, sgn, driver, pk, pp, ptx, pty, poff,
-               ckey, cuse, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, cPh2, cGa2,
-               wf, win):  # fmt: skip
+               ckey, cuse, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, wf, win):  # fmt: skip
     """Grid steps ``k0 .. k1-1`` (times ``t0 + k dt``) from state ``x`` in mode ``sig`` (both updated in place).
 
     Writes sample ``k + 1 - k0`` of: ``out`` (state), ``out_sig`` (mode), ``out_T`` (span tensions [N]),
@@ -429,17 +440,17 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
     N = x.shape[0]
     dt = par[P_DT]
     T0 = par[P_T0]
+    L = cPh.shape[1] - 1
+    U = np.int64(1) << L  # units per step
     b = np.empty(N)
     u = np.empty(n)
     x1 = np.empty(N)
     xm = np.empty(N)
+    xc = np.empty(N)
+    xt = np.empty(N)
+    tmp = np.empty(N)
     d0 = np.empty(N)
     d1 = np.empty(N)
-    xs = np.empty(N)
-    Phw = np.empty((N, N))
-    Gaw = np.empty((N, N))
-    Phh = np.empty((N, N))
-    Gah = np.empty((N, N))
     T = np.empty(n)
     Td = np.empty(n)
     g = np.empty(n)
@@ -455,132 +466,98 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
         if n_events[0] + (MAX_SWITCHES + 1) * n > events.shape[0]:  # room for a whole step's switches
             return EVENTS_FULL, step
         ta = t0 + step * dt
-        a_t = ta
-        rem = dt
-        whole = True
+        pos = np.int64(0)  # position in the step [units]
         switches = 0
         while True:
             clock += 1
-            s = _slot(sig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, cPh2, cGa2, clock)
+            s = _slot(sig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, clock)
             if s < 0:
                 return ALL_SLIP, step
-            A = cA[s]
+            Phs, Gas = cPh[s], cGa[s]
+            a_t = ta + dt * (pos / U)
             w = _inputs(a_t, x, m, sgn, pk, pp, ptx, pty, poff, Minv, driver, r, par, cc[s], b, u)
             T0w = T0 - w
-            if whole:
-                Ph, Ga, Ph2, Ga2 = cPh[s], cGa[s], cPh2[s], cGa2[s]
+            if pos == 0:
+                _flow(Phs[0], Gas[0], x, b, x1)
             else:
-                expm_gamma(A, 0.5 * rem, Phh, Gah)
-                _matmul(Phh, Gah, Gaw)
                 for i in range(N):
-                    for l in range(N):
-                        Gaw[i, l] += Gah[i, l]
-                _matmul(Phh, Phh, Phw)
-                Ph, Ga, Ph2, Ga2 = Phw, Gaw, Phh, Gah
-            _flow(Ph, Ga, x, b, x1)
+                    x1[i] = x[i]
+                _advance(Phs, Gas, x1, b, U - pos, tmp)
             guards(sig, x1, none, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
             fire = False
             for i in range(n):
                 if g[i] > 0.0:
                     fire = True
-            tau = rem
-            first = -1
+            end = U
             if fire:
-                # the step's interpolant: the first crossing of any pulley (one on its surface counts once it is inside)
-                _rate(A, x, b, d0)
-                _rate(A, x1, b, d1)
-                guards(sig, x, d0, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g0, dg0)
-                inside = np.empty(n, dtype=np.bool_)
-                for i in range(n):
-                    # a pulley switched at this sub-step's start was found inside its new mode there
-                    inside[i] = g0[i] < 0.0 or dg0[i] < 0.0 or fresh[i]
-                    if not inside[i]:  # already past and moving out: switches at once
-                        tau = 0.0
-                        first = i
+                # scan the exact flow at N_SCAN points for the first position past a surface, then halve down to
+                # one unit: the last position inside (every pulley's switching function <= 0), one unit before it.
+                # A pulley switched at this sub-step's start counts from the first scan point on (it was found
+                # inside its new mode at the start).
+                for i in range(N):
+                    xc[i] = x[i]
+                cur = pos
+                chunk = U // N_SCAN
+                hi = U
+                while cur < U:
+                    nxt = min(cur + chunk, U)
+                    for i in range(N):
+                        xt[i] = xc[i]
+                    _advance(Phs, Gas, xt, b, nxt - cur, tmp)
+                    guards(sig, xt, none, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
+                    out_ = False
+                    for i in range(n):
+                        out_ = out_ or g[i] > 0.0
+                    if out_:
+                        hi = nxt
                         break
-                if first < 0:
-                    lo = 0.0
-                    for j in range(1, N_SCAN + 1):
-                        th = j / N_SCAN
-                        if j < N_SCAN:
-                            _hermite(x, d0, x1, d1, rem, th, xm)
-                            guards(sig, xm, none, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
-                        else:
-                            guards(sig, x1, none, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
-                        crossed = np.empty(n, dtype=np.bool_)
-                        anyc = False
-                        for i in range(n):
-                            crossed[i] = g[i] > 0.0
-                            anyc = anyc or crossed[i]
-                        if anyc:
-                            # bisection on the interpolant for each pulley across; the earliest wins
-                            best = 2.0
-                            for i in range(n):
-                                if not crossed[i]:
-                                    continue
-                                lo_i, hi_i = lo, th
-                                for _ in range(50):
-                                    mid = 0.5 * (lo_i + hi_i)
-                                    _hermite(x, d0, x1, d1, rem, mid, xm)
-                                    guards(sig, xm, none, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
-                                    if g[i] > 0.0:
-                                        hi_i = mid
-                                    else:
-                                        lo_i = mid
-                                if hi_i < best:
-                                    best, first = hi_i, i
-                            tau = best * rem
-                            break
-                        lo = th
-                    # Newton on the exact flow of the mode
-                    if first >= 0:
-                        for _ in range(8):
-                            expm_gamma(A, tau, Phh, Gah)
-                            _flow(Phh, Gah, x, b, xs)
-                            _rate(A, xs, b, d1)
-                            guards(sig, xs, d1, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
-                            if dg[first] == 0.0:
-                                break
-                            new = tau - g[first] / dg[first]
-                            new = min(max(new, 0.0), rem)
-                            done = abs(new - tau) <= 1e-15 + 4.4e-16 * tau
-                            tau = new
-                            if done:
-                                break
-            if first < 0:
-                # no switch in the rest of the step
+                    cur = nxt
+                    for i in range(N):
+                        xc[i] = xt[i]
+                for lev in range(L + 1):
+                    bit = np.int64(1) << (L - lev)
+                    if cur + bit >= hi:
+                        continue
+                    _flow(Phs[lev], Gas[lev], xc, b, xt)
+                    guards(sig, xt, none, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
+                    out_ = False
+                    for i in range(n):
+                        out_ = out_ or (g[i] > 0.0 and not (fresh[i] and cur + bit - pos < chunk))
+                    if not out_:
+                        cur += bit
+                        for i in range(N):
+                            xc[i] = xt[i]
+                end = cur + 1 if cur + 1 <= hi else hi
+            # the sub-step pos -> end: friction work by Simpson's rule, the torques' work
+            if end == U and pos == 0:
+                xe = x1
+            else:
+                for i in range(N):
+                    xt[i] = x[i]
+                _advance(Phs, Gas, xt, b, end - pos, tmp)
+                xe = xt
+            sliding = False
+            for i in range(n):
+                sliding = sliding or sig[i] != 0
+            if sliding:
+                for i in range(N):
+                    xm[i] = x[i]
+                _advance(Phs, Gas, xm, b, (end - pos) // 2, tmp)
+                h = dt * ((end - pos) / U)
+                _add_friction_work(h / 6.0, sig, x, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
+                _add_friction_work(4.0 * h / 6.0, sig, xm, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
+                _add_friction_work(h / 6.0, sig, xe, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
+            for i in range(n):
+                win[i] += u[i] * (xe[i] - x[i])
+            for i in range(N):
+                x[i] = xe[i]
+            pos = end
+            if not fire:
                 for i in range(n):
                     fresh[i] = False
-                sliding = False
-                for i in range(n):
-                    sliding = sliding or sig[i] != 0
-                if sliding:  # Simpson's rule over the sub-step
-                    _flow(Ph2, Ga2, x, b, xm)
-                    _add_friction_work(rem / 6.0, sig, x, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
-                    _add_friction_work(4.0 * rem / 6.0, sig, xm, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
-                    _add_friction_work(rem / 6.0, sig, x1, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
-                for i in range(n):
-                    win[i] += u[i] * (x1[i] - x[i])
-                for i in range(N):
-                    x[i] = x1[i]
                 _project(sig, x, w, par, a, k, f, cHk[s], m)
                 break
-            # to the event
-            if tau > 0.0:
-                expm_gamma(A, 0.5 * tau, Phh, Gah)
-                _flow(Phh, Gah, x, b, xm)
-                expm_gamma(A, tau, Phw, Gaw)
-                _flow(Phw, Gaw, x, b, xs)
-                _add_friction_work(tau / 6.0, sig, x, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
-                _add_friction_work(4.0 * tau / 6.0, sig, xm, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
-                _add_friction_work(tau / 6.0, sig, xs, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
-                for i in range(n):
-                    win[i] += u[i] * (xs[i] - x[i])
-                for i in range(N):
-                    x[i] = xs[i]
-            a_t = ta + (dt - rem) + tau
-            rem = rem - tau
-            whole = False
+            a_t = ta + dt * (pos / U)
             # which pulleys switch: the located one and every one whose switching function is zero to rounding
             v = r[driver] * x[m + driver]
             w = par[P_MASS] * v * v
@@ -592,7 +569,7 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
                     scale = abs(T[i] - T[p]) + f[i] * abs(T[i] + T[p])
                 else:
                     scale = abs(v) + 1.0
-                if i == first or g[i] > -1e-12 * scale:
+                if g[i] > -1e-12 * scale:
                     if sig[i] == 0:
                         newsig[i] = 1 if T[i] - T[p] >= 0.0 else -1
                     else:
@@ -604,7 +581,7 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
                     resticks = True
             if resticks:
                 clock += 1
-                s2 = _slot(newsig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, cPh2, cGa2, clock)
+                s2 = _slot(newsig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, clock)
                 if s2 < 0:
                     return ALL_SLIP, step
                 _inputs(a_t, x, m, sgn, pk, pp, ptx, pty, poff, Minv, driver, r, par, cc[s2], b, u)
@@ -642,14 +619,14 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
                     sig[i] = newsig[i]
             if changed:
                 clock += 1
-                s = _slot(sig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, cPh2, cGa2, clock)
+                s = _slot(sig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, clock)
                 if s < 0:
                     return ALL_SLIP, step
                 _project(sig, x, w, par, a, k, f, cHk[s], m)
             switches += 1
             if switches > MAX_SWITCHES:
                 return CHATTER, step
-            if rem <= 1e-12 * dt:
+            if pos >= U:
                 break
         # the sample at the end of the step
         total = 0.0
