@@ -151,6 +151,14 @@ def _advance(Phs, Gas, x, b, units, tmp):
 
 
 @njit(**_INLINE)
+def _moved(Phs, Gas, x, b, units, out, tmp):
+    """``out`` = ``x`` moved along the exact flow by ``units`` (:func:`_advance`)."""
+    for q in range(x.shape[0]):
+        out[q] = x[q]
+    _advance(Phs, Gas, out, b, units, tmp)
+
+
+@njit(**_INLINE)
 def _rate(A, x, b, out):
     """``out = A x + b`` (the mode's x')."""
     N = x.shape[0]
@@ -171,6 +179,33 @@ def mode_key(sig):
     return key
 
 
+@njit(**_INLINE)
+def _sliding(sig):
+    """``(S, ns)``: the sliding pulleys' indices in ``S[:ns]``."""
+    S = np.empty(sig.shape[0], dtype=np.int64)
+    ns = 0
+    for i in range(sig.shape[0]):
+        if sig[i] != 0:
+            S[ns] = i
+            ns += 1
+    return S, ns
+
+
+@njit(**_INLINE)
+def _capstan_column(i, prev, l, n, ei, ep, w):
+    """Coefficient of ``s_l`` in ``ei w_i delta_i + ep w_prev delta_prev`` (``s_l``: +1 in span l-1, -1 in span l)."""
+    col = 0.0
+    if (l - 1) % n == i:
+        col += ei * w[i]
+    if l == i:
+        col -= ei * w[i]
+    if (l - 1) % n == prev:
+        col += ep * w[prev]
+    if l == prev:
+        col -= ep * w[prev]
+    return col
+
+
 @njit(**_JIT)
 def build_mode(sig, par, Minv, Karm, Cb, a, k, c, f, A, cvec, Gt, gt, Ls, ls, Hk):
     """The mode ``sig``'s matrices (see the module docstring and :mod:`.slip`).
@@ -184,12 +219,7 @@ def build_mode(sig, par, Minv, Karm, Cb, a, k, c, f, A, cvec, Gt, gt, Ls, ls, Hk
     n, m = a.shape[0], a.shape[1]
     N = 2 * m + n
     damped = par[P_DAMPED] > 0.0
-    S = np.empty(n, dtype=np.int64)
-    ns = 0
-    for i in range(n):
-        if sig[i] != 0:
-            S[ns] = i
-            ns += 1
+    S, ns = _sliding(sig)
     # stretch rows: P x = a q + D s (D[j, j+1] = 1, D[j, j] = -1), Pd x = a q'
     P = np.zeros((n, N))
     Pd = np.zeros((n, N))
@@ -214,27 +244,8 @@ def build_mode(sig, par, Minv, Karm, Cb, a, k, c, f, A, cvec, Gt, gt, Ls, ls, Hk
             ei, ep = 1.0 - sig[i] * f[i], -(1.0 + sig[i] * f[i])
             for q in range(ns):  # column of s_l: +1 in span l-1, -1 in span l
                 l = S[q]
-                w = c if damped else k
-                col = 0.0
-                if (l - 1) % n == i:
-                    col += ei * w[i]
-                if l == i:
-                    col -= ei * w[i]
-                if (l - 1) % n == prev:
-                    col += ep * w[prev]
-                if l == prev:
-                    col -= ep * w[prev]
-                H[r, q] = col
-                kcol = 0.0
-                if (l - 1) % n == i:
-                    kcol += ei * k[i]
-                if l == i:
-                    kcol -= ei * k[i]
-                if (l - 1) % n == prev:
-                    kcol += ep * k[prev]
-                if l == prev:
-                    kcol -= ep * k[prev]
-                Hk[r, q] = kcol
+                H[r, q] = _capstan_column(i, prev, l, n, ei, ep, c if damped else k)
+                Hk[r, q] = _capstan_column(i, prev, l, n, ei, ep, k)
             for l in range(N):
                 if damped:
                     R[r, l] = -(ei * (k[i] * P[i, l] + c[i] * Pd[i, l]) + ep * (k[prev] * P[prev, l] + c[prev] * Pd[prev, l]))
@@ -388,20 +399,11 @@ def _add_friction_work(weight, sig, x, T0w, par, Gt, gt, Ls, ls, T, work):
 def _project(sig, x, w, par, a, k, f, Hk, m):
     """Undamped spans: put the sliding pulleys' ``s`` where their capstan equalities hold exactly at ``w``."""
     n = sig.shape[0]
-    ns = 0
-    for i in range(n):
-        if sig[i] != 0:
-            ns += 1
+    S, ns = _sliding(sig)
     if ns == 0 or par[P_DAMPED] > 0.0:
         return
     H = Hk[:ns, :ns].copy()
     rhs = np.empty(ns)
-    S = np.empty(ns, dtype=np.int64)
-    r = 0
-    for i in range(n):
-        if sig[i] != 0:
-            S[r] = i
-            r += 1
     # stretch without the sliding pulleys' s
     delta = np.empty(n)
     for j in range(n):
@@ -480,9 +482,7 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
             if pos == 0:
                 _flow(Phs[0], Gas[0], x, b, x1)
             else:
-                for i in range(N):
-                    x1[i] = x[i]
-                _advance(Phs, Gas, x1, b, U - pos, tmp)
+                _moved(Phs, Gas, x, b, U - pos, x1, tmp)
             guards(sig, x1, none, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
             fire = False
             for i in range(n):
@@ -501,9 +501,7 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
                 hi = U
                 while cur < U:
                     nxt = min(cur + chunk, U)
-                    for i in range(N):
-                        xt[i] = xc[i]
-                    _advance(Phs, Gas, xt, b, nxt - cur, tmp)
+                    _moved(Phs, Gas, xc, b, nxt - cur, xt, tmp)
                     guards(sig, xt, none, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
                     out_ = False
                     for i in range(n):
@@ -532,17 +530,13 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
             if end == U and pos == 0:
                 xe = x1
             else:
-                for i in range(N):
-                    xt[i] = x[i]
-                _advance(Phs, Gas, xt, b, end - pos, tmp)
+                _moved(Phs, Gas, x, b, end - pos, xt, tmp)
                 xe = xt
             sliding = False
             for i in range(n):
                 sliding = sliding or sig[i] != 0
             if sliding:
-                for i in range(N):
-                    xm[i] = x[i]
-                _advance(Phs, Gas, xm, b, (end - pos) // 2, tmp)
+                _moved(Phs, Gas, x, b, (end - pos) // 2, xm, tmp)
                 h = dt * ((end - pos) / U)
                 _add_friction_work(h / 6.0, sig, x, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
                 _add_friction_work(4.0 * h / 6.0, sig, xm, T0w, par, cGt[s], cgt[s], cLs[s], cls[s], T, wf)
