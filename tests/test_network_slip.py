@@ -242,3 +242,21 @@ def test_the_slip_kernel_interpreted_gives_the_same_floats(tmp_path):
         out[jit] = np.load(path)
     assert out["0"][0, -1] >= 2, "the run must switch modes"
     assert np.array_equal(out["0"], out["1"])
+
+
+def test_a_belt_sliding_on_every_pulley_is_a_one_line_error():
+    """fead_i4 at 120 N installed tension, no bearing or arm damping, a pulsing alternator: every pulley reaches
+    its limit; a massless belt then has no motion (the tension differences round the loop add up to zero, the
+    limits do not)."""
+    from belt_drive_ros.core.errors import SimulationDivergedError
+
+    data = shipped("fead_i4")
+    data["belt"]["installed_tension"] = 120.0
+    data["tensioner"]["damping"] = 0.0
+    for p in data["pulleys"]:
+        p["damping"] = 0.0
+        if p["name"] == "alternator":
+            p["torque"] = {"type": "sine", "mean": 2.0, "amplitude": 3.0, "frequency": 40.0}
+    scene = NetworkScene.from_mapping(data, "fead_loose")
+    with pytest.raises(SimulationDivergedError, match=r"slides on every pulley at once at t = 0\.02\d+ s .*raise belt\.installed_tension"):
+        simulate_slipping(None, scene, duration=0.1)

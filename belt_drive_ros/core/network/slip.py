@@ -43,14 +43,17 @@ from .model import NetworkModel, NetworkRun, outputs
 
 #: modes kept with their step exponentials per run
 CACHE_SLOTS = 8
+#: event kind by (sliding before, sliding after)
+_KINDS = {(False, True): "onset", (True, False): "restick", (True, True): "reversal"}
 #: the one method of the slipping tier (zero-order hold: the exact flow of each mode)
 METHODS = ("exact", "zoh")
 
 
 @dataclass(frozen=True)
 class SlipEvent:
-    """A mode switch: time [s], pulley name, ``"onset"`` or ``"restick"``, slip direction (+1: the belt runs
-    ahead of the pulley surface, -1: behind it; the direction it had for a re-stick)."""
+    """A mode switch: time [s], pulley name, ``"onset"``, ``"restick"`` or ``"reversal"`` (the slip speed crossed
+    zero where sticking would leave the limit at once: it slides on the other way), slip direction (+1: the belt
+    runs ahead of the pulley surface, -1: behind it; the direction it had for a re-stick)."""
 
     time: float
     pulley: str
@@ -136,7 +139,8 @@ def simulate_slipping(model: NetworkModel | None, scene, duration: float | None 
 
     ``method``: ``exact`` (default; the tier's one method). ``initial``: optional state ``x`` (2m + n,).
     Raises :class:`~belt_drive_ros.core.errors.SimulationDivergedError` (non-finite state, a speed past
-    1e5 rad/s, or more than 64 switches inside one step: chattering) and :class:`SceneError`.
+    1e5 rad/s, more than 64 switches inside one step (chattering), every pulley sliding at once, or a pulley
+    that can neither stick nor slide on) and :class:`SceneError`.
     """
     from . import slip_kernel as K
 
@@ -182,6 +186,12 @@ def simulate_slipping(model: NetworkModel | None, scene, duration: float | None 
             names = [scene.pulleys[int(e[1])].name for e in events[max(0, count[0] - 4) : count[0]]]
             raise SimulationDivergedError(f"{scene.name}: more than {K.MAX_SWITCHES} stick/slip switches inside one step at {where} "
                                           f"({', '.join(dict.fromkeys(names)) or 'no pulley'}: chattering); reduce dt")
+        if status == K.STUCK:
+            name = scene.pulleys[int(events[count[0], 1])].name
+            raise SimulationDivergedError(f"{scene.name}: at t = {events[count[0], 0]:.9g} s the slip speed on {name} reaches zero "
+                                          "where it can neither stick (the friction it would need leaves the limit at once) "
+                                          "nor slide on either way (several pulleys sliding on a loose belt); raise "
+                                          "belt.installed_tension or give the belt damping")
         if status == K.ALL_SLIP:
             raise SimulationDivergedError(f"{scene.name}: the belt slides on every pulley at once at {where} (a massless belt "
                                           "has no motion then: the capstan limits cannot all hold); raise belt.installed_tension")
@@ -189,7 +199,7 @@ def simulate_slipping(model: NetworkModel | None, scene, duration: float | None 
     time = np.arange(steps + 1) * dt
     base = outputs(model, time, out[:, : 2 * m], out_T)
     names = [p.name for p in scene.pulleys]
-    evs = tuple(SlipEvent(float(e[0]), names[int(e[1])], "onset" if e[3] != 0 else "restick", int(e[3] if e[3] != 0 else e[2]))
+    evs = tuple(SlipEvent(float(e[0]), names[int(e[1])], _KINDS[(e[2] != 0, e[3] != 0)], int(e[3] if e[3] != 0 else e[2]))
                 for e in events[: count[0]])  # fmt: skip
     fields = {f: getattr(base, f) for f in NetworkRun.__dataclass_fields__}
     return SlipNetworkRun(**fields, slip_state=out_sig.astype(np.int8), slip_speed=out_sd, slip_distance=out[:, 2 * m :],

@@ -40,7 +40,7 @@ _JIT = dict(cache=True, nogil=True)
 _INLINE = dict(cache=True, nogil=True, inline="always")
 
 #: status codes of :func:`slip_steps`
-OK, DIVERGED, CHATTER, EVENTS_FULL, ALL_SLIP = 0, 1, 4, 5, 6
+OK, DIVERGED, CHATTER, EVENTS_FULL, ALL_SLIP, STUCK = 0, 1, 4, 5, 6, 7
 #: most mode switches inside one grid step before the run is refused as chattering
 MAX_SWITCHES = 64
 #: points scanned (on the exact flow) for the first crossing in a step whose end lies past a switching surface
@@ -552,10 +552,14 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
                 _project(sig, x, w, par, a, k, f, cHk[s], m)
                 break
             a_t = ta + dt * (pos / U)
-            # which pulleys switch: the located one and every one whose switching function is zero to rounding
+            # which pulleys switch: the one furthest past its surface and every one on it to rounding (switching
+            # functions with w held, as along the flow that found the event; the new mode then holds w from here)
             v = r[driver] * x[m + driver]
-            w = par[P_MASS] * v * v
-            guards(sig, x, none, T0 - w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
+            guards(sig, x, none, T0w, par, f, r, driver, m, cGt[s], cgt[s], cLs[s], cls[s], T, Td, g, dg)
+            first = 0
+            for i in range(n):
+                if g[i] > g[first]:
+                    first = i
             for i in range(n):
                 newsig[i] = sig[i]
                 p = (i - 1) % n
@@ -563,12 +567,13 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
                     scale = abs(T[i] - T[p]) + f[i] * abs(T[i] + T[p])
                 else:
                     scale = abs(v) + 1.0
-                if g[i] > -1e-12 * scale:
+                if i == first or g[i] > -1e-12 * scale:
                     if sig[i] == 0:
                         newsig[i] = 1 if T[i] - T[p] >= 0.0 else -1
                     else:
                         newsig[i] = 0
             # a re-stick holds if the stick mode's friction stays inside the limit (else it slides on)
+            stuck = 0
             resticks = False
             for i in range(n):
                 if sig[i] != 0 and newsig[i] == 0:
@@ -581,8 +586,8 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
                 _inputs(a_t, x, m, sgn, pk, pp, ptx, pty, poff, Minv, driver, r, par, cc[s2], b, u)
                 _rate(cA[s2], x, b, d0)
                 _rate(cA[s2], d0, none_b, d1)  # x'' = A x' (inputs held)
-                guards(newsig, x, d1, T0 - w, par, f, r, driver, m, cGt[s2], cgt[s2], cLs[s2], cls[s2], T, Td, g0, dg0)
-                guards(newsig, x, d0, T0 - w, par, f, r, driver, m, cGt[s2], cgt[s2], cLs[s2], cls[s2], T, Td, g, dg)
+                guards(newsig, x, d1, T0w, par, f, r, driver, m, cGt[s2], cgt[s2], cLs[s2], cls[s2], T, Td, g0, dg0)
+                guards(newsig, x, d0, T0w, par, f, r, driver, m, cGt[s2], cgt[s2], cLs[s2], cls[s2], T, Td, g, dg)
                 vd = r[driver] * d0[m + driver]
                 for i in range(n):
                     if sig[i] != 0 and newsig[i] == 0:
@@ -597,6 +602,7 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
                             keep = dg0[i] + 4.0 * f[i] * par[P_MASS] * vd * vd <= 0.0
                         if not keep:  # the friction to stick would leave the limit at once: it slides on
                             newsig[i] = sig[i]
+                            stuck = i
             changed = False
             for i in range(n):
                 fresh[i] = newsig[i] != sig[i]
@@ -611,6 +617,27 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
                     events[e, 3] = newsig[i]
                     n_events[0] = e + 1
                     sig[i] = newsig[i]
+            if not changed and par[P_DAMPED] > 0.0:
+                # a refused re-stick: the slip speed crossed zero, so the belt may slide on the other way (damped spans:
+                # s' jumps, the state does not) if in that mode its slip speed has that direction
+                newsig[stuck] = -sig[stuck]
+                clock += 1
+                s2 = _slot(newsig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, clock)
+                if s2 < 0:
+                    return ALL_SLIP, step
+                if newsig[stuck] * _slip_speed(cLs[s2], cls[s2], x, T0w, stuck) > 0.0:
+                    changed = True
+                    e = n_events[0]
+                    events[e, 0], events[e, 1], events[e, 2], events[e, 3] = a_t, stuck, sig[stuck], newsig[stuck]
+                    n_events[0] = e + 1
+                    sig[stuck] = newsig[stuck]
+                    fresh[stuck] = True
+                else:
+                    newsig[stuck] = sig[stuck]
+            if not changed:  # it can neither stick nor slide on either way (row written, not counted)
+                e = n_events[0]
+                events[e, 0], events[e, 1], events[e, 2], events[e, 3] = a_t, stuck, sig[stuck], sig[stuck]
+                return STUCK, step
             if changed:
                 clock += 1
                 s = _slot(sig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, clock)
