@@ -167,7 +167,7 @@ def simulate_slipping(model: NetworkModel | None, scene, duration: float | None 
     out_wf = np.zeros((steps + 1, n))
     out_win = np.zeros((steps + 1, n))
     out[0] = x
-    out_T[0] = model.scene.belt.installed_tension + arr.k * (arr.a @ x[:m])
+    out_T[0] = model.tensions(x[:m], x[m : 2 * m]) + arr.k * (np.roll(x[2 * m :], -1) - x[2 * m :])  # sticking: s' = 0
     events = np.empty((2 * (K.MAX_SWITCHES + 1) * n + 256, 4))
     count = np.zeros(1, dtype=np.int64)
     wf, win = np.zeros(n), np.zeros(n)
@@ -194,7 +194,8 @@ def simulate_slipping(model: NetworkModel | None, scene, duration: float | None 
                                           "belt.installed_tension or give the belt damping")
         if status == K.ALL_SLIP:
             raise SimulationDivergedError(f"{scene.name}: the belt slides on every pulley at once at {where} (a massless belt "
-                                          "has no motion then: the capstan limits cannot all hold); raise belt.installed_tension")
+                                          "has no motion then: the capstan limits cannot all hold, or the sliding pulleys' "
+                                          "equations are singular); raise belt.installed_tension")
         raise SimulationDivergedError(f"{scene.name}: the state became non-finite or too fast at {where} (slipping tier at dt = {dt:g} s)")
     time = np.arange(steps + 1) * dt
     base = outputs(model, time, out[:, : 2 * m], out_T)
