@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from belt_drive_ros.core.errors import SceneError
-from belt_drive_ros.core.network.model import NetworkModel, simulate, undamped_frequencies
+from belt_drive_ros.core.network.model import NetworkModel, undamped_frequencies
+from belt_drive_ros.core.network.simulate import simulate
 from belt_drive_ros.core.network.scene import NetworkScene, load_network
 
 
@@ -220,7 +221,7 @@ def test_natural_frequencies_against_an_eigen_analysis_from_the_equations():
 def test_energy_balance_on_an_undamped_run():
     scene = NetworkScene.from_mapping({**_raw_tensioned(), "method": "exact", "initial_speed": 60.0,
                                        "duration": 0.2, "dt": 1e-4})
-    run = simulate(scene)
+    run = simulate(scene, model="flexible")
     P = scene.pulleys
     J = np.array([p.inertia for p in P])
     kinetic = 0.5 * (run.speed**2 @ J) + 0.5 * scene.tensioner.inertia * run.states[:, -1] ** 2
@@ -255,7 +256,7 @@ def test_paper_drive_as_a_two_pulley_network_equals_the_flexible_model():
 
     paper = load_scene("paper")
     today = simulate_paper(paper, model="flexible", method="etd2", dt=1e-3)
-    net = simulate(load_network("paper_network"))
+    net = simulate(load_network("paper_network"), model="flexible")
     g = paper.params.gear_ratio
     np.testing.assert_array_equal(net.time, today.time)
     for ours, theirs in ((net.speed[:, 1], today["omega_3"]), (net.speed[:, 0], g * today["omega_M"]),
@@ -326,9 +327,9 @@ def test_sim_runs_a_network_and_writes_its_csv_by_pulley_and_span(tmp_path, caps
     np.testing.assert_array_equal(table[:, names.index("tensioner_arm/angle")], run.arm_angle)
     assert "tensioner arm:" in capsys.readouterr().out
     assert main(["sim", "fead_i4", "--out", str(tmp_path / "x.txt")]) == 2
-    assert main(["sim", "fead_i4", "--model", "rigid"]) == 2
+    assert main(["sim", "fead_i4", "--model", "regularised"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 2 and "writes .csv or .mcap" in err and "--model: not available" in err
+    assert err.count("\n") == 2 and "writes .csv or .mcap" in err and "model: must be one of auto" in err
     png = tmp_path / "run.png"
     assert main(["sim", "fead_i4", "--duration", "0.01", "--plot", str(png)]) == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -402,8 +403,8 @@ def test_an_unstable_step_is_refused_before_the_run():
 
     scene = load_network("fead_i4")
     with pytest.raises(UnstableStepError, match=r"method rk4 at dt = 0.001 s grows the 97[0-9.]* Hz mode.*dt <= 0.00025 s"):
-        simulate(scene, duration=0.01, dt=1e-3, method="rk4")
-    run = simulate(scene, duration=0.01, dt=2.5e-4, method="rk4")  # the step it names runs, bounded
+        simulate(scene, duration=0.01, dt=1e-3, method="rk4", model="flexible")
+    run = simulate(scene, duration=0.01, dt=2.5e-4, method="rk4", model="flexible")  # the step it names runs, bounded
     assert np.all(np.isfinite(run.states)) and np.max(np.abs(run.speed)) < 300.0
 
 
@@ -429,7 +430,7 @@ def test_a_damped_run_under_balanced_constant_torques_settles_on_the_static_tens
     data["tensioner"]["damping"] = 0.5
     data.update(duration=1.0, dt=1e-4, initial_speed=50.0, method="etd2")
     scene = NetworkScene.from_mapping(data)
-    run = simulate(scene)
+    run = simulate(scene, model="flexible")
     model = NetworkModel.build(scene)
     q, T, _ = model.static([drive, 0.0, -2.0, -1.0], iterations=1)  # the run's linearisation: k_geo at T_0
     np.testing.assert_allclose(run.tension[-1], T, rtol=1e-6)
@@ -478,6 +479,6 @@ def test_sim_names_the_first_pulley_at_its_capstan_limit(tmp_path, capsys):
     import yaml
 
     path.write_text(yaml.safe_dump(raw))
-    assert main(["sim", str(path), "--duration", "0.5"]) == 0
+    assert main(["sim", str(path), "--duration", "0.5", "--model", "flexible"]) == 0
     out = capsys.readouterr().out
     assert "capstan limit: pulley_3 reaches it first at t = " in out and "not valid" in out

@@ -13,7 +13,7 @@ MAX_SAMPLES = 5_000_000
 def _refuse_unsupported(args) -> None:
     from ..core.errors import SceneError
 
-    given = [flag for flag, value in (("--model", args.model), ("--v-eps", getattr(args, "v_eps", None)),
+    given = [flag for flag, value in (("--v-eps", getattr(args, "v_eps", None)),
                                       ("--method-option", args.method_option), ("--torque-bag", args.torque_bag),
                                       ("--bag-folder", args.bag_folder)) if value]
     if given:
@@ -45,7 +45,7 @@ def run_network(args) -> int:
 
     from ..core.errors import SceneError
     from ..core.integrators import method_class
-    from ..core.network.model import simulate
+    from ..core.network.simulate import simulate
     from ..core.network.scene import load_network
     from ..io.atomic import atomic_output, check_output
 
@@ -71,10 +71,13 @@ def run_network(args) -> int:
             raise SceneError(f"--plot {args.plot}: a PNG file (.png)")
         check_output(args.plot, args.force, "plot")
     start = time.perf_counter()
-    run = simulate(scene, duration=duration, dt=dt, method=method)
+    run = simulate(scene, duration=duration, dt=dt, method=method, model=args.model or "auto")
     wall = time.perf_counter() - start
-    print(f"{scene.name}: belt network, linear tier, {method} at dt = {dt:g} s, {duration:g} s simulated "
+    print(f"{scene.name}: belt network, {run.tier} tier, {run.method} at dt = {dt:g} s, {duration:g} s simulated "
           f"in {wall:.2f} s ({duration / wall:.2f}x real time)")
+    for line in (run.reason, f"accuracy: {run.accuracy}" if run.accuracy else ""):
+        if line:
+            print(line)
     print(f"{'pulley':16s} {'speed end [rad/s]':>18s} {'belt torque end [N m]':>22s} {'hub load max [N]':>17s} "
           f"{'friction use max':>17s}")
     for i, p in enumerate(scene.pulleys):
