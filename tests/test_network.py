@@ -321,7 +321,7 @@ def test_sim_runs_a_network_and_writes_its_csv_by_pulley_and_span(tmp_path, caps
     names = out.read_text().splitlines()[0].split(",")
     table = np.loadtxt(out, delimiter=",", skiprows=1)
     run = simulate(scene, duration=0.02)
-    assert table.shape == (201, len(names))
+    assert table.shape == (21, len(names))
     np.testing.assert_array_equal(table[:, names.index("alternator/speed")], run.speed[:, scene.index("alternator")])
     np.testing.assert_array_equal(table[:, names.index("spans/ac_compressor_crank/tension")], run.tension[:, -1])
     np.testing.assert_array_equal(table[:, names.index("tensioner_arm/angle")], run.arm_angle)

@@ -237,8 +237,13 @@ class NetworkModel:
     @property
     def ratios(self) -> np.ndarray:
         """Speed ratios ``rho_i = r_d / r_i`` [-]: pulley i turns rho_i times the driver with the belt unstretched."""
-        r = np.array([p.radius for p in self.scene.pulleys])
-        return r[self.scene.driver] / r
+        found = self.__dict__.get("_ratios")
+        if found is None:
+            r = np.array([p.radius for p in self.scene.pulleys])
+            found = r[self.scene.driver] / r
+            found.flags.writeable = False
+            self.__dict__["_ratios"] = found
+        return found
 
     @property
     def lag_stretch(self) -> np.ndarray:

@@ -196,18 +196,46 @@ def rigid_outputs(loop: NetworkLoop, times, states) -> NetworkRun:
     accel = states @ A[1] + u @ B[1]
     J, b = np.diag(model.M)[:n], np.diag(model.C)[:n] - np.diag(model.stretch.T @ (model.c[:, None] * model.stretch))[:n]
     load = u - (J * rho) * accel[:, None] - (b * rho) * states[:, 1:2] * rho  # what the belt takes at each pulley
-    T = scene.belt.installed_tension + load @ model.rigid_tension_map().T
+    S = model.__dict__.get("_rigid_map")
+    if S is None:
+        S = model.__dict__["_rigid_map"] = np.ascontiguousarray(model.rigid_tension_map().T)
+    T = scene.belt.installed_tension + load @ S
     full = np.zeros((len(times), 2 * m))
     full[:, :n], full[:, m : m + n] = states[:, :1] * rho, states[:, 1:2] * rho
     return outputs(model, times, full, T)
 
 
-def _run(model, tier, method, dt, steps) -> tuple[NetworkLoop, NetworkRun]:
-    loop = NetworkLoop(model, tier, method, dt)
+def network_loop(model: NetworkModel, tier: str, method: str, dt: float) -> NetworkLoop:
+    """The model's :class:`NetworkLoop` for ``(tier, method, dt)``, built once per model (read-only arrays;
+    :meth:`NetworkLoop.hold` writes into its own copy, so a node builds its own loop)."""
+    loops = model.__dict__.setdefault("_loops", {})
+    key = (tier, method, float(dt))
+    found = loops.get(key)
+    if found is None:
+        if len(loops) >= 8:
+            loops.pop(next(iter(loops)))
+        found = loops[key] = NetworkLoop(model, tier, method, dt)
+    return found
+
+
+def model_of(scene) -> NetworkModel:
+    """The scene's :class:`~.model.NetworkModel`, built once per scene object (scenes are frozen)."""
+    found = scene.__dict__.get("_network_model")
+    if found is None:
+        found = NetworkModel.build(scene)
+        object.__setattr__(scene, "_network_model", found)
+    return found
+
+
+def _run(model, tier, method, dt, steps, tensions_only=False):
+    """The run's :class:`~.model.NetworkRun` (``tensions_only``: its span tensions (N+1, n) [N] only)."""
+    loop = network_loop(model, tier, method, dt)
     times, states = run_loop(loop, steps)
     if tier == "rigid":
-        return loop, rigid_outputs(loop, times, states)
-    return loop, outputs(model, times, model.to_absolute(states), model.run_tensions(states))
+        run = rigid_outputs(loop, times, states)
+        return run.tension if tensions_only else run
+    T = model.run_tensions(states)
+    return T if tensions_only else outputs(model, times, model.to_absolute(states), T)
 
 
 def accuracy(model, tier, method, dt, steps, run) -> str:
@@ -220,11 +248,11 @@ def accuracy(model, tier, method, dt, steps, run) -> str:
         return ""
     T0 = model.scene.belt.installed_tension
     try:
-        _, coarse = _run(model, tier, method, 2.0 * dt, steps // 2)
-        err = float(np.max(np.abs(run.tension[: 2 * (steps // 2) + 1 : 2] - coarse.tension))) / (2**order - 1)
+        coarse = _run(model, tier, method, 2.0 * dt, steps // 2, tensions_only=True)
+        err = float(np.max(np.abs(run.tension[: 2 * (steps // 2) + 1 : 2] - coarse))) / (2**order - 1)
     except UnstableStepError:
-        _, fine = _run(model, tier, method, 0.5 * dt, 2 * steps)
-        err = float(np.max(np.abs(run.tension - fine.tension[::2]))) * 2**order / (2**order - 1)
+        fine = _run(model, tier, method, 0.5 * dt, 2 * steps, tensions_only=True)
+        err = float(np.max(np.abs(run.tension - fine[::2]))) * 2**order / (2**order - 1)
     scale = max(float(np.max(np.abs(run.tension - T0))), 1e-9 * T0)
     verdict = "accurate" if err <= ACCURACY * scale else "INACCURATE"
     text = f"{verdict}: estimated span tension error {err:.3g} N ({err / scale:.2g} of the peak change, step doubling)"
@@ -239,7 +267,9 @@ def choose_tier(model: NetworkModel) -> tuple[str, str]:
     from .model import undamped_frequencies
 
     scene = model.scene
-    lowest = float(undamped_frequencies(model)[0])
+    lowest = model.__dict__.get("_lowest")
+    if lowest is None:
+        lowest = model.__dict__["_lowest"] = float(undamped_frequencies(model)[0])
     top, who = 0.0, None
     speed = max(abs(scene.initial_speed), abs(scene.operating_speed))
     rho = model.ratios
@@ -275,7 +305,7 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
     """
     if model not in TIERS:
         raise SceneError(f"model: must be one of {', '.join(TIERS)} for a belt network, got {model!r}")
-    net = NetworkModel.build(scene) if network is None else network
+    net = model_of(scene) if network is None else network
     duration = scene.duration if duration is None else float(duration)
     dt = scene.dt if dt is None else float(dt)
     steps = int(round(duration / dt))
@@ -286,7 +316,7 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
         return replace(run_slipping(net, duration, dt, method), tier="slipping", reason="slipping: asked for",
                        method=method or "exact")
     tier, reason = choose_tier(net) if model == "auto" else (model, f"{model}: asked for")
-    _, run = _run(net, tier, name, dt, steps)
+    run = _run(net, tier, name, dt, steps)
     onset = run.capstan_onset(scene)
     if model == "auto" and onset is not None:
         why = f"slipping: {onset[0]} reaches the capstan limit at t = {onset[1]:.6g} s (in the {tier} tier's run)"
