@@ -632,3 +632,30 @@ def test_the_network_kernel_compiles_once_and_interpreted_gives_the_same_floats(
             assert done.returncode == 0, done.stderr
             states[jit] = np.load(path)
         assert states["0"].shape[0] == 21 and np.array_equal(states["0"], states["1"])
+
+
+def test_advancing_tick_by_tick_equals_the_whole_run_bit_for_bit():
+    """The node's way (advance a few steps per tick, across the engine's ramp breakpoint at 0.1 s) is the run's way."""
+    from belt_drive_ros.core.network.simulate import NetworkLoop, advance, model_of
+
+    scene = load_network("fead_i4")
+    whole = simulate(scene, duration=0.15, model="flexible", check_accuracy=False)
+    loop = NetworkLoop(model_of(scene), "flexible", scene.method, scene.dt)
+    x = loop.initial()
+    states = [x]
+    for k0 in range(0, 150, 7):
+        k1 = min(k0 + 7, 150)
+        out = np.empty((k1 - k0, x.size))
+        advance(loop, x, out, k0, k1)
+        x = out[-1]
+        states.extend(out)
+    model = model_of(scene)
+    np.testing.assert_array_equal(model.to_absolute(np.array(states)), whole.states)
+    loop.hold(scene.index("power_steering"), 1.5)  # its constant profile's own value: the same run
+    x = loop.initial()
+    out = np.empty((150, x.size))
+    advance(loop, x, out, 0, 150)
+    np.testing.assert_array_equal(model.to_absolute(out), whole.states[1:])
+    loop.hold(scene.index("power_steering"), 4.0)
+    advance(loop, loop.initial(), out, 0, 150)
+    assert not np.array_equal(model.to_absolute(out), whole.states[1:])

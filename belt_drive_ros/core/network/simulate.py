@@ -150,36 +150,55 @@ class NetworkLoop:
 
 
 # ---------------------------------------------------------------------- runs
-def _breakpoints(model: NetworkModel, dt: float, steps: int) -> list[int]:
-    """Grid indices of the profiles' breakpoints inside the run (a run between two is one kernel call)."""
-    found = set()
-    for p in model.scene.pulleys:
-        if p.sign:
-            for b in p.torque.breakpoints():
-                k = round(b / dt)
-                if 0 < k < steps and math.isfinite(b) and abs(k * dt - b) <= 1e-9 * dt:
-                    found.add(k)
-    return sorted(found)
+def _breakpoints(model: NetworkModel, dt: float) -> list[int]:
+    """Grid indices of the profiles' breakpoints that fall on the step grid (a run between two is one kernel call:
+    its stage times clamped to the interval, so a step ending on a jump samples the torque before it)."""
+    found = model.__dict__.get("_breakpoints", {}).get(dt)
+    if found is None:
+        ks = set()
+        for p in model.scene.pulleys:
+            if p.sign:
+                for b in p.torque.breakpoints():
+                    k = round(b / dt) if math.isfinite(b) else -1
+                    if k > 0 and abs(k * dt - b) <= 1e-9 * dt:
+                        ks.add(k)
+        found = model.__dict__.setdefault("_breakpoints", {})[dt] = sorted(ks)
+    return found
 
 
-def run_loop(loop: NetworkLoop, steps: int, x0=None) -> tuple[np.ndarray, np.ndarray]:
-    """``(times, states)`` of ``steps`` steps from ``x0`` (default the scene's start); one kernel call between breakpoints."""
+def advance(loop: NetworkLoop, x, out, k0: int, k1: int) -> None:
+    """Steps ``k0 .. k1-1`` (times ``k dt``) from state ``x`` at ``k0 dt``; the states after each into ``out[0 .. k1-k0-1]``.
+
+    The one way time advances in a network (a whole run, the node's ticks): one kernel call per interval
+    between breakpoints. Raises :class:`SimulationDivergedError` / :class:`IntegratorError`.
+    """
     dt, scene = loop.dt, loop.model.scene
-    times = np.arange(steps + 1) * dt
-    x = loop.initial() if x0 is None else np.array(x0, dtype=float)
-    out = np.empty((steps + 1, x.size))
-    out[0] = x
-    cuts = [0, *_breakpoints(loop.model, dt, steps), steps]
+    bps = _breakpoints(loop.model, dt)
+    cuts = [k0, *[k for k in bps if k0 < k < k1], k1]
+    start = np.array(x, dtype=float)
     for a, e in zip(cuts[:-1], cuts[1:]):
-        lo, hi = times[a] if a else -math.inf, times[e] if e < steps else math.inf
-        done, status, t = loop(times[a : e + 1], out[a], out[a + 1 : e + 1], lo, hi)
+        times = np.arange(a, e + 1) * dt
+        before = [k for k in bps if k <= a]
+        after = [k for k in bps if k >= e]
+        lo = before[-1] * dt if before else -math.inf
+        hi = after[0] * dt if after else math.inf
+        done, status, t = loop(times, start, out[a - k0 : e - k0], lo, hi)
         if status == DIVERGED:
             raise SimulationDivergedError(f"{scene.name}: the state became non-finite or too fast at t = {t:.6g} s "
                                           f"({loop.tier} tier, {loop.method} at dt = {dt:g} s)")
         if status == NOT_CONVERGED:
             raise IntegratorError(f"{loop.method}: fixed-point iteration for the state-dependent torque did not "
                                   f"converge at t={t:.6g} s; reduce dt (now {dt:g} s)")
-    return times, out
+        start = out[e - k0 - 1].copy()
+
+
+def run_loop(loop: NetworkLoop, steps: int, x0=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(times, states)`` of ``steps`` steps from ``x0`` (default the scene's start)."""
+    x = loop.initial() if x0 is None else np.array(x0, dtype=float)
+    out = np.empty((steps + 1, x.size))
+    out[0] = x
+    advance(loop, x, out[1:], 0, steps)
+    return np.arange(steps + 1) * loop.dt, out
 
 
 def rigid_outputs(loop: NetworkLoop, times, states) -> NetworkRun:
