@@ -4,7 +4,7 @@ One loop for both linear tiers of a network (flexible: every pulley and the
 tensioner arm; rigid: one DOF through the speed ratios). It is the linear
 family's loop (:func:`belt_drive_ros.core.kernel.linear_steps`) with P torque
 profiles instead of two: a fixed-step method's
-:class:`~belt_drive_ros.core.stage_scheme.StageScheme` as zero-padded matrices,
+:class:`~belt_drive_ros.core.stage_scheme.StageScheme` as its matrices,
 the stage torques from the profiles' data through the one dispatcher
 (:func:`belt_drive_ros.core.kernel.profile_torque`), the profiles stacked as
 data (``pk`` (P, R), ``pp`` (P, R, WIDTH), ``px``/``py`` (P, K): profile p's
@@ -27,12 +27,35 @@ _INLINE = dict(cache=True, nogil=True, inline="always")
 
 
 @njit(**_INLINE)
-def _row(ptr, idx, val, row, v, offset):
-    """Row ``row`` of a packed sparse matrix times ``v[offset:]``: its nonzero products summed from the left."""
-    total = 0.0
-    for e in range(ptr[row], ptr[row + 1]):
-        total = total + val[e] * v[offset + idx[e]]
-    return total
+def _matvec(mats, g, shape, v, voff, out, ooff):
+    """``out[ooff + r] = sum_j M_g[r, j] v[voff + j]``, each row summed from the left (zero products included:
+    adding an exact zero changes no sum).
+
+    ``M_g`` is stored by rows at ``mats[shape[g, 0]:]`` with ``shape[g, 1]`` rows and ``shape[g, 2]``
+    columns. Four rows are summed together, each in its own accumulator: a single row's sum is a chain of
+    dependent additions, four chains overlap.
+    """
+    at, rows, cols = shape[g, 0], shape[g, 1], shape[g, 2]
+    r = 0
+    while r + 4 <= rows:
+        p0 = at + r * cols
+        p1, p2, p3 = p0 + cols, p0 + 2 * cols, p0 + 3 * cols
+        a0 = a1 = a2 = a3 = 0.0
+        for j in range(cols):
+            vj = v[voff + j]
+            a0 = a0 + mats[p0 + j] * vj
+            a1 = a1 + mats[p1 + j] * vj
+            a2 = a2 + mats[p2 + j] * vj
+            a3 = a3 + mats[p3 + j] * vj
+        out[ooff + r], out[ooff + r + 1], out[ooff + r + 2], out[ooff + r + 3] = a0, a1, a2, a3
+        r += 4
+    while r < rows:
+        p0 = at + r * cols
+        a0 = 0.0
+        for j in range(cols):
+            a0 = a0 + mats[p0 + j] * v[voff + j]
+        out[ooff + r] = a0
+        r += 1
 
 
 @njit(**_INLINE)
@@ -45,7 +68,7 @@ def _torques(buf, base, coords, time, lo, hi, uses_angle, start, pk, pp, px, py)
 
 
 @njit(cache=True, nogil=True)
-def network_steps(times, x, out, lo, hi, limit, ptr, idx, val, base, kinds, offsets, final_base, tol, max_iter,
+def network_steps(times, x, out, lo, hi, limit, mats, shape, kinds, offsets, final_base, tol, max_iter,
                   uses_angle, start, pk, pp, px, py):  # fmt: skip
     """Steps ``times[k] -> times[k+1]`` of one fixed-step method on ``x' = A x + B u(t, x)`` from ``x``; states into ``out[k]``.
 
@@ -54,11 +77,9 @@ def network_steps(times, x, out, lo, hi, limit, ptr, idx, val, base, kinds, offs
     times : (N+1,) step ends [s]; x : (n,) state at ``times[0]``; out : (N, n).
     lo, hi : stage times are clamped into [lo, hi] [s] (a run between two torque breakpoints).
     limit : speed [rad/s] past which the state counts as diverged (the second half of x holds speeds).
-    ptr, idx, val, base : the method's matrices packed as sparse rows (only their nonzero entries, in column
-        order: a product sums the same nonzero terms from the left as the dense one): matrix g's row r is
-        entries ``ptr[base[g] + r] .. ptr[base[g] + r + 1]`` of ``idx`` (column) and ``val``. Matrix 0 is W
-        (2P, n): profile p's angle and speed are rows 2p and 2p + 1 of ``W x``; matrix 1 + i is stage i's map,
-        matrix 1 + s the final map F (n, n + P s).
+    mats, shape : the method's matrices, each stored by rows in ``mats`` (:func:`_matvec`); ``shape[g]`` =
+        (start, rows, columns) of matrix g. Matrix 0 is W (2P, n): profile p's angle and speed are rows 2p and
+        2p + 1 of ``W x``; matrix 1 + i is stage i's map, matrix 1 + s the final map F (n, n + P s).
     kinds : (s,) per stage: 0 the stage state is x; 1 its map holds ``W @ stage map``; 2 the stage map itself
         (the stage whose state starts the final map), then W.
     offsets : (s,) ``c_i h`` [s]; final_base : -1 or the stage whose state starts the final map.
@@ -75,7 +96,7 @@ def network_steps(times, x, out, lo, hi, limit, ptr, idx, val, base, kinds, offs
     half = n // 2
     cols = n + m * s
     rows = 2 * m
-    fin = base[1 + s]
+    fin = 1 + s
     work = np.zeros(cols + 2 * n + rows + s * n)
     v = work[:cols]
     xs = work[cols : cols + n]
@@ -93,25 +114,19 @@ def network_steps(times, x, out, lo, hi, limit, ptr, idx, val, base, kinds, offs
         for i in range(n_explicit):
             time = t if offsets[i] == 0.0 else t + offsets[i]
             width = n + m * i
-            g = base[1 + i]
             if kinds[i] == 0:
-                for q in range(rows):
-                    coords[q] = _row(ptr, idx, val, q, v, 0)
+                _matvec(mats, 0, shape, v, 0, coords, 0)
             elif kinds[i] == 1:
-                for q in range(rows):
-                    coords[q] = _row(ptr, idx, val, g + q, v, 0)
+                _matvec(mats, 1 + i, shape, v, 0, coords, 0)
             else:
-                for r in range(n):
-                    full[i * n + r] = _row(ptr, idx, val, g + r, v, 0)
-                for q in range(rows):
-                    coords[q] = _row(ptr, idx, val, q, full, i * n)
+                _matvec(mats, 1 + i, shape, v, 0, full, i * n)
+                _matvec(mats, 0, shape, full, i * n, coords, 0)
             _torques(v, width, coords, time, lo, hi, uses_angle, start, pk, pp, px, py)
         if final_base >= 0:
             for r in range(n):
                 v[r] = full[final_base * n + r]
         if max_iter == 0:
-            for r in range(n):
-                state[r] = _row(ptr, idx, val, fin + r, v, 0)
+            _matvec(mats, fin, shape, v, 0, state, 0)
         else:  # implicit last stage (trapezoidal): fixed point on its torques from the previous stage's
             known = n + m * (s - 1)
             for q in range(m):
@@ -120,10 +135,8 @@ def network_steps(times, x, out, lo, hi, limit, ptr, idx, val, base, kinds, offs
             time = t if offsets[s - 1] == 0.0 else t + offsets[s - 1]
             tc = lo if time < lo else hi if time > hi else time
             for _ in range(max_iter):
-                for r in range(n):
-                    state[r] = _row(ptr, idx, val, fin + r, v, 0)
-                for q in range(rows):
-                    coords[q] = _row(ptr, idx, val, q, state, 0)
+                _matvec(mats, fin, shape, v, 0, state, 0)
+                _matvec(mats, 0, shape, state, 0, coords, 0)
                 same = True
                 for p in range(m):
                     old = v[known + p]
@@ -137,8 +150,7 @@ def network_steps(times, x, out, lo, hi, limit, ptr, idx, val, base, kinds, offs
                     break
             if not converged:
                 return k, NOT_CONVERGED, t
-            for r in range(n):
-                state[r] = _row(ptr, idx, val, fin + r, v, 0)
+            _matvec(mats, fin, shape, v, 0, state, 0)
         healthy = True
         for r in range(n):
             xs[r] = state[r]

@@ -54,19 +54,16 @@ def stack_profiles(profiles):
     return start, stacked.kinds, stacked.params, stacked.tx, stacked.ty
 
 
-def pack(mats) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(ptr, idx, val, base)``: the matrices' nonzero entries row by row, in column order (:func:`.kernel.network_steps`)."""
-    ptr, idx, val, base = [0], [], [], []
+def pack(mats) -> tuple[np.ndarray, np.ndarray]:
+    """``(mats, shape)``: the matrices end to end, each by rows, and per matrix
+    ``(start, rows, columns)`` (:func:`.kernel.network_steps`)."""
+    flat, shape, at = [], [], 0
     for M in mats:
-        base.append(len(ptr) - 1)
-        for row in np.asarray(M, dtype=float):
-            nz = np.flatnonzero(row)
-            idx.extend(nz.tolist())
-            val.extend(row[nz].tolist())
-            ptr.append(len(idx))
-    base.append(len(ptr) - 1)
-    return (np.array(ptr, dtype=np.int64), np.array(idx + [0], dtype=np.int64), np.array(val + [0.0]),
-            np.array(base, dtype=np.int64))
+        M = np.asarray(M, dtype=float)
+        flat.append(np.ravel(M))
+        shape.append((at, M.shape[0], M.shape[1]))
+        at += M.size
+    return np.concatenate(flat), np.array(shape, dtype=np.int64).reshape(-1, 3)
 
 
 class NetworkLoop:
@@ -109,7 +106,7 @@ class NetworkLoop:
         kinds, mats = np.zeros(s, dtype=np.int64), [W]
         for i, M in enumerate(scheme.stages):
             if M is None or (scheme.implicit and i == s - 1):
-                mats.append(np.zeros((0, cols)))
+                mats.append(np.zeros((0, 0)))
                 continue
             if scheme.final_base == i:
                 kinds[i] = 2
