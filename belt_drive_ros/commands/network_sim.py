@@ -127,10 +127,11 @@ def _write_mcap(args, scene, run, method: str, dt: float) -> None:
     if abs(stride * dt * OUTPUT_RATE - 1.0) > 1e-9:
         stride = 1
     rows = range(0, len(run.time), stride)
-    stepper = NetworkStepper(scene, method, dt)
+    stepper = NetworkStepper(scene, method, dt, tier=run.tier if run.tier in ("flexible", "rigid") else None)
+    states = stepper.run(len(run.time) - 1)  # the loop's own states (the run's, bit for bit)
     start = _time.time_ns() if args.start_time is None else int(args.start_time)
     with atomic_output(args.out, args.force, what="output") as fh:
-        counts = write_network_mcap(stepper, scene_text(args.scene), run.states[rows.start::stride], list(rows), fh,
+        counts = write_network_mcap(stepper, scene_text(args.scene), states[rows.start::stride], list(rows), fh,
                                     force=True, start_time_ns=start)
     print(f"wrote {args.out} ({sum(counts.values())} messages on {len(counts)} topics)")
 
@@ -216,15 +217,16 @@ def demo_network(name: str, mcap_path) -> None:
     """``make demo``'s network part: the scene's run, what each pulley did, and its MCAP."""
     import argparse
 
-    from ..core.network.model import simulate
     from ..core.network.scene import load_network
+    from ..core.network.simulate import simulate
 
     scene = load_network(name)
     start = time.perf_counter()
     run = simulate(scene)
     wall = time.perf_counter() - start
     print(f"  {scene.description}")
-    print(f"  {scene.duration:g} s simulated ({scene.method} at dt = {scene.dt:g} s, linear tier) in {wall:.2f} s")
+    print(f"  {scene.duration:g} s simulated ({run.method} at dt = {scene.dt:g} s, {run.tier} tier) in {wall:.2f} s")
+    print(f"  {run.reason}; {run.accuracy}")
     for line in pulley_statements(scene, run):
         print(line)
     args = argparse.Namespace(scene=name, force=True, out=mcap_path, start_time=None)

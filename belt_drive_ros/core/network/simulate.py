@@ -198,16 +198,18 @@ def run_loop(loop: NetworkLoop, steps: int, x0=None) -> tuple[np.ndarray, np.nda
     return np.arange(steps + 1) * loop.dt, out
 
 
-def rigid_outputs(loop: NetworkLoop, times, states) -> NetworkRun:
+def rigid_outputs(loop: NetworkLoop, times, states, u=None) -> NetworkRun:
     """Outputs of a rigid run: every pulley at its speed ratio, the span tensions quasi-static (the torques each
-    pulley's own equation needs, carried by the belt's static stretch), the arm at its installed angle."""
+    pulley's own equation needs, carried by the belt's static stretch), the arm at its installed angle.
+    ``u`` (N, n): the signed pulley torques applied [N m] (default: the profiles')."""
     model, scene = loop.model, loop.model.scene
     rho, n, m = model.ratios, len(scene.pulleys), model.M.shape[0]
-    u = np.zeros((len(times), n))
-    for i in loop.active:
-        p = scene.pulleys[i]
-        u[:, i] = p.sign * p.torque.torque(times, rho[i] * states[:, 0] if p.torque.uses_angle else 0.0 * times,
-                                           rho[i] * states[:, 1])
+    if u is None:
+        u = np.zeros((len(times), n))
+        for i in loop.active:
+            p = scene.pulleys[i]
+            u[:, i] = p.sign * p.torque.torque(times, rho[i] * states[:, 0] if p.torque.uses_angle else 0.0 * times,
+                                               rho[i] * states[:, 1])
     A, B = model.rigid_matrices()
     accel = states @ A[1] + u @ B[1]
     J, b = np.diag(model.M)[:n], np.diag(model.C)[:n] - np.diag(model.stretch.T @ (model.c[:, None] * model.stretch))[:n]
