@@ -396,29 +396,17 @@ class NetworkRun:
         return scene.pulleys[i].name, float(self.time[k]), float(self.friction_use[k, i])
 
 
-def check_step(cls, name: str, A, dt: float) -> None:
-    """:class:`UnstableStepError` if the fixed-step method ``cls`` grows a mode of ``A`` at step ``dt`` [s].
+def check_step(name: str, A, B, dt: float) -> None:
+    """:class:`UnstableStepError` if the fixed-step method ``name`` grows a mode of ``x' = A x`` at step ``dt`` [s]
+    (the core's stability guard, :func:`~belt_drive_ros.core.stability.check_step`), naming a stable step."""
+    from ..stability import check_step as guard
 
-    The growth per step of each eigenvalue comes from the method's own one-step map
-    (``mode_growths``); a mode that decays (or is neutral) must not grow by more than 1e-9 per step.
-    Adaptive methods (no ``mode_growths``) are not checked.
-    """
-    growths = getattr(cls, "mode_growths", None)
-    if growths is None:
-        return
-    lam = np.linalg.eigvals(A)
-    lam = lam[lam.imag >= 0.0]
-    g = growths(lam, dt)
-    bad = np.flatnonzero(g > np.maximum(1.0, np.exp(lam.real * dt)) + 1e-9)
-    if bad.size:
-        worst = bad[np.argmax(np.abs(lam[bad]))]
-        fastest = float(np.max(np.abs(lam)))
-        stable = dt
-        while stable > 1e-9 and np.any(growths(lam, stable) > np.maximum(1.0, np.exp(lam.real * stable)) + 1e-9):
-            stable /= 2.0
-        raise UnstableStepError(f"method {name} at dt = {dt:g} s grows the {abs(lam[worst]) / (2 * math.pi):.4g} Hz mode "
-                                f"(h omega = {dt * abs(lam[worst]):.3g}; fastest mode {fastest / (2 * math.pi):.4g} Hz): "
-                                f"dt <= {stable:.3g} s is stable, or use exact, etd2 or etd4")
+    report = guard(A, B, name, dt)
+    if not report.stable:
+        stable = report.max_stable_dt
+        hint = f"dt <= {stable:.3g} s is stable, or " if stable else ""
+        raise UnstableStepError(f"method {name} at dt = {dt:g} s grows the {report.omega_n / (2 * math.pi):.4g} Hz mode "
+                                f"(h omega = {report.h_omega_n:.3g}): {hint}use exact, etd2 or etd4")
 
 
 def friction_use(scene, tensions, belt_speed) -> np.ndarray:

@@ -82,10 +82,10 @@ class NetworkLoop:
         cls = method_class(method)
         if not cls.fixed_step:
             raise SceneError(f"method {method}: a belt network steps with a fixed-step method")
-        check_step(cls, method, A, self.dt)
         self.active = [i for i, p in enumerate(scene.pulleys) if p.sign]
         signs = np.array([scene.pulleys[i].sign for i in self.active])
         B = B_all[:, self.active] * signs
+        check_step(method, A, B, self.dt)
         scheme = make_integrator(method, A, B, self.dt).scheme
         n, P, s = A.shape[0], len(self.active), len(scheme.nodes)
         # W: per active pulley its angle and speed from the state
