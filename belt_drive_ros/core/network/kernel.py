@@ -31,18 +31,24 @@ def _matvec(mats, g, shape, v, voff, out, ooff):
     """``out[ooff + r] = sum_j M_g[r, j] v[voff + j]``, each row summed from the left (zero products included:
     adding an exact zero changes no sum).
 
-    ``M_g`` is stored by rows at ``mats[shape[g, 0]:]`` with ``shape[g, 1]`` rows and ``shape[g, 2]``
-    columns. Four rows are summed together, each in its own accumulator: a single row's sum is a chain of
+    ``shape[g]`` = (start, rows, stored columns, identity): ``M_g`` is stored by rows at ``mats[start:]``;
+    with ``identity`` = 1 its leading square block is the identity and is not stored (a final map that
+    starts from a stage's state: row r's sum up to that block is exactly ``v[r]``, so it starts there).
+    Four rows are summed together, each in its own accumulator: a single row's sum is a chain of
     dependent additions, four chains overlap.
     """
-    at, rows, cols = shape[g, 0], shape[g, 1], shape[g, 2]
+    at, rows, cols, eye = shape[g, 0], shape[g, 1], shape[g, 2], shape[g, 3]
+    skip = rows if eye else 0
     r = 0
     while r + 4 <= rows:
         p0 = at + r * cols
         p1, p2, p3 = p0 + cols, p0 + 2 * cols, p0 + 3 * cols
-        a0 = a1 = a2 = a3 = 0.0
+        if eye:
+            a0, a1, a2, a3 = v[voff + r], v[voff + r + 1], v[voff + r + 2], v[voff + r + 3]
+        else:
+            a0 = a1 = a2 = a3 = 0.0
         for j in range(cols):
-            vj = v[voff + j]
+            vj = v[voff + skip + j]
             a0 = a0 + mats[p0 + j] * vj
             a1 = a1 + mats[p1 + j] * vj
             a2 = a2 + mats[p2 + j] * vj
@@ -51,9 +57,9 @@ def _matvec(mats, g, shape, v, voff, out, ooff):
         r += 4
     while r < rows:
         p0 = at + r * cols
-        a0 = 0.0
+        a0 = v[voff + r] if eye else 0.0
         for j in range(cols):
-            a0 = a0 + mats[p0 + j] * v[voff + j]
+            a0 = a0 + mats[p0 + j] * v[voff + skip + j]
         out[ooff + r] = a0
         r += 1
 
@@ -78,7 +84,7 @@ def network_steps(times, x, out, lo, hi, limit, mats, shape, kinds, offsets, fin
     lo, hi : stage times are clamped into [lo, hi] [s] (a run between two torque breakpoints).
     limit : speed [rad/s] past which the state counts as diverged (the second half of x holds speeds).
     mats, shape : the method's matrices, each stored by rows in ``mats`` (:func:`_matvec`); ``shape[g]`` =
-        (start, rows, columns) of matrix g. Matrix 0 is W (2P, n): profile p's angle and speed are rows 2p and
+        (start, rows, stored columns, identity) of matrix g. Matrix 0 is W (2P, n): profile p's angle and speed are rows 2p and
         2p + 1 of ``W x``; matrix 1 + i is stage i's map, matrix 1 + s the final map F (n, n + P s).
     kinds : (s,) per stage: 0 the stage state is x; 1 its map holds ``W @ stage map``; 2 the stage map itself
         (the stage whose state starts the final map), then W.

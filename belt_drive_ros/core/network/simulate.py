@@ -55,15 +55,20 @@ def stack_profiles(profiles):
 
 
 def pack(mats) -> tuple[np.ndarray, np.ndarray]:
-    """``(mats, shape)``: the matrices end to end, each by rows, and per matrix
-    ``(start, rows, columns)`` (:func:`.kernel.network_steps`)."""
+    """``(mats, shape)``: the matrices end to end, each by rows, and per matrix ``(start, rows, stored columns,
+    identity)``; a matrix whose leading square block is exactly the identity is stored without it
+    (:func:`.kernel.network_steps`)."""
     flat, shape, at = [], [], 0
     for M in mats:
         M = np.asarray(M, dtype=float)
+        rows = M.shape[0]
+        eye = int(rows > 0 and M.shape[1] >= rows and np.array_equal(M[:, :rows], np.eye(rows)))
+        if eye:
+            M = M[:, rows:]
         flat.append(np.ravel(M))
-        shape.append((at, M.shape[0], M.shape[1]))
+        shape.append((at, rows, M.shape[1], eye))
         at += M.size
-    return np.concatenate(flat), np.array(shape, dtype=np.int64).reshape(-1, 3)
+    return np.concatenate(flat), np.array(shape, dtype=np.int64).reshape(-1, 4)
 
 
 class NetworkLoop:
