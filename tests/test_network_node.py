@@ -197,12 +197,13 @@ def test_runup_chart_takes_the_crank_through_the_engine_speed_range(tmp_path, ca
 
     from belt_drive_ros.cli import main
     from belt_drive_ros.commands.modes import runup_scene
-    from belt_drive_ros.core.network.model import NetworkModel, simulate
+    from belt_drive_ros.core.network.model import NetworkModel
+    from belt_drive_ros.core.network.simulate import simulate
     from belt_drive_ros.core.network.scene import load_network
 
     scene = load_network(SCENE)
     ramp = runup_scene(SCENE, scene, NetworkModel.build(scene), 1.0)
-    run = simulate(ramp)
+    run = simulate(ramp, model="flexible")
     lo, hi = scene.engine.speed_range
     crank = run.speed[:, ramp.driver]
     assert crank[0] == lo and abs(crank[-1] - hi) < 0.15 * (hi - lo)

@@ -30,6 +30,8 @@ studies:
                  --only CATEGORY... for some of them)
   kernel         the compiled time loop: ns per step (kernel vs plain CPython vs C -O2), methods vs exact,
                  whole warm simulate() x real time, start-up CPU of 'belt-drive sim paper --quiet' (not in 'all')
+  network        belt networks: fead_i4 whole warm simulate() x real time beside the Python step loop it
+                 replaced, ns per step per method, the paper's drive as a network vs the paper model (not in 'all')
   campaign       10,000-variant Monte Carlo of paper on Dask vs a loop of single runs, 1 vs 2 workers,
                  a fleet of 100 recordings replayed and compared (needs the campaign extra; not in 'all')
   network_slip   a belt network's slipping tier: x real time on fead_i4 sticking and slipping, the paper's
@@ -60,7 +62,7 @@ def register(sub) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "kernel", "network_slip", "all"),
+    p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "kernel", "network", "network_slip", "all"),
                    help="which study to run")
     p.add_argument("--out", type=Path, default=Path("docs/bench"), help="output folder (default: docs/bench)")
     p.add_argument("--quick", action="store_true", help="small sweeps and short runs (seconds; for tests)")
@@ -126,6 +128,11 @@ def run(args) -> int:
 
         result = network_slip.run(out, quick=args.quick, quiet=args.quiet)
         print(f"bench network_slip: {result['csv']}")
+    if args.study == "network":
+        from ..benchmarks import network
+
+        result = network.run(out, quick=args.quick, quiet=args.quiet)
+        print(f"bench network: {result['csv']}")
         return 0
     if args.study == "campaign":
         from ..benchmarks import campaign

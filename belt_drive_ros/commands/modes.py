@@ -97,12 +97,12 @@ def runup(args, scene, model) -> None:
     """``--runup``: the run-up's span tensions and arm angle against crank speed (summary printed, chart written)."""
     import numpy as np
 
-    from ..core.network.model import simulate
+    from ..core.network.simulate import simulate
     from ..io.atomic import atomic_output
     from ..io.network_plot import plot_runup
 
     ramp = runup_scene(args.scene, scene, model, args.runup_time)
-    run = simulate(ramp)
+    run = simulate(ramp, model="flexible")
     rpm = run.speed[:, ramp.driver] * 30.0 / math.pi
     print(f"# run-up {rpm[0]:.0f} -> {rpm[-1]:.0f} rpm in {ramp.duration:g} s (crank mean torque "
           f"{ramp.pulleys[ramp.driver].torque.mean_torque:.1f} N m, {scene.engine.cylinders} cylinders)")

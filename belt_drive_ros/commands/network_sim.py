@@ -13,7 +13,7 @@ MAX_SAMPLES = 5_000_000
 def _refuse_unsupported(args) -> None:
     from ..core.errors import SceneError
 
-    given = [flag for flag, value in (("--model", args.model), ("--v-eps", getattr(args, "v_eps", None)),
+    given = [flag for flag, value in (("--v-eps", getattr(args, "v_eps", None)),
                                       ("--method-option", args.method_option), ("--torque-bag", args.torque_bag),
                                       ("--bag-folder", args.bag_folder)) if value]
     if given:
@@ -45,7 +45,7 @@ def run_network(args) -> int:
 
     from ..core.errors import SceneError
     from ..core.integrators import method_class
-    from ..core.network.model import simulate
+    from ..core.network.simulate import simulate
     from ..core.network.scene import load_network
     from ..io.atomic import atomic_output, check_output
 
@@ -71,10 +71,13 @@ def run_network(args) -> int:
             raise SceneError(f"--plot {args.plot}: a PNG file (.png)")
         check_output(args.plot, args.force, "plot")
     start = time.perf_counter()
-    run = simulate(scene, duration=duration, dt=dt, method=method)
+    run = simulate(scene, duration=duration, dt=dt, method=method, model=args.model or "auto")
     wall = time.perf_counter() - start
-    print(f"{scene.name}: belt network, linear tier, {method} at dt = {dt:g} s, {duration:g} s simulated "
+    print(f"{scene.name}: belt network, {run.tier} tier, {run.method} at dt = {dt:g} s, {duration:g} s simulated "
           f"in {wall:.2f} s ({duration / wall:.2f}x real time)")
+    for line in (run.reason, f"accuracy: {run.accuracy}" if run.accuracy else ""):
+        if line:
+            print(line)
     print(f"{'pulley':16s} {'speed end [rad/s]':>18s} {'belt torque end [N m]':>22s} {'hub load max [N]':>17s} "
           f"{'friction use max':>17s}")
     for i, p in enumerate(scene.pulleys):
@@ -124,10 +127,11 @@ def _write_mcap(args, scene, run, method: str, dt: float) -> None:
     if abs(stride * dt * OUTPUT_RATE - 1.0) > 1e-9:
         stride = 1
     rows = range(0, len(run.time), stride)
-    stepper = NetworkStepper(scene, method, dt)
+    stepper = NetworkStepper(scene, method, dt, tier=run.tier if run.tier in ("flexible", "rigid") else None)
+    states = stepper.run(len(run.time) - 1)  # the loop's own states (the run's, bit for bit)
     start = _time.time_ns() if args.start_time is None else int(args.start_time)
     with atomic_output(args.out, args.force, what="output") as fh:
-        counts = write_network_mcap(stepper, scene_text(args.scene), run.states[rows.start::stride], list(rows), fh,
+        counts = write_network_mcap(stepper, scene_text(args.scene), states[rows.start::stride], list(rows), fh,
                                     force=True, start_time_ns=start)
     print(f"wrote {args.out} ({sum(counts.values())} messages on {len(counts)} topics)")
 
@@ -213,15 +217,16 @@ def demo_network(name: str, mcap_path) -> None:
     """``make demo``'s network part: the scene's run, what each pulley did, and its MCAP."""
     import argparse
 
-    from ..core.network.model import simulate
     from ..core.network.scene import load_network
+    from ..core.network.simulate import simulate
 
     scene = load_network(name)
     start = time.perf_counter()
     run = simulate(scene)
     wall = time.perf_counter() - start
     print(f"  {scene.description}")
-    print(f"  {scene.duration:g} s simulated ({scene.method} at dt = {scene.dt:g} s, linear tier) in {wall:.2f} s")
+    print(f"  {scene.duration:g} s simulated ({run.method} at dt = {scene.dt:g} s, {run.tier} tier) in {wall:.2f} s")
+    print(f"  {run.reason}; {run.accuracy}")
     for line in pulley_statements(scene, run):
         print(line)
     args = argparse.Namespace(scene=name, force=True, out=mcap_path, start_time=None)

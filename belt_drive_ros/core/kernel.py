@@ -162,7 +162,13 @@ def torque(kind, params, row, tx, ty, t, angle, speed):
 @njit(**_INLINE)
 def profile_torque(kinds, params, tx, ty, t, angle, speed):
     """Torque [N m] of the profile whose data are ``kinds, params, tx, ty`` (row 0; schedules resolved)."""
-    row = 0
+    return profile_torque_at(kinds, params, tx, ty, 0, t, angle, speed)
+
+
+@njit(**_INLINE)
+def profile_torque_at(kinds, params, tx, ty, row, t, angle, speed):
+    """Torque [N m] of the profile whose first row is ``row`` (profiles stacked end to end:
+    :func:`~belt_drive_ros.core.profile_data.stack`; schedules resolved)."""
     while kinds[row] == 12:  # SCHEDULE: the active row inside a period [start, end), else the inactive one
         offset, n = int(params[row, 0]), int(params[row, 1])
         inside = False

@@ -144,6 +144,10 @@ def warm() -> None:
     scheme = StageScheme((0.0,), (None,), np.hstack([np.eye(n), np.zeros((n, 2))]))
     loop = KernelLoop(scheme, 1e-3, np.vstack([np.eye(n), np.eye(n)]), (False, False), data, data)
     loop(np.array([0.0, 1e-3]), np.zeros(n), np.empty((1, n)))
+    from .network.simulate import warm as warm_network
+
+    warm_network()
+
     from .network.slip import warm as warm_network_slip  # the belt networks' slipping tier
 
     warm_network_slip()

@@ -53,6 +53,9 @@ ENGINE, MOTOR_LINE, MOTOR_CURVE, POLYNOMIAL, COMPRESSOR, SCHEDULE = 7, 8, 9, 10,
 OK, DIVERGED, GUARDED, NOT_CONVERGED = 0, 1, 2, 3
 #: numbers per row of ``params``
 WIDTH = 12
+#: per kind, the column of ``params`` holding a table's offset into ``tx``/``ty``, and the columns holding row indices
+TABLE_COLUMN = {TABLE_LINEAR: 0, TABLE_HELD: 0, TABLE_HELD_NS: 0, MOTOR_CURVE: 0, ENGINE: 9, COMPRESSOR: 5, SCHEDULE: 0}
+ROW_COLUMNS = {SCHEDULE: (2, 3)}
 #: code -> name (for messages and docs)
 KIND_NAMES = {
     CONSTANT: "constant", STEP: "step", RAMP: "ramp", SINE: "sine", TABLE_LINEAR: "table (linear)",
@@ -114,3 +117,22 @@ class ProfileBuilder:
         tx = np.array(self.tx if self.tx else [0.0], dtype=np.float64)
         ty = np.array(self.ty if self.ty else [0.0], dtype=np.float64)
         return ProfileData(np.array(self.kinds, dtype=np.int64), np.array(self.rows, dtype=np.float64).reshape(-1, WIDTH), tx, ty)
+
+
+def stack(datas) -> tuple[ProfileData, np.ndarray]:
+    """Several profiles as one program: rows and tables end to end, each row's table offset and row indices
+    moved by its profile's start. Returns the stacked data and each profile's first row (P,) int64
+    (:func:`~belt_drive_ros.core.kernel.profile_torque_at` evaluates profile p from its first row)."""
+    builder, starts = ProfileBuilder(), []
+    for d in datas:
+        rows, tables = len(builder.kinds), len(builder.tx)
+        starts.append(rows)
+        for kind, values in zip(d.kinds.tolist(), d.params.tolist()):
+            if kind in TABLE_COLUMN:
+                values[TABLE_COLUMN[kind]] += tables
+            for c in ROW_COLUMNS.get(kind, ()):
+                values[c] += rows
+            builder.row(kind, *values)
+        builder.tx.extend(d.tx.tolist())
+        builder.ty.extend(d.ty.tolist())
+    return builder.build(), np.array(starts, dtype=np.int64)

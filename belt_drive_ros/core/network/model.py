@@ -30,8 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import SceneError, SimulationDivergedError, UnstableStepError
-from ..integrators import method_class
+from ..errors import UnstableStepError
 
 
 # ---------------------------------------------------------------------- tensioner arm geometry
@@ -74,6 +73,13 @@ def arm_preload(geo, pulleys, tensioner, T0: float) -> float:
     """Spring torque [N m] (in +theta_a) that holds the arm at its installed angle against a uniform tension T0 [N]:
     ``P = T_0 sum_j g_j`` (the belt's pull on the arm is ``-sum_j T_j g_j``)."""
     return float(T0 * np.sum(arm_terms(geo, pulleys, tensioner)[0]))
+
+
+def _times_rows(X, rows) -> np.ndarray:
+    """``X @ rows.T`` for samples X (N, m) or one sample (m,) with both operands C-contiguous (numpy's product of a
+    transposed operand takes a path 100x slower on a run's samples)."""
+    X = np.ascontiguousarray(X, dtype=float)
+    return X @ np.ascontiguousarray(rows.T)
 
 
 # ---------------------------------------------------------------------- the linear model
@@ -136,8 +142,8 @@ class NetworkModel:
 
     def tensions(self, q, qd) -> np.ndarray:
         """Span tensions [N] ``T_0 + k_j delta_j + c_j delta_j'`` for states ``q, qd`` ((m,) or (N, m))."""
-        q, qd = np.asarray(q, dtype=float), np.asarray(qd, dtype=float)
-        return self.scene.belt.installed_tension + self.k * (q @ self.stretch.T) + self.c * (qd @ self.stretch.T)
+        return (self.scene.belt.installed_tension + self.k * _times_rows(q, self.stretch)
+                + self.c * _times_rows(qd, self.stretch))
 
     def speeds_at(self, driver_speed: float) -> np.ndarray:
         """Pulley speeds [rad/s] of the belt running without stretch: ``omega_i = omega_d r_d / r_i``."""
@@ -213,7 +219,8 @@ class NetworkModel:
 
     # ------------------------------------------------------------------ first-order form
     def state_space(self, K=None, C=None):
-        """``(A, B)`` of ``x = [q, q']``, ``x' = A x + B u`` with ``u`` the n pulley torques [N m]."""
+        """``(A, B)`` of ``x = [q, q']`` in the pulleys' own angles, ``x' = A x + B u`` with ``u`` the n pulley
+        torques [N m] (modal analysis; runs use :meth:`flexible_matrices`)."""
         K = self.stiffness() if K is None else K
         C = self.C if C is None else C
         m, n = self.M.shape[0], len(self.scene.pulleys)
@@ -225,6 +232,96 @@ class NetworkModel:
         B = np.zeros((2 * m, n))
         B[m:, :n] = Minv[:, :n]
         return A, B
+
+    # ------------------------------------------------------------------ the run's coordinates
+    @property
+    def ratios(self) -> np.ndarray:
+        """Speed ratios ``rho_i = r_d / r_i`` [-]: pulley i turns rho_i times the driver with the belt unstretched."""
+        found = self.__dict__.get("_ratios")
+        if found is None:
+            r = np.array([p.radius for p in self.scene.pulleys])
+            found = r[self.scene.driver] / r
+            found.flags.writeable = False
+            self.__dict__["_ratios"] = found
+        return found
+
+    @property
+    def lag_stretch(self) -> np.ndarray:
+        """(n_spans, m) rows ``b_j``: span j's stretch in the run's coordinates, ``delta_j = b_j . q_run``.
+
+        The run integrates the driver's angle and, for every other pulley, its lag
+        ``l_i = rho_i theta_d - theta_i`` [rad] (the paper's relative deflection
+        ``delta = i phi_M - phi_3`` for every pulley), then the arm's angle. Since
+        ``r_i rho_i = r_d``, ``delta_j = r_j l_j - r_{j+1} l_{j+1} + g_j theta_a``: the
+        driver's angle, which grows with the run, enters no stretch (its column is
+        exactly zero), so the stretches keep their digits over a long run.
+        """
+        b = -self.stretch.copy()
+        b[:, self.scene.driver] = 0.0
+        if self.arm >= 0:
+            b[:, self.arm] = self.g
+        return b
+
+    def flexible_matrices(self):
+        """``(A, B)`` of the flexible tier in the run's state ``x = [theta_d, l_i (i != d), theta_a, omega_i, omega_a]``.
+
+        ``q' = E omega`` (``l_i' = rho_i omega_d - omega_i``), ``M omega' = u - C omega - K_l q`` with
+        ``K_l = sum_j k_j a_j b_j^T + (k_a + k_geo) e_a e_a^T`` (``k_geo`` at T_0), B = M^-1 per pulley torque.
+        """
+        n, m, d = len(self.scene.pulleys), self.M.shape[0], self.scene.driver
+        E = np.eye(m)
+        for i in range(n):
+            if i != d:
+                E[i, i], E[i, d] = -1.0, self.ratios[i]
+        K = self.stretch.T @ (self.k[:, None] * self.lag_stretch)
+        if self.arm >= 0:
+            K[self.arm, self.arm] += self.scene.tensioner.spring_rate + self.geometric_stiffness(
+                np.full(len(self.k), self.scene.belt.installed_tension))
+        Minv = 1.0 / np.diag(self.M)
+        A = np.zeros((2 * m, 2 * m))
+        A[:m, m:] = E
+        A[m:, :m] = -(Minv[:, None] * K)
+        A[m:, m:] = -(Minv[:, None] * self.C)
+        B = np.zeros((2 * m, n))
+        B[m + np.arange(n), np.arange(n)] = Minv[:n]
+        return A, B
+
+    def to_absolute(self, states) -> np.ndarray:
+        """Run states (N, 2m) in the pulleys' own angles ``[theta, theta_a, omega, omega_a]`` (theta_i = rho_i theta_d - l_i)."""
+        out = np.array(states, dtype=float)
+        d = self.scene.driver
+        for i in range(len(self.scene.pulleys)):
+            if i != d:
+                out[:, i] = self.ratios[i] * states[:, d] - states[:, i]
+        return out
+
+    def run_tensions(self, states) -> np.ndarray:
+        """Span tensions [N] ``T_0 + k_j (b_j . q) + c_j (a_j . omega)`` of flexible run states (N, 2m)."""
+        m = self.M.shape[0]
+        return (self.scene.belt.installed_tension + self.k * _times_rows(states[:, :m], self.lag_stretch)
+                + self.c * _times_rows(states[:, m:], self.stretch))
+
+    def rigid_matrices(self):
+        """``(A, B)`` of the rigid tier, ``x = [theta_d, omega_d]``: ``J_red omega_d' = sum_i rho_i (u_i - b_i rho_i omega_d)``,
+        ``J_red = sum_i J_i rho_i^2`` (the arm holds still: an inextensible belt keeps its length)."""
+        rho = self.ratios
+        n = len(rho)
+        J = np.diag(self.M)[:n]
+        b = np.diag(self.C)[:n] - np.diag(self.stretch.T @ (self.c[:, None] * self.stretch))[:n]  # bearing damping
+        J_red, b_red = float(np.sum(J * rho * rho)), float(np.sum(b * rho * rho))
+        A = np.array([[0.0, 1.0], [0.0, -b_red / J_red]])
+        B = np.zeros((2, n))
+        B[1] = rho / J_red
+        return A, B
+
+    def rigid_tension_map(self) -> np.ndarray:
+        """(n_spans, n) S: span tension changes ``T - T_0 = S Q`` [N] under balanced pulley torques Q [N m]
+        (``sum_i rho_i Q_i = 0``): the belt's static stretch (K^+ Q), the arm at its equilibrium."""
+        m, n = self.M.shape[0], len(self.scene.pulleys)
+        rhs = np.zeros((m, n))
+        rhs[:n] = np.eye(n)
+        q = np.linalg.lstsq(self.stiffness(), rhs, rcond=None)[0]
+        return self.k[:, None] * (self.stretch @ q)
 
 
 # ---------------------------------------------------------------------- modes
@@ -284,6 +381,11 @@ class NetworkRun:
     arm_angle: np.ndarray | None
     states: np.ndarray
     friction_use: np.ndarray | None = None
+    #: the tier that ran (flexible, rigid, slipping), why (``auto``), the method and the accuracy verdict
+    tier: str = "flexible"
+    reason: str = ""
+    method: str = ""
+    accuracy: str = ""
 
     def capstan_onset(self, scene):
         """``(pulley name, time [s], friction use)`` of the first sample where a pulley's friction use reaches 1, or None."""
@@ -294,72 +396,17 @@ class NetworkRun:
         return scene.pulleys[i].name, float(self.time[k]), float(self.friction_use[k, i])
 
 
-def simulate(scene, duration: float | None = None, dt: float | None = None, method: str | None = None,
-             model: NetworkModel | None = None) -> NetworkRun:
-    """Run the linear tier with the scene's fixed-step method from the belt turning at ``initial_speed`` unstretched.
+def check_step(name: str, A, B, dt: float) -> None:
+    """:class:`UnstableStepError` if the fixed-step method ``name`` grows a mode of ``x' = A x`` at step ``dt`` [s]
+    (the core's stability guard, :func:`~belt_drive_ros.core.stability.check_step`), naming a stable step."""
+    from ..stability import check_step as guard
 
-    The pulley torques enter as inputs ``u_i = sign_i profile_i(t, theta_i, theta_i')`` through the method's own
-    step (``Integrator.step``: exact on the linear part for the exponential methods). The compiled time loop
-    does not take the network yet (its interface carries two torque profiles, the network n).
-    """
-    model = NetworkModel.build(scene) if model is None else model
-    duration = scene.duration if duration is None else duration
-    dt = scene.dt if dt is None else dt
-    steps = int(round(duration / dt))
-    if steps < 1:
-        raise SceneError(f"duration: {duration:g} s is shorter than one step of {dt:g} s")
-    A, B = model.state_space()
-    name = method or scene.method
-    cls = method_class(name)
-    check_step(cls, name, A, dt)
-    integ = cls(A, B, dt)
-    P = scene.pulleys
-    n, m = len(P), model.M.shape[0]
-    active = [(i, p.sign, p.torque.scalar_torque()) for i, p in enumerate(P) if p.sign]
-
-    def inputs(t, x):
-        xs = x.tolist()
-        u = [0.0] * n
-        for i, s, f in active:
-            u[i] = s * f(t, xs[i], xs[m + i])
-        return np.array(u)
-
-    x = np.zeros(2 * m)
-    x[m : m + n] = model.speeds_at(scene.initial_speed)
-    out = np.empty((steps + 1, 2 * m))
-    out[0] = x
-    for k in range(steps):
-        x = integ.step(k * dt, x, inputs)
-        if not math.isfinite(x.sum()):  # a NaN or an overflow anywhere makes the sum non-finite
-            raise SimulationDivergedError(f"{scene.name}: the state became non-finite at t = {k * dt:.6g} s "
-                                          f"({name} at dt = {dt:g} s)")
-        out[k + 1] = x
-    return outputs(model, np.arange(steps + 1) * dt, out)
-
-
-def check_step(cls, name: str, A, dt: float) -> None:
-    """:class:`UnstableStepError` if the fixed-step method ``cls`` grows a mode of ``A`` at step ``dt`` [s].
-
-    The growth per step of each eigenvalue comes from the method's own one-step map
-    (``mode_growths``); a mode that decays (or is neutral) must not grow by more than 1e-9 per step.
-    Adaptive methods (no ``mode_growths``) are not checked.
-    """
-    growths = getattr(cls, "mode_growths", None)
-    if growths is None:
-        return
-    lam = np.linalg.eigvals(A)
-    lam = lam[lam.imag >= 0.0]
-    g = growths(lam, dt)
-    bad = np.flatnonzero(g > np.maximum(1.0, np.exp(lam.real * dt)) + 1e-9)
-    if bad.size:
-        worst = bad[np.argmax(np.abs(lam[bad]))]
-        fastest = float(np.max(np.abs(lam)))
-        stable = dt
-        while stable > 1e-9 and np.any(growths(lam, stable) > np.maximum(1.0, np.exp(lam.real * stable)) + 1e-9):
-            stable /= 2.0
-        raise UnstableStepError(f"method {name} at dt = {dt:g} s grows the {abs(lam[worst]) / (2 * math.pi):.4g} Hz mode "
-                                f"(h omega = {dt * abs(lam[worst]):.3g}; fastest mode {fastest / (2 * math.pi):.4g} Hz): "
-                                f"dt <= {stable:.3g} s is stable, or use exact, etd2 or etd4")
+    report = guard(A, B, name, dt)
+    if not report.stable:
+        stable = report.max_stable_dt
+        hint = f"dt <= {stable:.3g} s is stable, or " if stable else ""
+        raise UnstableStepError(f"method {name} at dt = {dt:g} s grows the {report.omega_n / (2 * math.pi):.4g} Hz mode "
+                                f"(h omega = {report.h_omega_n:.3g}): {hint}use exact, etd2 or etd4")
 
 
 def friction_use(scene, tensions, belt_speed) -> np.ndarray:

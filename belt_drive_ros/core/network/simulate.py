@@ -1,0 +1,361 @@
+"""A belt network's run: the tier (rigid, flexible, slipping), the method, the guards, the compiled loop.
+
+:func:`simulate` is the one entry point (``belt-drive sim NETWORK``, the
+node, tests). ``model``:
+
+* ``flexible`` -- every pulley and the tensioner arm (:meth:`.model.NetworkModel.flexible_matrices`);
+* ``rigid`` -- the belt inextensible: one DOF, the driver's angle, every pulley through its speed ratio;
+* ``slipping`` -- stick or slip at every pulley (:func:`.slip.simulate_slipping`, the slipping tier);
+* ``auto`` -- rigid when the belt's lowest mode lies far above everything the torques excite, else
+  flexible; then slipping when a pulley reaches its capstan limit in that run. The reason names the
+  pulley ("slipping: alternator reaches the capstan limit at t = ...").
+
+Both linear tiers step in :func:`.kernel.network_steps` with any fixed-step
+method by name (its stage scheme from :mod:`~belt_drive_ros.core.integrators`),
+the pulleys' torque profiles stacked as data. Guards: a method that would
+grow a mode at the step is refused before the run (:func:`.model.check_step`);
+the accuracy of a run is estimated by step doubling (the run against the same
+run at twice the step, Richardson: ``|x_h - x_2h| / (2^p - 1)`` on the span
+tensions) and stated in ``run.accuracy``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from ..errors import IntegratorError, SceneError, SimulationDivergedError, UnstableStepError
+from ..profile_data import CONSTANT, DIVERGED, NOT_CONVERGED
+from .model import NetworkModel, NetworkRun, check_step, outputs
+
+TIERS = ("auto", "flexible", "rigid", "slipping")
+#: auto: rigid when the belt's lowest mode is at least this many times the fastest excitation
+RIGID_MARGIN = 10.0
+#: accuracy guard: a run is accurate when its estimated error is at most this part of the peak tension change
+ACCURACY = 1e-3
+#: speed [rad/s] past which a run counts as diverged
+LIMIT = 1.0e5
+
+
+# ---------------------------------------------------------------------- profiles as stacked data
+def stack_profiles(profiles):
+    """``(start, kinds, params, tx, ty)``: the profiles' data as one program (:func:`~..profile_data.stack`)."""
+    from ..profile_data import stack
+
+    data = []
+    for name, profile in profiles:
+        d = profile.data()
+        if d is None:
+            raise SceneError(f"pulleys.{name}.torque: a profile without a data form cannot run in a network")
+        data.append(d)
+    stacked, start = stack(data)
+    return start, stacked.kinds, stacked.params, stacked.tx, stacked.ty
+
+
+def pack(mats) -> tuple[np.ndarray, np.ndarray]:
+    """``(mats, shape)``: the matrices end to end, each by rows, and per matrix ``(start, rows, stored columns,
+    identity)``; a matrix whose leading square block is exactly the identity is stored without it
+    (:func:`.kernel.network_steps`)."""
+    flat, shape, at = [], [], 0
+    for M in mats:
+        M = np.asarray(M, dtype=float)
+        rows = M.shape[0]
+        eye = int(rows > 0 and M.shape[1] >= rows and np.array_equal(M[:, :rows], np.eye(rows)))
+        if eye:
+            M = M[:, rows:]
+        flat.append(np.ravel(M))
+        shape.append((at, rows, M.shape[1], eye))
+        at += M.size
+    return np.concatenate(flat), np.array(shape, dtype=np.int64).reshape(-1, 4)
+
+
+class NetworkLoop:
+    """One tier's matrices and one fixed-step method as the arrays :func:`.kernel.network_steps` takes.
+
+    ``tier``: ``flexible`` or ``rigid``. ``loop(times, x, out, lo, hi)`` runs the steps;
+    :meth:`hold` sets a pulley's torque to a held value (the node's input topics) in the stacked data.
+    """
+
+    def __init__(self, model: NetworkModel, tier: str, method: str, dt: float):
+        from ..integrators import make_integrator, method_class
+
+        scene = model.scene
+        self.model, self.tier, self.method, self.dt = model, tier, method, float(dt)
+        A, B_all = model.flexible_matrices() if tier == "flexible" else model.rigid_matrices()
+        cls = method_class(method)
+        if not cls.fixed_step:
+            raise SceneError(f"method {method}: a belt network steps with a fixed-step method")
+        self.active = [i for i, p in enumerate(scene.pulleys) if p.sign]
+        signs = np.array([scene.pulleys[i].sign for i in self.active])
+        B = B_all[:, self.active] * signs
+        check_step(method, A, B, self.dt)
+        scheme = make_integrator(method, A, B, self.dt).scheme
+        n, P, s = A.shape[0], len(self.active), len(scheme.nodes)
+        # W: per active pulley its angle and speed from the state
+        W = np.zeros((2 * P, n))
+        half = n // 2
+        for p, i in enumerate(self.active):
+            if tier == "rigid":
+                W[2 * p, 0], W[2 * p + 1, 1] = model.ratios[i], model.ratios[i]
+            elif i == scene.driver:
+                W[2 * p, i], W[2 * p + 1, half + i] = 1.0, 1.0
+            else:  # theta_i = rho_i theta_d - l_i
+                W[2 * p, scene.driver], W[2 * p, i], W[2 * p + 1, half + i] = model.ratios[i], -1.0, 1.0
+        cols = n + P * s
+        uses = np.array([bool(scene.pulleys[i].torque.uses_angle) for i in self.active], dtype=np.int64)
+        for p in range(P):  # an angle no profile reads is not computed (the kernel passes 0.0)
+            if not uses[p]:
+                W[2 * p] = 0.0
+        kinds, mats = np.zeros(s, dtype=np.int64), [W]
+        for i, M in enumerate(scheme.stages):
+            if M is None or (scheme.implicit and i == s - 1):
+                mats.append(np.zeros((0, 0)))
+                continue
+            if scheme.final_base == i:
+                kinds[i] = 2
+            else:  # only the profiles' angles and speeds feed the torques: W @ the stage map
+                kinds[i], M = 1, W @ M
+            mats.append(np.asarray(M))
+        mats.append(np.asarray(scheme.final))
+        if any(np.iscomplexobj(M) for M in mats):
+            raise SceneError(f"method {method}: its step matrices are complex for this network")
+        self.A, self.B, self.scheme = A, B, scheme
+        self.start, self.pk, self.pp, self.px, self.py = stack_profiles([(scene.pulleys[i].name, scene.pulleys[i].torque)
+                                                             for i in self.active])
+        self.args = (*pack(mats), kinds, np.array([float(c * dt) if c else 0.0 for c in scheme.nodes]),
+                     -1 if scheme.final_base is None else int(scheme.final_base),
+                     float(scheme.implicit[0]) if scheme.implicit else 0.0,
+                     int(scheme.implicit[1]) if scheme.implicit else 0, uses)
+
+    def __call__(self, times, x, out, lo: float = -math.inf, hi: float = math.inf, limit: float = LIMIT):
+        from .kernel import network_steps
+
+        return network_steps(times, x, out, lo, hi, limit, *self.args, self.start, self.pk, self.pp, self.px, self.py)
+
+    def hold(self, pulley: int, value: float) -> None:
+        """Pulley ``pulley``'s profile becomes the constant ``value`` [N m] (its profile's sign convention)."""
+        row = self.start[self.active.index(pulley)]
+        self.pk[row] = CONSTANT
+        self.pp[row, 0] = float(value)
+
+    def initial(self) -> np.ndarray:
+        """The belt turning at the scene's ``initial_speed``, unstretched."""
+        scene = self.model.scene
+        if self.tier == "rigid":
+            return np.array([0.0, float(scene.initial_speed)])
+        m = self.model.M.shape[0]
+        x = np.zeros(2 * m)
+        x[m : m + len(scene.pulleys)] = self.model.speeds_at(scene.initial_speed)
+        return x
+
+
+# ---------------------------------------------------------------------- runs
+def _breakpoints(model: NetworkModel, dt: float) -> list[int]:
+    """Grid indices of the profiles' breakpoints that fall on the step grid (a run between two is one kernel call:
+    its stage times clamped to the interval, so a step ending on a jump samples the torque before it)."""
+    found = model.__dict__.get("_breakpoints", {}).get(dt)
+    if found is None:
+        ks = set()
+        for p in model.scene.pulleys:
+            if p.sign:
+                for b in p.torque.breakpoints():
+                    k = round(b / dt) if math.isfinite(b) else -1
+                    if k > 0 and abs(k * dt - b) <= 1e-9 * dt:
+                        ks.add(k)
+        found = model.__dict__.setdefault("_breakpoints", {})[dt] = sorted(ks)
+    return found
+
+
+def advance(loop: NetworkLoop, x, out, k0: int, k1: int) -> None:
+    """Steps ``k0 .. k1-1`` (times ``k dt``) from state ``x`` at ``k0 dt``; the states after each into ``out[0 .. k1-k0-1]``.
+
+    The one way time advances in a network (a whole run, the node's ticks): one kernel call per interval
+    between breakpoints. Raises :class:`SimulationDivergedError` / :class:`IntegratorError`.
+    """
+    dt, scene = loop.dt, loop.model.scene
+    bps = _breakpoints(loop.model, dt)
+    cuts = [k0, *[k for k in bps if k0 < k < k1], k1]
+    start = np.array(x, dtype=float)
+    for a, e in zip(cuts[:-1], cuts[1:]):
+        times = np.arange(a, e + 1) * dt
+        before = [k for k in bps if k <= a]
+        after = [k for k in bps if k >= e]
+        lo = before[-1] * dt if before else -math.inf
+        hi = after[0] * dt if after else math.inf
+        done, status, t = loop(times, start, out[a - k0 : e - k0], lo, hi)
+        if status == DIVERGED:
+            raise SimulationDivergedError(f"{scene.name}: the state became non-finite or too fast at t = {t:.6g} s "
+                                          f"({loop.tier} tier, {loop.method} at dt = {dt:g} s)")
+        if status == NOT_CONVERGED:
+            raise IntegratorError(f"{loop.method}: fixed-point iteration for the state-dependent torque did not "
+                                  f"converge at t={t:.6g} s; reduce dt (now {dt:g} s)")
+        start = out[e - k0 - 1].copy()
+
+
+def run_loop(loop: NetworkLoop, steps: int, x0=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(times, states)`` of ``steps`` steps from ``x0`` (default the scene's start)."""
+    x = loop.initial() if x0 is None else np.array(x0, dtype=float)
+    out = np.empty((steps + 1, x.size))
+    out[0] = x
+    advance(loop, x, out[1:], 0, steps)
+    return np.arange(steps + 1) * loop.dt, out
+
+
+def rigid_outputs(loop: NetworkLoop, times, states, u=None) -> NetworkRun:
+    """Outputs of a rigid run: every pulley at its speed ratio, the span tensions quasi-static (the torques each
+    pulley's own equation needs, carried by the belt's static stretch), the arm at its installed angle.
+    ``u`` (N, n): the signed pulley torques applied [N m] (default: the profiles')."""
+    model, scene = loop.model, loop.model.scene
+    rho, n, m = model.ratios, len(scene.pulleys), model.M.shape[0]
+    if u is None:
+        u = np.zeros((len(times), n))
+        for i in loop.active:
+            p = scene.pulleys[i]
+            u[:, i] = p.sign * p.torque.torque(times, rho[i] * states[:, 0] if p.torque.uses_angle else 0.0 * times,
+                                               rho[i] * states[:, 1])
+    A, B = model.rigid_matrices()
+    accel = states @ A[1] + u @ B[1]
+    J, b = np.diag(model.M)[:n], np.diag(model.C)[:n] - np.diag(model.stretch.T @ (model.c[:, None] * model.stretch))[:n]
+    load = u - (J * rho) * accel[:, None] - (b * rho) * states[:, 1:2] * rho  # what the belt takes at each pulley
+    S = model.__dict__.get("_rigid_map")
+    if S is None:
+        S = model.__dict__["_rigid_map"] = np.ascontiguousarray(model.rigid_tension_map().T)
+    T = scene.belt.installed_tension + load @ S
+    full = np.zeros((len(times), 2 * m))
+    full[:, :n], full[:, m : m + n] = states[:, :1] * rho, states[:, 1:2] * rho
+    return outputs(model, times, full, T)
+
+
+def network_loop(model: NetworkModel, tier: str, method: str, dt: float) -> NetworkLoop:
+    """The model's :class:`NetworkLoop` for ``(tier, method, dt)``, built once per model (read-only arrays;
+    :meth:`NetworkLoop.hold` writes into its own copy, so a node builds its own loop)."""
+    loops = model.__dict__.setdefault("_loops", {})
+    key = (tier, method, float(dt))
+    found = loops.get(key)
+    if found is None:
+        if len(loops) >= 8:
+            loops.pop(next(iter(loops)))
+        found = loops[key] = NetworkLoop(model, tier, method, dt)
+    return found
+
+
+def model_of(scene) -> NetworkModel:
+    """The scene's :class:`~.model.NetworkModel`, built once per scene object (scenes are frozen)."""
+    found = scene.__dict__.get("_network_model")
+    if found is None:
+        found = NetworkModel.build(scene)
+        object.__setattr__(scene, "_network_model", found)
+    return found
+
+
+def _run(model, tier, method, dt, steps, tensions_only=False):
+    """The run's :class:`~.model.NetworkRun` (``tensions_only``: its span tensions (N+1, n) [N] only)."""
+    loop = network_loop(model, tier, method, dt)
+    times, states = run_loop(loop, steps)
+    if tier == "rigid":
+        run = rigid_outputs(loop, times, states)
+        return run.tension if tensions_only else run
+    T = model.run_tensions(states)
+    return T if tensions_only else outputs(model, times, model.to_absolute(states), T)
+
+
+def accuracy(model, tier, method, dt, steps, run) -> str:
+    """Step doubling: the run against the same run at 2 dt (at dt / 2 where 2 dt is unstable); Richardson's
+    estimate of the run's error on the span tensions, ``|T_h - T_2h| / (2^p - 1)`` (p the method's order)."""
+    from ..integrators import method_class
+
+    order = method_class(method).order
+    if not order or steps < 4:
+        return ""
+    T0 = model.scene.belt.installed_tension
+    try:
+        coarse = _run(model, tier, method, 2.0 * dt, steps // 2, tensions_only=True)
+        err = float(np.max(np.abs(run.tension[: 2 * (steps // 2) + 1 : 2] - coarse))) / (2**order - 1)
+    except UnstableStepError:
+        fine = _run(model, tier, method, 0.5 * dt, 2 * steps, tensions_only=True)
+        err = float(np.max(np.abs(run.tension - fine[::2]))) * 2**order / (2**order - 1)
+    scale = max(float(np.max(np.abs(run.tension - T0))), 1e-9 * T0)
+    verdict = "accurate" if err <= ACCURACY * scale else "INACCURATE"
+    text = f"{verdict}: estimated span tension error {err:.3g} N ({err / scale:.2g} of the peak change, step doubling)"
+    if verdict != "accurate":
+        text += f"; dt <= {dt * (ACCURACY * scale / err) ** (1.0 / order):.3g} s should be accurate"
+    return text
+
+
+def choose_tier(model: NetworkModel) -> tuple[str, str]:
+    """``(tier, reason)`` of ``auto`` among the linear tiers: rigid when the belt's lowest mode is at least
+    :data:`RIGID_MARGIN` times every excitation frequency of the profiles (at the pulleys' speeds), else flexible."""
+    from .model import undamped_frequencies
+
+    scene = model.scene
+    lowest = model.__dict__.get("_lowest")
+    if lowest is None:
+        lowest = model.__dict__["_lowest"] = float(undamped_frequencies(model)[0])
+    top, who = 0.0, None
+    speed = max(abs(scene.initial_speed), abs(scene.operating_speed))
+    rho = model.ratios
+    for i, p in enumerate(scene.pulleys):
+        if p.sign:
+            for f, what in p.torque.excitation_frequencies(rho[i] * speed):
+                if f > top:
+                    top, who = f, (p.name, what)
+    if who is None or lowest >= RIGID_MARGIN * top:
+        why = "nothing excites it" if who is None else f"{who[0]}'s {who[1]} reaches {top:.3g} Hz"
+        return "rigid", f"rigid: the belt's lowest mode ({lowest:.3g} Hz) lies above {RIGID_MARGIN:g}x the excitation ({why})"
+    return "flexible", (f"flexible: {who[0]}'s {who[1]} reaches {top:.3g} Hz, within {RIGID_MARGIN:g}x of the belt's "
+                        f"lowest mode ({lowest:.3g} Hz)")
+
+
+def run_slipping(model: NetworkModel, duration: float, dt: float, method: str | None = None) -> NetworkRun:
+    """The slipping tier's entry: :func:`.slip.simulate_slipping` ``(model, scene, duration, dt, method, initial)``
+    returns a :class:`~.model.NetworkRun` (slip fields added) from the scene's start, every pulley sticking."""
+    try:
+        from .slip import simulate_slipping
+    except ImportError:
+        raise SceneError("model: the slipping tier of belt networks is not installed in this build") from None
+    return simulate_slipping(model, model.scene, duration, dt, method)
+
+
+def simulate(scene, duration: float | None = None, dt: float | None = None, method: str | None = None,
+             model: str = "auto", network: NetworkModel | None = None, check_accuracy: bool = True) -> NetworkRun:
+    """Run a belt network scene from the belt turning at ``initial_speed`` unstretched.
+
+    ``model``: one of :data:`TIERS` (module docstring); ``method``: any fixed-step method by name (default the
+    scene's; the slipping tier steps its own exact flow). The run carries ``tier``, ``reason``, ``method``
+    and ``accuracy`` (the step-doubling verdict of a linear tier).
+    """
+    if model not in TIERS:
+        raise SceneError(f"model: must be one of {', '.join(TIERS)} for a belt network, got {model!r}")
+    net = model_of(scene) if network is None else network
+    duration = scene.duration if duration is None else float(duration)
+    dt = scene.dt if dt is None else float(dt)
+    steps = int(round(duration / dt))
+    if steps < 1:
+        raise SceneError(f"duration: {duration:g} s is shorter than one step of {dt:g} s")
+    name = method or scene.method
+    if model == "slipping":
+        return replace(run_slipping(net, duration, dt, method), tier="slipping", reason="slipping: asked for",
+                       method=method or "exact")
+    tier, reason = choose_tier(net) if model == "auto" else (model, f"{model}: asked for")
+    run = _run(net, tier, name, dt, steps)
+    onset = run.capstan_onset(scene)
+    if model == "auto" and onset is not None:
+        why = f"slipping: {onset[0]} reaches the capstan limit at t = {onset[1]:.6g} s (in the {tier} tier's run)"
+        return replace(run_slipping(net, duration, dt), tier="slipping", reason=why, method="exact")
+    verdict = accuracy(net, tier, name, dt, steps, run) if check_accuracy else ""
+    return replace(run, tier=tier, reason=reason, method=name, accuracy=verdict)
+
+
+def warm() -> None:
+    """Compile (or load from the disk cache) the network loop: a two-pulley belt, one step of each tier."""
+    from .scene import NetworkScene
+
+    scene = NetworkScene.from_mapping({
+        "kind": "network", "duration": 2e-3, "dt": 1e-3, "initial_speed": 1.0,
+        "belt": {"EA": 1000.0, "damping": 0.1, "installed_tension": 10.0},
+        "pulleys": [{"name": "a", "role": "driver", "centre": [0, 0], "radius": 0.05, "inertia": 1e-3, "torque": 0.1},
+                    {"name": "b", "role": "accessory", "centre": [0.3, 0], "radius": 0.05, "inertia": 1e-3,
+                     "torque": 0.1}]})  # fmt: skip
+    simulate(scene, model="flexible", check_accuracy=False)
