@@ -171,21 +171,25 @@ class BlockRecords:
         if not n:
             return
         sizes = [int(p.shape[1]) for p in payloads]
-        row = sum(_MESSAGE_OVERHEAD + s for s in sizes)
+        row = sum(_MESSAGE_OVERHEAD + size for size in sizes)
+        template = np.zeros(1, dtype=_MESSAGE_HEAD)
+        template["opcode"] = Opcode.MESSAGE
+        heads = []  # the constant part of each record's head: opcode, length, channel
+        for channel, size in zip(channels, sizes):
+            template["length"], template["channel"] = 22 + size, channel
+            heads.append(template.view(np.uint8)[:11].copy())
         block = np.empty((n, row), dtype=np.uint8)
+        times = log_time.view(np.uint8).reshape(n, 8)
+        steps = np.arange(n, dtype=np.uint64)
         offsets = []  # of each channel's record within a row
         at = 0
-        steps = np.arange(n, dtype=np.uint64)
-        for channel, first, size, payload in zip(channels, sequences, sizes, payloads):
-            head = np.empty(n, dtype=_MESSAGE_HEAD)
-            head["opcode"] = Opcode.MESSAGE
-            head["length"] = 22 + size
-            head["channel"] = channel
-            head["sequence"] = (steps + np.uint64(first)) & np.uint64(0xFFFFFFFF)
-            head["log_time"] = log_time
-            head["publish_time"] = log_time
-            block[:, at : at + _MESSAGE_OVERHEAD] = head.view(np.uint8).reshape(n, _MESSAGE_OVERHEAD)
-            block[:, at + _MESSAGE_OVERHEAD : at + _MESSAGE_OVERHEAD + size] = payload
+        for channel, first, size, payload, head in zip(channels, sequences, sizes, payloads, heads):
+            sequence = ((steps + np.uint64(first)) & np.uint64(0xFFFFFFFF)).astype("<u4")
+            block[:, at : at + 11] = head
+            block[:, at + 11 : at + 15] = sequence.view(np.uint8).reshape(n, 4)
+            block[:, at + 15 : at + 23] = times  # log time
+            block[:, at + 23 : at + 31] = times  # publish time
+            block[:, at + 31 : at + 31 + size] = payload
             offsets.append(at)
             at += _MESSAGE_OVERHEAD + size
             self.counts[channel] = self.counts.get(channel, 0) + n
@@ -206,7 +210,9 @@ class BlockRecords:
                 head_records, head_index = b"", {}
             starts = base + np.arange(b - a, dtype=np.uint64) * np.uint64(row)
             for channel, offset in zip(channels, offsets):
-                entries = np.column_stack([log_time[a:b], starts + np.uint64(offset)]).astype("<u8")
+                entries = np.empty((b - a, 2), dtype="<u8")
+                entries[:, 0] = log_time[a:b]
+                entries[:, 1] = starts + np.uint64(offset)
                 index[channel] = np.concatenate([index[channel], entries]) if channel in index else entries
             first = min(int(log_time[a]), *(int(e[0, 0]) for e in index.values()))
             self._submit(records, first, int(log_time[b - 1]), index)

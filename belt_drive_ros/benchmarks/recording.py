@@ -155,22 +155,20 @@ def bench_record_live(n: int = 20_000, batch: int = 200) -> dict:
 
 def make_torque_bag(path, minutes: float, rate_hz: float = 1000.0) -> int:
     """An engine-like drive torque [N m] at ``rate_hz`` for ``minutes``: firing ripple on a slow speed sweep."""
-    from msg_tools import Ros2McapWriter
+    from msg_tools.block_writer import BlockMcapWriter
 
-    from ..io.recording import encode_float64
+    from ..io.recording import float64_rows
 
     n = int(round(minutes * 60.0 * rate_hz)) + 1
     t = np.arange(n) / rate_hz
     speed = 77.5 + 40.0 * np.sin(2 * np.pi * t / 600.0) ** 2  # rad/s, 10-minute cycles
     crank = np.cumsum(speed) / rate_hz
     torque = 15.0 + 300.0 * np.sin(3.0 * crank) + 90.0 * np.sin(6.0 * crank)
-    times = np.round(t * 1e9).astype(np.int64).tolist()
+    times = np.round(t * 1e9).astype(np.int64)
     chunk = 100_000
-    with Ros2McapWriter(path, chunk_size=1 << 20) as w:
+    with BlockMcapWriter(path, chunk_size=1 << 20) as w:
         for a in range(0, n, chunk):
-            data = encode_float64(torque[a : a + chunk])
-            for k, payload in enumerate(data):
-                w.write_raw("/drive_torque", "std_msgs/msg/Float64", payload, times[a + k])
+            w.write_block([("/drive_torque", "std_msgs/msg/Float64")], times[a : a + chunk], [float64_rows(torque[a : a + chunk])])
     return n
 
 

@@ -55,7 +55,13 @@ class JointStateEncoder:
         names = JOINT_NAMES if names is None else tuple(names)  # a belt network: its pulleys and the arm
         joints = len(names)
         self._template, self._offsets = _joint_state_layout(names, "")
-        self._array = struct.Struct(f"<{joints}d")
+        first, second, third = self._offsets
+        gap = second - first - 8 * joints  # the length field, and CDR's zero padding to 8 bytes
+        if gap not in (4, 8) or third - second - 8 * joints != gap:
+            raise RuntimeError("JointState template: the arrays are not consecutive sequences")
+        # the stamp, then the three arrays with the length fields (and padding) between them: two packs per message
+        between = "I" + "x" * (gap - 4)
+        self._arrays = struct.Struct(f"<{joints}d{between}{joints}d{between}{joints}d")
         self._joints = joints
         self._stamp = struct.Struct("<iI")
 
@@ -64,8 +70,7 @@ class JointStateEncoder:
         buf = bytearray(self._template)
         self._stamp.pack_into(buf, 4, *divmod(stamp_ns, 1_000_000_000))
         j = self._joints
-        for k, offset in enumerate(self._offsets):
-            self._array.pack_into(buf, offset, *values[k * j : (k + 1) * j])
+        self._arrays.pack_into(buf, self._offsets[0], *values[:j], j, *values[j : 2 * j], j, *values[2 * j :])
         return bytes(buf)
 
 
