@@ -73,7 +73,8 @@ class BlockRecords:
     when it reaches ``chunk_size``); schema and channel records go to the
     data section between chunks. Chunks are written in order; compression
     runs in a pool of two threads, at most :data:`MAX_IN_FLIGHT` chunks ahead
-    of the file.
+    of the file, and a block's chunks are all written before the next block
+    is assembled.
     """
 
     def __init__(self, stream, chunk_size: int = 1 << 20, compression: CompressionType = CompressionType.ZSTD,
@@ -170,6 +171,9 @@ class BlockRecords:
         n = log_time.size
         if not n:
             return
+        # the previous block's chunks were compressed while the caller computed this one: write them all
+        # first, so memory holds at most one block and its chunks (the same peak for any run length)
+        self._write_pending(all_of_them=True)
         sizes = [int(p.shape[1]) for p in payloads]
         row = sum(_MESSAGE_OVERHEAD + size for size in sizes)
         template = np.zeros(1, dtype=_MESSAGE_HEAD)

@@ -296,7 +296,7 @@ def main_replay(minutes: float = 60.0, dt: float = 1e-3) -> int:
     _line("process CPU", f"{r['cpu']:.1f} s (writer threads included)")
     _line("output", f"{r['messages']:,} messages, {r['bytes'] / 2**20:.0f} MiB")
     _line("memory", f"peak RSS {r['peak_rss_mib']:.0f} MiB (+{r['rss_growth_mib']:.0f} MiB during the replay; "
-          "windows of 50,000 samples, at most 8 chunks in flight)")
+          "windows of 50,000 samples; one window's block compressed while the next is computed)")
     return 0
 
 
