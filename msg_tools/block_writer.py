@@ -25,9 +25,10 @@ from __future__ import annotations
 
 import struct
 import zlib
+from array import array
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, Iterator, List, Optional, Sequence
 
 import numpy as np
 from mcap.data_stream import RecordBuilder
@@ -90,7 +91,11 @@ class BlockRecords:
         self.schemas: Dict[int, Schema] = {}
         self.channels: Dict[int, ChannelRecord] = {}
         self.metadata_indexes: List[MetadataIndex] = []
-        self.chunk_indexes: List[ChunkIndex] = []
+        # the chunk indexes of the summary, compact (a long run has thousands): per chunk start, end, offset,
+        # length, message index length, compressed and uncompressed size, and its (channel, offset) pairs
+        self._chunks = array("Q")
+        self._chunk_pairs = array("Q")
+        self._chunk_compression = ""
         self.counts: Dict[int, int] = {}
         self.message_count = self.metadata_count = 0
         self.start_time: Optional[int] = None
@@ -257,11 +262,22 @@ class BlockRecords:
                 at += len(record)
                 parts.append(record)
             self._emit(b"".join(parts))
-        self.chunk_indexes.append(ChunkIndex(
-            message_start_time=start, message_end_time=end, chunk_start_offset=offset, chunk_length=chunk_length,
-            message_index_offsets=index_offsets, message_index_length=self.stream.tell() - index_start,
-            compression=compression, compressed_size=len(data), uncompressed_size=size,
-        ))
+        self._chunks.extend((start, end, offset, chunk_length, self.stream.tell() - index_start, len(data), size,
+                             len(index_offsets)))
+        for channel in sorted(index_offsets):
+            self._chunk_pairs.extend((channel, index_offsets[channel]))
+        self._chunk_compression = compression
+
+    def chunk_indexes(self) -> Iterator[ChunkIndex]:
+        """The chunk index records of the chunks written so far."""
+        pairs = 0
+        for k in range(0, len(self._chunks), 8):
+            start, end, offset, length, index_length, compressed, size, n = self._chunks[k : k + 8]
+            offsets = {int(self._chunk_pairs[pairs + 2 * j]): int(self._chunk_pairs[pairs + 2 * j + 1]) for j in range(n)}
+            pairs += 2 * n
+            yield ChunkIndex(message_start_time=start, message_end_time=end, chunk_start_offset=offset,
+                             chunk_length=length, message_index_offsets=offsets, message_index_length=index_length,
+                             compression=self._chunk_compression, compressed_size=compressed, uncompressed_size=size)
 
     def flush(self) -> None:
         """Close the open chunk and write every chunk (waiting for their compression)."""
@@ -294,11 +310,11 @@ class BlockRecords:
         group(Opcode.CHANNEL, self.channels.values())
         group(Opcode.STATISTICS, [Statistics(
             message_count=self.message_count, schema_count=len(self.schemas), channel_count=len(self.channels),
-            attachment_count=0, metadata_count=self.metadata_count, chunk_count=len(self.chunk_indexes),
+            attachment_count=0, metadata_count=self.metadata_count, chunk_count=len(self._chunks) // 8,
             message_start_time=self.start_time or 0, message_end_time=self.end_time,
             channel_message_counts=dict(self.counts),
         )])
-        group(Opcode.CHUNK_INDEX, self.chunk_indexes)
+        group(Opcode.CHUNK_INDEX, self.chunk_indexes())
         group(Opcode.ATTACHMENT_INDEX, [])
         group(Opcode.METADATA_INDEX, self.metadata_indexes)
         summary_offset_start = summary_start + builder.count
