@@ -180,28 +180,30 @@ class BlockRecords:
         # first, so memory holds at most one block and its chunks (the same peak for any run length)
         self._write_pending(all_of_them=True)
         sizes = [int(p.shape[1]) for p in payloads]
-        row = sum(_MESSAGE_OVERHEAD + size for size in sizes)
+        # one row per step: each channel's record (head fields, then the payload) at its offset; numpy copies
+        # each field of each row as one unit (a column slice of a byte matrix would copy byte by byte)
+        names, formats, offsets = [], [], []
+        at = 0
+        for k, size in enumerate(sizes):
+            names += [f"h{k}", f"s{k}", f"l{k}", f"q{k}", f"p{k}"]
+            formats += [(np.void, 11), "<u4", "<u8", "<u8", (np.void, size)]
+            offsets += [at, at + 11, at + 15, at + 23, at + 31]
+            at += _MESSAGE_OVERHEAD + size
+        row = at
+        block = np.empty(n, dtype=np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": row}))
         template = np.zeros(1, dtype=_MESSAGE_HEAD)
         template["opcode"] = Opcode.MESSAGE
-        heads = []  # the constant part of each record's head: opcode, length, channel
-        for channel, size in zip(channels, sizes):
-            template["length"], template["channel"] = 22 + size, channel
-            heads.append(template.view(np.uint8)[:11].copy())
-        block = np.empty((n, row), dtype=np.uint8)
-        times = log_time.view(np.uint8).reshape(n, 8)
         steps = np.arange(n, dtype=np.uint64)
-        offsets = []  # of each channel's record within a row
-        at = 0
-        for channel, first, size, payload, head in zip(channels, sequences, sizes, payloads, heads):
-            sequence = ((steps + np.uint64(first)) & np.uint64(0xFFFFFFFF)).astype("<u4")
-            block[:, at : at + 11] = head
-            block[:, at + 11 : at + 15] = sequence.view(np.uint8).reshape(n, 4)
-            block[:, at + 15 : at + 23] = times  # log time
-            block[:, at + 23 : at + 31] = times  # publish time
-            block[:, at + 31 : at + 31 + size] = payload
-            offsets.append(at)
-            at += _MESSAGE_OVERHEAD + size
+        for k, (channel, first, size, payload) in enumerate(zip(channels, sequences, sizes, payloads)):
+            template["length"], template["channel"] = 22 + size, channel
+            block[f"h{k}"] = template.view(np.uint8)[:11].view((np.void, 11))[0]
+            block[f"s{k}"] = (steps + np.uint64(first)) & np.uint64(0xFFFFFFFF)
+            block[f"l{k}"] = log_time  # log time
+            block[f"q{k}"] = log_time  # publish time
+            block[f"p{k}"] = payload.view((np.void, size)).reshape(n)
             self.counts[channel] = self.counts.get(channel, 0) + n
+        offsets = offsets[::5]  # of each channel's record within a row
+        block = block.view(np.uint8).reshape(n, row)
         self.message_count += n * len(channels)
         self._times(int(log_time[0]), int(log_time[-1]))
         rows = max(1, self.chunk_size // row)
