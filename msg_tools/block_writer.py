@@ -103,7 +103,8 @@ class BlockRecords:
         self._open = bytearray()  # records of the open chunk (single messages)
         self._open_index: Dict[int, list] = {}  # channel -> [(log time, offset)]
         self._pool: Optional[ThreadPoolExecutor] = None
-        self._pending: deque = deque()  # (future, start, end, records size, {channel: index entries})
+        self._pending: deque = deque()
+        self._buffer = np.empty(0, dtype=np.uint8)  # the records of the block being written  # (future, start, end, records size, {channel: index entries})
 
     # -------------------------------------------------------------- output
     def _emit(self, data) -> None:
@@ -180,30 +181,32 @@ class BlockRecords:
         # first, so memory holds at most one block and its chunks (the same peak for any run length)
         self._write_pending(all_of_them=True)
         sizes = [int(p.shape[1]) for p in payloads]
-        # one row per step: each channel's record (head fields, then the payload) at its offset; numpy copies
-        # each field of each row as one unit (a column slice of a byte matrix would copy byte by byte)
-        names, formats, offsets = [], [], []
-        at = 0
-        for k, size in enumerate(sizes):
-            names += [f"h{k}", f"s{k}", f"l{k}", f"q{k}", f"p{k}"]
-            formats += [(np.void, 11), "<u4", "<u8", "<u8", (np.void, size)]
-            offsets += [at, at + 11, at + 15, at + 23, at + 31]
-            at += _MESSAGE_OVERHEAD + size
-        row = at
-        block = np.empty(n, dtype=np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": row}))
+        # one row per step: each channel's record (head fields, then the payload) at its offset; each field
+        # written through a strided view of its type, one unit per row (a column slice of the byte matrix
+        # would copy byte by byte)
+        row = sum(_MESSAGE_OVERHEAD + size for size in sizes)
+        if self._buffer.size < n * row:  # reused block after block (its chunks are written): no fresh pages to fault in
+            self._buffer = np.empty(n * row, dtype=np.uint8)
+        block = self._buffer[: n * row].reshape(n, row)
+
+        def column(offset: int, dtype) -> np.ndarray:
+            return np.ndarray((n,), dtype=dtype, buffer=block, offset=offset, strides=(row,))
+
         template = np.zeros(1, dtype=_MESSAGE_HEAD)
         template["opcode"] = Opcode.MESSAGE
         steps = np.arange(n, dtype=np.uint64)
-        for k, (channel, first, size, payload) in enumerate(zip(channels, sequences, sizes, payloads)):
+        offsets = []  # of each channel's record within a row
+        at = 0
+        for channel, first, size, payload in zip(channels, sequences, sizes, payloads):
             template["length"], template["channel"] = 22 + size, channel
-            block[f"h{k}"] = template.view(np.uint8)[:11].view((np.void, 11))[0]
-            block[f"s{k}"] = (steps + np.uint64(first)) & np.uint64(0xFFFFFFFF)
-            block[f"l{k}"] = log_time  # log time
-            block[f"q{k}"] = log_time  # publish time
-            block[f"p{k}"] = payload.view((np.void, size)).reshape(n)
+            column(at, (np.void, 11))[...] = template.view(np.uint8)[:11].view((np.void, 11))[0]
+            column(at + 11, "<u4")[...] = (steps + np.uint64(first)) & np.uint64(0xFFFFFFFF)
+            column(at + 15, "<u8")[...] = log_time  # log time
+            column(at + 23, "<u8")[...] = log_time  # publish time
+            column(at + 31, (np.void, size))[...] = payload.view((np.void, size)).reshape(n)
+            offsets.append(at)
+            at += _MESSAGE_OVERHEAD + size
             self.counts[channel] = self.counts.get(channel, 0) + n
-        offsets = offsets[::5]  # of each channel's record within a row
-        block = block.view(np.uint8).reshape(n, row)
         self.message_count += n * len(channels)
         self._times(int(log_time[0]), int(log_time[-1]))
         rows = max(1, self.chunk_size // row)

@@ -18,14 +18,23 @@ from .bag_layout import JOINT_NAMES, JOINT_STATE, STRING, TF_MESSAGE
 _F64_HEADER = b"\x00\x01\x00\x00"
 
 
+def _messages(template: bytes, fields: dict, n: int) -> np.ndarray:
+    """``n`` copies of ``template`` as a structured array whose ``fields`` (name: (dtype, offset)) are the
+    variable parts: numpy writes each field of each message as one unit (its bytes: ``.view(np.uint8)``)."""
+    dtype = np.dtype({"names": ["all"] + list(fields), "formats": [(np.void, len(template))] + [f for f, _ in fields.values()],
+                      "offsets": [0] + [o for _, o in fields.values()], "itemsize": len(template)})
+    out = np.empty(n, dtype=dtype)
+    out["all"] = np.frombuffer(template, dtype=(np.void, len(template)))[0]
+    return out
+
+
 def float64_rows(values: np.ndarray) -> np.ndarray:
     """CDR of ``std_msgs/Float64`` for each value as the rows of an ``(n, 12)`` uint8 array
     (header ``00 01 00 00`` little endian, then the IEEE double)."""
     raw = np.ascontiguousarray(values, dtype="<f8").reshape(-1)
-    out = np.empty((raw.size, 12), dtype=np.uint8)
-    out[:, :4] = np.frombuffer(_F64_HEADER, dtype=np.uint8)
-    out[:, 4:] = raw.view(np.uint8).reshape(-1, 8)
-    return out
+    out = _messages(_F64_HEADER + bytes(8), {"data": ("<f8", 4)}, raw.size)
+    out["data"] = raw
+    return out.view(np.uint8).reshape(raw.size, 12)
 
 
 def encode_float64(values: np.ndarray) -> List[bytes]:
@@ -151,19 +160,16 @@ class TfEncoder:
         """One message per row of an ``(n, size)`` uint8 array: ``stamp_ns`` (n,) [ns], ``angles`` (n, wheels) [rad]."""
         stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
         n = stamp_ns.size
-        out = np.empty((n, len(self._template)), dtype=np.uint8)
-        out[:] = np.frombuffer(self._template, dtype=np.uint8)
-        if not n:
-            return out
-        sec, nsec = np.divmod(stamp_ns, 1_000_000_000)
-        sec_bytes = sec.astype("<i4").view(np.uint8).reshape(n, 4)
-        nsec_bytes = nsec.astype("<u4").view(np.uint8).reshape(n, 4)
-        q = np.ascontiguousarray(self.quaternions(angles), dtype="<f8")  # (n, wheels, 2)
+        fields = {}
         for k, (stamp, rotation) in enumerate(zip(self._stamps, self._rotations)):
-            out[:, stamp : stamp + 4] = sec_bytes
-            out[:, stamp + 4 : stamp + 8] = nsec_bytes
-            out[:, rotation : rotation + 16] = q[:, k, :].view(np.uint8).reshape(n, 16)
-        return out
+            fields.update({f"sec{k}": ("<i4", stamp), f"nsec{k}": ("<u4", stamp + 4), f"q{k}": (("<f8", 2), rotation)})
+        out = _messages(self._template, fields, n)
+        if n:
+            sec, nsec = np.divmod(stamp_ns, 1_000_000_000)
+            q = self.quaternions(angles)  # (n, wheels, 2)
+            for k in range(len(self._stamps)):
+                out[f"sec{k}"], out[f"nsec{k}"], out[f"q{k}"] = sec, nsec, q[:, k, :]
+        return out.view(np.uint8).reshape(n, len(self._template))
 
     def encode_many(self, stamp_ns: np.ndarray, angles: np.ndarray) -> List[bytes]:
         """The messages of :meth:`rows`, one ``bytes`` each."""
@@ -230,15 +236,12 @@ def joint_state_rows(stamp_ns: np.ndarray, position: np.ndarray, velocity: np.nd
     stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
     n, joints = len(stamp_ns), len(names)
     template, offsets = _joint_state_layout(names, frame_id)
-    out = np.empty((n, len(template)), dtype=np.uint8)
-    out[:] = np.frombuffer(template, dtype=np.uint8)
-    sec, nanosec = np.divmod(stamp_ns, 1_000_000_000)
-    out[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
-    out[:, 8:12] = nanosec.astype("<u4").view(np.uint8).reshape(n, 4)
-    for start, values in zip(offsets, (position, velocity, effort)):
-        values = np.ascontiguousarray(np.asarray(values, dtype=float).reshape(n, joints), dtype="<f8")
-        out[:, start : start + 8 * joints] = values.view(np.uint8).reshape(n, 8 * joints)
-    return out
+    out = _messages(template, {"sec": ("<i4", 4), "nanosec": ("<u4", 8), "position": (("<f8", joints), offsets[0]),
+                               "velocity": (("<f8", joints), offsets[1]), "effort": (("<f8", joints), offsets[2])}, n)
+    out["sec"], out["nanosec"] = np.divmod(stamp_ns, 1_000_000_000)
+    for name, values in (("position", position), ("velocity", velocity), ("effort", effort)):
+        out[name] = np.asarray(values, dtype=float).reshape(n, joints)
+    return out.view(np.uint8).reshape(n, len(template))
 
 
 def encode_joint_states(stamp_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray,
