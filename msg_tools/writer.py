@@ -286,6 +286,9 @@ class Ros2McapWriter:
     only closes the file, which stays readable up to its last complete chunk.
     """
 
+    #: the MCAP record writer (``mcap``'s; :class:`msg_tools.block_writer.BlockMcapWriter` has its own)
+    _records_class: Any = _McapWriter
+
     def __init__(
         self,
         output: Union[str, "os.PathLike[str]", IO[bytes]],
@@ -338,7 +341,7 @@ class Ros2McapWriter:
             self._owns_stream = False
         self._name = self.path if self.path is not None else "<stream>"
         try:
-            self._mcap = _McapWriter(
+            self._mcap = self._records_class(
                 self._stream,
                 chunk_size=2**62,  # chunks are closed by this class, see _after_message
                 enable_data_crcs=True,  # DataEnd carries the data section's CRC: readers detect damage

@@ -150,3 +150,13 @@ def test_bench_node_reads_the_nodes_own_period_error_from_its_latest_diagnostics
     assert _own_period_error([array("belt_drive: simulation", "0.9"), array("belt_drive: simulation", "0.12")]) == (
         0.01, 0.12, 2.5)
     assert all(v != v for v in _own_period_error([array("other: thing", "0.1")]))  # NaN: no node diagnostics
+
+
+def test_bench_replay_prints_the_split_of_a_torque_bag_replayed_to_mcap(tmp_path, capsys):
+    """``bench replay``: the bag replayed through sim's streamed path, the writing beside the old writer."""
+    assert main(["bench", "replay", "--minutes", "0.5", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    for label in ("read the bag", "simulation (stream windows)", "writing (encode, blocks", "old writer, message by message",
+                  "process CPU", "peak RSS"):
+        assert label in out, label
+    assert "210,008 messages" in out  # 30,001 samples x 7 topics (drive, joint_states, /tf, 4 outputs) + the URDF

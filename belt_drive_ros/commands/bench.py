@@ -32,6 +32,8 @@ studies:
                  whole warm simulate() x real time, start-up CPU of 'belt-drive sim paper --quiet' (not in 'all')
   network        belt networks: fead_i4 whole warm simulate() x real time beside the Python step loop it
                  replaced, ns per step per method, the paper's drive as a network vs the paper model (not in 'all')
+  replay         a 1-hour 1 kHz torque bag replayed offline to MCAP (--minutes; default 60): wall time
+                 split into reading, simulation and writing, CPU, peak memory (not in 'all')
   campaign       10,000-variant Monte Carlo of paper on Dask vs a loop of single runs, 1 vs 2 workers,
                  a fleet of 100 recordings replayed and compared (needs the campaign extra; not in 'all')
   network_slip   a belt network's slipping tier: x real time on fead_i4 sticking and slipping, the paper's
@@ -46,6 +48,7 @@ examples:
   belt-drive bench hostile --out /tmp/hostile    # the hostile-input table (minutes)
   belt-drive bench hostile --only campaign bagdir --out /tmp/hostile
   belt-drive bench kernel --out /tmp/k           # the compiled kernel's figures (a minute)
+  belt-drive bench replay --minutes 60           # the 1-hour torque bag replayed to MCAP
 
 Each study writes a CSV and a PNG into --out. CPU time is process time, the
 minimum of repeats; BLAS runs single-threaded (OPENBLAS_NUM_THREADS=1) so that
@@ -62,13 +65,14 @@ def register(sub) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "kernel", "network", "network_slip", "all"),
-                   help="which study to run")
+    p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "kernel", "network", "network_slip",
+                                     "replay", "all"), help="which study to run")
     p.add_argument("--out", type=Path, default=Path("docs/bench"), help="output folder (default: docs/bench)")
     p.add_argument("--quick", action="store_true", help="small sweeps and short runs (seconds; for tests)")
     p.add_argument("--quiet", action="store_true", help="no per-run log lines")
     p.add_argument("--seconds", type=float, default=60.0, help="soak: measured seconds (default 60)")
     p.add_argument("--duration", type=float, default=30.0, help="node: measured seconds (default 30)")
+    p.add_argument("--minutes", type=float, default=60.0, help="replay: minutes of 1 kHz torque bag (default 60)")
     p.add_argument("--floor", action="store_true",
                    help="node: then measure the same process without the model (rclpy + DDS only) for comparison")
     p.add_argument("--only", nargs="+", metavar="CATEGORY",
@@ -117,6 +121,10 @@ def run(args) -> int:
         from ..benchmarks import hostile
 
         return hostile.main(["--out", str(out)] + (["--quick"] if args.quick else []) + (["--only", *args.only] if args.only else []))
+    if args.study == "replay":
+        from ..benchmarks import recording
+
+        return recording.main_replay(args.minutes if not args.quick else 1.0)
     if args.study == "kernel":
         from ..benchmarks import kernel
 

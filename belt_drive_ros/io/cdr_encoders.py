@@ -18,6 +18,25 @@ from .bag_layout import JOINT_NAMES, JOINT_STATE, STRING, TF_MESSAGE
 _F64_HEADER = b"\x00\x01\x00\x00"
 
 
+def _messages(template: bytes, fields: dict, n: int) -> np.ndarray:
+    """``n`` copies of ``template`` as a structured array whose ``fields`` (name: (dtype, offset)) are the
+    variable parts: numpy writes each field of each message as one unit (its bytes: ``.view(np.uint8)``)."""
+    dtype = np.dtype({"names": ["all"] + list(fields), "formats": [(np.void, len(template))] + [f for f, _ in fields.values()],
+                      "offsets": [0] + [o for _, o in fields.values()], "itemsize": len(template)})
+    out = np.empty(n, dtype=dtype)
+    out["all"] = np.frombuffer(template, dtype=(np.void, len(template)))[0]
+    return out
+
+
+def float64_rows(values: np.ndarray) -> np.ndarray:
+    """CDR of ``std_msgs/Float64`` for each value as the rows of an ``(n, 12)`` uint8 array
+    (header ``00 01 00 00`` little endian, then the IEEE double)."""
+    raw = np.ascontiguousarray(values, dtype="<f8").reshape(-1)
+    out = _messages(_F64_HEADER + bytes(8), {"data": ("<f8", 4)}, raw.size)
+    out["data"] = raw
+    return out.view(np.uint8).reshape(raw.size, 12)
+
+
 def encode_float64(values: np.ndarray) -> List[bytes]:
     """CDR of ``std_msgs/Float64`` for each value, as ``mcap_ros2`` encodes it.
 
@@ -44,18 +63,14 @@ class JointStateEncoder:
     def __init__(self, joints: int = 4, names: Sequence[str] | None = None):
         names = JOINT_NAMES if names is None else tuple(names)  # a belt network: its pulleys and the arm
         joints = len(names)
-        marks = np.arange(1, 3 * joints + 1, dtype=float) * 1e300 / 7.0  # distinct, cannot occur elsewhere
-        groups = marks.reshape(3, joints)
-        template = encode_joint_states(np.zeros(1, dtype=np.int64), *(g[None, :] for g in groups), names=names)[0]
-        self._array = struct.Struct(f"<{joints}d")
-        self._offsets = []
-        for group in groups:  # position, velocity, effort: each a contiguous CDR sequence
-            packed = self._array.pack(*group)
-            offset = template.find(packed)
-            if offset < 0 or template.find(packed, offset + 1) >= 0:
-                raise RuntimeError("JointState template: an array is not found exactly once")
-            self._offsets.append(offset)
-        self._template = template
+        self._template, self._offsets = _joint_state_layout(names, "")
+        first, second, third = self._offsets
+        gap = second - first - 8 * joints  # the length field, and CDR's zero padding to 8 bytes
+        if gap not in (4, 8) or third - second - 8 * joints != gap:
+            raise RuntimeError("JointState template: the arrays are not consecutive sequences")
+        # the stamp, then the three arrays with the length fields (and padding) between them: two packs per message
+        between = "I" + "x" * (gap - 4)
+        self._arrays = struct.Struct(f"<{joints}d{between}{joints}d{between}{joints}d")
         self._joints = joints
         self._stamp = struct.Struct("<iI")
 
@@ -64,8 +79,7 @@ class JointStateEncoder:
         buf = bytearray(self._template)
         self._stamp.pack_into(buf, 4, *divmod(stamp_ns, 1_000_000_000))
         j = self._joints
-        for k, offset in enumerate(self._offsets):
-            self._array.pack_into(buf, offset, *values[k * j : (k + 1) * j])
+        self._arrays.pack_into(buf, self._offsets[0], *values[:j], j, *values[j : 2 * j], j, *values[2 * j :])
         return bytes(buf)
 
 
@@ -142,22 +156,24 @@ class TfEncoder:
             pack_rotation(buf, rotation, sign * sin(half), cos(half))
         return bytes(buf)
 
-    def encode_many(self, stamp_ns: np.ndarray, angles: np.ndarray) -> List[bytes]:
-        """One message per row: ``stamp_ns`` (n,) [ns], ``angles`` (n, wheels) [rad]."""
+    def rows(self, stamp_ns: np.ndarray, angles: np.ndarray) -> np.ndarray:
+        """One message per row of an ``(n, size)`` uint8 array: ``stamp_ns`` (n,) [ns], ``angles`` (n, wheels) [rad]."""
         stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
         n = stamp_ns.size
-        if not n:
-            return []
-        out = np.tile(np.frombuffer(self._template, dtype=np.uint8), (n, 1))
-        sec, nsec = np.divmod(stamp_ns, 1_000_000_000)
-        sec_bytes = sec.astype("<i4").view(np.uint8).reshape(n, 4)
-        nsec_bytes = nsec.astype("<u4").view(np.uint8).reshape(n, 4)
-        q = np.ascontiguousarray(self.quaternions(angles), dtype="<f8")  # (n, wheels, 2)
+        fields = {}
         for k, (stamp, rotation) in enumerate(zip(self._stamps, self._rotations)):
-            out[:, stamp : stamp + 4] = sec_bytes
-            out[:, stamp + 4 : stamp + 8] = nsec_bytes
-            out[:, rotation : rotation + 16] = q[:, k, :].view(np.uint8).reshape(n, 16)
-        return [row.tobytes() for row in out]
+            fields.update({f"sec{k}": ("<i4", stamp), f"nsec{k}": ("<u4", stamp + 4), f"q{k}": (("<f8", 2), rotation)})
+        out = _messages(self._template, fields, n)
+        if n:
+            sec, nsec = np.divmod(stamp_ns, 1_000_000_000)
+            q = self.quaternions(angles)  # (n, wheels, 2)
+            for k in range(len(self._stamps)):
+                out[f"sec{k}"], out[f"nsec{k}"], out[f"q{k}"] = sec, nsec, q[:, k, :]
+        return out.view(np.uint8).reshape(n, len(self._template))
+
+    def encode_many(self, stamp_ns: np.ndarray, angles: np.ndarray) -> List[bytes]:
+        """The messages of :meth:`rows`, one ``bytes`` each."""
+        return [row.tobytes() for row in self.rows(stamp_ns, angles)]
 
 
 def encode_robot_description(params) -> Tuple[str, bytes]:
@@ -171,16 +187,44 @@ def encode_robot_description(params) -> Tuple[str, bytes]:
     return urdf, msg_tools.encode(STRING, {"data": urdf})
 
 
-def encode_joint_states(stamp_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray,
-                        effort: np.ndarray, names: Sequence[str] = JOINT_NAMES,
-                        frame_id: str = "") -> List[bytes]:
-    """CDR of ``sensor_msgs/JointState`` messages, as ``mcap_ros2`` encodes them.
+_JOINT_LAYOUTS: dict = {}
+
+
+def _joint_state_layout(names: Sequence[str], frame_id: str) -> Tuple[bytes, List[int]]:
+    """(template, offsets): the CDR of a ``sensor_msgs/JointState`` with ``names`` and as many
+    positions, velocities and efforts, encoded once by :func:`msg_tools.encode` (zero padding), and the
+    byte offsets of its three double arrays (the stamp is at bytes 4-12)."""
+    key = (tuple(names), frame_id)
+    layout = _JOINT_LAYOUTS.get(key)
+    if layout is None:
+        from msg_tools import encode
+
+        joints = len(names)
+        marks = np.arange(1, 3 * joints + 1, dtype=float).reshape(3, joints) * 1e300 / 7.0  # cannot occur elsewhere
+        template = encode(JOINT_STATE, {
+            "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": frame_id},
+            "name": list(names), "position": marks[0], "velocity": marks[1], "effort": marks[2],
+        })
+        offsets = []
+        for group in marks:  # position, velocity, effort: each a contiguous CDR sequence
+            packed = np.ascontiguousarray(group, dtype="<f8").tobytes()
+            offset = template.find(packed)
+            if offset < 0 or template.find(packed, offset + 1) >= 0:
+                raise RuntimeError("JointState template: an array is not found exactly once")
+            offsets.append(offset)
+        layout = _JOINT_LAYOUTS[key] = (template, offsets)
+    return layout
+
+
+def joint_state_rows(stamp_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray, effort: np.ndarray,
+                     names: Sequence[str] = JOINT_NAMES, frame_id: str = "") -> np.ndarray:
+    """CDR of ``sensor_msgs/JointState`` messages as the rows of an ``(N, size)`` uint8 array.
 
     The layout of a JointState with fixed names and array sizes does not
-    change from message to message, so one message is encoded with
-    :func:`msg_tools.encode` (zero padding) as a template and the stamps and
-    values are written into copies of it. Byte-identical to encoding each
-    message with :func:`msg_tools.encode` (a test checks).
+    change from message to message: one message encoded with
+    :func:`msg_tools.encode` (zero padding) is the template, and the stamps
+    and values are written into copies of it. Each row is byte-identical to
+    encoding its message with :func:`msg_tools.encode` (a test checks).
 
     Parameters
     ----------
@@ -189,37 +233,19 @@ def encode_joint_states(stamp_ns: np.ndarray, position: np.ndarray, velocity: np
     position, velocity, effort : (N, J) float
         One column per joint of ``names``.
     """
-    from msg_tools import encode
-
     stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
     n, joints = len(stamp_ns), len(names)
-    cols = [np.asarray(a, dtype=float).reshape(n, joints) for a in (position, velocity, effort)]
-    # sentinels that cannot collide with the rest of the template
-    sentinels = [[1e300 + 1e290 * (joints * k + j + 1) for j in range(joints)] for k in range(3)]
-    template = encode(JOINT_STATE, {
-        "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": frame_id},
-        "name": list(names),
-        "position": sentinels[0],
-        "velocity": sentinels[1],
-        "effort": sentinels[2],
-    })
-    buf = np.frombuffer(template, dtype=np.uint8)
-    offsets = []
-    for group in sentinels:
-        starts = []
-        for value in group:
-            pattern = np.frombuffer(np.float64(value).astype("<f8").tobytes(), dtype=np.uint8)
-            hits = [i for i in range(len(buf) - 7) if np.array_equal(buf[i : i + 8], pattern)]
-            if len(hits) != 1:
-                raise RuntimeError("JointState template: sentinel not found exactly once")
-            starts.append(hits[0])
-        if any(b - a != 8 for a, b in zip(starts, starts[1:])):
-            raise RuntimeError("JointState template: array not contiguous")
-        offsets.append(starts[0])
-    out = np.tile(buf, (n, 1))
-    sec, nanosec = np.divmod(stamp_ns, 1_000_000_000)
-    out[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
-    out[:, 8:12] = nanosec.astype("<u4").view(np.uint8).reshape(n, 4)
-    for start, values in zip(offsets, cols):
-        out[:, start : start + 8 * joints] = np.ascontiguousarray(values, dtype="<f8").view(np.uint8).reshape(n, 8 * joints)
-    return [row.tobytes() for row in out]
+    template, offsets = _joint_state_layout(names, frame_id)
+    out = _messages(template, {"sec": ("<i4", 4), "nanosec": ("<u4", 8), "position": (("<f8", joints), offsets[0]),
+                               "velocity": (("<f8", joints), offsets[1]), "effort": (("<f8", joints), offsets[2])}, n)
+    out["sec"], out["nanosec"] = np.divmod(stamp_ns, 1_000_000_000)
+    for name, values in (("position", position), ("velocity", velocity), ("effort", effort)):
+        out[name] = np.asarray(values, dtype=float).reshape(n, joints)
+    return out.view(np.uint8).reshape(n, len(template))
+
+
+def encode_joint_states(stamp_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray,
+                        effort: np.ndarray, names: Sequence[str] = JOINT_NAMES,
+                        frame_id: str = "") -> List[bytes]:
+    """The messages of :func:`joint_state_rows`, one ``bytes`` each."""
+    return [row.tobytes() for row in joint_state_rows(stamp_ns, position, velocity, effort, names, frame_id)]

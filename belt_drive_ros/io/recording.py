@@ -75,7 +75,7 @@ from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence
 
 import numpy as np
 
-from msg_tools import Ros2McapWriter
+from msg_tools.block_writer import BlockMcapWriter
 from msg_tools.errors import MsgToolsError
 from msg_tools.units import UNITS_METADATA
 
@@ -89,6 +89,7 @@ from .bag_layout import (  # noqa: F401 - re-exported
 )  # fmt: skip
 from .cdr_encoders import (  # noqa: F401 - re-exported
     _F64_HEADER, JointStateEncoder, TfEncoder, encode_float64, encode_joint_states, encode_robot_description,
+    float64_rows, joint_state_rows,
 )  # fmt: skip
 
 __all__ = [
@@ -305,7 +306,7 @@ class ResultMcapWriter:
                                                  max_bag_size=max_bag_size, max_bag_duration=max_bag_duration,
                                                  **chunking)
             else:
-                self.writer = Ros2McapWriter(path, force=force, compression=compression, **chunking)
+                self.writer = BlockMcapWriter(path, force=force, compression=compression, **chunking)
             w = self.writer
             if not self._deferred:
                 w.add_metadata(SCENE_METADATA, self._record(samples))
@@ -379,32 +380,47 @@ class ResultMcapWriter:
         self.samples += int(index.size)
         t_ns = np.round(np.asarray(result.time, dtype=float)[index] * 1e9).astype(np.int64) + self.start_time_ns
         o = {name: np.asarray(values)[index] for name, values in result.outputs.items()}
-        payloads: List[List[bytes]] = []
+        payloads: List[np.ndarray] = []  # (samples, message size) bytes per topic
         for topic, type_name, signal in self.payload_topics:
             if signal is None:
                 zeros = np.zeros(index.size)
                 position = np.column_stack([o["phi_M"], o["phi_1"], o["phi_2"], o["phi_3"]])
                 velocity = np.column_stack([o["omega_M"], o["omega_1"], o["omega_2"], o["omega_3"]])
                 effort = np.column_stack([o["drive_torque"], zeros, zeros, -o["load_torque"]])
-                payloads.append(encode_joint_states(t_ns, position, velocity, effort))
+                payloads.append(joint_state_rows(t_ns, position, velocity, effort))
             elif signal == TF_TOPIC:
                 phi = np.column_stack([o["phi_M"], o["phi_1"], o["phi_2"], o["phi_3"]])
-                payloads.append(self._tf.encode_many(t_ns, phi))
+                payloads.append(self._tf.rows(t_ns, phi))
             else:
-                payloads.append(encode_float64(np.asarray(o[signal], dtype=float)))
+                payloads.append(float64_rows(np.asarray(o[signal], dtype=float)))
         try:
             if not self._topics_added:
                 self._add_topics(int(t_ns[0]))
-            write = self.writer.write_raw
-            topics = self.payload_topics
+            topics = [(topic, type_name) for topic, type_name, _ in self.payload_topics]
             passthrough = self._passthrough
-            for k, t in enumerate(t_ns.tolist()):
-                if self._next_passthrough < len(passthrough) and passthrough[self._next_passthrough][0] <= t:
-                    self._write_passthrough(t)
-                for (topic, type_name, _), data in zip(topics, payloads):
-                    write(topic, type_name, data[k], t)
+            a = 0
+            while a < t_ns.size:  # the samples up to the next passed-through message, as one block
+                k = self._next_passthrough
+                b = t_ns.size if k >= len(passthrough) else int(np.searchsorted(t_ns, passthrough[k][0], "left"))
+                if b > a:
+                    self._write_block(topics, t_ns[a:b], [p[a:b] for p in payloads])
+                if b < t_ns.size:  # passed-through messages at or before t_ns[b] go before that sample
+                    self._write_passthrough(int(t_ns[b]))
+                a = b
         except (MsgToolsError, OSError) as exc:
             raise bag_error(exc) from None
+
+    def _write_block(self, topics: list, t_ns: np.ndarray, payloads: List[np.ndarray]) -> None:
+        """Samples ``t_ns`` [ns] of every topic: one block (:class:`msg_tools.block_writer.BlockMcapWriter`),
+        or message by message into a writer without blocks (a bag folder's)."""
+        if hasattr(self.writer, "write_block"):
+            self.writer.write_block(topics, t_ns, payloads)
+            return
+        write = self.writer.write_raw
+        rows = [[row.tobytes() for row in p] for p in payloads]
+        for k, t in enumerate(t_ns.tolist()):
+            for (topic, type_name), data in zip(topics, rows):
+                write(topic, type_name, data[k], t)
 
     def close(self) -> Dict[str, int]:
         """Finish the file (the scene record now, for a stream); returns messages per topic."""

@@ -71,6 +71,7 @@ class NodeDiagnostics:
         prefix = node.get_name()
         last = node.last
         p50, p99, pmax = node.stats.period_error_ms(timing.nominal_period())
+        compute = timing.compute_us()  # the tick thread's compute time per tick [us] (None without it)
         rate = w.ticks / span
         realtime = timing.time_base() == "system"
         recorder = node.recorder
@@ -114,6 +115,8 @@ class NodeDiagnostics:
                 period_error_ms_p99=f"{p99:.4f}",
                 period_error_ms_max=f"{pmax:.4f}",
                 tick_lead_ms="-" if timing.lead_ns() is None else f"{timing.lead_ns() / 1e6:.3f}",
+                tick_compute_us_p50="-" if compute is None else f"{compute[0]:.1f}",
+                tick_compute_us_p99="-" if compute is None else f"{compute[1]:.1f}",
                 restarts=c["restarts"],
                 clock_jumps=c["clock_jumps"],
                 tick_gaps=c["tick_gaps"],

@@ -223,10 +223,12 @@ class BeltDriveNode(Node):
 
         # -- outputs: send only to topics somebody subscribes to ("matched" events keep the counts)
         self._readers = dict.fromkeys(("joint_states",) + OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS, 0)
+        self._count_listeners()
 
         def matched(name):
             def on_matched(info):
                 self._readers[name] = info.current_count
+                self._count_listeners()
 
             return PublisherEventCallbacks(matched=on_matched)
 
@@ -389,31 +391,32 @@ class BeltDriveNode(Node):
         subscribes to is not published; the recorder writes the same bytes.
         """
         y = self.sim.outputs(now_ns)
-        readers = self._readers
         recorder = self.recorder
-        # Python floats (the outputs of one sample are; the divergence fallback may give numpy scalars)
-        joints = tuple(map(float, (y["phi_M"], y["phi_1"], y["phi_2"], y["phi_3"], y["omega_M"], y["omega_1"],
-                                   y["omega_2"], y["omega_3"], y["drive_torque"], 0.0, 0.0, -y["load_torque"])))
-        joint_cdr = None
+        listening = self._listening
+        # the outputs of one sample are Python floats (the divergence fallback's numpy float64 scalars pack alike)
+        joints = (y["phi_M"], y["phi_1"], y["phi_2"], y["phi_3"], y["omega_M"], y["omega_1"], y["omega_2"],
+                  y["omega_3"], y["drive_torque"], 0.0, 0.0, -y["load_torque"])
         sends = []
-        if readers["joint_states"] or recorder is not None:
+        joint_cdr = tf_cdr = payloads = None
+        if listening[0] or recorder is not None:
             joint_cdr = self._joint_cdr.encode(now_ns, joints)
-            if readers["joint_states"]:
+            if listening[0]:
                 sends.append((self._pub_joint.publish, joint_cdr))
-        tf_cdr = None
-        if recorder is not None or readers.get("tf"):
+        if listening[1] or recorder is not None:
             tf_cdr = self._tf_cdr.encode(now_ns, joints[:4])
-            if readers.get("tf"):
+            if listening[1]:
                 sends.append((self._pub_tf.publish, tf_cdr))
-        floats = (joints[4], float(y["load_torque"]), float(y["belt_torque"]), float(y["relative_deflection"]))
-        if "friction_use" in y:  # the slipping model's outputs
-            floats += tuple(float(y[signal]) for _, signal in SLIP_FLOAT_OUTPUTS)
+        slipping = "friction_use" in y  # the slipping model's outputs
+        if slipping:
             self.counters["published_slip"] += 1
-        topics = OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS
-        payloads = None
-        if recorder is not None or any(readers[name] for name in topics[: len(floats)]):
+        floats = None
+        if recorder is not None or listening[2] or (slipping and listening[3]):
+            floats = (joints[4], y["load_torque"], y["belt_torque"], y["relative_deflection"])
+            if slipping:
+                floats += tuple(y[signal] for _, signal in SLIP_FLOAT_OUTPUTS)
             payloads = encode_float64((*floats, joints[8]))
-            for name, pub, data in zip(topics, self._pub_float, payloads[:-1]):
+            readers = self._readers
+            for name, pub, data in zip(OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS, self._pub_float, payloads[:-1]):
                 if readers[name]:
                     sends.append((pub.publish, data))
         if not defer:
@@ -434,6 +437,13 @@ class BeltDriveNode(Node):
         self.counters["published"] += 1
         return sends if defer else None
 
+    def _count_listeners(self) -> None:
+        """Whom a tick sends to (from the reader counts): joint_states, /tf, a Float64 output of
+        every model, a Float64 output of the slipping model."""
+        readers = self._readers
+        self._listening = (readers["joint_states"] > 0, readers.get("tf", 0) > 0,
+                           any(readers[name] for name in OUTPUT_TOPICS), any(readers[name] for name in SLIP_OUTPUT_TOPICS))
+
     def refresh_subscriber_counts(self) -> dict[str, int]:
         """Query the readers of each output topic now (the "matched" events keep them current
         afterwards); a driver that has just subscribed calls this before the next tick."""
@@ -442,6 +452,7 @@ class BeltDriveNode(Node):
             self._readers["tf"] = self._pub_tf.get_subscription_count()
         for name, pub in zip(OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS, self._pub_float):
             self._readers[name] = pub.get_subscription_count()
+        self._count_listeners()
         return {name: n for name, n in self._readers.items() if name != "tf"}  # /tf: nobody need listen
 
     def tick_pending(self) -> bool:

@@ -79,7 +79,8 @@ class NodeSimulation:
         #: slipping model: mode switches of the run so far (kind, scene time [s], direction) and the count
         self.slip_events: list = []
         counters.setdefault("slip_events", 0)
-        self._scene_time: tuple = (None, 0.0)  # (node time, origin, stepper) -> scene time of the last call
+        #: (node time, stepper, origin, scene time, the previous node time, its scene time): scene_time's answers
+        self._scene_time: tuple = (None, None, None, 0.0, None, 0.0)
         self.stepper = self._make_stepper(settings)
         self.x = settings.scene.initial_state.vector(settings.model.name, settings.params.ratio)
         self._init_hybrid()
@@ -163,16 +164,21 @@ class NodeSimulation:
 
         (``k * 1e6 / 1e9`` and ``k * 0.001`` may differ in the last bit; the
         torques at a tick are evaluated at the very float the offline run
-        uses.)
+        uses.) A tick asks for its own time and the last tick's: the last two
+        answers are kept (for the same origin and stepper).
         """
-        stepper = self.stepper
-        key = (now_ns, self.origin_ns, stepper)
-        if key == self._scene_time[0]:  # a tick asks up to four times for the same time
-            return self._scene_time[1]
-        t = (now_ns - self.origin_ns) / 1e9
+        stepper, origin = self.stepper, self.origin_ns
+        cached = self._scene_time
+        if cached[1] is stepper and cached[2] == origin:
+            if cached[0] == now_ns:
+                return cached[3]
+            if cached[4] == now_ns:
+                return cached[5]
+        t = (now_ns - origin) / 1e9
         grid = stepper.grid_time(round(t / stepper.dt))
         t = grid if abs(grid - t) <= snap_tolerance(t, stepper.dt) else t
-        self._scene_time = (key, t)
+        self._scene_time = (now_ns, stepper, origin, t, cached[0], cached[3]) if cached[1] is stepper and cached[2] == origin \
+            else (now_ns, stepper, origin, t, None, 0.0)
         return t
 
     def grid_time(self, now_ns: int) -> int:

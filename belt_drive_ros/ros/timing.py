@@ -222,6 +222,15 @@ class TickThread:
             return now - (now - origin) % tick
         return due
 
+    def compute_us(self) -> tuple[float, float]:
+        """Wall time [us] the thread's latest ticks took to compute (p50, p99; of up to
+        :data:`LEAD_WINDOW` ticks, NaN before the first): the tick's integration, outputs and
+        encoding, under the lock, before the sleep to its due time."""
+        n = min(self._n_busy, LEAD_WINDOW)
+        if not n:
+            return (float("nan"),) * 2
+        return tuple(float(v) * 1e6 for v in np.percentile(self._busy[:n], [50, 99]))
+
     def _lead(self, settings) -> int:
         """The lead [ns] for the next tick (class docstring); re-estimated every LEAD_UPDATE ticks
         and whenever the settings change."""
@@ -351,6 +360,10 @@ class TickSource:
     def lead_ns(self) -> int | None:
         """The tick thread's lead in force [ns] (None without the thread)."""
         return None if self._thread is None else self._thread.lead_ns
+
+    def compute_us(self) -> tuple[float, float] | None:
+        """The tick thread's compute time per tick [us] (p50, p99; :meth:`TickThread.compute_us`), None without it."""
+        return None if self._thread is None else self._thread.compute_us()
 
     @property
     def failure(self) -> BaseException | None:

@@ -1,0 +1,132 @@
+"""BlockMcapWriter: blocks of fixed-size messages give the file the per-message writer gives,
+as the mcap library (indexed and linear reads, CRCs checked), mcap_ros2's decoder and
+msg_tools.read_topic see it (decoded values compared, no ROS)."""
+
+import io
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.stream_reader import StreamReader
+from mcap_ros2.decoder import DecoderFactory
+
+from belt_drive_ros.io.recording import float64_rows, joint_state_rows
+from msg_tools import Ros2McapWriter, read_topic
+from msg_tools.block_writer import BlockMcapWriter
+from msg_tools.writer import encode
+
+TOPICS = [("/drive_torque", "std_msgs/msg/Float64"), ("/joint_states", "sensor_msgs/msg/JointState"),
+          ("/shaft_speed", "std_msgs/msg/Float64")]
+
+
+def _payloads(t_ns, seed):
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(t_ns.size, 4))
+    return [float64_rows(x[:, 0]), joint_state_rows(t_ns, x, 2 * x, -x), float64_rows(x[:, 1])]
+
+
+def _write(writer_class, target, blocks, **options):
+    """Metadata, a single message, then the blocks, a single message between the first two, a last one."""
+    with writer_class(target, **options) as w:
+        w.add_metadata("scene", {"name": "test"})
+        for topic, type_name in TOPICS:
+            w.add_topic(topic, type_name)
+        w.write("/note", "std_msgs/msg/String", {"data": "start"}, 5)
+        for i, (t_ns, payloads) in enumerate(blocks):
+            if hasattr(w, "write_block"):
+                w.write_block(TOPICS, t_ns, payloads)
+            else:
+                for k, t in enumerate(t_ns.tolist()):
+                    for (topic, type_name), p in zip(TOPICS, payloads):
+                        w.write_raw(topic, type_name, p[k].tobytes(), t)
+            if i == 0:
+                w.write("/note", "std_msgs/msg/String", {"data": "between"}, int(t_ns[-1]))
+        w.write("/note", "std_msgs/msg/String", {"data": "end"}, int(blocks[-1][0][-1]) + 1)
+    return w
+
+
+def _messages(data: bytes, indexed: bool):
+    """(topic, sequence, log time, publish time, decoded message as a tuple) in the reader's order."""
+    reader = make_reader(io.BytesIO(data), decoder_factories=[DecoderFactory()], validate_crcs=True)
+    if indexed:
+        it = reader.iter_decoded_messages(log_time_order=False)
+    else:
+        it = ((None, c, m, None) for _, c, m in _linear(data))
+    out = []
+    for _, channel, message, decoded in it:
+        if decoded is None:
+            decoded = DecoderFactory().decoder_for("cdr", reader.get_summary().schemas[channel.schema_id])(message.data)
+        value = getattr(decoded, "data", None)
+        if value is None:
+            value = (decoded.header.stamp.sec, decoded.header.stamp.nanosec, tuple(decoded.name),
+                     tuple(decoded.position), tuple(decoded.velocity), tuple(decoded.effort))
+        out.append((channel.topic, message.sequence, message.log_time, message.publish_time, value))
+    return out
+
+
+def _linear(data: bytes):
+    """Every message by a linear scan of the records (chunks decompressed, CRCs checked)."""
+    from mcap.records import Channel, Message
+
+    channels = {}
+    for record in StreamReader(io.BytesIO(data), skip_magic=False, validate_crcs=True).records:
+        if isinstance(record, Channel):
+            channels[record.id] = record
+        elif isinstance(record, Message):
+            yield None, channels[record.channel_id], record
+
+
+@pytest.mark.parametrize("chunk_size", [1024, 64 * 1024])
+def test_blocks_read_as_the_per_message_writers_file(chunk_size):
+    t1 = 1_000_000_000 + np.arange(700, dtype=np.int64) * 1_000_000
+    t2 = t1[-1] + 1_000_000 + np.arange(333, dtype=np.int64) * 1_000_000
+    blocks = [(t1, _payloads(t1, 1)), (t2, _payloads(t2, 2))]
+    files = {}
+    for cls in (Ros2McapWriter, BlockMcapWriter):
+        buf = io.BytesIO()
+        _write(cls, buf, blocks, chunk_size=chunk_size, flush_interval_s=None)
+        files[cls] = buf.getvalue()
+    for indexed in (True, False):
+        expected = _messages(files[Ros2McapWriter], indexed)
+        got = _messages(files[BlockMcapWriter], indexed)
+        assert len(got) == 3 + 3 * (700 + 333)
+        assert got == expected
+    summary = make_reader(io.BytesIO(files[BlockMcapWriter])).get_summary()
+    stats = summary.statistics
+    assert stats.message_count == 3 + 3 * 1033
+    assert stats.message_start_time == 5 and stats.message_end_time == int(t2[-1]) + 1
+    assert sorted(stats.channel_message_counts.values()) == [3, 1033, 1033, 1033]
+    assert len(summary.chunk_indexes) == stats.chunk_count > (1 if chunk_size == 1024 else 0)
+    assert [m.name for m in summary.metadata_indexes] == ["scene", "rosbag2"]
+    # msg_tools' own reader: the columns, vectorized
+    for topic, column in (("/drive_torque", 0), ("/shaft_speed", 1)):
+        data = read_topic(io.BytesIO(files[BlockMcapWriter]), topic)
+        values = np.concatenate([np.random.default_rng(s).normal(size=(n, 4))[:, column] for s, n in ((1, 700), (2, 333))])
+        np.testing.assert_array_equal(np.asarray(data["data"]), values)
+
+
+def test_block_payloads_are_the_encoder_bytes():
+    """Each message of a block is byte for byte its payload row (the CDR encoders' output)."""
+    t = np.arange(50, dtype=np.int64) * 1_000_000
+    payloads = _payloads(t, 3)
+    buf = io.BytesIO()
+    with BlockMcapWriter(buf) as w:
+        w.write_block(TOPICS, t, payloads)
+    rows = {topic: p for (topic, _), p in zip(TOPICS, payloads)}
+    seen = {topic: 0 for topic in rows}
+    for _, channel, message in make_reader(io.BytesIO(buf.getvalue())).iter_messages():
+        k = seen[channel.topic]
+        assert message.data == rows[channel.topic][k].tobytes()
+        assert message.log_time == message.publish_time == int(t[k])
+        assert message.sequence == k + 1
+        seen[channel.topic] += 1
+    assert payloads[0][7].tobytes() == encode("std_msgs/msg/Float64", {"data": float(np.frombuffer(payloads[0][7][4:], "<f8")[0])})
+
+
+def test_bad_blocks_are_refused():
+    with BlockMcapWriter(io.BytesIO()) as w:
+        t = np.arange(3, dtype=np.int64)
+        with pytest.raises(ValueError, match="payload"):
+            w.write_block(TOPICS[:1], t, [np.zeros((2, 12), np.uint8)])
+        with pytest.raises(ValueError, match=">= 0"):
+            w.write_block(TOPICS[:1], t - 5, [np.zeros((3, 12), np.uint8)])
