@@ -158,6 +158,12 @@ def warm() -> None:
     scheme = StageScheme((0.0,), (None,), np.hstack([np.eye(n), np.zeros((n, 2))]))
     loop = KernelLoop(scheme, 1e-3, np.vstack([np.eye(n), np.eye(n)]), (False, False), data, data)
     loop(np.array([0.0, 1e-3]), np.zeros(n), np.empty((1, n)))
+    from .kernel_variants import variant_steps
+
+    stacked = StageScheme((0.0,), (None,), np.hstack([np.eye(n), np.zeros((n, 2))])[None])
+    ens = KernelLoop(stacked, 1e-3, np.vstack([np.eye(n), np.eye(n)])[None], (False, False), data, data)
+    variant_steps(np.array([0.0, 1e-3]), np.zeros((1, 2, n)), 0, -math.inf, math.inf, 1.0e5, ens.reals, ens.tables,
+                  ens.ints, data.params, data.params, np.zeros(1, dtype=np.int64))  # fmt: skip
     from .network.slip import warm as warm_network_slip  # the belt networks' slipping tier
 
     warm_network_slip()

@@ -10,21 +10,37 @@ variant equals its single run bit for bit, and one call covers a whole
 chunk of variants (no Python per variant or per step).
 
 Serial on purpose (no ``prange``): a campaign runs one single-threaded Dask
-worker process per core, each calling this on its own chunk; threads inside
-a worker would compete with the other workers for the same cores
-(docs/campaigns.md gives the measurements).
+worker process per core, each calling this on its own chunk of variants;
+threads inside a worker would only compete with the other worker for the
+same cores (measured: ``prange`` on 2 threads in one process was no faster
+than 1 thread on this 2-core machine, and 2 such processes would run 4
+threads on 2 cores). The function is compiled through numba's parallel
+pipeline with every parallel transformation switched off (:data:`_PIPELINE`:
+no parfor, so no thread is ever started): the same floats, and 2.5x less
+CPU per variant-step than the plain pipeline on ``paper``'s lawson5
+(170 against 430 ns here; docs/campaigns.md).
 """
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from numba import njit
+from numba.core.errors import NumbaPerformanceWarning
 
 from .kernel import HEADER, SECTIONS, _linear_steps
 from .profile_data import OK
 
 
-@njit(cache=True, nogil=True)
+#: numba's ``parallel`` option with every transformation off: the parallel pipeline's passes, no threads
+_PIPELINE = dict(comprehension=False, reduction=False, inplace_binop=False, setitem=False, numpy=False, stencil=False,
+                 fusion=False, prange=False)  # fmt: skip
+# numba says so when it compiles (no parallel transformation was possible): that is the point here
+warnings.filterwarnings("ignore", message=r"(?s).*'parallel=True' was specified", category=NumbaPerformanceWarning)
+
+
+@njit(cache=True, nogil=True, parallel=_PIPELINE)
 def variant_steps(times, states, j, lo, hi, limit, reals, tables, ints, dp, lp, status):
     """Steps ``times[k] -> times[k+1]`` of every variant from ``states[v, j]`` into ``states[v, j+1 : j+len(times)]``.
 
