@@ -138,7 +138,9 @@ class GroupRun:
         The same operations per element as the model's :meth:`outputs` on
         one run (``y = C x + D u`` summed column by column from the left;
         the span forces from the belt torque), so column v equals
-        ``models[v].outputs(states[:, :, v], inputs[:, :, v])[name]`` bit for bit (a row of D that is zero for every variant is skipped: it adds only zeros, so the run's torques are computed only for outputs that read them).
+        ``models[v].outputs(states[:, :, v], inputs[:, :, v])[name]`` bit for bit
+        (a row of D that is zero for every variant is skipped: it adds only
+        zeros, so the run's torques are computed only for outputs that read them).
         """
         cached = self._outputs.get(name)
         if cached is not None:
