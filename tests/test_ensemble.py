@@ -227,3 +227,72 @@ def test_model_stack_is_each_variants_model(kind):
     keep = [3, 0, 5]
     part = stack.subset(keep)
     assert np.array_equal(part.A, stack.A[keep]) and part.model(1).params == params[0]
+
+
+@pytest.mark.parametrize("name", ["paper", "bsg_start", "e_motor_start", "truck_compressor"])
+def test_each_variant_is_its_single_run_bit_for_bit(name):
+    """The ensemble runs the single run's own compiled loop per variant: the very same floats (states and knots),
+    steps split and clamped at torque breakpoints included."""
+    scene = load_scene(name)
+    scene = scene.with_overrides(model="flexible", duration=min(scene.duration, 0.4))
+    scenes = _variants(scene, 8, seed=11)
+    outcomes = sorted(simulate_many(scenes), key=lambda o: o.index)
+    assert all(o.ensemble and o.error is None for o in outcomes)
+    for outcome, s in zip(outcomes, scenes):
+        single = simulate(s)
+        assert np.array_equal(outcome.result.time, single.time)
+        assert np.array_equal(outcome.result.states, single.states), s.name
+
+
+def test_a_diverging_variant_is_found_and_the_others_step_on():
+    """A variant whose state leaves the plausible range gets NaN knots after its first bad one (found, reported
+    as the single run reports it); the others are untouched, across windows."""
+    from belt_drive_ros.core.model import ModelStack
+
+    scene = load_scene("paper").with_overrides(model="flexible", method="euler", dt=5e-3, duration=1.0)
+    params = [v.params for v in _variants(scene, 4, seed=2)]
+    params[2] = params[2].replace(k=5e6)  # euler at 5 ms: the belt mode grows without bound
+    ens = Ensemble(ModelStack("flexible", params), scene.drive, scene.load, "euler", scene.dt)
+    times, states = ens.run(np.zeros((4, 4)), 0.0, scene.duration)
+    found: dict = {}
+    for t, s in ens.windows(np.zeros((4, 4)), 0.0, scene.duration, 16):
+        ens.first_bad(t, s, found)
+    assert list(found) == [2] and list(ens.diverged(times, states)) == [2]
+    assert np.isnan(states[-1, :, 2]).all()
+    for v in (0, 1, 3):
+        alone = Ensemble(ModelStack("flexible", [params[v]]), scene.drive, scene.load, "euler", scene.dt)
+        assert np.array_equal(alone.run(np.zeros((1, 4)), 0.0, scene.duration)[1][:, :, 0], states[:, :, v])
+
+
+def test_the_variant_kernel_compiles_once_and_runs_interpreted_alike(tmp_path):
+    """One compiled specialisation of the variant loop whatever the scene; NUMBA_DISABLE_JIT=1 gives the same floats."""
+    import os
+    import subprocess
+    import sys
+
+    from belt_drive_ros.core import kernel, kernel_variants
+
+    for name in ("paper", "bsg_start", "truck_compressor"):
+        scene = load_scene(name).with_overrides(model="flexible", duration=0.05)
+        list(simulate_many(_variants(scene, 8, seed=5)))
+    assert len(kernel_variants.variant_steps.signatures) == 1
+    assert len(kernel.linear_steps.signatures) == 1
+    code = (
+        "import sys, numpy as np\n"
+        "from belt_drive_ros.core.ensemble import Ensemble\n"
+        "from belt_drive_ros.core.model import ModelStack\n"
+        "from belt_drive_ros.core.scene import load_scene\n"
+        "s = load_scene('paper')\n"
+        "ps = [s.params.replace(k=s.params.k * f) for f in (0.9, 1.0, 1.1)]\n"
+        "e = Ensemble(ModelStack('flexible', ps), s.drive, s.load, 'lawson5', s.dt)\n"
+        "np.save(sys.argv[1], e.run(np.zeros((3, 4)), 0.0, 0.1)[1])\n"
+    )
+    states = {}
+    for jit in ("0", "1"):
+        path = tmp_path / f"states_{jit}.npy"
+        env = dict(os.environ, NUMBA_DISABLE_JIT=jit)
+        done = subprocess.run([sys.executable, "-c", code, str(path)], env=env, capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, done.stderr
+        states[jit] = np.load(path)
+    assert states["0"].shape == (21, 4, 3)
+    assert np.array_equal(states["0"], states["1"])

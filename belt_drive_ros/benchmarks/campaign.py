@@ -1,10 +1,16 @@
 """``belt-drive bench campaign``: the campaign figures, measured side by side in one run.
 
-1. A tolerance Monte Carlo of ``paper`` (5 s each; belt stiffness and
-   damping, inertias, pre-tension, friction vary) as ``belt-drive sweep``
-   runs it: the default local cluster (one worker process per CPU), wall
-   time from the command's start (cluster start and stop included) and of
-   the batches alone.
+1. A tolerance Monte Carlo of ``paper`` (100,000 variants, 5 s each; belt
+   stiffness and damping, inertias, pre-tension, friction vary) as
+   ``belt-drive sweep`` runs it: the default local cluster (one worker
+   process per CPU), wall time from the command's start (cluster start and
+   stop included) and of the batches alone; the workers' CPU per
+   variant-step (everything a worker does, over the variants and the
+   ``paper`` steps of 5 ms).
+1b. The compiled variant loop alone (:func:`~belt_drive_ros.core.kernel_variants.variant_steps`,
+   in this process): CPU per variant-step of ``paper``'s ``lawson5`` run
+   over 2,000 variants, beside a single run's compiled loop per step (the
+   same kernel on one plant).
 2. The same variants as a plain loop of single ``simulate()`` calls (a
    sample of them, in this process, BLAS single-threaded like the workers;
    runs/s), and the ratio of the two throughputs. ``simulate`` runs the
@@ -36,11 +42,13 @@ import tempfile
 import time
 from pathlib import Path
 
+#: variants of the Monte Carlo (``--quick``: QUICK_SAMPLES); the 1-vs-2-worker scaling runs SCALING_SAMPLES
+SAMPLES, QUICK_SAMPLES, SCALING_SAMPLES = 100_000, 2_000, 10_000
 MC = {
     "name": "paper_tolerances",
     "scene": "paper",
     "monte_carlo": {
-        "samples": 10000,
+        "samples": SAMPLES,
         "seed": 1,
         "vary": {
             "params.k": {"normal": 0.05},
@@ -95,6 +103,24 @@ def _cpu_seconds() -> tuple[float, float]:
     return usage.ru_utime, usage.ru_stime
 
 
+def _default_run(campaign, out: Path, progress: bool):
+    """``run_campaign`` on the default local cluster as ``belt-drive sweep`` starts it; (its run, the workers' CPU [s])."""
+    from distributed import Client
+
+    from ..campaign.execute import local_cluster, run_campaign
+
+    cluster = local_cluster(os.cpu_count() or 1)
+    client = Client(cluster)
+    try:
+        before = client.run(_cpu_seconds)
+        done = run_campaign(campaign, out, client=client, progress=progress)
+        after = client.run(_cpu_seconds)
+        return done, sum(sum(after[a]) - sum(before[a]) for a in after)
+    finally:
+        client.close()
+        cluster.close()
+
+
 def _scaling_run(campaign, out: Path, workers: int, batch_size: int) -> tuple[float, float, float, float]:
     """(runs/s of the batches, cluster start [s], workers' CPU [s], of it system [s]) on ``workers`` warm workers."""
     from distributed import Client, wait
@@ -121,6 +147,52 @@ def _scaling_run(campaign, out: Path, workers: int, batch_size: int) -> tuple[fl
         cluster.close()
 
 
+def kernel_figures(count: int = 2000, repeats: int = 3) -> tuple[float, float]:
+    """(CPU ns per variant-step of the variant loop, CPU ns per step of a single run's loop): ``paper``, lawson5 at 5 ms.
+
+    The minimum over ``repeats`` of 200 steps of ``count`` variants (k, c, I_M varied) in one
+    :func:`~belt_drive_ros.core.kernel_variants.variant_steps` call, and of 200,000 steps of the base
+    scene's single run (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`), process CPU time.
+    """
+    import math
+
+    import numpy as np
+
+    from ..core.ensemble import Ensemble
+    from ..core.integrators import method_class
+    from ..core.kernel_variants import variant_steps
+    from ..core.model import ModelStack, make_model
+    from ..core.scene import load_scene
+    from ..core.stepper import SPEED_LIMIT, Plant
+
+    scene = load_scene("paper")
+    rng = np.random.default_rng(1)
+    p = scene.params
+    params = [p.replace(k=p.k * rng.uniform(0.9, 1.1), c=p.c * rng.uniform(0.8, 1.2), I_M=p.I_M * rng.uniform(0.95, 1.05))
+              for _ in range(count)]  # fmt: skip
+    loop = Ensemble(ModelStack("flexible", params), scene.drive, scene.load, scene.method, scene.dt)._loop(scene.dt)
+    steps = 200
+    times = np.arange(steps + 1) * scene.dt
+    states = np.zeros((count, steps + 1, 4))
+    best = math.inf
+    for _ in range(repeats):
+        status = np.zeros(count, dtype=np.int64)
+        c0 = time.process_time()
+        variant_steps(times, states, 0, -math.inf, math.inf, SPEED_LIMIT, loop.reals, loop.tables, loop.ints,
+                      loop._dp, loop._lp, status)  # fmt: skip
+        best = min(best, time.process_time() - c0)
+    per_variant_step = best / (count * steps) * 1e9
+    plant = Plant(make_model("flexible", p), scene.drive, scene.load)
+    single = plant.kernel_loop(method_class(scene.method)(plant.model.A, plant.model.B, scene.dt))
+    n = 200_000
+    times, out, best = np.arange(n + 1) * scene.dt, np.empty((n, 4)), math.inf
+    for _ in range(repeats):
+        c0 = time.process_time()
+        single(times, np.zeros(4), out)
+        best = min(best, time.process_time() - c0)
+    return per_variant_step, best / n * 1e9
+
+
 def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
     from ..campaign.execute import loop_of_single_runs, run_campaign
 
@@ -129,22 +201,24 @@ def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        data = dict(MC)
-        if quick:
-            data = dict(MC, monte_carlo=dict(MC["monte_carlo"], samples=400))
+        data = dict(MC, monte_carlo=dict(MC["monte_carlo"], samples=QUICK_SAMPLES if quick else SAMPLES))
         campaign = _campaign(data, tmp)
         n = campaign.samples
+        scaling = _campaign(dict(MC, name="paper_scaling",
+                                 monte_carlo=dict(MC["monte_carlo"], samples=min(n, SCALING_SAMPLES))), tmp)  # fmt: skip
+        kernel_ns, single_ns = kernel_figures(500 if quick else 2000)
         # 1. the Monte Carlo on the default cluster (one worker per CPU)
         load_start = os.getloadavg()[0]
         t0 = time.perf_counter()
-        default = run_campaign(campaign, tmp / "mc_default", progress=not quiet)
+        default, worker_cpu = _default_run(campaign, tmp / "mc_default", not quiet)
         wall_default = time.perf_counter() - t0
+        steps = round(campaign.base.duration / campaign.base.dt)
         ensemble = int((default.table["ran"] == "ensemble").sum())
         single = int((default.table["ran"] == "single").sum())
         failed = int((default.table["error"] != "").sum())
         # 2. a loop of single simulate() calls on a sample of the same variants
         sample = default.table.drop(columns=[c for c in default.table.columns if not c.startswith("params.") and c != "variant"])
-        sample = sample.iloc[:: max(n // (50 if quick else 300), 1)].to_dict("records")
+        sample = sample.iloc[:: max(n // (20 if quick else 200), 1)].to_dict("records")
         t0 = time.perf_counter()
         loop_of_single_runs(campaign, sample)
         loop_rate = len(sample) / (time.perf_counter() - t0)
@@ -153,13 +227,13 @@ def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
         loop_rate_unguarded = len(sample) / (time.perf_counter() - t0)
         # 3. 1 worker against 2: clusters started and warmed up first, the same batches; alternating, best of two
         tries, starts, cpu = {1: [], 2: []}, {}, {1: [], 2: []}
-        size = max(n // 8, 1)
-        for w in (1, 2, 1, 2):
-            rate, starts[w], seconds, system = _scaling_run(campaign, tmp / f"mc_{w}_{len(tries[w])}", w, size)
+        size = max(scaling.samples // 8, 1)
+        for w in (1, 2) if quick else (1, 2, 1, 2):
+            rate, starts[w], seconds, system = _scaling_run(scaling, tmp / f"mc_{w}_{len(tries[w])}", w, size)
             tries[w].append(rate)
             cpu[w].append((seconds, system))
         rates = {w: max(r) for w, r in tries.items()}
-        per_run = {w: min(c for c, _ in cpu[w]) / n * 1e3 for w in cpu}  # ms of worker CPU per run
+        per_run = {w: min(c for c, _ in cpu[w]) / scaling.samples * 1e3 for w in cpu}  # ms of worker CPU per run
         system_share = {w: sum(s for _, s in cpu[w]) / sum(c for c, _ in cpu[w]) for w in cpu}
         # 4. the fleet: 100 recordings, goldens from a first run, then replay and compare
         count = 12 if quick else 100
@@ -175,8 +249,12 @@ def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
         del golden
     rate_default = n / wall_default
     rows = [
-        ("mc_variants", n, "paper, 5 s each, 6 tolerances"),
-        ("mc_wall_s", wall_default, f"default cluster ({default.workers} workers), start to results.parquet"),
+        ("mc_variants", n, f"paper, 5 s each ({steps} steps of lawson5), 6 tolerances"),
+        ("mc_wall_s", wall_default, f"default cluster ({default.workers} workers), start to results.parquet (target <= 20 s)"),
+        ("worker_cpu_ns_per_variant_step", worker_cpu / (n * steps) * 1e9,
+         "the workers' whole CPU (rigid estimate, lawson5 run, metrics, tables) / (variants x steps)"),
+        ("kernel_ns_per_variant_step", kernel_ns, "variant_steps alone, lawson5, CPU per variant-step (target <= 50 ns)"),
+        ("single_run_ns_per_step", single_ns, "the same kernel on one plant (a single run's loop), CPU per step"),
         ("mc_batches_wall_s", default.compute_wall, "the same from the first task sent to the last result written"),
         ("mc_ran_ensemble", ensemble, "variants stepped in an ensemble"),
         ("mc_ran_single", single, "variants run singly"),

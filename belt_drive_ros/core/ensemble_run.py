@@ -93,7 +93,7 @@ class GroupRun:
         self.indices, self.scenes = list(indices), list(scenes)
         self.models = models if isinstance(models, ModelStack) else ModelStack.of_models(models)
         self.kind, self.method = kind, method
-        self.times, self.states, self.inputs = times, states, inputs
+        self.times, self.states, self._inputs = times, states, inputs
         self.choices = list(choices) if choices is not None else [None] * len(self.indices)
         self._outputs: dict = {}
         self._params: dict = {}
@@ -103,14 +103,22 @@ class GroupRun:
     def __len__(self) -> int:
         return len(self.indices)
 
+    @property
+    def inputs(self) -> np.ndarray:
+        """Torques u (N+1, m, V) [N m] at the knots (computed on first use when given as a function of the run)."""
+        if callable(self._inputs):
+            self._inputs = self._inputs(self.times, self.states)
+        return self._inputs
+
     def window(self, times, states, inputs) -> "GroupRun":
         """The same variants over other knots (a window of :meth:`~belt_drive_ros.core.ensemble.Ensemble.windows`).
 
         Shares the output matrices and parameters; outputs are computed
-        afresh for the window's samples.
+        afresh for the window's samples. ``inputs``: an array, or
+        ``inputs(times, states)`` called when an output first needs them.
         """
         out = copy.copy(self)
-        out.times, out.states, out.inputs = times, states, inputs
+        out.times, out.states, out._inputs = times, states, inputs
         out._outputs = {}
         return out
 
@@ -130,7 +138,9 @@ class GroupRun:
         The same operations per element as the model's :meth:`outputs` on
         one run (``y = C x + D u`` summed column by column from the left;
         the span forces from the belt torque), so column v equals
-        ``models[v].outputs(states[:, :, v], inputs[:, :, v])[name]`` bit for bit.
+        ``models[v].outputs(states[:, :, v], inputs[:, :, v])[name]`` bit for bit
+        (a row of D that is zero for every variant is skipped: it adds only
+        zeros, so the run's torques are computed only for outputs that read them).
         """
         cached = self._outputs.get(name)
         if cached is not None:
@@ -140,7 +150,11 @@ class GroupRun:
         elif name in LINEAR_OUTPUTS:
             j = LINEAR_OUTPUTS.index(name)
             out = None
-            for block, rows in ((self.states, self._C[j]), (self.inputs, self._D[j])):
+            for block, rows in ((self.states, self._C[j]), (None, self._D[j])):
+                if block is None:  # the inputs' part: a zero row adds only zeros (the run's torques are not needed)
+                    if not np.any(rows):
+                        continue
+                    block = self.inputs
                 y = block[:, 0, :] * rows[0]
                 for k in range(1, rows.shape[0]):
                     y = y + block[:, k, :] * rows[k]
@@ -413,7 +427,7 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
         run = None
         for times, states in ens.windows(x0, 0.0, T, size):
             ens.first_bad(times, states, found)
-            run = block.window(times, states, ens.inputs(times, states))
+            run = block.window(times, states, ens.inputs)  # the torques only if an output needs them
             with np.errstate(all="ignore"):  # diverged variants (dropped below) give NaN
                 if first.model == "auto":  # the capstan check of each variant's linear run (fidelity.limit_exceedance)
                     ratio = friction_use(run.output("belt_torque"), run.param("r_3"), run.friction_limit())

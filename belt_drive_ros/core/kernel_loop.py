@@ -59,6 +59,13 @@ class KernelLoop:
     drive, load : :class:`~belt_drive_ros.core.profile_data.ProfileData`.
     extra : tuple of :class:`FrictionForce` (the inputs after the two torques).
     guard : optional Guard.
+
+    Variants: a scheme whose matrices carry a leading variant axis (V, ...)
+    and a wheel map (V, 4, n) give ``reals`` of shape (V, R), one row per
+    variant in the layout of one plant (the same operations build each row:
+    row v is what the plant of variant v alone gets), for
+    :func:`~belt_drive_ros.core.kernel_variants.variant_steps`; ``ints`` and
+    the profiles are shared.
     """
 
     def __init__(self, scheme, dt: float, wheel_map, uses_angle, drive, load, extra=(), guard=None):
@@ -66,41 +73,48 @@ class KernelLoop:
 
         self._steps = kernel.linear_steps
         W = np.asarray(wheel_map, dtype=float)
-        n = W.shape[1]
+        stacked = W.ndim == 3
+        W = W if stacked else W[None]  # (V, 4, n)
+        V, n = W.shape[0], W.shape[2]
         s = len(scheme.nodes)
         m = 2 + len(extra)
         cols = n + m * s
-        if scheme.final.shape != (n, cols):
-            raise ValueError(f"kernel loop: the scheme's final map is {scheme.final.shape}, expected {(n, cols)}")
+        final = np.asarray(scheme.final, dtype=float)
+        final = final if final.ndim == 3 else final[None]
+        if final.shape[1:] != (n, cols):
+            raise ValueError(f"kernel loop: the scheme's final map is {final.shape[1:]}, expected {(n, cols)}")
         rows = max(4, n)
-        self.W = np.ascontiguousarray(W.reshape(1, 4, n))
         kinds = np.zeros(s, dtype=np.int64)
-        S = np.zeros((s, rows, cols))
+        S = np.zeros((V, s, rows, cols))
         for i, M in enumerate(scheme.stages):
             if M is None or (scheme.implicit and i == s - 1):
                 continue
-            padded = np.zeros((M.shape[0], cols))
-            padded[:, : M.shape[1]] = M
+            M = M if M.ndim == 3 else M[None]
+            padded = np.zeros((M.shape[0], M.shape[1], cols))
+            padded[:, :, : M.shape[2]] = M
             if scheme.final_base == i:
                 kinds[i] = 2
-            else:  # only the wheel coordinates feed the torques: W @ the stage map
+            else:  # only the wheel coordinates feed the torques: W @ the stage map (matrix by matrix)
                 kinds[i], padded = 1, W @ padded
-            S[i, : padded.shape[0]] = padded
-        self.kinds = kinds
-        self.offsets = np.array([float(c * dt) if c else 0.0 for c in scheme.nodes])
-        self.S = S
-        self.F = np.ascontiguousarray(np.asarray(scheme.final, dtype=float).reshape(1, n, cols))
-        self.final_base = -1 if scheme.final_base is None else int(scheme.final_base)
-        self.tol, self.max_iter = (float(scheme.implicit[0]), int(scheme.implicit[1])) if scheme.implicit else (0.0, 0)
+            S[:, i, : padded.shape[1]] = padded
+        offsets = np.array([float(c * dt) if c else 0.0 for c in scheme.nodes])
+        final_base = -1 if scheme.final_base is None else int(scheme.final_base)
+        tol, max_iter = (float(scheme.implicit[0]), int(scheme.implicit[1])) if scheme.implicit else (0.0, 0)
         self.uses_angle = np.array([bool(u) for u in uses_angle], dtype=np.int64)
         self.drive, self.load = drive, load
-        self.extra = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
-        self.guard = guard_array(guard, n)
+        extra_rows = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
         d, l = drive, load
-        sections = (self.W, self.offsets, S, self.F, np.array([self.tol]), self.extra, self.guard, d.tx, d.ty, l.tx, l.ty)
-        starts = np.cumsum([0] + [a.size for a in sections])
-        self.reals = np.concatenate([np.ravel(a) for a in sections]).astype(np.float64)
-        header = [n, s, len(extra), rows, cols, self.final_base, self.max_iter, *self.uses_angle]
+        sections = (W, offsets, S, final, np.array([tol]), extra_rows, guard_array(guard, n), d.tx, d.ty, l.tx, l.ty)
+        starts = np.cumsum([0] + [a[0].size if a.ndim >= 3 else a.size for a in sections])
+        own = sections[:7]  # the plant's and method's numbers (per variant); then the profiles' tables (shared)
+        self.reals = np.concatenate(
+            [a.reshape(V, -1) if a.ndim >= 3 else np.broadcast_to(np.ravel(a), (V, a.size)) for a in own], axis=1
+        ).astype(np.float64)
+        #: the profiles' tables: after the plant's numbers in a single run's ``reals``, apart for variants (shared)
+        self.tables = np.concatenate([np.ravel(a) for a in sections[7:]]).astype(np.float64)
+        if not stacked:
+            self.reals = np.concatenate([self.reals[0], self.tables])
+        header = [n, s, len(extra), rows, cols, final_base, max_iter, *self.uses_angle]
         self.ints = np.concatenate([header, starts, kinds, d.kinds, l.kinds]).astype(np.int64)
         # the profiles' parameters stay their own arrays: a held torque's value written in place is read
         self._dp, self._lp = d.params, l.params
@@ -144,6 +158,13 @@ def warm() -> None:
     scheme = StageScheme((0.0,), (None,), np.hstack([np.eye(n), np.zeros((n, 2))]))
     loop = KernelLoop(scheme, 1e-3, np.vstack([np.eye(n), np.eye(n)]), (False, False), data, data)
     loop(np.array([0.0, 1e-3]), np.zeros(n), np.empty((1, n)))
+    from .kernel_variants import variant_steps
+
+    stacked = StageScheme((0.0,), (None,), np.hstack([np.eye(n), np.zeros((n, 2))])[None])
+    ens = KernelLoop(stacked, 1e-3, np.vstack([np.eye(n), np.eye(n)])[None], (False, False), data, data)
+    variant_steps(np.array([0.0, 1e-3]), np.zeros((1, 2, n)), 0, -math.inf, math.inf, 1.0e5, ens.reals, ens.tables,
+                  ens.ints, data.params, data.params, np.zeros(1, dtype=np.int64))  # fmt: skip
+
     from .network.simulate import warm as warm_network
 
     warm_network()
