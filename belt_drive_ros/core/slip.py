@@ -356,7 +356,8 @@ class HybridStepper:
         comparison only).
     """
 
-    def __init__(self, model: SlippingBeltModel, drive: Callable, load: Callable, method: str = "exact", locate: bool = True):
+    def __init__(self, model: SlippingBeltModel, drive: Callable, load: Callable, method: str = "exact", locate: bool = True,
+                 data=None):  # fmt: skip
         self.model, self.drive, self.load, self.method, self.locate = model, drive, load, method, locate
         self._steps: dict = {}
         self._guards: dict = {}
@@ -379,6 +380,15 @@ class HybridStepper:
         # dQ_max/dt = dlim * omega_M * omega_M' (the centrifugal part), and |q|, |A|, |B| of stick for the rounding scale
         self._dlim = -2.0 * p.belt_mass * (p.r_2 * p.gear_ratio) ** 2 * p.capstan_factor
         self._abs_stick = (np.abs(model.q_row), np.abs(model.A_stick), np.abs(model.B_stick))
+        #: the compiled event step's arrays (:func:`~belt_drive_ros.core.kernel_slip.pack`) when the torques are
+        #: data (``data`` = (drive data, load data, uses_angle)) and the method steps on the modal flow
+        self._kernel = None
+        if data is not None and None not in data[:2] and locate and self._modal_steps:
+            from . import kernel_slip
+
+            self._kernel = kernel_slip.pack(model, method, *data)
+            self._event_step = kernel_slip.event_step
+            self._event_buffer = np.zeros((kernel_slip.MAX_SWITCHES + 1, 8))
 
     # ---------------------------------------------------------- the flows
     def _integrator(self, mode: int, h: float):
@@ -596,6 +606,8 @@ class HybridStepper:
         in the new mode. ``y1``: the method's state at ``t1`` in ``mode``
         when already known (a step without cuts that a compiled loop took).
         """
+        if self._kernel is not None:
+            return self._advance_kernel(t0, t1, y, mode, sigma, cuts, events, dt, hi_end, y1)
         if self.locate and self._modal_steps and len(self._modal) == 2:
             return self._advance_modal(t0, t1, y, mode, sigma, cuts, events, dt, hi_end, y1)
         edges = [t0, *cuts, t1]
@@ -627,6 +639,23 @@ class HybridStepper:
                 if n_events > 64:
                     raise SlipError(f"slip: more than 64 mode switches in one step at t={a:.9g} s (chattering); reduce dt")
         return y, mode, sigma
+
+    def _advance_kernel(self, t0, t1, y, mode, sigma, cuts, events, dt, hi_end, y1):
+        """:meth:`advance` by the compiled event step (:func:`~belt_drive_ros.core.kernel_slip.event_step`)."""
+        yk = np.array(y, dtype=float)
+        given = 0 if (cuts or y1 is None) else 1
+        y1k = np.array(y1, dtype=float) if given else np.empty(5)
+        ev = self._event_buffer
+        mode, sigma, n, status = self._event_step(
+            float(t0), float(t1), np.asarray(cuts, dtype=float), yk, int(mode), float(sigma),
+            math.nan if dt is None else float(dt), float(hi_end), y1k, given, *self._kernel, ev,
+        )  # fmt: skip
+        if events is not None:
+            for row in ev[:n]:
+                events.append(Event(float(row[0]), "onset" if row[1] else "restick", float(row[2]), row[3:].copy()))
+        if status:
+            raise SlipError(f"slip: more than 64 mode switches in one step at t={t0:.9g} s (chattering); reduce dt")
+        return yk, int(mode), float(sigma)
 
     def _switched(self, mode, sigma, a, y, events):
         """:meth:`switch` at an event at (a, y), recorded in ``events`` when the mode changes."""

@@ -190,7 +190,8 @@ class SlippingSimulator:
     def hybrid(self) -> HybridStepper:
         """The hybrid stepper that redoes a step with an event (built at the first event)."""
         if self._hybrid is None:
-            self._hybrid = HybridStepper(self.model, self.plant.scalar_drive, self.plant.scalar_load, self.method)
+            self._hybrid = HybridStepper(self.model, self.plant.scalar_drive, self.plant.scalar_load, self.method,
+                                         data=(*self.plant.data, self.plant.uses_angle))  # fmt: skip
         return self._hybrid
 
     def phase_stepper(self, key) -> Stepper:
