@@ -45,7 +45,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .kernel import profile_torque
+from .kernel import linear_steps, profile_torque
+from .profile_data import DIVERGED, GUARDED, NOT_CONVERGED
 
 _JIT = dict(cache=True, nogil=True)
 _INLINE = dict(cache=True, nogil=True, inline="always")
@@ -336,7 +337,7 @@ def _stick_keeps(t, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly):
 
 @njit(**_JIT)
 def event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mats, guards, uses,
-               dk, dp, dx, dy, lk, lp, lx, ly, events):  # fmt: skip
+               dk, dp, dx, dy, lk, lp, lx, ly, events, n0):  # fmt: skip
     """Integrate from ``t0`` to ``t1`` [s] in the hybrid model: sub-steps end at each cut, then at each located event.
 
     ``y`` (5,) is overwritten with the end state. A sub-step whose end has a
@@ -345,7 +346,7 @@ def event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mat
     in the new mode. ``dt``: the grid step for a whole step (nan: none);
     ``hi_end``: torque times clipped there in the last sub-step; ``y1``
     (``given`` 1): the method's state at ``t1`` in ``mode`` already known.
-    ``events`` (64, 8) receives ``[time, onset (1) / restick (0), sigma, state (5)]``.
+    ``events`` (E, 8) receives ``[time, onset (1) / restick (0), sigma, state (5)]`` from row ``n0``.
 
     Returns (mode, sigma, number of events recorded, status): status 0 done,
     1 more than :data:`MAX_SWITCHES` switches (chattering).
@@ -388,14 +389,179 @@ def event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mat
                     y[1] = te
             elif _stick_keeps(a, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly):
                 mode, sigma = STICK, 0.0
-            if mode != old and n_rec < events.shape[0]:
-                events[n_rec, 0], events[n_rec, 1], events[n_rec, 2] = a, 1.0 if mode == SLIP else 0.0, sigma
-                events[n_rec, 3:] = y
+            if mode != old and n0 + n_rec < events.shape[0]:
+                row = n0 + n_rec
+                events[row, 0], events[row, 1], events[row, 2] = a, 1.0 if mode == SLIP else 0.0, sigma
+                events[row, 3:] = y
                 n_rec += 1
             n_switch += 1
             if n_switch > MAX_SWITCHES:
                 return mode, sigma, n_rec, 1
     return mode, sigma, n_rec, 0
+
+
+# ------------------------------------------------------------- the run
+#: phase kinds of :func:`hybrid_steps` (the state's coordinates): the flexible model (sticking, no slip so far),
+#: the stick mode, the massless slip mode ``[y, Q]`` (sigma +1, -1), the slip mode of a belt with mass and span
+#: damping (+1, -1), the slip mode stepped event step by event step (a belt with mass, c = 0)
+FLEXIBLE, STICKING, SLIP_UP, SLIP_DOWN, MASS_UP, MASS_DOWN, STEPWISE = 0, 1, 2, 3, 4, 5, 6
+#: the phase kinds' names (:class:`~belt_drive_ros.core.slip_run.SlipState` ``kind``) and stepper keys
+KIND_NAMES = ("flexible", "stick", "slip", "slip", "mass", "mass", "hybrid")
+KIND_CODES = {"flexible": FLEXIBLE, "stick": STICKING, "hybrid": STEPWISE}
+PHASE_KEYS = ("flexible", "stick", ("slip", 1.0), ("slip", -1.0), ("mass", 1.0), ("mass", -1.0))
+#: states per phase kind
+PHASE_SIZE = (4, 5, 6, 6, 5, 5, 5)
+#: statuses of :func:`hybrid_steps` beyond the linear loop's (OK 0, DIVERGED 1, NOT_CONVERGED 3)
+SPECIAL, EVENTS_FULL, CHATTER, NO_PHASE = 4, 5, 6, 7
+
+
+@njit(**_INLINE)
+def _to_y(kind, x, Yflex, y):
+    """The slipping state ``y`` (5,) of phase state ``x`` (flexible: ``Yflex @ x`` summed from the left)."""
+    if kind == FLEXIBLE:
+        for r in range(5):
+            total = 0.0
+            for j in range(4):
+                total = total + Yflex[r, j] * x[j]
+            y[r] = total
+    else:
+        for r in range(5):
+            y[r] = x[r]
+
+
+@njit(**_INLINE)
+def _native(mode, sigma, y, x, Minv, c, have):
+    """The phase kind of (mode, sigma, y) and its state written into ``x`` (``have[kind]``: the phase exists)."""
+    if mode == STICK:
+        if y[4] == 0.0:
+            for r in range(4):
+                total = 0.0
+                for j in range(4):
+                    total = total + Minv[r, j] * y[j]
+                x[r] = total
+            return FLEXIBLE
+        x[:5] = y
+        return STICKING
+    up = sigma > 0.0
+    x[:5] = y
+    if have[SLIP_UP if up else SLIP_DOWN]:
+        x[5] = sigma * _limit(c, 0.0)
+        return SLIP_UP if up else SLIP_DOWN
+    if have[MASS_UP if up else MASS_DOWN]:
+        return MASS_UP if up else MASS_DOWN
+    return STEPWISE
+
+
+@njit(**_JIT)
+def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, out_mode, out_sigma, out_native,
+                 reals, ints, offsets, have, Yflex, Minv, Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
+                 events, n_events):  # fmt: skip
+    """The hybrid run over steps ``k0 .. N-1`` of a plan: each phase in the linear loop, each event step compiled.
+
+    Step ``k`` goes from ``knots[k]`` to ``knots[k+1]`` [s] (the linear loop
+    steps on ``grid``, the grid times those knots snap to), torque times
+    clamped into ``[lo[k], hi[k]]``; ``special[k]`` 1: a partial step or one
+    split at a breakpoint (left to the caller). The phase of kind ``kind`` with
+    state ``x`` (6,) runs :func:`~belt_drive_ros.core.kernel.linear_steps` (its
+    arrays ``reals[offsets[kind, 0]:offsets[kind, 1]]``, ``ints`` likewise)
+    with its switching function as the guard; the step in which the guard
+    fires is redone by :func:`event_step`, which returns the new mode, and
+    the run goes on in that mode's phase. Sample ``k + 1`` is written to
+    ``out_y[k]`` (5 states), ``out_mode``, ``out_sigma`` and the phase's own
+    state to ``out_native[k]`` (NaN-padded). ``events`` (E, 8) from row
+    ``n_events`` receives the events.
+
+    Returns (next step, status, phase kind, sigma, events recorded so far):
+    status 0 all done; :data:`DIVERGED` (sample ``next - 1`` is non-finite or
+    too fast); :data:`NOT_CONVERGED` (step ``next``); :data:`SPECIAL` (step
+    ``next`` is the caller's); :data:`EVENTS_FULL` (drain ``events``, call
+    again); :data:`CHATTER` (step ``next``); :data:`NO_PHASE` (build phase
+    ``kind``, call again). ``x`` holds the phase state at ``knots[next]``.
+    """
+    N = grid.size - 1
+    k = k0
+    y = np.empty(5)
+    y1 = np.empty(5)
+    no_cuts = np.zeros(0)
+    buf = np.empty(N * 6 + 6)
+    sigma = 0.0
+    if kind == SLIP_UP or kind == MASS_UP:
+        sigma = 1.0
+    elif kind == SLIP_DOWN or kind == MASS_DOWN:
+        sigma = -1.0
+    elif kind == STEPWISE:
+        sigma = x[5]
+    while k < N:
+        if special[k]:
+            return k, SPECIAL, kind, sigma, n_events
+        if not have[kind]:
+            return k, NO_PHASE, kind, sigma, n_events
+        mode = STICK if kind <= STICKING else SLIP
+        if events.shape[0] - n_events <= MAX_SWITCHES:
+            return k, EVENTS_FULL, kind, sigma, n_events
+        n = PHASE_SIZE[kind]
+        if kind == STEPWISE:  # a belt with mass and c = 0 slipping: one event step per grid step
+            _to_y(kind, x, Yflex, y)
+            mode, sigma, got, status = event_step(knots[k], knots[k + 1], no_cuts, y, mode, sigma, dt, hi[k], y1, 0,
+                                                  Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
+                                                  events, n_events)  # fmt: skip
+            n_events += got
+            if status:
+                return k, CHATTER, kind, sigma, n_events
+            kind = _native(mode, sigma, y, x, Minv, c, have)
+            if kind == STEPWISE:
+                x[5] = sigma
+            out_y[k] = y
+            out_mode[k], out_sigma[k] = mode, sigma
+            out_native[k] = math.nan
+            out_native[k, :n] = x[:n]
+            k += 1
+            if not (abs(y[2]) <= limit and abs(y[3]) <= limit and y[0] - y[0] == 0.0 and y[1] - y[1] == 0.0
+                    and y[4] - y[4] == 0.0):  # fmt: skip
+                return k, DIVERGED, kind, sigma, n_events
+            continue
+        j = k + 1
+        while j < N and not special[j] and lo[j] == lo[k] and hi[j] == hi[k]:
+            j += 1
+        r0, r1, i0, i1 = offsets[kind, 0], offsets[kind, 1], offsets[kind, 2], offsets[kind, 3]
+        states = buf[: (j - k) * n].reshape((j - k, n))
+        xs = x[:n].copy()
+        done, status, _ = linear_steps(grid[k : j + 1], xs, states, lo[k], hi[k], limit, reals[r0:r1], ints[i0:i1], dp, lp)
+        kept = done - 1 if status == GUARDED else done
+        for q in range(kept):
+            _to_y(kind, states[q], Yflex, out_y[k + q])
+            out_mode[k + q], out_sigma[k + q] = mode, sigma
+            out_native[k + q] = math.nan
+            out_native[k + q, :n] = states[q]
+        if status == DIVERGED:
+            return k + done, DIVERGED, kind, sigma, n_events
+        if status == NOT_CONVERGED:
+            return k + done, NOT_CONVERGED, kind, sigma, n_events
+        if status != GUARDED:
+            x[:n] = states[done - 1]
+            k = j
+            continue
+        g = k + kept  # the step in which the guard fired: redone with the event located
+        _to_y(kind, x if kept == 0 else states[kept - 1], Yflex, y)
+        _to_y(kind, states[kept], Yflex, y1)
+        mode, sigma, got, st = event_step(knots[g], knots[g + 1], no_cuts, y, mode, sigma, dt, hi[g], y1, 1,
+                                          Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
+                                          events, n_events)  # fmt: skip
+        n_events += got
+        if st:
+            return g, CHATTER, kind, sigma, n_events
+        kind = _native(mode, sigma, y, x, Minv, c, have)
+        if kind == STEPWISE:
+            x[5] = sigma
+        out_y[g] = y
+        out_mode[g], out_sigma[g] = mode, sigma
+        out_native[g] = math.nan
+        out_native[g, : PHASE_SIZE[kind]] = x[: PHASE_SIZE[kind]]
+        k = g + 1
+        if not (abs(y[2]) <= limit and abs(y[3]) <= limit and y[0] - y[0] == 0.0 and y[1] - y[1] == 0.0
+                and y[4] - y[4] == 0.0):  # fmt: skip
+            return k, DIVERGED, kind, sigma, n_events
+    return k, 0, kind, sigma, n_events
 
 
 # ------------------------------------------------------------- Python side
@@ -460,4 +626,4 @@ def warm() -> None:
     builder.row(CONSTANT, 0.0)
     data = builder.build()
     arrays = pack(SlippingBeltModel(BeltDriveParams()), "etd4", data, data, (False, False))
-    event_step(0.0, 1e-3, np.zeros(0), np.zeros(5), 0, 0.0, 1e-3, math.inf, np.zeros(5), 0, *arrays, np.zeros((64, 8)))
+    event_step(0.0, 1e-3, np.zeros(0), np.zeros(5), 0, 0.0, 1e-3, math.inf, np.zeros(5), 0, *arrays, np.zeros((64, 8)), 0)

@@ -648,7 +648,7 @@ class HybridStepper:
         ev = self._event_buffer
         mode, sigma, n, status = self._event_step(
             float(t0), float(t1), np.asarray(cuts, dtype=float), yk, int(mode), float(sigma),
-            math.nan if dt is None else float(dt), float(hi_end), y1k, given, *self._kernel, ev,
+            math.nan if dt is None else float(dt), float(hi_end), y1k, given, *self._kernel, ev, 0,
         )  # fmt: skip
         if events is not None:
             for row in ev[:n]:
