@@ -444,10 +444,10 @@ def _native(mode, sigma, y, x, Minv, c, have):
         return STICKING
     up = sigma > 0.0
     x[:5] = y
-    if have[SLIP_UP if up else SLIP_DOWN]:
+    if have[SLIP_UP if up else SLIP_DOWN] != 0:
         x[5] = sigma * _limit(c, 0.0)
         return SLIP_UP if up else SLIP_DOWN
-    if have[MASS_UP if up else MASS_DOWN]:
+    if have[MASS_UP if up else MASS_DOWN] != 0:
         return MASS_UP if up else MASS_DOWN
     return STEPWISE
 
@@ -494,7 +494,7 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
     while k < N:
         if special[k]:
             return k, SPECIAL, kind, sigma, n_events
-        if not have[kind]:
+        if have[kind] != 2:
             return k, NO_PHASE, kind, sigma, n_events
         mode = STICK if kind <= STICKING else SLIP
         if events.shape[0] - n_events <= MAX_SWITCHES:
@@ -617,13 +617,14 @@ def pack(model, method: str, drive_data, load_data, uses_angle):
 
 
 def warm() -> None:
-    """Compile (or load from the disk cache) :func:`event_step` with the one signature runs use."""
-    from .params import BeltDriveParams
-    from .profile_data import CONSTANT, ProfileBuilder
-    from .slip import SlippingBeltModel
+    """Compile (or load from the disk cache) :func:`event_step` and :func:`hybrid_steps` with the one signature runs use.
 
-    builder = ProfileBuilder()
-    builder.row(CONSTANT, 0.0)
-    data = builder.build()
-    arrays = pack(SlippingBeltModel(BeltDriveParams()), "etd4", data, data, (False, False))
-    event_step(0.0, 1e-3, np.zeros(0), np.zeros(5), 0, 0.0, 1e-3, math.inf, np.zeros(5), 0, *arrays, np.zeros((64, 8)), 0)
+    A short run that slips at once (a drive torque far past the capstan
+    limit) takes both entry points, as every run does.
+    """
+    from .params import BeltDriveParams
+    from .slip_run import SlippingSimulator
+    from .sources import Constant
+
+    sim = SlippingSimulator(BeltDriveParams(), Constant(500.0), Constant(0.0), "etd4", 1e-3, check_stability=False)
+    sim.run(3e-3, np.zeros(5))
