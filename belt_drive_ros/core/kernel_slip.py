@@ -502,7 +502,7 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
         n = PHASE_SIZE[kind]
         if kind == STEPWISE:  # a belt with mass and c = 0 slipping: one event step per grid step
             _to_y(kind, x, Yflex, y)
-            mode, sigma, got, status = event_step(knots[k], knots[k + 1], no_cuts, y, mode, sigma, dt, hi[k], y1, 0,
+            mode, sigma, got, status = event_step(knots[k], knots[k + 1], no_cuts, y, mode, sigma, dt, hi[k], y1, np.int64(0),
                                                   Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
                                                   events, n_events)  # fmt: skip
             n_events += got
@@ -544,7 +544,7 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
         g = k + kept  # the step in which the guard fired: redone with the event located
         _to_y(kind, x if kept == 0 else states[kept - 1], Yflex, y)
         _to_y(kind, states[kept], Yflex, y1)
-        mode, sigma, got, st = event_step(knots[g], knots[g + 1], no_cuts, y, mode, sigma, dt, hi[g], y1, 1,
+        mode, sigma, got, st = event_step(knots[g], knots[g + 1], no_cuts, y, mode, sigma, dt, hi[g], y1, np.int64(1),
                                           Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
                                           events, n_events)  # fmt: skip
         n_events += got
@@ -626,5 +626,6 @@ def warm() -> None:
     from .slip_run import SlippingSimulator
     from .sources import Constant
 
-    sim = SlippingSimulator(BeltDriveParams(), Constant(500.0), Constant(0.0), "etd4", 1e-3, check_stability=False)
-    sim.run(3e-3, np.zeros(5))
+    sim = SlippingSimulator(BeltDriveParams(), Constant(5000.0), Constant(0.0), "etd4", 1e-3, check_stability=False)
+    sim.run(5e-3, np.zeros(5))
+    sim.hybrid.advance(0.0, 1e-3, np.zeros(5), STICK, 0.0)

@@ -1,0 +1,105 @@
+"""The slipping belt's compiled hybrid loop (core/kernel_slip.py).
+
+* the compiled loop (each phase in the linear loop, every event step
+  compiled) gives the floats of the phase-by-phase path (steppers, the
+  hybrid stepper's modal event handling in Python) bit for bit, events alike;
+* an advance tick by tick (the node's) equals one advance over the run;
+* the kernels compile once: running slipping scenes adds no specialisation;
+* ``NUMBA_DISABLE_JIT=1`` gives the same floats (a scene that slips in its first 60 ms).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from belt_drive_ros.core import kernel_slip
+from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.core.slip_run import SlippingSimulator
+
+
+def _sim(scene, **kw):
+    return SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, False, **kw)
+
+
+def _python_only(sim):
+    """The same simulator stepping phase by phase in Python (the event step by the hybrid stepper's modal path)."""
+    sim._compiled = lambda: None
+    sim.hybrid._kernel = None
+    return sim
+
+
+@pytest.mark.parametrize("name, duration", [("truck_compressor", 0.8), ("bsg_start", 0.3)])
+def test_compiled_hybrid_loop_equals_the_phase_by_phase_run(name, duration):
+    scene = load_scene(name)
+    y0 = scene.initial_state.vector("slipping", scene.params.ratio)
+    compiled = _sim(scene, lazy=True)
+    time, states, modes, sigmas = compiled.run(duration, y0)
+    assert compiled._compiled() is not None
+    reference = _python_only(_sim(scene))
+    t_ref, s_ref, m_ref, sig_ref = reference.run(duration, y0)
+    assert sum(e.kind == "onset" for e in compiled.events) >= 1
+    np.testing.assert_array_equal(time, t_ref)
+    np.testing.assert_array_equal(states, s_ref)
+    np.testing.assert_array_equal(modes, m_ref)
+    np.testing.assert_array_equal(sigmas, sig_ref)
+    assert [(e.kind, e.time, e.sigma) for e in compiled.events] == [(e.kind, e.time, e.sigma) for e in reference.events]
+
+
+def test_advance_tick_by_tick_equals_one_run():
+    """The node's ticks (1 ms, two grid steps each) give the offline run's states and events bit for bit."""
+    scene = load_scene("truck_compressor")
+    y0 = scene.initial_state.vector("slipping", scene.params.ratio)
+    whole = _sim(scene)
+    time, states, modes, _ = whole.run(0.7, y0)
+    ticks = _sim(scene)
+    state, events = ticks.initial(y0), []
+    for k in range(700):
+        state = ticks.advance(state, k * 1e-3, (k + 1) * 1e-3, events=events)
+        i = int(np.searchsorted(time, (k + 1) * 1e-3 - 1e-12))
+        np.testing.assert_array_equal(ticks.state_y(state), states[i])
+        assert state.mode == modes[i]
+    assert len(events) >= 2 and [e.time for e in events] == [e.time for e in whole.events]
+
+
+def test_the_hybrid_kernels_compile_once_whatever_the_scene():
+    def counts():
+        return {name: len(getattr(kernel_slip, name).signatures) for name in ("event_step", "hybrid_steps")}
+
+    from belt_drive_ros.core.kernel_loop import warm
+
+    warm()
+    first = counts()
+    assert first == {"event_step": 1, "hybrid_steps": 1}
+    for name, duration in (("truck_compressor", 0.7), ("bsg_start", 0.1)):
+        scene = load_scene(name)
+        sim = _sim(scene)
+        sim.run(duration, scene.initial_state.vector("slipping", scene.params.ratio))
+        assert sim.events
+    assert counts() == first
+
+
+def test_the_hybrid_kernel_interpreted_gives_the_same_floats(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, numpy as np\n"
+        "from belt_drive_ros.core.scene import load_scene\n"
+        "from belt_drive_ros.core.slip_run import SlippingSimulator\n"
+        "s = load_scene('bsg_start')\n"
+        "sim = SlippingSimulator(s.params, s.drive, s.load, s.method, s.dt, s.method_options, False)\n"
+        "t, y, m, g = sim.run(0.06, s.initial_state.vector('slipping', s.params.ratio))\n"
+        "assert sim._compiled() is not None and sim.events\n"
+        "np.save(sys.argv[1], np.column_stack([t, y, m, g]))\n"
+    )
+    out = {}
+    for jit in ("0", "1"):
+        path = tmp_path / f"run_{jit}.npy"
+        done = subprocess.run([sys.executable, "-c", code, str(path)], env=dict(os.environ, NUMBA_DISABLE_JIT=jit),
+                              capture_output=True, text=True, timeout=900)  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        out[jit] = np.load(path)
+    assert out["0"].shape == out["1"].shape and np.any(out["0"][:, 6] == 1)
+    assert np.array_equal(out["0"], out["1"])
