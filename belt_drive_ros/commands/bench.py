@@ -30,6 +30,8 @@ studies:
                  --only CATEGORY... for some of them)
   kernel         the compiled time loop: ns per step (kernel vs plain CPython vs C -O2), methods vs exact,
                  whole warm simulate() x real time, start-up CPU of 'belt-drive sim paper --quiet' (not in 'all')
+  slip-kernel    the slipping belt's compiled hybrid loop beside the Python event loop it replaces:
+                 truck_compressor whole warm simulate() x real time, its run, accuracy rerun, node tick (not in 'all')
   campaign       10,000-variant Monte Carlo of paper on Dask vs a loop of single runs, 1 vs 2 workers,
                  a fleet of 100 recordings replayed and compared (needs the campaign extra; not in 'all')
   network_slip   a belt network's slipping tier: x real time on fead_i4 sticking and slipping, the paper's
@@ -60,8 +62,8 @@ def register(sub) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "kernel", "network_slip", "all"),
-                   help="which study to run")
+    p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "kernel", "network_slip", "slip-kernel",
+                                     "all"), help="which study to run")  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("docs/bench"), help="output folder (default: docs/bench)")
     p.add_argument("--quick", action="store_true", help="small sweeps and short runs (seconds; for tests)")
     p.add_argument("--quiet", action="store_true", help="no per-run log lines")
@@ -126,6 +128,11 @@ def run(args) -> int:
 
         result = network_slip.run(out, quick=args.quick, quiet=args.quiet)
         print(f"bench network_slip: {result['csv']}")
+        return 0
+    if args.study == "slip-kernel":
+        from ..benchmarks import slip_kernel
+
+        print(f"bench slip-kernel: {slip_kernel.run(out, quick=args.quick, quiet=args.quiet)['csv']}")
         return 0
     if args.study == "campaign":
         from ..benchmarks import campaign

@@ -178,6 +178,7 @@ class SlippingSimulator:
                 )  # fmt: skip
         self.events: list = []
         self._event_rows = np.zeros((1024, 8))
+        self._free_cache: dict = {}
         self.vectorized = False
         self._window = WINDOW_FIRST
         #: a list to receive ``(times, xs)`` of the recorded pieces run on the flexible model itself (no slip
@@ -186,7 +187,21 @@ class SlippingSimulator:
         if not lazy:
             for key in self._factories:
                 self.phase_stepper(key)
-            _ = self.hybrid
+            self._prime()
+
+    def _prime(self) -> None:
+        """Load the compiled hybrid loop and event step now (a call of no step), so no tick pays for it."""
+        compiled = self._compiled()
+        if compiled is None:
+            return
+        from . import kernel_slip as ks
+
+        have, reals, ints, offsets, Yflex, Minv, arrays = compiled
+        none, x = np.zeros(0), np.zeros(6)
+        ks.hybrid_steps(np.zeros(1), np.zeros(1), none, none, np.zeros(0, dtype=np.int64), 0, 0, x, self.dt, SPEED_LIMIT,
+                        np.empty((0, 5)), np.empty(0, dtype=np.int64), none, np.empty((0, 6)), reals, ints, offsets, have,
+                        Yflex, Minv, *arrays, self._event_rows, 0)  # fmt: skip
+        self.hybrid.advance(0.0, 0.0, np.zeros(5), STICK, 0.0)
 
     @property
     def hybrid(self) -> HybridStepper:
@@ -302,21 +317,27 @@ class SlippingSimulator:
         if compiled is None or t1 <= t0:
             return self._advance_steps(state, t0, t1, record, events)
         st = self.stepper
-        plan = st._plan(float(t0), float(t1))
-        if plan["empty"]:
-            return self._advance_steps(state, t0, t1, record, events)
-        first, last = plan["first"], plan["last"]
-        N = last - first + 1
-        grid = st._grid(first, last + 2)
+        k0, k1 = st._snap(t0), st._snap(t1)
+        if k0 is not None and k1 is not None and k1 > k0 and not st._near_breakpoint(t0, t1, k0, k1):
+            N = k1 - k0  # whole grid steps away from breakpoints (the node's usual tick): no plan needed
+            grid = st._grid(k0, k1 + 1)
+            lo, hi, special = self._free_steps(N)
+        else:
+            plan = st._plan(float(t0), float(t1))
+            if plan["empty"]:
+                return self._advance_steps(state, t0, t1, record, events)
+            first, last = plan["first"], plan["last"]
+            N = last - first + 1
+            grid = st._grid(first, last + 2)
+            lo, hi = np.full(N, -math.inf), np.full(N, math.inf)
+            special = np.zeros(N, dtype=np.int64)
+            special[0] |= plan["lead"]
+            special[-1] |= plan["trail"]
+            for c, (a, b, cuts) in plan["special"].items():
+                lo[c - first], hi[c - first] = a, b
+                special[c - first] |= bool(cuts)
         knots = grid.copy()
         knots[0], knots[-1] = t0, t1
-        lo, hi = np.full(N, -math.inf), np.full(N, math.inf)
-        special = np.zeros(N, dtype=np.int64)
-        special[0] |= plan["lead"]
-        special[-1] |= plan["trail"]
-        for c, (a, b, cuts) in plan["special"].items():
-            lo[c - first], hi[c - first] = a, b
-            special[c - first] |= bool(cuts)
         from . import kernel_slip as ks
 
         out_y, out_native = np.empty((N, 5)), np.empty((N, 6))
@@ -367,6 +388,15 @@ class SlippingSimulator:
                 break
         n = ks.PHASE_SIZE[kind]
         return SlipState(STICK if kind <= ks.STICKING else SLIP, float(sigma), ks.KIND_NAMES[kind], x[:n].copy())
+
+    def _free_steps(self, N: int) -> tuple:
+        """(lo, hi, special) of ``N`` whole steps without clamps or splits (read-only, kept per N)."""
+        cached = self._free_cache.get(N)
+        if cached is None:
+            if len(self._free_cache) > 64:
+                self._free_cache.clear()
+            cached = self._free_cache[N] = (np.full(N, -math.inf), np.full(N, math.inf), np.zeros(N, dtype=np.int64))
+        return cached
 
     def _record(self, record, knots, k0, k1, out_y, out_mode, out_sigma, out_native) -> None:
         """Samples ``k0 .. k1 - 1`` of a compiled stretch into ``record`` (and the flexible ones into :attr:`flexible_record`)."""
