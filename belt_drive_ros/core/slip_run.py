@@ -1,12 +1,18 @@
-"""Runs of the slipping belt, stepped by the single :class:`~belt_drive_ros.core.stepper.Stepper`.
+"""Runs of the slipping belt: one compiled hybrid loop over stick and slip phases.
 
 A stick or slip phase of the hybrid model is a linear plant with a guard
 (:class:`~belt_drive_ros.core.stage_scheme.Guard`): the mode's switching
-function, checked by the stepper's compiled loop after every step. Each
-phase runs through the stepper (compiled loop, breakpoints split exactly)
-until the guard turns positive; only that step is redone by
-:class:`~belt_drive_ros.core.slip.HybridStepper`, which locates the event,
-splits the step there and switches the mode. The plants:
+function, checked by the linear kernel's loop after every step. The
+compiled hybrid loop (:func:`~belt_drive_ros.core.kernel_slip.hybrid_steps`)
+runs each phase until the guard turns positive, redoes that step with the
+event located (:func:`~belt_drive_ros.core.kernel_slip.event_step`) and goes
+on in the new mode's phase, in one call. A step split at a breakpoint off
+the grid is handed back to the phase's stepper (:meth:`SlippingSimulator._advance_steps`);
+methods without a compiled event step, or torques given as Python functions,
+step phase by phase there with :class:`~belt_drive_ros.core.slip.HybridStepper`
+redoing each event step.
+
+The plants:
 
 * sticking without slip so far (``s = 0``): the flexible model itself, in
   its own coordinates, so a run that never reaches the limit gives the
