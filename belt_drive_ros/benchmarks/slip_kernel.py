@@ -6,8 +6,9 @@ stick/slip events in 3 s at etd4, 0.5 ms):
 1. **Whole warm simulate()** (guards, model choice, the slipping run, the
    accuracy check, outputs): x real time and CPU, with the compiled loop
    (:func:`~belt_drive_ros.core.kernel_slip.hybrid_steps`) and with the
-   path it replaces (each phase through its stepper, each event step by the
-   hybrid stepper in Python), minimum of repeats;
+   Python path that remains for torques given as functions and methods
+   without a compiled event step (each phase through its stepper, each event
+   located by the hybrid stepper on the method's flow), minimum of repeats;
 2. **the slipping run alone** (:meth:`SlippingSimulator.run`) and **the
    accuracy check's rerun** (:func:`~belt_drive_ros.core.accuracy.slip_run_error`), both ways;
 3. **the node's tick**: :meth:`SlippingSimulator.advance` of one 1 ms tick
@@ -37,7 +38,7 @@ SCENE = "truck_compressor"
 
 @contextmanager
 def _python_path(on: bool):
-    """Within: every slipping simulator steps phase by phase in Python (the path the compiled loop replaces)."""
+    """Within: every slipping simulator steps phase by phase in Python (events located on the method's flow)."""
     if not on:
         yield
         return
@@ -84,7 +85,7 @@ def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
 
     y0 = scene.initial_state.vector("slipping", scene.params.ratio)
     print(f"bench slip-kernel: {SCENE} ({scene.method}, dt {scene.dt:g} s, {scene.duration:g} s), CPU time, best of {repeats}")
-    for label, python in (("compiled hybrid loop", False), ("Python event loop (before)", True)):
+    for label, python in (("compiled hybrid loop", False), ("Python phase-by-phase path", True)):
         with _python_path(python):
             cpu = _best(lambda: simulate(scene), repeats)
             report(f"simulate() whole, warm: {label}", scene.duration / cpu, "x rt", f"{cpu * 1e3:.1f} ms CPU")
