@@ -15,7 +15,7 @@ stick/slip events in 3 s at etd4, 0.5 ms):
    over the whole scene (median, p99 and the worst tick, an event tick), both ways.
 
 Prints a table and writes ``slip_kernel.csv`` into ``--out``. Timings only;
-``tests/test_kernel_slip.py`` asserts that both ways give the same floats.
+``tests/test_kernel_slip.py`` and ``tests/test_slip.py`` assert what each way computes.
 """
 
 from __future__ import annotations

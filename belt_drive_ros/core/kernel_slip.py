@@ -501,50 +501,32 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
             return k, EVENTS_FULL, kind, sigma, n_events
         n = PHASE_SIZE[kind]
         if kind == STEPWISE:  # a belt with mass and c = 0 slipping: one event step per grid step
+            g, given = k, np.int64(0)
             _to_y(kind, x, Yflex, y)
-            mode, sigma, got, status = event_step(knots[k], knots[k + 1], no_cuts, y, mode, sigma, dt, hi[k], y1, np.int64(0),
-                                                  Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
-                                                  events, n_events)  # fmt: skip
-            n_events += got
-            if status:
-                return k, CHATTER, kind, sigma, n_events
-            kind = _native(mode, sigma, y, x, Minv, c, have)
-            if kind == STEPWISE:
-                x[5] = sigma
-            out_y[k] = y
-            out_mode[k], out_sigma[k] = mode, sigma
-            out_native[k] = math.nan
-            out_native[k, :n] = x[:n]
-            k += 1
-            if not (abs(y[2]) <= limit and abs(y[3]) <= limit and y[0] - y[0] == 0.0 and y[1] - y[1] == 0.0
-                    and y[4] - y[4] == 0.0):  # fmt: skip
-                return k, DIVERGED, kind, sigma, n_events
-            continue
-        j = k + 1
-        while j < N and not special[j] and lo[j] == lo[k] and hi[j] == hi[k]:
-            j += 1
-        r0, r1, i0, i1 = offsets[kind, 0], offsets[kind, 1], offsets[kind, 2], offsets[kind, 3]
-        states = buf[: (j - k) * n].reshape((j - k, n))
-        xs = x[:n].copy()
-        done, status, _ = linear_steps(grid[k : j + 1], xs, states, lo[k], hi[k], limit, reals[r0:r1], ints[i0:i1], dp, lp)
-        kept = done - 1 if status == GUARDED else done
-        for q in range(kept):
-            _to_y(kind, states[q], Yflex, out_y[k + q])
-            out_mode[k + q], out_sigma[k + q] = mode, sigma
-            out_native[k + q] = math.nan
-            out_native[k + q, :n] = states[q]
-        if status == DIVERGED:
-            return k + done, DIVERGED, kind, sigma, n_events
-        if status == NOT_CONVERGED:
-            return k + done, NOT_CONVERGED, kind, sigma, n_events
-        if status != GUARDED:
-            x[:n] = states[done - 1]
-            k = j
-            continue
-        g = k + kept  # the step in which the guard fired: redone with the event located
-        _to_y(kind, x if kept == 0 else states[kept - 1], Yflex, y)
-        _to_y(kind, states[kept], Yflex, y1)
-        mode, sigma, got, st = event_step(knots[g], knots[g + 1], no_cuts, y, mode, sigma, dt, hi[g], y1, np.int64(1),
+        else:
+            j = k + 1
+            while j < N and not special[j] and lo[j] == lo[k] and hi[j] == hi[k]:
+                j += 1
+            r0, r1, i0, i1 = offsets[kind, 0], offsets[kind, 1], offsets[kind, 2], offsets[kind, 3]
+            states = buf[: (j - k) * n].reshape((j - k, n))
+            xs = x[:n].copy()
+            done, status, _ = linear_steps(grid[k : j + 1], xs, states, lo[k], hi[k], limit, reals[r0:r1], ints[i0:i1], dp, lp)
+            kept = done - 1 if status == GUARDED else done
+            for q in range(kept):
+                _to_y(kind, states[q], Yflex, out_y[k + q])
+                out_mode[k + q], out_sigma[k + q] = mode, sigma
+                out_native[k + q] = math.nan
+                out_native[k + q, :n] = states[q]
+            if status == DIVERGED or status == NOT_CONVERGED:
+                return k + done, status, kind, sigma, n_events
+            if status != GUARDED:
+                x[:n] = states[done - 1]
+                k = j
+                continue
+            g, given = k + kept, np.int64(1)  # the step in which the guard fired: redone with the event located
+            _to_y(kind, x if kept == 0 else states[kept - 1], Yflex, y)
+            _to_y(kind, states[kept], Yflex, y1)
+        mode, sigma, got, st = event_step(knots[g], knots[g + 1], no_cuts, y, mode, sigma, dt, hi[g], y1, given,
                                           Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
                                           events, n_events)  # fmt: skip
         n_events += got
