@@ -65,15 +65,17 @@ def test_advance_tick_by_tick_equals_one_run():
 
 def test_the_hybrid_kernels_compile_once_whatever_the_scene():
     def counts():
-        return {name: len(getattr(kernel_slip, name).signatures) for name in ("event_step", "hybrid_steps")}
+        return {name: len(getattr(kernel_slip, name).signatures) for name in ("event_step", "hybrid_steps", "locate_event")}
 
     from belt_drive_ros.core.kernel_loop import warm
 
     warm()
     first = counts()
-    assert first == {"event_step": 1, "hybrid_steps": 1}
-    for name, duration in (("truck_compressor", 0.7), ("bsg_start", 0.1)):
+    assert first == {"event_step": 1, "hybrid_steps": 1, "locate_event": 1}
+    for name, duration, method in (("truck_compressor", 0.7, None), ("bsg_start", 0.1, None), ("truck_compressor", 0.55, "rk4")):
         scene = load_scene(name)
+        if method:  # phases in the linear loop, partial steps in Python, events located compiled
+            scene = scene.with_overrides(method=method, dt=1e-4)
         sim = _sim(scene)
         sim.run(duration, scene.initial_state.vector("slipping", scene.params.ratio))
         assert sim.events

@@ -298,6 +298,15 @@ def _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx,
 
 
 @njit(**_JIT)
+def locate_event(mode, sigma, t, y, h, hi, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly):
+    """:func:`_locate` with the input at the step's start computed here: the event location of a step whose
+    partial steps are taken elsewhere (a method without a compiled event step: its own flow, in Python)."""
+    u0 = np.zeros(3)
+    _inputs(mode, sigma, t, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u0)
+    return _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly)
+
+
+@njit(**_JIT)
 def _stick_keeps(t, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly):
     """True if the stick mode's |Q| does not at once grow past Q_max from (t, y).
 
@@ -599,7 +608,8 @@ def pack(model, method: str, drive_data, load_data, uses_angle):
 
 
 def warm() -> None:
-    """Compile (or load from the disk cache) :func:`event_step` and :func:`hybrid_steps` with the one signature runs use.
+    """Compile (or load from the disk cache) :func:`event_step`, :func:`hybrid_steps` and :func:`locate_event`
+    with the one signature runs use.
 
     A short run that slips at once (a drive torque far past the capstan
     limit) takes both entry points, as every run does.
@@ -611,3 +621,5 @@ def warm() -> None:
     sim = SlippingSimulator(BeltDriveParams(), Constant(5000.0), Constant(0.0), "etd4", 1e-3, check_stability=False)
     sim.run(5e-3, np.zeros(5))
     sim.hybrid.advance(0.0, 1e-3, np.zeros(5), STICK, 0.0)
+    arrays = sim.hybrid._kernel
+    locate_event(STICK, 0.0, 0.0, np.zeros(5), 1e-3, math.inf, np.zeros(5), *arrays[:3], *arrays[4:])

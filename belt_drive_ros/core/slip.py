@@ -375,13 +375,23 @@ class HybridStepper:
         self._abs_stick = (np.abs(model.q_row), np.abs(model.A_stick), np.abs(model.B_stick))
         #: the compiled event step's arrays (:func:`~belt_drive_ros.core.kernel_slip.pack`) when the torques are
         #: data (``data`` = (drive data, load data, uses_angle)) and the method steps on the modal flow
-        self._kernel = None
-        if data is not None and None not in data[:2] and locate and self._modal_steps:
+        #: (the method's partial steps then in Python, the events located by the compiled location on the same
+        #: continuous extension: ``_located``)
+        self._kernel = self._located = None
+        if data is not None and None not in data[:2] and locate:
             from . import kernel_slip
 
-            self._kernel = kernel_slip.pack(model, method, *data)
-            self._event_step = kernel_slip.event_step
-            self._event_buffer = np.zeros((kernel_slip.MAX_SWITCHES + 1, 8))
+            arrays = kernel_slip.pack(model, method, *data)
+            if self._modal_steps:
+                self._kernel = arrays
+                self._event_step = kernel_slip.event_step
+                self._event_buffer = np.zeros((kernel_slip.MAX_SWITCHES + 1, 8))
+            elif arrays is not None:
+                locate_event, Z, R, c, _, guards, uses = kernel_slip.locate_event, *arrays[:6]
+                rest = arrays[6:]
+                self._located = lambda mode, sigma, t, y, h, hi, y1: locate_event(
+                    int(mode), float(sigma), float(t), np.asarray(y, dtype=float), float(h), float(hi),
+                    np.asarray(y1, dtype=float), Z, R, c, guards, uses, *rest)  # fmt: skip
 
     # ---------------------------------------------------------- the flows
     def _integrator(self, mode: int, h: float):
@@ -480,12 +490,23 @@ class HybridStepper:
     def _locate(self, mode, sigma, t, y, h, hi, y1=None):
         """First tau in (0, h] where the switching function turns positive along the step.
 
-        Located on the method's flow over a partial step (the compiled
-        event step, :func:`~belt_drive_ros.core.kernel_slip.event_step`,
-        locates on the step's modal continuous extension instead). A sign
-        scan on 8 points finds the first crossing (the flow may cross and
-        return within a step), then Brent's method brackets it to ~1e-15 s.
+        With the torques as data, located on the step's continuous extension
+        (the mode's exact flow with the torques linear in time between the
+        step's ends) by the compiled location
+        (:func:`~belt_drive_ros.core.kernel_slip.locate_event`, as the
+        compiled event step does): a method unstable for the slip mode's
+        fast creep at this step (rk4 at 1 ms) would give a meaningless flow
+        over partial steps. Torques given as Python functions: located on
+        the method's flow over a partial step, a sign scan on 8 points
+        finding the first crossing (the flow may cross and return within a
+        step), then Brent's method to ~1e-15 s.
         """
+        if self._located is not None and y1 is not None:  # torques as data: on the step's modal extension, compiled
+            tau = self._located(mode, sigma, t, y, h, hi, y1)
+            if tau != tau:
+                return None
+            self.n_located += tau > 0.0
+            return tau
 
         def G(tau):
             return self.switching(mode, sigma, y if tau == 0.0 else self.flow(mode, sigma, t, y, tau, hi))
