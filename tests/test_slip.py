@@ -300,10 +300,11 @@ def test_slip_phases_of_a_belt_with_mass_in_the_loop_equal_the_hybrid_stepper(me
     assert sim.phase_stepper(("mass", 1.0)).loop is not None
     assert np.any(modes == SLIP) and sum(e.kind == "onset" for e in sim.events) >= 2
     # etd2/etd4: the hybrid stepper's every grid step by the compiled event step (the torques as data), against the
-    # simulator's phases in the linear loop; rk4: the method's flow over partial steps in Python in both
-    data = (*sim.plant.data, sim.plant.uses_angle) if method != "rk4" else None
-    hs = HybridStepper(sim.model, sim.plant.scalar_drive, sim.plant.scalar_load, method, data=data)
-    assert (hs._kernel is not None) == (method != "rk4")
+    # simulator's phases in the linear loop; rk4: the method's flow over partial steps in Python in both, the events
+    # located by the compiled location on the step's modal extension
+    hs = HybridStepper(sim.model, sim.plant.scalar_drive, sim.plant.scalar_load, method,
+                       data=(*sim.plant.data, sim.plant.uses_angle))  # fmt: skip
+    assert (hs._kernel is not None) == (method != "rk4") and (hs._located is not None) == (method == "rk4")
     ref = hs.run(time, y0, breakpoints=sim.breakpoints)
     assert [e.kind for e in ref.events] == [e.kind for e in sim.events]
     np.testing.assert_allclose([e.time for e in sim.events], [e.time for e in ref.events], rtol=0.0, atol=1e-12)
