@@ -256,27 +256,33 @@ def test_regularised_friction_approaches_coulomb_as_v_eps_shrinks():
 
 @pytest.mark.parametrize("scene", ["truck_compressor", "bsg_start"])
 @pytest.mark.parametrize("mode", [STICK, SLIP])
-def test_modal_etd4_step_equals_the_matrix_etd4_step(scene, mode):
-    """The etd4 step on the modal flow (partial steps of any length) is the integrator's ETDRK4 step, to rounding.
-
-    Inputs depend on time and state (the belt-mass friction force as the slip mode's third input).
-    """
+def test_compiled_modal_etd4_step_equals_the_matrix_etd4_step(scene, mode):
+    """The compiled event step's etd4 step on the modal flow (partial steps of any length) is the integrator's
+    ETDRK4 step, to rounding. The scene's torques depend on time, angle and speed (truck_compressor: the engine's
+    firing harmonics, the compressor's schedule), the belt-mass friction force is the slip mode's third input."""
+    from belt_drive_ros.core import kernel_slip
     from belt_drive_ros.core.integrators import make_integrator
-    from belt_drive_ros.core.slip_modal import ModalFlow
+    from belt_drive_ros.core.slip_run import SlippingSimulator
 
-    m = SlippingBeltModel(load_scene(scene).params)
+    s = load_scene(scene)
+    sim = SlippingSimulator(s.params, s.drive, s.load, "etd4", s.dt, check_stability=False)
+    m, arrays = sim.model, sim.hybrid._kernel
+    Z, R, c, mats, guards, uses = arrays[:6]
     A, B = (m.A_stick, m.B_stick) if mode == STICK else (m.A_slip, m.B_slip)
-    flow = ModalFlow(A, B)
+    sigma = 0.0 if mode == STICK else 1.0
 
     def u(t, y):
-        values = [30.0 * math.sin(40.0 * t) + 0.1 * y[2], 10.0 + 5.0 * math.cos(0.01 * y[3] + t), 500.0 - 0.01 * y[2] ** 2]
-        return values[: B.shape[1]]
+        values = sim.inputs(t, y).tolist() + [sigma * m.limit(float(y[2]))]
+        return np.array(values[: B.shape[1]])
 
     rng = np.random.default_rng(3)
     for h in (1e-5, 3e-4, 1e-3, 2e-3):
-        y = rng.normal(size=5) * np.array([1.0, 1e-3, 50.0, 50.0, 1e-3])
-        modal = np.array(flow.step(y.tolist(), 0.1, h, u, "etd4"))
-        matrix = make_integrator("etd4", A, B, h).step(0.1, y, lambda t, x: np.array(u(t, x)))
+        y = np.array([1.0, 1e-3, 70.0, 80.0, 1e-3]) + rng.normal(size=5) * np.array([1.0, 1e-3, 5.0, 5.0, 1e-3])
+        u0 = np.zeros(3)
+        u0[: B.shape[1]] = u(0.6, y)
+        modal = np.empty(5)
+        kernel_slip._flow(mode, sigma, 0.6, y, h, math.inf, u0, Z, R, c, uses, *arrays[6:], modal)
+        matrix = make_integrator("etd4", A, B, h).step(0.6, y, u)
         np.testing.assert_allclose(modal, matrix, rtol=1e-13, atol=1e-13 * np.max(np.abs(matrix)))
 
 
@@ -293,7 +299,12 @@ def test_slip_phases_of_a_belt_with_mass_in_the_loop_equal_the_hybrid_stepper(me
     time, states, modes, _ = sim.run(scene.duration, y0)
     assert sim.phase_stepper(("mass", 1.0)).loop is not None
     assert np.any(modes == SLIP) and sum(e.kind == "onset" for e in sim.events) >= 2
-    hs = HybridStepper(sim.model, sim.plant.scalar_drive, sim.plant.scalar_load, method)
+    # etd2/etd4: the hybrid stepper's every grid step by the compiled event step (the torques as data), against the
+    # simulator's phases in the linear loop; rk4: the method's flow over partial steps in Python in both, the events
+    # located by the compiled location on the step's modal extension
+    hs = HybridStepper(sim.model, sim.plant.scalar_drive, sim.plant.scalar_load, method,
+                       data=(*sim.plant.data, sim.plant.uses_angle))  # fmt: skip
+    assert (hs._kernel is not None) == (method != "rk4") and (hs._located is not None) == (method == "rk4")
     ref = hs.run(time, y0, breakpoints=sim.breakpoints)
     assert [e.kind for e in ref.events] == [e.kind for e in sim.events]
     np.testing.assert_allclose([e.time for e in sim.events], [e.time for e in ref.events], rtol=0.0, atol=1e-12)

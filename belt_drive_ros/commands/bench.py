@@ -34,6 +34,8 @@ studies:
                  replaced, ns per step per method, the paper's drive as a network vs the paper model (not in 'all')
   replay         a 1-hour 1 kHz torque bag replayed offline to MCAP (--minutes; default 60): wall time
                  split into reading, simulation and writing, CPU, peak memory (not in 'all')
+  slip-kernel    the slipping belt's compiled hybrid loop beside the Python event loop it replaces:
+                 truck_compressor whole warm simulate() x real time, its run, accuracy rerun, node tick (not in 'all')
   campaign       10,000-variant Monte Carlo of paper on Dask vs a loop of single runs, 1 vs 2 workers,
                  a fleet of 100 recordings replayed and compared (needs the campaign extra; not in 'all')
   network_slip   a belt network's slipping tier: x real time on fead_i4 sticking and slipping, the paper's
@@ -66,7 +68,7 @@ def register(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "kernel", "network", "network_slip",
-                                     "replay", "all"), help="which study to run")
+                                     "slip-kernel", "replay", "all"), help="which study to run")  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("docs/bench"), help="output folder (default: docs/bench)")
     p.add_argument("--quick", action="store_true", help="small sweeps and short runs (seconds; for tests)")
     p.add_argument("--quiet", action="store_true", help="no per-run log lines")
@@ -141,6 +143,11 @@ def run(args) -> int:
 
         result = network.run(out, quick=args.quick, quiet=args.quiet)
         print(f"bench network: {result['csv']}")
+        return 0
+    if args.study == "slip-kernel":
+        from ..benchmarks import slip_kernel
+
+        print(f"bench slip-kernel: {slip_kernel.run(out, quick=args.quick, quiet=args.quiet)['csv']}")
         return 0
     if args.study == "campaign":
         from ..benchmarks import campaign

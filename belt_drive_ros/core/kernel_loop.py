@@ -172,3 +172,6 @@ def warm() -> None:
     from .network.slip import warm as warm_network_slip  # the belt networks' slipping tier
 
     warm_network_slip()
+    from .kernel_slip import warm as warm_slip  # the slipping belt's hybrid loop
+
+    warm_slip()

@@ -56,7 +56,6 @@ import scipy.optimize
 from .errors import BeltDriveError
 from .integrators import make_integrator
 from .params import BeltDriveParams
-from .slip_modal import ModalFlow
 from .stage_scheme import Guard
 
 #: friction laws by name (``friction`` option of the slipping model)
@@ -356,7 +355,8 @@ class HybridStepper:
         comparison only).
     """
 
-    def __init__(self, model: SlippingBeltModel, drive: Callable, load: Callable, method: str = "exact", locate: bool = True):
+    def __init__(self, model: SlippingBeltModel, drive: Callable, load: Callable, method: str = "exact", locate: bool = True,
+                 data=None):  # fmt: skip
         self.model, self.drive, self.load, self.method, self.locate = model, drive, load, method, locate
         self._steps: dict = {}
         self._guards: dict = {}
@@ -364,13 +364,7 @@ class HybridStepper:
         self._i, self._r3 = p.ratio, p.r_3
         self._two_k_r3 = 2.0 * p.k * p.r_3
         self.n_located = 0
-        self._modal = {}
-        for mode, (A, B) in ((STICK, (model.A_stick, model.B_stick)), (SLIP, (model.A_slip, model.B_slip))):
-            try:
-                self._modal[mode] = ModalFlow(A, B)
-            except np.linalg.LinAlgError:
-                pass
-        #: exact, etd2 and etd4 steps of any length by the modal flow (no matrix exponential per sub-step length)
+        #: exact, etd2 and etd4 steps of any length by the compiled modal flow (no matrix exponential per length)
         self._modal_steps = method in ("exact", "etd2", "etd4")
         self._project_slip = p.c == 0.0 and p.belt_mass > 0.0
         self._limit = p.scalar_friction_limit()
@@ -379,6 +373,25 @@ class HybridStepper:
         # dQ_max/dt = dlim * omega_M * omega_M' (the centrifugal part), and |q|, |A|, |B| of stick for the rounding scale
         self._dlim = -2.0 * p.belt_mass * (p.r_2 * p.gear_ratio) ** 2 * p.capstan_factor
         self._abs_stick = (np.abs(model.q_row), np.abs(model.A_stick), np.abs(model.B_stick))
+        #: the compiled event step's arrays (:func:`~belt_drive_ros.core.kernel_slip.pack`) when the torques are
+        #: data (``data`` = (drive data, load data, uses_angle)) and the method steps on the modal flow
+        #: (the method's partial steps then in Python, the events located by the compiled location on the same
+        #: continuous extension: ``_located``)
+        self._kernel = self._located = None
+        if data is not None and None not in data[:2] and locate:
+            from . import kernel_slip
+
+            arrays = kernel_slip.pack(model, method, *data)
+            if self._modal_steps:
+                self._kernel = arrays
+                self._event_step = kernel_slip.event_step
+                self._event_buffer = np.zeros((kernel_slip.MAX_SWITCHES + 1, 8))
+            elif arrays is not None:
+                locate_event, Z, R, c, _, guards, uses = kernel_slip.locate_event, *arrays[:6]
+                rest = arrays[6:]
+                self._located = lambda mode, sigma, t, y, h, hi, y1: locate_event(
+                    int(mode), float(sigma), float(t), np.asarray(y, dtype=float), float(h), float(hi),
+                    np.asarray(y1, dtype=float), Z, R, c, guards, uses, *rest)  # fmt: skip
 
     # ---------------------------------------------------------- the flows
     def _integrator(self, mode: int, h: float):
@@ -412,46 +425,10 @@ class HybridStepper:
 
         return u
 
-    def _guard(self, mode: int, sigma: float):
-        """The model's guard of (mode, sigma), cached."""
-        key = (mode, sigma if mode == SLIP else 0.0)
-        guard = self._guards.get(key)
-        if guard is None:
-            guard = self._guards[key] = self.model.guard(*key)
-        return guard
-
-    def scalar_inputs(self, mode: int, sigma: float, hi: float = math.inf) -> Callable:
-        """:meth:`inputs` as a tuple of floats (the event handling's path)."""
-        drive, load, i, r3, limit = self.drive, self.load, self._i, self._r3, self._limit
-        if mode == STICK:
-
-            def u(t, y):
-                t = t if t < hi else hi
-                return (drive(t, y[0], y[2]), load(t, i * y[0] - y[1] - y[4] / r3, y[3]))
-
-        else:
-
-            def u(t, y):
-                t = t if t < hi else hi
-                return (drive(t, y[0], y[2]), load(t, i * y[0] - y[1] - y[4] / r3, y[3]), sigma * limit(float(y[2])))
-
-        return u
-
     def flow(self, mode, sigma, t, y, h, hi=math.inf):
-        """The method's step of length ``h`` in ``mode`` from (t, y).
-
-        ``exact``, ``etd2`` and ``etd4`` take it on the modal flow
-        (:class:`~belt_drive_ros.core.slip_modal.ModalFlow`: the same maths as
-        their matrix exponentials, for any ``h``), the others by an
-        integrator of step ``h`` (cached per length).
-        """
-        modal = self._modal.get(mode) if self._modal_steps else None
-        if modal is None:
-            y1 = self._integrator(mode, h).step(t, y, self.inputs(mode, sigma, hi))
-            return self._project(mode, sigma, y1)
-        y = y.tolist() if isinstance(y, np.ndarray) else y
-        y1 = modal.step(y, t, h, self.scalar_inputs(mode, sigma, hi), self.method)
-        return self._project(mode, sigma, np.array(y1))
+        """The method's step of length ``h`` in ``mode`` from (t, y), by an integrator of step ``h`` (cached per length)."""
+        y1 = self._integrator(mode, h).step(t, y, self.inputs(mode, sigma, hi))
+        return self._project(mode, sigma, y1)
 
     def _project(self, mode, sigma, y):
         """c = 0 slip: the stretch follows sigma Q_max(omega_M) (keeps the total deflection)."""
@@ -513,20 +490,23 @@ class HybridStepper:
     def _locate(self, mode, sigma, t, y, h, hi, y1=None):
         """First tau in (0, h] where the switching function turns positive along the step.
 
-        Located on the continuous extension of the step (:class:`~belt_drive_ros.core.slip_modal.ModalFlow`:
-        the exact flow with the torques linear in time between their values
-        at the step's start and end; for ``exact`` the torques are held, so
-        this is the method's own flow), else on the method's flow over a
-        partial step. A sign scan finds the first crossing (the flow may
-        cross and return within a step: 8 points, on the modal flow at least
-        2 and 8 per half period of the fastest oscillation), then a
-        safeguarded Newton iteration (the modal flow gives the derivative;
-        bisection when a step leaves the bracket) or Brent's method brackets
-        it to ~1e-15 s.
+        With the torques as data, located on the step's continuous extension
+        (the mode's exact flow with the torques linear in time between the
+        step's ends) by the compiled location
+        (:func:`~belt_drive_ros.core.kernel_slip.locate_event`, as the
+        compiled event step does): a method unstable for the slip mode's
+        fast creep at this step (rk4 at 1 ms) would give a meaningless flow
+        over partial steps. Torques given as Python functions: located on
+        the method's flow over a partial step, a sign scan on 8 points
+        finding the first crossing (the flow may cross and return within a
+        step), then Brent's method to ~1e-15 s.
         """
-        if mode in self._modal:
-            u = self.scalar_inputs(mode, sigma, hi)
-            return self._locate_modal(mode, sigma, t, y.tolist(), h, u, u(t, y.tolist()), y1)[0]
+        if self._located is not None and y1 is not None:  # torques as data: on the step's modal extension, compiled
+            tau = self._located(mode, sigma, t, y, h, hi, y1)
+            if tau != tau:
+                return None
+            self.n_located += tau > 0.0
+            return tau
 
         def G(tau):
             return self.switching(mode, sigma, y if tau == 0.0 else self.flow(mode, sigma, t, y, tau, hi))
@@ -539,30 +519,6 @@ class HybridStepper:
             return None
         self.n_located += 1
         return scipy.optimize.brentq(G, bracket[0], bracket[2], xtol=1e-15, rtol=_EPS4, maxiter=200)
-
-    def _locate_modal(self, mode, sigma, t, yl, h, u, u0, y1=None):
-        """:meth:`_locate` on the modal flow, state ``yl`` and input ``u0 = u(t, yl)`` given (lists).
-
-        Returns ``(tau, w, b0)``: the located time (None: no crossing, 0.0:
-        at the start) and the modal coefficients of ``(yl, u0)`` for the
-        partial step to it.
-        """
-        modal = self._modal[mode]
-        u1 = u0 if (self.method == "exact" or y1 is None) else u(t + h, y1 if isinstance(y1, list) else y1.tolist())
-        w, b0, db, _, _ = coeffs = modal.prepare(yl, u0, u1, h)
-        GD = modal.guard_function(self._guard(mode, sigma), coeffs)
-
-        def G(tau):
-            return GD(tau)[0]
-
-        lo, g_lo = self._inside(G, self._switching_list(mode, sigma, yl), h)
-        if lo is None:
-            return 0.0, w, b0
-        bracket = self._scan(G, lo, g_lo, h, max(2, math.ceil(8.0 * modal.max_frequency * h / math.pi)))
-        if bracket is None:
-            return None, w, b0
-        self.n_located += 1
-        return _newton(GD, *bracket), w, b0
 
     @staticmethod
     def _inside(G, g_lo, h):
@@ -596,8 +552,8 @@ class HybridStepper:
         in the new mode. ``y1``: the method's state at ``t1`` in ``mode``
         when already known (a step without cuts that a compiled loop took).
         """
-        if self.locate and self._modal_steps and len(self._modal) == 2:
-            return self._advance_modal(t0, t1, y, mode, sigma, cuts, events, dt, hi_end, y1)
+        if self._kernel is not None:
+            return self._advance_kernel(t0, t1, y, mode, sigma, cuts, events, dt, hi_end, y1)
         edges = [t0, *cuts, t1]
         n_events = 0
         given = None if cuts else y1
@@ -628,6 +584,23 @@ class HybridStepper:
                     raise SlipError(f"slip: more than 64 mode switches in one step at t={a:.9g} s (chattering); reduce dt")
         return y, mode, sigma
 
+    def _advance_kernel(self, t0, t1, y, mode, sigma, cuts, events, dt, hi_end, y1):
+        """:meth:`advance` by the compiled event step (:func:`~belt_drive_ros.core.kernel_slip.event_step`)."""
+        yk = np.array(y, dtype=float)
+        given = 0 if (cuts or y1 is None) else 1
+        y1k = np.array(y1, dtype=float) if given else np.empty(5)
+        ev = self._event_buffer
+        mode, sigma, n, status = self._event_step(
+            float(t0), float(t1), np.asarray(cuts, dtype=float), yk, int(mode), float(sigma),
+            math.nan if dt is None else float(dt), float(hi_end), y1k, given, *self._kernel, ev, 0,
+        )  # fmt: skip
+        if events is not None:
+            for row in ev[:n]:
+                events.append(Event(float(row[0]), "onset" if row[1] else "restick", float(row[2]), row[3:].copy()))
+        if status:
+            raise SlipError(f"slip: more than 64 mode switches in one step at t={t0:.9g} s (chattering); reduce dt")
+        return yk, int(mode), float(sigma)
+
     def _switched(self, mode, sigma, a, y, events):
         """:meth:`switch` at an event at (a, y), recorded in ``events`` when the mode changes."""
         old = mode
@@ -635,68 +608,6 @@ class HybridStepper:
         if events is not None and mode != old:
             events.append(Event(a, "onset" if mode == SLIP else "restick", sigma, y.copy()))
         return mode, sigma, y
-
-    def _advance_modal(self, t0, t1, y, mode, sigma, cuts, events, dt, hi_end, y1):
-        """:meth:`advance` for ``exact``, ``etd2`` and ``etd4`` with both modes on the modal flow, on lists of floats.
-
-        The same operations as the generic path (the flows, the location,
-        the switch), without numpy between them: the input at a sub-step's
-        start and its modal coefficients serve both the location and the
-        partial step to the event.
-        """
-        edges = (t0, *cuts, t1)
-        n_events = 0
-        yl = y.tolist() if isinstance(y, np.ndarray) else list(y)
-        given = None if cuts or y1 is None else (y1.tolist() if isinstance(y1, np.ndarray) else list(y1))
-        method = self.method
-        last = len(edges) - 2
-        for j in range(last + 1):
-            a, b = edges[j], edges[j + 1]
-            hi = math.nextafter(b, -math.inf) if j < last else hi_end
-            while a < b:
-                h = dt if (dt is not None and a == t0 and b == t1) else b - a  # a whole grid step: the grid's dt
-                modal = self._modal[mode]
-                u = self.scalar_inputs(mode, sigma, hi)
-                u0 = u(a, yl)
-                if given is None:
-                    y1l = self._project_list(mode, sigma, modal.step_from(yl, a, h, u, method, u0))
-                else:
-                    y1l, given = given, None
-                if self._switching_list(mode, sigma, y1l) <= 0.0:
-                    yl, a = y1l, b
-                    break
-                tau, w, b0 = self._locate_modal(mode, sigma, a, yl, h, u, u0, y1l)
-                if tau is None:
-                    yl, a = y1l, b
-                    break
-                if tau > 0.0:
-                    yl = self._project_list(mode, sigma, modal.step_from(yl, a, tau, u, method, u0, w, b0))
-                a = a + tau if tau < h else b
-                mode, sigma, ya = self._switched(mode, sigma, a, np.array(yl), events)
-                yl = ya.tolist()
-                n_events += 1
-                if n_events > 64:
-                    raise SlipError(f"slip: more than 64 mode switches in one step at t={a:.9g} s (chattering); reduce dt")
-        return np.array(yl), mode, sigma
-
-    def _project_list(self, mode, sigma, y: list) -> list:
-        """:meth:`_project` on a list (the same operations)."""
-        if mode == SLIP and self._project_slip:
-            te = sigma * self._limit(y[2]) / self._two_k_r3
-            y[4] += self._r3 * (y[1] - te)
-            y[1] = te
-        return y
-
-    def _switching_list(self, mode, sigma, y: list) -> float:
-        """:meth:`switching` of a state given as a list (the same value)."""
-        if mode == STICK:  # |Q| - Q_max with Q summed as SlippingBeltModel.force does (q_0 = q_4 = 0)
-            return abs(self._q1 * y[1] + self._q2 * y[2] + self._q3 * y[3]) - self._limit(float(y[2]))
-        p = self.model.params
-        Q = sigma * self._limit(y[2])
-        rel = y[2] * self._rel2 + y[3] * self._rel3
-        if p.c != 0.0:
-            rel = rel - (Q - 2.0 * p.k * p.r_3 * y[1]) / (2.0 * p.c)
-        return -sigma * rel
 
     def run(self, time, y0, mode0=STICK, sigma0=0.0, breakpoints=()) -> HybridResult:
         """Integrate over the grid ``time``; steps are split at ``breakpoints`` and at events."""
@@ -727,28 +638,3 @@ class HybridStepper:
 
 #: relative tolerance of the event location (4 machine epsilons)
 _EPS4 = 4.0 * float(np.finfo(float).eps)
-
-
-def _newton(GD, lo, g_lo, hi, g_hi, xtol=1e-15):
-    """Root of G in the bracket [lo, hi] (G(lo) < 0 < G(hi)); ``GD(tau) = (G, dG/dtau)``.
-
-    Newton from the secant point, a bisection whenever a step would leave
-    the bracket; stops when the step is below ``xtol + 4 eps |tau|``.
-    """
-    tau = lo - g_lo * (hi - lo) / (g_hi - g_lo)
-    eps4 = _EPS4
-    for _ in range(200):
-        if not lo < tau < hi:
-            tau = 0.5 * (lo + hi)
-        g, dg = GD(tau)
-        if g == 0.0:
-            return tau
-        if g > 0.0:
-            hi = tau
-        else:
-            lo = tau
-        new = tau - g / dg if dg != 0.0 else 0.5 * (lo + hi)
-        if abs(new - tau) <= xtol + eps4 * abs(tau) or hi - lo <= xtol + eps4 * abs(hi):
-            return new if lo <= new <= hi else tau
-        tau = new
-    return tau

@@ -1,12 +1,18 @@
-"""Runs of the slipping belt, stepped by the single :class:`~belt_drive_ros.core.stepper.Stepper`.
+"""Runs of the slipping belt: one compiled hybrid loop over stick and slip phases.
 
 A stick or slip phase of the hybrid model is a linear plant with a guard
 (:class:`~belt_drive_ros.core.stage_scheme.Guard`): the mode's switching
-function, checked by the stepper's compiled loop after every step. Each
-phase runs through the stepper (compiled loop, breakpoints split exactly)
-until the guard turns positive; only that step is redone by
-:class:`~belt_drive_ros.core.slip.HybridStepper`, which locates the event,
-splits the step there and switches the mode. The plants:
+function, checked by the linear kernel's loop after every step. The
+compiled hybrid loop (:func:`~belt_drive_ros.core.kernel_slip.hybrid_steps`)
+runs each phase until the guard turns positive, redoes that step with the
+event located (:func:`~belt_drive_ros.core.kernel_slip.event_step`) and goes
+on in the new mode's phase, in one call. A step split at a breakpoint off
+the grid is handed back to the phase's stepper (:meth:`SlippingSimulator._advance_steps`);
+methods without a compiled event step, or torques given as Python functions,
+step phase by phase there with :class:`~belt_drive_ros.core.slip.HybridStepper`
+redoing each event step.
+
+The plants:
 
 * sticking without slip so far (``s = 0``): the flexible model itself, in
   its own coordinates, so a run that never reaches the limit gives the
@@ -39,7 +45,8 @@ from .errors import IntegratorError
 from .integrators import REGISTRY, method_class
 from .kernel_loop import FrictionForce
 from .model import FlexibleBeltModel
-from .slip import SLIP, STICK, HybridStepper, SlippingBeltModel
+from .profile_data import DIVERGED, NOT_CONVERGED
+from .slip import SLIP, STICK, Event, HybridStepper, SlipError, SlippingBeltModel
 from .stability import require_stable
 from .stage_scheme import Guard
 from .stepper import SPEED_LIMIT, Plant, Stepper, snap_tolerance
@@ -176,6 +183,8 @@ class SlippingSimulator:
                     self._sibling(("mass", -sigma)), m.guard(SLIP, sigma),
                 )  # fmt: skip
         self.events: list = []
+        self._event_rows = np.zeros((1024, 8))
+        self._free_cache: dict = {}
         self.vectorized = False
         self._window = WINDOW_FIRST
         #: a list to receive ``(times, xs)`` of the recorded pieces run on the flexible model itself (no slip
@@ -184,13 +193,28 @@ class SlippingSimulator:
         if not lazy:
             for key in self._factories:
                 self.phase_stepper(key)
-            _ = self.hybrid
+            self._prime()
+
+    def _prime(self) -> None:
+        """Load the compiled hybrid loop and event step now (a call of no step), so no tick pays for it."""
+        compiled = self._compiled()
+        if compiled is None:
+            return
+        from . import kernel_slip as ks
+
+        have, reals, ints, offsets, Yflex, Minv, arrays = compiled
+        none, x = np.zeros(0), np.zeros(6)
+        ks.hybrid_steps(np.zeros(1), np.zeros(1), none, none, np.zeros(0, dtype=np.int64), 0, 0, x, self.dt, SPEED_LIMIT,
+                        np.empty((0, 5)), np.empty(0, dtype=np.int64), none, np.empty((0, 6)), reals, ints, offsets, have,
+                        Yflex, Minv, *arrays, self._event_rows, 0)  # fmt: skip
+        self.hybrid.advance(0.0, 0.0, np.zeros(5), STICK, 0.0)
 
     @property
     def hybrid(self) -> HybridStepper:
         """The hybrid stepper that redoes a step with an event (built at the first event)."""
         if self._hybrid is None:
-            self._hybrid = HybridStepper(self.model, self.plant.scalar_drive, self.plant.scalar_load, self.method)
+            self._hybrid = HybridStepper(self.model, self.plant.scalar_drive, self.plant.scalar_load, self.method,
+                                         data=(*self.plant.data, self.plant.uses_angle))  # fmt: skip
         return self._hybrid
 
     def phase_stepper(self, key) -> Stepper:
@@ -286,11 +310,150 @@ class SlippingSimulator:
     def advance(self, state: SlipState, t0: float, t1: float, record=None, events=None) -> SlipState:
         """The hybrid state at ``t1`` [s] from ``state`` at ``t0`` (``t1 >= t0``).
 
-        ``record``: a list that receives ``(times, ys, mode, sigma)`` per
-        piece (the knots after ``t0``); ``events``: a list that receives the
-        mode switches (:class:`~belt_drive_ros.core.slip.Event`).
+        ``record``: a list that receives ``(times, ys, modes, sigmas)`` per
+        piece (the knots after ``t0``; modes and sigmas a value or one per knot);
+        ``events``: a list that receives the mode switches (:class:`~belt_drive_ros.core.slip.Event`).
+        The whole grid steps run in the compiled hybrid loop
+        (:func:`~belt_drive_ros.core.kernel_slip.hybrid_steps`); a partial
+        step or one split at a breakpoint, and every step where the torques
+        or the method are not the kernel's, by :meth:`_advance_steps`.
         Raises :class:`~belt_drive_ros.core.errors.SimulationDivergedError`.
         """
+        compiled = self._compiled()
+        if compiled is None or t1 <= t0:
+            return self._advance_steps(state, t0, t1, record, events)
+        st = self.stepper
+        k0, k1 = st._snap(t0), st._snap(t1)
+        if k0 is not None and k1 is not None and k1 > k0 and not st._near_breakpoint(t0, t1, k0, k1):
+            N = k1 - k0  # whole grid steps away from breakpoints (the node's usual tick): no plan needed
+            grid = st._grid(k0, k1 + 1)
+            lo, hi, special = self._free_steps(N)
+        else:
+            plan = st._plan(float(t0), float(t1))
+            if plan["empty"]:
+                return self._advance_steps(state, t0, t1, record, events)
+            first, last = plan["first"], plan["last"]
+            N = last - first + 1
+            grid = st._grid(first, last + 2)
+            lo, hi = np.full(N, -math.inf), np.full(N, math.inf)
+            special = np.zeros(N, dtype=np.int64)
+            special[0] |= plan["lead"]
+            special[-1] |= plan["trail"]
+            for c, (a, b, cuts) in plan["special"].items():
+                lo[c - first], hi[c - first] = a, b
+                special[c - first] |= bool(cuts)
+        knots = grid.copy()
+        knots[0], knots[-1] = t0, t1
+        from . import kernel_slip as ks
+
+        out_y, out_native = np.empty((N, 5)), np.empty((N, 6))
+        out_mode, out_sigma = np.empty(N, dtype=np.int64), np.empty(N)
+        x = np.zeros(6)
+        kind, sigma = _kind_code(state), state.sigma
+        x[: state.x.size] = state.x
+        if state.kind == "hybrid":
+            x[5] = sigma
+        k, n_ev = 0, 0
+        ev = self._event_rows
+        while True:
+            have, reals, ints, offsets, Yflex, Minv, arrays = compiled
+            k1, status, kind, sigma, n_ev = ks.hybrid_steps(
+                grid, knots, lo, hi, special, k, kind, x, self.dt, SPEED_LIMIT, out_y, out_mode, out_sigma, out_native,
+                reals, ints, offsets, have, Yflex, Minv, *arrays, ev, n_ev,
+            )  # fmt: skip
+            self._record(record, knots, k, k1, out_y, out_mode, out_sigma, out_native)
+            if events is not None:
+                events.extend(_events(ev[:n_ev]))
+            n_ev = 0
+            n = ks.PHASE_SIZE[kind]
+            if status == 0:
+                break
+            if status == DIVERGED:
+                raise self.stepper._diverged(float(knots[k1]), out_native[k1 - 1, :n])
+            if status == NOT_CONVERGED:
+                self.stepper._not_converged(float(knots[k1]))
+            if status == ks.CHATTER:
+                raise SlipError(f"slip: more than 64 mode switches in one step at t={knots[k1]:.9g} s (chattering); reduce dt")
+            if status == ks.NO_PHASE:
+                self.phase_stepper(ks.PHASE_KEYS[kind])
+                compiled = self._compiled()
+                if compiled is None:
+                    here = SlipState(STICK if kind <= ks.STICKING else SLIP, sigma, ks.KIND_NAMES[kind], x[:n].copy())
+                    return self._advance_steps(here, float(knots[k1]), t1, record, events)
+            elif status == ks.SPECIAL:
+                here = SlipState(STICK if kind <= ks.STICKING else SLIP, sigma, ks.KIND_NAMES[kind], x[:n].copy())
+                here = self._advance_steps(here, float(knots[k1]), float(knots[k1 + 1]), record, events)
+                kind, sigma = _kind_code(here), here.sigma
+                x[:] = 0.0
+                x[: here.x.size] = here.x
+                if here.kind == "hybrid":
+                    x[5] = here.sigma
+                k1 += 1
+            k = k1
+            if k >= N:
+                break
+        n = ks.PHASE_SIZE[kind]
+        return SlipState(STICK if kind <= ks.STICKING else SLIP, float(sigma), ks.KIND_NAMES[kind], x[:n].copy())
+
+    def _free_steps(self, N: int) -> tuple:
+        """(lo, hi, special) of ``N`` whole steps without clamps or splits (read-only, kept per N)."""
+        cached = self._free_cache.get(N)
+        if cached is None:
+            if len(self._free_cache) > 64:
+                self._free_cache.clear()
+            cached = self._free_cache[N] = (np.full(N, -math.inf), np.full(N, math.inf), np.zeros(N, dtype=np.int64))
+        return cached
+
+    def _record(self, record, knots, k0, k1, out_y, out_mode, out_sigma, out_native) -> None:
+        """Samples ``k0 .. k1 - 1`` of a compiled stretch into ``record`` (and the flexible ones into :attr:`flexible_record`)."""
+        if record is None or k1 <= k0:
+            return
+        record.append((knots[k0 + 1 : k1 + 1], out_y[k0:k1].copy(), out_mode[k0:k1].astype(np.int8), out_sigma[k0:k1].copy()))
+        if self.flexible_record is not None:
+            flexible = np.isnan(out_native[k0:k1, 4])
+            if np.any(flexible):
+                idx = np.flatnonzero(flexible)
+                self.flexible_record.append((knots[k0 + 1 + idx], out_native[k0 + idx, :4]))
+
+    def _compiled(self):
+        """The compiled hybrid loop's arrays (every built phase's kernel loop packed), or None where it cannot run."""
+        built = tuple(k for k in self._steppers)
+        cached = self.__dict__.get("_packed")
+        if cached is not None and cached[0] == built:
+            return cached[1]
+        from . import kernel_slip as ks
+
+        packed = None
+        arrays = self.hybrid._kernel
+        loops = {key: st.loop for key, st in self._steppers.items()}
+        base = loops.get("flexible")
+        if arrays is not None and base is not None and all(
+            lp is not None and lp._dp is arrays[7] and lp._lp is arrays[11] for lp in loops.values()
+        ):
+            have = np.zeros(len(ks.PHASE_SIZE), dtype=np.int64)
+            offsets = np.zeros((len(ks.PHASE_SIZE), 4), dtype=np.int64)
+            reals, ints, r, i = [], [], 0, 0
+            for code, key in enumerate(ks.PHASE_KEYS):
+                if key in loops:
+                    have[code] = 2
+                    lp = loops[key]
+                    offsets[code] = r, r + lp.reals.size, i, i + lp.ints.size
+                    reals.append(lp.reals)
+                    ints.append(lp.ints)
+                    r, i = r + lp.reals.size, i + lp.ints.size
+                elif key in self._factories:
+                    have[code] = 1
+            have[ks.STEPWISE] = 2
+            Yflex = np.zeros((5, 4))
+            W = self.plant.wheel_map
+            Yflex[0], Yflex[1, 1], Yflex[2], Yflex[3] = W[0], 1.0, W[1], W[3]
+            packed = (have, np.concatenate(reals), np.concatenate(ints), offsets, Yflex,
+                      np.ascontiguousarray(self._M_inv), arrays)  # fmt: skip
+        self._packed = (built, packed)
+        return packed
+
+    def _advance_steps(self, state: SlipState, t0: float, t1: float, record=None, events=None) -> SlipState:
+        """:meth:`advance` phase by phase through the steppers, each event step by the hybrid stepper."""
         t = float(t0)
         hs = self.hybrid
         while t < t1:
@@ -393,6 +556,20 @@ class SlippingSimulator:
         d = np.broadcast_to(self.plant.drive.torque(t, phi_M, omega_M), t.shape)
         l = np.broadcast_to(self.plant.load.torque(t, self.model.phi_3(states), states[:, 3]), t.shape)
         return np.stack([d, l], axis=-1).astype(float)
+
+
+def _kind_code(state: SlipState) -> int:
+    """The compiled loop's phase kind of a hybrid state."""
+    from . import kernel_slip as ks
+
+    if state.kind in ("slip", "mass"):
+        return ks.PHASE_KEYS.index((state.kind, 1.0 if state.sigma > 0.0 else -1.0))
+    return ks.KIND_CODES[state.kind]
+
+
+def _events(rows) -> list:
+    """:class:`~belt_drive_ros.core.slip.Event` of the compiled loop's event rows."""
+    return [Event(float(r[0]), "onset" if r[1] else "restick", float(r[2]), r[3:].copy()) for r in rows]
 
 
 def _joined(pieces):

@@ -1,0 +1,625 @@
+"""The compiled step of the slipping belt across its stick/slip events (numba, ``@njit(cache=True, nogil=True)``).
+
+A grid step of the hybrid model in which a switching function turns
+positive is redone here: the event is located by root finding on the
+step's continuous extension (the mode's exact flow with the torques linear
+in time between their values at the step's ends; held for ``exact``), the
+flow is taken to it, the mode switched, and the rest of the step is taken
+in the new mode -- as often as events occur in one step (at most 64).
+Partial steps of any length are taken on the modal flow, in closed form:
+
+In both modes the state ``y = [phi_M, theta_e, omega_M, omega_3, s]``
+splits into ``z = [theta_e, omega_M, omega_3]`` (``z' = A_z z + B_z u``) and
+the two integrated coordinates. With ``A_z = V diag(lambda) V^-1`` and an
+input ``u_0 + d_1 s + d_2 s^2``, the modal coordinates ``zeta = V^-1 z``
+follow::
+
+    zeta_i(tau) = e^(l tau) w_i + tau phi_1 b0_i + tau^2 phi_2 b1_i + 2 tau^3 phi_3 b2_i
+    int_0^tau zeta_i = tau phi_1 w_i + tau^2 phi_2 b0_i + tau^3 phi_3 b1_i + 2 tau^4 phi_4 b2_i
+
+(``l = lambda_i``, ``phi_k`` of ``l tau``, ``w = V^-1 z(0)``, ``b_k = V^-1 B_z d_k``,
+``phi_k(x) = sum_j x^j / (j + k)!``); the integrated coordinates add
+``Re(C V int zeta) + B_{0,4} (tau u_0 + tau^2 d_1 / 2 + tau^3 d_2 / 3)``.
+That is the ``exact`` step (held input), the ``etd2`` step (input ramping to
+its value at the predicted end) and the ``etd4`` step (Cox-Matthews ETDRK4:
+half-step held-input stages, then the quadratic input through them) of any
+length; the other fixed-step methods take their partial steps as ``etd4``
+(fourth order, exact in the linear part).
+
+Every function is valid Python: ``NUMBA_DISABLE_JIT=1`` runs them with the same floats.
+
+Data (built once per model by :func:`pack`):
+
+* ``Z`` (2, 3, 12) complex: per mode (0 stick, 1 slip) and carried eigenvalue
+  ``[lambda, V column (3), V^-1 row (3), P = V^-1 B_z row (3), C column (2)]``;
+* ``R`` (2, 11) float: ``[weight (3), B rows 0 and 4 (2 x 3), max frequency, modes carried]``;
+* ``c`` (:data:`CONSTS`) float: the model's constants; ``mats`` (5, 7): ``[A_stick | B_stick]``;
+* ``guards`` (3, 15): stick, slip sigma = +1, slip sigma = -1 as ``[bound, absolute, quad, row (5), speed (5), has_speed, 0]``.
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+
+import numpy as np
+from numba import njit
+
+from .kernel import linear_steps, profile_torque
+from .profile_data import DIVERGED, GUARDED, NOT_CONVERGED
+
+_JIT = dict(cache=True, nogil=True)
+_INLINE = dict(cache=True, nogil=True, inline="always")
+
+#: Taylor coefficients 1/(j+3)! and 1/(j+4)! (phi_3, phi_4 below |x| = 0.5, to below 1e-17 relative)
+_PHI3 = tuple(1.0 / math.factorial(j + 3) for j in range(15))
+_PHI4 = tuple(1.0 / math.factorial(j + 4) for j in range(15))
+#: names of the entries of ``c``
+CONSTS = ("ratio", "r_3", "F_0", "belt_mass", "r", "capstan", "q1", "q2", "q3", "rel2", "rel3", "k", "c",
+          "two_k_r3", "dlim", "project", "method")  # fmt: skip
+#: method codes of the modal flow (``c[16]``)
+EXACT, ETD2, ETD4 = 0, 1, 2
+STICK, SLIP = 0, 1
+#: at most this many mode switches in one step (chattering otherwise)
+MAX_SWITCHES = 64
+
+
+@njit(**_INLINE)
+def _phis4(x):
+    """(e^x, phi_1(x), ..., phi_4(x)) of a complex x: Taylor series below |x| = 0.5, closed forms above."""
+    if abs(x) < 0.5:
+        p4 = 0.0 * x
+        p3 = 0.0 * x
+        for j in range(14, -1, -1):
+            p4 = p4 * x + _PHI4[j]
+            p3 = p3 * x + _PHI3[j]
+        p2 = 0.5 + x * p3
+        p1 = 1.0 + x * p2
+        return 1.0 + x * p1, p1, p2, p3, p4
+    e = cmath.exp(x)
+    p1 = (e - 1.0) / x
+    p2 = (p1 - 1.0) / x
+    p3 = (p2 - 0.5) / x
+    return e, p1, p2, p3, (p3 - 1.0 / 6.0) / x
+
+
+@njit(**_INLINE)
+def _limit(c, omega):
+    """Q_max at drive speed ``omega``: ``max((F_0 - m' v^2) k_c, 0)``, ``v = r omega`` [N]."""
+    v = c[4] * omega
+    return max((c[2] - c[3] * v * v) * c[5], 0.0)
+
+
+@njit(**_JIT)
+def _inputs(mode, sigma, t, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u):
+    """u = [drive, load(, sigma Q_max)] at ``t`` (clipped at ``hi``) and state ``y`` into ``u``."""
+    tc = t if t < hi else hi
+    u[0] = profile_torque(dk, dp, dx, dy, tc, y[0] if uses[0] else 0.0, y[2])
+    phi3 = c[0] * y[0] - y[1] - y[4] / c[1]
+    u[1] = profile_torque(lk, lp, lx, ly, tc, phi3 if uses[1] else 0.0, y[3])
+    u[2] = sigma * _limit(c, y[2]) if mode == SLIP else 0.0
+
+
+@njit(**_INLINE)
+def _modal(Z, M, y, w):
+    """Modal coordinates ``w = V^-1 z`` of state ``y`` in mode ``M``."""
+    for k in range(3):
+        w[k] = Z[M, k, 4] * y[1] + Z[M, k, 5] * y[2] + Z[M, k, 6] * y[3]
+
+
+@njit(**_INLINE)
+def _pdot(Z, M, k, u, m):
+    """``P_k . u`` over the mode's ``m`` inputs."""
+    total = Z[M, k, 7] * u[0] + Z[M, k, 8] * u[1]
+    if m == 3:
+        total = total + Z[M, k, 9] * u[2]
+    return total
+
+
+@njit(**_JIT)
+def _state(Z, R, M, m, y0, y4, w, u0, d1, d2, tau, out):
+    """The state at ``tau`` [s] from (phi_M = ``y0``, modal ``w``, s = ``y4``) with input ``u0 + d1 s + d2 s^2`` into ``out``."""
+    t2 = tau * tau
+    t3 = t2 * tau
+    z0 = z1 = z2 = i0 = i4 = 0.0
+    for k in range(int(R[M, 10])):
+        e, p1, p2, p3, p4 = _phis4(Z[M, k, 0] * tau)
+        b0, b1, b2 = _pdot(Z, M, k, u0, m), _pdot(Z, M, k, d1, m), _pdot(Z, M, k, d2, m)
+        weight = R[M, k]
+        zeta = weight * (e * w[k] + tau * p1 * b0 + t2 * p2 * b1 + 2.0 * t3 * p3 * b2)
+        integral = weight * (tau * p1 * w[k] + t2 * p2 * b0 + t3 * p3 * b1 + 2.0 * t2 * t2 * p4 * b2)
+        z0 += (Z[M, k, 1] * zeta).real
+        z1 += (Z[M, k, 2] * zeta).real
+        z2 += (Z[M, k, 3] * zeta).real
+        i0 += (Z[M, k, 10] * integral).real
+        i4 += (Z[M, k, 11] * integral).real
+    for q in range(m):
+        ramp = tau * u0[q] + 0.5 * t2 * d1[q] + t3 * d2[q] / 3.0
+        i0 += R[M, 3 + q] * ramp
+        i4 += R[M, 6 + q] * ramp
+    out[0], out[1], out[2], out[3], out[4] = y0 + i0, z0, z1, z2, y4 + i4
+
+
+@njit(**_JIT)
+def _project(c, mode, sigma, y):
+    """c = 0 slip with a belt mass: the stretch follows sigma Q_max(omega_M) (the total deflection kept)."""
+    if mode == SLIP and c[15] != 0.0:
+        te = sigma * _limit(c, y[2]) / c[13]
+        y[4] += c[1] * (y[1] - te)
+        y[1] = te
+
+
+@njit(**_JIT)
+def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, out):
+    """The method's step of length ``h`` [s] in ``mode`` from (t, y) with ``u0 = u(t, y)`` into ``out``."""
+    M = mode
+    m = 3 if mode == SLIP else 2
+    method = c[16]
+    w = np.empty(3, dtype=np.complex128)
+    _modal(Z, M, y, w)
+    zero = np.zeros(3)
+    if method != ETD4:
+        _state(Z, R, M, m, y[0], y[4], w, u0, zero, zero, h, out)
+        if method == ETD2:
+            u1 = np.zeros(3)
+            _inputs(mode, sigma, t + h, out, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u1)
+            d1 = np.zeros(3)
+            for q in range(m):
+                d1[q] = (u1[q] - u0[q]) / h
+            _state(Z, R, M, m, y[0], y[4], w, u0, d1, zero, h, out)
+        _project(c, mode, sigma, out)
+        return
+    # ETDRK4: a from y with U_0, b from y with U_a, c from a with 2 U_b - U_0, then the quadratic input
+    half = 0.5 * h
+    a, b, cc = np.empty(5), np.empty(5), np.empty(5)
+    ua, ub, uc, um = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
+    _state(Z, R, M, m, y[0], y[4], w, u0, zero, zero, half, a)
+    _inputs(mode, sigma, t + half, a, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ua)
+    _state(Z, R, M, m, y[0], y[4], w, ua, zero, zero, half, b)
+    _inputs(mode, sigma, t + half, b, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ub)
+    wa = np.empty(3, dtype=np.complex128)
+    _modal(Z, M, a, wa)
+    for q in range(m):
+        um[q] = 2.0 * ub[q] - u0[q]
+    _state(Z, R, M, m, a[0], a[4], wa, um, zero, zero, half, cc)
+    _inputs(mode, sigma, t + h, cc, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, uc)
+    d1, d2 = np.zeros(3), np.zeros(3)
+    for q in range(m):
+        d1[q] = (-3.0 * u0[q] + 2.0 * (ua[q] + ub[q]) - uc[q]) / h
+        d2[q] = (2.0 * (u0[q] - ua[q] - ub[q] + uc[q])) / (h * h)
+    _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, h, out)
+    _project(c, mode, sigma, out)
+
+
+@njit(**_JIT)
+def switching(c, mode, sigma, y):
+    """> 0 once the mode must end: ``|Q| - Q_max`` sticking, ``-sigma s'`` slipping [N or m/s]."""
+    if mode == STICK:
+        return abs(c[6] * y[1] + c[7] * y[2] + c[8] * y[3]) - _limit(c, y[2])
+    Q = sigma * _limit(c, y[2])
+    rel = y[2] * c[9] + y[3] * c[10]
+    if c[12] != 0.0:
+        rel = rel - (Q - 2.0 * c[11] * c[1] * y[1]) / (2.0 * c[12])
+    return -sigma * rel
+
+
+@njit(**_JIT)
+def _guard(tau, G, lam, nm, quad, absolute, bound):
+    """(G, dG/dtau) of a guard on the modal flow: amplitudes ``G[k] = (row a0, a1, a2, speed s0, s1, s2)``."""
+    t2 = tau * tau
+    v = wv = dv = dwv = 0.0
+    for k in range(nm):
+        e, p1, p2, _, _ = _phis4(lam[k] * tau)
+        tp1 = tau * p1
+        v += (G[k, 0] * e + tp1 * G[k, 1] + t2 * p2 * G[k, 2]).real
+        dv += (G[k, 0] * lam[k] * e + G[k, 1] * e + G[k, 2] * tp1).real
+        if quad != 0.0:
+            wv += (G[k, 3] * e + tp1 * G[k, 4] + t2 * p2 * G[k, 5]).real
+            dwv += (G[k, 3] * lam[k] * e + G[k, 4] * e + G[k, 5] * tp1).real
+    if absolute and v < 0.0:
+        v, dv = -v, -dv
+    return v - (bound - quad * wv * wv), dv + 2.0 * quad * wv * dwv
+
+
+@njit(**_JIT)
+def _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly):
+    """First tau in (0, h] where the switching function turns positive on the step's continuous extension.
+
+    The extension is the exact flow with the input linear from ``u(t, y)``
+    to ``u(t + h, y1)`` (held for ``exact``). A sign scan (2 points, and 8 per
+    half period of the fastest oscillation) finds the first crossing, a
+    safeguarded Newton iteration (bisection when a step leaves the bracket)
+    the root to ~1e-15 s. Returns nan: no crossing; 0.0: at the start.
+    """
+    M = mode
+    m = 3 if mode == SLIP else 2
+    nm = int(R[M, 10])
+    du = np.zeros(3)
+    if c[16] != EXACT:
+        u1 = np.zeros(3)
+        _inputs(mode, sigma, t + h, y1, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u1)
+        for q in range(m):
+            du[q] = (u1[q] - u0[q]) / h
+    g = guards[0] if mode == STICK else guards[1] if sigma > 0.0 else guards[2]
+    quad = g[2] if g[13] != 0.0 else 0.0
+    amp = np.zeros((3, 6), dtype=np.complex128)
+    lam = np.zeros(3, dtype=np.complex128)
+    w = np.empty(3, dtype=np.complex128)
+    _modal(Z, M, y, w)
+    for k in range(nm):
+        lam[k] = Z[M, k, 0]
+        b0, db = _pdot(Z, M, k, u0, m), _pdot(Z, M, k, du, m)
+        for j in range(2):
+            o = 3 + 5 * j  # row, then speed
+            r = R[M, k] * (g[o + 1] * Z[M, k, 1] + g[o + 2] * Z[M, k, 2] + g[o + 3] * Z[M, k, 3])
+            amp[k, 3 * j], amp[k, 3 * j + 1], amp[k, 3 * j + 2] = r * w[k], r * b0, r * db
+    absolute, bound = g[1] != 0.0, g[0]
+    lo, g_lo = 0.0, switching(c, mode, sigma, y)
+    if g_lo >= 0.0:  # starts on the surface (just switched): find where it is inside
+        lo = math.nan
+        for k in range(1, 40):
+            tau = h * 0.5**k
+            gv, _ = _guard(tau, amp, lam, nm, quad, absolute, bound)
+            if gv < 0.0:
+                lo, g_lo = tau, gv
+                break
+        if lo != lo:
+            return 0.0
+    n_scan = max(2, math.ceil(8.0 * R[M, 9] * h / math.pi))
+    hi_tau, g_hi = math.nan, 0.0
+    for j in range(1, n_scan + 1):
+        tau = lo + (h - lo) * j / n_scan if j < n_scan else h
+        gv, _ = _guard(tau, amp, lam, nm, quad, absolute, bound)
+        if gv > 0.0:
+            hi_tau, g_hi = tau, gv
+            break
+        lo, g_lo = tau, gv
+    if hi_tau != hi_tau:
+        return math.nan
+    # safeguarded Newton from the secant point
+    a, b = lo, hi_tau
+    tau = a - g_lo * (b - a) / (g_hi - g_lo)
+    eps4 = 4.0 * 2.220446049250313e-16
+    for _ in range(200):
+        if not a < tau < b:
+            tau = 0.5 * (a + b)
+        gv, dg = _guard(tau, amp, lam, nm, quad, absolute, bound)
+        if gv == 0.0:
+            return tau
+        if gv > 0.0:
+            b = tau
+        else:
+            a = tau
+        new = tau - gv / dg if dg != 0.0 else 0.5 * (a + b)
+        if abs(new - tau) <= 1e-15 + eps4 * abs(tau) or b - a <= 1e-15 + eps4 * abs(b):
+            return new if a <= new <= b else tau
+        tau = new
+    return tau
+
+
+@njit(**_JIT)
+def locate_event(mode, sigma, t, y, h, hi, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly):
+    """:func:`_locate` with the input at the step's start computed here: the event location of a step whose
+    partial steps are taken elsewhere (a method without a compiled event step: its own flow, in Python)."""
+    u0 = np.zeros(3)
+    _inputs(mode, sigma, t, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u0)
+    return _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly)
+
+
+@njit(**_JIT)
+def _stick_keeps(t, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly):
+    """True if the stick mode's |Q| does not at once grow past Q_max from (t, y).
+
+    The sign of sigma dQ/dt - dQ_max/dt in stick mode; where that vanishes to
+    rounding, the sign of sigma d2Q/dt2 = sigma q . A y' (inputs held).
+    """
+    Q = c[6] * y[1] + c[7] * y[2] + c[8] * y[3]
+    if abs(Q) < _limit(c, y[2]) * (1.0 - 1e-9):
+        return True
+    sig = math.copysign(1.0, Q)
+    u = np.zeros(3)
+    _inputs(STICK, 0.0, t, y, math.inf, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u)
+    dyv = np.zeros(5)
+    scale_v = np.zeros(5)
+    for r in range(5):
+        total, mag = 0.0, 0.0
+        for j in range(5):
+            total += mats[r, j] * y[j]
+            mag += abs(mats[r, j]) * abs(y[j])
+        for j in range(2):
+            total += mats[r, 5 + j] * u[j]
+            mag += abs(mats[r, 5 + j]) * abs(u[j])
+        dyv[r], scale_v[r] = total, mag
+    dlim = c[14] * y[2] * dyv[2]
+    rate = sig * (c[6] * dyv[1] + c[7] * dyv[2] + c[8] * dyv[3]) - dlim
+    scale = abs(c[6]) * scale_v[1] + abs(c[7]) * scale_v[2] + abs(c[8]) * scale_v[3] + abs(dlim)
+    if abs(rate) > 1e-8 * scale:
+        return rate < 0.0
+    second = 0.0
+    for r in (1, 2, 3):
+        total = 0.0
+        for j in range(5):
+            total += mats[r, j] * dyv[j]
+        second += c[5 + r] * total
+    return sig * second <= 0.0
+
+
+@njit(**_JIT)
+def event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mats, guards, uses,
+               dk, dp, dx, dy, lk, lp, lx, ly, events, n0):  # fmt: skip
+    """Integrate from ``t0`` to ``t1`` [s] in the hybrid model: sub-steps end at each cut, then at each located event.
+
+    ``y`` (5,) is overwritten with the end state. A sub-step whose end has a
+    positive switching function holds an event: located (:func:`_locate`),
+    the flow taken to it, the mode switched and the sub-step's rest taken
+    in the new mode. ``dt``: the grid step for a whole step (nan: none);
+    ``hi_end``: torque times clipped there in the last sub-step; ``y1``
+    (``given`` 1): the method's state at ``t1`` in ``mode`` already known.
+    ``events`` (E, 8) receives ``[time, onset (1) / restick (0), sigma, state (5)]`` from row ``n0``.
+
+    Returns (mode, sigma, number of events recorded, status): status 0 done,
+    1 more than :data:`MAX_SWITCHES` switches (chattering).
+    """
+    n_rec = 0
+    n_switch = 0
+    u0 = np.zeros(3)
+    ye = np.empty(5)
+    nc = cuts.size
+    for j in range(nc + 1):
+        a = t0 if j == 0 else cuts[j - 1]
+        b = t1 if j == nc else cuts[j]
+        hi = math.nextafter(b, -math.inf) if j < nc else hi_end
+        while a < b:
+            h = dt if (dt == dt and a == t0 and b == t1) else b - a  # a whole grid step: the grid's dt
+            _inputs(mode, sigma, a, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u0)
+            if given == 0 or nc > 0:
+                _flow(mode, sigma, a, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, y1)
+            given = 0
+            if switching(c, mode, sigma, y1) <= 0.0:
+                y[:] = y1
+                a = b
+                break
+            tau = _locate(mode, sigma, a, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly)
+            if tau != tau:
+                y[:] = y1
+                a = b
+                break
+            if tau > 0.0:
+                _flow(mode, sigma, a, y, tau, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ye)
+                y[:] = ye
+            a = a + tau if tau < h else b
+            old = mode
+            if mode == STICK:
+                sigma = 1.0 if c[6] * y[1] + c[7] * y[2] + c[8] * y[3] >= 0.0 else -1.0
+                mode = SLIP
+                if c[12] == 0.0:  # the stretch sits at the limit exactly
+                    te = sigma * _limit(c, y[2]) / c[13]
+                    y[4] += c[1] * (y[1] - te)
+                    y[1] = te
+            elif _stick_keeps(a, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly):
+                mode, sigma = STICK, 0.0
+            if mode != old and n0 + n_rec < events.shape[0]:
+                row = n0 + n_rec
+                events[row, 0], events[row, 1], events[row, 2] = a, 1.0 if mode == SLIP else 0.0, sigma
+                events[row, 3:] = y
+                n_rec += 1
+            n_switch += 1
+            if n_switch > MAX_SWITCHES:
+                return mode, sigma, n_rec, 1
+    return mode, sigma, n_rec, 0
+
+
+# ------------------------------------------------------------- the run
+#: phase kinds of :func:`hybrid_steps` (the state's coordinates): the flexible model (sticking, no slip so far),
+#: the stick mode, the massless slip mode ``[y, Q]`` (sigma +1, -1), the slip mode of a belt with mass and span
+#: damping (+1, -1), the slip mode stepped event step by event step (a belt with mass, c = 0)
+FLEXIBLE, STICKING, SLIP_UP, SLIP_DOWN, MASS_UP, MASS_DOWN, STEPWISE = 0, 1, 2, 3, 4, 5, 6
+#: the phase kinds' names (:class:`~belt_drive_ros.core.slip_run.SlipState` ``kind``) and stepper keys
+KIND_NAMES = ("flexible", "stick", "slip", "slip", "mass", "mass", "hybrid")
+KIND_CODES = {"flexible": FLEXIBLE, "stick": STICKING, "hybrid": STEPWISE}
+PHASE_KEYS = ("flexible", "stick", ("slip", 1.0), ("slip", -1.0), ("mass", 1.0), ("mass", -1.0))
+#: states per phase kind
+PHASE_SIZE = (4, 5, 6, 6, 5, 5, 5)
+#: statuses of :func:`hybrid_steps` beyond the linear loop's (OK 0, DIVERGED 1, NOT_CONVERGED 3)
+SPECIAL, EVENTS_FULL, CHATTER, NO_PHASE = 4, 5, 6, 7
+
+
+@njit(**_INLINE)
+def _to_y(kind, x, Yflex, y):
+    """The slipping state ``y`` (5,) of phase state ``x`` (flexible: ``Yflex @ x`` summed from the left)."""
+    if kind == FLEXIBLE:
+        for r in range(5):
+            total = 0.0
+            for j in range(4):
+                total = total + Yflex[r, j] * x[j]
+            y[r] = total
+    else:
+        for r in range(5):
+            y[r] = x[r]
+
+
+@njit(**_INLINE)
+def _native(mode, sigma, y, x, Minv, c, have):
+    """The phase kind of (mode, sigma, y) and its state written into ``x`` (``have[kind]``: the phase exists)."""
+    if mode == STICK:
+        if y[4] == 0.0:
+            for r in range(4):
+                total = 0.0
+                for j in range(4):
+                    total = total + Minv[r, j] * y[j]
+                x[r] = total
+            return FLEXIBLE
+        x[:5] = y
+        return STICKING
+    up = sigma > 0.0
+    x[:5] = y
+    if have[SLIP_UP if up else SLIP_DOWN] != 0:
+        x[5] = sigma * _limit(c, 0.0)
+        return SLIP_UP if up else SLIP_DOWN
+    if have[MASS_UP if up else MASS_DOWN] != 0:
+        return MASS_UP if up else MASS_DOWN
+    return STEPWISE
+
+
+@njit(**_JIT)
+def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, out_mode, out_sigma, out_native,
+                 reals, ints, offsets, have, Yflex, Minv, Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
+                 events, n_events):  # fmt: skip
+    """The hybrid run over steps ``k0 .. N-1`` of a plan: each phase in the linear loop, each event step compiled.
+
+    Step ``k`` goes from ``knots[k]`` to ``knots[k+1]`` [s] (the linear loop
+    steps on ``grid``, the grid times those knots snap to), torque times
+    clamped into ``[lo[k], hi[k]]``; ``special[k]`` 1: a partial step or one
+    split at a breakpoint (left to the caller). The phase of kind ``kind`` with
+    state ``x`` (6,) runs :func:`~belt_drive_ros.core.kernel.linear_steps` (its
+    arrays ``reals[offsets[kind, 0]:offsets[kind, 1]]``, ``ints`` likewise)
+    with its switching function as the guard; the step in which the guard
+    fires is redone by :func:`event_step`, which returns the new mode, and
+    the run goes on in that mode's phase. Sample ``k + 1`` is written to
+    ``out_y[k]`` (5 states), ``out_mode``, ``out_sigma`` and the phase's own
+    state to ``out_native[k]`` (NaN-padded). ``events`` (E, 8) from row
+    ``n_events`` receives the events.
+
+    Returns (next step, status, phase kind, sigma, events recorded so far):
+    status 0 all done; :data:`DIVERGED` (sample ``next - 1`` is non-finite or
+    too fast); :data:`NOT_CONVERGED` (step ``next``); :data:`SPECIAL` (step
+    ``next`` is the caller's); :data:`EVENTS_FULL` (drain ``events``, call
+    again); :data:`CHATTER` (step ``next``); :data:`NO_PHASE` (build phase
+    ``kind``, call again). ``x`` holds the phase state at ``knots[next]``.
+    """
+    N = grid.size - 1
+    k = k0
+    y = np.empty(5)
+    y1 = np.empty(5)
+    no_cuts = np.zeros(0)
+    buf = np.empty(N * 6 + 6)
+    sigma = 0.0
+    if kind == SLIP_UP or kind == MASS_UP:
+        sigma = 1.0
+    elif kind == SLIP_DOWN or kind == MASS_DOWN:
+        sigma = -1.0
+    elif kind == STEPWISE:
+        sigma = x[5]
+    while k < N:
+        if special[k]:
+            return k, SPECIAL, kind, sigma, n_events
+        if have[kind] != 2:
+            return k, NO_PHASE, kind, sigma, n_events
+        mode = STICK if kind <= STICKING else SLIP
+        if events.shape[0] - n_events <= MAX_SWITCHES:
+            return k, EVENTS_FULL, kind, sigma, n_events
+        n = PHASE_SIZE[kind]
+        if kind == STEPWISE:  # a belt with mass and c = 0 slipping: one event step per grid step
+            g, given = k, np.int64(0)
+            _to_y(kind, x, Yflex, y)
+        else:
+            j = k + 1
+            while j < N and not special[j] and lo[j] == lo[k] and hi[j] == hi[k]:
+                j += 1
+            r0, r1, i0, i1 = offsets[kind, 0], offsets[kind, 1], offsets[kind, 2], offsets[kind, 3]
+            states = buf[: (j - k) * n].reshape((j - k, n))
+            xs = x[:n].copy()
+            done, status, _ = linear_steps(grid[k : j + 1], xs, states, lo[k], hi[k], limit, reals[r0:r1], ints[i0:i1], dp, lp)
+            kept = done - 1 if status == GUARDED else done
+            for q in range(kept):
+                _to_y(kind, states[q], Yflex, out_y[k + q])
+                out_mode[k + q], out_sigma[k + q] = mode, sigma
+                out_native[k + q] = math.nan
+                out_native[k + q, :n] = states[q]
+            if status == DIVERGED or status == NOT_CONVERGED:
+                return k + done, status, kind, sigma, n_events
+            if status != GUARDED:
+                x[:n] = states[done - 1]
+                k = j
+                continue
+            g, given = k + kept, np.int64(1)  # the step in which the guard fired: redone with the event located
+            _to_y(kind, x if kept == 0 else states[kept - 1], Yflex, y)
+            _to_y(kind, states[kept], Yflex, y1)
+        mode, sigma, got, st = event_step(knots[g], knots[g + 1], no_cuts, y, mode, sigma, dt, hi[g], y1, given,
+                                          Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
+                                          events, n_events)  # fmt: skip
+        n_events += got
+        if st:
+            return g, CHATTER, kind, sigma, n_events
+        kind = _native(mode, sigma, y, x, Minv, c, have)
+        if kind == STEPWISE:
+            x[5] = sigma
+        out_y[g] = y
+        out_mode[g], out_sigma[g] = mode, sigma
+        out_native[g] = math.nan
+        out_native[g, : PHASE_SIZE[kind]] = x[: PHASE_SIZE[kind]]
+        k = g + 1
+        if not (abs(y[2]) <= limit and abs(y[3]) <= limit and y[0] - y[0] == 0.0 and y[1] - y[1] == 0.0
+                and y[4] - y[4] == 0.0):  # fmt: skip
+            return k, DIVERGED, kind, sigma, n_events
+    return k, 0, kind, sigma, n_events
+
+
+# ------------------------------------------------------------- Python side
+def pack(model, method: str, drive_data, load_data, uses_angle):
+    """The arrays :func:`event_step` reads for ``model`` (a SlippingBeltModel) and ``method``, or None.
+
+    None where a mode's ``A_z`` is (nearly) defective (no modal split).
+    """
+    p = model.params
+    Z = np.zeros((2, 3, 12), dtype=np.complex128)
+    R = np.zeros((2, 11))
+    for M, (A, B) in enumerate(((model.A_stick, model.B_stick), (model.A_slip, model.B_slip))):
+        if np.any(A[:, 0]) or np.any(A[:, 4]):
+            return None
+        lam, V = np.linalg.eig(A[1:4, 1:4])
+        if not np.all(np.isfinite(lam)) or np.linalg.cond(V) > 1e8:
+            return None
+        Vinv = np.linalg.inv(V)
+        P = Vinv @ B[1:4]
+        C = A[[0, 4], 1:4] @ V
+        k, pairs = 0, 0
+        for i in range(3):  # a complex pair carried once (twice its real part)
+            if lam[i].imag < 0.0:
+                pairs -= 1
+                continue
+            pairs += lam[i].imag > 0.0
+            Z[M, k, 0] = lam[i]
+            Z[M, k, 1:4], Z[M, k, 4:7] = V[:, i], Vinv[i]
+            Z[M, k, 7 : 7 + B.shape[1]], Z[M, k, 10:12] = P[i], C[:, i]
+            R[M, k] = 1.0 if lam[i].imag == 0.0 else 2.0
+            k += 1
+        if pairs != 0:
+            return None
+        R[M, 3 : 3 + B.shape[1]], R[M, 6 : 6 + B.shape[1]] = B[0], B[4]
+        R[M, 9], R[M, 10] = float(np.max(np.abs(lam.imag))), k
+    code = {"exact": EXACT, "etd2": ETD2}.get(method, ETD4)
+    q = model.q_row
+    c = np.array([p.ratio, p.r_3, p.F_0, p.belt_mass, p.r_2 * p.gear_ratio, p.capstan_factor, q[1], q[2], q[3],
+                  model.rel_row[2], model.rel_row[3], p.k, p.c, 2.0 * p.k * p.r_3,
+                  -2.0 * p.belt_mass * (p.r_2 * p.gear_ratio) ** 2 * p.capstan_factor,
+                  float(p.c == 0.0 and p.belt_mass > 0.0), code], dtype=np.float64)  # fmt: skip
+    mats = np.ascontiguousarray(np.hstack([model.A_stick, model.B_stick]))
+    guards = np.zeros((3, 15))
+    for row, (mode, sigma) in enumerate(((0, 0.0), (1, 1.0), (1, -1.0))):
+        g = model.guard(mode, sigma)
+        guards[row, :3] = g.bound, float(bool(g.absolute)), g.quad
+        guards[row, 3:8] = g.row
+        if g.speed is not None:
+            guards[row, 8:13], guards[row, 13] = g.speed, 1.0
+    uses = np.array([bool(u) for u in uses_angle], dtype=np.int64)
+    return (Z, R, c, mats, guards, uses, drive_data.kinds, drive_data.params, drive_data.tx, drive_data.ty,
+            load_data.kinds, load_data.params, load_data.tx, load_data.ty)  # fmt: skip
+
+
+def warm() -> None:
+    """Compile (or load from the disk cache) :func:`event_step`, :func:`hybrid_steps` and :func:`locate_event`
+    with the one signature runs use.
+
+    A short run that slips at once (a drive torque far past the capstan
+    limit) takes both entry points, as every run does.
+    """
+    from .params import BeltDriveParams
+    from .slip_run import SlippingSimulator
+    from .sources import Constant
+
+    sim = SlippingSimulator(BeltDriveParams(), Constant(5000.0), Constant(0.0), "etd4", 1e-3, check_stability=False)
+    sim.run(5e-3, np.zeros(5))
+    sim.hybrid.advance(0.0, 1e-3, np.zeros(5), STICK, 0.0)
+    arrays = sim.hybrid._kernel
+    locate_event(STICK, 0.0, 0.0, np.zeros(5), 1e-3, math.inf, np.zeros(5), *arrays[:3], *arrays[4:])

@@ -1,0 +1,108 @@
+"""The slipping belt's compiled hybrid loop (core/kernel_slip.py).
+
+* the compiled loop (each phase in the linear loop, the event steps
+  compiled) equals every grid step taken as a compiled event step, to
+  rounding, events alike;
+* an advance tick by tick (the node's) equals one advance over the run;
+* the kernels compile once: running slipping scenes adds no specialisation;
+* ``NUMBA_DISABLE_JIT=1`` gives the same floats (a scene that slips in its first 60 ms).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from belt_drive_ros.core import kernel_slip
+from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.core.slip_run import SlippingSimulator
+
+
+def _sim(scene, **kw):
+    return SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, False, **kw)
+
+
+@pytest.mark.parametrize("name, duration", [("truck_compressor", 0.8), ("bsg_start", 0.3)])
+def test_compiled_hybrid_loop_equals_event_steps_taken_one_by_one(name, duration):
+    """The phases in the linear loop (etd4/etd2 matrices), events redone by the compiled event step, equal the
+    hybrid stepper taking every grid step as an event step on the modal flow (the same method's step of any
+    length), to rounding; events alike. truck_compressor: massless slip (Q a constant sixth state); bsg_start:
+    a belt with mass (Q = sigma Q_max(omega_M) an input)."""
+    from belt_drive_ros.core.slip import HybridStepper
+
+    scene = load_scene(name)
+    y0 = scene.initial_state.vector("slipping", scene.params.ratio)
+    sim = _sim(scene, lazy=True)
+    time, states, modes, sigmas = sim.run(duration, y0)
+    assert sim._compiled() is not None
+    hs = HybridStepper(sim.model, sim.plant.scalar_drive, sim.plant.scalar_load, scene.method,
+                       data=(*sim.plant.data, sim.plant.uses_angle))  # fmt: skip
+    ref = hs.run(time, y0, breakpoints=sim.breakpoints)
+    assert sum(e.kind == "onset" for e in sim.events) >= 1
+    assert [e.kind for e in ref.events] == [e.kind for e in sim.events]
+    np.testing.assert_allclose([e.time for e in sim.events], [e.time for e in ref.events], rtol=0.0, atol=1e-12)
+    np.testing.assert_array_equal(modes, ref.mode)
+    np.testing.assert_array_equal(sigmas, ref.sigma)
+    error = np.max(np.abs(states - ref.states) / np.max(np.abs(ref.states), axis=0), axis=0)
+    assert np.all(error < 1e-10), error
+
+
+def test_advance_tick_by_tick_equals_one_run():
+    """The node's ticks (1 ms, two grid steps each) give the offline run's states and events bit for bit."""
+    scene = load_scene("truck_compressor")
+    y0 = scene.initial_state.vector("slipping", scene.params.ratio)
+    whole = _sim(scene)
+    time, states, modes, _ = whole.run(0.7, y0)
+    ticks = _sim(scene)
+    state, events = ticks.initial(y0), []
+    for k in range(700):
+        state = ticks.advance(state, k * 1e-3, (k + 1) * 1e-3, events=events)
+        i = int(np.searchsorted(time, (k + 1) * 1e-3 - 1e-12))
+        np.testing.assert_array_equal(ticks.state_y(state), states[i])
+        assert state.mode == modes[i]
+    assert len(events) >= 2 and [e.time for e in events] == [e.time for e in whole.events]
+
+
+def test_the_hybrid_kernels_compile_once_whatever_the_scene():
+    def counts():
+        return {name: len(getattr(kernel_slip, name).signatures) for name in ("event_step", "hybrid_steps", "locate_event")}
+
+    from belt_drive_ros.core.kernel_loop import warm
+
+    warm()
+    first = counts()
+    assert first == {"event_step": 1, "hybrid_steps": 1, "locate_event": 1}
+    for name, duration, method in (("truck_compressor", 0.7, None), ("bsg_start", 0.1, None), ("truck_compressor", 0.55, "rk4")):
+        scene = load_scene(name)
+        if method:  # phases in the linear loop, partial steps in Python, events located compiled
+            scene = scene.with_overrides(method=method, dt=1e-4)
+        sim = _sim(scene)
+        sim.run(duration, scene.initial_state.vector("slipping", scene.params.ratio))
+        assert sim.events
+    assert counts() == first
+
+
+def test_the_hybrid_kernel_interpreted_gives_the_same_floats(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, numpy as np\n"
+        "from belt_drive_ros.core.scene import load_scene\n"
+        "from belt_drive_ros.core.slip_run import SlippingSimulator\n"
+        "s = load_scene('bsg_start')\n"
+        "sim = SlippingSimulator(s.params, s.drive, s.load, s.method, s.dt, s.method_options, False)\n"
+        "t, y, m, g = sim.run(0.06, s.initial_state.vector('slipping', s.params.ratio))\n"
+        "assert sim._compiled() is not None and sim.events\n"
+        "np.save(sys.argv[1], np.column_stack([t, y, m, g]))\n"
+    )
+    out = {}
+    for jit in ("0", "1"):
+        path = tmp_path / f"run_{jit}.npy"
+        done = subprocess.run([sys.executable, "-c", code, str(path)], env=dict(os.environ, NUMBA_DISABLE_JIT=jit),
+                              capture_output=True, text=True, timeout=900)  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        out[jit] = np.load(path)
+    assert out["0"].shape == out["1"].shape and np.any(out["0"][:, 6] == 1)
+    assert np.array_equal(out["0"], out["1"])
