@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import SceneError, SimulationDivergedError
+from ..profile_data import CONSTANT, WIDTH
 from .model import NetworkModel, NetworkRun, outputs
 
 #: modes kept with their step exponentials per run
@@ -75,6 +76,11 @@ class SlipNetworkRun(NetworkRun):
     input_work: np.ndarray | None = None
     events: tuple = ()
 
+    @property
+    def slip(self) -> np.ndarray:
+        """Per sample and pulley 1 while it slides, else 0 (the node's ``P/slip`` topic)."""
+        return (self.slip_state != 0).astype(float)
+
     def first_slip(self) -> SlipEvent | None:
         """The first onset, or None if every pulley stuck throughout."""
         return next((e for e in self.events if e.kind == "onset"), None)
@@ -101,7 +107,7 @@ class SlipArrays:
             self.Karm[model.arm, model.arm] = scene.tensioner.spring_rate + model.geometric_stiffness(np.full(n, belt.installed_tension))
         self.f = np.tanh(0.5 * np.array([p.mu for p in P]) * scene.geometry.wraps)
         self.r = np.array([p.radius for p in P])
-        self.sgn = np.array([p.sign for p in P])
+        self.sgn = np.array([p.sign for p in P], dtype=float)
         self.driver = int(scene.driver)
         damped = 1.0 if belt.damping > 0.0 else 0.0
         self.par = np.array([belt.installed_tension, belt.mass_per_length, float(dt), 1.0e5, damped])
@@ -115,11 +121,14 @@ class SlipArrays:
                 kinds.append(d.kinds), params.append(d.params), tx.append(d.tx), ty.append(d.ty)
                 off[i] = (rows, rows + d.kinds.size, tables, tables + d.tx.size)
                 rows, tables = rows + d.kinds.size, tables + d.tx.size
-        self.pk = np.concatenate(kinds) if kinds else np.zeros(1, dtype=np.int64)
-        self.pp = np.ascontiguousarray(np.concatenate(params) if params else np.zeros((1, 12)))
+        # one constant row per pulley after the profiles: a held torque (:meth:`hold`) points the pulley there
+        self.held_rows = rows + np.arange(n)
+        self.pk = np.concatenate(kinds + [np.full(n, CONSTANT, dtype=np.int64)])
+        self.pp = np.ascontiguousarray(np.concatenate(params + [np.zeros((n, WIDTH))]))
         self.ptx = np.concatenate(tx) if tx else np.zeros(1)
         self.pty = np.concatenate(ty) if ty else np.zeros(1)
         self.poff = off
+        self._profiles = (off.copy(), self.sgn.copy())
         from .slip_kernel import LEVELS  # (imports numba: only where a run starts)
 
         K, N = CACHE_SLOTS, self.N
@@ -127,10 +136,103 @@ class SlipArrays:
                       np.zeros((K, n, N)), np.zeros((K, n)), np.zeros((K, n, N)), np.zeros((K, n)), np.zeros((K, n, n)),
                       np.zeros((K, LEVELS + 1, N, N)), np.zeros((K, LEVELS + 1, N, N)))
 
+    def hold(self, pulley: int, value: float | None, sign: float = 0.0) -> None:
+        """Pulley ``pulley``'s torque becomes ``sign value`` [N m] from now on (``sign``: its role's, +1 driver, -1
+        accessory); ``value`` None: back to its profile."""
+        if value is None:
+            self.poff[pulley], self.sgn[pulley] = self._profiles[0][pulley], self._profiles[1][pulley]
+            return
+        row = self.held_rows[pulley]
+        self.pp[row, 0] = float(value)
+        self.poff[pulley] = (row, row + 1, 0, 0)
+        self.sgn[pulley] = sign
+
     def plant(self):
         """The kernel's plant arguments, in :func:`~.slip_kernel.slip_steps`'s order."""
         return (self.par, self.Minv, self.Karm, self.Cb, self.a, self.k, self.c, self.f, self.r, self.sgn, self.driver,
                 self.pk, self.pp, self.ptx, self.pty, self.poff)
+
+
+def slip_state(model: NetworkModel, arr: SlipArrays, initial=None, speed: float = 0.0) -> np.ndarray:
+    """A run's whole state between two calls of the kernel (:func:`advance_slipping`), one float vector
+    ``[x (2m + n), mode (n), fresh (n), friction work (n), input work (n), tensions (n), slip speeds (n)]``:
+    ``x`` (default: the belt turning at ``speed`` [rad/s] at the driver, unstretched), every pulley sticking."""
+    n, m, N = arr.n, arr.m, arr.N
+    state = np.zeros(N + 6 * n)
+    x = state[:N]
+    if initial is None:
+        x[m : m + n] = model.speeds_at(speed)
+    else:
+        x[:] = initial
+    state[N + 4 * n : N + 5 * n] = model.tensions(x[:m], x[m : 2 * m]) + arr.k * (np.roll(x[2 * m :], -1) - x[2 * m :])
+    return state
+
+
+def advance_slipping(arr: SlipArrays, state, k0: int, k1: int, out=None, name: str = "", names=()) -> np.ndarray:
+    """Steps ``k0 .. k1-1`` (times ``k dt``) of the slipping tier from ``state`` at ``k0 dt`` (:func:`slip_state`,
+    updated in place); the one way its time advances (a whole run, the node's ticks: the kernel continues from
+    the state bit for bit). ``out``: None, or ``(states, modes, tensions, slip speeds, friction work, input work)``
+    with ``k1 - k0 + 1`` rows each (row j: after step ``k0 + j - 1``). Returns the events ``[time, pulley, old mode,
+    new mode]`` of these steps. Raises :class:`SimulationDivergedError` (``name``, ``names``: the scene's and the
+    pulleys' names for its message).
+    """
+    from . import slip_kernel as K
+
+    n, N, dt = arr.n, arr.N, float(arr.par[2])
+    x, wf, win = state[:N], state[N + 2 * n : N + 3 * n], state[N + 3 * n : N + 4 * n]
+    sig = state[N : N + n].astype(np.int64)
+    fresh = state[N + n : N + 2 * n] != 0.0
+    if out is None:
+        rows = k1 - k0 + 1
+        out = (np.empty((rows, N)), np.zeros((rows, n), dtype=np.int64), np.empty((rows, n)), np.zeros((rows, n)),
+               np.zeros((rows, n)), np.zeros((rows, n)))
+    events = np.empty((2 * (K.MAX_SWITCHES + 1) * n + 256, 4))
+    count = np.zeros(1, dtype=np.int64)
+    k = k0
+    while k < k1:
+        j = k - k0
+        status, k_end = K.slip_steps(k, k1, 0.0, x, sig, *(o[j:] for o in out), events, count, *arr.plant(), *arr.cache,
+                                     wf, win, fresh)  # fmt: skip
+        if status == K.OK:
+            break
+        if status == K.EVENTS_FULL:  # stopped before step k_end (x, sig as there): room for more, go on
+            events = np.concatenate([events, np.empty_like(events)])
+            k = k_end
+            continue
+        where = f"t = {k_end * dt:.6g} s"
+        if status == K.CHATTER:
+            who = [names[int(e[1])] for e in events[max(0, count[0] - 4) : count[0]]]
+            raise SimulationDivergedError(f"{name}: more than {K.MAX_SWITCHES} stick/slip switches inside one step at {where} "
+                                          f"({', '.join(dict.fromkeys(who)) or 'no pulley'}: chattering); reduce dt")
+        if status == K.STUCK:
+            who = names[int(events[count[0], 1])]
+            raise SimulationDivergedError(f"{name}: at t = {events[count[0], 0]:.9g} s the slip speed on {who} reaches zero "
+                                          "where it can neither stick (the friction it would need leaves the limit at once) "
+                                          "nor slide on either way (several pulleys sliding on a loose belt); raise "
+                                          "belt.installed_tension or give the belt damping")
+        if status == K.ALL_SLIP:
+            raise SimulationDivergedError(f"{name}: the belt slides on every pulley at once at {where} (a massless belt "
+                                          "has no motion then: the capstan limits cannot all hold, or the sliding pulleys' "
+                                          "equations are singular); raise belt.installed_tension")
+        raise SimulationDivergedError(f"{name}: the state became non-finite or too fast at {where} (slipping tier at dt = {dt:g} s)")
+    if k1 > k0:
+        state[N : N + n] = sig
+        state[N + n : N + 2 * n] = fresh
+        state[N + 4 * n : N + 5 * n] = out[2][k1 - k0]
+        state[N + 5 * n :] = out[3][k1 - k0]
+    return events[: count[0]]
+
+
+def slip_run(model: NetworkModel, time, states, modes, tensions, slip_speed, friction_work, input_work, events=()):
+    """The :class:`SlipNetworkRun` of samples (rows) of a slipping run (``states`` (N, 2m + n))."""
+    m, scene = model.M.shape[0], model.scene
+    base = outputs(model, time, states[:, : 2 * m], tensions)
+    names = [p.name for p in scene.pulleys]
+    evs = tuple(SlipEvent(float(e[0]), names[int(e[1])], _KINDS[(e[2] != 0, e[3] != 0)], int(e[3] if e[3] != 0 else e[2]))
+                for e in events)  # fmt: skip
+    fields = {f: getattr(base, f) for f in NetworkRun.__dataclass_fields__}
+    return SlipNetworkRun(**fields, slip_state=modes.astype(np.int8), slip_speed=slip_speed,
+                          slip_distance=states[:, 2 * m :], friction_work=friction_work, input_work=input_work, events=evs)
 
 
 def simulate_slipping(model: NetworkModel | None, scene, duration: float | None = None, dt: float | None = None,
@@ -142,8 +244,6 @@ def simulate_slipping(model: NetworkModel | None, scene, duration: float | None 
     1e5 rad/s, more than 64 switches inside one step (chattering), every pulley sliding at once, or a pulley
     that can neither stick nor slide on) and :class:`SceneError`.
     """
-    from . import slip_kernel as K
-
     model = NetworkModel.build(scene) if model is None else model
     duration = scene.duration if duration is None else float(duration)
     dt = scene.dt if dt is None else float(dt)
@@ -153,58 +253,15 @@ def simulate_slipping(model: NetworkModel | None, scene, duration: float | None 
     if steps < 1:
         raise SceneError(f"duration: {duration:g} s is shorter than one step of {dt:g} s")
     arr = SlipArrays(model, dt)
-    n, m, N = arr.n, arr.m, arr.N
-    x = np.zeros(N)
-    if initial is None:
-        x[m : m + n] = model.speeds_at(scene.initial_speed)
-    else:
-        x[:] = initial
-    sig = np.zeros(n, dtype=np.int64)
-    out = np.empty((steps + 1, N))
-    out_sig = np.zeros((steps + 1, n), dtype=np.int64)
-    out_T = np.empty((steps + 1, n))
-    out_sd = np.zeros((steps + 1, n))
-    out_wf = np.zeros((steps + 1, n))
-    out_win = np.zeros((steps + 1, n))
-    out[0] = x
-    out_T[0] = model.tensions(x[:m], x[m : 2 * m]) + arr.k * (np.roll(x[2 * m :], -1) - x[2 * m :])  # sticking: s' = 0
-    events = np.empty((2 * (K.MAX_SWITCHES + 1) * n + 256, 4))
-    count = np.zeros(1, dtype=np.int64)
-    wf, win = np.zeros(n), np.zeros(n)
-    k = 0
-    while k < steps:
-        status, k_end = K.slip_steps(k, steps, 0.0, x, sig, out[k:], out_sig[k:], out_T[k:], out_sd[k:], out_wf[k:],
-                                     out_win[k:], events, count, *arr.plant(), *arr.cache, wf, win)  # fmt: skip
-        if status == K.OK:
-            break
-        if status == K.EVENTS_FULL:  # stopped before step k_end (x, sig as there): room for more, go on
-            events = np.concatenate([events, np.empty_like(events)])
-            k = k_end
-            continue
-        where = f"t = {k_end * dt:.6g} s"
-        if status == K.CHATTER:
-            names = [scene.pulleys[int(e[1])].name for e in events[max(0, count[0] - 4) : count[0]]]
-            raise SimulationDivergedError(f"{scene.name}: more than {K.MAX_SWITCHES} stick/slip switches inside one step at {where} "
-                                          f"({', '.join(dict.fromkeys(names)) or 'no pulley'}: chattering); reduce dt")
-        if status == K.STUCK:
-            name = scene.pulleys[int(events[count[0], 1])].name
-            raise SimulationDivergedError(f"{scene.name}: at t = {events[count[0], 0]:.9g} s the slip speed on {name} reaches zero "
-                                          "where it can neither stick (the friction it would need leaves the limit at once) "
-                                          "nor slide on either way (several pulleys sliding on a loose belt); raise "
-                                          "belt.installed_tension or give the belt damping")
-        if status == K.ALL_SLIP:
-            raise SimulationDivergedError(f"{scene.name}: the belt slides on every pulley at once at {where} (a massless belt "
-                                          "has no motion then: the capstan limits cannot all hold, or the sliding pulleys' "
-                                          "equations are singular); raise belt.installed_tension")
-        raise SimulationDivergedError(f"{scene.name}: the state became non-finite or too fast at {where} (slipping tier at dt = {dt:g} s)")
-    time = np.arange(steps + 1) * dt
-    base = outputs(model, time, out[:, : 2 * m], out_T)
-    names = [p.name for p in scene.pulleys]
-    evs = tuple(SlipEvent(float(e[0]), names[int(e[1])], _KINDS[(e[2] != 0, e[3] != 0)], int(e[3] if e[3] != 0 else e[2]))
-                for e in events[: count[0]])  # fmt: skip
-    fields = {f: getattr(base, f) for f in NetworkRun.__dataclass_fields__}
-    return SlipNetworkRun(**fields, slip_state=out_sig.astype(np.int8), slip_speed=out_sd, slip_distance=out[:, 2 * m :],
-                          friction_work=out_wf, input_work=out_win, events=evs)
+    n, N = arr.n, arr.N
+    state = slip_state(model, arr, initial, scene.initial_speed)
+    out = (np.empty((steps + 1, N)), np.zeros((steps + 1, n), dtype=np.int64), np.empty((steps + 1, n)),
+           np.zeros((steps + 1, n)), np.zeros((steps + 1, n)), np.zeros((steps + 1, n)))
+    out[0][0] = state[:N]
+    out[2][0] = state[N + 4 * n : N + 5 * n]
+    events = advance_slipping(arr, state, 0, steps, out, scene.name, [p.name for p in scene.pulleys])
+    states, modes, T, sd, wf, win = out
+    return slip_run(model, np.arange(steps + 1) * dt, states, modes, T, sd, wf, win, events)
 
 
 def warm() -> None:
@@ -224,4 +281,4 @@ def warm() -> None:
     return simulate_slipping(None, scene)
 
 
-__all__ = ["SlipEvent", "SlipNetworkRun", "simulate_slipping", "warm"]
+__all__ = ["SlipEvent", "SlipNetworkRun", "advance_slipping", "simulate_slipping", "slip_run", "slip_state", "warm"]

@@ -430,8 +430,13 @@ def _project(sig, x, w, par, a, k, f, Hk, m):
 @njit(**_JIT)
 def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_win, events, n_events,
                par, Minv, Karm, Cb, a, k, c, f, r, sgn, driver, pk, pp, ptx, pty, poff,
-               ckey, cuse, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, wf, win):  # fmt: skip
+               ckey, cuse, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, wf, win, fresh):  # fmt: skip
     """Grid steps ``k0 .. k1-1`` (times ``t0 + k dt``) from state ``x`` in mode ``sig`` (both updated in place).
+
+    ``fresh`` (n,) bool, updated in place: the pulleys that switched at the last event and have not yet been seen
+    inside their new mode (a step ending on an event passes it on to the next step): with ``x``, ``sig``, ``wf``
+    and ``win`` it is the whole state a run continues from, so steps ``k0 .. k1-1`` taken in several calls equal
+    one call bit for bit.
 
     Writes sample ``k + 1 - k0`` of: ``out`` (state), ``out_sig`` (mode), ``out_T`` (span tensions [N]),
     ``out_sdot`` (slip speeds [m/s]), ``out_wf`` / ``out_win`` (cumulative friction work and input work per pulley
@@ -461,7 +466,6 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
     dg0 = np.empty(n)
     none = np.empty(0)
     none_b = np.zeros(N)
-    fresh = np.zeros(n, dtype=np.bool_)
     newsig = sig.copy()
     clock = 0
     for step in range(k0, k1):
