@@ -26,7 +26,7 @@ TICK_NS = 1_000_000
 class Lockstep:
     """A NetworkNode and a probe on a private context, /clock stepped by the probe."""
 
-    def __init__(self, domain_id: int, namespace: str = "", **params):
+    def __init__(self, domain_id: int, namespace: str = "", scene: str = SCENE, **params):
         import rclpy
         from rclpy.context import Context
         from rclpy.node import Node
@@ -41,7 +41,7 @@ class Lockstep:
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         overrides = [Parameter(k, value=v) for k, v in params.items()] + [Parameter("use_sim_time", value=True)]
-        self.node = NetworkNode(scene=SCENE, context=self.context, parameter_overrides=overrides, namespace=namespace)
+        self.node = NetworkNode(scene=scene, context=self.context, parameter_overrides=overrides, namespace=namespace)
         self.probe = Node("probe", context=self.context, namespace=namespace)
         reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
         self.clock = self.probe.create_publisher(Clock, "/clock", reliable)

@@ -91,7 +91,7 @@ def run_network(args) -> int:
         lo, hi = np.degrees(run.arm_angle.min()), np.degrees(run.arm_angle.max())
         print(f"tensioner arm: {lo:.3f} .. {hi:.3f} deg ({hi - lo:.3f} deg swing)")
     onset = run.capstan_onset(scene)
-    if onset:
+    if onset and run.tier != "slipping":
         print(f"capstan limit: {onset[0]} reaches it first at t = {onset[1]:.6g} s (friction use {onset[2]:.3g}); "
               "the slipping tier is not built for networks: past that time this run is not valid")
     if args.out is not None and args.out.suffix.lower() == ".mcap":
@@ -127,7 +127,7 @@ def _write_mcap(args, scene, run, method: str, dt: float) -> None:
     if abs(stride * dt * OUTPUT_RATE - 1.0) > 1e-9:
         stride = 1
     rows = range(0, len(run.time), stride)
-    stepper = NetworkStepper(scene, method, dt, tier=run.tier if run.tier in ("flexible", "rigid") else None)
+    stepper = NetworkStepper(scene, method, dt, tier=run.tier)
     states = stepper.run(len(run.time) - 1)  # the loop's own states (the run's, bit for bit)
     start = _time.time_ns() if args.start_time is None else int(args.start_time)
     with atomic_output(args.out, args.force, what="output") as fh:

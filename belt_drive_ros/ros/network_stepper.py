@@ -9,7 +9,12 @@ advanced by :func:`~belt_drive_ros.core.network.simulate.advance`, the call
 the whole-run :func:`~belt_drive_ros.core.network.simulate.simulate` makes)
 and the core's outputs. Scene-driven (nothing held) it therefore reproduces
 ``simulate`` exactly. States are the loop's own (flexible: the driver's
-angle and the other pulleys' lags; rigid: the driver's angle and speed).
+angle and the other pulleys' lags; rigid: the driver's angle and speed;
+slipping: :func:`~belt_drive_ros.core.network.slip.slip_state`, the pulleys'
+and arm's angles, speeds and slips, the stick/slip mode and the works, so a
+tick continues the slipping run exactly where the last one stopped:
+:func:`~belt_drive_ros.core.network.slip.advance_slipping`, the call the
+whole offline slipping run makes).
 
 Inputs: pulley i's torque is ``u_i = sign_i Q_i`` (``sign`` +1 for the
 driver, -1 for an accessory: the profile's value is the torque it takes
@@ -24,7 +29,7 @@ import numpy as np
 
 from ..core.errors import SceneError
 from ..core.network.scene import ROLE_SIGN
-from ..core.network.simulate import NetworkLoop, advance, choose_tier, model_of, outputs, rigid_outputs
+from ..core.network.simulate import NetworkLoop, advance, auto_tier, model_of, outputs, rigid_outputs
 
 __all__ = ["NetworkStepper"]
 
@@ -40,7 +45,8 @@ class NetworkStepper:
     dt : float, optional
         Step [s] (default the scene's).
     tier : str, optional
-        ``flexible`` or ``rigid`` (default: the linear tier ``model: auto`` chooses).
+        ``flexible``, ``rigid`` or ``slipping`` (default: the tier ``model: auto`` chooses for the scene's run,
+        :func:`~belt_drive_ros.core.network.simulate.auto_tier`).
     """
 
     def __init__(self, scene, method: str | None = None, dt: float | None = None, tier: str | None = None):
@@ -48,11 +54,18 @@ class NetworkStepper:
         self.model = model_of(scene)
         self.method = method or scene.method
         self.dt = float(scene.dt if dt is None else dt)
-        self.tier = tier or choose_tier(self.model)[0]
-        self.loop = NetworkLoop(self.model, self.tier, self.method, self.dt)  # its own: hold() writes into it
-        self._rows = (self.loop.pk.copy(), self.loop.pp.copy())
+        self.tier = tier or auto_tier(scene, self.method, self.dt)[0]
         self.n = len(scene.pulleys)
         self.m = self.model.M.shape[0]
+        if self.tier == "slipping":
+            from ..core.network.slip import SlipArrays
+
+            self.method = "exact"  # the slipping tier's one method
+            self.loop = SlipArrays(self.model, self.dt)  # its own: hold() writes into it
+            self._names = [p.name for p in scene.pulleys]
+        else:
+            self.loop = NetworkLoop(self.model, self.tier, self.method, self.dt)  # its own: hold() writes into it
+            self._rows = (self.loop.pk.copy(), self.loop.pp.copy())
         #: per pulley the sign of its torque on the belt (driver +1, accessory -1, else 0), with or without a profile
         self.signs = [ROLE_SIGN.get(p.role, 0.0) for p in scene.pulleys]
         #: per pulley the held torque [N m] (profile sign convention) or None: the scene's profile
@@ -64,6 +77,10 @@ class NetworkStepper:
 
     def initial(self) -> np.ndarray:
         """The scene's initial state: the belt turning at ``initial_speed`` unstretched."""
+        if self.tier == "slipping":
+            from ..core.network.slip import slip_state
+
+            return slip_state(self.model, self.loop, speed=self.scene.initial_speed)
         return self.loop.initial()
 
     def hold(self, pulley: int, value: float | None) -> None:
@@ -71,7 +88,9 @@ class NetworkStepper:
         if value is not None and self.signs[pulley] == 0.0:
             raise SceneError(f"{self.scene.pulleys[pulley].name}: an idler takes no torque")
         self.held[pulley] = None if value is None else float(value)
-        if pulley in self.loop.active:
+        if self.tier == "slipping":
+            self.loop.hold(pulley, value, self.signs[pulley])
+        elif pulley in self.loop.active:
             if value is None:
                 row = self.loop.start[self.loop.active.index(pulley)]
                 self.loop.pk[row], self.loop.pp[row] = self._rows[0][row], self._rows[1][row]
@@ -95,6 +114,8 @@ class NetworkStepper:
         if self.tier == "rigid":
             rho = self.model.ratios
             return X[:, :1] * rho, X[:, 1:2] * rho
+        if self.tier == "slipping":  # absolute angles and speeds
+            return X[:, : self.n], X[:, self.m : self.m + self.n]
         full = self.model.to_absolute(X)
         return full[:, : self.n], full[:, self.m : self.m + self.n]
 
@@ -114,6 +135,12 @@ class NetworkStepper:
         x = np.asarray(x, dtype=float)
         if k1 <= k0:
             return x
+        if self.tier == "slipping":
+            from ..core.network.slip import advance_slipping
+
+            x = x.copy()
+            advance_slipping(self.loop, x, k0, k1, None, self.scene.name, self._names)
+            return x
         out = np.empty((k1 - k0, x.size))
         advance(self.loop, x, out, k0, k1)
         return out[-1]
@@ -123,6 +150,20 @@ class NetworkStepper:
         x = self.initial()
         out = np.empty((steps + 1, x.size))
         out[0] = x
+        if self.tier == "slipping":  # the whole run's states, then each step's whole state (as the ticks keep it)
+            from ..core.network.slip import advance_slipping
+
+            N, n = self.loop.N, self.n
+            rows = (np.empty((steps + 1, N)), np.zeros((steps + 1, n), dtype=np.int64), np.empty((steps + 1, n)),
+                    np.zeros((steps + 1, n)), np.zeros((steps + 1, n)), np.zeros((steps + 1, n)))
+            rows[0][0], rows[2][0] = x[:N], x[N + 4 * n : N + 5 * n]
+            advance_slipping(self.loop, x, 0, steps, rows, self.scene.name, self._names)
+            for j, part in ((0, rows[1]), (2, rows[4]), (3, rows[5]), (4, rows[2]), (5, rows[3])):
+                out[:, N + j * n : N + (j + 1) * n] = part
+            out[:, :N] = rows[0]
+            out[1:, N + n : N + 2 * n] = np.nan  # which pulleys are fresh is kept for the last step only
+            out[-1] = x
+            return out
         advance(self.loop, x, out[1:], 0, steps)
         return out
 
@@ -134,4 +175,10 @@ class NetworkStepper:
         u = self.inputs(t, x)
         if self.tier == "rigid":
             return rigid_outputs(self.loop, np.array([t]), X, u[None, :]), u
+        if self.tier == "slipping":
+            from ..core.network.slip import slip_run
+
+            N, n = self.loop.N, self.n
+            p = lambda j: X[:, N + j * n : N + (j + 1) * n]  # noqa: E731 - the packed state's parts
+            return slip_run(self.model, np.array([t]), X[:, :N], p(0), p(4), p(5), p(2), p(3)), u
         return outputs(self.model, np.array([t]), self.model.to_absolute(X), self.model.run_tensions(X)), u

@@ -308,6 +308,27 @@ def choose_tier(model: NetworkModel) -> tuple[str, str]:
                         f"lowest mode ({lowest:.3g} Hz)")
 
 
+def slipping_reason(scene, run: NetworkRun, tier: str) -> str | None:
+    """``auto``'s reason to run the slipping tier instead of the linear ``tier``'s ``run``, or None: no pulley
+    reaches its capstan limit in it."""
+    onset = run.capstan_onset(scene)
+    if onset is None:
+        return None
+    return f"slipping: {onset[0]} reaches the capstan limit at t = {onset[1]:.6g} s (in the {tier} tier's run)"
+
+
+def auto_tier(scene, method: str | None = None, dt: float | None = None) -> tuple[str, str]:
+    """``(tier, reason)`` of ``model: auto`` for the scene's run (its duration, ``method``, ``dt``): the linear tier
+    :func:`choose_tier` picks, or ``slipping`` when a pulley reaches its capstan limit in that tier's run (the
+    node and the re-simulation of its recordings step the tier the offline run steps)."""
+    net = model_of(scene)
+    dt = scene.dt if dt is None else float(dt)
+    tier, reason = choose_tier(net)
+    run = _run(net, tier, method or scene.method, dt, max(1, int(round(scene.duration / dt))))
+    why = slipping_reason(scene, run, tier)
+    return ("slipping", why) if why else (tier, reason)
+
+
 def run_slipping(model: NetworkModel, duration: float, dt: float, method: str | None = None) -> NetworkRun:
     """The slipping tier's entry: :func:`.slip.simulate_slipping` ``(model, scene, duration, dt, method, initial)``
     returns a :class:`~.model.NetworkRun` (slip fields added) from the scene's start, every pulley sticking."""
@@ -340,9 +361,8 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
                        method=method or "exact")
     tier, reason = choose_tier(net) if model == "auto" else (model, f"{model}: asked for")
     run = _run(net, tier, name, dt, steps)
-    onset = run.capstan_onset(scene)
-    if model == "auto" and onset is not None:
-        why = f"slipping: {onset[0]} reaches the capstan limit at t = {onset[1]:.6g} s (in the {tier} tier's run)"
+    why = slipping_reason(scene, run, tier) if model == "auto" else None
+    if why is not None:
         return replace(run_slipping(net, duration, dt), tier="slipping", reason=why, method="exact")
     verdict = accuracy(net, tier, name, dt, steps, run) if check_accuracy else ""
     return replace(run, tier=tier, reason=reason, method=name, accuracy=verdict)
