@@ -104,9 +104,9 @@ class NetworkStepper:
         u = np.zeros(self.n)
         for i, p in enumerate(self.scene.pulleys):
             if self.held[i] is not None:
-                u[i] = self.signs[i] * self.held[i]
+                u[i] = self.signs[i] * self.held[i] / p.gear
             elif p.sign:
-                u[i] = p.sign * p.torque.torque(t, angle[0, i] if p.torque.uses_angle else 0.0, speed[0, i])
+                u[i] = p.load(t, angle[0, i] if p.torque.uses_angle else 0.0, speed[0, i])
         return u
 
     def _wheels(self, X):

@@ -162,7 +162,7 @@ class NetworkModel:
         angles = np.linspace(0.0, 4.0 * math.pi, samples, endpoint=False)
         for i, p in enumerate(self.scene.pulleys):
             if p.sign:
-                out[i] = p.sign * float(np.mean(p.torque.torque(t, angles, w[i])))
+                out[i] = float(np.mean(p.load(t, angles, w[i])))
         return out
 
     def load_damping(self, driver_speed: float, t: float | None = None) -> np.ndarray:
@@ -174,9 +174,9 @@ class NetworkModel:
             if p.sign:
                 h = 1e-4 * max(1.0, abs(w[i]))
                 angles = np.linspace(0.0, 4.0 * math.pi, 64, endpoint=False)
-                hi = np.mean(p.torque.torque(t, angles, w[i] + h))
-                lo = np.mean(p.torque.torque(t, angles, w[i] - h))
-                out[i] = -p.sign * (hi - lo) / (2.0 * h)
+                hi = np.mean(p.load(t, angles, w[i] + h))
+                lo = np.mean(p.load(t, angles, w[i] - h))
+                out[i] = -(hi - lo) / (2.0 * h)
         return out
 
     # ------------------------------------------------------------------ statics

@@ -74,11 +74,53 @@ class Pulley:
     role: str = "idler"
     torque: TorqueProfile | None = None
     mu: float = 0.5
+    #: the pulley's speed over its drive shaft's (a gear train in front of the driver, :func:`reduce_gears`; the
+    #: profile acts on the shaft): 1.0 without gears. ``inertia`` and ``damping`` are then the reduced ones.
+    gear: float = 1.0
 
     @property
     def sign(self) -> float:
         """+1: the profile drives the belt (driver), -1: it loads it (accessory), 0: no torque."""
         return ROLE_SIGN.get(self.role, 0.0) if self.torque is not None else 0.0
+
+    def load(self, t, angle=0.0, speed=0.0):
+        """The torque on the pulley [N m], signed (+ drives the belt): ``sign Q(t, angle / gear, speed / gear) / gear``
+        at its angle [rad] and speed [rad/s] (``Q`` the profile, on the drive shaft ahead of a gear train)."""
+        g = self.gear
+        if g == 1.0:
+            return self.sign * self.torque.torque(t, angle, speed)
+        return self.sign * self.torque.torque(t, angle / g, speed / g) / g
+
+
+#: keys of one wheel of a driver's gear train
+GEAR_KEYS = ("inertia", "damping", "ratio")
+
+
+def reduce_gears(where: str, raw, inertia: float, damping: float) -> tuple[float, float, float]:
+    """``(gear, inertia, damping)`` of a driver pulley behind a gear train, as the paper's model reduces it.
+
+    ``raw``: the wheels from the drive shaft on (the paper's ``M``, then ``1``), each ``inertia`` [kg m^2],
+    ``damping`` [N m s/rad] (bearing) and ``ratio``, the next wheel's speed over this one's (pinion radius over
+    the next wheel's gear radius, ``r_M / R_1``); the last wheel meshes with the pulley's own gear. With
+    ``G_k`` the product of the ratios from wheel k on (``gear = G_0``, the paper's ``g``), the pulley turns at
+    ``gear`` times the shaft and carries ``J = J_pulley + sum_k I_k / G_k^2``, ``b = b_pulley + sum_k b_k / G_k^2``
+    (the paper's ``I_f / g^2``, ``b_f / g^2``: its kinetic energy and dissipation written in the pulley's speed).
+    Meshes do not slip and lose nothing (the paper's model has no mesh efficiency).
+    """
+    if not isinstance(raw, list) or not 1 <= len(raw) <= 8:
+        raise SceneError(f"{where}: expected a list of 1 to 8 wheels from the drive shaft on, got {short(raw)}")
+    wheels = []
+    for k, item in enumerate(raw):
+        w = f"{where}[{k}]"
+        item = _keys(w, item, GEAR_KEYS, ("inertia", "ratio"))
+        wheels.append((_number(f"{w}.inertia", item["inertia"], top=1.0e3), _number(f"{w}.damping", item.get("damping", 0.0), top=1.0e4),
+                       _number(f"{w}.ratio", item["ratio"], strict=True, top=100.0)))
+    G = 1.0
+    for I_k, b_k, ratio in reversed(wheels):  # G_k = ratio_k G_(k+1), from the pulley back to the shaft
+        G *= ratio
+        inertia += I_k / G**2
+        damping += b_k / G**2
+    return G, inertia, damping
 
 
 @dataclass(frozen=True)
@@ -163,7 +205,7 @@ class NetworkScene:
         if not isinstance(raw, list) or len(raw) < 2:
             raise SceneError(f"pulleys: expected a list of at least 2 pulleys, got {short(raw)}")
         pulleys, names = [], []
-        keys = ("name", "centre", "radius", "inertia", "damping", "side", "role", "torque", "mu")
+        keys = ("name", "centre", "radius", "inertia", "damping", "side", "role", "torque", "mu", "gears")
         for k, item in enumerate(raw):
             label = item.get("name") if isinstance(item, Mapping) and isinstance(item.get("name"), str) else f"[{k}]"
             where = f"pulleys.{label}"
@@ -186,11 +228,17 @@ class NetworkScene:
                 raise SceneError(f"{where}.torque: an {role} carries no torque profile (driver or accessory only)")
             if role in ROLE_SIGN and torque is None:
                 raise SceneError(f"{where}.torque: missing (a {role} states its {'drive' if role == 'driver' else 'load'} torque)")
+            inertia = _number(f"{where}.inertia", item["inertia"], strict=True, top=1.0e3)
+            damping = _number(f"{where}.damping", item.get("damping", 0.0), top=1.0e4)
+            gear = 1.0
+            if "gears" in item:
+                if role != "driver":
+                    raise SceneError(f"{where}.gears: only the driver has a gear train in front of it")
+                gear, inertia, damping = reduce_gears(f"{where}.gears", item["gears"], inertia, damping)
             pulleys.append(Pulley(
                 name=pname, centre=_point(f"{where}.centre", item["centre"]),
                 radius=_number(f"{where}.radius", item["radius"], strict=True, top=10.0),
-                inertia=_number(f"{where}.inertia", item["inertia"], strict=True, top=1.0e3),
-                damping=_number(f"{where}.damping", item.get("damping", 0.0), top=1.0e4),
+                inertia=inertia, damping=damping, gear=gear,
                 side=SIDES[side], role=role,
                 torque=None if torque is None else make_profile(torque, f"{where}.torque"),
                 mu=_number(f"{where}.mu", item.get("mu", 0.5), strict=True, top=10.0),

@@ -88,7 +88,7 @@ class NetworkLoop:
         if not cls.fixed_step:
             raise SceneError(f"method {method}: a belt network steps with a fixed-step method")
         self.active = [i for i, p in enumerate(scene.pulleys) if p.sign]
-        signs = np.array([scene.pulleys[i].sign for i in self.active])
+        signs = np.array([scene.pulleys[i].sign / scene.pulleys[i].gear for i in self.active])  # a gear train: Q / g
         B = B_all[:, self.active] * signs
         check_step(method, A, B, self.dt)
         scheme = make_integrator(method, A, B, self.dt).scheme
@@ -105,6 +105,9 @@ class NetworkLoop:
                 W[2 * p, scene.driver], W[2 * p, i], W[2 * p + 1, half + i] = model.ratios[i], -1.0, 1.0
         cols = n + P * s
         uses = np.array([bool(scene.pulleys[i].torque.uses_angle) for i in self.active], dtype=np.int64)
+        for p, i in enumerate(self.active):  # the profile reads its drive shaft's angle and speed (pulley's / gear)
+            if scene.pulleys[i].gear != 1.0:
+                W[2 * p : 2 * p + 2] /= scene.pulleys[i].gear
         for p in range(P):  # an angle no profile reads is not computed (the kernel passes 0.0)
             if not uses[p]:
                 W[2 * p] = 0.0
@@ -213,7 +216,7 @@ def rigid_outputs(loop: NetworkLoop, times, states, u=None) -> NetworkRun:
         u = np.zeros((len(times), n))
         for i in loop.active:
             p = scene.pulleys[i]
-            u[:, i] = p.sign * p.torque.torque(times, rho[i] * states[:, 0] if p.torque.uses_angle else 0.0 * times,
+            u[:, i] = p.load(times, rho[i] * states[:, 0] if p.torque.uses_angle else 0.0 * times,
                                                rho[i] * states[:, 1])
     A, B = model.rigid_matrices()
     accel = states @ A[1] + u @ B[1]
@@ -298,7 +301,7 @@ def choose_tier(model: NetworkModel) -> tuple[str, str]:
     rho = model.ratios
     for i, p in enumerate(scene.pulleys):
         if p.sign:
-            for f, what in p.torque.excitation_frequencies(rho[i] * speed):
+            for f, what in p.torque.excitation_frequencies(rho[i] * speed / p.gear):
                 if f > top:
                     top, who = f, (p.name, what)
     if who is None or lowest >= RIGID_MARGIN * top:

@@ -107,10 +107,11 @@ class SlipArrays:
             self.Karm[model.arm, model.arm] = scene.tensioner.spring_rate + model.geometric_stiffness(np.full(n, belt.installed_tension))
         self.f = np.tanh(0.5 * np.array([p.mu for p in P]) * scene.geometry.wraps)
         self.r = np.array([p.radius for p in P])
-        self.sgn = np.array([p.sign for p in P], dtype=float)
+        self.sgn = np.array([p.sign / p.gear for p in P], dtype=float)  # a gear train: Q / gear on the pulley
         self.driver = int(scene.driver)
         damped = 1.0 if belt.damping > 0.0 else 0.0
-        self.par = np.array([belt.installed_tension, belt.mass_per_length, float(dt), 1.0e5, damped])
+        # then per pulley 1 / gear: the profile reads the drive shaft's angle and speed (the pulley's / gear)
+        self.par = np.array([belt.installed_tension, belt.mass_per_length, float(dt), 1.0e5, damped, *[1.0 / p.gear for p in P]])
         kinds, params, tx, ty, off = [], [], [], [], np.zeros((n, 4), dtype=np.int64)
         rows = tables = 0
         for i, p in enumerate(P):
@@ -129,6 +130,7 @@ class SlipArrays:
         self.pty = np.concatenate(ty) if ty else np.zeros(1)
         self.poff = off
         self._profiles = (off.copy(), self.sgn.copy())
+        self.model_gears = [p.gear for p in P]
         from .slip_kernel import LEVELS  # (imports numba: only where a run starts)
 
         K, N = CACHE_SLOTS, self.N
@@ -145,7 +147,7 @@ class SlipArrays:
         row = self.held_rows[pulley]
         self.pp[row, 0] = float(value)
         self.poff[pulley] = (row, row + 1, 0, 0)
-        self.sgn[pulley] = sign
+        self.sgn[pulley] = sign / self.model_gears[pulley]
 
     def plant(self):
         """The kernel's plant arguments, in :func:`~.slip_kernel.slip_steps`'s order."""

@@ -49,8 +49,9 @@ N_SCAN = 8
 N_TAYLOR = 18
 #: a step is 2^LEVELS units: events are located to dt / 2^LEVELS (1e-13 s at dt = 0.1 ms)
 LEVELS = 30
-#: layout of ``par``: T_0 [N], m' [kg/m], dt [s], speed limit [rad/s], damped (1.0: span damping > 0)
-P_T0, P_MASS, P_DT, P_LIMIT, P_DAMPED = 0, 1, 2, 3, 4
+#: layout of ``par``: T_0 [N], m' [kg/m], dt [s], speed limit [rad/s], damped (1.0: span damping > 0), then per
+#: pulley i at ``P_SHAFT + i`` the drive shaft's turn per pulley turn (1 / gear: 1.0 without a gear train)
+P_T0, P_MASS, P_DT, P_LIMIT, P_DAMPED, P_SHAFT = 0, 1, 2, 3, 4, 5
 
 
 # --------------------------------------------------------------------------- small linear algebra
@@ -329,7 +330,11 @@ def _inputs(t, x, m, sgn, pk, pp, ptx, pty, poff, Minv, driver, r, par, cvec, b,
     for i in range(n):
         if sgn[i] != 0.0:
             k0, k1, t0, t1 = poff[i, 0], poff[i, 1], poff[i, 2], poff[i, 3]
-            u[i] = sgn[i] * profile_torque(pk[k0:k1], pp[k0:k1], ptx[t0:t1], pty[t0:t1], t, x[i], x[m + i])
+            g = par[P_SHAFT + i]
+            if g == 1.0:
+                u[i] = sgn[i] * profile_torque(pk[k0:k1], pp[k0:k1], ptx[t0:t1], pty[t0:t1], t, x[i], x[m + i])
+            else:
+                u[i] = sgn[i] * profile_torque(pk[k0:k1], pp[k0:k1], ptx[t0:t1], pty[t0:t1], t, x[i] * g, x[m + i] * g)
         else:
             u[i] = 0.0
     v = r[driver] * x[m + driver]
