@@ -39,7 +39,7 @@ studies:
   campaign       10,000-variant Monte Carlo of paper on Dask vs a loop of single runs, 1 vs 2 workers,
                  a fleet of 100 recordings replayed and compared (needs the campaign extra; not in 'all')
   network_slip   a belt network's slipping tier: x real time on fead_i4 sticking and slipping, the paper's
-                 drive slipping, beside the linear tier's Python step (not in 'all')
+                 drive slipping; the node's tick (advance, sample) slipping beside flexible (not in 'all')
   all            all of the above, then docs/bench/summary.md
 
 examples:
@@ -138,6 +138,7 @@ def run(args) -> int:
 
         result = network_slip.run(out, quick=args.quick, quiet=args.quiet)
         print(f"bench network_slip: {result['csv']}")
+        return 0
     if args.study == "network":
         from ..benchmarks import network
 
