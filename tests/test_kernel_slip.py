@@ -67,7 +67,7 @@ def test_the_hybrid_kernels_compile_once_whatever_the_scene():
     def counts():
         return {name: len(getattr(kernel_slip, name).signatures) for name in ("event_step", "hybrid_steps", "locate_event")}
 
-    from belt_drive_ros.core.kernel_loop import warm
+    from belt_drive_ros.core.warm import warm
 
     warm()
     first = counts()

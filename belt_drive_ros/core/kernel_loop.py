@@ -138,12 +138,8 @@ class KernelLoop:
 
 
 def warm() -> None:
-    """Compile (or load from the disk cache) every kernel entry point with the one signature runs use.
-
-    ``make install`` calls it so that a first run compiles nothing: every
-    argument type is fixed (float64/int64 C arrays and floats), so this one
-    call per kernel covers every scene.
-    """
+    """Compile (or load from the disk cache) the profile dispatcher, the linear loop and the variant loop
+    with the one signature runs use (:func:`belt_drive_ros.core.warm.warm` warms every kernel)."""
     from .kernel import profile_torque, profile_torque_array
     from .profile_data import CONSTANT, ProfileBuilder
     from .stage_scheme import StageScheme
@@ -164,14 +160,3 @@ def warm() -> None:
     ens = KernelLoop(stacked, 1e-3, np.vstack([np.eye(n), np.eye(n)])[None], (False, False), data, data)
     variant_steps(np.array([0.0, 1e-3]), np.zeros((1, 2, n)), 0, -math.inf, math.inf, 1.0e5, ens.reals, ens.tables,
                   ens.ints, data.params, data.params, np.zeros(1, dtype=np.int64))  # fmt: skip
-
-    from .network.simulate import warm as warm_network
-
-    warm_network()
-
-    from .network.slip import warm as warm_network_slip  # the belt networks' slipping tier
-
-    warm_network_slip()
-    from .kernel_slip import warm as warm_slip  # the slipping belt's hybrid loop
-
-    warm_slip()

@@ -606,20 +606,3 @@ def pack(model, method: str, drive_data, load_data, uses_angle):
     return (Z, R, c, mats, guards, uses, drive_data.kinds, drive_data.params, drive_data.tx, drive_data.ty,
             load_data.kinds, load_data.params, load_data.tx, load_data.ty)  # fmt: skip
 
-
-def warm() -> None:
-    """Compile (or load from the disk cache) :func:`event_step`, :func:`hybrid_steps` and :func:`locate_event`
-    with the one signature runs use.
-
-    A short run that slips at once (a drive torque far past the capstan
-    limit) takes both entry points, as every run does.
-    """
-    from .params import BeltDriveParams
-    from .slip_run import SlippingSimulator
-    from .sources import Constant
-
-    sim = SlippingSimulator(BeltDriveParams(), Constant(5000.0), Constant(0.0), "etd4", 1e-3, check_stability=False)
-    sim.run(5e-3, np.zeros(5))
-    sim.hybrid.advance(0.0, 1e-3, np.zeros(5), STICK, 0.0)
-    arrays = sim.hybrid._kernel
-    locate_event(STICK, 0.0, 0.0, np.zeros(5), 1e-3, math.inf, np.zeros(5), *arrays[:3], *arrays[4:])

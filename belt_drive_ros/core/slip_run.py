@@ -579,3 +579,22 @@ def _joined(pieces):
     modes = np.concatenate([np.full(len(p[0]), p[2], dtype=np.int8) for p in pieces])
     sigmas = np.concatenate([np.full(len(p[0]), p[3]) for p in pieces])
     return time, states, modes, sigmas
+
+
+def warm_hybrid() -> None:
+    """Compile (or load from the disk cache) :func:`~.kernel_slip.event_step`, :func:`~.kernel_slip.hybrid_steps` and
+    :func:`~.kernel_slip.locate_event`
+    with the one signature runs use.
+
+    A short run that slips at once (a drive torque far past the capstan
+    limit) takes both entry points, as every run does.
+    """
+    from . import kernel_slip as ks
+    from .params import BeltDriveParams
+    from .sources import Constant
+
+    sim = SlippingSimulator(BeltDriveParams(), Constant(5000.0), Constant(0.0), "etd4", 1e-3, check_stability=False)
+    sim.run(5e-3, np.zeros(5))
+    sim.hybrid.advance(0.0, 1e-3, np.zeros(5), STICK, 0.0)
+    arrays = sim.hybrid._kernel
+    ks.locate_event(STICK, 0.0, 0.0, np.zeros(5), 1e-3, math.inf, np.zeros(5), *arrays[:3], *arrays[4:])
