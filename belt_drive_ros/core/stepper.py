@@ -73,6 +73,7 @@ stops there; :meth:`run` reports the first bad sample).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from bisect import bisect_left, bisect_right
 from typing import Callable
@@ -91,6 +92,12 @@ PARTIAL_CACHE_SIZE = 4096
 GRID_TOLERANCE = 1e-9
 #: steps per call of the compiled loop between divergence checks and progress reports
 CHUNK = 4096
+#: an advance over at least this many breakpoints looks for steps it can absorb (:meth:`Stepper._absorb`)
+ABSORB_MIN = 16
+#: how far [s] before the step's end a stage at the step's end reads the torques in an absorbed step
+#: (at most a thousandth of the step): a recording's hold switches at whole nanoseconds
+END_SHIFT = 1e-9
+_NO_CELLS = np.empty(0, dtype=np.int64)
 
 
 def snap_tolerance(t: float, dt: float) -> float:
@@ -119,8 +126,11 @@ class Plant:
         #: (drive, load): whether each torque reads its angle; their kernel data (None: a Python-only profile)
         self.uses_angle = (bool(drive.uses_angle), bool(load.uses_angle))
         self.data = (drive.data(), load.data())
-        #: sorted finite times [s] at which either torque jumps or kinks (TorqueProfile.breakpoints)
-        self.breakpoints = sorted({float(b) for b in (*drive.breakpoints(), *load.breakpoints()) if math.isfinite(b)})
+        #: sorted distinct finite times [s] at which either torque jumps or kinks (TorqueProfile.breakpoints), float64
+        #: (a recorded drive has one per sample: an array, never a list of floats)
+        both = np.concatenate([np.asarray(drive.breakpoints(), dtype=np.float64).ravel(),
+                               np.asarray(load.breakpoints(), dtype=np.float64).ravel()])
+        self.breakpoints = np.unique(both[np.isfinite(both)])
         array = np.array
         angle_M, speed_M, angle_3, speed_3 = (_coordinate(row) for row in W)
 
@@ -136,12 +146,14 @@ class Plant:
 
         self.inputs = inputs
 
-    def kernel_loop(self, integrator, guard=None):
+    def kernel_loop(self, integrator, guard=None, nodes=None):
         """The compiled loop (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`) of ``integrator`` for this plant, or None.
 
         None for an adaptive method, a Python-only profile, complex matrices or
         an implicit method with extra inputs: those step through ``integrator.step``.
         ``guard``: a :class:`~belt_drive_ros.core.stage_scheme.Guard` the loop checks after every step.
+        ``nodes``: the stages' torque sample times as fractions of the step, instead of the scheme's
+        (the same maps: only where the torques are read moves; :meth:`Stepper._absorb`).
         """
         if not isinstance(integrator, FixedStepIntegrator) or None in self.data:
             return None
@@ -150,11 +162,17 @@ class Plant:
         scheme = integrator.scheme
         if (self.extra and scheme.implicit) or not KernelLoop.usable(scheme):
             return None
+        if nodes is not None:
+            scheme = dataclasses.replace(scheme, nodes=tuple(nodes))
         return KernelLoop(scheme, integrator.dt, self.wheel_map, self.uses_angle, *self.data, self.extra, guard)
 
     def left_of(self, b: float) -> float:
         """Latest time [s] before breakpoint ``b`` at which both torques still give their values from the left."""
         return min(self.drive.left_of(b), self.load.left_of(b))
+
+    def left_of_array(self, b: np.ndarray) -> np.ndarray:
+        """:meth:`left_of` of each breakpoint of ``b`` (float64), the same floats."""
+        return np.minimum(_left_of_array(self.drive, b), _left_of_array(self.load, b))
 
     def input_array(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
         """Vectorized u for samples ``t`` (N,), ``x`` (N, n) -> (N, 2)."""
@@ -164,6 +182,45 @@ class Plant:
         u[..., 0] = self.drive.torque(t, phi_M, omega_M)
         u[..., 1] = self.load.torque(t, phi_3, omega_3)
         return u
+
+
+def _left_of_array(profile, b: np.ndarray) -> np.ndarray:
+    """``profile.left_of`` of each time of ``b`` [s]: its ``left_of_array`` if it has one, the default's
+    float below as an array, else one call per time."""
+    from .sources import TorqueProfile
+
+    own = getattr(profile, "left_of_array", None)
+    if own is not None:
+        return np.asarray(own(b), dtype=np.float64)
+    if type(profile).left_of is TorqueProfile.left_of:
+        return np.nextafter(b, -np.inf)
+    return np.array([profile.left_of(v) for v in b.tolist()], dtype=np.float64)
+
+
+def _time_free(data, t_min: float) -> bool:
+    """Whether a profile's kernel data read no time from ``t_min`` [s] on: constants, polynomials in
+    speed, and engine/motor/compressor rows whose fade is over (or absent)."""
+    from . import profile_data as D
+
+    fade = {D.CONSTANT: None, D.POLYNOMIAL: None, D.ENGINE: 8, D.MOTOR_LINE: 2, D.MOTOR_CURVE: 2, D.COMPRESSOR: 4}
+    for kind, row in zip(data.kinds.tolist(), data.params.tolist()):
+        if kind not in fade or (fade[kind] is not None and row[fade[kind]] > 0.0 and not t_min >= row[fade[kind]]):
+            return False
+    return True
+
+
+def _offsets(loop) -> np.ndarray:
+    """The stage time offsets ``c_i h`` [s] a kernel loop adds to a step's start (its packed ``reals``)."""
+    from .kernel import HEADER
+
+    return loop.reals[loop.ints[HEADER + 1] : loop.ints[HEADER + 2]]
+
+
+def _search(bps, x: float, right: bool) -> int:
+    """:func:`bisect.bisect_left` (``right``: ``bisect_right``) of ``x`` in the sorted ``bps`` (list or array)."""
+    if isinstance(bps, np.ndarray):
+        return int(np.searchsorted(bps, x, side="right" if right else "left"))
+    return bisect_right(bps, x) if right else bisect_left(bps, x)
 
 
 def _coordinate(row: np.ndarray) -> Callable:
@@ -237,7 +294,8 @@ class Stepper:
         self.fixed_step = isinstance(self.integrator, FixedStepIntegrator)
         self.guard = guard
         self.loop = plant.kernel_loop(self.integrator, guard)
-        self.breakpoints = list(plant.breakpoints)
+        self.breakpoints = plant.breakpoints
+        self._end = None  # the loop of absorbed steps (_end_loop); False: none
         self.stopped: tuple | None = None
         self._stop_at: int | None = None
         self.split_steps: dict = {}
@@ -274,7 +332,7 @@ class Stepper:
                 if status == DIVERGED:
                     raise self._diverged(t1, out[done - 1])
                 return out[0] if k1 == k0 + 1 else out[-1].copy()
-        plan = self._plan(t0, t1)
+        plan = self._plan(t0, t1, absorb=True)
         out = self._march(x, plan, None, record=False)
         if not _healthy(out):
             raise self._diverged(t1, out)
@@ -295,7 +353,9 @@ class Stepper:
             k0, k1 = self._snap(t0), self._snap(t1)
             if k0 is not None and k1 is not None and k1 > k0 and not self._near_breakpoint(t0, t1, k0, k1):
                 return self._guarded_whole(x0, k0, k1, t0, t1)
-        plan = self._plan(t0, t1)
+        # absorbed steps only where the vectorized open-loop path (which reads the clamps) is not taken
+        absorb = not (self.plant.open_loop and self.fixed_step and vectorize is not False and self.guard is None)
+        plan = self._plan(t0, t1, absorb=absorb)
         times = self._knots(plan)
         can_vectorize = (
             self.plant.open_loop and self.fixed_step and not self.split_steps and not plan["lead"] and not plan["empty"]
@@ -324,17 +384,17 @@ class Stepper:
     def _near_breakpoint(self, t0: float, t1: float, k0: int, k1: int) -> bool:
         """Whether a breakpoint lies in the grid steps k0 .. k1 (within the snap tolerance)."""
         bps = self.breakpoints
-        if not bps:
+        if len(bps) == 0:
             return False
         tol = snap_tolerance(t1, self.dt)
         a, b = min(t0, self.grid_time(k0)) - tol, max(t1, self.grid_time(k1)) + tol
         free = self._free  # (breakpoints, L, R): no breakpoint in the open interval (L, R) of that list
         if free is not None and free[0] is bps and free[1] < a and b < free[2]:
             return False
-        i = bisect_left(bps, a)
-        if i != bisect_right(bps, b):
+        i = _search(bps, a, False)
+        if i != _search(bps, b, True):
             return True
-        self._free = (bps, bps[i - 1] if i else -math.inf, bps[i] if i < len(bps) else math.inf)
+        self._free = (bps, float(bps[i - 1]) if i else -math.inf, float(bps[i]) if i < len(bps) else math.inf)
         return False
 
     def _guarded_whole(self, x0: np.ndarray, k0: int, k1: int, t0: float, t1: float):
@@ -420,7 +480,7 @@ class Stepper:
             k += 1
         return k
 
-    def _plan(self, t0: float, t1: float) -> dict:
+    def _plan(self, t0: float, t1: float, absorb: bool = False) -> dict:
         """Steps from ``t0`` to ``t1``: grid cells first..last, ends, and the steps that touch breakpoints.
 
         Returns a dict: ``first``, ``last`` (cell indices), ``start``, ``end``
@@ -428,7 +488,8 @@ class Stepper:
         snap to the grid, else themselves), ``lead``/``trail`` (whether the
         first/last step is partial), ``t0``/``t1`` as given, and
         ``special = {cell: [lo, hi, cuts]}`` for steps whose torque samples are
-        clamped to ``[lo, hi]`` or that are split at ``cuts``.
+        clamped to ``[lo, hi]`` or that are split at ``cuts``; ``absorbed``: the
+        cells (sorted int64) :meth:`_absorb` found (``absorb``: look for them).
         """
         k0, k1 = self._snap(t0), self._snap(t1)
         start = self.grid_time(k0) if k0 is not None else t0
@@ -438,14 +499,23 @@ class Stepper:
         empty = last < first  # t0 and t1 on the same grid time (or within its tolerance)
         special: dict = {}
 
-        def entry(c):
-            return special.setdefault(c, [-math.inf, math.inf, []])
 
         bps = self.breakpoints
         tol0, tol1 = snap_tolerance(start, self.dt), snap_tolerance(end, self.dt)
-        lo_i = bisect_left(bps, min(t0, start) - tol0)
-        hi_i = bisect_right(bps, max(t1, end) + tol1)
-        for b in bps[lo_i:hi_i] if not empty else ():
+        lo_i = _search(bps, min(t0, start) - tol0, False)
+        hi_i = _search(bps, max(t1, end) + tol1, True)
+        near = bps[lo_i:hi_i] if not empty else ()
+        absorbed = _NO_CELLS
+        if absorb and len(near) >= ABSORB_MIN:
+            absorbed, skip = self._absorb(np.asarray(near, dtype=np.float64), first, last, k0 is None, k1 is None)
+            if absorbed.size:
+                near = np.asarray(near, dtype=np.float64)[~skip]
+        taken = set(absorbed.tolist())  # an absorbed step's clamps are accounted for: no special entry
+
+        def entry(c):
+            return special.setdefault(c, [-math.inf, math.inf, []]) if c not in taken else [-math.inf, math.inf, []]
+
+        for b in near.tolist() if isinstance(near, np.ndarray) else near:
             if abs(b - start) <= max(tol0, snap_tolerance(b, self.dt)) or abs(b - t0) <= tol0:
                 e = entry(first)
                 e[0] = max(e[0], b)
@@ -469,8 +539,90 @@ class Stepper:
         self.split_steps = {c: list(e[2]) for c, e in special.items() if e[2]}
         return dict(
             t0=t0, t1=t1, start=start, end=end, first=first, last=last, empty=empty,
-            lead=k0 is None, trail=k1 is None, special=special,
+            lead=k0 is None, trail=k1 is None, special=special, absorbed=absorbed,
         )  # fmt: skip
+
+    def _absorb(self, bps: np.ndarray, first: int, last: int, lead: bool, trail: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Whole steps next to breakpoints on the grid that one kernel call can take without clamps.
+
+        A torque sampled on the step grid (a recording at the step rate) puts a
+        breakpoint on every knot; planned one by one, each step would be its own
+        kernel call. Step ``j`` (cells ``first + 1 .. last - 1`` only) is *absorbed*
+        when every breakpoint touching it lies on its knots (none inside it) and
+        each torque gives, at every stage time of the absorbed loop
+        (:meth:`_end_loop`: a stage at the step's end reads 1 ns before it), the
+        same float as at the stage time clamped into ``[lo_j, hi_j]`` (what the
+        step planned alone would read): a time-only torque is evaluated at both
+        (the kernel's dispatcher), any other must read no time there
+        (:func:`_time_free`). Absorbed steps then run as runs of whole steps of the
+        absorbed loop: the same stage torques, so the same states, bit for bit.
+
+        Returns the absorbed cells (sorted int64) and a mask of ``bps`` (the
+        advance's breakpoints, sorted) whose both cells are absorbed (left out of
+        the plan's special steps).
+        """
+        end = self._end_loop()
+        if end is None:
+            return _NO_CELLS, None
+        origin, dt = self.origin, self.dt
+        kf = np.rint((bps - origin) / dt)
+        d = np.abs(origin + kf * dt - bps)
+        on = (d <= GRID_TOLERANCE * dt) | (d <= 8.0 * np.spacing(np.abs(bps)))
+        k = kf.astype(np.int64)
+        cand = on & (k >= first + 2) & (k <= last - 1)
+        if not cand.any():
+            return _NO_CELLS, None
+        # cells any other breakpoint touches are planned as before: off the grid (split), near the ends
+        cell = np.floor((bps[~on] - origin) / dt).astype(np.int64)
+        blocked = np.concatenate([cell - 1, cell, cell + 1, k[on & ~cand] - 1, k[on & ~cand]])
+        kc, bc = k[cand], bps[cand]
+        knots, at = np.unique(kc, return_index=True)
+        lo_k = np.maximum.reduceat(bc, at)  # the step starting at a knot samples from its latest breakpoint
+        hi_k = np.minimum.reduceat(self.plant.left_of_array(bc), at)  # the step ending there, before the first
+        cells = np.union1d(knots - 1, knots)
+        lo = np.full(cells.size, -math.inf)
+        hi = np.full(cells.size, math.inf)
+        lo[np.searchsorted(cells, knots)] = lo_k
+        hi[np.searchsorted(cells, knots - 1)] = hi_k
+        ok = ~np.isin(cells, blocked) & self._same_torques(origin + dt * cells.astype(np.float64), lo, hi, end)
+        good = cells[ok]
+        return good, cand & np.isin(k, good) & np.isin(k - 1, good)
+
+    def _same_torques(self, g: np.ndarray, lo: np.ndarray, hi: np.ndarray, end) -> np.ndarray:
+        """Per step starting at ``g`` [s]: whether the torques at the stage times of ``end`` equal those at the
+        stage times of the stepper's loop clamped into ``[lo, hi]`` (see :meth:`_absorb`)."""
+        from .kernel import profile_torque_array
+
+        ok = np.ones(g.size, dtype=bool)
+        plain, shifted = _offsets(self.loop), _offsets(end)
+        zeros, a, b = np.zeros(g.size), np.empty(g.size), np.empty(g.size)
+        for profile, data, angle in zip((self.plant.drive, self.plant.load), self.plant.data, self.plant.uses_angle):
+            if profile.state_dependent or angle:
+                if not _time_free(data, float(g[0]) if g.size else 0.0):
+                    return np.zeros(g.size, dtype=bool)
+                continue
+            for c, e in zip(plain.tolist(), shifted.tolist()):
+                t = g if c == 0.0 else g + c
+                t = np.where(t < lo, lo, np.where(t > hi, hi, t))  # the kernel's clamp
+                profile_torque_array(data.kinds, data.params, data.tx, data.ty, t, zeros, zeros, a)
+                profile_torque_array(data.kinds, data.params, data.tx, data.ty, g if e == 0.0 else g + e, zeros, zeros, b)
+                ok &= a == b
+        return ok
+
+    def _end_loop(self):
+        """The kernel loop of absorbed steps: the stepper's, a stage at the step's end (node 1) reading the
+        torques :data:`END_SHIFT` (at most dt/1000) before it; None without a kernel loop."""
+        if self._end is None:
+            nodes = self.integrator.scheme.nodes if self.loop is not None else ()
+            shift = min(END_SHIFT, 1e-3 * self.dt)
+            if self.loop is None:
+                self._end = False
+            elif 1.0 not in nodes:
+                self._end = self.loop
+            else:
+                moved = [1.0 - shift / self.dt if c == 1.0 else c for c in nodes]
+                self._end = self.plant.kernel_loop(self.integrator, self.guard, moved) or False
+        return self._end or None
 
     def _step_ends(self, plan: dict, c: int) -> tuple[float, float, bool]:
         """(a, e, whole) of the step in cell ``c``."""
@@ -570,6 +722,11 @@ class Stepper:
         chunk = CHUNK if not progress else min(CHUNK, max(64, n_cells // 100))
         stops = sorted(special)
         si = 0
+        runs = plan.get("absorbed", _NO_CELLS)  # absorbed cells as runs [run_from, run_to) of the absorbed loop
+        cut = np.flatnonzero(np.diff(runs) != 1) + 1
+        run_from = runs[np.r_[0, cut]].tolist() if runs.size else []
+        run_to = (runs[np.r_[cut - 1, runs.size - 1]] + 1).tolist() if runs.size else []
+        ri = 0
         c = first
         with np.errstate(all="ignore"):
             while c <= last:
@@ -589,8 +746,16 @@ class Stepper:
                 # a run of plain whole steps: up to the next special cell, the last whole cell, or a chunk
                 while si < len(stops) and stops[si] < c:
                     si += 1
+                while ri < len(run_to) and run_to[ri] <= c:
+                    ri += 1
                 stop = min(c + chunk, stops[si] if si < len(stops) else last + 1, last + 1 if not plan["trail"] else last)
-                x = self._whole_steps(x, c, stop, states[c - first + 1 : stop - first + 1] if record else None)
+                loop = None
+                if ri < len(run_from):
+                    if run_from[ri] <= c:  # absorbed steps (no special cell inside a run)
+                        stop, loop = min(c + chunk, run_to[ri]), self._end
+                    else:
+                        stop = min(stop, run_from[ri])
+                x = self._whole_steps(x, c, stop, states[c - first + 1 : stop - first + 1] if record else None, loop=loop)
                 if self._stop_at is not None:  # the guard fired at the end of cell c + _stop_at
                     j = c + self._stop_at
                     self._stop_at = None
@@ -604,17 +769,19 @@ class Stepper:
                     progress((c - first) / n_cells)
         return states if record else x
 
-    def _whole_steps(self, x: np.ndarray, c: int, stop: int, out, times=None) -> np.ndarray:
+    def _whole_steps(self, x: np.ndarray, c: int, stop: int, out, times=None, loop=None) -> np.ndarray:
         """Whole steps of cells ``c`` .. ``stop - 1`` (no breakpoint touches them); write into ``out``.
 
         ``times``: their grid times ``self._grid(c, stop + 1)`` if the caller has them.
+        ``loop``: the kernel loop to step with (default the stepper's; absorbed steps: :meth:`_end_loop`).
         One kernel call; after a diverged state the rest of ``out`` is NaN.
         """
         times = self._grid(c, stop + 1) if times is None else times
         size = x.size
-        if self.loop is not None:
+        loop = self.loop if loop is None else loop
+        if loop is not None:
             buffer = out if out is not None else np.empty((stop - c, size))
-            done, status, t = self.loop(times, np.ascontiguousarray(x, dtype=np.float64), buffer, -math.inf, math.inf,
+            done, status, t = loop(times, np.ascontiguousarray(x, dtype=np.float64), buffer, -math.inf, math.inf,
                                         SPEED_LIMIT)
             if status == NOT_CONVERGED:
                 self._not_converged(t)
