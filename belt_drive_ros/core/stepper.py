@@ -572,21 +572,31 @@ class Stepper:
         cand = on & (k >= first + 2) & (k <= last - 1)
         if not cand.any():
             return _NO_CELLS, None
-        # cells any other breakpoint touches are planned as before: off the grid (split), near the ends
-        cell = np.floor((bps[~on] - origin) / dt).astype(np.int64)
-        blocked = np.concatenate([cell - 1, cell, cell + 1, k[on & ~cand] - 1, k[on & ~cand]])
+        # marks over the cells first .. last (k sorted: no sorting here)
+        size = last - first + 1
+        touched = np.zeros(size + 1, dtype=bool)
         kc, bc = k[cand], bps[cand]
-        knots, at = np.unique(kc, return_index=True)
+        touched[kc - first] = touched[kc - 1 - first] = True
+        # cells any other breakpoint touches are planned as before: off the grid (split), near the ends
+        blocked = np.zeros(size + 2, dtype=bool)
+        cell = np.clip(np.floor((bps[~on] - origin) / dt).astype(np.int64) - first, -1, size)
+        blocked[cell] = blocked[cell + 1] = blocked[np.maximum(cell - 1, -1)] = True
+        other = np.clip(k[on & ~cand] - first, 0, size)
+        blocked[other] = blocked[np.maximum(other - 1, 0)] = True
+        first_of = np.ones(kc.size, dtype=bool)
+        first_of[1:] = kc[1:] != kc[:-1]
+        at = np.flatnonzero(first_of)
+        knots = kc[at]
         lo_k = np.maximum.reduceat(bc, at)  # the step starting at a knot samples from its latest breakpoint
         hi_k = np.minimum.reduceat(self.plant.left_of_array(bc), at)  # the step ending there, before the first
-        cells = np.union1d(knots - 1, knots)
-        lo = np.full(cells.size, -math.inf)
-        hi = np.full(cells.size, math.inf)
-        lo[np.searchsorted(cells, knots)] = lo_k
-        hi[np.searchsorted(cells, knots - 1)] = hi_k
-        ok = ~np.isin(cells, blocked) & self._same_torques(origin + dt * cells.astype(np.float64), lo, hi, end)
-        good = cells[ok]
-        return good, cand & np.isin(k, good) & np.isin(k - 1, good)
+        lo = np.full(size + 1, -math.inf)
+        hi = np.full(size + 1, math.inf)
+        lo[knots - first], hi[knots - 1 - first] = lo_k, hi_k
+        index = np.flatnonzero(touched[:size] & ~blocked[:size])
+        ok = self._same_torques(origin + dt * (index + first).astype(np.float64), lo[index], hi[index], end)
+        good = np.zeros(size + 1, dtype=bool)
+        good[index[ok]] = True
+        return index[ok] + first, cand & good[np.clip(k - first, 0, size)] & good[np.clip(k - 1 - first, 0, size)]
 
     def _same_torques(self, g: np.ndarray, lo: np.ndarray, hi: np.ndarray, end) -> np.ndarray:
         """Per step starting at ``g`` [s]: whether the torques at the stage times of ``end`` equal those at the
@@ -604,9 +614,13 @@ class Stepper:
             for c, e in zip(plain.tolist(), shifted.tolist()):
                 t = g if c == 0.0 else g + c
                 t = np.where(t < lo, lo, np.where(t > hi, hi, t))  # the kernel's clamp
-                profile_torque_array(data.kinds, data.params, data.tx, data.ty, t, zeros, zeros, a)
-                profile_torque_array(data.kinds, data.params, data.tx, data.ty, g if e == 0.0 else g + e, zeros, zeros, b)
-                ok &= a == b
+                u = g if e == 0.0 else g + e
+                moved = np.flatnonzero(t != u)  # the same time gives the same torque: only the others are read
+                if moved.size:
+                    n = moved.size
+                    profile_torque_array(data.kinds, data.params, data.tx, data.ty, t[moved], zeros[:n], zeros[:n], a[:n])
+                    profile_torque_array(data.kinds, data.params, data.tx, data.ty, u[moved], zeros[:n], zeros[:n], b[:n])
+                    ok[moved[a[:n] != b[:n]]] = False
         return ok
 
     def _end_loop(self):
