@@ -73,7 +73,6 @@ stops there; :meth:`run` reports the first bad sample).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from bisect import bisect_left, bisect_right
 from typing import Callable
@@ -146,14 +145,12 @@ class Plant:
 
         self.inputs = inputs
 
-    def kernel_loop(self, integrator, guard=None, nodes=None):
+    def kernel_loop(self, integrator, guard=None):
         """The compiled loop (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`) of ``integrator`` for this plant, or None.
 
         None for an adaptive method, a Python-only profile, complex matrices or
         an implicit method with extra inputs: those step through ``integrator.step``.
         ``guard``: a :class:`~belt_drive_ros.core.stage_scheme.Guard` the loop checks after every step.
-        ``nodes``: the stages' torque sample times as fractions of the step, instead of the scheme's
-        (the same maps: only where the torques are read moves; :meth:`Stepper._absorb`).
         """
         if not isinstance(integrator, FixedStepIntegrator) or None in self.data:
             return None
@@ -162,8 +159,6 @@ class Plant:
         scheme = integrator.scheme
         if (self.extra and scheme.implicit) or not KernelLoop.usable(scheme):
             return None
-        if nodes is not None:
-            scheme = dataclasses.replace(scheme, nodes=tuple(nodes))
         return KernelLoop(scheme, integrator.dt, self.wheel_map, self.uses_angle, *self.data, self.extra, guard)
 
     def left_of(self, b: float) -> float:
@@ -209,11 +204,16 @@ def _time_free(data, t_min: float) -> bool:
     return True
 
 
-def _offsets(loop) -> np.ndarray:
-    """The stage time offsets ``c_i h`` [s] a kernel loop adds to a step's start (its packed ``reals``)."""
+def _offset_slice(loop) -> slice:
+    """Where a kernel loop's packed ``reals`` hold the stage time offsets ``c_i h`` [s] (kernel.SECTIONS)."""
     from .kernel import HEADER
 
-    return loop.reals[loop.ints[HEADER + 1] : loop.ints[HEADER + 2]]
+    return slice(int(loop.ints[HEADER + 1]), int(loop.ints[HEADER + 2]))
+
+
+def _offsets(loop) -> np.ndarray:
+    """The stage time offsets ``c_i h`` [s] a kernel loop adds to a step's start."""
+    return loop.reals[_offset_slice(loop)]
 
 
 def _search(bps, x: float, right: bool) -> int:
@@ -249,6 +249,26 @@ def _healthy(x) -> bool:
     values = x.tolist() if isinstance(x, np.ndarray) else list(x)
     # the sum is finite only when every entry is (a NaN or an inf propagates; a finite overflow is beyond the limit)
     return math.isfinite(sum(values)) and max(map(abs, values[len(values) // 2 :])) <= SPEED_LIMIT
+
+
+class _EndLoop:
+    """The stepper's kernel loop with other stage time offsets, written into its packed numbers for the
+    call and put back after (the loop's arrays, a recording's table among them, are not copied)."""
+
+    def __init__(self, loop, offsets: np.ndarray):
+        self.loop, self.offsets = loop, offsets
+        self.reals = loop.reals[: loop.reals.size - loop.tables.size].copy()  # for _offsets (the section is in front)
+        self.reals[_offset_slice(loop)] = offsets
+        self.ints = loop.ints
+
+    def __call__(self, times, x, out, lo=-math.inf, hi=math.inf, limit=SPEED_LIMIT):
+        where = _offset_slice(self.loop)
+        plain = self.loop.reals[where].copy()
+        self.loop.reals[where] = self.offsets
+        try:
+            return self.loop(times, x, out, lo, hi, limit)
+        finally:
+            self.loop.reals[where] = plain
 
 
 class Stepper:
@@ -625,7 +645,7 @@ class Stepper:
 
     def _end_loop(self):
         """The kernel loop of absorbed steps: the stepper's, a stage at the step's end (node 1) reading the
-        torques :data:`END_SHIFT` (at most dt/1000) before it; None without a kernel loop."""
+        torques :data:`END_SHIFT` (at most dt/1000) before it (:class:`_EndLoop`); None without a kernel loop."""
         if self._end is None:
             nodes = self.integrator.scheme.nodes if self.loop is not None else ()
             shift = min(END_SHIFT, 1e-3 * self.dt)
@@ -635,7 +655,8 @@ class Stepper:
                 self._end = self.loop
             else:
                 moved = [1.0 - shift / self.dt if c == 1.0 else c for c in nodes]
-                self._end = self.plant.kernel_loop(self.integrator, self.guard, moved) or False
+                # KernelLoop's offsets c h of these nodes
+                self._end = _EndLoop(self.loop, np.array([float(c * self.dt) if c else 0.0 for c in moved]))
         return self._end or None
 
     def _step_ends(self, plan: dict, c: int) -> tuple[float, float, bool]:
