@@ -129,7 +129,8 @@ class Plant:
         #: (a recorded drive has one per sample: an array, never a list of floats)
         both = np.concatenate([np.asarray(drive.breakpoints(), dtype=np.float64).ravel(),
                                np.asarray(load.breakpoints(), dtype=np.float64).ravel()])
-        self.breakpoints = np.unique(both[np.isfinite(both)])
+        both = both[np.isfinite(both)]
+        self.breakpoints = both if np.all(both[1:] > both[:-1]) else np.unique(both)  # a table's: sorted already
         array = np.array
         angle_M, speed_M, angle_3, speed_3 = (_coordinate(row) for row in W)
 
