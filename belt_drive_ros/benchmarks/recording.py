@@ -277,8 +277,8 @@ def replay_to_mcap(bag, out, dt: float = 1e-3, old_writer_windows: int = 2) -> d
 
 
 def planned_one_by_one(scene, seconds: float = 20.0) -> dict:
-    """The first ``seconds`` of ``scene``'s stream (guards included) with steps next to the samples absorbed
-    (:meth:`~belt_drive_ros.core.stepper.Stepper._absorb`, today) and planned one by one (one kernel call per
+    """The first ``seconds`` of ``scene``'s stream (a torque bag's scene; guards included) with steps next to the samples absorbed
+    (:func:`~belt_drive_ros.core.absorb.absorbed_steps`, today) and planned one by one (one kernel call per
     step, as before): wall [s] of each, side by side, and whether the states agree bit for bit."""
     import dataclasses
 
@@ -286,6 +286,9 @@ def planned_one_by_one(scene, seconds: float = 20.0) -> dict:
     from ..core.stream import stream
 
     short = dataclasses.replace(scene, duration=min(seconds, scene.duration))
+    drive = scene.drive  # the bag's first samples only (a whole hour's table would weigh on both sides alike)
+    n = int(np.searchsorted(drive.times, short.duration, side="right")) + 1
+    short = dataclasses.replace(short, drive=dataclasses.replace(drive, times=drive.times[:n], values=drive.values[:n]))
     out, states = {}, {}
     for name, least in (("absorbed", stepper.ABSORB_MIN), ("one_by_one", 10**15)):
         saved, stepper.ABSORB_MIN = stepper.ABSORB_MIN, least

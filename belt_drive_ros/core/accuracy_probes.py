@@ -66,7 +66,7 @@ def _survey_step(inner: np.ndarray, rdt: float) -> float:
     are denser than ``rdt`` and all lie on the grid ``k h`` (a recording at a fixed rate).
 
     On that grid the stepper takes the record's steps in runs of whole steps (its breakpoints on the knots,
-    :meth:`~belt_drive_ros.core.stepper.Stepper._absorb`): the cost is the record's samples, one kernel call per
+    :func:`~belt_drive_ros.core.absorb.absorbed_steps`): the cost is the record's samples, one kernel call per
     piece, instead of one call per sample in steps split at each; ``exact`` integrates the held samples
     exactly either way.
     """

@@ -91,11 +91,8 @@ PARTIAL_CACHE_SIZE = 4096
 GRID_TOLERANCE = 1e-9
 #: steps per call of the compiled loop between divergence checks and progress reports
 CHUNK = 4096
-#: an advance over at least this many breakpoints looks for steps it can absorb (:meth:`Stepper._absorb`)
+#: an advance over at least this many breakpoints looks for steps it can absorb (:mod:`~belt_drive_ros.core.absorb`)
 ABSORB_MIN = 16
-#: how far [s] before the step's end a stage at the step's end reads the torques in an absorbed step
-#: (at most a thousandth of the step): a recording's hold switches at whole nanoseconds
-END_SHIFT = 1e-9
 _NO_CELLS = np.empty(0, dtype=np.int64)
 
 
@@ -168,7 +165,9 @@ class Plant:
 
     def left_of_array(self, b: np.ndarray) -> np.ndarray:
         """:meth:`left_of` of each breakpoint of ``b`` (float64), the same floats."""
-        return np.minimum(_left_of_array(self.drive, b), _left_of_array(self.load, b))
+        from .absorb import left_of_array
+
+        return np.minimum(left_of_array(self.drive, b), left_of_array(self.load, b))
 
     def input_array(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
         """Vectorized u for samples ``t`` (N,), ``x`` (N, n) -> (N, 2)."""
@@ -178,43 +177,6 @@ class Plant:
         u[..., 0] = self.drive.torque(t, phi_M, omega_M)
         u[..., 1] = self.load.torque(t, phi_3, omega_3)
         return u
-
-
-def _left_of_array(profile, b: np.ndarray) -> np.ndarray:
-    """``profile.left_of`` of each time of ``b`` [s]: its ``left_of_array`` if it has one, the default's
-    float below as an array, else one call per time."""
-    from .sources import TorqueProfile
-
-    own = getattr(profile, "left_of_array", None)
-    if own is not None:
-        return np.asarray(own(b), dtype=np.float64)
-    if type(profile).left_of is TorqueProfile.left_of:
-        return np.nextafter(b, -np.inf)
-    return np.array([profile.left_of(v) for v in b.tolist()], dtype=np.float64)
-
-
-def _time_free(data, t_min: float) -> bool:
-    """Whether a profile's kernel data read no time from ``t_min`` [s] on: constants, polynomials in
-    speed, and engine/motor/compressor rows whose fade is over (or absent)."""
-    from . import profile_data as D
-
-    fade = {D.CONSTANT: None, D.POLYNOMIAL: None, D.ENGINE: 8, D.MOTOR_LINE: 2, D.MOTOR_CURVE: 2, D.COMPRESSOR: 4}
-    for kind, row in zip(data.kinds.tolist(), data.params.tolist()):
-        if kind not in fade or (fade[kind] is not None and row[fade[kind]] > 0.0 and not t_min >= row[fade[kind]]):
-            return False
-    return True
-
-
-def _offset_slice(loop) -> slice:
-    """Where a kernel loop's packed ``reals`` hold the stage time offsets ``c_i h`` [s] (kernel.SECTIONS)."""
-    from .kernel import HEADER
-
-    return slice(int(loop.ints[HEADER + 1]), int(loop.ints[HEADER + 2]))
-
-
-def _offsets(loop) -> np.ndarray:
-    """The stage time offsets ``c_i h`` [s] a kernel loop adds to a step's start."""
-    return loop.reals[_offset_slice(loop)]
 
 
 def _search(bps, x: float, right: bool) -> int:
@@ -250,26 +212,6 @@ def _healthy(x) -> bool:
     values = x.tolist() if isinstance(x, np.ndarray) else list(x)
     # the sum is finite only when every entry is (a NaN or an inf propagates; a finite overflow is beyond the limit)
     return math.isfinite(sum(values)) and max(map(abs, values[len(values) // 2 :])) <= SPEED_LIMIT
-
-
-class _EndLoop:
-    """The stepper's kernel loop with other stage time offsets, written into its packed numbers for the
-    call and put back after (the loop's arrays, a recording's table among them, are not copied)."""
-
-    def __init__(self, loop, offsets: np.ndarray):
-        self.loop, self.offsets = loop, offsets
-        self.reals = loop.reals[: loop.reals.size - loop.tables.size].copy()  # for _offsets (the section is in front)
-        self.reals[_offset_slice(loop)] = offsets
-        self.ints = loop.ints
-
-    def __call__(self, times, x, out, lo=-math.inf, hi=math.inf, limit=SPEED_LIMIT):
-        where = _offset_slice(self.loop)
-        plain = self.loop.reals[where].copy()
-        self.loop.reals[where] = self.offsets
-        try:
-            return self.loop(times, x, out, lo, hi, limit)
-        finally:
-            self.loop.reals[where] = plain
 
 
 class Stepper:
@@ -316,7 +258,7 @@ class Stepper:
         self.guard = guard
         self.loop = plant.kernel_loop(self.integrator, guard)
         self.breakpoints = plant.breakpoints
-        self._end = None  # the loop of absorbed steps (_end_loop); False: none
+        self._end = None  # the loop of absorbed steps (absorb.end_loop); False: none
         self.stopped: tuple | None = None
         self._stop_at: int | None = None
         self.split_steps: dict = {}
@@ -510,7 +452,7 @@ class Stepper:
         first/last step is partial), ``t0``/``t1`` as given, and
         ``special = {cell: [lo, hi, cuts]}`` for steps whose torque samples are
         clamped to ``[lo, hi]`` or that are split at ``cuts``; ``absorbed``: the
-        cells (sorted int64) :meth:`_absorb` found (``absorb``: look for them).
+        cells (sorted int64) :func:`~belt_drive_ros.core.absorb.absorbed_steps` found (``absorb``: look for them).
         """
         k0, k1 = self._snap(t0), self._snap(t1)
         start = self.grid_time(k0) if k0 is not None else t0
@@ -528,7 +470,9 @@ class Stepper:
         near = bps[lo_i:hi_i] if not empty else ()
         absorbed = _NO_CELLS
         if absorb and len(near) >= ABSORB_MIN:
-            absorbed, skip = self._absorb(np.asarray(near, dtype=np.float64), first, last, k0 is None, k1 is None)
+            from .absorb import absorbed_steps
+
+            absorbed, skip = absorbed_steps(self, np.asarray(near, dtype=np.float64), first, last, k0 is None, k1 is None)
             if absorbed.size:
                 near = np.asarray(near, dtype=np.float64)[~skip]
         taken = set(absorbed.tolist())  # an absorbed step's clamps are accounted for: no special entry
@@ -562,103 +506,6 @@ class Stepper:
             t0=t0, t1=t1, start=start, end=end, first=first, last=last, empty=empty,
             lead=k0 is None, trail=k1 is None, special=special, absorbed=absorbed,
         )  # fmt: skip
-
-    def _absorb(self, bps: np.ndarray, first: int, last: int, lead: bool, trail: bool) -> tuple[np.ndarray, np.ndarray]:
-        """Whole steps next to breakpoints on the grid that one kernel call can take without clamps.
-
-        A torque sampled on the step grid (a recording at the step rate) puts a
-        breakpoint on every knot; planned one by one, each step would be its own
-        kernel call. Step ``j`` (cells ``first + 1 .. last - 1`` only) is *absorbed*
-        when every breakpoint touching it lies on its knots (none inside it) and
-        each torque gives, at every stage time of the absorbed loop
-        (:meth:`_end_loop`: a stage at the step's end reads 1 ns before it), the
-        same float as at the stage time clamped into ``[lo_j, hi_j]`` (what the
-        step planned alone would read): a time-only torque is evaluated at both
-        (the kernel's dispatcher), any other must read no time there
-        (:func:`_time_free`). Absorbed steps then run as runs of whole steps of the
-        absorbed loop: the same stage torques, so the same states, bit for bit.
-
-        Returns the absorbed cells (sorted int64) and a mask of ``bps`` (the
-        advance's breakpoints, sorted) whose both cells are absorbed (left out of
-        the plan's special steps).
-        """
-        end = self._end_loop()
-        if end is None:
-            return _NO_CELLS, None
-        origin, dt = self.origin, self.dt
-        kf = np.rint((bps - origin) / dt)
-        d = np.abs(origin + kf * dt - bps)
-        on = (d <= GRID_TOLERANCE * dt) | (d <= 8.0 * np.spacing(np.abs(bps)))
-        k = kf.astype(np.int64)
-        cand = on & (k >= first + 2) & (k <= last - 1)
-        if not cand.any():
-            return _NO_CELLS, None
-        # marks over the cells first .. last (k sorted: no sorting here)
-        size = last - first + 1
-        touched = np.zeros(size + 1, dtype=bool)
-        kc, bc = k[cand], bps[cand]
-        touched[kc - first] = touched[kc - 1 - first] = True
-        # cells any other breakpoint touches are planned as before: off the grid (split), near the ends
-        blocked = np.zeros(size + 2, dtype=bool)
-        cell = np.clip(np.floor((bps[~on] - origin) / dt).astype(np.int64) - first, -1, size)
-        blocked[cell] = blocked[cell + 1] = blocked[np.maximum(cell - 1, -1)] = True
-        other = np.clip(k[on & ~cand] - first, 0, size)
-        blocked[other] = blocked[np.maximum(other - 1, 0)] = True
-        first_of = np.ones(kc.size, dtype=bool)
-        first_of[1:] = kc[1:] != kc[:-1]
-        at = np.flatnonzero(first_of)
-        knots = kc[at]
-        lo_k = np.maximum.reduceat(bc, at)  # the step starting at a knot samples from its latest breakpoint
-        hi_k = np.minimum.reduceat(self.plant.left_of_array(bc), at)  # the step ending there, before the first
-        lo = np.full(size + 1, -math.inf)
-        hi = np.full(size + 1, math.inf)
-        lo[knots - first], hi[knots - 1 - first] = lo_k, hi_k
-        index = np.flatnonzero(touched[:size] & ~blocked[:size])
-        ok = self._same_torques(origin + dt * (index + first).astype(np.float64), lo[index], hi[index], end)
-        good = np.zeros(size + 1, dtype=bool)
-        good[index[ok]] = True
-        return index[ok] + first, cand & good[np.clip(k - first, 0, size)] & good[np.clip(k - 1 - first, 0, size)]
-
-    def _same_torques(self, g: np.ndarray, lo: np.ndarray, hi: np.ndarray, end) -> np.ndarray:
-        """Per step starting at ``g`` [s]: whether the torques at the stage times of ``end`` equal those at the
-        stage times of the stepper's loop clamped into ``[lo, hi]`` (see :meth:`_absorb`)."""
-        from .kernel import profile_torque_array
-
-        ok = np.ones(g.size, dtype=bool)
-        plain, shifted = _offsets(self.loop), _offsets(end)
-        zeros, a, b = np.zeros(g.size), np.empty(g.size), np.empty(g.size)
-        for profile, data, angle in zip((self.plant.drive, self.plant.load), self.plant.data, self.plant.uses_angle):
-            if profile.state_dependent or angle:
-                if not _time_free(data, float(g[0]) if g.size else 0.0):
-                    return np.zeros(g.size, dtype=bool)
-                continue
-            for c, e in zip(plain.tolist(), shifted.tolist()):
-                t = g if c == 0.0 else g + c
-                t = np.where(t < lo, lo, np.where(t > hi, hi, t))  # the kernel's clamp
-                u = g if e == 0.0 else g + e
-                moved = np.flatnonzero(t != u)  # the same time gives the same torque: only the others are read
-                if moved.size:
-                    n = moved.size
-                    profile_torque_array(data.kinds, data.params, data.tx, data.ty, t[moved], zeros[:n], zeros[:n], a[:n])
-                    profile_torque_array(data.kinds, data.params, data.tx, data.ty, u[moved], zeros[:n], zeros[:n], b[:n])
-                    ok[moved[a[:n] != b[:n]]] = False
-        return ok
-
-    def _end_loop(self):
-        """The kernel loop of absorbed steps: the stepper's, a stage at the step's end (node 1) reading the
-        torques :data:`END_SHIFT` (at most dt/1000) before it (:class:`_EndLoop`); None without a kernel loop."""
-        if self._end is None:
-            nodes = self.integrator.scheme.nodes if self.loop is not None else ()
-            shift = min(END_SHIFT, 1e-3 * self.dt)
-            if self.loop is None:
-                self._end = False
-            elif 1.0 not in nodes:
-                self._end = self.loop
-            else:
-                moved = [1.0 - shift / self.dt if c == 1.0 else c for c in nodes]
-                # KernelLoop's offsets c h of these nodes
-                self._end = _EndLoop(self.loop, np.array([float(c * self.dt) if c else 0.0 for c in moved]))
-        return self._end or None
 
     def _step_ends(self, plan: dict, c: int) -> tuple[float, float, bool]:
         """(a, e, whole) of the step in cell ``c``."""
@@ -758,7 +605,7 @@ class Stepper:
         chunk = CHUNK if not progress else min(CHUNK, max(64, n_cells // 100))
         stops = sorted(special)
         si = 0
-        runs = plan.get("absorbed", _NO_CELLS)  # absorbed cells as runs [run_from, run_to) of the absorbed loop
+        runs = plan.get("absorbed", _NO_CELLS)  # absorbed cells as runs [run_from, run_to) of the absorbed loop (absorb.py)
         cut = np.flatnonzero(np.diff(runs) != 1) + 1
         run_from = runs[np.r_[0, cut]].tolist() if runs.size else []
         run_to = (runs[np.r_[cut - 1, runs.size - 1]] + 1).tolist() if runs.size else []
@@ -809,7 +656,7 @@ class Stepper:
         """Whole steps of cells ``c`` .. ``stop - 1`` (no breakpoint touches them); write into ``out``.
 
         ``times``: their grid times ``self._grid(c, stop + 1)`` if the caller has them.
-        ``loop``: the kernel loop to step with (default the stepper's; absorbed steps: :meth:`_end_loop`).
+        ``loop``: the kernel loop to step with (default the stepper's; absorbed steps: :func:`~belt_drive_ros.core.absorb.end_loop`).
         One kernel call; after a diverged state the rest of ``out`` is NaN.
         """
         times = self._grid(c, stop + 1) if times is None else times
