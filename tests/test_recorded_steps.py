@@ -81,3 +81,27 @@ def test_the_rigid_survey_steps_at_a_dense_records_rate():
     assert _survey_step(bps[::10], 5e-3) == 5e-3  # sparser than the survey step: unchanged
     jittered = np.asarray(_recorded(6000, jitter_ns=20_000).breakpoints())
     assert _survey_step(jittered, 5e-3) == 5e-3  # not on a grid: unchanged
+
+
+def test_absorbing_adds_no_compiled_specialisation():
+    from belt_drive_ros.core import kernel
+
+    _run("etd4", _recorded())
+    assert all(len(getattr(kernel, name).signatures) == 1 for name in ("linear_steps", "profile_torque_array"))
+
+
+def test_absorbed_steps_interpreted_give_the_same_floats():
+    """NUMBA_DISABLE_JIT=1: the absorbed run (its check and its loop) interpreted, the same states as compiled."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; sys.path.insert(0, %r); import numpy as np; import test_recorded_steps as T; "
+        "_, _, x, _ = T._run('etd4', T._recorded(300), t1=0.25); sys.stdout.write(x.tobytes().hex())"
+    ) % os.path.dirname(__file__)
+    out = {}
+    for jit in ("0", "1"):
+        env = dict(os.environ, NUMBA_DISABLE_JIT=jit)
+        out[jit] = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert out["0"] and out["0"] == out["1"]
