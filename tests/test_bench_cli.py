@@ -157,6 +157,6 @@ def test_bench_replay_prints_the_split_of_a_torque_bag_replayed_to_mcap(tmp_path
     assert main(["bench", "replay", "--minutes", "0.5", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     for label in ("read the bag", "simulation (stream windows)", "writing (encode, blocks", "old writer, message by message",
-                  "process CPU", "peak RSS"):
+                  "process CPU", "peak RSS", "planned step by step, as before; states bit-identical"):
         assert label in out, label
     assert "210,008 messages" in out  # 30,001 samples x 7 topics (drive, joint_states, /tf, 4 outputs) + the URDF

@@ -258,6 +258,7 @@ def replay_to_mcap(bag, out, dt: float = 1e-3, old_writer_windows: int = 2) -> d
         write += time.perf_counter() - a
     total, used = time.perf_counter() - start, cpu() - cpu0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    plans = planned_one_by_one(scene)
     old = math.nan
     if kept:  # the same windows message by message (the writer before blocks), into memory
         import io
@@ -272,7 +273,33 @@ def replay_to_mcap(bag, out, dt: float = 1e-3, old_writer_windows: int = 2) -> d
         old = (time.perf_counter() - a) * samples / sum(len(w.time) for w in kept)
     return {"read": read, "simulate": simulate, "write": write, "total": total, "cpu": used, "samples": samples,
             "messages": sum(counts.values()), "bytes": os.path.getsize(out), "peak_rss_mib": peak / 1024,
-            "rss_growth_mib": (peak - rss0) / 1024, "old_write_estimate": old}
+            "rss_growth_mib": (peak - rss0) / 1024, "old_write_estimate": old, "plans": plans}
+
+
+def planned_one_by_one(scene, seconds: float = 20.0) -> dict:
+    """The first ``seconds`` of ``scene``'s stream (a torque bag's scene; guards included) with steps next to the samples absorbed
+    (:func:`~belt_drive_ros.core.absorb.absorbed_steps`, today) and planned one by one (one kernel call per
+    step, as before): wall [s] of each, side by side, and whether the states agree bit for bit."""
+    import dataclasses
+
+    from ..core import stepper
+    from ..core.stream import stream
+
+    short = dataclasses.replace(scene, duration=min(seconds, scene.duration))
+    drive = scene.drive  # the bag's first samples only (a whole hour's table would weigh on both sides alike)
+    n = int(np.searchsorted(drive.times, short.duration, side="right")) + 1
+    short = dataclasses.replace(short, drive=dataclasses.replace(drive, times=drive.times[:n], values=drive.values[:n]))
+    out, states = {}, {}
+    for name, least in (("absorbed", stepper.ABSORB_MIN), ("one_by_one", 10**15)):
+        saved, stepper.ABSORB_MIN = stepper.ABSORB_MIN, least
+        try:
+            start = time.perf_counter()
+            states[name] = np.concatenate([w.states for w in stream(short)])
+            out[name] = time.perf_counter() - start
+        finally:
+            stepper.ABSORB_MIN = saved
+    out["seconds"], out["identical"] = short.duration, bool(np.array_equal(states["absorbed"], states["one_by_one"]))
+    return out
 
 
 def main_replay(minutes: float = 60.0, dt: float = 1e-3) -> int:
@@ -293,6 +320,10 @@ def main_replay(minutes: float = 60.0, dt: float = 1e-3) -> int:
     _line("  simulation (stream windows)", f"{r['simulate']:.1f} s ({r['samples'] / max(r['simulate'], 1e-9) / 1e6:.2f} M samples/s)")
     _line("  writing (encode, blocks, compression wait)", f"{r['write']:.1f} s ({r['messages'] / max(r['write'], 1e-9) / 1e6:.2f} M messages/s)")
     _line("  old writer, message by message (estimate)", f"{r['old_write_estimate']:.1f} s (its first windows, scaled to the run)")
+    p = r["plans"]
+    _line(f"  simulation of the first {p['seconds']:g} s, absorbed", f"{p['absorbed']:.2f} s "
+          f"(x{p['one_by_one'] / max(p['absorbed'], 1e-9):.1f} against {p['one_by_one']:.2f} s planned step by step, "
+          f"as before; states {'bit-identical' if p['identical'] else 'DIFFER'})")
     _line("process CPU", f"{r['cpu']:.1f} s (writer threads included)")
     _line("output", f"{r['messages']:,} messages, {r['bytes'] / 2**20:.0f} MiB")
     _line("memory", f"peak RSS {r['peak_rss_mib']:.0f} MiB (+{r['rss_growth_mib']:.0f} MiB during the replay; "

@@ -61,6 +61,27 @@ def operating_run_step(duration: float) -> float:
     return min(duration / 500.0, 5e-3)
 
 
+def _survey_step(inner: np.ndarray, rdt: float) -> float:
+    """The survey's step [s]: ``rdt``, or the spacing ``h`` of a sampled torque whose breakpoints ``inner``
+    are denser than ``rdt`` and all lie on the grid ``k h`` (a recording at a fixed rate).
+
+    On that grid the stepper takes the record's steps in runs of whole steps (its breakpoints on the knots,
+    :func:`~belt_drive_ros.core.absorb.absorbed_steps`): the cost is the record's samples, one kernel call per
+    piece, instead of one call per sample in steps split at each; ``exact`` integrates the held samples
+    exactly either way.
+    """
+    if inner.size < 2 or inner.size * rdt <= float(inner[-1] - inner[0]) + rdt:
+        return rdt
+    h = float(f"{float(np.min(np.diff(inner))):.9g}")  # the rate's period as written (0.001 for 1 kHz), not a float difference
+    if not 0.0 < h < rdt:
+        return rdt
+    k = np.rint(inner / h)
+    d = np.abs(k * h - inner)
+    if np.all((d <= 1e-9 * h) | (d <= 8.0 * np.spacing(inner))):
+        return h
+    return rdt
+
+
 class RigidSurvey:
     """One cheap rigid run of a scene that the model choice and the accuracy guard both read.
 
@@ -116,11 +137,13 @@ class RigidSurvey:
         self._start_torque = float(model.belt_torque(x0, plant.inputs(0.0, x0)))
         duration, dt = self.duration, self.dt  # the stops: probe times, then a quarter window before breakpoints
         self.t_probe = np.linspace(0.0, duration, N_PROBES) if duration > 0 else np.array([0.0])
-        inner = [b for b in plant.breakpoints if 0.0 < b < duration][:MAX_BREAKPOINT_WINDOWS]
+        bps = np.asarray(plant.breakpoints, dtype=np.float64)
+        inner = bps[(bps > 0.0) & (bps < duration)]
+        rdt = _survey_step(inner, operating_run_step(self.duration) if self.duration > 0 else 1e-3)
+        inner = inner[:MAX_BREAKPOINT_WINDOWS].tolist()
         self.early = {b: max(0.0, dt * math.floor((b - 0.25 * WINDOW_STEPS * dt) / dt)) for b in inner}
         self.plain = [float(t) for t in self.t_probe[1:] if t < duration - 2.0 * dt]
         stops = sorted(set(self.plain) | set(self.early.values()) | {float(t) for t in self.t_probe})
-        rdt = operating_run_step(self.duration) if self.duration > 0 else 1e-3
         self.states = {0.0: self.motion}
         self.error, self._speeds = None, None
         w, peak = abs(self.motion[1]), 0.0

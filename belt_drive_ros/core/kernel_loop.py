@@ -114,6 +114,7 @@ class KernelLoop:
         self.tables = np.concatenate([np.ravel(a) for a in sections[7:]]).astype(np.float64)
         if not stacked:
             self.reals = np.concatenate([self.reals[0], self.tables])
+            self.tables = self.reals[self.reals.size - self.tables.size :]  # a view: a recording's samples held once
         header = [n, s, len(extra), rows, cols, final_base, max_iter, *self.uses_angle]
         self.ints = np.concatenate([header, starts, kinds, d.kinds, l.kinds]).astype(np.int64)
         # the profiles' parameters stay their own arrays: a held torque's value written in place is read

@@ -85,8 +85,10 @@ class ProfileBuilder:
     def __init__(self):
         self.kinds: list[int] = []
         self.rows: list[list[float]] = []
-        self.tx: list[float] = []
-        self.ty: list[float] = []
+        #: the tables as float64 arrays end to end (a recording's samples are never Python floats); ``size`` entries
+        self.tx: list[np.ndarray] = []
+        self.ty: list[np.ndarray] = []
+        self.size = 0
 
     def row(self, kind: int, *values: float) -> int:
         """Append a row of ``kind`` with ``values`` (at most :data:`WIDTH`); returns its index."""
@@ -106,16 +108,17 @@ class ProfileBuilder:
 
     def table(self, xs, ys) -> tuple[int, int]:
         """Append a table; returns ``(offset, length)`` into ``tx``/``ty``."""
-        xs = np.asarray(xs, dtype=float).ravel()
-        ys = np.asarray(ys, dtype=float).ravel()
-        offset = len(self.tx)
-        self.tx.extend(xs.tolist())
-        self.ty.extend(ys.tolist())
+        xs = np.asarray(xs, dtype=np.float64).ravel()
+        ys = np.asarray(ys, dtype=np.float64).ravel()
+        offset = self.size
+        self.tx.append(xs)
+        self.ty.append(ys)
+        self.size += xs.size
         return offset, xs.size
 
     def build(self) -> ProfileData:
-        tx = np.array(self.tx if self.tx else [0.0], dtype=np.float64)
-        ty = np.array(self.ty if self.ty else [0.0], dtype=np.float64)
+        tx = np.concatenate(self.tx) if self.size else np.zeros(1)
+        ty = np.concatenate(self.ty) if self.size else np.zeros(1)
         return ProfileData(np.array(self.kinds, dtype=np.int64), np.array(self.rows, dtype=np.float64).reshape(-1, WIDTH), tx, ty)
 
 
@@ -125,7 +128,7 @@ def stack(datas) -> tuple[ProfileData, np.ndarray]:
     (:func:`~belt_drive_ros.core.kernel.profile_torque_at` evaluates profile p from its first row)."""
     builder, starts = ProfileBuilder(), []
     for d in datas:
-        rows, tables = len(builder.kinds), len(builder.tx)
+        rows, tables = len(builder.kinds), builder.size
         starts.append(rows)
         for kind, values in zip(d.kinds.tolist(), d.params.tolist()):
             if kind in TABLE_COLUMN:
@@ -133,6 +136,5 @@ def stack(datas) -> tuple[ProfileData, np.ndarray]:
             for c in ROW_COLUMNS.get(kind, ()):
                 values[c] += rows
             builder.row(kind, *values)
-        builder.tx.extend(d.tx.tolist())
-        builder.ty.extend(d.ty.tolist())
+        builder.table(d.tx, d.ty)
     return builder.build(), np.array(starts, dtype=np.int64)

@@ -132,12 +132,12 @@ class TorqueProfile:
         kinds, params, tx, ty = data.kinds, data.params, data.tx, data.ty
         return lambda t, angle, speed: profile_torque(kinds, params, tx, ty, t, angle, speed)
 
-    def breakpoints(self) -> tuple[float, ...]:
+    def breakpoints(self) -> "tuple[float, ...] | np.ndarray":
         """Times [s] at which the torque jumps or kinks in time (a step, a ramp's ends, a soft start's end).
 
         A one-step method that integrates across one is locally first order
         there; :class:`~belt_drive_ros.core.stepper.Stepper` splits such a step
-        at it (or ends a step on it). Default: none.
+        at it (or ends a step on it). A tuple, or a float64 array (a table). Default: none.
         """
         return ()
 
@@ -368,9 +368,10 @@ class Table(TorqueProfile):
         return builder.row(D.TABLE_LINEAR if self.interpolation == "linear" else D.TABLE_HELD, offset, n)
 
     def breakpoints(self):
+        # float64 arrays (a recording has one per sample: no Python float per sample)
         if self.interpolation == "previous":  # a jump only where the held value changes (held before the first)
-            return tuple(float(t) for t in self.times[1:][self.values[1:] != self.values[:-1]])
-        return tuple(float(t) for t in self.times)  # a kink at every sample
+            return self.times[1:][self.values[1:] != self.values[:-1]]
+        return self.times.copy()  # a kink at every sample
 
     def excitation_frequencies(self, speed):
         if self.times.size < 2:

@@ -91,6 +91,9 @@ PARTIAL_CACHE_SIZE = 4096
 GRID_TOLERANCE = 1e-9
 #: steps per call of the compiled loop between divergence checks and progress reports
 CHUNK = 4096
+#: an advance over at least this many breakpoints looks for steps it can absorb (:mod:`~belt_drive_ros.core.absorb`)
+ABSORB_MIN = 16
+_NO_CELLS = np.empty(0, dtype=np.int64)
 
 
 def snap_tolerance(t: float, dt: float) -> float:
@@ -119,8 +122,12 @@ class Plant:
         #: (drive, load): whether each torque reads its angle; their kernel data (None: a Python-only profile)
         self.uses_angle = (bool(drive.uses_angle), bool(load.uses_angle))
         self.data = (drive.data(), load.data())
-        #: sorted finite times [s] at which either torque jumps or kinks (TorqueProfile.breakpoints)
-        self.breakpoints = sorted({float(b) for b in (*drive.breakpoints(), *load.breakpoints()) if math.isfinite(b)})
+        #: sorted distinct finite times [s] at which either torque jumps or kinks (TorqueProfile.breakpoints), float64
+        #: (a recorded drive has one per sample: an array, never a list of floats)
+        both = np.concatenate([np.asarray(drive.breakpoints(), dtype=np.float64).ravel(),
+                               np.asarray(load.breakpoints(), dtype=np.float64).ravel()])
+        both = both[np.isfinite(both)]
+        self.breakpoints = both if np.all(both[1:] > both[:-1]) else np.unique(both)  # a table's: sorted already
         array = np.array
         angle_M, speed_M, angle_3, speed_3 = (_coordinate(row) for row in W)
 
@@ -156,6 +163,12 @@ class Plant:
         """Latest time [s] before breakpoint ``b`` at which both torques still give their values from the left."""
         return min(self.drive.left_of(b), self.load.left_of(b))
 
+    def left_of_array(self, b: np.ndarray) -> np.ndarray:
+        """:meth:`left_of` of each breakpoint of ``b`` (float64), the same floats."""
+        from .absorb import left_of_array
+
+        return np.minimum(left_of_array(self.drive, b), left_of_array(self.load, b))
+
     def input_array(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
         """Vectorized u for samples ``t`` (N,), ``x`` (N, n) -> (N, 2)."""
         phi_M, omega_M, phi_3, omega_3 = self.model.wheel_coordinates(x)
@@ -164,6 +177,13 @@ class Plant:
         u[..., 0] = self.drive.torque(t, phi_M, omega_M)
         u[..., 1] = self.load.torque(t, phi_3, omega_3)
         return u
+
+
+def _search(bps, x: float, right: bool) -> int:
+    """:func:`bisect.bisect_left` (``right``: ``bisect_right``) of ``x`` in the sorted ``bps`` (list or array)."""
+    if isinstance(bps, np.ndarray):
+        return int(np.searchsorted(bps, x, side="right" if right else "left"))
+    return bisect_right(bps, x) if right else bisect_left(bps, x)
 
 
 def _coordinate(row: np.ndarray) -> Callable:
@@ -237,7 +257,8 @@ class Stepper:
         self.fixed_step = isinstance(self.integrator, FixedStepIntegrator)
         self.guard = guard
         self.loop = plant.kernel_loop(self.integrator, guard)
-        self.breakpoints = list(plant.breakpoints)
+        self.breakpoints = plant.breakpoints
+        self._end = None  # the loop of absorbed steps (absorb.end_loop); False: none
         self.stopped: tuple | None = None
         self._stop_at: int | None = None
         self.split_steps: dict = {}
@@ -274,7 +295,7 @@ class Stepper:
                 if status == DIVERGED:
                     raise self._diverged(t1, out[done - 1])
                 return out[0] if k1 == k0 + 1 else out[-1].copy()
-        plan = self._plan(t0, t1)
+        plan = self._plan(t0, t1, absorb=True)
         out = self._march(x, plan, None, record=False)
         if not _healthy(out):
             raise self._diverged(t1, out)
@@ -295,7 +316,9 @@ class Stepper:
             k0, k1 = self._snap(t0), self._snap(t1)
             if k0 is not None and k1 is not None and k1 > k0 and not self._near_breakpoint(t0, t1, k0, k1):
                 return self._guarded_whole(x0, k0, k1, t0, t1)
-        plan = self._plan(t0, t1)
+        # absorbed steps only where the vectorized open-loop path (which reads the clamps) is not taken
+        absorb = not (self.plant.open_loop and self.fixed_step and vectorize is not False and self.guard is None)
+        plan = self._plan(t0, t1, absorb=absorb)
         times = self._knots(plan)
         can_vectorize = (
             self.plant.open_loop and self.fixed_step and not self.split_steps and not plan["lead"] and not plan["empty"]
@@ -324,17 +347,17 @@ class Stepper:
     def _near_breakpoint(self, t0: float, t1: float, k0: int, k1: int) -> bool:
         """Whether a breakpoint lies in the grid steps k0 .. k1 (within the snap tolerance)."""
         bps = self.breakpoints
-        if not bps:
+        if len(bps) == 0:
             return False
         tol = snap_tolerance(t1, self.dt)
         a, b = min(t0, self.grid_time(k0)) - tol, max(t1, self.grid_time(k1)) + tol
         free = self._free  # (breakpoints, L, R): no breakpoint in the open interval (L, R) of that list
         if free is not None and free[0] is bps and free[1] < a and b < free[2]:
             return False
-        i = bisect_left(bps, a)
-        if i != bisect_right(bps, b):
+        i = _search(bps, a, False)
+        if i != _search(bps, b, True):
             return True
-        self._free = (bps, bps[i - 1] if i else -math.inf, bps[i] if i < len(bps) else math.inf)
+        self._free = (bps, float(bps[i - 1]) if i else -math.inf, float(bps[i]) if i < len(bps) else math.inf)
         return False
 
     def _guarded_whole(self, x0: np.ndarray, k0: int, k1: int, t0: float, t1: float):
@@ -420,7 +443,7 @@ class Stepper:
             k += 1
         return k
 
-    def _plan(self, t0: float, t1: float) -> dict:
+    def _plan(self, t0: float, t1: float, absorb: bool = False) -> dict:
         """Steps from ``t0`` to ``t1``: grid cells first..last, ends, and the steps that touch breakpoints.
 
         Returns a dict: ``first``, ``last`` (cell indices), ``start``, ``end``
@@ -428,7 +451,8 @@ class Stepper:
         snap to the grid, else themselves), ``lead``/``trail`` (whether the
         first/last step is partial), ``t0``/``t1`` as given, and
         ``special = {cell: [lo, hi, cuts]}`` for steps whose torque samples are
-        clamped to ``[lo, hi]`` or that are split at ``cuts``.
+        clamped to ``[lo, hi]`` or that are split at ``cuts``; ``absorbed``: the
+        cells (sorted int64) :func:`~belt_drive_ros.core.absorb.absorbed_steps` found (``absorb``: look for them).
         """
         k0, k1 = self._snap(t0), self._snap(t1)
         start = self.grid_time(k0) if k0 is not None else t0
@@ -438,14 +462,25 @@ class Stepper:
         empty = last < first  # t0 and t1 on the same grid time (or within its tolerance)
         special: dict = {}
 
-        def entry(c):
-            return special.setdefault(c, [-math.inf, math.inf, []])
 
         bps = self.breakpoints
         tol0, tol1 = snap_tolerance(start, self.dt), snap_tolerance(end, self.dt)
-        lo_i = bisect_left(bps, min(t0, start) - tol0)
-        hi_i = bisect_right(bps, max(t1, end) + tol1)
-        for b in bps[lo_i:hi_i] if not empty else ():
+        lo_i = _search(bps, min(t0, start) - tol0, False)
+        hi_i = _search(bps, max(t1, end) + tol1, True)
+        near = bps[lo_i:hi_i] if not empty else ()
+        absorbed = _NO_CELLS
+        if absorb and len(near) >= ABSORB_MIN:
+            from .absorb import absorbed_steps
+
+            absorbed, skip = absorbed_steps(self, np.asarray(near, dtype=np.float64), first, last, k0 is None, k1 is None)
+            if absorbed.size:
+                near = np.asarray(near, dtype=np.float64)[~skip]
+        taken = set(absorbed.tolist())  # an absorbed step's clamps are accounted for: no special entry
+
+        def entry(c):
+            return special.setdefault(c, [-math.inf, math.inf, []]) if c not in taken else [-math.inf, math.inf, []]
+
+        for b in near.tolist() if isinstance(near, np.ndarray) else near:
             if abs(b - start) <= max(tol0, snap_tolerance(b, self.dt)) or abs(b - t0) <= tol0:
                 e = entry(first)
                 e[0] = max(e[0], b)
@@ -469,7 +504,7 @@ class Stepper:
         self.split_steps = {c: list(e[2]) for c, e in special.items() if e[2]}
         return dict(
             t0=t0, t1=t1, start=start, end=end, first=first, last=last, empty=empty,
-            lead=k0 is None, trail=k1 is None, special=special,
+            lead=k0 is None, trail=k1 is None, special=special, absorbed=absorbed,
         )  # fmt: skip
 
     def _step_ends(self, plan: dict, c: int) -> tuple[float, float, bool]:
@@ -570,6 +605,11 @@ class Stepper:
         chunk = CHUNK if not progress else min(CHUNK, max(64, n_cells // 100))
         stops = sorted(special)
         si = 0
+        runs = plan.get("absorbed", _NO_CELLS)  # absorbed cells as runs [run_from, run_to) of the absorbed loop (absorb.py)
+        cut = np.flatnonzero(np.diff(runs) != 1) + 1
+        run_from = runs[np.r_[0, cut]].tolist() if runs.size else []
+        run_to = (runs[np.r_[cut - 1, runs.size - 1]] + 1).tolist() if runs.size else []
+        ri = 0
         c = first
         with np.errstate(all="ignore"):
             while c <= last:
@@ -589,8 +629,16 @@ class Stepper:
                 # a run of plain whole steps: up to the next special cell, the last whole cell, or a chunk
                 while si < len(stops) and stops[si] < c:
                     si += 1
+                while ri < len(run_to) and run_to[ri] <= c:
+                    ri += 1
                 stop = min(c + chunk, stops[si] if si < len(stops) else last + 1, last + 1 if not plan["trail"] else last)
-                x = self._whole_steps(x, c, stop, states[c - first + 1 : stop - first + 1] if record else None)
+                loop = None
+                if ri < len(run_from):
+                    if run_from[ri] <= c:  # absorbed steps (no special cell inside a run)
+                        stop, loop = min(c + chunk, run_to[ri]), self._end
+                    else:
+                        stop = min(stop, run_from[ri])
+                x = self._whole_steps(x, c, stop, states[c - first + 1 : stop - first + 1] if record else None, loop=loop)
                 if self._stop_at is not None:  # the guard fired at the end of cell c + _stop_at
                     j = c + self._stop_at
                     self._stop_at = None
@@ -604,17 +652,19 @@ class Stepper:
                     progress((c - first) / n_cells)
         return states if record else x
 
-    def _whole_steps(self, x: np.ndarray, c: int, stop: int, out, times=None) -> np.ndarray:
+    def _whole_steps(self, x: np.ndarray, c: int, stop: int, out, times=None, loop=None) -> np.ndarray:
         """Whole steps of cells ``c`` .. ``stop - 1`` (no breakpoint touches them); write into ``out``.
 
         ``times``: their grid times ``self._grid(c, stop + 1)`` if the caller has them.
+        ``loop``: the kernel loop to step with (default the stepper's; absorbed steps: :func:`~belt_drive_ros.core.absorb.end_loop`).
         One kernel call; after a diverged state the rest of ``out`` is NaN.
         """
         times = self._grid(c, stop + 1) if times is None else times
         size = x.size
-        if self.loop is not None:
+        loop = self.loop if loop is None else loop
+        if loop is not None:
             buffer = out if out is not None else np.empty((stop - c, size))
-            done, status, t = self.loop(times, np.ascontiguousarray(x, dtype=np.float64), buffer, -math.inf, math.inf,
+            done, status, t = loop(times, np.ascontiguousarray(x, dtype=np.float64), buffer, -math.inf, math.inf,
                                         SPEED_LIMIT)
             if status == NOT_CONVERGED:
                 self._not_converged(t)

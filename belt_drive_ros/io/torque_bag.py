@@ -102,6 +102,10 @@ class RecordedTorque(Table):
         # one nanosecond before t's nanosecond: the hold above rounds t to whole ns
         return (round(t * 1e9) - 1) / 1e9
 
+    def left_of_array(self, t: np.ndarray) -> np.ndarray:
+        """:meth:`left_of` of each time of ``t`` [s] (the same floats: rint rounds half to even as round)."""
+        return (np.rint(np.asarray(t, dtype=np.float64) * 1e9) - 1.0) / 1e9
+
     def to_dict(self) -> Dict[str, Any]:
         return {
             "type": "table",
