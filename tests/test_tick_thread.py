@@ -45,9 +45,18 @@ def test_a_late_wake_publishes_every_missed_tick(ros_domain_id):
         h._spin_until(lambda: len(h._rows) and h._rows[-1][0] >= held_from + 60 * TICK_NS, "60 ticks after the stall")
         s = stamps(h)
         window = s[(s >= held_from - 5 * TICK_NS) & (s <= held_from + 60 * TICK_NS)]
-        assert window.size == 66
-        assert np.all(np.diff(window) == TICK_NS)
         assert np.all((s - node.origin_ns) % TICK_NS == 0)
+        if window.size != 66:
+            # A machine loaded far past its cores can keep the thread from the lock for longer than
+            # the catch-up limit (seen at load 10 on 2 cores): then, and only then, it integrates to
+            # the latest tick in one go and reports the gap, which must cover every tick missing.
+            gap = node.timing.gaps.last
+            assert gap is not None and gap.end_ns - gap.start_ns > MAX_THREAD_CATCH_UP_NS, window.size
+            grid = np.arange(held_from - 5 * TICK_NS, held_from + 61 * TICK_NS, TICK_NS)
+            missing = np.setdiff1d(grid, window)
+            assert 0 < missing.size <= gap.missed and np.all((missing > gap.start_ns) & (missing < gap.end_ns))
+            window = window[window >= gap.end_ns]
+        assert np.all(np.diff(window) == TICK_NS)
 
 
 def test_a_stall_beyond_the_catch_up_limit_integrates_in_one_go(ros_domain_id):
