@@ -205,14 +205,24 @@ def _friction_force(e, omega):
 
 
 @njit(**_INLINE)
-def _stage_inputs(buf, base, coords, time, lo, hi, uses_angle,
+def _wheel(M, i, v, offset, cols):
+    """The four wheel coordinates ``M[i, :4] @ v[offset : offset + cols]`` as scalars (each summed from the left)."""
+    return _dot(M, i, 0, cols, v, offset), _dot(M, i, 1, cols, v, offset), _dot(M, i, 2, cols, v, offset), _dot(M, i, 3, cols, v, offset)
+
+
+@njit(**_INLINE)
+def _stage_inputs(buf, base, c0, c1, c2, c3, time, lo, hi, ua, ub,
                   dk, dp, dx, dy, lk, lp, lx, ly, extra):  # fmt: skip
-    """Write the stage torques ``u = [drive, load, extras...]`` at ``time`` clamped to [lo, hi] into ``buf[base:]``."""
+    """Write the stage torques ``u = [drive, load, extras...]`` at ``time`` clamped to [lo, hi] into ``buf[base:]``.
+
+    ``c0 .. c3``: the stage's wheel coordinates ``[phi_M, omega_M, phi_3, omega_3]``;
+    ``ua``, ``ub``: whether the drive, the load read their angle (else 0.0 is passed).
+    """
     tc = lo if time < lo else hi if time > hi else time
-    buf[base] = profile_torque(dk, dp, dx, dy, tc, coords[0] if uses_angle[0] else 0.0, coords[1])
-    buf[base + 1] = profile_torque(lk, lp, lx, ly, tc, coords[2] if uses_angle[1] else 0.0, coords[3])
+    buf[base] = profile_torque(dk, dp, dx, dy, tc, c0 if ua else 0.0, c1)
+    buf[base + 1] = profile_torque(lk, lp, lx, ly, tc, c2 if ub else 0.0, c3)
     for e in range(extra.shape[0]):
-        buf[base + 2 + e] = _friction_force(extra[e], coords[1])
+        buf[base + 2 + e] = _friction_force(extra[e], c1)
 
 
 #: ``ints`` header of :func:`linear_steps`: n, s, E (extra inputs), rows, cols, final_base, max_iter,
@@ -232,24 +242,30 @@ def linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp):
     arguments, not twenty-five (a node tick's single step is mostly the
     call). ``dp``, ``lp``: the drive's and load's profile parameters, passed
     as themselves (a held torque writes its value into them in place).
-    Unpacked into views, then :func:`_linear_steps` (same operations).
+    Unpacked into views, then :func:`_one_stage4` (a one-stage explicit
+    method on a 4-state plant: ``exact``, the flexible model) or
+    :func:`_linear_steps` (every other case); both do the same operations.
     """
     n, s, E, rows, cols = ints[0], ints[1], ints[2], ints[3], ints[4]
     at = ints[HEADER : HEADER + len(SECTIONS) + 1]
     k0 = HEADER + len(SECTIONS) + 1
     nd = dp.shape[0]
     kinds, dk, lk = ints[k0 : k0 + s], ints[k0 + s : k0 + s + nd], ints[k0 + s + nd :]
+    W, F = reals[at[0] : at[1]].reshape((1, 4, n)), reals[at[3] : at[4]].reshape((1, n, cols))
+    dx, dy, lx, ly = reals[at[7] : at[8]], reals[at[8] : at[9]], reals[at[9] : at[10]], reals[at[10] : at[11]]
+    extra, guard, offsets = reals[at[5] : at[6]].reshape((E, 5)), reals[at[6] : at[7]], reals[at[1] : at[2]]
+    ua, ub = ints[7] != 0, ints[8] != 0
+    if n == 4 and s == 1 and kinds[0] == 0 and ints[5] < 0 and ints[6] == 0 and E <= 1:
+        return _one_stage4(times, x, out, lo, hi, limit, W, offsets[0], F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)
     return _linear_steps(
-        times, x, out, lo, hi, limit, reals[at[0] : at[1]].reshape((1, 4, n)), kinds, reals[at[1] : at[2]],
-        reals[at[2] : at[3]].reshape((s, rows, cols)), reals[at[3] : at[4]].reshape((1, n, cols)), ints[5],
-        reals[at[4]], ints[6], ints[7:9], dk, dp, reals[at[7] : at[8]], reals[at[8] : at[9]], lk, lp,
-        reals[at[9] : at[10]], reals[at[10] : at[11]], reals[at[5] : at[6]].reshape((E, 5)), reals[at[6] : at[7]],
+        times, x, out, lo, hi, limit, W, kinds, offsets, reals[at[2] : at[3]].reshape((s, rows, cols)), F, ints[5],
+        reals[at[4]], ints[6], ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard,
     )  # fmt: skip
 
 
 @njit(**_INLINE)
 def _linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
-                  uses_angle, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):  # fmt: skip
+                  ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):  # fmt: skip
     """The loop of :func:`linear_steps` on its unpacked arrays.
 
     Parameters (all arrays float64/int64, C order)
@@ -264,7 +280,7 @@ def _linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_b
     S : (s, max(4, n), n + m s) the stage maps, zero-padded; F : (1, n, n + m s) the final map.
     final_base : -1 (``x+ = F @ [x, U...]``) or the stage j whose state starts the final map.
     tol, max_iter : the implicit last stage's fixed point (max_iter 0: explicit method).
-    uses_angle : (2,) int: whether drive/load read their angle (else 0.0 is passed).
+    ua, ub : whether drive/load read their angle (else 0.0 is passed).
     dk, dp, dx, dy / lk, lp, lx, ly : drive and load profile data.
     extra : (E, 5) speed-dependent extra inputs (:func:`_friction_force`), E = 0 or 1.
     guard : (5 + 2n,) ``[active, absolute, bound, quad, has_speed, row..., speed...]``:
@@ -285,12 +301,11 @@ def _linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_b
     m = 2 + extra.shape[0]
     half = n // 2
     cols = n + m * s
-    work = np.zeros(cols + 2 * n + 4 + s * n)  # one allocation, cut into:
+    work = np.zeros(cols + 2 * n + s * n)  # one allocation, cut into:
     v = work[:cols]  # [x (or the base stage's state), U_0, ..., U_{s-1}]
     xs = work[cols : cols + n]
     state = work[cols + n : cols + 2 * n]
-    coords = work[cols + 2 * n : cols + 2 * n + 4]
-    full = work[cols + 2 * n + 4 :]  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
+    full = work[cols + 2 * n :]  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
     for r in range(n):
         xs[r] = x[r]
     n_explicit = s - 1 if max_iter > 0 else s
@@ -303,17 +318,14 @@ def _linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_b
             time = t if offsets[i] == 0.0 else t + offsets[i]
             width = n + m * i
             if kinds[i] == 0:
-                for q in range(4):
-                    coords[q] = _dot(W, 0, q, n, v, 0)
+                c0, c1, c2, c3 = _wheel(W, 0, v, 0, n)
             elif kinds[i] == 1:
-                for q in range(4):
-                    coords[q] = _dot(S, i, q, width, v, 0)
+                c0, c1, c2, c3 = _wheel(S, i, v, 0, width)
             else:
                 for r in range(n):
                     full[i * n + r] = _dot(S, i, r, width, v, 0)
-                for q in range(4):
-                    coords[q] = _dot(W, 0, q, n, full, i * n)
-            _stage_inputs(v, width, coords, time, lo, hi, uses_angle, dk, dp, dx, dy, lk, lp, lx, ly, extra)
+                c0, c1, c2, c3 = _wheel(W, 0, full, i * n, n)
+            _stage_inputs(v, width, c0, c1, c2, c3, time, lo, hi, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra)
         if final_base >= 0:
             for r in range(n):
                 v[r] = full[final_base * n + r]
@@ -333,9 +345,8 @@ def _linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_b
                     for j in range(known, cols):
                         total = total + F[0, r, j] * v[j]
                     state[r] = total
-                for q in range(4):
-                    coords[q] = _dot(W, 0, q, n, state, 0)
-                _stage_inputs(v, known, coords, time, lo, hi, uses_angle, dk, dp, dx, dy, lk, lp, lx, ly, extra)
+                c0, c1, c2, c3 = _wheel(W, 0, state, 0, n)
+                _stage_inputs(v, known, c0, c1, c2, c3, time, lo, hi, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra)
                 if abs(v[known] - g0) <= tol * (1.0 + abs(v[known])) and abs(v[known + 1] - g1) <= tol * (1.0 + abs(v[known + 1])):
                     converged = True
                     break
@@ -373,3 +384,60 @@ def _linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_b
                 return k + 1, GUARDED, t
     return steps, OK, times[steps] if steps >= 0 else 0.0
 
+
+
+@njit(**_INLINE)
+def _row4(M, r, x0, x1, x2, x3):
+    """``sum_j M[0, r, j] x_j`` over the four state columns, summed from the left from 0.0 (as :func:`_dot`)."""
+    return 0.0 + M[0, r, 0] * x0 + M[0, r, 1] * x1 + M[0, r, 2] * x2 + M[0, r, 3] * x3
+
+
+@njit(**_INLINE)
+def _final4(F, r, x0, x1, x2, x3, u0, u1, e0, E):
+    """Row ``r`` of ``F @ [x, u0, u1 (, e0)]``, summed from the left (as :func:`_dot` over the columns)."""
+    y = _row4(F, r, x0, x1, x2, x3) + F[0, r, 4] * u0 + F[0, r, 5] * u1
+    return y + F[0, r, 6] * e0 if E else y
+
+
+@njit(**_INLINE)
+def _one_stage4(times, x, out, lo, hi, limit, W, offset, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):
+    """:func:`_linear_steps` for a one-stage explicit method (``exact``, ``euler``) on a 4-state plant.
+
+    The same operations in the same order (``x+ = F @ [x, U_0]``, the wheel
+    map and every sum from the left from 0.0, the same checks), with the
+    state, the wheel coordinates and the torques held in scalars instead of
+    a work array: no store and reload on the step's critical path (x ->
+    omega_M -> torque -> x+), the cost of the generic loop's memory traffic.
+    """
+    x0, x1, x2, x3 = x[0], x[1], x[2], x[3]
+    E = extra.shape[0]
+    guarded = guard[0] != 0.0
+    steps = times.size - 1
+    for k in range(steps):
+        t = times[k]
+        time = t if offset == 0.0 else t + offset
+        tc = lo if time < lo else hi if time > hi else time
+        c1 = _row4(W, 1, x0, x1, x2, x3)
+        c3 = _row4(W, 3, x0, x1, x2, x3)
+        u0 = profile_torque(dk, dp, dx, dy, tc, _row4(W, 0, x0, x1, x2, x3) if ua else 0.0, c1)
+        u1 = profile_torque(lk, lp, lx, ly, tc, _row4(W, 2, x0, x1, x2, x3) if ub else 0.0, c3)
+        e0 = _friction_force(extra[0], c1) if E else 0.0
+        y0 = _final4(F, 0, x0, x1, x2, x3, u0, u1, e0, E)
+        y1 = _final4(F, 1, x0, x1, x2, x3, u0, u1, e0, E)
+        y2 = _final4(F, 2, x0, x1, x2, x3, u0, u1, e0, E)
+        y3 = _final4(F, 3, x0, x1, x2, x3, u0, u1, e0, E)
+        x0, x1, x2, x3 = y0, y1, y2, y3
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = y0, y1, y2, y3
+        if x0 - x0 != 0.0 or x1 - x1 != 0.0 or not abs(x2) <= limit or not abs(x3) <= limit:
+            return k + 1, DIVERGED, t
+        if guarded:
+            g = 0.0 + guard[5] * x0 + guard[6] * x1 + guard[7] * x2 + guard[8] * x3
+            if guard[1] != 0.0:
+                g = abs(g)
+            bound = guard[2]
+            if guard[4] != 0.0 and guard[3] != 0.0:
+                w = 0.0 + guard[9] * x0 + guard[10] * x1 + guard[11] * x2 + guard[12] * x3
+                bound = bound - guard[3] * w * w
+            if g > bound:
+                return k + 1, GUARDED, t
+    return steps, OK, times[steps] if steps >= 0 else 0.0
