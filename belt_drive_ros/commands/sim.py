@@ -121,7 +121,7 @@ def run(args) -> int:
     from ..io.progress import ProgressBar
     from ..core.scene import load_scene
 
-    from ..io.torque_bag import is_recording
+    from ..io import is_recording  # a path check: mcap and msg_tools load only for a recording
 
     args.writer_options = {}
     from ..io.network_bag import is_network_recording

@@ -51,7 +51,6 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-import scipy.optimize
 
 from .errors import BeltDriveError
 from .integrators import make_integrator
@@ -518,6 +517,8 @@ class HybridStepper:
         if bracket is None:
             return None
         self.n_located += 1
+        import scipy.optimize  # here, at the first event located: a run without one never loads it
+
         return scipy.optimize.brentq(G, bracket[0], bracket[2], xtol=1e-15, rtol=_EPS4, maxiter=200)
 
     @staticmethod

@@ -52,6 +52,7 @@ from ..core.scene import Scene
 from .recording import APPLIED_TOPIC, RECORDED_DRIVE, SCENE_METADATA, BagReadError, _sha256, bag_error
 from ..core.profile_data import TABLE_HELD_NS
 from ..core.sources import Table
+from . import is_recording  # noqa: F401 (defined without mcap, for the sim command's first look)
 
 __all__ = [
     "Resimulation",
@@ -394,14 +395,6 @@ def scene_from_bag(path, *, torque_bag=None):
 
 
 # ------------------------------------------------- re-simulation from the command line
-def is_recording(text) -> bool:
-    """True when ``text`` names a recording (an ``.mcap`` file in any case, or a bag folder), not a scene."""
-    path = os.fspath(text)
-    if path.lower().endswith(".mcap"):
-        return True
-    return os.path.isdir(path) and any(f.endswith(".mcap") or f == "metadata.yaml" for f in os.listdir(path))
-
-
 def torque_topic(bag) -> Tuple[str, str]:
     """The torque topic ``--torque-bag`` reads from ``bag``, and a line saying why.
 
