@@ -255,6 +255,9 @@ def linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp):
     dx, dy, lx, ly = reals[at[7] : at[8]], reals[at[8] : at[9]], reals[at[9] : at[10]], reals[at[10] : at[11]]
     extra, guard, offsets = reals[at[5] : at[6]].reshape((E, 5)), reals[at[6] : at[7]], reals[at[1] : at[2]]
     ua, ub = ints[7] != 0, ints[8] != 0
+    if n == 4 and s > 1 and ints[5] < 0 and ints[6] == 0 and E <= 1:
+        return _explicit4(times, x, out, lo, hi, limit, W, kinds, offsets, reals[at[2] : at[3]].reshape((s, rows, cols)), F,
+                          ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)  # fmt: skip
     if n == 4 and s == 1 and kinds[0] == 0 and ints[5] < 0 and ints[6] == 0 and E <= 1:
         return _one_stage4(times, x, out, lo, hi, limit, W, offsets[0], F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)
     return _linear_steps(
@@ -387,16 +390,41 @@ def _linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_b
 
 
 @njit(**_INLINE)
-def _row4(M, r, x0, x1, x2, x3):
-    """``sum_j M[0, r, j] x_j`` over the four state columns, summed from the left from 0.0 (as :func:`_dot`)."""
-    return 0.0 + M[0, r, 0] * x0 + M[0, r, 1] * x1 + M[0, r, 2] * x2 + M[0, r, 3] * x3
+def _row4(M, r, x0, x1, x2, x3, i=0):
+    """``sum_j M[i, r, j] x_j`` over the four state columns, summed from the left from 0.0 (as :func:`_dot`)."""
+    return 0.0 + M[i, r, 0] * x0 + M[i, r, 1] * x1 + M[i, r, 2] * x2 + M[i, r, 3] * x3
 
 
 @njit(**_INLINE)
-def _final4(F, r, x0, x1, x2, x3, u0, u1, e0, E):
-    """Row ``r`` of ``F @ [x, u0, u1 (, e0)]``, summed from the left (as :func:`_dot` over the columns)."""
-    y = _row4(F, r, x0, x1, x2, x3) + F[0, r, 4] * u0 + F[0, r, 5] * u1
-    return y + F[0, r, 6] * e0 if E else y
+def _stage_row4(M, i, r, x0, x1, x2, x3, U, count):
+    """``M[i, r] @ [x, U[:count]]``: the four state columns, then the earlier stages' torques, from the left."""
+    total = _row4(M, r, x0, x1, x2, x3, i)
+    for j in range(count):
+        total = total + M[i, r, 4 + j] * U[j]
+    return total
+
+
+@njit(**_INLINE)
+def _final4(F, r, x0, x1, x2, x3, u0, u1, e0, E, U, last):
+    """Row ``r`` of ``F @ [x, U[:last], u0, u1 (, e0)]`` (the last stage's torques as scalars), summed from the left."""
+    y = _row4(F, r, x0, x1, x2, x3)
+    for j in range(last):
+        y = y + F[0, r, 4 + j] * U[j]
+    y = y + F[0, r, 4 + last] * u0 + F[0, r, 5 + last] * u1
+    return y + F[0, r, 6 + last] * e0 if E else y
+
+
+@njit(**_INLINE)
+def _guard4(guard, x0, x1, x2, x3):
+    """Whether state ``x`` is past the guard (the general loop's test on four scalars)."""
+    g = 0.0 + guard[5] * x0 + guard[6] * x1 + guard[7] * x2 + guard[8] * x3
+    if guard[1] != 0.0:
+        g = abs(g)
+    bound = guard[2]
+    if guard[4] != 0.0 and guard[3] != 0.0:
+        w = 0.0 + guard[9] * x0 + guard[10] * x1 + guard[11] * x2 + guard[12] * x3
+        bound = bound - guard[3] * w * w
+    return g > bound
 
 
 @njit(**_INLINE)
@@ -422,22 +450,62 @@ def _one_stage4(times, x, out, lo, hi, limit, W, offset, F, ua, ub, dk, dp, dx, 
         u0 = profile_torque(dk, dp, dx, dy, tc, _row4(W, 0, x0, x1, x2, x3) if ua else 0.0, c1)
         u1 = profile_torque(lk, lp, lx, ly, tc, _row4(W, 2, x0, x1, x2, x3) if ub else 0.0, c3)
         e0 = _friction_force(extra[0], c1) if E else 0.0
-        y0 = _final4(F, 0, x0, x1, x2, x3, u0, u1, e0, E)
-        y1 = _final4(F, 1, x0, x1, x2, x3, u0, u1, e0, E)
-        y2 = _final4(F, 2, x0, x1, x2, x3, u0, u1, e0, E)
-        y3 = _final4(F, 3, x0, x1, x2, x3, u0, u1, e0, E)
+        y0 = _final4(F, 0, x0, x1, x2, x3, u0, u1, e0, E, guard, 0)
+        y1 = _final4(F, 1, x0, x1, x2, x3, u0, u1, e0, E, guard, 0)
+        y2 = _final4(F, 2, x0, x1, x2, x3, u0, u1, e0, E, guard, 0)
+        y3 = _final4(F, 3, x0, x1, x2, x3, u0, u1, e0, E, guard, 0)
         x0, x1, x2, x3 = y0, y1, y2, y3
         out[k, 0], out[k, 1], out[k, 2], out[k, 3] = y0, y1, y2, y3
         if x0 - x0 != 0.0 or x1 - x1 != 0.0 or not abs(x2) <= limit or not abs(x3) <= limit:
             return k + 1, DIVERGED, t
-        if guarded:
-            g = 0.0 + guard[5] * x0 + guard[6] * x1 + guard[7] * x2 + guard[8] * x3
-            if guard[1] != 0.0:
-                g = abs(g)
-            bound = guard[2]
-            if guard[4] != 0.0 and guard[3] != 0.0:
-                w = 0.0 + guard[9] * x0 + guard[10] * x1 + guard[11] * x2 + guard[12] * x3
-                bound = bound - guard[3] * w * w
-            if g > bound:
-                return k + 1, GUARDED, t
+        if guarded and _guard4(guard, x0, x1, x2, x3):
+            return k + 1, GUARDED, t
+    return steps, OK, times[steps] if steps >= 0 else 0.0
+
+
+@njit(**_INLINE)
+def _explicit4(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):
+    """:func:`_linear_steps` for an explicit multi-stage method on a 4-state plant (every stage map ``W @`` its state).
+
+    The same operations in the same order; the state, each stage's wheel
+    coordinates and its torques are scalars, the earlier stages' torques a
+    small array ``U`` (``[U_0, ..., U_{s-2}]``, m each).
+    """
+    x0, x1, x2, x3 = x[0], x[1], x[2], x[3]
+    s = kinds.size
+    E = extra.shape[0]
+    m = 2 + E
+    U = np.zeros(m * s)
+    last = m * (s - 1)
+    guarded = guard[0] != 0.0
+    steps = times.size - 1
+    for k in range(steps):
+        t = times[k]
+        u0 = u1 = e0 = 0.0
+        for i in range(s):
+            time = t if offsets[i] == 0.0 else t + offsets[i]
+            tc = lo if time < lo else hi if time > hi else time
+            if kinds[i] == 0:
+                c0, c1 = _row4(W, 0, x0, x1, x2, x3), _row4(W, 1, x0, x1, x2, x3)
+                c2, c3 = _row4(W, 2, x0, x1, x2, x3), _row4(W, 3, x0, x1, x2, x3)
+            else:
+                c0, c1 = _stage_row4(S, i, 0, x0, x1, x2, x3, U, m * i), _stage_row4(S, i, 1, x0, x1, x2, x3, U, m * i)
+                c2, c3 = _stage_row4(S, i, 2, x0, x1, x2, x3, U, m * i), _stage_row4(S, i, 3, x0, x1, x2, x3, U, m * i)
+            u0 = profile_torque(dk, dp, dx, dy, tc, c0 if ua else 0.0, c1)
+            u1 = profile_torque(lk, lp, lx, ly, tc, c2 if ub else 0.0, c3)
+            e0 = _friction_force(extra[0], c1) if E else 0.0
+            if i < s - 1:
+                U[m * i], U[m * i + 1] = u0, u1
+                if E:
+                    U[m * i + 2] = e0
+        y0 = _final4(F, 0, x0, x1, x2, x3, u0, u1, e0, E, U, last)
+        y1 = _final4(F, 1, x0, x1, x2, x3, u0, u1, e0, E, U, last)
+        y2 = _final4(F, 2, x0, x1, x2, x3, u0, u1, e0, E, U, last)
+        y3 = _final4(F, 3, x0, x1, x2, x3, u0, u1, e0, E, U, last)
+        x0, x1, x2, x3 = y0, y1, y2, y3
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = y0, y1, y2, y3
+        if x0 - x0 != 0.0 or x1 - x1 != 0.0 or not abs(x2) <= limit or not abs(x3) <= limit:
+            return k + 1, DIVERGED, t
+        if guarded and _guard4(guard, x0, x1, x2, x3):
+            return k + 1, GUARDED, t
     return steps, OK, times[steps] if steps >= 0 else 0.0
