@@ -23,7 +23,7 @@ import pytest
 
 from belt_drive_ros.core import sources as S
 from belt_drive_ros.core.errors import IntegratorError, SimulationDivergedError
-from belt_drive_ros.core.integrators import FIXED_STEP_METHODS
+from belt_drive_ros.core.integrators import FIXED_STEP_METHODS, make_integrator
 from belt_drive_ros.core.kernel_loop import KernelLoop
 from belt_drive_ros.core.model import make_model
 from belt_drive_ros.core.scene import load_scene
@@ -210,3 +210,58 @@ def test_the_kernel_interpreted_gives_the_same_floats(tmp_path):
         states[jit] = np.load(path)
     assert states["0"].shape == states["1"].shape and len(states["0"]) > 10
     assert np.array_equal(states["0"], states["1"])
+
+
+def _general_loop(loop, times, x, out):
+    """The kernel's general loop (``kernel._linear_steps``, interpreted) on a :class:`KernelLoop`'s arrays."""
+    from belt_drive_ros.core import kernel
+
+    ints, reals = loop.ints, loop.reals
+    n, s, E, rows, cols = (int(v) for v in ints[:5])
+    at = ints[kernel.HEADER : kernel.HEADER + len(kernel.SECTIONS) + 1]
+    k0 = kernel.HEADER + len(kernel.SECTIONS) + 1
+    nd = loop._dp.shape[0]
+    part = dict(zip(kernel.SECTIONS, (reals[a:b] for a, b in zip(at[:-1], at[1:]))))
+    return kernel._linear_steps.py_func(
+        times, x, out, -math.inf, math.inf, 1.0e5, part["W"].reshape((1, 4, n)), ints[k0 : k0 + s], part["offsets"],
+        part["S"].reshape((s, rows, cols)), part["F"].reshape((1, n, cols)), int(ints[5]), float(part["tol"][0]),
+        int(ints[6]), bool(ints[7]), bool(ints[8]), ints[k0 + s : k0 + s + nd], loop._dp, part["dx"], part["dy"],
+        ints[k0 + s + nd :], loop._lp, part["lx"], part["ly"], part["extra"].reshape((E, 5)), part["guard"],
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("method", [m for m in FIXED_STEP_METHODS if m != "trapezoidal"])
+@pytest.mark.parametrize("case", ["paper", "truck_compressor", "friction+guard"])
+def test_the_four_state_loops_equal_the_general_loop_bit_for_bit(method, case):
+    """A 4-state plant with an explicit method steps with its state in scalars (``_one_stage4``, ``_explicit4``):
+    the same sums in the same order as the general loop, so the same floats, to the last bit; the guard stops
+    at the same step. ``friction+guard``: the slipping belt's extra input (drive-speed dependent) and a guard."""
+    from belt_drive_ros.core.kernel_loop import FrictionForce
+    from belt_drive_ros.core.stage_scheme import Guard
+
+    scene = load_scene("paper" if case != "truck_compressor" else "truck_compressor")
+    sim = Simulator(make_model("flexible", scene.params), scene.drive, scene.load, method, scene.dt, check_stability=False)
+    plant, extra, guard, scheme = sim.plant, (), None, sim.integrator.scheme
+    if case == "friction+guard":  # a third input column: a force on the drive wheel, as the slipping belt's
+        extra = (FrictionForce(0.7, scene.params),)
+        model = sim.plant.model
+        B = np.hstack([model.B, 1e-3 * model.B[:, :1]])
+        scheme = make_integrator(method, model.A, B, scene.dt).scheme
+    steps = 300
+    times = scene.dt * np.arange(steps + 1, dtype=float)
+    x0 = np.ascontiguousarray(scene.initial_state.vector("flexible", scene.params.ratio), dtype=float)
+    x0[2] += 1.0  # moving from the first step
+    if case == "friction+guard":  # a bound the run's |delta| + 1e-4 omega_M^2 first passes in its second half
+        free = np.zeros((steps, 4))
+        KernelLoop(scheme, scene.dt, plant.wheel_map, plant.uses_angle, *plant.data, extra)(times, x0.copy(), free)
+        g = np.abs(free[:, 1]) + 1e-4 * free[:, 2] ** 2
+        guard = Guard(row=(0.0, 1.0, 0.0, 0.0), bound=float(np.max(g[: steps // 2])), absolute=True, speed=(0.0, 0.0, 1.0, 0.0), quad=1e-4)
+    loop = KernelLoop(scheme, scene.dt, plant.wheel_map, plant.uses_angle, *plant.data, extra, guard)
+    fast, slow = np.zeros((steps, 4)), np.zeros((steps, 4))
+    done_fast = loop(times, x0.copy(), fast)
+    done_slow = _general_loop(loop, times, x0.copy(), slow)
+    assert done_fast == done_slow
+    assert done_fast[0] > 10
+    if case == "friction+guard":
+        assert done_fast[1] == 2, "the guard stops this run (else the test would not cover it)"
+    assert np.array_equal(fast, slow)
