@@ -233,7 +233,7 @@ def _general_loop(loop, times, x, out):
 @pytest.mark.parametrize("method", [m for m in FIXED_STEP_METHODS if m != "trapezoidal"])
 @pytest.mark.parametrize("case", ["paper", "truck_compressor", "friction+guard"])
 def test_the_four_state_loops_equal_the_general_loop_bit_for_bit(method, case):
-    """A 4-state plant with an explicit method steps with its state in scalars (``_one_stage4``, ``_explicit4``):
+    """A 4-state plant with an explicit method steps with its state in scalars (``_explicit4``):
     the same sums in the same order as the general loop, so the same floats, to the last bit; the guard stops
     at the same step. ``friction+guard``: the slipping belt's extra input (drive-speed dependent) and a guard."""
     from belt_drive_ros.core.kernel_loop import FrictionForce
