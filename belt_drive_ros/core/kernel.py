@@ -255,11 +255,11 @@ def linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp):
     dx, dy, lx, ly = reals[at[7] : at[8]], reals[at[8] : at[9]], reals[at[9] : at[10]], reals[at[10] : at[11]]
     extra, guard, offsets = reals[at[5] : at[6]].reshape((E, 5)), reals[at[6] : at[7]], reals[at[1] : at[2]]
     ua, ub = ints[7] != 0, ints[8] != 0
-    if n == 4 and s > 1 and ints[5] < 0 and ints[6] == 0 and E <= 1:
+    if n == 4 and ints[6] == 0 and E <= 1:  # a 4-state plant, an explicit method
+        if s == 1 and kinds[0] == 0 and ints[5] < 0:
+            return _one_stage4(times, x, out, lo, hi, limit, W, offsets[0], F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)
         return _explicit4(times, x, out, lo, hi, limit, W, kinds, offsets, reals[at[2] : at[3]].reshape((s, rows, cols)), F,
                           ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)  # fmt: skip
-    if n == 4 and s == 1 and kinds[0] == 0 and ints[5] < 0 and ints[6] == 0 and E <= 1:
-        return _one_stage4(times, x, out, lo, hi, limit, W, offsets[0], F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)
     return _linear_steps(
         times, x, out, lo, hi, limit, W, kinds, offsets, reals[at[2] : at[3]].reshape((s, rows, cols)), F, ints[5],
         reals[at[4]], ints[6], ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard,
@@ -465,7 +465,7 @@ def _one_stage4(times, x, out, lo, hi, limit, W, offset, F, ua, ub, dk, dp, dx, 
 
 @njit(**_INLINE)
 def _explicit4(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):
-    """:func:`_linear_steps` for an explicit multi-stage method on a 4-state plant (every stage map ``W @`` its state).
+    """:func:`_linear_steps` for an explicit multi-stage method on a 4-state plant (stage kinds 0, 1, 2 as there).
 
     The same operations in the same order; the state, each stage's wheel
     coordinates and its torques are scalars, the earlier stages' torques a
@@ -482,15 +482,21 @@ def _explicit4(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk
     for k in range(steps):
         t = times[k]
         u0 = u1 = e0 = 0.0
+        b0, b1, b2, b3 = x0, x1, x2, x3  # the state the final map starts from: x, or the stage of kind 2
         for i in range(s):
             time = t if offsets[i] == 0.0 else t + offsets[i]
             tc = lo if time < lo else hi if time > hi else time
             if kinds[i] == 0:
                 c0, c1 = _row4(W, 0, x0, x1, x2, x3), _row4(W, 1, x0, x1, x2, x3)
                 c2, c3 = _row4(W, 2, x0, x1, x2, x3), _row4(W, 3, x0, x1, x2, x3)
-            else:
+            elif kinds[i] == 1:
                 c0, c1 = _stage_row4(S, i, 0, x0, x1, x2, x3, U, m * i), _stage_row4(S, i, 1, x0, x1, x2, x3, U, m * i)
                 c2, c3 = _stage_row4(S, i, 2, x0, x1, x2, x3, U, m * i), _stage_row4(S, i, 3, x0, x1, x2, x3, U, m * i)
+            else:  # the whole stage state (etd2's a), then its wheel coordinates
+                b0, b1 = _stage_row4(S, i, 0, x0, x1, x2, x3, U, m * i), _stage_row4(S, i, 1, x0, x1, x2, x3, U, m * i)
+                b2, b3 = _stage_row4(S, i, 2, x0, x1, x2, x3, U, m * i), _stage_row4(S, i, 3, x0, x1, x2, x3, U, m * i)
+                c0, c1 = _row4(W, 0, b0, b1, b2, b3), _row4(W, 1, b0, b1, b2, b3)
+                c2, c3 = _row4(W, 2, b0, b1, b2, b3), _row4(W, 3, b0, b1, b2, b3)
             u0 = profile_torque(dk, dp, dx, dy, tc, c0 if ua else 0.0, c1)
             u1 = profile_torque(lk, lp, lx, ly, tc, c2 if ub else 0.0, c3)
             e0 = _friction_force(extra[0], c1) if E else 0.0
@@ -498,10 +504,10 @@ def _explicit4(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk
                 U[m * i], U[m * i + 1] = u0, u1
                 if E:
                     U[m * i + 2] = e0
-        y0 = _final4(F, 0, x0, x1, x2, x3, u0, u1, e0, E, U, last)
-        y1 = _final4(F, 1, x0, x1, x2, x3, u0, u1, e0, E, U, last)
-        y2 = _final4(F, 2, x0, x1, x2, x3, u0, u1, e0, E, U, last)
-        y3 = _final4(F, 3, x0, x1, x2, x3, u0, u1, e0, E, U, last)
+        y0 = _final4(F, 0, b0, b1, b2, b3, u0, u1, e0, E, U, last)
+        y1 = _final4(F, 1, b0, b1, b2, b3, u0, u1, e0, E, U, last)
+        y2 = _final4(F, 2, b0, b1, b2, b3, u0, u1, e0, E, U, last)
+        y3 = _final4(F, 3, b0, b1, b2, b3, u0, u1, e0, E, U, last)
         x0, x1, x2, x3 = y0, y1, y2, y3
         out[k, 0], out[k, 1], out[k, 2], out[k, 3] = y0, y1, y2, y3
         if x0 - x0 != 0.0 or x1 - x1 != 0.0 or not abs(x2) <= limit or not abs(x3) <= limit:
