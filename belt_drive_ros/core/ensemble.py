@@ -20,7 +20,7 @@ no Python per variant or per step, and no second implementation of a step.
   :class:`~belt_drive_ros.core.kernel_loop.KernelLoop` packs them into one
   row of numbers per variant, the row a single run of that variant packs.
 * The same loop: each variant's steps are
-  :func:`~belt_drive_ros.core.kernel._linear_steps` on its row.
+  :func:`~belt_drive_ros.core.kernel._steps` on its row.
 
 So ensemble and single runs agree bit for bit (tests/test_ensemble.py
 asserts <= 1e-12 relative on every shipped scene, every explicit method,

@@ -242,24 +242,32 @@ def linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp):
     arguments, not twenty-five (a node tick's single step is mostly the
     call). ``dp``, ``lp``: the drive's and load's profile parameters, passed
     as themselves (a held torque writes its value into them in place).
-    Unpacked into views, then :func:`_one_stage4` (a one-stage explicit
-    method on a 4-state plant: ``exact``, the flexible model) or
-    :func:`_linear_steps` (every other case); both do the same operations.
+    Unpacked into views, then :func:`_steps` (the loop for the case).
     """
     n, s, E, rows, cols = ints[0], ints[1], ints[2], ints[3], ints[4]
     at = ints[HEADER : HEADER + len(SECTIONS) + 1]
     k0 = HEADER + len(SECTIONS) + 1
     nd = dp.shape[0]
     kinds, dk, lk = ints[k0 : k0 + s], ints[k0 + s : k0 + s + nd], ints[k0 + s + nd :]
-    W, F = reals[at[0] : at[1]].reshape((1, 4, n)), reals[at[3] : at[4]].reshape((1, n, cols))
-    dx, dy, lx, ly = reals[at[7] : at[8]], reals[at[8] : at[9]], reals[at[9] : at[10]], reals[at[10] : at[11]]
-    extra, guard, offsets = reals[at[5] : at[6]].reshape((E, 5)), reals[at[6] : at[7]], reals[at[1] : at[2]]
-    ua, ub = ints[7] != 0, ints[8] != 0
-    if n == 4 and ints[6] == 0 and E <= 1:  # a 4-state plant, an explicit method
-        if s == 1 and kinds[0] == 0 and ints[5] < 0:
+    return _steps(
+        times, x, out, lo, hi, limit, reals[at[0] : at[1]].reshape((1, 4, n)), kinds, reals[at[1] : at[2]],
+        reals[at[2] : at[3]].reshape((s, rows, cols)), reals[at[3] : at[4]].reshape((1, n, cols)), ints[5], reals[at[4]],
+        ints[6], ints[7] != 0, ints[8] != 0, dk, dp, reals[at[7] : at[8]], reals[at[8] : at[9]], lk, lp,
+        reals[at[9] : at[10]], reals[at[10] : at[11]], reals[at[5] : at[6]].reshape((E, 5)), reals[at[6] : at[7]],
+    )  # fmt: skip
+
+
+@njit(**_INLINE)
+def _steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
+           ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):  # fmt: skip
+    """The loop for these unpacked arrays (the arguments of :func:`_linear_steps`): :func:`_one_stage4` or
+    :func:`_explicit4` for an explicit method on a 4-state plant, else :func:`_linear_steps`; the same floats."""
+    if x.size == 4 and max_iter == 0 and extra.shape[0] <= 1:
+        if kinds.size == 1 and kinds[0] == 0 and final_base < 0:
             return _one_stage4(times, x, out, lo, hi, limit, W, offsets[0], F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)
-        return _explicit4(times, x, out, lo, hi, limit, W, kinds, offsets, reals[at[2] : at[3]].reshape((s, rows, cols)), F,
-                          ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)  # fmt: skip
+        return _explicit4(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)
+    return _linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
+                         ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)  # fmt: skip
     return _linear_steps(
         times, x, out, lo, hi, limit, W, kinds, offsets, reals[at[2] : at[3]].reshape((s, rows, cols)), F, ints[5],
         reals[at[4]], ints[6], ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard,

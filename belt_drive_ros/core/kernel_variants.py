@@ -1,4 +1,4 @@
-"""The compiled loop over a variant axis: :func:`~belt_drive_ros.core.kernel._linear_steps` once per variant.
+"""The compiled loop over a variant axis: :func:`~belt_drive_ros.core.kernel._steps` once per variant.
 
 An ensemble (:mod:`~belt_drive_ros.core.ensemble`) steps V variants of one
 plant that share the torque profiles, the method and the step but not
@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 from numba.core.errors import NumbaPerformanceWarning
 
-from .kernel import HEADER, SECTIONS, _linear_steps
+from .kernel import HEADER, SECTIONS, _steps
 from .profile_data import OK
 
 
@@ -68,10 +68,10 @@ def variant_steps(times, states, j, lo, hi, limit, reals, tables, ints, dp, lp, 
             out[:] = np.nan
             continue
         r = reals[v]
-        done, st, _ = _linear_steps(
+        done, st, _ = _steps(
             times, states[v, j], out, lo, hi, limit, r[at[0] : at[1]].reshape((1, 4, n)), kinds, r[at[1] : at[2]],
             r[at[2] : at[3]].reshape((s, rows, cols)), r[at[3] : at[4]].reshape((1, n, cols)), ints[5], r[at[4]],
-            ints[6], ints[7:9], dk, dp, dx, dy, lk, lp, lx, ly, r[at[5] : at[6]].reshape((E, 5)), r[at[6] : at[7]],
+            ints[6], ints[7] != 0, ints[8] != 0, dk, dp, dx, dy, lk, lp, lx, ly, r[at[5] : at[6]].reshape((E, 5)), r[at[6] : at[7]],
         )  # fmt: skip
         if st != OK:
             status[v] = st
