@@ -36,7 +36,8 @@ from ..core.errors import SimulationDivergedError
 from ..core.model import OUTPUT_UNITS, FlexibleBeltModel
 from ..core.slip import SLIP_OUTPUT_UNITS
 from ..core.slip_run import SlippingSimulator
-from ..core.stepper import Plant, Stepper, snap_tolerance
+from ..core.kernel_loop import OK
+from ..core.stepper import SPEED_LIMIT, Plant, Stepper, snap_tolerance
 from .inputs import DriveInput
 from .parameter_schema import NodeSettings
 
@@ -100,6 +101,8 @@ class NodeSimulation:
         The slipping model: its engine (a stepper per phase, the same one the offline run uses).
         """
         drive = s.scene.drive if s.drive_source == "scene" else self.drive.applied
+        self._tick_kernel = None  # the common tick compiled whole (core.tick), where the model allows it
+        self._fresh_ns: int | None = None  # node time whose outputs the tick kernel holds (None: none)
         if s.model.name == "slipping":
             engine = SlippingSimulator(s.params, drive, s.scene.load, s.method, s.dt, s.method_options, check_stability=False)
             self._plant_breakpoints = list(engine.breakpoints)
@@ -107,6 +110,9 @@ class NodeSimulation:
         plant = Plant(s.model, drive, s.scene.load)
         stepper = Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
         self._plant_breakpoints = list(stepper.breakpoints)
+        from ..core.tick import TickKernel
+
+        self._tick_kernel = TickKernel.of(stepper)
         return stepper
 
     @property
@@ -126,11 +132,12 @@ class NodeSimulation:
         """
         old = self.settings
         self.settings = new
+        self._fresh_ns = None
         self.stepper = self._make_stepper(new)
         if new.scene.name != old.scene.name or "scene" in changed:
             self.restart("scene changed")
         elif new.model.name != old.model.name:
-            self.x = self._map_state(self.x, old.model, new.model, load_torque)
+            self.x = np.array(self._map_state(self.x, old.model, new.model, load_torque), dtype=np.float64)
             self._init_hybrid()
         else:
             self.stepper.reset()
@@ -204,6 +211,7 @@ class NodeSimulation:
         self.origin_ns = now_ns
         self.t_ns = now_ns
         self.x = s.scene.initial_state.vector(s.model.name, s.params.ratio)
+        self._fresh_ns = None
         self.stepper.reset()
         self._init_hybrid()
         self.slip_events = []
@@ -281,8 +289,31 @@ class NodeSimulation:
             return True
         if now_ns == self.t_ns:
             return False
-        t0, t1 = self.scene_time(self.t_ns), self.scene_time(now_ns)
-        value = self._sample(now_ns)  # needs no state: known before the interval is integrated
+        fast, origin = self._tick_kernel, self.origin_ns
+        step = 0 if fast is None else fast.step_ns
+        d0, d1 = self.t_ns - origin, now_ns - origin
+        if step and d0 % step == 0 and d1 % step == 0:
+            # both ends on the grid (the usual tick): what scene_time gives them, without its general rounding
+            st = self.stepper
+            k0, k1 = d0 // step, d1 // step
+            t0, t1 = st.grid_time(k0), st.grid_time(k1)
+            self._scene_time = (now_ns, st, origin, t1, self.t_ns, t0)
+            value = self._sample(now_ns)  # needs no state: known before the interval is integrated
+            if self._held_jump != t0 and (value is None or value == self.drive.applied.value):
+                # no held-torque jump at either end: whole grid steps away from the plant's breakpoints
+                # are one compiled call, steps and outputs (core.tick; the same floats as the stepper's)
+                st.breakpoints = self._plant_breakpoints
+                if not st._near_breakpoint(t0, t1, k0, k1):
+                    out, done, status, t = fast.step(self.x, k0, k1, SPEED_LIMIT)
+                    if status == OK:  # else the general path below takes the same steps and raises as it does
+                        self.x = out[-1]
+                        self.t_ns = self._fresh_ns = now_ns
+                        self._held_jump = None  # what _hold makes of an unchanged value
+                        return True
+        else:
+            t0, t1 = self.scene_time(self.t_ns), self.scene_time(now_ns)
+            value = self._sample(now_ns)  # needs no state: known before the interval is integrated
+        self._fresh_ns = None
         self._drive_breakpoints(t0, t1, value)
         try:
             if self.hybrid is None:
@@ -297,7 +328,7 @@ class NodeSimulation:
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
             self.diverged(f"integrator failed at t={self.scene_time(self.t_ns):.6g} s: {exc}", now_ns)
             return True
-        self.x = x
+        self.x = np.array(x, dtype=np.float64)  # C-contiguous and writable: the tick kernel's one signature
         if self.hybrid is not None:
             self.hybrid = hybrid
             if events:
@@ -326,6 +357,8 @@ class NodeSimulation:
         count as a divergence (the run restarts; the initial state's outputs
         are returned).
         """
+        if self._fresh_ns == now_ns:  # the tick kernel's outputs of this very state and time
+            return dict(zip(TICK_OUTPUTS, self._tick_kernel.y.tolist()))
         model = self.settings.model
         inputs = self.plant.inputs if self.hybrid is None else self.stepper.inputs
         u = inputs(self.scene_time(now_ns), self.x)
