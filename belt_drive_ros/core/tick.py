@@ -66,22 +66,25 @@ def _coordinate(rows, q, n, x):
 
 
 @njit(cache=True, nogil=True)
-def linear_tick(k0, steps, origin, dt, x, out, limit, reals, ints, dp, lp, rows, y):
+def linear_tick(k0, steps, x, out, reals, ints, dp, lp, rows, y):
     """``steps`` whole grid steps from grid index ``k0`` (state ``x``) into ``out``, then the outputs into ``y``.
 
     ``reals, ints, dp, lp``: the stepper's kernel loop
     (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`); ``rows`` packs
-    ``[W (4 n), C (12 n), D (12 x 2), F_0, r_3, capstan_ratio]``
-    (:class:`TickKernel`). Returns ``(done, status, t)`` of the kernel; ``y``
-    is written only when every step is done (status OK).
+    ``[W (4 n), C (12 n), D (12 x 2), F_0, r_3, capstan_ratio, origin, dt, speed limit]``
+    (:class:`TickKernel`). ``x`` may be a row of ``out`` (the kernel reads it
+    before it writes). Returns ``(done, status, t)`` of the kernel; ``y`` is
+    written only when every step is done (status OK).
     """
+    n = x.size
+    d0 = 16 * n
+    origin, dt, limit = rows[d0 + 27], rows[d0 + 28], rows[d0 + 29]
     times = np.empty(steps + 1)
     for j in range(steps + 1):
         times[j] = origin + dt * float(k0 + j)
     done, status, t = linear_steps(times, x, out, -math.inf, math.inf, limit, reals, ints, dp, lp)
     if status != 0:
         return done, status, t
-    n = x.size
     xe = out[steps - 1]
     # the profiles' data inside the loop's arrays (the layout linear_steps unpacks)
     s = ints[1]
@@ -95,7 +98,6 @@ def linear_tick(k0, steps, origin, dt, x, out, limit, reals, ints, dp, lp, rows,
     u0 = profile_torque(dk, dp, reals[at[7] : at[8]], reals[at[8] : at[9]], t1, angle_M, _coordinate(rows, 1, n, xe))
     u1 = profile_torque(lk, lp, reals[at[9] : at[10]], reals[at[10] : at[11]], t1, angle_3, _coordinate(rows, 3, n, xe))
     c0 = 4 * n
-    d0 = c0 + 12 * n
     for j in range(12):  # the LINEAR_OUTPUTS
         a = xe[0] * rows[c0 + j * n]
         for q in range(1, n):
@@ -121,32 +123,39 @@ class TickKernel:
     path serves those ticks).
     """
 
-    def __init__(self, stepper):
+    def __init__(self, stepper, limit: float):
         plant, loop = stepper.plant, stepper.loop
         model = plant.model
         n = model.A.shape[0]
         C, D = model.output_matrices()
         p = model.params
         self.rows = np.concatenate([np.ravel(plant.wheel_map), np.ravel(C), np.ravel(D),
-                                    [p.F_0, p.r_3, p.capstan_ratio]]).astype(np.float64)  # fmt: skip
+                                    [p.F_0, p.r_3, p.capstan_ratio, stepper.origin, stepper.dt, limit]]).astype(np.float64)
         #: the outputs of the last :meth:`step` [SI units, OUTPUT_UNITS order; slack/slip as 0.0/1.0]
         self.y = np.zeros(len(OUTPUT_UNITS))
-        self.n, self.origin, self.dt = n, stepper.origin, stepper.dt
+        self.n, self.dt = n, stepper.dt
         step_ns = round(self.dt * 1e9)
         #: the grid step in whole nanoseconds when dt is one (a node time on ``origin_ns + k step_ns`` is the
         #: grid time ``origin + k dt``, which scene times snap to), else 0
-        self.step_ns = step_ns if step_ns > 0 and step_ns / 1e9 == self.dt and self.origin == 0.0 else 0
+        self.step_ns = step_ns if step_ns > 0 and step_ns / 1e9 == self.dt and stepper.origin == 0.0 else 0
+        self._out = np.empty((1, n))
         self._args = (loop.reals, loop.ints, loop._dp, loop._lp, self.rows, self.y)
 
     @classmethod
-    def of(cls, stepper):
+    def of(cls, stepper, limit: float):
+        """The tick kernel of ``stepper`` (divergence beyond ``limit`` [rad/s]), or None where it cannot run."""
         loop = getattr(stepper, "loop", None)
         if loop is None or stepper.plant.extra or stepper.guard is not None or not hasattr(stepper.plant.model, "C"):
             return None
-        return cls(stepper)
+        return cls(stepper, limit)
 
-    def step(self, x: np.ndarray, k0: int, k1: int, limit: float):
-        """Whole grid steps k0 -> k1 from state ``x``: ``(states (k1 - k0, n), done, status, t)``; :attr:`y` at k1 when OK."""
-        out = np.empty((k1 - k0, self.n))
-        done, status, t = linear_tick(k0, k1 - k0, self.origin, self.dt, x, out, limit, *self._args)
-        return out, done, status, t
+    def step(self, x: np.ndarray, k0: int, k1: int):
+        """Whole grid steps k0 -> k1 from state ``x``: ``(states (k1 - k0, n), status)``; :attr:`y` at k1 when OK.
+
+        The states are written into a buffer kept for the next call (the
+        last row is the next call's ``x``): a caller keeps them by copying.
+        """
+        out = self._out
+        if out.shape[0] != k1 - k0:
+            out = self._out = np.empty((k1 - k0, self.n))
+        return out, linear_tick(k0, k1 - k0, x, out, *self._args)[1]

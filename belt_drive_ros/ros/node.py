@@ -148,13 +148,16 @@ from .inputs import DriveInput  # noqa: E402
 from .parameter_schema import NodeConfigError, NodeSettings  # noqa: E402,F401 - NodeConfigError re-exported
 from .parameters import NodeParameters  # noqa: E402
 from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS, TF_QOS  # noqa: E402
-from .simulation import NodeSimulation  # noqa: E402
+from .simulation import SLIP_TICK_OUTPUTS, TICK_OUTPUTS, NodeSimulation  # noqa: E402
 from .timing import TickSource, TickStats, stamp  # noqa: E402
 
 NODE_NAME = "belt_drive"
 JOINT_NAMES = ("wheel_M", "wheel_1", "wheel_2", "wheel_3")
 #: Float64 output topics, in publishing order (joint_states is published first).
 OUTPUT_TOPICS = ("shaft_speed", "load_torque", "belt_torque", "relative_deflection")
+#: where the tick's values (NodeSimulation.values) hold each slipping-model Float64 output
+_N_TICK = len(TICK_OUTPUTS)
+_SLIP_FLOAT_INDEX = tuple((TICK_OUTPUTS + SLIP_TICK_OUTPUTS).index(signal) for _, signal in SLIP_FLOAT_OUTPUTS)
 #: Float64 topics of the slipping model (published after OUTPUT_TOPICS while the model is slipping)
 SLIP_OUTPUT_TOPICS = tuple(name for name, _ in SLIP_FLOAT_OUTPUTS)
 #: ~/reset keeps every request of a burst (the default services QoS keeps 10)
@@ -207,7 +210,7 @@ class BeltDriveNode(Node):
         super().__init__(node_name, **kwargs)
         self.recorder = None  # NodeRecorder when record_path is set
         self.counters = dict.fromkeys(("published", "published_slip", "slack_ticks", "slip_ticks"), 0)
-        self.last: dict = {}  # the latest tick's signals, for diagnostics
+        self._last: tuple | None = None  # the latest tick's (values, stamp) (see last)
         self._duplicate_name_warned = False
         self._resets_pending = 0  # ~/reset calls since the last tick (the tick restarts once for all)
         self.counters["reset_calls"] = 0
@@ -390,12 +393,11 @@ class BeltDriveNode(Node):
         converting message objects cost the tick ~35 us. A topic nobody
         subscribes to is not published; the recorder writes the same bytes.
         """
-        y = self.sim.outputs(now_ns)
+        v = self.sim.values(now_ns)  # floats in the order of TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
         recorder = self.recorder
         listening = self._listening
-        # the outputs of one sample are Python floats (the divergence fallback's numpy float64 scalars pack alike)
-        joints = (y["phi_M"], y["phi_1"], y["phi_2"], y["phi_3"], y["omega_M"], y["omega_1"], y["omega_2"],
-                  y["omega_3"], y["drive_torque"], 0.0, 0.0, -y["load_torque"])
+        # phi_M, phi_1, phi_2, phi_3, omega_M, omega_1, omega_2, omega_3; efforts: drive torque on wheel_M, -load on wheel_3
+        joints = (v[0], v[2], v[4], v[6], v[1], v[3], v[5], v[7], v[8], 0.0, 0.0, -v[9])
         sends = []
         joint_cdr = tf_cdr = payloads = None
         if listening[0] or recorder is not None:
@@ -406,14 +408,14 @@ class BeltDriveNode(Node):
             tf_cdr = self._tf_cdr.encode(now_ns, joints[:4])
             if listening[1]:
                 sends.append((self._pub_tf.publish, tf_cdr))
-        slipping = "friction_use" in y  # the slipping model's outputs
+        slipping = len(v) > _N_TICK  # the slipping model's outputs
         if slipping:
             self.counters["published_slip"] += 1
         floats = None
         if recorder is not None or listening[2] or (slipping and listening[3]):
-            floats = (joints[4], y["load_torque"], y["belt_torque"], y["relative_deflection"])
+            floats = (v[1], v[9], v[10], v[11])  # shaft speed, load torque, belt torque, relative deflection
             if slipping:
-                floats += tuple(y[signal] for _, signal in SLIP_FLOAT_OUTPUTS)
+                floats += tuple(v[j] for j in _SLIP_FLOAT_INDEX)
             payloads = encode_float64((*floats, joints[8]))
             readers = self._readers
             for name, pub, data in zip(OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS, self._pub_float, payloads[:-1]):
@@ -422,20 +424,31 @@ class BeltDriveNode(Node):
         if not defer:
             for publish, data in sends:
                 publish(data)
-        if y["slack"]:
+        if v[14]:  # slack
             self.stats.window.slack += 1
             self.counters["slack_ticks"] += 1
-        if y["slip"]:
+        if v[15]:  # slip
             self.stats.window.slip += 1
             self.counters["slip_ticks"] += 1
         if recorder is not None:
             recorder.record_tick(now_ns, joints, floats, joints[8], joint_cdr=joint_cdr, float_cdr=payloads,
                                  tf_cdr=tf_cdr)
-        y["time"] = self.sim.scene_time(now_ns)
-        y["stamp_ns"] = now_ns
-        self.last = y
+        self._last = (v, now_ns, self.sim.origin_ns)
         self.counters["published"] += 1
         return sends if defer else None
+
+    @property
+    def last(self) -> dict:
+        """The latest published tick's signals by name (TICK_OUTPUTS, the slipping model's too; slack and slip
+        as bools), its scene ``time`` [s] and ``stamp_ns``; empty before the first."""
+        if self._last is None:
+            return {}
+        v, stamp, origin = self._last
+        y = dict(zip(TICK_OUTPUTS + SLIP_TICK_OUTPUTS, v))
+        y["slack"], y["slip"] = bool(y["slack"]), bool(y["slip"])
+        y["time"] = self.sim.scene_time(stamp) if origin == self.sim.origin_ns else (stamp - origin) / 1e9
+        y["stamp_ns"] = stamp
+        return y
 
     def _count_listeners(self) -> None:
         """Whom a tick sends to (from the reader counts): joint_states, /tf, a Float64 output of

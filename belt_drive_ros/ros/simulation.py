@@ -103,6 +103,7 @@ class NodeSimulation:
         drive = s.scene.drive if s.drive_source == "scene" else self.drive.applied
         self._tick_kernel = None  # the common tick compiled whole (core.tick), where the model allows it
         self._fresh_ns: int | None = None  # node time whose outputs the tick kernel holds (None: none)
+        self._free_k = (0, -1)  # grid cells k with no plant breakpoint near steps k0 <= k < k1 (lo <= k0, k1 <= hi)
         if s.model.name == "slipping":
             engine = SlippingSimulator(s.params, drive, s.scene.load, s.method, s.dt, s.method_options, check_stability=False)
             self._plant_breakpoints = list(engine.breakpoints)
@@ -110,9 +111,10 @@ class NodeSimulation:
         plant = Plant(s.model, drive, s.scene.load)
         stepper = Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
         self._plant_breakpoints = list(stepper.breakpoints)
+        self._free_k = (0, -1)
         from ..core.tick import TickKernel
 
-        self._tick_kernel = TickKernel.of(stepper)
+        self._tick_kernel = TickKernel.of(stepper, SPEED_LIMIT)
         return stepper
 
     @property
@@ -299,17 +301,15 @@ class NodeSimulation:
             t0, t1 = st.grid_time(k0), st.grid_time(k1)
             self._scene_time = (now_ns, st, origin, t1, self.t_ns, t0)
             value = self._sample(now_ns)  # needs no state: known before the interval is integrated
-            if self._held_jump != t0 and (value is None or value == self.drive.applied.value):
-                # no held-torque jump at either end: whole grid steps away from the plant's breakpoints
-                # are one compiled call, steps and outputs (core.tick; the same floats as the stepper's)
-                st.breakpoints = self._plant_breakpoints
-                if not st._near_breakpoint(t0, t1, k0, k1):
-                    out, done, status, t = fast.step(self.x, k0, k1, SPEED_LIMIT)
-                    if status == OK:  # else the general path below takes the same steps and raises as it does
-                        self.x = out[-1]
-                        self.t_ns = self._fresh_ns = now_ns
-                        self._held_jump = None  # what _hold makes of an unchanged value
-                        return True
+            if self._held_jump != t0 and (value is None or value == self.drive.applied.value) and self._free(t0, t1, k0, k1):
+                # no held-torque jump at either end, whole grid steps away from the plant's breakpoints:
+                # one compiled call, steps and outputs (core.tick; the same floats as the stepper's)
+                out, status = fast.step(self.x, k0, k1)
+                if status == OK:  # else the general path below takes the same steps and raises as it does
+                    self.x = out[-1]  # a row of the tick kernel's buffer, written again by the next tick
+                    self.t_ns = self._fresh_ns = now_ns
+                    self._held_jump = None  # what _hold makes of an unchanged value
+                    return True
         else:
             t0, t1 = self.scene_time(self.t_ns), self.scene_time(now_ns)
             value = self._sample(now_ns)  # needs no state: known before the interval is integrated
@@ -339,6 +339,23 @@ class NodeSimulation:
         self._hold(value, t1)
         return True
 
+    def _free(self, t0: float, t1: float, k0: int, k1: int) -> bool:
+        """Whether no plant breakpoint lies near the whole grid steps k0 .. k1 (the stepper's test, remembered
+        as a range of grid indices with a step's margin at both ends)."""
+        lo, hi = self._free_k
+        if lo <= k0 and k1 <= hi:
+            return True
+        st = self.stepper
+        st.breakpoints = self._plant_breakpoints
+        if k1 <= k0 or st._near_breakpoint(t0, t1, k0, k1):
+            return False
+        # no breakpoint in the open interval (left, right) (the stepper's note of it; none at all: everywhere)
+        _, left, right = st._free if st.breakpoints else (None, -math.inf, math.inf)
+        lo = -(2**62) if left == -math.inf else math.floor(left / st.dt) + 2
+        hi = 2**62 if right == math.inf else math.ceil(right / st.dt) - 2
+        self._free_k = (lo, hi) if lo <= k0 and k1 <= hi else (0, -1)
+        return True
+
     def diverged(self, reason: str, now_ns: int) -> None:
         """Apply the divergence rule (module docstring) at node time ``now_ns``."""
         self.counters["divergences"] += 1
@@ -358,7 +375,7 @@ class NodeSimulation:
         are returned).
         """
         if self._fresh_ns == now_ns:  # the tick kernel's outputs of this very state and time
-            return dict(zip(TICK_OUTPUTS, self._tick_kernel.y.tolist()))
+            return dict(zip(TICK_OUTPUTS, self.values(now_ns)))
         model = self.settings.model
         inputs = self.plant.inputs if self.hybrid is None else self.stepper.inputs
         u = inputs(self.scene_time(now_ns), self.x)
@@ -371,3 +388,12 @@ class NodeSimulation:
             return model.outputs(self.x, u, self.hybrid.mode, self.hybrid.sigma)
         out = model.outputs(self.x, u)  # a finite state and finite torques: nothing for numpy to warn about
         return out  # numpy float64 scalars (a float subclass) and numpy bools
+
+    def values(self, now_ns: int) -> list:
+        """:meth:`outputs` as a list of floats in the order of :data:`TICK_OUTPUTS` (then, for the slipping
+        model, :data:`SLIP_TICK_OUTPUTS`); the flags slack and slip as 1.0/0.0 (the publishing tick's form)."""
+        if self._fresh_ns == now_ns:
+            return self._tick_kernel.y.tolist()
+        out = self.outputs(now_ns)
+        names = TICK_OUTPUTS + SLIP_TICK_OUTPUTS if self.hybrid is not None else TICK_OUTPUTS
+        return [float(out[name]) for name in names]
