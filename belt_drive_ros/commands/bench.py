@@ -22,6 +22,8 @@ studies:
                  warm simulate() per shipped scene and paper vs the user's whole RK45 call at error 1e-6 (first)
   slip           a harder stick-slip case: event-driven hybrid vs step-end switching vs regularised
   node           the ROS node's real-time figures (needs the ROS extra)
+  node-tick      the node's tick compute in-process on cold caches: the compiled common tick beside the
+                 general path (Stepper.advance + model outputs), paper and slipping truck_compressor (not in 'all')
   soak           the node recording for --seconds (default 60): RSS growth per minute,
                  output rate per 10 s window, messages lost (not part of 'all')
   hostile        the hostile-input table: ~1,800 scene files, command lines, damaged MCAP files,
@@ -68,7 +70,7 @@ def register(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "kernel", "network", "network_slip",
-                                     "slip-kernel", "replay", "all"), help="which study to run")  # fmt: skip
+                                     "slip-kernel", "replay", "node-tick", "all"), help="which study to run")  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("docs/bench"), help="output folder (default: docs/bench)")
     p.add_argument("--quick", action="store_true", help="small sweeps and short runs (seconds; for tests)")
     p.add_argument("--quiet", action="store_true", help="no per-run log lines")
@@ -114,6 +116,10 @@ def run(args) -> int:
     if args.study == "node":
         extra = ["--duration", repr(args.duration)] + (["--floor"] if args.floor else [])
         return _run_node(out, args.quick, extra + [a for param in args.param for a in ("-p", param)])
+    if args.study == "node-tick":
+        from ..benchmarks import node_tick
+
+        return node_tick.main(quick=args.quick)
     if args.study == "soak":
         from ..benchmarks import soak
 
