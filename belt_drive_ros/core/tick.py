@@ -38,6 +38,9 @@ import numpy as np
 from numba import njit
 
 from .kernel import HEADER, SECTIONS, linear_steps, profile_torque
+from .kernel_slip import KIND_NAMES, PHASE_SIZE, STICKING, hybrid_steps
+from .slip import SLIP, STICK
+from .slip_run import SlipState, _kind_code
 from .model import LINEAR_OUTPUTS, OUTPUT_UNITS
 
 #: :attr:`TickKernel.y` holds OUTPUT_UNITS in order: the linear outputs first, then these four
@@ -115,6 +118,16 @@ def linear_tick(k0, steps, x, out, reals, ints, dp, lp, rows, y):
     return done, status, t
 
 
+def grid_step_ns(dt: float, origin: float) -> int:
+    """The grid step [ns] when ``dt`` [s] is a whole number of nanoseconds and the grid starts at 0, else 0.
+
+    Then a node time ``origin_ns + k step_ns`` is the grid time ``k dt`` (which
+    the node's scene times snap to) without the general rounding.
+    """
+    step_ns = round(dt * 1e9)
+    return step_ns if step_ns > 0 and step_ns / 1e9 == dt and origin == 0.0 else 0
+
+
 class TickKernel:
     """One stepper's tick as one compiled call: :meth:`step` advances its buffers, :attr:`y` holds the outputs.
 
@@ -134,10 +147,7 @@ class TickKernel:
         #: the outputs of the last :meth:`step` [SI units, OUTPUT_UNITS order; slack/slip as 0.0/1.0]
         self.y = np.zeros(len(OUTPUT_UNITS))
         self.n, self.dt = n, stepper.dt
-        step_ns = round(self.dt * 1e9)
-        #: the grid step in whole nanoseconds when dt is one (a node time on ``origin_ns + k step_ns`` is the
-        #: grid time ``origin + k dt``, which scene times snap to), else 0
-        self.step_ns = step_ns if step_ns > 0 and step_ns / 1e9 == self.dt and stepper.origin == 0.0 else 0
+        self.step_ns = grid_step_ns(self.dt, stepper.origin)
         self._out = np.empty((1, n))
         self._args = (loop.reals, loop.ints, loop._dp, loop._lp, self.rows, self.y)
 
@@ -159,3 +169,124 @@ class TickKernel:
         if out.shape[0] != k1 - k0:
             out = self._out = np.empty((k1 - k0, self.n))
         return out, linear_tick(k0, k1 - k0, x, out, *self._args)[1]
+
+
+# ------------------------------------------------------------------ the slipping belt
+#: constants of the slipping model's outputs in :func:`slip_tick` (:meth:`SlipTickKernel` packs them in this order)
+SLIP_CONSTANTS = ("ratio", "r_3", "a_1", "g", "F_0", "q_1", "q_2", "q_3", "rel_2", "rel_3", "c", "2k r_3", "2c",
+                  "belt speed ratio", "belt_mass", "capstan_factor")  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def slip_tick(k0, grid, knots, lo, hi, special, kind, x, dt, limit, out_y, out_mode, out_sigma, out_native, reals, ints,
+              offsets, have, Yflex, Minv, Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly, events, consts,
+              y):  # fmt: skip
+    """The slipping belt's tick: :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps` over
+    ``grid.size - 1`` whole grid steps from grid index ``k0``, then every output of the slipping
+    model at the last knot into ``y``.
+
+    ``grid``, ``knots``: buffers the grid times are written into; the other
+    arguments up to ``events`` are the hybrid loop's (its call from step 0
+    with no events recorded yet); ``consts``: :data:`SLIP_CONSTANTS` then the grid's origin [s]. ``y``
+    receives ``OUTPUT_UNITS + SLIP_OUTPUT_UNITS`` in order, the operations of
+    :meth:`~belt_drive_ros.core.slip.SlippingBeltModel.outputs` on one sample
+    (flags as 0.0/1.0), with ``u = [drive(t, phi_M, omega_M), load(t, phi_3, omega_3)]``
+    at the last knot ``t`` (:meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.inputs`).
+    Returns the hybrid loop's ``(next step, status, kind, sigma, events)``;
+    ``y`` is written only when the loop is done (status 0).
+    """
+    for j in range(grid.size):  # the grid times origin + dt k of Stepper._grid; the knots are them
+        grid[j] = consts[16] + dt * float(k0 + j)
+        knots[j] = grid[j]
+    k1, status, kind, sigma, n_ev = hybrid_steps(grid, knots, lo, hi, special, 0, kind, x, dt, limit, out_y, out_mode,
+                                                 out_sigma, out_native, reals, ints, offsets, have, Yflex, Minv, Z, R, c,
+                                                 mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly, events, 0)  # fmt: skip
+    if status != 0:
+        return k1, status, kind, sigma, n_ev
+    slipping = kind > STICKING
+    sg = sigma
+    last = grid.size - 2
+    y0, y1, y2, y3, y4 = out_y[last, 0], out_y[last, 1], out_y[last, 2], out_y[last, 3], out_y[last, 4]
+    ratio, r_3, a1, g, F_0 = consts[0], consts[1], consts[2], consts[3], consts[4]
+    t = knots[last + 1]
+    phi_3 = ratio * y0 - y1 - y4 / r_3
+    u0 = profile_torque(dk, dp, dx, dy, t, y0, y2)
+    u1 = profile_torque(lk, lp, lx, ly, t, phi_3, y3)
+    v = consts[13] * y2  # Q_max (scalar_friction_limit: Python's max(value, 0.0))
+    qmax = (F_0 - consts[14] * v * v) * consts[15]
+    if 0.0 > qmax:
+        qmax = 0.0
+    stick = consts[5] * y1 + consts[6] * y2 + consts[7] * y3
+    Q = sg * qmax if slipping else stick
+    speed = 0.0
+    if slipping:
+        rel = y2 * consts[8] + y3 * consts[9]
+        speed = rel if consts[10] == 0.0 else rel - (Q - consts[11] * y1) / consts[12]
+    slack_force = F_0 - 0.5 * Q
+    tight = F_0 + 0.5 * Q
+    slip_angle = y4 / r_3
+    low = tight if tight < slack_force else slack_force  # Python's min(slack_force, tight)
+    y[0], y[1], y[2], y[3], y[4], y[5] = y0, y2, a1 * y0, a1 * y2, g * y0, g * y2
+    y[6], y[7], y[8], y[9], y[10], y[11] = phi_3, y3, u0, u1, r_3 * Q, y1 + slip_angle
+    y[12], y[13] = tight, slack_force
+    y[14] = 1.0 if low <= 0.0 else 0.0
+    y[15] = 1.0 if slipping else 0.0
+    y[16], y[17], y[18], y[19] = y1, slip_angle, y4, speed
+    y[20] = Q / qmax if qmax > 0 else math.inf
+    y[21] = qmax
+    return k1, status, kind, sigma, n_ev
+
+
+class SlipTickKernel:
+    """A slipping engine's (:class:`~belt_drive_ros.core.slip_run.SlippingSimulator`) tick of whole steps as one
+    compiled call (:func:`slip_tick`), its buffers allocated once; :attr:`y` holds the outputs."""
+
+    def __init__(self, engine, limit: float):
+        m, p = engine.model, engine.model.params
+        q, rel = m._q, m.rel_row.tolist()
+        self.consts = np.array([p.ratio, p.r_3, p.r_M / p.R_1, p.gear_ratio, p.F_0, q[1], q[2], q[3], rel[2], rel[3],
+                                p.c, 2.0 * p.k * p.r_3, 2.0 * p.c, p.r_2 * p.gear_ratio, float(p.belt_mass),
+                                p.capstan_factor, engine.origin], dtype=np.float64)  # fmt: skip
+        self.engine, self.dt, self.limit = engine, engine.dt, limit
+        self.step_ns = grid_step_ns(engine.dt, engine.origin)
+        self.y = np.zeros(22)
+        self.x = np.zeros(6)
+        self.events = np.zeros((1024, 8))  # the hybrid loop wants room for a chattering step's switches
+        self._buffers(1)
+
+    def _buffers(self, N: int) -> None:
+        """The hybrid loop's arrays for ``N`` whole steps without clamps or splits."""
+        self.N = N
+        self.grid, self.knots = np.zeros(N + 1), np.zeros(N + 1)
+        self.lo, self.hi, self.special = np.full(N, -math.inf), np.full(N, math.inf), np.zeros(N, dtype=np.int64)
+        self.out_y, self.out_native = np.empty((N, 5)), np.empty((N, 6))
+        self.out_mode, self.out_sigma = np.empty(N, dtype=np.int64), np.empty(N)
+
+    def advance(self, state, k0: int, k1: int):
+        """The hybrid state after the whole grid steps k0 -> k1 from ``state`` (a
+        :class:`~belt_drive_ros.core.slip_run.SlipState`), the outputs at t1 in :attr:`y`;
+        None when the step needs the engine's own :meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.advance`
+        (a mode switch in it, a failure: it redoes the step from ``state`` and reports them)."""
+        compiled = self.engine._compiled()
+        if compiled is None:
+            return None
+        buf = self.x
+        buf[:] = 0.0
+        buf[: state.x.size] = state.x
+        if state.kind == "hybrid":
+            buf[5] = state.sigma
+        if k1 - k0 != self.N:
+            self._buffers(k1 - k0)
+        have, reals, ints, offsets, Yflex, Minv, arrays = compiled
+        k1, status, kind, sigma, n_ev = slip_tick(
+            k0, self.grid, self.knots, self.lo, self.hi, self.special, _kind_code(state), buf, self.dt, self.limit,
+            self.out_y, self.out_mode, self.out_sigma, self.out_native, reals, ints, offsets, have, Yflex, Minv,
+            *arrays, self.events, self.consts, self.y,
+        )  # fmt: skip
+        if status != 0 or n_ev:
+            return None
+        return SlipState(STICK if kind <= STICKING else SLIP, float(sigma), KIND_NAMES[kind], buf[: PHASE_SIZE[kind]].copy())
+
+    def state_y(self) -> np.ndarray:
+        """The slipping state ``y`` (5,) after the last :meth:`advance` (the engine's ``state_y`` of it)."""
+        return self.out_y[-1].copy()

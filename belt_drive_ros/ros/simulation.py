@@ -107,6 +107,10 @@ class NodeSimulation:
         if s.model.name == "slipping":
             engine = SlippingSimulator(s.params, drive, s.scene.load, s.method, s.dt, s.method_options, check_stability=False)
             self._plant_breakpoints = list(engine.breakpoints)
+            self._free_k = (0, -1)
+            from ..core.tick import SlipTickKernel
+
+            self._tick_kernel = SlipTickKernel(engine, SPEED_LIMIT)
             return engine
         plant = Plant(s.model, drive, s.scene.load)
         stepper = Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
@@ -304,12 +308,20 @@ class NodeSimulation:
             if self._held_jump != t0 and (value is None or value == self.drive.applied.value) and self._free(t0, t1, k0, k1):
                 # no held-torque jump at either end, whole grid steps away from the plant's breakpoints:
                 # one compiled call, steps and outputs (core.tick; the same floats as the stepper's)
-                out, status = fast.step(self.x, k0, k1)
-                if status == OK:  # else the general path below takes the same steps and raises as it does
-                    self.x = out[-1]  # a row of the tick kernel's buffer, written again by the next tick
-                    self.t_ns = self._fresh_ns = now_ns
-                    self._held_jump = None  # what _hold makes of an unchanged value
-                    return True
+                if self.hybrid is None:
+                    out, status = fast.step(self.x, k0, k1)
+                    if status == OK:  # else the general path below takes the same steps and raises as it does
+                        self.x = out[-1]  # a row of the tick kernel's buffer, written again by the next tick
+                        self.t_ns = self._fresh_ns = now_ns
+                        self._held_jump = None  # what _hold makes of an unchanged value
+                        return True
+                else:  # the slipping belt: steps without a mode switch (else the engine's path)
+                    hybrid = fast.advance(self.hybrid, k0, k1)
+                    if hybrid is not None:
+                        self.hybrid, self.x = hybrid, fast.state_y()
+                        self.t_ns = self._fresh_ns = now_ns
+                        self._held_jump = None
+                        return True
         else:
             t0, t1 = self.scene_time(self.t_ns), self.scene_time(now_ns)
             value = self._sample(now_ns)  # needs no state: known before the interval is integrated
@@ -345,8 +357,8 @@ class NodeSimulation:
         lo, hi = self._free_k
         if lo <= k0 and k1 <= hi:
             return True
-        st = self.stepper
-        st.breakpoints = self._plant_breakpoints
+        self.stepper.breakpoints = self._plant_breakpoints
+        st = self.stepper if self.hybrid is None else self.stepper.stepper  # the slipping engine's grid stepper
         if k1 <= k0 or st._near_breakpoint(t0, t1, k0, k1):
             return False
         # no breakpoint in the open interval (left, right) (the stepper's note of it; none at all: everywhere)
@@ -375,7 +387,7 @@ class NodeSimulation:
         are returned).
         """
         if self._fresh_ns == now_ns:  # the tick kernel's outputs of this very state and time
-            return dict(zip(TICK_OUTPUTS, self.values(now_ns)))
+            return dict(zip(TICK_OUTPUTS + SLIP_TICK_OUTPUTS, self.values(now_ns)))  # (the linear ones: 16)
         model = self.settings.model
         inputs = self.plant.inputs if self.hybrid is None else self.stepper.inputs
         u = inputs(self.scene_time(now_ns), self.x)
@@ -394,6 +406,6 @@ class NodeSimulation:
         model, :data:`SLIP_TICK_OUTPUTS`); the flags slack and slip as 1.0/0.0 (the publishing tick's form)."""
         if self._fresh_ns == now_ns:
             return self._tick_kernel.y.tolist()
-        out = self.outputs(now_ns)
+        out = self.outputs(now_ns)  # the general path's (model.outputs)
         names = TICK_OUTPUTS + SLIP_TICK_OUTPUTS if self.hybrid is not None else TICK_OUTPUTS
         return [float(out[name]) for name in names]
