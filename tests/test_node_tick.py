@@ -1,0 +1,125 @@
+"""The node's compiled common tick (core/tick.py) against the general path, bit for bit.
+
+Two :class:`~belt_drive_ros.ros.simulation.NodeSimulation` of the same
+settings tick in lockstep: one with its tick kernel (whole grid steps and
+every output in one compiled call), one with it switched off (the stepper's
+``advance`` or the slipping engine's, then the model's ``outputs``: what the
+node did before and what ``belt-drive sim`` is compared with in test_node).
+Every published value and the state must be the same floats at every tick,
+through drive-torque changes (general ticks in between), plant breakpoints
+and the slipping belt's mode switches (redone by the engine); and the
+compiled tick must actually serve most ticks. One compiled specialisation per
+kernel whatever the scene; ``NUMBA_DISABLE_JIT=1`` gives the same floats.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from belt_drive_ros.core import tick
+from belt_drive_ros.ros.inputs import DriveInput
+from belt_drive_ros.ros.parameter_schema import SceneCache, build_settings, default_values
+from belt_drive_ros.ros.simulation import NodeSimulation
+
+
+class _Log:
+    def info(self, line):
+        pass
+
+    warn = error = info
+
+
+def _pair(values: dict):
+    scenes = SceneCache()
+    full = {**default_values(scenes.get(values.get("scene", "paper"))), **values}
+    sims = []
+    for _ in range(2):
+        counters: dict = {}
+        drive = DriveInput(counters)
+        sims.append(NodeSimulation(build_settings(full, scenes), drive, counters, _Log()))
+    sims[1]._tick_kernel = None  # the general path
+    return sims
+
+
+def _lockstep(values: dict, ticks: int, torques=None):
+    """(fast ticks, values of both per tick, states of both) of two simulations ticking together."""
+    sims = _pair(values)
+    tick_ns = sims[0].settings.tick_ns
+    fast = 0
+    rows = ([], [])
+    for k in range(ticks):
+        now = 10**9 + k * tick_ns
+        for j, sim in enumerate(sims):
+            if torques is not None and k in torques:
+                sim.drive.receive(torques[k], now - 1, sim.settings)
+            assert sim.advance_to(now)
+            if j == 0:
+                fast += sim._fresh_ns == now
+            rows[j].append(sim.values(now) + list(sim.x))
+    return fast, np.array(rows[0]), np.array(rows[1]), sims
+
+
+def test_linear_tick_equals_the_general_path_bit_for_bit_through_torque_changes():
+    torques = {k: 2.0 + 0.25 * (k % 7) for k in range(5, 600, 9)}  # a controller at ~110 Hz
+    fast, a, b, _ = _lockstep({"drive_source": "topic"}, 600, torques)
+    assert fast > 400  # the compiled tick served the ticks between changes
+    assert a.shape == b.shape and np.array_equal(a, b)  # the same floats (flags 0.0/1.0 in both)
+    assert np.all(np.isfinite(a)) and np.ptp(a[:, 1]) > 0.0  # the drive moved
+
+
+def test_linear_tick_with_substeps_and_the_scene_drive_across_its_breakpoints():
+    # paper's scene drive ramps (a breakpoint at the ramp's end) and the step 4 substeps per tick
+    fast, a, b, sims = _lockstep({"drive_source": "scene", "substeps": 4}, 400)
+    assert sims[0]._plant_breakpoints and fast > 300
+    assert np.array_equal(a, b)
+
+
+def test_rigid_model_tick():
+    fast, a, b, _ = _lockstep({"drive_source": "scene", "model": "rigid"}, 300)
+    assert fast > 250 and np.array_equal(a, b)
+
+
+def test_slipping_tick_equals_the_engine_bit_for_bit_through_mode_switches():
+    fast, a, b, sims = _lockstep({"scene": "truck_compressor", "model": "slipping", "drive_source": "scene"}, 3000)
+    assert sims[0].slip_events == sims[1].slip_events and len(sims[0].slip_events) > 0  # the belt slipped and re-stuck
+    assert fast > 2000
+    assert np.array_equal(a, b)
+    assert np.any(a[:, 15] == 1.0) and np.any(a[:, 15] == 0.0)  # slipping and sticking ticks among them
+
+
+def test_one_compiled_specialisation_per_tick_kernel():
+    _lockstep({"drive_source": "topic"}, 5)
+    _lockstep({"drive_source": "scene", "model": "rigid"}, 5)
+    _lockstep({"scene": "truck_compressor", "model": "slipping", "drive_source": "scene"}, 5)
+    assert len(tick.linear_tick.signatures) == 1
+    assert len(tick.slip_tick.signatures) == 1
+
+
+SCRIPT = """
+import json, sys
+sys.path.insert(0, {tests!r})
+from test_node_tick import _lockstep
+out = []
+for values in ({{"drive_source": "topic"}}, {{"scene": "truck_compressor", "model": "slipping", "drive_source": "scene"}}):
+    fast, a, b, _ = _lockstep(values, 120, {{k: 1.0 + k for k in range(3, 120, 11)}} if values.get("drive_source") == "topic" else None)
+    out.append([fast, a.tolist()])
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.slow
+def test_numba_disabled_gives_the_same_floats():
+    code = SCRIPT.format(tests=os.path.dirname(__file__))
+    runs = {}
+    for jit in ("0", "1"):
+        done = subprocess.run([sys.executable, "-c", code], env=dict(os.environ, NUMBA_DISABLE_JIT=jit),
+                              capture_output=True, text=True, timeout=900)
+        assert done.returncode == 0, done.stderr[-2000:]
+        runs[jit] = json.loads(done.stdout.strip().splitlines()[-1])
+    assert runs["0"] == runs["1"] and runs["0"][0][0] > 60
