@@ -40,7 +40,7 @@ from numba import njit
 from .kernel import HEADER, SECTIONS, linear_steps, profile_torque
 from .kernel_slip import KIND_NAMES, PHASE_SIZE, STICKING, hybrid_steps
 from .slip import SLIP, STICK
-from .slip_run import SlipState, _kind_code
+from .slip_run import SlippingSimulator, SlipState, _kind_code
 from .model import LINEAR_OUTPUTS, OUTPUT_UNITS
 
 #: :attr:`TickKernel.y` holds OUTPUT_UNITS in order: the linear outputs first, then these four
@@ -290,3 +290,18 @@ class SlipTickKernel:
     def state_y(self) -> np.ndarray:
         """The slipping state ``y`` (5,) after the last :meth:`advance` (the engine's ``state_y`` of it)."""
         return self.out_y[-1].copy()
+
+
+def warm() -> None:
+    """Compile (or load from the disk cache) :func:`linear_tick` and :func:`slip_tick` with the one
+    signature the node uses (``make install`` calls it through :func:`~belt_drive_ros.core.warm.warm`)."""
+    from .model import FlexibleBeltModel
+    from .params import BeltDriveParams
+    from .sources import Constant
+    from .stepper import Plant, Stepper
+
+    params, torque = BeltDriveParams(), Constant(1.0)
+    kernel = TickKernel.of(Stepper(Plant(FlexibleBeltModel(params), torque, torque), "exact", 1e-3), 1.0e5)
+    kernel.step(np.zeros(4), 0, 1)
+    engine = SlippingSimulator(params, torque, torque, "etd2", 1e-3, check_stability=False)
+    SlipTickKernel(engine, 1.0e5).advance(engine.initial(np.zeros(5)), 0, 1)

@@ -10,14 +10,15 @@ from __future__ import annotations
 
 
 def warm() -> None:
-    """Warm the profile dispatcher, the linear and variant loops, the slipping hybrid loop and both
-    belt-network loops (flexible/rigid and slipping)."""
-    from . import jit_cache, kernel_loop, slip_run
+    """Warm the profile dispatcher, the linear and variant loops, the slipping hybrid loop, the node's
+    compiled tick (linear and slipping) and both belt-network loops (flexible/rigid and slipping)."""
+    from . import jit_cache, kernel_loop, slip_run, tick
     from .network import simulate as network_simulate
     from .network import slip as network_slip
 
     jit_cache.refresh()
     kernel_loop.warm()
     slip_run.warm_hybrid()
+    tick.warm()
     network_simulate.warm()
     network_slip.warm()
