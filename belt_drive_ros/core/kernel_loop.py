@@ -128,10 +128,6 @@ class KernelLoop:
             times = times.copy()
         return self._steps(times, x, out, lo, hi, limit, self.reals, self.ints, self._dp, self._lp)
 
-    def fresh(self, times, x, out, limit: float):
-        """:meth:`__call__` without clamps on arrays known writable (``times`` and ``out`` just made; the tick's call)."""
-        return self._steps(times, x, out, -math.inf, math.inf, limit, self.reals, self.ints, self._dp, self._lp)
-
     @staticmethod
     def usable(scheme) -> bool:
         """Whether a scheme's matrices are real (the kernel's arrays are float64)."""

@@ -16,7 +16,9 @@ API
 ``stepper.advance(x, t0, t1) -> x1``
     The state at scene time ``t1`` [s] from state ``x`` at ``t0`` [s]
     (``t1 >= t0``). What the node's tick calls with the held drive torque in
-    the plant (a profile whose value the node sets).
+    the plant (a profile whose value the node sets) where its compiled tick
+    (:mod:`~belt_drive_ros.core.tick`: whole grid steps away from breakpoints)
+    does not serve it.
 ``stepper.run(x0, t0, t1, progress=None, vectorize=None) -> (times, states)``
     The same advance, recording every knot: ``times`` (N+1,) [s] starts at
     ``t0`` and ends at ``t1`` exactly, ``states`` (N+1, n).
@@ -277,24 +279,6 @@ class Stepper:
             return x
         if self.guard is not None:
             raise ValueError("advance: a guarded stepper is run with run() (it may stop early)")
-        k0, k1 = self._snap(t0), self._snap(t1)
-        loop = self.loop
-        if k0 is not None and k1 is not None and k1 > k0 and loop is not None:
-            # the node's usual tick: whole steps on the grid, no breakpoint near (the plan's common case):
-            # one kernel call, its status instead of a second look at the state
-            if not self._near_breakpoint(t0, t1, k0, k1):
-                self.split_steps = {}
-                if k1 == k0 + 1:  # the floats of _grid(k0, k0 + 2)
-                    times = np.array((self.origin + self.dt * k0, self.origin + self.dt * k1))
-                else:
-                    times = self._grid(k0, k1 + 1)
-                out = np.empty((k1 - k0, x.size))
-                done, status, t = loop.fresh(times, x if x.flags.writeable else x.copy(), out, SPEED_LIMIT)
-                if status == NOT_CONVERGED:
-                    self._not_converged(t)
-                if status == DIVERGED:
-                    raise self._diverged(t1, out[done - 1])
-                return out[0] if k1 == k0 + 1 else out[-1].copy()
         plan = self._plan(t0, t1, absorb=True)
         out = self._march(x, plan, None, record=False)
         if not _healthy(out):
