@@ -26,7 +26,8 @@ TICK_NS = 1_000_000
 class Lockstep:
     """A NetworkNode and a probe on a private context, /clock stepped by the probe."""
 
-    def __init__(self, domain_id: int, namespace: str = "", scene: str = SCENE, **params):
+    def __init__(self, domain_id: int, namespace: str = "", scene: str = SCENE,
+                 topics=("alternator/speed", "spans/tensioner_alternator/tension"), joints: bool = False, **params):
         import rclpy
         from rclpy.context import Context
         from rclpy.node import Node
@@ -47,9 +48,16 @@ class Lockstep:
         self.clock = self.probe.create_publisher(Clock, "/clock", reliable)
         self.drive = self.probe.create_publisher(Float64, "drive_torque", reliable)
         self.load = self.probe.create_publisher(Float64, "alternator/load_torque", reliable)
-        self.got = {"alternator/speed": [], "spans/tensioner_alternator/tension": []}
+        self.got = {topic: [] for topic in topics}
         self.subs = [self.probe.create_subscription(Float64, topic, lambda m, t=topic: self.got[t].append(m.data),
-                                                    reliable) for topic in self.got]
+                                                    reliable) for topic in topics]
+        if joints:
+            from sensor_msgs.msg import JointState
+
+            self.got["joint_states"] = []
+            self.subs.append(self.probe.create_subscription(
+                JointState, "joint_states", lambda m: self.got["joint_states"].append(
+                    tuple(m.position) + tuple(m.velocity) + tuple(m.effort)), reliable))
         self.executor = make_executor(self.context, "single")
         self.executor.add_node(self.node)
         self.executor.add_node(self.probe)
@@ -174,8 +182,9 @@ def test_scene_driven_node_equals_offline_sim(tmp_path, ros_domain_id):
     finally:
         h.close()
     status = diagnostics[-1].status[0]
-    assert status.level == b"\x00" and "fead_i4" in status.name
-    assert {kv.key for kv in status.values} >= {"published", "received", "friction_use_max"}
+    assert status.level == b"\x00" and status.name.endswith(": simulation") and status.hardware_id == "fead_i4"
+    assert {kv.key for kv in status.values} >= {"published", "received", "friction_use_max", "tick_compute_us_p50",
+                                                "tick_compute_us_p99", "period_error_ms_p99"}
     off = tmp_path / "offline.mcap"
     assert main(["sim", SCENE, "--duration", "0.03", "--out", str(off)]) == 0
     a, b = _decode(rec), _decode(off)
@@ -188,6 +197,32 @@ def test_scene_driven_node_equals_offline_sim(tmp_path, ros_domain_id):
     assert all(c[t] == a[t] for t in a), [t for t in a if c.get(t) != a[t]]
     report = compare(again, rec, rtol=0.0, atol=0.0)
     assert report.passed, [str(f) for f in report.failures]
+
+
+def test_a_tick_without_float_readers_publishes_the_same_joint_states(tmp_path, ros_domain_id):
+    """No Float64 reader, no recording: the ticks compute the joint states alone; they equal the offline run's bit for
+    bit, and the 1 Hz diagnostics still report the capstan use (computed there from the tick's state)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from belt_drive_ros.cli import main
+
+    h = Lockstep(ros_domain_id, topics=(), joints=True, drive_source="scene")
+    diagnostics = []
+    h.probe.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 10)
+    try:
+        for k in range(0, 31):
+            h.step(START_NS + k * TICK_NS)
+        assert h.node.last_run is None  # the per-pulley outputs were skipped
+        h.node._diagnostics()
+        h.until(lambda: diagnostics, "/diagnostics")
+        got = list(h.got["joint_states"])
+    finally:
+        h.close()
+    values = {kv.key: kv.value for kv in diagnostics[-1].status[0].values}
+    assert 0.0 < float(values["friction_use_max"].split()[0]) < 1.0
+    off = tmp_path / "offline.mcap"
+    assert main(["sim", SCENE, "--duration", "0.03", "--out", str(off)]) == 0
+    assert got == _decode(off)["/joint_states"][1]  # bit for bit
 
 
 def test_runup_chart_takes_the_crank_through_the_engine_speed_range(tmp_path, capsys):
@@ -245,3 +280,23 @@ def test_a_recording_cut_off_mid_write_resimulates_up_to_its_last_complete_sampl
         assert b[topic][1] == a[topic][1][: len(b[topic][1])] and len(b[topic][1]) == rows, topic
     cut.write_bytes(data[:200])  # nothing but the header: one line, exit 2
     assert main(["sim", str(cut), "--out", str(tmp_path / "x.mcap")]) == 2
+
+
+@pytest.mark.parametrize("tier", ["flexible", "rigid", "slipping"])
+def test_joint_values_alone_equal_those_of_the_whole_outputs(tier):
+    """The tick's joint-states-only path (stepper.absolute + layout.joint_values) gives the values of the one-sample
+    outputs bit for bit, in every tier, with a held crank torque and an accessory on its profile."""
+    from belt_drive_ros.core.network.scene import load_network
+    from belt_drive_ros.io.network_bag import NetworkLayout
+    from belt_drive_ros.ros.network_stepper import NetworkStepper
+
+    scene = load_network(SCENE)
+    stepper, layout = NetworkStepper(scene, tier=tier), NetworkLayout(scene)
+    x = stepper.initial()
+    stepper.hold(scene.driver, 25.0)
+    for k in range(0, 60, 3):
+        x = stepper.advance(x, k, k + 3)
+        run, u = stepper.sample(k + 3, x)
+        alone = layout.joint_values(stepper.absolute(x)[0], stepper.inputs((k + 3) * stepper.dt, x))
+        assert alone == layout.values(run, u)[0]
+    assert len(alone) == 3 * len(layout.joints) and np.ptp(alone[len(layout.joints): 2 * len(layout.joints)]) > 0.0

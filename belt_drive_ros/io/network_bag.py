@@ -157,13 +157,6 @@ class NetworkLayout:
         """``(joints, floats)`` of a one-sample run and its pulley torques ``u``: the JointState's position,
         velocity and effort concatenated, and the Float64 topics' values, as Python floats."""
         n = len(self.scene.pulleys)
-        pos = [float(v) for v in run.angle[0]]
-        vel = [float(v) for v in run.speed[0]]
-        eff = [float(v) for v in u]
-        if self.arm:
-            pos.append(float(run.arm_angle[0]) - self.arm[3])
-            vel.append(float(run.states[0, -1]))
-            eff.append(0.0)
         zeros = np.zeros((1, n))
         signals = {"angle": run.angle, "speed": run.speed, "belt_torque": run.belt_torque, "hub_load": run.hub_load,
                    "friction_use": run.friction_use, "slip": getattr(run, "slip", None),
@@ -172,7 +165,23 @@ class NetworkLayout:
         floats = []
         for _, (what, i) in self.floats:
             floats.append(float(run.arm_angle[0]) if what == "arm_angle" else float(signals[what][0, i]))
-        return pos + vel + eff, floats
+        return self.joint_values(run.states[0], u), floats
+
+    def joint_values(self, state, u) -> list:
+        """The JointState's position, velocity and effort concatenated, as Python floats, of one absolute state
+        ``[theta, theta_a, omega, omega_a]`` (a run's ``states`` row) and its pulley torques ``u`` [N m].
+
+        The arm's position is its absolute angle less the installed one, ``(theta_a + theta_0) - theta_0``
+        computed as the run's ``arm_angle`` gives it (bit for bit the recorded value)."""
+        n, m = len(self.scene.pulleys), len(state) // 2
+        pos = [float(v) for v in state[:n]]
+        vel = [float(v) for v in state[m : m + n]]
+        eff = [float(v) for v in u]
+        if self.arm:
+            pos.append(float(state[n] + self.arm[3]) - self.arm[3])
+            vel.append(float(state[-1]))
+            eff.append(0.0)
+        return pos + vel + eff
 
 
 # ---------------------------------------------------------------------- writing

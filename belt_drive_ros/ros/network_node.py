@@ -16,8 +16,14 @@ Topics (relative names, SI units, the layout of :mod:`belt_drive_ros.io.network_
   friction_use, slip, slip_speed``, per span ``spans/S/tension, slack``,
   ``tensioner_arm/angle``, ``joint_states`` (every pulley and the arm),
   ``/tf`` (where tf2_msgs is installed) and ``robot_description`` (the
-  layout's URDF, latched); ``/diagnostics`` at 1 Hz (WARN while a span
-  would go slack or a pulley reaches its capstan limit).
+  layout's URDF, latched); ``/diagnostics`` at 1 Hz (status ``NODE:
+  simulation``: tier, method, tick counters, period error and the tick
+  thread's compute time per tick ``tick_compute_us_p50/p99``; WARN while a
+  span would go slack or a pulley reaches its capstan limit). A topic is
+  sent only while it has a reader ("matched" events keep the counts); while
+  no Float64 output has a reader and nothing records, a tick computes the
+  joint states alone (the same values) and skips the per-pulley and
+  per-span outputs.
 
 Time: the paper node's tick sources (:class:`~.timing.TickSource`: system
 clock with the tick thread, ``/clock`` lockstep with ``use_sim_time``, or
@@ -213,6 +219,13 @@ class NetworkSimulation:
         joints, floats = self.layout.values(run, u)
         return joints, floats, run
 
+    def joints(self) -> list:
+        """The JointState values at the current tick alone (those of :meth:`outputs`, bit for bit, without the
+        per-pulley and per-span outputs: the tick when no Float64 topic has a reader and nothing records)."""
+        stepper = self.stepper
+        u = stepper.inputs(self.k * stepper.dt, self.x)
+        return self.layout.joint_values(stepper.absolute(self.x)[0], u)
+
 
 class NetworkNode(Node):
     """A belt network as a ROS 2 node (see the module docstring)."""
@@ -325,10 +338,14 @@ class NetworkNode(Node):
     def _tick(self, now_ns: int, defer: bool = False):
         if not self.sim.advance_to(now_ns):
             return None
-        joints, floats, run = self.sim.outputs()
-        self.last_run = run
         t = self.sim.t_ns
         readers, recorder = self._readers, self.recorder
+        if recorder is not None or any(readers[topic] for topic, _ in self.layout.floats):
+            joints, floats, run = self.sim.outputs()
+            self.last_run = run
+        else:  # nothing reads the per-pulley/span outputs: the joints alone (diagnostics compute the rest at 1 Hz)
+            joints, floats = self.sim.joints(), None
+            self.last_run = None
         sends = []
         joint_cdr = self._joint_cdr.encode(t, joints)
         if readers["joint_states"]:
@@ -336,7 +353,7 @@ class NetworkNode(Node):
         tf_cdr = self._tf_cdr.encode(t, joints[: len(self.layout.joints)])
         if self._pub_tf is not None and readers.get("/tf"):
             sends.append((self._pub_tf.publish, tf_cdr))
-        float_cdr = self._encode_floats(floats)
+        float_cdr = () if floats is None else self._encode_floats(floats)
         for (topic, _), pub, data in zip(self.layout.floats, self._pub_float, float_cdr):
             if readers[topic]:
                 sends.append((pub.publish, data))
@@ -352,10 +369,21 @@ class NetworkNode(Node):
         return None
 
     def _diagnostics(self) -> None:
-        run, s = self.last_run, self.settings
-        status = DiagnosticStatus(name=f"{self.get_name()}: belt network {s.scene.name}", hardware_id=s.scene.name)
+        s = self.settings
+        with self.timing.lock:
+            run = self.last_run
+            if run is None and self.sim.started:  # the ticks skipped the outputs (no reader): this tick's
+                run = self.sim.outputs()[2]
+        status = DiagnosticStatus(name=f"{self.get_name()}: simulation", hardware_id=s.scene.name)
         level, message = DiagnosticStatus.OK, "running"
-        values = {k: str(v) for k, v in self.counters.items() if isinstance(v, int)}
+        values = {"scene": s.scene.name, "tier": self.sim.stepper.tier, "method": self.sim.stepper.method}
+        values.update({k: str(v) for k, v in self.counters.items() if isinstance(v, int)})
+        p50, p99, pmax = self.stats.period_error_ms(self.timing.nominal_period())
+        compute = self.timing.compute_us()  # the tick thread's compute time per tick [us] (None without it)
+        values.update(period_error_ms_p50=f"{p50:.4f}", period_error_ms_p99=f"{p99:.4f}",
+                      period_error_ms_max=f"{pmax:.4f}",
+                      tick_compute_us_p50="-" if compute is None else f"{compute[0]:.1f}",
+                      tick_compute_us_p99="-" if compute is None else f"{compute[1]:.1f}")
         if run is None:
             message = "waiting for the first tick"
         else:

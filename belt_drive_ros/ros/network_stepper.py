@@ -167,6 +167,19 @@ class NetworkStepper:
         advance(self.loop, x, out[1:], 0, steps)
         return out
 
+    def absolute(self, x) -> np.ndarray:
+        """The (1, 2m) state ``[theta, theta_a, omega, omega_a]`` in the pulleys' own angles of loop state ``x``
+        (the ``states`` of :meth:`sample`'s run, computed as it computes them)."""
+        X = np.asarray(x, dtype=float)[None, :]
+        if self.tier == "rigid":
+            n, m, rho = self.n, self.m, self.model.ratios
+            full = np.zeros((1, 2 * m))
+            full[:, :n], full[:, m : m + n] = X[:, :1] * rho, X[:, 1:2] * rho
+            return full
+        if self.tier == "slipping":
+            return X[:, : 2 * self.m]
+        return self.model.to_absolute(X)
+
     def sample(self, k: int, x):
         """The run's outputs (:class:`~belt_drive_ros.core.network.model.NetworkRun`, one sample) at step ``k``
         and the pulley torques ``u`` [N m] applied there."""
