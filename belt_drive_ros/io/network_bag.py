@@ -174,9 +174,7 @@ class NetworkLayout:
         The arm's position is its absolute angle less the installed one, ``(theta_a + theta_0) - theta_0``
         computed as the run's ``arm_angle`` gives it (bit for bit the recorded value)."""
         n, m = len(self.scene.pulleys), len(state) // 2
-        pos = [float(v) for v in state[:n]]
-        vel = [float(v) for v in state[m : m + n]]
-        eff = [float(v) for v in u]
+        pos, vel, eff = state[:n].tolist(), state[m : m + n].tolist(), np.asarray(u, dtype=float).tolist()
         if self.arm:
             pos.append(float(state[n] + self.arm[3]) - self.arm[3])
             vel.append(float(state[-1]))

@@ -223,8 +223,8 @@ class NetworkSimulation:
         """The JointState values at the current tick alone (those of :meth:`outputs`, bit for bit, without the
         per-pulley and per-span outputs: the tick when no Float64 topic has a reader and nothing records)."""
         stepper = self.stepper
-        u = stepper.inputs(self.k * stepper.dt, self.x)
-        return self.layout.joint_values(stepper.absolute(self.x)[0], u)
+        full = stepper.absolute(self.x)
+        return self.layout.joint_values(full[0], stepper.inputs(self.k * stepper.dt, self.x, full))
 
 
 class NetworkNode(Node):

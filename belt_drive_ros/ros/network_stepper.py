@@ -98,26 +98,19 @@ class NetworkStepper:
                 self.loop.hold(pulley, float(value))
 
     # ----------------------------------------------------------------- inputs
-    def inputs(self, t: float, x) -> np.ndarray:
-        """The n pulley torques ``u`` [N m] at time ``t`` [s] and state ``x`` (held values or profiles)."""
-        angle, speed = self._wheels(np.asarray(x, dtype=float)[None, :])
-        u = np.zeros(self.n)
+    def inputs(self, t: float, x, full=None) -> np.ndarray:
+        """The n pulley torques ``u`` [N m] at time ``t`` [s] and state ``x`` (held values or profiles);
+        ``full``: :meth:`absolute` of ``x`` when the caller has it."""
+        full = self.absolute(x) if full is None else full
+        n, m = self.n, self.m
+        angle, speed = full[0, :n], full[0, m : m + n]
+        u = np.zeros(n)
         for i, p in enumerate(self.scene.pulleys):
             if self.held[i] is not None:
                 u[i] = self.signs[i] * self.held[i] / p.gear
             elif p.sign:
-                u[i] = p.load(t, angle[0, i] if p.torque.uses_angle else 0.0, speed[0, i])
+                u[i] = p.load(t, angle[i] if p.torque.uses_angle else 0.0, speed[i])
         return u
-
-    def _wheels(self, X):
-        """Pulley angles and speeds (N, n) of loop states X."""
-        if self.tier == "rigid":
-            rho = self.model.ratios
-            return X[:, :1] * rho, X[:, 1:2] * rho
-        if self.tier == "slipping":  # absolute angles and speeds
-            return X[:, : self.n], X[:, self.m : self.m + self.n]
-        full = self.model.to_absolute(X)
-        return full[:, : self.n], full[:, self.m : self.m + self.n]
 
     # ---------------------------------------------------------------- stepping
     def step_index(self, t: float) -> int:
@@ -185,7 +178,8 @@ class NetworkStepper:
         and the pulley torques ``u`` [N m] applied there."""
         t = k * self.dt
         X = np.asarray(x, dtype=float)[None, :]
-        u = self.inputs(t, x)
+        full = self.absolute(x)
+        u = self.inputs(t, x, full)
         if self.tier == "rigid":
             return rigid_outputs(self.loop, np.array([t]), X, u[None, :]), u
         if self.tier == "slipping":
@@ -194,4 +188,4 @@ class NetworkStepper:
             N, n = self.loop.N, self.n
             p = lambda j: X[:, N + j * n : N + (j + 1) * n]  # noqa: E731 - the packed state's parts
             return slip_run(self.model, np.array([t]), X[:, :N], p(0), p(4), p(5), p(2), p(3)), u
-        return outputs(self.model, np.array([t]), self.model.to_absolute(X), self.model.run_tensions(X)), u
+        return outputs(self.model, np.array([t]), full, self.model.run_tensions(X)), u

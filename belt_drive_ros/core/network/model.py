@@ -289,10 +289,13 @@ class NetworkModel:
     def to_absolute(self, states) -> np.ndarray:
         """Run states (N, 2m) in the pulleys' own angles ``[theta, theta_a, omega, omega_a]`` (theta_i = rho_i theta_d - l_i)."""
         out = np.array(states, dtype=float)
-        d = self.scene.driver
-        for i in range(len(self.scene.pulleys)):
-            if i != d:
-                out[:, i] = self.ratios[i] * states[:, d] - states[:, i]
+        found = self.__dict__.get("_lags")
+        if found is None:  # the pulleys other than the driver and their ratios (per element as a loop over them)
+            d = self.scene.driver
+            lags = np.array([i for i in range(len(self.scene.pulleys)) if i != d])
+            found = self.__dict__["_lags"] = (d, lags, self.ratios[lags])
+        d, lags, rho = found
+        out[:, lags] = rho * out[:, d : d + 1] - out[:, lags]
         return out
 
     def run_tensions(self, states) -> np.ndarray:
