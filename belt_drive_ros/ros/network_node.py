@@ -340,19 +340,27 @@ class NetworkNode(Node):
             return None
         t = self.sim.t_ns
         readers, recorder = self._readers, self.recorder
+        floats = None
         if recorder is not None or any(readers[topic] for topic, _ in self.layout.floats):
             joints, floats, run = self.sim.outputs()
             self.last_run = run
         else:  # nothing reads the per-pulley/span outputs: the joints alone (diagnostics compute the rest at 1 Hz)
-            joints, floats = self.sim.joints(), None
             self.last_run = None
+            if not (readers["joint_states"] or (self._pub_tf is not None and readers.get("/tf"))):
+                self.counters["published"] += 1
+                return [] if defer else None
+            joints = self.sim.joints()
         sends = []
-        joint_cdr = self._joint_cdr.encode(t, joints)
-        if readers["joint_states"]:
-            sends.append((self._pub_joint.publish, joint_cdr))
-        tf_cdr = self._tf_cdr.encode(t, joints[: len(self.layout.joints)])
-        if self._pub_tf is not None and readers.get("/tf"):
-            sends.append((self._pub_tf.publish, tf_cdr))
+        joint_cdr = tf_cdr = None
+        if readers["joint_states"] or recorder is not None:
+            joint_cdr = self._joint_cdr.encode(t, joints)
+            if readers["joint_states"]:
+                sends.append((self._pub_joint.publish, joint_cdr))
+        tf_read = self._pub_tf is not None and readers.get("/tf")
+        if tf_read or recorder is not None:
+            tf_cdr = self._tf_cdr.encode(t, joints[: len(self.layout.joints)])
+            if tf_read:
+                sends.append((self._pub_tf.publish, tf_cdr))
         float_cdr = () if floats is None else self._encode_floats(floats)
         for (topic, _), pub, data in zip(self.layout.floats, self._pub_float, float_cdr):
             if readers[topic]:

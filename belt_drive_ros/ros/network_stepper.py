@@ -68,6 +68,10 @@ class NetworkStepper:
             self._rows = (self.loop.pk.copy(), self.loop.pp.copy())
         #: per pulley the sign of its torque on the belt (driver +1, accessory -1, else 0), with or without a profile
         self.signs = [ROLE_SIGN.get(p.role, 0.0) for p in scene.pulleys]
+        #: per pulley with a torque (held or profile): (index, sign, gear, profile uses its angle, scalar profile)
+        self._profiles = [(i, p.sign, p.gear, p.torque is not None and p.torque.uses_angle,
+                           p.torque.scalar_torque() if p.torque is not None else None)
+                          for i, p in enumerate(scene.pulleys) if p.sign or self.signs[i]]
         #: per pulley the held torque [N m] (profile sign convention) or None: the scene's profile
         self.held: list[float | None] = [None] * self.n
 
@@ -103,13 +107,19 @@ class NetworkStepper:
         ``full``: :meth:`absolute` of ``x`` when the caller has it."""
         full = self.absolute(x) if full is None else full
         n, m = self.n, self.m
-        angle, speed = full[0, :n], full[0, m : m + n]
+        angle, speed = full[0, :n].tolist(), full[0, m : m + n].tolist()  # Python floats: cheaper scalar profiles
         u = np.zeros(n)
-        for i, p in enumerate(self.scene.pulleys):
-            if self.held[i] is not None:
-                u[i] = self.signs[i] * self.held[i] / p.gear
-            elif p.sign:
-                u[i] = p.load(t, angle[i] if p.torque.uses_angle else 0.0, speed[i])
+        t = float(t)
+        for i, sign, gear, uses_angle, torque in self._profiles:
+            held = self.held[i]
+            if held is not None:
+                u[i] = self.signs[i] * held / gear
+            elif not sign:  # no profile: nothing until held
+                continue
+            elif gear == 1.0:  # NetworkPulley.load's formula, the profile's scalar evaluation
+                u[i] = sign * torque(t, angle[i] if uses_angle else 0.0, speed[i])
+            else:
+                u[i] = sign * torque(t, (angle[i] if uses_angle else 0.0) / gear, speed[i] / gear) / gear
         return u
 
     # ---------------------------------------------------------------- stepping
