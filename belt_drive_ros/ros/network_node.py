@@ -152,6 +152,8 @@ class NetworkSimulation:
         self.origin_ns = 0
         self.last_divergence = None
         self.applied: list = []  # (input topic, value) applied at the last tick (recorded)
+        #: the crank's index when its torque comes from drive_torque (0 N m until the first message), else -1
+        self._driver = settings.scene.driver if settings.drive_source == "topic" else -1
 
     # the time base of the paper node's simulation (the same attributes: t_ns, origin_ns, settings.tick_ns)
     started = NodeSimulation.started
@@ -171,11 +173,11 @@ class NetworkSimulation:
 
     def _sample(self) -> None:
         """Hold the latest inputs from this tick on (the driver at 0 N m before its first message)."""
-        s, stepper = self.settings, self.stepper
+        stepper, driver = self.stepper, self._driver
         self.applied = []
         for topic, i in self.layout.inputs:
             value = self.latest[i]
-            if i == s.scene.driver and s.drive_source == "topic" and value is None:
+            if i == driver and value is None:
                 value = 0.0
             if value is not None:
                 stepper.hold(i, value)
@@ -253,11 +255,16 @@ class NetworkNode(Node):
         # -- outputs, only to topics with readers ("matched" events keep the counts)
         self._readers = {}
 
+        self._float_readers = 0  # readers of all Float64 outputs together (a tick computes them only for some)
+        floats = {topic for topic, _ in self.layout.floats}
+
         def matched(name):
             self._readers[name] = 0
 
             def on_matched(info):
                 self._readers[name] = info.current_count
+                if name in floats:
+                    self._float_readers = sum(self._readers.get(topic, 0) for topic in floats)
 
             return PublisherEventCallbacks(matched=on_matched)
 
@@ -341,7 +348,7 @@ class NetworkNode(Node):
         t = self.sim.t_ns
         readers, recorder = self._readers, self.recorder
         floats = None
-        if recorder is not None or any(readers[topic] for topic, _ in self.layout.floats):
+        if recorder is not None or self._float_readers:
             joints, floats, run = self.sim.outputs()
             self.last_run = run
         else:  # nothing reads the per-pulley/span outputs: the joints alone (diagnostics compute the rest at 1 Hz)

@@ -290,12 +290,12 @@ class NetworkModel:
         """Run states (N, 2m) in the pulleys' own angles ``[theta, theta_a, omega, omega_a]`` (theta_i = rho_i theta_d - l_i)."""
         out = np.array(states, dtype=float)
         found = self.__dict__.get("_lags")
-        if found is None:  # the pulleys other than the driver and their ratios (per element as a loop over them)
-            d = self.scene.driver
-            lags = np.array([i for i in range(len(self.scene.pulleys)) if i != d])
-            found = self.__dict__["_lags"] = (d, lags, self.ratios[lags])
-        d, lags, rho = found
-        out[:, lags] = rho * out[:, d : d + 1] - out[:, lags]
+        if found is None:  # the driver and the ratios of the pulleys before and after it
+            d, n = self.scene.driver, len(self.scene.pulleys)
+            found = self.__dict__["_lags"] = (d, n, self.ratios[:d].copy(), self.ratios[d + 1 :].copy())
+        d, n, before, after = found  # per element the loop over pulleys' operations (bit for bit)
+        out[:, :d] = before * out[:, d : d + 1] - out[:, :d]
+        out[:, d + 1 : n] = after * out[:, d : d + 1] - out[:, d + 1 : n]
         return out
 
     def run_tensions(self, states) -> np.ndarray:
