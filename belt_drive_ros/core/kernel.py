@@ -34,6 +34,9 @@ import numpy as np
 from numba import njit
 
 from .profile_data import DIVERGED, GUARDED, NOT_CONVERGED, OK
+from . import jit_cache
+
+jit_cache.refresh()  # before any kernel loads: drop cache entries built from other kernel sources
 
 _JIT = dict(cache=True, nogil=True)
 #: small helpers are inlined into their callers (no call, no reference counting of the arrays passed)

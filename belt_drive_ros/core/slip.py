@@ -389,8 +389,8 @@ class HybridStepper:
                 locate_event, Z, R, c, _, guards, uses = kernel_slip.locate_event, *arrays[:6]
                 rest = arrays[6:]
                 self._located = lambda mode, sigma, t, y, h, hi, y1: locate_event(
-                    int(mode), float(sigma), float(t), np.asarray(y, dtype=float), float(h), float(hi),
-                    np.asarray(y1, dtype=float), Z, R, c, guards, uses, *rest)  # fmt: skip
+                    int(mode), float(sigma), float(t), np.ascontiguousarray(y, dtype=float), float(h), float(hi),
+                    np.ascontiguousarray(y1, dtype=float), Z, R, c, guards, uses, *rest)  # C arrays: one signature  # fmt: skip
 
     # ---------------------------------------------------------- the flows
     def _integrator(self, mode: int, h: float):
