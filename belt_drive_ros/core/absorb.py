@@ -18,7 +18,6 @@ import math
 
 import numpy as np
 
-from . import stepper as stepper_module  # GRID_TOLERANCE (stepper imports this module lazily)
 
 #: how far [s] before the step's end a stage at the step's end reads the torques in an absorbed step
 #: (at most a thousandth of the step): a recording's hold switches at whole nanoseconds
@@ -108,7 +107,7 @@ def absorbed_steps(stepper, bps: np.ndarray, first: int, last: int, lead: bool, 
     origin, dt = stepper.origin, stepper.dt
     kf = np.rint((bps - origin) / dt)
     d = np.abs(origin + kf * dt - bps)
-    on = (d <= stepper_module.GRID_TOLERANCE * dt) | (d <= 8.0 * np.spacing(np.abs(bps)))
+    on = (d <= stepper.grid_tolerance * dt) | (d <= 8.0 * np.spacing(np.abs(bps)))
     k = kf.astype(np.int64)
     cand = on & (k >= first + 2) & (k <= last - 1)
     if not cand.any():

@@ -248,6 +248,9 @@ class Stepper:
         ``[lo, hi]`` and split at ``cuts``; else None.
     """
 
+    #: a breakpoint this close to a grid point (relative to dt) is on the grid (read by :mod:`.absorb`)
+    grid_tolerance = GRID_TOLERANCE
+
     def __init__(
         self, plant: Plant, method: str, dt: float, method_options=None, origin: float = 0.0, integrator=None, guard=None
     ):
