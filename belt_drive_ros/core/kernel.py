@@ -260,7 +260,7 @@ def linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp):
     )  # fmt: skip
 
 
-@njit(**_INLINE)
+@njit(**_JIT)  # out of line: the variant loop calls the same compiled body (its inlining doubled the build)
 def _steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
            ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):  # fmt: skip
     """The loop for these unpacked arrays (the arguments of :func:`_linear_steps`): :func:`_one_stage4` or
