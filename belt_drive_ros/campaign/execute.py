@@ -379,6 +379,7 @@ def run_campaign(
     compute_start = time.perf_counter()
     compute_end = compute_start
     recordings_dir = None
+    futures: dict = {}
     try:
         if manifest is None:
             if force and out_dir.exists():
@@ -445,6 +446,8 @@ def run_campaign(
         signum = int(getattr(exc, "signum", signal.SIGINT))
         notes.append("interrupted: run the same command again to resume")
     finally:
+        for future in futures:  # released while the client is open: a future freed after the close (an
+            future.release()  # interrupt's traceback can hold one) would print an error from its __del__
         if own:
             _close(client, cluster)
     parts = sorted(parts_dir.glob("part-*.parquet"))
