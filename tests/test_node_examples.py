@@ -1,7 +1,7 @@
 """The README's node examples move the drive: node + ``belt-drive source``, or ``drive_source:=scene``; alone, it coasts.
 
 Three processes sets run at once, each in a ROS domain of its own, for
-~15 s of wall time with the node recording (``--record``): the node of
+10 s of wall time once every process runs, with the node recording (``--record``): the node of
 ``truck_compressor`` with ``belt-drive source engine --scene
 truck_compressor`` (its diesel and governor: the README says ~78 rad/s),
 the node with ``drive_source:=scene`` (no source), and the node alone
@@ -15,6 +15,7 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -30,8 +31,17 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
 def _start(args, env, cwd):
-    return subprocess.Popen([str(BIN / "belt-drive"), *args], env=env, cwd=cwd, stdout=subprocess.PIPE,
+    """The command with its output collected line by line (``proc.lines``) by a reader thread."""
+    proc = subprocess.Popen([str(BIN / "belt-drive"), *args], env=env, cwd=cwd, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
+    proc.lines = []
+    proc.reader = threading.Thread(target=lambda: proc.lines.extend(iter(proc.stdout.readline, "")), daemon=True)
+    proc.reader.start()
+    return proc
+
+
+#: a line each command prints once it runs (the node: its scene and model; the source: what it publishes)
+RUNNING = {"node": "model ", "source": "publishing drive_torque"}
 
 
 def _speed(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -50,19 +60,29 @@ def test_readme_node_examples_move_the_drive(tmp_path):
     for k, commands in enumerate(runs.values()):
         env = ros_env.child_environment(ros_env.process_domain_id(offset=70 + k))
         procs += [_start(args, env, tmp_path) for args in commands]
+    kinds = [args[0] for commands in runs.values() for args in commands]
     try:
-        time.sleep(15.0)
+        # every process running before the clock starts (a loaded machine takes seconds to start one), then
+        # 10 s of drive; a process that never says it runs fails below with its output
+        deadline = time.monotonic() + 90.0
+        while time.monotonic() < deadline and not all(
+            any(RUNNING[kind] in line for line in list(proc.lines)) for kind, proc in zip(kinds, procs)
+        ):
+            assert all(proc.poll() is None for proc in procs), [proc.lines[-5:] for proc in procs]
+            time.sleep(0.2)
+        time.sleep(10.0)
     finally:
         for proc in procs:
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
-        outputs = []
         for proc in procs:
             try:
-                outputs.append(proc.communicate(timeout=20)[0])
+                proc.wait(timeout=20)
             except subprocess.TimeoutExpired:
                 proc.kill()
-                outputs.append(proc.communicate()[0])
+                proc.wait()
+            proc.reader.join(timeout=5)
+    outputs = ["".join(proc.lines) for proc in procs]
     assert all(p.returncode == 0 for p in procs), "\n".join(o[-800:] for o in outputs)
 
     t, w = _speed(tmp_path / "source.mcap")
