@@ -196,8 +196,9 @@ def test_a_run_killed_while_writing_leaves_no_partial_file_and_keeps_the_old_one
     else:
         out.write_bytes(b"old")
         growing = lambda: list(tmp_path.glob(f".{name}.*.part"))  # noqa: E731
-    # long enough that the signal lands mid-run (the compiled kernel runs paper at >1000x real time)
-    cmd = [sys.executable, "-m", "belt_drive_ros.cli", "sim", "paper", "--duration", "100000", "--quiet",
+    # long enough that the signal lands mid-run: the first windows are written after the guards (which
+    # scale with the duration: ~50 s under load at 100,000 s), the rest takes seconds more to write
+    cmd = [sys.executable, "-m", "belt_drive_ros.cli", "sim", "paper", "--duration", "10000", "--quiet",
            "--force", "--out", str(out)] + (["--bag-folder"] if name == "bag" else [])
     child = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=tmp_path.parent,
                              env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
