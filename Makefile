@@ -30,7 +30,7 @@ $(STAMP): pyproject.toml constraints.txt tests/foxglove/package-lock.json
 	$(PY) -m pip install --quiet --disable-pip-version-check -c constraints.txt pip
 	$(PY) -m pip install --quiet --disable-pip-version-check -c constraints.txt -e '.[ros,plot,test,campaign]'
 	@echo "compiling the numba kernels once (cached on disk; a first run then compiles nothing)"
-	$(PY) -c "from belt_drive_ros.core.warm import warm; warm()"
+	$(PY) -c "from belt_drive_ros.core.warm import warm; warm(jobs=2)"
 	$(VENV)/bin/belt-drive sim paper --duration 0.01 --quiet
 	touch $(STAMP)
 

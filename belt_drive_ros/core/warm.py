@@ -4,21 +4,53 @@
 every kernel's argument types are fixed (float64/int64 C arrays and floats),
 so one short call per kernel covers every scene. Kept apart from the kernels'
 own modules so that no kernel module imports the simulators above it.
+
+The kernels fall in two groups that share no compiled function but the
+profile dispatcher: the single belt's (linear and variant loops, the
+slipping hybrid, the node's tick) and the belt network's (flexible/rigid and
+slipping loops). With ``jobs=2`` the network group compiles in a second
+process while this one compiles the single belt's: on two cores the build
+takes the longer group's time instead of the sum (numba writes each cache
+entry whole, so two processes writing the dispatcher's entry are safe).
 """
 
 from __future__ import annotations
 
+import subprocess
+import sys
 
-def warm() -> None:
-    """Warm the profile dispatcher, the linear and variant loops, the slipping hybrid loop, the node's
-    compiled tick (linear and slipping) and both belt-network loops (flexible/rigid and slipping)."""
-    from . import jit_cache, kernel_loop, slip_run, tick
-    from .network import simulate as network_simulate
-    from .network import slip as network_slip
 
-    jit_cache.refresh()
+def warm(jobs: int = 1) -> None:
+    """Warm every kernel: the single belt's here, the network's here too (``jobs=1``) or in a second
+    process at the same time (``jobs=2``); a failed second process raises ``RuntimeError``."""
+    from . import jit_cache
+
+    jit_cache.refresh()  # once, before either process loads a kernel
+    child = None
+    if jobs > 1:
+        code = "from belt_drive_ros.core.warm import warm_network; warm_network()"
+        child = subprocess.Popen([sys.executable, "-c", code])
+    warm_single()
+    if child is None:
+        warm_network()
+    elif child.wait() != 0:
+        raise RuntimeError(f"warming the network kernels failed (exit {child.returncode})")
+
+
+def warm_single() -> None:
+    """The profile dispatcher, the linear and variant loops, the slipping hybrid loop and the node's
+    compiled tick (linear and slipping)."""
+    from . import kernel_loop, slip_run, tick
+
     kernel_loop.warm()
     slip_run.warm_hybrid()
     tick.warm()
+
+
+def warm_network() -> None:
+    """Both belt-network loops (flexible/rigid and slipping)."""
+    from .network import simulate as network_simulate
+    from .network import slip as network_slip
+
     network_simulate.warm()
     network_slip.warm()
