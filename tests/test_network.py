@@ -659,3 +659,34 @@ def test_advancing_tick_by_tick_equals_the_whole_run_bit_for_bit():
     loop.hold(scene.index("power_steering"), 4.0)
     advance(loop, loop.initial(), out, 0, 150)
     assert not np.array_equal(model.to_absolute(out), whole.states[1:])
+
+
+def test_trapezoidal_runs_the_shipped_fead_at_its_step_and_converges_to_the_reference():
+    """The implicit stage's fixed point on the crank's governed engine torque stalls at rounding (a 2-cycle one ulp of
+    speed apart, times the governor's gain, is above the 1e-13 tolerance): it was refused at t = 0.214 s."""
+    scene = load_network("fead_i4")
+    ref = simulate(scene, dt=1e-5, method="etd4", model="flexible", check_accuracy=False)
+    scale = np.max(np.abs(ref.tension - 300.0))
+    for dt, stride in ((1e-3, 100), (1e-4, 10)):
+        run = simulate(scene, dt=dt, method="trapezoidal", model="flexible")
+        assert run.method == "trapezoidal" and run.time[-1] == pytest.approx(1.0)
+        err = np.max(np.abs(run.tension - ref.tension[::stride]))
+        est = float(run.accuracy.split("error ")[1].split(" N")[0])
+        assert 0.3 <= est / err <= 3.0, (dt, est, err)  # the guard says how wrong the step is
+        assert run.accuracy.startswith("accurate" if err < 1e-3 * scale else "INACCURATE"), (dt, run.accuracy, err / scale)
+    assert err < 0.02 * scale  # 0.25 of the peak change at 1 ms, 0.009 at 0.1 ms: the step converges
+
+
+def test_a_breakpoint_inside_a_step_splits_it_as_a_grid_holding_the_breakpoint_does():
+    """The alternator's load steps at 12.5 ms, inside the 1 ms grid's step 12: the step is split there (each piece the
+    method at its length), so the run equals one on a 0.5 ms grid (which holds 12.5 ms) at the common times; the
+    exponential methods are exact for piecewise-constant torques. Unsplit, the step saw the jump at its end."""
+    raw = _raw_tensioned()
+    raw["pulleys"][2]["torque"] = {"type": "step", "initial": 2.0, "final": 6.0, "time": 0.0125}
+    scene = NetworkScene.from_mapping({**raw, "duration": 0.05, "dt": 1e-3, "initial_speed": 10.0})
+    for method in ("exact", "etd2"):
+        coarse = simulate(scene, method=method, model="flexible", check_accuracy=False)
+        fine = simulate(scene, dt=5e-4, method=method, model="flexible", check_accuracy=False)
+        change = np.max(np.abs(fine.tension - 300.0))
+        assert np.max(np.abs(coarse.tension - fine.tension[::2])) <= 1e-9 * change, method
+        assert np.max(np.abs(coarse.speed - fine.speed[::2])) <= 1e-9 * np.max(np.abs(fine.speed)), method
