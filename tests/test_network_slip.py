@@ -261,3 +261,22 @@ def test_a_belt_sliding_on_every_pulley_is_a_one_line_error():
     scene = NetworkScene.from_mapping(data, "fead_loose")
     with pytest.raises(SimulationDivergedError, match=r"slides on every pulley at once at t = 0\.02\d+ s .*raise belt\.installed_tension"):
         simulate_slipping(None, scene, duration=0.1)
+
+
+def test_auto_that_lands_on_the_slipping_tier_refuses_a_method_asked_for_by_name():
+    """``auto`` finds the driver reaching its capstan limit; the slipping tier steps the exact flow only. A method
+    asked for by name is refused in one line naming the pulley (it used to be replaced by exact silently); the
+    scene's own method is replaced and the reason says so; exact by name runs."""
+    scene = dataclasses.replace(square([ramp(40.0, 0.2), ramp(24.0, 0.2), ramp(16.0, 0.2), None], [0.25, 2, 2, 2],
+                                       duration=0.3), method="etd2")
+    for method in ("rk4", "etd2", "trapezoidal"):
+        with pytest.raises(SceneError) as refused:
+            simulate_linear(scene, method=method)
+        text = str(refused.value)
+        assert "\n" not in text and text.startswith(f"method {method}: the run slips (driver reaches the capstan limit")
+        assert "exact flow of each stick/slip mode only" in text
+    run = simulate_linear(scene)
+    assert run.tier == "slipping" and run.method == "exact"
+    assert run.reason.startswith("slipping: driver reaches the capstan limit") and "the scene's etd2" in run.reason
+    named = simulate_linear(scene, method="exact")
+    assert named.tier == "slipping" and np.array_equal(named.states, run.states)

@@ -386,7 +386,9 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
     """Run a belt network scene from the belt turning at ``initial_speed`` unstretched.
 
     ``model``: one of :data:`TIERS` (module docstring); ``method``: any fixed-step method by name (default the
-    scene's; the slipping tier steps its own exact flow). The run carries ``tier``, ``reason``, ``method``
+    scene's). The slipping tier steps the exact flow of each stick/slip mode only: a ``method`` asked for by name
+    that it cannot step is refused (one line naming the slipping pulley) rather than replaced; the scene's own
+    method is replaced by ``exact`` there, and the reason says so. The run carries ``tier``, ``reason``, ``method``
     and ``accuracy`` (the step-doubling verdict of a linear tier).
     """
     if model not in TIERS:
@@ -405,6 +407,14 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
     run = _run(net, tier, name, dt, steps)
     why = slipping_reason(scene, run, tier) if model == "auto" else None
     if why is not None:
+        from .slip import METHODS
+
+        if method is not None and method not in METHODS:  # asked for by name: never swapped for another silently
+            raise SceneError(f"method {method}: the run slips ({why.removeprefix('slipping: ')}) and the slipping "
+                             "tier steps the exact flow of each stick/slip mode only: use method exact, or model "
+                             "flexible for the linear run (not valid past that time)")
+        if name not in METHODS:
+            why += f"; stepped exactly (the slipping tier's one method; the scene's {name} steps the linear tiers)"
         return replace(run_slipping(net, duration, dt), tier="slipping", reason=why, method="exact")
     verdict = accuracy(net, tier, name, dt, steps, run) if check_accuracy else ""
     return replace(run, tier=tier, reason=reason, method=name, accuracy=verdict)
