@@ -388,7 +388,7 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
     ``model``: one of :data:`TIERS` (module docstring); ``method``: any fixed-step method by name (default the
     scene's). The slipping tier steps the exact flow of each stick/slip mode only: a ``method`` asked for by name
     that it cannot step is refused (one line naming the slipping pulley) rather than replaced; the scene's own
-    method is replaced by ``exact`` there, and the reason says so. The run carries ``tier``, ``reason``, ``method``
+    method is replaced by ``exact`` there (``run.method`` says so). The run carries ``tier``, ``reason``, ``method``
     and ``accuracy`` (the step-doubling verdict of a linear tier).
     """
     if model not in TIERS:
@@ -413,8 +413,6 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
             raise SceneError(f"method {method}: the run slips ({why.removeprefix('slipping: ')}) and the slipping "
                              "tier steps the exact flow of each stick/slip mode only: use method exact, or model "
                              "flexible for the linear run (not valid past that time)")
-        if name not in METHODS:
-            why += f"; stepped exactly (the slipping tier's one method; the scene's {name} steps the linear tiers)"
         return replace(run_slipping(net, duration, dt), tier="slipping", reason=why, method="exact")
     verdict = accuracy(net, tier, name, dt, steps, run) if check_accuracy else ""
     return replace(run, tier=tier, reason=reason, method=name, accuracy=verdict)
