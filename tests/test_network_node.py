@@ -118,24 +118,28 @@ def _decode(path) -> dict:
     return out
 
 
+def _lockstep_run(h: Lockstep, ticks, sends: dict) -> dict:
+    """Step ``h`` to START_NS, then to each tick of ``ticks`` (sending ``sends[k] = (publisher, value)`` before tick
+    k); what the probe got per topic. Closes ``h``."""
+    try:
+        h.step(START_NS)
+        for k in ticks:
+            if k in sends:
+                h.send(getattr(h, sends[k][0]), sends[k][1])
+            h.step(START_NS + k * TICK_NS)
+        return {topic: list(values) for topic, values in h.got.items()}
+    finally:
+        h.close()
+
+
 def test_network_node_records_and_resimulates_bit_for_bit(tmp_path, ros_domain_id):
     from belt_drive_ros.cli import main
 
     rec = tmp_path / "node.mcap"
-    h = Lockstep(ros_domain_id, record_path=str(rec))
-    try:
-        h.step(START_NS)
-        for k in [*range(1, 31), *range(33, 41)]:  # /clock jumps 31, 32: integrated over, not published
-            if k == 3:
-                h.send(h.drive, 14.0)
-            if k == 12:
-                h.send(h.load, 6.0)  # the alternator now takes 6 N m from the belt instead of its profile
-            if k == 25:
-                h.send(h.drive, 9.5)
-            h.step(START_NS + k * TICK_NS)
-        got = {topic: list(values) for topic, values in h.got.items()}
-    finally:
-        h.close()
+    # /clock jumps 31, 32: integrated over, not published; from tick 12 the alternator takes 6 N m from the belt
+    # instead of its profile
+    got = _lockstep_run(Lockstep(ros_domain_id, record_path=str(rec)), [*range(1, 31), *range(33, 41)],
+                        {3: ("drive", 14.0), 12: ("load", 6.0), 25: ("drive", 9.5)})
     recorded = _decode(rec)
     assert len(recorded["/alternator/speed"][1]) == 39
     for topic, values in got.items():  # what subscribers got is what was recorded
@@ -266,18 +270,8 @@ def test_a_split_network_recording_starts_every_file_with_the_urdf_and_resimulat
     with pytest.raises(NodeConfigError, match="record_path: .*bag folder"):
         NetworkSettings.from_values({**values, "record_path": str(tmp_path / "x.mcap"), "max_bag_duration": 1.0})
     folder = tmp_path / "run"
-    h = Lockstep(ros_domain_id, record_path=str(folder), max_bag_duration=0.01)
-    try:
-        h.step(START_NS)
-        for k in range(1, 36):
-            if k == 3:
-                h.send(h.drive, 14.0)
-            if k == 17:
-                h.send(h.load, 6.0)
-            h.step(START_NS + k * TICK_NS)
-        got = {topic: list(values) for topic, values in h.got.items()}
-    finally:
-        h.close()
+    got = _lockstep_run(Lockstep(ros_domain_id, record_path=str(folder), max_bag_duration=0.01), range(1, 36),
+                        {3: ("drive", 14.0), 17: ("load", 6.0)})
     check_split_folder(folder, "/robot_description")
     files = sorted(folder.glob("run_*.mcap"))
     assert len(files) >= 3
