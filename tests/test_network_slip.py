@@ -280,3 +280,21 @@ def test_auto_that_lands_on_the_slipping_tier_refuses_a_method_asked_for_by_name
     assert run.reason.startswith("slipping: driver reaches the capstan limit")
     named = simulate_linear(scene, method="exact")
     assert named.tier == "slipping" and np.array_equal(named.states, run.states)
+
+
+def test_the_slipping_tier_splits_a_step_at_a_breakpoint_inside_it():
+    """A load step at 12.5 ms inside the 1 ms grid's step 12: the step is split there (each piece the exact flow
+    with the torques held from its start), so the run equals one on a 0.5 ms grid at the common times, while
+    sticking (to the exponentials' rounding, as the linear tier's exact run) and through an onset of slip."""
+    torques = [{"type": "constant", "value": 1.0},
+               {"type": "step", "initial": 0.5, "final": 3.0, "time": 0.0125},
+               {"type": "constant", "value": 0.5}, None]
+    for mus, slips in (([2.0] * 4, False), ([2.0, 0.05, 2.0, 2.0], True)):
+        scene = square(torques, mus, duration=0.05)
+        coarse = simulate_slipping(None, scene)
+        fine = simulate_slipping(None, scene, dt=5e-4)
+        assert bool(coarse.events) == slips and len(coarse.events) == len(fine.events)
+        for a, b in zip(coarse.events, fine.events):
+            assert (a.pulley, a.kind) == (b.pulley, b.kind) and abs(a.time - b.time) <= 1e-9
+        assert np.max(np.abs(coarse.tension - fine.tension[::2])) <= 1e-7 * np.max(np.abs(fine.tension))
+        assert np.max(np.abs(coarse.speed - fine.speed[::2])) <= 1e-7 * np.max(np.abs(fine.speed))
