@@ -29,6 +29,15 @@ SIDE = 0.3
 def square(torques, mus, T0=300.0, damping=2.0, EA=2.0e4, inertia=(0.05, 0.01, 0.01, 0.002), duration=1.0, dt=1e-3,
            bearing=0.0):
     """Four pulleys of radius R at the corners of a square (driver, accessory a, accessory b, idler; wraps pi/2)."""
+    return NetworkScene.from_mapping({
+        "kind": "network", "duration": duration, "dt": dt, "initial_speed": 0.0,
+        "belt": {"EA": EA, "damping": damping, "installed_tension": T0},
+        "pulleys": _square_pulleys(torques, mus, inertia, bearing),
+    })  # fmt: skip
+
+
+def _square_pulleys(torques, mus, inertia=(0.05, 0.01, 0.01, 0.002), bearing=0.0) -> list:
+    """The square loop's pulleys as a scene's ``pulleys`` list (:func:`square`)."""
     names = ("driver", "acc_a", "acc_b", "idler")
     roles = ("driver", "accessory", "accessory", "idler")
     centres = ((0.0, 0.0), (SIDE, 0.0), (SIDE, SIDE), (0.0, SIDE))
@@ -39,10 +48,7 @@ def square(torques, mus, T0=300.0, damping=2.0, EA=2.0e4, inertia=(0.05, 0.01, 0
         if torques[i] is not None:
             p["torque"] = torques[i]
         pulleys.append(p)
-    return NetworkScene.from_mapping({
-        "kind": "network", "duration": duration, "dt": dt, "initial_speed": 0.0,
-        "belt": {"EA": EA, "damping": damping, "installed_tension": T0}, "pulleys": pulleys,
-    })  # fmt: skip
+    return pulleys
 
 
 def shipped(name):
@@ -280,6 +286,26 @@ def test_auto_that_lands_on_the_slipping_tier_refuses_a_method_asked_for_by_name
     assert run.reason.startswith("slipping: driver reaches the capstan limit")
     named = simulate_linear(scene, method="exact")
     assert named.tier == "slipping" and np.array_equal(named.states, run.states)
+
+
+def test_belt_drive_sim_refuses_a_method_the_slipping_run_cannot_step(tmp_path, capsys):
+    """From the command line: ``--method rk4`` on a run that slips exits 2 with one line; without --method the
+    scene's method steps the linear tier's probe and the slipping run is exact."""
+    import yaml
+
+    from belt_drive_ros.cli import main
+
+    torques = [ramp(40.0, 0.2), ramp(24.0, 0.2), ramp(16.0, 0.2), None]
+    raw = {"kind": "network", "name": "greasy", "duration": 0.3, "dt": 1e-3, "initial_speed": 0.0, "method": "etd2",
+           "belt": {"EA": 2.0e4, "damping": 2.0, "installed_tension": 300.0},
+           "pulleys": _square_pulleys(torques, [0.25, 2, 2, 2])}
+    path = tmp_path / "greasy.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    assert main(["sim", str(path), "--method", "rk4"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "method rk4: the run slips (driver reaches the capstan limit" in err
+    assert main(["sim", str(path)]) == 0
+    assert "slipping tier, exact at dt = 0.001 s" in capsys.readouterr().out
 
 
 def test_the_slipping_tier_splits_a_step_at_a_breakpoint_inside_it():
