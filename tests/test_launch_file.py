@@ -53,6 +53,16 @@ class LaunchConfiguration:
     def __init__(self, variable_name, *, default=None):
         self.variable_name, self.default = variable_name, default
 
+    def perform(self, context):
+        return context.launch_configurations[self.variable_name]
+
+
+class OpaqueFunction:
+    """launch.actions.OpaqueFunction: ``function(context, *args, **kwargs)`` returns actions when launched."""
+
+    def __init__(self, *, function, args=None, kwargs=None):
+        self.function, self.args, self.kwargs = function, list(args or []), dict(kwargs or {})
+
 
 class DeclareLaunchArgument:
     def __init__(self, name, *, default_value=None, description=None, choices=None, **kwargs):
@@ -89,6 +99,7 @@ def description(monkeypatch):
     }
     modules["launch"].LaunchDescription = LaunchDescription
     modules["launch.actions"].DeclareLaunchArgument = DeclareLaunchArgument
+    modules["launch.actions"].OpaqueFunction = OpaqueFunction
     modules["launch.substitutions"].LaunchConfiguration = LaunchConfiguration
     modules["launch_ros.actions"].Node = Node
 
@@ -133,9 +144,27 @@ def _check_node_parameters(values: dict, where: str) -> None:
     build_settings({**default_values(scene), **own})  # raises NodeConfigError naming a bad value
 
 
+def _launched(description, **arguments) -> tuple[dict, list]:
+    """``(launch argument values, actions)``: the declared defaults overridden by ``arguments`` (as
+    ``ros2 launch ... name:=value``), every OpaqueFunction run with them (as launch runs it)."""
+    import types as _types
+
+    declared = [a for a in description.entities if isinstance(a, DeclareLaunchArgument)]
+    values = {a.name: a.default_value for a in declared}
+    assert set(arguments) <= set(values), f"undeclared launch arguments {set(arguments) - set(values)}"
+    values.update(arguments)
+    context = _types.SimpleNamespace(launch_configurations=values)
+    actions = []
+    for a in description.entities:
+        if isinstance(a, OpaqueFunction):
+            actions += a.function(context, *a.args, **a.kwargs)
+        else:
+            actions.append(a)
+    return values, actions
+
+
 def test_launch_file_starts_the_packages_node_and_source_with_parameters_it_declares(description):
-    actions = description.entities
-    defaults = {a.name: a.default_value for a in actions if isinstance(a, DeclareLaunchArgument)}
+    defaults, actions = _launched(description)
     nodes = [a for a in actions if isinstance(a, Node)]
     assert {n.executable for n in nodes} == {"node", "source"}
     executables = _setup_py_executables()
@@ -178,3 +207,39 @@ def test_the_check_refuses_a_parameter_the_node_does_not_have(tmp_path):
     bad.write_text(PARAMS_FILE.read_text(encoding="utf-8").replace("k: 300000.0", "k: -5.0"), encoding="utf-8")
     with pytest.raises(ValueError, match="k"):
         _check_node_parameters(_file_parameters(str(bad), "belt_drive"), str(bad))
+
+
+def test_a_network_scene_through_the_launch_file_starts_the_network_node_driven_by_its_scene(description, tmp_path):
+    """``scene:=fead_i4`` starts ``belt-drive node fead_i4`` (the network node: the command dispatches on its scene
+    argument) with parameters the network node declares and accepts, its crank driven by the scene's engine, no
+    torque source and not the paper node's parameters file; a params_file of the user's is passed on."""
+    from belt_drive_ros.core.network.scene import load_network
+    from belt_drive_ros.ros.network_node import PARAMETERS, NetworkSettings
+
+    for extra in ({}, {"params_file": str(tmp_path / "mine.yaml")}):
+        if extra:
+            (tmp_path / "mine.yaml").write_text("belt_drive:\n  ros__parameters:\n    step_rate_hz: 500.0\n")
+        values, actions = _launched(description, scene="fead_i4", **extra)
+        nodes = [a for a in actions if isinstance(a, Node)]
+        assert [n.executable for n in nodes] == ["node"]
+        (node,) = nodes
+        assert node.package == "belt_drive_ros" and node.name == "belt_drive"
+        args = build_parser().parse_args([_setup_py_executables()[node.executable],
+                                          *(str(_resolve(a, values)) for a in node.arguments)])
+        assert args.scene == "fead_i4" and load_network(args.scene).name == "fead_i4"
+        given = {}
+        files = []
+        for entry in node.parameters:
+            if isinstance(entry, dict):
+                given.update({k: yaml.safe_load(_resolve(v, values)) if isinstance(v, LaunchConfiguration) else v
+                              for k, v in entry.items()})
+            else:
+                files.append(_resolve(entry, values))
+                given.update(_file_parameters(files[-1], node.name))
+        assert files == ([extra["params_file"]] if extra else [])  # never the paper node's config/belt_drive.yaml
+        declared = {name: default for name, default, _ in PARAMETERS}
+        assert set(given) <= set(declared), sorted(set(given) - set(declared))
+        settings = NetworkSettings.from_values({**declared, "scene": args.scene, **given})
+        assert settings.drive_source == "scene" and settings.record_path == "belt_drive_run.mcap"
+        assert settings.record_overwrite is False
+    assert settings.step_rate_hz == 500.0

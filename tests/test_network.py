@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from belt_drive_ros.core.errors import SceneError
-from belt_drive_ros.core.network.model import NetworkModel, undamped_frequencies
+from belt_drive_ros.core.network.model import NetworkModel, modes, undamped_frequencies
 from belt_drive_ros.core.network.simulate import simulate
 from belt_drive_ros.core.network.scene import NetworkScene, load_network
 
@@ -659,3 +659,71 @@ def test_advancing_tick_by_tick_equals_the_whole_run_bit_for_bit():
     loop.hold(scene.index("power_steering"), 4.0)
     advance(loop, loop.initial(), out, 0, 150)
     assert not np.array_equal(model.to_absolute(out), whole.states[1:])
+
+
+def test_trapezoidal_runs_the_shipped_fead_at_its_step_and_converges_to_the_reference():
+    """The implicit stage's fixed point on the crank's governed engine torque stalls at rounding (a 2-cycle one ulp of
+    speed apart, times the governor's gain, is above the 1e-13 tolerance): it was refused at t = 0.214 s."""
+    scene = load_network("fead_i4")
+    ref = simulate(scene, dt=1e-5, method="etd4", model="flexible", check_accuracy=False)
+    scale = np.max(np.abs(ref.tension - 300.0))
+    for dt, stride in ((1e-3, 100), (1e-4, 10)):
+        run = simulate(scene, dt=dt, method="trapezoidal", model="flexible")
+        assert run.method == "trapezoidal" and run.time[-1] == pytest.approx(1.0)
+        err = np.max(np.abs(run.tension - ref.tension[::stride]))
+        est = float(run.accuracy.split("error ")[1].split(" N")[0])
+        assert 0.3 <= est / err <= 3.0, (dt, est, err)  # the guard says how wrong the step is
+        assert run.accuracy.startswith("accurate" if err < 1e-3 * scale else "INACCURATE"), (dt, run.accuracy, err / scale)
+    assert err < 0.02 * scale  # 0.25 of the peak change at 1 ms, 0.009 at 0.1 ms: the step converges
+
+
+def test_a_breakpoint_inside_a_step_splits_it_as_a_grid_holding_the_breakpoint_does():
+    """The alternator's load steps at 12.5 ms, inside the 1 ms grid's step 12: the step is split there (each piece the
+    method at its length), so the run equals one on a 0.5 ms grid (which holds 12.5 ms) at the common times; the
+    exponential methods are exact for piecewise-constant torques. Unsplit, the step saw the jump at its end."""
+    raw = _raw_tensioned()
+    raw["pulleys"][2]["torque"] = {"type": "step", "initial": 2.0, "final": 6.0, "time": 0.0125}
+    scene = NetworkScene.from_mapping({**raw, "duration": 0.05, "dt": 1e-3, "initial_speed": 10.0})
+    for method in ("exact", "etd2"):
+        coarse = simulate(scene, method=method, model="flexible", check_accuracy=False)
+        fine = simulate(scene, dt=5e-4, method=method, model="flexible", check_accuracy=False)
+        change = np.max(np.abs(fine.tension - 300.0))
+        assert np.max(np.abs(coarse.tension - fine.tension[::2])) <= 1e-9 * change, method
+        assert np.max(np.abs(coarse.speed - fine.speed[::2])) <= 1e-9 * np.max(np.abs(fine.speed)), method
+
+
+def test_centrifugal_tension_moves_the_arm_mode_with_speed_as_its_closed_form():
+    """At belt speed v the belt pulls on the arm with ``T_j - w``, ``w = m' v^2``. Without loads the spans share one
+    tension ``T_0 + dT``; the stretch round the loop is the arm's, ``dT / K_b = G theta_a`` (``K_b = 1 / sum 1/k_j``,
+    ``G = sum_j g_j``), and the arm balances ``G dT + (k_a + (T_0 + dT - w) D) theta_a = w G`` (``D = sum_j dg_j``):
+    ``D dT^2 + (G^2 K_b + k_a + (T_0 - w) D) dT - w G^2 K_b = 0``. The modes are those of ``K_belt + (k_a + (T_0 +
+    dT - w) D) e_a e_a^T`` against M: the Campbell lines move with speed (they were flat)."""
+    raw = _raw_tensioned()
+    raw["belt"]["mass_per_length"] = 0.12
+    for p in raw["pulleys"]:
+        if "torque" in p:
+            p["torque"] = {"type": "constant", "value": 0.0}
+    scene = NetworkScene.from_mapping({**raw, "duration": 0.1, "dt": 1e-4, "initial_speed": 10.0})
+    model = NetworkModel.build(scene)
+    T0, ka = 300.0, scene.tensioner.spring_rate
+    G, D, Kb = float(np.sum(model.g)), float(np.sum(model.dg)), 1.0 / float(np.sum(1.0 / model.k))
+    r = scene.pulleys[scene.driver].radius
+    lowest = []
+    for speed in (0.0, 300.0, 600.0):
+        w = 0.12 * (speed * r) ** 2
+        a, b, c = D, G * G * Kb + ka + (T0 - w) * D, -w * G * G * Kb
+        dT = 2 * c / (-b - math.copysign(math.sqrt(b * b - 4 * a * c), b))  # the root near -c / b (no cancellation)
+        K, _, T = model.operating_point(speed)
+        np.testing.assert_allclose(T, T0 + dT, rtol=0, atol=1e-9 * T0)
+        Kc = model.K_belt.copy()
+        Kc[model.arm, model.arm] += (T0 + dT - w) * D  # K_belt holds the spring k_a already
+        np.testing.assert_allclose(K, Kc, rtol=1e-12, atol=1e-9)
+        Minv_half = np.diag(1.0 / np.sqrt(np.diag(model.M)))
+        ev = np.linalg.eigvalsh(Minv_half @ Kc @ Minv_half)
+        expected = np.sqrt(ev[ev > 1e-6 * ev.max()]) / (2 * math.pi)
+        found = np.array([md.frequency for md in modes(model, speed)])
+        np.testing.assert_allclose(found, expected, rtol=1e-9)
+        lowest.append(found[0])
+        if speed:
+            assert 0.0 < dT < w  # a soft tensioner lets the span tension rise by most of w, not all of it
+    assert lowest[0] < lowest[1] < lowest[2]  # the arm feels less tension: its (negative) geometric stiffness shrinks

@@ -29,6 +29,15 @@ SIDE = 0.3
 def square(torques, mus, T0=300.0, damping=2.0, EA=2.0e4, inertia=(0.05, 0.01, 0.01, 0.002), duration=1.0, dt=1e-3,
            bearing=0.0):
     """Four pulleys of radius R at the corners of a square (driver, accessory a, accessory b, idler; wraps pi/2)."""
+    return NetworkScene.from_mapping({
+        "kind": "network", "duration": duration, "dt": dt, "initial_speed": 0.0,
+        "belt": {"EA": EA, "damping": damping, "installed_tension": T0},
+        "pulleys": _square_pulleys(torques, mus, inertia, bearing),
+    })  # fmt: skip
+
+
+def _square_pulleys(torques, mus, inertia=(0.05, 0.01, 0.01, 0.002), bearing=0.0) -> list:
+    """The square loop's pulleys as a scene's ``pulleys`` list (:func:`square`)."""
     names = ("driver", "acc_a", "acc_b", "idler")
     roles = ("driver", "accessory", "accessory", "idler")
     centres = ((0.0, 0.0), (SIDE, 0.0), (SIDE, SIDE), (0.0, SIDE))
@@ -39,10 +48,7 @@ def square(torques, mus, T0=300.0, damping=2.0, EA=2.0e4, inertia=(0.05, 0.01, 0
         if torques[i] is not None:
             p["torque"] = torques[i]
         pulleys.append(p)
-    return NetworkScene.from_mapping({
-        "kind": "network", "duration": duration, "dt": dt, "initial_speed": 0.0,
-        "belt": {"EA": EA, "damping": damping, "installed_tension": T0}, "pulleys": pulleys,
-    })  # fmt: skip
+    return pulleys
 
 
 def shipped(name):
@@ -261,3 +267,60 @@ def test_a_belt_sliding_on_every_pulley_is_a_one_line_error():
     scene = NetworkScene.from_mapping(data, "fead_loose")
     with pytest.raises(SimulationDivergedError, match=r"slides on every pulley at once at t = 0\.02\d+ s .*raise belt\.installed_tension"):
         simulate_slipping(None, scene, duration=0.1)
+
+
+def test_auto_that_lands_on_the_slipping_tier_refuses_a_method_asked_for_by_name():
+    """``auto`` finds the driver reaching its capstan limit; the slipping tier steps the exact flow only. A method
+    asked for by name is refused in one line naming the pulley (it used to be replaced by exact silently); the
+    scene's own method is replaced (run.method says exact); exact by name runs."""
+    scene = dataclasses.replace(square([ramp(40.0, 0.2), ramp(24.0, 0.2), ramp(16.0, 0.2), None], [0.25, 2, 2, 2],
+                                       duration=0.3), method="etd2")
+    for method in ("rk4", "etd2", "trapezoidal"):
+        with pytest.raises(SceneError) as refused:
+            simulate_linear(scene, method=method)
+        text = str(refused.value)
+        assert "\n" not in text and text.startswith(f"method {method}: the run slips (driver reaches the capstan limit")
+        assert "exact flow of each stick/slip mode only" in text
+    run = simulate_linear(scene)
+    assert run.tier == "slipping" and run.method == "exact"
+    assert run.reason.startswith("slipping: driver reaches the capstan limit")
+    named = simulate_linear(scene, method="exact")
+    assert named.tier == "slipping" and np.array_equal(named.states, run.states)
+
+
+def test_belt_drive_sim_refuses_a_method_the_slipping_run_cannot_step(tmp_path, capsys):
+    """From the command line: ``--method rk4`` on a run that slips exits 2 with one line; without --method the
+    scene's method steps the linear tier's probe and the slipping run is exact."""
+    import yaml
+
+    from belt_drive_ros.cli import main
+
+    torques = [ramp(40.0, 0.2), ramp(24.0, 0.2), ramp(16.0, 0.2), None]
+    raw = {"kind": "network", "name": "greasy", "duration": 0.3, "dt": 1e-3, "initial_speed": 0.0, "method": "etd2",
+           "belt": {"EA": 2.0e4, "damping": 2.0, "installed_tension": 300.0},
+           "pulleys": _square_pulleys(torques, [0.25, 2, 2, 2])}
+    path = tmp_path / "greasy.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    assert main(["sim", str(path), "--method", "rk4"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "method rk4: the run slips (driver reaches the capstan limit" in err
+    assert main(["sim", str(path)]) == 0
+    assert "slipping tier, exact at dt = 0.001 s" in capsys.readouterr().out
+
+
+def test_the_slipping_tier_splits_a_step_at_a_breakpoint_inside_it():
+    """A load step at 12.5 ms inside the 1 ms grid's step 12: the step is split there (each piece the exact flow
+    with the torques held from its start), so the run equals one on a 0.5 ms grid at the common times, while
+    sticking (to the exponentials' rounding, as the linear tier's exact run) and through an onset of slip."""
+    torques = [{"type": "constant", "value": 1.0},
+               {"type": "step", "initial": 0.5, "final": 3.0, "time": 0.0125},
+               {"type": "constant", "value": 0.5}, None]
+    for mus, slips in (([2.0] * 4, False), ([2.0, 0.05, 2.0, 2.0], True)):
+        scene = square(torques, mus, duration=0.05)
+        coarse = simulate_slipping(None, scene)
+        fine = simulate_slipping(None, scene, dt=5e-4)
+        assert bool(coarse.events) == slips and len(coarse.events) == len(fine.events)
+        for a, b in zip(coarse.events, fine.events):
+            assert (a.pulley, a.kind) == (b.pulley, b.kind) and abs(a.time - b.time) <= 1e-9
+        assert np.max(np.abs(coarse.tension - fine.tension[::2])) <= 1e-7 * np.max(np.abs(fine.tension))
+        assert np.max(np.abs(coarse.speed - fine.speed[::2])) <= 1e-7 * np.max(np.abs(fine.speed))

@@ -71,7 +71,7 @@ def run_network(args) -> int:
             raise SceneError(f"--plot {args.plot}: a PNG file (.png)")
         check_output(args.plot, args.force, "plot")
     start = time.perf_counter()
-    run = simulate(scene, duration=duration, dt=dt, method=method, model=args.model or "auto")
+    run = simulate(scene, duration=duration, dt=dt, method=args.method, model=args.model or "auto")
     wall = time.perf_counter() - start
     print(f"{scene.name}: belt network, {run.tier} tier, {run.method} at dt = {dt:g} s, {duration:g} s simulated "
           f"in {wall:.2f} s ({duration / wall:.2f}x real time)")
@@ -95,7 +95,7 @@ def run_network(args) -> int:
         print(f"capstan limit: {onset[0]} reaches it first at t = {onset[1]:.6g} s (friction use {onset[2]:.3g}); "
               "the slipping tier is not built for networks: past that time this run is not valid")
     if args.out is not None and args.out.suffix.lower() == ".mcap":
-        _write_mcap(args, scene, run, method, dt)
+        _write_mcap(args, scene, run, run.method, dt)
     elif args.out is not None:
         names, table = columns(scene, run)
         with atomic_output(args.out, args.force, mode="w") as fh:

@@ -94,13 +94,7 @@ def run(args) -> int:
 
     named = args.scene or next((a.split(":=", 1)[1] for a in args.ros_args or [] if a.startswith("scene:=")), None)
     if named and is_network(named):  # a belt network scene: its own node (ros/network_node.py)
-        from ..core.errors import ParameterError
         from ..ros.network_node import run as run_node
-
-        for flag, value in (("--max-bag-duration", args.max_bag_duration), ("--max-bag-size", args.max_bag_size)):
-            if value is not None:
-                raise ParameterError(flag, "a belt network's recording is one MCAP file (split bags are not built "
-                                     "for networks)")
     else:
         from ..ros.node import run as run_node
 

@@ -47,6 +47,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 from msg_tools import Ros2McapWriter
+from msg_tools.bagdir import bag_files
 from msg_tools.errors import MsgToolsError
 from msg_tools.units import UNITS_METADATA
 
@@ -191,11 +192,18 @@ class NetworkBagWriter:
     """
 
     def __init__(self, path, layout: NetworkLayout, record: Dict[str, str], *, force: bool = False,
-                 namespace: str = "/", compression: str = "zstd"):
+                 namespace: str = "/", compression: str = "zstd", max_bag_duration: float = 0.0,
+                 max_bag_size: int = 0):
         self.layout = layout
         self.namespace = namespace
         try:
-            self.writer = Ros2McapWriter(path, force=force, compression=compression)
+            if max_bag_duration or max_bag_size:  # a rosbag2 folder split as the paper node's (every file self-describing)
+                from msg_tools.bagdir import Ros2BagWriter
+
+                self.writer = Ros2BagWriter(path, force=force, compression=compression,
+                                            max_bag_duration=max_bag_duration or None, max_bag_size=max_bag_size or None)
+            else:
+                self.writer = Ros2McapWriter(path, force=force, compression=compression)
             self.writer.add_metadata(NETWORK_METADATA, record)
             units = {_absolute(t, namespace): u for t, u in layout.units.items()}
             units[_absolute("joint_states", namespace)] = "rad, rad/s, N*m"
@@ -213,6 +221,8 @@ class NetworkBagWriter:
         w = self.writer
         description = _absolute("robot_description", self.namespace)
         w.add_topic(description, STRING, ROBOT_DESCRIPTION_QOS)
+        if hasattr(w, "latch"):  # a split folder: every file starts with the layout's URDF
+            w.latch(description)
         import msg_tools
 
         w.write_raw(description, STRING, msg_tools.encode(STRING, {"data": self.layout.urdf()}), t_ns)
@@ -339,9 +349,10 @@ class NetworkRecording:
 
 
 def is_network_recording(path) -> bool:
-    """Whether ``path`` is an MCAP file holding a ``network_scene`` record (also a file cut off mid-write)."""
+    """Whether ``path`` is an MCAP file (or a split recording's bag folder) holding a ``network_scene`` record
+    (also a file cut off mid-write)."""
     p = Path(str(path))
-    if p.suffix.lower() != ".mcap" or not p.is_file():
+    if not ((p.suffix.lower() == ".mcap" and p.is_file()) or (p.is_dir() and any(p.glob("*.mcap")))):
         return False
     try:
         for record in _records(p):
@@ -356,19 +367,20 @@ def is_network_recording(path) -> bool:
 
 def _records(path):
     """The file's records in order, read as a stream (no summary needed); a file cut off mid-write ends at
-    its last complete record (a node killed while recording)."""
+    its last complete record (a node killed while recording). A split recording's folder: its files in order."""
     from mcap.stream_reader import StreamReader
 
-    with open(path, "rb") as f:
-        reader = StreamReader(f, record_size_limit=1 << 30).records
-        while True:
-            try:
-                record = next(reader)
-            except StopIteration:
-                return
-            except Exception:  # noqa: BLE001 - cut off or damaged here: what came before stands
-                return
-            yield record
+    for name in bag_files(path) if Path(str(path)).is_dir() else [path]:
+        with open(name, "rb") as f:
+            reader = StreamReader(f, record_size_limit=1 << 30).records
+            while True:
+                try:
+                    record = next(reader)
+                except StopIteration:
+                    break
+                except Exception:  # noqa: BLE001 - cut off or damaged here: what came before stands
+                    break
+                yield record
 
 
 def read_network_recording(path) -> NetworkRecording:

@@ -79,6 +79,9 @@ PARAMETERS = (
     ("tick_lead", 0.0003, "with tick_thread: compute each tick this long before its due time [s]"),
     ("record_path", "", "record inputs and outputs to this MCAP file ('' = no recording)"),
     ("record_overwrite", False, "replace an existing record_path"),
+    ("max_bag_duration", 0.0, "split the recording into a rosbag2 bag folder (NAME/NAME_0.mcap, ..., metadata.yaml), "
+                              "a new file every this many seconds of log time; 0 = no split by time"),
+    ("max_bag_size", 0, "split the recording into a bag folder once a file holds this many bytes; 0 = no limit"),
 )
 
 
@@ -100,6 +103,8 @@ class NetworkSettings:
     tick_lead_ns: int
     record_path: str
     record_overwrite: bool
+    max_bag_duration: float = 0.0
+    max_bag_size: int = 0
 
     @classmethod
     def from_values(cls, v: dict) -> "NetworkSettings":
@@ -128,9 +133,17 @@ class NetworkSettings:
         lead = float(v["tick_lead"])
         if not (math.isfinite(lead) and 0.0 <= lead <= 0.1):
             raise NodeConfigError("tick_lead", f"{lead!r} s is outside [0, 0.1] s")
+        split, size = float(v["max_bag_duration"]), int(v["max_bag_size"])
+        if not (math.isfinite(split) and 0.0 <= split <= 1.0e7):
+            raise NodeConfigError("max_bag_duration", f"{split!r} s is outside [0, 1e7] s")
+        if size < 0:
+            raise NodeConfigError("max_bag_size", f"{size} bytes is below 0")
+        if (split or size) and str(v["record_path"]).lower().endswith(".mcap"):
+            raise NodeConfigError("record_path", f"{str(v['record_path'])!r}: a split recording (max_bag_duration/"
+                                  "max_bag_size) is a bag folder; give a folder name without .mcap")
         return cls(scene, scene_text(label), scene.method, scene.dt, tick_ns, tick_ns // dt_ns, rate,
                    v["drive_source"], bool(v["publish_clock"]), rtf, bool(v["tick_thread"]),
-                   int(round(lead * 1e9)), str(v["record_path"]), bool(v["record_overwrite"]))
+                   int(round(lead * 1e9)), str(v["record_path"]), bool(v["record_overwrite"]), split, size)
 
 
 class NetworkSimulation:
@@ -323,7 +336,8 @@ class NetworkNode(Node):
                                 drive_source=s.drive_source, namespace=self.get_namespace())
         try:
             self.recorder = NetworkBagWriter(s.record_path, self.layout, record, force=s.record_overwrite,
-                                             namespace=self.get_namespace())
+                                             namespace=self.get_namespace(), max_bag_duration=s.max_bag_duration,
+                                             max_bag_size=s.max_bag_size)
         except BagExistsError:
             raise NodeConfigError("record_path", f"{s.record_path} exists; set record_overwrite:=true "
                                   "(belt-drive node --force) to replace it") from None

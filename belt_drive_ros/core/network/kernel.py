@@ -24,6 +24,10 @@ from ..kernel import profile_torque_at
 from ..profile_data import DIVERGED, NOT_CONVERGED, OK
 
 _INLINE = dict(cache=True, nogil=True, inline="always")
+#: the implicit stage's fixed point has stalled at rounding when its torques repeat with period two and the two
+#: values differ by at most this part (a torque summed from large terms, e.g. a governor's ``g (w_set - w)``, moves
+#: by more than the tolerance when the state moves by one ulp: the iteration cannot get closer, it alternates)
+ROUNDING = 1e-9
 
 
 @njit(**_INLINE)
@@ -103,12 +107,13 @@ def network_steps(times, x, out, lo, hi, limit, mats, shape, kinds, offsets, fin
     cols = n + m * s
     rows = 2 * m
     fin = 1 + s
-    work = np.zeros(cols + 2 * n + rows + s * n)
+    work = np.zeros(cols + 2 * n + rows + s * n + m)
     v = work[:cols]
     xs = work[cols : cols + n]
     state = work[cols + n : cols + 2 * n]
     coords = work[cols + 2 * n : cols + 2 * n + rows]
-    full = work[cols + 2 * n + rows :]
+    full = work[cols + 2 * n + rows : cols + 2 * n + rows + s * n]
+    back = work[cols + 2 * n + rows + s * n :]  # the implicit stage's torques two sweeps back
     for r in range(n):
         xs[r] = x[r]
     n_explicit = s - 1 if max_iter > 0 else s
@@ -137,6 +142,7 @@ def network_steps(times, x, out, lo, hi, limit, mats, shape, kinds, offsets, fin
             known = n + m * (s - 1)
             for q in range(m):
                 v[known + q] = v[known - m + q]
+                back[q] = np.nan
             converged = False
             time = t if offsets[s - 1] == 0.0 else t + offsets[s - 1]
             tc = lo if time < lo else hi if time > hi else time
@@ -144,6 +150,7 @@ def network_steps(times, x, out, lo, hi, limit, mats, shape, kinds, offsets, fin
                 _matvec(mats, fin, shape, v, 0, state, 0)
                 _matvec(mats, 0, shape, state, 0, coords, 0)
                 same = True
+                cycle = True  # every torque back at its value two sweeps ago, the two a rounding apart: stalled
                 for p in range(m):
                     old = v[known + p]
                     angle = coords[2 * p] if uses_angle[p] else 0.0
@@ -151,7 +158,10 @@ def network_steps(times, x, out, lo, hi, limit, mats, shape, kinds, offsets, fin
                     v[known + p] = new
                     if not abs(new - old) <= tol * (1.0 + abs(new)):
                         same = False
-                if same:
+                    if not (new == back[p] and abs(new - old) <= ROUNDING * (1.0 + abs(new))):
+                        cycle = False
+                    back[p] = old
+                if same or cycle:
                     converged = True
                     break
             if not converged:

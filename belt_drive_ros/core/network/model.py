@@ -180,9 +180,12 @@ class NetworkModel:
         return out
 
     # ------------------------------------------------------------------ statics
-    def static(self, loads, iterations: int = 20):
+    def static(self, loads, iterations: int = 20, w: float = 0.0):
         """Static state under constant pulley torques ``loads`` [N m] (signed, + drives; the driver's entry is replaced
-        by the torque that balances the others: ``sum_i Q_i / r_i = 0``).
+        by the torque that balances the others: ``sum_i Q_i / r_i = 0``), the belt running with centrifugal
+        tension ``w = m' v^2`` [N] (default 0: at rest). The belt presses on a pulley, and pulls on the arm,
+        with ``T_j - w``: the arm's load is ``-sum_j (T_j - w) g_j``, so ``w`` adds ``w sum_j g_j`` to its force and
+        its geometric stiffness is taken at ``T_j - w``.
 
         Returns ``(q, tensions, Q)``: the coordinates (up to the rigid turning, removed: least squares), span
         tensions [N] and the torques used. The arm's geometric stiffness is iterated to the static tensions
@@ -196,12 +199,14 @@ class NetworkModel:
         Q[d] = -P[d].radius * sum(Q[i] / P[i].radius for i in range(len(P)))
         f = np.zeros(self.M.shape[0])
         f[: len(P)] = Q
+        if w and self.arm >= 0:
+            f[self.arm] += w * float(np.sum(self.g))
         T = np.full(len(self.k), self.scene.belt.installed_tension)
         q = np.zeros_like(f)
         for _ in range(iterations):
             # K_lin q = f - (geometric preload change): the arm sees -sum_j (T_j - T_0) g_j through K_belt already;
-            # the geometric term linearises sum_j T_j g_j(theta) about theta_0 with T_j at the current tensions
-            q_new = np.linalg.lstsq(self.stiffness(T), f, rcond=None)[0]
+            # the geometric term linearises sum_j (T_j - w) g_j(theta) about theta_0 with T_j at the current tensions
+            q_new = np.linalg.lstsq(self.stiffness(T - w), f, rcond=None)[0]
             T_new = self.tensions(q_new, np.zeros_like(q_new))
             done = np.max(np.abs(T_new - T)) <= 1e-12 * max(1.0, np.max(np.abs(T_new)))
             q, T = q_new, T_new
@@ -210,12 +215,14 @@ class NetworkModel:
         return q, T, Q
 
     def operating_point(self, driver_speed: float):
-        """``(K, C, tensions)`` linearised at the operating speed: static tensions under the mean loads, the arm's
-        geometric stiffness at them, the profiles' speed slopes as damping."""
-        _, T, _ = self.static(self.operating_loads(driver_speed))
+        """``(K, C, tensions)`` linearised at the operating speed: static tensions under the mean loads with the belt's
+        centrifugal tension ``w = m' v^2`` at that speed (:meth:`static`), the arm's geometric stiffness at the
+        tensions it feels (``T_j - w``), the profiles' speed slopes as damping."""
+        w = self.scene.belt.mass_per_length * (driver_speed * self.scene.pulleys[self.scene.driver].radius) ** 2
+        _, T, _ = self.static(self.operating_loads(driver_speed), w=w)
         C = self.C.copy()
         C[: len(self.scene.pulleys), : len(self.scene.pulleys)] += np.diag(self.load_damping(driver_speed))
-        return self.stiffness(T), C, T
+        return self.stiffness(T - w), C, T
 
     # ------------------------------------------------------------------ first-order form
     def state_space(self, K=None, C=None):

@@ -143,6 +143,18 @@ class NetworkLoop:
         self.pk[row] = CONSTANT
         self.pp[row, 0] = float(value)
 
+    def piece(self, h: float) -> NetworkLoop:
+        """This loop for one step of ``h`` [s] (a piece of a step split at a breakpoint): the method's matrices at
+        ``h``, this loop's profile arrays (a held torque holds in the piece too)."""
+        pieces = self.__dict__.setdefault("_pieces", {})
+        found = pieces.get(h)
+        if found is None:
+            if len(pieces) >= 8:
+                pieces.pop(next(iter(pieces)))
+            found = pieces[h] = NetworkLoop(self.model, self.tier, self.method, h)
+            found.start, found.pk, found.pp, found.px, found.py = self.start, self.pk, self.pp, self.px, self.py
+        return found
+
     def initial(self) -> np.ndarray:
         """The belt turning at the scene's ``initial_speed``, unstretched."""
         scene = self.model.scene
@@ -155,45 +167,72 @@ class NetworkLoop:
 
 
 # ---------------------------------------------------------------------- runs
-def _breakpoints(model: NetworkModel, dt: float) -> list[int]:
-    """Grid indices of the profiles' breakpoints that fall on the step grid (a run between two is one kernel call:
-    its stage times clamped to the interval, so a step ending on a jump samples the torque before it)."""
+def _breakpoints(model: NetworkModel, dt: float) -> tuple[list, list, dict]:
+    """``(marks, left, inside)`` of the profiles' breakpoints on the grid of step ``dt``: ``marks`` their times [s],
+    sorted (one on a knot as that knot's time ``k dt``), ``left`` per mark the latest time at which every profile
+    still gives its value from the left (``TorqueProfile.left_of``), ``inside`` ``{step c: [marks strictly inside
+    step c]}`` (steps that are split there)."""
     found = model.__dict__.get("_breakpoints", {}).get(dt)
     if found is None:
-        ks = set()
-        for p in model.scene.pulleys:
-            if p.sign:
-                for b in p.torque.breakpoints():
-                    k = round(b / dt) if math.isfinite(b) else -1
-                    if k > 0 and abs(k * dt - b) <= 1e-9 * dt:
-                        ks.add(k)
-        found = model.__dict__.setdefault("_breakpoints", {})[dt] = sorted(ks)
+        profiles = [p.torque for p in model.scene.pulleys if p.sign]
+        marks, inside = set(), {}
+        for profile in profiles:
+            for b in profile.breakpoints():
+                if not (math.isfinite(b) and b > 0.0):
+                    continue
+                k = round(b / dt)
+                if abs(k * dt - b) <= 1e-9 * dt:
+                    marks.add(k * dt)
+                else:
+                    marks.add(float(b))
+                    inside.setdefault(math.floor(b / dt), set()).add(float(b))
+        marks = sorted(marks)
+        left = [min(profile.left_of(b) for profile in profiles) for b in marks]
+        found = (marks, left, {c: sorted(bs) for c, bs in inside.items()})
+        model.__dict__.setdefault("_breakpoints", {})[dt] = found
     return found
 
 
 def advance(loop: NetworkLoop, x, out, k0: int, k1: int) -> None:
     """Steps ``k0 .. k1-1`` (times ``k dt``) from state ``x`` at ``k0 dt``; the states after each into ``out[0 .. k1-k0-1]``.
 
-    The one way time advances in a network (a whole run, the node's ticks): one kernel call per interval
-    between breakpoints. Raises :class:`SimulationDivergedError` / :class:`IntegratorError`.
+    The one way time advances in a network (a whole run, the node's ticks), as the linear stepper handles torque
+    breakpoints: one kernel call per run of whole steps between breakpoints, its stage times clamped into the
+    run's side of them (a step ending on a breakpoint samples the torques' left limit there); a step with
+    breakpoints strictly inside is split there, each piece one call of the method at the piece's length.
+    Raises :class:`SimulationDivergedError` / :class:`IntegratorError`.
     """
-    dt, scene = loop.dt, loop.model.scene
-    bps = _breakpoints(loop.model, dt)
-    cuts = [k0, *[k for k in bps if k0 < k < k1], k1]
-    start = np.array(x, dtype=float)
-    for a, e in zip(cuts[:-1], cuts[1:]):
-        times = np.arange(a, e + 1) * dt
-        before = [k for k in bps if k <= a]
-        after = [k for k in bps if k >= e]
-        lo = before[-1] * dt if before else -math.inf
-        hi = after[0] * dt if after else math.inf
-        done, status, t = loop(times, start, out[a - k0 : e - k0], lo, hi)
+    from bisect import bisect_left, bisect_right
+
+    dt = loop.dt
+    marks, left, inside = _breakpoints(loop.model, dt)
+    split = [c for c in inside if k0 <= c < k1]
+    knots = {k0, k1, *split, *(c + 1 for c in split if c + 1 < k1)}
+    knots.update(k for k in (round(b / dt) for b in marks) if k0 < k < k1 and k * dt in marks)
+    knots = sorted(knots)
+
+    def call(piece, times, start, into):
+        i = bisect_right(marks, times[0]) - 1
+        j = bisect_left(marks, times[-1])
+        lo = marks[i] if i >= 0 else -math.inf
+        hi = left[j] if j < len(marks) else math.inf
+        done, status, t = piece(times, start, into, lo, hi)
         if status == DIVERGED:
-            raise SimulationDivergedError(f"{scene.name}: the state became non-finite or too fast at t = {t:.6g} s "
-                                          f"({loop.tier} tier, {loop.method} at dt = {dt:g} s)")
+            raise SimulationDivergedError(f"{loop.model.scene.name}: the state became non-finite or too fast at "
+                                          f"t = {t:.6g} s ({loop.tier} tier, {loop.method} at dt = {dt:g} s)")
         if status == NOT_CONVERGED:
             raise IntegratorError(f"{loop.method}: fixed-point iteration for the state-dependent torque did not "
                                   f"converge at t={t:.6g} s; reduce dt (now {dt:g} s)")
+
+    start = np.array(x, dtype=float)
+    for a, e in zip(knots[:-1], knots[1:]):
+        if a in inside:  # one step, split at the breakpoints inside it
+            edges = [a * dt, *inside[a], (a + 1) * dt]
+            for p, q in zip(edges[:-1], edges[1:]):
+                call(loop.piece(q - p), np.array([p, q]), start, out[a - k0 : a - k0 + 1])
+                start = out[a - k0].copy()
+            continue
+        call(loop, np.arange(a, e + 1) * dt, start, out[a - k0 : e - k0])
         start = out[e - k0 - 1].copy()
 
 
@@ -347,7 +386,9 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
     """Run a belt network scene from the belt turning at ``initial_speed`` unstretched.
 
     ``model``: one of :data:`TIERS` (module docstring); ``method``: any fixed-step method by name (default the
-    scene's; the slipping tier steps its own exact flow). The run carries ``tier``, ``reason``, ``method``
+    scene's). The slipping tier steps the exact flow of each stick/slip mode only: a ``method`` asked for by name
+    that it cannot step is refused (one line naming the slipping pulley) rather than replaced; the scene's own
+    method is replaced by ``exact`` there (``run.method`` says so). The run carries ``tier``, ``reason``, ``method``
     and ``accuracy`` (the step-doubling verdict of a linear tier).
     """
     if model not in TIERS:
@@ -366,6 +407,12 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
     run = _run(net, tier, name, dt, steps)
     why = slipping_reason(scene, run, tier) if model == "auto" else None
     if why is not None:
+        from .slip import METHODS
+
+        if method is not None and method not in METHODS:  # asked for by name: never swapped for another silently
+            raise SceneError(f"method {method}: the run slips ({why.removeprefix('slipping: ')}) and the slipping "
+                             "tier steps the exact flow of each stick/slip mode only: use method exact, or model "
+                             "flexible for the linear run (not valid past that time)")
         return replace(run_slipping(net, duration, dt), tier="slipping", reason=why, method="exact")
     verdict = accuracy(net, tier, name, dt, steps, run) if check_accuracy else ""
     return replace(run, tier=tier, reason=reason, method=name, accuracy=verdict)

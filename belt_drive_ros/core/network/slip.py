@@ -91,6 +91,7 @@ class SlipArrays:
 
     def __init__(self, model: NetworkModel, dt: float):
         scene = model.scene
+        self.model = model
         P = scene.pulleys
         self.n = n = len(P)
         self.m = m = model.M.shape[0]
@@ -149,6 +150,19 @@ class SlipArrays:
         self.poff[pulley] = (row, row + 1, 0, 0)
         self.sgn[pulley] = sign / self.model_gears[pulley]
 
+    def piece(self, h: float) -> "SlipArrays":
+        """These arrays for one step of ``h`` [s] (a piece of a step split at a torque breakpoint): their own
+        step and exponentials, this one's profile arrays (a held torque holds in the piece too)."""
+        pieces = self.__dict__.setdefault("_pieces", {})
+        found = pieces.get(h)
+        if found is None:
+            if len(pieces) >= CACHE_SLOTS:
+                pieces.pop(next(iter(pieces)))
+            found = pieces[h] = SlipArrays(self.model, h)
+            found.sgn, found.pk, found.pp, found.ptx, found.pty, found.poff = (self.sgn, self.pk, self.pp, self.ptx,
+                                                                            self.pty, self.poff)
+        return found
+
     def plant(self):
         """The kernel's plant arguments, in :func:`~.slip_kernel.slip_steps`'s order."""
         return (self.par, self.Minv, self.Karm, self.Cb, self.a, self.k, self.c, self.f, self.r, self.sgn, self.driver,
@@ -190,33 +204,50 @@ def advance_slipping(arr: SlipArrays, state, k0: int, k1: int, out=None, name: s
                np.zeros((rows, n)), np.zeros((rows, n)))
     events = np.empty((2 * (K.MAX_SWITCHES + 1) * n + 256, 4))
     count = np.zeros(1, dtype=np.int64)
+
+    def call(arrays, lo: int, hi: int, t0: float, base: int) -> None:
+        """Steps ``lo .. hi-1`` of ``arrays`` (times ``t0 + k h``, h its step), samples from row ``base + 1`` on."""
+        nonlocal events
+        k = lo
+        while k < hi:
+            status, k_end = K.slip_steps(k, hi, t0, x, sig, *(o[base + k - lo :] for o in out), events, count,
+                                         *arrays.plant(), *arrays.cache, wf, win, fresh)  # fmt: skip
+            if status == K.OK:
+                return
+            if status == K.EVENTS_FULL:  # stopped before step k_end (x, sig as there): room for more, go on
+                events = np.concatenate([events, np.empty_like(events)])
+                k = k_end
+                continue
+            where = f"t = {t0 + k_end * float(arrays.par[2]):.6g} s"
+            if status == K.CHATTER:
+                who = [names[int(e[1])] for e in events[max(0, count[0] - 4) : count[0]]]
+                raise SimulationDivergedError(f"{name}: more than {K.MAX_SWITCHES} stick/slip switches inside one step at {where} "
+                                              f"({', '.join(dict.fromkeys(who)) or 'no pulley'}: chattering); reduce dt")
+            if status == K.STUCK:
+                who = names[int(events[count[0], 1])]
+                raise SimulationDivergedError(f"{name}: at t = {events[count[0], 0]:.9g} s the slip speed on {who} reaches zero "
+                                              "where it can neither stick (the friction it would need leaves the limit at once) "
+                                              "nor slide on either way (several pulleys sliding on a loose belt); raise "
+                                              "belt.installed_tension or give the belt damping")
+            if status == K.ALL_SLIP:
+                raise SimulationDivergedError(f"{name}: the belt slides on every pulley at once at {where} (a massless belt "
+                                              "has no motion then: the capstan limits cannot all hold, or the sliding pulleys' "
+                                              "equations are singular); raise belt.installed_tension")
+            raise SimulationDivergedError(f"{name}: the state became non-finite or too fast at {where} (slipping tier at dt = {dt:g} s)")
+
+    # a step with torque breakpoints strictly inside is split there (each piece the exact flow over its length,
+    # the torques held from the piece's start), as the linear tiers split it
+    from .simulate import _breakpoints
+
+    inside = _breakpoints(arr.model, dt)[2]
     k = k0
-    while k < k1:
-        j = k - k0
-        status, k_end = K.slip_steps(k, k1, 0.0, x, sig, *(o[j:] for o in out), events, count, *arr.plant(), *arr.cache,
-                                     wf, win, fresh)  # fmt: skip
-        if status == K.OK:
-            break
-        if status == K.EVENTS_FULL:  # stopped before step k_end (x, sig as there): room for more, go on
-            events = np.concatenate([events, np.empty_like(events)])
-            k = k_end
-            continue
-        where = f"t = {k_end * dt:.6g} s"
-        if status == K.CHATTER:
-            who = [names[int(e[1])] for e in events[max(0, count[0] - 4) : count[0]]]
-            raise SimulationDivergedError(f"{name}: more than {K.MAX_SWITCHES} stick/slip switches inside one step at {where} "
-                                          f"({', '.join(dict.fromkeys(who)) or 'no pulley'}: chattering); reduce dt")
-        if status == K.STUCK:
-            who = names[int(events[count[0], 1])]
-            raise SimulationDivergedError(f"{name}: at t = {events[count[0], 0]:.9g} s the slip speed on {who} reaches zero "
-                                          "where it can neither stick (the friction it would need leaves the limit at once) "
-                                          "nor slide on either way (several pulleys sliding on a loose belt); raise "
-                                          "belt.installed_tension or give the belt damping")
-        if status == K.ALL_SLIP:
-            raise SimulationDivergedError(f"{name}: the belt slides on every pulley at once at {where} (a massless belt "
-                                          "has no motion then: the capstan limits cannot all hold, or the sliding pulleys' "
-                                          "equations are singular); raise belt.installed_tension")
-        raise SimulationDivergedError(f"{name}: the state became non-finite or too fast at {where} (slipping tier at dt = {dt:g} s)")
+    for c in sorted(c for c in inside if k0 <= c < k1):
+        call(arr, k, c, 0.0, k - k0)
+        edges = [c * dt, *inside[c], (c + 1) * dt]
+        for p, q in zip(edges[:-1], edges[1:]):
+            call(arr.piece(q - p), 0, 1, p, c - k0)
+        k = c + 1
+    call(arr, k, k1, 0.0, k - k0)
     if k1 > k0:
         state[N : N + n] = sig
         state[N + n : N + 2 * n] = fresh
