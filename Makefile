@@ -40,10 +40,11 @@ demo: $(STAMP)
 	$(VENV)/bin/belt-drive demo
 
 # The suite runs on TEST_WORKERS processes (pytest-xdist; 2 = this project's machines' cores); each
-# worker holds a ROS domain of its own. TEST_WORKERS=0 runs it in one process.
+# worker holds a ROS domain of its own; an idle worker takes tests from the busy one (worksteal), so a
+# long test near the end does not leave the other core idle. TEST_WORKERS=0 runs it in one process.
 TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(PY) -m pytest -q -n $(TEST_WORKERS)
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist worksteal
 
 bench: $(STAMP)
 	$(VENV)/bin/belt-drive bench all --out docs/bench
