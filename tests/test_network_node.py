@@ -323,7 +323,7 @@ def test_a_recording_cut_off_mid_write_resimulates_up_to_its_last_complete_sampl
 
 @pytest.mark.parametrize("tier", ["flexible", "rigid", "slipping"])
 def test_joint_values_alone_equal_those_of_the_whole_outputs(tier):
-    """The tick's joint-states-only path (stepper.absolute + layout.joint_values) gives the values of the one-sample
+    """The tick's joint-states-only path (stepper.pulley_state + layout.joint_values) gives the values of the one-sample
     outputs bit for bit, in every tier, with a held crank torque and an accessory on its profile."""
     from belt_drive_ros.core.network.scene import load_network
     from belt_drive_ros.io.network_bag import NetworkLayout
@@ -336,6 +336,6 @@ def test_joint_values_alone_equal_those_of_the_whole_outputs(tier):
     for k in range(0, 60, 3):
         x = stepper.advance(x, k, k + 3)
         run, u = stepper.sample(k + 3, x)
-        alone = layout.joint_values(stepper.absolute(x)[0], stepper.inputs((k + 3) * stepper.dt, x))
+        alone = layout.joint_values(*stepper.pulley_state(k + 3, x))
         assert alone == layout.values(run, u)[0]
     assert len(alone) == 3 * len(layout.joints) and np.ptp(alone[len(layout.joints): 2 * len(layout.joints)]) > 0.0

@@ -166,21 +166,22 @@ class NetworkLayout:
         floats = []
         for _, (what, i) in self.floats:
             floats.append(float(run.arm_angle[0]) if what == "arm_angle" else float(signals[what][0, i]))
-        return self.joint_values(run.states[0], u), floats
+        state = run.states[0].tolist()
+        m = len(state) // 2
+        return self.joint_values(state[:m], state[m:], np.asarray(u, dtype=float).tolist()), floats
 
-    def joint_values(self, state, u) -> list:
-        """The JointState's position, velocity and effort concatenated, as Python floats, of one absolute state
-        ``[theta, theta_a, omega, omega_a]`` (a run's ``states`` row) and its pulley torques ``u`` [N m].
+    def joint_values(self, angle: list, speed: list, u: list) -> list:
+        """The JointState's position, velocity and effort concatenated, as Python floats, of the absolute state's
+        angles and speeds (m each: the pulleys', then the arm's; a run's ``states`` row split in two) and the
+        pulley torques ``u`` [N m] (:meth:`~belt_drive_ros.ros.network_stepper.NetworkStepper.pulley_state`).
 
         The arm's position is its absolute angle less the installed one, ``(theta_a + theta_0) - theta_0``
         computed as the run's ``arm_angle`` gives it (bit for bit the recorded value)."""
-        n, m = len(self.scene.pulleys), len(state) // 2
-        pos, vel, eff = state[:n].tolist(), state[m : m + n].tolist(), np.asarray(u, dtype=float).tolist()
-        if self.arm:
-            pos.append(float(state[n] + self.arm[3]) - self.arm[3])
-            vel.append(float(state[-1]))
-            eff.append(0.0)
-        return pos + vel + eff
+        n = len(self.scene.pulleys)
+        if not self.arm:
+            return angle[:n] + speed[:n] + list(u)
+        theta0 = self.arm[3]
+        return angle[:n] + [(angle[n] + theta0) - theta0] + speed[:n] + [speed[n]] + list(u) + [0.0]
 
 
 # ---------------------------------------------------------------------- writing

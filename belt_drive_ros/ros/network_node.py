@@ -237,9 +237,7 @@ class NetworkSimulation:
     def joints(self) -> list:
         """The JointState values at the current tick alone (those of :meth:`outputs`, bit for bit, without the
         per-pulley and per-span outputs: the tick when no Float64 topic has a reader and nothing records)."""
-        stepper = self.stepper
-        full = stepper.absolute(self.x)
-        return self.layout.joint_values(full[0], stepper.inputs(self.k * stepper.dt, self.x, full))
+        return self.layout.joint_values(*self.stepper.pulley_state(self.k, self.x))
 
 
 class NetworkNode(Node):

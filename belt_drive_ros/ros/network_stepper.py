@@ -25,11 +25,16 @@ that value, held constant (zero-order hold), until the next ``hold``.
 
 from __future__ import annotations
 
+import bisect
+import math
+
 import numpy as np
 
 from ..core.errors import SceneError
 from ..core.network.scene import ROLE_SIGN
-from ..core.network.simulate import NetworkLoop, advance, auto_tier, model_of, outputs, rigid_outputs
+from ..core.network.simulate import (LIMIT, NetworkLoop, _breakpoints, advance, auto_tier, model_of, outputs,
+                                     rigid_outputs)
+from ..core.profile_data import CONSTANT, OK
 
 __all__ = ["NetworkStepper"]
 
@@ -66,11 +71,24 @@ class NetworkStepper:
         else:
             self.loop = NetworkLoop(self.model, self.tier, self.method, self.dt)  # its own: hold() writes into it
             self._rows = (self.loop.pk.copy(), self.loop.pp.copy())
+            from ..core.network.kernel import network_steps
+
+            loop, self._kernel = self.loop, network_steps
+            #: the compiled loop's arguments after (times, x, out, lo, hi, limit) (hold() writes into pk, pp in place)
+            self._kernel_args = (*loop.args, loop.start, loop.pk, loop.pp, loop.px, loop.py)
+            self._bps = _breakpoints(self.model, self.dt)
+        #: (k_lo, k_hi, lo, hi): the stretch between two breakpoints of the last tick (:meth:`advance`)
+        self._span = (0, -1, -math.inf, math.inf)
+        d, m = scene.driver, self.m
+        #: per pulley i != driver (i, rho_i): theta_i = rho_i theta_d - l_i (the flexible tier's lags)
+        self._lags = [(i, float(r)) for i, r in enumerate(self.model.ratios) if i != d]
+        self._rho = [float(r) for r in self.model.ratios]
+        self._arm = m > self.n
         #: per pulley the sign of its torque on the belt (driver +1, accessory -1, else 0), with or without a profile
         self.signs = [ROLE_SIGN.get(p.role, 0.0) for p in scene.pulleys]
         #: per pulley with a torque (held or profile): (index, sign, gear, profile uses its angle, scalar profile)
         self._profiles = [(i, p.sign, p.gear, p.torque is not None and p.torque.uses_angle,
-                           p.torque.scalar_torque() if p.torque is not None else None)
+                           _scalar_torque(p.torque) if p.torque is not None else None)
                           for i, p in enumerate(scene.pulleys) if p.sign or self.signs[i]]
         #: per pulley the held torque [N m] (profile sign convention) or None: the scene's profile
         self.held: list[float | None] = [None] * self.n
@@ -91,6 +109,9 @@ class NetworkStepper:
         """Hold pulley ``pulley``'s torque at ``value`` [N m] from now on (None: back to the profile)."""
         if value is not None and self.signs[pulley] == 0.0:
             raise SceneError(f"{self.scene.pulleys[pulley].name}: an idler takes no torque")
+        before = self.held[pulley]
+        if value is not None and before is not None and _same(before, float(value)):
+            return  # held already (the node holds its inputs again every tick)
         self.held[pulley] = None if value is None else float(value)
         if self.tier == "slipping":
             self.loop.hold(pulley, value, self.signs[pulley])
@@ -107,13 +128,18 @@ class NetworkStepper:
         ``full``: :meth:`absolute` of ``x`` when the caller has it."""
         full = self.absolute(x) if full is None else full
         n, m = self.n, self.m
-        angle, speed = full[0, :n].tolist(), full[0, m : m + n].tolist()  # Python floats: cheaper scalar profiles
-        u = np.zeros(n)
+        return np.array(self.torques(t, full[0, :n].tolist(), full[0, m : m + n].tolist()))
+
+    def torques(self, t: float, angle: list, speed: list) -> list:
+        """The n pulley torques ``u`` [N m] (Python floats) at time ``t`` [s] and the pulleys' own angles and
+        speeds (Python floats: the profiles' scalar evaluation is cheaper on them)."""
+        u = [0.0] * self.n
         t = float(t)
+        held, signs = self.held, self.signs
         for i, sign, gear, uses_angle, torque in self._profiles:
-            held = self.held[i]
-            if held is not None:
-                u[i] = self.signs[i] * held / gear
+            value = held[i]
+            if value is not None:
+                u[i] = signs[i] * value / gear
             elif not sign:  # no profile: nothing until held
                 continue
             elif gear == 1.0:  # NetworkPulley.load's formula, the profile's scalar evaluation
@@ -121,6 +147,25 @@ class NetworkStepper:
             else:
                 u[i] = sign * torque(t, (angle[i] if uses_angle else 0.0) / gear, speed[i] / gear) / gear
         return u
+
+    def pulley_state(self, k: int, x) -> tuple[list, list, list]:
+        """``(angle, speed, u)`` at step ``k`` as Python floats: the absolute state's angles and speeds (m each,
+        the arm's last; :meth:`absolute`'s values, computed by the same operations) and the n pulley torques
+        (:meth:`torques`). What a tick needs for ``joint_states`` alone, without numpy on tiny arrays."""
+        xs = x.tolist() if isinstance(x, np.ndarray) else list(x)
+        m = self.m
+        if self.tier == "flexible":  # theta_i = rho_i theta_d - l_i (to_absolute's operations)
+            angle = xs[:m]
+            theta_d = xs[self.scene.driver]
+            for i, rho in self._lags:
+                angle[i] = rho * theta_d - xs[i]
+            speed = xs[m : 2 * m]
+        elif self.tier == "rigid":
+            angle = [xs[0] * rho for rho in self._rho] + ([0.0] if self._arm else [])
+            speed = [xs[1] * rho for rho in self._rho] + ([0.0] if self._arm else [])
+        else:
+            angle, speed = xs[:m], xs[m : 2 * m]
+        return angle, speed, self.torques(k * self.dt, angle, speed)
 
     # ---------------------------------------------------------------- stepping
     def step_index(self, t: float) -> int:
@@ -145,7 +190,23 @@ class NetworkStepper:
             advance_slipping(self.loop, x, k0, k1, None, self.scene.name, self._names)
             return x
         out = np.empty((k1 - k0, x.size))
-        advance(self.loop, x, out, k0, k1)
+        k_lo, k_hi, lo, hi = self._span
+        if not k_lo <= k0 < k1 <= k_hi:  # another stretch between breakpoints (lo, hi: as advance clamps)
+            bps = self._bps
+            j = bisect.bisect_right(bps, k0)  # bps[j-1] <= k0 < bps[j]
+            k_lo, lo = (bps[j - 1], bps[j - 1] * self.dt) if j else (-math.inf, -math.inf)
+            k_hi, hi = (bps[j], bps[j] * self.dt) if j < len(bps) else (k1, math.inf)
+            if k1 > k_hi:  # a breakpoint inside: advance cuts the steps there
+                advance(self.loop, x, out, k0, k1)
+                return out[-1]
+            self._span = (k_lo, k_hi if j < len(bps) else math.inf, lo, hi)
+        # one stretch: the one kernel call advance makes for it, its arguments kept (the node's tick)
+        times = np.arange(k0, k1 + 1) * self.dt
+        if not x.flags.c_contiguous:
+            x = np.ascontiguousarray(x)
+        status = self._kernel(times, x, out, lo, hi, LIMIT, *self._kernel_args)[1]
+        if status != OK:  # advance again: it raises the error that names the step
+            advance(self.loop, x, out, k0, k1)
         return out[-1]
 
     def run(self, steps: int) -> np.ndarray:
@@ -199,3 +260,18 @@ class NetworkStepper:
             p = lambda j: X[:, N + j * n : N + (j + 1) * n]  # noqa: E731 - the packed state's parts
             return slip_run(self.model, np.array([t]), X[:, :N], p(0), p(4), p(5), p(2), p(3)), u
         return outputs(self.model, np.array([t]), full, self.model.run_tensions(X)), u
+
+
+def _scalar_torque(profile):
+    """The profile's scalar ``f(t, angle, speed)``; a constant profile's value without a call into the kernel (the
+    kernel's constant row returns its value, whatever t, angle and speed)."""
+    data = profile.data()
+    if data is not None and data.kinds.size == 1 and data.kinds[0] == CONSTANT:
+        value = float(data.params[0, 0])
+        return lambda t, angle, speed: value
+    return profile.scalar_torque()
+
+
+def _same(a: float, b: float) -> bool:
+    """``a`` and ``b`` are the same float, sign of zero included (a held -0.0 N m publishes as -0.0)."""
+    return a == b and (a != 0.0 or math.copysign(1.0, a) == math.copysign(1.0, b))

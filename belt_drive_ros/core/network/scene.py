@@ -12,6 +12,7 @@ import math
 import os
 import stat
 from dataclasses import dataclass
+from functools import cached_property
 from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
@@ -183,8 +184,9 @@ class NetworkScene:
     def index(self, name: str) -> int:
         return [p.name for p in self.pulleys].index(name)
 
-    @property
+    @cached_property
     def driver(self) -> int:
+        """Index of the driver pulley (found once per scene object: scenes are frozen)."""
         return [p.role for p in self.pulleys].index("driver")
 
     def span_names(self) -> list[str]:

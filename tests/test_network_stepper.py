@@ -1,0 +1,108 @@
+"""The network node's tick (ros/network_stepper.py) against the whole offline run of the same loop.
+
+A tick inside one stretch between the profiles' breakpoints calls the
+compiled loop directly with the clamp interval it keeps from the last tick;
+a tick that crosses a breakpoint goes through ``advance``, which cuts there.
+Either way the states must be the whole run's bit for bit, also at and
+around a torque step, where a wrong clamp interval would sample the
+switched torque a step early. The joint values of a tick are Python floats
+computed without numpy; a held value is written into the loop only when it
+changes, and a held -0.0 N m stays -0.0.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from belt_drive_ros.core.network.scene import NetworkScene
+from belt_drive_ros.core.network.simulate import model_of, network_loop, run_loop
+from belt_drive_ros.io.network_bag import NetworkLayout
+from belt_drive_ros.ros.network_stepper import NetworkStepper
+
+from test_network_slip import shipped
+
+
+#: the float 43 dt + dt (dt = 1 ms), one ulp above 44 dt: a step there lies on the grid (step 44), and the stage
+#: at the end of step 43, t + dt, reaches it only unclamped (clamped to 44 dt it samples the left limit)
+STEP_TIME = 43 * 1e-3 + 1e-3
+assert STEP_TIME > 44 * 1e-3
+
+
+def stepped_fead():
+    """fead_i4 with the alternator's load stepping 1.5 -> 6 N m at :data:`STEP_TIME` and the crank's ramp ending
+    at 0.1 s (breakpoints at steps 44 and 100)."""
+    data = shipped("fead_i4")
+    for p in data["pulleys"]:
+        if p["name"] == "alternator":
+            p["torque"] = {"type": "step", "initial": 1.5, "final": 6.0, "time": STEP_TIME}
+    return NetworkScene.from_mapping(data, name="stepped_fead")
+
+
+@pytest.mark.parametrize("tier", ["flexible", "rigid"])
+@pytest.mark.parametrize("per_tick", [1, 3, 7])
+def test_ticks_equal_the_whole_run_across_breakpoints(tier, per_tick):
+    scene = stepped_fead()
+    steps = 130
+    _, whole = run_loop(network_loop(model_of(scene), tier, scene.method, scene.dt), steps)
+    stepper = NetworkStepper(scene, tier=tier)
+    x, k = stepper.initial(), 0
+    while k < steps:
+        k1 = min(k + per_tick, steps)
+        x = stepper.advance(x, k, k1)
+        k = k1
+        assert np.array_equal(x, whole[k]), (tier, per_tick, k)
+    assert np.ptp(whole[:, -1]) > 0.0  # the run moved
+
+
+def test_a_tick_after_a_restart_uses_the_clamp_of_its_own_stretch():
+    """Ticks past the step, then back to the start (the node restarts there after a clock jump): the kept
+    clamp interval must not be used for the earlier stretch."""
+    scene = stepped_fead()
+    _, whole = run_loop(network_loop(model_of(scene), "flexible", scene.method, scene.dt), 60)
+    stepper = NetworkStepper(scene, tier="flexible")
+    x = stepper.initial()
+    for k in range(50, 60):  # a tick in the stretch after the step (state from the whole run)
+        x = stepper.advance(whole[k], k, k + 1)
+        assert np.array_equal(x, whole[k + 1])
+    x = stepper.initial()
+    for k in range(45):
+        x = stepper.advance(x, k, k + 1)
+        assert np.array_equal(x, whole[k + 1]), k
+
+
+@pytest.mark.parametrize("tier", ["flexible", "rigid", "slipping"])
+def test_pulley_state_is_the_absolute_state_as_python_floats(tier):
+    scene = stepped_fead()
+    stepper = NetworkStepper(scene, tier=tier)
+    x = stepper.initial()
+    stepper.hold(scene.driver, 20.0)
+    for k in range(0, 30, 3):
+        x = stepper.advance(x, k, k + 3)
+        angle, speed, u = stepper.pulley_state(k + 3, x)
+        full = stepper.absolute(x)[0]
+        assert angle == full[: stepper.m].tolist() and speed == full[stepper.m :].tolist()
+        assert u == stepper.inputs((k + 3) * stepper.dt, x).tolist()
+        assert all(type(v) is float for v in angle + speed + u)
+    layout = NetworkLayout(scene)
+    assert len(layout.joint_values(angle, speed, u)) == 3 * len(layout.joints)
+
+
+def test_holding_the_same_value_again_changes_nothing_and_minus_zero_is_kept():
+    scene = stepped_fead()
+    stepper = NetworkStepper(scene, tier="flexible")
+    x, d = stepper.initial(), scene.driver
+    stepper.hold(d, 0.0)
+    stepper.hold(d, 0.0)
+    assert math.copysign(1.0, stepper.pulley_state(0, x)[2][d]) == 1.0
+    stepper.hold(d, -0.0)  # the same number, another float: published as sent
+    assert math.copysign(1.0, stepper.pulley_state(0, x)[2][d]) == -1.0
+    row = stepper.loop.start[stepper.loop.active.index(d)]
+    assert math.copysign(1.0, stepper.loop.pp[row, 0]) == -1.0  # and the loop integrates it
+    stepper.hold(d, 12.0)
+    stepper.hold(d, 12.0)
+    assert stepper.loop.pp[row, 0] == 12.0 and stepper.pulley_state(0, x)[2][d] == 12.0
+    stepper.hold(d, None)  # back to the profile
+    assert stepper.loop.pk[row] == stepper._rows[0][row] and stepper.held[d] is None
