@@ -109,7 +109,8 @@ def parse_args(argv=None):
     p.add_argument("--warmup", type=float, default=2.0, help="seconds discarded at the start (default 2)")
     p.add_argument("--rate", type=float, default=1000.0, help="node tick rate [Hz] (default 1000)")
     p.add_argument("--torque-rate", type=float, default=97.0, help="drive_torque publish rate [Hz] (default 97: not a divisor of the tick rate, so send times sweep every tick phase)")
-    p.add_argument("--scene", default="paper", help="scene (default paper)")
+    p.add_argument("--scene", help="scene: shipped name or YAML (default: -p scene:=X, else paper); a belt network "
+                   "runs the network node")
     p.add_argument("--executor", choices=("auto", "events", "single"), default="auto", help="the node's executor")
     p.add_argument("--param", "-p", action="append", default=[], metavar="NAME:=VALUE",
                    help="a node parameter (repeatable), e.g. -p model:=slipping -p drive_source:=scene")
@@ -120,7 +121,48 @@ def parse_args(argv=None):
                    help="then measure the floor: the same process without the model (rclpy + DDS only)")
     p.add_argument("--out", type=Path, help="also write node.csv and node.md here")
     p.add_argument("--quick", action="store_true", help="3 s run (smoke test)")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    try:
+        args.scene, args.param = scene_of(args.scene, args.param)
+    except ValueError as exc:
+        p.error(str(exc))
+    return args
+
+
+def scene_of(scene: str | None, params: list[str]) -> tuple[str, list[str]]:
+    """``(scene, params)``: the scene the node runs, from ``--scene`` or ``-p scene:=X`` (default paper), and the
+    other ``-p`` parameters (the scene goes to the node as its positional argument, which would win over a
+    ``-p scene:=``). ValueError when the two name different scenes."""
+    def is_scene(param):
+        return ":=" in param and param.split(":=", 1)[0].strip() == "scene"
+
+    named = sorted({p.split(":=", 1)[1].strip() for p in params if is_scene(p)})
+    if len(named) > 1:
+        raise ValueError(f"-p scene:= names different scenes ({', '.join(named)})")
+    if scene is not None and named and named[0] != scene:
+        raise ValueError(f"--scene {scene} and -p scene:={named[0]} name different scenes")
+    return scene or (named[0] if named else "paper"), [p for p in params if not is_scene(p)]
+
+
+def _ran_scene(arrays) -> str:
+    """The scene the node reports in its latest ``/diagnostics`` (``hardware_id`` of its simulation status), or '?'."""
+    for msg in reversed(arrays):
+        for status in msg.status:
+            if status.name.endswith(": simulation") and status.hardware_id:
+                return status.hardware_id
+    return "?"
+
+
+def _floor_joints(scene: str) -> list[str]:
+    """The floor's options for the node's ``joint_states`` of ``scene``: a belt network's joints by name (the
+    paper drive's four are the floor's default)."""
+    from ..core.network.scene import is_network, load_network
+
+    if not is_network(scene):
+        return []
+    from ..io.network_bag import NetworkLayout
+
+    return ["--joints", ",".join(NetworkLayout(load_network(scene)).joints)]
 
 
 def _own_period_error(arrays) -> tuple[float, float, float]:
@@ -190,7 +232,7 @@ def measure(args, floor: bool = False) -> dict:
     env = ros_env.child_environment(domain, udp_only=args.udp_only)
     cmd = [
         sys.executable, "-m", "belt_drive_ros.benchmarks.node_floor", "--rate", str(float(args.rate)),
-        "--executor", args.executor, *_floor_tick_options(args.param),
+        "--executor", args.executor, *_floor_tick_options(args.param), *_floor_joints(args.scene),
     ] if floor else [
         sys.executable, "-m", "belt_drive_ros.cli", "node", args.scene, "--executor", args.executor,
         *(["--priority", str(args.node_priority)] if args.node_priority else []),
@@ -286,6 +328,7 @@ def measure(args, floor: bool = False) -> dict:
     received_span_s = (data[-1, 0] - data[0, 0]) / 1e9 if len(data) > 1 else math.nan
     own = _own_period_error([m for t, m in diagnostics if wall0 <= t <= wall1])
     compute = _tick_compute_us([m for t, m in diagnostics if wall0 <= t <= wall1])
+    ran = _ran_scene([m for _, m in diagnostics])
     figures = {
         "duration_s": window,
         "rate_set_hz": args.rate,
@@ -315,7 +358,8 @@ def measure(args, floor: bool = False) -> dict:
         "process": "floor (rclpy + DDS, no model)" if floor else "node",
         "executor": args.executor,
         "node_priority": f"SCHED_FIFO {args.node_priority}" if args.node_priority and not floor else "normal",
-        "scene": "-" if floor else args.scene,
+        "scene": f"- (joint_states of {args.scene})" if floor else ran,
+        "scene_asked": args.scene,
         "params": "" if floor else " ".join(args.param),
         "transport": "UDPv4" if args.udp_only else "Fast DDS default (SHM + UDP)",
         "load_average": os.getloadavg()[0],
@@ -332,7 +376,9 @@ def report(f: dict) -> str:
         f"belt-drive node benchmark, {f.get('process', 'node')}: {f['duration_s']:.1f} s at {f['rate_set_hz']:g} Hz "
         f"(executor {f['executor']}, {f['transport']}, scheduling {f.get('node_priority', 'normal')}, "
         f"load average {f['load_average']:.2f}, {os.cpu_count()} CPUs)",
-        f"  scene                  {f.get('scene', '?')}" + (f" with {f['params']}" if f.get("params") else ""),
+        f"  scene                  {f.get('scene', '?')}" + (f" with {f['params']}" if f.get("params") else "")
+        + ("" if str(f.get("process", "")).startswith("floor") or f.get("scene") == f.get("scene_asked", f.get("scene"))
+           else f"   [asked for {f.get('scene_asked')}: MISMATCH]"),
         f"  achieved rate          {f['rate_stamps_hz']:.2f} Hz from the node's stamps, {f['rate_received_hz']:.2f} Hz received; "
         f"{f['ticks_missing']} tick(s) skipped   [target >= {t['rate_hz']:g}: {mark(f['rate_stamps_hz'] >= t['rate_hz'])}]",
         f"  tick period error      p50 {f['period_error_p50_ms']:.4f} ms, p99 {f['period_error_p99_ms']:.4f} ms, "

@@ -36,6 +36,8 @@ def main(argv=None) -> int:
     p.add_argument("--executor", choices=("auto", "events", "single"), default="auto", help="executor (default auto)")
     p.add_argument("--lead", type=float, default=0.0003, help="the tick thread's lead [s] (the node's tick_lead; default 0.0003)")
     p.add_argument("--timer", action="store_true", help="tick from an executor timer (the node's tick_thread:=false)")
+    p.add_argument("--joints", help="joint_states' joint names, comma-separated (a belt network's; default the paper "
+                   "drive's four)")
     args = p.parse_args(argv)
     if not (args.rate > 0):
         p.error("--rate must be > 0")
@@ -56,7 +58,9 @@ def main(argv=None) -> int:
     stop = threading.Event()
     with ros_session() as context:
         node = Node("belt_drive_floor", context=context)
-        encoder = JointStateEncoder(4)
+        names = args.joints.split(",") if args.joints else None
+        encoder = JointStateEncoder(names=names)
+        joints = len(names) if names else 4
         pub = node.create_publisher(JointState, "joint_states", OUTPUT_QOS)
         torque = [0.0]
         lock = threading.RLock()  # the node's callbacks and ticks hold one
@@ -66,7 +70,8 @@ def main(argv=None) -> int:
                 torque[0] = msg.data
 
         node.create_subscription(Float64, "drive_torque", on_torque, INPUT_QOS)
-        zeros = (0.0,) * 8
+        zeros = (0.0,) * (2 * joints)  # positions, velocities; then the efforts: the torque first (the node's driver)
+        rest = (0.0,) * (joints - 1)
 
         def run_thread(origin):
             """The node's TickThread without the model: wake lead early, pack, sleep to the due time, publish."""
@@ -78,7 +83,7 @@ def main(argv=None) -> int:
                 if wait > 0:
                     sleep(wait)
                 with lock:
-                    data = encoder.encode(due, (*zeros, torque[0], 0.0, 0.0, 0.0))
+                    data = encoder.encode(due, (*zeros, torque[0], *rest))
                 wait = (due - now_ns()) * 1e-9
                 if wait > 0:
                     sleep(wait)
@@ -101,7 +106,7 @@ def main(argv=None) -> int:
                     return
             with lock:
                 now -= (now - origin[0]) % period_ns  # the latest grid point, as the node stamps
-                pub.publish(encoder.encode(now, (*zeros, torque[0], 0.0, 0.0, 0.0)))
+                pub.publish(encoder.encode(now, (*zeros, torque[0], *rest)))
 
         timer = node.create_timer(period_ns / 1e9, tick)
 

@@ -84,6 +84,8 @@ def register(sub) -> None:
                    "fifo, truncated)")
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                    help="node: a node parameter (repeatable), e.g. -p model:=slipping")
+    p.add_argument("--scene", help="node: the scene the node runs (default: -p scene:=X, else paper); the floor "
+                   "publishes that scene's joint_states")
     p.set_defaults(func=run)
 
 
@@ -115,6 +117,7 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if args.study == "node":
         extra = ["--duration", repr(args.duration)] + (["--floor"] if args.floor else [])
+        extra += ["--scene", args.scene] if args.scene else []
         return _run_node(out, args.quick, extra + [a for param in args.param for a in ("-p", param)])
     if args.study == "node-tick":
         from ..benchmarks import node_tick
