@@ -46,14 +46,14 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from msg_tools import Ros2McapWriter
 from msg_tools.bagdir import bag_files
+from msg_tools.block_writer import BlockMcapWriter
 from msg_tools.errors import MsgToolsError
 from msg_tools.units import UNITS_METADATA
 
 from .bag_layout import (FLOAT64, JOINT_STATE, ROBOT_DESCRIPTION_QOS, STRING, TF_MESSAGE, TF_QOS, TF_TOPIC, _absolute,
                          _fmt, bag_error)
-from .cdr_encoders import JointStateEncoder, TfEncoder, encode_float64
+from .cdr_encoders import JointStateEncoder, TfEncoder, encode_float64, float64_rows
 
 __all__ = ["NETWORK_METADATA", "NetworkLayout", "NetworkBagWriter", "read_network_recording", "scene_text",
            "write_network_mcap"]
@@ -66,6 +66,12 @@ ARM_JOINT = "tensioner_arm"
 PULLEY_SIGNALS = (("angle", "rad"), ("speed", "rad/s"), ("belt_torque", "N*m"), ("hub_load", "N"),
                   ("friction_use", "1"), ("slip", "1"), ("slip_speed", "m/s"))
 SPAN_SIGNALS = (("tension", "N"), ("slack", "1"))
+#: samples a recording keeps before it writes them as one block (~0.1 MB of fead_i4's outputs: about one chunk,
+#: what the message-by-message writer kept open too; a process killed outright loses at most these)
+BLOCK_SAMPLES = 25
+#: the rows of a one-sample run that NetworkLayout.values lays end to end (n values each; arm_angle last, one)
+_SIGNAL_ROWS = ("angle", "speed", "belt_torque", "hub_load", "friction_use", "slip", "slip_speed", "tension", "slack",
+                "arm_angle")
 
 
 def scene_text(label: str) -> str:
@@ -115,6 +121,11 @@ class NetworkLayout:
                                                        if p.role == "accessory"]
         self.units.update({topic: "N*m" for topic, _ in self.inputs})
         self.units.update({topic + APPLIED: "N*m" for topic, _ in self.inputs})
+        # values(): where each Float64 output sits in a one-sample run's rows laid end to end (n each, the arm's 1)
+        n = len(P)
+        at = {what: j * n for j, what in enumerate(_SIGNAL_ROWS)}
+        self._gather = np.array([at[what] + i for _, (what, i) in self.floats], dtype=np.intp)
+        self._zeros = np.zeros(n)
 
     # ----------------------------------------------------------------- frames
     def senses(self) -> List[float]:
@@ -156,16 +167,14 @@ class NetworkLayout:
     # ---------------------------------------------------------------- samples
     def values(self, run, u) -> Tuple[list, list]:
         """``(joints, floats)`` of a one-sample run and its pulley torques ``u``: the JointState's position,
-        velocity and effort concatenated, and the Float64 topics' values, as Python floats."""
-        n = len(self.scene.pulleys)
-        zeros = np.zeros((1, n))
-        signals = {"angle": run.angle, "speed": run.speed, "belt_torque": run.belt_torque, "hub_load": run.hub_load,
-                   "friction_use": run.friction_use, "slip": getattr(run, "slip", None),
-                   "slip_speed": getattr(run, "slip_speed", None), "tension": run.tension, "slack": run.slack}
-        signals = {k: zeros if v is None else v for k, v in signals.items()}
-        floats = []
-        for _, (what, i) in self.floats:
-            floats.append(float(run.arm_angle[0]) if what == "arm_angle" else float(signals[what][0, i]))
+        velocity and effort concatenated, and the Float64 topics' values, as Python floats (one gather from the
+        run's rows, in :attr:`floats`' order; a flag as 1.0 or 0.0)."""
+        zeros = self._zeros
+        rows = [run.angle[0], run.speed[0], run.belt_torque[0], run.hub_load[0], run.friction_use[0],
+                zeros if getattr(run, "slip", None) is None else run.slip[0],
+                zeros if getattr(run, "slip_speed", None) is None else run.slip_speed[0], run.tension[0],
+                run.slack[0].astype(float), zeros[:1] if run.arm_angle is None else run.arm_angle[:1]]
+        floats = np.concatenate(rows).take(self._gather).tolist()
         state = run.states[0].tolist()
         m = len(state) // 2
         return self.joint_values(state[:m], state[m:], np.asarray(u, dtype=float).tolist()), floats
@@ -190,6 +199,10 @@ class NetworkBagWriter:
 
     Channels in order: ``robot_description`` (one latched message at the first sample), ``joint_states``,
     ``/tf``, the Float64 outputs; inputs (``record_inputs``: received and applied) when first written.
+    The outputs are kept for :data:`BLOCK_SAMPLES` samples and written as one block
+    (:meth:`msg_tools.block_writer.BlockMcapWriter.write_block`: no message object or writer call per
+    message; a split folder, ``max_bag_duration`` / ``max_bag_size``, takes them sample by sample); inputs
+    are written as they come. :meth:`flush` and :meth:`close` write what is kept.
     """
 
     def __init__(self, path, layout: NetworkLayout, record: Dict[str, str], *, force: bool = False,
@@ -204,7 +217,7 @@ class NetworkBagWriter:
                 self.writer = Ros2BagWriter(path, force=force, compression=compression,
                                             max_bag_duration=max_bag_duration or None, max_bag_size=max_bag_size or None)
             else:
-                self.writer = Ros2McapWriter(path, force=force, compression=compression)
+                self.writer = BlockMcapWriter(path, force=force, compression=compression)
             self.writer.add_metadata(NETWORK_METADATA, record)
             units = {_absolute(t, namespace): u for t, u in layout.units.items()}
             units[_absolute("joint_states", namespace)] = "rad, rad/s, N*m"
@@ -215,8 +228,17 @@ class NetworkBagWriter:
         self._tf = layout.tf_encoder()
         self._joint_topic = _absolute("joint_states", namespace)
         self._float_topics = [_absolute(t, namespace) for t, _ in layout.floats]
+        self._block_topics = [(self._joint_topic, JOINT_STATE), (TF_TOPIC, TF_MESSAGE)] + [
+            (t, FLOAT64) for t in self._float_topics]
         self._started = False
         self._inputs: set = set()
+        # the samples kept for the next block: times, joint_states and /tf CDR (fixed sizes), Float64 values
+        # (a split folder's writer takes messages one by one, each sample as it comes: its files split on time)
+        self._block = BLOCK_SAMPLES if hasattr(self.writer, "write_block") else 1
+        self._kept = 0
+        self._times = np.empty(BLOCK_SAMPLES, dtype=np.int64)
+        self._values = np.empty((BLOCK_SAMPLES, len(self._float_topics)))
+        self._cdr: list = [None, None]
 
     def _start(self, t_ns: int) -> None:
         w = self.writer
@@ -234,25 +256,48 @@ class NetworkBagWriter:
         self._started = True
 
     def write_sample(self, t_ns: int, joints: Sequence[float], floats: Sequence[float]) -> None:
-        """One sample at ``t_ns`` [ns]: joint_states, /tf and every Float64 output."""
-        self.write_encoded(t_ns, *self.encode(t_ns, joints, floats))
-
-    def encode(self, t_ns: int, joints: Sequence[float], floats: Sequence[float]):
-        """``(joint_states CDR, /tf CDR, [Float64 CDR])`` of one sample (the node publishes these bytes)."""
+        """One sample at ``t_ns`` [ns]: joint_states, /tf and every Float64 output (values in :attr:`NetworkLayout.floats`' order)."""
         n = len(self.layout.joints)
-        return self._joint.encode(t_ns, joints), self._tf.encode(t_ns, joints[:n]), encode_float64(np.array(floats))
+        self.write_tick(t_ns, self._joint.encode(t_ns, joints), self._tf.encode(t_ns, joints[:n]), floats)
 
-    def write_encoded(self, t_ns: int, joint_cdr: bytes, tf_cdr: bytes, float_cdr: Sequence[bytes]) -> None:
+    def write_tick(self, t_ns: int, joint_cdr: bytes, tf_cdr: bytes, floats: Sequence[float]) -> None:
+        """One sample given as the joint_states and /tf CDR (the bytes the node publishes) and the Float64
+        outputs' values (written as :func:`~.cdr_encoders.encode_float64` encodes them)."""
         try:
             if not self._started:
                 self._start(t_ns)
-            w = self.writer
-            w.write_raw(self._joint_topic, JOINT_STATE, joint_cdr, t_ns)
-            w.write_raw(TF_TOPIC, TF_MESSAGE, tf_cdr, t_ns)
-            for topic, data in zip(self._float_topics, float_cdr):
-                w.write_raw(topic, FLOAT64, data, t_ns)
+            k = self._kept
+            if k and (t_ns < self._times[k - 1] or len(joint_cdr) != self._cdr[0].shape[1]
+                      or len(tf_cdr) != self._cdr[1].shape[1]):
+                self._write_block()  # a block is in time order, its messages of one size each
+                k = 0
+            if not k and (self._cdr[0] is None or self._cdr[0].shape[1] != len(joint_cdr)
+                          or self._cdr[1].shape[1] != len(tf_cdr)):
+                self._cdr = [np.empty((BLOCK_SAMPLES, len(joint_cdr)), np.uint8),
+                             np.empty((BLOCK_SAMPLES, len(tf_cdr)), np.uint8)]
+            self._times[k] = t_ns
+            self._cdr[0][k] = np.frombuffer(joint_cdr, np.uint8)
+            self._cdr[1][k] = np.frombuffer(tf_cdr, np.uint8)
+            self._values[k] = floats
+            self._kept = k + 1
+            if self._kept == self._block:
+                self._write_block()
         except (MsgToolsError, OSError) as exc:
             raise bag_error(exc) from None
+
+    def _write_block(self) -> None:
+        k = self._kept
+        if not k:
+            return
+        self._kept = 0
+        per_topic = float64_rows(self._values[:k].T).reshape(len(self._float_topics), k, 12)  # topic by topic
+        payloads = [self._cdr[0][:k], self._cdr[1][:k], *per_topic]
+        if self._block > 1:
+            self.writer.write_block(self._block_topics, self._times[:k], payloads)
+            return
+        for j in range(k):  # sample by sample, in the block's topic order
+            for (topic, kind), rows in zip(self._block_topics, payloads):
+                self.writer.write_raw(topic, kind, rows[j].tobytes(), int(self._times[j]))
 
     def write_input(self, topic: str, value: float, t_ns: int) -> None:
         """An input value (received, or ``..._applied`` at a tick) [N m]."""
@@ -266,12 +311,16 @@ class NetworkBagWriter:
             raise bag_error(exc) from None
 
     def flush(self) -> None:
-        flush = getattr(self.writer, "flush", None)
-        if flush is not None:
-            flush()
+        """Write the samples kept and flush the file."""
+        try:
+            self._write_block()
+            self.writer.flush()
+        except (MsgToolsError, OSError) as exc:
+            raise bag_error(exc) from None
 
     def close(self) -> Dict[str, int]:
         try:
+            self._write_block()
             counts = self.writer.topic_counts()
             self.writer.__exit__(None, None, None)
         except (MsgToolsError, OSError) as exc:

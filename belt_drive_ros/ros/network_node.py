@@ -380,14 +380,14 @@ class NetworkNode(Node):
             tf_cdr = self._tf_cdr.encode(t, joints[: len(self.layout.joints)])
             if tf_read:
                 sends.append((self._pub_tf.publish, tf_cdr))
-        float_cdr = () if floats is None else self._encode_floats(floats)
-        for (topic, _), pub, data in zip(self.layout.floats, self._pub_float, float_cdr):
-            if readers[topic]:
-                sends.append((pub.publish, data))
+        if floats is not None and self._float_readers:  # the CDR of the outputs read (the recording keeps values)
+            for (topic, _), pub, value in zip(self.layout.floats, self._pub_float, floats):
+                if readers[topic]:
+                    sends.append((pub.publish, self._encode_floats((value,))[0]))
         if recorder is not None:
             for topic, value in self.sim.applied:
                 recorder.write_input(topic, value, t)
-            recorder.write_encoded(t, joint_cdr, tf_cdr, float_cdr)
+            recorder.write_tick(t, joint_cdr, tf_cdr, floats)
         self.counters["published"] += 1
         if defer:
             return sends

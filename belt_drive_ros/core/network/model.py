@@ -427,30 +427,69 @@ def friction_use(scene, tensions, belt_speed) -> np.ndarray:
     that would take over there is not built). ``tensions`` (..., n) [N], ``belt_speed`` (...) [m/s].
     """
     T = np.asarray(tensions, dtype=float)
-    T_in = np.roll(T, 1, axis=-1)
-    v = np.asarray(belt_speed, dtype=float)[..., None]
     factor = np.tanh(0.5 * np.array([p.mu for p in scene.pulleys]) * scene.geometry.wraps)
-    limit = np.maximum(T + T_in - 2.0 * scene.belt.mass_per_length * v * v, 0.0) * factor
+    return _friction_use(T, np.roll(T, 1, axis=-1), belt_speed, scene.belt.mass_per_length, factor)
+
+
+def _friction_use(T, T_in, belt_speed, mass_per_length: float, factor) -> np.ndarray:
+    """:func:`friction_use` of tensions ``T`` and the arriving spans' ``T_in`` (``T`` rolled by one pulley)."""
+    v = np.asarray(belt_speed, dtype=float)[..., None]
+    limit = np.maximum(T + T_in - 2.0 * mass_per_length * v * v, 0.0) * factor
     diff = np.abs(T - T_in)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(limit > 0.0, diff / np.where(limit > 0.0, limit, 1.0), np.where(diff > 0.0, np.inf, 0.0))
 
 
+@dataclass(frozen=True)
+class _OutputTerms:
+    """What :func:`outputs` takes from the scene, found once per model: radii ``r``, the arriving span of each
+    pulley ``prev`` (``np.roll`` by one), the span directions' components and the arriving ones', the capstan
+    factors ``tanh(mu beta / 2)``, the belt's mass per length, the driver and the arm's installed angle."""
+
+    r: np.ndarray
+    prev: np.ndarray
+    ex: np.ndarray
+    ey: np.ndarray
+    ex_in: np.ndarray
+    ey_in: np.ndarray
+    factor: np.ndarray
+    mass_per_length: float
+    driver: int
+    arm_angle0: float
+
+    @classmethod
+    def of(cls, model: NetworkModel) -> "_OutputTerms":
+        found = model.__dict__.get("_output_terms")
+        if found is None:
+            scene = model.scene
+            n = len(scene.pulleys)
+            e = np.asarray(scene.geometry.directions, dtype=float)
+            e_in = np.roll(e, 1, axis=0)
+            c = np.ascontiguousarray
+            found = cls(np.array([p.radius for p in scene.pulleys]), np.roll(np.arange(n), 1), c(e[:, 0]), c(e[:, 1]),
+                        c(e_in[:, 0]), c(e_in[:, 1]),
+                        np.tanh(0.5 * np.array([p.mu for p in scene.pulleys]) * scene.geometry.wraps),
+                        float(scene.belt.mass_per_length), scene.driver,
+                        arm(scene.pulleys, scene.tensioner)[3] if model.arm >= 0 else 0.0)
+            model.__dict__["_output_terms"] = found
+        return found
+
+
 def outputs(model: NetworkModel, time, states, tensions=None) -> NetworkRun:
     """Per pulley and per span outputs from states ``[q, q']`` (N, 2m) (``tensions`` (N, n): given by a tier
-    whose spans also stretch by slip; default: the linear tier's)."""
-    scene, m, n = model.scene, model.M.shape[0], len(model.scene.pulleys)
+    whose spans also stretch by slip; default: the linear tier's). The scene's terms are found once per model
+    (:class:`_OutputTerms`): a node's one-sample call costs the arithmetic alone."""
+    c, m, n = _OutputTerms.of(model), model.M.shape[0], len(model.scene.pulleys)
     q, qd = states[:, :m], states[:, m:]
     T = model.tensions(q, qd) if tensions is None else tensions
-    r = np.array([p.radius for p in scene.pulleys])
-    T_in = np.roll(T, 1, axis=1)  # span i-1 arrives at pulley i
-    torque = r * (T - T_in)
-    e = scene.geometry.directions  # hub load: |T_i e_i - T_{i-1} e_{i-1}| (first order: directions fixed)
-    e_in = np.roll(e, 1, axis=0)
-    hub = np.hypot(T * e[:, 0] - T_in * e_in[:, 0], T * e[:, 1] - T_in * e_in[:, 1])
-    v = qd[:, scene.driver] * r[scene.driver]
-    slack = T < (scene.belt.mass_per_length * v * v)[:, None]
+    T_in = T[:, c.prev]  # span i-1 arrives at pulley i
+    torque = c.r * (T - T_in)
+    # hub load: |T_i e_i - T_{i-1} e_{i-1}| (first order: directions fixed)
+    hub = np.hypot(T * c.ex - T_in * c.ex_in, T * c.ey - T_in * c.ey_in)
+    v = qd[:, c.driver] * c.r[c.driver]
+    slack = T < (c.mass_per_length * v * v)[:, None]
     angle = None
     if model.arm >= 0:
-        angle = q[:, model.arm] + arm(scene.pulleys, scene.tensioner)[3]
-    return NetworkRun(time, q[:, :n], qd[:, :n], torque, hub, T, slack, angle, states, friction_use(scene, T, v))
+        angle = q[:, model.arm] + c.arm_angle0
+    return NetworkRun(time, q[:, :n], qd[:, :n], torque, hub, T, slack, angle, states,
+                      _friction_use(T, T_in, v, c.mass_per_length, c.factor))
