@@ -49,6 +49,32 @@ def test_bench_node_dispatches_to_the_node_module(tmp_path, monkeypatch):
                     ["--out", str(tmp_path), "--duration", "12.0", "--floor", "-p", "model:=rigid"]]
 
 
+def test_bench_node_runs_the_scene_asked_for_by_option_or_parameter(tmp_path, monkeypatch):
+    """``--scene X`` and ``-p scene:=X`` both name the node's scene (the node's positional scene, which the
+    bench passes, used to win over ``-p scene:=``: the bench ran paper); two different ones are refused."""
+    import types
+
+    from belt_drive_ros.benchmarks.node import parse_args, scene_of
+    from belt_drive_ros.commands import bench
+
+    assert scene_of(None, []) == ("paper", [])
+    assert scene_of(None, ["scene:=fead_i4", "model:=rigid"]) == ("fead_i4", ["model:=rigid"])
+    assert scene_of("fead_i4", ["scene:=fead_i4"]) == ("fead_i4", [])
+    with pytest.raises(ValueError, match="different scenes"):
+        scene_of("paper", ["scene:=fead_i4"])
+    with pytest.raises(ValueError, match="different scenes"):
+        scene_of(None, ["scene:=paper", "scene:=fead_i4"])
+    args = parse_args(["-p", "scene:=fead_i4", "-p", "tick_lead:=0.0004"])
+    assert args.scene == "fead_i4" and args.param == ["tick_lead:=0.0004"]
+    with pytest.raises(SystemExit):
+        parse_args(["--scene", "paper", "-p", "scene:=fead_i4"])
+    seen = []
+    monkeypatch.setitem(sys.modules, "belt_drive_ros.benchmarks.node", types.SimpleNamespace(main=lambda a: seen.append(a) or 0))
+    monkeypatch.setattr(bench, "_single_threaded_blas", lambda: "BLAS as configured (test)")
+    assert main(["bench", "node", "--out", str(tmp_path), "--scene", "fead_i4"]) == 0
+    assert seen == [["--out", str(tmp_path), "--duration", "30.0", "--scene", "fead_i4"]]
+
+
 def test_bench_parser_lists_the_studies():
     parser = build_parser()
     args = parser.parse_args(["bench", "versus", "--out", "x", "--quick"])
@@ -135,6 +161,26 @@ def test_bench_node_floor_measures_the_node_and_a_model_free_twin_the_same_way(t
     # the node's own publish periods come from its /diagnostics (the floor publishes none)
     assert 0.0 <= float(rows[0]["own_period_error_p50_ms"]) <= float(rows[0]["own_period_error_p99_ms"])
     assert rows[1]["own_period_error_p99_ms"] == "nan"
+
+
+@pytest.mark.ros
+def test_bench_node_runs_a_network_scene_given_as_a_parameter_beside_its_floor(tmp_path):
+    """``bench node -p scene:=fead_i4 --floor`` runs the network node (the scene it reports in /diagnostics is
+    printed and written) and a floor publishing the network's joint_states (the torque echoed as its first
+    effort, as the node's crank)."""
+    import csv
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "belt_drive_ros.cli", "bench", "node", "--quick", "--floor", "-p", "scene:=fead_i4",
+         "--out", str(tmp_path)], capture_output=True, text=True, timeout=240,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "  scene                  fead_i4\n" in proc.stdout and "MISMATCH" not in proc.stdout
+    assert "- (joint_states of fead_i4)" in proc.stdout and "[target <= 5:" in proc.stdout
+    rows = list(csv.DictReader((tmp_path / "node.csv").open()))
+    assert rows[0]["scene"] == "fead_i4" and rows[0]["tick_compute_p50_us"] != "nan"
+    for r in rows:
+        assert float(r["rate_received_hz"]) > 0 and int(r["latency_samples"]) > 0, r
 
 
 def test_bench_node_reads_the_nodes_own_period_error_from_its_latest_diagnostics():
