@@ -440,56 +440,35 @@ def _friction_use(T, T_in, belt_speed, mass_per_length: float, factor) -> np.nda
         return np.where(limit > 0.0, diff / np.where(limit > 0.0, limit, 1.0), np.where(diff > 0.0, np.inf, 0.0))
 
 
-@dataclass(frozen=True)
-class _OutputTerms:
-    """What :func:`outputs` takes from the scene, found once per model: radii ``r``, the arriving span of each
-    pulley ``prev`` (``np.roll`` by one), the span directions' components and the arriving ones', the capstan
-    factors ``tanh(mu beta / 2)``, the belt's mass per length, the driver and the arm's installed angle."""
-
-    r: np.ndarray
-    prev: np.ndarray
-    ex: np.ndarray
-    ey: np.ndarray
-    ex_in: np.ndarray
-    ey_in: np.ndarray
-    factor: np.ndarray
-    mass_per_length: float
-    driver: int
-    arm_angle0: float
-
-    @classmethod
-    def of(cls, model: NetworkModel) -> "_OutputTerms":
-        found = model.__dict__.get("_output_terms")
-        if found is None:
-            scene = model.scene
-            n = len(scene.pulleys)
-            e = np.asarray(scene.geometry.directions, dtype=float)
-            e_in = np.roll(e, 1, axis=0)
-            c = np.ascontiguousarray
-            found = cls(np.array([p.radius for p in scene.pulleys]), np.roll(np.arange(n), 1), c(e[:, 0]), c(e[:, 1]),
-                        c(e_in[:, 0]), c(e_in[:, 1]),
-                        np.tanh(0.5 * np.array([p.mu for p in scene.pulleys]) * scene.geometry.wraps),
-                        float(scene.belt.mass_per_length), scene.driver,
-                        arm(scene.pulleys, scene.tensioner)[3] if model.arm >= 0 else 0.0)
-            model.__dict__["_output_terms"] = found
-        return found
+def _output_terms(model: NetworkModel) -> tuple:
+    """What :func:`outputs` takes from the scene, found once per model: ``(r, prev, ex, ey, ex_in, ey_in, factor,
+    m', driver, theta_a0)``: radii, each pulley's arriving span (``np.roll`` by one), the span directions' and the
+    arriving ones' components, the capstan factors ``tanh(mu beta / 2)``, the belt's mass per length, the driver,
+    the arm's installed angle."""
+    found = model.__dict__.get("_output_terms")
+    if found is None:
+        scene, n = model.scene, len(model.scene.pulleys)
+        e = np.asarray(scene.geometry.directions, dtype=float)
+        e_in, c = np.roll(e, 1, axis=0), np.ascontiguousarray
+        found = model.__dict__["_output_terms"] = (
+            np.array([p.radius for p in scene.pulleys]), np.roll(np.arange(n), 1), c(e[:, 0]), c(e[:, 1]), c(e_in[:, 0]),
+            c(e_in[:, 1]), np.tanh(0.5 * np.array([p.mu for p in scene.pulleys]) * scene.geometry.wraps),
+            float(scene.belt.mass_per_length), scene.driver, arm(scene.pulleys, scene.tensioner)[3] if model.arm >= 0 else 0.0)
+    return found
 
 
 def outputs(model: NetworkModel, time, states, tensions=None) -> NetworkRun:
     """Per pulley and per span outputs from states ``[q, q']`` (N, 2m) (``tensions`` (N, n): given by a tier
     whose spans also stretch by slip; default: the linear tier's). The scene's terms are found once per model
-    (:class:`_OutputTerms`): a node's one-sample call costs the arithmetic alone."""
-    c, m, n = _OutputTerms.of(model), model.M.shape[0], len(model.scene.pulleys)
+    (:func:`_output_terms`): a node's one-sample call costs the arithmetic alone."""
+    r, prev, ex, ey, ex_in, ey_in, factor, mass, d, theta0 = _output_terms(model)
+    m, n = model.M.shape[0], len(model.scene.pulleys)
     q, qd = states[:, :m], states[:, m:]
     T = model.tensions(q, qd) if tensions is None else tensions
-    T_in = T[:, c.prev]  # span i-1 arrives at pulley i
-    torque = c.r * (T - T_in)
-    # hub load: |T_i e_i - T_{i-1} e_{i-1}| (first order: directions fixed)
-    hub = np.hypot(T * c.ex - T_in * c.ex_in, T * c.ey - T_in * c.ey_in)
-    v = qd[:, c.driver] * c.r[c.driver]
-    slack = T < (c.mass_per_length * v * v)[:, None]
-    angle = None
-    if model.arm >= 0:
-        angle = q[:, model.arm] + c.arm_angle0
-    return NetworkRun(time, q[:, :n], qd[:, :n], torque, hub, T, slack, angle, states,
-                      _friction_use(T, T_in, v, c.mass_per_length, c.factor))
+    T_in = T[:, prev]  # span i-1 arrives at pulley i
+    torque = r * (T - T_in)
+    hub = np.hypot(T * ex - T_in * ex_in, T * ey - T_in * ey_in)  # |T_i e_i - T_{i-1} e_{i-1}| (directions fixed)
+    v = qd[:, d] * r[d]
+    slack = T < (mass * v * v)[:, None]
+    angle = q[:, model.arm] + theta0 if model.arm >= 0 else None
+    return NetworkRun(time, q[:, :n], qd[:, :n], torque, hub, T, slack, angle, states, _friction_use(T, T_in, v, mass, factor))
