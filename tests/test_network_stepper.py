@@ -1,8 +1,9 @@
 """The network node's tick (ros/network_stepper.py) against the whole offline run of the same loop.
 
-A tick inside one stretch between the profiles' breakpoints calls the
-compiled loop directly with the clamp interval it keeps from the last tick;
-a tick that crosses a breakpoint goes through ``advance``, which cuts there.
+A tick of whole steps between the profiles' breakpoints calls the
+compiled loop directly with the clamp interval ``advance`` would use; a
+tick that crosses a breakpoint, or holds a step split at one inside it,
+goes through ``advance``, which cuts there.
 Either way the states must be the whole run's bit for bit, also at and
 around a torque step, where a wrong clamp interval would sample the
 switched torque a step early. The joint values of a tick are Python floats
@@ -32,12 +33,15 @@ assert STEP_TIME > 44 * 1e-3
 
 
 def stepped_fead():
-    """fead_i4 with the alternator's load stepping 1.5 -> 6 N m at :data:`STEP_TIME` and the crank's ramp ending
-    at 0.1 s (breakpoints at steps 44 and 100)."""
+    """fead_i4 with the alternator's load stepping 1.5 -> 6 N m at :data:`STEP_TIME`, the water pump's 0.2 -> 2 N m
+    at 12.5 ms (inside step 12: that step is split there) and the crank's ramp ending at 0.1 s (breakpoints on
+    the grid at steps 44 and 100)."""
     data = shipped("fead_i4")
     for p in data["pulleys"]:
         if p["name"] == "alternator":
             p["torque"] = {"type": "step", "initial": 1.5, "final": 6.0, "time": STEP_TIME}
+        if p["name"] == "water_pump":
+            p["torque"] = {"type": "step", "initial": 0.2, "final": 2.0, "time": 0.0125}
     return NetworkScene.from_mapping(data, name="stepped_fead")
 
 
@@ -58,8 +62,8 @@ def test_ticks_equal_the_whole_run_across_breakpoints(tier, per_tick):
 
 
 def test_a_tick_after_a_restart_uses_the_clamp_of_its_own_stretch():
-    """Ticks past the step, then back to the start (the node restarts there after a clock jump): the kept
-    clamp interval must not be used for the earlier stretch."""
+    """Ticks past the step, then back to the start (the node restarts there after a clock jump): each tick
+    clamps to its own stretch."""
     scene = stepped_fead()
     _, whole = run_loop(network_loop(model_of(scene), "flexible", scene.method, scene.dt), 60)
     stepper = NetworkStepper(scene, tier="flexible")

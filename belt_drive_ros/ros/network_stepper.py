@@ -32,7 +32,7 @@ import numpy as np
 
 from ..core.errors import SceneError
 from ..core.network.scene import ROLE_SIGN
-from ..core.network.simulate import (LIMIT, NetworkLoop, _breakpoints, advance, auto_tier, model_of, outputs,
+from ..core.network.simulate import (LIMIT, NetworkLoop, _breakpoints, advance, auto_tier, clamp, model_of, outputs,
                                      rigid_outputs)
 from ..core.profile_data import CONSTANT, OK
 
@@ -76,9 +76,10 @@ class NetworkStepper:
             loop, self._kernel = self.loop, network_steps
             #: the compiled loop's arguments after (times, x, out, lo, hi, limit) (hold() writes into pk, pp in place)
             self._kernel_args = (*loop.args, loop.start, loop.pk, loop.pp, loop.px, loop.py)
-            self._bps = _breakpoints(self.model, self.dt)
-        #: (k_lo, k_hi, lo, hi): the stretch between two breakpoints of the last tick (:meth:`advance`)
-        self._span = (0, -1, -math.inf, math.inf)
+            # advance's breakpoints: a tick with none of its cuts inside is one call of the loop (the fast path)
+            self._marks, self._left, inside = _breakpoints(self.model, self.dt)
+            self._split = sorted(inside)  # steps split at a breakpoint inside them
+            self._grid = sorted(k for k in (round(b / self.dt) for b in self._marks) if k * self.dt in self._marks)
         d, m = scene.driver, self.m
         #: per pulley i != driver (i, rho_i): theta_i = rho_i theta_d - l_i (the flexible tier's lags)
         self._lags = [(i, float(r)) for i, r in enumerate(self.model.ratios) if i != d]
@@ -190,17 +191,13 @@ class NetworkStepper:
             advance_slipping(self.loop, x, k0, k1, None, self.scene.name, self._names)
             return x
         out = np.empty((k1 - k0, x.size))
-        k_lo, k_hi, lo, hi = self._span
-        if not k_lo <= k0 < k1 <= k_hi:  # another stretch between breakpoints (lo, hi: as advance clamps)
-            bps = self._bps
-            j = bisect.bisect_right(bps, k0)  # bps[j-1] <= k0 < bps[j]
-            k_lo, lo = (bps[j - 1], bps[j - 1] * self.dt) if j else (-math.inf, -math.inf)
-            k_hi, hi = (bps[j], bps[j] * self.dt) if j < len(bps) else (k1, math.inf)
-            if k1 > k_hi:  # a breakpoint inside: advance cuts the steps there
-                advance(self.loop, x, out, k0, k1)
-                return out[-1]
-            self._span = (k_lo, k_hi if j < len(bps) else math.inf, lo, hi)
-        # one stretch: the one kernel call advance makes for it, its arguments kept (the node's tick)
+        split, grid = self._split, self._grid
+        i, j = bisect.bisect_left(split, k0), bisect.bisect_right(grid, k0)
+        if (i < len(split) and split[i] < k1) or (j < len(grid) and grid[j] < k1):  # advance cuts these steps
+            advance(self.loop, x, out, k0, k1)
+            return out[-1]
+        lo, hi = clamp(self._marks, self._left, k0 * self.dt, k1 * self.dt)
+        # whole steps between breakpoints: the one kernel call advance makes for them, its arguments kept
         times = np.arange(k0, k1 + 1) * self.dt
         if not x.flags.c_contiguous:
             x = np.ascontiguousarray(x)

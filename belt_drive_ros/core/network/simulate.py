@@ -21,6 +21,7 @@ tensions) and stated in ``run.accuracy``.
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import replace
 
@@ -193,6 +194,15 @@ def _breakpoints(model: NetworkModel, dt: float) -> tuple[list, list, dict]:
     return found
 
 
+def clamp(marks: list, left: list, t0: float, t1: float) -> tuple[float, float]:
+    """``(lo, hi)`` [s]: the stage-time clamp of a run of whole steps from ``t0`` to ``t1`` between breakpoints
+    (:func:`_breakpoints`' ``marks`` and ``left``): from the latest mark at or before ``t0`` to the left limit of
+    the first mark at or after ``t1``."""
+    i = bisect.bisect_right(marks, t0) - 1
+    j = bisect.bisect_left(marks, t1)
+    return (marks[i] if i >= 0 else -math.inf), (left[j] if j < len(marks) else math.inf)
+
+
 def advance(loop: NetworkLoop, x, out, k0: int, k1: int) -> None:
     """Steps ``k0 .. k1-1`` (times ``k dt``) from state ``x`` at ``k0 dt``; the states after each into ``out[0 .. k1-k0-1]``.
 
@@ -202,8 +212,6 @@ def advance(loop: NetworkLoop, x, out, k0: int, k1: int) -> None:
     breakpoints strictly inside is split there, each piece one call of the method at the piece's length.
     Raises :class:`SimulationDivergedError` / :class:`IntegratorError`.
     """
-    from bisect import bisect_left, bisect_right
-
     dt = loop.dt
     marks, left, inside = _breakpoints(loop.model, dt)
     split = [c for c in inside if k0 <= c < k1]
@@ -212,10 +220,7 @@ def advance(loop: NetworkLoop, x, out, k0: int, k1: int) -> None:
     knots = sorted(knots)
 
     def call(piece, times, start, into):
-        i = bisect_right(marks, times[0]) - 1
-        j = bisect_left(marks, times[-1])
-        lo = marks[i] if i >= 0 else -math.inf
-        hi = left[j] if j < len(marks) else math.inf
+        lo, hi = clamp(marks, left, times[0], times[-1])
         done, status, t = piece(times, start, into, lo, hi)
         if status == DIVERGED:
             raise SimulationDivergedError(f"{loop.model.scene.name}: the state became non-finite or too fast at "
