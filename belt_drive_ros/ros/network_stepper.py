@@ -31,8 +31,9 @@ import math
 import numpy as np
 
 from ..core.errors import SceneError
+from ..core.network.model import grid_breakpoints
 from ..core.network.scene import ROLE_SIGN
-from ..core.network.simulate import (LIMIT, NetworkLoop, _breakpoints, advance, auto_tier, clamp, model_of, outputs,
+from ..core.network.simulate import (LIMIT, NetworkLoop, advance, auto_tier, clamp, model_of, outputs,
                                      rigid_outputs)
 from ..core.profile_data import CONSTANT, OK
 
@@ -77,7 +78,7 @@ class NetworkStepper:
             #: the compiled loop's arguments after (times, x, out, lo, hi, limit) (hold() writes into pk, pp in place)
             self._kernel_args = (*loop.args, loop.start, loop.pk, loop.pp, loop.px, loop.py)
             # advance's breakpoints: a tick with none of its cuts inside is one call of the loop (the fast path)
-            self._marks, self._left, inside = _breakpoints(self.model, self.dt)
+            self._marks, self._left, inside = grid_breakpoints(self.model, self.dt)
             self._split = sorted(inside)  # steps split at a breakpoint inside them
             self._grid = sorted(k for k in (round(b / self.dt) for b in self._marks) if k * self.dt in self._marks)
         d, m = scene.driver, self.m

@@ -472,3 +472,29 @@ def outputs(model: NetworkModel, time, states, tensions=None) -> NetworkRun:
     slack = T < (mass * v * v)[:, None]
     angle = q[:, model.arm] + theta0 if model.arm >= 0 else None
     return NetworkRun(time, q[:, :n], qd[:, :n], torque, hub, T, slack, angle, states, _friction_use(T, T_in, v, mass, factor))
+
+
+def grid_breakpoints(model: NetworkModel, dt: float) -> tuple[list, list, dict]:
+    """``(marks, left, inside)`` of the profiles' breakpoints on the grid of step ``dt``: ``marks`` their times [s],
+    sorted (one on a knot as that knot's time ``k dt``), ``left`` per mark the latest time at which every profile
+    still gives its value from the left (``TorqueProfile.left_of``), ``inside`` ``{step c: [marks strictly inside
+    step c]}`` (steps that are split there)."""
+    found = model.__dict__.get("_grid_breakpoints", {}).get(dt)
+    if found is None:
+        profiles = [p.torque for p in model.scene.pulleys if p.sign]
+        marks, inside = set(), {}
+        for profile in profiles:
+            for b in profile.breakpoints():
+                if not (math.isfinite(b) and b > 0.0):
+                    continue
+                k = round(b / dt)
+                if abs(k * dt - b) <= 1e-9 * dt:
+                    marks.add(k * dt)
+                else:
+                    marks.add(float(b))
+                    inside.setdefault(math.floor(b / dt), set()).add(float(b))
+        marks = sorted(marks)
+        left = [min(profile.left_of(b) for profile in profiles) for b in marks]
+        found = (marks, left, {c: sorted(bs) for c, bs in inside.items()})
+        model.__dict__.setdefault("_grid_breakpoints", {})[dt] = found
+    return found

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..errors import IntegratorError, SceneError, SimulationDivergedError, UnstableStepError
 from ..profile_data import CONSTANT, DIVERGED, NOT_CONVERGED
-from .model import NetworkModel, NetworkRun, check_step, outputs
+from .model import NetworkModel, NetworkRun, check_step, grid_breakpoints, outputs
 
 TIERS = ("auto", "flexible", "rigid", "slipping")
 #: auto: rigid when the belt's lowest mode is at least this many times the fastest excitation
@@ -168,32 +168,6 @@ class NetworkLoop:
 
 
 # ---------------------------------------------------------------------- runs
-def _breakpoints(model: NetworkModel, dt: float) -> tuple[list, list, dict]:
-    """``(marks, left, inside)`` of the profiles' breakpoints on the grid of step ``dt``: ``marks`` their times [s],
-    sorted (one on a knot as that knot's time ``k dt``), ``left`` per mark the latest time at which every profile
-    still gives its value from the left (``TorqueProfile.left_of``), ``inside`` ``{step c: [marks strictly inside
-    step c]}`` (steps that are split there)."""
-    found = model.__dict__.get("_breakpoints", {}).get(dt)
-    if found is None:
-        profiles = [p.torque for p in model.scene.pulleys if p.sign]
-        marks, inside = set(), {}
-        for profile in profiles:
-            for b in profile.breakpoints():
-                if not (math.isfinite(b) and b > 0.0):
-                    continue
-                k = round(b / dt)
-                if abs(k * dt - b) <= 1e-9 * dt:
-                    marks.add(k * dt)
-                else:
-                    marks.add(float(b))
-                    inside.setdefault(math.floor(b / dt), set()).add(float(b))
-        marks = sorted(marks)
-        left = [min(profile.left_of(b) for profile in profiles) for b in marks]
-        found = (marks, left, {c: sorted(bs) for c, bs in inside.items()})
-        model.__dict__.setdefault("_breakpoints", {})[dt] = found
-    return found
-
-
 def clamp(marks: list, left: list, t0: float, t1: float) -> tuple[float, float]:
     """``(lo, hi)`` [s]: the stage-time clamp of a run of whole steps from ``t0`` to ``t1`` between breakpoints
     (:func:`_breakpoints`' ``marks`` and ``left``): from the latest mark at or before ``t0`` to the left limit of
@@ -213,7 +187,7 @@ def advance(loop: NetworkLoop, x, out, k0: int, k1: int) -> None:
     Raises :class:`SimulationDivergedError` / :class:`IntegratorError`.
     """
     dt = loop.dt
-    marks, left, inside = _breakpoints(loop.model, dt)
+    marks, left, inside = grid_breakpoints(loop.model, dt)
     split = [c for c in inside if k0 <= c < k1]
     knots = {k0, k1, *split, *(c + 1 for c in split if c + 1 < k1)}
     knots.update(k for k in (round(b / dt) for b in marks) if k0 < k < k1 and k * dt in marks)

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..errors import SceneError, SimulationDivergedError
 from ..profile_data import CONSTANT, WIDTH
-from .model import NetworkModel, NetworkRun, outputs
+from .model import NetworkModel, NetworkRun, grid_breakpoints, outputs
 
 #: modes kept with their step exponentials per run
 CACHE_SLOTS = 8
@@ -237,9 +237,8 @@ def advance_slipping(arr: SlipArrays, state, k0: int, k1: int, out=None, name: s
 
     # a step with torque breakpoints strictly inside is split there (each piece the exact flow over its length,
     # the torques held from the piece's start), as the linear tiers split it
-    from .simulate import _breakpoints
 
-    inside = _breakpoints(arr.model, dt)[2]
+    inside = grid_breakpoints(arr.model, dt)[2]
     k = k0
     for c in sorted(c for c in inside if k0 <= c < k1):
         call(arr, k, c, 0.0, k - k0)
