@@ -222,10 +222,10 @@ def _general_loop(loop, times, x, out):
     k0 = kernel.HEADER + len(kernel.SECTIONS) + 1
     nd = loop._dp.shape[0]
     part = dict(zip(kernel.SECTIONS, (reals[a:b] for a, b in zip(at[:-1], at[1:]))))
-    return kernel._linear_steps.py_func(
+    return kernel.wheel_steps.py_func(
         times, x, out, -math.inf, math.inf, 1.0e5, part["W"].reshape((1, 4, n)), ints[k0 : k0 + s], part["offsets"],
         part["S"].reshape((s, rows, cols)), part["F"].reshape((1, n, cols)), int(ints[5]), float(part["tol"][0]),
-        int(ints[6]), bool(ints[7]), bool(ints[8]), ints[k0 + s : k0 + s + nd], loop._dp, part["dx"], part["dy"],
+        int(ints[6]), ints[7:9].copy(), np.zeros(2, dtype=np.int64), ints[k0 + s : k0 + s + nd], loop._dp, part["dx"], part["dy"],
         ints[k0 + s + nd :], loop._lp, part["lx"], part["ly"], part["extra"].reshape((E, 5)), part["guard"],
     )  # fmt: skip
 

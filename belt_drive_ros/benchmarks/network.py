@@ -89,7 +89,7 @@ def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
         start = time.process_time()
         run_loop(loop, steps)
         rows.append({"figure": f"fead_i4 {method} ns/step (dt {dt:g} s)", "new": (time.process_time() - start) / steps * 1e9,
-                     "old": math.nan, "note": f"{loop.args[0].size} matrix entries"})
+                     "old": math.nan, "note": f"{loop.args[3].size + loop.args[4].size} matrix entries"})
     from ..core.scene import load_scene
     from ..core.simulate import simulate as simulate_paper
     from .kernel import _kernel_ns

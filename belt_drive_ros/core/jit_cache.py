@@ -23,8 +23,7 @@ from pathlib import Path
 
 CORE = Path(__file__).resolve().parent
 #: every file whose compiled functions are called from another file's kernel
-SOURCES = ("kernel.py", "kernel_slip.py", "kernel_variants.py", "profile_data.py", "network/kernel.py",
-           "network/slip_kernel.py")  # fmt: skip
+SOURCES = ("kernel.py", "kernel_slip.py", "kernel_variants.py", "profile_data.py", "network/slip_kernel.py")  # fmt: skip
 STAMP = "kernels.sha256"
 
 

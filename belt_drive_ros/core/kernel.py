@@ -9,13 +9,18 @@ Python: ``NUMBA_DISABLE_JIT=1`` runs them interpreted, with the same floats.
 * :func:`profile_torque` -- a torque profile's value from its data
   (:mod:`~belt_drive_ros.core.profile_data`), one dispatcher for every kind;
 * :func:`profile_torque_array` -- the same on arrays of samples;
-* :func:`linear_steps` -- steps of a fixed-step method (its
-  :class:`~belt_drive_ros.core.stage_scheme.StageScheme` as zero-padded
-  matrices, :class:`~belt_drive_ros.core.kernel_loop.KernelLoop`) on ``x' = A x + B u(t, x)``: stage torques from the
-  profiles' data, the torque time clamped into ``[lo, hi]`` (a step next to a
-  breakpoint), the implicit stage by fixed point, the speed-dependent extra
-  input of a slipping belt with mass, the divergence check and an optional
-  guard (a slipping belt's switching function) after every step.
+* :func:`wheel_steps` -- the one time loop of the linear family: steps of a
+  fixed-step method (its :class:`~belt_drive_ros.core.stage_scheme.StageScheme`
+  as zero-padded matrices, :class:`~belt_drive_ros.core.kernel_loop.KernelLoop`)
+  on ``x' = A x + B u(t, x)`` with P wheels, each driven by a profile: stage
+  torques from the profiles' data, the torque time clamped into ``[lo, hi]``
+  (a step next to a breakpoint), the implicit stage by fixed point, the
+  speed-dependent extra input of a slipping belt with mass, the divergence
+  check and an optional guard (a slipping belt's switching function) after
+  every step. The two-wheel drive (:func:`linear_steps`) and a belt network
+  both step here;
+* :func:`linear_steps` -- the two-wheel drive's entry (its arrays packed), with
+  the 4-state fast paths (:func:`_one_stage4`, :func:`_explicit4`).
 
 This module imports numba; the rest of the core imports it only where a run
 starts (``belt-drive --help``, ``scenes`` and ``msg-tools`` never load it).
@@ -192,15 +197,6 @@ def profile_torque_array(kinds, params, tx, ty, t, angle, speed, out):
 
 # ------------------------------------------------------------- the loop
 @njit(**_INLINE)
-def _dot(M, i, r, cols, v, offset):
-    """``sum_j M[i, r, j] v[offset + j]`` over ``j < cols``, summed from the left (zeros included: exact)."""
-    total = 0.0
-    for j in range(cols):
-        total = total + M[i, r, j] * v[offset + j]
-    return total
-
-
-@njit(**_INLINE)
 def _friction_force(e, omega):
     """Extra input ``sigma max((F_0 - m' v^2) k_c, 0)`` at drive speed ``omega``, ``v = r omega`` (``e`` = [sigma, F_0, m', r, k_c])."""
     v = e[3] * omega
@@ -208,24 +204,181 @@ def _friction_force(e, omega):
 
 
 @njit(**_INLINE)
-def _wheel(M, i, v, offset, cols):
-    """The four wheel coordinates ``M[i, :4] @ v[offset : offset + cols]`` as scalars (each summed from the left)."""
-    return _dot(M, i, 0, cols, v, offset), _dot(M, i, 1, cols, v, offset), _dot(M, i, 2, cols, v, offset), _dot(M, i, 3, cols, v, offset)
+def _rows(M, i, rows, cols, v, voff, out, ooff):
+    """``out[ooff + r] = sum_j M[i, r, j] v[voff + j]`` for ``r < rows``, ``j < cols``: each row summed from the
+    left from 0.0 (zero products included: adding an exact zero changes no sum). Four rows are summed together,
+    each in its own accumulator (four chains of dependent additions overlap; the same floats as row by row)."""
+    r = 0
+    while r + 4 <= rows:
+        a0 = a1 = a2 = a3 = 0.0
+        for j in range(cols):
+            vj = v[voff + j]
+            a0 = a0 + M[i, r, j] * vj
+            a1 = a1 + M[i, r + 1, j] * vj
+            a2 = a2 + M[i, r + 2, j] * vj
+            a3 = a3 + M[i, r + 3, j] * vj
+        out[ooff + r], out[ooff + r + 1], out[ooff + r + 2], out[ooff + r + 3] = a0, a1, a2, a3
+        r += 4
+    while r < rows:
+        a0 = 0.0
+        for j in range(cols):
+            a0 = a0 + M[i, r, j] * v[voff + j]
+        out[ooff + r] = a0
+        r += 1
 
 
 @njit(**_INLINE)
-def _stage_inputs(buf, base, c0, c1, c2, c3, time, lo, hi, ua, ub,
-                  dk, dp, dx, dy, lk, lp, lx, ly, extra):  # fmt: skip
-    """Write the stage torques ``u = [drive, load, extras...]`` at ``time`` clamped to [lo, hi] into ``buf[base:]``.
+def _wheel_torque(p, tc, coords, uses, start, ak, ap, ax, ay, bk, bp, bx, by):
+    """Profile ``p``'s torque at ``tc`` from its wheel's angle and speed ``coords[2p], coords[2p + 1]`` (the angle
+    only where ``uses[p]``, else 0.0): profile 0 from the first bank ``ak, ap, ax, ay``, the others from the second
+    (:func:`wheel_steps`), each from its first row ``start[p]``."""
+    angle = coords[2 * p] if uses[p] else 0.0
+    if p == 0:
+        return profile_torque_at(ak, ap, ax, ay, start[0], tc, angle, coords[1])
+    return profile_torque_at(bk, bp, bx, by, start[p], tc, angle, coords[2 * p + 1])
 
-    ``c0 .. c3``: the stage's wheel coordinates ``[phi_M, omega_M, phi_3, omega_3]``;
-    ``ua``, ``ub``: whether the drive, the load read their angle (else 0.0 is passed).
-    """
-    tc = lo if time < lo else hi if time > hi else time
-    buf[base] = profile_torque(dk, dp, dx, dy, tc, c0 if ua else 0.0, c1)
-    buf[base + 1] = profile_torque(lk, lp, lx, ly, tc, c2 if ub else 0.0, c3)
+
+@njit(**_INLINE)
+def _inputs(buf, base, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra):
+    """Write a stage's inputs ``[torque_0 .. torque_{P-1}, extras...]`` at the clamped time ``tc`` into ``buf[base:]``."""
+    P = start.size
+    for p in range(P):
+        buf[base + p] = _wheel_torque(p, tc, coords, uses, start, ak, ap, ax, ay, bk, bp, bx, by)
     for e in range(extra.shape[0]):
-        buf[base + 2 + e] = _friction_force(extra[e], c1)
+        buf[base + P + e] = _friction_force(extra[e], coords[1])
+
+
+@njit(**_JIT)
+def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
+          uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra, guard):  # fmt: skip
+    """The one time loop of the linear family: steps ``times[k] -> times[k+1]`` of one fixed-step method on
+    ``x' = A x + B u(t, x)`` from ``x``, with P wheels each driven by a torque profile; states into ``out[k]``.
+
+    The two-wheel drive (:func:`linear_steps`, P = 2) and a belt network (one
+    wheel per driven pulley; :class:`~belt_drive_ros.core.network.simulate.NetworkLoop`)
+    both step here; a 4-state two-wheel plant with an explicit method steps
+    in :func:`_one_stage4` / :func:`_explicit4`, the same operations with the
+    state in scalars (the same floats).
+
+    Parameters (all arrays float64/int64, C order)
+    ----------
+    times : (N+1,) step ends [s]; x : (n,) state at ``times[0]``; out : (N, n).
+    lo, hi : torque times are clamped into [lo, hi] (-inf, inf: no clamp) [s].
+    limit : speed [rad/s] beyond which the state counts as diverged (second half of x holds speeds).
+    W : (1, 2P, n) the wheel map: wheel p's angle and speed are rows 2p, 2p + 1 of ``W x``.
+    kinds : (s,) per stage: 0 the stage state is x; 1 only its wheel coordinates
+        (``S[i]`` holds ``W @ stages[i]``); 2 the whole stage state (``S[i]`` holds ``stages[i]``, then W).
+    offsets : (s,) ``c_i h`` [s]; a stage at ``c_i = 0`` samples at ``t`` itself.
+    S : (s, max(2P, n), n + m s) the stage maps, zero-padded; F : (1, n, n + m s) the final map (m = P + E inputs).
+    final_base : -1 (``x+ = F @ [x, U...]``) or the stage j whose state starts the final map.
+    tol, max_iter : the implicit last stage's fixed point (max_iter 0: explicit method).
+    uses : (P,) whether wheel p's profile reads its angle (else 0.0 is passed); start : (P,) its first row.
+    ak, ap, ax, ay : profile 0's bank (kinds, params, tx, ty); bk, bp, bx, by : the other profiles' bank
+        (the drive's and the load's own data; or a network's stacked profiles,
+        :func:`~belt_drive_ros.core.profile_data.stack`, as both banks).
+    extra : (E, 5) speed-dependent extra inputs at wheel 0's speed (:func:`_friction_force`).
+    guard : (5 + 2n,) ``[active, absolute, bound, quad, has_speed, row..., speed...]``:
+        stop after the first step whose end state has ``f(row x) > bound - quad (speed x)^2``.
+
+    Every product sums over the columns from the left, the stage's own
+    columns ``[x, U_0 .. U_{i-1}]`` only.
+
+    Returns
+    -------
+    (steps done, status, time [s] of the failing step): status :data:`OK`,
+    :data:`DIVERGED` (the last state written is non-finite or too fast),
+    :data:`GUARDED` (the last state written is the first past the guard) or
+    :data:`NOT_CONVERGED` (the implicit stage of the step after the last one written).
+    """
+    n = x.size
+    s = kinds.size
+    P = start.size
+    m = P + extra.shape[0]
+    half = n // 2
+    cols = n + m * s
+    rows = 2 * P
+    work = np.zeros(cols + 2 * n + rows + s * n)  # one allocation, cut into:
+    v = work[:cols]  # [x (or the base stage's state), U_0, ..., U_{s-1}]
+    xs = work[cols : cols + n]
+    state = work[cols + n : cols + 2 * n]
+    coords = work[cols + 2 * n : cols + 2 * n + rows]  # the wheels' angles and speeds
+    full = work[cols + 2 * n + rows :]  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
+    for r in range(n):
+        xs[r] = x[r]
+    n_explicit = s - 1 if max_iter > 0 else s
+    count = times.size - 1
+    for k in range(count):
+        t = times[k]
+        for r in range(n):
+            v[r] = xs[r]
+        for i in range(n_explicit):
+            time = t if offsets[i] == 0.0 else t + offsets[i]
+            width = n + m * i
+            if kinds[i] == 0:
+                _rows(W, 0, rows, n, v, 0, coords, 0)
+            elif kinds[i] == 1:
+                _rows(S, i, rows, width, v, 0, coords, 0)
+            else:
+                _rows(S, i, n, width, v, 0, full, i * n)
+                _rows(W, 0, rows, n, full, i * n, coords, 0)
+            tc = lo if time < lo else hi if time > hi else time
+            _inputs(v, width, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra)
+        if final_base >= 0:
+            for r in range(n):
+                v[r] = full[final_base * n + r]
+        if max_iter == 0:
+            _rows(F, 0, n, cols, v, 0, state, 0)
+        else:  # x+ = F @ [.., u_last], u_last = u(t + h, x+) by fixed point from the previous stage's inputs
+            known = n + m * (s - 1)
+            for q in range(m):
+                v[known + q] = v[known - m + q]
+            converged = False
+            time = t if offsets[s - 1] == 0.0 else t + offsets[s - 1]
+            tc = lo if time < lo else hi if time > hi else time
+            for _ in range(max_iter):
+                _rows(F, 0, n, cols, v, 0, state, 0)
+                _rows(W, 0, rows, n, state, 0, coords, 0)
+                same = True
+                for p in range(P):
+                    old = v[known + p]
+                    new = _wheel_torque(p, tc, coords, uses, start, ak, ap, ax, ay, bk, bp, bx, by)
+                    v[known + p] = new
+                    if not abs(new - old) <= tol * (1.0 + abs(new)):
+                        same = False
+                for e in range(extra.shape[0]):
+                    v[known + P + e] = _friction_force(extra[e], coords[1])
+                if same:
+                    converged = True
+                    break
+            if not converged:
+                return k, NOT_CONVERGED, t
+            _rows(F, 0, n, cols, v, 0, state, 0)
+        healthy = True
+        for r in range(n):
+            xs[r] = state[r]
+            out[k, r] = state[r]
+            if r < half:
+                if xs[r] - xs[r] != 0.0:
+                    healthy = False
+            elif not abs(xs[r]) <= limit:
+                healthy = False
+        if not healthy:
+            return k + 1, DIVERGED, t
+        if guard[0] != 0.0:
+            g = 0.0
+            for r in range(n):
+                g = g + guard[5 + r] * xs[r]
+            if guard[1] != 0.0:
+                g = abs(g)
+            bound = guard[2]
+            if guard[4] != 0.0 and guard[3] != 0.0:
+                w = 0.0
+                for r in range(n):
+                    w = w + guard[5 + n + r] * xs[r]
+                bound = bound - guard[3] * w * w
+            if g > bound:
+                return k + 1, GUARDED, t
+    return count, OK, times[count] if count >= 0 else 0.0
 
 
 #: ``ints`` header of :func:`linear_steps`: n, s, E (extra inputs), rows, cols, final_base, max_iter,
@@ -263,146 +416,22 @@ def linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp):
 @njit(**_JIT)  # out of line: the variant loop calls the same compiled body (its inlining doubled the build)
 def _steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
            ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):  # fmt: skip
-    """The loop for these unpacked arrays (the arguments of :func:`_linear_steps`): :func:`_one_stage4` or
-    :func:`_explicit4` for an explicit method on a 4-state plant, else :func:`_linear_steps`; the same floats."""
+    """The two-wheel loop on these unpacked arrays: :func:`_one_stage4` or :func:`_explicit4` for an explicit
+    method on a 4-state plant, else :func:`wheel_steps` with P = 2 (the drive's data its first bank, the load's the
+    second); the same floats."""
     if x.size == 4 and max_iter == 0 and extra.shape[0] <= 1:
         if kinds.size == 1 and kinds[0] == 0 and final_base < 0:
             return _one_stage4(times, x, out, lo, hi, limit, W, offsets[0], F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)
         return _explicit4(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)
-    return _linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
-                         ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)  # fmt: skip
-    return _linear_steps(
-        times, x, out, lo, hi, limit, W, kinds, offsets, reals[at[2] : at[3]].reshape((s, rows, cols)), F, ints[5],
-        reals[at[4]], ints[6], ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard,
-    )  # fmt: skip
-
-
-@njit(**_INLINE)
-def _linear_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
-                  ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):  # fmt: skip
-    """The loop of :func:`linear_steps` on its unpacked arrays.
-
-    Parameters (all arrays float64/int64, C order)
-    ----------
-    times : (N+1,) step ends [s]; x : (n,) state at ``times[0]``; out : (N, n).
-    lo, hi : torque times are clamped into [lo, hi] (-inf, inf: no clamp) [s].
-    limit : speed [rad/s] beyond which the state counts as diverged (second half of x holds speeds).
-    W : (1, 4, n) the wheel map: ``[phi_M, omega_M, phi_3, omega_3] = W x``.
-    kinds : (s,) per stage: 0 the stage state is x; 1 only its wheel coordinates
-        (``S[i]`` holds ``W @ stages[i]``); 2 the whole stage state (``S[i]`` holds ``stages[i]``, then W).
-    offsets : (s,) ``c_i h`` [s]; a stage at ``c_i = 0`` samples at ``t`` itself.
-    S : (s, max(4, n), n + m s) the stage maps, zero-padded; F : (1, n, n + m s) the final map.
-    final_base : -1 (``x+ = F @ [x, U...]``) or the stage j whose state starts the final map.
-    tol, max_iter : the implicit last stage's fixed point (max_iter 0: explicit method).
-    ua, ub : whether drive/load read their angle (else 0.0 is passed).
-    dk, dp, dx, dy / lk, lp, lx, ly : drive and load profile data.
-    extra : (E, 5) speed-dependent extra inputs (:func:`_friction_force`), E = 0 or 1.
-    guard : (5 + 2n,) ``[active, absolute, bound, quad, has_speed, row..., speed...]``:
-        stop after the first step whose end state has ``f(row x) > bound - quad (speed x)^2``.
-
-    Every product sums over the columns from the left, the stage's own
-    columns ``[x, U_0 .. U_{i-1}]`` only.
-
-    Returns
-    -------
-    (steps done, status, time [s] of the failing step): status :data:`OK`,
-    :data:`DIVERGED` (the last state written is non-finite or too fast),
-    :data:`GUARDED` (the last state written is the first past the guard) or
-    :data:`NOT_CONVERGED` (the implicit stage of the step after the last one written).
-    """
-    n = x.size
-    s = kinds.size
-    m = 2 + extra.shape[0]
-    half = n // 2
-    cols = n + m * s
-    work = np.zeros(cols + 2 * n + s * n)  # one allocation, cut into:
-    v = work[:cols]  # [x (or the base stage's state), U_0, ..., U_{s-1}]
-    xs = work[cols : cols + n]
-    state = work[cols + n : cols + 2 * n]
-    full = work[cols + 2 * n :]  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
-    for r in range(n):
-        xs[r] = x[r]
-    n_explicit = s - 1 if max_iter > 0 else s
-    steps = times.size - 1
-    for k in range(steps):
-        t = times[k]
-        for r in range(n):
-            v[r] = xs[r]
-        for i in range(n_explicit):
-            time = t if offsets[i] == 0.0 else t + offsets[i]
-            width = n + m * i
-            if kinds[i] == 0:
-                c0, c1, c2, c3 = _wheel(W, 0, v, 0, n)
-            elif kinds[i] == 1:
-                c0, c1, c2, c3 = _wheel(S, i, v, 0, width)
-            else:
-                for r in range(n):
-                    full[i * n + r] = _dot(S, i, r, width, v, 0)
-                c0, c1, c2, c3 = _wheel(W, 0, full, i * n, n)
-            _stage_inputs(v, width, c0, c1, c2, c3, time, lo, hi, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra)
-        if final_base >= 0:
-            for r in range(n):
-                v[r] = full[final_base * n + r]
-        if max_iter == 0:
-            for r in range(n):
-                state[r] = _dot(F, 0, r, cols, v, 0)
-        else:  # x+ = free + G u_last, u_last = u(t + h, x+) by fixed point from the previous stage's torque
-            known = n + m * (s - 1)
-            for q in range(m):
-                v[known + q] = v[known - m + q]
-            converged = False
-            time = t if offsets[s - 1] == 0.0 else t + offsets[s - 1]
-            for _ in range(max_iter):
-                g0, g1 = v[known], v[known + 1]
-                for r in range(n):  # the free part [x, U_0 .. U_{s-2}], then the implicit stage's columns
-                    total = _dot(F, 0, r, known, v, 0)
-                    for j in range(known, cols):
-                        total = total + F[0, r, j] * v[j]
-                    state[r] = total
-                c0, c1, c2, c3 = _wheel(W, 0, state, 0, n)
-                _stage_inputs(v, known, c0, c1, c2, c3, time, lo, hi, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra)
-                if abs(v[known] - g0) <= tol * (1.0 + abs(v[known])) and abs(v[known + 1] - g1) <= tol * (1.0 + abs(v[known + 1])):
-                    converged = True
-                    break
-            if not converged:
-                return k, NOT_CONVERGED, t
-            for r in range(n):
-                total = _dot(F, 0, r, known, v, 0)
-                for j in range(known, cols):
-                    total = total + F[0, r, j] * v[j]
-                state[r] = total
-        healthy = True
-        for r in range(n):
-            xs[r] = state[r]
-            out[k, r] = state[r]
-            if r < half:
-                if xs[r] - xs[r] != 0.0:
-                    healthy = False
-            elif not abs(xs[r]) <= limit:
-                healthy = False
-        if not healthy:
-            return k + 1, DIVERGED, t
-        if guard[0] != 0.0:
-            g = 0.0
-            for r in range(n):
-                g = g + guard[5 + r] * xs[r]
-            if guard[1] != 0.0:
-                g = abs(g)
-            bound = guard[2]
-            if guard[4] != 0.0 and guard[3] != 0.0:
-                w = 0.0
-                for r in range(n):
-                    w = w + guard[5 + n + r] * xs[r]
-                bound = bound - guard[3] * w * w
-            if g > bound:
-                return k + 1, GUARDED, t
-    return steps, OK, times[steps] if steps >= 0 else 0.0
-
+    uses = np.zeros(2, dtype=np.int64)
+    uses[0], uses[1] = ua, ub
+    return wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
+                       uses, np.zeros(2, dtype=np.int64), dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)  # fmt: skip
 
 
 @njit(**_INLINE)
 def _row4(M, r, x0, x1, x2, x3, i=0):
-    """``sum_j M[i, r, j] x_j`` over the four state columns, summed from the left from 0.0 (as :func:`_dot`)."""
+    """``sum_j M[i, r, j] x_j`` over the four state columns, summed from the left from 0.0 (as :func:`_rows`)."""
     return 0.0 + M[i, r, 0] * x0 + M[i, r, 1] * x1 + M[i, r, 2] * x2 + M[i, r, 3] * x3
 
 
@@ -440,7 +469,7 @@ def _guard4(guard, x0, x1, x2, x3):
 
 @njit(**_INLINE)
 def _one_stage4(times, x, out, lo, hi, limit, W, offset, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):
-    """:func:`_linear_steps` for a one-stage explicit method (``exact``, ``euler``) on a 4-state plant.
+    """:func:`wheel_steps` for a one-stage explicit method (``exact``, ``euler``) on a 4-state plant.
 
     The same operations in the same order (``x+ = F @ [x, U_0]``, the wheel
     map and every sum from the left from 0.0, the same checks), with the
@@ -476,7 +505,7 @@ def _one_stage4(times, x, out, lo, hi, limit, W, offset, F, ua, ub, dk, dp, dx, 
 
 @njit(**_INLINE)
 def _explicit4(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):
-    """:func:`_linear_steps` for an explicit multi-stage method on a 4-state plant (stage kinds 0, 1, 2 as there).
+    """:func:`wheel_steps` for an explicit multi-stage method on a 4-state plant (stage kinds 0, 1, 2 as there).
 
     The same operations in the same order; the state, each stage's wheel
     coordinates and its torques are scalars, the earlier stages' torques a

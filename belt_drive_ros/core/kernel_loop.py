@@ -49,6 +49,43 @@ def guard_array(guard, n: int) -> np.ndarray:
     return out
 
 
+def scheme_arrays(scheme, dt: float, W, m: int):
+    """A fixed-step method's :class:`~belt_drive_ros.core.stage_scheme.StageScheme` as the arrays of
+    :func:`~belt_drive_ros.core.kernel.wheel_steps`: ``(kinds, offsets, S, F, final_base, tol, max_iter)``.
+
+    ``W`` (V, 2P, n): the wheel map (V variants: the scheme's matrices carry the same leading axis, or none);
+    ``m``: inputs per stage (P torques and the extras). ``S`` (V, s, max(2P, n), n + m s): stage i's map,
+    zero-padded, as ``W @ map`` where only its wheel coordinates feed the torques (kind 1) or the map itself
+    for the stage whose state starts the final map (kind 2; kind 0: the stage state is x);
+    ``F`` (V, n, n + m s) the final map.
+    """
+    V, n = W.shape[0], W.shape[2]
+    s = len(scheme.nodes)
+    cols = n + m * s
+    final = np.asarray(scheme.final, dtype=float)
+    final = final if final.ndim == 3 else final[None]
+    if final.shape[1:] != (n, cols):
+        raise ValueError(f"kernel loop: the scheme's final map is {final.shape[1:]}, expected {(n, cols)}")
+    rows = max(W.shape[1], n)
+    kinds = np.zeros(s, dtype=np.int64)
+    S = np.zeros((V, s, rows, cols))
+    for i, M in enumerate(scheme.stages):
+        if M is None or (scheme.implicit and i == s - 1):
+            continue
+        M = M if M.ndim == 3 else M[None]
+        padded = np.zeros((M.shape[0], M.shape[1], cols))
+        padded[:, :, : M.shape[2]] = M
+        if scheme.final_base == i:
+            kinds[i] = 2
+        else:  # only the wheel coordinates feed the torques: W @ the stage map (matrix by matrix)
+            kinds[i], padded = 1, W @ padded
+        S[:, i, : padded.shape[1]] = padded
+    offsets = np.array([float(c * dt) if c else 0.0 for c in scheme.nodes])
+    final_base = -1 if scheme.final_base is None else int(scheme.final_base)
+    tol, max_iter = (float(scheme.implicit[0]), int(scheme.implicit[1])) if scheme.implicit else (0.0, 0)
+    return kinds, offsets, S, final, final_base, tol, max_iter
+
+
 class KernelLoop:
     """``loop(times, x, out, lo, hi) -> (done, status, t)``: :func:`~belt_drive_ros.core.kernel.linear_steps` for one plant.
 
@@ -76,30 +113,9 @@ class KernelLoop:
         stacked = W.ndim == 3
         W = W if stacked else W[None]  # (V, 4, n)
         V, n = W.shape[0], W.shape[2]
-        s = len(scheme.nodes)
-        m = 2 + len(extra)
-        cols = n + m * s
-        final = np.asarray(scheme.final, dtype=float)
-        final = final if final.ndim == 3 else final[None]
-        if final.shape[1:] != (n, cols):
-            raise ValueError(f"kernel loop: the scheme's final map is {final.shape[1:]}, expected {(n, cols)}")
-        rows = max(4, n)
-        kinds = np.zeros(s, dtype=np.int64)
-        S = np.zeros((V, s, rows, cols))
-        for i, M in enumerate(scheme.stages):
-            if M is None or (scheme.implicit and i == s - 1):
-                continue
-            M = M if M.ndim == 3 else M[None]
-            padded = np.zeros((M.shape[0], M.shape[1], cols))
-            padded[:, :, : M.shape[2]] = M
-            if scheme.final_base == i:
-                kinds[i] = 2
-            else:  # only the wheel coordinates feed the torques: W @ the stage map (matrix by matrix)
-                kinds[i], padded = 1, W @ padded
-            S[:, i, : padded.shape[1]] = padded
-        offsets = np.array([float(c * dt) if c else 0.0 for c in scheme.nodes])
-        final_base = -1 if scheme.final_base is None else int(scheme.final_base)
-        tol, max_iter = (float(scheme.implicit[0]), int(scheme.implicit[1])) if scheme.implicit else (0.0, 0)
+        kinds, offsets, S, final, final_base, tol, max_iter = scheme_arrays(scheme, dt, W, 2 + len(extra))
+        rows, cols = S.shape[2], S.shape[3]
+        s = kinds.size
         self.uses_angle = np.array([bool(u) for u in uses_angle], dtype=np.int64)
         self.drive, self.load = drive, load
         extra_rows = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)

@@ -10,7 +10,7 @@ node, tests). ``model``:
   flexible; then slipping when a pulley reaches its capstan limit in that run. The reason names the
   pulley ("slipping: alternator reaches the capstan limit at t = ...").
 
-Both linear tiers step in :func:`.kernel.network_steps` with any fixed-step
+Both linear tiers step in the kernel's linear loop (:func:`~..kernel.wheel_steps`) with any fixed-step
 method by name (its stage scheme from :mod:`~belt_drive_ros.core.integrators`),
 the pulleys' torque profiles stacked as data. Guards: a method that would
 grow a mode at the step is refused before the run (:func:`.model.check_step`);
@@ -55,25 +55,9 @@ def stack_profiles(profiles):
     return start, stacked.kinds, stacked.params, stacked.tx, stacked.ty
 
 
-def pack(mats) -> tuple[np.ndarray, np.ndarray]:
-    """``(mats, shape)``: the matrices end to end, each by rows, and per matrix ``(start, rows, stored columns,
-    identity)``; a matrix whose leading square block is exactly the identity is stored without it
-    (:func:`.kernel.network_steps`)."""
-    flat, shape, at = [], [], 0
-    for M in mats:
-        M = np.asarray(M, dtype=float)
-        rows = M.shape[0]
-        eye = int(rows > 0 and M.shape[1] >= rows and np.array_equal(M[:, :rows], np.eye(rows)))
-        if eye:
-            M = M[:, rows:]
-        flat.append(np.ravel(M))
-        shape.append((at, rows, M.shape[1], eye))
-        at += M.size
-    return np.concatenate(flat), np.array(shape, dtype=np.int64).reshape(-1, 4)
-
-
 class NetworkLoop:
-    """One tier's matrices and one fixed-step method as the arrays :func:`.kernel.network_steps` takes.
+    """One tier's matrices and one fixed-step method as the arrays of the kernel's one linear loop
+    (:func:`~belt_drive_ros.core.kernel.wheel_steps`, one wheel per driven pulley).
 
     ``tier``: ``flexible`` or ``rigid``. ``loop(times, x, out, lo, hi)`` runs the steps;
     :meth:`hold` sets a pulley's torque to a held value (the node's input topics) in the stacked data.
@@ -81,6 +65,7 @@ class NetworkLoop:
 
     def __init__(self, model: NetworkModel, tier: str, method: str, dt: float):
         from ..integrators import make_integrator, method_class
+        from ..kernel_loop import KernelLoop, scheme_arrays
 
         scene = model.scene
         self.model, self.tier, self.method, self.dt = model, tier, method, float(dt)
@@ -93,7 +78,7 @@ class NetworkLoop:
         B = B_all[:, self.active] * signs
         check_step(method, A, B, self.dt)
         scheme = make_integrator(method, A, B, self.dt).scheme
-        n, P, s = A.shape[0], len(self.active), len(scheme.nodes)
+        n, P = A.shape[0], len(self.active)
         # W: per active pulley its angle and speed from the state
         W = np.zeros((2 * P, n))
         half = n // 2
@@ -104,7 +89,6 @@ class NetworkLoop:
                 W[2 * p, i], W[2 * p + 1, half + i] = 1.0, 1.0
             else:  # theta_i = rho_i theta_d - l_i
                 W[2 * p, scene.driver], W[2 * p, i], W[2 * p + 1, half + i] = model.ratios[i], -1.0, 1.0
-        cols = n + P * s
         uses = np.array([bool(scene.pulleys[i].torque.uses_angle) for i in self.active], dtype=np.int64)
         for p, i in enumerate(self.active):  # the profile reads its drive shaft's angle and speed (pulley's / gear)
             if scene.pulleys[i].gear != 1.0:
@@ -112,31 +96,20 @@ class NetworkLoop:
         for p in range(P):  # an angle no profile reads is not computed (the kernel passes 0.0)
             if not uses[p]:
                 W[2 * p] = 0.0
-        kinds, mats = np.zeros(s, dtype=np.int64), [W]
-        for i, M in enumerate(scheme.stages):
-            if M is None or (scheme.implicit and i == s - 1):
-                mats.append(np.zeros((0, 0)))
-                continue
-            if scheme.final_base == i:
-                kinds[i] = 2
-            else:  # only the profiles' angles and speeds feed the torques: W @ the stage map
-                kinds[i], M = 1, W @ M
-            mats.append(np.asarray(M))
-        mats.append(np.asarray(scheme.final))
-        if any(np.iscomplexobj(M) for M in mats):
+        if not KernelLoop.usable(scheme):
             raise SceneError(f"method {method}: its step matrices are complex for this network")
         self.A, self.B, self.scheme = A, B, scheme
         self.start, self.pk, self.pp, self.px, self.py = stack_profiles([(scene.pulleys[i].name, scene.pulleys[i].torque)
                                                              for i in self.active])
-        self.args = (*pack(mats), kinds, np.array([float(c * dt) if c else 0.0 for c in scheme.nodes]),
-                     -1 if scheme.final_base is None else int(scheme.final_base),
-                     float(scheme.implicit[0]) if scheme.implicit else 0.0,
-                     int(scheme.implicit[1]) if scheme.implicit else 0, uses)
+        kinds, offsets, S, F, final_base, tol, max_iter = scheme_arrays(scheme, self.dt, W[None], P)
+        self.args = (W[None], kinds, offsets, S[0], F, final_base, tol, max_iter, uses)
+        self._none = (np.zeros((0, 5)), np.zeros(5 + 2 * n))  # no extra input, no guard
 
     def __call__(self, times, x, out, lo: float = -math.inf, hi: float = math.inf, limit: float = LIMIT):
-        from .kernel import network_steps
+        from ..kernel import wheel_steps
 
-        return network_steps(times, x, out, lo, hi, limit, *self.args, self.start, self.pk, self.pp, self.px, self.py)
+        stacked = (self.pk, self.pp, self.px, self.py)  # both banks of the kernel: every profile from its start row
+        return wheel_steps(times, x, out, lo, hi, limit, *self.args, self.start, *stacked, *stacked, *self._none)
 
     def hold(self, pulley: int, value: float) -> None:
         """Pulley ``pulley``'s profile becomes the constant ``value`` [N m] (its profile's sign convention)."""
