@@ -66,8 +66,6 @@ def register(sub) -> None:
         "--model", choices=MODELS,
         help="belt model (default: the scene's, usually auto; auto goes on to slipping past the friction limit)",
     )
-    p.add_argument("--v-eps", type=float, metavar="M_PER_S",
-                   help="regularisation speed of --model regularised [m/s] (Q = Q_max tanh(v_slip / v_eps); default 1e-3)")
     p.add_argument("--method", help="integrator by name (list below), or auto: the cheapest method and fewest substeps "
                                     "the accuracy guard rates within --tolerance (default: the scene's; a scene that "
                                     "names none: auto)")
@@ -149,7 +147,7 @@ def run(args) -> int:
         if note:
             print(note)
         scene = scene_with_torque_bag(scene, args.torque_bag, topic=topic)
-    scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration, v_eps=getattr(args, "v_eps", None),
+    scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration,
                                  tolerance=getattr(args, "tolerance", None))  # fmt: skip
     out_format = check_outputs(args)
     samples = scene.duration / scene.dt + 1.0
@@ -380,7 +378,7 @@ def print_summary(summary) -> None:
         f"static M_L/(2 k r_3^2) {o['load_torque'] / p.belt_torsional_stiffness:.5g} rad"
     )
     slip = summary.slip_fraction
-    if summary.model in ("slipping", "regularised"):
+    if summary.model == "slipping":
         print(
             f"belt           slips {100 * slip:.1f}% of the time ({summary.onsets} slip phases, peak slip speed "
             f"{summary.peak_slip_speed:.3g} m/s); wheel 3 lost {o['slip_angle']:.4g} rad to slip "

@@ -321,8 +321,6 @@ def run_groups(
             reason = f"group of {len(members)} < {min_group} variants sharing profiles and settings"
         elif first.model == "slipping":
             reason = "slipping model (mode switches differ per variant)"
-        elif first.model == "regularised":
-            reason = "regularised model (a numpy step loop per variant)"
         else:
             reason = _unsupported(first)
         if reason is not None:

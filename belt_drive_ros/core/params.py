@@ -239,11 +239,6 @@ class BeltDriveParams:
         """e^(mu_eff * wrap_angle): largest (F_tight - F_c)/(F_slack - F_c) before the belt slips [-]."""
         return math.exp(self.mu_effective * self.wrap_angle)
 
-    def centrifugal_tension(self, omega_M):
-        """F_c = m' (r_2 g omega_M)^2 [N]: centrifugal tension at belt speed r_2 omega_2 (array or float)."""
-        v = self.r_2 * self.gear_ratio * omega_M
-        return self.belt_mass * v * v
-
     def friction_limit(self, omega_M=0.0):
         """Q_max = 2 (F_0 - F_c) tanh(mu_eff beta / 2) [N]: largest net force (tight - slack) friction transmits.
 

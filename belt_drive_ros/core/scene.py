@@ -25,11 +25,9 @@ from .integrators import method_class
 from .params import OPTIONAL_DEFAULTS, BeltDriveParams
 from .sources import Constant, TorqueProfile, make_profile
 
-MODELS = ("rigid", "flexible", "slipping", "regularised", "auto")
+MODELS = ("rigid", "flexible", "slipping", "auto")
 #: models whose runs carry the slip outputs (span forces, friction use, slip state and speed, slip angle)
-SLIP_MODELS = ("slipping", "regularised")
-#: default regularisation speed of model ``regularised`` [m/s] (:mod:`belt_drive_ros.core.regularised`)
-V_EPS_DEFAULT = 1e-3
+SLIP_MODELS = ("slipping",)
 #: keys a scene must state unless it ``extends`` a shipped scene (every parameter too, but the
 #: optional belt fields of :data:`~belt_drive_ros.core.params.OPTIONAL_DEFAULTS`)
 REQUIRED_KEYS = ("params", "drive", "load", "duration", "dt")
@@ -40,9 +38,6 @@ RANGES: dict[str, tuple[float, float, str]] = {
     "dt": (1.0e-7, 1.0, "s"),
     "duration": (1.0e-6, 1.0e7, "s"),
     "output_rate": (1.0e-3, 1.0e6, "Hz"),
-    # model regularised: Q = Q_max tanh(v_s / v_eps); below 1 um/s the contact is a switch no fixed step
-    # resolves, above 1 m/s the "stick" creeps at speeds comparable to the belt's own
-    "v_eps": (1.0e-6, 1.0, "m/s"),
     # accuracy the guard and method: auto aim at, relative to each signal's peak: below 1e-12 is rounding,
     # above 0.5 no accuracy at all
     "tolerance": (1.0e-12, 0.5, "of the peak"),
@@ -87,7 +82,7 @@ class InitialState:
         """State vector for ``model_name`` (see :mod:`belt_drive_ros.core.model` for the ordering)."""
         if model_name == "rigid":
             return np.array([self.phi_M, self.omega_M])
-        if model_name in ("slipping", "regularised"):  # [phi_M, theta_e, omega_M, omega_3, s]: no slip yet
+        if model_name == "slipping":  # [phi_M, theta_e, omega_M, omega_3, s]: no slip yet
             return np.array([self.phi_M, self.relative_deflection, self.omega_M, ratio * self.omega_M - self.relative_speed, 0.0])
         return np.array([self.phi_M, self.relative_deflection, self.omega_M, ratio * self.omega_M - self.relative_speed])
 
@@ -113,8 +108,6 @@ class Scene:
     output_rate : rate [Hz] at which outputs are consumed (node publish or
         recording rate); the ``auto`` choice compares the belt mode with it.
     method_options : extra integrator options (e.g. rtol for scipy methods).
-    v_eps : regularisation speed [m/s] of model ``regularised`` (``Q = Q_max tanh(v_s / v_eps)``,
-        :mod:`belt_drive_ros.core.regularised`); unused by the other models.
     tolerance : relative error [-] of drive speed and belt torque (to their peaks) the accuracy guard
         checks against and ``method: auto`` aims at.
     """
@@ -131,7 +124,6 @@ class Scene:
     dt: float = 1e-3
     output_rate: float = 1000.0
     method_options: Mapping[str, Any] = field(default_factory=dict)
-    v_eps: float = V_EPS_DEFAULT
     tolerance: float = TOLERANCE_DEFAULT
 
     def __post_init__(self):
@@ -242,7 +234,6 @@ class Scene:
             "duration": self.duration,
             "output_rate": self.output_rate,
             "method_options": dict(self.method_options),
-            **({"v_eps": self.v_eps} if self.model == "regularised" or self.v_eps != V_EPS_DEFAULT else {}),
             **({"tolerance": self.tolerance} if self.tolerance != TOLERANCE_DEFAULT else {}),
             "initial_state": {f.name: getattr(self.initial_state, f.name) for f in fields(InitialState)},
             "params": self.params.to_dict(),

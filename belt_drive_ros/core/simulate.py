@@ -30,8 +30,6 @@ from .fidelity import ModelChoice, RigidSurvey, choose_model, limit_exceedance
 from .integrators import method_class
 from .method_choice import MethodChoice, good_step_error, resolve as resolve_method
 from .model import make_model
-from .regularised import MODEL_NAME as REGULARISED, RegularisedSimulator
-from .slip import SLIP
 from .scene import SLIP_MODELS, Scene
 from .slip_run import SlippingSimulator
 from .stability import StabilityReport, require_stable
@@ -243,8 +241,6 @@ def _simulate(scene: Scene, linear, progress, check_stability: bool, vectorize, 
     ``checked``: the accuracy guard's report on the rigid or flexible run already made by ``method: auto``)."""
     survey = survey or RigidSurvey.of_scene(scene)
     if scene.model != "auto":
-        if scene.model == "regularised":
-            return simulate_regularised(scene, progress, check_stability)
         if scene.model == "slipping":
             return simulate_slipping(scene, None, progress, check_stability, survey=survey)
         return _simulate_linear(scene, scene.model, progress, check_stability, vectorize, survey, checked)
@@ -428,41 +424,3 @@ def _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accu
         wall_time=wall, vectorized=False, energy=energy, events=[(e.kind, e.time, e.sigma) for e in sim.events],
         accuracy=accuracy,
     )
-
-
-def simulate_regularised(scene, progress=None, check_stability=True):
-    """Run ``scene`` on the regularised model: a :class:`~belt_drive_ros.core.simulate.SimResult`.
-
-    ``result.energy`` has ``kinetic``, ``potential``, ``input_work``,
-    ``dissipated`` (bearings and span damper) and ``friction``, the integral of
-    ``Q v_s`` (trapezoidal on the grid).
-    """
-    sim = RegularisedSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.v_eps, check_stability)
-    y0 = scene.initial_state.vector("slipping", scene.params.ratio)
-    start = _time.perf_counter()
-    time, states = sim.run(scene.duration, y0)
-    wall = _time.perf_counter() - start
-    u = sim.input_array(time, states)
-    outputs, Q, v = sim.outputs(states, u)
-    m = sim.model
-    dt_grid = np.diff(time)
-
-    def integral(p):
-        return np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * dt_grid)])
-
-    sigma = np.divide(Q, outputs["friction_limit"], out=np.zeros_like(Q), where=outputs["friction_limit"] > 0)
-    energy = {
-        "kinetic": m.kinetic_energy(states),
-        "potential": m.potential_energy(states),
-        "input_work": integral(m.input_power(states, u)),
-        "dissipated": integral(m.damping_power(states, np.full(len(Q), SLIP), sigma)),
-        "friction": integral(Q * v),
-    }
-    onsets = np.flatnonzero(outputs["slip"][1:] & ~outputs["slip"][:-1]) + 1
-    events = [("onset", float(time[k]), float(np.sign(v[k]))) for k in onsets]
-    if progress:
-        progress(1.0)
-    return SimResult(
-        scene=scene, model=REGULARISED, method=sim.method, dt=scene.dt, time=time, states=states, inputs=u,
-        outputs=outputs, stability=sim.stability, wall_time=wall, vectorized=False, energy=energy, events=events,
-    )  # fmt: skip

@@ -57,8 +57,6 @@ from .integrators import make_integrator
 from .params import BeltDriveParams
 from .stage_scheme import Guard
 
-#: friction laws by name (``friction`` option of the slipping model)
-FRICTION_LAWS = ("coulomb", "regularised")
 STICK, SLIP = 0, 1
 
 #: extra output signals of the slipping model, SI units (beside model.OUTPUT_UNITS)

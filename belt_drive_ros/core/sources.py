@@ -221,8 +221,6 @@ def _harmonic_table(builder: D.ProfileBuilder, harmonics) -> tuple[int, int]:
     return builder.table(np.zeros(len(harmonics)), np.asarray(harmonics, dtype=float))
 
 
-_TIME_ONLY = dict(state_dependent=False, uses_angle=False)
-
 
 # ---------------------------------------------------------------- open loop
 @_register
@@ -646,14 +644,6 @@ class Schedule(TorqueProfile):
         self.inactive.check_plausible(f"{where}.inactive")
         return self
 
-    def is_active(self, t):
-        """True where the ``active`` profile applies."""
-        ta = np.asarray(t, dtype=float)
-        mask = np.zeros(ta.shape, dtype=bool)
-        for start, end in self.periods:
-            mask |= (ta >= start) & (ta < end)
-        return mask if np.ndim(t) else bool(mask)
-
     @property
     def state_dependent(self):
         return self.inactive.state_dependent or bool(self.periods) and self.active.state_dependent
@@ -777,8 +767,3 @@ def _has_text(value, depth: int = 0) -> bool:
     if isinstance(value, (list, tuple)) and depth < 4:
         return any(_has_text(v, depth + 1) for v in value)
     return False
-
-
-def profile_kinds() -> list[str]:
-    """Names accepted as ``type`` by :func:`make_profile`."""
-    return sorted(_REGISTRY)

@@ -33,7 +33,7 @@ from .method_choice import resolve as resolve_method
 from .fidelity import FREQUENCY_RATIO_THRESHOLD, ModelChoice, _linear_choice, limit_exceedance
 from .model import make_model
 from .scene import Scene
-from .simulate import SimResult, Simulator, simulate_regularised
+from .simulate import SimResult, Simulator
 from .slip_run import SlippingSimulator
 from .stepper import snap_tolerance
 
@@ -80,9 +80,6 @@ def stream(
     window_steps = WINDOW_STEPS if window_steps is None else int(window_steps)
     if window_steps < 1:
         raise ValueError(f"window_steps must be >= 1, got {window_steps}")
-    if scene.model == "regularised":  # one window: the numpy step loop keeps the whole run
-        yield simulate_regularised(scene, progress, check_stability)
-        return
     if scene.model == "slipping":
         yield from _slipping(scene, None, progress, check_stability, window_steps)
         return

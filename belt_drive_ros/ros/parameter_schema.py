@@ -71,17 +71,10 @@ class ParamSpec:
     choices: tuple | None = None
 
 
-#: why the node does not run model ``regularised`` (offline only: ``belt-drive sim --model regularised``)
-REGULARISED_REFUSAL = (
-    "regularised: offline only (belt-drive sim --model regularised); its numpy step loop does not run in the "
-    "node's tick as it does offline; use slipping (event-driven friction), flexible, rigid or auto"
-)
-#: models the node runs (every scene model but ``regularised``)
-NODE_MODELS = tuple(m for m in MODELS if m != "regularised")
 #: Node parameters besides the model parameters. ``None`` defaults come from the scene.
 NODE_PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("scene", "str", DEFAULT_SCENE, "shipped scene name or path to a scene YAML: parameters, load, initial state"),
-    ParamSpec("model", "str", None, "belt model: rigid, flexible, slipping or auto (chosen from the scene's excitation)", choices=NODE_MODELS),
+    ParamSpec("model", "str", None, "belt model: rigid, flexible, slipping or auto (chosen from the scene's excitation)", choices=MODELS),
     ParamSpec("method", "str", None, "integrator: auto (the cheapest method and fewest substeps the accuracy guard rates within the scene's tolerance) or " + ", ".join(REGISTRY)),
     ParamSpec("step_rate_hz", "float", 1000.0, "tick rate on the node's clock [Hz]; outputs are published once per tick", range=(1.0, 20000.0)),
     ParamSpec("substeps", "int", None, "integrator steps per tick (dt = 1/(step_rate_hz*substeps), whole ns); default: the scene's dt at 1 kHz", range=(1, 1000)),
@@ -358,9 +351,7 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
     rtf = _spec_number("real_time_factor", values)
     behavior = _choice("timeout_behavior", values["timeout_behavior"], TIMEOUT_BEHAVIORS)
     drive_source = _choice("drive_source", values["drive_source"], DRIVE_SOURCES)
-    if values["model"] == "regularised" or (values["model"] is None and scene.model == "regularised"):
-        raise NodeConfigError("model", REGULARISED_REFUSAL)
-    kind = _choice("model", values["model"], NODE_MODELS)
+    kind = _choice("model", values["model"], MODELS)
     publish_clock = values["publish_clock"]
     if not isinstance(publish_clock, bool):
         raise NodeConfigError("publish_clock", f"must be true or false, got {publish_clock!r}")
