@@ -206,14 +206,14 @@ def _expm_blocks_of(A: np.ndarray, B: np.ndarray, h: float):
     return E[..., :n, :n].copy(), E[..., :n, n : n + m].copy(), E[..., :n, n + m :].copy() / h
 
 
-@lru_cache(maxsize=64)
-def _expm_blocks_cached(a_key: tuple, b_key: tuple, h: float):
-    return _expm_blocks_of(_unkey(a_key), _unkey(b_key), h)
+def _per_system(of, size: int = 64):
+    """``of(*arrays, h)`` cached per (arrays, h) for one system (2-D first array); a stack of variants is not cached."""
+    cached = lru_cache(maxsize=size)(lambda keys, h: of(*(_unkey(k) for k in keys), h))
+    return lambda *args: cached(tuple(_key(a) for a in args[:-1]), args[-1]) if args[0].ndim == 2 else of(*args)
 
 
-def _expm_blocks(A: np.ndarray, B: np.ndarray, h: float):
-    """:func:`_expm_blocks_of`, cached per (A, B, h) for one system."""
-    return _expm_blocks_cached(_key(A), _key(B), h) if A.ndim == 2 else _expm_blocks_of(A, B, h)
+#: :func:`_expm_blocks_of`, cached per (A, B, h)
+_expm_blocks = _per_system(_expm_blocks_of)
 
 
 @register
@@ -284,14 +284,8 @@ def _phi_blocks_of(A: np.ndarray, B: np.ndarray, h: float):
     return tuple(E[..., :n, :n].copy() if k == 0 else E[..., :n, n + (k - 1) * m : n + k * m].copy() for k in range(4))
 
 
-@lru_cache(maxsize=64)
-def _phi_blocks_cached(a_key: tuple, b_key: tuple, h: float):
-    return _phi_blocks_of(_unkey(a_key), _unkey(b_key), h)
-
-
-def _phi_blocks(A: np.ndarray, B: np.ndarray, h: float):
-    """:func:`_phi_blocks_of`, cached per (A, B, h) for one system."""
-    return _phi_blocks_cached(_key(A), _key(B), h) if A.ndim == 2 else _phi_blocks_of(A, B, h)
+#: :func:`_phi_blocks_of`, cached per (A, B, h)
+_phi_blocks = _per_system(_phi_blocks_of)
 
 
 @register
@@ -336,14 +330,8 @@ class ExponentialRK4(FixedStepIntegrator):
         return StageScheme((0.0, 0.5, 0.5, 1.0), (None, stage_a, stage_b, stage_c), final)
 
 
-@lru_cache(maxsize=256)
-def _expm_at_cached(a_key: tuple, tau: float) -> np.ndarray:
-    return _expm(_unkey(a_key) * tau)
-
-
-def _expm_at(A: np.ndarray, tau: float) -> np.ndarray:
-    """e^{tau A} (cached per tau for one system: a Lawson method needs one per distinct stage offset)."""
-    return _expm_at_cached(_key(A), tau) if A.ndim == 2 else _expm(A * tau)
+#: e^{tau A}, cached per (A, tau) for one system (a Lawson method needs one per distinct stage offset)
+_expm_at = _per_system(lambda A, tau: _expm(A * tau), size=256)
 
 
 class LawsonRungeKutta(FixedStepIntegrator):
