@@ -228,22 +228,21 @@ def _rows(M, i, rows, cols, v, voff, out, ooff):
 
 
 @njit(**_INLINE)
-def _wheel_torque(p, tc, coords, uses, start, ak, ap, ax, ay, bk, bp, bx, by):
-    """Profile ``p``'s torque at ``tc`` from its wheel's angle and speed ``coords[2p], coords[2p + 1]`` (the angle
-    only where ``uses[p]``, else 0.0): profile 0 from the first bank ``ak, ap, ax, ay``, the others from the second
-    (:func:`wheel_steps`), each from its first row ``start[p]``."""
-    angle = coords[2 * p] if uses[p] else 0.0
-    if p == 0:
-        return profile_torque_at(ak, ap, ax, ay, start[0], tc, angle, coords[1])
-    return profile_torque_at(bk, bp, bx, by, start[p], tc, angle, coords[2 * p + 1])
-
-
-@njit(**_INLINE)
 def _inputs(buf, base, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra):
-    """Write a stage's inputs ``[torque_0 .. torque_{P-1}, extras...]`` at the clamped time ``tc`` into ``buf[base:]``."""
+    """Write a stage's inputs ``[torque_0 .. torque_{P-1}, extras...]`` at the clamped time ``tc`` into ``buf[base:]``.
+
+    Wheel p's profile reads its angle and speed ``coords[2p], coords[2p + 1]`` (the angle only where
+    ``uses[p]``, else 0.0), from its first row ``start[p]``: profile 0 in the first bank ``ak, ap, ax, ay``,
+    the others in the second (:func:`wheel_steps`). Two wheels (the drive) are written out without a loop over
+    the profiles (measured: the loop with its bank choice cost the two-wheel rigid run 2-3x per step).
+    """
     P = start.size
-    for p in range(P):
-        buf[base + p] = _wheel_torque(p, tc, coords, uses, start, ak, ap, ax, ay, bk, bp, bx, by)
+    buf[base] = profile_torque_at(ak, ap, ax, ay, start[0], tc, coords[0] if uses[0] else 0.0, coords[1])
+    if P == 2:
+        buf[base + 1] = profile_torque_at(bk, bp, bx, by, start[1], tc, coords[2] if uses[1] else 0.0, coords[3])
+    else:
+        for p in range(1, P):
+            buf[base + p] = profile_torque_at(bk, bp, bx, by, start[p], tc, coords[2 * p] if uses[p] else 0.0, coords[2 * p + 1])
     for e in range(extra.shape[0]):
         buf[base + P + e] = _friction_force(extra[e], coords[1])
 
@@ -297,12 +296,13 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
     half = n // 2
     cols = n + m * s
     rows = 2 * P
-    work = np.zeros(cols + 2 * n + rows + s * n)  # one allocation, cut into:
+    work = np.zeros(cols + 2 * n + rows + P + s * n)  # one allocation, cut into:
     v = work[:cols]  # [x (or the base stage's state), U_0, ..., U_{s-1}]
     xs = work[cols : cols + n]
     state = work[cols + n : cols + 2 * n]
     coords = work[cols + 2 * n : cols + 2 * n + rows]  # the wheels' angles and speeds
-    full = work[cols + 2 * n + rows :]  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
+    prev = work[cols + 2 * n + rows : cols + 2 * n + rows + P]  # the implicit stage's torques before an iteration
+    full = work[cols + 2 * n + rows + P :]  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
     for r in range(n):
         xs[r] = x[r]
     n_explicit = s - 1 if max_iter > 0 else s
@@ -338,15 +338,13 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
             for _ in range(max_iter):
                 _rows(F, 0, n, cols, v, 0, state, 0)
                 _rows(W, 0, rows, n, state, 0, coords, 0)
+                for p in range(P):
+                    prev[p] = v[known + p]
+                _inputs(v, known, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra)
                 same = True
                 for p in range(P):
-                    old = v[known + p]
-                    new = _wheel_torque(p, tc, coords, uses, start, ak, ap, ax, ay, bk, bp, bx, by)
-                    v[known + p] = new
-                    if not abs(new - old) <= tol * (1.0 + abs(new)):
+                    if not abs(v[known + p] - prev[p]) <= tol * (1.0 + abs(v[known + p])):
                         same = False
-                for e in range(extra.shape[0]):
-                    v[known + P + e] = _friction_force(extra[e], coords[1])
                 if same:
                     converged = True
                     break
