@@ -44,6 +44,10 @@ from . import jit_cache
 jit_cache.refresh()  # before any kernel loads: drop cache entries built from other kernel sources
 
 _JIT = dict(cache=True, nogil=True)
+#: the implicit stage's fixed point has stalled at rounding when its torques repeat with period two and the two
+#: values differ by at most this part (a torque summed from large terms, e.g. a governor's ``g (w_set - w)``, moves
+#: by more than the tolerance when the state moves by one ulp: the iteration cannot get closer, it alternates)
+ROUNDING = 1e-9
 #: small helpers are inlined into their callers (no call, no reference counting of the arrays passed)
 _INLINE = dict(cache=True, nogil=True, inline="always")
 
@@ -270,7 +274,8 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
     offsets : (s,) ``c_i h`` [s]; a stage at ``c_i = 0`` samples at ``t`` itself.
     S : (s, max(2P, n), n + m s) the stage maps, zero-padded; F : (1, n, n + m s) the final map (m = P + E inputs).
     final_base : -1 (``x+ = F @ [x, U...]``) or the stage j whose state starts the final map.
-    tol, max_iter : the implicit last stage's fixed point (max_iter 0: explicit method).
+    tol, max_iter : the implicit last stage's fixed point (max_iter 0: explicit method); it also ends when the
+        torques alternate between two values :data:`ROUNDING` apart (stalled at rounding: no closer value exists).
     uses : (P,) whether wheel p's profile reads its angle (else 0.0 is passed); start : (P,) its first row.
     ak, ap, ax, ay : profile 0's bank (kinds, params, tx, ty); bk, bp, bx, by : the other profiles' bank
         (the drive's and the load's own data; or a network's stacked profiles,
@@ -296,13 +301,14 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
     half = n // 2
     cols = n + m * s
     rows = 2 * P
-    work = np.zeros(cols + 2 * n + rows + P + s * n)  # one allocation, cut into:
+    work = np.zeros(cols + 2 * n + rows + 2 * P + s * n)  # one allocation, cut into:
     v = work[:cols]  # [x (or the base stage's state), U_0, ..., U_{s-1}]
     xs = work[cols : cols + n]
     state = work[cols + n : cols + 2 * n]
     coords = work[cols + 2 * n : cols + 2 * n + rows]  # the wheels' angles and speeds
     prev = work[cols + 2 * n + rows : cols + 2 * n + rows + P]  # the implicit stage's torques before an iteration
-    full = work[cols + 2 * n + rows + P :]  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
+    back = work[cols + 2 * n + rows + P : cols + 2 * n + rows + 2 * P]  # ... and two iterations back
+    full = work[cols + 2 * n + rows + 2 * P :]  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
     for r in range(n):
         xs[r] = x[r]
     n_explicit = s - 1 if max_iter > 0 else s
@@ -332,6 +338,8 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
             known = n + m * (s - 1)
             for q in range(m):
                 v[known + q] = v[known - m + q]
+            for p in range(P):
+                back[p] = np.nan
             converged = False
             time = t if offsets[s - 1] == 0.0 else t + offsets[s - 1]
             tc = lo if time < lo else hi if time > hi else time
@@ -342,10 +350,15 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
                     prev[p] = v[known + p]
                 _inputs(v, known, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra)
                 same = True
+                cycle = True  # every torque back at its value two iterations ago, the two a rounding apart: stalled
                 for p in range(P):
-                    if not abs(v[known + p] - prev[p]) <= tol * (1.0 + abs(v[known + p])):
+                    new = v[known + p]
+                    if not abs(new - prev[p]) <= tol * (1.0 + abs(new)):
                         same = False
-                if same:
+                    if not (new == back[p] and abs(new - prev[p]) <= ROUNDING * (1.0 + abs(new))):
+                        cycle = False
+                    back[p] = prev[p]
+                if same or cycle:
                     converged = True
                     break
             if not converged:
