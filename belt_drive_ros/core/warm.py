@@ -5,13 +5,14 @@ every kernel's argument types are fixed (float64/int64 C arrays and floats),
 so one short call per kernel covers every scene. Kept apart from the kernels'
 own modules so that no kernel module imports the simulators above it.
 
-The kernels fall in two groups that share no compiled function but the
-profile dispatcher: the single belt's (linear and variant loops, the
-slipping hybrid, the node's tick) and the belt network's (flexible/rigid and
-slipping loops). With ``jobs=2`` the network group compiles in a second
-process while this one compiles the single belt's: on two cores the build
-takes the longer group's time instead of the sum (numba writes each cache
-entry whole, so two processes writing the dispatcher's entry are safe).
+The kernels fall in two groups: the single belt's (linear and variant
+loops, the slipping hybrid, the node's tick) and the belt network's
+(flexible/rigid and slipping loops), which share the profile dispatcher and
+the P-wheel linear loop. With ``jobs=2`` the network group compiles in a
+second process while this one compiles the single belt's: on two cores the
+build takes about the longer group's time instead of the sum (the shared
+functions may compile in both; numba writes each cache entry whole, and both
+write the same one signature, so two processes writing it are safe).
 """
 
 from __future__ import annotations
