@@ -43,31 +43,35 @@ def cpu():
     return r.ru_utime + r.ru_stime
 
 base = peak()
-start, cpu0 = time.perf_counter(), cpu()
+start, cpu0, main0 = time.perf_counter(), cpu(), time.thread_time()
 scene = scene_with_torque_bag(reference_scene("engine_idle").with_overrides(model="flexible", dt=1e-3), bag)
 read = time.perf_counter() - start
+read_cpu = time.thread_time() - main0
 after_read = peak()
-simulate = write = 0.0
+simulate = write = simulate_cpu = write_cpu = 0.0
 samples = 0
 with open(out, "wb") as f:
     sink = McapWindows(f, start_time_ns=0)
     windows = stream(scene)
     while True:
-        a = time.perf_counter()
+        a, ca = time.perf_counter(), time.thread_time()
         window = next(windows, None)
-        b = time.perf_counter()
+        b, cb = time.perf_counter(), time.thread_time()
         simulate += b - a
+        simulate_cpu += cb - ca
         if window is None:
             break
         samples += len(window.time)
         sink.add(window)
         write += time.perf_counter() - b
-    a = time.perf_counter()
+        write_cpu += time.thread_time() - cb
+    a, ca = time.perf_counter(), time.thread_time()
     counts = sink.close()
     write += time.perf_counter() - a
+    write_cpu += time.thread_time() - ca
 total = time.perf_counter() - start
 print(json.dumps({"read": read, "simulate": simulate, "write": write, "total": total, "cpu": cpu() - cpu0,
-                  "samples": samples, "messages": sum(counts.values()), "bytes": os.path.getsize(out),
+                  "read_cpu": read_cpu, "simulate_cpu": simulate_cpu, "write_cpu": write_cpu, "samples": samples, "messages": sum(counts.values()), "bytes": os.path.getsize(out),
                   "peak": peak(), "base": base, "after_read": after_read}))
 '''
 
@@ -110,10 +114,13 @@ def main(minutes: float = 60.0, baseline: str | None = None, repeat: int = 1) ->
         for r in results[name]:
             _line("wall", f"{r['total']:.2f} s ({r['total'] * scale:.1f} s per hour; target <= {REPLAY_TARGET_S:g}: "
                   f"{'met' if r['total'] * scale <= REPLAY_TARGET_S else 'MISSED'})")
-            _line("  read the bag", f"{r['read']:.2f} s")
-            _line("  simulation", f"{r['simulate']:.2f} s ({r['samples'] / max(r['simulate'], 1e-9) / 1e6:.2f} M samples/s)")
-            _line("  writing", f"{r['write']:.2f} s ({r['messages'] / max(r['write'], 1e-9) / 1e6:.2f} M messages/s)")
-            _line("process CPU", f"{r['cpu']:.2f} s (writer threads included)")
+            _line("  read the bag", f"{r['read']:.2f} s (main thread CPU {r['read_cpu']:.2f} s)")
+            _line("  simulation", f"{r['simulate']:.2f} s (main thread CPU {r['simulate_cpu']:.2f} s; "
+                  f"{r['samples'] / max(r['simulate'], 1e-9) / 1e6:.2f} M samples/s)")
+            _line("  writing", f"{r['write']:.2f} s (main thread CPU {r['write_cpu']:.2f} s; "
+                  f"{r['messages'] / max(r['write'], 1e-9) / 1e6:.2f} M messages/s)")
+            _line("process CPU", f"{r['cpu']:.2f} s (compression threads included: "
+                  f"{r['cpu'] - r['read_cpu'] - r['simulate_cpu'] - r['write_cpu']:.2f} s beside the main thread)")
             _line("output", f"{r['messages']:,} messages, {r['bytes'] / 2**20:.0f} MiB")
             grow = (r["peak"] - r["base"]) / max(r["samples"], 1)
             _line("peak RSS", f"{r['peak'] / 2**20:.0f} MiB (after imports {r['base'] / 2**20:.0f} MiB, after reading "
