@@ -250,7 +250,12 @@ def _zoh_table(times_ns: np.ndarray, values: np.ndarray) -> Tuple[np.ndarray, np
     rel = times_ns - times_ns[0]
     last = np.ones(rel.size, dtype=bool)
     last[:-1] = rel[1:] != rel[:-1]
-    return rel[last].astype(np.float64) * 1e-9, values[last]
+    if not last.all():  # (no copies of an hour's samples when no two share a time)
+        rel, values = rel[last], values[last]
+    times = rel.astype(np.float64)
+    del rel
+    times *= 1e-9  # the float product rel * 1e-9, in place
+    return times, values
 
 
 def scene_with_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Optional[float] = None,
