@@ -52,18 +52,59 @@ _MESSAGE_HEAD = np.dtype([("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"
 assert _MESSAGE_HEAD.itemsize == _MESSAGE_OVERHEAD
 
 
-def _compress(kind: CompressionType, data) -> tuple[str, bytes, int]:
-    """(compression name, compressed bytes, CRC-32 of ``data``) of one chunk's records (a worker thread)."""
+def _compress(kind: CompressionType, data) -> tuple[str, bytes, int, int]:
+    """(compression name, compressed bytes, CRC-32 of ``data``, CRC-32 of the compressed bytes) of one chunk's
+    records (a worker thread: the data section's CRC then only combines the latter, :func:`crc32_combine`)."""
     crc = zlib.crc32(data)
     if kind == CompressionType.ZSTD:
         import zstandard
 
-        return "zstd", zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(data), crc
-    if kind == CompressionType.LZ4:
+        out = zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(data)
+    elif kind == CompressionType.LZ4:
         import lz4.frame
 
-        return "lz4", lz4.frame.compress(data), crc
-    return "", bytes(data), crc
+        out = lz4.frame.compress(data)
+    else:
+        out, kind = bytes(data), None
+    return ("zstd" if kind == CompressionType.ZSTD else "lz4" if kind == CompressionType.LZ4 else ""), out, crc, zlib.crc32(out)
+
+
+_POLY = 0xEDB88320  # CRC-32 (zlib's), reflected
+
+
+def _multmodp(a: int, b: int) -> int:
+    """``a b`` modulo the CRC-32 polynomial (reflected bit order, as zlib's crc32.c; ``a`` nonzero)."""
+    m, p = 1 << 31, 0
+    while True:
+        if a & m:
+            p ^= b
+            if not a & (m - 1):
+                return p
+        m >>= 1
+        b = (b >> 1) ^ _POLY if b & 1 else b >> 1
+
+
+def _x2n_table() -> list:
+    p, table = 1 << 30, []  # x^1
+    for _ in range(32):
+        table.append(p)
+        p = _multmodp(p, p)
+    return table
+
+
+_X2N = _x2n_table()
+
+
+def crc32_combine(crc1: int, crc2: int, len2: int) -> int:
+    """CRC-32 of ``A + B`` from ``crc1 = crc32(A)``, ``crc2 = crc32(B)`` and ``len(B)`` (zlib's crc32_combine:
+    ``crc1`` times ``x^(8 len2)`` modulo the polynomial, plus ``crc2``)."""
+    p, k, n = 1 << 31, 3, int(len2)  # x^0; x^(2^3) = one byte
+    while n:
+        if n & 1:
+            p = _multmodp(_X2N[k & 31], p)
+        n >>= 1
+        k += 1
+    return _multmodp(p, crc1) ^ crc2 if crc1 else crc2
 
 
 class FixedMessages:
@@ -302,13 +343,15 @@ class BlockRecords:
             future, start, end, size, index = pending.popleft()
             self._write_chunk(*future.result(), start, end, size, index)
 
-    def _write_chunk(self, compression: str, data: bytes, crc: int, start: int, end: int, size: int,
+    def _write_chunk(self, compression: str, data: bytes, crc: int, data_crc: int, start: int, end: int, size: int,
                      index: Dict[int, np.ndarray]) -> None:
         offset = self.stream.tell()
         tail = struct.pack("<I", len(compression)) + compression.encode() + struct.pack("<Q", len(data))
         length = 8 + 8 + 8 + 4 + len(tail) + len(data)
         self._emit(_CHUNK_HEAD.pack(Opcode.CHUNK, length, start, end, size, crc) + tail)
-        self._emit(data)
+        self.stream.write(data)  # its CRC came from the worker: combined, not computed again here
+        if self.data_crcs:
+            self.data_crc = crc32_combine(self.data_crc, data_crc, len(data))
         chunk_length = self.stream.tell() - offset
         index_offsets = {}
         index_start = self.stream.tell()

@@ -169,3 +169,22 @@ def test_fixed_messages_write_only_their_fields_into_the_reused_block():
     expected = _messages(files["messages"], indexed=True)
     assert len(expected) == 3 * sum(sizes)
     assert _messages(files["fixed"], indexed=True) == expected
+    from msg_tools.scan import Scan  # the data section's CRC (combined from the chunks' own) as a reader checks it
+
+    for kind in ("messages", "fixed"):
+        assert Scan(files[kind], kind).run().data_crc == "ok"
+
+
+def test_crc32_combine_is_the_crc_of_the_joined_bytes():
+    """The data section's CRC is combined from each chunk's (computed in the worker threads): zlib's
+    crc32_combine, written out, equals the CRC of the joined bytes (empty parts and megabytes included)."""
+    import os
+    import zlib
+
+    from msg_tools.block_writer import crc32_combine
+
+    rng = np.random.default_rng(5)
+    for n1, n2 in [(0, 0), (0, 7), (7, 0), (1, 1), (3, 100_000), (2_000_000, 1_048_577)] + [
+            tuple(rng.integers(0, 5000, 2)) for _ in range(50)]:
+        a, b = os.urandom(int(n1)), os.urandom(int(n2))
+        assert crc32_combine(zlib.crc32(a), zlib.crc32(b), len(b)) == zlib.crc32(a + b)
