@@ -40,7 +40,7 @@ from mcap.writer import MCAP0_MAGIC, CompressionType
 
 from .writer import _MESSAGE_OVERHEAD, Ros2McapWriter
 
-__all__ = ["BlockMcapWriter", "BlockRecords"]
+__all__ = ["BlockMcapWriter", "BlockRecords", "FixedMessages"]
 
 #: zstd level of the block path (level 1: about twice level 3's speed on these files, ~10 % larger)
 ZSTD_LEVEL = 1
@@ -52,18 +52,98 @@ _MESSAGE_HEAD = np.dtype([("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"
 assert _MESSAGE_HEAD.itemsize == _MESSAGE_OVERHEAD
 
 
-def _compress(kind: CompressionType, data) -> tuple[str, bytes, int]:
-    """(compression name, compressed bytes, CRC-32 of ``data``) of one chunk's records (a worker thread)."""
+def _compress(kind: CompressionType, data) -> tuple[str, bytes, int, int]:
+    """(compression name, compressed bytes, CRC-32 of ``data``, CRC-32 of the compressed bytes) of one chunk's
+    records (a worker thread: the data section's CRC then only combines the latter, :func:`crc32_combine`)."""
     crc = zlib.crc32(data)
     if kind == CompressionType.ZSTD:
         import zstandard
 
-        return "zstd", zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(data), crc
-    if kind == CompressionType.LZ4:
+        out = zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(data)
+    elif kind == CompressionType.LZ4:
         import lz4.frame
 
-        return "lz4", lz4.frame.compress(data), crc
-    return "", bytes(data), crc
+        out = lz4.frame.compress(data)
+    else:
+        out, kind = bytes(data), None
+    return ("zstd" if kind == CompressionType.ZSTD else "lz4" if kind == CompressionType.LZ4 else ""), out, crc, zlib.crc32(out)
+
+
+_POLY = 0xEDB88320  # CRC-32 (zlib's), reflected
+
+
+def _multmodp(a: int, b: int) -> int:
+    """``a b`` modulo the CRC-32 polynomial (reflected bit order, as zlib's crc32.c; ``a`` nonzero)."""
+    m, p = 1 << 31, 0
+    while True:
+        if a & m:
+            p ^= b
+            if not a & (m - 1):
+                return p
+        m >>= 1
+        b = (b >> 1) ^ _POLY if b & 1 else b >> 1
+
+
+def _x2n_table() -> list:
+    p, table = 1 << 30, []  # x^1
+    for _ in range(32):
+        table.append(p)
+        p = _multmodp(p, p)
+    return table
+
+
+_X2N = _x2n_table()
+
+
+def crc32_combine(crc1: int, crc2: int, len2: int) -> int:
+    """CRC-32 of ``A + B`` from ``crc1 = crc32(A)``, ``crc2 = crc32(B)`` and ``len(B)`` (zlib's crc32_combine:
+    ``crc1`` times ``x^(8 len2)`` modulo the polynomial, plus ``crc2``)."""
+    p, k, n = 1 << 31, 3, int(len2)  # x^0; x^(2^3) = one byte
+    while n:
+        if n & 1:
+            p = _multmodp(_X2N[k & 31], p)
+        n >>= 1
+        k += 1
+    return _multmodp(p, crc1) ^ crc2 if crc1 else crc2
+
+
+class FixedMessages:
+    """``n`` messages of one fixed-size layout: ``template`` (the CDR of one message) with ``fields``
+    ``{name: (dtype, offset)}`` taking ``values[name]`` (one row per message).
+
+    :meth:`rows` gives the ``(n, size)`` bytes. A block writer takes it instead of the bytes: its
+    reused block holds the template from the previous block of the same layout, so only the fields
+    are written (a ``JointState`` or ``TFMessage`` changes in a fifth of its bytes from step to step).
+    """
+
+    def __init__(self, template: bytes, fields: Dict[str, tuple], values: Dict[str, np.ndarray]):
+        self.template, self.fields, self.values = bytes(template), dict(fields), dict(values)
+        self.dtype = np.dtype({"names": list(self.fields), "formats": [f for f, _ in self.fields.values()],
+                               "offsets": [o for _, o in self.fields.values()], "itemsize": len(self.template)})
+        self.n = len(next(iter(self.values.values()))) if self.values else 0
+
+    def __len__(self) -> int:
+        return self.n
+
+    @property
+    def size(self) -> int:
+        """Bytes per message."""
+        return len(self.template)
+
+    def __getitem__(self, key: slice) -> "FixedMessages":
+        return FixedMessages(self.template, self.fields, {name: v[key] for name, v in self.values.items()})
+
+    def write_into(self, view: np.ndarray) -> None:
+        """The fields into ``view`` (``n`` messages of :attr:`dtype`, holding the template already)."""
+        for name, values in self.values.items():
+            view[name] = values
+
+    def rows(self) -> np.ndarray:
+        """The messages as the rows of an ``(n, size)`` uint8 array."""
+        out = np.empty((self.n, self.size), dtype=np.uint8)
+        out[...] = np.frombuffer(self.template, dtype=np.uint8)
+        self.write_into(np.ndarray((self.n,), dtype=self.dtype, buffer=out, strides=(self.size,)))
+        return out
 
 
 class BlockRecords:
@@ -104,7 +184,11 @@ class BlockRecords:
         self._open_index: Dict[int, list] = {}  # channel -> [(log time, offset)]
         self._pool: Optional[ThreadPoolExecutor] = None
         self._pending: deque = deque()
-        self._buffer = np.empty(0, dtype=np.uint8)  # the records of the block being written  # (future, start, end, records size, {channel: index entries})
+        self._buffer = np.empty(0, dtype=np.uint8)  # the records of the block being written
+        # the layout of the records in the buffer's first ``_ready`` rows: their constant bytes (record heads,
+        # FixedMessages' templates) are written once and kept while blocks of that layout follow
+        self._layout: tuple = ()
+        self._ready = 0
 
     # -------------------------------------------------------------- output
     def _emit(self, data) -> None:
@@ -171,7 +255,7 @@ class BlockRecords:
     def add_block(self, channels: Sequence[int], sequences: Sequence[int], log_time: np.ndarray,
                   payloads: Sequence[np.ndarray]) -> None:
         """``n`` steps of one message per channel: ``log_time`` (n,) [ns] (ascending; also the publish
-        time), ``payloads[k]`` (n, size_k) uint8 the messages of ``channels[k]``, whose first sequence
+        time), ``payloads[k]`` (n, size_k) uint8 (or :class:`FixedMessages`) the messages of ``channels[k]``, whose first sequence
         number is ``sequences[k]`` (then one more per step, modulo 2**32)."""
         log_time = np.ascontiguousarray(log_time, dtype="<u8")
         n = log_time.size
@@ -180,17 +264,23 @@ class BlockRecords:
         # the previous block's chunks were compressed while the caller computed this one: write them all
         # first, so memory holds at most one block and its chunks (the same peak for any run length)
         self._write_pending(all_of_them=True)
-        sizes = [int(p.shape[1]) for p in payloads]
+        sizes = [int(p.size if isinstance(p, FixedMessages) else p.shape[1]) for p in payloads]
         # one row per step: each channel's record (head fields, then the payload) at its offset; each field
         # written through a strided view of its type, one unit per row (a column slice of the byte matrix
         # would copy byte by byte)
         row = sum(_MESSAGE_OVERHEAD + size for size in sizes)
         if self._buffer.size < n * row:  # reused block after block (its chunks are written): no fresh pages to fault in
             self._buffer = np.empty(n * row, dtype=np.uint8)
+            self._ready = 0
+        layout = (row, tuple((c, size, p.template if isinstance(p, FixedMessages) else None)
+                             for c, size, p in zip(channels, sizes, payloads)))
+        if layout != self._layout:
+            self._layout, self._ready = layout, 0
         block = self._buffer[: n * row].reshape(n, row)
+        ready = min(self._ready, n)  # rows holding this layout's constant bytes already
 
-        def column(offset: int, dtype) -> np.ndarray:
-            return np.ndarray((n,), dtype=dtype, buffer=block, offset=offset, strides=(row,))
+        def column(offset: int, dtype, first: int = 0) -> np.ndarray:
+            return np.ndarray((n - first,), dtype=dtype, buffer=self._buffer, offset=first * row + offset, strides=(row,))
 
         template = np.zeros(1, dtype=_MESSAGE_HEAD)
         template["opcode"] = Opcode.MESSAGE
@@ -198,15 +288,22 @@ class BlockRecords:
         offsets = []  # of each channel's record within a row
         at = 0
         for channel, first, size, payload in zip(channels, sequences, sizes, payloads):
-            template["length"], template["channel"] = 22 + size, channel
-            column(at, (np.void, 11))[...] = template.view(np.uint8)[:11].view((np.void, 11))[0]
+            if ready < n:  # the constant bytes of the rows not written yet
+                template["length"], template["channel"] = 22 + size, channel
+                column(at, (np.void, 11), ready)[...] = template.view(np.uint8)[:11].view((np.void, 11))[0]
+                if isinstance(payload, FixedMessages):
+                    column(at + 31, (np.void, size), ready)[...] = np.frombuffer(payload.template, dtype=(np.void, size))[0]
             column(at + 11, "<u4")[...] = (steps + np.uint64(first)) & np.uint64(0xFFFFFFFF)
             column(at + 15, "<u8")[...] = log_time  # log time
             column(at + 23, "<u8")[...] = log_time  # publish time
-            column(at + 31, (np.void, size))[...] = payload.view((np.void, size)).reshape(n)
+            if isinstance(payload, FixedMessages):
+                payload.write_into(column(at + 31, payload.dtype))
+            else:
+                column(at + 31, (np.void, size))[...] = payload.view((np.void, size)).reshape(n)
             offsets.append(at)
             at += _MESSAGE_OVERHEAD + size
             self.counts[channel] = self.counts.get(channel, 0) + n
+        self._ready = max(self._ready, n)
         self.message_count += n * len(channels)
         self._times(int(log_time[0]), int(log_time[-1]))
         rows = max(1, self.chunk_size // row)
@@ -246,13 +343,15 @@ class BlockRecords:
             future, start, end, size, index = pending.popleft()
             self._write_chunk(*future.result(), start, end, size, index)
 
-    def _write_chunk(self, compression: str, data: bytes, crc: int, start: int, end: int, size: int,
+    def _write_chunk(self, compression: str, data: bytes, crc: int, data_crc: int, start: int, end: int, size: int,
                      index: Dict[int, np.ndarray]) -> None:
         offset = self.stream.tell()
         tail = struct.pack("<I", len(compression)) + compression.encode() + struct.pack("<Q", len(data))
         length = 8 + 8 + 8 + 4 + len(tail) + len(data)
         self._emit(_CHUNK_HEAD.pack(Opcode.CHUNK, length, start, end, size, crc) + tail)
-        self._emit(data)
+        self.stream.write(data)  # its CRC came from the worker: combined, not computed again here
+        if self.data_crcs:
+            self.data_crc = crc32_combine(self.data_crc, data_crc, len(data))
         chunk_length = self.stream.tell() - offset
         index_offsets = {}
         index_start = self.stream.tell()
@@ -352,17 +451,18 @@ class BlockMcapWriter(Ros2McapWriter):
     def write_block(self, topics: Sequence[tuple], log_time_ns: np.ndarray, payloads: Sequence[np.ndarray]) -> None:
         """``topics`` ``[(topic, type_name), ...]`` (declared with :meth:`add_topic` or here with the
         default QoS), ``log_time_ns`` (n,) ascending [ns] (also the publish time), ``payloads[k]``
-        ``(n, size)`` uint8: the CDR of ``topics[k]``'s message at each time."""
+        ``(n, size)`` uint8 (or :class:`FixedMessages`): the CDR of ``topics[k]``'s message at each time."""
         log_time_ns = np.asarray(log_time_ns, dtype=np.int64)
         n = log_time_ns.size
         if not n:
             return
         if log_time_ns[0] < 0:
             raise ValueError(f"write_block: times must be >= 0 ns, got {int(log_time_ns[0])}")
-        payloads = [np.ascontiguousarray(p, dtype=np.uint8) for p in payloads]
+        payloads = [p if isinstance(p, FixedMessages) else np.ascontiguousarray(p, dtype=np.uint8) for p in payloads]
         for (topic, _), p in zip(topics, payloads):
-            if p.ndim != 2 or p.shape[0] != n or p.shape[1] < 4:
-                raise ValueError(f"write_block: {topic}: payload must be ({n}, >= 4) bytes, got {p.shape}")
+            shape = (len(p), p.size) if isinstance(p, FixedMessages) else p.shape
+            if len(shape) != 2 or shape[0] != n or shape[1] < 4:
+                raise ValueError(f"write_block: {topic}: payload must be ({n}, >= 4) bytes, got {shape}")
         with self._lock:
             self._check_writable()
             channels = [self._channel(topic, type_name, None) for topic, type_name in topics]

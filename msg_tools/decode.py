@@ -365,21 +365,21 @@ def _build(scan: Scan, channel_ids: List[int], topic: str) -> TopicData:
             type_name = _schemas.normalize_type_name(type_name)
         except ValueError:
             pass
-    logs, pubs, ends = array("q"), array("q"), array("q")
     accs = [scan.accs[cid] for cid in channel_ids]
     blob: Any = accs[0].blob if len(accs) == 1 else bytearray()
-    for acc in accs:
-        logs.extend(acc.log)
-        pubs.extend(acc.pub)
-        if len(accs) > 1:
+    if len(accs) == 1:  # the scan's own arrays, viewed below (not copied: a long recording's times are held once)
+        logs, pubs, ends = accs[0].log, accs[0].pub, accs[0].ends
+    else:
+        logs, pubs, ends = array("q"), array("q"), array("q")
+        for acc in accs:
+            logs.extend(acc.log)
+            pubs.extend(acc.pub)
             shift = len(blob)
             ends.extend(e + shift for e in acc.ends)
             blob += acc.blob or b""
-        else:
-            ends = acc.ends
-    log_ns = np.frombuffer(logs, dtype=np.int64).copy() if len(logs) else np.zeros(0, np.int64)
-    pub_ns = np.frombuffer(pubs, dtype=np.int64).copy() if len(pubs) else np.zeros(0, np.int64)
-    end_arr = np.frombuffer(ends, dtype=np.int64).copy() if len(ends) else np.zeros(0, np.int64)
+    log_ns = np.frombuffer(logs, dtype=np.int64) if len(logs) else np.zeros(0, np.int64)
+    pub_ns = np.frombuffer(pubs, dtype=np.int64) if len(pubs) else np.zeros(0, np.int64)
+    end_arr = np.frombuffer(ends, dtype=np.int64) if len(ends) else np.zeros(0, np.int64)
     start_arr = np.concatenate([[0], end_arr[:-1]]).astype(np.int64) if len(end_arr) else end_arr
     if log_ns.size > 1 and np.any(np.diff(log_ns) < 0):
         order = np.argsort(log_ns, kind="stable")

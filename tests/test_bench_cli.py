@@ -199,10 +199,11 @@ def test_bench_node_reads_the_nodes_own_period_error_from_its_latest_diagnostics
 
 
 def test_bench_replay_prints_the_split_of_a_torque_bag_replayed_to_mcap(tmp_path, capsys):
-    """``bench replay``: the bag replayed through sim's streamed path, the writing beside the old writer."""
+    """``bench replay``: the bag replayed through sim's streamed path in a child process, split into reading,
+    simulation and writing, with the peak memory and its growth per sample."""
     assert main(["bench", "replay", "--minutes", "0.5", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    for label in ("read the bag", "simulation (stream windows)", "writing (encode, blocks", "old writer, message by message",
-                  "process CPU", "peak RSS", "planned step by step, as before; states bit-identical"):
+    for label in ("read the bag", "simulation", "writing", "main thread CPU", "process CPU", "peak RSS",
+                  "B per bag sample"):
         assert label in out, label
     assert "210,008 messages" in out  # 30,001 samples x 7 topics (drive, joint_states, /tf, 4 outputs) + the URDF

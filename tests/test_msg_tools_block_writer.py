@@ -130,3 +130,61 @@ def test_bad_blocks_are_refused():
             w.write_block(TOPICS[:1], t, [np.zeros((2, 12), np.uint8)])
         with pytest.raises(ValueError, match=">= 0"):
             w.write_block(TOPICS[:1], t - 5, [np.zeros((3, 12), np.uint8)])
+
+
+def test_fixed_messages_write_only_their_fields_into_the_reused_block():
+    """Blocks of FixedMessages (templates kept in the writer's reused block, only the fields written) give
+    the same file as their bytes: blocks growing, shrinking, and a block of another layout between."""
+    from belt_drive_ros.io.recording import float64_messages, joint_state_messages
+    from msg_tools.block_writer import FixedMessages
+
+    def fixed(t_ns, seed):
+        x = np.random.default_rng(seed).normal(size=(t_ns.size, 4))
+        return [float64_messages(x[:, 0]), joint_state_messages(t_ns, x, 2 * x, -x), float64_messages(x[:, 1])]
+
+    sizes, start, plan = [50, 120, 30, 200, 10], 1_000_000_000, []
+    for i, n in enumerate(sizes):
+        t = start + np.arange(n, dtype=np.int64) * 1_000_000
+        start = int(t[-1]) + 1_000_000
+        topics = TOPICS if i != 2 else TOPICS[::-1]  # another layout: the block's constants are written again
+        payloads = fixed(t, i) if i != 2 else fixed(t, i)[::-1]
+        plan.append((topics, t, payloads))
+    files = {}
+    for kind in ("messages", "bytes", "fixed"):
+        buf = io.BytesIO()
+        with (Ros2McapWriter if kind == "messages" else BlockMcapWriter)(buf, chunk_size=4096, flush_interval_s=None) as w:
+            for topic, type_name in TOPICS:
+                w.add_topic(topic, type_name)
+            for topics, t, payloads in plan:
+                if kind == "messages":  # the reference: message by message
+                    rows = [p.rows() for p in payloads]
+                    for k, stamp in enumerate(t.tolist()):
+                        for (topic, type_name), r in zip(topics, rows):
+                            w.write_raw(topic, type_name, r[k].tobytes(), stamp)
+                else:
+                    w.write_block(topics, t, [p.rows() for p in payloads] if kind == "bytes" else payloads)
+        files[kind] = buf.getvalue()
+    assert all(isinstance(p, FixedMessages) for p in plan[0][2])
+    assert files["fixed"] == files["bytes"]
+    expected = _messages(files["messages"], indexed=True)
+    assert len(expected) == 3 * sum(sizes)
+    assert _messages(files["fixed"], indexed=True) == expected
+    from msg_tools.scan import Scan  # the data section's CRC (combined from the chunks' own) as a reader checks it
+
+    for kind in ("messages", "fixed"):
+        assert Scan(files[kind], kind).run().data_crc == "ok"
+
+
+def test_crc32_combine_is_the_crc_of_the_joined_bytes():
+    """The data section's CRC is combined from each chunk's (computed in the worker threads): zlib's
+    crc32_combine, written out, equals the CRC of the joined bytes (empty parts and megabytes included)."""
+    import os
+    import zlib
+
+    from msg_tools.block_writer import crc32_combine
+
+    rng = np.random.default_rng(5)
+    for n1, n2 in [(0, 0), (0, 7), (7, 0), (1, 1), (3, 100_000), (2_000_000, 1_048_577)] + [
+            tuple(rng.integers(0, 5000, 2)) for _ in range(50)]:
+        a, b = os.urandom(int(n1)), os.urandom(int(n2))
+        assert crc32_combine(zlib.crc32(a), zlib.crc32(b), len(b)) == zlib.crc32(a + b)

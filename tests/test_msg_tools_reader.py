@@ -300,3 +300,39 @@ def test_complete_file_gives_no_warning():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert read_topic(_long_bag(), "/x").complete
+
+
+def test_chunks_of_equal_size_messages_are_read_whole_and_as_record_by_record(monkeypatch):
+    """A chunk of message records all of one size (a torque recording) is taken in array operations:
+    the same times, payloads and values as the record walk, interleaved channels and a chunk of mixed
+    sizes (walked) included; the fast path is taken for the uniform chunks."""
+    from msg_tools import scan
+
+    n = 3000
+    values = RNG.normal(size=n)
+    messages = []
+    for k in range(n):  # two Float64 topics interleaved, one out of order; a String now and then (other size)
+        messages.append(("/drive_torque", "std_msgs/msg/Float64", encode("std_msgs/msg/Float64", {"data": values[k]}), 1000 * k + 7))
+        messages.append(("/other", "std_msgs/msg/Float64", encode("std_msgs/msg/Float64", {"data": -values[k]}), 1000 * k))
+        if k == 2500:
+            messages.append(("/note", "std_msgs/msg/String", encode("std_msgs/msg/String", {"data": "x"}), 1000 * k))
+    messages[10], messages[12] = messages[12], messages[10]
+    data = _bag(messages, chunk_size=4096)
+    taken = []
+    fast = scan.Scan._uniform_messages
+
+    def spy(self, records):
+        taken.append(fast(self, records))
+        return taken[-1]
+
+    monkeypatch.setattr(scan.Scan, "_uniform_messages", spy)
+    whole = read_bag(data, ["/drive_torque", "/other", "/note"])
+    assert sum(taken) >= 5 and not all(taken)  # uniform chunks whole, the chunk with the String walked
+    monkeypatch.setattr(scan.Scan, "_uniform_messages", lambda self, records: False)
+    walked = read_bag(data, ["/drive_torque", "/other", "/note"])
+    for topic in ("/drive_torque", "/other"):
+        a, b = whole.topics[topic], walked.topics[topic]
+        assert np.array_equal(a.log_time_ns, b.log_time_ns) and np.array_equal(a.publish_time_ns, b.publish_time_ns)
+        assert np.array_equal(_bits(a.data), _bits(b.data))
+    assert np.array_equal(_bits(whole.topics["/drive_torque"].data), _bits(values))
+    assert whole.topics["/note"].messages[0].data == "x"

@@ -238,3 +238,29 @@ def test_every_kind_has_a_data_form_and_a_kernel_branch():
     row = np.zeros((1, D.WIDTH))
     assert math.isnan(kernel.profile_torque(np.array([99]), row, np.zeros(1), np.zeros(1), 0.0, 0.0, 0.0))
 
+
+
+def test_table_search_finds_the_index_bisection_finds():
+    """The kernel's table search (started where an evenly spaced table would hold ``x``, widened by
+    doubling) returns bisect_right's index: even, jittered, clustered and tiny tables, times at, between,
+    before and after the points, NaN included; and a table's hold reads the value numpy's searchsorted gives."""
+    import bisect
+
+    from belt_drive_ros.core.kernel import _bisect_right
+
+    rng = np.random.default_rng(7)
+    tables = [np.arange(2000) * 1e-3, np.arange(2000) * 1e-3 + rng.uniform(-4e-4, 4e-4, 2000),
+              np.sort(np.concatenate([rng.uniform(0, 1, 300), rng.uniform(5, 5.001, 300)])),
+              np.cumsum(rng.exponential(1.0, 500)), np.array([0.0, 1.0, 2.0]), np.arange(9.0)]
+    for xs in tables:
+        xs = np.unique(xs)
+        padded = np.concatenate([np.full(3, -1e300), xs, np.full(2, 1e300)])
+        queries = np.concatenate([xs, rng.uniform(xs[0] - 1, xs[-1] + 1, 400), np.nextafter(xs, np.inf)[::7],
+                                  np.nextafter(xs, -np.inf)[::7], [math.inf, -math.inf]])
+        for x in queries.tolist():
+            assert _bisect_right(padded, 3, xs.size, x) == bisect.bisect_right(xs.tolist(), x), (xs.size, x)
+        assert _bisect_right(padded, 3, xs.size, math.nan) == _bisect_right(padded, 3, xs.size, math.nan)  # no hang
+    held = Table(times=tuple(tables[1][:50].tolist()), values=tuple(range(50)), interpolation="previous")
+    t = rng.uniform(0.0, 0.06, 300)
+    expected = np.arange(50.0)[np.clip(np.searchsorted(tables[1][:50], t, side="right") - 1, 0, 49)]
+    np.testing.assert_array_equal(held.torque(t), expected)

@@ -25,7 +25,6 @@ single runs: the machine may be shared, so read them as order of magnitude.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import tempfile
 import time
@@ -35,8 +34,6 @@ from typing import List, Optional
 import numpy as np
 
 TARGET_S = 60.0
-#: issue 20: a 1-hour 1 kHz torque bag replayed offline to MCAP [s of wall time]
-REPLAY_TARGET_S = 8.0
 
 
 def _line(label: str, value: str) -> None:
@@ -209,126 +206,6 @@ def profile_replay(bag, dt: Optional[float], top: int = 15) -> None:
     profiler.disable()
     stats = pstats.Stats(profiler)
     stats.sort_stats("tottime").print_stats(top)
-
-
-def replay_to_mcap(bag, out, dt: float = 1e-3, old_writer_windows: int = 2) -> dict:
-    """The bag through ``belt-drive sim``'s streamed path into the MCAP ``out`` (what ``sim SCENE
-    --torque-bag BAG --out OUT.mcap`` runs): wall time of reading the bag, of the simulation (the
-    windows of :func:`~belt_drive_ros.core.stream.stream`) and of the writing (encoding, blocks,
-    waiting for the compression threads), process CPU, peak RSS; and the old writer (message by
-    message through ``Ros2McapWriter.write_raw``) on the first ``old_writer_windows`` windows."""
-    import resource
-
-    from msg_tools import Ros2McapWriter
-
-    from ..core.stream import stream
-    from ..io.bags import reference_scene
-    from ..io.recording import ResultMcapWriter
-    from ..io.run_writers import STREAM_CHUNK, McapWindows
-    from ..io.torque_bag import scene_with_torque_bag
-
-    def cpu() -> float:
-        r = resource.getrusage(resource.RUSAGE_SELF)
-        return r.ru_utime + r.ru_stime
-
-    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    start, cpu0 = time.perf_counter(), cpu()
-    scene = scene_with_torque_bag(reference_scene("engine_idle").with_overrides(model="flexible", dt=dt), bag)
-    read = time.perf_counter() - start
-    simulate = write = 0.0
-    samples = 0
-    kept = []  # the first windows, for the old writer
-    with open(out, "wb") as f:
-        sink = McapWindows(f, start_time_ns=0)
-        windows = stream(scene)
-        while True:
-            a = time.perf_counter()
-            window = next(windows, None)
-            b = time.perf_counter()
-            simulate += b - a
-            if window is None:
-                break
-            samples += len(window.time)
-            if len(kept) < old_writer_windows:
-                kept.append(window)
-            sink.add(window)
-            write += time.perf_counter() - b
-        a = time.perf_counter()
-        counts = sink.close()
-        write += time.perf_counter() - a
-    total, used = time.perf_counter() - start, cpu() - cpu0
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    plans = planned_one_by_one(scene)
-    old = math.nan
-    if kept:  # the same windows message by message (the writer before blocks), into memory
-        import io
-
-        a = time.perf_counter()
-        writer = ResultMcapWriter(io.BytesIO(), kept[0], start_time_ns=0, chunk_size=STREAM_CHUNK)
-        plain = Ros2McapWriter(io.BytesIO(), chunk_size=STREAM_CHUNK, flush_interval_s=None)
-        writer.writer = plain  # a writer without write_block: ResultMcapWriter writes message by message
-        for window in kept:
-            writer.write(window)
-        writer.close()
-        old = (time.perf_counter() - a) * samples / sum(len(w.time) for w in kept)
-    return {"read": read, "simulate": simulate, "write": write, "total": total, "cpu": used, "samples": samples,
-            "messages": sum(counts.values()), "bytes": os.path.getsize(out), "peak_rss_mib": peak / 1024,
-            "rss_growth_mib": (peak - rss0) / 1024, "old_write_estimate": old, "plans": plans}
-
-
-def planned_one_by_one(scene, seconds: float = 20.0) -> dict:
-    """The first ``seconds`` of ``scene``'s stream (a torque bag's scene; guards included) with steps next to the samples absorbed
-    (:func:`~belt_drive_ros.core.absorb.absorbed_steps`, today) and planned one by one (one kernel call per
-    step, as before): wall [s] of each, side by side, and whether the states agree bit for bit."""
-    import dataclasses
-
-    from ..core import stepper
-    from ..core.stream import stream
-
-    short = dataclasses.replace(scene, duration=min(seconds, scene.duration))
-    drive = scene.drive  # the bag's first samples only (a whole hour's table would weigh on both sides alike)
-    n = int(np.searchsorted(drive.times, short.duration, side="right")) + 1
-    short = dataclasses.replace(short, drive=dataclasses.replace(drive, times=drive.times[:n], values=drive.values[:n]))
-    out, states = {}, {}
-    for name, least in (("absorbed", stepper.ABSORB_MIN), ("one_by_one", 10**15)):
-        saved, stepper.ABSORB_MIN = stepper.ABSORB_MIN, least
-        try:
-            start = time.perf_counter()
-            states[name] = np.concatenate([w.states for w in stream(short)])
-            out[name] = time.perf_counter() - start
-        finally:
-            stepper.ABSORB_MIN = saved
-    out["seconds"], out["identical"] = short.duration, bool(np.array_equal(states["absorbed"], states["one_by_one"]))
-    return out
-
-
-def main_replay(minutes: float = 60.0, dt: float = 1e-3) -> int:
-    """``belt-drive bench replay``: a ``minutes``-long 1 kHz torque bag replayed offline to MCAP (prints the split)."""
-    print(f"Offline replay of a {minutes:g}-minute 1 kHz torque bag to MCAP (belt-drive sim SCENE --torque-bag BAG "
-          f"--out OUT.mcap; engine_idle, flexible, dt = {dt * 1e3:g} ms; target <= {REPLAY_TARGET_S:g} s for 60 min)")
-    with tempfile.TemporaryDirectory() as tmp:
-        bag = Path(tmp) / "torque.mcap"
-        start = time.perf_counter()
-        n = make_torque_bag(bag, minutes)
-        _line("bag generated (not timed)", f"{n:,} messages, {os.path.getsize(bag) / 2**20:.1f} MiB in "
-              f"{time.perf_counter() - start:.1f} s")
-        r = replay_to_mcap(bag, Path(tmp) / "out.mcap", dt)
-    scale = 60.0 / minutes
-    _line("wall time", f"{r['total']:.1f} s ({r['total'] * scale:.1f} s per hour)   "
-          f"[target <= {REPLAY_TARGET_S:g} s per hour: {'ok' if r['total'] * scale <= REPLAY_TARGET_S else 'MISSED'}]")
-    _line("  read the bag", f"{r['read']:.1f} s")
-    _line("  simulation (stream windows)", f"{r['simulate']:.1f} s ({r['samples'] / max(r['simulate'], 1e-9) / 1e6:.2f} M samples/s)")
-    _line("  writing (encode, blocks, compression wait)", f"{r['write']:.1f} s ({r['messages'] / max(r['write'], 1e-9) / 1e6:.2f} M messages/s)")
-    _line("  old writer, message by message (estimate)", f"{r['old_write_estimate']:.1f} s (its first windows, scaled to the run)")
-    p = r["plans"]
-    _line(f"  simulation of the first {p['seconds']:g} s, absorbed", f"{p['absorbed']:.2f} s "
-          f"(x{p['one_by_one'] / max(p['absorbed'], 1e-9):.1f} against {p['one_by_one']:.2f} s planned step by step, "
-          f"as before; states {'bit-identical' if p['identical'] else 'DIFFER'})")
-    _line("process CPU", f"{r['cpu']:.1f} s (writer threads included)")
-    _line("output", f"{r['messages']:,} messages, {r['bytes'] / 2**20:.0f} MiB")
-    _line("memory", f"peak RSS {r['peak_rss_mib']:.0f} MiB (+{r['rss_growth_mib']:.0f} MiB during the replay; "
-          "windows of 50,000 samples; one window's block compressed while the next is computed)")
-    return 0
 
 
 def main(argv: Optional[List[str]] = None) -> int:

@@ -53,6 +53,7 @@ examples:
   belt-drive bench hostile --only campaign bagdir --out /tmp/hostile
   belt-drive bench kernel --out /tmp/k           # the compiled kernel's figures (a minute)
   belt-drive bench replay --minutes 60           # the 1-hour torque bag replayed to MCAP
+  belt-drive bench replay --baseline /work/main  # ... beside another checkout, in one run
 
 Each study writes a CSV and a PNG into --out. CPU time is process time, the
 minimum of repeats; BLAS runs single-threaded (OPENBLAS_NUM_THREADS=1) so that
@@ -77,6 +78,8 @@ def register(sub) -> None:
     p.add_argument("--seconds", type=float, default=60.0, help="soak: measured seconds (default 60)")
     p.add_argument("--duration", type=float, default=30.0, help="node: measured seconds (default 30)")
     p.add_argument("--minutes", type=float, default=60.0, help="replay: minutes of 1 kHz torque bag (default 60)")
+    p.add_argument("--baseline", metavar="DIR", help="replay: a checkout of another commit (its numba cache warm) "
+                   "measured beside this tree in the same run")
     p.add_argument("--floor", action="store_true",
                    help="node: then measure the same process without the model (rclpy + DDS only) for comparison")
     p.add_argument("--only", nargs="+", metavar="CATEGORY",
@@ -133,9 +136,9 @@ def run(args) -> int:
 
         return hostile.main(["--out", str(out)] + (["--quick"] if args.quick else []) + (["--only", *args.only] if args.only else []))
     if args.study == "replay":
-        from ..benchmarks import recording
+        from ..benchmarks import replay
 
-        return recording.main_replay(args.minutes if not args.quick else 1.0)
+        return replay.main(args.minutes if not args.quick else 1.0, baseline=args.baseline)
     if args.study == "kernel":
         from ..benchmarks import kernel
 

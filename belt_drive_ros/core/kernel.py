@@ -55,8 +55,31 @@ _INLINE = dict(cache=True, nogil=True, inline="always")
 # ------------------------------------------------------------- profiles
 @njit(**_JIT)
 def _bisect_right(xs, offset, n, x):
-    """Index ``i`` in ``[0, n]`` with ``xs[offset + j] <= x`` for all j < i (as :func:`bisect.bisect_right`)."""
+    """Index ``i`` in ``[0, n]`` with ``xs[offset + j] <= x`` for all j < i (as :func:`bisect.bisect_right`).
+
+    Inside the table the search starts where ``x`` would lie if the points were evenly spaced (a
+    recording's samples nearly are: found in a step or two, however long the table) and widens by
+    doubling until it brackets ``x``; then halving. The index is the same as a plain bisection's.
+    """
     lo, hi = 0, n
+    if n > 8 and xs[offset] <= x < xs[offset + n - 1]:
+        g = int((x - xs[offset]) / (xs[offset + n - 1] - xs[offset]) * (n - 1))
+        g = 0 if g < 0 else n - 2 if g > n - 2 else g
+        width = 1
+        if xs[offset + g] <= x:  # the answer is above g: xs[j] <= x for every j <= g
+            lo, hi = g + 1, g + 1 + width
+            while hi < n and xs[offset + hi] <= x:
+                lo = hi + 1
+                width *= 2
+                hi = lo + width
+            hi = n if hi > n else hi
+        else:  # the answer is at most g: xs[j] > x for every j >= g
+            lo, hi = g - width, g
+            while lo >= 0 and xs[offset + lo] > x:
+                hi = lo
+                width *= 2
+                lo = hi - width
+            lo = 0 if lo < 0 else lo + 1
     while lo < hi:
         mid = (lo + hi) // 2
         if x < xs[offset + mid]:

@@ -18,23 +18,18 @@ from .bag_layout import JOINT_NAMES, JOINT_STATE, STRING, TF_MESSAGE
 _F64_HEADER = b"\x00\x01\x00\x00"
 
 
-def _messages(template: bytes, fields: dict, n: int) -> np.ndarray:
-    """``n`` copies of ``template`` as a structured array whose ``fields`` (name: (dtype, offset)) are the
-    variable parts: numpy writes each field of each message as one unit (its bytes: ``.view(np.uint8)``)."""
-    dtype = np.dtype({"names": ["all"] + list(fields), "formats": [(np.void, len(template))] + [f for f, _ in fields.values()],
-                      "offsets": [0] + [o for _, o in fields.values()], "itemsize": len(template)})
-    out = np.empty(n, dtype=dtype)
-    out["all"] = np.frombuffer(template, dtype=(np.void, len(template)))[0]
-    return out
+def float64_messages(values: np.ndarray):
+    """CDR of ``std_msgs/Float64`` for each value (header ``00 01 00 00`` little endian, then the IEEE
+    double) as :class:`msg_tools.block_writer.FixedMessages`."""
+    from msg_tools.block_writer import FixedMessages
+
+    raw = np.ascontiguousarray(values, dtype="<f8").reshape(-1)
+    return FixedMessages(_F64_HEADER + bytes(8), {"data": ("<f8", 4)}, {"data": raw})
 
 
 def float64_rows(values: np.ndarray) -> np.ndarray:
-    """CDR of ``std_msgs/Float64`` for each value as the rows of an ``(n, 12)`` uint8 array
-    (header ``00 01 00 00`` little endian, then the IEEE double)."""
-    raw = np.ascontiguousarray(values, dtype="<f8").reshape(-1)
-    out = _messages(_F64_HEADER + bytes(8), {"data": ("<f8", 4)}, raw.size)
-    out["data"] = raw
-    return out.view(np.uint8).reshape(raw.size, 12)
+    """:func:`float64_messages` as the rows of an ``(n, 12)`` uint8 array."""
+    return float64_messages(values).rows()
 
 
 def encode_float64(values: np.ndarray) -> List[bytes]:
@@ -156,20 +151,23 @@ class TfEncoder:
             pack_rotation(buf, rotation, sign * sin(half), cos(half))
         return bytes(buf)
 
-    def rows(self, stamp_ns: np.ndarray, angles: np.ndarray) -> np.ndarray:
-        """One message per row of an ``(n, size)`` uint8 array: ``stamp_ns`` (n,) [ns], ``angles`` (n, wheels) [rad]."""
+    def messages(self, stamp_ns: np.ndarray, angles: np.ndarray):
+        """The messages at ``stamp_ns`` (n,) [ns] for ``angles`` (n, wheels) [rad] as
+        :class:`msg_tools.block_writer.FixedMessages`."""
+        from msg_tools.block_writer import FixedMessages
+
         stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
-        n = stamp_ns.size
-        fields = {}
+        fields, values = {}, {}
+        sec, nsec = np.divmod(stamp_ns, 1_000_000_000)
+        q = self.quaternions(angles).reshape(stamp_ns.size, len(self._stamps), 2)  # (n, wheels, 2)
         for k, (stamp, rotation) in enumerate(zip(self._stamps, self._rotations)):
             fields.update({f"sec{k}": ("<i4", stamp), f"nsec{k}": ("<u4", stamp + 4), f"q{k}": (("<f8", 2), rotation)})
-        out = _messages(self._template, fields, n)
-        if n:
-            sec, nsec = np.divmod(stamp_ns, 1_000_000_000)
-            q = self.quaternions(angles)  # (n, wheels, 2)
-            for k in range(len(self._stamps)):
-                out[f"sec{k}"], out[f"nsec{k}"], out[f"q{k}"] = sec, nsec, q[:, k, :]
-        return out.view(np.uint8).reshape(n, len(self._template))
+            values.update({f"sec{k}": sec, f"nsec{k}": nsec, f"q{k}": q[:, k, :]})
+        return FixedMessages(self._template, fields, values)
+
+    def rows(self, stamp_ns: np.ndarray, angles: np.ndarray) -> np.ndarray:
+        """One message per row of an ``(n, size)`` uint8 array: ``stamp_ns`` (n,) [ns], ``angles`` (n, wheels) [rad]."""
+        return self.messages(stamp_ns, angles).rows()
 
     def encode_many(self, stamp_ns: np.ndarray, angles: np.ndarray) -> List[bytes]:
         """The messages of :meth:`rows`, one ``bytes`` each."""
@@ -216,15 +214,15 @@ def _joint_state_layout(names: Sequence[str], frame_id: str) -> Tuple[bytes, Lis
     return layout
 
 
-def joint_state_rows(stamp_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray, effort: np.ndarray,
-                     names: Sequence[str] = JOINT_NAMES, frame_id: str = "") -> np.ndarray:
-    """CDR of ``sensor_msgs/JointState`` messages as the rows of an ``(N, size)`` uint8 array.
+def joint_state_messages(stamp_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray, effort: np.ndarray,
+                         names: Sequence[str] = JOINT_NAMES, frame_id: str = ""):
+    """CDR of ``sensor_msgs/JointState`` messages as :class:`msg_tools.block_writer.FixedMessages`.
 
     The layout of a JointState with fixed names and array sizes does not
     change from message to message: one message encoded with
     :func:`msg_tools.encode` (zero padding) is the template, and the stamps
-    and values are written into copies of it. Each row is byte-identical to
-    encoding its message with :func:`msg_tools.encode` (a test checks).
+    and values are written into copies of it. Each message is byte-identical to
+    encoding it with :func:`msg_tools.encode` (a test checks).
 
     Parameters
     ----------
@@ -233,15 +231,23 @@ def joint_state_rows(stamp_ns: np.ndarray, position: np.ndarray, velocity: np.nd
     position, velocity, effort : (N, J) float
         One column per joint of ``names``.
     """
+    from msg_tools.block_writer import FixedMessages
+
     stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
     n, joints = len(stamp_ns), len(names)
     template, offsets = _joint_state_layout(names, frame_id)
-    out = _messages(template, {"sec": ("<i4", 4), "nanosec": ("<u4", 8), "position": (("<f8", joints), offsets[0]),
-                               "velocity": (("<f8", joints), offsets[1]), "effort": (("<f8", joints), offsets[2])}, n)
-    out["sec"], out["nanosec"] = np.divmod(stamp_ns, 1_000_000_000)
-    for name, values in (("position", position), ("velocity", velocity), ("effort", effort)):
-        out[name] = np.asarray(values, dtype=float).reshape(n, joints)
-    return out.view(np.uint8).reshape(n, len(template))
+    sec, nanosec = np.divmod(stamp_ns, 1_000_000_000)
+    return FixedMessages(template, {"sec": ("<i4", 4), "nanosec": ("<u4", 8), "position": (("<f8", joints), offsets[0]),
+                                    "velocity": (("<f8", joints), offsets[1]), "effort": (("<f8", joints), offsets[2])},
+                         {"sec": sec, "nanosec": nanosec,
+                          **{name: np.asarray(values, dtype=float).reshape(n, joints)
+                             for name, values in (("position", position), ("velocity", velocity), ("effort", effort))}})
+
+
+def joint_state_rows(stamp_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray, effort: np.ndarray,
+                     names: Sequence[str] = JOINT_NAMES, frame_id: str = "") -> np.ndarray:
+    """:func:`joint_state_messages` as the rows of an ``(N, size)`` uint8 array."""
+    return joint_state_messages(stamp_ns, position, velocity, effort, names, frame_id).rows()
 
 
 def encode_joint_states(stamp_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray,

@@ -89,7 +89,7 @@ from .bag_layout import (  # noqa: F401 - re-exported
 )  # fmt: skip
 from .cdr_encoders import (  # noqa: F401 - re-exported
     _F64_HEADER, JointStateEncoder, TfEncoder, encode_float64, encode_joint_states, encode_robot_description,
-    float64_rows, joint_state_rows,
+    float64_messages, float64_rows, joint_state_messages, joint_state_rows,
 )  # fmt: skip
 
 __all__ = [
@@ -380,19 +380,19 @@ class ResultMcapWriter:
         self.samples += int(index.size)
         t_ns = np.round(np.asarray(result.time, dtype=float)[index] * 1e9).astype(np.int64) + self.start_time_ns
         o = {name: np.asarray(values)[index] for name, values in result.outputs.items()}
-        payloads: List[np.ndarray] = []  # (samples, message size) bytes per topic
+        payloads: list = []  # the messages of each topic (msg_tools.block_writer.FixedMessages)
         for topic, type_name, signal in self.payload_topics:
             if signal is None:
                 zeros = np.zeros(index.size)
                 position = np.column_stack([o["phi_M"], o["phi_1"], o["phi_2"], o["phi_3"]])
                 velocity = np.column_stack([o["omega_M"], o["omega_1"], o["omega_2"], o["omega_3"]])
                 effort = np.column_stack([o["drive_torque"], zeros, zeros, -o["load_torque"]])
-                payloads.append(joint_state_rows(t_ns, position, velocity, effort))
+                payloads.append(joint_state_messages(t_ns, position, velocity, effort))
             elif signal == TF_TOPIC:
                 phi = np.column_stack([o["phi_M"], o["phi_1"], o["phi_2"], o["phi_3"]])
-                payloads.append(self._tf.rows(t_ns, phi))
+                payloads.append(self._tf.messages(t_ns, phi))
             else:
-                payloads.append(float64_rows(np.asarray(o[signal], dtype=float)))
+                payloads.append(float64_messages(np.asarray(o[signal], dtype=float)))
         try:
             if not self._topics_added:
                 self._add_topics(int(t_ns[0]))
@@ -417,7 +417,7 @@ class ResultMcapWriter:
             self.writer.write_block(topics, t_ns, payloads)
             return
         write = self.writer.write_raw
-        rows = [[row.tobytes() for row in p] for p in payloads]
+        rows = [[row.tobytes() for row in p.rows()] for p in payloads]
         for k, t in enumerate(t_ns.tolist()):
             for (topic, type_name), data in zip(topics, rows):
                 write(topic, type_name, data[k], t)

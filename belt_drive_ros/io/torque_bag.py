@@ -89,14 +89,12 @@ class RecordedTorque(Table):
         super().__post_init__()
         if self.interpolation != "previous":
             raise ValueError("RecordedTorque: interpolation must be 'previous' (zero-order hold)")
-        object.__setattr__(self, "_times_ns", np.round(self.times * 1e9).astype(np.int64))
-
     def encode(self, builder):
         # The hold switches at whole nanoseconds: ``t`` is rounded to the nearest ns before the
         # lookup, so a step that starts at a message's time uses that message even when the
         # integrator's float time grid (dt * k) lands a rounding error below it. The switching
-        # times are whole ns as floats (exact below 2**53 ns, 104 days).
-        offset, n = builder.table(self._times_ns.astype(np.float64), self.values)
+        # times are whole ns as floats (exact below 2**53 ns, 104 days; rint as the int64 round trip).
+        offset, n = builder.table(np.rint(self.times * 1e9), self.values)
         return builder.row(TABLE_HELD_NS, offset, n)
 
     def left_of(self, t: float) -> float:
@@ -252,7 +250,12 @@ def _zoh_table(times_ns: np.ndarray, values: np.ndarray) -> Tuple[np.ndarray, np
     rel = times_ns - times_ns[0]
     last = np.ones(rel.size, dtype=bool)
     last[:-1] = rel[1:] != rel[:-1]
-    return rel[last].astype(np.float64) * 1e-9, values[last]
+    if not last.all():  # (no copies of an hour's samples when no two share a time)
+        rel, values = rel[last], values[last]
+    times = rel.astype(np.float64)
+    del rel
+    times *= 1e-9  # the float product rel * 1e-9, in place
+    return times, values
 
 
 def scene_with_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Optional[float] = None,
