@@ -207,7 +207,7 @@ class TickKernel:
                                     [p.F_0, p.r_3, p.capstan_ratio, stepper.origin, stepper.dt, limit], at]).astype(np.float64)
         #: the outputs of the last :meth:`step` [SI units, OUTPUT_UNITS order; slack/slip as 0.0/1.0]
         self.y = np.zeros(len(OUTPUT_UNITS))
-        self.n, self.dt = n, stepper.dt
+        self.n, self.dt, self.origin = n, stepper.dt, stepper.origin
         self.step_ns = grid_step_ns(self.dt, stepper.origin)
         self._out = np.empty((1, n))
         self._loop = (loop.reals, loop.ints, loop._dp, loop._lp)
@@ -327,7 +327,7 @@ class SlipTickKernel:
                                 p.capstan_factor, engine.origin], dtype=np.float64)  # fmt: skip
         self._msg, self.message, at = joints_message()
         self.consts = np.concatenate([self.consts, at])
-        self.engine, self.dt, self.limit = engine, engine.dt, limit
+        self.engine, self.dt, self.origin, self.limit = engine, engine.dt, engine.origin, limit
         self.step_ns = grid_step_ns(engine.dt, engine.origin)
         self.y = np.zeros(22)
         self.x = np.zeros(6)

@@ -308,14 +308,18 @@ class NodeSimulation:
         d0, d1 = self.t_ns - origin, now_ns - origin
         if step and d0 % step == 0 and d1 % step == 0:
             # both ends on the grid (the usual tick): what scene_time gives them, without its general rounding
+            # (the grid times origin + k dt of Stepper.grid_time, the same floats)
             st = self.stepper
             k0, k1 = d0 // step, d1 // step
-            t0, t1 = st.grid_time(k0), st.grid_time(k1)
+            t0, t1 = fast.origin + k0 * fast.dt, fast.origin + k1 * fast.dt
             self._scene_time = (now_ns, st, origin, t1, self.t_ns, t0)
-            value = self._sample(now_ns)  # needs no state: known before the interval is integrated
-            held = self.drive.applied
-            jump0, jump1 = self._held_jump == t0, value is not None and value != held.value
-            if (not (jump0 or jump1) or k1 - k0 == 1 or self.hybrid is not None) and self._free(t0, t1, k0, k1):
+            s = self.settings
+            value = self._sample(now_ns) if s.drive_source == "topic" else None  # known before the interval is integrated
+            jump0 = self._held_jump == t0
+            jump1 = value is not None and value != self.drive.applied.value
+            lo, hi = self._free_k
+            if (not (jump0 or jump1) or k1 - k0 == 1 or self.hybrid is not None) and (
+                    lo <= k0 and k1 <= hi or self._free(t0, t1, k0, k1)):
                 # whole grid steps away from the plant's breakpoints: one compiled call, steps and outputs
                 # (core.tick; the same floats as the stepper's). A held-torque jump at t0 or t1 is a
                 # breakpoint there: the stepper's special step clamps the torque times as these do.
