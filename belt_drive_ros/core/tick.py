@@ -249,14 +249,16 @@ SLIP_CONSTANTS = ("ratio", "r_3", "a_1", "g", "F_0", "q_1", "q_2", "q_3", "rel_2
 
 
 @njit(cache=True, nogil=True)
-def slip_tick(k0, grid, knots, lo, hi, special, kind, x, dt, limit, out_y, out_mode, out_sigma, out_native, reals, ints,
+def slip_tick(k0, grid, knots, lo, hi, special, kind, xs, sigma5, x, dt, limit, out_y, out_mode, out_sigma, out_native, reals, ints,
               offsets, have, Yflex, Minv, Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly, events, consts,
               y, drive, stamp, msg):  # fmt: skip
     """The slipping belt's tick: :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps` over
     ``grid.size - 1`` whole grid steps from grid index ``k0``, then every output of the slipping
     model at the last knot into ``y``.
 
-    ``grid``, ``knots``: buffers the grid times are written into; the other
+    ``xs``: the phase coordinates of the hybrid state the steps start from, copied into the
+    buffer ``x`` (zeros after them; ``sigma5``, unless NaN, at ``x[5]``: the stepwise phase's
+    direction). ``grid``, ``knots``: buffers the grid times are written into; the other
     arguments up to ``events`` are the hybrid loop's (its call from step 0
     with no events recorded yet; ``lo``, ``hi``: each step's torque-time clamps, as
     :func:`linear_tick`'s); ``consts``: :data:`SLIP_CONSTANTS`, the grid's origin [s], then
@@ -270,6 +272,10 @@ def slip_tick(k0, grid, knots, lo, hi, special, kind, x, dt, limit, out_y, out_m
     Returns the hybrid loop's ``(next step, status, kind, sigma, events)``;
     ``y`` is written only when the loop is done (status 0).
     """
+    for j in range(x.size):
+        x[j] = xs[j] if j < xs.size else 0.0
+    if sigma5 == sigma5:
+        x[5] = sigma5
     for j in range(grid.size):  # the grid times origin + dt k of Stepper._grid; the knots are them
         grid[j] = consts[16] + dt * float(k0 + j)
         knots[j] = grid[j]
@@ -333,6 +339,20 @@ class SlipTickKernel:
         self.x = np.zeros(6)
         self.events = np.zeros((1024, 8))  # the hybrid loop wants room for a chattering step's switches
         self._buffers(1)
+        self._built = -1  # how many phase steppers the engine had when its arrays were packed (see _pack)
+        self._tail: tuple | None = None  # slip_tick's arguments from reals on (None: the engine cannot compile)
+        self._state, self._code = None, 0  # the hybrid state the last advance returned, its kind code
+
+    def _pack(self) -> None:
+        """The engine's compiled arrays as :func:`slip_tick`'s trailing arguments (again whenever a phase's
+        stepper was built since: the engine only adds them)."""
+        compiled = self.engine._compiled()
+        self._built = len(self.engine._steppers)
+        if compiled is None:
+            self._tail = None
+            return
+        have, reals, ints, offsets, Yflex, Minv, arrays = compiled
+        self._tail = (reals, ints, offsets, have, Yflex, Minv, *arrays, self.events, self.consts, self.y)
 
     def _buffers(self, N: int) -> None:
         """The hybrid loop's arrays for ``N`` whole steps without clamps or splits."""
@@ -355,30 +375,31 @@ class SlipTickKernel:
         the last one's, ``drive`` as :func:`slip_tick`'s. None when the step needs the engine's own
         :meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.advance` (a mode switch in it, a
         failure: it redoes the step from ``state`` and reports them)."""
-        compiled = self.engine._compiled()
-        if compiled is None:
+        if len(self.engine._steppers) != self._built:
+            self._pack()
+        if self._tail is None:
             return None
-        buf = self.x
-        buf[:] = 0.0
-        buf[: state.x.size] = state.x
-        if state.kind == "hybrid":
-            buf[5] = state.sigma
+        if state is self._state:  # the usual tick: the state the last call returned (its own C array)
+            code, xs = self._code, state.x
+        else:
+            code, xs = _kind_code(state), np.array(state.x, dtype=np.float64)
         if k1 - k0 != self.N:
             self._buffers(k1 - k0)
         clamped = lo != -math.inf or hi != math.inf
         if clamped:
             self.lo[0], self.hi[-1] = lo, hi
-        have, reals, ints, offsets, Yflex, Minv, arrays = compiled
         k1, status, kind, sigma, n_ev = slip_tick(
-            k0, self.grid, self.knots, self.lo, self.hi, self.special, _kind_code(state), buf, self.dt, self.limit,
-            self.out_y, self.out_mode, self.out_sigma, self.out_native, reals, ints, offsets, have, Yflex, Minv,
-            *arrays, self.events, self.consts, self.y, drive, stamp, self._msg,
+            k0, self.grid, self.knots, self.lo, self.hi, self.special, code, xs,
+            state.sigma if state.kind == "hybrid" else math.nan, self.x, self.dt, self.limit, self.out_y,
+            self.out_mode, self.out_sigma, self.out_native, *self._tail, drive, stamp, self._msg,
         )  # fmt: skip
         if clamped:
             self.lo[0], self.hi[-1] = -math.inf, math.inf
         if status != 0 or n_ev:
             return None
-        return SlipState(STICK if kind <= STICKING else SLIP, float(sigma), KIND_NAMES[kind], buf[: PHASE_SIZE[kind]].copy())
+        state = SlipState(STICK if kind <= STICKING else SLIP, float(sigma), KIND_NAMES[kind], self.x[: PHASE_SIZE[kind]].copy())
+        self._state, self._code = state, kind  # (= _kind_code(state): the loop's code of that phase)
+        return state
 
     def state_y(self) -> np.ndarray:
         """The slipping state ``y`` (5,) after the last :meth:`advance` (the engine's ``state_y`` of it)."""
