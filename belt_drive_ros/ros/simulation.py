@@ -98,6 +98,8 @@ class NodeSimulation:
         self.last_divergence: tuple[str, int] | None = None
         #: scene time [s] at which the held drive torque last changed (a breakpoint of the drive), or None
         self._held_jump: float | None = None
+        #: the held drive torque's value [N m] (drive.applied.value, kept as a float for the tick's comparison)
+        self._held = drive.applied.value
 
     # ------------------------------------------------------------- settings
     def _make_stepper(self, s: NodeSettings) -> Stepper | SlippingSimulator:
@@ -268,7 +270,7 @@ class NodeSimulation:
             return
         held = self.drive.applied
         self._held_jump = None if first or value == held.value else t
-        held.value = value
+        held.value = self._held = value
 
     def _drive_breakpoints(self, t0: float, t1: float, value: float | None) -> None:
         """The stepper's breakpoints for the advance t0 -> t1: the plant's, plus where the held torque jumps.
@@ -314,9 +316,13 @@ class NodeSimulation:
             t0, t1 = fast.origin + k0 * fast.dt, fast.origin + k1 * fast.dt
             self._scene_time = (now_ns, st, origin, t1, self.t_ns, t0)
             s = self.settings
-            value = self._sample(now_ns) if s.drive_source == "topic" else None  # known before the interval is integrated
+            value = None  # the sample at now_ns: known before the interval is integrated (_sample)
+            if s.drive_source == "topic":
+                value, warning = self.drive.sample(now_ns, origin, s)
+                if warning:
+                    self.log.warn(warning)
             jump0 = self._held_jump == t0
-            jump1 = value is not None and value != self.drive.applied.value
+            jump1 = value is not None and value != self._held
             lo, hi = self._free_k
             if (not (jump0 or jump1) or k1 - k0 == 1 or self.hybrid is not None) and (
                     lo <= k0 and k1 <= hi or self._free(t0, t1, k0, k1)):
@@ -332,6 +338,8 @@ class NodeSimulation:
                         self.x = out[-1]  # a row of the tick kernel's buffer, written again by the next tick
                         self.t_ns = self._fresh_ns = now_ns
                         self._held_jump = t1 if jump1 else None  # what _hold makes of the sample
+                        if jump1:
+                            self._held = value  # (the kernel wrote it into the held torque)
                         return True
                 else:  # the slipping belt: steps without a mode switch (else the engine's path)
                     hybrid = fast.advance(self.hybrid, k0, k1, lo, hi, drive, now_ns)
@@ -339,6 +347,8 @@ class NodeSimulation:
                         self.hybrid, self.x = hybrid, fast.state_y()
                         self.t_ns = self._fresh_ns = now_ns
                         self._held_jump = t1 if jump1 else None
+                        if jump1:
+                            self._held = value
                         return True
         else:
             t0, t1 = self.scene_time(self.t_ns), self.scene_time(now_ns)
