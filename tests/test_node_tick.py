@@ -73,6 +73,48 @@ def test_linear_tick_equals_the_general_path_bit_for_bit_through_torque_changes(
     assert np.all(np.isfinite(a)) and np.ptp(a[:, 1]) > 0.0  # the drive moved
 
 
+def test_ticks_at_torque_changes_are_compiled_too_and_equal_the_general_path():
+    # a change at tick k is a breakpoint at t_k (the step before ends there, clamped to its left) and
+    # at t_k for the step after: the general path's special steps; the compiled tick takes the same clamps
+    torques = {k: 1.0 + 0.5 * (k % 5) for k in range(3, 300, 2)}  # a change every other tick
+    fast, a, b, sims = _lockstep({"drive_source": "topic"}, 300, torques)
+    assert fast == 299  # every tick but the first (which starts the run)
+    assert np.array_equal(a, b) and np.ptp(a[:, 8]) > 0.0  # drive torque (output 8) changed
+
+
+def test_slipping_ticks_at_torque_changes_equal_the_engine():
+    torques = {k: 40.0 + 15.0 * ((k // 7) % 7) for k in range(5, 1500, 7)}  # a change every 7th tick
+    fast, a, b, sims = _lockstep({"scene": "truck_compressor", "model": "slipping", "drive_source": "topic"}, 1500,
+                                 torques)
+    assert np.array_equal(a, b)
+    assert sims[0].slip_events == sims[1].slip_events
+    # every tick without a mode switch is compiled, the change ticks among them (only a switch goes to the engine)
+    assert fast + sims[0].counters["slip_events"] >= 1495 and fast > 1200  # (and the two ticks at the load's breakpoint)
+
+
+@pytest.mark.parametrize("values", [{"drive_source": "topic"},
+                                    {"scene": "truck_compressor", "model": "slipping", "drive_source": "topic"}])
+def test_joint_states_message_written_by_the_tick_equals_the_encoder(values):
+    from belt_drive_ros.io.cdr_encoders import JointStateEncoder
+
+    sims = _pair(values)
+    sim, encoder = sims[0], JointStateEncoder(4)
+    tick_ns = sim.settings.tick_ns
+    written = 0
+    for k in range(200):
+        now = 1_700_000_000_123_000_000 + k * tick_ns
+        if k % 9 == 4:
+            sim.drive.receive(3.0 + k % 4, now - 1, sim.settings)
+        sim.advance_to(now)
+        v = sim.values(now)
+        expected = encoder.encode(now, (v[0], v[2], v[4], v[6], v[1], v[3], v[5], v[7], v[8], 0.0, 0.0, -v[9]))
+        message = sim.joint_message(now)
+        if message is not None:
+            written += 1
+            assert message == expected
+    assert written > 150
+
+
 def test_linear_tick_with_substeps_and_the_scene_drive_across_its_breakpoints():
     # paper's scene drive ramps (a breakpoint at the ramp's end) and the step 4 substeps per tick
     fast, a, b, sims = _lockstep({"drive_source": "scene", "substeps": 4}, 400)

@@ -24,9 +24,19 @@ Bit for bit the operations of the reference path (the stepper's
   F_slack capstan_ratio`` (:func:`~belt_drive_ros.core.model.span_forces`),
   the flags as 0.0/1.0.
 
-Only the tick the general path would take as plain whole steps comes here
-(no breakpoint near, no held-torque jump, a kernel loop without extra
-inputs); every other tick goes through the stepper as before.
+A tick at which the held drive torque changes comes here too when it is one
+grid step: the general path then clamps the step's torque times to
+``[lo, hi]`` (``lo = t0`` after a jump at ``t0``, ``hi = left_of(t1)``
+before one at ``t1``: the stepper's special step) and evaluates the outputs
+at ``t1`` with the new value; the kernel takes the same clamps and writes
+the new value into the held torque's data between the two (``drive``).
+Ticks near a plant breakpoint, or a held-torque jump in a tick of several
+steps, a kernel loop with extra inputs: the stepper as before.
+
+The kernels also write the tick's ``joint_states`` message into a byte
+buffer the caller lays out (:func:`write_joints`): the stamp and the twelve
+doubles (positions, velocities, efforts) at the offsets it gives, so the
+node publishes the bytes without building them in Python.
 """
 
 from __future__ import annotations
@@ -69,15 +79,42 @@ def _coordinate(rows, q, n, x):
 
 
 @njit(cache=True, nogil=True)
-def linear_tick(k0, steps, x, out, reals, ints, dp, lp, rows, y):
-    """``steps`` whole grid steps from grid index ``k0`` (state ``x``) into ``out``, then the outputs into ``y``.
+def write_joints(y, msg, at, stamp):
+    """The tick's ``joint_states`` into the message buffer ``msg`` (uint8, its size a multiple of 8, 8-byte aligned).
+
+    ``at`` (floats holding whole numbers): the float64 index in ``msg`` of the
+    positions, velocities and efforts (four each), then the uint32 index of
+    the stamp's seconds (its nanoseconds follow). ``stamp`` [ns] >= 0. The
+    joints ``wheel_M, wheel_1, wheel_2, wheel_3``: positions ``y[0], y[2],
+    y[4], y[6]``, velocities ``y[1], y[3], y[5], y[7]``, efforts ``y[8], 0, 0,
+    -y[9]`` (drive torque, minus the load torque) of :data:`~belt_drive_ros.core.model.OUTPUT_UNITS`.
+    """
+    f = msg.view(np.float64)
+    w = msg.view(np.uint32)
+    p, v, e, s = int(at[0]), int(at[1]), int(at[2]), int(at[3])
+    for j in range(4):
+        f[p + j] = y[2 * j]
+        f[v + j] = y[2 * j + 1]
+    f[e], f[e + 1], f[e + 2], f[e + 3] = y[8], 0.0, 0.0, -y[9]
+    w[s] = stamp // 1000000000
+    w[s + 1] = stamp % 1000000000
+
+
+@njit(cache=True, nogil=True)
+def linear_tick(k0, steps, x, out, lo, hi, drive, stamp, reals, ints, dp, lp, rows, y, msg):
+    """``steps`` whole grid steps from grid index ``k0`` (state ``x``) into ``out``, then the outputs into ``y``
+    and the ``joint_states`` message stamped ``stamp`` [ns] into ``msg`` (:func:`write_joints`).
 
     ``reals, ints, dp, lp``: the stepper's kernel loop
     (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`); ``rows`` packs
-    ``[W (4 n), C (12 n), D (12 x 2), F_0, r_3, capstan_ratio, origin, dt, speed limit]``
-    (:class:`TickKernel`). ``x`` may be a row of ``out`` (the kernel reads it
-    before it writes). Returns ``(done, status, t)`` of the kernel; ``y`` is
-    written only when every step is done (status OK).
+    ``[W (4 n), C (12 n), D (12 x 2), F_0, r_3, capstan_ratio, origin, dt, speed limit, message layout (4)]``
+    (:class:`TickKernel`). ``lo, hi`` [s]: the torque times clamped to them
+    (``-inf, inf``: none; the stepper's special step at a held-torque jump);
+    ``drive``: NaN, or the held drive torque's new value [N m], written into
+    ``dp[0, 0]`` (the held torque's data) after the steps, before the
+    outputs. ``x`` may be a row of ``out`` (the kernel reads it before it
+    writes). Returns ``(done, status, t)`` of the kernel; ``y``, ``msg`` and
+    ``dp`` are written only when every step is done (status OK).
     """
     n = x.size
     d0 = 16 * n
@@ -85,9 +122,11 @@ def linear_tick(k0, steps, x, out, reals, ints, dp, lp, rows, y):
     times = np.empty(steps + 1)
     for j in range(steps + 1):
         times[j] = origin + dt * float(k0 + j)
-    done, status, t = linear_steps(times, x, out, -math.inf, math.inf, limit, reals, ints, dp, lp)
+    done, status, t = linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp)
     if status != 0:
         return done, status, t
+    if drive == drive:
+        dp[0, 0] = drive
     xe = out[steps - 1]
     # the profiles' data inside the loop's arrays (the layout linear_steps unpacks)
     s = ints[1]
@@ -115,6 +154,7 @@ def linear_tick(k0, steps, x, out, reals, ints, dp, lp, rows, y):
     y[12], y[13] = tight, slack_force
     y[14] = 1.0 if slack else 0.0
     y[15] = 1.0 if slack or tight > slack_force * capstan else 0.0
+    write_joints(y, msg, rows[d0 + 30 :], stamp)
     return done, status, t
 
 
@@ -126,6 +166,26 @@ def grid_step_ns(dt: float, origin: float) -> int:
     """
     step_ns = round(dt * 1e9)
     return step_ns if step_ns > 0 and step_ns / 1e9 == dt and origin == 0.0 else 0
+
+
+def joints_message(template: bytes | None = None, offsets=None) -> tuple[np.ndarray, memoryview, list]:
+    """``(msg, view, at)``: the buffer :func:`write_joints` writes a message into, the message's bytes
+    in it (a view: ``bytes(view)`` copies them) and its layout ``at``.
+
+    ``template``: the message's bytes, its stamp at bytes 4-12 (seconds, nanoseconds: little-endian
+    int32, uint32) and its positions, velocities and efforts (four little-endian doubles each)
+    at the byte ``offsets``, which must share one alignment (as CDR's sequences of doubles do).
+    None: a scratch message of that shape.
+    """
+    if template is None:
+        template, offsets = bytes(112), (12, 44, 76)
+    shift = -offsets[0] % 8  # where the template starts in the buffer, so that its doubles are 8-byte aligned
+    if any((shift + o) % 8 for o in offsets) or (shift + 4) % 4:
+        raise ValueError("joint_states layout: its double arrays do not share one alignment")
+    msg = np.zeros(-(-(shift + len(template)) // 8) * 8, dtype=np.uint8)
+    msg[shift : shift + len(template)] = np.frombuffer(template, dtype=np.uint8)
+    at = [float((shift + o) // 8) for o in offsets] + [float((shift + 4) // 4)]
+    return msg, memoryview(msg)[shift : shift + len(template)], at
 
 
 class TickKernel:
@@ -142,14 +202,23 @@ class TickKernel:
         n = model.A.shape[0]
         C, D = model.output_matrices()
         p = model.params
+        msg, self.message, at = joints_message()
         self.rows = np.concatenate([np.ravel(plant.wheel_map), np.ravel(C), np.ravel(D),
-                                    [p.F_0, p.r_3, p.capstan_ratio, stepper.origin, stepper.dt, limit]]).astype(np.float64)
+                                    [p.F_0, p.r_3, p.capstan_ratio, stepper.origin, stepper.dt, limit], at]).astype(np.float64)
         #: the outputs of the last :meth:`step` [SI units, OUTPUT_UNITS order; slack/slip as 0.0/1.0]
         self.y = np.zeros(len(OUTPUT_UNITS))
-        self.n, self.dt = n, stepper.dt
+        self.n, self.dt, self.origin = n, stepper.dt, stepper.origin
         self.step_ns = grid_step_ns(self.dt, stepper.origin)
         self._out = np.empty((1, n))
-        self._args = (loop.reals, loop.ints, loop._dp, loop._lp, self.rows, self.y)
+        self._loop = (loop.reals, loop.ints, loop._dp, loop._lp)
+        self._args = (*self._loop, self.rows, self.y, msg)
+
+    def set_message(self, template: bytes, offsets) -> None:
+        """Write the ``joint_states`` of each :meth:`step` into ``template``'s layout (:func:`joints_message`);
+        :attr:`message` then holds its bytes after a step."""
+        msg, self.message, at = joints_message(template, offsets)
+        self.rows[-4:] = at
+        self._args = (*self._loop, self.rows, self.y, msg)
 
     @classmethod
     def of(cls, stepper, limit: float):
@@ -159,8 +228,10 @@ class TickKernel:
             return None
         return cls(stepper, limit)
 
-    def step(self, x: np.ndarray, k0: int, k1: int):
-        """Whole grid steps k0 -> k1 from state ``x``: ``(states (k1 - k0, n), status)``; :attr:`y` at k1 when OK.
+    def step(self, x: np.ndarray, k0: int, k1: int, lo: float = -math.inf, hi: float = math.inf,
+             drive: float = math.nan, stamp: int = 0):
+        """Whole grid steps k0 -> k1 from state ``x``: ``(states (k1 - k0, n), status)``; :attr:`y` at k1
+        and :attr:`message` stamped ``stamp`` [ns] when OK (``lo``, ``hi``, ``drive``: :func:`linear_tick`'s).
 
         The states are written into a buffer kept for the next call (the
         last row is the next call's ``x``): a caller keeps them by copying.
@@ -168,7 +239,7 @@ class TickKernel:
         out = self._out
         if out.shape[0] != k1 - k0:
             out = self._out = np.empty((k1 - k0, self.n))
-        return out, linear_tick(k0, k1 - k0, x, out, *self._args)[1]
+        return out, linear_tick(k0, k1 - k0, x, out, lo, hi, drive, stamp, *self._args)[1]
 
 
 # ------------------------------------------------------------------ the slipping belt
@@ -178,16 +249,22 @@ SLIP_CONSTANTS = ("ratio", "r_3", "a_1", "g", "F_0", "q_1", "q_2", "q_3", "rel_2
 
 
 @njit(cache=True, nogil=True)
-def slip_tick(k0, grid, knots, lo, hi, special, kind, x, dt, limit, out_y, out_mode, out_sigma, out_native, reals, ints,
+def slip_tick(k0, grid, knots, lo, hi, special, kind, xs, sigma5, x, dt, limit, out_y, out_mode, out_sigma, out_native, reals, ints,
               offsets, have, Yflex, Minv, Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly, events, consts,
-              y):  # fmt: skip
+              y, drive, stamp, msg):  # fmt: skip
     """The slipping belt's tick: :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps` over
     ``grid.size - 1`` whole grid steps from grid index ``k0``, then every output of the slipping
     model at the last knot into ``y``.
 
-    ``grid``, ``knots``: buffers the grid times are written into; the other
+    ``xs``: the phase coordinates of the hybrid state the steps start from, copied into the
+    buffer ``x`` (zeros after them; ``sigma5``, unless NaN, at ``x[5]``: the stepwise phase's
+    direction). ``grid``, ``knots``: buffers the grid times are written into; the other
     arguments up to ``events`` are the hybrid loop's (its call from step 0
-    with no events recorded yet); ``consts``: :data:`SLIP_CONSTANTS` then the grid's origin [s]. ``y``
+    with no events recorded yet; ``lo``, ``hi``: each step's torque-time clamps, as
+    :func:`linear_tick`'s); ``consts``: :data:`SLIP_CONSTANTS`, the grid's origin [s], then
+    the message layout of :func:`write_joints`. ``drive``: NaN or the held drive torque's new
+    value, written into ``dp[0, 0]`` after the steps when no mode switched in them; ``stamp``,
+    ``msg``: the ``joint_states`` message (:func:`write_joints`). ``y``
     receives ``OUTPUT_UNITS + SLIP_OUTPUT_UNITS`` in order, the operations of
     :meth:`~belt_drive_ros.core.slip.SlippingBeltModel.outputs` on one sample
     (flags as 0.0/1.0), with ``u = [drive(t, phi_M, omega_M), load(t, phi_3, omega_3)]``
@@ -195,6 +272,10 @@ def slip_tick(k0, grid, knots, lo, hi, special, kind, x, dt, limit, out_y, out_m
     Returns the hybrid loop's ``(next step, status, kind, sigma, events)``;
     ``y`` is written only when the loop is done (status 0).
     """
+    for j in range(x.size):
+        x[j] = xs[j] if j < xs.size else 0.0
+    if sigma5 == sigma5:
+        x[5] = sigma5
     for j in range(grid.size):  # the grid times origin + dt k of Stepper._grid; the knots are them
         grid[j] = consts[16] + dt * float(k0 + j)
         knots[j] = grid[j]
@@ -203,6 +284,8 @@ def slip_tick(k0, grid, knots, lo, hi, special, kind, x, dt, limit, out_y, out_m
                                                  mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly, events, 0)  # fmt: skip
     if status != 0:
         return k1, status, kind, sigma, n_ev
+    if drive == drive and n_ev == 0:
+        dp[0, 0] = drive
     slipping = kind > STICKING
     sg = sigma
     last = grid.size - 2
@@ -234,6 +317,7 @@ def slip_tick(k0, grid, knots, lo, hi, special, kind, x, dt, limit, out_y, out_m
     y[16], y[17], y[18], y[19] = y1, slip_angle, y4, speed
     y[20] = Q / qmax if qmax > 0 else math.inf
     y[21] = qmax
+    write_joints(y, msg, consts[17:], stamp)
     return k1, status, kind, sigma, n_ev
 
 
@@ -247,12 +331,28 @@ class SlipTickKernel:
         self.consts = np.array([p.ratio, p.r_3, p.r_M / p.R_1, p.gear_ratio, p.F_0, q[1], q[2], q[3], rel[2], rel[3],
                                 p.c, 2.0 * p.k * p.r_3, 2.0 * p.c, p.r_2 * p.gear_ratio, float(p.belt_mass),
                                 p.capstan_factor, engine.origin], dtype=np.float64)  # fmt: skip
-        self.engine, self.dt, self.limit = engine, engine.dt, limit
+        self._msg, self.message, at = joints_message()
+        self.consts = np.concatenate([self.consts, at])
+        self.engine, self.dt, self.origin, self.limit = engine, engine.dt, engine.origin, limit
         self.step_ns = grid_step_ns(engine.dt, engine.origin)
         self.y = np.zeros(22)
         self.x = np.zeros(6)
         self.events = np.zeros((1024, 8))  # the hybrid loop wants room for a chattering step's switches
         self._buffers(1)
+        self._built = -1  # how many phase steppers the engine had when its arrays were packed (see _pack)
+        self._tail: tuple | None = None  # slip_tick's arguments from reals on (None: the engine cannot compile)
+        self._state, self._code = None, 0  # the hybrid state the last advance returned, its kind code
+
+    def _pack(self) -> None:
+        """The engine's compiled arrays as :func:`slip_tick`'s trailing arguments (again whenever a phase's
+        stepper was built since: the engine only adds them)."""
+        compiled = self.engine._compiled()
+        self._built = len(self.engine._steppers)
+        if compiled is None:
+            self._tail = None
+            return
+        have, reals, ints, offsets, Yflex, Minv, arrays = compiled
+        self._tail = (reals, ints, offsets, have, Yflex, Minv, *arrays, self.events, self.consts, self.y)
 
     def _buffers(self, N: int) -> None:
         """The hybrid loop's arrays for ``N`` whole steps without clamps or splits."""
@@ -262,30 +362,44 @@ class SlipTickKernel:
         self.out_y, self.out_native = np.empty((N, 5)), np.empty((N, 6))
         self.out_mode, self.out_sigma = np.empty(N, dtype=np.int64), np.empty(N)
 
-    def advance(self, state, k0: int, k1: int):
+    def set_message(self, template: bytes, offsets) -> None:
+        """As :meth:`TickKernel.set_message`."""
+        self._msg, self.message, at = joints_message(template, offsets)
+        self.consts[-4:] = at
+
+    def advance(self, state, k0: int, k1: int, lo: float = -math.inf, hi: float = math.inf, drive: float = math.nan,
+                stamp: int = 0):
         """The hybrid state after the whole grid steps k0 -> k1 from ``state`` (a
-        :class:`~belt_drive_ros.core.slip_run.SlipState`), the outputs at t1 in :attr:`y`;
-        None when the step needs the engine's own :meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.advance`
-        (a mode switch in it, a failure: it redoes the step from ``state`` and reports them)."""
-        compiled = self.engine._compiled()
-        if compiled is None:
+        :class:`~belt_drive_ros.core.slip_run.SlipState`), the outputs at t1 in :attr:`y` and
+        :attr:`message` stamped ``stamp`` [ns]; ``lo`` clamps the first step's torque times, ``hi``
+        the last one's, ``drive`` as :func:`slip_tick`'s. None when the step needs the engine's own
+        :meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.advance` (a mode switch in it, a
+        failure: it redoes the step from ``state`` and reports them)."""
+        if len(self.engine._steppers) != self._built:
+            self._pack()
+        if self._tail is None:
             return None
-        buf = self.x
-        buf[:] = 0.0
-        buf[: state.x.size] = state.x
-        if state.kind == "hybrid":
-            buf[5] = state.sigma
+        if state is self._state:  # the usual tick: the state the last call returned (its own C array)
+            code, xs = self._code, state.x
+        else:
+            code, xs = _kind_code(state), np.array(state.x, dtype=np.float64)
         if k1 - k0 != self.N:
             self._buffers(k1 - k0)
-        have, reals, ints, offsets, Yflex, Minv, arrays = compiled
+        clamped = lo != -math.inf or hi != math.inf
+        if clamped:
+            self.lo[0], self.hi[-1] = lo, hi
         k1, status, kind, sigma, n_ev = slip_tick(
-            k0, self.grid, self.knots, self.lo, self.hi, self.special, _kind_code(state), buf, self.dt, self.limit,
-            self.out_y, self.out_mode, self.out_sigma, self.out_native, reals, ints, offsets, have, Yflex, Minv,
-            *arrays, self.events, self.consts, self.y,
+            k0, self.grid, self.knots, self.lo, self.hi, self.special, code, xs,
+            state.sigma if state.kind == "hybrid" else math.nan, self.x, self.dt, self.limit, self.out_y,
+            self.out_mode, self.out_sigma, self.out_native, *self._tail, drive, stamp, self._msg,
         )  # fmt: skip
+        if clamped:
+            self.lo[0], self.hi[-1] = -math.inf, math.inf
         if status != 0 or n_ev:
             return None
-        return SlipState(STICK if kind <= STICKING else SLIP, float(sigma), KIND_NAMES[kind], buf[: PHASE_SIZE[kind]].copy())
+        state = SlipState(STICK if kind <= STICKING else SLIP, float(sigma), KIND_NAMES[kind], self.x[: PHASE_SIZE[kind]].copy())
+        self._state, self._code = state, kind  # (= _kind_code(state): the loop's code of that phase)
+        return state
 
     def state_y(self) -> np.ndarray:
         """The slipping state ``y`` (5,) after the last :meth:`advance` (the engine's ``state_y`` of it)."""

@@ -69,6 +69,12 @@ class JointStateEncoder:
         self._joints = joints
         self._stamp = struct.Struct("<iI")
 
+    @property
+    def layout(self) -> tuple[bytes, tuple[int, int, int]]:
+        """(template, offsets): the message's bytes and the byte offsets of its positions, velocities and
+        efforts (the stamp at bytes 4-12), for a writer of its own (the node's compiled tick)."""
+        return self._template, tuple(self._offsets)
+
     def encode(self, stamp_ns: int, values) -> bytes:
         """``values`` = position, velocity, effort of the joints, concatenated."""
         buf = bytearray(self._template)

@@ -393,15 +393,20 @@ class BeltDriveNode(Node):
         converting message objects cost the tick ~35 us. A topic nobody
         subscribes to is not published; the recorder writes the same bytes.
         """
-        v = self.sim.values(now_ns)  # floats in the order of TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
+        sim = self.sim
+        v = sim.values(now_ns)  # floats in the order of TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
         recorder = self.recorder
         listening = self._listening
-        # phi_M, phi_1, phi_2, phi_3, omega_M, omega_1, omega_2, omega_3; efforts: drive torque on wheel_M, -load on wheel_3
-        joints = (v[0], v[2], v[4], v[6], v[1], v[3], v[5], v[7], v[8], 0.0, 0.0, -v[9])
         sends = []
-        joint_cdr = tf_cdr = payloads = None
+        joint_cdr = tf_cdr = payloads = joints = None
         if listening[0] or recorder is not None:
-            joint_cdr = self._joint_cdr.encode(now_ns, joints)
+            joint_cdr = sim.joint_message(now_ns)  # written by the compiled tick, or encoded here (the same bytes)
+        if joint_cdr is None or recorder is not None or listening[1]:
+            # phi_M, phi_1, phi_2, phi_3, omega_M, omega_1, omega_2, omega_3; efforts: drive torque on wheel_M, -load on wheel_3
+            joints = (v[0], v[2], v[4], v[6], v[1], v[3], v[5], v[7], v[8], 0.0, 0.0, -v[9])
+        if listening[0] or recorder is not None:
+            if joint_cdr is None:
+                joint_cdr = self._joint_cdr.encode(now_ns, joints)
             if listening[0]:
                 sends.append((self._pub_joint.publish, joint_cdr))
         if listening[1] or recorder is not None:
@@ -416,7 +421,7 @@ class BeltDriveNode(Node):
             floats = (v[1], v[9], v[10], v[11])  # shaft speed, load torque, belt torque, relative deflection
             if slipping:
                 floats += tuple(v[j] for j in _SLIP_FLOAT_INDEX)
-            payloads = encode_float64((*floats, joints[8]))
+            payloads = encode_float64((*floats, v[8]))  # the last: drive_torque_applied (joint wheel_M's effort)
             readers = self._readers
             for name, pub, data in zip(OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS, self._pub_float, payloads[:-1]):
                 if readers[name]:

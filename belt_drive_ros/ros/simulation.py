@@ -38,6 +38,7 @@ from ..core.slip import SLIP_OUTPUT_UNITS
 from ..core.slip_run import SlippingSimulator
 from ..core.kernel_loop import OK
 from ..core.stepper import SPEED_LIMIT, Plant, Stepper, snap_tolerance
+from ..io.cdr_encoders import JointStateEncoder
 from .inputs import DriveInput
 from .parameter_schema import NodeSettings
 
@@ -47,6 +48,10 @@ __all__ = ["NodeSimulation", "TICK_OUTPUTS", "next_tick_ns"]
 #: the slipping model adds :data:`~belt_drive_ros.core.slip.SLIP_OUTPUT_UNITS`)
 TICK_OUTPUTS = tuple(OUTPUT_UNITS)
 SLIP_TICK_OUTPUTS = tuple(SLIP_OUTPUT_UNITS)
+
+
+#: the node's ``joint_states`` (its layout: the compiled tick writes the message, see :meth:`NodeSimulation.joint_message`)
+_JOINT_STATES = JointStateEncoder(4)
 
 
 def next_tick_ns(t_ns: int, origin_ns: int, tick_ns: int) -> int:
@@ -93,6 +98,8 @@ class NodeSimulation:
         self.last_divergence: tuple[str, int] | None = None
         #: scene time [s] at which the held drive torque last changed (a breakpoint of the drive), or None
         self._held_jump: float | None = None
+        #: the held drive torque's value [N m] (drive.applied.value, kept as a float for the tick's comparison)
+        self._held = drive.applied.value
 
     # ------------------------------------------------------------- settings
     def _make_stepper(self, s: NodeSettings) -> Stepper | SlippingSimulator:
@@ -111,6 +118,7 @@ class NodeSimulation:
             from ..core.tick import SlipTickKernel
 
             self._tick_kernel = SlipTickKernel(engine, SPEED_LIMIT)
+            self._tick_kernel.set_message(*_JOINT_STATES.layout)
             return engine
         plant = Plant(s.model, drive, s.scene.load)
         stepper = Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
@@ -119,6 +127,8 @@ class NodeSimulation:
         from ..core.tick import TickKernel
 
         self._tick_kernel = TickKernel.of(stepper, SPEED_LIMIT)
+        if self._tick_kernel is not None:
+            self._tick_kernel.set_message(*_JOINT_STATES.layout)
         return stepper
 
     @property
@@ -260,7 +270,7 @@ class NodeSimulation:
             return
         held = self.drive.applied
         self._held_jump = None if first or value == held.value else t
-        held.value = value
+        held.value = self._held = value
 
     def _drive_breakpoints(self, t0: float, t1: float, value: float | None) -> None:
         """The stepper's breakpoints for the advance t0 -> t1: the plant's, plus where the held torque jumps.
@@ -300,27 +310,45 @@ class NodeSimulation:
         d0, d1 = self.t_ns - origin, now_ns - origin
         if step and d0 % step == 0 and d1 % step == 0:
             # both ends on the grid (the usual tick): what scene_time gives them, without its general rounding
+            # (the grid times origin + k dt of Stepper.grid_time, the same floats)
             st = self.stepper
             k0, k1 = d0 // step, d1 // step
-            t0, t1 = st.grid_time(k0), st.grid_time(k1)
+            t0, t1 = fast.origin + k0 * fast.dt, fast.origin + k1 * fast.dt
             self._scene_time = (now_ns, st, origin, t1, self.t_ns, t0)
-            value = self._sample(now_ns)  # needs no state: known before the interval is integrated
-            if self._held_jump != t0 and (value is None or value == self.drive.applied.value) and self._free(t0, t1, k0, k1):
-                # no held-torque jump at either end, whole grid steps away from the plant's breakpoints:
-                # one compiled call, steps and outputs (core.tick; the same floats as the stepper's)
+            s = self.settings
+            value = None  # the sample at now_ns: known before the interval is integrated (_sample)
+            if s.drive_source == "topic":
+                value, warning = self.drive.sample(now_ns, origin, s)
+                if warning:
+                    self.log.warn(warning)
+            jump0 = self._held_jump == t0
+            jump1 = value is not None and value != self._held
+            lo, hi = self._free_k
+            if (not (jump0 or jump1) or k1 - k0 == 1 or self.hybrid is not None) and (
+                    lo <= k0 and k1 <= hi or self._free(t0, t1, k0, k1)):
+                # whole grid steps away from the plant's breakpoints: one compiled call, steps and outputs
+                # (core.tick; the same floats as the stepper's). A held-torque jump at t0 or t1 is a
+                # breakpoint there: the stepper's special step clamps the torque times as these do.
+                lo = t0 if jump0 else -math.inf
+                hi = (st if self.hybrid is None else st.stepper).plant.left_of(t1) if jump1 else math.inf
+                drive = value if jump1 else math.nan  # held from t1 on: the outputs at t1 have it
                 if self.hybrid is None:
-                    out, status = fast.step(self.x, k0, k1)
+                    out, status = fast.step(self.x, k0, k1, lo, hi, drive, now_ns)
                     if status == OK:  # else the general path below takes the same steps and raises as it does
                         self.x = out[-1]  # a row of the tick kernel's buffer, written again by the next tick
                         self.t_ns = self._fresh_ns = now_ns
-                        self._held_jump = None  # what _hold makes of an unchanged value
+                        self._held_jump = t1 if jump1 else None  # what _hold makes of the sample
+                        if jump1:
+                            self._held = value  # (the kernel wrote it into the held torque)
                         return True
                 else:  # the slipping belt: steps without a mode switch (else the engine's path)
-                    hybrid = fast.advance(self.hybrid, k0, k1)
+                    hybrid = fast.advance(self.hybrid, k0, k1, lo, hi, drive, now_ns)
                     if hybrid is not None:
                         self.hybrid, self.x = hybrid, fast.state_y()
                         self.t_ns = self._fresh_ns = now_ns
-                        self._held_jump = None
+                        self._held_jump = t1 if jump1 else None
+                        if jump1:
+                            self._held = value
                         return True
         else:
             t0, t1 = self.scene_time(self.t_ns), self.scene_time(now_ns)
@@ -400,6 +428,13 @@ class NodeSimulation:
             return model.outputs(self.x, u, self.hybrid.mode, self.hybrid.sigma)
         out = model.outputs(self.x, u)  # a finite state and finite torques: nothing for numpy to warn about
         return out  # numpy float64 scalars (a float subclass) and numpy bools
+
+    def joint_message(self, now_ns: int) -> bytes | None:
+        """The CDR bytes of ``joint_states`` at ``now_ns`` when the compiled tick wrote them (its outputs
+        are fresh), else None (the caller encodes :meth:`values`; the same bytes)."""
+        if self._fresh_ns == now_ns:
+            return bytes(self._tick_kernel.message)
+        return None
 
     def values(self, now_ns: int) -> list:
         """:meth:`outputs` as a list of floats in the order of :data:`TICK_OUTPUTS` (then, for the slipping

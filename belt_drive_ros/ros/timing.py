@@ -177,6 +177,7 @@ class TickThread:
         self._busy = np.zeros(LEAD_WINDOW)  # computation time of the latest ticks [s] (a ring)
         self._n_busy = 0
         self._next_update, self._settings = 0, None
+        self._nominal = 0.0  # the nominal period [s] of the settings in force (see _lead)
         self._stop = threading.Event()
         self._pending: list | None = None  # the (publish, data) calls of the tick computed ahead
         self._thread = threading.Thread(target=self._run, name="belt_drive_tick", daemon=True)
@@ -241,6 +242,7 @@ class TickThread:
                 lead = max(lead, int(np.percentile(self._busy[: min(n, LEAD_WINDOW)], LEAD_PERCENTILE) * 1e9) + LEAD_MARGIN_NS)
             self.lead_ns = min(lead, settings.tick_ns * 3 // 4)
             self._next_update, self._settings = n + LEAD_UPDATE, settings
+            self._nominal = self.source.nominal_period()
         return self.lead_ns
 
     def _run(self) -> None:
@@ -250,8 +252,12 @@ class TickThread:
         now_ns, perf, sleep = time.time_ns, time.perf_counter, time.sleep
         try:
             while not stop.is_set():
-                lead = self._lead(sim.settings)
-                t, origin, tick = sim.t_ns, sim.origin_ns, sim.settings.tick_ns  # without the lock: rechecked under it
+                settings = sim.settings
+                if settings is self._settings and self._n_busy < self._next_update:
+                    lead = self.lead_ns  # (what _lead returns between its updates)
+                else:
+                    lead = self._lead(settings)
+                t, origin, tick = sim.t_ns, sim.origin_ns, settings.tick_ns  # without the lock: rechecked under it
                 if t is not None:
                     wait = (next_tick_ns(t, origin, tick) - lead - now_ns()) * 1e-9
                     if wait > 0:
@@ -279,7 +285,7 @@ class TickThread:
                             publish(data)
                     # the period statistics see the instants the ticks are due and published (their
                     # jitter is what subscribers get); an overrun is a computation longer than the period
-                    stats.record(start, start + busy, source.nominal_period())
+                    stats.record(start, start + busy, self._nominal)
                     if after is not None:
                         after()
         except BaseException as exc:  # noqa: BLE001 - kept and raised by the node's executor
