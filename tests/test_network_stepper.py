@@ -110,3 +110,46 @@ def test_holding_the_same_value_again_changes_nothing_and_minus_zero_is_kept():
     assert stepper.loop.pp[row, 0] == 12.0 and stepper.pulley_state(0, x)[2][d] == 12.0
     stepper.hold(d, None)  # back to the profile
     assert stepper.loop.pk[row] == stepper._rows[0][row] and stepper.held[d] is None
+
+
+def _joint_floats(values):
+    """The floats as bit patterns (a -0.0 differs from 0.0, a NaN equals itself)."""
+    return np.array(values, dtype=float).view(np.int64).tolist()
+
+
+@pytest.mark.parametrize("scene_of", [stepped_fead, lambda: NetworkScene.from_mapping(shipped("fead_i4"), name="fead_i4")])
+@pytest.mark.parametrize("tier", ["flexible", "rigid"])
+@pytest.mark.parametrize("per_tick", [1, 3])
+def test_the_compiled_tick_equals_the_python_tick_in_lockstep(scene_of, tier, per_tick):
+    """The node's tick with and without the compiled call (core/network/tick.py), side by side over a run with
+    breakpoints and held torques that change (a -0.0 among them): the states and every joint value, bit for bit;
+    most ticks take the compiled call, the ticks at a breakpoint the old path."""
+    scene = scene_of()
+    layout = NetworkLayout(scene)
+    old, new = NetworkStepper(scene, tier=tier), NetworkStepper(scene, tier=tier)
+    new.use_joints(float(layout.arm[3]) if layout.arm else 0.0)
+    d = scene.driver
+    other = next(i for i, p in enumerate(scene.pulleys) if p.role == "accessory")
+    holds = {1: [(d, 0.0)], 20: [(d, 35.0)], 41: [(other, 3.0)], 60: [(d, -0.0)], 90: [(d, 80.0), (other, 0.5)]}
+    xo, xn, k, compiled = old.initial(), new.initial(), 0, 0
+    while k < 150:
+        k1 = k + per_tick
+        pending = [h for j in range(k + 1, k1 + 1) for h in holds.get(j, [])]  # arrived during this tick
+        for i, value in pending:  # the node: staged, the steps, then held (the values the joints show)
+            new.stage(i, value)
+        xo, xn = old.advance(xo, k, k1), new.tick(xn, k, k1)
+        for i, value in pending:
+            old.hold(i, value)
+            new.hold(i, value)
+        k = k1
+        assert np.array_equal(xo, xn), (k, tier)
+        want = layout.joint_values(*old.pulley_state(k, xo))
+        if new.fresh == k:
+            compiled += 1
+            got = new.y.tolist()
+        else:
+            got = layout.joint_values(*new.pulley_state(k, xn))
+        assert all(type(v) is float for v in got)
+        assert _joint_floats(got) == _joint_floats(want), (k, tier, got, want)
+    assert compiled >= 150 // per_tick - 4
+    assert np.ptp(xo) > 0.0

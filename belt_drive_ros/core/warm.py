@@ -49,9 +49,11 @@ def warm_single() -> None:
 
 
 def warm_network() -> None:
-    """Both belt-network loops (flexible/rigid and slipping)."""
+    """Both belt-network loops (flexible/rigid and slipping) and the network node's compiled tick."""
     from .network import simulate as network_simulate
     from .network import slip as network_slip
+    from .network import tick as network_tick
 
     network_simulate.warm()
     network_slip.warm()
+    network_tick.warm()

@@ -157,6 +157,7 @@ class NetworkSimulation:
             counters.setdefault(key, 0)
         self.log = logger
         self.stepper = NetworkStepper(settings.scene, settings.method, settings.dt)
+        self.stepper.use_joints(float(layout.arm[3]) if layout.arm else 0.0)
         #: latest valid value per input pulley index (None: none received yet)
         self.latest: dict = {i: None for _, i in layout.inputs}
         self.x = self.stepper.initial()
@@ -184,17 +185,25 @@ class NetworkSimulation:
         self.latest[pulley] = float(value)
         return True
 
-    def _sample(self) -> None:
-        """Hold the latest inputs from this tick on (the driver at 0 N m before its first message)."""
-        stepper, driver = self.stepper, self._driver
-        self.applied = []
+    def _pending(self) -> list:
+        """``(topic, pulley, value)`` of the inputs to hold from this tick on (the driver at 0 N m before its
+        first message)."""
+        driver, latest, pending = self._driver, self.latest, []
         for topic, i in self.layout.inputs:
-            value = self.latest[i]
+            value = latest[i]
             if i == driver and value is None:
                 value = 0.0
             if value is not None:
-                stepper.hold(i, value)
-                self.applied.append((topic + APPLIED, value))
+                pending.append((topic, i, value))
+        return pending
+
+    def _sample(self, pending=None) -> None:
+        """Hold the latest inputs (:meth:`_pending`) from this tick on."""
+        stepper = self.stepper
+        self.applied = []
+        for topic, i, value in self._pending() if pending is None else pending:
+            stepper.hold(i, value)
+            self.applied.append((topic + APPLIED, value))
 
     def start(self, now_ns: int) -> None:
         self.origin_ns = self.t_ns = now_ns
@@ -215,8 +224,12 @@ class NetworkSimulation:
             self.start(now_ns)
             return True
         k1 = round((now_ns - self.origin_ns) / (self.settings.dt * 1e9))
+        pending = self._pending()
+        stepper = self.stepper
+        for _, i, value in pending:  # the torques the tick's joint values show (held only after the steps)
+            stepper.stage(i, value)
         try:
-            self.x = self.stepper.advance(self.x, self.k, k1)
+            self.x = stepper.tick(self.x, self.k, k1)
         except (SimulationDivergedError, ArithmeticError, ValueError) as exc:
             self.counters["divergences"] += 1
             self.last_divergence = (str(exc), now_ns)
@@ -225,7 +238,7 @@ class NetworkSimulation:
             return True
         self.k = k1
         self.t_ns = now_ns
-        self._sample()
+        self._sample(pending)
         return True
 
     def outputs(self):
@@ -237,7 +250,10 @@ class NetworkSimulation:
     def joints(self) -> list:
         """The JointState values at the current tick alone (those of :meth:`outputs`, bit for bit, without the
         per-pulley and per-span outputs: the tick when no Float64 topic has a reader and nothing records)."""
-        return self.layout.joint_values(*self.stepper.pulley_state(self.k, self.x))
+        stepper = self.stepper
+        if stepper.fresh == self.k:  # the compiled tick wrote them
+            return stepper.y.tolist()
+        return self.layout.joint_values(*stepper.pulley_state(self.k, self.x))
 
 
 class NetworkNode(Node):

@@ -35,6 +35,7 @@ from ..core.network.model import grid_breakpoints
 from ..core.network.scene import ROLE_SIGN
 from ..core.network.simulate import (LIMIT, NetworkLoop, advance, auto_tier, clamp, model_of, outputs,
                                      rigid_outputs)
+from ..core.network.tick import network_tick
 from ..core.profile_data import CONSTANT, OK
 
 __all__ = ["NetworkStepper"]
@@ -94,6 +95,43 @@ class NetworkStepper:
                           for i, p in enumerate(scene.pulleys) if p.sign or self.signs[i]]
         #: per pulley the held torque [N m] (profile sign convention) or None: the scene's profile
         self.held: list[float | None] = [None] * self.n
+        #: the joint values of the last :meth:`tick` (positions, velocities, efforts) and its step index (-1: none)
+        self.y, self.fresh = None, -1
+        self._tick = None
+
+    def use_joints(self, theta0: float) -> None:
+        """Let :meth:`tick` write the joint values (``theta0``: the arm's installed angle [rad], 0.0 without an
+        arm); the slipping tier has no compiled tick."""
+        if self.tier == "slipping":
+            return
+        from ..core.network.tick import LAG, RIGID, SAME, ZERO
+
+        n, m, d = self.n, self.m, self.scene.driver
+        if self.tier == "flexible":
+            jkind = [SAME if i == d or i >= n else LAG for i in range(m)]
+        else:
+            jkind = [RIGID] * n + [ZERO] * (m - n)
+        rho = self._rho + [0.0] * (m - n)
+        row = [-1] * n
+        for r, i in zip(self.loop.start, self.loop.active):
+            row[i] = int(r)
+        uses = [int(p.torque is not None and p.torque.uses_angle) for p in self.scene.pulleys]
+        self._hv = np.array([0.0 if v is None else v for v in self.held])
+        self._hf = np.array([v is not None for v in self.held], dtype=np.int64)
+        self.y = np.zeros(3 * (n + int(self._arm)))
+        self._tick = (self.dt, int(d), np.array(jkind, dtype=np.int64), np.array(rho, dtype=float), float(theta0),
+                      int(self._arm), self._hf, self._hv, np.array(self.signs, dtype=float),
+                      np.array([float(p.gear) for p in self.scene.pulleys]), np.array(uses, dtype=np.int64),
+                      np.array(row, dtype=np.int64), self._rows[0], self._rows[1], self.y)
+
+    def stage(self, pulley: int, value: float | None) -> None:
+        """The torque :meth:`tick`'s joint values show for pulley ``pulley`` (the value :meth:`hold` is given right
+        after the tick; the steps take the values held before)."""
+        if self._tick is None:
+            return
+        self._hf[pulley] = value is not None
+        if value is not None:
+            self._hv[pulley] = value
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
@@ -115,6 +153,7 @@ class NetworkStepper:
         if value is not None and before is not None and _same(before, float(value)):
             return  # held already (the node holds its inputs again every tick)
         self.held[pulley] = None if value is None else float(value)
+        self.stage(pulley, value)
         if self.tier == "slipping":
             self.loop.hold(pulley, value, self.signs[pulley])
         elif pulley in self.loop.active:
@@ -192,9 +231,7 @@ class NetworkStepper:
             advance_slipping(self.loop, x, k0, k1, None, self.scene.name, self._names)
             return x
         out = np.empty((k1 - k0, x.size))
-        split, grid = self._split, self._grid
-        i, j = bisect.bisect_left(split, k0), bisect.bisect_right(grid, k0)
-        if (i < len(split) and split[i] < k1) or (j < len(grid) and grid[j] < k1):  # advance cuts these steps
+        if self._cut(k0, k1):  # advance cuts these steps
             advance(self.loop, x, out, k0, k1)
             return out[-1]
         lo, hi = clamp(self._marks, self._left, k0 * self.dt, k1 * self.dt)
@@ -205,6 +242,28 @@ class NetworkStepper:
         status = self._kernel(times, x, out, lo, hi, LIMIT, *self._kernel_args)[1]
         if status != OK:  # advance again: it raises the error that names the step
             advance(self.loop, x, out, k0, k1)
+        return out[-1]
+
+    def _cut(self, k0: int, k1: int) -> bool:
+        """``advance`` cuts a step of ``k0 .. k1-1`` (split at a breakpoint inside, or a grid breakpoint between)."""
+        split, grid = self._split, self._grid
+        i, j = bisect.bisect_left(split, k0), bisect.bisect_right(grid, k0)
+        return (i < len(split) and split[i] < k1) or (j < len(grid) and grid[j] < k1)
+
+    def tick(self, x, k0: int, k1: int) -> np.ndarray:
+        """:meth:`advance`'s state, and for a tick of whole steps between breakpoints (after :meth:`use_joints`)
+        the joint values at step ``k1`` into :attr:`y` in the same compiled call (:attr:`fresh` = ``k1``; those of
+        ``pulley_state`` and the layout's ``joint_values``, with the torques :meth:`stage` gave, bit for bit)."""
+        self.fresh = -1
+        if self._tick is None or k1 <= k0 or self._cut(k0, k1) or not isinstance(x, np.ndarray) \
+                or not x.flags.c_contiguous:
+            return self.advance(x, k0, k1)
+        lo, hi = clamp(self._marks, self._left, k0 * self.dt, k1 * self.dt)
+        out = np.empty((k1 - k0, x.size))
+        if network_tick(k0, k1 - k0, x, out, lo, hi, LIMIT, *self._kernel_args, *self._tick)[1] != OK:
+            advance(self.loop, x, out, k0, k1)  # it raises the error that names the step
+            return out[-1]
+        self.fresh = k1
         return out[-1]
 
     def run(self, steps: int) -> np.ndarray:
