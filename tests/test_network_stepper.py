@@ -153,3 +153,47 @@ def test_the_compiled_tick_equals_the_python_tick_in_lockstep(scene_of, tier, pe
         assert _joint_floats(got) == _joint_floats(want), (k, tier, got, want)
     assert compiled >= 150 // per_tick - 4
     assert np.ptp(xo) > 0.0
+
+
+def test_the_compiled_tick_compiles_once_and_interpreted_gives_the_same_floats(tmp_path):
+    """Every shipped network, both linear tiers: one signature of network_tick; NUMBA_DISABLE_JIT=1 writes the
+    same joint values and states."""
+    import os
+    import subprocess
+    import sys
+
+    from belt_drive_ros.core.network.scene import load_network, shipped_networks
+    from belt_drive_ros.core.network.tick import network_tick
+
+    for name in shipped_networks():
+        scene = load_network(name)
+        for tier in ("flexible", "rigid"):
+            try:
+                stepper = NetworkStepper(scene, tier=tier)
+            except Exception:  # noqa: BLE001 - a refused tier is fine here: only the signatures count
+                continue
+            layout = NetworkLayout(scene)
+            stepper.use_joints(float(layout.arm[3]) if layout.arm else 0.0)
+            stepper.hold(scene.driver, 10.0)
+            x = stepper.initial()
+            for k in range(3):
+                x = stepper.tick(x, k, k + 1)
+    assert len(network_tick.signatures) == 1
+    code = ("import sys, numpy as np\n"
+            "from belt_drive_ros.core.network.scene import load_network\n"
+            "from belt_drive_ros.io.network_bag import NetworkLayout\n"
+            "from belt_drive_ros.ros.network_stepper import NetworkStepper\n"
+            "scene = load_network('fead_i4'); layout = NetworkLayout(scene); s = NetworkStepper(scene)\n"
+            "s.use_joints(float(layout.arm[3])); s.hold(scene.driver, 30.0); x = s.initial(); rows = []\n"
+            "for k in range(40):\n"
+            "    x = s.tick(x, k, k + 1); assert s.fresh == k + 1; rows.append(np.concatenate([x, s.y]))\n"
+            "np.save(sys.argv[1], np.array(rows))\n")
+    rows = {}
+    for jit in ("0", "1"):
+        path = tmp_path / f"tick_{jit}.npy"
+        done = subprocess.run([sys.executable, "-c", code, str(path)], env=dict(os.environ, NUMBA_DISABLE_JIT=jit),
+                              capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, done.stderr
+        rows[jit] = np.load(path)
+    assert rows["0"].shape[0] == 40 and np.array_equal(rows["0"], rows["1"])
+    assert np.ptp(rows["0"][:, -1]) == 0.0 and np.ptp(rows["0"][:, 0]) > 0.0  # the arm's effort 0.0; the run moved
