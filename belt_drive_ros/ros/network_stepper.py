@@ -31,6 +31,7 @@ import math
 import numpy as np
 
 from ..core.errors import SceneError
+from ..core.kernel import wheel_steps
 from ..core.network.model import grid_breakpoints
 from ..core.network.scene import ROLE_SIGN
 from ..core.network.simulate import (LIMIT, NetworkLoop, advance, auto_tier, clamp, model_of, outputs,
@@ -73,11 +74,12 @@ class NetworkStepper:
         else:
             self.loop = NetworkLoop(self.model, self.tier, self.method, self.dt)  # its own: hold() writes into it
             self._rows = (self.loop.pk.copy(), self.loop.pp.copy())
-            from ..core.network.kernel import network_steps
-
-            loop, self._kernel = self.loop, network_steps
-            #: the compiled loop's arguments after (times, x, out, lo, hi, limit) (hold() writes into pk, pp in place)
-            self._kernel_args = (*loop.args, loop.start, loop.pk, loop.pp, loop.px, loop.py)
+            loop = self.loop
+            #: the compiled loop's arguments after (times, x, out, lo, hi, limit) (hold() writes into pk, pp in place):
+            #: those NetworkLoop's call gives wheel_steps (both profile banks the loop's stack)
+            stacked = (loop.pk, loop.pp, loop.px, loop.py)
+            self._kernel_args = (*loop.args, loop.start, *stacked, *stacked, *loop._none)
+            self._tick_args = (*loop.args, loop.start, *stacked, *loop._none)
             # advance's breakpoints: a tick with none of its cuts inside is one call of the loop (the fast path)
             self._marks, self._left, inside = grid_breakpoints(self.model, self.dt)
             self._split = sorted(inside)  # steps split at a breakpoint inside them
@@ -239,7 +241,7 @@ class NetworkStepper:
         times = np.arange(k0, k1 + 1) * self.dt
         if not x.flags.c_contiguous:
             x = np.ascontiguousarray(x)
-        status = self._kernel(times, x, out, lo, hi, LIMIT, *self._kernel_args)[1]
+        status = wheel_steps(times, x, out, lo, hi, LIMIT, *self._kernel_args)[1]
         if status != OK:  # advance again: it raises the error that names the step
             advance(self.loop, x, out, k0, k1)
         return out[-1]
@@ -260,7 +262,7 @@ class NetworkStepper:
             return self.advance(x, k0, k1)
         lo, hi = clamp(self._marks, self._left, k0 * self.dt, k1 * self.dt)
         out = np.empty((k1 - k0, x.size))
-        if network_tick(k0, k1 - k0, x, out, lo, hi, LIMIT, *self._kernel_args, *self._tick)[1] != OK:
+        if network_tick(k0, k1 - k0, x, out, lo, hi, LIMIT, *self._tick_args, *self._tick)[1] != OK:
             advance(self.loop, x, out, k0, k1)  # it raises the error that names the step
             return out[-1]
         self.fresh = k1

@@ -1,7 +1,7 @@
 """The network node's common tick in one compiled call: whole grid steps, then the joint values at their end.
 
 A 1 kHz tick of a belt network (flexible or rigid tier) is one call of the
-network loop (:func:`~belt_drive_ros.core.network.kernel.network_steps`)
+network loop (:func:`~belt_drive_ros.core.kernel.wheel_steps`)
 and the JointState values at the new state: each pulley's (and the arm's)
 angle, speed and torque. Done in Python that is a dozen interpreted calls
 (grid times, buffers, the profiles' scalar evaluations, list building) whose
@@ -29,21 +29,21 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..kernel import profile_torque_at
+from ..kernel import profile_torque_at, wheel_steps
 from ..profile_data import OK
-from .kernel import network_steps
 
 #: per state angle how its joint angle and speed are formed (``jkind``)
 SAME, LAG, RIGID, ZERO = 0, 1, 2, 3
 
 
 @njit(cache=True, nogil=True)
-def network_tick(k0, steps, x, out, lo, hi, limit, mats, shape, kinds, offsets, final_base, tol, max_iter,
-                 uses_angle, start, pk, pp, px, py, dt, driver, jkind, rho, theta0, arm,
+def network_tick(k0, steps, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
+                 uses_angle, start, pk, pp, px, py, extra, guard, dt, driver, jkind, rho, theta0, arm,
                  held, value, tsign, gear, uses, row, qk, qp, y):  # fmt: skip
     """``steps`` grid steps from index ``k0`` (state ``x``) into ``out``, then the joint values into ``y``.
 
-    ``mats .. py``: the loop's arguments (:func:`~.kernel.network_steps`). ``jkind, rho`` (m,): per state angle
+    ``W .. py, extra, guard``: the network loop's arguments of :func:`~belt_drive_ros.core.kernel.wheel_steps`
+    (both profile banks the same stack, :class:`~.simulate.NetworkLoop`). ``jkind, rho`` (m,): per state angle
     :data:`SAME`/:data:`LAG`/:data:`RIGID`/:data:`ZERO` and its ratio; ``theta0`` the arm's installed angle,
     ``arm`` 1 with an arm. Per pulley (n,): ``held`` 1 when its torque is held at ``value`` [N m], ``tsign``
     its profile's sign (0: no profile), ``gear``, ``uses`` 1 when the profile reads its angle, ``row`` its
@@ -54,8 +54,8 @@ def network_tick(k0, steps, x, out, lo, hi, limit, mats, shape, kinds, offsets, 
     times = np.empty(steps + 1)
     for i in range(steps + 1):
         times[i] = (k0 + i) * dt
-    done, status, t = network_steps(times, x, out, lo, hi, limit, mats, shape, kinds, offsets, final_base, tol,
-                                    max_iter, uses_angle, start, pk, pp, px, py)
+    done, status, t = wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
+                                  uses_angle, start, pk, pp, px, py, pk, pp, px, py, extra, guard)
     if status != OK:
         return done, status, t
     xs = out[steps - 1]
@@ -111,6 +111,6 @@ def warm() -> None:
     x = loop.initial()
     ints = lambda values: np.array(values, dtype=np.int64)  # noqa: E731
     network_tick(0, 1, x, np.empty((1, x.size)), -np.inf, np.inf, LIMIT, *loop.args, loop.start, loop.pk, loop.pp,
-                 loop.px, loop.py, 1e-3, 0, ints([SAME, LAG]), np.ones(2), 0.0, 0, ints([1, 0]), np.array([0.1, 0.0]),
+                 loop.px, loop.py, *loop._none, 1e-3, 0, ints([SAME, LAG]), np.ones(2), 0.0, 0, ints([1, 0]), np.array([0.1, 0.0]),
                  np.array([1.0, -1.0]), np.ones(2), ints([0, 0]), ints(loop.start), loop.pk.copy(), loop.pp.copy(),
                  np.zeros(6))
