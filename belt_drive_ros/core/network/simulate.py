@@ -372,12 +372,16 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
 
 def warm() -> None:
     """Compile (or load from the disk cache) the network loop: a two-pulley belt, one step of each tier."""
+    simulate(warm_scene(), model="flexible", check_accuracy=False)
+
+
+def warm_scene():
+    """The two-pulley belt (driver and accessory, constant torques) the warm-up calls step."""
     from .scene import NetworkScene
 
-    scene = NetworkScene.from_mapping({
+    return NetworkScene.from_mapping({
         "kind": "network", "duration": 2e-3, "dt": 1e-3, "initial_speed": 1.0,
         "belt": {"EA": 1000.0, "damping": 0.1, "installed_tension": 10.0},
         "pulleys": [{"name": "a", "role": "driver", "centre": [0, 0], "radius": 0.05, "inertia": 1e-3, "torque": 0.1},
                     {"name": "b", "role": "accessory", "centre": [0.3, 0], "radius": 0.05, "inertia": 1e-3,
                      "torque": 0.1}]})  # fmt: skip
-    simulate(scene, model="flexible", check_accuracy=False)

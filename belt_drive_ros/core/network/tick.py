@@ -98,19 +98,12 @@ def network_tick(k0, steps, x, out, lo, hi, limit, W, kinds, offsets, S, F, fina
 def warm() -> None:
     """Compile (or load from the disk cache) :func:`network_tick` with the one signature the node uses: one step
     of a two-pulley belt's flexible loop, its driver's torque held."""
-    from .scene import NetworkScene
-    from .simulate import LIMIT, NetworkLoop, model_of
+    from .simulate import LIMIT, NetworkLoop, model_of, warm_scene
 
-    scene = NetworkScene.from_mapping({
-        "kind": "network", "duration": 2e-3, "dt": 1e-3, "initial_speed": 1.0,
-        "belt": {"EA": 1000.0, "damping": 0.1, "installed_tension": 10.0},
-        "pulleys": [{"name": "a", "role": "driver", "centre": [0, 0], "radius": 0.05, "inertia": 1e-3, "torque": 0.1},
-                    {"name": "b", "role": "accessory", "centre": [0.3, 0], "radius": 0.05, "inertia": 1e-3,
-                     "torque": 0.1}]})  # fmt: skip
-    loop = NetworkLoop(model_of(scene), "flexible", "etd2", 1e-3)
+    loop = NetworkLoop(model_of(warm_scene()), "flexible", "etd2", 1e-3)
     x = loop.initial()
     ints = lambda values: np.array(values, dtype=np.int64)  # noqa: E731
     network_tick(0, 1, x, np.empty((1, x.size)), -np.inf, np.inf, LIMIT, *loop.args, loop.start, loop.pk, loop.pp,
-                 loop.px, loop.py, *loop._none, 1e-3, 0, ints([SAME, LAG]), np.ones(2), 0.0, 0, ints([1, 0]), np.array([0.1, 0.0]),
-                 np.array([1.0, -1.0]), np.ones(2), ints([0, 0]), ints(loop.start), loop.pk.copy(), loop.pp.copy(),
-                 np.zeros(6))
+                 loop.px, loop.py, *loop._none, 1e-3, 0, ints([SAME, LAG]), np.ones(2), 0.0, 0, ints([1, 0]),
+                 np.array([0.1, 0.0]), np.array([1.0, -1.0]), np.ones(2), ints([0, 0]), ints(loop.start), loop.pk.copy(),
+                 loop.pp.copy(), np.zeros(6))
