@@ -105,5 +105,5 @@ def warm() -> None:
     ints = lambda values: np.array(values, dtype=np.int64)  # noqa: E731
     network_tick(0, 1, x, np.empty((1, x.size)), -np.inf, np.inf, LIMIT, *loop.args, loop.start, loop.pk, loop.pp,
                  loop.px, loop.py, *loop._none, 1e-3, 0, ints([SAME, LAG]), np.ones(2), 0.0, 0, ints([1, 0]),
-                 np.array([0.1, 0.0]), np.array([1.0, -1.0]), np.ones(2), ints([0, 0]), ints(loop.start), loop.pk.copy(),
-                 loop.pp.copy(), np.zeros(6))
+                 np.array([0.1, 0.0]), np.array([1.0, -1.0]), np.ones(2), ints([0, 0]), ints(loop.start),
+                 loop.pk.copy(), loop.pp.copy(), np.zeros(6))
