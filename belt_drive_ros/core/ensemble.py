@@ -19,8 +19,10 @@ no Python per variant or per step, and no second implementation of a step.
   depending on that matrix alone), and
   :class:`~belt_drive_ros.core.kernel_loop.KernelLoop` packs them into one
   row of numbers per variant, the row a single run of that variant packs.
-* The same loop: each variant's steps are
-  :func:`~belt_drive_ros.core.kernel._steps` on its row.
+* The same loop: each variant's steps are those of
+  :func:`~belt_drive_ros.core.kernel._steps` on its row (a 4-state
+  explicit method: the same operations with the variants as vector lanes,
+  :func:`~belt_drive_ros.core.kernel_variants.variant_steps`).
 
 So ensemble and single runs agree bit for bit (tests/test_ensemble.py
 asserts <= 1e-12 relative on every shipped scene, every explicit method,

@@ -1,13 +1,30 @@
-"""The compiled loop over a variant axis: :func:`~belt_drive_ros.core.kernel._steps` once per variant.
+"""The compiled loop over a variant axis: the single run's step, for a whole chunk of variants.
 
 An ensemble (:mod:`~belt_drive_ros.core.ensemble`) steps V variants of one
 plant that share the torque profiles, the method and the step but not
-their matrices. :func:`variant_steps` runs, for each variant in turn, the
-single run's own loop on that variant's numbers (one row of ``reals``,
-packed by :class:`~belt_drive_ros.core.kernel_loop.KernelLoop` from the
-stacked scheme): the same compiled operations on the same floats, so each
-variant equals its single run bit for bit, and one call covers a whole
-chunk of variants (no Python per variant or per step).
+their matrices. Each variant's numbers are one row of ``reals``, packed by
+:class:`~belt_drive_ros.core.kernel_loop.KernelLoop` from the stacked
+scheme (the row a single run of that variant packs), and one call of
+:func:`variant_steps` covers a whole chunk of variants (no Python per
+variant or per step):
+
+* an explicit method on a 4-state plant (every linear campaign of the
+  shipped scenes): :func:`_lanes4` steps :data:`LANES` variants at a time
+  as vector lanes, the operations of the single run's 4-state loop
+  (``kernel._explicit4``) in the same order per variant, each one applied
+  to all lanes before the next. One variant's step is a chain (state ->
+  stage speeds -> torques -> next stage) that a processor runs one
+  operation after the other; 32 independent chains side by side fill its
+  vector units instead (``paper``'s lawson5: 102 against 230 ns per
+  variant-step for the single run's loop, measured side by side on a
+  loaded machine). A lockstep of the same loop with one variant per
+  operation (scalar, the single loop's helpers) was measured no faster;
+* anything else (other state sizes, an implicit stage, the slipping
+  belt's extra input or guard): the single run's own loop
+  (:func:`~belt_drive_ros.core.kernel._steps`) once per variant.
+
+Both give each variant its single run's floats bit for bit
+(tests/test_ensemble.py).
 
 Serial on purpose (no ``prange``): a campaign runs one single-threaded Dask
 worker process per core, each calling this on its own chunk of variants;
