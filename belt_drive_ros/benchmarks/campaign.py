@@ -193,7 +193,8 @@ def kernel_figures(count: int = 2000, repeats: int = 3) -> tuple[float, float]:
     return per_variant_step, best / n * 1e9
 
 
-def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
+def run(out: Path, quick: bool = False, quiet: bool = False, samples: int | None = None) -> dict:
+    """The figures (module docstring); ``samples``: variants of the Monte Carlo (default SAMPLES, QUICK_SAMPLES with ``quick``)."""
     from ..campaign.execute import loop_of_single_runs, run_campaign
 
     out = Path(out)
@@ -201,7 +202,8 @@ def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        data = dict(MC, monte_carlo=dict(MC["monte_carlo"], samples=QUICK_SAMPLES if quick else SAMPLES))
+        count = samples if samples is not None else QUICK_SAMPLES if quick else SAMPLES
+        data = dict(MC, monte_carlo=dict(MC["monte_carlo"], samples=max(int(count), 1)))
         campaign = _campaign(data, tmp)
         n = campaign.samples
         scaling = _campaign(dict(MC, name="paper_scaling",

@@ -80,6 +80,8 @@ def register(sub) -> None:
     p.add_argument("--minutes", type=float, default=60.0, help="replay: minutes of 1 kHz torque bag (default 60)")
     p.add_argument("--baseline", metavar="DIR", help="replay: a checkout of another commit (its numba cache warm) "
                    "measured beside this tree in the same run")
+    p.add_argument("--samples", type=int, default=None,
+                   help="campaign: variants of the Monte Carlo (default 100,000; --quick 2,000)")
     p.add_argument("--floor", action="store_true",
                    help="node: then measure the same process without the model (rclpy + DDS only) for comparison")
     p.add_argument("--only", nargs="+", metavar="CATEGORY",
@@ -166,7 +168,7 @@ def run(args) -> int:
         from ..benchmarks import campaign
 
         print("bench campaign: figures measured side by side in this run")
-        result = campaign.run(out, quick=args.quick, quiet=args.quiet)
+        result = campaign.run(out, quick=args.quick, quiet=args.quiet, samples=args.samples)
         print(f"bench campaign: {result['csv']}")
         return 0
 

@@ -19,8 +19,10 @@ no Python per variant or per step, and no second implementation of a step.
   depending on that matrix alone), and
   :class:`~belt_drive_ros.core.kernel_loop.KernelLoop` packs them into one
   row of numbers per variant, the row a single run of that variant packs.
-* The same loop: each variant's steps are
-  :func:`~belt_drive_ros.core.kernel._steps` on its row.
+* The same loop: each variant's steps are those of
+  :func:`~belt_drive_ros.core.kernel._steps` on its row (a 4-state
+  explicit method: the same operations with the variants as vector lanes,
+  :func:`~belt_drive_ros.core.kernel_variants.variant_steps`).
 
 So ensemble and single runs agree bit for bit (tests/test_ensemble.py
 asserts <= 1e-12 relative on every shipped scene, every explicit method,
@@ -98,7 +100,6 @@ class Ensemble:
         self.plant = Plant(models.model(0), drive, load)  # the profiles, breakpoints and plan all variants share
         self.W = np.ascontiguousarray(models.W, dtype=float)  # (V, 4, n)
         self.drive, self.load = drive, load
-        self._torques = tuple(p.torque for p in (drive, load))
         if None in self.plant.data:
             raise EnsembleUnsupported("ensemble: a torque profile without a data form (steps in Python)")
         self._loops: dict = {}
@@ -227,11 +228,22 @@ class Ensemble:
 
     def inputs(self, times: np.ndarray, states: np.ndarray) -> np.ndarray:
         """Torques ``u`` (N+1, m, V) [N m] at the knots, as :meth:`Plant.input_array` gives a single run."""
-        t = np.asarray(times, dtype=float)[:, None]
-        u = np.empty((len(times), self.m, states.shape[2]))
-        for q, torque in enumerate(self._torques):
-            angle, speed = (self._coordinate(states, r) for r in (2 * q, 2 * q + 1))
-            u[:, q] = torque(t, angle, speed)
+        from .kernel import profile_torque_array
+
+        shape = (len(times), states.shape[2])
+        t = np.repeat(np.asarray(times, dtype=float), shape[1])  # time-major, as the states' samples
+        u = np.empty((shape[0], self.m, shape[1]))
+        out, zeros = np.empty(t.size), None
+        for q, (data, uses) in enumerate(zip(self.plant.data, self.plant.uses_angle)):
+            # the profile's compiled dispatcher on the samples (what profile.torque calls), without its broadcasting
+            # copies; a profile that ignores its angle gets 0.0, as in the kernel's stages
+            speed = np.ascontiguousarray(self._coordinate(states, 2 * q + 1)).reshape(-1)
+            if uses:
+                angle = np.ascontiguousarray(self._coordinate(states, 2 * q)).reshape(-1)
+            else:
+                angle = zeros = np.zeros(t.size) if zeros is None else zeros
+            profile_torque_array(data.kinds, data.params, data.tx, data.ty, t, angle, speed, out)
+            u[:, q] = out.reshape(shape)
         return u
 
     def _coordinate(self, states: np.ndarray, r: int) -> np.ndarray:

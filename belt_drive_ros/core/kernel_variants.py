@@ -1,13 +1,30 @@
-"""The compiled loop over a variant axis: :func:`~belt_drive_ros.core.kernel._steps` once per variant.
+"""The compiled loop over a variant axis: the single run's step, for a whole chunk of variants.
 
 An ensemble (:mod:`~belt_drive_ros.core.ensemble`) steps V variants of one
 plant that share the torque profiles, the method and the step but not
-their matrices. :func:`variant_steps` runs, for each variant in turn, the
-single run's own loop on that variant's numbers (one row of ``reals``,
-packed by :class:`~belt_drive_ros.core.kernel_loop.KernelLoop` from the
-stacked scheme): the same compiled operations on the same floats, so each
-variant equals its single run bit for bit, and one call covers a whole
-chunk of variants (no Python per variant or per step).
+their matrices. Each variant's numbers are one row of ``reals``, packed by
+:class:`~belt_drive_ros.core.kernel_loop.KernelLoop` from the stacked
+scheme (the row a single run of that variant packs), and one call of
+:func:`variant_steps` covers a whole chunk of variants (no Python per
+variant or per step):
+
+* an explicit method on a rigid or flexible plant (<= 4 states: every
+  linear campaign of the shipped scenes): :func:`_lanes` steps :data:`LANES` variants at a time
+  as vector lanes, the operations of the single run's 4-state loop
+  (``kernel._explicit4``) in the same order per variant, each one applied
+  to all lanes before the next. One variant's step is a chain (state ->
+  stage speeds -> torques -> next stage) that a processor runs one
+  operation after the other; 32 independent chains side by side fill its
+  vector units instead (``paper``'s lawson5: 102 against 230 ns per
+  variant-step for the single run's loop, measured side by side on a
+  loaded machine). A lockstep of the same loop with one variant per
+  operation (scalar, the single loop's helpers) was measured no faster;
+* anything else (more states, an implicit stage, the slipping
+  belt's extra input or guard): the single run's own loop
+  (:func:`~belt_drive_ros.core.kernel._steps`) once per variant.
+
+Both give each variant its single run's floats bit for bit
+(tests/test_ensemble.py).
 
 Serial on purpose (no ``prange``): a campaign runs one single-threaded Dask
 worker process per core, each calling this on its own chunk of variants;
@@ -29,8 +46,11 @@ import numpy as np
 from numba import njit
 from numba.core.errors import NumbaPerformanceWarning
 
-from .kernel import HEADER, SECTIONS, _steps
-from .profile_data import OK
+from .kernel import HEADER, SECTIONS, _steps, profile_torque, torque
+from .profile_data import DIVERGED, OK
+
+#: variants stepped together by :func:`_lanes` (their matrices, ~4 kB each for lawson5, stay in the cache)
+LANES = 32
 
 
 #: numba's ``parallel`` option with every transformation off: the parallel pipeline's passes, no threads
@@ -62,6 +82,15 @@ def variant_steps(times, states, j, lo, hi, limit, reals, tables, ints, dp, lp, 
     dx, dy = tables[at[7] - base : at[8] - base], tables[at[8] - base : at[9] - base]
     lx, ly = tables[at[9] - base : at[10] - base], tables[at[10] - base : at[11] - base]
     count = times.size - 1
+    if n <= 4 and ints[6] == 0 and E == 0 and count > 0:  # an explicit method on a rigid or flexible plant, no extra input
+        guarded = False
+        for v in range(states.shape[0]):
+            guarded = guarded or reals[v, at[6]] != 0.0
+        if not guarded:
+            for a in range(0, states.shape[0], LANES):
+                _lanes(times, states, j, lo, hi, limit, reals, at, n, s, cols, kinds, ints[5], ints[7] != 0, ints[8] != 0,
+                       dk, dp, dx, dy, lk, lp, lx, ly, status, a, min(a + LANES, states.shape[0]))  # fmt: skip
+            return
     for v in range(states.shape[0]):
         out = states[v, j + 1 : j + 1 + count]
         if status[v] != OK:
@@ -76,3 +105,151 @@ def variant_steps(times, states, j, lo, hi, limit, reals, tables, ints, dp, lp, 
         if st != OK:
             status[v] = st
             out[done:] = np.nan
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _lane_torques(kinds, params, tx, ty, t, angle, speed, out, L):
+    """``out[q] = profile_torque(kinds, params, tx, ty, t, angle[q], speed[q])`` for q < L.
+
+    The kind is the same for every lane: for the kinds whose formula is
+    plain arithmetic (constant, step, ramp, motor line, polynomial) the
+    dispatcher is called with the kind as a constant, one loop per kind, so
+    the compiler drops the other branches and the loop runs over the lanes
+    in vector registers (the same IEEE operations per lane); the others
+    (tables, sines, schedules) call the dispatcher lane by lane.
+    """
+    kind = kinds[0]
+    if kind == 0:
+        for q in range(L):
+            out[q] = torque(0, params, 0, tx, ty, t, angle[q], speed[q])
+    elif kind == 1:
+        for q in range(L):
+            out[q] = torque(1, params, 0, tx, ty, t, angle[q], speed[q])
+    elif kind == 2:
+        for q in range(L):
+            out[q] = torque(2, params, 0, tx, ty, t, angle[q], speed[q])
+    elif kind == 8:
+        for q in range(L):
+            out[q] = torque(8, params, 0, tx, ty, t, angle[q], speed[q])
+    elif kind == 10:
+        for q in range(L):
+            out[q] = torque(10, params, 0, tx, ty, t, angle[q], speed[q])
+    else:
+        for q in range(L):
+            out[q] = profile_torque(kinds, params, tx, ty, t, angle[q], speed[q])
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _lane_rows(M, i, r, X, n, U, count, out, L):
+    """``out[q] = M[i, r, :, q] @ [X[:n, q], U[:count, q]]`` per lane, summed from the left from 0.0
+    (the single loops' ``_dot`` / ``_row4`` then the torque columns: the same operations per lane)."""
+    if n == 4:
+        for q in range(L):
+            out[q] = 0.0 + M[i, r, 0, q] * X[0, q] + M[i, r, 1, q] * X[1, q] + M[i, r, 2, q] * X[2, q] + M[i, r, 3, q] * X[3, q]
+    else:
+        for q in range(L):
+            out[q] = 0.0 + M[i, r, 0, q] * X[0, q]
+        for c in range(1, n):
+            for q in range(L):
+                out[q] = out[q] + M[i, r, c, q] * X[c, q]
+    for e in range(count):
+        for q in range(L):
+            out[q] = out[q] + M[i, r, n + e, q] * U[e, q]
+
+
+@njit(cache=True, nogil=True)
+def _lanes(times, states, j, lo, hi, limit, reals, at, n, s, cols, kinds, final_base, ua, ub,
+           dk, dp, dx, dy, lk, lp, lx, ly, status, a, b):  # fmt: skip
+    """Variants ``a .. b-1`` of an explicit method on an n-state plant (n <= 4: rigid or flexible), stepped
+    together, the variants as lanes.
+
+    Each variant's floats are those of the single run's loop (the 4-state
+    :func:`~belt_drive_ros.core.kernel._explicit4`, which also covers the
+    one-stage methods of ``_one_stage4`` with the same operations; the
+    general ``_linear_steps`` for the rigid model's 2 states): per
+    stage the wheel coordinates (``W`` or the stage map on ``[x, U_0 ..]``,
+    summed from the left from 0.0), the two torques of
+    :func:`~belt_drive_ros.core.kernel.profile_torque`, then the final map;
+    the same numbers in the same order. The loop order differs: each
+    operation runs over all the chunk's variants before the next (the
+    matrices transposed so the variants are the contiguous axis), so the
+    variants' independent chains fill the vector registers. No extra
+    input (E = 0), no guard.
+    """
+    L = b - a
+    W = np.empty((1, 4, n, L))
+    S = np.empty((s, 4, cols, L))  # the stage maps' rows: max(4, n) = 4
+    F = np.empty((1, n, cols, L))
+    for q in range(L):  # the chunk's own numbers, variant axis last
+        r = reals[a + q]
+        for e in range(4 * n):
+            W[0, e // n, e % n, q] = r[at[0] + e]
+        for e in range(s * 4 * cols):
+            S[e // (4 * cols), (e // cols) % 4, e % cols, q] = r[at[2] + e]
+        for e in range(n * cols):
+            F[0, e // cols, e % cols, q] = r[at[3] + e]
+    X = np.empty((n, L))
+    B = np.empty((n, L))
+    Y = np.empty((n, L))
+    C = np.zeros((4, L))
+    U = np.zeros((2 * s, L))
+    alive = np.zeros(L, dtype=np.bool_)
+    half = n // 2
+    for q in range(L):
+        for e in range(n):
+            X[e, q] = states[a + q, j, e]
+        alive[q] = status[a + q] == OK
+        if not alive[q]:
+            states[a + q, j + 1 : j + times.size] = np.nan
+    offsets = reals[a, at[1] : at[2]]  # c_i h: the same for every variant (shared method and step)
+    count = times.size - 1
+    for k in range(count):
+        t = times[k]
+        for i in range(s):
+            time = t if offsets[i] == 0.0 else t + offsets[i]
+            tc = lo if time < lo else hi if time > hi else time
+            if kinds[i] == 0:
+                for r in range(4):
+                    if (r == 0 and not ua) or (r == 2 and not ub):
+                        continue
+                    _lane_rows(W, 0, r, X, n, U, 0, C[r], L)
+            elif kinds[i] == 1:
+                for r in range(4):
+                    if (r == 0 and not ua) or (r == 2 and not ub):
+                        continue
+                    _lane_rows(S, i, r, X, n, U, 2 * i, C[r], L)
+            else:  # the whole stage state (it starts the final map), then its wheel coordinates
+                for r in range(n):
+                    _lane_rows(S, i, r, X, n, U, 2 * i, B[r], L)
+                for r in range(4):
+                    if (r == 0 and not ua) or (r == 2 and not ub):
+                        continue
+                    _lane_rows(W, 0, r, B, n, U, 0, C[r], L)
+            if not ua:
+                C[0, :L] = 0.0
+            if not ub:
+                C[2, :L] = 0.0
+            _lane_torques(dk, dp, dx, dy, tc, C[0], C[1], U[2 * i], L)
+            _lane_torques(lk, lp, lx, ly, tc, C[2], C[3], U[2 * i + 1], L)
+        base = B if final_base >= 0 else X
+        for r in range(n):  # F @ [x (or the stage that starts it), U_0 .. U_{s-1}], summed from the left
+            _lane_rows(F, 0, r, base, n, U, 2 * s, Y[r], L)
+        o = j + 1 + k
+        for q in range(L):
+            healthy = True
+            for r in range(n):  # angles finite, speeds within the limit (the single loops' check)
+                y = Y[r, q]
+                X[r, q] = y
+                states[a + q, o, r] = y
+                if r < half:
+                    if y - y != 0.0:
+                        healthy = False
+                elif not abs(y) <= limit:
+                    healthy = False
+            if not alive[q]:
+                states[a + q, o] = np.nan
+                continue
+            if not healthy:
+                status[a + q] = DIVERGED
+                alive[q] = False
+                states[a + q, j + 2 + k : j + times.size] = np.nan
