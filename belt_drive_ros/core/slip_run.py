@@ -424,7 +424,9 @@ class SlippingSimulator:
         from . import kernel_slip as ks
 
         packed = None
-        arrays = self.hybrid._kernel
+        # the compiled loop steps the modal flow's methods only (HybridStepper._modal_steps): for another method
+        # the hybrid stepper (its event arrays) is not built before the first event needs it
+        arrays = self.hybrid._kernel if self.method in ("exact", "etd2", "etd4") else None
         loops = {key: st.loop for key, st in self._steppers.items()}
         base = loops.get("flexible")
         if arrays is not None and base is not None and all(
@@ -455,12 +457,11 @@ class SlippingSimulator:
     def _advance_steps(self, state: SlipState, t0: float, t1: float, record=None, events=None) -> SlipState:
         """:meth:`advance` phase by phase through the steppers, each event step by the hybrid stepper."""
         t = float(t0)
-        hs = self.hybrid
         while t < t1:
             if state.kind == "hybrid":  # a belt with mass slipping: step by step on the stepper's plan
                 a, e, whole, lo, hi, cuts = self.stepper.next_step(t, t1)
-                y, mode, sigma = hs.advance(a, e, state.x, state.mode, state.sigma, cuts, events,
-                                            self.dt if whole else None, hi)  # fmt: skip
+                y, mode, sigma = self.hybrid.advance(a, e, state.x, state.mode, state.sigma, cuts, events,
+                                                     self.dt if whole else None, hi)  # fmt: skip
                 self._check(e, y)
                 if record is not None:
                     record.append((np.array([e]), y[None, :], mode, sigma))
@@ -468,7 +469,9 @@ class SlippingSimulator:
                 continue
             st = self.phase_stepper((state.kind, state.sigma) if state.kind in ("slip", "mass") else state.kind)
             t_end = t1
-            if record is not None:  # a window: what a phase computes past its event is thrown away
+            # a window: what a phase computes past its event is thrown away (a compiled loop stops at the event
+            # itself, so it runs to t1 at once)
+            if record is not None and st.loop is None:
                 k = math.floor((t - st.origin) / self.dt) + self._window
                 self._window = min(2 * self._window, WINDOW_MAX)
                 if st.grid_time(k) < t1 - snap_tolerance(t1, self.dt):
@@ -488,7 +491,8 @@ class SlippingSimulator:
             self._window = WINDOW_FIRST
             y0 = self.ys(state.kind, xs[j : j + 1])[0]
             y1 = None if cuts else self.ys(state.kind, xs[j + 1 : j + 2])[0]
-            y, mode, sigma = hs.advance(a, e, y0, state.mode, state.sigma, cuts, events, self.dt if whole else None, hi, y1)
+            y, mode, sigma = self.hybrid.advance(a, e, y0, state.mode, state.sigma, cuts, events, self.dt if whole else None,
+                                                 hi, y1)  # fmt: skip
             self._check(e, y)
             if record is not None:
                 record.append((np.array([e]), y[None, :], mode, sigma))
