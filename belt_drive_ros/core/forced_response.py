@@ -114,49 +114,57 @@ def orbits(P: np.ndarray, X0: np.ndarray, count: int) -> np.ndarray:
 
 
 def orbit_error(Ma: np.ndarray, Ea: np.ndarray, n: int, rows: np.ndarray, n_steps: int):
-    """(err, peak), each (rows, inputs): the method's augmented map ``Ma`` against the exact ``Ea`` from rest.
+    """(err, peak), each (..., rows, inputs): the method's augmented map ``Ma`` against the exact ``Ea`` from rest.
 
     Both are ``[[M, G], [0, Z]]`` on ``[x; v]`` (``n`` states, ``m`` inputs
     ``v`` that start at 1, one per column), stepped ``n_steps`` times:
     ``err = max_k |C (x_k - x*_k)|``, ``peak = max_k |C x*_k|`` for each row
     ``C`` of ``rows``. The first :data:`ORBIT_SAMPLES` / 2 steps one by one,
     the rest in strides of ``s`` steps with the s-th powers of the maps
-    (exact; only samples between strides are skipped). Non-finite: err inf.
+    (exact; only samples between strides are skipped). Leading axes of ``Ma``
+    and ``Ea`` (several pairs, e.g. one per forcing frequency) are evaluated
+    at once, each pair with the same operations as alone. Non-finite anywhere: err inf.
     """
-    m = Ma.shape[0] - n
-    P = np.stack([Ma, Ea])
-    X0 = np.broadcast_to(np.vstack([np.zeros((n, m)), np.eye(m)]).astype(Ma.dtype), (2, n + m, m))
+    N = Ma.shape[-1]
+    lead = Ma.shape[:-2]
+    m = N - n
+    P = np.stack([Ma, Ea]).reshape(-1, N, N)  # (2 b, N, N): the method's maps, then the exact ones
+    X0 = np.broadcast_to(np.vstack([np.zeros((n, m)), np.eye(m)]).astype(Ma.dtype), (P.shape[0], N, m))
     head = min(n_steps, ORBIT_SAMPLES // 2)
     stride = max(1, math.ceil((n_steps - head) / (ORBIT_SAMPLES // 2)))
     with np.errstate(all="ignore"):
         orbit = orbits(P, X0, head)
         if n_steps > head and (n_steps - head) // stride > 0:
-            Ps = np.stack([np.linalg.matrix_power(Ma, stride), np.linalg.matrix_power(Ea, stride)])
+            Ps = np.linalg.matrix_power(P, stride)
             orbit = np.concatenate([orbit, orbits(Ps, orbit[:, :, -m:], (n_steps - head) // stride)], axis=2)
         if not np.all(np.isfinite(orbit)):
-            inf = np.full((rows.shape[0], m), np.inf)
+            inf = np.full(lead + (rows.shape[0], m), np.inf)
             return inf, inf
-        y = np.matmul(rows, orbit[:, :n]).reshape(2, rows.shape[0], -1, m)  # (method/exact, row, samples, inputs)
-        return np.max(np.abs(y[0] - y[1]), axis=1), np.max(np.abs(y[1]), axis=1)
+        y = np.matmul(rows, orbit[:, :n]).reshape((2,) + lead + (rows.shape[0], -1, m))  # (method/exact, ..., row, samples, inputs)
+        return np.max(np.abs(y[0] - y[1]), axis=-2), np.max(np.abs(y[1]), axis=-2)
 
 
-def harmonic_response_error(integrator, A, B, rows, K, n_steps: int, omega: float, stage=None,
-                            E_cl=None) -> tuple[np.ndarray, np.ndarray]:
-    """(err, peak), each (rows, inputs): max_k |y_k - y*_k| and max_k |y*_k| for a unit ``e^{j omega t}`` on each input.
+def harmonic_response_errors(integrator, A, B, rows, K, n_steps: int, omegas, stage=None,
+                             E_cl=None) -> tuple[np.ndarray, np.ndarray]:
+    """(err, peak), each (frequencies, rows, inputs): max_k |y_k - y*_k| and max_k |y*_k| for a unit
+    ``e^{j omega t}`` on each input, for every ``omega`` [rad/s] of ``omegas`` at once.
 
     ``stage``: :func:`stage_gains` of this integrator and K when already made;
-    ``E_cl``: ``e^{h (A + B K)}`` when already made. Unstable or non-finite: err inf.
+    ``E_cl``: ``e^{h (A + B K)}`` when already made. Non-finite: err inf (every frequency).
     """
     h = integrator.dt
     n, m = B.shape
+    omegas = np.asarray(omegas, dtype=float)
     M, gains = stage if stage is not None else stage_gains(integrator, K)
-    G = sum(Gi * np.exp(1j * omega * c * h) for c, Gi in gains)
+    G = sum(Gi * np.exp(1j * omegas * c * h)[:, None, None] for c, Gi in gains)
     A_cl = A + B @ K
     E = scipy.linalg.expm(h * A_cl) if E_cl is None else E_cl
-    F = exact_forcing_map(A_cl, B, E, h, omega)
-    z = np.exp(1j * omega * h) * np.eye(m)
-    Ma = np.block([[M.astype(complex), G], [np.zeros((m, n)), z]])
-    Ea = np.block([[E.astype(complex), F], [np.zeros((m, n)), z]])
+    F = exact_forcing_maps(A_cl, B, E, h, omegas)
+    z = np.exp(1j * omegas * h)[:, None, None] * np.eye(m)
+    Ma = np.zeros((omegas.size, n + m, n + m), dtype=complex)
+    Ea = np.zeros_like(Ma)
+    Ma[:, :n, :n], Ma[:, :n, n:], Ma[:, n:, n:] = M, G, z
+    Ea[:, :n, :n], Ea[:, :n, n:], Ea[:, n:, n:] = E, F, z
     return orbit_error(Ma, Ea, n, rows, n_steps)
 
 
@@ -173,14 +181,25 @@ def exact_forcing_map(A_cl: np.ndarray, B: np.ndarray, E: np.ndarray, h: float, 
     with the oscillator. Where ``j omega I - A`` is (nearly) singular (the
     forcing on an undamped mode) the augmented exponential is used.
     """
+    return exact_forcing_maps(A_cl, B, E, h, np.array([float(omega)]))[0]
+
+
+def exact_forcing_maps(A_cl: np.ndarray, B: np.ndarray, E: np.ndarray, h: float, omegas: np.ndarray) -> np.ndarray:
+    """:func:`exact_forcing_map` (frequencies, n, m) for every ``omega`` of ``omegas`` at once (the solves batched)."""
     n, m = B.shape
-    S = 1j * omega * np.eye(n) - A_cl
-    if np.linalg.cond(S) < FORCING_CONDITION_LIMIT:
-        return np.linalg.solve(S, (np.exp(1j * omega * h) * np.eye(n) - E) @ B)
-    aug = np.zeros((n + m, n + m), dtype=complex)
-    aug[:n, :n], aug[:n, n:] = A_cl, B
-    aug[n:, n:] = 1j * omega * np.eye(m)
-    return scipy.linalg.expm(aug * h)[:n, n:]
+    I = np.eye(n)
+    S = 1j * omegas[:, None, None] * I - A_cl
+    rhs = (np.exp(1j * omegas * h)[:, None, None] * I - E) @ B
+    F = np.empty((omegas.size, n, m), dtype=complex)
+    solvable = np.linalg.cond(S) < FORCING_CONDITION_LIMIT
+    if np.any(solvable):
+        F[solvable] = np.linalg.solve(S[solvable], rhs[solvable])
+    for k in np.flatnonzero(~solvable):
+        aug = np.zeros((n + m, n + m), dtype=complex)
+        aug[:n, :n], aug[:n, n:] = A_cl, B
+        aug[n:, n:] = 1j * omegas[k] * np.eye(m)
+        F[k] = scipy.linalg.expm(aug * h)[:n, n:]
+    return F
 
 
 def profile_harmonics(plant, probes) -> list[tuple[int, float, float]]:
@@ -244,15 +263,16 @@ def harmonic_error(integrator, A, B, rows, K, n_steps: int, harmonics, peaks) ->
         stage = stage_gains(integrator, K)
     except IntegratorError:
         return math.inf
-    worst = 0.0
     peaks = np.asarray(peaks, dtype=float)
     E_cl = scipy.linalg.expm(integrator.dt * (A + B @ K))  # once for every harmonic
-    for channel, f, a in harmonics:
-        err, peak = harmonic_response_error(integrator, A, B, rows, K, n_steps, 2.0 * math.pi * f, stage, E_cl)
-        err, peak = err[:, channel] * a, peak[:, channel] * a
-        if not np.all(np.isfinite(err)):
-            return math.inf
-        scale = np.maximum(peaks[: err.size], peak)
-        rel = np.where(scale > 0, err / np.where(scale > 0, scale, 1.0), 0.0)
-        worst = max(worst, float(np.max(rel)))
-    return worst
+    channels = np.array([int(c) for c, _, _ in harmonics])
+    amplitude = np.array([float(a) for _, _, a in harmonics])
+    omegas = np.array([2.0 * math.pi * float(f) for _, f, _ in harmonics])
+    err, peak = harmonic_response_errors(integrator, A, B, rows, K, n_steps, omegas, stage, E_cl)  # all at once
+    pick = np.arange(len(harmonics))
+    err, peak = err[pick, :, channels] * amplitude[:, None], peak[pick, :, channels] * amplitude[:, None]  # (harmonics, rows)
+    if not np.all(np.isfinite(err)):
+        return math.inf
+    scale = np.maximum(peaks[: err.shape[1]], peak)
+    rel = np.where(scale > 0, err / np.where(scale > 0, scale, 1.0), 0.0)
+    return float(np.max(rel))
