@@ -244,3 +244,53 @@ def test_exact_forcing_map_equals_the_exponential_of_the_system_augmented_with_t
     B = np.array([[0.0], [1.0]])
     F = exact_forcing_map(A, B, scipy.linalg.expm(1e-3 * A), 1e-3, w)
     assert np.allclose(F, augmented(A, B, 1e-3, w), rtol=0, atol=1e-14)
+
+
+def test_harmonic_response_in_closed_form_equals_the_stepped_orbit():
+    """The harmonic term's response y_k = z^k C P - (C M^k) P (P = (z I - M)^{-1} G, forced_response) against the
+    recurrence x_{k+1} = M x_k + G z^k stepped one step at a time, written here, for the method and the exact map:
+    the paper drive's flexible closed loop with etd2 and lawson5, forcings below, near and above the belt mode;
+    and a forcing exactly at an undamped mode (z I - M singular: the orbit is stepped there instead)."""
+    import scipy.linalg
+
+    from belt_drive_ros.core import forced_response as fr
+    from belt_drive_ros.core.integrators import make_integrator
+
+    def stepped(M, G, z, rows, n_steps):
+        x, ys = np.zeros(G.shape[0], dtype=complex), []
+        for k in range(n_steps):
+            x = M @ x + G * z**k
+            ys.append(rows @ x)
+        return np.array(ys)
+
+    scene = load_scene("paper")
+    model = make_model("flexible", scene.params)
+    A, B = model.A, model.B
+    rows = np.vstack([model.C[1], model.C[6]])  # omega_M and a second output row
+    K = np.zeros((2, A.shape[0]))
+    K[0] = -0.5 * Plant(model, scene.drive, scene.load).wheel_map[1]  # a speed slope: a closed loop
+    f_n = scene.params.belt_natural_frequency / (2.0 * math.pi)
+    n_steps = 700  # past ORBIT_SAMPLES / 2: the strided part too
+    for method in ("etd2", "lawson5"):
+        integ = make_integrator(method, A, B, 1e-3)
+        M, gains = fr.stage_gains(integ, K)
+        A_cl = A + B @ K
+        E = scipy.linalg.expm(1e-3 * A_cl)
+        omegas = 2.0 * math.pi * np.array([0.3 * f_n, 0.97 * f_n, 2.5 * f_n])
+        err, peak = fr.harmonic_response_errors(integ, A, B, rows, K, n_steps, omegas, [0, 1, 0], (M, gains), E)
+        head, stride = 600, math.ceil((n_steps - 600) / 600)
+        ks = list(range(head)) + [head - 1 + stride * j for j in range(1, (n_steps - head) // stride + 1)]
+        for f, (omega, ch) in enumerate(zip(omegas, [0, 1, 0])):
+            z = np.exp(1j * omega * 1e-3)
+            G = sum(Gi[:, ch] * np.exp(1j * omega * c * 1e-3) for c, Gi in gains)
+            F = fr.exact_forcing_map(A_cl, B, E, 1e-3, omega)[:, ch]
+            y, y_exact = stepped(M, G, z, rows, n_steps)[ks], stepped(E, F, z, rows, n_steps)[ks]
+            ref_peak = np.max(np.abs(y_exact), axis=0)
+            assert np.allclose(peak[f], ref_peak, rtol=1e-9, atol=0)
+            assert np.allclose(err[f], np.max(np.abs(y - y_exact), axis=0), rtol=1e-6, atol=1e-12 * ref_peak)
+    w = 66.0  # an undamped oscillator forced at its frequency, exact both ways: no error, a response that grows
+    A = np.array([[0.0, 1.0], [-w * w, 0.0]])
+    B = np.array([[0.0, 0.0], [1.0, 0.0]])
+    integ = make_integrator("exact", A, B, 1e-3)
+    err, peak = fr.harmonic_response_errors(integ, A, B, np.eye(2), np.zeros((2, 2)), 400, np.array([w]), [0])
+    assert np.all(np.isfinite(err)) and np.all(peak > 0)
