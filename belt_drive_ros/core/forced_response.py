@@ -140,7 +140,8 @@ def orbit_error(Ma: np.ndarray, Ea: np.ndarray, n: int, rows: np.ndarray, n_step
         if not np.all(np.isfinite(orbit)):
             inf = np.full(lead + (rows.shape[0], m), np.inf)
             return inf, inf
-        y = np.matmul(rows, orbit[:, :n]).reshape((2,) + lead + (rows.shape[0], -1, m))  # (method/exact, ..., row, samples, inputs)
+        # (method/exact, ..., row, samples, inputs)
+        y = np.matmul(rows, orbit[:, :n]).reshape((2,) + lead + (rows.shape[0], -1, m))
         return np.max(np.abs(y[0] - y[1]), axis=-2), np.max(np.abs(y[1]), axis=-2)
 
 
