@@ -424,9 +424,7 @@ class SlippingSimulator:
         from . import kernel_slip as ks
 
         packed = None
-        # the compiled loop steps the modal flow's methods only (HybridStepper._modal_steps): for another method
-        # the hybrid stepper (its event arrays) is not built before the first event needs it
-        arrays = self.hybrid._kernel if self.method in ("exact", "etd2", "etd4") else None
+        arrays = self.hybrid._kernel
         loops = {key: st.loop for key, st in self._steppers.items()}
         base = loops.get("flexible")
         if arrays is not None and base is not None and all(
