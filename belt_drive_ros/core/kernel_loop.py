@@ -150,16 +150,22 @@ class KernelLoop:
         return not np.iscomplexobj(scheme.final) and all(M is None or not np.iscomplexobj(M) for M in scheme.stages)
 
 
-def warm() -> None:
-    """Compile (or load from the disk cache) the profile dispatcher, the linear loop and the variant loop
-    with the one signature runs use (:func:`belt_drive_ros.core.warm.warm` warms every kernel)."""
-    from .kernel import profile_torque, profile_torque_array
+def _constant_profile():
     from .profile_data import CONSTANT, ProfileBuilder
-    from .stage_scheme import StageScheme
 
     builder = ProfileBuilder()
     builder.row(CONSTANT, 1.0)
-    data = builder.build()
+    return builder.build()
+
+
+def warm(variants: bool = True) -> None:
+    """Compile (or load from the disk cache) the profile dispatcher and the linear loop, and (``variants``)
+    the variant loop, with the one signature runs use (:func:`belt_drive_ros.core.warm.warm` warms every
+    kernel)."""
+    from .kernel import profile_torque, profile_torque_array
+    from .stage_scheme import StageScheme
+
+    data = _constant_profile()
     profile_torque(data.kinds, data.params, data.tx, data.ty, 0.0, 0.0, 0.0)
     one = np.zeros(1)
     profile_torque_array(data.kinds, data.params, data.tx, data.ty, one, one, one, np.empty(1))
@@ -167,8 +173,17 @@ def warm() -> None:
     scheme = StageScheme((0.0,), (None,), np.hstack([np.eye(n), np.zeros((n, 2))]))
     loop = KernelLoop(scheme, 1e-3, np.vstack([np.eye(n), np.eye(n)]), (False, False), data, data)
     loop(np.array([0.0, 1e-3]), np.zeros(n), np.empty((1, n)))
-    from .kernel_variants import variant_steps
+    if variants:
+        warm_variants()
 
+
+def warm_variants() -> None:
+    """Compile (or load from the disk cache) the variant loop (it calls the linear loop's dispatcher
+    ``_steps`` for variants it does not step as lanes: loaded from the cache where that is warm)."""
+    from .kernel_variants import variant_steps
+    from .stage_scheme import StageScheme
+
+    data, n = _constant_profile(), 2
     stacked = StageScheme((0.0,), (None,), np.hstack([np.eye(n), np.zeros((n, 2))])[None])
     ens = KernelLoop(stacked, 1e-3, np.vstack([np.eye(n), np.eye(n)])[None], (False, False), data, data)
     variant_steps(np.array([0.0, 1e-3]), np.zeros((1, 2, n)), 0, -math.inf, math.inf, 1.0e5, ens.reals, ens.tables,

@@ -5,14 +5,15 @@ every kernel's argument types are fixed (float64/int64 C arrays and floats),
 so one short call per kernel covers every scene. Kept apart from the kernels'
 own modules so that no kernel module imports the simulators above it.
 
-The kernels fall in two groups: the single belt's (linear and variant
-loops, the slipping hybrid, the node's tick) and the belt network's
-(flexible/rigid and slipping loops), which share the profile dispatcher and
-the P-wheel linear loop. With ``jobs=2`` the network group compiles in a
-second process while this one compiles the single belt's: on two cores the
-build takes about the longer group's time instead of the sum (the shared
-functions may compile in both; numba writes each cache entry whole, and both
-write the same one signature, so two processes writing it are safe).
+The kernels fall in two groups of about equal compile time: the single
+belt's linear loop, slipping hybrid and node tick, and the belt network's
+loops, node tick and the variant loop. With ``jobs=2`` the second group
+compiles in a second process while this one compiles the first: on two
+cores the build takes about the longer group's time instead of the sum. The
+second group compiles the networks first; by the time it reaches the
+variant loop the first group has usually cached the linear loop it calls,
+and it loads it instead of compiling it again (a function both compile is
+written whole by each, with the same one signature, so that is safe).
 """
 
 from __future__ import annotations
@@ -22,28 +23,28 @@ import sys
 
 
 def warm(jobs: int = 1) -> None:
-    """Warm every kernel: the single belt's here, the network's here too (``jobs=1``) or in a second
-    process at the same time (``jobs=2``); a failed second process raises ``RuntimeError``."""
+    """Warm every kernel: the first group here, the second (networks, variants) here too (``jobs=1``) or
+    in a second process at the same time (``jobs=2``); a failed second process raises ``RuntimeError``."""
     from . import jit_cache
 
     jit_cache.refresh()  # once, before either process loads a kernel
     child = None
     if jobs > 1:
-        code = "from belt_drive_ros.core.warm import warm_network; warm_network()"
+        code = "from belt_drive_ros.core.warm import warm_second; warm_second()"
         child = subprocess.Popen([sys.executable, "-c", code])
     warm_single()
     if child is None:
-        warm_network()
+        warm_second()
     elif child.wait() != 0:
-        raise RuntimeError(f"warming the network kernels failed (exit {child.returncode})")
+        raise RuntimeError(f"warming the network and variant kernels failed (exit {child.returncode})")
 
 
 def warm_single() -> None:
-    """The profile dispatcher, the linear and variant loops, the slipping hybrid loop and the node's
-    compiled tick (linear and slipping)."""
+    """The profile dispatcher, the linear loop, the slipping hybrid loop and the node's compiled tick
+    (linear and slipping)."""
     from . import kernel_loop, slip_run, tick
 
-    kernel_loop.warm()
+    kernel_loop.warm(variants=False)
     slip_run.warm_hybrid()
     tick.warm()
 
@@ -57,3 +58,11 @@ def warm_network() -> None:
     network_simulate.warm()
     network_slip.warm()
     network_tick.warm()
+
+
+def warm_second() -> None:
+    """The network group, then the variant loop (see the module docstring)."""
+    from . import kernel_loop
+
+    warm_network()
+    kernel_loop.warm_variants()
