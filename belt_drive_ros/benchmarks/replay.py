@@ -8,7 +8,7 @@ engine-like drive torque, generated once, not timed) goes through what
 :class:`~belt_drive_ros.io.run_writers.McapWindows` (writing: encoding,
 blocks, waiting for the compression threads). Each run is a fresh child
 process, so its peak resident memory (``ru_maxrss``) is its own: with
-``--baseline DIR`` (a checkout of another commit, e.g. ``/work/main``, its
+``--baseline DIR`` (a checkout of another commit, e.g. ``git worktree add ../old v1``, its
 numba cache warm) the same measurement runs on that code too, the runs
 alternating, on the same bag, in one invocation. The child's code uses only
 the public calls both trees have.

@@ -430,16 +430,21 @@ def run_campaign(
             client.submit(run_batch, portable, table.iloc[a:b], str(recordings_dir) if recordings_dir else None, pure=False): (k, a, b)
             for k, a, b in pending
         }  # fmt: skip
-        for future in as_completed(futures):
-            k, a, b = futures[future]
-            try:
-                rows = future.result()
-            except Exception as exc:  # a batch that broke as a whole: its variants are recorded with the reason
-                rows = [dict(r, model="", ran="none", single_reason="", error=f"batch failed: {type(exc).__name__}: {exc}",
-                             seconds=math.nan, **{m: math.nan for m in METRICS}) for r in table.iloc[a:b].to_dict("records")]
-            write_part(parts_dir / f"part-{k:05d}.parquet", rows)
-            computed += b - a
-            bar.update(b - a)
+        noted: list = []
+        with _signals_noted(noted):
+            for future in as_completed(futures):
+                k, a, b = futures[future]
+                try:
+                    rows = future.result()
+                except Exception as exc:  # a batch that broke as a whole: its variants are recorded with the reason
+                    rows = [dict(r, model="", ran="none", single_reason="", seconds=math.nan,
+                                 error=f"batch failed: {type(exc).__name__}: {exc}", **{m: math.nan for m in METRICS})
+                            for r in table.iloc[a:b].to_dict("records")]  # fmt: skip
+                write_part(parts_dir / f"part-{k:05d}.parquet", rows)
+                computed += b - a
+                bar.update(b - a)
+                _raise_noted(noted)
+            _raise_noted(noted)
         compute_end = time.perf_counter()
     except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM as io.atomic.Terminated
         interrupted = True
@@ -483,6 +488,47 @@ def _close(client, cluster) -> None:
                 cluster.close()
         finally:
             logging.disable(logging.NOTSET)
+
+
+@contextlib.contextmanager
+def _signals_noted(noted: list):
+    """SIGINT and SIGTERM appended to ``noted`` as they arrive, then handled as before (KeyboardInterrupt,
+    ``io.atomic.Terminated``). Python raises a handler's exception in whatever code runs at that moment; in a
+    garbage-collector callback (dask's ``distributed.gc`` installs one) it can only print it, and the
+    interrupt would be lost (seen once: the sweep went on to the end and exited 0). The campaign loop
+    raises what was noted after every batch (:func:`_raise_noted`). Main thread only."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    def note(signum, frame):
+        noted.append(signum)
+        handler = previous[signum]
+        if callable(handler):
+            handler(signum, frame)
+        elif handler == signal.SIG_DFL:  # the system's action (end the process), as without this block
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+
+    installed = [sig for sig, handler in previous.items() if handler is not None and handler != signal.SIG_IGN]
+    for sig in installed:
+        signal.signal(sig, note)
+    try:
+        yield
+    finally:
+        for sig in installed:
+            signal.signal(sig, previous[sig])
+
+
+def _raise_noted(noted: list) -> None:
+    """Raise the first signal in ``noted`` again (SIGINT: KeyboardInterrupt; SIGTERM: ``Terminated``)."""
+    if noted:
+        from ..io.atomic import Terminated
+
+        raise KeyboardInterrupt() if noted[0] == signal.SIGINT else Terminated(noted[0])
 
 
 @contextlib.contextmanager

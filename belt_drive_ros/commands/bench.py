@@ -53,7 +53,7 @@ examples:
   belt-drive bench hostile --only campaign bagdir --out /tmp/hostile
   belt-drive bench kernel --out /tmp/k           # the compiled kernel's figures (a minute)
   belt-drive bench replay --minutes 60           # the 1-hour torque bag replayed to MCAP
-  belt-drive bench replay --baseline /work/main  # ... beside another checkout, in one run
+  belt-drive bench replay --baseline ../old      # ... beside another checkout, in one run
 
 Each study writes a CSV and a PNG into --out. CPU time is process time, the
 minimum of repeats; BLAS runs single-threaded (OPENBLAS_NUM_THREADS=1) so that

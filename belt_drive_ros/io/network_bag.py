@@ -402,7 +402,10 @@ def is_network_recording(path) -> bool:
     """Whether ``path`` is an MCAP file (or a split recording's bag folder) holding a ``network_scene`` record
     (also a file cut off mid-write)."""
     p = Path(str(path))
-    if not ((p.suffix.lower() == ".mcap" and p.is_file()) or (p.is_dir() and any(p.glob("*.mcap")))):
+    try:
+        if not ((p.suffix.lower() == ".mcap" and p.is_file()) or (p.is_dir() and any(p.glob("*.mcap")))):
+            return False
+    except OSError:  # a name the system refuses (too long, ...): not a recording; the scene loader says why
         return False
     try:
         for record in _records(p):
