@@ -494,9 +494,11 @@ def _close(client, cluster) -> None:
 def _signals_noted(noted: list):
     """SIGINT and SIGTERM appended to ``noted`` as they arrive, then handled as before (KeyboardInterrupt,
     ``io.atomic.Terminated``). Python raises a handler's exception in whatever code runs at that moment; in a
-    garbage-collector callback (dask's ``distributed.gc`` installs one) it can only print it, and the
-    interrupt would be lost (seen once: the sweep went on to the end and exited 0). The campaign loop
-    raises what was noted after every batch (:func:`_raise_noted`). Main thread only."""
+    garbage-collector callback (dask's ``distributed.gc`` installs one) or a ``__del__`` (a dask
+    ``Future``'s) it can only print it ("Exception ignored in ..."), and the interrupt would be lost (seen
+    in CI: the sweep went on to the end and exited 0, or exited with that print above its one line). The
+    print of a noted interrupt is dropped, and the campaign loop raises what was noted after every batch
+    (:func:`_raise_noted`). Main thread only."""
     import threading
 
     if threading.current_thread() is not threading.main_thread():
@@ -513,12 +515,18 @@ def _signals_noted(noted: list):
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
 
+    def quiet(unraisable):  # the interrupt raised where Python can only print it: noted, raised again later
+        if not (noted and isinstance(unraisable.exc_value, KeyboardInterrupt)):
+            hook(unraisable)
+
     installed = [sig for sig, handler in previous.items() if handler is not None and handler != signal.SIG_IGN]
     for sig in installed:
         signal.signal(sig, note)
+    hook, sys.unraisablehook = sys.unraisablehook, quiet
     try:
         yield
     finally:
+        sys.unraisablehook = hook
         for sig in installed:
             signal.signal(sig, previous[sig])
 
