@@ -178,3 +178,10 @@ def test_a_run_does_use_the_compiled_kernel():
     code = "from belt_drive_ros.core.simulate import simulate\nfrom belt_drive_ros.core.scene import load_scene\n"
     code += "simulate(load_scene('paper'), duration=0.01)"
     assert "numba" in _loaded_after(code, ("numba",))
+
+
+def test_a_plain_sim_of_a_scene_loads_no_recording_library(tmp_path):
+    """``belt-drive sim paper`` reads no recording: mcap and msg_tools (~0.17 s of import) load only for a
+    recording (the network-recording check once loaded them for every scene)."""
+    code = "from belt_drive_ros.cli import main\nmain(['sim', 'paper', '--duration', '0.01', '--quiet'])"
+    assert _loaded_after(code, ("mcap", "msg_tools", "mcap_ros2")) == []

@@ -122,13 +122,13 @@ def run(args) -> int:
     from ..io import is_recording  # a path check: mcap and msg_tools load only for a recording
 
     args.writer_options = {}
-    from ..io.network_bag import is_network_recording
-
-    if is_network_recording(args.scene):  # a belt network node's recording (commands/network_sim.py)
-        from .network_sim import resimulate
-
-        return resimulate(args)
     if is_recording(args.scene):  # a recording re-simulated from its own scene record
+        from ..io.network_bag import is_network_recording
+
+        if is_network_recording(args.scene):  # a belt network node's recording (commands/network_sim.py)
+            from .network_sim import resimulate
+
+            return resimulate(args)
         scene = _resimulation(args)
     else:
         from ..core.network.scene import is_network
