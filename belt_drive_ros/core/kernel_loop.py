@@ -158,10 +158,10 @@ def _constant_profile():
     return builder.build()
 
 
-def warm(variants: bool = True) -> None:
-    """Compile (or load from the disk cache) the profile dispatcher and the linear loop, and (``variants``)
-    the variant loop, with the one signature runs use (:func:`belt_drive_ros.core.warm.warm` warms every
-    kernel)."""
+def warm() -> None:
+    """Compile (or load from the disk cache) the profile dispatcher and the linear loop with the one
+    signature runs use (:func:`belt_drive_ros.core.warm.warm` warms every kernel; the variant loop:
+    :func:`warm_variants`)."""
     from .kernel import profile_torque, profile_torque_array
     from .stage_scheme import StageScheme
 
@@ -173,8 +173,6 @@ def warm(variants: bool = True) -> None:
     scheme = StageScheme((0.0,), (None,), np.hstack([np.eye(n), np.zeros((n, 2))]))
     loop = KernelLoop(scheme, 1e-3, np.vstack([np.eye(n), np.eye(n)]), (False, False), data, data)
     loop(np.array([0.0, 1e-3]), np.zeros(n), np.empty((1, n)))
-    if variants:
-        warm_variants()
 
 
 def warm_variants() -> None:

@@ -44,7 +44,7 @@ def warm_single() -> None:
     (linear and slipping)."""
     from . import kernel_loop, slip_run, tick
 
-    kernel_loop.warm(variants=False)
+    kernel_loop.warm()
     slip_run.warm_hybrid()
     tick.warm()
 
