@@ -380,7 +380,10 @@ def run_campaign(
     compute_end = compute_start
     recordings_dir = None
     futures: dict = {}
+    noted: list = []
+    quiet = contextlib.ExitStack()  # from the first batch on: the sizing batches' parts are written before the rest
     try:
+        quiet.enter_context(_signals_noted(noted))
         if manifest is None:
             if force and out_dir.exists():
                 for p in list(parts_dir.glob("part-*.parquet")) if parts_dir.exists() else []:
@@ -403,12 +406,15 @@ def run_campaign(
                 where = str(recordings_dir) if recordings_dir else None
                 batches = [client.submit(run_batch, portable, table.iloc[k * first : (k + 1) * first], where, pure=False)
                            for k in range(sizing)]  # fmt: skip
+                futures.update((future, (k, k * first, (k + 1) * first)) for k, future in enumerate(batches))
                 per_variant = math.inf
                 for k, future in enumerate(batches):
                     rows = future.result()
                     per_variant = min(per_variant, (float(rows["seconds"].iloc[0]) if len(rows) else 0.0) / first)
                     write_part(parts_dir / f"part-{k:05d}.parquet", rows)
                     computed += first
+                    _raise_noted(noted)
+                futures.clear()
                 rest = n - sizing * first
                 size = max(math.ceil(MIN_TASK_SECONDS / max(per_variant, 1e-9)), math.ceil(rest / (4 * n_workers)))
                 size = min(size, MAX_BATCH)
@@ -430,21 +436,19 @@ def run_campaign(
             client.submit(run_batch, portable, table.iloc[a:b], str(recordings_dir) if recordings_dir else None, pure=False): (k, a, b)
             for k, a, b in pending
         }  # fmt: skip
-        noted: list = []
-        with _signals_noted(noted):
-            for future in as_completed(futures):
-                k, a, b = futures[future]
-                try:
-                    rows = future.result()
-                except Exception as exc:  # a batch that broke as a whole: its variants are recorded with the reason
-                    rows = [dict(r, model="", ran="none", single_reason="", seconds=math.nan,
-                                 error=f"batch failed: {type(exc).__name__}: {exc}", **{m: math.nan for m in METRICS})
-                            for r in table.iloc[a:b].to_dict("records")]  # fmt: skip
-                write_part(parts_dir / f"part-{k:05d}.parquet", rows)
-                computed += b - a
-                bar.update(b - a)
-                _raise_noted(noted)
+        for future in as_completed(futures):
+            k, a, b = futures[future]
+            try:
+                rows = future.result()
+            except Exception as exc:  # a batch that broke as a whole: its variants are recorded with the reason
+                rows = [dict(r, model="", ran="none", single_reason="", seconds=math.nan,
+                             error=f"batch failed: {type(exc).__name__}: {exc}", **{m: math.nan for m in METRICS})
+                        for r in table.iloc[a:b].to_dict("records")]  # fmt: skip
+            write_part(parts_dir / f"part-{k:05d}.parquet", rows)
+            computed += b - a
+            bar.update(b - a)
             _raise_noted(noted)
+        _raise_noted(noted)
         compute_end = time.perf_counter()
     except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM as io.atomic.Terminated
         interrupted = True
@@ -455,6 +459,7 @@ def run_campaign(
             future.release()  # interrupt's traceback can hold one) would print an error from its __del__
         if own:
             _close(client, cluster)
+        quiet.close()  # after the close: an interrupt printed from a callback meanwhile is dropped too
     parts = sorted(parts_dir.glob("part-*.parquet"))
     frames = [pd.read_parquet(p) for p in parts]
     result = pd.concat(frames, ignore_index=True).sort_values("variant", kind="stable").reset_index(drop=True) if frames else table.iloc[:0]
