@@ -86,6 +86,13 @@ def scheme_arrays(scheme, dt: float, W, m: int):
     return kinds, offsets, S, final, final_base, tol, max_iter
 
 
+#: a single plant's ``reals`` before the tables and its ``ints``, by (scheme, step, wheel map, extras, guard, profile
+#: kinds and table sizes): numbers of the method and the plant only (a cached integrator's scheme is read-only),
+#: so the guards' and the run's loops of one scene, and a repeated run, build them once; oldest of more dropped
+_OWN: dict = {}
+OWN_CACHE_SIZE = 256
+
+
 class KernelLoop:
     """``loop(times, x, out, lo, hi) -> (done, status, t)``: :func:`~belt_drive_ros.core.kernel.linear_steps` for one plant.
 
@@ -113,14 +120,29 @@ class KernelLoop:
         stacked = W.ndim == 3
         W = W if stacked else W[None]  # (V, 4, n)
         V, n = W.shape[0], W.shape[2]
-        kinds, offsets, S, final, final_base, tol, max_iter = scheme_arrays(scheme, dt, W, 2 + len(extra))
-        rows, cols = S.shape[2], S.shape[3]
-        s = kinds.size
         self.uses_angle = np.array([bool(u) for u in uses_angle], dtype=np.int64)
         self.drive, self.load = drive, load
         extra_rows = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
         d, l = drive, load
-        sections = (W, offsets, S, final, np.array([tol]), extra_rows, guard_array(guard, n), d.tx, d.ty, l.tx, l.ty)
+        tables = (d.tx, d.ty, l.tx, l.ty)
+        guard_row = guard_array(guard, n)
+        key = None
+        if not stacked:  # one plant: the method's and plant's numbers are built once per scheme (a cached integrator's)
+            key = (id(scheme), float(dt), W.tobytes(), extra_rows.tobytes(), guard_row.tobytes(), self.uses_angle.tobytes(),
+                   d.kinds.tobytes(), l.kinds.tobytes(), *(a.size for a in tables))  # fmt: skip
+            made = _OWN.get(key)
+            if made is not None and made[0] is scheme:
+                own, ints = made[1], made[2]
+                self.tables = np.concatenate([np.ravel(a) for a in tables]).astype(np.float64)
+                self.reals = np.concatenate([own, self.tables])
+                self.tables = self.reals[own.size :]  # a view: a recording's samples held once
+                self.ints = ints.copy()
+                self._dp, self._lp = d.params, l.params
+                return
+        kinds, offsets, S, final, final_base, tol, max_iter = scheme_arrays(scheme, dt, W, 2 + len(extra))
+        rows, cols = S.shape[2], S.shape[3]
+        s = kinds.size
+        sections = (W, offsets, S, final, np.array([tol]), extra_rows, guard_row, *tables)
         starts = np.cumsum([0] + [a[0].size if a.ndim >= 3 else a.size for a in sections])
         own = sections[:7]  # the plant's and method's numbers (per variant); then the profiles' tables (shared)
         self.reals = np.concatenate(
@@ -128,11 +150,14 @@ class KernelLoop:
         ).astype(np.float64)
         #: the profiles' tables: after the plant's numbers in a single run's ``reals``, apart for variants (shared)
         self.tables = np.concatenate([np.ravel(a) for a in sections[7:]]).astype(np.float64)
-        if not stacked:
-            self.reals = np.concatenate([self.reals[0], self.tables])
-            self.tables = self.reals[self.reals.size - self.tables.size :]  # a view: a recording's samples held once
         header = [n, s, len(extra), rows, cols, final_base, max_iter, *self.uses_angle]
         self.ints = np.concatenate([header, starts, kinds, d.kinds, l.kinds]).astype(np.int64)
+        if not stacked:
+            if len(_OWN) >= OWN_CACHE_SIZE:
+                _OWN.pop(next(iter(_OWN)))
+            _OWN[key] = (scheme, self.reals[0].copy(), self.ints.copy())
+            self.reals = np.concatenate([self.reals[0], self.tables])
+            self.tables = self.reals[self.reals.size - self.tables.size :]  # a view: a recording's samples held once
         # the profiles' parameters stay their own arrays: a held torque's value written in place is read
         self._dp, self._lp = d.params, l.params
 

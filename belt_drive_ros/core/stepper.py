@@ -299,7 +299,11 @@ class Stepper:
         x0 = np.asarray(x0, dtype=float)
         if t1 < t0:
             raise ValueError(f"run: t1 ({t1!r} s) is before t0 ({t0!r} s)")
-        if self.guard is not None and self.loop is not None and progress is None:
+        # whole grid steps away from breakpoints in the compiled loop: one call, no plan (the plan's steps, the
+        # same floats); not where the vectorized open-loop path would be taken
+        if self.loop is not None and progress is None and (
+            self.guard is not None or vectorize is False or not self.plant.open_loop
+        ):
             k0, k1 = self._snap(t0), self._snap(t1)
             if k0 is not None and k1 is not None and k1 > k0 and not self._near_breakpoint(t0, t1, k0, k1):
                 return self._guarded_whole(x0, k0, k1, t0, t1)
@@ -348,7 +352,7 @@ class Stepper:
         return False
 
     def _guarded_whole(self, x0: np.ndarray, k0: int, k1: int, t0: float, t1: float):
-        """:meth:`run` of whole grid steps k0 .. k1 away from breakpoints with the guard (one loop call)."""
+        """:meth:`run` of whole grid steps k0 .. k1 away from breakpoints (one loop call; with the guard if any)."""
         self.split_steps, self.vectorized, self.stopped = {}, False, None
         states = np.empty((k1 - k0 + 1, x0.size))
         states[0] = x0
