@@ -319,6 +319,13 @@ class SlippingSimulator:
         or the method are not the kernel's, by :meth:`_advance_steps`.
         Raises :class:`~belt_drive_ros.core.errors.SimulationDivergedError`.
         """
+        if t1 > t0 and state.kind == "flexible" and self._hybrid is None and self.stepper.loop is not None:
+            # no slip so far and the hybrid loop not packed yet: the flexible model's own guarded loop (the same
+            # steps and guard), so a scene within the limit never packs it; from the step the guard stops in on,
+            # the hybrid loop takes over
+            state, t0 = self._flexible_until_guard(state, t0, t1, record)
+            if t0 >= t1:
+                return state
         compiled = self._compiled()
         if compiled is None or t1 <= t0:
             return self._advance_steps(state, t0, t1, record, events)
@@ -394,6 +401,18 @@ class SlippingSimulator:
                 break
         n = ks.PHASE_SIZE[kind]
         return SlipState(STICK if kind <= ks.STICKING else SLIP, float(sigma), ks.KIND_NAMES[kind], x[:n].copy())
+
+    def _flexible_until_guard(self, state: SlipState, t0: float, t1: float, record) -> tuple:
+        """The flexible phase from ``t0`` by the flexible stepper (guarded by the stick check): ``(state, t)`` at
+        ``t1``, or at the start of the step the guard stopped in (not recorded: the caller steps it again)."""
+        times, xs = self.stepper.run(state.x, t0, t1)
+        stop = self.stepper.stopped
+        n = len(times) - 1 if stop is None else stop[0]
+        if record is not None and n:
+            record.append((times[1 : n + 1], self.from_flexible(xs[1 : n + 1]), state.mode, state.sigma))
+            if self.flexible_record is not None:
+                self.flexible_record.append((times[1 : n + 1], xs[1 : n + 1]))
+        return SlipState(state.mode, state.sigma, state.kind, xs[n]), float(times[n]) if stop is not None else t1
 
     def _free_steps(self, N: int) -> tuple:
         """(lo, hi, special) of ``N`` whole steps without clamps or splits (read-only, kept per N)."""
