@@ -84,6 +84,7 @@ import numpy as np
 from .errors import SimulationDivergedError
 from .integrators import FixedStepIntegrator, make_integrator
 from .kernel_loop import DIVERGED, GUARDED, NOT_CONVERGED
+from .model import _LinearModel
 
 #: Speeds beyond this [rad/s] (~955,000 rpm) mean the numerics, not the physics, blew up.
 SPEED_LIMIT = 1.0e5
@@ -120,7 +121,9 @@ class Plant:
         self.open_loop = not (drive.state_dependent or load.state_dependent or self.extra)
         self.scalar_drive = drive_torque = drive.scalar_torque()
         self.scalar_load = load_torque = load.scalar_torque()
-        self.wheel_map = W = np.array(model.wheel_coordinates(np.eye(model.A.shape[0])), dtype=float)
+        # a rigid or flexible model's wheel map is its C rows (built once, the same floats); another model's is read
+        self.wheel_map = W = (model.wheel_map if isinstance(model, _LinearModel) and np.ndim(model.A) == 2
+                              else np.array(model.wheel_coordinates(np.eye(model.A.shape[0])), dtype=float))
         #: (drive, load): whether each torque reads its angle; their kernel data (None: a Python-only profile)
         self.uses_angle = (bool(drive.uses_angle), bool(load.uses_angle))
         self.data = (drive.data(), load.data())
