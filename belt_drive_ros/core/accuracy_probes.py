@@ -17,7 +17,7 @@ import scipy.linalg
 from . import stage_scheme as _scheme
 from .errors import IntegratorError
 from .forced_response import ORBIT_SAMPLES, orbit_error, profile_harmonics
-from .model import LINEAR_OUTPUTS, RigidBeltModel
+from .model import LINEAR_OUTPUTS, RigidBeltModel, make_model
 from .stepper import Plant, Stepper, snap_tolerance
 
 #: default relative tolerance of the guard (speed and belt torque, relative to peak)
@@ -119,7 +119,7 @@ class RigidSurvey:
         """The rigid model of the survey's parameters (made once; the probes and the start check read it too)."""
         model = self.__dict__.get("_rigid")
         if model is None:
-            model = self._rigid = RigidBeltModel(self.params)
+            model = self._rigid = make_model("rigid", self.params)
         return model
 
     @property
@@ -357,7 +357,7 @@ def input_weight(plant, x0, dt: float, probes, jumps, rigid=None) -> float:
     """
     model = plant.model
     p = model.params
-    rigid = rigid or RigidBeltModel(p)
+    rigid = rigid or make_model("rigid", p)
     wm = plant.wheel_map
     x0 = np.asarray(x0, dtype=float)
     phi0, w0 = float(wm[0] @ x0), float(wm[1] @ x0)

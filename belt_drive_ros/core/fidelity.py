@@ -47,7 +47,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .accuracy_probes import RigidSurvey, operating_run_step  # noqa: F401 - operating_run_step re-exported
-from .model import RigidBeltModel, make_model
+from .model import make_model
 from .stepper import Plant, Stepper
 
 #: rigid is chosen while max(f_excitation) / f_n stays below this [-].
@@ -97,7 +97,7 @@ def start_mismatch(scene, needed: float | None = None) -> tuple[float, float]:
     """
     p = scene.params
     if needed is None:
-        rigid = RigidBeltModel(p)
+        rigid = make_model("rigid", p)
         x0 = scene.initial_state.vector("rigid", p.ratio)
         needed = float(rigid.belt_torque(x0, Plant(rigid, scene.drive, scene.load).inputs(0.0, x0)))
     init = scene.initial_state

@@ -240,7 +240,7 @@ class FlexibleBeltModel(_LinearModel):
         if drive_torque is None:
             delta = static_deflection(self.params, load_torque)
         else:
-            rigid = RigidBeltModel(self.params)
+            rigid = make_model("rigid", self.params)
             tb = float(rigid.belt_torque(np.array([phi, omega]), np.array([drive_torque, load_torque])))
             delta = tb / self.params.belt_torsional_stiffness
         return np.array([phi, delta, omega, i * omega])
@@ -506,12 +506,25 @@ def static_deflection(params: BeltDriveParams, load_torque: float) -> float:
     return load_torque / params.belt_torsional_stiffness
 
 
+#: rigid and flexible models by (kind, parameter set): read-only once built (frozen, their matrices), so the model
+#: choice, the guards and the run of one scene share one; the oldest of more than 32 is dropped
+_MODELS: dict = {}
+
+
 def make_model(kind: str, params: BeltDriveParams):
-    """Model by name: ``"rigid"``, ``"flexible"`` or ``"slipping"`` (:class:`~belt_drive_ros.core.slip.SlippingBeltModel`)."""
-    if kind == "rigid":
-        return RigidBeltModel(params)
-    if kind == "flexible":
-        return FlexibleBeltModel(params)
+    """Model by name: ``"rigid"``, ``"flexible"`` or ``"slipping"`` (:class:`~belt_drive_ros.core.slip.SlippingBeltModel`).
+
+    A rigid or flexible model of one parameter set (the same object) is built once and shared."""
+    if kind in ("rigid", "flexible"):
+        key = (kind, id(params))
+        hit = _MODELS.get(key)
+        if hit is not None and hit[0] is params:  # the set is held in the entry: its id is not reused
+            return hit[1]
+        model = RigidBeltModel(params) if kind == "rigid" else FlexibleBeltModel(params)
+        if len(_MODELS) >= 32:
+            _MODELS.pop(next(iter(_MODELS)))
+        _MODELS[key] = (params, model)
+        return model
     if kind == "slipping":
         from .slip import SlippingBeltModel
 

@@ -44,7 +44,7 @@ import numpy as np
 from .errors import IntegratorError
 from .integrators import REGISTRY, method_class
 from .kernel_loop import FrictionForce
-from .model import FlexibleBeltModel
+from .model import make_model
 from .profile_data import DIVERGED, NOT_CONVERGED
 from .slip import SLIP, STICK, Event, HybridStepper, SlipError, SlippingBeltModel
 from .stability import require_stable
@@ -153,7 +153,7 @@ class SlippingSimulator:
                  origin=0.0, integrator=None, lazy=False):  # fmt: skip
         require_first_order_method(method)
         self.model = m = SlippingBeltModel(params)
-        self.flexible = FlexibleBeltModel(params)
+        self.flexible = make_model("flexible", params)
         self.drive, self.load = drive, load
         self.method, self.dt = method, float(dt)
         self.method_options = dict(method_options or {})
