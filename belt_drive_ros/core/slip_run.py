@@ -412,7 +412,11 @@ class SlippingSimulator:
             record.append((times[1 : n + 1], self.from_flexible(xs[1 : n + 1]), state.mode, state.sigma))
             if self.flexible_record is not None:
                 self.flexible_record.append((times[1 : n + 1], xs[1 : n + 1]))
-        return SlipState(state.mode, state.sigma, state.kind, xs[n]), float(times[n]) if stop is not None else t1
+        if stop is None:
+            return SlipState(state.mode, state.sigma, state.kind, xs[n]), t1
+        for key in self._factories:  # the belt slips in this step: every phase's loop packed at once (not one by one)
+            self.phase_stepper(key)
+        return SlipState(state.mode, state.sigma, state.kind, xs[n]), float(times[n])
 
     def _free_steps(self, N: int) -> tuple:
         """(lo, hi, special) of ``N`` whole steps without clamps or splits (read-only, kept per N)."""
