@@ -304,7 +304,7 @@ def require_accurate_slipping(params, drive, load, method, dt, duration, x0_flex
 
 
 def slip_run_error(params, drive, load, method: str, dt: float, time, states, modes, sigmas, event_times,
-                   method_options=None) -> float:  # fmt: skip
+                   method_options=None, hybrid=None) -> float:  # fmt: skip
     """A posteriori error [-] of a slipping run at ``dt`` over its slipping stretch, by Richardson on the run itself.
 
     The linearized checks of :func:`check_slipping` see each mode alone;
@@ -321,7 +321,8 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     run at ``dt / 2`` instead (error ``|y_dt - y_dt/2| 2^p / (2^p - 1)``).
     Signals: drive speed and belt torque at the common grid times, relative
     to their peaks over the run (``time``, ``states``, ``modes``,
-    ``sigmas``: the run's samples). No events: 0; both reruns diverge: inf.
+    ``sigmas``: the run's samples). No events: 0; both reruns diverge: inf. ``hybrid``: the run's
+    :class:`~belt_drive_ros.core.slip.HybridStepper` (it holds no step length: the reruns share it).
     """
     from .errors import SimulationDivergedError
     from .slip import SlippingBeltModel
@@ -349,6 +350,7 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     for h, factor in ((2.0 * dt, 1.0 / (2.0**order - 1.0)), (dt / 2.0, 2.0**order / (2.0**order - 1.0))):
         # lazy: each phase's stepper is built when the rerun first enters that phase
         sim = SlippingSimulator(params, drive, load, method, h, method_options, check_stability=False, lazy=True)
+        sim._hybrid = hybrid
         state = sim._native(np.asarray(states[i], dtype=float), int(modes[i]), float(sigmas[i]))
         pieces = [(np.array([t0]), sim.state_y(state)[None, :], state.mode, state.sigma)]
         try:

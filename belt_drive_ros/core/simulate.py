@@ -402,7 +402,7 @@ def _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accu
     if accuracy is not None:  # the slipping run itself, rerun over its slipping stretch (what the modes alone miss)
         accuracy = with_slip_run_error(accuracy, slip_run_error(
             scene.params, scene.drive, scene.load, scene.method, scene.dt, time, states, modes, sigmas,
-            [e.time for e in sim.events], scene.method_options,
+            [e.time for e in sim.events], scene.method_options, sim._hybrid,
         ))  # fmt: skip
     m = sim.model
     u = sim.input_array(time, states)

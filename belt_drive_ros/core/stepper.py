@@ -274,6 +274,7 @@ class Stepper:
         self._partials: dict = {}
         self._loops: dict = {}  # kernel loops of the partial-step integrators, by step length
         self._free: tuple | None = None  # the breakpoint-free interval the last tick fell in (_near_breakpoint)
+        self._clean = False  # the last grouped march ran every step to the end without a failing status
 
     # ------------------------------------------------------------ public
     def advance(self, x: np.ndarray, t0: float, t1: float) -> np.ndarray:
@@ -330,10 +331,12 @@ class Stepper:
             if self.stopped is not None:
                 j = self.stopped[0]
                 times, states = times[: j + 2], states[: j + 2]
-        bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, states.shape[1] // 2 :]) > SPEED_LIMIT, axis=1)
-        if np.any(bad):
-            k = int(np.argmax(bad))
-            raise self._diverged(float(times[k]), states[k])
+        clean, self._clean = self._clean, False  # the grouped march's kernel checked every step and none failed
+        if not (clean and _healthy(states[-1])):
+            bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, states.shape[1] // 2 :]) > SPEED_LIMIT, axis=1)
+            if np.any(bad):
+                k = int(np.argmax(bad))
+                raise self._diverged(float(times[k]), states[k])
         if progress:
             progress(1.0)
         return times, states
@@ -593,6 +596,9 @@ class Stepper:
             return np.vstack([x, x]) if record else x
         first, last, special = plan["first"], plan["last"], plan["special"]
         n_cells = last - first + 1
+        if (record and not progress and self.loop is not None and not plan["lead"] and not plan["trail"]
+                and not plan.get("absorbed", _NO_CELLS).size and not self.split_steps):
+            return self._march_grouped(x, plan)
         states = np.empty((n_cells + 1, size)) if record else None
         if record:
             states[0] = x
@@ -645,6 +651,51 @@ class Stepper:
                 if progress:
                     progress((c - first) / n_cells)
         return states if record else x
+
+    def _march_grouped(self, x: np.ndarray, plan: dict) -> np.ndarray:
+        """:meth:`_march` of whole grid steps whose breakpoints all lie on knots: one kernel call per group.
+
+        A step that ends on a breakpoint samples at most at its left limit (``hi``), the one that starts there
+        at least at it (``lo``); every other sample of the steps before the first (after the second) lies
+        below (above) that bound already, so a group of steps from one starting on a breakpoint to one ending
+        on the next is one call with that group's ``lo`` and ``hi``: the same steps and samples as a call per
+        clamped step. The guard stops as in :meth:`_march` (the stopped step's clamps reported).
+        """
+        first, last, special = plan["first"], plan["last"], plan["special"]
+        states = np.empty((last - first + 2, x.size))
+        states[0] = x
+        grid = self._grid(first, last + 2)
+        half = 0.5 * self.dt
+        c = first
+        with np.errstate(all="ignore"):
+            while c <= last:
+                lo = special[c][0] if c in special else -math.inf
+                d = c  # the group's last cell: up to one whose hi is finite, or before one whose lo is
+                while True:
+                    hi = special[d][1] if d in special else math.inf
+                    if hi != math.inf or d == last or (d + 1 in special and special[d + 1][0] != -math.inf):
+                        break
+                    d += 1
+                if (lo != -math.inf and lo > grid[c - first] + half) or (hi != math.inf and hi < grid[d - first] + half):
+                    lo, hi, d = (*special.get(c, (-math.inf, math.inf))[:2], c)  # a bound far inside: this step alone
+                done, status, t = self.loop(grid[c - first : d - first + 2], np.ascontiguousarray(x, dtype=np.float64),
+                                            states[c - first + 1 : d - first + 2], lo, hi, SPEED_LIMIT)  # fmt: skip
+                if status == NOT_CONVERGED:
+                    self._not_converged(t)
+                if status == GUARDED:
+                    j = c + done - 1
+                    a, e, whole = self._step_ends(plan, j)
+                    lo_j, hi_j, _ = special.get(j, (-math.inf, math.inf, ()))
+                    self.stopped = (j - first, a, e, whole, lo_j, hi_j, [])
+                    break
+                if status == DIVERGED:
+                    states[c - first + 1 + done :] = np.nan
+                    break
+                x = states[d - first + 1]
+                c = d + 1
+            else:
+                self._clean = True
+        return states
 
     def _whole_steps(self, x: np.ndarray, c: int, stop: int, out, times=None, loop=None) -> np.ndarray:
         """Whole steps of cells ``c`` .. ``stop - 1`` (no breakpoint touches them); write into ``out``.
