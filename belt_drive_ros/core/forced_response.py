@@ -278,14 +278,15 @@ def profile_harmonics(plant, probes) -> list[tuple[int, float, float]]:
             values = np.asarray(profile.torque(t + offsets, angle + speed * offsets, np.broadcast_to(speed, offsets.shape)),
                                 dtype=float)  # fmt: skip
         found: list[tuple[float, float]] = []
-        for k in range(len(points)):
-            row = values[k]
-            if not np.all(np.isfinite(row)):
-                continue
-            first, second = row[:AMPLITUDE_SAMPLES], row[AMPLITUDE_SAMPLES:]
-            a = 0.5 * float(np.max(first) - np.min(first))
-            if a <= 0.0 or np.max(np.abs(second - first)) > PERIODIC_TOLERANCE * 2.0 * a:
-                continue  # not periodic here (a ramp, a soft start, a table): the step response and windows see it
+        # every candidate's amplitude and repetition at once (the same operations per row)
+        first, second = values[:, :AMPLITUDE_SAMPLES], values[:, AMPLITUDE_SAMPLES:]
+        with np.errstate(all="ignore"):
+            amps = 0.5 * (np.max(first, axis=1) - np.min(first, axis=1))
+            repeat = np.max(np.abs(second - first), axis=1)
+        # not periodic here (a ramp, a soft start, a table): the step response and windows see it
+        periodic = np.all(np.isfinite(values), axis=1) & (amps > 0.0) & ~(repeat > PERIODIC_TOLERANCE * 2.0 * amps)
+        for k in np.flatnonzero(periodic).tolist():
+            a = float(amps[k])
             fk = points[k][0]
             for j, (f_old, a_old) in enumerate(found):
                 if abs(fk - f_old) <= FREQUENCY_MERGE * max(fk, f_old):

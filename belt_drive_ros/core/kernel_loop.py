@@ -90,6 +90,7 @@ def scheme_arrays(scheme, dt: float, W, m: int):
 #: kinds and table sizes): numbers of the method and the plant only (a cached integrator's scheme is read-only),
 #: so the guards' and the run's loops of one scene, and a repeated run, build them once; oldest of more dropped
 _OWN: dict = {}
+_USABLE: dict = {}  # id(scheme) -> (scheme, its matrices are real)
 OWN_CACHE_SIZE = 256
 
 
@@ -171,8 +172,15 @@ class KernelLoop:
 
     @staticmethod
     def usable(scheme) -> bool:
-        """Whether a scheme's matrices are real (the kernel's arrays are float64)."""
-        return not np.iscomplexobj(scheme.final) and all(M is None or not np.iscomplexobj(M) for M in scheme.stages)
+        """Whether a scheme's matrices are real (the kernel's arrays are float64; read once per cached scheme)."""
+        hit = _USABLE.get(id(scheme))
+        if hit is not None and hit[0] is scheme:
+            return hit[1]
+        real = not np.iscomplexobj(scheme.final) and all(M is None or not np.iscomplexobj(M) for M in scheme.stages)
+        if len(_USABLE) >= OWN_CACHE_SIZE:
+            _USABLE.pop(next(iter(_USABLE)))
+        _USABLE[id(scheme)] = (scheme, real)
+        return real
 
 
 def _constant_profile():
