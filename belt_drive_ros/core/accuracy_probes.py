@@ -18,7 +18,7 @@ from . import stage_scheme as _scheme
 from .errors import IntegratorError
 from .forced_response import ORBIT_SAMPLES, orbit_error, profile_harmonics
 from .model import LINEAR_OUTPUTS, RigidBeltModel, make_model
-from .stepper import Plant, Stepper, snap_tolerance
+from .stepper import Stepper, shared_plant, snap_tolerance
 
 #: default relative tolerance of the guard (speed and belt torque, relative to peak)
 ACCURACY_TOLERANCE = 1e-4
@@ -132,7 +132,7 @@ class RigidSurvey:
     def _run(self) -> None:
         self._done = True
         model = self.rigid
-        plant = Plant(model, self.drive, self.load)
+        plant = shared_plant(model, self.drive, self.load)
         x0 = np.array(self.motion)
         self._start_torque = float(model.belt_torque(x0, plant.inputs(0.0, x0)))
         duration, dt = self.duration, self.dt  # the stops: probe times, then a quarter window before breakpoints

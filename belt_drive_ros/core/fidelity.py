@@ -48,7 +48,7 @@ import numpy as np
 
 from .accuracy_probes import RigidSurvey, operating_run_step  # noqa: F401 - operating_run_step re-exported
 from .model import make_model
-from .stepper import Plant, Stepper
+from .stepper import Plant, Stepper, shared_plant
 
 #: rigid is chosen while max(f_excitation) / f_n stays below this [-].
 FREQUENCY_RATIO_THRESHOLD = 0.1
@@ -99,7 +99,7 @@ def start_mismatch(scene, needed: float | None = None) -> tuple[float, float]:
     if needed is None:
         rigid = make_model("rigid", p)
         x0 = scene.initial_state.vector("rigid", p.ratio)
-        needed = float(rigid.belt_torque(x0, Plant(rigid, scene.drive, scene.load).inputs(0.0, x0)))
+        needed = float(rigid.belt_torque(x0, shared_plant(rigid, scene.drive, scene.load).inputs(0.0, x0)))
     init = scene.initial_state
     carried = p.belt_torsional_stiffness * init.relative_deflection + 2.0 * p.c * p.r_3**2 * init.relative_speed
     return needed, carried

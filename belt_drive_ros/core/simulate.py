@@ -33,7 +33,7 @@ from .model import make_model
 from .scene import SLIP_MODELS, Scene
 from .slip_run import SlippingSimulator
 from .stability import StabilityReport, require_stable
-from .stepper import SPEED_LIMIT, Plant, Stepper
+from .stepper import SPEED_LIMIT, Plant, Stepper, shared_plant
 
 __all__ = ["CSV_COLUMNS", "SPEED_LIMIT", "Plant", "SimResult", "Simulator", "simulate"]
 #: CSV columns required by the CLI, SI units.
@@ -126,7 +126,7 @@ class Simulator:
 
     def __init__(self, model, drive, load, method="etd2", dt=1e-3, method_options=None, check_stability=True):
         self.model = model
-        self.plant = Plant(model, drive, load)
+        self.plant = shared_plant(model, drive, load)
         self.method, self.dt = method, float(dt)
         self.method_options = dict(method_options or {})
         self.stepper = Stepper(self.plant, method, self.dt, self.method_options)

@@ -49,7 +49,7 @@ from .profile_data import DIVERGED, NOT_CONVERGED
 from .slip import SLIP, STICK, Event, HybridStepper, SlipError, SlippingBeltModel
 from .stability import require_stable
 from .stage_scheme import Guard
-from .stepper import SPEED_LIMIT, Plant, Stepper, snap_tolerance
+from .stepper import SPEED_LIMIT, Plant, Stepper, shared_plant, snap_tolerance
 
 #: grid steps per stepper call of a recorded run: the first after an event, and the most (doubling in between)
 WINDOW_FIRST, WINDOW_MAX = 128, 4096
@@ -157,7 +157,7 @@ class SlippingSimulator:
         self.drive, self.load = drive, load
         self.method, self.dt = method, float(dt)
         self.method_options = dict(method_options or {})
-        self.plant = Plant(self.flexible, drive, load)
+        self.plant = shared_plant(self.flexible, drive, load)
         # [phi_M, theta_e, omega_M, omega_3] = M x of a flexible state (wheel map rows: phi_M, omega_M, phi_3, omega_3)
         self._M = np.array([[1, 0, 0, 0], [params.ratio, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=float) @ self.plant.wheel_map
         self._M_inv = np.linalg.inv(self._M)

@@ -184,6 +184,27 @@ class Plant:
         return u
 
 
+#: plants by (model, drive, load) of a linear model shared by :func:`~belt_drive_ros.core.model.make_model`: their
+#: closures and arrays depend on those objects only (a held torque's value is read live), so the model choice,
+#: the guards and the run of one scene share one; a recorded profile's (many breakpoints) is not kept
+_PLANTS: dict = {}
+_PLANT_CACHE_SIZE = 8
+
+
+def shared_plant(model, drive, load) -> Plant:
+    """``Plant(model, drive, load)``, built once per (model, drive, load) objects (see :data:`_PLANTS`)."""
+    key = (id(model), id(drive), id(load))
+    hit = _PLANTS.get(key)
+    if hit is not None and hit[0] is model and hit[1] is drive and hit[2] is load:
+        return hit[3]
+    plant = Plant(model, drive, load)
+    if len(plant.breakpoints) <= 64:
+        if len(_PLANTS) >= _PLANT_CACHE_SIZE:
+            _PLANTS.pop(next(iter(_PLANTS)))
+        _PLANTS[key] = (model, drive, load, plant)
+    return plant
+
+
 def _search(bps, x: float, right: bool) -> int:
     """:func:`bisect.bisect_left` (``right``: ``bisect_right``) of ``x`` in the sorted ``bps`` (list or array)."""
     if isinstance(bps, np.ndarray):
