@@ -14,6 +14,8 @@
 3. **Whole warm simulate()** (guards, model choice, accuracy check, outputs
    included): x real time of ``paper``, ``e_motor_start``, ``bsg_start``,
    ``truck_compressor`` (process CPU time, minimum of repeats).
+   With ``--baseline DIR`` (another checkout, its numba cache warm) each tree
+   runs them in its own child process, alternately, and both figures print.
 4. **Start-up**: ``belt-drive sim paper --quiet`` process CPU time (children's
    rusage, median of 5, caches warm).
 
@@ -185,6 +187,50 @@ def _simulate_rtf(name: str, repeats: int) -> tuple[float, float]:
     return scene.duration / best, best
 
 
+#: what a child process of one tree runs: each scene's whole warm simulate(), minimum CPU of argv[1] repeats
+_CHILD = r"""
+import json, sys, time
+from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.core.simulate import simulate
+out = {}
+for name in sys.argv[2:]:
+    scene = load_scene(name)
+    simulate(scene)
+    best = float("inf")
+    for _ in range(int(sys.argv[1])):
+        start = time.process_time()
+        simulate(scene)
+        best = min(best, time.process_time() - start)
+    out[name] = [best, scene.duration]
+print(json.dumps(out))
+"""
+
+
+def _tree_python(root: Path) -> str:
+    """The interpreter of a checkout (its own ``.venv``, else this one) for :func:`_simulate_side_by_side`."""
+    own = root / ".venv" / "bin" / "python"
+    return str(own) if own.exists() else sys.executable
+
+
+def _simulate_side_by_side(baseline: Path, repeats: int, rounds: int) -> dict:
+    """``{scene: (this tree's CPU s, the baseline's CPU s, duration s)}``: whole warm simulate() per scene, each
+    tree in its own child process (``PYTHONPATH`` = the checkout), alternating ``rounds`` times, minimum kept."""
+    import json
+
+    trees = (Path(__file__).resolve().parents[2], Path(baseline).resolve())
+    best: dict = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(rounds):
+            for j, root in enumerate(trees):
+                env = dict(os.environ, PYTHONPATH=str(root), MPLBACKEND="Agg")
+                done = subprocess.run([_tree_python(root), "-c", _CHILD, str(repeats), *SCENES], cwd=tmp, env=env,
+                                      capture_output=True, text=True, check=True)  # fmt: skip
+                for name, (cpu, duration) in json.loads(done.stdout.strip().splitlines()[-1]).items():
+                    row = best.setdefault(name, [math.inf, math.inf, duration])
+                    row[j] = min(row[j], cpu)
+    return {name: tuple(row) for name, row in best.items()}
+
+
 def _startup_cpu(repeats: int) -> float | None:
     """Median process CPU [s] of ``belt-drive sim paper --quiet`` (children's rusage)."""
     exe = Path(sys.executable).with_name("belt-drive")
@@ -201,7 +247,7 @@ def _startup_cpu(repeats: int) -> float | None:
     return statistics.median(samples)
 
 
-def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
+def run(out: Path, quick: bool = False, quiet: bool = False, baseline: Path | None = None) -> dict:
     steps = QUICK_STEPS if quick else STEPS
     rows = []
 
@@ -227,9 +273,15 @@ def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
     median, p99 = _tick_us(2_000 if quick else 20_000)
     report("node tick: Stepper.advance one 1 ms step", median, "us", f"median (p99 {p99:.2f} us), held torque set each tick")
     print("bench kernel: whole warm simulate() (guards, model choice, accuracy check, outputs)")
-    for name in SCENES:
-        rtf, cpu = _simulate_rtf(name, 2 if quick else 5)
-        report(f"simulate({name})", rtf, "x rt", f"{cpu * 1e3:.1f} ms CPU")
+    if baseline is None:
+        for name in SCENES:
+            rtf, cpu = _simulate_rtf(name, 2 if quick else 5)
+            report(f"simulate({name})", rtf, "x rt", f"{cpu * 1e3:.1f} ms CPU")
+    else:  # this tree and the baseline checkout alternately, each in its own process
+        for name, (cpu, old, duration) in _simulate_side_by_side(baseline, 3 if quick else 7, 2 if quick else 4).items():
+            report(f"simulate({name})", duration / cpu, "x rt", f"{cpu * 1e3:.2f} ms CPU")
+            report(f"simulate({name}), baseline {Path(baseline).name}", duration / old, "x rt",
+                   f"{old * 1e3:.2f} ms CPU; this tree {old / cpu:.2f} x faster")
     startup = _startup_cpu(2 if quick else 5)
     if startup is not None:
         report("belt-drive sim paper --quiet", startup, "s CPU", "median, caches warm")

@@ -52,6 +52,7 @@ examples:
   belt-drive bench hostile --out /tmp/hostile    # the hostile-input table (minutes)
   belt-drive bench hostile --only campaign bagdir --out /tmp/hostile
   belt-drive bench kernel --out /tmp/k           # the compiled kernel's figures (a minute)
+  belt-drive bench kernel --quick --baseline ../main  # ... whole simulate() beside another checkout
   belt-drive bench replay --minutes 60           # the 1-hour torque bag replayed to MCAP
   belt-drive bench replay --baseline ../old      # ... beside another checkout, in one run
 
@@ -78,7 +79,7 @@ def register(sub) -> None:
     p.add_argument("--seconds", type=float, default=60.0, help="soak: measured seconds (default 60)")
     p.add_argument("--duration", type=float, default=30.0, help="node: measured seconds (default 30)")
     p.add_argument("--minutes", type=float, default=60.0, help="replay: minutes of 1 kHz torque bag (default 60)")
-    p.add_argument("--baseline", metavar="DIR", help="replay: a checkout of another commit (its numba cache warm) "
+    p.add_argument("--baseline", metavar="DIR", help="replay, kernel: a checkout of another commit (its numba cache warm) "
                    "measured beside this tree in the same run")
     p.add_argument("--samples", type=int, default=None,
                    help="campaign: variants of the Monte Carlo (default 100,000; --quick 2,000)")
@@ -144,7 +145,7 @@ def run(args) -> int:
     if args.study == "kernel":
         from ..benchmarks import kernel
 
-        result = kernel.run(out, quick=args.quick, quiet=args.quiet)
+        result = kernel.run(out, quick=args.quick, quiet=args.quiet, baseline=args.baseline)
         print(f"bench kernel: {result['csv']}")
         return 0
     if args.study == "network_slip":
