@@ -123,12 +123,13 @@ class KernelLoop:
         V, n = W.shape[0], W.shape[2]
         self.uses_angle = np.array([bool(u) for u in uses_angle], dtype=np.int64)
         self.drive, self.load = drive, load
-        extra_rows = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
         d, l = drive, load
         tables = (d.tx, d.ty, l.tx, l.ty)
         guard_row = guard_array(guard, n)
         key = None
-        if not stacked:  # one plant: the method's and plant's numbers are built once per scheme (a cached integrator's)
+        if not stacked and all(isinstance(e, FrictionForce) for e in extra):
+            # one plant: the method's and plant's numbers are built once per scheme (a cached integrator's)
+            extra_rows = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
             key = (id(scheme), float(dt), W.tobytes(), extra_rows.tobytes(), guard_row.tobytes(), self.uses_angle.tobytes(),
                    d.kinds.tobytes(), l.kinds.tobytes(), *(a.size for a in tables))  # fmt: skip
             made = _OWN.get(key)
@@ -141,6 +142,7 @@ class KernelLoop:
                 self._dp, self._lp = d.params, l.params
                 return
         kinds, offsets, S, final, final_base, tol, max_iter = scheme_arrays(scheme, dt, W, 2 + len(extra))
+        extra_rows = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
         rows, cols = S.shape[2], S.shape[3]
         s = kinds.size
         sections = (W, offsets, S, final, np.array([tol]), extra_rows, guard_row, *tables)
@@ -153,10 +155,11 @@ class KernelLoop:
         self.tables = np.concatenate([np.ravel(a) for a in sections[7:]]).astype(np.float64)
         header = [n, s, len(extra), rows, cols, final_base, max_iter, *self.uses_angle]
         self.ints = np.concatenate([header, starts, kinds, d.kinds, l.kinds]).astype(np.int64)
-        if not stacked:
+        if key is not None:
             if len(_OWN) >= OWN_CACHE_SIZE:
                 _OWN.pop(next(iter(_OWN)))
             _OWN[key] = (scheme, self.reals[0].copy(), self.ints.copy())
+        if not stacked:
             self.reals = np.concatenate([self.reals[0], self.tables])
             self.tables = self.reals[self.reals.size - self.tables.size :]  # a view: a recording's samples held once
         # the profiles' parameters stay their own arrays: a held torque's value written in place is read
