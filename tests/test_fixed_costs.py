@@ -19,7 +19,7 @@ import pytest
 
 from belt_drive_ros.core import accuracy_probes, fidelity
 from belt_drive_ros.core.accuracy_probes import RigidSurvey, operating_run_step
-from belt_drive_ros.core.model import RigidBeltModel
+from belt_drive_ros.core.model import RigidBeltModel, make_model
 from belt_drive_ros.core.scene import load_scene
 from belt_drive_ros.core.simulate import simulate
 from belt_drive_ros.core.stepper import Plant, Stepper
@@ -128,3 +128,53 @@ def test_method_auto_checks_its_choice_once_and_the_run_reports_that_check(monke
     fresh = check(Plant(make_model(kind, scene.params), scene.drive, scene.load), choice.method, choice.dt,
                   scene.duration, x0, scene.tolerance)  # fmt: skip
     assert result.accuracy == fresh
+
+
+def test_a_run_within_the_capstan_limit_never_packs_the_hybrid_loop(monkeypatch):
+    # paper stays within the limit: the slipping engine's first phase is the flexible model's own guarded loop,
+    # and the event arrays (kernel_slip.pack) are built only from the step the stick check stops in
+    from belt_drive_ros.core import kernel_slip
+
+    packed = []
+    pack = kernel_slip.pack
+    monkeypatch.setattr(kernel_slip, "pack", lambda *a: (packed.append(a[1]), pack(*a))[1])
+    result = simulate(load_scene("paper"))
+    assert result.model == "flexible" and not result.events
+    assert packed == []
+    # a scene that slips packs it, once for the run and its rerun at 2 dt together (the rerun shares it)
+    result = simulate(load_scene("truck_compressor").with_overrides(duration=0.8))
+    assert result.model == "slipping" and result.events
+    assert len(packed) == 1
+
+
+@pytest.mark.parametrize("name, method, guarded", [
+    ("paper", "lawson5", False), ("e_motor_start", "etd2", False), ("truck_compressor", "etd4", False),
+    ("truck_compressor", "etd4", True), ("bsg_start", "etd2", True),
+])  # fmt: skip
+def test_grouped_steps_between_breakpoints_are_the_clamped_steps_bit_for_bit(name, method, guarded):
+    # a run with breakpoints on knots is one kernel call per group of steps between them; with a progress
+    # callback the stepper takes each clamped step alone: the same states, the same stop of the guard
+    from belt_drive_ros.core.slip_run import SlippingSimulator
+
+    scene = load_scene(name)
+    if guarded:  # the slipping engine's flexible stepper, whose guard (the stick check) stops at the first onset
+        make = lambda: SlippingSimulator(scene.params, scene.drive, scene.load, method, scene.dt, lazy=True).stepper  # noqa: E731
+        x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+    else:
+        model = make_model(result_model(name), scene.params)
+        make = lambda: Stepper(Plant(model, scene.drive, scene.load), method, scene.dt)  # noqa: E731
+        x0 = scene.initial_state.vector(model.name, scene.params.ratio)
+    grouped, single = make(), make()
+    assert len(grouped.breakpoints) and any(
+        grouped._snap(float(b)) is not None for b in grouped.breakpoints if 0.0 < b < scene.duration
+    ), "the scene has a breakpoint on a knot"
+    t1, s1 = grouped.run(x0, 0.0, scene.duration)
+    t2, s2 = single.run(x0, 0.0, scene.duration, progress=lambda f: None)
+    assert np.array_equal(t1, t2) and np.array_equal(s1, s2)
+    assert grouped.stopped == single.stopped
+    if guarded:
+        assert grouped.stopped is not None and len(t1) < round(scene.duration / scene.dt)
+
+
+def result_model(name: str) -> str:
+    return {"paper": "flexible", "e_motor_start": "rigid", "truck_compressor": "flexible"}[name]
