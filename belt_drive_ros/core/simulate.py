@@ -202,7 +202,8 @@ def simulate(
     located onset instead of running twice. The reason then names the onset
     time (the linear run past it is not computed).
     """
-    scene = scene.with_overrides(model=model, method=method, dt=dt, duration=duration)
+    if not (model is None and method is None and dt is None and duration is None):  # (a scene is immutable)
+        scene = scene.with_overrides(model=model, method=method, dt=dt, duration=duration)
     # one rigid run for the model choice, the method choice and the guard's probes (at the scene's step)
     survey = RigidSurvey.of_scene(scene)
     linear = choose_model(scene, check_slip=False, survey=survey) if scene.model == "auto" else None
