@@ -208,7 +208,7 @@ def shared_plant(model, drive, load) -> Plant:
 def _search(bps, x: float, right: bool) -> int:
     """:func:`bisect.bisect_left` (``right``: ``bisect_right``) of ``x`` in the sorted ``bps`` (list or array)."""
     if isinstance(bps, np.ndarray):
-        return int(np.searchsorted(bps, x, side="right" if right else "left"))
+        return int(bps.searchsorted(x, side="right" if right else "left"))
     return bisect_right(bps, x) if right else bisect_left(bps, x)
 
 
