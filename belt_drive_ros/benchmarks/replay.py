@@ -16,6 +16,7 @@ the public calls both trees have.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import subprocess
@@ -32,7 +33,7 @@ bag, out = sys.argv[1], sys.argv[2]
 from belt_drive_ros.core.stream import stream
 from belt_drive_ros.io.bags import reference_scene
 from belt_drive_ros.io.run_writers import McapWindows
-from belt_drive_ros.io.torque_bag import scene_with_torque_bag
+from belt_drive_ros.io import torque_bag
 from belt_drive_ros.core import kernel  # noqa: F401 (numba loaded before the clock starts, as sim's import does)
 
 def peak():
@@ -44,7 +45,9 @@ def cpu():
 
 base = peak()
 start, cpu0, main0 = time.perf_counter(), cpu(), time.thread_time()
-scene = scene_with_torque_bag(reference_scene("engine_idle").with_overrides(model="flexible", dt=1e-3), bag)
+base_scene = reference_scene("engine_idle").with_overrides(model="flexible", dt=1e-3)
+paged = getattr(torque_bag, "paged_torque_bag", None)  # (what sim runs for a streamed run; an older tree has none)
+scene = (paged(base_scene, bag) if paged else None) or torque_bag.scene_with_torque_bag(base_scene, bag)
 read = time.perf_counter() - start
 read_cpu = time.thread_time() - main0
 after_read = peak()
@@ -72,7 +75,7 @@ with open(out, "wb") as f:
 total = time.perf_counter() - start
 print(json.dumps({"read": read, "simulate": simulate, "write": write, "total": total, "cpu": cpu() - cpu0,
                   "read_cpu": read_cpu, "simulate_cpu": simulate_cpu, "write_cpu": write_cpu, "samples": samples, "messages": sum(counts.values()), "bytes": os.path.getsize(out),
-                  "peak": peak(), "base": base, "after_read": after_read}))
+                  "peak": peak(), "base": base, "after_read": after_read, "drive": type(scene.drive).__name__}))
 '''
 
 
@@ -106,10 +109,12 @@ def main(minutes: float = 60.0, baseline: str | None = None, repeat: int = 1) ->
               "(the growth of peak memory per sample is the slope between the two)")
         results: dict = {name: [] for name, _ in trees}
         shorts: dict = {name: [] for name, _ in trees}
+        digests: dict = {}
         for _ in range(max(1, repeat)):
             for name, root in trees:
                 out = Path(tmp) / "out.mcap"
                 results[name].append(_child(root, bag, out))
+                digests.setdefault(name, hashlib.sha256(out.read_bytes()).hexdigest())
                 out.unlink()
                 shorts[name].append(_child(root, short, out))
                 out.unlink()
@@ -126,11 +131,14 @@ def main(minutes: float = 60.0, baseline: str | None = None, repeat: int = 1) ->
                   f"{r['messages'] / max(r['write'], 1e-9) / 1e6:.2f} M messages/s)")
             _line("process CPU", f"{r['cpu']:.2f} s (compression threads included: "
                   f"{r['cpu'] - r['read_cpu'] - r['simulate_cpu'] - r['write_cpu']:.2f} s beside the main thread)")
-            _line("output", f"{r['messages']:,} messages, {r['bytes'] / 2**20:.0f} MiB")
+            _line("output", f"{r['messages']:,} messages, {r['bytes'] / 2**20:.0f} MiB (drive: {r.get('drive', '?')})")
             grow = (r["peak"] - q["peak"]) / max(r["samples"] - q["samples"], 1)
             _line("peak RSS", f"{r['peak'] / 2**20:.0f} MiB (after imports {r['base'] / 2**20:.0f} MiB, after reading "
                   f"{r['after_read'] / 2**20:.0f} MiB); a sixth as long: {q['peak'] / 2**20:.0f} MiB: "
                   f"{grow:+.1f} B per bag sample")
+    if len(digests) == 2:
+        same = len(set(digests.values())) == 1
+        print(f"output MCAP of the {minutes:g}-minute bag: {'the same bytes' if same else 'DIFFERENT bytes'} in both trees")
     return 0
 
 

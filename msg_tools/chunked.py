@@ -1,0 +1,85 @@
+"""One topic of a finished MCAP file read a few chunks at a time (memory bounded by the chunks read, not the file).
+
+:func:`topic_chunks` opens a file whose summary section is readable and sound
+(its chunk index checked against the records, :mod:`msg_tools.index`) and
+whose chunks holding the topic follow each other in time (each starts no
+earlier than the one before ends: a recorder writing in receive order).
+:meth:`ChunkedTopic.read` then decodes chunks ``i .. j - 1`` into a
+:class:`~msg_tools.results.TopicData`, the same arrays :func:`msg_tools.read_topic`
+holds for those messages (concatenated in file order, stably sorted by log
+time). Any other file: None and the reason (read it whole instead).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import List, Optional, Tuple
+
+import numpy as np
+
+from . import index as _index
+from .decode import build_topic
+from .results import TopicData
+from .scan import _CHUNK, Scan, SchemaRecord, SourceBuffer
+
+__all__ = ["ChunkedTopic", "topic_chunks"]
+
+
+class ChunkedTopic:
+    """The chunks of a file that hold one topic: ``starts``/``ends`` [ns] (the chunks' first and last
+    message log times, int64, in file order); :meth:`read` decodes a run of them."""
+
+    def __init__(self, src: SourceBuffer, summary, cids: List[int], topic: str, chunks: list):
+        self._src, self.topic, self._cids = src, topic, cids
+        self._offsets = [(int(c.chunk_start_offset), int(c.chunk_length)) for c in chunks]
+        self.starts = np.array([int(c.message_start_time) for c in chunks], dtype=np.int64)
+        self.ends = np.array([int(c.message_end_time) for c in chunks], dtype=np.int64)
+        self._summary = summary
+
+    def __len__(self) -> int:
+        return len(self._offsets)
+
+    def read(self, i: int, j: int) -> TopicData:
+        """The topic's messages in chunks ``i .. j - 1`` (file order)."""
+        scan = Scan(self._src.buf, self._src.name, want=lambda topic: topic == self.topic, keep_data=True)
+        for sid, sc in self._summary.schemas.items():
+            if sid != 0:
+                scan.schemas[sid] = SchemaRecord(sid, sc.name, sc.encoding, bytes(sc.data))
+        for cid, ch in self._summary.channels.items():
+            scan._add_channel(cid, ch.schema_id, ch.topic, ch.message_encoding, dict(ch.metadata))
+        for at, length in self._offsets[i:j]:
+            scan._record(_CHUNK, self._src.buf, at + 9, at + length, at)
+        scan.complete = True
+        return build_topic(scan, self._cids, self.topic, False)
+
+    def close(self) -> None:
+        self._src.close()
+
+
+def topic_chunks(path, topic: str) -> Tuple[Optional[ChunkedTopic], str]:
+    """:class:`ChunkedTopic` of ``topic`` in the file ``path``, or (None, why it must be read whole)."""
+    if not isinstance(path, (str, os.PathLike)) or os.path.isdir(path):
+        return None, "not a single file"
+    src = SourceBuffer(path)
+    try:
+        indexed, reason = _index.read_summary(src.buf, path=src.path) if src.size else (None, "empty")
+        if indexed is None or not indexed.sound or not _index.chunks_readable(indexed):
+            raise LookupError(reason or "no sound summary section")
+        summary = indexed.summary
+        cids = sorted(cid for cid, ch in summary.channels.items() if ch.topic == topic)
+        if not cids:
+            raise LookupError(f"no channel {topic}")
+        chunks = sorted((c for c in summary.chunk_indexes if any(cid in c.message_index_offsets for cid in cids)),
+                        key=lambda c: c.chunk_start_offset)
+        if not chunks:
+            raise LookupError(f"no chunk holds {topic}")
+        for a, b in zip(chunks, chunks[1:]):
+            if b.message_start_time < a.message_end_time:
+                raise LookupError("chunks overlap in time")
+        return ChunkedTopic(src, summary, cids, topic, chunks), ""
+    except LookupError as exc:
+        src.close()
+        return None, str(exc)
+    except BaseException:
+        src.close()
+        raise
