@@ -19,6 +19,8 @@ import numpy as np
 
 from . import index as _index
 from .decode import build_topic
+from .errors import CorruptBagError
+from .files import open_regular
 from .results import TopicData
 from .scan import _CHUNK, Scan, SchemaRecord, SourceBuffer
 
@@ -29,8 +31,9 @@ class ChunkedTopic:
     """The chunks of a file that hold one topic: ``starts``/``ends`` [ns] (the chunks' first and last
     message log times, int64, in file order); :meth:`read` decodes a run of them."""
 
-    def __init__(self, src: SourceBuffer, summary, cids: List[int], topic: str, chunks: list):
-        self._src, self.topic, self._cids = src, topic, cids
+    def __init__(self, path: str, summary, cids: List[int], topic: str, chunks: list):
+        self.path, self.topic, self._cids, self._fd = path, topic, cids, None
+        self._fd = open_regular(path)  # chunks are read with pread: a mapping would keep every page read resident
         self._offsets = [(int(c.chunk_start_offset), int(c.chunk_length)) for c in chunks]
         self.starts = np.array([int(c.message_start_time) for c in chunks], dtype=np.int64)
         self.ends = np.array([int(c.message_end_time) for c in chunks], dtype=np.int64)
@@ -41,28 +44,36 @@ class ChunkedTopic:
 
     def read(self, i: int, j: int) -> TopicData:
         """The topic's messages in chunks ``i .. j - 1`` (file order)."""
-        scan = Scan(self._src.buf, self._src.name, want=lambda topic: topic == self.topic, keep_data=True)
+        scan = Scan(b"", self.path, want=lambda topic: topic == self.topic, keep_data=True)
         for sid, sc in self._summary.schemas.items():
             if sid != 0:
                 scan.schemas[sid] = SchemaRecord(sid, sc.name, sc.encoding, bytes(sc.data))
         for cid, ch in self._summary.channels.items():
             scan._add_channel(cid, ch.schema_id, ch.topic, ch.message_encoding, dict(ch.metadata))
         for at, length in self._offsets[i:j]:
-            scan._record(_CHUNK, self._src.buf, at + 9, at + length, at)
+            record = os.pread(self._fd, length, at)
+            if len(record) != length:
+                raise CorruptBagError(f"{self.path}: chunk at byte {at} is cut off")
+            scan._record(_CHUNK, record, 9, length, at)
         scan.complete = True
         return build_topic(scan, self._cids, self.topic, False)
 
     def close(self) -> None:
-        self._src.close()
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+    def __del__(self):
+        self.close()
 
 
 def topic_chunks(path, topic: str) -> Tuple[Optional[ChunkedTopic], str]:
     """:class:`ChunkedTopic` of ``topic`` in the file ``path``, or (None, why it must be read whole)."""
     if not isinstance(path, (str, os.PathLike)) or os.path.isdir(path):
         return None, "not a single file"
-    src = SourceBuffer(path)
-    try:
+    with SourceBuffer(path) as src:
         indexed, reason = _index.read_summary(src.buf, path=src.path) if src.size else (None, "empty")
+    try:
         if indexed is None or not indexed.sound or not _index.chunks_readable(indexed):
             raise LookupError(reason or "no sound summary section")
         summary = indexed.summary
@@ -76,10 +87,6 @@ def topic_chunks(path, topic: str) -> Tuple[Optional[ChunkedTopic], str]:
         for a, b in zip(chunks, chunks[1:]):
             if b.message_start_time < a.message_end_time:
                 raise LookupError("chunks overlap in time")
-        return ChunkedTopic(src, summary, cids, topic, chunks), ""
+        return ChunkedTopic(os.fspath(path), summary, cids, topic, chunks), ""
     except LookupError as exc:
-        src.close()
         return None, str(exc)
-    except BaseException:
-        src.close()
-        raise

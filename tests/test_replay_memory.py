@@ -97,10 +97,11 @@ def _peak_bytes(argv) -> int:
 
 
 def test_replay_memory_does_not_grow_with_the_bag(tmp_path, monkeypatch):
-    """A bag 4x longer peaks at about the same memory: under 4 B per extra bag sample (measured ~0.5 B:
-    per-window bookkeeping), where reading the bag whole held ~60 B per sample (its times, values, the
-    kernel's table and the breakpoints; the old code fails this). Windows and survey pieces of 2,000
-    steps make both runs many windows; a first, untraced run loads what a process loads once."""
+    """A bag 4x longer peaks at about the same memory: under 16 B per extra bag sample (measured ~6 B,
+    most of it the output file's chunk indexes: 64 KiB chunks here), where reading the bag whole held
+    ~58 B per sample (its times and values, the kernel's table, the breakpoints: measured on the code
+    before the pages, which fails this). Windows and survey pieces of 2,000 steps make both runs many
+    windows; a first, untraced run loads what a process loads once."""
     monkeypatch.setattr(sim_command, "STREAM_ABOVE", 0)
     monkeypatch.setattr(stream_module, "WINDOW_STEPS", 2000)
     monkeypatch.setattr(accuracy_probes, "SURVEY_CHUNK", 2000)
@@ -118,4 +119,4 @@ def test_replay_memory_does_not_grow_with_the_bag(tmp_path, monkeypatch):
     short = _peak_bytes(run("short"))
     long = _peak_bytes(run("long"))
     per_sample = (long - short) / (0.75 * 60_000)
-    assert per_sample < 4, (short, long, per_sample)
+    assert per_sample < 16, (short, long, per_sample)

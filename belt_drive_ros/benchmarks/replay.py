@@ -7,7 +7,8 @@ engine-like drive torque, generated once, not timed) goes through what
 :func:`~belt_drive_ros.core.stream.stream` (simulation) and
 :class:`~belt_drive_ros.io.run_writers.McapWindows` (writing: encoding,
 blocks, waiting for the compression threads). Each run is a fresh child
-process, so its peak resident memory (``ru_maxrss``) is its own: with
+process, so its peak resident memory (``VmHWM``; ``ru_maxrss`` would keep the bench's own
+peak across the exec) is its own: with
 ``--baseline DIR`` (a checkout of another commit, e.g. ``git worktree add ../old v1``, its
 numba cache warm) the same measurement runs on that code too, the runs
 alternating, on the same bag, in one invocation. The child's code uses only
@@ -36,8 +37,12 @@ from belt_drive_ros.io.run_writers import McapWindows
 from belt_drive_ros.io import torque_bag
 from belt_drive_ros.core import kernel  # noqa: F401 (numba loaded before the clock starts, as sim's import does)
 
-def peak():
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+def peak():  # this process's own high-water mark (ru_maxrss keeps the parent's across the exec on Linux)
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmHWM:"))
+    except (OSError, StopIteration):
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 def cpu():
     r = resource.getrusage(resource.RUSAGE_SELF)
