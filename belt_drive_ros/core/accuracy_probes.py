@@ -71,7 +71,14 @@ def _survey_step(pieces, rdt: float) -> float:
     piece, instead of one call per sample in steps split at each; ``exact`` integrates the held samples
     exactly either way.
     """
-    n, first, last, gap = 0, None, None, math.inf
+    def on_grid(inner, h) -> bool:
+        d = np.abs(np.rint(inner / h) * h - inner)
+        return bool(np.all((d <= 1e-9 * h) | (d <= 8.0 * np.spacing(inner))))
+
+    # one pass: each piece is checked on the grid of the spacing so far, which is the final one once the
+    # densest spacing was seen (a recording's first piece); a second pass only if it moved after a check
+    n, first, last, gap, checked = 0, None, None, math.inf, set()
+    ok = True
     for inner in pieces():
         if inner.size:
             if last is not None:
@@ -80,16 +87,17 @@ def _survey_step(pieces, rdt: float) -> float:
                 gap = min(gap, float(np.min(np.diff(inner))))
             first = float(inner[0]) if first is None else first
             n, last = n + inner.size, float(inner[-1])
+            h = float(f"{gap:.9g}")  # the rate's period as written (0.001 for 1 kHz), not a float difference
+            checked.add(h)
+            ok = ok and 0.0 < h < rdt and on_grid(inner, h)
     if n < 2 or n * rdt <= last - first + rdt:
         return rdt
-    h = float(f"{gap:.9g}")  # the rate's period as written (0.001 for 1 kHz), not a float difference
+    h = float(f"{gap:.9g}")
     if not 0.0 < h < rdt:
         return rdt
-    for inner in pieces():
-        d = np.abs(np.rint(inner / h) * h - inner)
-        if not np.all((d <= 1e-9 * h) | (d <= 8.0 * np.spacing(inner))):
-            return rdt
-    return h
+    if checked == {h}:
+        return h if ok else rdt
+    return h if all(on_grid(inner, h) for inner in pieces()) else rdt
 
 
 class RigidSurvey:

@@ -316,6 +316,8 @@ def scene_with_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: O
 
 #: chunks decoded at a time by the pass that opens a :class:`PagedTorque`
 PASS_CHUNKS = 8
+#: decoded chunks a :class:`PagedTorque` keeps
+CACHED_CHUNKS = 4
 #: a gap [s] between two times asked of :meth:`PagedTorque.torque` that starts another page
 PAGE_GAP = 1.0
 
@@ -348,6 +350,7 @@ class PagedTorque(TorqueProfile):
         self._changes, self._min_gap = bool(changes), float(min_gap)
         self._bag, self.source, self.topic, self.sha256 = bag, source, topic, sha256
         self._last = None  # (t0, t1, page) of the last page read
+        self._cache: dict = {}  # chunk index -> (log times, values), least recently used first
 
     @property
     def times(self):  # Table's interface (reference() reads times.size): the whole, read on use
@@ -377,8 +380,22 @@ class PagedTorque(TorqueProfile):
             i -= 1
         while j < len(c) and c.starts[j] == c.ends[j - 1]:
             j += 1
-        data = c.read(i, j)
-        return np.asarray(data.log_time_ns, dtype=np.int64) - self.start_ns, np.asarray(data.data, dtype=float)
+        parts = [self._chunk(k) for k in range(i, j)]  # in time order, each sorted: the whole read's order
+        return (np.concatenate([p[0] for p in parts]) - self.start_ns if len(parts) > 1 else parts[0][0] - self.start_ns,
+                np.concatenate([p[1] for p in parts]) if len(parts) > 1 else parts[0][1])
+
+    def _chunk(self, k: int) -> Tuple[np.ndarray, np.ndarray]:
+        """Log times [ns] and values of chunk ``k``; the last :data:`CACHED_CHUNKS` are kept (consecutive
+        pages share the chunk at their seam)."""
+        cache = self._cache
+        got = cache.pop(k, None)
+        if got is None:
+            data = self._chunked.read(k, k + 1)
+            got = (np.asarray(data.log_time_ns, dtype=np.int64), np.asarray(data.data, dtype=float))
+            if len(cache) >= CACHED_CHUNKS:
+                del cache[next(iter(cache))]
+        cache[k] = got
+        return got
 
     def page(self, t0: float, t1: float) -> RecordedTorque:
         """The samples that give the torque on ``[t0, t1]`` [s] (see the class)."""
