@@ -22,7 +22,7 @@ from .decode import build_topic
 from .errors import CorruptBagError
 from .files import open_regular
 from .results import TopicData
-from .scan import _CHUNK, Scan, SchemaRecord, SourceBuffer
+from .scan import _CHUNK, Scan, _Stop, SchemaRecord, SourceBuffer, chunk_records, uniform_rows
 
 __all__ = ["ChunkedTopic", "topic_chunks"]
 
@@ -51,12 +51,39 @@ class ChunkedTopic:
         for cid, ch in self._summary.channels.items():
             scan._add_channel(cid, ch.schema_id, ch.topic, ch.message_encoding, dict(ch.metadata))
         for at, length in self._offsets[i:j]:
-            record = os.pread(self._fd, length, at)
-            if len(record) != length:
-                raise CorruptBagError(f"{self.path}: chunk at byte {at} is cut off")
-            scan._record(_CHUNK, record, 9, length, at)
+            try:
+                scan._record(_CHUNK, self._record(at, length), 9, length, at)
+            except _Stop as exc:
+                raise CorruptBagError(f"{self.path}: {exc}") from None
         scan.complete = True
         return build_topic(scan, self._cids, self.topic, False)
+
+    def float64(self, k: int) -> Tuple[np.ndarray, np.ndarray]:
+        """Log times [ns] (int64) and values of ``std_msgs/Float64`` messages in chunk ``k``: the arrays of
+        :meth:`read` (stably sorted by log time), taken from the records' columns when the chunk holds only
+        this topic's messages, all little-endian CDR of one length; else through :meth:`read`."""
+        at, length = self._offsets[k]
+        record = self._record(at, length)
+        try:
+            rows = uniform_rows(chunk_records(memoryview(record)[9:], at, self.path)[0])
+        except _Stop as exc:
+            raise CorruptBagError(f"{self.path}: {exc}") from None
+        if (rows is not None and rows.shape[1] == 9 + 22 + 12 and np.all(rows[:, 31] == 0) and np.all(rows[:, 32] == 1)
+                and np.all(np.isin(rows[:, 9:11].copy().view("<u2")[:, 0], self._cids))):
+            log = rows[:, 15:23].copy().view("<i8")[:, 0].astype(np.int64)
+            values = rows[:, 35:43].copy().view("<f8")[:, 0].astype(np.float64)
+            if log.size > 1 and np.any(np.diff(log) < 0):
+                order = np.argsort(log, kind="stable")
+                log, values = log[order], values[order]
+            return log, values
+        data = self.read(k, k + 1)
+        return np.asarray(data.log_time_ns, dtype=np.int64), np.asarray(data.data, dtype=np.float64)
+
+    def _record(self, at: int, length: int) -> bytes:
+        record = os.pread(self._fd, length, at)
+        if len(record) != length:
+            raise CorruptBagError(f"{self.path}: chunk at byte {at} is cut off")
+        return record
 
     def close(self) -> None:
         if self._fd is not None:

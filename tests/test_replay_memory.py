@@ -9,7 +9,6 @@ does not grow with the bag's length.
 
 from __future__ import annotations
 
-import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -24,8 +23,9 @@ from belt_drive_ros.core.scene import load_scene
 from belt_drive_ros.core.stream import stream
 from belt_drive_ros.io import run_writers
 from belt_drive_ros.io.torque_bag import PagedTorque, paged_torque_bag, scene_with_torque_bag
-from msg_tools.block_writer import BlockMcapWriter
 from belt_drive_ros.io.recording import float64_rows
+from msg_tools.block_writer import BlockMcapWriter
+from test_stream import _peak_bytes
 
 SCENE = Path(__file__).resolve().parents[1] / "bags" / "engine_idle.yaml"
 
@@ -78,22 +78,18 @@ def test_equal_times_across_chunks_and_uneven_spacing_page_as_the_whole_bag(tmp_
     _same_windows(_windows(whole, 800), _windows(paged, 800))
 
 
-def test_a_bag_cut_off_is_read_whole(tmp_path):
+def test_a_bag_cut_off_or_damaged_is_read_whole(tmp_path):
     bag = tmp_path / "torque.mcap"
     make_torque_bag(bag, 0.05, chunk_size=16 << 10)
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(bag.read_bytes()[: bag.stat().st_size // 2])
     base = load_scene(str(SCENE))
     assert paged_torque_bag(base, cut) is None  # no summary section: the whole read recovers what it can
-
-
-def _peak_bytes(argv) -> int:
-    tracemalloc.start()
-    try:
-        assert main(argv) == 0
-        return tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+    damaged = tmp_path / "damaged.mcap"
+    data = bytearray(bag.read_bytes())
+    data[len(data) // 3 : len(data) // 3 + 64] = bytes(64)  # inside a chunk: its CRC fails, the summary is sound
+    damaged.write_bytes(bytes(data))
+    assert paged_torque_bag(base, damaged) is None  # the whole read says what is wrong, in one line
 
 
 def test_replay_memory_does_not_grow_with_the_bag(tmp_path, monkeypatch):

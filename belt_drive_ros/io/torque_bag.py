@@ -390,8 +390,10 @@ class PagedTorque(TorqueProfile):
         cache = self._cache
         got = cache.pop(k, None)
         if got is None:
-            data = self._chunked.read(k, k + 1)
-            got = (np.asarray(data.log_time_ns, dtype=np.int64), np.asarray(data.data, dtype=float))
+            try:
+                got = self._chunked.float64(k)
+            except MsgToolsError as exc:  # (the pass that opened the bag read every chunk)
+                raise bag_error(exc) from None
             if len(cache) >= CACHED_CHUNKS:
                 del cache[next(iter(cache))]
         cache[k] = got
@@ -479,7 +481,7 @@ def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Option
         schema = chunked._summary.schemas.get(chunked._summary.channels[chunked._cids[0]].schema_id)
         if schema is None or schema.name.replace("/msg/", "/") != FLOAT64.replace("/msg/", "/"):
             raise LookupError
-        first = chunked.read(0, 1).log_time_ns
+        first = chunked.float64(0)[0]
         if not len(first):
             raise LookupError
         drive = PagedTorque(chunked, int(np.min(first)), 0, False, math.inf, bag, os.path.basename(os.fspath(bag)),
@@ -504,7 +506,7 @@ def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Option
                 changes = changes or bool(np.any(values[1:] != values[:-1]))
             samples += times.size
             last_t, last_v = float(times[-1]), float(values[-1])
-    except LookupError:
+    except (LookupError, MsgToolsError, BeltDriveError):  # the whole read says what is wrong in its own words
         chunked.close()
         return None
     drive.samples, drive._changes, drive._min_gap = samples, changes, gap
