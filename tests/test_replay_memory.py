@@ -23,8 +23,9 @@ from belt_drive_ros.core.scene import load_scene
 from belt_drive_ros.core.stream import stream
 from belt_drive_ros.io import run_writers
 from belt_drive_ros.io.torque_bag import PagedTorque, paged_torque_bag, scene_with_torque_bag
-from belt_drive_ros.io.recording import float64_rows
+from belt_drive_ros.io.recording import BagReadError, float64_rows
 from msg_tools.block_writer import BlockMcapWriter
+from msg_tools.chunked import topic_chunks
 from test_stream import _peak_bytes
 
 SCENE = Path(__file__).resolve().parents[1] / "bags" / "engine_idle.yaml"
@@ -87,9 +88,14 @@ def test_a_bag_cut_off_or_damaged_is_read_whole(tmp_path):
     assert paged_torque_bag(base, cut) is None  # no summary section: the whole read recovers what it can
     damaged = tmp_path / "damaged.mcap"
     data = bytearray(bag.read_bytes())
-    data[len(data) // 3 : len(data) // 3 + 64] = bytes(64)  # inside a chunk: its CRC fails, the summary is sound
+    chunks, _ = topic_chunks(bag, "/drive_torque")
+    at, length = chunks._offsets[1]
+    chunks.close()
+    data[at + length // 2 : at + length // 2 + 64] = bytes(64)  # inside a chunk's data; the summary is sound
     damaged.write_bytes(bytes(data))
     assert paged_torque_bag(base, damaged) is None  # the whole read says what is wrong, in one line
+    with pytest.raises(BagReadError, match="damaged.mcap"):
+        scene_with_torque_bag(base, damaged)
 
 
 def test_replay_memory_does_not_grow_with_the_bag(tmp_path, monkeypatch):
