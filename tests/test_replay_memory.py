@@ -79,6 +79,23 @@ def test_equal_times_across_chunks_and_uneven_spacing_page_as_the_whole_bag(tmp_
     _same_windows(_windows(whole, 800), _windows(paged, 800))
 
 
+def test_a_namespaced_torque_beside_another_topic_in_the_same_chunks_pages_as_the_whole_bag(tmp_path):
+    """Chunks holding two topics (a node recording's): the torque's records are picked out of each."""
+    n = 5000
+    times = np.arange(n, dtype=np.int64) * 1_000_000 + 7
+    torque = 40.0 + 30.0 * np.sin(np.arange(n) * 0.03)
+    bag = tmp_path / "node.mcap"
+    with BlockMcapWriter(bag, chunk_size=16 << 10) as w:
+        for a in range(0, n, 1000):
+            w.write_block([("/truck/drive_torque", "std_msgs/msg/Float64"), ("/truck/shaft_speed", "std_msgs/msg/Float64")],
+                          times[a : a + 1000], [float64_rows(torque[a : a + 1000]), float64_rows(-torque[a : a + 1000])])
+    base = load_scene(str(SCENE)).with_overrides(model="flexible", dt=1e-3)
+    whole, paged = scene_with_torque_bag(base, bag), paged_torque_bag(base, bag)
+    assert isinstance(paged.drive, PagedTorque) and paged.drive.topic == "/truck/drive_torque"
+    assert paged.drive.reference() == whole.drive.reference()
+    _same_windows(_windows(whole, 900), _windows(paged, 900))
+
+
 def test_a_bag_cut_off_or_damaged_is_read_whole(tmp_path):
     bag = tmp_path / "torque.mcap"
     make_torque_bag(bag, 0.05, chunk_size=16 << 10)

@@ -469,8 +469,16 @@ def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Option
     chunks out of time order, a topic the whole read would refuse or resolve otherwise)."""
     from msg_tools.chunked import topic_chunks
 
+    from msg_tools import summary
+
     name = topic if topic.startswith("/") else "/" + topic
     try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RecoveredBagWarning)
+            topics = [t.topic for t in summary(bag, verify=False).topics]
+        if name not in topics:  # a namespaced node's single .../drive_torque, as the whole read finds it
+            candidates = [t for t in topics if t.endswith("/" + name.rsplit("/", 1)[-1])]
+            name = candidates[0] if len(candidates) == 1 else name
         chunked, _why = topic_chunks(bag, name)
     except (MsgToolsError, OSError):
         return None
