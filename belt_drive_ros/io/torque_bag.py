@@ -37,6 +37,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import time
 import warnings
 from dataclasses import dataclass
 from typing import Any, Dict, List, Optional, Tuple
@@ -351,6 +352,8 @@ class PagedTorque(TorqueProfile):
         self._bag, self.source, self.topic, self.sha256 = bag, source, topic, sha256
         self._last = None  # (t0, t1, page) of the last page read
         self._cache: dict = {}  # chunk index -> (log times, values), least recently used first
+        #: CPU time [s] of this thread spent decoding chunks (the figure ``bench replay`` reports)
+        self.read_cpu = 0.0
 
     @property
     def times(self):  # Table's interface (reference() reads times.size): the whole, read on use
@@ -390,10 +393,12 @@ class PagedTorque(TorqueProfile):
         cache = self._cache
         got = cache.pop(k, None)
         if got is None:
+            start = time.thread_time()
             try:
                 got = self._chunked.float64(k)
             except MsgToolsError as exc:  # (the pass that opened the bag read every chunk)
                 raise bag_error(exc) from None
+            self.read_cpu += time.thread_time() - start
             if len(cache) >= CACHED_CHUNKS:
                 del cache[next(iter(cache))]
         cache[k] = got
