@@ -221,45 +221,7 @@ class Scan:
             acc.ends.append(len(acc.blob))
 
     def _chunk(self, body: Any, at: int) -> None:
-        (uncompressed_size,) = _u64(body, 16)
-        (crc,) = _u32(body, 24)
-        compression, off = _read_str(body, 28)
-        (n,) = _u64(body, off)
-        off += 8
-        payload = body[off : off + n]
-        if uncompressed_size > MAX_CHUNK_BYTES:
-            raise _Stop(f"chunk at byte {at} claims {uncompressed_size} bytes uncompressed "
-                        f"(more than {MAX_CHUNK_BYTES}); damaged")
-        if compression == "":
-            records = payload
-        elif compression == "zstd":
-            import zstandard
-
-            try:
-                records = zstandard.ZstdDecompressor().decompress(
-                    bytes(payload), max_output_size=uncompressed_size
-                )
-            except (zstandard.ZstdError, OverflowError, MemoryError, ValueError) as exc:
-                raise _Stop(f"zstd chunk at byte {at} cannot be decompressed ({exc})") from None
-        elif compression == "lz4":
-            try:
-                import lz4.frame  # type: ignore
-            except ImportError:
-                raise CorruptBagError(
-                    f"{self.name}: chunk compressed with lz4, but the 'lz4' package is not installed"
-                ) from None
-            try:
-                records = lz4.frame.decompress(bytes(payload))
-            except (RuntimeError, ValueError, OverflowError, MemoryError) as exc:
-                raise _Stop(f"lz4 chunk at byte {at} cannot be decompressed ({exc})") from None
-        else:
-            raise CorruptBagError(
-                f"{self.name}: chunk at byte {at} uses unsupported compression {compression!r}"
-            )
-        if len(records) != uncompressed_size:
-            raise _Stop(f"chunk at byte {at} has {len(records)} bytes, header says {uncompressed_size}")
-        if crc != 0 and zlib.crc32(records) != crc:
-            raise _Stop(f"chunk at byte {at} fails its CRC check")
+        records, compression = chunk_records(body, at, self.name)
         if compression not in self.compression:
             self.compression.append(compression)
         if not self.keep_times:
@@ -288,22 +250,14 @@ class Scan:
 
     def _uniform_messages(self, records: Any) -> bool:
         """A chunk of message records all of one length (a recording of fixed-size messages, e.g. Float64),
-        taken in whole-array operations instead of record by record; False (nothing taken) for any other.
-
-        The records then lie at a fixed stride: every opcode and length byte at its place in that stride
-        is checked before any message is used, so the structure check is the record walk's."""
+        taken in whole-array operations instead of record by record; False (nothing taken) for any other
+        (:func:`uniform_rows` checks the structure)."""
         import numpy as np
 
-        size = len(records)
-        if size < 9 + 22:
+        rows = uniform_rows(records)
+        if rows is None:
             return False
-        opcode, length = _rec_head(records, 0)
-        stride = 9 + length
-        if opcode != _MESSAGE or length < 22 or size % stride:
-            return False
-        rows = np.frombuffer(records, dtype=np.uint8).reshape(size // stride, stride)
-        if not (np.all(rows[:, 0] == _MESSAGE) and np.all(rows[:, 1:9].copy().view("<u8")[:, 0] == length)):
-            return False
+        length = rows.shape[1] - 9
         channel = rows[:, 9:11].copy().view("<u2")[:, 0]
         self.message_count += rows.shape[0]
         ids = np.unique(channel).tolist()
@@ -462,6 +416,67 @@ class Scan:
         elif at == 8:
             raise ValueError(f"first record has opcode 0x{opcode:02x}, expected a header (0x01)")
 
+
+
+def chunk_records(body: Any, at: int, name: str) -> Tuple[Any, str]:
+    """The records of the chunk record ``body`` (the bytes after its opcode and length) at byte ``at``,
+    decompressed and CRC-checked, and its compression; :class:`_Stop` (or :class:`CorruptBagError`)
+    when they cannot be read."""
+    (uncompressed_size,) = _u64(body, 16)
+    (crc,) = _u32(body, 24)
+    compression, off = _read_str(body, 28)
+    (n,) = _u64(body, off)
+    off += 8
+    payload = body[off : off + n]
+    if uncompressed_size > MAX_CHUNK_BYTES:
+        raise _Stop(f"chunk at byte {at} claims {uncompressed_size} bytes uncompressed "
+                    f"(more than {MAX_CHUNK_BYTES}); damaged")
+    if compression == "":
+        records = payload
+    elif compression == "zstd":
+        import zstandard
+
+        try:
+            records = zstandard.ZstdDecompressor().decompress(bytes(payload), max_output_size=uncompressed_size)
+        except (zstandard.ZstdError, OverflowError, MemoryError, ValueError) as exc:
+            raise _Stop(f"zstd chunk at byte {at} cannot be decompressed ({exc})") from None
+    elif compression == "lz4":
+        try:
+            import lz4.frame  # type: ignore
+        except ImportError:
+            raise CorruptBagError(f"{name}: chunk compressed with lz4, but the 'lz4' package is not installed") from None
+        try:
+            records = lz4.frame.decompress(bytes(payload))
+        except (RuntimeError, ValueError, OverflowError, MemoryError) as exc:
+            raise _Stop(f"lz4 chunk at byte {at} cannot be decompressed ({exc})") from None
+    else:
+        raise CorruptBagError(f"{name}: chunk at byte {at} uses unsupported compression {compression!r}")
+    if len(records) != uncompressed_size:
+        raise _Stop(f"chunk at byte {at} has {len(records)} bytes, header says {uncompressed_size}")
+    if crc != 0 and zlib.crc32(records) != crc:
+        raise _Stop(f"chunk at byte {at} fails its CRC check")
+    return records, compression
+
+
+def uniform_rows(records: Any):
+    """A chunk's records as an (N, 9 + length) uint8 matrix when they are all message records of one
+    length (a recording of fixed-size messages, e.g. Float64), else None.
+
+    The records then lie at a fixed stride: every opcode and length byte at its place in that stride
+    is checked before any message is used, so the structure check is the record walk's."""
+    import numpy as np
+
+    size = len(records)
+    if size < 9 + 22:
+        return None
+    opcode, length = _rec_head(records, 0)
+    stride = 9 + length
+    if opcode != _MESSAGE or length < 22 or size % stride:
+        return None
+    rows = np.frombuffer(records, dtype=np.uint8).reshape(size // stride, stride)
+    if not (np.all(rows[:, 0] == _MESSAGE) and np.all(rows[:, 1:9].copy().view("<u8")[:, 0] == length)):
+        return None
+    return rows
 
 
 def _crc32(buf: Any, end: int, step: int = 1 << 24) -> int:

@@ -77,10 +77,10 @@ def test_a_step_whose_clamp_changes_a_torque_is_not_absorbed():
 
 def test_the_rigid_survey_steps_at_a_dense_records_rate():
     bps = np.asarray(_recorded(6000).breakpoints())
-    assert _survey_step(bps, 5e-3) == 1e-3  # 1 kHz record, survey step 5 ms: at the record's rate
-    assert _survey_step(bps[::10], 5e-3) == 5e-3  # sparser than the survey step: unchanged
+    assert _survey_step(lambda: [bps], 5e-3) == 1e-3  # 1 kHz record, survey step 5 ms: at the record's rate
+    assert _survey_step(lambda: [bps[::10]], 5e-3) == 5e-3  # sparser than the survey step: unchanged
     jittered = np.asarray(_recorded(6000, jitter_ns=20_000).breakpoints())
-    assert _survey_step(jittered, 5e-3) == 5e-3  # not on a grid: unchanged
+    assert _survey_step(lambda: [jittered], 5e-3) == 5e-3  # not on a grid: unchanged
 
 
 def test_absorbing_adds_no_compiled_specialisation():

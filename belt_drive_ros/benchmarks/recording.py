@@ -153,8 +153,9 @@ def bench_record_live(n: int = 20_000, batch: int = 200) -> dict:
     return out
 
 
-def make_torque_bag(path, minutes: float, rate_hz: float = 1000.0) -> int:
-    """An engine-like drive torque [N m] at ``rate_hz`` for ``minutes``: firing ripple on a slow speed sweep."""
+def make_torque_bag(path, minutes: float, rate_hz: float = 1000.0, chunk_size: int = 1 << 20) -> int:
+    """An engine-like drive torque [N m] at ``rate_hz`` for ``minutes``: firing ripple on a slow speed sweep
+    (chunks of ``chunk_size`` bytes)."""
     from msg_tools.block_writer import BlockMcapWriter
 
     from ..io.recording import float64_rows
@@ -166,7 +167,7 @@ def make_torque_bag(path, minutes: float, rate_hz: float = 1000.0) -> int:
     torque = 15.0 + 300.0 * np.sin(3.0 * crank) + 90.0 * np.sin(6.0 * crank)
     times = np.round(t * 1e9).astype(np.int64)
     chunk = 100_000
-    with BlockMcapWriter(path, chunk_size=1 << 20) as w:
+    with BlockMcapWriter(path, chunk_size=chunk_size) as w:
         for a in range(0, n, chunk):
             w.write_block([("/drive_torque", "std_msgs/msg/Float64")], times[a : a + chunk], [float64_rows(torque[a : a + chunk])])
     return n

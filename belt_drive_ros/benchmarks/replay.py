@@ -7,7 +7,8 @@ engine-like drive torque, generated once, not timed) goes through what
 :func:`~belt_drive_ros.core.stream.stream` (simulation) and
 :class:`~belt_drive_ros.io.run_writers.McapWindows` (writing: encoding,
 blocks, waiting for the compression threads). Each run is a fresh child
-process, so its peak resident memory (``ru_maxrss``) is its own: with
+process, so its peak resident memory (``VmHWM``; ``ru_maxrss`` would keep the bench's own
+peak across the exec) is its own: with
 ``--baseline DIR`` (a checkout of another commit, e.g. ``git worktree add ../old v1``, its
 numba cache warm) the same measurement runs on that code too, the runs
 alternating, on the same bag, in one invocation. The child's code uses only
@@ -16,6 +17,7 @@ the public calls both trees have.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import subprocess
@@ -32,11 +34,15 @@ bag, out = sys.argv[1], sys.argv[2]
 from belt_drive_ros.core.stream import stream
 from belt_drive_ros.io.bags import reference_scene
 from belt_drive_ros.io.run_writers import McapWindows
-from belt_drive_ros.io.torque_bag import scene_with_torque_bag
+from belt_drive_ros.io import torque_bag
 from belt_drive_ros.core import kernel  # noqa: F401 (numba loaded before the clock starts, as sim's import does)
 
-def peak():
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+def peak():  # this process's own high-water mark (ru_maxrss keeps the parent's across the exec on Linux)
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmHWM:"))
+    except (OSError, StopIteration):
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 def cpu():
     r = resource.getrusage(resource.RUSAGE_SELF)
@@ -44,7 +50,9 @@ def cpu():
 
 base = peak()
 start, cpu0, main0 = time.perf_counter(), cpu(), time.thread_time()
-scene = scene_with_torque_bag(reference_scene("engine_idle").with_overrides(model="flexible", dt=1e-3), bag)
+base_scene = reference_scene("engine_idle").with_overrides(model="flexible", dt=1e-3)
+paged = getattr(torque_bag, "paged_torque_bag", None)  # (what sim runs for a streamed run; an older tree has none)
+scene = (paged(base_scene, bag) if paged else None) or torque_bag.scene_with_torque_bag(base_scene, bag)
 read = time.perf_counter() - start
 read_cpu = time.thread_time() - main0
 after_read = peak()
@@ -72,7 +80,8 @@ with open(out, "wb") as f:
 total = time.perf_counter() - start
 print(json.dumps({"read": read, "simulate": simulate, "write": write, "total": total, "cpu": cpu() - cpu0,
                   "read_cpu": read_cpu, "simulate_cpu": simulate_cpu, "write_cpu": write_cpu, "samples": samples, "messages": sum(counts.values()), "bytes": os.path.getsize(out),
-                  "peak": peak(), "base": base, "after_read": after_read}))
+                  "peak": peak(), "base": base, "after_read": after_read, "drive": type(scene.drive).__name__,
+                  "pages_cpu": getattr(scene.drive, "read_cpu", 0.0)}))
 '''
 
 
@@ -106,10 +115,12 @@ def main(minutes: float = 60.0, baseline: str | None = None, repeat: int = 1) ->
               "(the growth of peak memory per sample is the slope between the two)")
         results: dict = {name: [] for name, _ in trees}
         shorts: dict = {name: [] for name, _ in trees}
+        digests: dict = {}
         for _ in range(max(1, repeat)):
             for name, root in trees:
                 out = Path(tmp) / "out.mcap"
                 results[name].append(_child(root, bag, out))
+                digests.setdefault(name, hashlib.sha256(out.read_bytes()).hexdigest())
                 out.unlink()
                 shorts[name].append(_child(root, short, out))
                 out.unlink()
@@ -122,15 +133,20 @@ def main(minutes: float = 60.0, baseline: str | None = None, repeat: int = 1) ->
             _line("  read the bag", f"{r['read']:.2f} s (main thread CPU {r['read_cpu']:.2f} s)")
             _line("  simulation", f"{r['simulate']:.2f} s (main thread CPU {r['simulate_cpu']:.2f} s; "
                   f"{r['samples'] / max(r['simulate'], 1e-9) / 1e6:.2f} M samples/s)")
+            if r.get("pages_cpu"):  # a bag read in pages: the chunks decoded (opening pass included)
+                _line("  decoding the bag's pages", f"main thread CPU {r['pages_cpu']:.2f} s (in the read and the simulation)")
             _line("  writing", f"{r['write']:.2f} s (main thread CPU {r['write_cpu']:.2f} s; "
                   f"{r['messages'] / max(r['write'], 1e-9) / 1e6:.2f} M messages/s)")
             _line("process CPU", f"{r['cpu']:.2f} s (compression threads included: "
                   f"{r['cpu'] - r['read_cpu'] - r['simulate_cpu'] - r['write_cpu']:.2f} s beside the main thread)")
-            _line("output", f"{r['messages']:,} messages, {r['bytes'] / 2**20:.0f} MiB")
+            _line("output", f"{r['messages']:,} messages, {r['bytes'] / 2**20:.0f} MiB (drive: {r.get('drive', '?')})")
             grow = (r["peak"] - q["peak"]) / max(r["samples"] - q["samples"], 1)
             _line("peak RSS", f"{r['peak'] / 2**20:.0f} MiB (after imports {r['base'] / 2**20:.0f} MiB, after reading "
                   f"{r['after_read'] / 2**20:.0f} MiB); a sixth as long: {q['peak'] / 2**20:.0f} MiB: "
                   f"{grow:+.1f} B per bag sample")
+    if len(digests) == 2:
+        same = len(set(digests.values())) == 1
+        print(f"output MCAP of the {minutes:g}-minute bag: {'the same bytes' if same else 'DIFFERENT bytes'} in both trees")
     return 0
 
 

@@ -141,16 +141,17 @@ def run(args) -> int:
     if args.method_option:
         scene = scene.with_overrides(method_options=_options(args.method_option))
     if args.torque_bag is not None:
-        from ..io.torque_bag import scene_with_torque_bag, torque_topic  # offline replay of a recorded profile
+        from ..io.torque_bag import torque_bag_scene, torque_topic  # offline replay of a recorded profile
 
         topic, note = torque_topic(args.torque_bag)  # a node recording: the torque it applied
         if note:
             print(note)
-        scene = scene_with_torque_bag(scene, args.torque_bag, topic=topic)
+        scene = torque_bag_scene(scene, args.torque_bag, topic=topic,
+                                 streamed=lambda s: _samples(s.with_overrides(dt=args.dt, duration=args.duration)) > STREAM_ABOVE)
     scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration,
                                  tolerance=getattr(args, "tolerance", None))  # fmt: skip
     out_format = check_outputs(args)
-    samples = scene.duration / scene.dt + 1.0
+    samples = _samples(scene)
     check_plot_size(args, samples)
     bar = ProgressBar(f"sim {scene.name}", force=False) if not args.quiet else None
     if samples <= STREAM_ABOVE:
@@ -161,6 +162,11 @@ def run(args) -> int:
         print(estimate_run(scene, out_format).describe(f"sim {scene.name}", args.out), file=sys.stderr, flush=True)
         bar = ProgressBar(f"sim {scene.name}", force=False)  # timed from here, not from before the trials
     return _run_streamed(scene, args, out_format, bar)
+
+
+def _samples(scene) -> float:
+    """Samples of a run of ``scene`` (the grid's knots)."""
+    return scene.duration / scene.dt + 1.0
 
 
 def _resimulation(args):

@@ -61,25 +61,43 @@ def operating_run_step(duration: float) -> float:
     return min(duration / 500.0, 5e-3)
 
 
-def _survey_step(inner: np.ndarray, rdt: float) -> float:
-    """The survey's step [s]: ``rdt``, or the spacing ``h`` of a sampled torque whose breakpoints ``inner``
-    are denser than ``rdt`` and all lie on the grid ``k h`` (a recording at a fixed rate).
+def _survey_step(pieces, rdt: float) -> float:
+    """The survey's step [s]: ``rdt``, or the spacing ``h`` of a sampled torque whose breakpoints inside
+    the run (``pieces()``: consecutive sorted arrays of them) are denser than ``rdt`` and all lie on the
+    grid ``k h`` (a recording at a fixed rate).
 
     On that grid the stepper takes the record's steps in runs of whole steps (its breakpoints on the knots,
     :func:`~belt_drive_ros.core.absorb.absorbed_steps`): the cost is the record's samples, one kernel call per
     piece, instead of one call per sample in steps split at each; ``exact`` integrates the held samples
     exactly either way.
     """
-    if inner.size < 2 or inner.size * rdt <= float(inner[-1] - inner[0]) + rdt:
+    def on_grid(inner, h) -> bool:
+        d = np.abs(np.rint(inner / h) * h - inner)
+        return bool(np.all((d <= 1e-9 * h) | (d <= 8.0 * np.spacing(inner))))
+
+    # one pass: each piece is checked on the grid of the spacing so far, which is the final one once the
+    # densest spacing was seen (a recording's first piece); a second pass only if it moved after a check
+    n, first, last, gap, checked = 0, None, None, math.inf, set()
+    ok = True
+    for inner in pieces():
+        if inner.size:
+            if last is not None:
+                gap = min(gap, float(inner[0] - last))
+            if inner.size > 1:
+                gap = min(gap, float(np.min(np.diff(inner))))
+            first = float(inner[0]) if first is None else first
+            n, last = n + inner.size, float(inner[-1])
+            h = float(f"{gap:.9g}")  # the rate's period as written (0.001 for 1 kHz), not a float difference
+            checked.add(h)
+            ok = ok and 0.0 < h < rdt and on_grid(inner, h)
+    if n < 2 or n * rdt <= last - first + rdt:
         return rdt
-    h = float(f"{float(np.min(np.diff(inner))):.9g}")  # the rate's period as written (0.001 for 1 kHz), not a float difference
+    h = float(f"{gap:.9g}")
     if not 0.0 < h < rdt:
         return rdt
-    k = np.rint(inner / h)
-    d = np.abs(k * h - inner)
-    if np.all((d <= 1e-9 * h) | (d <= 8.0 * np.spacing(inner))):
-        return h
-    return rdt
+    if checked == {h}:
+        return h if ok else rdt
+    return h if all(on_grid(inner, h) for inner in pieces()) else rdt
 
 
 class RigidSurvey:
@@ -137,10 +155,15 @@ class RigidSurvey:
         self._start_torque = float(model.belt_torque(x0, plant.inputs(0.0, x0)))
         duration, dt = self.duration, self.dt  # the stops: probe times, then a quarter window before breakpoints
         self.t_probe = np.linspace(0.0, duration, N_PROBES) if duration > 0 else np.array([0.0])
-        bps = np.asarray(plant.breakpoints, dtype=np.float64)
-        inner = bps[(bps > 0.0) & (bps < duration)]
-        rdt = _survey_step(inner, operating_run_step(self.duration) if self.duration > 0 else 1e-3)
-        inner = inner[:MAX_BREAKPOINT_WINDOWS].tolist()
+        def pieces():  # the breakpoints inside the run (page by page for a recording read in pages)
+            return plant.breakpoint_pieces(0.0, duration, SURVEY_CHUNK * dt)
+
+        rdt = _survey_step(pieces, operating_run_step(self.duration) if self.duration > 0 else 1e-3)
+        inner = []
+        for piece in pieces():
+            inner += piece[: MAX_BREAKPOINT_WINDOWS - len(inner)].tolist()
+            if len(inner) == MAX_BREAKPOINT_WINDOWS:
+                break
         self.early = {b: max(0.0, dt * math.floor((b - 0.25 * WINDOW_STEPS * dt) / dt)) for b in inner}
         self.plain = [float(t) for t in self.t_probe[1:] if t < duration - 2.0 * dt]
         stops = sorted(set(self.plain) | set(self.early.values()) | {float(t) for t in self.t_probe})

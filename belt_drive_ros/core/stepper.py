@@ -94,6 +94,8 @@ PARTIAL_CACHE_SIZE = 4096
 GRID_TOLERANCE = 1e-9
 #: steps per call of the compiled loop between divergence checks and progress reports
 CHUNK = 4096
+#: steps of a paged drive's page beyond each end of a run (:meth:`Stepper._paged`)
+PAGE_MARGIN = 4
 #: an advance over at least this many breakpoints looks for steps it can absorb (:mod:`~belt_drive_ros.core.absorb`)
 ABSORB_MIN = 16
 _NO_CELLS = np.empty(0, dtype=np.int64)
@@ -126,13 +128,13 @@ class Plant:
                               else np.array(model.wheel_coordinates(np.eye(model.A.shape[0])), dtype=float))
         #: (drive, load): whether each torque reads its angle; their kernel data (None: a Python-only profile)
         self.uses_angle = (bool(drive.uses_angle), bool(load.uses_angle))
-        self.data = (drive.data(), load.data())
+        #: a drive read a page at a time (``drive.page(t0, t1)``, a recording too long to hold): steppers
+        #: run on the plant of the page of each run (:meth:`page`); the plant itself has no data nor breakpoints
+        self.paged = getattr(drive, "page", None) is not None
+        self.data = (None if self.paged else drive.data(), load.data())
         #: sorted distinct finite times [s] at which either torque jumps or kinks (TorqueProfile.breakpoints), float64
-        #: (a recorded drive has one per sample: an array, never a list of floats)
-        both = np.concatenate([np.asarray(drive.breakpoints(), dtype=np.float64).ravel(),
-                               np.asarray(load.breakpoints(), dtype=np.float64).ravel()])
-        both = both[np.isfinite(both)]
-        self.breakpoints = both if np.all(both[1:] > both[:-1]) else np.unique(both)  # a table's: sorted already
+        #: (a recorded drive has one per sample: an array, never a list of floats); None for a paged drive
+        self.breakpoints = None if self.paged else _merged(drive.breakpoints(), load.breakpoints())
         array = np.array
         angle_M, speed_M, angle_3, speed_3 = (_coordinate(row) for row in W)
 
@@ -147,6 +149,25 @@ class Plant:
                 return array([drive_torque(t, angle_M(x), w), load_torque(t, angle_3(x), speed_3(x)), *(f(w) for f in extras)])
 
         self.inputs = inputs
+
+    def page(self, t0: float, t1: float) -> "Plant":
+        """This plant with the drive's page on ``[t0, t1]`` [s] (the same torques and breakpoints there)."""
+        return Plant(self.model, self.drive.page(t0, t1), self.load, self.extra)
+
+    def breakpoint_pieces(self, lo: float, hi: float, span: float):
+        """The breakpoints strictly between ``lo`` and ``hi`` [s] as consecutive sorted arrays (one for a plain
+        plant; a paged one: page by page, pages of ``span`` [s]), so a whole run's are never held at once."""
+        if not self.paged:
+            b = self.breakpoints
+            yield b[(b > lo) & (b < hi)]
+            return
+        load = np.asarray(self.load.breakpoints(), dtype=np.float64).ravel()
+        a = lo
+        while a < hi:
+            b = min(hi, a + span)
+            both = _merged(self.drive.page(a, b).breakpoints(), load)
+            yield both[(both > a) & ((both <= b) if b < hi else (both < hi))]
+            a = b
 
     def kernel_loop(self, integrator, guard=None):
         """The compiled loop (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`) of ``integrator`` for this plant, or None.
@@ -198,11 +219,18 @@ def shared_plant(model, drive, load) -> Plant:
     if hit is not None and hit[0] is model and hit[1] is drive and hit[2] is load:
         return hit[3]
     plant = Plant(model, drive, load)
-    if len(plant.breakpoints) <= 64:
+    if plant.breakpoints is not None and len(plant.breakpoints) <= 64:  # None: a paged recording's
         if len(_PLANTS) >= _PLANT_CACHE_SIZE:
             _PLANTS.pop(next(iter(_PLANTS)))
         _PLANTS[key] = (model, drive, load, plant)
     return plant
+
+
+def _merged(drive, load) -> np.ndarray:
+    """Sorted distinct finite times [s] of two profiles' breakpoints (float64)."""
+    both = np.concatenate([np.asarray(drive, dtype=np.float64).ravel(), np.asarray(load, dtype=np.float64).ravel()])
+    both = both[np.isfinite(both)]
+    return both if np.all(both[1:] > both[:-1]) else np.unique(both)  # a table's: sorted already
 
 
 def _search(bps, x: float, right: bool) -> int:
@@ -305,6 +333,8 @@ class Stepper:
         x = np.ascontiguousarray(x, dtype=np.float64)
         if t1 == t0:
             return x
+        if self.plant.paged:
+            return self._paged(t0, t1).advance(x, t0, t1)
         if self.guard is not None:
             raise ValueError("advance: a guarded stepper is run with run() (it may stop early)")
         plan = self._plan(t0, t1, absorb=True)
@@ -324,6 +354,12 @@ class Stepper:
         x0 = np.asarray(x0, dtype=float)
         if t1 < t0:
             raise ValueError(f"run: t1 ({t1!r} s) is before t0 ({t0!r} s)")
+        if self.plant.paged:
+            page = self._paged(t0, t1)
+            try:
+                return page.run(x0, t0, t1, progress, vectorize)
+            finally:
+                self.vectorized, self.split_steps, self.stopped = page.vectorized, page.split_steps, page.stopped
         # whole grid steps away from breakpoints in the compiled loop: one call, no plan (the plan's steps, the
         # same floats); not where the vectorized open-loop path would be taken
         if self.loop is not None and progress is None and (
@@ -361,6 +397,15 @@ class Stepper:
         if progress:
             progress(1.0)
         return times, states
+
+    def _paged(self, t0: float, t1: float) -> "Stepper":
+        """A stepper of this one's settings on the plant's page over ``[t0, t1]`` widened by
+        :data:`PAGE_MARGIN` steps each side (every breakpoint a plan or an absorbed step there looks at)."""
+        m = PAGE_MARGIN * self.dt
+        page = Stepper(self.plant.page(t0 - m, t1 + m), self.method, self.dt, self.method_options, self.origin,
+                       self.integrator, self.guard)
+        page._partials = self._partials  # (the partial steps' integrators depend on the model only)
+        return page
 
     def _near_breakpoint(self, t0: float, t1: float, k0: int, k1: int) -> bool:
         """Whether a breakpoint lies in the grid steps k0 .. k1 (within the snap tolerance)."""

@@ -164,6 +164,8 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps) -> Ite
 
 
 def _slipping(scene, choice, progress, check_stability, window_steps) -> Iterator[SimResult]:
+    if getattr(scene.drive, "page", None) is not None:  # the slipping hybrid steps a drive held whole
+        scene = replace(scene, drive=scene.drive.whole())
     sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
     m = sim.model
     y0 = scene.initial_state.vector("slipping", scene.params.ratio)

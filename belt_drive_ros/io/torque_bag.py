@@ -37,6 +37,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import time
 import warnings
 from dataclasses import dataclass
 from typing import Any, Dict, List, Optional, Tuple
@@ -51,7 +52,7 @@ from ..core.inputs import parse_yaml
 from ..core.scene import Scene
 from .recording import APPLIED_TOPIC, RECORDED_DRIVE, SCENE_METADATA, BagReadError, _sha256, bag_error
 from ..core.profile_data import TABLE_HELD_NS
-from ..core.sources import Table
+from ..core.sources import Table, TorqueProfile
 from . import is_recording  # noqa: F401 (defined without mcap, for the sim command's first look)
 
 __all__ = [
@@ -64,6 +65,9 @@ __all__ = [
     "TorqueRecording",
     "load_torque_recording",
     "scene_with_torque_bag",
+    "PagedTorque",
+    "paged_torque_bag",
+    "torque_bag_scene",
 ]
 
 FLOAT64 = "std_msgs/msg/Float64"
@@ -247,7 +251,11 @@ def load_torque_recording(bag, topic: str = DEFAULT_TOPIC, *, keep_payloads: boo
 
 def _zoh_table(times_ns: np.ndarray, values: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
     """Strictly increasing times [s from the first] and values; at equal times the later message wins."""
-    rel = times_ns - times_ns[0]
+    return _zoh_table_relative(times_ns - times_ns[0], values)
+
+
+def _zoh_table_relative(rel: np.ndarray, values: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """:func:`_zoh_table` of times already relative to the first message [ns] (int64)."""
     last = np.ones(rel.size, dtype=bool)
     last[:-1] = rel[1:] != rel[:-1]
     if not last.all():  # (no copies of an hour's samples when no two share a time)
@@ -305,6 +313,239 @@ def scene_with_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: O
     dt = min(scene.dt, duration)
     description = f"{scene.description} Drive torque recorded in {os.path.basename(rec.path)}.".strip()
     return dataclasses.replace(scene, drive=drive, duration=float(duration), dt=dt, description=description)
+
+
+#: chunks decoded at a time by the pass that opens a :class:`PagedTorque`
+PASS_CHUNKS = 8
+#: decoded chunks a :class:`PagedTorque` keeps
+CACHED_CHUNKS = 4
+#: a gap [s] between two times asked of :meth:`PagedTorque.torque` that starts another page
+PAGE_GAP = 1.0
+
+
+class PagedTorque(TorqueProfile):
+    """The drive torque of a bag as :class:`RecordedTorque` gives it, read from the file a page at a time.
+
+    The same zero-order hold (times [s] relative to the first message, at
+    equal times the later message wins), but no sample is held for the
+    whole run: :meth:`page` returns a :class:`RecordedTorque` of the samples
+    from the last one at or before ``t0`` to the first one at or after
+    ``t1``, which gives every time in ``[t0, t1]`` the torque, the
+    breakpoints and the kernel's table lookup of the whole recording
+    (its times are the same floats). The core's stepper reads pages of its
+    windows (:class:`~belt_drive_ros.core.stepper.Plant`); what asks for
+    the whole table (:meth:`breakpoints`, :meth:`encode`, :meth:`to_dict`)
+    gets it, read whole (:meth:`whole`). Made by :func:`paged_torque_bag`.
+    """
+
+    kind = "table"
+    state_dependent = False
+    uses_angle = False
+    interpolation = "previous"
+    left_of = RecordedTorque.left_of
+    left_of_array = RecordedTorque.left_of_array
+
+    def __init__(self, chunked, start_ns: int, samples: int, changes: bool, min_gap: float, bag, source: str,
+                 topic: str, sha256: str):
+        self._chunked, self.start_ns, self.samples = chunked, int(start_ns), int(samples)
+        self._changes, self._min_gap = bool(changes), float(min_gap)
+        self._bag, self.source, self.topic, self.sha256 = bag, source, topic, sha256
+        self._last = None  # (t0, t1, page) of the last page read
+        self._cache: dict = {}  # chunk index -> (log times, values), least recently used first
+        #: CPU time [s] of this thread spent decoding chunks (the figure ``bench replay`` reports)
+        self.read_cpu = 0.0
+
+    @property
+    def times(self):  # Table's interface (reference() reads times.size): the whole, read on use
+        return self.whole().times
+
+    @property
+    def values(self):
+        return self.whole().values
+
+    def whole(self) -> RecordedTorque:
+        """The whole recording as :func:`scene_with_torque_bag` reads it (every sample in memory)."""
+        rec = load_torque_recording(self._bag, self.topic)
+        times, values = _zoh_table(rec.log_time_ns, rec.values)
+        return RecordedTorque(times=times, values=values, interpolation="previous", source=self.source,
+                              topic=self.topic, sha256=self.sha256, start_ns=self.start_ns)
+
+    def reference(self) -> Dict[str, Any]:
+        """:meth:`RecordedTorque.reference`, without reading the samples."""
+        return {"type": RECORDED_DRIVE, "bag": self.source, "topic": self.topic, "samples": self.samples,
+                "start_ns": self.start_ns, "sha256": self.sha256, "interpolation": self.interpolation}
+
+    def _decode(self, i: int, j: int) -> Tuple[np.ndarray, np.ndarray]:
+        """Log times [ns from the first message] and values of chunks i .. j - 1, widened over seams where
+        equal times continue (so a run of equal times is whole: its last message wins, as in the whole read)."""
+        c = self._chunked
+        while i > 0 and c.starts[i] == c.ends[i - 1]:
+            i -= 1
+        while j < len(c) and c.starts[j] == c.ends[j - 1]:
+            j += 1
+        parts = [self._chunk(k) for k in range(i, j)]  # in time order, each sorted: the whole read's order
+        return (np.concatenate([p[0] for p in parts]) - self.start_ns if len(parts) > 1 else parts[0][0] - self.start_ns,
+                np.concatenate([p[1] for p in parts]) if len(parts) > 1 else parts[0][1])
+
+    def _chunk(self, k: int) -> Tuple[np.ndarray, np.ndarray]:
+        """Log times [ns] and values of chunk ``k``; the last :data:`CACHED_CHUNKS` are kept (consecutive
+        pages share the chunk at their seam)."""
+        cache = self._cache
+        got = cache.pop(k, None)
+        if got is None:
+            start = time.thread_time()
+            try:
+                got = self._chunked.float64(k)
+            except MsgToolsError as exc:  # (the pass that opened the bag read every chunk)
+                raise bag_error(exc) from None
+            self.read_cpu += time.thread_time() - start
+            if len(cache) >= CACHED_CHUNKS:
+                del cache[next(iter(cache))]
+        cache[k] = got
+        return got
+
+    def page(self, t0: float, t1: float) -> RecordedTorque:
+        """The samples that give the torque on ``[t0, t1]`` [s] (see the class)."""
+        last = self._last
+        if last is not None and last[0] <= t0 and t1 <= last[1]:
+            return last[2]
+        c = self._chunked
+        lo = self.start_ns + math.floor(t0 * 1e9) - 1
+        hi = self.start_ns + math.ceil(t1 * 1e9) + 1
+        i = max(0, int(np.searchsorted(c.starts, lo, side="right")) - 1)
+        j = min(len(c), int(np.searchsorted(c.ends, hi, side="left")) + 1)
+        times, values = _zoh_table_relative(*self._decode(i, j))
+        a = max(0, int(np.searchsorted(times, t0, side="right")) - 1)
+        b = min(times.size - 1, int(np.searchsorted(times, t1, side="left")))
+        page = RecordedTorque(times=times[a : b + 1].copy(), values=values[a : b + 1].copy(), interpolation="previous",
+                              source=self.source, topic=self.topic, sha256=self.sha256, start_ns=self.start_ns)
+        self._last = (t0, t1, page)
+        return page
+
+    def torque(self, t, angle=0.0, speed=0.0):
+        """As the whole table's: times closer than :data:`PAGE_GAP` read from one page."""
+        if not np.ndim(t):
+            return self.page(float(t), float(t)).torque(t, angle, speed)
+        t = np.asarray(t, dtype=float)
+        ts, angles, speeds = np.broadcast_arrays(t, np.asarray(angle, dtype=float), np.asarray(speed, dtype=float))
+        flat = ts.ravel()
+        out = np.empty(flat.size)
+        order = np.argsort(flat, kind="stable")
+        s = flat[order]
+        cuts = np.flatnonzero(np.diff(s) > PAGE_GAP) + 1 if s.size else []
+        for part in np.split(order, cuts):
+            if part.size:
+                out[part] = self.page(float(flat[part].min()), float(flat[part].max())).torque(
+                    flat[part], angles.ravel()[part], speeds.ravel()[part])
+        return out.reshape(ts.shape)
+
+    def scalar_torque(self):
+        return lambda t, angle, speed: float(self.torque(t, angle, speed))
+
+    def encode(self, builder):
+        return self.whole().encode(builder)
+
+    def breakpoints(self):
+        return self.whole().breakpoints()
+
+    def excitation_frequencies(self, speed):
+        if self.samples < 2:
+            return []
+        if self._changes:
+            return [(math.inf, "table with zero-order hold (step changes)")]
+        return [(0.5 / self._min_gap, "table (Nyquist of its sample spacing)")]
+
+    def to_dict(self) -> Dict[str, Any]:
+        return self.whole().to_dict()
+
+    def close(self) -> None:
+        """Release the file (the profile reads no page after this)."""
+        self._chunked.close()
+
+    def __eq__(self, other):
+        return other is self
+
+    __hash__ = object.__hash__
+
+
+def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Optional[float] = None, warn=None):
+    """:func:`scene_with_torque_bag` with the drive a :class:`PagedTorque` (memory bounded by a page, not the
+    bag), or None when the bag must be read whole (a folder, a file cut off or damaged, no chunk index,
+    chunks out of time order, a topic the whole read would refuse or resolve otherwise)."""
+    from msg_tools.chunked import topic_chunks
+
+    from msg_tools import summary
+
+    name = topic if topic.startswith("/") else "/" + topic
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RecoveredBagWarning)
+            topics = [t.topic for t in summary(bag, verify=False).topics]
+        if name not in topics:  # a namespaced node's single .../drive_torque, as the whole read finds it
+            candidates = [t for t in topics if t.endswith("/" + name.rsplit("/", 1)[-1])]
+            name = candidates[0] if len(candidates) == 1 else name
+        chunked, _why = topic_chunks(bag, name)
+    except (MsgToolsError, OSError):
+        return None
+    if chunked is None:
+        return None
+    drive = None
+    try:
+        schema = chunked._summary.schemas.get(chunked._summary.channels[chunked._cids[0]].schema_id)
+        if schema is None or schema.name.replace("/msg/", "/") != FLOAT64.replace("/msg/", "/"):
+            raise LookupError
+        first = chunked.float64(0)[0]
+        if not len(first):
+            raise LookupError
+        drive = PagedTorque(chunked, int(np.min(first)), 0, False, math.inf, bag, os.path.basename(os.fspath(bag)),
+                            chunked.topic, "")
+        # one pass: what the whole read checks (finite values) and knows (samples, last time, steps, spacing)
+        samples, changes, gap, last_t, last_v = 0, False, math.inf, None, None
+        for k in range(0, len(chunked), PASS_CHUNKS):
+            rel, raw = drive._decode(k, min(len(chunked), k + PASS_CHUNKS))
+            if not np.all(np.isfinite(raw)):
+                raise LookupError
+            times, values = _zoh_table_relative(rel, raw)
+            if last_t is not None:  # a widened read repeats what the last one took
+                keep = times > last_t
+                times, values = times[keep], values[keep]
+            if not times.size:
+                continue
+            if last_t is not None:
+                gap = min(gap, float(times[0] - last_t))
+                changes = changes or bool(values[0] != last_v)
+            if times.size > 1:
+                gap = min(gap, float(np.min(np.diff(times))))
+                changes = changes or bool(np.any(values[1:] != values[:-1]))
+            samples += times.size
+            last_t, last_v = float(times[-1]), float(values[-1])
+    except (LookupError, MsgToolsError, BeltDriveError):  # the whole read says what is wrong in its own words
+        chunked.close()
+        return None
+    drive.samples, drive._changes, drive._min_gap = samples, changes, gap
+    drive.sha256 = _sha256(bag)
+    end_s = last_t
+    if duration is None:
+        duration = end_s if samples > 1 else scene.duration
+    if not (duration > 0 and math.isfinite(duration)):
+        chunked.close()
+        raise BagReadError(f"{bag}: duration must be > 0 s, got {duration!r}")
+    dt = min(scene.dt, duration)
+    description = f"{scene.description} Drive torque recorded in {drive.source}.".strip()
+    return dataclasses.replace(scene, drive=drive, duration=float(duration), dt=dt, description=description)
+
+
+def torque_bag_scene(scene, bag, *, topic: str = DEFAULT_TOPIC, streamed=None):
+    """``scene`` driven by the torque of ``bag``: :func:`paged_torque_bag` when ``streamed(scene)`` says the
+    run streams in windows (:func:`~belt_drive_ros.core.stream.stream`) and the bag can be paged, else
+    :func:`scene_with_torque_bag` (every sample in memory)."""
+    if streamed is not None:
+        paged = paged_torque_bag(scene, bag, topic=topic)
+        if paged is not None:
+            if streamed(paged):
+                return paged
+            paged.drive.close()
+    return scene_with_torque_bag(scene, bag, topic=topic)
 
 
 # --------------------------------------------------------- re-simulation

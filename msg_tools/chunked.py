@@ -1,0 +1,119 @@
+"""One topic of a finished MCAP file read a few chunks at a time (memory bounded by the chunks read, not the file).
+
+:func:`topic_chunks` opens a file whose summary section is readable and sound
+(its chunk index checked against the records, :mod:`msg_tools.index`) and
+whose chunks holding the topic follow each other in time (each starts no
+earlier than the one before ends: a recorder writing in receive order).
+:meth:`ChunkedTopic.read` then decodes chunks ``i .. j - 1`` into a
+:class:`~msg_tools.results.TopicData`, the same arrays :func:`msg_tools.read_topic`
+holds for those messages (concatenated in file order, stably sorted by log
+time). Any other file: None and the reason (read it whole instead).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import List, Optional, Tuple
+
+import numpy as np
+
+from . import index as _index
+from .decode import build_topic
+from .errors import CorruptBagError
+from .files import open_regular
+from .results import TopicData
+from .scan import _CHUNK, Scan, _Stop, SchemaRecord, SourceBuffer, chunk_records, uniform_rows
+
+__all__ = ["ChunkedTopic", "topic_chunks"]
+
+
+class ChunkedTopic:
+    """The chunks of a file that hold one topic: ``starts``/``ends`` [ns] (the chunks' first and last
+    message log times, int64, in file order); :meth:`read` decodes a run of them."""
+
+    def __init__(self, path: str, summary, cids: List[int], topic: str, chunks: list):
+        self.path, self.topic, self._cids, self._fd = path, topic, cids, None
+        self._fd = open_regular(path)  # chunks are read with pread: a mapping would keep every page read resident
+        self._offsets = [(int(c.chunk_start_offset), int(c.chunk_length)) for c in chunks]
+        self.starts = np.array([int(c.message_start_time) for c in chunks], dtype=np.int64)
+        self.ends = np.array([int(c.message_end_time) for c in chunks], dtype=np.int64)
+        self._summary = summary
+
+    def __len__(self) -> int:
+        return len(self._offsets)
+
+    def read(self, i: int, j: int) -> TopicData:
+        """The topic's messages in chunks ``i .. j - 1`` (file order)."""
+        scan = Scan(b"", self.path, want=lambda topic: topic == self.topic, keep_data=True)
+        for sid, sc in self._summary.schemas.items():
+            if sid != 0:
+                scan.schemas[sid] = SchemaRecord(sid, sc.name, sc.encoding, bytes(sc.data))
+        for cid, ch in self._summary.channels.items():
+            scan._add_channel(cid, ch.schema_id, ch.topic, ch.message_encoding, dict(ch.metadata))
+        for at, length in self._offsets[i:j]:
+            try:
+                scan._record(_CHUNK, self._record(at, length), 9, length, at)
+            except _Stop as exc:
+                raise CorruptBagError(f"{self.path}: {exc}") from None
+        scan.complete = True
+        return build_topic(scan, self._cids, self.topic, False)
+
+    def float64(self, k: int) -> Tuple[np.ndarray, np.ndarray]:
+        """Log times [ns] (int64) and values of ``std_msgs/Float64`` messages in chunk ``k``: the arrays of
+        :meth:`read` (stably sorted by log time), taken from the records' columns when the chunk holds only
+        this topic's messages, all little-endian CDR of one length; else through :meth:`read`."""
+        at, length = self._offsets[k]
+        record = self._record(at, length)
+        try:
+            rows = uniform_rows(chunk_records(memoryview(record)[9:], at, self.path)[0])
+        except _Stop as exc:
+            raise CorruptBagError(f"{self.path}: {exc}") from None
+        if (rows is not None and rows.shape[1] == 9 + 22 + 12 and np.all(rows[:, 31] == 0) and np.all(rows[:, 32] == 1)
+                and np.all(np.isin(rows[:, 9:11].copy().view("<u2")[:, 0], self._cids))):
+            log = rows[:, 15:23].copy().view("<i8")[:, 0].astype(np.int64)
+            values = rows[:, 35:43].copy().view("<f8")[:, 0].astype(np.float64)
+            if log.size > 1 and np.any(np.diff(log) < 0):
+                order = np.argsort(log, kind="stable")
+                log, values = log[order], values[order]
+            return log, values
+        data = self.read(k, k + 1)
+        return np.asarray(data.log_time_ns, dtype=np.int64), np.asarray(data.data, dtype=np.float64)
+
+    def _record(self, at: int, length: int) -> bytes:
+        record = os.pread(self._fd, length, at)
+        if len(record) != length:
+            raise CorruptBagError(f"{self.path}: chunk at byte {at} is cut off")
+        return record
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+    def __del__(self):
+        self.close()
+
+
+def topic_chunks(path, topic: str) -> Tuple[Optional[ChunkedTopic], str]:
+    """:class:`ChunkedTopic` of ``topic`` in the file ``path``, or (None, why it must be read whole)."""
+    if not isinstance(path, (str, os.PathLike)) or os.path.isdir(path):
+        return None, "not a single file"
+    with SourceBuffer(path) as src:
+        indexed, reason = _index.read_summary(src.buf, path=src.path) if src.size else (None, "empty")
+    try:
+        if indexed is None or not indexed.sound or not _index.chunks_readable(indexed):
+            raise LookupError(reason or "no sound summary section")
+        summary = indexed.summary
+        cids = sorted(cid for cid, ch in summary.channels.items() if ch.topic == topic)
+        if not cids:
+            raise LookupError(f"no channel {topic}")
+        chunks = sorted((c for c in summary.chunk_indexes if any(cid in c.message_index_offsets for cid in cids)),
+                        key=lambda c: c.chunk_start_offset)
+        if not chunks:
+            raise LookupError(f"no chunk holds {topic}")
+        for a, b in zip(chunks, chunks[1:]):
+            if b.message_start_time < a.message_end_time:
+                raise LookupError("chunks overlap in time")
+        return ChunkedTopic(os.fspath(path), summary, cids, topic, chunks), ""
+    except LookupError as exc:
+        return None, str(exc)
