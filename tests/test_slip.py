@@ -27,8 +27,8 @@ from belt_drive_ros.core.model import FlexibleBeltModel
 from belt_drive_ros.core.params import BeltDriveParams
 from belt_drive_ros.core.scene import load_scene
 from belt_drive_ros.core.simulate import Simulator
-from belt_drive_ros.core.slip import SLIP, STICK, HybridStepper, SlippingBeltModel
-from belt_drive_ros.core.slip_reference import RegularisedFriction, reference_hybrid
+from belt_drive_ros.benchmarks.slip_reference import HybridStepper, RegularisedFriction, reference_hybrid
+from belt_drive_ros.core.slip import SLIP, STICK, SlippingBeltModel
 
 
 def _const(value):
@@ -300,8 +300,9 @@ def test_slip_phases_of_a_belt_with_mass_in_the_loop_equal_the_hybrid_stepper(me
     assert sim.phase_stepper(("mass", 1.0)).loop is not None
     assert np.any(modes == SLIP) and sum(e.kind == "onset" for e in sim.events) >= 2
     # etd2/etd4: the hybrid stepper's every grid step by the compiled event step (the torques as data), against the
-    # simulator's phases in the linear loop; rk4: the method's flow over partial steps in Python in both, the events
-    # located by the compiled location on the step's modal extension
+    # simulator's phases in the linear loop; rk4: the reference takes an event step's partial steps by rk4 in Python,
+    # the simulator's compiled event step by etd4 (both fourth order): the elastic deflection differs by ~4e-9 of its
+    # range there, the events are located by the same compiled location
     hs = HybridStepper(sim.model, sim.plant.scalar_drive, sim.plant.scalar_load, method,
                        data=(*sim.plant.data, sim.plant.uses_angle))  # fmt: skip
     assert (hs._kernel is not None) == (method != "rk4") and (hs._located is not None) == (method == "rk4")
@@ -310,5 +311,5 @@ def test_slip_phases_of_a_belt_with_mass_in_the_loop_equal_the_hybrid_stepper(me
     np.testing.assert_allclose([e.time for e in sim.events], [e.time for e in ref.events], rtol=0.0, atol=1e-12)
     scale = np.max(np.abs(ref.states), axis=0)
     error = np.max(np.abs(states - ref.states) / scale, axis=0)  # per coordinate, relative to its range
-    assert np.all(error < 1e-10), error
+    assert np.all(error < (1e-10 if method != "rk4" else 1e-8)), error
     np.testing.assert_array_equal(modes, ref.mode)
