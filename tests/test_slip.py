@@ -90,6 +90,30 @@ def test_onset_when_belt_torque_reaches_r3_qmax_located_between_grid_times():
     assert run.mode[k] == STICK and run.mode[k + 1] == SLIP
 
 
+def test_onset_in_the_compiled_engine_when_belt_torque_reaches_r3_qmax():
+    """The same onset through the package's engine (SlippingSimulator: the compiled hybrid loop, the torques as
+    data): at the quasi-static estimate, the force at the located event on the limit, off the grid, and at the
+    DOP853 reference's time."""
+    from belt_drive_ros.core.slip_run import SlippingSimulator
+    from belt_drive_ros.core.sources import Constant, Ramp
+
+    p = BeltDriveParams(I_3=1.0e6, c=500.0, mu=0.3, F_0=300.0)
+    m = SlippingBeltModel(p)
+    qmax, rate, dt = m.limit(0.0), 40.0, 1e-3
+    sim = SlippingSimulator(p, Ramp(0.0, rate * 0.8, 0.0, 0.8), Constant(0.0), "etd2", dt, check_stability=False)
+    time, states, modes, _ = sim.run(0.8, np.zeros(5))
+    assert sim._compiled() is not None
+    onset = [e for e in sim.events if e.kind == "onset"][0]
+    K = 2.0 * p.k * (p.r_2 * p.gear_ratio) ** 2
+    assert onset.time == pytest.approx(p.gear_ratio * p.r_2 * qmax / rate + p.bearing_damping_drive_side / K, rel=1e-3)
+    assert abs(p.r_3 * (m.q_row @ onset.state)) == pytest.approx(p.r_3 * qmax, rel=1e-9)
+    assert abs(onset.time / dt - round(onset.time / dt)) > 1e-3
+    ref = reference_hybrid(m, lambda t, a, w: rate * t, _const(0.0), time[time <= 0.75], np.zeros(5), rtol=1e-12, atol=1e-12)
+    assert onset.time == pytest.approx(ref.events[0].time, abs=1e-9)
+    k = int(onset.time / dt)
+    assert modes[k] == STICK and modes[k + 1] == SLIP
+
+
 # ------------------------------------------------------ closed-form slip
 @pytest.mark.parametrize("damped", [False, True])
 def test_slip_phase_with_c0_and_constant_torques_matches_closed_forms(damped):
