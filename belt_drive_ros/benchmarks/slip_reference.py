@@ -28,7 +28,7 @@ from typing import Callable
 import numpy as np
 
 from ..core.integrators import make_integrator
-from ..core.slip import SLIP, STICK, Event, SlipError, SlippingBeltModel
+from ..core.slip import SLIP, STICK, Event, EventStep, SlipError, SlippingBeltModel
 
 
 def regularised_matrices(model: SlippingBeltModel) -> tuple[np.ndarray, np.ndarray]:
@@ -96,12 +96,10 @@ class HybridStepper:
         if data is not None and None not in data[:2] and locate:
             from ..core import kernel_slip
 
-            arrays = kernel_slip.pack(model, method, *data)
-            if self._modal_steps:
-                self._kernel = arrays
-                self._event_step = kernel_slip.event_step
-                self._event_buffer = np.zeros((kernel_slip.MAX_SWITCHES + 1, 8))
-            elif arrays is not None:
+            if self._modal_steps:  # the package's own event step
+                self._compiled = EventStep(model, method, data)
+                self._kernel = self._compiled._kernel
+            elif (arrays := kernel_slip.pack(model, method, *data)) is not None:
                 locate_event, Z, R, c, _, guards, uses = kernel_slip.locate_event, *arrays[:6]
                 rest = arrays[6:]
                 self._located = lambda mode, sigma, t, y, h, hi, y1: locate_event(
@@ -270,7 +268,7 @@ class HybridStepper:
         when already known (a step without cuts that a compiled loop took).
         """
         if self._kernel is not None:
-            return self._advance_kernel(t0, t1, y, mode, sigma, cuts, events, dt, hi_end, y1)
+            return self._compiled.advance(t0, t1, y, mode, sigma, cuts, events, dt, hi_end, y1)
         edges = [t0, *cuts, t1]
         n_events = 0
         given = None if cuts else y1
@@ -300,23 +298,6 @@ class HybridStepper:
                 if n_events > 64:
                     raise SlipError(f"slip: more than 64 mode switches in one step at t={a:.9g} s (chattering); reduce dt")
         return y, mode, sigma
-
-    def _advance_kernel(self, t0, t1, y, mode, sigma, cuts, events, dt, hi_end, y1):
-        """:meth:`advance` by the compiled event step (:func:`~belt_drive_ros.core.kernel_slip.event_step`)."""
-        yk = np.array(y, dtype=float)
-        given = 0 if (cuts or y1 is None) else 1
-        y1k = np.array(y1, dtype=float) if given else np.empty(5)
-        ev = self._event_buffer
-        mode, sigma, n, status = self._event_step(
-            float(t0), float(t1), np.asarray(cuts, dtype=float), yk, int(mode), float(sigma),
-            math.nan if dt is None else float(dt), float(hi_end), y1k, given, *self._kernel, ev, 0,
-        )  # fmt: skip
-        if events is not None:
-            for row in ev[:n]:
-                events.append(Event(float(row[0]), "onset" if row[1] else "restick", float(row[2]), row[3:].copy()))
-        if status:
-            raise SlipError(f"slip: more than 64 mode switches in one step at t={t0:.9g} s (chattering); reduce dt")
-        return yk, int(mode), float(sigma)
 
     def _switched(self, mode, sigma, a, y, events):
         """:meth:`switch` at an event at (a, y), recorded in ``events`` when the mode changes."""
