@@ -28,7 +28,7 @@ def test_compiled_hybrid_loop_equals_event_steps_taken_one_by_one(name, duration
     hybrid stepper taking every grid step as an event step on the modal flow (the same method's step of any
     length), to rounding; events alike. truck_compressor: massless slip (Q a constant sixth state); bsg_start:
     a belt with mass (Q = sigma Q_max(omega_M) an input)."""
-    from belt_drive_ros.core.slip import HybridStepper
+    from belt_drive_ros.benchmarks.slip_reference import HybridStepper
 
     scene = load_scene(name)
     y0 = scene.initial_state.vector("slipping", scene.params.ratio)
@@ -63,6 +63,36 @@ def test_advance_tick_by_tick_equals_one_run():
     assert len(events) >= 2 and [e.time for e in events] == [e.time for e in whole.events]
 
 
+@pytest.mark.parametrize("method", ["rk4", "lawson5"])
+def test_methods_without_a_modal_flow_slip_in_the_compiled_loop(method):
+    """rk4 and lawson5 (no modal flow of their own) run the compiled hybrid loop too: their phases in the linear
+    loop with the method's matrices, each event step compiled with its partial steps as etd4 (the Python event
+    loop that took them with the method's own integrators is gone; it stays as the reference in
+    benchmarks/slip_reference.py). Against etd4 at 1 us: the same events, and no larger an error than that Python
+    loop per state coordinate (lawson5: smaller, the event times ~1e-9 s instead of ~1e-7 s)."""
+    from belt_drive_ros.benchmarks.slip_reference import HybridStepper
+
+    scene = load_scene("truck_compressor").with_overrides(method=method, dt=1e-4)
+    y0 = scene.initial_state.vector("slipping", scene.params.ratio)
+    sim = _sim(scene)
+    time, states, modes, _ = sim.run(0.7, y0)
+    assert sim._compiled() is not None  # the old code: None (no compiled event step for these methods)
+    fine = _sim(scene.with_overrides(method="etd4", dt=1e-6))
+    t_fine, y_fine, _, _ = fine.run(0.7, y0)
+    truth = y_fine[np.searchsorted(t_fine, time - 1e-12)]
+    hs = HybridStepper(sim.model, sim.plant.scalar_drive, sim.plant.scalar_load, method,
+                       data=(*sim.plant.data, sim.plant.uses_angle))  # fmt: skip
+    python = hs.run(time, y0, breakpoints=sim.breakpoints)
+    assert len(fine.events) >= 4 and [e.kind for e in sim.events] == [e.kind for e in fine.events]
+    np.testing.assert_array_equal(modes, python.mode)
+    scale = np.max(np.abs(truth), axis=0)
+    error = np.max(np.abs(states - truth) / scale, axis=0)
+    python_error = np.max(np.abs(python.states - truth) / scale, axis=0)
+    # 1e-9: the 1 us run's own error and the angles' rounding (phi_M ~ 54 rad), below either method's error
+    assert np.all(error <= 1.01 * python_error + 1e-9), (error, python_error)
+    assert max(abs(a.time - b.time) for a, b in zip(sim.events, fine.events)) < 2e-9
+
+
 def test_the_hybrid_kernels_compile_once_whatever_the_scene():
     def counts():
         return {name: len(getattr(kernel_slip, name).signatures) for name in ("event_step", "hybrid_steps", "locate_event")}
@@ -74,7 +104,7 @@ def test_the_hybrid_kernels_compile_once_whatever_the_scene():
     assert first == {"event_step": 1, "hybrid_steps": 1, "locate_event": 1}
     for name, duration, method in (("truck_compressor", 0.7, None), ("bsg_start", 0.1, None), ("truck_compressor", 0.55, "rk4")):
         scene = load_scene(name)
-        if method:  # phases in the linear loop, partial steps in Python, events located compiled
+        if method:  # phases in the linear loop with the method's matrices, event steps compiled (partial steps etd4)
             scene = scene.with_overrides(method=method, dt=1e-4)
         sim = _sim(scene)
         sim.run(duration, scene.initial_state.vector("slipping", scene.params.ratio))

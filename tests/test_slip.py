@@ -27,8 +27,8 @@ from belt_drive_ros.core.model import FlexibleBeltModel
 from belt_drive_ros.core.params import BeltDriveParams
 from belt_drive_ros.core.scene import load_scene
 from belt_drive_ros.core.simulate import Simulator
-from belt_drive_ros.core.slip import SLIP, STICK, HybridStepper, SlippingBeltModel
-from belt_drive_ros.core.slip_reference import RegularisedFriction, reference_hybrid
+from belt_drive_ros.benchmarks.slip_reference import HybridStepper, RegularisedFriction, reference_hybrid
+from belt_drive_ros.core.slip import SLIP, STICK, SlippingBeltModel
 
 
 def _const(value):
@@ -88,6 +88,30 @@ def test_onset_when_belt_torque_reaches_r3_qmax_located_between_grid_times():
     # the grid samples before the event stick, those after slip
     k = int(onset.time / dt)
     assert run.mode[k] == STICK and run.mode[k + 1] == SLIP
+
+
+def test_onset_in_the_compiled_engine_when_belt_torque_reaches_r3_qmax():
+    """The same onset through the package's engine (SlippingSimulator: the compiled hybrid loop, the torques as
+    data): at the quasi-static estimate, the force at the located event on the limit, off the grid, and at the
+    DOP853 reference's time."""
+    from belt_drive_ros.core.slip_run import SlippingSimulator
+    from belt_drive_ros.core.sources import Constant, Ramp
+
+    p = BeltDriveParams(I_3=1.0e6, c=500.0, mu=0.3, F_0=300.0)
+    m = SlippingBeltModel(p)
+    qmax, rate, dt = m.limit(0.0), 40.0, 1e-3
+    sim = SlippingSimulator(p, Ramp(0.0, rate * 0.8, 0.0, 0.8), Constant(0.0), "etd2", dt, check_stability=False)
+    time, states, modes, _ = sim.run(0.8, np.zeros(5))
+    assert sim._compiled() is not None
+    onset = [e for e in sim.events if e.kind == "onset"][0]
+    K = 2.0 * p.k * (p.r_2 * p.gear_ratio) ** 2
+    assert onset.time == pytest.approx(p.gear_ratio * p.r_2 * qmax / rate + p.bearing_damping_drive_side / K, rel=1e-3)
+    assert abs(p.r_3 * (m.q_row @ onset.state)) == pytest.approx(p.r_3 * qmax, rel=1e-9)
+    assert abs(onset.time / dt - round(onset.time / dt)) > 1e-3
+    ref = reference_hybrid(m, lambda t, a, w: rate * t, _const(0.0), time[time <= 0.75], np.zeros(5), rtol=1e-12, atol=1e-12)
+    assert onset.time == pytest.approx(ref.events[0].time, abs=1e-9)
+    k = int(onset.time / dt)
+    assert modes[k] == STICK and modes[k + 1] == SLIP
 
 
 # ------------------------------------------------------ closed-form slip
@@ -300,8 +324,9 @@ def test_slip_phases_of_a_belt_with_mass_in_the_loop_equal_the_hybrid_stepper(me
     assert sim.phase_stepper(("mass", 1.0)).loop is not None
     assert np.any(modes == SLIP) and sum(e.kind == "onset" for e in sim.events) >= 2
     # etd2/etd4: the hybrid stepper's every grid step by the compiled event step (the torques as data), against the
-    # simulator's phases in the linear loop; rk4: the method's flow over partial steps in Python in both, the events
-    # located by the compiled location on the step's modal extension
+    # simulator's phases in the linear loop; rk4: the reference takes an event step's partial steps by rk4 in Python,
+    # the simulator's compiled event step by etd4 (both fourth order): the elastic deflection differs by ~4e-9 of its
+    # range there, the events are located by the same compiled location
     hs = HybridStepper(sim.model, sim.plant.scalar_drive, sim.plant.scalar_load, method,
                        data=(*sim.plant.data, sim.plant.uses_angle))  # fmt: skip
     assert (hs._kernel is not None) == (method != "rk4") and (hs._located is not None) == (method == "rk4")
@@ -310,5 +335,5 @@ def test_slip_phases_of_a_belt_with_mass_in_the_loop_equal_the_hybrid_stepper(me
     np.testing.assert_allclose([e.time for e in sim.events], [e.time for e in ref.events], rtol=0.0, atol=1e-12)
     scale = np.max(np.abs(ref.states), axis=0)
     error = np.max(np.abs(states - ref.states) / scale, axis=0)  # per coordinate, relative to its range
-    assert np.all(error < 1e-10), error
+    assert np.all(error < (1e-10 if method != "rk4" else 1e-8)), error
     np.testing.assert_array_equal(modes, ref.mode)

@@ -10,9 +10,9 @@ Variants (``family``)
   what ``belt-drive sim`` and the node run);
 * ``no_location``: the same hybrid with the mode switched at the end of the
   step in which the switching function changed sign
-  (:class:`~belt_drive_ros.core.slip.HybridStepper` ``locate=False``);
+  (:class:`~belt_drive_ros.benchmarks.slip_reference.HybridStepper` ``locate=False``, in Python);
 * ``regularised``: ``Q = Q_max tanh(s' / v_eps)`` in series with the span
-  (:class:`~belt_drive_ros.core.slip_reference.RegularisedFriction`), one
+  (:class:`~belt_drive_ros.benchmarks.slip_reference.RegularisedFriction`), one
   smooth ODE stepped by the method with ``A_reg`` as its linear part and the
   contact force and slip speed as inputs. Its error includes the modelling
   error of the regularisation against Coulomb friction. Its stepping loop is
@@ -21,7 +21,7 @@ Variants (``family``)
 Reference
 ---------
 scipy DOP853 per mode with terminal events (rtol = atol = 1e-13,
-:func:`~belt_drive_ros.core.slip_reference.reference_hybrid`), restarted at
+:func:`~belt_drive_ros.benchmarks.slip_reference.reference_hybrid`), restarted at
 every torque breakpoint, on the finest grid of a sweep; a run's grid must be a
 subgrid of it.
 
@@ -68,21 +68,23 @@ from ..core.integrators import make_integrator
 from ..core.model import FlexibleBeltModel
 from ..core.params import BeltDriveParams
 from ..core.simulate import Plant
-from ..core.slip import HybridStepper, SlippingBeltModel
-from ..core.slip_reference import RegularisedFriction, reference_hybrid
+from ..core.slip import SlippingBeltModel
 from ..core.slip_run import SlippingSimulator
 from ..core.sources import Constant, Sine, TorqueProfile
 from ..core.stability import max_stable_step
 from .common import cpu_time, relative_error
+from .slip_reference import HybridStepper, RegularisedFriction, reference_hybrid, regularised_matrices
+
 
 def one_step_stable(method: str, model: SlippingBeltModel, K: np.ndarray, h: float) -> bool:
     """True when ``method``'s one-step map at ``h`` [s] on the regularised ODE linearized with gain ``K``
     (``y' = A_reg y + B_reg K y``) grows no faster than its exact flow ``e^(h max Re lambda)``."""
-    integ = make_integrator(method, model.A_reg, model.B_reg, h)
+    A_reg, B_reg = regularised_matrices(model)
+    integ = make_integrator(method, A_reg, B_reg, h)
     M = np.column_stack([integ.step(0.0, e, lambda t, y: K @ y) for e in np.eye(5)])
     mu = np.linalg.eigvals(M)
     mu = np.where(np.abs(mu - 1.0) <= 1e-6, 1.0, mu)  # the angle and slip integrators' eigenvalue 1
-    lam = float(np.max(np.real(np.linalg.eigvals(model.A_reg + model.B_reg @ K))))
+    lam = float(np.max(np.real(np.linalg.eigvals(A_reg + B_reg @ K))))
     return float(np.max(np.abs(mu))) <= max(1.0, math.exp(h * lam)) + 1e-9
 
 

@@ -36,8 +36,8 @@ studies:
                  replaced, ns per step per method, the paper's drive as a network vs the paper model (not in 'all')
   replay         a 1-hour 1 kHz torque bag replayed offline to MCAP (--minutes; default 60): wall time
                  split into reading, simulation and writing, CPU, peak memory (not in 'all')
-  slip-kernel    the slipping belt's compiled hybrid loop beside the Python event loop it replaces:
-                 truck_compressor whole warm simulate() x real time, its run, accuracy rerun, node tick (not in 'all')
+  slip-kernel    the slipping belt's compiled hybrid loop: truck_compressor whole warm simulate() x real
+                 time, its run, accuracy rerun, node tick (not in 'all')
   campaign       10,000-variant Monte Carlo of paper on Dask vs a loop of single runs, 1 vs 2 workers,
                  a fleet of 100 recordings replayed and compared (needs the campaign extra; not in 'all')
   network_slip   a belt network's slipping tier: x real time on fead_i4 sticking and slipping, the paper's

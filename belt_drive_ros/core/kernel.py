@@ -38,7 +38,10 @@ import math
 import numpy as np
 from numba import njit
 
-from .profile_data import DIVERGED, GUARDED, NOT_CONVERGED, OK
+from .profile_data import (
+    COMPRESSOR, CONSTANT, DIVERGED, ENGINE, GUARDED, MOTOR_CURVE, MOTOR_LINE, NOT_CONVERGED, OK, POLYNOMIAL, RAMP,
+    SCHEDULE, SINE, STEP, TABLE_HELD, TABLE_HELD_NS, TABLE_LINEAR,
+)
 from . import jit_cache
 
 jit_cache.refresh()  # before any kernel loads: drop cache entries built from other kernel sources
@@ -150,21 +153,21 @@ def torque(kind, params, row, tx, ty, t, angle, speed):
     The row layouts are :mod:`~belt_drive_ros.core.profile_data`'s table. A
     schedule row is resolved by :func:`profile_torque` before this is called.
     """
-    if kind == 0:  # CONSTANT
+    if kind == CONSTANT:
         return params[row, 0]
-    if kind == 1:  # STEP
+    if kind == STEP:
         return params[row, 1] if t >= params[row, 2] else params[row, 0]
-    if kind == 2:  # RAMP: v0 + clip((t - t0) / span, 0, 1) * rise
+    if kind == RAMP:  # v0 + clip((t - t0) / span, 0, 1) * rise
         return params[row, 0] + (0.0 if t < params[row, 2] else 1.0 if t > params[row, 3] else (t - params[row, 2]) / params[row, 4]) * params[row, 1]
-    if kind == 3:  # SINE: mean + amplitude sin(omega t + phase)
+    if kind == SINE:  # mean + amplitude sin(omega t + phase)
         return params[row, 0] + params[row, 1] * math.sin(params[row, 2] * t + params[row, 3])
-    if kind == 4:  # TABLE_LINEAR
+    if kind == TABLE_LINEAR:
         return _interp(t, tx, ty, int(params[row, 0]), int(params[row, 1]))
-    if kind == 5:  # TABLE_HELD
+    if kind == TABLE_HELD:
         return _held(t, tx, ty, int(params[row, 0]), int(params[row, 1]))
-    if kind == 6:  # TABLE_HELD_NS: switching at whole nanoseconds (t rounded half to even)
+    if kind == TABLE_HELD_NS:  # switching at whole nanoseconds (t rounded half to even)
         return _held(np.rint(t * 1e9), tx, ty, int(params[row, 0]), int(params[row, 1]))
-    if kind == 7:  # ENGINE
+    if kind == ENGINE:
         mode = params[row, 0]
         if mode == 0.0:
             base = params[row, 1]
@@ -175,19 +178,19 @@ def torque(kind, params, row, tx, ty, t, angle, speed):
             base = params[row, 4]
         value, _ = _harmonics(base, True, ty, int(params[row, 9]), int(params[row, 10]), params[row, 5] * (params[row, 6] * angle) + params[row, 7])
         return _fade(value, t, params[row, 8]) if params[row, 8] > 0.0 else value
-    if kind == 8:  # MOTOR_LINE: stall (1 - speed / no_load)
+    if kind == MOTOR_LINE:  # stall (1 - speed / no_load)
         value = params[row, 0] * (1.0 - speed / params[row, 1])
         return _fade(value, t, params[row, 2]) if params[row, 2] > 0.0 else value
-    if kind == 9:  # MOTOR_CURVE
+    if kind == MOTOR_CURVE:
         value = _interp(speed, tx, ty, int(params[row, 0]), int(params[row, 1]))
         return _fade(value, t, params[row, 2]) if params[row, 2] > 0.0 else value
-    if kind == 10:  # POLYNOMIAL: c0 + c1 speed + c2 speed |speed|, zero terms dropped
+    if kind == POLYNOMIAL:  # c0 + c1 speed + c2 speed |speed|, zero terms dropped
         value, have = _affine_in_speed(params[row, 0], params[row, 1], speed)
         if params[row, 2] != 0.0:
             term = params[row, 2] * speed * abs(speed)
             value = value + term if have else term
         return value
-    if kind == 11:  # COMPRESSOR: mean + c1 speed + sum_k A_k sin(k (z angle + phase)), zero terms dropped
+    if kind == COMPRESSOR:  # mean + c1 speed + sum_k A_k sin(k (z angle + phase)), zero terms dropped
         value, have = _affine_in_speed(params[row, 0], params[row, 1], speed)
         value, have = _harmonics(value, have, ty, int(params[row, 5]), int(params[row, 6]), params[row, 2] * angle + params[row, 3])
         return _fade(value, t, params[row, 4]) if params[row, 4] > 0.0 else value
@@ -204,7 +207,7 @@ def profile_torque(kinds, params, tx, ty, t, angle, speed):
 def profile_torque_at(kinds, params, tx, ty, row, t, angle, speed):
     """Torque [N m] of the profile whose first row is ``row`` (profiles stacked end to end:
     :func:`~belt_drive_ros.core.profile_data.stack`; schedules resolved)."""
-    while kinds[row] == 12:  # SCHEDULE: the active row inside a period [start, end), else the inactive one
+    while kinds[row] == SCHEDULE:  # the active row inside a period [start, end), else the inactive one
         offset, n = int(params[row, 0]), int(params[row, 1])
         inside = False
         for j in range(n):

@@ -45,6 +45,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: the kinds' codes: module constants, which a numba kernel that imports them reads as compile-time constants
+#: (``torque(CONSTANT, ...)`` compiles to that kind's branch alone, as a literal 0 would)
 CONSTANT, STEP, RAMP, SINE = 0, 1, 2, 3
 TABLE_LINEAR, TABLE_HELD, TABLE_HELD_NS = 4, 5, 6
 ENGINE, MOTOR_LINE, MOTOR_CURVE, POLYNOMIAL, COMPRESSOR, SCHEDULE = 7, 8, 9, 10, 11, 12

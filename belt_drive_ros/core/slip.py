@@ -36,24 +36,23 @@ Modes (each ``y' = A y + B u`` with held inputs):
   the slip speed ``s'`` reaches zero (event), if the stick-mode force does not
   at once grow past the limit again.
 
-The switching functions are located as events on the method's own flow over
-a partial step (the exact flow for ``exact``), by root finding on the
-sub-step length; a grid step is split at each event as at a torque
-breakpoint. A regularised alternative, ``Q = Q_max tanh(s' / v_eps)``
-(:class:`~belt_drive_ros.core.slip_reference.RegularisedFriction`), is one
+The switching functions are located as events by root finding on the
+step's continuous extension, compiled (:class:`EventStep`,
+:mod:`~belt_drive_ros.core.kernel_slip`); a grid step is split at each event
+as at a torque breakpoint. A regularised alternative,
+``Q = Q_max tanh(s' / v_eps)`` (``RegularisedFriction`` in
+``benchmarks/slip_reference.py``, the charts' comparison), is one
 smooth but stiff ODE.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from .errors import BeltDriveError
-from .integrators import make_integrator
 from .params import BeltDriveParams
 from .stage_scheme import Guard
 
@@ -125,15 +124,6 @@ class SlippingBeltModel:
             A[4, 1] = p.k * r3 / p.c
             B[4, 2] = -1.0 / (2.0 * p.c)
         self.A_slip, self.B_slip = A, B
-        # the regularised ODE: Q and the slip speed v_s are inputs; theta_e' = (v_rel - v_s) / r3, s' = v_s
-        A = self.A_slip.copy()
-        A[1] = self.rel_row / r3
-        A[4] = 0.0
-        B = np.zeros((5, 4))
-        B[:, :3] = self.B_slip
-        B[1, 2] = B[4, 2] = 0.0
-        B[1, 3], B[4, 3] = -1.0 / r3, 1.0
-        self.A_reg, self.B_reg = A, B
 
     @property
     def A(self):
@@ -166,7 +156,7 @@ class SlippingBeltModel:
         ``f = tanh(mu_eff beta / 2)``. Slip (direction sigma): ``-sigma s'`` with
         ``s' = v_rel - (sigma Q_max - 2 k r_3 theta_e) / (2 c)``, i.e.
         ``-sigma (rel + (k r_3 / c) e_theta) . y + Q_max / (2 c)`` (c = 0: ``-sigma v_rel``).
-        Positive once the mode must end (what :meth:`HybridStepper.switching`
+        Positive once the mode must end (what :func:`~belt_drive_ros.core.kernel_slip.switching`
         evaluates, without the clip of ``Q_max`` at 0 where the belt lifts off).
         """
         p = self.params
@@ -315,7 +305,7 @@ def _ratio(Q, qmax):
     return Q / qmax if qmax > 0 else math.inf
 
 
-# ================================================================ hybrid run
+# ================================================================ events
 @dataclass
 class Event:
     """One mode switch: time [s], kind ('onset' or 'restick'), direction sigma, state there."""
@@ -326,267 +316,53 @@ class Event:
     state: np.ndarray
 
 
-@dataclass
-class HybridResult:
-    """States on the grid, the mode and slip direction at each grid time, and the events."""
+class EventStep:
+    """The compiled step of the hybrid model across its events (:func:`~belt_drive_ros.core.kernel_slip.event_step`).
 
-    time: np.ndarray
-    states: np.ndarray
-    mode: np.ndarray
-    sigma: np.ndarray
-    events: list = field(default_factory=list)
-
-
-class HybridStepper:
-    """Steps the stick/slip model with one fixed-step method, switching modes at located events.
-
-    Parameters
-    ----------
-    model : SlippingBeltModel.
-    drive, load : scalar torque functions ``f(t, angle, speed)`` [N m] (the
-        profiles' ``scalar_torque()``); the load sees ``phi_3``, ``omega_3``.
-    method : fixed-step method name (``exact``, ``etd2``, ``etd4``, ``lawson5``, ``rk4``, ...).
-    locate : True: events located by root finding on the method's flow over a
-        partial step; False: the mode is switched at the end of the step in
-        which the switching function changed sign (sampling on the grid; for
-        comparison only).
+    Bound to a model, a fixed-step method and the torques as data
+    (``data`` = (drive data, load data, uses_angle): the plant's). The
+    events are located on the step's continuous extension and the partial
+    steps taken on the modal flow: ``exact`` and ``etd2`` by their own step
+    of any length, every other method by ``etd4`` (fourth order, exact in
+    the linear part); a whole step the method already took (``y1``) is kept
+    when it holds no event.
     """
 
-    def __init__(self, model: SlippingBeltModel, drive: Callable, load: Callable, method: str = "exact", locate: bool = True,
-                 data=None):  # fmt: skip
-        self.model, self.drive, self.load, self.method, self.locate = model, drive, load, method, locate
-        self._steps: dict = {}
-        self._guards: dict = {}
+    def __init__(self, model: SlippingBeltModel, method: str, data):
+        from . import kernel_slip
+
+        self.model = model
         p = model.params
-        self._i, self._r3 = p.ratio, p.r_3
-        self._two_k_r3 = 2.0 * p.k * p.r_3
-        self.n_located = 0
-        #: exact, etd2 and etd4 steps of any length by the compiled modal flow (no matrix exponential per length)
-        self._modal_steps = method in ("exact", "etd2", "etd4")
-        self._project_slip = p.c == 0.0 and p.belt_mass > 0.0
-        self._limit = p.scalar_friction_limit()
-        self._rel2, self._rel3 = float(model.rel_row[2]), float(model.rel_row[3])
-        self._q1, self._q2, self._q3 = model._q[1:4]
-        # dQ_max/dt = dlim * omega_M * omega_M' (the centrifugal part), and |q|, |A|, |B| of stick for the rounding scale
-        self._dlim = -2.0 * p.belt_mass * (p.r_2 * p.gear_ratio) ** 2 * p.capstan_factor
-        self._abs_stick = (np.abs(model.q_row), np.abs(model.A_stick), np.abs(model.B_stick))
-        #: the compiled event step's arrays (:func:`~belt_drive_ros.core.kernel_slip.pack`) when the torques are
-        #: data (``data`` = (drive data, load data, uses_angle)) and the method steps on the modal flow
-        #: (the method's partial steps then in Python, the events located by the compiled location on the same
-        #: continuous extension: ``_located``)
-        self._kernel = self._located = None
-        if data is not None and None not in data[:2] and locate:
-            from . import kernel_slip
+        self._two_k_r3, self._r3 = 2.0 * p.k * p.r_3, p.r_3
+        #: the arrays :func:`~belt_drive_ros.core.kernel_slip.event_step` reads (None: no compiled event step)
+        self._kernel = None if None in data[:2] else kernel_slip.pack(model, method, *data)
+        self._event_step = kernel_slip.event_step
+        self._event_buffer = np.zeros((kernel_slip.MAX_SWITCHES + 1, 8))
 
-            arrays = kernel_slip.pack(model, method, *data)
-            if self._modal_steps:
-                self._kernel = arrays
-                self._event_step = kernel_slip.event_step
-                self._event_buffer = np.zeros((kernel_slip.MAX_SWITCHES + 1, 8))
-            elif arrays is not None:
-                locate_event, Z, R, c, _, guards, uses = kernel_slip.locate_event, *arrays[:6]
-                rest = arrays[6:]
-                self._located = lambda mode, sigma, t, y, h, hi, y1: locate_event(
-                    int(mode), float(sigma), float(t), np.ascontiguousarray(y, dtype=float), float(h), float(hi),
-                    np.ascontiguousarray(y1, dtype=float), Z, R, c, guards, uses, *rest)  # C arrays: one signature  # fmt: skip
-
-    # ---------------------------------------------------------- the flows
-    def _integrator(self, mode: int, h: float):
-        key = (mode, h)
-        integ = self._steps.get(key)
-        if integ is None:
-            if len(self._steps) > 512:
-                self._steps.clear()
-            m = self.model
-            A, B = (m.A_stick, m.B_stick) if mode == STICK else (m.A_slip, m.B_slip)
-            integ = self._steps[key] = make_integrator(self.method, A, B, h)
-        return integ
-
-    def inputs(self, mode: int, sigma: float, hi: float = math.inf) -> Callable:
-        """u(t, y) of ``mode``; times are clipped at ``hi`` (torque read from the left of a cut)."""
-        drive, load, i, r3, limit = self.drive, self.load, self._i, self._r3, self.model.limit
-
-        if mode == STICK:
-
-            def u(t, y):
-                t = t if t < hi else hi
-                return np.array([drive(t, y[0], y[2]), load(t, i * y[0] - y[1] - y[4] / r3, y[3])])
-
-        else:
-
-            def u(t, y):
-                t = t if t < hi else hi
-                return np.array(
-                    [drive(t, y[0], y[2]), load(t, i * y[0] - y[1] - y[4] / r3, y[3]), sigma * limit(y[2])]
-                )
-
-        return u
-
-    def flow(self, mode, sigma, t, y, h, hi=math.inf):
-        """The method's step of length ``h`` in ``mode`` from (t, y), by an integrator of step ``h`` (cached per length)."""
-        y1 = self._integrator(mode, h).step(t, y, self.inputs(mode, sigma, hi))
-        return self._project(mode, sigma, y1)
-
-    def _project(self, mode, sigma, y):
-        """c = 0 slip: the stretch follows sigma Q_max(omega_M) (keeps the total deflection)."""
-        p = self.model.params
-        if mode == SLIP and p.c == 0.0 and p.belt_mass > 0.0:
-            te = sigma * self.model.limit(y[2]) / self._two_k_r3
+    def onset(self, y) -> tuple[int, float, np.ndarray]:
+        """(SLIP, sigma, y) of a sticking state ``y`` at the limit: sliding with the force's sign
+        (c = 0: the stretch set on the limit exactly, the total deflection kept)."""
+        sigma = 1.0 if float(self.model.q_row @ y) >= 0.0 else -1.0
+        if self.model.params.c == 0.0:
+            te = sigma * self.model.limit(float(y[2])) / self._two_k_r3
             y = y.copy()
             y[4] += self._r3 * (y[1] - te)
             y[1] = te
-        return y
-
-    # ------------------------------------------------- switching functions
-    def switching(self, mode, sigma, y) -> float:
-        """> 0 once the mode must end: ``|Q| - Q_max`` sticking, ``-sigma s'`` slipping [N or m/s]."""
-        m = self.model
-        if mode == STICK:
-            return abs(float(m.q_row @ y)) - self._limit(float(y[2]))
-        return -sigma * float(m.slip_speed(y, sigma * self._limit(float(y[2]))))
-
-    def _stick_keeps(self, t, y) -> bool:
-        """True if the stick mode's |Q| does not at once grow past Q_max from (t, y).
-
-        Decided by the sign of sigma dQ/dt - dQ_max/dt in stick mode; where that
-        vanishes to rounding (c = 0: dQ/dt = 2 k v_rel = 2 k s' = 0 at the
-        switch) by the second derivative sigma d2Q/dt2 = sigma q . A y'
-        (inputs held over the instant).
-        """
-        m = self.model
-        Q = float(m.q_row @ y)
-        if abs(Q) < self._limit(float(y[2])) * (1.0 - 1e-9):
-            return True
-        sig = math.copysign(1.0, Q)
-        u = self.inputs(STICK, 0.0)(t, y)
-        dy = m.A_stick @ y + m.B_stick @ u
-        dlim = self._dlim * y[2] * dy[2]
-        rate = sig * float(m.q_row @ dy) - dlim
-        q_abs, A_abs, B_abs = self._abs_stick
-        scale = float(q_abs @ (A_abs @ np.abs(y) + B_abs @ np.abs(u))) + abs(dlim)
-        if abs(rate) > 1e-8 * scale:
-            return rate < 0.0
-        return sig * float(m.q_row @ (m.A_stick @ dy)) <= 0.0
-
-    def switch(self, mode, sigma, t, y):
-        """New (mode, sigma, y) after an event at (t, y)."""
-        m = self.model
-        if mode == STICK:
-            sigma = 1.0 if float(m.q_row @ y) >= 0.0 else -1.0
-            if m.params.c == 0.0:  # the stretch sits at the limit exactly
-                te = sigma * self._limit(float(y[2])) / self._two_k_r3
-                y = y.copy()
-                y[4] += self._r3 * (y[1] - te)
-                y[1] = te
-            return SLIP, sigma, y
-        if self._stick_keeps(t, y):
-            return STICK, 0.0, y
         return SLIP, sigma, y
 
-    # ------------------------------------------------------------ stepping
-    def _locate(self, mode, sigma, t, y, h, hi, y1=None):
-        """First tau in (0, h] where the switching function turns positive along the step.
-
-        With the torques as data, located on the step's continuous extension
-        (the mode's exact flow with the torques linear in time between the
-        step's ends) by the compiled location
-        (:func:`~belt_drive_ros.core.kernel_slip.locate_event`, as the
-        compiled event step does): a method unstable for the slip mode's
-        fast creep at this step (rk4 at 1 ms) would give a meaningless flow
-        over partial steps. Torques given as Python functions: located on
-        the method's flow over a partial step, a sign scan on 8 points
-        finding the first crossing (the flow may cross and return within a
-        step), then Brent's method to ~1e-15 s.
-        """
-        if self._located is not None and y1 is not None:  # torques as data: on the step's modal extension, compiled
-            tau = self._located(mode, sigma, t, y, h, hi, y1)
-            if tau != tau:
-                return None
-            self.n_located += tau > 0.0
-            return tau
-
-        def G(tau):
-            return self.switching(mode, sigma, y if tau == 0.0 else self.flow(mode, sigma, t, y, tau, hi))
-
-        lo, g_lo = self._inside(G, self.switching(mode, sigma, y), h)
-        if lo is None:
-            return 0.0
-        bracket = self._scan(G, lo, g_lo, h, 8)
-        if bracket is None:
-            return None
-        self.n_located += 1
-        import scipy.optimize  # here, at the first event located: a run without one never loads it
-
-        return scipy.optimize.brentq(G, bracket[0], bracket[2], xtol=1e-15, rtol=_EPS4, maxiter=200)
-
-    @staticmethod
-    def _inside(G, g_lo, h):
-        """(lo, G(lo)): 0 when the step starts inside (G < 0), else the first h 2^-k inside, or (None, None)."""
-        if g_lo < 0.0:
-            return 0.0, g_lo
-        for k in range(1, 40):  # starts on the surface (just switched): find where it is inside
-            tau = h * 0.5**k
-            g = G(tau)
-            if g < 0.0:
-                return tau, g
-        return None, None
-
-    @staticmethod
-    def _scan(G, lo, g_lo, h, n_scan):
-        """(lo, G(lo), hi, G(hi)) around the first sign change on n_scan points from lo to h, or None."""
-        for j in range(1, n_scan + 1):
-            tau = lo + (h - lo) * j / n_scan if j < n_scan else h
-            g = G(tau)
-            if g > 0.0:
-                return lo, g_lo, tau, g
-            lo, g_lo = tau, g
-        return None
-
     def advance(self, t0, t1, y, mode, sigma, cuts=(), events=None, dt=None, hi_end=math.inf, y1=None):
-        """Integrate from t0 to t1: sub-steps end at each cut, then at each located event.
+        """(y, mode, sigma) at ``t1`` [s] from ``y`` at ``t0``: sub-steps end at each cut, then at each located event.
 
-        A sub-step whose end state has a positive switching function holds an
-        event; it is located (:meth:`_locate`), the flow is taken to it, the
-        mode switched (:meth:`switch`) and the rest of the sub-step integrated
-        in the new mode. ``y1``: the method's state at ``t1`` in ``mode``
-        when already known (a step without cuts that a compiled loop took).
+        ``dt``: the grid step when this is a whole grid step; ``hi_end``: torque
+        times clipped there in the last sub-step; ``y1``: the method's state at
+        ``t1`` in ``mode`` when already known (a step without cuts). ``events``
+        receives the mode switches (:class:`Event`).
         """
-        if self._kernel is not None:
-            return self._advance_kernel(t0, t1, y, mode, sigma, cuts, events, dt, hi_end, y1)
-        edges = [t0, *cuts, t1]
-        n_events = 0
-        given = None if cuts else y1
-        for j in range(len(edges) - 1):
-            a, b = edges[j], edges[j + 1]
-            hi = math.nextafter(b, -math.inf) if j < len(edges) - 2 else hi_end
-            while a < b:
-                h = dt if (dt is not None and a == t0 and b == t1) else b - a  # a whole grid step: the grid's dt
-                if given is None:
-                    y1 = self.flow(mode, sigma, a, y, h, hi)
-                given = None
-                if self.switching(mode, sigma, y1) <= 0.0:
-                    y, a = y1, b
-                    break
-                if self.locate:
-                    tau = self._locate(mode, sigma, a, y, h, hi, y1)
-                    if tau is None:
-                        y, a = y1, b
-                        break
-                    if tau > 0.0:
-                        y = self.flow(mode, sigma, a, y, tau, hi)
-                    a = a + tau if tau < h else b
-                else:  # switch at the end of the step (grid sampling, for comparison)
-                    y, a = y1, b
-                mode, sigma, y = self._switched(mode, sigma, a, y, events)
-                n_events += 1
-                if n_events > 64:
-                    raise SlipError(f"slip: more than 64 mode switches in one step at t={a:.9g} s (chattering); reduce dt")
-        return y, mode, sigma
-
-    def _advance_kernel(self, t0, t1, y, mode, sigma, cuts, events, dt, hi_end, y1):
-        """:meth:`advance` by the compiled event step (:func:`~belt_drive_ros.core.kernel_slip.event_step`)."""
+        if self._kernel is None:
+            raise SlipError("slip: the slipping model needs torque profiles with a data form and modes with a modal "
+                            "split (diagonalisable stick and slip matrices)")  # fmt: skip
         yk = np.array(y, dtype=float)
-        given = 0 if (cuts or y1 is None) else 1
+        given = 0 if (len(cuts) or y1 is None) else 1
         y1k = np.array(y1, dtype=float) if given else np.empty(5)
         ev = self._event_buffer
         mode, sigma, n, status = self._event_step(
@@ -599,41 +375,3 @@ class HybridStepper:
         if status:
             raise SlipError(f"slip: more than 64 mode switches in one step at t={t0:.9g} s (chattering); reduce dt")
         return yk, int(mode), float(sigma)
-
-    def _switched(self, mode, sigma, a, y, events):
-        """:meth:`switch` at an event at (a, y), recorded in ``events`` when the mode changes."""
-        old = mode
-        mode, sigma, y = self.switch(mode, sigma, a, y)
-        if events is not None and mode != old:
-            events.append(Event(a, "onset" if mode == SLIP else "restick", sigma, y.copy()))
-        return mode, sigma, y
-
-    def run(self, time, y0, mode0=STICK, sigma0=0.0, breakpoints=()) -> HybridResult:
-        """Integrate over the grid ``time``; steps are split at ``breakpoints`` and at events."""
-        time = np.asarray(time, dtype=float)
-        n = time.size - 1
-        states = np.empty((n + 1, 5))
-        modes = np.empty(n + 1, dtype=int)
-        sigmas = np.empty(n + 1)
-        y = np.asarray(y0, dtype=float).copy()
-        mode, sigma = mode0, sigma0
-        if mode == STICK and self.switching(mode, sigma, y) > 0.0:  # starts beyond the limit
-            mode, sigma, y = self.switch(mode, sigma, time[0], y)
-        states[0], modes[0], sigmas[0] = y, mode, sigma
-        events: list = []
-        bps = sorted(float(b) for b in breakpoints)
-        dt = float(time[1] - time[0]) if n else 0.0
-        uniform = n > 0 and bool(np.allclose(np.diff(time), dt, rtol=1e-9, atol=0.0))
-        tol = 1e-9 * dt
-        for k in range(n):
-            a, b = time[k], time[k + 1]
-            cuts = [c for c in bps if a + tol < c < b - tol]
-            # a step ending on a breakpoint samples the torque's left limit there (as the stepper does)
-            hi_end = math.nextafter(b, -math.inf) if any(abs(c - b) <= tol for c in bps) else math.inf
-            y, mode, sigma = self.advance(a, b, y, mode, sigma, cuts, events, dt if uniform else None, hi_end)
-            states[k + 1], modes[k + 1], sigmas[k + 1] = y, mode, sigma
-        return HybridResult(time, states, modes, sigmas, events)
-
-
-#: relative tolerance of the event location (4 machine epsilons)
-_EPS4 = 4.0 * float(np.finfo(float).eps)

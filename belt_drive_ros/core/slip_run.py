@@ -7,10 +7,9 @@ compiled hybrid loop (:func:`~belt_drive_ros.core.kernel_slip.hybrid_steps`)
 runs each phase until the guard turns positive, redoes that step with the
 event located (:func:`~belt_drive_ros.core.kernel_slip.event_step`) and goes
 on in the new mode's phase, in one call. A step split at a breakpoint off
-the grid is handed back to the phase's stepper (:meth:`SlippingSimulator._advance_steps`);
-methods without a compiled event step, or torques given as Python functions,
-step phase by phase there with :class:`~belt_drive_ros.core.slip.HybridStepper`
-redoing each event step.
+the grid, and runs whose phases have no compiled loop, are handed back to
+the phases' steppers (:meth:`SlippingSimulator._advance_steps`), each event
+step redone by the same compiled event step (:class:`~belt_drive_ros.core.slip.EventStep`).
 
 The plants:
 
@@ -46,7 +45,7 @@ from .integrators import REGISTRY, method_class
 from .kernel_loop import FrictionForce
 from .model import make_model
 from .profile_data import DIVERGED, NOT_CONVERGED
-from .slip import SLIP, STICK, Event, HybridStepper, SlipError, SlippingBeltModel
+from .slip import SLIP, STICK, Event, EventStep, SlipError, SlippingBeltModel
 from .stability import require_stable
 from .stage_scheme import Guard
 from .stepper import SPEED_LIMIT, Plant, Stepper, shared_plant, snap_tolerance
@@ -166,7 +165,7 @@ class SlippingSimulator:
         self.stepper = Stepper(self.plant, method, self.dt, self.method_options, origin, integrator, _mapped(stick, Y_flex))
         self.integrator = self.stepper.integrator
         self.stability = require_stable(self.flexible.A, self.flexible.B, method, dt) if check_stability else None
-        self._hybrid: HybridStepper | None = None
+        self._hybrid: EventStep | None = None
         self._steppers = {"flexible": self.stepper}
         # the other phases' steppers are built when a run first needs them (a scene within the limit never does)
         self._factories: dict = {"stick": lambda: Stepper(Plant(m, drive, load), method, self.dt, self.method_options, guard=stick)}
@@ -210,11 +209,10 @@ class SlippingSimulator:
         self.hybrid.advance(0.0, 0.0, np.zeros(5), STICK, 0.0)
 
     @property
-    def hybrid(self) -> HybridStepper:
-        """The hybrid stepper that redoes a step with an event (built at the first event)."""
+    def hybrid(self) -> EventStep:
+        """The compiled event step that redoes a step with an event (built at the first event)."""
         if self._hybrid is None:
-            self._hybrid = HybridStepper(self.model, self.plant.scalar_drive, self.plant.scalar_load, self.method,
-                                         data=(*self.plant.data, self.plant.uses_angle))  # fmt: skip
+            self._hybrid = EventStep(self.model, self.method, (*self.plant.data, self.plant.uses_angle))
         return self._hybrid
 
     def phase_stepper(self, key) -> Stepper:
@@ -282,7 +280,7 @@ class SlippingSimulator:
         y = np.asarray(y0, dtype=float).copy()
         mode, sigma = STICK, 0.0
         if abs(float(self.model.q_row @ y)) - self.model.params.friction_limit(float(y[2])) > 0.0:  # the stick switching
-            mode, sigma, y = self.hybrid.switch(mode, sigma, t0, y)
+            mode, sigma, y = self.hybrid.onset(y)
         return self._native(y, mode, sigma)
 
     def _native(self, y, mode, sigma) -> SlipState:
@@ -291,7 +289,7 @@ class SlippingSimulator:
                 return SlipState(mode, 0.0, "flexible", self.to_flexible(y))
             return SlipState(mode, 0.0, "stick", y)
         if ("slip", sigma) in self._factories:
-            return SlipState(mode, sigma, "slip", np.append(y, sigma * self.hybrid._limit(0.0)))
+            return SlipState(mode, sigma, "slip", np.append(y, sigma * self.model.limit(0.0)))
         if ("mass", sigma) in self._factories:
             return SlipState(mode, sigma, "mass", y)
         return SlipState(mode, sigma, "hybrid", y)
