@@ -168,6 +168,7 @@ class NetworkSimulation:
         self.applied: list = []  # (input topic, value) applied at the last tick (recorded)
         #: the crank's index when its torque comes from drive_torque (0 N m until the first message), else -1
         self._driver = settings.scene.driver if settings.drive_source == "topic" else -1
+        self._dt_ns = settings.dt * 1e9  # the step [ns] (settings are fixed while the node runs)
         #: the inputs held (:meth:`_pending`) unless a message came since: a tick holds them again only then
         self._held: list | None = None
 
@@ -228,7 +229,7 @@ class NetworkSimulation:
         if self.t_ns is None or now_ns < self.t_ns:
             self.start(now_ns)
             return True
-        k1 = round((now_ns - self.origin_ns) / (self.settings.dt * 1e9))
+        k1 = round((now_ns - self.origin_ns) / self._dt_ns)
         stepper, pending = self.stepper, self._held
         if pending is None:  # a message came since the last tick: the inputs to hold from this tick on
             pending = self._pending()

@@ -103,6 +103,7 @@ class NetworkStepper:
         #: the compiled tick's (reals, ints) after :meth:`use_joints` (else None); its message buffer and bytes
         self._tick, self._msg, self.message = None, np.zeros(8, dtype=np.uint8), None
         self._outs, self._flip = [np.empty((0, 0)), np.empty((0, 0))], 0
+        self._state = None  # the state the last compiled tick returned
         #: (t_a, t_b, lo, hi): ticks from t0 >= t_a to t1 <= t_b have no cut and the clamp (lo, hi) (see tick)
         self._window = (math.inf, -math.inf, -math.inf, math.inf)
 
@@ -287,7 +288,9 @@ class NetworkStepper:
         The compiled tick's state is a row of one of two buffers it writes in turn: valid until the tick after
         the next (a caller keeps it longer by copying)."""
         self.fresh = -1
-        if self._tick is None or k1 <= k0 or not isinstance(x, np.ndarray) or not x.flags.c_contiguous:
+        if x is not self._state and (self._tick is None or not isinstance(x, np.ndarray) or not x.flags.c_contiguous):
+            return self.advance(x, k0, k1)  # (the state the last compiled tick returned is one of its C rows)
+        if k1 <= k0:
             return self.advance(x, k0, k1)
         t0, t1 = k0 * self.dt, k1 * self.dt
         t_a, t_b, lo, hi = self._window
@@ -302,13 +305,14 @@ class NetworkStepper:
                                 lo, hi)
         self._flip ^= 1
         out = self._outs[self._flip]
-        if out.shape[0] != k1 - k0 or out.shape[1] != x.size:
+        if out.shape[0] != k1 - k0 or x is not self._state:
             out = self._outs[self._flip] = np.empty((k1 - k0, x.size))
         if network_tick(k0, k1 - k0, x, out, lo, hi, *self._tick, self._msg, stamp)[1] != OK:
             advance(self.loop, x, out, k0, k1)  # it raises the error that names the step
             return out[-1]
         self.fresh = k1
-        return out[-1]
+        self._state = x = out[-1]
+        return x
 
     def run(self, steps: int) -> np.ndarray:
         """States (steps + 1, n_x) from the scene's start (the whole run, as ``simulate`` steps it)."""
