@@ -11,11 +11,12 @@ cost on the caches a 1 ms sleep leaves is most of the tick.
 and writes the values into the ``joint_states`` CDR bytes the node publishes.
 
 Its arguments are few: numba's dispatcher checks and converts every array
-argument on every call (~0.2-0.5 us each on this machine: the loop's own two
-dozen arrays cost more than the steps). :class:`TickArrays` therefore packs
-every per-scene array into one float64 and one int64 buffer once; the kernel
-cuts them into views again (the same shapes and types, so ``wheel_steps`` keeps
-its one compiled signature). The caller writes held torques into those views.
+argument on every call. :class:`TickArrays` packs every per-scene array into
+one float64 and one int64 buffer once; the kernel cuts them into views again
+(the same shapes and types, so ``wheel_steps`` keeps its one compiled
+signature). The caller writes held torques into those views. Measured on
+fead_i4 (cold caches, 1 ms sleeps, load ~10): the whole tick, joint values
+and message included, 13-15 us, what the loop's 26-argument call alone costs.
 
 Bit for bit the operations of the reference path
 (:meth:`~belt_drive_ros.ros.network_stepper.NetworkStepper.advance`, then
