@@ -212,9 +212,6 @@ class TickKernel:
         self._out = np.empty((1, n))
         self._loop = (loop.reals, loop.ints, loop._dp, loop._lp)
         self._args = (*self._loop, self.rows, self.y, msg)
-        #: :func:`linear_tick` (a caller on the node's hot path calls ``kernel(k0, steps, x, out, lo, hi, drive,
-        #: stamp, *_args)`` itself, as :meth:`step` does)
-        self.kernel = linear_tick
 
     def set_message(self, template: bytes, offsets) -> None:
         """Write the ``joint_states`` of each :meth:`step` into ``template``'s layout (:func:`joints_message`);

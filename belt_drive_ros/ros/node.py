@@ -394,13 +394,13 @@ class BeltDriveNode(Node):
         subscribes to is not published; the recorder writes the same bytes.
         """
         sim = self.sim
+        v = sim.values(now_ns)  # floats in the order of TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
         recorder = self.recorder
         listening = self._listening
-        # floats in the order of TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS); joint_states as written by the compiled tick
-        # (None: encoded here, the same bytes)
-        v, joint_cdr = sim.tick_values(now_ns, listening[0] or recorder is not None)
         sends = []
-        tf_cdr = payloads = joints = None
+        joint_cdr = tf_cdr = payloads = joints = None
+        if listening[0] or recorder is not None:
+            joint_cdr = sim.joint_message(now_ns)  # written by the compiled tick, or encoded here (the same bytes)
         if joint_cdr is None or recorder is not None or listening[1]:
             # phi_M, phi_1, phi_2, phi_3, omega_M, omega_1, omega_2, omega_3; efforts: drive torque on wheel_M, -load on wheel_3
             joints = (v[0], v[2], v[4], v[6], v[1], v[3], v[5], v[7], v[8], 0.0, 0.0, -v[9])

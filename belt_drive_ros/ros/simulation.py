@@ -332,12 +332,9 @@ class NodeSimulation:
                 lo = t0 if jump0 else -math.inf
                 hi = (st if self.hybrid is None else st.stepper).plant.left_of(t1) if jump1 else math.inf
                 drive = value if jump1 else math.nan  # held from t1 on: the outputs at t1 have it
-                if self.hybrid is None:  # (TickKernel.step, without its frame: this is the tick's common path)
-                    out = fast._out
-                    if out.shape[0] != k1 - k0:
-                        out = fast._out = np.empty((k1 - k0, fast.n))
-                    if fast.kernel(k0, k1 - k0, self.x, out, lo, hi, drive, now_ns, *fast._args)[1] == OK:
-                        # (else the general path below takes the same steps and raises as it does)
+                if self.hybrid is None:
+                    out, status = fast.step(self.x, k0, k1, lo, hi, drive, now_ns)
+                    if status == OK:  # else the general path below takes the same steps and raises as it does
                         self.x = out[-1]  # a row of the tick kernel's buffer, written again by the next tick
                         self.t_ns = self._fresh_ns = now_ns
                         self._held_jump = t1 if jump1 else None  # what _hold makes of the sample
@@ -438,13 +435,6 @@ class NodeSimulation:
         if self._fresh_ns == now_ns:
             return bytes(self._tick_kernel.message)
         return None
-
-    def tick_values(self, now_ns: int, message: bool) -> tuple[list, bytes | None]:
-        """``(values(now_ns), joint_message(now_ns) if message else None)`` in one call (the publishing tick's)."""
-        if self._fresh_ns == now_ns:
-            fast = self._tick_kernel
-            return fast.y.tolist(), bytes(fast.message) if message else None
-        return self.values(now_ns), None
 
     def values(self, now_ns: int) -> list:
         """:meth:`outputs` as a list of floats in the order of :data:`TICK_OUTPUTS` (then, for the slipping
