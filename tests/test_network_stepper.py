@@ -131,7 +131,8 @@ def test_the_compiled_tick_equals_the_python_tick_in_lockstep(scene_of, tier, pe
     scene = scene_of()
     layout = NetworkLayout(scene)
     old, new = NetworkStepper(scene, tier=tier), NetworkStepper(scene, tier=tier)
-    new.use_joints(float(layout.arm[3]) if layout.arm else 0.0)
+    encoder = layout.joint_encoder()
+    new.use_joints(float(layout.arm[3]) if layout.arm else 0.0, encoder.layout)
     d = scene.driver
     other = next(i for i, p in enumerate(scene.pulleys) if p.role == "accessory")
     holds = {1: [(d, 0.0)], 20: [(d, 35.0)], 41: [(other, 3.0)], 60: [(d, -0.0)], 90: [(d, 80.0), (other, 0.5)]}
@@ -141,7 +142,8 @@ def test_the_compiled_tick_equals_the_python_tick_in_lockstep(scene_of, tier, pe
         pending = [h for j in range(k + 1, k1 + 1) for h in holds.get(j, [])]  # arrived during this tick
         for i, value in pending:  # the node: staged, the steps, then held (the values the joints show)
             new.stage(i, value)
-        xo, xn = old.advance(xo, k, k1), new.tick(xn, k, k1)
+        stamp = 1_700_000_000_000_000_000 + k1 * 1_000_000 + 7  # the node's stamp: its tick's time [ns]
+        xo, xn = old.advance(xo, k, k1), new.tick(xn, k, k1, stamp)
         for i, value in pending:
             old.hold(i, value)
             new.hold(i, value)
@@ -151,6 +153,7 @@ def test_the_compiled_tick_equals_the_python_tick_in_lockstep(scene_of, tier, pe
         if new.fresh == k:
             compiled += 1
             got = new.y.tolist()
+            assert bytes(new.message) == encoder.encode(stamp, want), k  # the message written in the same call
         else:
             got = layout.joint_values(*new.pulley_state(k, xn))
         assert all(type(v) is float for v in got)
@@ -178,7 +181,7 @@ def test_the_compiled_tick_compiles_once_and_interpreted_gives_the_same_floats(t
             except Exception:  # noqa: BLE001 - a refused tier is fine here: only the signatures count
                 continue
             layout = NetworkLayout(scene)
-            stepper.use_joints(float(layout.arm[3]) if layout.arm else 0.0)
+            stepper.use_joints(float(layout.arm[3]) if layout.arm else 0.0, layout.joint_encoder().layout)
             stepper.hold(scene.driver, 10.0)
             x = stepper.initial()
             for k in range(3):
@@ -189,9 +192,11 @@ def test_the_compiled_tick_compiles_once_and_interpreted_gives_the_same_floats(t
             "from belt_drive_ros.io.network_bag import NetworkLayout\n"
             "from belt_drive_ros.ros.network_stepper import NetworkStepper\n"
             "scene = load_network('fead_i4'); layout = NetworkLayout(scene); s = NetworkStepper(scene)\n"
-            "s.use_joints(float(layout.arm[3])); s.hold(scene.driver, 30.0); x = s.initial(); rows = []\n"
+            "s.use_joints(float(layout.arm[3]), layout.joint_encoder().layout); s.hold(scene.driver, 30.0)\n"
+            "x = s.initial(); rows = []\n"
             "for k in range(40):\n"
-            "    x = s.tick(x, k, k + 1); assert s.fresh == k + 1; rows.append(np.concatenate([x, s.y]))\n"
+            "    x = s.tick(x, k, k + 1, 10**9 * k + 3); assert s.fresh == k + 1\n"
+            "    rows.append(np.concatenate([x, s.y, np.frombuffer(bytes(s.message), dtype=np.uint8)]))\n"
             "np.save(sys.argv[1], np.array(rows))\n")
     rows = {}
     for jit in ("0", "1"):

@@ -157,7 +157,7 @@ class NetworkSimulation:
             counters.setdefault(key, 0)
         self.log = logger
         self.stepper = NetworkStepper(settings.scene, settings.method, settings.dt)
-        self.stepper.use_joints(float(layout.arm[3]) if layout.arm else 0.0)
+        self.stepper.use_joints(float(layout.arm[3]) if layout.arm else 0.0, layout.joint_encoder().layout)
         #: latest valid value per input pulley index (None: none received yet)
         self.latest: dict = {i: None for _, i in layout.inputs}
         self.x = self.stepper.initial()
@@ -168,6 +168,9 @@ class NetworkSimulation:
         self.applied: list = []  # (input topic, value) applied at the last tick (recorded)
         #: the crank's index when its torque comes from drive_torque (0 N m until the first message), else -1
         self._driver = settings.scene.driver if settings.drive_source == "topic" else -1
+        self._dt_ns = settings.dt * 1e9  # the step [ns] (settings are fixed while the node runs)
+        #: the inputs held (:meth:`_pending`) unless a message came since: a tick holds them again only then
+        self._held: list | None = None
 
     # the time base of the paper node's simulation (the same attributes: t_ns, origin_ns, settings.tick_ns)
     started = NodeSimulation.started
@@ -183,6 +186,7 @@ class NetworkSimulation:
             self.counters["ignored"] += 1
             return False
         self.latest[pulley] = float(value)
+        self._held = None
         return True
 
     def _pending(self) -> list:
@@ -201,9 +205,11 @@ class NetworkSimulation:
         """Hold the latest inputs (:meth:`_pending`) from this tick on."""
         stepper = self.stepper
         self.applied = []
-        for topic, i, value in self._pending() if pending is None else pending:
+        pending = self._pending() if pending is None else pending
+        for topic, i, value in pending:
             stepper.hold(i, value)
             self.applied.append((topic + APPLIED, value))
+        self._held = pending
 
     def start(self, now_ns: int) -> None:
         self.origin_ns = self.t_ns = now_ns
@@ -223,13 +229,14 @@ class NetworkSimulation:
         if self.t_ns is None or now_ns < self.t_ns:
             self.start(now_ns)
             return True
-        k1 = round((now_ns - self.origin_ns) / (self.settings.dt * 1e9))
-        pending = self._pending()
-        stepper = self.stepper
-        for _, i, value in pending:  # the torques the tick's joint values show (held only after the steps)
-            stepper.stage(i, value)
+        k1 = round((now_ns - self.origin_ns) / self._dt_ns)
+        stepper, pending = self.stepper, self._held
+        if pending is None:  # a message came since the last tick: the inputs to hold from this tick on
+            pending = self._pending()
+            for _, i, value in pending:  # the torques the tick's joint values show (held only after the steps)
+                stepper.stage(i, value)
         try:
-            self.x = stepper.tick(self.x, self.k, k1)
+            self.x = stepper.tick(self.x, self.k, k1, now_ns)
         except (SimulationDivergedError, ArithmeticError, ValueError) as exc:
             self.counters["divergences"] += 1
             self.last_divergence = (str(exc), now_ns)
@@ -238,7 +245,8 @@ class NetworkSimulation:
             return True
         self.k = k1
         self.t_ns = now_ns
-        self._sample(pending)
+        if pending is not self._held:  # (else held already: holding the same values again changes nothing)
+            self._sample(pending)
         return True
 
     def outputs(self):
@@ -254,6 +262,14 @@ class NetworkSimulation:
         if stepper.fresh == self.k:  # the compiled tick wrote them
             return stepper.y.tolist()
         return self.layout.joint_values(*stepper.pulley_state(self.k, self.x))
+
+    def message(self) -> bytes | None:
+        """The ``joint_states`` CDR of the current tick when the compiled tick wrote it (the bytes of the layout's
+        :class:`~belt_drive_ros.io.cdr_encoders.JointStateEncoder` of :meth:`joints`), else None."""
+        stepper = self.stepper
+        if stepper.fresh == self.k and stepper.message is not None:
+            return bytes(stepper.message)
+        return None
 
 
 class NetworkNode(Node):
@@ -381,14 +397,22 @@ class NetworkNode(Node):
             self.last_run = run
         else:  # nothing reads the per-pulley/span outputs: the joints alone (diagnostics compute the rest at 1 Hz)
             self.last_run = None
-            if not (readers["joint_states"] or (self._pub_tf is not None and readers.get("/tf"))):
+            tf_read = self._pub_tf is not None and readers.get("/tf")
+            if not (readers["joint_states"] or tf_read):
                 self.counters["published"] += 1
                 return [] if defer else None
+            data = None if tf_read else self.sim.message()
+            if data is not None:  # the compiled tick wrote the message: nothing else to do
+                self.counters["published"] += 1
+                if defer:
+                    return [(self._pub_joint.publish, data)]
+                self._pub_joint.publish(data)
+                return None
             joints = self.sim.joints()
         sends = []
         joint_cdr = tf_cdr = None
         if readers["joint_states"] or recorder is not None:
-            joint_cdr = self._joint_cdr.encode(t, joints)
+            joint_cdr = self.sim.message() or self._joint_cdr.encode(t, joints)
             if readers["joint_states"]:
                 sends.append((self._pub_joint.publish, joint_cdr))
         tf_read = self._pub_tf is not None and readers.get("/tf")

@@ -65,6 +65,7 @@ class NetworkStepper:
         self.tier = tier or auto_tier(scene, self.method, self.dt)[0]
         self.n = len(scene.pulleys)
         self.m = self.model.M.shape[0]
+        self._hf = self._hv = None  # the compiled tick's held flags and values (linear tiers: views into its arrays)
         if self.tier == "slipping":
             from ..core.network.slip import SlipArrays
 
@@ -74,12 +75,12 @@ class NetworkStepper:
         else:
             self.loop = NetworkLoop(self.model, self.tier, self.method, self.dt)  # its own: hold() writes into it
             self._rows = (self.loop.pk.copy(), self.loop.pp.copy())
+            self._pack(scene)
             loop = self.loop
             #: the compiled loop's arguments after (times, x, out, lo, hi, limit) (hold() writes into pk, pp in place):
             #: those NetworkLoop's call gives wheel_steps (both profile banks the loop's stack)
             stacked = (loop.pk, loop.pp, loop.px, loop.py)
             self._kernel_args = (*loop.args, loop.start, *stacked, *stacked, *loop._none)
-            self._tick_args = (*loop.args, loop.start, *stacked, *loop._none)
             # advance's breakpoints: a tick with none of its cuts inside is one call of the loop (the fast path)
             self._marks, self._left, inside = grid_breakpoints(self.model, self.dt)
             self._split = sorted(inside)  # steps split at a breakpoint inside them
@@ -99,37 +100,63 @@ class NetworkStepper:
         self.held: list[float | None] = [None] * self.n
         #: the joint values of the last :meth:`tick` (positions, velocities, efforts) and its step index (-1: none)
         self.y, self.fresh = None, -1
-        self._tick = None
+        #: the compiled tick's (reals, ints) after :meth:`use_joints` (else None); its message buffer and bytes
+        self._tick, self._msg, self.message = None, np.zeros(8, dtype=np.uint8), None
+        self._outs, self._flip = [np.empty((0, 0)), np.empty((0, 0))], 0
+        self._state = None  # the state the last compiled tick returned
+        #: (t_a, t_b, lo, hi): ticks from t0 >= t_a to t1 <= t_b have no cut and the clamp (lo, hi) (see tick)
+        self._window = (math.inf, -math.inf, -math.inf, math.inf)
 
-    def use_joints(self, theta0: float) -> None:
-        """Let :meth:`tick` write the joint values (``theta0``: the arm's installed angle [rad], 0.0 without an
-        arm); the slipping tier has no compiled tick."""
-        if self.tier == "slipping":
-            return
-        from ..core.network.tick import LAG, RIGID, SAME, ZERO
+    def _pack(self, scene) -> None:
+        """The loop's arrays and the joint values' data as :class:`~belt_drive_ros.core.network.tick.TickArrays`
+        (the compiled tick's two buffers); the loop's ``pk, pp`` become their views (held torques written there)."""
+        from ..core.network.tick import LAG, RIGID, SAME, ZERO, TickArrays
 
-        n, m, d = self.n, self.m, self.scene.driver
+        loop, n, m, d = self.loop, len(scene.pulleys), self.model.M.shape[0], scene.driver
+        arm = m > n
         if self.tier == "flexible":
             jkind = [SAME if i == d or i >= n else LAG for i in range(m)]
         else:
             jkind = [RIGID] * n + [ZERO] * (m - n)
-        rho = self._rho + [0.0] * (m - n)
+        rho = [float(r) for r in self.model.ratios] + [0.0] * (m - n)
         row = [-1] * n
-        for r, i in zip(self.loop.start, self.loop.active):
+        for r, i in zip(loop.start, loop.active):
             row[i] = int(r)
-        uses = [int(p.torque is not None and p.torque.uses_angle) for p in self.scene.pulleys]
-        self._hv = np.array([0.0 if v is None else v for v in self.held])
-        self._hf = np.array([v is not None for v in self.held], dtype=np.int64)
-        self.y = np.zeros(3 * (n + int(self._arm)))
-        self._tick = (self.dt, int(d), np.array(jkind, dtype=np.int64), np.array(rho, dtype=float), float(theta0),
-                      int(self._arm), self._hf, self._hv, np.array(self.signs, dtype=float),
-                      np.array([float(p.gear) for p in self.scene.pulleys]), np.array(uses, dtype=np.int64),
-                      np.array(row, dtype=np.int64), self._rows[0], self._rows[1], self.y)
+        W, kinds, offsets, S, F, final_base, tol, max_iter, uses_angle = loop.args
+        extra, guard = loop._none
+        self._arrays = TickArrays(
+            dict(W=W, offsets=offsets, S=S, F=F, pp=loop.pp, px=loop.px, py=loop.py, extra=extra, guard=guard, rho=rho,
+                 value=np.zeros(n), tsign=[ROLE_SIGN.get(p.role, 0.0) for p in scene.pulleys],
+                 gear=[float(p.gear) for p in scene.pulleys], qp=self._rows[1], y=np.zeros(3 * (n + int(arm))),
+                 fscalars=[self.dt, 0.0, LIMIT, tol]),
+            dict(kinds=kinds, uses_angle=uses_angle, start=loop.start, pk=loop.pk, jkind=jkind, held=np.zeros(n),
+                 uses=[int(p.torque is not None and p.torque.uses_angle) for p in scene.pulleys], row=row,
+                 qk=self._rows[0], iscalars=[final_base, max_iter, d, int(arm), -1, -1, -1, -1]))
+        views = self._arrays.views
+        loop.pk, loop.pp = views["pk"], views["pp"]  # (no piece of the loop exists yet: they share these)
+        self._hf, self._hv = views["held"], views["value"]
+
+    def use_joints(self, theta0: float, message: tuple | None = None) -> None:
+        """Let :meth:`tick` write the joint values (``theta0``: the arm's installed angle [rad], 0.0 without an
+        arm) into :attr:`y`; ``message``: ``(template, offsets)`` of the ``joint_states`` CDR
+        (:attr:`~belt_drive_ros.io.cdr_encoders.JointStateEncoder.layout`), which :meth:`tick` then writes too
+        (:attr:`message`, stamped). The slipping tier has no compiled tick."""
+        if self.tier == "slipping":
+            return
+        views = self._arrays.views
+        views["fscalars"][1] = theta0
+        if message is not None:
+            from ..core.tick import joints_message
+
+            self._msg, self.message, at = joints_message(*message)
+            views["iscalars"][4:] = [int(a) for a in at]
+        self.y = views["y"]
+        self._tick = (self._arrays.reals, self._arrays.ints)
 
     def stage(self, pulley: int, value: float | None) -> None:
         """The torque :meth:`tick`'s joint values show for pulley ``pulley`` (the value :meth:`hold` is given right
         after the tick; the steps take the values held before)."""
-        if self._tick is None:
+        if self._hf is None:
             return
         self._hf[pulley] = value is not None
         if value is not None:
@@ -252,21 +279,40 @@ class NetworkStepper:
         i, j = bisect.bisect_left(split, k0), bisect.bisect_right(grid, k0)
         return (i < len(split) and split[i] < k1) or (j < len(grid) and grid[j] < k1)
 
-    def tick(self, x, k0: int, k1: int) -> np.ndarray:
+    def tick(self, x, k0: int, k1: int, stamp: int = 0) -> np.ndarray:
         """:meth:`advance`'s state, and for a tick of whole steps between breakpoints (after :meth:`use_joints`)
         the joint values at step ``k1`` into :attr:`y` in the same compiled call (:attr:`fresh` = ``k1``; those of
-        ``pulley_state`` and the layout's ``joint_values``, with the torques :meth:`stage` gave, bit for bit)."""
+        ``pulley_state`` and the layout's ``joint_values``, with the torques :meth:`stage` gave, bit for bit) and,
+        with a message layout, the ``joint_states`` CDR stamped ``stamp`` [ns] into :attr:`message`.
+
+        The compiled tick's state is a row of one of two buffers it writes in turn: valid until the tick after
+        the next (a caller keeps it longer by copying)."""
         self.fresh = -1
-        if self._tick is None or k1 <= k0 or self._cut(k0, k1) or not isinstance(x, np.ndarray) \
-                or not x.flags.c_contiguous:
+        if x is not self._state and (self._tick is None or not isinstance(x, np.ndarray) or not x.flags.c_contiguous):
+            return self.advance(x, k0, k1)  # (the state the last compiled tick returned is one of its C rows)
+        if k1 <= k0:
             return self.advance(x, k0, k1)
-        lo, hi = clamp(self._marks, self._left, k0 * self.dt, k1 * self.dt)
-        out = np.empty((k1 - k0, x.size))
-        if network_tick(k0, k1 - k0, x, out, lo, hi, LIMIT, *self._tick_args, *self._tick)[1] != OK:
+        t0, t1 = k0 * self.dt, k1 * self.dt
+        t_a, t_b, lo, hi = self._window
+        if not (t_a <= t0 and t1 <= t_b):
+            if self._cut(k0, k1):
+                return self.advance(x, k0, k1)
+            lo, hi = clamp(self._marks, self._left, t0, t1)
+            marks = self._marks
+            i = bisect.bisect_right(marks, t0) - 1
+            if i + 1 == bisect.bisect_left(marks, t1):  # no mark between: the ticks up to the next mark are alike
+                self._window = (marks[i] if i >= 0 else -math.inf, marks[i + 1] if i + 1 < len(marks) else math.inf,
+                                lo, hi)
+        self._flip ^= 1
+        out = self._outs[self._flip]
+        if out.shape[0] != k1 - k0 or x is not self._state:
+            out = self._outs[self._flip] = np.empty((k1 - k0, x.size))
+        if network_tick(k0, k1 - k0, x, out, lo, hi, *self._tick, self._msg, stamp)[1] != OK:
             advance(self.loop, x, out, k0, k1)  # it raises the error that names the step
             return out[-1]
         self.fresh = k1
-        return out[-1]
+        self._state = x = out[-1]
+        return x
 
     def run(self, steps: int) -> np.ndarray:
         """States (steps + 1, n_x) from the scene's start (the whole run, as ``simulate`` steps it)."""

@@ -348,6 +348,8 @@ class TickSource:
         """Now on the node's time base: simulated time with publish_clock, else the node's clock."""
         if self.sim.settings.publish_clock:
             return self.sim_ns
+        if self._ros_time is False:  # the node's clock is the system clock (CLOCK_REALTIME): without rclpy's Time
+            return time.time_ns()
         return self.node.get_clock().now().nanoseconds
 
     def time_base(self) -> str:

@@ -1,4 +1,5 @@
-"""The network node's common tick in one compiled call: whole grid steps, then the joint values at their end.
+"""The network node's common tick in one compiled call: whole grid steps, the joint values at their end and
+the tick's ``joint_states`` message.
 
 A 1 kHz tick of a belt network (flexible or rigid tier) is one call of the
 network loop (:func:`~belt_drive_ros.core.kernel.wheel_steps`)
@@ -6,7 +7,16 @@ and the JointState values at the new state: each pulley's (and the arm's)
 angle, speed and torque. Done in Python that is a dozen interpreted calls
 (grid times, buffers, the profiles' scalar evaluations, list building) whose
 cost on the caches a 1 ms sleep leaves is most of the tick.
-:func:`network_tick` does both in one ``@njit(cache=True, nogil=True)`` call.
+:func:`network_tick` does both in one ``@njit(cache=True, nogil=True)`` call,
+and writes the values into the ``joint_states`` CDR bytes the node publishes.
+
+Its arguments are few: numba's dispatcher checks and converts every array
+argument on every call. :class:`TickArrays` packs every per-scene array into
+one float64 and one int64 buffer once; the kernel cuts them into views again
+(the same shapes and types, so ``wheel_steps`` keeps its one compiled
+signature). The caller writes held torques into those views. Measured on
+fead_i4 (cold caches, 1 ms sleeps, load ~10): the whole tick, joint values
+and message included, 13-15 us, what the loop's 26-argument call alone costs.
 
 Bit for bit the operations of the reference path
 (:meth:`~belt_drive_ros.ros.network_stepper.NetworkStepper.advance`, then
@@ -34,30 +44,78 @@ from ..profile_data import OK
 
 #: per state angle how its joint angle and speed are formed (``jkind``)
 SAME, LAG, RIGID, ZERO = 0, 1, 2, 3
+#: the float sections of :class:`TickArrays` in ``reals``, in order (fscalars: dt, theta0, speed limit, tol)
+FLOATS = ("W", "offsets", "S", "F", "pp", "px", "py", "extra", "guard", "rho", "value", "tsign", "gear", "qp", "y",
+          "fscalars")
+#: the int sections in ``ints`` (iscalars: final_base, max_iter, driver, arm, then the message's layout: the float64
+#: index of its positions, velocities, efforts and the uint32 index of its stamp; -1: no message)
+INTS = ("kinds", "uses_angle", "start", "pk", "jkind", "held", "uses", "row", "qk", "iscalars")
+_W, _OFFSETS, _S, _F, _PP, _PX, _PY, _EXTRA, _GUARD, _RHO, _VALUE, _TSIGN, _GEAR, _QP, _Y, _FSCALARS = range(16)
+_KINDS, _USES_ANGLE, _START, _PK, _JKIND, _HELD, _USES, _ROW, _QK, _ISCALARS = range(16, 26)
+_TABLE = 4 * (len(FLOATS) + len(INTS))  # ints starts with (offset, d0, d1, d2) of every section
 
 
 @njit(cache=True, nogil=True)
-def network_tick(k0, steps, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
-                 uses_angle, start, pk, pp, px, py, extra, guard, dt, driver, jkind, rho, theta0, arm,
-                 held, value, tsign, gear, uses, row, qk, qp, y):  # fmt: skip
-    """``steps`` grid steps from index ``k0`` (state ``x``) into ``out``, then the joint values into ``y``.
+def _at(ints, j):
+    return ints[4 * j], ints[4 * j + 1], ints[4 * j + 2], ints[4 * j + 3]
 
-    ``W .. py, extra, guard``: the network loop's arguments of :func:`~belt_drive_ros.core.kernel.wheel_steps`
-    (both profile banks the same stack, :class:`~.simulate.NetworkLoop`). ``jkind, rho`` (m,): per state angle
-    :data:`SAME`/:data:`LAG`/:data:`RIGID`/:data:`ZERO` and its ratio; ``theta0`` the arm's installed angle,
-    ``arm`` 1 with an arm. Per pulley (n,): ``held`` 1 when its torque is held at ``value`` [N m], ``tsign``
-    its profile's sign (0: no profile), ``gear``, ``uses`` 1 when the profile reads its angle, ``row`` its
-    first row in ``qk, qp`` (the scene's profiles, stacked as the loop's ``pk, pp`` before any hold) and
-    ``px, py``. ``y`` (3 (n + arm)): positions, velocities, efforts. Returns the loop's
-    ``(done, status, t)``; ``y`` is written only when every step is done (status OK).
+
+@njit(cache=True, nogil=True)
+def _f1(reals, ints, j):
+    a, d0, _, _ = _at(ints, j)
+    return reals[a : a + d0]
+
+
+@njit(cache=True, nogil=True)
+def _f2(reals, ints, j):
+    a, d0, d1, _ = _at(ints, j)
+    return reals[a : a + d0 * d1].reshape((d0, d1))
+
+
+@njit(cache=True, nogil=True)
+def _f3(reals, ints, j):
+    a, d0, d1, d2 = _at(ints, j)
+    return reals[a : a + d0 * d1 * d2].reshape((d0, d1, d2))
+
+
+@njit(cache=True, nogil=True)
+def _i1(ints, j):
+    a, d0, _, _ = _at(ints, j)
+    return ints[a : a + d0]
+
+
+@njit(cache=True, nogil=True)
+def network_tick(k0, steps, x, out, lo, hi, reals, ints, msg, stamp):
+    """``steps`` grid steps from index ``k0`` (state ``x``) into ``out``, then the joint values into the ``y``
+    section of ``reals`` and, when ``ints`` gives its layout, the ``joint_states`` message stamped ``stamp`` [ns]
+    into ``msg`` (uint8, 8-byte aligned: :func:`~belt_drive_ros.core.tick.joints_message`).
+
+    ``reals``, ``ints``: :class:`TickArrays` (:data:`FLOATS`, :data:`INTS`). ``W .. guard, kinds .. pk``: the
+    network loop's arguments of :func:`~belt_drive_ros.core.kernel.wheel_steps` (both profile banks the same stack,
+    :class:`~.simulate.NetworkLoop`). ``jkind, rho`` (m,): per state angle :data:`SAME`/:data:`LAG`/:data:`RIGID`/
+    :data:`ZERO` and its ratio; ``theta0`` the arm's installed angle, ``arm`` 1 with an arm. Per pulley (n,):
+    ``held`` 1 when its torque is held at ``value`` [N m], ``tsign`` its profile's sign (0: no profile), ``gear``,
+    ``uses`` 1 when the profile reads its angle, ``row`` its first row in ``qk, qp`` (the scene's profiles,
+    stacked as the loop's ``pk, pp`` before any hold) and ``px, py``. ``y`` (3 (n + arm)): positions, velocities,
+    efforts. Returns the loop's ``(done, status, t)``; ``y`` and ``msg`` are written only when every step is done
+    (status OK).
     """
+    fs, js = _f1(reals, ints, _FSCALARS), _i1(ints, _ISCALARS)
+    dt, theta0, limit, tol = fs[0], fs[1], fs[2], fs[3]
+    final_base, max_iter, driver, arm = js[0], js[1], js[2], js[3]
+    pk, pp, px, py = _i1(ints, _PK), _f2(reals, ints, _PP), _f1(reals, ints, _PX), _f1(reals, ints, _PY)
     times = np.empty(steps + 1)
     for i in range(steps + 1):
         times[i] = (k0 + i) * dt
-    done, status, t = wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
-                                  uses_angle, start, pk, pp, px, py, pk, pp, px, py, extra, guard)
+    done, status, t = wheel_steps(times, x, out, lo, hi, limit, _f3(reals, ints, _W), _i1(ints, _KINDS),
+                                  _f1(reals, ints, _OFFSETS), _f3(reals, ints, _S), _f3(reals, ints, _F), final_base,
+                                  tol, max_iter, _i1(ints, _USES_ANGLE), _i1(ints, _START), pk, pp, px, py, pk, pp,
+                                  px, py, _f2(reals, ints, _EXTRA), _f1(reals, ints, _GUARD))  # fmt: skip
     if status != OK:
         return done, status, t
+    jkind, rho, y = _i1(ints, _JKIND), _f1(reals, ints, _RHO), _f1(reals, ints, _Y)
+    held, value, tsign, gear = _i1(ints, _HELD), _f1(reals, ints, _VALUE), _f1(reals, ints, _TSIGN), _f1(reals, ints, _GEAR)
+    uses, row, qk, qp = _i1(ints, _USES), _i1(ints, _ROW), _i1(ints, _QK), _f2(reals, ints, _QP)
     xs = out[steps - 1]
     m = jkind.size
     n = held.size
@@ -92,7 +150,45 @@ def network_tick(k0, steps, x, out, lo, hi, limit, W, kinds, offsets, S, F, fina
         y[2 * j + i] = u
     if arm:
         y[2 * j + n] = 0.0
+    if js[7] >= 0:  # the joint_states message: its three arrays of j doubles and its stamp
+        f, words = msg.view(np.float64), msg.view(np.uint32)
+        for q in range(3):
+            base = js[4 + q]
+            for i in range(j):
+                f[base + i] = y[q * j + i]
+        words[js[7]] = stamp // 1000000000
+        words[js[7] + 1] = stamp % 1000000000
     return done, status, t
+
+
+class TickArrays:
+    """Named arrays packed into one float64 buffer ``reals`` and one int64 buffer ``ints`` (the layout
+    :func:`network_tick` reads: :data:`FLOATS`, :data:`INTS`); ``views[name]`` is each array's view into its
+    buffer (writing into it writes what the kernel reads)."""
+
+    def __init__(self, floats: dict, ints: dict):
+        shapes = [np.shape(floats[name]) for name in FLOATS] + [np.shape(ints[name]) for name in INTS]
+        if any(len(s) > 3 for s in shapes):
+            raise ValueError("TickArrays: at most three dimensions")
+        sizes = [int(np.prod(s)) for s in shapes]
+        nf = len(FLOATS)
+        self.reals = np.zeros(sum(sizes[:nf]))
+        self.ints = np.zeros(_TABLE + sum(sizes[nf:]), dtype=np.int64)
+        self.views = {}
+        a_f, a_i = 0, _TABLE
+        for j, (name, shape, size) in enumerate(zip(FLOATS + INTS, shapes, sizes)):
+            is_float = j < nf
+            a = a_f if is_float else a_i
+            dims = tuple(shape) + (1,) * (3 - len(shape))
+            self.ints[4 * j : 4 * j + 4] = (a, *dims)
+            buffer = self.reals if is_float else self.ints
+            view = buffer[a : a + size].reshape(shape)
+            view[...] = floats[name] if is_float else ints[name]
+            self.views[name] = view
+            if is_float:
+                a_f += size
+            else:
+                a_i += size
 
 
 def warm() -> None:
@@ -102,8 +198,14 @@ def warm() -> None:
 
     loop = NetworkLoop(model_of(warm_scene()), "flexible", "etd2", 1e-3)
     x = loop.initial()
-    ints = lambda values: np.array(values, dtype=np.int64)  # noqa: E731
-    network_tick(0, 1, x, np.empty((1, x.size)), -np.inf, np.inf, LIMIT, *loop.args, loop.start, loop.pk, loop.pp,
-                 loop.px, loop.py, *loop._none, 1e-3, 0, ints([SAME, LAG]), np.ones(2), 0.0, 0, ints([1, 0]),
-                 np.array([0.1, 0.0]), np.array([1.0, -1.0]), np.ones(2), ints([0, 0]), ints(loop.start),
-                 loop.pk.copy(), loop.pp.copy(), np.zeros(6))
+    W, kinds, offsets, S, F, final_base, tol, max_iter, uses_angle = loop.args
+    extra, guard = loop._none
+    packed = TickArrays(
+        dict(W=W, offsets=offsets, S=S, F=F, pp=loop.pp, px=loop.px, py=loop.py, extra=extra, guard=guard,
+             rho=np.ones(2), value=np.array([0.1, 0.0]), tsign=np.array([1.0, -1.0]), gear=np.ones(2), qp=loop.pp,
+             y=np.zeros(6), fscalars=np.array([1e-3, 0.0, LIMIT, tol])),
+        dict(kinds=kinds, uses_angle=uses_angle, start=loop.start, pk=loop.pk, jkind=np.array([SAME, LAG]),
+             held=np.array([1, 0]), uses=np.zeros(2), row=loop.start, qk=loop.pk,
+             iscalars=np.array([final_base, max_iter, 0, 0, -1, -1, -1, -1])))
+    network_tick(0, 1, x, np.empty((1, x.size)), -np.inf, np.inf, packed.reals, packed.ints, np.zeros(8, dtype=np.uint8),
+                 0)
