@@ -128,8 +128,8 @@ def test_memory_does_not_grow_with_the_duration(tmp_path, monkeypatch, ext):
     """A run 4x longer peaks at about the same memory: its peak grows by under 16 B per extra sample,
     where a run kept in memory needs ~300 B per sample.
 
-    Time-only torques keep the run on the vectorized path, so tracing every
-    allocation stays cheap; windows of 500 steps (and the auto choice's
+    Time-only torques (no Python callback per step) keep tracing every
+    allocation cheap; windows of 500 steps (and the auto choice's
     speed estimate in windows of 500) make both runs many windows. A first,
     untraced run loads what the process loads once (imports, compiled
     kernels, caches): otherwise the short run's peak would hold them and the
