@@ -6,7 +6,8 @@ inputs, ~20 outputs and 4 energy terms: about 300 bytes each, so a day of
 consecutive :class:`~belt_drive_ros.core.simulate.SimResult` windows of
 ``window_steps`` grid steps: the first starts with the sample at t = 0,
 each later one with the sample after the previous window's last, so the
-windows put together are :func:`simulate`'s arrays. The energy terms run
+windows' states put together are :func:`simulate`'s bit for bit (the energy
+terms to rounding: their quadrature sums per window). The energy terms run
 on from window to window (trapezoidal quadrature across the seam).
 
 Consumers write each window out (CSV, MCAP) and keep a :class:`RunSummary`.
