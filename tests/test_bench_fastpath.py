@@ -86,10 +86,10 @@ def test_compiled_loop_equals_step_loop(scene_name, model_name, method):
     dt = scene.dt / 8 if method == "euler" else scene.dt  # euler: small enough to stay bounded over 0.3 s
     sim = Simulator(make_model(model_name, scene.params), scene.drive, scene.load, method, dt, check_stability=False)
     x0 = scene.initial_state.vector(model_name, scene.params.ratio)
-    _, fast = sim.run(0.3, x0, vectorize=False)
+    _, fast = sim.run(0.3, x0)
     assert sim.stepper.loop is not None
     sim.stepper.loop = None  # whole steps through integrator.step (numpy)
-    _, slow = sim.run(0.3, x0, vectorize=False)
+    _, slow = sim.run(0.3, x0)
     scale = np.max(np.abs(slow), axis=0)
     assert np.max(np.abs(fast - slow) / scale) < 1e-11
 
@@ -97,7 +97,6 @@ def test_compiled_loop_equals_step_loop(scene_name, model_name, method):
 def test_simulate_uses_the_compiled_loop_and_reports_progress():
     calls = []
     result = simulate(load_scene("paper"), dt=1e-3, duration=0.5, progress=calls.append)
-    assert not result.vectorized
     assert calls[-1] == 1.0 and calls == sorted(calls) and len(calls) >= 5  # every max(64, n//100) steps
 
 

@@ -42,11 +42,11 @@ def test_exact_method_is_exact_again_with_a_jump_inside_a_step():
     ref = dop853_reference(scene, "flexible")  # restarted at 0.2503 s
     sim = Simulator(model, scene.drive, scene.load, "exact", 1e-3)
     t, x = sim.run(0.5, x0)
-    assert sim.split_steps == {250: [0.2503]} and not sim.vectorized  # the split step leaves the vectorized path
+    assert sim.split_steps == {250: [0.2503]}
     assert run_errors(ref, t, x)["error"] < 1e-9
     sim.breakpoints = []  # without the split: the jump is taken 0.7 ms late, a first-order error
     t, x = sim.run(0.5, x0)
-    assert sim.vectorized and run_errors(ref, t, x)["error"] > 1e-3
+    assert sim.split_steps == {} and run_errors(ref, t, x)["error"] > 1e-3
 
 
 @pytest.mark.parametrize("method, split_error, unsplit_error", [("lawson5", 3e-6, 1e-4), ("etd4", 2e-4, 1e-3)])
@@ -67,7 +67,7 @@ def test_soft_start_end_inside_a_step(method, split_error, unsplit_error):
     assert split < split_error < unsplit_error < unsplit, (split, unsplit)
 
 
-def test_breakpoints_on_the_grid_are_not_split_and_forced_vectorization_is_refused():
+def test_breakpoints_on_the_grid_are_not_split():
     scene = load_scene("paper")
     model = make_model("flexible", scene.params)
     x0 = scene.initial_state.vector("flexible", scene.params.ratio)
@@ -75,8 +75,6 @@ def test_breakpoints_on_the_grid_are_not_split_and_forced_vectorization_is_refus
     sim.run(0.1, x0)
     assert sim.split_steps == {}
     off_grid = Simulator(model, S.Step(0.0, 5.0, 0.0123), S.Constant(1.0), "etd2", 0.005)
-    with pytest.raises(ValueError, match="breakpoint inside a step"):
-        off_grid.run(0.1, x0, vectorize=True)
     _, states = off_grid.run(0.1, x0)
     assert off_grid.split_steps == {2: [0.0123]} and np.all(np.isfinite(states))
 

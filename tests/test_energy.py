@@ -58,11 +58,9 @@ def _total(result):
     return result.energy["kinetic"] + result.energy["potential"]
 
 
-@pytest.mark.parametrize("vectorize", [True, False], ids=["vectorized", "step-loop"])
-def test_undamped_free_belt_conserves_energy(vectorize):
+def test_undamped_free_belt_conserves_energy():
     p = BeltDriveParams(**GEOMETRY, **UNDAMPED)
-    result = simulate(_scene(p, periods=200, steps_per_period=40, relative_deflection=1e-3), vectorize=vectorize)
-    assert result.vectorized is vectorize
+    result = simulate(_scene(p, periods=200, steps_per_period=40, relative_deflection=1e-3))
     E = _total(result)
     assert E[0] > 0
     drift = np.max(np.abs(E - E[0])) / E[0]
@@ -104,7 +102,6 @@ def test_constant_torque_undamped_energy_equals_input_work():
     p = BeltDriveParams(**GEOMETRY, **UNDAMPED)
     scene = _scene(p, drive=3.0, load=2.0, omega_M=10.0, relative_deflection=1e-3)
     result = simulate(scene)
-    assert result.vectorized
     model = FlexibleBeltModel(p)
     W = result.energy["input_work"]
     assert np.all(result.energy["dissipated"] == 0.0)

@@ -1,4 +1,4 @@
-"""Integrators: measured order, exactness of the ZOH step, the vectorized path, tableaus.
+"""Integrators: measured order, exactness of the ZOH step, the step loop against the step protocol, tableaus.
 
 Scene for the orders: damped flexible belt (paper geometry, k = 2e4 N/m,
 omega_n = 66 rad/s), drive = motor torque-speed line + 8 Hz sine, load =
@@ -21,8 +21,9 @@ Tolerances (one per quantity, with the reason)
 * exact method vs DOP853 for piecewise-constant/constant torques: 1e-10
   relative, step-size independent (DOP853's own error ~1e-12; the ZOH error
   is rounding). A first-order method would be off by ~1e-4 here.
-* step() loop vs vectorized propagate_linear: 1e-11 relative; the two sum
-  the same 1000 terms in different orders (measured ~2e-13).
+* the simulator's compiled loop and the linear one-step map (Phi, G_j) vs a
+  bare step() loop: 1e-11 relative; they sum the same terms in different
+  orders (measured ~2e-13 over 1000 steps).
 * scipy adaptive methods vs the exact solution: global error <= 100 rtol,
   1000 rtol for BDF (rtol bounds the *local* error; the global one
   accumulates over the hundreds of steps of ~3 belt periods, most for the
@@ -57,7 +58,6 @@ from belt_drive_ros.core.integrators import (
     FixedStepIntegrator,
     describe_methods,
     make_integrator,
-    propagate_linear,
 )
 from belt_drive_ros.core.model import FlexibleBeltModel, RigidBeltModel
 from belt_drive_ros.core.params import BeltDriveParams
@@ -70,7 +70,7 @@ PARAMS = BeltDriveParams(**GEOMETRY, k=2.0e4, c=3.0, b_M=1e-3, b_1=5e-4, b_2=5e-
 ORDER_TOL = 0.1
 RTOL_C2D = 1e-13
 RTOL_EXACT_VS_DOP853 = 1e-10
-RTOL_VECTORIZED = 1e-11
+RTOL_STEP_LOOP = 1e-11
 ADAPTIVE_GLOBAL_FACTOR = 100.0
 ADAPTIVE_GLOBAL_FACTOR_BDF = 1000.0  # multistep, largest phase error (module docstring)
 
@@ -106,7 +106,7 @@ def _dop853(model, plant, x0, t_span, rtol=1e-13, atol=1e-12):
 def smooth_reference():
     model = FlexibleBeltModel(PARAMS)
     plant = Plant(model, DRIVE, LOAD)
-    assert not plant.open_loop  # state-dependent torques: the step-by-step path is what is tested
+    assert DRIVE.state_dependent  # closed loop: the torques read the state
     ref = _dop853(model, plant, X0, (0.0, DURATION))
     looser = _dop853(model, plant, X0, (0.0, DURATION), rtol=1e-12, atol=1e-11)
     T = model.lagrange_map  # errors on the wheel coordinates [phi_M, phi_3, omega_M, omega_3]
@@ -144,7 +144,6 @@ def test_measured_order_state_dependent_torque(method, smooth_reference):
     for n in steps:
         sim = Simulator(model, DRIVE, LOAD, method, DURATION / n, check_stability=False)
         _, states = sim.run(DURATION, X0)
-        assert not sim.vectorized
         errors.append(np.max(np.abs(T @ (states[-1] - ref)) / scale))  # wheel coordinates [phi_M, phi_3, ...]
     errors = np.array(errors)
     orders = np.log2(errors[:-1] / errors[1:])
@@ -220,7 +219,7 @@ def test_exact_step_is_cached_per_step_size():
     assert a.Phi is b.Phi  # one matrix exponential per (A, B, h)
 
 
-# ------------------------------------------------------ vectorized = step loop
+# ------------------------------------------------------ step loop = step protocol
 def _manual_step_loop(integrator, inputs, x0, n, t0=0.0):
     """x_{k+1} = integrator.step(t_k, x_k, inputs): the protocol a ROS node uses."""
     out = np.empty((n + 1, x0.size))
@@ -233,23 +232,29 @@ def _manual_step_loop(integrator, inputs, x0, n, t0=0.0):
 
 @pytest.mark.parametrize("method", FIXED_STEP_METHODS)
 @pytest.mark.parametrize("model_cls", [FlexibleBeltModel, RigidBeltModel])
-def test_step_loop_equals_vectorized_path(method, model_cls):
-    """Open-loop torques: propagate_linear, the simulator's step-by-step path and a bare step() loop agree."""
+def test_open_loop_run_equals_step_protocol_and_linear_map(method, model_cls):
+    """Open-loop torques: the simulator's run, a bare step() loop and the linear one-step map
+    x+ = Phi x + sum_j G_j u(t + c_j h) agree."""
     model = model_cls(PARAMS)
     drive = Sine(mean=2.0, amplitude=3.0, frequency=8.0)
     load = Ramp(start_value=0.0, end_value=2.0, start_time=0.05, end_time=0.2)
     x0 = X0 if model.n_states == 4 else X0[[0, 2]]
     # No guard: Euler grows by 1.0018 per step here (x6 over the run); what is compared is the paths.
     sim = Simulator(model, drive, load, method, 1e-3, check_stability=False)
-    _, fast = sim.run(1.0, x0, vectorize=True)
-    assert sim.vectorized
-    _, slow = sim.run(1.0, x0, vectorize=False)
-    assert not sim.vectorized
-    bare = _manual_step_loop(make_integrator(method, model.A, model.B, 1e-3), Plant(model, drive, load).inputs, x0, 1000)
-    assert fast.shape == slow.shape == bare.shape == (1001, model.n_states)
+    _, run = sim.run(1.0, x0)
+    integrator = make_integrator(method, model.A, model.B, 1e-3)
+    plant = Plant(model, drive, load)
+    bare = _manual_step_loop(integrator, plant.inputs, x0, 1000)
+    step = integrator.linear_step()
+    linear = np.empty_like(bare)
+    linear[0] = x = np.array(x0, dtype=float)
+    for k in range(1000):
+        x = step.Phi @ x + sum(G @ plant.inputs((k + c) * 1e-3, x) for c, G in zip(step.nodes, step.gains))
+        linear[k + 1] = x
+    assert run.shape == bare.shape == (1001, model.n_states)
     scale = np.max(np.abs(bare), axis=0)
-    assert np.max(np.abs(fast - bare) / scale) < RTOL_VECTORIZED
-    assert np.max(np.abs(slow - bare) / scale) < RTOL_VECTORIZED
+    assert np.max(np.abs(run - bare) / scale) < RTOL_STEP_LOOP
+    assert np.max(np.abs(linear - bare) / scale) < RTOL_STEP_LOOP
 
 
 @pytest.mark.parametrize("method", FIXED_STEP_METHODS)
@@ -260,22 +265,7 @@ def test_simulator_stepwise_equals_step_protocol_state_dependent(method):
     sim = Simulator(model, DRIVE, LOAD, method, 1e-3, check_stability=False)
     _, states = sim.run(n * 1e-3, X0)
     bare = _manual_step_loop(make_integrator(method, model.A, model.B, 1e-3), Plant(model, DRIVE, LOAD).inputs, X0, n)
-    assert np.max(np.abs(states - bare) / np.max(np.abs(bare), axis=0)) < RTOL_VECTORIZED
-
-
-def test_propagate_linear_handles_remainder_and_empty():
-    model = FlexibleBeltModel(PARAMS)
-    step = make_integrator("rk4", model.A, model.B, 1e-3).linear_step()
-    rng = np.random.default_rng(0)
-    for n in (0, 1, 31, 32, 33, 100):
-        u = [rng.normal(size=(n, 2)) for _ in step.nodes]
-        out = propagate_linear(step, X0, u, chunk=32)
-        x = X0.copy()
-        expected = [x]
-        for j in range(n):
-            x = step.Phi @ x + sum(G @ uj[j] for G, uj in zip(step.gains, u))
-            expected.append(x)
-        np.testing.assert_allclose(out, np.array(expected), rtol=RTOL_VECTORIZED, atol=RTOL_VECTORIZED * np.max(np.abs(X0)))
+    assert np.max(np.abs(states - bare) / np.max(np.abs(bare), axis=0)) < RTOL_STEP_LOOP
 
 
 # ------------------------------------------------------------------ tableaus

@@ -61,7 +61,7 @@ def relative_error(states, reference) -> float:
 
 def run_error(method, drive, load, dt, duration=1.0):
     stepper = Stepper(Plant(MODEL, drive, load), method, dt)
-    times, states = stepper.run(X0, 0.0, duration, vectorize=False)
+    times, states = stepper.run(X0, 0.0, duration)
     return relative_error(states, closed_form(MODEL, drive, load, X0, times))
 
 
@@ -98,21 +98,17 @@ def test_a_breakpoint_a_few_ulps_from_the_grid_counts_as_on_it():
     for near in (math.nextafter(b, math.inf), math.nextafter(math.nextafter(b, -math.inf), -math.inf)):
         drive = S.Step(0.0, 8.0, near)
         stepper = Stepper(Plant(MODEL, drive, S.Constant(2.0)), "etd2", 2.0**-10)
-        times, states = stepper.run(X0, 0.0, 0.5, vectorize=False)
+        times, states = stepper.run(X0, 0.0, 0.5)
         assert stepper.split_steps == {}  # no sliver sub-step of an ulp
         assert relative_error(states, closed_form(MODEL, drive, S.Constant(2.0), X0, times)) <= ROUNDING
 
 
-def test_vectorized_path_takes_the_left_limit_at_on_grid_jumps():
+def test_run_takes_the_left_limit_at_on_grid_jumps_of_a_table():
     drive, load = S.Step(0.0, 8.0, 0.9), S.Table((0.0, 0.3, 0.6), (1.0, 3.0, -1.0), interpolation="previous")
-    for method in ("etd2", "etd4", "rk4"):
+    for method in ("etd2", "etd4"):
         stepper = Stepper(Plant(MODEL, drive, load), method, 6e-4)
-        times, vec = stepper.run(X0, 0.0, 1.2)
-        assert stepper.vectorized
-        _, loop = stepper.run(X0, 0.0, 1.2, vectorize=False)
-        assert relative_error(vec, loop) <= 1e-12
-        if method != "rk4":
-            assert relative_error(vec, closed_form(MODEL, drive, load, X0, times)) <= ROUNDING
+        times, states = stepper.run(X0, 0.0, 1.2)
+        assert relative_error(states, closed_form(MODEL, drive, load, X0, times)) <= ROUNDING
 
 
 def test_recorded_torque_with_a_sample_at_every_step_is_exact():
@@ -124,7 +120,7 @@ def test_recorded_torque_with_a_sample_at_every_step_is_exact():
     load = S.Constant(2.0)
     for method in ("exact", "etd2", "etd4"):
         stepper = Stepper(Plant(MODEL, drive, load), method, dt)
-        t, x = stepper.run(X0, 0.0, 0.5, vectorize=False)
+        t, x = stepper.run(X0, 0.0, 0.5)
         assert relative_error(x, closed_form(MODEL, drive, load, X0, t)) <= ROUNDING, method
 
 
@@ -138,13 +134,13 @@ def test_run_ends_at_duration_exactly():
     # a duration the step divides up to rounding: no sliver step at the end
     t2, _ = Simulator(MODEL, drive, load, "exact", 6e-4).run(0.9, X0)
     assert t2.size == 1501 and t2[-1] == 0.9
-    # the whole simulate() call, on the vectorized path too
+    # the whole simulate() call, an open-loop scene too
     result = simulate(load_scene("paper"), dt=11.9e-3, duration=0.5)
     assert result.time[-1] == 0.5
     on_grid = S.Step(0.0, 8.0, 0.21)  # 30 steps of 7 ms
     scene = load_scene("paper").with_overrides(drive=on_grid, load=load, model="flexible")
     open_loop = simulate(scene, method="etd2", dt=7e-3, duration=0.5)
-    assert open_loop.vectorized and open_loop.time[-1] == 0.5
+    assert open_loop.time[-1] == 0.5
 
 
 def test_advance_in_grid_ticks_is_bit_identical_to_one_run():
@@ -156,7 +152,7 @@ def test_advance_in_grid_ticks_is_bit_identical_to_one_run():
         dt = dt_ns / 1e9
         stepper = Stepper(Plant(model, drive, scene.load), method, dt)
         x0 = scene.initial_state.vector("flexible", scene.params.ratio)
-        times, states = stepper.run(x0, 0.0, 0.08, vectorize=False)
+        times, states = stepper.run(x0, 0.0, 0.08)
         x, ticks = x0, range(0, 80_000_001, tick_ns)
         every = tick_ns // dt_ns
         for j, (a, b) in enumerate(zip(ticks[:-1], ticks[1:])):
@@ -204,7 +200,7 @@ def test_divergence_raises_with_the_time():
         stepper.advance(X0, 0.0, 200.0)
     stepper.loop = None  # the numpy path checks too
     with pytest.raises(SimulationDivergedError):
-        stepper.run(X0, 0.0, 200.0, vectorize=False)
+        stepper.run(X0, 0.0, 200.0)
 
 
 def test_left_of_gives_the_left_limit():
@@ -243,7 +239,7 @@ def test_a_guard_stops_the_run_after_the_first_step_that_ends_past_it(compiled):
     if not compiled:
         free.loop = guarded.loop = None
     x0 = scene.initial_state.vector("flexible", p.ratio)
-    times, states = free.run(x0, 0.0, 2.0, vectorize=False)
+    times, states = free.run(x0, 0.0, 2.0)
     q = np.abs(states @ np.array(row))
     j = int(np.argmax(q[1:] > 60.0))  # first step (j -> j+1) that ends past the guard
     assert q[j + 1] > 60.0 and np.all(q[1 : j + 1] <= 60.0) and j > 10

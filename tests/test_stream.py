@@ -9,6 +9,7 @@ import pytest
 
 from belt_drive_ros.cli import main
 from belt_drive_ros.commands import sim as sim_command
+from belt_drive_ros.core import sources as S
 from belt_drive_ros.core import stream as stream_module
 from belt_drive_ros.core.scene import load_scene
 from belt_drive_ros.core.simulate import simulate
@@ -48,6 +49,19 @@ def test_windows_put_together_are_the_whole_run(name, model):
     assert summary.final["omega_M"] == outputs["omega_M"][-1]
     assert summary.peak_deflection == np.max(whole.outputs["relative_deflection"])
     assert summary.onsets == sum(1 for e in whole.events if e[0] == "onset")
+
+
+@pytest.mark.parametrize("model", ["flexible", "rigid"])
+@pytest.mark.parametrize("open_loop", [False, True], ids=["closed-loop", "open-loop"])
+def test_windowed_states_are_the_whole_runs_bit_for_bit(model, open_loop):
+    """One compiled loop on one grid: cutting the run into windows changes no float (time-only torques too)."""
+    scene = load_scene("paper").with_overrides(duration=1.0)
+    if open_loop:
+        scene = scene.with_overrides(drive=S.Step(0.0, 8.0, 0.25), load=S.Constant(2.0))
+    whole = simulate(scene, model=model)
+    windows = [w for w in stream(scene, model=model, window_steps=23) if not isinstance(w, Restart)]
+    assert len(windows) > 5
+    assert np.array_equal(np.concatenate([w.states for w in windows]), whole.states)
 
 
 def test_auto_restarts_on_the_slipping_model_when_the_limit_is_passed():
@@ -128,8 +142,8 @@ def test_memory_does_not_grow_with_the_duration(tmp_path, monkeypatch, ext):
     """A run 4x longer peaks at about the same memory: its peak grows by under 16 B per extra sample,
     where a run kept in memory needs ~300 B per sample.
 
-    Time-only torques keep the run on the vectorized path, so tracing every
-    allocation stays cheap; windows of 500 steps (and the auto choice's
+    Time-only torques (no Python callback per step) keep tracing every
+    allocation cheap; windows of 500 steps (and the auto choice's
     speed estimate in windows of 500) make both runs many windows. A first,
     untraced run loads what the process loads once (imports, compiled
     kernels, caches): otherwise the short run's peak would hold them and the

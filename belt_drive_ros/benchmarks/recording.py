@@ -192,7 +192,6 @@ def replay_through_model(bag, dt: Optional[float]) -> dict:
         "total": t2 - t0,
         "steps": result.time.size - 1,
         "simulated_s": float(result.time[-1]),
-        "vectorized": result.vectorized,
         "final_speed": float(result.outputs["omega_M"][-1]),
     }
 

@@ -37,7 +37,7 @@ def realtime_lines(out: Path) -> list[str]:
     for s in scenes:
         srows = {r["method"]: r for r in rows if r["scene"] == s}
         first = next(iter(srows.values()))
-        loop = "open loop (vectorized)" if first["open_loop"] == 1.0 else "closed loop"
+        loop = "open loop" if first["open_loop"] == 1.0 else "closed loop"
         cells = [s, f"{first['model']}, {loop}", f"{first['dt']:.3g}"]
         for m in methods:
             r = srows.get(m)

@@ -7,7 +7,7 @@ The flexible model of the ``paper`` parameters without bearing damping
 ``zeta = c omega_n / (2k)``, set through the span damping c) rings freely from
 a belt deflection of 1 mrad (zero torques, zero momentum). A run of
 :data:`PERIODS` belt periods with the package's own stepping code
-(``Simulator`` with ``vectorize=False``) is **diverged** when
+(``Simulator``, the compiled time loop) is **diverged** when
 
     max E over the last 10 % of the steps  >  FACTOR * max E over the first 10 %
 
@@ -137,7 +137,7 @@ def growth(params: BeltDriveParams, method: str, dt: float, periods: int = PERIO
     x0 = InitialState(relative_deflection=DEFLECTION).vector("flexible", params.ratio)
     try:
         with np.errstate(all="ignore"):
-            _, states = sim.run(n_steps * dt, x0, vectorize=False)
+            _, states = sim.run(n_steps * dt, x0)
     except SimulationDivergedError:
         return math.inf
     energy = model.total_energy(states)

@@ -366,7 +366,7 @@ def print_summary(summary) -> None:
     p = scene.params
     print(f"scene          {scene.name}: {scene.description}".rstrip())
     print(f"model          {summary.model}" + (f"  ({summary.choice.reason})" if summary.choice else ""))
-    print(f"integrator     {summary.method}, dt={summary.dt:g} s" + (" (vectorized open-loop path)" if summary.vectorized else ""))
+    print(f"integrator     {summary.method}, dt={summary.dt:g} s")
     if getattr(summary, "method_choice", None) is not None:
         print(f"method choice  {summary.method_choice.reason}")
     if summary.stability is not None:

@@ -184,7 +184,7 @@ class RigidSurvey:
             for e in sorted(ends):
                 if e <= t:
                     continue
-                time, states = stepper.run(x, t, e, vectorize=False)
+                time, states = stepper.run(x, t, e)
                 w = max(w, float(np.max(np.abs(states[:, 1]))))
                 peak = max(peak, float(np.max(np.abs(model.belt_torque(states, plant.input_array(time, states))))))
                 while pending and pending[0] <= e + snap_tolerance(e, rdt):

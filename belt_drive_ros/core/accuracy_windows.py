@@ -50,8 +50,8 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
         if t1 <= t0 + 0.5 * dt:
             continue
         try:
-            tc, xc = coarse.run(x, t0, t1, vectorize=False)
-            tf, xf = fine.run(x, t0, t1, vectorize=False)
+            tc, xc = coarse.run(x, t0, t1)
+            tf, xf = fine.run(x, t0, t1)
         except (SimulationDivergedError, IntegratorError):  # diverged, or an implicit stage did not converge
             return None
         idx = np.clip(np.searchsorted(tf, tc - 1e-9 * dt), 0, tf.size - 1)

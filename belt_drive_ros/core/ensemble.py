@@ -26,10 +26,7 @@ no Python per variant or per step, and no second implementation of a step.
 
 So ensemble and single runs agree bit for bit (tests/test_ensemble.py
 asserts <= 1e-12 relative on every shipped scene, every explicit method,
-states, inputs and every output). Not covered: the vectorized open-loop
-path of a single run (time-only torques,
-:func:`~belt_drive_ros.core.integrators.propagate_linear`), which sums in
-blocks; there the two agree to rounding.
+states, inputs and every output).
 
 Covered: the rigid and flexible models with any explicit fixed-step method
 (``exact``, ``etd2``, ``etd4``, ``lawson5``, ``euler``,

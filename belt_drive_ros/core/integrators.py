@@ -12,8 +12,7 @@ the scheme (:mod:`belt_drive_ros.core.stage_scheme`): :meth:`~FixedStepIntegrato
 on numpy arrays (the reference), the compiled time loop of every run
 (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`), the *linear one-step map*
 (:meth:`~FixedStepIntegrator.linear_step`; with a torque that depends on
-time only every method is exactly ``x_{n+1} = Phi x_n + sum_j G_j u(t_n + c_j h)``),
-which drives the vectorized open-loop propagation (:func:`propagate_linear`),
+time only every method is exactly ``x_{n+1} = Phi x_n + sum_j G_j u(t_n + c_j h)``)
 and the growth per step of each mode (:meth:`~FixedStepIntegrator.amplification`)
 that the stability guard reads.
 
@@ -41,7 +40,7 @@ from .stage_scheme import LinearStep, StageScheme
 __all__ = [
     "ADAPTIVE_METHODS", "ALIASES", "FIXED_STEP_METHODS", "REGISTRY", "FixedStepIntegrator", "Integrator",
     "LinearStep", "StageScheme", "describe_methods", "make_integrator", "method_class",
-    "propagate_linear", "register",
+    "register",
 ]  # fmt: skip
 
 Inputs = Callable[[float, np.ndarray], np.ndarray]
@@ -645,55 +644,3 @@ def make_integrator(name: str, A: np.ndarray, B: np.ndarray, dt: float, **option
             _FIXED.pop(next(iter(_FIXED)), None)
         hit = _FIXED[key] = cls(A, B, dt, **options)
     return hit
-
-
-# ------------------------------------------------ vectorized open-loop runs
-def propagate_linear(step: LinearStep, x0: np.ndarray, node_inputs: list[np.ndarray], chunk: int = 32) -> np.ndarray:
-    """All states of x_{n+1} = Phi x_n + sum_j G_j u_j[n], vectorized in chunks.
-
-    Parameters
-    ----------
-    step : LinearStep
-    x0 : (n,) initial state.
-    node_inputs : list of (N, m) arrays, ``u(t_n + c_j h)`` for each node j.
-    chunk : block length L; within a block the forced response is one
-        Toeplitz product, across blocks a short sequential recursion.
-
-    Returns
-    -------
-    (N + 1, n) array of states x_0 ... x_N.
-    """
-    Phi = step.Phi
-    n = Phi.shape[0]
-    v = sum(u @ G.T for u, G in zip(node_inputs, step.gains))  # (N, n) forcing per step
-    N = v.shape[0]
-    out = np.empty((N + 1, n))
-    out[0] = x0
-    if N == 0:
-        return out
-    L = min(chunk, N)
-    powers = np.empty((L + 1, n, n))
-    powers[0] = np.eye(n)
-    for k in range(1, L + 1):
-        powers[k] = Phi @ powers[k - 1]
-    # Toeplitz block T[k, j] = Phi^(k-j) for j <= k (forced response y_{k+1} = sum_j Phi^(k-j) v_j)
-    T = np.zeros((L, n, L, n))
-    for k in range(L):
-        for j in range(k + 1):
-            T[k, :, j, :] = powers[k - j]
-    T = T.reshape(L * n, L * n)
-    n_full = N // L
-    x = np.array(x0, dtype=float)
-    if n_full:
-        V = v[: n_full * L].reshape(n_full, L * n)
-        Y = (V @ T.T).reshape(n_full, L, n)  # forced responses of all blocks at once
-        starts = np.empty((n_full, n))
-        for c in range(n_full):  # sequential: only the block boundaries
-            starts[c] = x
-            x = powers[L] @ x + Y[c, -1]
-        free = np.einsum("kij,cj->cki", powers[1:], starts)
-        out[1 : n_full * L + 1] = (free + Y).reshape(n_full * L, n)
-    for idx in range(n_full * L, N):  # remainder
-        x = Phi @ x + v[idx]
-        out[idx + 1] = x
-    return out

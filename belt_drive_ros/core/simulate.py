@@ -3,13 +3,10 @@
 :class:`Simulator` holds a :class:`~belt_drive_ros.core.stepper.Plant` (model
 + drive + load) and a :class:`~belt_drive_ros.core.stepper.Stepper`, the one
 engine that advances time for every caller (this module, replay of recorded
-torques, the ROS node's tick). The stepper takes the vectorized path (one
-linear recurrence for the whole run, :func:`~belt_drive_ros.core.integrators.propagate_linear`)
-when both torques depend on time only and the method has a fixed step, and
-steps otherwise: fixed-step methods in the one compiled time loop
-(:func:`~belt_drive_ros.core.kernel.linear_steps`, numba, compiled once per
-installed version), adaptive ones through ``integrator.step``.
-All paths give the same states to rounding. :func:`simulate` runs a scene
+torques, the ROS node's tick). The stepper steps fixed-step methods in the
+one compiled time loop (:func:`~belt_drive_ros.core.kernel.linear_steps`,
+numba, compiled once per installed version), adaptive ones through
+``integrator.step``. :func:`simulate` runs a scene
 and computes every output and the energy terms.
 """
 
@@ -80,7 +77,6 @@ class SimResult:
     #: the accuracy guard's verdict on the closed loop (core/accuracy.py); None when not checked
     accuracy: AccuracyReport | None = None
     wall_time: float = 0.0
-    vectorized: bool = False
     energy: dict = field(default_factory=dict)
     #: slipping model: mode switches as (kind 'onset'/'restick', time [s], direction sigma)
     events: list = field(default_factory=list)
@@ -132,7 +128,6 @@ class Simulator:
         self.stepper = Stepper(self.plant, method, self.dt, self.method_options)
         self.integrator = self.stepper.integrator
         self.stability = require_stable(model.A, model.B, method, dt) if check_stability else None
-        self.vectorized = False
 
     @property
     def breakpoints(self) -> list:
@@ -154,7 +149,6 @@ class Simulator:
         x0: np.ndarray,
         t0: float = 0.0,
         progress: Callable[[float], None] | None = None,
-        vectorize: bool | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Integrate over ``duration`` [s]; return (time (N+1,), states (N+1, n)).
 
@@ -167,14 +161,9 @@ class Simulator:
         12.5 ms ``lawson5`` step with the soft start ending inside it makes
         the run 2000x less accurate (tests/test_breakpoints.py).
         ``split_steps`` lists the split steps after the run.
-
-        ``vectorize`` forces (True) or forbids (False) the open-loop path; by
-        default it is used whenever it applies.
         """
         self.stepper.origin = float(t0)
-        time, states = self.stepper.run(x0, float(t0), float(t0) + float(duration), progress, vectorize)
-        self.vectorized = self.stepper.vectorized
-        return time, states
+        return self.stepper.run(x0, float(t0), float(t0) + float(duration), progress)
 
 
 def simulate(
@@ -185,7 +174,6 @@ def simulate(
     duration: float | None = None,
     progress: Callable[[float], None] | None = None,
     check_stability: bool = True,
-    vectorize: bool | None = None,
 ) -> SimResult:
     """Run ``scene`` (overrides for model, method, dt, duration) and compute all outputs.
 
@@ -193,8 +181,8 @@ def simulate(
     (:func:`~belt_drive_ros.core.fidelity.choose_model`: rigid or flexible by
     the frequency rule, slipping when that run passes the capstan limit; a
     scene that stays within it returns that very run). When the rule picks
-    the flexible model and its run would be stepped (state-dependent
-    torques, a fixed-step method), the scene runs once, on the slipping
+    the flexible model with a fixed-step method (not a second-order-form
+    one), the scene runs once, on the slipping
     engine: its first phase *is* the flexible model's compiled loop with the
     capstan check after each step (:mod:`~belt_drive_ros.core.slip_run`), so
     a scene that never reaches the limit gets the flexible run bit for bit
@@ -215,7 +203,7 @@ def simulate(
     if checked is not None and (not checked.ok or method_choice.substeps != 1 or scene.method_options):
         checked = None
     try:
-        result = _simulate(scene, linear, progress, check_stability, vectorize, survey, checked)
+        result = _simulate(scene, linear, progress, check_stability, survey, checked)
     except UnstableStepError as exc:  # the stability guard's refusal names a step the accuracy guard accepts too
         raise good_step_error(scene, linear.model if linear is not None else scene.model, exc) from None
     if method_choice is None:
@@ -225,7 +213,7 @@ def simulate(
         # the slipping run's own estimate (events, error across slip phases) is only known after it: once more
         # at the step it names, the chosen method kept
         first = f"{method_choice.method} at dt={scene.dt:.3g} s rated {report.error:.2g} on the run itself"
-        result = _simulate(scene.with_overrides(dt=report.suggestion), linear, progress, check_stability, vectorize, None)
+        result = _simulate(scene.with_overrides(dt=report.suggestion), linear, progress, check_stability, None)
         n = max(1, round(method_choice.dt * method_choice.substeps / report.suggestion))
         method_choice = replace(method_choice, dt=report.suggestion, substeps=n,
                                 error=result.accuracy.error if result.accuracy else math.nan,
@@ -236,7 +224,7 @@ def simulate(
     return result
 
 
-def _simulate(scene: Scene, linear, progress, check_stability: bool, vectorize, survey=None, checked=None) -> SimResult:
+def _simulate(scene: Scene, linear, progress, check_stability: bool, survey=None, checked=None) -> SimResult:
     """:func:`simulate` of a scene with its method stated (``linear``: auto's frequency-rule choice, or None;
     ``survey``: the scene's :class:`~belt_drive_ros.core.fidelity.RigidSurvey` at its step, read by every guard;
     ``checked``: the accuracy guard's report on the rigid or flexible run already made by ``method: auto``)."""
@@ -244,13 +232,13 @@ def _simulate(scene: Scene, linear, progress, check_stability: bool, vectorize, 
     if scene.model != "auto":
         if scene.model == "slipping":
             return simulate_slipping(scene, None, progress, check_stability, survey=survey)
-        return _simulate_linear(scene, scene.model, progress, check_stability, vectorize, survey, checked)
-    if linear.model == "flexible" and _steps_flexible(scene, vectorize):
+        return _simulate_linear(scene, scene.model, progress, check_stability, survey, checked)
+    if linear.model == "flexible" and _steps_flexible(scene):
         return _simulate_auto_flexible(scene, linear, progress, check_stability, survey, checked)
     runs: dict = {}
 
     def linear_run(kind):  # the choice's check run is the result when the scene stays linear
-        runs[kind] = _simulate_linear(scene, kind, progress, check_stability, vectorize, survey, checked)
+        runs[kind] = _simulate_linear(scene, kind, progress, check_stability, survey, checked)
         return runs[kind].time, runs[kind].outputs
 
     choice = choose_model(scene, linear_run=linear_run, linear=linear)
@@ -263,12 +251,11 @@ def _simulate(scene: Scene, linear, progress, check_stability: bool, vectorize, 
     return result
 
 
-def _steps_flexible(scene: Scene, vectorize) -> bool:
-    """Whether a flexible run of ``scene`` goes through the stepper's loop (not the vectorized open-loop path)."""
+def _steps_flexible(scene: Scene) -> bool:
+    """Whether a flexible run of ``scene`` can run on the slipping engine (it refuses adaptive and
+    second-order-form methods)."""
     cls = method_class(scene.method)
-    if not cls.fixed_step or getattr(cls, "second_order_form", False) or vectorize:  # the slipping engine refuses those
-        return False
-    return vectorize is False or scene.drive.state_dependent or scene.load.state_dependent
+    return cls.fixed_step and not getattr(cls, "second_order_form", False)
 
 
 def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_stability: bool, survey,
@@ -295,7 +282,7 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
     wall = _time.perf_counter() - start
     if sum(len(t) for t, _ in kept) == len(time):  # the flexible model throughout: its run, bit for bit
         flex = np.concatenate([x for _, x in kept])
-        result = _linear_result(scene, sim.flexible, sim.plant, time, flex, sim.stability, accuracy, wall, False)
+        result = _linear_result(scene, sim.flexible, sim.plant, time, flex, sim.stability, accuracy, wall)
         ratio, t_peak = limit_exceedance(scene.params, time, result.outputs)
         result.choice = replace(linear, limit_ratio=ratio, limit_time=t_peak)
         return result
@@ -311,7 +298,7 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
     return _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy)
 
 
-def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, vectorize, survey=None,
+def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, survey=None,
                      checked=None) -> SimResult:  # fmt: skip
     """``scene`` on the rigid or flexible model ``kind``: states, outputs and energy terms."""
     mdl = survey.rigid if kind == "rigid" and survey is not None else make_model(kind, scene.params)
@@ -326,12 +313,12 @@ def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, v
         if check_stability else None
     )  # fmt: skip
     start = _time.perf_counter()
-    time, states = sim.run(scene.duration, x0, progress=progress, vectorize=vectorize)
+    time, states = sim.run(scene.duration, x0, progress=progress)
     wall = _time.perf_counter() - start
-    return _linear_result(scene, mdl, sim.plant, time, states, sim.stability, accuracy, wall, sim.vectorized)
+    return _linear_result(scene, mdl, sim.plant, time, states, sim.stability, accuracy, wall)
 
 
-def _linear_result(scene, mdl, plant, time, states, stability, accuracy, wall, vectorized) -> SimResult:
+def _linear_result(scene, mdl, plant, time, states, stability, accuracy, wall) -> SimResult:
     """The result of a rigid or flexible run: outputs and energy terms of its states on the grid ``time``."""
     u = plant.input_array(time, states)
     outputs = mdl.outputs(states, u)
@@ -357,7 +344,6 @@ def _linear_result(scene, mdl, plant, time, states, stability, accuracy, wall, v
         stability=stability,
         accuracy=accuracy,
         wall_time=wall,
-        vectorized=vectorized,
         energy=energy,
     )
 
@@ -422,6 +408,6 @@ def _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accu
     return SimResult(
         scene=scene, model="slipping", method=sim.integrator.name, dt=scene.dt, time=time, states=states,
         inputs=u, outputs=m.outputs(states, u, modes, sigmas), choice=choice, stability=sim.stability,
-        wall_time=wall, vectorized=False, energy=energy, events=[(e.kind, e.time, e.sigma) for e in sim.events],
+        wall_time=wall, energy=energy, events=[(e.kind, e.time, e.sigma) for e in sim.events],
         accuracy=accuracy,
     )

@@ -184,7 +184,6 @@ class SlippingSimulator:
         self.events: list = []
         self._event_rows = np.zeros((1024, 8))
         self._free_cache: dict = {}
-        self.vectorized = False
         self._window = WINDOW_FIRST
         #: a list to receive ``(times, xs)`` of the recorded pieces run on the flexible model itself (no slip
         #: so far), in its own coordinates: the states a flexible-model run gives, bit for bit (None: not kept)

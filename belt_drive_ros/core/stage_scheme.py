@@ -8,7 +8,7 @@ this module derives from it
 
 * :func:`step` -- one step on numpy arrays (the integrator protocol),
 * :func:`linear_step` -- the one-step map ``x+ = Phi x + sum_j G_j u(t + c_j h)``
-  for a torque of time only (vectorized open-loop runs, stability), and
+  for a torque of time only (the stability guard reads ``Phi``), and
 * the compiled time loop's matrices
   (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`, run by
   :func:`~belt_drive_ros.core.kernel.linear_steps`: the fast path).

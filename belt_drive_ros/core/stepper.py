@@ -19,7 +19,7 @@ API
     the plant (a profile whose value the node sets) where its compiled tick
     (:mod:`~belt_drive_ros.core.tick`: whole grid steps away from breakpoints)
     does not serve it.
-``stepper.run(x0, t0, t1, progress=None, vectorize=None) -> (times, states)``
+``stepper.run(x0, t0, t1, progress=None) -> (times, states)``
     The same advance, recording every knot: ``times`` (N+1,) [s] starts at
     ``t0`` and ends at ``t1`` exactly, ``states`` (N+1, n).
 
@@ -120,7 +120,6 @@ class Plant:
         self.model, self.drive, self.load = model, drive, load
         #: inputs after the two torques, functions of the drive speed (:class:`~belt_drive_ros.core.kernel_loop.FrictionForce`)
         self.extra = tuple(extra)
-        self.open_loop = not (drive.state_dependent or load.state_dependent or self.extra)
         self.scalar_drive = drive_torque = drive.scalar_torque()
         self.scalar_load = load_torque = load.scalar_torque()
         # a rigid or flexible model's wheel map is its C rows (built once, the same floats); another model's is read
@@ -291,7 +290,6 @@ class Stepper:
         the breakpoint-free interval it last fell in, keyed by the list).
     split_steps : ``{grid index k: [breakpoints inside step k]}`` of the last
         :meth:`run` or :meth:`advance`.
-    vectorized : whether the last :meth:`run` took the vectorized open-loop path.
     loop : the compiled float loop used for whole steps away from breakpoints
         (None: ``integrator.step``, numpy; a test may set it to compare the two).
     stopped : after a :meth:`run` that the guard stopped, ``(j, a, e, whole,
@@ -311,7 +309,6 @@ class Stepper:
         self.method_options = dict(method_options or {})
         model = plant.model
         self.integrator = integrator or make_integrator(method, model.A, model.B, self.dt, **self.method_options)
-        self.fixed_step = isinstance(self.integrator, FixedStepIntegrator)
         self.guard = guard
         self.loop = plant.kernel_loop(self.integrator, guard)
         self.breakpoints = plant.breakpoints
@@ -319,7 +316,6 @@ class Stepper:
         self.stopped: tuple | None = None
         self._stop_at: int | None = None
         self.split_steps: dict = {}
-        self.vectorized = False
         self._partials: dict = {}
         self._loops: dict = {}  # kernel loops of the partial-step integrators, by step length
         self._free: tuple | None = None  # the breakpoint-free interval the last tick fell in (_near_breakpoint)
@@ -343,51 +339,30 @@ class Stepper:
             raise self._diverged(t1, out)
         return out
 
-    def run(self, x0, t0: float, t1: float, progress: Callable[[float], None] | None = None, vectorize: bool | None = None):
-        """(times (N+1,), states (N+1, n)) at every knot from ``t0`` to ``t1`` [s] (both included).
-
-        ``vectorize`` forces (True) or forbids (False) the vectorized
-        open-loop path (time-only torques, a fixed-step method, no
-        breakpoint strictly inside a step); by default it is used whenever
-        it applies.
-        """
+    def run(self, x0, t0: float, t1: float, progress: Callable[[float], None] | None = None):
+        """(times (N+1,), states (N+1, n)) at every knot from ``t0`` to ``t1`` [s] (both included)."""
         x0 = np.asarray(x0, dtype=float)
         if t1 < t0:
             raise ValueError(f"run: t1 ({t1!r} s) is before t0 ({t0!r} s)")
         if self.plant.paged:
             page = self._paged(t0, t1)
             try:
-                return page.run(x0, t0, t1, progress, vectorize)
+                return page.run(x0, t0, t1, progress)
             finally:
-                self.vectorized, self.split_steps, self.stopped = page.vectorized, page.split_steps, page.stopped
+                self.split_steps, self.stopped = page.split_steps, page.stopped
         # whole grid steps away from breakpoints in the compiled loop: one call, no plan (the plan's steps, the
-        # same floats); not where the vectorized open-loop path would be taken
-        if self.loop is not None and progress is None and (
-            self.guard is not None or vectorize is False or not self.plant.open_loop
-        ):
+        # same floats)
+        if self.loop is not None and progress is None:
             k0, k1 = self._snap(t0), self._snap(t1)
             if k0 is not None and k1 is not None and k1 > k0 and not self._near_breakpoint(t0, t1, k0, k1):
                 return self._guarded_whole(x0, k0, k1, t0, t1)
-        # absorbed steps only where the vectorized open-loop path (which reads the clamps) is not taken
-        absorb = not (self.plant.open_loop and self.fixed_step and vectorize is not False and self.guard is None)
-        plan = self._plan(t0, t1, absorb=absorb)
+        plan = self._plan(t0, t1, absorb=True)
         times = self._knots(plan)
-        can_vectorize = (
-            self.plant.open_loop and self.fixed_step and not self.split_steps and not plan["lead"] and not plan["empty"]
-        )
-        if vectorize and not can_vectorize:
-            raise ValueError(
-                "vectorize=True needs time-only torques, a fixed-step method and no torque breakpoint inside a step"
-            )
-        self.vectorized = bool(can_vectorize and vectorize is not False and self.guard is None)
         self.stopped = None
-        if self.vectorized:
-            states = self._vectorized(x0, plan)
-        else:
-            states = self._march(x0, plan, progress, record=True)
-            if self.stopped is not None:
-                j = self.stopped[0]
-                times, states = times[: j + 2], states[: j + 2]
+        states = self._march(x0, plan, progress, record=True)
+        if self.stopped is not None:
+            j = self.stopped[0]
+            times, states = times[: j + 2], states[: j + 2]
         clean, self._clean = self._clean, False  # the grouped march's kernel checked every step and none failed
         if not (clean and _healthy(states[-1])):
             bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, states.shape[1] // 2 :]) > SPEED_LIMIT, axis=1)
@@ -425,7 +400,7 @@ class Stepper:
 
     def _guarded_whole(self, x0: np.ndarray, k0: int, k1: int, t0: float, t1: float):
         """:meth:`run` of whole grid steps k0 .. k1 away from breakpoints (one loop call; with the guard if any)."""
-        self.split_steps, self.vectorized, self.stopped = {}, False, None
+        self.split_steps, self.stopped = {}, None
         states = np.empty((k1 - k0 + 1, x0.size))
         states[0] = x0
         grid = self._grid(k0, k1 + 1)
@@ -799,35 +774,6 @@ class Stepper:
                     out[j + 1 :] = np.nan
                 return x
         return x
-
-    def _vectorized(self, x0: np.ndarray, plan: dict) -> np.ndarray:
-        """Open-loop run: one linear recurrence for the whole steps, samples clamped at breakpoints."""
-        from .integrators import propagate_linear
-
-        first, last, special = plan["first"], plan["last"], plan["special"]
-        n_whole = last - first + (0 if plan["trail"] else 1)
-        step = self.integrator.linear_step()
-        t = self.origin + self.dt * np.arange(first, first + n_whole)
-        lo = np.full(n_whole, -np.inf)
-        hi = np.full(n_whole, np.inf)
-        for c, (l, h, _) in special.items():
-            if c - first < n_whole:
-                lo[c - first], hi[c - first] = l, h
-        zeros = np.zeros_like(t)
-        drive, load = self.plant.drive, self.plant.load
-        node_inputs = []
-        for c in step.nodes:
-            ts = np.clip(t + c * self.dt, lo, hi)
-            node_inputs.append(
-                np.column_stack([np.broadcast_to(drive.torque(ts, zeros, zeros), t.shape), np.broadcast_to(load.torque(ts, zeros, zeros), t.shape)])
-            )
-        with np.errstate(all="ignore"):  # a diverging run is reported by the caller
-            states = propagate_linear(step, x0, node_inputs)
-        if plan["trail"]:
-            a, e, whole = self._step_ends(plan, last)
-            lo_t, hi_t, cuts = special.get(last, (-math.inf, math.inf, ()))
-            states = np.vstack([states, self._special_step(states[-1], a, e, whole, lo_t, hi_t, cuts)])
-        return states
 
     def diverged_error(self, t: float, x: np.ndarray) -> SimulationDivergedError:
         """The error a run raises when state ``x`` at ``t`` [s] is non-finite or too fast (one message for every caller)."""

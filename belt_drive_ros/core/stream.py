@@ -6,8 +6,8 @@ inputs, ~20 outputs and 4 energy terms: about 300 bytes each, so a day of
 consecutive :class:`~belt_drive_ros.core.simulate.SimResult` windows of
 ``window_steps`` grid steps: the first starts with the sample at t = 0,
 each later one with the sample after the previous window's last, so the
-windows put together are :func:`simulate`'s arrays (to rounding: the
-vectorized path restarts its recurrence per window). The energy terms run
+windows' states put together are :func:`simulate`'s bit for bit (the energy
+terms to rounding: their quadrature sums per window). The energy terms run
 on from window to window (trapezoidal quadrature across the seam).
 
 Consumers write each window out (CSV, MCAP) and keep a :class:`RunSummary`.
@@ -153,7 +153,7 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps) -> Ite
         yield SimResult(
             scene=scene, model=kind, method=sim.integrator.name, dt=scene.dt, time=time, states=states, inputs=u,
             outputs=mdl.outputs(states, u), choice=choice, stability=sim.stability, accuracy=accuracy,
-            wall_time=wall, vectorized=stepper.vectorized,
+            wall_time=wall,
             energy={
                 "kinetic": mdl.kinetic_energy(states), "potential": mdl.potential_energy(states),
                 "input_work": energy_in[keep], "dissipated": energy_d[keep],
@@ -201,7 +201,7 @@ def _slipping(scene, choice, progress, check_stability, window_steps) -> Iterato
         yield SimResult(
             scene=scene, model="slipping", method=sim.integrator.name, dt=scene.dt, time=time, states=states,
             inputs=u, outputs=m.outputs(states, u, modes, sigmas), choice=choice, stability=sim.stability,
-            wall_time=wall, vectorized=False, energy=energy, events=window_events, accuracy=accuracy,
+            wall_time=wall, energy=energy, events=window_events, accuracy=accuracy,
         )
         start = _time.perf_counter()
 
@@ -231,7 +231,6 @@ class RunSummary:
     method_choice: object = None
     stability: object = None
     accuracy: object = None
-    vectorized: bool = False
     wall_time: float = 0.0
     t_start: float = math.nan
     t_end: float = math.nan
@@ -247,7 +246,7 @@ class RunSummary:
         if not self.samples:
             self.scene, self.t_start = window.scene, float(window.time[0])
         self.model, self.method, self.dt = window.model, window.method, window.dt
-        self.choice, self.stability, self.vectorized = window.choice, window.stability, window.vectorized
+        self.choice, self.stability = window.choice, window.stability
         self.accuracy = getattr(window, "accuracy", None)
         self.method_choice = getattr(window, "method_choice", None)
         self.wall_time += window.wall_time

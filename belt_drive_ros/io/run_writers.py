@@ -155,6 +155,6 @@ class Decimator:
             time=cat([p[0] for p in self.parts]), states=cat([p[1] for p in self.parts]),
             inputs=cat([p[2] for p in self.parts]),
             outputs={k: cat([p[3][k] for p in self.parts]) for k in self.parts[0][3]},
-            choice=w.choice, stability=w.stability, vectorized=w.vectorized,
+            choice=w.choice, stability=w.stability,
             energy={k: cat([p[4][k] for p in self.parts]) for k in self.parts[0][4]},
         )
