@@ -46,3 +46,56 @@ def test_entries_under_numba_cache_dir_are_handled(tmp_path, monkeypatch):
     assert not (mirrored / "slip_kernel.run-5.py312.nbi").exists()
     assert (mirrored / jit_cache.STAMP).read_text() == jit_cache.fingerprint()
     assert (core / "__pycache__" / jit_cache.STAMP).exists()
+
+
+#: the modules of compiled kernels (every @njit function of the package is in one of them)
+KERNEL_MODULES = ("kernel", "kernel_slip", "kernel_variants", "tick", "network.slip_kernel", "network.tick")
+
+
+def _literal_arguments(module_name: str) -> list[str]:
+    """Calls from one compiled function to another, not inlined one, that pass an int or bool constant
+    (a literal, or a module constant such as ``STICK``): numba types such an argument as ``Literal[int](0)``
+    and compiles the callee once more for it, beside the signature Python's calls compile."""
+    import ast
+    import importlib
+    import inspect
+
+    from numba.core.registry import CPUDispatcher
+
+    module = importlib.import_module(f"belt_drive_ros.core.{module_name}")
+
+    def dispatcher(name):
+        obj = getattr(module, name, None)
+        return obj if isinstance(obj, CPUDispatcher) else None
+
+    def constant(node, local):
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
+            node = node.operand
+        if isinstance(node, ast.Constant):
+            return isinstance(node.value, (bool, int))
+        if isinstance(node, ast.Name) and node.id not in local:
+            return isinstance(getattr(module, node.id, None), (bool, int))
+        return False
+
+    found = []
+    for fn in ast.parse(inspect.getsource(module)).body:
+        if not isinstance(fn, ast.FunctionDef) or dispatcher(fn.name) is None:
+            continue
+        local = {a.arg for a in fn.args.args} | {n.id for n in ast.walk(fn) if isinstance(n, ast.Name)
+                                                  and isinstance(n.ctx, ast.Store)}
+        for call in (n for n in ast.walk(fn) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)):
+            callee = dispatcher(call.func.id)
+            if callee is None or callee.targetoptions.get("inline", "never") == "always":
+                continue
+            for k, arg in enumerate(call.args):
+                if constant(arg, local):
+                    found.append(f"{module_name}.py:{call.lineno} {fn.name} -> {call.func.id} argument {k}")
+    return found
+
+
+def test_compiled_calls_pass_no_literal_numbers_to_other_kernels():
+    """A compiled caller passing ``0`` where Python's calls pass an int64 made ``make install`` compile the
+    whole slipping hybrid loop and its event step twice (and a tick helper four times), and the cache
+    hold both: each kernel is compiled once, with the one signature runs use."""
+    found = [f for name in KERNEL_MODULES for f in _literal_arguments(name)]
+    assert not found, "\n".join(found)

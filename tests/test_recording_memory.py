@@ -5,8 +5,8 @@ The MCAP writer keeps one chunk index per chunk until the file is finished
 of log time, so an unsplit recording grows by ~1 KiB per second. Measured
 with tracemalloc on the writer the node uses
 (:func:`belt_drive_ros.ros.recorder.open_writer`), at 1 kHz on two topics
-over a minute of log time: the growth between the first and the second
-half minute with a split every 5 s is a small fraction of the unsplit growth,
+over 30 s of log time: the growth between the first and the second
+15 s with a split every 5 s is a small fraction of the unsplit growth,
 and it reads back whole. A finished split file gives malloc's freed pages back
 (``release_free_heap``, glibc ``malloc_trim``), once per file, never fatally.
 """
@@ -35,14 +35,17 @@ def _write(writer, start_tick: int, ticks: int) -> None:
             writer.write_raw(topic, "std_msgs/msg/Float64", data, t)
 
 
+HALF = 15_000  # ticks (15 s of log time) before and while the growth is measured
+
+
 def _growth(path, **split) -> int:
-    """Traced bytes added by the second half minute of log time (after the first)."""
+    """Traced bytes added by the second 15 s of log time (after the first)."""
     writer = open_writer(path, **split)
     tracemalloc.start()
     try:
-        _write(writer, 0, 30_000)
+        _write(writer, 0, HALF)
         first = tracemalloc.get_traced_memory()[0]
-        _write(writer, 30_000, 30_000)
+        _write(writer, HALF, HALF)
         second = tracemalloc.get_traced_memory()[0]
     finally:
         tracemalloc.stop()
@@ -53,14 +56,14 @@ def _growth(path, **split) -> int:
 def test_split_recording_memory_stays_flat_where_one_file_grows(tmp_path):
     whole = _growth(tmp_path / "one.mcap")
     split = _growth(tmp_path / "split", max_bag_duration=5.0)
-    assert whole > 120 * 200  # 120 chunk indexes in 30 s, a few hundred bytes each
+    assert whole > 60 * 200  # 60 chunk indexes in 15 s, a few hundred bytes each
     assert split < whole / 4, (split, whole)
-    print(f"growth over 30 s of log time: one file {whole} B, split every 5 s {split} B")
+    print(f"growth over 15 s of log time: one file {whole} B, split every 5 s {split} B")
     files = sorted(p.name for p in (tmp_path / "split").iterdir())
-    assert len(files) == 13 and "metadata.yaml" in files  # 12 files of 5 s
+    assert len(files) == 7 and "metadata.yaml" in files  # 6 files of 5 s
     for path in (tmp_path / "one.mcap", tmp_path / "split"):
         data = read_topic(path, "/c").data
-        np.testing.assert_array_equal(data, np.arange(60_000, dtype=float))
+        np.testing.assert_array_equal(data, np.arange(2 * HALF, dtype=float))
 
 
 def _recorder_growth(tmp_path, ros_domain_id, ticks: int, **split) -> tuple[int, int]:
@@ -112,13 +115,13 @@ def _recorder_growth(tmp_path, ros_domain_id, ticks: int, **split) -> tuple[int,
 @pytest.mark.ros
 def test_recorder_python_memory_does_not_grow_per_tick(tmp_path, ros_domain_id):
     """The node's recorder (record_tick and record_input, 7 messages a tick) keeps nothing per tick:
-    over 20,000 ticks after 20,000 of warm-up, split every 2 s, the traced memory grows by less
+    over 10,000 ticks after 10,000 of warm-up, split every 2 s, the traced memory grows by less
     than 2 bytes per tick, where one list entry kept per tick would be 8 and one object ~50. What
     does grow is per finished file (its entry for metadata.yaml, a few hundred bytes: ~60 an hour
     with the node's 60 s splits) and one-time caches; the open file's chunk indexes are measured
     at the same phase (right after a flush, at the same offset into a 2 s file) both times.
     Unsplit, the growth is the chunk indexes the file keeps for its summary (~ticks/250 of them)."""
-    ticks = 20_000
+    ticks = 10_000
     split, files = _recorder_growth(tmp_path, ros_domain_id, ticks, max_bag_duration=2.0)
     assert files == 2 * ticks // 2000  # 40 s of log time in 2 s files
     assert split < 2 * ticks, f"recorder grew {split} B over {ticks} ticks ({split / ticks:.2f} B/tick)"

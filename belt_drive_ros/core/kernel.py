@@ -176,7 +176,7 @@ def torque(kind, params, row, tx, ty, t, angle, speed):
             base = 0.0 if b < 0.0 else params[row, 4] if b > params[row, 4] else b
         else:
             base = params[row, 4]
-        value, _ = _harmonics(base, True, ty, int(params[row, 9]), int(params[row, 10]), params[row, 5] * (params[row, 6] * angle) + params[row, 7])
+        value, _ = _harmonics(base, np.bool_(True), ty, int(params[row, 9]), int(params[row, 10]), params[row, 5] * (params[row, 6] * angle) + params[row, 7])
         return _fade(value, t, params[row, 8]) if params[row, 8] > 0.0 else value
     if kind == MOTOR_LINE:  # stall (1 - speed / no_load)
         value = params[row, 0] * (1.0 - speed / params[row, 1])

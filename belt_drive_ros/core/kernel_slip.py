@@ -318,7 +318,7 @@ def _stick_keeps(t, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly):
         return True
     sig = math.copysign(1.0, Q)
     u = np.zeros(3)
-    _inputs(STICK, 0.0, t, y, math.inf, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u)
+    _inputs(np.int64(STICK), 0.0, t, y, math.inf, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u)  # int64, as every call
     dyv = np.zeros(5)
     scale_v = np.zeros(5)
     for r in range(5):

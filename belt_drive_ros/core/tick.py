@@ -135,10 +135,12 @@ def linear_tick(k0, steps, x, out, lo, hi, drive, stamp, reals, ints, dp, lp, ro
     nd = dp.shape[0]
     dk, lk = ints[k + s : k + s + nd], ints[k + s + nd :]
     t1 = times[steps]
-    angle_M = _coordinate(rows, 0, n, xe) if ints[7] else 0.0
-    angle_3 = _coordinate(rows, 2, n, xe) if ints[8] else 0.0
-    u0 = profile_torque(dk, dp, reals[at[7] : at[8]], reals[at[8] : at[9]], t1, angle_M, _coordinate(rows, 1, n, xe))
-    u1 = profile_torque(lk, lp, reals[at[9] : at[10]], reals[at[10] : at[11]], t1, angle_3, _coordinate(rows, 3, n, xe))
+    # the coordinates' numbers as int64, not literals: a literal argument compiles a specialisation of its own
+    q0, q1, q2, q3 = np.int64(0), np.int64(1), np.int64(2), np.int64(3)
+    angle_M = _coordinate(rows, q0, n, xe) if ints[7] else 0.0
+    angle_3 = _coordinate(rows, q2, n, xe) if ints[8] else 0.0
+    u0 = profile_torque(dk, dp, reals[at[7] : at[8]], reals[at[8] : at[9]], t1, angle_M, _coordinate(rows, q1, n, xe))
+    u1 = profile_torque(lk, lp, reals[at[9] : at[10]], reals[at[10] : at[11]], t1, angle_3, _coordinate(rows, q3, n, xe))
     c0 = 4 * n
     for j in range(12):  # the LINEAR_OUTPUTS
         a = xe[0] * rows[c0 + j * n]
@@ -279,9 +281,12 @@ def slip_tick(k0, grid, knots, lo, hi, special, kind, xs, sigma5, x, dt, limit, 
     for j in range(grid.size):  # the grid times origin + dt k of Stepper._grid; the knots are them
         grid[j] = consts[16] + dt * float(k0 + j)
         knots[j] = grid[j]
-    k1, status, kind, sigma, n_ev = hybrid_steps(grid, knots, lo, hi, special, 0, kind, x, dt, limit, out_y, out_mode,
+    # k0 and n0 as int64 (the signature Python's calls compile), not literal zeros: a literal would compile the
+    # whole hybrid loop (and its event step) a second time
+    zero = np.int64(0)
+    k1, status, kind, sigma, n_ev = hybrid_steps(grid, knots, lo, hi, special, zero, kind, x, dt, limit, out_y, out_mode,
                                                  out_sigma, out_native, reals, ints, offsets, have, Yflex, Minv, Z, R, c,
-                                                 mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly, events, 0)  # fmt: skip
+                                                 mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly, events, zero)  # fmt: skip
     if status != 0:
         return k1, status, kind, sigma, n_ev
     if drive == drive and n_ev == 0:

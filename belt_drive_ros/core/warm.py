@@ -5,15 +5,25 @@ every kernel's argument types are fixed (float64/int64 C arrays and floats),
 so one short call per kernel covers every scene. Kept apart from the kernels'
 own modules so that no kernel module imports the simulators above it.
 
-The kernels fall in two groups of about equal compile time: the single
-belt's linear loop, slipping hybrid and node tick, and the belt network's
-loops, node tick and the variant loop. With ``jobs=2`` the second group
-compiles in a second process while this one compiles the first: on two
-cores the build takes about the longer group's time instead of the sum. The
-second group compiles the networks first; by the time it reaches the
-variant loop the first group has usually cached the linear loop it calls,
-and it loads it instead of compiling it again (a function both compile is
-written whole by each, with the same one signature, so that is safe).
+Which kernel calls which (a caller's compilation needs its callees' machine
+code: from the disk cache where another process has written it, else it
+compiles them itself, a second time)::
+
+    wheel_steps <- _steps <- linear_steps <- hybrid loop <- node's slipping tick
+                |        <- variant loop    <- node's linear tick
+                <- network node tick (and the network's linear tiers, called from Python)
+    network slipping tier: calls none of them
+
+With ``jobs=2`` the work runs in two processes along that graph, and no
+kernel is compiled by both: this one compiles ``wheel_steps`` (through a
+short network run), then ``_steps`` and ``linear_steps``, then the slipping
+hybrid loop and the node ticks; the second process starts with the network
+slipping tier (which needs nothing) and takes each kernel that calls the
+linear loop only once this process has written the callee to the cache
+(told through its stdin): the network node tick after ``wheel_steps``, the
+variant loop after ``linear_steps``. On two cores the build takes about the
+longer chain's time instead of the sum, without the duplicate compilations
+of the loop both chains start with.
 """
 
 from __future__ import annotations
@@ -21,48 +31,65 @@ from __future__ import annotations
 import subprocess
 import sys
 
+#: the milestones this process tells the second one, in order (a line each on its stdin)
+WHEEL, LINEAR = "wheel_steps", "linear_steps"
+
 
 def warm(jobs: int = 1) -> None:
-    """Warm every kernel: the first group here, the second (networks, variants) here too (``jobs=1``) or
-    in a second process at the same time (``jobs=2``); a failed second process raises ``RuntimeError``."""
+    """Warm every kernel: all here (``jobs=1``), or split with a second process as the module docstring
+    says (``jobs=2``); a failed second process raises ``RuntimeError``."""
     from . import jit_cache
 
     jit_cache.refresh()  # once, before either process loads a kernel
-    child = None
-    if jobs > 1:
-        code = "from belt_drive_ros.core.warm import warm_second; warm_second()"
-        child = subprocess.Popen([sys.executable, "-c", code])
-    warm_single()
-    if child is None:
+    if jobs <= 1:
+        warm_single()
         warm_second()
-    elif child.wait() != 0:
+        return
+    code = "from belt_drive_ros.core.warm import warm_second; warm_second(wait=True)"
+    child = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, text=True)
+    try:
+        warm_single(tell=child.stdin)
+    finally:
+        child.stdin.close()  # a milestone never told: the second process stops (it compiles nothing twice)
+    if child.wait() != 0:
         raise RuntimeError(f"warming the network and variant kernels failed (exit {child.returncode})")
 
 
-def warm_single() -> None:
-    """The profile dispatcher, the linear loop, the slipping hybrid loop and the node's compiled tick
-    (linear and slipping)."""
+def warm_single(tell=None) -> None:
+    """The linear loop (``wheel_steps`` through a short network run, then the profile dispatcher,
+    ``_steps`` and ``linear_steps``), the slipping hybrid loop and the node's compiled ticks; each
+    milestone of :data:`WHEEL`, :data:`LINEAR` is written to ``tell`` (a text stream) once cached."""
     from . import kernel_loop, slip_run, tick
+    from .network import simulate as network_simulate
 
+    network_simulate.warm()  # calls wheel_steps from Python: its one signature, written to the cache
+    _tell(tell, WHEEL)
     kernel_loop.warm()
+    _tell(tell, LINEAR)
     slip_run.warm_hybrid()
     tick.warm()
 
 
-def warm_network() -> None:
-    """Both belt-network loops (flexible/rigid and slipping) and the network node's compiled tick."""
-    from .network import simulate as network_simulate
+def warm_second(wait: bool = False) -> None:
+    """The network slipping tier, the network node's tick and the variant loop; with ``wait`` each of
+    the last two only after its milestone line has been read from stdin (:func:`warm`)."""
+    from . import kernel_loop
     from .network import slip as network_slip
     from .network import tick as network_tick
 
-    network_simulate.warm()
     network_slip.warm()
+    _wait(wait, WHEEL)
     network_tick.warm()
-
-
-def warm_second() -> None:
-    """The network group, then the variant loop (see the module docstring)."""
-    from . import kernel_loop
-
-    warm_network()
+    _wait(wait, LINEAR)
     kernel_loop.warm_variants()
+
+
+def _tell(stream, milestone: str) -> None:
+    if stream is not None:
+        stream.write(milestone + "\n")
+        stream.flush()
+
+
+def _wait(wait: bool, milestone: str) -> None:
+    if wait and sys.stdin.readline().strip() != milestone:
+        raise SystemExit(f"warm: the first process stopped before {milestone} was cached")

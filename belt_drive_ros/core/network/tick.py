@@ -55,30 +55,30 @@ _KINDS, _USES_ANGLE, _START, _PK, _JKIND, _HELD, _USES, _ROW, _QK, _ISCALARS = r
 _TABLE = 4 * (len(FLOATS) + len(INTS))  # ints starts with (offset, d0, d1, d2) of every section
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
 def _at(ints, j):
     return ints[4 * j], ints[4 * j + 1], ints[4 * j + 2], ints[4 * j + 3]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
 def _f1(reals, ints, j):
     a, d0, _, _ = _at(ints, j)
     return reals[a : a + d0]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
 def _f2(reals, ints, j):
     a, d0, d1, _ = _at(ints, j)
     return reals[a : a + d0 * d1].reshape((d0, d1))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
 def _f3(reals, ints, j):
     a, d0, d1, d2 = _at(ints, j)
     return reals[a : a + d0 * d1 * d2].reshape((d0, d1, d2))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
 def _i1(ints, j):
     a, d0, _, _ = _at(ints, j)
     return ints[a : a + d0]
