@@ -47,7 +47,7 @@ from numba import njit
 from numba.core.errors import NumbaPerformanceWarning
 
 from .kernel import HEADER, SECTIONS, _steps, profile_torque, torque
-from .profile_data import DIVERGED, OK
+from .profile_data import CONSTANT, DIVERGED, MOTOR_LINE, OK, POLYNOMIAL, RAMP, STEP
 
 #: variants stepped together by :func:`_lanes` (their matrices, ~4 kB each for lawson5, stay in the cache)
 LANES = 32
@@ -119,21 +119,21 @@ def _lane_torques(kinds, params, tx, ty, t, angle, speed, out, L):
     (tables, sines, schedules) call the dispatcher lane by lane.
     """
     kind = kinds[0]
-    if kind == 0:
+    if kind == CONSTANT:
         for q in range(L):
-            out[q] = torque(0, params, 0, tx, ty, t, angle[q], speed[q])
-    elif kind == 1:
+            out[q] = torque(CONSTANT, params, 0, tx, ty, t, angle[q], speed[q])
+    elif kind == STEP:
         for q in range(L):
-            out[q] = torque(1, params, 0, tx, ty, t, angle[q], speed[q])
-    elif kind == 2:
+            out[q] = torque(STEP, params, 0, tx, ty, t, angle[q], speed[q])
+    elif kind == RAMP:
         for q in range(L):
-            out[q] = torque(2, params, 0, tx, ty, t, angle[q], speed[q])
-    elif kind == 8:
+            out[q] = torque(RAMP, params, 0, tx, ty, t, angle[q], speed[q])
+    elif kind == MOTOR_LINE:
         for q in range(L):
-            out[q] = torque(8, params, 0, tx, ty, t, angle[q], speed[q])
-    elif kind == 10:
+            out[q] = torque(MOTOR_LINE, params, 0, tx, ty, t, angle[q], speed[q])
+    elif kind == POLYNOMIAL:
         for q in range(L):
-            out[q] = torque(10, params, 0, tx, ty, t, angle[q], speed[q])
+            out[q] = torque(POLYNOMIAL, params, 0, tx, ty, t, angle[q], speed[q])
     else:
         for q in range(L):
             out[q] = profile_torque(kinds, params, tx, ty, t, angle[q], speed[q])
