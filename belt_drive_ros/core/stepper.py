@@ -707,16 +707,18 @@ class Stepper:
         states[0] = x
         grid = self._grid(first, last + 2)
         half = 0.5 * self.dt
+        # the cells that end a group: one whose hi is finite, or the one before a cell whose lo is (sorted)
+        ends = sorted({c for c, e in special.items() if e[1] != math.inf}
+                      | {c - 1 for c, e in special.items() if e[0] != -math.inf}) + [last]  # fmt: skip
+        ei = 0
         c = first
         with np.errstate(all="ignore"):
             while c <= last:
                 lo = special[c][0] if c in special else -math.inf
-                d = c  # the group's last cell: up to one whose hi is finite, or before one whose lo is
-                while True:
-                    hi = special[d][1] if d in special else math.inf
-                    if hi != math.inf or d == last or (d + 1 in special and special[d + 1][0] != -math.inf):
-                        break
-                    d += 1
+                while ends[ei] < c:
+                    ei += 1
+                d = min(ends[ei], last)  # the group's last cell
+                hi = special[d][1] if d in special else math.inf
                 if (lo != -math.inf and lo > grid[c - first] + half) or (hi != math.inf and hi < grid[d - first] + half):
                     lo, hi, d = (*special.get(c, (-math.inf, math.inf))[:2], c)  # a bound far inside: this step alone
                 done, status, t = self.loop(grid[c - first : d - first + 2], np.ascontiguousarray(x, dtype=np.float64),
