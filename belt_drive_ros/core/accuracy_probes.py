@@ -18,7 +18,7 @@ from . import stage_scheme as _scheme
 from .errors import IntegratorError
 from .forced_response import ORBIT_SAMPLES, orbit_error, profile_harmonics
 from .model import LINEAR_OUTPUTS, RigidBeltModel, make_model
-from .stepper import Stepper, shared_plant, snap_tolerance
+from .stepper import shared_plant, shared_stepper, snap_tolerance
 
 #: default relative tolerance of the guard (speed and belt torque, relative to peak)
 ACCURACY_TOLERANCE = 1e-4
@@ -171,7 +171,7 @@ class RigidSurvey:
         self.error, self._speeds = None, None
         w, peak = abs(self.motion[1]), 0.0
         try:
-            stepper = Stepper(plant, "exact", rdt)
+            stepper = shared_stepper(plant, "exact", rdt)
 
             def on_grid(t):
                 return abs(stepper.grid_time(round(t / rdt)) - t) <= snap_tolerance(t, rdt)

@@ -225,6 +225,28 @@ def shared_plant(model, drive, load) -> Plant:
     return plant
 
 
+#: steppers of a shared plant (:func:`shared_stepper`), by (plant, method, dt, options)
+_STEPPERS: dict = {}
+
+
+def shared_stepper(plant, method: str, dt: float, method_options=None) -> "Stepper":
+    """``Stepper(plant, method, dt, method_options)`` (origin 0, no guard), built once per plant of
+    :func:`shared_plant` and method, step and options: what the guards' runs (the rigid survey, the forcing
+    windows) step with. Read-only to them: they never set its origin or breakpoints, and every run starts
+    from the state it is given (a run's outcome does not depend on the runs before it)."""
+    options = dict(method_options or {})
+    key = (id(plant), method, float(dt), repr(sorted(options.items())))
+    hit = _STEPPERS.get(key)
+    if hit is not None and hit[0] is plant:
+        return hit[1]
+    stepper = Stepper(plant, method, dt, options)
+    if any(entry[3] is plant for entry in _PLANTS.values()):  # (a plant made once for one caller: not kept)
+        if len(_STEPPERS) >= 4 * _PLANT_CACHE_SIZE:
+            _STEPPERS.pop(next(iter(_STEPPERS)))
+        _STEPPERS[key] = (plant, stepper)
+    return stepper
+
+
 def _merged(drive, load) -> np.ndarray:
     """Sorted distinct finite times [s] of two profiles' breakpoints (float64)."""
     both = np.concatenate([np.asarray(drive, dtype=np.float64).ravel(), np.asarray(load, dtype=np.float64).ravel()])
