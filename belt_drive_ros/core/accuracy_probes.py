@@ -188,7 +188,7 @@ class RigidSurvey:
                 w = max(w, float(np.max(np.abs(states[:, 1]))))
                 peak = max(peak, float(np.max(np.abs(model.belt_torque(states, plant.input_array(time, states))))))
                 while pending and pending[0] <= e + snap_tolerance(e, rdt):
-                    k = int(np.argmin(np.abs(time - pending[0])))
+                    k = _nearest(time, pending[0])
                     self.states[pending.pop(0)] = (float(states[k, 0]), float(states[k, 1]))
                 x, t = states[-1], e
             if self.duration <= 0:
@@ -213,6 +213,16 @@ class RigidSurvey:
         if self.error is not None:
             return np.array([0.0]), [], {}, {0.0: self.motion}
         return self.t_probe, self.plain, self.early, self.states
+
+
+def _nearest(time: np.ndarray, t: float) -> int:
+    """Index of the sample of the sorted ``time`` nearest ``t`` (the first of two as near: ``argmin |time - t|``)."""
+    j = int(time.searchsorted(t))
+    if j >= time.size:
+        return time.size - 1
+    if j > 0 and abs(float(time[j - 1]) - t) <= abs(float(time[j]) - t):
+        return j - 1
+    return j
 
 
 def speed_slopes(plant, times, speeds_M) -> list[np.ndarray]:
