@@ -238,10 +238,10 @@ def speed_slopes(plant, times, speeds_M) -> list[np.ndarray]:
     slopes = []
     with np.errstate(all="ignore"):
         for profile, speed in ((plant.drive, np.asarray(speeds_M, dtype=float)), (plant.load, i * np.asarray(speeds_M, dtype=float))):
-            d = 1e-6 * np.maximum(1.0, np.abs(speed))  # every probe at once: the torques' own array form
-            zero = np.zeros_like(t)
-            slopes.append(((np.asarray(profile.torque(t, zero, speed + d), dtype=float)
-                            - np.asarray(profile.torque(t, zero, speed - d), dtype=float)) / (2.0 * d)).tolist())  # fmt: skip
+            d = 1e-6 * np.maximum(1.0, np.abs(speed))  # every probe and both sides at once: one array call
+            both = np.asarray(profile.torque(np.concatenate([t, t]), np.zeros(2 * t.size),
+                                             np.concatenate([speed + d, speed - d])), dtype=float)  # fmt: skip
+            slopes.append(((both[: t.size] - both[t.size :]) / (2.0 * d)).tolist())
     return [(np.vstack([a * W[1], b * W[3]]), (a, b)) for a, b in zip(*slopes)]
 
 
@@ -341,10 +341,11 @@ def _probes(plant, duration, x0, dt, stated_inputs, rigid, probe_times, plain, e
     windows = [(t, *states[t], None) for t in kept[1:]] + [(t, *states[t], b) for b, t in early.items()]
     at = [(float(t), *states[float(t)]) for t in probe_times]
     jumps = [(b, *states[t]) for b, t in early.items()]
-    weight = 1.0 if not stated_inputs else input_weight(plant, x0, dt, at, jumps, rigid)
+    here = [] if stated_inputs else None  # the probes' quasi-static belt torques, as the weight computes them
+    weight = 1.0 if not stated_inputs else input_weight(plant, x0, dt, at, jumps, rigid, here)
     harmonics = tuple(profile_harmonics(plant, at))
     return Probes(tuple(gains), x0, tuple(windows), float(duration), WINDOW_STEPS * dt, weight, harmonics,
-                  _peaks(plant, rigid, at))  # fmt: skip
+                  _peaks(plant, rigid, at, here))  # fmt: skip
 
 
 def _quasi_static(plant, rigid, t, phi, omega) -> np.ndarray:
@@ -356,15 +357,17 @@ def _quasi_static(plant, rigid, t, phi, omega) -> np.ndarray:
         return rigid.belt_torque(np.column_stack([phi, omega]), u)
 
 
-def _peaks(plant, rigid, at) -> tuple[float, float]:
-    """(max |omega_M| [rad/s], max |quasi-static belt torque| [N m]) over the probes ``(t, phi_M, omega_M)``."""
+def _peaks(plant, rigid, at, here=None) -> tuple[float, float]:
+    """(max |omega_M| [rad/s], max |quasi-static belt torque| [N m]) over the probes ``(t, phi_M, omega_M)``
+    (``here``: their quasi-static belt torques when already computed, :func:`input_weight`)."""
     t, phi, omega = (np.array(c, dtype=float) for c in zip(*at))
     w = float(np.fmax.reduce(np.abs(omega), initial=0.0))  # a NaN probe is passed over
-    tb = float(np.fmax.reduce(np.abs(_quasi_static(plant, rigid, t, phi, omega)), initial=0.0))
+    qs = _quasi_static(plant, rigid, t, phi, omega) if here is None else np.array(here, dtype=float)
+    tb = float(np.fmax.reduce(np.abs(qs), initial=0.0))
     return (w if math.isfinite(w) else 0.0, tb if math.isfinite(tb) else 0.0)
 
 
-def input_weight(plant, x0, dt: float, probes, jumps, rigid=None) -> float:
+def input_weight(plant, x0, dt: float, probes, jumps, rigid=None, out: list | None = None) -> float:
     """Scale [-] of the unit step response's error for this scene: ``min(1, 2 dB / T_peak)``, at least
     :data:`MIN_INPUT_WEIGHT`.
 
@@ -386,7 +389,8 @@ def input_weight(plant, x0, dt: float, probes, jumps, rigid=None) -> float:
 
     ``T_peak``: the largest |quasi-static belt torque| at the probes. Rigid
     model (no belt mode): 1. The floor keeps perturbations the scene does
-    not state (a node's torques) rated. ``rigid``: the rigid model of the plant's parameters when made.
+    not state (a node's torques) rated. ``rigid``: the rigid model of the plant's parameters when made;
+    ``out``: a list that receives the quasi-static belt torques at ``probes`` (what :func:`_peaks` reads).
     """
     model = plant.model
     p = model.params
@@ -405,6 +409,8 @@ def input_weight(plant, x0, dt: float, probes, jumps, rigid=None) -> float:
     qs = _quasi_static(plant, rigid, *zip(*pts)).tolist()
     n = len(probes)
     here, ahead, sides = qs[1 : 1 + n], qs[1 + n : 1 + 2 * n], qs[1 + 2 * n :]
+    if out is not None:
+        out += here
     steps = [abs(qs[0] - carried)] + [abs(a - h) / dt / omega_n for h, a in zip(here, ahead)]
     levels = [abs(qs[0])] + [abs(h) for h in here] + [abs(v) for v in sides]
     steps += [abs(after - before) for before, after in zip(sides[::2], sides[1::2])]
