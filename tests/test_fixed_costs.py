@@ -178,3 +178,57 @@ def test_grouped_steps_between_breakpoints_are_the_clamped_steps_bit_for_bit(nam
 
 def result_model(name: str) -> str:
     return {"paper": "flexible", "e_motor_start": "rigid", "truck_compressor": "flexible"}[name]
+
+
+@pytest.mark.parametrize("name", ["paper", "e_motor_start", "bsg_start"])
+def test_forcing_windows_on_shared_steppers_equal_fresh_ones_bit_for_bit(monkeypatch, name):
+    """The guard's window runs step on steppers shared across calls (one per plant, method and step): a verdict
+    does not depend on the runs made before it (the same windows as on freshly built steppers)."""
+    from belt_drive_ros.core import stepper as stepper_module
+    from belt_drive_ros.core.accuracy import check_accuracy, probe_scene
+    from belt_drive_ros.core.accuracy_windows import window_errors
+
+    scene = load_scene(name)
+    kind = "flexible"
+    model = make_model(kind, scene.params)
+    plant = stepper_module.shared_plant(model, scene.drive, scene.load)
+    x0 = scene.initial_state.vector(kind, scene.params.ratio)
+    probes = probe_scene(plant, scene.duration, x0, scene.dt)
+    for method in ("etd2", "lawson5"):
+        shared = [window_errors(plant, method, scene.dt, probes) for _ in range(2)]  # the second on used steppers
+        stepper_module.shared_stepper(plant, method, scene.dt).run(x0, 0.0, 7.3 * scene.dt)  # a partial last step
+        shared.append(window_errors(plant, method, scene.dt, probes))
+        assert stepper_module.shared_stepper(plant, method, scene.dt) is stepper_module.shared_stepper(plant, method, scene.dt)
+        monkeypatch.setattr(stepper_module, "shared_stepper", lambda p, m, dt, o=None: Stepper(p, m, dt, o))
+        fresh = window_errors(plant, method, scene.dt, probes)
+        monkeypatch.undo()
+        for got in shared:
+            assert len(got) == len(fresh) > 0
+            for (t_a, e_a, p_a), (t_b, e_b, p_b) in zip(got, fresh):
+                assert t_a == t_b and e_a.tobytes() == e_b.tobytes() and p_a.tobytes() == p_b.tobytes()
+        report = check_accuracy(plant, method, scene.dt, scene.duration, x0, scene.tolerance, suggest=False, probes=probes)
+        err, peak = np.max([e for _, e, _ in fresh], axis=0), np.max([p for _, _, p in fresh], axis=0)
+        assert report.forcing_error == float(np.max(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0)))
+
+
+def test_affine_of_a_long_run_is_the_per_sample_sum_bit_for_bit():
+    """``model._affine`` sums a long run row-major over the samples: the same floats as the sample-by-sample form
+    the node's tick uses (signed zeros, infinities and NaN included)."""
+    from belt_drive_ros.core.model import _affine, _affine_sample
+
+    rng = np.random.default_rng(7)
+    for rows, cols, samples in ((12, 4, 1500), (12, 2, 700), (4, 4, 2000), (4, 2, 300), (1, 4, 900)):
+        M = rng.standard_normal((rows, cols)) * rng.choice([0.0, 1.0, -1.0, 1e-3, 1e3], size=(rows, cols))
+        x = rng.standard_normal((samples, cols)) * rng.choice([1.0, 1e-300, 1e300], size=(samples, cols))
+        x[:5] = [-0.0, np.inf, -np.inf, np.nan, 0.0][:5][0]
+        x[1, 0], x[2, -1], x[3, 0], x[4, :] = -0.0, np.inf, np.nan, -0.0
+        with np.errstate(all="ignore"):
+            whole = _affine(M, x)
+            rows_of = tuple(zip(map(tuple, M.tolist()), ((0.0,) * 2,) * rows))
+            each = np.array([_affine_sample(rows_of, list(map(float, s)), [0.0, 0.0]) for s in x])
+            zero_u = _affine(np.zeros((rows, 2)), np.zeros((samples, 2)))
+        assert whole.shape == (samples, rows)
+        assert np.array_equal((whole + zero_u).view(np.int64), each.view(np.int64))
+        stacked = x.reshape(samples // 100 if samples % 100 == 0 else 1, -1, cols)
+        with np.errstate(all="ignore"):
+            assert np.array_equal(_affine(M, stacked).reshape(-1, rows).view(np.int64), whole.view(np.int64))
