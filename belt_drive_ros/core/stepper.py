@@ -669,9 +669,10 @@ class Stepper:
         stops = sorted(special)
         si = 0
         runs = plan.get("absorbed", _NO_CELLS)  # absorbed cells as runs [run_from, run_to) of the absorbed loop (absorb.py)
-        cut = np.flatnonzero(np.diff(runs) != 1) + 1
-        run_from = runs[np.r_[0, cut]].tolist() if runs.size else []
-        run_to = (runs[np.r_[cut - 1, runs.size - 1]] + 1).tolist() if runs.size else []
+        run_from, run_to = [], []
+        if runs.size:
+            cut = np.flatnonzero(np.diff(runs) != 1) + 1
+            run_from, run_to = runs[np.r_[0, cut]].tolist(), (runs[np.r_[cut - 1, runs.size - 1]] + 1).tolist()
         ri = 0
         c = first
         with np.errstate(all="ignore"):
@@ -713,6 +714,9 @@ class Stepper:
                     break
                 if progress:
                     progress((c - first) / n_cells)
+            else:  # every step done: each whole-step run in the kernel (which stops at the first unhealthy state),
+                # each special step's state checked
+                self._clean = record and self.loop is not None
         return states if record else x
 
     def _march_grouped(self, x: np.ndarray, plan: dict) -> np.ndarray:
