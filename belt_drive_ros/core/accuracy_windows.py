@@ -69,17 +69,19 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
     if not np.all(np.isfinite(y_all)):
         return None
     half = y_all.shape[0] // 2  # the coarse runs' samples, then the fine runs' at the same times
-    ends = np.cumsum([r[1].size for r in runs])[:-1]
-    diffs = np.abs(y_all[:half] - y_all[half:])
-    errs = factor * np.maximum.reduceat(diffs, np.r_[0, ends], axis=0)
-    peaks = np.maximum.reduceat(np.abs(y_all[half:]), np.r_[0, ends], axis=0)
+    starts, a = [], 0
+    for r in runs:
+        starts.append(a)
+        a += r[1].size
+    fine = y_all[half:]
+    errs = factor * np.maximum.reduceat(np.abs(y_all[:half] - fine), starts, axis=0)
+    peaks = np.maximum.reduceat(np.abs(fine), starts, axis=0)
     drift = _drift_time(plant, probes) if any(plant.uses_angle) else 0.0
     out = []
     for j, (t0, tc, xc, tf, xf) in enumerate(runs):
         err = errs[j]
         if any(plant.uses_angle) and tf.size > 1:
-            a = 0 if j == 0 else int(ends[j - 1])
-            err = np.maximum(err, _phase_drift(plant, xc, xf, tf, y_all[half + a : half + a + tf.size], factor, drift))
+            err = np.maximum(err, _phase_drift(plant, xc, xf, tf, fine[starts[j] : starts[j] + tf.size], factor, drift))
         out.append((t0, err, peaks[j]))
     return out
 

@@ -428,14 +428,13 @@ class Stepper:
         grid = self._grid(k0, k1 + 1)
         with np.errstate(all="ignore"):
             self._whole_steps(x0, k0, k1, states[1:], grid)
-        grid = grid.tolist()
-        grid[0], grid[-1] = t0, t1  # the knots' times (the loop stepped on the grid's)
+        times = grid  # the knots' times: the grid's the loop stepped on, the ends as given
+        times[0], times[-1] = t0, t1
         if self._stop_at is not None:
             j = self._stop_at
             self._stop_at = None
-            self.stopped = (j, grid[j], grid[j + 1], True, -math.inf, math.inf, [])
-            grid, states = grid[: j + 2], states[: j + 2]
-        times = np.array(grid)
+            self.stopped = (j, float(times[j]), float(times[j + 1]), True, -math.inf, math.inf, [])
+            times, states = times[: j + 2].copy(), states[: j + 2]
         if not _healthy(states[-1]):
             bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, states.shape[1] // 2 :]) > SPEED_LIMIT, axis=1)
             k = int(np.argmax(bad))
