@@ -76,6 +76,7 @@ stops there; :meth:`run` reports the first bad sample).
 from __future__ import annotations
 
 import math
+import threading
 from bisect import bisect_left, bisect_right
 from typing import Callable
 
@@ -233,9 +234,10 @@ def shared_stepper(plant, method: str, dt: float, method_options=None) -> "Stepp
     """``Stepper(plant, method, dt, method_options)`` (origin 0, no guard), built once per plant of
     :func:`shared_plant` and method, step and options: what the guards' runs (the rigid survey, the forcing
     windows) step with. Read-only to them: they never set its origin or breakpoints, and every run starts
-    from the state it is given (a run's outcome does not depend on the runs before it)."""
+    from the state it is given (a run's outcome does not depend on the runs before it). One per thread: a
+    stepper notes the run it makes (``stopped``, ``split_steps``), so two threads never share one."""
     options = dict(method_options or {})
-    key = (id(plant), method, float(dt), repr(sorted(options.items())))
+    key = (id(plant), method, float(dt), repr(sorted(options.items())), threading.get_ident())
     hit = _STEPPERS.get(key)
     if hit is not None and hit[0] is plant:
         return hit[1]
