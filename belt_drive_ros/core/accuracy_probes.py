@@ -154,7 +154,9 @@ class RigidSurvey:
         x0 = np.array(self.motion)
         self._start_torque = float(model.belt_torque(x0, plant.inputs(0.0, x0)))
         duration, dt = self.duration, self.dt  # the stops: probe times, then a quarter window before breakpoints
-        self.t_probe = np.linspace(0.0, duration, N_PROBES) if duration > 0 else np.array([0.0])
+        # np.linspace(0, duration, N_PROBES) (its floats: k step + 0, the last the duration), without its overhead
+        step = duration / (N_PROBES - 1)
+        self.t_probe = np.array([k * step + 0.0 for k in range(N_PROBES - 1)] + [duration]) if duration > 0 else np.array([0.0])
         def pieces():  # the breakpoints inside the run (page by page for a recording read in pages)
             return plant.breakpoint_pieces(0.0, duration, SURVEY_CHUNK * dt)
 
