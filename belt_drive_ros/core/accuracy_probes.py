@@ -154,9 +154,7 @@ class RigidSurvey:
         x0 = np.array(self.motion)
         self._start_torque = float(model.belt_torque(x0, plant.inputs(0.0, x0)))
         duration, dt = self.duration, self.dt  # the stops: probe times, then a quarter window before breakpoints
-        # np.linspace(0, duration, N_PROBES) (its floats: k step + 0, the last the duration), without its overhead
-        step = duration / (N_PROBES - 1)
-        self.t_probe = np.array([k * step + 0.0 for k in range(N_PROBES - 1)] + [duration]) if duration > 0 else np.array([0.0])
+        self.t_probe = np.linspace(0.0, duration, N_PROBES) if duration > 0 else np.array([0.0])
         def pieces():  # the breakpoints inside the run (page by page for a recording read in pages)
             return plant.breakpoint_pieces(0.0, duration, SURVEY_CHUNK * dt)
 
@@ -190,7 +188,7 @@ class RigidSurvey:
                 w = max(w, float(np.max(np.abs(states[:, 1]))))
                 peak = max(peak, float(np.max(np.abs(model.belt_torque(states, plant.input_array(time, states))))))
                 while pending and pending[0] <= e + snap_tolerance(e, rdt):
-                    k = _nearest(time, pending[0])
+                    k = int(np.argmin(np.abs(time - pending[0])))
                     self.states[pending.pop(0)] = (float(states[k, 0]), float(states[k, 1]))
                 x, t = states[-1], e
             if self.duration <= 0:
@@ -215,16 +213,6 @@ class RigidSurvey:
         if self.error is not None:
             return np.array([0.0]), [], {}, {0.0: self.motion}
         return self.t_probe, self.plain, self.early, self.states
-
-
-def _nearest(time: np.ndarray, t: float) -> int:
-    """Index of the sample of the sorted ``time`` nearest ``t`` (the first of two as near: ``argmin |time - t|``)."""
-    j = int(time.searchsorted(t))
-    if j >= time.size:
-        return time.size - 1
-    if j > 0 and abs(float(time[j - 1]) - t) <= abs(float(time[j]) - t):
-        return j - 1
-    return j
 
 
 def speed_slopes(plant, times, speeds_M) -> list[np.ndarray]:
