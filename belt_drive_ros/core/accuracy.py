@@ -355,7 +355,7 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
         pieces = [(np.array([t0]), sim.state_y(state)[None, :], state.mode, state.sigma)]
         try:
             with np.errstate(all="ignore"):
-                sim.advance(state, t0, t1, pieces, [])
+                sim.advance(state, t0, t1, pieces)  # its events are the run's again: not collected
         except (SimulationDivergedError, IntegratorError):
             continue
         tr, yr, mr, sr = _joined(pieces)
