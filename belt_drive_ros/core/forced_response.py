@@ -205,11 +205,13 @@ def harmonic_response_errors(integrator, A, B, rows, K, n_steps: int, omegas, ch
         y = []
         for R, Gm, CMk in ((resolvents[0], G, CX[0]), (resolvents[1], F, CX[1])):
             Pm = np.linalg.solve(R, Gm[pick, :, channels][:, :, None])[:, :, 0]  # (frequencies, n): the channel's column
-            y.append(zk[:, :, None] * (Pm @ rows.T)[:, None, :] - (CMk @ Pm.T).T.reshape(omegas.size, -1, r))
-        if not (np.all(np.isfinite(y[0])) and np.all(np.isfinite(y[1]))):
+            # (frequencies, samples, rows); Pm @ CMk^T is (CMk @ Pm^T)^T without the transposed copy (the same floats)
+            y.append(zk[:, :, None] * (Pm @ rows.T)[:, None, :] - (Pm @ CMk.T).reshape(omegas.size, -1, r))
+        err, peak = np.max(np.abs(y[0] - y[1]), axis=1), np.max(np.abs(y[1]), axis=1)
+        if not (np.all(np.isfinite(err)) and np.all(np.isfinite(peak))):  # a non-finite sample reaches its maximum
             inf = np.full((omegas.size, r), np.inf)
             return inf, inf
-        return np.max(np.abs(y[0] - y[1]), axis=1), np.max(np.abs(y[1]), axis=1)
+        return err, peak
 
 
 #: above this condition number of ``j omega I - A_cl`` (a forcing at an undamped mode) F comes from expm instead
