@@ -243,14 +243,14 @@ def check_slipping(
     flexible model's report for this method, step and tolerance already made (``auto``'s check run);
     ``probes``: the :func:`probe_scene` of the flexible plant at this step already made (that check's).
     """
-    from .model import FlexibleBeltModel
+    from .model import make_model
     from .slip import SlippingBeltModel
-    from .stepper import Plant
+    from .stepper import shared_plant
 
     cls = method_class(method)
     if not issubclass(cls, FixedStepIntegrator):
         return None
-    plant = Plant(FlexibleBeltModel(params), drive, load)
+    plant = shared_plant(make_model("flexible", params), drive, load)  # the run's own (read-only)
     if probes is None:
         probes = probe_scene(plant, duration, x0_flexible, dt, stated_inputs)
     if stick is None:

@@ -328,14 +328,17 @@ class EventStep:
     when it holds no event.
     """
 
-    def __init__(self, model: SlippingBeltModel, method: str, data):
+    def __init__(self, model: SlippingBeltModel, method: str, data, kernel=False):
         from . import kernel_slip
 
         self.model = model
         p = model.params
         self._two_k_r3, self._r3 = 2.0 * p.k * p.r_3, p.r_3
-        #: the arrays :func:`~belt_drive_ros.core.kernel_slip.event_step` reads (None: no compiled event step)
-        self._kernel = None if None in data[:2] else kernel_slip.pack(model, method, *data)
+        #: the arrays :func:`~belt_drive_ros.core.kernel_slip.event_step` reads (None: no compiled event step);
+        #: ``kernel``: those of this model, method and data already packed (read-only: shared)
+        if kernel is False:
+            kernel = None if None in data[:2] else kernel_slip.pack(model, method, *data)
+        self._kernel = kernel
         self._event_step = kernel_slip.event_step
         self._event_buffer = np.zeros((kernel_slip.MAX_SWITCHES + 1, 8))
 

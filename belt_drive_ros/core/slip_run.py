@@ -151,12 +151,13 @@ class SlippingSimulator:
     def __init__(self, params, drive, load, method="etd2", dt=1e-3, method_options=None, check_stability=True,
                  origin=0.0, integrator=None, lazy=False):  # fmt: skip
         require_first_order_method(method)
-        self.model = m = SlippingBeltModel(params)
         self.flexible = make_model("flexible", params)
         self.drive, self.load = drive, load
         self.method, self.dt = method, float(dt)
         self.method_options = dict(method_options or {})
         self.plant = shared_plant(self.flexible, drive, load)
+        self._shared = _shared_phases(params, drive, load, self.plant)
+        self.model = m = self._shared["model"]
         # [phi_M, theta_e, omega_M, omega_3] = M x of a flexible state (wheel map rows: phi_M, omega_M, phi_3, omega_3)
         self._M = np.array([[1, 0, 0, 0], [params.ratio, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=float) @ self.plant.wheel_map
         self._M_inv = np.linalg.inv(self._M)
@@ -168,17 +169,18 @@ class SlippingSimulator:
         self._hybrid: EventStep | None = None
         self._steppers = {"flexible": self.stepper}
         # the other phases' steppers are built when a run first needs them (a scene within the limit never does)
-        self._factories: dict = {"stick": lambda: Stepper(Plant(m, drive, load), method, self.dt, self.method_options, guard=stick)}
+        self._factories: dict = {"stick": lambda: Stepper(self._phase_plant("stick"), method, self.dt, self.method_options,
+                                                          guard=stick)}  # fmt: skip
         if params.belt_mass == 0.0:  # Q_max constant: the slip mode is linear with Q as a constant state
             for sigma in (1.0, -1.0):
                 self._factories[("slip", sigma)] = lambda sigma=sigma: Stepper(
-                    Plant(_SlipPhase(m), drive, load), method, self.dt, self.method_options, 0.0,
+                    self._phase_plant(("slip", sigma)), method, self.dt, self.method_options, 0.0,
                     self._sibling(("slip", -sigma)), _mapped(m.guard(SLIP, sigma), np.eye(5, 6)),
                 )  # fmt: skip
         elif params.c > 0.0:  # Q_max falls with the belt speed: Q an input of the drive speed, in the loop
             for sigma in (1.0, -1.0):
                 self._factories[("mass", sigma)] = lambda sigma=sigma: Stepper(
-                    Plant(_MassSlipPhase(m), drive, load, (FrictionForce(sigma, params),)), method, self.dt, self.method_options, 0.0,
+                    self._phase_plant(("mass", sigma)), method, self.dt, self.method_options, 0.0,
                     self._sibling(("mass", -sigma)), m.guard(SLIP, sigma),
                 )  # fmt: skip
         self.events: list = []
@@ -211,8 +213,27 @@ class SlippingSimulator:
     def hybrid(self) -> EventStep:
         """The compiled event step that redoes a step with an event (built at the first event)."""
         if self._hybrid is None:
-            self._hybrid = EventStep(self.model, self.method, (*self.plant.data, self.plant.uses_angle))
+            data, shared = (*self.plant.data, self.plant.uses_angle), self._shared
+            key = ("pack", self.method)
+            if key not in shared:  # the packed arrays are read-only: one per method for every simulator of the scene
+                shared[key] = EventStep(self.model, self.method, data)._kernel
+            self._hybrid = EventStep(self.model, self.method, data, shared[key])
         return self._hybrid
+
+    def _phase_plant(self, key) -> Plant:
+        """The plant of phase ``key`` (``"stick"``, ``("slip", sigma)``, ``("mass", sigma)``): the same for every step
+        length, so built once per scene (:func:`_shared_phases`)."""
+        plant = self._shared.get(key)
+        if plant is None:
+            m, sigma = self.model, key[1] if isinstance(key, tuple) else 0.0
+            if key == "stick":
+                plant = Plant(m, self.drive, self.load)
+            elif key[0] == "slip":
+                plant = Plant(_SlipPhase(m), self.drive, self.load)
+            else:
+                plant = Plant(_MassSlipPhase(m), self.drive, self.load, (FrictionForce(sigma, m.params),))
+            self._shared[key] = plant
+        return plant
 
     def phase_stepper(self, key) -> Stepper:
         """The stepper of phase ``key`` (``"flexible"``, ``"stick"``, ``("slip", sigma)``, ``("mass", sigma)``), built once."""
@@ -578,6 +599,33 @@ class SlippingSimulator:
         d = np.broadcast_to(self.plant.drive.torque(t, phi_M, omega_M), t.shape)
         l = np.broadcast_to(self.plant.load.torque(t, self.model.phi_3(states), states[:, 3]), t.shape)
         return np.stack([d, l], axis=-1).astype(float)
+
+
+#: per (parameter set, drive, load) objects: the slipping model, its phases' plants and the packed event-step arrays
+#: per method (:func:`_shared_phases`); the oldest of more than :data:`_SHARED_SIZE` is dropped
+_SHARED: dict = {}
+_SHARED_SIZE = 8
+
+
+def _shared_phases(params, drive, load, plant) -> dict:
+    """The read-only parts of the slipping engine of one scene: ``{"model": SlippingBeltModel, phase key: Plant,
+    ("pack", method): kernel arrays}``, filled as simulators need them.
+
+    Built once per (parameter set, drive, load) objects and shared by every simulator of them: a run, its accuracy
+    check's rerun at 2 dt and the next run of the scene (as :func:`~belt_drive_ros.core.stepper.shared_plant`
+    shares the flexible plant ``plant``: matrices and profile data, never a stepper, a state or a verdict). Not kept
+    where that plant is not (a recording's many breakpoints, a paged drive): then a fresh dict.
+    """
+    key = (id(params), id(drive), id(load))
+    hit = _SHARED.get(key)
+    if hit is not None and hit[0] is params and hit[1] is drive and hit[2] is load:
+        return hit[3]
+    entry = {"model": SlippingBeltModel(params)}
+    if plant.breakpoints is not None and len(plant.breakpoints) <= 64:  # shared_plant's rule
+        if len(_SHARED) >= _SHARED_SIZE:
+            _SHARED.pop(next(iter(_SHARED)))
+        _SHARED[key] = (params, drive, load, entry)  # the objects held: their ids are not reused
+    return entry
 
 
 def _kind_code(state: SlipState) -> int:
