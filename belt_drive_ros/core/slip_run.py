@@ -639,7 +639,9 @@ def _kind_code(state: SlipState) -> int:
 
 def _events(rows) -> list:
     """:class:`~belt_drive_ros.core.slip.Event` of the compiled loop's event rows."""
-    return [Event(float(r[0]), "onset" if r[1] else "restick", float(r[2]), r[3:].copy()) for r in rows]
+    rows = rows.copy()  # one copy: each event's state a row of it
+    return [Event(t, "onset" if k else "restick", s, y) for t, k, s, y in zip(rows[:, 0].tolist(), rows[:, 1].tolist(),
+                                                                             rows[:, 2].tolist(), rows[:, 3:])]
 
 
 def _joined(pieces):
