@@ -623,7 +623,10 @@ def _shared_phases(params, drive, load, plant) -> dict:
     entry = {"model": SlippingBeltModel(params)}
     if plant.breakpoints is not None and len(plant.breakpoints) <= 64:  # shared_plant's rule
         if len(_SHARED) >= _SHARED_SIZE:
-            _SHARED.pop(next(iter(_SHARED)))
+            try:
+                _SHARED.pop(next(iter(_SHARED)), None)
+            except (RuntimeError, StopIteration):  # another thread changed it meanwhile: it stays bounded all the same
+                pass
         _SHARED[key] = (params, drive, load, entry)  # the objects held: their ids are not reused
     return entry
 
