@@ -169,8 +169,7 @@ class SlippingSimulator:
         self._hybrid: EventStep | None = None
         self._steppers = {"flexible": self.stepper}
         # the other phases' steppers are built when a run first needs them (a scene within the limit never does)
-        self._factories: dict = {"stick": lambda: Stepper(self._phase_plant("stick"), method, self.dt, self.method_options,
-                                                          guard=stick)}  # fmt: skip
+        self._factories: dict = {"stick": lambda: Stepper(self._phase_plant("stick"), method, self.dt, self.method_options, guard=stick)}
         if params.belt_mass == 0.0:  # Q_max constant: the slip mode is linear with Q as a constant state
             for sigma in (1.0, -1.0):
                 self._factories[("slip", sigma)] = lambda sigma=sigma: Stepper(
@@ -180,7 +179,7 @@ class SlippingSimulator:
         elif params.c > 0.0:  # Q_max falls with the belt speed: Q an input of the drive speed, in the loop
             for sigma in (1.0, -1.0):
                 self._factories[("mass", sigma)] = lambda sigma=sigma: Stepper(
-                    self._phase_plant(("mass", sigma)), method, self.dt, self.method_options, 0.0,
+                    self._phase_plant(("mass", sigma), (FrictionForce(sigma, params),)), method, self.dt, self.method_options, 0.0,
                     self._sibling(("mass", -sigma)), m.guard(SLIP, sigma),
                 )  # fmt: skip
         self.events: list = []
@@ -220,20 +219,13 @@ class SlippingSimulator:
             self._hybrid = EventStep(self.model, self.method, data, shared[key])
         return self._hybrid
 
-    def _phase_plant(self, key) -> Plant:
-        """The plant of phase ``key`` (``"stick"``, ``("slip", sigma)``, ``("mass", sigma)``): the same for every step
-        length, so built once per scene (:func:`_shared_phases`)."""
-        plant = self._shared.get(key)
-        if plant is None:
-            m, sigma = self.model, key[1] if isinstance(key, tuple) else 0.0
-            if key == "stick":
-                plant = Plant(m, self.drive, self.load)
-            elif key[0] == "slip":
-                plant = Plant(_SlipPhase(m), self.drive, self.load)
-            else:
-                plant = Plant(_MassSlipPhase(m), self.drive, self.load, (FrictionForce(sigma, m.params),))
-            self._shared[key] = plant
-        return plant
+    def _phase_plant(self, key, extra=()) -> Plant:
+        """The plant of phase ``key`` (``"stick"``, ``("slip", sigma)``, ``("mass", sigma)``; ``extra`` its friction
+        input): the same for every step length, built once per scene (:func:`_shared_phases`)."""
+        if key not in self._shared:
+            model = self.model if key == "stick" else (_SlipPhase if key[0] == "slip" else _MassSlipPhase)(self.model)
+            self._shared[key] = Plant(model, self.drive, self.load, extra)
+        return self._shared[key]
 
     def phase_stepper(self, key) -> Stepper:
         """The stepper of phase ``key`` (``"flexible"``, ``"stick"``, ``("slip", sigma)``, ``("mass", sigma)``), built once."""
@@ -608,25 +600,18 @@ _SHARED_SIZE = 8
 
 
 def _shared_phases(params, drive, load, plant) -> dict:
-    """The read-only parts of the slipping engine of one scene: ``{"model": SlippingBeltModel, phase key: Plant,
-    ("pack", method): kernel arrays}``, filled as simulators need them.
-
-    Built once per (parameter set, drive, load) objects and shared by every simulator of them: a run, its accuracy
-    check's rerun at 2 dt and the next run of the scene (as :func:`~belt_drive_ros.core.stepper.shared_plant`
-    shares the flexible plant ``plant``: matrices and profile data, never a stepper, a state or a verdict). Not kept
-    where that plant is not (a recording's many breakpoints, a paged drive): then a fresh dict.
-    """
+    """The read-only parts of one scene's slipping engine, ``{"model": SlippingBeltModel, phase key: Plant,
+    ("pack", method): event-step arrays}``, filled as simulators need them and shared by all of them (the run, its
+    rerun at 2 dt, the next run): matrices and profile data, never a stepper, a state or a verdict. Kept on the rule
+    of :func:`~belt_drive_ros.core.stepper.shared_plant` for the flexible ``plant``, else a fresh dict."""
     key = (id(params), id(drive), id(load))
     hit = _SHARED.get(key)
     if hit is not None and hit[0] is params and hit[1] is drive and hit[2] is load:
         return hit[3]
     entry = {"model": SlippingBeltModel(params)}
     if plant.breakpoints is not None and len(plant.breakpoints) <= 64:  # shared_plant's rule
-        if len(_SHARED) >= _SHARED_SIZE:
-            try:
-                _SHARED.pop(next(iter(_SHARED)), None)
-            except (RuntimeError, StopIteration):  # another thread changed it meanwhile: it stays bounded all the same
-                pass
+        if len(_SHARED) >= _SHARED_SIZE:  # the oldest dropped (from a snapshot: another thread may change it)
+            _SHARED.pop(list(_SHARED)[0], None)
         _SHARED[key] = (params, drive, load, entry)  # the objects held: their ids are not reused
     return entry
 
