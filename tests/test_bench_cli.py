@@ -207,3 +207,34 @@ def test_bench_replay_prints_the_split_of_a_torque_bag_replayed_to_mcap(tmp_path
                   "B per bag sample"):
         assert label in out, label
     assert "210,008 messages" in out  # 30,001 samples x 7 topics (drive, joint_states, /tf, 4 outputs) + the URDF
+
+def test_bench_baseline_must_be_a_checkout_and_a_study_that_uses_it(tmp_path, capsys):
+    """``--baseline DIR`` that is no checkout would let the child processes import this tree's package and
+    print this tree against itself as a ratio of ~1: refused in one line before anything runs."""
+    assert main(["bench", "kernel", "--quick", "--baseline", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a checkout of belt_drive_ros" in err[0] and str(tmp_path) in err[0]
+    assert not (tmp_path / "o").exists()  # refused before the output folder is made
+    assert main(["bench", "workprecision", "--baseline", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'bench workprecision'" in err[0]
+
+
+def test_bench_kernel_baseline_runs_the_baseline_trees_code(tmp_path, monkeypatch):
+    """``_simulate_side_by_side`` times this tree and the baseline checkout each in its own process: a fake
+    checkout whose simulate() burns 50 ms of CPU shows up in the baseline's column only."""
+    from belt_drive_ros.benchmarks import kernel
+
+    core = tmp_path / "belt_drive_ros" / "core"
+    core.mkdir(parents=True)
+    (tmp_path / "belt_drive_ros" / "__init__.py").write_text("")
+    (core / "__init__.py").write_text("")
+    (core / "scene.py").write_text("import types\ndef load_scene(name):\n    return types.SimpleNamespace(duration=7.0)\n")
+    (core / "simulate.py").write_text(
+        "import time\ndef simulate(scene):\n    end = time.process_time() + 0.05\n"
+        "    while time.process_time() < end:\n        pass\n")
+    monkeypatch.setattr(kernel, "SCENES", ("paper",))
+    rows = kernel._simulate_side_by_side(tmp_path, repeats=1, rounds=1)
+    cpu, old, duration = rows["paper"]
+    assert set(rows) == {"paper"} and duration == 5.0  # this tree's scene
+    assert 0.0 < cpu < 0.05 <= old < 1.0  # the fake's 50 ms, not this tree's few ms

@@ -117,7 +117,24 @@ def _run_node(out: Path, quick: bool, extra: list[str] | None = None) -> int:
     return int(node.main(["--out", str(out)] + (["--quick"] if quick else []) + list(extra or [])) or 0)
 
 
+def _checked_baseline(study: str, baseline: str | None) -> Path | None:
+    """``--baseline DIR`` as a checkout's root, or a one-line :class:`InputError`: the option applies to
+    ``replay`` and ``kernel`` only, and ``DIR`` must hold ``belt_drive_ros/__init__.py`` (else the child
+    processes would import this tree's package and print this tree against itself)."""
+    if baseline is None:
+        return None
+    from ..core.errors import InputError
+
+    if study not in ("replay", "kernel"):
+        raise InputError(f"--baseline applies to 'bench replay' and 'bench kernel', not 'bench {study}'")
+    root = Path(baseline)
+    if not (root / "belt_drive_ros" / "__init__.py").is_file():
+        raise InputError(f"--baseline {baseline}: not a checkout of belt_drive_ros (no belt_drive_ros/__init__.py in it)")
+    return root
+
+
 def run(args) -> int:
+    args.baseline = _checked_baseline(args.study, args.baseline)
     blas = _single_threaded_blas()
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
