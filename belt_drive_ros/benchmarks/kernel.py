@@ -236,8 +236,9 @@ def _simulate_side_by_side(baseline: Path, repeats: int, rounds: int) -> dict:
 #: what a child process of one tree runs for the step figures: ns per step of each method (argv[1] steps)
 _STEP_CHILD = r"""
 import json, sys
-from belt_drive_ros.benchmarks.kernel import METHODS, _kernel_ns
-print(json.dumps({m: _kernel_ns(m, int(sys.argv[1]))[0] for m in METHODS}))
+from belt_drive_ros.benchmarks import kernel
+print(kernel.__file__)
+print(json.dumps({m: kernel._kernel_ns(m, int(sys.argv[1]))[0] for m in kernel.METHODS}))
 """
 
 
@@ -248,14 +249,18 @@ def _steps_side_by_side(baseline: Path, steps: int, rounds: int) -> dict:
 
     trees = (Path(__file__).resolve().parents[2], Path(baseline).resolve())
     best: dict = {}
-    for _ in range(rounds):
-        for j, root in enumerate(trees):
-            env = dict(os.environ, PYTHONPATH=str(root), MPLBACKEND="Agg")
-            done = subprocess.run([_tree_python(root), "-c", _STEP_CHILD, str(steps)], env=env, capture_output=True,
-                                  text=True, check=True)  # fmt: skip
-            for method, ns in json.loads(done.stdout.strip().splitlines()[-1]).items():
-                row = best.setdefault(method, [math.inf, math.inf])
-                row[j] = min(row[j], ns)
+    with tempfile.TemporaryDirectory() as tmp:  # cwd: not a checkout (``-c`` imports from the cwd first)
+        for _ in range(rounds):
+            for j, root in enumerate(trees):
+                env = dict(os.environ, PYTHONPATH=str(root), MPLBACKEND="Agg")
+                done = subprocess.run([_tree_python(root), "-c", _STEP_CHILD, str(steps)], cwd=tmp, env=env,
+                                      capture_output=True, text=True, check=True)  # fmt: skip
+                lines = done.stdout.strip().splitlines()
+                if not Path(lines[-2]).resolve().is_relative_to(root):
+                    raise RuntimeError(f"bench kernel --baseline: {root} ran {lines[-2]}")
+                for method, ns in json.loads(lines[-1]).items():
+                    row = best.setdefault(method, [math.inf, math.inf])
+                    row[j] = min(row[j], ns)
     return {method: tuple(row) for method, row in best.items()}
 
 
