@@ -265,3 +265,24 @@ def test_the_four_state_loops_equal_the_general_loop_bit_for_bit(method, case):
     if case == "friction+guard":
         assert done_fast[1] == 2, "the guard stops this run (else the test would not cover it)"
     assert np.array_equal(fast, slow)
+
+
+@pytest.mark.parametrize("method", ["exact", "etd4"])
+@pytest.mark.parametrize("profile", PROFILES, ids=lambda p: p.kind)
+def test_every_profile_kind_steps_alike_in_the_four_state_loop_and_the_general_loop(profile, method):
+    """The 4-state loop evaluates a one-row formula profile (constant, step, ramp, sine, motor line, polynomial)
+    from numbers read once per call and every other kind from its data: each kind, on the drive and on the load,
+    gives the general loop's floats to the last bit (across the profiles' breakpoints, no clamp)."""
+    scene = load_scene("paper")
+    model = make_model("flexible", scene.params)
+    integrator = make_integrator(method, model.A, model.B, 5e-3)
+    steps = 200  # 1 s: past every breakpoint of PROFILES
+    times = 5e-3 * np.arange(steps + 1, dtype=float)
+    x0 = np.array([0.0, 0.0, 20.0, 20.0 * scene.params.ratio])
+    for drive, load in ((profile, scene.load), (scene.drive, profile)):
+        loop = KernelLoop(integrator.scheme, 5e-3, model.wheel_map, (drive.uses_angle, load.uses_angle), drive.data(), load.data())
+        fast, slow = np.zeros((steps, 4)), np.zeros((steps, 4))
+        done_fast = loop(times, x0.copy(), fast)
+        done_slow = _general_loop(loop, times, x0.copy(), slow)
+        assert done_fast == done_slow and done_fast[0] > 10  # a polynomial drive runs away: both stop alike
+        assert np.array_equal(fast, slow)

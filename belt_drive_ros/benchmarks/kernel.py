@@ -9,6 +9,8 @@
    digits, and the kernel's figure before its 4-state loops (recorded, not
    re-measured: :data:`BEFORE_NS`). Then ``etd2``, ``etd4``, ``lawson5``,
    ``rk4`` and ``trapezoidal`` through the kernel, as a multiple of ``exact``.
+   With ``--baseline DIR`` every method's ns per step is measured again in
+   a child process of each tree, alternately, and both figures print.
 2. **The node's tick**: :meth:`Stepper.advance` of one 1 ms step with the
    held drive torque set before each (the call the tick makes), median and p99.
 3. **Whole warm simulate()** (guards, model choice, accuracy check, outputs
@@ -231,6 +233,37 @@ def _simulate_side_by_side(baseline: Path, repeats: int, rounds: int) -> dict:
     return {name: tuple(row) for name, row in best.items()}
 
 
+#: what a child process of one tree runs for the step figures: ns per step of each method (argv[1] steps)
+_STEP_CHILD = r"""
+import json, sys
+from belt_drive_ros.benchmarks import kernel
+print(kernel.__file__)
+print(json.dumps({m: kernel._kernel_ns(m, int(sys.argv[1]))[0] for m in kernel.METHODS}))
+"""
+
+
+def _steps_side_by_side(baseline: Path, steps: int, rounds: int) -> dict:
+    """``{method: (this tree's ns per step, the baseline's)}``: each tree in its own child process, alternating
+    ``rounds`` times, minimum kept (both trees measured the same way, on the same load)."""
+    import json
+
+    trees = (Path(__file__).resolve().parents[2], Path(baseline).resolve())
+    best: dict = {}
+    with tempfile.TemporaryDirectory() as tmp:  # cwd: not a checkout (``-c`` imports from the cwd first)
+        for _ in range(rounds):
+            for j, root in enumerate(trees):
+                env = dict(os.environ, PYTHONPATH=str(root), MPLBACKEND="Agg")
+                done = subprocess.run([_tree_python(root), "-c", _STEP_CHILD, str(steps)], cwd=tmp, env=env,
+                                      capture_output=True, text=True, check=True)  # fmt: skip
+                lines = done.stdout.strip().splitlines()
+                if not Path(lines[-2]).resolve().is_relative_to(root):
+                    raise RuntimeError(f"bench kernel --baseline: {root} ran {lines[-2]}")
+                for method, ns in json.loads(lines[-1]).items():
+                    row = best.setdefault(method, [math.inf, math.inf])
+                    row[j] = min(row[j], ns)
+    return {method: tuple(row) for method, row in best.items()}
+
+
 def _startup_cpu(repeats: int) -> float | None:
     """Median process CPU [s] of ``belt-drive sim paper --quiet`` (children's rusage)."""
     exe = Path(sys.executable).with_name("belt-drive")
@@ -270,6 +303,12 @@ def run(out: Path, quick: bool = False, quiet: bool = False, baseline: Path | No
         ns, _ = _kernel_ns(method, steps)
         before = f"; before {BEFORE_NS[method]:.0f} ns = {BEFORE_NS[method] / BEFORE_NS['exact']:.2f} x" if method in BEFORE_NS else ""
         report(f"{method}, kernel", ns, "ns", f"{ns / exact_ns:.2f} x exact{before}")
+    if baseline is not None:  # this tree and the baseline checkout alternately, each in its own process
+        side = _steps_side_by_side(baseline, steps, 2 if quick else 3)
+        for method, (ns, old) in side.items():
+            ratio = f"; {ns / side['exact'][0]:.2f} x exact here, {old / side['exact'][1]:.2f} x in the baseline"
+            report(f"{method}, kernel side by side", ns, "ns",
+                   f"baseline {Path(baseline).name} {old:.1f} ns{ratio if method != 'exact' else ''}")
     median, p99 = _tick_us(2_000 if quick else 20_000)
     report("node tick: Stepper.advance one 1 ms step", median, "us", f"median (p99 {p99:.2f} us), held torque set each tick")
     print("bench kernel: whole warm simulate() (guards, model choice, accuracy check, outputs)")

@@ -10,7 +10,7 @@ with the drive torque acting on wheel M and the load torque on wheel 3
 (opposing positive rotation), and ``y`` the linear outputs
 :data:`LINEAR_OUTPUTS` (:meth:`~_LinearModel.output_matrices`). State
 ordering, written down once (everything else reads it through the model:
-``wheel_coordinates``, ``wheel_map``, ``angle_map``, ``relative_deflection``):
+``wheel_coordinates``, ``wheel_map``, ``relative_deflection``):
 
 * flexible: ``x = [phi_M, delta, omega_M, omega_3]``  [rad, rad, rad/s, rad/s]
 * rigid:    ``x = [phi_M, omega_M]``                  [rad, rad/s]
@@ -109,20 +109,10 @@ class _LinearModel:
             object.__setattr__(self, "_wheel_map", cached)
         return cached
 
-    @property
-    def angle_map(self) -> np.ndarray:
-        """(4, n) matrix with ``[phi_M, phi_1, phi_2, phi_3] = angle_map @ x`` [rad] (the four wheels)."""
-        rows = [LINEAR_OUTPUTS.index(name) for name in ("phi_M", "phi_1", "phi_2", "phi_3")]
-        return self.C[rows]
-
     def wheel_coordinates(self, x: np.ndarray) -> tuple:
         """(phi_M, omega_M, phi_3, omega_3) of state(s) ``x`` (last axis = state)."""
         y = _affine(self.wheel_map, np.asarray(x, dtype=float))  # summed as the steppers sum (bit for bit)
         return y[..., 0], y[..., 1], y[..., 2], y[..., 3]
-
-    def derivatives(self, t: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """x' = A x + B u (``t`` unused: the model is time-invariant)."""
-        return self.A @ x + self.B @ u
 
     def outputs(self, x: np.ndarray, u: np.ndarray) -> dict[str, np.ndarray]:
         """All output signals of :data:`OUTPUT_UNITS` for samples ``x`` (N, n), ``u`` (N, 2).
