@@ -11,7 +11,10 @@ arrays, as an offline run's outputs are). The message records of a block
 are assembled as one byte array (a row per step: the ``T`` records in
 topic order), cut into chunks of ``chunk_size`` bytes, and the chunks
 compressed (zstd, lz4) and checksummed in worker threads (both release the
-GIL) while the caller computes the next block.
+GIL) while the caller assembles the next chunk or computes the next block.
+Each chunk is assembled in a buffer of its own (a few MiB, reused once its
+chunk is written), so its records are still in the cache while their fields
+are written, and memory holds at most :data:`MAX_IN_FLIGHT` chunks.
 
 The MCAP written is the specification's (https://mcap.dev/spec): chunks
 with their message index records, schema and channel records in the data
@@ -146,6 +149,17 @@ class FixedMessages:
         return out
 
 
+class _Buffer:
+    """A chunk's records being assembled or compressed: ``array`` (bytes), and the ``layout`` of the block
+    whose constant bytes (record heads, FixedMessages' templates) its first ``ready`` rows hold already
+    (kept while chunks of that layout follow: only the fields are written)."""
+
+    __slots__ = ("array", "layout", "ready")
+
+    def __init__(self, array: np.ndarray):
+        self.array, self.layout, self.ready = array, (), 0
+
+
 class BlockRecords:
     """The MCAP record writer behind :class:`BlockMcapWriter` (``mcap.writer.Writer``'s methods, plus blocks).
 
@@ -154,8 +168,7 @@ class BlockRecords:
     when it reaches ``chunk_size``); schema and channel records go to the
     data section between chunks. Chunks are written in order; compression
     runs in a pool of two threads, at most :data:`MAX_IN_FLIGHT` chunks ahead
-    of the file, and a block's chunks are all written before the next block
-    is assembled.
+    of the file (a chunk's buffer is assembled again once it is written).
     """
 
     def __init__(self, stream, chunk_size: int = 1 << 20, compression: CompressionType = CompressionType.ZSTD,
@@ -184,11 +197,10 @@ class BlockRecords:
         self._open_index: Dict[int, list] = {}  # channel -> [(log time, offset)]
         self._pool: Optional[ThreadPoolExecutor] = None
         self._pending: deque = deque()
-        self._buffer = np.empty(0, dtype=np.uint8)  # the records of the block being written
-        # the layout of the records in the buffer's first ``_ready`` rows: their constant bytes (record heads,
-        # FixedMessages' templates) are written once and kept while blocks of that layout follow
-        self._layout: tuple = ()
-        self._ready = 0
+        # buffers of blocks' chunks whose chunk is written, to assemble the next ones in (:class:`_Buffer`)
+        self._free: List[_Buffer] = []
+        self._types: dict = {}  # a block layout's row types (:meth:`_row_types`)
+        self._constants: dict = {}  # and its constant bytes
 
     # -------------------------------------------------------------- output
     def _emit(self, data) -> None:
@@ -261,57 +273,48 @@ class BlockRecords:
         n = log_time.size
         if not n:
             return
-        # the previous block's chunks were compressed while the caller computed this one: write them all
-        # first, so memory holds at most one block and its chunks (the same peak for any run length)
-        self._write_pending(all_of_them=True)
         sizes = [int(p.size if isinstance(p, FixedMessages) else p.shape[1]) for p in payloads]
-        # one row per step: each channel's record (head fields, then the payload) at its offset; each field
-        # written through a strided view of its type, one unit per row (a column slice of the byte matrix
-        # would copy byte by byte)
+        # one row per step: each channel's record (head fields, then the payload) at its offset
         row = sum(_MESSAGE_OVERHEAD + size for size in sizes)
-        if self._buffer.size < n * row:  # reused block after block (its chunks are written): no fresh pages to fault in
-            self._buffer = np.empty(n * row, dtype=np.uint8)
-            self._ready = 0
         layout = (row, tuple((c, size, p.template if isinstance(p, FixedMessages) else None)
                              for c, size, p in zip(channels, sizes, payloads)))
-        if layout != self._layout:
-            self._layout, self._ready = layout, 0
-        block = self._buffer[: n * row].reshape(n, row)
-        ready = min(self._ready, n)  # rows holding this layout's constant bytes already
-
-        def column(offset: int, dtype, first: int = 0) -> np.ndarray:
-            return np.ndarray((n - first,), dtype=dtype, buffer=self._buffer, offset=first * row + offset, strides=(row,))
-
-        template = np.zeros(1, dtype=_MESSAGE_HEAD)
-        template["opcode"] = Opcode.MESSAGE
-        steps = np.arange(n, dtype=np.uint64)
-        offsets = []  # of each channel's record within a row
-        at = 0
-        for channel, first, size, payload in zip(channels, sequences, sizes, payloads):
-            if ready < n:  # the constant bytes of the rows not written yet
-                template["length"], template["channel"] = 22 + size, channel
-                column(at, (np.void, 11), ready)[...] = template.view(np.uint8)[:11].view((np.void, 11))[0]
-                if isinstance(payload, FixedMessages):
-                    column(at + 31, (np.void, size), ready)[...] = np.frombuffer(payload.template, dtype=(np.void, size))[0]
-            column(at + 11, "<u4")[...] = (steps + np.uint64(first)) & np.uint64(0xFFFFFFFF)
-            column(at + 15, "<u8")[...] = log_time  # log time
-            column(at + 23, "<u8")[...] = log_time  # publish time
-            if isinstance(payload, FixedMessages):
-                payload.write_into(column(at + 31, payload.dtype))
-            else:
-                column(at + 31, (np.void, size))[...] = payload.view((np.void, size)).reshape(n)
-            offsets.append(at)
-            at += _MESSAGE_OVERHEAD + size
+        constant, variable, offsets = self._row_types(layout, payloads)
+        for channel in channels:
             self.counts[channel] = self.counts.get(channel, 0) + n
-        self._ready = max(self._ready, n)
         self.message_count += n * len(channels)
         self._times(int(log_time[0]), int(log_time[-1]))
         rows = max(1, self.chunk_size // row)
         head_records, head_index = bytes(self._open), self._open_index
         self._open, self._open_index = bytearray(), {}
+        values = []  # (field, column of the whole block) of the variable bytes
+        for k, (first, payload) in enumerate(zip(sequences, payloads)):
+            values.append((f"s{k}", np.uint64(first)))
+            values.append((f"t{k}", log_time[:, None]))  # log and publish time
+            if isinstance(payload, FixedMessages):
+                values += [(f"p{k}.{name}", v) for name, v in payload.values.items()]
+            else:
+                values.append((f"p{k}", payload.view((np.void, sizes[k])).reshape(n)))
+        mask = np.uint64(0xFFFFFFFF)
+        # chunk by chunk, each assembled in a buffer of its own (a chunk's records stay in the cache while
+        # their fields are written) and compressed in a worker thread while the next one is assembled
         for a in range(0, n, rows):
             b = min(n, a + rows)
-            records = block[a:b].reshape(-1)
+            m = b - a
+            buffer = self._take(m * row)
+            if buffer.layout != layout:
+                buffer.layout, buffer.ready = layout, 0
+            if buffer.ready < m:  # the constant bytes (record heads, FixedMessages' templates) of rows not written yet
+                view = np.ndarray((m - buffer.ready,), dtype=constant, buffer=buffer.array, offset=buffer.ready * row)
+                view[...] = self._constants[layout]
+                buffer.ready = m
+            view = np.ndarray((m,), dtype=variable, buffer=buffer.array)
+            steps = np.arange(a, b, dtype=np.uint64)
+            for name, column in values:
+                if name[0] == "s":
+                    view[name] = (steps + column) & mask
+                else:
+                    view[name] = column[a:b]
+            records = buffer.array[: m * row]
             base = 0
             index: Dict[int, np.ndarray] = {}
             if head_records or head_index:  # the open chunk's single messages come first
@@ -319,29 +322,86 @@ class BlockRecords:
                 base = len(head_records)
                 index = {ch: np.array(e, dtype="<u8").reshape(-1, 2) for ch, e in head_index.items()}
                 head_records, head_index = b"", {}
-            starts = base + np.arange(b - a, dtype=np.uint64) * np.uint64(row)
+            starts = base + np.arange(m, dtype=np.uint64) * np.uint64(row)
             for channel, offset in zip(channels, offsets):
-                entries = np.empty((b - a, 2), dtype="<u8")
+                entries = np.empty((m, 2), dtype="<u8")
                 entries[:, 0] = log_time[a:b]
                 entries[:, 1] = starts + np.uint64(offset)
                 index[channel] = np.concatenate([index[channel], entries]) if channel in index else entries
             first = min(int(log_time[a]), *(int(e[0, 0]) for e in index.values()))
-            self._submit(records, first, int(log_time[b - 1]), index)
+            self._submit(records, first, int(log_time[b - 1]), index, buffer)
+
+    def _row_types(self, layout: tuple, payloads) -> tuple:
+        """(constant, variable, offsets) of a block's rows: the structured types of a row's constant bytes
+        (each record's opcode, length and channel, each :class:`FixedMessages`' template) and of its variable
+        fields (sequence ``s<k>``, log and publish time ``t<k>``, payload ``p<k>`` or its fields ``p<k>.<name>``),
+        and each channel's record offset in the row. Built once per layout."""
+        got = self._types.get(layout)
+        if got is not None:
+            return got
+        row = layout[0]
+        cn, cf, co, vn, vf, vo, offsets = [], [], [], [], [], [], []
+        constants = []
+        at = 0
+        for k, ((channel, size, template), payload) in enumerate(zip(layout[1], payloads)):
+            head = np.zeros(1, dtype=_MESSAGE_HEAD)
+            head["opcode"], head["length"], head["channel"] = Opcode.MESSAGE, 22 + size, channel
+            cn.append(f"h{k}"), cf.append((np.void, 11)), co.append(at)
+            constants.append(head.view(np.uint8)[:11].tobytes())
+            vn += [f"s{k}", f"t{k}"]
+            vf += ["<u4", ("<u8", 2)]
+            vo += [at + 11, at + 15]
+            if template is not None:
+                cn.append(f"c{k}"), cf.append((np.void, size)), co.append(at + 31)
+                constants.append(template)
+                for name, (fmt, offset) in payload.fields.items():
+                    vn.append(f"p{k}.{name}"), vf.append(fmt), vo.append(at + 31 + offset)
+            else:
+                vn.append(f"p{k}"), vf.append((np.void, size)), vo.append(at + 31)
+            offsets.append(at)
+            at += _MESSAGE_OVERHEAD + size
+        constant = np.dtype({"names": cn, "formats": cf, "offsets": co, "itemsize": row})
+        variable = np.dtype({"names": vn, "formats": vf, "offsets": vo, "itemsize": row})
+        value = np.zeros(1, dtype=constant)
+        for name, data in zip(cn, constants):
+            value[name] = np.frombuffer(data, dtype=value.dtype[name])[0]
+        self._constants[layout] = value[0]
+        got = self._types[layout] = (constant, variable, offsets)
+        return got
+
+    def _take(self, size: int) -> "_Buffer":
+        """A buffer of at least ``size`` bytes whose chunk is written (the oldest pending chunk is written
+        first when :data:`MAX_IN_FLIGHT` are pending: memory holds at most that many chunks)."""
+        while len(self._pending) >= MAX_IN_FLIGHT:
+            self._write_oldest()
+        free = self._free
+        while free:
+            buffer = free.pop()
+            if buffer.array.size >= size:
+                return buffer
+        return _Buffer(np.empty(size, dtype=np.uint8))
 
     # -------------------------------------------------------------- chunks
-    def _submit(self, records, start: int, end: int, index: Dict[int, np.ndarray]) -> None:
+    def _submit(self, records, start: int, end: int, index: Dict[int, np.ndarray], buffer=None) -> None:
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="mcap-chunk")
-        self._pending.append((self._pool.submit(_compress, self.compression, records), start, end, len(records), index))
+        self._pending.append((self._pool.submit(_compress, self.compression, records), start, end, len(records), index,
+                              buffer))
         self._write_pending(all_of_them=False)
+
+    def _write_oldest(self) -> None:
+        """Write the oldest pending chunk (waiting for its compression); its buffer is free again."""
+        future, start, end, size, index, buffer = self._pending.popleft()
+        self._write_chunk(*future.result(), start, end, size, index)
+        if buffer is not None:
+            self._free.append(buffer)
 
     def _write_pending(self, all_of_them: bool) -> None:
         """Write the compressed chunks in order: those done (all with ``all_of_them``, waiting), and
         always enough that at most MAX_IN_FLIGHT stay."""
         pending = self._pending
         while pending and (all_of_them or len(pending) > MAX_IN_FLIGHT or pending[0][0].done()):
-            future, start, end, size, index = pending.popleft()
-            self._write_chunk(*future.result(), start, end, size, index)
+            self._write_oldest()
 
     def _write_chunk(self, compression: str, data: bytes, crc: int, data_crc: int, start: int, end: int, size: int,
                      index: Dict[int, np.ndarray]) -> None:
