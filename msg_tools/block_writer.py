@@ -31,6 +31,7 @@ import zlib
 from array import array
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from typing import Dict, Iterator, List, Optional, Sequence
 
 import numpy as np
@@ -55,21 +56,52 @@ _MESSAGE_HEAD = np.dtype([("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"
 assert _MESSAGE_HEAD.itemsize == _MESSAGE_OVERHEAD
 
 
-def _compress(kind: CompressionType, data) -> tuple[str, bytes, int, int]:
-    """(compression name, compressed bytes, CRC-32 of ``data``, CRC-32 of the compressed bytes) of one chunk's
-    records (a worker thread: the data section's CRC then only combines the latter, :func:`crc32_combine`)."""
+def _chunk_job(kind: CompressionType, data, start: int, end: int, index, message_index: bool) -> tuple:
+    """A chunk as a worker thread makes it from its records ``data`` (messages of log times ``start`` ..
+    ``end`` [ns]): ``(chunk record, its message index records, (channel, offset of its index record from the
+    first), compression, CRC-32 of the two)``. ``index`` is ``{channel: (k, 2) [(log time, offset)]}`` or a
+    function returning it (a block's, built here). The main thread then only writes them and combines the
+    CRC into the data section's (:func:`crc32_combine`): nothing in a chunk depends on where it lands."""
     crc = zlib.crc32(data)
     if kind == CompressionType.ZSTD:
         import zstandard
 
-        out = zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(data)
+        out, name = zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(data), "zstd"
     elif kind == CompressionType.LZ4:
         import lz4.frame
 
-        out = lz4.frame.compress(data)
+        out, name = lz4.frame.compress(data), "lz4"
     else:
-        out, kind = bytes(data), None
-    return ("zstd" if kind == CompressionType.ZSTD else "lz4" if kind == CompressionType.LZ4 else ""), out, crc, zlib.crc32(out)
+        out, name = bytes(data), ""
+    tail = struct.pack("<I", len(name)) + name.encode() + struct.pack("<Q", len(out))
+    head = _CHUNK_HEAD.pack(Opcode.CHUNK, 8 + 8 + 8 + 4 + len(tail) + len(out), start, end, len(data), crc) + tail
+    parts, places, at = [], [], 0
+    if message_index:
+        index = index() if callable(index) else index
+        for channel in sorted(index):
+            entries = np.ascontiguousarray(index[channel], dtype="<u8")
+            parts += [struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 2 + 4 + entries.nbytes, channel, entries.nbytes),
+                      entries.tobytes()]
+            places.append((channel, at))
+            at += 15 + entries.nbytes
+    records = b"".join(parts)
+    return (head, out), records, places, name, zlib.crc32(records, zlib.crc32(out, zlib.crc32(head)))
+
+
+def _block_index(log_time: np.ndarray, base: int, row: int, channels: Sequence[int], offsets: Sequence[int],
+                 head: Dict[int, list]) -> Dict[int, np.ndarray]:
+    """The message index of a chunk of a block's rows: ``head`` (the open chunk's single messages, ``{channel:
+    [(log time, offset)]}``) then, per channel, each row's ``log_time`` [ns] and the record's offset (``base``
+    + ``row`` per row + the channel's offset in the row)."""
+    m = log_time.size
+    index = {ch: np.array(e, dtype="<u8").reshape(-1, 2) for ch, e in head.items()}
+    starts = np.uint64(base) + np.arange(m, dtype=np.uint64) * np.uint64(row)
+    for channel, offset in zip(channels, offsets):
+        entries = np.empty((m, 2), dtype="<u8")
+        entries[:, 0] = log_time
+        entries[:, 1] = starts + np.uint64(offset)
+        index[channel] = np.concatenate([index[channel], entries]) if channel in index else entries
+    return index
 
 
 _POLY = 0xEDB88320  # CRC-32 (zlib's), reflected
@@ -98,16 +130,38 @@ def _x2n_table() -> list:
 _X2N = _x2n_table()
 
 
+_TIMES: dict = {}  # k -> the four byte tables of the product by x^(8 2^k) (:func:`_times`)
+
+
+def _times(k: int) -> tuple:
+    """Tables of ``c -> c x^(8 2^k)`` modulo the polynomial: the product is linear in ``c``, so it is the XOR of
+    one entry per byte of ``c`` (``tables[j][byte j of c]``), each entry the XOR of the products of its bits."""
+    tables = _TIMES.get(k)
+    if tables is None:
+        bits = [_multmodp(_X2N[(k + 3) & 31], 1 << i) for i in range(32)]
+        tables = []
+        for j in range(4):
+            table = [0] * 256
+            for v in range(1, 256):
+                low = v & -v
+                table[v] = table[v ^ low] ^ bits[8 * j + low.bit_length() - 1]
+            tables.append(table)
+        tables = _TIMES[k] = tuple(tables)
+    return tables
+
+
 def crc32_combine(crc1: int, crc2: int, len2: int) -> int:
     """CRC-32 of ``A + B`` from ``crc1 = crc32(A)``, ``crc2 = crc32(B)`` and ``len(B)`` (zlib's crc32_combine:
-    ``crc1`` times ``x^(8 len2)`` modulo the polynomial, plus ``crc2``)."""
-    p, k, n = 1 << 31, 3, int(len2)  # x^0; x^(2^3) = one byte
-    while n:
+    ``crc1`` times ``x^(8 len2)`` modulo the polynomial, plus ``crc2``; the product by each power of two of
+    ``len2``'s bits through byte tables, :func:`_times`)."""
+    c, k, n = int(crc1), 0, int(len2)
+    while n and c:
         if n & 1:
-            p = _multmodp(_X2N[k & 31], p)
+            t0, t1, t2, t3 = _times(k)
+            c = t0[c & 255] ^ t1[(c >> 8) & 255] ^ t2[(c >> 16) & 255] ^ t3[c >> 24]
         n >>= 1
         k += 1
-    return _multmodp(p, crc1) ^ crc2 if crc1 else crc2
+    return c ^ crc2
 
 
 class FixedMessages:
@@ -199,6 +253,10 @@ class BlockRecords:
         self._pending: deque = deque()
         # buffers of blocks' chunks whose chunk is written, to assemble the next ones in (:class:`_Buffer`)
         self._free: List[_Buffer] = []
+        try:  # the file offset of the next record (counted from here on)
+            self._offset = int(stream.tell())
+        except (OSError, AttributeError, ValueError):
+            self._offset = 0
         self._types: dict = {}  # a block layout's row types (:meth:`_row_types`)
         self._constants: dict = {}  # and its constant bytes
 
@@ -206,7 +264,12 @@ class BlockRecords:
     def _emit(self, data) -> None:
         if self.data_crcs:
             self.data_crc = zlib.crc32(data, self.data_crc)
+        self._put(data)
+
+    def _put(self, data) -> None:
+        """Write ``data`` (no CRC), counting the file offset (no ``tell`` per record)."""
         self.stream.write(data)
+        self._offset += len(data)
 
     def _emit_record(self, record) -> None:
         builder = RecordBuilder()
@@ -237,7 +300,7 @@ class BlockRecords:
         builder = RecordBuilder()
         Metadata(name=name, metadata=data).write(builder)
         record = builder.end()
-        self.metadata_indexes.append(MetadataIndex(offset=self.stream.tell(), length=len(record), name=name))
+        self.metadata_indexes.append(MetadataIndex(offset=self._offset, length=len(record), name=name))
         self.metadata_count += 1
         self._emit(record)
 
@@ -315,20 +378,13 @@ class BlockRecords:
                 else:
                     view[name] = column[a:b]
             records = buffer.array[: m * row]
-            base = 0
-            index: Dict[int, np.ndarray] = {}
+            first = int(log_time[a])
             if head_records or head_index:  # the open chunk's single messages come first
                 records = np.concatenate([np.frombuffer(head_records, dtype=np.uint8), records])
-                base = len(head_records)
-                index = {ch: np.array(e, dtype="<u8").reshape(-1, 2) for ch, e in head_index.items()}
-                head_records, head_index = b"", {}
-            starts = base + np.arange(m, dtype=np.uint64) * np.uint64(row)
-            for channel, offset in zip(channels, offsets):
-                entries = np.empty((m, 2), dtype="<u8")
-                entries[:, 0] = log_time[a:b]
-                entries[:, 1] = starts + np.uint64(offset)
-                index[channel] = np.concatenate([index[channel], entries]) if channel in index else entries
-            first = min(int(log_time[a]), *(int(e[0, 0]) for e in index.values()))
+                first = min(first, *(int(e[0][0]) for e in head_index.values() if e))
+            # the chunk's message index: built by the worker thread
+            index = partial(_block_index, log_time[a:b], len(head_records), row, channels, offsets, head_index)
+            head_records, head_index = b"", {}
             self._submit(records, first, int(log_time[b - 1]), index, buffer)
 
     def _row_types(self, layout: tuple, payloads) -> tuple:
@@ -385,14 +441,14 @@ class BlockRecords:
     def _submit(self, records, start: int, end: int, index: Dict[int, np.ndarray], buffer=None) -> None:
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="mcap-chunk")
-        self._pending.append((self._pool.submit(_compress, self.compression, records), start, end, len(records), index,
-                              buffer))
+        self._pending.append((self._pool.submit(_chunk_job, self.compression, records, start, end, index,
+                                                self.message_index), buffer))
         self._write_pending(all_of_them=False)
 
     def _write_oldest(self) -> None:
         """Write the oldest pending chunk (waiting for its compression); its buffer is free again."""
-        future, start, end, size, index, buffer = self._pending.popleft()
-        self._write_chunk(*future.result(), start, end, size, index)
+        future, buffer = self._pending.popleft()
+        self._write_chunk(*future.result())
         if buffer is not None:
             self._free.append(buffer)
 
@@ -403,33 +459,22 @@ class BlockRecords:
         while pending and (all_of_them or len(pending) > MAX_IN_FLIGHT or pending[0][0].done()):
             self._write_oldest()
 
-    def _write_chunk(self, compression: str, data: bytes, crc: int, data_crc: int, start: int, end: int, size: int,
-                     index: Dict[int, np.ndarray]) -> None:
-        offset = self.stream.tell()
-        tail = struct.pack("<I", len(compression)) + compression.encode() + struct.pack("<Q", len(data))
-        length = 8 + 8 + 8 + 4 + len(tail) + len(data)
-        self._emit(_CHUNK_HEAD.pack(Opcode.CHUNK, length, start, end, size, crc) + tail)
-        self.stream.write(data)  # its CRC came from the worker: combined, not computed again here
+    def _write_chunk(self, chunk: tuple, index: bytes, places: list, compression: str, crc: int) -> None:
+        """Write a chunk record and its message index records (:func:`_chunk_job`'s values; their CRC came
+        from the worker: combined into the data section's, not computed again here)."""
+        head, data = chunk
+        offset = self._offset
+        self._put(head)
+        self._put(data)
+        index_start = self._offset
+        if index:
+            self._put(index)
         if self.data_crcs:
-            self.data_crc = crc32_combine(self.data_crc, data_crc, len(data))
-        chunk_length = self.stream.tell() - offset
-        index_offsets = {}
-        index_start = self.stream.tell()
-        if self.message_index:
-            parts = []
-            at = index_start
-            for channel in sorted(index):
-                entries = np.ascontiguousarray(index[channel], dtype="<u8")
-                record = struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 2 + 4 + entries.nbytes, channel,
-                                     entries.nbytes) + entries.tobytes()
-                index_offsets[channel] = at
-                at += len(record)
-                parts.append(record)
-            self._emit(b"".join(parts))
-        self._chunks.extend((start, end, offset, chunk_length, self.stream.tell() - index_start, len(data), size,
-                             len(index_offsets)))
-        for channel in sorted(index_offsets):
-            self._chunk_pairs.extend((channel, index_offsets[channel]))
+            self.data_crc = crc32_combine(self.data_crc, crc, len(head) + len(data) + len(index))
+        for channel, at in places:
+            self._chunk_pairs.extend((channel, index_start + at))
+        _, _, start, end, size, _ = _CHUNK_HEAD.unpack_from(head)
+        self._chunks.extend((start, end, offset, index_start - offset, len(index), len(data), size, len(places)))
         self._chunk_compression = compression
 
     def chunk_indexes(self) -> Iterator[ChunkIndex]:
@@ -459,7 +504,7 @@ class BlockRecords:
                 self._pool.shutdown(wait=True)
                 self._pool = None
         self._emit_record(DataEnd(self.data_crc))
-        summary_start = self.stream.tell()
+        summary_start = self._offset
         builder = RecordBuilder()
         offsets = []
 
