@@ -349,12 +349,18 @@ class BlockRecords:
         rows = max(1, self.chunk_size // row)
         head_records, head_index = bytes(self._open), self._open_index
         self._open, self._open_index = bytearray(), {}
-        values = []  # (field, column of the whole block) of the variable bytes
-        for k, (first, payload) in enumerate(zip(sequences, payloads)):
-            values.append((f"s{k}", np.uint64(first)))
-            values.append((f"t{k}", log_time[:, None]))  # log and publish time
+        # the variable bytes: (field, its values for the whole block as bytes, one np.void per row: a field of
+        # several numbers is copied as one unit per row, much faster than numpy's sub-array copies)
+        times = np.empty((n, 2), dtype="<u8")
+        times[:, 0] = times[:, 1] = log_time  # log and publish time, the same in every record
+        values = []
+        for k, payload in enumerate(payloads):
+            values.append((f"t{k}", times.view((np.void, 16)).reshape(n)))
             if isinstance(payload, FixedMessages):
-                values += [(f"p{k}.{name}", v) for name, v in payload.values.items()]
+                for name, (fmt, _) in payload.fields.items():
+                    kind = np.dtype(fmt)
+                    column = np.ascontiguousarray(payload.values[name], dtype=kind.base).reshape(n, -1)
+                    values.append((f"p{k}.{name}", column.view((np.void, kind.itemsize)).reshape(n)))
             else:
                 values.append((f"p{k}", payload.view((np.void, sizes[k])).reshape(n)))
         mask = np.uint64(0xFFFFFFFF)
@@ -371,12 +377,13 @@ class BlockRecords:
                 view[...] = self._constants[layout]
                 buffer.ready = m
             view = np.ndarray((m,), dtype=variable, buffer=buffer.array)
-            steps = np.arange(a, b, dtype=np.uint64)
+            steps, numbers = np.arange(a, b, dtype=np.uint64), {}
+            for k, first in enumerate(sequences):
+                if first not in numbers:  # (every channel's, usually: one array)
+                    numbers[first] = ((steps + np.uint64(first)) & mask).astype("<u4")
+                view[f"s{k}"] = numbers[first]
             for name, column in values:
-                if name[0] == "s":
-                    view[name] = (steps + column) & mask
-                else:
-                    view[name] = column[a:b]
+                view[name] = column[a:b]
             records = buffer.array[: m * row]
             first = int(log_time[a])
             if head_records or head_index:  # the open chunk's single messages come first
@@ -405,13 +412,13 @@ class BlockRecords:
             cn.append(f"h{k}"), cf.append((np.void, 11)), co.append(at)
             constants.append(head.view(np.uint8)[:11].tobytes())
             vn += [f"s{k}", f"t{k}"]
-            vf += ["<u4", ("<u8", 2)]
+            vf += ["<u4", (np.void, 16)]
             vo += [at + 11, at + 15]
             if template is not None:
                 cn.append(f"c{k}"), cf.append((np.void, size)), co.append(at + 31)
                 constants.append(template)
                 for name, (fmt, offset) in payload.fields.items():
-                    vn.append(f"p{k}.{name}"), vf.append(fmt), vo.append(at + 31 + offset)
+                    vn.append(f"p{k}.{name}"), vf.append((np.void, np.dtype(fmt).itemsize)), vo.append(at + 31 + offset)
             else:
                 vn.append(f"p{k}"), vf.append((np.void, size)), vo.append(at + 31)
             offsets.append(at)
