@@ -11,7 +11,10 @@ arrays, as an offline run's outputs are). The message records of a block
 are assembled as one byte array (a row per step: the ``T`` records in
 topic order), cut into chunks of ``chunk_size`` bytes, and the chunks
 compressed (zstd, lz4) and checksummed in worker threads (both release the
-GIL) while the caller computes the next block.
+GIL) while the caller assembles the next chunk or computes the next block.
+Each chunk is assembled in a buffer of its own (a few MiB, reused once its
+chunk is written), so its records are still in the cache while their fields
+are written, and memory holds at most :data:`MAX_IN_FLIGHT` chunks.
 
 The MCAP written is the specification's (https://mcap.dev/spec): chunks
 with their message index records, schema and channel records in the data
@@ -28,6 +31,7 @@ import zlib
 from array import array
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from typing import Dict, Iterator, List, Optional, Sequence
 
 import numpy as np
@@ -52,21 +56,52 @@ _MESSAGE_HEAD = np.dtype([("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"
 assert _MESSAGE_HEAD.itemsize == _MESSAGE_OVERHEAD
 
 
-def _compress(kind: CompressionType, data) -> tuple[str, bytes, int, int]:
-    """(compression name, compressed bytes, CRC-32 of ``data``, CRC-32 of the compressed bytes) of one chunk's
-    records (a worker thread: the data section's CRC then only combines the latter, :func:`crc32_combine`)."""
+def _chunk_job(kind: CompressionType, data, start: int, end: int, index, message_index: bool) -> tuple:
+    """A chunk as a worker thread makes it from its records ``data`` (messages of log times ``start`` ..
+    ``end`` [ns]): ``(chunk record, its message index records, (channel, offset of its index record from the
+    first), compression, CRC-32 of the two)``. ``index`` is ``{channel: (k, 2) [(log time, offset)]}`` or a
+    function returning it (a block's, built here). The main thread then only writes them and combines the
+    CRC into the data section's (:func:`crc32_combine`): nothing in a chunk depends on where it lands."""
     crc = zlib.crc32(data)
     if kind == CompressionType.ZSTD:
         import zstandard
 
-        out = zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(data)
+        out, name = zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(data), "zstd"
     elif kind == CompressionType.LZ4:
         import lz4.frame
 
-        out = lz4.frame.compress(data)
+        out, name = lz4.frame.compress(data), "lz4"
     else:
-        out, kind = bytes(data), None
-    return ("zstd" if kind == CompressionType.ZSTD else "lz4" if kind == CompressionType.LZ4 else ""), out, crc, zlib.crc32(out)
+        out, name = bytes(data), ""
+    tail = struct.pack("<I", len(name)) + name.encode() + struct.pack("<Q", len(out))
+    head = _CHUNK_HEAD.pack(Opcode.CHUNK, 8 + 8 + 8 + 4 + len(tail) + len(out), start, end, len(data), crc) + tail
+    parts, places, at = [], [], 0
+    if message_index:
+        index = index() if callable(index) else index
+        for channel in sorted(index):
+            entries = np.ascontiguousarray(index[channel], dtype="<u8")
+            parts += [struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 2 + 4 + entries.nbytes, channel, entries.nbytes),
+                      entries.tobytes()]
+            places.append((channel, at))
+            at += 15 + entries.nbytes
+    records = b"".join(parts)
+    return (head, out), records, places, name, zlib.crc32(records, zlib.crc32(out, zlib.crc32(head)))
+
+
+def _block_index(log_time: np.ndarray, base: int, row: int, channels: Sequence[int], offsets: Sequence[int],
+                 head: Dict[int, list]) -> Dict[int, np.ndarray]:
+    """The message index of a chunk of a block's rows: ``head`` (the open chunk's single messages, ``{channel:
+    [(log time, offset)]}``) then, per channel, each row's ``log_time`` [ns] and the record's offset (``base``
+    + ``row`` per row + the channel's offset in the row)."""
+    m = log_time.size
+    index = {ch: np.array(e, dtype="<u8").reshape(-1, 2) for ch, e in head.items()}
+    starts = np.uint64(base) + np.arange(m, dtype=np.uint64) * np.uint64(row)
+    for channel, offset in zip(channels, offsets):
+        entries = np.empty((m, 2), dtype="<u8")
+        entries[:, 0] = log_time
+        entries[:, 1] = starts + np.uint64(offset)
+        index[channel] = np.concatenate([index[channel], entries]) if channel in index else entries
+    return index
 
 
 _POLY = 0xEDB88320  # CRC-32 (zlib's), reflected
@@ -95,16 +130,38 @@ def _x2n_table() -> list:
 _X2N = _x2n_table()
 
 
+_TIMES: dict = {}  # k -> the four byte tables of the product by x^(8 2^k) (:func:`_times`)
+
+
+def _times(k: int) -> tuple:
+    """Tables of ``c -> c x^(8 2^k)`` modulo the polynomial: the product is linear in ``c``, so it is the XOR of
+    one entry per byte of ``c`` (``tables[j][byte j of c]``), each entry the XOR of the products of its bits."""
+    tables = _TIMES.get(k)
+    if tables is None:
+        bits = [_multmodp(_X2N[(k + 3) & 31], 1 << i) for i in range(32)]
+        tables = []
+        for j in range(4):
+            table = [0] * 256
+            for v in range(1, 256):
+                low = v & -v
+                table[v] = table[v ^ low] ^ bits[8 * j + low.bit_length() - 1]
+            tables.append(table)
+        tables = _TIMES[k] = tuple(tables)
+    return tables
+
+
 def crc32_combine(crc1: int, crc2: int, len2: int) -> int:
     """CRC-32 of ``A + B`` from ``crc1 = crc32(A)``, ``crc2 = crc32(B)`` and ``len(B)`` (zlib's crc32_combine:
-    ``crc1`` times ``x^(8 len2)`` modulo the polynomial, plus ``crc2``)."""
-    p, k, n = 1 << 31, 3, int(len2)  # x^0; x^(2^3) = one byte
-    while n:
+    ``crc1`` times ``x^(8 len2)`` modulo the polynomial, plus ``crc2``; the product by each power of two of
+    ``len2``'s bits through byte tables, :func:`_times`)."""
+    c, k, n = int(crc1), 0, int(len2)
+    while n and c:
         if n & 1:
-            p = _multmodp(_X2N[k & 31], p)
+            t0, t1, t2, t3 = _times(k)
+            c = t0[c & 255] ^ t1[(c >> 8) & 255] ^ t2[(c >> 16) & 255] ^ t3[c >> 24]
         n >>= 1
         k += 1
-    return _multmodp(p, crc1) ^ crc2 if crc1 else crc2
+    return c ^ crc2
 
 
 class FixedMessages:
@@ -146,6 +203,17 @@ class FixedMessages:
         return out
 
 
+class _Buffer:
+    """A chunk's records being assembled or compressed: ``array`` (bytes), and the ``layout`` of the block
+    whose constant bytes (record heads, FixedMessages' templates) its first ``ready`` rows hold already
+    (kept while chunks of that layout follow: only the fields are written)."""
+
+    __slots__ = ("array", "layout", "ready")
+
+    def __init__(self, array: np.ndarray):
+        self.array, self.layout, self.ready = array, (), 0
+
+
 class BlockRecords:
     """The MCAP record writer behind :class:`BlockMcapWriter` (``mcap.writer.Writer``'s methods, plus blocks).
 
@@ -154,8 +222,7 @@ class BlockRecords:
     when it reaches ``chunk_size``); schema and channel records go to the
     data section between chunks. Chunks are written in order; compression
     runs in a pool of two threads, at most :data:`MAX_IN_FLIGHT` chunks ahead
-    of the file, and a block's chunks are all written before the next block
-    is assembled.
+    of the file (a chunk's buffer is assembled again once it is written).
     """
 
     def __init__(self, stream, chunk_size: int = 1 << 20, compression: CompressionType = CompressionType.ZSTD,
@@ -184,17 +251,25 @@ class BlockRecords:
         self._open_index: Dict[int, list] = {}  # channel -> [(log time, offset)]
         self._pool: Optional[ThreadPoolExecutor] = None
         self._pending: deque = deque()
-        self._buffer = np.empty(0, dtype=np.uint8)  # the records of the block being written
-        # the layout of the records in the buffer's first ``_ready`` rows: their constant bytes (record heads,
-        # FixedMessages' templates) are written once and kept while blocks of that layout follow
-        self._layout: tuple = ()
-        self._ready = 0
+        # buffers of blocks' chunks whose chunk is written, to assemble the next ones in (:class:`_Buffer`)
+        self._free: List[_Buffer] = []
+        try:  # the file offset of the next record (counted from here on)
+            self._offset = int(stream.tell())
+        except (OSError, AttributeError, ValueError):
+            self._offset = 0
+        self._types: dict = {}  # a block layout's row types (:meth:`_row_types`)
+        self._constants: dict = {}  # and its constant bytes
 
     # -------------------------------------------------------------- output
     def _emit(self, data) -> None:
         if self.data_crcs:
             self.data_crc = zlib.crc32(data, self.data_crc)
+        self._put(data)
+
+    def _put(self, data) -> None:
+        """Write ``data`` (no CRC), counting the file offset (no ``tell`` per record)."""
         self.stream.write(data)
+        self._offset += len(data)
 
     def _emit_record(self, record) -> None:
         builder = RecordBuilder()
@@ -225,7 +300,7 @@ class BlockRecords:
         builder = RecordBuilder()
         Metadata(name=name, metadata=data).write(builder)
         record = builder.end()
-        self.metadata_indexes.append(MetadataIndex(offset=self.stream.tell(), length=len(record), name=name))
+        self.metadata_indexes.append(MetadataIndex(offset=self._offset, length=len(record), name=name))
         self.metadata_count += 1
         self._emit(record)
 
@@ -261,115 +336,152 @@ class BlockRecords:
         n = log_time.size
         if not n:
             return
-        # the previous block's chunks were compressed while the caller computed this one: write them all
-        # first, so memory holds at most one block and its chunks (the same peak for any run length)
-        self._write_pending(all_of_them=True)
         sizes = [int(p.size if isinstance(p, FixedMessages) else p.shape[1]) for p in payloads]
-        # one row per step: each channel's record (head fields, then the payload) at its offset; each field
-        # written through a strided view of its type, one unit per row (a column slice of the byte matrix
-        # would copy byte by byte)
+        # one row per step: each channel's record (head fields, then the payload) at its offset
         row = sum(_MESSAGE_OVERHEAD + size for size in sizes)
-        if self._buffer.size < n * row:  # reused block after block (its chunks are written): no fresh pages to fault in
-            self._buffer = np.empty(n * row, dtype=np.uint8)
-            self._ready = 0
         layout = (row, tuple((c, size, p.template if isinstance(p, FixedMessages) else None)
                              for c, size, p in zip(channels, sizes, payloads)))
-        if layout != self._layout:
-            self._layout, self._ready = layout, 0
-        block = self._buffer[: n * row].reshape(n, row)
-        ready = min(self._ready, n)  # rows holding this layout's constant bytes already
-
-        def column(offset: int, dtype, first: int = 0) -> np.ndarray:
-            return np.ndarray((n - first,), dtype=dtype, buffer=self._buffer, offset=first * row + offset, strides=(row,))
-
-        template = np.zeros(1, dtype=_MESSAGE_HEAD)
-        template["opcode"] = Opcode.MESSAGE
-        steps = np.arange(n, dtype=np.uint64)
-        offsets = []  # of each channel's record within a row
-        at = 0
-        for channel, first, size, payload in zip(channels, sequences, sizes, payloads):
-            if ready < n:  # the constant bytes of the rows not written yet
-                template["length"], template["channel"] = 22 + size, channel
-                column(at, (np.void, 11), ready)[...] = template.view(np.uint8)[:11].view((np.void, 11))[0]
-                if isinstance(payload, FixedMessages):
-                    column(at + 31, (np.void, size), ready)[...] = np.frombuffer(payload.template, dtype=(np.void, size))[0]
-            column(at + 11, "<u4")[...] = (steps + np.uint64(first)) & np.uint64(0xFFFFFFFF)
-            column(at + 15, "<u8")[...] = log_time  # log time
-            column(at + 23, "<u8")[...] = log_time  # publish time
-            if isinstance(payload, FixedMessages):
-                payload.write_into(column(at + 31, payload.dtype))
-            else:
-                column(at + 31, (np.void, size))[...] = payload.view((np.void, size)).reshape(n)
-            offsets.append(at)
-            at += _MESSAGE_OVERHEAD + size
+        constant, variable, offsets = self._row_types(layout, payloads)
+        for channel in channels:
             self.counts[channel] = self.counts.get(channel, 0) + n
-        self._ready = max(self._ready, n)
         self.message_count += n * len(channels)
         self._times(int(log_time[0]), int(log_time[-1]))
         rows = max(1, self.chunk_size // row)
         head_records, head_index = bytes(self._open), self._open_index
         self._open, self._open_index = bytearray(), {}
+        # the variable bytes: (field, its values for the whole block as bytes, one np.void per row: a field of
+        # several numbers is copied as one unit per row, much faster than numpy's sub-array copies)
+        times = np.empty((n, 2), dtype="<u8")
+        times[:, 0] = times[:, 1] = log_time  # log and publish time, the same in every record
+        values = []
+        for k, payload in enumerate(payloads):
+            values.append((f"t{k}", times.view((np.void, 16)).reshape(n)))
+            if isinstance(payload, FixedMessages):
+                for name, (fmt, _) in payload.fields.items():
+                    kind = np.dtype(fmt)
+                    column = np.ascontiguousarray(payload.values[name], dtype=kind.base).reshape(n, -1)
+                    values.append((f"p{k}.{name}", column.view((np.void, kind.itemsize)).reshape(n)))
+            else:
+                values.append((f"p{k}", payload.view((np.void, sizes[k])).reshape(n)))
+        mask = np.uint64(0xFFFFFFFF)
+        # chunk by chunk, each assembled in a buffer of its own (a chunk's records stay in the cache while
+        # their fields are written) and compressed in a worker thread while the next one is assembled
         for a in range(0, n, rows):
             b = min(n, a + rows)
-            records = block[a:b].reshape(-1)
-            base = 0
-            index: Dict[int, np.ndarray] = {}
+            m = b - a
+            buffer = self._take(m * row)
+            if buffer.layout != layout:
+                buffer.layout, buffer.ready = layout, 0
+            if buffer.ready < m:  # the constant bytes (record heads, FixedMessages' templates) of rows not written yet
+                view = np.ndarray((m - buffer.ready,), dtype=constant, buffer=buffer.array, offset=buffer.ready * row)
+                view[...] = self._constants[layout]
+                buffer.ready = m
+            view = np.ndarray((m,), dtype=variable, buffer=buffer.array)
+            steps, numbers = np.arange(a, b, dtype=np.uint64), {}
+            for k, first in enumerate(sequences):
+                if first not in numbers:  # (every channel's, usually: one array)
+                    numbers[first] = ((steps + np.uint64(first)) & mask).astype("<u4")
+                view[f"s{k}"] = numbers[first]
+            for name, column in values:
+                view[name] = column[a:b]
+            records = buffer.array[: m * row]
+            first = int(log_time[a])
             if head_records or head_index:  # the open chunk's single messages come first
                 records = np.concatenate([np.frombuffer(head_records, dtype=np.uint8), records])
-                base = len(head_records)
-                index = {ch: np.array(e, dtype="<u8").reshape(-1, 2) for ch, e in head_index.items()}
-                head_records, head_index = b"", {}
-            starts = base + np.arange(b - a, dtype=np.uint64) * np.uint64(row)
-            for channel, offset in zip(channels, offsets):
-                entries = np.empty((b - a, 2), dtype="<u8")
-                entries[:, 0] = log_time[a:b]
-                entries[:, 1] = starts + np.uint64(offset)
-                index[channel] = np.concatenate([index[channel], entries]) if channel in index else entries
-            first = min(int(log_time[a]), *(int(e[0, 0]) for e in index.values()))
-            self._submit(records, first, int(log_time[b - 1]), index)
+                first = min(first, *(int(e[0][0]) for e in head_index.values() if e))
+            # the chunk's message index: built by the worker thread
+            index = partial(_block_index, log_time[a:b], len(head_records), row, channels, offsets, head_index)
+            head_records, head_index = b"", {}
+            self._submit(records, first, int(log_time[b - 1]), index, buffer)
+
+    def _row_types(self, layout: tuple, payloads) -> tuple:
+        """(constant, variable, offsets) of a block's rows: the structured types of a row's constant bytes
+        (each record's opcode, length and channel, each :class:`FixedMessages`' template) and of its variable
+        fields (sequence ``s<k>``, log and publish time ``t<k>``, payload ``p<k>`` or its fields ``p<k>.<name>``),
+        and each channel's record offset in the row. Built once per layout."""
+        got = self._types.get(layout)
+        if got is not None:
+            return got
+        row = layout[0]
+        cn, cf, co, vn, vf, vo, offsets = [], [], [], [], [], [], []
+        constants = []
+        at = 0
+        for k, ((channel, size, template), payload) in enumerate(zip(layout[1], payloads)):
+            head = np.zeros(1, dtype=_MESSAGE_HEAD)
+            head["opcode"], head["length"], head["channel"] = Opcode.MESSAGE, 22 + size, channel
+            cn.append(f"h{k}"), cf.append((np.void, 11)), co.append(at)
+            constants.append(head.view(np.uint8)[:11].tobytes())
+            vn += [f"s{k}", f"t{k}"]
+            vf += ["<u4", (np.void, 16)]
+            vo += [at + 11, at + 15]
+            if template is not None:
+                cn.append(f"c{k}"), cf.append((np.void, size)), co.append(at + 31)
+                constants.append(template)
+                for name, (fmt, offset) in payload.fields.items():
+                    vn.append(f"p{k}.{name}"), vf.append((np.void, np.dtype(fmt).itemsize)), vo.append(at + 31 + offset)
+            else:
+                vn.append(f"p{k}"), vf.append((np.void, size)), vo.append(at + 31)
+            offsets.append(at)
+            at += _MESSAGE_OVERHEAD + size
+        constant = np.dtype({"names": cn, "formats": cf, "offsets": co, "itemsize": row})
+        variable = np.dtype({"names": vn, "formats": vf, "offsets": vo, "itemsize": row})
+        value = np.zeros(1, dtype=constant)
+        for name, data in zip(cn, constants):
+            value[name] = np.frombuffer(data, dtype=value.dtype[name])[0]
+        self._constants[layout] = value[0]
+        got = self._types[layout] = (constant, variable, offsets)
+        return got
+
+    def _take(self, size: int) -> "_Buffer":
+        """A buffer of at least ``size`` bytes whose chunk is written (the oldest pending chunk is written
+        first when :data:`MAX_IN_FLIGHT` are pending: memory holds at most that many chunks)."""
+        while len(self._pending) >= MAX_IN_FLIGHT:
+            self._write_oldest()
+        free = self._free
+        while free:
+            buffer = free.pop()
+            if buffer.array.size >= size:
+                return buffer
+        return _Buffer(np.empty(size, dtype=np.uint8))
 
     # -------------------------------------------------------------- chunks
-    def _submit(self, records, start: int, end: int, index: Dict[int, np.ndarray]) -> None:
+    def _submit(self, records, start: int, end: int, index: Dict[int, np.ndarray], buffer=None) -> None:
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="mcap-chunk")
-        self._pending.append((self._pool.submit(_compress, self.compression, records), start, end, len(records), index))
+        self._pending.append((self._pool.submit(_chunk_job, self.compression, records, start, end, index,
+                                                self.message_index), buffer))
         self._write_pending(all_of_them=False)
+
+    def _write_oldest(self) -> None:
+        """Write the oldest pending chunk (waiting for its compression); its buffer is free again."""
+        future, buffer = self._pending.popleft()
+        self._write_chunk(*future.result())
+        if buffer is not None:
+            self._free.append(buffer)
 
     def _write_pending(self, all_of_them: bool) -> None:
         """Write the compressed chunks in order: those done (all with ``all_of_them``, waiting), and
         always enough that at most MAX_IN_FLIGHT stay."""
         pending = self._pending
         while pending and (all_of_them or len(pending) > MAX_IN_FLIGHT or pending[0][0].done()):
-            future, start, end, size, index = pending.popleft()
-            self._write_chunk(*future.result(), start, end, size, index)
+            self._write_oldest()
 
-    def _write_chunk(self, compression: str, data: bytes, crc: int, data_crc: int, start: int, end: int, size: int,
-                     index: Dict[int, np.ndarray]) -> None:
-        offset = self.stream.tell()
-        tail = struct.pack("<I", len(compression)) + compression.encode() + struct.pack("<Q", len(data))
-        length = 8 + 8 + 8 + 4 + len(tail) + len(data)
-        self._emit(_CHUNK_HEAD.pack(Opcode.CHUNK, length, start, end, size, crc) + tail)
-        self.stream.write(data)  # its CRC came from the worker: combined, not computed again here
+    def _write_chunk(self, chunk: tuple, index: bytes, places: list, compression: str, crc: int) -> None:
+        """Write a chunk record and its message index records (:func:`_chunk_job`'s values; their CRC came
+        from the worker: combined into the data section's, not computed again here)."""
+        head, data = chunk
+        offset = self._offset
+        self._put(head)
+        self._put(data)
+        index_start = self._offset
+        if index:
+            self._put(index)
         if self.data_crcs:
-            self.data_crc = crc32_combine(self.data_crc, data_crc, len(data))
-        chunk_length = self.stream.tell() - offset
-        index_offsets = {}
-        index_start = self.stream.tell()
-        if self.message_index:
-            parts = []
-            at = index_start
-            for channel in sorted(index):
-                entries = np.ascontiguousarray(index[channel], dtype="<u8")
-                record = struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 2 + 4 + entries.nbytes, channel,
-                                     entries.nbytes) + entries.tobytes()
-                index_offsets[channel] = at
-                at += len(record)
-                parts.append(record)
-            self._emit(b"".join(parts))
-        self._chunks.extend((start, end, offset, chunk_length, self.stream.tell() - index_start, len(data), size,
-                             len(index_offsets)))
-        for channel in sorted(index_offsets):
-            self._chunk_pairs.extend((channel, index_offsets[channel]))
+            self.data_crc = crc32_combine(self.data_crc, crc, len(head) + len(data) + len(index))
+        for channel, at in places:
+            self._chunk_pairs.extend((channel, index_start + at))
+        _, _, start, end, size, _ = _CHUNK_HEAD.unpack_from(head)
+        self._chunks.extend((start, end, offset, index_start - offset, len(index), len(data), size, len(places)))
         self._chunk_compression = compression
 
     def chunk_indexes(self) -> Iterator[ChunkIndex]:
@@ -399,7 +511,7 @@ class BlockRecords:
                 self._pool.shutdown(wait=True)
                 self._pool = None
         self._emit_record(DataEnd(self.data_crc))
-        summary_start = self.stream.tell()
+        summary_start = self._offset
         builder = RecordBuilder()
         offsets = []
 

@@ -22,9 +22,15 @@ from .decode import build_topic
 from .errors import CorruptBagError
 from .files import open_regular
 from .results import TopicData
-from .scan import _CHUNK, Scan, _Stop, SchemaRecord, SourceBuffer, chunk_records, uniform_rows
+from .scan import _CHUNK, _MESSAGE, Scan, _Stop, SchemaRecord, SourceBuffer, chunk_records
 
 __all__ = ["ChunkedTopic", "topic_chunks"]
+
+#: a message record of a ``std_msgs/Float64`` (opcode, record length, channel, log time, then the CDR: its
+#: encapsulation's first two bytes ``00 01``, little endian, two option bytes, the double): 9 + 22 + 12 bytes
+_FLOAT64_RECORD = np.dtype({"names": ["opcode", "length", "channel", "log_time", "encapsulation", "value"],
+                            "formats": ["u1", "<u8", "<u2", "<i8", "<u2", "<f8"], "offsets": [0, 1, 9, 15, 31, 35],
+                            "itemsize": 9 + 22 + 12})
 
 
 class ChunkedTopic:
@@ -65,17 +71,25 @@ class ChunkedTopic:
         at, length = self._offsets[k]
         record = self._record(at, length)
         try:
-            rows = uniform_rows(chunk_records(memoryview(record)[9:], at, self.path)[0])
+            records = chunk_records(memoryview(record)[9:], at, self.path)[0]
         except _Stop as exc:
             raise CorruptBagError(f"{self.path}: {exc}") from None
-        if (rows is not None and rows.shape[1] == 9 + 22 + 12 and np.all(rows[:, 31] == 0) and np.all(rows[:, 32] == 1)
-                and np.all(np.isin(rows[:, 9:11].copy().view("<u2")[:, 0], self._cids))):
-            log = rows[:, 15:23].copy().view("<i8")[:, 0].astype(np.int64)
-            values = rows[:, 35:43].copy().view("<f8")[:, 0].astype(np.float64)
-            if log.size > 1 and np.any(np.diff(log) < 0):
-                order = np.argsort(log, kind="stable")
-                log, values = log[order], values[order]
-            return log, values
+        del record
+        size = len(records)
+        if size and size % _FLOAT64_RECORD.itemsize == 0:
+            # every record at its place in the stride checked (a message, of this length, of this topic's
+            # channels, little-endian CDR) before any value is used: the record walk's structure check
+            rows = np.frombuffer(records, dtype=_FLOAT64_RECORD)
+            channel = rows["channel"]
+            if (np.all(rows["opcode"] == _MESSAGE) and np.all(rows["length"] == _FLOAT64_RECORD.itemsize - 9)
+                    and np.all(rows["encapsulation"] == 0x0100)
+                    and (np.all(channel == self._cids[0]) if len(self._cids) == 1 else np.all(np.isin(channel, self._cids)))):
+                log = rows["log_time"].astype(np.int64)
+                values = rows["value"].astype(np.float64)
+                if log.size > 1 and np.any(log[1:] < log[:-1]):
+                    order = np.argsort(log, kind="stable")
+                    log, values = log[order], values[order]
+                return log, values
         data = self.read(k, k + 1)
         return np.asarray(data.log_time_ns, dtype=np.int64), np.asarray(data.data, dtype=np.float64)
 

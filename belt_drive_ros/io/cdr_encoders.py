@@ -163,12 +163,17 @@ class TfEncoder:
         from msg_tools.block_writer import FixedMessages
 
         stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
+        angles = np.asarray(angles, dtype=float).reshape(stamp_ns.size, len(self._stamps))
         fields, values = {}, {}
         sec, nsec = np.divmod(stamp_ns, 1_000_000_000)
-        q = self.quaternions(angles).reshape(stamp_ns.size, len(self._stamps), 2)  # (n, wheels, 2)
-        for k, (stamp, rotation) in enumerate(zip(self._stamps, self._rotations)):
+        for k, (stamp, rotation, sign) in enumerate(zip(self._stamps, self._rotations, self._sign_list)):
+            # (z, w) of wheel k as :meth:`quaternions` gives them (the same floats), one (n, 2) array per wheel
+            q = np.empty((stamp_ns.size, 2))
+            half = np.multiply(angles[:, k], 0.5, out=q[:, 1])
+            np.multiply(np.sin(half), sign, out=q[:, 0])
+            np.cos(half, out=q[:, 1])
             fields.update({f"sec{k}": ("<i4", stamp), f"nsec{k}": ("<u4", stamp + 4), f"q{k}": (("<f8", 2), rotation)})
-            values.update({f"sec{k}": sec, f"nsec{k}": nsec, f"q{k}": q[:, k, :]})
+            values.update({f"sec{k}": sec, f"nsec{k}": nsec, f"q{k}": q})
         return FixedMessages(self._template, fields, values)
 
     def rows(self, stamp_ns: np.ndarray, angles: np.ndarray) -> np.ndarray:

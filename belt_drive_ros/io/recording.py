@@ -373,17 +373,18 @@ class ResultMcapWriter:
         """Append the window ``result`` (the samples after the previous window's last)."""
         n = len(result.time)
         first = (-self.seen) % self.stride
-        index = np.arange(first, n, self.stride)
+        index = slice(first, n, self.stride)  # (views of the window's arrays, no copies)
+        count = len(range(first, n, self.stride))
         self.seen += n
-        if not index.size:
+        if not count:
             return
-        self.samples += int(index.size)
+        self.samples += count
         t_ns = np.round(np.asarray(result.time, dtype=float)[index] * 1e9).astype(np.int64) + self.start_time_ns
         o = {name: np.asarray(values)[index] for name, values in result.outputs.items()}
         payloads: list = []  # the messages of each topic (msg_tools.block_writer.FixedMessages)
         for topic, type_name, signal in self.payload_topics:
             if signal is None:
-                zeros = np.zeros(index.size)
+                zeros = np.zeros(count)
                 position = np.column_stack([o["phi_M"], o["phi_1"], o["phi_2"], o["phi_3"]])
                 velocity = np.column_stack([o["omega_M"], o["omega_1"], o["omega_2"], o["omega_3"]])
                 effort = np.column_stack([o["drive_torque"], zeros, zeros, -o["load_torque"]])

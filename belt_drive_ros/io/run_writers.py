@@ -9,6 +9,7 @@ for a plot, the one output that needs the whole run at once.
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
@@ -50,14 +51,30 @@ class McapWindows:
     folder's path with ``bag_folder=True``; ``options`` go to the writer
     (start time, split limits ...). The scene record is written at the end
     with the sample count.
+
+    Windows after the first are written by a thread of their own
+    (``background=True``, the default) while the caller computes the next
+    one: the compiled kernel and numpy's array loops release the GIL, so
+    simulation and writing overlap. At most one window waits; windows are
+    written in order (the same bytes as writing them in the caller). A
+    failure of the writing thread is raised by the next :meth:`add` or by
+    :meth:`close`. ``write_cpu`` is the CPU time [s] spent writing, in
+    whichever thread.
     """
 
-    def __init__(self, target, bag_folder: bool = False, force: bool = False, **options):
+    def __init__(self, target, bag_folder: bool = False, force: bool = False, background: bool = True, **options):
         self.target, self.bag_folder, self.force, self.options = target, bag_folder, force, options
         self.writer = None
         self.counts: dict = {}
+        self.background = bool(background)
+        self.write_cpu = 0.0
+        self._thread = None
+        self._queue = None
+        self._error: BaseException | None = None
+        self._stop = False
 
     def add(self, window: SimResult) -> None:
+        self._raise()
         if self.writer is None:
             from .recording import ResultMcapWriter
 
@@ -70,9 +87,54 @@ class McapWindows:
                 if self.bag_folder and not theirs:
                     remove_bag_folder(self.target)
                 raise
-        self.writer.write(window)
+            self._write(window)
+            return
+        if not self.background:
+            self._write(window)
+            return
+        if self._thread is None:
+            import queue
+            import threading
+
+            self._queue, self._stop = queue.Queue(maxsize=1), False
+            self._thread = threading.Thread(target=self._work, name="mcap-windows", daemon=True)
+            self._thread.start()
+        self._queue.put(window)
+
+    def _write(self, window: SimResult) -> None:
+        start = time.thread_time()
+        try:
+            self.writer.write(window)
+        finally:
+            self.write_cpu += time.thread_time() - start
+
+    def _work(self) -> None:
+        """The writing thread: windows in order until None; after a failure (or :meth:`abort`) it only drains."""
+        while True:
+            window = self._queue.get()
+            if window is None:
+                return
+            if self._error is None and not self._stop:
+                try:
+                    self._write(window)
+                except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
+                    self._error = exc
+
+    def _join(self) -> None:
+        """Wait until every window handed over is written (or skipped after a failure); the thread ends."""
+        if self._thread is not None:
+            self._queue.put(None)
+            self._thread.join()
+            self._thread = self._queue = None
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise error
 
     def restart(self) -> None:
+        self._join()
+        self._error = None
         if self.writer is not None:
             self.writer.abort()
             self.writer = None
@@ -84,12 +146,17 @@ class McapWindows:
             self.target.truncate()
 
     def close(self) -> dict:
+        self._join()
+        self._raise()
         if self.writer is not None:
             self.counts = self.writer.close()
         return self.counts
 
     def abort(self) -> None:
         """After a failure or an interruption: no partial output is left (a bag folder's files are removed)."""
+        self._stop = True  # the thread finishes the window it writes, skips the one waiting
+        self._join()
+        self._error = None
         if self.writer is not None:
             self.writer.abort()
             self.writer = None
