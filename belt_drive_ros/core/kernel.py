@@ -116,7 +116,7 @@ def _held(x, xs, ys, offset, n):
     return ys[offset + j]
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _fade(value, t, duration):
     """``value * clip(t / duration, 0, 1)`` (duration > 0; written without a call, as the branches)."""
     return value * (0.0 if t < 0.0 else 1.0 if t > duration else t / duration)
@@ -144,6 +144,30 @@ def _affine_in_speed(c0, c1, speed):
         term = c1 * speed
         value, have = (value + term if have else term), True
     return value, have
+
+
+@njit(**_INLINE)
+def motor_line(stall, no_load, fade, t, speed):
+    """Motor line row ``(stall, no_load, fade)``: stall (1 - speed / no_load) [N m], faded in over ``fade`` [s].
+
+    The row's numbers come as scalars: a loop over many speeds at one time
+    (the variant lanes, :mod:`~belt_drive_ros.core.kernel_variants`) reads
+    them once and compiles to vector operations (through :func:`torque`,
+    reading the row inside the loop, it did not: 2x the lanes' step cost).
+    """
+    value = stall * (1.0 - speed / no_load)
+    return _fade(value, t, fade) if fade > 0.0 else value
+
+
+@njit(**_INLINE)
+def polynomial(c0, c1, c2, speed):
+    """Polynomial row ``(c0, c1, c2)``: c0 + c1 speed + c2 speed |speed| [N m], zero terms dropped (scalars: see
+    :func:`motor_line`)."""
+    value, have = _affine_in_speed(c0, c1, speed)
+    if c2 != 0.0:
+        term = c2 * speed * abs(speed)
+        value = value + term if have else term
+    return value
 
 
 @njit(**_INLINE)
@@ -178,18 +202,13 @@ def torque(kind, params, row, tx, ty, t, angle, speed):
             base = params[row, 4]
         value, _ = _harmonics(base, np.bool_(True), ty, int(params[row, 9]), int(params[row, 10]), params[row, 5] * (params[row, 6] * angle) + params[row, 7])
         return _fade(value, t, params[row, 8]) if params[row, 8] > 0.0 else value
-    if kind == MOTOR_LINE:  # stall (1 - speed / no_load)
-        value = params[row, 0] * (1.0 - speed / params[row, 1])
-        return _fade(value, t, params[row, 2]) if params[row, 2] > 0.0 else value
+    if kind == MOTOR_LINE:
+        return motor_line(params[row, 0], params[row, 1], params[row, 2], t, speed)
     if kind == MOTOR_CURVE:
         value = _interp(speed, tx, ty, int(params[row, 0]), int(params[row, 1]))
         return _fade(value, t, params[row, 2]) if params[row, 2] > 0.0 else value
-    if kind == POLYNOMIAL:  # c0 + c1 speed + c2 speed |speed|, zero terms dropped
-        value, have = _affine_in_speed(params[row, 0], params[row, 1], speed)
-        if params[row, 2] != 0.0:
-            term = params[row, 2] * speed * abs(speed)
-            value = value + term if have else term
-        return value
+    if kind == POLYNOMIAL:
+        return polynomial(params[row, 0], params[row, 1], params[row, 2], speed)
     if kind == COMPRESSOR:  # mean + c1 speed + sum_k A_k sin(k (z angle + phase)), zero terms dropped
         value, have = _affine_in_speed(params[row, 0], params[row, 1], speed)
         value, have = _harmonics(value, have, ty, int(params[row, 5]), int(params[row, 6]), params[row, 2] * angle + params[row, 3])
