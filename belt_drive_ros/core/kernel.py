@@ -116,7 +116,7 @@ def _held(x, xs, ys, offset, n):
     return ys[offset + j]
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _fade(value, t, duration):
     """``value * clip(t / duration, 0, 1)`` (duration > 0; written without a call, as the branches)."""
     return value * (0.0 if t < 0.0 else 1.0 if t > duration else t / duration)
@@ -157,15 +157,10 @@ def formula(kind, p0, p1, p2, p3, p4, t, speed):
         return p0 + (0.0 if t < p2 else 1.0 if t > p3 else (t - p2) / p4) * p1
     if kind == SINE:  # mean + amplitude sin(omega t + phase)
         return p0 + p1 * math.sin(p2 * t + p3)
-    if kind == MOTOR_LINE:  # stall (1 - speed / no_load)
-        value = p0 * (1.0 - speed / p1)
-        return _fade(value, t, p2) if p2 > 0.0 else value
-    if kind == POLYNOMIAL:  # c0 + c1 speed + c2 speed |speed|, zero terms dropped
-        value, have = _affine_in_speed(p0, p1, speed)
-        if p2 != 0.0:
-            term = p2 * speed * abs(speed)
-            value = value + term if have else term
-        return value
+    if kind == MOTOR_LINE:
+        return motor_line(p0, p1, p2, t, speed)
+    if kind == POLYNOMIAL:
+        return polynomial(p0, p1, p2, speed)
     return math.nan
 
 
@@ -179,6 +174,30 @@ def _affine_in_speed(c0, c1, speed):
         term = c1 * speed
         value, have = (value + term if have else term), True
     return value, have
+
+
+@njit(**_INLINE)
+def motor_line(stall, no_load, fade, t, speed):
+    """Motor line row ``(stall, no_load, fade)``: stall (1 - speed / no_load) [N m], faded in over ``fade`` [s].
+
+    The row's numbers come as scalars: a loop over many speeds at one time
+    (the variant lanes, :mod:`~belt_drive_ros.core.kernel_variants`) reads
+    them once and compiles to vector operations (through :func:`torque`,
+    reading the row inside the loop, it did not: 2x the lanes' step cost).
+    """
+    value = stall * (1.0 - speed / no_load)
+    return _fade(value, t, fade) if fade > 0.0 else value
+
+
+@njit(**_INLINE)
+def polynomial(c0, c1, c2, speed):
+    """Polynomial row ``(c0, c1, c2)``: c0 + c1 speed + c2 speed |speed| [N m], zero terms dropped (scalars: see
+    :func:`motor_line`)."""
+    value, have = _affine_in_speed(c0, c1, speed)
+    if c2 != 0.0:
+        term = c2 * speed * abs(speed)
+        value = value + term if have else term
+    return value
 
 
 @njit(**_INLINE)

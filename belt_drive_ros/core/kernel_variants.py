@@ -46,7 +46,7 @@ import numpy as np
 from numba import njit
 from numba.core.errors import NumbaPerformanceWarning
 
-from .kernel import HEADER, SECTIONS, _steps, profile_torque, torque
+from .kernel import HEADER, SECTIONS, _steps, motor_line, polynomial, profile_torque, torque
 from .profile_data import CONSTANT, DIVERGED, MOTOR_LINE, OK, POLYNOMIAL, RAMP, STEP
 
 #: variants stepped together by :func:`_lanes` (their matrices, ~4 kB each for lawson5, stay in the cache)
@@ -112,11 +112,15 @@ def _lane_torques(kinds, params, tx, ty, t, angle, speed, out, L):
     """``out[q] = profile_torque(kinds, params, tx, ty, t, angle[q], speed[q])`` for q < L.
 
     The kind is the same for every lane: for the kinds whose formula is
-    plain arithmetic (constant, step, ramp, motor line, polynomial) the
-    dispatcher is called with the kind as a constant, one loop per kind, so
-    the compiler drops the other branches and the loop runs over the lanes
-    in vector registers (the same IEEE operations per lane); the others
-    (tables, sines, schedules) call the dispatcher lane by lane.
+    plain arithmetic (constant, step, ramp, motor line, polynomial) one loop
+    per kind, so the loop runs over the lanes in vector registers (the same
+    IEEE operations per lane): the motor line and the polynomial through
+    their formulas with the row's numbers read once before the loop
+    (:func:`~belt_drive_ros.core.kernel.motor_line`,
+    :func:`~belt_drive_ros.core.kernel.polynomial`; through the dispatcher,
+    reading the row per lane, the loop was not vectorised and the torques
+    were half of ``paper``'s lawson5 step), the others by the dispatcher
+    with the kind as a constant; tables, sines and schedules lane by lane.
     """
     kind = kinds[0]
     if kind == CONSTANT:
@@ -128,12 +132,14 @@ def _lane_torques(kinds, params, tx, ty, t, angle, speed, out, L):
     elif kind == RAMP:
         for q in range(L):
             out[q] = torque(RAMP, params, 0, tx, ty, t, angle[q], speed[q])
-    elif kind == MOTOR_LINE:
+    elif kind == MOTOR_LINE:  # the row's numbers read once: the loop compiles to vector operations
+        a, b, c = params[0, 0], params[0, 1], params[0, 2]
         for q in range(L):
-            out[q] = torque(MOTOR_LINE, params, 0, tx, ty, t, angle[q], speed[q])
+            out[q] = motor_line(a, b, c, t, speed[q])
     elif kind == POLYNOMIAL:
+        a, b, c = params[0, 0], params[0, 1], params[0, 2]
         for q in range(L):
-            out[q] = torque(POLYNOMIAL, params, 0, tx, ty, t, angle[q], speed[q])
+            out[q] = polynomial(a, b, c, speed[q])
     else:
         for q in range(L):
             out[q] = profile_torque(kinds, params, tx, ty, t, angle[q], speed[q])
