@@ -117,8 +117,7 @@ class NodeSimulation:
             self._free_k = (0, -1)
             from ..core.tick import SlipTickKernel
 
-            self._tick_kernel = SlipTickKernel(engine, SPEED_LIMIT)
-            self._tick_kernel.set_message(*_JOINT_STATES.layout)
+            self._tick_kernel = SlipTickKernel(engine, SPEED_LIMIT, _JOINT_STATES.layout)
             return engine
         plant = Plant(s.model, drive, s.scene.load)
         stepper = Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
@@ -126,9 +125,7 @@ class NodeSimulation:
         self._free_k = (0, -1)
         from ..core.tick import TickKernel
 
-        self._tick_kernel = TickKernel.of(stepper, SPEED_LIMIT)
-        if self._tick_kernel is not None:
-            self._tick_kernel.set_message(*_JOINT_STATES.layout)
+        self._tick_kernel = TickKernel.of(stepper, SPEED_LIMIT, _JOINT_STATES.layout)
         return stepper
 
     @property
@@ -333,9 +330,9 @@ class NodeSimulation:
                 hi = (st if self.hybrid is None else st.stepper).plant.left_of(t1) if jump1 else math.inf
                 drive = value if jump1 else math.nan  # held from t1 on: the outputs at t1 have it
                 if self.hybrid is None:
-                    out, status = fast.step(self.x, k0, k1, lo, hi, drive, now_ns)
-                    if status == OK:  # else the general path below takes the same steps and raises as it does
-                        self.x = out[-1]  # a row of the tick kernel's buffer, written again by the next tick
+                    if fast.step(self.x, k0, k1, lo, hi, drive, now_ns) == OK:  # else the general path below
+                        # takes the same steps and raises as it does
+                        self.x = fast.state  # the tick kernel's buffer, written again by the next tick
                         self.t_ns = self._fresh_ns = now_ns
                         self._held_jump = t1 if jump1 else None  # what _hold makes of the sample
                         if jump1:
