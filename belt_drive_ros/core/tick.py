@@ -9,8 +9,8 @@ functions, whose cost on the caches a 1 ms sleep leaves is most of the tick.
 writing into buffers :class:`TickKernel` allocates once per stepper. Its
 arguments are few (six: numba's dispatcher converts every argument on
 every call, ~0.7 us per array on those caches): every array of the tick is
-packed into one float64 and one int64 buffer (:class:`PackedArrays`), the
-drive profile's data (the held torque) beside them.
+packed into one buffer (:class:`PackedArrays`), the drive profile's data
+(the held torque) beside it.
 
 Bit for bit the operations of the reference path (the stepper's
 :meth:`~belt_drive_ros.core.stepper.Stepper.advance`, then
@@ -65,9 +65,9 @@ _N_SECTIONS = len(SECTIONS)
 
 # ------------------------------------------------------------------ packed arguments
 # numba's dispatcher checks and converts every argument on every call: on the caches a 1 ms sleep leaves that
-# is ~0.7 us per array (measured: 15 arrays and scalars 11 us, the kernel's own work 3.5 us). A tick's arrays
-# therefore go in two buffers (:class:`PackedArrays`) which the kernels cut into views again (the same types
-# and layouts, so the loops they call keep their one compiled signature).
+# is ~0.7-1.5 us per array, ints far less (measured: 15 arrays and scalars 11 us, the kernel's own work 3.5 us). A
+# tick's arrays therefore go in one buffer (:class:`PackedArrays`) which the kernels cut into views again (the
+# same types and layouts, so the loops they call keep their one compiled signature).
 
 
 @njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
@@ -106,11 +106,13 @@ def _i2(ints, j):
 
 
 class PackedArrays:
-    """Named arrays packed into one float64 buffer ``reals`` and one int64 buffer ``ints``; ``views[name]`` is
-    each array's view into its buffer (writing into it writes what the kernel reads).
+    """Named arrays packed into one float64 buffer ``reals``; ``ints`` is the same buffer's int64 view, ``views[name]``
+    each array's view into it (writing into it writes what the kernel reads).
 
-    Section ``j`` is ``FLOATS[j]``, then ``INTS[j - len(FLOATS)]``; ``ints`` starts with ``(offset, d0, d1,
-    d2)`` of every section (at most three dimensions), which the kernels' ``_f1, _f2, _f3, _i1`` read.
+    Section ``j`` is ``FLOATS[j]`` (float64), then ``INTS[j - len(FLOATS)]`` (int64); the buffer starts with
+    ``(offset, d0, d1, d2)`` of every section (at most three dimensions; the offset in 8-byte words from the
+    buffer's start), which the kernels' ``_f1, _f2, _f3, _i1, _i2`` read: a kernel given the buffer alone takes
+    ``ints = reals.view(np.int64)``.
     """
 
     FLOATS: tuple = ()
@@ -122,25 +124,17 @@ class PackedArrays:
             raise ValueError(f"{type(self).__name__}: at most three dimensions")
         sizes = [int(np.prod(s)) for s in shapes]
         nf = len(self.FLOATS)
-        table = 4 * len(shapes)
-        self.reals = np.zeros(sum(sizes[:nf]))
-        self.ints = np.zeros(table + sum(sizes[nf:]), dtype=np.int64)
+        a = 4 * len(shapes)
+        self.reals = np.zeros(a + sum(sizes))
+        self.ints = self.reals.view(np.int64)
         self.views = {}
-        a_f, a_i = 0, table
         for j, (name, shape, size) in enumerate(zip(self.FLOATS + self.INTS, shapes, sizes)):
-            is_float = j < nf
-            a = a_f if is_float else a_i
             dims = tuple(shape) + (1,) * (3 - len(shape))
             self.ints[4 * j : 4 * j + 4] = (a, *dims)
-            buffer = self.reals if is_float else self.ints
-            view = buffer[a : a + size].reshape(shape)
-            view[...] = floats[name] if is_float else ints[name]
+            view = (self.reals if j < nf else self.ints)[a : a + size].reshape(shape)
+            view[...] = floats[name] if j < nf else ints[name]
             self.views[name] = view
-            if is_float:
-                a_f += size
-            else:
-                a_i += size
-
+            a += size
 
 
 @njit(cache=True, nogil=True)
@@ -192,11 +186,11 @@ _ROWS, _REALS, _LP, _X, _Y, _MSG, _CLAMP, _INTS = range(8)
 
 
 @njit(cache=True, nogil=True)
-def linear_tick(k0, steps, stamp, packed, table, dp):
+def linear_tick(k0, steps, stamp, packed, dp):
     """``steps`` whole grid steps from grid index ``k0`` of the state, then the outputs and the ``joint_states``
     message stamped ``stamp`` [ns] (:func:`write_joints`); returns the kernel's status.
 
-    ``packed``, ``table``: :class:`TickKernel`'s buffers (:data:`LINEAR_FLOATS`, :data:`LINEAR_INTS`). ``reals,
+    ``packed``: :class:`TickKernel`'s buffer (:data:`LINEAR_FLOATS`, :data:`LINEAR_INTS`). ``reals,
     ints, lp`` and ``dp`` (the drive profile's data, the held torque's own array): the stepper's kernel loop
     (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`); ``rows`` packs ``[W (4 n), C (12 n), D (12 x 2),
     F_0, r_3, capstan_ratio, origin, dt, speed limit, message layout (4)]``; ``x`` (n,) the state, replaced by
@@ -205,6 +199,7 @@ def linear_tick(k0, steps, stamp, packed, table, dp):
     value [N m], written into ``dp[0, 0]`` after the steps, before the outputs; read and set back to ``-inf,
     inf, NaN``. ``x``, ``y``, the message and ``dp`` are written only when every step is done (status OK).
     """
+    table = packed.view(np.int64)
     rows, reals, ints, lp = _f1(packed, table, _ROWS), _f1(packed, table, _REALS), _i1(table, _INTS), _f2(packed, table, _LP)
     x, y, clamp = _f1(packed, table, _X), _f1(packed, table, _Y), _f1(packed, table, _CLAMP)
     lo, hi, drive = clamp[0], clamp[1], clamp[2]
@@ -324,7 +319,7 @@ class TickKernel:
         self._clamp = views["clamp"]
         self.dt, self.origin = stepper.dt, stepper.origin
         self.step_ns = grid_step_ns(self.dt, stepper.origin)
-        self._args = (arrays.reals, arrays.ints, loop._dp)
+        self._args = (arrays.reals, loop._dp)
 
     @classmethod
     def of(cls, stepper, limit: float, message: tuple = ()):
@@ -366,13 +361,13 @@ SLIP_INTS = ("special", "out_mode", "ints", "offsets", "have", "uses", "dk", "lk
 
 
 @njit(cache=True, nogil=True)
-def slip_tick(k0, stamp, packed, table, dp):
+def slip_tick(k0, stamp, packed, dp):
     """The slipping belt's tick: :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps` over the ``N``
     whole grid steps of the buffers from grid index ``k0``, then every output of the slipping
     model at the last knot into ``y`` and the ``joint_states`` message stamped ``stamp`` [ns]
     (:func:`write_joints`).
 
-    ``packed``, ``table``: :class:`SlipTickKernel`'s buffers (:data:`SLIP_FLOATS`,
+    ``packed``: :class:`SlipTickKernel`'s buffer (:data:`SLIP_FLOATS`,
     :data:`SLIP_INTS`); ``dp``: the drive profile's data (the held torque's own array). The
     hybrid state the steps start from: phase kind ``iscalars[0]``, its coordinates the first
     ``iscalars[1]`` of ``xs`` copied into ``x`` (-1: ``x`` as the last tick left it), zeros
@@ -391,6 +386,7 @@ def slip_tick(k0, stamp, packed, table, dp):
     hybrid loop's ``(next step, status, kind, sigma, events)``; ``y`` is written only when the
     loop is done (status 0); ``iscalars[0]`` then holds the new kind.
     """
+    table = packed.view(np.int64)
     fs, js = _f1(packed, table, _FSCALARS), _i1(table, _ISCALARS)
     grid, knots, lo, hi = _f1(packed, table, _GRID), _f1(packed, table, _KNOTS), _f1(packed, table, _SLO), _f1(packed, table, _SHI)
     x, xs, consts, y = _f1(packed, table, _SX), _f1(packed, table, _SXS), _f1(packed, table, _CONSTS), _f1(packed, table, _SY)
@@ -515,7 +511,7 @@ class SlipTickKernel:
         self.y, self._x, self._xs, self._out_y = views["y"], views["x"], views["xs"], views["out_y"]
         self._fs, self._js = views["fscalars"], views["iscalars"]
         self.message = memoryview(views["msg"].view(np.uint8))[self._where]
-        self._args = (arrays.reals, arrays.ints, dp)
+        self._args = (arrays.reals, dp)
 
     def advance(self, state, k0: int, k1: int, lo: float = -math.inf, hi: float = math.inf, drive: float = math.nan,
                 stamp: int = 0):

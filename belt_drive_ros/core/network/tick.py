@@ -12,7 +12,7 @@ and writes the values into the ``joint_states`` CDR bytes the node publishes.
 
 Its arguments are few: numba's dispatcher checks and converts every array
 argument on every call. :class:`TickArrays` packs every per-scene array into
-one float64 and one int64 buffer once; the kernel cuts them into views again
+one buffer once (``reals``, and ``ints``, its int64 view); the kernel cuts them into views again
 (the same shapes and types, so ``wheel_steps`` keeps its one compiled
 signature). The caller writes held torques into those views. Measured on
 fead_i4 (cold caches, 1 ms sleeps, load ~10): the whole tick, joint values
