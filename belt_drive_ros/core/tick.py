@@ -52,7 +52,7 @@ import numpy as np
 from numba import njit
 
 from .kernel import HEADER, SECTIONS, linear_steps, profile_torque
-from .kernel_slip import KIND_NAMES, PHASE_SIZE, STICKING, hybrid_steps
+from .kernel_slip import KIND_NAMES, PHASE_SIZE, STEPWISE, STICKING, hybrid_steps
 from .slip import SLIP, STICK
 from .slip_run import SlippingSimulator, SlipState, _kind_code
 from .model import LINEAR_OUTPUTS, OUTPUT_UNITS
@@ -384,7 +384,8 @@ def slip_tick(k0, stamp, packed, dp):
     0.0/1.0), with ``u = [drive(t, phi_M, omega_M), load(t, phi_3, omega_3)]`` at the last
     knot ``t`` (:meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.inputs`). Returns the
     hybrid loop's ``(next step, status, kind, sigma, events)``; ``y`` is written only when the
-    loop is done (status 0); ``iscalars[0]`` then holds the new kind.
+    loop is done (status 0); ``iscalars[0]`` then holds the new kind and ``sigma5`` the new state's (NaN
+    unless stepwise), so that the next call continues from it.
     """
     table = packed.view(np.int64)
     fs, js = _f1(packed, table, _FSCALARS), _i1(table, _ISCALARS)
@@ -396,6 +397,7 @@ def slip_tick(k0, stamp, packed, dp):
     if given >= 0:
         for j in range(x.size):
             x[j] = xs[j] if j < given else 0.0
+        js[1] = -1  # the next call continues from x (the caller gives a state again after a failure)
     else:
         for j in range(PHASE_SIZE[kind], x.size):
             x[j] = 0.0
@@ -424,6 +426,7 @@ def slip_tick(k0, stamp, packed, dp):
     if status != 0:
         return k1, status, kind, sigma, n_ev
     js[0] = kind
+    fs[3] = sigma if kind == STEPWISE else math.nan  # the next call's sigma5 when it continues from this state
     if drive == drive and n_ev == 0:
         dp[0, 0] = drive
     slipping = kind > STICKING
@@ -525,20 +528,18 @@ class SlipTickKernel:
             self._pack(k1 - k0)
         if self._args is None:
             return None
-        fs, js = self._fs, self._js
         if state is not self._state:  # else the usual tick: x holds the state the last call returned, kind its code
-            js[0], js[1] = _kind_code(state), len(state.x)
+            self._js[:] = _kind_code(state), len(state.x)
             self._xs[: len(state.x)] = state.x
-        fs[3] = state.sigma if state.kind == "hybrid" else math.nan
+            self._fs[3] = state.sigma if state.kind == "hybrid" else math.nan
         if lo != -math.inf or hi != math.inf or drive == drive:
-            fs[0], fs[1], fs[2] = lo, hi, drive
+            self._fs[:3] = lo, hi, drive
         k1, status, kind, sigma, n_ev = slip_tick(k0, stamp, *self._args)
         if status != 0 or n_ev:
             self._state = None
             return None
         state = SlipState(STICK if kind <= STICKING else SLIP, float(sigma), KIND_NAMES[kind], self._x[: PHASE_SIZE[kind]].copy())
         self._state = state
-        js[1] = -1  # the next call continues from x
         return state
 
     def state_y(self) -> np.ndarray:
