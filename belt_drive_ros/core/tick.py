@@ -6,7 +6,11 @@ of :data:`~belt_drive_ros.core.model.OUTPUT_UNITS` at the new state. Done in
 Python that is ~25 calls of numpy on tiny arrays and as many interpreted
 functions, whose cost on the caches a 1 ms sleep leaves is most of the tick.
 :func:`linear_tick` does both in one ``@njit(cache=True, nogil=True)`` call
-writing into buffers :class:`TickKernel` allocates once per stepper.
+writing into buffers :class:`TickKernel` allocates once per stepper. Its
+arguments are few (six: numba's dispatcher converts every argument on
+every call, ~0.7 us per array on those caches): every array of the tick is
+packed into one buffer (:class:`PackedArrays`), the drive profile's data
+(the held torque) beside it.
 
 Bit for bit the operations of the reference path (the stepper's
 :meth:`~belt_drive_ros.core.stepper.Stepper.advance`, then
@@ -48,7 +52,7 @@ import numpy as np
 from numba import njit
 
 from .kernel import HEADER, SECTIONS, linear_steps, profile_torque
-from .kernel_slip import KIND_NAMES, PHASE_SIZE, STICKING, hybrid_steps
+from .kernel_slip import KIND_NAMES, PHASE_SIZE, STEPWISE, STICKING, hybrid_steps
 from .slip import SLIP, STICK
 from .slip_run import SlippingSimulator, SlipState, _kind_code
 from .model import LINEAR_OUTPUTS, OUTPUT_UNITS
@@ -57,6 +61,80 @@ from .model import LINEAR_OUTPUTS, OUTPUT_UNITS
 _AFTER = ("span_force_tight", "span_force_slack", "slack", "slip")
 assert tuple(OUTPUT_UNITS) == LINEAR_OUTPUTS + _AFTER
 _N_SECTIONS = len(SECTIONS)
+
+
+# ------------------------------------------------------------------ packed arguments
+# numba's dispatcher checks and converts every argument on every call: on the caches a 1 ms sleep leaves that
+# is ~0.7-1.5 us per array, ints far less (measured: 15 arrays and scalars 11 us, the kernel's own work 3.5 us). A
+# tick's arrays therefore go in one buffer (:class:`PackedArrays`) which the kernels cut into views again (the
+# same types and layouts, so the loops they call keep their one compiled signature).
+
+
+@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
+def _at(ints, j):
+    return ints[4 * j], ints[4 * j + 1], ints[4 * j + 2], ints[4 * j + 3]
+
+
+@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
+def _f1(reals, ints, j):
+    a, d0, _, _ = _at(ints, j)
+    return reals[a : a + d0]
+
+
+@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
+def _f2(reals, ints, j):
+    a, d0, d1, _ = _at(ints, j)
+    return reals[a : a + d0 * d1].reshape((d0, d1))
+
+
+@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
+def _f3(reals, ints, j):
+    a, d0, d1, d2 = _at(ints, j)
+    return reals[a : a + d0 * d1 * d2].reshape((d0, d1, d2))
+
+
+@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
+def _i1(ints, j):
+    a, d0, _, _ = _at(ints, j)
+    return ints[a : a + d0]
+
+
+@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
+def _i2(ints, j):
+    a, d0, d1, _ = _at(ints, j)
+    return ints[a : a + d0 * d1].reshape((d0, d1))
+
+
+class PackedArrays:
+    """Named arrays packed into one float64 buffer ``reals``; ``ints`` is the same buffer's int64 view, ``views[name]``
+    each array's view into it (writing into it writes what the kernel reads).
+
+    Section ``j`` is ``FLOATS[j]`` (float64), then ``INTS[j - len(FLOATS)]`` (int64); the buffer starts with
+    ``(offset, d0, d1, d2)`` of every section (at most three dimensions; the offset in 8-byte words from the
+    buffer's start), which the kernels' ``_f1, _f2, _f3, _i1, _i2`` read: a kernel given the buffer alone takes
+    ``ints = reals.view(np.int64)``.
+    """
+
+    FLOATS: tuple = ()
+    INTS: tuple = ()
+
+    def __init__(self, floats: dict, ints: dict):
+        shapes = [np.shape(floats[name]) for name in self.FLOATS] + [np.shape(ints[name]) for name in self.INTS]
+        if any(len(s) > 3 for s in shapes):
+            raise ValueError(f"{type(self).__name__}: at most three dimensions")
+        sizes = [int(np.prod(s)) for s in shapes]
+        nf = len(self.FLOATS)
+        a = 4 * len(shapes)
+        self.reals = np.zeros(a + sum(sizes))
+        self.ints = self.reals.view(np.int64)
+        self.views = {}
+        for j, (name, shape, size) in enumerate(zip(self.FLOATS + self.INTS, shapes, sizes)):
+            dims = tuple(shape) + (1,) * (3 - len(shape))
+            self.ints[4 * j : 4 * j + 4] = (a, *dims)
+            view = (self.reals if j < nf else self.ints)[a : a + size].reshape(shape)
+            view[...] = floats[name] if j < nf else ints[name]
+            self.views[name] = view
+            a += size
 
 
 @njit(cache=True, nogil=True)
@@ -100,34 +178,47 @@ def write_joints(y, msg, at, stamp):
     w[s + 1] = stamp % 1000000000
 
 
-@njit(cache=True, nogil=True)
-def linear_tick(k0, steps, x, out, lo, hi, drive, stamp, reals, ints, dp, lp, rows, y, msg):
-    """``steps`` whole grid steps from grid index ``k0`` (state ``x``) into ``out``, then the outputs into ``y``
-    and the ``joint_states`` message stamped ``stamp`` [ns] into ``msg`` (:func:`write_joints`).
+#: the linear tick's packed sections (:class:`TickKernel`): the output rows, the kernel loop's ``reals`` and load
+#: profile, the state, the outputs, the ``joint_states`` message (its bytes as doubles), the clamps; the loop's ``ints``
+LINEAR_FLOATS = ("rows", "reals", "lp", "x", "y", "msg", "clamp")
+LINEAR_INTS = ("ints",)
+_ROWS, _REALS, _LP, _X, _Y, _MSG, _CLAMP, _INTS = range(8)
 
-    ``reals, ints, dp, lp``: the stepper's kernel loop
-    (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`); ``rows`` packs
-    ``[W (4 n), C (12 n), D (12 x 2), F_0, r_3, capstan_ratio, origin, dt, speed limit, message layout (4)]``
-    (:class:`TickKernel`). ``lo, hi`` [s]: the torque times clamped to them
-    (``-inf, inf``: none; the stepper's special step at a held-torque jump);
-    ``drive``: NaN, or the held drive torque's new value [N m], written into
-    ``dp[0, 0]`` (the held torque's data) after the steps, before the
-    outputs. ``x`` may be a row of ``out`` (the kernel reads it before it
-    writes). Returns ``(done, status, t)`` of the kernel; ``y``, ``msg`` and
-    ``dp`` are written only when every step is done (status OK).
+
+@njit(cache=True, nogil=True)
+def linear_tick(k0, steps, stamp, packed, dp):
+    """``steps`` whole grid steps from grid index ``k0`` of the state, then the outputs and the ``joint_states``
+    message stamped ``stamp`` [ns] (:func:`write_joints`); returns the kernel's status.
+
+    ``packed``: :class:`TickKernel`'s buffer (:data:`LINEAR_FLOATS`, :data:`LINEAR_INTS`). ``reals,
+    ints, lp`` and ``dp`` (the drive profile's data, the held torque's own array): the stepper's kernel loop
+    (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`); ``rows`` packs ``[W (4 n), C (12 n), D (12 x 2),
+    F_0, r_3, capstan_ratio, origin, dt, speed limit, message layout (4)]``; ``x`` (n,) the state, replaced by
+    the new one; ``y`` the outputs. ``clamp``: ``lo, hi`` [s], the torque times clamped to them (``-inf, inf``:
+    none; the stepper's special step at a held-torque jump), and ``drive``: NaN, or the held drive torque's new
+    value [N m], written into ``dp[0, 0]`` after the steps, before the outputs; read and set back to ``-inf,
+    inf, NaN``. ``x``, ``y``, the message and ``dp`` are written only when every step is done (status OK).
     """
+    table = packed.view(np.int64)
+    rows, reals, ints, lp = _f1(packed, table, _ROWS), _f1(packed, table, _REALS), _i1(table, _INTS), _f2(packed, table, _LP)
+    x, y, clamp = _f1(packed, table, _X), _f1(packed, table, _Y), _f1(packed, table, _CLAMP)
+    lo, hi, drive = clamp[0], clamp[1], clamp[2]
+    clamp[0], clamp[1], clamp[2] = -math.inf, math.inf, math.nan
     n = x.size
     d0 = 16 * n
     origin, dt, limit = rows[d0 + 27], rows[d0 + 28], rows[d0 + 29]
     times = np.empty(steps + 1)
     for j in range(steps + 1):
         times[j] = origin + dt * float(k0 + j)
+    out = np.empty((steps, n))
     done, status, t = linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp)
     if status != 0:
-        return done, status, t
+        return status
     if drive == drive:
         dp[0, 0] = drive
     xe = out[steps - 1]
+    for q in range(n):
+        x[q] = xe[q]
     # the profiles' data inside the loop's arrays (the layout linear_steps unpacks)
     s = ints[1]
     at = ints[HEADER : HEADER + _N_SECTIONS + 1]
@@ -156,8 +247,8 @@ def linear_tick(k0, steps, x, out, lo, hi, drive, stamp, reals, ints, dp, lp, ro
     y[12], y[13] = tight, slack_force
     y[14] = 1.0 if slack else 0.0
     y[15] = 1.0 if slack or tight > slack_force * capstan else 0.0
-    write_joints(y, msg, rows[d0 + 30 :], stamp)
-    return done, status, t
+    write_joints(y, _f1(packed, table, _MSG).view(np.uint8), rows[d0 + 30 :], stamp)
+    return status
 
 
 def grid_step_ns(dt: float, origin: float) -> int:
@@ -170,9 +261,9 @@ def grid_step_ns(dt: float, origin: float) -> int:
     return step_ns if step_ns > 0 and step_ns / 1e9 == dt and origin == 0.0 else 0
 
 
-def joints_message(template: bytes | None = None, offsets=None) -> tuple[np.ndarray, memoryview, list]:
-    """``(msg, view, at)``: the buffer :func:`write_joints` writes a message into, the message's bytes
-    in it (a view: ``bytes(view)`` copies them) and its layout ``at``.
+def joints_message(template: bytes | None = None, offsets=None) -> tuple[np.ndarray, slice, list]:
+    """``(msg, where, at)``: the buffer :func:`write_joints` writes a message into, where the message's bytes
+    are in it (``memoryview(msg)[where]``: a view; ``bytes(view)`` copies them) and its layout ``at``.
 
     ``template``: the message's bytes, its stamp at bytes 4-12 (seconds, nanoseconds: little-endian
     int32, uint32) and its positions, velocities and efforts (four little-endian doubles each)
@@ -187,61 +278,69 @@ def joints_message(template: bytes | None = None, offsets=None) -> tuple[np.ndar
     msg = np.zeros(-(-(shift + len(template)) // 8) * 8, dtype=np.uint8)
     msg[shift : shift + len(template)] = np.frombuffer(template, dtype=np.uint8)
     at = [float((shift + o) // 8) for o in offsets] + [float((shift + 4) // 4)]
-    return msg, memoryview(msg)[shift : shift + len(template)], at
+    return msg, slice(shift, shift + len(template)), at
+
+
+class LinearTickArrays(PackedArrays):
+    """:func:`linear_tick`'s buffers (:data:`LINEAR_FLOATS`, :data:`LINEAR_INTS`)."""
+
+    FLOATS, INTS = LINEAR_FLOATS, LINEAR_INTS
 
 
 class TickKernel:
-    """One stepper's tick as one compiled call: :meth:`step` advances its buffers, :attr:`y` holds the outputs.
+    """One stepper's tick as one compiled call: :meth:`step` advances :attr:`state`, :attr:`y` holds the outputs.
 
     ``TickKernel.of(stepper)`` is None where the tick cannot be compiled
     (an adaptive method, a Python-only profile, extra inputs: the general
-    path serves those ticks).
+    path serves those ticks). The kernel loop's ``reals``, ``ints`` and load
+    profile are copied into the tick's buffers (the node's stepper never
+    changes them); the drive profile's data stays the held torque's own array.
     """
 
-    def __init__(self, stepper, limit: float):
+    def __init__(self, stepper, limit: float, message: tuple = ()):
         plant, loop = stepper.plant, stepper.loop
         model = plant.model
         n = model.A.shape[0]
         C, D = model.output_matrices()
         p = model.params
-        msg, self.message, at = joints_message()
-        self.rows = np.concatenate([np.ravel(plant.wheel_map), np.ravel(C), np.ravel(D),
-                                    [p.F_0, p.r_3, p.capstan_ratio, stepper.origin, stepper.dt, limit], at]).astype(np.float64)
+        msg, where, at = joints_message(*message)
+        rows = np.concatenate([np.ravel(plant.wheel_map), np.ravel(C), np.ravel(D),
+                               [p.F_0, p.r_3, p.capstan_ratio, stepper.origin, stepper.dt, limit], at]).astype(np.float64)
+        arrays = LinearTickArrays(dict(rows=rows, reals=loop.reals, lp=loop._lp, x=np.zeros(n), y=np.zeros(len(OUTPUT_UNITS)),
+                                       msg=msg.view(np.float64), clamp=[-math.inf, math.inf, math.nan]),
+                                  dict(ints=loop.ints))  # fmt: skip
+        views = arrays.views
         #: the outputs of the last :meth:`step` [SI units, OUTPUT_UNITS order; slack/slip as 0.0/1.0]
-        self.y = np.zeros(len(OUTPUT_UNITS))
-        self.n, self.dt, self.origin = n, stepper.dt, stepper.origin
+        self.y = views["y"]
+        #: the state the last :meth:`step` reached (written again by the next one: a caller keeps it by copying)
+        self.state = views["x"]
+        #: the ``joint_states`` message of the last :meth:`step` (a view of its bytes)
+        self.message = memoryview(views["msg"].view(np.uint8))[where]
+        self._clamp = views["clamp"]
+        self.dt, self.origin = stepper.dt, stepper.origin
         self.step_ns = grid_step_ns(self.dt, stepper.origin)
-        self._out = np.empty((1, n))
-        self._loop = (loop.reals, loop.ints, loop._dp, loop._lp)
-        self._args = (*self._loop, self.rows, self.y, msg)
-
-    def set_message(self, template: bytes, offsets) -> None:
-        """Write the ``joint_states`` of each :meth:`step` into ``template``'s layout (:func:`joints_message`);
-        :attr:`message` then holds its bytes after a step."""
-        msg, self.message, at = joints_message(template, offsets)
-        self.rows[-4:] = at
-        self._args = (*self._loop, self.rows, self.y, msg)
+        self._args = (arrays.reals, loop._dp)
 
     @classmethod
-    def of(cls, stepper, limit: float):
-        """The tick kernel of ``stepper`` (divergence beyond ``limit`` [rad/s]), or None where it cannot run."""
+    def of(cls, stepper, limit: float, message: tuple = ()):
+        """The tick kernel of ``stepper`` (divergence beyond ``limit`` [rad/s]), or None where it cannot run;
+        ``message``: ``(template, offsets)`` of the ``joint_states`` it writes (:func:`joints_message`; none: a
+        scratch message)."""
         loop = getattr(stepper, "loop", None)
         if loop is None or stepper.plant.extra or stepper.guard is not None or not hasattr(stepper.plant.model, "C"):
             return None
-        return cls(stepper, limit)
+        return cls(stepper, limit, message)
 
     def step(self, x: np.ndarray, k0: int, k1: int, lo: float = -math.inf, hi: float = math.inf,
-             drive: float = math.nan, stamp: int = 0):
-        """Whole grid steps k0 -> k1 from state ``x``: ``(states (k1 - k0, n), status)``; :attr:`y` at k1
-        and :attr:`message` stamped ``stamp`` [ns] when OK (``lo``, ``hi``, ``drive``: :func:`linear_tick`'s).
-
-        The states are written into a buffer kept for the next call (the
-        last row is the next call's ``x``): a caller keeps them by copying.
-        """
-        out = self._out
-        if out.shape[0] != k1 - k0:
-            out = self._out = np.empty((k1 - k0, self.n))
-        return out, linear_tick(k0, k1 - k0, x, out, lo, hi, drive, stamp, *self._args)[1]
+             drive: float = math.nan, stamp: int = 0) -> int:
+        """Whole grid steps k0 -> k1 from state ``x``: the status; when OK the new state in :attr:`state`,
+        :attr:`y` at k1 and :attr:`message` stamped ``stamp`` [ns] (``lo``, ``hi``, ``drive``:
+        :func:`linear_tick`'s clamps). ``x`` is :attr:`state` on the usual tick (nothing copied)."""
+        if x is not self.state:
+            self.state[:] = x
+        if lo != -math.inf or hi != math.inf or drive == drive:
+            self._clamp[:] = lo, hi, drive
+        return linear_tick(k0, k1 - k0, stamp, *self._args)
 
 
 # ------------------------------------------------------------------ the slipping belt
@@ -250,45 +349,84 @@ SLIP_CONSTANTS = ("ratio", "r_3", "a_1", "g", "F_0", "q_1", "q_2", "q_3", "rel_2
                   "belt speed ratio", "belt_mass", "capstan_factor")  # fmt: skip
 
 
-@njit(cache=True, nogil=True)
-def slip_tick(k0, grid, knots, lo, hi, special, kind, xs, sigma5, x, dt, limit, out_y, out_mode, out_sigma, out_native, reals, ints,
-              offsets, have, Yflex, Minv, Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly, events, consts,
-              y, drive, stamp, msg):  # fmt: skip
-    """The slipping belt's tick: :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps` over
-    ``grid.size - 1`` whole grid steps from grid index ``k0``, then every output of the slipping
-    model at the last knot into ``y``.
+#: the slipping tick's packed sections (:class:`SlipTickKernel`): the hybrid loop's buffers of N steps, its phase
+#: state, the engine's arrays (Z as pairs of doubles), the outputs and the message; ``fscalars``: ``lo, hi, drive,
+#: sigma5, dt, limit``; ``iscalars``: the phase kind and how many of ``xs`` to start from (-1: ``x`` as it is)
+SLIP_FLOATS = ("grid", "knots", "lo", "hi", "out_y", "out_native", "out_sigma", "x", "xs", "reals", "Yflex", "Minv",
+               "Z", "R", "c", "mats", "guards", "dx", "dy", "lp", "lx", "ly", "events", "consts", "y", "msg", "fscalars")
+SLIP_INTS = ("special", "out_mode", "ints", "offsets", "have", "uses", "dk", "lk", "iscalars")
+(_GRID, _KNOTS, _SLO, _SHI, _OUT_Y, _OUT_NATIVE, _OUT_SIGMA, _SX, _SXS, _SREALS, _YFLEX, _MINV, _Z, _R, _C, _MATS,
+ _GUARDS, _DX, _DY, _SLP, _LX, _LY, _EVENTS, _CONSTS, _SY, _SMSG, _FSCALARS, _SPECIAL, _OUT_MODE, _SINTS, _OFFSETS,
+ _HAVE, _USES, _DK, _LK, _ISCALARS) = range(len(SLIP_FLOATS) + len(SLIP_INTS))  # fmt: skip
 
-    ``xs``: the phase coordinates of the hybrid state the steps start from, copied into the
-    buffer ``x`` (zeros after them; ``sigma5``, unless NaN, at ``x[5]``: the stepwise phase's
-    direction). ``grid``, ``knots``: buffers the grid times are written into; the other
-    arguments up to ``events`` are the hybrid loop's (its call from step 0
-    with no events recorded yet; ``lo``, ``hi``: each step's torque-time clamps, as
-    :func:`linear_tick`'s); ``consts``: :data:`SLIP_CONSTANTS`, the grid's origin [s], then
-    the message layout of :func:`write_joints`. ``drive``: NaN or the held drive torque's new
-    value, written into ``dp[0, 0]`` after the steps when no mode switched in them; ``stamp``,
-    ``msg``: the ``joint_states`` message (:func:`write_joints`). ``y``
-    receives ``OUTPUT_UNITS + SLIP_OUTPUT_UNITS`` in order, the operations of
-    :meth:`~belt_drive_ros.core.slip.SlippingBeltModel.outputs` on one sample
-    (flags as 0.0/1.0), with ``u = [drive(t, phi_M, omega_M), load(t, phi_3, omega_3)]``
-    at the last knot ``t`` (:meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.inputs`).
-    Returns the hybrid loop's ``(next step, status, kind, sigma, events)``;
-    ``y`` is written only when the loop is done (status 0).
+
+@njit(cache=True, nogil=True)
+def slip_tick(k0, stamp, packed, dp):
+    """The slipping belt's tick: :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps` over the ``N``
+    whole grid steps of the buffers from grid index ``k0``, then every output of the slipping
+    model at the last knot into ``y`` and the ``joint_states`` message stamped ``stamp`` [ns]
+    (:func:`write_joints`).
+
+    ``packed``: :class:`SlipTickKernel`'s buffer (:data:`SLIP_FLOATS`,
+    :data:`SLIP_INTS`); ``dp``: the drive profile's data (the held torque's own array). The
+    hybrid state the steps start from: phase kind ``iscalars[0]``, its coordinates the first
+    ``iscalars[1]`` of ``xs`` copied into ``x`` (-1: ``x`` as the last tick left it), zeros
+    after them; ``sigma5`` (``fscalars[3]``), unless NaN, at ``x[5]`` (the stepwise phase's
+    direction). ``grid``, ``knots``: written with the grid times; the other sections up to
+    ``events`` are the hybrid loop's arguments (its call from step 0 with no events recorded
+    yet; ``lo``, ``hi`` (``fscalars[0:2]``) clamp the first step's and the last step's torque
+    times, as :func:`linear_tick`'s, and are set back to ``-inf, inf``); ``consts``:
+    :data:`SLIP_CONSTANTS`, the grid's origin [s], then the message layout of
+    :func:`write_joints`. ``drive`` (``fscalars[2]``, set back to NaN): NaN or the held drive
+    torque's new value, written into ``dp[0, 0]`` after the steps when no mode switched in
+    them. ``y`` receives ``OUTPUT_UNITS + SLIP_OUTPUT_UNITS`` in order, the operations of
+    :meth:`~belt_drive_ros.core.slip.SlippingBeltModel.outputs` on one sample (flags as
+    0.0/1.0), with ``u = [drive(t, phi_M, omega_M), load(t, phi_3, omega_3)]`` at the last
+    knot ``t`` (:meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.inputs`). Returns the
+    hybrid loop's ``(next step, status, kind, sigma, events)``; ``y`` is written only when the
+    loop is done (status 0); ``iscalars[0]`` then holds the new kind and ``sigma5`` the new state's (NaN
+    unless stepwise), so that the next call continues from it.
     """
-    for j in range(x.size):
-        x[j] = xs[j] if j < xs.size else 0.0
+    table = packed.view(np.int64)
+    fs, js = _f1(packed, table, _FSCALARS), _i1(table, _ISCALARS)
+    grid, knots, lo, hi = _f1(packed, table, _GRID), _f1(packed, table, _KNOTS), _f1(packed, table, _SLO), _f1(packed, table, _SHI)
+    x, xs, consts, y = _f1(packed, table, _SX), _f1(packed, table, _SXS), _f1(packed, table, _CONSTS), _f1(packed, table, _SY)
+    out_y = _f2(packed, table, _OUT_Y)
+    kind = js[0]
+    given = js[1]
+    if given >= 0:
+        for j in range(x.size):
+            x[j] = xs[j] if j < given else 0.0
+        js[1] = -1  # the next call continues from x (the caller gives a state again after a failure)
+    else:
+        for j in range(PHASE_SIZE[kind], x.size):
+            x[j] = 0.0
+    sigma5, drive, dt, limit = fs[3], fs[2], fs[4], fs[5]
     if sigma5 == sigma5:
         x[5] = sigma5
+    N = grid.size - 1
+    lo[0], hi[N - 1] = fs[0], fs[1]
+    fs[0], fs[1], fs[2] = -math.inf, math.inf, math.nan
     for j in range(grid.size):  # the grid times origin + dt k of Stepper._grid; the knots are them
         grid[j] = consts[16] + dt * float(k0 + j)
         knots[j] = grid[j]
     # k0 and n0 as int64 (the signature Python's calls compile), not literal zeros: a literal would compile the
     # whole hybrid loop (and its event step) a second time
     zero = np.int64(0)
-    k1, status, kind, sigma, n_ev = hybrid_steps(grid, knots, lo, hi, special, zero, kind, x, dt, limit, out_y, out_mode,
-                                                 out_sigma, out_native, reals, ints, offsets, have, Yflex, Minv, Z, R, c,
-                                                 mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly, events, zero)  # fmt: skip
+    dk, dx, dy = _i1(table, _DK), _f1(packed, table, _DX), _f1(packed, table, _DY)
+    lk, lp, lx, ly = _i1(table, _LK), _f2(packed, table, _SLP), _f1(packed, table, _LX), _f1(packed, table, _LY)
+    k1, status, kind, sigma, n_ev = hybrid_steps(
+        grid, knots, lo, hi, _i1(table, _SPECIAL), zero, kind, x, dt, limit, out_y, _i1(table, _OUT_MODE),
+        _f1(packed, table, _OUT_SIGMA), _f2(packed, table, _OUT_NATIVE), _f1(packed, table, _SREALS),
+        _i1(table, _SINTS), _i2(table, _OFFSETS), _i1(table, _HAVE), _f2(packed, table, _YFLEX),
+        _f2(packed, table, _MINV), _f3(packed, table, _Z).view(np.complex128), _f2(packed, table, _R),
+        _f1(packed, table, _C), _f2(packed, table, _MATS), _f2(packed, table, _GUARDS), _i1(table, _USES), dk, dp,
+        dx, dy, lk, lp, lx, ly, _f2(packed, table, _EVENTS), zero)  # fmt: skip
+    lo[0], hi[N - 1] = -math.inf, math.inf
     if status != 0:
         return k1, status, kind, sigma, n_ev
+    js[0] = kind
+    fs[3] = sigma if kind == STEPWISE else math.nan  # the next call's sigma5 when it continues from this state
     if drive == drive and n_ev == 0:
         dp[0, 0] = drive
     slipping = kind > STICKING
@@ -322,55 +460,61 @@ def slip_tick(k0, grid, knots, lo, hi, special, kind, xs, sigma5, x, dt, limit, 
     y[16], y[17], y[18], y[19] = y1, slip_angle, y4, speed
     y[20] = Q / qmax if qmax > 0 else math.inf
     y[21] = qmax
-    write_joints(y, msg, consts[17:], stamp)
+    write_joints(y, _f1(packed, table, _SMSG).view(np.uint8), consts[17:], stamp)
     return k1, status, kind, sigma, n_ev
+
+
+class SlipTickArrays(PackedArrays):
+    """:func:`slip_tick`'s buffers (:data:`SLIP_FLOATS`, :data:`SLIP_INTS`)."""
+
+    FLOATS, INTS = SLIP_FLOATS, SLIP_INTS
 
 
 class SlipTickKernel:
     """A slipping engine's (:class:`~belt_drive_ros.core.slip_run.SlippingSimulator`) tick of whole steps as one
-    compiled call (:func:`slip_tick`), its buffers allocated once; :attr:`y` holds the outputs."""
+    compiled call (:func:`slip_tick`), its buffers packed once (again when a phase's stepper was built or the
+    number of steps per tick changed); :attr:`y` holds the outputs."""
 
-    def __init__(self, engine, limit: float):
+    def __init__(self, engine, limit: float, message: tuple = ()):
         m, p = engine.model, engine.model.params
         q, rel = m._q, m.rel_row.tolist()
+        self._msg, self._where, at = joints_message(*message)
         self.consts = np.array([p.ratio, p.r_3, p.r_M / p.R_1, p.gear_ratio, p.F_0, q[1], q[2], q[3], rel[2], rel[3],
                                 p.c, 2.0 * p.k * p.r_3, 2.0 * p.c, p.r_2 * p.gear_ratio, float(p.belt_mass),
-                                p.capstan_factor, engine.origin], dtype=np.float64)  # fmt: skip
-        self._msg, self.message, at = joints_message()
-        self.consts = np.concatenate([self.consts, at])
+                                p.capstan_factor, engine.origin, *at], dtype=np.float64)  # fmt: skip
         self.engine, self.dt, self.origin, self.limit = engine, engine.dt, engine.origin, limit
         self.step_ns = grid_step_ns(engine.dt, engine.origin)
         self.y = np.zeros(22)
-        self.x = np.zeros(6)
-        self.events = np.zeros((1024, 8))  # the hybrid loop wants room for a chattering step's switches
-        self._buffers(1)
+        self.message = None
+        self.N = 1
         self._built = -1  # how many phase steppers the engine had when its arrays were packed (see _pack)
-        self._tail: tuple | None = None  # slip_tick's arguments from reals on (None: the engine cannot compile)
-        self._state, self._code = None, 0  # the hybrid state the last advance returned, its kind code
+        self._args: tuple | None = None  # slip_tick's trailing arguments (None: the engine cannot compile)
+        self._state = None  # the hybrid state the last advance returned
 
-    def _pack(self) -> None:
-        """The engine's compiled arrays as :func:`slip_tick`'s trailing arguments (again whenever a phase's
-        stepper was built since: the engine only adds them)."""
+    def _pack(self, N: int) -> None:
+        """The engine's compiled arrays and the buffers of ``N`` whole steps without clamps or splits as
+        :func:`slip_tick`'s buffers."""
         compiled = self.engine._compiled()
-        self._built = len(self.engine._steppers)
+        self._built, self.N, self._state = len(self.engine._steppers), N, None
         if compiled is None:
-            self._tail = None
+            self._args = None
             return
-        have, reals, ints, offsets, Yflex, Minv, arrays = compiled
-        self._tail = (reals, ints, offsets, have, Yflex, Minv, *arrays, self.events, self.consts, self.y)
-
-    def _buffers(self, N: int) -> None:
-        """The hybrid loop's arrays for ``N`` whole steps without clamps or splits."""
-        self.N = N
-        self.grid, self.knots = np.zeros(N + 1), np.zeros(N + 1)
-        self.lo, self.hi, self.special = np.full(N, -math.inf), np.full(N, math.inf), np.zeros(N, dtype=np.int64)
-        self.out_y, self.out_native = np.empty((N, 5)), np.empty((N, 6))
-        self.out_mode, self.out_sigma = np.empty(N, dtype=np.int64), np.empty(N)
-
-    def set_message(self, template: bytes, offsets) -> None:
-        """As :meth:`TickKernel.set_message`."""
-        self._msg, self.message, at = joints_message(template, offsets)
-        self.consts[-4:] = at
+        have, reals, ints, offsets, Yflex, Minv, (Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly) = compiled
+        arrays = SlipTickArrays(
+            dict(grid=np.zeros(N + 1), knots=np.zeros(N + 1), lo=np.full(N, -math.inf), hi=np.full(N, math.inf),
+                 out_y=np.zeros((N, 5)), out_native=np.zeros((N, 6)), out_sigma=np.zeros(N), x=np.zeros(6),
+                 xs=np.zeros(6), reals=reals, Yflex=Yflex, Minv=Minv, Z=Z.view(np.float64), R=R, c=c, mats=mats,
+                 guards=guards, dx=dx, dy=dy, lp=lp, lx=lx, ly=ly,
+                 events=np.zeros((1024, 8)),  # the hybrid loop wants room for a chattering step's switches
+                 consts=self.consts, y=self.y, msg=self._msg.view(np.float64),
+                 fscalars=[-math.inf, math.inf, math.nan, math.nan, self.dt, self.limit]),
+            dict(special=np.zeros(N, dtype=np.int64), out_mode=np.zeros(N, dtype=np.int64), ints=ints, offsets=offsets,
+                 have=have, uses=uses, dk=dk, lk=lk, iscalars=[0, 0]))  # fmt: skip
+        views = arrays.views
+        self.y, self._x, self._xs, self._out_y = views["y"], views["x"], views["xs"], views["out_y"]
+        self._fs, self._js = views["fscalars"], views["iscalars"]
+        self.message = memoryview(views["msg"].view(np.uint8))[self._where]
+        self._args = (arrays.reals, dp)
 
     def advance(self, state, k0: int, k1: int, lo: float = -math.inf, hi: float = math.inf, drive: float = math.nan,
                 stamp: int = 0):
@@ -380,35 +524,27 @@ class SlipTickKernel:
         the last one's, ``drive`` as :func:`slip_tick`'s. None when the step needs the engine's own
         :meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.advance` (a mode switch in it, a
         failure: it redoes the step from ``state`` and reports them)."""
-        if len(self.engine._steppers) != self._built:
-            self._pack()
-        if self._tail is None:
+        if len(self.engine._steppers) != self._built or k1 - k0 != self.N:
+            self._pack(k1 - k0)
+        if self._args is None:
             return None
-        if state is self._state:  # the usual tick: the state the last call returned (its own C array)
-            code, xs = self._code, state.x
-        else:
-            code, xs = _kind_code(state), np.array(state.x, dtype=np.float64)
-        if k1 - k0 != self.N:
-            self._buffers(k1 - k0)
-        clamped = lo != -math.inf or hi != math.inf
-        if clamped:
-            self.lo[0], self.hi[-1] = lo, hi
-        k1, status, kind, sigma, n_ev = slip_tick(
-            k0, self.grid, self.knots, self.lo, self.hi, self.special, code, xs,
-            state.sigma if state.kind == "hybrid" else math.nan, self.x, self.dt, self.limit, self.out_y,
-            self.out_mode, self.out_sigma, self.out_native, *self._tail, drive, stamp, self._msg,
-        )  # fmt: skip
-        if clamped:
-            self.lo[0], self.hi[-1] = -math.inf, math.inf
+        if state is not self._state:  # else the usual tick: x holds the state the last call returned, kind its code
+            self._js[:] = _kind_code(state), len(state.x)
+            self._xs[: len(state.x)] = state.x
+            self._fs[3] = state.sigma if state.kind == "hybrid" else math.nan
+        if lo != -math.inf or hi != math.inf or drive == drive:
+            self._fs[:3] = lo, hi, drive
+        k1, status, kind, sigma, n_ev = slip_tick(k0, stamp, *self._args)
         if status != 0 or n_ev:
+            self._state = None
             return None
-        state = SlipState(STICK if kind <= STICKING else SLIP, float(sigma), KIND_NAMES[kind], self.x[: PHASE_SIZE[kind]].copy())
-        self._state, self._code = state, kind  # (= _kind_code(state): the loop's code of that phase)
+        state = SlipState(STICK if kind <= STICKING else SLIP, float(sigma), KIND_NAMES[kind], self._x[: PHASE_SIZE[kind]].copy())
+        self._state = state
         return state
 
     def state_y(self) -> np.ndarray:
         """The slipping state ``y`` (5,) after the last :meth:`advance` (the engine's ``state_y`` of it)."""
-        return self.out_y[-1].copy()
+        return self._out_y[-1].copy()
 
 
 def warm() -> None:

@@ -148,7 +148,8 @@ class NetworkStepper:
         if message is not None:
             from ..core.tick import joints_message
 
-            self._msg, self.message, at = joints_message(*message)
+            self._msg, where, at = joints_message(*message)
+            self.message = memoryview(self._msg)[where]
             views["iscalars"][4:] = [int(a) for a in at]
         self.y = views["y"]
         self._tick = (self._arrays.reals, self._arrays.ints)

@@ -117,8 +117,7 @@ class NodeSimulation:
             self._free_k = (0, -1)
             from ..core.tick import SlipTickKernel
 
-            self._tick_kernel = SlipTickKernel(engine, SPEED_LIMIT)
-            self._tick_kernel.set_message(*_JOINT_STATES.layout)
+            self._tick_kernel = SlipTickKernel(engine, SPEED_LIMIT, _JOINT_STATES.layout)
             return engine
         plant = Plant(s.model, drive, s.scene.load)
         stepper = Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
@@ -126,9 +125,7 @@ class NodeSimulation:
         self._free_k = (0, -1)
         from ..core.tick import TickKernel
 
-        self._tick_kernel = TickKernel.of(stepper, SPEED_LIMIT)
-        if self._tick_kernel is not None:
-            self._tick_kernel.set_message(*_JOINT_STATES.layout)
+        self._tick_kernel = TickKernel.of(stepper, SPEED_LIMIT, _JOINT_STATES.layout)
         return stepper
 
     @property
@@ -309,12 +306,10 @@ class NodeSimulation:
         step = 0 if fast is None else fast.step_ns
         d0, d1 = self.t_ns - origin, now_ns - origin
         if step and d0 % step == 0 and d1 % step == 0:
-            # both ends on the grid (the usual tick): what scene_time gives them, without its general rounding
-            # (the grid times origin + k dt of Stepper.grid_time, the same floats)
-            st = self.stepper
+            # both ends on the grid (the usual tick): the grid times origin + k dt of Stepper.grid_time, the floats
+            # scene_time gives them (it is not asked here: on the caches a 1 ms sleep leaves every line costs)
             k0, k1 = d0 // step, d1 // step
             t0, t1 = fast.origin + k0 * fast.dt, fast.origin + k1 * fast.dt
-            self._scene_time = (now_ns, st, origin, t1, self.t_ns, t0)
             s = self.settings
             value = None  # the sample at now_ns: known before the interval is integrated (_sample)
             if s.drive_source == "topic":
@@ -324,18 +319,22 @@ class NodeSimulation:
             jump0 = self._held_jump == t0
             jump1 = value is not None and value != self._held
             lo, hi = self._free_k
-            if (not (jump0 or jump1) or k1 - k0 == 1 or self.hybrid is not None) and (
+            slipping = self.hybrid is not None
+            if (not (jump0 or jump1) or k1 - k0 == 1 or slipping) and (
                     lo <= k0 and k1 <= hi or self._free(t0, t1, k0, k1)):
                 # whole grid steps away from the plant's breakpoints: one compiled call, steps and outputs
                 # (core.tick; the same floats as the stepper's). A held-torque jump at t0 or t1 is a
                 # breakpoint there: the stepper's special step clamps the torque times as these do.
-                lo = t0 if jump0 else -math.inf
-                hi = (st if self.hybrid is None else st.stepper).plant.left_of(t1) if jump1 else math.inf
-                drive = value if jump1 else math.nan  # held from t1 on: the outputs at t1 have it
-                if self.hybrid is None:
-                    out, status = fast.step(self.x, k0, k1, lo, hi, drive, now_ns)
-                    if status == OK:  # else the general path below takes the same steps and raises as it does
-                        self.x = out[-1]  # a row of the tick kernel's buffer, written again by the next tick
+                if jump0 or jump1:
+                    lo = t0 if jump0 else -math.inf
+                    hi = (self.stepper.stepper if slipping else self.stepper).plant.left_of(t1) if jump1 else math.inf
+                    drive = value if jump1 else math.nan  # held from t1 on: the outputs at t1 have it
+                else:
+                    lo, hi, drive = -math.inf, math.inf, math.nan
+                if not slipping:
+                    if fast.step(self.x, k0, k1, lo, hi, drive, now_ns) == OK:  # else the general path below
+                        # takes the same steps and raises as it does
+                        self.x = fast.state  # the tick kernel's buffer, written again by the next tick
                         self.t_ns = self._fresh_ns = now_ns
                         self._held_jump = t1 if jump1 else None  # what _hold makes of the sample
                         if jump1:

@@ -12,7 +12,7 @@ and writes the values into the ``joint_states`` CDR bytes the node publishes.
 
 Its arguments are few: numba's dispatcher checks and converts every array
 argument on every call. :class:`TickArrays` packs every per-scene array into
-one float64 and one int64 buffer once; the kernel cuts them into views again
+one buffer once (``reals``, and ``ints``, its int64 view); the kernel cuts them into views again
 (the same shapes and types, so ``wheel_steps`` keeps its one compiled
 signature). The caller writes held torques into those views. Measured on
 fead_i4 (cold caches, 1 ms sleeps, load ~10): the whole tick, joint values
@@ -41,6 +41,7 @@ from numba import njit
 
 from ..kernel import profile_torque_at, wheel_steps
 from ..profile_data import OK
+from ..tick import PackedArrays, _f1, _f2, _f3, _i1
 
 #: per state angle how its joint angle and speed are formed (``jkind``)
 SAME, LAG, RIGID, ZERO = 0, 1, 2, 3
@@ -52,36 +53,6 @@ FLOATS = ("W", "offsets", "S", "F", "pp", "px", "py", "extra", "guard", "rho", "
 INTS = ("kinds", "uses_angle", "start", "pk", "jkind", "held", "uses", "row", "qk", "iscalars")
 _W, _OFFSETS, _S, _F, _PP, _PX, _PY, _EXTRA, _GUARD, _RHO, _VALUE, _TSIGN, _GEAR, _QP, _Y, _FSCALARS = range(16)
 _KINDS, _USES_ANGLE, _START, _PK, _JKIND, _HELD, _USES, _ROW, _QK, _ISCALARS = range(16, 26)
-_TABLE = 4 * (len(FLOATS) + len(INTS))  # ints starts with (offset, d0, d1, d2) of every section
-
-
-@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
-def _at(ints, j):
-    return ints[4 * j], ints[4 * j + 1], ints[4 * j + 2], ints[4 * j + 3]
-
-
-@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
-def _f1(reals, ints, j):
-    a, d0, _, _ = _at(ints, j)
-    return reals[a : a + d0]
-
-
-@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
-def _f2(reals, ints, j):
-    a, d0, d1, _ = _at(ints, j)
-    return reals[a : a + d0 * d1].reshape((d0, d1))
-
-
-@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
-def _f3(reals, ints, j):
-    a, d0, d1, d2 = _at(ints, j)
-    return reals[a : a + d0 * d1 * d2].reshape((d0, d1, d2))
-
-
-@njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
-def _i1(ints, j):
-    a, d0, _, _ = _at(ints, j)
-    return ints[a : a + d0]
 
 
 @njit(cache=True, nogil=True)
@@ -161,34 +132,10 @@ def network_tick(k0, steps, x, out, lo, hi, reals, ints, msg, stamp):
     return done, status, t
 
 
-class TickArrays:
-    """Named arrays packed into one float64 buffer ``reals`` and one int64 buffer ``ints`` (the layout
-    :func:`network_tick` reads: :data:`FLOATS`, :data:`INTS`); ``views[name]`` is each array's view into its
-    buffer (writing into it writes what the kernel reads)."""
+class TickArrays(PackedArrays):
+    """The network tick's arrays packed (:data:`FLOATS`, :data:`INTS`; :class:`~belt_drive_ros.core.tick.PackedArrays`)."""
 
-    def __init__(self, floats: dict, ints: dict):
-        shapes = [np.shape(floats[name]) for name in FLOATS] + [np.shape(ints[name]) for name in INTS]
-        if any(len(s) > 3 for s in shapes):
-            raise ValueError("TickArrays: at most three dimensions")
-        sizes = [int(np.prod(s)) for s in shapes]
-        nf = len(FLOATS)
-        self.reals = np.zeros(sum(sizes[:nf]))
-        self.ints = np.zeros(_TABLE + sum(sizes[nf:]), dtype=np.int64)
-        self.views = {}
-        a_f, a_i = 0, _TABLE
-        for j, (name, shape, size) in enumerate(zip(FLOATS + INTS, shapes, sizes)):
-            is_float = j < nf
-            a = a_f if is_float else a_i
-            dims = tuple(shape) + (1,) * (3 - len(shape))
-            self.ints[4 * j : 4 * j + 4] = (a, *dims)
-            buffer = self.reals if is_float else self.ints
-            view = buffer[a : a + size].reshape(shape)
-            view[...] = floats[name] if is_float else ints[name]
-            self.views[name] = view
-            if is_float:
-                a_f += size
-            else:
-                a_i += size
+    FLOATS, INTS = FLOATS, INTS
 
 
 def warm() -> None:
