@@ -18,6 +18,7 @@ from . import stage_scheme as _scheme
 from .errors import IntegratorError
 from .forced_response import ORBIT_SAMPLES, orbit_error, profile_harmonics
 from .model import LINEAR_OUTPUTS, RigidBeltModel, make_model
+from .stability import spectral_radius
 from .stepper import shared_plant, shared_stepper, snap_tolerance
 
 #: default relative tolerance of the guard (speed and belt torque, relative to peak)
@@ -437,12 +438,6 @@ def exact_maps(A_cl: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, n
     return expo[:n, :n], expo[:n, n:]
 
 
-def _spectral_radius(M: np.ndarray) -> float:
-    mu = np.linalg.eigvals(M)
-    mu = np.where(np.abs(mu - 1.0) <= 1e-6, 1.0, mu)  # rigid-body Jordan block at 1: 1 +/- sqrt(eps)
-    return float(np.max(np.abs(mu)))
-
-
 def step_response_error(M, G, E, F, rows: np.ndarray, n_steps: int) -> float:
     """Max over unit inputs and output rows of max_k |y_k - y*_k| / max_k |y*_k|, k = 1 .. ``n_steps``.
 
@@ -493,8 +488,8 @@ def linear_verdict(integrator, A, B, rows, K, n_steps: int) -> tuple:
         M, G = closed_loop_maps(integrator, K)
     except IntegratorError:
         M, G = np.full_like(E, np.inf), np.full_like(F, np.inf)
-    growth = _spectral_radius(M) if np.all(np.isfinite(M)) else math.inf
-    exact_growth = _spectral_radius(E)
+    growth = spectral_radius(M) if np.all(np.isfinite(M)) else math.inf
+    exact_growth = spectral_radius(E)
     stable = growth <= max(1.0, exact_growth) * (1.0 + GROWTH_TOLERANCE) + 1e-15
     error = step_response_error(M, G, E, F, rows, n_steps) if stable else math.inf
     verdict = (stable, error, growth, exact_growth, dt * float(np.max(np.abs(np.linalg.eigvals(A_cl)))))
