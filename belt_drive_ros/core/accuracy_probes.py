@@ -358,7 +358,7 @@ def _peaks(plant, rigid, at, here=None) -> tuple[float, float]:
     return (w if math.isfinite(w) else 0.0, tb if math.isfinite(tb) else 0.0)
 
 
-def input_weight(plant, x0, dt: float, probes, jumps, rigid=None, out: list | None = None) -> float:
+def input_weight(plant, x0, dt: float, probes, jumps, rigid, out: list | None) -> float:
     """Scale [-] of the unit step response's error for this scene: ``min(1, 2 dB / T_peak)``, at least
     :data:`MIN_INPUT_WEIGHT`.
 
@@ -380,12 +380,11 @@ def input_weight(plant, x0, dt: float, probes, jumps, rigid=None, out: list | No
 
     ``T_peak``: the largest |quasi-static belt torque| at the probes. Rigid
     model (no belt mode): 1. The floor keeps perturbations the scene does
-    not state (a node's torques) rated. ``rigid``: the rigid model of the plant's parameters when made;
+    not state (a node's torques) rated. ``rigid``: the rigid model of the plant's parameters;
     ``out``: a list that receives the quasi-static belt torques at ``probes`` (what :func:`_peaks` reads).
     """
     model = plant.model
     p = model.params
-    rigid = rigid or make_model("rigid", p)
     wm = plant.wheel_map
     x0 = np.asarray(x0, dtype=float)
     phi0, w0 = float(wm[0] @ x0), float(wm[1] @ x0)

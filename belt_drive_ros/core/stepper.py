@@ -422,9 +422,7 @@ class Stepper:
         plan = self._plan(t0, t1)
         if plan["empty"]:
             return t0, t1, False, -math.inf, math.inf, []
-        c = plan["first"]
-        a, e, whole = self._step_ends(plan, c)
-        lo, hi, cuts = plan["special"].get(c, (-math.inf, math.inf, []))
+        a, e, whole, lo, hi, cuts = self._step(plan, plan["first"])
         return a, e, whole, lo, hi, list(cuts)
 
     def steps(self, t0: float, t1: float) -> tuple[np.ndarray, list]:
@@ -442,12 +440,8 @@ class Stepper:
         times = self._knots(plan)
         if plan["empty"]:
             return times, []
-        out = []
-        for c in range(plan["first"], plan["last"] + 1):
-            a, e, whole = self._step_ends(plan, c)
-            lo, hi, cuts = plan["special"].get(c, (-math.inf, math.inf, ()))
-            out.append((a, e, whole, lo, hi, tuple(sorted(cuts))))
-        return times, out
+        steps = [self._step(plan, c) for c in range(plan["first"], plan["last"] + 1)]
+        return times, [(*step[:5], tuple(sorted(step[5]))) for step in steps]
 
     def grid_time(self, k: int) -> float:
         """Grid time ``origin + k dt`` [s] (the float every caller computes)."""
@@ -532,12 +526,13 @@ class Stepper:
             lead=k0 is None, trail=k1 is None, special=special, absorbed=absorbed,
         )  # fmt: skip
 
-    def _step_ends(self, plan: dict, c: int) -> tuple[float, float, bool]:
-        """(a, e, whole) of the step in cell ``c``."""
+    def _step(self, plan: dict, c: int) -> tuple:
+        """``(a, e, whole, lo, hi, cuts)`` of the step in cell ``c``: from ``a`` to ``e`` [s] (``whole``: a full grid
+        step), torque samples clamped to ``[lo, hi]``, split at ``cuts``."""
         a = plan["start"] if c == plan["first"] else self.grid_time(c)
         e = plan["end"] if c == plan["last"] else self.grid_time(c + 1)
         whole = not ((c == plan["first"] and plan["lead"]) or (c == plan["last"] and plan["trail"]))
-        return a, e, whole
+        return (a, e, whole, *plan["special"].get(c, (-math.inf, math.inf, ())))
 
     def _knots(self, plan: dict) -> list:
         """Times of the recorded states: t0, the interior grid times, t1."""
@@ -638,9 +633,8 @@ class Stepper:
         c = first
         with np.errstate(all="ignore"):
             while c <= last:
-                a, e, whole = self._step_ends(plan, c)
+                a, e, whole, lo, hi, cuts = self._step(plan, c)
                 if c in special or not whole:
-                    lo, hi, cuts = special.get(c, (-math.inf, math.inf, ()))
                     x = self._special_step(x, a, e, whole, lo, hi, cuts)
                     if record:
                         states[c - first + 1] = x
@@ -667,8 +661,7 @@ class Stepper:
                 if self._stop_at is not None:  # the guard fired at the end of cell c + _stop_at
                     j = c + self._stop_at
                     self._stop_at = None
-                    a, e, whole = self._step_ends(plan, j)
-                    self.stopped = (j - first, a, e, whole, -math.inf, math.inf, [])
+                    self.stopped = (j - first, *self._step(plan, j)[:5], [])  # (a plain cell: no clamps)
                     break
                 c = stop
                 if not _healthy(x):
@@ -714,9 +707,7 @@ class Stepper:
                     self._not_converged(t)
                 if status == GUARDED:
                     j = c + done - 1
-                    a, e, whole = self._step_ends(plan, j)
-                    lo_j, hi_j, _ = special.get(j, (-math.inf, math.inf, ()))
-                    self.stopped = (j - first, a, e, whole, lo_j, hi_j, [])
+                    self.stopped = (j - first, *self._step(plan, j)[:5], [])
                     break
                 if status == DIVERGED:
                     states[c - first + 1 + done :] = np.nan
