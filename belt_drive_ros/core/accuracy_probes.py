@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.linalg
@@ -133,13 +134,10 @@ class RigidSurvey:
         x0 = scene.initial_state.vector("rigid", scene.params.ratio)
         return cls(scene.params, scene.drive, scene.load, x0, scene.duration, scene.dt if dt is None else dt)
 
-    @property
+    @cached_property
     def rigid(self) -> RigidBeltModel:
         """The rigid model of the survey's parameters (made once; the probes and the start check read it too)."""
-        model = self.__dict__.get("_rigid")
-        if model is None:
-            model = self._rigid = make_model("rigid", self.params)
-        return model
+        return make_model("rigid", self.params)
 
     @property
     def start_torque(self) -> float:

@@ -150,17 +150,11 @@ class Simulator:
         t0: float = 0.0,
         progress: Callable[[float], None] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Integrate over ``duration`` [s]; return (time (N+1,), states (N+1, n)).
+        """Integrate over ``duration`` [s] on the grid ``t0 + k dt``; return (time (N+1,), states (N+1, n)).
 
-        The grid is ``t0 + k dt``; the last time is ``t0 + duration`` exactly
-        (the last step shortened when dt does not divide the duration).
-        Torque breakpoints are handled exactly wherever they fall: a step
-        with one strictly inside is split there, a step that ends on one
-        samples the torque's left limit (see :mod:`belt_drive_ros.core.stepper`).
-        Without that such a step is locally first order: on ``paper`` a
-        12.5 ms ``lawson5`` step with the soft start ending inside it makes
-        the run 2000x less accurate (tests/test_breakpoints.py).
-        ``split_steps`` lists the split steps after the run.
+        Steps at torque breakpoints are split or clamped (:mod:`belt_drive_ros.core.stepper`); without that such a
+        step is locally first order: on ``paper`` a 12.5 ms ``lawson5`` step with the soft start ending inside it
+        makes the run 2000x less accurate (tests/test_breakpoints.py). ``split_steps`` lists the split steps after.
         """
         self.stepper.origin = float(t0)
         return self.stepper.run(x0, float(t0), float(t0) + float(duration), progress)

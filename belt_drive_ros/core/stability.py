@@ -109,12 +109,10 @@ def max_stable_step(A: np.ndarray, B: np.ndarray, method: str, upper: float = 1.
     omega = float(np.max(np.abs(lams))) or 1.0
     if _is_stable(_growth(cls, A, B, upper, lams), upper, omega):
         return math.inf
-    lo, hi = 0.0, upper
     # Smallest probe: a step far below any boundary of interest.
-    probe = 1e-6 / omega
-    if not _is_stable(_growth(cls, A, B, probe, lams), probe, omega):
+    lo, hi = 1e-6 / omega, upper
+    if not _is_stable(_growth(cls, A, B, lo, lams), lo, omega):
         return 0.0
-    lo = probe
     for _ in range(80):
         mid = 0.5 * (lo + hi)
         if _is_stable(_growth(cls, A, B, mid, lams), mid, omega):
