@@ -37,7 +37,7 @@ pulsations, recorded profiles): that one falls with the method's order and
 is measured per scene (``docs/performance.md``, tests/test_scene_defaults.py).
 
 The slopes are taken by central differences of the torques at speeds and
-times along a cheap rigid run of the scene (:data:`N_PROBES` probes); the
+times along a cheap rigid run of the scene (:data:`~belt_drive_ros.core.accuracy_probes.N_PROBES` probes); the
 worst probe counts. Only speed slopes are used: angle slopes of periodic
 torques average out and would read as a spurious stiffness.
 """
@@ -49,14 +49,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# the guard's terms live beside this module; their names stay importable from here
-from .accuracy_probes import (  # noqa: F401 - re-exported
-    ACCURACY_TOLERANCE, ALTERNATIVE_HALVINGS, ALTERNATIVES, GROWTH_TOLERANCE, MAX_BREAKPOINT_WINDOWS, MAX_HALVINGS,
-    MAX_STEPS, MAX_WINDOW_STEPS, MIN_INPUT_WEIGHT, N_PROBES, SPEED_SPREAD, SUGGEST_MARGIN, WINDOW_STEPS,
-    Probes, _output_rows, closed_loop_maps, exact_maps, input_weight, linear_verdict, probe_scene, speed_slopes,
-    step_response_error,
+# the guard's terms live beside this module (probe_scene importable from here)
+from .accuracy_probes import (
+    ACCURACY_TOLERANCE, ALTERNATIVE_HALVINGS, ALTERNATIVES, MAX_HALVINGS, SUGGEST_MARGIN, WINDOW_STEPS, Probes,
+    _output_rows, linear_verdict, probe_scene,
 )  # fmt: skip
-from .accuracy_windows import forcing_error, window_errors  # noqa: F401 - window_errors re-exported
+from .accuracy_windows import forcing_error
 from .errors import IntegratorError, UnstableStepError
 from .forced_response import harmonic_error
 from .integrators import FixedStepIntegrator, make_integrator, method_class
@@ -213,8 +211,12 @@ def require_accurate(plant, method, dt, duration, x0, tolerance=ACCURACY_TOLERAN
     An inaccurate but stable step is returned (``report.accurate`` False): the caller warns.
     ``probes``: a :func:`probe_scene` of this plant, duration, state and step already made.
     """
-    report = check_accuracy(plant, method, dt, duration, x0, tolerance, method_options, stepper=stepper,
-                            stated_inputs=stated_inputs, probes=probes)  # fmt: skip
+    return _refuse_unstable(check_accuracy(plant, method, dt, duration, x0, tolerance, method_options, stepper=stepper,
+                                           stated_inputs=stated_inputs, probes=probes))  # fmt: skip
+
+
+def _refuse_unstable(report):
+    """``report``, raising :class:`UnstableStepError` with its line when it is unstable."""
     if report is not None and not report.stable:
         raise UnstableStepError(report.describe())
     return report
@@ -295,11 +297,8 @@ def check_slipping(
 def require_accurate_slipping(params, drive, load, method, dt, duration, x0_flexible, tolerance=ACCURACY_TOLERANCE,
                               method_options=None, stepper=None, stick=None, stated_inputs=True, probes=None):  # fmt: skip
     """:func:`check_slipping`; raises :class:`UnstableStepError` when either mode is unstable."""
-    report = check_slipping(params, drive, load, method, dt, duration, x0_flexible, tolerance, method_options, stepper,
-                            stick=stick, stated_inputs=stated_inputs, probes=probes)  # fmt: skip
-    if report is not None and not report.stable:
-        raise UnstableStepError(report.describe())
-    return report
+    return _refuse_unstable(check_slipping(params, drive, load, method, dt, duration, x0_flexible, tolerance,
+                                           method_options, stepper, stick=stick, stated_inputs=stated_inputs, probes=probes))
 
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.linalg
@@ -18,6 +19,7 @@ from . import stage_scheme as _scheme
 from .errors import IntegratorError
 from .forced_response import ORBIT_SAMPLES, orbit_error, profile_harmonics
 from .model import LINEAR_OUTPUTS, RigidBeltModel, make_model
+from .stability import spectral_radius
 from .stepper import shared_plant, shared_stepper, snap_tolerance
 
 #: default relative tolerance of the guard (speed and belt torque, relative to peak)
@@ -132,13 +134,10 @@ class RigidSurvey:
         x0 = scene.initial_state.vector("rigid", scene.params.ratio)
         return cls(scene.params, scene.drive, scene.load, x0, scene.duration, scene.dt if dt is None else dt)
 
-    @property
+    @cached_property
     def rigid(self) -> RigidBeltModel:
         """The rigid model of the survey's parameters (made once; the probes and the start check read it too)."""
-        model = self.__dict__.get("_rigid")
-        if model is None:
-            model = self._rigid = make_model("rigid", self.params)
-        return model
+        return make_model("rigid", self.params)
 
     @property
     def start_torque(self) -> float:
@@ -357,7 +356,7 @@ def _peaks(plant, rigid, at, here=None) -> tuple[float, float]:
     return (w if math.isfinite(w) else 0.0, tb if math.isfinite(tb) else 0.0)
 
 
-def input_weight(plant, x0, dt: float, probes, jumps, rigid=None, out: list | None = None) -> float:
+def input_weight(plant, x0, dt: float, probes, jumps, rigid, out: list | None) -> float:
     """Scale [-] of the unit step response's error for this scene: ``min(1, 2 dB / T_peak)``, at least
     :data:`MIN_INPUT_WEIGHT`.
 
@@ -379,12 +378,11 @@ def input_weight(plant, x0, dt: float, probes, jumps, rigid=None, out: list | No
 
     ``T_peak``: the largest |quasi-static belt torque| at the probes. Rigid
     model (no belt mode): 1. The floor keeps perturbations the scene does
-    not state (a node's torques) rated. ``rigid``: the rigid model of the plant's parameters when made;
+    not state (a node's torques) rated. ``rigid``: the rigid model of the plant's parameters;
     ``out``: a list that receives the quasi-static belt torques at ``probes`` (what :func:`_peaks` reads).
     """
     model = plant.model
     p = model.params
-    rigid = rigid or make_model("rigid", p)
     wm = plant.wheel_map
     x0 = np.asarray(x0, dtype=float)
     phi0, w0 = float(wm[0] @ x0), float(wm[1] @ x0)
@@ -437,12 +435,6 @@ def exact_maps(A_cl: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, n
     return expo[:n, :n], expo[:n, n:]
 
 
-def _spectral_radius(M: np.ndarray) -> float:
-    mu = np.linalg.eigvals(M)
-    mu = np.where(np.abs(mu - 1.0) <= 1e-6, 1.0, mu)  # rigid-body Jordan block at 1: 1 +/- sqrt(eps)
-    return float(np.max(np.abs(mu)))
-
-
 def step_response_error(M, G, E, F, rows: np.ndarray, n_steps: int) -> float:
     """Max over unit inputs and output rows of max_k |y_k - y*_k| / max_k |y*_k|, k = 1 .. ``n_steps``.
 
@@ -493,8 +485,8 @@ def linear_verdict(integrator, A, B, rows, K, n_steps: int) -> tuple:
         M, G = closed_loop_maps(integrator, K)
     except IntegratorError:
         M, G = np.full_like(E, np.inf), np.full_like(F, np.inf)
-    growth = _spectral_radius(M) if np.all(np.isfinite(M)) else math.inf
-    exact_growth = _spectral_radius(E)
+    growth = spectral_radius(M) if np.all(np.isfinite(M)) else math.inf
+    exact_growth = spectral_radius(E)
     stable = growth <= max(1.0, exact_growth) * (1.0 + GROWTH_TOLERANCE) + 1e-15
     error = step_response_error(M, G, E, F, rows, n_steps) if stable else math.inf
     verdict = (stable, error, growth, exact_growth, dt * float(np.max(np.abs(np.linalg.eigvals(A_cl)))))

@@ -106,7 +106,7 @@ def start_mismatch(scene, needed: float | None = None) -> tuple[float, float]:
 
 
 def choose_model(
-    scene, threshold: float = FREQUENCY_RATIO_THRESHOLD, check_slip: bool = True, linear_run=None, speeds=None,
+    scene, check_slip: bool = True, linear_run=None, speeds=None,
     linear: ModelChoice | None = None, start_torque: float | None = None, limit: tuple | None = None,
     survey: RigidSurvey | None = None,
 ) -> ModelChoice:
@@ -115,7 +115,6 @@ def choose_model(
     Parameters
     ----------
     scene : Scene.
-    threshold : frequency ratio from which the belt mode counts.
     check_slip : also run the chosen linear model and go on to ``slipping``
         when it passes the capstan limit (False: the two linear tiers only).
     linear_run : ``f(model_name) -> (time, outputs)`` that runs the scene on
@@ -130,7 +129,7 @@ def choose_model(
     limit : :func:`limit_exceedance` of the linear run when the caller has it (then it is not run).
     survey : the scene's :class:`RigidSurvey` when the caller shares it with the accuracy guard's probes.
     """
-    choice = linear if linear is not None else _linear_choice(scene, threshold, speeds, start_torque, survey)
+    choice = linear if linear is not None else _linear_choice(scene, FREQUENCY_RATIO_THRESHOLD, speeds, start_torque, survey)
     choice = replace(choice, linear=choice.model)
     if not check_slip:
         return choice

@@ -126,44 +126,41 @@ class KernelLoop:
         d, l = drive, load
         tables = (d.tx, d.ty, l.tx, l.ty)
         guard_row = guard_array(guard, n)
-        key = None
+        # the profiles' parameters stay their own arrays: a held torque's value written in place is read
+        self._dp, self._lp = d.params, l.params
+        #: the profiles' tables: after the plant's numbers in a single run's ``reals``, apart for variants (shared)
+        self.tables = np.concatenate([np.ravel(a) for a in tables]).astype(np.float64)
+        key = made = None
         if not stacked and all(isinstance(e, FrictionForce) for e in extra):
             # one plant: the method's and plant's numbers are built once per scheme (a cached integrator's)
             extra_rows = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
             key = (id(scheme), float(dt), W.tobytes(), extra_rows.tobytes(), guard_row.tobytes(), self.uses_angle.tobytes(),
                    d.kinds.tobytes(), l.kinds.tobytes(), *(a.size for a in tables))  # fmt: skip
             made = _OWN.get(key)
-            if made is not None and made[0] is scheme:
-                own, ints = made[1], made[2]
-                self.tables = np.concatenate([np.ravel(a) for a in tables]).astype(np.float64)
-                self.reals = np.concatenate([own, self.tables])
-                self.tables = self.reals[own.size :]  # a view: a recording's samples held once
-                self.ints = ints.copy()
-                self._dp, self._lp = d.params, l.params
+        if made is not None and made[0] is scheme:
+            own, self.ints = made[1], made[2].copy()
+        else:
+            kinds, offsets, S, final, final_base, tol, max_iter = scheme_arrays(scheme, dt, W, 2 + len(extra))
+            extra_rows = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
+            sections = (W, offsets, S, final, np.array([tol]), extra_rows, guard_row, *tables)
+            starts = np.cumsum([0] + [a[0].size if a.ndim >= 3 else a.size for a in sections])
+            # the plant's and method's numbers (per variant); then the profiles' tables (shared)
+            own = np.concatenate(
+                [a.reshape(V, -1) if a.ndim >= 3 else np.broadcast_to(np.ravel(a), (V, a.size)) for a in sections[:7]],
+                axis=1,
+            ).astype(np.float64)
+            header = [n, kinds.size, len(extra), S.shape[2], S.shape[3], final_base, max_iter, *self.uses_angle]
+            self.ints = np.concatenate([header, starts, kinds, d.kinds, l.kinds]).astype(np.int64)
+            if stacked:
+                self.reals = own
                 return
-        kinds, offsets, S, final, final_base, tol, max_iter = scheme_arrays(scheme, dt, W, 2 + len(extra))
-        extra_rows = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
-        rows, cols = S.shape[2], S.shape[3]
-        s = kinds.size
-        sections = (W, offsets, S, final, np.array([tol]), extra_rows, guard_row, *tables)
-        starts = np.cumsum([0] + [a[0].size if a.ndim >= 3 else a.size for a in sections])
-        own = sections[:7]  # the plant's and method's numbers (per variant); then the profiles' tables (shared)
-        self.reals = np.concatenate(
-            [a.reshape(V, -1) if a.ndim >= 3 else np.broadcast_to(np.ravel(a), (V, a.size)) for a in own], axis=1
-        ).astype(np.float64)
-        #: the profiles' tables: after the plant's numbers in a single run's ``reals``, apart for variants (shared)
-        self.tables = np.concatenate([np.ravel(a) for a in sections[7:]]).astype(np.float64)
-        header = [n, s, len(extra), rows, cols, final_base, max_iter, *self.uses_angle]
-        self.ints = np.concatenate([header, starts, kinds, d.kinds, l.kinds]).astype(np.int64)
-        if key is not None:
-            if len(_OWN) >= OWN_CACHE_SIZE:
-                _OWN.pop(next(iter(_OWN)))
-            _OWN[key] = (scheme, self.reals[0].copy(), self.ints.copy())
-        if not stacked:
-            self.reals = np.concatenate([self.reals[0], self.tables])
-            self.tables = self.reals[self.reals.size - self.tables.size :]  # a view: a recording's samples held once
-        # the profiles' parameters stay their own arrays: a held torque's value written in place is read
-        self._dp, self._lp = d.params, l.params
+            own = own[0]
+            if key is not None:
+                if len(_OWN) >= OWN_CACHE_SIZE:
+                    _OWN.pop(next(iter(_OWN)))
+                _OWN[key] = (scheme, own.copy(), self.ints.copy())
+        self.reals = np.concatenate([own, self.tables])
+        self.tables = self.reals[own.size :]  # a view: a recording's samples held once
 
     def __call__(self, times, x, out, lo: float = -math.inf, hi: float = math.inf, limit: float = 1.0e5):
         # numba types a read-only array apart: a writable copy keeps the kernel's one signature
@@ -186,12 +183,17 @@ class KernelLoop:
         return real
 
 
-def _constant_profile():
+def _warm_loop(stacked: bool):
+    """(a constant profile's data, a 2-state KernelLoop of it: one plant, or one variant of a stacked scheme)."""
     from .profile_data import CONSTANT, ProfileBuilder
+    from .stage_scheme import StageScheme
 
     builder = ProfileBuilder()
     builder.row(CONSTANT, 1.0)
-    return builder.build()
+    data, n = builder.build(), 2
+    final, W = np.hstack([np.eye(n), np.zeros((n, 2))]), np.vstack([np.eye(n), np.eye(n)])
+    scheme = StageScheme((0.0,), (None,), final[None] if stacked else final)
+    return data, KernelLoop(scheme, 1e-3, W[None] if stacked else W, (False, False), data, data)
 
 
 def warm() -> None:
@@ -199,26 +201,19 @@ def warm() -> None:
     signature runs use (:func:`belt_drive_ros.core.warm.warm` warms every kernel; the variant loop:
     :func:`warm_variants`)."""
     from .kernel import profile_torque, profile_torque_array
-    from .stage_scheme import StageScheme
 
-    data = _constant_profile()
+    data, loop = _warm_loop(False)
     profile_torque(data.kinds, data.params, data.tx, data.ty, 0.0, 0.0, 0.0)
     one = np.zeros(1)
     profile_torque_array(data.kinds, data.params, data.tx, data.ty, one, one, one, np.empty(1))
-    n = 2
-    scheme = StageScheme((0.0,), (None,), np.hstack([np.eye(n), np.zeros((n, 2))]))
-    loop = KernelLoop(scheme, 1e-3, np.vstack([np.eye(n), np.eye(n)]), (False, False), data, data)
-    loop(np.array([0.0, 1e-3]), np.zeros(n), np.empty((1, n)))
+    loop(np.array([0.0, 1e-3]), np.zeros(2), np.empty((1, 2)))
 
 
 def warm_variants() -> None:
     """Compile (or load from the disk cache) the variant loop (it calls the linear loop's dispatcher
     ``_steps`` for variants it does not step as lanes: loaded from the cache where that is warm)."""
     from .kernel_variants import variant_steps
-    from .stage_scheme import StageScheme
 
-    data, n = _constant_profile(), 2
-    stacked = StageScheme((0.0,), (None,), np.hstack([np.eye(n), np.zeros((n, 2))])[None])
-    ens = KernelLoop(stacked, 1e-3, np.vstack([np.eye(n), np.eye(n)])[None], (False, False), data, data)
-    variant_steps(np.array([0.0, 1e-3]), np.zeros((1, 2, n)), 0, -math.inf, math.inf, 1.0e5, ens.reals, ens.tables,
+    data, ens = _warm_loop(True)
+    variant_steps(np.array([0.0, 1e-3]), np.zeros((1, 2, 2)), 0, -math.inf, math.inf, 1.0e5, ens.reals, ens.tables,
                   ens.ints, data.params, data.params, np.zeros(1, dtype=np.int64))  # fmt: skip

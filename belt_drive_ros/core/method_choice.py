@@ -129,15 +129,18 @@ def choose_for_scene(scene, kind: str, survey=None) -> MethodChoice:
     Slipping: the flexible plant with both modes checked; regularised: the flexible plant (its own
     stability guard still checks the chosen step on the regularised contact).
     """
+    plant, x0 = _plant(scene, kind)
+    slipping = (scene.params, scene.drive, scene.load) if kind == "slipping" else None
+    return choose_method(plant, scene.duration, x0, scene.dt, scene.tolerance, slipping=slipping, survey=survey)
+
+
+def _plant(scene, kind: str):
+    """(plant, initial state) of the linear model a run on ``kind`` is rated on: rigid, else flexible."""
     from .model import make_model
     from .stepper import Plant
 
-    p = scene.params
     base = "rigid" if kind == "rigid" else "flexible"
-    plant = Plant(make_model(base, p), scene.drive, scene.load)
-    x0 = scene.initial_state.vector(base, p.ratio)
-    slipping = (p, scene.drive, scene.load) if kind == "slipping" else None
-    return choose_method(plant, scene.duration, x0, scene.dt, scene.tolerance, slipping=slipping, survey=survey)
+    return Plant(make_model(base, scene.params), scene.drive, scene.load), scene.initial_state.vector(base, scene.params.ratio)
 
 
 def resolve(scene, kind: str | None = None, survey=None):
@@ -168,20 +171,15 @@ def good_step_error(scene, kind: str, error):
     error (the original when that search names nothing).
     """
     from .errors import UnstableStepError
-    from .model import make_model
-    from .stepper import Plant
 
     report = getattr(error, "stability", None)
     if report is None:
         return error
-    p = scene.params
-    base = "rigid" if kind == "rigid" else "flexible"
-    x0 = scene.initial_state.vector(base, p.ratio)
+    plant, x0 = _plant(scene, kind)
     if kind == "slipping":
-        rated = check_slipping(p, scene.drive, scene.load, scene.method, scene.dt, scene.duration, x0, scene.tolerance,
-                               scene.method_options)  # fmt: skip
+        rated = check_slipping(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.duration, x0,
+                               scene.tolerance, scene.method_options)  # fmt: skip
     else:
-        plant = Plant(make_model(base, p), scene.drive, scene.load)
         rated = check_accuracy(plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance, scene.method_options)
     if rated is None or (rated.suggestion is None and rated.alternative is None):
         return error

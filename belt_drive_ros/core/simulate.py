@@ -150,17 +150,11 @@ class Simulator:
         t0: float = 0.0,
         progress: Callable[[float], None] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Integrate over ``duration`` [s]; return (time (N+1,), states (N+1, n)).
+        """Integrate over ``duration`` [s] on the grid ``t0 + k dt``; return (time (N+1,), states (N+1, n)).
 
-        The grid is ``t0 + k dt``; the last time is ``t0 + duration`` exactly
-        (the last step shortened when dt does not divide the duration).
-        Torque breakpoints are handled exactly wherever they fall: a step
-        with one strictly inside is split there, a step that ends on one
-        samples the torque's left limit (see :mod:`belt_drive_ros.core.stepper`).
-        Without that such a step is locally first order: on ``paper`` a
-        12.5 ms ``lawson5`` step with the soft start ending inside it makes
-        the run 2000x less accurate (tests/test_breakpoints.py).
-        ``split_steps`` lists the split steps after the run.
+        Steps at torque breakpoints are split or clamped (:mod:`belt_drive_ros.core.stepper`); without that such a
+        step is locally first order: on ``paper`` a 12.5 ms ``lawson5`` step with the soft start ending inside it
+        makes the run 2000x less accurate (tests/test_breakpoints.py). ``split_steps`` lists the split steps after.
         """
         self.stepper.origin = float(t0)
         return self.stepper.run(x0, float(t0), float(t0) + float(duration), progress)
@@ -261,11 +255,7 @@ def _steps_flexible(scene: Scene) -> bool:
 def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_stability: bool, survey,
                             checked=None) -> SimResult:  # fmt: skip
     """``auto`` with the flexible tier: one run on the slipping engine, a flexible result if it never slipped."""
-    sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability,
-                            lazy=True)  # fmt: skip
-    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
-    # one probe run for both checks (the stick mode's now, both modes' if the run slips)
-    probes = probe_scene(sim.plant, scene.duration, x0, scene.dt, survey=survey) if check_stability else None
+    sim, x0, probes = _slipping_engine(scene, check_stability, survey)  # (probes: the stick check's now, both modes' if it slips)
     accuracy = (
         checked or require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance,
                                     method_options=scene.method_options, probes=probes)
@@ -321,31 +311,21 @@ def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, s
 def _linear_result(scene, mdl, plant, time, states, stability, accuracy, wall) -> SimResult:
     """The result of a rigid or flexible run: outputs and energy terms of its states on the grid ``time``."""
     u = plant.input_array(time, states)
-    outputs = mdl.outputs(states, u)
-    # Energy balance terms (trapezoidal quadrature of the powers on the output grid).
-    p_in = mdl.input_power(states, u)
-    p_d = mdl.dissipation_power(states)
     dt_grid = np.diff(time)
     energy = {
         "kinetic": mdl.kinetic_energy(states),
         "potential": mdl.potential_energy(states),
-        "input_work": np.concatenate([[0.0], np.cumsum(0.5 * (p_in[1:] + p_in[:-1]) * dt_grid)]),
-        "dissipated": np.concatenate([[0.0], np.cumsum(0.5 * (p_d[1:] + p_d[:-1]) * dt_grid)]),
+        "input_work": _integral(mdl.input_power(states, u), dt_grid),
+        "dissipated": _integral(mdl.dissipation_power(states), dt_grid),
     }
-    return SimResult(
-        scene=scene,
-        model=mdl.name,
-        method=method_class(scene.method).name,
-        dt=scene.dt,
-        time=time,
-        states=states,
-        inputs=u,
-        outputs=outputs,
-        stability=stability,
-        accuracy=accuracy,
-        wall_time=wall,
-        energy=energy,
-    )
+    return SimResult(scene=scene, model=mdl.name, method=method_class(scene.method).name, dt=scene.dt, time=time,
+                     states=states, inputs=u, outputs=mdl.outputs(states, u), stability=stability, accuracy=accuracy,
+                     wall_time=wall, energy=energy)  # fmt: skip
+
+
+def _integral(p: np.ndarray, dt_grid: np.ndarray) -> np.ndarray:
+    """Running trapezoidal integral of a power ``p`` [W] over the output grid's steps ``dt_grid`` [s]: energy [J]."""
+    return np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * dt_grid)])
 
 
 def simulate_slipping(scene, choice=None, progress=None, check_stability=True, stick=None, survey=None) -> SimResult:
@@ -357,18 +337,21 @@ def simulate_slipping(scene, choice=None, progress=None, check_stability=True, s
     adds ``friction``, the integral of Q s'. ``stick``: the accuracy guard's report on the flexible model
     already made (the stick mode's; ``auto``'s check run); ``survey``: the scene's rigid survey (the probes').
     """
-    sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability,
-                            lazy=True)  # fmt: skip
-    y0 = scene.initial_state.vector("slipping", scene.params.ratio)
-    probes = None
-    if check_stability:
-        x0 = scene.initial_state.vector("flexible", scene.params.ratio)
-        probes = probe_scene(sim.plant, scene.duration, x0, scene.dt, survey=survey)
+    sim, _, probes = _slipping_engine(scene, check_stability, survey)
     accuracy = _slipping_accuracy(scene, sim, stick, probes) if check_stability else None
     start = _time.perf_counter()
-    time, states, modes, sigmas = sim.run(scene.duration, y0, progress=progress)
+    time, states, modes, sigmas = sim.run(scene.duration, scene.initial_state.vector("slipping", scene.params.ratio),
+                                          progress=progress)  # fmt: skip
     wall = _time.perf_counter() - start
     return _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy)
+
+
+def _slipping_engine(scene, check_stability: bool, survey):
+    """(the slipping engine of ``scene``, its flexible initial state, the guard's probes of its flexible plant or None)."""
+    sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability,
+                            lazy=True)  # fmt: skip
+    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+    return sim, x0, probe_scene(sim.plant, scene.duration, x0, scene.dt, survey=survey) if check_stability else None
 
 
 def _slipping_accuracy(scene, sim, stick=None, probes=None):
@@ -394,16 +377,12 @@ def _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accu
     m = sim.model
     u = sim.input_array(time, states)
     dt_grid = np.diff(time)
-
-    def integral(p):
-        return np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * dt_grid)])
-
     energy = {
         "kinetic": m.kinetic_energy(states),
         "potential": m.potential_energy(states),
-        "input_work": integral(m.input_power(states, u)),
-        "dissipated": integral(m.damping_power(states, modes, sigmas)),
-        "friction": integral(m.friction_power(states, modes, sigmas)),
+        "input_work": _integral(m.input_power(states, u), dt_grid),
+        "dissipated": _integral(m.damping_power(states, modes, sigmas), dt_grid),
+        "friction": _integral(m.friction_power(states, modes, sigmas), dt_grid),
     }
     return SimResult(
         scene=scene, model="slipping", method=sim.integrator.name, dt=scene.dt, time=time, states=states,

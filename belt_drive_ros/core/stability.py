@@ -74,14 +74,17 @@ def _eigenvalues(A: np.ndarray) -> np.ndarray:
     return np.where(np.abs(lams) <= 1e-7 * scale, 0.0, lams)
 
 
+def spectral_radius(M: np.ndarray) -> float:
+    """max |eigenvalue| of a one-step map, the rigid-body Jordan block at 1 (eigenvalues 1 +/- sqrt(eps)) snapped to 1."""
+    mu = np.linalg.eigvals(M)
+    return float(np.max(np.abs(np.where(np.abs(mu - 1.0) <= 1e-6, 1.0, mu))))
+
+
 def _growth(cls, A, B, dt, eigenvalues) -> float:
     if cls.second_order_form:
         # A partitioned method: per-eigenvalue oscillators are exact only for proportional
-        # damping, so use the spectral radius of its one-step map (rigid-body Jordan block
-        # at 1 snapped to 1: its eigenvalues come out as 1 +/- sqrt(eps)).
-        mu = np.linalg.eigvals(cls(A, B, dt).linear_step().Phi)
-        mu = np.where(np.abs(mu - 1.0) <= 1e-6, 1.0, mu)
-        return float(np.max(np.abs(mu)))
+        # damping, so use the spectral radius of its one-step map.
+        return spectral_radius(cls(A, B, dt).linear_step().Phi)
     return float(np.max(cls.mode_growths(eigenvalues, dt)))
 
 
@@ -106,12 +109,10 @@ def max_stable_step(A: np.ndarray, B: np.ndarray, method: str, upper: float = 1.
     omega = float(np.max(np.abs(lams))) or 1.0
     if _is_stable(_growth(cls, A, B, upper, lams), upper, omega):
         return math.inf
-    lo, hi = 0.0, upper
     # Smallest probe: a step far below any boundary of interest.
-    probe = 1e-6 / omega
-    if not _is_stable(_growth(cls, A, B, probe, lams), probe, omega):
+    lo, hi = 1e-6 / omega, upper
+    if not _is_stable(_growth(cls, A, B, lo, lams), lo, omega):
         return 0.0
-    lo = probe
     for _ in range(80):
         mid = 0.5 * (lo + hi)
         if _is_stable(_growth(cls, A, B, mid, lams), mid, omega):
@@ -135,30 +136,26 @@ def check_step(A: np.ndarray, B: np.ndarray, method: str, dt: float) -> Stabilit
     if report is None:
         if len(_REPORTS) >= 256:
             _REPORTS.pop(next(iter(_REPORTS)))
-        report = _REPORTS[key] = _check_step(A, B, method, dt)
+        cls = method_class(method)
+        lams = _eigenvalues(A)
+        omega_n = float(np.max(np.abs(lams)))
+        if not issubclass(cls, FixedStepIntegrator):
+            report = StabilityReport(True, cls.name, dt, omega_n, dt * omega_n, 1.0, None, None)
+        else:
+            growth = _growth(cls, A, B, dt, lams)
+            report = StabilityReport(_is_stable(growth, dt, omega_n), cls.name, dt, omega_n, dt * omega_n, growth,
+                                     cls.imag_axis_limit, max_stable_step(A, B, method))  # fmt: skip
+        _REPORTS[key] = report
     return report
 
 
-def _check_step(A: np.ndarray, B: np.ndarray, method: str, dt: float) -> StabilityReport:
-    cls = method_class(method)
-    lams = _eigenvalues(A)
-    omega_n = float(np.max(np.abs(lams)))
-    if not issubclass(cls, FixedStepIntegrator):
-        return StabilityReport(True, cls.name, dt, omega_n, dt * omega_n, 1.0, None, None)
-    growth = _growth(cls, A, B, dt, lams)
-    stable = _is_stable(growth, dt, omega_n)
-    return StabilityReport(
-        stable, cls.name, dt, omega_n, dt * omega_n, growth, cls.imag_axis_limit, max_stable_step(A, B, method)
-    )
-
-
-def require_stable(A: np.ndarray, B: np.ndarray, method: str, dt: float, safety: float = 0.9) -> StabilityReport:
+def require_stable(A: np.ndarray, B: np.ndarray, method: str, dt: float) -> StabilityReport:
     """:func:`check_step`, raising :class:`UnstableStepError` that names a stable step or method."""
     report = check_step(A, B, method, dt)
     if report.stable:
         return report
     if report.max_stable_dt and math.isfinite(report.max_stable_dt):
-        fix = f"use dt <= {safety * report.max_stable_dt:.3g} s (boundary {report.max_stable_dt:.4g} s)"
+        fix = f"use dt <= {0.9 * report.max_stable_dt:.3g} s (boundary {report.max_stable_dt:.4g} s)"
     else:
         fix = "no step is stable for this method on this belt"
     exact = ", ".join(repr(name) for name, cls in REGISTRY.items() if cls.fixed_step and cls.exact_linear)

@@ -9,20 +9,9 @@ clamped at torque breakpoints) and hands them to the one compiled time loop
 :class:`~belt_drive_ros.core.kernel_loop.KernelLoop`), which steps, clamps
 the torque times, checks divergence and the guard.
 
-API
----
-``Stepper(plant, method, dt, method_options=None, origin=0.0, integrator=None)``
-
-``stepper.advance(x, t0, t1) -> x1``
-    The state at scene time ``t1`` [s] from state ``x`` at ``t0`` [s]
-    (``t1 >= t0``). What the node's tick calls with the held drive torque in
-    the plant (a profile whose value the node sets) where its compiled tick
-    (:mod:`~belt_drive_ros.core.tick`: whole grid steps away from breakpoints)
-    does not serve it.
-``stepper.run(x0, t0, t1, progress=None) -> (times, states)``
-    The same advance, recording every knot: ``times`` (N+1,) [s] starts at
-    ``t0`` and ends at ``t1`` exactly, ``states`` (N+1, n).
-
+:meth:`Stepper.advance` gives the state at ``t1`` (what the node's tick calls
+with its held torque where its compiled tick, :mod:`~belt_drive_ros.core.tick`,
+does not serve it), :meth:`Stepper.run` every knot from ``t0`` to ``t1``.
 States are 1-D float arrays in the model's own state ordering (the stepper
 is generic over it); the only assumption is that the **second half of the
 state holds speeds** [rad/s], which the divergence check reads. Torques are
@@ -57,13 +46,9 @@ times clamped); runs of whole steps are one kernel call each. Only an
 adaptive method or a Python-only torque profile steps through
 ``integrator.step`` instead.
 
-What is cached
---------------
-The integrator of step ``dt`` and its kernel loop's arrays
-(:meth:`Plant.kernel_loop`), and integrators (and their kernel loops) of partial-step lengths (keyed by the length [s], at most
-:data:`PARTIAL_CACHE_SIZE`, cleared when full). Plant torques are read at
-every call (a held torque may change between advances). :meth:`reset`
-forgets the adaptive solvers' history and the partial-step integrators.
+Integrators (and kernel loops) of partial-step lengths are cached per
+stepper (at most :data:`PARTIAL_CACHE_SIZE`); plant torques are read at every
+call (a held torque may change between advances).
 
 Divergence
 ----------
@@ -347,7 +332,7 @@ class Stepper:
 
     # ------------------------------------------------------------ public
     def advance(self, x: np.ndarray, t0: float, t1: float) -> np.ndarray:
-        """State at ``t1`` [s] from ``x`` at ``t0`` [s]; raises SimulationDivergedError."""
+        """State at ``t1`` [s] from ``x`` at ``t0`` [s] (``t1 >= t0``); raises SimulationDivergedError."""
         if t1 < t0:
             raise ValueError(f"advance: t1 ({t1!r} s) is before t0 ({t0!r} s)")
         x = np.ascontiguousarray(x, dtype=np.float64)
@@ -360,11 +345,11 @@ class Stepper:
         plan = self._plan(t0, t1, absorb=True)
         out = self._march(x, plan, None, record=False)
         if not _healthy(out):
-            raise self._diverged(t1, out)
+            raise self.diverged_error(t1, out)
         return out
 
     def run(self, x0, t0: float, t1: float, progress: Callable[[float], None] | None = None):
-        """(times (N+1,), states (N+1, n)) at every knot from ``t0`` to ``t1`` [s] (both included)."""
+        """(times (N+1,), states (N+1, n)) at every knot from ``t0`` to ``t1`` [s] (both exactly, included)."""
         x0 = np.asarray(x0, dtype=float)
         if t1 < t0:
             raise ValueError(f"run: t1 ({t1!r} s) is before t0 ({t0!r} s)")
@@ -374,13 +359,14 @@ class Stepper:
                 return page.run(x0, t0, t1, progress)
             finally:
                 self.split_steps, self.stopped = page.split_steps, page.stopped
-        # whole grid steps away from breakpoints in the compiled loop: one call, no plan (the plan's steps, the
-        # same floats)
-        if self.loop is not None and progress is None:
+        plan = None
+        if self.loop is not None and progress is None:  # whole grid steps away from breakpoints: no search (one call)
             k0, k1 = self._snap(t0), self._snap(t1)
             if k0 is not None and k1 is not None and k1 > k0 and not self._near_breakpoint(t0, t1, k0, k1):
-                return self._guarded_whole(x0, k0, k1, t0, t1)
-        plan = self._plan(t0, t1, absorb=True)
+                self.split_steps = {}
+                plan = dict(t0=t0, t1=t1, start=t0, end=t1, first=k0, last=k1 - 1, empty=False, lead=False, trail=False,
+                            special={}, absorbed=_NO_CELLS)  # fmt: skip
+        plan = plan or self._plan(t0, t1, absorb=True)
         times = self._knots(plan)
         self.stopped = None
         states = self._march(x0, plan, progress, record=True)
@@ -392,7 +378,7 @@ class Stepper:
             bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, states.shape[1] // 2 :]) > SPEED_LIMIT, axis=1)
             if np.any(bad):
                 k = int(np.argmax(bad))
-                raise self._diverged(float(times[k]), states[k])
+                raise self.diverged_error(float(times[k]), states[k])
         if progress:
             progress(1.0)
         return times, states
@@ -422,27 +408,6 @@ class Stepper:
         self._free = (bps, float(bps[i - 1]) if i else -math.inf, float(bps[i]) if i < len(bps) else math.inf)
         return False
 
-    def _guarded_whole(self, x0: np.ndarray, k0: int, k1: int, t0: float, t1: float):
-        """:meth:`run` of whole grid steps k0 .. k1 away from breakpoints (one loop call; with the guard if any)."""
-        self.split_steps, self.stopped = {}, None
-        states = np.empty((k1 - k0 + 1, x0.size))
-        states[0] = x0
-        grid = self._grid(k0, k1 + 1)
-        with np.errstate(all="ignore"):
-            self._whole_steps(x0, k0, k1, states[1:], grid)
-        times = grid  # the knots' times: the grid's the loop stepped on, the ends as given
-        times[0], times[-1] = t0, t1
-        if self._stop_at is not None:
-            j = self._stop_at
-            self._stop_at = None
-            self.stopped = (j, float(times[j]), float(times[j + 1]), True, -math.inf, math.inf, [])
-            times, states = times[: j + 2].copy(), states[: j + 2]
-        if not _healthy(states[-1]):
-            bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, states.shape[1] // 2 :]) > SPEED_LIMIT, axis=1)
-            k = int(np.argmax(bad))
-            raise self._diverged(float(times[k]), states[k])
-        return times, states
-
     def reset(self) -> None:
         """Forget adaptive solver history and the partial-step integrators."""
         self.integrator.reset()
@@ -457,9 +422,7 @@ class Stepper:
         plan = self._plan(t0, t1)
         if plan["empty"]:
             return t0, t1, False, -math.inf, math.inf, []
-        c = plan["first"]
-        a, e, whole = self._step_ends(plan, c)
-        lo, hi, cuts = plan["special"].get(c, (-math.inf, math.inf, []))
+        a, e, whole, lo, hi, cuts = self._step(plan, plan["first"])
         return a, e, whole, lo, hi, list(cuts)
 
     def steps(self, t0: float, t1: float) -> tuple[np.ndarray, list]:
@@ -477,12 +440,8 @@ class Stepper:
         times = self._knots(plan)
         if plan["empty"]:
             return times, []
-        out = []
-        for c in range(plan["first"], plan["last"] + 1):
-            a, e, whole = self._step_ends(plan, c)
-            lo, hi, cuts = plan["special"].get(c, (-math.inf, math.inf, ()))
-            out.append((a, e, whole, lo, hi, tuple(sorted(cuts))))
-        return times, out
+        steps = [self._step(plan, c) for c in range(plan["first"], plan["last"] + 1)]
+        return times, [(*step[:5], tuple(sorted(step[5]))) for step in steps]
 
     def grid_time(self, k: int) -> float:
         """Grid time ``origin + k dt`` [s] (the float every caller computes)."""
@@ -492,8 +451,7 @@ class Stepper:
     def _snap(self, t: float) -> int | None:
         """Index k of the grid time within :func:`snap_tolerance` of ``t``, or None."""
         k = round((t - self.origin) / self.dt)
-        d = abs(self.origin + k * self.dt - t)
-        return k if d <= GRID_TOLERANCE * self.dt or d <= 8.0 * math.ulp(t) else None
+        return k if abs(self.origin + k * self.dt - t) <= snap_tolerance(t, self.dt) else None
 
     def _cell(self, t: float) -> int:
         """Index k of the grid cell [g_k, g_k+1) holding off-grid time ``t``."""
@@ -568,19 +526,19 @@ class Stepper:
             lead=k0 is None, trail=k1 is None, special=special, absorbed=absorbed,
         )  # fmt: skip
 
-    def _step_ends(self, plan: dict, c: int) -> tuple[float, float, bool]:
-        """(a, e, whole) of the step in cell ``c``."""
+    def _step(self, plan: dict, c: int) -> tuple:
+        """``(a, e, whole, lo, hi, cuts)`` of the step in cell ``c``: from ``a`` to ``e`` [s] (``whole``: a full grid
+        step), torque samples clamped to ``[lo, hi]``, split at ``cuts``."""
         a = plan["start"] if c == plan["first"] else self.grid_time(c)
         e = plan["end"] if c == plan["last"] else self.grid_time(c + 1)
         whole = not ((c == plan["first"] and plan["lead"]) or (c == plan["last"] and plan["trail"]))
-        return a, e, whole
+        return (a, e, whole, *plan["special"].get(c, (-math.inf, math.inf, ())))
 
     def _knots(self, plan: dict) -> list:
         """Times of the recorded states: t0, the interior grid times, t1."""
         if plan["empty"]:
             return np.array([plan["t0"]] if plan["t0"] == plan["t1"] else [plan["t0"], plan["t1"]])
-        inner = self.origin + self.dt * np.arange(plan["first"] + 1, plan["last"] + 1, dtype=float)
-        return np.concatenate(([plan["t0"]], inner, [plan["t1"]]))
+        return np.concatenate(([plan["t0"]], self._grid(plan["first"] + 1, plan["last"] + 1), [plan["t1"]]))
 
     def _grid(self, k0: int, k1: int) -> np.ndarray:
         """Grid times ``origin + k dt`` for k0 <= k < k1 (the float product and sum every caller computes)."""
@@ -614,14 +572,6 @@ class Stepper:
             return inputs
         return lambda t, x: inputs(lo if t < lo else hi if t > hi else t, x)
 
-    def _kernel_step(self, loop, x: np.ndarray, p: float, q: float, lo: float, hi: float) -> np.ndarray:
-        """One step from ``p`` to ``q`` [s] in the kernel, torque times clamped to [lo, hi]."""
-        out = np.empty((1, x.size))
-        done, status, t = loop(np.array([p, q]), np.ascontiguousarray(x, dtype=np.float64), out, lo, hi, SPEED_LIMIT)
-        if status == NOT_CONVERGED:
-            self._not_converged(t)
-        return out[0]
-
     def _special_step(self, x: np.ndarray, a: float, e: float, whole: bool, lo: float, hi: float, cuts: list) -> np.ndarray:
         """One step from ``a`` to ``e``, split at ``cuts``, torque samples clamped to each piece's side.
 
@@ -639,7 +589,12 @@ class Stepper:
             it = self.integrator if whole and n == 1 else self._partial(q - p)
             loop = self._loop_of(it)
             if loop is not None:
-                x = self._kernel_step(loop, x, p, q, lo_j, hi_j)
+                out = np.empty((1, x.size))
+                done, status, t = loop(np.array([p, q]), np.ascontiguousarray(x, dtype=np.float64), out, lo_j, hi_j,
+                                       SPEED_LIMIT)  # fmt: skip
+                if status == NOT_CONVERGED:
+                    self._not_converged(t)
+                x = out[0]
             else:
                 x = it.step(p, x, self._clamped(lo_j, hi_j))
         return x
@@ -661,7 +616,7 @@ class Stepper:
         first, last, special = plan["first"], plan["last"], plan["special"]
         n_cells = last - first + 1
         if (record and not progress and self.loop is not None and not plan["lead"] and not plan["trail"]
-                and not plan.get("absorbed", _NO_CELLS).size and not self.split_steps):
+                and not plan["absorbed"].size and not self.split_steps):
             return self._march_grouped(x, plan)
         states = np.empty((n_cells + 1, size)) if record else None
         if record:
@@ -669,7 +624,7 @@ class Stepper:
         chunk = CHUNK if not progress else min(CHUNK, max(64, n_cells // 100))
         stops = sorted(special)
         si = 0
-        runs = plan.get("absorbed", _NO_CELLS)  # absorbed cells as runs [run_from, run_to) of the absorbed loop (absorb.py)
+        runs = plan["absorbed"]  # absorbed cells as runs [run_from, run_to) of the absorbed loop (absorb.py)
         run_from, run_to = [], []
         if runs.size:
             cut = np.flatnonzero(np.diff(runs) != 1) + 1
@@ -678,9 +633,8 @@ class Stepper:
         c = first
         with np.errstate(all="ignore"):
             while c <= last:
-                a, e, whole = self._step_ends(plan, c)
+                a, e, whole, lo, hi, cuts = self._step(plan, c)
                 if c in special or not whole:
-                    lo, hi, cuts = special.get(c, (-math.inf, math.inf, ()))
                     x = self._special_step(x, a, e, whole, lo, hi, cuts)
                     if record:
                         states[c - first + 1] = x
@@ -707,8 +661,7 @@ class Stepper:
                 if self._stop_at is not None:  # the guard fired at the end of cell c + _stop_at
                     j = c + self._stop_at
                     self._stop_at = None
-                    a, e, whole = self._step_ends(plan, j)
-                    self.stopped = (j - first, a, e, whole, -math.inf, math.inf, [])
+                    self.stopped = (j - first, *self._step(plan, j)[:5], [])  # (a plain cell: no clamps)
                     break
                 c = stop
                 if not _healthy(x):
@@ -754,9 +707,7 @@ class Stepper:
                     self._not_converged(t)
                 if status == GUARDED:
                     j = c + done - 1
-                    a, e, whole = self._step_ends(plan, j)
-                    lo_j, hi_j, _ = special.get(j, (-math.inf, math.inf, ()))
-                    self.stopped = (j - first, a, e, whole, lo_j, hi_j, [])
+                    self.stopped = (j - first, *self._step(plan, j)[:5], [])
                     break
                 if status == DIVERGED:
                     states[c - first + 1 + done :] = np.nan
@@ -767,14 +718,13 @@ class Stepper:
                 self._clean = True
         return states
 
-    def _whole_steps(self, x: np.ndarray, c: int, stop: int, out, times=None, loop=None) -> np.ndarray:
+    def _whole_steps(self, x: np.ndarray, c: int, stop: int, out, loop=None) -> np.ndarray:
         """Whole steps of cells ``c`` .. ``stop - 1`` (no breakpoint touches them); write into ``out``.
 
-        ``times``: their grid times ``self._grid(c, stop + 1)`` if the caller has them.
         ``loop``: the kernel loop to step with (default the stepper's; absorbed steps: :func:`~belt_drive_ros.core.absorb.end_loop`).
         One kernel call; after a diverged state the rest of ``out`` is NaN.
         """
-        times = self._grid(c, stop + 1) if times is None else times
+        times = self._grid(c, stop + 1)
         size = x.size
         loop = self.loop if loop is None else loop
         if loop is not None:
@@ -806,11 +756,10 @@ class Stepper:
 
     def diverged_error(self, t: float, x: np.ndarray) -> SimulationDivergedError:
         """The error a run raises when state ``x`` at ``t`` [s] is non-finite or too fast (one message for every caller)."""
-        return self._diverged(t, x)
-
-    def _diverged(self, t: float, x: np.ndarray) -> SimulationDivergedError:
         return SimulationDivergedError(
             f"simulation diverged at t={t:.6g} s (model {self.plant.model.name}, method {self.method}, dt={self.dt:g} s): "
             f"state {np.array2string(np.asarray(x), precision=4)} is non-finite or beyond {SPEED_LIMIT:g} rad/s; "
             f"reduce dt or use method 'exact' or 'etd2'"
         )
+
+    _diverged = diverged_error  # (the name slip_run.py calls)
