@@ -129,7 +129,7 @@ def choose_model(
     limit : :func:`limit_exceedance` of the linear run when the caller has it (then it is not run).
     survey : the scene's :class:`RigidSurvey` when the caller shares it with the accuracy guard's probes.
     """
-    choice = linear if linear is not None else _linear_choice(scene, FREQUENCY_RATIO_THRESHOLD, speeds, start_torque, survey)
+    choice = linear if linear is not None else _linear_choice(scene, speeds, start_torque, survey)
     choice = replace(choice, linear=choice.model)
     if not check_slip:
         return choice
@@ -182,7 +182,7 @@ def _linear_outputs(scene, kind: str):
     return time, model.outputs(states, stepper.plant.input_array(time, states))
 
 
-def _linear_choice(scene, threshold: float, speeds=None, start_torque=None, survey=None) -> ModelChoice:
+def _linear_choice(scene, speeds=None, start_torque=None, survey=None) -> ModelChoice:
     """Rigid or flexible for ``scene`` by the frequency rule, with the reason (``speeds``, ``start_torque``,
     ``survey``: see :func:`choose_model`; without speeds the survey, default one run here, gives them)."""
     if speeds is None:
@@ -208,10 +208,10 @@ def _linear_choice(scene, threshold: float, speeds=None, start_torque=None, surv
         finite = [(f, lab) for f, lab in excitations if math.isfinite(f)]
         if finite:
             reason += f"; also {finite[0][1]} at {finite[0][0]:.1f} Hz ({finite[0][0] / f_n:.2f} of it)"
-    elif ratio >= threshold:
+    elif ratio >= FREQUENCY_RATIO_THRESHOLD:
         model = "flexible"
         reason = (
-            f"flexible: {label} at {f_max:.1f} Hz is {ratio:.2f} of the belt mode ({f_n:.1f} Hz), >= {threshold:g}: "
+            f"flexible: {label} at {f_max:.1f} Hz is {ratio:.2f} of the belt mode ({f_n:.1f} Hz), >= {FREQUENCY_RATIO_THRESHOLD:g}: "
             + (
                 f"the belt resonance amplifies it by {1 / (1 - ratio**2):.2f}x"
                 if ratio < 1.0
@@ -222,7 +222,7 @@ def _linear_choice(scene, threshold: float, speeds=None, start_torque=None, surv
         model = "rigid"
         reason = (
             f"rigid: highest excitation {f_max:.3g} Hz ({label}) is {ratio:.3f} of the belt mode "
-            f"({f_n:.1f} Hz), < {threshold:g}: the belt stays quasi-static "
+            f"({f_n:.1f} Hz), < {FREQUENCY_RATIO_THRESHOLD:g}: the belt stays quasi-static "
             f"(amplification {1 / (1 - ratio**2):.4f}); quasi-static deflection reported"
         )
         if f_n > nyquist:

@@ -762,4 +762,3 @@ class Stepper:
             f"reduce dt or use method 'exact' or 'etd2'"
         )
 
-    _diverged = diverged_error  # (the name slip_run.py calls)

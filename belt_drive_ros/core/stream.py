@@ -30,7 +30,7 @@ import numpy as np
 
 from .accuracy import require_accurate, require_accurate_slipping
 from .method_choice import resolve as resolve_method
-from .fidelity import FREQUENCY_RATIO_THRESHOLD, ModelChoice, _linear_choice, limit_exceedance
+from .fidelity import ModelChoice, _linear_choice, limit_exceedance
 from .model import make_model
 from .scene import Scene
 from .simulate import SimResult, Simulator
@@ -69,7 +69,7 @@ def stream(
     :data:`WINDOW_STEPS`.
     """
     scene = scene.with_overrides(model=model, method=method, dt=dt, duration=duration)
-    kind = _linear_choice(scene, FREQUENCY_RATIO_THRESHOLD).model if scene.model == "auto" and scene.method == "auto" else None
+    kind = _linear_choice(scene).model if scene.model == "auto" and scene.method == "auto" else None
     scene, method_choice = resolve_method(scene, kind)
     if method_choice is not None:  # method: auto, chosen once: every window says how
         for window in stream(scene, progress=progress, check_stability=check_stability, window_steps=window_steps):
@@ -86,7 +86,7 @@ def stream(
     if scene.model != "auto":
         yield from _linear(scene, scene.model, None, progress, check_stability, window_steps)
         return
-    choice = _linear_choice(scene, FREQUENCY_RATIO_THRESHOLD)
+    choice = _linear_choice(scene)
     choice = replace(choice, linear=choice.model)
     peak, t_peak = 0.0, 0.0
     for window in _linear(scene, choice.model, choice, progress, check_stability, window_steps):
