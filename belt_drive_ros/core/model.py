@@ -46,6 +46,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from .identity_cache import built_once
 from .params import BeltDriveParams
 
 #: Names of the per-sample output signals, in CSV/plot order. SI units.
@@ -513,15 +514,8 @@ def make_model(kind: str, params: BeltDriveParams):
 
     A rigid or flexible model of one parameter set (the same object) is built once and shared."""
     if kind in ("rigid", "flexible"):
-        key = (kind, id(params))
-        hit = _MODELS.get(key)
-        if hit is not None and hit[0] is params:  # the set is held in the entry: its id is not reused
-            return hit[1]
-        model = RigidBeltModel(params) if kind == "rigid" else FlexibleBeltModel(params)
-        if len(_MODELS) >= 32:
-            _MODELS.pop(next(iter(_MODELS)))
-        _MODELS[key] = (params, model)
-        return model
+        build = RigidBeltModel if kind == "rigid" else FlexibleBeltModel
+        return built_once(_MODELS, 32, (params,), lambda: build(params), extra=(kind,))
     if kind == "slipping":
         from .slip import SlippingBeltModel
 

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import IntegratorError
+from .identity_cache import built_once
 from .integrators import REGISTRY, method_class
 from .kernel_loop import FrictionForce
 from .model import make_model
@@ -48,7 +49,7 @@ from .profile_data import DIVERGED, NOT_CONVERGED
 from .slip import SLIP, STICK, Event, EventStep, SlipError, SlippingBeltModel
 from .stability import require_stable
 from .stage_scheme import Guard
-from .stepper import SPEED_LIMIT, Plant, Stepper, shared_plant, snap_tolerance
+from .stepper import SPEED_LIMIT, Plant, Stepper, is_shared, shared_plant, snap_tolerance
 
 #: grid steps per stepper call of a recorded run: the first after an event, and the most (doubling in between)
 WINDOW_FIRST, WINDOW_MAX = 128, 4096
@@ -604,16 +605,8 @@ def _shared_phases(params, drive, load, plant) -> dict:
     ("pack", method): event-step arrays}``, filled as simulators need them and shared by all of them (the run, its
     rerun at 2 dt, the next run): matrices and profile data, never a stepper, a state or a verdict. Kept on the rule
     of :func:`~belt_drive_ros.core.stepper.shared_plant` for the flexible ``plant``, else a fresh dict."""
-    key = (id(params), id(drive), id(load))
-    hit = _SHARED.get(key)
-    if hit is not None and hit[0] is params and hit[1] is drive and hit[2] is load:
-        return hit[3]
-    entry = {"model": SlippingBeltModel(params)}
-    if plant.breakpoints is not None and len(plant.breakpoints) <= 64:  # shared_plant's rule
-        if len(_SHARED) >= _SHARED_SIZE:  # the oldest dropped (from a snapshot: another thread may change it)
-            _SHARED.pop(list(_SHARED)[0], None)
-        _SHARED[key] = (params, drive, load, entry)  # the objects held: their ids are not reused
-    return entry
+    return built_once(_SHARED, _SHARED_SIZE, (params, drive, load), lambda: {"model": SlippingBeltModel(params)},
+                      keep=lambda _: is_shared(plant))
 
 
 def _kind_code(state: SlipState) -> int:

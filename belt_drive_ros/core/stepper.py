@@ -68,6 +68,7 @@ from typing import Callable
 import numpy as np
 
 from .errors import SimulationDivergedError
+from .identity_cache import built_once
 from .integrators import FixedStepIntegrator, make_integrator
 from .kernel_loop import DIVERGED, GUARDED, NOT_CONVERGED
 from .model import _LinearModel
@@ -199,16 +200,13 @@ _PLANT_CACHE_SIZE = 8
 
 def shared_plant(model, drive, load) -> Plant:
     """``Plant(model, drive, load)``, built once per (model, drive, load) objects (see :data:`_PLANTS`)."""
-    key = (id(model), id(drive), id(load))
-    hit = _PLANTS.get(key)
-    if hit is not None and hit[0] is model and hit[1] is drive and hit[2] is load:
-        return hit[3]
-    plant = Plant(model, drive, load)
-    if plant.breakpoints is not None and len(plant.breakpoints) <= 64:  # None: a paged recording's
-        if len(_PLANTS) >= _PLANT_CACHE_SIZE:
-            _PLANTS.pop(next(iter(_PLANTS)))
-        _PLANTS[key] = (model, drive, load, plant)
-    return plant
+    return built_once(_PLANTS, _PLANT_CACHE_SIZE, (model, drive, load), lambda: Plant(model, drive, load),
+                      keep=lambda plant: plant.breakpoints is not None and len(plant.breakpoints) <= 64)  # None: paged
+
+
+def is_shared(plant) -> bool:
+    """Whether ``plant`` is one :func:`shared_plant` keeps (what is built from it may be kept too)."""
+    return any(value is plant for _, value in list(_PLANTS.values()))
 
 
 #: steppers of a shared plant (:func:`shared_stepper`), by (plant, method, dt, options)
@@ -222,16 +220,9 @@ def shared_stepper(plant, method: str, dt: float, method_options=None) -> "Stepp
     from the state it is given (a run's outcome does not depend on the runs before it). One per thread: a
     stepper notes the run it makes (``stopped``, ``split_steps``), so two threads never share one."""
     options = dict(method_options or {})
-    key = (id(plant), method, float(dt), repr(sorted(options.items())), threading.get_ident())
-    hit = _STEPPERS.get(key)
-    if hit is not None and hit[0] is plant:
-        return hit[1]
-    stepper = Stepper(plant, method, dt, options)
-    if any(entry[3] is plant for entry in _PLANTS.values()):  # (a plant made once for one caller: not kept)
-        if len(_STEPPERS) >= 4 * _PLANT_CACHE_SIZE:
-            _STEPPERS.pop(next(iter(_STEPPERS)))
-        _STEPPERS[key] = (plant, stepper)
-    return stepper
+    extra = (method, float(dt), repr(sorted(options.items())), threading.get_ident())
+    return built_once(_STEPPERS, 4 * _PLANT_CACHE_SIZE, (plant,), lambda: Stepper(plant, method, dt, options), extra,
+                      keep=lambda _: is_shared(plant))  # (a plant made once for one caller: not kept)
 
 
 def _merged(drive, load) -> np.ndarray:
@@ -761,4 +752,3 @@ class Stepper:
             f"state {np.array2string(np.asarray(x), precision=4)} is non-finite or beyond {SPEED_LIMIT:g} rad/s; "
             f"reduce dt or use method 'exact' or 'etd2'"
         )
-

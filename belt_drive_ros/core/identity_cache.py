@@ -1,0 +1,28 @@
+"""One bounded cache of objects built from other objects, keyed by those objects' identity.
+
+What the model, plant, stepper and slipping-phase caches share: an entry
+holds the objects it was built from, so their ids are not reused while it
+lives, and a hit is checked with ``is`` (an equal but different parameter set
+gets its own entry). The oldest entry is dropped when the cache is full.
+Entries are read-only to every caller: matrices, closures, profile data;
+never a state or a verdict.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+
+def built_once(cache: dict, size: int, objects: tuple, build: Callable, extra: tuple = (), keep=None):
+    """``build()`` once per ``objects`` (by identity) and hashable ``extra``; kept in ``cache`` (at most ``size``
+    entries, the oldest dropped) unless ``keep(value)`` is false."""
+    key = (*map(id, objects), *extra)
+    hit = cache.get(key)
+    if hit is not None and all(a is b for a, b in zip(hit[0], objects)):
+        return hit[1]
+    value = build()
+    if keep is None or keep(value):
+        if len(cache) >= size:  # (another thread may drop the same entry meanwhile)
+            cache.pop(next(iter(cache), None), None)
+        cache[key] = (objects, value)
+    return value
