@@ -61,6 +61,8 @@ PLAUSIBLE_MAX: dict[str, float] = {
 
 _POSITIVE = ("I_M", "I_3", "r_M", "R_1", "r_1", "R_2", "r_2", "r_3", "k", "mu", "wrap_angle")
 _NON_NEGATIVE = ("I_1", "I_2", "c", "b_M", "b_1", "b_2", "b_3", "F_0", "belt_mass")
+#: each bounded field and its bound, the positive ones first (validation checks them in this order)
+_LOWER = tuple((name, ">") for name in _POSITIVE) + tuple((name, ">=") for name in _NON_NEGATIVE)
 
 
 @dataclass(frozen=True)
@@ -111,14 +113,10 @@ class BeltDriveParams:
                 object.__setattr__(self, name, value)
             if not math.isfinite(value):
                 raise ParameterError(name, f"must be finite, got {value!r}")
-        for name in _POSITIVE:
-            if getattr(self, name) <= 0.0:
-                unit = FIELD_DOCS[name][0]
-                raise ParameterError(name, f"must be > 0 {unit}, got {getattr(self, name)!r}")
-        for name in _NON_NEGATIVE:
-            if getattr(self, name) < 0.0:
-                unit = FIELD_DOCS[name][0]
-                raise ParameterError(name, f"must be >= 0 {unit}, got {getattr(self, name)!r}")
+        for name, low in _LOWER:
+            value = getattr(self, name)
+            if value < 0.0 or (value == 0.0 and low == ">"):
+                raise ParameterError(name, f"must be {low} 0 {FIELD_DOCS[name][0]}, got {value!r}")
         if self.wrap_angle > 2.0 * math.pi:
             raise ParameterError("wrap_angle", f"must be <= 2*pi rad, got {self.wrap_angle!r}")
         if not 0.0 < self.groove_angle <= math.pi:

@@ -264,10 +264,10 @@ class Scene:
         return scene
 
 
-def shipped_scenes() -> list[str]:
-    """Names of the scenes shipped in the package."""
-    folder = resources.files("belt_drive_ros") / "scenes"
-    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
+def shipped_scenes(folder: str = "") -> list[str]:
+    """Names of the scenes shipped in the package (``belt_drive_ros/scenes``; network scenes: ``folder="networks"``)."""
+    return sorted(p.name[:-5] for p in (resources.files("belt_drive_ros") / "scenes" / folder).iterdir()
+                  if p.name.endswith(".yaml"))
 
 
 def _extended(data: dict) -> dict:

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import UnstableStepError
+from ..errors import SceneError, UnstableStepError
 
 
 # ---------------------------------------------------------------------- tensioner arm geometry
@@ -150,16 +150,17 @@ class NetworkModel:
         P = self.scene.pulleys
         return np.array([driver_speed * P[self.scene.driver].radius / p.radius for p in P])
 
-    def operating_loads(self, driver_speed: float, t: float | None = None, samples: int = 64) -> np.ndarray:
-        """Mean torque [N m] of each pulley's profile (signed: + drives the belt) at the belt speed of ``driver_speed``.
+    def operating_loads(self, driver_speed: float, t: float | None = None, shift=0.0) -> np.ndarray:
+        """Mean torque [N m] of each pulley's profile (signed: + drives the belt) at the belt speed of ``driver_speed``
+        (each pulley's speed plus ``shift`` [rad/s], per pulley or one for all).
 
         Each profile is averaged over two revolutions of its pulley at time ``t``
         (default: the scene's end, after ramps and soft starts); idlers 0.
         """
         t = self.scene.duration if t is None else t
-        w = self.speeds_at(driver_speed)
+        w = self.speeds_at(driver_speed) + shift
         out = np.zeros(len(self.scene.pulleys))
-        angles = np.linspace(0.0, 4.0 * math.pi, samples, endpoint=False)
+        angles = np.linspace(0.0, 4.0 * math.pi, 64, endpoint=False)
         for i, p in enumerate(self.scene.pulleys):
             if p.sign:
                 out[i] = float(np.mean(p.load(t, angles, w[i])))
@@ -167,17 +168,8 @@ class NetworkModel:
 
     def load_damping(self, driver_speed: float, t: float | None = None) -> np.ndarray:
         """Per pulley ``-dQ_i/domega_i`` [N m s/rad] of the profiles at the operating speed (central difference)."""
-        t = self.scene.duration if t is None else t
-        w = self.speeds_at(driver_speed)
-        out = np.zeros(len(self.scene.pulleys))
-        for i, p in enumerate(self.scene.pulleys):
-            if p.sign:
-                h = 1e-4 * max(1.0, abs(w[i]))
-                angles = np.linspace(0.0, 4.0 * math.pi, 64, endpoint=False)
-                hi = np.mean(p.load(t, angles, w[i] + h))
-                lo = np.mean(p.load(t, angles, w[i] - h))
-                out[i] = -(hi - lo) / (2.0 * h)
-        return out
+        h = 1e-4 * np.maximum(1.0, np.abs(self.speeds_at(driver_speed)))
+        return (self.operating_loads(driver_speed, t, -h) - self.operating_loads(driver_speed, t, h)) / (2.0 * h)
 
     # ------------------------------------------------------------------ statics
     def static(self, loads, iterations: int = 20, w: float = 0.0):
@@ -228,16 +220,19 @@ class NetworkModel:
     def state_space(self, K=None, C=None):
         """``(A, B)`` of ``x = [q, q']`` in the pulleys' own angles, ``x' = A x + B u`` with ``u`` the n pulley
         torques [N m] (modal analysis; runs use :meth:`flexible_matrices`)."""
-        K = self.stiffness() if K is None else K
-        C = self.C if C is None else C
+        return self._first_order(np.eye(self.M.shape[0]), self.stiffness() if K is None else K, self.C if C is None else C)
+
+    def _first_order(self, E, K, C):
+        """``(A, B)`` of ``x = [q, omega]`` with ``q' = E omega``, ``M omega' = u - C omega - K q``, ``u`` the n pulley
+        torques [N m] (``M`` diagonal: ``M^-1`` row by row)."""
         m, n = self.M.shape[0], len(self.scene.pulleys)
-        Minv = np.diag(1.0 / np.diag(self.M))
+        Minv = 1.0 / np.diag(self.M)
         A = np.zeros((2 * m, 2 * m))
-        A[:m, m:] = np.eye(m)
-        A[m:, :m] = -Minv @ K
-        A[m:, m:] = -Minv @ C
+        A[:m, m:] = E
+        A[m:, :m] = -(Minv[:, None] * K)
+        A[m:, m:] = -(Minv[:, None] * C)
         B = np.zeros((2 * m, n))
-        B[m:, :n] = Minv[:, :n]
+        B[m + np.arange(n), np.arange(n)] = Minv[:n]
         return A, B
 
     # ------------------------------------------------------------------ the run's coordinates
@@ -284,14 +279,7 @@ class NetworkModel:
         if self.arm >= 0:
             K[self.arm, self.arm] += self.scene.tensioner.spring_rate + self.geometric_stiffness(
                 np.full(len(self.k), self.scene.belt.installed_tension))
-        Minv = 1.0 / np.diag(self.M)
-        A = np.zeros((2 * m, 2 * m))
-        A[:m, m:] = E
-        A[m:, :m] = -(Minv[:, None] * K)
-        A[m:, m:] = -(Minv[:, None] * self.C)
-        B = np.zeros((2 * m, n))
-        B[m + np.arange(n), np.arange(n)] = Minv[:n]
-        return A, B
+        return self._first_order(E, K, self.C)
 
     def to_absolute(self, states) -> np.ndarray:
         """Run states (N, 2m) in the pulleys' own angles ``[theta, theta_a, omega, omega_a]`` (theta_i = rho_i theta_d - l_i)."""
@@ -316,13 +304,18 @@ class NetworkModel:
         ``J_red = sum_i J_i rho_i^2`` (the arm holds still: an inextensible belt keeps its length)."""
         rho = self.ratios
         n = len(rho)
-        J = np.diag(self.M)[:n]
-        b = np.diag(self.C)[:n] - np.diag(self.stretch.T @ (self.c[:, None] * self.stretch))[:n]  # bearing damping
+        J, b = np.diag(self.M)[:n], self.bearing_damping
         J_red, b_red = float(np.sum(J * rho * rho)), float(np.sum(b * rho * rho))
         A = np.array([[0.0, 1.0], [0.0, -b_red / J_red]])
         B = np.zeros((2, n))
         B[1] = rho / J_red
         return A, B
+
+    @property
+    def bearing_damping(self) -> np.ndarray:
+        """Per pulley its bearing damping b_i [N m s/rad]: ``C`` without the spans' damping (diagonal)."""
+        n = len(self.scene.pulleys)
+        return np.diag(self.C)[:n] - np.diag(self.stretch.T @ (self.c[:, None] * self.stretch))[:n]
 
     def rigid_tension_map(self) -> np.ndarray:
         """(n_spans, n) S: span tension changes ``T - T_0 = S Q`` [N] under balanced pulley torques Q [N m]
@@ -498,3 +491,24 @@ def grid_breakpoints(model: NetworkModel, dt: float) -> tuple[list, list, dict]:
         found = (marks, left, {c: sorted(bs) for c, bs in inside.items()})
         model.__dict__.setdefault("_grid_breakpoints", {})[dt] = found
     return found
+
+
+def run_steps(scene, duration: float | None, dt: float | None) -> tuple[float, float, int]:
+    """``(duration [s], dt [s], steps)`` of a run (default the scene's duration and step); :class:`SceneError` for a
+    run shorter than one step."""
+    duration = scene.duration if duration is None else float(duration)
+    dt = scene.dt if dt is None else float(dt)
+    steps = int(round(duration / dt))
+    if steps < 1:
+        raise SceneError(f"duration: {duration:g} s is shorter than one step of {dt:g} s")
+    return duration, dt, steps
+
+
+def step_runs(inside: dict, dt: float, k0: int, k1: int, knots=()):
+    """Steps ``k0 .. k1-1`` of ``dt`` [s] as ``(a, e, edges)``: runs of whole steps ``a .. e-1`` (``edges`` None),
+    also cut at the steps ``knots``, and each step ``a`` with breakpoints strictly inside (``inside`` of
+    :func:`grid_breakpoints`) alone, ``edges`` its pieces' ends [s] (the step split there)."""
+    split = [c for c in inside if k0 <= c < k1]
+    cuts = sorted({k0, k1, *split, *(c + 1 for c in split if c + 1 < k1), *(k for k in knots if k0 < k < k1)})
+    for a, e in zip(cuts[:-1], cuts[1:]):
+        yield a, e, ([a * dt, *inside[a], (a + 1) * dt] if a in inside else None)

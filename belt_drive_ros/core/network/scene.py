@@ -20,6 +20,7 @@ from typing import Any, Mapping
 
 from ..errors import SceneError
 from ..inputs import parse_yaml, read_text, short
+from ..scene import shipped_scenes
 from ..integrators import method_class
 from ..sources import TorqueProfile, make_profile
 from .geometry import Layout, layout
@@ -344,8 +345,7 @@ class NetworkScene:
 
 def shipped_networks() -> list[str]:
     """Names of the network scenes shipped in the package (``belt_drive_ros/scenes/networks``)."""
-    folder = resources.files("belt_drive_ros") / "scenes" / "networks"
-    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
+    return shipped_scenes("networks")
 
 
 def is_network(name_or_path: str | Path) -> bool:

@@ -29,7 +29,8 @@ import numpy as np
 
 from ..errors import IntegratorError, SceneError, SimulationDivergedError, UnstableStepError
 from ..profile_data import CONSTANT, DIVERGED, NOT_CONVERGED
-from .model import NetworkModel, NetworkRun, check_step, grid_breakpoints, outputs
+from ..identity_cache import built_once
+from .model import NetworkModel, NetworkRun, check_step, grid_breakpoints, outputs, run_steps, step_runs
 
 TIERS = ("auto", "flexible", "rigid", "slipping")
 #: auto: rigid when the belt's lowest mode is at least this many times the fastest excitation
@@ -41,15 +42,16 @@ LIMIT = 1.0e5
 
 
 # ---------------------------------------------------------------------- profiles as stacked data
-def stack_profiles(profiles):
-    """``(start, kinds, params, tx, ty)``: the profiles' data as one program (:func:`~..profile_data.stack`)."""
+def stack_profiles(profiles, refused: str = "a profile without a data form cannot run in a network"):
+    """``(start, kinds, params, tx, ty)``: the ``(name, profile)`` pairs' data as one program
+    (:func:`~..profile_data.stack`); a profile without one is refused (``refused``: the message's end)."""
     from ..profile_data import stack
 
     data = []
     for name, profile in profiles:
         d = profile.data()
         if d is None:
-            raise SceneError(f"pulleys.{name}.torque: a profile without a data form cannot run in a network")
+            raise SceneError(f"pulleys.{name}.torque: {refused}")
         data.append(d)
     stacked, start = stack(data)
     return start, stacked.kinds, stacked.params, stacked.tx, stacked.ty
@@ -120,14 +122,12 @@ class NetworkLoop:
     def piece(self, h: float) -> NetworkLoop:
         """This loop for one step of ``h`` [s] (a piece of a step split at a breakpoint): the method's matrices at
         ``h``, this loop's profile arrays (a held torque holds in the piece too)."""
-        pieces = self.__dict__.setdefault("_pieces", {})
-        found = pieces.get(h)
-        if found is None:
-            if len(pieces) >= 8:
-                pieces.pop(next(iter(pieces)))
-            found = pieces[h] = NetworkLoop(self.model, self.tier, self.method, h)
+        def build():
+            found = NetworkLoop(self.model, self.tier, self.method, h)
             found.start, found.pk, found.pp, found.px, found.py = self.start, self.pk, self.pp, self.px, self.py
-        return found
+            return found
+
+        return built_once(self.__dict__.setdefault("_pieces", {}), 8, (), build, extra=(h,))
 
     def initial(self) -> np.ndarray:
         """The belt turning at the scene's ``initial_speed``, unstretched."""
@@ -143,8 +143,8 @@ class NetworkLoop:
 # ---------------------------------------------------------------------- runs
 def clamp(marks: list, left: list, t0: float, t1: float) -> tuple[float, float]:
     """``(lo, hi)`` [s]: the stage-time clamp of a run of whole steps from ``t0`` to ``t1`` between breakpoints
-    (:func:`_breakpoints`' ``marks`` and ``left``): from the latest mark at or before ``t0`` to the left limit of
-    the first mark at or after ``t1``."""
+    (:func:`~.model.grid_breakpoints`' ``marks`` and ``left``): from the latest mark at or before ``t0`` to the
+    left limit of the first mark at or after ``t1``."""
     i = bisect.bisect_right(marks, t0) - 1
     j = bisect.bisect_left(marks, t1)
     return (marks[i] if i >= 0 else -math.inf), (left[j] if j < len(marks) else math.inf)
@@ -156,15 +156,11 @@ def advance(loop: NetworkLoop, x, out, k0: int, k1: int) -> None:
     The one way time advances in a network (a whole run, the node's ticks), as the linear stepper handles torque
     breakpoints: one kernel call per run of whole steps between breakpoints, its stage times clamped into the
     run's side of them (a step ending on a breakpoint samples the torques' left limit there); a step with
-    breakpoints strictly inside is split there, each piece one call of the method at the piece's length.
-    Raises :class:`SimulationDivergedError` / :class:`IntegratorError`.
+    breakpoints strictly inside is split there, each piece one call of the method at the piece's length
+    (:func:`~.model.step_runs`). Raises :class:`SimulationDivergedError` / :class:`IntegratorError`.
     """
     dt = loop.dt
     marks, left, inside = grid_breakpoints(loop.model, dt)
-    split = [c for c in inside if k0 <= c < k1]
-    knots = {k0, k1, *split, *(c + 1 for c in split if c + 1 < k1)}
-    knots.update(k for k in (round(b / dt) for b in marks) if k0 < k < k1 and k * dt in marks)
-    knots = sorted(knots)
 
     def call(piece, times, start, into):
         lo, hi = clamp(marks, left, times[0], times[-1])
@@ -177,14 +173,14 @@ def advance(loop: NetworkLoop, x, out, k0: int, k1: int) -> None:
                                   f"converge at t={t:.6g} s; reduce dt (now {dt:g} s)")
 
     start = np.array(x, dtype=float)
-    for a, e in zip(knots[:-1], knots[1:]):
-        if a in inside:  # one step, split at the breakpoints inside it
-            edges = [a * dt, *inside[a], (a + 1) * dt]
+    grid = [k for k in (round(b / dt) for b in marks) if k * dt in marks]
+    for a, e, edges in step_runs(inside, dt, k0, k1, grid):
+        if edges is None:
+            call(loop, np.arange(a, e + 1) * dt, start, out[a - k0 : e - k0])
+        else:
             for p, q in zip(edges[:-1], edges[1:]):
                 call(loop.piece(q - p), np.array([p, q]), start, out[a - k0 : a - k0 + 1])
                 start = out[a - k0].copy()
-            continue
-        call(loop, np.arange(a, e + 1) * dt, start, out[a - k0 : e - k0])
         start = out[e - k0 - 1].copy()
 
 
@@ -211,7 +207,7 @@ def rigid_outputs(loop: NetworkLoop, times, states, u=None) -> NetworkRun:
                                                rho[i] * states[:, 1])
     A, B = model.rigid_matrices()
     accel = states @ A[1] + u @ B[1]
-    J, b = np.diag(model.M)[:n], np.diag(model.C)[:n] - np.diag(model.stretch.T @ (model.c[:, None] * model.stretch))[:n]
+    J, b = np.diag(model.M)[:n], model.bearing_damping
     load = u - (J * rho) * accel[:, None] - (b * rho) * states[:, 1:2] * rho  # what the belt takes at each pulley
     S = model.__dict__.get("_rigid_map")
     if S is None:
@@ -225,14 +221,8 @@ def rigid_outputs(loop: NetworkLoop, times, states, u=None) -> NetworkRun:
 def network_loop(model: NetworkModel, tier: str, method: str, dt: float) -> NetworkLoop:
     """The model's :class:`NetworkLoop` for ``(tier, method, dt)``, built once per model (read-only arrays;
     :meth:`NetworkLoop.hold` writes into its own copy, so a node builds its own loop)."""
-    loops = model.__dict__.setdefault("_loops", {})
-    key = (tier, method, float(dt))
-    found = loops.get(key)
-    if found is None:
-        if len(loops) >= 8:
-            loops.pop(next(iter(loops)))
-        found = loops[key] = NetworkLoop(model, tier, method, dt)
-    return found
+    return built_once(model.__dict__.setdefault("_loops", {}), 8, (), lambda: NetworkLoop(model, tier, method, dt),
+                      extra=(tier, method, float(dt)))
 
 
 def model_of(scene) -> NetworkModel:
@@ -302,34 +292,31 @@ def choose_tier(model: NetworkModel) -> tuple[str, str]:
                         f"lowest mode ({lowest:.3g} Hz)")
 
 
-def slipping_reason(scene, run: NetworkRun, tier: str) -> str | None:
-    """``auto``'s reason to run the slipping tier instead of the linear ``tier``'s ``run``, or None: no pulley
-    reaches its capstan limit in it."""
-    onset = run.capstan_onset(scene)
-    if onset is None:
-        return None
-    return f"slipping: {onset[0]} reaches the capstan limit at t = {onset[1]:.6g} s (in the {tier} tier's run)"
+def _linear(scene, net: NetworkModel, model: str, method: str, dt: float, steps: int) -> tuple:
+    """``(tier, reason, run, why)``: the linear tier ``model`` names (``auto``: :func:`choose_tier`'s) and its run;
+    ``why``: ``auto``'s reason to go on to the slipping tier (a pulley reaches its capstan limit in that run) or None."""
+    tier, reason = choose_tier(net) if model == "auto" else (model, f"{model}: asked for")
+    run = _run(net, tier, method, dt, steps)
+    onset = run.capstan_onset(scene) if model == "auto" else None
+    why = None if onset is None else (f"slipping: {onset[0]} reaches the capstan limit at t = {onset[1]:.6g} s "
+                                      f"(in the {tier} tier's run)")
+    return tier, reason, run, why
 
 
 def auto_tier(scene, method: str | None = None, dt: float | None = None) -> tuple[str, str]:
     """``(tier, reason)`` of ``model: auto`` for the scene's run (its duration, ``method``, ``dt``): the linear tier
     :func:`choose_tier` picks, or ``slipping`` when a pulley reaches its capstan limit in that tier's run (the
     node and the re-simulation of its recordings step the tier the offline run steps)."""
-    net = model_of(scene)
     dt = scene.dt if dt is None else float(dt)
-    tier, reason = choose_tier(net)
-    run = _run(net, tier, method or scene.method, dt, max(1, int(round(scene.duration / dt))))
-    why = slipping_reason(scene, run, tier)
+    steps = max(1, int(round(scene.duration / dt)))
+    tier, reason, _, why = _linear(scene, model_of(scene), "auto", method or scene.method, dt, steps)
     return ("slipping", why) if why else (tier, reason)
 
 
 def run_slipping(model: NetworkModel, duration: float, dt: float, method: str | None = None) -> NetworkRun:
-    """The slipping tier's entry: :func:`.slip.simulate_slipping` ``(model, scene, duration, dt, method, initial)``
-    returns a :class:`~.model.NetworkRun` (slip fields added) from the scene's start, every pulley sticking."""
-    try:
-        from .slip import simulate_slipping
-    except ImportError:
-        raise SceneError("model: the slipping tier of belt networks is not installed in this build") from None
+    """The slipping tier's run (:func:`.slip.simulate_slipping`) from the scene's start, every pulley sticking."""
+    from .slip import simulate_slipping
+
     return simulate_slipping(model, model.scene, duration, dt, method)
 
 
@@ -346,18 +333,12 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
     if model not in TIERS:
         raise SceneError(f"model: must be one of {', '.join(TIERS)} for a belt network, got {model!r}")
     net = model_of(scene) if network is None else network
-    duration = scene.duration if duration is None else float(duration)
-    dt = scene.dt if dt is None else float(dt)
-    steps = int(round(duration / dt))
-    if steps < 1:
-        raise SceneError(f"duration: {duration:g} s is shorter than one step of {dt:g} s")
+    duration, dt, steps = run_steps(scene, duration, dt)
     name = method or scene.method
     if model == "slipping":
         return replace(run_slipping(net, duration, dt, method), tier="slipping", reason="slipping: asked for",
                        method=method or "exact")
-    tier, reason = choose_tier(net) if model == "auto" else (model, f"{model}: asked for")
-    run = _run(net, tier, name, dt, steps)
-    why = slipping_reason(scene, run, tier) if model == "auto" else None
+    tier, reason, run, why = _linear(scene, net, model, name, dt, steps)
     if why is not None:
         from .slip import METHODS
 

@@ -40,7 +40,9 @@ import numpy as np
 
 from ..errors import SceneError, SimulationDivergedError
 from ..profile_data import CONSTANT, WIDTH
-from .model import NetworkModel, NetworkRun, grid_breakpoints, outputs
+from ..identity_cache import built_once
+from .model import NetworkModel, NetworkRun, grid_breakpoints, outputs, run_steps, step_runs
+from .simulate import stack_profiles
 
 #: modes kept with their step exponentials per run
 CACHE_SLOTS = 8
@@ -109,24 +111,17 @@ class SlipArrays:
         damped = 1.0 if belt.damping > 0.0 else 0.0
         # then per pulley 1 / gear: the profile reads the drive shaft's angle and speed (the pulley's / gear)
         self.par = np.array([belt.installed_tension, belt.mass_per_length, float(dt), 1.0e5, damped, *[1.0 / p.gear for p in P]])
-        kinds, params, tx, ty, off = [], [], [], [], np.zeros((n, 4), dtype=np.int64)
-        rows = tables = 0
-        for i, p in enumerate(P):
-            d = p.torque.data() if p.sign else None
-            if p.sign and d is None:
-                raise SceneError(f"pulleys.{p.name}.torque: this profile has no data form; the slipping tier runs compiled profiles only")
-            if d is not None:
-                kinds.append(d.kinds), params.append(d.params), tx.append(d.tx), ty.append(d.ty)
-                off[i] = (rows, rows + d.kinds.size, tables, tables + d.tx.size)
-                rows, tables = rows + d.kinds.size, tables + d.tx.size
-        # one constant row per pulley after the profiles: a held torque (:meth:`hold`) points the pulley there
-        self.held_rows = rows + np.arange(n)
-        self.pk = np.concatenate(kinds + [np.full(n, CONSTANT, dtype=np.int64)])
-        self.pp = np.ascontiguousarray(np.concatenate(params + [np.zeros((n, WIDTH))]))
-        self.ptx = np.concatenate(tx) if tx else np.zeros(1)
-        self.pty = np.concatenate(ty) if ty else np.zeros(1)
-        self.poff = off
-        self._profiles = (off.copy(), self.sgn.copy())
+        # the profiles as the linear tiers stack them (pulley i's from row start[i]), then one constant row per
+        # pulley: a held torque (:meth:`hold`) points the pulley there
+        active = [i for i, p in enumerate(P) if p.sign]
+        first, pk, pp, self.ptx, self.pty = stack_profiles([(P[i].name, P[i].torque) for i in active], "this profile has "
+                                                           "no data form; the slipping tier runs compiled profiles only")
+        self.start = np.zeros(n, dtype=np.int64)
+        self.start[active] = first
+        self.held_rows = pk.size + np.arange(n)
+        self.pk = np.concatenate([pk, np.full(n, CONSTANT, dtype=np.int64)])
+        self.pp = np.ascontiguousarray(np.concatenate([pp, np.zeros((n, WIDTH))]))
+        self._profiles = (self.start.copy(), self.sgn.copy())
         self.model_gears = [p.gear for p in P]
         from .slip_kernel import LEVELS  # (imports numba: only where a run starts)
 
@@ -139,30 +134,28 @@ class SlipArrays:
         """Pulley ``pulley``'s torque becomes ``sign value`` [N m] from now on (``sign``: its role's, +1 driver, -1
         accessory); ``value`` None: back to its profile."""
         if value is None:
-            self.poff[pulley], self.sgn[pulley] = self._profiles[0][pulley], self._profiles[1][pulley]
+            self.start[pulley], self.sgn[pulley] = self._profiles[0][pulley], self._profiles[1][pulley]
             return
         row = self.held_rows[pulley]
         self.pp[row, 0] = float(value)
-        self.poff[pulley] = (row, row + 1, 0, 0)
+        self.start[pulley] = row
         self.sgn[pulley] = sign / self.model_gears[pulley]
 
     def piece(self, h: float) -> "SlipArrays":
         """These arrays for one step of ``h`` [s] (a piece of a step split at a torque breakpoint): their own
         step and exponentials, this one's profile arrays (a held torque holds in the piece too)."""
-        pieces = self.__dict__.setdefault("_pieces", {})
-        found = pieces.get(h)
-        if found is None:
-            if len(pieces) >= CACHE_SLOTS:
-                pieces.pop(next(iter(pieces)))
-            found = pieces[h] = SlipArrays(self.model, h)
-            found.sgn, found.pk, found.pp, found.ptx, found.pty, found.poff = (self.sgn, self.pk, self.pp, self.ptx,
-                                                                            self.pty, self.poff)
-        return found
+        def build():
+            found = SlipArrays(self.model, h)
+            found.sgn, found.pk, found.pp, found.ptx, found.pty, found.start = (self.sgn, self.pk, self.pp, self.ptx,
+                                                                             self.pty, self.start)
+            return found
+
+        return built_once(self.__dict__.setdefault("_pieces", {}), CACHE_SLOTS, (), build, extra=(h,))
 
     def plant(self):
         """The kernel's plant arguments, in :func:`~.slip_kernel.slip_steps`'s order."""
         return (self.par, self.Minv, self.Karm, self.Cb, self.a, self.k, self.c, self.f, self.r, self.sgn, self.driver,
-                self.pk, self.pp, self.ptx, self.pty, self.poff)
+                self.pk, self.pp, self.ptx, self.pty, self.start)
 
 
 def slip_state(model: NetworkModel, arr: SlipArrays, initial=None, speed: float = 0.0) -> np.ndarray:
@@ -194,10 +187,7 @@ def advance_slipping(arr: SlipArrays, state, k0: int, k1: int, out=None, name: s
     x, wf, win = state[:N], state[N + 2 * n : N + 3 * n], state[N + 3 * n : N + 4 * n]
     sig = state[N : N + n].astype(np.int64)
     fresh = state[N + n : N + 2 * n] != 0.0
-    if out is None:
-        rows = k1 - k0 + 1
-        out = (np.empty((rows, N)), np.zeros((rows, n), dtype=np.int64), np.empty((rows, n)), np.zeros((rows, n)),
-               np.zeros((rows, n)), np.zeros((rows, n)))
+    out = slip_rows(k1 - k0 + 1, N, n) if out is None else out
     events = np.empty((2 * (K.MAX_SWITCHES + 1) * n + 256, 4))
     count = np.zeros(1, dtype=np.int64)
 
@@ -233,22 +223,25 @@ def advance_slipping(arr: SlipArrays, state, k0: int, k1: int, out=None, name: s
 
     # a step with torque breakpoints strictly inside is split there (each piece the exact flow over its length,
     # the torques held from the piece's start), as the linear tiers split it
-
-    inside = grid_breakpoints(arr.model, dt)[2]
-    k = k0
-    for c in sorted(c for c in inside if k0 <= c < k1):
-        call(arr, k, c, 0.0, k - k0)
-        edges = [c * dt, *inside[c], (c + 1) * dt]
-        for p, q in zip(edges[:-1], edges[1:]):
-            call(arr.piece(q - p), 0, 1, p, c - k0)
-        k = c + 1
-    call(arr, k, k1, 0.0, k - k0)
+    for a, e, edges in step_runs(grid_breakpoints(arr.model, dt)[2], dt, k0, k1):
+        if edges is None:
+            call(arr, a, e, 0.0, a - k0)
+        else:
+            for p, q in zip(edges[:-1], edges[1:]):
+                call(arr.piece(q - p), 0, 1, p, a - k0)
     if k1 > k0:
         state[N : N + n] = sig
         state[N + n : N + 2 * n] = fresh
         state[N + 4 * n : N + 5 * n] = out[2][k1 - k0]
         state[N + 5 * n :] = out[3][k1 - k0]
     return events[: count[0]]
+
+
+def slip_rows(rows: int, N: int, n: int) -> tuple:
+    """``rows`` empty samples of a slipping run: ``(states (N,), modes, tensions, slip speeds, friction work,
+    input work)`` (n each per row), as :func:`advance_slipping` writes them."""
+    return (np.empty((rows, N)), np.zeros((rows, n), dtype=np.int64), np.empty((rows, n)), np.zeros((rows, n)),
+            np.zeros((rows, n)), np.zeros((rows, n)))
 
 
 def slip_run(model: NetworkModel, time, states, modes, tensions, slip_speed, friction_work, input_work, events=()):
@@ -273,18 +266,13 @@ def simulate_slipping(model: NetworkModel | None, scene, duration: float | None 
     that can neither stick nor slide on) and :class:`SceneError`.
     """
     model = NetworkModel.build(scene) if model is None else model
-    duration = scene.duration if duration is None else float(duration)
-    dt = scene.dt if dt is None else float(dt)
     if method is not None and method not in METHODS:
         raise SceneError(f"method: the slipping tier steps the exact flow of each stick/slip mode (exact); {method} is not available for it")
-    steps = int(round(duration / dt))
-    if steps < 1:
-        raise SceneError(f"duration: {duration:g} s is shorter than one step of {dt:g} s")
+    _, dt, steps = run_steps(scene, duration, dt)
     arr = SlipArrays(model, dt)
     n, N = arr.n, arr.N
     state = slip_state(model, arr, initial, scene.initial_speed)
-    out = (np.empty((steps + 1, N)), np.zeros((steps + 1, n), dtype=np.int64), np.empty((steps + 1, n)),
-           np.zeros((steps + 1, n)), np.zeros((steps + 1, n)), np.zeros((steps + 1, n)))
+    out = slip_rows(steps + 1, N, n)
     out[0][0] = state[:N]
     out[2][0] = state[N + 4 * n : N + 5 * n]
     events = advance_slipping(arr, state, 0, steps, out, scene.name, [p.name for p in scene.pulleys])
@@ -294,19 +282,9 @@ def simulate_slipping(model: NetworkModel | None, scene, duration: float | None 
 
 def warm() -> None:
     """Compile (or load from the disk cache) the slipping tier's kernel (one signature: any scene), on a two-pulley belt."""
-    from .scene import NetworkScene
+    from .simulate import warm_scene
 
-    scene = NetworkScene.from_mapping({
-        "kind": "network", "duration": 0.02, "dt": 1e-3, "initial_speed": 0.0,
-        "belt": {"EA": 1000.0, "damping": 0.1, "installed_tension": 100.0},
-        "pulleys": [
-            {"name": "a", "role": "driver", "centre": [0.0, 0.0], "radius": 0.05, "inertia": 0.01,
-             "torque": {"type": "sine", "mean": 0.0, "amplitude": 20.0, "frequency": 50.0}},
-            {"name": "b", "role": "accessory", "centre": [0.3, 0.0], "radius": 0.05, "inertia": 0.01,
-             "torque": {"type": "constant", "value": 1.0}},
-        ],
-    })  # fmt: skip
-    return simulate_slipping(None, scene)
+    simulate_slipping(None, warm_scene())
 
 
-__all__ = ["SlipEvent", "SlipNetworkRun", "advance_slipping", "simulate_slipping", "slip_run", "slip_state", "warm"]
+__all__ = ["SlipEvent", "SlipNetworkRun", "advance_slipping", "simulate_slipping", "slip_rows", "slip_run", "slip_state", "warm"]

@@ -33,7 +33,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..kernel import profile_torque
+from ..kernel import profile_torque_at
 
 _JIT = dict(cache=True, nogil=True)
 #: small helpers of the step are inlined into it (no call, no reference counting of the arrays passed)
@@ -98,7 +98,7 @@ def step_chain(A, dt, Phs, Gas):
     The level ``j`` where ``||A h_j||_inf <= 1/2`` and every finer one by their Taylor series; the coarser
     ones by doubling, ``Gam(2h) = Gam(h) + Phi(h) Gam(h)``, ``Phi(2h) = Phi(h)^2`` (scaling and squaring;
     the finer levels are not squared up from tinier ones, which would lose their small parts to rounding).
-    A flow over any whole number of units ``dt / 2^L`` is a product of levels (:func:`_advance`).
+    A flow over any whole number of units ``dt / 2^L`` is a product of levels (:func:`_moved`).
     """
     N = A.shape[0]
     L = Phs.shape[0] - 1
@@ -139,24 +139,18 @@ def _flow(Phi, Gam, x, b, out):
 
 
 @njit(**_INLINE)
-def _advance(Phs, Gas, x, b, units, tmp):
-    """``x`` moved in place along the mode's exact flow by ``units`` of ``dt / 2^L`` (one level per set bit)."""
+def _moved(Phs, Gas, x, b, units, out, tmp):
+    """``out`` = ``x`` moved along the mode's exact flow by ``units`` of ``dt / 2^L`` (one level per set bit)."""
     L = Phs.shape[0] - 1
     N = x.shape[0]
+    for q in range(N):
+        out[q] = x[q]
     for i in range(L + 1):
         bit = np.int64(1) << (L - i)
         if units & bit:
-            _flow(Phs[i], Gas[i], x, b, tmp)
+            _flow(Phs[i], Gas[i], out, b, tmp)
             for q in range(N):
-                x[q] = tmp[q]
-
-
-@njit(**_INLINE)
-def _moved(Phs, Gas, x, b, units, out, tmp):
-    """``out`` = ``x`` moved along the exact flow by ``units`` (:func:`_advance`)."""
-    for q in range(x.shape[0]):
-        out[q] = x[q]
-    _advance(Phs, Gas, out, b, units, tmp)
+                out[q] = tmp[q]
 
 
 @njit(**_INLINE)
@@ -323,18 +317,18 @@ def _slot(sig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cL
 
 # --------------------------------------------------------------------------- inputs and guards
 @njit(**_INLINE)
-def _inputs(t, x, m, sgn, pk, pp, ptx, pty, poff, Minv, driver, r, par, cvec, b, u):
-    """Pulley torques ``u`` at (t, x), and ``b = B u + cvec (T_0 - w)``; returns ``w = m' v^2``."""
+def _inputs(t, x, m, sgn, pk, pp, ptx, pty, start, Minv, driver, r, par, cvec, b, u):
+    """Pulley torques ``u`` at (t, x) (pulley i's profile from row ``start[i]`` of the stacked data), and
+    ``b = B u + cvec (T_0 - w)``; returns ``w = m' v^2``."""
     n = sgn.shape[0]
     N = b.shape[0]
     for i in range(n):
         if sgn[i] != 0.0:
-            k0, k1, t0, t1 = poff[i, 0], poff[i, 1], poff[i, 2], poff[i, 3]
             g = par[P_SHAFT + i]
             if g == 1.0:
-                u[i] = sgn[i] * profile_torque(pk[k0:k1], pp[k0:k1], ptx[t0:t1], pty[t0:t1], t, x[i], x[m + i])
+                u[i] = sgn[i] * profile_torque_at(pk, pp, ptx, pty, start[i], t, x[i], x[m + i])
             else:
-                u[i] = sgn[i] * profile_torque(pk[k0:k1], pp[k0:k1], ptx[t0:t1], pty[t0:t1], t, x[i] * g, x[m + i] * g)
+                u[i] = sgn[i] * profile_torque_at(pk, pp, ptx, pty, start[i], t, x[i] * g, x[m + i] * g)
         else:
             u[i] = 0.0
     v = r[driver] * x[m + driver]
@@ -434,7 +428,7 @@ def _project(sig, x, w, par, a, k, f, Hk, m):
 # --------------------------------------------------------------------------- the loop
 @njit(**_JIT)
 def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_win, events, n_events,
-               par, Minv, Karm, Cb, a, k, c, f, r, sgn, driver, pk, pp, ptx, pty, poff,
+               par, Minv, Karm, Cb, a, k, c, f, r, sgn, driver, pk, pp, ptx, pty, start,
                ckey, cuse, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, wf, win, fresh):  # fmt: skip
     """Grid steps ``k0 .. k1-1`` (times ``t0 + k dt``) from state ``x`` in mode ``sig`` (both updated in place).
 
@@ -486,7 +480,7 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
                 return ALL_SLIP, step
             Phs, Gas = cPh[s], cGa[s]
             a_t = ta + dt * (pos / U)
-            w = _inputs(a_t, x, m, sgn, pk, pp, ptx, pty, poff, Minv, driver, r, par, cc[s], b, u)
+            w = _inputs(a_t, x, m, sgn, pk, pp, ptx, pty, start, Minv, driver, r, par, cc[s], b, u)
             T0w = T0 - w
             if pos == 0:
                 _flow(Phs[0], Gas[0], x, b, x1)
@@ -592,7 +586,7 @@ def slip_steps(k0, k1, t0, x, sig, out, out_sig, out_T, out_sdot, out_wf, out_wi
                 s2 = _slot(newsig, ckey, cuse, par, Minv, Karm, Cb, a, k, c, f, cA, cc, cGt, cgt, cLs, cls, cHk, cPh, cGa, clock)
                 if s2 < 0:
                     return ALL_SLIP, step
-                _inputs(a_t, x, m, sgn, pk, pp, ptx, pty, poff, Minv, driver, r, par, cc[s2], b, u)
+                _inputs(a_t, x, m, sgn, pk, pp, ptx, pty, start, Minv, driver, r, par, cc[s2], b, u)
                 _rate(cA[s2], x, b, d0)
                 _rate(cA[s2], d0, none_b, d1)  # x'' = A x' (inputs held)
                 guards(newsig, x, d1, T0w, par, f, r, driver, m, cGt[s2], cgt[s2], cLs[s2], cls[s2], T, Td, g0, dg0)
