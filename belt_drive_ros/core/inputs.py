@@ -52,7 +52,7 @@ from .errors import InputError
 
 __all__ = [
     "MAX_DEPTH", "SCENE_LIMIT", "InputError", "boolean", "check_path", "mapping", "number", "open_regular", "parse_yaml",
-    "read_text", "read_yaml", "sequence", "short", "text",
+    "read_text", "read_yaml", "sequence", "short", "text", "unknown_key",
 ]  # fmt: skip
 
 #: largest scene / parameter YAML file [bytes]; the shipped scenes are ~2 kB
@@ -77,6 +77,13 @@ def short(value: Any, limit: int = QUOTE_LIMIT) -> str:
         return text[:limit] + f"... ({type(value).__name__}, truncated)"
     text = repr(value)
     return text if len(text) <= limit else text[:limit] + "..."
+
+
+def unknown_key(data: Mapping, known) -> str | None:
+    """The first key of ``data`` not in ``known`` (keys as text cut to 60 characters, sorted), or None: what every
+    "unknown key" message names."""
+    unknown = sorted(str(k)[:60] for k in set(data) - set(known))
+    return unknown[0] if unknown else None
 
 
 def _kind(mode: int) -> str:

@@ -19,7 +19,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .errors import ParameterError
-from .inputs import short
+from .inputs import short, unknown_key
 
 #: field -> (unit, description); also the order of the YAML keys.
 FIELD_DOCS: dict[str, tuple[str, str]] = {
@@ -129,12 +129,9 @@ class BeltDriveParams:
         if data is not None and not isinstance(data, Mapping):
             raise ParameterError("params", f"expected a mapping of parameters, got {type(data).__name__} {short(data)}")
         data = dict(data or {})
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(str(k)[:60] for k in set(data) - known)
+        unknown = unknown_key(data, _FIELDS)
         if unknown:
-            raise ParameterError(
-                unknown[0], f"unknown parameter; known parameters are {', '.join(sorted(known))}"
-            )
+            raise ParameterError(unknown, f"unknown parameter; known parameters are {', '.join(sorted(_FIELDS))}")
         return cls(**data)
 
     def to_dict(self) -> dict[str, float]:

@@ -20,7 +20,7 @@ import numpy as np
 import yaml
 
 from .errors import ParameterError, SceneError
-from .inputs import parse_yaml, read_text, short
+from .inputs import parse_yaml, read_text, short, unknown_key
 from .integrators import method_class
 from .params import OPTIONAL_DEFAULTS, BeltDriveParams
 from .sources import Constant, TorqueProfile, make_profile
@@ -176,9 +176,9 @@ class Scene:
             raise SceneError(f"scene: expected a mapping at the top level, got {type(data).__name__} {short(data)}")
         data = dict(data)
         known = {f.name for f in fields(cls)} | {"extends"}
-        unknown = sorted(str(k)[:60] for k in set(data) - known)
+        unknown = unknown_key(data, known)
         if unknown:
-            raise SceneError(f"scene.{unknown[0]}: unknown key; known keys: {', '.join(sorted(known))}")
+            raise SceneError(f"scene.{unknown}: unknown key; known keys: {', '.join(sorted(known))}")
         if "extends" in data:
             data = _extended(data)
         else:
@@ -209,9 +209,9 @@ class Scene:
         except ParameterError as exc:
             raise ParameterError(exc.field, f"{exc.detail} (in scene.params)") from None
         init = data.pop("initial_state", None) or {}
-        bad = sorted(str(k)[:60] for k in set(init) - {f.name for f in fields(InitialState)})
+        bad = unknown_key(init, [f.name for f in fields(InitialState)])
         if bad:
-            raise SceneError(f"initial_state.{bad[0]}: unknown key; known: phi_M, omega_M, relative_deflection, relative_speed")
+            raise SceneError(f"initial_state.{bad}: unknown key; known: phi_M, omega_M, relative_deflection, relative_speed")
         drive = make_profile(data.pop("drive", 0.0), "drive")
         load = make_profile(data.pop("load", 0.0), "load")
         if name is not None and "name" not in data:

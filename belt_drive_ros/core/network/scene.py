@@ -19,7 +19,7 @@ from typing import Any, Mapping
 
 
 from ..errors import SceneError
-from ..inputs import parse_yaml, read_text, short
+from ..inputs import parse_yaml, read_text, short, unknown_key
 from ..scene import shipped_scenes
 from ..integrators import method_class
 from ..sources import TorqueProfile, make_profile
@@ -53,9 +53,9 @@ def _point(where: str, value) -> tuple[float, float]:
 def _keys(where: str, data, allowed: tuple, required: tuple) -> dict:
     if not isinstance(data, Mapping):
         raise SceneError(f"{where}: expected a mapping, got {type(data).__name__} {short(data)}")
-    unknown = sorted(str(k)[:60] for k in set(data) - set(allowed))
+    unknown = unknown_key(data, allowed)
     if unknown:
-        raise SceneError(f"{where}.{unknown[0]}: unknown key; known: {', '.join(allowed)}")
+        raise SceneError(f"{where}.{unknown}: unknown key; known: {', '.join(allowed)}")
     missing = [k for k in required if k not in data]
     if missing:
         raise SceneError(f"{where}.{missing[0]}: missing")

@@ -81,7 +81,9 @@ class NetworkLoop:
         check_step(method, A, B, self.dt)
         scheme = make_integrator(method, A, B, self.dt).scheme
         n, P = A.shape[0], len(self.active)
-        # W: per active pulley its angle and speed from the state
+        uses = np.array([bool(scene.pulleys[i].torque.uses_angle) for i in self.active], dtype=np.int64)
+        # W: per active pulley the angle and speed of its drive shaft (the pulley's / gear) from the state; an angle
+        # no profile reads is not computed (the kernel passes 0.0)
         W = np.zeros((2 * P, n))
         half = n // 2
         for p, i in enumerate(self.active):
@@ -91,18 +93,14 @@ class NetworkLoop:
                 W[2 * p, i], W[2 * p + 1, half + i] = 1.0, 1.0
             else:  # theta_i = rho_i theta_d - l_i
                 W[2 * p, scene.driver], W[2 * p, i], W[2 * p + 1, half + i] = model.ratios[i], -1.0, 1.0
-        uses = np.array([bool(scene.pulleys[i].torque.uses_angle) for i in self.active], dtype=np.int64)
-        for p, i in enumerate(self.active):  # the profile reads its drive shaft's angle and speed (pulley's / gear)
-            if scene.pulleys[i].gear != 1.0:
-                W[2 * p : 2 * p + 2] /= scene.pulleys[i].gear
-        for p in range(P):  # an angle no profile reads is not computed (the kernel passes 0.0)
+            W[2 * p : 2 * p + 2] /= scene.pulleys[i].gear
             if not uses[p]:
                 W[2 * p] = 0.0
         if not KernelLoop.usable(scheme):
             raise SceneError(f"method {method}: its step matrices are complex for this network")
         self.A, self.B, self.scheme = A, B, scheme
         self.start, self.pk, self.pp, self.px, self.py = stack_profiles([(scene.pulleys[i].name, scene.pulleys[i].torque)
-                                                             for i in self.active])
+                                                                         for i in self.active])
         kinds, offsets, S, F, final_base, tol, max_iter = scheme_arrays(scheme, self.dt, W[None], P)
         self.args = (W[None], kinds, offsets, S[0], F, final_base, tol, max_iter, uses)
         self._none = (np.zeros((0, 5)), np.zeros(5 + 2 * n))  # no extra input, no guard

@@ -25,10 +25,10 @@ Switching (per pulley, several at once):
 * slip -> stick when ``s_i'`` crosses zero, if the stick mode's friction then stays inside the limit
   (else it slides on).
 
-Events are located inside the step (:mod:`.slip_kernel`: interpolant scan and bisection, Newton on the
-exact flow). A step is the exact flow of its mode with the torques and ``w`` held from the step's (or
-sub-step's) start: the zero-order-hold ``exact`` method, stable at any step however stiff the span
-relaxation ``k_j / c_j`` of a sliding pulley is.
+Events are located inside the step on the mode's exact flow (:mod:`.slip_kernel`: a scan, then halving).
+A step is the exact flow of its mode with the torques and ``w`` held from the step's (or sub-step's)
+start: the zero-order-hold ``exact`` method, stable at any step however stiff the span relaxation
+``k_j / c_j`` of a sliding pulley is.
 """
 
 from __future__ import annotations
