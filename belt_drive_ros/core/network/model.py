@@ -69,12 +69,6 @@ def arm_terms(geo, pulleys, tensioner) -> tuple[np.ndarray, np.ndarray]:
     return g, dg
 
 
-def arm_preload(geo, pulleys, tensioner, T0: float) -> float:
-    """Spring torque [N m] (in +theta_a) that holds the arm at its installed angle against a uniform tension T0 [N]:
-    ``P = T_0 sum_j g_j`` (the belt's pull on the arm is ``-sum_j T_j g_j``)."""
-    return float(T0 * np.sum(arm_terms(geo, pulleys, tensioner)[0]))
-
-
 def _times_rows(X, rows) -> np.ndarray:
     """``X @ rows.T`` for samples X (N, m) or one sample (m,) with both operands C-contiguous (numpy's product of a
     transposed operand takes a path 100x slower on a run's samples)."""

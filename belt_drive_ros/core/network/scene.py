@@ -17,11 +17,12 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
+import numpy as np
 
 from ..errors import SceneError
 from ..inputs import parse_yaml, read_text, short, unknown_key
-from ..scene import shipped_scenes
 from ..integrators import method_class
+from ..scene import shipped_scenes
 from ..sources import TorqueProfile, make_profile
 from .geometry import Layout, layout
 
@@ -197,7 +198,7 @@ class NetworkScene:
     # ------------------------------------------------------------------ reading
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], name: str = "custom") -> "NetworkScene":
-        from .model import arm_preload  # the arm's equilibrium (model: the tensioner's equation)
+        from .model import arm_terms  # the arm's equilibrium (model: the tensioner's equation)
 
         allowed = ("kind", "name", "description", "pulleys", "belt", "tensioner", "engine",
                    "initial_speed", "operating_speed", "duration", "dt", "method")
@@ -273,7 +274,9 @@ class NetworkScene:
                                   inertia=_number("tensioner.inertia", t["inertia"], strict=True, top=1.0e3),
                                   spring_rate=_number("tensioner.spring_rate", t["spring_rate"], strict=True, top=1.0e7),
                                   damping=_number("tensioner.damping", t["damping"], top=1.0e5), preload=0.0)
-            per_newton = arm_preload(geo, pulleys, tensioner, 1.0)  # preload torque per N of T_0
+            # the spring torque [N m] (in +theta_a) holding the arm at its installed angle against a uniform tension
+            # T_0 is P = T_0 sum_j g_j (the belt pulls on the arm with -sum_j T_j g_j): per N of T_0
+            per_newton = float(np.sum(arm_terms(geo, pulleys, tensioner)[0]))
             if abs(per_newton) < 1e-9:
                 raise SceneError(f"tensioner.pivot: the arm of {tp.name} does not move the belt at its installed angle "
                                  "(it swings along the belt)")
