@@ -461,6 +461,21 @@ def outputs(model: NetworkModel, time, states, tensions=None) -> NetworkRun:
     return NetworkRun(time, q[:, :n], qd[:, :n], torque, hub, T, slack, angle, states, _friction_use(T, T_in, v, mass, factor))
 
 
+def stack_profiles(profiles, refused: str = "a profile without a data form cannot run in a network"):
+    """``(start, kinds, params, tx, ty)``: the ``(name, profile)`` pairs' data as one program
+    (:func:`~..profile_data.stack`); a profile without one is refused (``refused``: the message's end)."""
+    from ..profile_data import stack
+
+    data = []
+    for name, profile in profiles:
+        d = profile.data()
+        if d is None:
+            raise SceneError(f"pulleys.{name}.torque: {refused}")
+        data.append(d)
+    stacked, start = stack(data)
+    return start, stacked.kinds, stacked.params, stacked.tx, stacked.ty
+
+
 def grid_breakpoints(model: NetworkModel, dt: float) -> tuple[list, list, dict]:
     """``(marks, left, inside)`` of the profiles' breakpoints on the grid of step ``dt``: ``marks`` their times [s],
     sorted (one on a knot as that knot's time ``k dt``), ``left`` per mark the latest time at which every profile

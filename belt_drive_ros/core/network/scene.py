@@ -386,4 +386,14 @@ def load_network(name_or_path: str | Path) -> NetworkScene:
     return NetworkScene.from_mapping(data, name=default)
 
 
+def warm_scene():
+    """The two-pulley belt (driver and accessory, constant torques) the warm-ups of the network tiers step."""
+    return NetworkScene.from_mapping({
+        "kind": "network", "duration": 2e-3, "dt": 1e-3, "initial_speed": 1.0,
+        "belt": {"EA": 1000.0, "damping": 0.1, "installed_tension": 10.0},
+        "pulleys": [{"name": "a", "role": "driver", "centre": [0, 0], "radius": 0.05, "inertia": 1e-3, "torque": 0.1},
+                    {"name": "b", "role": "accessory", "centre": [0.3, 0], "radius": 0.05, "inertia": 1e-3,
+                     "torque": 0.1}]})  # fmt: skip
+
+
 __all__ = ["Belt", "Engine", "NetworkScene", "Pulley", "Tensioner", "is_network", "load_network", "shipped_networks"]

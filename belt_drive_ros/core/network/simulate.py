@@ -28,9 +28,10 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import IntegratorError, SceneError, SimulationDivergedError, UnstableStepError
-from ..profile_data import CONSTANT, DIVERGED, NOT_CONVERGED
 from ..identity_cache import built_once
-from .model import NetworkModel, NetworkRun, check_step, grid_breakpoints, outputs, run_steps, step_runs
+from ..profile_data import CONSTANT, DIVERGED, NOT_CONVERGED
+from .model import NetworkModel, NetworkRun, check_step, grid_breakpoints, outputs, run_steps, stack_profiles, step_runs
+from .scene import warm_scene
 
 TIERS = ("auto", "flexible", "rigid", "slipping")
 #: auto: rigid when the belt's lowest mode is at least this many times the fastest excitation
@@ -39,22 +40,6 @@ RIGID_MARGIN = 10.0
 ACCURACY = 1e-3
 #: speed [rad/s] past which a run counts as diverged
 LIMIT = 1.0e5
-
-
-# ---------------------------------------------------------------------- profiles as stacked data
-def stack_profiles(profiles, refused: str = "a profile without a data form cannot run in a network"):
-    """``(start, kinds, params, tx, ty)``: the ``(name, profile)`` pairs' data as one program
-    (:func:`~..profile_data.stack`); a profile without one is refused (``refused``: the message's end)."""
-    from ..profile_data import stack
-
-    data = []
-    for name, profile in profiles:
-        d = profile.data()
-        if d is None:
-            raise SceneError(f"pulleys.{name}.torque: {refused}")
-        data.append(d)
-    stacked, start = stack(data)
-    return start, stacked.kinds, stacked.params, stacked.tx, stacked.ty
 
 
 class NetworkLoop:
@@ -352,15 +337,3 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
 def warm() -> None:
     """Compile (or load from the disk cache) the network loop: a two-pulley belt, one step of each tier."""
     simulate(warm_scene(), model="flexible", check_accuracy=False)
-
-
-def warm_scene():
-    """The two-pulley belt (driver and accessory, constant torques) the warm-up calls step."""
-    from .scene import NetworkScene
-
-    return NetworkScene.from_mapping({
-        "kind": "network", "duration": 2e-3, "dt": 1e-3, "initial_speed": 1.0,
-        "belt": {"EA": 1000.0, "damping": 0.1, "installed_tension": 10.0},
-        "pulleys": [{"name": "a", "role": "driver", "centre": [0, 0], "radius": 0.05, "inertia": 1e-3, "torque": 0.1},
-                    {"name": "b", "role": "accessory", "centre": [0.3, 0], "radius": 0.05, "inertia": 1e-3,
-                     "torque": 0.1}]})  # fmt: skip

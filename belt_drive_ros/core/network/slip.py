@@ -39,10 +39,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import SceneError, SimulationDivergedError
-from ..profile_data import CONSTANT, WIDTH
 from ..identity_cache import built_once
-from .model import NetworkModel, NetworkRun, grid_breakpoints, outputs, run_steps, step_runs
-from .simulate import stack_profiles
+from ..profile_data import CONSTANT, WIDTH
+from .model import NetworkModel, NetworkRun, grid_breakpoints, outputs, run_steps, stack_profiles, step_runs
 
 #: modes kept with their step exponentials per run
 CACHE_SLOTS = 8
@@ -282,7 +281,7 @@ def simulate_slipping(model: NetworkModel | None, scene, duration: float | None 
 
 def warm() -> None:
     """Compile (or load from the disk cache) the slipping tier's kernel (one signature: any scene), on a two-pulley belt."""
-    from .simulate import warm_scene
+    from .scene import warm_scene
 
     simulate_slipping(None, warm_scene())
 
