@@ -144,14 +144,14 @@ class NetworkModel:
         P = self.scene.pulleys
         return np.array([driver_speed * P[self.scene.driver].radius / p.radius for p in P])
 
-    def operating_loads(self, driver_speed: float, t: float | None = None, shift=0.0) -> np.ndarray:
+    def operating_loads(self, driver_speed: float, shift=0.0) -> np.ndarray:
         """Mean torque [N m] of each pulley's profile (signed: + drives the belt) at the belt speed of ``driver_speed``
         (each pulley's speed plus ``shift`` [rad/s], per pulley or one for all).
 
-        Each profile is averaged over two revolutions of its pulley at time ``t``
-        (default: the scene's end, after ramps and soft starts); idlers 0.
+        Each profile is averaged over two revolutions of its pulley at the scene's end (after ramps and soft
+        starts); idlers 0.
         """
-        t = self.scene.duration if t is None else t
+        t = self.scene.duration
         w = self.speeds_at(driver_speed) + shift
         out = np.zeros(len(self.scene.pulleys))
         angles = np.linspace(0.0, 4.0 * math.pi, 64, endpoint=False)
@@ -160,10 +160,10 @@ class NetworkModel:
                 out[i] = float(np.mean(p.load(t, angles, w[i])))
         return out
 
-    def load_damping(self, driver_speed: float, t: float | None = None) -> np.ndarray:
+    def load_damping(self, driver_speed: float) -> np.ndarray:
         """Per pulley ``-dQ_i/domega_i`` [N m s/rad] of the profiles at the operating speed (central difference)."""
         h = 1e-4 * np.maximum(1.0, np.abs(self.speeds_at(driver_speed)))
-        return (self.operating_loads(driver_speed, t, -h) - self.operating_loads(driver_speed, t, h)) / (2.0 * h)
+        return (self.operating_loads(driver_speed, -h) - self.operating_loads(driver_speed, h)) / (2.0 * h)
 
     # ------------------------------------------------------------------ statics
     def static(self, loads, iterations: int = 20, w: float = 0.0):
@@ -354,9 +354,9 @@ def modes(model: NetworkModel, driver_speed: float | None = None) -> list[Mode]:
     return out
 
 
-def undamped_frequencies(model: NetworkModel, tensions=None) -> np.ndarray:
-    """Natural frequencies [Hz] of ``K v = w^2 M v`` (the zero mode left out), ascending."""
-    K = model.stiffness(tensions)
+def undamped_frequencies(model: NetworkModel) -> np.ndarray:
+    """Natural frequencies [Hz] of ``K v = w^2 M v`` (K at the installed tension; the zero mode left out), ascending."""
+    K = model.stiffness()
     s = 1.0 / np.sqrt(np.diag(model.M))
     w2 = np.linalg.eigvalsh(s[:, None] * K * s[None, :])
     return np.sqrt(np.clip(np.sort(w2)[1:], 0.0, None)) / (2 * math.pi)
@@ -444,14 +444,13 @@ def _output_terms(model: NetworkModel) -> tuple:
     return found
 
 
-def outputs(model: NetworkModel, time, states, tensions=None) -> NetworkRun:
-    """Per pulley and per span outputs from states ``[q, q']`` (N, 2m) (``tensions`` (N, n): given by a tier
-    whose spans also stretch by slip; default: the linear tier's). The scene's terms are found once per model
-    (:func:`_output_terms`): a node's one-sample call costs the arithmetic alone."""
+def outputs(model: NetworkModel, time, states, T) -> NetworkRun:
+    """Per pulley and per span outputs from states ``[q, q']`` (N, 2m) and the tier's span tensions ``T`` (N, n) [N].
+    The scene's terms are found once per model (:func:`_output_terms`): a node's one-sample call costs the
+    arithmetic alone."""
     r, prev, ex, ey, ex_in, ey_in, factor, mass, d, theta0 = _output_terms(model)
     m, n = model.M.shape[0], len(model.scene.pulleys)
     q, qd = states[:, :m], states[:, m:]
-    T = model.tensions(q, qd) if tensions is None else tensions
     T_in = T[:, prev]  # span i-1 arrives at pulley i
     torque = r * (T - T_in)
     hub = np.hypot(T * ex - T_in * ex_in, T * ey - T_in * ey_in)  # |T_i e_i - T_{i-1} e_{i-1}| (directions fixed)

@@ -90,11 +90,11 @@ class NetworkLoop:
         self.args = (W[None], kinds, offsets, S[0], F, final_base, tol, max_iter, uses)
         self._none = (np.zeros((0, 5)), np.zeros(5 + 2 * n))  # no extra input, no guard
 
-    def __call__(self, times, x, out, lo: float = -math.inf, hi: float = math.inf, limit: float = LIMIT):
+    def __call__(self, times, x, out, lo: float = -math.inf, hi: float = math.inf):
         from ..kernel import wheel_steps
 
         stacked = (self.pk, self.pp, self.px, self.py)  # both banks of the kernel: every profile from its start row
-        return wheel_steps(times, x, out, lo, hi, limit, *self.args, self.start, *stacked, *stacked, *self._none)
+        return wheel_steps(times, x, out, lo, hi, LIMIT, *self.args, self.start, *stacked, *stacked, *self._none)
 
     def hold(self, pulley: int, value: float) -> None:
         """Pulley ``pulley``'s profile becomes the constant ``value`` [N m] (its profile's sign convention)."""
@@ -304,7 +304,7 @@ def run_slipping(model: NetworkModel, duration: float, dt: float, method: str | 
 
 
 def simulate(scene, duration: float | None = None, dt: float | None = None, method: str | None = None,
-             model: str = "auto", network: NetworkModel | None = None, check_accuracy: bool = True) -> NetworkRun:
+             model: str = "auto", check_accuracy: bool = True) -> NetworkRun:
     """Run a belt network scene from the belt turning at ``initial_speed`` unstretched.
 
     ``model``: one of :data:`TIERS` (module docstring); ``method``: any fixed-step method by name (default the
@@ -315,7 +315,7 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
     """
     if model not in TIERS:
         raise SceneError(f"model: must be one of {', '.join(TIERS)} for a belt network, got {model!r}")
-    net = model_of(scene) if network is None else network
+    net = model_of(scene)
     duration, dt, steps = run_steps(scene, duration, dt)
     name = method or scene.method
     if model == "slipping":

@@ -157,17 +157,14 @@ class SlipArrays:
                 self.pk, self.pp, self.ptx, self.pty, self.start)
 
 
-def slip_state(model: NetworkModel, arr: SlipArrays, initial=None, speed: float = 0.0) -> np.ndarray:
+def slip_state(model: NetworkModel, arr: SlipArrays, speed: float = 0.0) -> np.ndarray:
     """A run's whole state between two calls of the kernel (:func:`advance_slipping`), one float vector
     ``[x (2m + n), mode (n), fresh (n), friction work (n), input work (n), tensions (n), slip speeds (n)]``:
-    ``x`` (default: the belt turning at ``speed`` [rad/s] at the driver, unstretched), every pulley sticking."""
+    the belt turning at ``speed`` [rad/s] at the driver, unstretched, every pulley sticking."""
     n, m, N = arr.n, arr.m, arr.N
     state = np.zeros(N + 6 * n)
     x = state[:N]
-    if initial is None:
-        x[m : m + n] = model.speeds_at(speed)
-    else:
-        x[:] = initial
+    x[m : m + n] = model.speeds_at(speed)
     state[N + 4 * n : N + 5 * n] = model.tensions(x[:m], x[m : 2 * m]) + arr.k * (np.roll(x[2 * m :], -1) - x[2 * m :])
     return state
 
@@ -256,10 +253,10 @@ def slip_run(model: NetworkModel, time, states, modes, tensions, slip_speed, fri
 
 
 def simulate_slipping(model: NetworkModel | None, scene, duration: float | None = None, dt: float | None = None,
-                      method: str | None = None, initial=None) -> SlipNetworkRun:
+                      method: str | None = None) -> SlipNetworkRun:
     """Run the slipping tier from the belt turning at ``scene.initial_speed`` unstretched, every pulley sticking.
 
-    ``method``: ``exact`` (default; the tier's one method). ``initial``: optional state ``x`` (2m + n,).
+    ``method``: ``exact`` (default; the tier's one method).
     Raises :class:`~belt_drive_ros.core.errors.SimulationDivergedError` (non-finite state, a speed past
     1e5 rad/s, more than 64 switches inside one step (chattering), every pulley sliding at once, or a pulley
     that can neither stick nor slide on) and :class:`SceneError`.
@@ -270,7 +267,7 @@ def simulate_slipping(model: NetworkModel | None, scene, duration: float | None 
     _, dt, steps = run_steps(scene, duration, dt)
     arr = SlipArrays(model, dt)
     n, N = arr.n, arr.N
-    state = slip_state(model, arr, initial, scene.initial_speed)
+    state = slip_state(model, arr, scene.initial_speed)
     out = slip_rows(steps + 1, N, n)
     out[0][0] = state[:N]
     out[2][0] = state[N + 4 * n : N + 5 * n]
