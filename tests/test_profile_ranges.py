@@ -111,3 +111,26 @@ def test_an_absurd_torque_in_a_scene_file_is_one_line_exit_2(tmp_path, capsys):
     assert main(["sim", str(path), "--quiet", "--duration", "0.01"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("belt-drive: error: ") and "drive.amplitude" in err[0], err
+
+
+@pytest.mark.parametrize("big", [10**400, 10**5000], ids=["400-digits", "5001-digits"])
+def test_integers_beyond_the_float_range_are_one_scene_error_not_a_traceback(big):
+    """Python callers can pass integers no float holds (YAML stops them at 2^63): a profile, the
+    parameters and a network scene each refuse them naming the field (before: OverflowError, or
+    for 5000 digits the ValueError of int-to-str conversion from the message itself)."""
+    from belt_drive_ros.core.errors import ParameterError
+    from belt_drive_ros.core.network.scene import NetworkScene
+    from belt_drive_ros.core.params import BeltDriveParams
+
+    with pytest.raises(SceneError, match="drive: must be finite"):
+        make_profile(big, "drive")
+    with pytest.raises(SceneError, match="drive \\(step\\)"):
+        make_profile({"type": "step", "final": big, "time": 1.0}, "drive")
+    with pytest.raises(ParameterError, match="I_M.*must be finite"):
+        BeltDriveParams(I_M=big)
+    data = {"kind": "network", "duration": 2e-3, "dt": 1e-3, "initial_speed": 1.0,
+            "belt": {"EA": 1000.0, "damping": 0.1, "mass_per_length": big},
+            "pulleys": [{"name": "a", "role": "driver", "centre": [0, 0], "radius": 0.05, "inertia": 1e-3, "torque": 0.1},
+                        {"name": "b", "role": "accessory", "centre": [0.3, 0], "radius": 0.05, "inertia": 1e-3, "torque": 0.1}]}
+    with pytest.raises(SceneError, match="belt.mass_per_length: must be finite"):
+        NetworkScene.from_mapping(data)

@@ -19,7 +19,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .errors import ParameterError
-from .inputs import short, unknown_key
+from .inputs import MAX_INT, short, unknown_key
 
 #: field -> (unit, description); also the order of the YAML keys.
 FIELD_DOCS: dict[str, tuple[str, str]] = {
@@ -106,10 +106,9 @@ class BeltDriveParams:
             if type(value) is not float:  # (a float passes the first two checks as it is)
                 if isinstance(value, bool) or not isinstance(value, (int, float)):
                     raise ParameterError(name, f"must be a number, got {type(value).__name__} {short(value)}")
-                try:
-                    value = float(value)
-                except OverflowError:
-                    raise ParameterError(name, f"must be finite, got an integer of {len(str(abs(value)))} digits") from None
+                if abs(value) > MAX_INT:  # (str() of a 5000-digit integer raises too)
+                    raise ParameterError(name, "must be finite, got an integer beyond 2^63")
+                value = float(value)
                 object.__setattr__(self, name, value)
             if not math.isfinite(value):
                 raise ParameterError(name, f"must be finite, got {value!r}")

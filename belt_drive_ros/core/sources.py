@@ -20,7 +20,7 @@ import numpy as np
 
 from .errors import SceneError
 from . import profile_data as D
-from .inputs import short
+from .inputs import MAX_INT, short
 
 _REGISTRY: dict[str, type["TorqueProfile"]] = {}
 
@@ -733,6 +733,8 @@ def make_profile(spec: Mapping[str, Any] | TorqueProfile | float, where: str = "
     if isinstance(spec, TorqueProfile):
         return spec
     if isinstance(spec, (int, float)) and not isinstance(spec, bool):
+        if abs(spec) > MAX_INT:
+            raise SceneError(f"{where}: must be finite, got an integer beyond 2^63")
         return Constant(float(spec)).check_plausible(where)
     if not isinstance(spec, Mapping):
         raise SceneError(f"{where}: expected a mapping with a 'type' key or a number, got {type(spec).__name__} {short(spec)}")
@@ -755,7 +757,7 @@ def make_profile(spec: Mapping[str, Any] | TorqueProfile | float, where: str = "
         profile = cls(**spec)
     except SceneError as exc:
         raise SceneError(f"{where}: {exc}") from None
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:  # (an integer beyond the float range: OverflowError)
         raise SceneError(f"{where} ({kind}): {exc}") from None
     return profile.check_plausible(where)
 

@@ -20,7 +20,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import SceneError
-from ..inputs import parse_yaml, read_text, short, unknown_key
+from ..inputs import MAX_INT, parse_yaml, read_text, short, unknown_key
 from ..integrators import method_class
 from ..scene import shipped_scenes
 from ..sources import TorqueProfile, make_profile
@@ -35,6 +35,8 @@ ROLE_SIGN = {"driver": 1.0, "accessory": -1.0}
 def _number(where: str, value, low: float = 0.0, strict: bool = False, top: float = 1.0e9) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise SceneError(f"{where}: must be a number, got {type(value).__name__} {short(value)}")
+    if abs(value) > MAX_INT:
+        raise SceneError(f"{where}: must be finite, got an integer beyond 2^63")
     value = float(value)
     if not math.isfinite(value):
         raise SceneError(f"{where}: must be finite, got {value!r}")
