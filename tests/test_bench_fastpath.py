@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from belt_drive_ros.core import sources as S
-from belt_drive_ros.core.errors import IntegratorError, SimulationDivergedError
+from belt_drive_ros.core.errors import IntegratorError, SceneError, SimulationDivergedError
 from belt_drive_ros.core.integrators import FIXED_STEP_METHODS, make_integrator
 from belt_drive_ros.core.kernel_loop import KernelLoop
 from belt_drive_ros.core.model import make_model
@@ -145,26 +145,26 @@ def test_lsoda_through_the_registry_starts_from_rest():
     assert np.all(np.isfinite(result.states)) and result.states[-1, 2] > 1.0
 
 
-class _Exploding(S.TorqueProfile):
-    """A profile without a data form (Python only) that fails at t >= 0.0735 s."""
+class _PythonOnly(S.TorqueProfile):
+    """A profile without a data form (Python only)."""
 
-    kind = "exploding"
+    kind = "python_only"
     state_dependent = True
 
     def torque(self, t, angle=0.0, speed=0.0):
-        if t >= 0.0735:
-            raise RuntimeError("torque sensor failed")
         return 1.0
 
 
-@pytest.mark.parametrize("method", ["etd2", "trapezoidal"])
-def test_a_python_only_profile_steps_through_the_reference_step(method):
-    """No data form: no kernel loop; the run steps through integrator.step and the profile's error propagates."""
+@pytest.mark.parametrize("method", ["etd2", "trapezoidal", "RK45"])
+@pytest.mark.parametrize("as_load", [False, True])
+def test_a_python_only_profile_is_refused_in_one_line(method, as_load):
+    """No data form: the linear stepper refuses it (the kernel steps compiled profiles only), whatever the method."""
     scene = load_scene("paper")
-    sim = Simulator(make_model("flexible", scene.params), _Exploding(), scene.load, method, 1e-3)
-    assert sim.stepper.loop is None
-    with pytest.raises(RuntimeError, match="torque sensor failed"):
-        sim.run(0.1, np.zeros(4))
+    drive, load = (scene.drive, _PythonOnly()) if as_load else (_PythonOnly(), scene.load)
+    with pytest.raises(SceneError, match=r"^torque profile 'python_only' has no data form .*compiled profiles only$"):
+        Simulator(make_model("flexible", scene.params), drive, load, method, 1e-3)
+    with pytest.raises(SceneError, match="has no data form"):
+        simulate(scene.with_overrides(drive=drive, load=load), model="flexible", method=method, duration=0.1)
 
 
 def test_the_kernel_compiles_once_whatever_the_scene():

@@ -115,7 +115,12 @@ class _LinearModel:
         y = _affine(self.wheel_map, np.asarray(x, dtype=float))  # summed as the steppers sum (bit for bit)
         return y[..., 0], y[..., 1], y[..., 2], y[..., 3]
 
-    def outputs(self, x: np.ndarray, u: np.ndarray) -> dict[str, np.ndarray]:
+    def state_part(self, x: np.ndarray) -> np.ndarray:
+        """``C x`` (N, O) of samples ``x`` (N, n): the linear outputs' state part, the wheel coordinates
+        (:data:`WHEEL_ROWS`) among them, summed as :meth:`wheel_coordinates` and :meth:`outputs` sum."""
+        return _affine(self.C, np.asarray(x, dtype=float))
+
+    def outputs(self, x: np.ndarray, u: np.ndarray, cx: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """All output signals of :data:`OUTPUT_UNITS` for samples ``x`` (N, n), ``u`` (N, 2).
 
         The linear ones are ``y = C x + D u``; the span forces and the
@@ -123,6 +128,7 @@ class _LinearModel:
         One sample (``x`` of shape (n,): the node's tick) gives plain floats
         and bools, from the same operations in the same order as the rows of
         a run (:func:`_affine_sample`), so the same values bit for bit.
+        ``cx``: :meth:`state_part` of ``x`` when the caller has it.
         """
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)
@@ -131,7 +137,7 @@ class _LinearModel:
             out = dict(zip(LINEAR_OUTPUTS, values))
             out["drive_torque"], out["load_torque"] = float(u[0]), float(u[1])  # the inputs themselves
         else:
-            y = _affine(self.C, x) + _affine(self.D, u)
+            y = (_affine(self.C, x) if cx is None else cx) + _affine(self.D, u)
             out = {name: y[..., j] for j, name in enumerate(LINEAR_OUTPUTS)}
             out["drive_torque"], out["load_torque"] = u[..., 0], u[..., 1]  # the inputs themselves, bit for bit
         tight, slack_force, slack, slip = self.span_forces(out["belt_torque"])

@@ -30,7 +30,7 @@ from .model import make_model
 from .scene import SLIP_MODELS, Scene
 from .slip_run import SlippingSimulator
 from .stability import StabilityReport, require_stable
-from .stepper import SPEED_LIMIT, Plant, Stepper, shared_plant
+from .stepper import SPEED_LIMIT, Plant, Stepper, shared_plant, shared_stepper
 
 __all__ = ["CSV_COLUMNS", "SPEED_LIMIT", "Plant", "SimResult", "Simulator", "simulate"]
 #: CSV columns required by the CLI, SI units.
@@ -292,25 +292,31 @@ def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, s
                      checked=None) -> SimResult:  # fmt: skip
     """``scene`` on the rigid or flexible model ``kind``: states, outputs and energy terms."""
     mdl = survey.rigid if kind == "rigid" and survey is not None else make_model(kind, scene.params)
-    sim = Simulator(mdl, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
+    plant = shared_plant(mdl, scene.drive, scene.load)
+    # a fixed-step method steps on the plant's shared stepper (the guards' windows too; it holds no verdict and a
+    # run's outcome does not depend on the runs before it); an adaptive one (solver history) on its own
+    stepper = (shared_stepper(plant, scene.method, scene.dt, scene.method_options) if method_class(scene.method).fixed_step
+               else Stepper(plant, scene.method, scene.dt, scene.method_options))  # fmt: skip
+    stability = require_stable(mdl.A, mdl.B, scene.method, scene.dt) if check_stability else None
     x0 = scene.initial_state.vector(kind, scene.params.ratio)
     # closed loop (torque slopes): refuses an unstable step, reports an inaccurate one (the CLI warns)
     accuracy = (
         checked or require_accurate(
-            sim.plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance, method_options=scene.method_options,
-            stepper=sim.stepper, probes=probe_scene(sim.plant, scene.duration, x0, scene.dt, survey=survey),
+            plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance, method_options=scene.method_options,
+            stepper=stepper, probes=probe_scene(plant, scene.duration, x0, scene.dt, survey=survey),
         )
         if check_stability else None
     )  # fmt: skip
     start = _time.perf_counter()
-    time, states = sim.run(scene.duration, x0, progress=progress)
+    time, states = stepper.run(x0, 0.0, scene.duration, progress)
     wall = _time.perf_counter() - start
-    return _linear_result(scene, mdl, sim.plant, time, states, sim.stability, accuracy, wall)
+    return _linear_result(scene, mdl, plant, time, states, stability, accuracy, wall)
 
 
 def _linear_result(scene, mdl, plant, time, states, stability, accuracy, wall) -> SimResult:
     """The result of a rigid or flexible run: outputs and energy terms of its states on the grid ``time``."""
-    u = plant.input_array(time, states)
+    cx = mdl.state_part(states)  # C x once: the torques' wheel coordinates and the outputs read it
+    u = plant.input_array(time, states, cx)
     dt_grid = np.diff(time)
     energy = {
         "kinetic": mdl.kinetic_energy(states),
@@ -319,7 +325,7 @@ def _linear_result(scene, mdl, plant, time, states, stability, accuracy, wall) -
         "dissipated": _integral(mdl.dissipation_power(states), dt_grid),
     }
     return SimResult(scene=scene, model=mdl.name, method=method_class(scene.method).name, dt=scene.dt, time=time,
-                     states=states, inputs=u, outputs=mdl.outputs(states, u), stability=stability, accuracy=accuracy,
+                     states=states, inputs=u, outputs=mdl.outputs(states, u, cx), stability=stability, accuracy=accuracy,
                      wall_time=wall, energy=energy)  # fmt: skip
 
 

@@ -43,8 +43,9 @@ there at least at ``b``. So no step integrates across a jump or a kink, and
 each fixed-step method keeps its order. A step that touches a breakpoint is
 one kernel call per piece (the integrator of the piece's length, its torque
 times clamped); runs of whole steps are one kernel call each. Only an
-adaptive method or a Python-only torque profile steps through
-``integrator.step`` instead.
+adaptive method (scipy's, the references) steps through ``integrator.step``
+instead, a step at a time. A torque profile without a data form (Python
+only) is refused.
 
 Integrators (and kernel loops) of partial-step lengths are cached per
 stepper (at most :data:`PARTIAL_CACHE_SIZE`); plant torques are read at every
@@ -67,11 +68,11 @@ from typing import Callable
 
 import numpy as np
 
-from .errors import SimulationDivergedError
+from .errors import SceneError, SimulationDivergedError
 from .identity_cache import built_once
 from .integrators import FixedStepIntegrator, make_integrator
 from .kernel_loop import DIVERGED, GUARDED, NOT_CONVERGED
-from .model import _LinearModel
+from .model import WHEEL_ROWS, _LinearModel
 
 #: Speeds beyond this [rad/s] (~955,000 rpm) mean the numerics, not the physics, blew up.
 SPEED_LIMIT = 1.0e5
@@ -85,6 +86,8 @@ CHUNK = 4096
 PAGE_MARGIN = 4
 #: an advance over at least this many breakpoints looks for steps it can absorb (:mod:`~belt_drive_ros.core.absorb`)
 ABSORB_MIN = 16
+#: state rows a guarded run (it may stop at its first steps) allocates first; twice as many each time they are full
+GUARDED_ROWS = 256
 _NO_CELLS = np.empty(0, dtype=np.int64)
 
 
@@ -158,7 +161,7 @@ class Plant:
     def kernel_loop(self, integrator, guard=None):
         """The compiled loop (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`) of ``integrator`` for this plant, or None.
 
-        None for an adaptive method, a Python-only profile, complex matrices or
+        None for an adaptive method, a Python-only profile (a stepper refuses it), complex matrices or
         an implicit method with extra inputs: those step through ``integrator.step``.
         ``guard``: a :class:`~belt_drive_ros.core.stage_scheme.Guard` the loop checks after every step.
         """
@@ -181,9 +184,13 @@ class Plant:
 
         return np.minimum(left_of_array(self.drive, b), left_of_array(self.load, b))
 
-    def input_array(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Vectorized u for samples ``t`` (N,), ``x`` (N, n) -> (N, 2)."""
-        phi_M, omega_M, phi_3, omega_3 = self.model.wheel_coordinates(x)
+    def input_array(self, t: np.ndarray, x: np.ndarray, cx: np.ndarray | None = None) -> np.ndarray:
+        """Vectorized u for samples ``t`` (N,), ``x`` (N, n) -> (N, 2) (``cx``: a linear model's
+        :meth:`~belt_drive_ros.core.model._LinearModel.state_part` of ``x``, its wheel coordinates read off it)."""
+        if cx is None:
+            phi_M, omega_M, phi_3, omega_3 = self.model.wheel_coordinates(x)
+        else:
+            phi_M, omega_M, phi_3, omega_3 = (cx[..., j] for j in WHEEL_ROWS)
         t = np.asarray(t, dtype=float)
         u = np.empty(t.shape + (2,))
         u[..., 0] = self.drive.torque(t, phi_M, omega_M)
@@ -291,7 +298,7 @@ class Stepper:
     split_steps : ``{grid index k: [breakpoints inside step k]}`` of the last
         :meth:`run` or :meth:`advance`.
     loop : the compiled float loop used for whole steps away from breakpoints
-        (None: ``integrator.step``, numpy; a test may set it to compare the two).
+        (None: each step through ``integrator.step``, numpy; a test may set it to compare the two).
     stopped : after a :meth:`run` that the guard stopped, ``(j, a, e, whole,
         lo, hi, cuts)``: step ``j`` of the run from time ``a`` to ``e`` [s]
         (``whole``: a full grid step), its torque samples clamped to
@@ -308,13 +315,17 @@ class Stepper:
         self.method, self.dt, self.origin = method, float(dt), float(origin)
         self.method_options = dict(method_options or {})
         model = plant.model
+        python_only = [p.kind or type(p).__name__ for p, d in zip((plant.drive, plant.load), plant.data)
+                       if d is None and not (p is plant.drive and plant.paged)]  # fmt: skip
+        if python_only:
+            raise SceneError(f"torque profile {python_only[0]!r} has no data form (TorqueProfile.encode): the linear "
+                             "models step compiled profiles only")  # fmt: skip
         self.integrator = integrator or make_integrator(method, model.A, model.B, self.dt, **self.method_options)
         self.guard = guard
         self.loop = plant.kernel_loop(self.integrator, guard)
         self.breakpoints = plant.breakpoints
         self._end = None  # the loop of absorbed steps (absorb.end_loop); False: none
         self.stopped: tuple | None = None
-        self._stop_at: int | None = None
         self.split_steps: dict = {}
         self._partials: dict = {}
         self._loops: dict = {}  # kernel loops of the partial-step integrators, by step length
@@ -350,17 +361,17 @@ class Stepper:
                 return page.run(x0, t0, t1, progress)
             finally:
                 self.split_steps, self.stopped = page.split_steps, page.stopped
-        plan = None
-        if self.loop is not None and progress is None:  # whole grid steps away from breakpoints: no search (one call)
-            k0, k1 = self._snap(t0), self._snap(t1)
-            if k0 is not None and k1 is not None and k1 > k0 and not self._near_breakpoint(t0, t1, k0, k1):
-                self.split_steps = {}
-                plan = dict(t0=t0, t1=t1, start=t0, end=t1, first=k0, last=k1 - 1, empty=False, lead=False, trail=False,
-                            special={}, absorbed=_NO_CELLS)  # fmt: skip
-        plan = plan or self._plan(t0, t1, absorb=True)
-        times = self._knots(plan)
+        plan = self._plan(t0, t1, absorb=True)
         self.stopped = None
-        states = self._march(x0, plan, progress, record=True)
+        if (not progress and self.loop is not None and not plan["empty"] and not plan["lead"] and not plan["trail"]
+                and not plan["absorbed"].size and not self.split_steps):
+            # whole grid steps, breakpoints on knots only: one kernel call per group; the knots are the grid's
+            times = self._grid(plan["first"], plan["last"] + 2)
+            states = self._march_grouped(x0, plan, times)
+            times[0], times[-1] = t0, t1
+        else:
+            times = self._knots(plan)
+            states = self._march(x0, plan, progress, record=True)
         if self.stopped is not None:
             j = self.stopped[0]
             times, states = times[: j + 2], states[: j + 2]
@@ -471,13 +482,12 @@ class Stepper:
         last = k1 - 1 if k1 is not None else self._cell(t1)
         empty = last < first  # t0 and t1 on the same grid time (or within its tolerance)
         special: dict = {}
-
-
         bps = self.breakpoints
         tol0, tol1 = snap_tolerance(start, self.dt), snap_tolerance(end, self.dt)
-        lo_i = _search(bps, min(t0, start) - tol0, False)
-        hi_i = _search(bps, max(t1, end) + tol1, True)
-        near = bps[lo_i:hi_i] if not empty else ()
+        if empty or (k0 is not None and k1 is not None and not self._near_breakpoint(t0, t1, k0, k1)):
+            near = ()  # (whole grid steps in a breakpoint-free interval the last run or tick found: no search)
+        else:
+            near = bps[_search(bps, min(t0, start) - tol0, False) : _search(bps, max(t1, end) + tol1, True)]
         absorbed = _NO_CELLS
         if absorb and len(near) >= ABSORB_MIN:
             from .absorb import absorbed_steps
@@ -568,8 +578,7 @@ class Stepper:
 
         Each piece is one kernel call (the integrator of the piece's length,
         its torque times clamped into the piece's side of the breakpoints);
-        without a kernel loop (adaptive method, Python-only profile) the
-        integrator's reference ``step``.
+        without a kernel loop (adaptive method) the integrator's reference ``step``.
         """
         edges = [a, *sorted(cuts), e]
         n = len(edges) - 1
@@ -597,7 +606,11 @@ class Stepper:
         raise not_converged(self.method, t, scheme.implicit[1], self.dt)
 
     def _march(self, x: np.ndarray, plan: dict, progress, record: bool):
-        """Execute ``plan`` from state ``x``: the states at every knot (record) or the last."""
+        """Execute ``plan`` from state ``x``: the states at every knot (record) or the last.
+
+        Runs of plain whole steps are one kernel call each; a step that touches a breakpoint (and every step
+        of a stepper without a kernel loop: an adaptive method) is :meth:`_special_step`.
+        """
         size = x.size
         if plan["empty"]:
             if plan["t0"] == plan["t1"]:
@@ -606,9 +619,6 @@ class Stepper:
             return np.vstack([x, x]) if record else x
         first, last, special = plan["first"], plan["last"], plan["special"]
         n_cells = last - first + 1
-        if (record and not progress and self.loop is not None and not plan["lead"] and not plan["trail"]
-                and not plan["absorbed"].size and not self.split_steps):
-            return self._march_grouped(x, plan)
         states = np.empty((n_cells + 1, size)) if record else None
         if record:
             states[0] = x
@@ -625,7 +635,7 @@ class Stepper:
         with np.errstate(all="ignore"):
             while c <= last:
                 a, e, whole, lo, hi, cuts = self._step(plan, c)
-                if c in special or not whole:
+                if c in special or not whole or self.loop is None:
                     x = self._special_step(x, a, e, whole, lo, hi, cuts)
                     if record:
                         states[c - first + 1] = x
@@ -635,6 +645,8 @@ class Stepper:
                     if self.guard is not None and _finite(x) and self.guard.value(x) > 0.0:
                         self.stopped = (c - 1 - first, a, e, whole, lo, hi, list(cuts))
                         break
+                    if progress and (c - first) % chunk == 0:
+                        progress((c - first) / n_cells)
                     continue
                 # a run of plain whole steps: up to the next special cell, the last whole cell, or a chunk
                 while si < len(stops) and stops[si] < c:
@@ -642,18 +654,24 @@ class Stepper:
                 while ri < len(run_to) and run_to[ri] <= c:
                     ri += 1
                 stop = min(c + chunk, stops[si] if si < len(stops) else last + 1, last + 1 if not plan["trail"] else last)
-                loop = None
+                loop = self.loop
                 if ri < len(run_from):
                     if run_from[ri] <= c:  # absorbed steps (no special cell inside a run)
                         stop, loop = min(c + chunk, run_to[ri]), self._end
                     else:
                         stop = min(stop, run_from[ri])
-                x = self._whole_steps(x, c, stop, states[c - first + 1 : stop - first + 1] if record else None, loop=loop)
-                if self._stop_at is not None:  # the guard fired at the end of cell c + _stop_at
-                    j = c + self._stop_at
-                    self._stop_at = None
+                out = states[c - first + 1 : stop - first + 1] if record else np.empty((stop - c, size))
+                done, status, t = loop(self._grid(c, stop + 1), np.ascontiguousarray(x, dtype=np.float64), out,
+                                       -math.inf, math.inf, SPEED_LIMIT)  # fmt: skip
+                if status == NOT_CONVERGED:
+                    self._not_converged(t)
+                if status == GUARDED:  # the guard fired at the end of cell c + done - 1
+                    j = c + done - 1
                     self.stopped = (j - first, *self._step(plan, j)[:5], [])  # (a plain cell: no clamps)
                     break
+                if status == DIVERGED:
+                    out[done:] = np.nan
+                x = out[done - 1].copy() if done else x
                 c = stop
                 if not _healthy(x):
                     break
@@ -664,86 +682,57 @@ class Stepper:
                 self._clean = record and self.loop is not None
         return states if record else x
 
-    def _march_grouped(self, x: np.ndarray, plan: dict) -> np.ndarray:
-        """:meth:`_march` of whole grid steps whose breakpoints all lie on knots: one kernel call per group.
+    def _march_grouped(self, x: np.ndarray, plan: dict, grid: np.ndarray) -> np.ndarray:
+        """:meth:`_march` of whole grid steps whose breakpoints all lie on knots (``grid``: their grid times,
+        cells first .. last + 1): one kernel call per group.
 
         A step that ends on a breakpoint samples at most at its left limit (``hi``), the one that starts there
         at least at it (``lo``); every other sample of the steps before the first (after the second) lies
         below (above) that bound already, so a group of steps from one starting on a breakpoint to one ending
         on the next is one call with that group's ``lo`` and ``hi``: the same steps and samples as a call per
-        clamped step. The guard stops as in :meth:`_march` (the stopped step's clamps reported).
+        clamped step. The guard stops as in :meth:`_march` (the stopped step's clamps reported). A guarded
+        run's state rows are allocated a group at a time (it may stop at the first step), an unguarded
+        run's at once. A group cut at the rows' end keeps its ``lo`` and ``hi`` in both parts: no sample of its
+        later (earlier) steps lies beyond them.
         """
         first, last, special = plan["first"], plan["last"], plan["special"]
-        states = np.empty((last - first + 2, x.size))
+        guarded, total = self.guard is not None, last - first + 2
+        states = np.empty((total if not guarded else min(total, GUARDED_ROWS), x.size))
         states[0] = x
-        grid = self._grid(first, last + 2)
         half = 0.5 * self.dt
         # the cells that end a group: one whose hi is finite, or the one before a cell whose lo is (sorted)
         ends = sorted({c for c, e in special.items() if e[1] != math.inf}
-                      | {c - 1 for c, e in special.items() if e[0] != -math.inf}) + [last]  # fmt: skip
+                      | {c - 1 for c, e in special.items() if e[0] != -math.inf}) + [last] if special else [last]  # fmt: skip
         ei = 0
         c = first
-        with np.errstate(all="ignore"):
-            while c <= last:
-                lo = special[c][0] if c in special else -math.inf
-                while ends[ei] < c:
-                    ei += 1
-                d = min(ends[ei], last)  # the group's last cell
-                hi = special[d][1] if d in special else math.inf
-                if (lo != -math.inf and lo > grid[c - first] + half) or (hi != math.inf and hi < grid[d - first] + half):
-                    lo, hi, d = (*special.get(c, (-math.inf, math.inf))[:2], c)  # a bound far inside: this step alone
-                done, status, t = self.loop(grid[c - first : d - first + 2], np.ascontiguousarray(x, dtype=np.float64),
-                                            states[c - first + 1 : d - first + 2], lo, hi, SPEED_LIMIT)  # fmt: skip
-                if status == NOT_CONVERGED:
-                    self._not_converged(t)
-                if status == GUARDED:
-                    j = c + done - 1
-                    self.stopped = (j - first, *self._step(plan, j)[:5], [])
-                    break
-                if status == DIVERGED:
-                    states[c - first + 1 + done :] = np.nan
-                    break
-                x = states[d - first + 1]
-                c = d + 1
-            else:
-                self._clean = True
-        return states
-
-    def _whole_steps(self, x: np.ndarray, c: int, stop: int, out, loop=None) -> np.ndarray:
-        """Whole steps of cells ``c`` .. ``stop - 1`` (no breakpoint touches them); write into ``out``.
-
-        ``loop``: the kernel loop to step with (default the stepper's; absorbed steps: :func:`~belt_drive_ros.core.absorb.end_loop`).
-        One kernel call; after a diverged state the rest of ``out`` is NaN.
-        """
-        times = self._grid(c, stop + 1)
-        size = x.size
-        loop = self.loop if loop is None else loop
-        if loop is not None:
-            buffer = out if out is not None else np.empty((stop - c, size))
-            done, status, t = loop(times, np.ascontiguousarray(x, dtype=np.float64), buffer, -math.inf, math.inf,
-                                        SPEED_LIMIT)
+        while c <= last:
+            lo = special[c][0] if c in special else -math.inf
+            while ends[ei] < c:
+                ei += 1
+            d = min(ends[ei], last)  # the group's last cell
+            hi = special[d][1] if d in special else math.inf
+            if (lo != -math.inf and lo > grid[c - first] + half) or (hi != math.inf and hi < grid[d - first] + half):
+                lo, hi, d = (*special.get(c, (-math.inf, math.inf))[:2], c)  # a bound far inside: this step alone
+            if guarded and d - first + 2 > states.shape[0]:  # beyond the rows held: up to their end, then twice as many
+                if c - first + 1 == states.shape[0]:
+                    states = np.concatenate([states, np.empty((min(total, 2 * states.shape[0]) - states.shape[0], x.size))])
+                d = min(d, first + states.shape[0] - 2)  # (a bound of the group's still holds in its parts: see above)
+            done, status, t = self.loop(grid[c - first : d - first + 2], np.ascontiguousarray(x, dtype=np.float64),
+                                        states[c - first + 1 : d - first + 2], lo, hi, SPEED_LIMIT)  # fmt: skip
             if status == NOT_CONVERGED:
                 self._not_converged(t)
-            if done == 0:
-                return x
             if status == GUARDED:
-                self._stop_at = done - 1
-            elif status == DIVERGED and out is not None:
-                out[done:] = np.nan
-            return buffer[done - 1].copy()
-        step, inputs = self.integrator.step, self.plant.inputs
-        for j, t in enumerate(times[:-1].tolist()):
-            x = step(t, x, inputs)
-            if out is not None:
-                out[j] = x
-            if self.guard is not None and _finite(x) and self.guard.value(x) > 0.0:
-                self._stop_at = j
-                return x
-            if j & 63 == 63 and not _healthy(x):
-                if out is not None:
-                    out[j + 1 :] = np.nan
-                return x
-        return x
+                j = c + done - 1
+                self.stopped = (j - first, *self._step(plan, j)[:5], [])
+                break
+            if status == DIVERGED:
+                states[c - first + 1 + done :] = np.nan
+                break
+            x = states[d - first + 1]
+            c = d + 1
+        else:
+            self._clean = True
+        return states
 
     def diverged_error(self, t: float, x: np.ndarray) -> SimulationDivergedError:
         """The error a run raises when state ``x`` at ``t`` [s] is non-finite or too fast (one message for every caller)."""
