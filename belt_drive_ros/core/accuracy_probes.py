@@ -186,9 +186,13 @@ class RigidSurvey:
                 time, states = stepper.run(x, t, e)
                 w = max(w, float(np.max(np.abs(states[:, 1]))))
                 peak = max(peak, float(np.max(np.abs(model.belt_torque(states, plant.input_array(time, states))))))
-                while pending and pending[0] <= e + snap_tolerance(e, rdt):
-                    k = int(np.argmin(np.abs(time - pending[0])))
-                    self.states[pending.pop(0)] = (float(states[k, 0]), float(states[k, 1]))
+                here = [s for s in pending if s <= e + snap_tolerance(e, rdt)]
+                if here:  # each stop's nearest knot (the first of two as near)
+                    j = np.clip(np.searchsorted(time, here), 1, time.size - 1)
+                    k = np.where(np.abs(time[j - 1] - here) <= np.abs(time[j] - here), j - 1, j).tolist()
+                    for s, i in zip(here, k):
+                        self.states[s] = (float(states[i, 0]), float(states[i, 1]))
+                    pending = pending[len(here) :]
                 x, t = states[-1], e
             if self.duration <= 0:
                 peak = abs(self._start_torque)
