@@ -116,8 +116,7 @@ class _LinearModel:
         return y[..., 0], y[..., 1], y[..., 2], y[..., 3]
 
     def state_part(self, x: np.ndarray) -> np.ndarray:
-        """``C x`` (N, O) of samples ``x`` (N, n): the linear outputs' state part, the wheel coordinates
-        (:data:`WHEEL_ROWS`) among them, summed as :meth:`wheel_coordinates` and :meth:`outputs` sum."""
+        """``C x`` (N, O) of samples ``x`` (N, n), the wheel coordinates' rows (:data:`WHEEL_ROWS`) among them."""
         return _affine(self.C, np.asarray(x, dtype=float))
 
     def outputs(self, x: np.ndarray, u: np.ndarray, cx: np.ndarray | None = None) -> dict[str, np.ndarray]:
