@@ -203,6 +203,39 @@ def test_divergence_raises_with_the_time():
         stepper.run(X0, 0.0, 200.0)
 
 
+
+def test_a_guarded_run_allocates_the_rows_it_reaches_and_stops_as_the_unguarded_run():
+    """A guard may stop a run at its first steps (a slip onset): its state rows grow as it goes, so a 100 s run
+    stopped near its start holds kilobytes, not the 100,000 rows of the whole run (3.2 MB); a stop after the
+    rows grew is the unguarded run's states bit for bit, up to and including the crossing step."""
+    import tracemalloc
+
+    from belt_drive_ros.core.stage_scheme import Guard
+
+    scene = load_scene("paper")
+    p = scene.params
+    i, k, c, r3 = p.ratio, p.k, p.c, p.r_3
+    row = (2 * k * r3 * i, -2 * k * r3, 2 * c * r3 * i, -2 * c * r3)  # the belt's transmitted force Q [N]
+    plant = Plant(MODEL, scene.drive, scene.load)
+    x0 = scene.initial_state.vector("flexible", p.ratio)
+    early = Stepper(plant, "etd2", 1e-3, guard=Guard(row, 60.0, True))
+    early.run(x0, 0.0, 0.2)  # (its partial steps' integrators and loops built before the count)
+    tracemalloc.start()
+    try:
+        t_e, _ = early.run(x0, 0.0, 100.0)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert early.stopped is not None and t_e.size < 256 and peak < 200_000
+    times, states = Stepper(plant, "etd2", 1e-3).run(x0, 0.0, 2.0)
+    q = np.abs(states @ np.array(row))
+    late = 1.0001 * float(np.max(q[1:700]))
+    j = int(np.argmax(q[1:] > late))  # the first step (j -> j+1) past it, beyond the first rows held
+    assert j >= 699 and q[j + 1] > late
+    guarded = Stepper(plant, "etd2", 1e-3, guard=Guard(row, late, True))
+    t_g, s_g = guarded.run(x0, 0.0, 2.0)
+    assert guarded.stopped[0] == j and np.array_equal(t_g, times[: j + 2]) and np.array_equal(s_g, states[: j + 2])
+
 def test_left_of_gives_the_left_limit():
     cases = [
         (S.Step(1.0, 5.0, 0.3), 0.3),

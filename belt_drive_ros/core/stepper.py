@@ -366,9 +366,10 @@ class Stepper:
         if (not progress and self.loop is not None and not plan["empty"] and not plan["lead"] and not plan["trail"]
                 and not plan["absorbed"].size and not self.split_steps):
             # whole grid steps, breakpoints on knots only: one kernel call per group; the knots are the grid's
-            times = self._grid(plan["first"], plan["last"] + 2)
-            states = self._march_grouped(x0, plan, times)
-            times[0], times[-1] = t0, t1
+            states, times = self._march_grouped(x0, plan)
+            times[0] = t0
+            if times.size == plan["last"] - plan["first"] + 2:
+                times[-1] = t1
         else:
             times = self._knots(plan)
             states = self._march(x0, plan, progress, record=True)
@@ -682,23 +683,24 @@ class Stepper:
                 self._clean = record and self.loop is not None
         return states if record else x
 
-    def _march_grouped(self, x: np.ndarray, plan: dict, grid: np.ndarray) -> np.ndarray:
-        """:meth:`_march` of whole grid steps whose breakpoints all lie on knots (``grid``: their grid times,
-        cells first .. last + 1): one kernel call per group.
+    def _march_grouped(self, x: np.ndarray, plan: dict) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_march` of whole grid steps whose breakpoints all lie on knots: one kernel call per group;
+        returns (states, their grid times).
 
         A step that ends on a breakpoint samples at most at its left limit (``hi``), the one that starts there
         at least at it (``lo``); every other sample of the steps before the first (after the second) lies
         below (above) that bound already, so a group of steps from one starting on a breakpoint to one ending
         on the next is one call with that group's ``lo`` and ``hi``: the same steps and samples as a call per
         clamped step. The guard stops as in :meth:`_march` (the stopped step's clamps reported). A guarded
-        run's state rows are allocated a group at a time (it may stop at the first step), an unguarded
-        run's at once. A group cut at the rows' end keeps its ``lo`` and ``hi`` in both parts: no sample of its
+        run's state rows and grid times are allocated as it goes (it may stop at the first step), an
+        unguarded run's at once. A group cut at the rows' end keeps its ``lo`` and ``hi`` in both parts: no sample of its
         later (earlier) steps lies beyond them.
         """
         first, last, special = plan["first"], plan["last"], plan["special"]
         guarded, total = self.guard is not None, last - first + 2
         states = np.empty((total if not guarded else min(total, GUARDED_ROWS), x.size))
         states[0] = x
+        grid = self._grid(first, last + 2) if not guarded else None
         half = 0.5 * self.dt
         # the cells that end a group: one whose hi is finite, or the one before a cell whose lo is (sorted)
         ends = sorted({c for c, e in special.items() if e[1] != math.inf}
@@ -711,14 +713,15 @@ class Stepper:
                 ei += 1
             d = min(ends[ei], last)  # the group's last cell
             hi = special[d][1] if d in special else math.inf
-            if (lo != -math.inf and lo > grid[c - first] + half) or (hi != math.inf and hi < grid[d - first] + half):
+            if (lo != -math.inf and lo > self.grid_time(c) + half) or (hi != math.inf and hi < self.grid_time(d) + half):
                 lo, hi, d = (*special.get(c, (-math.inf, math.inf))[:2], c)  # a bound far inside: this step alone
             if guarded and d - first + 2 > states.shape[0]:  # beyond the rows held: up to their end, then twice as many
                 if c - first + 1 == states.shape[0]:
                     states = np.concatenate([states, np.empty((min(total, 2 * states.shape[0]) - states.shape[0], x.size))])
                 d = min(d, first + states.shape[0] - 2)  # (a bound of the group's still holds in its parts: see above)
-            done, status, t = self.loop(grid[c - first : d - first + 2], np.ascontiguousarray(x, dtype=np.float64),
-                                        states[c - first + 1 : d - first + 2], lo, hi, SPEED_LIMIT)  # fmt: skip
+            times = grid[c - first : d - first + 2] if grid is not None else self._grid(c, d + 2)
+            done, status, t = self.loop(times, np.ascontiguousarray(x, dtype=np.float64), states[c - first + 1 : d - first + 2],
+                                        lo, hi, SPEED_LIMIT)  # fmt: skip
             if status == NOT_CONVERGED:
                 self._not_converged(t)
             if status == GUARDED:
@@ -732,7 +735,7 @@ class Stepper:
             c = d + 1
         else:
             self._clean = True
-        return states
+        return states, grid if grid is not None else self._grid(first, first + states.shape[0])
 
     def diverged_error(self, t: float, x: np.ndarray) -> SimulationDivergedError:
         """The error a run raises when state ``x`` at ``t`` [s] is non-finite or too fast (one message for every caller)."""
