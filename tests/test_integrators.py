@@ -49,7 +49,7 @@ import scipy.integrate
 import scipy.linalg
 import scipy.signal
 
-from belt_drive_ros.core.errors import IntegratorError
+from belt_drive_ros.core.errors import IntegratorError, SceneError
 from belt_drive_ros.core.integrators import (
     ADAPTIVE_METHODS,
     FIXED_STEP_METHODS,
@@ -141,9 +141,9 @@ def test_measured_order_state_dependent_torque(method, smooth_reference):
     nominal = REGISTRY[method].order
     steps = STEPS.get(method, STEPS_BY_ORDER[nominal])
     errors = []
-    for n in steps:
-        sim = Simulator(model, DRIVE, LOAD, method, DURATION / n, check_stability=False)
-        _, states = sim.run(DURATION, X0)
+    inputs = Plant(model, DRIVE, LOAD).inputs  # (the sum is Python only: the method's own step; the kernel
+    for n in steps:  # equals it on compiled profiles, test_simulator_stepwise_equals_step_protocol_state_dependent)
+        states = _manual_step_loop(make_integrator(method, model.A, model.B, DURATION / n), inputs, X0, n)
         errors.append(np.max(np.abs(T @ (states[-1] - ref)) / scale))  # wheel coordinates [phi_M, phi_3, ...]
     errors = np.array(errors)
     orders = np.log2(errors[:-1] / errors[1:])
@@ -259,12 +259,16 @@ def test_open_loop_run_equals_step_protocol_and_linear_map(method, model_cls):
 
 @pytest.mark.parametrize("method", FIXED_STEP_METHODS)
 def test_simulator_stepwise_equals_step_protocol_state_dependent(method):
-    """State-dependent torques: whatever loop the simulator uses, it is integrator.step() to rounding."""
+    """State-dependent torques: whatever loop the simulator uses, it is integrator.step() to rounding (compiled
+    profiles: the motor's speed, the compressor's speed and stroke angle; a Python-only sum is refused)."""
     model = FlexibleBeltModel(PARAMS)
     n = 300
-    sim = Simulator(model, DRIVE, LOAD, method, 1e-3, check_stability=False)
+    drive, load = MotorCurve(stall_torque=12.0, no_load_speed=160.0), Compressor(0.5, 0.02, 2, (1.0,))
+    with pytest.raises(SceneError, match="no data form"):
+        Simulator(model, DRIVE, LOAD, method, 1e-3, check_stability=False)
+    sim = Simulator(model, drive, load, method, 1e-3, check_stability=False)
     _, states = sim.run(n * 1e-3, X0)
-    bare = _manual_step_loop(make_integrator(method, model.A, model.B, 1e-3), Plant(model, DRIVE, LOAD).inputs, X0, n)
+    bare = _manual_step_loop(make_integrator(method, model.A, model.B, 1e-3), Plant(model, drive, load).inputs, X0, n)
     assert np.max(np.abs(states - bare) / np.max(np.abs(bare), axis=0)) < RTOL_STEP_LOOP
 
 
