@@ -400,8 +400,9 @@ class Stepper:
         bps = self.breakpoints
         if len(bps) == 0:
             return False
-        tol = snap_tolerance(t1, self.dt)
-        a, b = min(t0, self.grid_time(k0)) - tol, max(t1, self.grid_time(k1)) + tol
+        g0, g1 = self.grid_time(k0), self.grid_time(k1)  # (the tolerance at least each end's: what _plan searches)
+        tol = snap_tolerance(max(abs(t0), abs(t1), abs(g0), abs(g1)), self.dt)
+        a, b = min(t0, g0) - tol, max(t1, g1) + tol
         free = self._free  # (breakpoints, L, R): no breakpoint in the open interval (L, R) of that list
         if free is not None and free[0] is bps and free[1] < a and b < free[2]:
             return False
