@@ -643,6 +643,8 @@ class Stepper:
                         states[c - first + 1] = x
                     c += 1
                     if not _healthy(x):
+                        if record:  # (the rows not reached: not left as they were allocated)
+                            states[c - first + 1 :] = np.nan
                         break
                     if self.guard is not None and _finite(x) and self.guard.value(x) > 0.0:
                         self.stopped = (c - 1 - first, a, e, whole, lo, hi, list(cuts))
