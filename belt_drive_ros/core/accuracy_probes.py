@@ -186,13 +186,11 @@ class RigidSurvey:
                 time, states = stepper.run(x, t, e)
                 w = max(w, float(np.max(np.abs(states[:, 1]))))
                 peak = max(peak, float(np.max(np.abs(model.belt_torque(states, plant.input_array(time, states))))))
-                here = [s for s in pending if s <= e + snap_tolerance(e, rdt)]
-                if here:  # each stop's nearest knot (the first of two as near)
-                    j = np.clip(np.searchsorted(time, here), 1, time.size - 1)
-                    k = np.where(np.abs(time[j - 1] - here) <= np.abs(time[j] - here), j - 1, j).tolist()
-                    for s, i in zip(here, k):
-                        self.states[s] = (float(states[i, 0]), float(states[i, 1]))
-                    pending = pending[len(here) :]
+                while pending and pending[0] <= e + snap_tolerance(e, rdt):  # its nearest knot (the first of two)
+                    s = pending.pop(0)
+                    j = min(max(int(time.searchsorted(s)), 1), time.size - 1)
+                    k = j - 1 if abs(time[j - 1] - s) <= abs(time[j] - s) else j
+                    self.states[s] = (float(states[k, 0]), float(states[k, 1]))
                 x, t = states[-1], e
             if self.duration <= 0:
                 peak = abs(self._start_torque)
