@@ -262,11 +262,6 @@ def _coordinate(row: np.ndarray) -> Callable:
     return coordinate
 
 
-def _finite(x) -> bool:
-    """Every entry of state ``x`` finite."""
-    return math.isfinite(sum(x.tolist() if isinstance(x, np.ndarray) else x))
-
-
 def _healthy(x) -> bool:
     """Finite state with every speed (second half) within :data:`SPEED_LIMIT`."""
     values = x.tolist() if isinstance(x, np.ndarray) else list(x)
@@ -646,7 +641,7 @@ class Stepper:
                         if record:  # (the rows not reached: not left as they were allocated)
                             states[c - first + 1 :] = np.nan
                         break
-                    if self.guard is not None and _finite(x) and self.guard.value(x) > 0.0:
+                    if self.guard is not None and self.guard.value(x) > 0.0:  # (x healthy: finite)
                         self.stopped = (c - 1 - first, a, e, whole, lo, hi, list(cuts))
                         break
                     if progress and (c - first) % chunk == 0:
