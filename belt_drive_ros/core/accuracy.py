@@ -324,31 +324,34 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     :class:`~belt_drive_ros.core.slip.HybridStepper` (it holds no step length: the reruns share it).
     """
     from .errors import SimulationDivergedError
-    from .slip import SlippingBeltModel
     from .slip_run import SlippingSimulator, _joined
 
-    event_times = sorted(float(t) for t in event_times)
     order = method_class(method).order
-    if not event_times or order is None:
+    if not len(event_times) or order is None:
         return 0.0
+    first, last = min(event_times), max(event_times)
     time = np.asarray(time, dtype=float)
-    model, r3 = SlippingBeltModel(params), params.r_3
-
-    def outputs(ys, m, s):
-        return np.column_stack([ys[:, 2], r3 * model.force(ys, m, s)])
-
-    run_out = outputs(np.asarray(states), np.asarray(modes), np.asarray(sigmas))
-    peak = np.max(np.abs(run_out), axis=0)
     span = WINDOW_STEPS * dt
-    k0 = 2 * max(0, math.floor((event_times[0] - span) / (2.0 * dt)))  # on both grids
+    k0 = 2 * max(0, math.floor((float(first) - span) / (2.0 * dt)))  # on both grids
     t0 = k0 * dt
-    t1 = min(event_times[-1] + span, float(time[-1]))
+    t1 = min(float(last) + span, float(time[-1]))
     i = int(np.searchsorted(time, t0 + 1e-9 * dt, side="right")) - 1  # the run's last sample at t0
     if i < 0 or abs(time[i] - t0) > 1e-9 * dt or t1 <= t0 + dt:
         return 0.0
+    reruns = [SlippingSimulator(params, drive, load, method, 2.0 * dt, method_options, check_stability=False, lazy=True)]
+    model, r3 = reruns[0].model, params.r_3  # (the scene's shared slipping model)
+
+    def outputs(ys, m, s):  # (2, samples): each signal's samples contiguous (numpy reduces them ~25x faster)
+        return np.stack([ys[:, 2], r3 * model.force(ys, m, s)])
+
+    states = np.asarray(states)
+    peak = np.array([np.max(np.abs(states[:, 2])), np.max(np.abs(r3 * model.force(states, modes, sigmas)))])  # over the run
+    j = int(np.searchsorted(time, t1 + dt, side="right"))  # the run's samples the reruns can meet (one past t1)
+    run_t, run_out = time[i:j], outputs(states[i:j], np.asarray(modes)[i:j], np.asarray(sigmas)[i:j])
     for h, factor in ((2.0 * dt, 1.0 / (2.0**order - 1.0)), (dt / 2.0, 2.0**order / (2.0**order - 1.0))):
         # lazy: each phase's stepper is built when the rerun first enters that phase
-        sim = SlippingSimulator(params, drive, load, method, h, method_options, check_stability=False, lazy=True)
+        sim = reruns.pop() if reruns else SlippingSimulator(params, drive, load, method, h, method_options,
+                                                              check_stability=False, lazy=True)  # fmt: skip
         sim._hybrid = hybrid
         state = sim._native(np.asarray(states[i], dtype=float), int(modes[i]), float(sigmas[i]))
         pieces = [(np.array([t0]), sim.state_y(state)[None, :], state.mode, state.sigma)]
@@ -361,12 +364,12 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
         out = outputs(yr, mr, sr)
         if not np.all(np.isfinite(out)):
             continue
-        lo, hi = (time, tr) if h > dt else (tr, time)  # match the coarser run's grid times in the finer one
+        lo, hi = (run_t, tr) if h > dt else (tr, run_t)  # match the coarser run's grid times in the finer one
         idx = np.clip(np.searchsorted(hi, lo - 1e-9 * dt), 0, hi.size - 1)
         same = (np.abs(hi[idx] - lo) <= 1e-9 * dt + 8.0 * np.spacing(np.abs(lo) + dt)) & (lo >= t0) & (lo <= t1)
-        a = (run_out if h > dt else out)[same]
-        b = (out if h > dt else run_out)[idx[same]]
-        err = factor * np.max(np.abs(a - b), axis=0)
+        a = (run_out if h > dt else out)[:, same]
+        b = (out if h > dt else run_out)[:, idx[same]]
+        err = factor * np.max(np.abs(a - b), axis=1)
         return float(np.max(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0)))
     return math.inf
 

@@ -72,22 +72,31 @@ def stage_gains(integrator, K: np.ndarray) -> tuple[np.ndarray, list]:
     n, m = integrator.A.shape[0], K.shape[0]
     s = len(scheme.nodes)
 
-    def run(x, v, stage):
+    def run(x, V):  # V[i]: the value of v at stage i (columns as x's)
         calls = [0]
 
         def inputs(t, y):
             i = min(calls[0], s - 1)
             calls[0] += 1
-            return K @ y + (v if i == stage else 0.0 * v)
+            return K @ y + V[i]
 
         return _scheme.step(scheme, h, 0.0, x, inputs, integrator.name)
 
-    if not scheme.implicit:
-        M = run(np.eye(n), np.zeros((m, n)), -1)
-        gains = [(float(scheme.nodes[i]), run(np.zeros((n, m)), np.eye(m), i)) for i in range(s)]
-    else:
-        M = np.column_stack([run(e, np.zeros(m), -1) for e in np.eye(n)])
-        gains = [(float(scheme.nodes[i]), np.column_stack([run(np.zeros(n), e, i) for e in np.eye(m)])) for i in range(s)]
+    if not scheme.implicit:  # one step of n + s m columns: M's, then each stage's gain (the sums run per column)
+        X = np.zeros((n, n + s * m))
+        X[:, :n] = np.eye(n)
+        V = np.zeros((s, m, n + s * m))
+        for i in range(s):
+            V[i, :, n + i * m : n + (i + 1) * m] = np.eye(m)
+        out = run(X, V)
+        return out[:, :n], [(float(scheme.nodes[i]), out[:, n + i * m : n + (i + 1) * m]) for i in range(s)]
+    zero = np.zeros((s, m))
+    M = np.column_stack([run(e, zero) for e in np.eye(n)])
+    gains = []
+    for i in range(s):
+        V = np.zeros((m, s, m))
+        V[:, i, :] = np.eye(m)
+        gains.append((float(scheme.nodes[i]), np.column_stack([run(np.zeros(n), V[j]) for j in range(m)])))
     return M, gains
 
 
@@ -142,7 +151,10 @@ def orbit_error(Ma: np.ndarray, Ea: np.ndarray, n: int, rows: np.ndarray, n_step
             return inf, inf
         # (method/exact, ..., row, samples, inputs)
         y = np.matmul(rows, orbit[:, :n]).reshape((2,) + lead + (rows.shape[0], -1, m))
-        return np.max(np.abs(y[0] - y[1]), axis=-2), np.max(np.abs(y[1]), axis=-2)
+        # the samples made the last axis (contiguous) before the reductions over them: numpy reduces a short last
+        # axis ~25x slower than a long one (the same maxima)
+        y = np.ascontiguousarray(np.swapaxes(y, -1, -2))
+        return np.max(np.abs(y[0] - y[1]), axis=-1), np.max(np.abs(y[1]), axis=-1)
 
 
 def harmonic_response_errors(integrator, A, B, rows, K, n_steps: int, omegas, channels, stage=None,
@@ -168,19 +180,25 @@ def harmonic_response_errors(integrator, A, B, rows, K, n_steps: int, omegas, ch
     n, m = B.shape
     omegas = np.asarray(omegas, dtype=float)
     pick, channels = np.arange(omegas.size), np.asarray(channels, dtype=int)
+    f = omegas.size
     M, gains = stage if stage is not None else stage_gains(integrator, K)
     G = sum(Gi * np.exp(1j * omegas * c * h)[:, None, None] for c, Gi in gains)
     A_cl = A + B @ K
     E = scipy.linalg.expm(h * A_cl) if E_cl is None else E_cl
-    F = exact_forcing_maps(A_cl, B, E, h, omegas)
     z = np.exp(1j * omegas * h)
     I = np.eye(n)
+    # j omega I - A_cl (the exact forcing map's solve) and the two resolvents z I - M, z I - E: one batched condition
+    S = np.concatenate([1j * omegas[:, None, None] * I - A_cl, z[:, None, None] * I - M, z[:, None, None] * I - E])
     with np.errstate(all="ignore"):
-        resolvents = [z[:, None, None] * I - M, z[:, None, None] * I - E]
-        closed = np.all(np.isfinite(M)) and all(np.all(np.linalg.cond(R) < FORCING_CONDITION_LIMIT) for R in resolvents)
-    if not closed:  # step the augmented maps ([[M, G], [0, z I]] on [x; v])
+        if np.all(np.isfinite(M)):
+            cond = np.linalg.cond(S)
+        else:  # (the method's map blew up: its resolvent is not solved)
+            cond = np.concatenate([np.linalg.cond(S[:f]), np.full(2 * f, np.inf)])
+    F = exact_forcing_maps(A_cl, B, E, h, omegas, cond[:f] < FORCING_CONDITION_LIMIT)
+    resolvents = [S[f : 2 * f], S[2 * f :]]
+    if not np.all(cond[f:] < FORCING_CONDITION_LIMIT):  # step the augmented maps ([[M, G], [0, z I]] on [x; v])
         zm = z[:, None, None] * np.eye(m)
-        Ma = np.zeros((omegas.size, n + m, n + m), dtype=complex)
+        Ma = np.zeros((f, n + m, n + m), dtype=complex)
         Ea = np.zeros_like(Ma)
         Ma[:, :n, :n], Ma[:, :n, n:], Ma[:, n:, n:] = M, G, zm
         Ea[:, :n, :n], Ea[:, :n, n:], Ea[:, n:, n:] = E, F, zm
@@ -189,7 +207,6 @@ def harmonic_response_errors(integrator, A, B, rows, K, n_steps: int, omegas, ch
     head = min(n_steps, ORBIT_SAMPLES // 2)
     stride = max(1, math.ceil((n_steps - head) / (ORBIT_SAMPLES // 2)))
     tail = (n_steps - head) // stride if n_steps > head else 0
-    k = np.concatenate([np.arange(1, head + 1), head + stride * np.arange(1, tail + 1)]).astype(float)
     r = rows.shape[0]
     with np.errstate(all="ignore"):
         P = np.stack([M.T, E.T])  # C M^k = ((M^T)^k C^T)^T
@@ -198,18 +215,28 @@ def harmonic_response_errors(integrator, A, B, rows, K, n_steps: int, omegas, ch
         if tail > 0:
             CX = np.concatenate([CX, orbits(np.linalg.matrix_power(P, stride), CX[:, :, -r:], tail)], axis=2)
         if not np.all(np.isfinite(CX)):
-            inf = np.full((omegas.size, r), np.inf)
+            inf = np.full((f, r), np.inf)
             return inf, inf
-        CX = CX.reshape(2, n, -1, r).transpose(0, 2, 3, 1).reshape(2, -1, n)  # (method/exact, samples x rows, state)
-        zk = np.exp(1j * np.outer(omegas * h, k))  # (frequencies, samples)
-        y = []
+        # (method/exact, state, rows x samples): each row's samples contiguous (reduced over as orbit_error's)
+        CX = CX.reshape(2, n, -1, r).transpose(0, 1, 3, 2).reshape(2, n, -1)
+        # z^k at the sampled k (1 .. head, then head + stride j): running products (rounding ~k ulp, far below
+        # what is compared)
+        zk = np.empty((f, head + tail), dtype=complex)
+        zk[:, :head] = np.cumprod(np.broadcast_to(z[:, None], (f, head)), axis=1)
+        if tail > 0:
+            zk[:, head:] = zk[:, head - 1 : head] * np.cumprod(np.broadcast_to((z**stride)[:, None], (f, tail)), axis=1)
+        zr, zi = zk.real[:, None, :], zk.imag[:, None, :]
+        y = []  # (real, imaginary) parts of y_k = z^k C P - (C M^k) P, each (frequencies, rows, samples)
         for R, Gm, CMk in ((resolvents[0], G, CX[0]), (resolvents[1], F, CX[1])):
             Pm = np.linalg.solve(R, Gm[pick, :, channels][:, :, None])[:, :, 0]  # (frequencies, n): the channel's column
-            # (frequencies, samples, rows); Pm @ CMk^T is (CMk @ Pm^T)^T without the transposed copy (the same floats)
-            y.append(zk[:, :, None] * (Pm @ rows.T)[:, None, :] - (Pm @ CMk.T).reshape(omegas.size, -1, r))
-        err, peak = np.max(np.abs(y[0] - y[1]), axis=1), np.max(np.abs(y[1]), axis=1)
+            a = (Pm @ rows.T)[:, :, None]
+            y.append((zr * a.real - zi * a.imag - (Pm.real @ CMk).reshape(f, r, -1),
+                      zr * a.imag + zi * a.real - (Pm.imag @ CMk).reshape(f, r, -1)))  # fmt: skip
+        (mr, mi), (er, ei) = y
+        err = np.sqrt(np.max(np.square(mr - er) + np.square(mi - ei), axis=2))
+        peak = np.sqrt(np.max(np.square(er) + np.square(ei), axis=2))
         if not (np.all(np.isfinite(err)) and np.all(np.isfinite(peak))):  # a non-finite sample reaches its maximum
-            inf = np.full((omegas.size, r), np.inf)
+            inf = np.full((f, r), np.inf)
             return inf, inf
         return err, peak
 
@@ -230,14 +257,18 @@ def exact_forcing_map(A_cl: np.ndarray, B: np.ndarray, E: np.ndarray, h: float, 
     return exact_forcing_maps(A_cl, B, E, h, np.array([float(omega)]))[0]
 
 
-def exact_forcing_maps(A_cl: np.ndarray, B: np.ndarray, E: np.ndarray, h: float, omegas: np.ndarray) -> np.ndarray:
-    """:func:`exact_forcing_map` (frequencies, n, m) for every ``omega`` of ``omegas`` at once (the solves batched)."""
+def exact_forcing_maps(A_cl: np.ndarray, B: np.ndarray, E: np.ndarray, h: float, omegas: np.ndarray,
+                       solvable=None) -> np.ndarray:
+    """:func:`exact_forcing_map` (frequencies, n, m) for every ``omega`` of ``omegas`` at once (the solves batched;
+    ``solvable``: per frequency, the condition of ``j omega I - A_cl`` below :data:`FORCING_CONDITION_LIMIT`,
+    when already known)."""
     n, m = B.shape
     I = np.eye(n)
     S = 1j * omegas[:, None, None] * I - A_cl
     rhs = (np.exp(1j * omegas * h)[:, None, None] * I - E) @ B
     F = np.empty((omegas.size, n, m), dtype=complex)
-    solvable = np.linalg.cond(S) < FORCING_CONDITION_LIMIT
+    if solvable is None:
+        solvable = np.linalg.cond(S) < FORCING_CONDITION_LIMIT
     if np.any(solvable):
         F[solvable] = np.linalg.solve(S[solvable], rhs[solvable])
     for k in np.flatnonzero(~solvable):

@@ -51,8 +51,8 @@ from .stability import require_stable
 from .stage_scheme import Guard
 from .stepper import SPEED_LIMIT, Plant, Stepper, is_shared, shared_plant, snap_tolerance
 
-#: grid steps per stepper call of a recorded run: the first after an event, and the most (doubling in between)
-WINDOW_FIRST, WINDOW_MAX = 128, 4096
+#: grid steps per window of :meth:`SlippingSimulator.windows` (memory is bounded by a window, not the run)
+RUN_WINDOW_STEPS = 16384
 
 
 class _SlipPhase:
@@ -186,7 +186,6 @@ class SlippingSimulator:
         self.events: list = []
         self._event_rows = np.zeros((1024, 8))
         self._free_cache: dict = {}
-        self._window = WINDOW_FIRST
         #: a list to receive ``(times, xs)`` of the recorded pieces run on the flexible model itself (no slip
         #: so far), in its own coordinates: the states a flexible-model run gives, bit for bit (None: not kept)
         self.flexible_record: list | None = None
@@ -500,15 +499,7 @@ class SlippingSimulator:
                 state, t = self._native(y, mode, sigma), e
                 continue
             st = self.phase_stepper((state.kind, state.sigma) if state.kind in ("slip", "mass") else state.kind)
-            t_end = t1
-            # a window: what a phase computes past its event is thrown away (a compiled loop stops at the event
-            # itself, so it runs to t1 at once)
-            if record is not None and st.loop is None:
-                k = math.floor((t - st.origin) / self.dt) + self._window
-                self._window = min(2 * self._window, WINDOW_MAX)
-                if st.grid_time(k) < t1 - snap_tolerance(t1, self.dt):
-                    t_end = st.grid_time(k)
-            times, xs = st.run(state.x, t, t_end)
+            times, xs = st.run(state.x, t, t1)  # (it stops at the step its guard fires in)
             stop = st.stopped
             n = len(times) - 1 if stop is None else stop[0]
             if record is not None and n:
@@ -520,7 +511,6 @@ class SlippingSimulator:
                 continue
             # the guard fired in step j: the hybrid stepper redoes it with the event located
             j, a, e, whole, lo, hi, cuts = stop
-            self._window = WINDOW_FIRST
             y0 = self.ys(state.kind, xs[j : j + 1])[0]
             y1 = None if cuts else self.ys(state.kind, xs[j + 1 : j + 2])[0]
             y, mode, sigma = self.hybrid.advance(a, e, y0, state.mode, state.sigma, cuts, events, self.dt if whole else None,
@@ -552,14 +542,14 @@ class SlippingSimulator:
         The first window starts with the sample at ``t0``; each later one
         starts after the previous one's last sample, so the windows put
         together are :meth:`run`'s arrays. A window spans ``window_steps``
-        grid steps (default ``4 * WINDOW_MAX``, with ``progress`` about 1 %
+        grid steps (default :data:`RUN_WINDOW_STEPS`, with ``progress`` about 1 %
         of the run, at least 64 steps) plus the event samples in
         it: memory is bounded by the window, not the run. ``events``
         receives the mode switches.
         """
         self.origin = float(t0)
         t1 = float(t0) + float(duration)
-        steps = int(window_steps or 4 * WINDOW_MAX)
+        steps = int(window_steps or RUN_WINDOW_STEPS)
         if progress and not window_steps:  # report about every 1 % (as the stepper's chunks do), at least every 64 steps
             steps = min(steps, max(64, int(float(duration) / self.dt) // 100))
         state = self.initial(y0, t0)
