@@ -324,6 +324,7 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     :class:`~belt_drive_ros.core.slip.HybridStepper` (it holds no step length: the reruns share it).
     """
     from .errors import SimulationDivergedError
+    from .slip import SlippingBeltModel
     from .slip_run import SlippingSimulator, _joined
 
     order = method_class(method).order
@@ -338,8 +339,7 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     i = int(np.searchsorted(time, t0 + 1e-9 * dt, side="right")) - 1  # the run's last sample at t0
     if i < 0 or abs(time[i] - t0) > 1e-9 * dt or t1 <= t0 + dt:
         return 0.0
-    reruns = [SlippingSimulator(params, drive, load, method, 2.0 * dt, method_options, check_stability=False, lazy=True)]
-    model, r3 = reruns[0].model, params.r_3  # (the scene's shared slipping model)
+    model, r3 = hybrid.model if hybrid is not None else SlippingBeltModel(params), params.r_3
 
     def outputs(ys, m, s):  # (2, samples): each signal's samples contiguous (numpy reduces them ~25x faster)
         return np.stack([ys[:, 2], r3 * model.force(ys, m, s)])
@@ -350,8 +350,7 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     run_t, run_out = time[i:j], outputs(states[i:j], np.asarray(modes)[i:j], np.asarray(sigmas)[i:j])
     for h, factor in ((2.0 * dt, 1.0 / (2.0**order - 1.0)), (dt / 2.0, 2.0**order / (2.0**order - 1.0))):
         # lazy: each phase's stepper is built when the rerun first enters that phase
-        sim = reruns.pop() if reruns else SlippingSimulator(params, drive, load, method, h, method_options,
-                                                              check_stability=False, lazy=True)  # fmt: skip
+        sim = SlippingSimulator(params, drive, load, method, h, method_options, check_stability=False, lazy=True)
         sim._hybrid = hybrid
         state = sim._native(np.asarray(states[i], dtype=float), int(modes[i]), float(sigmas[i]))
         pieces = [(np.array([t0]), sim.state_y(state)[None, :], state.mode, state.sigma)]

@@ -90,14 +90,10 @@ def stage_gains(integrator, K: np.ndarray) -> tuple[np.ndarray, list]:
             V[i, :, n + i * m : n + (i + 1) * m] = np.eye(m)
         out = run(X, V)
         return out[:, :n], [(float(scheme.nodes[i]), out[:, n + i * m : n + (i + 1) * m]) for i in range(s)]
-    zero = np.zeros((s, m))
-    M = np.column_stack([run(e, zero) for e in np.eye(n)])
-    gains = []
-    for i in range(s):
-        V = np.zeros((m, s, m))
-        V[:, i, :] = np.eye(m)
-        gains.append((float(scheme.nodes[i]), np.column_stack([run(np.zeros(n), V[j]) for j in range(m)])))
-    return M, gains
+    M = np.column_stack([run(e, np.zeros((s, m))) for e in np.eye(n)])  # implicit: column by column (own iterations)
+    at = np.arange(s)[:, None]
+    return M, [(float(scheme.nodes[i]), np.column_stack([run(np.zeros(n), np.where(at == i, e, 0.0)) for e in np.eye(m)]))
+               for i in range(s)]  # fmt: skip
 
 
 def orbits(P: np.ndarray, X0: np.ndarray, count: int) -> np.ndarray:
@@ -151,8 +147,7 @@ def orbit_error(Ma: np.ndarray, Ea: np.ndarray, n: int, rows: np.ndarray, n_step
             return inf, inf
         # (method/exact, ..., row, samples, inputs)
         y = np.matmul(rows, orbit[:, :n]).reshape((2,) + lead + (rows.shape[0], -1, m))
-        # the samples made the last axis (contiguous) before the reductions over them: numpy reduces a short last
-        # axis ~25x slower than a long one (the same maxima)
+        # samples made the last, contiguous axis: numpy reduces a short last axis ~25x slower than a long one
         y = np.ascontiguousarray(np.swapaxes(y, -1, -2))
         return np.max(np.abs(y[0] - y[1]), axis=-1), np.max(np.abs(y[1]), axis=-1)
 
@@ -189,11 +184,8 @@ def harmonic_response_errors(integrator, A, B, rows, K, n_steps: int, omegas, ch
     I = np.eye(n)
     # j omega I - A_cl (the exact forcing map's solve) and the two resolvents z I - M, z I - E: one batched condition
     S = np.concatenate([1j * omegas[:, None, None] * I - A_cl, z[:, None, None] * I - M, z[:, None, None] * I - E])
-    with np.errstate(all="ignore"):
-        if np.all(np.isfinite(M)):
-            cond = np.linalg.cond(S)
-        else:  # (the method's map blew up: its resolvent is not solved)
-            cond = np.concatenate([np.linalg.cond(S[:f]), np.full(2 * f, np.inf)])
+    with np.errstate(all="ignore"):  # (a method's map that blew up: its resolvents are not solved)
+        cond = np.linalg.cond(S) if np.all(np.isfinite(M)) else np.r_[np.linalg.cond(S[:f]), np.full(2 * f, np.inf)]
     F = exact_forcing_maps(A_cl, B, E, h, omegas, cond[:f] < FORCING_CONDITION_LIMIT)
     resolvents = [S[f : 2 * f], S[2 * f :]]
     if not np.all(cond[f:] < FORCING_CONDITION_LIMIT):  # step the augmented maps ([[M, G], [0, z I]] on [x; v])
@@ -219,8 +211,7 @@ def harmonic_response_errors(integrator, A, B, rows, K, n_steps: int, omegas, ch
             return inf, inf
         # (method/exact, state, rows x samples): each row's samples contiguous (reduced over as orbit_error's)
         CX = CX.reshape(2, n, -1, r).transpose(0, 1, 3, 2).reshape(2, n, -1)
-        # z^k at the sampled k (1 .. head, then head + stride j): running products (rounding ~k ulp, far below
-        # what is compared)
+        # z^k at the sampled k (1 .. head, then head + stride j): running products (rounding ~k ulp)
         zk = np.empty((f, head + tail), dtype=complex)
         zk[:, :head] = np.cumprod(np.broadcast_to(z[:, None], (f, head)), axis=1)
         if tail > 0:
@@ -260,15 +251,13 @@ def exact_forcing_map(A_cl: np.ndarray, B: np.ndarray, E: np.ndarray, h: float, 
 def exact_forcing_maps(A_cl: np.ndarray, B: np.ndarray, E: np.ndarray, h: float, omegas: np.ndarray,
                        solvable=None) -> np.ndarray:
     """:func:`exact_forcing_map` (frequencies, n, m) for every ``omega`` of ``omegas`` at once (the solves batched;
-    ``solvable``: per frequency, the condition of ``j omega I - A_cl`` below :data:`FORCING_CONDITION_LIMIT`,
-    when already known)."""
+    ``solvable``: per frequency, ``j omega I - A_cl`` conditioned below :data:`FORCING_CONDITION_LIMIT`, if known)."""
     n, m = B.shape
     I = np.eye(n)
     S = 1j * omegas[:, None, None] * I - A_cl
     rhs = (np.exp(1j * omegas * h)[:, None, None] * I - E) @ B
     F = np.empty((omegas.size, n, m), dtype=complex)
-    if solvable is None:
-        solvable = np.linalg.cond(S) < FORCING_CONDITION_LIMIT
+    solvable = np.linalg.cond(S) < FORCING_CONDITION_LIMIT if solvable is None else solvable
     if np.any(solvable):
         F[solvable] = np.linalg.solve(S[solvable], rhs[solvable])
     for k in np.flatnonzero(~solvable):
