@@ -149,22 +149,27 @@ def test_a_run_within_the_capstan_limit_never_packs_the_hybrid_loop(monkeypatch)
 
 
 def test_a_scene_that_slips_builds_its_phases_once_and_reruns_bit_for_bit(monkeypatch):
-    # the slipping model, its phases' plants and the event arrays are read-only: the run, its accuracy check's rerun
-    # at 2 dt and the next run of the same scene share them (slip_run._shared_phases); every guard still runs
+    # the slipping model, its phases' plants, their steppers (at dt and the rerun's 2 dt), the packed hybrid-loop
+    # arrays and the event arrays are read-only: the run, its accuracy check's rerun and the next run of the same
+    # scene share them (slip_run._shared_phases, SlippingSimulator._built); every guard still runs
     from belt_drive_ros.core import kernel_slip, slip_run
 
     scene = load_scene("truck_compressor").with_overrides(duration=0.8)
     first = simulate(scene)
-    built, packed = [], []
+    built, packed, steppers, loops = [], [], [], []
     monkeypatch.setattr(slip_run, "Plant", lambda *a, **k: (built.append(a[0]), Plant(*a, **k))[1])
+    monkeypatch.setattr(slip_run, "Stepper", lambda *a, **k: (steppers.append(a[0]), Stepper(*a, **k))[1])
     pack = kernel_slip.pack
     monkeypatch.setattr(kernel_slip, "pack", lambda *a: (packed.append(a[1]), pack(*a))[1])
+    pack_loops = slip_run.SlippingSimulator._pack
+    monkeypatch.setattr(slip_run.SlippingSimulator, "_pack", lambda self, a: (loops.append(a), pack_loops(self, a))[1])
     again = simulate(scene)
     assert again.model == "slipping" and again.events == first.events and built == [] and packed == []
+    assert steppers == [] and loops == []
     assert np.array_equal(again.states, first.states) and again.accuracy == first.accuracy
     # another parameter set: its own phases
     simulate(scene.with_overrides(params=dataclasses.replace(scene.params, mu=0.45)))
-    assert built and len(packed) == 1
+    assert built and len(packed) == 1 and steppers and loops
 
 
 @pytest.mark.parametrize("name, method, guarded", [

@@ -36,6 +36,7 @@ from the last tick to the next; each step is computed the same way in both
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -146,7 +147,8 @@ class SlippingSimulator:
     integrator : a flexible-model integrator of ``method`` and ``dt`` to reuse (the node's).
     lazy : build the stick and slip phases' steppers and the hybrid stepper when a run first needs
         them (offline runs: a scene within the limit never does); False (the node) builds them
-        here, so no tick pays for a set-up when the belt first slips.
+        here, so no tick pays for a set-up when the belt first slips. A lazy simulator of a shared
+        scene (:func:`_shared_phases`) without ``integrator`` takes its steppers from :data:`_STEPPERS`.
     """
 
     def __init__(self, params, drive, load, method="etd2", dt=1e-3, method_options=None, check_stability=True,
@@ -164,7 +166,10 @@ class SlippingSimulator:
         self._M_inv = np.linalg.inv(self._M)
         Y_flex = np.vstack([self._M, np.zeros((1, 4))])  # y of a flexible state (s = 0)
         stick = m.guard(STICK)
-        self.stepper = Stepper(self.plant, method, self.dt, self.method_options, origin, integrator, _mapped(stick, Y_flex))
+        self._share = lazy and integrator is None
+        self.stepper = self._built("flexible", lambda: Stepper(self.plant, method, self.dt, self.method_options, origin,
+                                                               integrator, _mapped(stick, Y_flex)))  # fmt: skip
+        self.stepper.origin, self.stepper.breakpoints = float(origin), self.plant.breakpoints  # (a shared one's too)
         self.integrator = self.stepper.integrator
         self.stability = require_stable(self.flexible.A, self.flexible.B, method, dt) if check_stability else None
         self._hybrid: EventStep | None = None
@@ -231,9 +236,18 @@ class SlippingSimulator:
         """The stepper of phase ``key`` (``"flexible"``, ``"stick"``, ``("slip", sigma)``, ``("mass", sigma)``), built once."""
         st = self._steppers.get(key)
         if st is None:
-            st = self._steppers[key] = self._factories[key]()
+            st = self._steppers[key] = self._built(key, self._factories[key])
             st.origin, st.breakpoints = self.stepper.origin, list(self.stepper.breakpoints)
         return st
+
+    def _built(self, key, build) -> Stepper:
+        """``build()``: phase ``key``'s stepper; a lazy simulator's from :data:`_STEPPERS` (one per shared scene,
+        phase, method, step, options and thread: the run, its reruns and the next runs take the same; each sets
+        its origin and breakpoints, and every run starts from the state it is given)."""
+        if not self._share:
+            return build()
+        extra = (key, self.method, self.dt, repr(sorted(self.method_options.items())), threading.get_ident())
+        return built_once(_STEPPERS, _STEPPERS_SIZE, (self._shared,), build, extra, keep=lambda _: is_shared(self.plant))
 
     def _sibling(self, key):
         """The integrator of phase ``key`` when built (the two slip directions share one), else None."""
@@ -454,10 +468,20 @@ class SlippingSimulator:
         cached = self.__dict__.get("_packed")
         if cached is not None and cached[0] == built:
             return cached[1]
+        arrays = self.hybrid._kernel
+        if arrays is None or not self._share:
+            packed = self._pack(arrays)
+        else:  # the same steppers and event-step arrays pack alike: once for every lazy simulator of the scene
+            packed = built_once(_PACKED, _STEPPERS_SIZE, (*self._steppers.values(), arrays[0]), lambda: self._pack(arrays),
+                                built, keep=lambda _: is_shared(self.plant))  # fmt: skip
+        self._packed = (built, packed)
+        return packed
+
+    def _pack(self, arrays):
+        """:meth:`_compiled`'s arrays of the steppers built so far and the event step's ``arrays``, or None."""
         from . import kernel_slip as ks
 
         packed = None
-        arrays = self.hybrid._kernel
         loops = {key: st.loop for key, st in self._steppers.items()}
         base = loops.get("flexible")
         if arrays is not None and base is not None and all(
@@ -482,7 +506,6 @@ class SlippingSimulator:
             Yflex[0], Yflex[1, 1], Yflex[2], Yflex[3] = W[0], 1.0, W[1], W[3]
             packed = (have, np.concatenate(reals), np.concatenate(ints), offsets, Yflex,
                       np.ascontiguousarray(self._M_inv), arrays)  # fmt: skip
-        self._packed = (built, packed)
         return packed
 
     def _advance_steps(self, state: SlipState, t0: float, t1: float, record=None, events=None) -> SlipState:
@@ -584,6 +607,12 @@ class SlippingSimulator:
         return np.stack([d, l], axis=-1).astype(float)
 
 
+#: the phase steppers of lazy simulators (:meth:`SlippingSimulator._built`); the oldest of more than
+#: :data:`_STEPPERS_SIZE` is dropped
+_STEPPERS: dict = {}
+_STEPPERS_SIZE = 64
+#: their packed arrays (:meth:`SlippingSimulator._compiled`), by the steppers built so far
+_PACKED: dict = {}
 #: per (parameter set, drive, load) objects: the slipping model, its phases' plants and the packed event-step arrays
 #: per method (:func:`_shared_phases`); the oldest of more than :data:`_SHARED_SIZE` is dropped
 _SHARED: dict = {}
