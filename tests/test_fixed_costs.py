@@ -165,7 +165,7 @@ def test_a_scene_that_slips_builds_its_phases_once_and_reruns_bit_for_bit(monkey
     monkeypatch.setattr(slip_run.SlippingSimulator, "_pack", lambda self, a: (loops.append(a), pack_loops(self, a))[1])
     again = simulate(scene)
     assert again.model == "slipping" and again.events == first.events and built == [] and packed == []
-    assert steppers == [] and loops == []
+    assert steppers == [] and loops == [] and again.accuracy.slip_run_error == first.accuracy.slip_run_error
     assert np.array_equal(again.states, first.states) and again.accuracy == first.accuracy
     # another parameter set: its own phases
     simulate(scene.with_overrides(params=dataclasses.replace(scene.params, mu=0.45)))

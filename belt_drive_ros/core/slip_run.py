@@ -147,8 +147,8 @@ class SlippingSimulator:
     integrator : a flexible-model integrator of ``method`` and ``dt`` to reuse (the node's).
     lazy : build the stick and slip phases' steppers and the hybrid stepper when a run first needs
         them (offline runs: a scene within the limit never does); False (the node) builds them
-        here, so no tick pays for a set-up when the belt first slips. A lazy simulator of a shared
-        scene (:func:`_shared_phases`) without ``integrator`` takes its steppers from :data:`_STEPPERS`.
+        here, so no tick pays for a set-up when the belt first slips. A lazy one without ``integrator``
+        shares its steppers with the scene's other lazy simulators (:meth:`_built`).
     """
 
     def __init__(self, params, drive, load, method="etd2", dt=1e-3, method_options=None, check_stability=True,
@@ -240,14 +240,16 @@ class SlippingSimulator:
             st.origin, st.breakpoints = self.stepper.origin, list(self.stepper.breakpoints)
         return st
 
-    def _built(self, key, build) -> Stepper:
-        """``build()``: phase ``key``'s stepper; a lazy simulator's from :data:`_STEPPERS` (one per shared scene,
-        phase, method, step, options and thread: the run, its reruns and the next runs take the same; each sets
-        its origin and breakpoints, and every run starts from the state it is given)."""
+    def _built(self, key, build):
+        """``build()`` (phase ``key``'s stepper, or ``("loops", ...)``: the packed loops); a lazy simulator's kept
+        in the scene's :func:`_shared_phases` per method, step, options and thread (the run, its reruns and the next
+        runs take the same; each sets a stepper's origin and breakpoints, and every run starts from its state)."""
         if not self._share:
             return build()
-        extra = (key, self.method, self.dt, repr(sorted(self.method_options.items())), threading.get_ident())
-        return built_once(_STEPPERS, _STEPPERS_SIZE, (self._shared,), build, extra, keep=lambda _: is_shared(self.plant))
+        k = (key, self.method, self.dt, repr(sorted(self.method_options.items())), threading.get_ident())
+        if k not in self._shared:
+            self._shared[k] = build()
+        return self._shared[k]
 
     def _sibling(self, key):
         """The integrator of phase ``key`` when built (the two slip directions share one), else None."""
@@ -468,14 +470,9 @@ class SlippingSimulator:
         cached = self.__dict__.get("_packed")
         if cached is not None and cached[0] == built:
             return cached[1]
-        arrays = self.hybrid._kernel
-        if arrays is None or not self._share:
-            packed = self._pack(arrays)
-        else:  # the same steppers and event-step arrays pack alike: once for every lazy simulator of the scene
-            packed = built_once(_PACKED, _STEPPERS_SIZE, (*self._steppers.values(), arrays[0]), lambda: self._pack(arrays),
-                                built, keep=lambda _: is_shared(self.plant))  # fmt: skip
-        self._packed = (built, packed)
-        return packed
+        arrays = self.hybrid._kernel  # (the event step: built at the first call)
+        self._packed = (built, self._built(("loops", built), lambda: self._pack(arrays)))
+        return self._packed[1]
 
     def _pack(self, arrays):
         """:meth:`_compiled`'s arrays of the steppers built so far and the event step's ``arrays``, or None."""
@@ -607,22 +604,17 @@ class SlippingSimulator:
         return np.stack([d, l], axis=-1).astype(float)
 
 
-#: the phase steppers of lazy simulators (:meth:`SlippingSimulator._built`); the oldest of more than
-#: :data:`_STEPPERS_SIZE` is dropped
-_STEPPERS: dict = {}
-_STEPPERS_SIZE = 64
-#: their packed arrays (:meth:`SlippingSimulator._compiled`), by the steppers built so far
-_PACKED: dict = {}
-#: per (parameter set, drive, load) objects: the slipping model, its phases' plants and the packed event-step arrays
-#: per method (:func:`_shared_phases`); the oldest of more than :data:`_SHARED_SIZE` is dropped
+#: per (parameter set, drive, load) objects: the slipping model, its phases' plants, the packed event-step arrays
+#: per method and the lazy simulators' steppers (:func:`_shared_phases`); the oldest of more than :data:`_SHARED_SIZE` is dropped
 _SHARED: dict = {}
 _SHARED_SIZE = 8
 
 
 def _shared_phases(params, drive, load, plant) -> dict:
     """The read-only parts of one scene's slipping engine, ``{"model": SlippingBeltModel, phase key: Plant,
-    ("pack", method): event-step arrays}``, filled as simulators need them and shared by all of them (the run, its
-    rerun at 2 dt, the next run): matrices and profile data, never a stepper, a state or a verdict. Kept on the rule
+    ("pack", method): event-step arrays}`` and the steppers of :meth:`SlippingSimulator._built`, filled as simulators
+    need them and shared by all of them (the run, its rerun at 2 dt, the next run): matrices, profile data and
+    steppers, never a state or a verdict. Kept on the rule
     of :func:`~belt_drive_ros.core.stepper.shared_plant` for the flexible ``plant``, else a fresh dict."""
     return built_once(_SHARED, _SHARED_SIZE, (params, drive, load), lambda: {"model": SlippingBeltModel(params)},
                       keep=lambda _: is_shared(plant))
