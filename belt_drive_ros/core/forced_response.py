@@ -212,10 +212,7 @@ def harmonic_response_errors(integrator, A, B, rows, K, n_steps: int, omegas, ch
         # (method/exact, state, rows x samples): each row's samples contiguous (reduced over as orbit_error's)
         CX = CX.reshape(2, n, -1, r).transpose(0, 1, 3, 2).reshape(2, n, -1)
         # z^k at the sampled k (1 .. head, then head + stride j): running products (rounding ~k ulp)
-        zk = np.empty((f, head + tail), dtype=complex)
-        zk[:, :head] = np.cumprod(np.broadcast_to(z[:, None], (f, head)), axis=1)
-        if tail > 0:
-            zk[:, head:] = zk[:, head - 1 : head] * np.cumprod(np.broadcast_to((z**stride)[:, None], (f, tail)), axis=1)
+        zk = np.cumprod(np.hstack([np.broadcast_to(z[:, None], (f, head)), np.broadcast_to(z[:, None] ** stride, (f, tail))]), axis=1)
         zr, zi = zk.real[:, None, :], zk.imag[:, None, :]
         y = []  # (real, imaginary) parts of y_k = z^k C P - (C M^k) P, each (frequencies, rows, samples)
         for R, Gm, CMk in ((resolvents[0], G, CX[0]), (resolvents[1], F, CX[1])):
