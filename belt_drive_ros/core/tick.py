@@ -351,7 +351,7 @@ SLIP_CONSTANTS = ("ratio", "r_3", "a_1", "g", "F_0", "q_1", "q_2", "q_3", "rel_2
 
 #: the slipping tick's packed sections (:class:`SlipTickKernel`): the hybrid loop's buffers of N steps, its phase
 #: state, the engine's arrays (Z as pairs of doubles), the outputs and the message; ``fscalars``: ``lo, hi, drive,
-#: sigma5, dt, limit``; ``iscalars``: the phase kind and how many of ``xs`` to start from (-1: ``x`` as it is)
+#: sigma5, dt, limit, sigma``; ``iscalars``: the phase kind and how many of ``xs`` to start from (-1: ``x`` as it is)
 SLIP_FLOATS = ("grid", "knots", "lo", "hi", "out_y", "out_native", "out_sigma", "x", "xs", "reals", "Yflex", "Minv",
                "Z", "R", "c", "mats", "guards", "dx", "dy", "lp", "lx", "ly", "events", "consts", "y", "msg", "fscalars")
 SLIP_INTS = ("special", "out_mode", "ints", "offsets", "have", "uses", "dk", "lk", "iscalars")
@@ -365,14 +365,16 @@ def slip_tick(k0, stamp, packed, dp):
     """The slipping belt's tick: :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps` over the ``N``
     whole grid steps of the buffers from grid index ``k0``, then every output of the slipping
     model at the last knot into ``y`` and the ``joint_states`` message stamped ``stamp`` [ns]
-    (:func:`write_joints`).
+    (:func:`write_joints`). Returns 0 when that is done and no mode switched in the steps, else
+    nonzero (the hybrid loop's status, or -1: a mode switched): the buffers then hold the state
+    the call started from (kind, ``x``, sigma), for the engine to redo the steps from.
 
     ``packed``: :class:`SlipTickKernel`'s buffer (:data:`SLIP_FLOATS`,
     :data:`SLIP_INTS`); ``dp``: the drive profile's data (the held torque's own array). The
     hybrid state the steps start from: phase kind ``iscalars[0]``, its coordinates the first
     ``iscalars[1]`` of ``xs`` copied into ``x`` (-1: ``x`` as the last tick left it), zeros
     after them; ``sigma5`` (``fscalars[3]``), unless NaN, at ``x[5]`` (the stepwise phase's
-    direction). ``grid``, ``knots``: written with the grid times; the other sections up to
+    direction); ``fscalars[6]`` its sigma. ``xs`` then keeps a copy of that ``x``. ``grid``, ``knots``: written with the grid times; the other sections up to
     ``events`` are the hybrid loop's arguments (its call from step 0 with no events recorded
     yet; ``lo``, ``hi`` (``fscalars[0:2]``) clamp the first step's and the last step's torque
     times, as :func:`linear_tick`'s, and are set back to ``-inf, inf``); ``consts``:
@@ -382,10 +384,10 @@ def slip_tick(k0, stamp, packed, dp):
     them. ``y`` receives ``OUTPUT_UNITS + SLIP_OUTPUT_UNITS`` in order, the operations of
     :meth:`~belt_drive_ros.core.slip.SlippingBeltModel.outputs` on one sample (flags as
     0.0/1.0), with ``u = [drive(t, phi_M, omega_M), load(t, phi_3, omega_3)]`` at the last
-    knot ``t`` (:meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.inputs`). Returns the
-    hybrid loop's ``(next step, status, kind, sigma, events)``; ``y`` is written only when the
-    loop is done (status 0); ``iscalars[0]`` then holds the new kind and ``sigma5`` the new state's (NaN
-    unless stepwise), so that the next call continues from it.
+    knot ``t`` (:meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.inputs`). ``y`` is
+    written only when the call returns 0; ``iscalars[0]`` then holds the new kind, ``x`` its
+    coordinates, ``fscalars[6]`` its sigma and ``sigma5`` the same (NaN unless stepwise), so that
+    the next call continues from it.
     """
     table = packed.view(np.int64)
     fs, js = _f1(packed, table, _FSCALARS), _i1(table, _ISCALARS)
@@ -404,6 +406,8 @@ def slip_tick(k0, stamp, packed, dp):
     sigma5, drive, dt, limit = fs[3], fs[2], fs[4], fs[5]
     if sigma5 == sigma5:
         x[5] = sigma5
+    for j in range(x.size):  # the state this call starts from, put back when the engine has to redo the steps
+        xs[j] = x[j]
     N = grid.size - 1
     lo[0], hi[N - 1] = fs[0], fs[1]
     fs[0], fs[1], fs[2] = -math.inf, math.inf, math.nan
@@ -415,7 +419,7 @@ def slip_tick(k0, stamp, packed, dp):
     zero = np.int64(0)
     dk, dx, dy = _i1(table, _DK), _f1(packed, table, _DX), _f1(packed, table, _DY)
     lk, lp, lx, ly = _i1(table, _LK), _f2(packed, table, _SLP), _f1(packed, table, _LX), _f1(packed, table, _LY)
-    k1, status, kind, sigma, n_ev = hybrid_steps(
+    _, status, kind, sigma, n_ev = hybrid_steps(
         grid, knots, lo, hi, _i1(table, _SPECIAL), zero, kind, x, dt, limit, out_y, _i1(table, _OUT_MODE),
         _f1(packed, table, _OUT_SIGMA), _f2(packed, table, _OUT_NATIVE), _f1(packed, table, _SREALS),
         _i1(table, _SINTS), _i2(table, _OFFSETS), _i1(table, _HAVE), _f2(packed, table, _YFLEX),
@@ -423,11 +427,14 @@ def slip_tick(k0, stamp, packed, dp):
         _f1(packed, table, _C), _f2(packed, table, _MATS), _f2(packed, table, _GUARDS), _i1(table, _USES), dk, dp,
         dx, dy, lk, lp, lx, ly, _f2(packed, table, _EVENTS), zero)  # fmt: skip
     lo[0], hi[N - 1] = -math.inf, math.inf
-    if status != 0:
-        return k1, status, kind, sigma, n_ev
+    if status != 0 or n_ev != 0:
+        for j in range(x.size):
+            x[j] = xs[j]
+        return status if status != 0 else -1
     js[0] = kind
     fs[3] = sigma if kind == STEPWISE else math.nan  # the next call's sigma5 when it continues from this state
-    if drive == drive and n_ev == 0:
+    fs[6] = sigma
+    if drive == drive:
         dp[0, 0] = drive
     slipping = kind > STICKING
     sg = sigma
@@ -461,7 +468,7 @@ def slip_tick(k0, stamp, packed, dp):
     y[20] = Q / qmax if qmax > 0 else math.inf
     y[21] = qmax
     write_joints(y, _f1(packed, table, _SMSG).view(np.uint8), consts[17:], stamp)
-    return k1, status, kind, sigma, n_ev
+    return 0
 
 
 class SlipTickArrays(PackedArrays):
@@ -473,7 +480,11 @@ class SlipTickArrays(PackedArrays):
 class SlipTickKernel:
     """A slipping engine's (:class:`~belt_drive_ros.core.slip_run.SlippingSimulator`) tick of whole steps as one
     compiled call (:func:`slip_tick`), its buffers packed once (again when a phase's stepper was built or the
-    number of steps per tick changed); :attr:`y` holds the outputs."""
+    number of steps per tick changed); :attr:`y` holds the outputs.
+
+    The hybrid state stays in the buffers from one :meth:`advance` to the next (no Python object per tick):
+    :meth:`state` builds it as a :class:`~belt_drive_ros.core.slip_run.SlipState` when the caller needs one.
+    """
 
     def __init__(self, engine, limit: float, message: tuple = ()):
         m, p = engine.model, engine.model.params
@@ -485,17 +496,18 @@ class SlipTickKernel:
         self.engine, self.dt, self.origin, self.limit = engine, engine.dt, engine.origin, limit
         self.step_ns = grid_step_ns(engine.dt, engine.origin)
         self.y = np.zeros(22)
+        #: the slipping state ``y`` (5,) after the last :meth:`advance` (a view: the next one writes it again)
+        self.end_y = np.zeros(5)
         self.message = None
         self.N = 1
         self._built = -1  # how many phase steppers the engine had when its arrays were packed (see _pack)
         self._args: tuple | None = None  # slip_tick's trailing arguments (None: the engine cannot compile)
-        self._state = None  # the hybrid state the last advance returned
 
     def _pack(self, N: int) -> None:
         """The engine's compiled arrays and the buffers of ``N`` whole steps without clamps or splits as
         :func:`slip_tick`'s buffers."""
         compiled = self.engine._compiled()
-        self._built, self.N, self._state = len(self.engine._steppers), N, None
+        self._built, self.N = len(self.engine._steppers), N
         if compiled is None:
             self._args = None
             return
@@ -507,44 +519,43 @@ class SlipTickKernel:
                  guards=guards, dx=dx, dy=dy, lp=lp, lx=lx, ly=ly,
                  events=np.zeros((1024, 8)),  # the hybrid loop wants room for a chattering step's switches
                  consts=self.consts, y=self.y, msg=self._msg.view(np.float64),
-                 fscalars=[-math.inf, math.inf, math.nan, math.nan, self.dt, self.limit]),
+                 fscalars=[-math.inf, math.inf, math.nan, math.nan, self.dt, self.limit, 0.0]),
             dict(special=np.zeros(N, dtype=np.int64), out_mode=np.zeros(N, dtype=np.int64), ints=ints, offsets=offsets,
                  have=have, uses=uses, dk=dk, lk=lk, iscalars=[0, 0]))  # fmt: skip
         views = arrays.views
-        self.y, self._x, self._xs, self._out_y = views["y"], views["x"], views["xs"], views["out_y"]
+        self.y, self._x, self._xs, self.end_y = views["y"], views["x"], views["xs"], views["out_y"][-1]
         self._fs, self._js = views["fscalars"], views["iscalars"]
         self.message = memoryview(views["msg"].view(np.uint8))[self._where]
         self._args = (arrays.reals, dp)
 
     def advance(self, state, k0: int, k1: int, lo: float = -math.inf, hi: float = math.inf, drive: float = math.nan,
-                stamp: int = 0):
-        """The hybrid state after the whole grid steps k0 -> k1 from ``state`` (a
-        :class:`~belt_drive_ros.core.slip_run.SlipState`), the outputs at t1 in :attr:`y` and
+                stamp: int = 0) -> bool:
+        """The whole grid steps k0 -> k1 from ``state`` (a :class:`~belt_drive_ros.core.slip_run.SlipState`;
+        None: the state the last advance left in the buffers), the outputs at t1 in :attr:`y` and
         :attr:`message` stamped ``stamp`` [ns]; ``lo`` clamps the first step's torque times, ``hi``
-        the last one's, ``drive`` as :func:`slip_tick`'s. None when the step needs the engine's own
-        :meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.advance` (a mode switch in it, a
-        failure: it redoes the step from ``state`` and reports them)."""
+        the last one's, ``drive`` as :func:`slip_tick`'s. True when done; False when the step needs
+        the engine's own :meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.advance` (a mode
+        switch in it, a failure: it redoes the step from :meth:`state`, the state it started from)."""
         if len(self.engine._steppers) != self._built or k1 - k0 != self.N:
+            if state is None:
+                state = self.state()
             self._pack(k1 - k0)
         if self._args is None:
-            return None
-        if state is not self._state:  # else the usual tick: x holds the state the last call returned, kind its code
+            return False
+        if state is not None:  # else the usual tick: x holds the state the last call reached, iscalars its kind
             self._js[:] = _kind_code(state), len(state.x)
             self._xs[: len(state.x)] = state.x
             self._fs[3] = state.sigma if state.kind == "hybrid" else math.nan
+            self._fs[6] = state.sigma
         if lo != -math.inf or hi != math.inf or drive == drive:
             self._fs[:3] = lo, hi, drive
-        k1, status, kind, sigma, n_ev = slip_tick(k0, stamp, *self._args)
-        if status != 0 or n_ev:
-            self._state = None
-            return None
-        state = SlipState(STICK if kind <= STICKING else SLIP, float(sigma), KIND_NAMES[kind], self._x[: PHASE_SIZE[kind]].copy())
-        self._state = state
-        return state
+        return slip_tick(k0, stamp, *self._args) == 0
 
-    def state_y(self) -> np.ndarray:
-        """The slipping state ``y`` (5,) after the last :meth:`advance` (the engine's ``state_y`` of it)."""
-        return self._out_y[-1].copy()
+    def state(self) -> SlipState:
+        """The hybrid state the buffers hold: the last :meth:`advance`'s (where it failed, the one it started from)."""
+        kind = int(self._js[0])
+        return SlipState(STICK if kind <= STICKING else SLIP, float(self._fs[6]), KIND_NAMES[kind],
+                         self._x[: PHASE_SIZE[kind]].copy())
 
 
 def warm() -> None:

@@ -80,8 +80,8 @@ class NodeSimulation:
             counters.setdefault(key, 0)
         self.log = logger
         self.settings = settings
-        #: slipping model: the hybrid state (mode, direction, phase coordinates) beside ``x`` (its y); else None
-        self.hybrid = None
+        self._hybrid = None  # the hybrid state (see hybrid), unless the tick kernel holds it (_live)
+        self._live = False
         #: slipping model: mode switches of the run so far (kind, scene time [s], direction) and the count
         self.slip_events: list = []
         counters.setdefault("slip_events", 0)
@@ -108,6 +108,8 @@ class NodeSimulation:
         The slipping model: its engine (a stepper per phase, the same one the offline run uses).
         """
         drive = s.scene.drive if s.drive_source == "scene" else self.drive.applied
+        if self._live:  # the old tick kernel's state, kept as an object (the new stepper has a kernel of its own)
+            self.hybrid = self._tick_kernel.state()
         self._tick_kernel = None  # the common tick compiled whole (core.tick), where the model allows it
         self._fresh_ns: int | None = None  # node time whose outputs the tick kernel holds (None: none)
         self._free_k = (0, -1)  # grid cells k with no plant breakpoint near steps k0 <= k < k1 (lo <= k0, k1 <= hi)
@@ -131,6 +133,20 @@ class NodeSimulation:
     @property
     def plant(self) -> Plant:
         return self.stepper.plant
+
+    @property
+    def hybrid(self):
+        """Slipping model: the hybrid state (mode, direction, phase coordinates) beside ``x`` (its y); else None.
+
+        After a compiled tick the slipping tick kernel holds it in its buffers (no object per tick): it is built
+        when asked for."""
+        if self._live:
+            self._hybrid, self._live = self._tick_kernel.state(), False
+        return self._hybrid
+
+    @hybrid.setter
+    def hybrid(self, state) -> None:
+        self._hybrid, self._live = state, False
 
     def _init_hybrid(self) -> None:
         """The hybrid state of ``x`` (slipping model; sliding at once if it starts beyond the limit)."""
@@ -319,7 +335,7 @@ class NodeSimulation:
             jump0 = self._held_jump == t0
             jump1 = value is not None and value != self._held
             lo, hi = self._free_k
-            slipping = self.hybrid is not None
+            slipping = self._live or self._hybrid is not None
             if (not (jump0 or jump1) or k1 - k0 == 1 or slipping) and (
                     lo <= k0 and k1 <= hi or self._free(t0, t1, k0, k1)):
                 # whole grid steps away from the plant's breakpoints: one compiled call, steps and outputs
@@ -340,10 +356,10 @@ class NodeSimulation:
                         if jump1:
                             self._held = value  # (the kernel wrote it into the held torque)
                         return True
-                else:  # the slipping belt: steps without a mode switch (else the engine's path)
-                    hybrid = fast.advance(self.hybrid, k0, k1, lo, hi, drive, now_ns)
-                    if hybrid is not None:
-                        self.hybrid, self.x = hybrid, fast.state_y()
+                else:  # the slipping belt: steps without a mode switch (else the engine's path); the hybrid
+                    # state stays in the kernel's buffers, x is a view of them (written again by the next tick)
+                    if fast.advance(None if self._live else self._hybrid, k0, k1, lo, hi, drive, now_ns):
+                        self._live, self.x = True, fast.end_y
                         self.t_ns = self._fresh_ns = now_ns
                         self._held_jump = t1 if jump1 else None
                         if jump1:
@@ -385,7 +401,7 @@ class NodeSimulation:
         if lo <= k0 and k1 <= hi:
             return True
         self.stepper.breakpoints = self._plant_breakpoints
-        st = self.stepper if self.hybrid is None else self.stepper.stepper  # the slipping engine's grid stepper
+        st = self.stepper.stepper if isinstance(self.stepper, SlippingSimulator) else self.stepper  # (the engine's grid stepper)
         if k1 <= k0 or st._near_breakpoint(t0, t1, k0, k1):
             return False
         # no breakpoint in the open interval (left, right) (the stepper's note of it; none at all: everywhere)
