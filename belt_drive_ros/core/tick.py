@@ -52,7 +52,7 @@ import numpy as np
 from numba import njit
 
 from .kernel import HEADER, SECTIONS, linear_steps, profile_torque
-from .kernel_slip import KIND_NAMES, PHASE_SIZE, STEPWISE, STICKING, hybrid_steps
+from .kernel_slip import KIND_NAMES, MAX_SWITCHES, PHASE_SIZE, STEPWISE, STICKING, hybrid_steps
 from .slip import SLIP, STICK
 from .slip_run import SlippingSimulator, SlipState, _kind_code
 from .model import LINEAR_OUTPUTS, OUTPUT_UNITS
@@ -517,7 +517,9 @@ class SlipTickKernel:
                  out_y=np.zeros((N, 5)), out_native=np.zeros((N, 6)), out_sigma=np.zeros(N), x=np.zeros(6),
                  xs=np.zeros(6), reals=reals, Yflex=Yflex, Minv=Minv, Z=Z.view(np.float64), R=R, c=c, mats=mats,
                  guards=guards, dx=dx, dy=dy, lp=lp, lx=lx, ly=ly,
-                 events=np.zeros((1024, 8)),  # the hybrid loop wants room for a chattering step's switches
+                 # the hybrid loop wants room for a chattering step's switches before it starts a phase; here the
+                 # first switch ends the call (the engine redoes the steps): room for one more (4 KiB, not 64)
+                 events=np.zeros((MAX_SWITCHES + 1, 8)),
                  consts=self.consts, y=self.y, msg=self._msg.view(np.float64),
                  fscalars=[-math.inf, math.inf, math.nan, math.nan, self.dt, self.limit, 0.0]),
             dict(special=np.zeros(N, dtype=np.int64), out_mode=np.zeros(N, dtype=np.int64), ints=ints, offsets=offsets,

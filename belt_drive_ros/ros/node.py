@@ -394,9 +394,37 @@ class BeltDriveNode(Node):
         subscribes to is not published; the recorder writes the same bytes.
         """
         sim = self.sim
-        v = sim.values(now_ns)  # floats in the order of TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
+        fresh = sim.fresh(now_ns)  # the compiled tick's outputs and message, or None
+        v = sim.values(now_ns) if fresh is None else fresh.y.tolist()  # floats: TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
         recorder = self.recorder
         listening = self._listening
+        record = None
+        if fresh is not None and recorder is None and not (listening[1] or listening[2] or listening[3]):
+            # the usual tick: joint_states alone, the bytes the compiled tick wrote
+            sends = [(self._pub_joint.publish, bytes(fresh.message))] if listening[0] else []
+            if len(v) > _N_TICK:
+                self.counters["published_slip"] += 1
+        else:
+            sends, record = self._sends(now_ns, v, recorder, listening)
+        if not defer:
+            for publish, data in sends:
+                publish(data)
+        if v[14]:  # slack
+            self.stats.window.slack += 1
+            self.counters["slack_ticks"] += 1
+        if v[15]:  # slip
+            self.stats.window.slip += 1
+            self.counters["slip_ticks"] += 1
+        if record is not None:
+            recorder.record_tick(*record[0], **record[1])
+        self._last = (v, now_ns, sim.origin_ns)
+        self.counters["published"] += 1
+        return sends if defer else None
+
+    def _sends(self, now_ns: int, v: list, recorder, listening) -> tuple[list, tuple | None]:
+        """:meth:`_publish`'s ``(publish, data)`` calls of the tick's values ``v`` in order, every topic, and
+        the recorder's ``record_tick`` arguments (None without a recorder)."""
+        sim = self.sim
         sends = []
         joint_cdr = tf_cdr = payloads = joints = None
         if listening[0] or recorder is not None:
@@ -426,21 +454,9 @@ class BeltDriveNode(Node):
             for name, pub, data in zip(OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS, self._pub_float, payloads[:-1]):
                 if readers[name]:
                     sends.append((pub.publish, data))
-        if not defer:
-            for publish, data in sends:
-                publish(data)
-        if v[14]:  # slack
-            self.stats.window.slack += 1
-            self.counters["slack_ticks"] += 1
-        if v[15]:  # slip
-            self.stats.window.slip += 1
-            self.counters["slip_ticks"] += 1
-        if recorder is not None:
-            recorder.record_tick(now_ns, joints, floats, joints[8], joint_cdr=joint_cdr, float_cdr=payloads,
-                                 tf_cdr=tf_cdr)
-        self._last = (v, now_ns, self.sim.origin_ns)
-        self.counters["published"] += 1
-        return sends if defer else None
+        if recorder is None:
+            return sends, None
+        return sends, ((now_ns, joints, floats, joints[8]), dict(joint_cdr=joint_cdr, float_cdr=payloads, tf_cdr=tf_cdr))
 
     @property
     def last(self) -> dict:

@@ -444,6 +444,11 @@ class NodeSimulation:
         out = model.outputs(self.x, u)  # a finite state and finite torques: nothing for numpy to warn about
         return out  # numpy float64 scalars (a float subclass) and numpy bools
 
+    def fresh(self, now_ns: int):
+        """The tick kernel when it holds the outputs (``y``) and the ``joint_states`` message (``message``)
+        at ``now_ns`` (the compiled tick computed them), else None."""
+        return self._tick_kernel if self._fresh_ns == now_ns else None
+
     def joint_message(self, now_ns: int) -> bytes | None:
         """The CDR bytes of ``joint_states`` at ``now_ns`` when the compiled tick wrote them (its outputs
         are fresh), else None (the caller encodes :meth:`values`; the same bytes)."""

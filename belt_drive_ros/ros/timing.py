@@ -98,7 +98,7 @@ class TickStats:
         self.counters = counters
         for key in ("ticks", "overruns", "late_ticks"):
             counters.setdefault(key, 0)
-        self.periods = np.zeros(size)  # the last `size` tick intervals [s of wall time]
+        self.periods = [0.0] * size  # the last `size` tick intervals [s of wall time] (a list: a tick sets one cheaply)
         self.n_periods = 0
         self.window = Window()
         self.prev_start: float | None = None
@@ -118,7 +118,7 @@ class TickStats:
         if prev is None:
             return
         interval = start - prev
-        self.periods[self.n_periods % self.periods.size] = interval
+        self.periods[self.n_periods % len(self.periods)] = interval
         self.n_periods += 1
         if nominal is not None:
             if interval > 1.5 * nominal:
@@ -130,10 +130,10 @@ class TickStats:
 
     def period_error_ms(self, nominal: float) -> tuple[float, float, float]:
         """|period - nominal| [ms]: p50, p99, max over the ring (NaN without data)."""
-        n = min(self.n_periods, self.periods.size)
+        n = min(self.n_periods, len(self.periods))
         if not n:
             return (float("nan"),) * 3
-        err = np.abs(self.periods[:n] - nominal) * 1e3
+        err = np.abs(np.asarray(self.periods[:n]) - nominal) * 1e3
         return tuple(float(v) for v in np.percentile(err, [50, 99, 100]))
 
 
@@ -174,7 +174,7 @@ class TickThread:
         self.source = source
         self.failure: BaseException | None = None
         self.lead_ns = 0  # the lead in force [ns]
-        self._busy = np.zeros(LEAD_WINDOW)  # computation time of the latest ticks [s] (a ring)
+        self._busy = [0.0] * LEAD_WINDOW  # computation time of the latest ticks [s] (a ring; a list: set cheaply)
         self._n_busy = 0
         self._next_update, self._settings = 0, None
         self._nominal = 0.0  # the nominal period [s] of the settings in force (see _lead)
