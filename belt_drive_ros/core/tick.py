@@ -538,7 +538,9 @@ class SlipTickKernel:
         the last one's, ``drive`` as :func:`slip_tick`'s. True when done; False when the step needs
         the engine's own :meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.advance` (a mode
         switch in it, a failure: it redoes the step from :meth:`state`, the state it started from)."""
-        if len(self.engine._steppers) != self._built or k1 - k0 != self.N:
+        # (a phase stepper is built only by the engine's own advance, which starts from a state object: the
+        # usual tick, continuing from the buffers, needs no look at the engine)
+        if k1 - k0 != self.N or state is not None and len(self.engine._steppers) != self._built:
             if state is None:
                 state = self.state()
             self._pack(k1 - k0)

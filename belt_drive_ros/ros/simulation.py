@@ -54,6 +54,10 @@ SLIP_TICK_OUTPUTS = tuple(SLIP_OUTPUT_UNITS)
 _JOINT_STATES = JointStateEncoder(4)
 
 
+#: the compiled tick's clamps (lo, hi [s]) and held-torque change (drive [N m]) of a tick without a torque jump
+_NO_CLAMP = (-math.inf, math.inf, math.nan)
+
+
 def next_tick_ns(t_ns: int, origin_ns: int, tick_ns: int) -> int:
     """The first point of the tick grid ``origin_ns + k tick_ns`` after node time ``t_ns`` [ns]."""
     return t_ns + tick_ns - (t_ns - origin_ns) % tick_ns
@@ -346,7 +350,7 @@ class NodeSimulation:
                     hi = (self.stepper.stepper if slipping else self.stepper).plant.left_of(t1) if jump1 else math.inf
                     drive = value if jump1 else math.nan  # held from t1 on: the outputs at t1 have it
                 else:
-                    lo, hi, drive = -math.inf, math.inf, math.nan
+                    lo, hi, drive = _NO_CLAMP
                 if not slipping:
                     if fast.step(self.x, k0, k1, lo, hi, drive, now_ns) == OK:  # else the general path below
                         # takes the same steps and raises as it does

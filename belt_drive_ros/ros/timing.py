@@ -211,11 +211,10 @@ class TickThread:
     def _next(self, now: int) -> int | None:
         """The grid time to tick to at system time ``now`` [ns], or None when the next tick is not due yet."""
         sim = self.source.sim
-        if not sim.started:
+        t = sim.t_ns
+        if t is None or now < t:  # not started, or the system clock stepped back: the simulation (re)starts there
             return now - now % SYSTEM_TIME_QUANTUM_NS
-        t, origin, tick = sim.t_ns, sim.origin_ns, sim.settings.tick_ns
-        if now < t:  # the system clock stepped back: the simulation restarts there
-            return now - now % SYSTEM_TIME_QUANTUM_NS
+        origin, tick = sim.origin_ns, sim.settings.tick_ns
         due = next_tick_ns(t, origin, tick)
         if now < due:
             return None
