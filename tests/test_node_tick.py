@@ -192,3 +192,21 @@ def test_numba_disabled_gives_the_same_floats():
         assert done.returncode == 0, done.stderr[-2000:]
         runs[jit] = json.loads(done.stdout.strip().splitlines()[-1])
     assert runs["0"] == runs["1"] and runs["0"][0][0] > 60
+
+
+def test_the_raw_drive_torque_input_reads_the_value_rclpy_reads():
+    # the node subscribes to drive_torque raw (no Float64 object per message) and reads the double from the CDR bytes
+    import struct
+
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import Float64
+
+    from belt_drive_ros.ros.inputs import float64_value
+
+    for value in (0.0, -0.0, 1.25, -3.5e-310, 1e300, float("inf"), float("-inf")):
+        data = serialize_message(Float64(data=value))
+        got = float64_value(data)
+        assert struct.pack("<d", got) == struct.pack("<d", value)
+        big = b"\x00\x00\x00\x00" + struct.pack(">d", value)  # a big-endian CDR writer's bytes
+        assert struct.pack("<d", float64_value(big)) == struct.pack("<d", value)
+    assert np.isnan(float64_value(serialize_message(Float64(data=float("nan")))))  # (then rejected and counted)

@@ -3,7 +3,7 @@
 A process shaped like ``belt-drive node`` with the physics taken out: the
 same session (:func:`~belt_drive_ros.ros.executors.ros_session`: loopback
 discovery, single-threaded BLAS, no timer slack), the same executor, the same
-tick source, and the node's ``joint_states`` CDR
+tick source, the same raw ``drive_torque`` subscription, and the node's ``joint_states`` CDR
 (:class:`~belt_drive_ros.io.recording.JointStateEncoder`, wheel_M effort =
 the latest ``drive_torque``, as the node echoes it) published with the
 node's QoS and stamped on the node's grid (system clock, origin at the
@@ -47,6 +47,7 @@ def main(argv=None) -> int:
     from ..io.recording import JointStateEncoder
     from ..ros import environment as ros_env
     from ..ros.executors import ros_session, spin_nodes
+    from ..ros.inputs import float64_value
     from ..ros.qos import INPUT_QOS, OUTPUT_QOS
 
     from rclpy.node import Node
@@ -65,11 +66,12 @@ def main(argv=None) -> int:
         torque = [0.0]
         lock = threading.RLock()  # the node's callbacks and ticks hold one
 
-        def on_torque(msg):
+        def on_torque(data):  # raw, as the node takes it
+            value = float64_value(data)
             with lock:
-                torque[0] = msg.data
+                torque[0] = value
 
-        node.create_subscription(Float64, "drive_torque", on_torque, INPUT_QOS)
+        node.create_subscription(Float64, "drive_torque", on_torque, INPUT_QOS, raw=True)
         zeros = (0.0,) * (2 * joints)  # positions, velocities; then the efforts: the torque first (the node's driver)
         rest = (0.0,) * (joints - 1)
 

@@ -21,13 +21,31 @@ offline as a table with ``interpolation: previous`` to the same numbers.
 from __future__ import annotations
 
 import math
-
+import struct
 
 from ..core.sources import HeldTorque
 
-__all__ = ["DriveInput", "HeldTorque"]
+__all__ = ["DriveInput", "HeldTorque", "float64_value"]
 
 INPUT_COUNTERS = ("received", "rejected_nonfinite", "rejected_bound", "clamped", "ignored", "timeouts")
+
+
+def float64_value(data: bytes) -> float:
+    """The value of a ``std_msgs/Float64`` from its serialized bytes (a raw subscription's message).
+
+    Classic CDR: the 4-byte encapsulation header (``00 01``: little endian,
+    ``00 00``: big endian, then two option bytes) and the IEEE double right
+    after it. Any other encoding goes through rclpy's own deserialization.
+    Read this way, the node's input callback builds no message object (the
+    executor's conversion to a ``Float64`` cost ~10 us on the caches of a
+    1 kHz node, with the GIL held).
+    """
+    if len(data) >= 12 and data[0] == 0 and data[1] in (0, 1):
+        return struct.unpack_from("<d" if data[1] else ">d", data, 4)[0]
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import Float64
+
+    return deserialize_message(data, Float64).data
 
 
 class DriveInput:

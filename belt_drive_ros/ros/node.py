@@ -144,7 +144,7 @@ from ..io.recording import (  # noqa: E402
 from .diagnostics import NodeDiagnostics  # noqa: E402
 from .executors import executor_name, make_executor, ros_session, spin_nodes  # noqa: E402,F401 - make_executor re-exported
 from .gaps import TICK_GAP_METADATA  # noqa: E402
-from .inputs import DriveInput  # noqa: E402
+from .inputs import DriveInput, float64_value  # noqa: E402
 from .parameter_schema import NodeConfigError, NodeSettings  # noqa: E402,F401 - NodeConfigError re-exported
 from .parameters import NodeParameters  # noqa: E402
 from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS, TF_QOS  # noqa: E402
@@ -257,7 +257,7 @@ class BeltDriveNode(Node):
         self._description = ("", b"")  # (URDF, its CDR) last published
         self._publish_description()
         # -- input, service, diagnostics, ticks
-        self._sub_torque = self.create_subscription(Float64, "drive_torque", self._on_drive_torque, INPUT_QOS)
+        self._sub_torque = self.create_subscription(Float64, "drive_torque", self._on_drive_torque, INPUT_QOS, raw=True)
         self._srv_reset = self.create_service(Trigger, "~/reset", self._on_reset, qos_profile=RESET_QOS)
         self.diagnostics = NodeDiagnostics(self)
         self._diagnostics_due = False  # set by the diagnostics timer while ticking on the system clock
@@ -330,13 +330,15 @@ class BeltDriveNode(Node):
         self._record_description()  # first in the file
 
     # ---------------------------------------------------------------- input
-    def _on_drive_torque(self, msg: Float64) -> None:
-        """Constant time: validate, bound, clamp, hold (sampled at the next tick)."""
+    def _on_drive_torque(self, data: bytes) -> None:
+        """Constant time: validate, bound, clamp, hold (sampled at the next tick). ``data``: the message's
+        serialized bytes (a raw subscription: no message object per message, see :func:`.inputs.float64_value`)."""
+        value = float64_value(data)
         with self.timing.lock:
             now = self.timing.now_ns()
-            self.drive.receive(msg.data, now, self.sim.settings)
+            self.drive.receive(value, now, self.sim.settings)
             if self.recorder is not None:
-                self.recorder.record_input(msg.data, now)
+                self.recorder.record_input(value, now)
 
     def _publish_description(self) -> None:
         """Publish (and record) the URDF of the drive in force, if it changed."""
