@@ -210,3 +210,28 @@ def test_the_raw_drive_torque_input_reads_the_value_rclpy_reads():
         big = b"\x00\x00\x00\x00" + struct.pack(">d", value)  # a big-endian CDR writer's bytes
         assert struct.pack("<d", float64_value(big)) == struct.pack("<d", value)
     assert np.isnan(float64_value(serialize_message(Float64(data=float("nan")))))  # (then rejected and counted)
+
+
+def test_the_slipping_tick_keeps_its_hybrid_state_in_the_kernel_between_ticks(monkeypatch):
+    # no SlipState object (and no copies of x) per compiled tick: the state is built only when asked for
+    built = []
+
+    class Counted(tick.SlipState):
+        def __init__(self, *args, **kwargs):
+            built.append(1)
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(tick, "SlipState", Counted)
+    sims = _pair({"scene": "truck_compressor", "model": "slipping", "drive_source": "topic"})
+    sim = sims[0]
+    tick_ns = sim.settings.tick_ns
+    fast = 0
+    for k in range(300):
+        now = 10**9 + k * tick_ns
+        if k % 10 == 5:
+            sim.drive.receive(2.0 + k % 3, now - 1, sim.settings)
+        sim.advance_to(now)
+        fast += sim._fresh_ns == now
+    assert fast > 250 and len(built) <= 300 - fast  # (a tick the engine redoes builds one)
+    state = sim.hybrid  # built now, from the kernel's buffers
+    assert len(built) <= 301 - fast and state.kind in ("flexible", "stick") and np.array_equal(sim.stepper.state_y(state), sim.x)

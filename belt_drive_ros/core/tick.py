@@ -365,22 +365,21 @@ def slip_tick(k0, stamp, packed, dp):
     """The slipping belt's tick: :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps` over the ``N``
     whole grid steps of the buffers from grid index ``k0``, then every output of the slipping
     model at the last knot into ``y`` and the ``joint_states`` message stamped ``stamp`` [ns]
-    (:func:`write_joints`). Returns 0 when that is done and no mode switched in the steps, else
-    nonzero (the hybrid loop's status, or -1: a mode switched): the buffers then hold the state
-    the call started from (kind, ``x``, sigma), for the engine to redo the steps from.
+    (:func:`write_joints`). Returns 0 when done with no mode switch, else nonzero (the hybrid
+    loop's status; -1: a switch): the buffers then hold the state the call started from.
 
     ``packed``: :class:`SlipTickKernel`'s buffer (:data:`SLIP_FLOATS`,
     :data:`SLIP_INTS`); ``dp``: the drive profile's data (the held torque's own array). The
     hybrid state the steps start from: phase kind ``iscalars[0]``, its coordinates the first
     ``iscalars[1]`` of ``xs`` copied into ``x`` (-1: ``x`` as the last tick left it), zeros
     after them; ``sigma5`` (``fscalars[3]``), unless NaN, at ``x[5]`` (the stepwise phase's
-    direction); ``fscalars[6]`` its sigma. ``xs`` then keeps a copy of that ``x``. ``grid``, ``knots``: written with the grid times; the other sections up to
-    ``events`` are the hybrid loop's arguments (its call from step 0 with no events recorded
-    yet; ``lo``, ``hi`` (``fscalars[0:2]``) clamp the first step's and the last step's torque
-    times, as :func:`linear_tick`'s, and are set back to ``-inf, inf``); ``consts``:
-    :data:`SLIP_CONSTANTS`, the grid's origin [s], then the message layout of
-    :func:`write_joints`. ``drive`` (``fscalars[2]``, set back to NaN): NaN or the held drive
-    torque's new value, written into ``dp[0, 0]`` after the steps when no mode switched in
+    direction), ``fscalars[6]`` its sigma; ``xs`` keeps that ``x``. ``grid``, ``knots``: written
+    with the grid times; the other sections up to ``events`` are the hybrid loop's arguments (its
+    call from step 0 with no events recorded yet; ``lo``, ``hi`` (``fscalars[0:2]``) clamp the
+    first step's and the last step's torque times, as :func:`linear_tick`'s, and are set back to
+    ``-inf, inf``); ``consts``: :data:`SLIP_CONSTANTS`, the grid's origin [s], then the message
+    layout of :func:`write_joints`. ``drive`` (``fscalars[2]``, set back to NaN): NaN or the held
+    drive torque's new value, written into ``dp[0, 0]`` after the steps when no mode switched in
     them. ``y`` receives ``OUTPUT_UNITS + SLIP_OUTPUT_UNITS`` in order, the operations of
     :meth:`~belt_drive_ros.core.slip.SlippingBeltModel.outputs` on one sample (flags as
     0.0/1.0), with ``u = [drive(t, phi_M, omega_M), load(t, phi_3, omega_3)]`` at the last
