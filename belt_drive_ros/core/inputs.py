@@ -43,6 +43,7 @@ import os
 import re
 import stat
 from collections.abc import Mapping
+from numbers import Real
 from pathlib import Path
 from typing import Any
 
@@ -277,6 +278,21 @@ def read_yaml(path: str | os.PathLike, what: str = "YAML file", limit: int = SCE
 
 
 # ------------------------------------------------------------------ typed values, the key named
+def real(value: Any) -> int | float | None:
+    """``value`` as a Python ``int`` or ``float`` if it is a real number, numpy scalars too; else None.
+
+    Booleans (Python's and numpy's) are not numbers here; a numpy scalar becomes
+    its Python value (``np.float32(2.0)`` -> ``2.0``), so callers check range and
+    finiteness on plain numbers. Arrays, strings, ``Decimal`` ... are None.
+    """
+    if isinstance(value, (int, float)):
+        return None if isinstance(value, bool) else value
+    if isinstance(value, Real) and hasattr(value, "item") and type(value).__name__ != "bool":
+        value = value.item()  # numpy's scalars (registered as numbers.Real) as Python numbers
+        return value if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+    return None
+
+
 def _refuse(error, key: str, expected: str, value: Any):
     return error(f"{key}: must be {expected}, got {type(value).__name__} {short(value)}")
 
@@ -291,8 +307,9 @@ def number(
     with ``integer`` a float is taken only when whole (``1e3`` is 1000,
     ``2.7`` is refused, never truncated).
     """
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise _refuse(error, key, "a whole number" if integer else "a number", value)
+    given, value = value, real(value)
+    if value is None:
+        raise _refuse(error, key, "a whole number" if integer else "a number", given)
     if isinstance(value, float) and not math.isfinite(value):
         raise _refuse(error, key, "a finite number", value)
     if integer:
