@@ -1,0 +1,46 @@
+"""Bad command-line input: one ``belt-drive: error:`` line naming what is wrong and exit 2, before anything runs."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from belt_drive_ros.cli import main
+
+
+def _cases(tmp):
+    a_file = tmp / "a_file.yaml"
+    a_file.write_text("x: 1\n")
+    return {
+        "record --duration -1": (["record", "--out", str(tmp / "r.mcap"), "--duration", "-1"], "--duration: must be > 0 s"),
+        "record --duration nan": (["record", "--out", str(tmp / "r.mcap"), "--duration", "nan"], "--duration: must be > 0 s"),
+        "demo --duration -1": (["demo", "--duration", "-1", "--out-dir", str(tmp)], "--duration: must be finite and > 0 s"),
+        "demo --duration inf": (["demo", "--duration", "inf", "--out-dir", str(tmp)], "--duration: must be finite and > 0 s"),
+        "demo --out-dir a file": (["demo", "--no-live", "--out-dir", str(a_file)], "exists and is not a folder"),
+        "make-bags --out a file": (["make-bags", "--out", str(a_file)], "exists and is not a folder"),
+        "make-bags --out /dev/null": (["make-bags", "--out", "/dev/null"], "exists and is not a folder"),
+        "modes --campbell x.txt": (["modes", "fead_i4", "--campbell", str(tmp / "x.txt")], "--campbell .*give a .png path"),
+        "modes --runup x.csv": (["modes", "fead_i4", "--runup", str(tmp / "x.csv")], "--runup .*give a .png path"),
+        "modes same PNG twice": (["modes", "fead_i4", "--campbell", str(tmp / "a.png"), "--runup", str(tmp / "a.png")],
+                                 "--campbell and --runup name the same file"),
+    }
+
+
+CASES = [
+    "record --duration -1", "record --duration nan", "demo --duration -1", "demo --duration inf", "demo --out-dir a file",
+    "make-bags --out a file", "make-bags --out /dev/null", "modes --campbell x.txt", "modes --runup x.csv", "modes same PNG twice",
+]
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tmp_path, capsys):
+    """Before: record's --duration exited 1 (a SystemExit text), make-bags into a file exited 1 with
+    '[Errno 17] File exists', demo started its ROS part with a negative --duration, modes wrote a PNG into
+    x.txt (every other PNG option refuses that)."""
+    argv, message = _cases(tmp_path)[case]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("belt-drive: error: "), err
+    assert re.search(message, err[0]), err
+    assert not (tmp_path / "x.txt").exists() and not (tmp_path / "x.csv").exists() and not (tmp_path / "a.png").exists()
