@@ -22,6 +22,8 @@ def _cases(tmp):
         "make-bags --out /dev/null": (["make-bags", "--out", "/dev/null"], "exists and is not a folder"),
         "modes --campbell x.txt": (["modes", "fead_i4", "--campbell", str(tmp / "x.txt")], "--campbell .*give a .png path"),
         "modes --runup x.csv": (["modes", "fead_i4", "--runup", str(tmp / "x.csv")], "--runup .*give a .png path"),
+        "sim --bag-folder in a missing folder": (["sim", "paper", "--quiet", "--duration", "0.05", "--bag-folder", "--out",
+                                                  str(tmp / "missing" / "bag")], "folder .*missing does not exist"),
         "modes same PNG twice": (["modes", "fead_i4", "--campbell", str(tmp / "a.png"), "--runup", str(tmp / "a.png")],
                                  "--campbell and --runup name the same file"),
     }
@@ -30,6 +32,7 @@ def _cases(tmp):
 CASES = [
     "record --duration -1", "record --duration nan", "demo --duration -1", "demo --duration inf", "demo --out-dir a file",
     "make-bags --out a file", "make-bags --out /dev/null", "modes --campbell x.txt", "modes --runup x.csv", "modes same PNG twice",
+    "sim --bag-folder in a missing folder",
 ]
 
 
@@ -37,10 +40,11 @@ CASES = [
 def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tmp_path, capsys):
     """Before: record's --duration exited 1 (a SystemExit text), make-bags into a file exited 1 with
     '[Errno 17] File exists', demo started its ROS part with a negative --duration, modes wrote a PNG into
-    x.txt (every other PNG option refuses that)."""
+    x.txt (every other PNG option refuses that), sim --bag-folder made the missing parents of --out (a file
+    --out says the folder does not exist)."""
     argv, message = _cases(tmp_path)[case]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("belt-drive: error: "), err
     assert re.search(message, err[0]), err
-    assert not (tmp_path / "x.txt").exists() and not (tmp_path / "x.csv").exists() and not (tmp_path / "a.png").exists()
+    assert not (tmp_path / "missing").exists() and not (tmp_path / "x.txt").exists() and not (tmp_path / "x.csv").exists() and not (tmp_path / "a.png").exists()

@@ -232,7 +232,10 @@ class _BoundedLoader(yaml.SafeLoader):
 
 
 def _construct_int(loader, node):
-    value = yaml.SafeLoader.construct_yaml_int(loader, node)
+    try:
+        value = yaml.SafeLoader.construct_yaml_int(loader, node)
+    except ValueError:  # more than 4300 digits: Python refuses to convert the text at all
+        value = math.inf
     if abs(value) > MAX_INT:
         raise InputError(f"line {node.start_mark.line + 1}: integer {short(node.value, 40)} is too large (|n| > 2^63)")
     return value

@@ -9,6 +9,7 @@ ships ``paper``, ``truck_compressor`` and ``e_motor_start``
 from __future__ import annotations
 
 import copy
+import inspect
 import math
 import os
 from dataclasses import dataclass, field, fields, replace
@@ -57,6 +58,21 @@ def _finite(v) -> float | None:
         return float(v) if v is not None and math.isfinite(v) else None
     except OverflowError:  # an integer beyond the float range
         return None
+
+
+def _check_options(method: str, cls: type, options: Mapping) -> None:
+    """``options`` against the keyword options of ``method``'s class (scipy's rtol, atol, max_step; the
+    trapezoidal rule's tol, max_iter): known names, numbers > 0. A class taking ``**options`` checks its own."""
+    params = inspect.signature(cls.__init__).parameters
+    if not options or any(p.kind is p.VAR_KEYWORD for p in params.values()):
+        return
+    known = [n for n, p in params.items() if p.default is not p.empty]
+    for key, value in options.items():
+        if key not in known:
+            raise SceneError(f"method_options.{str(key)[:60]}: not an option of {method} (its options: {', '.join(known)})")
+        v = real(value)
+        if v is None or not v > 0:
+            raise SceneError(f"method_options.{key}: must be a number > 0, got {type(value).__name__} {short(value)}")
 
 
 @dataclass(frozen=True)
@@ -162,8 +178,10 @@ class Scene:
             raise SceneError(f"model: must be one of {', '.join(MODELS)}, got {short(self.model)}")
         try:
             if self.method != AUTO_METHOD:
-                method_class(self.method)
+                _check_options(self.method, method_class(self.method), self.method_options)
         except ValueError as exc:
+            if isinstance(exc, SceneError):
+                raise
             raise SceneError(f"{exc} (or {AUTO_METHOD!r}: chosen by accuracy)") from None
         if self.dt > self.duration:
             raise SceneError(f"dt: must not exceed duration ({self.duration} s), got {self.dt}")
