@@ -24,6 +24,10 @@ def _cases(tmp):
         "modes --runup x.csv": (["modes", "fead_i4", "--runup", str(tmp / "x.csv")], "--runup .*give a .png path"),
         "sim --bag-folder in a missing folder": (["sim", "paper", "--quiet", "--duration", "0.05", "--bag-folder", "--out",
                                                   str(tmp / "missing" / "bag")], "folder .*missing does not exist"),
+        "bench --minutes -1": (["bench", "replay", "--quick", "--minutes", "-1", "--out", str(tmp)], "--minutes: must be > 0"),
+        "bench --seconds nan": (["bench", "soak", "--quick", "--seconds", "nan", "--out", str(tmp)], "--seconds: must be > 0"),
+        "bench --samples 0": (["bench", "campaign", "--quick", "--samples", "0", "--out", str(tmp)], "--samples: must be > 0"),
+        "bench --out a file": (["bench", "kernel", "--quick", "--out", str(a_file)], "exists and is not a folder"),
         "modes same PNG twice": (["modes", "fead_i4", "--campbell", str(tmp / "a.png"), "--runup", str(tmp / "a.png")],
                                  "--campbell and --runup name the same file"),
     }
@@ -32,7 +36,7 @@ def _cases(tmp):
 CASES = [
     "record --duration -1", "record --duration nan", "demo --duration -1", "demo --duration inf", "demo --out-dir a file",
     "make-bags --out a file", "make-bags --out /dev/null", "modes --campbell x.txt", "modes --runup x.csv", "modes same PNG twice",
-    "sim --bag-folder in a missing folder",
+    "sim --bag-folder in a missing folder", "bench --minutes -1", "bench --seconds nan", "bench --samples 0", "bench --out a file",
 ]
 
 
@@ -41,7 +45,8 @@ def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tm
     """Before: record's --duration exited 1 (a SystemExit text), make-bags into a file exited 1 with
     '[Errno 17] File exists', demo started its ROS part with a negative --duration, modes wrote a PNG into
     x.txt (every other PNG option refuses that), sim --bag-folder made the missing parents of --out (a file
-    --out says the folder does not exist)."""
+    --out says the folder does not exist), bench took a negative or nan --minutes/--seconds/--samples and an
+    --out naming a file failed with exit 1 ('[Errno 17] File exists')."""
     argv, message = _cases(tmp_path)[case]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
