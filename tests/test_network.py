@@ -755,3 +755,22 @@ def test_network_scene_takes_numpy_scalars_and_load_network_refuses_non_names():
     for bad in (math.nan, None, ["fead_i4"]):
         with pytest.raises(SceneError, match="^scene: expected a name or a path, got "):
             load_network(bad)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"duration": math.nan}, "duration: must be finite, got nan"),
+    ({"duration": 10**400}, "duration: must be finite, got an integer beyond 2\\^63"),
+    ({"duration": np.array([0.01])}, "duration: must be a number, got ndarray"),
+    ({"duration": 1e9}, "duration: 1e\\+09 is outside the plausible range"),
+    ({"dt": 0.0}, "dt: must be > 0, got 0.0"),
+    ({"duration": 1e6, "dt": 1e-6}, "dt: 1e-06 s over 1e\\+06 s is more than 1e8 steps"),
+    ({"model": ["flexible"]}, "model: must be one of"),
+])
+def test_network_simulate_refuses_bad_run_arguments_in_one_line(kwargs, message):
+    """simulate(scene, duration=..., dt=...) checks them as the scene file's keys are checked (before: ValueError
+    'cannot convert float NaN to integer', OverflowError, ZeroDivisionError, a 116 TiB MemoryError for 1e9 s)."""
+    scene = _scene(_two_pulleys())
+    with pytest.raises(SceneError, match=message):
+        simulate(scene, **kwargs)
+    with pytest.raises(SceneError, match="scene: expected a NetworkScene"):
+        simulate(None, duration=0.01)
