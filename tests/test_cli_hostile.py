@@ -28,6 +28,10 @@ def _cases(tmp):
         "bench --seconds nan": (["bench", "soak", "--quick", "--seconds", "nan", "--out", str(tmp)], "--seconds: must be > 0"),
         "bench --samples 0": (["bench", "campaign", "--quick", "--samples", "0", "--out", str(tmp)], "--samples: must be > 0"),
         "bench --out a file": (["bench", "kernel", "--quick", "--out", str(a_file)], "exists and is not a folder"),
+        "urdf --out and --png the same": (["urdf", "fead_i4", "--out", str(tmp / "a.png"), "--png", str(tmp / "a.png")],
+                                          "--out and --png name the same file"),
+        "network sim --tolerance": (["sim", "fead_i4", "--tolerance", "nan", "--quiet", "--duration", "0.01"],
+                                    "--tolerance: not available for a belt network scene"),
         "modes same PNG twice": (["modes", "fead_i4", "--campbell", str(tmp / "a.png"), "--runup", str(tmp / "a.png")],
                                  "--campbell and --runup name the same file"),
     }
@@ -37,6 +41,7 @@ CASES = [
     "record --duration -1", "record --duration nan", "demo --duration -1", "demo --duration inf", "demo --out-dir a file",
     "make-bags --out a file", "make-bags --out /dev/null", "modes --campbell x.txt", "modes --runup x.csv", "modes same PNG twice",
     "sim --bag-folder in a missing folder", "bench --minutes -1", "bench --seconds nan", "bench --samples 0", "bench --out a file",
+    "urdf --out and --png the same", "network sim --tolerance",
 ]
 
 
@@ -46,7 +51,8 @@ def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tm
     '[Errno 17] File exists', demo started its ROS part with a negative --duration, modes wrote a PNG into
     x.txt (every other PNG option refuses that), sim --bag-folder made the missing parents of --out (a file
     --out says the folder does not exist), bench took a negative or nan --minutes/--seconds/--samples and an
-    --out naming a file failed with exit 1 ('[Errno 17] File exists')."""
+    --out naming a file failed with exit 1 ('[Errno 17] File exists'), urdf wrote the URDF and then the PNG into
+    one file, a network sim took any --tolerance (even nan) and ignored it."""
     argv, message = _cases(tmp_path)[case]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
