@@ -313,3 +313,16 @@ def test_an_extended_scene_with_its_own_torques_gets_the_method_chosen_for_them(
     assert load_only.method == "auto"
     params_only = load_scene(_write(tmp_path, "extends: paper\nparams: {c: 3.0}\n", name="c.yaml"))
     assert params_only.method == paper.method
+
+
+@pytest.mark.parametrize("digits", [20, 4300, 5000, 100_000], ids=["20", "4300", "5000", "100000"])
+def test_integers_of_any_length_in_yaml_are_one_input_error(digits, tmp_path, capsys):
+    """An integer past 2^63 is refused naming its line, however long (before: past Python's 4300-digit
+    limit of int-from-text, an internal ValueError, exit 1)."""
+    text = f"extends: paper\nparams:\n  k: {'9' * digits}\n"
+    with pytest.raises(InputError, match="line 3: integer .* is too large"):
+        parse_yaml(text)
+    path = tmp_path / "big.yaml"
+    path.write_text(text)
+    line = _cli_error(capsys, ["sim", str(path), "--quiet"])
+    assert "line 3: integer" in line and "too large" in line

@@ -726,3 +726,51 @@ def test_centrifugal_tension_moves_the_arm_mode_with_speed_as_its_closed_form():
         if speed:
             assert 0.0 < dT < w  # a soft tensioner lets the span tension rise by most of w, not all of it
     assert lowest[0] < lowest[1] < lowest[2]  # the arm feels less tension: its (negative) geometric stiffness shrinks
+
+
+def _two_pulleys():
+    return [_pulley("a", (0.0, 0.0), 0.05, role="driver", torque=0.1), _pulley("b", (0.3, 0.0), 0.05, role="accessory", torque=0.1)]
+
+
+@pytest.mark.parametrize("where, value, message", [
+    ("kind", np.array(["network", "x"]), "kind: must be 'network'"),
+    ("engine", {"strokes": np.array([2, 4])}, "engine.strokes: 2 or 4, got array"),
+    ("engine", {"cylinders": 2.0}, "engine.cylinders: an integer 1..32, got 2.0"),
+    ("EA", 1e300, "belt.EA: 1e\\+300 is outside the plausible range"),
+])
+def test_network_scene_hostile_values_are_one_scene_error(where, value, message):
+    """Arrays where a word or a whole number belongs and huge floats: one SceneError naming the key (before:
+    numpy's "truth value of an array is ambiguous" ValueError, and "an integer beyond 2^63" for the float 1e300)."""
+    with pytest.raises(SceneError, match=message):
+        _scene(_two_pulleys(), EA=value) if where == "EA" else _scene(_two_pulleys(), **{where: value})
+
+
+def test_network_scene_takes_numpy_scalars_and_load_network_refuses_non_names():
+    """numpy scalars are numbers (np.int64 cylinders, np.float32 radius); load_network of a non-name is one
+    SceneError like load_scene's (before: "unknown network scene 'nan'" for float('nan'))."""
+    pulleys = _two_pulleys()
+    pulleys[1]["radius"] = np.float32(0.0625)
+    scene = _scene(pulleys, engine={"cylinders": np.int64(4), "strokes": np.int64(2)})
+    assert scene.pulleys[1].radius == 0.0625 and scene.engine.cylinders == 4
+    for bad in (math.nan, None, ["fead_i4"]):
+        with pytest.raises(SceneError, match="^scene: expected a name or a path, got "):
+            load_network(bad)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"duration": math.nan}, "duration: must be finite, got nan"),
+    ({"duration": 10**400}, "duration: must be finite, got an integer beyond 2\\^63"),
+    ({"duration": np.array([0.01])}, "duration: must be a number, got ndarray"),
+    ({"duration": 1e9}, "duration: 1e\\+09 is outside the plausible range"),
+    ({"dt": 0.0}, "dt: must be > 0, got 0.0"),
+    ({"duration": 1e6, "dt": 1e-6}, "dt: 1e-06 s over 1e\\+06 s is more than 1e8 steps"),
+    ({"model": ["flexible"]}, "model: must be one of"),
+])
+def test_network_simulate_refuses_bad_run_arguments_in_one_line(kwargs, message):
+    """simulate(scene, duration=..., dt=...) checks them as the scene file's keys are checked (before: ValueError
+    'cannot convert float NaN to integer', OverflowError, ZeroDivisionError, a 116 TiB MemoryError for 1e9 s)."""
+    scene = _scene(_two_pulleys())
+    with pytest.raises(SceneError, match=message):
+        simulate(scene, **kwargs)
+    with pytest.raises(SceneError, match="scene: expected a NetworkScene"):
+        simulate(None, duration=0.01)

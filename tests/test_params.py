@@ -183,3 +183,14 @@ def test_derived_quantities():
     assert p.ratio == pytest.approx(g * 0.06 / 0.05, rel=1e-15)
     assert p.belt_torsional_stiffness == pytest.approx(2 * p.k * 0.05**2, rel=1e-15)
     assert p.capstan_ratio == pytest.approx(math.exp(p.mu * p.wrap_angle), rel=1e-15)
+
+
+@pytest.mark.parametrize("value", [np.float32(2.0e4), np.int64(20000), np.uint16(20000)], ids=["float32", "int64", "uint16"])
+def test_numpy_scalars_are_numbers_in_the_parameters(value):
+    """numpy scalars are numbers (stored as Python floats); numpy booleans and arrays are refused in one line
+    (before: "k: must be a number, got float32 20000.0")."""
+    p = BeltDriveParams(k=value)
+    assert p.k == 2.0e4 and type(p.k) is float
+    for bad in (np.bool_(True), np.array([2.0e4]), np.array(2.0e4)):
+        with pytest.raises(ParameterError, match="^k: must be a number, got "):
+            BeltDriveParams(k=bad)

@@ -257,3 +257,43 @@ def test_with_params_is_the_scene_with_those_parameters():
     assert scene.with_params(params).params is params and scene.params.k == 2.0e4  # a copy; the base unchanged
     with pytest.raises(SceneError, match="params: expected BeltDriveParams"):
         scene.with_params({"k": 1.5e4})
+
+
+@pytest.mark.parametrize("field", ["params", "drive", "load", "initial_state"])
+@pytest.mark.parametrize("value", [math.nan, {"k": 1.0}, None, np.array([1.0]), "paper"], ids=["nan", "dict", "None", "array", "str"])
+def test_scene_built_in_python_refuses_parts_of_the_wrong_type(field, value):
+    """Scene(...) from Python checks its parts' types (before: any value passed, and the run failed later
+    with an AttributeError deep in the model)."""
+    with pytest.raises(SceneError, match=f"^{field}: expected "):
+        Scene(**{field: value})
+
+
+@pytest.mark.parametrize("value", [np.float32(0.5), np.int64(2), np.float16(0.25)], ids=["float32", "int64", "float16"])
+def test_numpy_scalars_are_numbers_in_scenes_and_initial_states(value):
+    """numpy scalars (not only np.float64, a float subclass) are numbers where numbers belong, stored as
+    Python floats (before: "must be a finite number, got float32 0.5")."""
+    state = InitialState(omega_M=value)
+    assert state.omega_M == float(value) and type(state.omega_M) is float
+    scene = Scene(duration=value, dt=1e-3)
+    assert scene.duration == float(value) and type(scene.duration) is float
+    data = load_scene("paper").to_dict()
+    data["method"], data["method_options"], data["initial_state"]["omega_M"] = "RK45", {"rtol": value}, value
+    assert Scene.from_mapping(data).initial_state.omega_M == float(value)
+    with pytest.raises(SceneError, match="initial_state.omega_M: must be a finite number, got bool"):
+        InitialState(omega_M=np.bool_(True))
+    with pytest.raises(SceneError, match="initial_state.phi_M: must be a finite number, got ndarray"):
+        InitialState(phi_M=np.array(1.0))
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"bogus": 1.0}, "method_options.bogus: not an option of RK45 \\(its options: rtol, atol, max_step\\)"),
+    ({"": 1.0}, "method_options.: not an option of RK45"),
+    ({"max_step": -1.0}, "method_options.max_step: must be a number > 0, got float -1.0"),
+    ({"rtol": math.nan}, "method_options.rtol: must be a number > 0, got float nan"),
+])
+def test_unknown_or_bad_scipy_options_are_one_scene_error(options, message):
+    """Options a scipy method does not take, or takes only > 0: one SceneError naming the option when the
+    scene is built (before: TypeError "ScipyAdaptive.__init__() got an unexpected keyword argument 'bogus'",
+    or scipy's own ValueError for max_step, at the first run: an internal error, exit 1, on the command line)."""
+    with pytest.raises(SceneError, match=message):
+        load_scene("paper").with_overrides(method="RK45", method_options=options)

@@ -133,8 +133,26 @@ def _checked_baseline(study: str, baseline: str | None) -> Path | None:
     return root
 
 
+#: largest value of each numeric option (a day of measuring, of 1 kHz bag; 10 million campaign variants)
+OPTION_LIMITS = {"seconds": 86400.0, "duration": 86400.0, "minutes": 1440.0, "samples": 1.0e7}
+
+
+def _check_options(args) -> None:
+    """One :class:`InputError` line for a numeric option outside ``(0, limit]`` (nan, inf, <= 0 included) or an
+    --out that is not a folder, before anything is measured."""
+    from ..core.errors import InputError
+
+    for name, top in OPTION_LIMITS.items():
+        value = getattr(args, name)
+        if value is not None and not 0 < value <= top:
+            raise InputError(f"--{name}: must be > 0 and at most {top:g}, got {value!r}")
+    if args.out.exists() and not args.out.is_dir():
+        raise InputError(f"--out {args.out}: exists and is not a folder")
+
+
 def run(args) -> int:
     args.baseline = _checked_baseline(args.study, args.baseline)
+    _check_options(args)
     blas = _single_threaded_blas()
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)

@@ -43,6 +43,13 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from ..core.errors import ParameterError
+    from ..io.atomic import OutputRefused
+
+    if not args.no_live and not 0 < args.duration < float("inf"):  # refused before any node starts
+        raise ParameterError("--duration", f"must be finite and > 0 s, got {args.duration!r}")
+    if args.out_dir.exists() and not args.out_dir.is_dir():
+        raise OutputRefused(f"--out-dir {args.out_dir}: exists and is not a folder")
     if not args.no_live:
         live_run(args.scene, args.duration, args.executor)
     code = 0

@@ -42,6 +42,10 @@ def run(args) -> int:
         for name, case in REFERENCE_BAGS.items():
             print(f"{name:20s} {case.description}")
         return 0
+    if args.out.exists() and not args.out.is_dir():
+        from ..io.atomic import OutputRefused
+
+        raise OutputRefused(f"--out {args.out}: exists and is not a folder (make-bags writes NAME.yaml and bags into it)")
     try:
         make_bags(args.out, force=args.force, only=args.only)
     except ValueError as exc:

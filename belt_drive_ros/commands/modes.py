@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 
 
 def register(sub) -> None:
@@ -33,14 +34,17 @@ def run(args) -> int:
         raise SceneError(f"--speed: a finite driver speed within +-1e4 rad/s, got {args.speed!r}")
     if not 3 <= args.points <= 2000:
         raise SceneError(f"--points: 3 .. 2000, got {args.points}")
-    from ..io.atomic import check_output
+    from ..io.atomic import OutputRefused, check_output
 
-    if args.campbell:
-        check_output(args.campbell, args.force, "Campbell plot")
-    if args.runup:
-        if not (math.isfinite(args.runup_time) and 0.1 <= args.runup_time <= 600.0):
-            raise SceneError(f"--runup-time: 0.1 .. 600 s, got {args.runup_time!r}")
-        check_output(args.runup, args.force, "run-up chart")
+    for option, path, what in (("--campbell", args.campbell, "Campbell plot"), ("--runup", args.runup, "run-up chart")):
+        if path:
+            check_output(path, args.force, what)
+            if not path.lower().endswith(".png"):
+                raise OutputRefused(f"{option} {path}: the chart is a PNG; give a .png path")
+    if args.campbell and args.runup and os.path.abspath(args.campbell) == os.path.abspath(args.runup):
+        raise OutputRefused("--campbell and --runup name the same file")
+    if args.runup and not (math.isfinite(args.runup_time) and 0.1 <= args.runup_time <= 600.0):
+        raise SceneError(f"--runup-time: 0.1 .. 600 s, got {args.runup_time!r}")
     model = NetworkModel.build(scene)
     speed = scene.operating_speed if args.speed is None else args.speed
     names = [p.name for p in scene.pulleys] + (["tensioner_arm"] if scene.tensioner else [])

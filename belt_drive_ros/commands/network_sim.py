@@ -15,7 +15,8 @@ def _refuse_unsupported(args) -> None:
 
     given = [flag for flag, value in (("--v-eps", getattr(args, "v_eps", None)),
                                       ("--method-option", args.method_option), ("--torque-bag", args.torque_bag),
-                                      ("--bag-folder", args.bag_folder)) if value]
+                                      ("--bag-folder", args.bag_folder),
+                                      ("--tolerance", getattr(args, "tolerance", None) is not None)) if value]
     if given:
         raise SceneError(f"{given[0]}: not available for a belt network scene yet (its linear tier runs; "
                          "see docs/serpentine.md)")

@@ -59,9 +59,10 @@ def run(args) -> int:
 
     from ..io.recording import BagWriteError, bag_error
 
-    if args.duration is not None and not args.duration > 0:
-        raise SystemExit("belt-drive: error: --duration must be > 0 s")
     from ..core.errors import ParameterError
+
+    if args.duration is not None and not args.duration > 0:  # (exit 2 like every bad input; inf: until interrupted)
+        raise ParameterError("--duration", f"must be > 0 s, got {args.duration!r}")
 
     if not 0 <= args.max_bag_duration < float("inf"):
         raise ParameterError("--max-bag-duration", f"must be finite and >= 0 s, got {args.max_bag_duration!r}")

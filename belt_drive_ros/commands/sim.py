@@ -323,6 +323,9 @@ def check_outputs(args) -> str | None:
             out_format = "mcap"
             if args.out.exists() and not args.out.is_dir():
                 raise OutputRefused(f"--out {args.out}: exists and is not a folder (--bag-folder writes a folder)")
+            parent = args.out.absolute().parent
+            if not parent.is_dir():  # (as for a file: the bag's own folder is made, never its parents)
+                raise OutputRefused(f"--out {args.out}: folder {parent} does not exist")
         else:
             check_output(args.out, args.force, "--out")
             out_format = OUT_FORMATS.get(args.out.suffix.lower())

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -44,6 +46,8 @@ def run(args) -> int:
             check_output(path, args.force, option)
     if args.png and not args.png.lower().endswith(".png"):
         raise OutputRefused(f"--png {args.png}: the picture is a PNG; give a .png path")
+    if args.out and args.png and os.path.abspath(args.out) == os.path.abspath(args.png):
+        raise OutputRefused("--out and --png name the same file")
     if args.out:
         with atomic_output(args.out, args.force, "w", what="--out") as f:
             f.write(text)

@@ -43,6 +43,7 @@ import os
 import re
 import stat
 from collections.abc import Mapping
+from numbers import Real
 from pathlib import Path
 from typing import Any
 
@@ -231,7 +232,10 @@ class _BoundedLoader(yaml.SafeLoader):
 
 
 def _construct_int(loader, node):
-    value = yaml.SafeLoader.construct_yaml_int(loader, node)
+    try:
+        value = yaml.SafeLoader.construct_yaml_int(loader, node)
+    except ValueError:  # more than 4300 digits: Python refuses to convert the text at all
+        value = math.inf
     if abs(value) > MAX_INT:
         raise InputError(f"line {node.start_mark.line + 1}: integer {short(node.value, 40)} is too large (|n| > 2^63)")
     return value
@@ -277,6 +281,21 @@ def read_yaml(path: str | os.PathLike, what: str = "YAML file", limit: int = SCE
 
 
 # ------------------------------------------------------------------ typed values, the key named
+def real(value: Any) -> int | float | None:
+    """``value`` as a Python ``int`` or ``float`` if it is a real number, numpy scalars too; else None.
+
+    Booleans (Python's and numpy's) are not numbers here; a numpy scalar becomes
+    its Python value (``np.float32(2.0)`` -> ``2.0``), so callers check range and
+    finiteness on plain numbers. Arrays, strings, ``Decimal`` ... are None.
+    """
+    if isinstance(value, (int, float)):
+        return None if isinstance(value, bool) else value
+    if isinstance(value, Real) and hasattr(value, "item") and type(value).__name__ != "bool":
+        value = value.item()  # numpy's scalars (registered as numbers.Real) as Python numbers
+        return value if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+    return None
+
+
 def _refuse(error, key: str, expected: str, value: Any):
     return error(f"{key}: must be {expected}, got {type(value).__name__} {short(value)}")
 
@@ -291,8 +310,9 @@ def number(
     with ``integer`` a float is taken only when whole (``1e3`` is 1000,
     ``2.7`` is refused, never truncated).
     """
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise _refuse(error, key, "a whole number" if integer else "a number", value)
+    given, value = value, real(value)
+    if value is None:
+        raise _refuse(error, key, "a whole number" if integer else "a number", given)
     if isinstance(value, float) and not math.isfinite(value):
         raise _refuse(error, key, "a finite number", value)
     if integer:

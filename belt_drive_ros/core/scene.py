@@ -9,6 +9,7 @@ ships ``paper``, ``truck_compressor`` and ``e_motor_start``
 from __future__ import annotations
 
 import copy
+import inspect
 import math
 import os
 from dataclasses import dataclass, field, fields, replace
@@ -20,7 +21,7 @@ import numpy as np
 import yaml
 
 from .errors import ParameterError, SceneError
-from .inputs import parse_yaml, read_text, short, unknown_key
+from .inputs import parse_yaml, read_text, real, short, unknown_key
 from .integrators import method_class
 from .params import OPTIONAL_DEFAULTS, BeltDriveParams
 from .sources import Constant, TorqueProfile, make_profile
@@ -50,12 +51,28 @@ AUTO_METHOD = "auto"
 MAX_STEPS = 1.0e9
 
 
-def _finite(v) -> bool:
-    """``math.isfinite`` that says False for integers beyond the float range (instead of raising)."""
+def _finite(v) -> float | None:
+    """``v`` as a finite float if it is a real number (numpy scalars too, never a bool), else None."""
+    v = real(v)
     try:
-        return math.isfinite(v)
-    except OverflowError:
-        return False
+        return float(v) if v is not None and math.isfinite(v) else None
+    except OverflowError:  # an integer beyond the float range
+        return None
+
+
+def _check_options(method: str, cls: type, options: Mapping) -> None:
+    """``options`` against the keyword options of ``method``'s class (scipy's rtol, atol, max_step; the
+    trapezoidal rule's tol, max_iter): known names, numbers > 0. A class taking ``**options`` checks its own."""
+    params = inspect.signature(cls.__init__).parameters
+    if not options or any(p.kind is p.VAR_KEYWORD for p in params.values()):
+        return
+    known = [n for n, p in params.items() if p.default is not p.empty]
+    for key, value in options.items():
+        if key not in known:
+            raise SceneError(f"method_options.{str(key)[:60]}: not an option of {method} (its options: {', '.join(known)})")
+        v = real(value)
+        if v is None or not v > 0:
+            raise SceneError(f"method_options.{key}: must be a number > 0, got {type(value).__name__} {short(value)}")
 
 
 @dataclass(frozen=True)
@@ -74,9 +91,10 @@ class InitialState:
     def __post_init__(self):
         for f in fields(self):
             v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
+            x = _finite(v)
+            if x is None:
                 raise SceneError(f"initial_state.{f.name}: must be a finite number, got {type(v).__name__} {short(v)}")
-            object.__setattr__(self, f.name, float(v))
+            object.__setattr__(self, f.name, x)
 
     def vector(self, model_name: str, ratio: float) -> np.ndarray:
         """State vector for ``model_name`` (see :mod:`belt_drive_ros.core.model` for the ordering)."""
@@ -129,11 +147,18 @@ class Scene:
     def __post_init__(self):
         for name, (low, high, unit) in RANGES.items():
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v) or v <= 0:
+            x = _finite(v)
+            if x is None or x <= 0:
                 raise SceneError(f"{name}: must be a finite number > 0, got {type(v).__name__} {short(v)}")
+            v = x
             if not low <= v <= high:
                 raise SceneError(f"{name}: {v:g} {unit} is outside the plausible range [{low:g}, {high:g}] {unit}")
-            object.__setattr__(self, name, float(v))
+            object.__setattr__(self, name, v)
+        for name, kind in (("params", BeltDriveParams), ("drive", TorqueProfile), ("load", TorqueProfile),
+                           ("initial_state", InitialState)):
+            v = getattr(self, name)
+            if not isinstance(v, kind):
+                raise SceneError(f"{name}: expected {kind.__name__}, got {type(v).__name__} {short(v)}")
         for name in ("name", "description", "model", "method"):
             v = getattr(self, name)
             if not isinstance(v, str):
@@ -153,8 +178,10 @@ class Scene:
             raise SceneError(f"model: must be one of {', '.join(MODELS)}, got {short(self.model)}")
         try:
             if self.method != AUTO_METHOD:
-                method_class(self.method)
+                _check_options(self.method, method_class(self.method), self.method_options)
         except ValueError as exc:
+            if isinstance(exc, SceneError):
+                raise
             raise SceneError(f"{exc} (or {AUTO_METHOD!r}: chosen by accuracy)") from None
         if self.dt > self.duration:
             raise SceneError(f"dt: must not exceed duration ({self.duration} s), got {self.dt}")
@@ -218,7 +245,7 @@ class Scene:
             data["name"] = name
         options = dict(data.get("method_options") or {})
         for key, value in options.items():
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
+            if real(value) is None:
                 raise SceneError(f"method_options.{str(key)[:60]}: must be a number, got {type(value).__name__} {short(value)}")
         data["method_options"] = options
         return cls(params=params, drive=drive, load=load, initial_state=InitialState(**init), **data)

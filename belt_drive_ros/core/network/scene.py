@@ -20,7 +20,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import SceneError
-from ..inputs import MAX_INT, parse_yaml, read_text, short, unknown_key
+from ..inputs import MAX_INT, parse_yaml, read_text, real, short, unknown_key
 from ..integrators import method_class
 from ..scene import shipped_scenes
 from ..sources import TorqueProfile, make_profile
@@ -33,9 +33,10 @@ ROLE_SIGN = {"driver": 1.0, "accessory": -1.0}
 
 
 def _number(where: str, value, low: float = 0.0, strict: bool = False, top: float = 1.0e9) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise SceneError(f"{where}: must be a number, got {type(value).__name__} {short(value)}")
-    if abs(value) > MAX_INT:
+    given, value = value, real(value)
+    if value is None:
+        raise SceneError(f"{where}: must be a number, got {type(given).__name__} {short(given)}")
+    if isinstance(value, int) and abs(value) > MAX_INT:
         raise SceneError(f"{where}: must be finite, got an integer beyond 2^63")
     value = float(value)
     if not math.isfinite(value):
@@ -205,7 +206,7 @@ class NetworkScene:
         allowed = ("kind", "name", "description", "pulleys", "belt", "tensioner", "engine",
                    "initial_speed", "operating_speed", "duration", "dt", "method")
         data = _keys("scene", data, allowed, ("kind", "pulleys", "belt", "duration", "dt", "initial_speed"))
-        if data["kind"] != "network":
+        if not isinstance(data["kind"], str) or data["kind"] != "network":
             raise SceneError(f"kind: must be 'network' for a belt network scene, got {short(data['kind'])}")
         raw = data["pulleys"]
         if not isinstance(raw, list) or len(raw) < 2:
@@ -301,11 +302,11 @@ class NetworkScene:
         lo, hi = _number("engine.speed_range[0]", rng[0], strict=True), _number("engine.speed_range[1]", rng[1], strict=True)
         if hi <= lo:
             raise SceneError(f"engine.speed_range: high {hi:g} must exceed low {lo:g} rad/s")
-        cyl, strokes = e.get("cylinders", 4), e.get("strokes", 4)
-        if not isinstance(cyl, int) or isinstance(cyl, bool) or not 1 <= cyl <= 32:
-            raise SceneError(f"engine.cylinders: an integer 1..32, got {short(cyl)}")
+        (cyl, given_cyl), (strokes, given_strokes) = ((real(v), v) for v in (e.get("cylinders", 4), e.get("strokes", 4)))
+        if not isinstance(cyl, int) or not 1 <= cyl <= 32:
+            raise SceneError(f"engine.cylinders: an integer 1..32, got {short(given_cyl)}")
         if strokes not in (2, 4):
-            raise SceneError(f"engine.strokes: 2 or 4, got {short(strokes)}")
+            raise SceneError(f"engine.strokes: 2 or 4, got {short(given_strokes)}")
         method = data.get("method", "exact")
         try:
             method_class(method)
@@ -373,6 +374,8 @@ def is_network(name_or_path: str | Path) -> bool:
 
 def load_network(name_or_path: str | Path) -> NetworkScene:
     """A network scene by shipped name or path (read like every scene file: regular, UTF-8, size-limited)."""
+    if not isinstance(name_or_path, (str, Path)):
+        raise SceneError(f"scene: expected a name or a path, got {type(name_or_path).__name__} {short(name_or_path)}")
     label = str(name_or_path)
     if label in shipped_networks():
         text = (resources.files("belt_drive_ros") / "scenes" / "networks" / f"{label}.yaml").read_text(encoding="utf-8")

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..errors import IntegratorError, SceneError, SimulationDivergedError, UnstableStepError
 from ..identity_cache import built_once
+from ..inputs import short
 from ..profile_data import CONSTANT, DIVERGED, NOT_CONVERGED
 from .model import NetworkModel, NetworkRun, check_step, grid_breakpoints, outputs, run_steps, stack_profiles, step_runs
 from .scene import warm_scene
@@ -313,10 +314,10 @@ def simulate(scene, duration: float | None = None, dt: float | None = None, meth
     method is replaced by ``exact`` there (``run.method`` says so). The run carries ``tier``, ``reason``, ``method``
     and ``accuracy`` (the step-doubling verdict of a linear tier).
     """
-    if model not in TIERS:
-        raise SceneError(f"model: must be one of {', '.join(TIERS)} for a belt network, got {model!r}")
+    if not isinstance(model, str) or model not in TIERS:
+        raise SceneError(f"model: must be one of {', '.join(TIERS)} for a belt network, got {short(model)}")
+    duration, dt, steps = run_steps(scene, duration, dt)  # (checks the scene's type first)
     net = model_of(scene)
-    duration, dt, steps = run_steps(scene, duration, dt)
     name = method or scene.method
     if model == "slipping":
         return replace(run_slipping(net, duration, dt, method), tier="slipping", reason="slipping: asked for",
