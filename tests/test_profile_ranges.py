@@ -134,3 +134,15 @@ def test_integers_beyond_the_float_range_are_one_scene_error_not_a_traceback(big
                         {"name": "b", "role": "accessory", "centre": [0.3, 0], "radius": 0.05, "inertia": 1e-3, "torque": 0.1}]}
     with pytest.raises(SceneError, match="belt.mass_per_length: must be finite"):
         NetworkScene.from_mapping(data)
+
+
+@pytest.mark.parametrize("spec, message", [
+    (float("inf"), "must be finite, got inf"),
+    ({"type": ["a"]}, "drive.type: unknown profile \\['a'\\]"),
+    ({"type": {"k": 1}}, "drive.type: unknown profile"),
+])  # fmt: skip
+def test_a_non_finite_number_or_an_unhashable_type_is_one_scene_error(spec, message):
+    """An infinite float is named as such (not as a huge integer), and a list or mapping as a profile's
+    ``type`` is an unknown profile (before: TypeError, unhashable type)."""
+    with pytest.raises(SceneError, match=message):
+        make_profile(spec, "drive")

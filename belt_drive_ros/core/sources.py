@@ -733,14 +733,14 @@ def make_profile(spec: Mapping[str, Any] | TorqueProfile | float, where: str = "
     if isinstance(spec, TorqueProfile):
         return spec
     if isinstance(spec, (int, float)) and not isinstance(spec, bool):
-        if abs(spec) > MAX_INT:
+        if isinstance(spec, int) and abs(spec) > MAX_INT:
             raise SceneError(f"{where}: must be finite, got an integer beyond 2^63")
         return Constant(float(spec)).check_plausible(where)
     if not isinstance(spec, Mapping):
         raise SceneError(f"{where}: expected a mapping with a 'type' key or a number, got {type(spec).__name__} {short(spec)}")
     spec = dict(spec)
     kind = spec.pop("type", None)
-    if kind not in _REGISTRY:
+    if not isinstance(kind, str) or kind not in _REGISTRY:
         raise SceneError(f"{where}.type: unknown profile {short(kind)}; known: {', '.join(sorted(_REGISTRY))}")
     cls = _REGISTRY[kind]
     names = {f.name for f in fields(cls)}
