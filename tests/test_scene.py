@@ -297,3 +297,20 @@ def test_unknown_or_bad_scipy_options_are_one_scene_error(options, message):
     or scipy's own ValueError for max_step, at the first run: an internal error, exit 1, on the command line)."""
     with pytest.raises(SceneError, match=message):
         load_scene("paper").with_overrides(method="RK45", method_options=options)
+
+
+@pytest.mark.parametrize("scene, progress, message", [
+    (None, None, "scene: expected a Scene .*got NoneType"),
+    ({"drive": 1.0}, None, "scene: expected a Scene .*got dict"),
+    ("paper", None, "scene: expected a Scene .*got str"),
+    ("SCENE", 3, "progress: expected a callable .*got int"),
+])  # fmt: skip
+def test_simulate_refuses_what_is_not_a_scene_or_a_progress_callback_in_one_line(scene, progress, message):
+    """simulate()'s entry point names a wrong scene or progress argument (before: AttributeError deep in the
+    probes, or TypeError 'int object is not callable' at the first report)."""
+    from belt_drive_ros.core.errors import SceneError
+    from belt_drive_ros.core.simulate import simulate
+
+    scene = load_scene("paper") if scene == "SCENE" else scene
+    with pytest.raises(SceneError, match=message):
+        simulate(scene, duration=0.02, progress=progress)

@@ -22,7 +22,7 @@ import numpy as np
 from .accuracy import (
     AccuracyReport, probe_scene, require_accurate, require_accurate_slipping, slip_run_error, with_slip_run_error,
 )  # fmt: skip
-from .errors import SimulationDivergedError, UnstableStepError
+from .errors import SceneError, SimulationDivergedError, UnstableStepError
 from .fidelity import ModelChoice, RigidSurvey, choose_model, limit_exceedance
 from .integrators import method_class
 from .method_choice import MethodChoice, good_step_error, resolve as resolve_method
@@ -184,6 +184,10 @@ def simulate(
     located onset instead of running twice. The reason then names the onset
     time (the linear run past it is not computed).
     """
+    if not isinstance(scene, Scene):
+        raise SceneError(f"scene: expected a Scene (load_scene or Scene.from_mapping), got {type(scene).__name__}")
+    if progress is not None and not callable(progress):
+        raise SceneError(f"progress: expected a callable taking the fraction done, got {type(progress).__name__}")
     if not (model is None and method is None and dt is None and duration is None):  # (a scene is immutable)
         scene = scene.with_overrides(model=model, method=method, dt=dt, duration=duration)
     # one rigid run for the model choice, the method choice and the guard's probes (at the scene's step)
