@@ -314,3 +314,14 @@ def test_simulate_refuses_what_is_not_a_scene_or_a_progress_callback_in_one_line
     scene = load_scene("paper") if scene == "SCENE" else scene
     with pytest.raises(SceneError, match=message):
         simulate(scene, duration=0.02, progress=progress)
+
+
+@pytest.mark.parametrize("name", ["omega_M", "relative_speed"])
+def test_an_absurd_initial_speed_is_refused_by_name(name):
+    """1e20 rad/s as an initial speed: one SceneError naming the field and the range (before: accepted,
+    then SimulationDivergedError advising a smaller dt). The bound itself is accepted."""
+    from belt_drive_ros.core.sources import SPEED_MAX
+
+    with pytest.raises(SceneError, match=f"initial_state.{name}: 1e\\+20 rad/s is outside the plausible range"):
+        InitialState(**{name: 1e20})
+    assert getattr(InitialState(**{name: -SPEED_MAX}), name) == -SPEED_MAX

@@ -24,7 +24,7 @@ from .errors import ParameterError, SceneError
 from .inputs import parse_yaml, read_text, real, short, unknown_key
 from .integrators import method_class
 from .params import OPTIONAL_DEFAULTS, BeltDriveParams
-from .sources import Constant, TorqueProfile, make_profile
+from .sources import SPEED_MAX, Constant, TorqueProfile, make_profile
 
 MODELS = ("rigid", "flexible", "slipping", "auto")
 #: models whose runs carry the slip outputs (span forces, friction use, slip state and speed, slip angle)
@@ -94,6 +94,9 @@ class InitialState:
             x = _finite(v)
             if x is None:
                 raise SceneError(f"initial_state.{f.name}: must be a finite number, got {type(v).__name__} {short(v)}")
+            if f.name in ("omega_M", "relative_speed") and abs(x) > SPEED_MAX:  # (beyond it every run diverges)
+                raise SceneError(f"initial_state.{f.name}: {x:g} rad/s is outside the plausible range "
+                                 f"[-{SPEED_MAX:g}, {SPEED_MAX:g}] rad/s")
             object.__setattr__(self, f.name, x)
 
     def vector(self, model_name: str, ratio: float) -> np.ndarray:
