@@ -44,7 +44,8 @@ def _same_windows(a, b):
             assert np.array_equal(x.outputs[name], y.outputs[name]), name
         for name in x.energy:
             assert np.array_equal(x.energy[name], y.energy[name]), name
-    assert repr(a[0].accuracy) == repr(b[0].accuracy)  # the guards' figures and verdicts
+    # the guards' figures and verdicts (the last window carries the report: the guard runs beside the windows)
+    assert a[-1].accuracy is not None and repr(a[-1].accuracy) == repr(b[-1].accuracy)
 
 
 @pytest.mark.parametrize("model", ["flexible", "rigid"])

@@ -89,7 +89,8 @@ def stream(
     choice = _linear_choice(scene)
     choice = replace(choice, linear=choice.model)
     peak, t_peak = 0.0, 0.0
-    for window in _linear(scene, choice.model, choice, progress, check_stability, window_steps):
+    guards: list = []
+    for window in _linear(scene, choice.model, choice, progress, check_stability, window_steps, guards):
         ratio, t_at = limit_exceedance(scene.params, window.time, window.outputs)
         if ratio > peak:
             peak, t_peak = ratio, t_at
@@ -100,6 +101,8 @@ def stream(
                 f"in the {choice.model} run ({choice.reason})"
             )
             slip_choice = replace(choice, model="slipping", reason=reason, limit_ratio=peak, limit_time=t_peak)
+            for guard in guards:  # the linear run's guard refuses an unstable step before anything else is said
+                guard.result()
             yield Restart(slip_choice)
             yield from _slipping(scene, slip_choice, progress, check_stability, window_steps)
             return
@@ -124,32 +127,77 @@ def _running_integral(p: np.ndarray, time: np.ndarray, start: float) -> np.ndarr
     return start + np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * np.diff(time))])
 
 
-def _linear(scene, kind, choice, progress, check_stability, window_steps) -> Iterator[SimResult]:
+class _Guard:
+    """The accuracy guard of a run of several windows, computed beside them (a thread of its own).
+
+    The guard (:func:`~belt_drive_ros.core.accuracy.require_accurate`: the closed loop, the rigid
+    survey, the forcing windows) reads the whole run's torques; the windows do not depend on it, so
+    the first windows are simulated (and written) while it runs. :meth:`done` is its report once it
+    finished (None before); :meth:`result` waits for it and raises what it raised (an unstable step).
+    """
+
+    def __init__(self, call, *args, **kwargs):
+        import threading
+
+        self._report, self._error = None, None
+        self._thread = threading.Thread(target=self._run, args=(call, args, kwargs), name="accuracy-guard", daemon=True)
+        self._thread.start()
+
+    def _run(self, call, args, kwargs) -> None:
+        try:
+            self._report = call(*args, **kwargs)
+        except BaseException as exc:  # noqa: BLE001 - raised in the run's thread by result()
+            self._error = exc
+
+    def done(self):
+        return None if self._thread.is_alive() else self.result()
+
+    def result(self):
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        return self._report
+
+
+def _linear(scene, kind, choice, progress, check_stability, window_steps, guards=None) -> Iterator[SimResult]:
+    """The linear model's windows. ``guards``: a list that receives the run's :class:`_Guard` (the ``auto``
+    choice confirms it before it restarts on the slipping model)."""
     mdl = make_model(kind, scene.params)
     sim = Simulator(mdl, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
     stepper = sim.stepper
     stepper.origin = 0.0
     x = scene.initial_state.vector(kind, scene.params.ratio)
-    # closed loop (torque slopes): refuses an unstable step, reports an inaccurate one (as simulate does)
-    accuracy = (
-        require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x, scene.tolerance,
-                         method_options=scene.method_options, stepper=stepper)
-        if check_stability else None
-    )  # fmt: skip
-    work = dissipated = 0.0
-    first = True
     ends = list(_ends(stepper, scene.duration, window_steps)) or [(0.0, 0.0)]
-    for t0, t1 in ends:
+    # closed loop (torque slopes): refuses an unstable step, reports an inaccurate one (as simulate does); a run
+    # of several windows checks beside them (its own steppers: a stepper notes the run it makes), the last
+    # window carries the report, and a refusal is raised in place of anything the run raised meanwhile
+    guard = accuracy = None
+    if check_stability and len(ends) > 1:
+        guard = _Guard(require_accurate, sim.plant, scene.method, scene.dt, scene.duration, x, scene.tolerance,
+                       method_options=scene.method_options)
+        if guards is not None:
+            guards.append(guard)
+    elif check_stability:
+        accuracy = require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x, scene.tolerance,
+                                    method_options=scene.method_options, stepper=stepper)
+    work = dissipated = 0.0
+    for k, (t0, t1) in enumerate(ends):
         start = _time.perf_counter()
-        time, states = stepper.run(x, t0, t1)
+        try:
+            time, states = stepper.run(x, t0, t1)
+        except Exception:
+            if guard is not None:
+                guard.result()
+            raise
         wall = _time.perf_counter() - start
         u = sim.plant.input_array(time, states)
         energy_in = _running_integral(mdl.input_power(states, u), time, work)
         energy_d = _running_integral(mdl.dissipation_power(states), time, dissipated)
         work, dissipated, x = float(energy_in[-1]), float(energy_d[-1]), states[-1]
-        keep = slice(0, None) if first else slice(1, None)
-        first = False
+        keep = slice(0, None) if k == 0 else slice(1, None)
         time, states, u = time[keep], states[keep], u[keep]
+        if guard is not None:
+            accuracy = guard.result() if k == len(ends) - 1 else guard.done()
         yield SimResult(
             scene=scene, model=kind, method=sim.integrator.name, dt=scene.dt, time=time, states=states, inputs=u,
             outputs=mdl.outputs(states, u), choice=choice, stability=sim.stability, accuracy=accuracy,
