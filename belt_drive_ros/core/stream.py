@@ -127,41 +127,26 @@ def _running_integral(p: np.ndarray, time: np.ndarray, start: float) -> np.ndarr
     return start + np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * np.diff(time))])
 
 
-class _Guard:
-    """The accuracy guard of a run of several windows, computed beside them (a thread of its own).
+def _beside(call, *args, **kwargs):
+    """A future of ``call(*args, **kwargs)`` run in a daemon thread of its own (an interrupted run does not wait)."""
+    import threading
+    from concurrent.futures import Future
 
-    The guard (:func:`~belt_drive_ros.core.accuracy.require_accurate`: the closed loop, the rigid
-    survey, the forcing windows) reads the whole run's torques; the windows do not depend on it, so
-    the first windows are simulated (and written) while it runs. :meth:`done` is its report once it
-    finished (None before); :meth:`result` waits for it and raises what it raised (an unstable step).
-    """
+    future = Future()
 
-    def __init__(self, call, *args, **kwargs):
-        import threading
-
-        self._report, self._error = None, None
-        self._thread = threading.Thread(target=self._run, args=(call, args, kwargs), name="accuracy-guard", daemon=True)
-        self._thread.start()
-
-    def _run(self, call, args, kwargs) -> None:
+    def run():
         try:
-            self._report = call(*args, **kwargs)
-        except BaseException as exc:  # noqa: BLE001 - raised in the run's thread by result()
-            self._error = exc
+            future.set_result(call(*args, **kwargs))
+        except BaseException as exc:  # noqa: BLE001 - raised in the caller's thread by result()
+            future.set_exception(exc)
 
-    def done(self):
-        return None if self._thread.is_alive() else self.result()
-
-    def result(self):
-        self._thread.join()
-        if self._error is not None:
-            raise self._error
-        return self._report
+    threading.Thread(target=run, name="accuracy-guard", daemon=True).start()
+    return future
 
 
 def _linear(scene, kind, choice, progress, check_stability, window_steps, guards=None) -> Iterator[SimResult]:
-    """The linear model's windows. ``guards``: a list that receives the run's :class:`_Guard` (the ``auto``
-    choice confirms it before it restarts on the slipping model)."""
+    """The linear model's windows. ``guards``: a list that receives the future of the run's accuracy guard
+    (the ``auto`` choice confirms it before it restarts on the slipping model)."""
     mdl = make_model(kind, scene.params)
     sim = Simulator(mdl, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
     stepper = sim.stepper
@@ -171,15 +156,12 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps, guards
     # closed loop (torque slopes): refuses an unstable step, reports an inaccurate one (as simulate does); a run
     # of several windows checks beside them (its own steppers: a stepper notes the run it makes), the last
     # window carries the report, and a refusal is raised in place of anything the run raised meanwhile
-    guard = accuracy = None
-    if check_stability and len(ends) > 1:
-        guard = _Guard(require_accurate, sim.plant, scene.method, scene.dt, scene.duration, x, scene.tolerance,
-                       method_options=scene.method_options)
-        if guards is not None:
-            guards.append(guard)
-    elif check_stability:
-        accuracy = require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x, scene.tolerance,
-                                    method_options=scene.method_options, stepper=stepper)
+    check = (sim.plant, scene.method, scene.dt, scene.duration, x, scene.tolerance)
+    guard = _beside(require_accurate, *check, method_options=scene.method_options) if check_stability and len(ends) > 1 else None
+    accuracy = (require_accurate(*check, method_options=scene.method_options, stepper=stepper)
+                if check_stability and guard is None else None)
+    if guard is not None and guards is not None:
+        guards.append(guard)
     work = dissipated = 0.0
     for k, (t0, t1) in enumerate(ends):
         start = _time.perf_counter()
@@ -197,7 +179,7 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps, guards
         keep = slice(0, None) if k == 0 else slice(1, None)
         time, states, u = time[keep], states[keep], u[keep]
         if guard is not None:
-            accuracy = guard.result() if k == len(ends) - 1 else guard.done()
+            accuracy = guard.result() if k == len(ends) - 1 or guard.done() else None
         yield SimResult(
             scene=scene, model=kind, method=sim.integrator.name, dt=scene.dt, time=time, states=states, inputs=u,
             outputs=mdl.outputs(states, u), choice=choice, stability=sim.stability, accuracy=accuracy,
