@@ -28,12 +28,12 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from .accuracy import require_accurate, require_accurate_slipping
+from .accuracy import require_accurate
 from .method_choice import resolve as resolve_method
 from .fidelity import ModelChoice, _linear_choice, limit_exceedance
 from .model import make_model
 from .scene import Scene
-from .simulate import SimResult, Simulator
+from .simulate import SimResult, Simulator, _slipping_accuracy
 from .slip_run import SlippingSimulator
 from .stepper import snap_tolerance
 
@@ -234,13 +234,6 @@ def _slipping(scene, choice, progress, check_stability, window_steps) -> Iterato
             wall_time=wall, energy=energy, events=window_events, accuracy=accuracy,
         )
         start = _time.perf_counter()
-
-
-def _slipping_accuracy(scene, sim):
-    """The accuracy guard of a slipping run, each mode linearized (refuses an unstable step; see core/accuracy.py)."""
-    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
-    return require_accurate_slipping(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.duration, x0,
-                                     scene.tolerance, method_options=scene.method_options, stepper=sim.stepper)  # fmt: skip
 
 
 @dataclass
