@@ -35,7 +35,7 @@ from .model import make_model
 from .scene import Scene
 from .simulate import SimResult, Simulator, _slipping_accuracy
 from .slip_run import SlippingSimulator
-from .stepper import snap_tolerance
+from .stepper import PAGE_MARGIN, snap_tolerance
 
 __all__ = ["WINDOW_STEPS", "Restart", "RunSummary", "stream"]
 
@@ -193,10 +193,31 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps, guards
             progress(t1 / scene.duration)
 
 
+class _PagedSlipping(SlippingSimulator):
+    """The slipping run of a drive read a page at a time (``drive.page``): the hybrid stepper holds its
+    torque's table, so each advance runs on a simulator of the page of its times, widened by
+    :data:`~belt_drive_ros.core.stepper.PAGE_MARGIN` steps each side (the same torques and breakpoints
+    there: the same steps, events and states as on the whole table)."""
+
+    def __init__(self, *args):
+        super().__init__(*args, lazy=True)  # (its own steppers step no drive: the pages' do)
+
+    def _page(self, t0: float, t1: float) -> SlippingSimulator:
+        m = PAGE_MARGIN * self.dt
+        return SlippingSimulator(self.model.params, self.drive.page(t0 - m, t1 + m), self.load, self.method, self.dt,
+                                 self.method_options, False, self.origin)
+
+    def initial(self, y0, t0=0.0):
+        return self._page(t0, t0).initial(y0, t0)
+
+    def advance(self, state, t0, t1, record=None, events=None):
+        return self._page(t0, t1).advance(state, t0, t1, record, events)
+
+
 def _slipping(scene, choice, progress, check_stability, window_steps) -> Iterator[SimResult]:
-    if getattr(scene.drive, "page", None) is not None:  # the slipping hybrid steps a drive held whole
-        scene = replace(scene, drive=scene.drive.whole())
-    sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
+    paged = getattr(scene.drive, "page", None) is not None
+    sim = (_PagedSlipping if paged else SlippingSimulator)(scene.params, scene.drive, scene.load, scene.method, scene.dt,
+                                                          scene.method_options, check_stability)
     m = sim.model
     y0 = scene.initial_state.vector("slipping", scene.params.ratio)
     accuracy = _slipping_accuracy(scene, sim) if check_stability else None
