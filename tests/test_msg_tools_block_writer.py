@@ -188,3 +188,28 @@ def test_crc32_combine_is_the_crc_of_the_joined_bytes():
             tuple(rng.integers(0, 5000, 2)) for _ in range(50)]:
         a, b = os.urandom(int(n1)), os.urandom(int(n2))
         assert crc32_combine(zlib.crc32(a), zlib.crc32(b), len(b)) == zlib.crc32(a + b)
+
+
+def test_packed_chunk_indexes_are_the_mcap_librarys_records():
+    """The summary's chunk index records, packed in one pass, are the bytes ``mcap.records.ChunkIndex`` writes
+    (any number of message index entries per chunk, 64-bit fields at their extremes)."""
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import ChunkIndex
+
+    from msg_tools.block_writer import BlockRecords
+
+    records = BlockRecords(io.BytesIO())
+    records._chunk_compression = "zstd"
+    rng = np.random.default_rng(1)
+    expected = RecordBuilder()
+    for k in range(40):
+        fields = [int(v) for v in rng.integers(0, 2**63, size=7, dtype=np.uint64)] if k else [2**64 - 1] * 7
+        pairs = {int(c): int(rng.integers(0, 2**63)) for c in rng.choice(2**16, size=k % 9, replace=False)}
+        records._chunks.extend(fields + [len(pairs)])
+        for channel, offset in pairs.items():
+            records._chunk_pairs.extend((channel, offset))
+        start, end, at, length, index_length, compressed, size = fields
+        ChunkIndex(message_start_time=start, message_end_time=end, chunk_start_offset=at, chunk_length=length,
+                   message_index_offsets=pairs, message_index_length=index_length, compression="zstd",
+                   compressed_size=compressed, uncompressed_size=size).write(expected)
+    assert records.chunk_index_records() == expected.end()

@@ -87,6 +87,44 @@ def test_auto_without_slip_streams_once():
     assert items[-1].choice.model == simulate(scene).choice.model == "flexible"
 
 
+def test_the_guard_runs_beside_the_windows_and_gives_the_report_of_a_run_in_one_window(monkeypatch):
+    """A run of several windows yields its first windows while its accuracy guard still runs (the windows do
+    not depend on it); the last window carries the guard's report, the same as a run in one window."""
+    import threading
+
+    scene = load_scene("paper").with_overrides(duration=0.5)
+    one = list(stream(scene, window_steps=10**6))
+    assert len(one) == 1 and one[0].accuracy is not None
+    gate, real = threading.Event(), stream_module.require_accurate
+
+    def held(*args, **kwargs):  # the guard waits until the test has two windows
+        gate.wait(5.0)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(stream_module, "require_accurate", held)
+    windows = stream(scene, window_steps=23)
+    first, second = next(windows), next(windows)
+    assert first.accuracy is None and second.accuracy is None  # yielded while the guard waits
+    gate.set()
+    rest = list(windows)
+    assert repr(rest[-1].accuracy) == repr(one[0].accuracy)
+    assert np.array_equal(np.concatenate([w.states for w in [first, second] + rest]), one[0].states)
+
+
+def test_an_unstable_step_is_refused_by_a_run_in_windows_as_by_a_whole_run():
+    """The guard's refusal (naming a step that works), not the run's divergence, however far the windows got."""
+    from belt_drive_ros.core.errors import UnstableStepError
+
+    truck = load_scene("truck_compressor")
+    scene = truck.with_overrides(drive=S.Constant(50.0), load=S.Polynomial(0.0, 200.0), duration=0.5, model="flexible",
+                                 method="exact", dt=2e-3)
+    with pytest.raises(UnstableStepError) as whole:
+        simulate(scene)
+    with pytest.raises(UnstableStepError) as windows:
+        list(stream(scene, window_steps=10))
+    assert str(windows.value) == str(whole.value) and "stable and accurate" in str(whole.value)
+
+
 # ------------------------------------------------------------------ the command
 @pytest.fixture
 def streamed(monkeypatch):

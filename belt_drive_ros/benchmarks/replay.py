@@ -15,7 +15,10 @@ alternating, on the same bag, in one invocation. The child's code uses only
 the public calls both trees have. This tree also runs once with every window
 written in the caller's thread (``McapWindows(background=False)``): beside
 the default, where a thread of its own writes while the next window is
-simulated, it shows what that overlap gains.
+simulated, it shows what that overlap gains. Whether the runs wrote the same
+output is said twice: the same bytes (the hour's files), and the same
+messages, the chunks' records decompressed (the shorter bag's files: a
+compression setting changes the bytes, never the messages).
 """
 
 from __future__ import annotations
@@ -99,6 +102,29 @@ def _child(code_root: Path, bag: Path, out: Path, caller: bool = False) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+def _records_digest(path: Path) -> str:
+    """SHA-256 of a file's chunks' records, decompressed: the same messages (channels, sequence numbers,
+    times and CDR bytes, so the same decoded values) in the same order, whatever the compression."""
+    import zstandard
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for record in StreamReader(f, skip_magic=False, emit_chunks=True).records:
+            if isinstance(record, Chunk):
+                if record.compression == "zstd":
+                    data = zstandard.ZstdDecompressor().decompress(record.data, max_output_size=record.uncompressed_size)
+                elif record.compression == "lz4":
+                    import lz4.frame
+
+                    data = lz4.frame.decompress(record.data)
+                else:
+                    data = record.data
+                digest.update(data)
+    return digest.hexdigest()
+
+
 def _line(label: str, value: str) -> None:
     print(f"  {label:<30s} {value}", flush=True)
 
@@ -122,6 +148,7 @@ def main(minutes: float = 60.0, baseline: str | None = None, repeat: int = 1) ->
         results: dict = {name: [] for name, _, _ in trees}
         shorts: dict = {name: [] for name, _, _ in trees}
         digests: dict = {}
+        messages: dict = {}
         for _ in range(max(1, repeat)):
             for name, root, caller in trees:
                 out = Path(tmp) / "out.mcap"
@@ -129,6 +156,7 @@ def main(minutes: float = 60.0, baseline: str | None = None, repeat: int = 1) ->
                 digests.setdefault(name, hashlib.sha256(out.read_bytes()).hexdigest())
                 out.unlink()
                 shorts[name].append(_child(root, short, out, caller))
+                messages.setdefault(name, _records_digest(out))
                 out.unlink()
     scale = 60.0 / minutes
     for name, root, _ in trees:
@@ -155,6 +183,9 @@ def main(minutes: float = 60.0, baseline: str | None = None, repeat: int = 1) ->
                   f"{grow:+.1f} B per bag sample")
     same = len(set(digests.values())) == 1
     print(f"output MCAP of the {minutes:g}-minute bag: {'the same bytes' if same else 'DIFFERENT bytes'} in every run above")
+    same = len(set(messages.values())) == 1
+    print(f"output MCAP of the {minutes / 6.0:g}-minute bag, its chunks decompressed: "
+          f"{'the same messages (the same decoded values)' if same else 'DIFFERENT messages'} in every run above")
     return 0
 
 

@@ -102,8 +102,6 @@ def absorbed_steps(stepper, bps: np.ndarray, first: int, last: int, lead: bool, 
     the plan's special steps).
     """
     end = end_loop(stepper)
-    if end is None:
-        return _NO_CELLS, None
     origin, dt = stepper.origin, stepper.dt
     kf = np.rint((bps - origin) / dt)
     d = np.abs(origin + kf * dt - bps)
@@ -165,16 +163,14 @@ def _same_torques(stepper, g: np.ndarray, lo: np.ndarray, hi: np.ndarray, end) -
 
 def end_loop(stepper):
     """The kernel loop of absorbed steps: the stepper's, a stage at the step's end (node 1) reading the
-    torques :data:`END_SHIFT` (at most dt/1000) before it (:class:`EndLoop`); None without a kernel loop."""
+    torques :data:`END_SHIFT` (at most dt/1000) before it (:class:`EndLoop`)."""
     if stepper._end is None:
-        nodes = stepper.integrator.scheme.nodes if stepper.loop is not None else ()
-        shift = min(END_SHIFT, 1e-3 * stepper.dt)
-        if stepper.loop is None:
-            stepper._end = False
-        elif 1.0 not in nodes:
+        nodes = stepper.integrator.scheme.nodes
+        if 1.0 not in nodes:
             stepper._end = stepper.loop
         else:
+            shift = min(END_SHIFT, 1e-3 * stepper.dt)
             moved = [1.0 - shift / stepper.dt if c == 1.0 else c for c in nodes]
             # KernelLoop's offsets c h of these nodes
             stepper._end = EndLoop(stepper.loop, np.array([float(c * stepper.dt) if c else 0.0 for c in moved]))
-    return stepper._end or None
+    return stepper._end

@@ -28,14 +28,14 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from .accuracy import require_accurate, require_accurate_slipping
+from .accuracy import require_accurate
 from .method_choice import resolve as resolve_method
 from .fidelity import ModelChoice, _linear_choice, limit_exceedance
 from .model import make_model
 from .scene import Scene
-from .simulate import SimResult, Simulator
+from .simulate import SimResult, Simulator, _slipping_accuracy
 from .slip_run import SlippingSimulator
-from .stepper import snap_tolerance
+from .stepper import PAGE_MARGIN, snap_tolerance
 
 __all__ = ["WINDOW_STEPS", "Restart", "RunSummary", "stream"]
 
@@ -89,7 +89,8 @@ def stream(
     choice = _linear_choice(scene)
     choice = replace(choice, linear=choice.model)
     peak, t_peak = 0.0, 0.0
-    for window in _linear(scene, choice.model, choice, progress, check_stability, window_steps):
+    guards: list = []
+    for window in _linear(scene, choice.model, choice, progress, check_stability, window_steps, guards):
         ratio, t_at = limit_exceedance(scene.params, window.time, window.outputs)
         if ratio > peak:
             peak, t_peak = ratio, t_at
@@ -100,6 +101,8 @@ def stream(
                 f"in the {choice.model} run ({choice.reason})"
             )
             slip_choice = replace(choice, model="slipping", reason=reason, limit_ratio=peak, limit_time=t_peak)
+            for guard in guards:  # the linear run's guard refuses an unstable step before anything else is said
+                guard.result()
             yield Restart(slip_choice)
             yield from _slipping(scene, slip_choice, progress, check_stability, window_steps)
             return
@@ -124,32 +127,59 @@ def _running_integral(p: np.ndarray, time: np.ndarray, start: float) -> np.ndarr
     return start + np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * np.diff(time))])
 
 
-def _linear(scene, kind, choice, progress, check_stability, window_steps) -> Iterator[SimResult]:
+def _beside(call, *args, **kwargs):
+    """A future of ``call(*args, **kwargs)`` run in a daemon thread of its own (an interrupted run does not wait)."""
+    import threading
+    from concurrent.futures import Future
+
+    future = Future()
+
+    def run():
+        try:
+            future.set_result(call(*args, **kwargs))
+        except BaseException as exc:  # noqa: BLE001 - raised in the caller's thread by result()
+            future.set_exception(exc)
+
+    threading.Thread(target=run, name="accuracy-guard", daemon=True).start()
+    return future
+
+
+def _linear(scene, kind, choice, progress, check_stability, window_steps, guards=None) -> Iterator[SimResult]:
+    """The linear model's windows. ``guards``: a list that receives the future of the run's accuracy guard
+    (the ``auto`` choice confirms it before it restarts on the slipping model)."""
     mdl = make_model(kind, scene.params)
     sim = Simulator(mdl, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
     stepper = sim.stepper
     stepper.origin = 0.0
     x = scene.initial_state.vector(kind, scene.params.ratio)
-    # closed loop (torque slopes): refuses an unstable step, reports an inaccurate one (as simulate does)
-    accuracy = (
-        require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x, scene.tolerance,
-                         method_options=scene.method_options, stepper=stepper)
-        if check_stability else None
-    )  # fmt: skip
-    work = dissipated = 0.0
-    first = True
     ends = list(_ends(stepper, scene.duration, window_steps)) or [(0.0, 0.0)]
-    for t0, t1 in ends:
+    # closed loop (torque slopes): refuses an unstable step, reports an inaccurate one (as simulate does); a run
+    # of several windows checks beside them (its own steppers: a stepper notes the run it makes), the last
+    # window carries the report, and a refusal is raised in place of anything the run raised meanwhile
+    check = (sim.plant, scene.method, scene.dt, scene.duration, x, scene.tolerance)
+    guard = _beside(require_accurate, *check, method_options=scene.method_options) if check_stability and len(ends) > 1 else None
+    accuracy = (require_accurate(*check, method_options=scene.method_options, stepper=stepper)
+                if check_stability and guard is None else None)
+    if guard is not None and guards is not None:
+        guards.append(guard)
+    work = dissipated = 0.0
+    for k, (t0, t1) in enumerate(ends):
         start = _time.perf_counter()
-        time, states = stepper.run(x, t0, t1)
+        try:
+            time, states = stepper.run(x, t0, t1)
+        except Exception:
+            if guard is not None:
+                guard.result()
+            raise
         wall = _time.perf_counter() - start
         u = sim.plant.input_array(time, states)
         energy_in = _running_integral(mdl.input_power(states, u), time, work)
         energy_d = _running_integral(mdl.dissipation_power(states), time, dissipated)
         work, dissipated, x = float(energy_in[-1]), float(energy_d[-1]), states[-1]
-        keep = slice(0, None) if first else slice(1, None)
-        first = False
+        keep = slice(0, None) if k == 0 else slice(1, None)
         time, states, u = time[keep], states[keep], u[keep]
+        if guard is not None:
+            accuracy = guard.result() if k == len(ends) - 1 or guard.done() else None
         yield SimResult(
             scene=scene, model=kind, method=sim.integrator.name, dt=scene.dt, time=time, states=states, inputs=u,
             outputs=mdl.outputs(states, u), choice=choice, stability=sim.stability, accuracy=accuracy,
@@ -163,10 +193,31 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps) -> Ite
             progress(t1 / scene.duration)
 
 
+class _PagedSlipping(SlippingSimulator):
+    """The slipping run of a drive read a page at a time (``drive.page``): the hybrid stepper holds its
+    torque's table, so each advance runs on a simulator of the page of its times, widened by
+    :data:`~belt_drive_ros.core.stepper.PAGE_MARGIN` steps each side (the same torques and breakpoints
+    there: the same steps, events and states as on the whole table)."""
+
+    def __init__(self, *args):
+        super().__init__(*args, lazy=True)  # (its own steppers step no drive: the pages' do)
+
+    def _page(self, t0: float, t1: float) -> SlippingSimulator:
+        m = PAGE_MARGIN * self.dt
+        return SlippingSimulator(self.model.params, self.drive.page(t0 - m, t1 + m), self.load, self.method, self.dt,
+                                 self.method_options, False, self.origin)
+
+    def initial(self, y0, t0=0.0):
+        return self._page(t0, t0).initial(y0, t0)
+
+    def advance(self, state, t0, t1, record=None, events=None):
+        return self._page(t0, t1).advance(state, t0, t1, record, events)
+
+
 def _slipping(scene, choice, progress, check_stability, window_steps) -> Iterator[SimResult]:
-    if getattr(scene.drive, "page", None) is not None:  # the slipping hybrid steps a drive held whole
-        scene = replace(scene, drive=scene.drive.whole())
-    sim = SlippingSimulator(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.method_options, check_stability)
+    paged = getattr(scene.drive, "page", None) is not None
+    sim = (_PagedSlipping if paged else SlippingSimulator)(scene.params, scene.drive, scene.load, scene.method, scene.dt,
+                                                          scene.method_options, check_stability)
     m = sim.model
     y0 = scene.initial_state.vector("slipping", scene.params.ratio)
     accuracy = _slipping_accuracy(scene, sim) if check_stability else None
@@ -204,13 +255,6 @@ def _slipping(scene, choice, progress, check_stability, window_steps) -> Iterato
             wall_time=wall, energy=energy, events=window_events, accuracy=accuracy,
         )
         start = _time.perf_counter()
-
-
-def _slipping_accuracy(scene, sim):
-    """The accuracy guard of a slipping run, each mode linearized (refuses an unstable step; see core/accuracy.py)."""
-    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
-    return require_accurate_slipping(scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.duration, x0,
-                                     scene.tolerance, method_options=scene.method_options, stepper=sim.stepper)  # fmt: skip
 
 
 @dataclass

@@ -37,6 +37,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import threading
 import time
 import warnings
 from dataclasses import dataclass
@@ -350,10 +351,19 @@ class PagedTorque(TorqueProfile):
         self._chunked, self.start_ns, self.samples = chunked, int(start_ns), int(samples)
         self._changes, self._min_gap = bool(changes), float(min_gap)
         self._bag, self.source, self.topic, self.sha256 = bag, source, topic, sha256
-        self._last = None  # (t0, t1, page) of the last page read
-        self._cache: dict = {}  # chunk index -> (log times, values), least recently used first
-        #: CPU time [s] of this thread spent decoding chunks (the figure ``bench replay`` reports)
+        # per thread (a run's guard reads pages beside its windows): ``last`` (t0, t1, page) of the last page
+        # read, ``cache`` {chunk index: (log times, values)}, least recently used first
+        self._local = threading.local()
+        self._lock = threading.Lock()
+        #: CPU time [s] spent decoding chunks, every thread's (the figure ``bench replay`` reports)
         self.read_cpu = 0.0
+
+    def _mine(self):
+        """This thread's ``last`` page and chunk ``cache`` (made on first use)."""
+        local = self._local
+        if not hasattr(local, "cache"):
+            local.last, local.cache = None, {}
+        return local
 
     @property
     def times(self):  # Table's interface (reference() reads times.size): the whole, read on use
@@ -390,7 +400,7 @@ class PagedTorque(TorqueProfile):
     def _chunk(self, k: int) -> Tuple[np.ndarray, np.ndarray]:
         """Log times [ns] and values of chunk ``k``; the last :data:`CACHED_CHUNKS` are kept (consecutive
         pages share the chunk at their seam)."""
-        cache = self._cache
+        cache = self._mine().cache
         got = cache.pop(k, None)
         if got is None:
             start = time.thread_time()
@@ -398,7 +408,8 @@ class PagedTorque(TorqueProfile):
                 got = self._chunked.float64(k)
             except MsgToolsError as exc:  # (the pass that opened the bag read every chunk)
                 raise bag_error(exc) from None
-            self.read_cpu += time.thread_time() - start
+            with self._lock:
+                self.read_cpu += time.thread_time() - start
             if len(cache) >= CACHED_CHUNKS:
                 del cache[next(iter(cache))]
         cache[k] = got
@@ -406,7 +417,8 @@ class PagedTorque(TorqueProfile):
 
     def page(self, t0: float, t1: float) -> RecordedTorque:
         """The samples that give the torque on ``[t0, t1]`` [s] (see the class)."""
-        last = self._last
+        mine = self._mine()
+        last = mine.last
         if last is not None and last[0] <= t0 and t1 <= last[1]:
             return last[2]
         c = self._chunked
@@ -419,7 +431,7 @@ class PagedTorque(TorqueProfile):
         b = min(times.size - 1, int(np.searchsorted(times, t1, side="left")))
         page = RecordedTorque(times=times[a : b + 1].copy(), values=values[a : b + 1].copy(), interpolation="previous",
                               source=self.source, topic=self.topic, sha256=self.sha256, start_ns=self.start_ns)
-        self._last = (t0, t1, page)
+        mine.last = (t0, t1, page)
         return page
 
     def torque(self, t, angle=0.0, speed=0.0):
