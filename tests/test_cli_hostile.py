@@ -32,6 +32,10 @@ def _cases(tmp):
                                           "--out and --png name the same file"),
         "network sim --tolerance": (["sim", "fead_i4", "--tolerance", "nan", "--quiet", "--duration", "0.01"],
                                     "--tolerance: not available for a belt network scene"),
+        "replay --rate 0": (["replay", str(a_file), "--rate", "0"], "--rate: must be finite and > 0"),
+        "replay --rate inf": (["replay", str(a_file), "--rate", "inf"], "--rate: must be finite and > 0"),
+        "replay --sync without --clock": (["replay", str(a_file), "--sync", "/joint_states"], "--sync: needs --clock"),
+        "replay --delay -1": (["replay", str(a_file), "--delay", "-1"], "--delay: must be finite and >= 0 s"),
         "modes same PNG twice": (["modes", "fead_i4", "--campbell", str(tmp / "a.png"), "--runup", str(tmp / "a.png")],
                                  "--campbell and --runup name the same file"),
     }
@@ -42,6 +46,7 @@ CASES = [
     "make-bags --out a file", "make-bags --out /dev/null", "modes --campbell x.txt", "modes --runup x.csv", "modes same PNG twice",
     "sim --bag-folder in a missing folder", "bench --minutes -1", "bench --seconds nan", "bench --samples 0", "bench --out a file",
     "urdf --out and --png the same", "network sim --tolerance",
+    "replay --rate 0", "replay --rate inf", "replay --sync without --clock", "replay --delay -1",
 ]
 
 
@@ -52,7 +57,8 @@ def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tm
     x.txt (every other PNG option refuses that), sim --bag-folder made the missing parents of --out (a file
     --out says the folder does not exist), bench took a negative or nan --minutes/--seconds/--samples and an
     --out naming a file failed with exit 1 ('[Errno 17] File exists'), urdf wrote the URDF and then the PNG into
-    one file, a network sim took any --tolerance (even nan) and ignored it."""
+    one file, a network sim took any --tolerance (even nan) and ignored it, replay's --rate 0, --sync
+    without --clock and a negative --delay exited 1 (a SystemExit text)."""
     argv, message = _cases(tmp_path)[case]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()

@@ -59,12 +59,15 @@ def run(args) -> int:
     from ..io.recording import BagReadError
     from ..ros.replay import run_replay
 
-    if not (args.rate > 0):
-        raise SystemExit("belt-drive: error: --rate must be > 0")
+    from ..core.errors import ParameterError
+
+    # (exit 2 like every bad input, before rclpy starts)
+    if not 0 < args.rate < float("inf"):
+        raise ParameterError("--rate", f"must be finite and > 0, got {args.rate!r}")
     if args.sync and not args.clock:
-        raise SystemExit("belt-drive: error: --sync needs --clock")
-    if not (args.delay >= 0):
-        raise SystemExit("belt-drive: error: --delay must be >= 0 s")
+        raise ParameterError("--sync", "needs --clock")
+    if not 0 <= args.delay < float("inf"):
+        raise ParameterError("--delay", f"must be finite and >= 0 s, got {args.delay!r}")
     from ..ros.executors import stop_on_signals
 
     def log(text: str) -> None:
