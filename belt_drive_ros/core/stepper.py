@@ -319,7 +319,7 @@ class Stepper:
         self.guard = guard
         self.loop = plant.kernel_loop(self.integrator, guard)
         self.breakpoints = plant.breakpoints
-        self._end = None  # the loop of absorbed steps (absorb.end_loop); False: none
+        self._end = None  # the loop of absorbed steps (absorb.end_loop)
         self.stopped: tuple | None = None
         self.split_steps: dict = {}
         self._partials: dict = {}
