@@ -230,34 +230,37 @@ def _general_loop(loop, times, x, out):
     )  # fmt: skip
 
 
+@pytest.mark.parametrize("model_name", ["rigid", "flexible"])
 @pytest.mark.parametrize("method", [m for m in FIXED_STEP_METHODS if m != "trapezoidal"])
 @pytest.mark.parametrize("case", ["paper", "truck_compressor", "friction+guard"])
-def test_the_four_state_loops_equal_the_general_loop_bit_for_bit(method, case):
-    """A 4-state plant with an explicit method steps with its state in scalars (``_explicit4``):
-    the same sums in the same order as the general loop, so the same floats, to the last bit; the guard stops
-    at the same step. ``friction+guard``: the slipping belt's extra input (drive-speed dependent) and a guard."""
+def test_the_scalar_state_loops_equal_the_general_loop_bit_for_bit(method, case, model_name):
+    """A 2-state (rigid) or 4-state (flexible) plant with an explicit method steps with its state in scalars
+    (``kernel._explicit``): the same sums in the same order as the general loop, so the same floats, to the last
+    bit; the guard stops at the same step. ``friction+guard``: the slipping belt's extra input (drive-speed
+    dependent) and a guard."""
     from belt_drive_ros.core.kernel_loop import FrictionForce
     from belt_drive_ros.core.stage_scheme import Guard
 
     scene = load_scene("paper" if case != "truck_compressor" else "truck_compressor")
-    sim = Simulator(make_model("flexible", scene.params), scene.drive, scene.load, method, scene.dt, check_stability=False)
+    model = make_model(model_name, scene.params)
+    sim = Simulator(model, scene.drive, scene.load, method, scene.dt, check_stability=False)
     plant, extra, guard, scheme = sim.plant, (), None, sim.integrator.scheme
     if case == "friction+guard":  # a third input column: a force on the drive wheel, as the slipping belt's
         extra = (FrictionForce(0.7, scene.params),)
-        model = sim.plant.model
         B = np.hstack([model.B, 1e-3 * model.B[:, :1]])
         scheme = make_integrator(method, model.A, B, scene.dt).scheme
-    steps = 300
+    steps, n = 300, model.A.shape[0]
     times = scene.dt * np.arange(steps + 1, dtype=float)
-    x0 = np.ascontiguousarray(scene.initial_state.vector("flexible", scene.params.ratio), dtype=float)
-    x0[2] += 1.0  # moving from the first step
-    if case == "friction+guard":  # a bound the run's |delta| + 1e-4 omega_M^2 first passes in its second half
-        free = np.zeros((steps, 4))
+    x0 = np.ascontiguousarray(scene.initial_state.vector(model_name, scene.params.ratio), dtype=float)
+    x0[n // 2] += 1.0  # omega_M: moving from the first step
+    if case == "friction+guard":  # a bound the run's |x_1| + 1e-4 omega_M^2 first passes in its second half
+        free = np.zeros((steps, n))
         KernelLoop(scheme, scene.dt, plant.wheel_map, plant.uses_angle, *plant.data, extra)(times, x0.copy(), free)
-        g = np.abs(free[:, 1]) + 1e-4 * free[:, 2] ** 2
-        guard = Guard(row=(0.0, 1.0, 0.0, 0.0), bound=float(np.max(g[: steps // 2])), absolute=True, speed=(0.0, 0.0, 1.0, 0.0), quad=1e-4)
+        g = np.abs(free[:, 1]) + 1e-4 * free[:, n // 2] ** 2
+        row, speed = np.eye(n)[1], np.eye(n)[n // 2]
+        guard = Guard(row=tuple(row), bound=float(np.max(g[: steps // 2])), absolute=True, speed=tuple(speed), quad=1e-4)
     loop = KernelLoop(scheme, scene.dt, plant.wheel_map, plant.uses_angle, *plant.data, extra, guard)
-    fast, slow = np.zeros((steps, 4)), np.zeros((steps, 4))
+    fast, slow = np.zeros((steps, n)), np.zeros((steps, n))
     done_fast = loop(times, x0.copy(), fast)
     done_slow = _general_loop(loop, times, x0.copy(), slow)
     assert done_fast == done_slow
@@ -267,21 +270,27 @@ def test_the_four_state_loops_equal_the_general_loop_bit_for_bit(method, case):
     assert np.array_equal(fast, slow)
 
 
-@pytest.mark.parametrize("method", ["exact", "etd4"])
-@pytest.mark.parametrize("profile", PROFILES, ids=lambda p: p.kind)
-def test_every_profile_kind_steps_alike_in_the_four_state_loop_and_the_general_loop(profile, method):
-    """The 4-state loop evaluates a one-row formula profile (constant, step, ramp, sine, motor line, polynomial)
-    from numbers read once per call and every other kind from its data: each kind, on the drive and on the load,
-    gives the general loop's floats to the last bit (across the profiles' breakpoints, no clamp)."""
+NESTED = S.Schedule(S.Schedule(S.Compressor(), S.Constant(1.0), ((0.3, 0.5),)), S.Table((0.0, 1.0), (2.0, 0.5)), ((0.2, 0.7),))
+
+
+@pytest.mark.parametrize("model_name, method", [("flexible", "exact"), ("flexible", "etd4"), ("rigid", "etd2"), ("rigid", "etd4")])
+@pytest.mark.parametrize("profile", PROFILES + [NESTED], ids=lambda p: p.kind)
+def test_every_profile_kind_steps_alike_in_the_scalar_state_loops_and_the_general_loop(profile, method, model_name):
+    """The 2- and 4-state loops evaluate a one-row formula profile (constant, step, ramp, sine, motor line,
+    polynomial) from numbers read once per call and every other kind (nested schedules too) from its data: each
+    kind, on the drive and on the load, gives the general loop's floats to the last bit (across the profiles'
+    breakpoints, no clamp)."""
     scene = load_scene("paper")
-    model = make_model("flexible", scene.params)
+    model = make_model(model_name, scene.params)
     integrator = make_integrator(method, model.A, model.B, 5e-3)
     steps = 200  # 1 s: past every breakpoint of PROFILES
     times = 5e-3 * np.arange(steps + 1, dtype=float)
-    x0 = np.array([0.0, 0.0, 20.0, 20.0 * scene.params.ratio])
+    i = scene.params.ratio
+    x0 = np.array([0.0, 0.0, 20.0, 20.0 * i]) if model_name == "flexible" else np.array([0.0, 20.0])
+    n = x0.size
     for drive, load in ((profile, scene.load), (scene.drive, profile)):
         loop = KernelLoop(integrator.scheme, 5e-3, model.wheel_map, (drive.uses_angle, load.uses_angle), drive.data(), load.data())
-        fast, slow = np.zeros((steps, 4)), np.zeros((steps, 4))
+        fast, slow = np.zeros((steps, n)), np.zeros((steps, n))
         done_fast = loop(times, x0.copy(), fast)
         done_slow = _general_loop(loop, times, x0.copy(), slow)
         assert done_fast == done_slow and done_fast[0] > 10  # a polynomial drive runs away: both stop alike

@@ -59,13 +59,28 @@ def _cpu() -> float:
     return time.process_time()
 
 
-def _kernel_ns(method: str, steps: int) -> tuple[float, float]:
-    """(ns per step, final omega_M) of the paper drive, flexible, ``method`` at 1 ms, through the kernel."""
-    scene = load_scene("paper")
-    sim = Simulator(make_model("flexible", scene.params), scene.drive, scene.load, method, 1e-3, check_stability=False)
+#: the step figures beside paper's methods: (scene, model, method, constant torques) by label (the rigid 2-state
+#: loop with a motor curve; the truck's engine and compressor harmonics, and its plant with constant torques)
+STEP_CASES = {
+    "e_motor_start rigid etd2": ("e_motor_start", "rigid", "etd2", False),
+    "truck_compressor flexible etd4": ("truck_compressor", "flexible", "etd4", False),
+    "truck_compressor etd4, constant torques": ("truck_compressor", "flexible", "etd4", True),
+}
+
+
+def _kernel_ns(method: str, steps: int, scene_name: str = "paper", model: str = "flexible",
+               constant: bool = False) -> tuple[float, float]:  # fmt: skip
+    """(ns per step, final drive speed) of ``scene_name``'s drive (default: paper, flexible), ``method`` at the
+    scene's step, through the kernel (``constant``: its drive and load replaced by constant torques)."""
+    from ..core.sources import Constant
+
+    scene = load_scene(scene_name)
+    drive, load = (Constant(15.0), Constant(18.0)) if constant else (scene.drive, scene.load)
+    dt = 1e-3 if scene_name == "paper" else scene.dt
+    sim = Simulator(make_model(model, scene.params), drive, load, method, dt, check_stability=False)
     loop = sim.stepper.loop
-    x0 = np.ascontiguousarray(scene.initial_state.vector("flexible", scene.params.ratio), dtype=float)
-    times = 1e-3 * np.arange(steps + 1, dtype=float)
+    x0 = np.ascontiguousarray(scene.initial_state.vector(model, scene.params.ratio), dtype=float)
+    times = dt * np.arange(steps + 1, dtype=float)
     out = np.empty((steps, x0.size))
     loop(times[:3], x0, out[:2])  # compiled or loaded from the cache before timing
     best = math.inf
@@ -73,8 +88,8 @@ def _kernel_ns(method: str, steps: int) -> tuple[float, float]:
         start = _cpu()
         done, status, _ = loop(times, x0, out)
         best = min(best, _cpu() - start)
-    assert done == steps and status == 0, (method, done, status)
-    return best / steps * 1e9, float(out[-1, 2])
+    assert done == steps and status == 0, (method, scene_name, done, status)
+    return best / steps * 1e9, float(out[-1, x0.size // 2])
 
 
 def _matrices():
@@ -233,12 +248,20 @@ def _simulate_side_by_side(baseline: Path, repeats: int, rounds: int) -> dict:
     return {name: tuple(row) for name, row in best.items()}
 
 
-#: what a child process of one tree runs for the step figures: ns per step of each method (argv[1] steps)
+#: what a child process of one tree runs for the step figures: ns per step of each of paper's methods and of
+#: :data:`STEP_CASES` (argv[1] steps), timed by this tree's :func:`_kernel_ns` (argv[2], loaded as a module of the
+#: tree's package: both trees timed by the same code); the first line names the kernel that ran
 _STEP_CHILD = r"""
-import json, sys
-from belt_drive_ros.benchmarks import kernel
+import importlib.util, json, sys
+from belt_drive_ros.core import kernel
+spec = importlib.util.spec_from_file_location("belt_drive_ros.benchmarks._kernel_timing", sys.argv[2])
+bench = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(bench)
 print(kernel.__file__)
-print(json.dumps({m: kernel._kernel_ns(m, int(sys.argv[1]))[0] for m in kernel.METHODS}))
+steps = int(sys.argv[1])
+figures = {m: bench._kernel_ns(m, steps)[0] for m in bench.METHODS}
+figures.update({label: bench._kernel_ns(case[2], steps, *case[:2], case[3])[0] for label, case in bench.STEP_CASES.items()})
+print(json.dumps(figures))
 """
 
 
@@ -253,7 +276,7 @@ def _steps_side_by_side(baseline: Path, steps: int, rounds: int) -> dict:
         for _ in range(rounds):
             for j, root in enumerate(trees):
                 env = dict(os.environ, PYTHONPATH=str(root), MPLBACKEND="Agg")
-                done = subprocess.run([_tree_python(root), "-c", _STEP_CHILD, str(steps)], cwd=tmp, env=env,
+                done = subprocess.run([_tree_python(root), "-c", _STEP_CHILD, str(steps), __file__], cwd=tmp, env=env,
                                       capture_output=True, text=True, check=True)  # fmt: skip
                 lines = done.stdout.strip().splitlines()
                 if not Path(lines[-2]).resolve().is_relative_to(root):
@@ -303,12 +326,15 @@ def run(out: Path, quick: bool = False, quiet: bool = False, baseline: Path | No
         ns, _ = _kernel_ns(method, steps)
         before = f"; before {BEFORE_NS[method]:.0f} ns = {BEFORE_NS[method] / BEFORE_NS['exact']:.2f} x" if method in BEFORE_NS else ""
         report(f"{method}, kernel", ns, "ns", f"{ns / exact_ns:.2f} x exact{before}")
+    for label, (scene_name, model, method, constant) in STEP_CASES.items():
+        ns, _ = _kernel_ns(method, steps, scene_name, model, constant)
+        report(f"{label}, kernel", ns, "ns")
     if baseline is not None:  # this tree and the baseline checkout alternately, each in its own process
         side = _steps_side_by_side(baseline, steps, 2 if quick else 3)
         for method, (ns, old) in side.items():
             ratio = f"; {ns / side['exact'][0]:.2f} x exact here, {old / side['exact'][1]:.2f} x in the baseline"
             report(f"{method}, kernel side by side", ns, "ns",
-                   f"baseline {Path(baseline).name} {old:.1f} ns{ratio if method != 'exact' else ''}")
+                   f"baseline {Path(baseline).name} {old:.1f} ns{ratio if method in METHODS[1:] else ''}")
     median, p99 = _tick_us(2_000 if quick else 20_000)
     report("node tick: Stepper.advance one 1 ms step", median, "us", f"median (p99 {p99:.2f} us), held torque set each tick")
     print("bench kernel: whole warm simulate() (guards, model choice, accuracy check, outputs)")

@@ -35,6 +35,7 @@ import numpy as np
 from . import stage_scheme as _scheme
 from .batch_expm import expm_stack
 from .errors import IntegratorError
+from .identity_cache import built_once
 from .stage_scheme import LinearStep, StageScheme
 
 __all__ = [
@@ -638,9 +639,4 @@ def make_integrator(name: str, A: np.ndarray, B: np.ndarray, dt: float, **option
         return cls(A, B, dt, **options)
     A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
     key = (name, float(dt), repr(sorted(options.items())), A.shape, B.shape, A.tobytes(), B.tobytes())
-    hit = _FIXED.get(key)
-    if hit is None:
-        if len(_FIXED) >= 64:
-            _FIXED.pop(next(iter(_FIXED)), None)
-        hit = _FIXED[key] = cls(A, B, dt, **options)
-    return hit
+    return built_once(_FIXED, 64, (), lambda: cls(A, B, dt, **options), key)  # by value: no object to hold

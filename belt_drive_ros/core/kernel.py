@@ -20,7 +20,7 @@ Python: ``NUMBA_DISABLE_JIT=1`` runs them interpreted, with the same floats.
   every step. The two-wheel drive (:func:`linear_steps`) and a belt network
   both step here;
 * :func:`linear_steps` -- the two-wheel drive's entry (its arrays packed), with
-  the 4-state fast path (:func:`_explicit4`).
+  the fast path of a 2- or 4-state plant with an explicit method (:func:`_explicit`).
 
 This module imports numba; the rest of the core imports it only where a run
 starts (``belt-drive --help``, ``scenes`` and ``msg-tools`` never load it).
@@ -324,9 +324,9 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
 
     The two-wheel drive (:func:`linear_steps`, P = 2) and a belt network (one
     wheel per driven pulley; :class:`~belt_drive_ros.core.network.simulate.NetworkLoop`)
-    both step here; a 4-state two-wheel plant with an explicit method steps
-    in :func:`_explicit4`, the same operations with the
-    state in scalars (the same floats).
+    both step here; a 2- or 4-state two-wheel plant with an explicit method
+    steps in :func:`_explicit`, the same operations with the state in
+    scalars (the same floats).
 
     Parameters (all arrays float64/int64, C order)
     ----------
@@ -492,10 +492,13 @@ def linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp):
 @njit(**_JIT)  # out of line: the variant loop calls the same compiled body (its inlining doubled the build)
 def _steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
            ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):  # fmt: skip
-    """The two-wheel loop on these unpacked arrays: :func:`_explicit4` for an explicit method on a 4-state plant,
+    """The two-wheel loop on these unpacked arrays: :func:`_explicit` for an explicit method on a 2- or 4-state plant,
     else :func:`wheel_steps` with P = 2 (the drive's data its first bank, the load's the second); the same floats."""
-    if x.size == 4 and max_iter == 0 and extra.shape[0] <= 1:
-        return _explicit4(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)
+    if max_iter == 0 and extra.shape[0] <= 1:
+        if x.size == 4:
+            return _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard, 4)
+        if x.size == 2:
+            return _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard, 2)
     uses = np.zeros(2, dtype=np.int64)
     uses[0], uses[1] = ua, ub
     return wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
@@ -503,58 +506,65 @@ def _steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, to
 
 
 @njit(**_INLINE)
-def _row4(M, r, x0, x1, x2, x3, i=0):
-    """``sum_j M[i, r, j] x_j`` over the four state columns, summed from the left from 0.0 (as :func:`_rows`)."""
-    return 0.0 + M[i, r, 0] * x0 + M[i, r, 1] * x1 + M[i, r, 2] * x2 + M[i, r, 3] * x3
+def _row(M, i, r, x0, x1, x2, x3, n):
+    """``sum_j M[i, r, j] x_j`` over the ``n`` (2 or 4) state columns, summed from the left from 0.0 (as :func:`_rows`)."""
+    y = 0.0 + M[i, r, 0] * x0 + M[i, r, 1] * x1
+    return y + M[i, r, 2] * x2 + M[i, r, 3] * x3 if n == 4 else y
 
 
 @njit(**_INLINE)
-def _stage_row4(M, i, r, x0, x1, x2, x3, U, count):
-    """``M[i, r] @ [x, U[:count]]``: the four state columns, then the earlier stages' torques, from the left."""
-    total = _row4(M, r, x0, x1, x2, x3, i)
+def _stage_row(M, i, r, x0, x1, x2, x3, n, U, count):
+    """``M[i, r] @ [x, U[:count]]``: the n state columns, then the earlier stages' torques, from the left."""
+    total = _row(M, i, r, x0, x1, x2, x3, n)
     for j in range(count):
-        total = total + M[i, r, 4 + j] * U[j]
+        total = total + M[i, r, n + j] * U[j]
     return total
 
 
 @njit(**_INLINE)
-def _final4(F, r, x0, x1, x2, x3, u0, u1, e0, E, U, last):
+def _final(F, r, x0, x1, x2, x3, n, u0, u1, e0, E, U, last):
     """Row ``r`` of ``F @ [x, U[:last], u0, u1 (, e0)]`` (the last stage's torques as scalars), summed from the left."""
-    y = _row4(F, r, x0, x1, x2, x3)
-    for j in range(last):
-        y = y + F[0, r, 4 + j] * U[j]
-    y = y + F[0, r, 4 + last] * u0 + F[0, r, 5 + last] * u1
-    return y + F[0, r, 6 + last] * e0 if E else y
+    y = _stage_row(F, 0, r, x0, x1, x2, x3, n, U, last)
+    y = y + F[0, r, n + last] * u0 + F[0, r, n + 1 + last] * u1
+    return y + F[0, r, n + 2 + last] * e0 if E else y
 
 
 @njit(**_INLINE)
-def _guard4(guard, x0, x1, x2, x3):
-    """Whether state ``x`` is past the guard (the general loop's test on four scalars)."""
-    g = 0.0 + guard[5] * x0 + guard[6] * x1 + guard[7] * x2 + guard[8] * x3
+def _past_guard(guard, x0, x1, x2, x3, n):
+    """Whether state ``x`` (n = 2 or 4 scalars) is past the guard (the general loop's test)."""
+    g = 0.0 + guard[5] * x0 + guard[6] * x1
+    if n == 4:
+        g = g + guard[7] * x2 + guard[8] * x3
     if guard[1] != 0.0:
         g = abs(g)
     bound = guard[2]
     if guard[4] != 0.0 and guard[3] != 0.0:
-        w = 0.0 + guard[9] * x0 + guard[10] * x1 + guard[11] * x2 + guard[12] * x3
+        w = 0.0 + guard[5 + n] * x0 + guard[6 + n] * x1
+        if n == 4:
+            w = w + guard[7 + n] * x2 + guard[8 + n] * x3
         bound = bound - guard[3] * w * w
     return g > bound
 
 
 @njit(**_INLINE)
-def _explicit4(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):
-    """:func:`wheel_steps` for an explicit method on a 4-state plant (stage kinds 0, 1, 2 as there).
+def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard, n):
+    """:func:`wheel_steps` for an explicit method on a plant of ``n`` = 2 (rigid) or 4 (flexible) states
+    (stage kinds 0, 1, 2 as there); ``n`` a constant at each call, so each size compiles to its own loop.
 
-    The same operations in the same order; the state, each stage's wheel
-    coordinates and its torques are scalars, the earlier stages' torques a
-    small array ``U`` (``[U_0, ..., U_{s-2}]``, m each): no store and reload
-    on the step's critical path (x -> omega_M -> torque -> x+). A wheel angle
-    its profile does not read is not computed. A profile that is one formula
-    row (:func:`is_formula`: paper's motor line and load) is evaluated from
+    The same operations in the same order; the state (``x0, x1`` and, for
+    4 states, ``x2, x3``: angles then speeds), each stage's wheel coordinates
+    and its torques are scalars, the earlier stages' torques a small array
+    ``U`` (``[U_0, ..., U_{s-2}]``, m each): no store and reload on the step's
+    critical path (x -> omega_M -> torque -> x+). A wheel angle its profile
+    does not read is not computed. A profile that is one formula row
+    (:func:`is_formula`: paper's motor line and load) is evaluated from
     scalars read once per call: with no array passed into the inlined
     dispatcher, numba's reference counting of its arrays drops out of the
     step (measured: 33 -> 14 ns per ``exact`` step on paper).
     """
-    x0, x1, x2, x3 = x[0], x[1], x[2], x[3]
+    x0, x1 = x[0], x[1]
+    x2 = x[2] if n == 4 else 0.0
+    x3 = x[3] if n == 4 else 0.0
     s = kinds.size
     E = extra.shape[0]
     m = 2 + E
@@ -573,27 +583,19 @@ def _explicit4(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk
         for i in range(s):
             time = t if offsets[i] == 0.0 else t + offsets[i]
             tc = lo if time < lo else hi if time > hi else time
-            c0 = c2 = 0.0
-            if kinds[i] == 0:
-                c1, c3 = _row4(W, 1, x0, x1, x2, x3), _row4(W, 3, x0, x1, x2, x3)
-                if ua:
-                    c0 = _row4(W, 0, x0, x1, x2, x3)
-                if ub:
-                    c2 = _row4(W, 2, x0, x1, x2, x3)
-            elif kinds[i] == 1:
-                c1, c3 = _stage_row4(S, i, 1, x0, x1, x2, x3, U, m * i), _stage_row4(S, i, 3, x0, x1, x2, x3, U, m * i)
-                if ua:
-                    c0 = _stage_row4(S, i, 0, x0, x1, x2, x3, U, m * i)
-                if ub:
-                    c2 = _stage_row4(S, i, 2, x0, x1, x2, x3, U, m * i)
-            else:  # the whole stage state (etd2's a), then its wheel coordinates
-                b0, b1 = _stage_row4(S, i, 0, x0, x1, x2, x3, U, m * i), _stage_row4(S, i, 1, x0, x1, x2, x3, U, m * i)
-                b2, b3 = _stage_row4(S, i, 2, x0, x1, x2, x3, U, m * i), _stage_row4(S, i, 3, x0, x1, x2, x3, U, m * i)
-                c1, c3 = _row4(W, 1, b0, b1, b2, b3), _row4(W, 3, b0, b1, b2, b3)
-                if ua:
-                    c0 = _row4(W, 0, b0, b1, b2, b3)
-                if ub:
-                    c2 = _row4(W, 2, b0, b1, b2, b3)
+            if kinds[i] == 2:  # the whole stage state (etd2's a), then its wheel coordinates from it
+                b0, b1 = _stage_row(S, i, 0, x0, x1, x2, x3, n, U, m * i), _stage_row(S, i, 1, x0, x1, x2, x3, n, U, m * i)
+                if n == 4:
+                    b2, b3 = _stage_row(S, i, 2, x0, x1, x2, x3, n, U, m * i), _stage_row(S, i, 3, x0, x1, x2, x3, n, U, m * i)
+            if kinds[i] == 1:  # the wheel coordinates straight from [x, U]
+                c1, c3 = _stage_row(S, i, 1, x0, x1, x2, x3, n, U, m * i), _stage_row(S, i, 3, x0, x1, x2, x3, n, U, m * i)
+                c0 = _stage_row(S, i, 0, x0, x1, x2, x3, n, U, m * i) if ua else 0.0
+                c2 = _stage_row(S, i, 2, x0, x1, x2, x3, n, U, m * i) if ub else 0.0
+            else:  # W @ the stage state (x itself for kind 0)
+                a0, a1, a2, a3 = (x0, x1, x2, x3) if kinds[i] == 0 else (b0, b1, b2, b3)
+                c1, c3 = _row(W, 0, 1, a0, a1, a2, a3, n), _row(W, 0, 3, a0, a1, a2, a3, n)
+                c0 = _row(W, 0, 0, a0, a1, a2, a3, n) if ua else 0.0
+                c2 = _row(W, 0, 2, a0, a1, a2, a3, n) if ub else 0.0
             # written out here, not in a helper: an inlined helper receiving the arrays would count their
             # references on every step again
             u0 = formula(dkind, d0, d1, d2, d3, d4, tc, c1) if dform else profile_torque(dk, dp, dx, dy, tc, c0, c1)
@@ -603,14 +605,19 @@ def _explicit4(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk
                 U[m * i], U[m * i + 1] = u0, u1
                 if E:
                     U[m * i + 2] = e0
-        y0 = _final4(F, 0, b0, b1, b2, b3, u0, u1, e0, E, U, last)
-        y1 = _final4(F, 1, b0, b1, b2, b3, u0, u1, e0, E, U, last)
-        y2 = _final4(F, 2, b0, b1, b2, b3, u0, u1, e0, E, U, last)
-        y3 = _final4(F, 3, b0, b1, b2, b3, u0, u1, e0, E, U, last)
-        x0, x1, x2, x3 = y0, y1, y2, y3
-        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = y0, y1, y2, y3
-        if x0 - x0 != 0.0 or x1 - x1 != 0.0 or not abs(x2) <= limit or not abs(x3) <= limit:
+        y0 = _final(F, 0, b0, b1, b2, b3, n, u0, u1, e0, E, U, last)
+        y1 = _final(F, 1, b0, b1, b2, b3, n, u0, u1, e0, E, U, last)
+        x0, x1 = y0, y1
+        out[k, 0], out[k, 1] = y0, y1
+        if n == 4:
+            y2 = _final(F, 2, b0, b1, b2, b3, n, u0, u1, e0, E, U, last)
+            y3 = _final(F, 3, b0, b1, b2, b3, n, u0, u1, e0, E, U, last)
+            x2, x3 = y2, y3
+            out[k, 2], out[k, 3] = y2, y3
+            if x0 - x0 != 0.0 or x1 - x1 != 0.0 or not abs(x2) <= limit or not abs(x3) <= limit:
+                return k + 1, DIVERGED, t
+        elif x0 - x0 != 0.0 or not abs(x1) <= limit:
             return k + 1, DIVERGED, t
-        if guarded and _guard4(guard, x0, x1, x2, x3):
+        if guarded and _past_guard(guard, x0, x1, x2, x3, n):
             return k + 1, GUARDED, t
     return steps, OK, times[steps] if steps >= 0 else 0.0

@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 
+from .identity_cache import built_once
 from .profile_data import DIVERGED, GUARDED, NOT_CONVERGED, OK  # noqa: F401 (re-exported for the stepper)
 
 
@@ -88,9 +89,9 @@ def scheme_arrays(scheme, dt: float, W, m: int):
 
 #: a single plant's ``reals`` before the tables and its ``ints``, by (scheme, step, wheel map, extras, guard, profile
 #: kinds and table sizes): numbers of the method and the plant only (a cached integrator's scheme is read-only),
-#: so the guards' and the run's loops of one scene, and a repeated run, build them once; oldest of more dropped
+#: so the guards' and the run's loops of one scene, and a repeated run, build them once
 _OWN: dict = {}
-_USABLE: dict = {}  # id(scheme) -> (scheme, its matrices are real)
+_USABLE: dict = {}  # scheme -> its matrices are real
 OWN_CACHE_SIZE = 256
 
 
@@ -130,16 +131,8 @@ class KernelLoop:
         self._dp, self._lp = d.params, l.params
         #: the profiles' tables: after the plant's numbers in a single run's ``reals``, apart for variants (shared)
         self.tables = np.concatenate([np.ravel(a) for a in tables]).astype(np.float64)
-        key = made = None
-        if not stacked and all(isinstance(e, FrictionForce) for e in extra):
-            # one plant: the method's and plant's numbers are built once per scheme (a cached integrator's)
-            extra_rows = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
-            key = (id(scheme), float(dt), W.tobytes(), extra_rows.tobytes(), guard_row.tobytes(), self.uses_angle.tobytes(),
-                   d.kinds.tobytes(), l.kinds.tobytes(), *(a.size for a in tables))  # fmt: skip
-            made = _OWN.get(key)
-        if made is not None and made[0] is scheme:
-            own, self.ints = made[1], made[2].copy()
-        else:
+
+        def build():
             kinds, offsets, S, final, final_base, tol, max_iter = scheme_arrays(scheme, dt, W, 2 + len(extra))
             extra_rows = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
             sections = (W, offsets, S, final, np.array([tol]), extra_rows, guard_row, *tables)
@@ -150,15 +143,19 @@ class KernelLoop:
                 axis=1,
             ).astype(np.float64)
             header = [n, kinds.size, len(extra), S.shape[2], S.shape[3], final_base, max_iter, *self.uses_angle]
-            self.ints = np.concatenate([header, starts, kinds, d.kinds, l.kinds]).astype(np.int64)
+            return (own if stacked else own[0]), np.concatenate([header, starts, kinds, d.kinds, l.kinds]).astype(np.int64)
+
+        if stacked or not all(isinstance(e, FrictionForce) for e in extra):
+            own, self.ints = build()
             if stacked:
                 self.reals = own
                 return
-            own = own[0]
-            if key is not None:
-                if len(_OWN) >= OWN_CACHE_SIZE:
-                    _OWN.pop(next(iter(_OWN)))
-                _OWN[key] = (scheme, own.copy(), self.ints.copy())
+        else:  # one plant: the method's and plant's numbers built once per scheme (a cached integrator's), read-only
+            rows = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
+            own, ints = built_once(_OWN, OWN_CACHE_SIZE, (scheme,), build, (
+                float(dt), W.tobytes(), rows.tobytes(), guard_row.tobytes(), self.uses_angle.tobytes(), d.kinds.tobytes(),
+                l.kinds.tobytes(), *(a.size for a in tables)))  # fmt: skip
+            self.ints = ints.copy()  # its own: the node's tick writes into a loop's ints
         self.reals = np.concatenate([own, self.tables])
         self.tables = self.reals[own.size :]  # a view: a recording's samples held once
 
@@ -173,14 +170,8 @@ class KernelLoop:
     @staticmethod
     def usable(scheme) -> bool:
         """Whether a scheme's matrices are real (the kernel's arrays are float64; read once per cached scheme)."""
-        hit = _USABLE.get(id(scheme))
-        if hit is not None and hit[0] is scheme:
-            return hit[1]
-        real = not np.iscomplexobj(scheme.final) and all(M is None or not np.iscomplexobj(M) for M in scheme.stages)
-        if len(_USABLE) >= OWN_CACHE_SIZE:
-            _USABLE.pop(next(iter(_USABLE)))
-        _USABLE[id(scheme)] = (scheme, real)
-        return real
+        return built_once(_USABLE, OWN_CACHE_SIZE, (scheme,), lambda: not np.iscomplexobj(scheme.final)
+                          and all(M is None or not np.iscomplexobj(M) for M in scheme.stages))
 
 
 def _warm_loop(stacked: bool):
