@@ -10,6 +10,7 @@ an absurd torque is one line, exit 2.
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from belt_drive_ros.cli import main
@@ -124,7 +125,7 @@ def test_integers_beyond_the_float_range_are_one_scene_error_not_a_traceback(big
 
     with pytest.raises(SceneError, match="drive: must be finite"):
         make_profile(big, "drive")
-    with pytest.raises(SceneError, match="drive \\(step\\)"):
+    with pytest.raises(SceneError, match="drive.final: must be finite, got an integer beyond 2\\^63"):
         make_profile({"type": "step", "final": big, "time": 1.0}, "drive")
     with pytest.raises(ParameterError, match="I_M.*must be finite"):
         BeltDriveParams(I_M=big)
@@ -140,9 +141,12 @@ def test_integers_beyond_the_float_range_are_one_scene_error_not_a_traceback(big
     (float("inf"), "must be finite, got inf"),
     ({"type": ["a"]}, "drive.type: unknown profile \\['a'\\]"),
     ({"type": {"k": 1}}, "drive.type: unknown profile"),
+    ({"type": "constant", "value": np.array([1.0])}, "drive.value: must be a number, got ndarray"),
+    ({"type": "engine", "cylinders": np.zeros(2)}, "drive.cylinders: must be a number, got ndarray"),
 ])  # fmt: skip
 def test_a_non_finite_number_or_an_unhashable_type_is_one_scene_error(spec, message):
-    """An infinite float is named as such (not as a huge integer), and a list or mapping as a profile's
-    ``type`` is an unknown profile (before: TypeError, unhashable type)."""
+    """An infinite float is named as such (not as a huge integer), a list or mapping as a profile's
+    ``type`` is an unknown profile (before: TypeError, unhashable type), and an array where a number
+    belongs is refused (before: accepted, then a TypeError in the run's encoding)."""
     with pytest.raises(SceneError, match=message):
         make_profile(spec, "drive")

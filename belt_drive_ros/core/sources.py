@@ -20,7 +20,7 @@ import numpy as np
 
 from .errors import SceneError
 from . import profile_data as D
-from .inputs import MAX_INT, short
+from .inputs import MAX_INT, real, short
 
 _REGISTRY: dict[str, type["TorqueProfile"]] = {}
 
@@ -751,6 +751,13 @@ def make_profile(spec: Mapping[str, Any] | TorqueProfile | float, where: str = "
     for key, value in list(spec.items()):
         if "str" not in types[key] and "TorqueProfile" not in types[key] and _has_text(value):
             raise SceneError(f"{where}.{key}: must be a number (or numbers), got {short(value)}")
+        if types[key] in ("float", "float | None", "int") and value is not None:  # (an array is not a number)
+            number = real(value)
+            if number is None:
+                raise SceneError(f"{where}.{key}: must be a number, got {type(value).__name__} {short(value)}")
+            if isinstance(number, int) and abs(number) > MAX_INT:
+                raise SceneError(f"{where}.{key}: must be finite, got an integer beyond 2^63")
+            spec[key] = number
         if isinstance(value, list):
             spec[key] = tuple(tuple(v) if isinstance(v, list) else v for v in value)
     try:
