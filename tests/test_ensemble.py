@@ -313,6 +313,7 @@ def test_the_variant_kernel_compiles_once_and_runs_interpreted_alike(tmp_path):
         scene = load_scene(name).with_overrides(model="flexible", duration=0.05)
         list(simulate_many(_variants(scene, 8, seed=5)))
     assert len(kernel_variants.variant_steps.signatures) == 1
+    assert len(kernel_variants.knot_torques.signatures) == 1
     assert len(kernel.linear_steps.signatures) == 1
     code = (
         "import sys, numpy as np\n"
@@ -322,7 +323,8 @@ def test_the_variant_kernel_compiles_once_and_runs_interpreted_alike(tmp_path):
         "s = load_scene('paper')\n"
         "ps = [s.params.replace(k=s.params.k * f) for f in (0.9, 1.0, 1.1)]\n"
         "e = Ensemble(ModelStack('flexible', ps), s.drive, s.load, 'lawson5', s.dt)\n"
-        "np.save(sys.argv[1], e.run(np.zeros((3, 4)), 0.0, 0.1)[1])\n"
+        "t, x = e.run(np.zeros((3, 4)), 0.0, 0.1)\n"
+        "np.save(sys.argv[1], np.concatenate([x, e.inputs(t, x)], axis=1))\n"
     )
     states = {}
     for jit in ("0", "1"):
@@ -331,5 +333,5 @@ def test_the_variant_kernel_compiles_once_and_runs_interpreted_alike(tmp_path):
         done = subprocess.run([sys.executable, "-c", code, str(path)], env=env, capture_output=True, text=True, timeout=600)
         assert done.returncode == 0, done.stderr
         states[jit] = np.load(path)
-    assert states["0"].shape == (21, 4, 3)
+    assert states["0"].shape == (21, 6, 3)  # the states and the knots' torques
     assert np.array_equal(states["0"], states["1"])

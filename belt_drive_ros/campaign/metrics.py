@@ -90,8 +90,7 @@ WINDOW_KINDS = {
 def _window(run) -> dict:
     """The linear-run metrics of one window of a :class:`~belt_drive_ros.core.ensemble_run.GroupRun` (before :func:`_finish`)."""
     belt, omega = run.output("belt_torque"), run.output("omega_M")
-    use = friction_use(belt, run.param("r_3"), run.friction_limit())
-    return _reduce(belt, omega, run.output("span_force_slack"), run.output("relative_deflection"), use)
+    return _reduce(belt, omega, run.output("span_force_slack"), run.output("relative_deflection"), run.friction_use())
 
 
 #: ``reduce`` of :func:`~belt_drive_ros.core.ensemble_run.run_groups` for the campaign metrics (then :func:`summary_metrics`)

@@ -225,34 +225,46 @@ class Ensemble:
 
     def inputs(self, times: np.ndarray, states: np.ndarray) -> np.ndarray:
         """Torques ``u`` (N+1, m, V) [N m] at the knots, as :meth:`Plant.input_array` gives a single run."""
-        from .kernel import profile_torque_array
+        from .kernel_variants import knot_torques
 
+        times = np.ascontiguousarray(times, dtype=float)
         shape = (len(times), states.shape[2])
-        t = np.repeat(np.asarray(times, dtype=float), shape[1])  # time-major, as the states' samples
         u = np.empty((shape[0], self.m, shape[1]))
-        out, zeros = np.empty(t.size), None
+        out, zeros = np.empty(shape), None
         for q, (data, uses) in enumerate(zip(self.plant.data, self.plant.uses_angle)):
-            # the profile's compiled dispatcher on the samples (what profile.torque calls), without its broadcasting
-            # copies; a profile that ignores its angle gets 0.0, as in the kernel's stages
-            speed = np.ascontiguousarray(self._coordinate(states, 2 * q + 1)).reshape(-1)
+            # the profile's formulas on all variants of a knot at once, as the variant loop's lanes evaluate them (what
+            # profile.torque computes per sample); a profile that ignores its angle gets 0.0, as in the kernel's stages
+            speed = np.ascontiguousarray(self._coordinate(states, 2 * q + 1))
             if uses:
-                angle = np.ascontiguousarray(self._coordinate(states, 2 * q)).reshape(-1)
+                angle = np.ascontiguousarray(self._coordinate(states, 2 * q))
             else:
-                angle = zeros = np.zeros(t.size) if zeros is None else zeros
-            profile_torque_array(data.kinds, data.params, data.tx, data.ty, t, angle, speed, out)
-            u[:, q] = out.reshape(shape)
+                angle = zeros = np.zeros(shape) if zeros is None else zeros
+            knot_torques(data.kinds, data.params, data.tx, data.ty, times, angle, speed, out)
+            u[:, q] = out
         return u
 
     def _coordinate(self, states: np.ndarray, r: int) -> np.ndarray:
         """Wheel coordinate ``r`` of W (phi_M, omega_M, phi_3, omega_3) at every knot: (N+1, V)."""
-        out = None
-        for j in range(self.n):
-            w = self.W[:, r, j]
-            if not np.any(w):
-                continue
-            term = states[:, j, :] if np.all(w == 1.0) else w * states[:, j, :]
-            out = term if out is None else out + term
+        out = weighted_columns(states, self.W[:, r, :].T)
         return out if out is not None else np.zeros(states[:, 0, :].shape)
+
+
+def weighted_columns(block: np.ndarray, rows: np.ndarray):
+    """``sum_k rows[k] * block[:, k, :]`` (block (N+1, K, V), rows (K, V): a weight per column and variant), summed
+    from the left over the columns whose weights are not all zero; a column weighted 1.0 for every variant is taken
+    as it is (None: every weight zero).
+
+    For finite states the same floats as summing every column (a zero product adds nothing but the sign of a zero
+    sum); a run whose states are not finite is a diverged one, reported and not used.
+    """
+    out = None
+    for k in range(rows.shape[0]):
+        w = rows[k]
+        if not np.any(w):
+            continue
+        term = block[:, k, :] if np.all(w == 1.0) else w * block[:, k, :]
+        out = term if out is None else out + term
+    return out
 
 
 def _plain(step) -> bool:

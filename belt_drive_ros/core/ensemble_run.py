@@ -43,7 +43,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from .ensemble import Ensemble, EnsembleUnsupported
+from .ensemble import Ensemble, EnsembleUnsupported, weighted_columns
 from .errors import BeltDriveError
 from .fidelity import choose_model, friction_use, operating_run_step
 from .integrators import method_class
@@ -139,8 +139,9 @@ class GroupRun:
         one run (``y = C x + D u`` summed column by column from the left;
         the span forces from the belt torque), so column v equals
         ``models[v].outputs(states[:, :, v], inputs[:, :, v])[name]`` bit for bit
-        (a row of D that is zero for every variant is skipped: it adds only
-        zeros, so the run's torques are computed only for outputs that read them).
+        (columns of C and D that are zero for every variant are skipped: they add
+        only zeros, so the run's torques are computed only for outputs that read
+        them; :func:`~belt_drive_ros.core.ensemble.weighted_columns`).
         """
         cached = self._outputs.get(name)
         if cached is not None:
@@ -149,16 +150,12 @@ class GroupRun:
             out = self.inputs[:, 0 if name == "drive_torque" else 1, :]
         elif name in LINEAR_OUTPUTS:
             j = LINEAR_OUTPUTS.index(name)
-            out = None
-            for block, rows in ((self.states, self._C[j]), (None, self._D[j])):
-                if block is None:  # the inputs' part: a zero row adds only zeros (the run's torques are not needed)
-                    if not np.any(rows):
-                        continue
-                    block = self.inputs
-                y = block[:, 0, :] * rows[0]
-                for k in range(1, rows.shape[0]):
-                    y = y + block[:, k, :] * rows[k]
+            out = weighted_columns(self.states, self._C[j])
+            if np.any(self._D[j]):  # the inputs' part (the run's torques only when an output reads them)
+                y = weighted_columns(self.inputs, self._D[j])
                 out = y if out is None else out + y
+            if out is None:
+                out = np.zeros(self.states[:, 0, :].shape)
         elif name in ("span_force_tight", "span_force_slack", "slack", "slip"):
             forces = span_forces(self.param("F_0"), self.param("r_3"), self.param("capstan_ratio"), self.output("belt_torque"))
             for key, value in zip(("span_force_tight", "span_force_slack", "slack", "slip"), forces):
@@ -177,6 +174,14 @@ class GroupRun:
         return friction_limit_array(
             self.param("F_0"), ratio, self.param("belt_mass"), self.param("capstan_factor"), self.output("omega_M")
         )
+
+    def friction_use(self) -> np.ndarray:
+        """|Q| / Q_max at every knot of every variant (N+1, V) (:func:`~belt_drive_ros.core.fidelity.friction_use`),
+        computed once for the capstan check and the metrics."""
+        cached = self._outputs.get(" friction_use")
+        if cached is None:
+            cached = self._outputs[" friction_use"] = friction_use(self.output("belt_torque"), self.param("r_3"), self.friction_limit())
+        return cached
 
     def result(self, v: int) -> SimResult:
         """Variant v's run as :func:`~belt_drive_ros.core.simulate.simulate` gives it (see the module docstring)."""
@@ -428,8 +433,7 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
             run = block.window(times, states, ens.inputs)  # the torques only if an output needs them
             with np.errstate(all="ignore"):  # diverged variants (dropped below) give NaN
                 if first.model == "auto":  # the capstan check of each variant's linear run (fidelity.limit_exceedance)
-                    ratio = friction_use(run.output("belt_torque"), run.param("r_3"), run.friction_limit())
-                    capstan.update({"use": peak_over_time(ratio, times)})
+                    capstan.update({"use": peak_over_time(run.friction_use(), times)})
                 if reduced is not None:
                     reduced.update(reduce[1](run))
         diverged = ens.diverged_errors(found)

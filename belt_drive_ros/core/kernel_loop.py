@@ -203,8 +203,9 @@ def warm() -> None:
 def warm_variants() -> None:
     """Compile (or load from the disk cache) the variant loop (it calls the linear loop's dispatcher
     ``_steps`` for variants it does not step as lanes: loaded from the cache where that is warm)."""
-    from .kernel_variants import variant_steps
+    from .kernel_variants import knot_torques, variant_steps
 
     data, ens = _warm_loop(True)
     variant_steps(np.array([0.0, 1e-3]), np.zeros((1, 2, 2)), 0, -math.inf, math.inf, 1.0e5, ens.reals, ens.tables,
                   ens.ints, data.params, data.params, np.zeros(1, dtype=np.int64))  # fmt: skip
+    knot_torques(data.kinds, data.params, data.tx, data.ty, np.zeros(1), np.zeros((1, 1)), np.zeros((1, 1)), np.empty((1, 1)))

@@ -107,6 +107,15 @@ def variant_steps(times, states, j, lo, hi, limit, reals, tables, ints, dp, lp, 
             out[done:] = np.nan
 
 
+@njit(cache=True, nogil=True)
+def knot_torques(kinds, params, tx, ty, times, angle, speed, out):
+    """``out[k, v] = profile_torque(kinds, params, tx, ty, times[k], angle[k, v], speed[k, v])``: a profile's
+    torques [N m] at the knots (K,) of V variants ((K, V) arrays), the variants of a knot as lanes
+    (:func:`_lane_torques`: the same floats as the dispatcher's, the motor line and polynomial vectorised)."""
+    for k in range(times.size):
+        _lane_torques(kinds, params, tx, ty, times[k], angle[k], speed[k], out[k], out.shape[1])
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _lane_torques(kinds, params, tx, ty, t, angle, speed, out, L):
     """``out[q] = profile_torque(kinds, params, tx, ty, t, angle[q], speed[q])`` for q < L.
@@ -186,14 +195,24 @@ def _lanes(times, states, j, lo, hi, limit, reals, at, n, s, cols, kinds, final_
     W = np.empty((1, 4, n, L))
     S = np.empty((s, 4, cols, L))  # the stage maps' rows: max(4, n) = 4
     F = np.empty((1, n, cols, L))
-    for q in range(L):  # the chunk's own numbers, variant axis last
+    for q in range(L):  # the chunk's own numbers, variant axis last (row-major, as packed: no index division)
         r = reals[a + q]
-        for e in range(4 * n):
-            W[0, e // n, e % n, q] = r[at[0] + e]
-        for e in range(s * 4 * cols):
-            S[e // (4 * cols), (e // cols) % 4, e % cols, q] = r[at[2] + e]
-        for e in range(n * cols):
-            F[0, e // cols, e % cols, q] = r[at[3] + e]
+        e = at[0]
+        for x in range(4):
+            for y in range(n):
+                W[0, x, y, q] = r[e]
+                e += 1
+        e = at[2]
+        for i in range(s):
+            for x in range(4):
+                for y in range(cols):
+                    S[i, x, y, q] = r[e]
+                    e += 1
+        e = at[3]
+        for x in range(n):
+            for y in range(cols):
+                F[0, x, y, q] = r[e]
+                e += 1
     X = np.empty((n, L))
     B = np.empty((n, L))
     Y = np.empty((n, L))
