@@ -46,8 +46,8 @@ import numpy as np
 from numba import njit
 from numba.core.errors import NumbaPerformanceWarning
 
-from .kernel import HEADER, SECTIONS, _steps, motor_line, polynomial, profile_torque, torque
-from .profile_data import CONSTANT, DIVERGED, MOTOR_LINE, OK, POLYNOMIAL, RAMP, STEP
+from .kernel import HEADER, SECTIONS, _steps, formula, is_formula, motor_line, polynomial, profile_torque
+from .profile_data import DIVERGED, MOTOR_LINE, OK, POLYNOMIAL
 
 #: variants stepped together by :func:`_lanes` (their matrices, ~4 kB each for lawson5, stay in the cache)
 LANES = 32
@@ -120,28 +120,19 @@ def knot_torques(kinds, params, tx, ty, times, angle, speed, out):
 def _lane_torques(kinds, params, tx, ty, t, angle, speed, out, L):
     """``out[q] = profile_torque(kinds, params, tx, ty, t, angle[q], speed[q])`` for q < L.
 
-    The kind is the same for every lane: for the kinds whose formula is
-    plain arithmetic (constant, step, ramp, motor line, polynomial) one loop
-    per kind, so the loop runs over the lanes in vector registers (the same
-    IEEE operations per lane): the motor line and the polynomial through
-    their formulas with the row's numbers read once before the loop
+    The kind is the same for every lane. The motor line and the polynomial
+    through their formulas with the row's numbers read once before the loop
     (:func:`~belt_drive_ros.core.kernel.motor_line`,
-    :func:`~belt_drive_ros.core.kernel.polynomial`; through the dispatcher,
-    reading the row per lane, the loop was not vectorised and the torques
-    were half of ``paper``'s lawson5 step), the others by the dispatcher
-    with the kind as a constant; tables, sines and schedules lane by lane.
+    :func:`~belt_drive_ros.core.kernel.polynomial`), so the loop runs over
+    the lanes in vector registers (the same IEEE operations per lane;
+    through the dispatcher, reading the row per lane, it was not vectorised
+    and the torques were half of ``paper``'s lawson5 step); the other
+    formulas (constant, step, ramp, sine) read neither speed nor angle: one
+    :func:`~belt_drive_ros.core.kernel.formula` for every lane; tables,
+    schedules, engines and compressors by the dispatcher, lane by lane.
     """
     kind = kinds[0]
-    if kind == CONSTANT:
-        for q in range(L):
-            out[q] = torque(CONSTANT, params, 0, tx, ty, t, angle[q], speed[q])
-    elif kind == STEP:
-        for q in range(L):
-            out[q] = torque(STEP, params, 0, tx, ty, t, angle[q], speed[q])
-    elif kind == RAMP:
-        for q in range(L):
-            out[q] = torque(RAMP, params, 0, tx, ty, t, angle[q], speed[q])
-    elif kind == MOTOR_LINE:  # the row's numbers read once: the loop compiles to vector operations
+    if kind == MOTOR_LINE:  # the row's numbers read once: the loop compiles to vector operations
         a, b, c = params[0, 0], params[0, 1], params[0, 2]
         for q in range(L):
             out[q] = motor_line(a, b, c, t, speed[q])
@@ -149,6 +140,10 @@ def _lane_torques(kinds, params, tx, ty, t, angle, speed, out, L):
         a, b, c = params[0, 0], params[0, 1], params[0, 2]
         for q in range(L):
             out[q] = polynomial(a, b, c, speed[q])
+    elif is_formula(kind):  # a function of time alone (speed[0] is not read)
+        value = formula(kind, params[0, 0], params[0, 1], params[0, 2], params[0, 3], params[0, 4], t, speed[0])
+        for q in range(L):
+            out[q] = value
     else:
         for q in range(L):
             out[q] = profile_torque(kinds, params, tx, ty, t, angle[q], speed[q])
