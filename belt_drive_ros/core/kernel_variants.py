@@ -11,7 +11,7 @@ variant or per step):
 * an explicit method on a rigid or flexible plant (<= 4 states: every
   linear campaign of the shipped scenes): :func:`_lanes` steps :data:`LANES` variants at a time
   as vector lanes, the operations of the single run's 4-state loop
-  (``kernel._explicit4``) in the same order per variant, each one applied
+  (``kernel._explicit``) in the same order per variant, each one applied
   to all lanes before the next. One variant's step is a chain (state ->
   stage speeds -> torques -> next stage) that a processor runs one
   operation after the other; 32 independent chains side by side fill its
@@ -174,7 +174,7 @@ def _lanes(times, states, j, lo, hi, limit, reals, at, n, s, cols, kinds, final_
     together, the variants as lanes.
 
     Each variant's floats are those of the single run's loop (the 4-state
-    :func:`~belt_drive_ros.core.kernel._explicit4`, which also covers the
+    :func:`~belt_drive_ros.core.kernel._explicit`, which also covers the
     one-stage methods of ``_one_stage4`` with the same operations; the
     general ``_linear_steps`` for the rigid model's 2 states): per
     stage the wheel coordinates (``W`` or the stage map on ``[x, U_0 ..]``,
