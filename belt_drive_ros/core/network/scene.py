@@ -391,6 +391,22 @@ def load_network(name_or_path: str | Path) -> NetworkScene:
     return NetworkScene.from_mapping(data, name=default)
 
 
+def run_steps(scene, duration: float | None, dt: float | None) -> tuple[float, float, int]:
+    """``(duration [s], dt [s], steps)`` of a run (default the scene's duration and step); :class:`SceneError` for a
+    network scene's wrong type, a duration or step outside the scene file's ranges, more than 1e8 steps or a
+    run shorter than one step."""
+    if not isinstance(scene, NetworkScene):
+        raise SceneError(f"scene: expected a NetworkScene (load_network), got {type(scene).__name__}")
+    duration = scene.duration if duration is None else _number("duration", duration, strict=True, top=1.0e7)
+    dt = scene.dt if dt is None else _number("dt", dt, strict=True, top=1.0)
+    if duration / dt > 1.0e8:
+        raise SceneError(f"dt: {dt:g} s over {duration:g} s is more than 1e8 steps")
+    steps = int(round(duration / dt))
+    if steps < 1:
+        raise SceneError(f"duration: {duration:g} s is shorter than one step of {dt:g} s")
+    return duration, dt, steps
+
+
 def warm_scene():
     """The two-pulley belt (driver and accessory, constant torques) the warm-ups of the network tiers step."""
     return NetworkScene.from_mapping({

@@ -31,8 +31,8 @@ from ..errors import IntegratorError, SceneError, SimulationDivergedError, Unsta
 from ..identity_cache import built_once
 from ..inputs import short
 from ..profile_data import CONSTANT, DIVERGED, NOT_CONVERGED
-from .model import NetworkModel, NetworkRun, check_step, grid_breakpoints, outputs, run_steps, stack_profiles, step_runs
-from .scene import warm_scene
+from .model import NetworkModel, NetworkRun, check_step, grid_breakpoints, outputs, stack_profiles, step_runs
+from .scene import run_steps, warm_scene
 
 TIERS = ("auto", "flexible", "rigid", "slipping")
 #: auto: rigid when the belt's lowest mode is at least this many times the fastest excitation

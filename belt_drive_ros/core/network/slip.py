@@ -41,7 +41,8 @@ import numpy as np
 from ..errors import SceneError, SimulationDivergedError
 from ..identity_cache import built_once
 from ..profile_data import CONSTANT, WIDTH
-from .model import NetworkModel, NetworkRun, grid_breakpoints, outputs, run_steps, stack_profiles, step_runs
+from .model import NetworkModel, NetworkRun, grid_breakpoints, outputs, stack_profiles, step_runs
+from .scene import run_steps
 
 #: modes kept with their step exponentials per run
 CACHE_SLOTS = 8
