@@ -123,7 +123,7 @@ def test_integers_beyond_the_float_range_are_one_scene_error_not_a_traceback(big
     from belt_drive_ros.core.network.scene import NetworkScene
     from belt_drive_ros.core.params import BeltDriveParams
 
-    with pytest.raises(SceneError, match="drive: must be finite"):
+    with pytest.raises(SceneError, match="drive.value: must be finite, got an integer beyond 2\\^63"):
         make_profile(big, "drive")
     with pytest.raises(SceneError, match="drive.final: must be finite, got an integer beyond 2\\^63"):
         make_profile({"type": "step", "final": big, "time": 1.0}, "drive")

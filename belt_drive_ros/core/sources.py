@@ -732,10 +732,8 @@ def make_profile(spec: Mapping[str, Any] | TorqueProfile | float, where: str = "
     """
     if isinstance(spec, TorqueProfile):
         return spec
-    if isinstance(spec, (int, float)) and not isinstance(spec, bool):
-        if isinstance(spec, int) and abs(spec) > MAX_INT:
-            raise SceneError(f"{where}: must be finite, got an integer beyond 2^63")
-        return Constant(float(spec)).check_plausible(where)
+    if real(spec) is not None:  # a number: a constant, checked as one from a mapping
+        spec = {"type": "constant", "value": spec}
     if not isinstance(spec, Mapping):
         raise SceneError(f"{where}: expected a mapping with a 'type' key or a number, got {type(spec).__name__} {short(spec)}")
     spec = dict(spec)
@@ -757,7 +755,7 @@ def make_profile(spec: Mapping[str, Any] | TorqueProfile | float, where: str = "
                 raise SceneError(f"{where}.{key}: must be a number, got {type(value).__name__} {short(value)}")
             if isinstance(number, int) and abs(number) > MAX_INT:
                 raise SceneError(f"{where}.{key}: must be finite, got an integer beyond 2^63")
-            spec[key] = number
+            spec[key] = number if types[key] == "int" else float(number)
         if isinstance(value, list):
             spec[key] = tuple(tuple(v) if isinstance(v, list) else v for v in value)
     try:
