@@ -45,7 +45,7 @@ import stat
 from collections.abc import Mapping
 from numbers import Real
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import yaml
 
@@ -53,7 +53,7 @@ from .errors import InputError
 
 __all__ = [
     "MAX_DEPTH", "SCENE_LIMIT", "InputError", "boolean", "check_path", "mapping", "number", "open_regular", "parse_yaml",
-    "read_text", "read_yaml", "sequence", "short", "text", "unknown_key",
+    "plain_number", "read_text", "read_yaml", "sequence", "short", "text", "unknown_key",
 ]  # fmt: skip
 
 #: largest scene / parameter YAML file [bytes]; the shipped scenes are ~2 kB
@@ -294,6 +294,17 @@ def real(value: Any) -> int | float | None:
         value = value.item()  # numpy's scalars (registered as numbers.Real) as Python numbers
         return value if isinstance(value, (int, float)) and not isinstance(value, bool) else None
     return None
+
+
+def plain_number(value: Any, refuse: Callable[[str], Exception]) -> int | float:
+    """``value`` as a Python number (:func:`real`), else ``refuse(what is wrong)`` raised: not a number, or an
+    integer beyond 2^63 (no float holds it; the text of a 5000-digit one even exceeds Python's int-to-str limit)."""
+    number = real(value)
+    if number is None:
+        raise refuse(f"must be a number, got {type(value).__name__} {short(value)}")
+    if isinstance(number, int) and abs(number) > MAX_INT:
+        raise refuse("must be finite, got an integer beyond 2^63")
+    return number
 
 
 def _refuse(error, key: str, expected: str, value: Any):

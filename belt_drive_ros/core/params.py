@@ -19,7 +19,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .errors import ParameterError
-from .inputs import MAX_INT, real, short, unknown_key
+from .inputs import plain_number, short, unknown_key
 
 #: field -> (unit, description); also the order of the YAML keys.
 FIELD_DOCS: dict[str, tuple[str, str]] = {
@@ -104,12 +104,7 @@ class BeltDriveParams:
         for name in _FIELDS:
             value = getattr(self, name)
             if type(value) is not float:  # (a float passes the first two checks as it is)
-                given, value = value, real(value)
-                if value is None:
-                    raise ParameterError(name, f"must be a number, got {type(given).__name__} {short(given)}")
-                if isinstance(value, int) and abs(value) > MAX_INT:  # (str() of a 5000-digit integer raises too)
-                    raise ParameterError(name, "must be finite, got an integer beyond 2^63")
-                value = float(value)
+                value = float(plain_number(value, lambda text: ParameterError(name, text)))
                 object.__setattr__(self, name, value)
             if not math.isfinite(value):
                 raise ParameterError(name, f"must be finite, got {value!r}")

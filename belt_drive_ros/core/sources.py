@@ -20,7 +20,7 @@ import numpy as np
 
 from .errors import SceneError
 from . import profile_data as D
-from .inputs import MAX_INT, real, short
+from .inputs import plain_number, real, short
 
 _REGISTRY: dict[str, type["TorqueProfile"]] = {}
 
@@ -750,11 +750,7 @@ def make_profile(spec: Mapping[str, Any] | TorqueProfile | float, where: str = "
         if "str" not in types[key] and "TorqueProfile" not in types[key] and _has_text(value):
             raise SceneError(f"{where}.{key}: must be a number (or numbers), got {short(value)}")
         if types[key] in ("float", "float | None", "int") and value is not None:  # (an array is not a number)
-            number = real(value)
-            if number is None:
-                raise SceneError(f"{where}.{key}: must be a number, got {type(value).__name__} {short(value)}")
-            if isinstance(number, int) and abs(number) > MAX_INT:
-                raise SceneError(f"{where}.{key}: must be finite, got an integer beyond 2^63")
+            number = plain_number(value, lambda text: SceneError(f"{where}.{key}: {text}"))
             spec[key] = number if types[key] == "int" else float(number)
         if isinstance(value, list):
             spec[key] = tuple(tuple(v) if isinstance(v, list) else v for v in value)

@@ -20,7 +20,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import SceneError
-from ..inputs import MAX_INT, parse_yaml, read_text, real, short, unknown_key
+from ..inputs import parse_yaml, plain_number, read_text, real, short, unknown_key
 from ..integrators import method_class
 from ..scene import shipped_scenes
 from ..sources import TorqueProfile, make_profile
@@ -33,12 +33,7 @@ ROLE_SIGN = {"driver": 1.0, "accessory": -1.0}
 
 
 def _number(where: str, value, low: float = 0.0, strict: bool = False, top: float = 1.0e9) -> float:
-    given, value = value, real(value)
-    if value is None:
-        raise SceneError(f"{where}: must be a number, got {type(given).__name__} {short(given)}")
-    if isinstance(value, int) and abs(value) > MAX_INT:
-        raise SceneError(f"{where}: must be finite, got an integer beyond 2^63")
-    value = float(value)
+    value = float(plain_number(value, lambda text: SceneError(f"{where}: {text}")))
     if not math.isfinite(value):
         raise SceneError(f"{where}: must be finite, got {value!r}")
     if value < low or (strict and value == low):
