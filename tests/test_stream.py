@@ -13,8 +13,9 @@ from belt_drive_ros.core import sources as S
 from belt_drive_ros.core import stream as stream_module
 from belt_drive_ros.core.scene import load_scene
 from belt_drive_ros.core.simulate import simulate
-from belt_drive_ros.core.stream import Restart, RunSummary, stream
+from belt_drive_ros.core.stream import Restart, stream
 from belt_drive_ros.io import run_writers
+from belt_drive_ros.io.run_writers import RunSummary
 from msg_tools import block_writer
 
 

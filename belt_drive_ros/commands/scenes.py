@@ -14,9 +14,10 @@ def run(args) -> int:
     from ..core.params import describe_fields
     from ..core.network.scene import is_network, load_network, shipped_networks
     from ..core.scene import load_scene, shipped_scenes
+    from ..io.network_plot import describe
 
     if args.name and is_network(args.name):  # a belt network: its computed geometry
-        print(load_network(args.name).describe(), end="")
+        print(describe(load_network(args.name)), end="")
         return 0
     if args.name:
         print(load_scene(args.name).to_yaml(), end="")

@@ -214,9 +214,8 @@ def _write_plot(scene, runs, args) -> None:
 
 def _run_in_memory(scene, args, out_format, bar) -> int:
     from ..core.simulate import simulate
-    from ..core.stream import RunSummary
     from ..io.atomic import atomic_output
-    from ..io.run_writers import Decimator
+    from ..io.run_writers import Decimator, RunSummary
 
     result = simulate(scene, progress=bar)
     print_summary(RunSummary().add(result))
@@ -259,9 +258,9 @@ def _run_streamed(scene, args, out_format, bar) -> int:
     """The run window by window (:func:`belt_drive_ros.core.stream.stream`): outputs written as it goes."""
     import contextlib
 
-    from ..core.stream import Restart, RunSummary, stream
+    from ..core.stream import Restart, stream
     from ..io.atomic import atomic_output
-    from ..io.run_writers import CsvWindows, Decimator, McapWindows
+    from ..io.run_writers import CsvWindows, Decimator, McapWindows, RunSummary
 
     summary = RunSummary()
     keep = Decimator(args.plot_every) if args.plot is not None else None
@@ -362,7 +361,7 @@ def _overlay_method(scene, model: str, method: str, dt: float) -> tuple[str, str
 
 
 def print_summary(summary) -> None:
-    """Short human summary of a run (:class:`~belt_drive_ros.core.stream.RunSummary`; rpm for people, SI otherwise)."""
+    """Short human summary of a run (:class:`~belt_drive_ros.io.run_writers.RunSummary`; rpm for people, SI otherwise)."""
     rpm = 60.0 / (2.0 * math.pi)
     o = summary.final
     scene = summary.scene

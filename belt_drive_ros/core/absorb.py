@@ -1,15 +1,12 @@
 """Steps next to torque breakpoints on the grid, absorbed into runs of whole steps (a recording at the step rate).
 
 A torque sampled at the step rate (a bag replayed with ``--torque-bag``, a
-node recording re-simulated) puts a breakpoint on every grid knot. Planned
-alone, each such step is one kernel call with its torque times clamped to
-its side of the breakpoints (:class:`~belt_drive_ros.core.stepper.Stepper`):
-~15 us of Python per step. :func:`absorbed_steps` finds, for all of an
-advance's steps at once, those that one kernel call can take instead: the
-loop of :func:`end_loop` (the stepper's, a stage at the step's end reading
-the torques :data:`END_SHIFT` before it) gives every torque the same float
-at every stage as the clamped step would, checked with the kernel's own
-dispatcher. The same stage torques give the same states, bit for bit.
+node recording re-simulated) puts a breakpoint on every grid knot; planned
+alone, each such step is one kernel call with its stage times clamped to its
+side of the breakpoints (:class:`~belt_drive_ros.core.stepper.Stepper`, ~15 us
+of Python per step). :func:`absorbed_steps` finds those one call of
+:func:`end_loop` can take instead, with the same stage torques, so the same
+states, bit for bit.
 """
 
 from __future__ import annotations
@@ -82,20 +79,15 @@ class EndLoop:
             self.loop.reals[where] = plain
 
 
-def absorbed_steps(stepper, bps: np.ndarray, first: int, last: int, lead: bool, trail: bool) -> tuple[np.ndarray, np.ndarray]:
+def absorbed_steps(stepper, bps: np.ndarray, first: int, last: int) -> tuple[np.ndarray, np.ndarray]:
     """Whole steps next to breakpoints on the grid that one kernel call can take without clamps.
 
-    A torque sampled on the step grid (a recording at the step rate) puts a
-    breakpoint on every knot; planned one by one, each step would be its own
-    kernel call. Step ``j`` (cells ``first + 1 .. last - 1`` only) is *absorbed*
-    when every breakpoint touching it lies on its knots (none inside it) and
-    each torque gives, at every stage time of the absorbed loop
-    (:func:`end_loop`: a stage at the step's end reads 1 ns before it), the
-    same float as at the stage time clamped into ``[lo_j, hi_j]`` (what the
-    step planned alone would read): a time-only torque is evaluated at both
-    (the kernel's dispatcher), any other must read no time there
-    (:func:`time_free`). Absorbed steps then run as runs of whole steps of the
-    absorbed loop: the same stage torques, so the same states, bit for bit.
+    Step ``j`` (cells ``first + 1 .. last - 1`` only) is *absorbed* when every
+    breakpoint touching it lies on its knots and each torque gives, at every
+    stage time of :func:`end_loop`, the same float as at the stage time
+    clamped into ``[lo_j, hi_j]`` (what the step planned alone reads): a
+    time-only torque is evaluated at both (the kernel's dispatcher), any other
+    must read no time there (:func:`time_free`).
 
     Returns the absorbed cells (sorted int64) and a mask of ``bps`` (the
     advance's breakpoints, sorted) whose both cells are absorbed (left out of

@@ -13,13 +13,8 @@ class BeltDriveError(Exception):
 
 
 class ParameterError(BeltDriveError, ValueError):
-    """A model parameter is missing, unknown, non-finite or out of range.
-
-    Attributes
-    ----------
-    field : str
-        Name of the offending field (the paper's symbol, e.g. ``"r_3"``).
-    """
+    """A model parameter is missing, unknown, non-finite or out of range: ``field`` names it (the paper's
+    symbol, e.g. ``"r_3"``), ``detail`` says what is wrong."""
 
     def __init__(self, field: str, message: str):
         self.field = field

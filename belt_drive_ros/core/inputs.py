@@ -1,39 +1,19 @@
 """Bounded reading of files that come from outside: scenes, profiles, parameter files.
 
-Every path the project reads a user's scene or table from goes through
-:func:`read_text`, and every YAML text through :func:`parse_yaml`:
-
-* **regular files only**: ``/dev/zero``, a FIFO or a directory is refused
-  from ``os.stat`` before anything is opened (a FIFO would block ``open``;
-  ``/dev/zero`` never ends); the file is opened with ``O_NONBLOCK`` and checked
-  again on the open descriptor, so a file swapped for a FIFO in between
-  cannot block either;
-* **a size limit** (:data:`SCENE_LIMIT` for YAML, callers choose theirs), read
-  as at most ``limit + 1`` bytes whatever the file claims;
-* **UTF-8**, strictly, with the offset of the first bad byte in the error;
-* **YAML without aliases or anchors** (no "billion laughs" expansion), with
-  nesting at most :data:`MAX_DEPTH` levels (no ``RecursionError``) and
-  **duplicate keys an error** (no silent last-wins);
-* **YAML 1.2 numbers**: ``2.0e4`` and ``1e1`` are floats (PyYAML's YAML 1.1
-  rules read them as strings), so a quoted ``'2e4'`` is a string and numeric
-  fields can refuse strings;
-* **values checked with the key named** (:func:`number`, :func:`boolean`,
-  :func:`mapping`, :func:`sequence`, :func:`text`): a string is not a number
-  nor a boolean, a boolean is not a number, ``2.7`` is not a count, ``.inf``
-  and ``.nan`` are not finite.
-
-Every YAML file the project reads goes through here: scene files
-(:mod:`belt_drive_ros.core.scene`), campaign files
-(:mod:`belt_drive_ros.campaign.spec`), a bag folder's ``metadata.yaml`` and
-the YAML inside MCAP metadata and channel records (:mod:`msg_tools`), and
-``--params-file`` files of ``belt-drive node``. The module uses the standard
-library and PyYAML only, so that :mod:`msg_tools` (which never imports the
-rest of this package) can use it too.
+Every path the project reads a user's file from goes through :func:`read_text`
+(regular files only, never blocking on a FIFO; at most ``limit`` bytes; strict
+UTF-8), every YAML text through :func:`parse_yaml` (no aliases, anchors or
+merge keys; nesting at most :data:`MAX_DEPTH`; duplicate keys an error; YAML
+1.2 numbers: ``2.0e4`` and ``1e1`` are floats, a quoted ``'2e4'`` a string),
+and values are checked with their key named (:func:`number`, :func:`boolean`,
+:func:`mapping`, :func:`sequence`, :func:`text`). That covers scene files,
+campaign files, a bag folder's ``metadata.yaml``, the YAML inside MCAP records
+and ``--params-file`` files. Standard library and PyYAML only, so that
+:mod:`msg_tools` (which never imports the rest of this package) can use it.
 
 Errors are :class:`~belt_drive_ros.core.errors.InputError` (a
 :class:`~belt_drive_ros.core.errors.SceneError`): one line, naming the file,
-and quoting values through :func:`short`, never a full ``repr`` of something
-large.
+values quoted through :func:`short`.
 """
 
 from __future__ import annotations
@@ -101,19 +81,12 @@ def _kind(mode: int) -> str:
 
 
 def check_path(path: str | os.PathLike, what: str = "file", folder: bool = False) -> os.stat_result:
-    """``os.stat`` of ``path`` when it is a regular file (or, with ``folder``, a directory).
+    """``os.stat`` of ``path`` when it is a regular file (or, with ``folder``, a directory), else :class:`InputError`.
 
     The one check every read of a user's path goes through before ``open()``
     (a FIFO blocks ``open`` for reading until a writer comes, ``/dev/zero``
-    never ends). Names the OS refuses (too long, a component longer than 255
-    bytes, a NUL byte, unpaired surrogates, a loop of links) are refused the
-    same way, with one line.
-
-    Raises
-    ------
-    InputError
-        ``path`` is missing, refused by the OS, or of another kind (device,
-        FIFO, socket, a directory where a file is needed).
+    never ends); a missing path, one of another kind, or a name the OS refuses
+    (too long, a NUL byte, unpaired surrogates, a loop of links) is one line.
     """
     label = f"{what} {short(os.fspath(path), 200)}"
     try:
@@ -152,15 +125,8 @@ def open_regular(path: str | os.PathLike, what: str = "file") -> int:
 
 
 def read_text(path: str | os.PathLike, what: str = "file", limit: int = SCENE_LIMIT) -> str:
-    """UTF-8 text of the regular file ``path``, at most ``limit`` bytes.
-
-    Raises
-    ------
-    InputError
-        ``path`` is missing, not a regular file (device, FIFO, directory,
-        socket), larger than ``limit`` bytes, unreadable or not UTF-8. Never
-        blocks on a FIFO and never reads more than ``limit + 1`` bytes.
-    """
+    """UTF-8 text of the regular file ``path``, at most ``limit`` bytes (never more than ``limit + 1`` read);
+    :class:`InputError` if it is missing, not a regular file, larger, unreadable or not UTF-8."""
     label = f"{what} {short(os.fspath(path), 200)}"
     st = check_path(path, what)
     if st.st_size > limit:
@@ -248,15 +214,9 @@ _BoundedLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list(
 
 
 def parse_yaml(text: str, label: str = "YAML") -> Any:
-    """Data of the YAML ``text`` under the bounded rules of this module.
-
-    Raises
-    ------
-    InputError
-        Syntax errors (first line of PyYAML's message), aliases, anchors,
-        merge keys, nesting deeper than :data:`MAX_DEPTH`, duplicate keys,
-        more than one document; the message starts with ``label``.
-    """
+    """Data of the YAML ``text`` under the bounded rules of this module; :class:`InputError` starting with
+    ``label`` for a syntax error (PyYAML's first line), aliases, anchors, merge keys, nesting deeper than
+    :data:`MAX_DEPTH`, duplicate keys or more than one document."""
     try:
         loader = _BoundedLoader(text)
         try:

@@ -130,12 +130,8 @@ class BeltDriveParams:
         return cls(**data)
 
     def to_dict(self) -> dict[str, float]:
-        """Plain ``{symbol: value}`` mapping (YAML-ready, SI units).
-
-        The optional belt fields (:data:`OPTIONAL_DEFAULTS`: groove angle, belt
-        mass) appear only when they differ from the flat massless belt, so
-        scenes and recordings that do not use them read as before.
-        """
+        """Plain ``{symbol: value}`` mapping (YAML-ready, SI units); the optional fields (:data:`OPTIONAL_DEFAULTS`)
+        only when they differ from the flat massless belt, so scenes and recordings without them read as before."""
         return {
             f.name: getattr(self, f.name)
             for f in fields(self)
@@ -265,14 +261,9 @@ _FIELDS = tuple(f.name for f in fields(BeltDriveParams))
 
 
 class ParamColumns:
-    """The fields of V :class:`BeltDriveParams` as (V,) float arrays, with their derived quantities.
-
-    The derived quantities are :class:`BeltDriveParams`' own properties
-    (the same formulas, evaluated on the columns element by element), so
-    column v is what ``params[v]`` computes. What stacks of models are
-    built from (:class:`~belt_drive_ros.core.model.ModelStack`). The
-    parameters were validated when each was constructed.
-    """
+    """The fields of V (validated) :class:`BeltDriveParams` as (V,) float arrays, with their derived quantities:
+    :class:`BeltDriveParams`' own properties on the columns, so column v is what ``params[v]`` computes (what
+    :class:`~belt_drive_ros.core.model.ModelStack` is built from)."""
 
     gear_ratio = BeltDriveParams.gear_ratio
     ratio = BeltDriveParams.ratio
@@ -298,12 +289,8 @@ class ParamColumns:
 
 
 def friction_limit_array(F_0, belt_speed_ratio, belt_mass, capstan_factor, omega_M):
-    """Q_max = max((F_0 - m' v^2) 2 tanh(mu_eff beta / 2), 0) [N] at belt speed v = (r_2 g) omega_M, on arrays.
-
-    :meth:`BeltDriveParams.friction_limit` of an array of speeds; the
-    parameters may be arrays too (an ensemble's variants on the last axis),
-    with the same operations per element as for one run.
-    """
+    """Q_max = max((F_0 - m' v^2) 2 tanh(mu_eff beta / 2), 0) [N] at belt speed v = (r_2 g) omega_M, on arrays
+    (of speeds, and of parameters: an ensemble's variants on the last axis), per element as for one run."""
     v = belt_speed_ratio * omega_M
     return np.maximum((F_0 - belt_mass * v * v) * capstan_factor, 0.0)
 

@@ -280,13 +280,8 @@ class Scene:
         return replace(self, **{k: v for k, v in changes.items() if v is not None})
 
     def with_params(self, params: BeltDriveParams) -> "Scene":
-        """Copy with other parameters (a campaign's variant), the scene's own fields as they are.
-
-        Nothing of :meth:`__post_init__` reads the parameters, and a
-        :class:`BeltDriveParams` validated itself on construction: the copy
-        skips re-checking the unchanged fields (a parameter sweep builds
-        thousands of these).
-        """
+        """Copy with other parameters (a campaign's variant): nothing of :meth:`__post_init__` reads them and
+        they validated themselves, so the copy skips re-checking (a sweep builds thousands of these)."""
         if not isinstance(params, BeltDriveParams):
             raise SceneError(f"params: expected BeltDriveParams, got {type(params).__name__} {short(params)}")
         scene = copy.copy(self)
@@ -324,12 +319,8 @@ def _extended(data: dict) -> dict:
 
 
 def load_scene(name_or_path: str | Path) -> Scene:
-    """Scene by shipped name (``paper``) or by path to a YAML file.
-
-    Files are read through :mod:`belt_drive_ros.core.inputs` (regular files
-    only, size-limited, UTF-8, YAML without aliases, deep nesting or
-    duplicate keys); the scene must state its keys or ``extends`` a shipped one.
-    """
+    """Scene by shipped name (``paper``) or by path to a YAML file (read through :mod:`belt_drive_ros.core.inputs`);
+    the scene must state its keys or ``extends`` a shipped one."""
     if not isinstance(name_or_path, (str, Path)):
         raise SceneError(f"scene: expected a name or a path, got {type(name_or_path).__name__} {short(name_or_path)}")
     label = str(name_or_path)

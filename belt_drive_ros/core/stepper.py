@@ -489,7 +489,7 @@ class Stepper:
         if absorb and len(near) >= ABSORB_MIN:
             from .absorb import absorbed_steps
 
-            absorbed, skip = absorbed_steps(self, np.asarray(near, dtype=np.float64), first, last, k0 is None, k1 is None)
+            absorbed, skip = absorbed_steps(self, np.asarray(near, dtype=np.float64), first, last)
             if absorbed.size:
                 near = np.asarray(near, dtype=np.float64)[~skip]
         taken = set(absorbed.tolist())  # an absorbed step's clamps are accounted for: no special entry

@@ -1,29 +1,26 @@
 """Streamed runs: a scene's run in windows, in memory that does not grow with its duration.
 
-:func:`simulate` keeps every sample of a run (N samples of the states,
-inputs, ~20 outputs and 4 energy terms: about 300 bytes each, so a day of
+:func:`simulate` keeps every sample of a run (~300 bytes each: a day of
 ``paper`` at 5 ms would be 5 GB). :func:`stream` yields the same run as
 consecutive :class:`~belt_drive_ros.core.simulate.SimResult` windows of
-``window_steps`` grid steps: the first starts with the sample at t = 0,
-each later one with the sample after the previous window's last, so the
-windows' states put together are :func:`simulate`'s bit for bit (the energy
-terms to rounding: their quadrature sums per window). The energy terms run
-on from window to window (trapezoidal quadrature across the seam).
+``window_steps`` grid steps, the first from t = 0, each later one from the
+sample after the previous window's last: their states put together are
+:func:`simulate`'s bit for bit, the energy terms to rounding (trapezoidal
+quadrature running on across the seams).
 
-Consumers write each window out (CSV, MCAP) and keep a :class:`RunSummary`.
-The ``auto`` model choice streams too: the frequency rule's operating speeds
-come from a windowed rigid run, and the chosen linear run is checked against
-the capstan limit window by window; when it passes the limit the stream
-yields a :class:`Restart` and starts over on the slipping model (consumers
-discard what they wrote), as :func:`~belt_drive_ros.core.fidelity.choose_model`
-decides on the whole run.
+Consumers write each window out (CSV, MCAP) and keep a
+:class:`~belt_drive_ros.io.run_writers.RunSummary`. The ``auto`` model choice
+streams too: the operating speeds of the frequency rule come from a windowed
+rigid run and the chosen linear run is checked against the capstan limit
+window by window; past it the stream yields a :class:`Restart` and starts
+over on the slipping model (consumers discard what they wrote), as
+:func:`~belt_drive_ros.core.fidelity.choose_model` decides on the whole run.
 """
 
 from __future__ import annotations
 
-import math
 import time as _time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Callable, Iterator
 
 import numpy as np
@@ -37,7 +34,7 @@ from .simulate import SimResult, Simulator, _slipping_accuracy
 from .slip_run import SlippingSimulator
 from .stepper import PAGE_MARGIN, snap_tolerance
 
-__all__ = ["WINDOW_STEPS", "Restart", "RunSummary", "stream"]
+__all__ = ["WINDOW_STEPS", "Restart", "stream"]
 
 #: grid steps per window (~15 MB of arrays per window)
 WINDOW_STEPS = 50_000
@@ -60,14 +57,9 @@ def stream(
     check_stability: bool = True,
     window_steps: int | None = None,
 ) -> Iterator[SimResult | Restart]:
-    """Windows of the run of ``scene`` (overrides as for :func:`~belt_drive_ros.core.simulate.simulate`).
-
-    Yields :class:`~belt_drive_ros.core.simulate.SimResult` windows and, for
-    ``model='auto'`` only, at most one :class:`Restart` (after which the
-    windows start again at t = 0 on the slipping model). ``result.choice``
-    of every window is the choice in force; ``window_steps`` defaults to
-    :data:`WINDOW_STEPS`.
-    """
+    """Windows of the run of ``scene`` (overrides as for :func:`~belt_drive_ros.core.simulate.simulate`;
+    ``window_steps`` default :data:`WINDOW_STEPS`), and for ``model='auto'`` at most one :class:`Restart`, after
+    which the windows start again at t = 0 on the slipping model. Each window's ``choice`` is the one in force."""
     scene = scene.with_overrides(model=model, method=method, dt=dt, duration=duration)
     kind = _linear_choice(scene).model if scene.model == "auto" and scene.method == "auto" else None
     scene, method_choice = resolve_method(scene, kind)
@@ -255,62 +247,3 @@ def _slipping(scene, choice, progress, check_stability, window_steps) -> Iterato
             wall_time=wall, energy=energy, events=window_events, accuracy=accuracy,
         )
         start = _time.perf_counter()
-
-
-@dataclass
-class RunSummary:
-    """What the run's summary needs, accumulated window by window (or from one whole run).
-
-    ``final`` holds each output's last value; ``peak_deflection`` the largest
-    relative deflection [rad]; ``slip_samples``/``samples`` the fraction of
-    samples the belt slips (or slackens); ``onsets`` the slip phases;
-    ``peak_slip_speed`` the largest |slip speed| [m/s].
-    """
-
-    scene: Scene | None = None
-    model: str = ""
-    method: str = ""
-    dt: float = math.nan
-    choice: ModelChoice | None = None
-    method_choice: object = None
-    stability: object = None
-    accuracy: object = None
-    wall_time: float = 0.0
-    t_start: float = math.nan
-    t_end: float = math.nan
-    samples: int = 0
-    slip_samples: float = 0.0
-    onsets: int = 0
-    peak_deflection: float = -math.inf
-    peak_slip_speed: float = 0.0
-    final: dict = field(default_factory=dict)
-
-    def add(self, window: SimResult) -> "RunSummary":
-        """Take in the next window of the run; returns ``self``."""
-        if not self.samples:
-            self.scene, self.t_start = window.scene, float(window.time[0])
-        self.model, self.method, self.dt = window.model, window.method, window.dt
-        self.choice, self.stability = window.choice, window.stability
-        self.accuracy = getattr(window, "accuracy", None)
-        self.method_choice = getattr(window, "method_choice", None)
-        self.wall_time += window.wall_time
-        self.t_end = float(window.time[-1])
-        o = window.outputs
-        self.samples += len(window.time)
-        self.slip_samples += float(np.sum(o["slip"]))
-        self.onsets += sum(1 for e in window.events if e[0] == "onset")
-        self.peak_deflection = max(self.peak_deflection, float(np.max(o["relative_deflection"])))
-        if "slip_speed" in o:
-            self.peak_slip_speed = max(self.peak_slip_speed, float(np.max(np.abs(o["slip_speed"]))))
-        self.final = {name: float(np.asarray(values)[-1]) for name, values in o.items()}
-        return self
-
-    @property
-    def slip_fraction(self) -> float:
-        """Fraction of samples with the belt slipping (or slack, linear models) [-]."""
-        return self.slip_samples / self.samples if self.samples else 0.0
-
-    @property
-    def realtime_factor(self) -> float:
-        """Simulated seconds per wall-clock second."""
-        return (self.t_end - self.t_start) / self.wall_time if self.wall_time > 0 else math.inf

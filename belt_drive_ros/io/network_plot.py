@@ -1,4 +1,4 @@
-"""The Campbell diagram of a belt network as a PNG (matplotlib, Agg backend)."""
+"""A belt network for people: its Campbell diagram as a PNG (matplotlib, Agg backend), its geometry as text."""
 
 from __future__ import annotations
 
@@ -99,3 +99,26 @@ def plot_runup(scene, run, path, points: int = 4000) -> None:
     _tensions(axes[0], rpm, scene, run, rows, "upper left", 0.8)
     _finish(fig, axes, rpm, run, rows, 0.8, "crank speed [rpm]",
             f"{scene.name}: engine run-up in {scene.duration:g} s, belt network, linear tier", path)
+
+
+def describe(scene) -> str:
+    """A network scene's computed geometry as text: spans, wraps, belt length, tensioner (``belt-drive scenes NAME``)."""
+    g, n = scene.geometry, len(scene.pulleys)
+    lines = [f"# {scene.name}: belt network ({n} pulleys){' -- ' + scene.description if scene.description else ''}",
+             f"{'pulley':14s} {'role':10s} {'side':9s} {'x [m]':>8s} {'y [m]':>8s} {'r [m]':>7s} {'wrap [deg]':>10s}"]
+    for i, p in enumerate(scene.pulleys):
+        lines.append(f"{p.name:14s} {p.role:10s} {'inner' if p.side > 0 else 'backside':9s} "
+                     f"{p.centre[0]:8.4f} {p.centre[1]:8.4f} {p.radius:7.4f} {math.degrees(g.wraps[i]):10.2f}")
+    lines.append(f"{'span':28s} {'length [m]':>10s} {'k = EA/L [N/m]':>15s}")
+    for j, s in enumerate(scene.span_names()):
+        lines.append(f"{s:28s} {g.lengths[j]:10.4f} {scene.belt.EA / g.lengths[j]:15.4g}")
+    lines.append(f"belt length {g.belt_length:.4f} m; installed tension {scene.belt.installed_tension:.4g} N")
+    if scene.tensioner:
+        from ..core.network.model import arm as arm_of
+
+        t = scene.tensioner
+        _, _, arm, ang = arm_of(scene.pulleys, t)
+        ang = math.degrees(ang)
+        lines.append(f"tensioner arm {t.pulley}: pivot ({t.pivot[0]:.4f}, {t.pivot[1]:.4f}) m, length {arm:.4f} m, "
+                     f"installed at {ang:.2f} deg, spring preload {t.preload:.4g} N m ({t.spring_rate:.4g} N m/rad)")
+    return "\n".join(lines) + "\n"

@@ -9,14 +9,18 @@ for a plot, the one output that needs the whole run at once.
 
 from __future__ import annotations
 
+import math
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ..core.fidelity import ModelChoice
+from ..core.scene import Scene
 from ..core.simulate import CSV_COLUMNS, SLIP_CSV_COLUMNS, SLIP_MODELS, SimResult
 
-__all__ = ["CsvWindows", "Decimator", "McapWindows", "remove_bag_folder"]
+__all__ = ["CsvWindows", "Decimator", "McapWindows", "RunSummary", "remove_bag_folder"]
 
 #: MCAP chunk size of a streamed run [bytes]: one chunk index entry (~1 KB) stays in memory per chunk
 STREAM_CHUNK = 2 << 20
@@ -225,3 +229,62 @@ class Decimator:
             choice=w.choice, stability=w.stability,
             energy={k: cat([p[4][k] for p in self.parts]) for k in self.parts[0][4]},
         )
+
+
+@dataclass
+class RunSummary:
+    """What the run's summary needs, accumulated window by window (or from one whole run).
+
+    ``final`` holds each output's last value; ``peak_deflection`` the largest
+    relative deflection [rad]; ``slip_samples``/``samples`` the fraction of
+    samples the belt slips (or slackens); ``onsets`` the slip phases;
+    ``peak_slip_speed`` the largest |slip speed| [m/s].
+    """
+
+    scene: Scene | None = None
+    model: str = ""
+    method: str = ""
+    dt: float = math.nan
+    choice: ModelChoice | None = None
+    method_choice: object = None
+    stability: object = None
+    accuracy: object = None
+    wall_time: float = 0.0
+    t_start: float = math.nan
+    t_end: float = math.nan
+    samples: int = 0
+    slip_samples: float = 0.0
+    onsets: int = 0
+    peak_deflection: float = -math.inf
+    peak_slip_speed: float = 0.0
+    final: dict = field(default_factory=dict)
+
+    def add(self, window: SimResult) -> "RunSummary":
+        """Take in the next window of the run; returns ``self``."""
+        if not self.samples:
+            self.scene, self.t_start = window.scene, float(window.time[0])
+        self.model, self.method, self.dt = window.model, window.method, window.dt
+        self.choice, self.stability = window.choice, window.stability
+        self.accuracy = getattr(window, "accuracy", None)
+        self.method_choice = getattr(window, "method_choice", None)
+        self.wall_time += window.wall_time
+        self.t_end = float(window.time[-1])
+        o = window.outputs
+        self.samples += len(window.time)
+        self.slip_samples += float(np.sum(o["slip"]))
+        self.onsets += sum(1 for e in window.events if e[0] == "onset")
+        self.peak_deflection = max(self.peak_deflection, float(np.max(o["relative_deflection"])))
+        if "slip_speed" in o:
+            self.peak_slip_speed = max(self.peak_slip_speed, float(np.max(np.abs(o["slip_speed"]))))
+        self.final = {name: float(np.asarray(values)[-1]) for name, values in o.items()}
+        return self
+
+    @property
+    def slip_fraction(self) -> float:
+        """Fraction of samples with the belt slipping (or slack, linear models) [-]."""
+        return self.slip_samples / self.samples if self.samples else 0.0
+
+    @property
+    def realtime_factor(self) -> float:
+        """Simulated seconds per wall-clock second."""
+        return (self.t_end - self.t_start) / self.wall_time if self.wall_time > 0 else math.inf

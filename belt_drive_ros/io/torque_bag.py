@@ -480,7 +480,7 @@ class PagedTorque(TorqueProfile):
     __hash__ = object.__hash__
 
 
-def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Optional[float] = None, warn=None):
+def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Optional[float] = None):
     """:func:`scene_with_torque_bag` with the drive a :class:`PagedTorque` (memory bounded by a page, not the
     bag), or None when the bag must be read whole (a folder, a file cut off or damaged, no chunk index,
     chunks out of time order, a topic the whole read would refuse or resolve otherwise)."""

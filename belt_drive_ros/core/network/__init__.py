@@ -1,8 +1,5 @@
-"""Serpentine belt networks: one belt around many pulleys and an automatic tensioner.
+"""Serpentine belt networks: one belt around many pulleys and an automatic tensioner (``docs/serpentine.md``).
 
-* :mod:`.geometry` -- tangent spans, wrap angles, belt length, the checks of a simple loop;
-* :mod:`.scene` -- the network scene schema (frozen, validated) and the shipped network scenes;
-* :mod:`.model` -- the linear (flexible) tier: ``M q'' + C q' + K q = f``, statics, modes, runs.
-
-The derivation is in ``docs/serpentine.md``.
+:mod:`.scene` reads them, :mod:`.geometry` lays out the spans, :mod:`.model` and :mod:`.simulate` run the
+linear tiers, :mod:`.slip` and :mod:`.slip_kernel` the slipping tier, :mod:`.tick` the node's ticks.
 """

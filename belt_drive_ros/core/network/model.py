@@ -428,10 +428,9 @@ def _friction_use(T, T_in, belt_speed, mass_per_length: float, factor) -> np.nda
 
 
 def _output_terms(model: NetworkModel) -> tuple:
-    """What :func:`outputs` takes from the scene, found once per model: ``(r, prev, ex, ey, ex_in, ey_in, factor,
-    m', driver, theta_a0)``: radii, each pulley's arriving span (``np.roll`` by one), the span directions' and the
-    arriving ones' components, the capstan factors ``tanh(mu beta / 2)``, the belt's mass per length, the driver,
-    the arm's installed angle."""
+    """What :func:`outputs` takes from the scene, found once per model (a node's one-sample call costs the
+    arithmetic alone): radii, each pulley's arriving span, the span directions' components (leaving, arriving),
+    the capstan factors ``tanh(mu beta / 2)``, m', the driver, the arm's installed angle."""
     found = model.__dict__.get("_output_terms")
     if found is None:
         scene, n = model.scene, len(model.scene.pulleys)
@@ -445,9 +444,7 @@ def _output_terms(model: NetworkModel) -> tuple:
 
 
 def outputs(model: NetworkModel, time, states, T) -> NetworkRun:
-    """Per pulley and per span outputs from states ``[q, q']`` (N, 2m) and the tier's span tensions ``T`` (N, n) [N].
-    The scene's terms are found once per model (:func:`_output_terms`): a node's one-sample call costs the
-    arithmetic alone."""
+    """Per pulley and per span outputs from states ``[q, q']`` (N, 2m) and the tier's span tensions ``T`` (N, n) [N]."""
     r, prev, ex, ey, ex_in, ey_in, factor, mass, d, theta0 = _output_terms(model)
     m, n = model.M.shape[0], len(model.scene.pulleys)
     q, qd = states[:, :m], states[:, m:]

@@ -320,29 +320,6 @@ class NetworkScene:
             duration=duration, dt=dt, method=method, geometry=geo,
         )
 
-    # ---------------------------------------------------------------- printing
-    def describe(self) -> str:
-        """The computed geometry as text: spans, wraps, belt length, tensioner (``belt-drive scenes NAME``)."""
-        g, n = self.geometry, len(self.pulleys)
-        lines = [f"# {self.name}: belt network ({n} pulleys){' -- ' + self.description if self.description else ''}",
-                 f"{'pulley':14s} {'role':10s} {'side':9s} {'x [m]':>8s} {'y [m]':>8s} {'r [m]':>7s} {'wrap [deg]':>10s}"]
-        for i, p in enumerate(self.pulleys):
-            lines.append(f"{p.name:14s} {p.role:10s} {'inner' if p.side > 0 else 'backside':9s} "
-                         f"{p.centre[0]:8.4f} {p.centre[1]:8.4f} {p.radius:7.4f} {math.degrees(g.wraps[i]):10.2f}")
-        lines.append(f"{'span':28s} {'length [m]':>10s} {'k = EA/L [N/m]':>15s}")
-        for j, s in enumerate(self.span_names()):
-            lines.append(f"{s:28s} {g.lengths[j]:10.4f} {self.belt.EA / g.lengths[j]:15.4g}")
-        lines.append(f"belt length {g.belt_length:.4f} m; installed tension {self.belt.installed_tension:.4g} N")
-        if self.tensioner:
-            from .model import arm as arm_of
-
-            t = self.tensioner
-            _, _, arm, ang = arm_of(self.pulleys, t)
-            ang = math.degrees(ang)
-            lines.append(f"tensioner arm {t.pulley}: pivot ({t.pivot[0]:.4f}, {t.pivot[1]:.4f}) m, length {arm:.4f} m, "
-                         f"installed at {ang:.2f} deg, spring preload {t.preload:.4g} N m ({t.spring_rate:.4g} N m/rad)")
-        return "\n".join(lines) + "\n"
-
 
 def shipped_networks() -> list[str]:
     """Names of the network scenes shipped in the package (``belt_drive_ros/scenes/networks``)."""

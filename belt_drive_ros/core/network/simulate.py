@@ -1,22 +1,15 @@
 """A belt network's run: the tier (rigid, flexible, slipping), the method, the guards, the compiled loop.
 
-:func:`simulate` is the one entry point (``belt-drive sim NETWORK``, the
-node, tests). ``model``:
+:func:`simulate` is the one entry point (``belt-drive sim NETWORK``, the node, tests). ``model``:
 
 * ``flexible`` -- every pulley and the tensioner arm (:meth:`.model.NetworkModel.flexible_matrices`);
 * ``rigid`` -- the belt inextensible: one DOF, the driver's angle, every pulley through its speed ratio;
-* ``slipping`` -- stick or slip at every pulley (:func:`.slip.simulate_slipping`, the slipping tier);
-* ``auto`` -- rigid when the belt's lowest mode lies far above everything the torques excite, else
-  flexible; then slipping when a pulley reaches its capstan limit in that run. The reason names the
-  pulley ("slipping: alternator reaches the capstan limit at t = ...").
+* ``slipping`` -- stick or slip at every pulley (:func:`.slip.simulate_slipping`);
+* ``auto`` -- :func:`choose_tier`'s linear tier, then slipping when a pulley reaches its capstan limit in its run.
 
-Both linear tiers step in the kernel's linear loop (:func:`~..kernel.wheel_steps`) with any fixed-step
-method by name (its stage scheme from :mod:`~belt_drive_ros.core.integrators`),
-the pulleys' torque profiles stacked as data. Guards: a method that would
-grow a mode at the step is refused before the run (:func:`.model.check_step`);
-the accuracy of a run is estimated by step doubling (the run against the same
-run at twice the step, Richardson: ``|x_h - x_2h| / (2^p - 1)`` on the span
-tensions) and stated in ``run.accuracy``.
+Both linear tiers step in the kernel's linear loop (:class:`NetworkLoop`) with any fixed-step method by
+name. Guards: a method that would grow a mode at the step is refused before the run
+(:func:`.model.check_step`); the run's accuracy is estimated by step doubling (:func:`accuracy`).
 """
 
 from __future__ import annotations
