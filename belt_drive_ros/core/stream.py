@@ -30,7 +30,7 @@ from .method_choice import resolve as resolve_method
 from .fidelity import ModelChoice, _linear_choice, limit_exceedance
 from .model import make_model
 from .scene import Scene
-from .simulate import SimResult, Simulator, _slipping_accuracy
+from .simulate import SimResult, Simulator, _integral, _slipping_accuracy
 from .slip_run import SlippingSimulator
 from .stepper import PAGE_MARGIN, snap_tolerance
 
@@ -114,11 +114,6 @@ def _ends(stepper, duration: float, window_steps: int) -> Iterator[tuple[float, 
         t = t_next
 
 
-def _running_integral(p: np.ndarray, time: np.ndarray, start: float) -> np.ndarray:
-    """``start`` + trapezoidal integral of ``p`` over ``time`` from its first sample (same rule as simulate)."""
-    return start + np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * np.diff(time))])
-
-
 def _beside(call, *args, **kwargs):
     """A future of ``call(*args, **kwargs)`` run in a daemon thread of its own (an interrupted run does not wait)."""
     import threading
@@ -165,8 +160,8 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps, guards
             raise
         wall = _time.perf_counter() - start
         u = sim.plant.input_array(time, states)
-        energy_in = _running_integral(mdl.input_power(states, u), time, work)
-        energy_d = _running_integral(mdl.dissipation_power(states), time, dissipated)
+        energy_in = work + _integral(mdl.input_power(states, u), np.diff(time))
+        energy_d = dissipated + _integral(mdl.dissipation_power(states), np.diff(time))
         work, dissipated, x = float(energy_in[-1]), float(energy_d[-1]), states[-1]
         keep = slice(0, None) if k == 0 else slice(1, None)
         time, states, u = time[keep], states[keep], u[keep]
@@ -233,7 +228,7 @@ def _slipping(scene, choice, progress, check_stability, window_steps) -> Iterato
             ("dissipated", m.damping_power(s_all, m_all, g_all)),
             ("friction", m.friction_power(s_all, m_all, g_all)),
         ):
-            integral = _running_integral(p, t_all, totals[name])
+            integral = totals[name] + _integral(p, np.diff(t_all))  # (on from the last window's total)
             totals[name] = float(integral[-1])
             energy[name] = integral[-len(time):]
         u = u_all[-len(time):]
