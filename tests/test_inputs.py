@@ -271,7 +271,7 @@ def test_shipped_scenes_and_bag_scenes_load_strictly():
 def test_typed_values_name_the_key():
     """The checks campaign files (and any caller) use: text is not a number nor a boolean, a boolean is not a
     number, 2.7 is not a count (refused, never truncated), 1e3 is; .inf and .nan are not finite."""
-    from belt_drive_ros.core.inputs import boolean, mapping, number, sequence, text
+    from belt_drive_ros.campaign.values import boolean, mapping, number, sequence, text
 
     assert number(1.5e4, "k") == 1.5e4 and number(parse_yaml("n: 1.5e4")["n"], "n") == 15000.0
     count = number(parse_yaml("n: 1e3")["n"], "n", integer=True, low=1)

@@ -46,9 +46,10 @@ import numpy as np
 import yaml
 
 from ..core.errors import BeltDriveError, InputError
-from ..core.inputs import boolean, check_path, number, parse_yaml, read_text, sequence, short
-from ..core.inputs import mapping as as_mapping
-from ..core.inputs import text as string
+from ..core.inputs import check_path, parse_yaml, read_text, short
+from .values import boolean, number, sequence
+from .values import mapping as as_mapping
+from .values import text as string
 from ..core.params import FIELD_DOCS
 from ..core.scene import Scene, load_scene
 from ..core.sources import make_profile

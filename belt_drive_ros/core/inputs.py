@@ -4,9 +4,8 @@ Every path the project reads a user's file from goes through :func:`read_text`
 (regular files only, never blocking on a FIFO; at most ``limit`` bytes; strict
 UTF-8), every YAML text through :func:`parse_yaml` (no aliases, anchors or
 merge keys; nesting at most :data:`MAX_DEPTH`; duplicate keys an error; YAML
-1.2 numbers: ``2.0e4`` and ``1e1`` are floats, a quoted ``'2e4'`` a string),
-and values are checked with their key named (:func:`number`, :func:`boolean`,
-:func:`mapping`, :func:`sequence`, :func:`text`). That covers scene files,
+1.2 numbers: ``2.0e4`` and ``1e1`` are floats, a quoted ``'2e4'`` a string:
+numeric fields can refuse strings, :func:`plain_number`). That covers scene files,
 campaign files, a bag folder's ``metadata.yaml``, the YAML inside MCAP records
 and ``--params-file`` files. Standard library and PyYAML only, so that
 :mod:`msg_tools` (which never imports the rest of this package) can use it.
@@ -24,7 +23,6 @@ import re
 import stat
 from collections.abc import Mapping
 from numbers import Real
-from pathlib import Path
 from typing import Any, Callable
 
 import yaml
@@ -32,8 +30,8 @@ import yaml
 from .errors import InputError
 
 __all__ = [
-    "MAX_DEPTH", "SCENE_LIMIT", "InputError", "boolean", "check_path", "mapping", "number", "open_regular", "parse_yaml",
-    "plain_number", "read_text", "read_yaml", "sequence", "short", "text", "unknown_key",
+    "MAX_DEPTH", "SCENE_LIMIT", "InputError", "check_path", "open_regular", "parse_yaml", "plain_number", "read_text",
+    "read_yaml", "real", "short", "unknown_key",
 ]  # fmt: skip
 
 #: largest scene / parameter YAML file [bytes]; the shipped scenes are ~2 kB
@@ -240,7 +238,7 @@ def read_yaml(path: str | os.PathLike, what: str = "YAML file", limit: int = SCE
     return parse_yaml(text, f"{what} {short(str(path), 200)}")
 
 
-# ------------------------------------------------------------------ typed values, the key named
+# ------------------------------------------------------------------ numbers
 def real(value: Any) -> int | float | None:
     """``value`` as a Python ``int`` or ``float`` if it is a real number, numpy scalars too; else None.
 
@@ -265,70 +263,3 @@ def plain_number(value: Any, refuse: Callable[[str], Exception]) -> int | float:
     if isinstance(number, int) and abs(number) > MAX_INT:
         raise refuse("must be finite, got an integer beyond 2^63")
     return number
-
-
-def _refuse(error, key: str, expected: str, value: Any):
-    return error(f"{key}: must be {expected}, got {type(value).__name__} {short(value)}")
-
-
-def number(
-    value: Any, key: str, *, low: float | None = None, high: float | None = None, integer: bool = False,
-    error: type[Exception] = InputError,
-) -> float | int:  # fmt: skip
-    """``value`` as a finite number in ``[low, high]`` (an ``int`` when ``integer``), else ``error`` naming ``key``.
-
-    Booleans and strings are refused (``'2e4'`` is text, ``true`` is not 1);
-    with ``integer`` a float is taken only when whole (``1e3`` is 1000,
-    ``2.7`` is refused, never truncated).
-    """
-    given, value = value, real(value)
-    if value is None:
-        raise _refuse(error, key, "a whole number" if integer else "a number", given)
-    if isinstance(value, float) and not math.isfinite(value):
-        raise _refuse(error, key, "a finite number", value)
-    if integer:
-        if isinstance(value, float):
-            if not value.is_integer():
-                raise _refuse(error, key, "a whole number", value)
-            value = int(value)
-    elif abs(value) > MAX_INT:
-        raise _refuse(error, key, "a finite number", value)
-    else:
-        value = float(value)
-    if (low is not None and value < low) or (high is not None and value > high):
-        lo = "-inf" if low is None else f"{low:g}"
-        hi = "inf" if high is None else f"{high:g}"
-        raise error(f"{key}: {value:g} is outside [{lo}, {hi}]")
-    return value
-
-
-def boolean(value: Any, key: str, error: type[Exception] = InputError) -> bool:
-    """``value`` if it is ``true`` or ``false`` (a string such as ``'false'`` is refused), else ``error``."""
-    if not isinstance(value, bool):
-        raise _refuse(error, key, "true or false", value)
-    return value
-
-
-def text(value: Any, key: str, error: type[Exception] = InputError) -> str:
-    """``value`` if it is a string, else ``error`` naming ``key``."""
-    if not isinstance(value, str):
-        raise _refuse(error, key, "a string", value)
-    return value
-
-
-def mapping(value: Any, key: str, error: type[Exception] = InputError, *, empty: dict | None = None) -> dict:
-    """``value`` as a dict; ``None`` (the key given empty) is ``empty`` when that is given, else ``error``."""
-    if value is None and empty is not None:
-        return dict(empty)
-    if not isinstance(value, Mapping):
-        raise _refuse(error, key, "a mapping (key: value)", value)
-    return dict(value)
-
-
-def sequence(value: Any, key: str, error: type[Exception] = InputError, *, nonempty: bool = False) -> list:
-    """``value`` as a list (a YAML sequence), non-empty if asked, else ``error`` naming ``key``."""
-    if not isinstance(value, (list, tuple)):
-        raise _refuse(error, key, "a non-empty list" if nonempty else "a list", value)
-    if nonempty and not value:
-        raise error(f"{key}: must be a non-empty list, got []")
-    return list(value)
