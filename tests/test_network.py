@@ -441,7 +441,14 @@ def test_a_damped_run_under_balanced_constant_torques_settles_on_the_static_tens
 
 def test_friction_use_against_the_capstan_closed_form():
     """Two pulleys, one load: T_tight + T_slack = 2 T_0, so friction use = (Q / r) / (2 T_0 tanh(mu beta / 2))."""
-    from belt_drive_ros.core.network.model import friction_use
+    from belt_drive_ros.core.network.model import outputs
+
+    def friction_use(scene, T, v):  # a run's friction use: span tensions T [N], the belt at v [m/s]
+        model = NetworkModel.build(scene)
+        m, d = model.M.shape[0], scene.driver
+        states = np.zeros((1, 2 * m))
+        states[0, m + d] = v / scene.pulleys[d].radius
+        return outputs(model, np.zeros(1), states, np.asarray(T, dtype=float)[None, :]).friction_use[0]
 
     scene = load_network("paper_network")
     model = NetworkModel.build(scene)

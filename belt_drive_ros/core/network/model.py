@@ -406,20 +406,11 @@ def check_step(name: str, A, B, dt: float) -> None:
                                 f"(h omega = {report.h_omega_n:.3g}): {hint}use exact, etd2 or etd4")
 
 
-def friction_use(scene, tensions, belt_speed) -> np.ndarray:
-    """Per pulley ``|T_i - T_{i-1}| / ((T_i + T_{i-1} - 2 m' v^2) tanh(mu_i beta_i / 2))`` (inf past lift-off).
-
-    The capstan law at pulley i, ``(T_tight - m' v^2) = (T_slack - m' v^2) e^(mu beta)``, lets friction pass
-    at most that tension difference; a use of 1 is where the pulley would start to slip (the slipping tier
-    that would take over there is not built). ``tensions`` (..., n) [N], ``belt_speed`` (...) [m/s].
-    """
-    T = np.asarray(tensions, dtype=float)
-    factor = np.tanh(0.5 * np.array([p.mu for p in scene.pulleys]) * scene.geometry.wraps)
-    return _friction_use(T, np.roll(T, 1, axis=-1), belt_speed, scene.belt.mass_per_length, factor)
-
-
 def _friction_use(T, T_in, belt_speed, mass_per_length: float, factor) -> np.ndarray:
-    """:func:`friction_use` of tensions ``T`` and the arriving spans' ``T_in`` (``T`` rolled by one pulley)."""
+    """Per pulley ``|T_i - T_{i-1}| / ((T_i + T_{i-1} - 2 m' v^2) f_i)``, ``f_i = tanh(mu_i beta_i / 2)`` (``factor``),
+    inf past lift-off: the capstan law ``(T_tight - m' v^2) = (T_slack - m' v^2) e^(mu beta)`` lets friction pass at
+    most that tension difference, so a use of 1 is where the pulley starts to slip. ``T`` (..., n) [N] the spans
+    leaving, ``T_in`` those arriving (``T`` rolled by one pulley), ``belt_speed`` (...) [m/s]."""
     v = np.asarray(belt_speed, dtype=float)[..., None]
     limit = np.maximum(T + T_in - 2.0 * mass_per_length * v * v, 0.0) * factor
     diff = np.abs(T - T_in)
