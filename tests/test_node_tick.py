@@ -174,24 +174,37 @@ SCRIPT = """
 import json, sys
 sys.path.insert(0, {tests!r})
 from test_node_tick import _lockstep
+from belt_drive_ros.core import tick
+calls = []  # the hybrid loop's calls from the slipping tick (counted where the kernels run as Python)
+hybrid_steps = tick.hybrid_steps
+def counted(*args):
+    calls.append(1)
+    return hybrid_steps(*args)
+tick.hybrid_steps = counted
 out = []
 for values in ({{"drive_source": "topic"}}, {{"scene": "truck_compressor", "model": "slipping", "drive_source": "scene"}}):
-    fast, a, b, _ = _lockstep(values, 120, {{k: 1.0 + k for k in range(3, 120, 11)}} if values.get("drive_source") == "topic" else None)
+    fast, a, b, sims = _lockstep(values, 120, {{k: 1.0 + k for k in range(3, 120, 11)}} if values.get("drive_source") == "topic" else None)
     out.append([fast, a.tolist()])
+print(len(calls), sims[0].counters.get("slip_events", 0))
 print(json.dumps(out))
 """
 
 
 @pytest.mark.slow
 def test_numba_disabled_gives_the_same_floats():
+    # and the slipping tick without a mode switch steps the phase's linear loop alone: the hybrid loop (its
+    # allocations and event code, the tick's cold cost) only for the ticks the guard fires in
     code = SCRIPT.format(tests=os.path.dirname(__file__))
     runs = {}
     for jit in ("0", "1"):
         done = subprocess.run([sys.executable, "-c", code], env=dict(os.environ, NUMBA_DISABLE_JIT=jit),
                               capture_output=True, text=True, timeout=900)
         assert done.returncode == 0, done.stderr[-2000:]
-        runs[jit] = json.loads(done.stdout.strip().splitlines()[-1])
+        *_, counts, floats = done.stdout.strip().splitlines()
+        runs[jit] = json.loads(floats)
     assert runs["0"] == runs["1"] and runs["0"][0][0] > 60
+    hybrid_calls, events = map(int, counts.split())  # (the NUMBA_DISABLE_JIT=1 run's)
+    assert runs["1"][1][0] > 100 and hybrid_calls <= 2 * events + 2
 
 
 def test_the_raw_drive_torque_input_reads_the_value_rclpy_reads():

@@ -52,7 +52,8 @@ import numpy as np
 from numba import njit
 
 from .kernel import HEADER, SECTIONS, linear_steps, profile_torque
-from .kernel_slip import KIND_NAMES, MAX_SWITCHES, PHASE_SIZE, STEPWISE, STICKING, hybrid_steps
+from .kernel_slip import (KIND_NAMES, MASS_DOWN, MASS_UP, MAX_SWITCHES, PHASE_SIZE, SLIP_DOWN, SLIP_UP, STEPWISE,
+                          STICKING, _to_y, hybrid_steps)
 from .slip import SLIP, STICK
 from .slip_run import SlippingSimulator, SlipState, _kind_code
 from .model import LINEAR_OUTPUTS, OUTPUT_UNITS
@@ -413,18 +414,37 @@ def slip_tick(k0, stamp, packed, dp):
     for j in range(grid.size):  # the grid times origin + dt k of Stepper._grid; the knots are them
         grid[j] = consts[16] + dt * float(k0 + j)
         knots[j] = grid[j]
-    # k0 and n0 as int64 (the signature Python's calls compile), not literal zeros: a literal would compile the
-    # whole hybrid loop (and its event step) a second time
-    zero = np.int64(0)
     dk, dx, dy = _i1(table, _DK), _f1(packed, table, _DX), _f1(packed, table, _DY)
     lk, lp, lx, ly = _i1(table, _LK), _f2(packed, table, _SLP), _f1(packed, table, _LX), _f1(packed, table, _LY)
-    _, status, kind, sigma, n_ev = hybrid_steps(
-        grid, knots, lo, hi, _i1(table, _SPECIAL), zero, kind, x, dt, limit, out_y, _i1(table, _OUT_MODE),
-        _f1(packed, table, _OUT_SIGMA), _f2(packed, table, _OUT_NATIVE), _f1(packed, table, _SREALS),
-        _i1(table, _SINTS), _i2(table, _OFFSETS), _i1(table, _HAVE), _f2(packed, table, _YFLEX),
-        _f2(packed, table, _MINV), _f3(packed, table, _Z).view(np.complex128), _f2(packed, table, _R),
-        _f1(packed, table, _C), _f2(packed, table, _MATS), _f2(packed, table, _GUARDS), _i1(table, _USES), dk, dp,
-        dx, dy, lk, lp, lx, ly, _f2(packed, table, _EVENTS), zero)  # fmt: skip
+    reals, ints, offsets, have = _f1(packed, table, _SREALS), _i1(table, _SINTS), _i2(table, _OFFSETS), _i1(table, _HAVE)
+    sigma = 1.0 if kind == SLIP_UP or kind == MASS_UP else -1.0 if kind == SLIP_DOWN or kind == MASS_DOWN else 0.0
+    status = n_ev = -1
+    if kind != STEPWISE and have[kind] == 2:
+        # the usual tick: the phase's linear loop alone, stretch by stretch of equal clamps (hybrid_steps' stretches),
+        # its states in out_native's room; any guard, failure or missing phase: hybrid_steps below from the start
+        n, r0, r1, i0, i1 = PHASE_SIZE[kind], offsets[kind, 0], offsets[kind, 1], offsets[kind, 2], offsets[kind, 3]
+        room = packed[table[4 * _OUT_NATIVE] : table[4 * _OUT_NATIVE] + 6 * N]
+        k = status = n_ev = 0
+        while k < N and status == 0:
+            j = k + 1
+            while j < N and lo[j] == lo[k] and hi[j] == hi[k]:
+                j += 1
+            states = room[: (j - k) * n].reshape((j - k, n))
+            _, status, _ = linear_steps(grid[k : j + 1], x[:n], states, lo[k], hi[k], limit, reals[r0:r1],
+                                        ints[i0:i1], dp, lp)  # fmt: skip
+            x[:n] = states[j - k - 1]
+            k = j
+        _to_y(kind, x, _f2(packed, table, _YFLEX), out_y[N - 1])
+    if status != 0:  # k0 and n0 as int64, not literal zeros (a literal would compile the hybrid loop again)
+        for j in range(x.size):
+            x[j] = xs[j]
+        zero = np.int64(0)
+        _, status, kind, sigma, n_ev = hybrid_steps(
+            grid, knots, lo, hi, _i1(table, _SPECIAL), zero, kind, x, dt, limit, out_y, _i1(table, _OUT_MODE),
+            _f1(packed, table, _OUT_SIGMA), _f2(packed, table, _OUT_NATIVE), reals, ints, offsets, have,
+            _f2(packed, table, _YFLEX), _f2(packed, table, _MINV), _f3(packed, table, _Z).view(np.complex128),
+            _f2(packed, table, _R), _f1(packed, table, _C), _f2(packed, table, _MATS), _f2(packed, table, _GUARDS),
+            _i1(table, _USES), dk, dp, dx, dy, lk, lp, lx, ly, _f2(packed, table, _EVENTS), zero)  # fmt: skip
     lo[0], hi[N - 1] = -math.inf, math.inf
     if status != 0 or n_ev != 0:
         for j in range(x.size):
