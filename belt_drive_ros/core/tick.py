@@ -2,15 +2,10 @@
 
 A 1 kHz tick of the linear models is one step of the kernel
 (:func:`~belt_drive_ros.core.kernel.linear_steps`) and the sixteen outputs
-of :data:`~belt_drive_ros.core.model.OUTPUT_UNITS` at the new state. Done in
-Python that is ~25 calls of numpy on tiny arrays and as many interpreted
-functions, whose cost on the caches a 1 ms sleep leaves is most of the tick.
+of :data:`~belt_drive_ros.core.model.OUTPUT_UNITS` at the new state:
 :func:`linear_tick` does both in one ``@njit(cache=True, nogil=True)`` call
-writing into buffers :class:`TickKernel` allocates once per stepper. Its
-arguments are few (six: numba's dispatcher converts every argument on
-every call, ~0.7 us per array on those caches): every array of the tick is
-packed into one buffer (:class:`PackedArrays`), the drive profile's data
-(the held torque) beside it.
+(in Python, ~25 numpy calls on tiny arrays) writing into buffers
+:class:`TickKernel` allocates once per stepper.
 
 Bit for bit the operations of the reference path (the stepper's
 :meth:`~belt_drive_ros.core.stepper.Stepper.advance`, then
@@ -28,14 +23,12 @@ Bit for bit the operations of the reference path (the stepper's
   F_slack capstan_ratio`` (:func:`~belt_drive_ros.core.model.span_forces`),
   the flags as 0.0/1.0.
 
-A tick at which the held drive torque changes comes here too when it is one
-grid step: the general path then clamps the step's torque times to
-``[lo, hi]`` (``lo = t0`` after a jump at ``t0``, ``hi = left_of(t1)``
-before one at ``t1``: the stepper's special step) and evaluates the outputs
-at ``t1`` with the new value; the kernel takes the same clamps and writes
-the new value into the held torque's data between the two (``drive``).
-Ticks near a plant breakpoint, or a held-torque jump in a tick of several
-steps, a kernel loop with extra inputs: the stepper as before.
+A tick at which the held drive torque changes is compiled too when it is one
+grid step: the torque times clamped to ``[lo, hi]`` (``lo = t0`` after a jump
+at ``t0``, ``hi = left_of(t1)`` before one at ``t1``: the stepper's special
+step), the new value written into the held torque's data before the outputs at
+``t1`` (``drive``). Ticks near a plant breakpoint, a held-torque jump in a tick
+of several steps, extra inputs: the stepper as before.
 
 The kernels also write the tick's ``joint_states`` message into a byte
 buffer the caller lays out (:func:`write_joints`): the stamp and the twelve
@@ -61,14 +54,12 @@ from .model import LINEAR_OUTPUTS, OUTPUT_UNITS
 #: :attr:`TickKernel.y` holds OUTPUT_UNITS in order: the linear outputs first, then these four
 _AFTER = ("span_force_tight", "span_force_slack", "slack", "slip")
 assert tuple(OUTPUT_UNITS) == LINEAR_OUTPUTS + _AFTER
-_N_SECTIONS = len(SECTIONS)
 
 
 # ------------------------------------------------------------------ packed arguments
-# numba's dispatcher checks and converts every argument on every call: on the caches a 1 ms sleep leaves that
-# is ~0.7-1.5 us per array, ints far less (measured: 15 arrays and scalars 11 us, the kernel's own work 3.5 us). A
-# tick's arrays therefore go in one buffer (:class:`PackedArrays`) which the kernels cut into views again (the
-# same types and layouts, so the loops they call keep their one compiled signature).
+# numba's dispatcher converts every argument on every call, ~0.7-1.5 us per array on cold caches (15 arrays and
+# scalars: 11 us, against 3.5 us of work): a tick's arrays go in one buffer (:class:`PackedArrays`), cut into views
+# again in the kernels (the same types and layouts: the loops they call keep their one compiled signature).
 
 
 @njit(cache=True, nogil=True, inline="always")  # no call of its own: its section numbers are literals
@@ -218,12 +209,11 @@ def linear_tick(k0, steps, stamp, packed, dp):
     if drive == drive:
         dp[0, 0] = drive
     xe = out[steps - 1]
-    for q in range(n):
-        x[q] = xe[q]
+    x[:] = xe
     # the profiles' data inside the loop's arrays (the layout linear_steps unpacks)
     s = ints[1]
-    at = ints[HEADER : HEADER + _N_SECTIONS + 1]
-    k = HEADER + _N_SECTIONS + 1
+    at = ints[HEADER : HEADER + len(SECTIONS) + 1]
+    k = HEADER + len(SECTIONS) + 1
     nd = dp.shape[0]
     dk, lk = ints[k + s : k + s + nd], ints[k + s + nd :]
     t1 = times[steps]
@@ -363,31 +353,30 @@ SLIP_INTS = ("special", "out_mode", "ints", "offsets", "have", "uses", "dk", "lk
 
 @njit(cache=True, nogil=True)
 def slip_tick(k0, stamp, packed, dp):
-    """The slipping belt's tick: :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps` over the ``N``
-    whole grid steps of the buffers from grid index ``k0``, then every output of the slipping
-    model at the last knot into ``y`` and the ``joint_states`` message stamped ``stamp`` [ns]
-    (:func:`write_joints`). Returns 0 when done with no mode switch, else nonzero (the hybrid
-    loop's status; -1: a switch): the buffers then hold the state the call started from.
+    """The slipping belt's ``N`` whole grid steps of the buffers from grid index ``k0``, then every output
+    of the slipping model at the last knot into ``y`` and the ``joint_states`` message stamped ``stamp`` [ns]
+    (:func:`write_joints`). Returns 0 when done with no mode switch, else nonzero (the hybrid loop's
+    status; -1: a switch): the buffers then hold the state the call started from.
 
-    ``packed``: :class:`SlipTickKernel`'s buffer (:data:`SLIP_FLOATS`,
-    :data:`SLIP_INTS`); ``dp``: the drive profile's data (the held torque's own array). The
-    hybrid state the steps start from: phase kind ``iscalars[0]``, its coordinates the first
-    ``iscalars[1]`` of ``xs`` copied into ``x`` (-1: ``x`` as the last tick left it), zeros
-    after them; ``sigma5`` (``fscalars[3]``), unless NaN, at ``x[5]`` (the stepwise phase's
-    direction), ``fscalars[6]`` its sigma; ``xs`` keeps that ``x``. ``grid``, ``knots``: written
-    with the grid times; the other sections up to ``events`` are the hybrid loop's arguments (its
-    call from step 0 with no events recorded yet; ``lo``, ``hi`` (``fscalars[0:2]``) clamp the
-    first step's and the last step's torque times, as :func:`linear_tick`'s, and are set back to
-    ``-inf, inf``); ``consts``: :data:`SLIP_CONSTANTS`, the grid's origin [s], then the message
-    layout of :func:`write_joints`. ``drive`` (``fscalars[2]``, set back to NaN): NaN or the held
-    drive torque's new value, written into ``dp[0, 0]`` after the steps when no mode switched in
-    them. ``y`` receives ``OUTPUT_UNITS + SLIP_OUTPUT_UNITS`` in order, the operations of
-    :meth:`~belt_drive_ros.core.slip.SlippingBeltModel.outputs` on one sample (flags as
-    0.0/1.0), with ``u = [drive(t, phi_M, omega_M), load(t, phi_3, omega_3)]`` at the last
-    knot ``t`` (:meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.inputs`). ``y`` is
-    written only when the call returns 0; ``iscalars[0]`` then holds the new kind, ``x`` its
-    coordinates, ``fscalars[6]`` its sigma and ``sigma5`` the same (NaN unless stepwise), so that
-    the next call continues from it.
+    A tick whose steps cross no guard is the phase's linear loop alone
+    (:func:`~belt_drive_ros.core.kernel.linear_steps`, stretch by stretch of
+    equal clamps as :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps`
+    takes them; the same floats); any other runs ``hybrid_steps`` from the start.
+
+    ``packed``: :class:`SlipTickKernel`'s buffer (:data:`SLIP_FLOATS`, :data:`SLIP_INTS`); ``dp``: the
+    drive profile's data (the held torque's own array). The start: phase kind ``iscalars[0]``, its
+    coordinates the first ``iscalars[1]`` of ``xs`` copied into ``x`` (-1: ``x`` as the last tick left
+    it), zeros after them; ``sigma5`` (``fscalars[3]``), unless NaN, at ``x[5]`` (the stepwise phase's
+    direction), ``fscalars[6]`` its sigma; ``xs`` keeps that ``x``. The sections up to ``events`` are the
+    hybrid loop's arguments (``grid``, ``knots``: written with the grid times); ``lo``, ``hi``
+    (``fscalars[0:2]``) clamp the first and the last step's torque times, ``drive`` (``fscalars[2]``)
+    NaN or the held drive torque's new value written into ``dp[0, 0]`` after the steps, as
+    :func:`linear_tick`'s, all three then set back. ``consts``: :data:`SLIP_CONSTANTS`, the grid's
+    origin [s], the message layout. ``y``: ``OUTPUT_UNITS + SLIP_OUTPUT_UNITS``, the operations of
+    :meth:`~belt_drive_ros.core.slip.SlippingBeltModel.outputs` on one sample (flags 0.0/1.0), ``u =
+    [drive(t, phi_M, omega_M), load(t, phi_3, omega_3)]`` at the last knot ``t``. On 0, ``iscalars[0]``
+    holds the new kind, ``x`` its coordinates, ``fscalars[6]`` its sigma and ``sigma5`` the same (NaN
+    unless stepwise): the next call continues from it.
     """
     table = packed.view(np.int64)
     fs, js = _f1(packed, table, _FSCALARS), _i1(table, _ISCALARS)
@@ -436,8 +425,7 @@ def slip_tick(k0, stamp, packed, dp):
             k = j
         _to_y(kind, x, _f2(packed, table, _YFLEX), out_y[N - 1])
     if status != 0:  # k0 and n0 as int64, not literal zeros (a literal would compile the hybrid loop again)
-        for j in range(x.size):
-            x[j] = xs[j]
+        x[:] = xs
         zero = np.int64(0)
         _, status, kind, sigma, n_ev = hybrid_steps(
             grid, knots, lo, hi, _i1(table, _SPECIAL), zero, kind, x, dt, limit, out_y, _i1(table, _OUT_MODE),
@@ -447,8 +435,7 @@ def slip_tick(k0, stamp, packed, dp):
             _i1(table, _USES), dk, dp, dx, dy, lk, lp, lx, ly, _f2(packed, table, _EVENTS), zero)  # fmt: skip
     lo[0], hi[N - 1] = -math.inf, math.inf
     if status != 0 or n_ev != 0:
-        for j in range(x.size):
-            x[j] = xs[j]
+        x[:] = xs
         return status if status != 0 else -1
     js[0] = kind
     fs[3] = sigma if kind == STEPWISE else math.nan  # the next call's sigma5 when it continues from this state
@@ -456,7 +443,6 @@ def slip_tick(k0, stamp, packed, dp):
     if drive == drive:
         dp[0, 0] = drive
     slipping = kind > STICKING
-    sg = sigma
     last = grid.size - 2
     y0, y1, y2, y3, y4 = out_y[last, 0], out_y[last, 1], out_y[last, 2], out_y[last, 3], out_y[last, 4]
     ratio, r_3, a1, g, F_0 = consts[0], consts[1], consts[2], consts[3], consts[4]
@@ -469,7 +455,7 @@ def slip_tick(k0, stamp, packed, dp):
     if 0.0 > qmax:
         qmax = 0.0
     stick = consts[5] * y1 + consts[6] * y2 + consts[7] * y3
-    Q = sg * qmax if slipping else stick
+    Q = sigma * qmax if slipping else stick
     speed = 0.0
     if slipping:
         rel = y2 * consts[8] + y3 * consts[9]
@@ -498,12 +484,9 @@ class SlipTickArrays(PackedArrays):
 
 class SlipTickKernel:
     """A slipping engine's (:class:`~belt_drive_ros.core.slip_run.SlippingSimulator`) tick of whole steps as one
-    compiled call (:func:`slip_tick`), its buffers packed once (again when a phase's stepper was built or the
-    number of steps per tick changed); :attr:`y` holds the outputs.
-
-    The hybrid state stays in the buffers from one :meth:`advance` to the next (no Python object per tick):
-    :meth:`state` builds it as a :class:`~belt_drive_ros.core.slip_run.SlipState` when the caller needs one.
-    """
+    compiled call (:func:`slip_tick`), its buffers packed again when a phase's stepper was built or the steps
+    per tick changed; :attr:`y` holds the outputs. The hybrid state stays in the buffers between ticks:
+    :meth:`state` builds it as a :class:`~belt_drive_ros.core.slip_run.SlipState` when asked."""
 
     def __init__(self, engine, limit: float, message: tuple = ()):
         m, p = engine.model, engine.model.params
@@ -536,8 +519,7 @@ class SlipTickKernel:
                  out_y=np.zeros((N, 5)), out_native=np.zeros((N, 6)), out_sigma=np.zeros(N), x=np.zeros(6),
                  xs=np.zeros(6), reals=reals, Yflex=Yflex, Minv=Minv, Z=Z.view(np.float64), R=R, c=c, mats=mats,
                  guards=guards, dx=dx, dy=dy, lp=lp, lx=lx, ly=ly,
-                 # the hybrid loop wants room for a chattering step's switches before it starts a phase; here the
-                 # first switch ends the call (the engine redoes the steps): room for one more (4 KiB, not 64)
+                 # the hybrid loop wants room for a chattering step's switches; the first ends the call here
                  events=np.zeros((MAX_SWITCHES + 1, 8)),
                  consts=self.consts, y=self.y, msg=self._msg.view(np.float64),
                  fscalars=[-math.inf, math.inf, math.nan, math.nan, self.dt, self.limit, 0.0]),
@@ -551,12 +533,10 @@ class SlipTickKernel:
 
     def advance(self, state, k0: int, k1: int, lo: float = -math.inf, hi: float = math.inf, drive: float = math.nan,
                 stamp: int = 0) -> bool:
-        """The whole grid steps k0 -> k1 from ``state`` (a :class:`~belt_drive_ros.core.slip_run.SlipState`;
-        None: the state the last advance left in the buffers), the outputs at t1 in :attr:`y` and
-        :attr:`message` stamped ``stamp`` [ns]; ``lo`` clamps the first step's torque times, ``hi``
-        the last one's, ``drive`` as :func:`slip_tick`'s. True when done; False when the step needs
-        the engine's own :meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.advance` (a mode
-        switch in it, a failure: it redoes the step from :meth:`state`, the state it started from)."""
+        """The whole grid steps k0 -> k1 from ``state`` (a SlipState; None: the buffers' state), the outputs at
+        t1 in :attr:`y`, :attr:`message` stamped ``stamp`` [ns]; ``lo``, ``hi``, ``drive``: :func:`slip_tick`'s.
+        True when done; False when the engine's own ``advance`` must redo it from :meth:`state` (a mode switch
+        in it, a failure)."""
         # (a phase stepper is built only by the engine's own advance, which starts from a state object: the
         # usual tick, continuing from the buffers, needs no look at the engine)
         if k1 - k0 != self.N or state is not None and len(self.engine._steppers) != self._built:
