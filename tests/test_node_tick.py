@@ -130,7 +130,10 @@ def test_rigid_model_tick():
 def test_slipping_tick_equals_the_engine_bit_for_bit_through_mode_switches():
     fast, a, b, sims = _lockstep({"scene": "truck_compressor", "model": "slipping", "drive_source": "scene"}, 3000)
     assert sims[0].slip_events == sims[1].slip_events and len(sims[0].slip_events) > 0  # the belt slipped and re-stuck
-    assert fast > 2000
+    assert sims[0].counters["slip_events"] == sims[1].counters["slip_events"] > 20
+    # the ticks with events are compiled too (located in the kernel; before, the engine redid each in Python):
+    # all but the first and the two at each of the load's breakpoints (0.5 s and 2 s): 112 events, 2995 fast ticks
+    assert fast >= 2995
     assert np.array_equal(a, b)
     assert np.any(a[:, 15] == 1.0) and np.any(a[:, 15] == 0.0)  # slipping and sticking ticks among them
 

@@ -48,7 +48,7 @@ from .kernel import HEADER, SECTIONS, linear_steps, profile_torque
 from .kernel_slip import (KIND_NAMES, MASS_DOWN, MASS_UP, MAX_SWITCHES, PHASE_SIZE, SLIP_DOWN, SLIP_UP, STEPWISE,
                           STICKING, _to_y, hybrid_steps)
 from .slip import SLIP, STICK
-from .slip_run import SlippingSimulator, SlipState, _kind_code
+from .slip_run import SlippingSimulator, SlipState, _events, _kind_code
 from .model import LINEAR_OUTPUTS, OUTPUT_UNITS
 
 #: :attr:`TickKernel.y` holds OUTPUT_UNITS in order: the linear outputs first, then these four
@@ -340,6 +340,8 @@ SLIP_CONSTANTS = ("ratio", "r_3", "a_1", "g", "F_0", "q_1", "q_2", "q_3", "rel_2
                   "belt speed ratio", "belt_mass", "capstan_factor")  # fmt: skip
 
 
+#: mode switches a slipping tick takes itself (more: the engine redoes the tick)
+EVENTS = 7
 #: the slipping tick's packed sections (:class:`SlipTickKernel`): the hybrid loop's buffers of N steps, its phase
 #: state, the engine's arrays (Z as pairs of doubles), the outputs and the message; ``fscalars``: ``lo, hi, drive,
 #: sigma5, dt, limit, sigma``; ``iscalars``: the phase kind and how many of ``xs`` to start from (-1: ``x`` as it is)
@@ -355,8 +357,8 @@ SLIP_INTS = ("special", "out_mode", "ints", "offsets", "have", "uses", "dk", "lk
 def slip_tick(k0, stamp, packed, dp):
     """The slipping belt's ``N`` whole grid steps of the buffers from grid index ``k0``, then every output
     of the slipping model at the last knot into ``y`` and the ``joint_states`` message stamped ``stamp`` [ns]
-    (:func:`write_joints`). Returns 0 when done with no mode switch, else nonzero (the hybrid loop's
-    status; -1: a switch): the buffers then hold the state the call started from.
+    (:func:`write_joints`). Returns ``-n`` when done, ``n`` events (mode switches) in the first rows of
+    ``events``; else the hybrid loop's status (> 0): the buffers then hold the state the call started from.
 
     A tick whose steps cross no guard is the phase's linear loop alone
     (:func:`~belt_drive_ros.core.kernel.linear_steps`, stretch by stretch of
@@ -423,7 +425,6 @@ def slip_tick(k0, stamp, packed, dp):
                                         ints[i0:i1], dp, lp)  # fmt: skip
             x[:n] = states[j - k - 1]
             k = j
-        _to_y(kind, x, _f2(packed, table, _YFLEX), out_y[N - 1])
     if status != 0:  # k0 and n0 as int64, not literal zeros (a literal would compile the hybrid loop again)
         x[:] = xs
         zero = np.int64(0)
@@ -434,9 +435,10 @@ def slip_tick(k0, stamp, packed, dp):
             _f2(packed, table, _R), _f1(packed, table, _C), _f2(packed, table, _MATS), _f2(packed, table, _GUARDS),
             _i1(table, _USES), dk, dp, dx, dy, lk, lp, lx, ly, _f2(packed, table, _EVENTS), zero)  # fmt: skip
     lo[0], hi[N - 1] = -math.inf, math.inf
-    if status != 0 or n_ev != 0:
+    if status != 0:
         x[:] = xs
-        return status if status != 0 else -1
+        return status
+    _to_y(kind, x, _f2(packed, table, _YFLEX), out_y[N - 1])  # the state's y (after a restick: Yflex Minv y)
     js[0] = kind
     fs[3] = sigma if kind == STEPWISE else math.nan  # the next call's sigma5 when it continues from this state
     fs[6] = sigma
@@ -473,7 +475,7 @@ def slip_tick(k0, stamp, packed, dp):
     y[20] = Q / qmax if qmax > 0 else math.inf
     y[21] = qmax
     write_joints(y, _f1(packed, table, _SMSG).view(np.uint8), consts[17:], stamp)
-    return 0
+    return -n_ev
 
 
 class SlipTickArrays(PackedArrays):
@@ -519,24 +521,25 @@ class SlipTickKernel:
                  out_y=np.zeros((N, 5)), out_native=np.zeros((N, 6)), out_sigma=np.zeros(N), x=np.zeros(6),
                  xs=np.zeros(6), reals=reals, Yflex=Yflex, Minv=Minv, Z=Z.view(np.float64), R=R, c=c, mats=mats,
                  guards=guards, dx=dx, dy=dy, lp=lp, lx=lx, ly=ly,
-                 # the hybrid loop wants room for a chattering step's switches; the first ends the call here
-                 events=np.zeros((MAX_SWITCHES + 1, 8)),
+                 # room for a chattering step's switches (the hybrid loop wants it) and EVENTS more (then the engine)
+                 events=np.zeros((MAX_SWITCHES + 1 + EVENTS, 8)),
                  consts=self.consts, y=self.y, msg=self._msg.view(np.float64),
                  fscalars=[-math.inf, math.inf, math.nan, math.nan, self.dt, self.limit, 0.0]),
             dict(special=np.zeros(N, dtype=np.int64), out_mode=np.zeros(N, dtype=np.int64), ints=ints, offsets=offsets,
                  have=have, uses=uses, dk=dk, lk=lk, iscalars=[0, 0]))  # fmt: skip
         views = arrays.views
         self.y, self._x, self._xs, self.end_y = views["y"], views["x"], views["xs"], views["out_y"][-1]
-        self._fs, self._js = views["fscalars"], views["iscalars"]
+        self._fs, self._js, self._events = views["fscalars"], views["iscalars"], views["events"]
         self.message = memoryview(views["msg"].view(np.uint8))[self._where]
         self._args = (arrays.reals, dp)
 
     def advance(self, state, k0: int, k1: int, lo: float = -math.inf, hi: float = math.inf, drive: float = math.nan,
-                stamp: int = 0) -> bool:
+                stamp: int = 0) -> list | None:
         """The whole grid steps k0 -> k1 from ``state`` (a SlipState; None: the buffers' state), the outputs at
         t1 in :attr:`y`, :attr:`message` stamped ``stamp`` [ns]; ``lo``, ``hi``, ``drive``: :func:`slip_tick`'s.
-        True when done; False when the engine's own ``advance`` must redo it from :meth:`state` (a mode switch
-        in it, a failure)."""
+        The mode switches in them when done (:class:`~belt_drive_ros.core.slip.Event`; an empty tuple: none);
+        None when the engine's own ``advance`` must redo it from :meth:`state` (a failure, more than
+        :data:`EVENTS` switches)."""
         # (a phase stepper is built only by the engine's own advance, which starts from a state object: the
         # usual tick, continuing from the buffers, needs no look at the engine)
         if k1 - k0 != self.N or state is not None and len(self.engine._steppers) != self._built:
@@ -544,7 +547,7 @@ class SlipTickKernel:
                 state = self.state()
             self._pack(k1 - k0)
         if self._args is None:
-            return False
+            return None
         if state is not None:  # else the usual tick: x holds the state the last call reached, iscalars its kind
             self._js[:] = _kind_code(state), len(state.x)
             self._xs[: len(state.x)] = state.x
@@ -552,7 +555,8 @@ class SlipTickKernel:
             self._fs[6] = state.sigma
         if lo != -math.inf or hi != math.inf or drive == drive:
             self._fs[:3] = lo, hi, drive
-        return slip_tick(k0, stamp, *self._args) == 0
+        done = slip_tick(k0, stamp, *self._args)
+        return () if done == 0 else None if done > 0 else _events(self._events[:-done])
 
     def state(self) -> SlipState:
         """The hybrid state the buffers hold: the last :meth:`advance`'s (where it failed, the one it started from)."""

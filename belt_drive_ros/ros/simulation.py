@@ -360,10 +360,13 @@ class NodeSimulation:
                         if jump1:
                             self._held = value  # (the kernel wrote it into the held torque)
                         return True
-                else:  # the slipping belt: steps without a mode switch (else the engine's path); the hybrid
-                    # state stays in the kernel's buffers, x is a view of them (written again by the next tick)
-                    if fast.advance(None if self._live else self._hybrid, k0, k1, lo, hi, drive, now_ns):
+                else:  # the slipping belt, its events located in the kernel (a failure: the engine's path); the
+                    # hybrid state stays in the kernel's buffers, x a view of them (written again by the next tick)
+                    events = fast.advance(None if self._live else self._hybrid, k0, k1, lo, hi, drive, now_ns)
+                    if events is not None:
                         self._live, self.x = True, fast.end_y
+                        if events:
+                            self._located(events)
                         self.t_ns = self._fresh_ns = now_ns
                         self._held_jump = t1 if jump1 else None
                         if jump1:
@@ -391,12 +394,16 @@ class NodeSimulation:
         if self.hybrid is not None:
             self.hybrid = hybrid
             if events:
-                self.slip_events.extend((e.kind, e.time, e.sigma) for e in events)
-                del self.slip_events[:-64]  # the latest ones (diagnostics)
-                self.counters["slip_events"] += len(events)
+                self._located(events)
         self.t_ns = now_ns
         self._hold(value, t1)
         return True
+
+    def _located(self, events) -> None:
+        """Note a tick's stick/slip events (:class:`~belt_drive_ros.core.slip.Event`): the latest 64 kept."""
+        self.slip_events.extend((e.kind, e.time, e.sigma) for e in events)
+        del self.slip_events[:-64]  # (diagnostics)
+        self.counters["slip_events"] += len(events)
 
     def _free(self, t0: float, t1: float, k0: int, k1: int) -> bool:
         """Whether no plant breakpoint lies near the whole grid steps k0 .. k1 (the stepper's test, remembered
