@@ -243,11 +243,8 @@ def linear_tick(k0, steps, stamp, packed, dp):
 
 
 def grid_step_ns(dt: float, origin: float) -> int:
-    """The grid step [ns] when ``dt`` [s] is a whole number of nanoseconds and the grid starts at 0, else 0.
-
-    Then a node time ``origin_ns + k step_ns`` is the grid time ``k dt`` (which
-    the node's scene times snap to) without the general rounding.
-    """
+    """The grid step [ns] when ``dt`` [s] is a whole number of nanoseconds and the grid starts at 0, else 0: then
+    a node time ``origin_ns + k step_ns`` is the grid time ``k dt`` (which scene times snap to) with no rounding."""
     step_ns = round(dt * 1e9)
     return step_ns if step_ns > 0 and step_ns / 1e9 == dt and origin == 0.0 else 0
 
@@ -281,11 +278,9 @@ class LinearTickArrays(PackedArrays):
 class TickKernel:
     """One stepper's tick as one compiled call: :meth:`step` advances :attr:`state`, :attr:`y` holds the outputs.
 
-    ``TickKernel.of(stepper)`` is None where the tick cannot be compiled
-    (an adaptive method, a Python-only profile, extra inputs: the general
-    path serves those ticks). The kernel loop's ``reals``, ``ints`` and load
-    profile are copied into the tick's buffers (the node's stepper never
-    changes them); the drive profile's data stays the held torque's own array.
+    The kernel loop's ``reals``, ``ints`` and load profile are copied into the
+    tick's buffers (the node's stepper never changes them); the drive profile's
+    data stays the held torque's own array.
     """
 
     def __init__(self, stepper, limit: float, message: tuple = ()):

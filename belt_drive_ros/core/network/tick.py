@@ -10,13 +10,11 @@ cost on the caches a 1 ms sleep leaves is most of the tick.
 :func:`network_tick` does both in one ``@njit(cache=True, nogil=True)`` call,
 and writes the values into the ``joint_states`` CDR bytes the node publishes.
 
-Its arguments are few: numba's dispatcher checks and converts every array
-argument on every call. :class:`TickArrays` packs every per-scene array into
-one buffer once (``reals``, and ``ints``, its int64 view); the kernel cuts them into views again
-(the same shapes and types, so ``wheel_steps`` keeps its one compiled
-signature). The caller writes held torques into those views. Measured on
-fead_i4 (cold caches, 1 ms sleeps, load ~10): the whole tick, joint values
-and message included, 13-15 us, what the loop's 26-argument call alone costs.
+Its arrays are packed once into one buffer (:class:`TickArrays`: ``reals``
+and ``ints``, its int64 view; numba's dispatcher converts every argument on
+every call), cut into views again in the kernel (the same shapes and types:
+``wheel_steps`` keeps its one signature); the caller writes held torques into
+them. On fead_i4, cold caches: 13-15 us, what the loop's 26-argument call costs.
 
 Bit for bit the operations of the reference path
 (:meth:`~belt_drive_ros.ros.network_stepper.NetworkStepper.advance`, then
