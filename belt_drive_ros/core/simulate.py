@@ -266,16 +266,24 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
         if check_stability else None
     )  # fmt: skip
     sim.flexible_record = kept = []
+    y0 = scene.initial_state.vector("slipping", scene.params.ratio)
     start = _time.perf_counter()
-    try:
-        time, states, modes, sigmas = sim.run(scene.duration, scene.initial_state.vector("slipping", scene.params.ratio), progress=progress)
-    except SimulationDivergedError:
-        if check_stability and sim.events:  # diverged after slipping: the slip mode's guard names the step that works
-            _slipping_accuracy(scene, sim, accuracy, probes)
-        raise
+    state = sim.initial(y0) if progress is None and not _may_slip(scene, survey) else None
+    if state is not None and state.kind == "flexible":  # the run's first phase alone (sim.run's own steps and guard)
+        sim.origin = 0.0
+        time, flex = sim.stepper.run(state.x, 0.0, scene.duration)
+        if sim.stepper.stopped is None:  # it never reached the limit: the flexible run, no slipping states made
+            kept.append((time, flex))
+    if not kept:
+        try:
+            time, states, modes, sigmas = sim.run(scene.duration, y0, progress=progress)
+        except SimulationDivergedError:
+            if check_stability and sim.events:  # diverged after slipping: the slip mode's guard names the step that works
+                _slipping_accuracy(scene, sim, accuracy, probes)
+            raise
     wall = _time.perf_counter() - start
     if sum(len(t) for t, _ in kept) == len(time):  # the flexible model throughout: its run, bit for bit
-        flex = np.concatenate([x for _, x in kept])
+        flex = np.concatenate([x for _, x in kept]) if len(kept) > 1 else kept[0][1]
         result = _linear_result(scene, sim.flexible, sim.plant, time, flex, sim.stability, accuracy, wall)
         ratio, t_peak = limit_exceedance(scene.params, time, result.outputs)
         result.choice = replace(linear, limit_ratio=ratio, limit_time=t_peak)
@@ -290,6 +298,18 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
     # the guard on both modes once the run has slipped (its stick part is the check made before the run)
     accuracy = _slipping_accuracy(scene, sim, accuracy, probes) if check_stability else None
     return _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy)
+
+
+def _may_slip(scene: Scene, survey) -> bool:
+    """Whether the flexible run may reach the capstan limit, by the rigid survey: twice its peak belt torque (a
+    step's undamped overshoot) against Q_max at its top speed. Only which path runs first: the flexible phase
+    alone (rerun on the slipping engine if it does slip) or the slipping engine at once; the same result."""
+    try:
+        w, _, peak = survey.speeds
+    except Exception:  # noqa: BLE001 - a survey that diverged: the slipping engine decides
+        return True
+    p = scene.params
+    return not 2.0 * peak / p.r_3 < p.friction_limit(float(w))
 
 
 def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, survey=None,
