@@ -458,9 +458,15 @@ def step_response_error(M, G, E, F, rows: np.ndarray, n_steps: int) -> float:
 
 
 def _output_rows(model) -> tuple[np.ndarray, np.ndarray]:
-    """(C rows, D rows) of drive speed and belt torque (the guard's two signals)."""
-    j = [LINEAR_OUTPUTS.index("omega_M"), LINEAR_OUTPUTS.index("belt_torque")]
-    return model.C[j], model.D[j]
+    """(C rows, D rows) of drive speed and belt torque (the guard's two signals; taken once per model, read-only)."""
+    rows = model.__dict__.get("_guard_rows")
+    if rows is None:
+        j = [LINEAR_OUTPUTS.index("omega_M"), LINEAR_OUTPUTS.index("belt_torque")]
+        rows = (model.C[j], model.D[j])
+        for a in rows:
+            a.flags.writeable = False
+        object.__setattr__(model, "_guard_rows", rows)
+    return rows
 
 
 #: the linear (belt mode and slopes) verdicts already computed: key -> (stable, error, growth, exact growth, h omega)

@@ -29,8 +29,9 @@ def forcing_error(plant, method: str, dt: float, probes: Probes, method_options=
     windows = window_errors(plant, method, dt, probes, method_options, stepper)
     if windows is None:
         return math.inf
-    err = np.max([e for _, e, _ in windows], axis=0)
-    peak = np.max([p for _, _, p in windows], axis=0)
+    err, peak = windows[0][1], windows[0][2]  # (np.max over windows, pairwise: no (windows, 2) array made)
+    for _, e, p in windows[1:]:
+        err, peak = np.maximum(err, e), np.maximum(peak, p)
     return float(np.max(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0)))
 
 

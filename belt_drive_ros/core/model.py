@@ -74,6 +74,7 @@ LINEAR_OUTPUTS = (
     "phi_M", "omega_M", "phi_1", "omega_1", "phi_2", "omega_2", "phi_3", "omega_3",
     "drive_torque", "load_torque", "belt_torque", "relative_deflection",
 )  # fmt: skip
+_BELT = LINEAR_OUTPUTS.index("belt_torque")
 
 
 @dataclass(frozen=True)
@@ -257,8 +258,11 @@ class RigidBeltModel(_LinearModel):
         self._init(params, m["A"], m["B"], m["C"], m["D"])
 
     def belt_torque(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """T_b = I_3 i a_M + b_3 i omega_M + M_load [N m] (wheel 3's equation)."""
-        j = slice(LINEAR_OUTPUTS.index("belt_torque"), LINEAR_OUTPUTS.index("belt_torque") + 1)
+        """T_b = I_3 i a_M + b_3 i omega_M + M_load [N m] (wheel 3's equation); one sample (x 1-D): a float."""
+        if np.ndim(x) == 1:  # the operations of a run's rows on plain floats (_affine_sample)
+            return _affine_sample(self._rows[_BELT : _BELT + 1], np.asarray(x, dtype=float).tolist(),
+                                  np.asarray(u, dtype=float).tolist())[0]  # fmt: skip
+        j = slice(_BELT, _BELT + 1)
         return (_affine(self.C[j], np.asarray(x, dtype=float)) + _affine(self.D[j], np.asarray(u, dtype=float)))[..., 0]
 
     def kinetic_energy(self, x: np.ndarray) -> np.ndarray:
