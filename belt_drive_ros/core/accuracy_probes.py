@@ -153,7 +153,9 @@ class RigidSurvey:
         x0 = np.array(self.motion)
         self._start_torque = float(model.belt_torque(x0, plant.inputs(0.0, x0)))
         duration, dt = self.duration, self.dt  # the stops: probe times, then a quarter window before breakpoints
-        self.t_probe = np.linspace(0.0, duration, N_PROBES) if duration > 0 else np.array([0.0])
+        # np.linspace(0, duration, N_PROBES)'s floats (k step, the last the duration itself) without its overhead
+        step = duration / (N_PROBES - 1)
+        self.t_probe = np.array([k * step for k in range(N_PROBES - 1)] + [duration]) if duration > 0 else np.array([0.0])
         def pieces():  # the breakpoints inside the run (page by page for a recording read in pages)
             return plant.breakpoint_pieces(0.0, duration, SURVEY_CHUNK * dt)
 
@@ -233,7 +235,7 @@ def speed_slopes(plant, times, speeds_M) -> list[np.ndarray]:
             both = np.asarray(profile.torque(np.concatenate([t, t]), np.zeros(2 * t.size),
                                              np.concatenate([speed + d, speed - d])), dtype=float)  # fmt: skip
             slopes.append(((both[: t.size] - both[t.size :]) / (2.0 * d)).tolist())
-    return [(np.vstack([a * W[1], b * W[3]]), (a, b)) for a, b in zip(*slopes)]
+    return [(np.array([a * W[1], b * W[3]]), (a, b)) for a, b in zip(*slopes)]
 
 
 @dataclass(frozen=True)
