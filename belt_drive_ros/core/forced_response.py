@@ -292,14 +292,14 @@ def profile_harmonics(plant, probes) -> list[tuple[int, float, float]]:
         if not points:
             continue
         f, t, angle, speed = (np.array(c, dtype=float)[:, None] for c in zip(*points))
-        offsets = np.linspace(0.0, 2.0 / f[:, 0], 2 * AMPLITUDE_SAMPLES, endpoint=False, axis=1)  # two periods [s]
-        with np.errstate(all="ignore"):
-            values = np.asarray(profile.torque(t + offsets, angle + speed * offsets, np.broadcast_to(speed, offsets.shape)),
-                                dtype=float)  # fmt: skip
+        # two periods [s]: the floats of linspace(0, 2 / f, 2 AMPLITUDE_SAMPLES, endpoint=False, axis=1)
+        offsets = np.arange(2 * AMPLITUDE_SAMPLES, dtype=float) * (2.0 / f / (2 * AMPLITUDE_SAMPLES))
         found: list[tuple[float, float]] = []
-        # every candidate's amplitude and repetition at once (the same operations per row)
-        first, second = values[:, :AMPLITUDE_SAMPLES], values[:, AMPLITUDE_SAMPLES:]
-        with np.errstate(all="ignore"):
+        with np.errstate(all="ignore"):  # (every candidate's samples in one flat call, then a row each)
+            values = np.asarray(profile.torque((t + offsets).ravel(), (angle + speed * offsets).ravel(),
+                                               np.repeat(speed[:, 0], offsets.shape[1])), dtype=float).reshape(offsets.shape)
+            # every candidate's amplitude and repetition at once (the same operations per row)
+            first, second = values[:, :AMPLITUDE_SAMPLES], values[:, AMPLITUDE_SAMPLES:]
             amps = 0.5 * (np.max(first, axis=1) - np.min(first, axis=1))
             repeat = np.max(np.abs(second - first), axis=1)
         # not periodic here (a ramp, a soft start, a table): the step response and windows see it

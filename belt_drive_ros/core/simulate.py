@@ -1,13 +1,6 @@
-"""Offline simulation: a scene's model, torques and integrator over a time grid.
-
-:class:`Simulator` holds a :class:`~belt_drive_ros.core.stepper.Plant` (model
-+ drive + load) and a :class:`~belt_drive_ros.core.stepper.Stepper`, the one
-engine that advances time for every caller (this module, replay of recorded
-torques, the ROS node's tick). The stepper steps fixed-step methods in the
-one compiled time loop (:func:`~belt_drive_ros.core.kernel.linear_steps`,
-numba, compiled once per installed version), adaptive ones through
-``integrator.step``. :func:`simulate` runs a scene
-and computes every output and the energy terms.
+"""Offline simulation: :func:`simulate` runs a scene (guards, model and method choice) and computes every output
+and the energy terms; :class:`Simulator` runs one model on the :class:`~belt_drive_ros.core.stepper.Stepper`, the
+one engine that advances time for every caller (its compiled loop: :func:`~belt_drive_ros.core.kernel.linear_steps`).
 """
 
 from __future__ import annotations
@@ -174,15 +167,12 @@ def simulate(
     With ``model='auto'`` the choice and its reason are in ``result.choice``
     (:func:`~belt_drive_ros.core.fidelity.choose_model`: rigid or flexible by
     the frequency rule, slipping when that run passes the capstan limit; a
-    scene that stays within it returns that very run). When the rule picks
-    the flexible model with a fixed-step method (not a second-order-form
-    one), the scene runs once, on the slipping
-    engine: its first phase *is* the flexible model's compiled loop with the
-    capstan check after each step (:mod:`~belt_drive_ros.core.slip_run`), so
-    a scene that never reaches the limit gets the flexible run bit for bit
-    for the price of that check, and one that does goes on slipping from the
-    located onset instead of running twice. The reason then names the onset
-    time (the linear run past it is not computed).
+    scene that stays within it returns that very run). Flexible with a
+    fixed-step method (not a second-order-form one): the slipping engine's
+    first phase, the flexible model's compiled loop with the capstan check
+    after each step (:mod:`~belt_drive_ros.core.slip_run`): within the limit
+    the flexible run bit for bit, else it slips on from the located onset
+    (the reason names the onset time).
     """
     if not isinstance(scene, Scene):
         raise SceneError(f"scene: expected a Scene (load_scene or Scene.from_mapping), got {type(scene).__name__}")

@@ -1,21 +1,15 @@
 """The one engine that advances time: a plant from scene time t0 to t1.
 
-Every caller that moves a simulation forward goes through :class:`Stepper`:
-:class:`~belt_drive_ros.core.simulate.Simulator` (offline runs, replay of
-recorded torques, the ``auto`` model choice's rigid estimate) and the ROS
-node's tick. It plans the steps (the grid, partial steps, steps split or
-clamped at torque breakpoints) and hands them to the one compiled time loop
-(:func:`~belt_drive_ros.core.kernel.linear_steps` through
-:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`), which steps, clamps
-the torque times, checks divergence and the guard.
-
-:meth:`Stepper.advance` gives the state at ``t1`` (what the node's tick calls
-with its held torque where its compiled tick, :mod:`~belt_drive_ros.core.tick`,
-does not serve it), :meth:`Stepper.run` every knot from ``t0`` to ``t1``.
-States are 1-D float arrays in the model's own state ordering (the stepper
-is generic over it); the only assumption is that the **second half of the
-state holds speeds** [rad/s], which the divergence check reads. Torques are
-[N m], times scene seconds (float).
+Every caller that moves a simulation forward (offline runs, replay, the
+guards' runs, the node's tick where its compiled tick does not serve it)
+goes through :class:`Stepper`: it plans the steps (grid, partial steps,
+steps split or clamped at torque breakpoints) and hands them to the one
+compiled time loop (:func:`~belt_drive_ros.core.kernel.linear_steps`),
+which steps, clamps the torque times, checks divergence and the guard.
+:meth:`Stepper.advance` gives the state at ``t1``, :meth:`Stepper.run`
+every knot from ``t0`` to ``t1``. States are 1-D float arrays in the
+model's own ordering; the **second half of the state holds speeds**
+[rad/s] (the divergence check reads them). Torques [N m], times [s].
 
 The grid
 --------
@@ -33,19 +27,15 @@ Breakpoints
 -----------
 ``plant.breakpoints`` (times where a torque jumps or kinks) are handled
 exactly wherever they fall. A breakpoint strictly inside a step splits the
-step there (sub-steps by integrators of the sub-step's length). A breakpoint
-on a knot (within the snap tolerance, so also a decimal time the float grid
-misses by an ulp) bounds the steps on either side. In both cases every
+step there (sub-steps by integrators of the sub-step's length); one on a
+knot (within the snap tolerance) bounds the steps on either side. Every
 torque sample of a (sub-)step is taken at a time clamped into the step's
-side of the breakpoints: the step that ends at breakpoint ``b`` samples at
-most at ``plant.left_of(b)`` (the torque's left limit), the step that starts
-there at least at ``b``. So no step integrates across a jump or a kink, and
-each fixed-step method keeps its order. A step that touches a breakpoint is
-one kernel call per piece (the integrator of the piece's length, its torque
-times clamped); runs of whole steps are one kernel call each. Only an
-adaptive method (scipy's, the references) steps through ``integrator.step``
-instead, a step at a time. A torque profile without a data form (Python
-only) is refused.
+side: the step that ends at breakpoint ``b`` samples at most at
+``plant.left_of(b)`` (the left limit), the step that starts there at least
+at ``b``, so no step integrates across a jump or a kink and each method
+keeps its order. Each such piece is one kernel call, each run of whole
+steps one call; an adaptive method (scipy's references) steps through
+``integrator.step``. A torque profile without a data form is refused.
 
 Integrators (and kernel loops) of partial-step lengths are cached per
 stepper (at most :data:`PARTIAL_CACHE_SIZE`); plant torques are read at every
