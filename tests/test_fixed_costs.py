@@ -257,3 +257,23 @@ def test_affine_of_a_long_run_is_the_per_sample_sum_bit_for_bit():
         stacked = x.reshape(samples // 100 if samples % 100 == 0 else 1, -1, cols)
         with np.errstate(all="ignore"):
             assert np.array_equal(_affine(M, stacked).reshape(-1, rows).view(np.int64), whole.view(np.int64))
+
+
+@pytest.mark.parametrize("name, duration", [("paper", 1.0), ("bsg_start", 0.1)])
+def test_auto_flexible_result_is_the_same_whichever_path_runs_first(monkeypatch, name, duration):
+    """``auto`` with the flexible tier runs the flexible phase alone first when the rigid survey puts the scene well
+    within the capstan limit (``_may_slip`` False), else the slipping engine at once: the same result bit for bit
+    either way, also when the guess is wrong (paper never slips; bsg_start slips at 25 ms)."""
+    from belt_drive_ros.core import simulate as simulate_module
+
+    scene = load_scene(name).with_overrides(duration=duration)
+    results = []
+    for guess in (False, True):
+        monkeypatch.setattr(simulate_module, "_may_slip", lambda scene, survey, guess=guess: guess)
+        results.append(simulate(scene))
+    a, b = results
+    assert a.model == b.model == ("flexible" if name == "paper" else "slipping")
+    assert a.events == b.events and a.choice == b.choice and a.accuracy == b.accuracy
+    for x, y in [(a.time, b.time), (a.states, b.states)] + [(a.outputs[k], b.outputs[k]) for k in a.outputs] + [
+            (a.energy[k], b.energy[k]) for k in a.energy]:  # fmt: skip
+        assert np.asarray(x).tobytes() == np.asarray(y).tobytes()
