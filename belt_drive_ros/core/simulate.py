@@ -248,33 +248,30 @@ def _steps_flexible(scene: Scene) -> bool:
 
 def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_stability: bool, survey,
                             checked=None) -> SimResult:  # fmt: skip
-    """``auto`` with the flexible tier: one run on the slipping engine, a flexible result if it never slipped."""
-    sim, x0, probes = _slipping_engine(scene, check_stability, survey)  # (probes: the stick check's now, both modes' if it slips)
+    """``auto`` with the flexible tier on the slipping engine (the flexible phase alone first when the survey puts the
+    scene well within the limit): a flexible result if it never slipped. ``probes``: the stick check's, both modes'."""
+    sim, x0, probes = _slipping_engine(scene, check_stability, survey)
     accuracy = (
         checked or require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance,
                                     method_options=scene.method_options, probes=probes)
         if check_stability else None
     )  # fmt: skip
-    sim.flexible_record = kept = []
     y0 = scene.initial_state.vector("slipping", scene.params.ratio)
     start = _time.perf_counter()
-    state = sim.initial(y0) if progress is None and not _may_slip(scene, survey) else None
-    if state is not None and state.kind == "flexible":  # the run's first phase alone (sim.run's own steps and guard)
-        sim.origin = 0.0
-        time, flex = sim.stepper.run(state.x, 0.0, scene.duration)
-        if sim.stepper.stopped is None:  # it never reached the limit: the flexible run, no slipping states made
-            kept.append((time, flex))
-    if not kept:
+    flex = None if _may_slip(scene, survey) else _flexible_phase(sim, y0, scene.duration, progress)
+    if flex is None:
         try:
             time, states, modes, sigmas = sim.run(scene.duration, y0, progress=progress)
         except SimulationDivergedError:
             if check_stability and sim.events:  # diverged after slipping: the slip mode's guard names the step that works
                 _slipping_accuracy(scene, sim, accuracy, probes)
             raise
+        if not sim.events and not np.any(modes):  # it never slipped (the guess was wrong): the flexible states
+            flex = _flexible_phase(sim, y0, scene.duration)
     wall = _time.perf_counter() - start
-    if sum(len(t) for t, _ in kept) == len(time):  # the flexible model throughout: its run, bit for bit
-        flex = np.concatenate([x for _, x in kept]) if len(kept) > 1 else kept[0][1]
-        result = _linear_result(scene, sim.flexible, sim.plant, time, flex, sim.stability, accuracy, wall)
+    if flex is not None:  # the flexible model throughout: its run, bit for bit
+        time, states = flex
+        result = _linear_result(scene, sim.flexible, sim.plant, time, states, sim.stability, accuracy, wall)
         ratio, t_peak = limit_exceedance(scene.params, time, result.outputs)
         result.choice = replace(linear, limit_ratio=ratio, limit_time=t_peak)
         return result
@@ -292,14 +289,24 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
 
 def _may_slip(scene: Scene, survey) -> bool:
     """Whether the flexible run may reach the capstan limit, by the rigid survey: twice its peak belt torque (a
-    step's undamped overshoot) against Q_max at its top speed. Only which path runs first: the flexible phase
-    alone (rerun on the slipping engine if it does slip) or the slipping engine at once; the same result."""
+    step's undamped overshoot) against Q_max at its top speed. It only picks what runs first, the same result."""
     try:
         w, _, peak = survey.speeds
     except Exception:  # noqa: BLE001 - a survey that diverged: the slipping engine decides
         return True
-    p = scene.params
-    return not 2.0 * peak / p.r_3 < p.friction_limit(float(w))
+    return not 2.0 * peak / scene.params.r_3 < scene.params.friction_limit(float(w))
+
+
+def _flexible_phase(sim, y0, duration: float, progress=None):
+    """(time, flexible states) of the slipping engine ``sim``'s first phase (its guarded flexible stepper, the steps
+    :meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.run` takes) from ``y0`` over ``duration`` [s];
+    None when the run starts beyond the capstan limit or reaches it."""
+    state = sim.initial(y0)
+    if state.kind != "flexible":
+        return None
+    sim.origin = 0.0
+    time, states = sim.stepper.run(state.x, 0.0, duration, progress)
+    return (time, states) if sim.stepper.stopped is None else None
 
 
 def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, survey=None,
