@@ -54,12 +54,8 @@ SURVEY_CHUNK = 50_000
 
 
 def operating_run_step(duration: float) -> float:
-    """Step [s] of the cheap rigid run (method ``exact``) that estimates the operating speeds.
-
-    ``min(duration / 500, 5 ms)``: at least 500 steps, and steps of at most
-    5 ms, so a long run's survey grows with its duration (max(500,
-    duration / 5 ms) steps: 2e7 for 1e5 s, tens of seconds before the run).
-    """
+    """Step [s] of the cheap rigid run (method ``exact``) that estimates the operating speeds: ``min(duration / 500,
+    5 ms)``, max(500, duration / 5 ms) steps (a long run's survey grows with it: 2e7 steps for 1e5 s)."""
     return min(duration / 500.0, 5e-3)
 
 
@@ -68,10 +64,9 @@ def _survey_step(pieces, rdt: float) -> float:
     the run (``pieces()``: consecutive sorted arrays of them) are denser than ``rdt`` and all lie on the
     grid ``k h`` (a recording at a fixed rate).
 
-    On that grid the stepper takes the record's steps in runs of whole steps (its breakpoints on the knots,
-    :func:`~belt_drive_ros.core.absorb.absorbed_steps`): the cost is the record's samples, one kernel call per
-    piece, instead of one call per sample in steps split at each; ``exact`` integrates the held samples
-    exactly either way.
+    On that grid the stepper takes the record's steps in runs of whole steps (breakpoints on the knots,
+    :func:`~belt_drive_ros.core.absorb.absorbed_steps`), one kernel call per piece instead of one per sample;
+    ``exact`` integrates the held samples exactly either way.
     """
     def on_grid(inner, h) -> bool:
         d = np.abs(np.rint(inner / h) * h - inner)
@@ -460,15 +455,9 @@ def step_response_error(M, G, E, F, rows: np.ndarray, n_steps: int) -> float:
 
 
 def _output_rows(model) -> tuple[np.ndarray, np.ndarray]:
-    """(C rows, D rows) of drive speed and belt torque (the guard's two signals; taken once per model, read-only)."""
-    rows = model.__dict__.get("_guard_rows")
-    if rows is None:
-        j = [LINEAR_OUTPUTS.index("omega_M"), LINEAR_OUTPUTS.index("belt_torque")]
-        rows = (model.C[j], model.D[j])
-        for a in rows:
-            a.flags.writeable = False
-        object.__setattr__(model, "_guard_rows", rows)
-    return rows
+    """(C rows, D rows) of drive speed and belt torque (the guard's two signals)."""
+    j = [LINEAR_OUTPUTS.index("omega_M"), LINEAR_OUTPUTS.index("belt_torque")]
+    return model.C[j], model.D[j]
 
 
 #: the linear (belt mode and slopes) verdicts already computed: key -> (stable, error, growth, exact growth, h omega)

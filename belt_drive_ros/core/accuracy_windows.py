@@ -1,7 +1,5 @@
-"""The accuracy guard's forcing-window terms (see :mod:`belt_drive_ros.core.accuracy`).
-
-The error of the method on the scene's real torques (time, angle, speed) in
-short windows at the probes, by Richardson, and its drift over the run.
+"""The accuracy guard's forcing-window terms (:mod:`belt_drive_ros.core.accuracy`): the method's error on the
+scene's real torques (time, angle, speed) in short windows at the probes, by Richardson, and its drift over the run.
 """
 
 from __future__ import annotations
@@ -29,8 +27,8 @@ def forcing_error(plant, method: str, dt: float, probes: Probes, method_options=
     windows = window_errors(plant, method, dt, probes, method_options, stepper)
     if windows is None:
         return math.inf
-    err, peak = windows[0][1], windows[0][2]  # (np.max over windows, pairwise: no (windows, 2) array made)
-    for _, e, p in windows[1:]:
+    err, peak = windows[0][1], windows[0][2]
+    for _, e, p in windows[1:]:  # (np.max over windows, pairwise: no (windows, 2) array made)
         err, peak = np.maximum(err, e), np.maximum(peak, p)
     return float(np.max(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0)))
 

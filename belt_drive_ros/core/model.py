@@ -444,12 +444,9 @@ class ModelStack:
 
 
 def _affine(M: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``x @ M.T`` summed column by column, elementwise: the same floats for one sample as for a whole run.
-
-    (A BLAS product may sum in another order for another number of rows; the
-    node computes its outputs one tick at a time and must equal the offline
-    run bit for bit.)  A long run with several rows is summed as ``(rows, samples)`` (the state axis first):
-    the same products and sums, over long inner loops (2-3x faster on a run's 1,000+ samples).
+    """``x @ M.T`` summed column by column, elementwise: the same floats for one sample (the node's tick) as for a
+    whole run (a BLAS product may sum in another order). A long run with several rows is summed as ``(rows,
+    samples)``: the same products and sums over long inner loops (2-3x faster on 1,000+ samples).
     """
     if M.shape[0] > 1 and x.size > 512:
         xt = np.ascontiguousarray(x.T)  # (each state's samples in a row: the outer products read them in order)
@@ -473,10 +470,8 @@ def _quadratic(w0: np.ndarray, w1: np.ndarray, S: np.ndarray) -> np.ndarray:
 def _affine_sample(rows, x: list, u: list) -> list:
     """``_affine(C, x) + _affine(D, u)`` of one sample on plain floats; ``rows`` = (C row, D row) pairs.
 
-    Each output is ``((x_0 C_j0 + x_1 C_j1) + ...) + (u_0 D_j0 + u_1 D_j1)``:
-    the IEEE operations :func:`_affine` applies elementwise to every sample of
-    a run, in the same order, so the same doubles (a test compares them bit
-    for bit) at a fraction of the cost of numpy on one sample.
+    Each output is ``((x_0 C_j0 + x_1 C_j1) + ...) + (u_0 D_j0 + u_1 D_j1)``: the operations :func:`_affine`
+    applies to every sample of a run, in the same order (the same doubles, tested bit for bit), without numpy.
     """
     if len(x) == 4 and len(u) == 2:  # the flexible model, written out (a third of the loop's time)
         x0, x1, x2, x3 = x

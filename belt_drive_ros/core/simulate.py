@@ -136,18 +136,13 @@ class Simulator:
         """{step k: [breakpoints strictly inside step k]} of the last run."""
         return self.stepper.split_steps
 
-    def run(
-        self,
-        duration: float,
-        x0: np.ndarray,
-        t0: float = 0.0,
-        progress: Callable[[float], None] | None = None,
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def run(self, duration: float, x0: np.ndarray, t0: float = 0.0,
+            progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
         """Integrate over ``duration`` [s] on the grid ``t0 + k dt``; return (time (N+1,), states (N+1, n)).
 
-        Steps at torque breakpoints are split or clamped (:mod:`belt_drive_ros.core.stepper`); without that such a
-        step is locally first order: on ``paper`` a 12.5 ms ``lawson5`` step with the soft start ending inside it
-        makes the run 2000x less accurate (tests/test_breakpoints.py). ``split_steps`` lists the split steps after.
+        Steps at torque breakpoints are split or clamped (:mod:`belt_drive_ros.core.stepper`): else such a step is
+        locally first order (``paper``, ``lawson5`` at 12.5 ms with the soft start ending inside a step: 2000x less
+        accurate, tests/test_breakpoints.py). ``split_steps`` lists the split steps after.
         """
         self.stepper.origin = float(t0)
         return self.stepper.run(x0, float(t0), float(t0) + float(duration), progress)
@@ -186,8 +181,7 @@ def simulate(
     scene, method_choice = resolve_method(scene, linear.model if linear is not None else None, survey)
     if scene.dt != survey.dt:  # auto chose substeps: the probes follow the step
         survey = RigidSurvey.of_scene(scene)
-    # the choice's own check of the method it chose is the run's (same plant, step, probes) when it passed
-    checked = getattr(method_choice, "report", None)
+    checked = getattr(method_choice, "report", None)  # the choice's check is the run's (same plant, step, probes)
     if checked is not None and (not checked.ok or method_choice.substeps != 1 or scene.method_options):
         checked = None
     try:
@@ -214,14 +208,14 @@ def simulate(
 
 def _simulate(scene: Scene, linear, progress, check_stability: bool, survey=None, checked=None) -> SimResult:
     """:func:`simulate` of a scene with its method stated (``linear``: auto's frequency-rule choice, or None;
-    ``survey``: the scene's :class:`~belt_drive_ros.core.fidelity.RigidSurvey` at its step, read by every guard;
-    ``checked``: the accuracy guard's report on the rigid or flexible run already made by ``method: auto``)."""
+    ``survey``: its :class:`~belt_drive_ros.core.fidelity.RigidSurvey`; ``checked``: ``method: auto``'s guard report)."""
     survey = survey or RigidSurvey.of_scene(scene)
     if scene.model != "auto":
         if scene.model == "slipping":
             return simulate_slipping(scene, None, progress, check_stability, survey=survey)
         return _simulate_linear(scene, scene.model, progress, check_stability, survey, checked)
-    if linear.model == "flexible" and _steps_flexible(scene):
+    cls = method_class(scene.method)  # the slipping engine refuses adaptive and second-order-form methods
+    if linear.model == "flexible" and cls.fixed_step and not getattr(cls, "second_order_form", False):
         return _simulate_auto_flexible(scene, linear, progress, check_stability, survey, checked)
     runs: dict = {}
 
@@ -237,13 +231,6 @@ def _simulate(scene: Scene, linear, progress, check_stability: bool, survey=None
     result = runs[choice.model]
     result.choice = choice
     return result
-
-
-def _steps_flexible(scene: Scene) -> bool:
-    """Whether a flexible run of ``scene`` can run on the slipping engine (it refuses adaptive and
-    second-order-form methods)."""
-    cls = method_class(scene.method)
-    return cls.fixed_step and not getattr(cls, "second_order_form", False)
 
 
 def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_stability: bool, survey,
@@ -298,9 +285,8 @@ def _may_slip(scene: Scene, survey) -> bool:
 
 
 def _flexible_phase(sim, y0, duration: float, progress=None):
-    """(time, flexible states) of the slipping engine ``sim``'s first phase (its guarded flexible stepper, the steps
-    :meth:`~belt_drive_ros.core.slip_run.SlippingSimulator.run` takes) from ``y0`` over ``duration`` [s];
-    None when the run starts beyond the capstan limit or reaches it."""
+    """(time, flexible states) of the slipping engine ``sim``'s first phase (its guarded flexible stepper: the steps
+    its ``run`` takes) from ``y0`` over ``duration`` [s]; None when the run starts beyond the capstan limit or reaches it."""
     state = sim.initial(y0)
     if state.kind != "flexible":
         return None
@@ -358,12 +344,10 @@ def _integral(p: np.ndarray, dt_grid: np.ndarray) -> np.ndarray:
 def simulate_slipping(scene, choice=None, progress=None, check_stability=True, stick=None, survey=None) -> SimResult:
     """Run ``scene`` on the slipping model (:mod:`belt_drive_ros.core.slip_run`).
 
-    ``result.outputs`` has every signal of the other models plus
-    :data:`~belt_drive_ros.core.slip.SLIP_OUTPUT_UNITS`; ``result.events``
-    lists the mode switches (kind, time [s], direction); ``result.energy``
-    adds ``friction``, the integral of Q s'. ``stick``: the accuracy guard's report on the flexible model
-    already made (the stick mode's; ``auto``'s check run); ``survey``: the scene's rigid survey (the probes').
-    """
+    ``result.outputs`` has every signal of the other models plus :data:`~belt_drive_ros.core.slip.SLIP_OUTPUT_UNITS`;
+    ``result.events`` lists the mode switches (kind, time [s], direction); ``result.energy`` adds ``friction``, the
+    integral of Q s'. ``stick``: the guard's report on the flexible model already made (the stick mode's);
+    ``survey``: the scene's rigid survey (the probes')."""
     sim, _, probes = _slipping_engine(scene, check_stability, survey)
     accuracy = _slipping_accuracy(scene, sim, stick, probes) if check_stability else None
     start = _time.perf_counter()
@@ -382,11 +366,8 @@ def _slipping_engine(scene, check_stability: bool, survey):
 
 
 def _slipping_accuracy(scene, sim, stick=None, probes=None):
-    """The accuracy guard on both modes of the slipping model (:func:`~belt_drive_ros.core.accuracy.require_accurate_slipping`).
-
-    ``stick``: the flexible check's verdict when already made (it is the stick mode's); ``probes``: its probe run.
-    """
-    # each mode linearized (stick: the flexible closed loop and forcing windows; slip: the slip-mode dynamics)
+    """The accuracy guard on both modes of the slipping model, each linearized (:func:`~belt_drive_ros.core.accuracy.
+    require_accurate_slipping`); ``stick``: the flexible check's verdict when made (the stick mode's); ``probes``: its."""
     return require_accurate_slipping(
         scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.duration,
         scene.initial_state.vector("flexible", scene.params.ratio), scene.tolerance, method_options=scene.method_options,
