@@ -366,8 +366,9 @@ def _slipping_engine(scene, check_stability: bool, survey):
 
 
 def _slipping_accuracy(scene, sim, stick=None, probes=None):
-    """The accuracy guard on both modes of the slipping model, each linearized (:func:`~belt_drive_ros.core.accuracy.
-    require_accurate_slipping`); ``stick``: the flexible check's verdict when made (the stick mode's); ``probes``: its."""
+    """The accuracy guard on both modes of the slipping model, each linearized
+    (:func:`~belt_drive_ros.core.accuracy.require_accurate_slipping`); ``stick``: the flexible check's verdict when
+    made (the stick mode's); ``probes``: its."""
     return require_accurate_slipping(
         scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.duration,
         scene.initial_state.vector("flexible", scene.params.ratio), scene.tolerance, method_options=scene.method_options,
