@@ -31,11 +31,24 @@ import pytest
 import sympy as sp
 
 from belt_drive_ros.core.integrators import make_integrator
-from belt_drive_ros.core.model import FlexibleBeltModel, RigidBeltModel, paper_as_printed_stiffness
+from belt_drive_ros.core.model import FlexibleBeltModel, RigidBeltModel
 from belt_drive_ros.core.params import BeltDriveParams
 
 RTOL_MATRIX = 1e-12  # same rational expressions in float64 on both sides (see module docstring)
 N_RANDOM = 20
+
+
+def paper_as_printed_stiffness(params: BeltDriveParams) -> np.ndarray:
+    """The stiffness matrix exactly as printed in the paper's eq. 20 (erratum 1).
+
+    Row 1 carries ``g`` where ``g^2`` belongs and lacks ``g`` in the coupling
+    term, so the matrix is not symmetric. Exists only so that these tests can show
+    what the erratum does; never used by a simulation.
+    """
+    p = params
+    g = p.gear_ratio
+    return 2.0 * p.k * np.array([[p.r_2**2 * g, -p.r_2 * p.r_3], [-p.r_2 * p.r_3 * g, p.r_3**2]])
+
 
 # --------------------------------------------------------------- symbols
 SYMBOLS = sp.symbols("I_M I_1 I_2 I_3 r_M R_1 r_1 R_2 r_2 r_3 k c b_M b_1 b_2 b_3", positive=True)

@@ -531,14 +531,3 @@ def make_model(kind: str, params: BeltDriveParams):
         return SlippingBeltModel(params)
     raise ValueError(f"model: unknown model {kind!r}; choose 'rigid', 'flexible', 'slipping' or 'auto'")
 
-
-def paper_as_printed_stiffness(params: BeltDriveParams) -> np.ndarray:
-    """The stiffness matrix exactly as printed in the paper's eq. 20 (erratum 1).
-
-    Row 1 carries ``g`` where ``g^2`` belongs and lacks ``g`` in the coupling
-    term, so the matrix is not symmetric. Exists only so that tests and docs
-    can show what the erratum does; never used by a simulation.
-    """
-    p = params
-    g = p.gear_ratio
-    return 2.0 * p.k * np.array([[p.r_2**2 * g, -p.r_2 * p.r_3], [-p.r_2 * p.r_3 * g, p.r_3**2]])
