@@ -39,8 +39,17 @@ COMMAND_MODULES = (
 OFFLINE_COMMANDS = frozenset({"sim", "sweep", "scenes", "modes", "make-bags", "urdf"})
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its refusals (a bad option value, a missing argument) as one ``belt-drive: error:`` line naming
+    the subcommand, exit 2, instead of the usage block before it; subcommands' parsers are of this class too."""
+
+    def error(self, message):
+        command = self.prog.partition(" ")[2]
+        sys.exit(_fail(f"{command + ': ' if command else ''}{message} (see '{self.prog} --help')", 2))
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="belt-drive",
         description=(
             "Vehicle accessory belt drive (engine/motor -> two gear pairs -> belt -> loaded pulley): "

@@ -46,7 +46,7 @@ import numpy as np
 import yaml
 
 from ..core.errors import BeltDriveError, InputError
-from ..core.inputs import check_path, parse_yaml, read_text, short
+from ..core.inputs import MAX_DEPTH, check_path, parse_yaml, read_text, real, short, unknown_key
 from .values import boolean, number, sequence
 from .values import mapping as as_mapping
 from .values import text as string
@@ -119,8 +119,7 @@ class Distribution:
         if not isinstance(spec, Mapping):
             raise CampaignError(f"{where}: expected {{normal: ...}} or {{uniform: ...}}, got {type(spec).__name__} {short(spec)}")
         kinds = [k for k in ("normal", "uniform") if k in spec]
-        unknown = sorted(str(k)[:60] for k in set(spec) - {"normal", "uniform", "absolute"})
-        if len(kinds) != 1 or unknown:
+        if len(kinds) != 1 or unknown_key(spec, ("normal", "uniform", "absolute")):
             raise CampaignError(f"{where}: give exactly one of normal, uniform (and optionally absolute)")
         kind, value = kinds[0], spec[kinds[0]]
         absolute = boolean(spec.get("absolute", False), f"{where}.absolute", CampaignError)
@@ -207,9 +206,10 @@ class Campaign:
     def from_mapping(cls, data: Mapping, base_dir=".", text: str | None = None) -> "Campaign":
         if not isinstance(data, Mapping):
             raise CampaignError(f"campaign: expected a mapping at the top level, got {type(data).__name__} {short(data)}")
-        unknown = sorted(str(k)[:60] for k in set(data) - set(KEYS))
+        data = _plain(data, "")
+        unknown = unknown_key(data, KEYS)
         if unknown:
-            raise CampaignError(f"{unknown[0]}: unknown key; known keys: {', '.join(KEYS)}")
+            raise CampaignError(f"{unknown}: unknown key; known keys: {', '.join(KEYS)}")
         base_dir = Path(base_dir)
         for key in ("name", "description"):
             if data.get(key) is not None:
@@ -245,9 +245,9 @@ class Campaign:
                 except BeltDriveError as exc:
                     raise CampaignError(f"profiles[{j}].{exc}") from None
         mc = _mapping(data, "monte_carlo")
-        bad = sorted(str(k)[:60] for k in set(mc) - {"samples", "seed", "vary"})
+        bad = unknown_key(mc, ("samples", "seed", "vary"))
         if bad:
-            raise CampaignError(f"monte_carlo.{bad[0]}: unknown key; known: samples, seed, vary")
+            raise CampaignError(f"monte_carlo.{bad}: unknown key; known: samples, seed, vary")
         samples = seed = 0
         vary = {}
         if mc:
@@ -421,6 +421,32 @@ def _array(values: list) -> np.ndarray:
     if all(isinstance(v, int) and -(2**63) <= v < 2**63 for v in values):
         return np.asarray(values, dtype=np.int64)
     return np.asarray([float(v) for v in values], dtype=float)
+
+
+def _plain(value, where: str, depth: int = 0):
+    """``value`` (a campaign mapping from Python) as YAML's plain types: numpy scalars as Python numbers, booleans
+    and text, arrays and tuples as lists, mappings as dicts; anything else, or nesting deeper than
+    :data:`~belt_drive_ros.core.inputs.MAX_DEPTH` (a structure that holds itself included), a
+    :class:`CampaignError` naming where. A parsed campaign file is plain already."""
+    label = where.rstrip(".")[:80] or "campaign"
+    if depth > MAX_DEPTH:
+        raise CampaignError(f"{label}: nested deeper than {MAX_DEPTH} levels")
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, np.generic) and not isinstance(value, np.number):  # np.bool_, np.str_
+        return value.item()
+    number = real(value)
+    if number is not None:  # (np.float64 is a float: made one)
+        return float(number) if isinstance(number, float) else int(number)
+    if isinstance(value, Mapping):  # (a key stays as it is: the checks below refuse a key that is not text)
+        return {k.item() if isinstance(k, np.generic) else k: _plain(v, f"{where}{str(k)[:60]}.", depth + 1)
+                for k, v in value.items()}
+    if isinstance(value, np.ndarray) and value.dtype.kind in "biuf":
+        return value.tolist()
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_plain(v, f"{label}[{j}]", depth + 1) for j, v in enumerate(value)]
+    raise CampaignError(f"{label}: {type(value).__name__} {short(value)} is not a campaign value (numbers, text, "
+                        "booleans, lists and mappings)")
 
 
 def _mapping(data: Mapping, key: str, where: str = "") -> dict:

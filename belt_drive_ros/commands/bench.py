@@ -73,7 +73,8 @@ def register(sub) -> None:
     )
     p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "kernel", "network", "network_slip",
                                      "slip-kernel", "replay", "node-tick", "all"), help="which study to run")  # fmt: skip
-    p.add_argument("--out", type=Path, default=Path("docs/bench"), help="output folder (default: docs/bench)")
+    p.add_argument("--out", type=Path, help="output folder (default: docs/bench in the current folder; node, node-tick "
+                   "and replay print their figures and write their tables only with --out)")
     p.add_argument("--quick", action="store_true", help="small sweeps and short runs (seconds; for tests)")
     p.add_argument("--quiet", action="store_true", help="no per-run log lines")
     p.add_argument("--seconds", type=float, default=60.0, help="soak: measured seconds (default 60)")
@@ -114,7 +115,8 @@ def _run_node(out: Path, quick: bool, extra: list[str] | None = None) -> int:
             raise
         print("belt-drive bench: node benchmark not available (belt_drive_ros/benchmarks/node.py missing); skipped")
         return 0
-    return int(node.main(["--out", str(out)] + (["--quick"] if quick else []) + list(extra or [])) or 0)
+    return int(node.main((["--out", str(out)] if out is not None else []) + (["--quick"] if quick else []) + list(extra or []))
+               or 0)
 
 
 def _checked_baseline(study: str, baseline: str | None) -> Path | None:
@@ -146,7 +148,7 @@ def _check_options(args) -> None:
         value = getattr(args, name)
         if value is not None and not 0 < value <= top:
             raise InputError(f"--{name}: must be > 0 and at most {top:g}, got {value!r}")
-    if args.out.exists() and not args.out.is_dir():
+    if args.out is not None and args.out.exists() and not args.out.is_dir():
         raise InputError(f"--out {args.out}: exists and is not a folder")
 
 
@@ -154,16 +156,21 @@ def run(args) -> int:
     args.baseline = _checked_baseline(args.study, args.baseline)
     _check_options(args)
     blas = _single_threaded_blas()
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    if args.study == "node":
+    if args.study == "node":  # (figures printed; node.csv and node.md only into a folder asked for)
         extra = ["--duration", repr(args.duration)] + (["--floor"] if args.floor else [])
         extra += ["--scene", args.scene] if args.scene else []
-        return _run_node(out, args.quick, extra + [a for param in args.param for a in ("-p", param)])
+        return _run_node(args.out, args.quick, extra + [a for param in args.param for a in ("-p", param)])
     if args.study == "node-tick":
         from ..benchmarks import node_tick
 
         return node_tick.main(quick=args.quick)
+    if args.study == "replay":
+        from ..benchmarks import replay
+
+        return replay.main(args.minutes if not args.quick else 1.0, baseline=args.baseline)
+    out: Path = args.out if args.out is not None else Path("docs/bench")
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"bench {args.study}: writing into {out.resolve()}", flush=True)
     if args.study == "soak":
         from ..benchmarks import soak
 
@@ -173,10 +180,6 @@ def run(args) -> int:
         from ..benchmarks import hostile
 
         return hostile.main(["--out", str(out)] + (["--quick"] if args.quick else []) + (["--only", *args.only] if args.only else []))
-    if args.study == "replay":
-        from ..benchmarks import replay
-
-        return replay.main(args.minutes if not args.quick else 1.0, baseline=args.baseline)
     if args.study == "kernel":
         from ..benchmarks import kernel
 

@@ -44,7 +44,7 @@ def columns(scene, run):
 def run_network(args) -> int:
     import numpy as np
 
-    from ..core.errors import SceneError
+    from ..core.errors import IntegratorError, SceneError
     from ..core.integrators import method_class
     from ..core.network.simulate import simulate
     from ..core.network.scene import load_network
@@ -61,8 +61,14 @@ def run_network(args) -> int:
     if duration / dt + 1 > MAX_SAMPLES:
         raise SceneError(f"--duration: {duration / dt:.3g} steps; a network run keeps at most {MAX_SAMPLES:,} "
                          "samples in memory (it does not stream yet)")
-    method = args.method or scene.method
-    method_class(method)
+    method = scene.method if args.method is None else args.method
+    if method == "auto":
+        raise SceneError("--method auto: not available for a belt network scene (its run steps the method named, "
+                         f"the scene's by default: {scene.method}); name a method instead")
+    try:
+        method_class(method)
+    except IntegratorError as exc:
+        raise IntegratorError(f"--{exc}") from None
     if args.out is not None:
         if args.out.suffix.lower() not in (".csv", ".mcap"):
             raise SceneError(f"--out {args.out}: a network run writes .csv or .mcap")

@@ -24,10 +24,11 @@ or by name with a header line (--column; a 'belt-drive sim --out' CSV works).
 
 
 def _floats(text: str) -> tuple:
+    """argparse type: comma-separated numbers, at least one, none empty (``,,,`` or ``40,,12`` is refused)."""
     try:
-        return tuple(float(v) for v in text.split(",") if v.strip())
+        return tuple(float(v) for v in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, e.g. 40,12, got {text[:60]!r}") from None
 
 
 def _curve(text: str) -> tuple:
@@ -184,6 +185,11 @@ def build_profile(args):
 
         profile = make_profile({"type": cls.kind, **base}, f"source {kind}")
     if args.initial_speed is not None:
+        from ..core.errors import InputError
+        from ..core.sources import SPEED_MAX
+
+        if not abs(args.initial_speed) <= SPEED_MAX:  # (nan too: the source would publish nothing)
+            raise InputError(f"--initial-speed: {args.initial_speed!r} rad/s is outside [-{SPEED_MAX:g}, {SPEED_MAX:g}] rad/s")
         initial_speed = args.initial_speed
     return profile, initial_speed
 

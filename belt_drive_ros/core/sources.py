@@ -436,8 +436,9 @@ class Engine(TorqueProfile):
         if self.strokes not in (2, 4):
             raise SceneError(f"engine.strokes: must be 2 or 4, got {self.strokes!r}")
         self._check_positive("crank_ratio")
-        if self.governor_gain < 0 or self.ramp_time < 0:
-            raise SceneError("engine.governor_gain and engine.ramp_time: must be >= 0")
+        for name in ("governor_gain", "max_torque", "ramp_time"):  # (a negative torque limit clips nothing)
+            if getattr(self, name) < 0:
+                raise SceneError(f"engine.{name}: must be >= 0, got {getattr(self, name)!r}")
         if self.speed_setpoint is not None and not math.isfinite(self.speed_setpoint):
             raise SceneError("engine.speed_setpoint: must be finite")
         object.__setattr__(self, "cylinders", int(self.cylinders))
