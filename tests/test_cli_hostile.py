@@ -38,6 +38,27 @@ def _cases(tmp):
         "replay --delay -1": (["replay", str(a_file), "--delay", "-1"], "--delay: must be finite and >= 0 s"),
         "modes same PNG twice": (["modes", "fead_i4", "--campbell", str(tmp / "a.png"), "--runup", str(tmp / "a.png")],
                                  "--campbell and --runup name the same file"),
+        # round 2
+        "source --harmonics ,,,": (["source", "engine", "--harmonics", ",,,", "--print"],
+                                   "source engine: argument --harmonics: expected comma-separated numbers"),
+        "source --harmonics 40,,12": (["source", "engine", "--harmonics", "40,,12", "--print"], "--harmonics: expected"),
+        "source --max-torque -5": (["source", "engine", "--max-torque", "-5", "--print"], "engine.max_torque: must be >= 0"),
+        "source --initial-speed nan": (["source", "engine", "--initial-speed", "nan", "--print"],
+                                       "--initial-speed: nan rad/s is outside"),
+        "source --initial-speed 1e300": (["source", "motor", "--initial-speed", "1e300", "--print"], "--initial-speed: "),
+        "network sim --method auto": (["sim", "fead_i4", "--method", "auto", "--quiet", "--duration", "0.01"],
+                                      "--method auto: not available for a belt network scene .*name a method"),
+        "network sim --method ''": (["sim", "fead_i4", "--method", "", "--quiet", "--duration", "0.01"],
+                                    "--method: unknown integrator ''"),
+        "record --out a folder": (["record", "--out", str(tmp), "--duration", "1"], "--out: .*a recording is an .mcap file"),
+        "record --out x.txt": (["record", "--out", str(tmp / "x.txt"), "--duration", "1"], "a recording is an .mcap file"),
+        "record --out in a missing folder": (["record", "--out", str(tmp / "missing" / "r.mcap"), "--duration", "1"],
+                                             "--out .*: folder .*missing does not exist"),
+        "record --out a folder named .mcap": (["record", "--out", str(tmp / "d.mcap"), "--duration", "1"],
+                                              "--out .*d.mcap: a directory"),
+        "argparse: sim --dt x": (["sim", "paper", "--dt", "x"], r"^belt-drive: error: sim: argument --dt: invalid float value: 'x'"),
+        "argparse: source without a kind": (["source"], "source: the following arguments are required: KIND"),
+        "argparse: unknown option": (["scenes", "--bogus"], "unrecognized arguments: --bogus"),
     }
 
 
@@ -47,6 +68,10 @@ CASES = [
     "sim --bag-folder in a missing folder", "bench --minutes -1", "bench --seconds nan", "bench --samples 0", "bench --out a file",
     "urdf --out and --png the same", "network sim --tolerance",
     "replay --rate 0", "replay --rate inf", "replay --sync without --clock", "replay --delay -1",
+    "source --harmonics ,,,", "source --harmonics 40,,12", "source --max-torque -5", "source --initial-speed nan",
+    "source --initial-speed 1e300", "network sim --method auto", "network sim --method ''", "record --out a folder",
+    "record --out x.txt", "record --out in a missing folder", "record --out a folder named .mcap", "argparse: sim --dt x",
+    "argparse: source without a kind", "argparse: unknown option",
 ]
 
 
@@ -59,9 +84,68 @@ def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tm
     --out naming a file failed with exit 1 ('[Errno 17] File exists'), urdf wrote the URDF and then the PNG into
     one file, a network sim took any --tolerance (even nan) and ignored it, replay's --rate 0, --sync
     without --clock and a negative --delay exited 1 (a SystemExit text)."""
+    (tmp_path / "d.mcap").mkdir()
     argv, message = _cases(tmp_path)[case]
-    assert main(argv) == 2
+    try:
+        status = main(argv)
+    except SystemExit as exc:  # (argparse's refusal, before: a usage block, then its error line)
+        status = exc.code
+    assert status == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("belt-drive: error: "), err
     assert re.search(message, err[0]), err
     assert not (tmp_path / "missing").exists() and not (tmp_path / "x.txt").exists() and not (tmp_path / "x.csv").exists() and not (tmp_path / "a.png").exists()
+
+
+def test_campaign_from_python_takes_numpy_values_and_refuses_other_objects_naming_the_key():
+    """Before: an np.float64 grid value or tolerance raised yaml's RepresenterError (the campaign's text is its
+    YAML dump), an np.int64 grid value became the JSON text '20000' in the variant table, and a structure that
+    holds itself recursed until RecursionError."""
+    import numpy as np
+
+    from belt_drive_ros.campaign.spec import Campaign, CampaignError
+
+    plain = {"scene": "paper", "grid": {"params.k": [2.0e4, 1.5e4], "params.F_0": [400, 420]},
+             "monte_carlo": {"samples": 3, "seed": 7, "vary": {"c": {"normal": 0.05, "absolute": False}}}}
+    numpy = {"scene": "paper", "grid": {"params.k": np.array([2.0e4, 1.5e4]), "params.F_0": [np.int64(400), np.int64(420)]},
+             "monte_carlo": {"samples": np.int64(3), "seed": np.uint8(7),
+                             "vary": {"c": {"normal": np.float64(0.05), "absolute": np.bool_(False)}}}}
+    a, b = Campaign.from_mapping(plain), Campaign.from_mapping(numpy)
+    assert a.text == b.text and a.digest() == b.digest()
+    assert a.variants().equals(b.variants()) and str(b.variants()["params.F_0"].dtype) == "int64"
+    loop: dict = {}
+    loop["set"] = loop
+    for data, message in (({"scene": "paper", "set": {"dt": object()}}, "set.dt: object .* is not a campaign value"),
+                          ({"scene": "paper", "grid": {"params.k": [1j]}}, r"grid.params.k\[0\]: complex"),
+                          ({"scene": "paper", "set": loop}, "nested deeper than 32 levels")):
+        with pytest.raises(CampaignError, match=message):
+            Campaign.from_mapping(data)
+
+
+@pytest.mark.parametrize("text", ["{type: engine, speed_setpoint: 80, max_torque: -5}", "{type: engine, governor_gain: -1}"])
+def test_engine_torque_limit_and_gain_are_not_negative(text):
+    """Before: max_torque -5 was taken (the governor's clip(., 0, -5) is -5 N m whatever the speed)."""
+    import yaml
+
+    from belt_drive_ros.core.errors import SceneError
+    from belt_drive_ros.core.sources import make_profile
+
+    with pytest.raises(SceneError, match=r"drive: engine\.(max_torque|governor_gain): must be >= 0, got -"):
+        make_profile(yaml.safe_load(text), "drive")
+
+
+def test_bench_node_writes_nothing_into_the_current_folder_without_out(tmp_path, monkeypatch, capsys):
+    """Before: 'belt-drive bench node' (and node-tick, replay) made docs/bench in the current folder and wrote
+    node.csv and node.md there. Now the figures are printed and tables written only into an --out asked for."""
+    import sys
+    import types
+
+    from belt_drive_ros.commands import bench
+
+    seen = []
+    monkeypatch.setitem(sys.modules, "belt_drive_ros.benchmarks.node", types.SimpleNamespace(main=lambda argv: seen.append(argv) or 0))
+    monkeypatch.setitem(sys.modules, "belt_drive_ros.benchmarks.node_tick", types.SimpleNamespace(main=lambda quick: 0))
+    monkeypatch.setattr(bench, "_single_threaded_blas", lambda: "BLAS as configured (test)")
+    monkeypatch.chdir(tmp_path)
+    assert main(["bench", "node", "--duration", "5"]) == 0 and main(["bench", "node-tick", "--quick"]) == 0
+    assert seen == [["--duration", "5.0"]] and list(tmp_path.iterdir()) == []

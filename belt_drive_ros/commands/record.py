@@ -72,6 +72,13 @@ def run(args) -> int:
     if split and args.out.suffix.lower() == ".mcap":
         raise ParameterError("--out", f"{args.out}: a split recording is a bag folder (NAME/NAME_0.mcap, ...); "
                              "give a folder name without .mcap")
+    if not split:  # a file: a .mcap path in an existing folder (checked before ROS starts)
+        from ..io.atomic import check_output
+
+        if args.out.suffix.lower() != ".mcap":
+            raise ParameterError("--out", f"{args.out}: a recording is an .mcap file (a bag folder, named without "
+                                 ".mcap, with --max-bag-duration or --max-bag-size)")
+        check_output(args.out, force=True, what="--out")  # (an existing file: the writer's own refusal, --force)
     from ..ros.recorder import open_writer
 
     try:
