@@ -41,8 +41,12 @@ class ChunkedTopic:
         self.path, self.topic, self._cids, self._fd = path, topic, cids, None
         self._fd = open_regular(path)  # chunks are read with pread: a mapping would keep every page read resident
         self._offsets = [(int(c.chunk_start_offset), int(c.chunk_length)) for c in chunks]
-        self.starts = np.array([int(c.message_start_time) for c in chunks], dtype=np.int64)
-        self.ends = np.array([int(c.message_end_time) for c in chunks], dtype=np.int64)
+        try:
+            self.starts = np.array([int(c.message_start_time) for c in chunks], dtype=np.int64)
+            self.ends = np.array([int(c.message_end_time) for c in chunks], dtype=np.int64)
+        except OverflowError:
+            self.close()
+            raise CorruptBagError(f"{path}: {topic}'s messages are stamped beyond 2^63 ns (the year 2262)") from None
         self._summary = summary
 
     def __len__(self) -> int:

@@ -214,8 +214,12 @@ class Scan:
             if acc.last is None or log_time > acc.last:
                 acc.last = log_time
             return
-        acc.log.append(log_time)
-        acc.pub.append(pub_time)
+        try:
+            acc.log.append(log_time)
+            acc.pub.append(pub_time)
+        except OverflowError:  # (an int64 array: a time of 2^63 ns or later)
+            raise CorruptBagError(f"{self.name}: a message at byte {start} is stamped {max(log_time, pub_time)} ns, "
+                                  "beyond 2^63 ns (the year 2262)") from None
         if acc.blob is not None:
             acc.blob += buf[start + 22 : end]
             acc.ends.append(len(acc.blob))

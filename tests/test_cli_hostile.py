@@ -149,3 +149,41 @@ def test_bench_node_writes_nothing_into_the_current_folder_without_out(tmp_path,
     monkeypatch.chdir(tmp_path)
     assert main(["bench", "node", "--duration", "5"]) == 0 and main(["bench", "node-tick", "--quick"]) == 0
     assert seen == [["--duration", "5.0"]] and list(tmp_path.iterdir()) == []
+
+
+def _torque_bag(path, samples):
+    """An MCAP of std_msgs/msg/Float64 on /drive_torque: ``samples`` is [(log time [ns], torque [N m])]."""
+    import struct
+
+    from mcap.writer import Writer
+
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start(profile="ros2", library="test")
+        schema = writer.register_schema(name="std_msgs/msg/Float64", encoding="ros2msg", data=b"float64 data\n")
+        channel = writer.register_channel(topic="/drive_torque", message_encoding="cdr", schema_id=schema)
+        for seq, (t, v) in enumerate(samples):
+            writer.add_message(channel_id=channel, log_time=t, publish_time=t, data=b"\0\1\0\0" + struct.pack("<d", v),
+                               sequence=seq)
+        writer.finish()
+    return path
+
+
+@pytest.mark.parametrize("case", ["torque 1e300", "stamped past 2^63 ns"])
+def test_torque_bag_with_absurd_torques_or_times_is_one_line_and_exit_2(case, tmp_path, capsys):
+    """Before: a recorded torque of 1e300 N m ran and exited 1 ('simulation diverged ... reduce dt'); a message
+    stamped at or past 2^63 ns exited 1 with 'internal error: OverflowError' (msg-tools export too)."""
+    from msg_tools.cli import main as msg_tools
+
+    start = 2**63 if case.startswith("stamped") else 10**9
+    samples = [(start + k * 10**6, 1e300 if case == "torque 1e300" and k == 5 else 5.0) for k in range(50)]
+    bag = _torque_bag(tmp_path / "bag.mcap", samples)
+    out = tmp_path / "run.csv"
+    assert main(["sim", "paper", "--torque-bag", str(bag), "--quiet", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and re.search("beyond (the plausible .-1e.06 N m|2.63 ns)", err[0]), err
+    assert not out.exists() and list(tmp_path.iterdir()) == [bag]
+    if case.startswith("stamped"):
+        assert msg_tools(["export", str(bag), "--topic", "/drive_torque", "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "beyond 2^63 ns" in err[0] and not out.exists(), err

@@ -53,7 +53,7 @@ from ..core.inputs import parse_yaml
 from ..core.scene import Scene
 from .recording import APPLIED_TOPIC, RECORDED_DRIVE, SCENE_METADATA, BagReadError, _sha256, bag_error
 from ..core.profile_data import TABLE_HELD_NS
-from ..core.sources import Table, TorqueProfile
+from ..core.sources import TORQUE_MAX, Table, TorqueProfile
 from . import is_recording  # noqa: F401 (defined without mcap, for the sim command's first look)
 
 __all__ = [
@@ -227,6 +227,9 @@ def load_torque_recording(bag, topic: str = DEFAULT_TOPIC, *, keep_payloads: boo
     if not np.all(np.isfinite(values)):
         bad = int(np.count_nonzero(~np.isfinite(values)))
         raise BagReadError(f"{path}: {bad} non-finite value(s) on {name}")
+    if not np.all(np.abs(values) <= TORQUE_MAX):  # (a profile's plausible range: 1e300 N m diverged the run)
+        bad = int(np.count_nonzero(np.abs(values) > TORQUE_MAX))
+        raise BagReadError(f"{path}: {bad} value(s) on {name} beyond the plausible +-{TORQUE_MAX:g} N m")
     if not data.complete:
         text = (f"{path} was not finalized ({data.stop_reason}); "
                 f"using the {len(data)} messages up to its last complete chunk")
@@ -515,7 +518,7 @@ def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Option
         samples, changes, gap, last_t, last_v = 0, False, math.inf, None, None
         for k in range(0, len(chunked), PASS_CHUNKS):
             rel, raw = drive._decode(k, min(len(chunked), k + PASS_CHUNKS))
-            if not np.all(np.isfinite(raw)):
+            if not np.all(np.abs(raw) <= TORQUE_MAX):  # (non-finite too: the whole read names what is wrong)
                 raise LookupError
             times, values = _zoh_table_relative(rel, raw)
             if last_t is not None:  # a widened read repeats what the last one took
