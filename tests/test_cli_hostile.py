@@ -59,6 +59,15 @@ def _cases(tmp):
         "argparse: sim --dt x": (["sim", "paper", "--dt", "x"], r"^belt-drive: error: sim: argument --dt: invalid float value: 'x'"),
         "argparse: source without a kind": (["source"], "source: the following arguments are required: KIND"),
         "argparse: unknown option": (["scenes", "--bogus"], "unrecognized arguments: --bogus"),
+        "sim --out in a folder nothing can be written to": (["sim", "paper", "--quiet", "--duration", "0.01", "--out",
+                                                             "/proc/x.csv"], "--out /proc/x.csv: cannot write into folder /proc"),
+        "sim --plot in a folder nothing can be written to": (["sim", "paper", "--quiet", "--duration", "0.01", "--plot",
+                                                              "/proc/x.png"], "--plot /proc/x.png: cannot write into folder"),
+        "sim --method-option =1": (["sim", "paper", "--quiet", "--duration", "0.01", "--method-option", "=1"],
+                                   "--method-option expects KEY=VALUE, got '=1'"),
+        "sim ''": (["sim", "", "--quiet"], "unknown scene ''"),
+        "scenes ''": (["scenes", ""], "unknown scene ''"),
+        "modes ''": (["modes", ""], "unknown network scene ''"),
     }
 
 
@@ -71,7 +80,8 @@ CASES = [
     "source --harmonics ,,,", "source --harmonics 40,,12", "source --max-torque -5", "source --initial-speed nan",
     "source --initial-speed 1e300", "network sim --method auto", "network sim --method ''", "record --out a folder",
     "record --out x.txt", "record --out in a missing folder", "record --out a folder named .mcap", "argparse: sim --dt x",
-    "argparse: source without a kind", "argparse: unknown option",
+    "argparse: source without a kind", "argparse: unknown option", "sim --out in a folder nothing can be written to",
+    "sim --plot in a folder nothing can be written to", "sim --method-option =1", "sim ''", "scenes ''", "modes ''",
 ]
 
 
@@ -83,7 +93,13 @@ def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tm
     --out says the folder does not exist), bench took a negative or nan --minutes/--seconds/--samples and an
     --out naming a file failed with exit 1 ('[Errno 17] File exists'), urdf wrote the URDF and then the PNG into
     one file, a network sim took any --tolerance (even nan) and ignored it, replay's --rate 0, --sync
-    without --clock and a negative --delay exited 1 (a SystemExit text)."""
+    without --clock and a negative --delay exited 1 (a SystemExit text).
+    Round 2, before: source took --harmonics ',,,' (no harmonics), a negative --max-torque (a constant -5 N m) and
+    --initial-speed nan (it then published nothing); a network sim's --method auto said 'unknown integrator' and
+    --method '' ran the scene's; record --out into a folder, a missing folder or x.txt exited 1 or wrote an MCAP
+    named x.txt; argparse printed its usage block before its error line; an output in a folder nothing can be
+    written to (/proc) ran first and then exited 1; --method-option =1 said 'lawson5: unknown option(s)' naming
+    nothing; an empty scene name read the current folder ('scene file .: a directory') or listed every scene."""
     (tmp_path / "d.mcap").mkdir()
     argv, message = _cases(tmp_path)[case]
     try:

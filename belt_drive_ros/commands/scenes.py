@@ -16,10 +16,10 @@ def run(args) -> int:
     from ..core.scene import load_scene, shipped_scenes
     from ..io.network_plot import describe
 
-    if args.name and is_network(args.name):  # a belt network: its computed geometry
+    if args.name is not None and is_network(args.name):  # a belt network: its computed geometry
         print(describe(load_network(args.name)), end="")
         return 0
-    if args.name:
+    if args.name is not None:  # ('' is an unknown scene, not the list)
         print(load_scene(args.name).to_yaml(), end="")
         return 0
     for name in shipped_scenes():

@@ -100,7 +100,7 @@ def _options(pairs):
     out = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
-        if not sep:
+        if not sep or not key.strip():
             raise IntegratorError(f"--method-option expects KEY=VALUE, got {short(pair)}")
         try:
             out[key] = float(value) if key not in ("max_iter",) else int(value)

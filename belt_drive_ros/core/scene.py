@@ -325,7 +325,7 @@ def load_scene(name_or_path: str | Path) -> Scene:
         raise SceneError(f"scene: expected a name or a path, got {type(name_or_path).__name__} {short(name_or_path)}")
     label = str(name_or_path)
     path = Path(name_or_path)
-    if path.suffix in (".yaml", ".yml") or os.path.lexists(path) or os.sep in label:
+    if label and (path.suffix in (".yaml", ".yml") or os.path.lexists(path) or os.sep in label):  # ('' is Path('.'))
         text, default_name = read_text(path, "scene file"), path.stem
         label = f"scene file {short(label, 200)}"
     else:

@@ -92,6 +92,12 @@ def check_output(path: str | os.PathLike, force: bool = False, what: str = "outp
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise OutputRefused(f"{what} {path}: folder {parent} does not exist")
+    try:  # the temporary file the write will make (a folder of /proc, read-only or full of inodes: refused now)
+        fd, probe = tempfile.mkstemp(dir=parent, prefix=f".{path.name}.", suffix=".part")
+    except OSError as exc:
+        raise OutputRefused(f"{what} {path}: cannot write into folder {parent}: {exc.strerror or exc}") from None
+    os.close(fd)
+    os.unlink(probe)
     return path
 
 

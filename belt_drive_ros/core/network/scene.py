@@ -354,7 +354,7 @@ def load_network(name_or_path: str | Path) -> NetworkScene:
         default, where = label, label
     else:
         path = Path(label)
-        if not (path.suffix in (".yaml", ".yml") or os.path.lexists(path)):
+        if not label or not (path.suffix in (".yaml", ".yml") or os.path.lexists(path)):  # ('' is Path('.'))
             raise SceneError(f"unknown network scene {short(label)}: not a file and not shipped ({', '.join(shipped_networks())})")
         text, default, where = read_text(path, "scene file"), path.stem, f"scene file {short(label, 200)}"
     data = parse_yaml(text, where)
