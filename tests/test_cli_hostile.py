@@ -68,6 +68,11 @@ def _cases(tmp):
         "sim ''": (["sim", "", "--quiet"], "unknown scene ''"),
         "scenes ''": (["scenes", ""], "unknown scene ''"),
         "modes ''": (["modes", ""], "unknown network scene ''"),
+        "node --name 'a b'": (["node", "paper", "--name", "a b"], "node: argument --name: a ROS node name is letters"),
+        "source --name ''": (["source", "engine", "--name", ""], "source engine: argument --name: a ROS node name"),
+        "source --rate 0": (["source", "engine", "--rate", "0"], r"--rate: must be in \[0.1, 20000\] Hz, got 0.0"),
+        "record --topics 'bad topic'": (["record", "--out", str(tmp / "x.mcap"), "--duration", "1", "--topics", "bad topic"],
+                                        "--topics: 'bad topic' is not a topic name"),
     }
 
 
@@ -82,6 +87,7 @@ CASES = [
     "record --out x.txt", "record --out in a missing folder", "record --out a folder named .mcap", "argparse: sim --dt x",
     "argparse: source without a kind", "argparse: unknown option", "sim --out in a folder nothing can be written to",
     "sim --plot in a folder nothing can be written to", "sim --method-option =1", "sim ''", "scenes ''", "modes ''",
+    "node --name 'a b'", "source --name ''", "source --rate 0", "record --topics 'bad topic'",
 ]
 
 
@@ -99,7 +105,9 @@ def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tm
     --method '' ran the scene's; record --out into a folder, a missing folder or x.txt exited 1 or wrote an MCAP
     named x.txt; argparse printed its usage block before its error line; an output in a folder nothing can be
     written to (/proc) ran first and then exited 1; --method-option =1 said 'lawson5: unknown option(s)' naming
-    nothing; an empty scene name read the current folder ('scene file .: a directory') or listed every scene."""
+    nothing; an empty scene name read the current folder ('scene file .: a directory') or listed every scene;
+    node and source took any --name and source any --rate until rclpy refused them as an internal error (exit 1),
+    and record a --topics name rcl refuses, leaving an empty recording behind."""
     (tmp_path / "d.mcap").mkdir()
     argv, message = _cases(tmp_path)[case]
     try:
@@ -110,7 +118,7 @@ def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tm
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("belt-drive: error: "), err
     assert re.search(message, err[0]), err
-    assert not (tmp_path / "missing").exists() and not (tmp_path / "x.txt").exists() and not (tmp_path / "x.csv").exists() and not (tmp_path / "a.png").exists()
+    assert not (tmp_path / "missing").exists() and not (tmp_path / "x.txt").exists() and not (tmp_path / "x.csv").exists() and not (tmp_path / "x.mcap").exists() and not (tmp_path / "a.png").exists()
 
 
 def test_campaign_from_python_takes_numpy_values_and_refuses_other_objects_naming_the_key():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 
 EPILOG = """\
 examples:
@@ -30,6 +31,15 @@ recording it was asked for. A --params-file must be a regular UTF-8 file under
 """
 
 
+def node_name(text: str) -> str:
+    """argparse type of ``--name``: a ROS node name (letters, digits and '_', not starting with a digit), as rcl
+    checks it, without loading ROS (rclpy refused it only when the node was made, as an internal error)."""
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,254}", text):
+        raise argparse.ArgumentTypeError(f"a ROS node name is letters, digits and '_', not starting with a digit, "
+                                         f"got {text[:60]!r}")
+    return text
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "node",
@@ -39,7 +49,7 @@ def register(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("scene", nargs="?", help="shipped scene name or scene YAML (default: parameter 'scene', 'paper')")
-    p.add_argument("--name", default="belt_drive", help="node name (default: belt_drive)")
+    p.add_argument("--name", type=node_name, default="belt_drive", help="node name (default: belt_drive)")
     p.add_argument(
         "--executor", choices=("auto", "events", "single"), default="auto",
         help="rclpy executor: events (rclpy.experimental), single-threaded, or auto (events if available)",

@@ -72,6 +72,15 @@ def run(args) -> int:
     if split and args.out.suffix.lower() == ".mcap":
         raise ParameterError("--out", f"{args.out}: a split recording is a bag folder (NAME/NAME_0.mcap, ...); "
                              "give a folder name without .mcap")
+    from rclpy.exceptions import InvalidTopicNameException
+    from rclpy.validate_topic_name import validate_topic_name
+
+    for flag, names in (("--topics", args.topics), ("--exclude", args.exclude)):
+        for name in names or ():  # (before the writer: a refused name left an empty recording, exit 1)
+            try:
+                validate_topic_name(name)
+            except InvalidTopicNameException as exc:
+                raise ParameterError(flag, f"{name[:80]!r} is not a topic name: {str(exc).splitlines()[0][:200].rstrip(': ')}") from None
     if not split:  # a file: a .mcap path in an existing folder (checked before ROS starts)
         from ..io.atomic import check_output
 

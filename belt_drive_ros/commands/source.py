@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .node import node_name
+
 EPILOG = """\
 examples:
   belt-drive source engine --scene truck_compressor        # the scene's diesel, governor closes the loop
@@ -44,7 +46,7 @@ def _curve(text: str) -> tuple:
 def _common(p) -> None:
     p.add_argument("--rate", type=float, default=1000.0, help="publish rate [Hz] (default 1000)")
     p.add_argument("--initial-speed", type=float, help="wheel-M speed [rad/s] assumed before the first shaft_speed (default: the scene's or 0)")
-    p.add_argument("--name", default="torque_source", help="node name (default: torque_source)")
+    p.add_argument("--name", type=node_name, default="torque_source", help="node name (default: torque_source)")
     p.add_argument("--executor", choices=("auto", "events", "single"), default="auto", help="rclpy executor (default auto)")
     p.add_argument("--print", dest="print_only", action="store_true", help="print the profile as YAML and exit (no ROS)")
     p.add_argument("--ros-args", dest="ros_args", nargs=argparse.REMAINDER, default=None, help="ROS arguments (-p, -r, --params-file)")
@@ -201,7 +203,13 @@ def run(args) -> int:
 
         print(yaml.safe_dump({"drive": profile.to_dict(), "initial_speed": initial_speed}, sort_keys=False), end="")
         return 0
+    from ..ros.source_node import RATE_RANGE
     from ..ros.source_node import run as run_source
+
+    if not RATE_RANGE[0] <= args.rate <= RATE_RANGE[1]:  # (rclpy's own refusal was an internal error)
+        from ..core.errors import InputError
+
+        raise InputError(f"--rate: must be in [{RATE_RANGE[0]:g}, {RATE_RANGE[1]:g}] Hz, got {args.rate!r}")
 
     ros_args = ["--ros-args", *args.ros_args] if args.ros_args else []
     return run_source(profile, ros_args, rate_hz=args.rate, initial_speed=initial_speed, executor=args.executor, node_name=args.name)
