@@ -73,6 +73,8 @@ def _cases(tmp):
         "source --rate 0": (["source", "engine", "--rate", "0"], r"--rate: must be in \[0.1, 20000\] Hz, got 0.0"),
         "record --topics 'bad topic'": (["record", "--out", str(tmp / "x.mcap"), "--duration", "1", "--topics", "bad topic"],
                                         "--topics: 'bad topic' is not a topic name"),
+        "demo --scene paper (a motor)": (["demo", "--scene", "paper", "--no-offline", "--no-network", "--out-dir", str(tmp)],
+                                         "--scene paper: the live run drives the belt by the scene's engine; .* 'motor'"),
     }
 
 
@@ -87,7 +89,7 @@ CASES = [
     "record --out x.txt", "record --out in a missing folder", "record --out a folder named .mcap", "argparse: sim --dt x",
     "argparse: source without a kind", "argparse: unknown option", "sim --out in a folder nothing can be written to",
     "sim --plot in a folder nothing can be written to", "sim --method-option =1", "sim ''", "scenes ''", "modes ''",
-    "node --name 'a b'", "source --name ''", "source --rate 0", "record --topics 'bad topic'",
+    "node --name 'a b'", "source --name ''", "source --rate 0", "record --topics 'bad topic'", "demo --scene paper (a motor)",
 ]
 
 
@@ -107,7 +109,8 @@ def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tm
     written to (/proc) ran first and then exited 1; --method-option =1 said 'lawson5: unknown option(s)' naming
     nothing; an empty scene name read the current folder ('scene file .: a directory') or listed every scene;
     node and source took any --name and source any --rate until rclpy refused them as an internal error (exit 1),
-    and record a --topics name rcl refuses, leaving an empty recording behind."""
+    and record a --topics name rcl refuses, leaving an empty recording behind; demo --scene paper (a motor) started
+    its ROS nodes before it refused the scene."""
     (tmp_path / "d.mcap").mkdir()
     argv, message = _cases(tmp_path)[case]
     try:

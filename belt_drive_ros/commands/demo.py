@@ -51,6 +51,13 @@ def run(args) -> int:
     if args.out_dir.exists() and not args.out_dir.is_dir():
         raise OutputRefused(f"--out-dir {args.out_dir}: exists and is not a folder")
     if not args.no_live:
+        from ..core.errors import SceneError
+        from ..core.scene import load_scene
+
+        drive = load_scene(args.scene).drive.kind  # (refused before any node starts, not after their start-up logs)
+        if drive != "engine":
+            raise SceneError(f"--scene {args.scene[:80]}: the live run drives the belt by the scene's engine; its drive "
+                             f"is a {drive!r} profile (an engine scene: truck_compressor)")
         live_run(args.scene, args.duration, args.executor)
     code = 0
     if not args.no_offline:
