@@ -214,3 +214,29 @@ def test_torque_bag_with_absurd_torques_or_times_is_one_line_and_exit_2(case, tm
         assert msg_tools(["export", str(bag), "--topic", "/drive_torque", "--out", str(out)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "beyond 2^63 ns" in err[0] and not out.exists(), err
+
+
+def test_harness_parameters_numpy_unknown_huge_and_advance_bounds():
+    """Before: BeltDriveHarness(bogus_param=1) ran, the parameter silently dropped by rclpy; k=10**400 raised
+    SystemError from rclpy's conversion; numpy scalars (np.float32, np.int64) raised TypeError in the constructor
+    and set_parameters; set_parameters(bogus=1) raised ParameterNotDeclaredException ('[]'); advance(nan) said
+    'cannot convert float NaN to integer' and advance(1e9) ran for days."""
+    import numpy as np
+
+    from belt_drive_ros.ros.parameter_schema import NodeConfigError
+    from belt_drive_ros.testing import BeltDriveHarness
+
+    for params, message in (({"bogus_param": 1}, "bogus_param: not a parameter of the node"),
+                            ({"k": 10**400}, "k: an integer beyond 2.63")):
+        with pytest.raises(NodeConfigError, match=message):
+            BeltDriveHarness(scene="paper", **params).start()
+    with BeltDriveHarness(scene="paper", model="flexible", method="exact", substeps=np.int64(1), k=np.float32(2.0e4)) as h:
+        assert h.node.get_parameter("k").value == 2.0e4
+        result = h.set_parameters(bogus=1)
+        assert not result.successful and result.reason == "bogus: not a parameter of the node"
+        assert h.set_parameters(k=np.float64(2.1e4), step_rate_hz=np.int64(1000)).successful
+        for seconds in (float("nan"), 1e9, -1.0):
+            with pytest.raises(ValueError, match="advance: seconds must be >= 0 and at most 1e7"):
+                h.advance(seconds)
+        h.advance(np.float64(0.005))
+        assert len(h.outputs()["shaft_speed"]) >= 5

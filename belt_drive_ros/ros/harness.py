@@ -67,7 +67,10 @@ from std_srvs.srv import Trigger  # noqa: E402
 
 from .executors import make_executor  # noqa: E402
 from .node import NODE_NAME, OUTPUT_TOPICS, SLIP_OUTPUT_TOPICS, BeltDriveNode  # noqa: E402
+from ..core.inputs import real  # noqa: E402
 from ..core.sources import TorqueProfile  # noqa: E402
+from .parameter_schema import NodeConfigError  # noqa: E402
+from rcl_interfaces.msg import SetParametersResult  # noqa: E402
 
 #: the probe keeps everything it receives between drains
 _PROBE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
@@ -184,7 +187,7 @@ class BeltDriveHarness:
 
     def _start_nodes(self) -> None:
         ctx, ns = self.context, self.namespace
-        overrides = [Parameter(k, value=v) for k, v in self.params.items()]
+        overrides = _parameters(self.params)
         overrides.append(Parameter("use_sim_time", value=bool(self.use_sim_time)))
         self.node = BeltDriveNode(
             self.node_name,
@@ -194,6 +197,9 @@ class BeltDriveHarness:
             parameter_overrides=overrides,
             cli_args=self.ros_args or None,
         )
+        unknown = [name for name in self.params if not self.node.has_parameter(name)]  # (rclpy drops them silently)
+        if unknown:
+            raise NodeConfigError(unknown[0], "not a parameter of the node (belt-drive node --list-parameters)")
         self.probe = Node("belt_drive_harness", context=ctx, namespace=ns)
         p = self.probe
         self._pub_torque = p.create_publisher(Float64, "drive_torque", _PUB_QOS)
@@ -345,8 +351,8 @@ class BeltDriveHarness:
         shorter increment lands on the target), each one processed before
         the next. Real time: spin for ``seconds`` of wall time.
         """
-        if seconds < 0:
-            raise ValueError("advance: seconds must be >= 0")
+        if not 0 <= seconds <= 1.0e7:  # (nan, inf, and more than 1e7 s: a sim's longest run)
+            raise ValueError(f"advance: seconds must be >= 0 and at most 1e7, got {seconds!r}")
         if not self.use_sim_time:
             end = time.monotonic() + seconds
             while time.monotonic() < end:
@@ -427,7 +433,14 @@ class BeltDriveHarness:
 
     def set_parameters(self, **params: Any):
         """Set node parameters atomically; returns the ``SetParametersResult`` (``.successful``, ``.reason``)."""
-        return self.node.set_parameters_atomically([Parameter(k, value=v) for k, v in params.items()])
+        unknown = [name for name in params if not self.node.has_parameter(name)]
+        if unknown:  # an answer with its reason, as for every other refusal (rclpy raised ParameterNotDeclaredException)
+            return SetParametersResult(successful=False, reason=f"{unknown[0]}: not a parameter of the node")
+        try:
+            parameters = _parameters(params)
+        except NodeConfigError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return self.node.set_parameters_atomically(parameters)
 
     def set_parameters_over_the_service(self, **params: Any) -> list:
         """Set node parameters as another process would: a ``SetParameters`` request from the probe
@@ -438,8 +451,7 @@ class BeltDriveHarness:
         client = self.probe.create_client(SetParameters, f"{self.node.get_fully_qualified_name()}/set_parameters")
         try:
             self._spin_until(client.service_is_ready, "the set_parameters service")
-            request = SetParameters.Request(parameters=[Parameter(k, value=v).to_parameter_msg()
-                                                        for k, v in params.items()])
+            request = SetParameters.Request(parameters=[p.to_parameter_msg() for p in _parameters(params)])
             future = client.call_async(request)
             self._spin_until(future.done, f"SetParameters({', '.join(params)}) to return", timeout=20.0)
             return list(future.result().results)
@@ -453,3 +465,18 @@ class BeltDriveHarness:
         self._spin_until(future.done, "~/reset")
         self._spin_until(lambda: self._received_all() or self.node.counters["published"] == published, "reset outputs")
         return future.result().message
+
+
+def _parameters(params: dict) -> list:
+    """``rclpy`` Parameters of ``name=value`` pairs, numpy scalars as Python numbers (rclpy refuses
+    ``np.float32``/``np.int64`` with a TypeError); an integer beyond int64 is a :class:`NodeConfigError` naming the
+    parameter (rclpy's conversion failed with a SystemError)."""
+    out = []
+    for name, value in params.items():
+        number = real(value)
+        if number is not None:
+            value = number
+        if isinstance(value, int) and not isinstance(value, bool) and not -(2**63) <= value < 2**63:
+            raise NodeConfigError(name, "an integer beyond 2^63")
+        out.append(Parameter(name, value=value))
+    return out
