@@ -111,6 +111,11 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # noqa: BLE001 - one line, never a traceback (BELT_DRIVE_DEBUG=1 shows it)
         if os.environ.get("BELT_DRIVE_DEBUG"):
             raise
+        # rclpy's refusals of --ros-args (its exception types have no public import path)
+        if type(exc).__name__ == "UnknownROSArgsError":
+            return _fail(f"--ros-args: unknown ROS arguments {exc}", 2)
+        if type(exc).__name__ == "RCLError" and "failed to initialize rcl" in str(exc):
+            return _fail(f"--ros-args: refused by rcl: {str(exc).split(', at /')[0]}", 2)
         return _fail(f"internal error: {type(exc).__name__}: {exc} (BELT_DRIVE_DEBUG=1 shows the traceback)", 1)
 
 

@@ -75,6 +75,9 @@ def _cases(tmp):
                                         "--topics: 'bad topic' is not a topic name"),
         "demo --scene paper (a motor)": (["demo", "--scene", "paper", "--no-offline", "--no-network", "--out-dir", str(tmp)],
                                          "--scene paper: the live run drives the belt by the scene's engine; .* 'motor'"),
+        "record --ros-args --bogus": (["record", "--out", str(tmp / "x.mcap"), "--duration", "1", "--ros-args", "--bogus"],
+                                      r"--ros-args: unknown ROS arguments \['--bogus'\]"),
+        "source --ros-args -p": (["source", "engine", "--ros-args", "-p"], "--ros-args: refused by rcl: .*-p"),
     }
 
 
@@ -90,6 +93,7 @@ CASES = [
     "argparse: source without a kind", "argparse: unknown option", "sim --out in a folder nothing can be written to",
     "sim --plot in a folder nothing can be written to", "sim --method-option =1", "sim ''", "scenes ''", "modes ''",
     "node --name 'a b'", "source --name ''", "source --rate 0", "record --topics 'bad topic'", "demo --scene paper (a motor)",
+    "record --ros-args --bogus", "source --ros-args -p",
 ]
 
 
@@ -110,7 +114,8 @@ def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tm
     nothing; an empty scene name read the current folder ('scene file .: a directory') or listed every scene;
     node and source took any --name and source any --rate until rclpy refused them as an internal error (exit 1),
     and record a --topics name rcl refuses, leaving an empty recording behind; demo --scene paper (a motor) started
-    its ROS nodes before it refused the scene."""
+    its ROS nodes before it refused the scene; --ros-args that rclpy refuses were an internal error (exit 1), and
+    record left an empty recording behind."""
     (tmp_path / "d.mcap").mkdir()
     argv, message = _cases(tmp_path)[case]
     try:

@@ -52,6 +52,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    import contextlib
+    import os
     import signal
     import sys
 
@@ -147,11 +149,14 @@ def run(args) -> int:
     finally:
         if recorder is not None:
             recorder.close()
-        else:
+        else:  # ROS never started (--ros-args refused ...): nothing recorded, no empty recording left behind
             try:
                 writer.finish()
             except MsgToolsError:
                 pass
+            if not split:
+                with contextlib.suppress(OSError):
+                    os.unlink(args.out)
     if recorder.failed:
         raise BagWriteError(str(recorder.error), getattr(recorder.error, "errno", None))
     counts = writer.topic_counts()
