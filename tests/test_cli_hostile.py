@@ -132,7 +132,9 @@ def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tm
 def test_campaign_from_python_takes_numpy_values_and_refuses_other_objects_naming_the_key():
     """Before: an np.float64 grid value or tolerance raised yaml's RepresenterError (the campaign's text is its
     YAML dump), an np.int64 grid value became the JSON text '20000' in the variant table, and a structure that
-    holds itself recursed until RecursionError."""
+    holds itself recursed until RecursionError; an integer beyond 2^63 in a grid or as the seed raised
+    OverflowError, 1e300 samples numpy's ValueError, and a profile given as a number (a constant, as a scene takes
+    it) a TypeError in scene_of."""
     import numpy as np
 
     from belt_drive_ros.campaign.spec import Campaign, CampaignError
@@ -149,9 +151,19 @@ def test_campaign_from_python_takes_numpy_values_and_refuses_other_objects_namin
     loop["set"] = loop
     for data, message in (({"scene": "paper", "set": {"dt": object()}}, "set.dt: object .* is not a campaign value"),
                           ({"scene": "paper", "grid": {"params.k": [1j]}}, r"grid.params.k\[0\]: complex"),
-                          ({"scene": "paper", "set": loop}, "nested deeper than 32 levels")):
+                          ({"scene": "paper", "set": loop}, "nested deeper than 32 levels"),
+                          ({"scene": "paper", "grid": {"params.k": [10**400]}}, r"grid.params.k\[0\]: an integer beyond 2\^63"),
+                          ({"scene": "paper", "monte_carlo": {"samples": 2, "seed": 10**400, "vary": {"c": {"normal": 0.1}}}},
+                           "monte_carlo.seed: an integer beyond 2\\^63")):
         with pytest.raises(CampaignError, match=message):
             Campaign.from_mapping(data)
+    with pytest.raises(CampaignError, match="monte_carlo.samples: 1e.300 is outside"):
+        Campaign.from_mapping({"scene": "paper", "monte_carlo": {"samples": 1e300, "vary": {"c": {"normal": 0.1}}}})
+    huge = Campaign.from_mapping({"scene": "paper", "monte_carlo": {"samples": 10**12, "vary": {"c": {"normal": 0.1}}}})
+    with pytest.raises(CampaignError, match="1e.12 variants, more than the 1,000,000 variants one campaign may hold"):
+        huge.variants()  # (numpy's 'Maximum allowed size exceeded', or all memory)
+    constant = Campaign.from_mapping({"scene": "paper", "profiles": [{"load": 3.0}, {"load": np.float32(4.0)}]})
+    assert [constant.scene_of(row).load.value for row in constant.variants().to_dict("records")] == [3.0, 4.0]
 
 
 @pytest.mark.parametrize("text", ["{type: engine, speed_setpoint: 80, max_torque: -5}", "{type: engine, governor_gain: -1}"])

@@ -244,6 +244,8 @@ class Campaign:
                     make_profile(spec, role)  # validated here, by the profile's own rules
                 except BeltDriveError as exc:
                     raise CampaignError(f"profiles[{j}].{exc}") from None
+                if not isinstance(spec, Mapping):  # a number: a constant (scene_of merges grid fields into a mapping)
+                    entry[role] = {"type": "constant", "value": spec}
         mc = _mapping(data, "monte_carlo")
         bad = unknown_key(mc, ("samples", "seed", "vary"))
         if bad:
@@ -251,7 +253,7 @@ class Campaign:
         samples = seed = 0
         vary = {}
         if mc:
-            samples = number(mc.get("samples"), "monte_carlo.samples", low=1, integer=True, error=CampaignError)
+            samples = number(mc.get("samples"), "monte_carlo.samples", low=1, high=MAX_SEED, integer=True, error=CampaignError)
             seed = number(mc.get("seed", 0), "monte_carlo.seed", low=0, high=MAX_SEED, integer=True, error=CampaignError)
             entries = _key_paths(_mapping(mc, "vary", "monte_carlo."), "monte_carlo.vary.")
             vary = {path: Distribution.parse(given, spec) for path, given, spec in entries}
@@ -332,6 +334,11 @@ class Campaign:
         if self.fleet_folder is not None:
             names = [name for role, name, *_ in self.fleet_state if role == "recording"]
             return pd.DataFrame({"variant": np.arange(len(names)), "recording": pd.Series(names, dtype=object)})
+        from .limits import MAX_VARIANTS
+
+        if self.size > MAX_VARIANTS:  # (numpy's own refusal: 'Maximum allowed size exceeded', or memory)
+            raise CampaignError(f"campaign: {self.size:.3g} variants, more than the {MAX_VARIANTS:,} variants one campaign "
+                                "may hold")
         lengths = [len(v) for v in self.grid.values()]
         profiles = len(self.profiles)
         samples = self.samples if self.vary else 1
@@ -436,6 +443,8 @@ def _plain(value, where: str, depth: int = 0):
     if isinstance(value, np.generic) and not isinstance(value, np.number):  # np.bool_, np.str_
         return value.item()
     number = real(value)
+    if isinstance(number, int) and abs(number) > 2**63:  # (no float holds it: a grid column or seed overflowed)
+        raise CampaignError(f"{label}: an integer beyond 2^63")
     if number is not None:  # (np.float64 is a float: made one)
         return float(number) if isinstance(number, float) else int(number)
     if isinstance(value, Mapping):  # (a key stays as it is: the checks below refuse a key that is not text)
