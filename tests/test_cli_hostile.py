@@ -195,8 +195,9 @@ def test_bench_node_writes_nothing_into_the_current_folder_without_out(tmp_path,
     assert seen == [["--duration", "5.0"]] and list(tmp_path.iterdir()) == []
 
 
-def _torque_bag(path, samples):
-    """An MCAP of std_msgs/msg/Float64 on /drive_torque: ``samples`` is [(log time [ns], torque [N m])]."""
+def _torque_bag(path, samples, scene_yaml=None):
+    """An MCAP of std_msgs/msg/Float64 on /drive_torque: ``samples`` is [(log time [ns], torque [N m])]; with
+    ``scene_yaml``, a ``scene`` metadata record as belt_drive_ros writes one."""
     import struct
 
     from mcap.writer import Writer
@@ -209,6 +210,8 @@ def _torque_bag(path, samples):
         for seq, (t, v) in enumerate(samples):
             writer.add_message(channel_id=channel, log_time=t, publish_time=t, data=b"\0\1\0\0" + struct.pack("<d", v),
                                sequence=seq)
+        if scene_yaml is not None:
+            writer.add_metadata("scene", {"yaml": scene_yaml})
         writer.finish()
     return path
 
@@ -257,3 +260,23 @@ def test_harness_parameters_numpy_unknown_huge_and_advance_bounds():
                 h.advance(seconds)
         h.advance(np.float64(0.005))
         assert len(h.outputs()["shaft_speed"]) >= 5
+
+
+@pytest.mark.parametrize("target", ["/dev/zero", "a FIFO"])
+def test_recording_whose_scene_names_a_device_or_fifo_as_its_torque_bag_is_refused_not_hashed_forever(target, tmp_path, capsys):
+    """Before: 'belt-drive sim REC.mcap' of a recording whose scene record names /dev/zero (or a FIFO) as the bag
+    its torque was recorded in hashed it to check its sha256: it never ended (a FIFO: blocked in open)."""
+    import os
+
+    import yaml
+
+    from belt_drive_ros.core.scene import load_scene
+
+    if target == "a FIFO":
+        os.mkfifo(tmp_path / "fifo.mcap")
+        target = "fifo.mcap"
+    scene = dict(load_scene("paper").to_dict(), drive={"type": "recorded", "bag": target, "sha256": "0" * 64})
+    rec = _torque_bag(tmp_path / "rec.mcap", [(10**9 + k * 10**6, 5.0) for k in range(20)], yaml.safe_dump(scene))
+    assert main(["sim", str(rec), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and re.search("the recorded torque bag .*(a character device|a FIFO)", err[0]), err

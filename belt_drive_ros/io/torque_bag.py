@@ -49,7 +49,7 @@ from mcap.exceptions import McapError
 from msg_tools.errors import MsgToolsError, RecoveredBagWarning
 
 from ..core.errors import BeltDriveError, InputError
-from ..core.inputs import parse_yaml
+from ..core.inputs import check_path, parse_yaml
 from ..core.scene import Scene
 from .recording import APPLIED_TOPIC, RECORDED_DRIVE, SCENE_METADATA, BagReadError, _sha256, bag_error
 from ..core.profile_data import TABLE_HELD_NS
@@ -639,6 +639,10 @@ def scene_from_bag(path, *, torque_bag=None):
                 f"{name}: the drive torque was recorded in {ref}, which is not next to it "
                 "(pass torque_bag=... / --torque-bag)"
             )
+        try:  # (the stored name could be /dev/zero or a FIFO: hashing it never ended)
+            check_path(source, "the recorded torque bag", folder=True)
+        except InputError as exc:
+            raise BagReadError(f"{name}: {exc}") from None
         expected = reference.get("sha256")
         if expected and ref not in ("", "self") and _sha256(source) != expected:
             raise BagReadError(
