@@ -78,6 +78,11 @@ def _cases(tmp):
         "record --ros-args --bogus": (["record", "--out", str(tmp / "x.mcap"), "--duration", "1", "--ros-args", "--bogus"],
                                       r"--ros-args: unknown ROS arguments \['--bogus'\]"),
         "source --ros-args -p": (["source", "engine", "--ros-args", "-p"], "--ros-args: refused by rcl: .*-p"),
+        "bench node --scene nonexistent": (["bench", "node", "--scene", "nonexistent", "--duration", "1"],
+                                           "unknown scene 'nonexistent'"),
+        "bench node -p garbage": (["bench", "node", "-p", "garbage", "--duration", "1"], "-p 'garbage': a node parameter is NAME:=VALUE"),
+        "bench hostile --only nonexistent": (["bench", "hostile", "--only", "nonexistent", "--out", str(tmp)],
+                                             "--only: categories of 'bench hostile' .*got 'nonexistent'"),
     }
 
 
@@ -93,7 +98,8 @@ CASES = [
     "argparse: source without a kind", "argparse: unknown option", "sim --out in a folder nothing can be written to",
     "sim --plot in a folder nothing can be written to", "sim --method-option =1", "sim ''", "scenes ''", "modes ''",
     "node --name 'a b'", "source --name ''", "source --rate 0", "record --topics 'bad topic'", "demo --scene paper (a motor)",
-    "record --ros-args --bogus", "source --ros-args -p",
+    "record --ros-args --bogus", "source --ros-args -p", "bench node --scene nonexistent", "bench node -p garbage",
+    "bench hostile --only nonexistent",
 ]
 
 
@@ -115,7 +121,8 @@ def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tm
     node and source took any --name and source any --rate until rclpy refused them as an internal error (exit 1),
     and record a --topics name rcl refuses, leaving an empty recording behind; demo --scene paper (a motor) started
     its ROS nodes before it refused the scene; --ros-args that rclpy refuses were an internal error (exit 1), and
-    record left an empty recording behind."""
+    record left an empty recording behind; bench node with an unknown scene or a -p without ':=' started its child and
+    failed with an internal error; bench hostile --only of an unknown category printed a usage block."""
     (tmp_path / "d.mcap").mkdir()
     argv, message = _cases(tmp_path)[case]
     try:

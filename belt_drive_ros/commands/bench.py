@@ -148,8 +148,32 @@ def _check_options(args) -> None:
         value = getattr(args, name)
         if value is not None and not 0 < value <= top:
             raise InputError(f"--{name}: must be > 0 and at most {top:g}, got {value!r}")
+    if args.only:  # (hostile's own parser printed its usage block)
+        from ..benchmarks.hostile import CATEGORIES
+
+        unknown = [name for name in args.only if name not in CATEGORIES]
+        if args.study != "hostile" or unknown:
+            raise InputError(f"--only: categories of 'bench hostile' ({', '.join(CATEGORIES)}), got "
+                             f"{(unknown or args.only)[0][:60]!r}" + ("" if args.study == "hostile" else f" for 'bench {args.study}'"))
     if args.out is not None and args.out.exists() and not args.out.is_dir():
         raise InputError(f"--out {args.out}: exists and is not a folder")
+
+
+def _check_node_options(args) -> None:
+    """``bench node``'s -p (NAME:=VALUE) and its scene, checked before the node's child process starts (its exit
+    was an internal error, exit 1)."""
+    from ..core.errors import InputError
+    from ..core.network.scene import is_network, load_network
+    from ..core.scene import load_scene
+
+    scenes = [args.scene] if args.scene is not None else []
+    for param in args.param:
+        name, sep, value = param.partition(":=")
+        if not sep or not name.strip():
+            raise InputError(f"-p {param[:80]!r}: a node parameter is NAME:=VALUE")
+        scenes += [value.strip()] if name.strip() == "scene" else []
+    for scene in scenes:
+        (load_network if is_network(scene) else load_scene)(scene)
 
 
 def run(args) -> int:
@@ -157,6 +181,7 @@ def run(args) -> int:
     _check_options(args)
     blas = _single_threaded_blas()
     if args.study == "node":  # (figures printed; node.csv and node.md only into a folder asked for)
+        _check_node_options(args)
         extra = ["--duration", repr(args.duration)] + (["--floor"] if args.floor else [])
         extra += ["--scene", args.scene] if args.scene else []
         return _run_node(args.out, args.quick, extra + [a for param in args.param for a in ("-p", param)])
