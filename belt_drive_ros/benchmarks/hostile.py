@@ -403,6 +403,19 @@ def run_cli(table: Table, tmp: Path, quick: bool) -> None:
         (["sim", "paper", *short, "--method", "nope"], True),
         (["sim", "paper", *short, "--model", "nope"], True),
     ]
+    cases += [  # round 2: other commands, refused before anything runs (labelled with their command)
+        (["sim", "paper", *short, "--out", "/proc/x.csv"], True),
+        (["sim", "paper", *short, "--method-option", "=1"], True),
+        (["sim", "", "--quiet"], True),
+        (["sim", "fead_i4", *short, "--method", "auto"], True),
+        (["scenes", ""], True),
+        (["source", "engine", "--harmonics", ",,,", "--print"], True),
+        (["source", "engine", "--max-torque", "-5", "--print"], True),
+        (["source", "engine", "--initial-speed", "nan", "--print"], True),
+        (["node", "paper", "--name", "a b"], True),
+        (["record", "--out", tmp / "x.txt", "--duration", "1"], True),
+        (["bench", "hostile", "--only", "nope", "--out", tmp / "bench"], True),
+    ]
     for argv, must_fail in cases:
         status, _, err = _call(main, argv)
         outcome = _classify_cli(status, err, "belt-drive: error: ", must_fail)
@@ -413,7 +426,7 @@ def run_cli(table: Table, tmp: Path, quick: bool) -> None:
         leftovers = [p.name for p in tmp.iterdir() if p.name.endswith(".part")]
         if leftovers:
             outcome = "data lost"
-        table.add("cli", outcome, " ".join(str(a) for a in argv[1:]), err)
+        table.add("cli", outcome, " ".join(str(a) for a in (argv[1:] if argv[0] == "sim" and argv[1] == "paper" else argv)), err)
     if not quick:
         for sig in (signal.SIGTERM, signal.SIGINT):
             label, outcome, note = _signalled_run(tmp, sig)
