@@ -81,6 +81,9 @@ def _cases(tmp):
         "bench node --scene nonexistent": (["bench", "node", "--scene", "nonexistent", "--duration", "1"],
                                            "unknown scene 'nonexistent'"),
         "bench node -p garbage": (["bench", "node", "-p", "garbage", "--duration", "1"], "-p 'garbage': a node parameter is NAME:=VALUE"),
+        "bench --out in /proc": (["bench", "stability", "--quick", "--out", "/proc/b"], "--out /proc/b: cannot make the folder"),
+        "demo --out-dir in /proc": (["demo", "--out-dir", "/proc/d", "--duration", "1", "--scene", "truck_compressor"],
+                                    "--out-dir /proc/d: cannot make the folder"),
         "bench hostile --only nonexistent": (["bench", "hostile", "--only", "nonexistent", "--out", str(tmp)],
                                              "--only: categories of 'bench hostile' .*got 'nonexistent'"),
     }
@@ -99,7 +102,7 @@ CASES = [
     "sim --plot in a folder nothing can be written to", "sim --method-option =1", "sim ''", "scenes ''", "modes ''",
     "node --name 'a b'", "source --name ''", "source --rate 0", "record --topics 'bad topic'", "demo --scene paper (a motor)",
     "record --ros-args --bogus", "source --ros-args -p", "bench node --scene nonexistent", "bench node -p garbage",
-    "bench hostile --only nonexistent",
+    "bench hostile --only nonexistent", "bench --out in /proc", "demo --out-dir in /proc",
 ]
 
 
@@ -122,7 +125,8 @@ def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tm
     and record a --topics name rcl refuses, leaving an empty recording behind; demo --scene paper (a motor) started
     its ROS nodes before it refused the scene; --ros-args that rclpy refuses were an internal error (exit 1), and
     record left an empty recording behind; bench node with an unknown scene or a -p without ':=' started its child and
-    failed with an internal error; bench hostile --only of an unknown category printed a usage block."""
+    failed with an internal error; bench hostile --only of an unknown category printed a usage block; a bench --out or
+    demo --out-dir that cannot be made said '[Errno 2] ...' naming no option (demo: after its 4 s live run)."""
     (tmp_path / "d.mcap").mkdir()
     argv, message = _cases(tmp_path)[case]
     try:

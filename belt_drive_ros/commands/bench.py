@@ -194,7 +194,12 @@ def run(args) -> int:
 
         return replay.main(args.minutes if not args.quick else 1.0, baseline=args.baseline)
     out: Path = args.out if args.out is not None else Path("docs/bench")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        from ..io.atomic import OutputRefused
+
+        raise OutputRefused(f"--out {out}: cannot make the folder: {exc.strerror or exc}") from None
     print(f"bench {args.study}: writing into {out.resolve()}", flush=True)
     if args.study == "soak":
         from ..benchmarks import soak

@@ -50,6 +50,11 @@ def run(args) -> int:
         raise ParameterError("--duration", f"must be finite and > 0 s, got {args.duration!r}")
     if args.out_dir.exists() and not args.out_dir.is_dir():
         raise OutputRefused(f"--out-dir {args.out_dir}: exists and is not a folder")
+    if not (args.no_offline and args.no_network):  # (made before the live run: a folder that cannot be is refused now)
+        try:
+            args.out_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputRefused(f"--out-dir {args.out_dir}: cannot make the folder: {exc.strerror or exc}") from None
     if not args.no_live:
         from ..core.errors import SceneError
         from ..core.scene import load_scene
@@ -63,7 +68,6 @@ def run(args) -> int:
     if not args.no_offline:
         from .sim import run as run_sim
 
-        args.out_dir.mkdir(parents=True, exist_ok=True)
         print("\n== offline: the paper scene, rigid and flexible ==")
         ns = argparse.Namespace(
             scene="paper", model=None, method=None, method_option=[], dt=None, duration=None,
@@ -74,7 +78,6 @@ def run(args) -> int:
     if not args.no_network and code == 0:
         from .network_sim import demo_network
 
-        args.out_dir.mkdir(parents=True, exist_ok=True)
         print("\n== offline: the serpentine FEAD fead_i4 (belt network), what each pulley did ==")
         demo_network("fead_i4", args.out_dir / "fead_i4.mcap")
     return code
