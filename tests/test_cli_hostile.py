@@ -35,6 +35,8 @@ def _cases(tmp):
         "replay --rate 0": (["replay", str(a_file), "--rate", "0"], "--rate: must be finite and > 0"),
         "replay --rate inf": (["replay", str(a_file), "--rate", "inf"], "--rate: must be finite and > 0"),
         "replay --sync without --clock": (["replay", str(a_file), "--sync", "/joint_states"], "--sync: needs --clock"),
+        "replay --start-offset nan": (["replay", str(a_file), "--start-offset", "nan"], "--start-offset: must be finite and >= 0 s"),
+        "replay --wait-subscribers -1": (["replay", str(a_file), "--wait-subscribers", "-1"], "--wait-subscribers: must be >= 0"),
         "replay --delay -1": (["replay", str(a_file), "--delay", "-1"], "--delay: must be finite and >= 0 s"),
         "modes same PNG twice": (["modes", "fead_i4", "--campbell", str(tmp / "a.png"), "--runup", str(tmp / "a.png")],
                                  "--campbell and --runup name the same file"),
@@ -102,7 +104,8 @@ CASES = [
     "sim --plot in a folder nothing can be written to", "sim --method-option =1", "sim ''", "scenes ''", "modes ''",
     "node --name 'a b'", "source --name ''", "source --rate 0", "record --topics 'bad topic'", "demo --scene paper (a motor)",
     "record --ros-args --bogus", "source --ros-args -p", "bench node --scene nonexistent", "bench node -p garbage",
-    "bench hostile --only nonexistent", "bench --out in /proc", "demo --out-dir in /proc",
+    "bench hostile --only nonexistent", "bench --out in /proc", "demo --out-dir in /proc", "replay --start-offset nan",
+    "replay --wait-subscribers -1",
 ]
 
 
@@ -126,7 +129,8 @@ def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tm
     its ROS nodes before it refused the scene; --ros-args that rclpy refuses were an internal error (exit 1), and
     record left an empty recording behind; bench node with an unknown scene or a -p without ':=' started its child and
     failed with an internal error; bench hostile --only of an unknown category printed a usage block; a bench --out or
-    demo --out-dir that cannot be made said '[Errno 2] ...' naming no option (demo: after its 4 s live run)."""
+    demo --out-dir that cannot be made said '[Errno 2] ...' naming no option (demo: after its 4 s live run); replay
+    took --wait-subscribers -1 and checked --start-offset only after reading the whole bag."""
     (tmp_path / "d.mcap").mkdir()
     argv, message = _cases(tmp_path)[case]
     try:

@@ -68,6 +68,10 @@ def run(args) -> int:
         raise ParameterError("--sync", "needs --clock")
     if not 0 <= args.delay < float("inf"):
         raise ParameterError("--delay", f"must be finite and >= 0 s, got {args.delay!r}")
+    if not 0 <= args.start_offset < float("inf"):
+        raise ParameterError("--start-offset", f"must be finite and >= 0 s, got {args.start_offset!r}")
+    if args.wait_subscribers < 0:
+        raise ParameterError("--wait-subscribers", f"must be >= 0, got {args.wait_subscribers!r}")
     from ..ros.executors import stop_on_signals
 
     def log(text: str) -> None:
