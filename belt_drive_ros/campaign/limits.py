@@ -25,10 +25,7 @@ from __future__ import annotations
 
 import os
 
-from .spec import Campaign, CampaignError
-
-#: most variants one campaign may hold
-MAX_VARIANTS = 1_000_000
+from .spec import MAX_VARIANTS, Campaign, CampaignError  # noqa: F401 (MAX_VARIANTS: most variants one campaign may hold)
 #: client memory per variant and table column [bytes] (numbers; strings ~60 bytes, counted as such)
 ROW_BYTES = 8
 #: memory of one worker process with numpy, scipy, pandas and the package loaded [bytes]

@@ -65,6 +65,8 @@ class CampaignError(BeltDriveError, ValueError):
 
 #: largest campaign file [bytes]: a campaign is a page of YAML (profiles inline included)
 CAMPAIGN_LIMIT = 1 << 20
+#: most variants one campaign may hold (:mod:`.limits` refuses more with an estimate of their time and memory)
+MAX_VARIANTS = 1_000_000
 #: largest ``monte_carlo.seed`` (numpy's generators take any non-negative integer; YAML's stop at 2^63)
 MAX_SEED = 2**63
 
@@ -334,8 +336,6 @@ class Campaign:
         if self.fleet_folder is not None:
             names = [name for role, name, *_ in self.fleet_state if role == "recording"]
             return pd.DataFrame({"variant": np.arange(len(names)), "recording": pd.Series(names, dtype=object)})
-        from .limits import MAX_VARIANTS
-
         if self.size > MAX_VARIANTS:  # (numpy's own refusal: 'Maximum allowed size exceeded', or memory)
             raise CampaignError(f"campaign: {self.size:.3g} variants, more than the {MAX_VARIANTS:,} variants one campaign "
                                 "may hold")
