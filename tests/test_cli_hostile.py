@@ -295,3 +295,16 @@ def test_recording_whose_scene_names_a_device_or_fifo_as_its_torque_bag_is_refus
     assert main(["sim", str(rec), "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and re.search("the recorded torque bag .*(a character device|a FIFO)", err[0]), err
+
+
+@pytest.mark.parametrize("text, message", [("0,1e300\n1,2\n", r"table.values: 1e\+300 N m is outside the plausible range"),
+                                           ("1e300,1\n2e300,2\n", r"table.times: 2e\+300 s is outside the plausible range"),
+                                           ("0,1\n0,2\n", "table.times: must be strictly increasing")])
+def test_source_csv_profile_is_checked_as_a_scene_table_naming_the_file(text, message, tmp_path, capsys):
+    """Before: a CSV torque of 1e300 N m (or times of 1e300 s) was taken and published; other refusals did not
+    name the file."""
+    csv = tmp_path / "torque.csv"
+    csv.write_text(text)
+    assert main(["source", "profile", "--csv", str(csv), "--print"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"belt-drive: error: {csv}: ") and re.search(message, err[0]), err

@@ -157,7 +157,10 @@ def read_csv_profile(path: Path, column: str | None = None, interpolation: str =
             v_col = header.index(wanted)
     elif column is not None:
         raise SceneError(f"{path}: --column needs a header line")
-    return Table(times=tuple(data[:, t_col]), values=tuple(data[:, v_col]), interpolation=interpolation)
+    try:  # (checked as a scene's table: a torque of 1e300 N m was published)
+        return Table(times=tuple(data[:, t_col]), values=tuple(data[:, v_col]), interpolation=interpolation).check_plausible("table")
+    except SceneError as exc:
+        raise SceneError(f"{path}: {exc}") from None
 
 
 def build_profile(args):
