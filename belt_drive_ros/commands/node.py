@@ -75,7 +75,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    if args.list_parameters and args.scene:
+    if args.list_parameters and args.scene is not None:
         from ..core.network.scene import is_network
 
         if is_network(args.scene):  # the network node's parameters (taken at start)
@@ -87,7 +87,7 @@ def run(args) -> int:
     if args.list_parameters:
         from ..ros.parameter_schema import describe_parameters  # the schema imports no rclpy
 
-        print(describe_parameters(args.scene or "paper"))
+        print(describe_parameters("paper" if args.scene is None else args.scene))  # ('' is an unknown scene)
         return 0
     if args.priority is not None:
         import sys
