@@ -46,7 +46,7 @@ import numpy as np
 from numba import njit
 
 from .kernel import linear_steps, profile_torque
-from .profile_data import DIVERGED, GUARDED, NOT_CONVERGED
+from .profile_data import COMPRESSOR, DIVERGED, ENGINE, GUARDED, NOT_CONVERGED
 
 _JIT = dict(cache=True, nogil=True)
 _INLINE = dict(cache=True, nogil=True, inline="always")
@@ -443,15 +443,40 @@ def _to_y(kind, x, Yflex, y):
 
 
 @njit(**_INLINE)
+def _shift_angle(lk, lp, out, shift):
+    """``out``: the load's numbers ``lp`` with every angle-reading row read at its angle + ``shift`` [rad].
+
+    Sticking after slip is the flexible model with the load at
+    ``phi_3 = i phi_M - theta_e - s / r_3``: the flexible loop reads
+    ``i phi_M - theta_e``, and ``-s / r_3`` goes into the phase of each
+    harmonic row (:mod:`~belt_drive_ros.core.profile_data`'s layouts: engine
+    ``p5 (p6 angle) + p7``, compressor ``p2 angle + p3``; no other kind reads the angle).
+    """
+    for row in range(lk.size):
+        for q in range(lp.shape[1]):
+            out[row, q] = lp[row, q]
+        if lk[row] == ENGINE:
+            out[row, 7] = lp[row, 7] + lp[row, 5] * (lp[row, 6] * shift)
+        elif lk[row] == COMPRESSOR:
+            out[row, 3] = lp[row, 3] + lp[row, 2] * shift
+
+
+@njit(**_INLINE)
+def _flexible(y, Minv, x):
+    """The flexible state ``x[:4] = Minv @ y[:4]`` of slipping state ``y`` (summed from the left)."""
+    for r in range(4):
+        total = 0.0
+        for j in range(4):
+            total = total + Minv[r, j] * y[j]
+        x[r] = total
+
+
+@njit(**_INLINE)
 def _native(mode, sigma, y, x, Minv, c, have):
     """The phase kind of (mode, sigma, y) and its state written into ``x`` (``have[kind]``: the phase exists)."""
     if mode == STICK:
         if y[4] == 0.0:
-            for r in range(4):
-                total = 0.0
-                for j in range(4):
-                    total = total + Minv[r, j] * y[j]
-                x[r] = total
+            _flexible(y, Minv, x)
             return FLEXIBLE
         x[:5] = y
         return STICKING
@@ -477,7 +502,8 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
     split at a breakpoint (left to the caller). The phase of kind ``kind`` with
     state ``x`` (6,) runs :func:`~belt_drive_ros.core.kernel.linear_steps` (its
     arrays ``reals[offsets[kind, 0]:offsets[kind, 1]]``, ``ints`` likewise)
-    with its switching function as the guard; the step in which the guard
+    with its switching function as the guard (sticking after slip: the
+    flexible loop, the load's angle shifted by ``-s / r_3``, :func:`_shift_angle`); the step in which the guard
     fires is redone by :func:`event_step`, which returns the new mode, and
     the run goes on in that mode's phase. Sample ``k + 1`` is written to
     ``out_y[k]`` (5 states), ``out_mode``, ``out_sigma`` and the phase's own
@@ -495,6 +521,7 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
     k = k0
     y = np.empty(5)
     y1 = np.empty(5)
+    shifted = lp.copy()  # the load's numbers with its angle shifted by the slip (stick after slip)
     no_cuts = np.zeros(0)
     buf = np.empty(N * 6 + 6)
     # ends[q]: the end of the stretch of steps from q with the same clamps and no special step (one pass, not a
@@ -525,25 +552,48 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
             _to_y(kind, x, Yflex, y)
         else:
             j = ends[k]
-            r0, r1, i0, i1 = offsets[kind, 0], offsets[kind, 1], offsets[kind, 2], offsets[kind, 3]
-            states = buf[: (j - k) * n].reshape((j - k, n))
-            xs = x[:n].copy()
-            done, status, _ = linear_steps(grid[k : j + 1], xs, states, lo[k], hi[k], limit, reals[r0:r1], ints[i0:i1], dp, lp)
+            # sticking after slip: the flexible loop (4 states) from Minv y, the load's angle shifted by -s / r_3
+            loop = FLEXIBLE if kind == STICKING else kind
+            m = PHASE_SIZE[loop]
+            r0, r1, i0, i1 = offsets[loop, 0], offsets[loop, 1], offsets[loop, 2], offsets[loop, 3]
+            states = buf[: (j - k) * m].reshape((j - k, m))
+            load = lp
+            if kind == STICKING:
+                xs = np.empty(4)
+                _flexible(x, Minv, xs)
+                if uses[1] != 0:
+                    _shift_angle(lk, lp, shifted, (-1.0 / c[1]) * x[4])  # the stick plant's wheel map term, as it rounds
+                    load = shifted
+            else:
+                xs = x[:n].copy()
+            done, status, _ = linear_steps(grid[k : j + 1], xs, states, lo[k], hi[k], limit, reals[r0:r1], ints[i0:i1], dp, load)
             kept = done - 1 if status == GUARDED else done
             for q in range(kept):
-                _to_y(kind, states[q], Yflex, out_y[k + q])
+                _to_y(loop, states[q], Yflex, out_y[k + q])
                 out_mode[k + q], out_sigma[k + q] = mode, sigma
                 out_native[k + q] = math.nan
-                out_native[k + q, :n] = states[q]
+                if kind == STICKING:
+                    out_y[k + q, 4] = x[4]
+                    out_native[k + q, :5] = out_y[k + q]
+                else:
+                    out_native[k + q, :n] = states[q]
             if status == DIVERGED or status == NOT_CONVERGED:
                 return k + done, status, kind, sigma, n_events
             if status != GUARDED:
-                x[:n] = states[done - 1]
+                if kind == STICKING:
+                    x[:5] = out_y[k + done - 1]
+                else:
+                    x[:n] = states[done - 1]
                 k = j
                 continue
             g, given = k + kept, np.int64(1)  # the step in which the guard fired: redone with the event located
-            _to_y(kind, x if kept == 0 else states[kept - 1], Yflex, y)
-            _to_y(kind, states[kept], Yflex, y1)
+            if kind == STICKING:
+                y[:] = x[:5] if kept == 0 else out_y[k + kept - 1]
+                _to_y(FLEXIBLE, states[kept], Yflex, y1)
+                y1[4] = x[4]
+            else:
+                _to_y(kind, x if kept == 0 else states[kept - 1], Yflex, y)
+                _to_y(kind, states[kept], Yflex, y1)
         mode, sigma, got, st = event_step(knots[g], knots[g + 1], no_cuts, y, mode, sigma, dt, hi[g], y1, given,
                                           Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
                                           events, n_events)  # fmt: skip

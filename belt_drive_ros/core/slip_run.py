@@ -16,8 +16,9 @@ The plants:
 * sticking without slip so far (``s = 0``): the flexible model itself, in
   its own coordinates, so a run that never reaches the limit gives the
   flexible model's states bit for bit;
-* sticking after slip: the slipping model's stick mode (5 states, ``s``
-  constant; the load sees ``phi_3 = i phi_M - theta_e - s / r_3``);
+* sticking after slip (``s`` constant): the flexible model's loop too, the
+  load's angle shifted by ``-s / r_3`` (it sees ``phi_3 = i phi_M - theta_e - s / r_3``);
+  a step handed back to the steppers takes the stick mode's (5 states);
 * slipping, massless belt: the slip mode with the constant force
   ``sigma Q_max`` as a sixth state (one plant per direction sigma);
 * slipping with a belt mass (``Q_max`` varies with speed) and span damping:
@@ -441,7 +442,8 @@ class SlippingSimulator:
         if stop is None:
             return SlipState(state.mode, state.sigma, state.kind, xs[n]), t1
         for key in self._factories:  # the belt slips in this step: every phase's loop packed at once (not one by one)
-            self.phase_stepper(key)
+            if key != "stick":  # (sticking after slip runs on the flexible loop)
+                self.phase_stepper(key)
         return SlipState(state.mode, state.sigma, state.kind, xs[n]), float(times[n])
 
     def _free_steps(self, N: int) -> tuple:
@@ -488,7 +490,9 @@ class SlippingSimulator:
             offsets = np.zeros((len(ks.PHASE_SIZE), 4), dtype=np.int64)
             reals, ints, r, i = [], [], 0, 0
             for code, key in enumerate(ks.PHASE_KEYS):
-                if key in loops:
+                if key == "stick":  # sticking after slip runs on the flexible loop (hybrid_steps)
+                    have[code] = 2
+                elif key in loops:
                     have[code] = 2
                     lp = loops[key]
                     offsets[code] = r, r + lp.reals.size, i, i + lp.ints.size
