@@ -321,7 +321,7 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     Signals: drive speed and belt torque at the common grid times, relative
     to their peaks over the run (``time``, ``states``, ``modes``,
     ``sigmas``: the run's samples). No events: 0; both reruns diverge: inf. ``hybrid``: the run's
-    :class:`~belt_drive_ros.core.slip.HybridStepper` (it holds no step length: the reruns share it).
+    :class:`~belt_drive_ros.core.slip.EventStep` (it holds no step length: the reruns share it).
     """
     from .errors import SimulationDivergedError
     from .slip import SlippingBeltModel
@@ -344,10 +344,10 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     def outputs(ys, m, s):  # (2, samples): each signal's samples contiguous (numpy reduces them ~25x faster)
         return np.stack([ys[:, 2], r3 * model.force(ys, m, s)])
 
-    states = np.asarray(states)
-    peak = np.array([np.max(np.abs(states[:, 2])), np.max(np.abs(r3 * model.force(states, modes, sigmas)))])  # over the run
+    run_out = outputs(np.asarray(states), modes, sigmas)  # elementwise: the stretch's samples are a slice of it
+    peak = np.max(np.abs(run_out), axis=1)  # over the run
     j = int(np.searchsorted(time, t1 + dt, side="right"))  # the run's samples the reruns can meet (one past t1)
-    run_t, run_out = time[i:j], outputs(states[i:j], np.asarray(modes)[i:j], np.asarray(sigmas)[i:j])
+    run_t, run_out = time[i:j], run_out[:, i:j]
     for h, factor in ((2.0 * dt, 1.0 / (2.0**order - 1.0)), (dt / 2.0, 2.0**order / (2.0**order - 1.0))):
         # lazy: each phase's stepper is built when the rerun first enters that phase
         sim = SlippingSimulator(params, drive, load, method, h, method_options, check_stability=False, lazy=True)

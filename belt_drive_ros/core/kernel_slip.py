@@ -120,14 +120,22 @@ def _pdot(Z, M, k, u, m):
     return total
 
 
+@njit(**_INLINE)
+def _phis(Z, R, M, tau, ph):
+    """``ph[k] = (e^x, phi_1(x), ..., phi_4(x))``, ``x = lambda_k tau``, for mode ``M``'s carried eigenvalues."""
+    for k in range(int(R[M, 10])):
+        ph[k, 0], ph[k, 1], ph[k, 2], ph[k, 3], ph[k, 4] = _phis4(Z[M, k, 0] * tau)
+
+
 @njit(**_JIT)
-def _state(Z, R, M, m, y0, y4, w, u0, d1, d2, tau, out):
-    """The state at ``tau`` [s] from (phi_M = ``y0``, modal ``w``, s = ``y4``) with input ``u0 + d1 s + d2 s^2`` into ``out``."""
+def _state(Z, R, M, m, y0, y4, w, u0, d1, d2, tau, ph, out):
+    """The state at ``tau`` [s] from (phi_M = ``y0``, modal ``w``, s = ``y4``) with input ``u0 + d1 s + d2 s^2`` into ``out``
+    (``ph``: :func:`_phis` at ``tau``)."""
     t2 = tau * tau
     t3 = t2 * tau
     z0 = z1 = z2 = i0 = i4 = 0.0
     for k in range(int(R[M, 10])):
-        e, p1, p2, p3, p4 = _phis4(Z[M, k, 0] * tau)
+        e, p1, p2, p3, p4 = ph[k, 0], ph[k, 1], ph[k, 2], ph[k, 3], ph[k, 4]
         b0, b1, b2 = _pdot(Z, M, k, u0, m), _pdot(Z, M, k, d1, m), _pdot(Z, M, k, d2, m)
         weight = R[M, k]
         zeta = weight * (e * w[k] + tau * p1 * b0 + t2 * p2 * b1 + 2.0 * t3 * p3 * b2)
@@ -159,39 +167,40 @@ def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, l
     M = mode
     m = 3 if mode == SLIP else 2
     method = c[16]
-    w = np.empty(3, dtype=np.complex128)
+    # one work array each (not a dozen small ones): zero, ua, ub, uc, um, d1, d2 (3), a, b, cc (5);
+    # w, wa (3), the phis at h and at h / 2 (3 x 5)
+    wf = np.zeros(36)
+    wc = np.empty(36, dtype=np.complex128)
+    zero, ua, ub, uc, um, d1, d2 = wf[0:3], wf[3:6], wf[6:9], wf[9:12], wf[12:15], wf[15:18], wf[18:21]
+    a, b, cc = wf[21:26], wf[26:31], wf[31:36]
+    w, wa, ph, ph_half = wc[0:3], wc[3:6], wc[6:21].reshape((3, 5)), wc[21:36].reshape((3, 5))
     _modal(Z, M, y, w)
-    zero = np.zeros(3)
+    _phis(Z, R, M, h, ph)
     if method != ETD4:
-        _state(Z, R, M, m, y[0], y[4], w, u0, zero, zero, h, out)
+        _state(Z, R, M, m, y[0], y[4], w, u0, zero, zero, h, ph, out)
         if method == ETD2:
-            u1 = np.zeros(3)
-            _inputs(mode, sigma, t + h, out, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u1)
-            d1 = np.zeros(3)
+            _inputs(mode, sigma, t + h, out, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ua)
             for q in range(m):
-                d1[q] = (u1[q] - u0[q]) / h
-            _state(Z, R, M, m, y[0], y[4], w, u0, d1, zero, h, out)
+                d1[q] = (ua[q] - u0[q]) / h
+            _state(Z, R, M, m, y[0], y[4], w, u0, d1, zero, h, ph, out)
         _project(c, mode, sigma, out)
         return
     # ETDRK4: a from y with U_0, b from y with U_a, c from a with 2 U_b - U_0, then the quadratic input
     half = 0.5 * h
-    a, b, cc = np.empty(5), np.empty(5), np.empty(5)
-    ua, ub, uc, um = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
-    _state(Z, R, M, m, y[0], y[4], w, u0, zero, zero, half, a)
+    _phis(Z, R, M, half, ph_half)
+    _state(Z, R, M, m, y[0], y[4], w, u0, zero, zero, half, ph_half, a)
     _inputs(mode, sigma, t + half, a, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ua)
-    _state(Z, R, M, m, y[0], y[4], w, ua, zero, zero, half, b)
+    _state(Z, R, M, m, y[0], y[4], w, ua, zero, zero, half, ph_half, b)
     _inputs(mode, sigma, t + half, b, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ub)
-    wa = np.empty(3, dtype=np.complex128)
     _modal(Z, M, a, wa)
     for q in range(m):
         um[q] = 2.0 * ub[q] - u0[q]
-    _state(Z, R, M, m, a[0], a[4], wa, um, zero, zero, half, cc)
+    _state(Z, R, M, m, a[0], a[4], wa, um, zero, zero, half, ph_half, cc)
     _inputs(mode, sigma, t + h, cc, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, uc)
-    d1, d2 = np.zeros(3), np.zeros(3)
     for q in range(m):
         d1[q] = (-3.0 * u0[q] + 2.0 * (ua[q] + ub[q]) - uc[q]) / h
         d2[q] = (2.0 * (u0[q] - ua[q] - ub[q] + uc[q])) / (h * h)
-    _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, h, out)
+    _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, h, ph, out)
     _project(c, mode, sigma, out)
 
 
@@ -238,17 +247,16 @@ def _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx,
     M = mode
     m = 3 if mode == SLIP else 2
     nm = int(R[M, 10])
-    du = np.zeros(3)
+    wf = np.zeros(6)  # du, u1; amplitudes (3 x 6), lambda, w: one work array each
+    wc = np.zeros(24, dtype=np.complex128)
+    du, u1 = wf[0:3], wf[3:6]
+    amp, lam, w = wc[0:18].reshape((3, 6)), wc[18:21], wc[21:24]
     if c[16] != EXACT:
-        u1 = np.zeros(3)
         _inputs(mode, sigma, t + h, y1, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u1)
         for q in range(m):
             du[q] = (u1[q] - u0[q]) / h
     g = guards[0] if mode == STICK else guards[1] if sigma > 0.0 else guards[2]
     quad = g[2] if g[13] != 0.0 else 0.0
-    amp = np.zeros((3, 6), dtype=np.complex128)
-    lam = np.zeros(3, dtype=np.complex128)
-    w = np.empty(3, dtype=np.complex128)
     _modal(Z, M, y, w)
     for k in range(nm):
         lam[k] = Z[M, k, 0]
