@@ -428,7 +428,6 @@ def event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mat
 FLEXIBLE, STICKING, SLIP_UP, SLIP_DOWN, MASS_UP, MASS_DOWN, STEPWISE = 0, 1, 2, 3, 4, 5, 6
 #: the phase kinds' names (:class:`~belt_drive_ros.core.slip_run.SlipState` ``kind``) and stepper keys
 KIND_NAMES = ("flexible", "stick", "slip", "slip", "mass", "mass", "hybrid")
-KIND_CODES = {"flexible": FLEXIBLE, "stick": STICKING, "hybrid": STEPWISE}
 PHASE_KEYS = ("flexible", "stick", ("slip", 1.0), ("slip", -1.0), ("mass", 1.0), ("mass", -1.0))
 #: states per phase kind
 PHASE_SIZE = (4, 5, 6, 6, 5, 5, 5)

@@ -630,7 +630,7 @@ def _kind_code(state: SlipState) -> int:
 
     if state.kind in ("slip", "mass"):
         return ks.PHASE_KEYS.index((state.kind, 1.0 if state.sigma > 0.0 else -1.0))
-    return ks.KIND_CODES[state.kind]
+    return ks.KIND_NAMES.index(state.kind)  # flexible, stick, hybrid: one kind each
 
 
 def _events(rows) -> list:
