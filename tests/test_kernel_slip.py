@@ -63,6 +63,32 @@ def test_advance_tick_by_tick_equals_one_run():
     assert len(events) >= 2 and [e.time for e in events] == [e.time for e in whole.events]
 
 
+def test_sticking_after_slip_runs_on_the_flexible_loop_with_the_load_angle_shifted():
+    """Sticking after slip (s constant) runs on the flexible model's 4-state loop, the load's angle shifted by
+    -s / r_3 in the phases of its harmonics (truck_compressor: the compressor's strokes read the crank angle): no
+    5-state stick stepper is built, and the run equals the phase-by-phase path that steps the stick mode's 5-state
+    plant (SlippingSimulator._advance_steps), events alike, to rounding."""
+    from belt_drive_ros.core.slip_run import _joined
+
+    scene = load_scene("truck_compressor")
+    y0 = scene.initial_state.vector("slipping", scene.params.ratio)
+    sim = _sim(scene, lazy=True)
+    time, states, modes, _ = sim.run(0.7, y0)
+    assert sum(e.kind == "restick" for e in sim.events) >= 2 and states[-1, 4] != 0.0
+    assert "stick" not in sim._steppers  # the old code: the 5-state stick loop ran every stick-after-slip phase
+    steps = _sim(scene)
+    state, events = steps.initial(y0), []
+    pieces = [(np.array([0.0]), steps.state_y(state)[None, :], state.mode, state.sigma)]
+    steps._advance_steps(state, 0.0, 0.7, pieces, events)
+    t_ref, y_ref, m_ref, _ = _joined(pieces)
+    assert [e.kind for e in events] == [e.kind for e in sim.events]
+    np.testing.assert_allclose([e.time for e in sim.events], [e.time for e in events], rtol=0.0, atol=1e-12)
+    np.testing.assert_array_equal(time, t_ref)
+    np.testing.assert_array_equal(modes, m_ref)
+    error = np.max(np.abs(states - y_ref) / np.max(np.abs(y_ref), axis=0), axis=0)
+    assert np.all(error < 1e-10), error
+
+
 @pytest.mark.parametrize("method", ["rk4", "lawson5"])
 def test_methods_without_a_modal_flow_slip_in_the_compiled_loop(method):
     """rk4 and lawson5 (no modal flow of their own) run the compiled hybrid loop too: their phases in the linear
