@@ -69,15 +69,7 @@ class _SlipPhase:
         B = np.zeros((6, 2))
         B[:5] = model.B_slip[:, :2]
         self.A, self.B, self.params = A, B, model.params
-        i, r3 = model.params.ratio, model.params.r_3
-        W = np.zeros((4, 6))
-        W[0, 0], W[1, 2], W[3, 3] = 1.0, 1.0, 1.0
-        W[2, 0], W[2, 1], W[2, 4] = i, -1.0, -1.0 / r3  # phi_3 = i phi_M - theta_e - s / r_3
-        self._W = W
-
-    def wheel_coordinates(self, x):
-        y = x @ self._W.T
-        return y[..., 0], y[..., 1], y[..., 2], y[..., 3]
+        self.wheel_coordinates = model.wheel_coordinates  # (of y = x[:5]: Q is not a wheel coordinate)
 
 
 class _MassSlipPhase:
