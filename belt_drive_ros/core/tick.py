@@ -405,9 +405,10 @@ def slip_tick(k0, stamp, packed, dp):
     reals, ints, offsets, have = _f1(packed, table, _SREALS), _i1(table, _SINTS), _i2(table, _OFFSETS), _i1(table, _HAVE)
     sigma = 1.0 if kind == SLIP_UP or kind == MASS_UP else -1.0 if kind == SLIP_DOWN or kind == MASS_DOWN else 0.0
     status = n_ev = -1
-    if kind != STEPWISE and have[kind] == 2:
+    if kind != STEPWISE and kind != STICKING and have[kind] == 2:
         # the usual tick: the phase's linear loop alone, stretch by stretch of equal clamps (hybrid_steps' stretches),
-        # its states in out_native's room; any guard, failure or missing phase: hybrid_steps below from the start
+        # its states in out_native's room; any guard, failure or missing phase, and sticking after slip (the
+        # flexible loop with the load's angle shifted): hybrid_steps below from the start
         n, r0, r1, i0, i1 = PHASE_SIZE[kind], offsets[kind, 0], offsets[kind, 1], offsets[kind, 2], offsets[kind, 3]
         room = packed[table[4 * _OUT_NATIVE] : table[4 * _OUT_NATIVE] + 6 * N]
         k = status = n_ev = 0
