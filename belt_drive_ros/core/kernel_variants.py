@@ -9,16 +9,13 @@ scheme (the row a single run of that variant packs), and one call of
 variant or per step):
 
 * an explicit method on a rigid or flexible plant (<= 4 states: every
-  linear campaign of the shipped scenes): :func:`_lanes` steps :data:`LANES` variants at a time
-  as vector lanes, the operations of the single run's 4-state loop
-  (``kernel._explicit``) in the same order per variant, each one applied
-  to all lanes before the next. One variant's step is a chain (state ->
-  stage speeds -> torques -> next stage) that a processor runs one
-  operation after the other; 32 independent chains side by side fill its
-  vector units instead (``paper``'s lawson5: 102 against 230 ns per
-  variant-step for the single run's loop, measured side by side on a
-  loaded machine). A lockstep of the same loop with one variant per
-  operation (scalar, the single loop's helpers) was measured no faster;
+  linear campaign of the shipped scenes): :func:`_lanes` steps :data:`LANES`
+  variants at a time as vector lanes, the operations of the single run's
+  loop (``kernel._explicit``) in the same order per variant, each applied to
+  all lanes before the next: one variant's step is a chain of dependent
+  operations; 128 independent chains side by side fill the vector units
+  (``paper``'s lawson5: ~40 ns per variant-step against ~96 ns per step of
+  the single run's loop; 32 lanes: 55 ns, 64: 42 ns, 256: 50 ns);
 * anything else (more states, an implicit stage, the slipping
   belt's extra input or guard): the single run's own loop
   (:func:`~belt_drive_ros.core.kernel._steps`) once per variant.
@@ -49,8 +46,8 @@ from numba.core.errors import NumbaPerformanceWarning
 from .kernel import HEADER, SECTIONS, _steps, formula, is_formula, motor_line, polynomial, profile_torque
 from .profile_data import DIVERGED, MOTOR_LINE, OK, POLYNOMIAL
 
-#: variants stepped together by :func:`_lanes` (their matrices, ~4 kB each for lawson5, stay in the cache)
-LANES = 32
+#: variants stepped together by :func:`_lanes` (lawson5's matrices: ~470 kB for 128 lanes, in the L2 cache)
+LANES = 128
 
 
 #: numba's ``parallel`` option with every transformation off: the parallel pipeline's passes, no threads
@@ -88,7 +85,7 @@ def variant_steps(times, states, j, lo, hi, limit, reals, tables, ints, dp, lp, 
             guarded = guarded or reals[v, at[6]] != 0.0
         if not guarded:
             for a in range(0, states.shape[0], LANES):
-                _lanes(times, states, j, lo, hi, limit, reals, at, n, s, cols, kinds, ints[5], ints[7] != 0, ints[8] != 0,
+                _lanes(times, states, j, lo, hi, limit, reals, at, n, s, rows, cols, kinds, ints[5], ints[7] != 0, ints[8] != 0,
                        dk, dp, dx, dy, lk, lp, lx, ly, status, a, min(a + LANES, states.shape[0]))  # fmt: skip
             return
     for v in range(states.shape[0]):
@@ -113,163 +110,164 @@ def knot_torques(kinds, params, tx, ty, times, angle, speed, out):
     torques [N m] at the knots (K,) of V variants ((K, V) arrays), the variants of a knot as lanes
     (:func:`_lane_torques`: the same floats as the dispatcher's, the motor line and polynomial vectorised)."""
     for k in range(times.size):
-        _lane_torques(kinds, params, tx, ty, times[k], angle[k], speed[k], out[k], out.shape[1])
+        _lane_torques(kinds, params, tx, ty, times[k], angle, speed, out, k, k, k, out.shape[1])
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _lane_torques(kinds, params, tx, ty, t, angle, speed, out, L):
-    """``out[q] = profile_torque(kinds, params, tx, ty, t, angle[q], speed[q])`` for q < L.
+def _lane_torques(kinds, params, tx, ty, t, angle, speed, out, a, v, o, L):
+    """``out[o, q] = profile_torque(kinds, params, tx, ty, t, angle[a, q], speed[v, q])`` for q < L.
 
     The kind is the same for every lane. The motor line and the polynomial
     through their formulas with the row's numbers read once before the loop
     (:func:`~belt_drive_ros.core.kernel.motor_line`,
     :func:`~belt_drive_ros.core.kernel.polynomial`), so the loop runs over
-    the lanes in vector registers (the same IEEE operations per lane;
-    through the dispatcher, reading the row per lane, it was not vectorised
-    and the torques were half of ``paper``'s lawson5 step); the other
-    formulas (constant, step, ramp, sine) read neither speed nor angle: one
-    :func:`~belt_drive_ros.core.kernel.formula` for every lane; tables,
-    schedules, engines and compressors by the dispatcher, lane by lane.
+    the lanes in vector registers (the same IEEE operations per lane); the
+    other formulas (constant, step, ramp, sine) read neither speed nor
+    angle: one :func:`~belt_drive_ros.core.kernel.formula` for every lane;
+    tables, schedules, engines and compressors by the dispatcher, lane by lane.
     """
     kind = kinds[0]
     if kind == MOTOR_LINE:  # the row's numbers read once: the loop compiles to vector operations
-        a, b, c = params[0, 0], params[0, 1], params[0, 2]
+        p0, p1, p2 = params[0, 0], params[0, 1], params[0, 2]
         for q in range(L):
-            out[q] = motor_line(a, b, c, t, speed[q])
+            out[o, q] = motor_line(p0, p1, p2, t, speed[v, q])
     elif kind == POLYNOMIAL:
-        a, b, c = params[0, 0], params[0, 1], params[0, 2]
+        p0, p1, p2 = params[0, 0], params[0, 1], params[0, 2]
         for q in range(L):
-            out[q] = polynomial(a, b, c, speed[q])
-    elif is_formula(kind):  # a function of time alone (speed[0] is not read)
-        value = formula(kind, params[0, 0], params[0, 1], params[0, 2], params[0, 3], params[0, 4], t, speed[0])
+            out[o, q] = polynomial(p0, p1, p2, speed[v, q])
+    elif is_formula(kind):  # a function of time alone (the speed is not read)
+        value = formula(kind, params[0, 0], params[0, 1], params[0, 2], params[0, 3], params[0, 4], t, 0.0)
         for q in range(L):
-            out[q] = value
+            out[o, q] = value
     else:
         for q in range(L):
-            out[q] = profile_torque(kinds, params, tx, ty, t, angle[q], speed[q])
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _lane_rows(M, i, r, X, n, U, count, out, L):
-    """``out[q] = M[i, r, :, q] @ [X[:n, q], U[:count, q]]`` per lane, summed from the left from 0.0
-    (the single loops' ``_dot`` / ``_row4`` then the torque columns: the same operations per lane)."""
-    if n == 4:
-        for q in range(L):
-            out[q] = 0.0 + M[i, r, 0, q] * X[0, q] + M[i, r, 1, q] * X[1, q] + M[i, r, 2, q] * X[2, q] + M[i, r, 3, q] * X[3, q]
-    else:
-        for q in range(L):
-            out[q] = 0.0 + M[i, r, 0, q] * X[0, q]
-        for c in range(1, n):
-            for q in range(L):
-                out[q] = out[q] + M[i, r, c, q] * X[c, q]
-    for e in range(count):
-        for q in range(L):
-            out[q] = out[q] + M[i, r, n + e, q] * U[e, q]
+            out[o, q] = profile_torque(kinds, params, tx, ty, t, angle[a, q], speed[v, q])
 
 
 @njit(cache=True, nogil=True)
-def _lanes(times, states, j, lo, hi, limit, reals, at, n, s, cols, kinds, final_base, ua, ub,
+def _lanes(times, states, j, lo, hi, limit, reals, at, n, s, rows, cols, kinds, final_base, ua, ub,
            dk, dp, dx, dy, lk, lp, lx, ly, status, a, b):  # fmt: skip
-    """Variants ``a .. b-1`` of an explicit method on an n-state plant (n <= 4: rigid or flexible), stepped
-    together, the variants as lanes.
+    """Variants ``a .. b-1`` (at most :data:`LANES`) of an explicit method on an n-state plant (n <= 4: rigid or
+    flexible), stepped together, the variants as lanes.
 
     Each variant's floats are those of the single run's loop (the 4-state
     :func:`~belt_drive_ros.core.kernel._explicit`, which also covers the
     one-stage methods of ``_one_stage4`` with the same operations; the
-    general ``_linear_steps`` for the rigid model's 2 states): per
-    stage the wheel coordinates (``W`` or the stage map on ``[x, U_0 ..]``,
-    summed from the left from 0.0), the two torques of
+    general ``_linear_steps`` for the rigid model's 2 states): per stage the
+    wheel coordinates (``W`` or the stage map on ``[x, U_0 ..]``, summed from
+    the left from 0.0), the two torques of
     :func:`~belt_drive_ros.core.kernel.profile_torque`, then the final map;
     the same numbers in the same order. The loop order differs: each
-    operation runs over all the chunk's variants before the next (the
-    matrices transposed so the variants are the contiguous axis), so the
-    variants' independent chains fill the vector registers. No extra
-    input (E = 0), no guard.
+    operation runs over all lanes before the next, so the variants'
+    independent chains fill the vector registers. No extra input (E = 0),
+    no guard.
+
+    One work array ``w`` (rows, :data:`LANES`), the variant axis last: the
+    variants' numbers ``reals[:, at[0]:at[4]]`` (W, offsets, S, F) as rows,
+    then x, U (the stages' torques, right after x: the stage and final maps
+    read ``[x, U_0 ..]`` as consecutive rows), B (the stage state of kind 2),
+    the next state Y and the wheel coordinates C. The step is a fixed list
+    of operations (``plan``: a dot product of consecutive rows, or a
+    stage's torques) over rows of ``w`` named by integers: no view and no
+    array passed to a helper inside the step loop (numba counts the
+    references of each, and on this loop that counting cost a third of the
+    time). Padding lanes of a last, partial chunk repeat variant ``b-1``
+    and are never written back.
     """
     L = b - a
-    W = np.empty((1, 4, n, L))
-    S = np.empty((s, 4, cols, L))  # the stage maps' rows: max(4, n) = 4
-    F = np.empty((1, n, cols, L))
-    for q in range(L):  # the chunk's own numbers, variant axis last (row-major, as packed: no index division)
-        r = reals[a + q]
-        e = at[0]
-        for x in range(4):
-            for y in range(n):
-                W[0, x, y, q] = r[e]
-                e += 1
-        e = at[2]
-        for i in range(s):
-            for x in range(4):
-                for y in range(cols):
-                    S[i, x, y, q] = r[e]
-                    e += 1
-        e = at[3]
-        for x in range(n):
-            for y in range(cols):
-                F[0, x, y, q] = r[e]
-                e += 1
-    X = np.empty((n, L))
-    B = np.empty((n, L))
-    Y = np.empty((n, L))
-    C = np.zeros((4, L))
-    U = np.zeros((2 * s, L))
-    alive = np.zeros(L, dtype=np.bool_)
-    half = n // 2
-    for q in range(L):
+    R0 = at[4] - at[0]
+    oX = R0
+    oU = oX + n
+    oB = oU + 2 * s
+    oY = oB + n
+    oC = oY + n
+    w = np.empty((oC + 4, LANES))
+    w[oX:] = 0.0
+    for q in range(LANES):
+        v = a + min(q, L - 1)
+        for e in range(R0):
+            w[e, q] = reals[v, at[0] + e]
         for e in range(n):
-            X[e, q] = states[a + q, j, e]
+            w[oX + e, q] = states[v, j, e]
+    # the plan: (out, first matrix row, first source row, columns) for a dot product, (-1, stage) for its torques,
+    # (-2, ..) for the final map's start B copied onto x (then followed by U as the final map reads it)
+    plan = np.zeros((s * (n + 5) + n + 1, 4), dtype=np.int64)
+    p = 0
+    wheel = [r for r in range(4) if (r != 0 or ua) and (r != 2 or ub)]
+    for i in range(s):
+        if kinds[i] == 2:  # the whole stage state, then W on it
+            for r in range(n):
+                plan[p, 0], plan[p, 1], plan[p, 2], plan[p, 3] = oB + r, at[2] - at[0] + (i * rows + r) * cols, oX, n + 2 * i
+                p += 1
+        for r in wheel:
+            if kinds[i] == 1:
+                plan[p, 0], plan[p, 1], plan[p, 2], plan[p, 3] = oC + r, at[2] - at[0] + (i * rows + r) * cols, oX, n + 2 * i
+            else:
+                plan[p, 0], plan[p, 1], plan[p, 2], plan[p, 3] = oC + r, r * n, oX if kinds[i] == 0 else oB, n
+            p += 1
+        plan[p, 0], plan[p, 1] = -1, i
+        p += 1
+    if final_base >= 0:
+        plan[p, 0] = -2
+        p += 1
+    for r in range(n):
+        plan[p, 0], plan[p, 1], plan[p, 2], plan[p, 3] = oY + r, at[3] - at[0] + r * cols, oX, n + 2 * s
+        p += 1
+    alive = np.zeros(LANES, dtype=np.bool_)
+    for q in range(L):
         alive[q] = status[a + q] == OK
         if not alive[q]:
             states[a + q, j + 1 : j + times.size] = np.nan
-    offsets = reals[a, at[1] : at[2]]  # c_i h: the same for every variant (shared method and step)
-    count = times.size - 1
-    for k in range(count):
+    half = n // 2
+    for k in range(times.size - 1):
         t = times[k]
-        for i in range(s):
-            time = t if offsets[i] == 0.0 else t + offsets[i]
-            tc = lo if time < lo else hi if time > hi else time
-            if kinds[i] == 0:
-                for r in range(4):
-                    if (r == 0 and not ua) or (r == 2 and not ub):
-                        continue
-                    _lane_rows(W, 0, r, X, n, U, 0, C[r], L)
-            elif kinds[i] == 1:
-                for r in range(4):
-                    if (r == 0 and not ua) or (r == 2 and not ub):
-                        continue
-                    _lane_rows(S, i, r, X, n, U, 2 * i, C[r], L)
-            else:  # the whole stage state (it starts the final map), then its wheel coordinates
+        for e in range(p):
+            out, m, src, count = plan[e, 0], plan[e, 1], plan[e, 2], plan[e, 3]
+            if out >= 0:  # sum_c w[m + c] w[src + c], from the left from 0.0, four columns a pass
+                for q in range(LANES):
+                    w[out, q] = 0.0
+                c = 0
+                while c + 4 <= count:
+                    for q in range(LANES):
+                        w[out, q] = (w[out, q] + w[m + c, q] * w[src + c, q] + w[m + c + 1, q] * w[src + c + 1, q]
+                                     + w[m + c + 2, q] * w[src + c + 2, q] + w[m + c + 3, q] * w[src + c + 3, q])  # fmt: skip
+                    c += 4
+                while c + 2 <= count:
+                    for q in range(LANES):
+                        w[out, q] = w[out, q] + w[m + c, q] * w[src + c, q] + w[m + c + 1, q] * w[src + c + 1, q]
+                    c += 2
+                if c < count:
+                    for q in range(LANES):
+                        w[out, q] = w[out, q] + w[m + c, q] * w[src + c, q]
+            elif out == -2:
                 for r in range(n):
-                    _lane_rows(S, i, r, X, n, U, 2 * i, B[r], L)
-                for r in range(4):
-                    if (r == 0 and not ua) or (r == 2 and not ub):
-                        continue
-                    _lane_rows(W, 0, r, B, n, U, 0, C[r], L)
-            if not ua:
-                C[0, :L] = 0.0
-            if not ub:
-                C[2, :L] = 0.0
-            _lane_torques(dk, dp, dx, dy, tc, C[0], C[1], U[2 * i], L)
-            _lane_torques(lk, lp, lx, ly, tc, C[2], C[3], U[2 * i + 1], L)
-        base = B if final_base >= 0 else X
-        for r in range(n):  # F @ [x (or the stage that starts it), U_0 .. U_{s-1}], summed from the left
-            _lane_rows(F, 0, r, base, n, U, 2 * s, Y[r], L)
+                    for q in range(LANES):
+                        w[oX + r, q] = w[oB + r, q]
+            else:  # stage m's torques at its time, clamped
+                offset = reals[a, at[1] + m]
+                time = t if offset == 0.0 else t + offset
+                tc = lo if time < lo else hi if time > hi else time
+                # the drive from C rows 0, 1 (angle, speed), the load from rows 2, 3; four arrays into an inlined
+                # helper, counted per call: twice a stage for 128 lanes
+                _lane_torques(dk, dp, dx, dy, tc, w, w, w, oC, oC + 1, oU + 2 * m, LANES)
+                _lane_torques(lk, lp, lx, ly, tc, w, w, w, oC + 2, oC + 3, oU + 2 * m + 1, LANES)
         o = j + 1 + k
         for q in range(L):
+            if not alive[q]:
+                continue
             healthy = True
             for r in range(n):  # angles finite, speeds within the limit (the single loops' check)
-                y = Y[r, q]
-                X[r, q] = y
+                y = w[oY + r, q]
                 states[a + q, o, r] = y
                 if r < half:
                     if y - y != 0.0:
                         healthy = False
                 elif not abs(y) <= limit:
                     healthy = False
-            if not alive[q]:
-                states[a + q, o] = np.nan
-                continue
             if not healthy:
                 status[a + q] = DIVERGED
                 alive[q] = False
-                states[a + q, j + 2 + k : j + times.size] = np.nan
+                states[a + q, o + 1 : j + times.size] = np.nan
+        for r in range(n):
+            for q in range(LANES):
+                w[oX + r, q] = w[oY + r, q]
