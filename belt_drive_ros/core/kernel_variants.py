@@ -148,31 +148,23 @@ def _lane_torques(kinds, params, tx, ty, t, angle, speed, out, a, v, o, L):
 def _lanes(times, states, j, lo, hi, limit, reals, at, n, s, rows, cols, kinds, final_base, ua, ub,
            dk, dp, dx, dy, lk, lp, lx, ly, status, a, b):  # fmt: skip
     """Variants ``a .. b-1`` (at most :data:`LANES`) of an explicit method on an n-state plant (n <= 4: rigid or
-    flexible), stepped together, the variants as lanes.
+    flexible), stepped together, the variants as lanes; no extra input (E = 0), no guard.
 
-    Each variant's floats are those of the single run's loop (the 4-state
-    :func:`~belt_drive_ros.core.kernel._explicit`, which also covers the
-    one-stage methods of ``_one_stage4`` with the same operations; the
-    general ``_linear_steps`` for the rigid model's 2 states): per stage the
-    wheel coordinates (``W`` or the stage map on ``[x, U_0 ..]``, summed from
-    the left from 0.0), the two torques of
-    :func:`~belt_drive_ros.core.kernel.profile_torque`, then the final map;
-    the same numbers in the same order. The loop order differs: each
-    operation runs over all lanes before the next, so the variants'
-    independent chains fill the vector registers. No extra input (E = 0),
-    no guard.
+    Each variant's floats are those of the single run's loop
+    (:func:`~belt_drive_ros.core.kernel._explicit`): per stage the wheel
+    coordinates (``W`` or the stage map on ``[x, U_0 ..]``, summed from the
+    left from 0.0), the two torques, then the final map; the same numbers in
+    the same order, each operation over all lanes before the next.
 
     One work array ``w`` (rows, :data:`LANES`), the variant axis last: the
     variants' numbers ``reals[:, at[0]:at[4]]`` (W, offsets, S, F) as rows,
-    then x, U (the stages' torques, right after x: the stage and final maps
-    read ``[x, U_0 ..]`` as consecutive rows), B (the stage state of kind 2),
-    the next state Y and the wheel coordinates C. The step is a fixed list
-    of operations (``plan``: a dot product of consecutive rows, or a
-    stage's torques) over rows of ``w`` named by integers: no view and no
-    array passed to a helper inside the step loop (numba counts the
-    references of each, and on this loop that counting cost a third of the
-    time). Padding lanes of a last, partial chunk repeat variant ``b-1``
-    and are never written back.
+    then x, U (the stages' torques right after x: the maps read ``[x, U_0 ..]``
+    as consecutive rows), B (the stage state of kind 2), the next state Y and
+    the wheel coordinates C. The step is a fixed ``plan`` of dot products of
+    rows named by integers and of the stages' torques: no view and no array
+    passed to a helper in the dot products (numba counts the references of
+    each: a third of the time with 32 lanes). Padding lanes of a last,
+    partial chunk repeat variant ``b-1`` and are never written back.
     """
     L = b - a
     R0 = at[4] - at[0]
