@@ -137,11 +137,9 @@ class Ensemble:
     def windows(self, x0: np.ndarray, t0: float, t1: float, size: int | None = 256):
         """:meth:`run` in windows of at most ``size`` steps: yields ``(times (K+1,), states (K+1, n, V))``.
 
-        Consecutive windows share their end knot (the last knot of one is the
-        first of the next), so the windows together are :meth:`run`'s knots
-        and states, the very same floats (one time loop, the same steps);
-        memory holds one window, whatever the duration. ``size=None``: one
-        window (:meth:`run`).
+        Consecutive windows share their end knot, so together they are
+        :meth:`run`'s knots and states, the same floats; memory holds one
+        window. ``size=None``: one window (:meth:`run`).
         """
         from .kernel_variants import variant_steps
 
@@ -199,12 +197,8 @@ class Ensemble:
         return self.diverged_errors(self.first_bad(times, states))
 
     def first_bad(self, times: np.ndarray, states: np.ndarray, found: dict | None = None) -> dict:
-        """``{variant: (time, state)}``: each variant's first bad sample (see :meth:`diverged`).
-
-        ``found``: what earlier windows of the run found (updated in place;
-        a variant found there keeps its sample), so the windows of
-        :meth:`windows` give what one whole run gives.
-        """
+        """``{variant: (time, state)}``: each variant's first bad sample (see :meth:`diverged`); ``found``: what
+        earlier windows of the run found (updated in place; a variant found there keeps its sample)."""
         found = {} if found is None else found
         half = states.shape[1] // 2
         with np.errstate(invalid="ignore"):

@@ -243,10 +243,8 @@ def peak_over_time(values: np.ndarray, times: np.ndarray) -> tuple:
 class GroupSummary:
     """Variants of one group run together on one linear model, kept as reductions over time only.
 
-    What :func:`run_groups` yields instead of a :class:`GroupRun` when given
-    ``reduce``: the run went window by window (memory: one window), and
-    ``values`` holds the reductions ``reduce`` asked for (name -> (V,)
-    array), in the order of ``indices``.
+    What :func:`run_groups` yields instead of a :class:`GroupRun` when given ``reduce``: ``values`` holds the
+    reductions ``reduce`` asked for (name -> (V,) array), in the order of ``indices``.
     """
 
     indices: list
