@@ -11,6 +11,8 @@ every method against the closed form).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -49,13 +51,19 @@ def test_exact_method_is_exact_again_with_a_jump_inside_a_step():
     assert sim.split_steps == {} and run_errors(ref, t, x)["error"] > 1e-3
 
 
+@functools.cache
+def _paper_1s():
+    """paper over 1 s and its DOP853 reference (computed once for both methods below)."""
+    scene = load_scene("paper").with_overrides(duration=1.0)
+    return scene, dop853_reference(scene, "flexible")
+
+
 @pytest.mark.parametrize("method, split_error, unsplit_error", [("lawson5", 3e-6, 1e-4), ("etd4", 2e-4, 1e-3)])
 def test_soft_start_end_inside_a_step(method, split_error, unsplit_error):
     """paper: the motor's soft start ends at 0.02 s, inside the second 12.5 ms step."""
-    scene = load_scene("paper").with_overrides(duration=1.0)
+    scene, ref = _paper_1s()
     model = make_model("flexible", scene.params)
     x0 = scene.initial_state.vector("flexible", scene.params.ratio)
-    ref = dop853_reference(scene, "flexible")
     sim = Simulator(model, scene.drive, scene.load, method, 0.0125)
     t, x = sim.run(1.0, x0)
     assert sim.split_steps == {1: [0.02]}
@@ -93,10 +101,14 @@ def test_load_switch_on_the_grid_keeps_fourth_order():
     off = base.with_overrides(load=S.Schedule(base.load.active, base.load.inactive,
                                               tuple((a + 1e-7, b + 1e-7) for a, b in base.load.periods)))
 
+    references = {}  # one DOP853 reference per scene (base is measured at two steps)
+
     def error(scene, dt):
         sim = Simulator(model, scene.drive, scene.load, "etd4", dt)
         t, x = sim.run(scene.duration, x0)
-        return run_errors(dop853_reference(scene, "flexible"), t, x)["error"]
+        if id(scene) not in references:
+            references[id(scene)] = dop853_reference(scene, "flexible")
+        return run_errors(references[id(scene)], t, x)["error"]
 
     coarse, fine = error(base, 2.0**-9), error(base, 2.0**-10)
     assert np.log2(coarse / fine) >= 3.7, (coarse, fine)
