@@ -13,7 +13,7 @@ on numpy arrays (the reference), the compiled time loop of every run
 (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`), the *linear one-step map*
 (:meth:`~FixedStepIntegrator.linear_step`; with a torque that depends on
 time only every method is exactly ``x_{n+1} = Phi x_n + sum_j G_j u(t_n + c_j h)``)
-and the growth per step of each mode (:meth:`~FixedStepIntegrator.amplification`)
+and the growth per step of each mode (:meth:`~FixedStepIntegrator.mode_growths`)
 that the stability guard reads.
 
 The methods are :data:`REGISTRY` (name -> class). Each class carries its
@@ -150,10 +150,6 @@ class FixedStepIntegrator(Integrator):
         A = np.diag(lams if np.any(lams.imag) else lams.real)
         Phi = cls(A, np.zeros((k, 1)), dt).linear_step().Phi
         return np.abs(np.diag(Phi))
-
-    def amplification(self, lam: complex) -> float:
-        """|growth factor| per step of the mode with continuous eigenvalue ``lam`` [1/s] (:meth:`mode_growths`)."""
-        return float(type(self).mode_growths([lam], self.dt)[0])
 
 
 def describe_methods() -> str:

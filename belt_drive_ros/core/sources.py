@@ -68,9 +68,7 @@ class TorqueProfile:
     :mod:`~belt_drive_ros.core.profile_data`, its numbers and tables); the
     compiled kernel evaluates it (:func:`~belt_drive_ros.core.kernel.profile_torque`)
     for :meth:`torque` (scalars and arrays), :meth:`scalar_torque` and inside
-    the time loop alike. A profile without a data form (a test's own Python
-    profile) overrides :meth:`torque`; a run with it steps through the
-    integrator's reference ``step`` instead of the kernel.
+    the time loop alike (a profile without a data form is refused by every stepper).
     """
 
     kind: ClassVar[str] = ""

@@ -6,15 +6,11 @@ sums collapse into fixed matrices). A method states that scheme once
 (:meth:`~belt_drive_ros.core.integrators.FixedStepIntegrator.stage_scheme`);
 this module derives from it
 
-* :func:`step` -- one step on numpy arrays (the integrator protocol),
+* :func:`step` -- one step on numpy arrays (state columns may be a matrix: the
+  closed-loop maps of the accuracy probes and the forced response are read off it),
 * :func:`linear_step` -- the one-step map ``x+ = Phi x + sum_j G_j u(t + c_j h)``
   for a torque of time only (the stability guard reads ``Phi``), and
-* the compiled time loop's matrices
-  (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`, run by
-  :func:`~belt_drive_ros.core.kernel.linear_steps`: the fast path).
-
-:func:`step` is the reference the kernel is tested against, and the step of
-runs the kernel cannot take (a test's Python-only torque profile).
+* the compiled time loop's matrices (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`).
 """
 
 from __future__ import annotations
