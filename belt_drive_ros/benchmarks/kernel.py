@@ -60,11 +60,13 @@ def _cpu() -> float:
 
 
 #: the step figures beside paper's methods: (scene, model, method, constant torques) by label (the rigid 2-state
-#: loop with a motor curve; the truck's engine and compressor harmonics, and its plant with constant torques)
+#: loop with a motor curve; the truck's engine and compressor harmonics, and its plant with constant torques;
+#: bsg_start's motor curve and compressor: the linear phases of both slipping scenes)
 STEP_CASES = {
     "e_motor_start rigid etd2": ("e_motor_start", "rigid", "etd2", False),
     "truck_compressor flexible etd4": ("truck_compressor", "flexible", "etd4", False),
     "truck_compressor etd4, constant torques": ("truck_compressor", "flexible", "etd4", True),
+    "bsg_start flexible etd2": ("bsg_start", "flexible", "etd2", False),
 }
 
 

@@ -1,34 +1,23 @@
 """The compiled kernel: torque profiles as data and the one time loop of the linear family.
 
-Every function here is ``@njit(cache=True, nogil=True)`` over plain arrays
-and floats: compiled once per installed version (the argument types never
-change with the scene), cached on disk, and run without the GIL (the node's
-tick thread computes while the executor serves callbacks). They stay valid
-Python: ``NUMBA_DISABLE_JIT=1`` runs them interpreted, with the same floats.
+Every function is ``@njit(cache=True, nogil=True)`` over plain arrays and
+floats: compiled once per installed version, cached on disk, run without the
+GIL; ``NUMBA_DISABLE_JIT=1`` runs them as Python with the same floats.
 
-* :func:`profile_torque` -- a torque profile's value from its data
-  (:mod:`~belt_drive_ros.core.profile_data`), one dispatcher for every kind;
-* :func:`profile_torque_array` -- the same on arrays of samples;
-* :func:`wheel_steps` -- the one time loop of the linear family: steps of a
-  fixed-step method (its :class:`~belt_drive_ros.core.stage_scheme.StageScheme`
-  as zero-padded matrices, :class:`~belt_drive_ros.core.kernel_loop.KernelLoop`)
-  on ``x' = A x + B u(t, x)`` with P wheels, each driven by a profile: stage
-  torques from the profiles' data, the torque time clamped into ``[lo, hi]``
-  (a step next to a breakpoint), the implicit stage by fixed point, the
-  speed-dependent extra input of a slipping belt with mass, the divergence
-  check and an optional guard (a slipping belt's switching function) after
-  every step. The two-wheel drive (:func:`linear_steps`) and a belt network
-  both step here;
-* :func:`linear_steps` -- the two-wheel drive's entry (its arrays packed), with
-  the fast path of a 2- or 4-state plant with an explicit method (:func:`_explicit`).
+* :func:`profile_torque` (and :func:`profile_torque_array` on arrays) -- a
+  profile's torque from its data (:mod:`~belt_drive_ros.core.profile_data`);
+* :func:`wheel_steps` -- the time loop: steps of a fixed-step method (its
+  StageScheme as zero-padded matrices, :class:`~belt_drive_ros.core.kernel_loop.KernelLoop`)
+  on ``x' = A x + B u(t, x)`` with P wheels each driven by a profile: torque
+  times clamped into ``[lo, hi]``, the implicit stage by fixed point, a
+  slipping belt's speed-dependent extra input, the divergence check and an
+  optional guard after every step (the two-wheel drive and belt networks);
+* :func:`linear_steps` -- the two-wheel drive's entry (its arrays packed),
+  with the 2- and 4-state fast path of an explicit method (:func:`_explicit`).
 
-This module imports numba; the rest of the core imports it only where a run
-starts (``belt-drive --help``, ``scenes`` and ``msg-tools`` never load it).
-
-Summation order: every matrix-vector product is summed column by column from
-the left (zero entries included: adding a zero product changes no nonzero
-sum), the order :func:`~belt_drive_ros.core.stage_scheme.affine` documents,
-so a step here equals the numpy reference step where the matrices are the same.
+Only a run imports this module (``--help``, ``scenes``, ``msg-tools`` never do).
+Every matrix-vector product is summed column by column from the left (zero
+entries included), as :func:`~belt_drive_ros.core.stage_scheme.affine` does.
 """
 
 from __future__ import annotations
@@ -144,10 +133,7 @@ def is_formula(kind):
 def formula(kind, p0, p1, p2, p3, p4, t, speed):
     """Torque [N m] of a row of a formula kind (:func:`is_formula`) from its numbers ``p0 .. p4`` at ``t`` [s], ``speed`` [rad/s].
 
-    Scalars only: a loop that reads a profile's numbers once per call and
-    evaluates this per step passes no array into inlined code (numba counts
-    references to every array an inlined helper receives; on a large branchy
-    body the counting is not pruned and costs more than the step's arithmetic).
+    Scalars only: numba counts references to every array an inlined helper receives, per call.
     """
     if kind == CONSTANT:
         return p0
@@ -178,13 +164,8 @@ def _affine_in_speed(c0, c1, speed):
 
 @njit(**_INLINE)
 def motor_line(stall, no_load, fade, t, speed):
-    """Motor line row ``(stall, no_load, fade)``: stall (1 - speed / no_load) [N m], faded in over ``fade`` [s].
-
-    The row's numbers come as scalars: a loop over many speeds at one time
-    (the variant lanes, :mod:`~belt_drive_ros.core.kernel_variants`) reads
-    them once and compiles to vector operations (through :func:`torque`,
-    reading the row inside the loop, it did not: 2x the lanes' step cost).
-    """
+    """Motor line row ``(stall, no_load, fade)``: stall (1 - speed / no_load) [N m], faded in over ``fade`` [s]
+    (scalars: the variant lanes' loop over speeds compiles to vector operations)."""
     value = stall * (1.0 - speed / no_load)
     return _fade(value, t, fade) if fade > 0.0 else value
 
@@ -467,14 +448,11 @@ SECTIONS = ("W", "offsets", "S", "F", "tol", "extra", "guard", "dx", "dy", "lx",
 def linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp):
     """Steps ``times[k] -> times[k+1]`` of one fixed-step method from state ``x``; states into ``out[k]``.
 
-    The one compiled entry point of the loop: the plant's and method's
-    constant arrays are packed into ``reals`` (float64) and ``ints`` (int64)
-    once per loop (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`;
-    layout :data:`HEADER`, :data:`SECTIONS`), so a call type-checks ten
-    arguments, not twenty-five (a node tick's single step is mostly the
-    call). ``dp``, ``lp``: the drive's and load's profile parameters, passed
-    as themselves (a held torque writes its value into them in place).
-    Unpacked into views, then :func:`_steps` (the loop for the case).
+    The plant's and method's arrays come packed into ``reals`` and ``ints``
+    (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`; layout :data:`HEADER`,
+    :data:`SECTIONS`): a call type-checks ten arguments, not twenty-five.
+    ``dp``, ``lp``: the drive's and load's profile parameters (a held torque
+    writes its value into them in place). Unpacked, then :func:`_steps`.
     """
     n, s, E, rows, cols = ints[0], ints[1], ints[2], ints[3], ints[4]
     at = ints[HEADER : HEADER + len(SECTIONS) + 1]
@@ -513,20 +491,24 @@ def _row(M, i, r, x0, x1, x2, x3, n):
 
 
 @njit(**_INLINE)
-def _stage_row(M, i, r, x0, x1, x2, x3, n, U, count):
-    """``M[i, r] @ [x, U[:count]]``: the n state columns, then the earlier stages' torques, from the left."""
-    total = _row(M, i, r, x0, x1, x2, x3, n)
+def _stage_rows(M, i, ra, rb, x0, x1, x2, x3, n, U, count):
+    """Rows ``ra`` and ``rb`` of ``M[i] @ [x, U[:count]]``: the n state columns, then the earlier stages' torques,
+    each row summed from the left (one pass over U for both: half the loop's overhead, the same floats)."""
+    ya, yb = _row(M, i, ra, x0, x1, x2, x3, n), _row(M, i, rb, x0, x1, x2, x3, n)
     for j in range(count):
-        total = total + M[i, r, n + j] * U[j]
-    return total
+        u = U[j]
+        ya = ya + M[i, ra, n + j] * u
+        yb = yb + M[i, rb, n + j] * u
+    return ya, yb
 
 
 @njit(**_INLINE)
-def _final(F, r, x0, x1, x2, x3, n, u0, u1, e0, E, U, last):
-    """Row ``r`` of ``F @ [x, U[:last], u0, u1 (, e0)]`` (the last stage's torques as scalars), summed from the left."""
-    y = _stage_row(F, 0, r, x0, x1, x2, x3, n, U, last)
-    y = y + F[0, r, n + last] * u0 + F[0, r, n + 1 + last] * u1
-    return y + F[0, r, n + 2 + last] * e0 if E else y
+def _final(F, ra, rb, x0, x1, x2, x3, n, u0, u1, e0, E, U, last):
+    """Rows ``ra``, ``rb`` of ``F @ [x, U[:last], u0, u1 (, e0)]`` (the last stage's torques as scalars), from the left."""
+    ya, yb = _stage_rows(F, 0, ra, rb, x0, x1, x2, x3, n, U, last)
+    ya = ya + F[0, ra, n + last] * u0 + F[0, ra, n + 1 + last] * u1
+    yb = yb + F[0, rb, n + last] * u0 + F[0, rb, n + 1 + last] * u1
+    return (ya + F[0, ra, n + 2 + last] * e0, yb + F[0, rb, n + 2 + last] * e0) if E else (ya, yb)
 
 
 @njit(**_INLINE)
@@ -551,16 +533,15 @@ def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk,
     """:func:`wheel_steps` for an explicit method on a plant of ``n`` = 2 (rigid) or 4 (flexible) states
     (stage kinds 0, 1, 2 as there); ``n`` a constant at each call, so each size compiles to its own loop.
 
-    The same operations in the same order; the state (``x0, x1`` and, for
-    4 states, ``x2, x3``: angles then speeds), each stage's wheel coordinates
-    and its torques are scalars, the earlier stages' torques a small array
-    ``U`` (``[U_0, ..., U_{s-2}]``, m each): no store and reload on the step's
-    critical path (x -> omega_M -> torque -> x+). A wheel angle its profile
-    does not read is not computed. A profile that is one formula row
-    (:func:`is_formula`: paper's motor line and load) is evaluated from
-    scalars read once per call: with no array passed into the inlined
-    dispatcher, numba's reference counting of its arrays drops out of the
-    step (measured: 33 -> 14 ns per ``exact`` step on paper).
+    The same operations in the same order, with the state (``x0, x1`` and,
+    for 4 states, ``x2, x3``), each stage's wheel coordinates and torques in
+    scalars and the earlier stages' torques in a small array ``U``: no store
+    and reload on the critical path (x -> omega_M -> torque -> x+). Rows are
+    summed in pairs over ``U`` (:func:`_stage_rows`; lawson5 on paper 95 -> 89 ns).
+    A wheel angle its profile does not read is not computed. A profile that
+    is one formula row (:func:`is_formula`) is read once per call: with no
+    array passed into the inlined dispatcher, numba's reference counting
+    drops out of the step (paper's ``exact``: 33 -> 14 ns).
     """
     x0, x1 = x[0], x[1]
     x2 = x[2] if n == 4 else 0.0
@@ -584,13 +565,15 @@ def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk,
             time = t if offsets[i] == 0.0 else t + offsets[i]
             tc = lo if time < lo else hi if time > hi else time
             if kinds[i] == 2:  # the whole stage state (etd2's a), then its wheel coordinates from it
-                b0, b1 = _stage_row(S, i, 0, x0, x1, x2, x3, n, U, m * i), _stage_row(S, i, 1, x0, x1, x2, x3, n, U, m * i)
+                b0, b1 = _stage_rows(S, i, 0, 1, x0, x1, x2, x3, n, U, m * i)
                 if n == 4:
-                    b2, b3 = _stage_row(S, i, 2, x0, x1, x2, x3, n, U, m * i), _stage_row(S, i, 3, x0, x1, x2, x3, n, U, m * i)
+                    b2, b3 = _stage_rows(S, i, 2, 3, x0, x1, x2, x3, n, U, m * i)
             if kinds[i] == 1:  # the wheel coordinates straight from [x, U]
-                c1, c3 = _stage_row(S, i, 1, x0, x1, x2, x3, n, U, m * i), _stage_row(S, i, 3, x0, x1, x2, x3, n, U, m * i)
-                c0 = _stage_row(S, i, 0, x0, x1, x2, x3, n, U, m * i) if ua else 0.0
-                c2 = _stage_row(S, i, 2, x0, x1, x2, x3, n, U, m * i) if ub else 0.0
+                c1, c3 = _stage_rows(S, i, 1, 3, x0, x1, x2, x3, n, U, m * i)
+                c0 = c2 = 0.0
+                if ua or ub:
+                    c0, c2 = _stage_rows(S, i, 0, 2, x0, x1, x2, x3, n, U, m * i)
+                    c0, c2 = (c0 if ua else 0.0), (c2 if ub else 0.0)
             else:  # W @ the stage state (x itself for kind 0)
                 a0, a1, a2, a3 = (x0, x1, x2, x3) if kinds[i] == 0 else (b0, b1, b2, b3)
                 c1, c3 = _row(W, 0, 1, a0, a1, a2, a3, n), _row(W, 0, 3, a0, a1, a2, a3, n)
@@ -605,13 +588,11 @@ def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk,
                 U[m * i], U[m * i + 1] = u0, u1
                 if E:
                     U[m * i + 2] = e0
-        y0 = _final(F, 0, b0, b1, b2, b3, n, u0, u1, e0, E, U, last)
-        y1 = _final(F, 1, b0, b1, b2, b3, n, u0, u1, e0, E, U, last)
+        y0, y1 = _final(F, 0, 1, b0, b1, b2, b3, n, u0, u1, e0, E, U, last)
         x0, x1 = y0, y1
         out[k, 0], out[k, 1] = y0, y1
         if n == 4:
-            y2 = _final(F, 2, b0, b1, b2, b3, n, u0, u1, e0, E, U, last)
-            y3 = _final(F, 3, b0, b1, b2, b3, n, u0, u1, e0, E, U, last)
+            y2, y3 = _final(F, 2, 3, b0, b1, b2, b3, n, u0, u1, e0, E, U, last)
             x2, x3 = y2, y3
             out[k, 2], out[k, 3] = y2, y3
             if x0 - x0 != 0.0 or x1 - x1 != 0.0 or not abs(x2) <= limit or not abs(x3) <= limit:
