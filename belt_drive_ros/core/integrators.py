@@ -1,27 +1,23 @@
 """Integrators behind one step protocol, chosen by name from one registry.
 
-Every integrator advances ``x' = A x + B u(t, x)`` (the model's matrices,
-torques from the drive and load profiles) by one step::
+Every integrator advances ``x' = A x + B u(t, x)`` by one step::
 
     x_next = integrator.step(t, x, inputs)      # inputs(t, x) -> u [N m]
 
 A fixed-step method is written once, as data: its :class:`StageScheme`
 (affine maps between torque samples; a Runge-Kutta method gives only its
-Butcher tableau, as scipy's ``rk.py`` does). Everything else is derived from
-the scheme (:mod:`belt_drive_ros.core.stage_scheme`): :meth:`~FixedStepIntegrator.step`
-on numpy arrays (the reference), the compiled time loop of every run
-(:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`), the *linear one-step map*
-(:meth:`~FixedStepIntegrator.linear_step`; with a torque that depends on
-time only every method is exactly ``x_{n+1} = Phi x_n + sum_j G_j u(t_n + c_j h)``)
-and the growth per step of each mode (:meth:`~FixedStepIntegrator.mode_growths`)
-that the stability guard reads.
+Butcher tableau). Derived from it (:mod:`belt_drive_ros.core.stage_scheme`):
+:meth:`~FixedStepIntegrator.step` on numpy arrays, the compiled loop's
+arrays (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`), the linear
+one-step map ``x_{n+1} = Phi x_n + sum_j G_j u(t_n + c_j h)`` for a torque of
+time only (:meth:`~FixedStepIntegrator.linear_step`) and each mode's growth
+per step (:meth:`~FixedStepIntegrator.mode_growths`, the stability guard's).
 
-The methods are :data:`REGISTRY` (name -> class). Each class carries its
-``name``, ``order``, ``fixed_step``, ``exact_linear`` (integrates the linear
-belt mode exactly: unconditionally stable for it) and a one-line
-``summary``; the CLI help, the node's ``method`` parameter, the stability
-guard and the tests read them from there (:func:`describe_methods`). Adding a
-method is one class decorated with :func:`register` plus its tests.
+:data:`REGISTRY` maps names to classes; each carries ``name``, ``order``,
+``fixed_step``, ``exact_linear`` (the linear belt mode integrated exactly:
+unconditionally stable for it) and a one-line ``summary``, which the CLI
+help, the node's ``method`` parameter and the stability guard read
+(:func:`describe_methods`). A new method is one class under :func:`register`.
 """
 
 from __future__ import annotations
@@ -33,7 +29,7 @@ from typing import Callable, ClassVar
 import numpy as np
 
 from . import stage_scheme as _scheme
-from .batch_expm import expm_stack
+from .batch_expm import expm_stack  # one routine for one model and a stack of variants: bit-identical matrices
 from .errors import IntegratorError
 from .identity_cache import built_once
 from .stage_scheme import LinearStep, StageScheme
@@ -172,17 +168,6 @@ def _unkey(key: tuple) -> np.ndarray:
     return np.frombuffer(data, dtype=dtype).reshape(shape)
 
 
-def _expm(M: np.ndarray) -> np.ndarray:
-    """e^M of one matrix or of a stack of variants' matrices (:func:`~belt_drive_ros.core.batch_expm.expm_stack`).
-
-    One routine for both: a single run and an ensemble of its variants then
-    step with bit-identical matrices (each matrix's exponential depends on
-    that matrix alone), so their states agree to the last bit on the same
-    summation order (:mod:`belt_drive_ros.core.ensemble`).
-    """
-    return expm_stack(M)
-
-
 def _hcat(*blocks) -> np.ndarray:
     """Blocks side by side (last axis), broadcast over any leading batch axes (a stack of variants' matrices)."""
     if all(np.ndim(b) == 2 for b in blocks):  # one model (the common case): no broadcasting to set up
@@ -198,7 +183,7 @@ def _expm_blocks_of(A: np.ndarray, B: np.ndarray, h: float):
     M[..., :n, :n] = A
     M[..., :n, n : n + m] = B
     M[..., n : n + m, n + m :] = np.eye(m)
-    E = _expm(M * h)  # Van Loan: one exponential gives all three blocks
+    E = expm_stack(M * h)  # Van Loan: one exponential gives all three blocks
     return E[..., :n, :n].copy(), E[..., :n, n : n + m].copy(), E[..., :n, n + m :].copy() / h
 
 
@@ -276,7 +261,7 @@ def _phi_blocks_of(A: np.ndarray, B: np.ndarray, h: float):
     M[..., :n, n : n + m] = h * B
     M[..., n : n + m, n + m : n + 2 * m] = np.eye(m)
     M[..., n + m : n + 2 * m, n + 2 * m :] = np.eye(m)
-    E = _expm(M)
+    E = expm_stack(M)
     return tuple(E[..., :n, :n].copy() if k == 0 else E[..., :n, n + (k - 1) * m : n + k * m].copy() for k in range(4))
 
 
@@ -327,7 +312,7 @@ class ExponentialRK4(FixedStepIntegrator):
 
 
 #: e^{tau A}, cached per (A, tau) for one system (a Lawson method needs one per distinct stage offset)
-_expm_at = _per_system(lambda A, tau: _expm(A * tau), size=256)
+_expm_at = _per_system(lambda A, tau: expm_stack(A * tau), size=256)
 
 
 class LawsonRungeKutta(FixedStepIntegrator):

@@ -1,12 +1,8 @@
 """The arrays one plant and one fixed-step method hand to the compiled loop, built once.
 
-:class:`KernelLoop` is the thin Python object around
-:func:`belt_drive_ros.core.kernel.linear_steps`: it turns the method's
-:class:`~belt_drive_ros.core.stage_scheme.StageScheme` (matrices computed by
-numpy/scipy once per model and step), the plant's wheel map, both torque
-profiles' data, the extra input and a guard into the kernel's arrays,
-and calls the kernel with them. Nothing here depends on the scene's values
-except the arrays: the kernel is compiled once per installed version.
+:class:`KernelLoop` turns the method's StageScheme, the plant's wheel map,
+both profiles' data, the extra input and a guard into the arrays of
+:func:`belt_drive_ros.core.kernel.linear_steps`, and calls it with them.
 """
 
 from __future__ import annotations

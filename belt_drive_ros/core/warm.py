@@ -1,29 +1,19 @@
 """Compile (or load from numba's disk cache) every kernel once, with the one signature runs use.
 
-``make install`` calls :func:`warm` so that a first run compiles nothing:
-every kernel's argument types are fixed (float64/int64 C arrays and floats),
-so one short call per kernel covers every scene. Kept apart from the kernels'
-own modules so that no kernel module imports the simulators above it.
-
-Which kernel calls which (a caller's compilation needs its callees' machine
-code: from the disk cache where another process has written it, else it
-compiles them itself, a second time)::
+``make install`` calls :func:`warm`, so a first run compiles nothing (the
+argument types never change with the scene). Which kernel calls which (a
+caller's compilation needs its callees' machine code: from the cache, else
+it compiles them again)::
 
     wheel_steps <- _steps <- linear_steps <- hybrid loop <- node's slipping tick
                 |        <- variant loop    <- node's linear tick
                 <- network node tick (and the network's linear tiers, called from Python)
     network slipping tier: calls none of them
 
-With ``jobs=2`` the work runs in two processes along that graph, and no
-kernel is compiled by both: this one compiles ``wheel_steps`` (through a
-short network run), then ``_steps`` and ``linear_steps``, then the slipping
-hybrid loop and the node ticks; the second process starts with the network
-slipping tier (which needs nothing) and takes each kernel that calls the
-linear loop only once this process has written the callee to the cache
-(told through its stdin): the network node tick after ``wheel_steps``, the
-variant loop after ``linear_steps``. On two cores the build takes about the
-longer chain's time instead of the sum, without the duplicate compilations
-of the loop both chains start with.
+With ``jobs=2`` a second process starts with the network slipping tier and
+takes the network node tick once this process has cached ``wheel_steps``, the
+variant loop once it has cached ``linear_steps`` (told on its stdin): on two
+cores the longer chain's time, and nothing compiled twice.
 """
 
 from __future__ import annotations
