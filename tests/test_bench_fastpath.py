@@ -44,6 +44,9 @@ PROFILES = [
     S.Compressor(c1=0.1, ramp_time=0.2),
     S.Schedule(S.Compressor(), S.Constant(2.0), ((0.2, 0.4),)),
     S.Schedule(S.Compressor(), S.Constant(2.0), ((0.2, 0.4), (0.6, 0.9))),
+    # past what the 2- and 4-state loops read into scalars (kernel.profile_scalars): through the dispatcher there
+    S.Engine(harmonics=(15.0, 5.0, 2.0, 1.0), speed_setpoint=70.0),
+    S.Schedule(S.Compressor(harmonics=(3.0,)), S.Engine(), ((0.1, 0.2), (0.3, 0.4), (0.5, 0.8))),
 ]
 
 
@@ -277,7 +280,8 @@ NESTED = S.Schedule(S.Schedule(S.Compressor(), S.Constant(1.0), ((0.3, 0.5),)), 
 @pytest.mark.parametrize("profile", PROFILES + [NESTED], ids=lambda p: p.kind)
 def test_every_profile_kind_steps_alike_in_the_scalar_state_loops_and_the_general_loop(profile, method, model_name):
     """The 2- and 4-state loops evaluate a one-row formula profile (constant, step, ramp, sine, motor line,
-    polynomial) from numbers read once per call and every other kind (nested schedules too) from its data: each
+    polynomial), an engine or compressor of up to three harmonics and a schedule of up to two periods of those from
+    numbers read once per call, and every other kind (nested schedules too) from its data: each
     kind, on the drive and on the load, gives the general loop's floats to the last bit (across the profiles'
     breakpoints, no clamp)."""
     scene = load_scene("paper")

@@ -41,6 +41,8 @@ _JIT = dict(cache=True, nogil=True)
 #: by more than the tolerance when the state moves by one ulp: the iteration cannot get closer, it alternates)
 ROUNDING = 1e-9
 #: small helpers are inlined into their callers (no call, no reference counting of the arrays passed)
+#: harmonic amplitudes an engine or compressor row may have to run from scalars (:func:`profile_scalars`)
+SCALAR_HARMONICS = 3
 _INLINE = dict(cache=True, nogil=True, inline="always")
 
 
@@ -49,9 +51,8 @@ _INLINE = dict(cache=True, nogil=True, inline="always")
 def _bisect_right(xs, offset, n, x):
     """Index ``i`` in ``[0, n]`` with ``xs[offset + j] <= x`` for all j < i (as :func:`bisect.bisect_right`).
 
-    Inside the table the search starts where ``x`` would lie if the points were evenly spaced (a
-    recording's samples nearly are: found in a step or two, however long the table) and widens by
-    doubling until it brackets ``x``; then halving. The index is the same as a plain bisection's.
+    The search starts where ``x`` would lie among evenly spaced points (a recording's samples nearly are) and
+    widens by doubling until it brackets ``x``; then halving (the same index as a plain bisection's).
     """
     lo, hi = 0, n
     if n > 8 and xs[offset] <= x < xs[offset + n - 1]:
@@ -197,14 +198,7 @@ def torque(kind, params, row, tx, ty, t, angle, speed):
     if kind == TABLE_HELD_NS:  # switching at whole nanoseconds (t rounded half to even)
         return _held(np.rint(t * 1e9), tx, ty, int(params[row, 0]), int(params[row, 1]))
     if kind == ENGINE:
-        mode = params[row, 0]
-        if mode == 0.0:
-            base = params[row, 1]
-        elif mode == 1.0:  # droop governor clip(mean + gain (setpoint - speed), 0, top)
-            b = params[row, 1] + params[row, 2] * (params[row, 3] - speed)
-            base = 0.0 if b < 0.0 else params[row, 4] if b > params[row, 4] else b
-        else:
-            base = params[row, 4]
+        base = _engine_base(params[row, 0], params[row, 1], params[row, 2], params[row, 3], params[row, 4], speed)
         value, _ = _harmonics(base, np.bool_(True), ty, int(params[row, 9]), int(params[row, 10]), params[row, 5] * (params[row, 6] * angle) + params[row, 7])
         return _fade(value, t, params[row, 8]) if params[row, 8] > 0.0 else value
     if kind == MOTOR_CURVE:
@@ -215,6 +209,80 @@ def torque(kind, params, row, tx, ty, t, angle, speed):
         value, have = _harmonics(value, have, ty, int(params[row, 5]), int(params[row, 6]), params[row, 2] * angle + params[row, 3])
         return _fade(value, t, params[row, 4]) if params[row, 4] > 0.0 else value
     return math.nan
+
+
+@njit(**_INLINE)
+def _harmonics_of(total, have, amplitudes, arg):
+    """:func:`_harmonics` over a tuple of amplitudes (scalars: a row read once per call; zeros skipped alike)."""
+    for k in range(len(amplitudes)):
+        a = amplitudes[k]
+        if a != 0.0:
+            term = a * math.sin((k + 1.0) * arg)
+            total = total + term if have else term
+            have = True
+    return total, have
+
+
+@njit(**_INLINE)
+def _engine_base(mode, mean, gain, setpoint, top, speed):
+    """An engine row's torque before its harmonics: ``mean`` (mode 0), the droop governor
+    ``clip(mean + gain (setpoint - speed), 0, top)`` (mode 1) or ``top`` (mode 2)."""
+    if mode == 0.0:
+        return mean
+    if mode == 1.0:
+        b = mean + gain * (setpoint - speed)
+        return 0.0 if b < 0.0 else top if b > top else b
+    return top
+
+
+@njit(**_INLINE)
+def _row_scalars(kinds, params, ty, row):
+    """(whether row ``row`` evaluates from scalars alone, its kind, its first nine numbers, its harmonic
+    amplitudes): a formula row, or an engine or compressor of at most :data:`SCALAR_HARMONICS` harmonics."""
+    kind = kinds[row]
+    p = (params[row, 0], params[row, 1], params[row, 2], params[row, 3], params[row, 4], params[row, 5],
+         params[row, 6], params[row, 7], params[row, 8])  # fmt: skip
+    col = 9 if kind == ENGINE else 5
+    offset, count = int(params[row, col]), int(params[row, col + 1])
+    harmonic = (kind == ENGINE or kind == COMPRESSOR) and count <= SCALAR_HARMONICS
+    amplitudes = (ty[offset] if harmonic and count > 0 else 0.0, ty[offset + 1] if harmonic and count > 1 else 0.0,
+                  ty[offset + 2] if harmonic and count > 2 else 0.0)  # fmt: skip
+    return is_formula(kind) or harmonic, kind, p, amplitudes
+
+
+@njit(**_INLINE)
+def profile_scalars(kinds, params, tx, ty):
+    """A profile as scalars for a loop that reads them once per call (:func:`scalar_torque`): (whether it fits,
+    the active part's kind, numbers and amplitudes, the inactive part's, the periods ``(s0, e0, s1, e1)``).
+
+    Fits: a row of :func:`_row_scalars`, or a schedule of at most two periods of two such rows (a profile
+    that is not a schedule is its own active part, always inside ``(-inf, inf)``).
+    """
+    fits, ka, pa, aa = _row_scalars(kinds, params, ty, 0)
+    ki, pi, ai = ka, pa, aa
+    periods = (-math.inf, math.inf, 0.0, 0.0)
+    if kinds[0] == SCHEDULE:
+        offset, n, active, inactive = int(params[0, 0]), int(params[0, 1]), int(params[0, 2]), int(params[0, 3])
+        fits, ka, pa, aa = _row_scalars(kinds, params, ty, active)
+        fits_i, ki, pi, ai = _row_scalars(kinds, params, ty, inactive)
+        fits = fits and fits_i and n <= 2
+        periods = (tx[offset] if n > 0 else 0.0, ty[offset] if n > 0 else 0.0,
+                   tx[offset + 1] if n > 1 else 0.0, ty[offset + 1] if n > 1 else 0.0)  # fmt: skip
+    return fits, ka, pa, aa, ki, pi, ai, periods
+
+
+@njit(**_INLINE)
+def scalar_torque(kind, p, amplitudes, t, angle, speed):
+    """Torque [N m] of a row read by :func:`_row_scalars` (the same operations as :func:`torque`)."""
+    if kind == ENGINE:
+        base = _engine_base(p[0], p[1], p[2], p[3], p[4], speed)
+        value, _ = _harmonics_of(base, True, amplitudes, p[5] * (p[6] * angle) + p[7])
+        return _fade(value, t, p[8]) if p[8] > 0.0 else value
+    if kind == COMPRESSOR:
+        value, have = _affine_in_speed(p[0], p[1], speed)
+        value, have = _harmonics_of(value, have, amplitudes, p[2] * angle + p[3])
+        return _fade(value, t, p[4]) if p[4] > 0.0 else value
+    return formula(kind, p[0], p[1], p[2], p[3], p[4], t, speed)
 
 
 @njit(**_INLINE)
@@ -281,10 +349,9 @@ def _rows(M, i, rows, cols, v, voff, out, ooff):
 def _inputs(buf, base, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra):
     """Write a stage's inputs ``[torque_0 .. torque_{P-1}, extras...]`` at the clamped time ``tc`` into ``buf[base:]``.
 
-    Wheel p's profile reads its angle and speed ``coords[2p], coords[2p + 1]`` (the angle only where
-    ``uses[p]``, else 0.0), from its first row ``start[p]``: profile 0 in the first bank ``ak, ap, ax, ay``,
-    the others in the second (:func:`wheel_steps`). Two wheels (the drive) are written out without a loop over
-    the profiles (measured: the loop with its bank choice cost the two-wheel rigid run 2-3x per step).
+    Wheel p's profile (first row ``start[p]``; profile 0 in the first bank, the others in the second) reads
+    ``coords[2p]`` (its angle where ``uses[p]``, else 0.0) and ``coords[2p + 1]``; two wheels without a loop
+    (the loop with its bank choice cost the two-wheel run 2-3x per step).
     """
     P = start.size
     buf[base] = profile_torque_at(ak, ap, ax, ay, start[0], tc, coords[0] if uses[0] else 0.0, coords[1])
@@ -303,11 +370,8 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
     """The one time loop of the linear family: steps ``times[k] -> times[k+1]`` of one fixed-step method on
     ``x' = A x + B u(t, x)`` from ``x``, with P wheels each driven by a torque profile; states into ``out[k]``.
 
-    The two-wheel drive (:func:`linear_steps`, P = 2) and a belt network (one
-    wheel per driven pulley; :class:`~belt_drive_ros.core.network.simulate.NetworkLoop`)
-    both step here; a 2- or 4-state two-wheel plant with an explicit method
-    steps in :func:`_explicit`, the same operations with the state in
-    scalars (the same floats).
+    The two-wheel drive (:func:`linear_steps`) and a belt network (one wheel per driven pulley) step here;
+    a 2- or 4-state two-wheel plant with an explicit method in :func:`_explicit` (the same floats).
 
     Parameters (all arrays float64/int64, C order)
     ----------
@@ -330,8 +394,7 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
     guard : (5 + 2n,) ``[active, absolute, bound, quad, has_speed, row..., speed...]``:
         stop after the first step whose end state has ``f(row x) > bound - quad (speed x)^2``.
 
-    Every product sums over the columns from the left, the stage's own
-    columns ``[x, U_0 .. U_{i-1}]`` only.
+    Every product sums the stage's own columns ``[x, U_0 .. U_{i-1}]`` from the left.
 
     Returns
     -------
@@ -539,9 +602,11 @@ def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk,
     and reload on the critical path (x -> omega_M -> torque -> x+). Rows are
     summed in pairs over ``U`` (:func:`_stage_rows`; lawson5 on paper 95 -> 89 ns).
     A wheel angle its profile does not read is not computed. A profile that
-    is one formula row (:func:`is_formula`) is read once per call: with no
-    array passed into the inlined dispatcher, numba's reference counting
-    drops out of the step (paper's ``exact``: 33 -> 14 ns).
+    is one formula row (:func:`is_formula`), or else fits in scalars
+    (:func:`profile_scalars`: the truck's engine and scheduled compressors),
+    is read once per call: with no array passed into the inlined dispatcher,
+    numba's reference counting drops out of the step (paper's ``exact``:
+    33 -> 14 ns; truck_compressor's etd4 341 -> 235 ns).
     """
     x0, x1 = x[0], x[1]
     x2 = x[2] if n == 4 else 0.0
@@ -557,6 +622,8 @@ def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk,
     dform, lform = is_formula(dkind), is_formula(lkind)
     d0, d1, d2, d3, d4 = dp[0, 0], dp[0, 1], dp[0, 2], dp[0, 3], dp[0, 4]
     l0, l1, l2, l3, l4 = lp[0, 0], lp[0, 1], lp[0, 2], lp[0, 3], lp[0, 4]
+    dfits, dka, dpa, daa, dki, dpi, dai, dper = profile_scalars(dk, dp, dx, dy)  # (engines, compressors, schedules)
+    lfits, lka, lpa, laa, lki, lpi, lai, lper = profile_scalars(lk, lp, lx, ly)
     for k in range(steps):
         t = times[k]
         u0 = u1 = e0 = 0.0
@@ -581,8 +648,20 @@ def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk,
                 c2 = _row(W, 0, 2, a0, a1, a2, a3, n) if ub else 0.0
             # written out here, not in a helper: an inlined helper receiving the arrays would count their
             # references on every step again
-            u0 = formula(dkind, d0, d1, d2, d3, d4, tc, c1) if dform else profile_torque(dk, dp, dx, dy, tc, c0, c1)
-            u1 = formula(lkind, l0, l1, l2, l3, l4, tc, c3) if lform else profile_torque(lk, lp, lx, ly, tc, c2, c3)
+            if dform:
+                u0 = formula(dkind, d0, d1, d2, d3, d4, tc, c1)
+            elif dfits:
+                kind, p, a = (dka, dpa, daa) if dper[0] <= tc < dper[1] or dper[2] <= tc < dper[3] else (dki, dpi, dai)
+                u0 = scalar_torque(kind, p, a, tc, c0, c1)
+            else:
+                u0 = profile_torque(dk, dp, dx, dy, tc, c0, c1)
+            if lform:
+                u1 = formula(lkind, l0, l1, l2, l3, l4, tc, c3)
+            elif lfits:
+                kind, p, a = (lka, lpa, laa) if lper[0] <= tc < lper[1] or lper[2] <= tc < lper[3] else (lki, lpi, lai)
+                u1 = scalar_torque(kind, p, a, tc, c2, c3)
+            else:
+                u1 = profile_torque(lk, lp, lx, ly, tc, c2, c3)
             e0 = _friction_force(extra[0], c1) if E else 0.0
             if i < s - 1:
                 U[m * i], U[m * i + 1] = u0, u1
