@@ -1,18 +1,13 @@
 """Keep numba's disk cache of the compiled kernels in step with their sources.
 
-numba keys a cached function by its *own* source file (path, mtime, size).
-A kernel that calls a compiled function of another file (every loop calls
-``kernel.profile_torque``; the slipping and variant loops call
-``kernel.linear_steps``) carries that callee's machine code inside its own
-cache entry, so after an edit of ``kernel.py`` alone the callers' entries
-would still load, with the old callee inside. This module fingerprints every
-kernel source together (SHA-256 of their bytes) and, when the fingerprint is
-not the one the cache was built with, removes the cache entries (``*.nbi``,
-``*.nbc``) of ``core/`` and ``core/network/`` before any kernel loads: the
-next call compiles afresh and the new fingerprint is written. Where the
-package folder is read-only (numba then caches under ``NUMBA_CACHE_DIR``) the
-entries found there for these folders are handled the same way; a folder we
-cannot write is left as it is.
+numba keys a cached function by its own source file, but a kernel that calls
+a compiled function of another file (every loop calls ``kernel.profile_torque``)
+carries that callee's machine code in its own entry: after an edit of
+``kernel.py`` alone its callers' entries would still load the old callee.
+This module fingerprints every kernel source together (SHA-256) and, when the
+fingerprint changed, removes the cache entries (``*.nbi``, ``*.nbc``) of
+``core/`` and ``core/network/`` (or those under ``NUMBA_CACHE_DIR`` for these
+folders) before any kernel loads; a folder we cannot write is left alone.
 """
 
 from __future__ import annotations

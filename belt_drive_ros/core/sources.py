@@ -131,22 +131,13 @@ class TorqueProfile:
         return lambda t, angle, speed: profile_torque(kinds, params, tx, ty, t, angle, speed)
 
     def breakpoints(self) -> "tuple[float, ...] | np.ndarray":
-        """Times [s] at which the torque jumps or kinks in time (a step, a ramp's ends, a soft start's end).
-
-        A one-step method that integrates across one is locally first order
-        there; :class:`~belt_drive_ros.core.stepper.Stepper` splits such a step
-        at it (or ends a step on it). A tuple, or a float64 array (a table). Default: none.
-        """
+        """Times [s] at which the torque jumps or kinks in time (a step, a ramp's ends, a soft start's end): the
+        stepper splits a step there (a one-step method is first order across one). A tuple or a float64 array."""
         return ()
 
     def left_of(self, t: float) -> float:
-        """Latest time [s] before ``t`` at which the torque still has its value from the left of ``t``.
-
-        The stepper samples a step that ends at a breakpoint ``t`` no later
-        than this, so it sees the torque's left limit there (the jump itself
-        belongs to the next step). Default: the float just below ``t``
-        (every profile here switches at ``t >= time``).
-        """
+        """Latest time [s] before ``t`` with the torque's value from the left of ``t`` (a step ending at breakpoint
+        ``t`` samples no later; default the float just below: every profile here switches at ``t >= time``)."""
         return math.nextafter(t, -math.inf)
 
     def excitation_frequencies(self, speed: float) -> list[tuple[float, str]]:

@@ -100,15 +100,8 @@ def not_converged(name: str, t: float, max_iter: int, dt: float) -> IntegratorEr
 
 
 def affine(M: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``M @ v`` summed column by column from the left: ``((M[:, 0] v[0] + M[:, 1] v[1]) + ...)``.
-
-    The order of the compiled loop's sums (:func:`~belt_drive_ros.core.kernel.linear_steps`)
-    and of the ensemble's per-variant sums
-    (:mod:`~belt_drive_ros.core.ensemble`), so a step taken here, in the
-    compiled loop or in an ensemble gives the same floats (a BLAS product may
-    sum in another order). ``add.accumulate`` is sequential by definition.
-    ``v`` may be a matrix (k, c): each column as a vector.
-    """
+    """``M @ v`` summed column by column from the left: ``((M[:, 0] v[0] + M[:, 1] v[1]) + ...)``, the order of
+    the compiled loops' sums (a BLAS product may sum in another; ``cumsum`` is sequential). ``v`` may be (k, c)."""
     if np.ndim(v) == 2:
         return np.cumsum(M[:, :, None] * v[None, :, :], axis=1)[:, -1, :]
     return np.cumsum(M * v, axis=-1)[..., -1]
