@@ -112,18 +112,6 @@ def _fade(value, t, duration):
     return value * (0.0 if t < 0.0 else 1.0 if t > duration else t / duration)
 
 
-@njit(**_JIT)
-def _harmonics(total, have, amplitudes, offset, n, arg):
-    """``total + sum_k A_k sin(k arg)`` over the nonzero A_k, summed from the left; ``have``: total holds a term."""
-    for k in range(n):
-        a = amplitudes[offset + k]
-        if a != 0.0:
-            term = a * math.sin((k + 1.0) * arg)
-            total = total + term if have else term
-            have = True
-    return total, have
-
-
 @njit(**_INLINE)
 def is_formula(kind):
     """Whether a row of ``kind`` is a formula of its first five numbers alone (no table, no angle): :func:`formula`."""
@@ -199,21 +187,24 @@ def torque(kind, params, row, tx, ty, t, angle, speed):
         return _held(np.rint(t * 1e9), tx, ty, int(params[row, 0]), int(params[row, 1]))
     if kind == ENGINE:
         base = _engine_base(params[row, 0], params[row, 1], params[row, 2], params[row, 3], params[row, 4], speed)
-        value, _ = _harmonics(base, np.bool_(True), ty, int(params[row, 9]), int(params[row, 10]), params[row, 5] * (params[row, 6] * angle) + params[row, 7])
+        o, n = int(params[row, 9]), int(params[row, 10])
+        value, _ = _harmonics(base, np.bool_(True), ty[o : o + n], params[row, 5] * (params[row, 6] * angle) + params[row, 7])
         return _fade(value, t, params[row, 8]) if params[row, 8] > 0.0 else value
     if kind == MOTOR_CURVE:
         value = _interp(speed, tx, ty, int(params[row, 0]), int(params[row, 1]))
         return _fade(value, t, params[row, 2]) if params[row, 2] > 0.0 else value
     if kind == COMPRESSOR:  # mean + c1 speed + sum_k A_k sin(k (z angle + phase)), zero terms dropped
         value, have = _affine_in_speed(params[row, 0], params[row, 1], speed)
-        value, have = _harmonics(value, have, ty, int(params[row, 5]), int(params[row, 6]), params[row, 2] * angle + params[row, 3])
+        o, n = int(params[row, 5]), int(params[row, 6])
+        value, have = _harmonics(value, have, ty[o : o + n], params[row, 2] * angle + params[row, 3])
         return _fade(value, t, params[row, 4]) if params[row, 4] > 0.0 else value
     return math.nan
 
 
 @njit(**_INLINE)
-def _harmonics_of(total, have, amplitudes, arg):
-    """:func:`_harmonics` over a tuple of amplitudes (scalars: a row read once per call; zeros skipped alike)."""
+def _harmonics(total, have, amplitudes, arg):
+    """``total + sum_k A_k sin(k arg)`` over the nonzero A_k (a table's slice, or a tuple of scalars), summed from
+    the left; ``have``: total holds a term."""
     for k in range(len(amplitudes)):
         a = amplitudes[k]
         if a != 0.0:
@@ -276,11 +267,11 @@ def scalar_torque(kind, p, amplitudes, t, angle, speed):
     """Torque [N m] of a row read by :func:`_row_scalars` (the same operations as :func:`torque`)."""
     if kind == ENGINE:
         base = _engine_base(p[0], p[1], p[2], p[3], p[4], speed)
-        value, _ = _harmonics_of(base, True, amplitudes, p[5] * (p[6] * angle) + p[7])
+        value, _ = _harmonics(base, True, amplitudes, p[5] * (p[6] * angle) + p[7])
         return _fade(value, t, p[8]) if p[8] > 0.0 else value
     if kind == COMPRESSOR:
         value, have = _affine_in_speed(p[0], p[1], speed)
-        value, have = _harmonics_of(value, have, amplitudes, p[2] * angle + p[3])
+        value, have = _harmonics(value, have, amplitudes, p[2] * angle + p[3])
         return _fade(value, t, p[4]) if p[4] > 0.0 else value
     return formula(kind, p[0], p[1], p[2], p[3], p[4], t, speed)
 
