@@ -18,12 +18,23 @@ are compared bit for bit at every tick.
 
 Prints the median and p99 [us] per scene and path; no target is asserted
 here (the issue's target, median <= 20 us on cold caches, is printed beside).
+
+``--baseline DIR`` (another checkout, its numba cache warm): the compiled
+tick of this tree and of ``DIR`` instead, each tree in its own child process
+(``PYTHONPATH`` = the checkout, timed by this file's :func:`measure`),
+alternating rounds of ticks; the median and p99 of all rounds per tree.
 """
 
 from __future__ import annotations
 
+import json
+import os
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 CASES = (
     ("paper, flexible, drive_torque topic", (("drive_source", "topic"),)),
@@ -39,8 +50,9 @@ def _stats(samples) -> tuple[float, float]:
     return statistics.median(s) / 1e3, s[int(0.99 * (len(s) - 1))] / 1e3
 
 
-def measure(params, ticks: int, sleep: float = 0.001) -> dict:
-    """Median/p99 [us] of both paths' ticks and whether their values agreed at every tick."""
+def measure(params, ticks: int, sleep: float = 0.001, general: bool = True) -> dict:
+    """Median/p99 [us] of both paths' ticks and whether their values agreed at every tick; ``general=False``:
+    the compiled tick alone (its samples [ns] under ``samples``)."""
     from rclpy.parameter import Parameter
 
     from ..ros.executors import ros_session
@@ -48,9 +60,10 @@ def measure(params, ticks: int, sleep: float = 0.001) -> dict:
 
     with ros_session() as ctx:
         over = [Parameter("tick_thread", value=False)] + [Parameter(k, value=v) for k, v in params]
-        nodes = [BeltDriveNode(context=ctx, parameter_overrides=over) for _ in range(2)]
+        nodes = [BeltDriveNode(context=ctx, parameter_overrides=over) for _ in range(2 if general else 1)]
         try:
-            nodes[1].sim._tick_kernel = None  # the general path: Stepper.advance + model.outputs every tick
+            if general:
+                nodes[1].sim._tick_kernel = None  # the general path: Stepper.advance + model.outputs every tick
             for node in nodes:
                 node.refresh_subscriber_counts()
                 node._listening = (True,) + node._listening[1:]  # joint_states encoded every tick (a subscriber)
@@ -70,8 +83,10 @@ def measure(params, ticks: int, sleep: float = 0.001) -> dict:
                     start = clock()
                     node._tick(now, True)
                     samples[j].append(clock() - start)
-                same = same and nodes[0]._last[0] == nodes[1]._last[0]
+                same = same and nodes[0]._last[0] == nodes[-1]._last[0]
             warm = ticks // 20
+            if not general:
+                return {"samples": samples[0][warm:]}
             return {"compiled": _stats(samples[0][warm:]), "general": _stats(samples[1][warm:]), "identical": same,
                     "compiled_ticks": sum(1 for _ in samples[0])}  # fmt: skip
         finally:
@@ -79,10 +94,60 @@ def measure(params, ticks: int, sleep: float = 0.001) -> dict:
                 node.destroy_node()
 
 
-def main(quick: bool = False) -> int:
-    import os
+#: what a child process of one tree runs for ``--baseline``: this file (argv[2], loaded as a module of the tree's
+#: package: both trees timed by the same code), the compiled tick's samples [ns] of argv[1] ticks per case; the
+#: first line names the tick kernel that ran
+_CHILD = r"""
+import importlib.util, json, sys
+from belt_drive_ros.core import tick
+spec = importlib.util.spec_from_file_location("belt_drive_ros.benchmarks._node_tick_timing", sys.argv[2])
+bench = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(bench)
+print(tick.__file__)
+print(json.dumps([bench.measure(params, int(sys.argv[1]), general=False)["samples"] for _, params in bench.CASES]))
+"""
 
+
+def _python(root: Path) -> str:
+    """The interpreter of a checkout (its own ``.venv``, else this one)."""
+    own = root / ".venv" / "bin" / "python"
+    return str(own) if own.exists() else sys.executable
+
+
+def side_by_side(baseline: Path, ticks: int, rounds: int) -> list:
+    """Per case ``(this tree's samples, the baseline's)`` [ns] of the compiled tick: each tree in its own child
+    process, alternating ``rounds`` times (both trees on the same load)."""
+    trees = (Path(__file__).resolve().parents[2], Path(baseline).resolve())
+    samples = [([], []) for _ in CASES]
+    with tempfile.TemporaryDirectory() as tmp:  # cwd: not a checkout (``-c`` imports from the cwd first)
+        for _ in range(rounds):
+            for j, root in enumerate(trees):
+                env = dict(os.environ, PYTHONPATH=str(root), MPLBACKEND="Agg")
+                done = subprocess.run([_python(root), "-c", _CHILD, str(ticks), __file__], cwd=tmp, env=env,
+                                      capture_output=True, text=True, check=True)  # fmt: skip
+                lines = done.stdout.strip().splitlines()
+                if not Path(lines[-2]).resolve().is_relative_to(root):
+                    raise RuntimeError(f"bench node-tick --baseline: {root} ran {lines[-2]}")
+                for case, got in zip(samples, json.loads(lines[-1])):
+                    case[j].extend(got)
+    return samples
+
+
+def main(quick: bool = False, baseline: Path | None = None) -> int:
     ticks = 400 if quick else 4000
+    if baseline is not None:
+        rounds = 2 if quick else 4
+        print(f"bench node-tick --baseline {baseline}: the compiled tick, {rounds} alternating rounds of "
+              f"{ticks // rounds} ticks per tree and scene, 1 ms sleep before each (cold caches), "
+              f"load average {os.getloadavg()[0]:.2f}")
+        for (label, _), (new, old) in zip(CASES, side_by_side(baseline, ticks // rounds, rounds)):
+            (nm, np_), (om, op) = _stats(new), _stats(old)
+            print(f"  {label}")
+            print(f"    this tree       median {nm:6.1f} us   p99 {np_:6.1f} us   [target median <= {TARGET_US:g} us: "
+                  f"{'ok' if nm <= TARGET_US else 'MISSED'}]")
+            print(f"    {Path(baseline).name:<15} median {om:6.1f} us   p99 {op:6.1f} us   (ratio {om / nm:.2f}x)")
+        print(f"  load average after {os.getloadavg()[0]:.2f}")
+        return 0
     print(f"bench node-tick: {ticks} ticks per path and scene, 1 ms sleep before each (cold caches), "
           f"load average {os.getloadavg()[0]:.2f}")
     for label, params in CASES:

@@ -80,7 +80,7 @@ def register(sub) -> None:
     p.add_argument("--seconds", type=float, default=60.0, help="soak: measured seconds (default 60)")
     p.add_argument("--duration", type=float, default=30.0, help="node: measured seconds (default 30)")
     p.add_argument("--minutes", type=float, default=60.0, help="replay: minutes of 1 kHz torque bag (default 60)")
-    p.add_argument("--baseline", metavar="DIR", help="replay, kernel: a checkout of another commit (its numba cache warm) "
+    p.add_argument("--baseline", metavar="DIR", help="replay, kernel, node-tick: a checkout of another commit (its numba cache warm) "
                    "measured beside this tree in the same run")
     p.add_argument("--samples", type=int, default=None,
                    help="campaign: variants of the Monte Carlo (default 100,000; --quick 2,000)")
@@ -121,14 +121,14 @@ def _run_node(out: Path, quick: bool, extra: list[str] | None = None) -> int:
 
 def _checked_baseline(study: str, baseline: str | None) -> Path | None:
     """``--baseline DIR`` as a checkout's root, or a one-line :class:`InputError`: the option applies to
-    ``replay`` and ``kernel`` only, and ``DIR`` must hold ``belt_drive_ros/__init__.py`` (else the child
+    ``replay``, ``kernel`` and ``node-tick`` only, and ``DIR`` must hold ``belt_drive_ros/__init__.py`` (else the child
     processes would import this tree's package and print this tree against itself)."""
     if baseline is None:
         return None
     from ..core.errors import InputError
 
-    if study not in ("replay", "kernel"):
-        raise InputError(f"--baseline applies to 'bench replay' and 'bench kernel', not 'bench {study}'")
+    if study not in ("replay", "kernel", "node-tick"):
+        raise InputError(f"--baseline applies to 'bench replay', 'bench kernel' and 'bench node-tick', not 'bench {study}'")
     root = Path(baseline)
     if not (root / "belt_drive_ros" / "__init__.py").is_file():
         raise InputError(f"--baseline {baseline}: not a checkout of belt_drive_ros (no belt_drive_ros/__init__.py in it)")
@@ -188,7 +188,7 @@ def run(args) -> int:
     if args.study == "node-tick":
         from ..benchmarks import node_tick
 
-        return node_tick.main(quick=args.quick)
+        return node_tick.main(quick=args.quick, baseline=args.baseline)
     if args.study == "replay":
         from ..benchmarks import replay
 
