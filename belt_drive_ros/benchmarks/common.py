@@ -35,7 +35,12 @@ as CPU seconds per simulated second, and its inverse "x real time".
 from __future__ import annotations
 
 import csv
+import json
 import math
+import os
+import subprocess
+import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -322,3 +327,26 @@ def pyplot():
 def log(message: str, quiet: bool = False) -> None:
     if not quiet:
         print(message, flush=True)
+
+
+def tree_python(root: Path) -> str:
+    """The interpreter of a checkout (its own ``.venv``, else this one)."""
+    own = root / ".venv" / "bin" / "python"
+    return str(own) if own.exists() else sys.executable
+
+
+def alternate_trees(baseline: Path, code: str, args: Sequence[str], rounds: int, study: str):
+    """``(j, figures)`` of ``python -c code *args`` run by this tree (j = 0) and the ``baseline`` checkout (j = 1)
+    alternately, ``rounds`` times, each in its own child process (``PYTHONPATH`` = the checkout, the cwd none):
+    ``figures`` the JSON of the child's last line; its line before names the file it ran, checked to be the tree's."""
+    trees = (Path(__file__).resolve().parents[2], Path(baseline).resolve())
+    with tempfile.TemporaryDirectory() as tmp:  # cwd: not a checkout (``-c`` imports from the cwd first)
+        for _ in range(rounds):
+            for j, root in enumerate(trees):
+                env = dict(os.environ, PYTHONPATH=str(root), MPLBACKEND="Agg")
+                done = subprocess.run([tree_python(root), "-c", code, *args], cwd=tmp, env=env, capture_output=True,
+                                      text=True, check=True)  # fmt: skip
+                lines = done.stdout.strip().splitlines()
+                if not Path(lines[-2]).resolve().is_relative_to(root):
+                    raise RuntimeError(f"bench {study} --baseline: {root} ran {lines[-2]}")
+                yield j, json.loads(lines[-1])

@@ -225,16 +225,12 @@ print(json.dumps(out))
 """
 
 
-def _tree_python(root: Path) -> str:
-    """The interpreter of a checkout (its own ``.venv``, else this one) for :func:`_simulate_side_by_side`."""
-    own = root / ".venv" / "bin" / "python"
-    return str(own) if own.exists() else sys.executable
-
-
 def _simulate_side_by_side(baseline: Path, repeats: int, rounds: int) -> dict:
     """``{scene: (this tree's CPU s, the baseline's CPU s, duration s)}``: whole warm simulate() per scene, each
     tree in its own child process (``PYTHONPATH`` = the checkout), alternating ``rounds`` times, minimum kept."""
     import json
+
+    from .common import tree_python
 
     trees = (Path(__file__).resolve().parents[2], Path(baseline).resolve())
     best: dict = {}
@@ -242,7 +238,7 @@ def _simulate_side_by_side(baseline: Path, repeats: int, rounds: int) -> dict:
         for _ in range(rounds):
             for j, root in enumerate(trees):
                 env = dict(os.environ, PYTHONPATH=str(root), MPLBACKEND="Agg")
-                done = subprocess.run([_tree_python(root), "-c", _CHILD, str(repeats), *SCENES], cwd=tmp, env=env,
+                done = subprocess.run([tree_python(root), "-c", _CHILD, str(repeats), *SCENES], cwd=tmp, env=env,
                                       capture_output=True, text=True, check=True)  # fmt: skip
                 for name, (cpu, duration) in json.loads(done.stdout.strip().splitlines()[-1]).items():
                     row = best.setdefault(name, [math.inf, math.inf, duration])
@@ -270,22 +266,13 @@ print(json.dumps(figures))
 def _steps_side_by_side(baseline: Path, steps: int, rounds: int) -> dict:
     """``{method: (this tree's ns per step, the baseline's)}``: each tree in its own child process, alternating
     ``rounds`` times, minimum kept (both trees measured the same way, on the same load)."""
-    import json
+    from .common import alternate_trees
 
-    trees = (Path(__file__).resolve().parents[2], Path(baseline).resolve())
     best: dict = {}
-    with tempfile.TemporaryDirectory() as tmp:  # cwd: not a checkout (``-c`` imports from the cwd first)
-        for _ in range(rounds):
-            for j, root in enumerate(trees):
-                env = dict(os.environ, PYTHONPATH=str(root), MPLBACKEND="Agg")
-                done = subprocess.run([_tree_python(root), "-c", _STEP_CHILD, str(steps), __file__], cwd=tmp, env=env,
-                                      capture_output=True, text=True, check=True)  # fmt: skip
-                lines = done.stdout.strip().splitlines()
-                if not Path(lines[-2]).resolve().is_relative_to(root):
-                    raise RuntimeError(f"bench kernel --baseline: {root} ran {lines[-2]}")
-                for method, ns in json.loads(lines[-1]).items():
-                    row = best.setdefault(method, [math.inf, math.inf])
-                    row[j] = min(row[j], ns)
+    for j, figures in alternate_trees(baseline, _STEP_CHILD, (str(steps), __file__), rounds, "kernel"):
+        for method, ns in figures.items():
+            row = best.setdefault(method, [math.inf, math.inf])
+            row[j] = min(row[j], ns)
     return {method: tuple(row) for method, row in best.items()}
 
 

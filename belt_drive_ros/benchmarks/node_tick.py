@@ -27,12 +27,8 @@ alternating rounds of ticks; the median and p99 of all rounds per tree.
 
 from __future__ import annotations
 
-import json
 import os
 import statistics
-import subprocess
-import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -108,28 +104,15 @@ print(json.dumps([bench.measure(params, int(sys.argv[1]), general=False)["sample
 """
 
 
-def _python(root: Path) -> str:
-    """The interpreter of a checkout (its own ``.venv``, else this one)."""
-    own = root / ".venv" / "bin" / "python"
-    return str(own) if own.exists() else sys.executable
-
-
 def side_by_side(baseline: Path, ticks: int, rounds: int) -> list:
     """Per case ``(this tree's samples, the baseline's)`` [ns] of the compiled tick: each tree in its own child
     process, alternating ``rounds`` times (both trees on the same load)."""
-    trees = (Path(__file__).resolve().parents[2], Path(baseline).resolve())
+    from .common import alternate_trees
+
     samples = [([], []) for _ in CASES]
-    with tempfile.TemporaryDirectory() as tmp:  # cwd: not a checkout (``-c`` imports from the cwd first)
-        for _ in range(rounds):
-            for j, root in enumerate(trees):
-                env = dict(os.environ, PYTHONPATH=str(root), MPLBACKEND="Agg")
-                done = subprocess.run([_python(root), "-c", _CHILD, str(ticks), __file__], cwd=tmp, env=env,
-                                      capture_output=True, text=True, check=True)  # fmt: skip
-                lines = done.stdout.strip().splitlines()
-                if not Path(lines[-2]).resolve().is_relative_to(root):
-                    raise RuntimeError(f"bench node-tick --baseline: {root} ran {lines[-2]}")
-                for case, got in zip(samples, json.loads(lines[-1])):
-                    case[j].extend(got)
+    for j, figures in alternate_trees(baseline, _CHILD, (str(ticks), __file__), rounds, "node-tick"):
+        for case, got in zip(samples, figures):
+            case[j].extend(got)
     return samples
 
 
