@@ -204,7 +204,7 @@ def test_bench_node_writes_nothing_into_the_current_folder_without_out(tmp_path,
 
     seen = []
     monkeypatch.setitem(sys.modules, "belt_drive_ros.benchmarks.node", types.SimpleNamespace(main=lambda argv: seen.append(argv) or 0))
-    monkeypatch.setitem(sys.modules, "belt_drive_ros.benchmarks.node_tick", types.SimpleNamespace(main=lambda quick: 0))
+    monkeypatch.setitem(sys.modules, "belt_drive_ros.benchmarks.node_tick", types.SimpleNamespace(main=lambda quick, baseline=None: 0))
     monkeypatch.setattr(bench, "_single_threaded_blas", lambda: "BLAS as configured (test)")
     monkeypatch.chdir(tmp_path)
     assert main(["bench", "node", "--duration", "5"]) == 0 and main(["bench", "node-tick", "--quick"]) == 0

@@ -20,12 +20,18 @@ class FrictionForce:
 
     ``Q_max = max((F_0 - m' v^2) k_c, 0)`` with ``v = r omega_M`` (``r`` = r_2
     times the gear ratio, ``k_c`` the capstan factor; see
-    :meth:`~belt_drive_ros.core.params.BeltDriveParams.friction_limit`).
+    :meth:`~belt_drive_ros.core.params.BeltDriveParams.friction_limit`);
+    :meth:`value` is the same operations in Python (the stepper's ``inputs``, which scipy's methods and the
+    guards' probes call).
     """
 
     def __init__(self, sigma: float, params):
         self.row = np.array([float(sigma), float(params.F_0), float(params.belt_mass),
                              float(params.r_2 * params.gear_ratio), float(params.capstan_factor)])
+        self.sigma, self._limit = float(sigma), params.scalar_friction_limit()
+
+    def value(self, omega_M: float) -> float:
+        return self.sigma * self._limit(omega_M)
 
 
 def guard_array(guard, n: int) -> np.ndarray:
