@@ -43,34 +43,3 @@ def no_orphan_shared_memory():
     yield
     remove_orphan_segments(fast_dds_segments() - before)
 
-
-#: Test files by their measured cost, heaviest first (``pytest --durations``; the sum of their tests' times on
-#: two workers). They are collected first, each file's tests in their own order (a module fixture, such as
-#: test_campaign's Dask cluster, is built once per worker as before), the other files after them in the usual
-#: order. pytest-xdist's worksteal gives each worker a contiguous half of the collection and an idle worker
-#: steals from the end of the other's queue: with the long tests at the front, what is left at the end is
-#: short tests, so neither core waits long for the other's last test. Only the order changes: every test runs.
-HEAVY_FIRST = (
-    "test_docs_commands.py",
-    "test_bench_cli.py",
-    "test_recording_memory.py",
-    "test_outputs.py",
-    "test_examples.py",
-    "test_campaign.py",
-    "test_fuzz_campaigns.py",
-    "test_accuracy_guard.py",
-    "test_fuzz_scenes.py",
-    "test_node_process.py",
-    "test_node_shutdown.py",
-    "test_msg_tools_damage.py",
-    "test_foxglove.py",
-    "test_recorded_steps.py",
-    "test_stream.py",
-    "test_replay.py",
-)
-
-
-def pytest_collection_modifyitems(config, items):
-    """Collect the files of :data:`HEAVY_FIRST` first, in its order (a stable sort: nothing else moves)."""
-    rank = {name: k for k, name in enumerate(HEAVY_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
