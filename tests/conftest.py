@@ -42,4 +42,3 @@ def no_orphan_shared_memory():
     before = fast_dds_segments()
     yield
     remove_orphan_segments(fast_dds_segments() - before)
-
