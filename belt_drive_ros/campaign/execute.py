@@ -552,8 +552,12 @@ def _signals_held():
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in (signal.SIGINT, signal.SIGTERM)}
+    # the handlers are read before any is changed: a signal that arrives between the two changes raises
+    # out of the block with both restored (it used to leave SIGINT ignored for the rest of the process)
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
+        for sig in previous:
+            signal.signal(sig, signal.SIG_IGN)
         yield
     finally:
         for sig, handler in previous.items():
