@@ -221,7 +221,7 @@ def test_exact_forcing_map_equals_the_exponential_of_the_system_augmented_with_t
     forced exactly at its frequency (the solve is singular there: the exponential is taken)."""
     import scipy.linalg
 
-    from belt_drive_ros.core.forced_response import exact_forcing_map
+    from belt_drive_ros.core.forced_response import exact_forcing_maps
 
     def augmented(A, B, h, omega):
         n, m = B.shape
@@ -236,13 +236,13 @@ def test_exact_forcing_map_equals_the_exponential_of_the_system_augmented_with_t
         A -= (np.max(np.linalg.eigvals(A).real) + rng.uniform(0.1, 20.0)) * np.eye(n)  # stable, damped
         B = rng.normal(size=(n, m))
         h, omega = rng.uniform(1e-4, 5e-3), rng.uniform(1.0, 3000.0)
-        F = exact_forcing_map(A, B, scipy.linalg.expm(h * A), h, omega)
+        F = exact_forcing_maps(A, B, scipy.linalg.expm(h * A), h, omega)[0]
         ref = augmented(A, B, h, omega)
         assert np.max(np.abs(F - ref)) <= 1e-10 * np.max(np.abs(ref))
     w = 66.0
     A = np.array([[0.0, 1.0], [-w * w, 0.0]])  # undamped, eigenvalues +-j w
     B = np.array([[0.0], [1.0]])
-    F = exact_forcing_map(A, B, scipy.linalg.expm(1e-3 * A), 1e-3, w)
+    F = exact_forcing_maps(A, B, scipy.linalg.expm(1e-3 * A), 1e-3, w)[0]
     assert np.allclose(F, augmented(A, B, 1e-3, w), rtol=0, atol=1e-14)
 
 
@@ -283,7 +283,7 @@ def test_harmonic_response_in_closed_form_equals_the_stepped_orbit():
         for f, (omega, ch) in enumerate(zip(omegas, [0, 1, 0])):
             z = np.exp(1j * omega * 1e-3)
             G = sum(Gi[:, ch] * np.exp(1j * omega * c * 1e-3) for c, Gi in gains)
-            F = fr.exact_forcing_map(A_cl, B, E, 1e-3, omega)[:, ch]
+            F = fr.exact_forcing_maps(A_cl, B, E, 1e-3, omega)[0][:, ch]
             y, y_exact = stepped(M, G, z, rows, n_steps)[ks], stepped(E, F, z, rows, n_steps)[ks]
             ref_peak = np.max(np.abs(y_exact), axis=0)
             assert np.allclose(peak[f], ref_peak, rtol=1e-9, atol=0)

@@ -303,7 +303,7 @@ def require_accurate_slipping(params, drive, load, method, dt, duration, x0_flex
 
 
 def slip_run_error(params, drive, load, method: str, dt: float, time, states, modes, sigmas, event_times,
-                   method_options=None, hybrid=None) -> float:  # fmt: skip
+                   method_options=None, hybrid=None, signals=None) -> float:  # fmt: skip
     """A posteriori error [-] of a slipping run at ``dt`` over its slipping stretch, by Richardson on the run itself.
 
     The linearized checks of :func:`check_slipping` see each mode alone;
@@ -320,7 +320,8 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     run at ``dt / 2`` instead (error ``|y_dt - y_dt/2| 2^p / (2^p - 1)``).
     Signals: drive speed and belt torque at the common grid times, relative
     to their peaks over the run (``time``, ``states``, ``modes``,
-    ``sigmas``: the run's samples). No events: 0; both reruns diverge: inf. ``hybrid``: the run's
+    ``sigmas``: the run's samples; ``signals``: its (drive speed, belt torque) when made). No events: 0; both
+    reruns diverge: inf. ``hybrid``: the run's
     :class:`~belt_drive_ros.core.slip.EventStep` (it holds no step length: the reruns share it).
     """
     from .errors import SimulationDivergedError
@@ -330,28 +331,23 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     order = method_class(method).order
     if not len(event_times) or order is None:
         return 0.0
-    first, last = min(event_times), max(event_times)
-    time = np.asarray(time, dtype=float)
     span = WINDOW_STEPS * dt
-    k0 = 2 * max(0, math.floor((float(first) - span) / (2.0 * dt)))  # on both grids
+    k0 = 2 * max(0, math.floor((float(min(event_times)) - span) / (2.0 * dt)))  # on both grids
     t0 = k0 * dt
-    t1 = min(float(last) + span, float(time[-1]))
+    t1 = min(float(max(event_times)) + span, float(time[-1]))
     i = int(np.searchsorted(time, t0 + 1e-9 * dt, side="right")) - 1  # the run's last sample at t0
     if i < 0 or abs(time[i] - t0) > 1e-9 * dt or t1 <= t0 + dt:
         return 0.0
     model, r3 = hybrid.model if hybrid is not None else SlippingBeltModel(params), params.r_3
-
-    def outputs(ys, m, s):  # (2, samples): each signal's samples contiguous (numpy reduces them ~25x faster)
-        return np.stack([ys[:, 2], r3 * model.force(ys, m, s)])
-
-    run_out = outputs(np.asarray(states), modes, sigmas)  # elementwise: the stretch's samples are a slice of it
-    peak = np.max(np.abs(run_out), axis=1)  # over the run
+    if signals is None:
+        signals = states[:, 2], r3 * model.force(states, modes, sigmas)
+    peak = [float(np.max(np.abs(v))) for v in signals]  # over the run
     j = int(np.searchsorted(time, t1 + dt, side="right"))  # the run's samples the reruns can meet (one past t1)
-    run_t, run_out = time[i:j], run_out[:, i:j]
+    run_t, run_out = time[i:j], [v[i:j] for v in signals]
     for h, factor in ((2.0 * dt, 1.0 / (2.0**order - 1.0)), (dt / 2.0, 2.0**order / (2.0**order - 1.0))):
-        # lazy: each phase's stepper is built when the rerun first enters that phase
         sim = SlippingSimulator(params, drive, load, method, h, method_options, check_stability=False, lazy=True)
         sim._hybrid = hybrid
+        sim.slip_phases()  # (the stretch slips; the scene's steppers, shared)
         state = sim._native(np.asarray(states[i], dtype=float), int(modes[i]), float(sigmas[i]))
         pieces = [(np.array([t0]), sim.state_y(state)[None, :], state.mode, state.sigma)]
         try:
@@ -360,16 +356,16 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
         except (SimulationDivergedError, IntegratorError):
             continue
         tr, yr, mr, sr = _joined(pieces)
-        out = outputs(yr, mr, sr)
-        if not np.all(np.isfinite(out)):
+        out = [yr[:, 2], r3 * model.force(yr, mr, sr)]
+        if not all(np.all(np.isfinite(v)) for v in out):
             continue
+        coarse, fine = (run_out, out) if h > dt else (out, run_out)
         lo, hi = (run_t, tr) if h > dt else (tr, run_t)  # match the coarser run's grid times in the finer one
         idx = np.clip(np.searchsorted(hi, lo - 1e-9 * dt), 0, hi.size - 1)
         same = (np.abs(hi[idx] - lo) <= 1e-9 * dt + 8.0 * np.spacing(np.abs(lo) + dt)) & (lo >= t0) & (lo <= t1)
-        a = (run_out if h > dt else out)[:, same]
-        b = (out if h > dt else run_out)[:, idx[same]]
-        err = factor * np.max(np.abs(a - b), axis=1)
-        return float(np.max(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0)))
+        at = idx[same]
+        return max((factor * float(np.max(np.abs(a[same] - b[at]))) / p if p > 0 else 0.0)
+                   for a, b, p in zip(coarse, fine, peak))  # fmt: skip
     return math.inf
 
 

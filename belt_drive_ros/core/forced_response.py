@@ -19,7 +19,7 @@ with ``G(omega) = sum_i G_i e^{j omega c_i h}``: ``G_i`` the gain of stage
 ``i`` (node ``c_i``) read off the method's own stage scheme. The exact map is
 ``x_{k+1} = E x_k + F(omega) e^{j omega t_k}`` with ``E = e^{h A_cl}`` and
 ``F(omega) = int_0^h e^{(h - s) A_cl} B e^{j omega s} ds`` (one linear solve
-per frequency, :func:`exact_forcing_map`; ``E`` is one matrix exponential
+per frequency, :func:`exact_forcing_maps`; ``E`` is one matrix exponential
 for every frequency).
 Both orbits are evaluated by doubling (as the step response); the error of
 an output row is ``max_k |y_k - y*_k|`` (complex modulus: the envelope of a
@@ -233,22 +233,18 @@ def harmonic_response_errors(integrator, A, B, rows, K, n_steps: int, omegas, ch
 FORCING_CONDITION_LIMIT = 1e10
 
 
-def exact_forcing_map(A_cl: np.ndarray, B: np.ndarray, E: np.ndarray, h: float, omega: float) -> np.ndarray:
-    """``F(omega) = int_0^h e^{(h - s) A_cl} B e^{j omega s} ds`` (n, m), given ``E = e^{h A_cl}``.
+def exact_forcing_maps(A_cl: np.ndarray, B: np.ndarray, E: np.ndarray, h: float, omegas, solvable=None) -> np.ndarray:
+    """``F(omega) = int_0^h e^{(h - s) A_cl} B e^{j omega s} ds`` (frequencies, n, m) for every ``omega`` [rad/s] of
+    ``omegas``, given ``E = e^{h A_cl}``.
 
     Since ``d/ds [e^{(h - s) A} e^{j omega s}] = e^{(h - s) A} (j omega I - A) e^{j omega s}``,
     ``F = (j omega I - A)^{-1} (e^{j omega h} I - E) B``: one linear solve
-    per frequency instead of a matrix exponential of the system augmented
+    per frequency (batched) instead of a matrix exponential of the system augmented
     with the oscillator. Where ``j omega I - A`` is (nearly) singular (the
-    forcing on an undamped mode) the augmented exponential is used.
+    forcing on an undamped mode; ``solvable``: per frequency, conditioned below
+    :data:`FORCING_CONDITION_LIMIT`, if known) the augmented exponential is used.
     """
-    return exact_forcing_maps(A_cl, B, E, h, np.array([float(omega)]))[0]
-
-
-def exact_forcing_maps(A_cl: np.ndarray, B: np.ndarray, E: np.ndarray, h: float, omegas: np.ndarray,
-                       solvable=None) -> np.ndarray:
-    """:func:`exact_forcing_map` (frequencies, n, m) for every ``omega`` of ``omegas`` at once (the solves batched;
-    ``solvable``: per frequency, ``j omega I - A_cl`` conditioned below :data:`FORCING_CONDITION_LIMIT`, if known)."""
+    omegas = np.atleast_1d(np.asarray(omegas, dtype=float))
     n, m = B.shape
     I = np.eye(n)
     S = 1j * omegas[:, None, None] * I - A_cl

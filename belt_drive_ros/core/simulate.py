@@ -378,13 +378,14 @@ def _slipping_accuracy(scene, sim, stick=None, probes=None):
 
 def _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy=None) -> SimResult:
     """The result of a slipping-model run of ``sim``: outputs, energy terms (with friction) and events."""
+    m = sim.model
+    u = sim.input_array(time, states)
+    outputs = m.outputs(states, u, modes, sigmas)
     if accuracy is not None:  # the slipping run itself, rerun over its slipping stretch (what the modes alone miss)
         accuracy = with_slip_run_error(accuracy, slip_run_error(
             scene.params, scene.drive, scene.load, scene.method, scene.dt, time, states, modes, sigmas,
-            [e.time for e in sim.events], scene.method_options, sim._hybrid,
+            [e.time for e in sim.events], scene.method_options, sim._hybrid, (outputs["omega_M"], outputs["belt_torque"]),
         ))  # fmt: skip
-    m = sim.model
-    u = sim.input_array(time, states)
     dt_grid = np.diff(time)
     energy = {
         "kinetic": m.kinetic_energy(states),
@@ -395,7 +396,7 @@ def _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accu
     }
     return SimResult(
         scene=scene, model="slipping", method=sim.integrator.name, dt=scene.dt, time=time, states=states,
-        inputs=u, outputs=m.outputs(states, u, modes, sigmas), choice=choice, stability=sim.stability,
+        inputs=u, outputs=outputs, choice=choice, stability=sim.stability,
         wall_time=wall, energy=energy, events=[(e.kind, e.time, e.sigma) for e in sim.events],
         accuracy=accuracy,
     )

@@ -154,14 +154,10 @@ class SlippingSimulator:
         self.plant = shared_plant(self.flexible, drive, load)
         self._shared = _shared_phases(params, drive, load, self.plant)
         self.model = m = self._shared["model"]
-        # [phi_M, theta_e, omega_M, omega_3] = M x of a flexible state (wheel map rows: phi_M, omega_M, phi_3, omega_3)
-        self._M = np.array([[1, 0, 0, 0], [params.ratio, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=float) @ self.plant.wheel_map
-        self._M_inv = np.linalg.inv(self._M)
-        Y_flex = np.vstack([self._M, np.zeros((1, 4))])  # y of a flexible state (s = 0)
-        stick = m.guard(STICK)
+        self._M_inv, flexible_guard, stick = self._shared["maps"]
         self._share = lazy and integrator is None
         self.stepper = self._built("flexible", lambda: Stepper(self.plant, method, self.dt, self.method_options, origin,
-                                                               integrator, _mapped(stick, Y_flex)))  # fmt: skip
+                                                               integrator, flexible_guard))  # fmt: skip
         self.stepper.origin, self.stepper.breakpoints = float(origin), self.plant.breakpoints  # (a shared one's too)
         self.integrator = self.stepper.integrator
         self.stability = require_stable(self.flexible.A, self.flexible.B, method, dt) if check_stability else None
@@ -184,9 +180,6 @@ class SlippingSimulator:
         self.events: list = []
         self._event_rows = np.zeros((1024, 8))
         self._free_cache: dict = {}
-        #: a list to receive ``(times, xs)`` of the recorded pieces run on the flexible model itself (no slip
-        #: so far), in its own coordinates: the states a flexible-model run gives, bit for bit (None: not kept)
-        self.flexible_record: list | None = None
         if not lazy:
             for key in self._factories:
                 self.phase_stepper(key)
@@ -243,6 +236,13 @@ class SlippingSimulator:
         if k not in self._shared:
             self._shared[k] = build()
         return self._shared[k]
+
+    def slip_phases(self) -> None:
+        """Build every slip phase's stepper now, so the hybrid loop packs them at once (not one by one as the run
+        enters each); sticking after slip runs on the flexible loop (the stick stepper is not needed)."""
+        for key in self._factories:
+            if key != "stick":
+                self.phase_stepper(key)
 
     def _sibling(self, key):
         """The integrator of phase ``key`` when built (the two slip directions share one), else None."""
@@ -387,7 +387,7 @@ class SlippingSimulator:
                 grid, knots, lo, hi, special, k, kind, x, self.dt, SPEED_LIMIT, out_y, out_mode, out_sigma, out_native,
                 reals, ints, offsets, have, Yflex, Minv, *arrays, ev, n_ev,
             )  # fmt: skip
-            self._record(record, knots, k, k1, out_y, out_mode, out_sigma, out_native)
+            self._record(record, knots, k, k1, out_y, out_mode, out_sigma)
             if events is not None:
                 events.extend(_events(ev[:n_ev]))
             n_ev = 0
@@ -429,13 +429,9 @@ class SlippingSimulator:
         n = len(times) - 1 if stop is None else stop[0]
         if record is not None and n:
             record.append((times[1 : n + 1], self.from_flexible(xs[1 : n + 1]), state.mode, state.sigma))
-            if self.flexible_record is not None:
-                self.flexible_record.append((times[1 : n + 1], xs[1 : n + 1]))
         if stop is None:
             return SlipState(state.mode, state.sigma, state.kind, xs[n]), t1
-        for key in self._factories:  # the belt slips in this step: every phase's loop packed at once (not one by one)
-            if key != "stick":  # (sticking after slip runs on the flexible loop)
-                self.phase_stepper(key)
+        self.slip_phases()  # the belt slips in this step
         return SlipState(state.mode, state.sigma, state.kind, xs[n]), float(times[n])
 
     def _free_steps(self, N: int) -> tuple:
@@ -447,16 +443,11 @@ class SlippingSimulator:
             cached = self._free_cache[N] = (np.full(N, -math.inf), np.full(N, math.inf), np.zeros(N, dtype=np.int64))
         return cached
 
-    def _record(self, record, knots, k0, k1, out_y, out_mode, out_sigma, out_native) -> None:
-        """Samples ``k0 .. k1 - 1`` of a compiled stretch into ``record`` (and the flexible ones into :attr:`flexible_record`)."""
-        if record is None or k1 <= k0:
-            return
-        record.append((knots[k0 + 1 : k1 + 1], out_y[k0:k1].copy(), out_mode[k0:k1].astype(np.int8), out_sigma[k0:k1].copy()))
-        if self.flexible_record is not None:
-            flexible = np.isnan(out_native[k0:k1, 4])
-            if np.any(flexible):
-                idx = np.flatnonzero(flexible)
-                self.flexible_record.append((knots[k0 + 1 + idx], out_native[k0 + idx, :4]))
+    @staticmethod
+    def _record(record, knots, k0, k1, out_y, out_mode, out_sigma) -> None:
+        """Samples ``k0 .. k1 - 1`` of a compiled stretch into ``record``."""
+        if record is not None and k1 > k0:
+            record.append((knots[k0 + 1 : k1 + 1], out_y[k0:k1].copy(), out_mode[k0:k1].astype(np.int8), out_sigma[k0:k1].copy()))
 
     def _compiled(self):
         """The compiled hybrid loop's arrays (every built phase's kernel loop packed), or None where it cannot run."""
@@ -520,8 +511,6 @@ class SlippingSimulator:
             n = len(times) - 1 if stop is None else stop[0]
             if record is not None and n:
                 record.append((times[1 : n + 1], self.ys(state.kind, xs[1 : n + 1]), state.mode, state.sigma))
-                if state.kind == "flexible" and self.flexible_record is not None:
-                    self.flexible_record.append((times[1 : n + 1], xs[1 : n + 1]))
             if stop is None:
                 state, t = SlipState(state.mode, state.sigma, state.kind, xs[-1]), float(times[-1])
                 continue
@@ -573,8 +562,6 @@ class SlippingSimulator:
         self.events = events  # filled as the run goes (a caller sees them also when the run raises)
         y = self.state_y(state)
         pieces: list = [(np.array([float(t0)]), y[None, :], state.mode, state.sigma)]
-        if state.kind == "flexible" and self.flexible_record is not None:
-            self.flexible_record.append((pieces[0][0], state.x[None, :]))
         t = float(t0)
         while t < t1:  # progress between windows
             k = math.floor((t - self.origin) / self.dt) + steps
@@ -607,13 +594,23 @@ _SHARED_SIZE = 8
 
 
 def _shared_phases(params, drive, load, plant) -> dict:
-    """The read-only parts of one scene's slipping engine, ``{"model": SlippingBeltModel, phase key: Plant,
+    """The read-only parts of one scene's slipping engine, ``{"model": SlippingBeltModel, "maps": ..., phase key: Plant,
     ("pack", method): event-step arrays}`` and the steppers of :meth:`SlippingSimulator._built`, filled as simulators
     need them and shared by all of them (the run, its rerun at 2 dt, the next run): matrices, profile data and
     steppers, never a state or a verdict. Kept on the rule
     of :func:`~belt_drive_ros.core.stepper.shared_plant` for the flexible ``plant``, else a fresh dict."""
-    return built_once(_SHARED, _SHARED_SIZE, (params, drive, load), lambda: {"model": SlippingBeltModel(params)},
+    return built_once(_SHARED, _SHARED_SIZE, (params, drive, load), lambda: _scene_parts(params, plant),
                       keep=lambda _: is_shared(plant))
+
+
+def _scene_parts(params, plant) -> dict:
+    """:func:`_shared_phases`' first entries: the model and ``"maps"``, ``(M^-1, the capstan check as a guard on the
+    flexible state, the stick guard on y)`` with ``[phi_M, theta_e, omega_M, omega_3] = M x`` of a flexible state x."""
+    model = SlippingBeltModel(params)
+    # wheel map rows: phi_M, omega_M, phi_3, omega_3
+    M = np.array([[1, 0, 0, 0], [params.ratio, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=float) @ plant.wheel_map
+    stick = model.guard(STICK)
+    return {"model": model, "maps": (np.linalg.inv(M), _mapped(stick, np.vstack([M, np.zeros((1, 4))])), stick)}
 
 
 def _kind_code(state: SlipState) -> int:
