@@ -284,10 +284,6 @@ class SlippingSimulator:
         i, r3 = self.model.params.ratio, self.model.params.r_3
         return np.array([self.plant.scalar_drive(t, y[0], y[2]), self.plant.scalar_load(t, i * y[0] - y[1] - y[4] / r3, y[3])])
 
-    def to_flexible(self, y):
-        """Flexible state with the same motion and a deflection theta_e (phi_3 without the slip part)."""
-        return self._M_inv @ np.asarray(y, dtype=float)[:4]
-
     def from_flexible(self, xs, s=0.0):
         """Slipping states of flexible states ``xs`` (N, 4) with accumulated slip ``s``."""
         phi_M, omega_M, phi_3, omega_3 = self.flexible.wheel_coordinates(np.asarray(xs, dtype=float))
@@ -307,7 +303,8 @@ class SlippingSimulator:
     def _native(self, y, mode, sigma) -> SlipState:
         if mode == STICK:
             if y[4] == 0.0:
-                return SlipState(mode, 0.0, "flexible", self.to_flexible(y))
+                # the flexible state with the same motion and a deflection theta_e (phi_3 without the slip part)
+                return SlipState(mode, 0.0, "flexible", self._M_inv @ np.asarray(y, dtype=float)[:4])
             return SlipState(mode, 0.0, "stick", y)
         if ("slip", sigma) in self._factories:
             return SlipState(mode, sigma, "slip", np.append(y, sigma * self.model.limit(0.0)))
@@ -387,7 +384,8 @@ class SlippingSimulator:
                 grid, knots, lo, hi, special, k, kind, x, self.dt, SPEED_LIMIT, out_y, out_mode, out_sigma, out_native,
                 reals, ints, offsets, have, Yflex, Minv, *arrays, ev, n_ev,
             )  # fmt: skip
-            self._record(record, knots, k, k1, out_y, out_mode, out_sigma)
+            if record is not None and k1 > k:  # samples k .. k1 - 1 of the compiled stretch
+                record.append((knots[k + 1 : k1 + 1], out_y[k:k1].copy(), out_mode[k:k1].astype(np.int8), out_sigma[k:k1].copy()))
             if events is not None:
                 events.extend(_events(ev[:n_ev]))
             n_ev = 0
@@ -442,12 +440,6 @@ class SlippingSimulator:
                 self._free_cache.clear()
             cached = self._free_cache[N] = (np.full(N, -math.inf), np.full(N, math.inf), np.zeros(N, dtype=np.int64))
         return cached
-
-    @staticmethod
-    def _record(record, knots, k0, k1, out_y, out_mode, out_sigma) -> None:
-        """Samples ``k0 .. k1 - 1`` of a compiled stretch into ``record``."""
-        if record is not None and k1 > k0:
-            record.append((knots[k0 + 1 : k1 + 1], out_y[k0:k1].copy(), out_mode[k0:k1].astype(np.int8), out_sigma[k0:k1].copy()))
 
     def _compiled(self):
         """The compiled hybrid loop's arrays (every built phase's kernel loop packed), or None where it cannot run."""
