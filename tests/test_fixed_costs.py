@@ -172,6 +172,21 @@ def test_a_scene_that_slips_builds_its_phases_once_and_reruns_bit_for_bit(monkey
     assert built and len(packed) == 1 and steppers and loops
 
 
+def test_the_slipping_runs_error_from_its_outputs_is_the_one_from_its_states():
+    # simulate hands slip_run_error the run's drive speed and belt torque from its outputs (computed once): the
+    # same float as from the run's states
+    from belt_drive_ros.core.accuracy import slip_run_error
+    from belt_drive_ros.core.slip_run import SlippingSimulator
+
+    scene = load_scene("truck_compressor").with_overrides(duration=0.8)
+    sim = SlippingSimulator(scene.params, scene.drive, scene.load, "etd4", 1e-3, lazy=True)
+    t, y, m, s = sim.run(scene.duration, scene.initial_state.vector("slipping", scene.params.ratio))
+    out = sim.model.outputs(y, sim.input_array(t, y), m, s)
+    args = (scene.params, scene.drive, scene.load, "etd4", 1e-3, t, y, m, s, [e.time for e in sim.events], None, sim._hybrid)
+    error = slip_run_error(*args)
+    assert error > 1e-6 and slip_run_error(*args, (out["omega_M"], out["belt_torque"])) == error
+
+
 @pytest.mark.parametrize("name, method, guarded", [
     ("paper", "lawson5", False), ("e_motor_start", "etd2", False), ("truck_compressor", "etd4", False),
     ("truck_compressor", "etd4", True), ("bsg_start", "etd2", True),
