@@ -49,6 +49,8 @@ ALTERNATIVE_HALVINGS = 3
 #: methods tried as the alternative, in this order (exact for the belt mode, high order)
 ALTERNATIVES = ("etd4", "lawson5", "etd2")
 
+#: profile kinds never periodic at a steady speed (monotone or constant in time): they excite no harmonic
+APERIODIC_KINDS = frozenset({"constant", "step", "ramp", "motor", "polynomial"})
 #: steps per piece of the rigid survey run (a run of any length in bounded memory)
 SURVEY_CHUNK = 50_000
 
@@ -331,7 +333,8 @@ def _probes(plant, duration, x0, dt, stated_inputs, rigid, probe_times, plain, e
     jumps = [(b, *states[t]) for b, t in early.items()]
     here = [] if stated_inputs else None  # the probes' quasi-static belt torques, as the weight computes them
     weight = 1.0 if not stated_inputs else input_weight(plant, x0, dt, at, jumps, rigid, here)
-    harmonics = tuple(profile_harmonics(plant, at))
+    # a torque that, the wheel turning steadily, only rises, falls or holds repeats nothing: no harmonic to find
+    harmonics = () if {plant.drive.kind, plant.load.kind} <= APERIODIC_KINDS else tuple(profile_harmonics(plant, at))
     return Probes(tuple(gains), x0, tuple(windows), float(duration), WINDOW_STEPS * dt, weight, harmonics,
                   _peaks(plant, rigid, at, here))  # fmt: skip
 

@@ -76,6 +76,8 @@ CHUNK = 4096
 PAGE_MARGIN = 4
 #: an advance over at least this many breakpoints looks for steps it can absorb (:mod:`~belt_drive_ros.core.absorb`)
 ABSORB_MIN = 16
+#: plans of :meth:`Stepper.run` kept per stepper (its last few runs' ends: the guards' windows and the run repeat)
+PLAN_CACHE_SIZE = 8
 #: state rows a guarded run (it may stop at its first steps) allocates first; twice as many each time they are full
 GUARDED_ROWS = 256
 _NO_CELLS = np.empty(0, dtype=np.int64)
@@ -315,6 +317,7 @@ class Stepper:
         self._partials: dict = {}
         self._loops: dict = {}  # kernel loops of the partial-step integrators, by step length
         self._free: tuple | None = None  # the breakpoint-free interval the last tick fell in (_near_breakpoint)
+        self._plans: dict = {}  # (t0, t1, origin, id(breakpoints)) -> (breakpoints, plan, split_steps) of run()
         self._clean = False  # the last grouped march ran every step to the end without a failing status
 
     # ------------------------------------------------------------ public
@@ -346,7 +349,7 @@ class Stepper:
                 return page.run(x0, t0, t1, progress)
             finally:
                 self.split_steps, self.stopped = page.split_steps, page.stopped
-        plan = self._plan(t0, t1, absorb=True)
+        plan = self._run_plan(t0, t1)
         self.stopped = None
         if (not progress and self.loop is not None and not plan["empty"] and not plan["lead"] and not plan["trail"]
                 and not plan["absorbed"].size and not self.split_steps):
@@ -370,6 +373,20 @@ class Stepper:
         if progress:
             progress(1.0)
         return times, states
+
+    def _run_plan(self, t0: float, t1: float) -> dict:
+        """:meth:`_plan` of a run from ``t0`` to ``t1`` (absorbed steps looked for), made once per ends, origin and
+        breakpoints list (a plan depends on nothing else; :meth:`_march` only reads it)."""
+        key = (t0, t1, self.origin, id(self.breakpoints))
+        hit = self._plans.get(key)
+        if hit is not None and hit[0] is self.breakpoints:
+            self.split_steps = {c: list(cuts) for c, cuts in hit[2].items()}
+            return hit[1]
+        plan = self._plan(t0, t1, absorb=True)
+        if len(self._plans) >= PLAN_CACHE_SIZE:
+            self._plans.pop(next(iter(self._plans)))
+        self._plans[key] = (self.breakpoints, plan, {c: list(cuts) for c, cuts in self.split_steps.items()})
+        return plan
 
     def _paged(self, t0: float, t1: float) -> "Stepper":
         """A stepper of this one's settings on the plant's page over ``[t0, t1]`` widened by
