@@ -130,6 +130,7 @@ class AccuracyReport:
 def check_accuracy(
     plant, method: str, dt: float, duration: float, x0, tolerance: float = ACCURACY_TOLERANCE,
     method_options=None, suggest: bool = True, probes: Probes | None = None, stepper=None, stated_inputs: bool = True,
+    head=None,
 ) -> AccuracyReport | None:  # fmt: skip
     """Stability and accuracy of ``method`` at ``dt`` [s] on the plant's closed loop.
 
@@ -142,7 +143,8 @@ def check_accuracy(
     one that is both (each candidate checked with ``suggest=False``, so the
     search never searches again). ``probes``: a :func:`probe_scene` of this
     plant already made; ``stepper``: a Stepper of this plant, method and dt
-    to reuse for the windows' ``dt`` runs.
+    to reuse for the windows' ``dt`` runs; ``head``: the run itself, called
+    once the step is found stable (:func:`~belt_drive_ros.core.accuracy_windows.window_errors`).
     """
     cls = method_class(method)
     if not issubclass(cls, FixedStepIntegrator):
@@ -167,7 +169,7 @@ def check_accuracy(
             harmonic = max(harmonic, harmonic_error(integrator, A, B, rows, K, n_steps, probes.harmonics,
                                                     probes.peaks[: rows.shape[0]]))  # fmt: skip
     if worst.stable:
-        forcing = forcing_error(plant, method, dt, probes, method_options, stepper)
+        forcing = forcing_error(plant, method, dt, probes, method_options, stepper, head)
         error = max(worst.error, forcing, harmonic)
         worst = AccuracyReport(**{**worst.__dict__, "error": error, "accurate": error <= tolerance, "forcing_error": forcing,
                                   "harmonic_error": harmonic})  # fmt: skip
@@ -205,14 +207,14 @@ def _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, expo
 
 
 def require_accurate(plant, method, dt, duration, x0, tolerance=ACCURACY_TOLERANCE, method_options=None, stepper=None,
-                     stated_inputs=True, probes=None):  # fmt: skip
+                     stated_inputs=True, probes=None, head=None):  # fmt: skip
     """:func:`check_accuracy`; raises :class:`UnstableStepError` (naming a stable, accurate step) when unstable.
 
     An inaccurate but stable step is returned (``report.accurate`` False): the caller warns.
-    ``probes``: a :func:`probe_scene` of this plant, duration, state and step already made.
+    ``probes``, ``head``: see :func:`check_accuracy`.
     """
     return _refuse_unstable(check_accuracy(plant, method, dt, duration, x0, tolerance, method_options, stepper=stepper,
-                                           stated_inputs=stated_inputs, probes=probes))  # fmt: skip
+                                           stated_inputs=stated_inputs, probes=probes, head=head))  # fmt: skip
 
 
 def _refuse_unstable(report):

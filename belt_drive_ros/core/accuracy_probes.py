@@ -491,10 +491,24 @@ def linear_verdict(integrator, A, B, rows, K, n_steps: int) -> tuple:
     exact_growth = spectral_radius(E)
     stable = growth <= max(1.0, exact_growth) * (1.0 + GROWTH_TOLERANCE) + 1e-15
     error = step_response_error(M, G, E, F, rows, n_steps) if stable else math.inf
-    verdict = (stable, error, growth, exact_growth, dt * float(np.max(np.abs(np.linalg.eigvals(A_cl)))))
+    verdict = (stable, error, growth, exact_growth, dt * float(np.max(np.abs(closed_loop_eigenvalues(A, B, K)))))
     if len(_LINEAR_CACHE) >= _LINEAR_CACHE_SIZE:
         _LINEAR_CACHE.pop(next(iter(_LINEAR_CACHE)))
     _LINEAR_CACHE[key] = verdict
     return verdict
 
 
+#: eigenvalues of closed loops ``A + B K`` already computed, by the matrices' bytes
+_EIGENVALUES: dict = {}
+
+
+def closed_loop_eigenvalues(A, B, K) -> np.ndarray:
+    """Eigenvalues of ``A + B K`` [1/s] (cached: the same numbers give the same values; read-only)."""
+    key = (A.tobytes(), B.tobytes(), K.tobytes(), A.shape, K.shape)
+    hit = _EIGENVALUES.get(key)
+    if hit is None:
+        if len(_EIGENVALUES) >= _LINEAR_CACHE_SIZE:
+            _EIGENVALUES.pop(next(iter(_EIGENVALUES)))
+        hit = _EIGENVALUES[key] = np.linalg.eigvals(A + B @ K)
+        hit.flags.writeable = False
+    return hit

@@ -238,14 +238,16 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
     """``auto`` with the flexible tier on the slipping engine (the flexible phase alone first when the survey puts the
     scene well within the limit): a flexible result if it never slipped. ``probes``: the stick check's, both modes'."""
     sim, x0, probes = _slipping_engine(scene, check_stability, survey)
+    y0 = scene.initial_state.vector("slipping", scene.params.ratio)
+    # the flexible phase runs inside the guard once it found the step stable: its first knots are a forcing window's
+    head = None if _may_slip(scene, survey) else _once(lambda: _flexible_phase(sim, y0, scene.duration, progress))
     accuracy = (
         checked or require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance,
-                                    method_options=scene.method_options, probes=probes)
+                                    method_options=scene.method_options, probes=probes, head=head)
         if check_stability else None
     )  # fmt: skip
-    y0 = scene.initial_state.vector("slipping", scene.params.ratio)
-    start = _time.perf_counter()
-    flex = None if _may_slip(scene, survey) else _flexible_phase(sim, y0, scene.duration, progress)
+    flex = head() if head is not None else None
+    wall, start = head.wall if head is not None else 0.0, _time.perf_counter()
     if flex is None:
         try:
             time, states, modes, sigmas = sim.run(scene.duration, y0, progress=progress)
@@ -255,7 +257,7 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
             raise
         if not sim.events and not np.any(modes):  # it never slipped (the guess was wrong): the flexible states
             flex = _flexible_phase(sim, y0, scene.duration)
-    wall = _time.perf_counter() - start
+        wall += _time.perf_counter() - start
     if flex is not None:  # the flexible model throughout: its run, bit for bit
         time, states = flex
         result = _linear_result(scene, sim.flexible, sim.plant, time, states, sim.stability, accuracy, wall)
@@ -272,6 +274,19 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
     # the guard on both modes once the run has slipped (its stick part is the check made before the run)
     accuracy = _slipping_accuracy(scene, sim, accuracy, probes) if check_stability else None
     return _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy)
+
+
+def _once(run):
+    """``run`` as a function that runs it at its first call and returns that result at every call; ``.wall``: the
+    first call's wall time [s] (a scene's run, called by the accuracy guard or after it)."""
+    def once():
+        if not hasattr(once, "result"):
+            start = _time.perf_counter()
+            once.result = run()
+            once.wall = _time.perf_counter() - start
+        return once.result
+
+    return once
 
 
 def _may_slip(scene: Scene, survey) -> bool:
@@ -306,18 +321,17 @@ def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, s
                else Stepper(plant, scene.method, scene.dt, scene.method_options))  # fmt: skip
     stability = require_stable(mdl.A, mdl.B, scene.method, scene.dt) if check_stability else None
     x0 = scene.initial_state.vector(kind, scene.params.ratio)
+    run = _once(lambda: stepper.run(x0, 0.0, scene.duration, progress))  # (inside the guard: its first window)
     # closed loop (torque slopes): refuses an unstable step, reports an inaccurate one (the CLI warns)
     accuracy = (
         checked or require_accurate(
             plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance, method_options=scene.method_options,
-            stepper=stepper, probes=probe_scene(plant, scene.duration, x0, scene.dt, survey=survey),
+            stepper=stepper, probes=probe_scene(plant, scene.duration, x0, scene.dt, survey=survey), head=run,
         )
         if check_stability else None
     )  # fmt: skip
-    start = _time.perf_counter()
-    time, states = stepper.run(x0, 0.0, scene.duration, progress)
-    wall = _time.perf_counter() - start
-    return _linear_result(scene, mdl, plant, time, states, stability, accuracy, wall)
+    time, states = run()
+    return _linear_result(scene, mdl, plant, time, states, stability, accuracy, run.wall)
 
 
 def _linear_result(scene, mdl, plant, time, states, stability, accuracy, wall) -> SimResult:

@@ -76,8 +76,10 @@ CHUNK = 4096
 PAGE_MARGIN = 4
 #: an advance over at least this many breakpoints looks for steps it can absorb (:mod:`~belt_drive_ros.core.absorb`)
 ABSORB_MIN = 16
-#: plans of :meth:`Stepper.run` kept per stepper (its last few runs' ends: the guards' windows and the run repeat)
+#: plans of :meth:`Stepper.run` kept per stepper (its last few runs' ends: the guards' windows and the run repeat),
+#: those with at most PLAN_SPECIAL special steps
 PLAN_CACHE_SIZE = 8
+PLAN_SPECIAL = 64
 #: state rows a guarded run (it may stop at its first steps) allocates first; twice as many each time they are full
 GUARDED_ROWS = 256
 _NO_CELLS = np.empty(0, dtype=np.int64)
@@ -383,6 +385,8 @@ class Stepper:
             self.split_steps = {c: list(cuts) for c, cuts in hit[2].items()}
             return hit[1]
         plan = self._plan(t0, t1, absorb=True)
+        if len(plan["special"]) > PLAN_SPECIAL or plan["absorbed"].size:
+            return plan
         if len(self._plans) >= PLAN_CACHE_SIZE:
             self._plans.pop(next(iter(self._plans)))
         self._plans[key] = (self.breakpoints, plan, {c: list(cuts) for c, cuts in self.split_steps.items()})
@@ -705,11 +709,13 @@ class Stepper:
         guarded, total = self.guard is not None, last - first + 2
         states = np.empty((total if not guarded else min(total, GUARDED_ROWS), x.size))
         states[0] = x
+        if "ends" not in plan:  # the cells that end a group: one whose hi is finite, or the one before a cell whose
+            # lo is (sorted; kept in the plan: _run_plan keeps a run's)
+            plan["ends"] = sorted({c for c, e in special.items() if e[1] != math.inf}
+                                  | {c - 1 for c, e in special.items() if e[0] != -math.inf}) + [last] if special else [last]  # fmt: skip
         grid = self._grid(first, last + 2) if not guarded else None
         half = 0.5 * self.dt
-        # the cells that end a group: one whose hi is finite, or the one before a cell whose lo is (sorted)
-        ends = sorted({c for c, e in special.items() if e[1] != math.inf}
-                      | {c - 1 for c, e in special.items() if e[0] != -math.inf}) + [last] if special else [last]  # fmt: skip
+        ends = plan["ends"]
         ei = 0
         c = first
         while c <= last:
