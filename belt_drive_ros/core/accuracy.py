@@ -31,10 +31,8 @@ system, ``x+ = E x + F u_0``):
   duration with M, G against E, F, stays within ``tolerance`` of each
   signal's peak.
 
-That is the error of the method on the belt mode and the torques' slopes.
-It is not the error from how fast the torques vary in time (firing
-pulsations, recorded profiles): that one falls with the method's order and
-is measured per scene (``docs/performance.md``, tests/test_scene_defaults.py).
+How fast the torques vary in time and angle is rated apart: the forcing windows
+(:mod:`~belt_drive_ros.core.accuracy_windows`) and the harmonic term (:mod:`~belt_drive_ros.core.forced_response`).
 
 The slopes are taken by central differences of the torques at speeds and
 times along a cheap rigid run of the scene (:data:`~belt_drive_ros.core.accuracy_probes.N_PROBES` probes); the
@@ -243,9 +241,8 @@ def check_slipping(
       creep ``theta_e' = -(k / c) theta_e + ...``: a fast real mode that
       explicit methods must resolve.
 
-    ``stepper``: the flexible-model stepper of the run (its integrator is reused); ``stick``: the
-    flexible model's report for this method, step and tolerance already made (``auto``'s check run);
-    ``probes``: the :func:`probe_scene` of the flexible plant at this step already made (that check's).
+    ``stepper``: the flexible-model stepper of the run (its integrator is reused); ``stick``, ``probes``: the
+    flexible model's report and :func:`probe_scene` at this step, when already made.
     """
     from .model import make_model
     from .slip import SlippingBeltModel

@@ -1,9 +1,8 @@
 """The accuracy guard's probes and its closed-loop step-response term (see :mod:`belt_drive_ros.core.accuracy`).
 
-Probes: speeds, times and torque slopes taken along a cheap rigid run of the
-scene (:class:`RigidSurvey`, the run the ``auto`` model choice reads its
-operating speeds from too); the step-response term: the method's one-step map on the linearized
-closed loop against the exact map, and the error of the step response.
+Probes: speeds, times and torque slopes along a cheap rigid run of the scene (:class:`RigidSurvey`, which the
+``auto`` model choice reads too); the step-response term: the method's one-step map on the linearized closed
+loop against the exact map.
 """
 
 from __future__ import annotations
@@ -64,11 +63,8 @@ def operating_run_step(duration: float) -> float:
 def _survey_step(pieces, rdt: float) -> float:
     """The survey's step [s]: ``rdt``, or the spacing ``h`` of a sampled torque whose breakpoints inside
     the run (``pieces()``: consecutive sorted arrays of them) are denser than ``rdt`` and all lie on the
-    grid ``k h`` (a recording at a fixed rate).
-
-    On that grid the stepper takes the record's steps in runs of whole steps (breakpoints on the knots,
-    :func:`~belt_drive_ros.core.absorb.absorbed_steps`), one kernel call per piece instead of one per sample;
-    ``exact`` integrates the held samples exactly either way.
+    grid ``k h`` (a recording at a fixed rate): there the stepper runs the record's steps in runs of whole
+    steps (:func:`~belt_drive_ros.core.absorb.absorbed_steps`); ``exact`` integrates held samples exactly either way.
     """
     def on_grid(inner, h) -> bool:
         d = np.abs(np.rint(inner / h) * h - inner)
@@ -113,9 +109,8 @@ class RigidSurvey:
     * ``speeds``: (max |omega_M|, max |omega_3| [rad/s], max |belt torque| [N m])
       over every knot, what the frequency rule reads the operating point from.
 
-    Run on first use (in pieces of at most :data:`SURVEY_CHUNK` steps: memory does not
-    grow with the duration); a run that diverges leaves ``error`` set (the
-    probes then fall back to the start, ``speeds`` raises it).
+    Run on first use, in pieces of at most :data:`SURVEY_CHUNK` steps (bounded memory); a run that
+    diverges sets ``error`` (the probes fall back to the start, ``speeds`` raises it).
     """
 
     def __init__(self, params, drive, load, motion, duration: float, dt: float):
@@ -244,11 +239,9 @@ class Probes:
     windows : further forcing windows as ``(t [s], phi_M [rad], omega_M [rad/s], anchor)``: the rigid run's
         motion at t; ``anchor`` a torque breakpoint [s] the window straddles (None: the window starts at t).
     duration : the scene's duration [s].
-    window : length [s] of a forcing window (:data:`WINDOW_STEPS` steps of the step probed with; a smaller
-        step keeps it, up to :data:`MAX_WINDOW_STEPS` of its steps).
+    window : length [s] of a forcing window (:data:`WINDOW_STEPS` steps of the step probed with; :meth:`span`).
     input_weight : what the unit step response's error is scaled by for this scene (:func:`input_weight`).
-    harmonics : ``(input, frequency [Hz], amplitude [N m])`` the torques excite
-        (:func:`~belt_drive_ros.core.forced_response.profile_harmonics`).
+    harmonics : ``(input, frequency [Hz], amplitude [N m])`` the torques excite (``forced_response.profile_harmonics``).
     peaks : estimated peaks of drive speed [rad/s] and quasi-static belt torque [N m] at the probes.
     """
 
@@ -292,14 +285,11 @@ def _model_state(plant, t: float, phi: float, omega: float) -> np.ndarray:
 def probe_scene(plant, duration: float, x0, dt: float, stated_inputs: bool = True, survey=None) -> Probes:
     """Speed slopes at :data:`N_PROBES` times and the forcing windows' starts, from one cheap rigid run.
 
-    Windows start at t = 0 (from ``x0``), at the probe times before the end,
-    and about each of the first :data:`MAX_BREAKPOINT_WINDOWS` torque
-    breakpoints inside the run (see :meth:`Probes.window_starts`).
-    ``stated_inputs``: the plant's torques are all the inputs (the step
-    response is weighted by their steps, :func:`input_weight`); False
-    (torques from outside, e.g. a node's topic): unit steps, weight 1.
-    ``survey``: the scene's :class:`~belt_drive_ros.core.fidelity.RigidSurvey` at this ``dt`` (the rigid run
-    the model choice read; default: one is run here).
+    Windows start at t = 0 (from ``x0``), at the probe times before the end and about each of the first
+    :data:`MAX_BREAKPOINT_WINDOWS` torque breakpoints inside the run (:meth:`Probes.window_starts`).
+    ``stated_inputs``: the plant's torques are all the inputs (the step response is weighted by their steps,
+    :func:`input_weight`); False (torques from outside, a node's topic): unit steps, weight 1.
+    ``survey``: the scene's :class:`RigidSurvey` at this ``dt`` (the model choice's; default: one is run here).
     """
     x0 = np.asarray(x0, dtype=float)
     wm = plant.wheel_map
@@ -362,11 +352,9 @@ def input_weight(plant, x0, dt: float, probes, jumps, rigid, out: list | None) -
     """Scale [-] of the unit step response's error for this scene: ``min(1, 2 dB / T_peak)``, at least
     :data:`MIN_INPUT_WEIGHT`.
 
-    The step response (:func:`step_response_error`) switches a unit torque
-    on at once; its error relative to its own peak (``2`` steps of belt
-    torque: the undamped overshoot) becomes, in the scene, that times
-    ``2 dB / T_peak``, with ``dB`` [N m] the largest step of belt torque
-    the scene's inputs make:
+    The step response (:func:`step_response_error`) switches a unit torque on at once; its error relative to its own
+    peak (``2`` steps of belt torque: the undamped overshoot) becomes, in the scene, that times ``2 dB / T_peak``,
+    with ``dB`` [N m] the largest step of belt torque the scene's inputs make:
 
     * at the start, the quasi-static belt torque the torques at t = 0 need
       (rigid model) less what the initial state carries
@@ -503,12 +491,10 @@ _EIGENVALUES: dict = {}
 
 
 def closed_loop_eigenvalues(A, B, K) -> np.ndarray:
-    """Eigenvalues of ``A + B K`` [1/s] (cached: the same numbers give the same values; read-only)."""
+    """Eigenvalues of ``A + B K`` [1/s], computed once per matrices (the same numbers, the same values; read-only)."""
     key = (A.tobytes(), B.tobytes(), K.tobytes(), A.shape, K.shape)
-    hit = _EIGENVALUES.get(key)
-    if hit is None:
+    if key not in _EIGENVALUES:
         if len(_EIGENVALUES) >= _LINEAR_CACHE_SIZE:
-            _EIGENVALUES.pop(next(iter(_EIGENVALUES)))
-        hit = _EIGENVALUES[key] = np.linalg.eigvals(A + B @ K)
-        hit.flags.writeable = False
-    return hit
+            _EIGENVALUES.pop(next(iter(_EIGENVALUES)), None)
+        _EIGENVALUES[key] = np.linalg.eigvals(A + B @ K)
+    return _EIGENVALUES[key]

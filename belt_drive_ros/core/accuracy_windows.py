@@ -15,14 +15,11 @@ from .integrators import method_class
 def forcing_error(plant, method: str, dt: float, probes: Probes, method_options=None, stepper=None, head=None) -> float:
     """A posteriori error [-] of the method at ``dt`` on the scene's real torques (time, angle, speed), by Richardson.
 
-    Each window of :data:`WINDOW_STEPS` steps (``probes.windows``) is run at
-    ``dt`` and at ``dt / 2`` from the same state; for a method of order p
-    the error of the ``dt`` run is ``|y_dt - y_dt/2| 2^p / (2^p - 1)``.
-    Signals: drive speed and belt torque, each relative to its peak over all
-    windows' ``dt / 2`` runs; the worst signal and window counts. This sees
-    what the linearization does not: firing and compressor harmonics in
-    crank angle, schedules, profiles (their bandwidth at the operating speed
-    against the step). A run that diverges: inf. ``head``: see :func:`window_errors`.
+    Each window of :data:`WINDOW_STEPS` steps (``probes.windows``) is run at ``dt`` and at ``dt / 2`` from
+    the same state; for a method of order p the error of the ``dt`` run is ``|y_dt - y_dt/2| 2^p / (2^p - 1)``.
+    Signals: drive speed and belt torque, each relative to its peak over all windows' ``dt / 2`` runs; the
+    worst signal and window counts. This sees what the linearization does not: harmonics in crank angle,
+    schedules, profiles (their bandwidth against the step). Diverged: inf. ``head``: see :func:`window_errors`.
     """
     windows = window_errors(plant, method, dt, probes, method_options, stepper, head)
     if windows is None:
@@ -36,8 +33,8 @@ def forcing_error(plant, method: str, dt: float, probes: Probes, method_options=
 def window_errors(plant, method: str, dt: float, probes: Probes, method_options=None, stepper=None, head=None) -> list | None:
     """``[(t0, Richardson error (2,), peak (2,))]`` per forcing window (see :func:`forcing_error`); None: diverged.
 
-    ``head``: ``() -> (times, states)`` of the scene's own run at ``dt`` from t = 0, or None: when it starts from
-    ``probes.x0`` bit for bit, the first window's ``dt`` run is its knots up to the window's end (the same steps)."""
+    ``head``: ``() -> (times, states)`` of the scene's own run at ``dt`` from t = 0 (or None); one from ``probes.x0``
+    bit for bit is the first window's ``dt`` run up to the window's end (the same steps), not run again."""
     from .errors import SimulationDivergedError
     from .stepper import shared_stepper
 
@@ -116,20 +113,15 @@ def _drift_time(plant, probes) -> float:
 def _phase_drift(plant, xc, xf, tf, yf, factor: float, duration: float) -> np.ndarray:
     """Error (2,) of the outputs from the angle error a window leaves, grown over the run (torques by crank angle).
 
-    The angle has no restoring force: an error ``d phi`` can stay, and while
-    the speed error that makes it persists (a speed transient, a systematic
-    error per firing period) it grows about linearly over the run (measured:
-    5.6e-5 rad after 48 steps, 6.8e-4 after 800 on an engine and compressor
-    scene). Torques by angle then run early or late by ``d t = d phi / |omega|``,
-    which moves each output by ``|dy/dt| d t``. Here ``d phi(t)`` is the
-    Richardson error of the window's angles (drive and wheel 3, each over
-    its top speed in the window: a wheel rocking about rest barely turns);
-    its growth over the window, ``g = log2(max over the window / max over
-    its first half)`` in [0, 1] (1: linear, 0: not growing), sets
-    the growth over the time a speed error lasts (``duration``,
-    :func:`_drift_time`), ``(duration / window)^g``; ``|dy/dt|`` is the
-    fine run's largest rate. ``xc``, ``xf``: the window's states at dt and
-    dt / 2 on the common times ``tf``.
+    The angle has no restoring force: an error ``d phi`` can stay, and while the speed error that makes it persists
+    (a speed transient, a systematic error per firing period) it grows about linearly over the run (measured: 5.6e-5
+    rad after 48 steps, 6.8e-4 after 800 on an engine and compressor scene). Torques by angle then run early or late
+    by ``d t = d phi / |omega|``, which moves each output by ``|dy/dt| d t``. Here ``d phi(t)`` is the Richardson
+    error of the window's angles (drive and wheel 3, each over its top speed in the window: a wheel rocking about
+    rest barely turns); its growth over the window, ``g = log2(max over the window / max over its first half)`` in
+    [0, 1] (1: linear, 0: not growing), sets the growth over the time a speed error lasts (``duration``,
+    :func:`_drift_time`), ``(duration / window)^g``; ``|dy/dt|`` is the fine run's largest rate. ``xc``, ``xf``: the
+    window's states at dt and dt / 2 on the common times ``tf``.
     """
     W = plant.wheel_map
     span = float(tf[-1] - tf[0])

@@ -33,10 +33,8 @@ capstan limit, ``docs/slip.md``). So the third tier:
   would slide there, and what the linear model reports after that is not
   what the drive does. The reason names the peak ratio and its time.
 
-A scene that stays within the limit keeps its linear model (and that run is
-the result: ``simulate`` passes it in, so the check costs nothing extra).
-``docs/performance.md`` (fidelity chart) shows the rigid model's measured
-error against these ratios and where the threshold sits.
+A scene within the limit keeps its linear model and that run (``simulate``
+passes it in). ``docs/performance.md`` (fidelity chart): the rigid model's error against these ratios.
 """
 
 from __future__ import annotations
@@ -117,12 +115,10 @@ def choose_model(
     scene : Scene.
     check_slip : also run the chosen linear model and go on to ``slipping``
         when it passes the capstan limit (False: the two linear tiers only).
-    linear_run : ``f(model_name) -> (time, outputs)`` that runs the scene on
-        that linear model (``simulate`` passes one that keeps the run as its
-        result); default: a run through the stepper with the scene's method.
-    speeds : (max |omega_M|, max |omega_3| [rad/s], max |belt torque| [N m]) of the rigid estimate, when
-        the caller already ran it (:mod:`~belt_drive_ros.core.ensemble` runs
-        it for many variants at once); default: run it here.
+    linear_run : ``f(model_name) -> (time, outputs)``, the scene's run on that linear model (``simulate``
+        keeps it as its result); default: a run through the stepper with the scene's method.
+    speeds : (max |omega_M|, max |omega_3| [rad/s], max |belt torque| [N m]) of the rigid estimate when
+        the caller ran it (an ensemble, for many variants at once); default: run it here.
     linear : the frequency rule's choice when the caller has it already
         (``choose_model(scene, check_slip=False, ...)``); default: apply the rule here.
     start_torque : the belt torque the start needs (:func:`start_mismatch`) when the caller has it.

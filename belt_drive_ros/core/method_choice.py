@@ -1,23 +1,18 @@
 """Method and step by accuracy: what a scene that names no method (or says ``method: auto``) runs with.
 
-The candidates are the fixed-step methods exact for the belt mode (stable
-at any step on it), cheapest first by torque evaluations per step:
-``exact`` (1), ``etd2`` (2), ``etd4`` (4), ``lawson5`` (6). The explicit
-Runge-Kutta and Euler methods cost as much per step as one of these and are
-both less accurate on the belt mode and only conditionally stable, so they
-are never the cheapest that is accurate.
+The candidates are the fixed-step methods exact for the belt mode (stable at any step on it), cheapest first by
+torque evaluations per step: ``exact`` (1), ``etd2`` (2), ``etd4`` (4), ``lawson5`` (6). The explicit Runge-Kutta
+and Euler methods cost as much per step as one of these and are both less accurate on the belt mode and only
+conditionally stable, so they are never the cheapest that is accurate.
 
 The choice: at the scene's ``dt``, the cheapest candidate the accuracy guard
-(:func:`~belt_drive_ros.core.accuracy.check_accuracy`, on this scene's
-model, closed loop and torques; for the slipping model
-:func:`~belt_drive_ros.core.accuracy.check_slipping`, both modes) rates
-stable and within :data:`~belt_drive_ros.core.accuracy.SUGGEST_MARGIN` of
-the tolerance (the same rule as every step the tool names: the estimate's
-spread). If none is, the fewest substeps ``n`` (step ``dt / n``, from
-:data:`SUBSTEPS`) at which one is, again the cheapest at that ``n``. If none
-is up to the last, the candidate with the smallest estimate at the finest
-step is taken and the reason says that the tolerance is not met (the run's
-report then warns as for a stated method).
+(:func:`~belt_drive_ros.core.accuracy.check_accuracy`, on this scene's model, closed loop and torques; for the
+slipping model :func:`~belt_drive_ros.core.accuracy.check_slipping`, both modes) rates stable and within
+:data:`~belt_drive_ros.core.accuracy.SUGGEST_MARGIN` of the tolerance (the same rule as every step the tool names:
+the estimate's spread). If none is, the fewest substeps ``n`` (step ``dt / n``, from :data:`SUBSTEPS`) at which one
+is, again the cheapest at that ``n``. If none is up to the last, the candidate with the smallest estimate at the
+finest step is taken and the reason says that the tolerance is not met (the run's report then warns as for a stated
+method).
 """
 
 from __future__ import annotations

@@ -15,13 +15,10 @@ ordering, written down once (everything else reads it through the model:
 * flexible: ``x = [phi_M, delta, omega_M, omega_3]``  [rad, rad, rad/s, rad/s]
 * rigid:    ``x = [phi_M, omega_M]``                  [rad, rad/s]
 
-The flexible model integrates the relative deflection
-``delta = i phi_M - phi_3`` [rad at wheel 3] itself, not wheel 3's angle:
-delta stays small while both angles grow with run length, and forming it
-as the difference of two large angles would lose digits (1e-8 rad after
-300 s at 500 rad/s, against ~1e-11 as a state). ``phi_3 = i phi_M - delta``
-is an output. The slipping model (:mod:`belt_drive_ros.core.slip`) extends
-this state by the accumulated slip ``s``.
+The flexible model integrates the relative deflection ``delta = i phi_M - phi_3`` [rad at wheel 3] itself, not wheel
+3's angle: delta stays small while both angles grow with run length, and forming it as the difference of two large
+angles would lose digits (1e-8 rad after 300 s at 500 rad/s, against ~1e-11 as a state). ``phi_3 = i phi_M - delta``
+is an output. The slipping model (:mod:`belt_drive_ros.core.slip`) extends this state by the accumulated slip ``s``.
 
 Equations of motion (derived step by step in ``docs/model.md``; the paper's eq. 18/20
 with its errata corrected, plus belt span damping c and bearing damping b)::

@@ -96,11 +96,6 @@ class SimResult:
             columns = CSV_COLUMNS + (SLIP_CSV_COLUMNS if self.model in SLIP_MODELS else ())
         np.savetxt(path, self.table(columns), delimiter=",", header=",".join(columns), comments="", fmt="%.12g")
 
-    @property
-    def realtime_factor(self) -> float:
-        """Simulated seconds per wall-clock second."""
-        return (self.time[-1] - self.time[0]) / self.wall_time if self.wall_time > 0 else math.inf
-
 
 class Simulator:
     """Runs one model with one integrator from an initial state (through the :class:`~belt_drive_ros.core.stepper.Stepper`).
@@ -122,27 +117,13 @@ class Simulator:
         self.integrator = self.stepper.integrator
         self.stability = require_stable(model.A, model.B, method, dt) if check_stability else None
 
-    @property
-    def breakpoints(self) -> list:
-        """Where steps are split or bounded (the plant's breakpoints; settable for this simulator)."""
-        return self.stepper.breakpoints
-
-    @breakpoints.setter
-    def breakpoints(self, value) -> None:
-        self.stepper.breakpoints = sorted(float(b) for b in value)
-
-    @property
-    def split_steps(self) -> dict:
-        """{step k: [breakpoints strictly inside step k]} of the last run."""
-        return self.stepper.split_steps
-
     def run(self, duration: float, x0: np.ndarray, t0: float = 0.0,
             progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
         """Integrate over ``duration`` [s] on the grid ``t0 + k dt``; return (time (N+1,), states (N+1, n)).
 
         Steps at torque breakpoints are split or clamped (:mod:`belt_drive_ros.core.stepper`): else such a step is
         locally first order (``paper``, ``lawson5`` at 12.5 ms with the soft start ending inside a step: 2000x less
-        accurate, tests/test_breakpoints.py). ``split_steps`` lists the split steps after.
+        accurate, tests/test_breakpoints.py); ``stepper.split_steps`` lists the split steps after.
         """
         self.stepper.origin = float(t0)
         return self.stepper.run(x0, float(t0), float(t0) + float(duration), progress)
@@ -277,8 +258,7 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
 
 
 def _once(run):
-    """``run`` as a function that runs it at its first call and returns that result at every call; ``.wall``: the
-    first call's wall time [s] (a scene's run, called by the accuracy guard or after it)."""
+    """``run`` made at the first call only, its result returned at every call (``.wall``: that call's wall time [s])."""
     def once():
         if not hasattr(once, "result"):
             start = _time.perf_counter()

@@ -1,52 +1,40 @@
 """The one engine that advances time: a plant from scene time t0 to t1.
 
-Every caller that moves a simulation forward (offline runs, replay, the
-guards' runs, the node's tick where its compiled tick does not serve it)
-goes through :class:`Stepper`: it plans the steps (grid, partial steps,
-steps split or clamped at torque breakpoints) and hands them to the one
-compiled time loop (:func:`~belt_drive_ros.core.kernel.linear_steps`),
-which steps, clamps the torque times, checks divergence and the guard.
-:meth:`Stepper.advance` gives the state at ``t1``, :meth:`Stepper.run`
-every knot from ``t0`` to ``t1``. States are 1-D float arrays in the
-model's own ordering; the **second half of the state holds speeds**
-[rad/s] (the divergence check reads them). Torques [N m], times [s].
+Every caller that moves a simulation forward (offline runs, replay, the guards' runs, the node's tick where its
+compiled tick does not serve it) goes through :class:`Stepper`: it plans the steps (grid, partial steps, steps split
+or clamped at torque breakpoints) and hands them to the one compiled time loop
+(:func:`~belt_drive_ros.core.kernel.linear_steps`), which steps, clamps the torque times, checks divergence and the
+guard. :meth:`Stepper.advance` gives the state at ``t1``, :meth:`Stepper.run` every knot from ``t0`` to ``t1``.
+States are 1-D float arrays in the model's own ordering; the **second half of the state holds speeds** [rad/s] (the
+divergence check reads them). Torques [N m], times [s].
 
 The grid
 --------
-Whole steps lie on the fixed grid ``g_k = origin + k dt`` (``k`` integer;
-the float product and sum, computed the same way for every caller, so a
-node ticking on grid times and an offline run see bit-identical times). An
-advance from ``t0`` to ``t1`` takes a partial step from ``t0`` to the next
-grid time when ``t0`` is off the grid, whole steps up to the last grid time
-not after ``t1``, and a partial step to ``t1`` when ``t1`` is off the grid:
-a run of ``duration`` ends at ``duration`` exactly, its last step shortened.
-A time within :func:`snap_tolerance` of a grid time (``1e-9 dt`` or 8 ulps,
-whichever is larger) counts as that grid time.
+Whole steps lie on the fixed grid ``g_k = origin + k dt`` (``k`` integer; the float product and sum, computed the
+same way for every caller, so a node ticking on grid times and an offline run see bit-identical times). An advance
+from ``t0`` to ``t1`` takes a partial step from ``t0`` to the next grid time when ``t0`` is off the grid, whole
+steps up to the last grid time not after ``t1``, and a partial step to ``t1`` when ``t1`` is off the grid: a run of
+``duration`` ends at ``duration`` exactly, its last step shortened. A time within :func:`snap_tolerance` of a grid
+time (``1e-9 dt`` or 8 ulps, whichever is larger) counts as that grid time.
 
 Breakpoints
 -----------
-``plant.breakpoints`` (times where a torque jumps or kinks) are handled
-exactly wherever they fall. A breakpoint strictly inside a step splits the
-step there (sub-steps by integrators of the sub-step's length); one on a
-knot (within the snap tolerance) bounds the steps on either side. Every
-torque sample of a (sub-)step is taken at a time clamped into the step's
-side: the step that ends at breakpoint ``b`` samples at most at
-``plant.left_of(b)`` (the left limit), the step that starts there at least
-at ``b``, so no step integrates across a jump or a kink and each method
-keeps its order. Each such piece is one kernel call, each run of whole
-steps one call; an adaptive method (scipy's references) steps through
-``integrator.step``. A torque profile without a data form is refused.
+``plant.breakpoints`` (times where a torque jumps or kinks) are handled exactly wherever they fall. A breakpoint
+strictly inside a step splits the step there (sub-steps by integrators of the sub-step's length); one on a knot
+(within the snap tolerance) bounds the steps on either side. Every torque sample of a (sub-)step is taken at a time
+clamped into the step's side: the step that ends at breakpoint ``b`` samples at most at ``plant.left_of(b)`` (the
+left limit), the step that starts there at least at ``b``, so no step integrates across a jump or a kink and each
+method keeps its order. Each such piece is one kernel call, each run of whole steps one call; an adaptive method
+(scipy's references) steps through ``integrator.step``. A torque profile without a data form is refused.
 
-Integrators (and kernel loops) of partial-step lengths are cached per
-stepper (at most :data:`PARTIAL_CACHE_SIZE`); plant torques are read at every
-call (a held torque may change between advances).
+Integrators (and kernel loops) of partial-step lengths are cached per stepper (at most :data:`PARTIAL_CACHE_SIZE`);
+plant torques are read at every call (a held torque may change between advances).
 
 Divergence
 ----------
-A state that is non-finite or has a speed beyond :data:`SPEED_LIMIT`
-raises :class:`~belt_drive_ros.core.errors.SimulationDivergedError` naming
-the time, model, method and step (the kernel checks after every step and
-stops there; :meth:`run` reports the first bad sample).
+A state that is non-finite or has a speed beyond :data:`SPEED_LIMIT` raises
+:class:`~belt_drive_ros.core.errors.SimulationDivergedError` naming the time, model, method and step (the kernel
+checks after every step and stops there; :meth:`run` reports the first bad sample).
 """
 
 from __future__ import annotations
@@ -76,10 +64,8 @@ CHUNK = 4096
 PAGE_MARGIN = 4
 #: an advance over at least this many breakpoints looks for steps it can absorb (:mod:`~belt_drive_ros.core.absorb`)
 ABSORB_MIN = 16
-#: plans of :meth:`Stepper.run` kept per stepper (its last few runs' ends: the guards' windows and the run repeat),
-#: those with at most PLAN_SPECIAL special steps
-PLAN_CACHE_SIZE = 8
-PLAN_SPECIAL = 64
+#: plans of :meth:`Stepper.run` kept per stepper (the guards' windows and the run repeat theirs), of so many special steps
+PLAN_CACHE_SIZE, PLAN_SPECIAL = 8, 64
 #: state rows a guarded run (it may stop at its first steps) allocates first; twice as many each time they are full
 GUARDED_ROWS = 256
 _NO_CELLS = np.empty(0, dtype=np.int64)
@@ -93,11 +79,10 @@ def snap_tolerance(t: float, dt: float) -> float:
 class Plant:
     """Model + drive + load: the input function ``u(t, x) = [drive, load]`` [N m].
 
-    ``inputs(t, x)`` takes one state (1-D) and returns a (2,) array; it calls
-    the profiles' scalar closures (:meth:`~belt_drive_ros.core.sources.TorqueProfile.scalar_torque`),
-    which skip numpy's per-call overhead. ``wheel_map`` is the (4, n) matrix
-    W with ``[phi_M, omega_M, phi_3, omega_3] = W x`` (the kernel loop reads
-    it as a matrix and :meth:`inputs` applies it, so any state ordering works).
+    ``inputs(t, x)`` takes one state (1-D) and returns a (2,) array; it calls the profiles' scalar closures
+    (:meth:`~belt_drive_ros.core.sources.TorqueProfile.scalar_torque`), which skip numpy's per-call overhead.
+    ``wheel_map`` is the (4, n) matrix W with ``[phi_M, omega_M, phi_3, omega_3] = W x`` (the kernel loop reads it
+    as a matrix and :meth:`inputs` applies it, so any state ordering works).
     """
 
     def __init__(self, model, drive, load, extra=()):
@@ -280,18 +265,14 @@ class Stepper:
 
     Attributes
     ----------
-    breakpoints : sorted times [s] where steps are split or bounded (a copy
-        of the plant's; a caller may change it for this stepper by assigning
-        a new list, never by editing the list in place: the tick remembers
-        the breakpoint-free interval it last fell in, keyed by the list).
+    breakpoints : sorted times [s] where steps are split or bounded (a copy of the plant's; a caller may change it
+    for this stepper by assigning a new list, never by editing the list in place: the tick remembers the
+    breakpoint-free interval it last fell in, keyed by the list).
     split_steps : ``{grid index k: [breakpoints inside step k]}`` of the last
         :meth:`run` or :meth:`advance`.
-    loop : the compiled float loop used for whole steps away from breakpoints
-        (None: each step through ``integrator.step``, numpy; a test may set it to compare the two).
-    stopped : after a :meth:`run` that the guard stopped, ``(j, a, e, whole,
-        lo, hi, cuts)``: step ``j`` of the run from time ``a`` to ``e`` [s]
-        (``whole``: a full grid step), its torque samples clamped to
-        ``[lo, hi]`` and split at ``cuts``; else None.
+    loop : the compiled loop of whole steps (None: each step through ``integrator.step``).
+    stopped : after a :meth:`run` the guard stopped, ``(j, a, e, whole, lo, hi, cuts)``: its step ``j`` as
+        :meth:`steps` describes one; else None.
     """
 
     #: a breakpoint this close to a grid point (relative to dt) is on the grid (read by :mod:`.absorb`)
@@ -319,7 +300,7 @@ class Stepper:
         self._partials: dict = {}
         self._loops: dict = {}  # kernel loops of the partial-step integrators, by step length
         self._free: tuple | None = None  # the breakpoint-free interval the last tick fell in (_near_breakpoint)
-        self._plans: dict = {}  # (t0, t1, origin, id(breakpoints)) -> (breakpoints, plan, split_steps) of run()
+        self._plans: dict = {}  # (t0, t1, origin, id(breakpoints)) -> (breakpoints, plan) of run()
         self._clean = False  # the last grouped march ran every step to the end without a failing status
 
     # ------------------------------------------------------------ public
@@ -377,19 +358,18 @@ class Stepper:
         return times, states
 
     def _run_plan(self, t0: float, t1: float) -> dict:
-        """:meth:`_plan` of a run from ``t0`` to ``t1`` (absorbed steps looked for), made once per ends, origin and
-        breakpoints list (a plan depends on nothing else; :meth:`_march` only reads it)."""
+        """:meth:`_plan` of a run (absorbed steps looked for), kept per ends, origin and breakpoints list for the last
+        :data:`PLAN_CACHE_SIZE` runs of at most :data:`PLAN_SPECIAL` special steps (a plan depends on nothing else)."""
         key = (t0, t1, self.origin, id(self.breakpoints))
         hit = self._plans.get(key)
         if hit is not None and hit[0] is self.breakpoints:
-            self.split_steps = {c: list(cuts) for c, cuts in hit[2].items()}
+            self.split_steps = {c: list(e[2]) for c, e in hit[1]["special"].items() if e[2]}
             return hit[1]
         plan = self._plan(t0, t1, absorb=True)
-        if len(plan["special"]) > PLAN_SPECIAL or plan["absorbed"].size:
-            return plan
-        if len(self._plans) >= PLAN_CACHE_SIZE:
-            self._plans.pop(next(iter(self._plans)))
-        self._plans[key] = (self.breakpoints, plan, {c: list(cuts) for c, cuts in self.split_steps.items()})
+        if len(plan["special"]) <= PLAN_SPECIAL and not plan["absorbed"].size:
+            if len(self._plans) >= PLAN_CACHE_SIZE:
+                self._plans.pop(next(iter(self._plans)))
+            self._plans[key] = (self.breakpoints, plan)
         return plan
 
     def _paged(self, t0: float, t1: float) -> "Stepper":
