@@ -17,6 +17,7 @@ import scipy.linalg
 from . import stage_scheme as _scheme
 from .errors import IntegratorError
 from .forced_response import ORBIT_SAMPLES, orbit_error, profile_harmonics
+from .identity_cache import built_once
 from .model import LINEAR_OUTPUTS, RigidBeltModel, make_model
 from .stability import spectral_radius
 from .stepper import shared_plant, shared_stepper, snap_tolerance
@@ -445,10 +446,13 @@ def step_response_error(M, G, E, F, rows: np.ndarray, n_steps: int) -> float:
     return float(np.max(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0)))
 
 
+_ROWS: dict = {}
+
+
 def _output_rows(model) -> tuple[np.ndarray, np.ndarray]:
-    """(C rows, D rows) of drive speed and belt torque (the guard's two signals)."""
+    """(C rows, D rows) of drive speed and belt torque (the guard's two signals; made once per model, read-only)."""
     j = [LINEAR_OUTPUTS.index("omega_M"), LINEAR_OUTPUTS.index("belt_torque")]
-    return model.C[j], model.D[j]
+    return built_once(_ROWS, 32, (model,), lambda: (model.C[j], model.D[j]))
 
 
 #: the linear (belt mode and slopes) verdicts already computed: key -> (stable, error, growth, exact growth, h omega)

@@ -53,8 +53,8 @@ SLIP_CSV_COLUMNS = (
 class SimResult:
     """States, inputs and outputs of one run on the grid ``time`` [s].
 
-    ``outputs`` holds every signal of :data:`belt_drive_ros.core.model.OUTPUT_UNITS`
-    as an (N,) array; ``states`` is (N, n) in the model's state ordering.
+    ``outputs`` holds every signal of :data:`belt_drive_ros.core.model.OUTPUT_UNITS` as an (N,) array; ``states`` is
+    (N, n) in the model's state ordering.
     """
 
     scene: Scene
@@ -88,9 +88,8 @@ class SimResult:
     def to_csv(self, path, columns=None) -> None:
         """CSV with a header line of column names; SI units (rad, rad/s, N m, s, m, m/s).
 
-        Default columns: :data:`CSV_COLUMNS`, and for the slipping model also
-        :data:`SLIP_CSV_COLUMNS` (span forces, friction use, slip state and speed,
-        elastic and slip parts of the deflection).
+        Default columns: :data:`CSV_COLUMNS`, and for the slipping model also :data:`SLIP_CSV_COLUMNS` (span forces,
+        friction use, slip state and speed, elastic and slip parts of the deflection).
         """
         if columns is None:
             columns = CSV_COLUMNS + (SLIP_CSV_COLUMNS if self.model in SLIP_MODELS else ())
@@ -117,13 +116,27 @@ class Simulator:
         self.integrator = self.stepper.integrator
         self.stability = require_stable(model.A, model.B, method, dt) if check_stability else None
 
+    @property
+    def breakpoints(self) -> list:
+        """Where steps are split or bounded (the plant's breakpoints; settable for this simulator)."""
+        return self.stepper.breakpoints
+
+    @breakpoints.setter
+    def breakpoints(self, value) -> None:
+        self.stepper.breakpoints = sorted(float(b) for b in value)
+
+    @property
+    def split_steps(self) -> dict:
+        """{step k: [breakpoints strictly inside step k]} of the last run."""
+        return self.stepper.split_steps
+
     def run(self, duration: float, x0: np.ndarray, t0: float = 0.0,
             progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
         """Integrate over ``duration`` [s] on the grid ``t0 + k dt``; return (time (N+1,), states (N+1, n)).
 
         Steps at torque breakpoints are split or clamped (:mod:`belt_drive_ros.core.stepper`): else such a step is
         locally first order (``paper``, ``lawson5`` at 12.5 ms with the soft start ending inside a step: 2000x less
-        accurate, tests/test_breakpoints.py); ``stepper.split_steps`` lists the split steps after.
+        accurate, tests/test_breakpoints.py). ``split_steps`` lists the split steps after.
         """
         self.stepper.origin = float(t0)
         return self.stepper.run(x0, float(t0), float(t0) + float(duration), progress)
@@ -141,14 +154,11 @@ def simulate(
     """Run ``scene`` (overrides for model, method, dt, duration) and compute all outputs.
 
     With ``model='auto'`` the choice and its reason are in ``result.choice``
-    (:func:`~belt_drive_ros.core.fidelity.choose_model`: rigid or flexible by
-    the frequency rule, slipping when that run passes the capstan limit; a
-    scene that stays within it returns that very run). Flexible with a
-    fixed-step method (not a second-order-form one): the slipping engine's
-    first phase, the flexible model's compiled loop with the capstan check
-    after each step (:mod:`~belt_drive_ros.core.slip_run`): within the limit
-    the flexible run bit for bit, else it slips on from the located onset
-    (the reason names the onset time).
+    (:func:`~belt_drive_ros.core.fidelity.choose_model`: rigid or flexible by the frequency rule, slipping when that
+    run passes the capstan limit; a scene that stays within it returns that very run). Flexible with a fixed-step
+    method (not a second-order-form one): the slipping engine's first phase, the flexible model's compiled loop with
+    the capstan check after each step (:mod:`~belt_drive_ros.core.slip_run`): within the limit the flexible run bit
+    for bit, else it slips on from the located onset (the reason names the onset time).
     """
     if not isinstance(scene, Scene):
         raise SceneError(f"scene: expected a Scene (load_scene or Scene.from_mapping), got {type(scene).__name__}")
