@@ -156,21 +156,21 @@ def check_accuracy(
     if probes is None:
         probes = probe_scene(plant, duration, x0, dt, stated_inputs)
     integrator = stepper.integrator if stepper is not None else make_integrator(method, A, B, dt, **dict(method_options or {}))
-    worst, harmonic = None, 0.0
+    worst, harmonic = None, 0.0  # worst: (stable, error, growth, exact growth, h omega, slopes) of a probe's loop
     for K, slopes in probes.gains:
         stable, error, growth, exact_growth, h_omega = linear_verdict(integrator, A, B, rows, K, n_steps)
         error *= probes.input_weight  # the scene's own steps onto the belt, not a unit step (input_weight)
-        report = AccuracyReport(cls.name, dt, stable, error <= tolerance, error, tolerance, growth, exact_growth, h_omega, slopes, linear_error=error)
-        if worst is None or (not report.stable and worst.stable) or (report.stable == worst.stable and report.error > worst.error):
-            worst = report
+        if worst is None or (not stable and worst[0]) or (stable == worst[0] and error > worst[1]):
+            worst = (stable, error, growth, exact_growth, h_omega, slopes)
         if stable:  # periodic torques over the whole run on this closed loop (forced_response)
             harmonic = max(harmonic, harmonic_error(integrator, A, B, rows, K, n_steps, probes.harmonics,
                                                     probes.peaks[: rows.shape[0]]))  # fmt: skip
-    if worst.stable:
-        forcing = forcing_error(plant, method, dt, probes, method_options, stepper, head)
-        error = max(worst.error, forcing, harmonic)
-        worst = AccuracyReport(**{**worst.__dict__, "error": error, "accurate": error <= tolerance, "forcing_error": forcing,
-                                  "harmonic_error": harmonic})  # fmt: skip
+    stable, linear, growth, exact_growth, h_omega, slopes = worst
+    forcing = forcing_error(plant, method, dt, probes, method_options, stepper, head) if stable else math.nan
+    error = max(linear, forcing, harmonic) if stable else linear
+    worst = AccuracyReport(cls.name, dt, stable, error <= tolerance, error, tolerance, growth, exact_growth, h_omega,
+                           slopes, linear_error=linear, forcing_error=forcing,
+                           harmonic_error=harmonic if stable else math.nan)  # fmt: skip
     if suggest and not worst.ok:
         found = _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, range(1, MAX_HALVINGS + 1), probes)
         alternative = None

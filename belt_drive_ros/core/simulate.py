@@ -342,7 +342,10 @@ def _linear_result(scene, mdl, plant, time, states, stability, accuracy, wall) -
 
 def _integral(p: np.ndarray, dt_grid: np.ndarray) -> np.ndarray:
     """Running trapezoidal integral of a power ``p`` [W] over the output grid's steps ``dt_grid`` [s]: energy [J]."""
-    return np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * dt_grid)])
+    out = np.empty(p.shape[0])
+    out[0] = 0.0
+    np.cumsum(0.5 * (p[1:] + p[:-1]) * dt_grid, out=out[1:])
+    return out
 
 
 def simulate_slipping(scene, choice=None, progress=None, check_stability=True, stick=None, survey=None) -> SimResult:

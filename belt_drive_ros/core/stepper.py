@@ -67,7 +67,7 @@ ABSORB_MIN = 16
 #: plans of :meth:`Stepper.run` kept per stepper (the guards' windows and the run repeat theirs), of so many special steps
 PLAN_CACHE_SIZE, PLAN_SPECIAL = 8, 64
 #: state rows a guarded run (it may stop at its first steps) allocates first; twice as many each time they are full
-GUARDED_ROWS = 256
+GUARDED_ROWS = 1024
 _NO_CELLS = np.empty(0, dtype=np.int64)
 
 
