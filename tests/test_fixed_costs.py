@@ -292,3 +292,49 @@ def test_auto_flexible_result_is_the_same_whichever_path_runs_first(monkeypatch,
     for x, y in [(a.time, b.time), (a.states, b.states)] + [(a.outputs[k], b.outputs[k]) for k in a.outputs] + [
             (a.energy[k], b.energy[k]) for k in a.energy]:  # fmt: skip
         assert np.asarray(x).tobytes() == np.asarray(y).tobytes()
+
+
+@pytest.mark.parametrize("name, overrides", [
+    ("paper", {}), ("e_motor_start", {"duration": 1.0}), ("paper", {"model": "flexible", "method": "etd2", "duration": 1.0}),
+])  # fmt: skip
+def test_the_guard_reads_its_first_window_off_the_run(monkeypatch, name, overrides):
+    """The first forcing window's run at the scene's step is the run's own first knots (the run is made inside the
+    guard once it found the step stable): no run repeats them, and the report is the one a guard that runs that
+    window itself gives, bit for bit."""
+    from belt_drive_ros.core.accuracy import check_accuracy, probe_scene
+    from belt_drive_ros.core.stepper import shared_plant
+
+    scene = load_scene(name).with_overrides(**overrides)
+    runs, run = [], Stepper.run
+    monkeypatch.setattr(Stepper, "run", lambda self, x0, t0, t1, progress=None: (
+        runs.append((self.dt, t0, t1)), run(self, x0, t0, t1, progress))[1])  # fmt: skip
+    result = simulate(scene)
+    monkeypatch.undo()
+    window = accuracy_probes.WINDOW_STEPS * scene.dt
+    assert (scene.dt / 2.0, 0.0, window) in runs  # the window's half-step run
+    assert (scene.dt, 0.0, window) not in runs and (scene.dt, 0.0, scene.duration) in runs
+    plant = shared_plant(make_model(result.model, scene.params), scene.drive, scene.load)
+    x0 = scene.initial_state.vector(result.model, scene.params.ratio)
+    alone = check_accuracy(plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance,
+                           probes=probe_scene(plant, scene.duration, x0, scene.dt))  # fmt: skip
+    assert repr(alone) == repr(result.accuracy)  # (etd2 at 5 ms: inaccurate, the same step named)
+
+
+def test_profiles_never_periodic_at_a_steady_speed_get_no_harmonic_search(monkeypatch):
+    """A motor, a polynomial load (and constants, steps, ramps) only rise, fall or hold at a steady speed: the
+    harmonic search, which finds none for them, is not run (paper, e_motor_start); an engine's still is."""
+    from belt_drive_ros.core.forced_response import profile_harmonics
+    from belt_drive_ros.core.stepper import shared_plant
+
+    calls = []
+    monkeypatch.setattr(accuracy_probes, "profile_harmonics", lambda *a: (calls.append(a), profile_harmonics(*a))[1])
+    for name in ("paper", "e_motor_start"):
+        scene = load_scene(name).with_overrides(duration=1.0)
+        assert simulate(scene).accuracy.harmonic_error == 0.0
+        probe_times, _, _, states = RigidSurvey.of_scene(scene).probe_states()
+        at = [(float(t), *states[float(t)]) for t in probe_times]
+        for kind in ("rigid", "flexible"):  # what the search would have found
+            assert profile_harmonics(shared_plant(make_model(kind, scene.params), scene.drive, scene.load), at) == []
+    assert calls == []
+    simulate(load_scene("bsg_start").with_overrides(duration=0.1))
+    assert calls
