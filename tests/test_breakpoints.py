@@ -44,11 +44,11 @@ def test_exact_method_is_exact_again_with_a_jump_inside_a_step():
     ref = dop853_reference(scene, "flexible")  # restarted at 0.2503 s
     sim = Simulator(model, scene.drive, scene.load, "exact", 1e-3)
     t, x = sim.run(0.5, x0)
-    assert sim.split_steps == {250: [0.2503]}
+    assert sim.stepper.split_steps == {250: [0.2503]}
     assert run_errors(ref, t, x)["error"] < 1e-9
-    sim.breakpoints = []  # without the split: the jump is taken 0.7 ms late, a first-order error
+    sim.stepper.breakpoints = []  # without the split: the jump is taken 0.7 ms late, a first-order error
     t, x = sim.run(0.5, x0)
-    assert sim.split_steps == {} and run_errors(ref, t, x)["error"] > 1e-3
+    assert sim.stepper.split_steps == {} and run_errors(ref, t, x)["error"] > 1e-3
 
 
 @functools.cache
@@ -66,11 +66,11 @@ def test_soft_start_end_inside_a_step(method, split_error, unsplit_error):
     x0 = scene.initial_state.vector("flexible", scene.params.ratio)
     sim = Simulator(model, scene.drive, scene.load, method, 0.0125)
     t, x = sim.run(1.0, x0)
-    assert sim.split_steps == {1: [0.02]}
+    assert sim.stepper.split_steps == {1: [0.02]}
     split = run_errors(ref, t, x)["error"]
-    sim.breakpoints = []
+    sim.stepper.breakpoints = []
     t, x = sim.run(1.0, x0)
-    assert sim.split_steps == {}
+    assert sim.stepper.split_steps == {}
     unsplit = run_errors(ref, t, x)["error"]
     assert split < split_error < unsplit_error < unsplit, (split, unsplit)
 
@@ -81,10 +81,10 @@ def test_breakpoints_on_the_grid_are_not_split():
     x0 = scene.initial_state.vector("flexible", scene.params.ratio)
     sim = Simulator(model, scene.drive, scene.load, "etd4", 0.005)  # 0.02 s = 4 steps, up to rounding
     sim.run(0.1, x0)
-    assert sim.split_steps == {}
+    assert sim.stepper.split_steps == {}
     off_grid = Simulator(model, S.Step(0.0, 5.0, 0.0123), S.Constant(1.0), "etd2", 0.005)
     _, states = off_grid.run(0.1, x0)
-    assert off_grid.split_steps == {2: [0.0123]} and np.all(np.isfinite(states))
+    assert off_grid.stepper.split_steps == {2: [0.0123]} and np.all(np.isfinite(states))
 
 
 def test_load_switch_on_the_grid_keeps_fourth_order():

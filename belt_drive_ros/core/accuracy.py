@@ -1,27 +1,22 @@
 """Accuracy guard beside the stability guard: is a fixed step stable *and* accurate on the closed loop?
 
-The stability guard (:mod:`belt_drive_ros.core.stability`) reads the
-method's growth on the free belt, ``x' = A x``. Torques that depend on speed
-(a governor, a motor curve, a fan or compressor load ``c_1 omega``) add
-their slopes to the loop: linearized about a state, ``u = u_0 + K x`` with
-``K = du/dx`` [N m s/rad on the speed columns], the plant is
+The stability guard (:mod:`belt_drive_ros.core.stability`) reads the method's growth on the free belt, ``x' = A x``.
+Torques that depend on speed (a governor, a motor curve, a fan or compressor load ``c_1 omega``) add their slopes to
+the loop: linearized about a state, ``u = u_0 + K x`` with ``K = du/dx`` [N m s/rad on the speed columns], the plant
+is
 
     x' = A_cl x + B u_0,        A_cl = A + B K.
 
-A load of ``10 omega_3`` on a light wheel 3 is a damping rate of
-``10 / I_3`` [1/s] that ``exact`` (which holds the torque over the step)
-amplifies instead of damping once ``h 10 / I_3`` passes 2. And methods exact
-for the free belt mode need not be exact for the forced response: Lawson
-methods integrate ``e^{hA}`` exactly but not the convolution with a held
-torque, so their settled deflection under constant torques drifts from the
-static value as ``h omega_n`` grows (1.65 of it at 8).
+A load of ``10 omega_3`` on a light wheel 3 is a damping rate of ``10 / I_3`` [1/s] that ``exact`` (which holds the
+torque over the step) amplifies instead of damping once ``h 10 / I_3`` passes 2. And methods exact for the free belt
+mode need not be exact for the forced response: Lawson methods integrate ``e^{hA}`` exactly but not the convolution
+with a held torque, so their settled deflection under constant torques drifts from the static value as ``h omega_n``
+grows (1.65 of it at 8).
 
-This guard checks both, from the method's own stage scheme (no per-method
-formula): the one-step map of the method on the linearized closed loop,
-``x+ = M x + G u_0``, is read off :func:`~belt_drive_ros.core.stage_scheme.step`
-with the torque ``K x + u_0`` (``n + 2`` calls), and compared with the
-exact map of that linear system (the matrix exponential of the augmented
-system, ``x+ = E x + F u_0``):
+This guard checks both, from the method's own stage scheme (no per-method formula): the one-step map of the method
+on the linearized closed loop, ``x+ = M x + G u_0``, is read off :func:`~belt_drive_ros.core.stage_scheme.step` with
+the torque ``K x + u_0`` (``n + 2`` calls), and compared with the exact map of that linear system (the matrix
+exponential of the augmented system, ``x+ = E x + F u_0``):
 
 * **stable**: spectral radius of M at most ``max(1, spectral radius of E)``
   (up to rounding);
@@ -132,17 +127,14 @@ def check_accuracy(
 ) -> AccuracyReport | None:  # fmt: skip
     """Stability and accuracy of ``method`` at ``dt`` [s] on the plant's closed loop.
 
-    The estimated error is the larger of the linearized closed loop's step
-    response error (:func:`linear_verdict`: the belt mode and the torques'
-    speed slopes over the whole duration) and the a-posteriori error on the
-    real torques in short windows (:func:`forcing_error`: their variation in
-    time and angle). Returns None for adaptive methods (they control their
-    own error). ``suggest``: when the step fails, search halvings of it for
-    one that is both (each candidate checked with ``suggest=False``, so the
-    search never searches again). ``probes``: a :func:`probe_scene` of this
-    plant already made; ``stepper``: a Stepper of this plant, method and dt
-    to reuse for the windows' ``dt`` runs; ``head``: the run itself, called
-    once the step is found stable (:func:`~belt_drive_ros.core.accuracy_windows.window_errors`).
+    The estimated error is the larger of the linearized closed loop's step response error (:func:`linear_verdict`:
+    the belt mode and the torques' speed slopes over the whole duration) and the a-posteriori error on the real
+    torques in short windows (:func:`forcing_error`: their variation in time and angle). Returns None for adaptive
+    methods (they control their own error). ``suggest``: when the step fails, search halvings of it for one that is
+    both (each candidate checked with ``suggest=False``, so the search never searches again). ``probes``: a
+    :func:`probe_scene` of this plant already made; ``stepper``: a Stepper of this plant, method and dt to reuse for
+    the windows' ``dt`` runs; ``head``: the run itself, called once the step is found stable
+    (:func:`~belt_drive_ros.core.accuracy_windows.window_errors`).
     """
     cls = method_class(method)
     if not issubclass(cls, FixedStepIntegrator):
@@ -232,14 +224,11 @@ def check_slipping(
     * **stick**: the belt holds; the flexible model with the scene's torques
       (:func:`check_accuracy`: closed loop and forcing windows), named
       ``stick`` in the report;
-    * **slip** (each direction sigma = +/-1): ``A_slip`` with the friction
-      force an input ``Q = sigma Q_max(omega_M)`` (belt mass makes ``Q_max``
-      grow with speed: its slope is a feedback on omega_M beside the torques'
-      slopes), ``A_cl = A_slip + B_slip K``; the method's map against the
-      exact one (:func:`linear_verdict`; unit steps of drive, load and Q;
-      signals drive and wheel-3 speed). The slip mode carries the elastic
-      creep ``theta_e' = -(k / c) theta_e + ...``: a fast real mode that
-      explicit methods must resolve.
+    * **slip** (each direction sigma = +/-1): ``A_slip`` with the friction force an input
+      ``Q = sigma Q_max(omega_M)`` (belt mass makes ``Q_max`` grow with speed: its slope is a feedback on omega_M
+      beside the torques' slopes), ``A_cl = A_slip + B_slip K``; the method's map against the exact one
+      (:func:`linear_verdict`; unit steps of drive, load and Q; signals drive and wheel-3 speed). The slip mode
+      carries the elastic creep ``theta_e' = -(k / c) theta_e + ...``: a fast real mode explicit methods must resolve.
 
     ``stepper``: the flexible-model stepper of the run (its integrator is reused); ``stick``, ``probes``: the
     flexible model's report and :func:`probe_scene` at this step, when already made.

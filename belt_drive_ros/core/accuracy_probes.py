@@ -99,12 +99,10 @@ def _survey_step(pieces, rdt: float) -> float:
 class RigidSurvey:
     """One cheap rigid run of a scene that the model choice and the accuracy guard both read.
 
-    Method ``exact`` at :func:`operating_run_step` from the scene's initial
-    motion ``(phi_M, omega_M)`` over ``[0, duration]``, advanced from stop to
-    stop: the guard's probe times ``linspace(0, duration, N_PROBES)`` and,
-    for a scene step ``dt``, a quarter forcing window (``WINDOW_STEPS dt / 4``,
-    on the grid ``k dt``) before each of the first ``MAX_BREAKPOINT_WINDOWS``
-    torque breakpoints inside the run. It records
+    Method ``exact`` at :func:`operating_run_step` from the scene's initial motion ``(phi_M, omega_M)`` over
+    ``[0, duration]``, advanced from stop to stop: the guard's probe times ``linspace(0, duration, N_PROBES)`` and,
+    for a scene step ``dt``, a quarter forcing window (``WINDOW_STEPS dt / 4``, on the grid ``k dt``) before each of
+    the first ``MAX_BREAKPOINT_WINDOWS`` torque breakpoints inside the run. It records
 
     * ``states``: ``{stop time [s]: (phi_M [rad], omega_M [rad/s])}``;
     * ``speeds``: (max |omega_M|, max |omega_3| [rad/s], max |belt torque| [N m])
@@ -214,9 +212,8 @@ class RigidSurvey:
 def speed_slopes(plant, times, speeds_M) -> list[np.ndarray]:
     """(K, (d drive/d omega_M, d load/d omega_3)) per probe: feedback gains K (2, n) from the torques' speed slopes.
 
-    ``plant`` is a :class:`~belt_drive_ros.core.stepper.Plant`; the drive's
-    slope acts on omega_M, the load's on omega_3 (rows of the model's
-    wheel map), evaluated at (t, phi_M, omega_M) and (t, i phi_M, i omega_M).
+    ``plant`` is a :class:`~belt_drive_ros.core.stepper.Plant`; the drive's slope acts on omega_M, the load's on
+    omega_3 (rows of the model's wheel map), evaluated at (t, phi_M, omega_M) and (t, i phi_M, i omega_M).
     """
     W = plant.wheel_map
     i = plant.model.params.ratio
@@ -238,7 +235,7 @@ class Probes:
     gains : distinct ``(K, slopes)`` of the torques' speed slopes at the probes (see :func:`speed_slopes`).
     x0 : the scene's initial state (the first forcing window starts there at t = 0).
     windows : further forcing windows as ``(t [s], phi_M [rad], omega_M [rad/s], anchor)``: the rigid run's
-        motion at t; ``anchor`` a torque breakpoint [s] the window straddles (None: the window starts at t).
+        motion at t; ``anchor`` a torque breakpoint [s] the window straddles (None: it starts at t).
     duration : the scene's duration [s].
     window : length [s] of a forcing window (:data:`WINDOW_STEPS` steps of the step probed with; :meth:`span`).
     input_weight : what the unit step response's error is scaled by for this scene (:func:`input_weight`).
@@ -260,11 +257,9 @@ class Probes:
         return min(self.window, MAX_WINDOW_STEPS * dt)
 
     def window_starts(self, plant, dt: float):
-        """``(t0, x)`` of every window for step ``dt``: t0 on the grid k dt, x the plant model's state.
-
-        A breakpoint's window starts a quarter window before it; the rigid
-        motion is carried there at constant speed; the deflection is the quasi-static one.
-        """
+        """``(t0, x)`` of every window for step ``dt``: t0 on the grid k dt, x the plant model's state. A breakpoint's
+        window starts a quarter window before it, the rigid motion carried there at constant speed, the deflection
+        the quasi-static one."""
         yield 0.0, self.x0
         for t, phi, omega, anchor in self.windows:
             t0 = t if anchor is None else max(0.0, dt * math.floor((anchor - 0.25 * self.span(dt)) / dt))
@@ -357,20 +352,18 @@ def input_weight(plant, x0, dt: float, probes, jumps, rigid, out: list | None) -
     peak (``2`` steps of belt torque: the undamped overshoot) becomes, in the scene, that times ``2 dB / T_peak``,
     with ``dB`` [N m] the largest step of belt torque the scene's inputs make:
 
-    * at the start, the quasi-static belt torque the torques at t = 0 need
-      (rigid model) less what the initial state carries
-      (:func:`~belt_drive_ros.core.fidelity.start_mismatch`'s sizes);
-    * at each torque breakpoint ``jumps`` ``(b, phi_M, omega_M)``, the jump
-      of the rigid belt torque across it;
+    * at the start, the quasi-static belt torque the torques at t = 0 need (rigid model) less what the initial
+      state carries (:func:`~belt_drive_ros.core.fidelity.start_mismatch`'s sizes);
+    * at each torque breakpoint ``jumps`` ``(b, phi_M, omega_M)``, the jump of the rigid belt torque across it;
     * a ramp of the quasi-static belt torque at rate ``R`` [N m/s] (a soft
       start, a motor curve) moves the belt mode by ``R / omega_n``: an
       equivalent step (forward difference over ``dt`` at each probe
       ``(t, phi_M, omega_M)``, the start included).
 
-    ``T_peak``: the largest |quasi-static belt torque| at the probes. Rigid
-    model (no belt mode): 1. The floor keeps perturbations the scene does
-    not state (a node's torques) rated. ``rigid``: the rigid model of the plant's parameters;
-    ``out``: a list that receives the quasi-static belt torques at ``probes`` (what :func:`_peaks` reads).
+    ``T_peak``: the largest |quasi-static belt torque| at the probes. Rigid model (no belt mode): 1. The floor keeps
+    perturbations the scene does not state (a node's torques) rated. ``rigid``: the rigid model of the plant's
+    parameters; ``out``: a list that receives the quasi-static belt torques at ``probes`` (what :func:`_peaks`
+    reads).
     """
     model = plant.model
     p = model.params
@@ -429,12 +422,11 @@ def exact_maps(A_cl: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, n
 def step_response_error(M, G, E, F, rows: np.ndarray, n_steps: int) -> float:
     """Max over unit inputs and output rows of max_k |y_k - y*_k| / max_k |y*_k|, k = 1 .. ``n_steps``.
 
-    From rest with a unit drive and a unit load torque (two columns at
-    once), ``X_{k+1} = M X_k + G`` against ``Z_{k+1} = E Z_k + F``. The
-    first :data:`MAX_STEPS` / 2 steps are taken one by one; the rest, when
-    there are more, in strides of ``s`` steps with the s-th powers of the
-    augmented maps (exact, only samples between strides are skipped). Both
-    recurrences are evaluated at once by doubling (:func:`~belt_drive_ros.core.forced_response.orbit_error`).
+    From rest with a unit drive and a unit load torque (two columns at once), ``X_{k+1} = M X_k + G`` against
+    ``Z_{k+1} = E Z_k + F``. The first :data:`MAX_STEPS` / 2 steps are taken one by one; the rest, when there are
+    more, in strides of ``s`` steps with the s-th powers of the augmented maps (exact, only samples between strides
+    are skipped). Both recurrences are evaluated at once by doubling
+    (:func:`~belt_drive_ros.core.forced_response.orbit_error`).
     """
     n, m = G.shape
     Ma = np.block([[M, G], [np.zeros((m, n)), np.eye(m)]])

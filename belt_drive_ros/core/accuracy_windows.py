@@ -93,9 +93,8 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
 def _drift_time(plant, probes) -> float:
     """How long [s] a speed error lasts, at most the run: ``1 / |Re lambda|`` of the slowest decaying closed-loop mode.
 
-    The angle integrates the speed error for as long as it lasts: a governor
-    or a speed-dependent load (``A + B K``, the probes' slopes) damps it in
-    ``~1 / (K / I)``; without one it lasts the whole run.
+    The angle integrates the speed error for as long as it lasts: a governor or a speed-dependent load (``A + B K``,
+    the probes' slopes) damps it in ``~1 / (K / I)``; without one it lasts the whole run.
     """
     A, B = plant.model.A, plant.model.B
     longest = 0.0

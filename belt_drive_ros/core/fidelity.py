@@ -1,12 +1,10 @@
 """Model no more than a scene needs: the ``auto`` choice between rigid, flexible and slipping.
 
-The flexible model differs from the rigid one by the belt mode at
-``f_n = omega_n / (2 pi)``. A harmonic excitation at ``f`` drives the belt
-deflection with the dynamic amplification ``1 / |1 - (f/f_n)^2|`` over its
-quasi-static value, which the rigid model reports; at ``f/f_n = 0.1`` the
-rigid model's belt torque is off by ~1 %, at 0.2 by ~4 %, at 0.5 by 33 %.
-Step changes (a torque switched on or off) excite the belt's free vibration
-at every frequency. Hence:
+The flexible model differs from the rigid one by the belt mode at ``f_n = omega_n / (2 pi)``. A harmonic excitation
+at ``f`` drives the belt deflection with the dynamic amplification ``1 / |1 - (f/f_n)^2|`` over its quasi-static
+value, which the rigid model reports; at ``f/f_n = 0.1`` the rigid model's belt torque is off by ~1 %, at 0.2 by ~4
+%, at 0.5 by 33 %. Step changes (a torque switched on or off) excite the belt's free vibration at every frequency.
+Hence:
 
 * **flexible** when any excitation frequency reaches
   ``FREQUENCY_RATIO_THRESHOLD * f_n`` or a torque changes stepwise,

@@ -120,12 +120,10 @@ class _LinearModel:
     def outputs(self, x: np.ndarray, u: np.ndarray, cx: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """All output signals of :data:`OUTPUT_UNITS` for samples ``x`` (N, n), ``u`` (N, 2).
 
-        The linear ones are ``y = C x + D u``; the span forces and the
-        slack/slip flags follow from the belt torque (:meth:`span_forces`).
-        One sample (``x`` of shape (n,): the node's tick) gives plain floats
-        and bools, from the same operations in the same order as the rows of
-        a run (:func:`_affine_sample`), so the same values bit for bit.
-        ``cx``: :meth:`state_part` of ``x`` when the caller has it.
+        The linear ones are ``y = C x + D u``; the span forces and the slack/slip flags follow from the belt torque
+        (:meth:`span_forces`). One sample (``x`` of shape (n,): the node's tick) gives plain floats and bools, from
+        the same operations in the same order as the rows of a run (:func:`_affine_sample`), so the same values bit
+        for bit. ``cx``: :meth:`state_part` of ``x`` when the caller has it.
         """
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)

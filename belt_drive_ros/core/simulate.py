@@ -101,8 +101,7 @@ class Simulator:
 
     Parameters
     ----------
-    model : RigidBeltModel or FlexibleBeltModel.
-    drive, load : torque profiles.
+    model : RigidBeltModel or FlexibleBeltModel; drive, load : torque profiles.
     method : integrator name; dt : step [s]; method_options : passed to it.
     check_stability : refuse (``UnstableStepError``) a step the guard predicts unstable.
     """
@@ -116,27 +115,13 @@ class Simulator:
         self.integrator = self.stepper.integrator
         self.stability = require_stable(model.A, model.B, method, dt) if check_stability else None
 
-    @property
-    def breakpoints(self) -> list:
-        """Where steps are split or bounded (the plant's breakpoints; settable for this simulator)."""
-        return self.stepper.breakpoints
-
-    @breakpoints.setter
-    def breakpoints(self, value) -> None:
-        self.stepper.breakpoints = sorted(float(b) for b in value)
-
-    @property
-    def split_steps(self) -> dict:
-        """{step k: [breakpoints strictly inside step k]} of the last run."""
-        return self.stepper.split_steps
-
     def run(self, duration: float, x0: np.ndarray, t0: float = 0.0,
             progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
         """Integrate over ``duration`` [s] on the grid ``t0 + k dt``; return (time (N+1,), states (N+1, n)).
 
         Steps at torque breakpoints are split or clamped (:mod:`belt_drive_ros.core.stepper`): else such a step is
         locally first order (``paper``, ``lawson5`` at 12.5 ms with the soft start ending inside a step: 2000x less
-        accurate, tests/test_breakpoints.py). ``split_steps`` lists the split steps after.
+        accurate, tests/test_breakpoints.py); ``stepper.split_steps`` lists the split steps after.
         """
         self.stepper.origin = float(t0)
         return self.stepper.run(x0, float(t0), float(t0) + float(duration), progress)
@@ -272,8 +257,7 @@ def _once(run):
     def once():
         if not hasattr(once, "result"):
             start = _time.perf_counter()
-            once.result = run()
-            once.wall = _time.perf_counter() - start
+            once.result, once.wall = run(), _time.perf_counter() - start
         return once.result
 
     return once
@@ -353,8 +337,7 @@ def simulate_slipping(scene, choice=None, progress=None, check_stability=True, s
 
     ``result.outputs`` has every signal of the other models plus :data:`~belt_drive_ros.core.slip.SLIP_OUTPUT_UNITS`;
     ``result.events`` lists the mode switches (kind, time [s], direction); ``result.energy`` adds ``friction``, the
-    integral of Q s'. ``stick``: the guard's report on the flexible model already made (the stick mode's);
-    ``survey``: the scene's rigid survey (the probes')."""
+    integral of Q s'. ``stick``: the guard's flexible report when made; ``survey``: the scene's rigid survey."""
     sim, _, probes = _slipping_engine(scene, check_stability, survey)
     accuracy = _slipping_accuracy(scene, sim, stick, probes) if check_stability else None
     start = _time.perf_counter()
@@ -373,9 +356,8 @@ def _slipping_engine(scene, check_stability: bool, survey):
 
 
 def _slipping_accuracy(scene, sim, stick=None, probes=None):
-    """The accuracy guard on both modes of the slipping model, each linearized
-    (:func:`~belt_drive_ros.core.accuracy.require_accurate_slipping`); ``stick``: the flexible check's verdict when
-    made (the stick mode's); ``probes``: its."""
+    """The accuracy guard on both modes of the slipping model, each linearized (``accuracy.require_accurate_slipping``);
+    ``stick``, ``probes``: the flexible check's verdict and probes when made."""
     return require_accurate_slipping(
         scene.params, scene.drive, scene.load, scene.method, scene.dt, scene.duration,
         scene.initial_state.vector("flexible", scene.params.ratio), scene.tolerance, method_options=scene.method_options,

@@ -418,13 +418,11 @@ class Stepper:
     def steps(self, t0: float, t1: float) -> tuple[np.ndarray, list]:
         """The plan :meth:`run` executes from ``t0`` to ``t1`` [s], for another executor of it.
 
-        Returns ``(times, steps)``: the knot times (N+1,) [s] of :meth:`run`,
-        and per step ``(a, e, whole, lo, hi, cuts)``: from ``a`` to ``e`` [s]
-        (``whole``: a full grid step of ``dt``), torque samples clamped to
-        ``[lo, hi]``, split at ``cuts`` (each piece's samples clamped to its
-        side, as :meth:`run` does). Empty when ``t0`` and ``t1`` share a knot.
-        :class:`~belt_drive_ros.core.ensemble.Ensemble` steps many variants
-        of a plant along it.
+        Returns ``(times, steps)``: the knot times (N+1,) [s] of :meth:`run`, and per step
+        ``(a, e, whole, lo, hi, cuts)``: from ``a`` to ``e`` [s] (``whole``: a full grid step of ``dt``), torque
+        samples clamped to ``[lo, hi]``, split at ``cuts`` (each piece's samples clamped to its side, as :meth:`run`
+        does). Empty when ``t0`` and ``t1`` share a knot. :class:`~belt_drive_ros.core.ensemble.Ensemble` steps many
+        variants of a plant along it.
         """
         plan = self._plan(t0, t1)
         times = self._knots(plan)
@@ -455,13 +453,11 @@ class Stepper:
     def _plan(self, t0: float, t1: float, absorb: bool = False) -> dict:
         """Steps from ``t0`` to ``t1``: grid cells first..last, ends, and the steps that touch breakpoints.
 
-        Returns a dict: ``first``, ``last`` (cell indices), ``start``, ``end``
-        (the times of the first and last knot: the grid time when ``t0``/``t1``
-        snap to the grid, else themselves), ``lead``/``trail`` (whether the
-        first/last step is partial), ``t0``/``t1`` as given, and
-        ``special = {cell: [lo, hi, cuts]}`` for steps whose torque samples are
-        clamped to ``[lo, hi]`` or that are split at ``cuts``; ``absorbed``: the
-        cells (sorted int64) :func:`~belt_drive_ros.core.absorb.absorbed_steps` found (``absorb``: look for them).
+        Returns a dict: ``first``, ``last`` (cell indices), ``start``, ``end`` (the times of the first and last
+        knot: the grid time when ``t0``/``t1`` snap to the grid, else themselves), ``lead``/``trail`` (whether the
+        first/last step is partial), ``t0``/``t1`` as given, and ``special = {cell: [lo, hi, cuts]}`` for steps
+        whose torque samples are clamped to ``[lo, hi]`` or that are split at ``cuts``; ``absorbed``: the cells
+        (sorted int64) :func:`~belt_drive_ros.core.absorb.absorbed_steps` found (``absorb``: look for them).
         """
         k0, k1 = self._snap(t0), self._snap(t1)
         start = self.grid_time(k0) if k0 is not None else t0
@@ -564,9 +560,9 @@ class Stepper:
     def _special_step(self, x: np.ndarray, a: float, e: float, whole: bool, lo: float, hi: float, cuts: list) -> np.ndarray:
         """One step from ``a`` to ``e``, split at ``cuts``, torque samples clamped to each piece's side.
 
-        Each piece is one kernel call (the integrator of the piece's length,
-        its torque times clamped into the piece's side of the breakpoints);
-        without a kernel loop (adaptive method) the integrator's reference ``step``.
+        Each piece is one kernel call (the integrator of the piece's length, its torque times clamped into the
+        piece's side of the breakpoints); without a kernel loop (adaptive method) the integrator's reference
+        ``step``.
         """
         edges = [a, *sorted(cuts), e]
         n = len(edges) - 1
