@@ -1,16 +1,14 @@
 """Stability guard: predict, before a run, whether a fixed-step method is stable.
 
-A method applied to the mode ``y' = lambda y`` multiplies it by ``R(h lambda)``
-per step; the run is stable when ``|R(h lambda)| <= 1`` for every eigenvalue
-``lambda`` of the model's A (the belt mode ``-zeta omega_n +/- i omega_n
-sqrt(1-zeta^2)``, the rigid-body mode 0 and the slow bearing mode). For an
-undamped belt this is the classical ``h omega_n`` limit on the imaginary
-axis: Euler never, symplectic Euler ``< 2``, RK4 ``<= 2 sqrt(2)``; the
-methods exact for the belt mode (``exact_linear`` in the registry) and
-trapezoidal have no limit. ``|R|`` is read off each method's own one-step map
-(:meth:`~belt_drive_ros.core.integrators.FixedStepIntegrator.mode_growths`).
-Torques that depend on state are not part of A; the runtime check in the
-simulator catches what they destabilise.
+A method applied to the mode ``y' = lambda y`` multiplies it by ``R(h lambda)`` per step; the run is stable when
+``|R(h lambda)| <= 1`` for every eigenvalue ``lambda`` of the model's A (the belt mode
+``-zeta omega_n +/- i omega_n sqrt(1-zeta^2)``, the rigid-body mode 0 and the slow bearing mode). For an undamped
+belt this is the classical ``h omega_n`` limit on the imaginary axis: Euler never, symplectic Euler ``< 2``, RK4
+``<= 2 sqrt(2)``; the methods exact for the belt mode (``exact_linear`` in the registry) and trapezoidal have no
+limit. ``|R|`` is read off each method's own one-step map
+(:meth:`~belt_drive_ros.core.integrators.FixedStepIntegrator.mode_growths`). Torques that depend on state are not
+part of A: the accuracy guard (:mod:`~belt_drive_ros.core.accuracy`) checks the closed loop, the run's divergence check
+catches what they destabilise.
 """
 
 from __future__ import annotations
