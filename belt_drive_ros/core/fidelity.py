@@ -124,7 +124,8 @@ def choose_model(
     survey : the scene's :class:`RigidSurvey` when the caller shares it with the accuracy guard's probes.
     """
     choice = linear if linear is not None else _linear_choice(scene, speeds, start_torque, survey)
-    choice = replace(choice, linear=choice.model)
+    if choice.linear != choice.model:  # (the frequency rule's own choice names its tier already)
+        choice = replace(choice, linear=choice.model)
     if not check_slip:
         return choice
     if limit is None:
@@ -221,4 +222,4 @@ def _linear_choice(scene, speeds=None, start_torque=None, survey=None) -> ModelC
         )
         if f_n > nyquist:
             reason += f"; the belt mode is also above the output Nyquist frequency ({nyquist:.0f} Hz)"
-    return ModelChoice(model, reason, f_n, excitations, ratio, scene.output_rate)
+    return ModelChoice(model, reason, f_n, excitations, ratio, scene.output_rate, linear=model)
