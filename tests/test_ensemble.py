@@ -15,7 +15,7 @@ from belt_drive_ros.core.batch_expm import expm_stack
 from belt_drive_ros.core.ensemble import Ensemble, EnsembleUnsupported
 from belt_drive_ros.core.ensemble_run import GroupRun, GroupSummary, peak_over_time, run_groups, simulate_many
 from belt_drive_ros.core.integrators import REGISTRY
-from belt_drive_ros.core.model import make_model
+from belt_drive_ros.core.model import ModelStack, make_model
 from belt_drive_ros.core.scene import load_scene, shipped_scenes
 from belt_drive_ros.core.simulate import simulate
 
@@ -137,8 +137,7 @@ def test_methods_the_ensemble_does_not_cover_run_singly():
     outcomes = list(simulate_many(_variants(scene, 8, seed=4)))
     assert all(not o.ensemble and o.error is None and "adaptive" in o.single_reason for o in outcomes)
     with pytest.raises(EnsembleUnsupported, match="implicit"):
-        models = [make_model("flexible", scene.params)]
-        Ensemble(models, scene.drive, scene.load, "trapezoidal", 0.01)
+        Ensemble(ModelStack("flexible", [scene.params]), scene.drive, scene.load, "trapezoidal", 0.01)
 
 
 def test_truck_compressor_flexible_over_its_whole_duration():
@@ -167,7 +166,7 @@ def test_windows_are_the_whole_run_and_reductions_over_them_its_reductions(name)
     model choices (auto) and the same outcomes."""
     scene = load_scene(name).with_overrides(duration=min(load_scene(name).duration, 0.5))
     scenes = _variants(scene, 9, seed=13)
-    ens = Ensemble([make_model("flexible", s.params) for s in scenes], scene.drive, scene.load, scene.method, scene.dt)
+    ens = Ensemble(ModelStack("flexible", [s.params for s in scenes]), scene.drive, scene.load, scene.method, scene.dt)
     x0 = np.stack([s.initial_state.vector("flexible", s.params.ratio) for s in scenes])
     times, states = ens.run(x0, 0.0, scene.duration)
     parts = [(t.copy(), x.copy()) for t, x in ens.windows(x0, 0.0, scene.duration, 23)]
@@ -294,7 +293,7 @@ def test_a_diverging_variant_is_found_and_the_others_step_on():
     found: dict = {}
     for t, s in ens.windows(np.zeros((4, 4)), 0.0, scene.duration, 16):
         ens.first_bad(t, s, found)
-    assert list(found) == [2] and list(ens.diverged(times, states)) == [2]
+    assert list(found) == [2] and list(ens.diverged_errors(ens.first_bad(times, states))) == [2]
     assert np.isnan(states[-1, :, 2]).all()
     for v in (0, 1, 3):
         alone = Ensemble(ModelStack("flexible", [params[v]]), scene.drive, scene.load, "euler", scene.dt)

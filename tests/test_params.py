@@ -12,7 +12,8 @@ import yaml
 from belt_drive_ros.core.errors import BeltDriveError, ParameterError
 from belt_drive_ros.core.model import FlexibleBeltModel, RigidBeltModel
 from belt_drive_ros.core.inputs import parse_yaml
-from belt_drive_ros.core.params import FIELD_DOCS, PLAUSIBLE_MAX, BeltDriveParams, describe_fields
+from belt_drive_ros.commands.scenes import describe_fields
+from belt_drive_ros.core.params import FIELD_DOCS, PLAUSIBLE_MAX, BeltDriveParams
 
 FIELDS = [f.name for f in dataclasses.fields(BeltDriveParams)]
 RADII = ["r_M", "R_1", "r_1", "R_2", "r_2", "r_3"]

@@ -11,7 +11,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..core.params import describe_fields
     from ..core.network.scene import is_network, load_network, shipped_networks
     from ..core.scene import load_scene, shipped_scenes
     from ..io.network_plot import describe
@@ -29,3 +28,11 @@ def run(args) -> int:
     print("\nparameters (YAML keys under 'params', the paper's symbols):")
     print(describe_fields())
     return 0
+
+
+def describe_fields() -> str:
+    """Human-readable table of the parameter fields with units (for ``belt-drive scenes`` and docs)."""
+    from ..core.params import FIELD_DOCS
+
+    width = max(len(n) for n in FIELD_DOCS)
+    return "\n".join(f"  {n:<{width}}  [{u}]  {d}" for n, (u, d) in FIELD_DOCS.items())

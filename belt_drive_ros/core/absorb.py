@@ -1,12 +1,9 @@
 """Steps next to torque breakpoints on the grid, absorbed into runs of whole steps (a recording at the step rate).
 
-A torque sampled at the step rate (a bag replayed with ``--torque-bag``, a
-node recording re-simulated) puts a breakpoint on every grid knot; planned
-alone, each such step is one kernel call with its stage times clamped to its
-side of the breakpoints (:class:`~belt_drive_ros.core.stepper.Stepper`, ~15 us
-of Python per step). :func:`absorbed_steps` finds those one call of
-:func:`end_loop` can take instead, with the same stage torques, so the same
-states, bit for bit.
+A torque sampled at the step rate (``--torque-bag``, a node recording re-simulated) puts a breakpoint on
+every knot; planned alone, each such step is one clamped kernel call (~15 us of Python per step).
+:func:`absorbed_steps` finds those one call of :func:`end_loop` can take instead with the same stage
+torques, so the same states, bit for bit.
 """
 
 from __future__ import annotations
@@ -80,18 +77,12 @@ class EndLoop:
 
 
 def absorbed_steps(stepper, bps: np.ndarray, first: int, last: int) -> tuple[np.ndarray, np.ndarray]:
-    """Whole steps next to breakpoints on the grid that one kernel call can take without clamps.
+    """``(absorbed cells (sorted int64), mask of the sorted breakpoints ``bps`` whose both cells are absorbed)``.
 
-    Step ``j`` (cells ``first + 1 .. last - 1`` only) is *absorbed* when every
-    breakpoint touching it lies on its knots and each torque gives, at every
-    stage time of :func:`end_loop`, the same float as at the stage time
-    clamped into ``[lo_j, hi_j]`` (what the step planned alone reads): a
-    time-only torque is evaluated at both (the kernel's dispatcher), any other
-    must read no time there (:func:`time_free`).
-
-    Returns the absorbed cells (sorted int64) and a mask of ``bps`` (the
-    advance's breakpoints, sorted) whose both cells are absorbed (left out of
-    the plan's special steps).
+    Step ``j`` (cells ``first + 1 .. last - 1``) is absorbed when every breakpoint touching it lies on its
+    knots and each torque gives, at every stage time of :func:`end_loop`, the same float as at the stage time
+    clamped into ``[lo_j, hi_j]`` (what the step planned alone reads): a time-only torque is evaluated at both,
+    any other must read no time there (:func:`time_free`).
     """
     end = end_loop(stepper)
     origin, dt = stepper.origin, stepper.dt

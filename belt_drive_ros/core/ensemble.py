@@ -1,40 +1,22 @@
 """Many variants of one plant stepped together: the compiled loop over a variant axis.
 
-A campaign runs thousands of variants of one scene that differ in their
-parameters (belt stiffness, inertias, damping, ...) but share the torque
-profiles, the method, the step and the duration. :class:`Ensemble` steps
-them with the single run's own compiled loop, once per variant inside one
-compiled call (:func:`~belt_drive_ros.core.kernel_variants.variant_steps`):
-no Python per variant or per step, and no second implementation of a step.
+A campaign runs thousands of variants of one scene that differ in their parameters but share the torque
+profiles, the method, the step and the duration. :class:`Ensemble` steps them with the single run's own
+plan, matrices and loop, so ensemble and single runs agree bit for bit (tests/test_ensemble.py: <= 1e-12
+relative on every shipped scene and explicit method):
 
-* The same plan: the single run's stepper plans the knots
-  (:meth:`~belt_drive_ros.core.stepper.Stepper.steps`: the grid, steps
-  split and clamped at torque breakpoints); runs of whole steps are one
-  kernel call, a split or clamped step one call per piece, as a single run.
-* The same matrices: the integrator class builds the method's
-  :class:`~belt_drive_ros.core.stage_scheme.StageScheme` from the *stacked*
-  ``A`` (V, n, n) and ``B`` (V, n, m) (every method broadcasts over a
-  leading batch axis; the exponentials of all variants at once by
-  :func:`~belt_drive_ros.core.batch_expm.expm_stack`, each matrix's result
-  depending on that matrix alone), and
-  :class:`~belt_drive_ros.core.kernel_loop.KernelLoop` packs them into one
-  row of numbers per variant, the row a single run of that variant packs.
-* The same loop: each variant's steps are those of
-  :func:`~belt_drive_ros.core.kernel._steps` on its row (a 4-state
-  explicit method: the same operations with the variants as vector lanes,
-  :func:`~belt_drive_ros.core.kernel_variants.variant_steps`).
+* the plan: the single run's :meth:`~belt_drive_ros.core.stepper.Stepper.steps` (the grid, steps split and
+  clamped at torque breakpoints; a run of whole steps is one kernel call, a split step one call per piece);
+* the matrices: the method's :class:`~belt_drive_ros.core.stage_scheme.StageScheme` built from the stacked
+  ``A`` (V, n, n) and ``B`` (V, n, m) (every exponential by
+  :func:`~belt_drive_ros.core.batch_expm.expm_stack`, each depending on its own matrix alone), packed by
+  :class:`~belt_drive_ros.core.kernel_loop.KernelLoop` into the row of numbers a single run packs;
+* the loop: :func:`~belt_drive_ros.core.kernel_variants.variant_steps`, the operations of
+  :func:`~belt_drive_ros.core.kernel._steps` with the variants as vector lanes.
 
-So ensemble and single runs agree bit for bit (tests/test_ensemble.py
-asserts <= 1e-12 relative on every shipped scene, every explicit method,
-states, inputs and every output).
-
-Covered: the rigid and flexible models with any explicit fixed-step method
-(``exact``, ``etd2``, ``etd4``, ``lawson5``, ``euler``,
-``symplectic_euler``, ``rk4``). Not covered (:class:`EnsembleUnsupported`;
-:mod:`~belt_drive_ros.core.ensemble_run` runs those variants singly): the
-slipping model (its mode switches differ per variant), the implicit
-``trapezoidal`` (a fixed-point iteration per variant), scipy's adaptive
-methods (a step size per variant) and profiles without a data form.
+Covered: the rigid and flexible models with any explicit fixed-step method. Not covered
+(:class:`EnsembleUnsupported`; :mod:`~belt_drive_ros.core.ensemble_run` runs them singly): the slipping
+model, the implicit ``trapezoidal``, scipy's adaptive methods and profiles without a data form.
 """
 
 from __future__ import annotations
@@ -54,34 +36,11 @@ class EnsembleUnsupported(BeltDriveError, ValueError):
 
 
 class Ensemble:
-    """V variants of one plant (same profiles, method, step) stepped together.
+    """The V variants of ``models`` (a :class:`~belt_drive_ros.core.model.ModelStack`, rigid or flexible) stepped
+    together with the torque profiles ``drive``, ``load``, the explicit fixed-step ``method`` at step ``dt`` [s]
+    they share; :class:`EnsembleUnsupported` for what the ensemble does not cover (the module docstring)."""
 
-    Parameters
-    ----------
-    models : V linear models of one kind (rigid or flexible): a
-        :class:`~belt_drive_ros.core.model.ModelStack` (matrices built at once
-        from the variants' parameters) or a sequence of model objects.
-    drive, load : the torque profiles all variants share.
-    method : an explicit fixed-step method of the registry; dt : step [s];
-        method_options : passed to it.
-
-    Raises
-    ------
-    EnsembleUnsupported : for a method the ensemble does not cover (the
-        module docstring), or models of different kinds.
-    """
-
-    def __init__(self, models, drive, load, method: str, dt: float, method_options=None):
-        if not isinstance(models, ModelStack):
-            models = list(models)
-            if not models:
-                raise EnsembleUnsupported("ensemble: no variants")
-            kinds = {m.name for m in models}
-            if len(kinds) != 1 or models[0].name not in ("rigid", "flexible"):
-                raise EnsembleUnsupported(
-                    f"ensemble: needs variants of one linear model (rigid or flexible), got {sorted(kinds)}"
-                )
-            models = ModelStack.of_models(models)
+    def __init__(self, models: ModelStack, drive, load, method: str, dt: float, method_options=None):
         if not len(models):
             raise EnsembleUnsupported("ensemble: no variants")
         cls = method_class(method)
@@ -122,25 +81,14 @@ class Ensemble:
         return cached
 
     def run(self, x0: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(times (N+1,), states (N+1, n, V))`` from states ``x0`` (V, n) at ``t0`` to ``t1`` [s].
-
-        States are time-major with the variant axis last; variant v's run is
-        ``states[:, :, v]`` (N+1, n).
-
-        The knots are those of a single run on the grid ``t0 + k dt``
-        (:meth:`~belt_drive_ros.core.stepper.Stepper.run`). A variant that
-        diverges gets non-finite states after its first bad one
-        (:meth:`diverged` finds it); the others are unaffected.
-        """
+        """``(times (N+1,), states (N+1, n, V))`` from states ``x0`` (V, n) at ``t0`` to ``t1`` [s]: a single run's
+        knots (:meth:`~belt_drive_ros.core.stepper.Stepper.run`), variant v's run ``states[:, :, v]``. A variant that
+        diverges gets non-finite states after its first bad one (:meth:`first_bad`); the others are unaffected."""
         return next(self.windows(x0, t0, t1, None))
 
     def windows(self, x0: np.ndarray, t0: float, t1: float, size: int | None = 256):
-        """:meth:`run` in windows of at most ``size`` steps: yields ``(times (K+1,), states (K+1, n, V))``.
-
-        Consecutive windows share their end knot, so together they are
-        :meth:`run`'s knots and states, the same floats; memory holds one
-        window. ``size=None``: one window (:meth:`run`).
-        """
+        """:meth:`run` in windows of at most ``size`` steps (None: one), ``(times (K+1,), states (K+1, n, V))`` each;
+        consecutive windows share their end knot (together :meth:`run`'s floats; memory holds one window)."""
         from .kernel_variants import variant_steps
 
         x0 = np.asarray(x0, dtype=float)
@@ -187,18 +135,10 @@ class Ensemble:
                 knots[:, 0] = knots[:, j]  # the next window starts at this window's last knot
                 first, j = first + j, 0
 
-    def diverged(self, times: np.ndarray, states: np.ndarray) -> dict:
-        """``{variant: SimulationDivergedError}`` for every variant whose run left the finite, plausible range.
-
-        The first bad sample (non-finite, or a speed beyond
-        :data:`~belt_drive_ros.core.stepper.SPEED_LIMIT`) names the time, as a
-        single run reports it.
-        """
-        return self.diverged_errors(self.first_bad(times, states))
-
     def first_bad(self, times: np.ndarray, states: np.ndarray, found: dict | None = None) -> dict:
-        """``{variant: (time, state)}``: each variant's first bad sample (see :meth:`diverged`); ``found``: what
-        earlier windows of the run found (updated in place; a variant found there keeps its sample)."""
+        """``{variant: (time, state)}``: each variant's first bad sample (non-finite, or a speed beyond
+        :data:`~belt_drive_ros.core.stepper.SPEED_LIMIT`); ``found``: what earlier windows of the run found
+        (updated in place; a variant found there keeps its sample)."""
         found = {} if found is None else found
         half = states.shape[1] // 2
         with np.errstate(invalid="ignore"):

@@ -1,37 +1,17 @@
 """``simulate`` for many scenes at once: variants that can share an ensemble run together, the rest singly.
 
-:func:`simulate_many` gives, for each scene, what
-:func:`~belt_drive_ros.core.simulate.simulate` gives (the same model
-choice, the same states and outputs to rounding) or the error it raises.
-Scenes that share everything but their parameters and initial state (the
-torque profiles, model setting, method, step, duration, output rate) form a
-group; a group runs as one :class:`~belt_drive_ros.core.ensemble.Ensemble`
-per linear model:
+:func:`simulate_many` gives, per scene, what :func:`~belt_drive_ros.core.simulate.simulate` gives (the same
+model choice, states and outputs to rounding; no energy terms, stability or accuracy reports) or the error
+it raises. Scenes sharing all but their parameters and initial state (profiles, model, method, step,
+duration, output rate) form a group, run as one :class:`~belt_drive_ros.core.ensemble.Ensemble` per linear
+model; ``model: auto`` first runs the rigid estimate of the operating speeds as one ensemble (``exact`` at
+:func:`~belt_drive_ros.core.fidelity.operating_run_step`), applies the frequency rule and then the capstan
+check per variant (:func:`~belt_drive_ros.core.fidelity.choose_model`), a variant past the limit going on to
+the slipping model singly. The slipping model, methods the ensemble does not cover and groups smaller than
+:data:`MIN_GROUP` run singly through ``simulate``; each outcome says which way it ran and why.
 
-* ``model: rigid | flexible``: one ensemble run.
-* ``model: auto``: the frequency rule's rigid estimate of the operating
-  speeds as one ensemble run (``exact``, the step of
-  :func:`~belt_drive_ros.core.fidelity.operating_run_step`), the rule per
-  variant, one ensemble run per chosen linear model, then the capstan check
-  per variant (:func:`~belt_drive_ros.core.fidelity.choose_model` with the
-  speeds and the run passed in); a variant that passes the limit goes on to
-  the slipping model, singly, as ``simulate`` does.
-
-Run singly (through ``simulate`` itself): the slipping model, methods the
-ensemble does not cover (adaptive, implicit), and groups smaller than
-:data:`MIN_GROUP` (a profile that differs per variant, say). Each outcome
-says which way it ran and, for a single run, why.
-
-Ensemble results carry states, inputs, outputs and the model choice; not
-the energy terms, the stability and accuracy reports of a single run
-(``energy`` is empty, ``stability`` and ``accuracy`` None).
-
-:func:`run_groups` gives the same runs as :class:`GroupRun` blocks (arrays
-with the variant axis last: states (N+1, n, V), any output signal as
-(N+1, V) by :meth:`GroupRun.output`), for callers that reduce them over
-the variants at once (campaign metrics) instead of building one
-:class:`~belt_drive_ros.core.simulate.SimResult` per variant;
-:func:`simulate_many` builds those results from the blocks.
+:func:`run_groups` yields the same runs as :class:`GroupRun` blocks (variant axis last) for callers that
+reduce over the variants at once (campaign metrics).
 """
 
 from __future__ import annotations
@@ -60,16 +40,8 @@ MIN_GROUP = 8
 
 @dataclass
 class Outcome:
-    """What one scene's run gave.
-
-    Attributes
-    ----------
-    index : position of the scene in the input.
-    result : the :class:`~belt_drive_ros.core.simulate.SimResult` (None when the run failed).
-    error : the failure as one line (``"ErrorType: message"``), or None.
-    ensemble : True when the run was part of an ensemble.
-    single_reason : why it ran singly (None for an ensemble run).
-    """
+    """What scene ``index`` (its position in the input) gave: its ``result`` or its ``error`` as one line
+    (``"ErrorType: message"``); ``ensemble`` whether it ran in one, else ``single_reason`` why not."""
 
     index: int
     result: SimResult | None
@@ -79,19 +51,13 @@ class Outcome:
 
 
 class GroupRun:
-    """Variants of one group run together on one linear model, with the variant axis last.
-
-    Attributes
-    ----------
-    indices : positions of the V variants in the input; scenes, models : theirs.
-    kind : "rigid" or "flexible"; method : the method's name.
-    times : (N+1,) knots [s] (shared); states : (N+1, n, V); inputs : (N+1, m, V) [N m].
-    choices : per variant the :class:`~belt_drive_ros.core.fidelity.ModelChoice` (model auto) or None.
-    """
+    """Variants of one group run together on one linear model (``kind``, ``method``), the variant axis last:
+    ``indices`` (positions in the input), ``scenes``, ``models``, ``times`` (N+1,) [s], ``states`` (N+1, n, V),
+    ``inputs`` (N+1, m, V) [N m], per variant its ``choices`` (model auto: the ModelChoice, else None)."""
 
     def __init__(self, indices, scenes, models, kind, method, times, states, inputs, choices=None):
         self.indices, self.scenes = list(indices), list(scenes)
-        self.models = models if isinstance(models, ModelStack) else ModelStack.of_models(models)
+        self.models = models
         self.kind, self.method = kind, method
         self.times, self.states, self._inputs = times, states, inputs
         self.choices = list(choices) if choices is not None else [None] * len(self.indices)
@@ -111,12 +77,8 @@ class GroupRun:
         return self._inputs
 
     def window(self, times, states, inputs) -> "GroupRun":
-        """The same variants over other knots (a window of :meth:`~belt_drive_ros.core.ensemble.Ensemble.windows`).
-
-        Shares the output matrices and parameters; outputs are computed
-        afresh for the window's samples. ``inputs``: an array, or
-        ``inputs(times, states)`` called when an output first needs them.
-        """
+        """The same variants over the knots of a window (:meth:`~belt_drive_ros.core.ensemble.Ensemble.windows`), its
+        outputs computed afresh; ``inputs``: an array, or ``inputs(times, states)`` called when an output needs them."""
         out = copy.copy(self)
         out.times, out.states, out._inputs = times, states, inputs
         out._outputs = {}
@@ -195,15 +157,11 @@ class GroupRun:
 
 
 class Reductions:
-    """Reductions over the time axis of an ensemble run, merged window by window (:meth:`Ensemble.windows`).
+    """Reductions over the time axis of an ensemble run, merged window by window (windows share their end knots).
 
-    ``kinds``: name -> ``"max"``, ``"min"`` (NaN propagates, as ``np.max``
-    over the whole run), ``"first"``, ``"last"`` (the value at the first /
-    last knot) or ``"argmax"`` (``update`` gives ``(values, times)``: the
-    peak and the time of its first occurrence, as ``np.argmax`` over the
-    whole run: a NaN counts as the peak). Windows share their end knots,
-    which these reductions tolerate. ``values``: name -> (V,) array
-    (``argmax``: a pair of arrays).
+    ``kinds``: name -> ``"max"``, ``"min"`` (NaN propagates, as ``np.max`` over the whole run), ``"first"``,
+    ``"last"`` or ``"argmax"`` (``(values, times)``: the peak and its first time, as ``np.argmax`` over the whole
+    run, a NaN counting as the peak). ``values``: name -> (V,) array (``argmax``: a pair of arrays).
     """
 
     def __init__(self, kinds: dict):
@@ -241,11 +199,8 @@ def peak_over_time(values: np.ndarray, times: np.ndarray) -> tuple:
 
 @dataclass
 class GroupSummary:
-    """Variants of one group run together on one linear model, kept as reductions over time only.
-
-    What :func:`run_groups` yields instead of a :class:`GroupRun` when given ``reduce``: ``values`` holds the
-    reductions ``reduce`` asked for (name -> (V,) array), in the order of ``indices``.
-    """
+    """What :func:`run_groups` yields for a group instead of a :class:`GroupRun` when given ``reduce``: ``values``
+    the reductions over time it asked for (name -> (V,) array, in the order of ``indices``)."""
 
     indices: list
     scenes: list
@@ -278,14 +233,8 @@ def _group_key(scene: Scene, memo: dict) -> tuple:
 
 
 def simulate_many(scenes: Sequence[Scene], check_stability: bool = True, min_group: int = MIN_GROUP) -> Iterator[Outcome]:
-    """Yield one :class:`Outcome` per scene (in an order of its own; ``index`` says which).
-
-    Each successful outcome's result equals ``simulate(scene)`` to rounding
-    (<= 1e-12 relative, tests/test_ensemble.py; bit for bit in practice); a
-    failing scene yields the error ``simulate`` raises, as one line, and
-    does not stop the others. Results are built as they are yielded, so a
-    caller that keeps only metrics holds one group's states at a time.
-    """
+    """One :class:`Outcome` per scene, in an order of its own (``index`` says which): ``simulate(scene)``'s result
+    (<= 1e-12 relative, tests/test_ensemble.py) or its error; results are built as they are yielded."""
     for item in run_groups(scenes, check_stability, min_group):
         if isinstance(item, Outcome):
             yield item
@@ -299,14 +248,9 @@ def run_groups(
 ) -> Iterator:  # fmt: skip
     """:func:`simulate_many` by blocks: yields :class:`Outcome` (single runs, failures) and :class:`GroupRun` (ensembles).
 
-    ``reduce``: keep only reductions over time of each ensemble run, not its
-    states: a pair ``(kinds, values)`` with ``kinds`` the
-    :class:`Reductions` kinds (name -> kind) and ``values(run)`` the
-    reductions of one window (a :class:`GroupRun` over the window's knots)
-    as name -> (V,) array. The runs then go ``window`` steps at a time
-    (memory: one window of states, whatever the duration) and
-    :class:`GroupSummary` blocks come out instead of :class:`GroupRun`;
-    each variant's values equal those of its whole run.
+    ``reduce``: a pair ``(kinds, values)`` (:class:`Reductions` kinds, and ``values(run)`` the reductions of one
+    window's :class:`GroupRun`, name -> (V,) array): the runs then go ``window`` steps at a time and yield
+    :class:`GroupSummary` blocks (each variant's values those of its whole run) in memory of one window.
     """
     memo: dict = {}
     groups: dict = {}

@@ -1,38 +1,19 @@
 """The compiled loop over a variant axis: the single run's step, for a whole chunk of variants.
 
-An ensemble (:mod:`~belt_drive_ros.core.ensemble`) steps V variants of one
-plant that share the torque profiles, the method and the step but not
-their matrices. Each variant's numbers are one row of ``reals``, packed by
-:class:`~belt_drive_ros.core.kernel_loop.KernelLoop` from the stacked
-scheme (the row a single run of that variant packs), and one call of
-:func:`variant_steps` covers a whole chunk of variants (no Python per
-variant or per step):
+An ensemble (:mod:`~belt_drive_ros.core.ensemble`) steps V variants sharing profiles, method and step but
+not their matrices. Each variant's numbers are one row of ``reals`` (the row a single run of that variant
+packs, :class:`~belt_drive_ros.core.kernel_loop.KernelLoop`); one call of :func:`variant_steps` covers a
+chunk of variants, each getting its single run's floats bit for bit (tests/test_ensemble.py):
 
-* an explicit method on a rigid or flexible plant (<= 4 states: every
-  linear campaign of the shipped scenes): :func:`_lanes` steps :data:`LANES`
-  variants at a time as vector lanes, the operations of the single run's
-  loop (``kernel._explicit``) in the same order per variant, each applied to
-  all lanes before the next: one variant's step is a chain of dependent
-  operations; 128 independent chains side by side fill the vector units
-  (``paper``'s lawson5: ~40 ns per variant-step against ~96 ns per step of
-  the single run's loop; 32 lanes: 55 ns, 64: 42 ns, 256: 50 ns);
-* anything else (more states, an implicit stage, the slipping
-  belt's extra input or guard): the single run's own loop
-  (:func:`~belt_drive_ros.core.kernel._steps`) once per variant.
+* an explicit method on a plant of <= 4 states (every linear campaign of the shipped scenes):
+  :func:`_lanes` steps :data:`LANES` variants at a time as vector lanes, the operations of
+  ``kernel._explicit`` in the same order per variant, each applied to all lanes before the next;
+* anything else (more states, an implicit stage, the slipping belt's extra input or guard): the single
+  run's own loop (:func:`~belt_drive_ros.core.kernel._steps`) once per variant.
 
-Both give each variant its single run's floats bit for bit
-(tests/test_ensemble.py).
-
-Serial on purpose (no ``prange``): a campaign runs one single-threaded Dask
-worker process per core, each calling this on its own chunk of variants;
-threads inside a worker would only compete with the other worker for the
-same cores (measured: ``prange`` on 2 threads in one process was no faster
-than 1 thread on this 2-core machine, and 2 such processes would run 4
-threads on 2 cores). The function is compiled through numba's parallel
-pipeline with every parallel transformation switched off (:data:`_PIPELINE`:
-no parfor, so no thread is ever started): the same floats, and 2.5x less
-CPU per variant-step than the plain pipeline on ``paper``'s lawson5
-(170 against 430 ns here; docs/campaigns.md).
+Serial on purpose (one single-threaded Dask worker per core), compiled through numba's parallel pipeline
+with every parallel transformation off (:data:`_PIPELINE`: no thread, the same floats, ~2.5x less CPU per
+variant-step); the measurements are in docs/campaigns.md.
 """
 
 from __future__ import annotations

@@ -293,9 +293,3 @@ def friction_limit_array(F_0, belt_speed_ratio, belt_mass, capstan_factor, omega
     (of speeds, and of parameters: an ensemble's variants on the last axis), per element as for one run."""
     v = belt_speed_ratio * omega_M
     return np.maximum((F_0 - belt_mass * v * v) * capstan_factor, 0.0)
-
-
-def describe_fields() -> str:
-    """Human-readable table of the parameter fields with units (for --help and docs)."""
-    width = max(len(n) for n in FIELD_DOCS)
-    return "\n".join(f"  {n:<{width}}  [{u}]  {d}" for n, (u, d) in FIELD_DOCS.items())

@@ -1,19 +1,11 @@
 """Streamed runs: a scene's run in windows, in memory that does not grow with its duration.
 
-:func:`simulate` keeps every sample of a run (~300 bytes each: a day of
-``paper`` at 5 ms would be 5 GB). :func:`stream` yields the same run as
-consecutive :class:`~belt_drive_ros.core.simulate.SimResult` windows of
-``window_steps`` grid steps, the first from t = 0, each later one from the
-sample after the previous window's last: their states put together are
-:func:`simulate`'s bit for bit, the energy terms to rounding (trapezoidal
-quadrature running on across the seams).
-
-Consumers write each window out (CSV, MCAP) and keep a
-:class:`~belt_drive_ros.io.run_writers.RunSummary`. The ``auto`` model choice
-streams too: the operating speeds of the frequency rule come from a windowed
-rigid run and the chosen linear run is checked against the capstan limit
-window by window; past it the stream yields a :class:`Restart` and starts
-over on the slipping model (consumers discard what they wrote), as
+:func:`simulate` keeps every sample (~300 bytes each: a day of ``paper`` at 5 ms would be 5 GB);
+:func:`stream` yields the same run as consecutive :class:`~belt_drive_ros.core.simulate.SimResult` windows of
+``window_steps`` grid steps, each later one from the sample after the previous window's last: their states
+together are :func:`simulate`'s bit for bit, the energy terms to rounding (the trapezoidal quadrature runs on
+across the seams). ``model: auto`` streams too: the chosen linear run is checked against the capstan limit
+window by window; past it the stream yields a :class:`Restart` and starts over on the slipping model, as
 :func:`~belt_drive_ros.core.fidelity.choose_model` decides on the whole run.
 """
 

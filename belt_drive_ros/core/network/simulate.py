@@ -1,15 +1,11 @@
-"""A belt network's run: the tier (rigid, flexible, slipping), the method, the guards, the compiled loop.
+"""A belt network's run (:func:`simulate`): the tier, the method, the guards, the compiled loop.
 
-:func:`simulate` is the one entry point (``belt-drive sim NETWORK``, the node, tests). ``model``:
-
-* ``flexible`` -- every pulley and the tensioner arm (:meth:`.model.NetworkModel.flexible_matrices`);
-* ``rigid`` -- the belt inextensible: one DOF, the driver's angle, every pulley through its speed ratio;
-* ``slipping`` -- stick or slip at every pulley (:func:`.slip.simulate_slipping`);
-* ``auto`` -- :func:`choose_tier`'s linear tier, then slipping when a pulley reaches its capstan limit in its run.
-
-Both linear tiers step in the kernel's linear loop (:class:`NetworkLoop`) with any fixed-step method by
-name. Guards: a method that would grow a mode at the step is refused before the run
-(:func:`.model.check_step`); the run's accuracy is estimated by step doubling (:func:`accuracy`).
+Tiers: ``flexible`` (every pulley and the tensioner arm), ``rigid`` (the belt inextensible: one DOF, the
+driver's angle), ``slipping`` (stick or slip at every pulley, :mod:`.slip`), ``auto`` (:func:`choose_tier`'s
+linear tier, then slipping when a pulley reaches its capstan limit in its run). The linear tiers step in the
+kernel's linear loop (:class:`NetworkLoop`) with any fixed-step method; a method that would grow a mode at
+the step is refused before the run (:func:`.model.check_step`), the run's accuracy estimated by step
+doubling (:func:`accuracy`).
 """
 
 from __future__ import annotations
@@ -37,12 +33,9 @@ LIMIT = 1.0e5
 
 
 class NetworkLoop:
-    """One tier's matrices and one fixed-step method as the arrays of the kernel's one linear loop
-    (:func:`~belt_drive_ros.core.kernel.wheel_steps`, one wheel per driven pulley).
-
-    ``tier``: ``flexible`` or ``rigid``. ``loop(times, x, out, lo, hi)`` runs the steps;
-    :meth:`hold` sets a pulley's torque to a held value (the node's input topics) in the stacked data.
-    """
+    """One tier's (``flexible`` or ``rigid``) matrices and one fixed-step method as the arrays of the kernel's
+    linear loop (:func:`~belt_drive_ros.core.kernel.wheel_steps`, one wheel per driven pulley);
+    ``loop(times, x, out, lo, hi)`` runs the steps."""
 
     def __init__(self, model: NetworkModel, tier: str, method: str, dt: float):
         from ..integrators import make_integrator, method_class
