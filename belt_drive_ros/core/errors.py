@@ -1,8 +1,5 @@
-"""Error hierarchy of belt_drive_ros.
-
-Every error derives from :class:`BeltDriveError` and from the built-in that
-fits it, so callers may catch either. Messages name the offending field,
-method or value and, where one exists, the fix.
+"""Error hierarchy of belt_drive_ros: every error derives from :class:`BeltDriveError` and from the built-in that
+fits it (callers may catch either); messages name the offending field, method or value and, where one exists, the fix.
 """
 
 from __future__ import annotations
@@ -27,11 +24,7 @@ class SceneError(BeltDriveError, ValueError):
 
 
 class InputError(SceneError):
-    """A file from outside is refused before its content is used.
-
-    Not a regular file, too large, not UTF-8, or YAML with aliases, anchors,
-    duplicate keys or too deep nesting (:mod:`belt_drive_ros.core.inputs`).
-    """
+    """A file from outside refused before its content is used (:mod:`belt_drive_ros.core.inputs`)."""
 
 
 class IntegratorError(BeltDriveError, ValueError):
@@ -39,12 +32,8 @@ class IntegratorError(BeltDriveError, ValueError):
 
 
 class UnstableStepError(BeltDriveError, ValueError):
-    """A fixed-step method would be unstable at the requested step.
-
-    Raised *before* a run starts by :mod:`belt_drive_ros.core.stability`; the
-    message names the method, the step, ``h*omega_n``, the method's boundary,
-    a stable step and an unconditionally stable method.
-    """
+    """A fixed-step method would be unstable at the requested step (raised before the run starts,
+    :mod:`belt_drive_ros.core.stability`)."""
 
 
 class SimulationDivergedError(BeltDriveError, ArithmeticError):
@@ -52,7 +41,4 @@ class SimulationDivergedError(BeltDriveError, ArithmeticError):
 
 
 class OutputError(BeltDriveError, OSError):
-    """Writing an output failed (disk full, I/O error); nothing partial is left behind.
-
-    A *failed run* (exit code 1 on the command line), unlike the input errors.
-    """
+    """Writing an output failed (disk full, I/O error; nothing partial is left): a failed run (exit 1), not bad input."""

@@ -1,18 +1,10 @@
 """Bounded reading of files that come from outside: scenes, profiles, parameter files.
 
-Every path the project reads a user's file from goes through :func:`read_text`
-(regular files only, never blocking on a FIFO; at most ``limit`` bytes; strict
-UTF-8), every YAML text through :func:`parse_yaml` (no aliases, anchors or
-merge keys; nesting at most :data:`MAX_DEPTH`; duplicate keys an error; YAML
-1.2 numbers: ``2.0e4`` and ``1e1`` are floats, a quoted ``'2e4'`` a string:
-numeric fields can refuse strings, :func:`plain_number`). That covers scene files,
-campaign files, a bag folder's ``metadata.yaml``, the YAML inside MCAP records
-and ``--params-file`` files. Standard library and PyYAML only, so that
-:mod:`msg_tools` (which never imports the rest of this package) can use it.
-
-Errors are :class:`~belt_drive_ros.core.errors.InputError` (a
-:class:`~belt_drive_ros.core.errors.SceneError`): one line, naming the file,
-values quoted through :func:`short`.
+Every user's file is read through :func:`read_text` (regular files only, never blocking on a FIFO, at most
+``limit`` bytes, strict UTF-8), every YAML text through :func:`parse_yaml` (no aliases, anchors or merge keys,
+nesting at most :data:`MAX_DEPTH`, duplicate keys an error, YAML 1.2 numbers: ``1e1`` a float, ``'2e4'`` a
+string). Standard library and PyYAML only, so that :mod:`msg_tools` can use it. Errors are one-line
+:class:`~belt_drive_ros.core.errors.InputError`, naming the file, values quoted through :func:`short`.
 """
 
 from __future__ import annotations
@@ -43,11 +35,8 @@ QUOTE_LIMIT = 60
 
 
 def short(value: Any, limit: int = QUOTE_LIMIT) -> str:
-    """``repr(value)`` cut to ``limit`` characters (``...`` and the full length appended).
-
-    Containers are summarised by type and length before any ``repr`` is
-    built, so a huge value never becomes a huge string.
-    """
+    """``repr(value)`` cut to ``limit`` characters; a container of more than 8 items summarised by type and length
+    before any ``repr`` is built (a huge value never becomes a huge string)."""
     if isinstance(value, (list, tuple, dict, set)) and len(value) > 8:
         return f"<{type(value).__name__} of {len(value)} items>"
     if isinstance(value, (str, bytes)) and len(value) > 4 * limit:
@@ -79,13 +68,8 @@ def _kind(mode: int) -> str:
 
 
 def check_path(path: str | os.PathLike, what: str = "file", folder: bool = False) -> os.stat_result:
-    """``os.stat`` of ``path`` when it is a regular file (or, with ``folder``, a directory), else :class:`InputError`.
-
-    The one check every read of a user's path goes through before ``open()``
-    (a FIFO blocks ``open`` for reading until a writer comes, ``/dev/zero``
-    never ends); a missing path, one of another kind, or a name the OS refuses
-    (too long, a NUL byte, unpaired surrogates, a loop of links) is one line.
-    """
+    """``os.stat`` of ``path`` when it is a regular file (or, with ``folder``, a directory), else :class:`InputError`:
+    the check before every ``open()`` of a user's path (a FIFO blocks ``open``, ``/dev/zero`` never ends)."""
     label = f"{what} {short(os.fspath(path), 200)}"
     try:
         st = os.stat(path)
@@ -103,12 +87,8 @@ def check_path(path: str | os.PathLike, what: str = "file", folder: bool = False
 
 
 def open_regular(path: str | os.PathLike, what: str = "file") -> int:
-    """A read-only descriptor of the regular file ``path`` (:func:`check_path` first).
-
-    Opened with ``O_NONBLOCK`` and checked again on the descriptor, so a file
-    swapped for a FIFO between the check and the open cannot block either.
-    The caller closes it (``os.fdopen(fd, "rb")`` makes it a file object).
-    """
+    """A read-only descriptor of the regular file ``path`` (the caller closes it), opened with ``O_NONBLOCK`` and
+    checked again on the descriptor (a file swapped for a FIFO after :func:`check_path` cannot block either)."""
     check_path(path, what)
     label = f"{what} {short(os.fspath(path), 200)}"
     try:
@@ -240,12 +220,8 @@ def read_yaml(path: str | os.PathLike, what: str = "YAML file", limit: int = SCE
 
 # ------------------------------------------------------------------ numbers
 def real(value: Any) -> int | float | None:
-    """``value`` as a Python ``int`` or ``float`` if it is a real number, numpy scalars too; else None.
-
-    Booleans (Python's and numpy's) are not numbers here; a numpy scalar becomes
-    its Python value (``np.float32(2.0)`` -> ``2.0``), so callers check range and
-    finiteness on plain numbers. Arrays, strings, ``Decimal`` ... are None.
-    """
+    """``value`` as a Python ``int`` or ``float`` if it is a real number (numpy scalars as their Python value), else
+    None: booleans, arrays, strings, ``Decimal`` ... are not numbers here."""
     if isinstance(value, (int, float)):
         return None if isinstance(value, bool) else value
     if isinstance(value, Real) and hasattr(value, "item") and type(value).__name__ != "bool":

@@ -67,16 +67,9 @@ _LOWER = tuple((name, ">") for name in _POSITIVE) + tuple((name, ">=") for name 
 
 @dataclass(frozen=True)
 class BeltDriveParams:
-    """Physical parameters of the accessory belt drive (SI units).
-
-    Defaults describe a truck diesel driving an air compressor (the
-    ``truck_compressor`` scene); ``docs/model.md`` gives the source or
-    reasoning for each value. Validation happens on
-    construction: non-finite values, non-positive radii, inertias of M and 3,
-    stiffness, friction or wrap angle, and negative damping, tension or
-    intermediate inertias are rejected with a :class:`ParameterError` that
-    names the field.
-    """
+    """Physical parameters of the accessory belt drive (SI units; defaults: the ``truck_compressor`` scene's,
+    justified in ``docs/model.md``). Construction refuses, with a :class:`ParameterError` naming the field,
+    non-finite values, fields of :data:`_POSITIVE` <= 0 and of :data:`_NON_NEGATIVE` < 0."""
 
     I_M: float = 1.0
     I_1: float = 0.002
@@ -139,12 +132,8 @@ class BeltDriveParams:
         }
 
     def check_plausible(self) -> "BeltDriveParams":
-        """``self`` if every field is within :data:`PLAUSIBLE_MAX`, else :class:`ParameterError` naming the range.
-
-        Applied to parameters from outside (scene files, recordings, the node's
-        ranges); the constructor alone admits idealised values such as
-        ``F_0 = 1e9`` N (a belt that never slips) for tests and studies.
-        """
+        """``self`` if every field is within :data:`PLAUSIBLE_MAX`, else :class:`ParameterError` naming the range:
+        for parameters from outside (the constructor alone admits idealised values such as ``F_0 = 1e9`` N)."""
         for name, top in PLAUSIBLE_MAX.items():
             value = getattr(self, name)
             if value > top:
@@ -241,12 +230,8 @@ class BeltDriveParams:
         return 2.0 * math.tanh(0.5 * self.mu_effective * self.wrap_angle)
 
     def scalar_friction_limit(self):
-        """:meth:`friction_limit` of one float ``omega_M`` [rad/s] with the constants bound [N].
-
-        ``max((F_0 - m' v^2) k_c, 0)`` with ``v = r_2 g omega_M``: the operations of
-        :func:`friction_limit_array` and of the compiled loop's slip force
-        (:class:`~belt_drive_ros.core.kernel_loop.FrictionForce`), in the same order.
-        """
+        """:meth:`friction_limit` [N] of one float ``omega_M`` [rad/s], the constants bound: ``max((F_0 - m' v^2) k_c, 0)``,
+        ``v = r_2 g omega_M``, the operations of :func:`friction_limit_array` in the same order."""
         force, mass, speed, factor = float(self.F_0), float(self.belt_mass), self.r_2 * self.gear_ratio, self.capstan_factor
 
         def limit(omega_M):

@@ -1,8 +1,6 @@
-"""Scenes: parameters + drive source + load + duration + initial state.
+"""Scenes: parameters + drive source + load + duration + initial state: what one run needs.
 
-A scene is what one simulation run needs. Scene files are YAML; the package
-ships ``paper``, ``truck_compressor`` and ``e_motor_start``
-(``belt_drive_ros/scenes/*.yaml``), each with its defaults justified in
+Scene files are YAML; the shipped ones (``belt_drive_ros/scenes/*.yaml``) justify their defaults in
 ``docs/model.md``. :func:`load_scene` accepts a shipped name or a path.
 """
 
@@ -77,11 +75,8 @@ def _check_options(method: str, cls: type, options: Mapping) -> None:
 
 @dataclass(frozen=True)
 class InitialState:
-    """Initial condition: wheel M angle [rad] and speed [rad/s], belt deflection [rad] and its rate [rad/s].
-
-    Wheel 3 starts at ``phi_3 = i phi_M - relative_deflection`` and
-    ``omega_3 = i omega_M - relative_speed``.
-    """
+    """Initial condition: wheel M angle [rad] and speed [rad/s], belt deflection [rad] and its rate [rad/s]:
+    wheel 3 starts at ``phi_3 = i phi_M - relative_deflection``, ``omega_3 = i omega_M - relative_speed``."""
 
     phi_M: float = 0.0
     omega_M: float = 0.0
@@ -110,27 +105,15 @@ class InitialState:
 
 @dataclass(frozen=True)
 class Scene:
-    """Everything one run needs (SI units).
+    """Everything one run needs (SI units): ``drive`` torque on wheel M, ``load`` on wheel 3, ``duration`` [s].
 
-    Attributes
-    ----------
-    name, description : str
-    params : BeltDriveParams
-    drive : TorqueProfile on wheel M;  load : TorqueProfile on wheel 3.
-    duration : simulated time [s].
-    initial_state : InitialState.
-    model : ``rigid``, ``flexible``, ``slipping`` (:mod:`belt_drive_ros.core.slip`) or ``auto``
-        (see :mod:`belt_drive_ros.core.fidelity`; ``auto`` goes on to ``slipping`` when the
-        chosen model's run exceeds the belt's friction limit).
-    method : integrator name (:data:`belt_drive_ros.core.integrators.REGISTRY`), or ``auto`` (the default:
-        the cheapest method and fewest substeps the accuracy guard rates within ``tolerance``,
-        :mod:`belt_drive_ros.core.method_choice`).
-    dt : integrator step [s] (output interval for adaptive methods).
-    output_rate : rate [Hz] at which outputs are consumed (node publish or
-        recording rate); the ``auto`` choice compares the belt mode with it.
-    method_options : extra integrator options (e.g. rtol for scipy methods).
-    tolerance : relative error [-] of drive speed and belt torque (to their peaks) the accuracy guard
-        checks against and ``method: auto`` aims at.
+    ``model``: ``rigid``, ``flexible``, ``slipping`` or ``auto`` (:mod:`belt_drive_ros.core.fidelity`; it goes
+    on to ``slipping`` when the chosen model's run exceeds the belt's friction limit). ``method``: a name of
+    :data:`belt_drive_ros.core.integrators.REGISTRY` or ``auto`` (the cheapest method and fewest substeps the
+    accuracy guard rates within ``tolerance``, :mod:`belt_drive_ros.core.method_choice`); ``dt`` its step [s]
+    (the output interval of adaptive methods); ``method_options`` its options (e.g. rtol). ``output_rate`` [Hz]:
+    the rate outputs are consumed at (node, recording), which ``auto`` compares the belt mode with.
+    ``tolerance`` [-]: relative error of drive speed and belt torque (to their peaks) the guard checks.
     """
 
     name: str = "custom"
@@ -192,16 +175,10 @@ class Scene:
     # ------------------------------------------------------------ mapping
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], name: str | None = None) -> "Scene":
-        """Scene from a mapping (parsed YAML); errors name the key path.
-
-        The mapping states :data:`REQUIRED_KEYS` and every required parameter,
-        or names a shipped scene with ``extends: NAME`` and gives only what
-        differs: ``params``, ``initial_state`` and ``method_options`` are merged
-        key by key into the shipped scene's, every other key replaces its value.
-        A scene that gives its own ``drive`` or ``load`` but no ``method`` gets
-        ``method: auto`` (the method chosen for its torques, at the inherited
-        ``dt``), not the shipped scene's method, which was chosen for other torques.
-        """
+        """Scene from a mapping (parsed YAML); errors name the key path. The mapping states :data:`REQUIRED_KEYS`
+        and every required parameter, or ``extends: NAME`` (a shipped scene) and gives only what differs
+        (:func:`_extended`: ``params``, ``initial_state``, ``method_options`` merged key by key; new torques
+        without a ``method`` get ``method: auto``)."""
         if not isinstance(data, Mapping):
             raise SceneError(f"scene: expected a mapping at the top level, got {type(data).__name__} {short(data)}")
         data = dict(data)

@@ -94,6 +94,17 @@ def stream(
         yield window
 
 
+def _running(totals: dict, powers: dict, time, n: int) -> dict:
+    """A window's energy terms [J]: each power's [W] running trapezoidal integral over ``time`` on from ``totals``
+    (the previous windows' totals, updated), its last ``n`` samples."""
+    out = {}
+    for name, p in powers.items():
+        integral = totals[name] + _integral(p, np.diff(time))
+        totals[name] = float(integral[-1])
+        out[name] = integral[-n:]
+    return out
+
+
 def _ends(stepper, duration: float, window_steps: int) -> Iterator[tuple[float, float]]:
     """(t0, t1) of consecutive windows of ``window_steps`` grid steps over [0, duration]."""
     t, k = 0.0, 0
@@ -141,7 +152,7 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps, guards
                 if check_stability and guard is None else None)
     if guard is not None and guards is not None:
         guards.append(guard)
-    work = dissipated = 0.0
+    totals = {"input_work": 0.0, "dissipated": 0.0}
     for k, (t0, t1) in enumerate(ends):
         start = _time.perf_counter()
         try:
@@ -151,11 +162,10 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps, guards
                 guard.result()
             raise
         wall = _time.perf_counter() - start
-        u = sim.plant.input_array(time, states)
-        energy_in = work + _integral(mdl.input_power(states, u), np.diff(time))
-        energy_d = dissipated + _integral(mdl.dissipation_power(states), np.diff(time))
-        work, dissipated, x = float(energy_in[-1]), float(energy_d[-1]), states[-1]
+        u, x = sim.plant.input_array(time, states), states[-1]
         keep = slice(0, None) if k == 0 else slice(1, None)
+        powers = {"input_work": mdl.input_power(states, u), "dissipated": mdl.dissipation_power(states)}
+        work = _running(totals, powers, time, len(time) - (k > 0))
         time, states, u = time[keep], states[keep], u[keep]
         if guard is not None:
             accuracy = guard.result() if k == len(ends) - 1 or guard.done() else None
@@ -163,10 +173,7 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps, guards
             scene=scene, model=kind, method=sim.integrator.name, dt=scene.dt, time=time, states=states, inputs=u,
             outputs=mdl.outputs(states, u), choice=choice, stability=sim.stability, accuracy=accuracy,
             wall_time=wall,
-            energy={
-                "kinetic": mdl.kinetic_energy(states), "potential": mdl.potential_energy(states),
-                "input_work": energy_in[keep], "dissipated": energy_d[keep],
-            },
+            energy={"kinetic": mdl.kinetic_energy(states), "potential": mdl.potential_energy(states), **work},
         )
         if progress:
             progress(t1 / scene.duration)
@@ -214,15 +221,8 @@ def _slipping(scene, choice, progress, check_stability, window_steps) -> Iterato
         else:
             t_all, s_all, m_all, g_all = time, states, modes, sigmas
         u_all = sim.input_array(t_all, s_all)
-        energy = {}
-        for name, p in (
-            ("input_work", m.input_power(s_all, u_all)),
-            ("dissipated", m.damping_power(s_all, m_all, g_all)),
-            ("friction", m.friction_power(s_all, m_all, g_all)),
-        ):
-            integral = totals[name] + _integral(p, np.diff(t_all))  # (on from the last window's total)
-            totals[name] = float(integral[-1])
-            energy[name] = integral[-len(time):]
+        energy = _running(totals, {"input_work": m.input_power(s_all, u_all), "dissipated": m.damping_power(s_all, m_all, g_all),
+                                   "friction": m.friction_power(s_all, m_all, g_all)}, t_all, len(time))  # fmt: skip
         u = u_all[-len(time):]
         energy["kinetic"], energy["potential"] = m.kinetic_energy(states), m.potential_energy(states)
         last = (float(time[-1]), states[-1].copy(), int(modes[-1]), float(sigmas[-1]))

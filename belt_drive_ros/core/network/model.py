@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import SceneError, UnstableStepError
+from ..identity_cache import built_once
 
 
 # ---------------------------------------------------------------------- tensioner arm geometry
@@ -487,6 +488,18 @@ def grid_breakpoints(model: NetworkModel, dt: float) -> tuple[list, list, dict]:
         found = (marks, left, {c: sorted(bs) for c, bs in inside.items()})
         model.__dict__.setdefault("_grid_breakpoints", {})[dt] = found
     return found
+
+
+def piece_of(owner, h: float, build, shared: tuple, size: int = 8):
+    """``build(h)``, ``owner``'s arrays for one step of ``h`` [s] (a piece of a step split at a breakpoint), sharing
+    ``owner``'s attributes ``shared`` (its profile arrays: a held torque holds in the piece too); built once per h."""
+    def make():
+        found = build(h)
+        for name in shared:
+            setattr(found, name, getattr(owner, name))
+        return found
+
+    return built_once(owner.__dict__.setdefault("_pieces", {}), size, (), make, extra=(h,))
 
 
 def step_runs(inside: dict, dt: float, k0: int, k1: int, knots=()):

@@ -20,7 +20,7 @@ from ..errors import IntegratorError, SceneError, SimulationDivergedError, Unsta
 from ..identity_cache import built_once
 from ..inputs import short
 from ..profile_data import CONSTANT, DIVERGED, NOT_CONVERGED
-from .model import NetworkModel, NetworkRun, check_step, grid_breakpoints, outputs, stack_profiles, step_runs
+from .model import NetworkModel, NetworkRun, check_step, grid_breakpoints, outputs, piece_of, stack_profiles, step_runs
 from .scene import run_steps, warm_scene
 
 TIERS = ("auto", "flexible", "rigid", "slipping")
@@ -90,14 +90,8 @@ class NetworkLoop:
         self.pp[row, 0] = float(value)
 
     def piece(self, h: float) -> NetworkLoop:
-        """This loop for one step of ``h`` [s] (a piece of a step split at a breakpoint): the method's matrices at
-        ``h``, this loop's profile arrays (a held torque holds in the piece too)."""
-        def build():
-            found = NetworkLoop(self.model, self.tier, self.method, h)
-            found.start, found.pk, found.pp, found.px, found.py = self.start, self.pk, self.pp, self.px, self.py
-            return found
-
-        return built_once(self.__dict__.setdefault("_pieces", {}), 8, (), build, extra=(h,))
+        """This loop for one step of ``h`` [s] (:func:`~.model.piece_of`)."""
+        return piece_of(self, h, lambda h: NetworkLoop(self.model, self.tier, self.method, h), ("start", "pk", "pp", "px", "py"))
 
     def initial(self) -> np.ndarray:
         """The belt turning at the scene's ``initial_speed``, unstretched."""

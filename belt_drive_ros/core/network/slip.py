@@ -18,17 +18,10 @@ sliding pulleys' ``s'`` (one small linear system per mode); with undamped spans
 their time derivative is, and ``s`` is put back onto them after each step.
 Every mode is an affine ODE ``x' = A x + B u + c (T_0 - w)``.
 
-Switching (per pulley, several at once):
-
-* stick -> slip when ``|T_i - T_{i-1}|`` reaches the limit, in the direction
-  ``sign(T_i - T_{i-1})`` (the belt runs ahead of the pulley where the leaving span is the tighter);
-* slip -> stick when ``s_i'`` crosses zero, if the stick mode's friction then stays inside the limit
-  (else it slides on).
-
-Events are located inside the step on the mode's exact flow (:mod:`.slip_kernel`: a scan, then halving).
-A step is the exact flow of its mode with the torques and ``w`` held from the step's (or sub-step's)
-start: the zero-order-hold ``exact`` method, stable at any step however stiff the span relaxation
-``k_j / c_j`` of a sliding pulley is.
+Switching, per pulley (several at once): stick -> slip when ``|T_i - T_{i-1}|`` reaches the limit, in the
+direction ``sign(T_i - T_{i-1})``; slip -> stick when ``s_i'`` crosses zero, if the stick mode's friction then
+stays inside the limit (else it slides on). Events are located on the mode's exact flow (:mod:`.slip_kernel`);
+a step is that flow with the torques and ``w`` held (zero-order hold: stable however stiff ``k_j / c_j`` is).
 """
 
 from __future__ import annotations
@@ -39,9 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import SceneError, SimulationDivergedError
-from ..identity_cache import built_once
 from ..profile_data import CONSTANT, WIDTH
-from .model import NetworkModel, NetworkRun, grid_breakpoints, outputs, stack_profiles, step_runs
+from .model import NetworkModel, NetworkRun, grid_breakpoints, outputs, piece_of, stack_profiles, step_runs
 from .scene import run_steps
 
 #: modes kept with their step exponentials per run
@@ -142,15 +134,8 @@ class SlipArrays:
         self.sgn[pulley] = sign / self.model_gears[pulley]
 
     def piece(self, h: float) -> "SlipArrays":
-        """These arrays for one step of ``h`` [s] (a piece of a step split at a torque breakpoint): their own
-        step and exponentials, this one's profile arrays (a held torque holds in the piece too)."""
-        def build():
-            found = SlipArrays(self.model, h)
-            found.sgn, found.pk, found.pp, found.ptx, found.pty, found.start = (self.sgn, self.pk, self.pp, self.ptx,
-                                                                             self.pty, self.start)
-            return found
-
-        return built_once(self.__dict__.setdefault("_pieces", {}), CACHE_SLOTS, (), build, extra=(h,))
+        """These arrays for one step of ``h`` [s], their own step and exponentials (:func:`~.model.piece_of`)."""
+        return piece_of(self, h, lambda h: SlipArrays(self.model, h), ("sgn", "pk", "pp", "ptx", "pty", "start"), CACHE_SLOTS)
 
     def plant(self):
         """The kernel's plant arguments, in :func:`~.slip_kernel.slip_steps`'s order."""
@@ -255,13 +240,8 @@ def slip_run(model: NetworkModel, time, states, modes, tensions, slip_speed, fri
 
 def simulate_slipping(model: NetworkModel | None, scene, duration: float | None = None, dt: float | None = None,
                       method: str | None = None) -> SlipNetworkRun:
-    """Run the slipping tier from the belt turning at ``scene.initial_speed`` unstretched, every pulley sticking.
-
-    ``method``: ``exact`` (default; the tier's one method).
-    Raises :class:`~belt_drive_ros.core.errors.SimulationDivergedError` (non-finite state, a speed past
-    1e5 rad/s, more than 64 switches inside one step (chattering), every pulley sliding at once, or a pulley
-    that can neither stick nor slide on) and :class:`SceneError`.
-    """
+    """Run the slipping tier (``method``: ``exact``, its one method) from the belt turning at ``scene.initial_speed``
+    unstretched, every pulley sticking; :class:`SimulationDivergedError` as :func:`advance_slipping` raises it."""
     model = NetworkModel.build(scene) if model is None else model
     if method is not None and method not in METHODS:
         raise SceneError(f"method: the slipping tier steps the exact flow of each stick/slip mode (exact); {method} is not available for it")
