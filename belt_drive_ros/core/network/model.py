@@ -146,12 +146,8 @@ class NetworkModel:
         return np.array([driver_speed * P[self.scene.driver].radius / p.radius for p in P])
 
     def operating_loads(self, driver_speed: float, shift=0.0) -> np.ndarray:
-        """Mean torque [N m] of each pulley's profile (signed: + drives the belt) at the belt speed of ``driver_speed``
-        (each pulley's speed plus ``shift`` [rad/s], per pulley or one for all).
-
-        Each profile is averaged over two revolutions of its pulley at the scene's end (after ramps and soft
-        starts); idlers 0.
-        """
+        """Mean torque [N m] of each pulley's profile (signed: + drives the belt; idlers 0) over two revolutions at
+        the scene's end, at the belt speed of ``driver_speed`` (each pulley's speed plus ``shift`` [rad/s])."""
         t = self.scene.duration
         w = self.speeds_at(driver_speed) + shift
         out = np.zeros(len(self.scene.pulleys))
@@ -420,9 +416,8 @@ def _friction_use(T, T_in, belt_speed, mass_per_length: float, factor) -> np.nda
 
 
 def _output_terms(model: NetworkModel) -> tuple:
-    """What :func:`outputs` takes from the scene, found once per model (a node's one-sample call costs the
-    arithmetic alone): radii, each pulley's arriving span, the span directions' components (leaving, arriving),
-    the capstan factors ``tanh(mu beta / 2)``, m', the driver, the arm's installed angle."""
+    """What :func:`outputs` takes from the scene, found once per model: radii, each pulley's arriving span, the
+    span directions' components (leaving, arriving), ``tanh(mu beta / 2)``, m', the driver, the arm's installed angle."""
     found = model.__dict__.get("_output_terms")
     if found is None:
         scene, n = model.scene, len(model.scene.pulleys)
