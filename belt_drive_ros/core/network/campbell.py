@@ -1,10 +1,8 @@
 """Campbell data of a belt network: natural frequencies against engine speed, firing orders, crossings.
 
-At each driver speed the linear tier is linearised afresh (``NetworkModel.operating_point``):
-the static span tensions under the accessories' loads at that speed set the
-arm's geometric stiffness, the profiles' speed slopes add damping. An engine
-order ``k`` excites at ``k * speed / (2 pi)`` [Hz]; where a mode's frequency
-curve crosses an order line, that order drives the mode at resonance.
+At each driver speed the linear tier is linearised afresh (``NetworkModel.operating_point``: static tensions set
+the arm's geometric stiffness, the profiles' speed slopes add damping). An engine order ``k`` excites at
+``k * speed / (2 pi)`` [Hz]; where a mode's curve crosses an order line, that order drives it at resonance.
 """
 
 from __future__ import annotations

@@ -33,16 +33,9 @@ TWO_PI = 2.0 * math.pi
 
 @dataclass(frozen=True)
 class Layout:
-    """Computed geometry of a loop of circles.
-
-    Attributes (n pulleys, n spans; span j leaves pulley j)
-    ----------
-    directions : (n, 2) unit span directions ``e_j``.
-    lengths : (n,) span lengths ``L_j`` [m].
-    leave, arrive : (n, 2) tangent points of span j on ``P_j`` and ``P_{j+1}`` [m].
-    wraps : (n,) wrap angle ``beta_i`` [rad] of pulley i (between span i-1 arriving and span i leaving).
-    belt_length : ``sum L_j + sum r_i beta_i`` [m].
-    """
+    """Computed geometry of a loop of n circles (span j leaves pulley j): unit span ``directions`` ``e_j`` (n, 2),
+    span ``lengths`` ``L_j`` [m], tangent points of span j on ``P_j`` (``leave``) and ``P_{j+1}`` (``arrive``) [m],
+    ``wraps`` ``beta_i`` [rad] (between span i-1 arriving and span i leaving), ``belt_length`` [m]."""
 
     directions: np.ndarray
     lengths: np.ndarray

@@ -71,8 +71,7 @@ def arm_terms(geo, pulleys, tensioner) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _times_rows(X, rows) -> np.ndarray:
-    """``X @ rows.T`` for samples X (N, m) or one sample (m,) with both operands C-contiguous (numpy's product of a
-    transposed operand takes a path 100x slower on a run's samples)."""
+    """``X @ rows.T`` for samples X (N, m) or one sample (m,), both operands C-contiguous (100x faster on a run)."""
     X = np.ascontiguousarray(X, dtype=float)
     return X @ np.ascontiguousarray(rows.T)
 
@@ -164,16 +163,11 @@ class NetworkModel:
 
     # ------------------------------------------------------------------ statics
     def static(self, loads, iterations: int = 20, w: float = 0.0):
-        """Static state under constant pulley torques ``loads`` [N m] (signed, + drives; the driver's entry is replaced
-        by the torque that balances the others: ``sum_i Q_i / r_i = 0``), the belt running with centrifugal
-        tension ``w = m' v^2`` [N] (default 0: at rest). The belt presses on a pulley, and pulls on the arm,
-        with ``T_j - w``: the arm's load is ``-sum_j (T_j - w) g_j``, so ``w`` adds ``w sum_j g_j`` to its force and
-        its geometric stiffness is taken at ``T_j - w``.
-
-        Returns ``(q, tensions, Q)``: the coordinates (up to the rigid turning, removed: least squares), span
-        tensions [N] and the torques used. The arm's geometric stiffness is iterated to the static tensions
-        (``iterations = 1``: kept at the installed tension, the equilibrium of a run's equations, which are
-        linearised about the installed state; the two differ by ``(T_j - T_0) dg_j/dtheta_a theta_a``, second order).
+        """``(q, tensions [N], Q)``: the static state (least squares: no rigid turning) under constant pulley torques
+        ``loads`` [N m] (signed; the driver's replaced by the one balancing the others, ``sum_i Q_i / r_i = 0``), the
+        belt running with centrifugal tension ``w = m' v^2`` [N]. The arm's load is ``-sum_j (T_j - w) g_j`` (``w``
+        adds ``w sum_j g_j`` to its force), its geometric stiffness iterated to ``T_j - w`` (``iterations = 1``: kept
+        at T_0, the equilibrium of a run's equations; they differ by ``(T_j - T_0) dg_j/dtheta_a theta_a``).
         """
         P = self.scene.pulleys
         Q = np.asarray(loads, dtype=float).copy()
@@ -209,8 +203,7 @@ class NetworkModel:
 
     # ------------------------------------------------------------------ first-order form
     def state_space(self, K=None, C=None):
-        """``(A, B)`` of ``x = [q, q']`` in the pulleys' own angles, ``x' = A x + B u`` with ``u`` the n pulley
-        torques [N m] (modal analysis; runs use :meth:`flexible_matrices`)."""
+        """``(A, B)`` of ``x = [q, q']`` in the pulleys' own angles, ``u`` the n pulley torques [N m] (modal analysis)."""
         return self._first_order(np.eye(self.M.shape[0]), self.stiffness() if K is None else K, self.C if C is None else C)
 
     def _first_order(self, E, K, C):
@@ -242,12 +235,10 @@ class NetworkModel:
     def lag_stretch(self) -> np.ndarray:
         """(n_spans, m) rows ``b_j``: span j's stretch in the run's coordinates, ``delta_j = b_j . q_run``.
 
-        The run integrates the driver's angle and, for every other pulley, its lag
-        ``l_i = rho_i theta_d - theta_i`` [rad] (the paper's relative deflection
-        ``delta = i phi_M - phi_3`` for every pulley), then the arm's angle. Since
-        ``r_i rho_i = r_d``, ``delta_j = r_j l_j - r_{j+1} l_{j+1} + g_j theta_a``: the
-        driver's angle, which grows with the run, enters no stretch (its column is
-        exactly zero), so the stretches keep their digits over a long run.
+        The run integrates the driver's angle, every other pulley's lag ``l_i = rho_i theta_d - theta_i`` [rad]
+        (the paper's ``delta = i phi_M - phi_3``) and the arm's angle. Since ``r_i rho_i = r_d``,
+        ``delta_j = r_j l_j - r_{j+1} l_{j+1} + g_j theta_a``: the driver's growing angle enters no stretch
+        (its column is exactly zero), so the stretches keep their digits over a long run.
         """
         b = -self.stretch.copy()
         b[:, self.scene.driver] = 0.0
@@ -362,8 +353,8 @@ def undamped_frequencies(model: NetworkModel) -> np.ndarray:
 # ---------------------------------------------------------------------- runs
 @dataclass(frozen=True)
 class NetworkRun:
-    """A run's outputs (SI): times (N,), per pulley angle/speed/belt torque/hub load (N, n), per span tension (N, n)
-    and slack flag, arm angle [rad] (absolute, N,) or None."""
+    """A run's outputs (SI): times (N,), per pulley angle/speed/belt torque/hub load and per span tension/slack flag
+    (N, n), arm angle [rad] (absolute, N,) or None."""
 
     time: np.ndarray
     angle: np.ndarray
@@ -460,10 +451,9 @@ def stack_profiles(profiles, refused: str = "a profile without a data form canno
 
 
 def grid_breakpoints(model: NetworkModel, dt: float) -> tuple[list, list, dict]:
-    """``(marks, left, inside)`` of the profiles' breakpoints on the grid of step ``dt``: ``marks`` their times [s],
-    sorted (one on a knot as that knot's time ``k dt``), ``left`` per mark the latest time at which every profile
-    still gives its value from the left (``TorqueProfile.left_of``), ``inside`` ``{step c: [marks strictly inside
-    step c]}`` (steps that are split there)."""
+    """``(marks, left, inside)`` of the profiles' breakpoints on the grid of step ``dt``: their times [s] (sorted; one
+    on a knot as ``k dt``), per mark the latest time every profile still gives its value from the left
+    (``TorqueProfile.left_of``), ``{step c: [marks strictly inside step c]}``."""
     found = model.__dict__.get("_grid_breakpoints", {}).get(dt)
     if found is None:
         profiles = [p.torque for p in model.scene.pulleys if p.sign]

@@ -1,9 +1,6 @@
-"""Network scenes: a serpentine belt around named pulleys, an optional tensioner arm (frozen, validated).
-
-A network scene file states ``kind: network`` (see ``docs/serpentine.md`` for
-every key, its unit and the shipped examples). Errors are one line naming the
-pulley or key. Pulleys are listed in the order the belt travels, the loop
-counter-clockwise (:mod:`.geometry`).
+"""Network scenes (``kind: network``, every key in ``docs/serpentine.md``): a serpentine belt around named pulleys
+listed in the order the belt travels, counter-clockwise (:mod:`.geometry`), an optional tensioner arm; frozen,
+validated, errors one line naming the pulley or key.
 """
 
 from __future__ import annotations
@@ -364,9 +361,8 @@ def load_network(name_or_path: str | Path) -> NetworkScene:
 
 
 def run_steps(scene, duration: float | None, dt: float | None) -> tuple[float, float, int]:
-    """``(duration [s], dt [s], steps)`` of a run (default the scene's duration and step); :class:`SceneError` for a
-    network scene's wrong type, a duration or step outside the scene file's ranges, more than 1e8 steps or a
-    run shorter than one step."""
+    """``(duration [s], dt [s], steps)`` of a run (default the scene's duration and step), checked as the scene
+    file's (:class:`SceneError`; also for a run shorter than one step)."""
     if not isinstance(scene, NetworkScene):
         raise SceneError(f"scene: expected a NetworkScene (load_network), got {type(scene).__name__}")
     duration = scene.duration if duration is None else _number("duration", duration, strict=True, top=1.0e7)
