@@ -97,13 +97,9 @@ class GroupRun:
     def output(self, name: str) -> np.ndarray:
         """Output signal ``name`` of :data:`~belt_drive_ros.core.model.OUTPUT_UNITS` for every variant: (N+1, V).
 
-        The same operations per element as the model's :meth:`outputs` on
-        one run (``y = C x + D u`` summed column by column from the left;
-        the span forces from the belt torque), so column v equals
-        ``models[v].outputs(states[:, :, v], inputs[:, :, v])[name]`` bit for bit
-        (columns of C and D that are zero for every variant are skipped: they add
-        only zeros, so the run's torques are computed only for outputs that read
-        them; :func:`~belt_drive_ros.core.ensemble.weighted_columns`).
+        The model's :meth:`outputs` per element (``y = C x + D u`` summed column by column from the left, columns
+        zero for every variant skipped: :func:`~belt_drive_ros.core.ensemble.weighted_columns`; the span forces
+        from the belt torque), so column v is ``models[v].outputs(...)[name]`` bit for bit.
         """
         cached = self._outputs.get(name)
         if cached is not None:

@@ -117,11 +117,9 @@ def clamp(marks: list, left: list, t0: float, t1: float) -> tuple[float, float]:
 def advance(loop: NetworkLoop, x, out, k0: int, k1: int) -> None:
     """Steps ``k0 .. k1-1`` (times ``k dt``) from state ``x`` at ``k0 dt``; the states after each into ``out[0 .. k1-k0-1]``.
 
-    The one way time advances in a network (a whole run, the node's ticks), as the linear stepper handles torque
-    breakpoints: one kernel call per run of whole steps between breakpoints, its stage times clamped into the
-    run's side of them (a step ending on a breakpoint samples the torques' left limit there); a step with
-    breakpoints strictly inside is split there, each piece one call of the method at the piece's length
-    (:func:`~.model.step_runs`). Raises :class:`SimulationDivergedError` / :class:`IntegratorError`.
+    The one way time advances in a network (a whole run, the node's ticks): one kernel call per run of whole
+    steps between torque breakpoints, its stage times clamped into the run's side of them; a step with
+    breakpoints strictly inside split there, one call per piece (:func:`~.model.step_runs`).
     """
     dt = loop.dt
     marks, left, inside = grid_breakpoints(loop.model, dt)
@@ -286,13 +284,10 @@ def run_slipping(model: NetworkModel, duration: float, dt: float, method: str | 
 
 def simulate(scene, duration: float | None = None, dt: float | None = None, method: str | None = None,
              model: str = "auto", check_accuracy: bool = True) -> NetworkRun:
-    """Run a belt network scene from the belt turning at ``initial_speed`` unstretched.
-
-    ``model``: one of :data:`TIERS` (module docstring); ``method``: any fixed-step method by name (default the
-    scene's). The slipping tier steps the exact flow of each stick/slip mode only: a ``method`` asked for by name
-    that it cannot step is refused (one line naming the slipping pulley) rather than replaced; the scene's own
-    method is replaced by ``exact`` there (``run.method`` says so). The run carries ``tier``, ``reason``, ``method``
-    and ``accuracy`` (the step-doubling verdict of a linear tier).
+    """Run a belt network scene from the belt turning at ``initial_speed`` unstretched, on tier ``model``
+    (:data:`TIERS`) with a fixed-step ``method`` (default the scene's). The slipping tier steps the exact flow of
+    each mode only: a ``method`` asked for by name that it cannot step is refused, the scene's own replaced by
+    ``exact``. The run carries ``tier``, ``reason``, ``method`` and ``accuracy`` (a linear tier's step doubling).
     """
     if not isinstance(model, str) or model not in TIERS:
         raise SceneError(f"model: must be one of {', '.join(TIERS)} for a belt network, got {short(model)}")
