@@ -1,29 +1,20 @@
 """The compiled loop of a belt network's slipping tier (stick or slip at every pulley, events located).
 
-Every function is ``@njit(cache=True, nogil=True)`` over float64/int64 arrays
-and floats: compiled once per installed version, never per scene, valid
-Python under ``NUMBA_DISABLE_JIT=1`` (the same operations; every sum is an
-explicit loop from the left, so no BLAS call differs between the two).
+Every function is ``@njit(cache=True, nogil=True)`` over float64/int64 arrays and floats, valid Python under
+``NUMBA_DISABLE_JIT=1`` with the same floats (every sum an explicit loop from the left, no BLAS call).
 
-State ``x = [q (m), q' (m), s (n)]`` (:mod:`.slip`): pulley angles and the
-arm angle, their speeds, the belt's slip ahead of each pulley surface [m].
-A *mode* is ``sig`` (n,): 0 where the pulley sticks (``s_i' = 0``), +-1 the
-slip direction ``sign(s_i')`` where it slides. In a mode the dynamics are
-affine, ``x' = A x + B u + c (T_0 - w)`` with ``u`` the pulley torques and
-``w = m' v^2`` the centrifugal tension; both are held over a step (zero-order
-hold), so a step is the exact flow ``x+ = Phi x + Gamma b`` of the mode.
+State ``x = [q (m), q' (m), s (n)]`` (:mod:`.slip`): pulley and arm angles, their speeds, the belt's slip ahead
+of each pulley surface [m]. A *mode* ``sig`` (n,) is 0 where the pulley sticks (``s_i' = 0``), +-1 the slip
+direction ``sign(s_i')`` where it slides. In a mode ``x' = A x + B u + c (T_0 - w)`` (``u`` the pulley torques,
+``w = m' v^2``), both held over a step: a step is the mode's exact flow ``x+ = Phi x + Gamma b``.
 
-Per step: the flow, the switching function of every pulley at its end
-(stick: ``|T_i - T_{i-1}| - tanh(mu_i beta_i / 2)(T_i + T_{i-1} - 2 w)``;
-slip: ``-sig_i s_i'``); where one turns positive, the event is located on
-the mode's exact flow: a step is ``2^L`` units (:data:`LEVELS`), each mode
-keeps the flows over ``dt / 2^i`` for every level i (:func:`step_chain`), a
-scan at :data:`N_SCAN` points brackets the first crossing of any pulley and
-halving it level by level (one matrix-vector product per level) finds the
-last unit inside. One unit later every pulley past or on its surface
-switches (several at once), and the rest of the step runs in the new mode.
-Mode matrices and their flows are cached per mode in caller-owned arrays (a
-run switching between a few modes builds each once).
+Per step: the flow, then every pulley's switching function at its end (stick:
+``|T_i - T_{i-1}| - tanh(mu_i beta_i / 2)(T_i + T_{i-1} - 2 w)``; slip: ``-sig_i s_i'``); where one turns
+positive the event is located on the exact flow: a step is ``2^L`` units (:data:`LEVELS`), each mode keeps its
+flows over ``dt / 2^i`` per level (:func:`step_chain`), a scan at :data:`N_SCAN` points brackets the first
+crossing and halving level by level finds the last unit inside. One unit later every pulley past or on its
+surface switches, and the rest of the step runs in the new mode. Mode matrices and flows are cached per mode in
+caller-owned arrays.
 """
 
 from __future__ import annotations
