@@ -407,18 +407,6 @@ class ModelStack:
         self.n_states = self.A.shape[-1]
         self._models: dict = {}
 
-    @classmethod
-    def of_models(cls, models) -> "ModelStack":
-        """The stack of model objects already built (their own matrices)."""
-        models = list(models)
-        kinds = {m.name for m in models}
-        if len(kinds) != 1:
-            raise ValueError(f"ModelStack: models of one kind, got {sorted(kinds)}")
-        matrices = {k: np.stack([getattr(m, k) for m in models]) for k in ("A", "B", "C", "D")}
-        stack = cls(models[0].name, [m.params for m in models], matrices=matrices)
-        stack._models = dict(enumerate(models))
-        return stack
-
     def __len__(self) -> int:
         return len(self.params)
 
