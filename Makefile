@@ -15,7 +15,6 @@ ifeq ($(origin ROS_LOCALHOST_ONLY),undefined)
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 endif
 export MPLBACKEND := Agg
-export PYTHONDONTWRITEBYTECODE := 1
 
 .PHONY: demo test bench bags install clean help
 

@@ -216,9 +216,24 @@ def test_the_kernel_interpreted_gives_the_same_floats(tmp_path):
 
 
 def _general_loop(loop, times, x, out):
-    """The kernel's general loop (``kernel._linear_steps``, interpreted) on a :class:`KernelLoop`'s arrays."""
+    """The kernel's general loop (``kernel.wheel_steps``) interpreted on a :class:`KernelLoop`'s arrays.
+
+    Its helpers run interpreted too (each compiled function of the kernel module swapped for its Python
+    function during the call): called from Python, a helper compiled again for Python's argument types,
+    ~20 s of CPU in every fresh clone's suite. Interpreted and compiled give the same floats
+    (``test_the_kernel_interpreted_gives_the_same_floats``)."""
+    from numba.core.registry import CPUDispatcher
+
     from belt_drive_ros.core import kernel
 
+    with pytest.MonkeyPatch.context() as mp:
+        for name, value in list(vars(kernel).items()):
+            if isinstance(value, CPUDispatcher) and name != "wheel_steps":
+                mp.setattr(kernel, name, value.py_func)
+        return _wheel_steps_interpreted(kernel, loop, times, x, out)
+
+
+def _wheel_steps_interpreted(kernel, loop, times, x, out):
     ints, reals = loop.ints, loop.reals
     n, s, E, rows, cols = (int(v) for v in ints[:5])
     at = ints[kernel.HEADER : kernel.HEADER + len(kernel.SECTIONS) + 1]

@@ -590,7 +590,9 @@ def test_auto_names_the_pulley(monkeypatch):
 
 
 def test_stacked_profiles_evaluate_as_each_profile_alone():
-    from belt_drive_ros.core.kernel import profile_torque_at
+    from numba.core.registry import CPUDispatcher
+
+    from belt_drive_ros.core import kernel
     from belt_drive_ros.core.profile_data import stack
     from belt_drive_ros.core.sources import make_profile
 
@@ -602,10 +604,15 @@ def test_stacked_profiles_evaluate_as_each_profile_alone():
         {"type": "motor", "curve": [[0.0, 20.0], [50.0, 15.0], [100.0, 0.0]]},
     )]
     data, start = stack([p.data() for p in profiles])
-    for t in (0.1, 0.3, 0.7):
-        for p, profile in enumerate(profiles):
-            alone = profile.torque(t, 1.3, 40.0)
-            assert profile_torque_at(data.kinds, data.params, data.tx, data.ty, int(start[p]), t, 1.3, 40.0) == alone
+    alone = {(t, p): profile.torque(t, 1.3, 40.0) for t in (0.1, 0.3, 0.7) for p, profile in enumerate(profiles)}
+    # the stacked evaluation interpreted, its helpers too: called from Python, the compiled one (inlined in the
+    # network loops) would compile again for Python's argument types in every fresh clone; the same floats
+    with pytest.MonkeyPatch.context() as mp:
+        for name, value in list(vars(kernel).items()):
+            if isinstance(value, CPUDispatcher):
+                mp.setattr(kernel, name, value.py_func)
+        for (t, p), torque in alone.items():
+            assert kernel.profile_torque_at(data.kinds, data.params, data.tx, data.ty, int(start[p]), t, 1.3, 40.0) == torque
 
 
 def test_the_network_kernel_compiles_once_and_interpreted_gives_the_same_floats(tmp_path):

@@ -22,7 +22,7 @@ from belt_drive_ros.core import stream as stream_module
 from belt_drive_ros.core.scene import load_scene
 from belt_drive_ros.core.stream import stream
 from belt_drive_ros.io import run_writers
-from belt_drive_ros.io.torque_bag import PagedTorque, paged_torque_bag, scene_with_torque_bag
+from belt_drive_ros.io.torque_bag import PASS_CHUNKS, PagedTorque, paged_torque_bag, scene_with_torque_bag
 from belt_drive_ros.io.recording import BagReadError, float64_rows
 from msg_tools.block_writer import BlockMcapWriter
 from msg_tools.chunked import topic_chunks
@@ -83,18 +83,22 @@ def test_the_slipping_model_pages_the_bag_and_runs_the_windows_of_the_whole_bag_
 def test_equal_times_across_chunks_and_uneven_spacing_page_as_the_whole_bag(tmp_path):
     """Messages at equal times (the later wins) across a chunk's seam, uneven spacing off the step grid."""
     rng = np.random.default_rng(3)
-    n = 6000
+    # 3,000 messages in chunks of 8 KiB: the 16 chunks of 6,000 in 16 KiB (the seam at the same chunk), half the run
+    n, block = 3000, 1500
     times = np.cumsum(rng.integers(300_000, 1_700_000, size=n)).astype(np.int64)
-    times[2999] = times[3000] = times[3001]  # a run of equal times over the seam of two blocks
+    times[block - 1] = times[block] = times[block + 1]  # a run of equal times over the seam of two blocks
     values = 40.0 + 30.0 * np.sin(np.arange(n) * 0.05) + rng.normal(size=n)
     bag = tmp_path / "uneven.mcap"
-    with BlockMcapWriter(bag, chunk_size=16 << 10) as w:
-        for a in range(0, n, 3000):
-            w.write_block([("/drive_torque", "std_msgs/msg/Float64")], times[a : a + 3000],
-                          [float64_rows(values[a : a + 3000])])
+    with BlockMcapWriter(bag, chunk_size=8 << 10) as w:
+        for a in range(0, n, block):
+            w.write_block([("/drive_torque", "std_msgs/msg/Float64")], times[a : a + block],
+                          [float64_rows(values[a : a + block])])
     base = load_scene(str(SCENE)).with_overrides(model="flexible", dt=1e-3)
     whole, paged = scene_with_torque_bag(base, bag), paged_torque_bag(base, bag)
     assert paged is not None and paged.drive.samples == whole.drive.times.size
+    chunks, _ = topic_chunks(bag, "/drive_torque")
+    assert len(chunks) >= 2 * PASS_CHUNKS  # the pass that opens the bag takes two goes
+    chunks.close()
     _same_windows(_windows(whole, 800), _windows(paged, 800))
 
 
