@@ -450,8 +450,9 @@ def _to_y(kind, x, Yflex, y):
 
 
 @njit(**_INLINE)
-def _shift_angle(lk, lp, out, shift):
-    """``out``: the load's numbers ``lp`` with every angle-reading row read at its angle + ``shift`` [rad].
+def _shift_angle(lk, lp, out, c, uses, s):
+    """The load's numbers sticking after slip ``s`` [m]: ``lp``, or where the load reads its angle (``uses[1]``)
+    ``out``, ``lp`` with every angle-reading row read at its angle + ``shift = -s / r_3`` [rad].
 
     Sticking after slip is the flexible model with the load at
     ``phi_3 = i phi_M - theta_e - s / r_3``: the flexible loop reads
@@ -459,6 +460,9 @@ def _shift_angle(lk, lp, out, shift):
     harmonic row (:mod:`~belt_drive_ros.core.profile_data`'s layouts: engine
     ``p5 (p6 angle) + p7``, compressor ``p2 angle + p3``; no other kind reads the angle).
     """
+    if uses[1] == 0:
+        return lp
+    shift = (-1.0 / c[1]) * s  # the stick plant's wheel map term, as it rounds
     for row in range(lk.size):
         for q in range(lp.shape[1]):
             out[row, q] = lp[row, q]
@@ -466,6 +470,7 @@ def _shift_angle(lk, lp, out, shift):
             out[row, 7] = lp[row, 7] + lp[row, 5] * (lp[row, 6] * shift)
         elif lk[row] == COMPRESSOR:
             out[row, 3] = lp[row, 3] + lp[row, 2] * shift
+    return out
 
 
 @njit(**_INLINE)
@@ -568,9 +573,7 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
             if kind == STICKING:
                 xs = np.empty(4)
                 _flexible(x, Minv, xs)
-                if uses[1] != 0:
-                    _shift_angle(lk, lp, shifted, (-1.0 / c[1]) * x[4])  # the stick plant's wheel map term, as it rounds
-                    load = shifted
+                load = _shift_angle(lk, lp, shifted, c, uses, x[4])
             else:
                 xs = x[:n].copy()
             done, status, _ = linear_steps(grid[k : j + 1], xs, states, lo[k], hi[k], limit, reals[r0:r1], ints[i0:i1], dp, load)

@@ -45,8 +45,8 @@ import numpy as np
 from numba import njit
 
 from .kernel import HEADER, SECTIONS, linear_steps, profile_torque
-from .kernel_slip import (KIND_NAMES, MASS_DOWN, MASS_UP, MAX_SWITCHES, PHASE_SIZE, SLIP_DOWN, SLIP_UP, STEPWISE,
-                          STICKING, _to_y, hybrid_steps)
+from .kernel_slip import (FLEXIBLE, KIND_NAMES, MASS_DOWN, MASS_UP, MAX_SWITCHES, PHASE_SIZE, SLIP_DOWN, SLIP_UP,
+                          STEPWISE, STICKING, _flexible, _shift_angle, _to_y, hybrid_steps)
 from .slip import SLIP, STICK
 from .slip_run import SlippingSimulator, SlipState, _events, _kind_code
 from .model import LINEAR_OUTPUTS, OUTPUT_UNITS
@@ -101,26 +101,25 @@ class PackedArrays:
     """Named arrays packed into one float64 buffer ``reals``; ``ints`` is the same buffer's int64 view, ``views[name]``
     each array's view into it (writing into it writes what the kernel reads).
 
-    Section ``j`` is ``FLOATS[j]`` (float64), then ``INTS[j - len(FLOATS)]`` (int64); the buffer starts with
+    ``names``: ``(FLOATS, INTS)``, the names of ``floats`` and ``ints`` in section order: section ``j`` is
+    ``FLOATS[j]`` (float64), then ``INTS[j - len(FLOATS)]`` (int64); the buffer starts with
     ``(offset, d0, d1, d2)`` of every section (at most three dimensions; the offset in 8-byte words from the
     buffer's start), which the kernels' ``_f1, _f2, _f3, _i1, _i2`` read: a kernel given the buffer alone takes
     ``ints = reals.view(np.int64)``.
     """
 
-    FLOATS: tuple = ()
-    INTS: tuple = ()
-
-    def __init__(self, floats: dict, ints: dict):
-        shapes = [np.shape(floats[name]) for name in self.FLOATS] + [np.shape(ints[name]) for name in self.INTS]
+    def __init__(self, names: tuple, floats: dict, ints: dict):
+        FLOATS, INTS = names
+        shapes = [np.shape(floats[name]) for name in FLOATS] + [np.shape(ints[name]) for name in INTS]
         if any(len(s) > 3 for s in shapes):
-            raise ValueError(f"{type(self).__name__}: at most three dimensions")
+            raise ValueError("PackedArrays: at most three dimensions")
         sizes = [int(np.prod(s)) for s in shapes]
-        nf = len(self.FLOATS)
+        nf = len(FLOATS)
         a = 4 * len(shapes)
         self.reals = np.zeros(a + sum(sizes))
         self.ints = self.reals.view(np.int64)
         self.views = {}
-        for j, (name, shape, size) in enumerate(zip(self.FLOATS + self.INTS, shapes, sizes)):
+        for j, (name, shape, size) in enumerate(zip(FLOATS + INTS, shapes, sizes)):
             dims = tuple(shape) + (1,) * (3 - len(shape))
             self.ints[4 * j : 4 * j + 4] = (a, *dims)
             view = (self.reals if j < nf else self.ints)[a : a + size].reshape(shape)
@@ -269,12 +268,6 @@ def joints_message(template: bytes | None = None, offsets=None) -> tuple[np.ndar
     return msg, slice(shift, shift + len(template)), at
 
 
-class LinearTickArrays(PackedArrays):
-    """:func:`linear_tick`'s buffers (:data:`LINEAR_FLOATS`, :data:`LINEAR_INTS`)."""
-
-    FLOATS, INTS = LINEAR_FLOATS, LINEAR_INTS
-
-
 class TickKernel:
     """One stepper's tick as one compiled call: :meth:`step` advances :attr:`state`, :attr:`y` holds the outputs.
 
@@ -292,9 +285,10 @@ class TickKernel:
         msg, where, at = joints_message(*message)
         rows = np.concatenate([np.ravel(plant.wheel_map), np.ravel(C), np.ravel(D),
                                [p.F_0, p.r_3, p.capstan_ratio, stepper.origin, stepper.dt, limit], at]).astype(np.float64)
-        arrays = LinearTickArrays(dict(rows=rows, reals=loop.reals, lp=loop._lp, x=np.zeros(n), y=np.zeros(len(OUTPUT_UNITS)),
-                                       msg=msg.view(np.float64), clamp=[-math.inf, math.inf, math.nan]),
-                                  dict(ints=loop.ints))  # fmt: skip
+        arrays = PackedArrays((LINEAR_FLOATS, LINEAR_INTS),
+                              dict(rows=rows, reals=loop.reals, lp=loop._lp, x=np.zeros(n), y=np.zeros(len(OUTPUT_UNITS)),
+                                   msg=msg.view(np.float64), clamp=[-math.inf, math.inf, math.nan]),
+                              dict(ints=loop.ints))  # fmt: skip
         views = arrays.views
         #: the outputs of the last :meth:`step` [SI units, OUTPUT_UNITS order; slack/slip as 0.0/1.0]
         self.y = views["y"]
@@ -339,13 +333,15 @@ SLIP_CONSTANTS = ("ratio", "r_3", "a_1", "g", "F_0", "q_1", "q_2", "q_3", "rel_2
 EVENTS = 7
 #: the slipping tick's packed sections (:class:`SlipTickKernel`): the hybrid loop's buffers of N steps, its phase
 #: state, the engine's arrays (Z as pairs of doubles), the outputs and the message; ``fscalars``: ``lo, hi, drive,
-#: sigma5, dt, limit, sigma``; ``iscalars``: the phase kind and how many of ``xs`` to start from (-1: ``x`` as it is)
+#: sigma5, dt, limit, sigma``; the load's shifted numbers and the flexible state sticking after slip; ``iscalars``:
+#: the phase kind and how many of ``xs`` to start from (-1: ``x`` as it is)
 SLIP_FLOATS = ("grid", "knots", "lo", "hi", "out_y", "out_native", "out_sigma", "x", "xs", "reals", "Yflex", "Minv",
-               "Z", "R", "c", "mats", "guards", "dx", "dy", "lp", "lx", "ly", "events", "consts", "y", "msg", "fscalars")
+               "Z", "R", "c", "mats", "guards", "dx", "dy", "lp", "lx", "ly", "events", "consts", "y", "msg", "fscalars",
+               "shifted", "flex")
 SLIP_INTS = ("special", "out_mode", "ints", "offsets", "have", "uses", "dk", "lk", "iscalars")
 (_GRID, _KNOTS, _SLO, _SHI, _OUT_Y, _OUT_NATIVE, _OUT_SIGMA, _SX, _SXS, _SREALS, _YFLEX, _MINV, _Z, _R, _C, _MATS,
- _GUARDS, _DX, _DY, _SLP, _LX, _LY, _EVENTS, _CONSTS, _SY, _SMSG, _FSCALARS, _SPECIAL, _OUT_MODE, _SINTS, _OFFSETS,
- _HAVE, _USES, _DK, _LK, _ISCALARS) = range(len(SLIP_FLOATS) + len(SLIP_INTS))  # fmt: skip
+ _GUARDS, _DX, _DY, _SLP, _LX, _LY, _EVENTS, _CONSTS, _SY, _SMSG, _FSCALARS, _SHIFTED, _FLEX, _SPECIAL, _OUT_MODE,
+ _SINTS, _OFFSETS, _HAVE, _USES, _DK, _LK, _ISCALARS) = range(len(SLIP_FLOATS) + len(SLIP_INTS))  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
@@ -355,10 +351,10 @@ def slip_tick(k0, stamp, packed, dp):
     (:func:`write_joints`). Returns ``-n`` when done, ``n`` events (mode switches) in the first rows of
     ``events``; else the hybrid loop's status (> 0): the buffers then hold the state the call started from.
 
-    A tick whose steps cross no guard is the phase's linear loop alone
-    (:func:`~belt_drive_ros.core.kernel.linear_steps`, stretch by stretch of
-    equal clamps as :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps`
-    takes them; the same floats); any other runs ``hybrid_steps`` from the start.
+    A tick whose steps cross no guard is the phase's linear loop alone (:func:`~.kernel.linear_steps`, stretch by
+    stretch of equal clamps as :func:`~.kernel_slip.hybrid_steps` takes them; sticking after slip the flexible loop
+    from ``Minv y``, the load's angle shifted by ``-s / r_3``; the same floats); any other runs ``hybrid_steps``
+    from the start.
 
     ``packed``: :class:`SlipTickKernel`'s buffer (:data:`SLIP_FLOATS`, :data:`SLIP_INTS`); ``dp``: the
     drive profile's data (the held torque's own array). The start: phase kind ``iscalars[0]``, its
@@ -380,8 +376,7 @@ def slip_tick(k0, stamp, packed, dp):
     grid, knots, lo, hi = _f1(packed, table, _GRID), _f1(packed, table, _KNOTS), _f1(packed, table, _SLO), _f1(packed, table, _SHI)
     x, xs, consts, y = _f1(packed, table, _SX), _f1(packed, table, _SXS), _f1(packed, table, _CONSTS), _f1(packed, table, _SY)
     out_y = _f2(packed, table, _OUT_Y)
-    kind = js[0]
-    given = js[1]
+    kind, given = js[0], js[1]
     if given >= 0:
         for j in range(x.size):
             x[j] = xs[j] if j < given else 0.0
@@ -405,36 +400,48 @@ def slip_tick(k0, stamp, packed, dp):
     reals, ints, offsets, have = _f1(packed, table, _SREALS), _i1(table, _SINTS), _i2(table, _OFFSETS), _i1(table, _HAVE)
     sigma = 1.0 if kind == SLIP_UP or kind == MASS_UP else -1.0 if kind == SLIP_DOWN or kind == MASS_DOWN else 0.0
     status = n_ev = -1
-    if kind != STEPWISE and kind != STICKING and have[kind] == 2:
+    Yflex, Minv, c = _f2(packed, table, _YFLEX), _f2(packed, table, _MINV), _f1(packed, table, _C)
+    uses = _i1(table, _USES)
+    if kind != STEPWISE and have[kind] == 2:
         # the usual tick: the phase's linear loop alone, stretch by stretch of equal clamps (hybrid_steps' stretches),
-        # its states in out_native's room; any guard, failure or missing phase, and sticking after slip (the
-        # flexible loop with the load's angle shifted): hybrid_steps below from the start
-        n, r0, r1, i0, i1 = PHASE_SIZE[kind], offsets[kind, 0], offsets[kind, 1], offsets[kind, 2], offsets[kind, 3]
+        # its states in out_native's room (sticking after slip: hybrid_steps' flexible loop, the load shifted by the
+        # slip s = y[4]); any guard, failure or missing phase: hybrid_steps below from the start
+        loop = FLEXIBLE if kind == STICKING else kind
+        n, r0, r1, i0, i1 = PHASE_SIZE[loop], offsets[loop, 0], offsets[loop, 1], offsets[loop, 2], offsets[loop, 3]
         room = packed[table[4 * _OUT_NATIVE] : table[4 * _OUT_NATIVE] + 6 * N]
+        start, load, s = x[:n], lp, x[4]
+        if kind == STICKING:
+            start, load = _f1(packed, table, _FLEX), _shift_angle(lk, lp, _f2(packed, table, _SHIFTED), c, uses, s)
         k = status = n_ev = 0
         while k < N and status == 0:
             j = k + 1
             while j < N and lo[j] == lo[k] and hi[j] == hi[k]:
                 j += 1
             states = room[: (j - k) * n].reshape((j - k, n))
-            _, status, _ = linear_steps(grid[k : j + 1], x[:n], states, lo[k], hi[k], limit, reals[r0:r1],
-                                        ints[i0:i1], dp, lp)  # fmt: skip
-            x[:n] = states[j - k - 1]
+            if kind == STICKING:
+                _flexible(x, Minv, start)
+            _, status, _ = linear_steps(grid[k : j + 1], start, states, lo[k], hi[k], limit, reals[r0:r1],
+                                        ints[i0:i1], dp, load)  # fmt: skip
+            if kind == STICKING:  # y of the flexible state, the slip s kept
+                _to_y(FLEXIBLE, states[j - k - 1], Yflex, x)
+                x[4] = s
+            else:
+                x[:n] = states[j - k - 1]
             k = j
     if status != 0:  # k0 and n0 as int64, not literal zeros (a literal would compile the hybrid loop again)
         x[:] = xs
         zero = np.int64(0)
         _, status, kind, sigma, n_ev = hybrid_steps(
             grid, knots, lo, hi, _i1(table, _SPECIAL), zero, kind, x, dt, limit, out_y, _i1(table, _OUT_MODE),
-            _f1(packed, table, _OUT_SIGMA), _f2(packed, table, _OUT_NATIVE), reals, ints, offsets, have,
-            _f2(packed, table, _YFLEX), _f2(packed, table, _MINV), _f3(packed, table, _Z).view(np.complex128),
-            _f2(packed, table, _R), _f1(packed, table, _C), _f2(packed, table, _MATS), _f2(packed, table, _GUARDS),
-            _i1(table, _USES), dk, dp, dx, dy, lk, lp, lx, ly, _f2(packed, table, _EVENTS), zero)  # fmt: skip
+            _f1(packed, table, _OUT_SIGMA), _f2(packed, table, _OUT_NATIVE), reals, ints, offsets, have, Yflex, Minv,
+            _f3(packed, table, _Z).view(np.complex128), _f2(packed, table, _R), c, _f2(packed, table, _MATS),
+            _f2(packed, table, _GUARDS), uses, dk, dp, dx, dy, lk, lp, lx, ly, _f2(packed, table, _EVENTS),
+            zero)  # fmt: skip
     lo[0], hi[N - 1] = -math.inf, math.inf
     if status != 0:
         x[:] = xs
         return status
-    _to_y(kind, x, _f2(packed, table, _YFLEX), out_y[N - 1])  # the state's y (after a restick: Yflex Minv y)
+    _to_y(kind, x, Yflex, out_y[N - 1])  # the state's y (after a restick: Yflex Minv y)
     js[0] = kind
     fs[3] = sigma if kind == STEPWISE else math.nan  # the next call's sigma5 when it continues from this state
     fs[6] = sigma
@@ -474,12 +481,6 @@ def slip_tick(k0, stamp, packed, dp):
     return -n_ev
 
 
-class SlipTickArrays(PackedArrays):
-    """:func:`slip_tick`'s buffers (:data:`SLIP_FLOATS`, :data:`SLIP_INTS`)."""
-
-    FLOATS, INTS = SLIP_FLOATS, SLIP_INTS
-
-
 class SlipTickKernel:
     """A slipping engine's (:class:`~belt_drive_ros.core.slip_run.SlippingSimulator`) tick of whole steps as one
     compiled call (:func:`slip_tick`), its buffers packed again when a phase's stepper was built or the steps
@@ -512,7 +513,8 @@ class SlipTickKernel:
             self._args = None
             return
         have, reals, ints, offsets, Yflex, Minv, (Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly) = compiled
-        arrays = SlipTickArrays(
+        arrays = PackedArrays(
+            (SLIP_FLOATS, SLIP_INTS),
             dict(grid=np.zeros(N + 1), knots=np.zeros(N + 1), lo=np.full(N, -math.inf), hi=np.full(N, math.inf),
                  out_y=np.zeros((N, 5)), out_native=np.zeros((N, 6)), out_sigma=np.zeros(N), x=np.zeros(6),
                  xs=np.zeros(6), reals=reals, Yflex=Yflex, Minv=Minv, Z=Z.view(np.float64), R=R, c=c, mats=mats,
@@ -520,7 +522,8 @@ class SlipTickKernel:
                  # room for a chattering step's switches (the hybrid loop wants it) and EVENTS more (then the engine)
                  events=np.zeros((MAX_SWITCHES + 1 + EVENTS, 8)),
                  consts=self.consts, y=self.y, msg=self._msg.view(np.float64),
-                 fscalars=[-math.inf, math.inf, math.nan, math.nan, self.dt, self.limit, 0.0]),
+                 fscalars=[-math.inf, math.inf, math.nan, math.nan, self.dt, self.limit, 0.0], shifted=lp,
+                 flex=np.zeros(4)),
             dict(special=np.zeros(N, dtype=np.int64), out_mode=np.zeros(N, dtype=np.int64), ints=ints, offsets=offsets,
                  have=have, uses=uses, dk=dk, lk=lk, iscalars=[0, 0]))  # fmt: skip
         views = arrays.views

@@ -108,9 +108,10 @@ class NetworkStepper:
         self._window = (math.inf, -math.inf, -math.inf, math.inf)
 
     def _pack(self, scene) -> None:
-        """The loop's arrays and the joint values' data as :class:`~belt_drive_ros.core.network.tick.TickArrays`
+        """The loop's arrays and the joint values' data as :class:`~belt_drive_ros.core.tick.PackedArrays`
         (the compiled tick's two buffers); the loop's ``pk, pp`` become their views (held torques written there)."""
-        from ..core.network.tick import LAG, RIGID, SAME, ZERO, TickArrays
+        from ..core.network.tick import FLOATS, INTS, LAG, RIGID, SAME, ZERO
+        from ..core.tick import PackedArrays
 
         loop, n, m, d = self.loop, len(scene.pulleys), self.model.M.shape[0], scene.driver
         arm = m > n
@@ -124,7 +125,8 @@ class NetworkStepper:
             row[i] = int(r)
         W, kinds, offsets, S, F, final_base, tol, max_iter, uses_angle = loop.args
         extra, guard = loop._none
-        self._arrays = TickArrays(
+        self._arrays = PackedArrays(
+            (FLOATS, INTS),
             dict(W=W, offsets=offsets, S=S, F=F, pp=loop.pp, px=loop.px, py=loop.py, extra=extra, guard=guard, rho=rho,
                  value=np.zeros(n), tsign=[ROLE_SIGN.get(p.role, 0.0) for p in scene.pulleys],
                  gear=[float(p.gear) for p in scene.pulleys], qp=self._rows[1], y=np.zeros(3 * (n + int(arm))),

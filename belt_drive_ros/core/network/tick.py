@@ -10,7 +10,7 @@ cost on the caches a 1 ms sleep leaves is most of the tick.
 :func:`network_tick` does both in one ``@njit(cache=True, nogil=True)`` call,
 and writes the values into the ``joint_states`` CDR bytes the node publishes.
 
-Its arrays are packed once into one buffer (:class:`TickArrays`: ``reals``
+Its arrays are packed once into one buffer (:class:`~belt_drive_ros.core.tick.PackedArrays`: ``reals``
 and ``ints``, its int64 view; numba's dispatcher converts every argument on
 every call), cut into views again in the kernel (the same shapes and types:
 ``wheel_steps`` keeps its one signature); the caller writes held torques into
@@ -43,7 +43,7 @@ from ..tick import PackedArrays, _f1, _f2, _f3, _i1
 
 #: per state angle how its joint angle and speed are formed (``jkind``)
 SAME, LAG, RIGID, ZERO = 0, 1, 2, 3
-#: the float sections of :class:`TickArrays` in ``reals``, in order (fscalars: dt, theta0, speed limit, tol)
+#: the float sections of the packed buffer ``reals``, in order (fscalars: dt, theta0, speed limit, tol)
 FLOATS = ("W", "offsets", "S", "F", "pp", "px", "py", "extra", "guard", "rho", "value", "tsign", "gear", "qp", "y",
           "fscalars")
 #: the int sections in ``ints`` (iscalars: final_base, max_iter, driver, arm, then the message's layout: the float64
@@ -59,8 +59,8 @@ def network_tick(k0, steps, x, out, lo, hi, reals, ints, msg, stamp):
     section of ``reals`` and, when ``ints`` gives its layout, the ``joint_states`` message stamped ``stamp`` [ns]
     into ``msg`` (uint8, 8-byte aligned: :func:`~belt_drive_ros.core.tick.joints_message`).
 
-    ``reals``, ``ints``: :class:`TickArrays` (:data:`FLOATS`, :data:`INTS`). ``W .. guard, kinds .. pk``: the
-    network loop's arguments of :func:`~belt_drive_ros.core.kernel.wheel_steps` (both profile banks the same stack,
+    ``reals``, ``ints``: the packed buffer, its int64 view (:data:`FLOATS`, :data:`INTS`). ``W .. guard, kinds .. pk``:
+    the network loop's arguments of :func:`~belt_drive_ros.core.kernel.wheel_steps` (both profile banks the same stack,
     :class:`~.simulate.NetworkLoop`). ``jkind, rho`` (m,): per state angle :data:`SAME`/:data:`LAG`/:data:`RIGID`/
     :data:`ZERO` and its ratio; ``theta0`` the arm's installed angle, ``arm`` 1 with an arm. Per pulley (n,):
     ``held`` 1 when its torque is held at ``value`` [N m], ``tsign`` its profile's sign (0: no profile), ``gear``,
@@ -130,12 +130,6 @@ def network_tick(k0, steps, x, out, lo, hi, reals, ints, msg, stamp):
     return done, status, t
 
 
-class TickArrays(PackedArrays):
-    """The network tick's arrays packed (:data:`FLOATS`, :data:`INTS`; :class:`~belt_drive_ros.core.tick.PackedArrays`)."""
-
-    FLOATS, INTS = FLOATS, INTS
-
-
 def warm() -> None:
     """Compile (or load from the disk cache) :func:`network_tick` with the one signature the node uses: one step
     of a two-pulley belt's flexible loop, its driver's torque held."""
@@ -145,7 +139,8 @@ def warm() -> None:
     x = loop.initial()
     W, kinds, offsets, S, F, final_base, tol, max_iter, uses_angle = loop.args
     extra, guard = loop._none
-    packed = TickArrays(
+    packed = PackedArrays(
+        (FLOATS, INTS),
         dict(W=W, offsets=offsets, S=S, F=F, pp=loop.pp, px=loop.px, py=loop.py, extra=extra, guard=guard,
              rho=np.ones(2), value=np.array([0.1, 0.0]), tsign=np.array([1.0, -1.0]), gear=np.ones(2), qp=loop.pp,
              y=np.zeros(6), fscalars=np.array([1e-3, 0.0, LIMIT, tol])),
