@@ -4,8 +4,7 @@ A 1 kHz tick of the linear models is one step of the kernel
 (:func:`~belt_drive_ros.core.kernel.linear_steps`) and the sixteen outputs
 of :data:`~belt_drive_ros.core.model.OUTPUT_UNITS` at the new state:
 :func:`linear_tick` does both in one ``@njit(cache=True, nogil=True)`` call
-(in Python, ~25 numpy calls on tiny arrays) writing into buffers
-:class:`TickKernel` allocates once per stepper.
+writing into buffers :class:`TickKernel` allocates once per stepper.
 
 Bit for bit the operations of the reference path (the stepper's
 :meth:`~belt_drive_ros.core.stepper.Stepper.advance`, then
@@ -24,11 +23,8 @@ Bit for bit the operations of the reference path (the stepper's
   the flags as 0.0/1.0.
 
 A tick at which the held drive torque changes is compiled too when it is one
-grid step: the torque times clamped to ``[lo, hi]`` (``lo = t0`` after a jump
-at ``t0``, ``hi = left_of(t1)`` before one at ``t1``: the stepper's special
-step), the new value written into the held torque's data before the outputs at
-``t1`` (``drive``). Ticks near a plant breakpoint, a held-torque jump in a tick
-of several steps, extra inputs: the stepper as before.
+grid step (:func:`linear_tick`'s clamps); ticks near a plant breakpoint, a
+held-torque jump in a tick of several steps, extra inputs: the stepper as before.
 
 The kernels also write the tick's ``joint_states`` message into a byte
 buffer the caller lays out (:func:`write_joints`): the stamp and the twelve
@@ -186,9 +182,9 @@ def linear_tick(k0, steps, stamp, packed, dp):
     (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`); ``rows`` packs ``[W (4 n), C (12 n), D (12 x 2),
     F_0, r_3, capstan_ratio, origin, dt, speed limit, message layout (4)]``; ``x`` (n,) the state, replaced by
     the new one; ``y`` the outputs. ``clamp``: ``lo, hi`` [s], the torque times clamped to them (``-inf, inf``:
-    none; the stepper's special step at a held-torque jump), and ``drive``: NaN, or the held drive torque's new
-    value [N m], written into ``dp[0, 0]`` after the steps, before the outputs; read and set back to ``-inf,
-    inf, NaN``. ``x``, ``y``, the message and ``dp`` are written only when every step is done (status OK).
+    none; the stepper's special step at a held-torque jump: ``lo = t0`` after a jump at ``t0``, ``hi =
+    left_of(t1)`` before one at ``t1``), and ``drive``: NaN, or the held drive torque's new value [N m], written
+    into ``dp[0, 0]`` after the steps, before the outputs; read and set back to ``-inf, inf, NaN``. ``x``, ``y``, the message and ``dp`` are written only when every step is done (status OK).
     """
     table = packed.view(np.int64)
     rows, reals, ints, lp = _f1(packed, table, _ROWS), _f1(packed, table, _REALS), _i1(table, _INTS), _f2(packed, table, _LP)
