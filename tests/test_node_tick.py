@@ -170,18 +170,21 @@ def test_packed_arrays_views_write_what_the_buffer_holds():
     assert packed.reals[18] == -1.25 and packed.ints[20] == 9 and packed.reals[12:18].tolist() == list(range(6))
 
 
-SCRIPT = """
+#: a child script's head: the hybrid loop's calls from the slipping tick counted (where the kernels run as Python)
+COUNTED = """
 import json, sys
+import numpy as np
 sys.path.insert(0, {tests!r})
-from test_node_tick import _lockstep
+from test_node_tick import _lockstep, _pair
 from belt_drive_ros.core import tick
-calls = []  # the hybrid loop's calls from the slipping tick (counted where the kernels run as Python)
+calls = []
 hybrid_steps = tick.hybrid_steps
 def counted(*args):
     calls.append(1)
     return hybrid_steps(*args)
 tick.hybrid_steps = counted
-out = []
+"""
+SCRIPT = COUNTED + """out = []
 for values in ({{"drive_source": "topic"}}, {{"scene": "truck_compressor", "model": "slipping", "drive_source": "scene"}}):
     fast, a, b, sims = _lockstep(values, 120, {{k: 1.0 + k for k in range(3, 120, 11)}} if values.get("drive_source") == "topic" else None)
     out.append([fast, a.tolist()])
@@ -250,19 +253,7 @@ def test_the_slipping_tick_keeps_its_hybrid_state_in_the_kernel_between_ticks(mo
     assert len(built) <= 301 - fast and state.kind in ("flexible", "stick") and np.array_equal(sim.stepper.state_y(state), sim.x)
 
 
-STICK_AFTER_SLIP = """
-import sys
-import numpy as np
-sys.path.insert(0, {tests!r})
-from test_node_tick import _pair
-from belt_drive_ros.core import tick
-calls = []  # the hybrid loop's calls from the slipping tick (counted where the kernels run as Python)
-hybrid_steps = tick.hybrid_steps
-def counted(*args):
-    calls.append(1)
-    return hybrid_steps(*args)
-tick.hybrid_steps = counted
-sim = _pair({{"scene": "truck_compressor", "model": "slipping", "drive_source": "scene"}})[0]
+STICK_AFTER_SLIP = COUNTED + """sim = _pair({{"scene": "truck_compressor", "model": "slipping", "drive_source": "scene"}})[0]
 engine, kernel = sim.stepper, sim._tick_kernel
 k0, ticks = round({t0} / engine.dt), round({t1} / engine.dt) - round({t0} / engine.dt)  # one grid step a tick
 events = []
