@@ -597,7 +597,8 @@ def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk,
     (:func:`profile_scalars`: the truck's engine and scheduled compressors),
     is read once per call: with no array passed into the inlined dispatcher,
     numba's reference counting drops out of the step (paper's ``exact``:
-    33 -> 14 ns; truck_compressor's etd4 341 -> 235 ns).
+    33 -> 14 ns; truck_compressor's etd4 341 -> 235 ns). Any other profile through the dispatcher
+    inlined (:func:`torque`: a call cost e_motor_start's motor curve 75 -> 106 ns).
     """
     x0, x1 = x[0], x[1]
     x2 = x[2] if n == 4 else 0.0
@@ -645,14 +646,14 @@ def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk,
                 kind, p, a = (dka, dpa, daa) if dper[0] <= tc < dper[1] or dper[2] <= tc < dper[3] else (dki, dpi, dai)
                 u0 = scalar_torque(kind, p, a, tc, c0, c1)
             else:
-                u0 = profile_torque(dk, dp, dx, dy, tc, c0, c1)
+                u0 = torque(dk, dp, dx, dy, 0, tc, c0, c1)
             if lform:
                 u1 = formula(lkind, l0, l1, l2, l3, l4, tc, c3)
             elif lfits:
                 kind, p, a = (lka, lpa, laa) if lper[0] <= tc < lper[1] or lper[2] <= tc < lper[3] else (lki, lpi, lai)
                 u1 = scalar_torque(kind, p, a, tc, c2, c3)
             else:
-                u1 = profile_torque(lk, lp, lx, ly, tc, c2, c3)
+                u1 = torque(lk, lp, lx, ly, 0, tc, c2, c3)
             e0 = _friction_force(extra[0], c1) if E else 0.0
             if i < s - 1:
                 U[m * i], U[m * i + 1] = u0, u1
