@@ -64,6 +64,21 @@ def test_only_entries_built_from_an_edited_source_are_dropped(tmp_path, monkeypa
     assert jit_cache.refresh() is False and all(e.exists() for e in entries.values())
 
 
+def test_a_new_kernel_file_and_the_module_it_imports_are_followed(tmp_path, monkeypatch):
+    """A kernel file added after the last check, importing a module added with it: an edit of that module
+    drops the new file's entries (the quick check covers every source of the folder, not only the known ones)."""
+    core = _copy_core(tmp_path, monkeypatch)
+    jit_cache.refresh()
+    (core / "helper_x.py").write_text("K = 1\n")
+    (core / "kernel_x.py").write_text("from numba import njit\n\nfrom .helper_x import K\n")
+    entry = core / "__pycache__" / "kernel_x.f-3.py312.nbi"
+    jit_cache.refresh()
+    entry.write_bytes(b"compiled")
+    assert jit_cache.refresh() is False and entry.exists()
+    (core / "helper_x.py").write_text("K = 2\n")
+    assert jit_cache.refresh() is True and not entry.exists()
+
+
 def test_entries_under_numba_cache_dir_are_handled(tmp_path, monkeypatch):
     core = _copy_core(tmp_path / "pkg", monkeypatch)
     user = tmp_path / "cache"

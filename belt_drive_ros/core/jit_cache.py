@@ -2,13 +2,12 @@
 
 numba checks a cached function against its own file only, but a kernel also
 holds what it took from other modules when it compiled: a compiled callee's
-machine code (every loop calls ``kernel.profile_torque``), an inlined helper's
-body, a module constant. A kernel reaches another module only through a
-module-level import, so each source file's entries (``<file>.*.nbi``,
-``*.nbc``) are stamped with a SHA-256 over that file and every package module
-it imports at module level, transitively. Before any kernel loads, the entries
-whose stamp differs are removed: an edit of ``kernel_variants.py`` drops its
-own entries, one of ``kernel.py`` those of every file importing it. Folders:
+machine code, an inlined helper's body, a module constant; it reaches them
+only through module-level imports. So each file's entries (``<file>.*.nbi``,
+``*.nbc``) are stamped with a SHA-256 over the file and every package module
+it imports at module level, transitively, and removed before any kernel loads
+when that stamp changed: an edit of ``kernel_variants.py`` drops its own
+entries, one of ``kernel.py`` those of every file importing it. Folders:
 ``core/__pycache__``, ``core/network/__pycache__`` or their mirror under
 ``NUMBA_CACHE_DIR``; a folder we cannot write is left alone.
 """
@@ -27,26 +26,21 @@ STAMP = "kernels.json"
 
 
 def _imports(path: Path) -> set[Path]:
-    """The files of the package ``path`` imports at module level (inside a top-level ``if``/``try`` too)."""
+    """The package's files ``path`` imports at module level (inside a top-level ``if``/``try`` too)."""
     package, found = CORE.parent, set()
     nodes = list(ast.parse(path.read_bytes()).body)
     while nodes:
         node = nodes.pop()
-        if isinstance(node, (ast.If, ast.Try)):
-            nodes += [*node.body, *node.orelse, *getattr(node, "finalbody", ()), *(b for h in getattr(node, "handlers", ()) for b in h.body)]
-        elif isinstance(node, ast.ImportFrom) and node.level:
-            base = path.parent
-            for _ in range(node.level - 1):
-                base = base.parent
-            base = base.joinpath(*node.module.split(".")) if node.module else base
-            for name in [None] + [a.name for a in node.names]:
-                target = base / name if name else base
-                found |= {f for f in (target.with_suffix(".py"), target / "__init__.py") if f.is_file()}
-        elif isinstance(node, (ast.Import, ast.ImportFrom)):
-            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
-            for name in (n for n in names if n.split(".")[0] == package.name):
-                target = package.parent.joinpath(*name.split("."))
-                found |= {f for f in (target.with_suffix(".py"), target / "__init__.py") if f.is_file()}
+        if isinstance(node, (ast.If, ast.Try, ast.ExceptHandler)):
+            nodes += [n for n in ast.iter_child_nodes(node) if isinstance(n, (ast.stmt, ast.ExceptHandler))]
+        modules = [(0, a.name, ()) for a in node.names] if isinstance(node, ast.Import) else []
+        if isinstance(node, ast.ImportFrom):
+            modules = [(node.level, node.module or "", [a.name for a in node.names])]
+        for level, module, names in modules:
+            if level or module.split(".")[0] == package.name:
+                target = (path.parents[level - 1] if level else package.parent).joinpath(*filter(None, module.split(".")))
+                for t in [target, *(target / name for name in names)]:
+                    found |= {f for f in (t.with_suffix(".py"), t / "__init__.py") if f.is_file()}
     return found
 
 
@@ -86,9 +80,10 @@ def refresh() -> bool:
     """Drop cache entries built from other sources than today's; True when some were dropped."""
     dropped = False
     for folder, sources in _cache_folders():
+        here = {str(p.relative_to(CORE.parent)) for p in sources.glob("*.py")}  # a new kernel file is seen at once
         try:
             old = json.loads((folder / STAMP).read_text())
-            if _digest(CORE.parent / f for f in old["files"]) == old["digest"]:
+            if _digest(CORE.parent / f for f in sorted(here | set(old["files"]))) == old["digest"]:
                 continue  # not one file the entries were built from changed since the last check
         except (OSError, ValueError, KeyError, TypeError):
             old = {}
@@ -96,7 +91,7 @@ def refresh() -> bool:
         stems = {e.name.split(".")[0] for e in entries} | {p.stem for p in sources.glob("*.py") if b"njit" in p.read_bytes()}
         closures = {s: _closure(sources / f"{s}.py") for s in stems}
         stamps = {s: _digest(files) for s, files in closures.items()}
-        files = sorted({str(f.relative_to(CORE.parent)) for c in closures.values() for f in c})
+        files = sorted(here | {str(f.relative_to(CORE.parent)) for c in closures.values() for f in c})
         try:
             for entry in entries:
                 stem = entry.name.split(".")[0]
