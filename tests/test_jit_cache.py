@@ -9,30 +9,74 @@ from belt_drive_ros.core import jit_cache
 
 def _copy_core(tmp_path, monkeypatch):
     core = tmp_path / "belt_drive_ros" / "core"
-    for name in jit_cache.SOURCES:
-        (core / name).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy(jit_cache.CORE / name, core / name)
+    shutil.copytree(jit_cache.CORE, core, ignore=shutil.ignore_patterns("__pycache__"))
     monkeypatch.setattr(jit_cache, "CORE", core)
     monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
     return core
 
 
-def test_entries_built_from_other_sources_are_dropped_once(tmp_path, monkeypatch):
-    core = _copy_core(tmp_path, monkeypatch)
-    old = [core / "__pycache__" / "kernel_slip.hybrid_steps-100.py312.nbi",
-           core / "network" / "__pycache__" / "kernel.network_steps-50.py312.nbc"]  # fmt: skip
-    for entry in old:
+def _entries(core):
+    """One cache entry per kernel file (index and data), as numba names them."""
+    return {name + suffix: core / folder / "__pycache__" / f"{stem}.run-10.py312{suffix}"
+            for name, folder, stem in (("kernel", ".", "kernel"), ("variants", ".", "kernel_variants"),
+                                       ("tick", ".", "tick"), ("network_slip", "network", "slip_kernel"))
+            for suffix in (".nbi", ".1.nbc")}  # fmt: skip
+
+
+def _make(entries):
+    for entry in entries.values():
         entry.parent.mkdir(parents=True, exist_ok=True)
-        entry.write_bytes(b"stale")
+        entry.write_bytes(b"compiled")
+
+
+def _gone(entries):
+    return {name.split(".")[0] for name, entry in entries.items() if not entry.exists()}
+
+
+def _edit(path):
+    path.write_text(path.read_text() + "\n# edited\n")
+
+
+def test_only_entries_built_from_an_edited_source_are_dropped(tmp_path, monkeypatch):
+    core = _copy_core(tmp_path, monkeypatch)
+    entries = _entries(core)
+    _make(entries)
+    assert jit_cache.refresh() is True  # no stamp yet: built from unknown sources
+    assert not any(e.exists() for e in entries.values())
+    _make(entries)
+    assert jit_cache.refresh() is False and all(e.exists() for e in entries.values())
+    # a leaf kernel file: its own entries only
+    _edit(core / "kernel_variants.py")
     assert jit_cache.refresh() is True
-    assert not any(entry.exists() for entry in old)
-    assert (core / "__pycache__" / jit_cache.STAMP).read_text() == jit_cache.fingerprint()
-    fresh = core / "__pycache__" / "kernel.linear_steps-10.py312.nbi"
-    fresh.write_bytes(b"built from these sources")
-    assert jit_cache.refresh() is False and fresh.exists()
-    # an edit of the shared kernel alone invalidates its callers' entries in every folder
-    (core / "kernel.py").write_text((core / "kernel.py").read_text() + "\n# edited\n")
-    assert jit_cache.refresh() is True and not fresh.exists()
+    assert _gone(entries) == {"variants"}
+    _make(entries)
+    # a module the node's tick imports (not a kernel file itself): the tick's entries
+    _edit(core / "slip_run.py")
+    assert jit_cache.refresh() is True
+    assert _gone(entries) == {"tick"}
+    _make(entries)
+    # the shared kernel: every file that imports it, in both folders
+    _edit(core / "kernel.py")
+    assert jit_cache.refresh() is True and not any(e.exists() for e in entries.values())
+    _make(entries)
+    # a source no kernel imports: nothing
+    _edit(core / "simulate.py")
+    assert jit_cache.refresh() is False and all(e.exists() for e in entries.values())
+
+
+def test_a_new_kernel_file_and_the_module_it_imports_are_followed(tmp_path, monkeypatch):
+    """A kernel file added after the last check, importing a module added with it: an edit of that module
+    drops the new file's entries (the quick check covers every source of the folder, not only the known ones)."""
+    core = _copy_core(tmp_path, monkeypatch)
+    jit_cache.refresh()
+    (core / "helper_x.py").write_text("K = 1\n")
+    (core / "kernel_x.py").write_text("from numba import njit\n\nfrom .helper_x import K\n")
+    entry = core / "__pycache__" / "kernel_x.f-3.py312.nbi"
+    jit_cache.refresh()
+    entry.write_bytes(b"compiled")
+    assert jit_cache.refresh() is False and entry.exists()
+    (core / "helper_x.py").write_text("K = 2\n")
+    assert jit_cache.refresh() is True and not entry.exists()
 
 
 def test_entries_under_numba_cache_dir_are_handled(tmp_path, monkeypatch):
@@ -44,7 +88,10 @@ def test_entries_under_numba_cache_dir_are_handled(tmp_path, monkeypatch):
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(user))
     assert jit_cache.refresh() is True
     assert not (mirrored / "slip_kernel.run-5.py312.nbi").exists()
-    assert (mirrored / jit_cache.STAMP).read_text() == jit_cache.fingerprint()
+    (mirrored / "slip_kernel.run-5.py312.nbi").write_bytes(b"fresh")
+    assert jit_cache.refresh() is False and (mirrored / "slip_kernel.run-5.py312.nbi").exists()
+    _edit(core / "network" / "slip_kernel.py")
+    assert jit_cache.refresh() is True and not (mirrored / "slip_kernel.run-5.py312.nbi").exists()
     assert (core / "__pycache__" / jit_cache.STAMP).exists()
 
 

@@ -40,9 +40,10 @@ _JIT = dict(cache=True, nogil=True)
 #: values differ by at most this part (a torque summed from large terms, e.g. a governor's ``g (w_set - w)``, moves
 #: by more than the tolerance when the state moves by one ulp: the iteration cannot get closer, it alternates)
 ROUNDING = 1e-9
-#: small helpers are inlined into their callers (no call, no reference counting of the arrays passed)
 #: harmonic amplitudes an engine or compressor row may have to run from scalars (:func:`profile_scalars`)
 SCALAR_HARMONICS = 3
+#: small helpers are inlined into their callers (no call, no reference counting of the arrays passed); each
+#: inlined copy is compiled again, so the profile dispatcher and the loops are called, not inlined
 _INLINE = dict(cache=True, nogil=True, inline="always")
 
 
@@ -171,12 +172,21 @@ def polynomial(c0, c1, c2, speed):
 
 
 @njit(**_INLINE)
-def torque(kind, params, row, tx, ty, t, angle, speed):
-    """Torque [N m] of row ``row`` of a profile (``kind``, its numbers ``p = params[row]``) at ``t`` [s], ``angle`` [rad], ``speed`` [rad/s].
+def torque(kinds, params, tx, ty, row, t, angle, speed):
+    """Torque [N m] of the profile whose first row is ``row`` at ``t`` [s], ``angle`` [rad], ``speed`` [rad/s].
 
-    The row layouts are :mod:`~belt_drive_ros.core.profile_data`'s table. A
-    schedule row is resolved by :func:`profile_torque` before this is called.
+    The row layouts are :mod:`~belt_drive_ros.core.profile_data`'s table; a
+    schedule row resolves to its active row inside a period [start, end), else its inactive one.
     """
+    while kinds[row] == SCHEDULE:
+        offset, n = int(params[row, 0]), int(params[row, 1])
+        inside = False
+        for j in range(n):
+            if tx[offset + j] <= t < ty[offset + j]:
+                inside = True
+                break
+        row = int(params[row, 2]) if inside else int(params[row, 3])
+    kind = kinds[row]
     if is_formula(kind):
         return formula(kind, params[row, 0], params[row, 1], params[row, 2], params[row, 3], params[row, 4], t, speed)
     if kind == TABLE_LINEAR:
@@ -276,25 +286,20 @@ def scalar_torque(kind, p, amplitudes, t, angle, speed):
     return formula(kind, p[0], p[1], p[2], p[3], p[4], t, speed)
 
 
-@njit(**_INLINE)
+@njit(**_JIT)
 def profile_torque(kinds, params, tx, ty, t, angle, speed):
-    """Torque [N m] of the profile whose data are ``kinds, params, tx, ty`` (row 0; schedules resolved)."""
-    return profile_torque_at(kinds, params, tx, ty, 0, t, angle, speed)
+    """Torque [N m] of the profile whose data are ``kinds, params, tx, ty`` (row 0; :func:`torque`).
+
+    This and :func:`profile_torque_at` are called, never inlined: every kernel shares their compiled
+    dispatcher (each inlined copy compiled the whole dispatcher again: 58 s of ``wheel_steps``' build)."""
+    return torque(kinds, params, tx, ty, 0, t, angle, speed)
 
 
-@njit(**_INLINE)
+@njit(**_JIT)
 def profile_torque_at(kinds, params, tx, ty, row, t, angle, speed):
     """Torque [N m] of the profile whose first row is ``row`` (profiles stacked end to end:
-    :func:`~belt_drive_ros.core.profile_data.stack`; schedules resolved)."""
-    while kinds[row] == SCHEDULE:  # the active row inside a period [start, end), else the inactive one
-        offset, n = int(params[row, 0]), int(params[row, 1])
-        inside = False
-        for j in range(n):
-            if tx[offset + j] <= t < ty[offset + j]:
-                inside = True
-                break
-        row = int(params[row, 2]) if inside else int(params[row, 3])
-    return torque(kinds[row], params, row, tx, ty, t, angle, speed)
+    :func:`~belt_drive_ros.core.profile_data.stack`; :func:`torque`)."""
+    return torque(kinds, params, tx, ty, row, t, angle, speed)
 
 
 @njit(**_JIT)
@@ -341,16 +346,13 @@ def _inputs(buf, base, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, 
     """Write a stage's inputs ``[torque_0 .. torque_{P-1}, extras...]`` at the clamped time ``tc`` into ``buf[base:]``.
 
     Wheel p's profile (first row ``start[p]``; profile 0 in the first bank, the others in the second) reads
-    ``coords[2p]`` (its angle where ``uses[p]``, else 0.0) and ``coords[2p + 1]``; two wheels without a loop
-    (the loop with its bank choice cost the two-wheel run 2-3x per step).
+    ``coords[2p]`` (its angle where ``uses[p]``, else 0.0) and ``coords[2p + 1]``; wheel 0 outside the loop
+    (a bank chosen inside the loop cost the two-wheel run 2-3x per step).
     """
     P = start.size
     buf[base] = profile_torque_at(ak, ap, ax, ay, start[0], tc, coords[0] if uses[0] else 0.0, coords[1])
-    if P == 2:
-        buf[base + 1] = profile_torque_at(bk, bp, bx, by, start[1], tc, coords[2] if uses[1] else 0.0, coords[3])
-    else:
-        for p in range(1, P):
-            buf[base + p] = profile_torque_at(bk, bp, bx, by, start[p], tc, coords[2 * p] if uses[p] else 0.0, coords[2 * p + 1])
+    for p in range(1, P):
+        buf[base + p] = profile_torque_at(bk, bp, bx, by, start[p], tc, coords[2 * p] if uses[p] else 0.0, coords[2 * p + 1])
     for e in range(extra.shape[0]):
         buf[base + P + e] = _friction_force(extra[e], coords[1])
 
@@ -526,11 +528,8 @@ def _steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, to
            ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):  # fmt: skip
     """The two-wheel loop on these unpacked arrays: :func:`_explicit` for an explicit method on a 2- or 4-state plant,
     else :func:`wheel_steps` with P = 2 (the drive's data its first bank, the load's the second); the same floats."""
-    if max_iter == 0 and extra.shape[0] <= 1:
-        if x.size == 4:
-            return _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard, 4)
-        if x.size == 2:
-            return _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard, 2)
+    if max_iter == 0 and extra.shape[0] <= 1 and (x.size == 4 or x.size == 2):
+        return _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard, x.size)
     uses = np.zeros(2, dtype=np.int64)
     uses[0], uses[1] = ua, ub
     return wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
@@ -582,10 +581,11 @@ def _past_guard(guard, x0, x1, x2, x3, n):
     return g > bound
 
 
-@njit(**_INLINE)
+@njit(**_JIT)
 def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard, n):
     """:func:`wheel_steps` for an explicit method on a plant of ``n`` = 2 (rigid) or 4 (flexible) states
-    (stage kinds 0, 1, 2 as there); ``n`` a constant at each call, so each size compiles to its own loop.
+    (stage kinds 0, 1, 2 as there); one compiled loop for both sizes (``n`` a variable: a constant compiled
+    the loop twice, one copy per size).
 
     The same operations in the same order, with the state (``x0, x1`` and,
     for 4 states, ``x2, x3``), each stage's wheel coordinates and torques in
@@ -597,7 +597,8 @@ def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk,
     (:func:`profile_scalars`: the truck's engine and scheduled compressors),
     is read once per call: with no array passed into the inlined dispatcher,
     numba's reference counting drops out of the step (paper's ``exact``:
-    33 -> 14 ns; truck_compressor's etd4 341 -> 235 ns).
+    33 -> 14 ns; truck_compressor's etd4 341 -> 235 ns). Any other profile through the dispatcher
+    inlined (:func:`torque`: a call cost e_motor_start's motor curve 75 -> 106 ns).
     """
     x0, x1 = x[0], x[1]
     x2 = x[2] if n == 4 else 0.0
@@ -645,14 +646,14 @@ def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk,
                 kind, p, a = (dka, dpa, daa) if dper[0] <= tc < dper[1] or dper[2] <= tc < dper[3] else (dki, dpi, dai)
                 u0 = scalar_torque(kind, p, a, tc, c0, c1)
             else:
-                u0 = profile_torque(dk, dp, dx, dy, tc, c0, c1)
+                u0 = torque(dk, dp, dx, dy, 0, tc, c0, c1)
             if lform:
                 u1 = formula(lkind, l0, l1, l2, l3, l4, tc, c3)
             elif lfits:
                 kind, p, a = (lka, lpa, laa) if lper[0] <= tc < lper[1] or lper[2] <= tc < lper[3] else (lki, lpi, lai)
                 u1 = scalar_torque(kind, p, a, tc, c2, c3)
             else:
-                u1 = profile_torque(lk, lp, lx, ly, tc, c2, c3)
+                u1 = torque(lk, lp, lx, ly, 0, tc, c2, c3)
             e0 = _friction_force(extra[0], c1) if E else 0.0
             if i < s - 1:
                 U[m * i], U[m * i + 1] = u0, u1
