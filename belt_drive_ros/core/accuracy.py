@@ -332,15 +332,19 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     peak = [float(np.max(np.abs(v))) for v in signals]  # over the run
     j = int(np.searchsorted(time, t1 + dt, side="right"))  # the run's samples the reruns can meet (one past t1)
     run_t, run_out = time[i:j], [v[i:j] for v in signals]
+    ends_on_sample = bool(np.any(np.abs(run_t - t1) <= 1e-9 * dt + 8.0 * np.spacing(abs(t1) + dt)))
     for h, factor in ((2.0 * dt, 1.0 / (2.0**order - 1.0)), (dt / 2.0, 2.0**order / (2.0**order - 1.0))):
         sim = SlippingSimulator(params, drive, load, method, h, method_options, check_stability=False, lazy=True)
         sim._hybrid = hybrid
         sim.slip_phases()  # (the stretch slips; the scene's steppers, shared)
         state = sim._native(np.asarray(states[i], dtype=float), int(modes[i]), float(sigmas[i]))
         pieces = [(np.array([t0]), sim.state_y(state)[None, :], state.mode, state.sigma)]
+        # a partial last step to t1 off the rerun's grid meets no sample of the run unless the run has one at t1
+        on_grid = ends_on_sample or sim.stepper._snap(t1) is not None
+        end = t1 if on_grid else max(t0, sim.grid_time(math.floor((t1 - sim.origin) / h)))
         try:
             with np.errstate(all="ignore"):
-                sim.advance(state, t0, t1, pieces)  # its events are the run's again: not collected
+                sim.advance(state, t0, end, pieces)  # its events are the run's again: not collected
         except (SimulationDivergedError, IntegratorError):
             continue
         tr, yr, mr, sr = _joined(pieces)

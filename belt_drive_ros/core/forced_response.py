@@ -46,6 +46,7 @@ import scipy.linalg
 
 from . import stage_scheme as _scheme
 from .errors import IntegratorError
+from .identity_cache import built_once
 
 #: most distinct harmonics checked per input (lowest first after the largest amplitude ones)
 MAX_HARMONICS = 8
@@ -314,24 +315,47 @@ def profile_harmonics(plant, probes) -> list[tuple[int, float, float]]:
     return out
 
 
+#: per integrator: its unit harmonic responses (err, peak) by closed loop, outputs, run length and frequencies
+_RESPONSES: dict = {}
+
+
 def harmonic_error(integrator, A, B, rows, K, n_steps: int, harmonics, peaks) -> float:
     """The harmonic term [-]: max over ``harmonics`` ``(input, f [Hz], a [N m])`` and output rows of
-    ``err a / max(P, peak a)`` (module docstring); ``peaks`` (rows,): the run's estimated peak per output."""
+    ``err a / max(P, peak a)`` (module docstring); ``peaks`` (rows,): the run's estimated peak per output.
+
+    The unit responses (:func:`harmonic_response_errors`) are a function of the
+    matrices and frequencies alone: made once per integrator, ``A``, ``B``,
+    ``rows``, ``K``, ``n_steps`` and frequencies (read-only), so a scene run
+    again (or checked again by the method choice) does not repeat them.
+    """
     if not harmonics:
         return 0.0
-    try:
-        stage = stage_gains(integrator, K)
-    except IntegratorError:
-        return math.inf
     peaks = np.asarray(peaks, dtype=float)
-    E_cl = scipy.linalg.expm(integrator.dt * (A + B @ K))  # once for every harmonic
     channels = np.array([int(c) for c, _, _ in harmonics])
     amplitude = np.array([float(a) for _, _, a in harmonics])
     omegas = np.array([2.0 * math.pi * float(f) for _, f, _ in harmonics])
-    err, peak = harmonic_response_errors(integrator, A, B, rows, K, n_steps, omegas, channels, stage, E_cl)  # all at once
-    err, peak = err * amplitude[:, None], peak * amplitude[:, None]  # (harmonics, rows)
+    key = tuple((np.shape(a), np.asarray(a).tobytes()) for a in (A, B, rows, K, omegas, channels)) + (int(n_steps),)
+    responses = built_once(_RESPONSES, 64, (integrator,), lambda: _unit_responses(integrator, A, B, rows, K, n_steps,
+                                                                                  omegas, channels), key)  # fmt: skip
+    if responses is None:
+        return math.inf
+    err, peak = responses[0] * amplitude[:, None], responses[1] * amplitude[:, None]  # (harmonics, rows)
     if not np.all(np.isfinite(err)):
         return math.inf
     scale = np.maximum(peaks[: err.shape[1]], peak)
     rel = np.where(scale > 0, err / np.where(scale > 0, scale, 1.0), 0.0)
     return float(np.max(rel))
+
+
+def _unit_responses(integrator, A, B, rows, K, n_steps: int, omegas, channels):
+    """:func:`harmonic_response_errors` (read-only arrays) on the closed loop ``A + B K``, or None when the method's
+    stage gains cannot be read."""
+    try:
+        stage = stage_gains(integrator, K)
+    except IntegratorError:
+        return None
+    E_cl = scipy.linalg.expm(integrator.dt * (A + B @ K))  # once for every harmonic
+    out = harmonic_response_errors(integrator, A, B, rows, K, n_steps, omegas, channels, stage, E_cl)  # all at once
+    for a in out:
+        a.flags.writeable = False
+    return out
