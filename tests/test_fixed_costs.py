@@ -187,6 +187,46 @@ def test_the_slipping_runs_error_from_its_outputs_is_the_one_from_its_states():
     assert error > 1e-6 and slip_run_error(*args, (out["omega_M"], out["belt_torque"])) == error
 
 
+def test_the_slipping_runs_rerun_stops_at_its_last_grid_step_with_the_same_error(monkeypatch):
+    # the rerun at 2 dt ends a window after the last event, off its grid: a partial step there (the Python
+    # steppers) met no sample of the run, so the rerun stops at its last grid step; the same error as to the end
+    from belt_drive_ros.core import accuracy
+    from belt_drive_ros.core.slip_run import SlippingSimulator
+
+    scene = load_scene("truck_compressor")
+    sim = SlippingSimulator(scene.params, scene.drive, scene.load, "etd4", 1e-3, lazy=True)
+    t, y, m, s = sim.run(scene.duration, scene.initial_state.vector("slipping", scene.params.ratio))
+    events = [e.time for e in sim.events]
+    args = (scene.params, scene.drive, scene.load, "etd4", 1e-3, t, y, m, s, events, None, sim._hybrid)
+    partial = []
+    steps, advance = SlippingSimulator._advance_steps, SlippingSimulator.advance
+    monkeypatch.setattr(SlippingSimulator, "_advance_steps", lambda self, *a: (partial.append(a[1:3]), steps(self, *a))[1])
+    error = accuracy.slip_run_error(*args)
+    t1 = max(events) + accuracy.WINDOW_STEPS * 1e-3
+    assert error > 1e-6 and partial == [] and t1 < t[-1]
+    monkeypatch.setattr(SlippingSimulator, "advance", lambda self, state, t0, end, *a: advance(self, state, t0, t1, *a))
+    assert accuracy.slip_run_error(*args) == error and len(partial) == 1  # to the end: one partial step more
+
+
+def test_the_harmonic_terms_unit_responses_are_made_once_per_closed_loop(monkeypatch):
+    # the harmonic term's responses to unit forcings depend on the matrices and frequencies alone: a scene run
+    # again reuses them (the same report), a new step makes its own
+    from belt_drive_ros.core import forced_response
+
+    scene = load_scene("bsg_start")
+    first = simulate(scene)
+    calls = []
+    responses = forced_response.harmonic_response_errors
+    monkeypatch.setattr(forced_response, "harmonic_response_errors", lambda *a: (calls.append(a), responses(*a))[1])
+    again = simulate(scene)
+    assert calls == [] and again.accuracy == first.accuracy and first.accuracy.harmonic_error > 0
+    forced_response._RESPONSES.clear()  # made afresh: the same figures
+    assert simulate(scene).accuracy == first.accuracy and calls
+    calls.clear()
+    simulate(scene.with_overrides(dt=1e-4))
+    assert calls
+
+
 @pytest.mark.parametrize("name, method, guarded", [
     ("paper", "lawson5", False), ("e_motor_start", "etd2", False), ("truck_compressor", "etd4", False),
     ("truck_compressor", "etd4", True), ("bsg_start", "etd2", True),

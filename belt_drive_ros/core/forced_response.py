@@ -153,8 +153,7 @@ def orbit_error(Ma: np.ndarray, Ea: np.ndarray, n: int, rows: np.ndarray, n_step
         return np.max(np.abs(y[0] - y[1]), axis=-1), np.max(np.abs(y[1]), axis=-1)
 
 
-def harmonic_response_errors(integrator, A, B, rows, K, n_steps: int, omegas, channels, stage=None,
-                             E_cl=None) -> tuple[np.ndarray, np.ndarray]:
+def harmonic_response_errors(integrator, A, B, rows, K, n_steps: int, omegas, channels) -> tuple[np.ndarray, np.ndarray]:
     """(err, peak), each (frequencies, rows): max_k |y_k - y*_k| and max_k |y*_k| for a unit
     ``e^{j omega t}`` on input ``channels[f]``, for every ``omega`` [rad/s] of ``omegas`` at once.
 
@@ -168,19 +167,17 @@ def harmonic_response_errors(integrator, A, B, rows, K, n_steps: int, omegas, ch
     singular (a forcing on an undamped mode; condition beyond
     :data:`FORCING_CONDITION_LIMIT`: the solve's rounding, ``cond eps``, relative
     to ``P``, stays below 1e-6 of it) the frequencies' augmented maps are
-    stepped instead (:func:`orbit_error`). ``stage``: :func:`stage_gains` of
-    this integrator and K when already made; ``E_cl``: ``e^{h (A + B K)}``
-    when already made. Non-finite: err inf (every frequency).
+    stepped instead (:func:`orbit_error`). Non-finite: err inf (every frequency).
     """
     h = integrator.dt
     n, m = B.shape
     omegas = np.asarray(omegas, dtype=float)
     pick, channels = np.arange(omegas.size), np.asarray(channels, dtype=int)
     f = omegas.size
-    M, gains = stage if stage is not None else stage_gains(integrator, K)
+    M, gains = stage_gains(integrator, K)
     G = sum(Gi * np.exp(1j * omegas * c * h)[:, None, None] for c, Gi in gains)
     A_cl = A + B @ K
-    E = scipy.linalg.expm(h * A_cl) if E_cl is None else E_cl
+    E = scipy.linalg.expm(h * A_cl)
     z = np.exp(1j * omegas * h)
     I = np.eye(n)
     # j omega I - A_cl (the exact forcing map's solve) and the two resolvents z I - M, z I - E: one batched condition
@@ -348,14 +345,11 @@ def harmonic_error(integrator, A, B, rows, K, n_steps: int, harmonics, peaks) ->
 
 
 def _unit_responses(integrator, A, B, rows, K, n_steps: int, omegas, channels):
-    """:func:`harmonic_response_errors` (read-only arrays) on the closed loop ``A + B K``, or None when the method's
-    stage gains cannot be read."""
+    """:func:`harmonic_response_errors` (read-only arrays), or None when the method's stage gains cannot be read."""
     try:
-        stage = stage_gains(integrator, K)
+        out = harmonic_response_errors(integrator, A, B, rows, K, n_steps, omegas, channels)  # all at once
     except IntegratorError:
         return None
-    E_cl = scipy.linalg.expm(integrator.dt * (A + B @ K))  # once for every harmonic
-    out = harmonic_response_errors(integrator, A, B, rows, K, n_steps, omegas, channels, stage, E_cl)  # all at once
     for a in out:
         a.flags.writeable = False
     return out
