@@ -294,23 +294,21 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
                    method_options=None, hybrid=None, signals=None) -> float:  # fmt: skip
     """A posteriori error [-] of a slipping run at ``dt`` over its slipping stretch, by Richardson on the run itself.
 
-    The linearized checks of :func:`check_slipping` see each mode alone;
+    The linearized checks of :func:`check_slipping` see each mode alone, not
     what happens where the modes meet (located events, the force jumping to
-    ``sigma Q_max``, the forcing carried across) and how the error of each
-    slip phase accumulates over many (``truck_compressor``: 112 events, the
-    belt-torque error grows from 6e-5 to 2.4e-4 of the peak across them at
-    etd4, 1 ms) they do not, and neither do short windows about single
-    events (they read 5e-5 there). So the stretch from a window
-    (:data:`WINDOW_STEPS` steps) before the first event to one after the
-    last is run again from the run's own state, at ``2 dt`` (half the
-    stretch's cost); for a method of order p the ``dt`` run's error is
-    ``|y_dt - y_2dt| / (2^p - 1)``. When the ``2 dt`` run diverges it is
-    run at ``dt / 2`` instead (error ``|y_dt - y_dt/2| 2^p / (2^p - 1)``).
-    Signals: drive speed and belt torque at the common grid times, relative
-    to their peaks over the run (``time``, ``states``, ``modes``,
-    ``sigmas``: the run's samples; ``signals``: its (drive speed, belt torque) when made). No events: 0; both
-    reruns diverge: inf. ``hybrid``: the run's
-    :class:`~belt_drive_ros.core.slip.EventStep` (it holds no step length: the reruns share it).
+    ``sigma Q_max``) nor how the error of each slip phase accumulates over
+    many (``truck_compressor`` at etd4, 1 ms: from 6e-5 to 2.4e-4 of the
+    belt-torque peak across 112 events; windows about single events read
+    5e-5). So the stretch from a window (:data:`WINDOW_STEPS` steps) before
+    the first event to one after the last is run again from the run's own
+    state at ``2 dt``; for a method of order p the ``dt`` run's error is
+    ``|y_dt - y_2dt| / (2^p - 1)`` (the ``2 dt`` run diverges: at ``dt / 2``,
+    ``|y_dt - y_dt/2| 2^p / (2^p - 1)``). Signals: drive speed and belt
+    torque at the common grid times, relative to their peaks over the run
+    (``time``, ``states``, ``modes``, ``sigmas``: the run's samples;
+    ``signals``: its (drive speed, belt torque) when made). No events: 0;
+    both reruns diverge: inf. ``hybrid``: the run's
+    :class:`~belt_drive_ros.core.slip.EventStep` (no step length: the reruns share it).
     """
     from .errors import SimulationDivergedError
     from .slip import SlippingBeltModel
@@ -332,16 +330,15 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     peak = [float(np.max(np.abs(v))) for v in signals]  # over the run
     j = int(np.searchsorted(time, t1 + dt, side="right"))  # the run's samples the reruns can meet (one past t1)
     run_t, run_out = time[i:j], [v[i:j] for v in signals]
-    ends_on_sample = bool(np.any(np.abs(run_t - t1) <= 1e-9 * dt + 8.0 * np.spacing(abs(t1) + dt)))
+    # the reruns stop at their last grid step unless the run has a sample at t1 (a partial step met no other)
+    at_t1 = np.any(np.abs(run_t - t1) <= 1e-9 * dt + 8.0 * np.spacing(abs(t1) + dt))
     for h, factor in ((2.0 * dt, 1.0 / (2.0**order - 1.0)), (dt / 2.0, 2.0**order / (2.0**order - 1.0))):
         sim = SlippingSimulator(params, drive, load, method, h, method_options, check_stability=False, lazy=True)
         sim._hybrid = hybrid
         sim.slip_phases()  # (the stretch slips; the scene's steppers, shared)
         state = sim._native(np.asarray(states[i], dtype=float), int(modes[i]), float(sigmas[i]))
         pieces = [(np.array([t0]), sim.state_y(state)[None, :], state.mode, state.sigma)]
-        # a partial last step to t1 off the rerun's grid meets no sample of the run unless the run has one at t1
-        on_grid = ends_on_sample or sim.stepper._snap(t1) is not None
-        end = t1 if on_grid else max(t0, sim.grid_time(math.floor((t1 - sim.origin) / h)))
+        end = t1 if at_t1 or sim.stepper._snap(t1) is not None else max(t0, sim.grid_time(math.floor(t1 / h)))
         try:
             with np.errstate(all="ignore"):
                 sim.advance(state, t0, end, pieces)  # its events are the run's again: not collected
@@ -366,11 +363,10 @@ def with_slip_run_error(report: AccuracyReport, run_error: float) -> AccuracyRep
 
     The estimate counts when larger; when it fails the tolerance, the step
     named is the largest ``dt / 2^j`` at which it would fall to
-    :data:`SUGGEST_MARGIN` of the tolerance at first order (not the method's
-    order p: across stick/slip events and through a slipping stretch a run
-    converges at first order in the step; extrapolating at p named steps that
-    the run then refused). It is an extrapolation, not a checked step
-    (``suggestion_checked`` False, and the report says so).
+    :data:`SUGGEST_MARGIN` of the tolerance at first order (across stick/slip
+    events a run converges at first order in the step: extrapolating at the
+    method's order p named steps the run then refused); an extrapolation, not
+    a checked step (``suggestion_checked`` False, and the report says so).
     """
     error = max(report.error, run_error)
     fields = {**report.__dict__, "error": error, "accurate": error <= report.tolerance, "slip_run_error": run_error}

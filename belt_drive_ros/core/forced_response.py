@@ -1,35 +1,31 @@
 """The accuracy guard's harmonic term: the error a periodic forcing builds up over the whole run.
 
-The guard's other terms see a unit torque step over the run's duration and
-the scene's real torques over short windows. Neither sees what a torque that
-varies periodically does over hundreds of periods on a lightly damped belt:
-near the belt mode the response grows over ``~1 / (zeta omega_n)`` seconds,
-and so does the method's error. Two mechanisms add up there: the method's
-quadrature of the forcing over a step (etd2 takes it as linear in time, an
-error ``~(h omega)^2 / 12`` per step), and, on a closed loop whose torques
-depend on speed, a small shift of the discrete belt mode; near a resonance of
-quality ``Q = 1 / (2 zeta)`` a shift ``delta`` of the pole moves the response
-by ``~delta Q / omega_n`` of itself.
+The guard's other terms see a unit torque step over the run and the scene's
+torques over short windows, not what a periodic torque does over hundreds
+of periods on a lightly damped belt: near the belt mode the response grows
+over ``~1 / (zeta omega_n)`` seconds, and so does the method's error. Two
+mechanisms add up there: the method's quadrature of the forcing over a step
+(etd2 takes it as linear in time, an error ``~(h omega)^2 / 12`` per step),
+and, on a closed loop whose torques depend on speed, a shift ``delta`` of the
+discrete belt mode, which moves the response near a resonance of quality
+``Q = 1 / (2 zeta)`` by ``~delta Q / omega_n`` of itself.
 
 Both are in the forced response of the linearized closed loop
 ``x' = A_cl x + B u``, ``A_cl = A + B K`` (:mod:`~belt_drive_ros.core.accuracy`),
-to a harmonic torque ``u = e^{j omega t}`` on one input, from rest, over the
-run's duration. The method maps ``x_{k+1} = M x_k + G(omega) e^{j omega t_k}``
-with ``G(omega) = sum_i G_i e^{j omega c_i h}``: ``G_i`` the gain of stage
-``i`` (node ``c_i``) read off the method's own stage scheme. The exact map is
-``x_{k+1} = E x_k + F(omega) e^{j omega t_k}`` with ``E = e^{h A_cl}`` and
-``F(omega) = int_0^h e^{(h - s) A_cl} B e^{j omega s} ds`` (one linear solve
-per frequency, :func:`exact_forcing_maps`; ``E`` is one matrix exponential
-for every frequency).
-Both orbits are evaluated by doubling (as the step response); the error of
-an output row is ``max_k |y_k - y*_k|`` (complex modulus: the envelope of a
-cosine or sine forcing), its scale ``max_k |y*_k|``.
+to ``u = e^{j omega t}`` on one input, from rest, over the run. The method
+maps ``x_{k+1} = M x_k + G(omega) e^{j omega t_k}`` with
+``G(omega) = sum_i G_i e^{j omega c_i h}`` (``G_i`` the gain of stage ``i``,
+node ``c_i``, read off the method's own stage scheme); the exact map is
+``x_{k+1} = E x_k + F(omega) e^{j omega t_k}``, ``E = e^{h A_cl}``,
+``F(omega) = int_0^h e^{(h - s) A_cl} B e^{j omega s} ds`` (:func:`exact_forcing_maps`).
+The error of an output row is ``max_k |y_k - y*_k|`` (complex modulus: the
+envelope of a cosine or sine forcing), its scale ``max_k |y*_k|``.
 
 The harmonics: every excitation frequency the scene's torque profiles name
 at the probed operating speeds (engine firing orders, compressor strokes, a
-sine, a ramp or table's rate), each with an amplitude ``a`` [N m] read off
-the profile itself (half its range over one period at that operating point).
-The error of output ``i`` relative to the run's peak ``P_i`` is
+sine, a ramp or table's rate), each with an amplitude ``a`` [N m]: half the
+profile's range over one period at that operating point. The error of output
+``i`` relative to the run's peak ``P_i`` is
 
     e_i = err_i(omega) a / max(P_i, peak_i(omega) a)
 
@@ -119,15 +115,25 @@ def orbits(P: np.ndarray, X0: np.ndarray, count: int) -> np.ndarray:
     return S[:, :, :total]
 
 
+def sampled_orbits(P: np.ndarray, X0: np.ndarray, n_steps: int) -> tuple:
+    """(:func:`orbits` at the sampled steps, head, stride, tail): k = 1 .. head (:data:`ORBIT_SAMPLES` / 2) one by
+    one, then ``head + stride j`` for j = 1 .. tail with ``P^stride`` (exact; the samples between are skipped)."""
+    head = min(n_steps, ORBIT_SAMPLES // 2)
+    stride = max(1, math.ceil((n_steps - head) / (ORBIT_SAMPLES // 2)))
+    tail = (n_steps - head) // stride if n_steps > head else 0
+    orbit = orbits(P, X0, head)
+    if tail > 0:
+        orbit = np.concatenate([orbit, orbits(np.linalg.matrix_power(P, stride), orbit[:, :, -X0.shape[-1]:], tail)], axis=2)
+    return orbit, head, stride, tail
+
+
 def orbit_error(Ma: np.ndarray, Ea: np.ndarray, n: int, rows: np.ndarray, n_steps: int):
     """(err, peak), each (..., rows, inputs): the method's augmented map ``Ma`` against the exact ``Ea`` from rest.
 
     Both are ``[[M, G], [0, Z]]`` on ``[x; v]`` (``n`` states, ``m`` inputs
     ``v`` that start at 1, one per column), stepped ``n_steps`` times:
     ``err = max_k |C (x_k - x*_k)|``, ``peak = max_k |C x*_k|`` for each row
-    ``C`` of ``rows``. The first :data:`ORBIT_SAMPLES` / 2 steps one by one,
-    the rest in strides of ``s`` steps with the s-th powers of the maps
-    (exact; only samples between strides are skipped). Leading axes of ``Ma``
+    ``C`` of ``rows``, at :func:`sampled_orbits`' steps. Leading axes of ``Ma``
     and ``Ea`` (several pairs, e.g. one per forcing frequency) are evaluated
     at once, each pair with the same operations as alone. Non-finite anywhere: err inf.
     """
@@ -136,13 +142,8 @@ def orbit_error(Ma: np.ndarray, Ea: np.ndarray, n: int, rows: np.ndarray, n_step
     m = N - n
     P = np.stack([Ma, Ea]).reshape(-1, N, N)  # (2 b, N, N): the method's maps, then the exact ones
     X0 = np.broadcast_to(np.vstack([np.zeros((n, m)), np.eye(m)]).astype(Ma.dtype), (P.shape[0], N, m))
-    head = min(n_steps, ORBIT_SAMPLES // 2)
-    stride = max(1, math.ceil((n_steps - head) / (ORBIT_SAMPLES // 2)))
     with np.errstate(all="ignore"):
-        orbit = orbits(P, X0, head)
-        if n_steps > head and (n_steps - head) // stride > 0:
-            Ps = np.linalg.matrix_power(P, stride)
-            orbit = np.concatenate([orbit, orbits(Ps, orbit[:, :, -m:], (n_steps - head) // stride)], axis=2)
+        orbit = sampled_orbits(P, X0, n_steps)[0]
         if not np.all(np.isfinite(orbit)):
             inf = np.full(lead + (rows.shape[0], m), np.inf)
             return inf, inf
@@ -162,12 +163,12 @@ def harmonic_response_errors(integrator, A, B, rows, K, n_steps: int, omegas, ch
     (multiply by ``z I - M``: the sum telescopes), so the output is
     ``y_k = z^k C P - (C M^k) P`` with ``P = (z I - M)^{-1} G``; the same for
     the exact map (E, F). The real orbits ``C M^k`` and ``C E^k`` at the
-    sampled k (:func:`orbit_error`'s: one by one, then in strides) are made
-    once for every frequency. Where ``z I - M`` or ``z I - E`` is nearly
-    singular (a forcing on an undamped mode; condition beyond
-    :data:`FORCING_CONDITION_LIMIT`: the solve's rounding, ``cond eps``, relative
-    to ``P``, stays below 1e-6 of it) the frequencies' augmented maps are
-    stepped instead (:func:`orbit_error`). Non-finite: err inf (every frequency).
+    sampled k (:func:`sampled_orbits`) are made once for every frequency.
+    Where ``z I - M`` or ``z I - E`` is nearly singular (a forcing on an
+    undamped mode; condition beyond :data:`FORCING_CONDITION_LIMIT`: the
+    solve's rounding, ``cond eps``, relative to ``P``, stays below 1e-6 of it)
+    the frequencies' augmented maps are stepped instead (:func:`orbit_error`).
+    Non-finite: err inf (every frequency).
     """
     h = integrator.dt
     n, m = B.shape
@@ -194,16 +195,10 @@ def harmonic_response_errors(integrator, A, B, rows, K, n_steps: int, omegas, ch
         Ea[:, :n, :n], Ea[:, :n, n:], Ea[:, n:, n:] = E, F, zm
         err, peak = orbit_error(Ma, Ea, n, rows, n_steps)
         return err[pick, :, channels], peak[pick, :, channels]
-    head = min(n_steps, ORBIT_SAMPLES // 2)
-    stride = max(1, math.ceil((n_steps - head) / (ORBIT_SAMPLES // 2)))
-    tail = (n_steps - head) // stride if n_steps > head else 0
     r = rows.shape[0]
     with np.errstate(all="ignore"):
         P = np.stack([M.T, E.T])  # C M^k = ((M^T)^k C^T)^T
-        X0 = np.broadcast_to(rows.T.astype(float), (2, n, r))
-        CX = orbits(P, X0, head)
-        if tail > 0:
-            CX = np.concatenate([CX, orbits(np.linalg.matrix_power(P, stride), CX[:, :, -r:], tail)], axis=2)
+        CX, head, stride, tail = sampled_orbits(P, np.broadcast_to(rows.T.astype(float), (2, n, r)), n_steps)
         if not np.all(np.isfinite(CX)):
             inf = np.full((f, r), np.inf)
             return inf, inf
@@ -318,13 +313,8 @@ _RESPONSES: dict = {}
 
 def harmonic_error(integrator, A, B, rows, K, n_steps: int, harmonics, peaks) -> float:
     """The harmonic term [-]: max over ``harmonics`` ``(input, f [Hz], a [N m])`` and output rows of
-    ``err a / max(P, peak a)`` (module docstring); ``peaks`` (rows,): the run's estimated peak per output.
-
-    The unit responses (:func:`harmonic_response_errors`) are a function of the
-    matrices and frequencies alone: made once per integrator, ``A``, ``B``,
-    ``rows``, ``K``, ``n_steps`` and frequencies (read-only), so a scene run
-    again (or checked again by the method choice) does not repeat them.
-    """
+    ``err a / max(P, peak a)`` (module docstring); ``peaks`` (rows,): the run's estimated peak per output. The unit
+    responses (:func:`harmonic_response_errors`), of the matrices and frequencies alone, are made once and kept."""
     if not harmonics:
         return 0.0
     peaks = np.asarray(peaks, dtype=float)
@@ -332,9 +322,10 @@ def harmonic_error(integrator, A, B, rows, K, n_steps: int, harmonics, peaks) ->
     amplitude = np.array([float(a) for _, _, a in harmonics])
     omegas = np.array([2.0 * math.pi * float(f) for _, f, _ in harmonics])
     key = tuple((np.shape(a), np.asarray(a).tobytes()) for a in (A, B, rows, K, omegas, channels)) + (int(n_steps),)
-    responses = built_once(_RESPONSES, 64, (integrator,), lambda: _unit_responses(integrator, A, B, rows, K, n_steps,
-                                                                                  omegas, channels), key)  # fmt: skip
-    if responses is None:
+    try:
+        responses = built_once(_RESPONSES, 64, (integrator,), lambda: harmonic_response_errors(
+            integrator, A, B, rows, K, n_steps, omegas, channels), key)  # all at once
+    except IntegratorError:  # the method's stage gains cannot be read
         return math.inf
     err, peak = responses[0] * amplitude[:, None], responses[1] * amplitude[:, None]  # (harmonics, rows)
     if not np.all(np.isfinite(err)):
@@ -343,13 +334,3 @@ def harmonic_error(integrator, A, B, rows, K, n_steps: int, harmonics, peaks) ->
     rel = np.where(scale > 0, err / np.where(scale > 0, scale, 1.0), 0.0)
     return float(np.max(rel))
 
-
-def _unit_responses(integrator, A, B, rows, K, n_steps: int, omegas, channels):
-    """:func:`harmonic_response_errors` (read-only arrays), or None when the method's stage gains cannot be read."""
-    try:
-        out = harmonic_response_errors(integrator, A, B, rows, K, n_steps, omegas, channels)  # all at once
-    except IntegratorError:
-        return None
-    for a in out:
-        a.flags.writeable = False
-    return out
