@@ -523,15 +523,9 @@ class SlippingSimulator:
             raise self.stepper.diverged_error(t, y)
 
     def run(self, duration, y0, t0=0.0, progress=None):
-        """Integrate ``duration`` [s] from the slipping state ``y0``; returns (time, states, mode, sigma)."""
-        events: list = []
-        parts = list(self.windows(duration, y0, t0, progress, events=events))
-        self.events = events
-        time = np.concatenate([p[0] for p in parts])
-        states = np.concatenate([p[1] for p in parts])
-        modes = np.concatenate([p[2] for p in parts])
-        sigmas = np.concatenate([p[3] for p in parts])
-        return time, states, modes, sigmas
+        """Integrate ``duration`` [s] from the slipping state ``y0``; returns (time, states, mode, sigma) (the
+        :meth:`windows` put together; :attr:`events` the mode switches)."""
+        return _joined(list(self.windows(duration, y0, t0, progress, events=[])))
 
     def windows(self, duration, y0, t0=0.0, progress=None, window_steps: int | None = None, events=None):
         """:meth:`run` in pieces: yields (time, states, mode, sigma) of consecutive windows.
@@ -622,7 +616,7 @@ def _events(rows) -> list:
 
 
 def _joined(pieces):
-    """(time, states, mode, sigma) of ``advance``'s recorded pieces put together."""
+    """(time, states, mode, sigma) of ``advance``'s recorded pieces (or :meth:`SlippingSimulator.windows`) put together."""
     time = np.concatenate([p[0] for p in pieces])
     states = np.concatenate([p[1] for p in pieces])
     modes = np.concatenate([np.full(len(p[0]), p[2], dtype=np.int8) for p in pieces])
@@ -632,12 +626,8 @@ def _joined(pieces):
 
 def warm_hybrid() -> None:
     """Compile (or load from the disk cache) :func:`~.kernel_slip.event_step`, :func:`~.kernel_slip.hybrid_steps` and
-    :func:`~.kernel_slip.locate_event`
-    with the one signature runs use.
-
-    A short run that slips at once (a drive torque far past the capstan
-    limit) takes both entry points, as every run does.
-    """
+    :func:`~.kernel_slip.locate_event` with the one signature runs use (a short run that slips at once, a drive torque
+    far past the capstan limit, takes the entry points every run takes)."""
     from . import kernel_slip as ks
     from .params import BeltDriveParams
     from .sources import Constant
