@@ -616,7 +616,7 @@ def _events(rows) -> list:
 
 
 def _joined(pieces):
-    """(time, states, mode, sigma) of ``advance``'s recorded pieces (or :meth:`SlippingSimulator.windows`) put together."""
+    """(time, states, mode, sigma) of recorded pieces (``advance``'s, or :meth:`~SlippingSimulator.windows`') joined."""
     time = np.concatenate([p[0] for p in pieces])
     states = np.concatenate([p[1] for p in pieces])
     modes = np.concatenate([np.full(len(p[0]), p[2], dtype=np.int8) for p in pieces])
