@@ -79,12 +79,12 @@ METADATA_LIMIT = 16 * 2**20
 def _metadata(path: str) -> Optional[Dict[str, Any]]:
     """The ``rosbag2_bagfile_information`` mapping of the folder's ``metadata.yaml``; None without one.
 
-    Read through the package's bounded loader (``belt_drive_ros.core.inputs``:
+    Read through the package's bounded loader (``belt_drive_ros.io.inputs``:
     a regular UTF-8 file under :data:`METADATA_LIMIT`, YAML without aliases,
     anchors, deep nesting or duplicate keys), so a hostile file (a "billion
     laughs" of aliases, a FIFO, /dev/zero linked in) is refused in one line.
     """
-    from belt_drive_ros.core.inputs import InputError, read_yaml
+    from belt_drive_ros.io.inputs import InputError, read_yaml
 
     meta = os.path.join(path, METADATA_FILE)
     if not os.path.lexists(meta):

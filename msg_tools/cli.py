@@ -134,7 +134,7 @@ def _write_damage(out: IO[str], damage: List[str]) -> None:
 
 
 def _info_one(path: str, args: argparse.Namespace, out: IO[str]) -> Tuple[int, Any]:
-    from belt_drive_ros.core.inputs import InputError, parse_yaml
+    from belt_drive_ros.io.inputs import InputError, parse_yaml
 
     s = summary(path, verify=not args.summary_only)
     w = out.write

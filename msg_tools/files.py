@@ -2,7 +2,7 @@
 
 :func:`regular_path` and :func:`open_regular` are the check every bag path
 goes through before ``open()`` (a FIFO would block it, ``/dev/zero`` never
-ends): :func:`belt_drive_ros.core.inputs.check_path`, with its refusal raised
+ends): :func:`belt_drive_ros.io.inputs.check_path`, with its refusal raised
 as :class:`~msg_tools.errors.NotAFileError`.
 
 
@@ -17,8 +17,8 @@ from __future__ import annotations
 import os
 import stat
 
-from belt_drive_ros.core.inputs import InputError, check_path
-from belt_drive_ros.core.inputs import open_regular as _open_regular
+from belt_drive_ros.io.inputs import InputError, check_path
+from belt_drive_ros.io.inputs import open_regular as _open_regular
 
 from .errors import NotAFileError
 

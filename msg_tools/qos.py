@@ -298,7 +298,7 @@ def parse_offered_qos_yaml(text: str) -> List[QosProfile]:
         If the text is not a YAML list of QoS mappings.
     """
     # the package's bounded YAML loader (no aliases, bounded nesting): the text comes from a file
-    from belt_drive_ros.core.inputs import InputError, parse_yaml
+    from belt_drive_ros.io.inputs import InputError, parse_yaml
 
     if not text or not text.strip():
         return []

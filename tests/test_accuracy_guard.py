@@ -25,7 +25,7 @@ from belt_drive_ros.core.accuracy import ACCURACY_TOLERANCE, check_accuracy, req
 from belt_drive_ros.core.errors import UnstableStepError
 from belt_drive_ros.core.integrators import FIXED_STEP_METHODS
 from belt_drive_ros.core.model import make_model
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.simulate import Simulator, simulate
 from belt_drive_ros.core.stability import check_step
 from belt_drive_ros.core.stepper import Plant

@@ -13,7 +13,8 @@ import numpy as np
 
 from belt_drive_ros.core import sources as S
 from belt_drive_ros.core.fidelity import choose_model, start_mismatch
-from belt_drive_ros.core.scene import InitialState, load_scene
+from belt_drive_ros.core.scene import InitialState
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.simulate import simulate
 
 

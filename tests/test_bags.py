@@ -9,7 +9,7 @@ import yaml
 from belt_drive_ros.io.bags import REFERENCE_BAGS, make_bags
 from belt_drive_ros.cli import main as belt_drive
 from belt_drive_ros.io.torque_bag import scene_from_bag
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from msg_tools import summary
 from msg_tools.cli import main as msg_tools
 

@@ -26,7 +26,7 @@ from belt_drive_ros.core.errors import IntegratorError, SceneError, SimulationDi
 from belt_drive_ros.core.integrators import FIXED_STEP_METHODS, make_integrator
 from belt_drive_ros.core.kernel_loop import KernelLoop
 from belt_drive_ros.core.model import make_model
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.simulate import Simulator, simulate
 
 PROFILES = [

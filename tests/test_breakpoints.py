@@ -19,7 +19,7 @@ import pytest
 from belt_drive_ros.core import sources as S
 from belt_drive_ros.benchmarks.common import dop853_reference, run_errors
 from belt_drive_ros.core.model import make_model
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.simulate import Simulator
 
 

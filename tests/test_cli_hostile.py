@@ -286,7 +286,7 @@ def test_recording_whose_scene_names_a_device_or_fifo_as_its_torque_bag_is_refus
 
     import yaml
 
-    from belt_drive_ros.core.scene import load_scene
+    from belt_drive_ros.io.scenes import load_scene
 
     if target == "a FIFO":
         os.mkfifo(tmp_path / "fifo.mcap")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from belt_drive_ros.cli import main
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 
 HEADER = "time,phi_M,omega_M,phi_3,omega_3,drive_torque,load_torque,belt_torque,relative_deflection"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

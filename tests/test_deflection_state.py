@@ -17,7 +17,8 @@ import pytest
 
 from belt_drive_ros.core import sources as S
 from belt_drive_ros.core.model import FlexibleBeltModel
-from belt_drive_ros.core.scene import InitialState, load_scene
+from belt_drive_ros.core.scene import InitialState
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.simulate import Simulator
 
 SPEED = 500.0  # rad/s at wheel M

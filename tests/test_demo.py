@@ -10,7 +10,7 @@ def test_demo_offline_part_writes_csv_and_plot(tmp_path):
 
 
 def test_demo_says_what_each_pulley_of_the_fead_did(tmp_path, capsys):
-    from belt_drive_ros.core.network.scene import load_network
+    from belt_drive_ros.io.scenes import load_network
 
     assert main(["demo", "--no-live", "--no-offline", "--out-dir", str(tmp_path)]) == 0
     out = capsys.readouterr().out

@@ -13,10 +13,11 @@ import scipy.linalg
 
 from belt_drive_ros.core.batch_expm import expm_stack
 from belt_drive_ros.core.ensemble import Ensemble, EnsembleUnsupported
-from belt_drive_ros.core.ensemble_run import GroupRun, GroupSummary, peak_over_time, run_groups, simulate_many
+from belt_drive_ros.campaign.ensemble_run import GroupRun, GroupSummary, peak_over_time, run_groups, simulate_many
 from belt_drive_ros.core.integrators import REGISTRY
 from belt_drive_ros.core.model import ModelStack, make_model
-from belt_drive_ros.core.scene import load_scene, shipped_scenes
+from belt_drive_ros.io.scenes import load_scene
+from belt_drive_ros.core.scene import shipped_scenes
 from belt_drive_ros.core.simulate import simulate
 
 #: relative agreement of an ensemble variant's states and outputs with its single run (norm-wise over the trajectory).

@@ -21,7 +21,7 @@ import pytest
 from belt_drive_ros.core import accuracy_probes, fidelity
 from belt_drive_ros.core.accuracy_probes import RigidSurvey, operating_run_step
 from belt_drive_ros.core.model import RigidBeltModel, make_model
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.simulate import simulate
 from belt_drive_ros.core.stepper import Plant, Stepper
 

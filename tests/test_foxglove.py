@@ -113,7 +113,7 @@ def check_tf_moves_the_urdf(path, params):
 
 
 def test_offline_run_decodes_in_foxglove(tmp_path):
-    from belt_drive_ros.core.scene import load_scene
+    from belt_drive_ros.io.scenes import load_scene
     from belt_drive_ros.core.simulate import simulate
     from belt_drive_ros.io.recording import write_result_mcap
 

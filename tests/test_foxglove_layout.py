@@ -40,7 +40,7 @@ def layout_topics(layout: dict) -> set:
 
 
 def offline_recording(path, namespace):
-    from belt_drive_ros.core.scene import load_scene
+    from belt_drive_ros.io.scenes import load_scene
     from belt_drive_ros.core.simulate import simulate
     from belt_drive_ros.io.recording import write_result_mcap
 

@@ -14,9 +14,10 @@ import pytest
 import yaml
 
 from belt_drive_ros.cli import main
-from belt_drive_ros.core.errors import InputError, ParameterError, SceneError
-from belt_drive_ros.core.inputs import MAX_DEPTH, SCENE_LIMIT, parse_yaml, read_text, short
-from belt_drive_ros.core.scene import RANGES, Scene, load_scene
+from belt_drive_ros.core.errors import InputError, ParameterError, SceneError, short
+from belt_drive_ros.io.inputs import MAX_DEPTH, SCENE_LIMIT, parse_yaml, read_text
+from belt_drive_ros.core.scene import RANGES, Scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.simulate import simulate
 
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from belt_drive_ros.core import kernel_slip
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.slip_run import SlippingSimulator
 
 

@@ -28,7 +28,7 @@ import pytest
 import yaml
 
 from belt_drive_ros.cli import build_parser
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.ros.parameter_schema import OWN_PARAMETERS, build_settings, default_values
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -213,7 +213,7 @@ def test_a_network_scene_through_the_launch_file_starts_the_network_node_driven_
     """``scene:=fead_i4`` starts ``belt-drive node fead_i4`` (the network node: the command dispatches on its scene
     argument) with parameters the network node declares and accepts, its crank driven by the scene's engine, no
     torque source and not the paper node's parameters file; a params_file of the user's is passed on."""
-    from belt_drive_ros.core.network.scene import load_network
+    from belt_drive_ros.io.scenes import load_network
     from belt_drive_ros.ros.network_node import PARAMETERS, NetworkSettings
 
     for extra in ({}, {"params_file": str(tmp_path / "mine.yaml")}):

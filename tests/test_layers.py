@@ -126,7 +126,7 @@ def _loaded_after(code: str, prefixes: tuple[str, ...]) -> list[str]:
 
 def test_core_runs_without_rclpy_or_mcap():
     code = "\n".join(f"import {_module_name(p)}" for p in _modules("core") if p.stem != "__init__")
-    code += "\nfrom belt_drive_ros.core.simulate import simulate\nfrom belt_drive_ros.core.scene import load_scene\n"
+    code += "\nfrom belt_drive_ros.core.simulate import simulate\nfrom belt_drive_ros.io.scenes import load_scene\n"
     code += "simulate(load_scene('paper'), duration=0.01)"
     assert _loaded_after(code, ("rclpy", "mcap", "mcap_ros2", "msg_tools")) == []
 
@@ -146,9 +146,9 @@ def test_cli_parser_does_not_import_rclpy():
 
 
 def test_msg_tools_takes_only_the_bounded_loader_from_the_package():
-    """msg_tools is a sibling package over core's stdlib+PyYAML loader (core.inputs), nothing else of belt_drive_ros:
+    """msg_tools is a sibling package over io's stdlib+PyYAML loader (io.inputs), nothing else of belt_drive_ros:
     every YAML it reads from a file (metadata.yaml, rosbag2 and QoS metadata) goes through the same bounded loader."""
-    allowed = {"belt_drive_ros.core.inputs"}
+    allowed = {"belt_drive_ros.io.inputs"}
     used, bad = set(), []
     for path in sorted((PACKAGE.parent / "msg_tools").glob("*.py")):
         for target, line in _imports(path):
@@ -158,9 +158,9 @@ def test_msg_tools_takes_only_the_bounded_loader_from_the_package():
                     bad.append(f"msg_tools/{path.name}:{line} imports {target}")
     assert not bad, "\n".join(bad)
     assert used == allowed
-    code = "from belt_drive_ros.core.inputs import parse_yaml\nparse_yaml('a: 1')"
+    code = "from belt_drive_ros.io.inputs import parse_yaml\nparse_yaml('a: 1')"
     assert _loaded_after(code, ("belt_drive_ros",)) == ["belt_drive_ros", "belt_drive_ros.core", "belt_drive_ros.core.errors",
-                                                        "belt_drive_ros.core.inputs"]
+                                                        "belt_drive_ros.io", "belt_drive_ros.io.inputs"]
 
 
 @pytest.mark.parametrize("code", [
@@ -175,7 +175,7 @@ def test_numba_is_imported_only_where_a_run_starts(code):
 
 
 def test_a_run_does_use_the_compiled_kernel():
-    code = "from belt_drive_ros.core.simulate import simulate\nfrom belt_drive_ros.core.scene import load_scene\n"
+    code = "from belt_drive_ros.core.simulate import simulate\nfrom belt_drive_ros.io.scenes import load_scene\n"
     code += "simulate(load_scene('paper'), duration=0.01)"
     assert "numba" in _loaded_after(code, ("numba",))
 

@@ -24,7 +24,8 @@ from belt_drive_ros.core.accuracy import check_accuracy
 from belt_drive_ros.core.errors import SceneError
 from belt_drive_ros.core.method_choice import CANDIDATES, choose_for_scene
 from belt_drive_ros.core.model import make_model
-from belt_drive_ros.core.scene import Scene, load_scene
+from belt_drive_ros.core.scene import Scene
+from belt_drive_ros.io.scenes import load_scene, scene_from_mapping
 from belt_drive_ros.core.simulate import simulate
 from belt_drive_ros.core.stepper import Plant
 
@@ -173,9 +174,9 @@ def test_default_run_meets_its_tolerance(k):
 def test_tolerance_key_is_validated_with_one_line():
     for bad in (0.0, -1e-4, 2.0, "1e-4", float("nan")):
         with pytest.raises(SceneError, match=r"^tolerance: ") as info:
-            Scene.from_mapping({"extends": "paper", "tolerance": bad})
+            scene_from_mapping({"extends": "paper", "tolerance": bad})
         assert "\n" not in str(info.value)
-    scene = Scene.from_mapping({"extends": "paper", "tolerance": 1e-6})
+    scene = scene_from_mapping({"extends": "paper", "tolerance": 1e-6})
     assert scene.tolerance == 1e-6 and Scene.from_mapping(scene.to_dict()) == scene
 
 

@@ -15,7 +15,8 @@ import pytest
 from belt_drive_ros.core.errors import SceneError
 from belt_drive_ros.core.network.model import NetworkModel, modes, undamped_frequencies
 from belt_drive_ros.core.network.simulate import simulate
-from belt_drive_ros.core.network.scene import NetworkScene, load_network
+from belt_drive_ros.core.network.scene import NetworkScene
+from belt_drive_ros.io.scenes import load_network
 
 
 def _pulley(name, centre, radius, role="idler", side="inner", inertia=1e-3, torque=None, damping=0.0):
@@ -251,7 +252,7 @@ def _raw_tensioned():
 
 # ---------------------------------------------------------------------- the paper's drive as a network
 def test_paper_drive_as_a_two_pulley_network_equals_the_flexible_model():
-    from belt_drive_ros.core.scene import load_scene
+    from belt_drive_ros.io.scenes import load_scene
     from belt_drive_ros.core.simulate import simulate as simulate_paper
 
     paper = load_scene("paper")
@@ -494,7 +495,7 @@ def test_sim_names_the_first_pulley_at_its_capstan_limit(tmp_path, capsys):
 def test_paper_drive_as_a_network_equals_the_paper_model_to_1e12_of_peak():
     """The network's lag coordinates (l_i = rho_i theta_d - theta_i) are the paper's relative deflection for
     every pulley: the run keeps the stretch's digits (absolute pulley angles gave 2e-11 of the belt torque)."""
-    from belt_drive_ros.core.scene import load_scene
+    from belt_drive_ros.io.scenes import load_scene
     from belt_drive_ros.core.simulate import simulate as simulate_paper
 
     paper = load_scene("paper")
@@ -621,7 +622,7 @@ def test_the_network_kernel_compiles_once_and_interpreted_gives_the_same_floats(
     import sys
 
     from belt_drive_ros.core import kernel
-    from belt_drive_ros.core.network.scene import shipped_networks
+    from belt_drive_ros.io.scenes import shipped_networks
 
     for name in shipped_networks():
         for method in ("exact", "etd2", "rk4", "trapezoidal"):

@@ -19,7 +19,7 @@ from test_foxglove import foxglove_decode
 
 def test_network_run_decodes_in_foxglove_and_its_tf_moves_the_urdf(tmp_path):
     from belt_drive_ros.cli import main
-    from belt_drive_ros.core.network.scene import load_network
+    from belt_drive_ros.io.scenes import load_network
     from belt_drive_ros.io.network_bag import NetworkLayout
 
     path = tmp_path / "fead.mcap"

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from belt_drive_ros.core.errors import SceneError
-from belt_drive_ros.core.network.scene import NetworkScene, load_network
+from belt_drive_ros.core.network.scene import NetworkScene
+from belt_drive_ros.io.scenes import load_network
 from belt_drive_ros.core.network.simulate import simulate
 
 from test_network_slip import shipped
@@ -32,7 +33,7 @@ def _damped(b):
 
 
 def test_the_gear_train_reduces_to_the_papers_inertia_damping_and_ratio():
-    from belt_drive_ros.core.scene import load_scene
+    from belt_drive_ros.io.scenes import load_scene
 
     p = load_scene("paper").params
     b = (0.05, 0.01, 0.002, 0.0)
@@ -49,7 +50,7 @@ def test_the_gear_train_reduces_to_the_papers_inertia_damping_and_ratio():
 
 
 def test_the_paper_drive_with_its_gear_train_and_bearing_damping_equals_the_paper_model():
-    from belt_drive_ros.core.scene import load_scene
+    from belt_drive_ros.io.scenes import load_scene
     from belt_drive_ros.core.simulate import simulate as simulate_paper
 
     paper = load_scene("paper")

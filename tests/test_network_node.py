@@ -238,7 +238,7 @@ def test_runup_chart_takes_the_crank_through_the_engine_speed_range(tmp_path, ca
     from belt_drive_ros.commands.modes import runup_scene
     from belt_drive_ros.core.network.model import NetworkModel
     from belt_drive_ros.core.network.simulate import simulate
-    from belt_drive_ros.core.network.scene import load_network
+    from belt_drive_ros.io.scenes import load_network
 
     scene = load_network(SCENE)
     ramp = runup_scene(SCENE, scene, NetworkModel.build(scene), 1.0)
@@ -325,7 +325,7 @@ def test_a_recording_cut_off_mid_write_resimulates_up_to_its_last_complete_sampl
 def test_joint_values_alone_equal_those_of_the_whole_outputs(tier):
     """The tick's joint-states-only path (stepper.pulley_state + layout.joint_values) gives the values of the one-sample
     outputs bit for bit, in every tier, with a held crank torque and an accessory on its profile."""
-    from belt_drive_ros.core.network.scene import load_network
+    from belt_drive_ros.io.scenes import load_network
     from belt_drive_ros.io.network_bag import NetworkLayout
     from belt_drive_ros.ros.network_stepper import NetworkStepper
 

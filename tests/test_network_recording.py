@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from belt_drive_ros.core.network.scene import load_network
+from belt_drive_ros.io.scenes import load_network
 from belt_drive_ros.io.cdr_encoders import encode_float64
 from belt_drive_ros.io.network_bag import BLOCK_SAMPLES, NetworkBagWriter, NetworkLayout, network_record, scene_text
 

@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 
 from belt_drive_ros.core.errors import SceneError
-from belt_drive_ros.core.inputs import parse_yaml
+from belt_drive_ros.io.inputs import parse_yaml
 from belt_drive_ros.core.network.model import NetworkModel
 from belt_drive_ros.core.network.simulate import simulate as simulate_linear
-from belt_drive_ros.core.network.scene import NetworkScene, load_network
+from belt_drive_ros.core.network.scene import NetworkScene
+from belt_drive_ros.io.scenes import load_network
 from belt_drive_ros.core.network.slip import simulate_slipping
 
 R = 0.05  # every pulley of the square loop
@@ -147,7 +148,7 @@ def test_paper_network_that_slips_matches_the_single_belt_slipping_model():
     down to units of dt / 2^30 and switches one unit past the crossing, so its event times lie up to
     one unit (0.9e-12 s at 1 ms) later: two units asked.
     """
-    from belt_drive_ros.core.scene import load_scene
+    from belt_drive_ros.io.scenes import load_scene
     from belt_drive_ros.core.slip_run import SlippingSimulator
 
     data = shipped("paper_network")

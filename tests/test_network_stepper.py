@@ -169,7 +169,7 @@ def test_the_compiled_tick_compiles_once_and_interpreted_gives_the_same_floats(t
     import subprocess
     import sys
 
-    from belt_drive_ros.core.network.scene import load_network, shipped_networks
+    from belt_drive_ros.io.scenes import load_network, shipped_networks
     from belt_drive_ros.core.network.tick import network_tick, warm
 
     warm()  # the signature make install compiles is the one the node calls

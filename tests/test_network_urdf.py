@@ -10,7 +10,7 @@ import pytest
 import yourdfpy
 
 from belt_drive_ros.core.network.model import arm
-from belt_drive_ros.core.network.scene import load_network, shipped_networks
+from belt_drive_ros.io.scenes import load_network, shipped_networks
 from belt_drive_ros.io.network_bag import NetworkLayout
 
 

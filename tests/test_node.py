@@ -19,7 +19,8 @@ import math
 import numpy as np
 import pytest
 
-from belt_drive_ros.core.scene import load_scene, shipped_scenes
+from belt_drive_ros.io.scenes import load_scene
+from belt_drive_ros.core.scene import shipped_scenes
 from belt_drive_ros.core.simulate import simulate
 from belt_drive_ros.core.sources import Constant, Schedule, Step, Table
 from belt_drive_ros.io.recording import SLIP_FLOAT_OUTPUTS

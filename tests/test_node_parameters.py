@@ -10,7 +10,7 @@ import pytest
 
 from belt_drive_ros.core.errors import ParameterError
 from belt_drive_ros.core.params import FIELD_DOCS, BeltDriveParams
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.ros.parameter_schema import (
     MODEL_PARAMETERS,
     NodeConfigError,

@@ -246,7 +246,7 @@ def test_params_file_is_handed_to_rcl_as_the_checked_copy(tmp_path):
     import os
 
     from belt_drive_ros.commands.node import check_params_files
-    from belt_drive_ros.core.inputs import InputError
+    from belt_drive_ros.io.inputs import InputError
 
     path = tmp_path / "params.yaml"
     text = "belt_drive:\n  ros__parameters:\n    c: 4.0\n"

@@ -11,7 +11,7 @@ import yaml
 
 from belt_drive_ros.core.errors import BeltDriveError, ParameterError
 from belt_drive_ros.core.model import FlexibleBeltModel, RigidBeltModel
-from belt_drive_ros.core.inputs import parse_yaml
+from belt_drive_ros.io.inputs import parse_yaml
 from belt_drive_ros.commands.scenes import describe_fields
 from belt_drive_ros.core.params import FIELD_DOCS, PLAUSIBLE_MAX, BeltDriveParams
 

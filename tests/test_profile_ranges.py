@@ -15,7 +15,8 @@ import pytest
 
 from belt_drive_ros.cli import main
 from belt_drive_ros.core.errors import SceneError
-from belt_drive_ros.core.scene import load_scene, shipped_scenes
+from belt_drive_ros.io.scenes import load_scene
+from belt_drive_ros.core.scene import shipped_scenes
 from belt_drive_ros.core.sources import _KINDS, _REGISTRY, COUNT_MAX, TORQUE_MAX, make_profile
 
 #: a valid mapping of each kind to start from (the class defaults, a motor curve given)

@@ -10,7 +10,7 @@ import pytest
 from belt_drive_ros.cli import main
 from belt_drive_ros.commands import sim as sim_command
 from belt_drive_ros.core import stream as stream_module
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.io.progress import ProgressBar, estimate_run
 
 

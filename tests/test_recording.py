@@ -27,7 +27,7 @@ from belt_drive_ros.io.recording import (
     write_result_mcap,
 )
 from belt_drive_ros.io.torque_bag import scene_from_bag, scene_with_torque_bag
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.simulate import simulate
 from belt_drive_ros.io.urdf import urdf_from_params
 from msg_tools import encode, read_bag, read_topic

@@ -11,7 +11,7 @@ import pytest
 from belt_drive_ros.io.recording import BagReadError
 from belt_drive_ros.io.torque_bag import RecordedTorque, scene_with_torque_bag
 from belt_drive_ros.ros.replay import replay_schedule
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.simulate import simulate
 from msg_tools import Ros2McapWriter, read_topic
 

@@ -19,7 +19,7 @@ from belt_drive_ros.cli import main
 from belt_drive_ros.commands import sim as sim_command
 from belt_drive_ros.core import accuracy_probes
 from belt_drive_ros.core import stream as stream_module
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.stream import stream
 from belt_drive_ros.io import run_writers
 from belt_drive_ros.io.torque_bag import PASS_CHUNKS, PagedTorque, paged_torque_bag, scene_with_torque_bag

@@ -12,7 +12,8 @@ from belt_drive_ros.core.errors import ParameterError, SceneError
 from belt_drive_ros.core.fidelity import FREQUENCY_RATIO_THRESHOLD, choose_model
 from belt_drive_ros.core.integrators import REGISTRY
 from belt_drive_ros.core.params import BeltDriveParams
-from belt_drive_ros.core.scene import InitialState, Scene, load_scene, shipped_scenes
+from belt_drive_ros.core.scene import InitialState, Scene, shipped_scenes
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.simulate import simulate
 
 SHIPPED = ["e_motor_start", "paper", "truck_compressor"]

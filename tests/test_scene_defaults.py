@@ -22,7 +22,8 @@ from belt_drive_ros.benchmarks import slip_runs
 from belt_drive_ros.benchmarks.common import dop853_reference, run_errors
 from belt_drive_ros.core.fidelity import choose_model
 from belt_drive_ros.core.model import make_model
-from belt_drive_ros.core.scene import load_scene, shipped_scenes
+from belt_drive_ros.io.scenes import load_scene
+from belt_drive_ros.core.scene import shipped_scenes
 from belt_drive_ros.core.simulate import Simulator, simulate
 
 DEFAULT_TOLERANCE = 1e-4

@@ -25,7 +25,7 @@ import scipy.optimize
 from belt_drive_ros.core.errors import ParameterError
 from belt_drive_ros.core.model import FlexibleBeltModel
 from belt_drive_ros.core.params import BeltDriveParams
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.simulate import Simulator
 from belt_drive_ros.benchmarks.slip_reference import HybridStepper, RegularisedFriction, reference_hybrid
 from belt_drive_ros.core.slip import SLIP, STICK, SlippingBeltModel

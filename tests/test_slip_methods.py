@@ -28,7 +28,7 @@ def test_symplectic_euler_on_the_slipping_model_is_a_one_line_refusal(capsys):
 def test_auto_with_symplectic_euler_runs_a_scene_within_the_limit_on_the_linear_model():
     # auto's single slipping pass cannot take a [coordinates, speeds] method: such a method keeps the
     # two-run path, so a scene that never reaches the capstan limit runs exactly as on its linear model
-    from belt_drive_ros.core.scene import load_scene
+    from belt_drive_ros.io.scenes import load_scene
     from belt_drive_ros.core.simulate import simulate
     import numpy as np
 

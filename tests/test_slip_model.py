@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from belt_drive_ros.core.model import make_model
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.simulate import SLIP_CSV_COLUMNS, simulate
 from belt_drive_ros.core.slip import SlippingBeltModel
 from belt_drive_ros.io.recording import SLIP_FLOAT_OUTPUTS, write_result_mcap

@@ -22,7 +22,7 @@ from belt_drive_ros.core import sources as S
 from belt_drive_ros.core.errors import SimulationDivergedError
 from belt_drive_ros.core.integrators import FIXED_STEP_METHODS, method_class
 from belt_drive_ros.core.model import make_model
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.simulate import Simulator, simulate
 from belt_drive_ros.core.stepper import Plant, Stepper
 from belt_drive_ros.io.torque_bag import RecordedTorque

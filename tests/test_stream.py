@@ -11,7 +11,7 @@ from belt_drive_ros.cli import main
 from belt_drive_ros.commands import sim as sim_command
 from belt_drive_ros.core import sources as S
 from belt_drive_ros.core import stream as stream_module
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.simulate import simulate
 from belt_drive_ros.core.stream import Restart, stream
 from belt_drive_ros.io import run_writers

@@ -20,7 +20,7 @@ import pytest
 
 from msg_tools import encode, schemas
 
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.io.recording import TF_MESSAGE, TfEncoder
 
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "geometry_msgs/msg/TransformStamped", "geometry_msgs/msg/Transform",

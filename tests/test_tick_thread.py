@@ -105,7 +105,7 @@ def test_ticks_are_published_at_their_due_time_never_before(ros_domain_id):
 
 def test_tick_lead_is_at_most_three_quarters_of_a_period():
     from belt_drive_ros.ros.parameter_schema import build_settings, default_values
-    from belt_drive_ros.core.scene import load_scene
+    from belt_drive_ros.io.scenes import load_scene
 
     values = default_values(load_scene("paper"))
     values.update(step_rate_hz=5000.0, tick_lead=0.01)

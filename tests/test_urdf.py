@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 import yourdfpy
 
-from belt_drive_ros.core.scene import load_scene, shipped_scenes
+from belt_drive_ros.io.scenes import load_scene
+from belt_drive_ros.core.scene import shipped_scenes
 from belt_drive_ros.io.urdf import JOINT_NAMES, drive_layout, render_urdf, urdf_from_params
 
 

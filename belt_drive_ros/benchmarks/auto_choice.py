@@ -35,7 +35,7 @@ from ..core import sources as S
 from ..core.integrators import FIXED_STEP_METHODS
 from ..core.simulate import simulate
 from ..core.model import make_model
-from ..core.scene import load_scene
+from ..io.scenes import load_scene
 from ..core.simulate import Simulator
 from ..core.stability import check_step
 from . import slip_runs

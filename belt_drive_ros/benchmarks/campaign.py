@@ -78,7 +78,7 @@ def make_fleet(folder: Path, count: int = 100) -> Path:
     """``count`` torque recordings (``/drive_torque``, 1 kHz) from the shipped truck bags, scaled 0.9 .. 1.1."""
     import dataclasses
 
-    from ..core.scene import load_scene
+    from ..io.scenes import load_scene
     from ..core.simulate import simulate
     from ..io.recording import write_result_mcap
     from ..io.torque_bag import scene_with_torque_bag
@@ -162,7 +162,7 @@ def kernel_figures(count: int = 2000, repeats: int = 3) -> tuple[float, float]:
     from ..core.integrators import method_class
     from ..core.kernel_variants import variant_steps
     from ..core.model import ModelStack, make_model
-    from ..core.scene import load_scene
+    from ..io.scenes import load_scene
     from ..core.stepper import SPEED_LIMIT, Plant
 
     scene = load_scene("paper")

@@ -51,7 +51,8 @@ import scipy.integrate
 
 from ..core.fidelity import choose_model
 from ..core.model import make_model
-from ..core.scene import Scene, load_scene
+from ..core.scene import Scene
+from ..io.scenes import load_scene
 from ..core.simulate import Plant, Simulator
 from ..io.atomic import atomic_output
 from ..core.sources import Constant, Step

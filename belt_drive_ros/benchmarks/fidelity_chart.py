@@ -43,7 +43,8 @@ import numpy as np
 
 from ..core.fidelity import FREQUENCY_RATIO_THRESHOLD, choose_model, limit_exceedance
 from ..core.model import LINEAR_OUTPUTS, FlexibleBeltModel, RigidBeltModel
-from ..core.scene import Scene, load_scene
+from ..core.scene import Scene
+from ..io.scenes import load_scene
 from ..core.simulate import simulate
 from ..core.sources import Constant, Sine
 from .common import log, pyplot, save_figure, write_csv

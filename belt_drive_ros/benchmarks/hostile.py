@@ -88,7 +88,7 @@ def _profile_ranges(kind: str) -> dict:
 
 # ------------------------------------------------------------------ generators (shared with the tests)
 def _load_scene(name):
-    from ..core.scene import load_scene
+    from ..io.scenes import load_scene
 
     return load_scene(name)
 

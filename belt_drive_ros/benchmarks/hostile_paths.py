@@ -147,7 +147,7 @@ def run_fifo_reads(table, tmp: Path, quick: bool, domain_id: int, tools) -> None
 # ------------------------------------------------------------------ truncated files
 def _recording(tmp: Path) -> Path:
     """A short recording of the node's topics, as the node writes them (offline writer, same layout)."""
-    from ..core.scene import load_scene
+    from ..io.scenes import load_scene
     from ..core.simulate import simulate
     from ..io.recording import write_result_mcap
 

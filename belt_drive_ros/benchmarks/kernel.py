@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.model import make_model
-from ..core.scene import load_scene
+from ..io.scenes import load_scene
 from ..core.simulate import Simulator, simulate
 from .common import write_csv
 
@@ -209,7 +209,7 @@ def _simulate_rtf(name: str, repeats: int) -> tuple[float, float]:
 #: what a child process of one tree runs: each scene's whole warm simulate(), minimum CPU of argv[1] repeats
 _CHILD = r"""
 import json, sys, time
-from belt_drive_ros.core.scene import load_scene
+from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.simulate import simulate
 out = {}
 for name in sys.argv[2:]:

@@ -61,7 +61,7 @@ def _python_step_loop(scene, dt: float, duration: float) -> float:
 
 
 def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
-    from ..core.network.scene import load_network
+    from ..io.scenes import load_network
     from ..core.network.simulate import model_of, network_loop, run_loop, simulate
 
     rows = []
@@ -90,7 +90,7 @@ def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
         run_loop(loop, steps)
         rows.append({"figure": f"fead_i4 {method} ns/step (dt {dt:g} s)", "new": (time.process_time() - start) / steps * 1e9,
                      "old": math.nan, "note": f"{loop.args[3].size + loop.args[4].size} matrix entries"})
-    from ..core.scene import load_scene
+    from ..io.scenes import load_scene
     from ..core.simulate import simulate as simulate_paper
     from .kernel import _kernel_ns
 

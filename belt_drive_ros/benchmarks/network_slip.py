@@ -27,7 +27,7 @@ from pathlib import Path
 
 
 def _scene(name: str, tension: float | None = None, alternator_step: float | None = None):
-    from ..core.inputs import parse_yaml
+    from ..io.inputs import parse_yaml
     from ..core.network.scene import NetworkScene
 
     data = parse_yaml((resources.files("belt_drive_ros") / "scenes" / "networks" / f"{name}.yaml").read_text(), name)
@@ -57,7 +57,7 @@ def node_ticks(ticks: int) -> list:
 
     rows = []
     for dt in (1e-3, 1e-4):
-        from ..core.inputs import parse_yaml
+        from ..io.inputs import parse_yaml
 
         data = parse_yaml((resources.files("belt_drive_ros") / "scenes" / "networks" / "fead_i4.yaml").read_text(), "fead_i4")
         data["belt"]["installed_tension"] = 150.0

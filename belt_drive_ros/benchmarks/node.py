@@ -162,7 +162,7 @@ def _same_scene(asked, ran) -> bool:
 
 
 def _is_network(scene: str) -> bool:
-    from ..core.network.scene import is_network
+    from ..io.scenes import is_network
 
     return bool(is_network(scene))
 
@@ -172,7 +172,7 @@ def _floor_joints(scene: str) -> list[str]:
     paper drive's four are the floor's default)."""
     if not _is_network(scene):
         return []
-    from ..core.network.scene import load_network
+    from ..io.scenes import load_network
     from ..io.network_bag import NetworkLayout
 
     return ["--joints", ",".join(NetworkLayout(load_network(scene)).joints)]

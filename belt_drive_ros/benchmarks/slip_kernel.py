@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from ..core.accuracy import slip_run_error
-from ..core.scene import load_scene
+from ..io.scenes import load_scene
 from ..core.simulate import simulate
 from ..core.slip_run import SlippingSimulator
 from .common import write_csv

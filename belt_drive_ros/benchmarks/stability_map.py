@@ -62,7 +62,8 @@ import numpy as np
 from ..core.errors import SimulationDivergedError
 from ..core.model import FlexibleBeltModel
 from ..core.params import BeltDriveParams
-from ..core.scene import InitialState, load_scene
+from ..core.scene import InitialState
+from ..io.scenes import load_scene
 from ..core.simulate import Simulator
 from ..core.sources import Constant
 from ..core.stability import max_stable_step

@@ -4,7 +4,7 @@ The variants (:meth:`~belt_drive_ros.campaign.spec.Campaign.variants`) go
 out in batches, one Dask task each (Dask's per-task overhead is ~1 ms, a
 run ~0.3-6 ms: one task per run would be mostly overhead). A task
 (:func:`run_batch`) builds its variants' scenes, runs them with
-:func:`~belt_drive_ros.core.ensemble_run.simulate_many` (ensembles where
+:func:`~belt_drive_ros.campaign.ensemble_run.simulate_many` (ensembles where
 variants share profiles and settings, single runs otherwise), computes the
 metrics (:mod:`~belt_drive_ros.campaign.metrics`) and returns a table, one
 row per variant. A variant that fails (invalid parameters, an unstable
@@ -36,7 +36,7 @@ from pathlib import Path
 
 
 from ..core.errors import BeltDriveError, InputError
-from ..core.inputs import read_text
+from ..io.inputs import read_text
 from .metrics import GROUP_REDUCTION, METRICS, group_metrics, run_metrics, summary_metrics
 from .spec import Campaign, CampaignError
 
@@ -91,7 +91,7 @@ def run_batch(portable: dict, rows, recordings_dir: str | None = None):
         except Exception as exc:  # noqa: BLE001 - whatever a variant's values break, it is that variant's row
             record.update(ran="none", error=f"{type(exc).__name__}: {' '.join(str(exc).split())[:400]}")
         out.append(record)
-    from ..core.ensemble_run import GroupRun, GroupSummary, run_groups
+    from .ensemble_run import GroupRun, GroupSummary, run_groups
 
     fleet = campaign.fleet_folder is not None and recordings_dir
     # without recordings to write, ensembles keep only the metrics' reductions over time (memory: one window)

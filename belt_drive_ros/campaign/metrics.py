@@ -71,7 +71,7 @@ def run_metrics(result) -> dict[str, float]:
 
 
 def group_metrics(run) -> list[dict[str, float]]:
-    """:func:`run_metrics` of every variant of a :class:`~belt_drive_ros.core.ensemble_run.GroupRun` at once.
+    """:func:`run_metrics` of every variant of a :class:`~belt_drive_ros.campaign.ensemble_run.GroupRun` at once.
 
     The same formulas as array reductions over the time axis of the (N+1, V)
     signals (so each row equals :func:`run_metrics` of that variant's single
@@ -80,7 +80,7 @@ def group_metrics(run) -> list[dict[str, float]]:
     return summary_metrics(_finish(_window(run)), len(run))
 
 
-#: how the linear-run metrics of windows of one run combine (:class:`~belt_drive_ros.core.ensemble_run.Reductions`)
+#: how the linear-run metrics of windows of one run combine (:class:`~belt_drive_ros.campaign.ensemble_run.Reductions`)
 WINDOW_KINDS = {
     "peak_belt_torque": "max", "min_slack_force": "min", "peak_friction_use": "max", "peak_deflection": "max",
     "final_speed": "last", "min_speed": "min",
@@ -88,12 +88,12 @@ WINDOW_KINDS = {
 
 
 def _window(run) -> dict:
-    """The linear-run metrics of one window of a :class:`~belt_drive_ros.core.ensemble_run.GroupRun` (before :func:`_finish`)."""
+    """The linear-run metrics of one window of a :class:`~belt_drive_ros.campaign.ensemble_run.GroupRun` (before :func:`_finish`)."""
     belt, omega = run.output("belt_torque"), run.output("omega_M")
     return _reduce(belt, omega, run.output("span_force_slack"), run.output("relative_deflection"), run.friction_use())
 
 
-#: ``reduce`` of :func:`~belt_drive_ros.core.ensemble_run.run_groups` for the campaign metrics (then :func:`summary_metrics`)
+#: ``reduce`` of :func:`~belt_drive_ros.campaign.ensemble_run.run_groups` for the campaign metrics (then :func:`summary_metrics`)
 GROUP_REDUCTION = (WINDOW_KINDS, _window)
 
 

@@ -45,13 +45,14 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from ..core.errors import BeltDriveError, InputError
-from ..core.inputs import MAX_DEPTH, check_path, parse_yaml, read_text, real, short, unknown_key
+from ..core.errors import BeltDriveError, InputError, real, short, unknown_key
+from ..io.inputs import MAX_DEPTH, check_path, parse_yaml, read_text
 from .values import boolean, number, sequence
 from .values import mapping as as_mapping
 from .values import text as string
 from ..core.params import FIELD_DOCS
-from ..core.scene import Scene, load_scene
+from ..core.scene import Scene
+from ..io.scenes import load_scene, scene_from_mapping
 from ..core.sources import make_profile
 from .metrics import DEFAULT_LIMITS, METRICS
 
@@ -190,7 +191,7 @@ class Campaign:
     def load(cls, path) -> "Campaign":
         """Parse a campaign file; every error names the key.
 
-        The file is read through :mod:`belt_drive_ros.core.inputs` as a scene
+        The file is read through :mod:`belt_drive_ros.io.inputs` as a scene
         file is: a regular UTF-8 file of at most :data:`CAMPAIGN_LIMIT` bytes
         (its size checked before anything is read), YAML without aliases,
         anchors, deep nesting or duplicate keys, YAML 1.2 numbers.
@@ -220,7 +221,7 @@ class Campaign:
                     raise CampaignError(f"{key}: one line of at most 200 characters, without '/', got {short(value)}")
         scene_ref = data.get("scene")
         if isinstance(scene_ref, Mapping):  # inline (what a worker receives)
-            base = Scene.from_mapping(scene_ref)
+            base = scene_from_mapping(scene_ref)
         elif isinstance(scene_ref, str) and scene_ref:
             candidate = base_dir / scene_ref
             by_path = candidate.suffix in (".yaml", ".yml") or os.sep in scene_ref
@@ -230,7 +231,7 @@ class Campaign:
         mapping = base.to_dict()
         for path, _, value in _key_paths(_mapping(data, "set"), "set."):
             _assign(mapping, tuple(path.split(".")), value)
-        base = Scene.from_mapping(mapping)
+        base = scene_from_mapping(mapping)
         grid, decode = {}, {}
         for key, given, values in _key_paths(_mapping(data, "grid"), "grid."):
             column, back = _column(key, sequence(values, f"grid.{given}", CampaignError, nonempty=True))
@@ -433,7 +434,7 @@ def _array(values: list) -> np.ndarray:
 def _plain(value, where: str, depth: int = 0):
     """``value`` (a campaign mapping from Python) as YAML's plain types: numpy scalars as Python numbers, booleans
     and text, arrays and tuples as lists, mappings as dicts; anything else, or nesting deeper than
-    :data:`~belt_drive_ros.core.inputs.MAX_DEPTH` (a structure that holds itself included), a
+    :data:`~belt_drive_ros.io.inputs.MAX_DEPTH` (a structure that holds itself included), a
     :class:`CampaignError` naming where. A parsed campaign file is plain already."""
     label = where.rstrip(".")[:80] or "campaign"
     if depth > MAX_DEPTH:
@@ -464,7 +465,7 @@ def _mapping(data: Mapping, key: str, where: str = "") -> dict:
 
 
 def _checked(path: Path, key: str, what: str, folder: bool = False) -> None:
-    """``core.inputs.check_path`` (``os.stat`` only, nothing opened) with the error naming ``key``."""
+    """``io.inputs.check_path`` (``os.stat`` only, nothing opened) with the error naming ``key``."""
     try:
         check_path(path, what, folder=folder)
     except InputError as exc:

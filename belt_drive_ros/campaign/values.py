@@ -8,7 +8,8 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from ..core.inputs import MAX_INT, InputError, real, short
+from ..core.errors import MAX_INT, real, short
+from ..io.inputs import InputError
 
 
 def _refuse(error, key: str, expected: str, value: Any):

@@ -57,7 +57,7 @@ def run(args) -> int:
             raise OutputRefused(f"--out-dir {args.out_dir}: cannot make the folder: {exc.strerror or exc}") from None
     if not args.no_live:
         from ..core.errors import SceneError
-        from ..core.scene import load_scene
+        from ..io.scenes import load_scene
 
         drive = load_scene(args.scene).drive.kind  # (refused before any node starts, not after their start-up logs)
         if drive != "engine":

@@ -27,7 +27,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..core.errors import SceneError
     from ..core.network.model import NetworkModel, modes
-    from ..core.network.scene import load_network
+    from ..io.scenes import load_network
 
     scene = load_network(args.scene)
     if args.speed is not None and not (math.isfinite(args.speed) and abs(args.speed) <= 1.0e4):
@@ -77,7 +77,7 @@ def runup_scene(label: str, scene, model, seconds: float):
     ``J_eff = sum_i J_i (r_d / r_i)^2`` (the belt turning every pulley without stretch)."""
     import numpy as np
 
-    from ..core.inputs import parse_yaml
+    from ..io.inputs import parse_yaml
     from ..core.network.scene import NetworkScene
     from ..io.network_bag import scene_text
 

@@ -47,7 +47,7 @@ def run_network(args) -> int:
     from ..core.errors import IntegratorError, SceneError
     from ..core.integrators import method_class
     from ..core.network.simulate import simulate
-    from ..core.network.scene import load_network
+    from ..io.scenes import load_network
     from ..io.atomic import atomic_output, check_output
 
     _refuse_unsupported(args)
@@ -224,7 +224,7 @@ def demo_network(name: str, mcap_path) -> None:
     """``make demo``'s network part: the scene's run, what each pulley did, and its MCAP."""
     import argparse
 
-    from ..core.network.scene import load_network
+    from ..io.scenes import load_network
     from ..core.network.simulate import simulate
 
     scene = load_network(name)

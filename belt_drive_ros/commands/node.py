@@ -76,7 +76,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     if args.list_parameters and args.scene is not None:
-        from ..core.network.scene import is_network
+        from ..io.scenes import is_network
 
         if is_network(args.scene):  # the network node's parameters (taken at start)
             from ..ros.network_node import PARAMETERS
@@ -100,7 +100,7 @@ def run(args) -> int:
         refused = realtime_priority(args.priority)  # before rclpy starts its threads: they inherit it
         if refused:
             print(f"belt-drive: warning: {refused}; running with normal scheduling", file=sys.stderr)
-    from ..core.network.scene import is_network
+    from ..io.scenes import is_network
 
     named = args.scene or next((a.split(":=", 1)[1] for a in args.ros_args or [] if a.startswith("scene:=")), None)
     if named and is_network(named):  # a belt network scene: its own node (ros/network_node.py)
@@ -146,7 +146,7 @@ def check_params_files(ros_args, copies: str | None = None) -> list:
 
     Each file must be a regular UTF-8 file under 1 MiB with plain YAML (no
     aliases, nesting at most 32 levels, no duplicate keys):
-    :mod:`belt_drive_ros.core.inputs`. ``/dev/zero`` or a FIFO would
+    :mod:`belt_drive_ros.io.inputs`. ``/dev/zero`` or a FIFO would
     otherwise stall the node's start for good.
 
     With ``copies`` (a private folder), each file's checked text is written
@@ -166,7 +166,7 @@ def check_params_files(ros_args, copies: str | None = None) -> list:
     """
     import os
 
-    from ..core.inputs import parse_yaml, read_text
+    from ..io.inputs import parse_yaml, read_text
 
     out = list(ros_args)
     for k, (flag, value) in enumerate(zip(ros_args, ros_args[1:])):

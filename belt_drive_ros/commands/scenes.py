@@ -11,8 +11,9 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..core.network.scene import is_network, load_network, shipped_networks
-    from ..core.scene import load_scene, shipped_scenes
+    from ..io.scenes import is_network, load_network, shipped_networks
+    from ..io.scenes import load_scene
+    from ..core.scene import shipped_scenes
     from ..io.network_plot import describe
 
     if args.name is not None and is_network(args.name):  # a belt network: its computed geometry

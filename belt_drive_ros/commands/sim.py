@@ -95,7 +95,7 @@ def register(sub) -> None:
 
 def _options(pairs):
     from ..core.errors import IntegratorError
-    from ..core.inputs import short
+    from ..core.errors import short
 
     out = {}
     for pair in pairs:
@@ -117,7 +117,7 @@ PLOT_SAMPLES = 250_000
 
 def run(args) -> int:
     from ..io.progress import ProgressBar
-    from ..core.scene import load_scene
+    from ..io.scenes import load_scene
 
     from ..io import is_recording  # a path check: mcap and msg_tools load only for a recording
 
@@ -131,7 +131,7 @@ def run(args) -> int:
             return resimulate(args)
         scene = _resimulation(args)
     else:
-        from ..core.network.scene import is_network
+        from ..io.scenes import is_network
 
         if is_network(args.scene):  # a belt network: its own run (commands/network_sim.py)
             from .network_sim import run_network

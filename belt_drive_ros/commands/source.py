@@ -104,7 +104,7 @@ _MOTOR_FIELDS = ("stall_torque", "no_load_speed", "curve", "soft_start_time")
 
 def _from_scene(scene_name: str, expected_kind: str | None):
     from ..core.errors import SceneError
-    from ..core.scene import load_scene
+    from ..io.scenes import load_scene
 
     scene = load_scene(scene_name)
     if expected_kind is not None and scene.drive.kind != expected_kind:
@@ -123,11 +123,10 @@ def read_csv_profile(path: Path, column: str | None = None, interpolation: str =
     """Table profile from a CSV: time [s] + torque [N m] columns (see the command's help)."""
     import numpy as np
 
-    from ..core.errors import SceneError
-    from ..core.inputs import short
+    from ..core.errors import SceneError, short
     from ..core.sources import Table
 
-    from ..core.inputs import read_text
+    from ..io.inputs import read_text
 
     text = read_text(path, "CSV profile", limit=CSV_LIMIT)
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]

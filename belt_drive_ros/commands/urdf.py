@@ -27,11 +27,11 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..core.scene import load_scene
+    from ..io.scenes import load_scene
     from ..io.atomic import OutputRefused, atomic_output, check_output
     from ..io.urdf import render_urdf, urdf_from_params
 
-    from ..core.network.scene import is_network, load_network
+    from ..io.scenes import is_network, load_network
 
     if is_network(args.scene):  # a belt network: its layout, a joint per pulley and the tensioner arm
         from ..io.network_bag import NetworkLayout

@@ -15,7 +15,7 @@ relative on every shipped scene and explicit method):
   :func:`~belt_drive_ros.core.kernel._steps` with the variants as vector lanes.
 
 Covered: the rigid and flexible models with any explicit fixed-step method. Not covered
-(:class:`EnsembleUnsupported`; :mod:`~belt_drive_ros.core.ensemble_run` runs them singly): the slipping
+(:class:`EnsembleUnsupported`; :mod:`~belt_drive_ros.campaign.ensemble_run` runs them singly): the slipping
 model, the implicit ``trapezoidal``, scipy's adaptive methods and profiles without a data form.
 """
 

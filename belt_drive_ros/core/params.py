@@ -18,8 +18,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .errors import ParameterError
-from .inputs import plain_number, short, unknown_key
+from .errors import ParameterError, plain_number, short, unknown_key
 
 #: field -> (unit, description); also the order of the YAML keys.
 FIELD_DOCS: dict[str, tuple[str, str]] = {

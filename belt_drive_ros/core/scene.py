@@ -1,7 +1,7 @@
 """Scenes: parameters + drive source + load + duration + initial state: what one run needs.
 
 Scene files are YAML; the shipped ones (``belt_drive_ros/scenes/*.yaml``) justify their defaults in
-``docs/model.md``. :func:`load_scene` accepts a shipped name or a path.
+``docs/model.md``. :func:`belt_drive_ros.io.scenes.load_scene` reads one by shipped name or path.
 """
 
 from __future__ import annotations
@@ -9,17 +9,14 @@ from __future__ import annotations
 import copy
 import inspect
 import math
-import os
 from dataclasses import dataclass, field, fields, replace
 from importlib import resources
-from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import yaml
 
-from .errors import ParameterError, SceneError
-from .inputs import parse_yaml, read_text, real, short, unknown_key
+from .errors import ParameterError, SceneError, real, short, unknown_key
 from .integrators import method_class
 from .params import OPTIONAL_DEFAULTS, BeltDriveParams
 from .sources import SPEED_MAX, Constant, TorqueProfile, make_profile
@@ -174,11 +171,13 @@ class Scene:
 
     # ------------------------------------------------------------ mapping
     @classmethod
-    def from_mapping(cls, data: Mapping[str, Any], name: str | None = None) -> "Scene":
+    def from_mapping(cls, data: Mapping[str, Any], name: str | None = None,
+                     shipped: Callable[[str], "Scene"] | None = None) -> "Scene":
         """Scene from a mapping (parsed YAML); errors name the key path. The mapping states :data:`REQUIRED_KEYS`
-        and every required parameter, or ``extends: NAME`` (a shipped scene) and gives only what differs
-        (:func:`_extended`: ``params``, ``initial_state``, ``method_options`` merged key by key; new torques
-        without a ``method`` get ``method: auto``)."""
+        and every required parameter, or ``extends: NAME`` (a shipped scene, ``shipped(NAME)`` its Scene:
+        :func:`belt_drive_ros.io.scenes.scene_from_mapping`) and gives only what differs (:func:`_extended`:
+        ``params``, ``initial_state``, ``method_options`` merged key by key; new torques without a ``method``
+        get ``method: auto``)."""
         if not isinstance(data, Mapping):
             raise SceneError(f"scene: expected a mapping at the top level, got {type(data).__name__} {short(data)}")
         data = dict(data)
@@ -187,7 +186,7 @@ class Scene:
         if unknown:
             raise SceneError(f"scene.{unknown}: unknown key; known keys: {', '.join(sorted(known))}")
         if "extends" in data:
-            data = _extended(data)
+            data = _extended(data, shipped)
         else:
             missing = [k for k in REQUIRED_KEYS if k not in data]
             if missing:
@@ -272,13 +271,15 @@ def shipped_scenes(folder: str = "") -> list[str]:
                   if p.name.endswith(".yaml"))
 
 
-def _extended(data: dict) -> dict:
+def _extended(data: dict, shipped: Callable[[str], Scene] | None) -> dict:
     """``data`` merged into the shipped scene it ``extends`` (see :meth:`Scene.from_mapping`)."""
     base_name = data.pop("extends")
     names = shipped_scenes()
     if not isinstance(base_name, str) or base_name not in names:
         raise SceneError(f"extends: must name a shipped scene ({', '.join(names)}), got {short(base_name)}")
-    merged = load_scene(base_name).to_dict()
+    if shipped is None:
+        raise SceneError("extends: a scene that extends another is read by belt_drive_ros.io.scenes")
+    merged = shipped(base_name).to_dict()
     merged["description"] = f"{base_name} with changes"
     del merged["name"]  # the file's own name, unless it states one
     if ("drive" in data or "load" in data) and "method" not in data:
@@ -293,22 +294,3 @@ def _extended(data: dict) -> dict:
         else:
             merged[key] = value
     return merged
-
-
-def load_scene(name_or_path: str | Path) -> Scene:
-    """Scene by shipped name (``paper``) or by path to a YAML file (read through :mod:`belt_drive_ros.core.inputs`);
-    the scene must state its keys or ``extends`` a shipped one."""
-    if not isinstance(name_or_path, (str, Path)):
-        raise SceneError(f"scene: expected a name or a path, got {type(name_or_path).__name__} {short(name_or_path)}")
-    label = str(name_or_path)
-    path = Path(name_or_path)
-    if label and (path.suffix in (".yaml", ".yml") or os.path.lexists(path) or os.sep in label):  # ('' is Path('.'))
-        text, default_name = read_text(path, "scene file"), path.stem
-        label = f"scene file {short(label, 200)}"
-    else:
-        names = shipped_scenes()
-        if label not in names:  # compared by name: a name the OS refuses (too long, NUL) never reaches it
-            raise SceneError(f"unknown scene {short(label)}: not a file and not a shipped scene ({', '.join(names)})")
-        resource = resources.files("belt_drive_ros") / "scenes" / f"{label}.yaml"
-        text, default_name = resource.read_text(encoding="utf-8"), label
-    return Scene.from_mapping(parse_yaml(text, label), name=default_name)

@@ -18,9 +18,8 @@ from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 import numpy as np
 
-from .errors import SceneError
+from .errors import SceneError, plain_number, real, short
 from . import profile_data as D
-from .inputs import plain_number, real, short
 
 _REGISTRY: dict[str, type["TorqueProfile"]] = {}
 

@@ -68,7 +68,7 @@ BAGS_START_NS = 1_767_225_600_000_000_000
 def _truck():
     """truck_compressor at the 1 ms step the reference bags were made with (the scene's default moved to 0.5 ms
     for its slipping run; the bags are regression references: their bytes stay)."""
-    from ..core.scene import load_scene
+    from .scenes import load_scene
 
     return dataclasses.replace(load_scene("truck_compressor"), dt=1e-3)
 
@@ -97,7 +97,7 @@ def _engine_runup():
 
 
 def _e_motor_start():
-    from ..core.scene import load_scene
+    from .scenes import load_scene
 
     s = load_scene("e_motor_start")
     return dataclasses.replace(s, duration=3.0)

@@ -76,8 +76,8 @@ _SIGNAL_ROWS = ("angle", "speed", "belt_torque", "hub_load", "friction_use", "sl
 
 def scene_text(label: str) -> str:
     """The YAML text of a network scene, by shipped name or path (what a recording stores)."""
-    from ..core.inputs import read_text
-    from ..core.network.scene import shipped_networks
+    from .inputs import read_text
+    from .scenes import shipped_networks
 
     if str(label) in shipped_networks():
         return (resources.files("belt_drive_ros") / "scenes" / "networks" / f"{label}.yaml").read_text(encoding="utf-8")
@@ -85,7 +85,7 @@ def scene_text(label: str) -> str:
 
 
 def scene_from_text(text: str, name: str):
-    from ..core.inputs import parse_yaml
+    from .inputs import parse_yaml
     from ..core.network.scene import NetworkScene
 
     return NetworkScene.from_mapping(parse_yaml(text, f"network scene {name}"), name=name)

@@ -49,8 +49,9 @@ from mcap.exceptions import McapError
 from msg_tools.errors import MsgToolsError, RecoveredBagWarning
 
 from ..core.errors import BeltDriveError, InputError
-from ..core.inputs import check_path, parse_yaml
+from .inputs import check_path, parse_yaml
 from ..core.scene import Scene
+from .scenes import scene_from_mapping
 from .recording import APPLIED_TOPIC, RECORDED_DRIVE, SCENE_METADATA, BagReadError, _sha256, bag_error
 from ..core.profile_data import TABLE_HELD_NS
 from ..core.sources import TORQUE_MAX, Table, TorqueProfile
@@ -625,7 +626,7 @@ def scene_from_bag(path, *, torque_bag=None):
     if reference is not None:
         data = dict(data, drive=0.0)
     try:
-        scene = Scene.from_mapping(data)
+        scene = scene_from_mapping(data)
     except (BeltDriveError, ValueError, TypeError) as exc:
         raise BagReadError(f"{name}: stored scene is invalid: {exc}") from None
     if reference is None:

@@ -67,7 +67,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 
 from .executors import make_executor  # noqa: E402
 from .node import NODE_NAME, OUTPUT_TOPICS, SLIP_OUTPUT_TOPICS, BeltDriveNode  # noqa: E402
-from ..core.inputs import real  # noqa: E402
+from ..core.errors import real  # noqa: E402
 from ..core.sources import TorqueProfile  # noqa: E402
 from .parameter_schema import NodeConfigError  # noqa: E402
 from rcl_interfaces.msg import SetParametersResult  # noqa: E402

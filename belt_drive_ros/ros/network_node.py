@@ -108,7 +108,7 @@ class NetworkSettings:
 
     @classmethod
     def from_values(cls, v: dict) -> "NetworkSettings":
-        from ..core.network.scene import is_network, load_network
+        from ..io.scenes import is_network, load_network
 
         label = str(v["scene"])
         if not is_network(label):

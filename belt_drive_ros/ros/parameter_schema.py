@@ -24,7 +24,8 @@ from ..core.fidelity import choose_model
 from ..core.integrators import REGISTRY, make_integrator
 from ..core.model import make_model
 from ..core.params import FIELD_DOCS, BeltDriveParams
-from ..core.scene import AUTO_METHOD as AUTO, MODELS, Scene, load_scene
+from ..core.scene import AUTO_METHOD as AUTO, MODELS, Scene
+from ..io.scenes import load_scene
 from ..core.accuracy import AccuracyReport, require_accurate, require_accurate_slipping
 from ..core.stability import StabilityReport, require_stable
 from ..core.stepper import Plant

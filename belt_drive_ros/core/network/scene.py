@@ -1,25 +1,19 @@
 """Network scenes (``kind: network``, every key in ``docs/serpentine.md``): a serpentine belt around named pulleys
 listed in the order the belt travels, counter-clockwise (:mod:`.geometry`), an optional tensioner arm; frozen,
-validated, errors one line naming the pulley or key.
+validated, errors one line naming the pulley or key (read by :func:`belt_drive_ros.io.scenes.load_network`).
 """
 
 from __future__ import annotations
 
 import math
-import os
-import stat
 from dataclasses import dataclass
 from functools import cached_property
-from importlib import resources
-from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-from ..errors import SceneError
-from ..inputs import parse_yaml, plain_number, read_text, real, short, unknown_key
+from ..errors import SceneError, plain_number, real, short, unknown_key
 from ..integrators import method_class
-from ..scene import shipped_scenes
 from ..sources import TorqueProfile, make_profile
 from .geometry import Layout, layout
 
@@ -318,48 +312,6 @@ class NetworkScene:
         )
 
 
-def shipped_networks() -> list[str]:
-    """Names of the network scenes shipped in the package (``belt_drive_ros/scenes/networks``)."""
-    return shipped_scenes("networks")
-
-
-def is_network(name_or_path: str | Path) -> bool:
-    """Whether ``name_or_path`` names a shipped network scene or a YAML file stating ``kind: network``."""
-    label = str(name_or_path)
-    if label in shipped_networks():
-        return True
-    path = Path(label)
-    if path.suffix not in (".yaml", ".yml"):
-        return False
-    try:
-        regular = stat.S_ISREG(os.stat(path).st_mode)
-    except (OSError, ValueError):  # a name the OS refuses (too long, NUL byte ...): the scene loader says so in one line
-        return False
-    if regular:
-        data = parse_yaml(read_text(path, "scene file"), f"scene file {short(label, 200)}")
-        return isinstance(data, Mapping) and data.get("kind") == "network"
-    return False
-
-
-def load_network(name_or_path: str | Path) -> NetworkScene:
-    """A network scene by shipped name or path (read like every scene file: regular, UTF-8, size-limited)."""
-    if not isinstance(name_or_path, (str, Path)):
-        raise SceneError(f"scene: expected a name or a path, got {type(name_or_path).__name__} {short(name_or_path)}")
-    label = str(name_or_path)
-    if label in shipped_networks():
-        text = (resources.files("belt_drive_ros") / "scenes" / "networks" / f"{label}.yaml").read_text(encoding="utf-8")
-        default, where = label, label
-    else:
-        path = Path(label)
-        if not label or not (path.suffix in (".yaml", ".yml") or os.path.lexists(path)):  # ('' is Path('.'))
-            raise SceneError(f"unknown network scene {short(label)}: not a file and not shipped ({', '.join(shipped_networks())})")
-        text, default, where = read_text(path, "scene file"), path.stem, f"scene file {short(label, 200)}"
-    data = parse_yaml(text, where)
-    if not isinstance(data, Mapping):
-        raise SceneError(f"{where}: expected a mapping, got {type(data).__name__}")
-    return NetworkScene.from_mapping(data, name=default)
-
-
 def run_steps(scene, duration: float | None, dt: float | None) -> tuple[float, float, int]:
     """``(duration [s], dt [s], steps)`` of a run (default the scene's duration and step), checked as the scene
     file's (:class:`SceneError`; also for a run shorter than one step)."""
@@ -385,4 +337,4 @@ def warm_scene():
                      "torque": 0.1}]})  # fmt: skip
 
 
-__all__ = ["Belt", "Engine", "NetworkScene", "Pulley", "Tensioner", "is_network", "load_network", "shipped_networks"]
+__all__ = ["Belt", "Engine", "NetworkScene", "Pulley", "Tensioner"]

@@ -16,9 +16,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..errors import IntegratorError, SceneError, SimulationDivergedError, UnstableStepError
+from ..errors import IntegratorError, SceneError, SimulationDivergedError, UnstableStepError, short
 from ..identity_cache import built_once
-from ..inputs import short
 from ..profile_data import CONSTANT, DIVERGED, NOT_CONVERGED
 from .model import NetworkModel, NetworkRun, check_step, grid_breakpoints, outputs, piece_of, stack_profiles, step_runs
 from .scene import run_steps, warm_scene

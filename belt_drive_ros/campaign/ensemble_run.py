@@ -23,16 +23,16 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from .ensemble import Ensemble, EnsembleUnsupported, weighted_columns
-from .errors import BeltDriveError
-from .fidelity import choose_model, friction_use, operating_run_step
-from .integrators import method_class
-from .method_choice import good_step_error
-from .model import LINEAR_OUTPUTS, OUTPUT_UNITS, ModelStack, span_forces
-from .params import ParamColumns, friction_limit_array
-from .scene import AUTO_METHOD, Scene
-from .simulate import SimResult, simulate
-from .stability import require_stable
+from ..core.ensemble import Ensemble, EnsembleUnsupported, weighted_columns
+from ..core.errors import BeltDriveError
+from ..core.fidelity import choose_model, friction_use, operating_run_step
+from ..core.integrators import method_class
+from ..core.method_choice import good_step_error
+from ..core.model import LINEAR_OUTPUTS, OUTPUT_UNITS, ModelStack, span_forces
+from ..core.params import ParamColumns, friction_limit_array
+from ..core.scene import AUTO_METHOD, Scene
+from ..core.simulate import SimResult, simulate
+from ..core.stability import require_stable
 
 #: groups of fewer variants run singly (an ensemble's per-step overhead is that of ~8 single runs)
 MIN_GROUP = 8

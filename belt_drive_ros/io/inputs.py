@@ -1,10 +1,11 @@
-"""Bounded reading of files that come from outside: scenes, profiles, parameter files.
+"""Bounded reading of files that come from outside: scenes, campaign files, profiles, parameter files.
 
 Every user's file is read through :func:`read_text` (regular files only, never blocking on a FIFO, at most
 ``limit`` bytes, strict UTF-8), every YAML text through :func:`parse_yaml` (no aliases, anchors or merge keys,
 nesting at most :data:`MAX_DEPTH`, duplicate keys an error, YAML 1.2 numbers: ``1e1`` a float, ``'2e4'`` a
 string). Standard library and PyYAML only, so that :mod:`msg_tools` can use it. Errors are one-line
-:class:`~belt_drive_ros.core.errors.InputError`, naming the file, values quoted through :func:`short`.
+:class:`~belt_drive_ros.core.errors.InputError`, naming the file, values quoted through
+:func:`~belt_drive_ros.core.errors.short`.
 """
 
 from __future__ import annotations
@@ -13,45 +14,18 @@ import math
 import os
 import re
 import stat
-from collections.abc import Mapping
-from numbers import Real
-from typing import Any, Callable
+from typing import Any
 
 import yaml
 
-from .errors import InputError
+from ..core.errors import MAX_INT, InputError, short
 
-__all__ = [
-    "MAX_DEPTH", "SCENE_LIMIT", "InputError", "check_path", "open_regular", "parse_yaml", "plain_number", "read_text",
-    "read_yaml", "real", "short", "unknown_key",
-]  # fmt: skip
+__all__ = ["MAX_DEPTH", "SCENE_LIMIT", "InputError", "check_path", "open_regular", "parse_yaml", "read_text", "read_yaml"]
 
 #: largest scene / parameter YAML file [bytes]; the shipped scenes are ~2 kB
 SCENE_LIMIT = 1 << 20
 #: deepest nesting of YAML collections (a scene needs 4: schedule -> active -> harmonics -> value)
 MAX_DEPTH = 32
-#: longest quoted value in an error message [characters]
-QUOTE_LIMIT = 60
-
-
-def short(value: Any, limit: int = QUOTE_LIMIT) -> str:
-    """``repr(value)`` cut to ``limit`` characters; a container of more than 8 items summarised by type and length
-    before any ``repr`` is built (a huge value never becomes a huge string)."""
-    if isinstance(value, (list, tuple, dict, set)) and len(value) > 8:
-        return f"<{type(value).__name__} of {len(value)} items>"
-    if isinstance(value, (str, bytes)) and len(value) > 4 * limit:
-        value = value[: 4 * limit]
-        text = repr(value)
-        return text[:limit] + f"... ({type(value).__name__}, truncated)"
-    text = repr(value)
-    return text if len(text) <= limit else text[:limit] + "..."
-
-
-def unknown_key(data: Mapping, known) -> str | None:
-    """The first key of ``data`` not in ``known`` (keys as text cut to 60 characters, sorted), or None: what every
-    "unknown key" message names."""
-    unknown = sorted(str(k)[:60] for k in set(data) - set(known))
-    return unknown[0] if unknown else None
 
 
 def _kind(mode: int) -> str:
@@ -185,8 +159,6 @@ def _construct_int(loader, node):
     return value
 
 
-#: largest integer a file may hold (beyond, floats overflow and no setting means anything)
-MAX_INT = 2**63
 _BoundedLoader.add_constructor("tag:yaml.org,2002:int", _construct_int)
 _BoundedLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789"))
 
@@ -216,26 +188,3 @@ def read_yaml(path: str | os.PathLike, what: str = "YAML file", limit: int = SCE
     """:func:`read_text` then :func:`parse_yaml` (errors name the file)."""
     text = read_text(path, what, limit)
     return parse_yaml(text, f"{what} {short(str(path), 200)}")
-
-
-# ------------------------------------------------------------------ numbers
-def real(value: Any) -> int | float | None:
-    """``value`` as a Python ``int`` or ``float`` if it is a real number (numpy scalars as their Python value), else
-    None: booleans, arrays, strings, ``Decimal`` ... are not numbers here."""
-    if isinstance(value, (int, float)):
-        return None if isinstance(value, bool) else value
-    if isinstance(value, Real) and hasattr(value, "item") and type(value).__name__ != "bool":
-        value = value.item()  # numpy's scalars (registered as numbers.Real) as Python numbers
-        return value if isinstance(value, (int, float)) and not isinstance(value, bool) else None
-    return None
-
-
-def plain_number(value: Any, refuse: Callable[[str], Exception]) -> int | float:
-    """``value`` as a Python number (:func:`real`), else ``refuse(what is wrong)`` raised: not a number, or an
-    integer beyond 2^63 (no float holds it; the text of a 5000-digit one even exceeds Python's int-to-str limit)."""
-    number = real(value)
-    if number is None:
-        raise refuse(f"must be a number, got {type(value).__name__} {short(value)}")
-    if isinstance(number, int) and abs(number) > MAX_INT:
-        raise refuse("must be finite, got an integer beyond 2^63")
-    return number

@@ -1,0 +1,89 @@
+"""Scene files read: a drive's scene (:func:`load_scene`) or a belt network's (:func:`load_network`), by shipped name
+(``belt_drive_ros/scenes``, ``scenes/networks``) or by path, through the bounded reader of :mod:`.inputs`; the core
+builds and checks the scene from the parsed mapping (:class:`~belt_drive_ros.core.scene.Scene`,
+:class:`~belt_drive_ros.core.network.scene.NetworkScene`).
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping
+
+from ..core.errors import SceneError, short
+from ..core.network.scene import NetworkScene
+from ..core.scene import Scene, shipped_scenes
+from .inputs import parse_yaml, read_text
+
+__all__ = ["is_network", "load_network", "load_scene", "scene_from_mapping", "shipped_networks", "shipped_scenes"]
+
+
+def _shipped_text(name: str, folder: str = "") -> str:
+    return (resources.files("belt_drive_ros") / "scenes" / folder / f"{name}.yaml").read_text(encoding="utf-8")
+
+
+def scene_from_mapping(data: Mapping[str, Any], name: str | None = None) -> Scene:
+    """:meth:`Scene.from_mapping <belt_drive_ros.core.scene.Scene.from_mapping>`, ``extends: NAME`` read from the
+    shipped scene ``NAME``."""
+    return Scene.from_mapping(data, name=name, shipped=load_scene)
+
+
+def load_scene(name_or_path: str | Path) -> Scene:
+    """Scene by shipped name (``paper``) or by path to a YAML file (read through :mod:`.inputs`); the scene must
+    state its keys or ``extends`` a shipped one."""
+    if not isinstance(name_or_path, (str, Path)):
+        raise SceneError(f"scene: expected a name or a path, got {type(name_or_path).__name__} {short(name_or_path)}")
+    label = str(name_or_path)
+    path = Path(name_or_path)
+    if label and (path.suffix in (".yaml", ".yml") or os.path.lexists(path) or os.sep in label):  # ('' is Path('.'))
+        text, default_name = read_text(path, "scene file"), path.stem
+        label = f"scene file {short(label, 200)}"
+    else:
+        names = shipped_scenes()
+        if label not in names:  # compared by name: a name the OS refuses (too long, NUL) never reaches it
+            raise SceneError(f"unknown scene {short(label)}: not a file and not a shipped scene ({', '.join(names)})")
+        text, default_name = _shipped_text(label), label
+    return scene_from_mapping(parse_yaml(text, label), name=default_name)
+
+
+def shipped_networks() -> list[str]:
+    """Names of the network scenes shipped in the package (``belt_drive_ros/scenes/networks``)."""
+    return shipped_scenes("networks")
+
+
+def is_network(name_or_path: str | Path) -> bool:
+    """Whether ``name_or_path`` names a shipped network scene or a YAML file stating ``kind: network``."""
+    label = str(name_or_path)
+    if label in shipped_networks():
+        return True
+    path = Path(label)
+    if path.suffix not in (".yaml", ".yml"):
+        return False
+    try:
+        regular = stat.S_ISREG(os.stat(path).st_mode)
+    except (OSError, ValueError):  # a name the OS refuses (too long, NUL byte ...): the scene loader says so in one line
+        return False
+    if regular:
+        data = parse_yaml(read_text(path, "scene file"), f"scene file {short(label, 200)}")
+        return isinstance(data, Mapping) and data.get("kind") == "network"
+    return False
+
+
+def load_network(name_or_path: str | Path) -> NetworkScene:
+    """A network scene by shipped name or path (read like every scene file: regular, UTF-8, size-limited)."""
+    if not isinstance(name_or_path, (str, Path)):
+        raise SceneError(f"scene: expected a name or a path, got {type(name_or_path).__name__} {short(name_or_path)}")
+    label = str(name_or_path)
+    if label in shipped_networks():
+        text, default, where = _shipped_text(label, "networks"), label, label
+    else:
+        path = Path(label)
+        if not label or not (path.suffix in (".yaml", ".yml") or os.path.lexists(path)):  # ('' is Path('.'))
+            raise SceneError(f"unknown network scene {short(label)}: not a file and not shipped ({', '.join(shipped_networks())})")
+        text, default, where = read_text(path, "scene file"), path.stem, f"scene file {short(label, 200)}"
+    data = parse_yaml(text, where)
+    if not isinstance(data, Mapping):
+        raise SceneError(f"{where}: expected a mapping, got {type(data).__name__}")
+    return NetworkScene.from_mapping(data, name=default)
