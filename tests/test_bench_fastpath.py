@@ -202,7 +202,7 @@ def test_the_kernel_interpreted_gives_the_same_floats(tmp_path):
     code = (
         "import sys, numpy as np\n"
         "from belt_drive_ros.core.simulate import simulate\n"
-        "from belt_drive_ros.core.scene import load_scene\n"
+        "from belt_drive_ros.io.scenes import load_scene\n"
         "r = simulate(load_scene('truck_compressor'), duration=0.05)\n"
         "np.save(sys.argv[1], r.states)\n"
     )

@@ -319,7 +319,7 @@ def test_the_variant_kernel_compiles_once_and_runs_interpreted_alike(tmp_path):
         "import sys, numpy as np\n"
         "from belt_drive_ros.core.ensemble import Ensemble\n"
         "from belt_drive_ros.core.model import ModelStack\n"
-        "from belt_drive_ros.core.scene import load_scene\n"
+        "from belt_drive_ros.io.scenes import load_scene\n"
         "s = load_scene('paper')\n"
         "ps = [s.params.replace(k=s.params.k * f) for f in (0.9, 1.0, 1.1)]\n"
         "e = Ensemble(ModelStack('flexible', ps), s.drive, s.load, 'lawson5', s.dt)\n"

@@ -145,7 +145,7 @@ def test_the_hybrid_kernel_interpreted_gives_the_same_floats(tmp_path):
 
     code = (
         "import sys, numpy as np\n"
-        "from belt_drive_ros.core.scene import load_scene\n"
+        "from belt_drive_ros.io.scenes import load_scene\n"
         "from belt_drive_ros.core.slip_run import SlippingSimulator\n"
         "s = load_scene('bsg_start')\n"
         "sim = SlippingSimulator(s.params, s.drive, s.load, s.method, s.dt, s.method_options, False)\n"

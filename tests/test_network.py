@@ -634,7 +634,7 @@ def test_the_network_kernel_compiles_once_and_interpreted_gives_the_same_floats(
     assert len(kernel.wheel_steps.signatures) == 1  # the linear drive's loop: one compiled signature for both
     code = ("import sys, numpy as np\n"
             "from belt_drive_ros.core.network.simulate import simulate\n"
-            "from belt_drive_ros.core.network.scene import load_network\n"
+            "from belt_drive_ros.io.scenes import load_network\n"
             "r = simulate(load_network('fead_i4'), duration=0.02, method=sys.argv[2], model='flexible', check_accuracy=False)\n"
             "np.save(sys.argv[1], np.column_stack([r.states, r.tension]))\n")
     for method in ("etd2", "trapezoidal"):

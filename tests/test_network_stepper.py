@@ -188,7 +188,7 @@ def test_the_compiled_tick_compiles_once_and_interpreted_gives_the_same_floats(t
                 x = stepper.tick(x, k, k + 1)
     assert len(network_tick.signatures) == 1
     code = ("import sys, numpy as np\n"
-            "from belt_drive_ros.core.network.scene import load_network\n"
+            "from belt_drive_ros.io.scenes import load_network\n"
             "from belt_drive_ros.io.network_bag import NetworkLayout\n"
             "from belt_drive_ros.ros.network_stepper import NetworkStepper\n"
             "scene = load_network('fead_i4'); layout = NetworkLayout(scene); s = NetworkStepper(scene)\n"
