@@ -163,8 +163,7 @@ def _check_node_options(args) -> None:
     """``bench node``'s -p (NAME:=VALUE) and its scene, checked before the node's child process starts (its exit
     was an internal error, exit 1)."""
     from ..core.errors import InputError
-    from ..io.scenes import is_network, load_network
-    from ..io.scenes import load_scene
+    from ..io.scenes import is_network, load_network, load_scene
 
     scenes = [args.scene] if args.scene is not None else []
     for param in args.param:

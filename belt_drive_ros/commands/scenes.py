@@ -11,8 +11,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..io.scenes import is_network, load_network, shipped_networks
-    from ..io.scenes import load_scene
+    from ..io.scenes import is_network, load_network, shipped_networks, load_scene
     from ..core.scene import shipped_scenes
     from ..io.network_plot import describe
 

@@ -94,8 +94,7 @@ def register(sub) -> None:
 
 
 def _options(pairs):
-    from ..core.errors import IntegratorError
-    from ..core.errors import short
+    from ..core.errors import IntegratorError, short
 
     out = {}
     for pair in pairs:
