@@ -17,6 +17,7 @@ process has rclpy loaded by other tests already).
 from __future__ import annotations
 
 import ast
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -115,6 +116,23 @@ def test_no_import_circles():
         if node not in state:
             visit(node)
     assert not cycles, "import circles:\n" + "\n".join(" -> ".join(c) for c in cycles)
+
+
+#: core modules that touch files, and why: numba's disk cache of the kernels (its stamps, the kernels' sources)
+READS_FILES = {"jit_cache.py"}
+#: what reading a file looks like in a module (open, stat, read_text ... and the package's own readers)
+FILE_READS = re.compile(r"(?<![\w.])open\(|\.(read_text|read_bytes|stat|lexists|listdir|scandir|open)\(|"
+                        r"\b(read_yaml|parse_yaml|read_text|check_path|open_regular)\(")
+
+
+def test_the_core_reads_no_file():
+    """Scene files, campaign files and YAML are read in io (io/inputs.py, io/scenes.py): the core builds and checks
+    from parsed mappings and arrays; it only lists the names of the shipped scenes."""
+    found = [f"{path.relative_to(PACKAGE.parent)}:{n}: {line.strip()}"
+             for path in _modules("core") if path.name not in READS_FILES
+             for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+             if FILE_READS.search(line)]
+    assert not found, "the core reads files:\n" + "\n".join(found)
 
 
 def _loaded_after(code: str, prefixes: tuple[str, ...]) -> list[str]:

@@ -13,7 +13,7 @@ from belt_drive_ros.core.fidelity import FREQUENCY_RATIO_THRESHOLD, choose_model
 from belt_drive_ros.core.integrators import REGISTRY
 from belt_drive_ros.core.params import BeltDriveParams
 from belt_drive_ros.core.scene import InitialState, Scene, shipped_scenes
-from belt_drive_ros.io.scenes import load_scene
+from belt_drive_ros.io.scenes import load_scene, scene_from_mapping
 from belt_drive_ros.core.simulate import simulate
 
 SHIPPED = ["e_motor_start", "paper", "truck_compressor"]
@@ -326,3 +326,21 @@ def test_an_absurd_initial_speed_is_refused_by_name(name):
     with pytest.raises(SceneError, match=f"initial_state.{name}: 1e\\+20 rad/s is outside the plausible range"):
         InitialState(**{name: 1e20})
     assert getattr(InitialState(**{name: -SPEED_MAX}), name) == -SPEED_MAX
+
+
+def test_extends_is_read_by_io_and_the_core_builds_from_the_merged_mapping(tmp_path):
+    """The core reads no file: ``extends: NAME`` is resolved by io.scenes (the shipped scene read there), the same
+    scene whether it comes from a file or a mapping; the core's own from_mapping, given no reader, says so in one line
+    (after the name itself is checked: a wrong name keeps its message)."""
+    data = {"extends": "paper", "duration": 0.5, "params": {"k": 2.5e4}}
+    scene = scene_from_mapping(data, name="mine")
+    assert scene.name == "mine" and scene.duration == 0.5 and scene.params.k == 2.5e4
+    assert scene.params.F_0 == load_scene("paper").params.F_0 and scene.description == "paper with changes"
+    path = tmp_path / "mine.yaml"
+    path.write_text("extends: paper\nduration: 0.5\nparams: {k: 2.5e4}\n")
+    assert load_scene(path) == scene
+    assert Scene.from_mapping(data, name="mine", shipped=load_scene) == scene
+    with pytest.raises(SceneError, match=r"^extends: a scene that extends another is read by belt_drive_ros\.io\.scenes$"):
+        Scene.from_mapping(data)
+    with pytest.raises(SceneError, match=r"^extends: must name a shipped scene \(.*\), got 'nope'$"):
+        Scene.from_mapping({"extends": "nope"})
