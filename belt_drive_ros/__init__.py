@@ -4,9 +4,9 @@ Three layers, one folder each:
 
 * :mod:`belt_drive_ros.core`: parameters, model, torque sources, integrators,
   the stepper, stability, scenes, model choice, simulation (numpy, scipy and
-  PyYAML only);
-* :mod:`belt_drive_ros.io`: ROS-free input and output (MCAP recordings of
-  results, torque bags, reference bags, plots);
+  numba only; it reads no file);
+* :mod:`belt_drive_ros.io`: ROS-free input and output (scene and YAML files,
+  MCAP recordings of results, torque bags, reference bags, plots);
 * :mod:`belt_drive_ros.ros`: the rclpy adapters (node, source node, recorder,
   live replay, harness, environment).
 

@@ -1,6 +1,6 @@
 """The package's three layers, as the folders show them, and their import rules.
 
-* ``belt_drive_ros.core``: numpy, scipy, numba, PyYAML and the standard library only;
+* ``belt_drive_ros.core``: numpy, scipy, numba and the standard library only (it reads no file);
   never ``io``, ``ros``, rclpy, mcap or msg_tools. numba is imported only where a run
   starts: ``belt-drive --help``, ``belt-drive scenes`` and ``msg-tools`` never load it.
 * ``belt_drive_ros.io``: ROS-free input and output; may use core and msg_tools/mcap,
@@ -27,7 +27,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "belt_drive_ros"
 #: per layer: the package's own layers it may import, and the third-party top-level modules
 MAY_IMPORT = {
-    "core": ({"core"}, {"numpy", "scipy", "numba", "yaml"}),
+    "core": ({"core"}, {"numpy", "scipy", "numba"}),
     "io": ({"core", "io"}, {"numpy", "scipy", "yaml", "mcap", "mcap_ros2", "msg_tools", "zstandard", "matplotlib"}),
     "campaign": ({"core", "io", "campaign"}, {"numpy", "scipy", "yaml", "msg_tools", "matplotlib", "pandas", "pyarrow",
                                                 "dask", "distributed"}),

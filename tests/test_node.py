@@ -19,7 +19,7 @@ import math
 import numpy as np
 import pytest
 
-from belt_drive_ros.io.scenes import load_scene
+from belt_drive_ros.io.scenes import load_scene, scene_yaml
 from belt_drive_ros.core.scene import shipped_scenes
 from belt_drive_ros.core.simulate import simulate
 from belt_drive_ros.core.sources import Constant, Schedule, Step, Table
@@ -126,7 +126,7 @@ def test_every_shipped_scene_equals_offline(ros_domain_id, name):
 def test_torque_jumps_inside_a_tick(ros_domain_id, tmp_path, load, method):
     scene = load_scene("paper").with_overrides(load=load, name="jump", dt=TICK)
     path = tmp_path / "jump.yaml"
-    path.write_text(scene.to_yaml())
+    path.write_text(scene_yaml(scene))
     out, settings = run_node(ros_domain_id, scene=str(path), model="flexible", method=method, substeps=1,
                              schedule=((0.0, 6.0),), duration=0.15)
     assert_bit_identical(out, offline_like(settings, 0.15, drive=sampled(((0.0, 6.0),))))

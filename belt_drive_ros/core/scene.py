@@ -14,7 +14,6 @@ from importlib import resources
 from typing import Any, Callable, Mapping
 
 import numpy as np
-import yaml
 
 from .errors import ParameterError, SceneError, real, short, unknown_key
 from .integrators import method_class
@@ -230,7 +229,7 @@ class Scene:
         return cls(params=params, drive=drive, load=load, initial_state=InitialState(**init), **data)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain mapping, YAML-ready; ``Scene.from_mapping(s.to_dict()) == s``."""
+        """Plain mapping, YAML-ready (:func:`belt_drive_ros.io.scenes.scene_yaml`); ``Scene.from_mapping(s.to_dict()) == s``."""
         return {
             "name": self.name,
             "description": self.description,
@@ -246,10 +245,6 @@ class Scene:
             "drive": self.drive.to_dict(),
             "load": self.load.to_dict(),
         }
-
-    def to_yaml(self) -> str:
-        """The scene as YAML (what ``belt-drive scenes NAME`` prints; loads back to an equal scene)."""
-        return yaml.safe_dump(self.to_dict(), sort_keys=False)
 
     def with_overrides(self, **changes: Any) -> "Scene":
         """Copy with top-level fields replaced (``None`` values are ignored)."""

@@ -27,7 +27,7 @@ topic                      type                         content [unit]
 
 Every file is self-describing: metadata records
 
-* ``scene``: ``yaml`` (the scene as :meth:`Scene.to_yaml` writes it, with the
+* ``scene``: ``yaml`` (the scene as :func:`~belt_drive_ros.io.scenes.scene_yaml` writes it, with the
   model, integrator and step actually used; a drive recorded in a bag is
   stored as a reference ``{type: recorded, bag, topic, samples, sha256}``
   instead of its samples), ``name``, ``model``, ``method``, ``dt``,

@@ -12,12 +12,14 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
+import yaml
+
 from ..core.errors import SceneError, short
 from ..core.network.scene import NetworkScene
 from ..core.scene import Scene, shipped_scenes
 from .inputs import parse_yaml, read_text
 
-__all__ = ["is_network", "load_network", "load_scene", "scene_from_mapping", "shipped_networks", "shipped_scenes"]
+__all__ = ["is_network", "load_network", "load_scene", "scene_from_mapping", "scene_yaml", "shipped_networks", "shipped_scenes"]
 
 
 def _shipped_text(name: str, folder: str = "") -> str:
@@ -46,6 +48,11 @@ def load_scene(name_or_path: str | Path) -> Scene:
             raise SceneError(f"unknown scene {short(label)}: not a file and not a shipped scene ({', '.join(names)})")
         text, default_name = _shipped_text(label), label
     return scene_from_mapping(parse_yaml(text, label), name=default_name)
+
+
+def scene_yaml(scene: Scene) -> str:
+    """The scene as YAML (what ``belt-drive scenes NAME`` prints; loads back to an equal scene)."""
+    return yaml.safe_dump(scene.to_dict(), sort_keys=False)
 
 
 def shipped_networks() -> list[str]:
