@@ -1,4 +1,4 @@
-"""ROS-free input and output: MCAP recordings of results, torque bags, reference bags, plots."""
+"""ROS-free input and output: scene and YAML files read (bounded), MCAP recordings of results, torque bags, reference bags, plots."""
 
 import os
 
