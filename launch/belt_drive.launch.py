@@ -34,7 +34,7 @@ PACKAGE = "belt_drive_ros"
 
 
 def _is_network(scene: str) -> bool:
-    from belt_drive_ros.core.network.scene import is_network
+    from belt_drive_ros.io.scenes import is_network
 
     return is_network(scene)
 
