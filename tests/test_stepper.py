@@ -176,6 +176,26 @@ def test_ticks_see_breakpoints_set_after_the_stepper_remembered_a_free_interval(
     assert np.array_equal(after, moved.advance(x, 0.005, 0.006))
 
 
+@pytest.mark.parametrize("assigned", ["list", "plant"])
+def test_breakpoints_edited_in_place_never_reach_a_stale_step_plan(assigned):
+    """``run`` keeps its step plans by the breakpoints object: editing that object in place must be refused (it is
+    immutable), so the stepper never runs the plan of the old breakpoints; assigning new ones takes effect."""
+    drive, load = S.Step(0.0, 8.0, 0.0105), S.Constant(1.0)
+    stepper = Stepper(Plant(MODEL, drive, load), "exact", 1e-3)
+    if assigned == "list":
+        stepper.breakpoints = [0.0055]
+    stepper.run(X0, 0.0, 0.02)  # the plan of these breakpoints kept
+    try:
+        stepper.breakpoints[0] = 0.0075  # (old code: the edit went through and the next run reused the plan)
+    except (TypeError, ValueError):  # immutable: a tuple or a read-only array
+        stepper.breakpoints = [0.0075]
+    moved = Stepper(Plant(MODEL, drive, load), "exact", 1e-3)
+    moved.breakpoints = [0.0075]
+    time, states = stepper.run(X0, 0.0, 0.02)
+    assert list(stepper.split_steps) == [7]
+    assert np.array_equal(states, moved.run(X0, 0.0, 0.02)[1])
+
+
 def test_advance_with_off_grid_ticks_against_closed_form():
     """Ticks of 1.5 ms on a 1 ms grid (partial steps), jumps at 0.1234567 s and at a tick time."""
     drive, load = S.Step(0.0, 8.0, 0.1234567), S.Step(2.0, -1.0, 0.0045)

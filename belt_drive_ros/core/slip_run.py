@@ -223,7 +223,7 @@ class SlippingSimulator:
         st = self._steppers.get(key)
         if st is None:
             st = self._steppers[key] = self._built(key, self._factories[key])
-            st.origin, st.breakpoints = self.stepper.origin, list(self.stepper.breakpoints)
+            st.origin, st.breakpoints = self.stepper.origin, self.stepper.breakpoints
         return st
 
     def _built(self, key, build):
@@ -257,7 +257,7 @@ class SlippingSimulator:
 
     @breakpoints.setter
     def breakpoints(self, value) -> None:
-        value = list(value)
+        value = tuple(value)  # (immutable: one object every phase's stepper keeps)
         for st in self._steppers.values():
             st.breakpoints = value
 

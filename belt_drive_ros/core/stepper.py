@@ -103,6 +103,8 @@ class Plant:
         #: sorted distinct finite times [s] at which either torque jumps or kinks (TorqueProfile.breakpoints), float64
         #: (a recorded drive has one per sample: an array, never a list of floats); None for a paged drive
         self.breakpoints = None if self.paged else _merged(drive.breakpoints(), load.breakpoints())
+        if self.breakpoints is not None:  # read-only: steppers keep plans by it (Stepper.breakpoints)
+            self.breakpoints.flags.writeable = False
         array = np.array
         angle_M, speed_M, angle_3, speed_3 = (_coordinate(row) for row in W)
 
@@ -265,9 +267,9 @@ class Stepper:
 
     Attributes
     ----------
-    breakpoints : sorted times [s] where steps are split or bounded (a copy of the plant's; a caller may change it
-    for this stepper by assigning a new list, never by editing the list in place: the tick remembers the
-    breakpoint-free interval it last fell in, keyed by the list).
+    breakpoints : sorted times [s] where steps are split or bounded (the plant's; a caller changes them for this
+    stepper by assigning new ones). Immutable, a tuple or a read-only float64 array (a list or a writable array
+    assigned is copied): the run's plans and the tick's last breakpoint-free interval are kept by it.
     split_steps : ``{grid index k: [breakpoints inside step k]}`` of the last
         :meth:`run` or :meth:`advance`.
     loop : the compiled loop of whole steps (None: each step through ``integrator.step``).
@@ -302,6 +304,20 @@ class Stepper:
         self._free: tuple | None = None  # the breakpoint-free interval the last tick fell in (_near_breakpoint)
         self._plans: dict = {}  # (t0, t1, origin, id(breakpoints)) -> (breakpoints, plan) of run()
         self._clean = False  # the last grouped march ran every step to the end without a failing status
+
+    @property
+    def breakpoints(self):
+        return self._breakpoints
+
+    @breakpoints.setter
+    def breakpoints(self, value) -> None:
+        if isinstance(value, np.ndarray):
+            if value.flags.writeable or value.base is not None:  # (a read-only view's base may still change)
+                value = np.array(value, dtype=np.float64)
+                value.flags.writeable = False
+        elif not (value is None or isinstance(value, tuple)):  # (None: a paged plant's, read page by page)
+            value = tuple(value)
+        self._breakpoints = value
 
     # ------------------------------------------------------------ public
     def advance(self, x: np.ndarray, t0: float, t1: float) -> np.ndarray:
@@ -360,7 +376,7 @@ class Stepper:
     def _run_plan(self, t0: float, t1: float) -> dict:
         """:meth:`_plan` of a run (absorbed steps looked for), kept per ends, origin and breakpoints list for the last
         :data:`PLAN_CACHE_SIZE` runs of at most :data:`PLAN_SPECIAL` special steps (a plan depends on nothing else)."""
-        key = (t0, t1, self.origin, id(self.breakpoints))
+        key = (t0, t1, self.origin, id(self.breakpoints))  # (immutable: the same object, the same times)
         hit = self._plans.get(key)
         if hit is not None and hit[0] is self.breakpoints:
             self.split_steps = {c: list(e[2]) for c, e in hit[1]["special"].items() if e[2]}

@@ -119,7 +119,7 @@ class NodeSimulation:
         self._free_k = (0, -1)  # grid cells k with no plant breakpoint near steps k0 <= k < k1 (lo <= k0, k1 <= hi)
         if s.model.name == "slipping":
             engine = SlippingSimulator(s.params, drive, s.scene.load, s.method, s.dt, s.method_options, check_stability=False)
-            self._plant_breakpoints = list(engine.breakpoints)
+            self._plant_breakpoints = tuple(engine.breakpoints)
             self._free_k = (0, -1)
             from ..core.tick import SlipTickKernel
 
@@ -127,7 +127,7 @@ class NodeSimulation:
             return engine
         plant = Plant(s.model, drive, s.scene.load)
         stepper = Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
-        self._plant_breakpoints = list(stepper.breakpoints)
+        self._plant_breakpoints = tuple(stepper.breakpoints)
         self._free_k = (0, -1)
         from ..core.tick import TickKernel
 
@@ -304,7 +304,7 @@ class NodeSimulation:
         if value is not None and value != self.drive.applied.value:
             extra.append(t1)
         base = self._plant_breakpoints
-        self.stepper.breakpoints = sorted(base + extra) if extra else base
+        self.stepper.breakpoints = sorted((*base, *extra)) if extra else base
 
     def advance_to(self, now_ns: int) -> bool:
         """Integrate to ``now_ns``, then sample the input there; True if there are new outputs at ``now_ns``.
