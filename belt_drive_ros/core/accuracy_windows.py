@@ -9,8 +9,9 @@ import math
 import numpy as np
 
 from .accuracy_probes import Probes, _output_rows, closed_loop_eigenvalues
-from .errors import IntegratorError
+from .errors import IntegratorError, SimulationDivergedError
 from .integrators import method_class
+from .stepper import shared_stepper
 
 def forcing_error(plant, method: str, dt: float, probes: Probes, method_options=None, stepper=None, head=None) -> float:
     """A posteriori error [-] of the method at ``dt`` on the scene's real torques (time, angle, speed), by Richardson.
@@ -35,9 +36,6 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
 
     ``head``: ``() -> (times, states)`` of the scene's own run at ``dt`` from t = 0 (or None); one from ``probes.x0``
     bit for bit is the first window's ``dt`` run up to the window's end (the same steps), not run again."""
-    from .errors import SimulationDivergedError
-    from .stepper import shared_stepper
-
     order = method_class(method).order or 1
     factor = 2.0**order / (2.0**order - 1.0)
     C, D = _output_rows(plant.model)
@@ -58,7 +56,7 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
             tf, xf = fine.run(x, t0, t1)
         except (SimulationDivergedError, IntegratorError):  # diverged, or an implicit stage did not converge
             return None
-        if tf.size == 2 * tc.size - 1 and np.array_equal(tf[::2], tc):  # every coarse knot is every other fine one
+        if tf.size == 2 * tc.size - 1 and (tf[::2] == tc).all():  # every coarse knot is every other fine one
             runs.append((t0, tc, xc, tf[::2], xf[::2]))
             continue
         idx = np.clip(np.searchsorted(tf, tc - 1e-9 * dt), 0, tf.size - 1)

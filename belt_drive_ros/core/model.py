@@ -132,7 +132,7 @@ class _LinearModel:
             out = dict(zip(LINEAR_OUTPUTS, values))
             out["drive_torque"], out["load_torque"] = float(u[0]), float(u[1])  # the inputs themselves
         else:
-            y = (_affine(self.C, x) if cx is None else cx) + _affine(self.D, u)
+            y = _plus_affine(_affine(self.C, x) if cx is None else cx, self.D, u)
             out = {name: y[..., j] for j, name in enumerate(LINEAR_OUTPUTS)}
             out["drive_torque"], out["load_torque"] = u[..., 0], u[..., 1]  # the inputs themselves, bit for bit
         tight, slack_force, slack, slip = self.span_forces(out["belt_torque"])
@@ -442,6 +442,18 @@ def _affine(M: np.ndarray, x: np.ndarray) -> np.ndarray:
     for k in range(1, M.shape[1]):
         y = y + x[..., k, None] * M[:, k]
     return y
+
+
+def _plus_affine(y: np.ndarray, M: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """``y + _affine(M, u)``, the same floats, without multiplying the rows of M that are all +0.0 (most of D):
+    each of those rows is ``u_0 0.0 + u_1 0.0 + ...``, one (N,) sum they share."""
+    zero = M.shape[1] > 1 and not np.signbit(M).any()  # (a -0.0 coefficient would flip a zero's sign)
+    rows = np.flatnonzero(M.any(axis=1)) if zero else None
+    if not zero or rows.size > M.shape[0] // 2:
+        return y + _affine(M, u)
+    out = y + _affine(np.zeros((1, M.shape[1])), u)
+    out[..., rows] = y[..., rows] + _affine(M[rows], u)
+    return out
 
 
 def _quadratic(w0: np.ndarray, w1: np.ndarray, S: np.ndarray) -> np.ndarray:
