@@ -119,10 +119,8 @@ class Simulator:
             progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
         """Integrate over ``duration`` [s] on the grid ``t0 + k dt``; return (time (N+1,), states (N+1, n)).
 
-        Steps at torque breakpoints are split or clamped (:mod:`belt_drive_ros.core.stepper`): else such a step is
-        locally first order (``paper``, ``lawson5`` at 12.5 ms with the soft start ending inside a step: 2000x less
-        accurate, tests/test_breakpoints.py); ``stepper.split_steps`` lists the split steps after.
-        """
+        Steps at torque breakpoints are split or clamped (:mod:`belt_drive_ros.core.stepper`; ``stepper.split_steps``
+        lists the split steps after)."""
         self.stepper.origin = float(t0)
         return self.stepper.run(x0, float(t0), float(t0) + float(duration), progress)
 

@@ -420,11 +420,7 @@ class Stepper:
         self._partials.clear()
 
     def next_step(self, t0: float, t1: float) -> tuple:
-        """The first step of an advance from ``t0`` to ``t1`` [s]: ``(a, e, whole, lo, hi, cuts)``.
-
-        From ``a`` to ``e`` [s] (``whole``: a full grid step), torque samples
-        clamped to ``[lo, hi]``, split at ``cuts`` (the plan :meth:`run` follows).
-        """
+        """The first step ``(a, e, whole, lo, hi, cuts)`` of an advance from ``t0`` to ``t1`` [s] (see :meth:`steps`)."""
         plan = self._plan(t0, t1)
         if plan["empty"]:
             return t0, t1, False, -math.inf, math.inf, []
@@ -691,11 +687,8 @@ class Stepper:
         A step that ends on a breakpoint samples at most at its left limit (``hi``), the one that starts there
         at least at it (``lo``); every other sample of the steps before the first (after the second) lies
         below (above) that bound already, so a group of steps from one starting on a breakpoint to one ending
-        on the next is one call with that group's ``lo`` and ``hi``: the same steps and samples as a call per
-        clamped step. The guard stops as in :meth:`_march` (the stopped step's clamps reported). A guarded
-        run's state rows and grid times are allocated as it goes (it may stop at the first step), an
-        unguarded run's at once. A group cut at the rows' end keeps its ``lo`` and ``hi`` in both parts: no sample of its
-        later (earlier) steps lies beyond them.
+        on the next is one call with that group's ``lo`` and ``hi`` (also when cut in parts at a guarded run's
+        rows, which grow as it goes: it may stop at the first step).
         """
         first, last, special = plan["first"], plan["last"], plan["special"]
         guarded, total = self.guard is not None, last - first + 2
@@ -705,7 +698,9 @@ class Stepper:
             # lo is (sorted; kept in the plan: _run_plan keeps a run's)
             plan["ends"] = sorted({c for c, e in special.items() if e[1] != math.inf}
                                   | {c - 1 for c, e in special.items() if e[0] != -math.inf}) + [last] if special else [last]  # fmt: skip
-        grid = self._grid(first, last + 2) if not guarded else None
+        if not guarded and "grid" not in plan:  # (kept with the plan: a copy returned, the caller's to keep)
+            plan["grid"] = self._grid(first, last + 2)
+        grid = plan["grid"].copy() if not guarded else None
         half = 0.5 * self.dt
         ends = plan["ends"]
         ei = 0
