@@ -314,6 +314,23 @@ def test_affine_of_a_long_run_is_the_per_sample_sum_bit_for_bit():
             assert np.array_equal(_affine(M, stacked).reshape(-1, rows).view(np.int64), whole.view(np.int64))
 
 
+def test_outputs_skip_the_zero_rows_of_d_bit_for_bit():
+    """The outputs add one shared ``u_0 0 + u_1 0`` for the rows of D that are all +0.0 instead of a product per
+    row: the same floats as ``y + _affine(D, u)``, signed zeros, infinities and NaN included (a -0.0 row: in full)."""
+    from belt_drive_ros.core.model import _affine, _plus_affine
+
+    rng = np.random.default_rng(11)
+    for samples in (300, 1500):
+        y = rng.standard_normal((samples, 12)) * rng.choice([0.0, -0.0, 1.0, np.inf, np.nan], size=(samples, 12),
+                                                            p=[0.3, 0.3, 0.36, 0.02, 0.02])
+        u = rng.standard_normal((samples, 2)) * rng.choice([0.0, -0.0, 1.0, -np.inf], size=(samples, 2))
+        D = np.zeros((12, 2))
+        D[8, 0], D[9, 1], D[10] = 1.0, 1.0, rng.standard_normal(2)
+        for M in (D, np.where(np.arange(12)[:, None] == 3, -0.0, D)):
+            with np.errstate(all="ignore"):
+                assert np.array_equal(_plus_affine(y, M, u).view(np.int64), (y + _affine(M, u)).view(np.int64))
+
+
 @pytest.mark.parametrize("name, duration", [("paper", 1.0), ("bsg_start", 0.1)])
 def test_auto_flexible_result_is_the_same_whichever_path_runs_first(monkeypatch, name, duration):
     """``auto`` with the flexible tier runs the flexible phase alone first when the rigid survey puts the scene well

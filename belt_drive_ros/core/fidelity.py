@@ -163,8 +163,6 @@ def friction_use(belt_torque, r_3, q_max):
     ``q_max`` per variant): the same operations per element as for one run.
     """
     q = np.abs(belt_torque) / r_3
-    if np.size(q_max) and np.min(q_max) > 0.0:  # (no lift-off anywhere: the same quotients, no mask)
-        return q / q_max
     return np.divide(q, q_max, out=np.full(q.shape, np.inf), where=q_max > 0)
 
 

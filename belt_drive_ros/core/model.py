@@ -447,10 +447,9 @@ def _affine(M: np.ndarray, x: np.ndarray) -> np.ndarray:
 def _plus_affine(y: np.ndarray, M: np.ndarray, u: np.ndarray) -> np.ndarray:
     """``y + _affine(M, u)``, the same floats, without multiplying the rows of M that are all +0.0 (most of D):
     each of those rows is ``u_0 0.0 + u_1 0.0 + ...``, one (N,) sum they share."""
-    zero = M.shape[1] > 1 and not np.signbit(M).any()  # (a -0.0 coefficient would flip a zero's sign)
-    rows = np.flatnonzero(M.any(axis=1)) if zero else None
-    if not zero or rows.size > M.shape[0] // 2:
+    if np.signbit(M).any():  # (a -0.0 coefficient would flip a zero's sign)
         return y + _affine(M, u)
+    rows = np.flatnonzero(M.any(axis=1))
     out = y + _affine(np.zeros((1, M.shape[1])), u)
     out[..., rows] = y[..., rows] + _affine(M[rows], u)
     return out
@@ -468,24 +467,12 @@ def _affine_sample(rows, x: list, u: list) -> list:
     Each output is ``((x_0 C_j0 + x_1 C_j1) + ...) + (u_0 D_j0 + u_1 D_j1)``: the operations :func:`_affine`
     applies to every sample of a run, in the same order (the same doubles, tested bit for bit), without numpy.
     """
-    if len(x) == 4 and len(u) == 2:  # the flexible model, written out (a third of the loop's time)
+    u0, u1 = u
+    if len(x) == 4:  # the flexible model, written out (a third of the loop's time)
         x0, x1, x2, x3 = x
-        u0, u1 = u
         return [x0 * c0 + x1 * c1 + x2 * c2 + x3 * c3 + (u0 * d0 + u1 * d1) for (c0, c1, c2, c3), (d0, d1) in rows]
-    if len(x) == 2 and len(u) == 2:  # the rigid model
-        x0, x1 = x
-        u0, u1 = u
-        return [x0 * c0 + x1 * c1 + (u0 * d0 + u1 * d1) for (c0, c1), (d0, d1) in rows]
-    out = []
-    for c, d in rows:
-        a = x[0] * c[0]
-        for k in range(1, len(x)):
-            a = a + x[k] * c[k]
-        b = u[0] * d[0]
-        for k in range(1, len(u)):
-            b = b + u[k] * d[k]
-        out.append(a + b)
-    return out
+    x0, x1 = x  # the rigid model
+    return [x0 * c0 + x1 * c1 + (u0 * d0 + u1 * d1) for (c0, c1), (d0, d1) in rows]
 
 
 def span_forces(F_0, r_3, capstan_ratio, belt_torque) -> tuple:

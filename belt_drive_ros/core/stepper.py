@@ -258,20 +258,15 @@ class Stepper:
     plant : :class:`Plant`.
     method : integrator name; dt : step [s]; method_options : passed to it.
     origin : scene time [s] of grid index 0.
-    integrator : an integrator of ``method`` and ``dt`` already built for the
-        plant's model (the node's settings hold one), else one is made.
-    guard : optional :class:`~belt_drive_ros.core.stage_scheme.Guard`: :meth:`run`
-        stops after the first step whose end state makes it positive (a
-        mode switch of the slipping belt lies in that step) and describes
-        that step in :attr:`stopped`.
+    integrator : an integrator of ``method`` and ``dt`` built for the plant's model (the node's holds one), else made.
+    guard : optional :class:`~belt_drive_ros.core.stage_scheme.Guard`: :meth:`run` stops after the first step whose
+        end state makes it positive (a mode switch of the slipping belt lies in that step; see ``stopped``).
 
     Attributes
     ----------
-    breakpoints : sorted times [s] where steps are split or bounded (the plant's; a caller changes them for this
-    stepper by assigning new ones). Immutable, a tuple or a read-only float64 array (a list or a writable array
-    assigned is copied): the run's plans and the tick's last breakpoint-free interval are kept by it.
-    split_steps : ``{grid index k: [breakpoints inside step k]}`` of the last
-        :meth:`run` or :meth:`advance`.
+    breakpoints : sorted times [s] where steps are split or bounded (the plant's; a caller assigns new ones), a
+    tuple or a read-only float64 array (a list or writable array assigned is copied): plans are kept by it.
+    split_steps : ``{grid index k: [breakpoints inside step k]}`` of the last :meth:`run` or :meth:`advance`.
     loop : the compiled loop of whole steps (None: each step through ``integrator.step``).
     stopped : after a :meth:`run` the guard stopped, ``(j, a, e, whole, lo, hi, cuts)``: its step ``j`` as
         :meth:`steps` describes one; else None.
@@ -311,11 +306,10 @@ class Stepper:
 
     @breakpoints.setter
     def breakpoints(self, value) -> None:
-        if isinstance(value, np.ndarray):
-            if value.flags.writeable or value.base is not None:  # (a read-only view's base may still change)
-                value = np.array(value, dtype=np.float64)
-                value.flags.writeable = False
-        elif not (value is None or isinstance(value, tuple)):  # (None: a paged plant's, read page by page)
+        if isinstance(value, np.ndarray) and (value.flags.writeable or value.base is not None):  # (a view's base may change)
+            value = np.array(value, dtype=np.float64)
+            value.flags.writeable = False
+        elif not isinstance(value, (np.ndarray, tuple, type(None))):  # (None: a paged plant's, read page by page)
             value = tuple(value)
         self._breakpoints = value
 
@@ -374,9 +368,9 @@ class Stepper:
         return times, states
 
     def _run_plan(self, t0: float, t1: float) -> dict:
-        """:meth:`_plan` of a run (absorbed steps looked for), kept per ends, origin and breakpoints list for the last
-        :data:`PLAN_CACHE_SIZE` runs of at most :data:`PLAN_SPECIAL` special steps (a plan depends on nothing else)."""
-        key = (t0, t1, self.origin, id(self.breakpoints))  # (immutable: the same object, the same times)
+        """:meth:`_plan` of a run (absorbed steps looked for); the last :data:`PLAN_CACHE_SIZE` kept by their ends,
+        origin and (immutable) breakpoints, those of at most :data:`PLAN_SPECIAL` special steps."""
+        key = (t0, t1, self.origin, id(self.breakpoints))
         hit = self._plans.get(key)
         if hit is not None and hit[0] is self.breakpoints:
             self.split_steps = {c: list(e[2]) for c, e in hit[1]["special"].items() if e[2]}
