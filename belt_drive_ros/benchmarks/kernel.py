@@ -41,8 +41,12 @@ from pathlib import Path
 import numpy as np
 
 from ..core.model import make_model
-from ..io.scenes import load_scene
 from ..core.simulate import Simulator, simulate
+
+try:
+    from ..io.scenes import load_scene
+except ImportError:  # a --baseline checkout from before the scene files moved to io/ (its children load this file)
+    from ..core.scene import load_scene
 from .common import write_csv
 
 STEPS = 1_000_000
@@ -209,7 +213,10 @@ def _simulate_rtf(name: str, repeats: int) -> tuple[float, float]:
 #: what a child process of one tree runs: each scene's whole warm simulate(), minimum CPU of argv[1] repeats
 _CHILD = r"""
 import json, sys, time
-from belt_drive_ros.io.scenes import load_scene
+try:
+    from belt_drive_ros.io.scenes import load_scene
+except ImportError:  # a baseline from before the scene files moved to io/
+    from belt_drive_ros.core.scene import load_scene
 from belt_drive_ros.core.simulate import simulate
 out = {}
 for name in sys.argv[2:]:
