@@ -304,18 +304,13 @@ def profile_torque_at(kinds, params, tx, ty, row, t, angle, speed):
 
 @njit(**_JIT)
 def profile_torque_array(kinds, params, tx, ty, t, angle, speed, out):
-    """:func:`profile_torque` at each sample of the equal-length 1-D arrays ``t``, ``angle``, ``speed`` into ``out``.
-
-    As the time loop (:func:`_explicit`): a formula row, or a profile that fits in scalars, read once per call;
-    any other through its one inlined copy of :func:`torque` (a call per sample cost 15-39 ns)."""
-    kind, form = kinds[0], is_formula(kinds[0])
-    p0, p1, p2, p3, p4 = params[0, 0], params[0, 1], params[0, 2], params[0, 3], params[0, 4]
+    """:func:`profile_torque` at each sample of the equal-length 1-D arrays ``t``, ``angle``, ``speed`` into ``out``:
+    a profile that fits in scalars (:func:`profile_scalars`) read once per call, any other through this function's
+    one inlined copy of :func:`torque` (a call per sample cost 15-39 ns)."""
     fits, ka, pa, aa, ki, pi, ai, per = profile_scalars(kinds, params, tx, ty)
     for i in range(t.size):
         ti = t[i]
-        if form:
-            out[i] = formula(kind, p0, p1, p2, p3, p4, ti, speed[i])
-        elif fits:
+        if fits:
             k, p, a = (ka, pa, aa) if per[0] <= ti < per[1] or per[2] <= ti < per[3] else (ki, pi, ai)
             out[i] = scalar_torque(k, p, a, ti, angle[i], speed[i])
         else:

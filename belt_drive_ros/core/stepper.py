@@ -306,7 +306,7 @@ class Stepper:
 
     @breakpoints.setter
     def breakpoints(self, value) -> None:
-        if isinstance(value, np.ndarray) and (value.flags.writeable or value.base is not None):  # (a view's base may change)
+        if isinstance(value, np.ndarray) and (value.flags.writeable or value.base is not None):  # (a view's base may)
             value = np.array(value, dtype=np.float64)
             value.flags.writeable = False
         elif not isinstance(value, (np.ndarray, tuple, type(None))):  # (None: a paged plant's, read page by page)
@@ -557,7 +557,8 @@ class Stepper:
         return self._loops[key]
 
     def _clamped(self, lo: float, hi: float):
-        """The plant's inputs with the torque time clamped into [lo, hi] (left/right limits at breakpoints)."""
+        """The plant's inputs with the torque time clamped into [lo, hi] (left/right limits at breakpoints; unclamped:
+        the plant's own function, which an adaptive method's solver continues with)."""
         inputs = self.plant.inputs
         if lo == -math.inf and hi == math.inf:
             return inputs
