@@ -79,7 +79,8 @@ def register(sub) -> None:
     p.add_argument("--plot", type=Path, help="PNG with the paper's panels, rigid and flexible overlaid")
     p.add_argument("--torque-bag", type=Path,
                    help="drive the model with the torque recorded in this MCAP: drive_torque_applied where the "
-                        "file has it (a node recording: the torque the node applied), else drive_torque")
+                        "file has it (a node recording: the torque the node applied), else drive_torque; with a "
+                        "recording as the scene: the torque bag it was driven by, when that is not next to it")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs (--out and --plot)")
     p.add_argument("--start-time", default=None, metavar="WHEN", type=_start_time,
                    help="time stamp of scene time 0 in an .mcap: 'now' (default, the wall time of the run, "
@@ -139,7 +140,7 @@ def run(args) -> int:
         scene = load_scene(args.scene)
     if args.method_option:
         scene = scene.with_overrides(method_options=_options(args.method_option))
-    if args.torque_bag is not None:
+    if args.torque_bag is not None and not is_recording(args.scene):  # (a recording's: read by _resimulation)
         from ..io.torque_bag import torque_bag_scene, torque_topic  # offline replay of a recorded profile
 
         topic, note = torque_topic(args.torque_bag)  # a node recording: the torque it applied
@@ -175,7 +176,7 @@ def _resimulation(args):
     from ..io.torque_bag import resimulation
 
     computed = (ROBOT_DESCRIPTION, "joint_states", TF_TOPIC) + tuple(n for n, _ in FLOAT_OUTPUTS + SLIP_FLOAT_OUTPUTS)
-    resim = resimulation(args.scene, computed=computed)
+    resim = resimulation(args.scene, computed=computed, torque_bag=args.torque_bag)
     args.writer_options = {"namespace": resim.namespace, "drive_topic": resim.drive_topic,
                            "passthrough": resim.passthrough, "output_rate": resim.output_rate}
     if args.start_time is None and resim.start_time_ns is not None:

@@ -704,18 +704,18 @@ class Resimulation:
     passthrough: List[tuple]
 
 
-def resimulation(path, computed=()) -> Resimulation:
+def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
     """The :class:`Resimulation` of the recording ``path`` (file or bag folder).
 
     ``computed``: topic names (relative) the re-simulation writes itself; every
     other topic of the recording is passed through. Types msg_tools has no
-    definition of are left out.
+    definition of are left out. ``torque_bag``: as :func:`scene_from_bag`'s.
     """
     from mcap.reader import make_reader
 
     from msg_tools import bag_files, schemas
 
-    scene = scene_from_bag(path)
+    scene = scene_from_bag(path, torque_bag=torque_bag)
     record, _ = _read_metadata(path)
     drive = scene.drive
     start = int(drive.start_ns) if isinstance(drive, RecordedTorque) and drive.start_ns is not None else None
