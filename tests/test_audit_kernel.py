@@ -295,3 +295,30 @@ def test_the_first_runs_after_install_compile_nothing(tmp_path):
     from msg_tools.cli import main as msg_tools
 
     assert msg_tools(["compare", str(tmp_path / "replay.mcap"), str(tmp_path / "again.mcap"), "--rtol", "0", "--atol", "0"]) == 0
+
+
+def test_numba_disable_jit_runs_the_kernels_as_python_with_the_same_floats(tmp_path):
+    """The interpreted-run tests (test_bench_fastpath, test_node_tick, test_ensemble, ...) compare a child run under
+    ``NUMBA_DISABLE_JIT=1`` with a compiled one: that child does run every kernel as plain Python (were the
+    variable not honoured, both runs compiled, they would pass comparing a run with itself)."""
+    from belt_drive_ros.core.scene import load_scene
+    from belt_drive_ros.core.simulate import simulate
+
+    code = textwrap.dedent(f"""
+        import importlib, sys, types, numpy as np
+        from numba.core.registry import CPUDispatcher
+        modules = [importlib.import_module(m) for m in {KERNEL_MODULES!r}]
+        compiled = [f"{{m.__name__}}.{{a}}" for m in modules for a, v in vars(m).items() if isinstance(v, CPUDispatcher)]
+        assert compiled == [], compiled
+        from belt_drive_ros.core import kernel
+        assert isinstance(kernel.linear_steps, types.FunctionType)
+        from belt_drive_ros.core.simulate import simulate
+        from belt_drive_ros.core.scene import load_scene
+        np.save(sys.argv[1], simulate(load_scene("paper"), duration=0.05).states)
+    """)
+    path = tmp_path / "states.npy"
+    done = subprocess.run([sys.executable, "-c", code, str(path)], env=dict(os.environ, NUMBA_DISABLE_JIT="1"),
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    compiled = simulate(load_scene("paper"), duration=0.05).states
+    assert compiled.shape[0] > 10 and np.array_equal(np.load(path), compiled)
