@@ -8,8 +8,13 @@ the line before its fence, by one marker comment:
   config/, launch/, and ``.venv`` linked to this one; ``belt-drive`` and
   ``msg-tools`` on the PATH), and each must exit 0.
 * ``<!-- runnable: together, stop after N s -->``: long-running commands
-  (nodes, sources): all lines start at once, run N s, get SIGINT and must
-  each exit 0 (a line that ends by itself before must exit 0 too).
+  (nodes, sources): all lines start at once; once each has said it runs (a
+  node's ``spinning with ...``, a source's ``publishing ...`` line, see
+  ``RUNNING``), they run :data:`HOLD_S` more seconds together, get SIGINT and
+  must each exit 0 (a line that ends by itself before must exit 0 too). A
+  line that has not said so within N s (at least :data:`START_S`: a loaded
+  machine starts slowly) fails. (They ran a fixed N s before; the line says
+  more than the time did: a node stuck in its start-up for N s passed.)
 * ``<!-- runnable: separately, stop after N s -->``: as ``together``, but
   each line in a ROS domain of its own (alternatives that must not meet).
 * ``skip=TEXT`` (after ``runnable:``, comma-separated options): lines that
@@ -35,6 +40,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -49,6 +55,12 @@ COPIED = ("README.md", "docs", "examples", "bags", "config", "launch")
 MARKER = re.compile(r"^<!--\s*(runnable(?::\s*(?P<options>.*?))?|not run by tests:\s*(?P<reason>.+?))\s*-->\s*$")
 FENCE = re.compile(r"^```(?P<lang>\w*)\s*$")
 SHELLS = ("sh", "bash", "shell", "console")
+#: the log line by which a long-running command says it runs: a node spins its executor, a source publishes
+RUNNING = re.compile(r"\]: (spinning with |publishing )")
+#: seconds the long-running lines of a block run together once all say they run, before SIGINT
+HOLD_S = 3.0
+#: seconds a long-running line may take to say it runs, at least (the block's ``stop after N s`` when longer)
+START_S = 60.0
 
 pytestmark = pytest.mark.slow
 
@@ -140,22 +152,44 @@ def _run_together(commands, cwd, env, stop_after: float, separately: bool = Fals
     procs = [subprocess.Popen(["sh", "-c", f"exec {command}"], cwd=cwd, env=e, stdout=subprocess.PIPE,
                               stderr=subprocess.STDOUT, text=True, start_new_session=True)
              for command, e in zip(commands, envs)]
+    outputs = [[] for _ in procs]
+    running = [threading.Event() for _ in procs]
+
+    def read(k):  # each line's output, read as it comes (a full pipe would stall the process)
+        for line in procs[k].stdout:
+            outputs[k].append(line)
+            if RUNNING.search(line):
+                running[k].set()
+
+    readers = [threading.Thread(target=read, args=(k,), daemon=True) for k in range(len(procs))]
+    for reader in readers:
+        reader.start()
     try:
-        time.sleep(stop_after)
-        for proc in procs:
-            if proc.poll() is None:
+        deadline = time.monotonic() + max(stop_after, START_S)
+        while time.monotonic() < deadline and not all(r.is_set() or p.poll() is not None for r, p in zip(running, procs)):
+            time.sleep(0.1)
+        time.sleep(HOLD_S)
+        signalled = [proc.poll() is None for proc in procs]
+        for proc, stop in zip(procs, signalled):
+            if stop:
                 proc.send_signal(signal.SIGINT)
         failures = []
-        for command, proc in zip(commands, procs):
+        for command, proc, reader, out, up, stop in zip(commands, procs, readers, outputs, running, signalled):
             try:
-                out, _ = proc.communicate(timeout=15)
+                proc.wait(timeout=15)
             except subprocess.TimeoutExpired:
                 proc.kill()
-                out, _ = proc.communicate()
-                failures.append(f"{command}\nignored SIGINT for 15 s (killed)\n{out[-1500:]}")
+                proc.wait()
+                reader.join(5)
+                failures.append(f"{command}\nignored SIGINT for 15 s (killed)\n{''.join(out)[-1500:]}")
                 continue
+            reader.join(5)
+            text = "".join(out)
             if proc.returncode != 0:
-                failures.append(f"{command}\nexit {proc.returncode}\n{out[-1500:]}")
+                failures.append(f"{command}\nexit {proc.returncode}\n{text[-1500:]}")
+            elif stop and not up.is_set():
+                failures.append(f"{command}\nstopped before it said it runs (no line matching {RUNNING.pattern!r})\n"
+                                f"{text[-1500:]}")
         assert not failures, "\n\n".join(failures)
     finally:
         for proc in procs:
