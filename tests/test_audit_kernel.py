@@ -241,19 +241,13 @@ from test_node_tick import _lockstep
 fast, *_ = _lockstep({"drive_source": "topic"}, 20, {5: 3.0})
 slipping, *_ = _lockstep({"scene": "truck_compressor", "model": "slipping", "drive_source": "scene"}, 20)
 assert fast > 10 and slipping > 10, (fast, slipping)
-from belt_drive_ros.core.network.scene import load_network
-from belt_drive_ros.io.network_bag import NetworkLayout
+from belt_drive_ros.io.scenes import load_network
 from belt_drive_ros.ros.network_stepper import NetworkStepper
+from test_network_stepper import three_ticks
 scene = load_network("fead_i4")
-stepper = NetworkStepper(scene, tier="flexible")
-layout = NetworkLayout(scene)
-stepper.use_joints(float(layout.arm[3]) if layout.arm else 0.0, layout.joint_encoder().layout)
-stepper.hold(scene.driver, 10.0)
-x = stepper.initial()
-for k in range(3):
-    x = stepper.tick(x, k, k + 1)
-from belt_drive_ros.core.ensemble_run import simulate_many
-from belt_drive_ros.core.scene import load_scene
+three_ticks(scene, NetworkStepper(scene, tier="flexible"))
+from belt_drive_ros.campaign.ensemble_run import simulate_many
+from belt_drive_ros.io.scenes import load_scene
 base = load_scene("paper")
 scenes = [base.with_overrides(duration=0.2, params=base.params.replace(k=base.params.k * (1 + 0.01 * j))) for j in range(8)]
 outcomes = list(simulate_many(scenes))
@@ -301,7 +295,7 @@ def test_numba_disable_jit_runs_the_kernels_as_python_with_the_same_floats(tmp_p
     """The interpreted-run tests (test_bench_fastpath, test_node_tick, test_ensemble, ...) compare a child run under
     ``NUMBA_DISABLE_JIT=1`` with a compiled one: that child does run every kernel as plain Python (were the
     variable not honoured, both runs compiled, they would pass comparing a run with itself)."""
-    from belt_drive_ros.core.scene import load_scene
+    from belt_drive_ros.io.scenes import load_scene
     from belt_drive_ros.core.simulate import simulate
 
     code = textwrap.dedent(f"""
@@ -313,7 +307,7 @@ def test_numba_disable_jit_runs_the_kernels_as_python_with_the_same_floats(tmp_p
         from belt_drive_ros.core import kernel
         assert isinstance(kernel.linear_steps, types.FunctionType)
         from belt_drive_ros.core.simulate import simulate
-        from belt_drive_ros.core.scene import load_scene
+        from belt_drive_ros.io.scenes import load_scene
         np.save(sys.argv[1], simulate(load_scene("paper"), duration=0.05).states)
     """)
     path = tmp_path / "states.npy"

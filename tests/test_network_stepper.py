@@ -162,6 +162,18 @@ def test_the_compiled_tick_equals_the_python_tick_in_lockstep(scene_of, tier, pe
     assert np.ptp(xo) > 0.0
 
 
+def three_ticks(scene, stepper):
+    """Three ticks of ``stepper`` (a :class:`NetworkStepper` of ``scene``) as the node runs them: joints written,
+    the driver held at 10 N m; the last state."""
+    layout = NetworkLayout(scene)
+    stepper.use_joints(float(layout.arm[3]) if layout.arm else 0.0, layout.joint_encoder().layout)
+    stepper.hold(scene.driver, 10.0)
+    x = stepper.initial()
+    for k in range(3):
+        x = stepper.tick(x, k, k + 1)
+    return x
+
+
 def test_the_compiled_tick_compiles_once_and_interpreted_gives_the_same_floats(tmp_path):
     """Every shipped network, both linear tiers: one signature of network_tick; NUMBA_DISABLE_JIT=1 writes the
     same joint values and states."""
@@ -180,12 +192,7 @@ def test_the_compiled_tick_compiles_once_and_interpreted_gives_the_same_floats(t
                 stepper = NetworkStepper(scene, tier=tier)
             except Exception:  # noqa: BLE001 - a refused tier is fine here: only the signatures count
                 continue
-            layout = NetworkLayout(scene)
-            stepper.use_joints(float(layout.arm[3]) if layout.arm else 0.0, layout.joint_encoder().layout)
-            stepper.hold(scene.driver, 10.0)
-            x = stepper.initial()
-            for k in range(3):
-                x = stepper.tick(x, k, k + 1)
+            three_ticks(scene, stepper)
     assert len(network_tick.signatures) == 1
     code = ("import sys, numpy as np\n"
             "from belt_drive_ros.io.scenes import load_network\n"
