@@ -316,3 +316,28 @@ def test_numba_disable_jit_runs_the_kernels_as_python_with_the_same_floats(tmp_p
     assert done.returncode == 0, done.stderr[-3000:]
     compiled = simulate(load_scene("paper"), duration=0.05).states
     assert compiled.shape[0] > 10 and np.array_equal(np.load(path), compiled)
+
+
+# ------------------------------------------------------------------ the drawing in docs/development.md
+def _drawing() -> str:
+    text = (ROOT / "docs" / "development.md").read_text(encoding="utf-8")
+    section = text.split("## The compiled kernel: a parameter's path from scene to output", 1)[1]
+    return section.split("```", 2)[1]
+
+
+def test_the_drawing_of_a_parameters_path_names_what_the_code_has():
+    """Every file the drawing names exists, and every function, class and constant it names is defined in the
+    package (with its argument list where it gives one): a rename or a move makes the drawing fail here."""
+    drawing = _drawing()
+    files = set(re.findall(r"\b((?:core|io|ros)/[\w/]+\.py)\b", drawing))
+    assert len(files) >= 6 and [f for f in files if not (ROOT / "belt_drive_ros" / f).is_file()] == []
+    source = "\n".join(p.read_text(encoding="utf-8") for p in (ROOT / "belt_drive_ros").rglob("*.py"))
+    names = set(re.findall(r"\b([A-Za-z_]\w*)\(", drawing)) | set(re.findall(r"\.(\w+)\(", drawing))
+    names |= {n.rsplit(".", 1)[-1] for n in re.findall(r"(?:\.py: |-> )([A-Za-z_][\w.]*)", drawing)}
+    names |= {"MOTOR_LINE", "StageScheme", "Stepper", "KernelLoop", "wheel_steps"}
+    names -= {"core", "io", "py", "row", "U_i"}  # a path's parts, the drawing's words
+    assert {"linear_steps", "load_scene", "make_profile", "profile_torque", "outputs"} <= names
+    undefined = sorted(n for n in names if not re.search(rf"^\s*(?:def {n}\b|class {n}\b|(?:\w+\s*,\s*)*{n}\s*(?:,\s*\w+\s*)*(?::[^=\n]*)?=)", source, re.M))
+    assert undefined == []
+    signature = re.search(r"kernel\.linear_steps\(([^)]*)\)", drawing).group(1)
+    assert re.search(rf"^def linear_steps\({re.escape(signature)}\):", source, re.M)
