@@ -153,18 +153,22 @@ def test_every_compiled_function_is_cached_and_releases_the_gil():
     assert [n for n, d in found.items() if isinstance(d._cache, NullCache)] == []
 
 
-def _python_runs_during(call, repeats: int = 4) -> int:
-    """Loops of this thread's Python counter that ran while another thread ran ``call()`` ``repeats`` times.
+def _python_runs_during(call, seconds: float = 0.5) -> int:
+    """Loops of this thread's Python counter that ran while another thread ran ``call()`` again and again for
+    ``seconds`` (at least 4 times).
 
     The interpreter's forced switch is turned off meanwhile (a switch interval of 1000 s): the GIL changes
     hands only where it is released. A call that keeps it lets this thread run nothing until the other thread
     has ended (0 loops); a call that releases it lets the counter run through it (this thread lends the GIL
-    back every 10,000 loops, for the other to return from its call)."""
+    back every 10,000 loops, for the other to return from its call). Half a second of calls: on a loaded
+    machine this thread waits its turn for a core, which comes many times in that while."""
     done = []
 
     def worker():
-        for _ in range(repeats):
+        end, calls = time.perf_counter() + seconds, 0
+        while calls < 4 or time.perf_counter() < end:
             call()
+            calls += 1
         done.append(True)
 
     interval = sys.getswitchinterval()
