@@ -264,6 +264,15 @@ def joints_message(template: bytes | None = None, offsets=None) -> tuple[np.ndar
     return msg, slice(shift, shift + len(template)), at
 
 
+def _load(kernel, args) -> None:
+    """Load ``kernel``'s compiled code for the types of ``args`` now (from numba's disk cache: 25-50 ms), not at its
+    first call, a node's first tick (nothing to load under ``NUMBA_DISABLE_JIT``)."""
+    if hasattr(kernel, "compile"):
+        from numba import typeof
+
+        kernel.compile(tuple(typeof(a) for a in args))
+
+
 class TickKernel:
     """One stepper's tick as one compiled call: :meth:`step` advances :attr:`state`, :attr:`y` holds the outputs.
 
@@ -296,6 +305,7 @@ class TickKernel:
         self.dt, self.origin = stepper.dt, stepper.origin
         self.step_ns = grid_step_ns(self.dt, stepper.origin)
         self._args = (arrays.reals, loop._dp)
+        _load(linear_tick, (0, 1, 0, *self._args))
 
     @classmethod
     def of(cls, stepper, limit: float, message: tuple = ()):
@@ -499,6 +509,7 @@ class SlipTickKernel:
         self.N = 1
         self._built = -1  # how many phase steppers the engine had when its arrays were packed (see _pack)
         self._args: tuple | None = None  # slip_tick's trailing arguments (None: the engine cannot compile)
+        self._pack(1)
 
     def _pack(self, N: int) -> None:
         """The engine's compiled arrays and the buffers of ``N`` whole steps without clamps or splits as
@@ -527,6 +538,7 @@ class SlipTickKernel:
         self._fs, self._js, self._events = views["fscalars"], views["iscalars"], views["events"]
         self.message = memoryview(views["msg"].view(np.uint8))[self._where]
         self._args = (arrays.reals, dp)
+        _load(slip_tick, (0, 0, *self._args))
 
     def advance(self, state, k0: int, k1: int, lo: float = -math.inf, hi: float = math.inf, drive: float = math.nan,
                 stamp: int = 0) -> list | None:
