@@ -264,7 +264,7 @@ def joints_message(template: bytes | None = None, offsets=None) -> tuple[np.ndar
     return msg, slice(shift, shift + len(template)), at
 
 
-def _load(kernel, args) -> None:
+def load_compiled(kernel, args) -> None:
     """Load ``kernel``'s compiled code for the types of ``args`` now (from numba's disk cache: 25-50 ms), not at its
     first call, a node's first tick (nothing to load under ``NUMBA_DISABLE_JIT``)."""
     if hasattr(kernel, "compile"):
@@ -305,7 +305,7 @@ class TickKernel:
         self.dt, self.origin = stepper.dt, stepper.origin
         self.step_ns = grid_step_ns(self.dt, stepper.origin)
         self._args = (arrays.reals, loop._dp)
-        _load(linear_tick, (0, 1, 0, *self._args))
+        load_compiled(linear_tick, (0, 1, 0, *self._args))
 
     @classmethod
     def of(cls, stepper, limit: float, message: tuple = ()):
@@ -538,7 +538,7 @@ class SlipTickKernel:
         self._fs, self._js, self._events = views["fscalars"], views["iscalars"], views["events"]
         self.message = memoryview(views["msg"].view(np.uint8))[self._where]
         self._args = (arrays.reals, dp)
-        _load(slip_tick, (0, 0, *self._args))
+        load_compiled(slip_tick, (0, 0, *self._args))
 
     def advance(self, state, k0: int, k1: int, lo: float = -math.inf, hi: float = math.inf, drive: float = math.nan,
                 stamp: int = 0) -> list | None:

@@ -155,6 +155,9 @@ class NetworkStepper:
             views["iscalars"][4:] = [int(a) for a in at]
         self.y = views["y"]
         self._tick = (self._arrays.reals, self._arrays.ints)
+        from ..core.tick import load_compiled
+
+        load_compiled(network_tick, (0, 1, np.zeros(1), np.empty((1, 1)), -math.inf, math.inf, *self._tick, self._msg, 0))
 
     def stage(self, pulley: int, value: float | None) -> None:
         """The torque :meth:`tick`'s joint values show for pulley ``pulley`` (the value :meth:`hold` is given right
