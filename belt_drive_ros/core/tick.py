@@ -26,10 +26,7 @@ A tick at which the held drive torque changes is compiled too when it is one
 grid step (:func:`linear_tick`'s clamps); ticks near a plant breakpoint, a
 held-torque jump in a tick of several steps, extra inputs: the stepper as before.
 
-The kernels also write the tick's ``joint_states`` message into a byte
-buffer the caller lays out (:func:`write_joints`): the stamp and the twelve
-doubles (positions, velocities, efforts) at the offsets it gives, so the
-node publishes the bytes without building them in Python.
+The kernels also write the tick's ``joint_states`` message (:func:`write_joints`): the node publishes its bytes.
 """
 
 from __future__ import annotations
@@ -94,14 +91,11 @@ def _i2(ints, j):
 
 
 class PackedArrays:
-    """Named arrays packed into one float64 buffer ``reals``; ``ints`` is the same buffer's int64 view, ``views[name]``
-    each array's view into it (writing into it writes what the kernel reads).
+    """Named arrays in one float64 buffer ``reals`` (``ints``: its int64 view; ``views[name]``: each array's view).
 
-    ``names``: ``(FLOATS, INTS)``, the names of ``floats`` and ``ints`` in section order: section ``j`` is
-    ``FLOATS[j]`` (float64), then ``INTS[j - len(FLOATS)]`` (int64); the buffer starts with
-    ``(offset, d0, d1, d2)`` of every section (at most three dimensions; the offset in 8-byte words from the
-    buffer's start), which the kernels' ``_f1, _f2, _f3, _i1, _i2`` read: a kernel given the buffer alone takes
-    ``ints = reals.view(np.int64)``.
+    ``names``: ``(FLOATS, INTS)``, section ``j`` is ``FLOATS[j]`` (float64), then ``INTS[j - len(FLOATS)]``
+    (int64); the buffer starts with ``(offset [8-byte words], d0, d1, d2)`` of every section, which the kernels'
+    ``_f1, _f2, _f3, _i1, _i2`` read (``ints = reals.view(np.int64)``).
     """
 
     def __init__(self, names: tuple, floats: dict, ints: dict):
@@ -245,13 +239,10 @@ def grid_step_ns(dt: float, origin: float) -> int:
 
 
 def joints_message(template: bytes | None = None, offsets=None) -> tuple[np.ndarray, slice, list]:
-    """``(msg, where, at)``: the buffer :func:`write_joints` writes a message into, where the message's bytes
-    are in it (``memoryview(msg)[where]``: a view; ``bytes(view)`` copies them) and its layout ``at``.
-
-    ``template``: the message's bytes, its stamp at bytes 4-12 (seconds, nanoseconds: little-endian
-    int32, uint32) and its positions, velocities and efforts (four little-endian doubles each)
-    at the byte ``offsets``, which must share one alignment (as CDR's sequences of doubles do).
-    None: a scratch message of that shape.
+    """``(msg, where, at)``: the buffer :func:`write_joints` writes into, the message's bytes in it
+    (``memoryview(msg)[where]``) and its layout ``at``. ``template``: the message's bytes, its stamp at bytes 4-12
+    (little-endian int32 s, uint32 ns), its positions, velocities and efforts (four little-endian doubles each) at
+    the byte ``offsets``, which share one alignment (as CDR's double sequences do); None: a scratch message.
     """
     if template is None:
         template, offsets = bytes(112), (12, 44, 76)
@@ -265,9 +256,8 @@ def joints_message(template: bytes | None = None, offsets=None) -> tuple[np.ndar
 
 
 def load_compiled(kernel, args) -> None:
-    """Load ``kernel``'s compiled code for the types of ``args`` now (from numba's disk cache: 25-50 ms), not at its
-    first call, a node's first tick (nothing to load under ``NUMBA_DISABLE_JIT``)."""
-    if hasattr(kernel, "compile"):
+    """Load ``kernel``'s compiled code for ``args``' types now (numba's disk cache: 25-50 ms), not at a node's first tick."""
+    if hasattr(kernel, "compile"):  # (not under NUMBA_DISABLE_JIT)
         from numba import typeof
 
         kernel.compile(tuple(typeof(a) for a in args))
@@ -337,10 +327,10 @@ SLIP_CONSTANTS = ("ratio", "r_3", "a_1", "g", "F_0", "q_1", "q_2", "q_3", "rel_2
 
 #: mode switches a slipping tick takes itself (more: the engine redoes the tick)
 EVENTS = 7
-#: the slipping tick's packed sections (:class:`SlipTickKernel`): the hybrid loop's buffers of N steps, its phase
-#: state, the engine's arrays (Z as pairs of doubles), the outputs and the message; ``fscalars``: ``lo, hi, drive,
-#: sigma5, dt, limit, sigma``; the load's shifted numbers and the flexible state sticking after slip; ``iscalars``:
-#: the phase kind and how many of ``xs`` to start from (-1: ``x`` as it is)
+#: the slipping tick's sections (:class:`SlipTickKernel`): the hybrid loop's buffers of N steps, its phase state, the
+#: engine's arrays (Z as pairs of doubles), outputs, message, the load's shifted numbers and the flexible state sticking
+#: after slip; ``fscalars``: ``lo, hi, drive, sigma5, dt, limit, sigma``; ``iscalars``: the phase kind, how many of
+#: ``xs`` to start from (-1: ``x`` as it is)
 SLIP_FLOATS = ("grid", "knots", "lo", "hi", "out_y", "out_native", "out_sigma", "x", "xs", "reals", "Yflex", "Minv",
                "Z", "R", "c", "mats", "guards", "dx", "dy", "lp", "lx", "ly", "events", "consts", "y", "msg", "fscalars",
                "shifted", "flex")
@@ -547,8 +537,7 @@ class SlipTickKernel:
         The mode switches in them when done (:class:`~belt_drive_ros.core.slip.Event`; an empty tuple: none);
         None when the engine's own ``advance`` must redo it from :meth:`state` (a failure, more than
         :data:`EVENTS` switches)."""
-        # (a phase stepper is built only by the engine's own advance, which starts from a state object: the
-        # usual tick, continuing from the buffers, needs no look at the engine)
+        # (only the engine's own advance, from a state object, builds a phase stepper: the usual tick needs no look)
         if k1 - k0 != self.N or state is not None and len(self.engine._steppers) != self._built:
             if state is None:
                 state = self.state()
@@ -580,8 +569,6 @@ def warm() -> None:
     from .sources import Constant
     from .stepper import Plant, Stepper
 
-    params, torque = BeltDriveParams(), Constant(1.0)
-    kernel = TickKernel.of(Stepper(Plant(FlexibleBeltModel(params), torque, torque), "exact", 1e-3), 1.0e5)
-    kernel.step(np.zeros(4), 0, 1)
-    engine = SlippingSimulator(params, torque, torque, "etd2", 1e-3, check_stability=False)
-    SlipTickKernel(engine, 1.0e5).advance(engine.initial(np.zeros(5)), 0, 1)
+    params, torque = BeltDriveParams(), Constant(1.0)  # (a tick kernel loads its compiled code when built)
+    TickKernel.of(Stepper(Plant(FlexibleBeltModel(params), torque, torque), "exact", 1e-3), 1.0e5)
+    SlipTickKernel(SlippingSimulator(params, torque, torque, "etd2", 1e-3, check_stability=False), 1.0e5)
