@@ -163,7 +163,7 @@ def check_governed_loop(speeds, applied, torques):
     """
     import numpy as np
 
-    from belt_drive_ros.core.scene import load_scene
+    from belt_drive_ros.io.scenes import load_scene
     from belt_drive_ros.core.simulate import simulate
 
     speeds, applied = np.asarray(speeds[-200:]), np.asarray(applied[-200:])
