@@ -12,7 +12,8 @@ since the previous publish:
   carry the model, method, step, stability, time base, tick statistics and
   counters.
 * ``<node>: input``: WARN while ``input_timeout`` has expired or when
-  messages were rejected (non-finite) or clamped in the window; counters.
+  messages were rejected (non-finite) or clamped in the window; counters, and
+  ``publishers``: the drive_torque publishers its subscription is matched with.
 * ``<node>: belt``: on a linear model, WARN when the belt went slack or
   slipped in the window (the linear model is outside its validity: the
   ``slipping`` model covers it); on the slipping model, OK with what the
@@ -139,6 +140,7 @@ class NodeDiagnostics:
                 drive_source=s.drive_source,
                 drive_torque=f"{drive.applied.value:.6g}",
                 received=c["received"],
+                publishers=self.node._sub_torque.get_publisher_count(),
                 rejected_nonfinite=c["rejected_nonfinite"],
                 rejected_bound=c["rejected_bound"],
                 clamped=c["clamped"],
