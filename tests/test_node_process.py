@@ -187,8 +187,8 @@ def check_governed_loop(speeds, applied, torques):
 
     The offline run of the same scene (its own diesel stepped inside the kernel) is the reference: the
     loop over DDS samples the torque once per 1 ms tick and acts on it a tick or two later, which moves
-    the speed by a fraction of a rad/s; an open loop (the governor never sees the speed) or no torque at
-    all leaves it tens of rad/s away.
+    the mean speed by a fraction of a rad/s; an open loop (the governor never sees the speed) or no
+    torque at all leaves it tens of rad/s away.
     """
     import numpy as np
 
@@ -205,7 +205,9 @@ def check_governed_loop(speeds, applied, torques):
     # the firing pulsations vary the torque, the governor holds the speed where the scene's own diesel does
     assert applied.max() - applied.min() > 100.0, (applied.min(), applied.max())
     assert abs(speeds.mean() - reference.mean()) < 1.0, (speeds.mean(), reference.mean())
-    assert np.abs(speeds - reference).max() < 2.0, np.abs(speeds - reference).max()
+    # (a torque that reaches the node after the next /clock acts a tick late: 0.5 rad/s at most on an idle machine,
+    # 2.1-2.6 under 16 busy loops on 2 cores; the open loop's mean alone is 19 rad/s off)
+    assert np.abs(speeds - reference).max() < 5.0, np.abs(speeds - reference).max()
 
 
 def test_node_and_engine_source_processes_close_the_loop():
