@@ -91,8 +91,9 @@ GENERATING = {"exec", "eval", "compile", "FunctionType", "CodeType", "LambdaType
 
 
 def _code_generation(source: str) -> list[int]:
-    """Line numbers of ``exec(...)``, ``eval(...)``, ``compile(...)`` (the builtin, not ``re.compile``),
-    ``builtins.exec``, ``types.FunctionType(...)`` / ``CodeType`` and ``__code__`` assignments in ``source``."""
+    """Line numbers of ``exec(...)``, ``eval(...)``, ``compile(...)`` (the builtin, not ``re.compile`` nor a numba
+    dispatcher's ``compile(tuple(types))`` of a signature), ``builtins.exec``, ``types.FunctionType(...)`` /
+    ``CodeType`` and ``__code__`` assignments in ``source``."""
     lines = []
     for node in ast.walk(ast.parse(source)):
         if isinstance(node, ast.Call):
@@ -100,13 +101,19 @@ def _code_generation(source: str) -> list[int]:
             if isinstance(f, ast.Name) and f.id in GENERATING:
                 lines.append(node.lineno)
             elif isinstance(f, ast.Attribute) and f.attr in GENERATING and not (
-                    f.attr == "compile" and isinstance(f.value, ast.Name) and f.value.id in ("re", "regex")):
+                    f.attr == "compile" and isinstance(f.value, ast.Name) and f.value.id in ("re", "regex")) and not (
+                    f.attr == "compile" and len(node.args) == 1 and not node.keywords and _signature(node.args[0])):
                 lines.append(node.lineno)
         elif isinstance(node, (ast.Assign, ast.AugAssign)):
             targets = node.targets if isinstance(node, ast.Assign) else [node.target]
             if any(isinstance(t, ast.Attribute) and t.attr == "__code__" for t in targets):
                 lines.append(node.lineno)
     return sorted(lines)
+
+
+def _signature(arg) -> bool:
+    """A numba signature written out: a tuple display or ``tuple(...)``."""
+    return isinstance(arg, ast.Tuple) or isinstance(arg, ast.Call) and isinstance(arg.func, ast.Name) and arg.func.id == "tuple"
 
 
 def test_the_detector_finds_code_generation():
@@ -119,8 +126,10 @@ def test_the_detector_finds_code_generation():
         f = types.FunctionType(code, {})
         f.__code__ = code
         eval("2")
+        kernel.compile(tuple(typeof(a) for a in args))
+        kernel.compile("x = 1")
     """)
-    assert _code_generation(source) == [4, 5, 6, 7, 8, 9]
+    assert _code_generation(source) == [4, 5, 6, 7, 8, 9, 11]
 
 
 def test_no_code_is_generated_anywhere_in_the_packages():
