@@ -350,6 +350,18 @@ def _rows(M, i, rows, cols, v, voff, out, ooff):
 
 
 @njit(**_INLINE)
+def _formula_inputs(buf, base, coords, tc, fk, fp, extra):
+    """:func:`_inputs` where wheel p's profile is one formula row of kind ``fk[p]`` with numbers ``fp[p]``
+    (:func:`is_formula`, read once per call): arrays reach no out-of-line call, so numba prunes the reference
+    counts of the arrays an inlined helper receives (paper's trapezoidal: 360 -> 120 ns per step)."""
+    P = fk.size
+    for p in range(P):
+        buf[base + p] = formula(fk[p], fp[p, 0], fp[p, 1], fp[p, 2], fp[p, 3], fp[p, 4], tc, coords[2 * p + 1])
+    for e in range(extra.shape[0]):
+        buf[base + P + e] = _friction_force(extra[e], coords[1])
+
+
+@njit(**_INLINE)
 def _inputs(buf, base, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra):
     """Write a stage's inputs ``[torque_0 .. torque_{P-1}, extras...]`` at the clamped time ``tc`` into ``buf[base:]``.
 
@@ -419,6 +431,13 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
     prev = work[cols + 2 * n + rows : cols + 2 * n + rows + P]  # the implicit stage's torques before an iteration
     back = work[cols + 2 * n + rows + P : cols + 2 * n + rows + 2 * P]  # ... and two iterations back
     full = work[cols + 2 * n + rows + 2 * P :]  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
+    fk, fp = np.zeros(P, dtype=np.int64), np.zeros((P, 5))  # wheel p's first row: its kind and first five numbers
+    formulas = True  # every wheel's profile one formula row (:func:`_formula_inputs`)
+    for p in range(P):
+        fk[p] = ak[start[p]] if p == 0 else bk[start[p]]
+        formulas = formulas and is_formula(fk[p])
+        for j in range(5):
+            fp[p, j] = ap[start[p], j] if p == 0 else bp[start[p], j]
     for r in range(n):
         xs[r] = x[r]
     n_explicit = s - 1 if max_iter > 0 else s
@@ -438,7 +457,10 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
                 _rows(S, i, n, width, v, 0, full, i * n)
                 _rows(W, 0, rows, n, full, i * n, coords, 0)
             tc = lo if time < lo else hi if time > hi else time
-            _inputs(v, width, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra)
+            if formulas:
+                _formula_inputs(v, width, coords, tc, fk, fp, extra)
+            else:
+                _inputs(v, width, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra)
         if final_base >= 0:
             for r in range(n):
                 v[r] = full[final_base * n + r]
@@ -458,7 +480,10 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
                 _rows(W, 0, rows, n, state, 0, coords, 0)
                 for p in range(P):
                     prev[p] = v[known + p]
-                _inputs(v, known, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra)
+                if formulas:
+                    _formula_inputs(v, known, coords, tc, fk, fp, extra)
+                else:
+                    _inputs(v, known, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra)
                 same = True
                 cycle = True  # every torque back at its value two iterations ago, the two a rounding apart: stalled
                 for p in range(P):
