@@ -1,23 +1,21 @@
 """The compiled kernel: torque profiles as data and the one time loop of the linear family.
 
-Every function is ``@njit(cache=True, nogil=True)`` over plain arrays and
-floats: compiled once per installed version, cached on disk, run without the
-GIL; ``NUMBA_DISABLE_JIT=1`` runs them as Python with the same floats.
+Every function is ``@njit(cache=True, nogil=True)`` over plain arrays and floats: compiled once per installed
+version, cached on disk, run without the GIL; ``NUMBA_DISABLE_JIT=1`` runs them as Python with the same floats.
 
-* :func:`profile_torque` (and :func:`profile_torque_array` on arrays) -- a
-  profile's torque from its data (:mod:`~belt_drive_ros.core.profile_data`);
-* :func:`wheel_steps` -- the time loop: steps of a fixed-step method (its
-  StageScheme as zero-padded matrices, :class:`~belt_drive_ros.core.kernel_loop.KernelLoop`)
-  on ``x' = A x + B u(t, x)`` with P wheels each driven by a profile: torque
-  times clamped into ``[lo, hi]``, the implicit stage by fixed point, a
-  slipping belt's speed-dependent extra input, the divergence check and an
-  optional guard after every step (the two-wheel drive and belt networks);
-* :func:`linear_steps` -- the two-wheel drive's entry (its arrays packed),
-  with the 2- and 4-state fast path of an explicit method (:func:`_explicit`).
+* :func:`profile_torque` (:func:`profile_torque_array` on arrays) -- a profile's torque from its data
+  (:mod:`~belt_drive_ros.core.profile_data`);
+* :func:`wheel_steps` -- the time loop: steps of a fixed-step method (its StageScheme as zero-padded matrices,
+  :class:`~belt_drive_ros.core.kernel_loop.KernelLoop`) on ``x' = A x + B u(t, x)`` with P wheels each driven by
+  a profile: torque times clamped into ``[lo, hi]``, the implicit stage by fixed point, a slipping belt's
+  speed-dependent extra input, the divergence check and an optional guard after every step (the two-wheel drive
+  and belt networks);
+* :func:`linear_steps` -- the two-wheel drive's entry (its arrays packed), with the 2- and 4-state fast path of
+  an explicit method (:func:`_explicit`).
 
-Only a run imports this module (``--help``, ``scenes``, ``msg-tools`` never do).
-Every matrix-vector product is summed column by column from the left (zero
-entries included), as :func:`~belt_drive_ros.core.stage_scheme.affine` does.
+Only a run imports this module (``--help``, ``scenes``, ``msg-tools`` never do). Every matrix-vector product is
+summed column by column from the left (zero entries included), as :func:`~belt_drive_ros.core.stage_scheme.affine`
+does.
 """
 
 from __future__ import annotations
@@ -42,8 +40,8 @@ _JIT = dict(cache=True, nogil=True)
 ROUNDING = 1e-9
 #: harmonic amplitudes an engine or compressor row may have to run from scalars (:func:`profile_scalars`)
 SCALAR_HARMONICS = 3
-#: small helpers are inlined into their callers (no call, no reference counting of the arrays passed); each
-#: inlined copy is compiled again, so the profile dispatcher and the loops are called, not inlined
+#: small helpers are inlined into their callers (no call; numba prunes the reference counts of the arrays one receives
+#: unless it passes them on to a call); each inlined copy is compiled again: the dispatcher and the loops are called
 _INLINE = dict(cache=True, nogil=True, inline="always")
 
 
@@ -288,10 +286,8 @@ def scalar_torque(kind, p, amplitudes, t, angle, speed):
 
 @njit(**_JIT)
 def profile_torque(kinds, params, tx, ty, t, angle, speed):
-    """Torque [N m] of the profile whose data are ``kinds, params, tx, ty`` (row 0; :func:`torque`).
-
-    This and :func:`profile_torque_at` are called, never inlined: every kernel shares their compiled
-    dispatcher (each inlined copy compiled the whole dispatcher again: 58 s of ``wheel_steps``' build)."""
+    """Torque [N m] of the profile whose data are ``kinds, params, tx, ty`` (row 0; :func:`torque`). This and
+    :func:`profile_torque_at` are called, never inlined: each inlined copy compiled the whole dispatcher again."""
     return torque(kinds, params, tx, ty, 0, t, angle, speed)
 
 
@@ -351,9 +347,8 @@ def _rows(M, i, rows, cols, v, voff, out, ooff):
 
 @njit(**_INLINE)
 def _formula_inputs(buf, base, coords, tc, fk, fp, extra):
-    """:func:`_inputs` where wheel p's profile is one formula row of kind ``fk[p]`` with numbers ``fp[p]``
-    (:func:`is_formula`, read once per call): arrays reach no out-of-line call, so numba prunes the reference
-    counts of the arrays an inlined helper receives (paper's trapezoidal: 360 -> 120 ns per step)."""
+    """:func:`_inputs` where wheel p's profile is one formula row ``fk[p]``, ``fp[p]`` (:func:`is_formula`, read once
+    per call): no array reaches an out-of-line call, so numba prunes their reference counts (trapezoidal 360 -> 120 ns)."""
     P = fk.size
     for p in range(P):
         buf[base + p] = formula(fk[p], fp[p, 0], fp[p, 1], fp[p, 2], fp[p, 3], fp[p, 4], tc, coords[2 * p + 1])
@@ -363,12 +358,9 @@ def _formula_inputs(buf, base, coords, tc, fk, fp, extra):
 
 @njit(**_INLINE)
 def _inputs(buf, base, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra):
-    """Write a stage's inputs ``[torque_0 .. torque_{P-1}, extras...]`` at the clamped time ``tc`` into ``buf[base:]``.
-
-    Wheel p's profile (first row ``start[p]``; profile 0 in the first bank, the others in the second) reads
-    ``coords[2p]`` (its angle where ``uses[p]``, else 0.0) and ``coords[2p + 1]``; wheel 0 outside the loop
-    (a bank chosen inside the loop cost the two-wheel run 2-3x per step).
-    """
+    """Write a stage's inputs ``[torque_0 .. torque_{P-1}, extras...]`` at the clamped time ``tc`` into ``buf[base:]``:
+    wheel p's profile (first row ``start[p]``; profile 0 in the first bank, the others in the second) reads
+    ``coords[2p]`` (its angle where ``uses[p]``, else 0.0) and ``coords[2p + 1]``."""
     P = start.size
     buf[base] = profile_torque_at(ak, ap, ax, ay, start[0], tc, coords[0] if uses[0] else 0.0, coords[1])
     for p in range(1, P):
@@ -400,20 +392,17 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
     tol, max_iter : the implicit last stage's fixed point (max_iter 0: explicit method); it also ends when the
         torques alternate between two values :data:`ROUNDING` apart (stalled at rounding: no closer value exists).
     uses : (P,) whether wheel p's profile reads its angle (else 0.0 is passed); start : (P,) its first row.
-    ak, ap, ax, ay : profile 0's bank (kinds, params, tx, ty); bk, bp, bx, by : the other profiles' bank
-        (the drive's and the load's own data; or a network's stacked profiles,
-        :func:`~belt_drive_ros.core.profile_data.stack`, as both banks).
+    ak, ap, ax, ay : profile 0's bank (kinds, params, tx, ty); bk, bp, bx, by : the other profiles' bank (the
+        drive's and load's own data; or a network's stacked profiles, :func:`~belt_drive_ros.core.profile_data.stack`).
     extra : (E, 5) speed-dependent extra inputs at wheel 0's speed (:func:`_friction_force`).
     guard : (5 + 2n,) ``[active, absolute, bound, quad, has_speed, row..., speed...]``:
         stop after the first step whose end state has ``f(row x) > bound - quad (speed x)^2``.
-
     Every product sums the stage's own columns ``[x, U_0 .. U_{i-1}]`` from the left.
 
     Returns
     -------
-    (steps done, status, time [s] of the failing step): status :data:`OK`,
-    :data:`DIVERGED` (the last state written is non-finite or too fast),
-    :data:`GUARDED` (the last state written is the first past the guard) or
+    (steps done, status, time [s] of the failing step): status :data:`OK`, :data:`DIVERGED` (the last state written
+    is non-finite or too fast), :data:`GUARDED` (the last state written is the first past the guard) or
     :data:`NOT_CONVERGED` (the implicit stage of the step after the last one written).
     """
     n = x.size
@@ -423,14 +412,11 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
     half = n // 2
     cols = n + m * s
     rows = 2 * P
-    work = np.zeros(cols + 2 * n + rows + 2 * P + s * n)  # one allocation, cut into:
-    v = work[:cols]  # [x (or the base stage's state), U_0, ..., U_{s-1}]
-    xs = work[cols : cols + n]
-    state = work[cols + n : cols + 2 * n]
-    coords = work[cols + 2 * n : cols + 2 * n + rows]  # the wheels' angles and speeds
-    prev = work[cols + 2 * n + rows : cols + 2 * n + rows + P]  # the implicit stage's torques before an iteration
-    back = work[cols + 2 * n + rows + P : cols + 2 * n + rows + 2 * P]  # ... and two iterations back
-    full = work[cols + 2 * n + rows + 2 * P :]  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
+    # each its own allocation: numba could not prune the reference counts of two views of one array in a helper
+    v = np.zeros(cols)  # [x (or the base stage's state), U_0, ..., U_{s-1}]
+    xs, state, coords = np.zeros(n), np.zeros(n), np.zeros(rows)  # coords: the wheels' angles and speeds
+    prev, back = np.zeros(P), np.zeros(P)  # the implicit stage's torques before an iteration, and two iterations back
+    full = np.zeros(s * n)  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
     fk, fp = np.zeros(P, dtype=np.int64), np.zeros((P, 5))  # wheel p's first row: its kind and first five numbers
     formulas = True  # every wheel's profile one formula row (:func:`_formula_inputs`)
     for p in range(P):
@@ -535,14 +521,10 @@ SECTIONS = ("W", "offsets", "S", "F", "tol", "extra", "guard", "dx", "dy", "lx",
 
 @njit(**_JIT)
 def linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp):
-    """Steps ``times[k] -> times[k+1]`` of one fixed-step method from state ``x``; states into ``out[k]``.
-
-    The plant's and method's arrays come packed into ``reals`` and ``ints``
-    (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`; layout :data:`HEADER`,
-    :data:`SECTIONS`): a call type-checks ten arguments, not twenty-five.
-    ``dp``, ``lp``: the drive's and load's profile parameters (a held torque
-    writes its value into them in place). Unpacked, then :func:`_steps`.
-    """
+    """Steps ``times[k] -> times[k+1]`` of one fixed-step method from state ``x``; states into ``out[k]``: the plant's
+    and method's arrays packed into ``reals`` and ``ints`` (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`;
+    layout :data:`HEADER`, :data:`SECTIONS`; a call type-checks ten arguments, not twenty-five), unpacked for
+    :func:`_steps`. ``dp``, ``lp``: the drive's and load's profile parameters (a held torque writes into them)."""
     n, s, E, rows, cols = ints[0], ints[1], ints[2], ints[3], ints[4]
     at = ints[HEADER : HEADER + len(SECTIONS) + 1]
     k0 = HEADER + len(SECTIONS) + 1
@@ -616,22 +598,15 @@ def _past_guard(guard, x0, x1, x2, x3, n):
 
 @njit(**_JIT)
 def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard, n):
-    """:func:`wheel_steps` for an explicit method on a plant of ``n`` = 2 (rigid) or 4 (flexible) states
-    (stage kinds 0, 1, 2 as there); one compiled loop for both sizes (``n`` a variable: a constant compiled
-    the loop twice, one copy per size).
+    """:func:`wheel_steps` for an explicit method on a plant of ``n`` = 2 (rigid) or 4 (flexible) states (stage
+    kinds as there): one compiled loop for both sizes (a constant ``n`` compiled it twice).
 
-    The same operations in the same order, with the state (``x0, x1`` and,
-    for 4 states, ``x2, x3``), each stage's wheel coordinates and torques in
-    scalars and the earlier stages' torques in a small array ``U``: no store
-    and reload on the critical path (x -> omega_M -> torque -> x+). Rows are
-    summed in pairs over ``U`` (:func:`_stage_rows`; lawson5 on paper 95 -> 89 ns).
-    A wheel angle its profile does not read is not computed. A profile that
-    is one formula row (:func:`is_formula`), or else fits in scalars
-    (:func:`profile_scalars`: the truck's engine and scheduled compressors),
-    is read once per call: with no array passed into the inlined dispatcher,
-    numba's reference counting drops out of the step (paper's ``exact``:
-    33 -> 14 ns; truck_compressor's etd4 341 -> 235 ns). Any other profile through the dispatcher
-    inlined (:func:`torque`: a call cost e_motor_start's motor curve 75 -> 106 ns).
+    The same operations in the same order, with the state, each stage's wheel coordinates and torques in scalars
+    and the earlier stages' torques in a small array ``U`` (rows summed in pairs over it, :func:`_stage_rows`): no
+    store and reload on the critical path x -> omega_M -> torque -> x+. An angle no profile reads is not computed.
+    A profile of one formula row (:func:`is_formula`) or that fits in scalars (:func:`profile_scalars`: engines,
+    compressors, schedules) is read once per call, so no array reaches inlined code and numba's reference counts
+    drop out of the step (paper's ``exact`` 33 -> 14 ns); any other through the dispatcher inlined (:func:`torque`).
     """
     x0, x1 = x[0], x[1]
     x2 = x[2] if n == 4 else 0.0
