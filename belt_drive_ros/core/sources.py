@@ -61,14 +61,9 @@ def _register(cls):
 
 
 class TorqueProfile:
-    """Base class: a torque [N m] as a function of time, angle and speed.
-
-    A profile states its torque once, as data (:meth:`encode`: a kind code of
-    :mod:`~belt_drive_ros.core.profile_data`, its numbers and tables); the
-    compiled kernel evaluates it (:func:`~belt_drive_ros.core.kernel.profile_torque`)
-    for :meth:`torque` (scalars and arrays), :meth:`scalar_torque` and inside
-    the time loop alike (a profile without a data form is refused by every stepper).
-    """
+    """Base class: a torque [N m] as a function of time, angle and speed, stated once as data (:meth:`encode`: a
+    kind code of :mod:`~belt_drive_ros.core.profile_data`, its numbers and tables) that the compiled kernel evaluates
+    for :meth:`torque`, :meth:`scalar_torque` and the time loop alike (every stepper refuses one without data)."""
 
     kind: ClassVar[str] = ""
 
@@ -91,11 +86,8 @@ class TorqueProfile:
         return cached
 
     def torque(self, t, angle=0.0, speed=0.0):
-        """Torque [N m] at time ``t`` [s], wheel angle [rad], wheel speed [rad/s] (scalars or arrays).
-
-        Evaluated by the compiled kernel from :meth:`data` (the same function
-        the time loop calls: bitwise the same values).
-        """
+        """Torque [N m] at time ``t`` [s], wheel angle [rad], wheel speed [rad/s] (scalars or arrays), evaluated by
+        the compiled kernel from :meth:`data` (bitwise the values the time loop computes)."""
         from . import kernel
 
         data = self.data()
