@@ -48,11 +48,9 @@ _INLINE = dict(cache=True, nogil=True, inline="always")
 # ------------------------------------------------------------- profiles
 @njit(**_JIT)
 def _bisect_right(xs, offset, n, x):
-    """Index ``i`` in ``[0, n]`` with ``xs[offset + j] <= x`` for all j < i (as :func:`bisect.bisect_right`).
-
-    The search starts where ``x`` would lie among evenly spaced points (a recording's samples nearly are) and
-    widens by doubling until it brackets ``x``; then halving (the same index as a plain bisection's).
-    """
+    """Index ``i`` in ``[0, n]`` with ``xs[offset + j] <= x`` for all j < i (as :func:`bisect.bisect_right`): the
+    search starts where ``x`` would lie among evenly spaced points (a recording's samples nearly are), widens by
+    doubling until it brackets ``x``, then halves (the same index as a plain bisection's)."""
     lo, hi = 0, n
     if n > 8 and xs[offset] <= x < xs[offset + n - 1]:
         g = int((x - xs[offset]) / (xs[offset + n - 1] - xs[offset]) * (n - 1))
@@ -119,10 +117,8 @@ def is_formula(kind):
 
 @njit(**_INLINE)
 def formula(kind, p0, p1, p2, p3, p4, t, speed):
-    """Torque [N m] of a row of a formula kind (:func:`is_formula`) from its numbers ``p0 .. p4`` at ``t`` [s], ``speed`` [rad/s].
-
-    Scalars only: numba counts references to every array an inlined helper receives, per call.
-    """
+    """Torque [N m] of a row of a formula kind (:func:`is_formula`) from its numbers ``p0 .. p4`` at ``t`` [s],
+    ``speed`` [rad/s] (scalars only: no array whose references numba would count, see :data:`_INLINE`)."""
     if kind == CONSTANT:
         return p0
     if kind == STEP:
@@ -171,11 +167,9 @@ def polynomial(c0, c1, c2, speed):
 
 @njit(**_INLINE)
 def torque(kinds, params, tx, ty, row, t, angle, speed):
-    """Torque [N m] of the profile whose first row is ``row`` at ``t`` [s], ``angle`` [rad], ``speed`` [rad/s].
-
-    The row layouts are :mod:`~belt_drive_ros.core.profile_data`'s table; a
-    schedule row resolves to its active row inside a period [start, end), else its inactive one.
-    """
+    """Torque [N m] of the profile whose first row is ``row`` at ``t`` [s], ``angle`` [rad], ``speed`` [rad/s]
+    (row layouts: :mod:`~belt_drive_ros.core.profile_data`); a schedule row resolves to its active row inside a
+    period [start, end), else its inactive one."""
     while kinds[row] == SCHEDULE:
         offset, n = int(params[row, 0]), int(params[row, 1])
         inside = False
@@ -252,11 +246,9 @@ def _row_scalars(kinds, params, ty, row):
 @njit(**_INLINE)
 def profile_scalars(kinds, params, tx, ty):
     """A profile as scalars for a loop that reads them once per call (:func:`scalar_torque`): (whether it fits,
-    the active part's kind, numbers and amplitudes, the inactive part's, the periods ``(s0, e0, s1, e1)``).
-
-    Fits: a row of :func:`_row_scalars`, or a schedule of at most two periods of two such rows (a profile
-    that is not a schedule is its own active part, always inside ``(-inf, inf)``).
-    """
+    the active part's kind, numbers and amplitudes, the inactive part's, the periods ``(s0, e0, s1, e1)``). Fits:
+    a row of :func:`_row_scalars`, or a schedule of at most two periods of two such rows (a profile that is not a
+    schedule is its own active part, always inside ``(-inf, inf)``)."""
     fits, ka, pa, aa = _row_scalars(kinds, params, ty, 0)
     ki, pi, ai = ka, pa, aa
     periods = (-math.inf, math.inf, 0.0, 0.0)
