@@ -266,8 +266,9 @@ def test_node_process_exits_cleanly_on_sigterm():
         (["node", "paper", "--ros-args", "-p", "method:=euler"], "UNSTABLE"),
         (["node", "no_such_scene"], "unknown scene"),
         (["node", "paper", "--ros-args", "-p", "model:=stiff"], "model: must be one of"),
+        (["node", "paper", "--ros-args", "-p", "k:=2e5", "-p", "iput_timeout:=0.5"], "iput_timeout: not a parameter"),
     ],
-    ids=["out-of-range", "unstable-method", "unknown-scene", "bad-choice"],
+    ids=["out-of-range", "unstable-method", "unknown-scene", "bad-choice", "misspelt-name"],
 )
 def test_invalid_parameters_at_start_exit_with_message(args, message):
     domain = ros_env.process_domain_id(offset=45)
@@ -431,3 +432,19 @@ first; the bound is far from both, and the old code was silent 1-2 s after most 
         probe.close()
         rc, err = stop(node, signal.SIGINT)
     assert rc == 0, err[-3000:]
+
+
+def test_a_command_line_parameter_the_node_lacks_is_refused_before_rclpy_starts():
+    """rclpy drops a ``-p NAME:=VALUE`` no node declares without a word: a misspelt name would run the
+    default instead. The paper node and the network node refuse it, naming it; their own names, rclpy's
+    and rules scoped to another node pass the check."""
+    from belt_drive_ros.ros.network_node import NetworkNode
+    from belt_drive_ros.ros.node import BeltDriveNode, NodeConfigError, run, unknown_parameter_rule
+
+    for node_class, known in ((None, "input_timeout"), (NetworkNode, "step_rate_hz")):
+        with pytest.raises(NodeConfigError, match="^dt: not a parameter of the node"):
+            run(["--ros-args", "-p", f"{known}:=0.5", "--param", "dt:=0.0"], node_class=node_class)
+    rules = ["-p", "use_sim_time:=true", "-p", "start_type_description_service:=false", "-p", "other:dt:=1",
+             "-r", "dt:=x", "-p", "k:=2e5"]
+    assert unknown_parameter_rule(rules, BeltDriveNode.PARAMETER_NAMES) is None
+    assert unknown_parameter_rule(rules, NetworkNode.PARAMETER_NAMES) == "k"

@@ -275,6 +275,9 @@ class NetworkSimulation:
 class NetworkNode(Node):
     """A belt network as a ROS 2 node (see the module docstring)."""
 
+    #: the parameters it declares
+    PARAMETER_NAMES: tuple[str, ...] = tuple(name for name, _, _ in PARAMETERS)
+
     def __init__(self, node_name: str = "belt_drive", *, scene: str | None = None, **kwargs):
         if scene is not None:
             overrides = [p for p in kwargs.pop("parameter_overrides", None) or [] if p.name != "scene"]

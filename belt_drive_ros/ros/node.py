@@ -145,7 +145,7 @@ from .diagnostics import NodeDiagnostics  # noqa: E402
 from .executors import executor_name, make_executor, ros_session, spin_nodes  # noqa: E402,F401 - make_executor re-exported
 from .gaps import TICK_GAP_METADATA  # noqa: E402
 from .inputs import DriveInput, float64_value  # noqa: E402
-from .parameter_schema import NodeConfigError, NodeSettings  # noqa: E402,F401 - NodeConfigError re-exported
+from .parameter_schema import OWN_PARAMETERS, NodeConfigError, NodeSettings  # noqa: E402,F401 - NodeConfigError re-exported
 from .parameters import NodeParameters  # noqa: E402
 from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS, TF_QOS  # noqa: E402
 from .simulation import SLIP_TICK_OUTPUTS, TICK_OUTPUTS, NodeSimulation  # noqa: E402
@@ -202,6 +202,9 @@ class BeltDriveNode(Node):
     >>> node = BeltDriveNode(context=ctx, parameter_overrides=[Parameter("use_sim_time", value=True)])
     >>> executor = make_executor(ctx); executor.add_node(node); executor.spin()
     """
+
+    #: the parameters it declares (rclpy adds ``use_sim_time`` and ``start_type_description_service``)
+    PARAMETER_NAMES: tuple[str, ...] = OWN_PARAMETERS
 
     def __init__(self, node_name: str = NODE_NAME, *, scene: str | None = None, **kwargs):
         if scene is not None:
@@ -591,6 +594,21 @@ class BeltDriveNode(Node):
         return super().destroy_node()
 
 
+#: parameters every rclpy node declares
+RCLPY_PARAMETERS = ("use_sim_time", "start_type_description_service")
+
+
+def unknown_parameter_rule(ros_args: list[str], names) -> str | None:
+    """The first ``-p NAME:=VALUE`` (``--param``) of ``ros_args`` whose NAME is neither in ``names`` nor
+    :data:`RCLPY_PARAMETERS`; None. A rule scoped to a node (``other_node:NAME:=VALUE``) is not checked."""
+    for flag, rule in zip(ros_args, ros_args[1:]):
+        if flag in ("-p", "--param"):
+            name = rule.split(":=", 1)[0]
+            if ":" not in name and name not in names and name not in RCLPY_PARAMETERS:
+                return name
+    return None
+
+
 def run(
     ros_args: list[str] | None = None,
     scene: str | None = None,
@@ -606,9 +624,13 @@ def run(
     values that win over them (the command's own options). Invalid
     parameters raise :class:`NodeConfigError` after rclpy is shut down again.
     """
+    node_class = node_class or BeltDriveNode
+    unknown = unknown_parameter_rule(ros_args or [], node_class.PARAMETER_NAMES)
+    if unknown is not None:  # rclpy would drop it without a word
+        raise NodeConfigError(unknown, "not a parameter of the node (belt-drive node --list-parameters)")
     with ros_session(["belt-drive-node", *(ros_args or [])]) as context:
         params = [Parameter(name, value=value) for name, value in (overrides or {}).items()]
-        node = (node_class or BeltDriveNode)(node_name, scene=scene, context=context, parameter_overrides=params)
+        node = node_class(node_name, scene=scene, context=context, parameter_overrides=params)
         from . import memprobe
 
         memprobe.install(node)  # only with BELT_DRIVE_MEMPROBE set (a debugging switch)
