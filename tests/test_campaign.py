@@ -147,6 +147,21 @@ def test_campaign_file_errors_name_the_key(tmp_path):
     ):
         with pytest.raises(CampaignError, match=key.replace(".", r"\.")):
             _campaign(tmp_path, data)
+    # a field no variant's profile or initial state has is refused up front (it failed every variant alike)
+    paper_loads = [{"load": {"type": "polynomial", "c0": 0.0, "c1": 0.02}}, {"load": 2.0}]
+    for data, message in (
+        ({"scene": "paper", "grid": {"drive.bogus": [1.0, 2.0]}}, r"grid\.drive\.bogus: unknown key for a 'motor' drive"),
+        ({"scene": "paper", "monte_carlo": {"samples": 3, "vary": {"drive.bogus": {"normal": 0.1}}}},
+         r"monte_carlo\.vary\.drive\.bogus: unknown key for a 'motor' drive"),
+        ({"scene": "paper", "grid": {"initial_state.omega": [1.0]}}, r"grid\.initial_state\.omega: unknown initial state"),
+        ({"scene": "paper", "profiles": paper_loads, "grid": {"load.c1": [0.01, 0.03]}},
+         r"grid\.load\.c1: unknown key for a 'constant' load profile; known: value"),
+    ):
+        with pytest.raises(CampaignError, match=message):
+            _campaign(tmp_path, data)
+    good = {"scene": "paper", "profiles": paper_loads[:1], "grid": {"load.c1": [0.01], "initial_state.omega_M": [1.0]},
+            "monte_carlo": {"samples": 2, "vary": {"drive.stall_torque": {"normal": 0.1}}}}
+    assert _campaign(tmp_path, good).size == 2
     path = tmp_path / "bad.yaml"
     path.write_text("scene: paper\ngrid: {params.kk: [1.0]}\n")
     cli = subprocess.run([sys.executable, "-m", "belt_drive_ros.cli", "sweep", str(path)], capture_output=True, text=True)

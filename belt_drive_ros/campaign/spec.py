@@ -51,9 +51,9 @@ from .values import boolean, number, sequence
 from .values import mapping as as_mapping
 from .values import text as string
 from ..core.params import FIELD_DOCS
-from ..core.scene import Scene
+from ..core.scene import InitialState, Scene
 from ..io.scenes import load_scene, scene_from_mapping
-from ..core.sources import make_profile
+from ..core.sources import make_profile, profile_fields
 from .metrics import DEFAULT_LIMITS, METRICS
 
 KEYS = ("name", "description", "scene", "set", "grid", "profiles", "monte_carlo", "fleet", "metrics", "limits")
@@ -92,6 +92,23 @@ def _path_of(key, where: str = "") -> tuple:
         f"{label}: not a key path; use params.NAME (or NAME), drive.FIELD, load.FIELD, initial_state.FIELD "
         f"or one of {', '.join(TOP_LEVEL)}"
     )
+
+
+def _check_field(key: str, where: str, mapping: Mapping, profiles: list) -> None:
+    """Refuse a varied ``drive.FIELD``, ``load.FIELD`` or ``initial_state.FIELD`` that no variant's scene has
+    (the base scene's profile, or each listed profile of that role): every variant would fail alike."""
+    section, _, name = key.partition(".")
+    if section == "initial_state":
+        known = {f.name for f in dataclasses.fields(InitialState)}
+        if name not in known:
+            raise CampaignError(f"{where}{key}: unknown initial state; known: {', '.join(sorted(known))}")
+    elif section in ("drive", "load"):
+        for spec in [entry.get(section, mapping[section]) for entry in profiles] or [mapping[section]]:
+            kind = spec.get("type") if isinstance(spec, Mapping) else "constant"
+            known = profile_fields(kind)
+            if name not in known:
+                raise CampaignError(f"{where}{key}: unknown key for a {kind!r} {section} profile; "
+                                    f"known: {', '.join(sorted(known))}")
 
 
 def _key_paths(entries: Mapping, where: str) -> list:
@@ -262,6 +279,10 @@ class Campaign:
             vary = {path: Distribution.parse(given, spec) for path, given, spec in entries}
             if not vary:
                 raise CampaignError("monte_carlo.vary: name at least one key path and its distribution")
+        for key in grid:
+            _check_field(key, "grid.", mapping, profiles)
+        for key in vary:
+            _check_field(key, "monte_carlo.vary.", mapping, profiles)
         for key, dist in vary.items():
             if key in grid:
                 raise CampaignError(

@@ -704,6 +704,12 @@ class HeldTorque(TorqueProfile):
         return {"type": "constant", "value": self.value}
 
 
+def profile_fields(kind: str) -> frozenset:
+    """The keys a profile mapping of type ``kind`` may hold besides ``type`` (empty for an unknown type)."""
+    cls = _REGISTRY.get(kind)
+    return frozenset(f.name for f in fields(cls)) if cls is not None else frozenset()
+
+
 def make_profile(spec: Mapping[str, Any] | TorqueProfile | float, where: str = "profile") -> TorqueProfile:
     """Profile from a mapping with a ``type`` key (or a number: constant).
 
@@ -722,7 +728,7 @@ def make_profile(spec: Mapping[str, Any] | TorqueProfile | float, where: str = "
     if not isinstance(kind, str) or kind not in _REGISTRY:
         raise SceneError(f"{where}.type: unknown profile {short(kind)}; known: {', '.join(sorted(_REGISTRY))}")
     cls = _REGISTRY[kind]
-    names = {f.name for f in fields(cls)}
+    names = profile_fields(kind)
     unknown = sorted(str(k)[:60] for k in set(spec) - names)
     if unknown:
         raise SceneError(f"{where}.{unknown[0]}: unknown key for type {kind!r}; known: {', '.join(sorted(names))}")
