@@ -71,6 +71,26 @@ def test_namespaced_drive_torque_is_found(tmp_path):
     assert scene.drive.topic == "/truck/drive_torque"
 
 
+def test_a_long_stretch_without_torque_messages_is_named_by_both_reads(tmp_path, capsys):
+    """A bag at 1 kHz that then falls silent for 2.8 s: the whole read and the paged read name the same stretch
+    (the drive holds the last torque through it); a bag of a few steps far apart is held by design, no note."""
+    from belt_drive_ros.cli import main
+    from belt_drive_ros.io.torque_bag import paged_torque_bag, silence_note
+
+    times = np.r_[np.arange(200) * 1_000_000, 3_000_000_000]
+    bag = _torque_bag(tmp_path / "stall.mcap", times, 5.0 + np.arange(201) % 7)
+    scene = load_scene("paper")
+    whole = silence_note(scene_with_torque_bag(scene, bag).drive)
+    paged = paged_torque_bag(scene, bag)
+    assert paged is not None and silence_note(paged.drive) == whole
+    assert whole.startswith("note: stall.mcap has no torque message for 2.801 s (from 0.199 s after its first")
+    steps = _torque_bag(tmp_path / "steps.mcap", [0, 2_000_000_000, 4_000_000_000], [1.0, 3.0, 2.0])
+    assert silence_note(scene_with_torque_bag(scene, steps).drive) == ""
+    assert silence_note(paged_torque_bag(scene, steps).drive) == ""
+    assert main(["sim", "paper", "--torque-bag", str(bag), "--out", str(tmp_path / "run.csv")]) == 0
+    assert whole in capsys.readouterr().out
+
+
 def test_sim_torque_bag_is_deterministic_and_needs_no_ros(tmp_path):
     """`belt-drive sim SCENE --torque-bag BAG --out X.mcap` twice: identical files, rclpy never imported."""
     rng = np.random.default_rng(0)

@@ -141,13 +141,15 @@ def run(args) -> int:
     if args.method_option:
         scene = scene.with_overrides(method_options=_options(args.method_option))
     if args.torque_bag is not None and not is_recording(args.scene):  # (a recording's: read by _resimulation)
-        from ..io.torque_bag import torque_bag_scene, torque_topic  # offline replay of a recorded profile
+        from ..io.torque_bag import silence_note, torque_bag_scene, torque_topic  # offline replay of a recorded profile
 
         topic, note = torque_topic(args.torque_bag)  # a node recording: the torque it applied
         if note:
             print(note)
         scene = torque_bag_scene(scene, args.torque_bag, topic=topic,
                                  streamed=lambda s: _samples(s.with_overrides(dt=args.dt, duration=args.duration)) > STREAM_ABOVE)
+        if silence_note(scene.drive):
+            print(silence_note(scene.drive))
     scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration,
                                  tolerance=getattr(args, "tolerance", None))  # fmt: skip
     out_format = check_outputs(args)

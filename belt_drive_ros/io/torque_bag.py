@@ -354,6 +354,7 @@ class PagedTorque(TorqueProfile):
                  topic: str, sha256: str):
         self._chunked, self.start_ns, self.samples = chunked, int(start_ns), int(samples)
         self._changes, self._min_gap = bool(changes), float(min_gap)
+        self.longest_silence = (0.0, 0.0)  # (length, start) [s] of the longest stretch without a message
         self._bag, self.source, self.topic, self.sha256 = bag, source, topic, sha256
         # per thread (a run's guard reads pages beside its windows): ``last`` (t0, t1, page) of the last page
         # read, ``cache`` {chunk index: (log times, values)}, least recently used first
@@ -516,7 +517,7 @@ def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Option
         drive = PagedTorque(chunked, int(np.min(first)), 0, False, math.inf, bag, os.path.basename(os.fspath(bag)),
                             chunked.topic, "")
         # one pass: what the whole read checks (finite values) and knows (samples, last time, steps, spacing)
-        samples, changes, gap, last_t, last_v = 0, False, math.inf, None, None
+        samples, changes, gap, last_t, last_v, silence = 0, False, math.inf, None, None, (0.0, 0.0)
         for k in range(0, len(chunked), PASS_CHUNKS):
             rel, raw = drive._decode(k, min(len(chunked), k + PASS_CHUNKS))
             if not np.all(np.abs(raw) <= TORQUE_MAX):  # (non-finite too: the whole read names what is wrong)
@@ -530,8 +531,12 @@ def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Option
             if last_t is not None:
                 gap = min(gap, float(times[0] - last_t))
                 changes = changes or bool(values[0] != last_v)
+                silence = max(silence, (float(times[0] - last_t), last_t), key=lambda g: g[0])
             if times.size > 1:
-                gap = min(gap, float(np.min(np.diff(times))))
+                spacing = np.diff(times)
+                gap = min(gap, float(np.min(spacing)))
+                j = int(np.argmax(spacing))
+                silence = max(silence, (float(spacing[j]), float(times[j])), key=lambda g: g[0])
                 changes = changes or bool(np.any(values[1:] != values[:-1]))
             samples += times.size
             last_t, last_v = float(times[-1]), float(values[-1])
@@ -539,6 +544,7 @@ def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Option
         chunked.close()
         return None
     drive.samples, drive._changes, drive._min_gap = samples, changes, gap
+    drive.longest_silence = silence
     drive.sha256 = _sha256(bag)
     end_s = last_t
     if duration is None:
@@ -549,6 +555,31 @@ def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Option
     dt = min(scene.dt, duration)
     description = f"{scene.description} Drive torque recorded in {drive.source}.".strip()
     return dataclasses.replace(scene, drive=drive, duration=float(duration), dt=dt, description=description)
+
+
+#: a stretch of a torque bag without a message is named before a run when longer than this [s] ...
+SILENCE_NOTE_S = 1.0
+#: ... and than this many of the bag's shortest message spacings (a bag of a few steps is held by design)
+SILENCE_NOTE_SPACINGS = 1000.0
+
+
+def silence_note(drive) -> str:
+    """A line naming the longest stretch without a torque message of a recorded ``drive``
+    (:class:`RecordedTorque` or :class:`PagedTorque`) when it is longer than :data:`SILENCE_NOTE_S` and
+    :data:`SILENCE_NOTE_SPACINGS` of its shortest spacing: the drive holds the last torque through it, which
+    a recording cut short or a publisher that stalled makes easy to miss; '' otherwise."""
+    if isinstance(drive, PagedTorque) and drive.samples > 1:
+        (length, start), spacing = drive.longest_silence, drive._min_gap
+    elif isinstance(drive, RecordedTorque) and len(drive.times) > 1:
+        steps = np.diff(drive.times)
+        j = int(np.argmax(steps))
+        length, start, spacing = float(steps[j]), float(drive.times[j]), float(np.min(steps))
+    else:
+        return ""
+    if length > SILENCE_NOTE_S and length > SILENCE_NOTE_SPACINGS * spacing:
+        return (f"note: {drive.source} has no torque message for {length:.6g} s (from {start:.6g} s after its first "
+                "message): the drive holds the last torque through it")
+    return ""
 
 
 def torque_bag_scene(scene, bag, *, topic: str = DEFAULT_TOPIC, streamed=None):
