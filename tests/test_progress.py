@@ -74,6 +74,15 @@ def test_estimate_is_near_the_size_written(tmp_path, fmt):
     assert estimate_run(scene, None).nbytes is None
 
 
+def test_an_estimate_whose_trials_timed_backwards_grows_in_proportion_not_to_zero():
+    """Noise can time the longer trial no slower than the shorter (a cheap scene on a busy machine): the
+    estimate then scales the longer trial's whole time to the duration, as if it had no overhead."""
+    ticks = iter([0.0, 0.5, 10.0, 10.4])  # the short trial 0.5 s, the long one 0.4 s
+    scene = load_scene("paper").with_overrides(duration=600.0)
+    estimate = estimate_run(scene, None, clock=lambda: next(ticks))
+    assert estimate.seconds == pytest.approx(0.4 * 600.0 / estimate.trial[1])
+
+
 def test_a_streamed_sim_says_its_estimate_then_progress_lines(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(sim_command, "STREAM_ABOVE", 1000)  # stream a short run, as a long one is,
     monkeypatch.setattr(stream_module, "WINDOW_STEPS", 500)  # in windows of 2.5 s (progress after each)

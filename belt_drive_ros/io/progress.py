@@ -124,7 +124,9 @@ def estimate_run(scene, out_format: str | None, clock=time.perf_counter) -> RunE
     the simulated duration; the two trials (:data:`TRIAL_STEPS` ... of the
     finer of the integrator step and the output interval) give the slope,
     and the estimate is the longer trial's figure extrapolated along it to
-    the scene's duration. Stream windows, auto's model choice and the
+    the scene's duration (a longer trial timed no slower than the shorter
+    one, noise on a cheap scene, extrapolates its whole time in proportion:
+    an upper bound, never ~0 s). Stream windows, auto's model choice and the
     writers are those of the real run; only the disk is not. A run whose
     signals settle compresses better later on than in the trials (MCAP's
     zstd chunks): its file comes out smaller than estimated (``paper``,
@@ -152,6 +154,7 @@ def estimate_run(scene, out_format: str | None, clock=time.perf_counter) -> RunE
         measured.append((clock() - t0, len(buffer.getvalue())))
     (w1, b1), (w2, b2) = measured
     grow = (scene.duration - spans[1]) / (spans[1] - spans[0]) if spans[1] > spans[0] else 0.0
-    seconds = w2 + max(w2 - w1, 0.0) * grow
+    # the longer trial timed no slower than the shorter (the machine's noise hid the slope): all of it grows
+    seconds = w2 + ((w2 - w1) if w2 > w1 else w2 * (spans[1] - spans[0]) / spans[1]) * grow
     nbytes = b2 + max(b2 - b1, 0) * grow if out_format is not None else None
     return RunEstimate(nbytes, seconds, spans)
