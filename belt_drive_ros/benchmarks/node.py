@@ -239,6 +239,7 @@ def measure(args, floor: bool = False) -> dict:
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
+    from ..io.scenes import is_network
     from ..ros.executors import make_executor
 
     domain = ros_env.process_domain_id(offset=17)
@@ -249,7 +250,8 @@ def measure(args, floor: bool = False) -> dict:
     ] if floor else [
         sys.executable, "-m", "belt_drive_ros.cli", "node", args.scene, "--executor", args.executor,
         *(["--priority", str(args.node_priority)] if args.node_priority else []),
-        "--ros-args", "-p", f"step_rate_hz:={float(args.rate)}", "-p", "input_timeout:=0.0", "--log-level", "warn",
+        "--ros-args", "-p", f"step_rate_hz:={float(args.rate)}", "--log-level", "warn",
+        *(() if is_network(args.scene) else ("-p", "input_timeout:=0.0")),  # (a network node has no input timeout)
         *[arg for param in args.param for arg in ("-p", param)],
     ]
     child = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)

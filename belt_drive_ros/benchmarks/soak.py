@@ -88,6 +88,7 @@ def measure(args) -> dict:
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
+    from ..io.scenes import is_network
     from ..ros.executors import make_executor
 
     tmp = None
@@ -102,7 +103,8 @@ def measure(args) -> dict:
         sys.executable, "-m", "belt_drive_ros.cli", "node", args.scene, "--executor", args.executor,
         "--record", str(record), "--force",
         *(["--max-bag-duration", str(args.max_bag_duration)] if args.max_bag_duration else []),
-        "--ros-args", "-p", f"step_rate_hz:={float(args.rate)}", "-p", "input_timeout:=0.0", "--log-level", "warn",
+        "--ros-args", "-p", f"step_rate_hz:={float(args.rate)}", "--log-level", "warn",
+        *(() if is_network(args.scene) else ("-p", "input_timeout:=0.0")),  # (a network node has no input timeout)
     ]
     probe_env = {}
     if args.memprobe is not None:
