@@ -148,8 +148,9 @@ def run(args) -> int:
             print(note)
         scene = torque_bag_scene(scene, args.torque_bag, topic=topic,
                                  streamed=lambda s: _samples(s.with_overrides(dt=args.dt, duration=args.duration)) > STREAM_ABOVE)
-        if silence_note(scene.drive):
-            print(silence_note(scene.drive))
+        silence = silence_note(scene.drive)
+        if silence:
+            print(silence)
     scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration,
                                  tolerance=getattr(args, "tolerance", None))  # fmt: skip
     out_format = check_outputs(args)
