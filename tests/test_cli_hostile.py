@@ -266,6 +266,8 @@ def test_harness_parameters_numpy_unknown_huge_and_advance_bounds():
                             ({"k": 10**400}, "k: an integer beyond 2.63")):
         with pytest.raises(NodeConfigError, match=message):
             BeltDriveHarness(scene="paper", **params).start()
+    with pytest.raises(NodeConfigError, match="^iput_timeout: not a parameter of the node"):  # ros_args too
+        BeltDriveHarness(scene="paper", ros_args=["--ros-args", "-p", "c:=3", "-p", "iput_timeout:=0.5"]).start()
     with BeltDriveHarness(scene="paper", model="flexible", method="exact", substeps=np.int64(1), k=np.float32(2.0e4)) as h:
         assert h.node.get_parameter("k").value == 2.0e4
         result = h.set_parameters(bogus=1)

@@ -69,7 +69,7 @@ from .executors import make_executor  # noqa: E402
 from .node import NODE_NAME, OUTPUT_TOPICS, SLIP_OUTPUT_TOPICS, BeltDriveNode  # noqa: E402
 from ..core.errors import real  # noqa: E402
 from ..core.sources import TorqueProfile  # noqa: E402
-from .parameter_schema import NodeConfigError  # noqa: E402
+from .parameter_schema import NOT_A_PARAMETER, NodeConfigError, unknown_parameter_rule  # noqa: E402
 from rcl_interfaces.msg import SetParametersResult  # noqa: E402
 
 #: the probe keeps everything it receives between drains
@@ -189,6 +189,9 @@ class BeltDriveHarness:
         ctx, ns = self.context, self.namespace
         overrides = _parameters(self.params)
         overrides.append(Parameter("use_sim_time", value=bool(self.use_sim_time)))
+        rule = unknown_parameter_rule(self.ros_args, BeltDriveNode.PARAMETER_NAMES)  # (rclpy drops it silently)
+        if rule is not None:
+            raise NodeConfigError(rule, NOT_A_PARAMETER)
         self.node = BeltDriveNode(
             self.node_name,
             scene=self.scene_name,
@@ -199,7 +202,7 @@ class BeltDriveHarness:
         )
         unknown = [name for name in self.params if not self.node.has_parameter(name)]  # (rclpy drops them silently)
         if unknown:
-            raise NodeConfigError(unknown[0], "not a parameter of the node (belt-drive node --list-parameters)")
+            raise NodeConfigError(unknown[0], NOT_A_PARAMETER)
         self.probe = Node("belt_drive_harness", context=ctx, namespace=ns)
         p = self.probe
         self._pub_torque = p.create_publisher(Float64, "drive_torque", _PUB_QOS)

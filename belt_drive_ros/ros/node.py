@@ -145,7 +145,13 @@ from .diagnostics import NodeDiagnostics  # noqa: E402
 from .executors import executor_name, make_executor, ros_session, spin_nodes  # noqa: E402,F401 - make_executor re-exported
 from .gaps import TICK_GAP_METADATA  # noqa: E402
 from .inputs import DriveInput, float64_value  # noqa: E402
-from .parameter_schema import OWN_PARAMETERS, NodeConfigError, NodeSettings  # noqa: E402,F401 - NodeConfigError re-exported
+from .parameter_schema import (  # noqa: E402,F401 - NodeConfigError, unknown_parameter_rule re-exported
+    NOT_A_PARAMETER,
+    OWN_PARAMETERS,
+    NodeConfigError,
+    NodeSettings,
+    unknown_parameter_rule,
+)
 from .parameters import NodeParameters  # noqa: E402
 from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS, TF_QOS  # noqa: E402
 from .simulation import SLIP_TICK_OUTPUTS, TICK_OUTPUTS, NodeSimulation  # noqa: E402
@@ -594,21 +600,6 @@ class BeltDriveNode(Node):
         return super().destroy_node()
 
 
-#: parameters every rclpy node declares
-RCLPY_PARAMETERS = ("use_sim_time", "start_type_description_service")
-
-
-def unknown_parameter_rule(ros_args: list[str], names) -> str | None:
-    """The first ``-p NAME:=VALUE`` (``--param``) of ``ros_args`` whose NAME is neither in ``names`` nor
-    :data:`RCLPY_PARAMETERS`; None. A rule scoped to a node (``other_node:NAME:=VALUE``) is not checked."""
-    for flag, rule in zip(ros_args, ros_args[1:]):
-        if flag in ("-p", "--param"):
-            name = rule.split(":=", 1)[0]
-            if ":" not in name and name not in names and name not in RCLPY_PARAMETERS:
-                return name
-    return None
-
-
 def run(
     ros_args: list[str] | None = None,
     scene: str | None = None,
@@ -626,8 +617,8 @@ def run(
     """
     node_class = node_class or BeltDriveNode
     unknown = unknown_parameter_rule(ros_args or [], node_class.PARAMETER_NAMES)
-    if unknown is not None:  # rclpy would drop it without a word
-        raise NodeConfigError(unknown, "not a parameter of the node (belt-drive node --list-parameters)")
+    if unknown is not None:
+        raise NodeConfigError(unknown, NOT_A_PARAMETER)
     with ros_session(["belt-drive-node", *(ros_args or [])]) as context:
         params = [Parameter(name, value=value) for name, value in (overrides or {}).items()]
         node = node_class(node_name, scene=scene, context=context, parameter_overrides=params)

@@ -38,6 +38,7 @@ __all__ = [
     "NodeConfigError",
     "NodeSettings",
     "OWN_PARAMETERS",
+    "RCLPY_PARAMETERS",
     "ParamSpec",
     "SCENE_DERIVED",
     "START_ONLY",
@@ -99,6 +100,23 @@ NODE_SPECS: dict[str, ParamSpec] = {s.name: s for s in NODE_PARAMETERS}
 MODEL_PARAMETERS: tuple[str, ...] = tuple(FIELD_DOCS)
 #: every parameter the node owns (use_sim_time belongs to rclpy's TimeSource)
 OWN_PARAMETERS: tuple[str, ...] = tuple(NODE_SPECS) + MODEL_PARAMETERS
+#: parameters every rclpy node declares
+RCLPY_PARAMETERS = ("use_sim_time", "start_type_description_service")
+#: why a name the node does not declare is refused (rclpy drops it without a word: a misspelt name ran the default)
+NOT_A_PARAMETER = "not a parameter of the node (belt-drive node --list-parameters)"
+
+
+def unknown_parameter_rule(ros_args: list[str], names) -> str | None:
+    """The first ``-p NAME:=VALUE`` (``--param``) of ``ros_args`` whose NAME is neither in ``names`` nor
+    :data:`RCLPY_PARAMETERS`; None. A rule scoped to a node (``other_node:NAME:=VALUE``) is not checked."""
+    for flag, rule in zip(ros_args, ros_args[1:]):
+        if flag in ("-p", "--param"):
+            name = rule.split(":=", 1)[0]
+            if ":" not in name and name not in names and name not in RCLPY_PARAMETERS:
+                return name
+    return None
+
+
 #: parameters whose default comes from the scene and that a new scene resets
 SCENE_DERIVED: tuple[str, ...] = ("model", "method", "substeps") + MODEL_PARAMETERS
 #: parameters of type double (an integer given for one is stored as a double)
