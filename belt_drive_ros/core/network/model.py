@@ -324,17 +324,20 @@ class Mode:
 
 
 def modes(model: NetworkModel, driver_speed: float | None = None) -> list[Mode]:
-    """Oscillating modes at the operating point (eigenvalues of A with Im > 0), lowest first."""
+    """Oscillating modes at the operating point (eigenvalues of A with Im > 0), lowest first. The belt turning every
+    pulley (K's zero mode) is none: undamped, its double zero eigenvalue comes out split by rounding to about
+    ``+-sqrt(eps) |A|``, real or imaginary, so eigenvalues below ``1e-6 max |lambda|`` are left out."""
     speed = model.scene.operating_speed if driver_speed is None else driver_speed
     K, C, _ = model.operating_point(speed)
     A, _ = model.state_space(K, C)
     lam, vec = np.linalg.eig(A)
+    tiny = 1e-6 * float(np.max(np.abs(lam)))
     m = model.M.shape[0]
     scene = model.scene
     scale = np.array([p.radius for p in scene.pulleys] + ([arm(scene.pulleys, scene.tensioner)[2]] if model.arm >= 0 else []))
     out = []
     for i in np.argsort(np.abs(lam)):
-        if lam[i].imag <= 1e-9 * max(1.0, abs(lam[i])):
+        if lam[i].imag <= 1e-9 * max(1.0, abs(lam[i])) or abs(lam[i]) <= tiny:
             continue
         v = vec[:m, i] * scale
         v = v / v[np.argmax(np.abs(v))]
