@@ -33,25 +33,16 @@ _REGISTRY: dict[str, type["TorqueProfile"]] = {}
 TORQUE_MAX = 1.0e6
 #: A speed [rad/s]: ~1 million rpm.
 SPEED_MAX = 1.0e5
-#: A frequency [Hz]: the highest plausible output rate (core.scene.RANGES).
-FREQUENCY_MAX = 1.0e6
-#: A time or period [s]: the longest scene (core.scene.RANGES).
-TIME_MAX = 1.0e7
-#: A phase [rad] (beyond it sin(phase) keeps few correct digits).
-PHASE_MAX = 1.0e3
-#: A speed gain or damping-like coefficient [N m s/rad].
-GAIN_MAX = 1.0e6
-#: A quadratic speed coefficient [N m s^2/rad^2].
-QUADRATIC_MAX = 1.0e3
-#: A transmission ratio [-].
-RATIO_MAX = 1.0e2
 #: Cylinders of an engine or compressor, harmonics of a profile, periods of a schedule.
 COUNT_MAX = {"cylinders": 64, "harmonics": 64, "periods": 1000}
 #: the kinds of field: (largest magnitude, unit)
 _KINDS: dict[str, tuple[float, str]] = {
-    "torque": (TORQUE_MAX, "N m"), "speed": (SPEED_MAX, "rad/s"), "frequency": (FREQUENCY_MAX, "Hz"),
-    "time": (TIME_MAX, "s"), "phase": (PHASE_MAX, "rad"), "gain": (GAIN_MAX, "N m s/rad"),
-    "quadratic": (QUADRATIC_MAX, "N m s^2/rad^2"), "ratio": (RATIO_MAX, "1"),
+    "torque": (TORQUE_MAX, "N m"), "speed": (SPEED_MAX, "rad/s"),
+    "frequency": (1.0e6, "Hz"),  # the highest plausible output rate (core.scene.RANGES)
+    "time": (1.0e7, "s"),  # a time or period: the longest scene (core.scene.RANGES)
+    "phase": (1.0e3, "rad"),  # beyond it sin(phase) keeps few correct digits
+    "gain": (1.0e6, "N m s/rad"),  # a speed gain or damping-like coefficient
+    "quadratic": (1.0e3, "N m s^2/rad^2"), "ratio": (1.0e2, "1"),  # a quadratic speed coefficient; a transmission ratio
 }
 
 
