@@ -1,22 +1,12 @@
-"""Many variants of one plant stepped together: the compiled loop over a variant axis.
+"""Many variants of one plant stepped together: the compiled loop over a variant axis (``docs/campaigns.md``,
+"The ensemble, and what runs singly").
 
-A campaign runs thousands of variants of one scene that differ in their parameters but share the torque
-profiles, the method, the step and the duration. :class:`Ensemble` steps them with the single run's own
-plan, matrices and loop, so ensemble and single runs agree bit for bit (tests/test_ensemble.py: <= 1e-12
-relative on every shipped scene and explicit method):
-
-* the plan: the single run's :meth:`~belt_drive_ros.core.stepper.Stepper.steps` (the grid, steps split and
-  clamped at torque breakpoints; a run of whole steps is one kernel call, a split step one call per piece);
-* the matrices: the method's :class:`~belt_drive_ros.core.stage_scheme.StageScheme` built from the stacked
-  ``A`` (V, n, n) and ``B`` (V, n, m) (every exponential by
-  :func:`~belt_drive_ros.core.batch_expm.expm_stack`, each depending on its own matrix alone), packed by
-  :class:`~belt_drive_ros.core.kernel_loop.KernelLoop` into the row of numbers a single run packs;
-* the loop: :func:`~belt_drive_ros.core.kernel_variants.variant_steps`, the operations of
-  :func:`~belt_drive_ros.core.kernel._steps` with the variants as vector lanes.
-
-Covered: the rigid and flexible models with any explicit fixed-step method. Not covered
-(:class:`EnsembleUnsupported`; :mod:`~belt_drive_ros.campaign.ensemble_run` runs them singly): the slipping
-model, the implicit ``trapezoidal``, scipy's adaptive methods and profiles without a data form.
+The variants share torque profiles, method, step and duration, not their parameters. :class:`Ensemble` steps them
+with the single run's own plan (:meth:`~belt_drive_ros.core.stepper.Stepper.steps`), stage schemes built from the
+stacked ``A`` (V, n, n) and ``B`` (V, n, m) (:func:`~belt_drive_ros.core.batch_expm.expm_stack`) and loop
+(:func:`~belt_drive_ros.core.kernel_variants.variant_steps`), so ensemble and single runs agree bit for bit
+(tests/test_ensemble.py). Covered: rigid and flexible models, any explicit fixed-step method; the rest
+(:class:`EnsembleUnsupported`: slipping, implicit, adaptive, profiles without a data form) runs singly.
 """
 
 from __future__ import annotations

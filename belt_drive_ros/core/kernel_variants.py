@@ -1,19 +1,11 @@
-"""The compiled loop over a variant axis: the single run's step, for a whole chunk of variants.
+"""The compiled loop over a variant axis: the single run's step, for a whole chunk of variants
+(``docs/campaigns.md``: the pipeline without threads, variants as vector lanes, the figures).
 
-An ensemble (:mod:`~belt_drive_ros.core.ensemble`) steps V variants sharing profiles, method and step but
-not their matrices. Each variant's numbers are one row of ``reals`` (the row a single run of that variant
-packs, :class:`~belt_drive_ros.core.kernel_loop.KernelLoop`); one call of :func:`variant_steps` covers a
-chunk of variants, each getting its single run's floats bit for bit (tests/test_ensemble.py):
-
-* an explicit method on a plant of <= 4 states (every linear campaign of the shipped scenes):
-  :func:`_lanes` steps :data:`LANES` variants at a time as vector lanes, the operations of
-  ``kernel._explicit`` in the same order per variant, each applied to all lanes before the next;
-* anything else (more states, an implicit stage, the slipping belt's extra input or guard): the single
-  run's own loop (:func:`~belt_drive_ros.core.kernel._steps`) once per variant.
-
-Serial on purpose (one single-threaded Dask worker per core), compiled through numba's parallel pipeline
-with every parallel transformation off (:data:`_PIPELINE`: no thread, the same floats, ~2.5x less CPU per
-variant-step); the measurements are in docs/campaigns.md.
+Each variant's numbers are one row of ``reals`` (the row a single run of that variant packs,
+:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`), and each gets its single run's floats bit for bit
+(tests/test_ensemble.py): an explicit method on a plant of <= 4 states through :func:`_lanes`, anything else
+(more states, an implicit stage, the slipping belt's extra input or guard) through the single run's loop
+(:func:`~belt_drive_ros.core.kernel._steps`) once per variant. Serial on purpose (one Dask worker per core).
 """
 
 from __future__ import annotations
@@ -96,17 +88,9 @@ def knot_torques(kinds, params, tx, ty, times, angle, speed, out):
 
 @njit(cache=True, nogil=True, inline="always")
 def _lane_torques(kinds, params, tx, ty, t, angle, speed, out, a, v, o, L):
-    """``out[o, q] = profile_torque(kinds, params, tx, ty, t, angle[a, q], speed[v, q])`` for q < L.
-
-    The kind is the same for every lane. The motor line and the polynomial
-    through their formulas with the row's numbers read once before the loop
-    (:func:`~belt_drive_ros.core.kernel.motor_line`,
-    :func:`~belt_drive_ros.core.kernel.polynomial`), so the loop runs over
-    the lanes in vector registers (the same IEEE operations per lane); the
-    other formulas (constant, step, ramp, sine) read neither speed nor
-    angle: one :func:`~belt_drive_ros.core.kernel.formula` for every lane;
-    tables, schedules, engines and compressors by the dispatcher, lane by lane.
-    """
+    """``out[o, q] = profile_torque(kinds, params, tx, ty, t, angle[a, q], speed[v, q])`` for q < L (one kind for
+    every lane): the motor line and polynomial from the row's numbers read once (vector loops, the same IEEE
+    operations per lane), a formula of time once for all lanes, the rest by the dispatcher lane by lane."""
     kind = kinds[0]
     if kind == MOTOR_LINE:  # the row's numbers read once: the loop compiles to vector operations
         p0, p1, p2 = params[0, 0], params[0, 1], params[0, 2]
@@ -131,21 +115,13 @@ def _lanes(times, states, j, lo, hi, limit, reals, at, n, s, rows, cols, kinds, 
     """Variants ``a .. b-1`` (at most :data:`LANES`) of an explicit method on an n-state plant (n <= 4: rigid or
     flexible), stepped together, the variants as lanes; no extra input (E = 0), no guard.
 
-    Each variant's floats are those of the single run's loop
-    (:func:`~belt_drive_ros.core.kernel._explicit`): per stage the wheel
-    coordinates (``W`` or the stage map on ``[x, U_0 ..]``, summed from the
-    left from 0.0), the two torques, then the final map; the same numbers in
-    the same order, each operation over all lanes before the next.
-
-    One work array ``w`` (rows, :data:`LANES`), the variant axis last: the
-    variants' numbers ``reals[:, at[0]:at[4]]`` (W, offsets, S, F) as rows,
-    then x, U (the stages' torques right after x: the maps read ``[x, U_0 ..]``
-    as consecutive rows), B (the stage state of kind 2), the next state Y and
-    the wheel coordinates C. The step is a fixed ``plan`` of dot products of
-    rows named by integers and of the stages' torques: no view and no array
-    passed to a helper in the dot products (numba counts the references of
-    each: a third of the time with 32 lanes). Padding lanes of a last,
-    partial chunk repeat variant ``b-1`` and are never written back.
+    The operations of :func:`~belt_drive_ros.core.kernel._explicit` in the same order (per stage the wheel
+    coordinates summed from the left from 0.0, the two torques; then the final map), each over all lanes before
+    the next. One work array ``w`` (rows, :data:`LANES`): the variants' numbers ``reals[:, at[0]:at[4]]``
+    (W, offsets, S, F), then x, U (right after x: the maps read ``[x, U_0 ..]``), B (a kind-2 stage state), the
+    next state Y and the wheel coordinates C; the step is a fixed ``plan`` of dot products over rows named by
+    integers (no views: ``docs/campaigns.md``). Padding lanes of a partial chunk repeat variant ``b-1``, never
+    written back.
     """
     L = b - a
     R0 = at[4] - at[0]

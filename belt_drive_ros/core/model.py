@@ -1,27 +1,20 @@
-"""Rigid-belt (1 DOF) and flexible-belt (2 DOF) models of the accessory drive.
+"""Rigid-belt (1 DOF) and flexible-belt (2 DOF) models of the accessory drive (derived in ``docs/model.md``).
 
-Both models are stateless: every function takes the state ``x`` (and the
-input ``u``) and returns derived quantities; the simulator or the ROS node
-owns the state. Both are linear time-invariant systems::
+Stateless linear time-invariant systems (the simulator or the node owns the state)::
 
     x' = A x + B u,      y = C x + D u,      u = [drive_torque, load_torque]   [N m]
 
-with the drive torque acting on wheel M and the load torque on wheel 3
-(opposing positive rotation), and ``y`` the linear outputs
-:data:`LINEAR_OUTPUTS` (:meth:`~_LinearModel.output_matrices`). State
-ordering, written down once (everything else reads it through the model:
-``wheel_coordinates``, ``wheel_map``, ``relative_deflection``):
+with the drive torque on wheel M, the load torque on wheel 3 (opposing positive rotation) and ``y`` the outputs
+:data:`LINEAR_OUTPUTS`. State ordering, written down once (read elsewhere through ``wheel_coordinates``,
+``wheel_map``, ``relative_deflection``):
 
 * flexible: ``x = [phi_M, delta, omega_M, omega_3]``  [rad, rad, rad/s, rad/s]
 * rigid:    ``x = [phi_M, omega_M]``                  [rad, rad/s]
 
-The flexible model integrates the relative deflection ``delta = i phi_M - phi_3`` [rad at wheel 3] itself, not wheel
-3's angle: delta stays small while both angles grow with run length, and forming it as the difference of two large
-angles would lose digits (1e-8 rad after 300 s at 500 rad/s, against ~1e-11 as a state). ``phi_3 = i phi_M - delta``
-is an output. The slipping model (:mod:`belt_drive_ros.core.slip`) extends this state by the accumulated slip ``s``.
-
-Equations of motion (derived step by step in ``docs/model.md``; the paper's eq. 18/20
-with its errata corrected, plus belt span damping c and bearing damping b)::
+``delta = i phi_M - phi_3`` [rad at wheel 3] is a state, not a difference of two large angles (it keeps its
+digits over long runs, ``docs/model.md``); ``phi_3 = i phi_M - delta`` is an output. The slipping model
+(:mod:`belt_drive_ros.core.slip`) adds the accumulated slip ``s``. Equations of motion (the paper's eq. 18/20,
+errata corrected, plus belt span damping c and bearing damping b)::
 
     M q'' + C q' + K q = [M_drive, -M_load],   q = [phi_M, phi_3]
     M = diag(I_f, I_3)
@@ -30,10 +23,8 @@ with its errata corrected, plus belt span damping c and bearing damping b)::
 
     rigid:  I_red phi_M'' + b_red phi_M' = M_drive - i M_load
 
-Since ``r_2 g = i r_3``, ``K q = 2k r_3 [i r_3 delta, -r_3 delta]``: in the
-state coordinates the stiffness acts on delta alone (exactly, with no
-rounding residue on phi_M), and ``delta' = i omega_M - omega_3``. The belt
-torque on wheel 3 is ``T_b = 2 k r_3^2 delta + 2 c r_3^2 delta'``.
+With ``r_2 g = i r_3`` the stiffness acts on delta alone, ``delta' = i omega_M - omega_3``, and the belt torque
+on wheel 3 is ``T_b = 2 k r_3^2 delta + 2 c r_3^2 delta'``.
 """
 
 from __future__ import annotations
@@ -187,10 +178,6 @@ class FlexibleBeltModel(_LinearModel):
     def relative_deflection(self, x: np.ndarray) -> np.ndarray:
         """delta = i phi_M - phi_3 [rad] (a state coordinate)."""
         return np.asarray(x, dtype=float)[..., 1]
-
-    def belt_torque(self, x: np.ndarray) -> np.ndarray:
-        """T_b = 2 k r_3^2 delta + 2 c r_3^2 delta' [N m], torque of the belt on wheel 3."""
-        return _affine(self.C[LINEAR_OUTPUTS.index("belt_torque")][None, :], np.asarray(x, dtype=float))[..., 0]
 
     # -- energies -------------------------------------------------------------
     def kinetic_energy(self, x: np.ndarray) -> np.ndarray:

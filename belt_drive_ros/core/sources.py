@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields
-from typing import Any, Callable, ClassVar, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Mapping
 
 import numpy as np
 
@@ -33,25 +33,16 @@ _REGISTRY: dict[str, type["TorqueProfile"]] = {}
 TORQUE_MAX = 1.0e6
 #: A speed [rad/s]: ~1 million rpm.
 SPEED_MAX = 1.0e5
-#: A frequency [Hz]: the highest plausible output rate (core.scene.RANGES).
-FREQUENCY_MAX = 1.0e6
-#: A time or period [s]: the longest scene (core.scene.RANGES).
-TIME_MAX = 1.0e7
-#: A phase [rad] (beyond it sin(phase) keeps few correct digits).
-PHASE_MAX = 1.0e3
-#: A speed gain or damping-like coefficient [N m s/rad].
-GAIN_MAX = 1.0e6
-#: A quadratic speed coefficient [N m s^2/rad^2].
-QUADRATIC_MAX = 1.0e3
-#: A transmission ratio [-].
-RATIO_MAX = 1.0e2
 #: Cylinders of an engine or compressor, harmonics of a profile, periods of a schedule.
 COUNT_MAX = {"cylinders": 64, "harmonics": 64, "periods": 1000}
 #: the kinds of field: (largest magnitude, unit)
 _KINDS: dict[str, tuple[float, str]] = {
-    "torque": (TORQUE_MAX, "N m"), "speed": (SPEED_MAX, "rad/s"), "frequency": (FREQUENCY_MAX, "Hz"),
-    "time": (TIME_MAX, "s"), "phase": (PHASE_MAX, "rad"), "gain": (GAIN_MAX, "N m s/rad"),
-    "quadratic": (QUADRATIC_MAX, "N m s^2/rad^2"), "ratio": (RATIO_MAX, "1"),
+    "torque": (TORQUE_MAX, "N m"), "speed": (SPEED_MAX, "rad/s"),
+    "frequency": (1.0e6, "Hz"),  # the highest plausible output rate (core.scene.RANGES)
+    "time": (1.0e7, "s"),  # a time or period: the longest scene (core.scene.RANGES)
+    "phase": (1.0e3, "rad"),  # beyond it sin(phase) keeps few correct digits
+    "gain": (1.0e6, "N m s/rad"),  # a speed gain or damping-like coefficient
+    "quadratic": (1.0e3, "N m s^2/rad^2"), "ratio": (1.0e2, "1"),  # a quadratic speed coefficient; a transmission ratio
 }
 
 
@@ -195,10 +186,6 @@ def _fade_time(value: float) -> float:
     """A fade-in duration for the kernel: 0.0 means none."""
     return float(value) if value > 0 else 0.0
 
-
-def _harmonic_table(builder: D.ProfileBuilder, harmonics) -> tuple[int, int]:
-    """The amplitudes [N m] as a table (offset, count) for the kernel."""
-    return builder.table(np.zeros(len(harmonics)), np.asarray(harmonics, dtype=float))
 
 
 
@@ -370,16 +357,35 @@ class Table(TorqueProfile):
 
 
 # --------------------------------------------------------------- closed loop
-def _harmonics(values: Sequence[float] | None, name: str) -> tuple:
-    values = tuple(float(v) for v in (values or ()))
-    if not all(math.isfinite(v) for v in values):
-        raise SceneError(f"{name}: harmonic amplitudes must be finite")
-    return values
+class _Pulsating(TorqueProfile):
+    """What an engine and a compressor share: amplitudes ``harmonics`` [N m] of orders k = 1, 2, ... of the angle,
+    faded in over ``ramp_time`` [s] (a breakpoint)."""
+
+    def _check_harmonics(self) -> None:
+        values = tuple(float(v) for v in (self.harmonics or ()))
+        if not all(math.isfinite(v) for v in values):
+            raise SceneError(f"{self.kind}.harmonics: harmonic amplitudes must be finite")
+        object.__setattr__(self, "harmonics", values)
+
+    def _harmonic_table(self, builder: D.ProfileBuilder) -> tuple[int, int]:
+        """The amplitudes [N m] as a table (offset, count) for the kernel."""
+        return builder.table(np.zeros(len(self.harmonics)), np.asarray(self.harmonics, dtype=float))
+
+    @property
+    def uses_angle(self):
+        return any(self.harmonics)
+
+    def breakpoints(self):
+        return (float(self.ramp_time),) if self.ramp_time > 0 else ()
+
+    def _orders(self, per_revolution: float, f_rev: float, label: str) -> list[tuple[float, str]]:
+        """``k per_revolution f_rev`` [Hz] of each non-zero harmonic k, at ``f_rev`` revolutions per second."""
+        return [(k * per_revolution * f_rev, f"{label} {k}") for k, a in enumerate(self.harmonics, start=1) if a]
 
 
 @_register
 @dataclass(frozen=True)
-class Engine(TorqueProfile):
+class Engine(_Pulsating):
     """Combustion engine: mean torque plus firing pulsations by crank angle.
 
     ``torque = base(speed) + sum_k A_k sin(k n_f theta + k phase)``, where the
@@ -422,7 +428,7 @@ class Engine(TorqueProfile):
         if self.speed_setpoint is not None and not math.isfinite(self.speed_setpoint):
             raise SceneError("engine.speed_setpoint: must be finite")
         object.__setattr__(self, "cylinders", int(self.cylinders))
-        object.__setattr__(self, "harmonics", _harmonics(self.harmonics, "engine.harmonics"))
+        self._check_harmonics()
 
     @property
     def pulses_per_revolution(self) -> float:
@@ -434,10 +440,6 @@ class Engine(TorqueProfile):
         return self.uses_angle or self._governed
 
     @property
-    def uses_angle(self):
-        return any(self.harmonics)
-
-    @property
     def _governed(self) -> bool:
         return self.speed_setpoint is not None and self.max_torque >= 0.0
 
@@ -445,21 +447,13 @@ class Engine(TorqueProfile):
         # base + sum_k A_k sin(k (n_f theta + phase)), crank angle theta = crank_ratio * angle; base: the mean, the
         # droop governor clip(M + K (w_set - w), 0, M_max), or M_max (clip(., 0, M_max < 0) is M_max)
         mode = 0 if self.speed_setpoint is None else 1 if self.max_torque >= 0.0 else 2
-        offset, n = _harmonic_table(builder, self.harmonics)
+        offset, n = self._harmonic_table(builder)
         return builder.row(D.ENGINE, mode, self.mean_torque, self.governor_gain,
                            0.0 if self.speed_setpoint is None else self.speed_setpoint, self.max_torque,
                            self.pulses_per_revolution, self.crank_ratio, self.phase, _fade_time(self.ramp_time), offset, n)
 
-    def breakpoints(self):
-        return (float(self.ramp_time),) if self.ramp_time > 0 else ()
-
     def excitation_frequencies(self, speed):
-        f_rev = abs(speed) * self.crank_ratio / (2.0 * math.pi)
-        return [
-            (k * self.pulses_per_revolution * f_rev, f"engine firing order {k}")
-            for k, a in enumerate(self.harmonics, start=1)
-            if a
-        ]
+        return self._orders(self.pulses_per_revolution, abs(speed) * self.crank_ratio / (2.0 * math.pi), "engine firing order")
 
 
 @_register
@@ -536,7 +530,7 @@ class Polynomial(TorqueProfile):
 
 @_register
 @dataclass(frozen=True)
-class Compressor(TorqueProfile):
+class Compressor(_Pulsating):
     """Reciprocating compressor: torque periodic in wheel-3 angle.
 
     ``torque = mean_torque + c1 speed + sum_k A_k sin(k cylinders angle + k phase)``
@@ -560,30 +554,20 @@ class Compressor(TorqueProfile):
         if self.ramp_time < 0:
             raise SceneError("compressor.ramp_time: must be >= 0")
         object.__setattr__(self, "cylinders", int(self.cylinders))
-        object.__setattr__(self, "harmonics", _harmonics(self.harmonics, "compressor.harmonics"))
+        self._check_harmonics()
 
     @property
     def state_dependent(self):
         return self.uses_angle or bool(self.c1)
 
-    @property
-    def uses_angle(self):
-        return any(self.harmonics)
-
     def encode(self, builder):
         # mean + c1 speed + sum_k A_k sin(k (cylinders angle + phase))
-        offset, n = _harmonic_table(builder, self.harmonics)
+        offset, n = self._harmonic_table(builder)
         return builder.row(D.COMPRESSOR, self.mean_torque, self.c1, self.cylinders, self.phase, _fade_time(self.ramp_time),
                            offset, n)
 
-    def breakpoints(self):
-        return (float(self.ramp_time),) if self.ramp_time > 0 else ()
-
     def excitation_frequencies(self, speed):
-        f_rev = abs(speed) / (2.0 * math.pi)
-        return [
-            (k * self.cylinders * f_rev, f"compressor order {k}") for k, a in enumerate(self.harmonics, start=1) if a
-        ]
+        return self._orders(self.cylinders, abs(speed) / (2.0 * math.pi), "compressor order")
 
 
 @_register

@@ -19,7 +19,7 @@ import numpy as np
 
 from .accuracy import require_accurate
 from .method_choice import resolve as resolve_method
-from .fidelity import ModelChoice, _linear_choice, limit_exceedance
+from .fidelity import ModelChoice, _linear_choice, choose_model, limit_exceedance
 from .model import make_model
 from .scene import Scene
 from .simulate import SimResult, Simulator, _integral, _slipping_accuracy
@@ -78,19 +78,14 @@ def stream(
         ratio, t_at = limit_exceedance(scene.params, window.time, window.outputs)
         if ratio > peak:
             peak, t_peak = ratio, t_at
-        if peak > 1.0:
-            reason = (
-                f"slipping: transmitted force {peak:.2f} x the capstan limit "
-                f"(Q_max = {scene.params.friction_limit(0.0):.0f} N at rest) at t = {t_peak:.3g} s "
-                f"in the {choice.model} run ({choice.reason})"
-            )
-            slip_choice = replace(choice, model="slipping", reason=reason, limit_ratio=peak, limit_time=t_peak)
+        checked = choose_model(scene, linear=choice, limit=(peak, t_peak))  # the capstan check on the run so far
+        if checked.model == "slipping":
             for guard in guards:  # the linear run's guard refuses an unstable step before anything else is said
                 guard.result()
-            yield Restart(slip_choice)
-            yield from _slipping(scene, slip_choice, progress, check_stability, window_steps)
+            yield Restart(checked)
+            yield from _slipping(scene, checked, progress, check_stability, window_steps)
             return
-        window.choice = replace(choice, limit_ratio=peak, limit_time=t_peak)
+        window.choice = checked
         yield window
 
 
