@@ -264,3 +264,22 @@ def test_table_search_finds_the_index_bisection_finds():
     t = rng.uniform(0.0, 0.06, 300)
     expected = np.arange(50.0)[np.clip(np.searchsorted(tables[1][:50], t, side="right") - 1, 0, 49)]
     np.testing.assert_array_equal(held.torque(t), expected)
+
+
+@pytest.mark.parametrize("harmonics", [(15.0,), (15.0, 5.0), (15.0, 0.0, 5.0), (0.0, 7.0), (15.0, 5.0, 2.0, 0.0, 1.0)])
+def test_harmonic_series_values(harmonics):
+    """Engine and compressor torques are the series ``sum_k A_k sin(k arg)`` (each term by its own sine here) to
+    rounding, at crank angles up to ~3000 rad: one to three harmonics run from scalars, five from the profile's
+    table; zero amplitudes between and before nonzero ones keep the orders of those after them."""
+    angle = np.linspace(-50.0, 1000.0, 2001)
+    engine = Engine(mean_torque=20.0, cylinders=6, strokes=4, harmonics=harmonics, phase=0.3, crank_ratio=1.5)
+    comp = Compressor(mean_torque=18.0, c1=0.01, cylinders=2, harmonics=harmonics, phase=-0.2)
+    e_arg = engine.pulses_per_revolution * (1.5 * angle) + 0.3
+    c_arg = 2.0 * angle - 0.2
+    e_ref = 20.0 + sum(a * np.sin((k + 1) * e_arg) for k, a in enumerate(harmonics))
+    c_ref = 18.0 + 0.01 * 40.0 + sum(a * np.sin((k + 1) * c_arg) for k, a in enumerate(harmonics))
+    # (k arg is rounded at ~1e-13 rad for these angles: the terms agree to that, not to the last bit)
+    np.testing.assert_allclose(engine.torque(0.0, angle, 0.0), e_ref, rtol=0.0, atol=1e-10)
+    np.testing.assert_allclose(comp.torque(0.0, angle, 40.0), c_ref, rtol=0.0, atol=1e-10)
+    # the compiled scalar call gives the array call's floats
+    assert engine.torque(0.0, float(angle[777]), 0.0) == engine.torque(0.0, angle, 0.0)[777]

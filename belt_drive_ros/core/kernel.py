@@ -206,13 +206,27 @@ def torque(kinds, params, tx, ty, row, t, angle, speed):
 @njit(**_INLINE)
 def _harmonics(total, have, amplitudes, arg):
     """``total + sum_k A_k sin(k arg)`` over the nonzero A_k (a table's slice, or a tuple of scalars), summed from
-    the left; ``have``: total holds a term."""
+    the left; ``have``: total holds a term. One harmonic: ``sin(arg)``; more: by angle addition from ``s = sin(arg)``,
+    ``c = cos(arg)`` (one ``sincos`` call), ``sin((k+1) arg) = s_k c + c_k s``, ``cos((k+1) arg) = c_k c - s_k s``
+    (a few ulp from ``sin(k arg)`` for the first harmonics, without the rounding of ``k arg``)."""
+    top = 0  # the last nonzero amplitude's order
     for k in range(len(amplitudes)):
+        if amplitudes[k] != 0.0:
+            top = k + 1
+    if top == 1:
+        term = amplitudes[0] * math.sin(arg)
+        return (total + term if have else term), True
+    if top == 0:
+        return total, have
+    s, c = math.sin(arg), math.cos(arg)
+    sk, ck = s, c
+    for k in range(top):
         a = amplitudes[k]
         if a != 0.0:
-            term = a * math.sin((k + 1.0) * arg)
+            term = a * sk
             total = total + term if have else term
             have = True
+        sk, ck = sk * c + ck * s, ck * c - sk * s
     return total, have
 
 
