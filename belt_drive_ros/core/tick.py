@@ -264,9 +264,8 @@ def load_compiled(kernel, args):
         return kernel
     from numba import typeof
 
-    signature = tuple(typeof(a) for a in args)
-    kernel.compile(signature)
-    overload = kernel.overloads.get(signature)
+    kernel.compile(tuple(typeof(a) for a in args))
+    overload = kernel.overloads.get(tuple(typeof(a) for a in args))
     return kernel if overload is None else overload.entry_point
 
 
@@ -294,6 +293,8 @@ class TickKernel:
         views = arrays.views
         #: the outputs of the last :meth:`step` [SI units, OUTPUT_UNITS order; slack/slip as 0.0/1.0]
         self.y = views["y"]
+        #: :attr:`y` as a memoryview (its ``tolist()``: the same floats as numpy's, ~2 us sooner on cold caches)
+        self.values = memoryview(self.y)
         #: the state the last :meth:`step` reached (written again by the next one: a caller keeps it by copying)
         self.state = views["x"]
         #: the ``joint_states`` message of the last :meth:`step` (a view of its bytes)
@@ -500,6 +501,7 @@ class SlipTickKernel:
         self.engine, self.dt, self.origin, self.limit = engine, engine.dt, engine.origin, limit
         self.step_ns = grid_step_ns(engine.dt, engine.origin)
         self.y = np.zeros(22)
+        self.values = memoryview(self.y)  # (as TickKernel.values)
         #: the slipping state ``y`` (5,) after the last :meth:`advance` (a view: the next one writes it again)
         self.end_y = np.zeros(5)
         self.message = None
@@ -532,6 +534,7 @@ class SlipTickKernel:
                  have=have, uses=uses, dk=dk, lk=lk, iscalars=[0, 0]))  # fmt: skip
         views = arrays.views
         self.y, self._x, self._xs, self.end_y = views["y"], views["x"], views["xs"], views["out_y"][-1]
+        self.values = memoryview(self.y)
         self._fs, self._js, self._events = views["fscalars"], views["iscalars"], views["events"]
         self.message = memoryview(views["msg"].view(np.uint8))[self._where]
         self._args = (arrays.reals, dp)

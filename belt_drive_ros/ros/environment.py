@@ -225,6 +225,11 @@ _PR_SET_NAME = 15
 _PR_SET_TIMERSLACK = 29
 
 
+#: the node's tick thread's name, the operating system's too (:func:`name_thread`; ``belt-drive bench node`` reads
+#: its CPU time by it, and the floor's thread has it)
+TICK_THREAD = "belt_drive_tick"
+
+
 def name_thread(name: str) -> bool:
     """Give the calling thread ``name`` (its first 15 bytes) as the operating system's name of it (Linux
     ``prctl(PR_SET_NAME)``; ``/proc/PID/task/TID/comm``), so its CPU time can be found by name. Returns False where

@@ -407,7 +407,7 @@ class BeltDriveNode(Node):
         """
         sim = self.sim
         fresh = sim.fresh(now_ns)  # the compiled tick's outputs and message, or None
-        v = sim.values(now_ns) if fresh is None else fresh.y.tolist()  # floats: TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
+        v = sim.values(now_ns) if fresh is None else fresh.values.tolist()  # floats: TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
         recorder = self.recorder
         record = None
         if fresh is not None and recorder is None and self._joint_only:

@@ -75,7 +75,7 @@ LEAD_PERCENTILE = 99.9
 LEAD_UPDATE = 256
 LEAD_MARGIN_NS = 100_000
 #: the tick thread's name, also the operating system's (``/proc/PID/task/TID/comm``): its CPU time is found by it
-THREAD_NAME = "belt_drive_tick"
+THREAD_NAME = ros_env.TICK_THREAD
 
 
 def stamp(msg_time, ns: int) -> None:
