@@ -89,6 +89,27 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / ticks  # utime, stime (fields 14, 15 of stat)
 
 
+def _thread_cpu_seconds(pid: int, name: str) -> float:
+    """user + system CPU time [s] of the threads of process ``pid`` named ``name`` (Linux /proc; NaN without one)."""
+    total, found = 0.0, False
+    ticks = os.sysconf("SC_CLK_TCK")
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return math.nan
+    for tid in tids:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/stat") as f:
+                stat = f.read()
+        except OSError:  # (ended meanwhile)
+            continue
+        head, fields = stat.rsplit(")", 1)
+        if head.split("(", 1)[1] == name:
+            fields = fields.split()
+            total, found = total + (int(fields[11]) + int(fields[12])) / ticks, True
+    return total if found else math.nan
+
+
 def _cpu_jiffies() -> tuple[int, int]:
     """(steal, total) CPU time of the machine so far, in clock ticks (Linux /proc/stat)."""
     with open("/proc/stat") as f:
@@ -301,10 +322,12 @@ def measure(args, floor: bool = False) -> dict:
         first = len(received)
         steal0 = _cpu_jiffies()
         cpu0, own0, wall0 = _cpu_seconds(child.pid), time.process_time(), time.perf_counter()
+        thread0 = _thread_cpu_seconds(child.pid, ros_env.TICK_THREAD)
         end = wall0 + args.duration
         while time.perf_counter() < end:
             ex.spin_until_future_complete(never, timeout_sec=min(0.1, max(end - time.perf_counter(), 0.001)))
         cpu1, own1, wall1 = _cpu_seconds(child.pid), time.process_time(), time.perf_counter()
+        thread1 = _thread_cpu_seconds(child.pid, ros_env.TICK_THREAD)
         steal1 = _cpu_jiffies()
         last = len(received)
     finally:
@@ -368,6 +391,8 @@ def measure(args, floor: bool = False) -> dict:
         "one_way_p99_ms": _percentiles(one_way)[1],
         "sim_per_wall": span_s / received_span_s if len(data) > 1 else math.nan,
         "cpu_percent": 100.0 * (cpu1 - cpu0) / window,
+        # per tick due in the window (rate x window)
+        "tick_thread_cpu_us": 1e6 * (thread1 - thread0) / max(window * args.rate, 1.0),
         "probe_cpu_percent": 100.0 * (own1 - own0) / window,
         "steal_percent": 100.0 * (steal1[0] - steal0[0]) / max(steal1[1] - steal0[1], 1),
         "process": "floor (rclpy + DDS, no model)" if floor else "node",
@@ -422,6 +447,8 @@ def report(f: dict) -> str:
         f"  CPU                    node {f['cpu_percent']:.1f} % of one core   [target <= {t['cpu_percent']:g} %: "
         f"{mark(f['cpu_percent'] <= t['cpu_percent'])}]; measuring process {f['probe_cpu_percent']:.1f} %; "
         f"machine steal {f.get('steal_percent', math.nan):.2f} %",
+        f"  tick thread CPU        {f.get('tick_thread_cpu_us', math.nan):.1f} us per tick (its user + system time "
+        f"over the window / the ticks due in it; /proc counts in 10 ms: +-{1e4 / max(f['duration_s'] * f['rate_set_hz'], 1):.2g} us)",
     ]
     return "\n".join(line for line in lines if line)
 
@@ -435,6 +462,7 @@ def compare(node: dict, floor: dict) -> str:
         ("one-way p99 [ms]", "one_way_p99_ms", "{:.3f}"),
         ("torque -> state p99 [ms]", "latency_p99_ms", "{:.3f}"),
         ("CPU [% of a core]", "cpu_percent", "{:.1f}"),
+        ("tick thread CPU [us/tick]", "tick_thread_cpu_us", "{:.1f}"),
         ("machine steal [%]", "steal_percent", "{:.2f}"),
     ]
     lines = ["node against its floor (same run, one after the other):",

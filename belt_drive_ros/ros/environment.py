@@ -221,7 +221,26 @@ def limit_blas_threads(n: int = 1) -> int:
 
 
 #: ``prctl`` option that sets the calling thread's timer slack (linux/prctl.h)
+_PR_SET_NAME = 15
 _PR_SET_TIMERSLACK = 29
+
+
+#: the node's tick thread's name, the operating system's too (:func:`name_thread`; ``belt-drive bench node`` reads
+#: its CPU time by it, and the floor's thread has it)
+TICK_THREAD = "belt_drive_tick"
+
+
+def name_thread(name: str) -> bool:
+    """Give the calling thread ``name`` (its first 15 bytes) as the operating system's name of it (Linux
+    ``prctl(PR_SET_NAME)``; ``/proc/PID/task/TID/comm``), so its CPU time can be found by name. Returns False where
+    ``prctl`` is unavailable."""
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(_PR_SET_NAME, ctypes.c_char_p(name.encode()[:15]), 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
 
 
 def reduce_timer_slack(slack_ns: int = 1) -> bool:

@@ -99,11 +99,14 @@ class TickGaps:
         #: called with each gap found (the node records it)
         self.on_gap: Callable[[TickGap], None] | None = None
         self.last: TickGap | None = None
-        self._mono: int | None = None  # monotonic time of the last tick made [ns]
+        #: monotonic time of the last tick made [ns] (a tick source that knows :meth:`tick` finds no gap
+        #: sets it instead of calling it: the tick thread's usual tick)
+        self.mono: int | None = None
         self._switch: tuple | None = None  # (last tick [ns], its monotonic time [ns], bases so far)
         self._logged_at: int | None = None
         self._unlogged = 0
-        self._short: list | None = None  # [first gap, its monotonic time, count, ticks missed, last end, longest]
+        #: short gaps not handed on yet: [first gap, its monotonic time, count, ticks missed, last end, longest], or None
+        self.short: list | None = None
 
     def tick(self, t_ns: int | None, now_ns: int, tick_ns: int, time_base: str, source: str) -> None:
         """Before a tick integrates from ``t_ns`` (None: the run starts) to ``now_ns`` on ``time_base``.
@@ -113,7 +116,7 @@ class TickGaps:
         tick source: "tick thread", "executor timer").
         """
         mono = time.monotonic_ns()
-        if self._short is not None and mono - self._short[1] > SHORT_WINDOW_NS:
+        if self.short is not None and mono - self.short[1] > SHORT_WINDOW_NS:
             self.flush()
         if t_ns is None:
             if self._switch is not None:
@@ -126,7 +129,7 @@ class TickGaps:
                                   f"{wall / 1e9:.3f} s of wall time without ticks", f"{bases[0]} -> {time_base}"))
         elif time_base == "system" and now_ns - t_ns > tick_ns:
             step = now_ns - t_ns
-            wall = None if self._mono is None else mono - self._mono
+            wall = None if self.mono is None else mono - self.mono
             if step < SHORT_GAP_NS:
                 cause = f"the {source} ran {step / 1e6:.3g} ms after the last tick and integrated to the latest tick"
             elif wall is not None and step - wall > max(tick_ns, step // 2):
@@ -136,7 +139,7 @@ class TickGaps:
                 cause = (f"no tick for {step / 1e9:.3f} s: the process was stopped (SIGSTOP, suspend) or starved "
                          f"of CPU; the {source} integrated to the latest tick")
             self._add(TickGap(t_ns, now_ns, step // tick_ns - 1, cause, time_base), short=step < SHORT_GAP_NS)
-        self._mono = mono
+        self.mono = mono
 
     def switched(self, t_ns: int | None, old_base: str, new_base: str) -> None:
         """The node's clock switched from ``old_base`` to ``new_base``; the last tick was at ``t_ns``
@@ -145,11 +148,11 @@ class TickGaps:
             last, last_mono, bases = self._switch
             self._switch = (last, last_mono, bases + [new_base])
         elif t_ns is not None:
-            self._switch = (t_ns, self._mono if self._mono is not None else time.monotonic_ns(), [old_base, new_base])
+            self._switch = (t_ns, self.mono if self.mono is not None else time.monotonic_ns(), [old_base, new_base])
 
     def flush(self) -> None:
         """Hand on the short gaps collected so far as one aggregate gap (also when the node ends)."""
-        short, self._short = self._short, None
+        short, self.short = self.short, None
         if short is None or self.on_gap is None:
             return
         first, _, count, missed, end, longest = short
@@ -166,9 +169,9 @@ class TickGaps:
         self.last = gap
         mono = time.monotonic_ns()
         if short:
-            if self._short is None:
-                self._short = [gap, mono, 0, 0, 0, 0]
-            agg = self._short
+            if self.short is None:
+                self.short = [gap, mono, 0, 0, 0, 0]
+            agg = self.short
             agg[2] += 1
             agg[3] += gap.missed
             agg[4] = gap.end_ns

@@ -245,6 +245,7 @@ class BeltDriveNode(Node):
             return PublisherEventCallbacks(matched=on_matched)
 
         self._pub_joint = self.create_publisher(JointState, "joint_states", OUTPUT_QOS, event_callbacks=matched("joint_states"))
+        self._send_joint = self._pub_joint.publish  # (bound once: the usual tick's one send)
         self._pub_float = [
             self.create_publisher(Float64, name, OUTPUT_QOS, event_callbacks=matched(name))
             for name in OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS
@@ -406,17 +407,16 @@ class BeltDriveNode(Node):
         """
         sim = self.sim
         fresh = sim.fresh(now_ns)  # the compiled tick's outputs and message, or None
-        v = sim.values(now_ns) if fresh is None else fresh.y.tolist()  # floats: TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
+        v = sim.values(now_ns) if fresh is None else fresh.values.tolist()  # floats: TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
         recorder = self.recorder
-        listening = self._listening
         record = None
-        if fresh is not None and recorder is None and not (listening[1] or listening[2] or listening[3]):
-            # the usual tick: joint_states alone, the bytes the compiled tick wrote
-            sends = [(self._pub_joint.publish, bytes(fresh.message))] if listening[0] else []
+        if fresh is not None and recorder is None and self._joint_only:
+            # the usual tick: joint_states alone (or nothing), the bytes the compiled tick wrote
+            sends = [(self._send_joint, bytes(fresh.message))] if self._listening[0] else []
             if len(v) > _N_TICK:
                 self.counters["published_slip"] += 1
         else:
-            sends, record = self._sends(now_ns, v, recorder, listening)
+            sends, record = self._sends(now_ns, v, recorder, self._listening)
         if not defer:
             for publish, data in sends:
                 publish(data)
@@ -488,6 +488,7 @@ class BeltDriveNode(Node):
         readers = self._readers
         self._listening = (readers["joint_states"] > 0, readers.get("tf", 0) > 0,
                            any(readers[name] for name in OUTPUT_TOPICS), any(readers[name] for name in SLIP_OUTPUT_TOPICS))
+        self._joint_only = not any(self._listening[1:])  # nobody but joint_states' readers: the usual tick
 
     def refresh_subscriber_counts(self) -> dict[str, int]:
         """Query the readers of each output topic now (the "matched" events keep them current
@@ -543,6 +544,7 @@ class BeltDriveNode(Node):
             # building them takes 0.2-0.7 ms: the next tick does it right after its outputs are
             # out, instead of now, at any phase of the period, where it would delay that tick
             self._diagnostics_due = True
+            self.timing.defer_after_tick()  # (an executor timer's tick calls _after_tick every time)
             return
         self._diagnostics_now()
 

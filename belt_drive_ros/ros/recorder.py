@@ -198,7 +198,8 @@ class TopicRecorder:
         #: held around every use of the writer (a node's tick thread writes beside the executor's callbacks)
         self.lock = lock if lock is not None else threading.RLock()
         #: when it returns True the flush timer only marks a flush due (``flush_due``) and the owner
-        #: calls :meth:`flush_if_due` at a better moment (a node's tick thread: right after a tick is out)
+        #: calls :meth:`flush_if_due` at a better moment (a node's tick thread: right after a tick is out;
+        #: ``flush_due`` is set before it is called)
         self.defer_flush: Optional[Callable[[], bool]] = None
         self.flush_due = False
         self.node = node
@@ -394,9 +395,11 @@ class TopicRecorder:
 
     # --------------------------------------------------------- flush/close
     def _on_flush_timer(self) -> None:
-        if self.defer_flush is not None and self.defer_flush():
-            self.flush_due = True
-            return
+        if self.defer_flush is not None:
+            self.flush_due = True  # (marked before the owner is told: it may flush at once)
+            if self.defer_flush():
+                return
+            self.flush_due = False
         with self.lock:
             self._flush()
 
@@ -532,7 +535,7 @@ class NodeRecorder(TopicRecorder):
         timing = getattr(node, "timing", None)
         super().__init__(node, writer, flush_period=flush_interval_s, lock=getattr(timing, "lock", None))
         if timing is not None:  # compressing a chunk takes ~1 ms: not while a tick waits for the lock
-            self.defer_flush = timing.threaded
+            self.defer_flush = timing.defer_after_tick
         self.record_history = False  # the node's outputs keep 10 messages for late joiners: not this run's
         uses_clock = self._uses_sim_time() or self._publishes_clock()
         if topics is None:

@@ -471,7 +471,7 @@ class NodeSimulation:
         """:meth:`outputs` as a list of floats in the order of :data:`TICK_OUTPUTS` (then, for the slipping
         model, :data:`SLIP_TICK_OUTPUTS`); the flags slack and slip as 1.0/0.0 (the publishing tick's form)."""
         if self._fresh_ns == now_ns:
-            return self._tick_kernel.y.tolist()
+            return self._tick_kernel.values.tolist()
         out = self.outputs(now_ns)  # the general path's (model.outputs)
         names = TICK_OUTPUTS + SLIP_TICK_OUTPUTS if self.hybrid is not None else TICK_OUTPUTS
         return [float(out[name]) for name in names]

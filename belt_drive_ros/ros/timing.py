@@ -74,6 +74,8 @@ LEAD_WINDOW = 1024
 LEAD_PERCENTILE = 99.9
 LEAD_UPDATE = 256
 LEAD_MARGIN_NS = 100_000
+#: the tick thread's name, also the operating system's (``/proc/PID/task/TID/comm``): its CPU time is found by it
+THREAD_NAME = ros_env.TICK_THREAD
 
 
 def stamp(msg_time, ns: int) -> None:
@@ -178,9 +180,9 @@ class TickThread:
         self._n_busy = 0
         self._next_update, self._settings = 0, None
         self._nominal = 0.0  # the nominal period [s] of the settings in force (see _lead)
-        self._stop = threading.Event()
+        self._stopping = False  # set by stop() (a plain flag: the thread reads it twice per tick)
         self._pending: list | None = None  # the (publish, data) calls of the tick computed ahead
-        self._thread = threading.Thread(target=self._run, name="belt_drive_tick", daemon=True)
+        self._thread = threading.Thread(target=self._run, name=THREAD_NAME, daemon=True)
 
     def start(self) -> None:
         self._thread.start()
@@ -195,7 +197,7 @@ class TickThread:
         False when a join timed out (the thread is still running).
         """
         with self.source.lock:
-            self._stop.set()
+            self._stopping = True
             pending, self._pending = self._pending, None
             if pending:
                 try:
@@ -246,32 +248,43 @@ class TickThread:
 
     def _run(self) -> None:
         ros_env.reduce_timer_slack()  # per thread: wake at the deadline, not up to 50 us after it
+        ros_env.name_thread(THREAD_NAME)  # (its CPU time by name in /proc: belt-drive bench node)
         source = self.source
-        sim, lock, stats, stop, after = source.sim, source.lock, source.stats, self._stop, source._after_tick
-        now_ns, perf, sleep = time.time_ns, time.perf_counter, time.sleep
+        sim, lock, stats, gaps, after = source.sim, source.lock, source.stats, source.gaps, source._after_tick
+        now_ns, perf, mono, sleep = time.time_ns, time.perf_counter, time.monotonic_ns, time.sleep
+        tick_now = source._tick
+        busy_ring = self._busy
         try:
-            while not stop.is_set():
+            while not self._stopping:
                 settings = sim.settings
                 if settings is self._settings and self._n_busy < self._next_update:
                     lead = self.lead_ns  # (what _lead returns between its updates)
                 else:
                     lead = self._lead(settings)
                 t, origin, tick = sim.t_ns, sim.origin_ns, settings.tick_ns  # without the lock: rechecked under it
-                if t is not None:
-                    wait = (next_tick_ns(t, origin, tick) - lead - now_ns()) * 1e-9
+                due = None if t is None else next_tick_ns(t, origin, tick)
+                if due is not None:
+                    wait = (due - lead - now_ns()) * 1e-9
                     if wait > 0:
                         sleep(min(wait, MAX_SLEEP_S))
                 with lock:
-                    if stop.is_set():
+                    if self._stopping:
                         break
                     start = perf()
-                    target = self._next(now_ns() + lead)
-                    if target is None:
-                        continue
-                    source.gaps.tick(sim.t_ns, target, sim.settings.tick_ns, "system", "tick thread")
-                    self._pending = source._tick(target, True)
+                    now = now_ns() + lead
+                    if due is not None and sim.t_ns == t and sim.origin_ns == origin and sim.settings is settings \
+                            and due <= now <= due + MAX_THREAD_CATCH_UP_NS and gaps.short is None:
+                        # the usual tick: the next grid point, no gap (TickGaps.tick would find none)
+                        target = due
+                        gaps.mono = mono()
+                    else:
+                        target = self._next(now)
+                        if target is None:
+                            continue
+                        gaps.tick(sim.t_ns, target, sim.settings.tick_ns, "system", "tick thread")
+                    self._pending = tick_now(target, True)
                     busy = perf() - start
-                    self._busy[self._n_busy % LEAD_WINDOW] = busy
+                    busy_ring[self._n_busy % LEAD_WINDOW] = busy
                     self._n_busy += 1
                 wait = (target - now_ns()) * 1e-9
                 if wait > 0:  # computed ahead: out at the due time
@@ -285,7 +298,8 @@ class TickThread:
                     # the period statistics see the instants the ticks are due and published (their
                     # jitter is what subscribers get); an overrun is a computation longer than the period
                     stats.record(start, start + busy, self._nominal)
-                    if after is not None:
+                    if source.after_due and after is not None:  # (marked by defer_after_tick)
+                        source.after_due = False
                         after()
         except BaseException as exc:  # noqa: BLE001 - kept and raised by the node's executor
             self.failure = exc
@@ -305,7 +319,8 @@ class TickSource:
         ``tick(now_ns)``: integrate to ``now_ns`` and publish; ``tick(now_ns, True)``:
         integrate, and return the ``(publish, data)`` calls (the tick thread makes them at the due time).
     after_tick : callable, optional
-        Called by the tick thread (holding the lock) after a tick's outputs are out.
+        Called by the tick thread (holding the lock) after a tick's outputs are out, when
+        :meth:`defer_after_tick` asked for it.
     sim : NodeSimulation
         Its time base (started, origin, grid) decides where a tick integrates to.
     stats : TickStats
@@ -316,6 +331,8 @@ class TickSource:
         self.node = node
         self._tick = tick
         self._after_tick = after_tick
+        #: the tick thread calls ``after_tick`` after its next tick's outputs are out (see :meth:`defer_after_tick`)
+        self.after_due = False
         self.sim = sim
         self.stats = stats
         self._timers: list = []
@@ -383,6 +400,14 @@ class TickSource:
     def threaded(self) -> bool:
         """True while system-clock ticks come from the tick thread."""
         return self._thread is not None and self._thread.alive()
+
+    def defer_after_tick(self) -> bool:
+        """While the tick thread ticks: have it call ``after_tick`` right after its next tick is out and return
+        True (the caller marks what is due first); else False (the caller does it now)."""
+        if self.threaded():
+            self.after_due = True
+            return True
+        return False
 
     def tick_pending(self) -> bool:
         """True while the tick timer is due but its callback has not run yet (for lockstep drivers)."""
