@@ -257,16 +257,13 @@ def joints_message(template: bytes | None = None, offsets=None) -> tuple[np.ndar
 
 def load_compiled(kernel, args):
     """Load ``kernel``'s compiled code for ``args``' types now (numba's disk cache: 25-50 ms), not at a node's
-    first tick; return what calls it for arguments of those types: its compiled entry point for that one
-    signature (the dispatcher's type matching on every call skipped: ~2 us of a tick on cold caches; it
-    releases the GIL as the dispatcher's call does), or ``kernel`` itself (``NUMBA_DISABLE_JIT``)."""
-    if not hasattr(kernel, "compile"):  # (NUMBA_DISABLE_JIT: a plain function)
-        return kernel
-    from numba import typeof
+    first tick; return ``kernel``. (Its compiled entry point for that one signature would skip the
+    dispatcher's type matching, ~2 us of a tick on cold caches, but numba documents no public way to it.)"""
+    if hasattr(kernel, "compile"):  # (not under NUMBA_DISABLE_JIT: a plain function)
+        from numba import typeof
 
-    kernel.compile(tuple(typeof(a) for a in args))
-    overload = kernel.overloads.get(tuple(typeof(a) for a in args))
-    return kernel if overload is None else overload.entry_point
+        kernel.compile(tuple(typeof(a) for a in args))
+    return kernel
 
 
 class TickKernel:
