@@ -209,13 +209,12 @@ class RigidSurvey:
         return self.t_probe, self.plain, self.early, self.states
 
 
-def speed_slopes(plant, times, speeds_M) -> list[np.ndarray]:
-    """(K, (d drive/d omega_M, d load/d omega_3)) per probe: feedback gains K (2, n) from the torques' speed slopes.
+def speed_slopes(plant, times, speeds_M) -> list[tuple]:
+    """(d drive/d omega_M, d load/d omega_3) per probe [N m s/rad], central differences at (t, 0, omega_M) and
+    (t, 0, i omega_M); :func:`feedback_gain` makes a probe's K from them.
 
-    ``plant`` is a :class:`~belt_drive_ros.core.stepper.Plant`; the drive's slope acts on omega_M, the load's on
-    omega_3 (rows of the model's wheel map), evaluated at (t, phi_M, omega_M) and (t, i phi_M, i omega_M).
+    ``plant`` is a :class:`~belt_drive_ros.core.stepper.Plant`.
     """
-    W = plant.wheel_map
     i = plant.model.params.ratio
     t = np.asarray(times, dtype=float)
     slopes = []
@@ -225,7 +224,13 @@ def speed_slopes(plant, times, speeds_M) -> list[np.ndarray]:
             both = np.asarray(profile.torque(np.concatenate([t, t]), np.zeros(2 * t.size),
                                              np.concatenate([speed + d, speed - d])), dtype=float)  # fmt: skip
             slopes.append(((both[: t.size] - both[t.size :]) / (2.0 * d)).tolist())
-    return [(np.array([a * W[1], b * W[3]]), (a, b)) for a, b in zip(*slopes)]
+    return list(zip(*slopes))
+
+
+def feedback_gain(plant, slopes) -> np.ndarray:
+    """K (2, n): the drive's slope acting on omega_M, the load's on omega_3 (rows of the plant's wheel map)."""
+    W = plant.wheel_map
+    return np.array([slopes[0] * W[1], slopes[1] * W[3]])
 
 
 @dataclass(frozen=True)
@@ -304,11 +309,11 @@ def _probes(plant, duration, x0, dt, stated_inputs, rigid, probe_times, plain, e
     """:func:`probe_scene` from the rigid survey's states at its stops."""
     gains, seen = [], set()
     speeds = [states[float(t)][1] for t in probe_times]
-    for K, slopes in speed_slopes(plant, probe_times, speeds):
+    for slopes in speed_slopes(plant, probe_times, speeds):
         key = tuple(float(f"{s:.3g}") for s in slopes)  # slopes equal to 3 digits: the same verdict
         if key not in seen:
             seen.add(key)
-            gains.append((K, slopes))
+            gains.append((feedback_gain(plant, slopes), slopes))
     # a probe window at a speed within SPEED_SPREAD of one already windowed sees the same harmonics: skipped
     kept, scale = [0.0], max(abs(w) for _, w in states.values()) or 1.0
     for t in plain:
@@ -428,14 +433,22 @@ def step_response_error(M, G, E, F, rows: np.ndarray, n_steps: int) -> float:
     are skipped). Both recurrences are evaluated at once by doubling
     (:func:`~belt_drive_ros.core.forced_response.orbit_error`).
     """
-    n, m = G.shape
-    Ma = np.block([[M, G], [np.zeros((m, n)), np.eye(m)]])
-    Ea = np.block([[E, F], [np.zeros((m, n)), np.eye(m)]])
+    n = M.shape[0]
+    Ma, Ea = _augmented(M, G), _augmented(E, F)
     err, peak = orbit_error(Ma, Ea, n, rows, n_steps)
     if not np.all(np.isfinite(err)):
         return math.inf
     # a unit input that does not move an output at all (peak 0) carries no error either
     return float(np.max(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0)))
+
+
+def _augmented(M: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """``[[M, G], [0, I]]`` (the map of ``(x, u)`` with ``u`` held), the entries of ``np.block``'s without its overhead."""
+    n, m = G.shape
+    out = np.zeros((n + m, n + m), dtype=np.result_type(M, G, 0.0))
+    out[:n, :n], out[:n, n:] = M, G
+    out[n:, n:] = np.eye(m)
+    return out
 
 
 _ROWS: dict = {}

@@ -14,7 +14,8 @@ catches what they destabilise.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+from typing import Callable
 
 import numpy as np
 
@@ -26,7 +27,7 @@ from .integrators import REGISTRY, FixedStepIntegrator, method_class
 GROWTH_TOLERANCE = 1e-12
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False, repr=False)
 class StabilityReport:
     """Outcome of :func:`check_step`.
 
@@ -38,7 +39,9 @@ class StabilityReport:
     h_omega_n : dt * omega_n [-].
     growth : max |R(h lambda)| over the eigenvalues [-] (> 1: unstable).
     limit : the method's h*omega_n boundary for an undamped oscillator (None: no limit).
-    max_stable_dt : largest stable step [s] (inf: any; 0: none), None for adaptive methods.
+    max_stable_dt : largest stable step [s] (inf: any; 0: none), None for adaptive methods; given as a value or
+        as a function that computes it (:func:`max_stable_step`), then computed at its first read: a refusal
+        names it, a stable step's check need not search for it.
     """
 
     stable: bool
@@ -48,7 +51,29 @@ class StabilityReport:
     h_omega_n: float
     growth: float
     limit: float | None
-    max_stable_dt: float | None
+    max_stable_dt: float | None | Callable[[], float]
+
+    def __getattribute__(self, name: str):
+        value = object.__getattribute__(self, name)
+        if name == "max_stable_dt" and callable(value):  # (made once; the same number for every reader)
+            value = value()
+            object.__setattr__(self, "max_stable_dt", value)
+        return value
+
+    def _values(self) -> tuple:
+        return tuple(getattr(self, f.name) for f in fields(self))
+
+    def __repr__(self) -> str:
+        return f"StabilityReport({', '.join(f'{f.name}={getattr(self, f.name)!r}' for f in fields(self))})"
+
+    def __eq__(self, other) -> bool:
+        return self._values() == other._values() if type(other) is type(self) else NotImplemented
+
+    def __hash__(self) -> int:
+        return hash(self._values())
+
+    def __reduce__(self):  # pickled and copied with its value (a function is not sent along)
+        return (type(self), self._values())
 
     def describe(self) -> str:
         """One line for logs, diagnostics and errors."""
@@ -141,8 +166,9 @@ def check_step(A: np.ndarray, B: np.ndarray, method: str, dt: float) -> Stabilit
             report = StabilityReport(True, cls.name, dt, omega_n, dt * omega_n, 1.0, None, None)
         else:
             growth = _growth(cls, A, B, dt, lams)
+            A_, B_ = A.copy(), None if B is None else np.array(B, dtype=float)  # (the caller's arrays may change)
             report = StabilityReport(_is_stable(growth, dt, omega_n), cls.name, dt, omega_n, dt * omega_n, growth,
-                                     cls.imag_axis_limit, max_stable_step(A, B, method))  # fmt: skip
+                                     cls.imag_axis_limit, lambda: max_stable_step(A_, B_, method))  # fmt: skip
         _REPORTS[key] = report
     return report
 

@@ -215,6 +215,11 @@ def shared_stepper(plant, method: str, dt: float, method_options=None) -> "Stepp
 
 def _merged(drive, load) -> np.ndarray:
     """Sorted distinct finite times [s] of two profiles' breakpoints (float64)."""
+    if type(drive) is tuple and type(load) is tuple:  # a few times (the formula profiles'): in Python, the same floats
+        values = [float(b) for b in (*drive, *load)]
+        values = [b for b in values if math.isfinite(b)]
+        both = np.array(values, dtype=np.float64)
+        return both if all(a < b for a, b in zip(values, values[1:])) else np.unique(both)
     both = np.concatenate([np.asarray(drive, dtype=np.float64).ravel(), np.asarray(load, dtype=np.float64).ravel()])
     both = both[np.isfinite(both)]
     return both if np.all(both[1:] > both[:-1]) else np.unique(both)  # a table's: sorted already
@@ -229,7 +234,7 @@ def _search(bps, x: float, right: bool) -> int:
 
 def _coordinate(row: np.ndarray) -> Callable:
     """``x -> row @ x`` for one wheel coordinate, as a plain index or a scaled index when it is one."""
-    nonzero = [(j, float(c)) for j, c in enumerate(row) if c != 0.0]
+    nonzero = [(j, c) for j, c in enumerate(np.asarray(row, dtype=float).tolist()) if c != 0.0]
     if len(nonzero) == 1:
         j, c = nonzero[0]
         return (lambda x: x[j]) if c == 1.0 else (lambda x: c * x[j])
