@@ -103,6 +103,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM as Terminated: outputs in progress were removed
         signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
         print(f"belt-drive: interrupted by {signal.Signals(signum).name}; unfinished outputs removed", file=sys.stderr)
+        if argv is None:
+            # a program: end now. Its daemon threads (the accuracy guard, the MCAP writer) may still be inside
+            # compiled code; the interpreter's teardown around them once ended a SIGTERM'd `sim --bag-folder` with
+            # "terminate called without an active exception" and SIGABRT after the outputs were already removed
+            _exit_now(128 + int(signum))
         return 128 + int(signum)
     except MemoryError:
         return _fail("out of memory (a shorter run, or --out to stream it, needs less)", 1)
