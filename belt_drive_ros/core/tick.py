@@ -255,15 +255,13 @@ def joints_message(template: bytes | None = None, offsets=None) -> tuple[np.ndar
     return msg, slice(shift, shift + len(template)), at
 
 
-def load_compiled(kernel, args):
+def load_compiled(kernel, args) -> None:
     """Load ``kernel``'s compiled code for ``args``' types now (numba's disk cache: 25-50 ms), not at a node's
-    first tick; return ``kernel``. (Its compiled entry point for that one signature would skip the
-    dispatcher's type matching, ~2 us of a tick on cold caches, but numba documents no public way to it.)"""
+    first tick."""
     if hasattr(kernel, "compile"):  # (not under NUMBA_DISABLE_JIT: a plain function)
         from numba import typeof
 
         kernel.compile(tuple(typeof(a) for a in args))
-    return kernel
 
 
 class TickKernel:
@@ -300,7 +298,7 @@ class TickKernel:
         self.dt, self.origin = stepper.dt, stepper.origin
         self.step_ns = grid_step_ns(self.dt, stepper.origin)
         self._reals, self._dp = arrays.reals, loop._dp
-        self._call = load_compiled(linear_tick, (0, 1, 0, self._reals, self._dp))  # linear_tick for these arrays
+        load_compiled(linear_tick, (0, 1, 0, self._reals, self._dp))
 
     @classmethod
     def of(cls, stepper, limit: float, message: tuple = ()):
@@ -321,7 +319,7 @@ class TickKernel:
             self.state[:] = x
         if lo != -math.inf or hi != math.inf or drive == drive:
             self._clamp[:] = lo, hi, drive
-        return self._call(k0, k1 - k0, stamp, self._reals, self._dp)
+        return linear_tick(k0, k1 - k0, stamp, self._reals, self._dp)
 
 
 # ------------------------------------------------------------------ the slipping belt
@@ -535,7 +533,7 @@ class SlipTickKernel:
         self._fs, self._js, self._events = views["fscalars"], views["iscalars"], views["events"]
         self.message = memoryview(views["msg"].view(np.uint8))[self._where]
         self._args = (arrays.reals, dp)
-        self._call = load_compiled(slip_tick, (0, 0, *self._args))  # slip_tick for these arrays
+        load_compiled(slip_tick, (0, 0, *self._args))
 
     def advance(self, state, k0: int, k1: int, lo: float = -math.inf, hi: float = math.inf, drive: float = math.nan,
                 stamp: int = 0) -> list | None:
@@ -558,7 +556,7 @@ class SlipTickKernel:
             self._fs[6] = state.sigma
         if lo != -math.inf or hi != math.inf or drive == drive:
             self._fs[:3] = lo, hi, drive
-        done = self._call(k0, stamp, *self._args)
+        done = slip_tick(k0, stamp, *self._args)
         return () if done == 0 else None if done > 0 else _events(self._events[:-done])
 
     def state(self) -> SlipState:
