@@ -311,8 +311,20 @@ class ExponentialRK4(FixedStepIntegrator):
         return StageScheme((0.0, 0.5, 0.5, 1.0), (None, stage_a, stage_b, stage_c), final)
 
 
-#: e^{tau A}, cached per (A, tau) for one system (a Lawson method needs one per distinct stage offset)
-_expm_at = _per_system(lambda A, tau: expm_stack(A * tau), size=256)
+def _expm_at_of(A: np.ndarray, taus: tuple) -> np.ndarray:
+    """``e^{tau A}`` for each ``tau`` of ``taus``, stacked on a first axis (the products ``tau A`` as ``A * tau``).
+
+    One system: one :func:`expm_stack` call for all offsets (its result per matrix is that matrix's alone, bit
+    for bit). A stack of variants: one call per offset (a (offsets, variants, n, n) stack would multiply the
+    memory of the largest ensemble chunk by the number of offsets)."""
+    if A.ndim == 2:
+        return expm_stack(A[None] * np.asarray(taus, dtype=float)[:, None, None])
+    return np.stack([expm_stack(A * tau) for tau in taus])
+
+
+#: e^{tau A} for a tuple of offsets, cached per (A, offsets) for one system (a Lawson method needs one per distinct
+#: stage offset: all of a step's at once)
+_expm_at = _per_system(_expm_at_of, size=64)
 
 
 class LawsonRungeKutta(FixedStepIntegrator):
@@ -338,14 +350,14 @@ class LawsonRungeKutta(FixedStepIntegrator):
 
     def stage_scheme(self):
         n, h = self.A.shape[-1], self.dt
-        memo: dict = {}
+        C, s = self.C, len(self.C)
+        offsets = [C[i] for i in range(s)] + [C[i] - C[j] for i in range(s) for j in range(i)] + [1.0 - c for c in C]
+        offsets = [c for c in dict.fromkeys(offsets) if c != 0.0]  # (distinct, in order)
+        memo = dict(zip(offsets, _expm_at(self.A, tuple(c * h for c in offsets))))  # every e^{c h A} in one call
 
         def E(c):
-            if c not in memo:
-                memo[c] = np.eye(n) if c == 0.0 else _expm_at(self.A, c * h)
-            return memo[c]
+            return np.eye(n) if c == 0.0 else memo[c]
 
-        C, s = self.C, len(self.C)
         stages = tuple(
             None if i == 0 and C[0] == 0.0
             else _hcat(E(C[i]), *(h * self.A_tab[i][j] * (E(C[i] - C[j]) @ self.B) for j in range(i)))
