@@ -348,22 +348,36 @@ class LawsonRungeKutta(FixedStepIntegrator):
     A_tab: ClassVar[tuple]
     B_tab: ClassVar[tuple]
 
+    @classmethod
+    def mode_growths(cls, lams, dt: float) -> np.ndarray:
+        """|e^{h lam_i}|: the one-step map of a torque of time only is the scheme's ``e^{h A}`` (its final map's
+        x block; the stage terms all go through B), here on the diagonal system of
+        :meth:`FixedStepIntegrator.mode_growths` without the scheme's other exponentials (the same floats:
+        ``expm_stack`` is per matrix)."""
+        lams = np.asarray(lams, dtype=complex).ravel()
+        A = np.diag(lams if np.any(lams.imag) else lams.real)
+        return np.abs(np.diag(_expm_at(A, (1.0 * dt,))[0]))
+
     def stage_scheme(self):
         n, h = self.A.shape[-1], self.dt
         C, s = self.C, len(self.C)
         offsets = [C[i] for i in range(s)] + [C[i] - C[j] for i in range(s) for j in range(i)] + [1.0 - c for c in C]
         offsets = [c for c in dict.fromkeys(offsets) if c != 0.0]  # (distinct, in order)
-        memo = dict(zip(offsets, _expm_at(self.A, tuple(c * h for c in offsets))))  # every e^{c h A} in one call
+        exps = _expm_at(self.A, tuple(c * h for c in offsets))  # every e^{c h A} in one call
+        memo, memo_b = dict(zip(offsets, exps)), dict(zip(offsets, exps @ self.B))  # (and e^{c h A} B: one matmul)
 
         def E(c):
             return np.eye(n) if c == 0.0 else memo[c]
 
+        def EB(c):
+            return np.eye(n) @ self.B if c == 0.0 else memo_b[c]
+
         stages = tuple(
             None if i == 0 and C[0] == 0.0
-            else _hcat(E(C[i]), *(h * self.A_tab[i][j] * (E(C[i] - C[j]) @ self.B) for j in range(i)))
+            else _hcat(E(C[i]), *(h * self.A_tab[i][j] * EB(C[i] - C[j]) for j in range(i)))
             for i in range(s)
         )  # fmt: skip
-        final = _hcat(E(1.0), *(h * self.B_tab[i] * (E(1.0 - C[i]) @ self.B) for i in range(s)))
+        final = _hcat(E(1.0), *(h * self.B_tab[i] * EB(1.0 - C[i]) for i in range(s)))
         return StageScheme(tuple(float(c) for c in C), stages, final)
 
 
