@@ -445,6 +445,38 @@ def test_amplification_is_the_closed_form(method):
     np.testing.assert_allclose(got, want, rtol=rtol)
 
 
+def test_lawson_scheme_and_growths_are_the_per_offset_exponentials_bit_for_bit():
+    """lawson5's stage scheme takes every e^{c h A} of a step from one batched exponential, and its mode growths
+    |e^{h lam}| from one exponential of the diagonal system: the same floats as an exponential per offset (the
+    scheme written out here from the tableau) and as the growths read off the whole scheme's one-step map
+    (the generic FixedStepIntegrator.mode_growths)."""
+    from belt_drive_ros.core.batch_expm import expm_stack
+
+    cls = REGISTRY["lawson5"]
+    for model_cls in (RigidBeltModel, FlexibleBeltModel):
+        model = model_cls(PARAMS)
+        A, B = model.A, model.B
+        for h in (1e-4, 0.005, 0.37):
+            C, n = cls.C, A.shape[0]
+
+            def E(c):
+                return np.eye(n) if c == 0.0 else expm_stack(A * (c * h))  # one matrix per call
+
+            stages = [np.concatenate([E(C[i])] + [h * cls.A_tab[i][j] * (E(C[i] - C[j]) @ B) for j in range(i)], axis=1)
+                      for i in range(1, len(C))]  # fmt: skip
+            final = np.concatenate([E(1.0)] + [h * cls.B_tab[i] * (E(1.0 - C[i]) @ B) for i in range(len(C))], axis=1)
+            scheme = cls(A, B, h).stage_scheme()
+            assert scheme.stages[0] is None
+            for got, want in zip(scheme.stages[1:], stages, strict=True):
+                assert got.tobytes() == want.tobytes()
+            assert scheme.final.tobytes() == final.tobytes()
+    lams = np.array([0.3j, 1.7j, -0.5 + 2.0j, -2.0, 0.0, 40.0j, -3.0e3 + 7.0e2j])
+    for h in (1e-6, 0.01, 0.5, 3.0):
+        for values in (lams, lams.real, FlexibleBeltModel(PARAMS).A.diagonal() + 0j):
+            want = FixedStepIntegrator.mode_growths.__func__(cls, values, h)  # read off the whole scheme's map
+            assert cls.mode_growths(values, h).tobytes() == want.tobytes()
+
+
 def test_scipy_solvers_are_the_public_classes():
     """No private scipy API: each adaptive method is a class exported by scipy.integrate."""
     model = FlexibleBeltModel(PARAMS)
