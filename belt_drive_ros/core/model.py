@@ -131,6 +131,10 @@ class _LinearModel:
         return {name: out[name] for name in OUTPUT_UNITS}
 
     # -- helpers shared by both models --------------------------------------
+    def total_energy(self, x: np.ndarray) -> np.ndarray:
+        """E = T + V [J] (the rigid belt's V = 0)."""
+        return self.kinetic_energy(x) + self.potential_energy(x)
+
     def span_forces(self, belt_torque: np.ndarray) -> tuple:
         """Span forces and slack/slip flags from the belt torque at wheel 3.
 
@@ -197,10 +201,6 @@ class FlexibleBeltModel(_LinearModel):
         """P_in = M_drive omega_M - M_load omega_3 [W]."""
         return u[..., 0] * x[..., 2] - u[..., 1] * x[..., 3]
 
-    def total_energy(self, x: np.ndarray) -> np.ndarray:
-        """E = T + V [J]."""
-        return self.kinetic_energy(x) + self.potential_energy(x)
-
     # -- conversions ----------------------------------------------------------
     def state_from_rigid(
         self, x_rigid: np.ndarray, load_torque: float = 0.0, drive_torque: float | None = None
@@ -262,9 +262,6 @@ class RigidBeltModel(_LinearModel):
     def input_power(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """P_in = (M_drive - i M_load) omega_M [W]."""
         return (u[..., 0] - self.params.ratio * u[..., 1]) * x[..., 1]
-
-    def total_energy(self, x: np.ndarray) -> np.ndarray:
-        return self.kinetic_energy(x)
 
     def state_from_flexible(self, x_flex: np.ndarray) -> np.ndarray:
         """Rigid state [phi_M, omega_M] of a flexible state (drops the belt mode)."""

@@ -303,20 +303,35 @@ def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, s
     return _linear_result(scene, mdl, plant, time, states, stability, accuracy, run.wall)
 
 
-def _linear_result(scene, mdl, plant, time, states, stability, accuracy, wall) -> SimResult:
-    """The result of a rigid or flexible run: outputs and energy terms of its states on the grid ``time``."""
+def _linear_result(scene, mdl, plant, time, states, stability, accuracy, wall, totals=None, choice=None) -> SimResult:
+    """The result of a rigid or flexible run: outputs and energy terms of its states on the grid ``time``
+    (``totals``: a streamed window's running energy, :func:`_energy`)."""
     cx = mdl.state_part(states)  # C x once: the torques' wheel coordinates and the outputs read it
     u = plant.input_array(time, states, cx)
-    dt_grid = np.diff(time)
-    energy = {
-        "kinetic": mdl.kinetic_energy(states),
-        "potential": mdl.potential_energy(states),
-        "input_work": _integral(mdl.input_power(states, u), dt_grid),
-        "dissipated": _integral(mdl.dissipation_power(states), dt_grid),
-    }
+    work, keep = _energy(totals, time, {"input_work": mdl.input_power(states, u), "dissipated": mdl.dissipation_power(states)})
+    time, states, u, cx = time[keep], states[keep], u[keep], cx[keep]
+    energy = {"kinetic": mdl.kinetic_energy(states), "potential": mdl.potential_energy(states), **work}
     return SimResult(scene=scene, model=mdl.name, method=method_class(scene.method).name, dt=scene.dt, time=time,
-                     states=states, inputs=u, outputs=mdl.outputs(states, u, cx), stability=stability, accuracy=accuracy,
-                     wall_time=wall, energy=energy)  # fmt: skip
+                     states=states, inputs=u, outputs=mdl.outputs(states, u, cx), choice=choice, stability=stability,
+                     accuracy=accuracy, wall_time=wall, energy=energy)  # fmt: skip
+
+
+def _energy(totals: dict | None, time: np.ndarray, powers: dict) -> tuple[dict, slice]:
+    """The energy terms [J] of ``powers`` [W] (running trapezoidal integrals over ``time`` [s]) and the samples a
+    result keeps. A whole run (``totals`` None): every sample, the integrals from 0. A streamed window: they go on
+    from ``totals`` (the windows before: ``{}`` at the first, updated here), and past the first window its first
+    sample, the previous window's last (the quadrature's seam), is dropped."""
+    if totals is None:
+        dt_grid = np.diff(time)
+        return {name: _integral(p, dt_grid) for name, p in powers.items()}, slice(None)
+    n = len(time) - (1 if totals else 0)
+    keep = slice(1, None) if totals else slice(None)
+    out = {}
+    for name, p in powers.items():
+        integral = totals.get(name, 0.0) + _integral(p, np.diff(time))
+        totals[name] = float(integral[-1])
+        out[name] = integral[-n:]
+    return out, keep
 
 
 def _integral(p: np.ndarray, dt_grid: np.ndarray) -> np.ndarray:
@@ -360,27 +375,27 @@ def _slipping_accuracy(scene, sim, stick=None, probes=None):
     )  # fmt: skip
 
 
-def _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy=None) -> SimResult:
-    """The result of a slipping-model run of ``sim``: outputs, energy terms (with friction) and events."""
+def _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy=None, events=None,
+                     totals=None) -> SimResult:  # fmt: skip
+    """The result of a slipping-model run of ``sim``: outputs, energy terms (with friction) and events (``events``:
+    a streamed window's, else the run's; ``totals``: a streamed window's running energy, :func:`_energy`)."""
     m = sim.model
     u = sim.input_array(time, states)
+    work, keep = _energy(totals, time, {"input_work": m.input_power(states, u),
+                                        "dissipated": m.damping_power(states, modes, sigmas),
+                                        "friction": m.friction_power(states, modes, sigmas)})  # fmt: skip
+    time, states, u, modes, sigmas = time[keep], states[keep], u[keep], modes[keep], sigmas[keep]
     outputs = m.outputs(states, u, modes, sigmas)
-    if accuracy is not None:  # the slipping run itself, rerun over its slipping stretch (what the modes alone miss)
+    events = sim.events if events is None else events
+    if accuracy is not None and totals is None:  # the slipping run itself, rerun over its slipping stretch (what the
+        # modes alone miss; a streamed run's guard has the modes only)
         accuracy = with_slip_run_error(accuracy, slip_run_error(
             scene.params, scene.drive, scene.load, scene.method, scene.dt, time, states, modes, sigmas,
-            [e.time for e in sim.events], scene.method_options, sim._hybrid, (outputs["omega_M"], outputs["belt_torque"]),
+            [e.time for e in events], scene.method_options, sim._hybrid, (outputs["omega_M"], outputs["belt_torque"]),
         ))  # fmt: skip
-    dt_grid = np.diff(time)
-    energy = {
-        "kinetic": m.kinetic_energy(states),
-        "potential": m.potential_energy(states),
-        "input_work": _integral(m.input_power(states, u), dt_grid),
-        "dissipated": _integral(m.damping_power(states, modes, sigmas), dt_grid),
-        "friction": _integral(m.friction_power(states, modes, sigmas), dt_grid),
-    }
+    energy = {"kinetic": m.kinetic_energy(states), "potential": m.potential_energy(states), **work}
     return SimResult(
         scene=scene, model="slipping", method=sim.integrator.name, dt=scene.dt, time=time, states=states,
         inputs=u, outputs=outputs, choice=choice, stability=sim.stability,
-        wall_time=wall, energy=energy, events=[(e.kind, e.time, e.sigma) for e in sim.events],
-        accuracy=accuracy,
+        wall_time=wall, energy=energy, events=[(e.kind, e.time, e.sigma) for e in events], accuracy=accuracy,
     )

@@ -143,6 +143,10 @@ class TorqueProfile:
             out[f.name] = value
         return out
 
+    def __post_init__(self):
+        """Every ``float`` field finite, in field order (a subclass with more checks calls this first)."""
+        self._check_finite(*(f.name for f in fields(self) if f.type == "float"))
+
     def _check_finite(self, *names: str) -> None:
         for name in names:
             value = getattr(self, name)
@@ -199,9 +203,6 @@ class Constant(TorqueProfile):
     value: float = 0.0
     PLAUSIBLE = {"value": "torque"}
 
-    def __post_init__(self):
-        self._check_finite("value")
-
     state_dependent = False
     uses_angle = False
 
@@ -218,9 +219,6 @@ class Step(TorqueProfile):
     final: float = 1.0
     time: float = 0.0
     PLAUSIBLE = {"initial": "torque", "final": "torque", "time": "time"}
-
-    def __post_init__(self):
-        self._check_finite("initial", "final", "time")
 
     state_dependent = False
     uses_angle = False
@@ -249,7 +247,7 @@ class Ramp(TorqueProfile):
     PLAUSIBLE = {"start_value": "torque", "end_value": "torque", "start_time": "time", "end_time": "time"}
 
     def __post_init__(self):
-        self._check_finite("start_value", "end_value", "start_time", "end_time")
+        super().__post_init__()
         if not self.end_time > self.start_time:
             raise SceneError(f"ramp.end_time: must be > start_time ({self.start_time}), got {self.end_time}")
 
@@ -279,9 +277,6 @@ class Sine(TorqueProfile):
     frequency: float = 1.0
     phase: float = 0.0
     PLAUSIBLE = {"mean": "torque", "amplitude": "torque", "frequency": "frequency", "phase": "phase"}
-
-    def __post_init__(self):
-        self._check_finite("mean", "amplitude", "frequency", "phase")
 
     state_dependent = False
     uses_angle = False
@@ -416,7 +411,7 @@ class Engine(_Pulsating):
                  "speed_setpoint": "speed", "governor_gain": "gain", "ramp_time": "time"}
 
     def __post_init__(self):
-        self._check_finite("mean_torque", "phase", "crank_ratio", "governor_gain", "max_torque", "ramp_time")
+        super().__post_init__()
         if int(self.cylinders) != self.cylinders or self.cylinders < 1:
             raise SceneError(f"engine.cylinders: must be a positive integer, got {self.cylinders!r}")
         if self.strokes not in (2, 4):
@@ -476,7 +471,7 @@ class MotorCurve(TorqueProfile):
                  "soft_start_time": "time"}
 
     def __post_init__(self):
-        self._check_finite("stall_torque", "no_load_speed", "soft_start_time")
+        super().__post_init__()
         self._check_positive("no_load_speed")
         if self.soft_start_time < 0:
             raise SceneError("motor.soft_start_time: must be >= 0")
@@ -516,9 +511,6 @@ class Polynomial(TorqueProfile):
     c2: float = 0.0
     PLAUSIBLE = {"c0": "torque", "c1": "gain", "c2": "quadratic"}
 
-    def __post_init__(self):
-        self._check_finite("c0", "c1", "c2")
-
     uses_angle = False
 
     @property
@@ -548,7 +540,7 @@ class Compressor(_Pulsating):
     PLAUSIBLE = {"mean_torque": "torque", "c1": "gain", "harmonics": "torque", "phase": "phase", "ramp_time": "time"}
 
     def __post_init__(self):
-        self._check_finite("mean_torque", "c1", "phase", "ramp_time")
+        super().__post_init__()
         if int(self.cylinders) != self.cylinders or self.cylinders < 1:
             raise SceneError(f"compressor.cylinders: must be a positive integer, got {self.cylinders!r}")
         if self.ramp_time < 0:

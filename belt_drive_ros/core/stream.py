@@ -22,7 +22,7 @@ from .method_choice import resolve as resolve_method
 from .fidelity import ModelChoice, _linear_choice, choose_model, limit_exceedance
 from .model import make_model
 from .scene import Scene
-from .simulate import SimResult, Simulator, _integral, _slipping_accuracy
+from .simulate import SimResult, Simulator, _linear_result, _slipping_accuracy, _slipping_result
 from .slip_run import SlippingSimulator
 from .stepper import PAGE_MARGIN, snap_tolerance
 
@@ -89,17 +89,6 @@ def stream(
         yield window
 
 
-def _running(totals: dict, powers: dict, time, n: int) -> dict:
-    """A window's energy terms [J]: each power's [W] running trapezoidal integral over ``time`` on from ``totals``
-    (the previous windows' totals, updated), its last ``n`` samples."""
-    out = {}
-    for name, p in powers.items():
-        integral = totals[name] + _integral(p, np.diff(time))
-        totals[name] = float(integral[-1])
-        out[name] = integral[-n:]
-    return out
-
-
 def _ends(stepper, duration: float, window_steps: int) -> Iterator[tuple[float, float]]:
     """(t0, t1) of consecutive windows of ``window_steps`` grid steps over [0, duration]."""
     t, k = 0.0, 0
@@ -147,7 +136,7 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps, guards
                 if check_stability and guard is None else None)
     if guard is not None and guards is not None:
         guards.append(guard)
-    totals = {"input_work": 0.0, "dissipated": 0.0}
+    totals: dict = {}
     for k, (t0, t1) in enumerate(ends):
         start = _time.perf_counter()
         try:
@@ -156,20 +145,10 @@ def _linear(scene, kind, choice, progress, check_stability, window_steps, guards
             if guard is not None:
                 guard.result()
             raise
-        wall = _time.perf_counter() - start
-        u, x = sim.plant.input_array(time, states), states[-1]
-        keep = slice(0, None) if k == 0 else slice(1, None)
-        powers = {"input_work": mdl.input_power(states, u), "dissipated": mdl.dissipation_power(states)}
-        work = _running(totals, powers, time, len(time) - (k > 0))
-        time, states, u = time[keep], states[keep], u[keep]
+        wall, x = _time.perf_counter() - start, states[-1]
         if guard is not None:
             accuracy = guard.result() if k == len(ends) - 1 or guard.done() else None
-        yield SimResult(
-            scene=scene, model=kind, method=sim.integrator.name, dt=scene.dt, time=time, states=states, inputs=u,
-            outputs=mdl.outputs(states, u), choice=choice, stability=sim.stability, accuracy=accuracy,
-            wall_time=wall,
-            energy={"kinetic": mdl.kinetic_energy(states), "potential": mdl.potential_energy(states), **work},
-        )
+        yield _linear_result(scene, mdl, sim.plant, time, states, sim.stability, accuracy, wall, totals, choice)
         if progress:
             progress(t1 / scene.duration)
 
@@ -199,33 +178,20 @@ def _slipping(scene, choice, progress, check_stability, window_steps) -> Iterato
     paged = getattr(scene.drive, "page", None) is not None
     sim = (_PagedSlipping if paged else SlippingSimulator)(scene.params, scene.drive, scene.load, scene.method, scene.dt,
                                                           scene.method_options, check_stability)
-    m = sim.model
     y0 = scene.initial_state.vector("slipping", scene.params.ratio)
     accuracy = _slipping_accuracy(scene, sim) if check_stability else None
-    totals = {"input_work": 0.0, "dissipated": 0.0, "friction": 0.0}
+    totals: dict = {}
     last = None  # (time, state, mode, sigma) of the previous window's last sample: the quadrature's seam
     events: list = []
     start = _time.perf_counter()
     for time, states, modes, sigmas in sim.windows(scene.duration, y0, 0.0, progress, window_steps, events):
         wall = _time.perf_counter() - start
         if last is not None:
-            t_all = np.concatenate([[last[0]], time])
-            s_all = np.concatenate([last[1][None, :], states])
-            m_all = np.concatenate([[last[2]], modes]).astype(np.int8)
-            g_all = np.concatenate([[last[3]], sigmas])
-        else:
-            t_all, s_all, m_all, g_all = time, states, modes, sigmas
-        u_all = sim.input_array(t_all, s_all)
-        energy = _running(totals, {"input_work": m.input_power(s_all, u_all), "dissipated": m.damping_power(s_all, m_all, g_all),
-                                   "friction": m.friction_power(s_all, m_all, g_all)}, t_all, len(time))  # fmt: skip
-        u = u_all[-len(time):]
-        energy["kinetic"], energy["potential"] = m.kinetic_energy(states), m.potential_energy(states)
+            time = np.concatenate([[last[0]], time])
+            states = np.concatenate([last[1][None, :], states])
+            modes = np.concatenate([[last[2]], modes]).astype(np.int8)
+            sigmas = np.concatenate([[last[3]], sigmas])
         last = (float(time[-1]), states[-1].copy(), int(modes[-1]), float(sigmas[-1]))
-        window_events = [(e.kind, e.time, e.sigma) for e in events]
+        yield _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy, events, totals)
         events.clear()
-        yield SimResult(
-            scene=scene, model="slipping", method=sim.integrator.name, dt=scene.dt, time=time, states=states,
-            inputs=u, outputs=m.outputs(states, u, modes, sigmas), choice=choice, stability=sim.stability,
-            wall_time=wall, energy=energy, events=window_events, accuracy=accuracy,
-        )
         start = _time.perf_counter()

@@ -1,27 +1,16 @@
-"""The slipping tier of a belt network: stick or slip at every pulley, at the capstan limit.
-
-The linear tier (:mod:`.model`) lets friction pass any tension difference. At
-pulley i the capstan law passes at most (``docs/serpentine.md``)::
+"""The slipping tier of a belt network: stick or slip at every pulley, at the capstan limit (derived in
+``docs/model.md``, "Slip at every pulley of a network")::
 
     |T_i - T_{i-1}| <= f_i (T_i + T_{i-1} - 2 w),    f_i = tanh(mu_i beta_i / 2),  w = m' v^2
+    delta_j = (r_{j+1} theta_{j+1} + s_{j+1}) - (r_j theta_j + s_j) + g_j theta_a
 
-(``T_i`` the span leaving, ``T_{i-1}`` the span arriving, ``v`` the belt speed
-at the driver). Each pulley gets a slip coordinate ``s_i`` [m], the belt's
-displacement ahead of the pulley surface, so span j stretches by
-``delta_j = (r_{j+1} theta_{j+1} + s_{j+1}) - (r_j theta_j + s_j) + g_j theta_a``. The state is
-``x = [q, q', s]`` and a mode names per pulley ``sig_i``: 0 sticking (``s_i' = 0``)
-or the direction ``+-1`` of ``s_i'`` while it slides. The belt is massless, so on
-a sliding pulley the tension difference sits at the limit,
-``T_i - T_{i-1} = sig_i f_i (T_i + T_{i-1} - 2 w)``: with Kelvin-Voigt spans
-``T_j = T_0 + k_j delta_j + c_j delta_j'`` these equalities are linear in the
-sliding pulleys' ``s'`` (one small linear system per mode); with undamped spans
-their time derivative is, and ``s`` is put back onto them after each step.
-Every mode is an affine ODE ``x' = A x + B u + c (T_0 - w)``.
-
-Switching, per pulley (several at once): stick -> slip when ``|T_i - T_{i-1}|`` reaches the limit, in the
-direction ``sign(T_i - T_{i-1})``; slip -> stick when ``s_i'`` crosses zero, if the stick mode's friction then
-stays inside the limit (else it slides on). Events are located on the mode's exact flow (:mod:`.slip_kernel`);
-a step is that flow with the torques and ``w`` held (zero-order hold: stable however stiff ``k_j / c_j`` is).
+(``T_i`` [N] the span leaving pulley i, ``v`` [m/s] the belt speed at the driver, ``s_i`` [m] the belt's slip ahead
+of pulley i's surface). State ``x = [q, q', s]``; a mode names per pulley ``sig_i``: 0 sticking (``s_i' = 0``) or
+the direction ``+-1`` of ``s_i'`` while it slides, where ``T_i - T_{i-1} = sig_i f_i (T_i + T_{i-1} - 2 w)`` (with
+``T_j = T_0 + k_j delta_j + c_j delta_j'``: linear in the sliding pulleys' ``s'``; undamped spans: in ``s``, put
+back onto it after each step). Every mode is ``x' = A x + B u + c (T_0 - w)``, a step its exact flow with the
+torques and ``w`` held; switches (stick -> slip at the limit, slip -> stick where ``s_i'`` crosses zero if the
+stick mode's friction stays inside it) are located on that flow (:mod:`.slip_kernel`).
 """
 
 from __future__ import annotations

@@ -3,18 +3,14 @@
 Every function is ``@njit(cache=True, nogil=True)`` over float64/int64 arrays and floats, valid Python under
 ``NUMBA_DISABLE_JIT=1`` with the same floats (every sum an explicit loop from the left, no BLAS call).
 
-State ``x = [q (m), q' (m), s (n)]`` (:mod:`.slip`): pulley and arm angles, their speeds, the belt's slip ahead
-of each pulley surface [m]. A *mode* ``sig`` (n,) is 0 where the pulley sticks (``s_i' = 0``), +-1 the slip
-direction ``sign(s_i')`` where it slides. In a mode ``x' = A x + B u + c (T_0 - w)`` (``u`` the pulley torques,
-``w = m' v^2``), both held over a step: a step is the mode's exact flow ``x+ = Phi x + Gamma b``.
-
-Per step: the flow, then every pulley's switching function at its end (stick:
-``|T_i - T_{i-1}| - tanh(mu_i beta_i / 2)(T_i + T_{i-1} - 2 w)``; slip: ``-sig_i s_i'``); where one turns
-positive the event is located on the exact flow: a step is ``2^L`` units (:data:`LEVELS`), each mode keeps its
-flows over ``dt / 2^i`` per level (:func:`step_chain`), a scan at :data:`N_SCAN` points brackets the first
-crossing and halving level by level finds the last unit inside. One unit later every pulley past or on its
-surface switches, and the rest of the step runs in the new mode. Mode matrices and flows are cached per mode in
-caller-owned arrays.
+State ``x = [q (m), q' (m), s (n)]`` and mode ``sig`` (n,) as in :mod:`.slip`; in a mode ``x' = A x + B u +
+c (T_0 - w)``, a step its exact flow ``x+ = Phi x + Gamma b`` (``u``, ``w`` held). Per step, every pulley's
+switching function at its end (stick: ``|T_i - T_{i-1}| - tanh(mu_i beta_i / 2)(T_i + T_{i-1} - 2 w)``; slip:
+``-sig_i s_i'``); where one turns positive the event is located on the flow (``docs/model.md``, "Slip at every
+pulley of a network"): a step is ``2^L`` units (:data:`LEVELS`), each mode keeps its flows over ``dt / 2^i``
+(:func:`step_chain`), a scan at :data:`N_SCAN` points brackets the first crossing, halving finds the last unit
+inside; one unit later every pulley past or on its surface switches, the step running on in the new mode. Mode
+matrices and flows are cached per mode in caller-owned arrays.
 """
 
 from __future__ import annotations

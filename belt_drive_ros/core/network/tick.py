@@ -1,20 +1,9 @@
-"""The network node's common tick in one compiled call: whole grid steps, the joint values at their end and
-the tick's ``joint_states`` message.
-
-A 1 kHz tick of a belt network (flexible or rigid tier) is one call of the
-network loop (:func:`~belt_drive_ros.core.kernel.wheel_steps`)
-and the JointState values at the new state: each pulley's (and the arm's)
-angle, speed and torque. Done in Python that is a dozen interpreted calls
-(grid times, buffers, the profiles' scalar evaluations, list building) whose
-cost on the caches a 1 ms sleep leaves is most of the tick.
-:func:`network_tick` does both in one ``@njit(cache=True, nogil=True)`` call,
-and writes the values into the ``joint_states`` CDR bytes the node publishes.
-
-Its arrays are packed once into one buffer (:class:`~belt_drive_ros.core.tick.PackedArrays`: ``reals``
-and ``ints``, its int64 view; numba's dispatcher converts every argument on
-every call), cut into views again in the kernel (the same shapes and types:
-``wheel_steps`` keeps its one signature); the caller writes held torques into
-them. On fead_i4, cold caches: 13-15 us, what the loop's 26-argument call costs.
+"""The network node's common tick in one compiled call (:func:`network_tick`, ``@njit(cache=True, nogil=True)``):
+the network loop's whole grid steps (:func:`~belt_drive_ros.core.kernel.wheel_steps`), each pulley's (and the arm's)
+angle, speed and torque at the new state, and the tick's ``joint_states`` CDR bytes. Its arrays are packed once
+into one buffer (:class:`~belt_drive_ros.core.tick.PackedArrays`: ``reals`` and ``ints``, its int64 view), cut into
+views again in the kernel (``wheel_steps`` keeps its one signature); the caller writes held torques into them.
+Why a tick is one call, what it replaced and its figures: ``docs/performance.md``, "The network node's tick".
 
 Bit for bit the operations of the reference path
 (:meth:`~belt_drive_ros.ros.network_stepper.NetworkStepper.advance`, then
