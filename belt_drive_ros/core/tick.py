@@ -31,11 +31,13 @@ The kernels also write the tick's ``joint_states`` message (:func:`write_joints`
 
 from __future__ import annotations
 
+import ctypes
 import math
 
 import numpy as np
 
-from numba import njit
+from numba import carray, njit, types
+from numba.extending import intrinsic, overload
 
 from .kernel import HEADER, SECTIONS, linear_steps, profile_torque
 from .kernel_slip import (FLEXIBLE, KIND_NAMES, MASS_DOWN, MASS_UP, MAX_SWITCHES, PHASE_SIZE, SLIP_DOWN, SLIP_UP,
@@ -116,6 +118,49 @@ class PackedArrays:
             view[...] = floats[name] if j < nf else ints[name]
             self.views[name] = view
             a += size
+        #: the buffer's address: what the tick kernels take (:func:`packed_at`); valid while this object lives
+        self.address = self.reals.ctypes.data
+
+
+# numba converts an int argument in a fraction of an array's time (on the caches a 1 ms sleep leaves, ~1 us against
+# ~6 us: an array is type-checked by its fingerprint, then wrapped in a reference-counted record for the call and
+# released after it): the ticks take their buffer's address and view the buffer there (numba's public extension
+# API: an intrinsic for the address as a pointer, numba.carray for the array at it, not owned; the caller keeps the
+# buffer alive through the call)
+
+
+@intrinsic
+def _doubles_at(typingctx, address):
+    """``address`` (int64) as a pointer to float64 (LLVM ``inttoptr``)."""
+    sig = types.CPointer(types.float64)(types.int64)
+
+    def codegen(context, builder, signature, args):
+        return builder.inttoptr(args[0], context.get_value_type(signature.return_type))
+
+    return sig, codegen
+
+
+def packed_at(address: int) -> np.ndarray:
+    """The float64 buffer of a :class:`PackedArrays` at ``address`` (its :attr:`~PackedArrays.address`), whole: its
+    length from its table (the last section's offset and shape). Compiled: :func:`_doubles_at` and
+    ``numba.carray``; interpreted (``NUMBA_DISABLE_JIT=1``): the same memory through ctypes."""
+    words = ctypes.POINTER(ctypes.c_double)
+    table = np.ctypeslib.as_array(ctypes.cast(address, ctypes.POINTER(ctypes.c_int64)), (4,))
+    table = np.ctypeslib.as_array(ctypes.cast(address, ctypes.POINTER(ctypes.c_int64)), (int(table[0]),))
+    a, d0, d1, d2 = (int(v) for v in table[-4:])
+    return np.ctypeslib.as_array(ctypes.cast(address, words), (a + d0 * d1 * d2,))
+
+
+@overload(packed_at, jit_options=dict(nogil=True))
+def _packed_at(address):
+    def impl(address):
+        n = carray(_doubles_at(address), (1,)).view(np.int64)[0]  # 4 x the sections: the table's length
+        table = carray(_doubles_at(address), (n,)).view(np.int64)
+        return carray(_doubles_at(address), (table[n - 4] + table[n - 3] * table[n - 2] * table[n - 1],))
+
+    return impl
+
+
 
 
 @njit(cache=True, nogil=True)
@@ -159,39 +204,51 @@ def write_joints(y, msg, at, stamp):
     w[s + 1] = stamp % 1000000000
 
 
-#: the linear tick's packed sections (:class:`TickKernel`): the output rows, the kernel loop's ``reals`` and load
-#: profile, the state, the outputs, the ``joint_states`` message (its bytes as doubles), the clamps; the loop's ``ints``
-LINEAR_FLOATS = ("rows", "reals", "lp", "x", "y", "msg", "clamp")
-LINEAR_INTS = ("ints",)
-_ROWS, _REALS, _LP, _X, _Y, _MSG, _CLAMP, _INTS = range(8)
+#: the linear tick's packed sections (:class:`TickKernel`): the output rows, the kernel loop's ``reals``, load and drive
+#: profiles, the state, the outputs, the ``joint_states`` message (its bytes as doubles), the clamps, room for the grid
+#: times and states of up to ROOM steps; the loop's ``ints`` and the call's own: ``k0, steps, stamp, step_ns``
+LINEAR_FLOATS = ("rows", "reals", "lp", "dp", "x", "y", "msg", "clamp", "times", "out")
+LINEAR_INTS = ("ints", "io")
+_ROWS, _REALS, _LP, _DP, _X, _Y, _MSG, _CLAMP, _TIMES, _OUT, _INTS, _IO = range(12)
+#: grid steps per tick the buffers have room for (a tick of more allocates its times and states)
+ROOM = 16
 
 
 @njit(cache=True, nogil=True)
-def linear_tick(k0, steps, stamp, packed, dp):
+def linear_tick(address):
     """``steps`` whole grid steps from grid index ``k0`` of the state, then the outputs and the ``joint_states``
     message stamped ``stamp`` [ns] (:func:`write_joints`); returns the kernel's status.
 
-    ``packed``: :class:`TickKernel`'s buffer (:data:`LINEAR_FLOATS`, :data:`LINEAR_INTS`). ``reals,
-    ints, lp`` and ``dp`` (the drive profile's data, the held torque's own array): the stepper's kernel loop
-    (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`); ``rows`` packs ``[W (4 n), C (12 n), D (12 x 2),
-    F_0, r_3, capstan_ratio, origin, dt, speed limit, message layout (4)]``; ``x`` (n,) the state, replaced by
-    the new one; ``y`` the outputs. ``clamp``: ``lo, hi`` [s], the torque times clamped to them (``-inf, inf``:
-    none; the stepper's special step at a held-torque jump: ``lo = t0`` after a jump at ``t0``, ``hi =
-    left_of(t1)`` before one at ``t1``), and ``drive``: NaN, or the held drive torque's new value [N m], written
-    into ``dp[0, 0]`` after the steps, before the outputs; read and set back to ``-inf, inf, NaN``. ``x``, ``y``, the message and ``dp`` are written only when every step is done (status OK).
+    ``packed``: :class:`TickKernel`'s buffer (:data:`LINEAR_FLOATS`, :data:`LINEAR_INTS`) at ``address``, the one
+    argument (numba converts every argument on every call: ~1 us per int and ~6 us per array on the caches a 1 ms
+    sleep leaves; :func:`packed_at`).
+    ``io = [k0, steps, stamp, step_ns]``; when the steps are done (status OK) the next tick's ``k0 + steps`` and
+    ``stamp + steps step_ns`` [ns] are written into it: the usual tick writes nothing before the call. ``reals,
+    ints, lp, dp`` (the drive profile's data, the held torque's copied in): the stepper's kernel loop
+    (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`); ``rows`` packs ``[W (4 n), C (12 n), D (12 x 2), F_0,
+    r_3, capstan_ratio, origin, dt, speed limit, message layout (4)]``; ``x`` (n,) the state, replaced by the new
+    one; ``y`` the outputs. ``clamp``: ``lo, hi`` [s], the torque times clamped to them (``-inf, inf``: none; the
+    stepper's special step at a held-torque jump: ``lo = t0`` after a jump at ``t0``, ``hi = left_of(t1)`` before
+    one at ``t1``), and ``drive``: NaN, or the held drive torque's new value [N m], written into ``dp[0, 0]`` after
+    the steps, before the outputs; read and set back to ``-inf, inf, NaN``. ``x``, ``y``, the message, ``dp`` and
+    ``io`` are written only when every step is done.
     """
+    packed = packed_at(address)
     table = packed.view(np.int64)
     rows, reals, ints, lp = _f1(packed, table, _ROWS), _f1(packed, table, _REALS), _i1(table, _INTS), _f2(packed, table, _LP)
-    x, y, clamp = _f1(packed, table, _X), _f1(packed, table, _Y), _f1(packed, table, _CLAMP)
+    x, y, clamp, dp, io = _f1(packed, table, _X), _f1(packed, table, _Y), _f1(packed, table, _CLAMP), _f2(packed, table, _DP), _i1(table, _IO)
+    k0, steps, stamp = io[0], io[1], io[2]
     lo, hi, drive = clamp[0], clamp[1], clamp[2]
     clamp[0], clamp[1], clamp[2] = -math.inf, math.inf, math.nan
     n = x.size
     d0 = 16 * n
     origin, dt, limit = rows[d0 + 27], rows[d0 + 28], rows[d0 + 29]
-    times = np.empty(steps + 1)
+    if steps <= ROOM:  # (no allocation)
+        times, out = _f1(packed, table, _TIMES)[: steps + 1], _f2(packed, table, _OUT)[:steps]
+    else:
+        times, out = np.empty(steps + 1), np.empty((steps, n))
     for j in range(steps + 1):
         times[j] = origin + dt * float(k0 + j)
-    out = np.empty((steps, n))
     done, status, t = linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp)
     if status != 0:
         return status
@@ -199,6 +256,7 @@ def linear_tick(k0, steps, stamp, packed, dp):
         dp[0, 0] = drive
     xe = out[steps - 1]
     x[:] = xe
+    io[0], io[2] = k0 + steps, stamp + steps * io[3]
     # the profiles' data inside the loop's arrays (the layout linear_steps unpacks)
     s = ints[1]
     at = ints[HEADER : HEADER + len(SECTIONS) + 1]
@@ -264,12 +322,18 @@ def load_compiled(kernel, args) -> None:
         kernel.compile(tuple(typeof(a) for a in args))
 
 
+def _cells(a: np.ndarray) -> memoryview:
+    """A C-contiguous float64 or int64 array's numbers as one flat memoryview: a Python number written into it
+    costs a fraction of numpy's item assignment on cold caches."""
+    return memoryview(a).cast("B").cast(a.dtype.char)
+
+
 class TickKernel:
     """One stepper's tick as one compiled call: :meth:`step` advances :attr:`state`, :attr:`y` holds the outputs.
 
-    The kernel loop's ``reals``, ``ints`` and load profile are copied into the
-    tick's buffers (the node's stepper never changes them); the drive profile's
-    data stays the held torque's own array.
+    The kernel loop's ``reals``, ``ints`` and both profiles' data are copied into the tick's buffer (the node's
+    stepper never changes them, but for the held drive torque's value: a jump the kernel takes is written into the
+    held torque's own array too, and a value set outside a tick is copied in by :meth:`drive_changed`).
     """
 
     def __init__(self, stepper, limit: float, message: tuple = ()):
@@ -281,10 +345,13 @@ class TickKernel:
         msg, where, at = joints_message(*message)
         rows = np.concatenate([np.ravel(plant.wheel_map), np.ravel(C), np.ravel(D),
                                [p.F_0, p.r_3, p.capstan_ratio, stepper.origin, stepper.dt, limit], at]).astype(np.float64)
+        self.dt, self.origin = stepper.dt, stepper.origin
+        self.step_ns = grid_step_ns(self.dt, stepper.origin)
         arrays = PackedArrays((LINEAR_FLOATS, LINEAR_INTS),
-                              dict(rows=rows, reals=loop.reals, lp=loop._lp, x=np.zeros(n), y=np.zeros(len(OUTPUT_UNITS)),
-                                   msg=msg.view(np.float64), clamp=[-math.inf, math.inf, math.nan]),
-                              dict(ints=loop.ints))  # fmt: skip
+                              dict(rows=rows, reals=loop.reals, lp=loop._lp, dp=loop._dp, x=np.zeros(n),
+                                   y=np.zeros(len(OUTPUT_UNITS)), msg=msg.view(np.float64),
+                                   clamp=[-math.inf, math.inf, math.nan], times=np.zeros(ROOM + 1), out=np.zeros((ROOM, n))),
+                              dict(ints=loop.ints, io=[0, 0, 0, self.step_ns]))  # fmt: skip
         views = arrays.views
         #: the outputs of the last :meth:`step` [SI units, OUTPUT_UNITS order; slack/slip as 0.0/1.0]
         self.y = views["y"]
@@ -294,11 +361,10 @@ class TickKernel:
         self.state = views["x"]
         #: the ``joint_states`` message of the last :meth:`step` (a view of its bytes)
         self.message = memoryview(views["msg"].view(np.uint8))[where]
-        self._clamp = views["clamp"]
-        self.dt, self.origin = stepper.dt, stepper.origin
-        self.step_ns = grid_step_ns(self.dt, stepper.origin)
-        self._reals, self._dp = arrays.reals, loop._dp
-        load_compiled(linear_tick, (0, 1, 0, self._reals, self._dp))
+        self._clamp, self._io = _cells(views["clamp"]), _cells(views["io"])
+        self._drive, self._drive_copy = _cells(loop._dp), _cells(views["dp"])  # (the held torque's data, its copy)
+        self._packed, self._address = arrays.reals, arrays.address  # (the kernel's argument: the buffer's address)
+        load_compiled(linear_tick, (self._address,))
 
     @classmethod
     def of(cls, stepper, limit: float, message: tuple = ()):
@@ -310,16 +376,32 @@ class TickKernel:
             return None
         return cls(stepper, limit, message)
 
+    def drive_changed(self) -> None:
+        """The drive profile's data were written outside a tick (the held torque set): copied into the buffer."""
+        self._drive_copy[:] = self._drive
+
     def step(self, x: np.ndarray, k0: int, k1: int, lo: float = -math.inf, hi: float = math.inf,
              drive: float = math.nan, stamp: int = 0) -> int:
         """Whole grid steps k0 -> k1 from state ``x``: the status; when OK the new state in :attr:`state`,
         :attr:`y` at k1 and :attr:`message` stamped ``stamp`` [ns] (``lo``, ``hi``, ``drive``:
-        :func:`linear_tick`'s clamps). ``x`` is :attr:`state` on the usual tick (nothing copied)."""
+        :func:`linear_tick`'s clamps; ``drive`` is written into the held torque's own data too). ``x`` is
+        :attr:`state` on the usual tick (nothing copied)."""
         if x is not self.state:
             self.state[:] = x
+        io = self._io
+        io[0], io[1], io[2] = k0, k1 - k0, stamp
         if lo != -math.inf or hi != math.inf or drive == drive:
-            self._clamp[:] = lo, hi, drive
-        return linear_tick(k0, k1 - k0, stamp, self._reals, self._dp)
+            clamp = self._clamp
+            clamp[0], clamp[1], clamp[2] = lo, hi, drive
+        status = linear_tick(self._address)
+        if drive == drive and status == 0:
+            self._drive[0] = drive
+        return status
+
+    def next(self) -> int:
+        """The tick after the last OK one (:meth:`step` or this): as many grid steps from where it ended, the
+        stamp as many grid steps on, no clamps; the status (the buffer holds all of it: nothing is written here)."""
+        return linear_tick(self._address)
 
 
 # ------------------------------------------------------------------ the slipping belt
@@ -332,31 +414,34 @@ SLIP_CONSTANTS = ("ratio", "r_3", "a_1", "g", "F_0", "q_1", "q_2", "q_3", "rel_2
 EVENTS = 7
 #: the slipping tick's sections (:class:`SlipTickKernel`): the hybrid loop's buffers of N steps, its phase state, the
 #: engine's arrays (Z as pairs of doubles), outputs, message, the load's shifted numbers and the flexible state sticking
-#: after slip; ``fscalars``: ``lo, hi, drive, sigma5, dt, limit, sigma``; ``iscalars``: the phase kind, how many of
-#: ``xs`` to start from (-1: ``x`` as it is)
+#: after slip, the drive profile's data (the held torque's copied in); ``fscalars``: ``lo, hi, drive, sigma5, dt,
+#: limit, sigma``; ``iscalars``: the phase kind, how many of ``xs`` to start from (-1: ``x`` as it is), the call's
+#: ``k0``, ``stamp`` [ns] and ``step_ns``
 SLIP_FLOATS = ("grid", "knots", "lo", "hi", "out_y", "out_native", "out_sigma", "x", "xs", "reals", "Yflex", "Minv",
                "Z", "R", "c", "mats", "guards", "dx", "dy", "lp", "lx", "ly", "events", "consts", "y", "msg", "fscalars",
-               "shifted", "flex")
+               "shifted", "flex", "dp")
 SLIP_INTS = ("special", "out_mode", "ints", "offsets", "have", "uses", "dk", "lk", "iscalars")
 (_GRID, _KNOTS, _SLO, _SHI, _OUT_Y, _OUT_NATIVE, _OUT_SIGMA, _SX, _SXS, _SREALS, _YFLEX, _MINV, _Z, _R, _C, _MATS,
- _GUARDS, _DX, _DY, _SLP, _LX, _LY, _EVENTS, _CONSTS, _SY, _SMSG, _FSCALARS, _SHIFTED, _FLEX, _SPECIAL, _OUT_MODE,
+ _GUARDS, _DX, _DY, _SLP, _LX, _LY, _EVENTS, _CONSTS, _SY, _SMSG, _FSCALARS, _SHIFTED, _FLEX, _SDP, _SPECIAL, _OUT_MODE,
  _SINTS, _OFFSETS, _HAVE, _USES, _DK, _LK, _ISCALARS) = range(len(SLIP_FLOATS) + len(SLIP_INTS))  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
-def slip_tick(k0, stamp, packed, dp):
+def slip_tick(address):
     """The slipping belt's ``N`` whole grid steps of the buffers from grid index ``k0``, then every output
     of the slipping model at the last knot into ``y`` and the ``joint_states`` message stamped ``stamp`` [ns]
     (:func:`write_joints`). Returns ``-n`` when done, ``n`` events (mode switches) in the first rows of
-    ``events``; else the hybrid loop's status (> 0): the buffers then hold the state the call started from.
+    ``events``, and ``k0 + N``, ``stamp + N step_ns`` written into ``iscalars`` (the next tick's: the usual tick
+    writes nothing before the call); else the hybrid loop's status (> 0): the buffers then hold the state the call
+    started from.
 
     A tick whose steps cross no guard is the phase's linear loop alone (:func:`~.kernel.linear_steps`, stretch by
     stretch of equal clamps as :func:`~.kernel_slip.hybrid_steps` takes them; sticking after slip the flexible loop
     from ``Minv y``, the load's angle shifted by ``-s / r_3``; the same floats); any other runs ``hybrid_steps``
     from the start.
 
-    ``packed``: :class:`SlipTickKernel`'s buffer (:data:`SLIP_FLOATS`, :data:`SLIP_INTS`); ``dp``: the
-    drive profile's data (the held torque's own array). The start: phase kind ``iscalars[0]``, its
+    ``packed``: :class:`SlipTickKernel`'s buffer (:data:`SLIP_FLOATS`, :data:`SLIP_INTS`) at ``address``, the one
+    argument (:func:`linear_tick`'s reason); ``dp`` in it: the drive profile's data. The start: phase kind ``iscalars[0]``, its
     coordinates the first ``iscalars[1]`` of ``xs`` copied into ``x`` (-1: ``x`` as the last tick left
     it), zeros after them; ``sigma5`` (``fscalars[3]``), unless NaN, at ``x[5]`` (the stepwise phase's
     direction), ``fscalars[6]`` its sigma; ``xs`` keeps that ``x``. The sections up to ``events`` are the
@@ -370,12 +455,14 @@ def slip_tick(k0, stamp, packed, dp):
     holds the new kind, ``x`` its coordinates, ``fscalars[6]`` its sigma and ``sigma5`` the same (NaN
     unless stepwise): the next call continues from it.
     """
+    packed = packed_at(address)
     table = packed.view(np.int64)
     fs, js = _f1(packed, table, _FSCALARS), _i1(table, _ISCALARS)
     grid, knots, lo, hi = _f1(packed, table, _GRID), _f1(packed, table, _KNOTS), _f1(packed, table, _SLO), _f1(packed, table, _SHI)
     x, xs, consts, y = _f1(packed, table, _SX), _f1(packed, table, _SXS), _f1(packed, table, _CONSTS), _f1(packed, table, _SY)
     out_y = _f2(packed, table, _OUT_Y)
-    kind, given = js[0], js[1]
+    kind, given, k0, stamp = js[0], js[1], js[2], js[3]
+    dp = _f2(packed, table, _SDP)
     if given >= 0:
         for j in range(x.size):
             x[j] = xs[j] if j < given else 0.0
@@ -446,6 +533,7 @@ def slip_tick(k0, stamp, packed, dp):
     fs[6] = sigma
     if drive == drive:
         dp[0, 0] = drive
+    js[2], js[3] = k0 + N, stamp + N * js[4]
     slipping = kind > STICKING
     last = grid.size - 2
     y0, y1, y2, y3, y4 = out_y[last, 0], out_y[last, 1], out_y[last, 2], out_y[last, 3], out_y[last, 4]
@@ -502,7 +590,7 @@ class SlipTickKernel:
         self.message = None
         self.N = 1
         self._built = -1  # how many phase steppers the engine had when its arrays were packed (see _pack)
-        self._args: tuple | None = None  # slip_tick's trailing arguments (None: the engine cannot compile)
+        self._packed: np.ndarray | None = None  # slip_tick's buffer (None: the engine cannot compile)
         self._pack(1)
 
     def _pack(self, N: int) -> None:
@@ -511,7 +599,7 @@ class SlipTickKernel:
         compiled = self.engine._compiled()
         self._built, self.N = len(self.engine._steppers), N
         if compiled is None:
-            self._args = None
+            self._packed = None
             return
         have, reals, ints, offsets, Yflex, Minv, (Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly) = compiled
         arrays = PackedArrays(
@@ -524,16 +612,23 @@ class SlipTickKernel:
                  events=np.zeros((MAX_SWITCHES + 1 + EVENTS, 8)),
                  consts=self.consts, y=self.y, msg=self._msg.view(np.float64),
                  fscalars=[-math.inf, math.inf, math.nan, math.nan, self.dt, self.limit, 0.0], shifted=lp,
-                 flex=np.zeros(4)),
+                 flex=np.zeros(4), dp=dp),
             dict(special=np.zeros(N, dtype=np.int64), out_mode=np.zeros(N, dtype=np.int64), ints=ints, offsets=offsets,
-                 have=have, uses=uses, dk=dk, lk=lk, iscalars=[0, 0]))  # fmt: skip
+                 have=have, uses=uses, dk=dk, lk=lk, iscalars=[0, 0, 0, 0, self.step_ns]))  # fmt: skip
         views = arrays.views
         self.y, self._x, self._xs, self.end_y = views["y"], views["x"], views["xs"], views["out_y"][-1]
         self.values = memoryview(self.y)
         self._fs, self._js, self._events = views["fscalars"], views["iscalars"], views["events"]
+        self._fcells, self._jcells = _cells(self._fs), _cells(self._js)
+        self._drive, self._drive_copy = _cells(dp), _cells(views["dp"])  # (the held torque's data, its copy)
         self.message = memoryview(views["msg"].view(np.uint8))[self._where]
-        self._args = (arrays.reals, dp)
-        load_compiled(slip_tick, (0, 0, *self._args))
+        self._packed, self._address = arrays.reals, arrays.address  # (the kernel's argument: the buffer's address)
+        load_compiled(slip_tick, (self._address,))
+
+    def drive_changed(self) -> None:
+        """The drive profile's data were written outside a tick (the held torque set): copied into the buffer."""
+        if self._packed is not None:
+            self._drive_copy[:] = self._drive
 
     def advance(self, state, k0: int, k1: int, lo: float = -math.inf, hi: float = math.inf, drive: float = math.nan,
                 stamp: int = 0) -> list | None:
@@ -547,16 +642,29 @@ class SlipTickKernel:
             if state is None:
                 state = self.state()
             self._pack(k1 - k0)
-        if self._args is None:
+        if self._packed is None:
             return None
+        js, fs = self._jcells, self._fcells
         if state is not None:  # else the usual tick: x holds the state the last call reached, iscalars its kind
-            self._js[:] = _kind_code(state), len(state.x)
+            js[0], js[1] = _kind_code(state), len(state.x)
             self._xs[: len(state.x)] = state.x
-            self._fs[3] = state.sigma if state.kind == "hybrid" else math.nan
-            self._fs[6] = state.sigma
+            fs[3] = state.sigma if state.kind == "hybrid" else math.nan
+            fs[6] = state.sigma
+        js[2], js[3] = k0, stamp
         if lo != -math.inf or hi != math.inf or drive == drive:
-            self._fs[:3] = lo, hi, drive
-        done = slip_tick(k0, stamp, *self._args)
+            fs[0], fs[1], fs[2] = lo, hi, drive
+        done = slip_tick(self._address)
+        if done > 0:
+            return None
+        if drive == drive:
+            self._drive[0] = drive  # (the kernel wrote its copy)
+        return () if done == 0 else _events(self._events[:-done])
+
+    def next(self) -> tuple | None:
+        """The tick after the last done one (:meth:`advance` or this): N grid steps on from the buffers' state, the
+        stamp N grid steps on, no clamps (the buffers hold all of it: nothing is written here); :meth:`advance`'s
+        answer."""
+        done = slip_tick(self._address)
         return () if done == 0 else None if done > 0 else _events(self._events[:-done])
 
     def state(self) -> SlipState:

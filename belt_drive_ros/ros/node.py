@@ -407,30 +407,41 @@ class BeltDriveNode(Node):
         """
         sim = self.sim
         fresh = sim.fresh(now_ns)  # the compiled tick's outputs and message, or None
-        v = sim.values(now_ns) if fresh is None else fresh.values.tolist()  # floats: TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
-        recorder = self.recorder
-        record = None
-        if fresh is not None and recorder is None and self._joint_only:
+        if fresh is not None and self.recorder is None and self._joint_only:
             # the usual tick: joint_states alone (or nothing), the bytes the compiled tick wrote
-            sends = [(self._send_joint, bytes(fresh.message))] if self._listening[0] else []
-            if len(v) > _N_TICK:
-                self.counters["published_slip"] += 1
-        else:
-            sends, record = self._sends(now_ns, v, recorder, self._listening)
+            v = fresh.values.tolist()  # floats: TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
+            # (tobytes: the same bytes as bytes(), ~3 us sooner on cold caches)
+            sends = [(self._send_joint, fresh.message.tobytes())] if self._listening[0] else []
+            if v[14] or v[15] or len(v) > _N_TICK:
+                self._count(v)
+            if not defer and sends:
+                self._send_joint(sends[0][1])
+            self._last = (v, now_ns, sim.origin_ns)
+            self.counters["published"] += 1
+            return sends if defer else None
+        v = sim.values(now_ns) if fresh is None else fresh.values.tolist()
+        recorder = self.recorder
+        sends, record = self._sends(now_ns, v, recorder, self._listening)
         if not defer:
             for publish, data in sends:
                 publish(data)
+        self._count(v)
+        if record is not None:
+            recorder.record_tick(*record[0], **record[1])
+        self._last = (v, now_ns, sim.origin_ns)
+        self.counters["published"] += 1
+        return sends if defer else None
+
+    def _count(self, v: list) -> None:
+        """Count a tick's slack and slip flags and, for the slipping model's outputs ``v``, the tick."""
+        if len(v) > _N_TICK:
+            self.counters["published_slip"] += 1
         if v[14]:  # slack
             self.stats.window.slack += 1
             self.counters["slack_ticks"] += 1
         if v[15]:  # slip
             self.stats.window.slip += 1
             self.counters["slip_ticks"] += 1
-        if record is not None:
-            recorder.record_tick(*record[0], **record[1])
-        self._last = (v, now_ns, sim.origin_ns)
-        self.counters["published"] += 1
-        return sends if defer else None
 
     def _sends(self, now_ns: int, v: list, recorder, listening) -> tuple[list, tuple | None]:
         """:meth:`_publish`'s ``(publish, data)`` calls of the tick's values ``v`` in order, every topic, and
@@ -453,8 +464,6 @@ class BeltDriveNode(Node):
             if listening[1]:
                 sends.append((self._pub_tf.publish, tf_cdr))
         slipping = len(v) > _N_TICK  # the slipping model's outputs
-        if slipping:
-            self.counters["published_slip"] += 1
         floats = None
         if recorder is not None or listening[2] or (slipping and listening[3]):
             floats = (v[1], v[9], v[10], v[11])  # shaft speed, load torque, belt torque, relative deflection

@@ -116,7 +116,10 @@ class NodeSimulation:
             self.hybrid = self._tick_kernel.state()
         self._tick_kernel = None  # the common tick compiled whole (core.tick), where the model allows it
         self._fresh_ns: int | None = None  # node time whose outputs the tick kernel holds (None: none)
+        self._plain_ns: int | None = None  # node time of the next plain tick (see advance_to), or None
         self._free_k = (0, -1)  # grid cells k with no plant breakpoint near steps k0 <= k < k1 (lo <= k0, k1 <= hi)
+        self._topic = s.drive_source == "topic"  # (the plain tick's sample: the latest message, unless a timeout
+        self._timed = self._topic and s.input_timeout_ns > 0  # rule applies: then DriveInput.sample)
         if s.model.name == "slipping":
             engine = SlippingSimulator(s.params, drive, s.scene.load, s.method, s.dt, s.method_options, check_stability=False)
             self._plant_breakpoints = tuple(engine.breakpoints)
@@ -145,12 +148,12 @@ class NodeSimulation:
         After a compiled tick the slipping tick kernel holds it in its buffers (no object per tick): it is built
         when asked for."""
         if self._live:
-            self._hybrid, self._live = self._tick_kernel.state(), False
+            self._hybrid, self._live, self._plain_ns = self._tick_kernel.state(), False, None
         return self._hybrid
 
     @hybrid.setter
     def hybrid(self, state) -> None:
-        self._hybrid, self._live = state, False
+        self._hybrid, self._live, self._plain_ns = state, False, None
 
     def _init_hybrid(self) -> None:
         """The hybrid state of ``x`` (slipping model; sliding at once if it starts beyond the limit)."""
@@ -244,7 +247,7 @@ class NodeSimulation:
         self.origin_ns = now_ns
         self.t_ns = now_ns
         self.x = s.scene.initial_state.vector(s.model.name, s.params.ratio)
-        self._fresh_ns = None
+        self._fresh_ns = self._plain_ns = None
         self.stepper.reset()
         self._init_hybrid()
         self.slip_events = []
@@ -254,7 +257,7 @@ class NodeSimulation:
     def stop(self) -> None:
         """Forget the time base: the next tick starts the run again (clock source changed)."""
         if self.t_ns is not None:
-            self.t_ns = None
+            self.t_ns = self._plain_ns = None
             self.counters["clock_jumps"] += 1
 
     def restart(self, why: str, now_ns: int | None = None) -> bool:
@@ -288,6 +291,8 @@ class NodeSimulation:
         held = self.drive.applied
         self._held_jump = None if first or value == held.value else t
         held.value = self._held = value
+        if self._tick_kernel is not None:  # (its copy of the held torque's data)
+            self._tick_kernel.drive_changed()
 
     def _drive_breakpoints(self, t0: float, t1: float, value: float | None) -> None:
         """The stepper's breakpoints for the advance t0 -> t1: the plant's, plus where the held torque jumps.
@@ -311,7 +316,39 @@ class NodeSimulation:
 
         The first call starts the run at ``now_ns``. A clock that went
         backwards restarts the run there (counted in ``clock_jumps``).
+
+        A *plain* tick is the usual one at 1 kHz: the tick after one the tick kernel took, as many grid steps
+        on, no held-torque jump at either end, no plant breakpoint near: the kernel's buffers hold all it needs
+        (:meth:`~belt_drive_ros.core.tick.TickKernel.next`), so it is the drive's sample and one compiled call.
         """
+        if now_ns == self._plain_ns:
+            value = None
+            if self._timed:
+                value, warning = self.drive.sample(now_ns, self.origin_ns, self.settings)
+                if warning:
+                    self.log.warn(warning)
+            elif self._topic:  # (DriveInput.sample without a timeout: stale was cleared by the tick before)
+                value = self.drive.latest
+            if value is None or value == self._held:
+                fast = self._tick_kernel
+                if self._live:  # the slipping belt (its events located in the kernel; a failure: the engine below)
+                    events = fast.next()
+                    if events is not None:
+                        if events:
+                            self._located(events)
+                        self.t_ns = self._fresh_ns = now_ns
+                        self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
+                        return True
+                elif fast.next() == OK:  # (else the general path below takes the same steps and raises as it does)
+                    self.t_ns = self._fresh_ns = now_ns
+                    self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
+                    return True
+            return self._advance(now_ns, (value,))
+        return self._advance(now_ns)
+
+    def _advance(self, now_ns: int, sampled: tuple | None = None) -> bool:
+        """:meth:`advance_to` but for a plain tick; ``sampled``: ``(value,)`` when the drive was sampled at ``now_ns``."""
+        self._plain_ns = None
         if self.t_ns is None:
             self.start(now_ns)
             return True
@@ -332,7 +369,9 @@ class NodeSimulation:
             t0, t1 = fast.origin + k0 * fast.dt, fast.origin + k1 * fast.dt
             s = self.settings
             value = None  # the sample at now_ns: known before the interval is integrated (_sample)
-            if s.drive_source == "topic":
+            if sampled is not None:
+                value = sampled[0]
+            elif s.drive_source == "topic":
                 value, warning = self.drive.sample(now_ns, origin, s)
                 if warning:
                     self.log.warn(warning)
@@ -355,10 +394,7 @@ class NodeSimulation:
                     if fast.step(self.x, k0, k1, lo, hi, drive, now_ns) == OK:  # else the general path below
                         # takes the same steps and raises as it does
                         self.x = fast.state  # the tick kernel's buffer, written again by the next tick
-                        self.t_ns = self._fresh_ns = now_ns
-                        self._held_jump = t1 if jump1 else None  # what _hold makes of the sample
-                        if jump1:
-                            self._held = value  # (the kernel wrote it into the held torque)
+                        self._ticked(now_ns, k1, k1 - k0, step, t1 if jump1 else None, value)
                         return True
                 else:  # the slipping belt, its events located in the kernel (a failure: the engine's path); the
                     # hybrid state stays in the kernel's buffers, x a view of them (written again by the next tick)
@@ -367,14 +403,11 @@ class NodeSimulation:
                         self._live, self.x = True, fast.end_y
                         if events:
                             self._located(events)
-                        self.t_ns = self._fresh_ns = now_ns
-                        self._held_jump = t1 if jump1 else None
-                        if jump1:
-                            self._held = value
+                        self._ticked(now_ns, k1, k1 - k0, step, t1 if jump1 else None, value)
                         return True
         else:
             t0, t1 = self.scene_time(self.t_ns), self.scene_time(now_ns)
-            value = self._sample(now_ns)  # needs no state: known before the interval is integrated
+            value = sampled[0] if sampled is not None else self._sample(now_ns)  # needs no state: known before
         self._fresh_ns = None
         self._drive_breakpoints(t0, t1, value)
         try:
@@ -399,6 +432,20 @@ class NodeSimulation:
         self._hold(value, t1)
         return True
 
+    def _ticked(self, now_ns: int, k1: int, steps: int, step_ns: int, jump: float | None, value) -> None:
+        """After the tick kernel took ``steps`` grid steps (``step_ns`` [ns] each) to grid index ``k1`` at ``now_ns``
+        (``jump``: the scene time there when the held torque jumped to ``value`` there, else None): the time, the
+        held torque, and whether the next ticks can be plain (no jump at their start, as many steps, each ending at
+        or before grid index ``hi`` of :meth:`_free`'s range: the plain ticks run to ``_plain_end``)."""
+        self.t_ns = self._fresh_ns = now_ns
+        self._held_jump = jump  # (what _hold makes of the sample)
+        if jump is not None:
+            self._held = value  # (the tick kernel wrote it into the held torque)
+            return
+        hi = self._free_k[1]
+        if k1 + steps <= hi:
+            self._plain_ns, self._plain_step = now_ns + steps * step_ns, steps * step_ns
+            self._plain_end = now_ns + (hi - k1 - steps) * step_ns  # the last tick whose next one ends at hi
     def _located(self, events) -> None:
         """Note a tick's stick/slip events (:class:`~belt_drive_ros.core.slip.Event`): the latest 64 kept."""
         self.slip_events.extend((e.kind, e.time, e.sigma) for e in events)
@@ -464,7 +511,7 @@ class NodeSimulation:
         """The CDR bytes of ``joint_states`` at ``now_ns`` when the compiled tick wrote them (its outputs
         are fresh), else None (the caller encodes :meth:`values`; the same bytes)."""
         if self._fresh_ns == now_ns:
-            return bytes(self._tick_kernel.message)
+            return self._tick_kernel.message.tobytes()
         return None
 
     def values(self, now_ns: int) -> list:
