@@ -40,12 +40,16 @@ PROFILES = [
     S.Engine(speed_setpoint=70.0, governor_gain=3.0, max_torque=50.0, ramp_time=0.3),
     S.MotorCurve(soft_start_time=0.5),
     S.MotorCurve(curve=((0.0, 60.0), (150.0, 60.0), (314.0, 28.0), (400.0, 0.0))),
+    S.MotorCurve(curve=((10.0, 40.0), (300.0, -5.0)), soft_start_time=0.3),
+    S.Table((0.3,), (2.0,)),
+    S.Table((0.0, 0.2, 0.5, 0.9), (1.0, -2.0, 3.0, 0.5)),
     S.Polynomial(1.0, 0.1, 0.01),
     S.Compressor(c1=0.1, ramp_time=0.2),
     S.Schedule(S.Compressor(), S.Constant(2.0), ((0.2, 0.4),)),
     S.Schedule(S.Compressor(), S.Constant(2.0), ((0.2, 0.4), (0.6, 0.9))),
     # past what the 2- and 4-state loops read into scalars (kernel.profile_scalars): through the dispatcher there
     S.Engine(harmonics=(15.0, 5.0, 2.0, 1.0), speed_setpoint=70.0),
+    S.MotorCurve(curve=((0.0, 60.0), (100.0, 55.0), (150.0, 60.0), (314.0, 28.0), (400.0, 0.0)), soft_start_time=0.4),
     S.Schedule(S.Compressor(harmonics=(3.0,)), S.Engine(), ((0.1, 0.2), (0.3, 0.4), (0.5, 0.8))),
 ]
 
@@ -62,6 +66,35 @@ def test_scalar_torque_equals_torque(profile):
         assert got == want
     ts, angles, speeds = (np.array(c) for c in zip(*points))
     assert np.array_equal(profile.torque(ts, angles, speeds), [f(*p) for p in points])
+
+
+@pytest.mark.parametrize("points", [1, 2, 3, 4, 5])
+@pytest.mark.parametrize("kind", ["motor", "table"])
+def test_a_few_points_from_scalars_equal_the_table_lookup(points, kind):
+    """A motor curve or linear table of up to four points is read into scalars (``kernel._points_interp``); every
+    sample over arrays equals the dispatcher's table lookup (``kernel._interp``) to the last bit: at each point,
+    one ulp either side, beyond both ends, at NaN and infinities. Five points: the table lookup itself."""
+    from belt_drive_ros.core import kernel
+
+    rng = np.random.default_rng(points)
+    for trial in range(20):
+        xs, ys = np.sort(rng.uniform(-50.0, 400.0, points)), rng.uniform(-80.0, 80.0, points)
+        if kind == "motor":
+            if points < 2:
+                continue
+            profile = S.MotorCurve(curve=tuple(zip(xs.tolist(), ys.tolist())), soft_start_time=(0.0, 1.5)[trial % 2])
+        else:
+            xs = np.sort(rng.uniform(0.0, 3.0, points))
+            profile = S.Table(tuple(xs.tolist()), tuple(ys.tolist()))
+        d = profile.data()
+        near = np.concatenate([xs, np.nextafter(xs, -np.inf), np.nextafter(xs, np.inf), [np.nan, np.inf, -np.inf, 0.0, -0.0]])
+        wide = np.concatenate([near, rng.uniform(-100.0, 450.0, 200)])
+        t = wide if kind == "table" else rng.uniform(-0.5, 3.5, wide.size)
+        speed = wide if kind == "motor" else rng.uniform(-100.0, 450.0, wide.size)
+        out = np.empty(wide.size)
+        kernel.profile_torque_array(d.kinds, d.params, d.tx, d.ty, t, np.zeros(wide.size), speed, out)
+        one = [kernel.profile_torque(d.kinds, d.params, d.tx, d.ty, float(a), 0.0, float(w)) for a, w in zip(t, speed)]
+        assert out.tobytes() == np.array(one).tobytes()
 
 
 def _sample_points():

@@ -173,18 +173,30 @@ class RigidSurvey:
             ends = {t for t in stops if t > 0.0 and not on_grid(t)} | {self.duration}
             ends |= {stepper.grid_time(k) for k in range(SURVEY_CHUNK, math.ceil(self.duration / rdt), SURVEY_CHUNK)}
             x, t, pending = np.array(self.motion), 0.0, [s for s in stops if s > 0.0]
+            held = []  # pieces whose speeds and belt torques are not read yet: one evaluation for up to a chunk's knots
+
+            def read(held):  # the largest |omega_M| and |belt torque| so far (a max is exact: the same floats in one go)
+                time, states = (held[0] if len(held) == 1 else
+                                (np.concatenate([h[0] for h in held]), np.concatenate([h[1] for h in held])))  # fmt: skip
+                held.clear()
+                return (max(w, float(np.max(np.abs(states[:, 1])))),
+                        max(peak, float(np.max(np.abs(model.belt_torque(states, plant.input_array(time, states)))))))  # fmt: skip
+
             for e in sorted(ends):
                 if e <= t:
                     continue
                 time, states = stepper.run(x, t, e)
-                w = max(w, float(np.max(np.abs(states[:, 1]))))
-                peak = max(peak, float(np.max(np.abs(model.belt_torque(states, plant.input_array(time, states))))))
+                held.append((time, states))
+                if sum(h[0].size for h in held) >= SURVEY_CHUNK:
+                    w, peak = read(held)
                 while pending and pending[0] <= e + snap_tolerance(e, rdt):  # its nearest knot (the first of two)
                     s = pending.pop(0)
                     j = min(max(int(time.searchsorted(s)), 1), time.size - 1)
                     k = j - 1 if abs(time[j - 1] - s) <= abs(time[j] - s) else j
                     self.states[s] = (float(states[k, 0]), float(states[k, 1]))
                 x, t = states[-1], e
+            if held:
+                w, peak = read(held)
             if self.duration <= 0:
                 peak = abs(self._start_torque)
             self._speeds = (w, w * self.params.ratio, peak)

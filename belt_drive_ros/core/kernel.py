@@ -40,6 +40,8 @@ _JIT = dict(cache=True, nogil=True)
 ROUNDING = 1e-9
 #: harmonic amplitudes an engine or compressor row may have to run from scalars (:func:`profile_scalars`)
 SCALAR_HARMONICS = 3
+#: points a motor curve or a linear table may have to run from scalars (:func:`profile_scalars`)
+SCALAR_POINTS = 4
 #: small helpers are inlined into their callers (no call; numba prunes the reference counts of the arrays one receives
 #: unless it passes them on to a call); each inlined copy is compiled again: the dispatcher and the loops are called
 _INLINE = dict(cache=True, nogil=True, inline="always")
@@ -243,9 +245,10 @@ def _engine_base(mode, mean, gain, setpoint, top, speed):
 
 
 @njit(**_INLINE)
-def _row_scalars(kinds, params, ty, row):
+def _row_scalars(kinds, params, tx, ty, row):
     """(whether row ``row`` evaluates from scalars alone, its kind, its first nine numbers, its harmonic
-    amplitudes): a formula row, or an engine or compressor of at most :data:`SCALAR_HARMONICS` harmonics."""
+    amplitudes, its points ``(x_0 .. x_3, y_0 .. y_3)``): a formula row, an engine or compressor of at most
+    :data:`SCALAR_HARMONICS` harmonics, or a motor curve or linear table of at most :data:`SCALAR_POINTS` points."""
     kind = kinds[row]
     p = (params[row, 0], params[row, 1], params[row, 2], params[row, 3], params[row, 4], params[row, 5],
          params[row, 6], params[row, 7], params[row, 8])  # fmt: skip
@@ -254,30 +257,54 @@ def _row_scalars(kinds, params, ty, row):
     harmonic = (kind == ENGINE or kind == COMPRESSOR) and count <= SCALAR_HARMONICS
     amplitudes = (ty[offset] if harmonic and count > 0 else 0.0, ty[offset + 1] if harmonic and count > 1 else 0.0,
                   ty[offset + 2] if harmonic and count > 2 else 0.0)  # fmt: skip
-    return is_formula(kind) or harmonic, kind, p, amplitudes
+    table = kind == MOTOR_CURVE or kind == TABLE_LINEAR
+    o, n = (int(params[row, 0]), int(params[row, 1])) if table else (0, 0)
+    few = table and 0 < n <= SCALAR_POINTS
+    points = (tx[o] if few else 0.0, tx[o + 1] if few and n > 1 else 0.0, tx[o + 2] if few and n > 2 else 0.0,
+              tx[o + 3] if few and n > 3 else 0.0, ty[o] if few else 0.0, ty[o + 1] if few and n > 1 else 0.0,
+              ty[o + 2] if few and n > 2 else 0.0, ty[o + 3] if few and n > 3 else 0.0)  # fmt: skip
+    return is_formula(kind) or harmonic or few, kind, p, amplitudes, points
 
 
 @njit(**_INLINE)
 def profile_scalars(kinds, params, tx, ty):
     """A profile as scalars for a loop that reads them once per call (:func:`scalar_torque`): (whether it fits,
-    the active part's kind, numbers and amplitudes, the inactive part's, the periods ``(s0, e0, s1, e1)``). Fits:
-    a row of :func:`_row_scalars`, or a schedule of at most two periods of two such rows (a profile that is not a
-    schedule is its own active part, always inside ``(-inf, inf)``)."""
-    fits, ka, pa, aa = _row_scalars(kinds, params, ty, 0)
-    ki, pi, ai = ka, pa, aa
+    the active part's kind, numbers, amplitudes and points, the inactive part's, the periods ``(s0, e0, s1, e1)``).
+    Fits: a row of :func:`_row_scalars`, or a schedule of at most two periods of two such rows (a profile that is
+    not a schedule is its own active part, always inside ``(-inf, inf)``)."""
+    fits, ka, pa, aa, qa = _row_scalars(kinds, params, tx, ty, 0)
+    ki, pi, ai, qi = ka, pa, aa, qa
     periods = (-math.inf, math.inf, 0.0, 0.0)
     if kinds[0] == SCHEDULE:
         offset, n, active, inactive = int(params[0, 0]), int(params[0, 1]), int(params[0, 2]), int(params[0, 3])
-        fits, ka, pa, aa = _row_scalars(kinds, params, ty, active)
-        fits_i, ki, pi, ai = _row_scalars(kinds, params, ty, inactive)
+        fits, ka, pa, aa, qa = _row_scalars(kinds, params, tx, ty, active)
+        fits_i, ki, pi, ai, qi = _row_scalars(kinds, params, tx, ty, inactive)
         fits = fits and fits_i and n <= 2
         periods = (tx[offset] if n > 0 else 0.0, ty[offset] if n > 0 else 0.0,
                    tx[offset + 1] if n > 1 else 0.0, ty[offset + 1] if n > 1 else 0.0)  # fmt: skip
-    return fits, ka, pa, aa, ki, pi, ai, periods
+    return fits, ka, pa, aa, qa, ki, pi, ai, qi, periods
 
 
 @njit(**_INLINE)
-def scalar_torque(kind, p, amplitudes, t, angle, speed):
+def _points_interp(x, q, n):
+    """:func:`_interp` of ``x`` on the ``n`` <= :data:`SCALAR_POINTS` points ``q = (x_0 .. x_3, y_0 .. y_3)``: the
+    same tests and the same segment (the last point at or below x), so the same floats."""
+    x0, x1, x2, x3, y0, y1, y2, y3 = q
+    if x <= x0:
+        return y0
+    if x >= (x0 if n == 1 else x1 if n == 2 else x2 if n == 3 else x3):
+        return y0 if n == 1 else y1 if n == 2 else y2 if n == 3 else y3
+    if x != x:
+        return x
+    if n > 2 and x >= x1:
+        if n > 3 and x >= x2:
+            return (y3 - y2) / (x3 - x2) * (x - x2) + y2
+        return (y2 - y1) / (x2 - x1) * (x - x1) + y1
+    return (y1 - y0) / (x1 - x0) * (x - x0) + y0
+
+
+@njit(**_INLINE)
+def scalar_torque(kind, p, amplitudes, points, t, angle, speed):
     """Torque [N m] of a row read by :func:`_row_scalars` (the same operations as :func:`torque`)."""
     if kind == ENGINE:
         base = _engine_base(p[0], p[1], p[2], p[3], p[4], speed)
@@ -287,6 +314,11 @@ def scalar_torque(kind, p, amplitudes, t, angle, speed):
         value, have = _affine_in_speed(p[0], p[1], speed)
         value, have = _harmonics(value, have, amplitudes, p[2] * angle + p[3])
         return _fade(value, t, p[4]) if p[4] > 0.0 else value
+    if kind == MOTOR_CURVE:
+        value = _points_interp(speed, points, int(p[1]))
+        return _fade(value, t, p[2]) if p[2] > 0.0 else value
+    if kind == TABLE_LINEAR:
+        return _points_interp(t, points, int(p[1]))
     return formula(kind, p[0], p[1], p[2], p[3], p[4], t, speed)
 
 
@@ -309,12 +341,12 @@ def profile_torque_array(kinds, params, tx, ty, t, angle, speed, out):
     """:func:`profile_torque` at each sample of the equal-length 1-D arrays ``t``, ``angle``, ``speed`` into ``out``:
     a profile that fits in scalars (:func:`profile_scalars`) read once per call, any other through this function's
     one inlined copy of :func:`torque` (a call per sample cost 15-39 ns)."""
-    fits, ka, pa, aa, ki, pi, ai, per = profile_scalars(kinds, params, tx, ty)
+    fits, ka, pa, aa, qa, ki, pi, ai, qi, per = profile_scalars(kinds, params, tx, ty)
     for i in range(t.size):
         ti = t[i]
         if fits:
-            k, p, a = (ka, pa, aa) if per[0] <= ti < per[1] or per[2] <= ti < per[3] else (ki, pi, ai)
-            out[i] = scalar_torque(k, p, a, ti, angle[i], speed[i])
+            k, p, a, q = (ka, pa, aa, qa) if per[0] <= ti < per[1] or per[2] <= ti < per[3] else (ki, pi, ai, qi)
+            out[i] = scalar_torque(k, p, a, q, ti, angle[i], speed[i])
         else:
             out[i] = torque(kinds, params, tx, ty, 0, ti, angle[i], speed[i])
 
@@ -611,7 +643,7 @@ def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk,
     and the earlier stages' torques in a small array ``U`` (rows summed in pairs over it, :func:`_stage_rows`): no
     store and reload on the critical path x -> omega_M -> torque -> x+. An angle no profile reads is not computed.
     A profile of one formula row (:func:`is_formula`) or that fits in scalars (:func:`profile_scalars`: engines,
-    compressors, schedules) is read once per call, so no array reaches inlined code and numba's reference counts
+    compressors, motor curves and linear tables of a few points, schedules) is read once per call, so no array reaches inlined code and numba's reference counts
     drop out of the step (paper's ``exact`` 33 -> 14 ns); any other through the dispatcher inlined (:func:`torque`).
     """
     x0, x1 = x[0], x[1]
@@ -628,8 +660,9 @@ def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk,
     dform, lform = is_formula(dkind), is_formula(lkind)
     d0, d1, d2, d3, d4 = dp[0, 0], dp[0, 1], dp[0, 2], dp[0, 3], dp[0, 4]
     l0, l1, l2, l3, l4 = lp[0, 0], lp[0, 1], lp[0, 2], lp[0, 3], lp[0, 4]
-    dfits, dka, dpa, daa, dki, dpi, dai, dper = profile_scalars(dk, dp, dx, dy)  # (engines, compressors, schedules)
-    lfits, lka, lpa, laa, lki, lpi, lai, lper = profile_scalars(lk, lp, lx, ly)
+    # (engines, compressors, small motor curves and tables, schedules of them)
+    dfits, dka, dpa, daa, dqa, dki, dpi, dai, dqi, dper = profile_scalars(dk, dp, dx, dy)
+    lfits, lka, lpa, laa, lqa, lki, lpi, lai, lqi, lper = profile_scalars(lk, lp, lx, ly)
     for k in range(steps):
         t = times[k]
         u0 = u1 = e0 = 0.0
@@ -657,15 +690,15 @@ def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk,
             if dform:
                 u0 = formula(dkind, d0, d1, d2, d3, d4, tc, c1)
             elif dfits:
-                kind, p, a = (dka, dpa, daa) if dper[0] <= tc < dper[1] or dper[2] <= tc < dper[3] else (dki, dpi, dai)
-                u0 = scalar_torque(kind, p, a, tc, c0, c1)
+                kind, p, a, q = (dka, dpa, daa, dqa) if dper[0] <= tc < dper[1] or dper[2] <= tc < dper[3] else (dki, dpi, dai, dqi)
+                u0 = scalar_torque(kind, p, a, q, tc, c0, c1)
             else:
                 u0 = torque(dk, dp, dx, dy, 0, tc, c0, c1)
             if lform:
                 u1 = formula(lkind, l0, l1, l2, l3, l4, tc, c3)
             elif lfits:
-                kind, p, a = (lka, lpa, laa) if lper[0] <= tc < lper[1] or lper[2] <= tc < lper[3] else (lki, lpi, lai)
-                u1 = scalar_torque(kind, p, a, tc, c2, c3)
+                kind, p, a, q = (lka, lpa, laa, lqa) if lper[0] <= tc < lper[1] or lper[2] <= tc < lper[3] else (lki, lpi, lai, lqi)
+                u1 = scalar_torque(kind, p, a, q, tc, c2, c3)
             else:
                 u1 = torque(lk, lp, lx, ly, 0, tc, c2, c3)
             e0 = _friction_force(extra[0], c1) if E else 0.0
