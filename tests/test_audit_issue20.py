@@ -2,8 +2,8 @@
 
 * **No stepping loop in Python.** A fixed-step run's Python work must not grow with its number of steps: the
   steps are the compiled loops' (``kernel.linear_steps``/``wheel_steps``, ``kernel_slip.hybrid_steps``, the
-  network loops). Each case runs twice at two durations of one step and counts the Python function calls of
-  the second run of each (``sys.setprofile``: every Python-level call, whatever module makes it); the count may
+  network loops). Each case runs at two durations with the same step, and the Python function calls of each
+  run are counted (its second call; ``sys.setprofile``: every Python-level call, whatever module makes it); the count may
   grow by a few calls per output window or event, never by one or more per step. A loop over steps in Python
   (``integrator.step``, ``stage_scheme.step``, one kernel call per step) costs 1-160 calls per step: scipy's
   adaptive methods, which the issue keeps as references stepped in Python, are the detector's positive control.
