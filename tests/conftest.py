@@ -17,6 +17,10 @@ from belt_drive_ros.ros.environment import (
 
 configure_environment(loopback=True)
 os.environ.setdefault("MPLBACKEND", "Agg")
+# when the suite started (the first process to read this file: pytest-xdist's workers inherit it): a kernel's
+# disk-cache entry written after it was compiled by a test, not by ``make install``
+# (test_audit_kernel.test_the_first_runs_after_install_compile_nothing)
+os.environ.setdefault("BELT_DRIVE_SUITE_START", repr(__import__("time").time()))
 
 import signal  # noqa: E402
 

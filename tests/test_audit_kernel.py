@@ -274,7 +274,7 @@ for name, module in list(sys.modules.items()):
             if isinstance(value, CPUDispatcher) and value.py_func.__module__ == name:
                 stats = value.stats
                 report[f"{name}.{attr}"] = [len(value.signatures), sum(stats.cache_misses.values()),
-                                            sum(stats.cache_hits.values())]
+                                            sum(stats.cache_hits.values()), value._cache._cache_file._index_path]
 print(json.dumps(report))
 """
 
@@ -297,6 +297,12 @@ def test_the_first_runs_after_install_compile_nothing(tmp_path):
                  "core.kernel_variants.variant_steps"):
         assert used.get(f"belt_drive_ros.{name}", [0, 0, 0])[2] >= 1, (name, used.get(f"belt_drive_ros.{name}"))
     assert {name: row for name, row in used.items() if row[0] != 1 or row[1] != 0} == {}
+    # ... and that cache entry is make install's, not one another test wrote while this one ran (pytest -n 2: the
+    # other worker starts at once; a kernel make install missed, compiled and saved there within the first
+    # seconds, was a cache hit here too). tests/conftest.py notes when the suite started.
+    start = float(os.environ["BELT_DRIVE_SUITE_START"])
+    late = {name: row[3] for name, row in used.items() if os.path.getmtime(row[3]) >= start}
+    assert late == {}, "cache entries written during this test session, not by make install: " + ", ".join(late)
     # the torque bag's run, re-simulated from its recording (the bag passed: it is not next to the recording;
     # before, sim ignored --torque-bag for a recording and refused it, the message saying to pass --torque-bag)
     from msg_tools.cli import main as msg_tools

@@ -354,6 +354,10 @@ def test_runtime_changes_apply_without_restart(ros_domain_id):
 
 def test_absurd_torque_is_rejected_and_reported(ros_domain_id):
     with BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0) as h:
+        # the windows are this test's alone: the node's 1 Hz wall-clock diagnostics timer, firing between the
+        # rejections and the check (a loaded machine: seen with pytest -n 2 at load ~10), closed the window with
+        # the rejections in it and the check read the next one ('OK' for 'WARN')
+        h.node._diag_timer.cancel()
         bound = h.node.settings.torque_bound  # derived from the paper scene
         assert 10.0 < bound < 1e4
         h.publish_torque(2.0)
