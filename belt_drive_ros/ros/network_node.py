@@ -45,6 +45,7 @@ import math
 import threading
 from dataclasses import dataclass
 
+from ..core.sources import TORQUE_MAX
 from . import environment as ros_env
 
 ros_env.configure_environment()
@@ -153,7 +154,8 @@ class NetworkSimulation:
         self.settings = settings
         self.layout = layout
         self.counters = counters
-        for key in ("restarts", "divergences", "clock_jumps", "received", "rejected_nonfinite", "ignored"):
+        for key in ("restarts", "divergences", "clock_jumps", "received", "rejected_nonfinite", "rejected_bound",
+                    "ignored"):
             counters.setdefault(key, 0)
         self.log = logger
         self.stepper = NetworkStepper(settings.scene, settings.method, settings.dt)
@@ -181,6 +183,9 @@ class NetworkSimulation:
         self.counters["received"] += 1
         if not math.isfinite(value):
             self.counters["rejected_nonfinite"] += 1
+            return False
+        if abs(value) > TORQUE_MAX:  # beyond a profile's plausible range (held, it diverged at every tick)
+            self.counters["rejected_bound"] += 1
             return False
         if pulley == self.settings.scene.driver and self.settings.drive_source == "scene":
             self.counters["ignored"] += 1
