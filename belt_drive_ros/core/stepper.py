@@ -736,9 +736,14 @@ class Stepper:
         return states, grid if grid is not None else self._grid(first, first + states.shape[0])
 
     def diverged_error(self, t: float, x: np.ndarray) -> SimulationDivergedError:
-        """The error a run raises when state ``x`` at ``t`` [s] is non-finite or too fast (one message for every caller)."""
+        """The error a run raises when state ``x`` at ``t`` [s] is non-finite or too fast (one message for every caller).
+        Its advice: another method where the method's step can be the cause; with an exponential method (exact on the
+        linear part at any step) the torques and parameters first."""
+        exponential = self.method in ("exact", "etd2", "etd4", "lawson5")
+        advice = "check the torques and parameters, or reduce dt" if exponential else \
+            "reduce dt or use method 'exact' or 'etd2'"
         return SimulationDivergedError(
             f"simulation diverged at t={t:.6g} s (model {self.plant.model.name}, method {self.method}, dt={self.dt:g} s): "
             f"state {np.array2string(np.asarray(x), precision=4)} is non-finite or beyond {SPEED_LIMIT:g} rad/s; "
-            f"reduce dt or use method 'exact' or 'etd2'"
+            f"{advice}"
         )
