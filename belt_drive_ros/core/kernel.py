@@ -407,6 +407,29 @@ def _inputs(buf, base, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, 
         buf[base + P + e] = _friction_force(extra[e], coords[1])
 
 
+@njit(**_INLINE)
+def _scalar_at(sc, tc, angle, speed):
+    """Torque [N m] of a profile read into scalars (``sc``: :func:`profile_scalars`, which fits) at ``tc``: its
+    active part inside a period, else its inactive one (:func:`scalar_torque`)."""
+    _, ka, pa, aa, ki, pi, ai, per = sc
+    if per[0] <= tc < per[1] or per[2] <= tc < per[3]:
+        return scalar_torque(ka, pa, aa, tc, angle, speed)
+    return scalar_torque(ki, pi, ai, tc, angle, speed)
+
+
+@njit(**_INLINE)
+def _pair_inputs(buf, base, coords, tc, uses, sd, sl, ak, ap, ax, ay, bk, bp, bx, by, extra):
+    """:func:`_inputs` of a two-wheel drive (P = 2, each profile its bank's from row 0) where the drive's or the load's
+    profile fits in scalars (``sd``, ``sl``: :func:`profile_scalars`, read once per call): that one evaluated from its
+    scalars (no array passed to a call, no reference counted), the other through :func:`profile_torque_at`."""
+    angle = coords[0] if uses[0] else 0.0
+    buf[base] = _scalar_at(sd, tc, angle, coords[1]) if sd[0] else profile_torque_at(ak, ap, ax, ay, 0, tc, angle, coords[1])
+    angle = coords[2] if uses[1] else 0.0
+    buf[base + 1] = _scalar_at(sl, tc, angle, coords[3]) if sl[0] else profile_torque_at(bk, bp, bx, by, 0, tc, angle, coords[3])
+    for e in range(extra.shape[0]):
+        buf[base + 2 + e] = _friction_force(extra[e], coords[1])
+
+
 @njit(**_JIT)
 def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
           uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra, guard):  # fmt: skip
@@ -462,6 +485,10 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
         formulas = formulas and is_formula(fk[p])
         for j in range(5):
             fp[p, j] = ap[start[p], j] if p == 0 else bp[start[p], j]
+    # a two-wheel drive (the drive's and the load's own data, from row 0): a profile that fits in scalars (engines,
+    # compressors, schedules of them) is read once per call, as :func:`_explicit` reads it (:func:`_pair_inputs`)
+    sd, sl = profile_scalars(ak, ap, ax, ay), profile_scalars(bk, bp, bx, by)
+    pair = not formulas and P == 2 and start[0] == 0 and start[1] == 0 and (sd[0] or sl[0])
     for r in range(n):
         xs[r] = x[r]
     n_explicit = s - 1 if max_iter > 0 else s
@@ -483,6 +510,8 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
             tc = lo if time < lo else hi if time > hi else time
             if formulas:
                 _formula_inputs(v, width, coords, tc, fk, fp, extra)
+            elif pair:
+                _pair_inputs(v, width, coords, tc, uses, sd, sl, ak, ap, ax, ay, bk, bp, bx, by, extra)
             else:
                 _inputs(v, width, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra)
         if final_base >= 0:
@@ -506,6 +535,8 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
                     prev[p] = v[known + p]
                 if formulas:
                     _formula_inputs(v, known, coords, tc, fk, fp, extra)
+                elif pair:
+                    _pair_inputs(v, known, coords, tc, uses, sd, sl, ak, ap, ax, ay, bk, bp, bx, by, extra)
                 else:
                     _inputs(v, known, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra)
                 same = True

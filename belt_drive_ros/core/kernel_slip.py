@@ -49,6 +49,8 @@ from .kernel import linear_steps, profile_torque
 from .profile_data import COMPRESSOR, DIVERGED, ENGINE, GUARDED, NOT_CONVERGED
 
 _JIT = dict(cache=True, nogil=True)
+#: the event step's small helpers (inputs, modal state, guard, switching, projection) are inlined into their callers:
+#: called out of line, each call counted the references of every array it was passed (a dozen per event step)
 _INLINE = dict(cache=True, nogil=True, inline="always")
 
 #: Taylor coefficients 1/(j+3)! and 1/(j+4)! (phi_3, phi_4 below |x| = 0.5, to below 1e-17 relative)
@@ -94,7 +96,7 @@ def _limit(c, omega):
     return max((c[2] - c[3] * v * v) * c[5], 0.0)
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _inputs(mode, sigma, t, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u):
     """u = [drive, load(, sigma Q_max)] at ``t`` (clipped at ``hi``) and state ``y`` into ``u``."""
     tc = t if t < hi else hi
@@ -127,7 +129,7 @@ def _phis(Z, R, M, tau, ph):
         ph[k, 0], ph[k, 1], ph[k, 2], ph[k, 3], ph[k, 4] = _phis4(Z[M, k, 0] * tau)
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _state(Z, R, M, m, y0, y4, w, u0, d1, d2, tau, ph, out):
     """The state at ``tau`` [s] from (phi_M = ``y0``, modal ``w``, s = ``y4``) with input ``u0 + d1 s + d2 s^2`` into ``out``
     (``ph``: :func:`_phis` at ``tau``)."""
@@ -152,7 +154,7 @@ def _state(Z, R, M, m, y0, y4, w, u0, d1, d2, tau, ph, out):
     out[0], out[1], out[2], out[3], out[4] = y0 + i0, z0, z1, z2, y4 + i4
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _project(c, mode, sigma, y):
     """c = 0 slip with a belt mass: the stretch follows sigma Q_max(omega_M) (the total deflection kept)."""
     if mode == SLIP and c[15] != 0.0:
@@ -204,7 +206,7 @@ def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, l
     _project(c, mode, sigma, out)
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def switching(c, mode, sigma, y):
     """> 0 once the mode must end: ``|Q| - Q_max`` sticking, ``-sigma s'`` slipping [N or m/s]."""
     if mode == STICK:
@@ -216,7 +218,7 @@ def switching(c, mode, sigma, y):
     return -sigma * rel
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _guard(tau, G, lam, nm, quad, absolute, bound):
     """(G, dG/dtau) of a guard on the modal flow: amplitudes ``G[k] = (row a0, a1, a2, speed s0, s1, s2)``."""
     t2 = tau * tau
