@@ -411,10 +411,10 @@ def _inputs(buf, base, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, 
 def _scalar_at(sc, tc, angle, speed):
     """Torque [N m] of a profile read into scalars (``sc``: :func:`profile_scalars`, which fits) at ``tc``: its
     active part inside a period, else its inactive one (:func:`scalar_torque`)."""
-    _, ka, pa, aa, ki, pi, ai, per = sc
+    _, ka, pa, aa, qa, ki, pi, ai, qi, per = sc
     if per[0] <= tc < per[1] or per[2] <= tc < per[3]:
-        return scalar_torque(ka, pa, aa, tc, angle, speed)
-    return scalar_torque(ki, pi, ai, tc, angle, speed)
+        return scalar_torque(ka, pa, aa, qa, tc, angle, speed)
+    return scalar_torque(ki, pi, ai, qi, tc, angle, speed)
 
 
 @njit(**_INLINE)
