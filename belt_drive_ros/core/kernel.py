@@ -422,10 +422,11 @@ def _pair_inputs(buf, base, coords, tc, uses, sd, sl, ak, ap, ax, ay, bk, bp, bx
     """:func:`_inputs` of a two-wheel drive (P = 2, each profile its bank's from row 0) where the drive's or the load's
     profile fits in scalars (``sd``, ``sl``: :func:`profile_scalars`, read once per call): that one evaluated from its
     scalars (no array passed to a call, no reference counted), the other through :func:`profile_torque_at`."""
+    row = np.int64(0)  # (not a literal 0: profile_torque_at keeps its one compiled signature)
     angle = coords[0] if uses[0] else 0.0
-    buf[base] = _scalar_at(sd, tc, angle, coords[1]) if sd[0] else profile_torque_at(ak, ap, ax, ay, 0, tc, angle, coords[1])
+    buf[base] = _scalar_at(sd, tc, angle, coords[1]) if sd[0] else profile_torque_at(ak, ap, ax, ay, row, tc, angle, coords[1])
     angle = coords[2] if uses[1] else 0.0
-    buf[base + 1] = _scalar_at(sl, tc, angle, coords[3]) if sl[0] else profile_torque_at(bk, bp, bx, by, 0, tc, angle, coords[3])
+    buf[base + 1] = _scalar_at(sl, tc, angle, coords[3]) if sl[0] else profile_torque_at(bk, bp, bx, by, row, tc, angle, coords[3])
     for e in range(extra.shape[0]):
         buf[base + 2 + e] = _friction_force(extra[e], coords[1])
 
