@@ -407,7 +407,7 @@ class Campaign:
             parts["top" if len(path) == 1 else path[0]][path[-1]] = value
         changes = {k: v for k, v in parts["top"].items()}
         if parts["params"]:
-            changes["params"] = self.base.params.replace(**parts["params"])
+            changes["params"] = self.base.params.replace(**parts["params"]).check_plausible()
         if parts["initial_state"]:
             changes["initial_state"] = dataclasses.replace(self.base.initial_state, **parts["initial_state"])
         for role in ("drive", "load"):
