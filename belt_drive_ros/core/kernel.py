@@ -431,6 +431,29 @@ def _pair_inputs(buf, base, coords, tc, uses, sd, sl, ak, ap, ax, ay, bk, bp, bx
         buf[base + 2 + e] = _friction_force(extra[e], coords[1])
 
 
+@njit(**_INLINE)
+def _free_part(F, n, known, v, free):
+    """``free[r] = sum_{j < known} F[0, r, j] v[j]``: x+ without the implicit stage, each row summed from the left
+    from its first product (``stage_scheme.step``'s ``free``: :func:`~belt_drive_ros.core.stage_scheme.affine`)."""
+    for r in range(n):
+        a = F[0, r, 0] * v[0]
+        for j in range(1, known):
+            a = a + F[0, r, j] * v[j]
+        free[r] = a
+
+
+@njit(**_INLINE)
+def _implicit_state(F, n, known, m, free, v, state):
+    """``state = free + G u`` with ``G = F[0, :, known:known + m]`` and ``u = v[known:known + m]``, ``G u`` summed from
+    the left from its first product, then added to ``free`` (``stage_scheme.step``'s ``free + affine(gain, u)``: the
+    same floats; a sweep costs n m products, not the whole final map's)."""
+    for r in range(n):
+        a = F[0, r, known] * v[known]
+        for q in range(1, m):
+            a = a + F[0, r, known + q] * v[known + q]
+        state[r] = free[r] + a
+
+
 @njit(**_JIT)
 def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
           uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra, guard):  # fmt: skip
@@ -451,8 +474,10 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
     offsets : (s,) ``c_i h`` [s]; a stage at ``c_i = 0`` samples at ``t`` itself.
     S : (s, max(2P, n), n + m s) the stage maps, zero-padded; F : (1, n, n + m s) the final map (m = P + E inputs).
     final_base : -1 (``x+ = F @ [x, U...]``) or the stage j whose state starts the final map.
-    tol, max_iter : the implicit last stage's fixed point (max_iter 0: explicit method); it also ends when the
-        torques alternate between two values :data:`ROUNDING` apart (stalled at rounding: no closer value exists).
+    tol, max_iter : the implicit last stage's fixed point (max_iter 0: explicit method) on all m inputs (the torques
+        and the extras), as :func:`~belt_drive_ros.core.stage_scheme.step` iterates it, with its sums
+        (``x+ = free + G u``: :func:`_implicit_state`); it also ends when the inputs alternate between two values
+        :data:`ROUNDING` apart (stalled at rounding: no closer value exists).
     uses : (P,) whether wheel p's profile reads its angle (else 0.0 is passed); start : (P,) its first row.
     ak, ap, ax, ay : profile 0's bank (kinds, params, tx, ty); bk, bp, bx, by : the other profiles' bank (the
         drive's and load's own data; or a network's stacked profiles, :func:`~belt_drive_ros.core.profile_data.stack`).
@@ -477,7 +502,8 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
     # each its own allocation: numba could not prune the reference counts of two views of one array in a helper
     v = np.zeros(cols)  # [x (or the base stage's state), U_0, ..., U_{s-1}]
     xs, state, coords = np.zeros(n), np.zeros(n), np.zeros(rows)  # coords: the wheels' angles and speeds
-    prev, back = np.zeros(P), np.zeros(P)  # the implicit stage's torques before an iteration, and two iterations back
+    prev, back = np.zeros(m), np.zeros(m)  # the implicit stage's inputs before an iteration, and two iterations back
+    free = np.zeros(n)  # x+ without the implicit stage's inputs (:func:`_implicit_state`)
     full = np.zeros(s * n)  # stage i's whole state at [i n, (i + 1) n) (a stage that starts the final map)
     fk, fp = np.zeros(P, dtype=np.int64), np.zeros((P, 5))  # wheel p's first row: its kind and first five numbers
     formulas = True  # every wheel's profile one formula row (:func:`_formula_inputs`)
@@ -520,20 +546,20 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
                 v[r] = full[final_base * n + r]
         if max_iter == 0:
             _rows(F, 0, n, cols, v, 0, state, 0)
-        else:  # x+ = F @ [.., u_last], u_last = u(t + h, x+) by fixed point from the previous stage's inputs
+        else:  # x+ = free + G u_last, u_last = u(t + h, x+) by fixed point from the previous stage's inputs
             known = n + m * (s - 1)
+            _free_part(F, n, known, v, free)
             for q in range(m):
                 v[known + q] = v[known - m + q]
-            for p in range(P):
-                back[p] = np.nan
+                back[q] = np.nan
             converged = False
             time = t if offsets[s - 1] == 0.0 else t + offsets[s - 1]
             tc = lo if time < lo else hi if time > hi else time
             for _ in range(max_iter):
-                _rows(F, 0, n, cols, v, 0, state, 0)
+                _implicit_state(F, n, known, m, free, v, state)
                 _rows(W, 0, rows, n, state, 0, coords, 0)
-                for p in range(P):
-                    prev[p] = v[known + p]
+                for q in range(m):
+                    prev[q] = v[known + q]
                 if formulas:
                     _formula_inputs(v, known, coords, tc, fk, fp, extra)
                 elif pair:
@@ -541,20 +567,20 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
                 else:
                     _inputs(v, known, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra)
                 same = True
-                cycle = True  # every torque back at its value two iterations ago, the two a rounding apart: stalled
-                for p in range(P):
-                    new = v[known + p]
-                    if not abs(new - prev[p]) <= tol * (1.0 + abs(new)):
+                cycle = True  # every input back at its value two iterations ago, the two a rounding apart: stalled
+                for q in range(m):  # the torques and the extra inputs (the slip force), as stage_scheme.step
+                    new = v[known + q]
+                    if not abs(new - prev[q]) <= tol * (1.0 + abs(new)):
                         same = False
-                    if not (new == back[p] and abs(new - prev[p]) <= ROUNDING * (1.0 + abs(new))):
+                    if not (new == back[q] and abs(new - prev[q]) <= ROUNDING * (1.0 + abs(new))):
                         cycle = False
-                    back[p] = prev[p]
+                    back[q] = prev[q]
                 if same or cycle:
                     converged = True
                     break
             if not converged:
                 return k, NOT_CONVERGED, t
-            _rows(F, 0, n, cols, v, 0, state, 0)
+            _implicit_state(F, n, known, m, free, v, state)
         healthy = True
         for r in range(n):
             xs[r] = state[r]

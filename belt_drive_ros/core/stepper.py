@@ -142,8 +142,9 @@ class Plant:
     def kernel_loop(self, integrator, guard=None):
         """The compiled loop (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`) of ``integrator`` for this plant, or None.
 
-        None for an adaptive method, a Python-only profile (a stepper refuses it), complex matrices or
-        an implicit method with extra inputs: those step through ``integrator.step``.
+        None for an adaptive method, a Python-only profile (a stepper refuses it) or complex matrices: those step
+        through ``integrator.step``. An implicit method's stage is solved in the loop with the extra inputs (the
+        slip force) among its fixed point's unknowns, as ``integrator.step`` solves it (the same floats).
         ``guard``: a :class:`~belt_drive_ros.core.stage_scheme.Guard` the loop checks after every step.
         """
         if not isinstance(integrator, FixedStepIntegrator) or None in self.data:
@@ -151,7 +152,7 @@ class Plant:
         from .kernel_loop import KernelLoop
 
         scheme = integrator.scheme
-        if (self.extra and scheme.implicit) or not KernelLoop.usable(scheme):
+        if not KernelLoop.usable(scheme):
             return None
         return KernelLoop(scheme, integrator.dt, self.wheel_map, self.uses_angle, *self.data, self.extra, guard)
 
