@@ -37,7 +37,7 @@ from pathlib import Path
 
 from ..core.errors import BeltDriveError, InputError
 from ..io.inputs import read_text
-from .metrics import GROUP_REDUCTION, METRICS, group_metrics, run_metrics, summary_metrics
+from .metrics import GROUP_REDUCTION, METRICS, group_values, run_metrics, summary_values
 from .spec import Campaign, CampaignError
 
 #: a task should compute at least this long [s] (Dask's per-task overhead is ~1 ms)
@@ -74,72 +74,88 @@ def run_batch(portable: dict, rows, recordings_dir: str | None = None):
     ``worst_rel_error``, ``worst_errors`` (JSON: signal -> worst absolute error).
     ``seconds`` is the batch's compute time (the same in every row).
     """
+    import numpy as np
     import pandas as pd
 
     start = time.perf_counter()
     campaign = _campaign(portable)
-    if isinstance(rows, pd.DataFrame):
-        rows = rows.to_dict("records")
-    scenes, built, out = [], [], []
-    for row in rows:
-        record = dict(row)
-        record.update(model="", ran="", single_reason="", error="")
-        record.update({name: math.nan for name in METRICS})
-        try:
-            scenes.append(campaign.scene_of(row))
-            built.append(record)
-        except Exception as exc:  # noqa: BLE001 - whatever a variant's values break, it is that variant's row
-            record.update(ran="none", error=f"{type(exc).__name__}: {' '.join(str(exc).split())[:400]}")
-        out.append(record)
+    frame = rows if isinstance(rows, pd.DataFrame) else pd.DataFrame(list(rows))
+    n = len(frame)
+    # the result's columns, filled by position (a column per field, not a dict per variant)
+    text = {name: np.full(n, "", dtype=object) for name in ("model", "ran", "single_reason", "error")}
+    values = {name: np.full(n, math.nan) for name in METRICS}
+    extra = [None] * n  # a fleet's comparison columns, per variant
+    scenes, built = [], []
+    for v, scene in enumerate(campaign.scenes_of(frame) if n else []):
+        if isinstance(scene, BaseException):  # whatever a variant's values break, it is that variant's row
+            text["ran"][v] = "none"
+            text["error"][v] = f"{type(scene).__name__}: {' '.join(str(scene).split())[:400]}"
+        else:
+            scenes.append(scene)
+            built.append(v)
     from .ensemble_run import GroupRun, GroupSummary, run_groups
 
     fleet = campaign.fleet_folder is not None and recordings_dir
     # without recordings to write, ensembles keep only the metrics' reductions over time (memory: one window)
     for item in run_groups(scenes, reduce=None if fleet else GROUP_REDUCTION):
         if isinstance(item, (GroupRun, GroupSummary)):  # an ensemble: metrics of all its variants at once
-            values = group_metrics(item) if isinstance(item, GroupRun) else summary_metrics(item.values, len(item))
-            for v, (i, row) in enumerate(zip(item.indices, values)):
-                record = built[i]
-                record.update(row, ran="ensemble", model=item.kind)
-                if fleet:
-                    _fleet_outputs(campaign, item.result(v), record, Path(recordings_dir))
+            rows_of = [built[i] for i in item.indices]
+            text["ran"][rows_of] = "ensemble"
+            text["model"][rows_of] = item.kind
+            reduced = group_values(item) if isinstance(item, GroupRun) else summary_values(item.values)
+            for name in METRICS:
+                values[name][rows_of] = reduced[name]
+            if fleet:
+                for w, v in enumerate(rows_of):
+                    extra[v] = _fleet_outputs(campaign, item.result(w), frame["recording"].iloc[v], Path(recordings_dir))
             continue
-        record = built[item.index]
-        record["ran"] = "ensemble" if item.ensemble else "single"
-        record["single_reason"] = item.single_reason or ""
+        v = built[item.index]
+        text["ran"][v] = "ensemble" if item.ensemble else "single"
+        text["single_reason"][v] = item.single_reason or ""
         if item.error:
-            record["error"] = item.error
+            text["error"][v] = item.error
             continue
         result = item.result
-        record["model"] = result.model
-        record.update(run_metrics(result))
+        text["model"][v] = result.model
+        for name, value in run_metrics(result).items():
+            values[name][v] = value
         if fleet:
-            _fleet_outputs(campaign, result, record, Path(recordings_dir))
-    seconds = time.perf_counter() - start
-    for record in out:
-        record["seconds"] = seconds
-    return pd.DataFrame(out)  # built here, on the worker: the client only writes it (and pickled as columns)
+            extra[v] = _fleet_outputs(campaign, result, frame["recording"].iloc[v], Path(recordings_dir))
+    columns = {name: frame[name].to_numpy() for name in frame.columns}
+    columns.update(text)
+    columns.update(values)
+    if any(e is not None for e in extra):  # "error" too when a golden is missing
+        for v, found in enumerate(extra):
+            for name, value in (found or {}).items():
+                if name == "error":
+                    text["error"][v] = value
+                    continue
+                if name not in columns:  # a list: the column's type as pandas reads the values
+                    columns[name] = [math.nan] * n
+                columns[name][v] = value
+    columns["seconds"] = np.full(n, time.perf_counter() - start)
+    return pd.DataFrame(columns)  # built here, on the worker: the client only writes it (and pickled as columns)
 
 
-def _fleet_outputs(campaign: Campaign, result, record: dict, recordings_dir: Path) -> None:
-    """Write the replayed run as MCAP; with goldens, compare (msg_tools.compare, the engine of ``msg-tools compare``)."""
+def _fleet_outputs(campaign: Campaign, result, name: str, recordings_dir: Path) -> dict:
+    """Write the replayed run as MCAP; with goldens, compare (msg_tools.compare, the engine of ``msg-tools compare``):
+    the comparison's columns of the variant's row (``error`` when its golden is missing)."""
     from msg_tools.compare import compare
 
     from ..io.recording import write_result_mcap
 
-    name = str(record["recording"])
+    name = str(name)
     path = recordings_dir / name
     write_result_mcap(result, path, force=True, start_time_ns=0)
     if campaign.golden_folder is None:
-        return
+        return {}
     golden = campaign.golden_folder / name
     if not golden.exists():
-        record.update(compare_passed=False, worst_signal="", worst_rel_error=math.inf, worst_errors="{}",
-                      error=f"no golden {golden}")
-        return
+        return dict(compare_passed=False, worst_signal="", worst_rel_error=math.inf, worst_errors="{}",
+                    error=f"no golden {golden}")
     report = compare(path, golden)
     worst = report.worst
-    record.update(
+    return dict(
         compare_passed=bool(report.passed),
         worst_signal=worst.name if worst else "",
         worst_rel_error=float(worst.worst_rel_error) if worst else math.nan,

@@ -70,14 +70,15 @@ def run_metrics(result) -> dict[str, float]:
     return {name: float(values[name]) for name in METRICS}
 
 
-def group_metrics(run) -> list[dict[str, float]]:
-    """:func:`run_metrics` of every variant of a :class:`~belt_drive_ros.campaign.ensemble_run.GroupRun` at once.
+def group_values(run) -> dict[str, np.ndarray]:
+    """:func:`run_metrics` of every variant of a :class:`~belt_drive_ros.campaign.ensemble_run.GroupRun` at once:
+    metric -> (V,) array, in the block's order.
 
     The same formulas as array reductions over the time axis of the (N+1, V)
-    signals (so each row equals :func:`run_metrics` of that variant's single
-    run bit for bit); one dict per variant, in the block's order.
+    signals (so element v equals :func:`run_metrics` of that variant's single
+    run bit for bit).
     """
-    return summary_metrics(_finish(_window(run)), len(run))
+    return summary_values(_finish(_window(run)))
 
 
 #: how the linear-run metrics of windows of one run combine (:class:`~belt_drive_ros.campaign.ensemble_run.Reductions`)
@@ -93,17 +94,16 @@ def _window(run) -> dict:
     return _reduce(belt, omega, run.output("span_force_slack"), run.output("relative_deflection"), run.friction_use())
 
 
-#: ``reduce`` of :func:`~belt_drive_ros.campaign.ensemble_run.run_groups` for the campaign metrics (then :func:`summary_metrics`)
+#: ``reduce`` of :func:`~belt_drive_ros.campaign.ensemble_run.run_groups` for the campaign metrics (then :func:`summary_values`)
 GROUP_REDUCTION = (WINDOW_KINDS, _window)
 
 
-def summary_metrics(values: dict, count: int | None = None) -> list[dict[str, float]]:
-    """One metrics dict per variant from reductions over whole runs (``GroupSummary.values`` of :data:`GROUP_REDUCTION`)."""
+def summary_values(values: dict) -> dict[str, np.ndarray]:
+    """Every metric, metric -> (V,) float array, from reductions over whole runs (``GroupSummary.values`` of
+    :data:`GROUP_REDUCTION`)."""
     if "slip_time" not in values:
         values = _finish(values)
-    columns = {name: np.asarray(values[name]).tolist() for name in METRICS}
-    count = len(columns[next(iter(METRICS))]) if count is None else count
-    return [{name: float(columns[name][v]) for name in METRICS} for v in range(count)]
+    return {name: np.asarray(values[name], dtype=float) for name in METRICS}
 
 
 def _reduce(belt, omega, slack_force, deflection, use) -> dict:

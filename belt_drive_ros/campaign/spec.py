@@ -50,7 +50,7 @@ from ..io.inputs import MAX_DEPTH, check_path, parse_yaml, read_text
 from .values import boolean, number, sequence
 from .values import mapping as as_mapping
 from .values import text as string
-from ..core.params import FIELD_DOCS
+from ..core.params import _LOWER, FIELD_DOCS, PLAUSIBLE_MAX, BeltDriveParams
 from ..core.scene import InitialState, Scene
 from ..io.scenes import load_scene, scene_from_mapping
 from ..core.sources import make_profile, profile_fields
@@ -419,6 +419,54 @@ class Campaign:
             return self.base.with_params(changes["params"])
         return dataclasses.replace(self.base, **changes) if changes else self.base
 
+    def scenes_of(self, rows) -> list:
+        """:meth:`scene_of` of every row of ``rows`` (a slice of :meth:`variants`, or row mappings): per row its scene,
+        or the exception :meth:`scene_of` raises for it (the same type and text).
+
+        A tolerance sweep (a table whose columns are ``variant`` and parameters as numbers) is checked column-wise
+        (:func:`valid_parameter_rows`, numpy over all rows at once): a row that passes gets its parameters without a
+        second check (:func:`_checked_params`), a row that fails goes through :meth:`scene_of`, which names what is
+        wrong. Other tables go row by row.
+        """
+        import pandas as pd
+
+        if isinstance(rows, pd.DataFrame):
+            found = self._parameter_scenes(rows)
+            if found is not None:
+                return found
+            rows = rows.to_dict("records")
+        return [_scene_or_error(self, row) for row in rows]
+
+    def _parameter_scenes(self, frame) -> list | None:
+        """:meth:`scenes_of` of a tolerance sweep's rows, column-wise (None: not such a table)."""
+        keys = [key for key in frame.columns if key != "variant"]
+        if self.fleet_folder is not None or not keys or len(frame) == 0:
+            return None
+        names = [key[len("params.") :] for key in keys]
+        if any(not key.startswith("params.") or key in self.decode or name not in FIELD_DOCS for key, name in zip(keys, names)):
+            return None
+        columns = {}
+        for key, name in zip(keys, names):
+            values = frame[key].to_numpy()
+            if values.dtype.kind not in "fi":  # (booleans, text: refused by the row's own check)
+                return None
+            columns[name] = values.astype(float)
+        fixed = self.base.params.field_values()
+        if not valid_parameter_rows({name: np.array([value]) for name, value in fixed.items()})[0]:
+            return None  # a base scene outside the plausible ranges: every row's own error
+        ok = valid_parameter_rows(columns).tolist()
+        records = frame.to_dict("records") if not all(ok) else None
+        values = zip(*(columns[name].tolist() for name in names))
+        out = []
+        for v, row in enumerate(values):
+            if ok[v]:
+                fields = dict(fixed)
+                fields.update(zip(names, row))
+                out.append(self.base.with_params(_checked_params(fields)))
+            else:
+                out.append(_scene_or_error(self, records[v]))
+        return out
+
     def digest(self) -> str:
         """Identity of the campaign: its file text, base scene and, for a fleet, the name, size and modification
         time of every recording and golden file. A resumed run must match it (a recording renamed, added,
@@ -427,7 +475,45 @@ class Campaign:
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
+def _scene_or_error(campaign: Campaign, row: Mapping):
+    """``campaign.scene_of(row)``, or the exception it raises (whatever a variant's values break is its row's)."""
+    try:
+        return campaign.scene_of(row)
+    except Exception as exc:  # noqa: BLE001 - reported as that variant's error
+        return exc
+
+
+def valid_parameter_rows(columns: Mapping) -> np.ndarray:
+    """(V,) bool: whether each row's parameters (``columns``: field -> (V,) float array, the fields not given taken as
+    valid) pass :class:`~belt_drive_ros.core.params.BeltDriveParams`' checks and ``check_plausible``: finite, > 0
+    for the positive fields and >= 0 for the others (its bound table), groove angle > 0, at most
+    :data:`~belt_drive_ros.core.params.PLAUSIBLE_MAX` (which holds the wrap angle's 2 pi and the groove angle's pi).
+    A row that fails is built by the constructor, whose error names the field (tests/test_campaign_columns.py:
+    the same verdict as the constructor on every field's edge values)."""
+    ok = None
+    with np.errstate(invalid="ignore"):
+        for name, values in columns.items():
+            low = _BOUNDS.get(name)
+            good = np.isfinite(values) & (values <= PLAUSIBLE_MAX[name])
+            if low == ">":
+                good &= values > 0.0
+            elif low == ">=":
+                good &= values >= 0.0
+            ok = good if ok is None else ok & good
+    return ok
+
+
+def _checked_params(fields: dict) -> BeltDriveParams:
+    """The parameters ``fields`` (every field, Python floats) that :func:`valid_parameter_rows` passed, built without
+    checking them a second time (``__post_init__`` would find nothing: ~8 us a variant)."""
+    params = object.__new__(BeltDriveParams)
+    params.__dict__.update(fields)
+    return params
+
+
 _PROFILES: dict = {}
+#: field -> its lower bound's relation to 0 (the constructor's table; the groove angle's (0, pi] is its own rule)
+_BOUNDS = dict(_LOWER, groove_angle=">")
 
 
 def _profile(spec: Mapping, role: str):
