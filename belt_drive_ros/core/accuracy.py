@@ -331,7 +331,8 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     j = int(np.searchsorted(time, t1 + dt, side="right"))  # the run's samples the reruns can meet (one past t1)
     run_t, run_out = time[i:j], [v[i:j] for v in signals]
     # the reruns stop at their last grid step before t1 unless the run has a sample at t1 (a partial step meets none)
-    at_t1 = np.any(np.abs(run_t - t1) <= 1e-9 * dt + 8.0 * np.spacing(abs(t1) + dt))
+    n = int(run_t.searchsorted(t1))  # |t - t1| is least at the samples either side of t1 (run_t is sorted)
+    at_t1 = bool(np.any(np.abs(run_t[max(n - 1, 0) : n + 1] - t1) <= 1e-9 * dt + 8.0 * np.spacing(abs(t1) + dt)))
     for h, factor in ((2.0 * dt, 1.0 / (2.0**order - 1.0)), (dt / 2.0, 2.0**order / (2.0**order - 1.0))):
         sim = SlippingSimulator(params, drive, load, method, h, method_options, check_stability=False, lazy=True)
         sim._hybrid = hybrid
