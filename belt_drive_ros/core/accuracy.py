@@ -45,7 +45,7 @@ import numpy as np
 # the guard's terms live beside this module (probe_scene importable from here)
 from .accuracy_probes import (
     ACCURACY_TOLERANCE, ALTERNATIVE_HALVINGS, ALTERNATIVES, MAX_HALVINGS, SUGGEST_MARGIN, WINDOW_STEPS, Probes,
-    _output_rows, linear_verdict, probe_scene,
+    _output_rows, linear_verdict, linear_verdicts, probe_scene,
 )  # fmt: skip
 from .accuracy_windows import forcing_error
 from .errors import IntegratorError, UnstableStepError
@@ -149,8 +149,8 @@ def check_accuracy(
         probes = probe_scene(plant, duration, x0, dt, stated_inputs)
     integrator = stepper.integrator if stepper is not None else make_integrator(method, A, B, dt, **dict(method_options or {}))
     worst, harmonic = None, 0.0  # worst: (stable, error, growth, exact growth, h omega, slopes) of a probe's loop
-    for K, slopes in probes.gains:
-        stable, error, growth, exact_growth, h_omega = linear_verdict(integrator, A, B, rows, K, n_steps)
+    verdicts = linear_verdicts(integrator, A, B, rows, [K for K, _ in probes.gains], n_steps)
+    for (K, slopes), (stable, error, growth, exact_growth, h_omega) in zip(probes.gains, verdicts):
         error *= probes.input_weight  # the scene's own steps onto the belt, not a unit step (input_weight)
         if worst is None or (not stable and worst[0]) or (stable == worst[0] and error > worst[1]):
             worst = (stable, error, growth, exact_growth, h_omega, slopes)
@@ -254,6 +254,7 @@ def check_slipping(
     rows[0, 2] = rows[1, 3] = 1.0  # omega_M, omega_3
     n_steps = max(1, math.ceil(duration / dt - 1e-9))
     worst = stick
+    gains = []  # (slopes, K) of each probe and slip direction, their verdicts made together (linear_verdicts)
     for K2, slopes in probes.gains:
         for sigma in (1.0, -1.0):
             K = np.zeros((3, 5))
@@ -261,11 +262,13 @@ def check_slipping(
             w = max(abs(float(plant.wheel_map[1] @ probes.x0)), *(abs(w_) for _, _, w_, _ in probes.windows), 1.0)
             d = 1e-6 * w
             K[2, 2] = sigma * (model.limit(w + d) - model.limit(w - d)) / (2.0 * d)
-            stable, error, growth, exact_growth, h_omega = linear_verdict(integrator, A, B, rows, K, n_steps)
-            report = AccuracyReport(cls.name, dt, stable, error <= tolerance, error, tolerance, growth, exact_growth,
-                                    h_omega, slopes, linear_error=error, mode="slip")  # fmt: skip
-            if (not report.stable and worst.stable) or (report.stable == worst.stable and report.error > worst.error):
-                worst = report
+            gains.append((slopes, K))
+    verdicts = linear_verdicts(integrator, A, B, rows, [K for _, K in gains], n_steps)
+    for (slopes, _), (stable, error, growth, exact_growth, h_omega) in zip(gains, verdicts):
+        report = AccuracyReport(cls.name, dt, stable, error <= tolerance, error, tolerance, growth, exact_growth,
+                                h_omega, slopes, linear_error=error, mode="slip")  # fmt: skip
+        if (not report.stable and worst.stable) or (report.stable == worst.stable and report.error > worst.error):
+            worst = report
     if suggest and not worst.ok:  # a step of this method that passes in both modes, else another method's
         for j in range(1, ALTERNATIVE_HALVINGS + 1):
             h = dt / 2.0**j
@@ -331,7 +334,8 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     j = int(np.searchsorted(time, t1 + dt, side="right"))  # the run's samples the reruns can meet (one past t1)
     run_t, run_out = time[i:j], [v[i:j] for v in signals]
     # the reruns stop at their last grid step before t1 unless the run has a sample at t1 (a partial step meets none)
-    at_t1 = np.any(np.abs(run_t - t1) <= 1e-9 * dt + 8.0 * np.spacing(abs(t1) + dt))
+    n = int(run_t.searchsorted(t1))  # |t - t1| is least at the samples either side of t1 (run_t is sorted)
+    at_t1 = bool(np.any(np.abs(run_t[max(n - 1, 0) : n + 1] - t1) <= 1e-9 * dt + 8.0 * np.spacing(abs(t1) + dt)))
     for h, factor in ((2.0 * dt, 1.0 / (2.0**order - 1.0)), (dt / 2.0, 2.0**order / (2.0**order - 1.0))):
         sim = SlippingSimulator(params, drive, load, method, h, method_options, check_stability=False, lazy=True)
         sim._hybrid = hybrid

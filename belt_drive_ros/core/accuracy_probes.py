@@ -428,12 +428,13 @@ def closed_loop_maps(integrator, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 
 def exact_maps(A_cl: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """(E, F): the exact step of x' = A_cl x + B u_0 with constant u_0 (augmented matrix exponential)."""
+    """(E, F): the exact step of x' = A_cl x + B u_0 with constant u_0 (augmented matrix exponential). ``A_cl`` may be
+    a stack (..., n, n): ``scipy.linalg.expm`` takes its matrices one by one, each as alone."""
     n, m = B.shape
-    aug = np.zeros((n + m, n + m))
-    aug[:n, :n], aug[:n, n:] = A_cl, B
+    aug = np.zeros(A_cl.shape[:-2] + (n + m, n + m))
+    aug[..., :n, :n], aug[..., :n, n:] = A_cl, B
     expo = scipy.linalg.expm(aug * h)
-    return expo[:n, :n], expo[:n, n:]
+    return expo[..., :n, :n], expo[..., :n, n:]
 
 
 def step_response_error(M, G, E, F, rows: np.ndarray, n_steps: int) -> float:
@@ -450,7 +451,11 @@ def step_response_error(M, G, E, F, rows: np.ndarray, n_steps: int) -> float:
     err, peak = orbit_error(Ma, Ea, n, rows, n_steps)
     if not np.all(np.isfinite(err)):
         return math.inf
-    # a unit input that does not move an output at all (peak 0) carries no error either
+    return _relative(err, peak)
+
+
+def _relative(err: np.ndarray, peak: np.ndarray) -> float:
+    """max of ``err / peak`` (a unit input that does not move an output at all, peak 0, carries no error either)."""
     return float(np.max(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0)))
 
 
@@ -482,29 +487,57 @@ def linear_verdict(integrator, A, B, rows, K, n_steps: int) -> tuple:
 
     The key is every number the verdict depends on (matrices, method and its
     options through the integrator's one-step map, step, gains, horizon), so a
-    hit is the same computation.
+    hit is the same computation. :func:`linear_verdicts` for one gain.
     """
+    return linear_verdicts(integrator, A, B, rows, (K,), n_steps)[0]
+
+
+def linear_verdicts(integrator, A, B, rows, Ks, n_steps: int) -> list:
+    """:func:`linear_verdict` of each gain of ``Ks`` on one integrator, the gains not cached yet made together:
+    their exact maps one stacked exponential (:func:`exact_maps`), their closed loops' eigenvalues one stacked call
+    and their step responses one :func:`~belt_drive_ros.core.forced_response.orbit_error` call with the gains on a
+    leading axis. Each is computed matrix by matrix with the same operations as alone (the same floats; a
+    non-finite orbit among them: each gain's alone, as :func:`step_response_error` does)."""
     dt = integrator.dt
-    key = (integrator.name, dt, A.tobytes(), B.tobytes(), rows.tobytes(), K.tobytes(), n_steps,
-           repr(sorted(getattr(integrator, "options", {}).items())))  # fmt: skip
-    hit = _LINEAR_CACHE.get(key)
-    if hit is not None:
-        return hit
-    A_cl = A + B @ K
-    E, F = exact_maps(A_cl, B, dt)
-    try:
-        M, G = closed_loop_maps(integrator, K)
-    except IntegratorError:
-        M, G = np.full_like(E, np.inf), np.full_like(F, np.inf)
-    growth = spectral_radius(M) if np.all(np.isfinite(M)) else math.inf
-    exact_growth = spectral_radius(E)
-    stable = growth <= max(1.0, exact_growth) * (1.0 + GROWTH_TOLERANCE) + 1e-15
-    error = step_response_error(M, G, E, F, rows, n_steps) if stable else math.inf
-    verdict = (stable, error, growth, exact_growth, dt * float(np.max(np.abs(closed_loop_eigenvalues(A, B, K)))))
-    if len(_LINEAR_CACHE) >= _LINEAR_CACHE_SIZE:
-        _LINEAR_CACHE.pop(next(iter(_LINEAR_CACHE)))
-    _LINEAR_CACHE[key] = verdict
-    return verdict
+    common = (integrator.name, dt, A.tobytes(), B.tobytes(), rows.tobytes())
+    options = repr(sorted(getattr(integrator, "options", {}).items()))
+    keys = [(*common, K.tobytes(), n_steps, options) for K in Ks]
+    found, todo = {}, {}  # key -> its verdict; key -> its first gain not cached
+    for key, K in zip(keys, Ks):
+        hit = _LINEAR_CACHE.get(key)
+        if hit is not None:
+            found[key] = hit
+        elif key not in todo:
+            todo[key] = K
+    if todo:
+        gains = list(todo.values())
+        A_cl = np.stack([A + B @ K for K in gains])
+        E, F = exact_maps(A_cl, B, dt)
+        lams = _eigenvalues(A, B, gains, A_cl)
+        parts = []  # (stable, M, G, growth, exact growth) per gain
+        for j, K in enumerate(gains):
+            try:
+                M, G = closed_loop_maps(integrator, K)
+            except IntegratorError:
+                M, G = np.full_like(E[j], np.inf), np.full_like(F[j], np.inf)
+            growth = spectral_radius(M) if np.all(np.isfinite(M)) else math.inf
+            exact_growth = spectral_radius(E[j])
+            parts.append((growth <= max(1.0, exact_growth) * (1.0 + GROWTH_TOLERANCE) + 1e-15, M, G, growth, exact_growth))
+        stepped = [j for j, part in enumerate(parts) if part[0]]
+        errors = {}
+        if len(stepped) > 1:
+            err, peak = orbit_error(np.stack([_augmented(parts[j][1], parts[j][2]) for j in stepped]),
+                                    np.stack([_augmented(E[j], F[j]) for j in stepped]), A.shape[0], rows, n_steps)  # fmt: skip
+            if np.all(np.isfinite(err)):
+                errors = {j: _relative(err[i], peak[i]) for i, j in enumerate(stepped)}
+        for j, key in enumerate(todo):
+            stable, M, G, growth, exact_growth = parts[j]
+            error = (errors[j] if j in errors else step_response_error(M, G, E[j], F[j], rows, n_steps)) if stable else math.inf
+            found[key] = (stable, error, growth, exact_growth, dt * float(np.max(np.abs(lams[j]))))
+            if len(_LINEAR_CACHE) >= _LINEAR_CACHE_SIZE:
+                _LINEAR_CACHE.pop(next(iter(_LINEAR_CACHE)), None)
+            _LINEAR_CACHE[key] = found[key]
+    return [found[key] for key in keys]
 
 
 #: eigenvalues of closed loops ``A + B K`` already computed, by the matrices' bytes
@@ -513,9 +546,21 @@ _EIGENVALUES: dict = {}
 
 def closed_loop_eigenvalues(A, B, K) -> np.ndarray:
     """Eigenvalues of ``A + B K`` [1/s], computed once per matrices (the same numbers, the same values; read-only)."""
-    key = (A.tobytes(), B.tobytes(), K.tobytes(), A.shape, K.shape)
-    if key not in _EIGENVALUES:
-        if len(_EIGENVALUES) >= _LINEAR_CACHE_SIZE:
-            _EIGENVALUES.pop(next(iter(_EIGENVALUES)), None)
-        _EIGENVALUES[key] = np.linalg.eigvals(A + B @ K)
-    return _EIGENVALUES[key]
+    return _eigenvalues(A, B, (K,))[0]
+
+
+def _eigenvalues(A, B, Ks, A_cl=None) -> list:
+    """:func:`closed_loop_eigenvalues` of each gain of ``Ks`` (``A_cl``: their ``A + B K`` stacked, when made), the
+    ones not kept yet one stacked ``eigvals`` call (LAPACK's routine matrix by matrix: each as alone)."""
+    keys = [(A.tobytes(), B.tobytes(), K.tobytes(), A.shape, K.shape) for K in Ks]
+    found = [_EIGENVALUES.get(key) for key in keys]
+    new = [j for j, lams in enumerate(found) if lams is None]
+    if new:
+        stack = A_cl[new] if A_cl is not None else np.stack([A + B @ Ks[j] for j in new])
+        for j, lams in zip(new, np.linalg.eigvals(stack)):
+            # real when all of its own are (eigvals of a stack is complex when any matrix's is): as alone
+            found[j] = lams.real.copy() if np.iscomplexobj(lams) and not np.any(lams.imag) else lams.copy()
+            if len(_EIGENVALUES) >= _LINEAR_CACHE_SIZE:
+                _EIGENVALUES.pop(next(iter(_EIGENVALUES)), None)
+            _EIGENVALUES[keys[j]] = found[j]
+    return found

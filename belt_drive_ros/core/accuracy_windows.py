@@ -122,15 +122,16 @@ def _phase_drift(plant, xc, xf, tf, yf, factor: float, duration: float) -> np.nd
     """
     W = plant.wheel_map
     span = float(tf[-1] - tf[0])
-    rate = np.max(np.abs(np.diff(yf, axis=0)) / np.diff(tf)[:, None], axis=0)
+    rate = (np.abs(np.diff(yf, axis=0)) / np.diff(tf)[:, None]).max(axis=0)
     worst = np.zeros_like(rate)
     half = max(1, tf.size // 2)
+    gap = xc - xf
     for row_phi, row_w in ((W[0], W[1]), (W[2], W[3])):
-        w = float(np.max(np.abs(xf @ row_w)))  # the window's top speed: a wheel rocking about rest barely turns
+        w = float(np.abs(xf @ row_w).max())  # the window's top speed: a wheel rocking about rest barely turns
         if not w > 1e-9:
             continue
-        shift = factor * np.abs((xc - xf) @ row_phi) / w
-        first, whole = float(np.max(shift[: half + 1])), float(np.max(shift))
+        shift = factor * np.abs(gap @ row_phi) / w
+        first, whole = float(shift[: half + 1].max()), float(shift.max())
         g = 1.0 if first <= 0.0 else min(1.0, max(0.0, math.log2(max(whole / first, 1.0))))
         worst = np.maximum(worst, rate * whole * max(1.0, duration / span) ** g)
     return worst

@@ -381,11 +381,12 @@ def _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accu
     a streamed window's, else the run's; ``totals``: a streamed window's running energy, :func:`_energy`)."""
     m = sim.model
     u = sim.input_array(time, states)
+    parts = m.force_parts(states, modes, sigmas)  # (Q_max, Q, s'): made once for the energy terms and outputs
     work, keep = _energy(totals, time, {"input_work": m.input_power(states, u),
-                                        "dissipated": m.damping_power(states, modes, sigmas),
-                                        "friction": m.friction_power(states, modes, sigmas)})  # fmt: skip
+                                        "dissipated": m.damping_power(states, modes, sigmas, parts),
+                                        "friction": m.friction_power(states, modes, sigmas, parts)})  # fmt: skip
     time, states, u, modes, sigmas = time[keep], states[keep], u[keep], modes[keep], sigmas[keep]
-    outputs = m.outputs(states, u, modes, sigmas)
+    outputs = m.outputs(states, u, modes, sigmas, tuple(v[keep] for v in parts))
     events = sim.events if events is None else events
     if accuracy is not None and totals is None:  # the slipping run itself, rerun over its slipping stretch (what the
         # modes alone miss; a streamed run's guard has the modes only)

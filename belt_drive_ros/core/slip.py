@@ -194,11 +194,20 @@ class SlippingBeltModel:
         stick = q[1] * y[..., 1] + q[2] * y[..., 2] + q[3] * y[..., 3]
         return _where(mode == SLIP, sigma * (self.limit(y[..., 2]) if qmax is None else qmax), stick)
 
-    def outputs(self, y, u, mode, sigma) -> dict:
+    def force_parts(self, y, mode, sigma) -> tuple:
+        """``(Q_max, Q, s')`` of samples ``y`` (N, 5): :meth:`limit` of their drive speed, :meth:`force` and
+        :meth:`slip_speed` at that force (its slip-mode formula at every sample), made once for
+        :meth:`outputs`, :meth:`damping_power` and :meth:`friction_power` of the same samples (``parts``)."""
+        qmax = self.limit(y[..., 2])
+        Q = self.force(y, mode, sigma, qmax)
+        return qmax, Q, self.slip_speed(y, Q)
+
+    def outputs(self, y, u, mode, sigma, parts=None) -> dict:
         """Output signals of samples ``y`` (N, 5), ``u`` (N, 2), ``mode``, ``sigma`` (N,).
 
         The keys of ``model.OUTPUT_UNITS`` (``slip`` is the slip *mode*,
-        ``slack`` a slack span) plus :data:`SLIP_OUTPUT_UNITS`.
+        ``slack`` a slack span) plus :data:`SLIP_OUTPUT_UNITS`. ``parts``: :meth:`force_parts` of these samples
+        when made (the same floats).
         """
         p = self.params
         y, u = np.asarray(y, dtype=float), np.asarray(u, dtype=float)
@@ -207,9 +216,8 @@ class SlippingBeltModel:
         else:
             mode = np.asarray(mode)
         phi_M, theta_e, omega_M, omega_3, s = y[..., 0], y[..., 1], y[..., 2], y[..., 3], y[..., 4]  # read once
-        qmax = self.limit(omega_M)
-        Q = self.force(y, mode, sigma, qmax)
-        speed = _where(mode == SLIP, self.slip_speed(y, Q), 0.0)
+        qmax, Q, sdot = self.force_parts(y, mode, sigma) if parts is None else parts
+        speed = _where(mode == SLIP, sdot, 0.0)
         a1, g, r_3 = p.r_M / p.R_1, p.gear_ratio, p.r_3
         slack_force = p.F_0 - 0.5 * Q
         tight = p.F_0 + 0.5 * Q
@@ -254,18 +262,19 @@ class SlippingBeltModel:
         """P_in = M_drive omega_M - M_load omega_3 [W]."""
         return u[..., 0] * y[..., 2] - u[..., 1] * y[..., 3]
 
-    def damping_power(self, y, mode, sigma):
-        """Bearing and span damping losses b_f omega_M^2 + b_3 omega_3^2 + 2 c delta'^2 [W]."""
+    def damping_power(self, y, mode, sigma, parts=None):
+        """Bearing and span damping losses b_f omega_M^2 + b_3 omega_3^2 + 2 c delta'^2 [W] (``parts``: see
+        :meth:`outputs`)."""
         p = self.params
-        Q = self.force(y, mode, sigma)
+        _, Q, sdot = self.force_parts(y, mode, sigma) if parts is None else parts
         rel = y @ self.rel_row
-        ddelta = np.where(np.asarray(mode) == SLIP, rel - self.slip_speed(y, Q), rel)
+        ddelta = np.where(np.asarray(mode) == SLIP, rel - sdot, rel)
         return p.bearing_damping_drive_side * y[..., 2] ** 2 + p.b_3 * y[..., 3] ** 2 + 2.0 * p.c * ddelta**2
 
-    def friction_power(self, y, mode, sigma):
-        """Friction loss Q s' = Q_max |s'| while slipping [W]."""
-        Q = self.force(y, mode, sigma)
-        return np.where(np.asarray(mode) == SLIP, Q * self.slip_speed(y, Q), 0.0)
+    def friction_power(self, y, mode, sigma, parts=None):
+        """Friction loss Q s' = Q_max |s'| while slipping [W] (``parts``: see :meth:`outputs`)."""
+        _, Q, sdot = self.force_parts(y, mode, sigma) if parts is None else parts
+        return np.where(np.asarray(mode) == SLIP, Q * sdot, 0.0)
 
 
 class _Sample:
