@@ -35,57 +35,76 @@ def tick_threads() -> list[threading.Thread]:
     return [t for t in threading.enumerate() if t.name == "belt_drive_tick" and t.is_alive()]
 
 
+def _watch_gaps(node) -> list:
+    """Every tick gap the node reports from now on (handed on to its recorder as before)."""
+    reported = []
+    record = node.timing.gaps.on_gap
+    node.timing.gaps.on_gap = lambda gap: (reported.append(gap), record and record(gap))
+    return reported
+
+
+def _published_over(h, node, hold_s: float, after_ns: int):
+    """Hold the node's lock for ``hold_s`` (as a long callback would), then let it run ``after_ns`` past the
+    hold's start. Returns the ticks integrated, the joint_states published and the ticks counted missed (the
+    gaps it integrated over in one go) over that stretch, all counted by the node under its lock, and the
+    hold's start [ns on the run's grid].
+
+    Counted at the node, not at the probe: on a machine loaded far past its cores the probe's executor can
+    fall behind and DDS's keep-last history then drops samples on their way to it, which says nothing about
+    what the node published. At each end one tick may be computed (``tick_lead`` ahead) but not yet sent."""
+    with node.timing.lock:
+        held_from, published_from = node.integrated_ns, node.counters["published"]
+        missed_from, gaps_from = node.counters["ticks_missed"], node.counters["tick_gaps"]
+        time.sleep(hold_s)
+    h._spin_until(lambda: node.integrated_ns >= held_from + after_ns, "ticks after the hold")
+    with node.timing.lock:
+        node.timing.gaps.flush()  # short gaps are handed on together: hand them on now
+        ticks = (node.integrated_ns - held_from) // TICK_NS
+        published = node.counters["published"] - published_from
+        missed = node.counters["ticks_missed"] - missed_from
+        gaps = node.counters["tick_gaps"] - gaps_from
+    # the tick thread jumps only beyond the catch-up limit: each of its gaps misses that many ticks at least
+    assert missed >= gaps * (MAX_THREAD_CATCH_UP_NS // TICK_NS - 1), (gaps, missed)
+    return ticks, published, missed, held_from
+
+
 def test_a_late_wake_publishes_every_missed_tick(ros_domain_id):
     """The thread is kept from ticking for 20 ms (the node's lock held, as a long callback would):
     afterwards the 20 missed ticks come out one by one, each on the grid; nothing is skipped."""
     with BeltDriveHarness(use_sim_time=False, timeout=WALL_TIMEOUT_S, domain_id=ros_domain_id, input_timeout=0.0) as h:
         node = h.node
-        reported = []  # every gap the node reports from its start (handed on to its recorder as before): a loaded
-        record = node.timing.gaps.on_gap  # machine can stall the thread before the hold below, too
-        node.timing.gaps.on_gap = lambda gap: (reported.append(gap), record and record(gap))
+        reported = _watch_gaps(node)  # a loaded machine can stall the thread before the hold below, too
         h._spin_until(lambda: len(h._rows) >= 20, "20 ticks")
         assert node.timing.threaded() and node.timing.time_base() == "system"
-        with node.timing.lock:
-            held_from = node.integrated_ns
-            time.sleep(0.02)
-        h._spin_until(lambda: len(h._rows) and h._rows[-1][0] >= held_from + 60 * TICK_NS, "60 ticks after the stall")
+        ticks, published, missed, held_from = _published_over(h, node, 0.02, 60 * TICK_NS)
+        assert ticks >= 60
+        # A machine loaded far past its cores (load 10-12 on 2 cores) can keep the thread from the lock for
+        # longer than the catch-up limit: then, and only then, it integrates to the latest tick in one go and
+        # reports a gap of the ticks it did not publish. Every tick not reported missed is published, and a
+        # gap is only ever taken beyond the limit (checked in _published_over): a thread that skipped the 20
+        # held ticks fails there.
+        assert abs(published - (ticks - missed)) <= 1, (ticks, published, reported)
         s = stamps(h)
-        window = s[(s >= held_from - 5 * TICK_NS) & (s <= held_from + 60 * TICK_NS)]
-        assert np.all((s - node.origin_ns) % TICK_NS == 0)
-        if window.size != 66:
-            # A machine loaded far past its cores can keep the thread from the lock for longer than
-            # the catch-up limit (seen at load 10-12 on 2 cores, several times in one window): then,
-            # and only then, it integrates to the latest tick in one go and reports a gap. Every tick
-            # missing from the window must lie inside a reported gap that exceeds the catch-up limit.
-            with node.timing.lock:
-                node.timing.gaps.flush()  # short gaps are handed on together: hand them on now
-            grid = np.arange(held_from - 5 * TICK_NS, held_from + 61 * TICK_NS, TICK_NS)
-            missing = np.setdiff1d(grid, window)
-            assert missing.size and reported, (window.size, reported)
-            for tick in missing:
-                covering = [g for g in reported if g.start_ns < tick < g.end_ns]
-                assert covering and max(g.end_ns - g.start_ns for g in covering) > MAX_THREAD_CATCH_UP_NS, (
-                    tick, reported)
-            assert missing.size <= sum(g.missed for g in reported)
-            window = window[window >= max(g.end_ns for g in reported if g.start_ns < missing[-1])]
-        assert np.all(np.diff(window) == TICK_NS)
+        assert s.size and np.all((s - node.origin_ns) % TICK_NS == 0)  # what reached the probe is on the grid
+        assert np.unique(s).size == s.size  # and no tick came twice
 
 
 def test_a_stall_beyond_the_catch_up_limit_integrates_in_one_go(ros_domain_id):
     """Held 4x the catch-up limit: the thread integrates to the latest grid point at once (one
-    published tick, counted late), the run goes on on its grid and is not restarted."""
+    published tick, counted late, the rest reported as one gap), the run goes on on its grid and is not
+    restarted."""
     with BeltDriveHarness(use_sim_time=False, timeout=WALL_TIMEOUT_S, domain_id=ros_domain_id, input_timeout=0.0) as h:
         node = h.node
+        reported = _watch_gaps(node)
         h._spin_until(lambda: len(h._rows) >= 20, "20 ticks")
         late = node.counters["late_ticks"]
-        with node.timing.lock:
-            held_from = node.integrated_ns
-            time.sleep(4 * MAX_THREAD_CATCH_UP_NS / 1e9)
-        h._spin_until(lambda: h._rows[-1][0] >= held_from + 4 * MAX_THREAD_CATCH_UP_NS + 10 * TICK_NS, "ticks after")
+        hold = 4 * MAX_THREAD_CATCH_UP_NS
+        ticks, published, missed, held_from = _published_over(h, node, hold / 1e9, hold + 10 * TICK_NS)
+        over = [g for g in reported if g.end_ns > held_from and g.start_ns <= held_from + 2 * TICK_NS]
+        assert over and max(g.end_ns - g.start_ns for g in over) >= hold - 10 * TICK_NS, reported  # one jump
+        assert missed >= hold // TICK_NS - 10 and abs(published - (ticks - missed)) <= 1, (ticks, published, missed)
         s = stamps(h)
-        gaps = np.diff(s[s >= held_from])
-        assert gaps.max() >= 4 * MAX_THREAD_CATCH_UP_NS - 10 * TICK_NS  # one jump over the stall
-        assert np.all((s - node.origin_ns) % TICK_NS == 0)
+        assert s.size and np.all((s - node.origin_ns) % TICK_NS == 0)
         assert node.counters["late_ticks"] > late and node.counters["restarts"] == 1
 
 
