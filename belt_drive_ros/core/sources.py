@@ -185,8 +185,6 @@ def _fade_time(value: float) -> float:
     return float(value) if value > 0 else 0.0
 
 
-
-
 # ---------------------------------------------------------------- open loop
 @_register
 @dataclass(frozen=True)

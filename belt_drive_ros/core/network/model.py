@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -205,15 +206,12 @@ class NetworkModel:
         return A, B
 
     # ------------------------------------------------------------------ the run's coordinates
-    @property
+    @cached_property
     def ratios(self) -> np.ndarray:
         """Speed ratios ``rho_i = r_d / r_i`` [-]: pulley i turns rho_i times the driver with the belt unstretched."""
-        found = self.__dict__.get("_ratios")
-        if found is None:
-            r = np.array([p.radius for p in self.scene.pulleys])
-            found = r[self.scene.driver] / r
-            found.flags.writeable = False
-            self.__dict__["_ratios"] = found
+        r = np.array([p.radius for p in self.scene.pulleys])
+        found = r[self.scene.driver] / r
+        found.flags.writeable = False
         return found
 
     @property
