@@ -1,21 +1,12 @@
-"""Matrix exponentials of a stack of small matrices at once (numpy over the batch axis).
+"""Matrix exponentials of a stack of small matrices at once (numpy over the batch axis; ``scipy.linalg.expm`` takes
+tens of us per 4x4 matrix, an ensemble needs a dozen per variant). Scaling and squaring with Pade approximants
+(Higham 2005, SIAM J. Matrix Anal. Appl. 26(4), Alg. 2.3) and the scaling of Al-Mohy and Higham 2009 (ibid. 31(3),
+Alg. 3.1 without its backward-error correction), batched matmul and solve::
 
-``scipy.linalg.expm`` accepts a stack (..., n, n) but computes each matrix
-with its own calls (tens of us per 4x4 matrix); an ensemble of thousands of
-variants needs a dozen exponentials per variant. This is the same algorithm,
-scaling and squaring with the degree-13 Pade approximant (Higham 2005, "The
-scaling and squaring method for the matrix exponential revisited", SIAM J.
-Matrix Anal. Appl. 26(4), Algorithm 2.3) with the scaling of Al-Mohy and
-Higham 2009 ("A new scaling and squaring algorithm for the matrix
-exponential", SIAM J. Matrix Anal. Appl. 31(3): eta = min(max(d6, d8),
-max(d8, d10)), d_p = ||A^p||_1^(1/p)), written with batched matmul and solve::
+    s = max(0, ceil(log2(eta / theta_13))),  eta = min(max(d6, d8), max(d8, d10)),  d_p = ||A^p||_1^(1/p)
+    r_13(X) = q(X)^{-1} p(X),  X = A / 2^s    (p = V + U, q = V - U);      e^A = r_13(X)^(2^s)
 
-    s = max(0, ceil(log2(eta / theta_13)))            per matrix, eta from ||A^p||_1^(1/p)
-    r_13(X) = q(X)^{-1} p(X),  X = A / 2^s            (p(X) = V + U, q(X) = V - U)
-    e^A = r_13(X)^(2^s)                                (s squarings)
-
-It agrees with scipy's per-matrix result to rounding (scipy picks a lower
-degree for small norms; tests/test_ensemble.py compares the two).
+It agrees with scipy's per-matrix result to rounding (tests/test_ensemble.py).
 """
 
 from __future__ import annotations
@@ -50,18 +41,11 @@ def _pade(m: int, X: dict, eye: np.ndarray):
 
 
 def expm_stack(A: np.ndarray) -> np.ndarray:
-    """e^{A[k]} for each matrix of a stack ``A`` (..., n, n) of real or complex matrices (or one (n, n) matrix).
+    """e^{A[k]} for each matrix of a stack ``A`` (..., n, n), real or complex (or one (n, n) matrix): the lowest
+    degree m = 3, 5 whose theta_m bounds max(d4, d6), else 7, 9 bounding max(d6, d8), else 13 with the scaling s.
 
-    Per matrix, the degree m and the scaling s follow Al-Mohy and Higham
-    (2009, Algorithm 3.1 without its backward-error correction ell): the
-    lowest of m = 3, 5 whose theta_m bounds max(d4, d6), else 7, 9 bounding
-    max(d6, d8), else 13 with s = ceil(log2(eta / theta_13)).
-
-    Each matrix's result depends on that matrix alone, bit for bit: the
-    products and solves run per matrix (numpy's stacked ``matmul`` and
-    ``solve`` call BLAS/LAPACK matrix by matrix) and everything else is
-    elementwise. So a single run (a stack of one) and an ensemble of
-    thousands get the very same floats (tests/test_ensemble.py).
+    Each matrix's result depends on that matrix alone, bit for bit (numpy's stacked ``matmul`` and ``solve`` call
+    BLAS/LAPACK matrix by matrix, the rest is elementwise): a single run and an ensemble get the same floats.
     """
     A = np.asarray(A)
     if A.ndim == 2:

@@ -1,38 +1,13 @@
-"""Model no more than a scene needs: the ``auto`` choice between rigid, flexible and slipping.
+"""Model no more than a scene needs: the ``auto`` choice between rigid, flexible and slipping (``docs/model.md``,
+"Model no more than a scene needs"; the rule's error: ``docs/performance.md``, fidelity chart).
 
-The flexible model differs from the rigid one by the belt mode at ``f_n = omega_n / (2 pi)``. A harmonic excitation
-at ``f`` drives the belt deflection with the dynamic amplification ``1 / |1 - (f/f_n)^2|`` over its quasi-static
-value, which the rigid model reports; at ``f/f_n = 0.1`` the rigid model's belt torque is off by ~1 %, at 0.2 by ~4
-%, at 0.5 by 33 %. Step changes (a torque switched on or off) excite the belt's free vibration at every frequency.
-Hence:
-
-* **flexible** when any excitation frequency reaches
-  ``FREQUENCY_RATIO_THRESHOLD * f_n`` or a torque changes stepwise,
-  including at the start: torques applied at t = 0 onto a belt whose
-  initial deflection does not carry them (:func:`start_mismatch`, e.g. a
-  constant drive switched on onto an unloaded belt) are a step of the
-  size of the mismatch, and count as one when it reaches
-  ``START_MISMATCH_THRESHOLD`` of the rigid run's peak belt torque (the
-  belt then rings about the quasi-static value with that amplitude: a
-  constant drive from rest peaks at twice the rigid belt torque). Scenes
-  keep their stated initial deflection;
-* **rigid** otherwise; the quasi-static relative deflection
-  ``T_b / (2 k r_3^2)`` is still reported.
-
-Excitation frequencies depend on speed (engine firing, compressor strokes),
-so the operating speeds are first estimated with a cheap rigid run.
-
-The linear models transmit any force; a belt transmits at most what
-friction allows, ``Q_max = 2 (F_0 - F_c) tanh(mu_eff beta / 2)`` (the
-capstan limit, ``docs/slip.md``). So the third tier:
-
-* **slipping** when the run of the chosen linear model transmits a net
-  force ``|Q| = |belt torque| / r_3`` beyond ``Q_max`` at any time: the belt
-  would slide there, and what the linear model reports after that is not
-  what the drive does. The reason names the peak ratio and its time.
-
-A scene within the limit keeps its linear model and that run (``simulate``
-passes it in). ``docs/performance.md`` (fidelity chart): the rigid model's error against these ratios.
+* **flexible** when an excitation frequency (at the operating speeds of a cheap rigid run) reaches
+  ``FREQUENCY_RATIO_THRESHOLD f_n`` (amplification ``1 / |1 - (f/f_n)^2|``: ~1 % at 0.1) or a torque changes
+  stepwise, the start included (:func:`start_mismatch`, from ``START_MISMATCH_THRESHOLD`` of the peak);
+* **rigid** otherwise (the quasi-static deflection ``T_b / (2 k r_3^2)`` reported);
+* **slipping** when the chosen linear run transmits ``|Q| = |T_b| / r_3`` beyond the capstan limit
+  ``Q_max = 2 (F_0 - F_c) tanh(mu_eff beta / 2)`` at any time (the reason names the peak ratio and its time);
+  a scene within the limit keeps its linear model and that run.
 """
 
 from __future__ import annotations
@@ -55,20 +30,11 @@ START_MISMATCH_THRESHOLD = 0.01
 
 @dataclass(frozen=True)
 class ModelChoice:
-    """Outcome of :func:`choose_model`.
-
-    Attributes
-    ----------
-    model : "rigid" or "flexible".
-    reason : one sentence a person can check.
-    belt_frequency : f_n [Hz].
-    excitations : ((frequency [Hz], label), ...) at the estimated operating speeds.
-    max_ratio : max excitation frequency / f_n [-] (inf for a step change).
-    output_rate : rate [Hz] outputs are consumed at.
-    linear : the linear tier the frequency rule chose ("rigid" or "flexible").
-    limit_ratio : peak |Q| / Q_max of that linear run [-] (nan: not checked).
-    limit_time : time of that peak [s] (nan: not checked).
-    """
+    """Outcome of :func:`choose_model`: ``model`` (rigid, flexible or slipping) and ``reason`` (one sentence a person
+    can check); ``belt_frequency`` f_n [Hz]; ``excitations`` ((frequency [Hz], label), ...) at the estimated operating
+    speeds; ``max_ratio`` their largest / f_n [-] (inf: a step change); ``output_rate`` [Hz] outputs are consumed at;
+    ``linear`` the frequency rule's tier; ``limit_ratio`` peak |Q| / Q_max of that linear run [-] and ``limit_time``
+    its time [s] (nan: not checked)."""
 
     model: str
     reason: str
@@ -82,15 +48,9 @@ class ModelChoice:
 
 
 def start_mismatch(scene, needed: float | None = None) -> tuple[float, float]:
-    """(quasi-static belt torque the start needs, belt torque the initial state carries) [N m].
-
-    The first is the rigid model's belt torque at t = 0 with the torques
-    applied then, ``T_qs = I_3 i a_M + b_3 i omega_M + M_load``; the second
-    ``2 k r_3^2 delta_0 + 2 c r_3^2 delta_0'`` of the scene's initial
-    deflection and its rate. Their difference is the torque step the belt
-    sees at t = 0. ``needed``: the first when the caller has it (the rigid
-    estimate's belt torque at its first knot, as an ensemble computes it).
-    """
+    """(quasi-static belt torque the start needs, belt torque the initial state carries) [N m]: the rigid model's
+    ``T_qs = I_3 i a_M + b_3 i omega_M + M_load`` at t = 0 (``needed``: when the caller has it, e.g. an ensemble's
+    rigid estimate) and ``2 k r_3^2 delta_0 + 2 c r_3^2 delta_0'``; their difference is the step the belt sees."""
     p = scene.params
     if needed is None:
         rigid = make_model("rigid", p)
@@ -106,22 +66,12 @@ def choose_model(
     linear: ModelChoice | None = None, start_torque: float | None = None, limit: tuple | None = None,
     survey: RigidSurvey | None = None,
 ) -> ModelChoice:
-    """Rigid, flexible or slipping for ``scene``, with the reason (see the module docstring).
-
-    Parameters
-    ----------
-    scene : Scene.
-    check_slip : also run the chosen linear model and go on to ``slipping``
-        when it passes the capstan limit (False: the two linear tiers only).
-    linear_run : ``f(model_name) -> (time, outputs)``, the scene's run on that linear model (``simulate``
-        keeps it as its result); default: a run through the stepper with the scene's method.
-    speeds : (max |omega_M|, max |omega_3| [rad/s], max |belt torque| [N m]) of the rigid estimate when
-        the caller ran it (an ensemble, for many variants at once); default: run it here.
-    linear : the frequency rule's choice when the caller has it already
-        (``choose_model(scene, check_slip=False, ...)``); default: apply the rule here.
-    start_torque : the belt torque the start needs (:func:`start_mismatch`) when the caller has it.
-    limit : :func:`limit_exceedance` of the linear run when the caller has it (then it is not run).
-    survey : the scene's :class:`RigidSurvey` when the caller shares it with the accuracy guard's probes.
+    """Rigid, flexible or slipping for ``scene``, with the reason (module docstring). ``check_slip``: go on to
+    ``slipping`` past the capstan limit (False: the linear tiers only). What the caller has already (else computed
+    here): ``linear_run`` ``f(model_name) -> (time, outputs)`` (``simulate`` keeps it as its result); ``speeds``
+    (max |omega_M|, max |omega_3| [rad/s], max |belt torque| [N m]) of the rigid estimate; ``linear`` the frequency
+    rule's choice; ``start_torque`` (:func:`start_mismatch`); ``limit`` (:func:`limit_exceedance`); ``survey``
+    (the :class:`RigidSurvey` shared with the accuracy guard's probes).
     """
     choice = linear if linear is not None else _linear_choice(scene, speeds, start_torque, survey)
     if choice.linear != choice.model:  # (the frequency rule's own choice names its tier already)
@@ -144,11 +94,8 @@ def choose_model(
 
 
 def limit_exceedance(params, time, outputs) -> tuple[float, float]:
-    """(peak |Q| / Q_max, time of the peak [s]) of a rigid or flexible run's outputs.
-
-    ``Q = belt_torque / r_3`` [N] is the net force the belt transmits;
-    ``Q_max(omega_M)`` the capstan limit (:meth:`~belt_drive_ros.core.params.BeltDriveParams.friction_limit`).
-    """
+    """(peak |Q| / Q_max, its time [s]) of a rigid or flexible run's outputs: ``Q = T_b / r_3`` [N] the net force
+    the belt transmits, ``Q_max(omega_M)`` the capstan limit (:meth:`~.params.BeltDriveParams.friction_limit`)."""
     belt = np.asarray(outputs["belt_torque"], dtype=float)
     omega = np.asarray(outputs["omega_M"], dtype=float)
     ratio = friction_use(belt, params.r_3, np.broadcast_to(params.friction_limit(omega), belt.shape))
@@ -157,11 +104,8 @@ def limit_exceedance(params, time, outputs) -> tuple[float, float]:
 
 
 def friction_use(belt_torque, r_3, q_max):
-    """|Q| / Q_max [-] with Q = T_b / r_3 the net force the belt transmits (inf where Q_max = 0: lifted off).
-
-    Arrays broadcast (an ensemble's variants on the last axis, ``r_3`` and
-    ``q_max`` per variant): the same operations per element as for one run.
-    """
+    """|Q| / Q_max [-], ``Q = T_b / r_3`` (inf where Q_max = 0: lifted off); arrays broadcast (an ensemble's variants
+    on the last axis, ``r_3`` and ``q_max`` per variant), the same operations per element as for one run."""
     q = np.abs(belt_torque) / r_3
     return np.divide(q, q_max, out=np.full(q.shape, np.inf), where=q_max > 0)
 

@@ -1,11 +1,7 @@
-"""One bounded cache of objects built from other objects, keyed by those objects' identity.
-
-What the model, plant, stepper and slipping-phase caches share: an entry
-holds the objects it was built from, so their ids are not reused while it
-lives, and a hit is checked with ``is`` (an equal but different parameter set
-gets its own entry). The oldest entry is dropped when the cache is full.
-Entries are read-only to every caller: matrices, closures, profile data;
-never a state or a verdict.
+"""One bounded cache of objects built from other objects, keyed by those objects' identity (models, plants,
+steppers, slipping phases): an entry holds the objects it was built from, so their ids are not reused while it
+lives, and a hit is checked with ``is``. Entries are read-only: matrices, closures, profile data; never a state
+or a verdict.
 """
 
 from __future__ import annotations

@@ -1,15 +1,10 @@
 """Keep numba's disk cache of the compiled kernels in step with their sources.
 
-numba checks a cached function against its own file only, but a kernel also
-holds what it took from other modules when it compiled: a compiled callee's
-machine code, an inlined helper's body, a module constant; it reaches them
-only through module-level imports. So each file's entries (``<file>.*.nbi``,
-``*.nbc``) are stamped with a SHA-256 over the file and every package module
-it imports at module level, transitively, and removed before any kernel loads
-when that stamp changed: an edit of ``kernel_variants.py`` drops its own
-entries, one of ``kernel.py`` those of every file importing it. Folders:
-``core/__pycache__``, ``core/network/__pycache__`` or their mirror under
-``NUMBA_CACHE_DIR``; a folder we cannot write is left alone.
+numba checks a cached function against its own file only, but a kernel holds what it took from the modules it
+imports (a callee's machine code, an inlined helper, a constant). So each file's entries (``<file>.*.nbi``, ``*.nbc``
+in ``core/__pycache__``, ``core/network/__pycache__`` or their mirror under ``NUMBA_CACHE_DIR``) are stamped with a
+SHA-256 over the file and the package modules it imports at module level, transitively, and removed before any
+kernel loads when that stamp changed. A folder we cannot write is left alone.
 """
 
 from __future__ import annotations

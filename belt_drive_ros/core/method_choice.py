@@ -1,18 +1,10 @@
-"""Method and step by accuracy: what a scene that names no method (or says ``method: auto``) runs with.
+"""Method and step by accuracy: what a scene that names no method (or ``method: auto``) runs with (``docs/model.md``,
+"How accurate a fixed step is, and how `method: auto` picks one").
 
-The candidates are the fixed-step methods exact for the belt mode (stable at any step on it), cheapest first by
-torque evaluations per step: ``exact`` (1), ``etd2`` (2), ``etd4`` (4), ``lawson5`` (6). The explicit Runge-Kutta
-and Euler methods cost as much per step as one of these and are both less accurate on the belt mode and only
-conditionally stable, so they are never the cheapest that is accurate.
-
-The choice: at the scene's ``dt``, the cheapest candidate the accuracy guard
-(:func:`~belt_drive_ros.core.accuracy.check_accuracy`, on this scene's model, closed loop and torques; for the
-slipping model :func:`~belt_drive_ros.core.accuracy.check_slipping`, both modes) rates stable and within
-:data:`~belt_drive_ros.core.accuracy.SUGGEST_MARGIN` of the tolerance (the same rule as every step the tool names:
-the estimate's spread). If none is, the fewest substeps ``n`` (step ``dt / n``, from :data:`SUBSTEPS`) at which one
-is, again the cheapest at that ``n``. If none is up to the last, the candidate with the smallest estimate at the
-finest step is taken and the reason says that the tolerance is not met (the run's report then warns as for a stated
-method).
+The cheapest of :data:`CANDIDATES` (exact for the belt mode; 1, 2, 4, 6 torque evaluations per step) the accuracy
+guard rates stable and within :data:`~.accuracy.SUGGEST_MARGIN` of the tolerance on this scene (the slipping model:
+both modes) at the scene's ``dt``, else at the fewest substeps ``n`` of :data:`SUBSTEPS` (step ``dt / n``); when none
+is, the smallest estimate found, its reason saying the tolerance is not met.
 """
 
 from __future__ import annotations
@@ -32,16 +24,11 @@ SUBSTEPS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)
 
 @dataclass(frozen=True)
 class MethodChoice:
-    """Outcome of :func:`choose_method`.
-
-    method : the chosen integrator; dt : its step [s] (the scene's dt / substeps).
-    substeps : steps per scene dt [-]; tolerance : the tolerance aimed at [-].
-    error : the guard's estimate for the choice [-]; met : within the tolerance.
-    reason : one sentence a person can check (what was tried, what each rated).
-    tried : ((method, dt [s], estimated error [-]), ...) in the order checked.
-    report : the accuracy guard's report of the choice at its step on a rigid or flexible plant (None: slipping);
-        the run's own guard reuses it when it is stable and accurate (the same check, not made twice).
-    """
+    """Outcome of :func:`choose_method`: ``method`` and its step ``dt`` [s] (the scene's dt / ``substeps``);
+    ``tolerance`` aimed at and the guard's ``error`` for the choice [-], ``met`` when within it; ``reason`` (one
+    sentence a person can check); ``tried`` ((method, dt [s], estimated error [-]), ...) in the order checked;
+    ``report``: the guard's report of the choice on a rigid or flexible plant (None: slipping), which the run's own
+    guard reuses when it is stable and accurate (the same check, not made twice)."""
 
     method: str
     dt: float
@@ -156,15 +143,10 @@ def resolve(scene, kind: str | None = None, survey=None):
 
 
 def good_step_error(scene, kind: str, error):
-    """The stability guard's refusal ``error`` for ``scene`` on ``kind``, naming a step both guards accept.
-
-    The stability guard sees the free belt only; the step it would name
-    (0.9 of its boundary) can be far from accurate on the closed loop. The
-    accuracy guard's search (halvings of the step, then another method,
-    :func:`~belt_drive_ros.core.accuracy.check_accuracy`) names one that is
-    stable for both and within a quarter of the tolerance. Returns the new
-    error (the original when that search names nothing).
-    """
+    """The stability guard's refusal ``error`` for ``scene`` on ``kind``, naming a step both guards accept: the
+    stability guard sees the free belt only, so the accuracy guard's search (halvings, then another method:
+    :func:`~.accuracy.check_accuracy`) names one stable for both and within a quarter of the tolerance. The
+    original ``error`` when that search names nothing."""
     from .errors import UnstableStepError
 
     report = getattr(error, "stability", None)

@@ -1,30 +1,21 @@
 """Rigid-belt (1 DOF) and flexible-belt (2 DOF) models of the accessory drive (derived in ``docs/model.md``).
 
-Stateless linear time-invariant systems (the simulator or the node owns the state)::
+Stateless linear systems ``x' = A x + B u``, ``y = C x + D u`` (:data:`LINEAR_OUTPUTS`), ``u = [drive_torque,
+load_torque]`` [N m] (drive on wheel M, load opposing wheel 3). State order, written down once (read elsewhere
+through ``wheel_coordinates``, ``wheel_map``, ``relative_deflection``; the slipping model adds the slip ``s``):
 
-    x' = A x + B u,      y = C x + D u,      u = [drive_torque, load_torque]   [N m]
-
-with the drive torque on wheel M, the load torque on wheel 3 (opposing positive rotation) and ``y`` the outputs
-:data:`LINEAR_OUTPUTS`. State ordering, written down once (read elsewhere through ``wheel_coordinates``,
-``wheel_map``, ``relative_deflection``):
-
-* flexible: ``x = [phi_M, delta, omega_M, omega_3]``  [rad, rad, rad/s, rad/s]
+* flexible: ``x = [phi_M, delta, omega_M, omega_3]``  [rad, rad, rad/s, rad/s], ``delta = i phi_M - phi_3`` a state
+  (it keeps its digits over long runs), ``phi_3`` an output
 * rigid:    ``x = [phi_M, omega_M]``                  [rad, rad/s]
 
-``delta = i phi_M - phi_3`` [rad at wheel 3] is a state, not a difference of two large angles (it keeps its
-digits over long runs, ``docs/model.md``); ``phi_3 = i phi_M - delta`` is an output. The slipping model
-(:mod:`belt_drive_ros.core.slip`) adds the accumulated slip ``s``. Equations of motion (the paper's eq. 18/20,
-errata corrected, plus belt span damping c and bearing damping b)::
+Equations of motion (the paper's eq. 18/20, errata corrected, plus span damping c and bearing damping b)::
 
-    M q'' + C q' + K q = [M_drive, -M_load],   q = [phi_M, phi_3]
-    M = diag(I_f, I_3)
-    K = 2k [[r_2^2 g^2, -r_2 r_3 g], [-r_2 r_3 g, r_3^2]]
-    C = 2c [[r_2^2 g^2, -r_2 r_3 g], [-r_2 r_3 g, r_3^2]] + diag(b_f, b_3)
-
+    M q'' + C q' + K q = [M_drive, -M_load],   q = [phi_M, phi_3],   M = diag(I_f, I_3)
+    K = 2k S,  C = 2c S + diag(b_f, b_3),      S = [[r_2^2 g^2, -r_2 r_3 g], [-r_2 r_3 g, r_3^2]]
     rigid:  I_red phi_M'' + b_red phi_M' = M_drive - i M_load
 
-With ``r_2 g = i r_3`` the stiffness acts on delta alone, ``delta' = i omega_M - omega_3``, and the belt torque
-on wheel 3 is ``T_b = 2 k r_3^2 delta + 2 c r_3^2 delta'``.
+With ``r_2 g = i r_3`` the stiffness acts on delta alone; belt torque on wheel 3 ``T_b = 2 k r_3^2 delta + 2 c r_3^2
+delta'``.
 """
 
 from __future__ import annotations
@@ -109,13 +100,9 @@ class _LinearModel:
         return _affine(self.C, np.asarray(x, dtype=float))
 
     def outputs(self, x: np.ndarray, u: np.ndarray, cx: np.ndarray | None = None) -> dict[str, np.ndarray]:
-        """All output signals of :data:`OUTPUT_UNITS` for samples ``x`` (N, n), ``u`` (N, 2).
-
-        The linear ones are ``y = C x + D u``; the span forces and the slack/slip flags follow from the belt torque
-        (:meth:`span_forces`). One sample (``x`` of shape (n,): the node's tick) gives plain floats and bools, from
-        the same operations in the same order as the rows of a run (:func:`_affine_sample`), so the same values bit
-        for bit. ``cx``: :meth:`state_part` of ``x`` when the caller has it.
-        """
+        """All output signals of :data:`OUTPUT_UNITS` for samples ``x`` (N, n), ``u`` (N, 2): ``y = C x + D u``, then
+        :meth:`span_forces`. One sample (``x`` (n,): the node's tick) gives plain floats and bools by the same
+        operations in the same order (:func:`_affine_sample`: bit for bit). ``cx``: :meth:`state_part` of ``x``."""
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)
         if x.ndim == 1:
@@ -136,27 +123,14 @@ class _LinearModel:
         return self.kinetic_energy(x) + self.potential_energy(x)
 
     def span_forces(self, belt_torque: np.ndarray) -> tuple:
-        """Span forces and slack/slip flags from the belt torque at wheel 3.
-
-        The transmitted force Q = T_b / r_3 splits symmetrically about the
-        pre-tension: F_tight = F_0 + |Q|/2, F_slack = F_0 - |Q|/2. A span
-        cannot push (F_slack < 0: slack), and the capstan (Euler-Eytelwein)
-        limit F_tight <= F_slack e^(mu*wrap) bounds what friction transmits
-        (beyond it: slip). Either flag means the linear model is outside its
-        validity.
-        """
+        """Span forces and slack/slip flags from the belt torque at wheel 3 (:func:`span_forces`)."""
         p = self.params
         return span_forces(p.F_0, p.r_3, p.capstan_ratio, belt_torque)
 
 
 class FlexibleBeltModel(_LinearModel):
-    """Two-degree-of-freedom model: elastic, damped belt between wheels 2 and 3.
-
-    ``x = [phi_M, delta, omega_M, omega_3]`` (module docstring). See the
-    module docstring for the equations; :attr:`mass_matrix`,
-    :attr:`stiffness_matrix` and :attr:`damping_matrix` are M, K, C there
-    (in the wheel coordinates ``q = [phi_M, phi_3]``).
-    """
+    """Two-degree-of-freedom model, an elastic, damped belt between wheels 2 and 3 (module docstring): M, K, C are
+    :attr:`mass_matrix`, :attr:`stiffness_matrix`, :attr:`damping_matrix` (in ``q = [phi_M, phi_3]``)."""
 
     name: ClassVar[str] = "flexible"
     n_states: ClassVar[int] = 4
@@ -205,13 +179,9 @@ class FlexibleBeltModel(_LinearModel):
     def state_from_rigid(
         self, x_rigid: np.ndarray, load_torque: float = 0.0, drive_torque: float | None = None
     ) -> np.ndarray:
-        """Flexible state with the rigid motion and the quasi-static belt deflection.
-
-        With ``drive_torque`` given, the deflection is the rigid model's own
-        quasi-static ``T_b / (2 k r_3^2)`` including the torque that
-        accelerates wheel 3 (no belt transient when switching during a
-        run-up); otherwise the static ``M_L / (2 k r_3^2)``.
-        """
+        """Flexible state with the rigid motion and the quasi-static belt deflection: the rigid model's own ``T_b /
+        (2 k r_3^2)`` with ``drive_torque`` given (the torque that accelerates wheel 3 included: no belt transient when
+        switching during a run-up), else the static ``M_L / (2 k r_3^2)``."""
         i = self.params.ratio
         phi, omega = float(x_rigid[0]), float(x_rigid[1])
         if drive_torque is None:
@@ -224,13 +194,9 @@ class FlexibleBeltModel(_LinearModel):
 
 
 class RigidBeltModel(_LinearModel):
-    """One-degree-of-freedom model (paper eq. 12-14, load reduced through i).
-
-    ``x = [phi_M, omega_M]``; wheel 3 follows ``phi_3 = i phi_M``. The belt
-    torque on wheel 3 is what wheel 3's own equation needs,
-    ``T_b = I_3 i phi_M'' + b_3 i omega_M + M_load``, and the reported
-    relative deflection is its quasi-static value ``T_b / (2 k r_3^2)``.
-    """
+    """One-degree-of-freedom model (paper eq. 12-14, load reduced through i), ``x = [phi_M, omega_M]``, ``phi_3 = i
+    phi_M``. Belt torque on wheel 3 from wheel 3's own equation, ``T_b = I_3 i phi_M'' + b_3 i omega_M + M_load``;
+    the relative deflection reported is its quasi-static ``T_b / (2 k r_3^2)``."""
 
     name: ClassVar[str] = "rigid"
     n_states: ClassVar[int] = 2
@@ -366,16 +332,10 @@ WHEEL_ROWS = tuple(LINEAR_OUTPUTS.index(name) for name in ("phi_M", "omega_M", "
 
 
 class ModelStack:
-    """V linear models of one kind (rigid or flexible) as stacked matrices, built at once from their parameters.
-
-    ``A`` (V, n, n), ``B`` (V, n, m), ``C`` (V, O, n), ``D`` (V, O, m) and
-    ``W`` (V, 4, n) (the wheel map) are, element for element, the matrices
-    of ``make_model(kind, params[v])``: :func:`flexible_matrices` and
-    :func:`rigid_matrices` on the parameters as columns
-    (:class:`~belt_drive_ros.core.params.ParamColumns`), without a model
-    object per variant. :meth:`model` builds variant v's model when one is
-    needed (a result, an error message). ``columns``: the parameter columns.
-    """
+    """V linear models of one kind (rigid or flexible) as stacked matrices: ``A`` (V, n, n), ``B`` (V, n, m), ``C``
+    (V, O, n), ``D`` (V, O, m), ``W`` (V, 4, n) (the wheel map) are element for element those of ``make_model(kind,
+    params[v])`` (:func:`flexible_matrices` / :func:`rigid_matrices` on :class:`~.params.ParamColumns` ``columns``),
+    without a model object per variant; :meth:`model` builds variant v's when one is needed."""
 
     def __init__(self, kind: str, params, columns=None, matrices: dict | None = None):
         from .params import ParamColumns
@@ -460,12 +420,11 @@ def _affine_sample(rows, x: list, u: list) -> list:
 
 
 def span_forces(F_0, r_3, capstan_ratio, belt_torque) -> tuple:
-    """(F_tight, F_slack [N], slack, slip flags) from the belt torque [N m] (:meth:`_LinearModel.span_forces`).
-
-    ``F_0`` [N], ``r_3`` [m] and ``capstan_ratio`` [-] may be arrays that
-    broadcast against ``belt_torque`` (an ensemble's variants on the last
-    axis), or all be floats (one sample): the same operations per element.
-    """
+    """(F_tight, F_slack [N], slack, slip flags) from the belt torque [N m]: ``Q = T_b / r_3`` splits about the
+    pre-tension, ``F_tight, F_slack = F_0 +- |Q|/2``; slack where ``F_slack <= 0`` (a span cannot push), slip past the
+    capstan (Euler-Eytelwein) limit ``F_tight > F_slack e^(mu wrap)``: either flag, the linear model is outside its
+    validity. Arguments may be arrays that broadcast (an ensemble's variants on the last axis) or floats (one sample):
+    the same operations per element."""
     half = 0.5 * abs(belt_torque) / r_3  # abs: np.abs on arrays, the float's own on one sample
     tight = F_0 + half
     slack_force = F_0 - half

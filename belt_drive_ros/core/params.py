@@ -1,13 +1,6 @@
-"""Frozen, validated parameters of the belt drive.
-
-Field names mirror the paper's symbols (Dizo et al., eq. 3-20) so that a
-reader can check a YAML file against the paper; ``docs/model.md`` explains
-each default. SI units throughout.
-
-Kinematics (``docs/model.md``)::
-
-    g = (r_M / R_1) * (r_1 / R_2)     phi_2 = g * phi_M       gear train M -> 2
-    i = g * r_2 / r_3                 phi_3 = i * phi_M       rigid belt only
+"""Frozen, validated parameters of the belt drive, named by the paper's symbols (Dizo et al., eq. 3-20; each
+default explained in ``docs/model.md``), SI units. Kinematics: ``g = (r_M / R_1)(r_1 / R_2)``, ``phi_2 = g phi_M``
+(gear train M -> 2); ``i = g r_2 / r_3``, ``phi_3 = i phi_M`` (rigid belt only).
 """
 
 from __future__ import annotations

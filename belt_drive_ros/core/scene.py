@@ -1,7 +1,5 @@
-"""Scenes: parameters + drive source + load + duration + initial state: what one run needs.
-
-Scene files are YAML; the shipped ones (``belt_drive_ros/scenes/*.yaml``) justify their defaults in
-``docs/model.md``. :func:`belt_drive_ros.io.scenes.load_scene` reads one by shipped name or path.
+"""Scenes: parameters, drive, load, duration, initial state: what one run needs (the shipped ones'
+defaults are justified in ``docs/model.md``; :func:`belt_drive_ros.io.scenes.load_scene` reads a file).
 """
 
 from __future__ import annotations
@@ -101,16 +99,11 @@ class InitialState:
 
 @dataclass(frozen=True)
 class Scene:
-    """Everything one run needs (SI units): ``drive`` torque on wheel M, ``load`` on wheel 3, ``duration`` [s].
-
-    ``model``: ``rigid``, ``flexible``, ``slipping`` or ``auto`` (:mod:`belt_drive_ros.core.fidelity`; it goes
-    on to ``slipping`` when the chosen model's run exceeds the belt's friction limit). ``method``: a name of
-    :data:`belt_drive_ros.core.integrators.REGISTRY` or ``auto`` (the cheapest method and fewest substeps the
-    accuracy guard rates within ``tolerance``, :mod:`belt_drive_ros.core.method_choice`); ``dt`` its step [s]
-    (the output interval of adaptive methods); ``method_options`` its options (e.g. rtol). ``output_rate`` [Hz]:
-    the rate outputs are consumed at (node, recording), which ``auto`` compares the belt mode with.
-    ``tolerance`` [-]: relative error of drive speed and belt torque (to their peaks) the guard checks.
-    """
+    """Everything one run needs (SI units): ``drive`` torque on wheel M, ``load`` on wheel 3, ``duration`` [s];
+    ``model`` rigid, flexible, slipping or ``auto`` (:mod:`~.fidelity`); ``method`` a name of
+    :data:`~.integrators.REGISTRY` or ``auto`` (:mod:`~.method_choice`), ``dt`` its step [s] (the output interval
+    of adaptive methods), ``method_options`` (e.g. rtol); ``output_rate`` [Hz] the rate outputs are consumed at
+    (node, recording); ``tolerance`` [-] the relative error of drive speed and belt torque the guard checks."""
 
     name: str = "custom"
     description: str = ""

@@ -1,13 +1,7 @@
-"""Drive-torque sources and load torques.
-
-A torque profile is a function ``torque(t, angle, speed)`` [s, rad, rad/s ->
-N m]. Drive sources act on wheel M and see wheel M's angle and speed (for an
-engine: the crank angle through ``crank_ratio``); loads act on wheel 3 and
-see wheel 3's. Every profile evaluates scalars and numpy arrays alike, so an
-open-loop (state-independent) profile can be sampled for a whole run at once.
-
-Profiles are built from plain mappings (scene YAML) by :func:`make_profile`;
-the ``type`` key selects the class, the other keys are its fields.
+"""Drive-torque sources and load torques: a profile is ``torque(t, angle, speed)`` [s, rad, rad/s -> N m], stated
+once as kernel data. A drive acts on wheel M and sees its angle and speed (an engine: the crank angle through
+``crank_ratio``), a load on wheel 3 and sees wheel 3's; scalars and arrays alike. :func:`make_profile` builds one
+from a mapping (scene YAML): ``type`` selects the class, the other keys are its fields.
 """
 
 from __future__ import annotations
@@ -191,8 +185,6 @@ def _fade_time(value: float) -> float:
     return float(value) if value > 0 else 0.0
 
 
-
-
 # ---------------------------------------------------------------- open loop
 @_register
 @dataclass(frozen=True)
@@ -292,11 +284,8 @@ class Sine(TorqueProfile):
 @_register
 @dataclass(frozen=True)
 class Table(TorqueProfile):
-    """Recorded torque profile: ``times`` [s] (strictly increasing), ``values`` [N m].
-
-    ``interpolation``: ``linear`` or ``previous`` (zero-order hold, as a ROS
-    node sees held messages). Held constant outside the table.
-    """
+    """Recorded torque: ``times`` [s] (strictly increasing), ``values`` [N m], held outside the table;
+    ``interpolation`` ``linear`` or ``previous`` (zero-order hold, as a ROS node sees held messages)."""
 
     kind: ClassVar[str] = "table"
     times: tuple = (0.0, 1.0)
@@ -381,19 +370,11 @@ class _Pulsating(TorqueProfile):
 @_register
 @dataclass(frozen=True)
 class Engine(_Pulsating):
-    """Combustion engine: mean torque plus firing pulsations by crank angle.
-
-    ``torque = base(speed) + sum_k A_k sin(k n_f theta + k phase)``, where the
-    crank angle ``theta = crank_ratio * angle`` and ``n_f = 2 cylinders /
-    strokes`` firing pulses per crank revolution (4-stroke: cylinders/2).
-
-    ``base`` is ``mean_torque``, or, when ``speed_setpoint`` [rad/s of wheel M]
-    is given, a droop governor ``clip(mean_torque + governor_gain
-    (speed_setpoint - speed), 0, max_torque)`` [N m, N m s/rad]. The
-    amplitudes ``harmonics`` [N m] are the first, second, ... firing-order
-    components of the gas + inertia torque; ``ramp_time`` [s] fades the
-    pulsations and the governor in from 0 at start (engine start-up).
-    """
+    """Combustion engine: ``torque = base(speed) + sum_k A_k sin(k n_f theta + k phase)`` [N m], crank angle
+    ``theta = crank_ratio angle``, ``n_f = 2 cylinders / strokes`` firing pulses per crank revolution; ``harmonics``
+    A_k the firing-order components of the gas + inertia torque. ``base`` is ``mean_torque``, or with
+    ``speed_setpoint`` [rad/s of wheel M] the droop governor ``clip(mean_torque + governor_gain (speed_setpoint -
+    speed), 0, max_torque)`` [N m, N m s/rad]; ``ramp_time`` [s] fades pulsations and governor in from 0 (start-up)."""
 
     kind: ClassVar[str] = "engine"
     mean_torque: float = 20.0
@@ -454,13 +435,9 @@ class Engine(_Pulsating):
 @_register
 @dataclass(frozen=True)
 class MotorCurve(TorqueProfile):
-    """Electric motor torque-speed curve with optional soft start.
-
-    ``curve`` is a list of ``[speed rad/s, torque N m]`` points (linearly
-    interpolated, held beyond the ends). Without a curve, the linear DC/PMSM
-    line ``stall_torque (1 - speed/no_load_speed)`` is used. ``soft_start_time``
-    [s] ramps a torque limit from 0 to full (soft starter or inverter ramp).
-    """
+    """Electric motor: ``curve`` ``[[speed rad/s, torque N m], ...]`` (linear, held beyond the ends), or without one
+    the DC/PMSM line ``stall_torque (1 - speed/no_load_speed)``; ``soft_start_time`` [s] ramps a torque limit from 0
+    to full (soft starter or inverter ramp)."""
 
     kind: ClassVar[str] = "motor"
     stall_torque: float = 60.0
@@ -523,12 +500,8 @@ class Polynomial(TorqueProfile):
 @_register
 @dataclass(frozen=True)
 class Compressor(_Pulsating):
-    """Reciprocating compressor: torque periodic in wheel-3 angle.
-
-    ``torque = mean_torque + c1 speed + sum_k A_k sin(k cylinders angle + k phase)``
-    [N m]; ``cylinders`` compression strokes per revolution of wheel 3.
-    ``ramp_time`` [s] fades the load in from 0 at start.
-    """
+    """Reciprocating compressor: ``mean_torque + c1 speed + sum_k A_k sin(k cylinders angle + k phase)`` [N m],
+    ``cylinders`` strokes per revolution of wheel 3; ``ramp_time`` [s] fades the load in from 0 at start."""
 
     kind: ClassVar[str] = "compressor"
     mean_torque: float = 20.0
@@ -565,13 +538,8 @@ class Compressor(_Pulsating):
 @_register
 @dataclass(frozen=True)
 class Schedule(TorqueProfile):
-    """On/off schedule: ``active`` profile inside ``periods`` [[start, end], ...] [s], ``inactive`` outside.
-
-    (Not ``on``/``off``: YAML 1.1 reads those keys as booleans.)
-
-    E.g. an air compressor that loads while the governor asks for air and
-    unloads (runs with open valves, small torque) otherwise.
-    """
+    """On/off schedule: ``active`` profile inside ``periods`` [[start, end], ...] [s], ``inactive`` outside (not
+    ``on``/``off``: YAML 1.1 reads those as booleans); e.g. an air compressor loading while the governor asks for air."""
 
     kind: ClassVar[str] = "schedule"
     active: TorqueProfile = field(default_factory=Constant)
@@ -634,13 +602,9 @@ class Schedule(TorqueProfile):
 
 
 class HeldTorque(TorqueProfile):
-    """Zero-order hold of a sampled torque whose value the caller sets [N m] (the node's drive input).
-
-    Mutable on purpose (unlike the scene's frozen profiles): :attr:`value`
-    writes the one number of its kernel data in place, so a stepper built
-    once reads the new value at its next call (no object of a higher layer
-    inside the time loop).
-    """
+    """Zero-order hold of a sampled torque [N m] the caller sets (the node's drive input). Mutable on purpose:
+    :attr:`value` writes the one number of its kernel data in place, so a stepper built once reads the new value at
+    its next call (no object of a higher layer inside the time loop)."""
 
     kind = "held"
     state_dependent = False
@@ -687,12 +651,8 @@ def profile_fields(kind: str) -> frozenset:
 
 
 def make_profile(spec: Mapping[str, Any] | TorqueProfile | float, where: str = "profile") -> TorqueProfile:
-    """Profile from a mapping with a ``type`` key (or a number: constant).
-
-    Raises :class:`SceneError` naming ``where``, the bad key and the valid ones, or a value
-    outside its plausible range (:meth:`TorqueProfile.check_plausible`: profiles from mappings
-    come from outside).
-    """
+    """Profile from a mapping with a ``type`` key (or a number: constant); :class:`SceneError` naming ``where``, the
+    bad key and the valid ones, or a value outside its plausible range (:meth:`TorqueProfile.check_plausible`)."""
     if isinstance(spec, TorqueProfile):
         return spec
     if real(spec) is not None:  # a number: a constant, checked as one from a mapping

@@ -1,14 +1,9 @@
-"""Stability guard: predict, before a run, whether a fixed-step method is stable.
+"""Stability guard: whether a fixed-step method is stable, predicted before a run (``docs/model.md``, "Numerics").
 
-A method applied to the mode ``y' = lambda y`` multiplies it by ``R(h lambda)`` per step; the run is stable when
-``|R(h lambda)| <= 1`` for every eigenvalue ``lambda`` of the model's A (the belt mode
-``-zeta omega_n +/- i omega_n sqrt(1-zeta^2)``, the rigid-body mode 0 and the slow bearing mode). For an undamped
-belt this is the classical ``h omega_n`` limit on the imaginary axis: Euler never, symplectic Euler ``< 2``, RK4
-``<= 2 sqrt(2)``; the methods exact for the belt mode (``exact_linear`` in the registry) and trapezoidal have no
-limit. ``|R|`` is read off each method's own one-step map
-(:meth:`~belt_drive_ros.core.integrators.FixedStepIntegrator.mode_growths`). Torques that depend on state are not
-part of A: the accuracy guard (:mod:`~belt_drive_ros.core.accuracy`) checks the closed loop, the run's divergence check
-catches what they destabilise.
+Per step a method multiplies the mode ``y' = lambda y`` by ``R(h lambda)``; stable when ``|R(h lambda)| <= 1`` for
+every eigenvalue of the model's A, read off the method's own one-step map
+(:meth:`~.integrators.FixedStepIntegrator.mode_growths`). State-dependent torques are not part of A: the accuracy
+guard (:mod:`.accuracy`) checks the closed loop, the run's divergence check catches what they destabilise.
 """
 
 from __future__ import annotations
@@ -29,20 +24,11 @@ GROWTH_TOLERANCE = 1e-12
 
 @dataclass(frozen=True, eq=False, repr=False)
 class StabilityReport:
-    """Outcome of :func:`check_step`.
-
-    Attributes
-    ----------
-    stable : bool
-    method, dt : the method and step [s] checked.
-    omega_n : fastest mode's |lambda| [rad/s] (the belt mode when flexible).
-    h_omega_n : dt * omega_n [-].
-    growth : max |R(h lambda)| over the eigenvalues [-] (> 1: unstable).
-    limit : the method's h*omega_n boundary for an undamped oscillator (None: no limit).
-    max_stable_dt : largest stable step [s] (inf: any; 0: none), None for adaptive methods; given as a value or
-        as a function that computes it (:func:`max_stable_step`), then computed at its first read: a refusal
-        names it, a stable step's check need not search for it.
-    """
+    """Outcome of :func:`check_step`: ``stable``; the ``method`` and step ``dt`` [s] checked; ``omega_n`` the fastest
+    mode's |lambda| [rad/s] (the belt mode when flexible), ``h_omega_n = dt omega_n`` [-]; ``growth`` max |R(h lambda)|
+    over the eigenvalues [-] (> 1: unstable); ``limit`` the method's ``h omega_n`` boundary on an undamped oscillator
+    (None: none); ``max_stable_dt`` the largest stable step [s] (inf: any; 0: none; None: adaptive), a value or a
+    function (:func:`max_stable_step`) computed at its first read (a refusal names it, a stable check need not)."""
 
     stable: bool
     method: str

@@ -1,22 +1,11 @@
-"""Geometry of a belt network: tangent spans, wrap angles, belt length (SI units).
+"""Geometry of a belt network: tangent spans, wrap angles, belt length (SI units; ``docs/serpentine.md``, "Geometry").
 
-Conventions (``docs/serpentine.md``): pulleys ``P_0 .. P_{n-1}`` in the order
-the belt travels; the loop runs counter-clockwise, so a pulley on the belt's
-inner face (``side = +1``) lies to the left of the travel direction and a
-backside pulley (``side = -1``) to the right. Signed radius ``rho = side r``.
+Pulleys ``P_0 .. P_{n-1}`` in the order the belt travels, counter-clockwise; signed radius ``rho = side r`` (+1 inner
+face, -1 backside). Span ``j`` from ``P_j`` to ``P_{j+1}``, ``d = c_{j+1} - c_j``, ``dr = rho_{j+1} - rho_j``::
 
-Span ``j`` leaves ``P_j`` and arrives at ``P_{j+1}`` (index mod n). With
-``d = c_{j+1} - c_j``, ``D = |d|``, ``dr = rho_{j+1} - rho_j`` and the left
-normal ``n(e) = (-e_y, e_x)`` of the span direction ``e``, the tangent points
-are ``c - rho n`` and::
+    L = sqrt(|d|^2 - dr^2),   angle(e) = angle(d) - asin(dr / |d|),   tangent points c - rho n(e), n(e) = (-e_y, e_x)
 
-    d = L e + dr n      =>   L = sqrt(D^2 - dr^2),   angle(e) = angle(d) - asin(dr / D)
-
-(inner/inner: an external tangent; inner/backside: an internal tangent). The
-wrap on pulley i is the turning from ``e_{i-1}`` to ``e_i`` in the pulley's
-sense (left for an inner pulley, right for a backside one), in ``[0, 2 pi)``;
-a simple loop turns once in total: ``sum_i side_i beta_i = 2 pi``. Belt length
-``sum_j L_j + sum_i r_i beta_i``.
+A simple loop turns once: ``sum_i side_i beta_i = 2 pi``; belt length ``sum_j L_j + sum_i r_i beta_i``.
 """
 
 from __future__ import annotations

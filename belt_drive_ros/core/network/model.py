@@ -1,23 +1,12 @@
-"""The linear (flexible) tier of a belt network: ``M q'' + C q' + K q = f(t, q, q')``.
+"""The linear (flexible) tier of a belt network: ``M q'' + C q' + K q = f(t, q, q')`` (derived in
+``docs/serpentine.md``, "The model (linear tier)").
 
-Coordinates ``q = [theta_0 .. theta_{n-1}, theta_a]``: the rotation [rad] of
-every pulley, positive in the sense that moves the belt forward (its surface
-moves ``r_i theta_i`` along the belt), and the tensioner arm's angle [rad]
-from its installed angle (when the scene has a tensioner). Span j (from
-pulley j to j+1) stretches by (``docs/serpentine.md``)::
+``q = [theta_0 .. theta_{n-1}, theta_a]``: each pulley's rotation [rad] (positive moves the belt forward) and the
+tensioner arm's angle from its installed angle [rad]. Span j stretches by ``delta_j = a_j . q`` (``r_{j+1}
+theta_{j+1} - r_j theta_j + g_j theta_a``, ``g_j = (dc_{j+1}/dtheta_a - dc_j/dtheta_a) . e_j``) and carries ``T_j = T_0
++ k_j delta_j + c_j delta_j'`` (``k_j = EA / L_j``, ``c_j = damping / L_j``)::
 
-    delta_j = r_{j+1} theta_{j+1} - r_j theta_j + g_j theta_a = a_j . q
-    g_j = (dc_{j+1}/dtheta_a - dc_j/dtheta_a) . e_j      (the arm moves the tensioner's centre c_t)
-
-and carries ``T_j = T_0 + k_j delta_j + c_j delta_j'`` with ``k_j = EA / L_j``,
-``c_j = damping / L_j``. Pulley i: ``J_i theta_i'' = Q_i - b_i theta_i' + r_i (T_i - T_{i-1})``;
-arm: ``J_a theta_a'' = P - k_a theta_a - c_a theta_a' - sum_j T_j g_j(theta_a)``, where the
-spring preload ``P = T_0 sum_j g_j(theta_0)`` holds the installed state. Linearised
-about an operating point with span tensions ``T_j*`` the arm gains the geometric
-stiffness ``k_geo = sum_j T_j* dg_j/dtheta_a`` (with ``T_j* = T_0``: ``T_0 d^2 Lambda / dtheta_a^2``,
-Lambda the belt length of the exact geometry). Hence::
-
-    M = diag(J_i, J_a)    K = sum_j k_j a_j a_j^T + (k_a + k_geo) e_a e_a^T
+    M = diag(J_i, J_a)    K = sum_j k_j a_j a_j^T + (k_a + k_geo) e_a e_a^T    k_geo = sum_j T_j* dg_j/dtheta_a
     C = sum_j c_j a_j a_j^T + diag(b_i, c_a)          f_i = Q_i(t, theta_i, theta_i')
 
 K is symmetric with one zero mode (the belt turning all pulleys, no stretch).
@@ -27,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -44,13 +34,9 @@ def arm(pulleys, tensioner) -> tuple[int, np.ndarray, float, float]:
 
 
 def arm_terms(geo, pulleys, tensioner) -> tuple[np.ndarray, np.ndarray]:
-    """``(g, dg)``: per span, ``g_j = d delta_j / d theta_a`` [m/rad] and ``dg_j/dtheta_a`` [m/rad^2] at the installed angle.
-
-    Only the two spans touching the tensioner pulley t have them: with the arm
-    ``La``, ``c_t' = La (-sin, cos)``, ``c_t'' = -La (cos, sin)``, and the span
-    direction turning at ``psi' = (d x d')/D^2 + dr (d . d') / (D^2 L)`` (from
-    ``psi = atan2(d) - asin(dr / D)``, ``d`` the span's centre difference).
-    """
+    """``(g, dg)`` per span at the installed angle: ``g_j = d delta_j / d theta_a`` [m/rad] and ``dg_j/dtheta_a``
+    [m/rad^2], non-zero for the two spans at the tensioner pulley only (arm ``La``: ``c_t' = La (-sin, cos)``,
+    ``c_t'' = -La (cos, sin)``; the span turning at ``psi' = (d x d')/D^2 + dr (d . d') / (D^2 L)``)."""
     n = len(pulleys)
     t, _, La, th = arm(pulleys, tensioner)
     c1 = La * np.array([-math.sin(th), math.cos(th)])
@@ -220,15 +206,12 @@ class NetworkModel:
         return A, B
 
     # ------------------------------------------------------------------ the run's coordinates
-    @property
+    @cached_property
     def ratios(self) -> np.ndarray:
         """Speed ratios ``rho_i = r_d / r_i`` [-]: pulley i turns rho_i times the driver with the belt unstretched."""
-        found = self.__dict__.get("_ratios")
-        if found is None:
-            r = np.array([p.radius for p in self.scene.pulleys])
-            found = r[self.scene.driver] / r
-            found.flags.writeable = False
-            self.__dict__["_ratios"] = found
+        r = np.array([p.radius for p in self.scene.pulleys])
+        found = r[self.scene.driver] / r
+        found.flags.writeable = False
         return found
 
     @property

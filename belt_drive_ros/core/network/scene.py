@@ -89,16 +89,10 @@ GEAR_KEYS = ("inertia", "damping", "ratio")
 
 
 def reduce_gears(where: str, raw, inertia: float, damping: float) -> tuple[float, float, float]:
-    """``(gear, inertia, damping)`` of a driver pulley behind a gear train, as the paper's model reduces it.
-
-    ``raw``: the wheels from the drive shaft on (the paper's ``M``, then ``1``), each ``inertia`` [kg m^2],
-    ``damping`` [N m s/rad] (bearing) and ``ratio``, the next wheel's speed over this one's (pinion radius over
-    the next wheel's gear radius, ``r_M / R_1``); the last wheel meshes with the pulley's own gear. With
-    ``G_k`` the product of the ratios from wheel k on (``gear = G_0``, the paper's ``g``), the pulley turns at
-    ``gear`` times the shaft and carries ``J = J_pulley + sum_k I_k / G_k^2``, ``b = b_pulley + sum_k b_k / G_k^2``
-    (the paper's ``I_f / g^2``, ``b_f / g^2``: its kinetic energy and dissipation written in the pulley's speed).
-    Meshes do not slip and lose nothing (the paper's model has no mesh efficiency).
-    """
+    """``(gear, inertia, damping)`` of a driver pulley behind a gear train ``raw`` (wheels from the drive shaft on,
+    each ``inertia`` [kg m^2], ``damping`` [N m s/rad], ``ratio`` the next wheel's speed over this one's), reduced as
+    the paper's model reduces wheels M, 1, 2 (``docs/serpentine.md``): ``G_k`` the product of the ratios from wheel k
+    on, ``gear = G_0``, ``J = J_pulley + sum_k I_k / G_k^2``, ``b = b_pulley + sum_k b_k / G_k^2`` (no mesh loss)."""
     if not isinstance(raw, list) or not 1 <= len(raw) <= 8:
         raise SceneError(f"{where}: expected a list of 1 to 8 wheels from the drive shaft on, got {short(raw)}")
     wheels = []
@@ -337,4 +331,3 @@ def warm_scene():
                      "torque": 0.1}]})  # fmt: skip
 
 
-__all__ = ["Belt", "Engine", "NetworkScene", "Pulley", "Tensioner"]

@@ -15,7 +15,6 @@ stick mode's friction stays inside it) are located on that flow (:mod:`.slip_ker
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -253,4 +252,3 @@ def warm() -> None:
     simulate_slipping(None, warm_scene())
 
 
-__all__ = ["SlipEvent", "SlipNetworkRun", "advance_slipping", "simulate_slipping", "slip_rows", "slip_run", "slip_state", "warm"]
