@@ -58,8 +58,11 @@ samples the drive input there and publishes every output stamped with that
 time. On the system clock a thread of the node's own ticks
 (``tick_thread``, default true; :class:`~.timing.TickThread`): it computes
 each tick ahead (``tick_lead`` at least), publishes it at its due time, and publishes
-every missed tick after a late wake; every callback that touches the
-simulation holds the tick source's lock. Scene time 0 is when the run starts: the first tick on the system
+every missed tick after a late wake; every callback that changes the
+simulation (parameters, diagnostics) holds the tick source's lock, which a
+tick holds through its compute. The inputs (``drive_torque``, ``~/reset``)
+do not: their callbacks hand over under a lock of their own that the tick
+takes only at its start, so they are served while a tick computes. Scene time 0 is when the run starts: the first tick on the system
 clock, the first ``/clock`` the node sees with ``use_sim_time``, the first
 tick of its own clock with ``publish_clock``; and every restart
 (``~/reset``, a new ``scene``, a divergence, the clock jumping backwards or
@@ -72,7 +75,9 @@ The drive torque is sampled at each tick and held until the next (a
 message received between ticks k-1 and k acts from tick k on; on the
 system clock the tick thread computes tick k ahead of its due time, by
 ``tick_lead`` or more (:class:`~.timing.TickThread`), so a message in that
-last stretch acts from tick k+1).
+last stretch acts from tick k+1). The rule is the tick's *start*: a message
+received before a tick takes its inputs acts from that tick, one received
+while it computes (its callback is not held up) from the next.
 ``drive_source:=scene`` instead drives wheel M with the scene's drive
 profile (messages then are counted and ignored). Before the first message
 the torque is 0 N m. NaN/Inf messages and messages beyond ``torque_bound``
@@ -344,11 +349,13 @@ class BeltDriveNode(Node):
         """Constant time: validate, bound, clamp, hold (sampled at the next tick). ``data``: the message's
         serialized bytes (a raw subscription: no message object per message, see :func:`.inputs.float64_value`)."""
         value = float64_value(data)
-        with self.timing.lock:
-            now = self.timing.now_ns()
-            self.drive.receive(value, now, self.sim.settings)
-            if self.recorder is not None:
-                self.recorder.record_input(value, now)
+        # not the tick's lock: a tick computing now does not hold this callback up (DriveInput.receive's own lock
+        # is held for the hand-over alone; the tick takes the message at its start, see DriveInput.take)
+        now = self.timing.now_ns()
+        self.drive.receive(value, now, self.sim.settings)
+        recorder = self.recorder
+        if recorder is not None:  # (the recorder's own lock)
+            recorder.record_input(value, now)
 
     def _publish_description(self) -> None:
         """Publish (and record) the URDF of the drive in force, if it changed."""
@@ -378,7 +385,8 @@ class BeltDriveNode(Node):
         a due diagnostics publish to :meth:`_after_tick`.
         """
         if self._resets_pending:
-            calls, self._resets_pending = self._resets_pending, 0
+            with self.drive.lock:  # (the inputs' hand-over lock: _on_reset counts under it)
+                calls, self._resets_pending = self._resets_pending, 0
             self.sim.restart(f"~/reset, {calls} call(s) since the last tick")
         sends = self._publish(now_ns, defer) if self.sim.advance_to(now_ns) else None
         if not defer:
@@ -586,7 +594,7 @@ class BeltDriveNode(Node):
         both serve this one service name: a call reaches either or both, as
         DDS delivers requests to every matching server.)
         """
-        with self.timing.lock:
+        with self.drive.lock:  # the inputs' hand-over lock, not the tick's: a tick computing now does not hold it
             self._resets_pending += 1
             self.counters["reset_calls"] += 1
         response.success = True

@@ -263,8 +263,11 @@ class NodeSimulation:
     def restart(self, why: str, now_ns: int | None = None) -> bool:
         """Restart from the initial state at ``now_ns`` (default: the last tick); True if running.
 
-        Before the run has started this only resets the state.
+        Before the run has started this only resets the state. The drive messages received until now are
+        taken (:meth:`DriveInput.take`): the restart holds the latest (a divergence's restart inside a tick,
+        :meth:`diverged`, holds what the tick took at its start).
         """
+        self.drive.take()
         if self.t_ns is None:
             s = self.settings
             self.x = s.scene.initial_state.vector(s.model.name, s.params.ratio)
@@ -317,10 +320,16 @@ class NodeSimulation:
         The first call starts the run at ``now_ns``. A clock that went
         backwards restarts the run there (counted in ``clock_jumps``).
 
+        The drive messages received until the call are handed over first (:meth:`DriveInput.take`): the tick's
+        sample is the latest of them; one received while the tick computes is the next tick's.
+
         A *plain* tick is the usual one at 1 kHz: the tick after one the tick kernel took, as many grid steps
         on, no held-torque jump at either end, no plant breakpoint near: the kernel's buffers hold all it needs
         (:meth:`~belt_drive_ros.core.tick.TickKernel.next`), so it is the drive's sample and one compiled call.
         """
+        drive = self.drive
+        if drive._new:  # messages received since the last tick: handed over now, before the compute (DriveInput.take)
+            drive.take()
         if now_ns == self._plain_ns:
             value = None
             if self._timed:
@@ -328,7 +337,7 @@ class NodeSimulation:
                 if warning:
                     self.log.warn(warning)
             elif self._topic:  # (DriveInput.sample without a timeout: stale was cleared by the tick before)
-                value = self.drive.latest
+                value = drive.taken
             if value is None or value == self._held:
                 fast = self._tick_kernel
                 if self._live:  # the slipping belt (its events located in the kernel; a failure: the engine below)
