@@ -16,6 +16,7 @@ from __future__ import annotations
 import struct
 import threading
 
+import numpy as np
 import pytest
 
 pytestmark = pytest.mark.ros
@@ -146,3 +147,33 @@ def test_a_network_input_is_served_while_a_long_tick_computes_and_acts_from_the_
             node.destroy_node()
     finally:
         rclpy.shutdown(context=context)
+
+
+def test_the_node_calls_the_tick_kernels_compiled_code_directly_and_it_releases_the_gil():
+    """The usual tick calls the tick kernel's compiled entry (``compiled_entry``: no dispatcher per call): the same
+    code, so the same floats as the kernel's own call, and, the kernels being ``nogil``, without the GIL (a
+    long call lets another thread's Python run: gap e)."""
+    from test_audit_kernel import _python_runs_during
+
+    from belt_drive_ros.core.model import FlexibleBeltModel
+    from belt_drive_ros.core.params import BeltDriveParams
+    from belt_drive_ros.core.sources import Constant
+    from belt_drive_ros.core.stepper import Plant, Stepper
+    from belt_drive_ros.core.tick import TickKernel, linear_tick
+    from belt_drive_ros.ros.simulation import compiled_entry
+
+    entry = compiled_entry(linear_tick)
+    assert entry is not linear_tick  # (the compiled code, not the dispatcher)
+    params, torque = BeltDriveParams(), Constant(1.0)
+    kernels = [TickKernel.of(Stepper(Plant(FlexibleBeltModel(params), torque, torque), "lawson5", 1e-3), 1.0e5)
+               for _ in range(2)]
+    x0 = FlexibleBeltModel(params).state_from_rigid(np.array([0.0, 10.0]))
+    for kernel in kernels:
+        assert kernel.step(np.array(x0, dtype=float), 0, 3) == 0
+    for _ in range(5):  # the next ticks: the dispatcher's call and the entry's, the same floats and bytes
+        assert kernels[0].next() == 0 and entry(kernels[1]._address) == 0
+        assert kernels[0].y.tobytes() == kernels[1].y.tobytes()
+        assert bytes(kernels[0].message) == bytes(kernels[1].message)
+    long = kernels[1]
+    assert long.step(long.state, 0, 100_000) == 0
+    assert _python_runs_during(lambda: entry(long._address)) > 1000

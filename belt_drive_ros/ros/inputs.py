@@ -36,6 +36,8 @@ from ..core.sources import HeldTorque
 
 __all__ = ["DriveInput", "HeldTorque", "float64_value"]
 
+#: a tick time no run reaches [ns] (DriveInput.until while nothing but a new message changes the sample)
+NEVER = 2**62
 INPUT_COUNTERS = ("received", "rejected_nonfinite", "rejected_bound", "clamped", "ignored", "timeouts")
 
 
@@ -84,6 +86,9 @@ class DriveInput:
         #: True while input_timeout has expired (the tick's side: set by :meth:`sample`, cleared by :meth:`take`)
         self.stale = False
         self._new = False  # a message received since the last take
+        #: the last :meth:`sample`'s value [N m], and the tick time [ns] up to which a sample gives it again and
+        #: changes nothing (no timeout to count or warn of; a take sets it back: -1)
+        self.value, self.until = 0.0, -1
 
     def receive(self, value: float, now_ns: int, settings) -> bool:
         """Take one message (constant time); return True if it was accepted."""
@@ -114,7 +119,7 @@ class DriveInput:
             return False
         with self.lock:
             self.taken, self.taken_ns, self._new = self.latest, self.last_input_ns, False
-        self.stale = False
+        self.stale, self.until = False, -1
         return True
 
     def sample(self, now_ns: int, origin_ns: int, settings) -> tuple[float, str | None]:
@@ -128,11 +133,14 @@ class DriveInput:
         """
         warning = None
         timeout = settings.input_timeout_ns
+        until = NEVER  # stale stays stale until a take
         if settings.drive_source != "topic" or timeout <= 0:
             self.stale = False
         else:
             since = self.taken_ns if self.taken_ns is not None else origin_ns
             stale = now_ns - since > timeout
+            if not stale:
+                until = since + timeout
             if stale and not self.stale:
                 self.counters["timeouts"] += 1
                 what = "no drive_torque received" if self.taken_ns is None else "drive_torque stale"
@@ -140,7 +148,9 @@ class DriveInput:
                     "holding the last value" if settings.timeout_behavior == "hold" else "drive torque set to 0"
                 )
             self.stale = stale
-        return (0.0 if self.stale and settings.timeout_behavior == "zero" else self.taken), warning
+        self.value = value = 0.0 if self.stale and settings.timeout_behavior == "zero" else self.taken
+        self.until = until
+        return value, warning
 
     def status(self, settings) -> tuple[bool, str]:
         """(warn, message) for the input diagnostic."""

@@ -35,7 +35,7 @@ import numpy as np
 from ..core.errors import SimulationDivergedError
 from ..core.model import OUTPUT_UNITS, FlexibleBeltModel
 from ..core.slip import SLIP_OUTPUT_UNITS
-from ..core.slip_run import SlippingSimulator
+from ..core.slip_run import SlippingSimulator, _events
 from ..core.kernel_loop import OK
 from ..core.stepper import SPEED_LIMIT, Plant, Stepper, snap_tolerance
 from ..io.cdr_encoders import JointStateEncoder
@@ -56,6 +56,26 @@ _JOINT_STATES = JointStateEncoder(4)
 
 #: the compiled tick's clamps (lo, hi [s]) and held-torque change (drive [N m]) of a tick without a torque jump
 _NO_CLAMP = (-math.inf, math.inf, math.nan)
+
+
+def compiled_entry(kernel):
+    """The compiled code of ``kernel`` (a tick kernel of :mod:`belt_drive_ros.core.tick`: one signature, the
+    buffer's address as an int64), to be called without numba's dispatcher; the kernel itself where there is
+    none (``NUMBA_DISABLE_JIT``, not compiled yet).
+
+    The dispatcher types each argument and looks the signature up on every call: on the caches a 1 ms sleep
+    leaves that cost the usual tick ~6 us of its ~20-26 (``belt-drive bench node-tick``). Its compiled
+    overload's entry point (numba's ``Dispatcher.overloads``, the pinned numba's compile result) is the
+    wrapper the dispatcher calls after that: it converts the int, releases the GIL (the kernels are
+    ``nogil``) and runs the same machine code, so the floats are the same.
+    """
+    overloads = getattr(kernel, "overloads", None)
+    if overloads is not None and len(overloads) == 1:
+        (result,) = overloads.values()
+        entry = getattr(result, "entry_point", None)
+        if entry is not None:
+            return entry
+    return kernel
 
 
 def next_tick_ns(t_ns: int, origin_ns: int, tick_ns: int) -> int:
@@ -118,23 +138,24 @@ class NodeSimulation:
         self._fresh_ns: int | None = None  # node time whose outputs the tick kernel holds (None: none)
         self._plain_ns: int | None = None  # node time of the next plain tick (see advance_to), or None
         self._free_k = (0, -1)  # grid cells k with no plant breakpoint near steps k0 <= k < k1 (lo <= k0, k1 <= hi)
-        self._topic = s.drive_source == "topic"  # (the plain tick's sample: the latest message, unless a timeout
-        self._timed = self._topic and s.input_timeout_ns > 0  # rule applies: then DriveInput.sample)
+        self._topic = s.drive_source == "topic"  # (the plain tick samples the drive: DriveInput.until)
         if s.model.name == "slipping":
             engine = SlippingSimulator(s.params, drive, s.scene.load, s.method, s.dt, s.method_options, check_stability=False)
             self._plant_breakpoints = tuple(engine.breakpoints)
             self._free_k = (0, -1)
-            from ..core.tick import SlipTickKernel
+            from ..core.tick import SlipTickKernel, slip_tick
 
             self._tick_kernel = SlipTickKernel(engine, SPEED_LIMIT, _JOINT_STATES.layout)
+            self._entry = compiled_entry(slip_tick)
             return engine
         plant = Plant(s.model, drive, s.scene.load)
         stepper = Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
         self._plant_breakpoints = tuple(stepper.breakpoints)
         self._free_k = (0, -1)
-        from ..core.tick import TickKernel
+        from ..core.tick import TickKernel, linear_tick
 
         self._tick_kernel = TickKernel.of(stepper, SPEED_LIMIT, _JOINT_STATES.layout)
+        self._entry = compiled_entry(linear_tick)
         return stepper
 
     @property
@@ -332,23 +353,25 @@ class NodeSimulation:
             drive.take()
         if now_ns == self._plain_ns:
             value = None
-            if self._timed:
-                value, warning = self.drive.sample(now_ns, self.origin_ns, self.settings)
-                if warning:
-                    self.log.warn(warning)
-            elif self._topic:  # (DriveInput.sample without a timeout: stale was cleared by the tick before)
-                value = drive.taken
+            if self._topic:  # the sample: the last one's while it cannot change (DriveInput.until), else anew
+                if now_ns <= drive.until:
+                    value = drive.value
+                else:
+                    value, warning = drive.sample(now_ns, self.origin_ns, self.settings)
+                    if warning:
+                        self.log.warn(warning)
             if value is None or value == self._held:
                 fast = self._tick_kernel
                 if self._live:  # the slipping belt (its events located in the kernel; a failure: the engine below)
-                    events = fast.next()
-                    if events is not None:
-                        if events:
-                            self._located(events)
+                    done = self._entry(fast._address)  # (SlipTickKernel.next without its frame)
+                    if done <= 0:
+                        if done:
+                            self._located(_events(fast._events[:-done]))  # (SlipTickKernel.next's answer)
                         self.t_ns = self._fresh_ns = now_ns
                         self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
                         return True
-                elif fast.next() == OK:  # (else the general path below takes the same steps and raises as it does)
+                elif self._entry(fast._address) == OK:  # (TickKernel.next without its frame; else the general
+                    # path below takes the same steps and raises as it does)
                     self.t_ns = self._fresh_ns = now_ns
                     self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
                     return True
