@@ -58,26 +58,6 @@ _JOINT_STATES = JointStateEncoder(4)
 _NO_CLAMP = (-math.inf, math.inf, math.nan)
 
 
-def compiled_entry(kernel):
-    """The compiled code of ``kernel`` (a tick kernel of :mod:`belt_drive_ros.core.tick`: one signature, the
-    buffer's address as an int64), to be called without numba's dispatcher; the kernel itself where there is
-    none (``NUMBA_DISABLE_JIT``, not compiled yet).
-
-    The dispatcher types each argument and looks the signature up on every call: on the caches a 1 ms sleep
-    leaves that cost the usual tick ~6 us of its ~20-26 (``belt-drive bench node-tick``). Its compiled
-    overload's entry point (numba's ``Dispatcher.overloads``, the pinned numba's compile result) is the
-    wrapper the dispatcher calls after that: it converts the int, releases the GIL (the kernels are
-    ``nogil``) and runs the same machine code, so the floats are the same.
-    """
-    overloads = getattr(kernel, "overloads", None)
-    if overloads is not None and len(overloads) == 1:
-        (result,) = overloads.values()
-        entry = getattr(result, "entry_point", None)
-        if entry is not None:
-            return entry
-    return kernel
-
-
 def next_tick_ns(t_ns: int, origin_ns: int, tick_ns: int) -> int:
     """The first point of the tick grid ``origin_ns + k tick_ns`` after node time ``t_ns`` [ns]."""
     return t_ns + tick_ns - (t_ns - origin_ns) % tick_ns
@@ -143,19 +123,19 @@ class NodeSimulation:
             engine = SlippingSimulator(s.params, drive, s.scene.load, s.method, s.dt, s.method_options, check_stability=False)
             self._plant_breakpoints = tuple(engine.breakpoints)
             self._free_k = (0, -1)
-            from ..core.tick import SlipTickKernel, slip_tick
+            from ..core.tick import SlipTickKernel, native, slip_tick
 
             self._tick_kernel = SlipTickKernel(engine, SPEED_LIMIT, _JOINT_STATES.layout)
-            self._entry = compiled_entry(slip_tick)
+            self._entry = native(slip_tick)  # (the plain tick's call: the kernel as a C callback)
             return engine
         plant = Plant(s.model, drive, s.scene.load)
         stepper = Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
         self._plant_breakpoints = tuple(stepper.breakpoints)
         self._free_k = (0, -1)
-        from ..core.tick import TickKernel, linear_tick
+        from ..core.tick import TickKernel, linear_tick, native
 
         self._tick_kernel = TickKernel.of(stepper, SPEED_LIMIT, _JOINT_STATES.layout)
-        self._entry = compiled_entry(linear_tick)
+        self._entry = native(linear_tick)  # (the plain tick's call: the kernel as a C callback)
         return stepper
 
     @property
@@ -363,15 +343,15 @@ class NodeSimulation:
             if value is None or value == self._held:
                 fast = self._tick_kernel
                 if self._live:  # the slipping belt (its events located in the kernel; a failure: the engine below)
-                    done = self._entry(fast._address)  # (SlipTickKernel.next without its frame)
+                    done = self._entry(fast._high, fast._low)  # (SlipTickKernel.next without its frame nor dispatcher)
                     if done <= 0:
                         if done:
                             self._located(_events(fast._events[:-done]))  # (SlipTickKernel.next's answer)
                         self.t_ns = self._fresh_ns = now_ns
                         self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
                         return True
-                elif self._entry(fast._address) == OK:  # (TickKernel.next without its frame; else the general
-                    # path below takes the same steps and raises as it does)
+                elif self._entry(fast._high, fast._low) == OK:  # (TickKernel.next without its frame nor dispatcher;
+                    # else the general path below takes the same steps and raises as it does)
                     self.t_ns = self._fresh_ns = now_ns
                     self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
                     return True
