@@ -79,26 +79,36 @@ def test_a_stall_is_a_gap_on_diagnostics_in_the_recording_and_in_msg_tools_info(
     with BeltDriveHarness(use_sim_time=False, domain_id=ros_domain_id, input_timeout=0.0,
                           record_path=str(path)) as h:
         node = h.node
+        # every gap reported (a machine loaded far past its cores starves the thread into gaps of its own, before
+        # and after the stall below: the stall's gap is the one that starts where the hold began and spans it)
+        reported = []
+        record = node.timing.gaps.on_gap
+        node.timing.gaps.on_gap = lambda gap: (reported.append(gap), record and record(gap))
         h._spin_until(lambda: len(h._rows) >= 20, "20 ticks")
-        before = node.counters["tick_gaps"]
         with node.timing.lock:  # the tick thread cannot tick: a stopped or starved process
             held_from = node.integrated_ns
             time.sleep(stall_ns / 1e9)
-        h._spin_until(lambda: node.counters["tick_gaps"] > before, "the gap to be found")
-        gap = node.timing.gaps.last
-        assert gap.start_ns >= held_from and gap.end_ns - gap.start_ns >= stall_ns - 10 * TICK_NS
+
+        def stall_gap():
+            return next((g for g in list(reported) if g.start_ns >= held_from
+                         and g.end_ns - g.start_ns >= stall_ns - 10 * TICK_NS), None)
+
+        h._spin_until(lambda: stall_gap() is not None, "the gap to be found")
+        gap = stall_gap()
         assert gap.missed == (gap.end_ns - gap.start_ns) // TICK_NS - 1 and gap.time_base == "system"
         assert "stopped" in gap.cause and "tick thread" in gap.cause
         assert node.counters["ticks_missed"] >= gap.missed
-        status = {s.name: s for s in node.diagnostic_status()}["belt_drive: simulation"]
+        with node.timing.lock:
+            status = {s.name: s for s in node.diagnostic_status()}["belt_drive: simulation"]
+            last = node.timing.gaps.last
         values = {kv.key: kv.value for kv in status.values}
-        assert int(values["tick_gaps"]) >= 1 and values["last_gap"] == gap.describe()
+        assert int(values["tick_gaps"]) >= 1 and values["last_gap"] == last.describe()
         assert status.level == status.WARN and "gap(s) in the ticks" in status.message
         n_gaps = node.counters["tick_gaps"]
     records = tick_gaps(summary(path).metadata)
     assert len(records) == n_gaps
-    assert {"start_ns": str(gap.start_ns), "end_ns": str(gap.end_ns), "ticks_missed": str(gap.missed)}.items() \
-        <= records[-1].items()
+    assert any({"start_ns": str(gap.start_ns), "end_ns": str(gap.end_ns), "ticks_missed": str(gap.missed)}.items()
+               <= r.items() for r in records)
     code, out = _info(path)
     assert code == 0 and f"Tick gaps:         {n_gaps} recorded by the node" in out
     assert f"{gap.missed} missed" in out

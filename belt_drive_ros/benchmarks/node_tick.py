@@ -62,7 +62,8 @@ def measure(params, ticks: int, sleep: float = 0.001, general: bool = True) -> d
                 nodes[1].sim._tick_kernel = None  # the general path: Stepper.advance + model.outputs every tick
             for node in nodes:
                 node.refresh_subscriber_counts()
-                node._listening = (True,) + node._listening[1:]  # joint_states encoded every tick (a subscriber)
+                node._readers["joint_states"] = 1  # joint_states encoded every tick (a subscriber)
+                node._count_listeners()
             tick = nodes[0].sim.settings.tick_ns
             t0 = time.time_ns() // tick * tick
             for node in nodes:
@@ -79,7 +80,7 @@ def measure(params, ticks: int, sleep: float = 0.001, general: bool = True) -> d
                     start = clock()
                     node._tick(now, True)
                     samples[j].append(clock() - start)
-                same = same and nodes[0]._last[0] == nodes[-1]._last[0]
+                same = same and list(nodes[0]._last[0]) == list(nodes[-1]._last[0])
             warm = ticks // 20
             if not general:
                 return {"samples": samples[0][warm:]}

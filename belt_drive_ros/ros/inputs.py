@@ -16,17 +16,28 @@ outputs published at t_k already show it (``joint_states`` effort of
 ``wheel_M``; the rigid model's belt torque). A recording of the sampled
 values (``drive_torque_applied``, one per tick at t_k) therefore replays
 offline as a table with ``interpolation: previous`` to the same numbers.
+
+Two threads: the executor's input callback receives (:meth:`~DriveInput.receive`,
+under :attr:`~DriveInput.lock`, which nothing holds longer than a hand-over),
+and the tick *takes* what was received (:meth:`~DriveInput.take`, at the start
+of the tick, before its compute) and samples only what it took. A message
+received while a tick computes therefore acts from the next tick on, as one
+received after the tick's start always has: its callback does not wait for
+the tick to end.
 """
 
 from __future__ import annotations
 
 import math
 import struct
+import threading
 
 from ..core.sources import HeldTorque
 
 __all__ = ["DriveInput", "HeldTorque", "float64_value"]
 
+#: a tick time no run reaches [ns] (DriveInput.until while nothing but a new message changes the sample)
+NEVER = 2**62
 INPUT_COUNTERS = ("received", "rejected_nonfinite", "rejected_bound", "clamped", "ignored", "timeouts")
 
 
@@ -61,14 +72,23 @@ class DriveInput:
         self.counters = counters
         for key in INPUT_COUNTERS:
             counters.setdefault(key, 0)
-        #: latest valid message after the limit [N m]
+        #: held by :meth:`receive` and by :meth:`take`'s hand-over only (never through a tick's compute)
+        self.lock = threading.Lock()
+        #: latest valid message after the limit [N m] (received; the tick samples it once taken)
         self.latest = 0.0
-        #: what the plant reads: the value sampled at the last tick [N m]
-        self.applied = HeldTorque(0.0)
         #: node time [ns] of the latest valid message (None: none yet)
         self.last_input_ns: int | None = None
-        #: True while input_timeout has expired
+        #: what the plant reads: the value sampled at the last tick [N m]
+        self.applied = HeldTorque(0.0)
+        #: the tick's side: the latest message and its time as the last :meth:`take` found them
+        self.taken = 0.0
+        self.taken_ns: int | None = None
+        #: True while input_timeout has expired (the tick's side: set by :meth:`sample`, cleared by :meth:`take`)
         self.stale = False
+        self._new = False  # a message received since the last take
+        #: the last :meth:`sample`'s value [N m], and the tick time [ns] up to which a sample gives it again and
+        #: changes nothing (no timeout to count or warn of; a take sets it back: -1)
+        self.value, self.until = 0.0, -1
 
     def receive(self, value: float, now_ns: int, settings) -> bool:
         """Take one message (constant time); return True if it was accepted."""
@@ -87,13 +107,24 @@ class DriveInput:
         if limit > 0.0 and abs(value) > limit:
             value = math.copysign(limit, value)
             c["clamped"] += 1
-        self.latest = value
-        self.last_input_ns = now_ns
-        self.stale = False
+        with self.lock:
+            self.latest, self.last_input_ns, self._new = value, now_ns, True
+        return True
+
+    def take(self) -> bool:
+        """The tick's hand-over (at its start, before its compute): the latest message received becomes the one
+        :meth:`sample` reads; True if one came since the last take. Without one nothing is locked (the flag is
+        set last, under the lock, by :meth:`receive`: a message whose receipt is not complete is the next take's)."""
+        if not self._new:
+            return False
+        with self.lock:
+            self.taken, self.taken_ns, self._new = self.latest, self.last_input_ns, False
+        self.stale, self.until = False, -1
         return True
 
     def sample(self, now_ns: int, origin_ns: int, settings) -> tuple[float, str | None]:
-        """The drive torque sampled at tick time ``now_ns`` [N m] (the timeout rule applied there).
+        """The drive torque sampled at tick time ``now_ns`` [N m] (the timeout rule applied there): the message
+        the last :meth:`take` handed over.
 
         Returns ``(value, warning)``: the caller holds ``value`` in
         :attr:`applied` once the interval before the tick is integrated;
@@ -102,19 +133,24 @@ class DriveInput:
         """
         warning = None
         timeout = settings.input_timeout_ns
+        until = NEVER  # stale stays stale until a take
         if settings.drive_source != "topic" or timeout <= 0:
             self.stale = False
         else:
-            since = self.last_input_ns if self.last_input_ns is not None else origin_ns
+            since = self.taken_ns if self.taken_ns is not None else origin_ns
             stale = now_ns - since > timeout
+            if not stale:
+                until = since + timeout
             if stale and not self.stale:
                 self.counters["timeouts"] += 1
-                what = "no drive_torque received" if self.last_input_ns is None else "drive_torque stale"
+                what = "no drive_torque received" if self.taken_ns is None else "drive_torque stale"
                 warning = f"{what} for {(now_ns - since) / 1e9:.3g} s > input_timeout: " + (
                     "holding the last value" if settings.timeout_behavior == "hold" else "drive torque set to 0"
                 )
             self.stale = stale
-        return (0.0 if self.stale and settings.timeout_behavior == "zero" else self.latest), warning
+        self.value = value = 0.0 if self.stale and settings.timeout_behavior == "zero" else self.taken
+        self.until = until
+        return value, warning
 
     def status(self, settings) -> tuple[bool, str]:
         """(warn, message) for the input diagnostic."""

@@ -7,7 +7,8 @@ Topics (relative names, SI units, the layout of :mod:`belt_drive_ros.io.network_
   belt [N m], e.g. an alternator whose current comes from a SIL stack). All
   ``std_msgs/Float64``, QoS as the paper node's input (best effort, keep last
   1). A value is sampled at each tick and held until the next (zero-order
-  hold: a message received between ticks k-1 and k acts from tick k on).
+  hold: a message received before tick k starts, after tick k-1 started, acts
+  from tick k on; its callback is not held up by a tick computing).
   Until its first message an accessory follows its profile in the scene;
   the crank's torque is 0 N m until the first ``drive_torque``
   (``drive_source:=scene``: the crank follows its profile and the topic is
@@ -173,6 +174,10 @@ class NetworkSimulation:
         self._dt_ns = settings.dt * 1e9  # the step [ns] (settings are fixed while the node runs)
         #: the inputs held (:meth:`_pending`) unless a message came since: a tick holds them again only then
         self._held: list | None = None
+        #: the inputs' hand-over: :meth:`receive` (the executor's callbacks) puts a message into ``_inbox`` under
+        #: it, a tick moves them into :attr:`latest` at its start (:meth:`take`); never held through a compute
+        self.lock = threading.Lock()
+        self._inbox: dict = {}
 
     # the time base of the paper node's simulation (the same attributes: t_ns, origin_ns, settings.tick_ns)
     started = NodeSimulation.started
@@ -190,9 +195,19 @@ class NetworkSimulation:
         if pulley == self.settings.scene.driver and self.settings.drive_source == "scene":
             self.counters["ignored"] += 1
             return False
-        self.latest[pulley] = float(value)
-        self._held = None
+        with self.lock:
+            self._inbox[pulley] = float(value)
         return True
+
+    def take(self) -> None:
+        """The tick's hand-over (at its start, before its compute): the messages received since the last take
+        become :attr:`latest`, which the tick holds from its time on; one received while it computes is the next
+        tick's (its callback is not held up by the compute)."""
+        if self._inbox:
+            with self.lock:
+                inbox, self._inbox = self._inbox, {}
+            self.latest.update(inbox)
+            self._held = None
 
     def _pending(self) -> list:
         """``(topic, pulley, value)`` of the inputs to hold from this tick on (the driver at 0 N m before its
@@ -225,7 +240,9 @@ class NetworkSimulation:
         self._sample()
 
     def advance_to(self, now_ns: int) -> bool:
-        """Integrate to the tick ``now_ns`` with the inputs held since the last tick, then sample the inputs."""
+        """Integrate to the tick ``now_ns`` with the inputs held since the last tick, then sample the inputs
+        (those received before this call: :meth:`take`)."""
+        self.take()
         if self.t_ns is not None and now_ns == self.t_ns:
             return False
         if self.t_ns is not None and now_ns < self.t_ns:  # restart there, as the paper node does
@@ -289,6 +306,7 @@ class NetworkNode(Node):
             kwargs["parameter_overrides"] = overrides + [Parameter("scene", value=str(scene))]
         super().__init__(node_name, **kwargs)
         self.recorder = None
+        self._record_lock = threading.Lock()  # around the recorder's writes (the input callbacks and the tick)
         self.timing = None
         try:
             values = {name: self.declare_parameter(name, default, ParameterDescriptor(description=text)).value
@@ -385,11 +403,14 @@ class NetworkNode(Node):
 
     def _input_callback(self, topic: str, pulley: int):
         def on_message(msg):
-            lock = self.timing.lock if self.timing is not None else threading.RLock()
-            with lock:
-                self.sim.receive(pulley, msg.data)
-                if self.recorder is not None:
-                    self.recorder.write_input(topic, msg.data, self.timing.now_ns())
+            # not the tick's lock: the hand-over's (NetworkSimulation.receive) and the recorder's, neither held
+            # through a tick's compute
+            self.sim.receive(pulley, msg.data)
+            recorder = self.recorder
+            if recorder is not None:
+                now = self.timing.now_ns()
+                with self._record_lock:
+                    recorder.write_input(topic, msg.data, now)
 
         return on_message
 
@@ -433,9 +454,10 @@ class NetworkNode(Node):
                 if readers[topic]:
                     sends.append((pub.publish, self._encode_floats((value,))[0]))
         if recorder is not None:
-            for topic, value in self.sim.applied:
-                recorder.write_input(topic, value, t)
-            recorder.write_tick(t, joint_cdr, tf_cdr, floats)
+            with self._record_lock:
+                for topic, value in self.sim.applied:
+                    recorder.write_input(topic, value, t)
+                recorder.write_tick(t, joint_cdr, tf_cdr, floats)
         self.counters["published"] += 1
         if defer:
             return sends
@@ -483,7 +505,8 @@ class NetworkNode(Node):
             self.timing.destroy()
         if self.recorder is not None:
             try:
-                self.recorder.close()
+                with self._record_lock:
+                    self.recorder.close()
             finally:
                 self.recorder = None
         return super().destroy_node()

@@ -58,8 +58,11 @@ samples the drive input there and publishes every output stamped with that
 time. On the system clock a thread of the node's own ticks
 (``tick_thread``, default true; :class:`~.timing.TickThread`): it computes
 each tick ahead (``tick_lead`` at least), publishes it at its due time, and publishes
-every missed tick after a late wake; every callback that touches the
-simulation holds the tick source's lock. Scene time 0 is when the run starts: the first tick on the system
+every missed tick after a late wake; every callback that changes the
+simulation (parameters, diagnostics) holds the tick source's lock, which a
+tick holds through its compute. The inputs (``drive_torque``, ``~/reset``)
+do not: their callbacks hand over under a lock of their own that the tick
+takes only at its start, so they are served while a tick computes. Scene time 0 is when the run starts: the first tick on the system
 clock, the first ``/clock`` the node sees with ``use_sim_time``, the first
 tick of its own clock with ``publish_clock``; and every restart
 (``~/reset``, a new ``scene``, a divergence, the clock jumping backwards or
@@ -72,7 +75,9 @@ The drive torque is sampled at each tick and held until the next (a
 message received between ticks k-1 and k acts from tick k on; on the
 system clock the tick thread computes tick k ahead of its due time, by
 ``tick_lead`` or more (:class:`~.timing.TickThread`), so a message in that
-last stretch acts from tick k+1).
+last stretch acts from tick k+1). The rule is the tick's *start*: a message
+received before a tick takes its inputs acts from that tick, one received
+while it computes (its callback is not held up) from the next.
 ``drive_source:=scene`` instead drives wheel M with the scene's drive
 profile (messages then are counted and ignored). Before the first message
 the torque is 0 N m. NaN/Inf messages and messages beyond ``torque_bound``
@@ -336,6 +341,7 @@ class BeltDriveNode(Node):
             raise NodeConfigError("record_path", str(exc)) from None
         except ValueError as exc:
             raise NodeConfigError("record_path", str(exc)) from None
+        self._count_listeners()  # (a recording: never the usual tick)
         self.get_logger().info(f"recording to {s.record_path}")
         self._record_description()  # first in the file
 
@@ -344,11 +350,13 @@ class BeltDriveNode(Node):
         """Constant time: validate, bound, clamp, hold (sampled at the next tick). ``data``: the message's
         serialized bytes (a raw subscription: no message object per message, see :func:`.inputs.float64_value`)."""
         value = float64_value(data)
-        with self.timing.lock:
-            now = self.timing.now_ns()
-            self.drive.receive(value, now, self.sim.settings)
-            if self.recorder is not None:
-                self.recorder.record_input(value, now)
+        # not the tick's lock: a tick computing now does not hold this callback up (DriveInput.receive's own lock
+        # is held for the hand-over alone; the tick takes the message at its start, see DriveInput.take)
+        now = self.timing.now_ns()
+        self.drive.receive(value, now, self.sim.settings)
+        recorder = self.recorder
+        if recorder is not None:  # (the recorder's own lock)
+            recorder.record_input(value, now)
 
     def _publish_description(self) -> None:
         """Publish (and record) the URDF of the drive in force, if it changed."""
@@ -378,9 +386,33 @@ class BeltDriveNode(Node):
         a due diagnostics publish to :meth:`_after_tick`.
         """
         if self._resets_pending:
-            calls, self._resets_pending = self._resets_pending, 0
+            with self.drive.lock:  # (the inputs' hand-over lock: _on_reset counts under it)
+                calls, self._resets_pending = self._resets_pending, 0
             self.sim.restart(f"~/reset, {calls} call(s) since the last tick")
-        sends = self._publish(now_ns, defer) if self.sim.advance_to(now_ns) else None
+        sim = self.sim
+        if not sim.advance_to(now_ns):
+            sends = None
+        elif sim._fresh_ns == now_ns and (send := self._usual) is not False:
+            # the usual tick: joint_states alone (or nothing), the bytes the compiled tick wrote (sim.fresh); its
+            # values stay where it wrote them (a view: `last` reads them there, the next tick writes them again and
+            # sets _last anew; a failed compiled tick writes nothing)
+            fresh = sim._tick_kernel
+            sends = None
+            if send is not None:
+                data = fresh.message.tobytes()  # (the same bytes as bytes(), ~3 us sooner on cold caches)
+                if defer:
+                    sends = [(send, data)]
+                else:
+                    send(data)
+            elif defer:
+                sends = []
+            v = fresh.values  # floats: TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
+            if v[14] or v[15] or len(v) > _N_TICK:
+                self._count(v)
+            self._last = (v, now_ns, sim.origin_ns)
+            self.counters["published"] += 1
+        else:
+            sends = self._publish(now_ns, defer)
         if not defer:
             self._after_tick()
         return sends
@@ -406,19 +438,7 @@ class BeltDriveNode(Node):
         subscribes to is not published; the recorder writes the same bytes.
         """
         sim = self.sim
-        fresh = sim.fresh(now_ns)  # the compiled tick's outputs and message, or None
-        if fresh is not None and self.recorder is None and self._joint_only:
-            # the usual tick: joint_states alone (or nothing), the bytes the compiled tick wrote
-            v = fresh.values.tolist()  # floats: TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
-            # (tobytes: the same bytes as bytes(), ~3 us sooner on cold caches)
-            sends = [(self._send_joint, fresh.message.tobytes())] if self._listening[0] else []
-            if v[14] or v[15] or len(v) > _N_TICK:
-                self._count(v)
-            if not defer and sends:
-                self._send_joint(sends[0][1])
-            self._last = (v, now_ns, sim.origin_ns)
-            self.counters["published"] += 1
-            return sends if defer else None
+        fresh = sim.fresh(now_ns)  # the compiled tick's outputs and message, or None (the usual tick: _tick)
         v = sim.values(now_ns) if fresh is None else fresh.values.tolist()
         recorder = self.recorder
         sends, record = self._sends(now_ns, v, recorder, self._listening)
@@ -482,10 +502,11 @@ class BeltDriveNode(Node):
     def last(self) -> dict:
         """The latest published tick's signals by name (TICK_OUTPUTS, the slipping model's too; slack and slip
         as bools), its scene ``time`` [s] and ``stamp_ns``; empty before the first."""
-        if self._last is None:
-            return {}
-        v, stamp, origin = self._last
-        y = dict(zip(TICK_OUTPUTS + SLIP_TICK_OUTPUTS, v))
+        with self.timing.lock:  # (the usual tick keeps its values where the compiled tick wrote them)
+            if self._last is None:
+                return {}
+            v, stamp, origin = self._last
+            y = dict(zip(TICK_OUTPUTS + SLIP_TICK_OUTPUTS, v))
         y["slack"], y["slip"] = bool(y["slack"]), bool(y["slip"])
         y["time"] = self.sim.scene_time(stamp) if origin == self.sim.origin_ns else (stamp - origin) / 1e9
         y["stamp_ns"] = stamp
@@ -498,6 +519,10 @@ class BeltDriveNode(Node):
         self._listening = (readers["joint_states"] > 0, readers.get("tf", 0) > 0,
                            any(readers[name] for name in OUTPUT_TOPICS), any(readers[name] for name in SLIP_OUTPUT_TOPICS))
         self._joint_only = not any(self._listening[1:])  # nobody but joint_states' readers: the usual tick
+        #: the usual tick's send (see _tick): joint_states' publish, None (nobody reads it), False (not the usual
+        #: tick: other readers or a recording)
+        self._usual = False if not self._joint_only or self.recorder is not None else \
+            getattr(self, "_send_joint", None) if self._listening[0] else None
 
     def refresh_subscriber_counts(self) -> dict[str, int]:
         """Query the readers of each output topic now (the "matched" events keep them current
@@ -586,7 +611,7 @@ class BeltDriveNode(Node):
         both serve this one service name: a call reaches either or both, as
         DDS delivers requests to every matching server.)
         """
-        with self.timing.lock:
+        with self.drive.lock:  # the inputs' hand-over lock, not the tick's: a tick computing now does not hold it
             self._resets_pending += 1
             self.counters["reset_calls"] += 1
         response.success = True

@@ -533,7 +533,8 @@ class NodeRecorder(TopicRecorder):
         except (MsgToolsError, OSError) as exc:
             raise bag_error(exc) from None
         timing = getattr(node, "timing", None)
-        super().__init__(node, writer, flush_period=flush_interval_s, lock=getattr(timing, "lock", None))
+        # a lock of its own (not the tick's): a drive_torque callback records its message while a tick computes
+        super().__init__(node, writer, flush_period=flush_interval_s)
         if timing is not None:  # compressing a chunk takes ~1 ms: not while a tick waits for the lock
             self.defer_flush = timing.defer_after_tick
         self.record_history = False  # the node's outputs keep 10 messages for late joiners: not this run's

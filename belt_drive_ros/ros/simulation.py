@@ -35,7 +35,7 @@ import numpy as np
 from ..core.errors import SimulationDivergedError
 from ..core.model import OUTPUT_UNITS, FlexibleBeltModel
 from ..core.slip import SLIP_OUTPUT_UNITS
-from ..core.slip_run import SlippingSimulator
+from ..core.slip_run import SlippingSimulator, _events
 from ..core.kernel_loop import OK
 from ..core.stepper import SPEED_LIMIT, Plant, Stepper, snap_tolerance
 from ..io.cdr_encoders import JointStateEncoder
@@ -118,23 +118,24 @@ class NodeSimulation:
         self._fresh_ns: int | None = None  # node time whose outputs the tick kernel holds (None: none)
         self._plain_ns: int | None = None  # node time of the next plain tick (see advance_to), or None
         self._free_k = (0, -1)  # grid cells k with no plant breakpoint near steps k0 <= k < k1 (lo <= k0, k1 <= hi)
-        self._topic = s.drive_source == "topic"  # (the plain tick's sample: the latest message, unless a timeout
-        self._timed = self._topic and s.input_timeout_ns > 0  # rule applies: then DriveInput.sample)
+        self._topic = s.drive_source == "topic"  # (the plain tick samples the drive: DriveInput.until)
         if s.model.name == "slipping":
             engine = SlippingSimulator(s.params, drive, s.scene.load, s.method, s.dt, s.method_options, check_stability=False)
             self._plant_breakpoints = tuple(engine.breakpoints)
             self._free_k = (0, -1)
-            from ..core.tick import SlipTickKernel
+            from ..core.tick import SlipTickKernel, native, slip_tick
 
             self._tick_kernel = SlipTickKernel(engine, SPEED_LIMIT, _JOINT_STATES.layout)
+            self._entry = native(slip_tick)  # (the plain tick's call: the kernel as a C callback)
             return engine
         plant = Plant(s.model, drive, s.scene.load)
         stepper = Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
         self._plant_breakpoints = tuple(stepper.breakpoints)
         self._free_k = (0, -1)
-        from ..core.tick import TickKernel
+        from ..core.tick import TickKernel, linear_tick, native
 
         self._tick_kernel = TickKernel.of(stepper, SPEED_LIMIT, _JOINT_STATES.layout)
+        self._entry = native(linear_tick)  # (the plain tick's call: the kernel as a C callback)
         return stepper
 
     @property
@@ -263,8 +264,11 @@ class NodeSimulation:
     def restart(self, why: str, now_ns: int | None = None) -> bool:
         """Restart from the initial state at ``now_ns`` (default: the last tick); True if running.
 
-        Before the run has started this only resets the state.
+        Before the run has started this only resets the state. The drive messages received until now are
+        taken (:meth:`DriveInput.take`): the restart holds the latest (a divergence's restart inside a tick,
+        :meth:`diverged`, holds what the tick took at its start).
         """
+        self.drive.take()
         if self.t_ns is None:
             s = self.settings
             self.x = s.scene.initial_state.vector(s.model.name, s.params.ratio)
@@ -317,29 +321,37 @@ class NodeSimulation:
         The first call starts the run at ``now_ns``. A clock that went
         backwards restarts the run there (counted in ``clock_jumps``).
 
+        The drive messages received until the call are handed over first (:meth:`DriveInput.take`): the tick's
+        sample is the latest of them; one received while the tick computes is the next tick's.
+
         A *plain* tick is the usual one at 1 kHz: the tick after one the tick kernel took, as many grid steps
         on, no held-torque jump at either end, no plant breakpoint near: the kernel's buffers hold all it needs
         (:meth:`~belt_drive_ros.core.tick.TickKernel.next`), so it is the drive's sample and one compiled call.
         """
+        drive = self.drive
+        if drive._new:  # messages received since the last tick: handed over now, before the compute (DriveInput.take)
+            drive.take()
         if now_ns == self._plain_ns:
             value = None
-            if self._timed:
-                value, warning = self.drive.sample(now_ns, self.origin_ns, self.settings)
-                if warning:
-                    self.log.warn(warning)
-            elif self._topic:  # (DriveInput.sample without a timeout: stale was cleared by the tick before)
-                value = self.drive.latest
+            if self._topic:  # the sample: the last one's while it cannot change (DriveInput.until), else anew
+                if now_ns <= drive.until:
+                    value = drive.value
+                else:
+                    value, warning = drive.sample(now_ns, self.origin_ns, self.settings)
+                    if warning:
+                        self.log.warn(warning)
             if value is None or value == self._held:
                 fast = self._tick_kernel
                 if self._live:  # the slipping belt (its events located in the kernel; a failure: the engine below)
-                    events = fast.next()
-                    if events is not None:
-                        if events:
-                            self._located(events)
+                    done = self._entry(fast._high, fast._low)  # (SlipTickKernel.next without its frame nor dispatcher)
+                    if done <= 0:
+                        if done:
+                            self._located(_events(fast._events[:-done]))  # (SlipTickKernel.next's answer)
                         self.t_ns = self._fresh_ns = now_ns
                         self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
                         return True
-                elif fast.next() == OK:  # (else the general path below takes the same steps and raises as it does)
+                elif self._entry(fast._high, fast._low) == OK:  # (TickKernel.next without its frame nor dispatcher;
+                    # else the general path below takes the same steps and raises as it does)
                     self.t_ns = self._fresh_ns = now_ns
                     self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
                     return True

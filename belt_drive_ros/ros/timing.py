@@ -152,8 +152,10 @@ class TickThread:
     grid point in turn, each published with its own stamp, when it is at
     most :data:`MAX_THREAD_CATCH_UP_NS` behind; further behind, it
     integrates to the latest grid point in one go (counted as a late tick).
-    The lock is released between ticks, so inputs received meanwhile apply
-    from the next one, as with a timer.
+    The lock is released between ticks; the input callbacks do not take it
+    (they hand over under a lock of their own, taken by a tick at its start),
+    so an input received while a tick computes is served at once and applies
+    from the next tick, as with a timer.
 
     Each tick is computed ahead of its due time and published at it. The
     lead is ``tick_lead`` or, when the thread's recent ticks took longer
@@ -337,7 +339,10 @@ class TickSource:
         self.stats = stats
         self._timers: list = []
         self._tick_timer = None
-        #: held by every tick and by every callback that touches the simulation (the tick thread runs beside the executor)
+        #: held by every tick (through its compute) and by every callback that changes the simulation (parameters,
+        #: diagnostics, clock changes: the tick thread runs beside the executor); not by the input callbacks
+        #: (``drive_torque``, ``~/reset``, a network's load inputs): they hand over under a lock of their own,
+        #: which a tick takes at its start only, so the executor serves them while a tick computes
         self.lock = threading.RLock()
         self._thread: TickThread | None = None
         self._retired: list[TickThread] = []  # stopped without a join (from a callback holding the lock)
