@@ -562,6 +562,12 @@ class Stepper:
         lo_side, hi_side = k <= last, k - 1 >= first
         kl, vl = _reduced(k[lo_side], b[lo_side], np.maximum)  # the step starting at a knot: from its latest breakpoint
         kh, vh = _reduced(k[hi_side] - 1, self.plant.left_of_array(b[hi_side]), np.minimum)  # ending there: the first's left
+        if 4 * k.size < last - first + 1:  # a few among many steps: sorted sets (memory of the breakpoints' size)
+            cells = np.union1d(kl, kh)
+            lo, hi = np.full(cells.size, -math.inf), np.full(cells.size, math.inf)
+            lo[np.searchsorted(cells, kl)], hi[np.searchsorted(cells, kh)] = vl, vh
+            keep = ~np.isin(cells, absorbed)
+            return (cells[keep], lo[keep], hi[keep]), bps[~inner]
         lo, hi = np.full(last - first + 1, -math.inf), np.full(last - first + 1, math.inf)  # by cell (first .. last)
         lo[kl - first], hi[kh - first] = vl, vh
         clamped = (lo != -math.inf) | (hi != math.inf)
@@ -588,11 +594,15 @@ class Stepper:
                 cells, lo, hi = cells[order], lo[order], hi[order]
                 _, hi = _reduced(cells, hi, np.minimum)
                 cells, lo = _reduced(cells, lo, np.maximum)
-            ends = np.zeros(last - first + 2, dtype=bool)  # by cell, first - 1 .. last
-            ends[cells[hi != math.inf] - first + 1] = True
-            ends[cells[lo != -math.inf] - first] = True
-            ends[last - first + 1] = True
-            plan["clamps"] = (cells, lo, hi, np.flatnonzero(ends) + (first - 1))
+            if 4 * cells.size < last - first + 1:  # a few clamped steps among many: a sorted set
+                ends = np.unique(np.concatenate([cells[hi != math.inf], cells[lo != -math.inf] - 1, [last]]))
+            else:  # one a step or so: marks by cell, first - 1 .. last (no sort)
+                ends = np.zeros(last - first + 2, dtype=bool)
+                ends[cells[hi != math.inf] - first + 1] = True
+                ends[cells[lo != -math.inf] - first] = True
+                ends[last - first + 1] = True
+                ends = np.flatnonzero(ends) + (first - 1)
+            plan["clamps"] = (cells, lo, hi, ends.astype(np.int64))
         return plan["clamps"]
 
     def _step(self, plan: dict, c: int) -> tuple:
