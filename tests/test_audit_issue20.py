@@ -10,13 +10,13 @@
 * **The network node's tick** (``core/network/tick.py: network_tick``) lets another Python thread run while it
   computes, as ``test_audit_kernel`` shows for the paper node's linear and slipping ticks.
 
-One path is left out here because it does step in Python today (the lead has the details; it shows up here at
-once when its case is added): a torque recorded at the step rate with a load that reads time
-(``bags/compressor_cycling``: the absorbed-steps path needs a time-free load, so each step is one clamped kernel
-call planned in Python, ~18 calls per step). The slipping model's slip phases with ``trapezoidal`` (an implicit
-method with the slip force an extra input) are in: they stepped in Python until the compiled loop solved the
-implicit stage with the extra input (~164 Python calls per step on bsg_start before, 0.003 after;
-``tests/test_kernel_implicit.py`` shows the floats are the ones the Python steps gave).
+Two paths stepped in Python until this audit found them; both are in now, each checked below. The slipping
+model's slip phases with ``trapezoidal`` (an implicit method with the slip force an extra input): the compiled
+loop solves the implicit stage with the extra input (~164 Python calls per step on bsg_start before, 0.003 after;
+``tests/test_kernel_implicit.py`` shows the floats are the ones the Python steps gave). A torque recorded at the
+step rate with a load that reads time (``bags/compressor_cycling``: no absorbed steps, every step clamped at its
+own breakpoints) was one clamped kernel call per step planned in Python (~18 calls per step); its clamps are
+planned by numpy and stepped in one compiled call (``kernel.clamped_steps``).
 """
 
 from __future__ import annotations
@@ -116,6 +116,48 @@ def test_a_torque_bag_replay_steps_no_step_in_python(name):
                                   ROOT / "bags" / f"{name}_torque.mcap")
     growth = _per_extra_step(lambda d: simulate(scene, duration=d, check_stability=False), 0.6, 1.2, scene.dt)
     assert growth < PER_STEP, (name, growth)
+
+
+def _bag_scene(name: str, **overrides):
+    from belt_drive_ros.io.torque_bag import scene_with_torque_bag
+
+    scene = scene_with_torque_bag(load_scene(str(ROOT / "bags" / f"{name}.yaml")), ROOT / "bags" / f"{name}_torque.mcap")
+    return scene.with_overrides(**overrides) if overrides else scene
+
+
+@pytest.mark.parametrize("method", ["etd4", "exact", "rk4", "trapezoidal"])
+@pytest.mark.parametrize("model", ["rigid", "flexible"])
+def test_a_torque_bag_with_a_load_reading_time_steps_no_step_in_python(model, method):
+    """``bags/compressor_cycling``: a breakpoint on every knot and a load that reads time (a schedule of compressors:
+    no step absorbed), so every step has its own clamps; run whole, with a progress callback (``belt-drive sim``'s
+    bar) and streamed (``stream``). ~18 Python calls per step before the clamps went into the compiled loop."""
+    from belt_drive_ros.core.stream import stream
+
+    scene = _bag_scene("compressor_cycling")
+    assert scene.load.kind == "schedule"
+    growth = _per_extra_step(lambda d: simulate(scene, model=model, method=method, duration=d, check_stability=False),
+                             0.6, 1.2, scene.dt)
+    assert growth < PER_STEP, ("run", growth)
+    growth = _per_extra_step(lambda d: simulate(scene, model=model, method=method, duration=d, check_stability=False,
+                                                progress=lambda f: None), 0.6, 1.2, scene.dt)
+    assert growth < PER_STEP, ("progress", growth)
+    windows = scene.with_overrides(model=model, method=method)
+    growth = _per_extra_step(lambda d: list(stream(windows.with_overrides(duration=d), check_stability=False,
+                                                   window_steps=10**7)), 0.6, 1.2, scene.dt)
+    assert growth < PER_STEP, ("stream", growth)
+
+
+def test_a_torque_bag_advanced_off_the_grid_steps_no_step_in_python():
+    """``Stepper.advance`` over the recording (the run's whole steps between partial first and last steps), the
+    clamped steps in the compiled runs, not one call each."""
+    from belt_drive_ros.core.model import make_model
+    from belt_drive_ros.core.stepper import Plant, Stepper
+
+    scene = _bag_scene("compressor_cycling")
+    stepper = Stepper(Plant(make_model("flexible", scene.params), scene.drive, scene.load), "etd4", scene.dt)
+    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+    growth = _per_extra_step(lambda d: stepper.advance(x0, 0.00031, 0.00031 + d), 0.6, 1.2, scene.dt)
+    assert growth < PER_STEP, growth
 
 
 # ------------------------------------------------------------------ the network node's tick and the GIL

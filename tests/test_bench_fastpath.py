@@ -209,21 +209,23 @@ def test_the_kernel_compiles_once_whatever_the_scene():
     from belt_drive_ros.core.scene import shipped_scenes
 
     def counts():
-        names = ("linear_steps", "_steps", "_explicit", "wheel_steps", "profile_torque", "profile_torque_at", "profile_torque_array")
+        names = ("clamped_steps", "linear_steps", "_steps", "_explicit", "wheel_steps", "profile_torque",
+                 "profile_torque_at", "profile_torque_array")
         return {name: len(getattr(kernel, name).signatures) for name in names}
 
     simulate(load_scene("paper"), duration=0.01)
     for profile in PROFILES:
         profile.torque(0.1, 1.0, 2.0), profile.torque(np.array([0.1, 0.2]), 1.0, 2.0)
     first = counts()
-    # called from Python: compiled (or loaded) once; the others, called only from compiled code, at most once
-    assert {first[n] for n in ("linear_steps", "profile_torque", "profile_torque_array")} == {1} and max(first.values()) == 1
+    # called from Python (a run's whole steps: clamped_steps): compiled (or loaded) once; the others, called from
+    # compiled code (linear_steps: also from Python, for a partial or split step), at most once
+    assert {first[n] for n in ("clamped_steps", "profile_torque", "profile_torque_array")} == {1} and max(first.values()) == 1
     for name in shipped_scenes():
         scene = load_scene(name)
         simulate(scene, duration=min(scene.duration, 0.05))
     for profile in PROFILES:
         profile.torque(0.3, 2.0, 5.0)
-    assert counts() == first
+    assert max(counts().values()) == 1
 
 
 def test_the_kernel_interpreted_gives_the_same_floats(tmp_path):

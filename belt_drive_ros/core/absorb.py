@@ -21,14 +21,17 @@ _NO_CELLS = np.empty(0, dtype=np.int64)
 
 def left_of_array(profile, b: np.ndarray) -> np.ndarray:
     """``profile.left_of`` of each time of ``b`` [s]: its ``left_of_array`` if it has one, the default's
-    float below as an array, else one call per time."""
-    from .sources import TorqueProfile
+    float below as an array, a schedule's from its parts', else one call per time."""
+    from .sources import Schedule, TorqueProfile
 
     own = getattr(profile, "left_of_array", None)
     if own is not None:
         return np.asarray(own(b), dtype=np.float64)
     if type(profile).left_of is TorqueProfile.left_of:
         return np.nextafter(b, -np.inf)
+    if type(profile) is Schedule:  # Schedule.left_of: the least of the float below and both parts' (min of equal floats)
+        below = np.nextafter(b, -np.inf)
+        return np.minimum(np.minimum(below, left_of_array(profile.active, b)), left_of_array(profile.inactive, b))
     return np.array([profile.left_of(v) for v in b.tolist()], dtype=np.float64)
 
 
@@ -84,8 +87,12 @@ def absorbed_steps(stepper, bps: np.ndarray, first: int, last: int) -> tuple[np.
     clamped into ``[lo_j, hi_j]`` (what the step planned alone reads): a time-only torque is evaluated at both,
     any other must read no time there (:func:`time_free`).
     """
-    end = end_loop(stepper)
     origin, dt = stepper.origin, stepper.dt
+    plant = stepper.plant
+    if any((p.state_dependent or angle) and not time_free(data, origin + last * dt)
+           for p, data, angle in zip((plant.drive, plant.load), plant.data, plant.uses_angle)):
+        return _NO_CELLS, None  # a torque reading the state and the time to the end: no step (as _same_torques finds)
+    end = end_loop(stepper)
     kf = np.rint((bps - origin) / dt)
     d = np.abs(origin + kf * dt - bps)
     on = (d <= stepper.grid_tolerance * dt) | (d <= 8.0 * np.spacing(np.abs(bps)))

@@ -11,7 +11,9 @@ version, cached on disk, run without the GIL; ``NUMBA_DISABLE_JIT=1`` runs them 
   speed-dependent extra input, the divergence check and an optional guard after every step (the two-wheel drive
   and belt networks);
 * :func:`linear_steps` -- the two-wheel drive's entry (its arrays packed), with the 2- and 4-state fast path of
-  an explicit method (:func:`_explicit`).
+  an explicit method (:func:`_explicit`);
+* :func:`clamped_steps` -- a run of whole steps with their own clamps at breakpoints on the knots (a torque recorded
+  at the step rate: one per step), in groups of one :func:`linear_steps` call each, in one compiled call.
 
 Only a run imports this module (``--help``, ``scenes``, ``msg-tools`` never do). Every matrix-vector product is
 summed column by column from the left (zero entries included), as :func:`~belt_drive_ros.core.stage_scheme.affine`
@@ -632,6 +634,47 @@ def linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp):
         ints[6], ints[7] != 0, ints[8] != 0, dk, dp, reals[at[7] : at[8]], reals[at[8] : at[9]], lk, lp,
         reals[at[9] : at[10]], reals[at[10] : at[11]], reals[at[5] : at[6]].reshape((E, 5)), reals[at[6] : at[7]],
     )  # fmt: skip
+
+
+@njit(**_JIT)
+def clamped_steps(times, x, out, c0, c1, base, cells, clo, chi, ends, half, limit, reals, ints, dp, lp):
+    """Whole grid steps ``c0 <= c < c1`` (step ``c``: ``times[c] -> times[c+1]``, its state into ``out[c]``; ``x``: the
+    state at ``times[c0]``) whose torque samples are clamped at breakpoints on the knots, in groups of one
+    :func:`linear_steps` call each: returns ``(c, status, t)``, ``c`` the steps done (the failing one included).
+
+    ``cells`` (sorted, grid indices: step ``c`` is cell ``base + c``) and ``clo``, ``chi`` [s]: each clamped step's
+    bounds (``-inf``/``inf`` where none). A group runs from a step to the next end of ``ends`` (sorted grid indices:
+    a cell with a finite ``hi``, the cell before one with a finite ``lo``, the last) with its first step's ``lo`` and
+    its last step's ``hi``: every sample of the steps between lies inside both already (a bound within ``half`` [s]
+    of its knot), so each step reads the torques of its own clamps; a bound farther inside: that step alone, its own
+    clamps. The same groups as one call per group from Python (``Stepper``), so the same floats."""
+    N = times.size - 1
+    j = np.searchsorted(cells, base + c0)
+    e = np.searchsorted(ends, base + c0)
+    c = c0
+    while c < c1:
+        cell = base + c
+        while j < cells.size and cells[j] < cell:
+            j += 1
+        lo = clo[j] if j < cells.size and cells[j] == cell else -math.inf
+        while e < ends.size and ends[e] < cell:
+            e += 1
+        d = ends[e] - base if e < ends.size else N - 1
+        d = N - 1 if d > N - 1 else d
+        i = j
+        while i < cells.size and cells[i] < base + d:
+            i += 1
+        hi = chi[i] if i < cells.size and cells[i] == base + d else math.inf
+        if (lo != -math.inf and lo > times[c] + half) or (hi != math.inf and hi < times[d] + half):
+            d = c  # a bound far inside: this step alone, its own clamps
+            hi = chi[j] if j < cells.size and cells[j] == cell else math.inf
+        d = c1 - 1 if d > c1 - 1 else d
+        done, status, t = linear_steps(times[c : d + 2], x, out[c : d + 1], lo, hi, limit, reals, ints, dp, lp)
+        if status != OK:
+            return c + done, status, t
+        x = out[d]
+        c = d + 1
+    return c1, OK, times[c1] if c1 <= N else 0.0
 
 
 @njit(**_JIT)  # out of line: the variant loop calls the same compiled body (its inlining doubled the build)

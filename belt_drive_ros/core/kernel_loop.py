@@ -114,7 +114,7 @@ class KernelLoop:
     def __init__(self, scheme, dt: float, wheel_map, uses_angle, drive, load, extra=(), guard=None):
         from . import kernel
 
-        self._steps = kernel.linear_steps
+        self._steps, self._clamped = kernel.linear_steps, kernel.clamped_steps
         W = np.asarray(wheel_map, dtype=float)
         stacked = W.ndim == 3
         W = W if stacked else W[None]  # (V, 4, n)
@@ -164,6 +164,12 @@ class KernelLoop:
             times = times.copy()
         return self._steps(times, x, out, lo, hi, limit, self.reals, self.ints, self._dp, self._lp)
 
+    def clamped(self, times, x, out, c0: int, c1: int, base: int, cells, lo, hi, ends, half: float, limit: float = 1.0e5):
+        """Steps ``c0 .. c1 - 1`` of ``times`` with their clamps at breakpoints on the knots, in one compiled call:
+        :func:`~belt_drive_ros.core.kernel.clamped_steps` (its arguments; ``(steps done, status, t)``)."""
+        return self._clamped(times, x, out, c0, c1, base, cells, lo, hi, ends, half, limit, self.reals, self.ints,
+                             self._dp, self._lp)  # fmt: skip
+
     @staticmethod
     def usable(scheme) -> bool:
         """Whether a scheme's matrices are real (the kernel's arrays are float64; read once per cached scheme)."""
@@ -195,6 +201,9 @@ def warm() -> None:
     one = np.zeros(1)
     profile_torque_array(data.kinds, data.params, data.tx, data.ty, one, one, one, np.empty(1))
     loop(np.array([0.0, 1e-3]), np.zeros(2), np.empty((1, 2)))
+    none = np.zeros(0, dtype=np.int64)
+    loop.clamped(np.array([0.0, 1e-3]), np.zeros(2), np.empty((1, 2)), 0, 1, 0, none, np.zeros(0), np.zeros(0),
+                 np.zeros(1, dtype=np.int64), 5e-4)  # fmt: skip
 
 
 def warm_variants() -> None:

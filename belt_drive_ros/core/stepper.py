@@ -24,8 +24,11 @@ strictly inside a step splits the step there (sub-steps by integrators of the su
 (within the snap tolerance) bounds the steps on either side. Every torque sample of a (sub-)step is taken at a time
 clamped into the step's side: the step that ends at breakpoint ``b`` samples at most at ``plant.left_of(b)`` (the
 left limit), the step that starts there at least at ``b``, so no step integrates across a jump or a kink and each
-method keeps its order. Each such piece is one kernel call, each run of whole steps one call; an adaptive method
-(scipy's references) steps through ``integrator.step``. A torque profile without a data form is refused.
+method keeps its order. Runs of whole steps, clamped ones included, are one compiled call
+(:func:`~belt_drive_ros.core.kernel.clamped_steps`: a torque recorded at the step rate, a breakpoint on every knot,
+is planned by numpy and stepped in one call, each step with its own clamps); each piece of a split or partial step is
+one kernel call; an adaptive method (scipy's references) steps through ``integrator.step``. A torque profile without
+a data form is refused.
 
 Integrators (and kernel loops) of partial-step lengths are cached per stepper (at most :data:`PARTIAL_CACHE_SIZE`);
 plant torques are read at every call (a held torque may change between advances).
@@ -226,6 +229,19 @@ def _merged(drive, load) -> np.ndarray:
     return both if np.all(both[1:] > both[:-1]) else np.unique(both)  # a table's: sorted already
 
 
+def _reduced(keys: np.ndarray, values: np.ndarray, ufunc) -> tuple[np.ndarray, np.ndarray]:
+    """(distinct ``keys`` (sorted), ``ufunc`` (np.maximum, np.minimum) of the ``values`` of each)."""
+    if keys.size == 0:
+        return keys, values
+    at = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    return keys[at], ufunc.reduceat(values, at)
+
+
+def _clamp_count(plan: dict) -> int:
+    """Special steps of a plan, counting those of its knots' arrays (:meth:`Stepper._knot_clamps`): an upper bound."""
+    return len(plan["special"]) + (plan["knots"][0].size if plan["knots"] is not None else 0)
+
+
 def _search(bps, x: float, right: bool) -> int:
     """:func:`bisect.bisect_left` (``right``: ``bisect_right``) of ``x`` in the sorted ``bps`` (list or array)."""
     if isinstance(bps, np.ndarray):
@@ -350,10 +366,10 @@ class Stepper:
                 self.split_steps, self.stopped = page.split_steps, page.stopped
         plan = self._run_plan(t0, t1)
         self.stopped = None
-        if (not progress and self.loop is not None and not plan["empty"] and not plan["lead"] and not plan["trail"]
+        if (self.loop is not None and not plan["empty"] and not plan["lead"] and not plan["trail"]
                 and not plan["absorbed"].size and not self.split_steps):
-            # whole grid steps, breakpoints on knots only: one kernel call per group; the knots are the grid's
-            states, times = self._march_grouped(x0, plan)
+            # whole grid steps, breakpoints on knots only: one compiled call (per progress report); the knots the grid's
+            states, times = self._march_grouped(x0, plan, progress)
             times[0] = t0
             if times.size == plan["last"] - plan["first"] + 2:
                 times[-1] = t1
@@ -382,7 +398,7 @@ class Stepper:
             self.split_steps = {c: list(e[2]) for c, e in hit[1]["special"].items() if e[2]}
             return hit[1]
         plan = self._plan(t0, t1, absorb=True)
-        if len(plan["special"]) <= PLAN_SPECIAL and not plan["absorbed"].size:
+        if not plan["absorbed"].size and _clamp_count(plan) <= PLAN_SPECIAL:
             if len(self._plans) >= PLAN_CACHE_SIZE:
                 self._plans.pop(next(iter(self._plans)))
             self._plans[key] = (self.breakpoints, plan)
@@ -469,7 +485,10 @@ class Stepper:
         knot: the grid time when ``t0``/``t1`` snap to the grid, else themselves), ``lead``/``trail`` (whether the
         first/last step is partial), ``t0``/``t1`` as given, and ``special = {cell: [lo, hi, cuts]}`` for steps
         whose torque samples are clamped to ``[lo, hi]`` or that are split at ``cuts``; ``absorbed``: the cells
-        (sorted int64) :func:`~belt_drive_ros.core.absorb.absorbed_steps` found (``absorb``: look for them).
+        (sorted int64) :func:`~belt_drive_ros.core.absorb.absorbed_steps` found (``absorb``: look for them);
+        ``knots``: with ``absorb`` and many breakpoints, the clamps of those on interior knots as arrays
+        ``(cells, lo, hi)`` (:meth:`_knot_clamps`; not in ``special``; :meth:`_step` and :meth:`_clamps` merge them),
+        else None.
         """
         k0, k1 = self._snap(t0), self._snap(t1)
         start = self.grid_time(k0) if k0 is not None else t0
@@ -492,6 +511,9 @@ class Stepper:
             if absorbed.size:
                 near = np.asarray(near, dtype=np.float64)[~skip]
         taken = set(absorbed.tolist())  # an absorbed step's clamps are accounted for: no special entry
+        knots = None
+        if absorb and len(near) >= ABSORB_MIN:  # the breakpoints on interior knots as arrays, the others below
+            knots, near = self._knot_clamps(np.asarray(near, dtype=np.float64), t0, t1, start, end, first, last, absorbed)
 
         def entry(c):
             return special.setdefault(c, [-math.inf, math.inf, []]) if c not in taken else [-math.inf, math.inf, []]
@@ -520,8 +542,69 @@ class Stepper:
         self.split_steps = {c: list(e[2]) for c, e in special.items() if e[2]}
         return dict(
             t0=t0, t1=t1, start=start, end=end, first=first, last=last, empty=empty,
-            lead=k0 is None, trail=k1 is None, special=special, absorbed=absorbed,
+            lead=k0 is None, trail=k1 is None, special=special, absorbed=absorbed, knots=knots,
         )  # fmt: skip
+
+    def _knot_clamps(self, bps: np.ndarray, t0: float, t1: float, start: float, end: float, first: int, last: int,
+                     absorbed: np.ndarray) -> tuple:
+        """``((cells, lo, hi), the other breakpoints)``: the clamps that the breakpoints ``bps`` (sorted) on interior
+        knots put on the steps either side (:meth:`_plan`'s rule, the same floats, as arrays: a torque recorded at
+        the step rate has one on every knot), cells sorted, ``-inf``/``inf`` where a side has none; the absorbed
+        cells left out. The others (near the ends, off the grid) for :meth:`_plan`'s loop."""
+        dt = self.dt
+        tol_b = np.maximum(GRID_TOLERANCE * dt, 8.0 * np.spacing(np.abs(bps)))  # snap_tolerance of each
+        tol0, tol1 = snap_tolerance(start, dt), snap_tolerance(end, dt)
+        kf = np.rint((bps - self.origin) / dt)  # _snap: round half to even
+        at_ends = ((np.abs(bps - start) <= np.maximum(tol0, tol_b)) | (np.abs(bps - t0) <= tol0)
+                   | (np.abs(bps - end) <= np.maximum(tol1, tol_b)) | (np.abs(bps - t1) <= tol1))  # fmt: skip
+        inner = ~at_ends & (bps > start) & (bps < end) & (np.abs(self.origin + kf * dt - bps) <= tol_b)
+        k = kf[inner].astype(np.int64)
+        b = bps[inner]
+        lo_side, hi_side = k <= last, k - 1 >= first
+        kl, vl = _reduced(k[lo_side], b[lo_side], np.maximum)  # the step starting at a knot: from its latest breakpoint
+        kh, vh = _reduced(k[hi_side] - 1, self.plant.left_of_array(b[hi_side]), np.minimum)  # ending there: the first's left
+        if 4 * k.size < last - first + 1:  # a few among many steps: sorted sets (memory of the breakpoints' size)
+            cells = np.union1d(kl, kh)
+            lo, hi = np.full(cells.size, -math.inf), np.full(cells.size, math.inf)
+            lo[np.searchsorted(cells, kl)], hi[np.searchsorted(cells, kh)] = vl, vh
+            keep = ~np.isin(cells, absorbed)
+            return (cells[keep], lo[keep], hi[keep]), bps[~inner]
+        lo, hi = np.full(last - first + 1, -math.inf), np.full(last - first + 1, math.inf)  # by cell (first .. last)
+        lo[kl - first], hi[kh - first] = vl, vh
+        clamped = (lo != -math.inf) | (hi != math.inf)
+        clamped[absorbed - first] = False
+        cells = np.flatnonzero(clamped)
+        return (cells + first, lo[cells], hi[cells]), bps[~inner]
+
+    def _clamps(self, plan: dict) -> tuple:
+        """``(cells, lo, hi, ends)`` of a plan (kept in it): every clamped step's bounds (the special steps' and the
+        knots' of :meth:`_knot_clamps`, merged: the latest lo, the earliest hi), cells sorted; ``ends`` the cells that
+        end a group of :func:`~belt_drive_ros.core.kernel.clamped_steps` (a finite hi, the cell before a finite lo,
+        the last)."""
+        if "clamps" not in plan:
+            special, knots, first, last = plan["special"], plan["knots"], plan["first"], plan["last"]
+            if knots is not None and not special:
+                cells, lo, hi = knots
+            else:
+                cells = np.fromiter(special, dtype=np.int64, count=len(special))
+                lo = np.array([e[0] for e in special.values()], dtype=np.float64)
+                hi = np.array([e[1] for e in special.values()], dtype=np.float64)
+                if knots is not None:
+                    cells, lo, hi = (np.concatenate([a, b]) for a, b in zip((cells, lo, hi), knots))
+                order = np.argsort(cells, kind="stable")
+                cells, lo, hi = cells[order], lo[order], hi[order]
+                _, hi = _reduced(cells, hi, np.minimum)
+                cells, lo = _reduced(cells, lo, np.maximum)
+            if 4 * cells.size < last - first + 1:  # a few clamped steps among many: a sorted set
+                ends = np.unique(np.concatenate([cells[hi != math.inf], cells[lo != -math.inf] - 1, [last]]))
+            else:  # one a step or so: marks by cell, first - 1 .. last (no sort)
+                ends = np.zeros(last - first + 2, dtype=bool)
+                ends[cells[hi != math.inf] - first + 1] = True
+                ends[cells[lo != -math.inf] - first] = True
+                ends[last - first + 1] = True
+                ends = np.flatnonzero(ends) + (first - 1)
+            plan["clamps"] = (cells, lo, hi, ends.astype(np.int64))
+        return plan["clamps"]
 
     def _step(self, plan: dict, c: int) -> tuple:
         """``(a, e, whole, lo, hi, cuts)`` of the step in cell ``c``: from ``a`` to ``e`` [s] (``whole``: a full grid
@@ -529,7 +612,13 @@ class Stepper:
         a = plan["start"] if c == plan["first"] else self.grid_time(c)
         e = plan["end"] if c == plan["last"] else self.grid_time(c + 1)
         whole = not ((c == plan["first"] and plan["lead"]) or (c == plan["last"] and plan["trail"]))
-        return (a, e, whole, *plan["special"].get(c, (-math.inf, math.inf, ())))
+        lo, hi, cuts = plan["special"].get(c, (-math.inf, math.inf, ()))
+        if plan["knots"] is not None:  # (a clamp of the knots' arrays: merged, as _clamps does)
+            cells, klo, khi = plan["knots"]
+            i = int(cells.searchsorted(c))
+            if i < cells.size and cells[i] == c:
+                lo, hi = max(lo, float(klo[i])), min(hi, float(khi[i]))
+        return a, e, whole, lo, hi, cuts
 
     def _knots(self, plan: dict) -> list:
         """Times of the recorded states: t0, the interior grid times, t1."""
@@ -605,8 +694,10 @@ class Stepper:
     def _march(self, x: np.ndarray, plan: dict, progress, record: bool):
         """Execute ``plan`` from state ``x``: the states at every knot (record) or the last.
 
-        Runs of plain whole steps are one kernel call each; a step that touches a breakpoint (and every step
-        of a stepper without a kernel loop: an adaptive method) is :meth:`_special_step`.
+        Runs of whole steps, those clamped at breakpoints on their knots included, are one compiled call each
+        (:func:`~belt_drive_ros.core.kernel.clamped_steps`, up to :data:`CHUNK` steps); a partial step or one
+        split at a breakpoint inside it (and every step of a stepper without a kernel loop: an adaptive method) is
+        :meth:`_special_step`.
         """
         size = x.size
         if plan["empty"]:
@@ -620,7 +711,10 @@ class Stepper:
         if record:
             states[0] = x
         chunk = CHUNK if not progress else min(CHUNK, max(64, n_cells // 100))
-        stops = sorted(special)
+        # the steps taken alone: split ones, the partial ones at the ends (clamps alone: in the compiled runs)
+        stops = sorted([c for c, e in special.items() if e[2]] + [first] * plan["lead"] + [last] * plan["trail"])
+        hard = set(stops)
+        clamps = self._clamps(plan) if self.loop is not None else None
         si = 0
         runs = plan["absorbed"]  # absorbed cells as runs [run_from, run_to) of the absorbed loop (absorb.py)
         run_from, run_to = [], []
@@ -631,8 +725,8 @@ class Stepper:
         c = first
         with np.errstate(all="ignore"):
             while c <= last:
-                a, e, whole, lo, hi, cuts = self._step(plan, c)
-                if c in special or not whole or self.loop is None:
+                if c in hard or self.loop is None:
+                    a, e, whole, lo, hi, cuts = self._step(plan, c)
                     x = self._special_step(x, a, e, whole, lo, hi, cuts)
                     if record:
                         states[c - first + 1] = x
@@ -653,20 +747,24 @@ class Stepper:
                 while ri < len(run_to) and run_to[ri] <= c:
                     ri += 1
                 stop = min(c + chunk, stops[si] if si < len(stops) else last + 1, last + 1 if not plan["trail"] else last)
-                loop = self.loop
+                absorbed = ri < len(run_from) and run_from[ri] <= c
                 if ri < len(run_from):
-                    if run_from[ri] <= c:  # absorbed steps (no special cell inside a run)
-                        stop, loop = min(c + chunk, run_to[ri]), self._end
+                    if absorbed:  # absorbed steps (no special cell inside a run)
+                        stop = min(c + chunk, run_to[ri])
                     else:
                         stop = min(stop, run_from[ri])
                 out = states[c - first + 1 : stop - first + 1] if record else np.empty((stop - c, size))
-                done, status, t = loop(self._grid(c, stop + 1), np.ascontiguousarray(x, dtype=np.float64), out,
-                                       -math.inf, math.inf, SPEED_LIMIT)  # fmt: skip
+                x = np.ascontiguousarray(x, dtype=np.float64)
+                if absorbed:
+                    done, status, t = self._end(self._grid(c, stop + 1), x, out, -math.inf, math.inf, SPEED_LIMIT)
+                else:  # (clamped steps grouped as _march_grouped does)
+                    done, status, t = self.loop.clamped(self._grid(c, stop + 1), x if x.flags.writeable else x.copy(), out,
+                                                        0, stop - c, c, *clamps, 0.5 * self.dt, SPEED_LIMIT)  # fmt: skip
                 if status == NOT_CONVERGED:
                     self._not_converged(t)
                 if status == GUARDED:  # the guard fired at the end of cell c + done - 1
                     j = c + done - 1
-                    self.stopped = (j - first, *self._step(plan, j)[:5], [])  # (a plain cell: no clamps)
+                    self.stopped = (j - first, *self._step(plan, j)[:5], [])  # (a whole cell: no cuts)
                     break
                 if status == DIVERGED:
                     out[done:] = np.nan
@@ -681,60 +779,49 @@ class Stepper:
                 self._clean = record and self.loop is not None
         return states if record else x
 
-    def _march_grouped(self, x: np.ndarray, plan: dict) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`_march` of whole grid steps whose breakpoints all lie on knots: one kernel call per group;
-        returns (states, their grid times).
+    def _march_grouped(self, x: np.ndarray, plan: dict, progress=None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_march` of whole grid steps whose breakpoints all lie on knots: one compiled call
+        (:func:`~belt_drive_ros.core.kernel.clamped_steps`; one per progress report, or per block of a guarded run's
+        rows, which grow as it goes: it may stop at the first step); returns (states, their grid times).
 
         A step that ends on a breakpoint samples at most at its left limit (``hi``), the one that starts there
         at least at it (``lo``); every other sample of the steps before the first (after the second) lies
         below (above) that bound already, so a group of steps from one starting on a breakpoint to one ending
-        on the next is one call with that group's ``lo`` and ``hi`` (also when cut in parts at a guarded run's
-        rows, which grow as it goes: it may stop at the first step).
+        on the next is one :func:`~belt_drive_ros.core.kernel.linear_steps` call with that group's ``lo`` and
+        ``hi`` (also when cut in parts).
         """
-        first, last, special = plan["first"], plan["last"], plan["special"]
+        first, last = plan["first"], plan["last"]
+        cells, lo, hi, ends = self._clamps(plan)
         guarded, total = self.guard is not None, last - first + 2
         states = np.empty((total if not guarded else min(total, GUARDED_ROWS), x.size))
         states[0] = x
-        if "ends" not in plan:  # the cells that end a group: one whose hi is finite, or the one before a cell whose
-            # lo is (sorted; kept in the plan: _run_plan keeps a run's)
-            plan["ends"] = sorted({c for c, e in special.items() if e[1] != math.inf}
-                                  | {c - 1 for c, e in special.items() if e[0] != -math.inf}) + [last] if special else [last]  # fmt: skip
         if not guarded and "grid" not in plan:  # (kept with the plan: a copy returned, the caller's to keep)
             plan["grid"] = self._grid(first, last + 2)
-        grid = plan["grid"].copy() if not guarded else None
-        half = 0.5 * self.dt
-        ends = plan["ends"]
-        ei = 0
+        grid = plan["grid"].copy() if not guarded else self._grid(first, first + states.shape[0])
+        block = max(64, (last - first + 1) // 100) if progress else total
         c = first
         while c <= last:
-            lo = special[c][0] if c in special else -math.inf
-            while ends[ei] < c:
-                ei += 1
-            d = min(ends[ei], last)  # the group's last cell
-            hi = special[d][1] if d in special else math.inf
-            if (lo != -math.inf and lo > self.grid_time(c) + half) or (hi != math.inf and hi < self.grid_time(d) + half):
-                lo, hi, d = (*special.get(c, (-math.inf, math.inf))[:2], c)  # a bound far inside: this step alone
-            if guarded and d - first + 2 > states.shape[0]:  # beyond the rows held: up to their end, then twice as many
-                if c - first + 1 == states.shape[0]:
-                    states = np.concatenate([states, np.empty((min(total, 2 * states.shape[0]) - states.shape[0], x.size))])
-                d = min(d, first + states.shape[0] - 2)  # (a bound of the group's still holds in its parts: see above)
-            times = grid[c - first : d - first + 2] if grid is not None else self._grid(c, d + 2)
-            done, status, t = self.loop(times, np.ascontiguousarray(x, dtype=np.float64), states[c - first + 1 : d - first + 2],
-                                        lo, hi, SPEED_LIMIT)  # fmt: skip
+            if guarded and c - first + 1 == states.shape[0]:  # the rows held are full: twice as many
+                states = np.concatenate([states, np.empty((min(total, 2 * states.shape[0]) - states.shape[0], x.size))])
+                grid = self._grid(first, first + states.shape[0])
+            stop = min(last + 1, first + states.shape[0] - 1, c + block)
+            k, status, t = self.loop.clamped(grid, states[c - first], states[1:], c - first, stop - first, first, cells,
+                                             lo, hi, ends, 0.5 * self.dt, SPEED_LIMIT)  # fmt: skip
             if status == NOT_CONVERGED:
                 self._not_converged(t)
-            if status == GUARDED:
-                j = c + done - 1
+            if status == GUARDED:  # the guard fired at the end of cell first + k - 1
+                j = first + k - 1
                 self.stopped = (j - first, *self._step(plan, j)[:5], [])
                 break
             if status == DIVERGED:
-                states[c - first + 1 + done :] = np.nan
+                states[k + 1 :] = np.nan
                 break
-            x = states[d - first + 1]
-            c = d + 1
+            c = first + k
+            if progress:
+                progress((c - first) / (last - first + 1))
         else:
             self._clean = True
-        return states, grid if grid is not None else self._grid(first, first + states.shape[0])
+        return states, grid
 
     def diverged_error(self, t: float, x: np.ndarray) -> SimulationDivergedError:
         """The error a run raises when state ``x`` at ``t`` [s] is non-finite or too fast (one message for every caller).
