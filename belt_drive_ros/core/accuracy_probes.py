@@ -18,7 +18,7 @@ from . import stage_scheme as _scheme
 from .errors import IntegratorError
 from .forced_response import ORBIT_SAMPLES, orbit_error, profile_harmonics
 from .identity_cache import built_once
-from .model import LINEAR_OUTPUTS, RigidBeltModel, make_model
+from .model import _BELT, LINEAR_OUTPUTS, RigidBeltModel, make_model
 from .stability import spectral_radius
 from .stepper import shared_plant, shared_stepper, snap_tolerance
 
@@ -179,8 +179,9 @@ class RigidSurvey:
                 time, states = (held[0] if len(held) == 1 else
                                 (np.concatenate([h[0] for h in held]), np.concatenate([h[1] for h in held])))  # fmt: skip
                 held.clear()
-                return (max(w, float(np.max(np.abs(states[:, 1])))),
-                        max(peak, float(np.max(np.abs(model.belt_torque(states, plant.input_array(time, states)))))))  # fmt: skip
+                u = plant.input_array(time, states)
+                belt = _rigid_belt_torque(model, states[:, 0], states[:, 1], u[:, 0], u[:, 1])
+                return max(w, float(np.abs(states[:, 1]).max())), max(peak, float(np.abs(belt).max()))
 
             for e in sorted(ends):
                 if e <= t:
@@ -227,16 +228,36 @@ def speed_slopes(plant, times, speeds_M) -> list[tuple]:
 
     ``plant`` is a :class:`~belt_drive_ros.core.stepper.Plant`.
     """
+    return _probe_torques(plant, None, times, speeds_M, ())[0]
+
+
+def _probe_torques(plant, rigid, times, speeds_M, points) -> tuple[list, list]:
+    """(:func:`speed_slopes` at ``times``, ``speeds_M``; the rigid model's quasi-static belt torques [N m] at
+    ``points`` ``(t, phi_M, omega_M)``, the plant's torques there): one torque call per profile for both (every sample
+    is the profile's own at its point: the same floats as separate calls)."""
     i = plant.model.params.ratio
     t = np.asarray(times, dtype=float)
-    slopes = []
+    n = t.size
+    qt, qphi, qw = (np.array(c, dtype=float) for c in zip(*points)) if points else (np.empty(0),) * 3
+    slopes, torques = [], []
     with np.errstate(all="ignore"):
-        for profile, speed in ((plant.drive, np.asarray(speeds_M, dtype=float)), (plant.load, i * np.asarray(speeds_M, dtype=float))):
-            d = 1e-6 * np.maximum(1.0, np.abs(speed))  # every probe and both sides at once: one array call
-            both = np.asarray(profile.torque(np.concatenate([t, t]), np.zeros(2 * t.size),
-                                             np.concatenate([speed + d, speed - d])), dtype=float)  # fmt: skip
-            slopes.append(((both[: t.size] - both[t.size :]) / (2.0 * d)).tolist())
-    return list(zip(*slopes))
+        speed = np.asarray(speeds_M, dtype=float)
+        for profile, w, phi, omega in ((plant.drive, speed, qphi, qw), (plant.load, i * speed, i * qphi, i * qw)):
+            d = 1e-6 * np.maximum(1.0, np.abs(w))  # every probe and both sides, and the points: one array call
+            both = np.asarray(profile.torque(np.concatenate([t, t, qt]), np.concatenate([np.zeros(2 * n), phi]),
+                                             np.concatenate([w + d, w - d, omega])), dtype=float)  # fmt: skip
+            slopes.append(((both[:n] - both[n : 2 * n]) / (2.0 * d)).tolist())
+            torques.append(both[2 * n :])
+        if rigid is None or not points:
+            return list(zip(*slopes)), []
+        return list(zip(*slopes)), _rigid_belt_torque(rigid, qphi, qw, *torques).tolist()
+
+
+def _rigid_belt_torque(rigid, phi, omega, drive, load) -> np.ndarray:
+    """The rigid model's belt torque [N m] at samples ``phi_M``, ``omega_M`` with torques ``drive``, ``load`` (1-D
+    arrays): ``rigid.belt_torque(column_stack([phi, omega]), column_stack([drive, load]))``'s operations."""
+    (c0, c1), (d0, d1) = rigid._rows[_BELT]
+    return (phi * c0 + omega * c1) + (drive * d0 + load * d1)
 
 
 def feedback_gain(plant, slopes) -> np.ndarray:
@@ -321,7 +342,12 @@ def _probes(plant, duration, x0, dt, stated_inputs, rigid, probe_times, plain, e
     """:func:`probe_scene` from the rigid survey's states at its stops."""
     gains, seen = [], set()
     speeds = [states[float(t)][1] for t in probe_times]
-    for slopes in speed_slopes(plant, probe_times, speeds):
+    at = [(float(t), *states[float(t)]) for t in probe_times]
+    jumps = [(b, *states[t]) for b, t in early.items()]
+    # the slopes and the quasi-static belt torques at the weight's points (the probes among them) in one evaluation
+    points = _weight_points(plant, x0, dt, at, jumps) if stated_inputs else [(0.0, 0.0, 0.0)] + at
+    slopes_at, qs = _probe_torques(plant, rigid, probe_times, speeds, points)
+    for slopes in slopes_at:
         key = tuple(float(f"{s:.3g}") for s in slopes)  # slopes equal to 3 digits: the same verdict
         if key not in seen:
             seen.add(key)
@@ -332,36 +358,34 @@ def _probes(plant, duration, x0, dt, stated_inputs, rigid, probe_times, plain, e
         if all(abs(states[t][1] - states[k][1]) > SPEED_SPREAD * scale for k in kept):
             kept.append(t)
     windows = [(t, *states[t], None) for t in kept[1:]] + [(t, *states[t], b) for b, t in early.items()]
-    at = [(float(t), *states[float(t)]) for t in probe_times]
-    jumps = [(b, *states[t]) for b, t in early.items()]
-    here = [] if stated_inputs else None  # the probes' quasi-static belt torques, as the weight computes them
-    weight = 1.0 if not stated_inputs else input_weight(plant, x0, dt, at, jumps, rigid, here)
+    here = qs[1 : 1 + len(at)]  # the probes' quasi-static belt torques
+    weight = 1.0 if not stated_inputs else input_weight(plant, x0, dt, at, jumps, qs)
     # a torque that, the wheel turning steadily, only rises, falls or holds repeats nothing: no harmonic to find
     harmonics = () if {plant.drive.kind, plant.load.kind} <= APERIODIC_KINDS else tuple(profile_harmonics(plant, at))
     return Probes(tuple(gains), x0, tuple(windows), float(duration), WINDOW_STEPS * dt, weight, harmonics,
-                  _peaks(plant, rigid, at, here))  # fmt: skip
+                  _peaks(at, here))  # fmt: skip
 
 
-def _quasi_static(plant, rigid, t, phi, omega) -> np.ndarray:
-    """The rigid model's belt torque [N m] with the plant's torques at ``(t, phi_M, omega_M)`` (arrays, one per point)."""
-    i = rigid.params.ratio
-    t, phi, omega = (np.asarray(a, dtype=float) for a in (t, phi, omega))
-    with np.errstate(all="ignore"):
-        u = np.column_stack([plant.drive.torque(t, phi, omega), plant.load.torque(t, i * phi, i * omega)])
-        return rigid.belt_torque(np.column_stack([phi, omega]), u)
-
-
-def _peaks(plant, rigid, at, here=None) -> tuple[float, float]:
-    """(max |omega_M| [rad/s], max |quasi-static belt torque| [N m]) over the probes ``(t, phi_M, omega_M)``
-    (``here``: their quasi-static belt torques when already computed, :func:`input_weight`)."""
-    t, phi, omega = (np.array(c, dtype=float) for c in zip(*at))
+def _peaks(at, here) -> tuple[float, float]:
+    """(max |omega_M| [rad/s], max |quasi-static belt torque| [N m]) over the probes ``at`` ``(t, phi_M, omega_M)``
+    with their quasi-static belt torques ``here`` (:func:`_probe_torques`)."""
+    omega = np.array([w for _, _, w in at], dtype=float)
     w = float(np.fmax.reduce(np.abs(omega), initial=0.0))  # a NaN probe is passed over
-    qs = _quasi_static(plant, rigid, t, phi, omega) if here is None else np.array(here, dtype=float)
-    tb = float(np.fmax.reduce(np.abs(qs), initial=0.0))
+    tb = float(np.fmax.reduce(np.abs(np.array(here, dtype=float)), initial=0.0))
     return (w if math.isfinite(w) else 0.0, tb if math.isfinite(tb) else 0.0)
 
 
-def input_weight(plant, x0, dt: float, probes, jumps, rigid, out: list | None) -> float:
+def _weight_points(plant, x0, dt: float, probes, jumps) -> list:
+    """The points ``(t, phi_M, omega_M)`` :func:`input_weight` reads the quasi-static belt torque at: the start, each
+    probe and a step after it, each jump's two sides."""
+    wm = plant.wheel_map
+    x0 = np.asarray(x0, dtype=float)
+    eps = 1e-6 * dt
+    pts = [(0.0, float(wm[0] @ x0), float(wm[1] @ x0))] + list(probes) + [(t + dt, phi, omega) for t, phi, omega in probes]
+    return pts + [(b + side, phi, omega) for b, phi, omega in jumps for side in (-eps, eps)]
+
+
+def input_weight(plant, x0, dt: float, probes, jumps, qs: list) -> float:
     """Scale [-] of the unit step response's error for this scene: ``min(1, 2 dB / T_peak)``, at least
     :data:`MIN_INPUT_WEIGHT`.
 
@@ -378,28 +402,18 @@ def input_weight(plant, x0, dt: float, probes, jumps, rigid, out: list | None) -
       ``(t, phi_M, omega_M)``, the start included).
 
     ``T_peak``: the largest |quasi-static belt torque| at the probes. Rigid model (no belt mode): 1. The floor keeps
-    perturbations the scene does not state (a node's torques) rated. ``rigid``: the rigid model of the plant's
-    parameters; ``out``: a list that receives the quasi-static belt torques at ``probes`` (what :func:`_peaks`
-    reads).
+    perturbations the scene does not state (a node's torques) rated. ``qs``: the quasi-static belt torques [N m] at
+    :func:`_weight_points` (the rigid model of the plant's parameters, :func:`_probe_torques`).
     """
     model = plant.model
     p = model.params
-    wm = plant.wheel_map
     x0 = np.asarray(x0, dtype=float)
-    phi0, w0 = float(wm[0] @ x0), float(wm[1] @ x0)
     rigid_model = model.A.shape[0] == 2
     j = LINEAR_OUTPUTS.index("belt_torque")
     carried = 0.0 if rigid_model else float(model.C[j] @ x0)  # rigid: the torques at t = 0 switch on from none
     omega_n = 1.0 / dt if rigid_model else p.belt_natural_frequency  # rigid: a ramp held over a step is a step R dt
-    eps = 1e-6 * dt
-    # every point at once: the start, each probe and a step after it, each jump's two sides
-    pts = [(0.0, phi0, w0)] + list(probes) + [(t + dt, phi, omega) for t, phi, omega in probes]
-    pts += [(b + side, phi, omega) for b, phi, omega in jumps for side in (-eps, eps)]
-    qs = _quasi_static(plant, rigid, *zip(*pts)).tolist()
     n = len(probes)
     here, ahead, sides = qs[1 : 1 + n], qs[1 + n : 1 + 2 * n], qs[1 + 2 * n :]
-    if out is not None:
-        out += here
     steps = [abs(qs[0] - carried)] + [abs(a - h) / dt / omega_n for h, a in zip(here, ahead)]
     levels = [abs(qs[0])] + [abs(h) for h in here] + [abs(v) for v in sides]
     steps += [abs(after - before) for before, after in zip(sides[::2], sides[1::2])]
