@@ -222,23 +222,15 @@ class RigidSurvey:
         return self.t_probe, self.plain, self.early, self.states
 
 
-def speed_slopes(plant, times, speeds_M) -> list[tuple]:
-    """(d drive/d omega_M, d load/d omega_3) per probe [N m s/rad], central differences at (t, 0, omega_M) and
-    (t, 0, i omega_M); :func:`feedback_gain` makes a probe's K from them.
-
-    ``plant`` is a :class:`~belt_drive_ros.core.stepper.Plant`.
-    """
-    return _probe_torques(plant, None, times, speeds_M, ())[0]
-
-
 def _probe_torques(plant, rigid, times, speeds_M, points) -> tuple[list, list]:
-    """(:func:`speed_slopes` at ``times``, ``speeds_M``; the rigid model's quasi-static belt torques [N m] at
-    ``points`` ``(t, phi_M, omega_M)``, the plant's torques there): one torque call per profile for both (every sample
-    is the profile's own at its point: the same floats as separate calls)."""
+    """(the speed slopes (d drive/d omega_M, d load/d omega_3) [N m s/rad] at each of ``times`` and ``speeds_M``,
+    central differences at (t, 0, omega_M) and (t, 0, i omega_M) (:func:`feedback_gain` makes a probe's K from them);
+    the rigid model ``rigid``'s quasi-static belt torques [N m] at ``points`` ``(t, phi_M, omega_M)``, the plant's
+    torques there): one torque call per profile for both (each sample the profile's own: the same floats as apart)."""
     i = plant.model.params.ratio
     t = np.asarray(times, dtype=float)
     n = t.size
-    qt, qphi, qw = (np.array(c, dtype=float) for c in zip(*points)) if points else (np.empty(0),) * 3
+    qt, qphi, qw = (np.array(c, dtype=float) for c in zip(*points))
     slopes, torques = [], []
     with np.errstate(all="ignore"):
         speed = np.asarray(speeds_M, dtype=float)
@@ -248,8 +240,6 @@ def _probe_torques(plant, rigid, times, speeds_M, points) -> tuple[list, list]:
                                              np.concatenate([w + d, w - d, omega])), dtype=float)  # fmt: skip
             slopes.append(((both[:n] - both[n : 2 * n]) / (2.0 * d)).tolist())
             torques.append(both[2 * n :])
-        if rigid is None or not points:
-            return list(zip(*slopes)), []
         return list(zip(*slopes)), _rigid_belt_torque(rigid, qphi, qw, *torques).tolist()
 
 
@@ -270,7 +260,7 @@ def feedback_gain(plant, slopes) -> np.ndarray:
 class Probes:
     """What the guard reads off a cheap rigid run of the scene (:func:`probe_scene`).
 
-    gains : distinct ``(K, slopes)`` of the torques' speed slopes at the probes (see :func:`speed_slopes`).
+    gains : distinct ``(K, slopes)`` of the torques' speed slopes at the probes (see :func:`_probe_torques`).
     x0 : the scene's initial state (the first forcing window starts there at t = 0).
     windows : further forcing windows as ``(t [s], phi_M [rad], omega_M [rad/s], anchor)``: the rigid run's
         motion at t; ``anchor`` a torque breakpoint [s] the window straddles (None: it starts at t).
@@ -345,7 +335,7 @@ def _probes(plant, duration, x0, dt, stated_inputs, rigid, probe_times, plain, e
     at = [(float(t), *states[float(t)]) for t in probe_times]
     jumps = [(b, *states[t]) for b, t in early.items()]
     # the slopes and the quasi-static belt torques at the weight's points (the probes among them) in one evaluation
-    points = _weight_points(plant, x0, dt, at, jumps) if stated_inputs else [(0.0, 0.0, 0.0)] + at
+    points = _weight_points(plant, x0, dt, at, jumps) if stated_inputs else at
     slopes_at, qs = _probe_torques(plant, rigid, probe_times, speeds, points)
     for slopes in slopes_at:
         key = tuple(float(f"{s:.3g}") for s in slopes)  # slopes equal to 3 digits: the same verdict
@@ -358,7 +348,7 @@ def _probes(plant, duration, x0, dt, stated_inputs, rigid, probe_times, plain, e
         if all(abs(states[t][1] - states[k][1]) > SPEED_SPREAD * scale for k in kept):
             kept.append(t)
     windows = [(t, *states[t], None) for t in kept[1:]] + [(t, *states[t], b) for b, t in early.items()]
-    here = qs[1 : 1 + len(at)]  # the probes' quasi-static belt torques
+    here = qs[1 : 1 + len(at)] if stated_inputs else qs  # the probes' quasi-static belt torques
     weight = 1.0 if not stated_inputs else input_weight(plant, x0, dt, at, jumps, qs)
     # a torque that, the wheel turning steadily, only rises, falls or holds repeats nothing: no harmonic to find
     harmonics = () if {plant.drive.kind, plant.load.kind} <= APERIODIC_KINDS else tuple(profile_harmonics(plant, at))
@@ -381,7 +371,7 @@ def _weight_points(plant, x0, dt: float, probes, jumps) -> list:
     wm = plant.wheel_map
     x0 = np.asarray(x0, dtype=float)
     eps = 1e-6 * dt
-    pts = [(0.0, float(wm[0] @ x0), float(wm[1] @ x0))] + list(probes) + [(t + dt, phi, omega) for t, phi, omega in probes]
+    pts = [(0.0, float(wm[0] @ x0), float(wm[1] @ x0)), *probes] + [(t + dt, phi, omega) for t, phi, omega in probes]
     return pts + [(b + side, phi, omega) for b, phi, omega in jumps for side in (-eps, eps)]
 
 
