@@ -142,7 +142,7 @@ def check_accuracy(
     model = plant.model
     A, B = model.A, model.B
     rows = _output_rows(model)[0]
-    if not np.any(rows[1]):  # rigid: the belt torque is C x + D u; its x part alone carries the dynamics
+    if not rows[1].any():  # rigid: the belt torque is C x + D u; its x part alone carries the dynamics
         rows = rows[:1]
     n_steps = max(1, math.ceil(duration / dt - 1e-9))
     if probes is None:

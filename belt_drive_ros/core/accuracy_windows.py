@@ -28,7 +28,7 @@ def forcing_error(plant, method: str, dt: float, probes: Probes, method_options=
     err, peak = windows[0][1], windows[0][2]
     for _, e, p in windows[1:]:  # (np.max over windows, pairwise: no (windows, 2) array made)
         err, peak = np.maximum(err, e), np.maximum(peak, p)
-    return float(np.max(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0)))
+    return float(np.where(peak > 0, err / np.where(peak > 0, peak, 1.0), 0.0).max())
 
 
 def window_errors(plant, method: str, dt: float, probes: Probes, method_options=None, stepper=None, head=None) -> list | None:
@@ -68,7 +68,7 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
     t_all = np.concatenate([r[k] for k in (1, 3) for r in runs])
     x_all = np.concatenate([r[k] for k in (2, 4) for r in runs])
     y_all = x_all @ C.T + plant.input_array(t_all, x_all) @ D.T
-    if not np.all(np.isfinite(y_all)):
+    if not np.isfinite(y_all).all():
         return None
     half = y_all.shape[0] // 2  # the coarse runs' samples, then the fine runs' at the same times
     starts, a = [], 0

@@ -98,7 +98,8 @@ def limit_exceedance(params, time, outputs) -> tuple[float, float]:
     the belt transmits, ``Q_max(omega_M)`` the capstan limit (:meth:`~.params.BeltDriveParams.friction_limit`)."""
     belt = np.asarray(outputs["belt_torque"], dtype=float)
     omega = np.asarray(outputs["omega_M"], dtype=float)
-    ratio = friction_use(belt, params.r_3, np.broadcast_to(params.friction_limit(omega), belt.shape))
+    q_max = params.friction_limit(omega)
+    ratio = friction_use(belt, params.r_3, q_max if q_max.shape == belt.shape else np.broadcast_to(q_max, belt.shape))
     k = int(np.argmax(ratio))
     return float(ratio[k]), float(time[k])
 
