@@ -175,3 +175,33 @@ def test_the_modal_phi_functions_compiled_and_interpreted_give_the_same_floats()
     for x in radius * np.exp(1j * angle):  # (interpreted, the kernel's complex numbers are numpy's: x is one)
         compiled = kernel_slip._phis4(complex(x))
         assert compiled == kernel_slip._phis4.py_func(np.complex128(x)), x
+
+
+def test_the_event_steps_work_arrays_carry_nothing_from_call_to_call():
+    """The hybrid loop hands one pair of work arrays to all its event steps (``_event_step``: allocated once per run,
+    not per call). Whatever they hold before a call (NaN here, never reset between calls), each event step gives the
+    end state, mode, sigma and event rows of :func:`~.kernel_slip.event_step` with fresh zeroed arrays, bit for bit:
+    exact, etd2 and etd4, onsets and resticks (the restick's stick check included), and steps without an event."""
+    import math
+
+    for method in ("exact", "etd2", "etd4"):
+        scene = load_scene("truck_compressor").with_overrides(method=method)
+        sim = _sim(scene, lazy=True)
+        time, states, modes, sigmas = sim.run(0.8, scene.initial_state.vector("slipping", scene.params.ratio))
+        arrays = sim.hybrid._kernel
+        wf = np.full(kernel_slip.EVENT_WORK, np.nan)
+        wc = np.full(kernel_slip.FLOW_WORK + kernel_slip.LOCATE_WORK, complex(np.nan, np.nan))
+        switch = np.flatnonzero(np.diff(modes) != 0)
+        steps = np.union1d(switch, switch + 3)  # each event step, and a step without an event after it
+        kinds = set()
+        for i in steps[steps < time.size - 1]:
+            got = []
+            for fresh in (True, False):
+                y, y1, rows = states[i].copy(), np.empty(5), np.zeros((kernel_slip.MAX_SWITCHES + 1, 8))
+                args = (time[i], time[i + 1], np.zeros(0), y, np.int64(modes[i]), float(sigmas[i]), scene.dt, math.inf,
+                        y1, np.int64(0), *arrays, rows, np.int64(0))  # fmt: skip
+                ret = kernel_slip.event_step(*args) if fresh else kernel_slip._event_step(*args, wf, wc)
+                got.append((ret, y.tobytes(), rows.tobytes()))
+                kinds.update(rows[: ret[2], 1].tolist())
+            assert got[0] == got[1], (method, i)
+        assert kinds == {0.0, 1.0} and switch.size >= 20, (method, kinds, switch.size)

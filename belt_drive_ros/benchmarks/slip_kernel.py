@@ -9,7 +9,11 @@ at etd4, 0.5 ms), in one run:
 2. **the slipping run alone** (:meth:`SlippingSimulator.run`) and **the
    accuracy check's rerun** (:func:`~belt_drive_ros.core.accuracy.slip_run_error`);
 3. **the node's tick**: :meth:`SlippingSimulator.advance` of one 1 ms tick
-   over the whole scene (median, p99 and the worst tick, an event tick).
+   over the whole scene (median, p99 and the worst tick, an event tick);
+4. **the compiled loop alone**: the :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps` calls of one warm
+   simulate() (the run's and the rerun's) replayed on copies of their arguments, thread CPU time: per grid step,
+   and beside it the phases' linear loop over the same grid without its guard (no event: what the steps cost
+   without the events and the hybrid loop's own work).
 
 The phase-by-phase Python path these were once measured beside is gone
 (every slipping run steps in the compiled kernels); ``docs/performance.md``
@@ -57,6 +61,61 @@ def _ticks(scene) -> tuple[float, float, float]:
     return statistics.median(samples) / 1e3, samples[int(0.99 * len(samples))] / 1e3, samples[-1] / 1e3
 
 
+def hybrid_calls(scene) -> list:
+    """Copies of the arguments of every :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps` call of one
+    ``simulate(scene)`` (before the call: the outputs and the state it writes are fresh)."""
+    import numpy as np
+
+    from ..core import kernel_slip
+
+    calls, compiled = [], kernel_slip.hybrid_steps
+
+    def spy(*args):
+        calls.append(tuple(a.copy() if isinstance(a, np.ndarray) else a for a in args))
+        return compiled(*args)
+
+    kernel_slip.hybrid_steps = spy
+    try:
+        simulate(scene)
+    finally:
+        kernel_slip.hybrid_steps = compiled
+    return calls
+
+
+def loop_alone(scene, repeats: int) -> dict:
+    """Thread CPU [ns] of the replayed hybrid_steps calls of one simulate() (fastest of ``repeats``) per grid step,
+    their steps and events, and the flexible phase's linear loop over the first call's grid unguarded, per step."""
+    import numpy as np
+
+    from ..core import kernel_slip
+    from ..core.kernel import HEADER, linear_steps
+
+    calls = hybrid_calls(scene)
+    written = (7, 10, 11, 12, 13, 34)  # x, out_y, out_mode, out_sigma, out_native, events: fresh copies per call
+    best, steps, events = math.inf, 0, 0
+    for _ in range(repeats):
+        total, steps, events = 0, 0, 0
+        for args in calls:
+            args = list(args)
+            for i in written:
+                args[i] = args[i].copy()
+            start = time.thread_time_ns()
+            done = kernel_slip.hybrid_steps(*args)
+            total += time.thread_time_ns() - start
+            steps, events = steps + done[0] - args[5], events + done[4]
+        best = min(best, total)
+    grid, reals, ints, offsets, dp, lp = (calls[0][i] for i in (0, 14, 15, 16, 27, 31))
+    r0, r1, i0, i1 = offsets[kernel_slip.FLEXIBLE]
+    loop, codes = reals[r0:r1].copy(), ints[i0:i1]
+    loop[codes[HEADER + 6]] = 0.0  # the guard's section: off
+    x, states, linear = calls[0][7][:4].copy(), np.empty((grid.size - 1, 4)), math.inf
+    for _ in range(repeats):
+        start = time.thread_time_ns()
+        linear_steps(grid, x.copy(), states, -math.inf, math.inf, 1e9, loop, codes, dp, lp)
+        linear = min(linear, time.thread_time_ns() - start)
+    return {"per_step": best / steps, "steps": steps, "events": events, "linear_per_step": linear / (grid.size - 1)}
+
+
 def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
     scene = load_scene(SCENE)
     repeats = 2 if quick else 5
@@ -85,6 +144,10 @@ def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
     report("  accuracy check's rerun (slip_run_error)", cpu * 1e3, "ms", f"{len(events)} events")
     median, p99, worst = _ticks(scene)
     report("  node tick advance (1 ms)", median, "us", f"median; p99 {p99:.1f} us, worst {worst:.0f} us")
+    alone = loop_alone(scene, 5 if quick else 20)
+    report("  hybrid_steps alone, per grid step (thread CPU)", alone["per_step"], "ns",
+           f"{alone['steps']} steps, {alone['events']} events (run and rerun)")  # fmt: skip
+    report("  the flexible phase's linear loop alone, unguarded", alone["linear_per_step"], "ns", "per step, same grid")
     out.mkdir(parents=True, exist_ok=True)
     path = out / "slip_kernel.csv"
     write_csv(path, rows, ("measure", "value", "unit", "note"))

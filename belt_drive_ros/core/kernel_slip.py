@@ -64,6 +64,10 @@ EXACT, ETD2, ETD4 = 0, 1, 2
 STICK, SLIP = 0, 1
 #: at most this many mode switches in one step (chattering otherwise)
 MAX_SWITCHES = 64
+#: work array sizes (floats, and as many complex): :func:`_flow`'s, :func:`_locate`'s, and :func:`_event_step`'s (its
+#: own input and end state, a flow's, a location's, :func:`_stick_keeps`' 13); allocated once per run, not per call
+FLOW_WORK, LOCATE_WORK = 36, 24
+EVENT_WORK = 8 + FLOW_WORK + LOCATE_WORK + 13
 
 
 @njit(**_INLINE)
@@ -130,25 +134,40 @@ def _phis(Z, R, M, tau, ph):
 
 
 @njit(**_INLINE)
-def _state(Z, R, M, m, y0, y4, w, u0, d1, d2, tau, ph, out):
+def _state(Z, R, M, m, y0, y4, w, u0, d1, d2, order, tau, ph, out):
     """The state at ``tau`` [s] from (phi_M = ``y0``, modal ``w``, s = ``y4``) with input ``u0 + d1 s + d2 s^2`` into ``out``
-    (``ph``: :func:`_phis` at ``tau``)."""
+    (``ph``: :func:`_phis` at ``tau``). ``order`` 0: ``d1 = d2 = 0`` (held), 1: ``d2 = 0``, 2: both: the zero terms
+    are left out of the sums, each the last of its sum (the same floats: x + 0 = x; ``d1``, ``d2`` then not read)."""
     t2 = tau * tau
     t3 = t2 * tau
     z0 = z1 = z2 = i0 = i4 = 0.0
     for k in range(int(R[M, 10])):
-        e, p1, p2, p3, p4 = ph[k, 0], ph[k, 1], ph[k, 2], ph[k, 3], ph[k, 4]
-        b0, b1, b2 = _pdot(Z, M, k, u0, m), _pdot(Z, M, k, d1, m), _pdot(Z, M, k, d2, m)
+        e, p1, p2 = ph[k, 0], ph[k, 1], ph[k, 2]
+        b0 = _pdot(Z, M, k, u0, m)
         weight = R[M, k]
-        zeta = weight * (e * w[k] + tau * p1 * b0 + t2 * p2 * b1 + 2.0 * t3 * p3 * b2)
-        integral = weight * (tau * p1 * w[k] + t2 * p2 * b0 + t3 * p3 * b1 + 2.0 * t2 * t2 * p4 * b2)
+        zeta = e * w[k] + tau * p1 * b0
+        integral = tau * p1 * w[k] + t2 * p2 * b0
+        if order > 0:
+            b1 = _pdot(Z, M, k, d1, m)
+            zeta = zeta + t2 * p2 * b1
+            integral = integral + t3 * ph[k, 3] * b1
+            if order > 1:
+                b2 = _pdot(Z, M, k, d2, m)
+                zeta = zeta + 2.0 * t3 * ph[k, 3] * b2
+                integral = integral + 2.0 * t2 * t2 * ph[k, 4] * b2
+        zeta = weight * zeta
+        integral = weight * integral
         z0 += (Z[M, k, 1] * zeta).real
         z1 += (Z[M, k, 2] * zeta).real
         z2 += (Z[M, k, 3] * zeta).real
         i0 += (Z[M, k, 10] * integral).real
         i4 += (Z[M, k, 11] * integral).real
     for q in range(m):
-        ramp = tau * u0[q] + 0.5 * t2 * d1[q] + t3 * d2[q] / 3.0
+        ramp = tau * u0[q]
+        if order > 0:
+            ramp = ramp + 0.5 * t2 * d1[q]
+            if order > 1:
+                ramp = ramp + t3 * d2[q] / 3.0
         i0 += R[M, 3 + q] * ramp
         i4 += R[M, 6 + q] * ramp
     out[0], out[1], out[2], out[3], out[4] = y0 + i0, z0, z1, z2, y4 + i4
@@ -164,45 +183,43 @@ def _project(c, mode, sigma, y):
 
 
 @njit(**_JIT)
-def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, out):
-    """The method's step of length ``h`` [s] in ``mode`` from (t, y) with ``u0 = u(t, y)`` into ``out``."""
+def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, out, wf, wc):
+    """The method's step of length ``h`` [s] in ``mode`` from (t, y) with ``u0 = u(t, y)`` into ``out``; ``wf``
+    (:data:`FLOW_WORK` floats), ``wc`` (:data:`FLOW_WORK` complex): the caller's work arrays (allocated once per run)."""
     M = mode
     m = 3 if mode == SLIP else 2
     method = c[16]
-    # one work array each (not a dozen small ones): zero, ua, ub, uc, um, d1, d2 (3), a, b, cc (5);
-    # w, wa (3), the phis at h and at h / 2 (3 x 5)
-    wf = np.zeros(36)
-    wc = np.empty(36, dtype=np.complex128)
-    zero, ua, ub, uc, um, d1, d2 = wf[0:3], wf[3:6], wf[6:9], wf[9:12], wf[12:15], wf[15:18], wf[18:21]
-    a, b, cc = wf[21:26], wf[26:31], wf[31:36]
+    # ua, ub, uc, um, d1, d2 (3), a, b, cc (5); w, wa (3), the phis at h and at h / 2 (3 x 5)
+    ua, ub, uc, um, d1, d2 = wf[0:3], wf[3:6], wf[6:9], wf[9:12], wf[12:15], wf[15:18]
+    a, b, cc = wf[18:23], wf[23:28], wf[28:33]
     w, wa, ph, ph_half = wc[0:3], wc[3:6], wc[6:21].reshape((3, 5)), wc[21:36].reshape((3, 5))
     _modal(Z, M, y, w)
     _phis(Z, R, M, h, ph)
     if method != ETD4:
-        _state(Z, R, M, m, y[0], y[4], w, u0, zero, zero, h, ph, out)
+        _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, 0, h, ph, out)
         if method == ETD2:
             _inputs(mode, sigma, t + h, out, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ua)
             for q in range(m):
                 d1[q] = (ua[q] - u0[q]) / h
-            _state(Z, R, M, m, y[0], y[4], w, u0, d1, zero, h, ph, out)
+            _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, 1, h, ph, out)
         _project(c, mode, sigma, out)
         return
     # ETDRK4: a from y with U_0, b from y with U_a, c from a with 2 U_b - U_0, then the quadratic input
     half = 0.5 * h
     _phis(Z, R, M, half, ph_half)
-    _state(Z, R, M, m, y[0], y[4], w, u0, zero, zero, half, ph_half, a)
+    _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, 0, half, ph_half, a)
     _inputs(mode, sigma, t + half, a, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ua)
-    _state(Z, R, M, m, y[0], y[4], w, ua, zero, zero, half, ph_half, b)
+    _state(Z, R, M, m, y[0], y[4], w, ua, d1, d2, 0, half, ph_half, b)
     _inputs(mode, sigma, t + half, b, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ub)
     _modal(Z, M, a, wa)
     for q in range(m):
         um[q] = 2.0 * ub[q] - u0[q]
-    _state(Z, R, M, m, a[0], a[4], wa, um, zero, zero, half, ph_half, cc)
+    _state(Z, R, M, m, a[0], a[4], wa, um, d1, d2, 0, half, ph_half, cc)
     _inputs(mode, sigma, t + h, cc, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, uc)
     for q in range(m):
         d1[q] = (-3.0 * u0[q] + 2.0 * (ua[q] + ub[q]) - uc[q]) / h
         d2[q] = (2.0 * (u0[q] - ua[q] - ub[q] + uc[q])) / (h * h)
-    _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, h, ph, out)
+    _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, 2, h, ph, out)
     _project(c, mode, sigma, out)
 
 
@@ -237,22 +254,22 @@ def _guard(tau, G, lam, nm, quad, absolute, bound):
 
 
 @njit(**_JIT)
-def _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly):
+def _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly, wf, wc):
     """First tau in (0, h] where the switching function turns positive on the step's continuous extension.
 
     The extension is the exact flow with the input linear from ``u(t, y)``
     to ``u(t + h, y1)`` (held for ``exact``). A sign scan (2 points, and 8 per
     half period of the fastest oscillation) finds the first crossing, a
     safeguarded Newton iteration (bisection when a step leaves the bracket)
-    the root to ~1e-15 s. Returns nan: no crossing; 0.0: at the start.
+    the root to ~1e-15 s. Returns nan: no crossing; 0.0: at the start. ``wf`` (:data:`LOCATE_WORK` floats), ``wc``
+    (:data:`LOCATE_WORK` complex): the caller's work arrays.
     """
     M = mode
     m = 3 if mode == SLIP else 2
     nm = int(R[M, 10])
-    wf = np.zeros(6)  # du, u1; amplitudes (3 x 6), lambda, w: one work array each
-    wc = np.zeros(24, dtype=np.complex128)
-    du, u1 = wf[0:3], wf[3:6]
+    du, u1 = wf[0:3], wf[3:6]  # du, u1; amplitudes (3 x 6), lambda, w
     amp, lam, w = wc[0:18].reshape((3, 6)), wc[18:21], wc[21:24]
+    du[0], du[1], du[2] = 0.0, 0.0, 0.0  # (held for exact)
     if c[16] != EXACT:
         _inputs(mode, sigma, t + h, y1, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u1)
         for q in range(m):
@@ -315,26 +332,26 @@ def _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx,
 def locate_event(mode, sigma, t, y, h, hi, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly):
     """:func:`_locate` with the input at the step's start computed here: the event location of a step whose
     partial steps are taken elsewhere (a method without a compiled event step: its own flow, in Python)."""
-    u0 = np.zeros(3)
+    wf = np.zeros(3 + LOCATE_WORK)
+    wc = np.zeros(LOCATE_WORK, dtype=np.complex128)
+    u0 = wf[:3]
     _inputs(mode, sigma, t, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u0)
-    return _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly)
+    return _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly, wf[3:], wc)
 
 
 @njit(**_JIT)
-def _stick_keeps(t, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly):
+def _stick_keeps(t, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly, wf):
     """True if the stick mode's |Q| does not at once grow past Q_max from (t, y).
 
     The sign of sigma dQ/dt - dQ_max/dt in stick mode; where that vanishes to
-    rounding, the sign of sigma d2Q/dt2 = sigma q . A y' (inputs held).
+    rounding, the sign of sigma d2Q/dt2 = sigma q . A y' (inputs held). ``wf``: 13 work floats of the caller.
     """
     Q = c[6] * y[1] + c[7] * y[2] + c[8] * y[3]
     if abs(Q) < _limit(c, y[2]) * (1.0 - 1e-9):
         return True
     sig = math.copysign(1.0, Q)
-    u = np.zeros(3)
+    u, dyv, scale_v = wf[0:3], wf[3:8], wf[8:13]
     _inputs(np.int64(STICK), 0.0, t, y, math.inf, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u)  # int64, as every call
-    dyv = np.zeros(5)
-    scale_v = np.zeros(5)
     for r in range(5):
         total, mag = 0.0, 0.0
         for j in range(5):
@@ -361,6 +378,16 @@ def _stick_keeps(t, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly):
 @njit(**_JIT)
 def event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mats, guards, uses,
                dk, dp, dx, dy, lk, lp, lx, ly, events, n0):  # fmt: skip
+    """:func:`_event_step` with its work arrays allocated here (a call from Python: :class:`~.slip.EventStep`)."""
+    wf = np.zeros(EVENT_WORK)
+    wc = np.zeros(FLOW_WORK + LOCATE_WORK, dtype=np.complex128)
+    return _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mats, guards, uses,
+                       dk, dp, dx, dy, lk, lp, lx, ly, events, n0, wf, wc)  # fmt: skip
+
+
+@njit(**_JIT)
+def _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mats, guards, uses,
+                dk, dp, dx, dy, lk, lp, lx, ly, events, n0, wf, wc):  # fmt: skip
     """Integrate from ``t0`` to ``t1`` [s] in the hybrid model: sub-steps end at each cut, then at each located event.
 
     ``y`` (5,) is overwritten with the end state. A sub-step whose end has a
@@ -370,14 +397,17 @@ def event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mat
     ``hi_end``: torque times clipped there in the last sub-step; ``y1``
     (``given`` 1): the method's state at ``t1`` in ``mode`` already known.
     ``events`` (E, 8) receives ``[time, onset (1) / restick (0), sigma, state (5)]`` from row ``n0``.
+    ``wf`` (:data:`EVENT_WORK` floats), ``wc`` (``FLOW_WORK + LOCATE_WORK`` complex): work arrays.
 
     Returns (mode, sigma, number of events recorded, status): status 0 done,
     1 more than :data:`MAX_SWITCHES` switches (chattering).
     """
     n_rec = 0
     n_switch = 0
-    u0 = np.zeros(3)
-    ye = np.empty(5)
+    u0, ye = wf[0:3], wf[3:8]
+    e1 = 8 + FLOW_WORK
+    e2 = e1 + LOCATE_WORK
+    flow_f, flow_c, loc_f, loc_c, keep_f = wf[8:e1], wc[:FLOW_WORK], wf[e1:e2], wc[FLOW_WORK:], wf[e2:]
     nc = cuts.size
     for j in range(nc + 1):
         a = t0 if j == 0 else cuts[j - 1]
@@ -387,19 +417,20 @@ def event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mat
             h = dt if (dt == dt and a == t0 and b == t1) else b - a  # a whole grid step: the grid's dt
             _inputs(mode, sigma, a, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u0)
             if given == 0 or nc > 0:
-                _flow(mode, sigma, a, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, y1)
+                _flow(mode, sigma, a, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, y1, flow_f, flow_c)
             given = 0
             if switching(c, mode, sigma, y1) <= 0.0:
                 y[:] = y1
                 a = b
                 break
-            tau = _locate(mode, sigma, a, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly)
+            tau = _locate(mode, sigma, a, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
+                          loc_f, loc_c)  # fmt: skip
             if tau != tau:
                 y[:] = y1
                 a = b
                 break
             if tau > 0.0:
-                _flow(mode, sigma, a, y, tau, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ye)
+                _flow(mode, sigma, a, y, tau, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ye, flow_f, flow_c)
                 y[:] = ye
             a = a + tau if tau < h else b
             old = mode
@@ -410,7 +441,7 @@ def event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mat
                     te = sigma * _limit(c, y[2]) / c[13]
                     y[4] += c[1] * (y[1] - te)
                     y[1] = te
-            elif _stick_keeps(a, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly):
+            elif _stick_keeps(a, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly, keep_f):
                 mode, sigma = STICK, 0.0
             if mode != old and n0 + n_rec < events.shape[0]:
                 row = n0 + n_rec
@@ -537,6 +568,9 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
     y1 = np.empty(5)
     shifted = lp.copy()  # the load's numbers with its angle shifted by the slip (stick after slip)
     no_cuts = np.zeros(0)
+    wf = np.zeros(EVENT_WORK)  # the event steps' work arrays, once per call
+    wc = np.zeros(FLOW_WORK + LOCATE_WORK, dtype=np.complex128)
+    xs6 = np.empty(6)  # a phase's start state for the linear loop
     buf = np.empty(N * 6 + 6)
     # ends[q]: the end of the stretch of steps from q with the same clamps and no special step (one pass, not a
     # scan to the end of the plan at every phase's start: O(N) per run instead of O(N) per event)
@@ -573,22 +607,34 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
             states = buf[: (j - k) * m].reshape((j - k, m))
             load = lp
             if kind == STICKING:
-                xs = np.empty(4)
+                xs = xs6[:4]
                 _flexible(x, Minv, xs)
                 load = _shift_angle(lk, lp, shifted, c, uses, x[4])
             else:
-                xs = x[:n].copy()
+                xs = xs6[:n]
+                xs[:] = x[:n]
             done, status, _ = linear_steps(grid[k : j + 1], xs, states, lo[k], hi[k], limit, reals[r0:r1], ints[i0:i1], dp, load)
             kept = done - 1 if status == GUARDED else done
-            for q in range(kept):
-                _to_y(loop, states[q], Yflex, out_y[k + q])
-                out_mode[k + q], out_sigma[k + q] = mode, sigma
-                out_native[k + q] = math.nan
-                if kind == STICKING:
-                    out_y[k + q, 4] = x[4]
-                    out_native[k + q, :5] = out_y[k + q]
+            for q in range(kept):  # element by element: no array views or copies per step
+                r = k + q
+                out_mode[r], out_sigma[r] = mode, sigma
+                if loop == FLEXIBLE:  # Yflex @ states[q], each row summed from the left (:func:`_to_y`)
+                    for i in range(5):
+                        total = 0.0
+                        for jj in range(4):
+                            total = total + Yflex[i, jj] * states[q, jj]
+                        out_y[r, i] = total
                 else:
-                    out_native[k + q, :n] = states[q]
+                    for i in range(5):
+                        out_y[r, i] = states[q, i]
+                if kind == STICKING:
+                    out_y[r, 4] = x[4]
+                    for i in range(5):
+                        out_native[r, i] = out_y[r, i]
+                    out_native[r, 5] = math.nan
+                else:
+                    for i in range(6):
+                        out_native[r, i] = states[q, i] if i < n else math.nan
             if status == DIVERGED or status == NOT_CONVERGED:
                 return k + done, status, kind, sigma, n_events
             if status != GUARDED:
@@ -606,9 +652,9 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
             else:
                 _to_y(kind, x if kept == 0 else states[kept - 1], Yflex, y)
                 _to_y(kind, states[kept], Yflex, y1)
-        mode, sigma, got, st = event_step(knots[g], knots[g + 1], no_cuts, y, mode, sigma, dt, hi[g], y1, given,
-                                          Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
-                                          events, n_events)  # fmt: skip
+        mode, sigma, got, st = _event_step(knots[g], knots[g + 1], no_cuts, y, mode, sigma, dt, hi[g], y1, given,
+                                           Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
+                                           events, n_events, wf, wc)  # fmt: skip
         n_events += got
         if st:
             return g, CHATTER, kind, sigma, n_events

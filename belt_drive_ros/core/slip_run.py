@@ -384,8 +384,9 @@ class SlippingSimulator:
                 grid, knots, lo, hi, special, k, kind, x, self.dt, SPEED_LIMIT, out_y, out_mode, out_sigma, out_native,
                 reals, ints, offsets, have, Yflex, Minv, *arrays, ev, n_ev,
             )  # fmt: skip
-            if record is not None and k1 > k:  # samples k .. k1 - 1 of the compiled stretch
-                record.append((knots[k + 1 : k1 + 1], out_y[k:k1].copy(), out_mode[k:k1].astype(np.int8), out_sigma[k:k1].copy()))
+            if record is not None and k1 > k:  # samples k .. k1 - 1 of the compiled stretch (views: this call's arrays,
+                # never written again: later calls write from k1 on)
+                record.append((knots[k + 1 : k1 + 1], out_y[k:k1], out_mode[k:k1].astype(np.int8), out_sigma[k:k1]))
             if events is not None:
                 events.extend(_events(ev[:n_ev]))
             n_ev = 0
@@ -525,7 +526,8 @@ class SlippingSimulator:
     def run(self, duration, y0, t0=0.0, progress=None):
         """Integrate ``duration`` [s] from the slipping state ``y0``; returns (time, states, mode, sigma) (the
         :meth:`windows` put together; :attr:`events` the mode switches)."""
-        return _joined(list(self.windows(duration, y0, t0, progress, events=[])))
+        windows = list(self.windows(duration, y0, t0, progress, events=[]))
+        return windows[0] if len(windows) == 1 else _joined(windows)  # (one window: already joined)
 
     def windows(self, duration, y0, t0=0.0, progress=None, window_steps: int | None = None, events=None):
         """:meth:`run` in pieces: yields (time, states, mode, sigma) of consecutive windows.
@@ -611,8 +613,8 @@ def _kind_code(state: SlipState) -> int:
 def _events(rows) -> list:
     """:class:`~belt_drive_ros.core.slip.Event` of the compiled loop's event rows."""
     rows = rows.copy()  # one copy: each event's state a row of it
-    return [Event(t, "onset" if k else "restick", s, y) for t, k, s, y in zip(rows[:, 0].tolist(), rows[:, 1].tolist(),
-                                                                             rows[:, 2].tolist(), rows[:, 3:])]
+    kinds = ["onset" if k else "restick" for k in rows[:, 1].tolist()]
+    return list(map(Event, rows[:, 0].tolist(), kinds, rows[:, 2].tolist(), rows[:, 3:]))
 
 
 def _joined(pieces):
