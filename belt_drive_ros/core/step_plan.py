@@ -21,8 +21,9 @@ on a knot (within the snap tolerance) bounds the steps on either side (a *clamp*
 (sub-)step is taken at a time clamped into the step's side: the step that ends at breakpoint ``b`` samples at most
 at ``plant.left_of(b)`` (the left limit), the step that starts there at least at ``b``, so no step integrates
 across a jump or a kink and each method keeps its order. A breakpoint at ``t0`` (``t1``) bounds the first (last)
-step. Every breakpoint of an advance is classified at once with numpy (a torque recorded at the step rate puts one
-on every knot), the clamps kept as one sorted array form ``(cells, lo, hi)``, the splits as ``{cell: [cuts]}``.
+step. The breakpoints of an advance are classified by one rule (:meth:`StepPlanner._clamps`; with numpy from
+:data:`VECTOR_MIN` on: a torque recorded at the step rate puts one on every knot), the clamps kept as one sorted
+array form ``(cells, lo, hi)``, the splits as ``{cell: [cuts]}``.
 """
 
 from __future__ import annotations
