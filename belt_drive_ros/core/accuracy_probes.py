@@ -20,7 +20,8 @@ from .forced_response import ORBIT_SAMPLES, orbit_error, profile_harmonics
 from .identity_cache import built_once
 from .model import _BELT, LINEAR_OUTPUTS, RigidBeltModel, make_model
 from .stability import spectral_radius
-from .stepper import shared_plant, shared_stepper, snap_tolerance
+from .step_plan import snap_tolerance
+from .stepper import shared_plant, shared_stepper
 
 #: default relative tolerance of the guard (speed and belt torque, relative to peak)
 ACCURACY_TOLERANCE = 1e-4

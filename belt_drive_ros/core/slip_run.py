@@ -51,7 +51,8 @@ from .profile_data import DIVERGED, NOT_CONVERGED
 from .slip import SLIP, STICK, Event, EventStep, SlipError, SlippingBeltModel
 from .stability import require_stable
 from .stage_scheme import Guard
-from .stepper import SPEED_LIMIT, Plant, Stepper, is_shared, shared_plant, snap_tolerance
+from .step_plan import snap_tolerance, step_arrays
+from .stepper import SPEED_LIMIT, Plant, Stepper, is_shared, shared_plant
 
 #: grid steps per window of :meth:`SlippingSimulator.windows` (memory is bounded by a window, not the run)
 RUN_WINDOW_STEPS = 16384
@@ -358,13 +359,7 @@ class SlippingSimulator:
             first, last = plan["first"], plan["last"]
             N = last - first + 1
             grid = st._grid(first, last + 2)
-            lo, hi = np.full(N, -math.inf), np.full(N, math.inf)
-            special = np.zeros(N, dtype=np.int64)
-            special[0] |= plan["lead"]
-            special[-1] |= plan["trail"]
-            for c, (a, b, cuts) in plan["special"].items():
-                lo[c - first], hi[c - first] = a, b
-                special[c - first] |= bool(cuts)
+            lo, hi, special = step_arrays(plan)
         knots = grid.copy()
         knots[0], knots[-1] = t0, t1
         from . import kernel_slip as ks

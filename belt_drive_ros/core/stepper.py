@@ -8,27 +8,14 @@ guard. :meth:`Stepper.advance` gives the state at ``t1``, :meth:`Stepper.run` ev
 States are 1-D float arrays in the model's own ordering; the **second half of the state holds speeds** [rad/s] (the
 divergence check reads them). Torques [N m], times [s].
 
-The grid
+The plan
 --------
-Whole steps lie on the fixed grid ``g_k = origin + k dt`` (``k`` integer; the float product and sum, computed the
-same way for every caller, so a node ticking on grid times and an offline run see bit-identical times). An advance
-from ``t0`` to ``t1`` takes a partial step from ``t0`` to the next grid time when ``t0`` is off the grid, whole
-steps up to the last grid time not after ``t1``, and a partial step to ``t1`` when ``t1`` is off the grid: a run of
-``duration`` ends at ``duration`` exactly, its last step shortened. A time within :func:`snap_tolerance` of a grid
-time (``1e-9 dt`` or 8 ulps, whichever is larger) counts as that grid time.
-
-Breakpoints
------------
-``plant.breakpoints`` (times where a torque jumps or kinks) are handled exactly wherever they fall. A breakpoint
-strictly inside a step splits the step there (sub-steps by integrators of the sub-step's length); one on a knot
-(within the snap tolerance) bounds the steps on either side. Every torque sample of a (sub-)step is taken at a time
-clamped into the step's side: the step that ends at breakpoint ``b`` samples at most at ``plant.left_of(b)`` (the
-left limit), the step that starts there at least at ``b``, so no step integrates across a jump or a kink and each
-method keeps its order. Runs of whole steps, clamped ones included, are one compiled call
-(:func:`~belt_drive_ros.core.kernel.clamped_steps`: a torque recorded at the step rate, a breakpoint on every knot,
-is planned by numpy and stepped in one call, each step with its own clamps); each piece of a split or partial step is
-one kernel call; an adaptive method (scipy's references) steps through ``integrator.step``. A torque profile without
-a data form is refused.
+The grid, partial steps and the clamps and splits at torque breakpoints are planned by
+:class:`~belt_drive_ros.core.step_plan.StepPlanner` (its module docstring has the rules), the base of
+:class:`Stepper`, which marches the plan: runs of whole steps, clamped ones included, are one compiled call
+(:func:`~belt_drive_ros.core.kernel.clamped_steps`, the plan's clamps as its arrays); each piece of a split or
+partial step is one kernel call; an adaptive method (scipy's references) steps through ``integrator.step``. A
+torque profile without a data form is refused.
 
 Integrators (and kernel loops) of partial-step lengths are cached per stepper (at most :data:`PARTIAL_CACHE_SIZE`);
 plant torques are read at every call (a held torque may change between advances).
@@ -44,7 +31,6 @@ from __future__ import annotations
 
 import math
 import threading
-from bisect import bisect_left, bisect_right
 from typing import Callable
 
 import numpy as np
@@ -54,29 +40,18 @@ from .identity_cache import built_once
 from .integrators import FixedStepIntegrator, make_integrator
 from .kernel_loop import DIVERGED, GUARDED, NOT_CONVERGED
 from .model import WHEEL_ROWS, _LinearModel
+from .step_plan import StepPlanner
 
 #: Speeds beyond this [rad/s] (~955,000 rpm) mean the numerics, not the physics, blew up.
 SPEED_LIMIT = 1.0e5
 #: partial-step integrators kept per stepper (one per distinct length)
 PARTIAL_CACHE_SIZE = 4096
-#: a time this close to a grid time, relative to dt, is on the grid
-GRID_TOLERANCE = 1e-9
 #: steps per call of the compiled loop between divergence checks and progress reports
 CHUNK = 4096
 #: steps of a paged drive's page beyond each end of a run (:meth:`Stepper._paged`)
 PAGE_MARGIN = 4
-#: an advance over at least this many breakpoints looks for steps it can absorb (:mod:`~belt_drive_ros.core.absorb`)
-ABSORB_MIN = 16
-#: plans of :meth:`Stepper.run` kept per stepper (the guards' windows and the run repeat theirs), of so many special steps
-PLAN_CACHE_SIZE, PLAN_SPECIAL = 8, 64
 #: state rows a guarded run (it may stop at its first steps) allocates first; twice as many each time they are full
 GUARDED_ROWS = 1024
-_NO_CELLS = np.empty(0, dtype=np.int64)
-
-
-def snap_tolerance(t: float, dt: float) -> float:
-    """Distance [s] within which time ``t`` counts as on a grid time or a breakpoint: max(1e-9 dt, 8 ulp(t))."""
-    return max(GRID_TOLERANCE * dt, 8.0 * math.ulp(abs(t)))
 
 
 class Plant:
@@ -229,26 +204,6 @@ def _merged(drive, load) -> np.ndarray:
     return both if np.all(both[1:] > both[:-1]) else np.unique(both)  # a table's: sorted already
 
 
-def _reduced(keys: np.ndarray, values: np.ndarray, ufunc) -> tuple[np.ndarray, np.ndarray]:
-    """(distinct ``keys`` (sorted), ``ufunc`` (np.maximum, np.minimum) of the ``values`` of each)."""
-    if keys.size == 0:
-        return keys, values
-    at = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
-    return keys[at], ufunc.reduceat(values, at)
-
-
-def _clamp_count(plan: dict) -> int:
-    """Special steps of a plan, counting those of its knots' arrays (:meth:`Stepper._knot_clamps`): an upper bound."""
-    return len(plan["special"]) + (plan["knots"][0].size if plan["knots"] is not None else 0)
-
-
-def _search(bps, x: float, right: bool) -> int:
-    """:func:`bisect.bisect_left` (``right``: ``bisect_right``) of ``x`` in the sorted ``bps`` (list or array)."""
-    if isinstance(bps, np.ndarray):
-        return int(bps.searchsorted(x, side="right" if right else "left"))
-    return bisect_right(bps, x) if right else bisect_left(bps, x)
-
-
 def _coordinate(row: np.ndarray) -> Callable:
     """``x -> row @ x`` for one wheel coordinate, as a plain index or a scaled index when it is one."""
     nonzero = [(j, c) for j, c in enumerate(np.asarray(row, dtype=float).tolist()) if c != 0.0]
@@ -272,8 +227,9 @@ def _healthy(x) -> bool:
     return math.isfinite(sum(values)) and max(map(abs, values[len(values) // 2 :])) <= SPEED_LIMIT
 
 
-class Stepper:
-    """Advances one plant with one method on the grid ``origin + k dt`` (see the module docstring).
+class Stepper(StepPlanner):
+    """Advances one plant with one method on the grid ``origin + k dt``: marches the plans of its base
+    :class:`~belt_drive_ros.core.step_plan.StepPlanner` (see the module docstring).
 
     Parameters
     ----------
@@ -286,22 +242,17 @@ class Stepper:
 
     Attributes
     ----------
-    breakpoints : sorted times [s] where steps are split or bounded (the plant's; a caller assigns new ones), a
-    tuple or a read-only float64 array (a list or writable array assigned is copied): plans are kept by it.
-    split_steps : ``{grid index k: [breakpoints inside step k]}`` of the last :meth:`run` or :meth:`advance`.
+    breakpoints, split_steps : the planner's (``split_steps`` of the last :meth:`run` or :meth:`advance`).
     loop : the compiled loop of whole steps (None: each step through ``integrator.step``).
     stopped : after a :meth:`run` the guard stopped, ``(j, a, e, whole, lo, hi, cuts)``: its step ``j`` as
         :meth:`steps` describes one; else None.
     """
 
-    #: a breakpoint this close to a grid point (relative to dt) is on the grid (read by :mod:`.absorb`)
-    grid_tolerance = GRID_TOLERANCE
-
     def __init__(
         self, plant: Plant, method: str, dt: float, method_options=None, origin: float = 0.0, integrator=None, guard=None
     ):
-        self.plant = plant
-        self.method, self.dt, self.origin = method, float(dt), float(origin)
+        super().__init__(plant, dt, origin)
+        self.method = method
         self.method_options = dict(method_options or {})
         model = plant.model
         python_only = [p.kind or type(p).__name__ for p, d in zip((plant.drive, plant.load), plant.data)
@@ -312,28 +263,11 @@ class Stepper:
         self.integrator = integrator or make_integrator(method, model.A, model.B, self.dt, **self.method_options)
         self.guard = guard
         self.loop = plant.kernel_loop(self.integrator, guard)
-        self.breakpoints = plant.breakpoints
         self._end = None  # the loop of absorbed steps (absorb.end_loop)
         self.stopped: tuple | None = None
-        self.split_steps: dict = {}
         self._partials: dict = {}
         self._loops: dict = {}  # kernel loops of the partial-step integrators, by step length
-        self._free: tuple | None = None  # the breakpoint-free interval the last tick fell in (_near_breakpoint)
-        self._plans: dict = {}  # (t0, t1, origin, id(breakpoints)) -> (breakpoints, plan) of run()
         self._clean = False  # the last grouped march ran every step to the end without a failing status
-
-    @property
-    def breakpoints(self):
-        return self._breakpoints
-
-    @breakpoints.setter
-    def breakpoints(self, value) -> None:
-        if isinstance(value, np.ndarray) and (value.flags.writeable or value.base is not None):  # (a view's base may)
-            value = np.array(value, dtype=np.float64)
-            value.flags.writeable = False
-        elif not isinstance(value, (np.ndarray, tuple, type(None))):  # (None: a paged plant's, read page by page)
-            value = tuple(value)
-        self._breakpoints = value
 
     # ------------------------------------------------------------ public
     def advance(self, x: np.ndarray, t0: float, t1: float) -> np.ndarray:
@@ -389,21 +323,6 @@ class Stepper:
             progress(1.0)
         return times, states
 
-    def _run_plan(self, t0: float, t1: float) -> dict:
-        """:meth:`_plan` of a run (absorbed steps looked for); the last :data:`PLAN_CACHE_SIZE` kept by their ends,
-        origin and (immutable) breakpoints, those of at most :data:`PLAN_SPECIAL` special steps."""
-        key = (t0, t1, self.origin, id(self.breakpoints))
-        hit = self._plans.get(key)
-        if hit is not None and hit[0] is self.breakpoints:
-            self.split_steps = {c: list(e[2]) for c, e in hit[1]["special"].items() if e[2]}
-            return hit[1]
-        plan = self._plan(t0, t1, absorb=True)
-        if not plan["absorbed"].size and _clamp_count(plan) <= PLAN_SPECIAL:
-            if len(self._plans) >= PLAN_CACHE_SIZE:
-                self._plans.pop(next(iter(self._plans)))
-            self._plans[key] = (self.breakpoints, plan)
-        return plan
-
     def _paged(self, t0: float, t1: float) -> "Stepper":
         """A stepper of this one's settings on the plant's page over ``[t0, t1]`` widened by
         :data:`PAGE_MARGIN` steps each side (every breakpoint a plan or an absorbed step there looks at)."""
@@ -413,222 +332,10 @@ class Stepper:
         page._partials = self._partials  # (the partial steps' integrators depend on the model only)
         return page
 
-    def _near_breakpoint(self, t0: float, t1: float, k0: int, k1: int) -> bool:
-        """Whether a breakpoint lies in the grid steps k0 .. k1 (within the snap tolerance)."""
-        bps = self.breakpoints
-        if len(bps) == 0:
-            return False
-        g0, g1 = self.grid_time(k0), self.grid_time(k1)  # (the tolerance at least each end's: what _plan searches)
-        tol = snap_tolerance(max(abs(t0), abs(t1), abs(g0), abs(g1)), self.dt)
-        a, b = min(t0, g0) - tol, max(t1, g1) + tol
-        free = self._free  # (breakpoints, L, R): no breakpoint in the open interval (L, R) of that list
-        if free is not None and free[0] is bps and free[1] < a and b < free[2]:
-            return False
-        i = _search(bps, a, False)
-        if i != _search(bps, b, True):
-            return True
-        self._free = (bps, float(bps[i - 1]) if i else -math.inf, float(bps[i]) if i < len(bps) else math.inf)
-        return False
-
     def reset(self) -> None:
         """Forget adaptive solver history and the partial-step integrators."""
         self.integrator.reset()
         self._partials.clear()
-
-    def next_step(self, t0: float, t1: float) -> tuple:
-        """The first step ``(a, e, whole, lo, hi, cuts)`` of an advance from ``t0`` to ``t1`` [s] (see :meth:`steps`)."""
-        plan = self._plan(t0, t1)
-        if plan["empty"]:
-            return t0, t1, False, -math.inf, math.inf, []
-        a, e, whole, lo, hi, cuts = self._step(plan, plan["first"])
-        return a, e, whole, lo, hi, list(cuts)
-
-    def steps(self, t0: float, t1: float) -> tuple[np.ndarray, list]:
-        """The plan :meth:`run` executes from ``t0`` to ``t1`` [s], for another executor of it.
-
-        Returns ``(times, steps)``: the knot times (N+1,) [s] of :meth:`run`, and per step
-        ``(a, e, whole, lo, hi, cuts)``: from ``a`` to ``e`` [s] (``whole``: a full grid step of ``dt``), torque
-        samples clamped to ``[lo, hi]``, split at ``cuts`` (each piece's samples clamped to its side, as :meth:`run`
-        does). Empty when ``t0`` and ``t1`` share a knot. :class:`~belt_drive_ros.core.ensemble.Ensemble` steps many
-        variants of a plant along it.
-        """
-        plan = self._plan(t0, t1)
-        times = self._knots(plan)
-        if plan["empty"]:
-            return times, []
-        steps = [self._step(plan, c) for c in range(plan["first"], plan["last"] + 1)]
-        return times, [(*step[:5], tuple(sorted(step[5]))) for step in steps]
-
-    def grid_time(self, k: int) -> float:
-        """Grid time ``origin + k dt`` [s] (the float every caller computes)."""
-        return self.origin + k * self.dt
-
-    # ------------------------------------------------------------ planning
-    def _snap(self, t: float) -> int | None:
-        """Index k of the grid time within :func:`snap_tolerance` of ``t``, or None."""
-        k = round((t - self.origin) / self.dt)
-        return k if abs(self.origin + k * self.dt - t) <= snap_tolerance(t, self.dt) else None
-
-    def _cell(self, t: float) -> int:
-        """Index k of the grid cell [g_k, g_k+1) holding off-grid time ``t``."""
-        k = math.floor((t - self.origin) / self.dt)
-        while self.grid_time(k) > t:
-            k -= 1
-        while self.grid_time(k + 1) <= t:
-            k += 1
-        return k
-
-    def _plan(self, t0: float, t1: float, absorb: bool = False) -> dict:
-        """Steps from ``t0`` to ``t1``: grid cells first..last, ends, and the steps that touch breakpoints.
-
-        Returns a dict: ``first``, ``last`` (cell indices), ``start``, ``end`` (the times of the first and last
-        knot: the grid time when ``t0``/``t1`` snap to the grid, else themselves), ``lead``/``trail`` (whether the
-        first/last step is partial), ``t0``/``t1`` as given, and ``special = {cell: [lo, hi, cuts]}`` for steps
-        whose torque samples are clamped to ``[lo, hi]`` or that are split at ``cuts``; ``absorbed``: the cells
-        (sorted int64) :func:`~belt_drive_ros.core.absorb.absorbed_steps` found (``absorb``: look for them);
-        ``knots``: with ``absorb`` and many breakpoints, the clamps of those on interior knots as arrays
-        ``(cells, lo, hi)`` (:meth:`_knot_clamps`; not in ``special``; :meth:`_step` and :meth:`_clamps` merge them),
-        else None.
-        """
-        k0, k1 = self._snap(t0), self._snap(t1)
-        start = self.grid_time(k0) if k0 is not None else t0
-        end = self.grid_time(k1) if k1 is not None else t1
-        first = k0 if k0 is not None else self._cell(t0)
-        last = k1 - 1 if k1 is not None else self._cell(t1)
-        empty = last < first  # t0 and t1 on the same grid time (or within its tolerance)
-        special: dict = {}
-        bps = self.breakpoints
-        tol0, tol1 = snap_tolerance(start, self.dt), snap_tolerance(end, self.dt)
-        if empty or (k0 is not None and k1 is not None and not self._near_breakpoint(t0, t1, k0, k1)):
-            near = ()  # (whole grid steps in a breakpoint-free interval the last run or tick found: no search)
-        else:
-            near = bps[_search(bps, min(t0, start) - tol0, False) : _search(bps, max(t1, end) + tol1, True)]
-        absorbed = _NO_CELLS
-        if absorb and len(near) >= ABSORB_MIN:
-            from .absorb import absorbed_steps
-
-            absorbed, skip = absorbed_steps(self, np.asarray(near, dtype=np.float64), first, last)
-            if absorbed.size:
-                near = np.asarray(near, dtype=np.float64)[~skip]
-        taken = set(absorbed.tolist())  # an absorbed step's clamps are accounted for: no special entry
-        knots = None
-        if absorb and len(near) >= ABSORB_MIN:  # the breakpoints on interior knots as arrays, the others below
-            knots, near = self._knot_clamps(np.asarray(near, dtype=np.float64), t0, t1, start, end, first, last, absorbed)
-
-        def entry(c):
-            return special.setdefault(c, [-math.inf, math.inf, []]) if c not in taken else [-math.inf, math.inf, []]
-
-        for b in near.tolist() if isinstance(near, np.ndarray) else near:
-            if abs(b - start) <= max(tol0, snap_tolerance(b, self.dt)) or abs(b - t0) <= tol0:
-                e = entry(first)
-                e[0] = max(e[0], b)
-                continue
-            if abs(b - end) <= max(tol1, snap_tolerance(b, self.dt)) or abs(b - t1) <= tol1:
-                e = entry(last)
-                e[1] = min(e[1], self.plant.left_of(b))
-                continue
-            if not start < b < end:
-                continue
-            k = self._snap(b)
-            if k is not None:  # on a grid knot inside the advance
-                if first <= k - 1:
-                    e = entry(k - 1)
-                    e[1] = min(e[1], self.plant.left_of(b))
-                if k <= last:
-                    e = entry(k)
-                    e[0] = max(e[0], b)
-            else:
-                entry(min(max(self._cell(b), first), last))[2].append(b)
-        self.split_steps = {c: list(e[2]) for c, e in special.items() if e[2]}
-        return dict(
-            t0=t0, t1=t1, start=start, end=end, first=first, last=last, empty=empty,
-            lead=k0 is None, trail=k1 is None, special=special, absorbed=absorbed, knots=knots,
-        )  # fmt: skip
-
-    def _knot_clamps(self, bps: np.ndarray, t0: float, t1: float, start: float, end: float, first: int, last: int,
-                     absorbed: np.ndarray) -> tuple:
-        """``((cells, lo, hi), the other breakpoints)``: the clamps that the breakpoints ``bps`` (sorted) on interior
-        knots put on the steps either side (:meth:`_plan`'s rule, the same floats, as arrays: a torque recorded at
-        the step rate has one on every knot), cells sorted, ``-inf``/``inf`` where a side has none; the absorbed
-        cells left out. The others (near the ends, off the grid) for :meth:`_plan`'s loop."""
-        dt = self.dt
-        tol_b = np.maximum(GRID_TOLERANCE * dt, 8.0 * np.spacing(np.abs(bps)))  # snap_tolerance of each
-        tol0, tol1 = snap_tolerance(start, dt), snap_tolerance(end, dt)
-        kf = np.rint((bps - self.origin) / dt)  # _snap: round half to even
-        at_ends = ((np.abs(bps - start) <= np.maximum(tol0, tol_b)) | (np.abs(bps - t0) <= tol0)
-                   | (np.abs(bps - end) <= np.maximum(tol1, tol_b)) | (np.abs(bps - t1) <= tol1))  # fmt: skip
-        inner = ~at_ends & (bps > start) & (bps < end) & (np.abs(self.origin + kf * dt - bps) <= tol_b)
-        k = kf[inner].astype(np.int64)
-        b = bps[inner]
-        lo_side, hi_side = k <= last, k - 1 >= first
-        kl, vl = _reduced(k[lo_side], b[lo_side], np.maximum)  # the step starting at a knot: from its latest breakpoint
-        kh, vh = _reduced(k[hi_side] - 1, self.plant.left_of_array(b[hi_side]), np.minimum)  # ending there: the first's left
-        if 4 * k.size < last - first + 1:  # a few among many steps: sorted sets (memory of the breakpoints' size)
-            cells = np.union1d(kl, kh)
-            lo, hi = np.full(cells.size, -math.inf), np.full(cells.size, math.inf)
-            lo[np.searchsorted(cells, kl)], hi[np.searchsorted(cells, kh)] = vl, vh
-            keep = ~np.isin(cells, absorbed)
-            return (cells[keep], lo[keep], hi[keep]), bps[~inner]
-        lo, hi = np.full(last - first + 1, -math.inf), np.full(last - first + 1, math.inf)  # by cell (first .. last)
-        lo[kl - first], hi[kh - first] = vl, vh
-        clamped = (lo != -math.inf) | (hi != math.inf)
-        clamped[absorbed - first] = False
-        cells = np.flatnonzero(clamped)
-        return (cells + first, lo[cells], hi[cells]), bps[~inner]
-
-    def _clamps(self, plan: dict) -> tuple:
-        """``(cells, lo, hi, ends)`` of a plan (kept in it): every clamped step's bounds (the special steps' and the
-        knots' of :meth:`_knot_clamps`, merged: the latest lo, the earliest hi), cells sorted; ``ends`` the cells that
-        end a group of :func:`~belt_drive_ros.core.kernel.clamped_steps` (a finite hi, the cell before a finite lo,
-        the last)."""
-        if "clamps" not in plan:
-            special, knots, first, last = plan["special"], plan["knots"], plan["first"], plan["last"]
-            if knots is not None and not special:
-                cells, lo, hi = knots
-            else:
-                cells = np.fromiter(special, dtype=np.int64, count=len(special))
-                lo = np.array([e[0] for e in special.values()], dtype=np.float64)
-                hi = np.array([e[1] for e in special.values()], dtype=np.float64)
-                if knots is not None:
-                    cells, lo, hi = (np.concatenate([a, b]) for a, b in zip((cells, lo, hi), knots))
-                order = np.argsort(cells, kind="stable")
-                cells, lo, hi = cells[order], lo[order], hi[order]
-                _, hi = _reduced(cells, hi, np.minimum)
-                cells, lo = _reduced(cells, lo, np.maximum)
-            if 4 * cells.size < last - first + 1:  # a few clamped steps among many: a sorted set
-                ends = np.unique(np.concatenate([cells[hi != math.inf], cells[lo != -math.inf] - 1, [last]]))
-            else:  # one a step or so: marks by cell, first - 1 .. last (no sort)
-                ends = np.zeros(last - first + 2, dtype=bool)
-                ends[cells[hi != math.inf] - first + 1] = True
-                ends[cells[lo != -math.inf] - first] = True
-                ends[last - first + 1] = True
-                ends = np.flatnonzero(ends) + (first - 1)
-            plan["clamps"] = (cells, lo, hi, ends.astype(np.int64))
-        return plan["clamps"]
-
-    def _step(self, plan: dict, c: int) -> tuple:
-        """``(a, e, whole, lo, hi, cuts)`` of the step in cell ``c``: from ``a`` to ``e`` [s] (``whole``: a full grid
-        step), torque samples clamped to ``[lo, hi]``, split at ``cuts``."""
-        a = plan["start"] if c == plan["first"] else self.grid_time(c)
-        e = plan["end"] if c == plan["last"] else self.grid_time(c + 1)
-        whole = not ((c == plan["first"] and plan["lead"]) or (c == plan["last"] and plan["trail"]))
-        lo, hi, cuts = plan["special"].get(c, (-math.inf, math.inf, ()))
-        if plan["knots"] is not None:  # (a clamp of the knots' arrays: merged, as _clamps does)
-            cells, klo, khi = plan["knots"]
-            i = int(cells.searchsorted(c))
-            if i < cells.size and cells[i] == c:
-                lo, hi = max(lo, float(klo[i])), min(hi, float(khi[i]))
-        return a, e, whole, lo, hi, cuts
-
-    def _knots(self, plan: dict) -> list:
-        """Times of the recorded states: t0, the interior grid times, t1."""
-        if plan["empty"]:
-            return np.array([plan["t0"]] if plan["t0"] == plan["t1"] else [plan["t0"], plan["t1"]])
-        return np.concatenate(([plan["t0"]], self._grid(plan["first"] + 1, plan["last"] + 1), [plan["t1"]]))
-
-    def _grid(self, k0: int, k1: int) -> np.ndarray:
-        """Grid times ``origin + k dt`` for k0 <= k < k1 (the float product and sum every caller computes)."""
-        return self.origin + self.dt * np.arange(k0, k1, dtype=float)
 
     # ------------------------------------------------------------ stepping
     def _partial(self, h: float):
@@ -705,16 +412,16 @@ class Stepper:
                 return x[None, :].copy() if record else x
             # t0 and t1 within the snap tolerance of one grid time: nothing to integrate
             return np.vstack([x, x]) if record else x
-        first, last, special = plan["first"], plan["last"], plan["special"]
+        first, last = plan["first"], plan["last"]
         n_cells = last - first + 1
         states = np.empty((n_cells + 1, size)) if record else None
         if record:
             states[0] = x
         chunk = CHUNK if not progress else min(CHUNK, max(64, n_cells // 100))
         # the steps taken alone: split ones, the partial ones at the ends (clamps alone: in the compiled runs)
-        stops = sorted([c for c, e in special.items() if e[2]] + [first] * plan["lead"] + [last] * plan["trail"])
+        stops = sorted([*plan["splits"], *[first] * plan["lead"], *[last] * plan["trail"]])
         hard = set(stops)
-        clamps = self._clamps(plan) if self.loop is not None else None
+        groups = self._groups(plan) if self.loop is not None else None
         si = 0
         runs = plan["absorbed"]  # absorbed cells as runs [run_from, run_to) of the absorbed loop (absorb.py)
         run_from, run_to = [], []
@@ -759,7 +466,7 @@ class Stepper:
                     done, status, t = self._end(self._grid(c, stop + 1), x, out, -math.inf, math.inf, SPEED_LIMIT)
                 else:  # (clamped steps grouped as _march_grouped does)
                     done, status, t = self.loop.clamped(self._grid(c, stop + 1), x if x.flags.writeable else x.copy(), out,
-                                                        0, stop - c, c, *clamps, 0.5 * self.dt, SPEED_LIMIT)  # fmt: skip
+                                                        0, stop - c, c, *groups, 0.5 * self.dt, SPEED_LIMIT)  # fmt: skip
                 if status == NOT_CONVERGED:
                     self._not_converged(t)
                 if status == GUARDED:  # the guard fired at the end of cell c + done - 1
@@ -791,7 +498,7 @@ class Stepper:
         ``hi`` (also when cut in parts).
         """
         first, last = plan["first"], plan["last"]
-        cells, lo, hi, ends = self._clamps(plan)
+        cells, lo, hi, ends = self._groups(plan)
         guarded, total = self.guard is not None, last - first + 2
         states = np.empty((total if not guarded else min(total, GUARDED_ROWS), x.size))
         states[0] = x

@@ -24,7 +24,8 @@ from .model import make_model
 from .scene import Scene
 from .simulate import SimResult, Simulator, _linear_result, _slipping_accuracy, _slipping_result
 from .slip_run import SlippingSimulator
-from .stepper import PAGE_MARGIN, snap_tolerance
+from .step_plan import snap_tolerance
+from .stepper import PAGE_MARGIN
 
 __all__ = ["WINDOW_STEPS", "Restart", "stream"]
 

@@ -37,7 +37,8 @@ from ..core.model import OUTPUT_UNITS, FlexibleBeltModel
 from ..core.slip import SLIP_OUTPUT_UNITS
 from ..core.slip_run import SlippingSimulator, _events
 from ..core.kernel_loop import OK
-from ..core.stepper import SPEED_LIMIT, Plant, Stepper, snap_tolerance
+from ..core.step_plan import snap_tolerance
+from ..core.stepper import SPEED_LIMIT, Plant, Stepper
 from ..io.cdr_encoders import JointStateEncoder
 from .inputs import DriveInput
 from .parameter_schema import NodeSettings
