@@ -36,7 +36,7 @@ import math
 
 import numpy as np
 
-from numba import carray, cfunc, njit, types
+from numba import carray, njit, types
 from numba.extending import intrinsic, overload
 
 from .kernel import HEADER, SECTIONS, linear_steps, profile_torque
@@ -364,7 +364,6 @@ class TickKernel:
         self._clamp, self._io = _cells(views["clamp"]), _cells(views["io"])
         self._drive, self._drive_copy = _cells(loop._dp), _cells(views["dp"])  # (the held torque's data, its copy)
         self._packed, self._address = arrays.reals, arrays.address  # (the kernel's argument: the buffer's address)
-        self._high, self._low = split_address(self._address)  # (the address as native(linear_tick) takes it)
         load_compiled(linear_tick, (self._address,))
 
     @classmethod
@@ -624,7 +623,6 @@ class SlipTickKernel:
         self._drive, self._drive_copy = _cells(dp), _cells(views["dp"])  # (the held torque's data, its copy)
         self.message = memoryview(views["msg"].view(np.uint8))[self._where]
         self._packed, self._address = arrays.reals, arrays.address  # (the kernel's argument: the buffer's address)
-        self._high, self._low = split_address(self._address)  # (the address as native(slip_tick) takes it)
         load_compiled(slip_tick, (self._address,))
 
     def drive_changed(self) -> None:
@@ -676,76 +674,9 @@ class SlipTickKernel:
                          self._x[: PHASE_SIZE[kind]].copy())
 
 
-# ------------------------------------------------------------------ the ticks as C callbacks
-# numba's dispatcher types its argument and looks the signature up on every call: on the caches a 1 ms sleep leaves,
-# several us of a ~20 us node tick. The node's usual tick calls the same kernel as a C callback (numba's documented
-# ``cfunc``, compiled and cached once) through ctypes, which releases the GIL for the call of a CFUNCTYPE function
-# (the kernels take no Python object). The address goes as two C ints (its high and low 32 bits): Python ints that
-# ctypes passes as C ints without a converter's call or an argument object (cold caches: ~2 us less than a
-# ``c_int64``, ~5 us less than a Python int through a declared ``c_int64``).
-
-
-@njit(cache=True, nogil=True)
-def _joined(high, low):
-    """The address whose high and low 32 bits are the int32s ``high`` and ``low`` (:func:`split_address`)."""
-    return (np.int64(high) << 32) | (np.int64(low) & 0xFFFFFFFF)
-
-
-def split_address(address: int) -> tuple[int, int]:
-    """``(high, low)``: an address (< 2**63) as two signed 32-bit ints, the arguments of :func:`native`'s calls."""
-    high, low = address >> 32, address & 0xFFFFFFFF
-    return high, low - (1 << 32) if low >= 1 << 31 else low
-
-
-def _linear_tick_native(high, low):
-    """:func:`linear_tick` as a C callback (:func:`native`)."""
-    return linear_tick(_joined(high, low))
-
-
-def _slip_tick_native(high, low):
-    """:func:`slip_tick` as a C callback (:func:`native`)."""
-    return slip_tick(_joined(high, low))
-
-
-_NATIVE = {"linear_tick": _linear_tick_native, "slip_tick": _slip_tick_native}
-_CALLBACKS: dict = {}  # kernel name -> the ctypes function of its C callback (built once per process)
-
-
-def _interpreted(kernel):
-    def call(high, low):
-        return kernel((high << 32) | (low & 0xFFFFFFFF))
-
-    return call
-
-
-def native(kernel):
-    """``kernel`` (:func:`linear_tick` or :func:`slip_tick`) as a function of its buffer's address split in two
-    (:func:`split_address`; the kernels' ``_high, _low``): the same status and writes as ``kernel(address)``.
-
-    Compiled: numba's ``cfunc(int64(int32, int32), cache=True, nogil=True)`` of the kernel (loaded from the disk
-    cache; :func:`warm` compiles it), called through a ``ctypes.CFUNCTYPE(c_int64)`` prototype at its ``address``
-    (its arguments undeclared: ctypes passes a Python int as a C int, ``c_int`` being 32 bits here) and without
-    the GIL. The same machine code as the dispatcher's, so the same floats (LLVM reorders no float operation
-    without fastmath). Interpreted (``NUMBA_DISABLE_JIT=1``): the kernel itself called with the address.
-    """
-    name = kernel.__name__
-    call = _CALLBACKS.get(name)
-    if call is None:
-        if not hasattr(kernel, "py_func"):  # NUMBA_DISABLE_JIT: a plain function
-            call = _interpreted(kernel)
-        else:
-            if ctypes.sizeof(ctypes.c_int) != 4:
-                raise RuntimeError("core.tick.native: a C int of 32 bits is assumed (ctypes passes a Python int as one)")
-            callback = cfunc(types.int64(types.int32, types.int32), cache=True, nogil=True)(_NATIVE[name])
-            call = ctypes.CFUNCTYPE(ctypes.c_int64)(callback.address)
-            call._callback = callback  # (its machine code lives as long as the callback object)
-        _CALLBACKS[name] = call
-    return call
-
-
 def warm() -> None:
     """Compile (or load from the disk cache) :func:`linear_tick` and :func:`slip_tick` with the one
-    signature the node uses, and their C callbacks (:func:`native`) (``make install`` calls it through :func:`~belt_drive_ros.core.warm.warm`)."""
+    signature the node uses (``make install`` calls it through :func:`~belt_drive_ros.core.warm.warm`)."""
     from .model import FlexibleBeltModel
     from .params import BeltDriveParams
     from .sources import Constant
@@ -754,4 +685,3 @@ def warm() -> None:
     params, torque = BeltDriveParams(), Constant(1.0)  # (a tick kernel loads its compiled code when built)
     TickKernel.of(Stepper(Plant(FlexibleBeltModel(params), torque, torque), "exact", 1e-3), 1.0e5)
     SlipTickKernel(SlippingSimulator(params, torque, torque, "etd2", 1e-3, check_stability=False), 1.0e5)
-    native(linear_tick), native(slip_tick)  # (the node's usual tick: C callbacks)

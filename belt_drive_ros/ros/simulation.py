@@ -123,19 +123,19 @@ class NodeSimulation:
             engine = SlippingSimulator(s.params, drive, s.scene.load, s.method, s.dt, s.method_options, check_stability=False)
             self._plant_breakpoints = tuple(engine.breakpoints)
             self._free_k = (0, -1)
-            from ..core.tick import SlipTickKernel, native, slip_tick
+            from ..core.tick import SlipTickKernel, slip_tick
 
             self._tick_kernel = SlipTickKernel(engine, SPEED_LIMIT, _JOINT_STATES.layout)
-            self._entry = native(slip_tick)  # (the plain tick's call: the kernel as a C callback)
+            self._entry = slip_tick  # (the plain tick's call: the compiled kernel's dispatcher, nogil)
             return engine
         plant = Plant(s.model, drive, s.scene.load)
         stepper = Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
         self._plant_breakpoints = tuple(stepper.breakpoints)
         self._free_k = (0, -1)
-        from ..core.tick import TickKernel, linear_tick, native
+        from ..core.tick import TickKernel, linear_tick
 
         self._tick_kernel = TickKernel.of(stepper, SPEED_LIMIT, _JOINT_STATES.layout)
-        self._entry = native(linear_tick)  # (the plain tick's call: the kernel as a C callback)
+        self._entry = linear_tick  # (the plain tick's call: the compiled kernel's dispatcher, nogil)
         return stepper
 
     @property
@@ -343,14 +343,14 @@ class NodeSimulation:
             if value is None or value == self._held:
                 fast = self._tick_kernel
                 if self._live:  # the slipping belt (its events located in the kernel; a failure: the engine below)
-                    done = self._entry(fast._high, fast._low)  # (SlipTickKernel.next without its frame nor dispatcher)
+                    done = self._entry(fast._address)  # (SlipTickKernel.next without its frame)
                     if done <= 0:
                         if done:
                             self._located(_events(fast._events[:-done]))  # (SlipTickKernel.next's answer)
                         self.t_ns = self._fresh_ns = now_ns
                         self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
                         return True
-                elif self._entry(fast._high, fast._low) == OK:  # (TickKernel.next without its frame nor dispatcher;
+                elif self._entry(fast._address) == OK:  # (TickKernel.next without its frame;
                     # else the general path below takes the same steps and raises as it does)
                     self.t_ns = self._fresh_ns = now_ns
                     self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
