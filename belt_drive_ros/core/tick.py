@@ -445,10 +445,10 @@ SLIP_INTS = ("special", "out_mode", "ints", "offsets", "have", "uses", "dk", "lk
 def slip_tick(address):
     """The slipping belt's ``N`` whole grid steps of the buffers from grid index ``k0``, then every output
     of the slipping model at the last knot into ``y`` and the ``joint_states`` message stamped ``stamp`` [ns]
-    (:func:`write_joints`). Returns ``-(n EVENT + flags)`` when done (the outputs' :data:`SLACK`, :data:`SLIPS` and
-    always :data:`SLIPPING`), ``n`` events (mode switches) in the first rows of ``events``, and ``k0 + N``, ``stamp + N step_ns`` written into ``iscalars`` (the next tick's: the usual tick
-    writes nothing before the call); else the hybrid loop's status (> 0): the buffers then hold the state the call
-    started from.
+    (:func:`write_joints`). Returns ``-(n EVENT + flags)`` when done (the outputs' :data:`SLACK`, :data:`SLIPS`
+    and always :data:`SLIPPING`), ``n`` events (mode switches) in the first rows of ``events``, and ``k0 + N``,
+    ``stamp + N step_ns`` written into ``iscalars`` (the next tick's: the usual tick writes nothing before the
+    call); else the hybrid loop's status (> 0): the buffers then hold the state the call started from.
 
     A tick whose steps cross no guard is the phase's linear loop alone (:func:`~.kernel.linear_steps`, stretch by
     stretch of equal clamps as :func:`~.kernel_slip.hybrid_steps` takes them; sticking after slip the flexible loop

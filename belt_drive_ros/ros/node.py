@@ -166,6 +166,8 @@ NODE_NAME = "belt_drive"
 JOINT_NAMES = ("wheel_M", "wheel_1", "wheel_2", "wheel_3")
 #: Float64 output topics, in publishing order (joint_states is published first).
 OUTPUT_TOPICS = ("shaft_speed", "load_torque", "belt_torque", "relative_deflection")
+#: NodeSimulation.advance_to's answer after a compiled tick of the slipping model, neither slack nor slip set
+_SLIPPING_ONLY = 1 + SLIPPING
 #: where the tick's values (NodeSimulation.values) hold each slipping-model Float64 output
 _N_TICK = len(TICK_OUTPUTS)
 _SLIP_FLOAT_INDEX = tuple((TICK_OUTPUTS + SLIP_TICK_OUTPUTS).index(signal) for _, signal in SLIP_FLOAT_OUTPUTS)
@@ -408,7 +410,10 @@ class BeltDriveNode(Node):
             elif defer:
                 sends = []
             if got > 1:  # the compiled tick's flags (+ 1): counted without reading its outputs
-                self._flagged(got - 1)
+                if got == _SLIPPING_ONLY:  # (the slipping model's usual tick: no call)
+                    self.counters["published_slip"] += 1
+                else:
+                    self._flagged(got - 1)
             self._last = (fresh.values, now_ns, sim.origin_ns)  # floats: TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
             self.counters["published"] += 1
         else:
