@@ -16,7 +16,6 @@ from __future__ import annotations
 import struct
 import threading
 
-import numpy as np
 import pytest
 
 pytestmark = pytest.mark.ros
@@ -147,49 +146,3 @@ def test_a_network_input_is_served_while_a_long_tick_computes_and_acts_from_the_
             node.destroy_node()
     finally:
         rclpy.shutdown(context=context)
-
-
-def test_the_node_calls_the_tick_kernels_as_c_callbacks_the_same_floats_without_the_gil():
-    """The usual tick calls the tick kernel as a C callback (``core.tick.native``: numba's ``cfunc`` through a ctypes
-    prototype, no dispatcher per call): the same machine code, so the same floats as the kernel's own call, and the
-    ctypes call releases the GIL (a long call lets another thread's Python run: gap e). Linear and slipping."""
-    from test_audit_kernel import _python_runs_during
-
-    from belt_drive_ros.core.model import FlexibleBeltModel
-    from belt_drive_ros.core.params import BeltDriveParams
-    from belt_drive_ros.core.slip_run import SlippingSimulator
-    from belt_drive_ros.core.sources import Constant
-    from belt_drive_ros.core.stepper import Plant, Stepper
-    from belt_drive_ros.core.tick import SlipTickKernel, TickKernel, linear_tick, native, slip_tick
-
-    call = native(linear_tick)
-    assert call is native(linear_tick) and call is not linear_tick  # (built once; not the dispatcher)
-    params, torque = BeltDriveParams(), Constant(1.0)
-    kernels = [TickKernel.of(Stepper(Plant(FlexibleBeltModel(params), torque, torque), "lawson5", 1e-3), 1.0e5)
-               for _ in range(2)]
-    x0 = FlexibleBeltModel(params).state_from_rigid(np.array([0.0, 10.0]))
-    for kernel in kernels:
-        assert kernel.step(np.array(x0, dtype=float), 0, 3) == 0
-    for _ in range(5):  # the next ticks: the dispatcher's call and the callback's, the same floats and bytes
-        assert kernels[0].next() == 0 and call(kernels[1]._high, kernels[1]._low) == 0
-        assert kernels[0].y.tobytes() == kernels[1].y.tobytes() and kernels[0].y[1] != x0[1]
-        assert bytes(kernels[0].message) == bytes(kernels[1].message)
-    long = kernels[1]
-    assert long.step(long.state, 0, 100_000) == 0
-    assert _python_runs_during(lambda: call(long._high, long._low)) > 1000
-    # the slipping tick (its buffer packed anew for another step count: a new address, split anew)
-    slipping = []
-    for _ in range(2):
-        engine = SlippingSimulator(params, Constant(40.0), torque, "etd2", 1e-3, check_stability=False)
-        slipping.append(SlipTickKernel(engine, 1.0e5))
-        assert slipping[-1].advance(engine.initial(np.array([0.0, 0.0, 10.0, 10.0, 0.0])), 0, 2) is not None
-    slip_call = native(slip_tick)
-    for _ in range(20):
-        events = slipping[0].next()
-        done = slip_call(slipping[1]._high, slipping[1]._low)
-        assert events is not None and done == -len(events)
-        assert slipping[0].y.tobytes() == slipping[1].y.tobytes()
-        assert bytes(slipping[0].message) == bytes(slipping[1].message)
-    long = slipping[1]
-    long.advance(long.state(), 0, 50_000)
-    assert _python_runs_during(lambda: slip_call(long._high, long._low)) > 1000

@@ -36,7 +36,7 @@ import math
 
 import numpy as np
 
-from numba import carray, cfunc, njit, types
+from numba import carray, njit, types
 from numba.extending import intrinsic, overload
 
 from .kernel import HEADER, SECTIONS, linear_steps, profile_torque
@@ -212,12 +212,17 @@ LINEAR_INTS = ("ints", "io")
 _ROWS, _REALS, _LP, _DP, _X, _Y, _MSG, _CLAMP, _TIMES, _OUT, _INTS, _IO = range(12)
 #: grid steps per tick the buffers have room for (a tick of more allocates its times and states)
 ROOM = 16
+#: a done tick's flags, which its kernel returns negated (a failure: its status > 0): the outputs' ``slack`` and
+#: ``slip`` set, the slipping model's outputs (:func:`slip_tick`, every tick); :func:`slip_tick` adds ``EVENT`` per
+#: mode switch. The node counts its ticks by them without reading the outputs
+SLACK, SLIPS, SLIPPING, EVENT = 1, 2, 4, 8
 
 
 @njit(cache=True, nogil=True)
 def linear_tick(address):
     """``steps`` whole grid steps from grid index ``k0`` of the state, then the outputs and the ``joint_states``
-    message stamped ``stamp`` [ns] (:func:`write_joints`); returns the kernel's status.
+    message stamped ``stamp`` [ns] (:func:`write_joints`); returns the kernel's status (> 0), or when done minus the
+    outputs' flags (:data:`SLACK`, :data:`SLIPS`; 0: neither).
 
     ``packed``: :class:`TickKernel`'s buffer (:data:`LINEAR_FLOATS`, :data:`LINEAR_INTS`) at ``address``, the one
     argument (numba converts every argument on every call: ~1 us per int and ~6 us per array on the caches a 1 ms
@@ -283,10 +288,11 @@ def linear_tick(address):
     slack_force = F_0 - half
     slack = slack_force <= 0.0
     y[12], y[13] = tight, slack_force
+    slip = slack or tight > slack_force * capstan
     y[14] = 1.0 if slack else 0.0
-    y[15] = 1.0 if slack or tight > slack_force * capstan else 0.0
+    y[15] = 1.0 if slip else 0.0
     write_joints(y, _f1(packed, table, _MSG).view(np.uint8), rows[d0 + 30 :], stamp)
-    return status
+    return -((SLACK if slack else 0) + (SLIPS if slip else 0))
 
 
 def grid_step_ns(dt: float, origin: float) -> int:
@@ -355,6 +361,8 @@ class TickKernel:
         views = arrays.views
         #: the outputs of the last :meth:`step` [SI units, OUTPUT_UNITS order; slack/slip as 0.0/1.0]
         self.y = views["y"]
+        #: their flags (:data:`SLACK`, :data:`SLIPS`) after the last OK :meth:`step` or :meth:`next`
+        self.flags = 0
         #: :attr:`y` as a memoryview (its ``tolist()``: the same floats as numpy's, ~2 us sooner on cold caches)
         self.values = memoryview(self.y)
         #: the state the last :meth:`step` reached (written again by the next one: a caller keeps it by copying)
@@ -364,7 +372,6 @@ class TickKernel:
         self._clamp, self._io = _cells(views["clamp"]), _cells(views["io"])
         self._drive, self._drive_copy = _cells(loop._dp), _cells(views["dp"])  # (the held torque's data, its copy)
         self._packed, self._address = arrays.reals, arrays.address  # (the kernel's argument: the buffer's address)
-        self._high, self._low = split_address(self._address)  # (the address as native(linear_tick) takes it)
         load_compiled(linear_tick, (self._address,))
 
     @classmethod
@@ -395,14 +402,21 @@ class TickKernel:
             clamp = self._clamp
             clamp[0], clamp[1], clamp[2] = lo, hi, drive
         status = linear_tick(self._address)
-        if drive == drive and status == 0:
+        if status > 0:
+            return status
+        if drive == drive:
             self._drive[0] = drive
-        return status
+        self.flags = -status
+        return 0
 
     def next(self) -> int:
         """The tick after the last OK one (:meth:`step` or this): as many grid steps from where it ended, the
         stamp as many grid steps on, no clamps; the status (the buffer holds all of it: nothing is written here)."""
-        return linear_tick(self._address)
+        status = linear_tick(self._address)
+        if status > 0:
+            return status
+        self.flags = -status
+        return 0
 
 
 # ------------------------------------------------------------------ the slipping belt
@@ -431,10 +445,10 @@ SLIP_INTS = ("special", "out_mode", "ints", "offsets", "have", "uses", "dk", "lk
 def slip_tick(address):
     """The slipping belt's ``N`` whole grid steps of the buffers from grid index ``k0``, then every output
     of the slipping model at the last knot into ``y`` and the ``joint_states`` message stamped ``stamp`` [ns]
-    (:func:`write_joints`). Returns ``-n`` when done, ``n`` events (mode switches) in the first rows of
-    ``events``, and ``k0 + N``, ``stamp + N step_ns`` written into ``iscalars`` (the next tick's: the usual tick
-    writes nothing before the call); else the hybrid loop's status (> 0): the buffers then hold the state the call
-    started from.
+    (:func:`write_joints`). Returns ``-(n EVENT + flags)`` when done (the outputs' :data:`SLACK`, :data:`SLIPS`
+    and always :data:`SLIPPING`), ``n`` events (mode switches) in the first rows of ``events``, and ``k0 + N``,
+    ``stamp + N step_ns`` written into ``iscalars`` (the next tick's: the usual tick writes nothing before the
+    call); else the hybrid loop's status (> 0): the buffers then hold the state the call started from.
 
     A tick whose steps cross no guard is the phase's linear loop alone (:func:`~.kernel.linear_steps`, stretch by
     stretch of equal clamps as :func:`~.kernel_slip.hybrid_steps` takes them; sticking after slip the flexible loop
@@ -562,11 +576,12 @@ def slip_tick(address):
     y[12], y[13] = tight, slack_force
     y[14] = 1.0 if low <= 0.0 else 0.0
     y[15] = 1.0 if slipping else 0.0
+    bits = SLIPPING + (SLACK if low <= 0.0 else 0) + (SLIPS if slipping else 0)
     y[16], y[17], y[18], y[19] = y1, slip_angle, y4, speed
     y[20] = Q / qmax if qmax > 0 else math.inf
     y[21] = qmax
     write_joints(y, _f1(packed, table, _SMSG).view(np.uint8), consts[17:], stamp)
-    return -n_ev
+    return -(n_ev * EVENT + bits)
 
 
 class SlipTickKernel:
@@ -585,6 +600,9 @@ class SlipTickKernel:
         self.engine, self.dt, self.origin, self.limit = engine, engine.dt, engine.origin, limit
         self.step_ns = grid_step_ns(engine.dt, engine.origin)
         self.y = np.zeros(22)
+        #: the outputs' flags after the last done :meth:`advance` or :meth:`next` (:data:`SLIPPING` and
+        #: :data:`SLACK`, :data:`SLIPS`)
+        self.flags = SLIPPING
         self.values = memoryview(self.y)  # (as TickKernel.values)
         #: the slipping state ``y`` (5,) after the last :meth:`advance` (a view: the next one writes it again)
         self.end_y = np.zeros(5)
@@ -624,7 +642,6 @@ class SlipTickKernel:
         self._drive, self._drive_copy = _cells(dp), _cells(views["dp"])  # (the held torque's data, its copy)
         self.message = memoryview(views["msg"].view(np.uint8))[self._where]
         self._packed, self._address = arrays.reals, arrays.address  # (the kernel's argument: the buffer's address)
-        self._high, self._low = split_address(self._address)  # (the address as native(slip_tick) takes it)
         load_compiled(slip_tick, (self._address,))
 
     def drive_changed(self) -> None:
@@ -660,14 +677,18 @@ class SlipTickKernel:
             return None
         if drive == drive:
             self._drive[0] = drive  # (the kernel wrote its copy)
-        return () if done == 0 else _events(self._events[:-done])
+        self.flags, n = -done & (EVENT - 1), -done // EVENT
+        return _events(self._events[:n]) if n else ()
 
     def next(self) -> tuple | None:
         """The tick after the last done one (:meth:`advance` or this): N grid steps on from the buffers' state, the
         stamp N grid steps on, no clamps (the buffers hold all of it: nothing is written here); :meth:`advance`'s
         answer."""
         done = slip_tick(self._address)
-        return () if done == 0 else None if done > 0 else _events(self._events[:-done])
+        if done > 0:
+            return None
+        self.flags, n = -done & (EVENT - 1), -done // EVENT
+        return _events(self._events[:n]) if n else ()
 
     def state(self) -> SlipState:
         """The hybrid state the buffers hold: the last :meth:`advance`'s (where it failed, the one it started from)."""
@@ -676,76 +697,9 @@ class SlipTickKernel:
                          self._x[: PHASE_SIZE[kind]].copy())
 
 
-# ------------------------------------------------------------------ the ticks as C callbacks
-# numba's dispatcher types its argument and looks the signature up on every call: on the caches a 1 ms sleep leaves,
-# several us of a ~20 us node tick. The node's usual tick calls the same kernel as a C callback (numba's documented
-# ``cfunc``, compiled and cached once) through ctypes, which releases the GIL for the call of a CFUNCTYPE function
-# (the kernels take no Python object). The address goes as two C ints (its high and low 32 bits): Python ints that
-# ctypes passes as C ints without a converter's call or an argument object (cold caches: ~2 us less than a
-# ``c_int64``, ~5 us less than a Python int through a declared ``c_int64``).
-
-
-@njit(cache=True, nogil=True)
-def _joined(high, low):
-    """The address whose high and low 32 bits are the int32s ``high`` and ``low`` (:func:`split_address`)."""
-    return (np.int64(high) << 32) | (np.int64(low) & 0xFFFFFFFF)
-
-
-def split_address(address: int) -> tuple[int, int]:
-    """``(high, low)``: an address (< 2**63) as two signed 32-bit ints, the arguments of :func:`native`'s calls."""
-    high, low = address >> 32, address & 0xFFFFFFFF
-    return high, low - (1 << 32) if low >= 1 << 31 else low
-
-
-def _linear_tick_native(high, low):
-    """:func:`linear_tick` as a C callback (:func:`native`)."""
-    return linear_tick(_joined(high, low))
-
-
-def _slip_tick_native(high, low):
-    """:func:`slip_tick` as a C callback (:func:`native`)."""
-    return slip_tick(_joined(high, low))
-
-
-_NATIVE = {"linear_tick": _linear_tick_native, "slip_tick": _slip_tick_native}
-_CALLBACKS: dict = {}  # kernel name -> the ctypes function of its C callback (built once per process)
-
-
-def _interpreted(kernel):
-    def call(high, low):
-        return kernel((high << 32) | (low & 0xFFFFFFFF))
-
-    return call
-
-
-def native(kernel):
-    """``kernel`` (:func:`linear_tick` or :func:`slip_tick`) as a function of its buffer's address split in two
-    (:func:`split_address`; the kernels' ``_high, _low``): the same status and writes as ``kernel(address)``.
-
-    Compiled: numba's ``cfunc(int64(int32, int32), cache=True, nogil=True)`` of the kernel (loaded from the disk
-    cache; :func:`warm` compiles it), called through a ``ctypes.CFUNCTYPE(c_int64)`` prototype at its ``address``
-    (its arguments undeclared: ctypes passes a Python int as a C int, ``c_int`` being 32 bits here) and without
-    the GIL. The same machine code as the dispatcher's, so the same floats (LLVM reorders no float operation
-    without fastmath). Interpreted (``NUMBA_DISABLE_JIT=1``): the kernel itself called with the address.
-    """
-    name = kernel.__name__
-    call = _CALLBACKS.get(name)
-    if call is None:
-        if not hasattr(kernel, "py_func"):  # NUMBA_DISABLE_JIT: a plain function
-            call = _interpreted(kernel)
-        else:
-            if ctypes.sizeof(ctypes.c_int) != 4:
-                raise RuntimeError("core.tick.native: a C int of 32 bits is assumed (ctypes passes a Python int as one)")
-            callback = cfunc(types.int64(types.int32, types.int32), cache=True, nogil=True)(_NATIVE[name])
-            call = ctypes.CFUNCTYPE(ctypes.c_int64)(callback.address)
-            call._callback = callback  # (its machine code lives as long as the callback object)
-        _CALLBACKS[name] = call
-    return call
-
-
 def warm() -> None:
     """Compile (or load from the disk cache) :func:`linear_tick` and :func:`slip_tick` with the one
-    signature the node uses, and their C callbacks (:func:`native`) (``make install`` calls it through :func:`~belt_drive_ros.core.warm.warm`)."""
+    signature the node uses (``make install`` calls it through :func:`~belt_drive_ros.core.warm.warm`)."""
     from .model import FlexibleBeltModel
     from .params import BeltDriveParams
     from .sources import Constant
@@ -754,4 +708,3 @@ def warm() -> None:
     params, torque = BeltDriveParams(), Constant(1.0)  # (a tick kernel loads its compiled code when built)
     TickKernel.of(Stepper(Plant(FlexibleBeltModel(params), torque, torque), "exact", 1e-3), 1.0e5)
     SlipTickKernel(SlippingSimulator(params, torque, torque, "etd2", 1e-3, check_stability=False), 1.0e5)
-    native(linear_tick), native(slip_tick)  # (the node's usual tick: C callbacks)

@@ -159,13 +159,15 @@ from .parameter_schema import (  # noqa: E402,F401 - NodeConfigError, unknown_pa
 )
 from .parameters import NodeParameters  # noqa: E402
 from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS, TF_QOS  # noqa: E402
-from .simulation import SLIP_TICK_OUTPUTS, TICK_OUTPUTS, NodeSimulation  # noqa: E402
+from .simulation import SLACK, SLIP_TICK_OUTPUTS, SLIPPING, SLIPS, TICK_OUTPUTS, NodeSimulation  # noqa: E402
 from .timing import TickSource, TickStats, stamp  # noqa: E402
 
 NODE_NAME = "belt_drive"
 JOINT_NAMES = ("wheel_M", "wheel_1", "wheel_2", "wheel_3")
 #: Float64 output topics, in publishing order (joint_states is published first).
 OUTPUT_TOPICS = ("shaft_speed", "load_torque", "belt_torque", "relative_deflection")
+#: NodeSimulation.advance_to's answer after a compiled tick of the slipping model, neither slack nor slip set
+_SLIPPING_ONLY = 1 + SLIPPING
 #: where the tick's values (NodeSimulation.values) hold each slipping-model Float64 output
 _N_TICK = len(TICK_OUTPUTS)
 _SLIP_FLOAT_INDEX = tuple((TICK_OUTPUTS + SLIP_TICK_OUTPUTS).index(signal) for _, signal in SLIP_FLOAT_OUTPUTS)
@@ -390,7 +392,8 @@ class BeltDriveNode(Node):
                 calls, self._resets_pending = self._resets_pending, 0
             self.sim.restart(f"~/reset, {calls} call(s) since the last tick")
         sim = self.sim
-        if not sim.advance_to(now_ns):
+        got = sim.advance_to(now_ns)
+        if not got:
             sends = None
         elif sim._fresh_ns == now_ns and (send := self._usual) is not False:
             # the usual tick: joint_states alone (or nothing), the bytes the compiled tick wrote (sim.fresh); its
@@ -406,10 +409,12 @@ class BeltDriveNode(Node):
                     send(data)
             elif defer:
                 sends = []
-            v = fresh.values  # floats: TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
-            if v[14] or v[15] or len(v) > _N_TICK:
-                self._count(v)
-            self._last = (v, now_ns, sim.origin_ns)
+            if got > 1:  # the compiled tick's flags (+ 1): counted without reading its outputs
+                if got == _SLIPPING_ONLY:  # (the slipping model's usual tick: no call)
+                    self.counters["published_slip"] += 1
+                else:
+                    self._flagged(got - 1)
+            self._last = (fresh.values, now_ns, sim.origin_ns)  # floats: TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
             self.counters["published"] += 1
         else:
             sends = self._publish(now_ns, defer)
@@ -462,6 +467,18 @@ class BeltDriveNode(Node):
         if v[15]:  # slip
             self.stats.window.slip += 1
             self.counters["slip_ticks"] += 1
+
+    def _flagged(self, flags: int) -> None:
+        """:meth:`_count` of a compiled tick's outputs by their flags (``simulation.SLACK``, ``SLIPS``, ``SLIPPING``)."""
+        c = self.counters
+        if flags & SLIPPING:
+            c["published_slip"] += 1
+        if flags & SLACK:
+            self.stats.window.slack += 1
+            c["slack_ticks"] += 1
+        if flags & SLIPS:
+            self.stats.window.slip += 1
+            c["slip_ticks"] += 1
 
     def _sends(self, now_ns: int, v: list, recorder, listening) -> tuple[list, tuple | None]:
         """:meth:`_publish`'s ``(publish, data)`` calls of the tick's values ``v`` in order, every topic, and

@@ -58,6 +58,12 @@ _JOINT_STATES = JointStateEncoder(4)
 #: the compiled tick's clamps (lo, hi [s]) and held-torque change (drive [N m]) of a tick without a torque jump
 _NO_CLAMP = (-math.inf, math.inf, math.nan)
 
+#: a compiled tick's flags, which :meth:`NodeSimulation.advance_to` returns plus 1: its outputs' slack and slip set,
+#: the slipping model's outputs (``core.tick``'s SLACK, SLIPS, SLIPPING: that module imports numba; tested equal)
+SLACK, SLIPS, SLIPPING = 1, 2, 4
+#: the tick kernels' return when done: minus (flags + EVENT per mode switch) (``core.tick.EVENT``)
+_EVENT = 8
+
 
 def next_tick_ns(t_ns: int, origin_ns: int, tick_ns: int) -> int:
     """The first point of the tick grid ``origin_ns + k tick_ns`` after node time ``t_ns`` [ns]."""
@@ -124,19 +130,19 @@ class NodeSimulation:
             engine = SlippingSimulator(s.params, drive, s.scene.load, s.method, s.dt, s.method_options, check_stability=False)
             self._plant_breakpoints = tuple(engine.breakpoints)
             self._free_k = (0, -1)
-            from ..core.tick import SlipTickKernel, native, slip_tick
+            from ..core.tick import SlipTickKernel, slip_tick
 
             self._tick_kernel = SlipTickKernel(engine, SPEED_LIMIT, _JOINT_STATES.layout)
-            self._entry = native(slip_tick)  # (the plain tick's call: the kernel as a C callback)
+            self._entry = slip_tick  # (the plain tick's call: the compiled kernel's dispatcher, nogil)
             return engine
         plant = Plant(s.model, drive, s.scene.load)
         stepper = Stepper(plant, s.method, s.dt, s.method_options, origin=0.0, integrator=s.integrator)
         self._plant_breakpoints = tuple(stepper.breakpoints)
         self._free_k = (0, -1)
-        from ..core.tick import TickKernel, linear_tick, native
+        from ..core.tick import TickKernel, linear_tick
 
         self._tick_kernel = TickKernel.of(stepper, SPEED_LIMIT, _JOINT_STATES.layout)
-        self._entry = native(linear_tick)  # (the plain tick's call: the kernel as a C callback)
+        self._entry = linear_tick  # (the plain tick's call: the compiled kernel's dispatcher, nogil)
         return stepper
 
     @property
@@ -325,6 +331,10 @@ class NodeSimulation:
         The drive messages received until the call are handed over first (:meth:`DriveInput.take`): the tick's
         sample is the latest of them; one received while the tick computes is the next tick's.
 
+        Returns False when there is nothing new; True after the general path; after a compiled tick (the tick kernel
+        holds the outputs: :meth:`fresh`) 1 + their flags (:data:`SLACK`, :data:`SLIPS`, :data:`SLIPPING`): the
+        node counts them without reading the outputs.
+
         A *plain* tick is the usual one at 1 kHz: the tick after one the tick kernel took, as many grid steps
         on, no held-torque jump at either end, no plant breakpoint near: the kernel's buffers hold all it needs
         (:meth:`~belt_drive_ros.core.tick.TickKernel.next`), so it is the drive's sample and one compiled call.
@@ -343,19 +353,14 @@ class NodeSimulation:
                         self.log.warn(warning)
             if value is None or value == self._held:
                 fast = self._tick_kernel
-                if self._live:  # the slipping belt (its events located in the kernel; a failure: the engine below)
-                    done = self._entry(fast._high, fast._low)  # (SlipTickKernel.next without its frame nor dispatcher)
-                    if done <= 0:
-                        if done:
-                            self._located(_events(fast._events[:-done]))  # (SlipTickKernel.next's answer)
-                        self.t_ns = self._fresh_ns = now_ns
-                        self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
-                        return True
-                elif self._entry(fast._high, fast._low) == OK:  # (TickKernel.next without its frame nor dispatcher;
-                    # else the general path below takes the same steps and raises as it does)
+                done = self._entry(fast._address)  # (TickKernel.next, SlipTickKernel.next without their frames)
+                if done <= 0:  # (else the general path below takes the same steps and raises as it does; the
+                    # slipping belt's engine locates the events of a tick its kernel could not take)
+                    if done <= -_EVENT:  # mode switches located in the kernel (SlipTickKernel.next's answer)
+                        self._located(_events(fast._events[: -done // _EVENT]))
                     self.t_ns = self._fresh_ns = now_ns
                     self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
-                    return True
+                    return 1 + (-done & 7)  # (7: SLACK | SLIPS | SLIPPING)
             return self._advance(now_ns, (value,))
         return self._advance(now_ns)
 
@@ -408,7 +413,7 @@ class NodeSimulation:
                         # takes the same steps and raises as it does
                         self.x = fast.state  # the tick kernel's buffer, written again by the next tick
                         self._ticked(now_ns, k1, k1 - k0, step, t1 if jump1 else None, value)
-                        return True
+                        return 1 + fast.flags
                 else:  # the slipping belt, its events located in the kernel (a failure: the engine's path); the
                     # hybrid state stays in the kernel's buffers, x a view of them (written again by the next tick)
                     events = fast.advance(None if self._live else self._hybrid, k0, k1, lo, hi, drive, now_ns)
@@ -417,7 +422,7 @@ class NodeSimulation:
                         if events:
                             self._located(events)
                         self._ticked(now_ns, k1, k1 - k0, step, t1 if jump1 else None, value)
-                        return True
+                        return 1 + fast.flags
         else:
             t0, t1 = self.scene_time(self.t_ns), self.scene_time(now_ns)
             value = sampled[0] if sampled is not None else self._sample(now_ns)  # needs no state: known before
