@@ -344,6 +344,21 @@ def _bounds(n: int, first: int, size: int) -> list:
     return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
 
+def check_out_folder(campaign: Campaign, out_dir: Path) -> None:
+    """Refuse, before anything runs or is written, an ``out_dir`` that exists and is not a folder, and one whose
+    ``recordings/`` (where a fleet's runs go, replacing files of the same name) is the fleet's folder or its golden
+    folder: the runs would overwrite the recordings they replay, or the goldens they are compared with (each
+    comparison then passes against itself). --force does not change this: it replaces results, never inputs."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise CampaignError(f"{out_dir}: exists and is not a folder; --out names the folder the results go to")
+    recordings = out_dir / "recordings"
+    for key, folder in (("fleet.folder", campaign.fleet_folder), ("fleet.golden", campaign.golden_folder)):
+        if folder is not None and recordings.is_dir() and os.path.samefile(recordings, folder):
+            what = "the recordings it replays" if key == "fleet.folder" else "the goldens it compares them with"
+            raise CampaignError(f"{out_dir}: its recordings/ folder, where the replayed runs go, is {key} {folder}: the "
+                                f"runs would overwrite {what}; use another --out")
+
+
 def run_campaign(
     campaign: Campaign, out_dir, *, scheduler: str | None = None, workers: int | None = None,
     client=None, csv: bool = False, progress: bool | None = None, force: bool = False,
@@ -367,6 +382,7 @@ def run_campaign(
 
     start = time.perf_counter()
     out_dir = Path(out_dir)
+    check_out_folder(campaign, out_dir)
     parts_dir = out_dir / "parts"
     manifest_path = out_dir / "manifest.json"
     table = campaign.variants()

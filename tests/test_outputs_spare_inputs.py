@@ -1,0 +1,81 @@
+"""An output never replaces an input of the same run, --force or not: a fleet sweep's runs are not written over the
+recordings they replay or the goldens they are compared with, ``sim --out`` not over its torque bag, recording or
+scene, ``msg-tools export --out`` not over the bag it reads; one error line naming both, exit 2, nothing touched."""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import struct
+
+import pytest
+import yaml
+
+from belt_drive_ros.campaign.execute import run_campaign
+from belt_drive_ros.campaign.spec import Campaign, CampaignError
+from belt_drive_ros.cli import main
+
+
+def _torque_bag(path, n=50):
+    from mcap.writer import Writer
+
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start(profile="ros2", library="test")
+        schema = writer.register_schema(name="std_msgs/msg/Float64", encoding="ros2msg", data=b"float64 data\n")
+        channel = writer.register_channel(topic="/drive_torque", message_encoding="cdr", schema_id=schema)
+        for k in range(n):
+            t = 10**9 + k * 10**6
+            writer.add_message(channel_id=channel, log_time=t, publish_time=t, data=b"\0\1\0\0" + struct.pack("<d", 2.0 + k % 3),
+                               sequence=k)
+        writer.finish()
+    return path
+
+
+def _digests(folder):
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _fleet(tmp_path, golden: str | None):
+    recordings = tmp_path / "fleet" / "recordings"
+    recordings.mkdir(parents=True)
+    for name in ("a.mcap", "b.mcap"):
+        _torque_bag(recordings / name)
+    spec = {"name": "f", "scene": "paper", "fleet": {"folder": "fleet/recordings"}}
+    if golden:
+        (tmp_path / golden).mkdir(parents=True)
+        for name in ("a.mcap", "b.mcap"):
+            _torque_bag(tmp_path / golden / name, n=60)
+        spec["fleet"]["golden"] = golden
+    path = tmp_path / "fleet.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    return path
+
+
+@pytest.mark.parametrize("which", ["fleet.folder", "fleet.golden"])
+def test_a_fleet_sweep_does_not_write_its_runs_over_its_recordings_or_goldens(which, tmp_path, capsys):
+    """Before: --out fleet (the folder holding recordings/) wrote each run over the recording it replayed, exit 0; with
+    the goldens in OUT/recordings each run replaced its golden and every comparison passed against itself."""
+    if which == "fleet.folder":
+        path, out = _fleet(tmp_path, None), tmp_path / "fleet"
+    else:
+        path, out = _fleet(tmp_path, "runs/recordings"), tmp_path / "runs"
+    before = _digests(tmp_path)
+    campaign = Campaign.load(path)
+    with pytest.raises(CampaignError, match=rf"its recordings/ folder, where the replayed runs go, is {which} .*use another --out"):
+        run_campaign(campaign, out, client=object(), force=True)  # (refused before the client is used)
+    assert main(["sweep", str(path), "--out", str(out), "--quiet", "--force"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and re.search(f"^belt-drive: error: .*is {which} .*would overwrite", err[0]), err
+    assert _digests(tmp_path) == before
+
+
+def test_a_sweep_out_that_is_a_file_is_refused_before_the_cluster_starts(tmp_path, capsys):
+    """Before: '[Errno 20] Not a directory: OUT/parts', after a local cluster had started."""
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump({"scene": "paper", "grid": {"params.k": [2.0e4]}}))
+    with pytest.raises(CampaignError, match="c.yaml: exists and is not a folder; --out names the folder"):
+        run_campaign(Campaign.load(path), path, client=object())
+    assert main(["sweep", str(path), "--out", str(path), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "exists and is not a folder" in err[0], err
