@@ -79,3 +79,54 @@ def test_a_sweep_out_that_is_a_file_is_refused_before_the_cluster_starts(tmp_pat
     assert main(["sweep", str(path), "--out", str(path), "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "exists and is not a folder" in err[0], err
+
+
+def _sim(argv, capsys):
+    status = main([str(a) for a in argv])
+    return status, capsys.readouterr().err.strip().splitlines()
+
+
+def test_sim_out_or_plot_never_replaces_the_torque_bag_recording_or_bag_folder_it_reads(tmp_path, capsys):
+    """Before: 'sim SCENE --torque-bag B --out B --force' replaced the bag by the run (whose scene record then names a
+    bag that no longer exists), as did 'sim REC --out REC --force', a bag folder re-simulated into itself and a
+    network recording re-simulated over itself; --plot B.png over a bag named .png."""
+    bag = _torque_bag(tmp_path / "bag.mcap")
+    png = _torque_bag(tmp_path / "bag.png")
+    assert _sim(["sim", "paper", "--torque-bag", bag, "--quiet", "--out", tmp_path / "rec.mcap"], capsys)[0] == 0
+    assert _sim(["sim", "paper", "--torque-bag", bag, "--quiet", "--out", tmp_path / "F", "--bag-folder"], capsys)[0] == 0
+    assert _sim(["sim", "fead_i4", "--duration", "0.02", "--quiet", "--out", tmp_path / "net.mcap"], capsys)[0] == 0
+    link = tmp_path / "link.mcap"
+    link.symlink_to(bag)
+    before = _digests(tmp_path)
+    for argv, replaced in (
+        (["sim", "paper", "--torque-bag", bag, "--out", bag], bag),
+        (["sim", "paper", "--torque-bag", link, "--out", bag], link),  # (another name of the same file)
+        (["sim", "paper", "--torque-bag", png, "--plot", png], png),
+        (["sim", tmp_path / "rec.mcap", "--out", tmp_path / "rec.mcap"], tmp_path / "rec.mcap"),
+        (["sim", tmp_path / "rec.mcap", "--torque-bag", bag, "--out", bag], bag),
+        (["sim", tmp_path / "F", "--out", tmp_path / "F", "--bag-folder"], tmp_path / "F"),
+        (["sim", "paper", "--torque-bag", tmp_path / "F" / "F_0.mcap", "--out", tmp_path / "F", "--bag-folder"],
+         tmp_path / "F" / "F_0.mcap"),  # (a bag inside the folder --out replaces)
+        (["sim", tmp_path / "net.mcap", "--out", tmp_path / "net.mcap"], tmp_path / "net.mcap"),
+    ):
+        status, err = _sim([*argv, "--force", "--quiet"], capsys)
+        assert status == 2 and len(err) == 1, (argv, err)
+        assert re.search(rf"^belt-drive: error: --(out|plot) .*: would replace {re.escape(str(replaced))}, which this run reads",
+                         err[0]), err
+    assert _digests(tmp_path) == before
+    status, err = _sim(["sim", "paper", "--torque-bag", tmp_path / "F", "--out", tmp_path / "F" / "x.csv", "--quiet"], capsys)
+    assert status == 0 and (tmp_path / "F" / "x.csv").exists()  # (a new file beside a bag replaces nothing)
+
+
+@pytest.mark.parametrize("verb", ["export", "plot"])
+def test_msg_tools_out_never_replaces_the_bag_it_reads(verb, tmp_path, capsys):
+    """Before: 'msg-tools export B --out B --force' replaced the bag by its CSV (plot: a bag named .png by the PNG)."""
+    from msg_tools.cli import main as msg_tools
+
+    bag = _torque_bag(tmp_path / ("bag.mcap" if verb == "export" else "bag.png"))
+    before = _digests(tmp_path)
+    argv = [verb, str(bag), "--out", str(bag), "--force"] + (["--topic", "/drive_torque"] if verb == "export" else [])
+    assert msg_tools(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"msg-tools: error: cannot write {bag}: it is the bag {bag} being read; write elsewhere"], err
+    assert _digests(tmp_path) == before

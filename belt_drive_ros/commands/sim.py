@@ -153,7 +153,7 @@ def run(args) -> int:
             print(silence)
     scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration,
                                  tolerance=getattr(args, "tolerance", None))  # fmt: skip
-    out_format = check_outputs(args)
+    out_format = check_outputs(args, run_inputs(args, scene))
     samples = _samples(scene)
     check_plot_size(args, samples)
     bar = ProgressBar(f"sim {scene.name}", force=False) if not args.quiet else None
@@ -309,16 +309,28 @@ def _run_streamed(scene, args, out_format, bar) -> int:
 OUT_FORMATS = {".csv": "csv", ".mcap": "mcap"}
 
 
-def check_outputs(args) -> str | None:
+def run_inputs(args, scene) -> list:
+    """The files a run reads: the scene file or recording, the torque bag (given, or the one a recording names)."""
+    drive = getattr(scene, "drive", None)
+    return [args.scene, args.torque_bag, getattr(drive, "_bag", None) or getattr(drive, "source", None) or None]
+
+
+def check_outputs(args, inputs=()) -> str | None:
     """Refuse bad outputs before the run; return the --out format (``csv``/``mcap``) or None.
 
     The format follows the extension, case-insensitively (``run.MCAP`` is
     MCAP); an unknown one is an error. ``--force`` governs every output, the
     plot included; devices, FIFOs and directories are refused
-    (:func:`belt_drive_ros.io.atomic.check_output`).
+    (:func:`belt_drive_ros.io.atomic.check_output`), and so is an output that would replace one of ``inputs``
+    (:func:`belt_drive_ros.io.inputs.input_replaced`), --force or not.
     """
     from ..io.atomic import OutputRefused, check_output
+    from ..io.inputs import input_replaced
 
+    for option, path in (("--out", args.out), ("--plot", args.plot)):
+        replaced = None if path is None else input_replaced(path, inputs, folder=path is args.out and args.bag_folder)
+        if replaced is not None:
+            raise OutputRefused(f"{option} {path}: would replace {replaced}, which this run reads; write elsewhere")
     out_format = None
     if args.out is not None:
         if args.bag_folder:
