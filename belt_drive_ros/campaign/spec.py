@@ -380,18 +380,19 @@ class Campaign:
             columns[key] = dist.sample(rng, float(base or 0.0), n)
         return pd.DataFrame(columns)
 
-    def scene_of(self, row: Mapping) -> Scene:
+    def scene_of(self, row: Mapping, warn=None) -> Scene:
         """The scene of one variant (a row of :meth:`variants`); invalid values raise the scene's own error.
 
         Variants share the base scene's profile objects unless their drive or
         load changes (equal profiles are shared too, :func:`_profile`): a
         profile compiles its formula once, and variants with one profile can
-        run in one ensemble.
+        run in one ensemble. ``warn``: receives a fleet recording's one-line note that it was cut off (default:
+        ``warnings.warn``).
         """
         if self.fleet_folder is not None:
             from ..io.torque_bag import scene_with_torque_bag
 
-            return scene_with_torque_bag(self.base, self.fleet_folder / str(row["recording"]))
+            return scene_with_torque_bag(self.base, self.fleet_folder / str(row["recording"]), warn=warn)
         parts: dict = {"params": {}, "initial_state": {}, "drive": {}, "load": {}, "top": {}}
         roles = {}
         profile = row.get("profile")
