@@ -489,7 +489,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("bag", metavar="BAG", help="MCAP file or rosbag2 bag folder")
     p.add_argument("--topic", "-t", required=True, help="topic to export, e.g. /drive_torque")
     p.add_argument("--out", "-o", help="CSV file to write (default: standard output); written whole or not at all")
-    p.add_argument("--force", action="store_true", help="replace an existing --out file")
+    p.add_argument("--force", action="store_true", help="replace an existing --out file (never the bag read)")
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser(
@@ -504,7 +504,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("bag", metavar="BAG", help="MCAP file or rosbag2 bag folder")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to plot (default: all)")
     p.add_argument("--out", "-o", required=True, help="PNG file to write (whole or not at all)")
-    p.add_argument("--force", action="store_true", help="replace an existing --out file")
+    p.add_argument("--force", action="store_true", help="replace an existing --out file (never the bag read)")
     p.add_argument("--dpi", type=int, default=110, help="resolution (default 110)")
     p.set_defaults(func=cmd_plot)
 
