@@ -130,3 +130,38 @@ def test_msg_tools_out_never_replaces_the_bag_it_reads(verb, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"msg-tools: error: cannot write {bag}: it is the bag {bag} being read; write elsewhere"], err
     assert _digests(tmp_path) == before
+
+
+@pytest.mark.parametrize("how", ["in memory, the write fails", "streamed, interrupted"])
+def test_sim_bag_folder_force_keeps_the_old_bag_until_the_new_one_is_whole(how, tmp_path, capsys, monkeypatch):
+    """Before: 'sim ... --out K --bag-folder --force' over an existing bag folder removed the old bag when it began to
+    write, so a run interrupted (Ctrl-C) or failing (disk full) left neither bag; a file output keeps the old file."""
+    from belt_drive_ros.commands import sim
+    from belt_drive_ros.io import recording, run_writers
+
+    folder = tmp_path / "K"
+    assert _sim(["sim", "paper", "--duration", "0.05", "--quiet", "--out", folder, "--bag-folder"], capsys)[0] == 0
+    before = _digests(tmp_path)
+    if how.startswith("in memory"):
+        real = recording.write_result_mcap
+
+        def fails(*args, **kwargs):
+            real(*args, **kwargs)  # (the new bag written whole, then the disk is full)
+            raise OSError(28, "No space left on device")
+
+        monkeypatch.setattr(recording, "write_result_mcap", fails)
+    else:
+        monkeypatch.setattr(sim, "STREAM_ABOVE", 10)
+        real_add = run_writers.McapWindows.add
+
+        def interrupted(self, window):
+            real_add(self, window)
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(run_writers.McapWindows, "add", interrupted)
+    status, err = _sim(["sim", "paper", "--duration", "0.2", "--quiet", "--out", folder, "--bag-folder", "--force"], capsys)
+    assert status != 0 and len(err) == 1, err
+    assert _digests(tmp_path) == before and sorted(p.name for p in tmp_path.iterdir()) == ["K"]  # (no hidden copy left)
+    monkeypatch.undo()
+    assert _sim(["sim", "paper", "--duration", "0.2", "--quiet", "--out", folder, "--bag-folder", "--force"], capsys)[0] == 0
+    assert _digests(tmp_path) != before and sorted(p.name for p in tmp_path.iterdir()) == ["K"]

@@ -226,14 +226,15 @@ def _run_in_memory(scene, args, out_format, bar) -> int:
         from ..io.recording import write_result_mcap
 
         if out_format == "mcap" and args.bag_folder:
-            from ..io.run_writers import remove_bag_folder
+            from ..io.run_writers import bag_folder_kept, remove_bag_folder
 
             had_bag = args.out.is_dir() and any(f.suffix == ".mcap" or f.name == "metadata.yaml" for f in args.out.iterdir())
             try:
-                write_result_mcap(result, args.out, force=args.force, start_time_ns=args.start_time, bag_folder=True,
-                                  **args.writer_options)
+                with bag_folder_kept(args.out, args.force):  # (--force: the old bag back if this write fails)
+                    write_result_mcap(result, args.out, force=args.force, start_time_ns=args.start_time, bag_folder=True,
+                                      **args.writer_options)
             except BaseException:  # a failed or interrupted write leaves no partial bag behind
-                if args.force or not had_bag:  # (an existing bag without --force was refused untouched)
+                if not had_bag:  # (an existing bag: refused untouched without --force, put back with it)
                     remove_bag_folder(args.out)
                 raise
         elif out_format == "mcap":
@@ -263,13 +264,14 @@ def _run_streamed(scene, args, out_format, bar) -> int:
 
     from ..core.stream import Restart, stream
     from ..io.atomic import atomic_output
-    from ..io.run_writers import CsvWindows, Decimator, McapWindows, RunSummary
+    from ..io.run_writers import CsvWindows, Decimator, McapWindows, RunSummary, bag_folder_kept
 
     summary = RunSummary()
     keep = Decimator(args.plot_every) if args.plot is not None else None
     with contextlib.ExitStack() as stack:
         sinks = []
         if args.out is not None and out_format == "mcap" and args.bag_folder:
+            stack.enter_context(bag_folder_kept(args.out, args.force))  # (--force: the old bag back if interrupted)
             sinks.append(McapWindows(args.out, bag_folder=True, force=args.force, start_time_ns=args.start_time,
                                      **args.writer_options))
         elif args.out is not None:
