@@ -165,3 +165,21 @@ def test_sim_bag_folder_force_keeps_the_old_bag_until_the_new_one_is_whole(how, 
     monkeypatch.undo()
     assert _sim(["sim", "paper", "--duration", "0.2", "--quiet", "--out", folder, "--bag-folder", "--force"], capsys)[0] == 0
     assert _digests(tmp_path) != before and sorted(p.name for p in tmp_path.iterdir()) == ["K"]
+
+
+@pytest.mark.parametrize("argv", [["urdf", "{yaml}", "--out", "{yaml}"], ["urdf", "{png}", "--png", "{png}"],
+                                  ["modes", "{net}", "--campbell", "{net}"], ["modes", "{net}", "--runup", "{net}"]])
+def test_urdf_and_modes_outputs_never_replace_the_scene_file(argv, tmp_path, capsys):
+    """Before: 'urdf SCENE.yaml --out SCENE.yaml --force' replaced the scene by its URDF (--png: a scene named .png by
+    the picture; modes' charts likewise a network scene named .png)."""
+    from importlib import resources
+
+    scenes = resources.files("belt_drive_ros") / "scenes"
+    paths = {"yaml": tmp_path / "s.yaml", "png": tmp_path / "s.png", "net": tmp_path / "n.png"}
+    paths["yaml"].write_text((scenes / "paper.yaml").read_text())
+    paths["png"].write_text((scenes / "paper.yaml").read_text())
+    paths["net"].write_text((scenes / "networks" / "fead_i4.yaml").read_text())
+    before = _digests(tmp_path)
+    status, err = _sim([a.format(**paths) for a in argv] + ["--force"], capsys)
+    assert status == 2 and len(err) == 1 and "would replace the scene file" in err[0], err
+    assert _digests(tmp_path) == before
