@@ -81,7 +81,8 @@ def register(sub) -> None:
                    help="drive the model with the torque recorded in this MCAP: drive_torque_applied where the "
                         "file has it (a node recording: the torque the node applied), else drive_torque; with a "
                         "recording as the scene: the torque bag it was driven by, when that is not next to it")
-    p.add_argument("--force", action="store_true", help="overwrite existing outputs (--out and --plot; never a file the run reads)")
+    p.add_argument("--force", action="store_true",
+                   help="overwrite existing outputs (--out and --plot; never a file the run reads)")
     p.add_argument("--start-time", default=None, metavar="WHEN", type=_start_time,
                    help="time stamp of scene time 0 in an .mcap: 'now' (default, the wall time of the run, "
                         "as rosbag2 stamps it), seconds since the epoch (0: simulated time), or an ISO 8601 date")

@@ -20,8 +20,8 @@ import yaml
 
 from ..core.errors import MAX_INT, InputError, short
 
-__all__ = ["MAX_DEPTH", "SCENE_LIMIT", "InputError", "check_path", "input_replaced", "open_regular", "parse_yaml", "read_text",
-           "read_yaml"]
+__all__ = ["MAX_DEPTH", "SCENE_LIMIT", "InputError", "check_path", "input_replaced", "open_regular", "parse_yaml",
+           "read_text", "read_yaml"]
 
 #: largest scene / parameter YAML file [bytes]; the shipped scenes are ~2 kB
 SCENE_LIMIT = 1 << 20
@@ -69,11 +69,11 @@ def input_replaced(output: str | os.PathLike, inputs, folder: bool = False) -> s
     try:
         if not os.path.exists(output):
             return None
-        out = os.path.realpath(output)
+        inside = os.path.realpath(output).rstrip(os.sep) + os.sep
         for given in inputs:
             if given is None or not os.path.exists(given):
                 continue
-            if os.path.samefile(output, given) or (folder and os.path.realpath(given).startswith(out.rstrip(os.sep) + os.sep)):
+            if os.path.samefile(output, given) or (folder and os.path.realpath(given).startswith(inside)):
                 return os.fspath(given)
     except (OSError, ValueError):  # (a path that cannot be looked at is refused by the output's own checks)
         return None
