@@ -20,6 +20,8 @@ from typing import IO, Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from belt_drive_ros.io.inputs import input_replaced
+
 from .decode import FLOAT64, JOINT_STATE
 from .errors import MsgToolsError, RecoveredBagWarning
 from .files import output_mode
@@ -250,11 +252,14 @@ def _columns(data: TopicData, units: Dict[str, str]) -> List[Tuple[str, np.ndarr
 
 
 # -------------------------------------------------------------------- export
-def _check_out_dir(path: Optional[str], force: bool = False, suffix: str = "") -> None:
-    """Refuse ``--out`` up front: a missing folder, an existing path without ``--force``, or anything
-    but a regular file (a device such as /dev/full, a FIFO, a folder); ``suffix``: the extension it must have."""
+def _check_out_dir(path: Optional[str], force: bool = False, suffix: str = "", bag: Optional[str] = None) -> None:
+    """Refuse ``--out`` up front: a missing folder, an existing path without ``--force``, anything
+    but a regular file (a device such as /dev/full, a FIFO, a folder), or the ``bag`` it is made from (--force or
+    not: the bag would be lost); ``suffix``: the extension it must have."""
     if not path:
         return
+    if bag is not None and input_replaced(path, [bag]) is not None:
+        raise MsgToolsError(f"cannot write {path}: it is the bag {bag} being read; write elsewhere")
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise MsgToolsError(f"cannot write {path}: directory {folder} does not exist")
@@ -296,7 +301,7 @@ def _atomic(path: str, force: bool, mode: str):
 
 
 def cmd_export(args: argparse.Namespace, out: IO[str]) -> int:
-    _check_out_dir(args.out, args.force)
+    _check_out_dir(args.out, args.force, bag=args.bag)
     bag = read_bag(args.bag, [args.topic])
     data = next(iter(bag.topics.values()))
     units = bag.metadata_dict(UNITS_METADATA)
@@ -346,7 +351,7 @@ def cmd_plot(args: argparse.Namespace, out: IO[str]) -> int:
         import matplotlib.pyplot as plt
     except ImportError:
         raise MsgToolsError("plot needs matplotlib: pip install matplotlib") from None
-    _check_out_dir(args.out, args.force, suffix=".png")
+    _check_out_dir(args.out, args.force, suffix=".png", bag=args.bag)
     bag = read_bag(args.bag, args.topics, keep_undecodable=True)
     units = bag.metadata_dict(UNITS_METADATA)
     for data in bag.topics.values():
@@ -484,7 +489,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("bag", metavar="BAG", help="MCAP file or rosbag2 bag folder")
     p.add_argument("--topic", "-t", required=True, help="topic to export, e.g. /drive_torque")
     p.add_argument("--out", "-o", help="CSV file to write (default: standard output); written whole or not at all")
-    p.add_argument("--force", action="store_true", help="replace an existing --out file")
+    p.add_argument("--force", action="store_true", help="replace an existing --out file (never the bag read)")
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser(
@@ -499,7 +504,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("bag", metavar="BAG", help="MCAP file or rosbag2 bag folder")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to plot (default: all)")
     p.add_argument("--out", "-o", required=True, help="PNG file to write (whole or not at all)")
-    p.add_argument("--force", action="store_true", help="replace an existing --out file")
+    p.add_argument("--force", action="store_true", help="replace an existing --out file (never the bag read)")
     p.add_argument("--dpi", type=int, default=110, help="resolution (default 110)")
     p.set_defaults(func=cmd_plot)
 

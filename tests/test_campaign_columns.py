@@ -12,9 +12,9 @@ import yaml
 
 from belt_drive_ros.campaign import spec
 from belt_drive_ros.campaign.execute import portable_of, run_batch
-from belt_drive_ros.campaign.spec import Campaign, valid_parameter_rows
+from belt_drive_ros.campaign.spec import Campaign
 from belt_drive_ros.core.errors import ParameterError
-from belt_drive_ros.core.params import FIELD_DOCS, PLAUSIBLE_MAX, BeltDriveParams
+from belt_drive_ros.core.params import FIELD_DOCS, PLAUSIBLE_MAX, BeltDriveParams, valid_parameter_rows
 
 
 def _edges(name: str) -> list:
@@ -105,7 +105,16 @@ def test_run_batch_column_wise_equals_row_by_row(tmp_path, monkeypatch):
 
 
 def test_a_base_scene_outside_the_ranges_gives_every_row_its_error(tmp_path):
-    campaign = _sweep(tmp_path, {"params.k": [2.0e4]}, samples=2)
+    """A base field outside its plausible range fails every row, each with scene_of's error: the row's own (k < 0, I_3
+    < 0 or c < 0, the constructor's) when it breaks one, else the base's F_0."""
+    campaign = _sweep(tmp_path, {"params.k": [2.0e4, -1.0]}, samples=20)
     campaign.base = campaign.base.with_params(BeltDriveParams(**dict(campaign.base.params.field_values(), F_0=1e9)))
-    assert campaign._parameter_scenes(campaign.variants()) is None
-    assert all("plausible range" in str(s) for s in campaign.scenes_of(campaign.variants()))
+    table = campaign.variants()
+    got = campaign._parameter_scenes(table)
+    texts = [str(s) for s in got]
+    assert all(isinstance(s, ParameterError) for s in got) and any("F_0: 1e+09 N is outside" in t for t in texts)
+    assert any(t.startswith("k: must be > 0") for t in texts) and any(t.startswith(("c:", "I_3:")) for t in texts)
+    for row, scene in zip(table.to_dict("records"), got):
+        with pytest.raises(ParameterError) as info:
+            campaign.scene_of(row)
+        assert str(info.value) == str(scene)

@@ -29,3 +29,40 @@ def test_variants_outside_the_plausible_ranges_are_refused_one_by_one(tmp_path, 
     assert main(["sweep", str(path), "--check", "--quiet"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("belt-drive: error: variant 0: ParameterError: ") and "plausible range" in err[0], err
+
+
+def test_a_fleet_recording_cut_off_runs_and_says_so_in_its_row_not_on_the_workers_stderr(tmp_path):
+    """Before: a recording whose end was cut off ran on its complete chunks with nothing in its row (an intact
+    recording's row); the note went to the worker's stderr as a two-line Python warning (lost on a remote cluster)."""
+    import struct
+    import warnings
+
+    from mcap.writer import Writer
+
+    from belt_drive_ros.campaign.report import summary
+
+    folder = tmp_path / "recs"
+    folder.mkdir()
+    with open(folder / "a.mcap", "wb") as f:
+        writer = Writer(f)
+        writer.start(profile="ros2", library="test")
+        schema = writer.register_schema(name="std_msgs/msg/Float64", encoding="ros2msg", data=b"float64 data\n")
+        channel = writer.register_channel(topic="/drive_torque", message_encoding="cdr", schema_id=schema)
+        for k in range(200):
+            writer.add_message(channel_id=channel, log_time=10**9 + k * 10**6, publish_time=10**9 + k * 10**6,
+                               data=b"\0\1\0\0" + struct.pack("<d", 2.0 + k % 3), sequence=k)
+        writer.finish()
+    whole = (folder / "a.mcap").read_bytes()
+    (folder / "b.mcap").write_bytes(whole[: int(len(whole) * 0.8)])
+    path = tmp_path / "fleet.yaml"
+    path.write_text(yaml.safe_dump({"name": "f", "scene": "paper", "fleet": {"folder": "recs"}}))
+    campaign = Campaign.load(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # (nothing escapes as a warning)
+        table = run_batch(portable_of(campaign), campaign.variants())
+    rows = table.to_dict("records")
+    assert [r["recording"] for r in rows] == ["a.mcap", "b.mcap"] and [r["error"] for r in rows] == ["", ""]
+    assert rows[0]["warning"] == ""
+    assert "b.mcap was not finalized" in rows[1]["warning"] and "using the 200 messages" in rows[1]["warning"]
+    assert rows[0]["peak_belt_torque"] == rows[1]["peak_belt_torque"]  # (its chunks hold every message)
+    assert "recordings cut off (run on their complete chunks): 1" in summary(table, campaign)

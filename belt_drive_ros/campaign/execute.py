@@ -69,7 +69,8 @@ def run_batch(portable: dict, rows, recordings_dir: str | None = None):
 
     Every row comes back: the variant's columns, ``model`` (the model its
     run used), ``ran`` (``ensemble`` or ``single``), ``single_reason``,
-    ``error`` ("" when it ran), the metrics (NaN on error), and for a
+    ``error`` ("" when it ran), for a fleet ``warning`` (a recording cut off: it ran on the messages up to its last
+    complete chunk; "" otherwise), the metrics (NaN on error), and for a
     fleet with goldens ``compare_passed``, ``worst_signal``,
     ``worst_rel_error``, ``worst_errors`` (JSON: signal -> worst absolute error).
     ``seconds`` is the batch's compute time (the same in every row).
@@ -86,7 +87,20 @@ def run_batch(portable: dict, rows, recordings_dir: str | None = None):
     values = {name: np.full(n, math.nan) for name in METRICS}
     extra = [None] * n  # a fleet's comparison columns, per variant
     scenes, built = [], []
-    for v, scene in enumerate(campaign.scenes_of(frame) if n else []):
+    notes = None
+    if campaign.fleet_folder is not None:  # a recording cut off runs on what it holds, said in its row's 'warning'
+        notes = np.full(n, "", dtype=object)
+        found = []
+        for v, row in enumerate(frame.to_dict("records")):
+            said = []
+            try:
+                found.append(campaign.scene_of(row, warn=said.append))
+            except Exception as exc:  # noqa: BLE001 - reported as that variant's error
+                found.append(exc)
+            notes[v] = " ".join(said)[:400]
+    else:
+        found = campaign.scenes_of(frame) if n else []
+    for v, scene in enumerate(found):
         if isinstance(scene, BaseException):  # whatever a variant's values break, it is that variant's row
             text["ran"][v] = "none"
             text["error"][v] = f"{type(scene).__name__}: {' '.join(str(scene).split())[:400]}"
@@ -123,6 +137,8 @@ def run_batch(portable: dict, rows, recordings_dir: str | None = None):
             extra[v] = _fleet_outputs(campaign, result, frame["recording"].iloc[v], Path(recordings_dir))
     columns = {name: frame[name].to_numpy() for name in frame.columns}
     columns.update(text)
+    if notes is not None:
+        columns["warning"] = notes
     columns.update(values)
     if any(e is not None for e in extra):  # "error" too when a golden is missing
         for v, found in enumerate(extra):
@@ -344,6 +360,21 @@ def _bounds(n: int, first: int, size: int) -> list:
     return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
 
+def check_out_folder(campaign: Campaign, out_dir: Path) -> None:
+    """Refuse, before anything runs or is written, an ``out_dir`` that exists and is not a folder, and one whose
+    ``recordings/`` (where a fleet's runs go, replacing files of the same name) is the fleet's folder or its golden
+    folder: the runs would overwrite the recordings they replay, or the goldens they are compared with (each
+    comparison then passes against itself). --force does not change this: it replaces results, never inputs."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise CampaignError(f"{out_dir}: exists and is not a folder; --out names the folder the results go to")
+    recordings = out_dir / "recordings"
+    for key, folder in (("fleet.folder", campaign.fleet_folder), ("fleet.golden", campaign.golden_folder)):
+        if folder is not None and recordings.is_dir() and os.path.samefile(recordings, folder):
+            what = "the recordings it replays" if key == "fleet.folder" else "the goldens it compares them with"
+            raise CampaignError(f"{out_dir}: its recordings/ folder, where the replayed runs go, is {key} {folder}: the "
+                                f"runs would overwrite {what}; use another --out")
+
+
 def run_campaign(
     campaign: Campaign, out_dir, *, scheduler: str | None = None, workers: int | None = None,
     client=None, csv: bool = False, progress: bool | None = None, force: bool = False,
@@ -367,6 +398,7 @@ def run_campaign(
 
     start = time.perf_counter()
     out_dir = Path(out_dir)
+    check_out_folder(campaign, out_dir)
     parts_dir = out_dir / "parts"
     manifest_path = out_dir / "manifest.json"
     table = campaign.variants()

@@ -44,6 +44,14 @@ def summary(table, campaign, wall: float | None = None, workers: int | None = No
         lines.append(f"    variant {int(row['variant'])}: {row['error']}")
     if len(failed) > worst:
         lines.append(f"    ... {len(failed) - worst} more (column 'error' of the table)")
+    if "warning" in table:
+        warned = table[table["warning"] != ""]
+        if len(warned):
+            lines.append(f"  recordings cut off (run on their complete chunks): {len(warned)}")
+            for _, row in warned.head(worst).iterrows():
+                lines.append(f"    variant {int(row['variant'])}: {row['warning']}")
+            if len(warned) > worst:
+                lines.append(f"    ... {len(warned) - worst} more (column 'warning' of the table)")
     if "model" in table and n:
         models = table.loc[table["model"] != "", "model"].value_counts().to_dict()
         lines.append("  models: " + ", ".join(f"{k} {v}" for k, v in models.items()))

@@ -50,7 +50,7 @@ from ..io.inputs import MAX_DEPTH, check_path, parse_yaml, read_text
 from .values import boolean, number, sequence
 from .values import mapping as as_mapping
 from .values import text as string
-from ..core.params import _LOWER, FIELD_DOCS, PLAUSIBLE_MAX, BeltDriveParams
+from ..core.params import FIELD_DOCS
 from ..core.scene import InitialState, Scene
 from ..io.scenes import load_scene, scene_from_mapping
 from ..core.sources import make_profile, profile_fields
@@ -380,18 +380,19 @@ class Campaign:
             columns[key] = dist.sample(rng, float(base or 0.0), n)
         return pd.DataFrame(columns)
 
-    def scene_of(self, row: Mapping) -> Scene:
+    def scene_of(self, row: Mapping, warn=None) -> Scene:
         """The scene of one variant (a row of :meth:`variants`); invalid values raise the scene's own error.
 
         Variants share the base scene's profile objects unless their drive or
         load changes (equal profiles are shared too, :func:`_profile`): a
         profile compiles its formula once, and variants with one profile can
-        run in one ensemble.
+        run in one ensemble. ``warn``: receives a fleet recording's one-line note that it was cut off (default:
+        ``warnings.warn``).
         """
         if self.fleet_folder is not None:
             from ..io.torque_bag import scene_with_torque_bag
 
-            return scene_with_torque_bag(self.base, self.fleet_folder / str(row["recording"]))
+            return scene_with_torque_bag(self.base, self.fleet_folder / str(row["recording"]), warn=warn)
         parts: dict = {"params": {}, "initial_state": {}, "drive": {}, "load": {}, "top": {}}
         roles = {}
         profile = row.get("profile")
@@ -424,9 +425,9 @@ class Campaign:
         or the exception :meth:`scene_of` raises for it (the same type and text).
 
         A tolerance sweep (a table whose columns are ``variant`` and parameters as numbers) is checked column-wise
-        (:func:`valid_parameter_rows`, numpy over all rows at once): a row that passes gets its parameters without a
-        second check (:func:`_checked_params`), a row that fails goes through :meth:`scene_of`, which names what is
-        wrong. Other tables go row by row.
+        (:meth:`~belt_drive_ros.core.params.BeltDriveParams.replace_rows`, numpy over all rows at once): a row that
+        passes gets its parameters without a second check, a row that fails the error :meth:`scene_of` raises for it
+        (the parameters' scalar check, which names what is wrong). Other tables go row by row.
         """
         import pandas as pd
 
@@ -450,22 +451,9 @@ class Campaign:
             values = frame[key].to_numpy()
             if values.dtype.kind not in "fi":  # (booleans, text: refused by the row's own check)
                 return None
-            columns[name] = values.astype(float)
-        fixed = self.base.params.field_values()
-        if not valid_parameter_rows({name: np.array([value]) for name, value in fixed.items()})[0]:
-            return None  # a base scene outside the plausible ranges: every row's own error
-        ok = valid_parameter_rows(columns).tolist()
-        records = frame.to_dict("records") if not all(ok) else None
-        values = zip(*(columns[name].tolist() for name in names))
-        out = []
-        for v, row in enumerate(values):
-            if ok[v]:
-                fields = dict(fixed)
-                fields.update(zip(names, row))
-                out.append(self.base.with_params(_checked_params(fields)))
-            else:
-                out.append(_scene_or_error(self, records[v]))
-        return out
+            columns[name] = values
+        params = self.base.params.replace_rows(columns, plausible=True)
+        return [p if isinstance(p, Exception) else self.base.with_params(p) for p in params]
 
     def digest(self) -> str:
         """Identity of the campaign: its file text, base scene and, for a fleet, the name, size and modification
@@ -483,37 +471,7 @@ def _scene_or_error(campaign: Campaign, row: Mapping):
         return exc
 
 
-def valid_parameter_rows(columns: Mapping) -> np.ndarray:
-    """(V,) bool: whether each row's parameters (``columns``: field -> (V,) float array, the fields not given taken as
-    valid) pass :class:`~belt_drive_ros.core.params.BeltDriveParams`' checks and ``check_plausible``: finite, > 0
-    for the positive fields and >= 0 for the others (its bound table), groove angle > 0, at most
-    :data:`~belt_drive_ros.core.params.PLAUSIBLE_MAX` (which holds the wrap angle's 2 pi and the groove angle's pi).
-    A row that fails is built by the constructor, whose error names the field (tests/test_campaign_columns.py:
-    the same verdict as the constructor on every field's edge values)."""
-    ok = None
-    with np.errstate(invalid="ignore"):
-        for name, values in columns.items():
-            low = _BOUNDS.get(name)
-            good = np.isfinite(values) & (values <= PLAUSIBLE_MAX[name])
-            if low == ">":
-                good &= values > 0.0
-            elif low == ">=":
-                good &= values >= 0.0
-            ok = good if ok is None else ok & good
-    return ok
-
-
-def _checked_params(fields: dict) -> BeltDriveParams:
-    """The parameters ``fields`` (every field, Python floats) that :func:`valid_parameter_rows` passed, built without
-    checking them a second time (``__post_init__`` would find nothing: ~8 us a variant)."""
-    params = object.__new__(BeltDriveParams)
-    params.__dict__.update(fields)
-    return params
-
-
 _PROFILES: dict = {}
-#: field -> its lower bound's relation to 0 (the constructor's table; the groove angle's (0, pi] is its own rule)
-_BOUNDS = dict(_LOWER, groove_angle=">")
 
 
 def _profile(spec: Mapping, role: str):

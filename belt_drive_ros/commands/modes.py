@@ -35,9 +35,13 @@ def run(args) -> int:
     if not 3 <= args.points <= 2000:
         raise SceneError(f"--points: 3 .. 2000, got {args.points}")
     from ..io.atomic import OutputRefused, check_output
+    from ..io.inputs import input_replaced
 
     for option, path, what in (("--campbell", args.campbell, "Campbell plot"), ("--runup", args.runup, "run-up chart")):
         if path:
+            if input_replaced(path, [args.scene]) is not None:
+                raise OutputRefused(f"{option} {path}: would replace the scene file {args.scene}, which this run reads; "
+                                    "write elsewhere")
             check_output(path, args.force, what)
             if not path.lower().endswith(".png"):
                 raise OutputRefused(f"{option} {path}: the chart is a PNG; give a .png path")

@@ -148,7 +148,8 @@ def resimulate(args) -> int:
     import numpy as np
 
     from ..core.errors import SceneError
-    from ..io.atomic import atomic_output, check_output
+    from ..io.atomic import OutputRefused, atomic_output, check_output
+    from ..io.inputs import input_replaced
     from ..io.network_bag import read_network_recording, write_network_mcap
     from ..ros.network_stepper import NetworkStepper
 
@@ -156,6 +157,8 @@ def resimulate(args) -> int:
     if args.out is not None:
         if args.out.suffix.lower() != ".mcap":
             raise SceneError(f"--out {args.out}: the re-simulation of a recording writes .mcap")
+        if input_replaced(args.out, [args.scene]) is not None:
+            raise OutputRefused(f"--out {args.out}: would replace {args.scene}, which this run reads; write elsewhere")
         check_output(args.out, args.force, "output")
     stepper = NetworkStepper(rec.scene, rec.method, rec.dt)
     sub = int(round(rec.tick_ns * 1e-9 / rec.dt))

@@ -81,7 +81,8 @@ def register(sub) -> None:
                    help="drive the model with the torque recorded in this MCAP: drive_torque_applied where the "
                         "file has it (a node recording: the torque the node applied), else drive_torque; with a "
                         "recording as the scene: the torque bag it was driven by, when that is not next to it")
-    p.add_argument("--force", action="store_true", help="overwrite existing outputs (--out and --plot)")
+    p.add_argument("--force", action="store_true",
+                   help="overwrite existing outputs (--out and --plot; never a file the run reads)")
     p.add_argument("--start-time", default=None, metavar="WHEN", type=_start_time,
                    help="time stamp of scene time 0 in an .mcap: 'now' (default, the wall time of the run, "
                         "as rosbag2 stamps it), seconds since the epoch (0: simulated time), or an ISO 8601 date")
@@ -153,7 +154,7 @@ def run(args) -> int:
             print(silence)
     scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration,
                                  tolerance=getattr(args, "tolerance", None))  # fmt: skip
-    out_format = check_outputs(args)
+    out_format = check_outputs(args, run_inputs(args, scene))
     samples = _samples(scene)
     check_plot_size(args, samples)
     bar = ProgressBar(f"sim {scene.name}", force=False) if not args.quiet else None
@@ -226,14 +227,15 @@ def _run_in_memory(scene, args, out_format, bar) -> int:
         from ..io.recording import write_result_mcap
 
         if out_format == "mcap" and args.bag_folder:
-            from ..io.run_writers import remove_bag_folder
+            from ..io.run_writers import bag_folder_kept, remove_bag_folder
 
             had_bag = args.out.is_dir() and any(f.suffix == ".mcap" or f.name == "metadata.yaml" for f in args.out.iterdir())
             try:
-                write_result_mcap(result, args.out, force=args.force, start_time_ns=args.start_time, bag_folder=True,
-                                  **args.writer_options)
+                with bag_folder_kept(args.out, args.force):  # (--force: the old bag back if this write fails)
+                    write_result_mcap(result, args.out, force=args.force, start_time_ns=args.start_time, bag_folder=True,
+                                      **args.writer_options)
             except BaseException:  # a failed or interrupted write leaves no partial bag behind
-                if args.force or not had_bag:  # (an existing bag without --force was refused untouched)
+                if not had_bag:  # (an existing bag: refused untouched without --force, put back with it)
                     remove_bag_folder(args.out)
                 raise
         elif out_format == "mcap":
@@ -263,13 +265,14 @@ def _run_streamed(scene, args, out_format, bar) -> int:
 
     from ..core.stream import Restart, stream
     from ..io.atomic import atomic_output
-    from ..io.run_writers import CsvWindows, Decimator, McapWindows, RunSummary
+    from ..io.run_writers import CsvWindows, Decimator, McapWindows, RunSummary, bag_folder_kept
 
     summary = RunSummary()
     keep = Decimator(args.plot_every) if args.plot is not None else None
     with contextlib.ExitStack() as stack:
         sinks = []
         if args.out is not None and out_format == "mcap" and args.bag_folder:
+            stack.enter_context(bag_folder_kept(args.out, args.force))  # (--force: the old bag back if interrupted)
             sinks.append(McapWindows(args.out, bag_folder=True, force=args.force, start_time_ns=args.start_time,
                                      **args.writer_options))
         elif args.out is not None:
@@ -309,16 +312,28 @@ def _run_streamed(scene, args, out_format, bar) -> int:
 OUT_FORMATS = {".csv": "csv", ".mcap": "mcap"}
 
 
-def check_outputs(args) -> str | None:
+def run_inputs(args, scene) -> list:
+    """The files a run reads: the scene file or recording, the torque bag (given, or the one a recording names)."""
+    drive = getattr(scene, "drive", None)
+    return [args.scene, args.torque_bag, getattr(drive, "_bag", None) or getattr(drive, "source", None) or None]
+
+
+def check_outputs(args, inputs=()) -> str | None:
     """Refuse bad outputs before the run; return the --out format (``csv``/``mcap``) or None.
 
     The format follows the extension, case-insensitively (``run.MCAP`` is
     MCAP); an unknown one is an error. ``--force`` governs every output, the
     plot included; devices, FIFOs and directories are refused
-    (:func:`belt_drive_ros.io.atomic.check_output`).
+    (:func:`belt_drive_ros.io.atomic.check_output`), and so is an output that would replace one of ``inputs``
+    (:func:`belt_drive_ros.io.inputs.input_replaced`), --force or not.
     """
     from ..io.atomic import OutputRefused, check_output
+    from ..io.inputs import input_replaced
 
+    for option, path in (("--out", args.out), ("--plot", args.plot)):
+        replaced = None if path is None else input_replaced(path, inputs, folder=path is args.out and args.bag_folder)
+        if replaced is not None:
+            raise OutputRefused(f"{option} {path}: would replace {replaced}, which this run reads; write elsewhere")
     out_format = None
     if args.out is not None:
         if args.bag_folder:

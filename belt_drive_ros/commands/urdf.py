@@ -29,6 +29,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..io.scenes import load_scene
     from ..io.atomic import OutputRefused, atomic_output, check_output
+    from ..io.inputs import input_replaced
     from ..io.urdf import render_urdf, urdf_from_params
 
     from ..io.scenes import is_network, load_network
@@ -43,6 +44,9 @@ def run(args) -> int:
         text = urdf_from_params(scene.params, name=f"belt_drive_{scene.name}".replace("-", "_"))
     for option, path in (("--out", args.out), ("--png", args.png)):
         if path:
+            if input_replaced(path, [args.scene]) is not None:
+                raise OutputRefused(f"{option} {path}: would replace the scene file {args.scene}, which this run reads; "
+                                    "write elsewhere")
             check_output(path, args.force, option)
     if args.png and not args.png.lower().endswith(".png"):
         raise OutputRefused(f"--png {args.png}: the picture is a PNG; give a .png path")

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any, Mapping
+from typing import Any, Mapping, NamedTuple
 
 import numpy as np
 
@@ -53,15 +53,92 @@ PLAUSIBLE_MAX: dict[str, float] = {
 
 _POSITIVE = ("I_M", "I_3", "r_M", "R_1", "r_1", "R_2", "r_2", "r_3", "k", "mu", "wrap_angle")
 _NON_NEGATIVE = ("I_1", "I_2", "c", "b_M", "b_1", "b_2", "b_3", "F_0", "belt_mass")
-#: each bounded field and its bound, the positive ones first (validation checks them in this order)
-_LOWER = tuple((name, ">") for name in _POSITIVE) + tuple((name, ">=") for name in _NON_NEGATIVE)
+
+
+class Rule(NamedTuple):
+    """One check of one field: its value must lie strictly between ``low`` and ``high`` (floats: a closed end is
+    kept as the next float outward, an unbounded one as an infinity, so a rule refuses NaN and +-inf); ``text`` the
+    error's detail, formatted with ``value``. Build one with :func:`rule`."""
+
+    field: str
+    low: float
+    high: float
+    text: str
+
+    def holds(self, value):
+        """Whether ``value`` lies inside: a float: a bool; an array: a bool per element."""
+        return (self.low < value) & (value < self.high)
+
+    def error(self, value: float) -> ParameterError:
+        return ParameterError(self.field, self.text.format(value=value))
+
+
+def rule(field: str, low: float | None, high: float | None, ends: str, text: str) -> Rule:
+    """The :class:`Rule` that ``field`` lies in ``low .. high`` (None: unbounded), ``ends`` in interval notation:
+    ``"(]"`` is ``low < value <= high``."""
+    low = -math.inf if low is None else math.nextafter(low, -math.inf) if ends[0] == "[" else low
+    high = math.inf if high is None else math.nextafter(high, math.inf) if ends[1] == "]" else high
+    return Rule(field, float(low), float(high), text)
+
+
+#: the constructor's checks (one table: :class:`BeltDriveParams` checks a value by it, :func:`valid_parameter_rows`
+#: a column) in the order it applies them, its error the first one a value breaks: every field finite (declaration
+#: order), the :data:`_POSITIVE` fields > 0, the :data:`_NON_NEGATIVE` ones >= 0, the wrap angle at most a full
+#: turn, the groove angle in (0, pi]
+RULES: tuple[Rule, ...] = (
+    *(rule(name, None, None, "()", "must be finite, got {value!r}") for name in FIELD_DOCS),
+    *(rule(name, 0.0, None, "()", f"must be > 0 {FIELD_DOCS[name][0]}, got {{value!r}}") for name in _POSITIVE),
+    *(rule(name, 0.0, None, "[)", f"must be >= 0 {FIELD_DOCS[name][0]}, got {{value!r}}") for name in _NON_NEGATIVE),
+    rule("wrap_angle", None, 2.0 * math.pi, "(]", "must be <= 2*pi rad, got {value!r}"),
+    rule("groove_angle", 0.0, math.pi, "(]", "must be in (0, pi] rad (pi: flat belt), got {value!r}"),
+)  # fmt: skip
+#: :meth:`BeltDriveParams.check_plausible`'s checks, one per field of :data:`PLAUSIBLE_MAX`, in its order
+PLAUSIBLE_RULES: tuple[Rule, ...] = tuple(
+    rule(name, None, top, "(]", f"{{value:g}} {FIELD_DOCS[name][0]} is outside the plausible range "
+         f"{'(0' if name in _POSITIVE else '[0'}, {top:g}] {FIELD_DOCS[name][0]}")
+    for name, top in PLAUSIBLE_MAX.items()
+)  # fmt: skip
+_BOUNDS: dict = {}
+
+
+def _bounds(rules: tuple) -> tuple:
+    """``(field, low, high)`` per field that ``rules`` check, the strictest of its ends: a value keeps all of its
+    field's rules iff ``low < value < high`` (one comparison per field where no value breaks a rule). Derived from
+    the table it is given (a table changed or replaced is read anew)."""
+    found = _BOUNDS.get(id(rules))
+    if found is None or found[0] is not rules:
+        ends: dict = {}
+        for r in rules:
+            low, high = ends.get(r.field, (-math.inf, math.inf))
+            ends[r.field] = (max(low, r.low), min(high, r.high))
+        if len(_BOUNDS) > 8:
+            _BOUNDS.clear()
+        found = _BOUNDS[id(rules)] = (rules, tuple((name, low, high) for name, (low, high) in ends.items()))
+    return found[1]
+
+
+def _check(values: dict, rules: tuple) -> None:
+    """Raise the :class:`ParameterError` of the first of ``rules`` a value of ``values`` (field -> value, changed in
+    place: a value not a float made one, at the first rule that reads it) breaks."""
+    for name, low, high in _bounds(rules):
+        value = values[name]
+        if type(value) is not float or not low < value < high:
+            break
+    else:
+        return  # (every value a float that keeps its rules: no rule walked)
+    for r in rules:
+        value = values[r.field]
+        if type(value) is not float:  # (a field's first rule is its finiteness: the fields made floats in order)
+            value = values[r.field] = float(plain_number(value, lambda text: ParameterError(r.field, text)))
+        if not r.holds(value):
+            raise r.error(value)
 
 
 @dataclass(frozen=True)
 class BeltDriveParams:
     """Physical parameters of the accessory belt drive (SI units; defaults: the ``truck_compressor`` scene's,
-    justified in ``docs/model.md``). Construction refuses, with a :class:`ParameterError` naming the field,
-    non-finite values, fields of :data:`_POSITIVE` <= 0 and of :data:`_NON_NEGATIVE` < 0."""
+    justified in ``docs/model.md``). Construction refuses, with a :class:`ParameterError` naming the field, a value
+    that is not a number or breaks one of :data:`RULES` (the first it breaks)."""
 
     I_M: float = 1.0
     I_1: float = 0.002
@@ -86,21 +163,7 @@ class BeltDriveParams:
     belt_mass: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in _FIELDS:
-            value = getattr(self, name)
-            if type(value) is not float:  # (a float passes the first two checks as it is)
-                value = float(plain_number(value, lambda text: ParameterError(name, text)))
-                object.__setattr__(self, name, value)
-            if not math.isfinite(value):
-                raise ParameterError(name, f"must be finite, got {value!r}")
-        for name, low in _LOWER:
-            value = getattr(self, name)
-            if value < 0.0 or (value == 0.0 and low == ">"):
-                raise ParameterError(name, f"must be {low} 0 {FIELD_DOCS[name][0]}, got {value!r}")
-        if self.wrap_angle > 2.0 * math.pi:
-            raise ParameterError("wrap_angle", f"must be <= 2*pi rad, got {self.wrap_angle!r}")
-        if not 0.0 < self.groove_angle <= math.pi:
-            raise ParameterError("groove_angle", f"must be in (0, pi] rad (pi: flat belt), got {self.groove_angle!r}")
+        _check(self.__dict__, RULES)
 
     # ------------------------------------------------------------------ mapping
     @classmethod
@@ -126,12 +189,7 @@ class BeltDriveParams:
     def check_plausible(self) -> "BeltDriveParams":
         """``self`` if every field is within :data:`PLAUSIBLE_MAX`, else :class:`ParameterError` naming the range:
         for parameters from outside (the constructor alone admits idealised values such as ``F_0 = 1e9`` N)."""
-        for name, top in PLAUSIBLE_MAX.items():
-            value = getattr(self, name)
-            if value > top:
-                unit = FIELD_DOCS[name][0]
-                low = "(0" if name in _POSITIVE else "[0"
-                raise ParameterError(name, f"{value:g} {unit} is outside the plausible range {low}, {top:g}] {unit}")
+        _check(self.__dict__, PLAUSIBLE_RULES)
         return self
 
     def field_values(self) -> dict[str, float]:
@@ -146,6 +204,45 @@ class BeltDriveParams:
         values = {name: getattr(self, name) for name in _FIELDS}
         values.update(changes)
         return BeltDriveParams(**values)
+
+    def replace_rows(self, columns: Mapping[str, Any], *, plausible: bool = False) -> list:
+        """:meth:`replace` (then :meth:`check_plausible` when ``plausible``) of every row of ``columns`` (field ->
+        (V,) array of numbers; the fields not given keep ``self``'s values), column-wise: one entry per row, the
+        parameters of a row that passes, or the :class:`ParameterError` the scalar path raises for one that fails.
+
+        The rows are checked by :func:`valid_parameter_rows` (:data:`RULES`, :data:`PLAUSIBLE_RULES`: numpy over all
+        rows at once); the parameters of a row that passes are built from its floats without a second check, the only
+        way this class is built unchecked. A row that fails is built by the scalar path, so its error names the first
+        rule it breaks."""
+        names = list(columns)
+        for name in names:
+            if name not in FIELD_DOCS:
+                raise ParameterError(name, "unknown parameter")
+        arrays = [np.asarray(columns[name]) for name in names]
+        for name, values in zip(names, arrays):
+            if values.ndim != 1 or values.dtype.kind not in "fiu" or len(values) != len(arrays[0]):
+                raise ParameterError(name, f"expected a column of numbers as long as the others, got {values.dtype} "
+                                     f"{values.shape}")  # fmt: skip
+        arrays = [values.astype(float) for values in arrays]
+        base = self.__dict__
+        every = {name: np.array([base[name]]) for name in FIELD_DOCS}  # (the unchanged fields: (1,), broadcast)
+        every.update(zip(names, arrays))
+        ok = valid_parameter_rows(every, plausible=plausible).tolist() if names else []
+        out = []
+        for passed, row in zip(ok, zip(*(values.tolist() for values in arrays))):
+            if passed:
+                params = object.__new__(BeltDriveParams)  # (frozen: its __dict__ filled as the constructor fills it)
+                params.__dict__.update(base)
+                params.__dict__.update(zip(names, row))
+            else:
+                try:
+                    params = self.replace(**dict(zip(names, row)))
+                    if plausible:
+                        params.check_plausible()
+                except ParameterError as exc:
+                    params = exc
+            out.append(params)
+        return out
 
     # ---------------------------------------------------------------- derived
     @property
@@ -235,6 +332,20 @@ class BeltDriveParams:
 
 #: the fields in declaration order (validation walks them in this order)
 _FIELDS = tuple(f.name for f in fields(BeltDriveParams))
+
+
+def valid_parameter_rows(columns: Mapping[str, np.ndarray], *, plausible: bool = True) -> np.ndarray:
+    """(V,) bool: whether each row of ``columns`` (field -> (V,) float array, or (1,) for a value every row shares;
+    the fields not given pass) keeps :data:`RULES` (the constructor's checks) and, when ``plausible``,
+    :data:`PLAUSIBLE_RULES` (:meth:`BeltDriveParams.check_plausible`'s), each field's by the bounds the scalar
+    check compares a value with."""
+    ok = np.ones(max((len(values) for values in columns.values()), default=0), dtype=bool)
+    for rules in (RULES, PLAUSIBLE_RULES) if plausible else (RULES,):
+        for name, low, high in _bounds(rules):
+            values = columns.get(name)
+            if values is not None:
+                ok &= (low < values) & (values < high)
+    return ok
 
 
 class ParamColumns:

@@ -20,7 +20,8 @@ import yaml
 
 from ..core.errors import MAX_INT, InputError, short
 
-__all__ = ["MAX_DEPTH", "SCENE_LIMIT", "InputError", "check_path", "open_regular", "parse_yaml", "read_text", "read_yaml"]
+__all__ = ["MAX_DEPTH", "SCENE_LIMIT", "InputError", "check_path", "input_replaced", "open_regular", "parse_yaml",
+           "read_text", "read_yaml"]
 
 #: largest scene / parameter YAML file [bytes]; the shipped scenes are ~2 kB
 SCENE_LIMIT = 1 << 20
@@ -58,6 +59,25 @@ def check_path(path: str | os.PathLike, what: str = "file", folder: bool = False
         return st
     need = "a regular file or a folder" if folder else "a regular file"
     raise InputError(f"{label}: {_kind(st.st_mode)}; {need} is needed")
+
+
+def input_replaced(output: str | os.PathLike, inputs, folder: bool = False) -> str | None:
+    """The first of ``inputs`` (paths; None and missing ones skipped) that writing ``output`` would replace: the same
+    file or folder (``os.path.samefile``: links and other spellings too), or, when ``output`` is a folder written
+    whole (``folder``: a bag folder), one inside it; else None. An output never replaces an input of its own run,
+    --force or not (a run written over the bag it reads loses the bag)."""
+    try:
+        if not os.path.exists(output):
+            return None
+        inside = os.path.realpath(output).rstrip(os.sep) + os.sep
+        for given in inputs:
+            if given is None or not os.path.exists(given):
+                continue
+            if os.path.samefile(output, given) or (folder and os.path.realpath(given).startswith(inside)):
+                return os.fspath(given)
+    except (OSError, ValueError):  # (a path that cannot be looked at is refused by the output's own checks)
+        return None
+    return None
 
 
 def open_regular(path: str | os.PathLike, what: str = "file") -> int:

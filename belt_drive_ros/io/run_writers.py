@@ -9,6 +9,7 @@ for a plot, the one output that needs the whole run at once.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from dataclasses import dataclass, field
@@ -166,6 +167,41 @@ class McapWindows:
             self.writer = None
             if self.bag_folder:
                 remove_bag_folder(self.target)
+
+
+@contextlib.contextmanager
+def bag_folder_kept(folder, force: bool):
+    """While a bag is written into ``folder`` with ``force``: the bag already there (its :func:`_bag_files`) moved aside
+    into a hidden sibling folder (``.NAME.*.old``), removed once the block succeeds and moved back if it fails or
+    is interrupted (after the writer removed its own files), as a file output keeps the old file until the new one
+    is whole. A process killed outright leaves the old bag in the hidden folder."""
+    import os
+    import shutil
+    import tempfile
+
+    folder = Path(folder)
+    files = _bag_files(folder) if force else []
+    if not files:
+        try:
+            yield
+        except BaseException:
+            if force:  # (nothing of ours to keep: what the new bag left goes)
+                remove_bag_folder(folder)
+            raise
+        return
+    backup = Path(tempfile.mkdtemp(dir=folder.absolute().parent, prefix=f".{folder.name}.", suffix=".old"))
+    for f in files:
+        os.replace(f, backup / f.name)
+    try:
+        yield
+    except BaseException:
+        remove_bag_folder(folder)  # (what the new bag left, if anything)
+        folder.mkdir(exist_ok=True)
+        for f in backup.iterdir():
+            os.replace(f, folder / f.name)
+        backup.rmdir()
+        raise
+    shutil.rmtree(backup, ignore_errors=True)
 
 
 def _bag_files(folder) -> list[Path]:
