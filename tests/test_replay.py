@@ -133,6 +133,28 @@ def test_replay_schedule_rate_offset_loop():
         list(replay_schedule(t, rate=0.0))
 
 
+def test_replay_loop_of_a_bag_spanning_no_time_is_refused():
+    """A loop of messages sharing one time stamp has no period: it used to republish them endlessly, /clock
+    creeping 1 ns per pass. It is refused at once (before any ROS start); a single pass still plays."""
+    same = np.full(5, 7 * 10**9)
+    assert [k for *_, k in replay_schedule(same)] == [0, 1, 2, 3, 4]  # no loop: one pass, all at wall offset 0
+    for times in (same, same[:1], np.array([1, 2, 2, 2]) * 10**9):
+        offset = 0.5 if times[0] != times[-1] else 0.0  # the part after the offset spans no time
+        with pytest.raises(ValueError, match="spans no time"):
+            replay_schedule(times, loop=True, start_offset=offset)
+    looped = list(replay_schedule(np.array([3, 3, 4]) * 10**9, loop=True, max_loops=2))  # shared stamps, span > 0
+    assert [k for *_, k in looped] == [0, 1, 2] * 2 and np.all(np.diff([c for _w, c, _k in looped]) >= 0)
+
+
+def test_replay_command_refuses_loop_of_a_bag_spanning_no_time(tmp_path, capsys):
+    from belt_drive_ros.cli import main
+
+    bag = _torque_bag(tmp_path / "flat.mcap", np.full(4, 2 * 10**9), np.ones(4))
+    assert main(["replay", str(bag), "--loop", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "spans no time" in err and "Traceback" not in err
+
+
 # ---------------------------------------------------------------------- ROS
 def _replay(bag, domain_id, *extra):
     from belt_drive_ros.ros import environment as ros_env

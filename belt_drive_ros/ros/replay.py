@@ -34,7 +34,8 @@ def replay_schedule(log_time_ns: np.ndarray, *, rate: float = 1.0, start_offset:
         Repeat forever (or ``max_loops`` passes). Pass ``k`` is shifted by
         ``k * (span + period)`` on the clock, ``span`` = last - first
         published time and ``period`` = the median spacing, so ``/clock``
-        keeps increasing.
+        keeps increasing. A loop of a part that spans no time (one message,
+        or all sharing one time stamp) has no period and is refused.
 
     Returns
     -------
@@ -46,7 +47,8 @@ def replay_schedule(log_time_ns: np.ndarray, *, rate: float = 1.0, start_offset:
     Raises
     ------
     ValueError
-        At once (not on iteration) for a bad rate or an offset past the end.
+        At once (not on iteration) for a bad rate, an offset past the end, or
+        a loop of a part spanning no time.
     """
     if not (rate > 0 and math.isfinite(rate)):
         raise ValueError(f"rate must be a finite number > 0, got {rate!r}")
@@ -60,6 +62,12 @@ def replay_schedule(log_time_ns: np.ndarray, *, rate: float = 1.0, start_offset:
     if first >= times.size:
         raise ValueError(
             f"start offset {start_offset:g} s is past the end of the recording ({(times[-1] - times[0]) / 1e9:g} s)"
+        )
+    if loop and times[-1] == times[first]:
+        count = times.size - first
+        raise ValueError(
+            f"cannot loop: the {count} message{'s' if count > 1 else ''} from offset {start_offset:g} s "
+            f"{'share one time stamp' if count > 1 else 'is alone'}, so the replay spans no time (no loop period)"
         )
     return _schedule(times, first, rate, loop, max_loops)
 
