@@ -35,6 +35,21 @@ def test_list_parameters_runs_without_rclpy():
         assert f"  {name} " in out.stdout, name
 
 
+def test_model_range_reads_the_rule_table(monkeypatch):
+    """The advertised range is the rule table's (core.params.RULES, PLAUSIBLE_RULES), not a restated bound: a rule
+    added to the table moves it (the old code kept the lower bound 0 whatever the table said)."""
+    from belt_drive_ros.core import params as core_params
+
+    assert model_range("k") == (0.0, core_params.PLAUSIBLE_MAX["k"])  # k > 0: the open end 0 is given as 0
+    assert model_range("c") == (0.0, core_params.PLAUSIBLE_MAX["c"])  # c >= 0
+    assert model_range("wrap_angle")[1] == 2.0 * math.pi
+    stricter = (core_params.rule("k", 1.5e3, None, "[)", "must be >= 1500 N/m, got {value!r}"),
+                core_params.rule("c", 2.0, 50.0, "(]", "must be in (2, 50], got {value!r}"))
+    monkeypatch.setattr(core_params, "RULES", core_params.RULES + stricter)
+    assert model_range("k") == (1.5e3, core_params.PLAUSIBLE_MAX["k"])
+    assert model_range("c") == (2.0, 50.0)
+
+
 @pytest.mark.parametrize("name", MODEL_PARAMETERS)
 def test_model_ranges_are_the_core_rules(name):
     """Inside the advertised range BeltDriveParams accepts; just outside it refuses (each end)."""
