@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import yaml
 
 from belt_drive_ros.campaign.execute import portable_of, run_batch
@@ -66,3 +67,26 @@ def test_a_fleet_recording_cut_off_runs_and_says_so_in_its_row_not_on_the_worker
     assert "b.mcap was not finalized" in rows[1]["warning"] and "using the 200 messages" in rows[1]["warning"]
     assert rows[0]["peak_belt_torque"] == rows[1]["peak_belt_torque"]  # (its chunks hold every message)
     assert "recordings cut off (run on their complete chunks): 1" in summary(table, campaign)
+
+
+@pytest.mark.parametrize("name, option", [("results.csv", "--csv"), ("results.parquet", "--out"),
+                                          ("summary.txt", "--out")])
+def test_an_output_file_that_is_a_folder_is_refused_before_the_cluster_starts(tmp_path, capsys, monkeypatch, name,
+                                                                               option):
+    """Before: ``sweep --csv`` with OUT/results.csv a folder ran the whole campaign, then failed with a bare
+    '[Errno 21] Is a directory' naming no option (results.parquet and summary.txt the same way)."""
+    from belt_drive_ros.campaign import execute
+
+    def no_cluster(*_args, **_kwargs):
+        raise AssertionError("the cluster started")
+
+    monkeypatch.setattr(execute, "_cluster", no_cluster)
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump({"name": "c", "scene": "paper", "set": {"duration": 0.05},
+                                    "grid": {"params.c": [1.0, 2.0]}}))
+    out = tmp_path / "out"
+    (out / name).mkdir(parents=True)
+    assert main(["sweep", str(path), "--out", str(out), "--csv", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{out / name}: is a folder, where {option} writes its {name}" in err[0], err
+    assert sorted(p.name for p in out.iterdir()) == [name]  # nothing written

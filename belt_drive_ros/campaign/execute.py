@@ -360,13 +360,24 @@ def _bounds(n: int, first: int, size: int) -> list:
     return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
 
-def check_out_folder(campaign: Campaign, out_dir: Path) -> None:
-    """Refuse, before anything runs or is written, an ``out_dir`` that exists and is not a folder, and one whose
+#: the files a sweep writes in its folder (run_campaign and the sweep command): name -> the option that asks for it
+OUT_FILES = {"manifest.json": "--out", "variants.parquet": "--out", "results.parquet": "--out", "summary.txt": "--out",
+             "results.csv": "--csv"}
+
+
+def check_out_folder(campaign: Campaign, out_dir: Path, *, csv: bool = False) -> None:
+    """Refuse, before anything runs or is written, an ``out_dir`` that exists and is not a folder, one that holds a
+    folder where a file of :data:`OUT_FILES` goes (``results.csv`` only with ``csv``: found only after the whole
+    run, else), and one whose
     ``recordings/`` (where a fleet's runs go, replacing files of the same name) is the fleet's folder or its golden
     folder: the runs would overwrite the recordings they replay, or the goldens they are compared with (each
     comparison then passes against itself). --force does not change this: it replaces results, never inputs."""
     if out_dir.exists() and not out_dir.is_dir():
         raise CampaignError(f"{out_dir}: exists and is not a folder; --out names the folder the results go to")
+    for name, option in OUT_FILES.items():
+        if (out_dir / name).is_dir() and (csv or name != "results.csv"):
+            raise CampaignError(f"{out_dir / name}: is a folder, where {option} writes its {name}; remove it or "
+                                f"use another --out")
     recordings = out_dir / "recordings"
     for key, folder in (("fleet.folder", campaign.fleet_folder), ("fleet.golden", campaign.golden_folder)):
         if folder is not None and recordings.is_dir() and os.path.samefile(recordings, folder):
@@ -398,7 +409,7 @@ def run_campaign(
 
     start = time.perf_counter()
     out_dir = Path(out_dir)
-    check_out_folder(campaign, out_dir)
+    check_out_folder(campaign, out_dir, csv=csv)
     parts_dir = out_dir / "parts"
     manifest_path = out_dir / "manifest.json"
     table = campaign.variants()
