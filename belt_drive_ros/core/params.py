@@ -64,6 +64,8 @@ class Rule(NamedTuple):
     low: float
     high: float
     text: str
+    #: the ends as written (an unbounded side: an infinity), e.g. for a range a ROS parameter descriptor states
+    written: tuple[float, float] = (-math.inf, math.inf)
 
     def holds(self, value):
         """Whether ``value`` lies inside: a float: a bool; an array: a bool per element."""
@@ -76,9 +78,10 @@ class Rule(NamedTuple):
 def rule(field: str, low: float | None, high: float | None, ends: str, text: str) -> Rule:
     """The :class:`Rule` that ``field`` lies in ``low .. high`` (None: unbounded), ``ends`` in interval notation:
     ``"(]"`` is ``low < value <= high``."""
+    written = (-math.inf if low is None else float(low), math.inf if high is None else float(high))
     low = -math.inf if low is None else math.nextafter(low, -math.inf) if ends[0] == "[" else low
     high = math.inf if high is None else math.nextafter(high, math.inf) if ends[1] == "]" else high
-    return Rule(field, float(low), float(high), text)
+    return Rule(field, float(low), float(high), text, written)
 
 
 #: the constructor's checks (one table: :class:`BeltDriveParams` checks a value by it, :func:`valid_parameter_rows`

@@ -128,26 +128,15 @@ def model_range(name: str) -> tuple[float, float]:
 
     Read from the one rule table, :data:`core.params.RULES` and
     :data:`core.params.PLAUSIBLE_RULES` (the constructor's checks and the
-    plausible maxima): the strictest end of each side over the field's rules,
-    as the closed range a ROS descriptor states (an open end, e.g. ``> 0``,
-    is given as its end, 0, and refused there by the class itself). A side no
-    rule bounds is an infinity.
+    plausible maxima): the strictest of the ends the field's rules are written
+    with, as the closed range a ROS descriptor states (an open end, e.g.
+    ``> 0``, is given as its end, 0, and refused there by the class itself).
+    A side no rule bounds is an infinity.
     """
     rules = [r for r in core_params.RULES + core_params.PLAUSIBLE_RULES if r.field == name]
-    low = max((r.low for r in rules), default=-math.inf)
-    high = min((r.high for r in rules), default=math.inf)
-    return _table_end(low, math.inf), _table_end(high, -math.inf)
-
-
-def _table_end(stored: float, inward: float) -> float:
-    """The end a rule was written with, from the open bound it stores (:func:`core.params.rule`): the end itself
-    (open side) or the next float outward (closed side). The end is the one of the two with the shorter decimal
-    (the table's ends are round numbers such as 0 or 10), on a tie (2*pi) the inward one (a closed end: the table's
-    only open finite ends are at 0); an infinity is its own end."""
-    if math.isinf(stored):
-        return stored
-    inner = math.nextafter(stored, inward)
-    return (stored if len(repr(stored)) < len(repr(inner)) else inner) + 0.0  # (+ 0.0: -0.0 as 0.0)
+    low = max((r.written[0] for r in rules), default=-math.inf)
+    high = min((r.written[1] for r in rules), default=math.inf)
+    return low + 0.0, high + 0.0
 
 
 @dataclass
