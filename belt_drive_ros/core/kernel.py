@@ -617,37 +617,50 @@ HEADER = 9
 SECTIONS = ("W", "offsets", "S", "F", "tol", "extra", "guard", "dx", "dy", "lx", "ly")
 
 
-@njit(**_JIT)
-def linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp):
-    """Steps ``times[k] -> times[k+1]`` of one fixed-step method from state ``x``; states into ``out[k]``: the plant's
-    and method's arrays packed into ``reals`` and ``ints`` (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`;
-    layout :data:`HEADER`, :data:`SECTIONS`; a call type-checks ten arguments, not twenty-five), unpacked for
-    :func:`_steps`. ``dp``, ``lp``: the drive's and load's profile parameters (a held torque writes into them)."""
+@njit(**_INLINE)
+def _unpacked(reals, ints, dp):
+    """The packed arrays of :func:`linear_steps` cut into :func:`_steps`' arguments after its first six (views, no
+    copy; ``dp`` only for the drive's row count): ``(W, kinds, offsets, S, F, final_base, tol, max_iter, ua, ub, dk,
+    dx, dy, lk, lx, ly, extra, guard)`` (the profiles' parameters ``dp``, ``lp`` are passed as themselves)."""
     n, s, E, rows, cols = ints[0], ints[1], ints[2], ints[3], ints[4]
     at = ints[HEADER : HEADER + len(SECTIONS) + 1]
     k0 = HEADER + len(SECTIONS) + 1
     nd = dp.shape[0]
     kinds, dk, lk = ints[k0 : k0 + s], ints[k0 + s : k0 + s + nd], ints[k0 + s + nd :]
-    return _steps(
-        times, x, out, lo, hi, limit, reals[at[0] : at[1]].reshape((1, 4, n)), kinds, reals[at[1] : at[2]],
-        reals[at[2] : at[3]].reshape((s, rows, cols)), reals[at[3] : at[4]].reshape((1, n, cols)), ints[5], reals[at[4]],
-        ints[6], ints[7] != 0, ints[8] != 0, dk, dp, reals[at[7] : at[8]], reals[at[8] : at[9]], lk, lp,
-        reals[at[9] : at[10]], reals[at[10] : at[11]], reals[at[5] : at[6]].reshape((E, 5)), reals[at[6] : at[7]],
+    return (
+        reals[at[0] : at[1]].reshape((1, 4, n)), kinds, reals[at[1] : at[2]], reals[at[2] : at[3]].reshape((s, rows, cols)),
+        reals[at[3] : at[4]].reshape((1, n, cols)), ints[5], reals[at[4]], ints[6], ints[7] != 0, ints[8] != 0, dk,
+        reals[at[7] : at[8]], reals[at[8] : at[9]], lk, reals[at[9] : at[10]], reals[at[10] : at[11]],
+        reals[at[5] : at[6]].reshape((E, 5)), reals[at[6] : at[7]],
     )  # fmt: skip
+
+
+@njit(**_JIT)
+def linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp):
+    """Steps ``times[k] -> times[k+1]`` of one fixed-step method from state ``x``; states into ``out[k]``: the plant's
+    and method's arrays packed into ``reals`` and ``ints`` (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`;
+    layout :data:`HEADER`, :data:`SECTIONS`; a call type-checks ten arguments, not twenty-five), unpacked for
+    :func:`_steps` (:func:`_unpacked`). ``dp``, ``lp``: the drive's and load's profile parameters (a held torque
+    writes into them)."""
+    W, kinds, offsets, S, F, final_base, tol, max_iter, ua, ub, dk, dx, dy, lk, lx, ly, extra, guard = _unpacked(reals, ints, dp)
+    return _steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter, ua, ub, dk, dp, dx, dy,
+                  lk, lp, lx, ly, extra, guard)  # fmt: skip
 
 
 @njit(**_JIT)
 def clamped_steps(times, x, out, c0, c1, base, cells, clo, chi, ends, half, limit, reals, ints, dp, lp):
     """Whole grid steps ``c0 <= c < c1`` (step ``c``: ``times[c] -> times[c+1]``, its state into ``out[c]``; ``x``: the
     state at ``times[c0]``) whose torque samples are clamped at breakpoints on the knots, in groups of one
-    :func:`linear_steps` call each: returns ``(c, status, t)``, ``c`` the steps done (the failing one included).
+    :func:`linear_steps` step run each: returns ``(c, status, t)``, ``c`` the steps done (the failing one included).
 
     ``cells`` (sorted, grid indices: step ``c`` is cell ``base + c``) and ``clo``, ``chi`` [s]: each clamped step's
     bounds (``-inf``/``inf`` where none). A group runs from a step to the next end of ``ends`` (sorted grid indices:
     a cell with a finite ``hi``, the cell before one with a finite ``lo``, the last) with its first step's ``lo`` and
     its last step's ``hi``: every sample of the steps between lies inside both already (a bound within ``half`` [s]
     of its knot), so each step reads the torques of its own clamps; a bound farther inside: that step alone, its own
-    clamps. The same groups as one call per group from Python (``Stepper``), so the same floats."""
+    clamps. The same groups as one call per group from Python (``Stepper``), so the same floats. The packed arrays
+    are unpacked once per call (:func:`_unpacked`), then each group is one :func:`_steps` call."""
+    W, kinds, offsets, S, F, final_base, tol, max_iter, ua, ub, dk, dx, dy, lk, lx, ly, extra, guard = _unpacked(reals, ints, dp)
     N = times.size - 1
     j = np.searchsorted(cells, base + c0)
     e = np.searchsorted(ends, base + c0)
@@ -669,7 +682,8 @@ def clamped_steps(times, x, out, c0, c1, base, cells, clo, chi, ends, half, limi
             d = c  # a bound far inside: this step alone, its own clamps
             hi = chi[j] if j < cells.size and cells[j] == cell else math.inf
         d = c1 - 1 if d > c1 - 1 else d
-        done, status, t = linear_steps(times[c : d + 2], x, out[c : d + 1], lo, hi, limit, reals, ints, dp, lp)
+        done, status, t = _steps(times[c : d + 2], x, out[c : d + 1], lo, hi, limit, W, kinds, offsets, S, F, final_base,
+                                 tol, max_iter, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)  # fmt: skip
         if status != OK:
             return c + done, status, t
         x = out[d]
