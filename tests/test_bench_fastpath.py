@@ -47,7 +47,7 @@ PROFILES = [
     S.Compressor(c1=0.1, ramp_time=0.2),
     S.Schedule(S.Compressor(), S.Constant(2.0), ((0.2, 0.4),)),
     S.Schedule(S.Compressor(), S.Constant(2.0), ((0.2, 0.4), (0.6, 0.9))),
-    # past what the 2- and 4-state loops read into scalars (kernel.profile_scalars): through the dispatcher there
+    # past what the 2- and 4-state loops read into scalars (kernel_profiles.profile_scalars): through the dispatcher there
     S.Engine(harmonics=(15.0, 5.0, 2.0, 1.0), speed_setpoint=70.0),
     S.MotorCurve(curve=((0.0, 60.0), (100.0, 55.0), (150.0, 60.0), (314.0, 28.0), (400.0, 0.0)), soft_start_time=0.4),
     S.Schedule(S.Compressor(harmonics=(3.0,)), S.Engine(), ((0.1, 0.2), (0.3, 0.4), (0.5, 0.8))),
@@ -71,10 +71,10 @@ def test_scalar_torque_equals_torque(profile):
 @pytest.mark.parametrize("points", [1, 2, 3, 4, 5])
 @pytest.mark.parametrize("kind", ["motor", "table"])
 def test_a_few_points_from_scalars_equal_the_table_lookup(points, kind):
-    """A motor curve or linear table of up to four points is read into scalars (``kernel._points_interp``); every
-    sample over arrays equals the dispatcher's table lookup (``kernel._interp``) to the last bit: at each point,
+    """A motor curve or linear table of up to four points is read into scalars (``kernel_profiles._points_interp``); every
+    sample over arrays equals the dispatcher's table lookup (``kernel_profiles._interp``) to the last bit: at each point,
     one ulp either side, beyond both ends, at NaN and infinities. Five points: the table lookup itself."""
-    from belt_drive_ros.core import kernel
+    from belt_drive_ros.core import kernel_profiles
 
     rng = np.random.default_rng(points)
     for trial in range(20):
@@ -92,8 +92,8 @@ def test_a_few_points_from_scalars_equal_the_table_lookup(points, kind):
         t = wide if kind == "table" else rng.uniform(-0.5, 3.5, wide.size)
         speed = wide if kind == "motor" else rng.uniform(-100.0, 450.0, wide.size)
         out = np.empty(wide.size)
-        kernel.profile_torque_array(d.kinds, d.params, d.tx, d.ty, t, np.zeros(wide.size), speed, out)
-        one = [kernel.profile_torque(d.kinds, d.params, d.tx, d.ty, float(a), 0.0, float(w)) for a, w in zip(t, speed)]
+        kernel_profiles.profile_torque_array(d.kinds, d.params, d.tx, d.ty, t, np.zeros(wide.size), speed, out)
+        one = [kernel_profiles.profile_torque(d.kinds, d.params, d.tx, d.ty, float(a), 0.0, float(w)) for a, w in zip(t, speed)]
         assert out.tobytes() == np.array(one).tobytes()
 
 
@@ -205,13 +205,14 @@ def test_a_python_only_profile_is_refused_in_one_line(method, as_load):
 
 def test_the_kernel_compiles_once_whatever_the_scene():
     """Profiles are data: running every shipped scene and every kind of profile adds no compiled specialisation."""
-    from belt_drive_ros.core import kernel
+    from belt_drive_ros.core import kernel, kernel_profiles
     from belt_drive_ros.core.scene import shipped_scenes
 
     def counts():
-        names = ("clamped_steps", "linear_steps", "_steps", "_explicit", "wheel_steps", "profile_torque",
-                 "profile_torque_at", "profile_torque_array")
-        return {name: len(getattr(kernel, name).signatures) for name in names}
+        loops = ("clamped_steps", "linear_steps", "_steps", "_explicit", "wheel_steps")
+        profiles = ("profile_torque", "profile_torque_at", "profile_torque_array")
+        return {name: len(getattr(module, name).signatures) for module, names in ((kernel, loops), (kernel_profiles, profiles))
+                for name in names}
 
     simulate(load_scene("paper"), duration=0.01)
     for profile in PROFILES:

@@ -18,8 +18,9 @@ def _copy_core(tmp_path, monkeypatch):
 def _entries(core):
     """One cache entry per kernel file (index and data), as numba names them."""
     return {name + suffix: core / folder / "__pycache__" / f"{stem}.run-10.py312{suffix}"
-            for name, folder, stem in (("kernel", ".", "kernel"), ("variants", ".", "kernel_variants"),
-                                       ("tick", ".", "tick"), ("network_slip", "network", "slip_kernel"))
+            for name, folder, stem in (("kernel", ".", "kernel"), ("profiles", ".", "kernel_profiles"),
+                                       ("variants", ".", "kernel_variants"), ("tick", ".", "tick"),
+                                       ("network_slip", "network", "slip_kernel"))
             for suffix in (".nbi", ".1.nbc")}  # fmt: skip
 
 
@@ -55,8 +56,13 @@ def test_only_entries_built_from_an_edited_source_are_dropped(tmp_path, monkeypa
     assert jit_cache.refresh() is True
     assert _gone(entries) == {"tick"}
     _make(entries)
-    # the shared kernel: every file that imports it, in both folders
+    # the linear loop: its own entries and those of every file that imports it (not the profiles', which it imports)
     _edit(core / "kernel.py")
+    assert jit_cache.refresh() is True
+    assert _gone(entries) == {"kernel", "variants", "tick"}
+    _make(entries)
+    # the profiles every kernel reads: every entry, in both folders
+    _edit(core / "kernel_profiles.py")
     assert jit_cache.refresh() is True and not any(e.exists() for e in entries.values())
     _make(entries)
     # a source no kernel imports: nothing
@@ -96,7 +102,7 @@ def test_entries_under_numba_cache_dir_are_handled(tmp_path, monkeypatch):
 
 
 #: the modules of compiled kernels (every @njit function of the package is in one of them)
-KERNEL_MODULES = ("kernel", "kernel_slip", "kernel_variants", "tick", "network.slip_kernel", "network.tick")
+KERNEL_MODULES = ("kernel", "kernel_profiles", "kernel_slip", "kernel_variants", "tick", "network.slip_kernel", "network.tick")
 
 
 def _literal_arguments(module_name: str) -> list[str]:

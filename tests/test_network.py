@@ -593,7 +593,7 @@ def test_auto_names_the_pulley(monkeypatch):
 def test_stacked_profiles_evaluate_as_each_profile_alone():
     from numba.core.registry import CPUDispatcher
 
-    from belt_drive_ros.core import kernel
+    from belt_drive_ros.core import kernel_profiles
     from belt_drive_ros.core.profile_data import stack
     from belt_drive_ros.core.sources import make_profile
 
@@ -609,11 +609,11 @@ def test_stacked_profiles_evaluate_as_each_profile_alone():
     # the stacked evaluation interpreted, its helpers too: called from Python, the compiled one (inlined in the
     # network loops) would compile again for Python's argument types in every fresh clone; the same floats
     with pytest.MonkeyPatch.context() as mp:
-        for name, value in list(vars(kernel).items()):
+        for name, value in list(vars(kernel_profiles).items()):
             if isinstance(value, CPUDispatcher):
-                mp.setattr(kernel, name, value.py_func)
+                mp.setattr(kernel_profiles, name, value.py_func)
         for (t, p), torque in alone.items():
-            assert kernel.profile_torque_at(data.kinds, data.params, data.tx, data.ty, int(start[p]), t, 1.3, 40.0) == torque
+            assert kernel_profiles.profile_torque_at(data.kinds, data.params, data.tx, data.ty, int(start[p]), t, 1.3, 40.0) == torque
 
 
 def test_the_network_kernel_compiles_once_and_interpreted_gives_the_same_floats(tmp_path):

@@ -231,12 +231,12 @@ def test_engine_without_pulses_or_governor_is_open_loop():
 
 def test_every_kind_has_a_data_form_and_a_kernel_branch():
     """Each registered profile encodes to kernel data; an unknown kind code evaluates to NaN, never to a number."""
-    from belt_drive_ros.core import kernel, profile_data as D
+    from belt_drive_ros.core import kernel_profiles, profile_data as D
 
     for spec in SPECS:
         assert make_profile(spec).data() is not None
     row = np.zeros((1, D.WIDTH))
-    assert math.isnan(kernel.profile_torque(np.array([99]), row, np.zeros(1), np.zeros(1), 0.0, 0.0, 0.0))
+    assert math.isnan(kernel_profiles.profile_torque(np.array([99]), row, np.zeros(1), np.zeros(1), 0.0, 0.0, 0.0))
 
 
 
@@ -246,7 +246,7 @@ def test_table_search_finds_the_index_bisection_finds():
     before and after the points, NaN included; and a table's hold reads the value numpy's searchsorted gives."""
     import bisect
 
-    from belt_drive_ros.core.kernel import _bisect_right
+    from belt_drive_ros.core.kernel_profiles import _bisect_right
 
     rng = np.random.default_rng(7)
     tables = [np.arange(2000) * 1e-3, np.arange(2000) * 1e-3 + rng.uniform(-4e-4, 4e-4, 2000),

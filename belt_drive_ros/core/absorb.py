@@ -129,7 +129,7 @@ def absorbed_steps(stepper, bps: np.ndarray, first: int, last: int) -> tuple[np.
 def _same_torques(stepper, g: np.ndarray, lo: np.ndarray, hi: np.ndarray, end) -> np.ndarray:
     """Per step starting at ``g`` [s]: whether the torques at the stage times of ``end`` equal those at the
     stage times of the stepper's loop clamped into ``[lo, hi]`` (see :func:`absorbed_steps`)."""
-    from .kernel import profile_torque_array
+    from .kernel_profiles import profile_torque_array
 
     ok = np.ones(g.size, dtype=bool)
     plain, shifted = offsets(stepper.loop), offsets(end)

@@ -194,7 +194,7 @@ def warm() -> None:
     """Compile (or load from the disk cache) the profile dispatcher and the linear loop with the one
     signature runs use (:func:`belt_drive_ros.core.warm.warm` warms every kernel; the variant loop:
     :func:`warm_variants`)."""
-    from .kernel import profile_torque, profile_torque_array
+    from .kernel_profiles import profile_torque, profile_torque_array
 
     data, loop = _warm_loop(False)
     profile_torque(data.kinds, data.params, data.tx, data.ty, 0.0, 0.0, 0.0)

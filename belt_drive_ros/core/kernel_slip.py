@@ -45,7 +45,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .kernel import linear_steps, profile_torque
+from .kernel import linear_steps
+from .kernel_profiles import profile_torque
 from .profile_data import COMPRESSOR, DIVERGED, ENGINE, GUARDED, NOT_CONVERGED
 
 _JIT = dict(cache=True, nogil=True)

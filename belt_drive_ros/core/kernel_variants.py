@@ -16,7 +16,8 @@ import numpy as np
 from numba import njit
 from numba.core.errors import NumbaPerformanceWarning
 
-from .kernel import HEADER, SECTIONS, _steps, formula, is_formula, motor_line, polynomial, profile_torque
+from .kernel import HEADER, SECTIONS, _steps
+from .kernel_profiles import formula, is_formula, motor_line, polynomial, profile_torque
 from .profile_data import DIVERGED, MOTOR_LINE, OK, POLYNOMIAL
 
 #: variants stepped together by :func:`_lanes` (lawson5's matrices: ~470 kB for 128 lanes, in the L2 cache)

@@ -8,7 +8,7 @@ small program (:class:`ProfileData`):
 * ``tx``, ``ty`` (K,) float64: every table of the profile, end to end (a row
   holds its table's offset and length in ``params``).
 
-One compiled dispatcher (:func:`belt_drive_ros.core.kernel.profile_torque`)
+One compiled dispatcher (:func:`belt_drive_ros.core.kernel_profiles.profile_torque`)
 evaluates any profile from these four arrays: the kernel compiles once per
 installed version, never per scene (the arrays' types never change). A new
 kind is one code here, one ``encode`` method and one branch in the kernel.
@@ -127,7 +127,7 @@ class ProfileBuilder:
 def stack(datas) -> tuple[ProfileData, np.ndarray]:
     """Several profiles as one program: rows and tables end to end, each row's table offset and row indices
     moved by its profile's start. Returns the stacked data and each profile's first row (P,) int64
-    (:func:`~belt_drive_ros.core.kernel.profile_torque_at` evaluates profile p from its first row)."""
+    (:func:`~belt_drive_ros.core.kernel_profiles.profile_torque_at` evaluates profile p from its first row)."""
     builder, starts = ProfileBuilder(), []
     for d in datas:
         rows, tables = len(builder.kinds), builder.size

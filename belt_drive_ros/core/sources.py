@@ -73,7 +73,7 @@ class TorqueProfile:
     def torque(self, t, angle=0.0, speed=0.0):
         """Torque [N m] at time ``t`` [s], wheel angle [rad], wheel speed [rad/s] (scalars or arrays), evaluated by
         the compiled kernel from :meth:`data` (bitwise the values the time loop computes)."""
-        from . import kernel
+        from . import kernel_profiles as kernel
 
         data = self.data()
         if data is None:
@@ -101,7 +101,7 @@ class TorqueProfile:
         if data is None:
             torque = self.torque
             return lambda t, angle, speed: float(torque(t, angle, speed))
-        from .kernel import profile_torque
+        from .kernel_profiles import profile_torque
 
         kinds, params, tx, ty = data.kinds, data.params, data.tx, data.ty
         return lambda t, angle, speed: profile_torque(kinds, params, tx, ty, t, angle, speed)

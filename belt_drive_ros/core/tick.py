@@ -39,7 +39,8 @@ import numpy as np
 from numba import carray, njit, types
 from numba.extending import intrinsic, overload
 
-from .kernel import HEADER, SECTIONS, linear_steps, profile_torque
+from .kernel import HEADER, SECTIONS, linear_steps
+from .kernel_profiles import profile_torque
 from .kernel_slip import (FLEXIBLE, KIND_NAMES, MASS_DOWN, MASS_UP, MAX_SWITCHES, PHASE_SIZE, SLIP_DOWN, SLIP_UP,
                           STEPWISE, STICKING, _flexible, _shift_angle, _to_y, hybrid_steps)
 from .slip import SLIP, STICK

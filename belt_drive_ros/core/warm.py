@@ -5,10 +5,10 @@ argument types never change with the scene). Which kernel calls which (a
 caller's compilation needs its callees' machine code: from the cache, else
 it compiles them again)::
 
-    wheel_steps, _explicit <- _steps <- linear_steps <- hybrid loop <- node's slipping tick
+    wheel_steps, _explicit <- _steps <- linear_steps <- hybrid loop <- node's slipping tick   (_steps <- clamped_steps)
               |                     <- variant loop    <- node's linear tick
               <- network node tick (and the network's linear tiers, called from Python)
-    profile dispatcher (profile_torque, profile_torque_at) <- every kernel but the variant lanes
+    profile dispatcher (kernel_profiles: profile_torque, profile_torque_at) <- every kernel but the variant lanes
 
 With ``jobs=2`` a second process starts with the network slipping tier and
 takes the network node tick once this process has cached ``wheel_steps``, the

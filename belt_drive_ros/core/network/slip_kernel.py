@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..kernel import profile_torque_at
+from ..kernel_profiles import profile_torque_at
 
 _JIT = dict(cache=True, nogil=True)
 #: small helpers of the step are inlined into it (no call, no reference counting of the arrays passed)

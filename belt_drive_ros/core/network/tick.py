@@ -26,7 +26,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..kernel import profile_torque_at, wheel_steps
+from ..kernel import wheel_steps
+from ..kernel_profiles import profile_torque_at
 from ..profile_data import OK
 from ..tick import PackedArrays, _f1, _f2, _f3, _i1
 
