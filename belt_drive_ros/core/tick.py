@@ -12,7 +12,7 @@ Bit for bit the operations of the reference path (the stepper's
 
 * grid times ``origin + dt * k`` (the float product and sum of ``Stepper._grid``);
 * the torques at the tick time from the profiles' data
-  (:func:`~belt_drive_ros.core.kernel.profile_torque`), at the wheel
+  (:func:`~belt_drive_ros.core.kernel_profiles.profile_torque`), at the wheel
   coordinates ``W x`` summed over the nonzero entries of ``W`` from the left
   (as :class:`~belt_drive_ros.core.stepper.Plant`'s scalar ``inputs``);
 * ``y_j = (x_0 C_j0 + ... + x_{n-1} C_j,n-1) + (u_0 D_j0 + u_1 D_j1)``
