@@ -356,15 +356,28 @@ def _generic_fields(objs: Sequence[Any]) -> Dict[str, np.ndarray]:
 
 
 
-def _build(scan: Scan, channel_ids: List[int], topic: str) -> TopicData:
-    channel = scan.channels[channel_ids[0]]
-    schema = scan.schemas.get(channel.schema_id)
+def _type_name(scan: Scan, cid: int) -> str:
+    """The message type of channel ``cid`` of ``scan``, normalized where it can be ("" without a schema)."""
+    schema = scan.schemas.get(scan.channels[cid].schema_id)
     type_name = schema.name if schema is not None else ""
     if type_name:
         try:
             type_name = _schemas.normalize_type_name(type_name)
         except ValueError:
             pass
+    return type_name
+
+
+def _build(scan: Scan, channel_ids: List[int], topic: str) -> TopicData:
+    channel = scan.channels[channel_ids[0]]
+    schema = scan.schemas.get(channel.schema_id)
+    type_name = _type_name(scan, channel_ids[0])
+    types = {_type_name(scan, cid) for cid in channel_ids[1:]} - {type_name}
+    if types:  # (channels of one type, e.g. publishers with different QoS, are one topic's messages)
+        raise DecodeError(
+            f"{topic}: its {len(channel_ids)} channels carry different message types "
+            f"({', '.join(sorted(types | {type_name}, key=str))}): one topic must have one type"
+        )
     accs = [scan.accs[cid] for cid in channel_ids]
     blob: Any = accs[0].blob if len(accs) == 1 else bytearray()
     if len(accs) == 1:  # the scan's own arrays, viewed below (not copied: a long recording's times are held once)
