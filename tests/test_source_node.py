@@ -78,6 +78,76 @@ def test_rate_parameter_is_validated_at_runtime(context):
         node.destroy_node()
 
 
+def test_sim_time_ticks_once_per_clock_step_on_the_grid(context):
+    """On ``use_sim_time`` the ``/clock`` messages tick the source: one publish per grid point reached, at the
+    message's time, none for a repeated or in-between ``/clock``, one for a jump of many periods, a new grid after
+    a jump back; the rclpy timer stays silent on simulated time."""
+    from rclpy.parameter import Parameter
+    from rosgraph_msgs.msg import Clock
+
+    from belt_drive_ros.ros.source_node import TorqueSourceNode
+
+    node = TorqueSourceNode(Table(times=(0.0, 0.01), values=(1.0, 2.0), interpolation="previous"), context=context,
+                            rate_hz=1000.0,
+                            parameter_overrides=[Parameter("use_sim_time", value=True)])
+    times = []
+    publish_at = node.publish_at
+    node.publish_at = lambda now: times.append(now) or publish_at(now)
+    try:
+        assert node.get_clock().ros_time_is_active
+        ms = 1_000_000
+        clock = [1000 * ms, 1000 * ms, 1001 * ms, 1001 * ms + ms // 2, 1002 * ms, 1012 * ms + 300_000, 1013 * ms,
+                 1013 * ms, 1500 * ms, 1500 * ms + 999_999, 1501 * ms]  # fmt: skip
+        for ns in clock:
+            node._on_clock(Clock(clock=divmod_time(ns)))
+        assert times == [1000 * ms, 1001 * ms, 1002 * ms, 1012 * ms + 300_000, 1013 * ms, 1500 * ms, 1501 * ms]
+        assert node.counters["published"] == len(times)
+        node._on_tick()  # the timer on simulated time: silent
+        assert len(times) == 7
+        node._on_clock(Clock(clock=divmod_time(900 * ms)))  # back in time: starts over, a new grid from there
+        node._on_clock(Clock(clock=divmod_time(900 * ms + ms // 2)))
+        node._on_clock(Clock(clock=divmod_time(901 * ms)))
+        assert times[7:] == [900 * ms, 901 * ms] and node.last_torque == 1.0
+        assert node.set_parameters([Parameter("rate_hz", value=500.0)])[0].successful  # 2 ms from the last tick
+        for ns in (902 * ms, 903 * ms):
+            node._on_clock(Clock(clock=divmod_time(ns)))
+        assert times[9:] == [903 * ms]
+    finally:
+        node.destroy_node()
+
+
+def divmod_time(ns: int):
+    from builtin_interfaces.msg import Time
+
+    sec, nanosec = divmod(ns, 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def test_source_loads_its_compiled_profile_before_it_runs():
+    """The node evaluates its profile at construction: the first tick does not load the compiled kernel (under
+    load that took 3-12 s, during which no drive_torque was published)."""
+    code = (
+        "import rclpy\n"
+        "from rclpy.context import Context\n"
+        "from belt_drive_ros.core import kernel_profiles\n"
+        "from belt_drive_ros.io.scenes import load_scene\n"
+        "from belt_drive_ros.ros.source_node import TorqueSourceNode\n"
+        "profile = load_scene('truck_compressor').drive\n"
+        "assert not kernel_profiles.profile_torque.signatures\n"
+        "ctx = Context(); rclpy.init(context=ctx, domain_id=int(__import__('sys').argv[1]))\n"
+        "node = TorqueSourceNode(profile, context=ctx)\n"
+        "print(len(kernel_profiles.profile_torque.signatures))\n"
+        "node.destroy_node(); rclpy.try_shutdown(context=ctx)\n"
+    )
+    from belt_drive_ros.ros import environment as ros_env
+
+    domain = ros_env.process_domain_id(offset=91)
+    out = subprocess.run([sys.executable, "-c", code, str(domain)], capture_output=True, text=True, timeout=120,
+                         env=ros_env.child_environment(domain))
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert int(out.stdout.split()[-1]) >= 1
+
+
 def test_csv_profiles(tmp_path):
     from belt_drive_ros.commands.source import read_csv_profile
     from belt_drive_ros.core.errors import SceneError

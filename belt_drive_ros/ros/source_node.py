@@ -16,6 +16,20 @@ A speed-dependent profile (``Engine`` with a governor, ``MotorCurve``)
 therefore closes the loop through the belt node; an open-loop profile
 (``Table`` from a CSV, ``Step``, ``Sine`` ...) does not subscribe at all.
 Non-finite torques are never published (counted instead).
+
+Ticks. On the system clock a timer ticks at ``rate_hz``. On simulated time
+(``use_sim_time:=true``) the ``/clock`` messages tick the source directly:
+it publishes at the first ``/clock`` it sees, then at each ``/clock`` that
+reaches the next point of its grid (that first time + k / ``rate_hz``),
+once per message however far ``/clock`` jumps, stamped with that message's
+time; a ``/clock`` back in time starts over. So a driver that steps
+``/clock`` by one period gets exactly one ``drive_torque`` per step. An
+rclpy timer on simulated time does not guarantee that under the events
+executor: on a loaded machine it fired twice at one ``/clock`` time and then
+stayed silent for the next (seen in the README's closed-loop example).
+The profile is evaluated once at construction, so its compiled kernel is
+loaded before the node runs (under load the first tick took 3-12 s when
+it was loaded there).
 """
 
 from __future__ import annotations
@@ -29,6 +43,8 @@ ros_env.configure_environment()
 
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, ParameterType, SetParametersResult  # noqa: E402
 from rclpy.node import Node  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from rosgraph_msgs.msg import Clock as ClockMsg  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 
 from ..core.errors import BeltDriveError  # noqa: E402
@@ -38,6 +54,9 @@ from ..core.sources import TorqueProfile  # noqa: E402
 
 SOURCE_NODE_NAME = "torque_source"
 RATE_RANGE = (0.1, 20000.0)
+#: ``/clock`` as rclpy's own time source reads it (best effort, depth 1: matches any publisher; a late callback
+#: sees the latest time, as a timer fires once however far the clock jumped)
+CLOCK_TICK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
 class TorqueSourceNode(Node):
@@ -54,8 +73,9 @@ class TorqueSourceNode(Node):
         Wheel-M speed [rad/s] and angle [rad] assumed before the first
         ``shaft_speed`` message (e.g. the scene's initial state).
     autostart : bool
-        False: no timer; the owner calls :meth:`publish_at` (the lockstep
-        harness does, to order source and belt node deterministically).
+        False: no timer and no ``/clock`` ticks; the owner calls
+        :meth:`publish_at` (the lockstep harness does, to order source and
+        belt node deterministically).
     **kwargs
         Passed to :class:`rclpy.node.Node`.
     """
@@ -95,7 +115,10 @@ class TorqueSourceNode(Node):
         if profile.state_dependent:
             self._sub = self.create_subscription(Float64, "shaft_speed", self._on_speed, INPUT_QOS)
         self._autostart = autostart
+        profile.torque(0.0, self.angle, self.speed)  # the compiled kernel loaded now, not in the first tick
+        self._next_ns: int | None = None  # on /clock: the grid's next tick [ns] (None: the next /clock ticks)
         self._timer = self.create_timer(1.0 / self._rate, self._on_tick) if autostart else None
+        self._clock_sub = self.create_subscription(ClockMsg, "/clock", self._on_clock, CLOCK_TICK_QOS) if autostart else None
         self.add_on_set_parameters_callback(self._on_validate)
         self.add_post_set_parameters_callback(self._on_post_set)
 
@@ -120,6 +143,8 @@ class TorqueSourceNode(Node):
         for p in parameters:
             if p.name == "rate_hz":
                 self._rate = float(p.value)
+                if self._next_ns is not None and self._last_ns is not None:  # /clock: the new grid from the last tick
+                    self._next_ns = self._last_ns + self._period_ns()
                 if self._timer is not None:
                     self.destroy_timer(self._timer)
                     self._timer = self.create_timer(1.0 / self._rate, self._on_tick)
@@ -135,8 +160,29 @@ class TorqueSourceNode(Node):
         else:
             self.counters["speed_rejected"] += 1
 
+    def _period_ns(self) -> int:
+        return max(1, round(1e9 / self._rate))
+
     def _on_tick(self) -> None:
-        self.publish_at(self.get_clock().now().nanoseconds)
+        clock = self.get_clock()
+        if clock.ros_time_is_active:  # /clock ticks (see the module docstring)
+            return
+        self.publish_at(clock.now().nanoseconds)
+
+    def _on_clock(self, msg: ClockMsg) -> None:
+        """A ``/clock`` message on simulated time: publish at its time if it reaches the grid's next tick."""
+        if not self.get_clock().ros_time_is_active:
+            return
+        now = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+        last, nxt = self._last_ns, self._next_ns
+        if nxt is not None and last is not None and last <= now < nxt:
+            return  # the same tick (a repeated /clock, or one between two ticks)
+        self.publish_at(now)
+        period = self._period_ns()
+        if nxt is None or now < last:  # the first /clock, or back in time: a new grid from here
+            self._next_ns = now + period
+        else:  # the grid point after now
+            self._next_ns = nxt + ((now - nxt) // period + 1) * period
 
     def publish_at(self, now_ns: int) -> float:
         """Advance the angle to ``now_ns`` [ns], evaluate the profile and publish; returns the torque [N m]."""
