@@ -206,6 +206,49 @@ def _lockstep_run(domain):
         return h.outputs()
 
 
+def test_each_clock_message_reaching_the_grid_ticks_once(ros_domain_id):
+    """On ``use_sim_time`` the ``/clock`` messages tick the node: the first starts the run, one that reaches the
+    tick grid's next point ticks once to its time (however far it jumps), a repeated or in-between one does not,
+    one back in time restarts the run there; the rclpy tick timer stays silent on simulated time. (An rclpy timer
+    on simulated time under the events executor fired twice at one /clock and then missed the next.)"""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+    from rosgraph_msgs.msg import Clock
+
+    from belt_drive_ros.ros.node import BeltDriveNode
+
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_domain_id)
+    try:
+        node = BeltDriveNode(context=ctx, parameter_overrides=[Parameter("use_sim_time", value=True),
+                                                               Parameter("input_timeout", value=0.0)])
+        ticks = []
+        tick = node.timing._tick
+        node.timing._tick = lambda now, *a: ticks.append(now) or tick(now, *a)
+        ms = 1_000_000
+
+        def clock(*times):
+            for ns in times:
+                msg = Clock()
+                msg.clock.sec, msg.clock.nanosec = divmod(ns, 1_000_000_000)
+                node.timing._on_clock(msg)
+
+        clock(2000 * ms, 2000 * ms, 2001 * ms, 2001 * ms + ms // 2, 2002 * ms, 2012 * ms + 300_000, 2013 * ms,
+              2013 * ms)  # fmt: skip
+        assert ticks == [2000 * ms, 2001 * ms, 2002 * ms, 2012 * ms + 300_000, 2013 * ms]
+        assert node.integrated_ns == 2013 * ms and node.counters["published"] == 5
+        node.timing._on_tick()  # the executor timer on simulated time: no tick
+        assert len(ticks) == 5
+        jumps = node.counters["clock_jumps"]
+        clock(1500 * ms, 1500 * ms + ms // 3, 1501 * ms)  # back in time: the run restarts there
+        assert ticks[5:] == [1500 * ms, 1501 * ms] and node.counters["clock_jumps"] == jumps + 1
+        assert node.integrated_ns == 1501 * ms
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
 def test_clock_lockstep_is_deterministic(ros_domain_id):
     first = _lockstep_run(ros_domain_id)
     second = _lockstep_run(ros_domain_id)

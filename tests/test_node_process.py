@@ -113,9 +113,9 @@ class Probe:
 
                 self.subscribe(msg_type or Float64, topic)
         clock = self.node.create_publisher(Clock, "/clock", 10)
-        # the node's clock and its first-/clock watcher, and one clock per other process; the probe's subscriptions
-        # matched with their publishers
-        self.spin_until(lambda: clock.get_subscription_count() >= 1 + len(procs)
+        # each process's clock (rclpy's time source) and its own /clock tick subscription (node and source alike);
+        # the probe's subscriptions matched with their publishers
+        self.spin_until(lambda: clock.get_subscription_count() >= 2 * len(procs)
                         and all(self.subscriptions[topic].get_publisher_count() >= 1 for topic in answers),
                         timeout, "/clock subscribers and the answers' publishers", procs)
         started = False

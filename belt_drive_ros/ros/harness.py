@@ -250,7 +250,7 @@ class BeltDriveHarness:
             lambda: all(sub.get_publisher_count() >= 1 for sub in self._subs),
             lambda: self._reset_client.service_is_ready(),
         ]
-        if self.use_sim_time:  # the node's clock, and its one-shot first-/clock watcher
+        if self.use_sim_time:  # the node's clock (rclpy's time source) and its /clock tick subscription
             checks.append(lambda: self._pub_clock.get_subscription_count() >= 2)
         if self.source is not None:
             checks.append(lambda: self.source._pub.get_subscription_count() >= 1)

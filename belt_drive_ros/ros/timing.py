@@ -16,14 +16,20 @@ once per tick with the node time to integrate to:
   latest only. Either way the run starts at the first tick after the
   executor first serves the node (scene time 0 = that tick's due time,
   truncated to whole microseconds).
-* ``use_sim_time:=true``: the node follows ``/clock``. The run starts at
-  the first ``/clock`` the node sees (also ``/clock`` = 0) and publishes the
-  initial state stamped with it (a one-shot ``/clock`` subscription sees a
-  first ``/clock`` of 0, which leaves the clock itself unchanged); after
-  that each tick integrates exactly to the clock's time. A ``/clock`` jump past a tick makes the timer fire
-  (once, however far it jumps), and the tick integrates to the new time, so
-  the outputs are a deterministic function of the ``/clock`` and torque
-  sequences (bit-identical reruns).
+* ``use_sim_time:=true``: the node follows ``/clock``, ticked by the
+  ``/clock`` messages themselves (a subscription of its own, best effort and
+  depth 1 as rclpy's time source reads ``/clock``, so any publisher matches).
+  The run starts at the first ``/clock`` the node sees (also ``/clock`` = 0)
+  and publishes the initial state stamped with it; after that a ``/clock``
+  that reaches the next point of the tick grid (the run's start + k ticks)
+  ticks once, however far it jumps, and the tick integrates exactly to that
+  message's time; one back in time restarts the run there. The outputs are
+  a deterministic function of the ``/clock`` and torque sequences
+  (bit-identical reruns), and a driver stepping ``/clock`` by one tick gets
+  exactly one tick per step. (An rclpy timer on simulated time, the earlier
+  tick source, did not guarantee that under the events executor: on a
+  loaded machine it fired twice at one ``/clock`` time and then not at the
+  next, and the node stopped ticking.)
 * ``publish_clock:=true``: the node is the time master. It advances its own
   simulated time by whole ticks, paced by a wall (steady) timer at
   ``real_time_factor`` (0: as fast as the CPU allows, in 2 ms slices of
@@ -48,10 +54,16 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 
 from . import environment as ros_env
 from .gaps import TickGaps
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
 from .qos import CLOCK_QOS
 from .simulation import next_tick_ns
 
 __all__ = ["TickSource", "TickStats", "TickThread", "stamp"]
+
+#: ``/clock`` as rclpy's own time source reads it: best effort, depth 1 (matches any publisher; a late callback
+#: sees the latest time, and ticks once to it)
+CLOCK_TICK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 #: on the system clock the run's origin is truncated to whole microseconds
 SYSTEM_TIME_QUANTUM_NS = 1000
@@ -348,7 +360,8 @@ class TickSource:
         self._retired: list[TickThread] = []  # stopped without a join (from a callback holding the lock)
         self._pub_clock = None
         self._clock_msg = ClockMsg()
-        self._first_clock = None  # subscription waiting for the first /clock (sim time only)
+        self._clock_sub = None  # /clock ticks the node on simulated time (see the module docstring)
+        self._clock_seen: int | None = None  # the last /clock [ns] that subscription handled
         self.sim_ns = 0  # publish_clock: the node's own simulated time
         self._anchor = (0, 0)  # publish_clock pacing: (sim ns, monotonic ns)
         self._ros_time: bool | None = None
@@ -415,7 +428,11 @@ class TickSource:
         return False
 
     def tick_pending(self) -> bool:
-        """True while the tick timer is due but its callback has not run yet (for lockstep drivers)."""
+        """True while a tick is due but has not run yet (for lockstep drivers): on simulated time, while the
+        node's clock is past the last ``/clock`` the tick subscription handled; else while the tick timer is due."""
+        if self._clock_sub is not None and self.use_sim_time():
+            seen = self._clock_seen
+            return seen is None or seen < self.node.get_clock().now().nanoseconds
         timer = self._tick_timer
         if timer is None or timer.is_canceled():
             return False
@@ -450,7 +467,12 @@ class TickSource:
                 self.sim.stop()  # leaving our own time base: restart on the node clock at its next tick
             self._tick_timer = node.create_timer(s.tick_ns / 1e9, self._on_tick)
             self._timers.append(self._tick_timer)
-            self._watch_first_clock()
+        if s.publish_clock != (self._clock_sub is None):  # with publish_clock the node's own /clock is not heard
+            if self._clock_sub is None:
+                self._clock_sub = node.create_subscription(ClockMsg, "/clock", self._on_clock, CLOCK_TICK_QOS)
+            else:
+                node.destroy_subscription(self._clock_sub)
+                self._clock_sub = None
         self.stats.prev_start = None
 
     def _stop_thread(self, join: bool) -> None:
@@ -469,21 +491,23 @@ class TickSource:
                     self.node.get_logger().warn("a stopped tick thread did not end within 10 s")
             self._retired = [old for old in self._retired if old.alive() or old.failure is not None]
 
-    def _watch_first_clock(self) -> None:
-        """With sim time and no run yet: start the run at the first /clock message (also 0)."""
-        if self.use_sim_time() and not self.sim.started and self._first_clock is None:
-            self._first_clock = self.node.create_subscription(ClockMsg, "/clock", self._on_first_clock, CLOCK_QOS)
-
-    def _on_first_clock(self, msg) -> None:
-        sub, self._first_clock = self._first_clock, None
-        if sub is not None:
-            self.node.destroy_subscription(sub)
-        if self.sim.settings.publish_clock or not self.use_sim_time() or self.sim.started:
+    def _on_clock(self, msg) -> None:
+        """A ``/clock`` message on simulated time: start the run, or tick if it reaches the grid's next point,
+        or restart if it went back (see the module docstring)."""
+        if self.sim.settings.publish_clock or not self.use_sim_time():
             return
+        now = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
         with self.lock:
-            now = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
-            self.gaps.tick(self.sim.t_ns, now, self.sim.settings.tick_ns, "sim_time", "first /clock")
+            self._clock_seen = now
+            sim = self.sim
+            t, tick_ns = sim.t_ns, sim.settings.tick_ns
+            if t is not None and t <= now < next_tick_ns(t, sim.origin_ns, tick_ns):
+                return  # the same tick (a repeated /clock, or one between two grid points)
+            start = time.perf_counter()
+            self.gaps.tick(t, now, tick_ns, "sim_time", "/clock" if t is not None else "first /clock")
             self._tick(now)
+            if t is not None:
+                self.stats.record(start, time.perf_counter(), None)
 
     def _on_clock_change(self, jump) -> None:
         """ROS time (de)activated (use_sim_time toggled): restart on the new time base.
@@ -496,13 +520,12 @@ class TickSource:
         """
         self._ros_time = None  # re-read on the next use
         with self.lock:
-            if self._thread is not None:  # the executor timer ticks on /clock
+            if self._thread is not None:  # /clock ticks the node from now on
                 self._stop_thread(join=False)
             if not self.sim.settings.publish_clock:
                 new = self.time_base()
                 self.gaps.switched(self.sim.t_ns, "system" if new == "sim_time" else "sim_time", new)
                 self.sim.stop()
-                self._watch_first_clock()
             timer = self._tick_timer
             if timer is None:
                 return
@@ -519,9 +542,9 @@ class TickSource:
         for timer in self._timers:
             self.node.destroy_timer(timer)
         self._timers.clear()
-        if self._first_clock is not None:
-            self.node.destroy_subscription(self._first_clock)
-            self._first_clock = None
+        if self._clock_sub is not None:
+            self.node.destroy_subscription(self._clock_sub)
+            self._clock_sub = None
 
     # ------------------------------------------------------------- ticks
     def _on_tick(self) -> None:
@@ -531,13 +554,8 @@ class TickSource:
     def _on_tick_locked(self) -> None:
         start = time.perf_counter()
         sim = self.sim
-        if self.use_sim_time():
-            now = self.node.get_clock().now().nanoseconds
-            if not sim.started and now == 0:
-                return  # no /clock yet, or /clock = 0: the first-/clock subscription starts the run
-            self.gaps.tick(sim.t_ns, now, sim.settings.tick_ns, "sim_time", "executor timer")
-            self._tick(now)
-            self.stats.record(start, time.perf_counter(), None)
+        if self.use_sim_time():  # /clock ticks the node (_on_clock): this timer rests until the system clock is back
+            self._tick_timer.cancel()
             return
         if sim.settings.tick_thread:  # the thread ticks from now on; this timer rests until /clock takes over
             if self._thread is None:
