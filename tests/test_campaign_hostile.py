@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from belt_drive_ros.campaign.execute import portable_of, run_batch
-from belt_drive_ros.campaign.spec import Campaign
+from belt_drive_ros.campaign.spec import Campaign, CampaignError
 from belt_drive_ros.cli import main
 
 
@@ -90,3 +90,26 @@ def test_an_output_file_that_is_a_folder_is_refused_before_the_cluster_starts(tm
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"{out / name}: is a folder, where {option} writes its {name}" in err[0], err
     assert sorted(p.name for p in out.iterdir()) == [name]  # nothing written
+
+
+def test_a_network_scene_is_refused_as_one_campaigns_do_not_run(tmp_path, capsys):
+    """Before: ``scene: fead_i4`` (a shipped belt network scene, run by ``belt-drive sim``) was refused as 'unknown
+    scene 'fead_i4': not a file and not a shipped scene', a network scene file as 'scene.belt: unknown key'. The one
+    line now says what it is and what a campaign accepts; a drive scene still loads."""
+    from importlib import resources
+
+    network_file = tmp_path / "my_network.yaml"
+    network_file.write_text((resources.files("belt_drive_ros") / "scenes" / "networks" / "fead_i4.yaml").read_text())
+    for scene, what in (("fead_i4", "'fead_i4' is the shipped belt network scene"),
+                        ("my_network.yaml", "'my_network.yaml' is a belt network scene file")):
+        path = tmp_path / "c.yaml"
+        path.write_text(yaml.safe_dump({"name": "c", "scene": scene, "grid": {"params.c": [1.0]}}))
+        assert main(["sweep", str(path), "--check", "--quiet"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"scene: {what}" in err[0], err
+        assert "campaigns run drive scenes only: a shipped one (bsg_start, e_motor_start, paper, truck_compressor)" \
+            in err[0], err
+    inline = yaml.safe_load(network_file.read_text())
+    with pytest.raises(CampaignError, match="^scene: the inline scene is a belt network scene"):
+        Campaign.from_mapping({"scene": inline, "grid": {"params.c": [1.0]}})
+    assert Campaign.from_mapping({"scene": "paper", "grid": {"params.c": [1.0]}}).size == 1

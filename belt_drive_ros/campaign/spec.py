@@ -52,7 +52,7 @@ from .values import mapping as as_mapping
 from .values import text as string
 from ..core.params import FIELD_DOCS
 from ..core.scene import InitialState, Scene
-from ..io.scenes import load_scene, scene_from_mapping
+from ..io.scenes import is_network, load_scene, scene_from_mapping, shipped_networks, shipped_scenes
 from ..core.sources import make_profile, profile_fields
 from .metrics import DEFAULT_LIMITS, METRICS
 
@@ -238,10 +238,14 @@ class Campaign:
                     raise CampaignError(f"{key}: one line of at most 200 characters, without '/', got {short(value)}")
         scene_ref = data.get("scene")
         if isinstance(scene_ref, Mapping):  # inline (what a worker receives)
+            if scene_ref.get("kind") == "network":
+                raise CampaignError(_NETWORK.format(given="the inline scene", what="a belt network scene",
+                                                    names=", ".join(shipped_scenes())))
             base = scene_from_mapping(scene_ref)
         elif isinstance(scene_ref, str) and scene_ref:
             candidate = base_dir / scene_ref
             by_path = candidate.suffix in (".yaml", ".yml") or os.sep in scene_ref
+            _refuse_network(candidate if by_path else scene_ref, scene_ref)
             base = load_scene(candidate if by_path else scene_ref)
         else:
             raise CampaignError(f"scene: a shipped scene name or a scene file is required, got {short(scene_ref)}")
@@ -461,6 +465,18 @@ class Campaign:
         removed or rewritten since the interrupted run is another campaign)."""
         blob = json.dumps([self.text, self.base_mapping, self.fleet_state], sort_keys=True, default=str)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def _refuse_network(where, given: str) -> None:
+    """A belt network scene (shipped, or a file stating ``kind: network``) is refused by name: a campaign varies the
+    four-wheel drive (its ``params``, profiles and recordings), which a network scene does not have."""
+    if is_network(where):
+        what = "the shipped belt network scene" if str(where) in shipped_networks() else "a belt network scene file"
+        raise CampaignError(_NETWORK.format(given=short(given), what=what, names=", ".join(shipped_scenes())))
+
+
+_NETWORK = ("scene: {given} is {what} (belt-drive sim and network-sim run it); campaigns run drive scenes only: "
+            "a shipped one ({names}) or a drive scene file")
 
 
 def _scene_or_error(campaign: Campaign, row: Mapping):
