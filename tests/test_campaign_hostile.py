@@ -113,3 +113,37 @@ def test_a_network_scene_is_refused_as_one_campaigns_do_not_run(tmp_path, capsys
     with pytest.raises(CampaignError, match="^scene: the inline scene is a belt network scene"):
         Campaign.from_mapping({"scene": inline, "grid": {"params.c": [1.0]}})
     assert Campaign.from_mapping({"scene": "paper", "grid": {"params.c": [1.0]}}).size == 1
+
+
+@pytest.mark.parametrize("case", ["chart is a folder", "chart is the campaign file", "summary is the scene file"])
+def test_the_charts_and_inputs_are_checked_before_the_cluster_starts(tmp_path, capsys, monkeypatch, case):
+    """Before: ``sweep --plots`` checked none of its charts' paths; OUT/histograms.png a folder failed with a bare
+    '[Errno 21] Is a directory' after the whole campaign ran, and a campaign file OUT/histograms.png (or a scene file
+    OUT/summary.txt) was replaced by the output. Now each is refused in one line before the cluster starts, and the
+    inputs are left as they were."""
+    from belt_drive_ros.campaign import execute
+
+    def no_cluster(*_args, **_kwargs):
+        raise AssertionError("the cluster started")
+
+    monkeypatch.setattr(execute, "_cluster", no_cluster)
+    out = tmp_path / "out"
+    out.mkdir()
+    spec = {"name": "c", "scene": "paper", "set": {"duration": 0.05}, "grid": {"params.c": [1.0, 2.0]}}
+    path = tmp_path / "c.yaml"
+    if case == "chart is a folder":
+        (out / "histograms.png").mkdir()
+        want = f"{out / 'histograms.png'}: is a folder, where --plots writes its histograms.png"
+    elif case == "chart is the campaign file":
+        path = out / "histograms.png"
+        want = f"{out / 'histograms.png'}: is '{path}', which the campaign is read from; --plots would replace it"
+    else:
+        (out / "summary.txt").write_text("extends: paper\n")
+        spec["scene"] = "out/summary.txt"
+        want = f"{out / 'summary.txt'}: is '{out / 'summary.txt'}', which the campaign is read from; --out would replace"
+    path.write_text(yaml.safe_dump(spec))
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    assert main(["sweep", str(path), "--out", str(out), "--plots", "--force", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and want in err[0], err
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before  # nothing written or replaced

@@ -202,6 +202,8 @@ class Campaign:
     decode: dict = field(default_factory=dict)
     #: fleet campaigns: (name, size, mtime_ns) of every recording and golden file, for the digest
     fleet_state: list = field(default_factory=list)
+    #: the files it was read from (the campaign file, a scene file): no output of its run may replace one
+    sources: tuple = ()
 
     # ------------------------------------------------------------------ loading
     @classmethod
@@ -220,7 +222,9 @@ class Campaign:
             data = parse_yaml(text, label)
         except InputError as exc:
             raise CampaignError(str(exc)) from None
-        return cls.from_mapping(data, base_dir=path.parent, text=text)
+        campaign = cls.from_mapping(data, base_dir=path.parent, text=text)
+        campaign.sources = (path,) + campaign.sources
+        return campaign
 
     @classmethod
     def from_mapping(cls, data: Mapping, base_dir=".", text: str | None = None) -> "Campaign":
@@ -237,6 +241,7 @@ class Campaign:
                 if len(value) > 200 or any(c in value for c in "\n\r\0/"):
                     raise CampaignError(f"{key}: one line of at most 200 characters, without '/', got {short(value)}")
         scene_ref = data.get("scene")
+        sources = ()
         if isinstance(scene_ref, Mapping):  # inline (what a worker receives)
             if scene_ref.get("kind") == "network":
                 raise CampaignError(_NETWORK.format(given="the inline scene", what="a belt network scene",
@@ -247,6 +252,7 @@ class Campaign:
             by_path = candidate.suffix in (".yaml", ".yml") or os.sep in scene_ref
             _refuse_network(candidate if by_path else scene_ref, scene_ref)
             base = load_scene(candidate if by_path else scene_ref)
+            sources = (candidate,) if by_path else ()
         else:
             raise CampaignError(f"scene: a shipped scene name or a scene file is required, got {short(scene_ref)}")
         mapping = base.to_dict()
@@ -326,7 +332,7 @@ class Campaign:
         campaign = cls(
             name=data.get("name") or base.name, base=base, base_mapping=mapping, grid=grid, profiles=profiles,
             samples=samples, seed=seed, vary=vary, fleet_folder=fleet_folder, golden_folder=golden,
-            metrics=metrics, limits=limits, text=text, decode=decode,
+            metrics=metrics, limits=limits, text=text, decode=decode, sources=sources,
         )  # fmt: skip
         if fleet_folder is not None:
             campaign.fleet_state = _fleet_state(campaign.fleet_files(), golden)
