@@ -140,7 +140,8 @@ def test_the_charts_and_inputs_are_checked_before_the_cluster_starts(tmp_path, c
     else:
         (out / "summary.txt").write_text("extends: paper\n")
         spec["scene"] = "out/summary.txt"
-        want = f"{out / 'summary.txt'}: is '{out / 'summary.txt'}', which the campaign is read from; --out would replace"
+        want = (f"{out / 'summary.txt'}: is '{out / 'summary.txt'}', which the campaign is read from; "
+                "--out would replace")
     path.write_text(yaml.safe_dump(spec))
     before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
     assert main(["sweep", str(path), "--out", str(out), "--plots", "--force", "--quiet"]) == 2

@@ -81,7 +81,8 @@ def test_the_scan_finds_such_a_call():
     kernel is not)."""
     inline = _inline_only()
     text = ("from belt_drive_ros.core import kernel_slip\nfrom belt_drive_ros.core import kernel_slip as ks\n"
-            "from belt_drive_ros.core.kernel_slip import _phis4 as p4\nimport belt_drive_ros.core.kernel_profiles as kp\n"
+            "from belt_drive_ros.core.kernel_slip import _phis4 as p4\n"
+            "import belt_drive_ros.core.kernel_profiles as kp\n"
             "from ..kernel_profiles import polynomial\n"
             "kernel_slip._phis4(1j)\nks._phis4(1j)\np4(1j)\nkp.motor_line(1.0, 0.0, 0.0, 0.0, 0.0)\n"
             "polynomial(0.0, 0.0, 0.0, 1.0)\nkernel_slip._phis4.py_func(1j)\nkernel_slip.event_step()\n")
