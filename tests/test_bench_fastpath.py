@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -256,19 +257,27 @@ def test_the_kernel_interpreted_gives_the_same_floats(tmp_path):
 def _general_loop(loop, times, x, out):
     """The kernel's general loop (``kernel.wheel_steps``) interpreted on a :class:`KernelLoop`'s arrays.
 
-    Its helpers run interpreted too (each compiled function of the kernel module swapped for its Python
-    function during the call): called from Python, a helper compiled again for Python's argument types,
-    ~20 s of CPU in every fresh clone's suite. Interpreted and compiled give the same floats
-    (``test_the_kernel_interpreted_gives_the_same_floats``)."""
+    Its helpers run interpreted too (each compiled function of the kernel module and of the profiles' module it
+    calls, ``kernel_profiles``, swapped for its Python function during the call): called from Python, a helper
+    compiled again for Python's argument types, ~20 s of CPU in every fresh clone's suite. Interpreted and compiled
+    give the same floats (``test_the_kernel_interpreted_gives_the_same_floats``). No compiled function gains a
+    specialisation here (before, the profiles' helpers did: ``_row_scalars``, ``motor_line``, ``polynomial``, ...
+    were compiled, once ``kernel_profiles`` was split from ``kernel``)."""
     from numba.core.registry import CPUDispatcher
 
-    from belt_drive_ros.core import kernel
+    from belt_drive_ros.core import kernel, kernel_profiles
 
+    modules = (kernel, kernel_profiles)
+    compiled = {(m.__name__, name): value for m in modules for name, value in list(vars(m).items())
+                if isinstance(value, CPUDispatcher)}
+    before = {key: len(value.signatures) for key, value in compiled.items()}
     with pytest.MonkeyPatch.context() as mp:
-        for name, value in list(vars(kernel).items()):
-            if isinstance(value, CPUDispatcher) and name != "wheel_steps":
-                mp.setattr(kernel, name, value.py_func)
-        return _wheel_steps_interpreted(kernel, loop, times, x, out)
+        for (module, name), value in compiled.items():
+            if name != "wheel_steps":
+                mp.setattr(sys.modules[module], name, value.py_func)
+        done = _wheel_steps_interpreted(kernel, loop, times, x, out)
+    assert {key: len(value.signatures) for key, value in compiled.items()} == before
+    return done
 
 
 def _wheel_steps_interpreted(kernel, loop, times, x, out):

@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from belt_drive_ros.campaign.execute import portable_of, run_batch
-from belt_drive_ros.campaign.spec import Campaign
+from belt_drive_ros.campaign.spec import Campaign, CampaignError
 from belt_drive_ros.cli import main
 
 
@@ -90,3 +90,61 @@ def test_an_output_file_that_is_a_folder_is_refused_before_the_cluster_starts(tm
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"{out / name}: is a folder, where {option} writes its {name}" in err[0], err
     assert sorted(p.name for p in out.iterdir()) == [name]  # nothing written
+
+
+def test_a_network_scene_is_refused_as_one_campaigns_do_not_run(tmp_path, capsys):
+    """Before: ``scene: fead_i4`` (a shipped belt network scene, run by ``belt-drive sim``) was refused as 'unknown
+    scene 'fead_i4': not a file and not a shipped scene', a network scene file as 'scene.belt: unknown key'. The one
+    line now says what it is and what a campaign accepts; a drive scene still loads."""
+    from importlib import resources
+
+    network_file = tmp_path / "my_network.yaml"
+    network_file.write_text((resources.files("belt_drive_ros") / "scenes" / "networks" / "fead_i4.yaml").read_text())
+    for scene, what in (("fead_i4", "'fead_i4' is the shipped belt network scene"),
+                        ("my_network.yaml", "'my_network.yaml' is a belt network scene file")):
+        path = tmp_path / "c.yaml"
+        path.write_text(yaml.safe_dump({"name": "c", "scene": scene, "grid": {"params.c": [1.0]}}))
+        assert main(["sweep", str(path), "--check", "--quiet"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"scene: {what}" in err[0], err
+        assert "campaigns run drive scenes only: a shipped one (bsg_start, e_motor_start, paper, truck_compressor)" \
+            in err[0], err
+    inline = yaml.safe_load(network_file.read_text())
+    with pytest.raises(CampaignError, match="^scene: the inline scene is a belt network scene"):
+        Campaign.from_mapping({"scene": inline, "grid": {"params.c": [1.0]}})
+    assert Campaign.from_mapping({"scene": "paper", "grid": {"params.c": [1.0]}}).size == 1
+
+
+@pytest.mark.parametrize("case", ["chart is a folder", "chart is the campaign file", "summary is the scene file"])
+def test_the_charts_and_inputs_are_checked_before_the_cluster_starts(tmp_path, capsys, monkeypatch, case):
+    """Before: ``sweep --plots`` checked none of its charts' paths; OUT/histograms.png a folder failed with a bare
+    '[Errno 21] Is a directory' after the whole campaign ran, and a campaign file OUT/histograms.png (or a scene file
+    OUT/summary.txt) was replaced by the output. Now each is refused in one line before the cluster starts, and the
+    inputs are left as they were."""
+    from belt_drive_ros.campaign import execute
+
+    def no_cluster(*_args, **_kwargs):
+        raise AssertionError("the cluster started")
+
+    monkeypatch.setattr(execute, "_cluster", no_cluster)
+    out = tmp_path / "out"
+    out.mkdir()
+    spec = {"name": "c", "scene": "paper", "set": {"duration": 0.05}, "grid": {"params.c": [1.0, 2.0]}}
+    path = tmp_path / "c.yaml"
+    if case == "chart is a folder":
+        (out / "histograms.png").mkdir()
+        want = f"{out / 'histograms.png'}: is a folder, where --plots writes its histograms.png"
+    elif case == "chart is the campaign file":
+        path = out / "histograms.png"
+        want = f"{out / 'histograms.png'}: is '{path}', which the campaign is read from; --plots would replace it"
+    else:
+        (out / "summary.txt").write_text("extends: paper\n")
+        spec["scene"] = "out/summary.txt"
+        want = (f"{out / 'summary.txt'}: is '{out / 'summary.txt'}', which the campaign is read from; "
+                "--out would replace")
+    path.write_text(yaml.safe_dump(spec))
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    assert main(["sweep", str(path), "--out", str(out), "--plots", "--force", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and want in err[0], err
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before  # nothing written or replaced

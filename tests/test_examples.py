@@ -56,7 +56,7 @@ def _shrink(path: Path, samples: int | None = None, duration: float = 0.5) -> di
 def test_tolerance_monte_carlo_example_runs(tree):
     data = _shrink(tree / "examples" / "paper_tolerances.yaml", samples=2)
     assert not set(data["grid"]) & set(data["monte_carlo"]["vary"])  # a key on the grid or drawn, not both
-    proc = _sweep(tree, "paper_tolerances.yaml", "--csv")
+    proc = _sweep(tree, "paper_tolerances.yaml", "--csv", "--plots")  # (docs/campaigns.md's command: not run there)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     table = pd.read_parquet(tree / "examples" / "paper_tolerances.campaign" / "results.parquet")
     points = 1
@@ -66,6 +66,8 @@ def test_tolerance_monte_carlo_example_runs(tree):
     assert table["error"].fillna("").eq("").all(), table["error"].unique()
     assert (table["peak_belt_torque"] > 0).all() and table["params.c"].nunique() == len(table)  # c drawn per run
     assert (tree / "examples" / "paper_tolerances.campaign" / "results.csv").is_file()
+    for chart in ("histograms.png", "metrics_vs_parameters.png"):
+        assert (tree / "examples" / "paper_tolerances.campaign" / chart).read_bytes()[:4] == b"\x89PNG", chart
 
 
 def test_grid_example_runs(tree):

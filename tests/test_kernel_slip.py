@@ -164,17 +164,46 @@ def test_the_hybrid_kernel_interpreted_gives_the_same_floats(tmp_path):
     assert np.array_equal(out["0"], out["1"])
 
 
+def _flow_phis(xs):
+    """(e^x, phi_1(x), ..., phi_4(x)) of each x as the warmed kernel computes them: the modal flow
+    (:func:`~.kernel_slip._flow`, its one cached signature, called with a step of 1 s from mode 0 whose three
+    carried eigenvalues are the x: ``x * 1.0`` is x) leaves them in its work array (``wc[6:21]``, 3 x 5)."""
+    f8, i8 = np.float64, np.int64
+    z = np.zeros((2, 3, 12), dtype=np.complex128)
+    r = np.zeros((2, 11))
+    r[0, 10] = 3.0
+    c = np.zeros(len(kernel_slip.CONSTS))
+    c[16] = kernel_slip.EXACT
+    kinds, row, one = np.zeros(1, dtype=i8), np.zeros((1, 1)), np.zeros(1)
+    wf, wc = np.zeros(kernel_slip.FLOW_WORK), np.zeros(kernel_slip.FLOW_WORK, dtype=np.complex128)
+    out = []
+    for k in range(0, len(xs), 3):
+        z[0, :, 0] = 0.0
+        z[0, :len(xs[k:k + 3]), 0] = xs[k:k + 3]
+        kernel_slip._flow(kernel_slip.STICK, 0.0, 0.0, np.zeros(5), 1.0, f8(np.inf), np.zeros(3), z, r, c,
+                          np.zeros(2, dtype=i8), kinds, row, one, one, kinds, row, one, one, np.zeros(5), wf, wc)
+        out.extend(tuple(v) for v in wc[6:21].reshape((3, 5)))
+    return out[:len(xs)]
+
+
 def test_the_modal_phi_functions_compiled_and_interpreted_give_the_same_floats():
     """e^x and phi_1..phi_4 of the modal flow, compiled and as Python, on 4,000 complex arguments either side
     of the series' radius: the same floats. numba's complex division and numpy's differ in the last bit
     for ~40 % of arguments, which made a 3 s truck_compressor run drift by 4e-12 after 0.56 s under
-    NUMBA_DISABLE_JIT=1 (events 2e-16 s apart from the 36th on); 1/x is now formed by real arithmetic."""
+    NUMBA_DISABLE_JIT=1 (events 2e-16 s apart from the 36th on); 1/x is now formed by real arithmetic.
+    The compiled floats are the warmed modal flow's (``_phis4`` inlined in it, as every run has it): no
+    specialisation of its own compiled here (before, ``_phis4`` called from Python compiled and cached one,
+    which ``make install`` never warms)."""
     rng = np.random.default_rng(7)
     radius = np.concatenate([rng.uniform(0.0, 0.5, 1000), rng.uniform(0.5, 60.0, 3000)])
     angle = rng.uniform(-np.pi, np.pi, radius.size)
-    for x in radius * np.exp(1j * angle):  # (interpreted, the kernel's complex numbers are numpy's: x is one)
-        compiled = kernel_slip._phis4(complex(x))
-        assert compiled == kernel_slip._phis4.py_func(np.complex128(x)), x
+    xs = radius * np.exp(1j * angle)
+    misses = sum(kernel_slip._flow.stats.cache_misses.values())
+    compiled = _flow_phis(xs)
+    assert sum(kernel_slip._flow.stats.cache_misses.values()) == misses and len(kernel_slip._flow.signatures) == 1
+    assert not kernel_slip._phis4.signatures  # (not compiled on its own)
+    for x, got in zip(xs, compiled):  # (interpreted, the kernel's complex numbers are numpy's: x is one)
+        assert got == kernel_slip._phis4.py_func(np.complex128(x)), x
 
 
 def test_the_event_steps_work_arrays_carry_nothing_from_call_to_call():

@@ -646,8 +646,8 @@ def run_campaign_files(table, tmp: Path, quick: bool) -> None:
     from .hostile_campaign import GRID_MC, campaign_mutants, dump_campaign, make_fleet, special_campaign_files
 
     mutants = list(campaign_mutants())
-    if quick:
-        mutants = mutants[::10]
+    if quick:  # (a sample: tests/test_fuzz_campaigns.py runs them all)
+        mutants = mutants[::25]
     for k, (category, must_fail, label, data, variants, setup) in enumerate(mutants):
         folder = tmp / f"m{k}"
         folder.mkdir()
@@ -695,8 +695,8 @@ def run_bag_folders(table, tmp: Path, quick: bool) -> None:
     good = write_bag_folder(tmp / "good")
     golden = _call(main, ["export", good, "--topic", "/joint_states"])[1].splitlines()
     mutants = list(bag_folder_mutants(good))
-    if quick:
-        mutants = mutants[::5]
+    if quick:  # (a sample: tests/test_fuzz_campaigns.py runs them all)
+        mutants = mutants[::15]
     for k, (label, change) in enumerate(mutants):
         path = tmp / f"bag{k}"
         shutil.copytree(good, path)

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 
-from ..core.errors import BeltDriveError, InputError
+from ..core.errors import BeltDriveError, InputError, short
 from ..io.inputs import read_text
 from .metrics import GROUP_REDUCTION, METRICS, group_values, run_metrics, summary_values
 from .spec import Campaign, CampaignError
@@ -365,19 +365,31 @@ OUT_FILES = {"manifest.json": "--out", "variants.parquet": "--out", "results.par
              "results.csv": "--csv"}
 
 
-def check_out_folder(campaign: Campaign, out_dir: Path, *, csv: bool = False) -> None:
-    """Refuse, before anything runs or is written, an ``out_dir`` that exists and is not a folder, one that holds a
-    folder where a file of :data:`OUT_FILES` goes (``results.csv`` only with ``csv``: found only after the whole
-    run, else), and one whose
+def check_out_folder(campaign: Campaign, out_dir: Path, *, csv: bool = False, plots: bool = False) -> None:
+    """Refuse, before anything runs or is written, an ``out_dir`` that exists and is not a folder; one that holds a
+    folder where a file of :data:`OUT_FILES` goes (``results.csv`` only with ``csv``, the charts of
+    :func:`~.report.plot` only with ``plots``: found only after the whole run, else), or where that file would
+    replace a file the campaign was read from (its :attr:`~.spec.Campaign.sources`); and one whose
     ``recordings/`` (where a fleet's runs go, replacing files of the same name) is the fleet's folder or its golden
     folder: the runs would overwrite the recordings they replay, or the goldens they are compared with (each
     comparison then passes against itself). --force does not change this: it replaces results, never inputs."""
+    from ..io.inputs import input_replaced
+    from .report import FLEET_WORST, HISTOGRAMS, SCATTER
+
     if out_dir.exists() and not out_dir.is_dir():
         raise CampaignError(f"{out_dir}: exists and is not a folder; --out names the folder the results go to")
-    for name, option in OUT_FILES.items():
-        if (out_dir / name).is_dir() and (csv or name != "results.csv"):
+    outputs = {name: option for name, option in OUT_FILES.items() if csv or option != "--csv"}
+    if plots:
+        charts = (HISTOGRAMS, SCATTER) + ((FLEET_WORST,) if campaign.golden_folder is not None else ())
+        outputs.update(dict.fromkeys(charts, "--plots"))
+    for name, option in outputs.items():
+        if (out_dir / name).is_dir():
             raise CampaignError(f"{out_dir / name}: is a folder, where {option} writes its {name}; remove it or "
                                 f"use another --out")
+        source = input_replaced(out_dir / name, campaign.sources)
+        if source is not None:
+            raise CampaignError(f"{out_dir / name}: is {short(source, 200)}, which the campaign is read from; "
+                                f"{option} would replace it with its {name}: use another --out")
     recordings = out_dir / "recordings"
     for key, folder in (("fleet.folder", campaign.fleet_folder), ("fleet.golden", campaign.golden_folder)):
         if folder is not None and recordings.is_dir() and os.path.samefile(recordings, folder):

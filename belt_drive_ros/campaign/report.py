@@ -14,6 +14,9 @@ import numpy as np
 
 from .metrics import METRICS
 
+#: the charts :func:`plot` may write into the output folder (``sweep --plots``); the fleet's only with goldens
+HISTOGRAMS, SCATTER, FLEET_WORST = "histograms.png", "metrics_vs_parameters.png", "fleet_worst.png"
+
 #: columns of the result table that are not varied inputs
 RESULT_COLUMNS = {
     "variant", "model", "ran", "single_reason", "error", "seconds", "compare_passed", "worst_signal",
@@ -113,7 +116,7 @@ def plot(table, campaign, out_dir) -> list[Path]:
             ax.axis("off")
         fig.suptitle(f"{campaign.name}: {len(table)} runs")
         fig.tight_layout()
-        path = out_dir / "histograms.png"
+        path = out_dir / HISTOGRAMS
         fig.savefig(path, dpi=100)
         plt.close(fig)
         written.append(path)
@@ -132,7 +135,7 @@ def plot(table, campaign, out_dir) -> list[Path]:
                 if j == 0:
                     ax.set_ylabel(f"{name}\n[{METRICS[name][0]}]", fontsize=8)
         fig.tight_layout()
-        path = out_dir / "metrics_vs_parameters.png"
+        path = out_dir / SCATTER
         fig.savefig(path, dpi=90)
         plt.close(fig)
         written.append(path)
@@ -147,7 +150,7 @@ def plot(table, campaign, out_dir) -> list[Path]:
         ax.set_xscale("log")
         ax.set_xlabel("worst relative error against the golden (red: fails the tube)")
         fig.tight_layout()
-        path = out_dir / "fleet_worst.png"
+        path = out_dir / FLEET_WORST
         fig.savefig(path, dpi=100)
         plt.close(fig)
         written.append(path)

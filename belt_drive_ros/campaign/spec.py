@@ -52,7 +52,7 @@ from .values import mapping as as_mapping
 from .values import text as string
 from ..core.params import FIELD_DOCS
 from ..core.scene import InitialState, Scene
-from ..io.scenes import load_scene, scene_from_mapping
+from ..io.scenes import is_network, load_scene, scene_from_mapping, shipped_networks, shipped_scenes
 from ..core.sources import make_profile, profile_fields
 from .metrics import DEFAULT_LIMITS, METRICS
 
@@ -202,6 +202,8 @@ class Campaign:
     decode: dict = field(default_factory=dict)
     #: fleet campaigns: (name, size, mtime_ns) of every recording and golden file, for the digest
     fleet_state: list = field(default_factory=list)
+    #: the files it was read from (the campaign file, a scene file): no output of its run may replace one
+    sources: tuple = ()
 
     # ------------------------------------------------------------------ loading
     @classmethod
@@ -220,7 +222,9 @@ class Campaign:
             data = parse_yaml(text, label)
         except InputError as exc:
             raise CampaignError(str(exc)) from None
-        return cls.from_mapping(data, base_dir=path.parent, text=text)
+        campaign = cls.from_mapping(data, base_dir=path.parent, text=text)
+        campaign.sources = (path,) + campaign.sources
+        return campaign
 
     @classmethod
     def from_mapping(cls, data: Mapping, base_dir=".", text: str | None = None) -> "Campaign":
@@ -237,12 +241,18 @@ class Campaign:
                 if len(value) > 200 or any(c in value for c in "\n\r\0/"):
                     raise CampaignError(f"{key}: one line of at most 200 characters, without '/', got {short(value)}")
         scene_ref = data.get("scene")
+        sources = ()
         if isinstance(scene_ref, Mapping):  # inline (what a worker receives)
+            if scene_ref.get("kind") == "network":
+                raise CampaignError(_NETWORK.format(given="the inline scene", what="a belt network scene",
+                                                    names=", ".join(shipped_scenes())))
             base = scene_from_mapping(scene_ref)
         elif isinstance(scene_ref, str) and scene_ref:
             candidate = base_dir / scene_ref
             by_path = candidate.suffix in (".yaml", ".yml") or os.sep in scene_ref
+            _refuse_network(candidate if by_path else scene_ref, scene_ref)
             base = load_scene(candidate if by_path else scene_ref)
+            sources = (candidate,) if by_path else ()
         else:
             raise CampaignError(f"scene: a shipped scene name or a scene file is required, got {short(scene_ref)}")
         mapping = base.to_dict()
@@ -322,7 +332,7 @@ class Campaign:
         campaign = cls(
             name=data.get("name") or base.name, base=base, base_mapping=mapping, grid=grid, profiles=profiles,
             samples=samples, seed=seed, vary=vary, fleet_folder=fleet_folder, golden_folder=golden,
-            metrics=metrics, limits=limits, text=text, decode=decode,
+            metrics=metrics, limits=limits, text=text, decode=decode, sources=sources,
         )  # fmt: skip
         if fleet_folder is not None:
             campaign.fleet_state = _fleet_state(campaign.fleet_files(), golden)
@@ -461,6 +471,18 @@ class Campaign:
         removed or rewritten since the interrupted run is another campaign)."""
         blob = json.dumps([self.text, self.base_mapping, self.fleet_state], sort_keys=True, default=str)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def _refuse_network(where, given: str) -> None:
+    """A belt network scene (shipped, or a file stating ``kind: network``) is refused by name: a campaign varies the
+    four-wheel drive (its ``params``, profiles and recordings), which a network scene does not have."""
+    if is_network(where):
+        what = "the shipped belt network scene" if str(where) in shipped_networks() else "a belt network scene file"
+        raise CampaignError(_NETWORK.format(given=short(given), what=what, names=", ".join(shipped_scenes())))
+
+
+_NETWORK = ("scene: {given} is {what} (belt-drive sim and network-sim run it); campaigns run drive scenes only: "
+            "a shipped one ({names}) or a drive scene file")
 
 
 def _scene_or_error(campaign: Campaign, row: Mapping):

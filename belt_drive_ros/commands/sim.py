@@ -82,7 +82,10 @@ def register(sub) -> None:
                         "file has it (a node recording: the torque the node applied), else drive_torque; with a "
                         "recording as the scene: the torque bag it was driven by, when that is not next to it")
     p.add_argument("--force", action="store_true",
-                   help="overwrite existing outputs (--out and --plot; never a file the run reads)")
+                   help="overwrite existing outputs (--out and --plot; never a file the run reads); a bag folder's "
+                        "old bag is kept in a hidden .OUT.*.old beside it until the new one is whole (a run killed "
+                        "outright leaves it there: the next run into OUT puts it back, or removes it once OUT's bag "
+                        "is whole)")
     p.add_argument("--start-time", default=None, metavar="WHEN", type=_start_time,
                    help="time stamp of scene time 0 in an .mcap: 'now' (default, the wall time of the run, "
                         "as rosbag2 stamps it), seconds since the epoch (0: simulated time), or an ISO 8601 date")
@@ -155,6 +158,11 @@ def run(args) -> int:
     scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration,
                                  tolerance=getattr(args, "tolerance", None))  # fmt: skip
     out_format = check_outputs(args, run_inputs(args, scene))
+    if out_format == "mcap" and args.bag_folder:  # a bag a killed --force run set aside: back, or gone if replaced
+        from ..io.bag_folder import settle_set_aside
+
+        for line in settle_set_aside(args.out):
+            print(f"belt-drive: {line}", file=sys.stderr)
     samples = _samples(scene)
     check_plot_size(args, samples)
     bar = ProgressBar(f"sim {scene.name}", force=False) if not args.quiet else None
@@ -227,7 +235,7 @@ def _run_in_memory(scene, args, out_format, bar) -> int:
         from ..io.recording import write_result_mcap
 
         if out_format == "mcap" and args.bag_folder:
-            from ..io.run_writers import bag_folder_kept, remove_bag_folder
+            from ..io.bag_folder import bag_folder_kept, remove_bag_folder
 
             had_bag = args.out.is_dir() and any(f.suffix == ".mcap" or f.name == "metadata.yaml" for f in args.out.iterdir())
             try:
@@ -265,7 +273,8 @@ def _run_streamed(scene, args, out_format, bar) -> int:
 
     from ..core.stream import Restart, stream
     from ..io.atomic import atomic_output
-    from ..io.run_writers import CsvWindows, Decimator, McapWindows, RunSummary, bag_folder_kept
+    from ..io.bag_folder import bag_folder_kept
+    from ..io.run_writers import CsvWindows, Decimator, McapWindows, RunSummary
 
     summary = RunSummary()
     keep = Decimator(args.plot_every) if args.plot is not None else None

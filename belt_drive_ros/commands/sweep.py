@@ -54,7 +54,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from ..campaign import limits
-    from ..campaign.execute import run_campaign
+    from ..campaign.execute import check_out_folder, run_campaign
     from ..campaign.report import plot, summary
     from ..campaign.spec import Campaign, CampaignError
 
@@ -69,6 +69,7 @@ def run(args) -> int:
     if not args.quiet:
         print(f"belt-drive: sweep {campaign.name}: {limits.estimate(campaign, workers)}", file=sys.stderr)
     out = args.out or args.campaign.with_suffix(".campaign")
+    check_out_folder(campaign, Path(out), csv=args.csv, plots=args.plots)  # (run_campaign checks all but the charts)
     done = run_campaign(
         campaign, out, scheduler=args.scheduler, workers=args.workers, csv=args.csv,
         progress=False if args.quiet else None, force=args.force, batch_size=args.batch_size,

@@ -9,19 +9,18 @@ for a plot, the one output that needs the whole run at once.
 
 from __future__ import annotations
 
-import contextlib
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from ..core.fidelity import ModelChoice
 from ..core.scene import Scene
 from ..core.simulate import CSV_COLUMNS, SLIP_CSV_COLUMNS, SLIP_MODELS, SimResult
+from .bag_folder import bag_files_in as _bag_files, remove_bag_folder
 
-__all__ = ["CsvWindows", "Decimator", "McapWindows", "RunSummary", "remove_bag_folder"]
+__all__ = ["CsvWindows", "Decimator", "McapWindows", "RunSummary"]
 
 #: MCAP chunk size of a streamed run [bytes]: one chunk index entry (~1 KB) stays in memory per chunk
 STREAM_CHUNK = 2 << 20
@@ -167,67 +166,6 @@ class McapWindows:
             self.writer = None
             if self.bag_folder:
                 remove_bag_folder(self.target)
-
-
-@contextlib.contextmanager
-def bag_folder_kept(folder, force: bool):
-    """While a bag is written into ``folder`` with ``force``: the bag already there (its :func:`_bag_files`) moved aside
-    into a hidden sibling folder (``.NAME.*.old``), removed once the block succeeds and moved back if it fails or
-    is interrupted (after the writer removed its own files), as a file output keeps the old file until the new one
-    is whole. A process killed outright leaves the old bag in the hidden folder."""
-    import os
-    import shutil
-    import tempfile
-
-    folder = Path(folder)
-    files = _bag_files(folder) if force else []
-    if not files:
-        try:
-            yield
-        except BaseException:
-            if force:  # (nothing of ours to keep: what the new bag left goes)
-                remove_bag_folder(folder)
-            raise
-        return
-    backup = Path(tempfile.mkdtemp(dir=folder.absolute().parent, prefix=f".{folder.name}.", suffix=".old"))
-    for f in files:
-        os.replace(f, backup / f.name)
-    try:
-        yield
-    except BaseException:
-        remove_bag_folder(folder)  # (what the new bag left, if anything)
-        folder.mkdir(exist_ok=True)
-        for f in backup.iterdir():
-            os.replace(f, folder / f.name)
-        backup.rmdir()
-        raise
-    shutil.rmtree(backup, ignore_errors=True)
-
-
-def _bag_files(folder) -> list[Path]:
-    """What a bag writer puts in ``folder``: ``metadata.yaml`` and ``NAME_<i>.mcap`` (none if it is no folder)."""
-    folder = Path(folder)
-    name = folder.resolve().name
-    found = []
-    try:
-        for f in folder.iterdir():
-            stem = f.name[: -len(".mcap")] if f.name.endswith(".mcap") else ""
-            if f.name == "metadata.yaml" or (stem.startswith(name + "_") and stem[len(name) + 1:].isdigit()):
-                found.append(f)
-    except OSError:
-        pass
-    return found
-
-
-def remove_bag_folder(folder) -> None:
-    """Remove what a bag writer puts in ``folder`` (``metadata.yaml``, ``NAME_<i>.mcap``), then the
-    folder if nothing else is left in it; other files stay. Never raises."""
-    try:
-        for f in _bag_files(folder):
-            f.unlink()
-        Path(folder).rmdir()
-    except OSError:
-        pass
 
 
 class Decimator:

@@ -1,0 +1,131 @@
+"""A bag folder written with ``--force`` (``belt-drive sim --bag-folder``): the old bag kept until the new one is whole,
+and what a run killed outright left of it.
+
+:func:`bag_folder_kept` moves the bag already in the folder into a hidden sibling ``.NAME.<random>.old`` while the
+new one is written: removed when the write succeeds, moved back when it fails or is interrupted. A process killed
+outright (SIGKILL, power loss) runs neither, and leaves the old bag in that sibling; the next run into the folder
+settles it first (:func:`settle_set_aside`): a bag is whole once its ``metadata.yaml`` is written (rosbag2's layout:
+:class:`msg_tools.bagdir.Ros2BagWriter` writes it last, in one rename), so
+
+* the folder without a whole bag (the killed run's unfinished files, or none): those files are removed and the old
+  bag is moved back;
+* the folder with a whole bag (the killed run finished it, not its clean-up): the old bag is removed, as that run
+  would have removed it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+__all__ = ["bag_files_in", "bag_folder_kept", "remove_bag_folder", "set_aside", "settle_set_aside"]
+
+#: the name of what a bag writer leaves last in its folder, once every file is closed
+METADATA = "metadata.yaml"
+#: the suffix of a set-aside bag's hidden sibling folder (``.NAME.<random>.old``)
+OLD = ".old"
+
+
+@contextlib.contextmanager
+def bag_folder_kept(folder, force: bool):
+    """While a bag is written into ``folder`` with ``force``: the bag already there (its :func:`bag_files_in`) moved
+    aside into a hidden sibling folder (``.NAME.*.old``), removed once the block succeeds and moved back if it fails or
+    is interrupted (after the writer removed its own files), as a file output keeps the old file until the new one
+    is whole. A process killed outright leaves the old bag in the hidden folder (:func:`settle_set_aside`)."""
+    folder = Path(folder)
+    files = bag_files_in(folder) if force else []
+    if not files:
+        try:
+            yield
+        except BaseException:
+            if force:  # (nothing of ours to keep: what the new bag left goes)
+                remove_bag_folder(folder)
+            raise
+        return
+    backup = Path(tempfile.mkdtemp(dir=folder.absolute().parent, prefix=f".{folder.name}.", suffix=OLD))
+    for f in files:
+        os.replace(f, backup / f.name)
+    try:
+        yield
+    except BaseException:
+        remove_bag_folder(folder)  # (what the new bag left, if anything)
+        _put_back(backup, folder)
+        raise
+    shutil.rmtree(backup, ignore_errors=True)
+
+
+def set_aside(folder) -> list[Path]:
+    """The hidden sibling folders (``.NAME.*.old``) holding a bag :func:`bag_folder_kept` set aside for ``folder``,
+    oldest first (by when the bag was moved in)."""
+    folder = Path(folder)
+    prefix = f".{folder.name}."
+    try:
+        entries = [e for e in os.scandir(folder.absolute().parent)
+                   if e.name.startswith(prefix) and e.name.endswith(OLD) and e.is_dir(follow_symlinks=False)]
+    except OSError:
+        return []
+    found = []
+    for e in entries:
+        try:
+            found.append((e.stat(follow_symlinks=False).st_mtime_ns, e.name, Path(e.path)))
+        except OSError:
+            pass
+    return [path for *_, path in sorted(found)]
+
+
+def settle_set_aside(folder) -> list[str]:
+    """Settle the bags a run killed outright left set aside for ``folder`` (see the module docstring), oldest first:
+    each moved back when ``folder`` holds no whole bag (its unfinished files removed first), else removed. Returns a
+    line per bag saying what was done ([] if none was found)."""
+    folder = Path(folder)
+    done = []
+    for old in set_aside(folder):
+        if (folder / METADATA).is_file():
+            shutil.rmtree(old, ignore_errors=True)
+            done.append(f"--out {folder}: removed {old.name}, the bag it held before a run that was killed after "
+                        f"writing this one (whole: its {METADATA} is written) had set aside")
+            continue
+        unfinished = bag_files_in(folder)
+        remove_bag_folder(folder)
+        _put_back(old, folder)
+        done.append(f"--out {folder}: put back the bag a run killed while replacing it had set aside in {old.name}"
+                    + (f" (the {len(unfinished)} unfinished files it wrote, without {METADATA}, removed)"
+                       if unfinished else ""))
+    return done
+
+
+def _put_back(backup: Path, folder: Path) -> None:
+    """The set-aside bag's files back into ``folder`` (made if missing), then its hidden folder removed."""
+    folder.mkdir(exist_ok=True)
+    for f in backup.iterdir():
+        os.replace(f, folder / f.name)
+    backup.rmdir()
+
+
+def bag_files_in(folder) -> list[Path]:
+    """What a bag writer puts in ``folder``: ``metadata.yaml`` and ``NAME_<i>.mcap`` (none if it is no folder)."""
+    folder = Path(folder)
+    name = folder.resolve().name
+    found = []
+    try:
+        for f in folder.iterdir():
+            stem = f.name[: -len(".mcap")] if f.name.endswith(".mcap") else ""
+            if f.name == METADATA or (stem.startswith(name + "_") and stem[len(name) + 1:].isdigit()):
+                found.append(f)
+    except OSError:
+        pass
+    return found
+
+
+def remove_bag_folder(folder) -> None:
+    """Remove what a bag writer puts in ``folder`` (``metadata.yaml``, ``NAME_<i>.mcap``), then the
+    folder if nothing else is left in it; other files stay. Never raises."""
+    try:
+        for f in bag_files_in(folder):
+            f.unlink()
+        Path(folder).rmdir()
+    except OSError:
+        pass
