@@ -147,7 +147,7 @@ from ..io.recording import (  # noqa: E402
     encode_robot_description,
 )
 from .diagnostics import NodeDiagnostics  # noqa: E402
-from .executors import executor_name, make_executor, ros_session, spin_nodes  # noqa: E402,F401 - make_executor re-exported
+from .executors import executor_name, interruptible_start, make_executor, ros_session, spin_nodes  # noqa: E402,F401 - make_executor re-exported
 from .gaps import TICK_GAP_METADATA  # noqa: E402
 from .inputs import DriveInput, float64_value  # noqa: E402
 from .parameter_schema import (  # noqa: E402,F401 - NodeConfigError, unknown_parameter_rule re-exported
@@ -668,6 +668,7 @@ def run(
     values that win over them (the command's own options). Invalid
     parameters raise :class:`NodeConfigError` after rclpy is shut down again.
     """
+    interruptible_start()  # SIGINT ends the start-up too, also where the process inherited it ignored
     node_class = node_class or BeltDriveNode
     unknown = unknown_parameter_rule(ros_args or [], node_class.PARAMETER_NAMES)
     if unknown is not None:

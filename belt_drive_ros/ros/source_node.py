@@ -48,7 +48,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 
 from ..core.errors import BeltDriveError  # noqa: E402
-from .executors import ros_session, spin_nodes  # noqa: E402
+from .executors import interruptible_start, ros_session, spin_nodes  # noqa: E402
 from .qos import INPUT_QOS, OUTPUT_QOS  # noqa: E402
 from ..core.sources import TorqueProfile  # noqa: E402
 
@@ -215,6 +215,7 @@ def run(
     node_name: str = SOURCE_NODE_NAME,
 ) -> int:
     """Run one :class:`TorqueSourceNode` until SIGINT/SIGTERM; return the exit code (0)."""
+    interruptible_start()  # SIGINT ends the start-up too (see the paper node's run)
     with ros_session(["belt-drive-source", *(ros_args or [])]) as context:
         try:
             node = TorqueSourceNode(profile, node_name, rate_hz=rate_hz, initial_speed=initial_speed, context=context)

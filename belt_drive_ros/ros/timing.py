@@ -190,7 +190,7 @@ class TickThread:
         self.source = source
         self.failure: BaseException | None = None
         self.lead_ns = 0  # the lead in force [ns]
-        self._busy = [0.0] * LEAD_WINDOW  # computation time of the latest ticks [s] (a ring; a list: set cheaply)
+        self._busy = [0] * LEAD_WINDOW  # computation time of the latest ticks [ns] (a ring; a list: set cheaply)
         self._n_busy = 0
         self._next_update, self._settings = 0, None
         self._nominal = 0.0  # the nominal period [s] of the settings in force (see _lead)
@@ -245,7 +245,7 @@ class TickThread:
         n = min(self._n_busy, LEAD_WINDOW)
         if not n:
             return (float("nan"),) * 2
-        return tuple(float(v) * 1e6 for v in np.percentile(self._busy[:n], [50, 99]))
+        return tuple(float(v) * 1e-3 for v in np.percentile(self._busy[:n], [50, 99]))
 
     def _lead(self, settings) -> int:
         """The lead [ns] for the next tick (class docstring); re-estimated every LEAD_UPDATE ticks
@@ -254,7 +254,7 @@ class TickThread:
         if n >= self._next_update or settings is not self._settings:
             lead = settings.tick_lead_ns
             if n >= LEAD_UPDATE:
-                lead = max(lead, int(np.percentile(self._busy[: min(n, LEAD_WINDOW)], LEAD_PERCENTILE) * 1e9) + LEAD_MARGIN_NS)
+                lead = max(lead, int(np.percentile(self._busy[: min(n, LEAD_WINDOW)], LEAD_PERCENTILE)) + LEAD_MARGIN_NS)
             self.lead_ns = min(lead, settings.tick_ns * 3 // 4)
             self._next_update, self._settings = n + LEAD_UPDATE, settings
             self._nominal = self.source.nominal_period()
@@ -268,6 +268,7 @@ class TickThread:
         now_ns, perf, mono, sleep = time.time_ns, time.perf_counter, time.monotonic_ns, time.sleep
         tick_now = source._tick
         busy_ring = self._busy
+        longest, catch_up, window = MAX_SLEEP_S, MAX_THREAD_CATCH_UP_NS, LEAD_WINDOW  # (the module's, read per tick)
         try:
             while not self._stopping:
                 settings = sim.settings
@@ -280,38 +281,39 @@ class TickThread:
                 if due is not None:
                     wait = (due - lead - now_ns()) * 1e-9
                     if wait > 0:
-                        sleep(min(wait, MAX_SLEEP_S))
+                        sleep(wait if wait < longest else longest)
                 with lock:
                     if self._stopping:
                         break
-                    start = perf()
+                    start = mono()  # (also the tick's monotonic time for the gaps)
                     now = now_ns() + lead
                     if due is not None and sim.t_ns == t and sim.origin_ns == origin and sim.settings is settings \
-                            and due <= now <= due + MAX_THREAD_CATCH_UP_NS and gaps.short is None:
+                            and due <= now <= due + catch_up and gaps.short is None:
                         # the usual tick: the next grid point, no gap (TickGaps.tick would find none)
                         target = due
-                        gaps.mono = mono()
+                        gaps.mono = start
                     else:
                         target = self._next(now)
                         if target is None:
                             continue
                         gaps.tick(sim.t_ns, target, sim.settings.tick_ns, "system", "tick thread")
                     self._pending = tick_now(target, True)
-                    busy = perf() - start
-                    busy_ring[self._n_busy % LEAD_WINDOW] = busy
+                    busy = mono() - start
+                    busy_ring[self._n_busy % window] = busy
                     self._n_busy += 1
                 wait = (target - now_ns()) * 1e-9
                 if wait > 0:  # computed ahead: out at the due time
                     sleep(wait)
                 with lock:
-                    start = perf()
                     pending, self._pending = self._pending, None
                     if pending:  # (None: stop() has published it already)
                         for publish, data in pending:
                             publish(data)
-                    # the period statistics see the instants the ticks are due and published (their
-                    # jitter is what subscribers get); an overrun is a computation longer than the period
-                    stats.record(start, start + busy, self._nominal)
+                    # the period statistics see the instants the ticks are published (their jitter is what
+                    # subscribers get; read after the publish, not before it: nothing between the wake and the
+                    # send); an overrun is a computation longer than the period
+                    start = perf()
+                    stats.record(start, start + busy * 1e-9, self._nominal)
                     if source.after_due and after is not None:  # (marked by defer_after_tick)
                         source.after_due = False
                         after()
