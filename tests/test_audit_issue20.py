@@ -14,7 +14,7 @@ Two paths stepped in Python until this audit found them; both are in now, each c
 model's slip phases with ``trapezoidal`` (an implicit method with the slip force an extra input): the compiled
 loop solves the implicit stage with the extra input (~164 Python calls per step on bsg_start before, 0.003 after;
 ``tests/test_kernel_implicit.py`` shows the floats are the ones the Python steps gave). A torque recorded at the
-step rate with a load that reads time (``bags/compressor_cycling``: no absorbed steps, every step clamped at its
+step rate with a load that reads time (``bags/compressor_cycling``: every step clamped at its
 own breakpoints) was one clamped kernel call per step planned in Python (~18 calls per step); its clamps are
 planned by numpy and stepped in one compiled call (``kernel.clamped_steps``).
 """
@@ -109,7 +109,7 @@ def test_a_streamed_run_steps_no_step_in_python(name):
 
 @pytest.mark.parametrize("name", ["engine_idle", "engine_runup", "e_motor_start"])
 def test_a_torque_bag_replay_steps_no_step_in_python(name):
-    """The reference recordings' torque bags (a breakpoint on every step: the absorbed-steps path)."""
+    """The reference recordings' torque bags (a breakpoint on every step: every step clamped, one compiled call)."""
     from belt_drive_ros.io.torque_bag import scene_with_torque_bag
 
     scene = scene_with_torque_bag(load_scene(str(ROOT / "bags" / f"{name}.yaml")),
@@ -128,8 +128,8 @@ def _bag_scene(name: str, **overrides):
 @pytest.mark.parametrize("method", ["etd4", "exact", "rk4", "trapezoidal"])
 @pytest.mark.parametrize("model", ["rigid", "flexible"])
 def test_a_torque_bag_with_a_load_reading_time_steps_no_step_in_python(model, method):
-    """``bags/compressor_cycling``: a breakpoint on every knot and a load that reads time (a schedule of compressors:
-    no step absorbed), so every step has its own clamps; run whole, with a progress callback (``belt-drive sim``'s
+    """``bags/compressor_cycling``: a breakpoint on every knot and a load that reads time (a schedule of compressors),
+    so every step has its own clamps; run whole, with a progress callback (``belt-drive sim``'s
     bar) and streamed (``stream``). ~18 Python calls per step before the clamps went into the compiled loop."""
     from belt_drive_ros.core.stream import stream
 

@@ -42,23 +42,22 @@ def _one_by_one(st, x0, t0, t1):
     return times[: len(states)], np.array(states)
 
 
-def _rule(st, t0, t1, absorbed=()):
+def _rule(st, t0, t1):
     """``({cell: [lo, hi]}, {cell: [cuts]})``: the plan's clamps and splits by the rule, one breakpoint at a time in
-    Python (scalar ``left_of``; the absorbed cells left out)."""
+    Python (scalar ``left_of``)."""
     k0, k1 = st._snap(t0), st._snap(t1)
     start = st.grid_time(k0) if k0 is not None else t0
     end = st.grid_time(k1) if k1 is not None else t1
     first = k0 if k0 is not None else st._cell(t0)
     last = k1 - 1 if k1 is not None else st._cell(t1)
     tol0, tol1 = snap_tolerance(start, st.dt), snap_tolerance(end, st.dt)
-    clamps, splits, taken = {}, {}, set(absorbed)
+    clamps, splits = {}, {}
     if last < first:  # t0 and t1 on one grid time: no step
         return clamps, splits
 
     def bound(c, side, value):
-        if c not in taken:
-            entry = clamps.setdefault(c, [-math.inf, math.inf])
-            entry[side] = max(entry[0], value) if side == 0 else min(entry[1], value)
+        entry = clamps.setdefault(c, [-math.inf, math.inf])
+        entry[side] = max(entry[0], value) if side == 0 else min(entry[1], value)
 
     for b in np.asarray(st.breakpoints, dtype=float).tolist():
         if abs(b - start) <= max(tol0, snap_tolerance(b, st.dt)) or abs(b - t0) <= tol0:
@@ -72,7 +71,7 @@ def _rule(st, t0, t1, absorbed=()):
                     bound(k - 1, 1, st.plant.left_of(b))
                 if k <= last:
                     bound(k, 0, b)
-            elif min(max(st._cell(b), first), last) not in taken:
+            else:
                 splits.setdefault(min(max(st._cell(b), first), last), []).append(b)
     return clamps, splits
 
@@ -84,9 +83,9 @@ def path(request, monkeypatch):
     return request.param
 
 
-def _assert_plan_is_the_rule(st, t0, t1, absorb=True):
-    plan = st._plan(t0, t1, absorb=absorb)
-    clamps, splits = _rule(st, t0, t1, plan["absorbed"].tolist())
+def _assert_plan_is_the_rule(st, t0, t1):
+    plan = st._plan(t0, t1)
+    clamps, splits = _rule(st, t0, t1)
     cells, lo, hi = plan["clamps"]
     assert cells.dtype == np.int64 and np.all(np.diff(cells) > 0)
     assert cells.tolist() == sorted(clamps)
@@ -109,8 +108,7 @@ def _assert_plan_is_the_rule(st, t0, t1, absorb=True):
 def test_clamped_steps_are_the_steps_stepped_one_by_one(model, method):
     scene = _scene()
     st, x0 = _stepper(scene, model, method, scene.dt)
-    plan = st._plan(0.0, 2.5, absorb=True)
-    assert plan["absorbed"].size == 0  # the schedule reads time: nothing absorbed
+    plan = st._plan(0.0, 2.5)
     assert plan["clamps"][0].size > 2000 and not plan["splits"]  # every step clamped, in the arrays
     times, states = st.run(x0, 0.0, 2.5)
     ref_times, ref_states = _one_by_one(st, x0, 0.0, 2.5)
@@ -131,7 +129,7 @@ def test_clamped_steps_are_the_steps_stepped_one_by_one(model, method):
 def test_the_plan_is_the_rule_breakpoint_by_breakpoint(path):
     """Every clamp and split of a plan as the rule gives it one breakpoint at a time: a recording at the step rate
     (a breakpoint on every knot), at a rate off the grid (splits), a few among many steps, ends on, off and at
-    breakpoints, with and without the absorbed steps."""
+    breakpoints."""
     scene = _scene()
     st, _ = _stepper(scene, "flexible", "etd4", scene.dt)
     bps = np.asarray(st.breakpoints)
@@ -140,7 +138,6 @@ def test_the_plan_is_the_rule_breakpoint_by_breakpoint(path):
     for t0, t1 in ((0.0123456, 2.3456789), (float(bps[100]), float(bps[2000])), (0.0004321, 1.7654321),
                    (float(bps[5]) + 1e-12, float(bps[9]) - 1e-12), (0.5, 0.5), (0.5, 0.5 + 1e-13), (1.0, 1.0004)):
         _assert_plan_is_the_rule(st, t0, t1)
-        _assert_plan_is_the_rule(st, t0, t1, absorb=False)
     off, _ = _stepper(scene, "flexible", "rk4", 3e-4, load=Sine(mean=5.0, amplitude=3.0, frequency=7.0))
     plan = _assert_plan_is_the_rule(off, 0.0, 1.5)
     assert len(plan["splits"]) == 1000 and plan["clamps"][0].size > 500  # samples inside steps (cuts), on knots
@@ -163,9 +160,9 @@ def test_the_plan_is_the_rule_breakpoint_by_breakpoint(path):
     assert _assert_plan_is_the_rule(few, 0.0, 1.5)["splits"]
 
 
-def test_absorbed_cells_have_no_clamps(path):
-    """A recording at the step rate with a load that reads no time: the steps next to its samples absorbed, the
-    rest clamped by the rule (the absorbed cells left out)."""
+def test_a_recording_beside_a_time_free_load(path):
+    """A recording at the step rate with a load that reads no time: every step clamped by the rule (each in the
+    plan's arrays), the run the same floats as one step at a time."""
     from test_recorded_steps import _recorded
 
     from belt_drive_ros.core.sources import Constant
@@ -173,9 +170,14 @@ def test_absorbed_cells_have_no_clamps(path):
     scene = _scene()
     plant = S.Plant(make_model("flexible", scene.params), _recorded(), Constant(value=5.0))
     st = S.Stepper(plant, "etd4", 1e-3)
+    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
     for t0, t1 in ((0.0, 1.2), (0.00031, 1.19)):
         plan = _assert_plan_is_the_rule(st, t0, t1)
-        assert plan["absorbed"].size > 1000 and plan["clamps"][0].size <= 4
+        assert plan["clamps"][0].size > 1000 and not plan["splits"]
+        times, states = st.run(x0, t0, t1)
+        ref_times, ref_states = _one_by_one(st, x0, t0, t1)
+        np.testing.assert_array_equal(times, ref_times)
+        np.testing.assert_array_equal(states, ref_states)
 
 
 def test_a_recorded_drive_and_a_sine_load_on_and_off_the_grid(path):
@@ -230,7 +232,7 @@ def test_a_few_breakpoints_among_many_steps(path):
     plant = S.Plant(make_model("flexible", scene.params), drive, Sine(mean=5.0, amplitude=3.0, frequency=7.0))
     st = S.Stepper(plant, "rk4", scene.dt)
     x0 = scene.initial_state.vector("flexible", scene.params.ratio)
-    plan = st._plan(0.0, 1.5, absorb=True)
+    plan = st._plan(0.0, 1.5)
     cells, _, _, ends = st._groups(plan)
     assert cells.size == 2 * 29 and ends.size < 100  # both sides of 29 interior knots, no array of the run's length
     assert ends[-1] == plan["last"] and np.all(np.diff(ends) > 0)

@@ -1,9 +1,9 @@
-"""A torque recorded at the step rate: steps absorbed into runs of whole steps, bit for bit as planned one by one."""
+"""A torque recorded at the step rate: every step clamped at its samples, a run of them one compiled call (the
+explicit loop reading each step's own clamps), bit for bit as the same plan stepped one step at a time."""
 
 import numpy as np
 import pytest
 
-from belt_drive_ros.core import step_plan as S
 from belt_drive_ros.core.accuracy_probes import _survey_step
 from belt_drive_ros.core.model import make_model
 from belt_drive_ros.core.simulate import Simulator
@@ -20,59 +20,63 @@ def _recorded(n=1500, rate=1000.0, jitter_ns=0):
     return RecordedTorque(times=t, values=15.0 + 300.0 * np.sin(230.0 * t) + 90.0 * np.sin(460.0 * t))
 
 
-def _run(method, drive, dt=1e-3, absorb_min=S.ABSORB_MIN, t1=1.2):
+def _stepper(method, drive, dt=1e-3):
     scene = reference_scene("engine_idle")
-    mdl = make_model("flexible", scene.params)
-    sim = Simulator(mdl, drive, scene.load, method, dt, check_stability=False)
-    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
-    old, S.ABSORB_MIN = S.ABSORB_MIN, absorb_min
-    try:
-        plan = sim.stepper._plan(0.0, t1, absorb=True)
-        times, states = sim.stepper.run(x0, 0.0, t1)
-        x_end = sim.stepper.advance(x0, 0.0, t1)
-    finally:
-        S.ABSORB_MIN = old
-    return plan, times, states, x_end
+    sim = Simulator(make_model("flexible", scene.params), drive, scene.load, method, dt, check_stability=False)
+    return sim.stepper, scene.initial_state.vector("flexible", scene.params.ratio)
 
 
-@pytest.mark.parametrize("method", ["etd4", "exact", "rk4", "lawson5"])
+def _run(method, drive, dt=1e-3, t1=1.2):
+    st, x0 = _stepper(method, drive, dt)
+    plan = st._plan(0.0, t1)
+    times, states = st.run(x0, 0.0, t1)
+    return plan, times, states, st.advance(x0, 0.0, t1)
+
+
+def _one_by_one(st, x0, t0, t1):
+    """The plan ``st.steps(t0, t1)`` stepped one step at a time (one kernel call per step or piece, its own clamps)."""
+    times, steps = st.steps(t0, t1)
+    states = [np.asarray(x0, dtype=float)]
+    for a, e, whole, lo, hi, cuts in steps:
+        states.append(st._special_step(states[-1], a, e, whole, lo, hi, list(cuts)))
+    return times, np.array(states)
+
+
+@pytest.mark.parametrize("method", ["etd4", "exact", "rk4", "lawson5", "trapezoidal"])
 @pytest.mark.parametrize("dt", [1e-3, 5e-4])
-def test_steps_next_to_recorded_samples_are_absorbed_bit_for_bit(method, dt):
+def test_steps_clamped_at_recorded_samples_are_the_steps_one_by_one(method, dt):
     drive = _recorded()
     plan, times, states, x_end = _run(method, drive, dt)
-    # every step but the two at the ends runs in the absorbed loop: no special (clamped) step left inside
-    assert plan["absorbed"].size >= round(1.2 / dt) - 4
-    assert plan["clamps"][0].size <= 4 and not plan["splits"]
-    ref_plan, ref_times, ref_states, ref_end = _run(method, drive, dt, absorb_min=10**12)
-    assert ref_plan["absorbed"].size == 0 and ref_plan["clamps"][0].size > 1000
+    # every step touching a sample clamped (its own bounds, in the plan's arrays), none split
+    assert plan["clamps"][0].size >= 1200 - 2 and not plan["splits"]
+    st, x0 = _stepper(method, drive, dt)
+    ref_times, ref_states = _one_by_one(st, x0, 0.0, 1.2)
     np.testing.assert_array_equal(times, ref_times)
     np.testing.assert_array_equal(states, ref_states)  # the same floats, not merely close
-    np.testing.assert_array_equal(x_end, ref_end)
+    np.testing.assert_array_equal(x_end, ref_states[-1])
+    # from and to times off the grid: partial steps at the ends, the clamped ones between in compiled runs
+    np.testing.assert_array_equal(st.advance(x0, 0.0004321, 1.1234567), _one_by_one(st, x0, 0.0004321, 1.1234567)[1][-1])
 
 
-def test_off_grid_samples_are_planned_as_before():
-    """Jittered receive times (off the step grid): steps are split at them, nothing absorbed, same states."""
+def test_off_grid_samples_split_their_steps():
+    """Jittered receive times (off the step grid): steps are split at them, the same states as one by one."""
     drive = _recorded(jitter_ns=20_000)
     plan, _, states, _ = _run("etd4", drive)
-    assert plan["absorbed"].size == 0  # nothing on the grid to absorb
-    _, _, ref_states, _ = _run("etd4", drive, absorb_min=10**12)
-    np.testing.assert_array_equal(states, ref_states)
+    assert len(plan["splits"]) > 800  # (a cell may hold two cuts, another none)
+    st, x0 = _stepper("etd4", drive)
+    np.testing.assert_array_equal(states, _one_by_one(st, x0, 0.0, 1.2)[1])
 
 
-def test_a_step_whose_clamp_changes_a_torque_is_not_absorbed():
-    """A linear table (a kink per sample) reads a different torque 1 ns before the step's end: planned as before."""
+def test_a_linear_table_read_at_each_steps_end():
+    """A linear table (a kink per sample): the step ending at a sample reads its left limit there; the same floats."""
     from belt_drive_ros.core.sources import Table
 
     t = np.arange(1500) * 1e-3
     drive = Table(times=t, values=15.0 + 300.0 * np.sin(230.0 * t), interpolation="linear")
-    plan, _, states, _ = _run("etd4", drive)
-    assert plan["absorbed"].size == 0
-    _, _, ref_states, _ = _run("etd4", drive, absorb_min=10**12)
-    np.testing.assert_array_equal(states, ref_states)
-    plan, _, states, _ = _run("exact", drive)  # ... but exact samples at the step's start only: absorbed
-    assert plan["absorbed"].size > 1000
-    _, _, ref_states, _ = _run("exact", drive, absorb_min=10**12)
-    np.testing.assert_array_equal(states, ref_states)
+    for method in ("etd4", "exact"):
+        _, _, states, _ = _run(method, drive)
+        st, x0 = _stepper(method, drive)
+        np.testing.assert_array_equal(states, _one_by_one(st, x0, 0.0, 1.2)[1])
 
 
 def test_the_rigid_survey_steps_at_a_dense_records_rate():
@@ -83,15 +87,18 @@ def test_the_rigid_survey_steps_at_a_dense_records_rate():
     assert _survey_step(lambda: [jittered], 5e-3) == 5e-3  # not on a grid: unchanged
 
 
-def test_absorbing_adds_no_compiled_specialisation():
+def test_clamped_runs_add_no_compiled_specialisation():
     from belt_drive_ros.core import kernel, kernel_profiles
 
     _run("etd4", _recorded())
-    assert len(kernel.linear_steps.signatures) == 1 and len(kernel_profiles.profile_torque_array.signatures) == 1
+    _run("trapezoidal", _recorded())
+    assert len(kernel.clamped_steps.signatures) == 1  # (the runs' one call; the others are called from compiled code)
+    assert all(len(f.signatures) <= 1 for f in (kernel.linear_steps, kernel._explicit, kernel_profiles.profile_torque_array))
 
 
-def test_absorbed_steps_interpreted_give_the_same_floats():
-    """NUMBA_DISABLE_JIT=1: the absorbed run (its check and its loop) interpreted, the same states as compiled."""
+def test_clamped_steps_interpreted_give_the_same_floats():
+    """NUMBA_DISABLE_JIT=1: the clamped run (the explicit loop reading each step's clamps) interpreted, the same
+    states as compiled."""
     import os
     import subprocess
     import sys

@@ -11,7 +11,8 @@ version, cached on disk, run without the GIL; ``NUMBA_DISABLE_JIT=1`` runs them 
 * :func:`linear_steps` -- the two-wheel drive's entry (its arrays packed), with the 2- and 4-state fast path of
   an explicit method (:func:`_explicit`);
 * :func:`clamped_steps` -- a run of whole steps with their own clamps at breakpoints on the knots (a torque recorded
-  at the step rate: one per step), the arrays unpacked once, one :func:`_steps` run per group, in one compiled call.
+  at the step rate: one per step) in one compiled call: an explicit method's :func:`_explicit` reads each step's own
+  clamps as it goes (one loop for the whole run); another method's loop runs once per group of steps.
 
 Each stage's torques come from :mod:`~belt_drive_ros.core.kernel_profiles` (:func:`formula`, :func:`scalar_torque`,
 :func:`torque`, :func:`profile_torque_at`). Only a run imports this module (``--help``, ``scenes``, ``msg-tools``
@@ -325,18 +326,28 @@ def linear_steps(times, x, out, lo, hi, limit, reals, ints, dp, lp):
 @njit(**_JIT)
 def clamped_steps(times, x, out, c0, c1, base, cells, clo, chi, ends, half, limit, reals, ints, dp, lp):
     """Whole grid steps ``c0 <= c < c1`` (step ``c``: ``times[c] -> times[c+1]``, its state into ``out[c]``; ``x``: the
-    state at ``times[c0]``) whose torque samples are clamped at breakpoints on the knots, in groups of one
-    :func:`linear_steps` step run each: returns ``(c, status, t)``, ``c`` the steps done (the failing one included).
+    state at ``times[c0]``) whose torque samples are clamped at breakpoints on the knots: returns ``(c, status, t)``,
+    ``c`` the steps done (the failing one included).
+
+    An explicit method on a 2- or 4-state plant (what :func:`_steps` gives :func:`_explicit`) is one :func:`_explicit`
+    run over all the steps, each step reading its own clamps from ``cells``, ``clo``, ``chi`` (one set-up per call,
+    not per clamped step). Any other method runs in groups of one :func:`_steps` run each:
 
     ``cells`` (sorted, grid indices: step ``c`` is cell ``base + c``) and ``clo``, ``chi`` [s]: each clamped step's
     bounds (``-inf``/``inf`` where none). A group runs from a step to the next end of ``ends`` (sorted grid indices:
     a cell with a finite ``hi``, the cell before one with a finite ``lo``, the last) with its first step's ``lo`` and
     its last step's ``hi``: every sample of the steps between lies inside both already (a bound within ``half`` [s]
     of its knot), so each step reads the torques of its own clamps; a bound farther inside: that step alone, its own
-    clamps. The same groups as one call per group from Python (``Stepper``), so the same floats. The packed arrays
-    are unpacked once per call (:func:`_unpacked`), then each group is one :func:`_steps` call."""
+    clamps. The packed arrays are unpacked once per call (:func:`_unpacked`), then each group is one :func:`_steps`
+    call. Either way each step's samples are those of its own clamps (a group's bounds lie outside the samples of
+    its other steps), so the same floats as one call per step."""
     W, kinds, offsets, S, F, final_base, tol, max_iter, ua, ub, dk, dx, dy, lk, lx, ly, extra, guard = _unpacked(reals, ints, dp)
     N = times.size - 1
+    if c1 > c0 and max_iter == 0 and extra.shape[0] <= 1 and (x.size == 4 or x.size == 2):  # (as _steps chooses)
+        done, status, t = _explicit(times[c0 : c1 + 1], x, out[c0:c1], -math.inf, math.inf, cells, clo, chi, base + c0,
+                                    limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard,
+                                    x.size)  # fmt: skip
+        return c0 + done, status, t
     j = np.searchsorted(cells, base + c0)
     e = np.searchsorted(ends, base + c0)
     c = c0
@@ -372,7 +383,8 @@ def _steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, to
     """The two-wheel loop on these unpacked arrays: :func:`_explicit` for an explicit method on a 2- or 4-state plant,
     else :func:`wheel_steps` with P = 2 (the drive's data its first bank, the load's the second); the same floats."""
     if max_iter == 0 and extra.shape[0] <= 1 and (x.size == 4 or x.size == 2):
-        return _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard, x.size)
+        return _explicit(times, x, out, lo, hi, dk[:0], times[:0], times[:0], np.int64(0), limit, W, kinds, offsets, S, F,
+                         ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard, x.size)  # fmt: skip
     uses = np.zeros(2, dtype=np.int64)
     uses[0], uses[1] = ua, ub
     return wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
@@ -425,9 +437,14 @@ def _past_guard(guard, x0, x1, x2, x3, n):
 
 
 @njit(**_JIT)
-def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard, n):
+def _explicit(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp,
+              lx, ly, extra, guard, n):  # fmt: skip
     """:func:`wheel_steps` for an explicit method on a plant of ``n`` = 2 (rigid) or 4 (flexible) states (stage
     kinds as there): one compiled loop for both sizes (a constant ``n`` compiled it twice).
+
+    Step ``k`` (grid cell ``base + k``) clamps its torque times into ``[lo, hi]``, or where its cell is one of
+    ``cells`` (sorted, distinct grid indices) into that one's ``[clo, chi]`` (:func:`clamped_steps`: a run with a
+    clamp at every knot is one call; a plain run passes no cells).
 
     The same operations in the same order, with the state, each stage's wheel coordinates and torques in scalars
     and the earlier stages' torques in a small array ``U`` (rows summed in pairs over it, :func:`_stage_rows`): no
@@ -453,13 +470,19 @@ def _explicit(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, ua, ub, dk,
     # (engines, compressors, small motor curves and tables, schedules of them)
     dfits, dka, dpa, daa, dqa, dki, dpi, dai, dqi, dper = profile_scalars(dk, dp, dx, dy)
     lfits, lka, lpa, laa, lqa, lki, lpi, lai, lqi, lper = profile_scalars(lk, lp, lx, ly)
+    nc = cells.size
+    j = np.searchsorted(cells, base) if nc else 0  # the first clamped cell at or after step 0's
     for k in range(steps):
         t = times[k]
+        lo_k, hi_k = lo, hi
+        if j < nc and cells[j] == base + k:  # this step's own clamps
+            lo_k, hi_k = clo[j], chi[j]
+            j += 1
         u0 = u1 = e0 = 0.0
         b0, b1, b2, b3 = x0, x1, x2, x3  # the state the final map starts from: x, or the stage of kind 2
         for i in range(s):
             time = t if offsets[i] == 0.0 else t + offsets[i]
-            tc = lo if time < lo else hi if time > hi else time
+            tc = lo_k if time < lo_k else hi_k if time > hi_k else time
             if kinds[i] == 2:  # the whole stage state (etd2's a), then its wheel coordinates from it
                 b0, b1 = _stage_rows(S, i, 0, 1, x0, x1, x2, x3, n, U, m * i)
                 if n == 4:

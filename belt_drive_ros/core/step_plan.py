@@ -35,8 +35,6 @@ import numpy as np
 
 #: a time this close to a grid time, relative to dt, is on the grid
 GRID_TOLERANCE = 1e-9
-#: an advance over at least this many breakpoints looks for steps it can absorb (:mod:`~belt_drive_ros.core.absorb`)
-ABSORB_MIN = 16
 #: an advance over at least this many breakpoints classifies them with numpy (fewer: one at a time in Python, the
 #: same floats; numpy's fixed cost is ~40 times the loop's for one breakpoint, which a node's tick across one plans)
 VECTOR_MIN = 32
@@ -95,9 +93,6 @@ class StepPlanner:
     tuple or a read-only float64 array (a list or writable array assigned is copied): plans are kept by it.
     split_steps : ``{grid index k: [breakpoints inside step k]}`` of the last plan.
     """
-
-    #: a breakpoint this close to a grid point (relative to dt) is on the grid (read by :mod:`.absorb`)
-    grid_tolerance = GRID_TOLERANCE
 
     def __init__(self, plant, dt: float, origin: float = 0.0):
         self.plant, self.dt, self.origin = plant, float(dt), float(origin)
@@ -174,16 +169,14 @@ class StepPlanner:
         return False
 
     # ------------------------------------------------------------ plans
-    def _plan(self, t0: float, t1: float, absorb: bool = False) -> dict:
+    def _plan(self, t0: float, t1: float) -> dict:
         """Steps from ``t0`` to ``t1``: grid cells first..last, ends, and the steps that touch breakpoints.
 
         Returns a dict: ``first``, ``last`` (cell indices), ``start``, ``end`` (the times of the first and last
         knot: the grid time when ``t0``/``t1`` snap to the grid, else themselves), ``lead``/``trail`` (whether the
         first/last step is partial), ``t0``/``t1`` as given, ``empty`` (no step), ``clamps = (cells, lo, hi)`` (the
         steps whose torque samples are clamped to ``[lo, hi]`` [s], cells sorted, ``-inf``/``inf`` where a side has
-        none), ``splits = {cell: [cuts]}`` (steps split at breakpoints inside them) and
-        ``absorbed``: the cells (sorted int64) :func:`~belt_drive_ros.core.absorb.absorbed_steps` found (``absorb``:
-        look for them, with at least :data:`ABSORB_MIN` breakpoints; their clamps are left out).
+        none) and ``splits = {cell: [cuts]}`` (steps split at breakpoints inside them).
         """
         k0, k1 = self._snap(t0), self._snap(t1)
         start = self.grid_time(k0) if k0 is not None else t0
@@ -191,29 +184,21 @@ class StepPlanner:
         first = k0 if k0 is not None else self._cell(t0)
         last = k1 - 1 if k1 is not None else self._cell(t1)
         empty = last < first  # t0 and t1 on the same grid time (or within its tolerance)
-        clamps, splits, absorbed = _NO_CLAMPS, {}, _NO_CELLS
+        clamps, splits = _NO_CLAMPS, {}
         if not (empty or (k0 is not None and k1 is not None and not self._near_breakpoint(t0, t1, k0, k1))):
             # (else whole grid steps in a breakpoint-free interval the last run or tick found: no search)
             bps = self.breakpoints
             tol0, tol1 = snap_tolerance(start, self.dt), snap_tolerance(end, self.dt)
             near = bps[_search(bps, min(t0, start) - tol0, False) : _search(bps, max(t1, end) + tol1, True)]
             if len(near):
-                near = np.asarray(near, dtype=np.float64)
-                if absorb and near.size >= ABSORB_MIN:
-                    from .absorb import absorbed_steps
-
-                    absorbed, skip = absorbed_steps(self, near, first, last)
-                    if absorbed.size:
-                        near = near[~skip]
-                clamps, splits = self._clamps(near, t0, t1, start, end, first, last, absorbed)
+                clamps, splits = self._clamps(np.asarray(near, dtype=np.float64), t0, t1, start, end, first, last)
         self.split_steps = {c: list(cuts) for c, cuts in splits.items()}
         return dict(
             t0=t0, t1=t1, start=start, end=end, first=first, last=last, empty=empty,
-            lead=k0 is None, trail=k1 is None, clamps=clamps, splits=splits, absorbed=absorbed,
+            lead=k0 is None, trail=k1 is None, clamps=clamps, splits=splits,
         )  # fmt: skip
 
-    def _clamps(self, bps: np.ndarray, t0: float, t1: float, start: float, end: float, first: int, last: int,
-                absorbed: np.ndarray) -> tuple:
+    def _clamps(self, bps: np.ndarray, t0: float, t1: float, start: float, end: float, first: int, last: int) -> tuple:
         """``((cells, lo, hi), splits)`` of the breakpoints ``bps`` (sorted, float64) of an advance with these ends:
 
         * within the snap tolerance of ``start`` or ``t0``: the first step samples from the latest (``lo``);
@@ -221,12 +206,12 @@ class StepPlanner:
         * strictly between, on a knot ``k``: step ``k - 1`` up to its left limit, step ``k`` from it;
         * strictly between, off the grid: a cut of the step holding it (``splits``, cuts sorted).
 
-        Each step's ``lo`` the latest, its ``hi`` the earliest of those; the absorbed cells left out. Fewer than
+        Each step's ``lo`` the latest, its ``hi`` the earliest of those. Fewer than
         :data:`VECTOR_MIN` breakpoints one at a time, more with numpy (:meth:`_classified`: the same floats).
         """
         if bps.size >= VECTOR_MIN:
-            return self._classified(bps, t0, t1, start, end, first, last, absorbed)
-        dt, taken = self.dt, set(absorbed.tolist()) if absorbed.size else ()
+            return self._classified(bps, t0, t1, start, end, first, last)
+        dt = self.dt
         tol0, tol1 = snap_tolerance(start, dt), snap_tolerance(end, dt)
         lo, hi, splits = {}, {}, {}
         for b in bps.tolist():
@@ -243,17 +228,13 @@ class StepPlanner:
                     hi[k - 1] = min(hi.get(k - 1, math.inf), self.plant.left_of(b))
                 if k <= last:
                     lo[k] = max(lo.get(k, -math.inf), b)
-        if taken:
-            lo, hi = ({c: v for c, v in d.items() if c not in taken} for d in (lo, hi))
-            splits = {c: v for c, v in splits.items() if c not in taken}
         if not (lo or hi):
             return _NO_CLAMPS, splits
         cells = sorted(lo.keys() | hi.keys())
         return (np.array(cells, dtype=np.int64), np.array([lo.get(c, -math.inf) for c in cells], dtype=np.float64),
                 np.array([hi.get(c, math.inf) for c in cells], dtype=np.float64)), splits  # fmt: skip
 
-    def _classified(self, bps: np.ndarray, t0: float, t1: float, start: float, end: float, first: int, last: int,
-                    absorbed: np.ndarray) -> tuple:
+    def _classified(self, bps: np.ndarray, t0: float, t1: float, start: float, end: float, first: int, last: int) -> tuple:
         """:meth:`_clamps` of many breakpoints, all at once with numpy (a torque recorded at the step rate has one on
         every knot): the clamps as sorted sets when a few lie among many steps (memory of the breakpoints' size),
         else through arrays by cell."""
@@ -280,35 +261,30 @@ class StepPlanner:
             cells = np.union1d(kl, kh)
             lo, hi = np.full(cells.size, -math.inf), np.full(cells.size, math.inf)
             lo[np.searchsorted(cells, kl)], hi[np.searchsorted(cells, kh)] = vl, vh
-            keep = ~np.isin(cells, absorbed)
-            clamps = (cells[keep], lo[keep], hi[keep])
+            clamps = (cells, lo, hi)
         else:  # by cell (first .. last)
             lo, hi = np.full(last - first + 1, -math.inf), np.full(last - first + 1, math.inf)
             lo[kl - first], hi[kh - first] = vl, vh
-            clamped = (lo != -math.inf) | (hi != math.inf)
-            clamped[absorbed - first] = False
-            cells = np.flatnonzero(clamped)
+            cells = np.flatnonzero((lo != -math.inf) | (hi != math.inf))
             clamps = (cells + first, lo[cells], hi[cells])
         splits: dict = {}
         off = inside & ~on
         if off.any():
             cut = bps[off]
-            taken = set(absorbed.tolist())
             for c, t in zip(np.clip(self._cells(cut), first, last).tolist(), cut.tolist()):
-                if c not in taken:
-                    splits.setdefault(c, []).append(t)
+                splits.setdefault(c, []).append(t)
         return clamps, splits
 
     def _run_plan(self, t0: float, t1: float) -> dict:
-        """:meth:`_plan` of a run (absorbed steps looked for); the last :data:`PLAN_CACHE_SIZE` kept by their ends,
+        """:meth:`_plan` of a run; the last :data:`PLAN_CACHE_SIZE` kept by their ends,
         origin and (immutable) breakpoints, those of at most :data:`PLAN_SPECIAL` clamped or split steps."""
         key = (t0, t1, self.origin, id(self.breakpoints))
         hit = self._plans.get(key)
         if hit is not None and hit[0] is self.breakpoints:
             self.split_steps = {c: list(cuts) for c, cuts in hit[1]["splits"].items()}
             return hit[1]
-        plan = self._plan(t0, t1, absorb=True)
-        if not plan["absorbed"].size and plan["clamps"][0].size + len(plan["splits"]) <= PLAN_SPECIAL:
+        plan = self._plan(t0, t1)
+        if plan["clamps"][0].size + len(plan["splits"]) <= PLAN_SPECIAL:
             if len(self._plans) >= PLAN_CACHE_SIZE:
                 self._plans.pop(next(iter(self._plans)))
             self._plans[key] = (self.breakpoints, plan)

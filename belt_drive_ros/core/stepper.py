@@ -140,9 +140,7 @@ class Plant:
 
     def left_of_array(self, b: np.ndarray) -> np.ndarray:
         """:meth:`left_of` of each breakpoint of ``b`` (float64), the same floats."""
-        from .absorb import left_of_array
-
-        return np.minimum(left_of_array(self.drive, b), left_of_array(self.load, b))
+        return np.minimum(_left_of_array(self.drive, b), _left_of_array(self.load, b))
 
     def input_array(self, t: np.ndarray, x: np.ndarray, cx: np.ndarray | None = None) -> np.ndarray:
         """Vectorized u for samples ``t`` (N,), ``x`` (N, n) -> (N, 2) (``cx``: a linear model's
@@ -204,6 +202,22 @@ def _merged(drive, load) -> np.ndarray:
     return both if np.all(both[1:] > both[:-1]) else np.unique(both)  # a table's: sorted already
 
 
+def _left_of_array(profile, b: np.ndarray) -> np.ndarray:
+    """``profile.left_of`` of each time of ``b`` [s]: its ``left_of_array`` if it has one, the default's
+    float below as an array, a schedule's from its parts', else one call per time."""
+    from .sources import Schedule, TorqueProfile
+
+    own = getattr(profile, "left_of_array", None)
+    if own is not None:
+        return np.asarray(own(b), dtype=np.float64)
+    if type(profile).left_of is TorqueProfile.left_of:
+        return np.nextafter(b, -np.inf)
+    if type(profile) is Schedule:  # Schedule.left_of: the least of the float below and both parts' (min of equal floats)
+        below = np.nextafter(b, -np.inf)
+        return np.minimum(np.minimum(below, _left_of_array(profile.active, b)), _left_of_array(profile.inactive, b))
+    return np.array([profile.left_of(v) for v in b.tolist()], dtype=np.float64)
+
+
 def _coordinate(row: np.ndarray) -> Callable:
     """``x -> row @ x`` for one wheel coordinate, as a plain index or a scaled index when it is one."""
     nonzero = [(j, c) for j, c in enumerate(np.asarray(row, dtype=float).tolist()) if c != 0.0]
@@ -263,7 +277,6 @@ class Stepper(StepPlanner):
         self.integrator = integrator or make_integrator(method, model.A, model.B, self.dt, **self.method_options)
         self.guard = guard
         self.loop = plant.kernel_loop(self.integrator, guard)
-        self._end = None  # the loop of absorbed steps (absorb.end_loop)
         self.stopped: tuple | None = None
         self._partials: dict = {}
         self._loops: dict = {}  # kernel loops of the partial-step integrators, by step length
@@ -281,7 +294,7 @@ class Stepper(StepPlanner):
             return self._paged(t0, t1).advance(x, t0, t1)
         if self.guard is not None:
             raise ValueError("advance: a guarded stepper is run with run() (it may stop early)")
-        plan = self._plan(t0, t1, absorb=True)
+        plan = self._plan(t0, t1)
         out = self._march(x, plan, None, record=False)
         if not _healthy(out):
             raise self.diverged_error(t1, out)
@@ -301,7 +314,7 @@ class Stepper(StepPlanner):
         plan = self._run_plan(t0, t1)
         self.stopped = None
         if (self.loop is not None and not plan["empty"] and not plan["lead"] and not plan["trail"]
-                and not plan["absorbed"].size and not self.split_steps):
+                and not self.split_steps):
             # whole grid steps, breakpoints on knots only: one compiled call (per progress report); the knots the grid's
             states, times = self._march_grouped(x0, plan, progress)
             times[0] = t0
@@ -325,7 +338,7 @@ class Stepper(StepPlanner):
 
     def _paged(self, t0: float, t1: float) -> "Stepper":
         """A stepper of this one's settings on the plant's page over ``[t0, t1]`` widened by
-        :data:`PAGE_MARGIN` steps each side (every breakpoint a plan or an absorbed step there looks at)."""
+        :data:`PAGE_MARGIN` steps each side (every breakpoint a plan there looks at)."""
         m = PAGE_MARGIN * self.dt
         page = Stepper(self.plant.page(t0 - m, t1 + m), self.method, self.dt, self.method_options, self.origin,
                        self.integrator, self.guard)
@@ -423,12 +436,6 @@ class Stepper(StepPlanner):
         hard = set(stops)
         groups = self._groups(plan) if self.loop is not None else None
         si = 0
-        runs = plan["absorbed"]  # absorbed cells as runs [run_from, run_to) of the absorbed loop (absorb.py)
-        run_from, run_to = [], []
-        if runs.size:
-            cut = np.flatnonzero(np.diff(runs) != 1) + 1
-            run_from, run_to = runs[np.r_[0, cut]].tolist(), (runs[np.r_[cut - 1, runs.size - 1]] + 1).tolist()
-        ri = 0
         c = first
         with np.errstate(all="ignore"):
             while c <= last:
@@ -451,22 +458,11 @@ class Stepper(StepPlanner):
                 # a run of plain whole steps: up to the next special cell, the last whole cell, or a chunk
                 while si < len(stops) and stops[si] < c:
                     si += 1
-                while ri < len(run_to) and run_to[ri] <= c:
-                    ri += 1
                 stop = min(c + chunk, stops[si] if si < len(stops) else last + 1, last + 1 if not plan["trail"] else last)
-                absorbed = ri < len(run_from) and run_from[ri] <= c
-                if ri < len(run_from):
-                    if absorbed:  # absorbed steps (no special cell inside a run)
-                        stop = min(c + chunk, run_to[ri])
-                    else:
-                        stop = min(stop, run_from[ri])
                 out = states[c - first + 1 : stop - first + 1] if record else np.empty((stop - c, size))
                 x = np.ascontiguousarray(x, dtype=np.float64)
-                if absorbed:
-                    done, status, t = self._end(self._grid(c, stop + 1), x, out, -math.inf, math.inf, SPEED_LIMIT)
-                else:  # (clamped steps grouped as _march_grouped does)
-                    done, status, t = self.loop.clamped(self._grid(c, stop + 1), x if x.flags.writeable else x.copy(), out,
-                                                        0, stop - c, c, *groups, 0.5 * self.dt, SPEED_LIMIT)  # fmt: skip
+                done, status, t = self.loop.clamped(self._grid(c, stop + 1), x if x.flags.writeable else x.copy(), out,
+                                                    0, stop - c, c, *groups, 0.5 * self.dt, SPEED_LIMIT)  # fmt: skip
                 if status == NOT_CONVERGED:
                     self._not_converged(t)
                 if status == GUARDED:  # the guard fired at the end of cell c + done - 1
