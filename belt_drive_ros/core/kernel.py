@@ -27,7 +27,9 @@ import math
 import numpy as np
 from numba import njit
 
-from .kernel_profiles import formula, is_formula, profile_scalars, profile_torque_at, scalar_at, scalar_torque, torque
+from .kernel_profiles import (
+    NO_ANCHOR, formula, is_formula, profile_scalars, profile_torque_at, scalar_at, scalar_torque, torque,
+)
 from .profile_data import DIVERGED, GUARDED, NOT_CONVERGED, OK
 
 _JIT = dict(cache=True, nogil=True)
@@ -96,17 +98,26 @@ def _inputs(buf, base, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, 
 
 
 @njit(**_INLINE)
-def _pair_inputs(buf, base, coords, tc, uses, sd, sl, ak, ap, ax, ay, bk, bp, bx, by, extra):
+def _pair_inputs(buf, base, coords, tc, uses, sd, sl, ak, ap, ax, ay, bk, bp, bx, by, extra, ad, al):
     """:func:`_inputs` of a two-wheel drive (P = 2, each profile its bank's from row 0) where the drive's or the load's
     profile fits in scalars (``sd``, ``sl``: :func:`profile_scalars`, read once per call): that one evaluated from its
-    scalars (no array passed to a call, no reference counted), the other through :func:`profile_torque_at`."""
+    scalars (no array passed to a call, no reference counted; its harmonics from its anchor ``ad``, ``al``:
+    :func:`~belt_drive_ros.core.kernel_profiles.scalar_at`), the other through :func:`profile_torque_at`. Returns
+    the anchors."""
     row = np.int64(0)  # (not a literal 0: profile_torque_at keeps its one compiled signature)
     angle = coords[0] if uses[0] else 0.0
-    buf[base] = scalar_at(sd, tc, angle, coords[1]) if sd[0] else profile_torque_at(ak, ap, ax, ay, row, tc, angle, coords[1])
+    if sd[0]:
+        buf[base], ad = scalar_at(sd, tc, angle, coords[1], ad)
+    else:
+        buf[base] = profile_torque_at(ak, ap, ax, ay, row, tc, angle, coords[1])
     angle = coords[2] if uses[1] else 0.0
-    buf[base + 1] = scalar_at(sl, tc, angle, coords[3]) if sl[0] else profile_torque_at(bk, bp, bx, by, row, tc, angle, coords[3])
+    if sl[0]:
+        buf[base + 1], al = scalar_at(sl, tc, angle, coords[3], al)
+    else:
+        buf[base + 1] = profile_torque_at(bk, bp, bx, by, row, tc, angle, coords[3])
     for e in range(extra.shape[0]):
         buf[base + 2 + e] = _friction_force(extra[e], coords[1])
+    return ad, al
 
 
 @njit(**_INLINE)
@@ -200,6 +211,7 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
     count = times.size - 1
     for k in range(count):
         t = times[k]
+        ad = al = NO_ANCHOR  # each step's first stage anchors the harmonics of its later explicit stages
         for r in range(n):
             v[r] = xs[r]
         for i in range(n_explicit):
@@ -216,7 +228,7 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
             if formulas:
                 _formula_inputs(v, width, coords, tc, fk, fp, extra)
             elif pair:
-                _pair_inputs(v, width, coords, tc, uses, sd, sl, ak, ap, ax, ay, bk, bp, bx, by, extra)
+                ad, al = _pair_inputs(v, width, coords, tc, uses, sd, sl, ak, ap, ax, ay, bk, bp, bx, by, extra, ad, al)
             else:
                 _inputs(v, width, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra)
         if final_base >= 0:
@@ -240,8 +252,8 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
                     prev[q] = v[known + q]
                 if formulas:
                     _formula_inputs(v, known, coords, tc, fk, fp, extra)
-                elif pair:
-                    _pair_inputs(v, known, coords, tc, uses, sd, sl, ak, ap, ax, ay, bk, bp, bx, by, extra)
+                elif pair:  # (no anchor: the implicit stage's torques are the library's, as stage_scheme.step's)
+                    _pair_inputs(v, known, coords, tc, uses, sd, sl, ak, ap, ax, ay, bk, bp, bx, by, extra, NO_ANCHOR, NO_ANCHOR)
                 else:
                     _inputs(v, known, coords, tc, uses, start, ak, ap, ax, ay, bk, bp, bx, by, extra)
                 same = True
@@ -479,6 +491,7 @@ def _explicit(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, off
             lo_k, hi_k = clo[j], chi[j]
             j += 1
         u0 = u1 = e0 = 0.0
+        da = la = NO_ANCHOR  # each step's first stage anchors the harmonics of its later stages
         b0, b1, b2, b3 = x0, x1, x2, x3  # the state the final map starts from: x, or the stage of kind 2
         for i in range(s):
             time = t if offsets[i] == 0.0 else t + offsets[i]
@@ -504,14 +517,14 @@ def _explicit(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, off
                 u0 = formula(dkind, d0, d1, d2, d3, d4, tc, c1)
             elif dfits:
                 kind, p, a, q = (dka, dpa, daa, dqa) if dper[0] <= tc < dper[1] or dper[2] <= tc < dper[3] else (dki, dpi, dai, dqi)
-                u0 = scalar_torque(kind, p, a, q, tc, c0, c1)
+                u0, da = scalar_torque(kind, p, a, q, tc, c0, c1, da)
             else:
                 u0 = torque(dk, dp, dx, dy, 0, tc, c0, c1)
             if lform:
                 u1 = formula(lkind, l0, l1, l2, l3, l4, tc, c3)
             elif lfits:
                 kind, p, a, q = (lka, lpa, laa, lqa) if lper[0] <= tc < lper[1] or lper[2] <= tc < lper[3] else (lki, lpi, lai, lqi)
-                u1 = scalar_torque(kind, p, a, q, tc, c2, c3)
+                u1, la = scalar_torque(kind, p, a, q, tc, c2, c3, la)
             else:
                 u1 = torque(lk, lp, lx, ly, 0, tc, c2, c3)
             e0 = _friction_force(extra[0], c1) if E else 0.0

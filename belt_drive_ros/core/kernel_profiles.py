@@ -197,21 +197,19 @@ def torque(kinds, params, tx, ty, row, t, angle, speed):
 
 
 @njit(**_INLINE)
-def _harmonics(total, have, amplitudes, arg):
-    """``total + sum_k A_k sin(k arg)`` over the nonzero A_k (a table's slice, or a tuple of scalars), summed from
-    the left; ``have``: total holds a term. One harmonic: ``sin(arg)``; more: by angle addition from ``s = sin(arg)``,
-    ``c = cos(arg)`` (one ``sincos`` call), ``sin((k+1) arg) = s_k c + c_k s``, ``cos((k+1) arg) = c_k c - s_k s``
-    (a few ulp from ``sin(k arg)`` for the first harmonics, without the rounding of ``k arg``)."""
-    top = 0  # the last nonzero amplitude's order
+def _top(amplitudes):
+    """The order of the last nonzero amplitude (0: none)."""
+    top = 0
     for k in range(len(amplitudes)):
         if amplitudes[k] != 0.0:
             top = k + 1
-    if top == 1:
-        term = amplitudes[0] * math.sin(arg)
-        return (total + term if have else term), True
-    if top == 0:
-        return total, have
-    s, c = math.sin(arg), math.cos(arg)
+    return top
+
+
+@njit(**_INLINE)
+def _series(total, have, amplitudes, top, s, c):
+    """``total + sum_{k <= top} A_k sin(k arg)`` over the nonzero A_k from ``s = sin(arg)``, ``c = cos(arg)``, summed
+    from the left: ``sin((k+1) arg) = s_k c + c_k s``, ``cos((k+1) arg) = c_k c - s_k s`` (angle addition)."""
     sk, ck = s, c
     for k in range(top):
         a = amplitudes[k]
@@ -221,6 +219,66 @@ def _harmonics(total, have, amplitudes, arg):
             have = True
         sk, ck = sk * c + ck * s, ck * c - sk * s
     return total, have
+
+
+@njit(**_INLINE)
+def _harmonics(total, have, amplitudes, arg):
+    """``total + sum_k A_k sin(k arg)`` over the nonzero A_k (a table's slice, or a tuple of scalars), summed from
+    the left; ``have``: total holds a term. One harmonic: ``sin(arg)``; more: :func:`_series` from ``sin(arg)``,
+    ``cos(arg)`` (a few ulp from ``sin(k arg)`` for the first harmonics, without the rounding of ``k arg``)."""
+    top = _top(amplitudes)
+    if top == 1:
+        term = amplitudes[0] * math.sin(arg)
+        return (total + term if have else term), True
+    if top == 0:
+        return total, have
+    return _series(total, have, amplitudes, top, math.sin(arg), math.cos(arg))
+
+
+#: the farthest [rad] a harmonic argument is turned from its step's anchor (:func:`_sincos_near`); beyond, sin and cos
+#: are called
+TURN = 0.5
+#: Taylor coefficients of ``sin d / d`` and ``cos d`` in ``z = d^2`` (to d^15 and d^16: at |d| = 0.5 the first term
+#: left out is 2e-20, below the rounding of the sums)
+_SIN = tuple((-1.0) ** j / math.factorial(2 * j + 1) for j in range(8))
+_COS = tuple((-1.0) ** j / math.factorial(2 * j) for j in range(9))
+#: no anchor: the next :func:`_sincos_near` calls sin and cos and anchors there (a time loop's step starts with it)
+NO_ANCHOR = (math.nan, 0.0, 0.0)
+
+
+@njit(**_INLINE)
+def _sincos_near(arg, anchor):
+    """``(sin arg, cos arg, anchor)``. Within :data:`TURN` of the anchor ``(a0, sin a0, cos a0)`` the anchor's pair
+    turned by ``d = arg - a0`` (``sin d``, ``cos d`` by their Taylor series, Estrin's scheme; ``s0 cos d + c0 sin d``,
+    ``c0 cos d - s0 sin d``: within ~2 ulp of 1 of the library's values, ~2x faster on the critical path); else both
+    called and ``arg`` is the new anchor. ``d`` is exact when ``a0 / 2 <= arg <= 2 a0`` (Sterbenz), so only the
+    turn rounds: a step's later stages turned from its first stage's angle."""
+    a0, s0, c0 = anchor
+    d = arg - a0
+    if abs(d) <= TURN:
+        z = d * d
+        z2 = z * z
+        z4 = z2 * z2
+        sd = d * (((_SIN[0] + _SIN[1] * z) + z2 * (_SIN[2] + _SIN[3] * z))
+                  + z4 * ((_SIN[4] + _SIN[5] * z) + z2 * (_SIN[6] + _SIN[7] * z)))  # fmt: skip
+        cd = (((_COS[0] + _COS[1] * z) + z2 * (_COS[2] + _COS[3] * z))
+              + z4 * ((_COS[4] + _COS[5] * z) + z2 * (_COS[6] + _COS[7] * z) + z4 * _COS[8]))  # fmt: skip
+        return s0 * cd + c0 * sd, c0 * cd - s0 * sd, anchor
+    s, c = math.sin(arg), math.cos(arg)
+    return s, c, (arg, s, c)
+
+
+@njit(**_INLINE)
+def _harmonics_near(total, have, amplitudes, arg, anchor):
+    """:func:`_harmonics` from ``sin(arg)``, ``cos(arg)`` by :func:`_sincos_near`, and the anchor: with
+    :data:`NO_ANCHOR` (a step's first stage, a result's samples) the library's values, so :func:`_harmonics`' floats
+    (one harmonic: ``A_1 sin(arg)``, its cosine then only computed for the anchor)."""
+    top = _top(amplitudes)
+    if top == 0:
+        return total, have, anchor
+    s, c, anchor = _sincos_near(arg, anchor)
+    total, have = _series(total, have, amplitudes, top, s, c)
+    return total, have, anchor
 
 
 @njit(**_INLINE)
@@ -295,22 +353,23 @@ def _points_interp(x, q, n):
 
 
 @njit(**_INLINE)
-def scalar_torque(kind, p, amplitudes, points, t, angle, speed):
-    """Torque [N m] of a row read by :func:`_row_scalars` (the same operations as :func:`torque`)."""
+def scalar_torque(kind, p, amplitudes, points, t, angle, speed, anchor):
+    """(torque [N m], anchor) of a row read by :func:`_row_scalars`: the same operations as :func:`torque`, the
+    harmonics' sine and cosine from ``anchor`` (:func:`_harmonics_near`; :data:`NO_ANCHOR`: the same floats)."""
     if kind == ENGINE:
         base = _engine_base(p[0], p[1], p[2], p[3], p[4], speed)
-        value, _ = _harmonics(base, True, amplitudes, p[5] * (p[6] * angle) + p[7])
-        return _fade(value, t, p[8]) if p[8] > 0.0 else value
+        value, _, anchor = _harmonics_near(base, True, amplitudes, p[5] * (p[6] * angle) + p[7], anchor)
+        return (_fade(value, t, p[8]) if p[8] > 0.0 else value), anchor
     if kind == COMPRESSOR:
         value, have = _affine_in_speed(p[0], p[1], speed)
-        value, have = _harmonics(value, have, amplitudes, p[2] * angle + p[3])
-        return _fade(value, t, p[4]) if p[4] > 0.0 else value
+        value, have, anchor = _harmonics_near(value, have, amplitudes, p[2] * angle + p[3], anchor)
+        return (_fade(value, t, p[4]) if p[4] > 0.0 else value), anchor
     if kind == MOTOR_CURVE:
         value = _points_interp(speed, points, int(p[1]))
-        return _fade(value, t, p[2]) if p[2] > 0.0 else value
+        return (_fade(value, t, p[2]) if p[2] > 0.0 else value), anchor
     if kind == TABLE_LINEAR:
-        return _points_interp(t, points, int(p[1]))
-    return formula(kind, p[0], p[1], p[2], p[3], p[4], t, speed)
+        return _points_interp(t, points, int(p[1])), anchor
+    return formula(kind, p[0], p[1], p[2], p[3], p[4], t, speed), anchor
 
 
 @njit(**_JIT)
@@ -337,16 +396,16 @@ def profile_torque_array(kinds, params, tx, ty, t, angle, speed, out):
         ti = t[i]
         if fits:
             k, p, a, q = (ka, pa, aa, qa) if per[0] <= ti < per[1] or per[2] <= ti < per[3] else (ki, pi, ai, qi)
-            out[i] = scalar_torque(k, p, a, q, ti, angle[i], speed[i])
+            out[i], _ = scalar_torque(k, p, a, q, ti, angle[i], speed[i], NO_ANCHOR)
         else:
             out[i] = torque(kinds, params, tx, ty, 0, ti, angle[i], speed[i])
 
 
 @njit(**_INLINE)
-def scalar_at(sc, tc, angle, speed):
-    """Torque [N m] of a profile read into scalars (``sc``: :func:`profile_scalars`, which fits) at ``tc``: its
-    active part inside a period, else its inactive one (:func:`scalar_torque`)."""
+def scalar_at(sc, tc, angle, speed, anchor):
+    """(torque [N m], anchor) of a profile read into scalars (``sc``: :func:`profile_scalars`, which fits) at ``tc``:
+    its active part inside a period, else its inactive one (:func:`scalar_torque`, harmonics from ``anchor``)."""
     _, ka, pa, aa, qa, ki, pi, ai, qi, per = sc
     if per[0] <= tc < per[1] or per[2] <= tc < per[3]:
-        return scalar_torque(ka, pa, aa, qa, tc, angle, speed)
-    return scalar_torque(ki, pi, ai, qi, tc, angle, speed)
+        return scalar_torque(ka, pa, aa, qa, tc, angle, speed, anchor)
+    return scalar_torque(ki, pi, ai, qi, tc, angle, speed, anchor)

@@ -4,8 +4,8 @@
 Each variant's numbers are one row of ``reals`` (the row a single run of that variant packs,
 :class:`~belt_drive_ros.core.kernel_loop.KernelLoop`), and each gets its single run's floats bit for bit
 (tests/test_ensemble.py): an explicit method on a plant of <= 4 states through :func:`_lanes`, anything else
-(more states, an implicit stage, the slipping belt's extra input or guard) through the single run's loop
-(:func:`~belt_drive_ros.core.kernel._steps`) once per variant. Serial on purpose (one Dask worker per core).
+(more states, an implicit stage, the slipping belt's extra input or guard, a profile with harmonics) through the
+single run's loop (:func:`~belt_drive_ros.core.kernel._steps`) once per variant. Serial on purpose (one Dask worker per core).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from numba.core.errors import NumbaPerformanceWarning
 
 from .kernel import HEADER, SECTIONS, _steps
 from .kernel_profiles import formula, is_formula, motor_line, polynomial, profile_torque
-from .profile_data import DIVERGED, MOTOR_LINE, OK, POLYNOMIAL
+from .profile_data import COMPRESSOR, DIVERGED, ENGINE, MOTOR_LINE, OK, POLYNOMIAL
 
 #: variants stepped together by :func:`_lanes` (lawson5's matrices: ~470 kB for 128 lanes, in the L2 cache)
 LANES = 128
@@ -53,7 +53,14 @@ def variant_steps(times, states, j, lo, hi, limit, reals, tables, ints, dp, lp, 
     dx, dy = tables[at[7] - base : at[8] - base], tables[at[8] - base : at[9] - base]
     lx, ly = tables[at[9] - base : at[10] - base], tables[at[10] - base : at[11] - base]
     count = times.size - 1
-    if n <= 4 and ints[6] == 0 and E == 0 and count > 0:  # an explicit method on a rigid or flexible plant, no extra input
+    # a profile with harmonics: each variant in the single loop, whose later stages turn their step's first sine and
+    # cosine (kernel_profiles._sincos_near) where the lanes call the dispatcher: the single run's floats either way
+    harmonic = False
+    for q in range(dk.size):
+        harmonic = harmonic or dk[q] == ENGINE or dk[q] == COMPRESSOR
+    for q in range(lk.size):
+        harmonic = harmonic or lk[q] == ENGINE or lk[q] == COMPRESSOR
+    if n <= 4 and ints[6] == 0 and E == 0 and count > 0 and not harmonic:  # explicit, rigid or flexible, no extra input
         guarded = False
         for v in range(states.shape[0]):
             guarded = guarded or reals[v, at[6]] != 0.0
