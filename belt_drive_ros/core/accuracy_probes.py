@@ -65,8 +65,9 @@ def operating_run_step(duration: float) -> float:
 def _survey_step(pieces, rdt: float) -> float:
     """The survey's step [s]: ``rdt``, or the spacing ``h`` of a sampled torque whose breakpoints inside
     the run (``pieces()``: consecutive sorted arrays of them) are denser than ``rdt`` and all lie on the
-    grid ``k h`` (a recording at a fixed rate): there the stepper runs the record's steps in runs of whole
-    steps (:func:`~belt_drive_ros.core.absorb.absorbed_steps`); ``exact`` integrates held samples exactly either way.
+    grid ``k h`` (a recording at a fixed rate): there the stepper runs the record's steps as whole steps, each
+    clamped to its own sample (:func:`~belt_drive_ros.core.kernel.clamped_steps`); ``exact`` integrates held samples
+    exactly either way.
     """
     def on_grid(inner, h) -> bool:
         d = np.abs(np.rint(inner / h) * h - inner)
