@@ -44,7 +44,7 @@ from typing import Callable
 
 from msg_tools.results import TICK_GAP_METADATA
 
-__all__ = ["TICK_GAP_METADATA", "TickGap", "TickGaps"]
+__all__ = ["TICK_GAP_METADATA", "TickGap", "TickGaps", "next_tick_ns"]
 
 #: at most one log line per this many ns of monotonic time (the gaps in between are counted in it)
 LOG_EVERY_NS = 1_000_000_000
@@ -53,6 +53,12 @@ LOG_EVERY_NS = 1_000_000_000
 #: monotonic time are handed on as one aggregate gap, so that a recording gets at most a record a second
 SHORT_GAP_NS = 50_000_000
 SHORT_WINDOW_NS = 1_000_000_000
+
+
+def next_tick_ns(t_ns: int, origin_ns: int, tick_ns: int) -> int:
+    """The first point of the tick grid ``origin_ns + k tick_ns`` after time ``t_ns`` [ns] (the node's ticks; the
+    torque source's on ``/clock``)."""
+    return t_ns + tick_ns - (t_ns - origin_ns) % tick_ns
 
 
 @dataclass(frozen=True)

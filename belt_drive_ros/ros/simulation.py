@@ -40,10 +40,11 @@ from ..core.kernel_loop import OK
 from ..core.step_plan import snap_tolerance
 from ..core.stepper import SPEED_LIMIT, Plant, Stepper
 from ..io.cdr_encoders import JointStateEncoder
+from .gaps import next_tick_ns
 from .inputs import DriveInput
 from .parameter_schema import NodeSettings
 
-__all__ = ["NodeSimulation", "TICK_OUTPUTS", "next_tick_ns"]
+__all__ = ["NodeSimulation", "TICK_OUTPUTS"]
 
 #: the signals of one tick, as :meth:`NodeSimulation.outputs` returns them (the model's outputs;
 #: the slipping model adds :data:`~belt_drive_ros.core.slip.SLIP_OUTPUT_UNITS`)
@@ -63,11 +64,6 @@ _NO_CLAMP = (-math.inf, math.inf, math.nan)
 SLACK, SLIPS, SLIPPING = 1, 2, 4
 #: the tick kernels' return when done: minus (flags + EVENT per mode switch) (``core.tick.EVENT``)
 _EVENT = 8
-
-
-def next_tick_ns(t_ns: int, origin_ns: int, tick_ns: int) -> int:
-    """The first point of the tick grid ``origin_ns + k tick_ns`` after node time ``t_ns`` [ns]."""
-    return t_ns + tick_ns - (t_ns - origin_ns) % tick_ns
 
 
 class NodeSimulation:

@@ -49,6 +49,7 @@ from std_msgs.msg import Float64  # noqa: E402
 
 from ..core.errors import BeltDriveError  # noqa: E402
 from .executors import interruptible_start, ros_session, spin_nodes  # noqa: E402
+from .gaps import next_tick_ns  # noqa: E402
 from .qos import INPUT_QOS, OUTPUT_QOS  # noqa: E402
 from ..core.sources import TorqueProfile  # noqa: E402
 
@@ -182,7 +183,7 @@ class TorqueSourceNode(Node):
         if nxt is None or now < last:  # the first /clock, or back in time: a new grid from here
             self._next_ns = now + period
         else:  # the grid point after now
-            self._next_ns = nxt + ((now - nxt) // period + 1) * period
+            self._next_ns = next_tick_ns(now, nxt, period)
 
     def publish_at(self, now_ns: int) -> float:
         """Advance the angle to ``now_ns`` [ns], evaluate the profile and publish; returns the torque [N m]."""

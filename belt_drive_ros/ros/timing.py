@@ -53,11 +53,10 @@ from rclpy.clock import Clock, ClockType, JumpThreshold
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from . import environment as ros_env
-from .gaps import TickGaps
+from .gaps import TickGaps, next_tick_ns
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from .qos import CLOCK_QOS
-from .simulation import next_tick_ns
 
 __all__ = ["TickSource", "TickStats", "TickThread", "stamp"]
 
