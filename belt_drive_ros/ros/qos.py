@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-__all__ = ["CLOCK_QOS", "DESCRIPTION_QOS", "INPUT_QOS", "OUTPUT_QOS", "TF_QOS"]
+__all__ = ["CLOCK_QOS", "CLOCK_TICK_QOS", "DESCRIPTION_QOS", "INPUT_QOS", "OUTPUT_QOS", "TF_QOS"]
 
 #: drive_torque (subscription): best effort, volatile, keep last 1.
 INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
@@ -46,6 +46,12 @@ DESCRIPTION_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
+#: /clock (subscription that ticks the node and the torque source on simulated time): as rclpy's own time source
+#: reads it, best effort, volatile, keep last 1 (matches any publisher; a late callback sees the latest time and
+#: ticks once to it, as a timer fires once however far the clock jumped).
+CLOCK_TICK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                            reliability=ReliabilityPolicy.BEST_EFFORT,
+                            durability=DurabilityPolicy.VOLATILE)
 #: /tf (publisher): reliable, volatile, keep last 100 (tf2_ros's DynamicBroadcasterQoS).
 TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                     reliability=ReliabilityPolicy.RELIABLE,

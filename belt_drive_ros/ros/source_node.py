@@ -43,21 +43,17 @@ ros_env.configure_environment()
 
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, ParameterType, SetParametersResult  # noqa: E402
 from rclpy.node import Node  # noqa: E402
-from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from rosgraph_msgs.msg import Clock as ClockMsg  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 
 from ..core.errors import BeltDriveError  # noqa: E402
 from .executors import interruptible_start, ros_session, spin_nodes  # noqa: E402
 from .gaps import next_tick_ns  # noqa: E402
-from .qos import INPUT_QOS, OUTPUT_QOS  # noqa: E402
+from .qos import CLOCK_TICK_QOS, INPUT_QOS, OUTPUT_QOS  # noqa: E402
 from ..core.sources import TorqueProfile  # noqa: E402
 
 SOURCE_NODE_NAME = "torque_source"
 RATE_RANGE = (0.1, 20000.0)
-#: ``/clock`` as rclpy's own time source reads it (best effort, depth 1: matches any publisher; a late callback
-#: sees the latest time, as a timer fires once however far the clock jumped)
-CLOCK_TICK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
 class TorqueSourceNode(Node):

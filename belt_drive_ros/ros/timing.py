@@ -54,15 +54,9 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 
 from . import environment as ros_env
 from .gaps import TickGaps, next_tick_ns
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-
-from .qos import CLOCK_QOS
+from .qos import CLOCK_QOS, CLOCK_TICK_QOS
 
 __all__ = ["TickSource", "TickStats", "TickThread", "stamp"]
-
-#: ``/clock`` as rclpy's own time source reads it: best effort, depth 1 (matches any publisher; a late callback
-#: sees the latest time, and ticks once to it)
-CLOCK_TICK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 #: on the system clock the run's origin is truncated to whole microseconds
 SYSTEM_TIME_QUANTUM_NS = 1000
