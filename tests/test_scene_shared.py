@@ -61,3 +61,12 @@ def test_the_value_key_tells_types_and_signed_zeros_apart():
 
     assert _value_key((1,), 0) != _value_key((1.0,), 0) and _value_key(0.0, 0) != _value_key(-0.0, 0)
     assert _value_key(float("nan"), 0) is None and _value_key(np.zeros(2), 0) is None
+
+
+def test_the_shared_objects_are_bounded():
+    from belt_drive_ros.core import scene as scene_module
+
+    base = Scene.from_mapping(_mapping())
+    for j in range(scene_module.SHARED_SIZE + 5):
+        Scene.from_mapping(_mapping(params={**base.params.to_dict(), "c": 20.0 + j}))
+    assert len(scene_module._SHARED) <= scene_module.SHARED_SIZE

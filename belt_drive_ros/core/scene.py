@@ -7,6 +7,7 @@ from __future__ import annotations
 import copy
 import inspect
 import math
+import threading
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 from importlib import resources
 from typing import Any, Callable, Mapping
@@ -258,6 +259,7 @@ class Scene:
 #: ``Scene`` of the same file) holds the very objects an earlier one held, so what the core built from them by
 #: identity (models, plants, steppers, kernel loops: :mod:`~belt_drive_ros.core.identity_cache`) is built once
 _SHARED: dict = {}
+_SHARED_LOCK = threading.Lock()
 #: entries kept (the oldest dropped)
 SHARED_SIZE = 32
 #: longest tuple field of a profile (a table's points) that is compared by value; a longer one is never shared
@@ -273,12 +275,13 @@ def _shared(obj):
     key = _value_key(obj, 0)
     if key is None:
         return obj
-    hit = _SHARED.get(key)
-    if hit is not None:
-        return hit
-    if len(_SHARED) >= SHARED_SIZE:
-        _SHARED.pop(next(iter(_SHARED), None), None)
-    _SHARED[key] = obj
+    with _SHARED_LOCK:  # (scenes may be read in several threads: a campaign's workers)
+        hit = _SHARED.get(key)
+        if hit is not None:
+            return hit
+        if len(_SHARED) >= SHARED_SIZE:
+            _SHARED.pop(next(iter(_SHARED)))
+        _SHARED[key] = obj
     return obj
 
 
