@@ -23,11 +23,13 @@
    again (what a repeated call costs: the models, plants, steppers and the
    method's matrices built for that object are reused, and the belt mode's
    verdict is cached by its numbers), and a new ``Scene`` of the same file
-   each call (read before the clock starts: what a first call of a scene
-   costs once the kernels are compiled; only the verdict cache, keyed by
-   numbers, is still shared), and a new ``Scene`` whose belt damping differs
-   by one part in 1e12 each call (numbers no cache has seen: a sweep's
-   variant). The user's RK45 call has nothing to reuse.
+   each call (read before the clock starts: a scene read again holds the
+   parameter and torque objects of the earlier read, equal to the bit, so
+   it reuses what was built from them as the same ``Scene`` does:
+   :func:`belt_drive_ros.core.scene._shared`), and a new ``Scene`` whose
+   belt damping differs by one part in 1e12 each call (numbers no cache has
+   seen but the torques': a sweep's variant, what a first call of an edited
+   scene costs). The user's RK45 call has nothing to reuse.
 
 Error and timing definitions: :mod:`belt_drive_ros.benchmarks.common`.
 """
@@ -226,7 +228,7 @@ def whole_calls(repeats: int, quiet: bool) -> list[dict]:
         new = iter([get_scene(name) for _ in range(repeats)])  # each read before the clock starts
         first, _ = cpu_time(lambda: simulate(next(new)), repeats=repeats)
         rows.append(dict(measure=f"simulate({name}), a new Scene", cpu_s=first, x_realtime=scene.duration / first,
-                         error="", note="a new Scene of the same file each call (only the kernels warm)"))  # fmt: skip
+                         error="", note="a new Scene of the same file each call (its parameters and torques shared by value)"))  # fmt: skip
         # a sweep's variant: the belt damping c one part in 1e12 apart each call, numbers no cache has seen
         unseen = iter([get_scene(name) for _ in range(repeats)])
         unseen = iter([s.with_params(s.params.replace(c=s.params.c * (1.0 + (j + 1) * 1e-12))) for j, s in enumerate(unseen)])

@@ -7,7 +7,8 @@ from __future__ import annotations
 import copy
 import inspect
 import math
-from dataclasses import dataclass, field, fields, replace
+import threading
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from importlib import resources
 from typing import Any, Callable, Mapping
 
@@ -219,6 +220,7 @@ class Scene:
             if real(value) is None:
                 raise SceneError(f"method_options.{str(key)[:60]}: must be a number, got {type(value).__name__} {short(value)}")
         data["method_options"] = options
+        params, drive, load = _shared(params), _shared(drive), _shared(load)
         return cls(params=params, drive=drive, load=load, initial_state=InitialState(**init), **data)
 
     def to_dict(self) -> dict[str, Any]:
@@ -251,6 +253,56 @@ class Scene:
         scene = copy.copy(self)
         object.__setattr__(scene, "params", params)
         return scene
+
+
+#: parameter sets and torque profiles of scenes read from mappings, by their values: a scene read again (a new
+#: ``Scene`` of the same file) holds the very objects an earlier one held, so what the core built from them by
+#: identity (models, plants, steppers, kernel loops: :mod:`~belt_drive_ros.core.identity_cache`) is built once
+_SHARED: dict = {}
+_SHARED_LOCK = threading.Lock()
+#: entries kept (the oldest dropped)
+SHARED_SIZE = 32
+#: longest tuple field of a profile (a table's points) that is compared by value; a longer one is never shared
+SHARED_TUPLE_MAX = 4096
+
+
+def _shared(obj):
+    """``obj`` (frozen :class:`BeltDriveParams` or torque profile) or the earlier one of the very same values: the same
+    class and every field the same, a float to the bit (``float.hex``: signed zeros apart; NaN never shared), an int,
+    text or None equal and of the same type, tuples and nested profiles field by field. Any other field (an array, a
+    mutable profile) leaves ``obj`` its own. Both objects are frozen, so which of the two a scene holds changes
+    nothing it computes."""
+    key = _value_key(obj, 0)
+    if key is None:
+        return obj
+    with _SHARED_LOCK:  # (scenes may be read in several threads: a campaign's workers)
+        hit = _SHARED.get(key)
+        if hit is not None:
+            return hit
+        if len(_SHARED) >= SHARED_SIZE:
+            _SHARED.pop(next(iter(_SHARED)))
+        _SHARED[key] = obj
+    return obj
+
+
+def _value_key(v, depth: int):
+    """A hashable key of ``v``'s exact value for :func:`_shared` (None: not compared by value)."""
+    t = type(v)
+    if t is float:
+        return None if v != v else ("f", v.hex())
+    if v is None or t in (int, bool, str):
+        return (t.__name__, v)
+    if depth > 4:
+        return None
+    if t is tuple:
+        if len(v) > SHARED_TUPLE_MAX:
+            return None
+        keys = tuple(_value_key(x, depth + 1) for x in v)
+        return None if None in keys else ("t", keys)
+    if is_dataclass(v) and t.__dataclass_params__.frozen and isinstance(v, (BeltDriveParams, TorqueProfile)):
+        keys = tuple(_value_key(getattr(v, f.name), depth + 1) for f in fields(v))
+        return None if None in keys else (t, keys)
+    return None
 
 
 def shipped_scenes(folder: str = "") -> list[str]:
