@@ -214,9 +214,9 @@ def test_the_phi_functions_of_a_real_argument_are_the_complex_paths_floats():
     import cmath
 
     rng = np.random.default_rng(11)
+    edges = [0.5, -0.5, np.nextafter(0.5, 0.0), np.nextafter(-0.5, -1.0), 1e-300, -7.5]
     xs = np.concatenate([rng.uniform(-0.5, 0.5, 2000), rng.uniform(-40.0, 8.0, 2000), -np.logspace(-12, 3, 1000),
-                         np.logspace(-12, 0.9, 994), [0.5, -0.5, np.nextafter(0.5, 0.0), np.nextafter(-0.5, -1.0), 1e-300,
-                                                      -7.5]])  # fmt: skip
+                         np.logspace(-12, 0.9, 994), edges])
     compiled = _flow_phis(xs.astype(np.complex128))
     for x, got in zip(xs, compiled):
         z = np.complex128(x)
@@ -224,7 +224,8 @@ def test_the_phi_functions_of_a_real_argument_are_the_complex_paths_floats():
             want = kernel_slip._phi_series.py_func(z)
         else:
             d = z.real * z.real + z.imag * z.imag
-            want = kernel_slip._phi_closed.py_func(np.complex128(cmath.exp(z)), np.complex128(complex(z.real / d, -z.imag / d)))
+            r = np.complex128(complex(z.real / d, -z.imag / d))
+            want = kernel_slip._phi_closed.py_func(np.complex128(cmath.exp(z)), r)
         assert all(g.imag == 0.0 for g in got), x
         assert [g.real for g in got] == [w.real for w in want], x
         assert got == kernel_slip._phis4.py_func(z), x  # (interpreted: the same real path)
