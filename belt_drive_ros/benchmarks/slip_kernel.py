@@ -13,7 +13,8 @@ at etd4, 0.5 ms), in one run:
 4. **the compiled loop alone**: the :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps` calls of one warm
    simulate() (the run's and the rerun's) replayed on copies of their arguments, thread CPU time: per grid step,
    and beside it the phases' linear loop over the same grid without its guard (no event: what the steps cost
-   without the events and the hybrid loop's own work).
+   without the events and the hybrid loop's own work). The run's and the rerun's calls hold the same events over
+   different numbers of steps, so their two times give a step's cost between events and an event's.
 
 The phase-by-phase Python path these were once measured beside is gone
 (every slipping run steps in the compiled kernels); ``docs/performance.md``
@@ -93,17 +94,28 @@ def loop_alone(scene, repeats: int) -> dict:
     calls = hybrid_calls(scene)
     written = (7, 10, 11, 12, 13, 34)  # x, out_y, out_mode, out_sigma, out_native, events: fresh copies per call
     best, steps, events = math.inf, 0, 0
+    each = [math.inf] * len(calls)  # each call's fastest [ns]
+    counts = [(0, 0)] * len(calls)  # each call's (steps, events)
     for _ in range(repeats):
         total, steps, events = 0, 0, 0
-        for args in calls:
+        for c, args in enumerate(calls):
             args = list(args)
             for i in written:
                 args[i] = args[i].copy()
             start = time.thread_time_ns()
             done = kernel_slip.hybrid_steps(*args)
-            total += time.thread_time_ns() - start
+            spent = time.thread_time_ns() - start
+            total += spent
+            each[c] = min(each[c], spent)
+            counts[c] = (done[0] - args[5], done[4])
             steps, events = steps + done[0] - args[5], events + done[4]
         best = min(best, total)
+    # the run's and the rerun's calls hold the same events over different numbers of steps: their two times give
+    # a step's cost and an event's (the event step, the phases' entries, the step the guard fired in redone)
+    per_event = per_plain = math.nan
+    if len(calls) == 2 and counts[0][1] == counts[1][1] and counts[0][0] != counts[1][0] and counts[0][1] > 0:
+        per_plain = (each[0] - each[1]) / (counts[0][0] - counts[1][0])
+        per_event = (each[1] - per_plain * counts[1][0]) / counts[1][1]
     grid, reals, ints, offsets, dp, lp = (calls[0][i] for i in (0, 14, 15, 16, 27, 31))
     r0, r1, i0, i1 = offsets[kernel_slip.FLEXIBLE]
     loop, codes = reals[r0:r1].copy(), ints[i0:i1]
@@ -113,7 +125,8 @@ def loop_alone(scene, repeats: int) -> dict:
         start = time.thread_time_ns()
         linear_steps(grid, x.copy(), states, -math.inf, math.inf, 1e9, loop, codes, dp, lp)
         linear = min(linear, time.thread_time_ns() - start)
-    return {"per_step": best / steps, "steps": steps, "events": events, "linear_per_step": linear / (grid.size - 1)}
+    return {"per_step": best / steps, "steps": steps, "events": events, "linear_per_step": linear / (grid.size - 1),
+            "per_plain_step": per_plain, "per_event": per_event}
 
 
 def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
@@ -147,6 +160,8 @@ def run(out: Path, quick: bool = False, quiet: bool = False) -> dict:
     alone = loop_alone(scene, 5 if quick else 20)
     report("  hybrid_steps alone, per grid step (thread CPU)", alone["per_step"], "ns",
            f"{alone['steps']} steps, {alone['events']} events (run and rerun)")  # fmt: skip
+    report("    of which per step between events", alone["per_plain_step"], "ns", "the run's and rerun's call solved")
+    report("    and per event", alone["per_event"] / 1e3, "us", "event step, phase entries, the fired step")
     report("  the flexible phase's linear loop alone, unguarded", alone["linear_per_step"], "ns", "per step, same grid")
     out.mkdir(parents=True, exist_ok=True)
     path = out / "slip_kernel.csv"
