@@ -1,9 +1,10 @@
 """The accuracy guard's batched pieces give each matrix's own floats: closed-loop maps of several gains in one
-step, and spectral radii of a stack."""
+step, spectral radii of a stack, and a Lawson method's exponentials with their halves in one call."""
 
 import numpy as np
 import pytest
 
+from belt_drive_ros.core import integrators
 from belt_drive_ros.core.accuracy_probes import closed_loop_maps, closed_loop_maps_of
 from belt_drive_ros.core.integrators import make_integrator
 from belt_drive_ros.core.model import make_model
@@ -39,3 +40,23 @@ def test_spectral_radii_of_a_stack_are_each_maps_own():
     radii = spectral_radii(np.stack(maps + [real]))
     assert radii == [spectral_radius(M) for M in maps + [real]]
     assert radii[-1] == 1.0  # the rigid-body Jordan block's 1 +/- sqrt(eps) snapped to 1
+
+
+def test_lawson_exponentials_with_their_halves_are_the_same_floats():
+    A = _flexible(1.0 + 7e-12).A
+    taus = (1e-3, 1.5e-3, 4e-3)
+    integrators._EXPM_AT.clear()
+    with_halves = integrators._expm_at(A, taus, halves=True)
+    half = integrators._expm_at(A, tuple(t / 2.0 for t in taus))  # kept by the first call
+    assert with_halves.tobytes() == integrators._expm_at_of(A, taus).tobytes()
+    assert half.tobytes() == integrators._expm_at_of(A, tuple(t / 2.0 for t in taus)).tobytes()
+    B = _flexible(1.0 + 7e-12).B
+    lawson5 = integrators.REGISTRY["lawson5"]  # (make_integrator would share one integrator and its scheme)
+    integrators._EXPM_AT.clear()
+    whole, halved = (lawson5(A, B, h).scheme for h in (5e-3, 2.5e-3))  # the half step's read from the first
+    assert sum(1 for key in integrators._EXPM_AT if key[0] == integrators._key(A)) == 2  # one call kept both
+    integrators._EXPM_AT.clear()
+    for h, scheme in ((2.5e-3, halved), (5e-3, whole)):  # each alone, the half step first: nothing kept to read
+        alone = lawson5(A, B, h).scheme
+        assert alone.final.tobytes() == scheme.final.tobytes()
+        assert all(a is b or a.tobytes() == b.tobytes() for a, b in zip(alone.stages, scheme.stages))
