@@ -19,7 +19,7 @@ from .errors import IntegratorError
 from .forced_response import ORBIT_SAMPLES, orbit_error, profile_harmonics
 from .identity_cache import built_once
 from .model import _BELT, LINEAR_OUTPUTS, RigidBeltModel, make_model
-from .stability import spectral_radius
+from .stability import spectral_radii, spectral_radius
 from .step_plan import snap_tolerance
 from .stepper import shared_plant, shared_stepper
 
@@ -417,20 +417,40 @@ def input_weight(plant, x0, dt: float, probes, jumps, qs: list) -> float:
 
 def closed_loop_maps(integrator, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(M, G): the method's step on x' = A x + B (K x + u_0) is ``x+ = M x + G u_0`` (from its stage scheme)."""
+    return closed_loop_maps_of(integrator, (K,))[0]
+
+
+def closed_loop_maps_of(integrator, Ks) -> list:
+    """:func:`closed_loop_maps` of each gain of ``Ks``: an explicit scheme steps every gain's unit columns side by
+    side in one call (the stage sums run column by column, :func:`~belt_drive_ros.core.stage_scheme.affine`, and
+    each gain's ``K @ y`` reads its own columns: each (M, G) the same floats as alone); an implicit one gain by gain
+    (its fixed point iterates on all columns at once)."""
     n = integrator.A.shape[0]
     scheme, h = integrator.scheme, integrator.dt
+    if scheme.implicit:
+        out = []
+        for K in Ks:
+            m = K.shape[0]
+            zero_u = np.zeros(m)
 
-    def run(x, u0):
-        return _scheme.step(scheme, h, 0.0, x, lambda t, y: K @ y + u0, integrator.name)
+            def run(x, u0, K=K):
+                return _scheme.step(scheme, h, 0.0, x, lambda t, y: K @ y + u0, integrator.name)
 
-    m = K.shape[0]
-    if not scheme.implicit:  # affine in (x, u_0): every unit column in one call, as a matrix
-        MG = run(np.eye(n, n + m), np.eye(m, n + m, n))
-        return MG[:, :n], MG[:, n:]
-    zero_u = np.zeros(m)
-    M = np.column_stack([run(e, zero_u) for e in np.eye(n)])
-    G = np.column_stack([run(np.zeros(n), e) for e in np.eye(m)])
-    return M, G
+            M = np.column_stack([run(e, zero_u) for e in np.eye(n)])
+            G = np.column_stack([run(np.zeros(n), e) for e in np.eye(m)])
+            out.append((M, G))
+        return out
+    # affine in (x, u_0): every unit column of every gain in one call, gain j's n + m columns the j-th block
+    widths = [n + K.shape[0] for K in Ks]
+    cuts = np.cumsum([0] + widths)
+    x = np.concatenate([np.eye(n, w) for w in widths], axis=1)
+    u0 = [np.eye(K.shape[0], w, n) for K, w in zip(Ks, widths)]
+
+    def inputs(t, y):
+        return np.concatenate([K @ y[:, a:b] + u for K, u, a, b in zip(Ks, u0, cuts[:-1], cuts[1:])], axis=1)
+
+    MG = _scheme.step(scheme, h, 0.0, x, inputs, integrator.name)
+    return [(MG[:, a : a + n], MG[:, a + n : b]) for a, b in zip(cuts[:-1], cuts[1:])]
 
 
 def exact_maps(A_cl: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -488,6 +508,34 @@ _LINEAR_CACHE: dict = {}
 _LINEAR_CACHE_SIZE = 512
 
 
+def _maps_of(integrator, gains, E, F) -> list:
+    """(M, G) of each gain (:func:`closed_loop_maps_of`); a gain whose implicit stage does not converge: maps of
+    inf (each gain on its own then, so one that fails does not take the others with it)."""
+    try:
+        return closed_loop_maps_of(integrator, gains)
+    except IntegratorError:
+        pass
+    out = []
+    for j, K in enumerate(gains):
+        try:
+            out.append(closed_loop_maps(integrator, K))
+        except IntegratorError:
+            out.append((np.full_like(E[j], np.inf), np.full_like(F[j], np.inf)))
+    return out
+
+
+def _radii(maps: list) -> list:
+    """:func:`~belt_drive_ros.core.stability.spectral_radius` of each map of ``maps``, the finite float64 ones in one
+    stacked call (:func:`~belt_drive_ros.core.stability.spectral_radii`: each as alone); None for a map not finite
+    or of another type (its radius is made, or refused, as before)."""
+    ok = [j for j, M in enumerate(maps) if M.dtype == np.float64 and np.all(np.isfinite(M))]
+    out = [None] * len(maps)
+    if ok and all(maps[j].shape == maps[ok[0]].shape for j in ok):
+        for j, r in zip(ok, spectral_radii(np.stack([maps[j] for j in ok]))):
+            out[j] = r
+    return out
+
+
 def linear_verdict(integrator, A, B, rows, K, n_steps: int) -> tuple:
     """(stable, error, growth, exact growth, h omega) of the method's closed-loop map ``A + B K`` (cached).
 
@@ -521,13 +569,11 @@ def linear_verdicts(integrator, A, B, rows, Ks, n_steps: int) -> list:
         E, F = exact_maps(A_cl, B, dt)
         lams = _eigenvalues(A, B, gains, A_cl)
         parts = []  # (stable, M, G, growth, exact growth) per gain
-        for j, K in enumerate(gains):
-            try:
-                M, G = closed_loop_maps(integrator, K)
-            except IntegratorError:
-                M, G = np.full_like(E[j], np.inf), np.full_like(F[j], np.inf)
-            growth = spectral_radius(M) if np.all(np.isfinite(M)) else math.inf
-            exact_growth = spectral_radius(E[j])
+        maps = _maps_of(integrator, gains, E, F)
+        radii = _radii([M for M, _ in maps] + list(E))  # (a map not finite: None)
+        for j, (M, G) in enumerate(maps):
+            growth = radii[j] if radii[j] is not None else spectral_radius(M) if np.all(np.isfinite(M)) else math.inf
+            exact_growth = radii[len(maps) + j] if radii[len(maps) + j] is not None else spectral_radius(E[j])
             parts.append((growth <= max(1.0, exact_growth) * (1.0 + GROWTH_TOLERANCE) + 1e-15, M, G, growth, exact_growth))
         stepped = [j for j, part in enumerate(parts) if part[0]]
         errors = {}

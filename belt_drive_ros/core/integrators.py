@@ -23,6 +23,7 @@ help, the node's ``method`` parameter and the stability guard read
 from __future__ import annotations
 
 import math
+import threading
 from functools import lru_cache
 from typing import Callable, ClassVar
 
@@ -322,9 +323,35 @@ def _expm_at_of(A: np.ndarray, taus: tuple) -> np.ndarray:
     return np.stack([expm_stack(A * tau) for tau in taus])
 
 
-#: e^{tau A} for a tuple of offsets, cached per (A, offsets) for one system (a Lawson method needs one per distinct
-#: stage offset: all of a step's at once)
-_expm_at = _per_system(_expm_at_of, size=64)
+#: e^{tau A} for a tuple of offsets, by (A, offsets) for one system (a Lawson method needs one per distinct stage
+#: offset: all of a step's at once)
+_EXPM_AT: dict = {}
+_EXPM_AT_SIZE = 64
+_EXPM_AT_LOCK = threading.Lock()
+
+
+def _expm_at(A: np.ndarray, taus: tuple, halves: bool = False) -> np.ndarray:
+    """:func:`_expm_at_of`, kept per (A, offsets) for one system (a stack of variants: not kept). ``halves``: on a
+    miss, the offsets halved too, in the same :func:`expm_stack` call (its result per matrix is that matrix's alone,
+    bit for bit), kept as their own entry: the accuracy guard's half-step runs of a Lawson method read them (``c h/2``
+    is ``(c h)/2`` exactly, so its offsets are the same floats)."""
+    if A.ndim != 2:
+        return _expm_at_of(A, taus)
+    key = (_key(A), taus)
+    hit = _EXPM_AT.get(key)
+    if hit is not None:
+        return hit
+    half = tuple(tau / 2.0 for tau in taus)
+    both = halves and (key[0], half) not in _EXPM_AT
+    exps = _expm_at_of(A, taus + half if both else taus)
+    exps.flags.writeable = False  # (shared by every integrator of these numbers)
+    kept = {key: exps[: len(taus)], **({(key[0], half): exps[len(taus) :]} if both else {})}
+    with _EXPM_AT_LOCK:  # (threads: the oldest entry's eviction reads the dict another could change)
+        for k, value in kept.items():
+            if len(_EXPM_AT) >= _EXPM_AT_SIZE:
+                _EXPM_AT.pop(next(iter(_EXPM_AT)), None)
+            _EXPM_AT[k] = value
+    return kept[key]
 
 
 class LawsonRungeKutta(FixedStepIntegrator):
@@ -363,7 +390,8 @@ class LawsonRungeKutta(FixedStepIntegrator):
         C, s = self.C, len(self.C)
         offsets = [C[i] for i in range(s)] + [C[i] - C[j] for i in range(s) for j in range(i)] + [1.0 - c for c in C]
         offsets = [c for c in dict.fromkeys(offsets) if c != 0.0]  # (distinct, in order)
-        exps = _expm_at(self.A, tuple(c * h for c in offsets))  # every e^{c h A} in one call
+        # every e^{c h A} in one call, and (a new system) e^{c h A / 2} with them: the guard's half-step runs'
+        exps = _expm_at(self.A, tuple(c * h for c in offsets), halves=True)
         memo, memo_b = dict(zip(offsets, exps)), dict(zip(offsets, exps @ self.B))  # (and e^{c h A} B: one matmul)
 
         def E(c):

@@ -85,8 +85,15 @@ def _eigenvalues(A: np.ndarray) -> np.ndarray:
 
 def spectral_radius(M: np.ndarray) -> float:
     """max |eigenvalue| of a one-step map, the rigid-body Jordan block at 1 (eigenvalues 1 +/- sqrt(eps)) snapped to 1."""
-    mu = np.linalg.eigvals(M)
-    return float(np.max(np.abs(np.where(np.abs(mu - 1.0) <= 1e-6, 1.0, mu))))
+    return spectral_radii(np.asarray(M)[None])[0]
+
+
+def spectral_radii(Ms: np.ndarray) -> list[float]:
+    """:func:`spectral_radius` of each map of a stack ``Ms`` (k, n, n), finite, in one ``eigvals`` call: LAPACK's
+    routine matrix by matrix, each as alone (a stack's eigenvalues are complex when any matrix's are: a real one
+    then carries imaginary part 0, whose modulus is its absolute value, so each radius is the same float)."""
+    mu = np.linalg.eigvals(Ms)
+    return [float(r) for r in np.max(np.abs(np.where(np.abs(mu - 1.0) <= 1e-6, 1.0, mu)), axis=-1)]
 
 
 def _growth(cls, A, B, dt, eigenvalues) -> float:
