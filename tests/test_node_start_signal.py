@@ -54,7 +54,7 @@ def test_sigint_during_start_up_ends_the_node_though_inherited_ignored():
 HELPER_CHILD = textwrap.dedent(
     """
     import signal
-    from belt_drive_ros.ros.executors import interruptible_start
+    from belt_drive_ros.ros.environment import interruptible_start
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     assert interruptible_start() is True
@@ -77,3 +77,34 @@ HELPER_CHILD = textwrap.dedent(
 def test_interruptible_start_puts_back_only_an_ignored_sigint():
     done = subprocess.run([sys.executable, "-c", HELPER_CHILD], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-600:]
+
+
+#: `belt-drive node paper` with SIGINT ignored when it started, signalled while the command imports the node's module
+#: (rclpy and the node: seconds of a loaded machine's start-up, before the node's own run() is reached); exit 3: the
+#: signal was lost there
+IMPORT_CHILD = textwrap.dedent(
+    """
+    import os, signal, sys, time
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # as a background job of a non-interactive shell starts
+    from belt_drive_ros import cli
+
+    class SignalOnImport:
+        def find_spec(self, name, path=None, target=None):
+            if name == "belt_drive_ros.ros.node":
+                os.kill(os.getpid(), signal.SIGINT)
+                for _ in range(200):  # a handler runs between two bytecodes: here
+                    time.sleep(0.005)
+                sys.exit(3)
+            return None
+
+    assert "belt_drive_ros.ros.node" not in sys.modules
+    sys.meta_path.insert(0, SignalOnImport())
+    sys.exit(cli.main(["node", "paper"]))
+    """
+)
+
+
+def test_sigint_while_the_command_imports_the_node_ends_it_though_inherited_ignored():
+    done = subprocess.run([sys.executable, "-c", IMPORT_CHILD], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 130, done.stderr[-600:]
+    assert "interrupted by SIGINT" in done.stderr

@@ -25,7 +25,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import carray, njit, types
+from numba.extending import intrinsic, overload
 
 from .kernel_profiles import (
     NO_ANCHOR, formula, is_formula, profile_scalars, profile_torque_at, scalar_at, scalar_torque, torque,
@@ -305,21 +306,65 @@ HEADER = 9
 SECTIONS = ("W", "offsets", "S", "F", "tol", "extra", "guard", "dx", "dy", "lx", "ly")
 
 
+# numba converts an int argument in a fraction of an array's time, and its reshape calls a C helper of its own (~0.25 us
+# each, ~0.7 us for the first, on the caches a 1 ms sleep leaves: a node's tick): the packed arrays' sections are
+# viewed at their address (numba's public extension API: an intrinsic for the address as a pointer, numba.carray for
+# the array at it, not owned; the buffer's owner keeps it alive through the call)
+
+
+@intrinsic
+def _doubles_at(typingctx, address):
+    """``address`` (int64) as a pointer to float64 (LLVM ``inttoptr``)."""
+    sig = types.CPointer(types.float64)(types.int64)
+
+    def codegen(context, builder, signature, args):
+        return builder.inttoptr(args[0], context.get_value_type(signature.return_type))
+
+    return sig, codegen
+
+
+def doubles_view(words: np.ndarray, offset: int, shape: tuple) -> np.ndarray:
+    """``words[offset : offset + prod(shape)]`` (a C-contiguous float64 or int64 array, e.g. a packed buffer or
+    its int64 view) as an array of ``shape``, not a copy: the 2-D and 3-D sections of a packed buffer.
+
+    Compiled, the view is made at the address (``numba.carray`` at :func:`_doubles_at`, an int64 array's as the
+    float64 view's ``.view(np.int64)``; ``words``' owner keeps it alive) rather than by ``reshape``, which calls a
+    C helper of numba's (see above); the same elements either way. Interpreted (``NUMBA_DISABLE_JIT=1``): the
+    slice reshaped."""
+    size = 1
+    for d in shape:
+        size *= d
+    return words[offset : offset + size].reshape(shape)
+
+
+@overload(doubles_view, jit_options=dict(nogil=True))
+def _doubles_view(words, offset, shape):
+    if words.dtype == types.int64:
+        def impl(words, offset, shape):
+            return carray(_doubles_at(np.int64(words.ctypes.data) + 8 * offset), shape).view(np.int64)
+    else:
+        def impl(words, offset, shape):
+            return carray(_doubles_at(np.int64(words.ctypes.data) + 8 * offset), shape)
+
+    return impl
+
+
 @njit(**_INLINE)
 def _unpacked(reals, ints, dp):
     """The packed arrays of :func:`linear_steps` cut into :func:`_steps`' arguments after its first six (views, no
     copy; ``dp`` only for the drive's row count): ``(W, kinds, offsets, S, F, final_base, tol, max_iter, ua, ub, dk,
-    dx, dy, lk, lx, ly, extra, guard)`` (the profiles' parameters ``dp``, ``lp`` are passed as themselves)."""
+    dx, dy, lk, lx, ly, extra, guard)`` (the profiles' parameters ``dp``, ``lp`` are passed as themselves); the 3-D
+    and 2-D ones by :func:`doubles_view`, not ``reshape``."""
     n, s, E, rows, cols = ints[0], ints[1], ints[2], ints[3], ints[4]
     at = ints[HEADER : HEADER + len(SECTIONS) + 1]
     k0 = HEADER + len(SECTIONS) + 1
     nd = dp.shape[0]
     kinds, dk, lk = ints[k0 : k0 + s], ints[k0 + s : k0 + s + nd], ints[k0 + s + nd :]
     return (
-        reals[at[0] : at[1]].reshape((1, 4, n)), kinds, reals[at[1] : at[2]], reals[at[2] : at[3]].reshape((s, rows, cols)),
-        reals[at[3] : at[4]].reshape((1, n, cols)), ints[5], reals[at[4]], ints[6], ints[7] != 0, ints[8] != 0, dk,
+        doubles_view(reals, at[0], (1, 4, n)), kinds, reals[at[1] : at[2]], doubles_view(reals, at[2], (s, rows, cols)),
+        doubles_view(reals, at[3], (1, n, cols)), ints[5], reals[at[4]], ints[6], ints[7] != 0, ints[8] != 0, dk,
         reals[at[7] : at[8]], reals[at[8] : at[9]], lk, reals[at[9] : at[10]], reals[at[10] : at[11]],
-        reals[at[5] : at[6]].reshape((E, 5)), reals[at[6] : at[7]],
+        doubles_view(reals, at[5], (E, 5)), reals[at[6] : at[7]],
     )  # fmt: skip
 
 

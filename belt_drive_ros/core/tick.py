@@ -36,10 +36,10 @@ import math
 
 import numpy as np
 
-from numba import carray, njit, types
-from numba.extending import intrinsic, overload
+from numba import carray, njit
+from numba.extending import overload
 
-from .kernel import HEADER, SECTIONS, linear_steps
+from .kernel import HEADER, SECTIONS, _doubles_at, doubles_view, linear_steps
 from .kernel_profiles import profile_torque
 from .kernel_slip import (FLEXIBLE, KIND_NAMES, MASS_DOWN, MASS_UP, MAX_SWITCHES, PHASE_SIZE, SLIP_DOWN, SLIP_UP,
                           STEPWISE, STICKING, _flexible, _shift_angle, _to_y, hybrid_steps)
@@ -130,17 +130,6 @@ class PackedArrays:
 # buffer alive through the call)
 
 
-@intrinsic
-def _doubles_at(typingctx, address):
-    """``address`` (int64) as a pointer to float64 (LLVM ``inttoptr``)."""
-    sig = types.CPointer(types.float64)(types.int64)
-
-    def codegen(context, builder, signature, args):
-        return builder.inttoptr(args[0], context.get_value_type(signature.return_type))
-
-    return sig, codegen
-
-
 def packed_at(address: int) -> np.ndarray:
     """The float64 buffer of a :class:`PackedArrays` at ``address`` (its :attr:`~PackedArrays.address`), whole: its
     length from its table (the last section's offset and shape). Compiled: :func:`_doubles_at` and
@@ -158,43 +147,6 @@ def _packed_at(address):
         n = carray(_doubles_at(address), (1,)).view(np.int64)[0]  # 4 x the sections: the table's length
         table = carray(_doubles_at(address), (n,)).view(np.int64)
         return carray(_doubles_at(address), (table[n - 4] + table[n - 3] * table[n - 2] * table[n - 1],))
-
-    return impl
-
-
-def doubles_view(words: np.ndarray, offset: int, shape: tuple) -> np.ndarray:
-    """``words[offset : offset + prod(shape)]`` (a C-contiguous float64 or int64 array, e.g. a packed buffer or
-    its int64 view) as an array of ``shape``, not a copy: the kernels' 2-D and 3-D sections of a packed buffer.
-
-    Compiled, the view is made at the address (``numba.carray``, the buffer's owner keeps it alive, as
-    :func:`packed_at`'s) rather than by ``reshape``: numba's reshape calls a C helper of its own, ~0.25 us
-    each and ~0.7 us for the first on the caches a 1 ms sleep leaves (a tick made 3 to 7 of them); the same
-    elements either way. Interpreted (``NUMBA_DISABLE_JIT=1``): the slice reshaped."""
-    size = 1
-    for d in shape:
-        size *= d
-    return words[offset : offset + size].reshape(shape)
-
-
-@intrinsic
-def _int64s_at(typingctx, address):
-    """``address`` (int64) as a pointer to int64 (LLVM ``inttoptr``)."""
-    sig = types.CPointer(types.int64)(types.int64)
-
-    def codegen(context, builder, signature, args):
-        return builder.inttoptr(args[0], context.get_value_type(signature.return_type))
-
-    return sig, codegen
-
-
-@overload(doubles_view, jit_options=dict(nogil=True))
-def _doubles_view(words, offset, shape):
-    if words.dtype == types.int64:
-        def impl(words, offset, shape):
-            return carray(_int64s_at(np.int64(words.ctypes.data) + 8 * offset), shape)
-    else:
-        def impl(words, offset, shape):
-            return carray(_doubles_at(np.int64(words.ctypes.data) + 8 * offset), shape)
 
     return impl
 

@@ -57,7 +57,6 @@ __all__ = [
     "SpinDeadline",
     "StopSignal",
     "executor_name",
-    "interruptible_start",
     "make_executor",
     "ros_session",
     "spin_nodes",
@@ -130,21 +129,6 @@ class StopSignal:
         """Signal handler: keeps the first signal number."""
         if not self.signum:
             self.signum = int(signum)
-
-
-def interruptible_start() -> bool:
-    """Let SIGINT end a program's start-up (building its nodes: imports, the guards, numba loading its kernels):
-    where the process inherited SIGINT *ignored*, Python's own handler (``KeyboardInterrupt``) is put back.
-
-    A background job of a non-interactive shell (``belt-drive node &`` in a script) starts with SIGINT ignored,
-    and Python then leaves it ignored; :func:`spin_until_signal` handles it anyway once the spin starts, so a
-    SIGINT in the seconds before (5-15 s of start-up at load 10) was lost and the node went on running. With the
-    handler back, it stops the start-up as it does in a process started normally (the command's exit code 130).
-    Returns True when the handler was put back. Only in the main thread (elsewhere nothing is changed)."""
-    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) != signal.SIG_IGN:
-        return False
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    return True
 
 
 @contextmanager

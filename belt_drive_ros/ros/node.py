@@ -147,7 +147,8 @@ from ..io.recording import (  # noqa: E402
     encode_robot_description,
 )
 from .diagnostics import NodeDiagnostics  # noqa: E402
-from .executors import executor_name, interruptible_start, make_executor, ros_session, spin_nodes  # noqa: E402,F401 - make_executor re-exported
+from .environment import interruptible_start  # noqa: E402
+from .executors import executor_name, make_executor, ros_session, spin_nodes  # noqa: E402,F401 - make_executor re-exported
 from .gaps import TICK_GAP_METADATA  # noqa: E402
 from .inputs import DriveInput, float64_value  # noqa: E402
 from .parameter_schema import (  # noqa: E402,F401 - NodeConfigError, unknown_parameter_rule re-exported

@@ -47,7 +47,8 @@ from rosgraph_msgs.msg import Clock as ClockMsg  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 
 from ..core.errors import BeltDriveError  # noqa: E402
-from .executors import interruptible_start, ros_session, spin_nodes  # noqa: E402
+from .environment import interruptible_start  # noqa: E402
+from .executors import ros_session, spin_nodes  # noqa: E402
 from .gaps import next_tick_ns  # noqa: E402
 from .qos import CLOCK_TICK_QOS, INPUT_QOS, OUTPUT_QOS  # noqa: E402
 from ..core.sources import TorqueProfile  # noqa: E402
