@@ -119,7 +119,7 @@ class KernelLoop:
         stacked = W.ndim == 3
         W = W if stacked else W[None]  # (V, 4, n)
         V, n = W.shape[0], W.shape[2]
-        self.uses_angle = np.array([bool(u) for u in uses_angle], dtype=np.int64)
+        self.uses_angle = uses = np.array([bool(u) for u in uses_angle], dtype=np.int64)
         self.drive, self.load = drive, load
         d, l = drive, load
         tables = (d.tx, d.ty, l.tx, l.ty)
@@ -129,19 +129,22 @@ class KernelLoop:
         #: the profiles' tables: after the plant's numbers in a single run's ``reals``, apart for variants (shared)
         self.tables = np.concatenate([np.ravel(a) for a in tables]).astype(np.float64)
 
-        def build():
+        def build(scheme=scheme, dt=dt, guard_row=guard_row):  # (no reference to self: _own_of keeps it)
             kinds, offsets, S, final, final_base, tol, max_iter = scheme_arrays(scheme, dt, W, 2 + len(extra))
             extra_rows = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
             sections = (W, offsets, S, final, np.array([tol]), extra_rows, guard_row, *tables)
             starts = np.cumsum([0] + [a[0].size if a.ndim >= 3 else a.size for a in sections])
-            # the plant's and method's numbers (per variant); then the profiles' tables (shared)
+            # the plant's and method's numbers (per variant; one plant's in a row of its own); then the profiles'
+            # tables (shared)
             own = np.concatenate(
                 [a.reshape(V, -1) if a.ndim >= 3 else np.broadcast_to(np.ravel(a), (V, a.size)) for a in sections[:7]],
                 axis=1,
-            ).astype(np.float64)
-            header = [n, kinds.size, len(extra), S.shape[2], S.shape[3], final_base, max_iter, *self.uses_angle]
-            return (own if stacked else own[0]), np.concatenate([header, starts, kinds, d.kinds, l.kinds]).astype(np.int64)
+            ).astype(np.float64) if stacked else np.concatenate([np.ravel(a) for a in sections[:7]]).astype(np.float64)
+            header = [n, kinds.size, len(extra), S.shape[2], S.shape[3], final_base, max_iter, *uses]
+            return own, np.concatenate([header, starts, kinds, d.kinds, l.kinds]).astype(np.int64)
 
+        self._own_of = None  # (scheme, dt) -> the unguarded own numbers of one plant (None: stacked, other extras)
+        self._piece = None  # the loop :meth:`piece` rewrites, made on first use
         if stacked or not all(isinstance(e, FrictionForce) for e in extra):
             own, self.ints = build()
             if stacked:
@@ -149,12 +152,41 @@ class KernelLoop:
                 return
         else:  # one plant: the method's and plant's numbers built once per scheme (a cached integrator's), read-only
             rows = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
-            own, ints = built_once(_OWN, OWN_CACHE_SIZE, (scheme,), build, (
-                float(dt), W.tobytes(), rows.tobytes(), guard_row.tobytes(), self.uses_angle.tobytes(), d.kinds.tobytes(),
-                l.kinds.tobytes(), *(a.size for a in tables)))  # fmt: skip
+            key = (W.tobytes(), rows.tobytes(), self.uses_angle.tobytes(), d.kinds.tobytes(), l.kinds.tobytes(),
+                   *(a.size for a in tables))  # fmt: skip
+            own, ints = built_once(_OWN, OWN_CACHE_SIZE, (scheme,), build, (float(dt), guard_row.tobytes(), *key))
             self.ints = ints.copy()  # its own: the node's tick writes into a loop's ints
+            unguarded = guard_array(None, n)
+
+            def own_of(other, h):
+                return built_once(_OWN, OWN_CACHE_SIZE, (other,), lambda: build(other, h, unguarded),
+                                  (float(h), unguarded.tobytes(), *key))
+
+            self._own_of, self._ints0 = own_of, ints
         self.reals = np.concatenate([own, self.tables])
         self.tables = self.reals[own.size :]  # a view: a recording's samples held once
+
+    def piece(self, scheme, dt: float):
+        """The loop of this plant for ``scheme``, another step ``dt`` [s] of the same method (a partial step's), with
+        no guard: one loop per loop, whose ``reals`` head is rewritten with that scheme's numbers on each call (the
+        plant's tables are not copied again: a recording's hold ~16 bytes a sample), so use it before the next call.
+        The same arrays as ``KernelLoop(scheme, dt, ...)`` of the plant (the same floats); None where that is not
+        one layout (stacked variants, another extra input, a scheme of other stage kinds)."""
+        if self._own_of is None or not KernelLoop.usable(scheme):
+            return None
+        own, ints = self._own_of(scheme, dt)
+        size = self.reals.size - self.tables.size
+        if own.size != size or not np.array_equal(ints, self._ints0):
+            return None
+        loop = self._piece
+        if loop is None:
+            loop = self._piece = object.__new__(KernelLoop)
+            loop.__dict__.update(self.__dict__)
+            loop._piece, loop._own_of = None, None
+            loop.reals, loop.ints = self.reals.copy(), self._ints0.copy()
+            loop.tables = loop.reals[size:]
+        loop.reals[:size] = own
+        return loop
 
     def __call__(self, times, x, out, lo: float = -math.inf, hi: float = math.inf, limit: float = 1.0e5):
         # numba types a read-only array apart: a writable copy keeps the kernel's one signature

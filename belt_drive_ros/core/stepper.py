@@ -17,8 +17,10 @@ The grid, partial steps and the clamps and splits at torque breakpoints are plan
 partial step is one kernel call; an adaptive method (scipy's references) steps through ``integrator.step``. A
 torque profile without a data form is refused.
 
-Integrators (and kernel loops) of partial-step lengths are cached per stepper (at most :data:`PARTIAL_CACHE_SIZE`);
-plant torques are read at every call (a held torque may change between advances).
+Integrators of partial-step lengths are cached per stepper (at most :data:`PARTIAL_CACHE_SIZE`); their kernel loop
+is the stepper's loop with the piece's numbers written into one buffer
+(:meth:`~belt_drive_ros.core.kernel_loop.KernelLoop.piece`: no copy of a recording's table per length); plant
+torques are read at every call (a held torque may change between advances).
 
 Divergence
 ----------
@@ -363,12 +365,18 @@ class Stepper(StepPlanner):
         return it
 
     def _loop_of(self, integrator):
-        """The kernel loop of ``integrator`` (the stepper's own or a partial step's) for this plant, or None."""
-        if integrator is self.integrator:
+        """The kernel loop of ``integrator`` (the stepper's own or a partial step's) for this plant, or None: a
+        partial step's is the stepper's loop's :meth:`~belt_drive_ros.core.kernel_loop.KernelLoop.piece` (its
+        numbers written into one loop, the plant's tables not copied), to be called before the next one is asked
+        for; a layout it does not hold, a loop of its own, kept by step length."""
+        if integrator is self.integrator or self.loop is None:
             return self.loop
+        piece = self.loop.piece(integrator.scheme, integrator.dt)
+        if piece is not None:
+            return piece
         key = integrator.dt
         if key not in self._loops:
-            self._loops[key] = self.plant.kernel_loop(integrator) if self.loop is not None else None
+            self._loops[key] = self.plant.kernel_loop(integrator)
         return self._loops[key]
 
     def _clamped(self, lo: float, hi: float):

@@ -1,0 +1,119 @@
+"""Steps split by off-grid samples (a recording's jittered receive times): each piece's kernel loop is the stepper's
+loop with that piece's numbers written into one buffer (``KernelLoop.piece``), not a loop of its own per piece length
+holding another copy of the recording's table; the same arrays, so the same floats."""
+
+import numpy as np
+import pytest
+
+from belt_drive_ros.core.kernel_loop import KernelLoop
+from belt_drive_ros.core.model import make_model
+from belt_drive_ros.core.simulate import Simulator
+from belt_drive_ros.core.stage_scheme import Guard
+from belt_drive_ros.core.stepper import Stepper
+from belt_drive_ros.io.bags import reference_scene
+from belt_drive_ros.io.torque_bag import RecordedTorque
+
+METHODS = ["etd4", "exact", "rk4", "lawson5", "trapezoidal"]
+
+
+def _jittered(n=400, rate=1000.0, jitter_ns=20_000):
+    """An engine-like torque sampled at ``rate`` [Hz] with receive times off the step grid (whole ns, as a bag's)."""
+    t_ns = np.round(np.arange(n) / rate * 1e9).astype(np.int64)
+    t_ns[1:] += np.random.default_rng(7).integers(-jitter_ns, jitter_ns + 1, n - 1)
+    t = t_ns * 1e-9
+    return RecordedTorque(times=t, values=15.0 + 300.0 * np.sin(230.0 * t) + 90.0 * np.sin(460.0 * t))
+
+
+def _stepper(method, model="flexible", dt=1e-3, cls=Stepper):
+    scene = reference_scene("engine_idle")
+    sim = Simulator(make_model(model, scene.params), _jittered(), scene.load, method, dt, check_stability=False)
+    st = sim.stepper
+    if cls is not Stepper:
+        st = cls(st.plant, method, dt, st.method_options, st.origin)
+    return st, scene.initial_state.vector(model, scene.params.ratio)
+
+
+class _LoopPerLength(Stepper):
+    """The stepper before pieces shared one loop: a kernel loop of its own per piece length (built from scratch)."""
+
+    def _loop_of(self, integrator):
+        if integrator is self.integrator or self.loop is None:
+            return self.loop
+        return self.plant.kernel_loop(integrator)
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("model", ["rigid", "flexible"])
+def test_pieces_give_the_floats_of_a_loop_built_per_length(method, model):
+    st, x0 = _stepper(method, model)
+    ref, _ = _stepper(method, model, cls=_LoopPerLength)
+    times, states = st.run(x0, 0.0, 0.35)
+    assert len(st.split_steps) > 200  # the jitter splits most steps
+    ref_times, ref_states = ref.run(x0, 0.0, 0.35)
+    np.testing.assert_array_equal(times, ref_times)
+    np.testing.assert_array_equal(states, ref_states)  # the same floats, not merely close
+    a, b = 0.0123457, 0.3154321  # off the grid: partial steps at both ends too
+    np.testing.assert_array_equal(st.advance(x0, a, b), ref.advance(x0, a, b))
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_piece_holds_the_arrays_of_its_own_loop(method):
+    st, _ = _stepper(method)
+    plant = st.plant
+    guard = Guard(row=(0.0, 1.0, 0.0, 0.0), bound=1e9)
+    guarded = plant.kernel_loop(st.integrator, guard)  # a guarded stepper's pieces are not guarded (as before)
+    for h in (3.21e-4, 1e-3 - 3.21e-4, 7.77e-6):
+        it = st._partial(h)
+        own = plant.kernel_loop(it)
+        for loop in (st.loop, guarded):
+            piece = loop.piece(it.scheme, it.dt)
+            np.testing.assert_array_equal(piece.reals, own.reals)
+            np.testing.assert_array_equal(piece.ints, own.ints)
+            assert piece.reals is loop.piece(st._partial(h / 2).scheme, h / 2).reals  # one buffer, rewritten
+        assert not np.array_equal(guarded.reals, st.loop.reals)  # (the guard is in the parent's numbers)
+
+
+def test_an_off_grid_run_keeps_no_loop_per_piece_length():
+    """Before, every distinct piece length kept a kernel loop with a copy of the recording's table (up to 4096 per
+    stepper, a page of a long bag each: a 10 s jittered 1 kHz bag streamed peaked at 862 MB, now 202 MB)."""
+    st, x0 = _stepper("etd4")
+    st.run(x0, 0.0, 0.35)
+    assert len(st._partials) > 200  # distinct piece lengths, each an integrator of its own
+    assert not st._loops
+    table = st.loop.tables.size
+    held = {id(loop.reals): loop.reals.size for loop in (st.loop, st.loop._piece)}
+    assert sum(held.values()) < 3 * table  # the parent's and the one piece buffer
+
+
+def test_stacked_variants_have_no_piece():
+    from belt_drive_ros.core.stage_scheme import StageScheme
+    from belt_drive_ros.core.profile_data import CONSTANT, ProfileBuilder
+
+    builder = ProfileBuilder()
+    builder.row(CONSTANT, 1.0)
+    data, n = builder.build(), 2
+    final, W = np.hstack([np.eye(n), np.zeros((n, 2))]), np.vstack([np.eye(n), np.eye(n)])
+    loop = KernelLoop(StageScheme((0.0,), (None,), final[None]), 1e-3, W[None], (False, False), data, data)
+    assert loop.piece(StageScheme((0.0,), (None,), final[None]), 5e-4) is None
+
+
+def test_a_loop_with_its_piece_is_freed_without_the_cycle_collector():
+    """A page's loop holds the page's table: it must go when its stepper goes, not at the next cyclic collection
+    (a reference cycle through the loop's own-numbers builder kept every page of a streamed replay until then:
+    tests/test_replay_memory.py's bound failed, 16.7-18.3 B per sample)."""
+    import gc
+    import weakref
+
+    st, _ = _stepper("etd4")
+    loop = st.plant.kernel_loop(st.integrator)
+    it = st._partial(3.21e-4)
+    assert loop.piece(it.scheme, it.dt) is not None
+    ref = weakref.ref(loop)
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        del loop
+        assert ref() is None
+    finally:
+        if enabled:
+            gc.enable()
