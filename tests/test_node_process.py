@@ -395,7 +395,7 @@ def test_params_file_is_handed_to_rcl_as_the_checked_copy(tmp_path):
 def test_ticks_resume_at_once_after_use_sim_time_goes_true_and_back_to_false():
     """Issue 24: ``use_sim_time`` set true and back to false through SetParameters left the node (events
     executor, the default) silent for 2-20 s: its tick timer kept its schedule on simulated time. Now the
-    first tick is stamped within 0.5 s of the switch back's answer (a period is 1 ms; the old code was silent 1-2 s
+    first tick is stamped within 0.5 s of the switch back's answer (a period is 10 ms; the old code was silent 1-2 s
     after most switches). On a loaded machine the answer itself may take long and the node may be starved: the
     bound is measured from the answer's arrival and widened to twice the longest pause between the node's ticks
     seen before the switches (what this host did to the node in the same run)."""
@@ -404,7 +404,9 @@ def test_ticks_resume_at_once_after_use_sim_time_goes_true_and_back_to_false():
     from sensor_msgs.msg import JointState
 
     domain = ros_env.process_domain_id(offset=43)
-    node = start(["node", "paper", "--ros-args", "-p", "input_timeout:=0.0"], domain)
+    # ticks at 100 Hz: a Python probe starved on a loaded machine falls behind 1 kHz for good (under four CPU
+    # burners it was still reading ticks from before the switch 25 s later); the switch is the same at any rate
+    node = start(["node", "paper", "--ros-args", "-p", "input_timeout:=0.0", "-p", "step_rate_hz:=100.0"], domain)
     probe = Probe(domain)
     try:
         probe.subscribe(JointState, "joint_states", depth=10000)
@@ -421,7 +423,7 @@ def test_ticks_resume_at_once_after_use_sim_time_goes_true_and_back_to_false():
         def stamps():
             return [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in probe.received["joint_states"]]
 
-        probe.spin_until(lambda: client.service_is_ready() and len(stamps()) > 100, 40.0, "ticks", (node,))
+        probe.spin_until(lambda: client.service_is_ready() and len(stamps()) > 50, 40.0, "ticks", (node,))
         steady = sorted(stamps())
         longest_pause = max(b - a for a, b in zip(steady, steady[1:]))  # the host's own stalls of the node, this run
         allowance = max(500_000_000, 2 * longest_pause)
