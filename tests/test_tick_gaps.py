@@ -105,7 +105,7 @@ def test_a_stall_is_a_gap_on_diagnostics_in_the_recording_and_in_msg_tools_info(
         values = {kv.key: kv.value for kv in status.values}
         assert int(values["tick_gaps"]) >= 1 and values["last_gap"] == last.describe()
         assert status.level == status.WARN and "gap(s) in the ticks" in status.message
-        n_gaps = node.counters["tick_gaps"]
+    n_gaps = node.counters["tick_gaps"]  # once the node has stopped (a starved node may gap again before it does)
     records = tick_gaps(summary(path).metadata)
     assert len(records) == n_gaps
     assert any({"start_ns": str(gap.start_ns), "end_ns": str(gap.end_ns), "ticks_missed": str(gap.missed)}.items()
