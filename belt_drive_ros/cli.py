@@ -70,6 +70,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: the parser :func:`main` uses, built on its first call (every command module imported and registered: ~30 ms, and
+#: ~100 ms on a loaded machine; a process calling main() many times, the tests and ``bench hostile``, builds it once)
+_PARSER: list = []
+
+
+def _parser() -> argparse.ArgumentParser:
+    if not _PARSER:
+        _PARSER.append(build_parser())
+    return _PARSER[0]
+
+
 def _one_line_warning(message, category, filename, lineno, file=None, line=None):
     print(f"belt-drive: warning: {message}", file=file or sys.stderr)
 
@@ -79,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
 
     warnings.showwarning = _one_line_warning  # e.g. a truncated bag: say so in one line
     try:  # (~0.3 s of imports: a SIGINT here ends as one during the run does, never with a traceback)
-        parser = build_parser()
+        parser = _parser()
         args = parser.parse_args(argv)
         if not getattr(args, "func", None):
             parser.print_help()
