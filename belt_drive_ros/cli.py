@@ -70,6 +70,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: the parser :func:`main` uses, built on its first call (every command module imported and registered: ~30 ms, and
+#: ~100 ms on a loaded machine; a process calling main() many times, the tests and ``bench hostile``, builds it once)
+_PARSER: list = []
+
+
+def _parser() -> argparse.ArgumentParser:
+    if not _PARSER:
+        _PARSER.append(build_parser())
+    return _PARSER[0]
+
+
 def _one_line_warning(message, category, filename, lineno, file=None, line=None):
     print(f"belt-drive: warning: {message}", file=file or sys.stderr)
 
@@ -78,14 +89,17 @@ def main(argv: list[str] | None = None) -> int:
     import warnings
 
     warnings.showwarning = _one_line_warning  # e.g. a truncated bag: say so in one line
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
-    from .io.atomic import Terminated, terminate_raises
+    try:  # (~0.3 s of imports: a SIGINT here ends as one during the run does, never with a traceback)
+        parser = _parser()
+        args = parser.parse_args(argv)
+        if not getattr(args, "func", None):
+            parser.print_help()
+            return 2
+        from .io.atomic import Terminated, terminate_raises
 
-    on_term = terminate_raises() if args.command in OFFLINE_COMMANDS else contextlib.nullcontext()
+        on_term = terminate_raises() if args.command in OFFLINE_COMMANDS else contextlib.nullcontext()
+    except KeyboardInterrupt:
+        return _interrupted(signal.SIGINT, argv, "")
     try:
         with on_term:
             code = int(args.func(args) or 0)
@@ -101,14 +115,8 @@ def main(argv: list[str] | None = None) -> int:
     except RecursionError:
         return _fail("input nested too deeply", 2)
     except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM as Terminated: outputs in progress were removed
-        signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
-        print(f"belt-drive: interrupted by {signal.Signals(signum).name}; unfinished outputs removed", file=sys.stderr)
-        if argv is None:
-            # a program: end now. Its daemon threads (the accuracy guard, the MCAP writer) may still be inside
-            # compiled code; the interpreter's teardown around them once ended a SIGTERM'd `sim --bag-folder` with
-            # "terminate called without an active exception" and SIGABRT after the outputs were already removed
-            _exit_now(128 + int(signum))
-        return 128 + int(signum)
+        return _interrupted(exc.signum if isinstance(exc, Terminated) else signal.SIGINT, argv,
+                            "; unfinished outputs removed")
     except MemoryError:
         return _fail("out of memory (a shorter run, or --out to stream it, needs less)", 1)
     except OSError as exc:  # disk full, I/O error: the run failed, the input was fine
@@ -129,6 +137,17 @@ def main(argv: list[str] | None = None) -> int:
 #: The interpreter's own teardown of numpy, scipy and rclpy adds ~0.2 s idle and 1-2 s on a loaded
 #: machine between SIGINT/SIGTERM and the exit, for nothing left to do.
 QUICK_EXIT_COMMANDS = frozenset({"node", "record", "source", "replay"})
+
+
+def _interrupted(signum: int, argv, detail: str) -> int:
+    """Say in one line that signal ``signum`` interrupted the command (``detail`` after its name); 128 + ``signum``."""
+    print(f"belt-drive: interrupted by {signal.Signals(signum).name}{detail}", file=sys.stderr)
+    if argv is None:
+        # a program: end now. Its daemon threads (the accuracy guard, the MCAP writer) may still be inside
+        # compiled code; the interpreter's teardown around them once ended a SIGTERM'd `sim --bag-folder` with
+        # "terminate called without an active exception" and SIGABRT after the outputs were already removed
+        _exit_now(128 + int(signum))
+    return 128 + int(signum)
 
 
 def _exit_now(code: int) -> None:

@@ -24,7 +24,7 @@ from belt_drive_ros.io.inputs import input_replaced
 
 from .decode import FLOAT64, JOINT_STATE
 from .errors import MsgToolsError, RecoveredBagWarning
-from .files import output_mode
+from .files import new_part, output_mode, settle_parts
 from .reader import TopicData, read_bag, summary
 from .results import tick_gaps
 from .units import RAD_PER_S_TO_RPM, UNITS_METADATA, is_shaft_speed, label, unit_for
@@ -276,11 +276,13 @@ def _check_out_dir(path: Optional[str], force: bool = False, suffix: str = "", b
 def _atomic(path: str, force: bool, mode: str):
     """A file in ``path``'s folder that is renamed onto ``path`` only when the block succeeds:
     a failed write (disk full) leaves neither a partial file nor the temporary one."""
-    import tempfile
-
     _check_out_dir(path, force)
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, name = tempfile.mkstemp(dir=folder, prefix=f".{os.path.basename(path)}.", suffix=".part")
+    removed = settle_parts(path)  # what a run killed while writing it left
+    if removed:
+        sys.stderr.write(f"{PROG}: warning: {path}: removed {len(removed)} unfinished temporary file(s) of a run "
+                         f"killed while writing it ({', '.join(removed)})\n")
+    fd, name = new_part(path)
+    lock = os.dup(fd)  # the temporary file stays locked past its close, up to the rename
     done = False
     try:
         os.fchmod(fd, output_mode(path))  # as open() would leave it, not mkstemp's 0o600
@@ -298,6 +300,7 @@ def _atomic(path: str, force: bool, mode: str):
         if not done:
             with contextlib.suppress(OSError):
                 os.unlink(name)
+        os.close(lock)
 
 
 def cmd_export(args: argparse.Namespace, out: IO[str]) -> int:

@@ -77,15 +77,13 @@ class UnknownMessageTypeError(MsgToolsError, KeyError):
 
 
 class OverwriteError(MsgToolsError, FileExistsError):
-    """The output file exists and overwriting was not requested."""
+    """The output file (or bag folder) exists and overwriting was not requested: ``--force`` on the command line,
+    ``force=True`` in Python."""
 
     def __init__(self, path: PathLike):
         self.filename = os.fspath(path)
-        MsgToolsError.__init__(
-            self,
-            f"refusing to overwrite existing file {self.filename}; "
-            "pass --force (force=True) to replace it",
-        )
+        what = "exists and holds a bag" if os.path.isdir(self.filename) else "exists"
+        MsgToolsError.__init__(self, f"{self.filename} {what}; pass --force to overwrite it")
 
 
 class WriteError(MsgToolsError, OSError):

@@ -10,19 +10,31 @@ as :class:`~msg_tools.errors.NotAFileError`.
 output renamed from one would keep that. :func:`output_mode` gives the mode
 a plain ``open(path, "w")`` would have left: that of the file being replaced,
 else 0o666 less the process's umask.
+
+An output is written whole or not at all through a temporary ``.NAME.<random>.part``
+beside it (:func:`new_part`), renamed onto it once written. Its writer holds an
+exclusive ``flock`` on it until then; the kernel drops that lock with the
+process, so a ``.part`` file nobody holds is what a writer killed outright
+(SIGKILL, power loss) left, and the next write of the same output removes it
+(:func:`settle_parts`); one a live writer holds is left alone.
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
 import stat
+import tempfile
 
 from belt_drive_ros.io.inputs import InputError, check_path
 from belt_drive_ros.io.inputs import open_regular as _open_regular
 
 from .errors import NotAFileError
 
-__all__ = ["open_regular", "output_mode", "regular_path"]
+__all__ = ["PART", "new_part", "open_regular", "output_mode", "regular_path", "settle_parts"]
+
+#: the suffix of an output's temporary file (``.NAME.<random>.part`` in its folder)
+PART = ".part"
 
 
 def regular_path(path: str | os.PathLike, folder: bool = False, what: str = "bag") -> os.stat_result:
@@ -51,3 +63,57 @@ def output_mode(path: str | os.PathLike) -> int:
         mask = os.umask(0)
         os.umask(mask)
         return 0o666 & ~mask
+
+
+def _folder(path: str | os.PathLike) -> str:
+    return os.path.dirname(os.fspath(path)) or "."
+
+
+def new_part(path: str | os.PathLike) -> tuple[int, str]:
+    """A new temporary file for ``path`` (``.NAME.<random>.part`` in its folder) and its name, locked by its
+    writer (``flock``, exclusive) for as long as a descriptor of it is open (a ``dup`` of ``fd`` keeps the lock
+    past the file's close, up to the rename). Made again if :func:`settle_parts` of another process took it in
+    the instant before the lock."""
+    folder, prefix = _folder(path), f".{os.path.basename(os.fspath(path))}."
+    while True:
+        fd, name = tempfile.mkstemp(dir=folder, prefix=prefix, suffix=PART)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            own = os.fstat(fd)
+            st = os.stat(name)
+            if (st.st_dev, st.st_ino) == (own.st_dev, own.st_ino):
+                return fd, name
+        except (BlockingIOError, FileNotFoundError):
+            pass
+        except BaseException:
+            os.close(fd)
+            raise
+        os.close(fd)
+
+
+def settle_parts(path: str | os.PathLike) -> list[str]:
+    """Remove the temporary files of ``path`` (``.NAME.*.part``) that no writer holds: what writers killed
+    outright left (see the module docstring). Returns their names (sorted; [] if none); never raises."""
+    folder, prefix = _folder(path), f".{os.path.basename(os.fspath(path))}."
+    removed = []
+    try:
+        entries = [e for e in os.scandir(folder) if e.name.startswith(prefix) and e.name.endswith(PART)
+                   and e.is_file(follow_symlinks=False)]
+    except OSError:
+        return []
+    for e in entries:
+        try:
+            fd = os.open(e.path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # held: its writer is alive (or settling it now)
+            own, st = os.fstat(fd), os.stat(e.path, follow_symlinks=False)
+            if (st.st_dev, st.st_ino) == (own.st_dev, own.st_ino):
+                os.unlink(e.path)
+                removed.append(e.name)
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+    return sorted(removed)

@@ -395,14 +395,18 @@ def test_params_file_is_handed_to_rcl_as_the_checked_copy(tmp_path):
 def test_ticks_resume_at_once_after_use_sim_time_goes_true_and_back_to_false():
     """Issue 24: ``use_sim_time`` set true and back to false through SetParameters left the node (events
     executor, the default) silent for 2-20 s: its tick timer kept its schedule on simulated time. Now the
-    first tick is stamped within 0.5 s of the switch back (a period is 1 ms, the answer to the call comes
-first; the bound is far from both, and the old code was silent 1-2 s after most switches)."""
+    first tick is stamped within 0.5 s of the switch back's answer (a period is 10 ms; the old code was silent 1-2 s
+    after most switches). On a loaded machine the answer itself may take long and the node may be starved: the
+    bound is measured from the answer's arrival and widened to twice the longest pause between the node's ticks
+    seen before the switches (what this host did to the node in the same run)."""
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
     from sensor_msgs.msg import JointState
 
     domain = ros_env.process_domain_id(offset=43)
-    node = start(["node", "paper", "--ros-args", "-p", "input_timeout:=0.0"], domain)
+    # ticks at 100 Hz: a Python probe starved on a loaded machine falls behind 1 kHz for good (under four CPU
+    # burners it was still reading ticks from before the switch 25 s later); the switch is the same at any rate
+    node = start(["node", "paper", "--ros-args", "-p", "input_timeout:=0.0", "-p", "step_rate_hz:=100.0"], domain)
     probe = Probe(domain)
     try:
         probe.subscribe(JointState, "joint_states", depth=10000)
@@ -414,20 +418,25 @@ first; the bound is far from both, and the old code was silent 1-2 s after most 
             future = client.call_async(request)
             probe.spin_until(future.done, 10.0, f"use_sim_time:={value} to be answered", (node,))
             assert future.result().results[0].successful
+            return time.time_ns()
 
         def stamps():
             return [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in probe.received["joint_states"]]
 
-        probe.spin_until(lambda: client.service_is_ready() and len(stamps()) > 100, 40.0, "ticks", (node,))
+        probe.spin_until(lambda: client.service_is_ready() and len(stamps()) > 50, 40.0, "ticks", (node,))
+        steady = sorted(stamps())
+        longest_pause = max(b - a for a, b in zip(steady, steady[1:]))  # the host's own stalls of the node, this run
+        allowance = max(500_000_000, 2 * longest_pause)
         for _ in range(4):  # the old silence did not follow every switch: four in a row
             set_sim_time(True)
             on_sim_time = time.time_ns()
             probe.spin_until(lambda: time.time_ns() > on_sim_time + 300_000_000, 5.0, "a while on sim time")
             back = time.time_ns()
-            set_sim_time(False)
+            answered = set_sim_time(False)
             probe.spin_until(lambda: max(stamps()) > back, 25.0, "a tick back on the system clock", (node,))
             assert not [s for s in stamps() if on_sim_time < s < back]  # no /clock: no ticks
-            assert min(s for s in stamps() if s > back) - back < 500_000_000
+            first = min(s for s in stamps() if s > back)
+            assert first - answered < allowance, (first - back, answered - back, longest_pause)
     finally:
         probe.close()
         rc, err = stop(node, signal.SIGINT)

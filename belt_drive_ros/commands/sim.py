@@ -120,7 +120,6 @@ PLOT_SAMPLES = 250_000
 
 
 def run(args) -> int:
-    from ..io.progress import ProgressBar
     from ..io.scenes import load_scene
 
     from ..io import is_recording  # a path check: mcap and msg_tools load only for a recording
@@ -158,11 +157,28 @@ def run(args) -> int:
     scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration,
                                  tolerance=getattr(args, "tolerance", None))  # fmt: skip
     out_format = check_outputs(args, run_inputs(args, scene))
-    if out_format == "mcap" and args.bag_folder:  # a bag a killed --force run set aside: back, or gone if replaced
-        from ..io.bag_folder import settle_set_aside
+    if out_format != "mcap" or not args.bag_folder:
+        return _run(scene, args, out_format)
+    from ..io.atomic import OutputRefused
+    from ..io.bag_folder import bag_folder_lock, settle_set_aside
 
-        for line in settle_set_aside(args.out):
+    with bag_folder_lock(args.out):  # one run at a time into a bag folder: a second one is told who holds it
+        for line in settle_set_aside(args.out):  # a bag a killed --force run set aside: back, or gone if replaced
             print(f"belt-drive: {line}", file=sys.stderr)
+        if not args.force and _holds_bag(args.out):  # refused before the run, not after it (the writer's rule)
+            raise OutputRefused(f"--out {args.out} exists and holds a bag; pass --force to overwrite it")
+        return _run(scene, args, out_format)
+
+
+def _holds_bag(folder: Path) -> bool:
+    """``folder`` holds a bag's files (an ``.mcap`` or ``metadata.yaml``: what a bag writer refuses to overwrite)."""
+    return folder.is_dir() and any(f.suffix == ".mcap" or f.name == "metadata.yaml" for f in folder.iterdir())
+
+
+def _run(scene, args, out_format) -> int:
+    """Run ``scene``, in memory or streamed by its length, into the outputs :func:`check_outputs` accepted."""
+    from ..io.progress import ProgressBar
+
     samples = _samples(scene)
     check_plot_size(args, samples)
     bar = ProgressBar(f"sim {scene.name}", force=False) if not args.quiet else None
@@ -237,7 +253,7 @@ def _run_in_memory(scene, args, out_format, bar) -> int:
         if out_format == "mcap" and args.bag_folder:
             from ..io.bag_folder import bag_folder_kept, remove_bag_folder
 
-            had_bag = args.out.is_dir() and any(f.suffix == ".mcap" or f.name == "metadata.yaml" for f in args.out.iterdir())
+            had_bag = _holds_bag(args.out)
             try:
                 with bag_folder_kept(args.out, args.force):  # (--force: the old bag back if this write fails)
                     write_result_mcap(result, args.out, force=args.force, start_time_ns=args.start_time, bag_folder=True,

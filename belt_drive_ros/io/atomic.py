@@ -9,6 +9,11 @@ same folder and renames it onto the path only when everything was written
 and flushed to disk: a full disk, an I/O error or an interrupted run leaves
 no partial file (and the temporary one is removed).
 
+A run killed outright (SIGKILL, power loss) cannot remove its temporary
+file: the next write of the same path does, and says so in a warning
+(:func:`msg_tools.files.settle_parts`: a temporary file is locked by its
+writer while it lives, so a live run's is never taken).
+
 An interrupted run is such a failure too: SIGINT raises
 :class:`KeyboardInterrupt` by Python's default, and :func:`terminate_raises`
 makes SIGTERM (which would end the process without running any ``finally``)
@@ -25,6 +30,7 @@ import signal
 import stat
 import threading
 import tempfile
+import warnings
 from pathlib import Path
 from typing import IO, Iterator
 
@@ -97,7 +103,8 @@ def check_output(path: str | os.PathLike, force: bool = False, what: str = "outp
     except OSError as exc:
         raise OutputRefused(f"{what} {path}: cannot write into folder {parent}: {exc.strerror or exc}") from None
     os.close(fd)
-    os.unlink(probe)
+    with contextlib.suppress(FileNotFoundError):  # (another run's settle_parts may have taken it: it is unlocked)
+        os.unlink(probe)
     return path
 
 
@@ -106,11 +113,12 @@ def _temporary(path: Path, mode: str) -> tuple[IO, str]:
 
     ``mkstemp`` creates it readable by its owner only; it gets the
     permissions ``path`` would have had if written directly
-    (:func:`msg_tools.files.output_mode`) before anything is written.
+    (:func:`msg_tools.files.output_mode`) before anything is written. It is
+    locked while a descriptor of it is open (:func:`msg_tools.files.new_part`).
     """
-    from msg_tools.files import output_mode  # on use: `belt-drive sim` without --out loads no msg_tools
+    from msg_tools.files import new_part, output_mode  # on use: `belt-drive sim` without --out loads no msg_tools
 
-    fd, name = tempfile.mkstemp(dir=path.parent if str(path.parent) else ".", prefix=f".{path.name}.", suffix=".part")
+    fd, name = new_part(path)
     try:
         os.fchmod(fd, output_mode(path))
         if "b" in mode:
@@ -139,8 +147,10 @@ def atomic_output(path: str | os.PathLike, force: bool = False, mode: str = "wb"
     mode : ``"wb"`` (binary) or ``"w"`` (UTF-8 text, ``\\n`` line ends).
     """
     path = check_output(path, force, what)
+    _settle(path, what)
     try:
         handle, name = _temporary(path, mode)
+        lock = os.dup(handle.fileno())  # the temporary file stays locked past its close, up to the rename
     except OSError as exc:
         raise OutputError(f"{what} {path}: {exc.strerror or exc}; nothing written") from None
     done = False
@@ -162,6 +172,18 @@ def atomic_output(path: str | os.PathLike, force: bool = False, mode: str = "wb"
         if not done:
             with contextlib.suppress(OSError):
                 os.unlink(name)
+        os.close(lock)
+
+
+def _settle(path: Path, what: str) -> None:
+    """Remove what writers of ``path`` killed outright left (:func:`msg_tools.files.settle_parts`), saying so in a
+    warning (``belt-drive: warning: ...`` on the command line)."""
+    from msg_tools.files import settle_parts
+
+    removed = settle_parts(path)
+    if removed:
+        warnings.warn(f"{what} {path}: removed {len(removed)} unfinished temporary file(s) of a run killed while "
+                      f"writing it ({', '.join(removed)})", stacklevel=4)
 
 
 def write_output(path: str | os.PathLike, data: str | bytes, force: bool = False, what: str = "output") -> Path:

@@ -11,22 +11,89 @@ settles it first (:func:`settle_set_aside`): a bag is whole once its ``metadata.
   bag is moved back;
 * the folder with a whole bag (the killed run finished it, not its clean-up): the old bag is removed, as that run
   would have removed it.
+
+One run writes a bag folder at a time (:func:`bag_folder_lock`): a second run into it while the first holds its
+lock file (``.NAME.lock`` beside the folder, the holder's pid in it) is refused, naming that pid, before it settles,
+moves or writes anything.
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import shutil
 import tempfile
 from pathlib import Path
 
-__all__ = ["bag_files_in", "bag_folder_kept", "remove_bag_folder", "set_aside", "settle_set_aside"]
+from ..core.errors import OutputError
+
+__all__ = ["BagFolderBusy", "bag_files_in", "bag_folder_kept", "bag_folder_lock", "remove_bag_folder", "set_aside",
+           "settle_set_aside"]
 
 #: the name of what a bag writer leaves last in its folder, once every file is closed
 METADATA = "metadata.yaml"
 #: the suffix of a set-aside bag's hidden sibling folder (``.NAME.<random>.old``)
 OLD = ".old"
+#: the suffix of the lock file a run writing a bag folder holds beside it (``.NAME.lock``)
+LOCK = ".lock"
+
+
+class BagFolderBusy(OutputError):
+    """Another run holds the bag folder's lock (:func:`bag_folder_lock`): nothing was written (exit 1)."""
+
+
+@contextlib.contextmanager
+def bag_folder_lock(folder):
+    """Hold ``folder``'s lock while the block writes its bag: an exclusive ``flock`` on ``.NAME.lock`` beside the
+    folder, the holder's pid written in it, the file removed on exit. Held elsewhere: :class:`BagFolderBusy` naming
+    that pid. The kernel drops a lock with its process, so a run killed outright leaves a file nobody holds, which
+    the next run takes over."""
+    folder = Path(folder)
+    path = folder.absolute().parent / f".{folder.name}{LOCK}"
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        except OSError as exc:
+            raise OutputError(f"--out {folder}: cannot make its lock file {path.name}: {exc.strerror or exc}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _holder(fd)
+            os.close(fd)
+            raise BagFolderBusy(f"--out {folder}: another run ({holder}) is writing this bag folder (it holds "
+                                f"{path}); nothing written: wait for it to end or write elsewhere") from None
+        except BaseException:
+            os.close(fd)
+            raise
+        try:  # the file locked is still the one at the path (its last holder removes it when done)
+            if _same(fd, os.stat(path)):
+                break
+        except FileNotFoundError:
+            pass
+        os.close(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        yield
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(path)  # (while held: a run waiting on the old file retries on a new one)
+        os.close(fd)
+
+
+def _same(fd: int, st: os.stat_result) -> bool:
+    own = os.fstat(fd)
+    return (own.st_dev, own.st_ino) == (st.st_dev, st.st_ino)
+
+
+def _holder(fd: int) -> str:
+    """``pid N`` as the lock file's holder wrote it (``pid unknown`` before it has)."""
+    try:
+        text = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+    except OSError:
+        text = ""
+    return f"pid {text}" if text.isdigit() else "pid unknown"
 
 
 @contextlib.contextmanager

@@ -6,6 +6,7 @@ builds and checks the scene from the parsed mapping (:class:`~belt_drive_ros.cor
 
 from __future__ import annotations
 
+import copy
 import os
 import stat
 from importlib import resources
@@ -20,6 +21,22 @@ from ..core.scene import Scene, shipped_scenes
 from .inputs import parse_yaml, read_text
 
 __all__ = ["is_network", "load_network", "load_scene", "scene_from_mapping", "scene_yaml", "shipped_networks", "shipped_scenes"]
+
+
+#: the last scene file parsed, ``[(label, text), mapping]``: a command asks :func:`is_network` of a file, then loads
+#: it; with the pure-Python YAML parser that second parse was half of a small run's start (and of the scene fuzz test)
+_LAST_PARSE: list = [None, None]
+
+
+def _parse_file(path: Path, label: str) -> Any:
+    """The scene file ``path`` read (:func:`.inputs.read_text`, every time) and parsed (:func:`.inputs.parse_yaml`),
+    or a copy of the last parse if its text and label are the same."""
+    text = read_text(path, "scene file")
+    if _LAST_PARSE[0] == (label, text):
+        return copy.deepcopy(_LAST_PARSE[1])
+    data = parse_yaml(text, label)
+    _LAST_PARSE[:] = [(label, text), copy.deepcopy(data)]  # (a copy: a caller may change what it was given)
+    return data
 
 
 def _shipped_text(name: str, folder: str = "") -> str:
@@ -40,14 +57,11 @@ def load_scene(name_or_path: str | Path) -> Scene:
     label = str(name_or_path)
     path = Path(name_or_path)
     if label and (path.suffix in (".yaml", ".yml") or os.path.lexists(path) or os.sep in label):  # ('' is Path('.'))
-        text, default_name = read_text(path, "scene file"), path.stem
-        label = f"scene file {short(label, 200)}"
-    else:
-        names = shipped_scenes()
-        if label not in names:  # compared by name: a name the OS refuses (too long, NUL) never reaches it
-            raise SceneError(f"unknown scene {short(label)}: not a file and not a shipped scene ({', '.join(names)})")
-        text, default_name = _shipped_text(label), label
-    return scene_from_mapping(parse_yaml(text, label), name=default_name)
+        return scene_from_mapping(_parse_file(path, f"scene file {short(label, 200)}"), name=path.stem)
+    names = shipped_scenes()
+    if label not in names:  # compared by name: a name the OS refuses (too long, NUL) never reaches it
+        raise SceneError(f"unknown scene {short(label)}: not a file and not a shipped scene ({', '.join(names)})")
+    return scene_from_mapping(parse_yaml(_shipped_text(label), label), name=label)
 
 
 def scene_yaml(scene: Scene) -> str:
@@ -73,7 +87,7 @@ def is_network(name_or_path: str | Path) -> bool:
     except (OSError, ValueError):  # a name the OS refuses (too long, NUL byte ...): the scene loader says so in one line
         return False
     if regular:
-        data = parse_yaml(read_text(path, "scene file"), f"scene file {short(label, 200)}")
+        data = _parse_file(path, f"scene file {short(label, 200)}")
         return isinstance(data, Mapping) and data.get("kind") == "network"
     return False
 
@@ -89,8 +103,8 @@ def load_network(name_or_path: str | Path) -> NetworkScene:
         path = Path(label)
         if not label or not (path.suffix in (".yaml", ".yml") or os.path.lexists(path)):  # ('' is Path('.'))
             raise SceneError(f"unknown network scene {short(label)}: not a file and not shipped ({', '.join(shipped_networks())})")
-        text, default, where = read_text(path, "scene file"), path.stem, f"scene file {short(label, 200)}"
-    data = parse_yaml(text, where)
+        text, default, where = None, path.stem, f"scene file {short(label, 200)}"
+    data = parse_yaml(text, where) if text is not None else _parse_file(path, where)
     if not isinstance(data, Mapping):
         raise SceneError(f"{where}: expected a mapping, got {type(data).__name__}")
     return NetworkScene.from_mapping(data, name=default)
