@@ -117,3 +117,51 @@ def test_a_loop_with_its_piece_is_freed_without_the_cycle_collector():
     finally:
         if enabled:
             gc.enable()
+
+
+@pytest.mark.parametrize("method", ["exact", "etd2", "etd4"])
+def test_prepared_piece_matrices_are_the_floats_of_each_built_alone(method):
+    """The pieces' integrators of a block of split steps get their matrix exponentials from one stacked call
+    (``prepare``); each matrix must be what the one-step computation gives it alone, bit for bit, for lengths from
+    a nanosecond to a whole step (Pade degrees and scalings differ across such a stack)."""
+    from belt_drive_ros.core import integrators as I
+
+    scene = reference_scene("engine_idle")
+    model = make_model("flexible", scene.params)
+    A, B = np.asarray(model.A, dtype=float), np.asarray(model.B, dtype=float)
+    steps = np.concatenate([[1e-9, 2.5e-7, 1e-3], np.random.default_rng(3).uniform(1e-6, 1e-3, 200)])
+    of = I._phi_blocks if method == "etd4" else I._expm_blocks
+    I.method_class(method).prepare(A, B, steps)
+    everyone = steps if method != "etd4" else np.concatenate([steps, 0.5 * steps])
+    for h in everyone.tolist():
+        held = of._ready.pop((tuple(I._key(a) for a in (A, B)), h))
+        alone = of.of(A, B, h)
+        assert len(held) == len(alone)
+        for m, n in zip(held, alone):
+            np.testing.assert_array_equal(m, n)
+
+
+class _NothingPrepared(Stepper):
+    """The stepper before pieces were prepared together: each piece's matrices computed alone."""
+
+    def _prepare_pieces(self, plan, splits, start):
+        return len(splits)
+
+
+@pytest.mark.parametrize("method", ["exact", "etd4"])
+def test_prepared_pieces_give_the_floats_of_pieces_built_alone(method, monkeypatch):
+    from belt_drive_ros.core import integrators as I
+
+    calls = []
+    expm = I.expm_stack
+    monkeypatch.setattr(I, "expm_stack", lambda M: calls.append(np.shape(M)) or expm(M))
+    ref, x0 = _stepper(method, cls=_NothingPrepared)
+    ref_times, ref_states = ref.run(x0, 0.0, 0.35)
+    alone = len(calls)
+    assert alone > 200  # one exponential (etd4: two) per new piece length
+    calls.clear()
+    st, _ = _stepper(method)
+    times, states = st.run(x0, 0.0, 0.35)
+    assert len(st._partials) > 200 and len(calls) <= 4  # the pieces' lengths in one stacked call
+    np.testing.assert_array_equal(times, ref_times)
+    np.testing.assert_array_equal(states, ref_states)

@@ -123,6 +123,11 @@ class FixedStepIntegrator(Integrator):
         return _scheme.linear_step(self.scheme, self.A.shape[0])
 
     @classmethod
+    def prepare(cls, A, B, steps, **options) -> None:
+        """Compute the matrices of the method's integrators on ``(A, B)`` for many ``steps`` [s] at once, held for
+        their construction (one stacked matrix exponential where the method has one; else nothing to do)."""
+
+    @classmethod
     def mode_growths(cls, lams, dt: float) -> np.ndarray:
         """|growth factor| per step of step ``dt`` [s] of each mode with continuous eigenvalue ``lams[i]`` [1/s].
 
@@ -188,10 +193,47 @@ def _expm_blocks_of(A: np.ndarray, B: np.ndarray, h: float):
     return E[..., :n, :n].copy(), E[..., :n, n : n + m].copy(), E[..., :n, n + m :].copy() / h
 
 
-def _per_system(of, size: int = 64):
-    """``of(*arrays, h)`` cached per (arrays, h) for one system (2-D first array); a stack of variants is not cached."""
-    cached = lru_cache(maxsize=size)(lambda keys, h: of(*(_unkey(k) for k in keys), h))
-    return lambda *args: cached(tuple(_key(a) for a in args[:-1]), args[-1]) if args[0].ndim == 2 else of(*args)
+#: matrices :meth:`_PerSystem.prepare` holds for the calls to come (all dropped when more would be held)
+READY_SIZE = 8192
+
+
+class _PerSystem:
+    """``of(*arrays, h)`` cached per (arrays, h) for one system (2-D first array); a stack of variants is not cached.
+
+    :meth:`prepare` computes ``of`` for many steps ``h`` of one system in one stacked call and holds each result
+    for the first call that asks for it (the pieces of steps split by off-grid torque samples: one new length per
+    piece). ``of`` is elementwise in ``h`` and :func:`~belt_drive_ros.core.batch_expm.expm_stack` gives each
+    matrix of a stack what it gives that matrix alone, so a prepared result is the same floats as one computed
+    alone.
+    """
+
+    def __init__(self, of, size: int = 64):
+        self.of = of
+        self._cached = lru_cache(maxsize=size)(lambda keys, h: of(*(_unkey(k) for k in keys), h))
+        self._ready: dict = {}
+
+    def __call__(self, *args):
+        if args[0].ndim != 2:
+            return self.of(*args)
+        keys = tuple(_key(a) for a in args[:-1])
+        held = self._ready.pop((keys, args[-1]), None)  # (a dict's pop is atomic: threads may share a system)
+        return held if held is not None else self._cached(keys, args[-1])
+
+    def prepare(self, *args) -> None:
+        """Compute ``of(*args[:-1], h)`` for every ``h`` of ``args[-1]`` (steps [s]) at once and hold the results."""
+        *arrays, hs = args
+        hs = np.asarray(hs, dtype=float).ravel()
+        if hs.size == 0:
+            return
+        keys = tuple(_key(a) for a in arrays)
+        blocks = self.of(*(np.broadcast_to(a, (hs.size,) + a.shape) for a in arrays), hs[:, None, None])
+        if len(self._ready) + hs.size > READY_SIZE:
+            self._ready.clear()
+        for k, h in enumerate(hs.tolist()):
+            self._ready[(keys, h)] = tuple(b[k].copy() for b in blocks)
+
+
+_per_system = _PerSystem
 
 
 #: :func:`_expm_blocks_of`, cached per (A, B, h)
@@ -215,6 +257,10 @@ class Exact(FixedStepIntegrator):
     def __init__(self, A, B, dt, **options):
         super().__init__(A, B, dt, **options)
         self.Phi, self.Gamma, _ = _expm_blocks(self.A, self.B, self.dt)
+
+    @classmethod
+    def prepare(cls, A, B, steps, **options) -> None:
+        _expm_blocks.prepare(A, B, steps)
 
     def stage_scheme(self):
         # u_0 = u(t, x);  x+ = Phi x + Gamma u_0
@@ -240,6 +286,10 @@ class ExponentialRK2(FixedStepIntegrator):
     def __init__(self, A, B, dt, **options):
         super().__init__(A, B, dt, **options)
         self.Phi, self.G0, self.G1 = _expm_blocks(self.A, self.B, self.dt)
+
+    @classmethod
+    def prepare(cls, A, B, steps, **options) -> None:
+        _expm_blocks.prepare(A, B, steps)
 
     def stage_scheme(self):
         # u_0 = u(t, x);  a = Phi x + G0 u_0;  u_1 = u(t + h, a);  x+ = a + G1 (u_1 - u_0)
@@ -301,6 +351,11 @@ class ExponentialRK4(FixedStepIntegrator):
         self.W0 = hp1 - 3.0 * hp2 + 4.0 * hp3
         self.W1 = 2.0 * (hp2 - 2.0 * hp3)
         self.W2 = 4.0 * hp3 - hp2
+
+    @classmethod
+    def prepare(cls, A, B, steps, **options) -> None:
+        steps = np.asarray(steps, dtype=float)
+        _phi_blocks.prepare(A, B, np.concatenate([steps, 0.5 * steps]))
 
     def stage_scheme(self):
         Z = np.zeros_like(self.P)
@@ -659,6 +714,14 @@ def method_class(name: str) -> type[Integrator]:
 #: fixed-step integrators by (method, step, options, A, B): read-only once built (their matrices and stage
 #: scheme), so every run of one model shares them; the oldest of more than 64 is dropped
 _FIXED: dict = {}
+
+
+def prepare_integrators(name: str, A: np.ndarray, B: np.ndarray, steps, **options) -> None:
+    """Ready the matrices of :func:`make_integrator`'s integrators ``name`` on ``(A, B)`` for every step of ``steps``
+    [s] in one stacked call (:meth:`FixedStepIntegrator.prepare`): the same floats as each built alone."""
+    cls = method_class(name)
+    if issubclass(cls, FixedStepIntegrator) and np.ndim(A) == 2 and not np.iscomplexobj(A):
+        cls.prepare(np.asarray(A, dtype=float), np.asarray(B, dtype=float), steps, **options)
 
 
 def make_integrator(name: str, A: np.ndarray, B: np.ndarray, dt: float, **options) -> Integrator:

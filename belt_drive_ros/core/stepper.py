@@ -39,7 +39,7 @@ import numpy as np
 
 from .errors import SceneError, SimulationDivergedError
 from .identity_cache import built_once
-from .integrators import FixedStepIntegrator, make_integrator
+from .integrators import FixedStepIntegrator, make_integrator, prepare_integrators
 from .kernel_loop import DIVERGED, GUARDED, NOT_CONVERGED
 from .model import WHEEL_ROWS, _LinearModel
 from .step_plan import StepPlanner
@@ -48,6 +48,8 @@ from .step_plan import StepPlanner
 SPEED_LIMIT = 1.0e5
 #: partial-step integrators kept per stepper (one per distinct length)
 PARTIAL_CACHE_SIZE = 4096
+#: split steps whose pieces' integrators are readied together (:meth:`Stepper._prepare_pieces`)
+PREPARE_BLOCK = 512
 #: steps per call of the compiled loop between divergence checks and progress reports
 CHUNK = 4096
 #: steps of a paged drive's page beyond each end of a run (:meth:`Stepper._paged`)
@@ -364,6 +366,22 @@ class Stepper(StepPlanner):
             it = self._partials[h] = make_integrator(self.method, model.A, model.B, h, **self.method_options)
         return it
 
+    def _prepare_pieces(self, plan: dict, splits: list, start: int) -> int:
+        """Ready the integrators of the pieces of split steps ``splits[start:]`` (up to :data:`PREPARE_BLOCK` steps)
+        whose lengths are new to this stepper: their matrices in one stacked call (the same floats as each built
+        alone: :func:`~belt_drive_ros.core.integrators.prepare_integrators`); returns the index after them."""
+        end = min(start + PREPARE_BLOCK, len(splits))
+        lengths = set()
+        for c in splits[start:end]:
+            a, e, whole, lo, hi, cuts = self._step(plan, c)
+            edges = [a, *sorted(cuts), e]
+            lengths.update(q - p for p, q in zip(edges[:-1], edges[1:]))
+        new = [h for h in lengths if h not in self._partials]
+        if len(new) > 1:
+            model = self.plant.model
+            prepare_integrators(self.method, model.A, model.B, sorted(new), **self.method_options)
+        return end
+
     def _loop_of(self, integrator):
         """The kernel loop of ``integrator`` (the stepper's own or a partial step's) for this plant, or None: a
         partial step's is the stepper's loop's :meth:`~belt_drive_ros.core.kernel_loop.KernelLoop.piece` (its
@@ -442,12 +460,16 @@ class Stepper(StepPlanner):
         # the steps taken alone: split ones, the partial ones at the ends (clamps alone: in the compiled runs)
         stops = sorted([*plan["splits"], *[first] * plan["lead"], *[last] * plan["trail"]])
         hard = set(stops)
+        splits = sorted(plan["splits"]) if self.loop is not None else []
+        ready = 0  # splits[:ready]: their pieces' integrators prepared
         groups = self._groups(plan) if self.loop is not None else None
         si = 0
         c = first
         with np.errstate(all="ignore"):
             while c <= last:
                 if c in hard or self.loop is None:
+                    if ready < len(splits) and c >= splits[ready]:
+                        ready = self._prepare_pieces(plan, splits, ready)
                     a, e, whole, lo, hi, cuts = self._step(plan, c)
                     x = self._special_step(x, a, e, whole, lo, hi, cuts)
                     if record:
