@@ -83,13 +83,14 @@ def test_the_slipping_model_pages_the_bag_and_runs_the_windows_of_the_whole_bag_
 def test_equal_times_across_chunks_and_uneven_spacing_page_as_the_whole_bag(tmp_path):
     """Messages at equal times (the later wins) across a chunk's seam, uneven spacing off the step grid."""
     rng = np.random.default_rng(3)
-    # 3,000 messages in chunks of 8 KiB: the 16 chunks of 6,000 in 16 KiB (the seam at the same chunk), half the run
-    n, block = 3000, 1500
+    # 1,500 messages in chunks of 4 KiB: the 16 chunks of 6,000 in 16 KiB (the seam at the same chunk), a quarter
+    # of the run (each off-grid sample is a partial step: the run's cost); windows of 400 steps: as many windows
+    n, block = 1500, 750
     times = np.cumsum(rng.integers(300_000, 1_700_000, size=n)).astype(np.int64)
     times[block - 1] = times[block] = times[block + 1]  # a run of equal times over the seam of two blocks
     values = 40.0 + 30.0 * np.sin(np.arange(n) * 0.05) + rng.normal(size=n)
     bag = tmp_path / "uneven.mcap"
-    with BlockMcapWriter(bag, chunk_size=8 << 10) as w:
+    with BlockMcapWriter(bag, chunk_size=4 << 10) as w:
         for a in range(0, n, block):
             w.write_block([("/drive_torque", "std_msgs/msg/Float64")], times[a : a + block],
                           [float64_rows(values[a : a + block])])
@@ -99,7 +100,7 @@ def test_equal_times_across_chunks_and_uneven_spacing_page_as_the_whole_bag(tmp_
     chunks, _ = topic_chunks(bag, "/drive_torque")
     assert len(chunks) >= 2 * PASS_CHUNKS  # the pass that opens the bag takes two goes
     chunks.close()
-    _same_windows(_windows(whole, 800), _windows(paged, 800))
+    _same_windows(_windows(whole, 400), _windows(paged, 400))
 
 
 def test_a_namespaced_torque_beside_another_topic_in_the_same_chunks_pages_as_the_whole_bag(tmp_path):
