@@ -238,6 +238,12 @@ def _coordinate(row: np.ndarray) -> Callable:
     return coordinate
 
 
+def _edges(a: float, e: float, cuts) -> list:
+    """The times [s] a step from ``a`` to ``e`` split at ``cuts`` is cut into pieces at: its pieces' lengths
+    ``q - p`` are the steps of their integrators (those :meth:`Stepper._prepare_pieces` readies, the same floats)."""
+    return [a, *sorted(cuts), e]
+
+
 def _healthy(x) -> bool:
     """Finite state with every speed (second half) within :data:`SPEED_LIMIT`."""
     values = x.tolist() if isinstance(x, np.ndarray) else list(x)
@@ -374,7 +380,7 @@ class Stepper(StepPlanner):
         lengths = set()
         for c in splits[start:end]:
             a, e, whole, lo, hi, cuts = self._step(plan, c)
-            edges = [a, *sorted(cuts), e]
+            edges = _edges(a, e, cuts)
             lengths.update(q - p for p, q in zip(edges[:-1], edges[1:]))
         new = [h for h in lengths if h not in self._partials]
         if len(new) > 1:
@@ -412,7 +418,7 @@ class Stepper(StepPlanner):
         piece's side of the breakpoints); without a kernel loop (adaptive method) the integrator's reference
         ``step``.
         """
-        edges = [a, *sorted(cuts), e]
+        edges = _edges(a, e, cuts)
         n = len(edges) - 1
         for j in range(n):
             p, q = edges[j], edges[j + 1]
