@@ -92,6 +92,35 @@ def test_slipping_ticks_at_torque_changes_equal_the_engine():
     assert fast + sims[0].counters["slip_events"] >= 1495 and fast > 1200  # (and the two ticks at the load's breakpoint)
 
 
+@pytest.mark.parametrize("values, base, change, ticks", [({"drive_source": "topic"}, 2.0, 0.5, 400),
+                                                         ({"scene": "truck_compressor", "model": "slipping",
+                                                           "drive_source": "topic"}, 40.0, 30.0, 1500)])
+@pytest.mark.parametrize("every", [1, 2, 10])
+def test_torque_change_ticks_are_plain_calls_with_their_clamps(values, base, change, ticks, every, monkeypatch):
+    # a new sample at a plain tick (the jump at its end) and the tick after one (the jump at its start) are the
+    # kernel's one call with the clamps the general path's tick gives them, not that path (a change at every tick:
+    # both at once): the same floats, and the general path only starts the run and takes a plant breakpoint's ticks
+    general = []
+    original = NodeSimulation._advance
+
+    def counted(self, now_ns, sampled=None):
+        if self._tick_kernel is not None:
+            general.append(now_ns)
+        return original(self, now_ns, sampled)
+
+    monkeypatch.setattr(NodeSimulation, "_advance", counted)
+    torques = {k: base + change * ((k // every) % 4) for k in range(3, ticks, every)}
+    fast, a, b, sims = _lockstep(values, ticks, torques)
+    assert np.array_equal(a, b) and len(set(a[:, 8])) == 5  # 0 N m, then the four values
+    assert sims[0].slip_events == sims[1].slip_events
+    assert values.get("model") != "slipping" or sims[0].counters["slip_events"] > 20  # (mode switches among them)
+    # every tick compiled but the first, and the two of each plant breakpoint (truck_compressor's load at 0.5 s); the
+    # general path: the first two ticks (the run's start, no plain tick yet), the breakpoint's and the one after it
+    near = sum(0.0 < b < ticks * 1e-3 for b in sims[0]._plant_breakpoints)
+    assert fast == ticks - 1 - 2 * near
+    assert len(general) == 2 + 3 * near
+
+
 @pytest.mark.parametrize("values", [{"drive_source": "topic"},
                                     {"scene": "truck_compressor", "model": "slipping", "drive_source": "topic"}])
 def test_joint_states_message_written_by_the_tick_equals_the_encoder(values):
@@ -353,3 +382,24 @@ def test_ticks_after_a_restart_that_took_a_new_torque(values):
             rows[j].append(sim.values(now) + list(sim.x))
     a, b = np.array(rows[0]), np.array(rows[1])
     assert np.array_equal(a, b) and fast > 100 and len(set(a[:, 8])) == 5  # 0 N m, then four values held
+
+
+def test_the_jump_ticks_float_below_is_plant_left_of_where_the_profiles_say_so():
+    # a plain tick before a held-torque jump clamps at the float below t1 when every profile's left_of is that one
+    # (TorqueProfile's, a schedule of such parts): the number Plant.left_of gives; any other profile asks Plant
+    from belt_drive_ros.core.sources import Constant, Schedule
+    from belt_drive_ros.ros.simulation import _left_is_below
+
+    class Earlier(Constant):
+        def left_of(self, t):
+            return t - 1e-6
+
+    assert _left_is_below(Constant(1.0)) and _left_is_below(Schedule(Constant(1.0), Constant(2.0), ((0.1, 0.2),)))
+    assert not _left_is_below(Earlier(1.0)) and not _left_is_below(Schedule(Earlier(1.0), Constant(2.0), ((0.1, 0.2),)))
+    for values in ({"drive_source": "topic"}, {"scene": "truck_compressor", "model": "slipping", "drive_source": "topic"},
+                   {"scene": "bsg_start", "drive_source": "topic"}, {"scene": "e_motor_start", "drive_source": "topic"}):
+        sim = _pair(values)[0]
+        assert sim._below
+        plant = (sim.stepper.stepper if values.get("model") == "slipping" else sim.stepper).plant
+        for t in (1e-3, 0.5, 0.7 + 1e-3 * 3, 2.0, 123.456):
+            assert plant.left_of(t) == np.nextafter(t, -np.inf)

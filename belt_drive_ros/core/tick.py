@@ -358,6 +358,8 @@ class TickKernel:
         #: the ``joint_states`` message of the last :meth:`step` (a view of its bytes)
         self.message = memoryview(views["msg"].view(np.uint8))[where]
         self._clamp, self._io = _cells(views["clamp"]), _cells(views["io"])
+        #: the next call's clamps ``lo, hi, drive`` (:func:`linear_tick`'s; the kernel sets them back when it reads them)
+        self.clamps = self._clamp
         self._drive, self._drive_copy = _cells(loop._dp), _cells(views["dp"])  # (the held torque's data, its copy)
         self._packed, self._address = arrays.reals, arrays.address  # (the kernel's argument: the buffer's address)
         load_compiled(linear_tick, (self._address,))
@@ -627,6 +629,8 @@ class SlipTickKernel:
         self.values = memoryview(self.y)
         self._fs, self._js, self._events = views["fscalars"], views["iscalars"], views["events"]
         self._fcells, self._jcells = _cells(self._fs), _cells(self._js)
+        #: the next call's clamps ``lo, hi, drive`` in its first three cells (:func:`slip_tick`'s ``fscalars``)
+        self.clamps = self._fcells
         self._drive, self._drive_copy = _cells(dp), _cells(views["dp"])  # (the held torque's data, its copy)
         self.message = memoryview(views["msg"].view(np.uint8))[self._where]
         self._packed, self._address = arrays.reals, arrays.address  # (the kernel's argument: the buffer's address)
