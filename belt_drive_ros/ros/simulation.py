@@ -129,7 +129,6 @@ class NodeSimulation:
         self._tick_kernel = None  # the common tick compiled whole (core.tick), where the model allows it
         self._fresh_ns: int | None = None  # node time whose outputs the tick kernel holds (None: none)
         self._plain_ns: int | None = None  # node time of the next plain tick (see advance_to), or None
-        self._after_ns: int | None = None  # node time of the next plain tick but for the held-torque jump at its start
         self._free_k = (0, -1)  # grid cells k with no plant breakpoint near steps k0 <= k < k1 (lo <= k0, k1 <= hi)
         self._topic = s.drive_source == "topic"  # (the plain tick samples the drive: DriveInput.until)
         self._below = _left_is_below(drive) and _left_is_below(s.scene.load)  # (Plant.left_of: see _jump_tick)
@@ -163,12 +162,12 @@ class NodeSimulation:
         After a compiled tick the slipping tick kernel holds it in its buffers (no object per tick): it is built
         when asked for."""
         if self._live:
-            self._hybrid, self._live, self._plain_ns, self._after_ns = self._tick_kernel.state(), False, None, None
+            self._hybrid, self._live, self._plain_ns = self._tick_kernel.state(), False, None
         return self._hybrid
 
     @hybrid.setter
     def hybrid(self, state) -> None:
-        self._hybrid, self._live, self._plain_ns, self._after_ns = state, False, None, None
+        self._hybrid, self._live, self._plain_ns = state, False, None
 
     def _init_hybrid(self) -> None:
         """The hybrid state of ``x`` (slipping model; sliding at once if it starts beyond the limit)."""
@@ -262,7 +261,7 @@ class NodeSimulation:
         self.origin_ns = now_ns
         self.t_ns = now_ns
         self.x = s.scene.initial_state.vector(s.model.name, s.params.ratio)
-        self._fresh_ns = self._plain_ns = self._after_ns = None
+        self._fresh_ns = self._plain_ns = None
         self.stepper.reset()
         self._init_hybrid()
         self.slip_events = []
@@ -272,7 +271,7 @@ class NodeSimulation:
     def stop(self) -> None:
         """Forget the time base: the next tick starts the run again (clock source changed)."""
         if self.t_ns is not None:
-            self.t_ns = self._plain_ns = self._after_ns = None
+            self.t_ns = self._plain_ns = None
             self.counters["clock_jumps"] += 1
 
     def restart(self, why: str, now_ns: int | None = None) -> bool:
@@ -345,8 +344,9 @@ class NodeSimulation:
         A *plain* tick is the usual one at 1 kHz: the tick after one the tick kernel took, as many grid steps
         on, no held-torque jump at either end, no plant breakpoint near: the kernel's buffers hold all it needs
         (:meth:`~belt_drive_ros.core.tick.TickKernel.next`), so it is the drive's sample and one compiled call.
-        A plain tick at which the held torque jumps (a new sample at its end, or the tick after one: the jump at
-        its start) is that call with the clamps the general path gives it (:meth:`_jump_tick`).
+        A plain tick at which the held torque jumps (a new sample at its end) is that call with the clamps the
+        general path gives it (:meth:`_jump_tick`); the tick after it is plain, its clamp at the jump (its start)
+        written into the kernel's buffer when the jump was taken.
         """
         drive = self.drive
         if drive._new:  # messages received since the last tick: handed over now, before the compute (DriveInput.take)
@@ -371,50 +371,38 @@ class NodeSimulation:
                     self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
                     return 1 + (-done & 7)  # (7: SLACK | SLIPS | SLIPPING)
                 return self._advance(now_ns, (value,))
-            return self._jump_tick(now_ns, value, -math.inf)
-        if now_ns == self._after_ns:  # a plain tick but for the held torque's jump at its start
-            return self._jump_tick(now_ns, self._sample(now_ns), self._held_jump)
+            return self._jump_tick(now_ns, value)
         return self._advance(now_ns)
 
-    def _jump_tick(self, now_ns: int, value: float | None, lo: float) -> bool:
-        """A plain tick (:meth:`advance_to`) at which the held drive torque jumps: at its start (the tick after a
-        jump: ``lo`` its time t0 [s], else -inf) or at its end (``value``, the sample at ``now_ns``, differs from the
-        held one), or both: the tick kernel's one call with the clamps :meth:`_advance` gives the same tick
-        (``lo``; ``hi = left_of(t1)`` and the new value before a jump at t1), so the same floats; the general path
-        where the kernel fails or a linear model's tick of several steps has a jump (the stepper's special step
-        clamps only the step at the jump)."""
+    def _jump_tick(self, now_ns: int, value: float) -> bool:
+        """A plain tick (:meth:`advance_to`) at whose end the held drive torque jumps to ``value`` (the sample at
+        ``now_ns``): the tick kernel's one call with the clamps :meth:`_advance` gives the same tick (``hi =
+        left_of(t1)``, the new value; ``lo``: -inf, or t0 when the tick before was a jump, written then), so the
+        same floats; the general path where the kernel fails or a linear model's tick has several steps (the
+        stepper's special step clamps only the step at the jump)."""
         fast = self._tick_kernel
-        step = fast.step_ns
-        k1 = (now_ns - self.origin_ns) // step  # (_advance's grid index of now_ns)
-        steps = self._plain_step // step
-        jump1 = value is not None and value != self._held
-        if steps == 1 or self._live:  # (the slipping tick clamps its first and last step alone, as the engine does)
-            cells = fast.clamps
-            t1 = fast.origin + k1 * fast.dt  # (_advance's t1)
-            hi = math.inf
-            if jump1:  # (Plant.left_of: the float below t1 when both profiles' is, one call instead of their three)
-                hi = math.nextafter(t1, -math.inf) if self._below else \
-                    (self.stepper.stepper if self._live else self.stepper).plant.left_of(t1)
-            cells[0], cells[1], cells[2] = lo, hi, value if jump1 else math.nan
+        if self._plain_step == fast.step_ns or self._live:  # (the slipping tick clamps its first and last step alone)
+            t1 = fast.origin + (now_ns - self.origin_ns) // fast.step_ns * fast.dt  # (_advance's t1)
+            cells = fast.clamps  # (Plant.left_of: the float below t1 when both profiles' is, one call, not three)
+            cells[1] = math.nextafter(t1, -math.inf) if self._below else \
+                (self.stepper.stepper if self._live else self.stepper).plant.left_of(t1)
+            cells[2] = value
             done = self._entry(fast._address)  # (the kernel sets its clamps back when it reads them)
             if done <= 0:
-                if jump1:
-                    fast._drive[0] = value  # (the held torque's own data; the kernel wrote its copy)
+                fast._drive[0] = value  # (the held torque's own data; the kernel wrote its copy)
                 if done <= -_EVENT:
                     self._located(_events(fast._events[: -done // _EVENT]))
                 self.t_ns = self._fresh_ns = now_ns
-                self._held_jump = t1 if jump1 else None
-                nxt = now_ns + self._plain_step if now_ns <= self._plain_end else None
-                if jump1:
-                    self._held, self._plain_ns, self._after_ns = value, None, nxt
-                else:
-                    self._plain_ns, self._after_ns = nxt, None
+                self._held_jump, self._held = t1, value
+                self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
+                if self._plain_ns is not None:
+                    cells[0] = t1  # the next tick's: the held torque jumps at its start
                 return 1 + (-done & 7)
         return self._advance(now_ns, (value,))
 
     def _advance(self, now_ns: int, sampled: tuple | None = None) -> bool:
         """:meth:`advance_to` but for a plain tick; ``sampled``: ``(value,)`` when the drive was sampled at ``now_ns``."""
-        self._plain_ns = self._after_ns = None
+        self._plain_ns = None
         if self.t_ns is None:
             self.start(now_ns)
             return True
@@ -502,20 +490,18 @@ class NodeSimulation:
         """After the tick kernel took ``steps`` grid steps (``step_ns`` [ns] each) to grid index ``k1`` at ``now_ns``
         (``jump``: the scene time there when the held torque jumped to ``value`` there, else None): the time, the
         held torque, and whether the next ticks can be plain (as many steps, each ending at or before grid index
-        ``hi`` of :meth:`_free`'s range: the plain ticks run to ``_plain_end``; after a jump the next one clamps at
-        it, :meth:`_jump_tick`)."""
+        ``hi`` of :meth:`_free`'s range: the plain ticks run to ``_plain_end``; after a jump the next one's clamp
+        at it is written into the kernel's buffer, :meth:`_jump_tick`)."""
         self.t_ns = self._fresh_ns = now_ns
         self._held_jump = jump  # (what _hold makes of the sample)
         if jump is not None:
             self._held = value  # (the tick kernel wrote it into the held torque)
         hi = self._free_k[1]
         if k1 + steps <= hi and (jump is None or steps == 1 or self._live):  # (see _jump_tick)
-            self._plain_step = steps * step_ns
+            self._plain_ns, self._plain_step = now_ns + steps * step_ns, steps * step_ns
             self._plain_end = now_ns + (hi - k1 - steps) * step_ns  # the last tick whose next one ends at hi
-            if jump is None:
-                self._plain_ns = now_ns + steps * step_ns
-            else:  # the next tick clamps at the jump: the tick kernel's call with its clamp (_jump_tick)
-                self._after_ns = now_ns + steps * step_ns
+            if jump is not None:  # the next tick's clamp at the jump, its start (read by the kernel's next call)
+                self._tick_kernel.clamps[0] = jump
     def _located(self, events) -> None:
         """Note a tick's stick/slip events (:class:`~belt_drive_ros.core.slip.Event`): the latest 64 kept."""
         self.slip_events.extend((e.kind, e.time, e.sigma) for e in events)
