@@ -47,6 +47,21 @@ def _pair(values: dict):
     return sims
 
 
+def _sine_load_scene(folder) -> str:
+    """paper with a load that depends on time (a sine): the scene where a step's torque times clamped at a
+    held-torque jump give other floats than unclamped ones (paper's own load reads speed alone)."""
+    from pathlib import Path
+
+    import belt_drive_ros
+
+    text = (Path(belt_drive_ros.__file__).parent / "scenes" / "paper.yaml").read_text()
+    start = text.index("\nload:")
+    end = text.index("\n", text.index("c2:", start))
+    path = Path(folder) / "sine_load.yaml"
+    path.write_text(text[:start] + "\nload:\n  type: sine\n  mean: 2.0\n  amplitude: 1.5\n  frequency: 7.0" + text[end:])
+    return str(path)
+
+
 def _lockstep(values: dict, ticks: int, torques=None):
     """(fast ticks, values of both per tick, states of both) of two simulations ticking together."""
     sims = _pair(values)
@@ -90,6 +105,39 @@ def test_slipping_ticks_at_torque_changes_equal_the_engine():
     assert sims[0].slip_events == sims[1].slip_events
     # every tick without a mode switch is compiled, the change ticks among them (only a switch goes to the engine)
     assert fast + sims[0].counters["slip_events"] >= 1495 and fast > 1200  # (and the two ticks at the load's breakpoint)
+
+
+@pytest.mark.parametrize("values, base, change, ticks", [({"drive_source": "topic"}, 2.0, 0.5, 400),
+                                                         ({"scene": "sine load", "drive_source": "topic"}, 2.0, 0.5, 400),
+                                                         ({"scene": "truck_compressor", "model": "slipping",
+                                                           "drive_source": "topic"}, 40.0, 30.0, 1500)])
+@pytest.mark.parametrize("every", [1, 2, 10])
+def test_torque_change_ticks_are_plain_calls_with_their_clamps(values, base, change, ticks, every, monkeypatch,
+                                                               tmp_path):
+    # a new sample at a plain tick (the jump at its end) and the tick after one (the jump at its start) are the
+    # kernel's one call with the clamps the general path's tick gives them, not that path (a change at every tick:
+    # both at once): the same floats, and the general path only starts the run and takes a plant breakpoint's ticks
+    general = []
+    original = NodeSimulation._advance
+
+    def counted(self, now_ns, sampled=None):
+        if self._tick_kernel is not None:
+            general.append(now_ns)
+        return original(self, now_ns, sampled)
+
+    monkeypatch.setattr(NodeSimulation, "_advance", counted)
+    if values.get("scene") == "sine load":  # (a load of time: the clamps change its floats)
+        values = {**values, "scene": _sine_load_scene(tmp_path)}
+    torques = {k: base + change * ((k // every) % 4) for k in range(3, ticks, every)}
+    fast, a, b, sims = _lockstep(values, ticks, torques)
+    assert np.array_equal(a, b) and len(set(a[:, 8])) == 5  # 0 N m, then the four values
+    assert sims[0].slip_events == sims[1].slip_events
+    assert values.get("model") != "slipping" or sims[0].counters["slip_events"] > 20  # (mode switches among them)
+    # every tick compiled but the first, and the two of each plant breakpoint (truck_compressor's load at 0.5 s); the
+    # general path: the first two ticks (the run's start, no plain tick yet), the breakpoint's and the one after it
+    near = sum(0.0 < b < ticks * 1e-3 for b in sims[0]._plant_breakpoints)
+    assert fast == ticks - 1 - 2 * near
+    assert len(general) == 2 + 3 * near
 
 
 @pytest.mark.parametrize("values", [{"drive_source": "topic"},
@@ -353,3 +401,52 @@ def test_ticks_after_a_restart_that_took_a_new_torque(values):
             rows[j].append(sim.values(now) + list(sim.x))
     a, b = np.array(rows[0]), np.array(rows[1])
     assert np.array_equal(a, b) and fast > 100 and len(set(a[:, 8])) == 5  # 0 N m, then four values held
+
+
+def test_the_jump_ticks_float_below_is_plant_left_of_where_the_profiles_say_so():
+    # a plain tick before a held-torque jump clamps at the float below t1 when every profile's left_of is that one
+    # (TorqueProfile's, a schedule of such parts): the number Plant.left_of gives; any other profile asks Plant
+    from belt_drive_ros.core.sources import Constant, Schedule
+    from belt_drive_ros.ros.simulation import _left_is_below
+
+    class Earlier(Constant):
+        def left_of(self, t):
+            return t - 1e-6
+
+    assert _left_is_below(Constant(1.0)) and _left_is_below(Schedule(Constant(1.0), Constant(2.0), ((0.1, 0.2),)))
+    assert not _left_is_below(Earlier(1.0)) and not _left_is_below(Schedule(Earlier(1.0), Constant(2.0), ((0.1, 0.2),)))
+    for values in ({"drive_source": "topic"}, {"scene": "truck_compressor", "model": "slipping", "drive_source": "topic"},
+                   {"scene": "bsg_start", "drive_source": "topic"}, {"scene": "e_motor_start", "drive_source": "topic"}):
+        sim = _pair(values)[0]
+        assert sim._below
+        plant = (sim.stepper.stepper if values.get("model") == "slipping" else sim.stepper).plant
+        for t in (1e-3, 0.5, 0.7 + 1e-3 * 3, 2.0, 123.456):
+            assert plant.left_of(t) == np.nextafter(t, -np.inf)
+
+
+@pytest.mark.parametrize("values", [{"scene": "sine load", "drive_source": "topic"},
+                                    {"scene": "truck_compressor", "model": "slipping", "drive_source": "topic"}])
+def test_a_clamp_left_for_the_next_plain_tick_never_reaches_a_restarted_run(values, tmp_path):
+    # a jump taken at a plain tick leaves the next tick's clamp (lo = t1) in the kernel's cells; a restart before
+    # that tick sends it the general way, whose call writes all three clamps: the same floats as the general path
+    # (a load of time: a stale clamp would change them; the kernel call reading it comes two ticks on, after the
+    # run's start near t = 0)
+    if values["scene"] == "sine load":
+        values = {**values, "scene": _sine_load_scene(tmp_path)}
+    sims = _pair(values)
+    tick_ns = sims[0].settings.tick_ns
+    rows = ([], [])
+    left = 0
+    for k in range(90):
+        now = 10**9 + k * tick_ns
+        for j, sim in enumerate(sims):
+            if k % 15 == 7:
+                sim.drive.receive(20.0 + k / 3, now - 1, sim.settings)
+            if k % 15 == 8:
+                if j == 0:
+                    left += sim._tick_kernel.clamps[0] != -np.inf  # (the jump at tick 7 left tick 8's clamp)
+                sim.restart("test")
+            assert sim.advance_to(now)
+            rows[j].append(sim.values(now) + list(sim.x))
+    a, b = np.array(rows[0]), np.array(rows[1])
+    assert left == 6 and np.array_equal(a, b)

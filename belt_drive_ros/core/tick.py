@@ -358,6 +358,9 @@ class TickKernel:
         #: the ``joint_states`` message of the last :meth:`step` (a view of its bytes)
         self.message = memoryview(views["msg"].view(np.uint8))[where]
         self._clamp, self._io = _cells(views["clamp"]), _cells(views["io"])
+        #: the next call's clamps ``lo, hi, drive`` (:func:`linear_tick`'s; the kernel sets them back when it reads
+        #: them): the node writes a plain tick's here (:meth:`next` reads them; :meth:`step` writes all three)
+        self.clamps = self._clamp
         self._drive, self._drive_copy = _cells(loop._dp), _cells(views["dp"])  # (the held torque's data, its copy)
         self._packed, self._address = arrays.reals, arrays.address  # (the kernel's argument: the buffer's address)
         load_compiled(linear_tick, (self._address,))
@@ -386,9 +389,8 @@ class TickKernel:
             self.state[:] = x
         io = self._io
         io[0], io[1], io[2] = k0, k1 - k0, stamp
-        if lo != -math.inf or hi != math.inf or drive == drive:
-            clamp = self._clamp
-            clamp[0], clamp[1], clamp[2] = lo, hi, drive
+        clamp = self._clamp  # (all three: a plain tick's call may have left a clamp for the next, see clamps)
+        clamp[0], clamp[1], clamp[2] = lo, hi, drive
         status = linear_tick(self._address)
         if status > 0:
             return status
@@ -399,7 +401,8 @@ class TickKernel:
 
     def next(self) -> int:
         """The tick after the last OK one (:meth:`step` or this): as many grid steps from where it ended, the
-        stamp as many grid steps on, no clamps; the status (the buffer holds all of it: nothing is written here)."""
+        stamp as many grid steps on, the clamps in :attr:`clamps` (none: -inf, inf, NaN); the status (the buffer
+        holds all of it: nothing is written here)."""
         status = linear_tick(self._address)
         if status > 0:
             return status
@@ -627,6 +630,9 @@ class SlipTickKernel:
         self.values = memoryview(self.y)
         self._fs, self._js, self._events = views["fscalars"], views["iscalars"], views["events"]
         self._fcells, self._jcells = _cells(self._fs), _cells(self._js)
+        #: the next call's clamps ``lo, hi, drive`` in its first three cells (:func:`slip_tick`'s ``fscalars``): the
+        #: node writes a plain tick's here (:meth:`next` reads them; :meth:`advance` writes all three)
+        self.clamps = self._fcells
         self._drive, self._drive_copy = _cells(dp), _cells(views["dp"])  # (the held torque's data, its copy)
         self.message = memoryview(views["msg"].view(np.uint8))[self._where]
         self._packed, self._address = arrays.reals, arrays.address  # (the kernel's argument: the buffer's address)
@@ -658,8 +664,7 @@ class SlipTickKernel:
             fs[3] = state.sigma if state.kind == "hybrid" else math.nan
             fs[6] = state.sigma
         js[2], js[3] = k0, stamp
-        if lo != -math.inf or hi != math.inf or drive == drive:
-            fs[0], fs[1], fs[2] = lo, hi, drive
+        fs[0], fs[1], fs[2] = lo, hi, drive  # (all three: a clamp left for the next call, see clamps)
         done = slip_tick(self._address)
         if done > 0:
             return None
@@ -670,8 +675,8 @@ class SlipTickKernel:
 
     def next(self) -> tuple | None:
         """The tick after the last done one (:meth:`advance` or this): N grid steps on from the buffers' state, the
-        stamp N grid steps on, no clamps (the buffers hold all of it: nothing is written here); :meth:`advance`'s
-        answer."""
+        stamp N grid steps on, the clamps in :attr:`clamps` (none: -inf, inf, NaN; the buffers hold all of it:
+        nothing is written here); :meth:`advance`'s answer."""
         done = slip_tick(self._address)
         if done > 0:
             return None

@@ -36,6 +36,7 @@ from ..core.errors import SimulationDivergedError
 from ..core.model import OUTPUT_UNITS, FlexibleBeltModel
 from ..core.slip import SLIP_OUTPUT_UNITS
 from ..core.slip_run import SlippingSimulator, _events
+from ..core.sources import Schedule, TorqueProfile
 from ..core.kernel_loop import OK
 from ..core.step_plan import snap_tolerance
 from ..core.stepper import SPEED_LIMIT, Plant, Stepper
@@ -64,6 +65,14 @@ _NO_CLAMP = (-math.inf, math.inf, math.nan)
 SLACK, SLIPS, SLIPPING = 1, 2, 4
 #: the tick kernels' return when done: minus (flags + EVENT per mode switch) (``core.tick.EVENT``)
 _EVENT = 8
+
+
+def _left_is_below(profile) -> bool:
+    """Whether ``profile.left_of(t)`` is always the float just below ``t``: TorqueProfile's own, or a schedule's
+    of such parts (the least of equal floats)."""
+    if type(profile).left_of is TorqueProfile.left_of:
+        return True
+    return type(profile) is Schedule and _left_is_below(profile.active) and _left_is_below(profile.inactive)
 
 
 class NodeSimulation:
@@ -122,6 +131,7 @@ class NodeSimulation:
         self._plain_ns: int | None = None  # node time of the next plain tick (see advance_to), or None
         self._free_k = (0, -1)  # grid cells k with no plant breakpoint near steps k0 <= k < k1 (lo <= k0, k1 <= hi)
         self._topic = s.drive_source == "topic"  # (the plain tick samples the drive: DriveInput.until)
+        self._below = _left_is_below(drive) and _left_is_below(s.scene.load)  # (Plant.left_of: see _jump_tick)
         if s.model.name == "slipping":
             engine = SlippingSimulator(s.params, drive, s.scene.load, s.method, s.dt, s.method_options, check_stability=False)
             self._plant_breakpoints = tuple(engine.breakpoints)
@@ -334,6 +344,9 @@ class NodeSimulation:
         A *plain* tick is the usual one at 1 kHz: the tick after one the tick kernel took, as many grid steps
         on, no held-torque jump at either end, no plant breakpoint near: the kernel's buffers hold all it needs
         (:meth:`~belt_drive_ros.core.tick.TickKernel.next`), so it is the drive's sample and one compiled call.
+        A plain tick at which the held torque jumps (a new sample at its end) is that call with the clamps the
+        general path gives it (:meth:`_jump_tick`); the tick after it is plain, its clamp at the jump (its start)
+        written into the kernel's buffer when the jump was taken.
         """
         drive = self.drive
         if drive._new:  # messages received since the last tick: handed over now, before the compute (DriveInput.take)
@@ -357,8 +370,35 @@ class NodeSimulation:
                     self.t_ns = self._fresh_ns = now_ns
                     self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
                     return 1 + (-done & 7)  # (7: SLACK | SLIPS | SLIPPING)
-            return self._advance(now_ns, (value,))
+                return self._advance(now_ns, (value,))
+            return self._jump_tick(now_ns, value)
         return self._advance(now_ns)
+
+    def _jump_tick(self, now_ns: int, value: float) -> bool:
+        """A plain tick (:meth:`advance_to`) at whose end the held drive torque jumps to ``value`` (the sample at
+        ``now_ns``): the tick kernel's one call with the clamps :meth:`_advance` gives the same tick (``hi =
+        left_of(t1)``, the new value; ``lo``: -inf, or t0 when the tick before was a jump, written then), so the
+        same floats; the general path where the kernel fails or a linear model's tick has several steps (the
+        stepper's special step clamps only the step at the jump)."""
+        fast = self._tick_kernel
+        if self._plain_step == fast.step_ns or self._live:  # (the slipping tick clamps its first and last step alone)
+            t1 = fast.origin + (now_ns - self.origin_ns) // fast.step_ns * fast.dt  # (_advance's t1)
+            cells = fast.clamps  # (Plant.left_of: the float below t1 when both profiles' is, one call, not three)
+            cells[1] = math.nextafter(t1, -math.inf) if self._below else \
+                (self.stepper.stepper if self._live else self.stepper).plant.left_of(t1)
+            cells[2] = value
+            done = self._entry(fast._address)  # (the kernel sets its clamps back when it reads them)
+            if done <= 0:
+                fast._drive[0] = value  # (the held torque's own data; the kernel wrote its copy)
+                if done <= -_EVENT:
+                    self._located(_events(fast._events[: -done // _EVENT]))
+                self.t_ns = self._fresh_ns = now_ns
+                self._held_jump, self._held = t1, value
+                self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
+                if self._plain_ns is not None:
+                    cells[0] = t1  # the next tick's: the held torque jumps at its start
+                return 1 + (-done & 7)
+        return self._advance(now_ns, (value,))
 
     def _advance(self, now_ns: int, sampled: tuple | None = None) -> bool:
         """:meth:`advance_to` but for a plain tick; ``sampled``: ``(value,)`` when the drive was sampled at ``now_ns``."""
@@ -449,17 +489,19 @@ class NodeSimulation:
     def _ticked(self, now_ns: int, k1: int, steps: int, step_ns: int, jump: float | None, value) -> None:
         """After the tick kernel took ``steps`` grid steps (``step_ns`` [ns] each) to grid index ``k1`` at ``now_ns``
         (``jump``: the scene time there when the held torque jumped to ``value`` there, else None): the time, the
-        held torque, and whether the next ticks can be plain (no jump at their start, as many steps, each ending at
-        or before grid index ``hi`` of :meth:`_free`'s range: the plain ticks run to ``_plain_end``)."""
+        held torque, and whether the next ticks can be plain (as many steps, each ending at or before grid index
+        ``hi`` of :meth:`_free`'s range: the plain ticks run to ``_plain_end``; after a jump the next one's clamp
+        at it is written into the kernel's buffer, :meth:`_jump_tick`)."""
         self.t_ns = self._fresh_ns = now_ns
         self._held_jump = jump  # (what _hold makes of the sample)
         if jump is not None:
             self._held = value  # (the tick kernel wrote it into the held torque)
-            return
         hi = self._free_k[1]
-        if k1 + steps <= hi:
+        if k1 + steps <= hi and (jump is None or steps == 1 or self._live):  # (see _jump_tick)
             self._plain_ns, self._plain_step = now_ns + steps * step_ns, steps * step_ns
             self._plain_end = now_ns + (hi - k1 - steps) * step_ns  # the last tick whose next one ends at hi
+            if jump is not None:  # the next tick's clamp at the jump, its start (read by the kernel's next call)
+                self._tick_kernel.clamps[0] = jump
     def _located(self, events) -> None:
         """Note a tick's stick/slip events (:class:`~belt_drive_ros.core.slip.Event`): the latest 64 kept."""
         self.slip_events.extend((e.kind, e.time, e.sigma) for e in events)
