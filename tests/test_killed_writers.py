@@ -130,6 +130,40 @@ def test_an_existing_bag_is_refused_before_the_run_without_force(tmp_path, capsy
     assert out == ""  # refused before the run: no summary
 
 
+@pytest.mark.parametrize("entry", [".mcap", "take.mcap", "metadata.yaml", "old.mcap/", "notes.txt", "take.MCAP", None])
+def test_a_bag_folder_holds_a_bag_by_the_writers_own_rule(tmp_path, capsys, monkeypatch, entry):
+    """``io.holds_bag`` (what ``sim --bag-folder`` refuses before its run, and how a scene argument is told from a
+    recording) answers as the bag writer's refusal does, for every folder content; a folder the writer would refuse
+    is refused before the run (the sim command had its own test, which missed an entry named ``.mcap``)."""
+    from belt_drive_ros.core import simulate as simulate_module
+    from belt_drive_ros.io import holds_bag, is_recording
+
+    folder = tmp_path / "bag"
+    folder.mkdir()
+    if entry is not None:
+        (folder / entry.rstrip("/")).mkdir() if entry.endswith("/") else (folder / entry).write_bytes(b"precious")
+    try:
+        Ros2BagWriter(folder).finish()
+        refused = False
+    except OverwriteError:
+        refused = True
+    for f in folder.iterdir():  # (what the accepted writer wrote goes: the folder as it was)
+        if f.name in ("bag_0.mcap", "metadata.yaml") and f.name != entry:
+            f.unlink()
+    assert holds_bag(folder) == refused == is_recording(folder), entry
+    if not refused:
+        return
+
+    def run_not_allowed(*_args, **_kwargs):
+        raise AssertionError("the run started before the refusal")
+
+    monkeypatch.setattr(simulate_module, "simulate", run_not_allowed)
+    assert main(RUN + ["--out", str(folder), "--bag-folder"]) == 2
+    out, err = capsys.readouterr()
+    assert err == f"belt-drive: error: --out {folder} exists and holds a bag; pass --force to overwrite it\n"
+    assert out == "" and sorted(p.name for p in folder.iterdir()) == [entry.rstrip("/")]
+
+
 # ------------------------------------------------------------------ the refusal's words
 def test_overwrite_refusals_are_one_plain_sentence(tmp_path):
     path = tmp_path / "run.mcap"
