@@ -17,9 +17,10 @@ for the reading side: every ``msg-tools`` verb accepts a folder.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
-from typing import IO, Any, Dict, List, Optional, Tuple, Union
+from typing import IO, Any, ContextManager, Dict, List, Optional, Tuple, Union
 
 from .errors import BagNotFoundError, CorruptBagError, MsgToolsError, OverwriteError, WriteError
 from .writer import Ros2McapWriter, bag_metadata_yaml
@@ -189,6 +190,11 @@ class Ros2BagWriter:
     max_bag_duration : float, optional
         Start a new file once the current one spans this much log time [s]
         (``--max-bag-duration``). 0/None: no limit.
+    hold : context manager, optional
+        Held while the folder is written: entered before the folder is
+        looked at, exited once :meth:`finish` has run (or the constructor
+        failed); a folder lock (``belt_drive_ros.io.bag_folder.bag_folder_lock``:
+        one writer per folder, a second refused naming the first's pid).
     **writer_options
         Passed to each :class:`~msg_tools.writer.Ros2McapWriter` (chunk_size,
         compression, flush_interval_s, ros_distro, custom_data, message_index).
@@ -209,7 +215,18 @@ class Ros2BagWriter:
 
     def __init__(self, folder: Union[str, "os.PathLike[str]"], *, force: bool = False,
                  max_bag_size: Optional[int] = None, max_bag_duration: Optional[float] = None,
-                 **writer_options: Any):
+                 hold: Optional[ContextManager[Any]] = None, **writer_options: Any):
+        self._hold = contextlib.ExitStack()
+        if hold is not None:
+            self._hold.enter_context(hold)
+        try:
+            self._start(folder, force, max_bag_size, max_bag_duration, writer_options)
+        except BaseException:
+            self._hold.close()
+            raise
+
+    def _start(self, folder, force: bool, max_bag_size: Optional[int], max_bag_duration: Optional[float],
+               writer_options: Dict[str, Any]) -> None:
         self.folder = os.fspath(folder)
         if max_bag_size is not None and max_bag_size < 0:
             raise ValueError(f"max_bag_size must be >= 0 bytes, got {max_bag_size}")
@@ -382,22 +399,23 @@ class Ros2BagWriter:
         return "rosbag2_bagfile_information:\n" + "\n".join("  " + ln for ln in body.splitlines()) + "\n"
 
     def finish(self) -> None:
-        """Finish the open file and write ``metadata.yaml``. Idempotent."""
+        """Finish the open file and write ``metadata.yaml``, then let go of ``hold``. Idempotent."""
         with self._lock:
             if self._finished:
                 return
             self._finished = True
-            failed = self._current.failed
-            self._close_current()
-            if failed:
-                return  # the files read like a killed recording's; no metadata.yaml
-            path = os.path.join(self.folder, METADATA_FILE)
-            try:
-                with open(path + ".tmp", "w", encoding="utf-8") as f:
-                    f.write(self.metadata_yaml())
-                os.replace(path + ".tmp", path)
-            except OSError as exc:
-                raise WriteError(path, exc) from exc
+            with self._hold:  # (released whether the files close or fail)
+                failed = self._current.failed
+                self._close_current()
+                if failed:
+                    return  # the files read like a killed recording's; no metadata.yaml
+                path = os.path.join(self.folder, METADATA_FILE)
+                try:
+                    with open(path + ".tmp", "w", encoding="utf-8") as f:
+                        f.write(self.metadata_yaml())
+                    os.replace(path + ".tmp", path)
+                except OSError as exc:
+                    raise WriteError(path, exc) from exc
 
     def __enter__(self) -> "Ros2BagWriter":
         return self

@@ -269,7 +269,7 @@ def _check_out_dir(path: Optional[str], force: bool = False, suffix: str = "", b
         if not os.path.isfile(path) or os.path.islink(path):
             raise MsgToolsError(f"cannot write {path}: not a regular file; outputs are written to regular files only")
         if not force:
-            raise MsgToolsError(f"{path} exists; pass --force to overwrite")
+            raise MsgToolsError(f"{path} exists; pass --force to overwrite it")
 
 
 @contextlib.contextmanager
@@ -291,7 +291,7 @@ def _atomic(path: str, force: bool, mode: str):
             f.flush()
             os.fsync(f.fileno())
         if not force and os.path.lexists(path):
-            raise MsgToolsError(f"{path} appeared while writing; pass --force to overwrite")
+            raise MsgToolsError(f"{path} appeared while writing; pass --force to overwrite it")
         os.replace(name, path)
         done = True
     except OSError as exc:

@@ -26,7 +26,7 @@ import os
 import stat
 import tempfile
 
-from belt_drive_ros.io.inputs import InputError, check_path
+from belt_drive_ros.io.inputs import InputError, check_path, still_at
 from belt_drive_ros.io.inputs import open_regular as _open_regular
 
 from .errors import NotAFileError
@@ -79,11 +79,9 @@ def new_part(path: str | os.PathLike) -> tuple[int, str]:
         fd, name = tempfile.mkstemp(dir=folder, prefix=prefix, suffix=PART)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            own = os.fstat(fd)
-            st = os.stat(name)
-            if (st.st_dev, st.st_ino) == (own.st_dev, own.st_ino):
+            if still_at(fd, name):
                 return fd, name
-        except (BlockingIOError, FileNotFoundError):
+        except BlockingIOError:
             pass
         except BaseException:
             os.close(fd)
@@ -108,8 +106,7 @@ def settle_parts(path: str | os.PathLike) -> list[str]:
             continue
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # held: its writer is alive (or settling it now)
-            own, st = os.fstat(fd), os.stat(e.path, follow_symlinks=False)
-            if (st.st_dev, st.st_ino) == (own.st_dev, own.st_ino):
+            if still_at(fd, e.path):
                 os.unlink(e.path)
                 removed.append(e.name)
         except OSError:

@@ -48,7 +48,7 @@ def test_sim_refuses_to_overwrite_without_force(tmp_path, capsys):
     code = main(["sim", "paper", "--duration", "0.05", "--out", str(csv), "--quiet"])
     err = capsys.readouterr().err
     assert code == 2
-    assert "--force" in _one_line_error(err)
+    assert _one_line_error(err) == f"belt-drive: error: --out {csv} exists; pass --force to overwrite it"
     assert csv.read_text() == "keep me\n"
     code = main(["sim", "paper", "--duration", "0.05", "--out", str(csv), "--quiet", "--force"])
     assert code == 0

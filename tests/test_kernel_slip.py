@@ -186,6 +186,24 @@ def _flow_phis(xs):
     return out[:len(xs)]
 
 
+#: the helpers :func:`~.kernel_slip._phis4` calls (inline-only: compiled within the modal flow, never on their own)
+PHI_HELPERS = ("_phi_series", "_phi_closed")
+
+
+def _interpreted_phis4(xs):
+    """:func:`~.kernel_slip._phis4` of each x as Python all the way (as under ``NUMBA_DISABLE_JIT=1``): its helpers
+    swapped for their Python functions during the calls. ``_phis4.py_func`` alone called the compiled helpers from
+    Python, which compiled and cached a (complex128,) and a (float64,) specialisation of each that ``make install``
+    never warms (12-14 s of the suite's time in a fresh clone); asserts none gained a signature."""
+    before = {name: len(getattr(kernel_slip, name).signatures) for name in PHI_HELPERS}
+    with pytest.MonkeyPatch.context() as mp:
+        for name in PHI_HELPERS:
+            mp.setattr(kernel_slip, name, getattr(kernel_slip, name).py_func)
+        out = [kernel_slip._phis4.py_func(np.complex128(x)) for x in xs]
+    assert {name: len(getattr(kernel_slip, name).signatures) for name in PHI_HELPERS} == before
+    return out
+
+
 def test_the_modal_phi_functions_compiled_and_interpreted_give_the_same_floats():
     """e^x and phi_1..phi_4 of the modal flow, compiled and as Python, on 4,000 complex arguments either side
     of the series' radius: the same floats. numba's complex division and numpy's differ in the last bit
@@ -202,8 +220,8 @@ def test_the_modal_phi_functions_compiled_and_interpreted_give_the_same_floats()
     compiled = _flow_phis(xs)
     assert sum(kernel_slip._flow.stats.cache_misses.values()) == misses and len(kernel_slip._flow.signatures) == 1
     assert not kernel_slip._phis4.signatures  # (not compiled on its own)
-    for x, got in zip(xs, compiled):  # (interpreted, the kernel's complex numbers are numpy's: x is one)
-        assert got == kernel_slip._phis4.py_func(np.complex128(x)), x
+    for x, got, want in zip(xs, compiled, _interpreted_phis4(xs)):  # (the kernel's complex numbers are numpy's)
+        assert got == want, x
 
 
 def test_the_phi_functions_of_a_real_argument_are_the_complex_paths_floats():
@@ -218,7 +236,7 @@ def test_the_phi_functions_of_a_real_argument_are_the_complex_paths_floats():
     xs = np.concatenate([rng.uniform(-0.5, 0.5, 2000), rng.uniform(-40.0, 8.0, 2000), -np.logspace(-12, 3, 1000),
                          np.logspace(-12, 0.9, 994), edges])
     compiled = _flow_phis(xs.astype(np.complex128))
-    for x, got in zip(xs, compiled):
+    for x, got, interpreted in zip(xs, compiled, _interpreted_phis4(xs)):
         z = np.complex128(x)
         if abs(z) < 0.5:
             want = kernel_slip._phi_series.py_func(z)
@@ -228,7 +246,7 @@ def test_the_phi_functions_of_a_real_argument_are_the_complex_paths_floats():
             want = kernel_slip._phi_closed.py_func(np.complex128(cmath.exp(z)), r)
         assert all(g.imag == 0.0 for g in got), x
         assert [g.real for g in got] == [w.real for w in want], x
-        assert got == kernel_slip._phis4.py_func(z), x  # (interpreted: the same real path)
+        assert got == interpreted, x  # (interpreted: the same real path)
 
 
 def test_the_event_steps_work_arrays_carry_nothing_from_call_to_call():

@@ -120,6 +120,43 @@ def test_the_lock_of_a_killed_run_is_taken_over(tmp_path, capsys):
     capsys.readouterr()
 
 
+@pytest.mark.parametrize("planted", ["symlink", "fifo"])
+def test_a_link_or_fifo_planted_as_the_lock_file_is_refused_not_followed(tmp_path, capsys, planted):
+    """The lock file is opened without following a link: a link planted at ``.NAME.lock`` had the run truncate
+    the file it points to and write its pid there (and unlink only the link); a FIFO is no lock file either."""
+    folder, lock = tmp_path / "bag", tmp_path / ".bag.lock"
+    victim = tmp_path / "precious.txt"
+    victim.write_text("keep me\n")
+    os.symlink(victim, lock) if planted == "symlink" else os.mkfifo(lock)
+    assert main(RUN + ["--out", str(folder), "--bag-folder"]) == 1
+    out, err = capsys.readouterr()
+    why = ("cannot make its lock file {lock}: a symbolic link is there (never followed: remove it)" if planted == "symlink"
+           else "its lock file {lock} is not a regular file (a FIFO or socket: remove it)")
+    assert err == f"belt-drive: error: --out {folder}: " + why.format(lock=lock) + "\n"
+    assert out == "" and victim.read_text() == "keep me\n" and not folder.exists() and os.path.lexists(lock)
+
+
+def test_still_at_is_the_file_at_the_path_now_never_through_a_link(tmp_path):
+    """``io.inputs.still_at``: the one same-file check of the .part files' (msg_tools.files) and the bag folder's
+    locks."""
+    from belt_drive_ros.io.inputs import still_at
+
+    path, link, other = tmp_path / "f", tmp_path / "link", tmp_path / "g"
+    path.write_text("a")
+    other.write_text("b")
+    os.symlink(path, link)
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        assert still_at(fd, path) and still_at(fd, str(path))
+        assert not still_at(fd, link) and not still_at(fd, other)
+        os.replace(other, path)  # another file at the path now
+        assert not still_at(fd, path)
+        path.unlink()
+        assert not still_at(fd, path)
+    finally:
+        os.close(fd)
+
+
 def test_an_existing_bag_is_refused_before_the_run_without_force(tmp_path, capsys):
     folder = tmp_path / "bag"
     assert main(RUN + ["--out", str(folder), "--bag-folder"]) == 0
@@ -128,6 +165,40 @@ def test_an_existing_bag_is_refused_before_the_run_without_force(tmp_path, capsy
     out, err = capsys.readouterr()
     assert err == f"belt-drive: error: --out {folder} exists and holds a bag; pass --force to overwrite it\n"
     assert out == ""  # refused before the run: no summary
+
+
+@pytest.mark.parametrize("entry", [".mcap", "take.mcap", "metadata.yaml", "old.mcap/", "notes.txt", "take.MCAP", None])
+def test_a_bag_folder_holds_a_bag_by_the_writers_own_rule(tmp_path, capsys, monkeypatch, entry):
+    """``io.holds_bag`` (what ``sim --bag-folder`` refuses before its run, and how a scene argument is told from a
+    recording) answers as the bag writer's refusal does, for every folder content; a folder the writer would refuse
+    is refused before the run (the sim command had its own test, which missed an entry named ``.mcap``)."""
+    from belt_drive_ros.core import simulate as simulate_module
+    from belt_drive_ros.io import holds_bag, is_recording
+
+    folder = tmp_path / "bag"
+    folder.mkdir()
+    if entry is not None:
+        (folder / entry.rstrip("/")).mkdir() if entry.endswith("/") else (folder / entry).write_bytes(b"precious")
+    try:
+        Ros2BagWriter(folder).finish()
+        refused = False
+    except OverwriteError:
+        refused = True
+    for f in folder.iterdir():  # (what the accepted writer wrote goes: the folder as it was)
+        if f.name in ("bag_0.mcap", "metadata.yaml") and f.name != entry:
+            f.unlink()
+    assert holds_bag(folder) == refused == is_recording(folder), entry
+    if not refused:
+        return
+
+    def run_not_allowed(*_args, **_kwargs):
+        raise AssertionError("the run started before the refusal")
+
+    monkeypatch.setattr(simulate_module, "simulate", run_not_allowed)
+    assert main(RUN + ["--out", str(folder), "--bag-folder"]) == 2
+    out, err = capsys.readouterr()
+    assert err == f"belt-drive: error: --out {folder} exists and holds a bag; pass --force to overwrite it\n"
+    assert out == "" and sorted(p.name for p in folder.iterdir()) == [entry.rstrip("/")]
 
 
 # ------------------------------------------------------------------ the refusal's words

@@ -47,6 +47,7 @@ def test_existing_output_is_kept_without_force_and_replaced_with_it(capsys, tmp_
     status, _, err = _cli(capsys, verb, bag, *extra, "--out", target)
     assert status == 2
     _one_line(err, "exists; pass --force")
+    assert err.strip().endswith(f"{target} exists; pass --force to overwrite it"), err  # the one sentence
     assert target.read_bytes() == b"keep me"
     status, _, err = _cli(capsys, verb, bag, *extra, "--out", target, "--force")
     assert status == 0, err
@@ -101,7 +102,8 @@ def test_make_bags_leaves_no_partial_file_and_keeps_existing_ones(tmp_path, monk
     monkeypatch.setattr(recording, "write_result_mcap", real)
     before = (tmp_path / "engine_idle.yaml").read_bytes()
     assert main(["make-bags", "--out", str(tmp_path), "--only", "engine_idle"]) == 2  # exists: refused
-    assert "pass --force" in capsys.readouterr().err
+    assert capsys.readouterr().err.strip().endswith(f"{tmp_path / 'engine_idle.yaml'} exists (and 1 more file(s) it "
+                                                    "would write); pass --force to overwrite it")
     assert (tmp_path / "engine_idle.yaml").read_bytes() == before
     assert main(["make-bags", "--out", str(tmp_path), "--only", "engine_idle", "--force"]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["engine_idle.yaml", "engine_idle_golden.mcap",

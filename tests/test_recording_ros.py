@@ -200,6 +200,26 @@ def test_existing_file_refused(harness, tmp_path):
     assert harness.node.count_subscribers("/shaft_speed") == 1  # nothing left behind (the harness's probe)
 
 
+def test_a_split_node_recording_takes_the_bag_folder_lock(harness, tmp_path):
+    """A node recording split into a bag folder holds the folder's lock (as ``belt-drive sim --bag-folder`` and
+    ``belt-drive record`` do) until it is closed: a second recorder into the folder is refused naming this pid,
+    before it looks at the folder; the lock file goes with the close."""
+    from belt_drive_ros.io.recording import BagWriteError
+    from belt_drive_ros.ros.recorder import NodeRecorder
+
+    folder, lock = tmp_path / "bag", tmp_path / ".bag.lock"
+    first = NodeRecorder(harness.node, folder, max_bag_duration=1.0)
+    try:
+        assert lock.read_text() == f"{os.getpid()}\n"
+        with pytest.raises(BagWriteError) as info:
+            NodeRecorder(harness.node, folder, max_bag_duration=1.0, force=True)
+        assert str(info.value).startswith(f"{folder}: another run (pid {os.getpid()}) is writing this bag folder")
+    finally:
+        first.close()
+    assert (folder / "metadata.yaml").is_file() and not lock.exists()
+    NodeRecorder(harness.node, folder, max_bag_duration=1.0, force=True).close()  # released: the next one writes
+
+
 # ---------------------------------------------------------- belt-drive record
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGKILL])
 def test_record_command_under_signals(tmp_path, ros_domain_id, sig):
@@ -305,6 +325,11 @@ def test_record_command_splits_into_a_bag_folder(tmp_path, ros_domain_id, capsys
             assert time.monotonic() < deadline and proc.poll() is None, proc.stderr.read() if proc.poll() else "no match"
             time.sleep(0.02)
         time.sleep(0.2)
+        # a second recorder into the folder is refused as a second sim --bag-folder is: exit 1, the holder named
+        assert main(["record", "--out", str(folder), "--max-bag-duration", "0.2", "--force", "--duration", "0.1"]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"belt-drive: error: --out {folder}: another run (pid {proc.pid}) "
+                                                   "is writing this bag folder"), err
         for _ in range(300):  # ~0.75 s at 400 Hz: about four 0.2 s files
             pub.publish(Float64(data=float(sent)))
             sent += 1
@@ -314,6 +339,7 @@ def test_record_command_splits_into_a_bag_folder(tmp_path, ros_domain_id, capsys
         code = proc.wait(timeout=20)
         stderr = proc.stderr.read()
     assert code == 0 and "Traceback" not in stderr, stderr
+    assert not (tmp_path / ".rec.lock").exists()  # the lock's file goes with the recorder
     meta = yaml.safe_load((folder / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert len(meta["relative_file_paths"]) >= 3 and meta["message_count"] == sent
     data = read_topic(folder, "/drive_torque")

@@ -97,11 +97,16 @@ def _load_scene(name):
 JOINTS = ["wheel_M", "wheel_3"]
 SCENES = ("paper", "truck_compressor", "e_motor_start", "bsg_start")
 
+#: PyYAML's safe dumper in C (libyaml) where it is built, else in Python: the same text (tests/test_fuzz_scenes.py
+#: compares them), ~10x faster on the mutants' long strings (all 781 scene mutants: 10.9 -> 1.0 s)
+SAFE_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+
+
 def _dump(data) -> str:
-    return yaml.safe_dump(data, sort_keys=False)
+    return yaml.dump(data, Dumper=SAFE_DUMPER, sort_keys=False)
 
 
-class _Quoting(yaml.SafeDumper):
+class _Quoting(SAFE_DUMPER):
     """Writes every string quoted: a mutant's text value stays text for any YAML version (1e3 is a number in 1.2)."""
 
 

@@ -18,7 +18,9 @@ recorder's clock [ns] (simulated time with --use-sim-time), with the QoS the
 publishers offer. Topics that appear later are picked up (polled every
 0.5 s). SIGINT/SIGTERM (Ctrl-C) finalize the file; after SIGKILL it reads up
 to its last complete chunk (chunks close every 0.25 s). An existing file is
-never replaced without --force.
+never replaced without --force. A bag folder is written by one recorder or
+run at a time (its lock file .NAME.lock beside it, as sim --bag-folder takes
+it): a second is refused, naming the first's pid (exit 1).
 """
 
 DEFAULT_EXCLUDE = ("/rosout", "/parameter_events")

@@ -159,20 +159,16 @@ def run(args) -> int:
     out_format = check_outputs(args, run_inputs(args, scene))
     if out_format != "mcap" or not args.bag_folder:
         return _run(scene, args, out_format)
+    from ..io import holds_bag
     from ..io.atomic import OutputRefused
     from ..io.bag_folder import bag_folder_lock, settle_set_aside
 
     with bag_folder_lock(args.out):  # one run at a time into a bag folder: a second one is told who holds it
         for line in settle_set_aside(args.out):  # a bag a killed --force run set aside: back, or gone if replaced
             print(f"belt-drive: {line}", file=sys.stderr)
-        if not args.force and _holds_bag(args.out):  # refused before the run, not after it (the writer's rule)
+        if not args.force and holds_bag(args.out):  # refused before the run, not after it (the writer's rule)
             raise OutputRefused(f"--out {args.out} exists and holds a bag; pass --force to overwrite it")
         return _run(scene, args, out_format)
-
-
-def _holds_bag(folder: Path) -> bool:
-    """``folder`` holds a bag's files (an ``.mcap`` or ``metadata.yaml``: what a bag writer refuses to overwrite)."""
-    return folder.is_dir() and any(f.suffix == ".mcap" or f.name == "metadata.yaml" for f in folder.iterdir())
 
 
 def _run(scene, args, out_format) -> int:
@@ -251,9 +247,10 @@ def _run_in_memory(scene, args, out_format, bar) -> int:
         from ..io.recording import write_result_mcap
 
         if out_format == "mcap" and args.bag_folder:
+            from ..io import holds_bag
             from ..io.bag_folder import bag_folder_kept, remove_bag_folder
 
-            had_bag = _holds_bag(args.out)
+            had_bag = holds_bag(args.out)
             try:
                 with bag_folder_kept(args.out, args.force):  # (--force: the old bag back if this write fails)
                     write_result_mcap(result, args.out, force=args.force, start_time_ns=args.start_time, bag_folder=True,

@@ -19,7 +19,9 @@ the network slipping tier, takes the network node tick once this process has
 cached the linear loop through a short network run (``wheel_steps``), the
 variant loop once it has cached ``linear_steps`` (told on its stdin): on two
 cores the longer chain's time, and nothing compiled twice (a second process
-that fails before ``_explicit``: this one compiles it, as with ``jobs=1``).
+that fails before ``_explicit``: this one compiles it, as with ``jobs=1``, and
+raises once its own part is done; one that cannot be started at all: this
+process warms everything, as with ``jobs=1``, and says so on stderr).
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ import sys
 WHEEL, LINEAR = "wheel_steps", "linear_steps"
 #: the milestone the second process tells this one (a line on the pipe whose descriptor it is given)
 EXPLICIT = "_explicit"
+#: the second process's program (``{fd}``: the pipe's descriptor it tells :data:`EXPLICIT` on)
+SECOND = "from belt_drive_ros.core.warm import warm_second; warm_second(wait=True, tell_fd={fd})"
 
 
 def warm(jobs: int = 1) -> None:
@@ -45,16 +49,26 @@ def warm(jobs: int = 1) -> None:
         warm_second()
         return
     read, write = os.pipe()
-    code = f"from belt_drive_ros.core.warm import warm_second; warm_second(wait=True, tell_fd={write})"
     try:
-        child = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, text=True, pass_fds=(write,))
+        child = subprocess.Popen([sys.executable, "-c", SECOND.format(fd=write)], stdin=subprocess.PIPE, text=True,
+                                 pass_fds=(write,))
+    except OSError as exc:  # (no process to be had: fork refused, no memory)
+        os.close(read)
+        print(f"warm: cannot start a second process ({exc.strerror or exc}); warming every kernel in this one",
+              file=sys.stderr)
+        warm_single()
+        warm_second()
+        return
     finally:
         os.close(write)  # the child's copy only: its exit ends this process's wait
     with os.fdopen(read) as told:
         try:
             warm_single(tell=child.stdin, told=told)
         finally:
-            child.stdin.close()  # a milestone never told: the second process stops (it compiles nothing twice)
+            try:
+                child.stdin.close()  # a milestone never told: the second process stops (it compiles nothing twice)
+            except BrokenPipeError:  # (gone already: what _tell could not write is dropped with it)
+                pass
     if child.wait() != 0:
         raise RuntimeError(f"warming the network and variant kernels failed (exit {child.returncode})")
 
@@ -131,9 +145,14 @@ def _loop_arguments(wheel: bool) -> tuple:
 
 
 def _tell(stream, milestone: str) -> None:
+    """``milestone`` as a line on ``stream`` (none: nobody to tell); a second process already gone is told nothing
+    (its exit status says why, after this process's part)."""
     if stream is not None:
-        stream.write(milestone + "\n")
-        stream.flush()
+        try:
+            stream.write(milestone + "\n")
+            stream.flush()
+        except BrokenPipeError:
+            pass
 
 
 def _wait(wait: bool, milestone: str) -> None:

@@ -94,7 +94,7 @@ def check_output(path: str | os.PathLike, force: bool = False, what: str = "outp
             kind = "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file (device, FIFO or socket)"
             raise OutputRefused(f"{what} {path}: {kind}; outputs are written to regular files only")
         if not force:
-            raise OutputRefused(f"{what} {path} exists; pass --force to overwrite")
+            raise OutputRefused(f"{what} {path} exists; pass --force to overwrite it")
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise OutputRefused(f"{what} {path}: folder {parent} does not exist")
@@ -160,7 +160,7 @@ def atomic_output(path: str | os.PathLike, force: bool = False, mode: str = "wb"
             handle.flush()
             os.fsync(handle.fileno())
         if not force and os.path.lexists(path):
-            raise OutputRefused(f"{what} {path} appeared while writing; pass --force to overwrite")
+            raise OutputRefused(f"{what} {path} appeared while writing; pass --force to overwrite it")
         os.replace(name, path)
         done = True
     except OSError as exc:

@@ -20,13 +20,16 @@ moves or writes anything.
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import os
 import shutil
+import stat
 import tempfile
 from pathlib import Path
 
 from ..core.errors import OutputError
+from .inputs import still_at
 
 __all__ = ["BagFolderBusy", "bag_files_in", "bag_folder_kept", "bag_folder_lock", "remove_bag_folder", "set_aside",
            "settle_set_aside"]
@@ -44,33 +47,38 @@ class BagFolderBusy(OutputError):
 
 
 @contextlib.contextmanager
-def bag_folder_lock(folder):
+def bag_folder_lock(folder, what: str = "--out"):
     """Hold ``folder``'s lock while the block writes its bag: an exclusive ``flock`` on ``.NAME.lock`` beside the
     folder, the holder's pid written in it, the file removed on exit. Held elsewhere: :class:`BagFolderBusy` naming
     that pid. The kernel drops a lock with its process, so a run killed outright leaves a file nobody holds, which
-    the next run takes over."""
+    the next run takes over. The lock file is opened without following a symbolic link (a link planted there would
+    have this run truncate the file it points to) and must be a regular file. Messages start with ``what`` (the
+    option or parameter that named the folder) and the folder."""
     folder = Path(folder)
+    named = f"{what} {folder}" if what else f"{folder}"
     path = folder.absolute().parent / f".{folder.name}{LOCK}"
     while True:
         try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
         except OSError as exc:
-            raise OutputError(f"--out {folder}: cannot make its lock file {path.name}: {exc.strerror or exc}") from None
+            why = "a symbolic link is there (never followed: remove it)" if exc.errno == errno.ELOOP else exc.strerror
+            raise OutputError(f"{named}: cannot make its lock file {path}: {why or exc}") from None
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            os.close(fd)
+            raise OutputError(f"{named}: its lock file {path} is not a regular file (a FIFO or socket: "
+                              "remove it)")
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             holder = _holder(fd)
             os.close(fd)
-            raise BagFolderBusy(f"--out {folder}: another run ({holder}) is writing this bag folder (it holds "
+            raise BagFolderBusy(f"{named}: another run ({holder}) is writing this bag folder (it holds "
                                 f"{path}); nothing written: wait for it to end or write elsewhere") from None
         except BaseException:
             os.close(fd)
             raise
-        try:  # the file locked is still the one at the path (its last holder removes it when done)
-            if _same(fd, os.stat(path)):
-                break
-        except FileNotFoundError:
-            pass
+        if still_at(fd, path):  # the file locked is still the one at the path (its last holder removes it when done)
+            break
         os.close(fd)
     try:
         os.ftruncate(fd, 0)
@@ -80,11 +88,6 @@ def bag_folder_lock(folder):
         with contextlib.suppress(OSError):
             os.unlink(path)  # (while held: a run waiting on the old file retries on a new one)
         os.close(fd)
-
-
-def _same(fd: int, st: os.stat_result) -> bool:
-    own = os.fstat(fd)
-    return (own.st_dev, own.st_ino) == (st.st_dev, st.st_ino)
 
 
 def _holder(fd: int) -> str:

@@ -178,9 +178,9 @@ def make_bags(out="bags", *, force: bool = False, only: Optional[Sequence[str]] 
         existing = [str(p) for n in names for p in REFERENCE_BAGS[n].files(folder).values() if p.exists()]
         if existing:
             raise BagExistsError(
-                f"refusing to overwrite {existing[0]}"
-                + (f" and {len(existing) - 1} more" if len(existing) > 1 else "")
-                + "; pass --force to regenerate"
+                f"{existing[0]} exists"
+                + (f" (and {len(existing) - 1} more file(s) it would write)" if len(existing) > 1 else "")
+                + "; pass --force to overwrite it"
             )
     folder.mkdir(parents=True, exist_ok=True)
     written: List[Path] = []

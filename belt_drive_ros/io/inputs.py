@@ -21,7 +21,7 @@ import yaml
 from ..core.errors import MAX_INT, InputError, short
 
 __all__ = ["MAX_DEPTH", "SCENE_LIMIT", "InputError", "check_path", "input_replaced", "open_regular", "parse_yaml",
-           "read_text", "read_yaml"]
+           "read_text", "read_yaml", "still_at"]
 
 #: largest scene / parameter YAML file [bytes]; the shipped scenes are ~2 kB
 SCENE_LIMIT = 1 << 20
@@ -94,6 +94,20 @@ def open_regular(path: str | os.PathLike, what: str = "file") -> int:
         os.close(fd)
         raise InputError(f"{label}: {_kind(st.st_mode)}; a regular file is needed")
     return fd
+
+
+def still_at(fd: int, path: str | os.PathLike) -> bool:
+    """True when the file open as ``fd`` is the one at ``path`` now (same device and inode; a symbolic link at
+    ``path`` is not followed, so a link to it is another file), False when ``path`` is gone or is another file.
+
+    A lock taken with ``flock`` on a file another process may remove or replace (a ``.part`` file, a bag folder's
+    lock file) holds only while the file is still at its path: the one check of every such lock."""
+    try:
+        st = os.stat(path, follow_symlinks=False)
+    except FileNotFoundError:
+        return False
+    own = os.fstat(fd)
+    return (st.st_dev, st.st_ino) == (own.st_dev, own.st_ino)
 
 
 def read_text(path: str | os.PathLike, what: str = "file", limit: int = SCENE_LIMIT) -> str:

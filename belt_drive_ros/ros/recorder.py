@@ -131,7 +131,7 @@ MAX_HELD_BYTES = 8 * 2**20
 
 
 def open_writer(path, *, force: bool = False, max_bag_duration: float = 0.0, max_bag_size: int = 0,
-                **options: Any):
+                what: str = "--out", **options: Any):
     """The writer of a recording: one MCAP file, or a rosbag2 bag folder split by time or size.
 
     Parameters
@@ -145,6 +145,8 @@ def open_writer(path, *, force: bool = False, max_bag_duration: float = 0.0, max
         New file once the current one spans this much log time [s]; 0: no limit.
     max_bag_size : int
         New file once the current one holds this many bytes; 0: no limit.
+    what : str
+        What named ``path`` (``--out``; '' for a node's ``record_path``), for the bag folder lock's refusal.
     **options
         Passed to :class:`msg_tools.Ros2McapWriter` (chunk_size, compression, flush_interval_s).
 
@@ -156,12 +158,18 @@ def open_writer(path, *, force: bool = False, max_bag_duration: float = 0.0, max
     0.25 s ~3.6 KiB per second of recording, ~12 MiB an hour. A split finishes each
     file and drops its indexes, which bounds a recording's memory by the
     split size.
+
+    A bag folder is written under its lock (:func:`belt_drive_ros.io.bag_folder.bag_folder_lock`, as ``belt-drive
+    sim --bag-folder`` takes it), held until the writer finishes: a second recorder or run into the same folder is
+    refused (:class:`~belt_drive_ros.io.bag_folder.BagFolderBusy`, naming the holder's pid) before it looks at it.
     """
     from msg_tools.bagdir import Ros2BagWriter
 
     if max_bag_duration or max_bag_size:
+        from ..io.bag_folder import bag_folder_lock
+
         return Ros2BagWriter(path, force=force, max_bag_duration=max_bag_duration or None,
-                             max_bag_size=max_bag_size or None, **options)
+                             max_bag_size=max_bag_size or None, hold=bag_folder_lock(path, what), **options)
     return Ros2McapWriter(path, force=force, **options)
 
 
@@ -529,7 +537,7 @@ class NodeRecorder(TopicRecorder):
         try:
             writer = open_writer(path, force=force, chunk_size=chunk_size, compression=compression,
                                  flush_interval_s=flush_interval_s, max_bag_duration=max_bag_duration,
-                                 max_bag_size=max_bag_size)
+                                 max_bag_size=max_bag_size, what="")  # (the node says record_path)
         except (MsgToolsError, OSError) as exc:
             raise bag_error(exc) from None
         timing = getattr(node, "timing", None)
