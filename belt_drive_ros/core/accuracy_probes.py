@@ -98,6 +98,22 @@ def _survey_step(pieces, rdt: float) -> float:
     return h if all(on_grid(inner, h) for inner in pieces()) else rdt
 
 
+#: plants of rigid models by their matrices and the torques (:func:`rigid_plant`)
+_RIGID_PLANTS: dict = {}
+
+
+def rigid_plant(model, drive, load):
+    """The plant of the rigid model ``model`` with ``drive`` and ``load``: :func:`~belt_drive_ros.core.stepper.shared_plant`'s,
+    or the one already made for a rigid model of the same matrices (A, B, C, D to the bit) and the same torque objects.
+
+    A rigid model's numbers do not depend on the belt's damping (nor, but for the deflection rows, its stiffness), so
+    a scene edited there (a sweep's variant) steps its rigid survey and a rigid run on the plant, stepper and compiled
+    loop of the scene before it, not on new ones: everything a plant gives (inputs, breakpoints, the steppers' maps)
+    is made of those numbers and torques only. Frozen inputs, never a result."""
+    key = (model.A.tobytes(), model.B.tobytes(), model.C.tobytes(), model.D.tobytes())
+    return built_once(_RIGID_PLANTS, 8, (drive, load), lambda: shared_plant(model, drive, load), key)
+
+
 class RigidSurvey:
     """One cheap rigid run of a scene that the model choice and the accuracy guard both read.
 
@@ -142,7 +158,7 @@ class RigidSurvey:
     def _run(self) -> None:
         self._done = True
         model = self.rigid
-        plant = shared_plant(model, self.drive, self.load)
+        plant = rigid_plant(model, self.drive, self.load)
         x0 = np.array(self.motion)
         self._start_torque = float(model.belt_torque(x0, plant.inputs(0.0, x0)))
         duration, dt = self.duration, self.dt  # the stops: probe times, then a quarter window before breakpoints
