@@ -84,3 +84,18 @@ def test_window_runs_on_the_guarded_stepper_are_the_unguarded_ones(name):
         assert not any(stops)
     assert probe_scene(sim.plant, scene.duration, x0, scene.dt, survey=survey) is probes
     assert shared_plant(sim.flexible, scene.drive, scene.load) is sim.plant
+
+
+def test_a_shared_rigid_plant_stays_one_whose_steppers_are_kept():
+    from belt_drive_ros.core.stepper import _PLANT_CACHE_SIZE, is_shared
+
+    scene = load_scene("e_motor_start")
+    p = scene.params
+    plant = rigid_plant(make_model("rigid", p), scene.drive, scene.load)
+    assert is_shared(plant)
+    for j in range(_PLANT_CACHE_SIZE):  # a sweep's new flexible plants push it out of shared_plant's cache
+        shared_plant(make_model("flexible", p.replace(c=p.c * (1.0 + (j + 1) * 1e-9))), scene.drive, scene.load)
+    assert not is_shared(plant)
+    again = rigid_plant(make_model("rigid", p.replace(c=p.c * 2.0)), scene.drive, scene.load)
+    assert again is not plant and is_shared(again)
+    assert rigid_plant(make_model("rigid", p), scene.drive, scene.load) is again

@@ -21,7 +21,7 @@ from .identity_cache import built_once
 from .model import _BELT, LINEAR_OUTPUTS, RigidBeltModel, make_model
 from .stability import spectral_radii, spectral_radius
 from .step_plan import snap_tolerance
-from .stepper import shared_plant, shared_stepper
+from .stepper import is_shared, shared_plant, shared_stepper
 
 #: default relative tolerance of the guard (speed and belt torque, relative to peak)
 ACCURACY_TOLERANCE = 1e-4
@@ -109,9 +109,14 @@ def rigid_plant(model, drive, load):
     A rigid model's numbers do not depend on the belt's damping (nor, but for the deflection rows, its stiffness), so
     a scene edited there (a sweep's variant) steps its rigid survey and a rigid run on the plant, stepper and compiled
     loop of the scene before it, not on new ones: everything a plant gives (inputs, breakpoints, the steppers' maps)
-    is made of those numbers and torques only. Frozen inputs, never a result."""
+    is made of those numbers and torques only. Frozen inputs, never a result. One that ``shared_plant`` no longer
+    keeps (whose steppers it would not keep either) is replaced by the plant it makes now."""
     key = (model.A.tobytes(), model.B.tobytes(), model.C.tobytes(), model.D.tobytes())
-    return built_once(_RIGID_PLANTS, 8, (drive, load), lambda: shared_plant(model, drive, load), key)
+    plant = built_once(_RIGID_PLANTS, 8, (drive, load), lambda: shared_plant(model, drive, load), key)
+    if not is_shared(plant):
+        plant = shared_plant(model, drive, load)
+        _RIGID_PLANTS[(id(drive), id(load), *key)] = ((drive, load), plant)
+    return plant
 
 
 class RigidSurvey:
