@@ -216,7 +216,7 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
     accuracy = (
         checked or require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance,
                                     method_options=scene.method_options, probes=probes, head=head,
-                                    stepper=_WindowRuns(sim))
+                                    stepper=_WindowRuns(sim) if head is not None else None)
         if check_stability else None
     )  # fmt: skip
     flex = head() if head is not None else None
@@ -255,7 +255,8 @@ class _WindowRuns:
     knots as that stepper gives them, or, where its capstan check stopped the run, as the plant's unguarded stepper
     gives them (:func:`~belt_drive_ros.core.stepper.shared_stepper`). A run the check does not stop is the same steps
     of the same compiled loop, the check only reading the states (the flexible phase's own first knots are already
-    read as the first window's): the same floats as the unguarded stepper's."""
+    read as the first window's): the same floats as the unguarded stepper's. Used where the survey puts the scene
+    well within the limit (its windows' runs are not stopped, else each would be run twice)."""
 
     def __init__(self, sim):
         self._sim = sim
