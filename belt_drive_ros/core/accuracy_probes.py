@@ -153,6 +153,12 @@ class RigidSurvey:
         """The rigid model of the survey's parameters (made once; the probes and the start check read it too)."""
         return make_model("rigid", self.params)
 
+    @cached_property
+    def plant(self):
+        """The rigid model's plant with the survey's torques (:func:`rigid_plant`; the run of a scene on the rigid
+        model steps on it too)."""
+        return rigid_plant(self.rigid, self.drive, self.load)
+
     @property
     def start_torque(self) -> float:
         """The quasi-static belt torque [N m] the torques at t = 0 need from the initial motion (:func:`start_mismatch`)."""
@@ -162,8 +168,7 @@ class RigidSurvey:
 
     def _run(self) -> None:
         self._done = True
-        model = self.rigid
-        plant = rigid_plant(model, self.drive, self.load)
+        model, plant = self.rigid, self.plant
         x0 = np.array(self.motion)
         self._start_torque = float(model.belt_torque(x0, plant.inputs(0.0, x0)))
         duration, dt = self.duration, self.dt  # the stops: probe times, then a quarter window before breakpoints

@@ -306,8 +306,11 @@ def _flexible_phase(sim, y0, duration: float, progress=None):
 def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, survey=None,
                      checked=None) -> SimResult:  # fmt: skip
     """``scene`` on the rigid or flexible model ``kind``: states, outputs and energy terms."""
-    mdl = survey.rigid if kind == "rigid" and survey is not None else make_model(kind, scene.params)
-    plant = (rigid_plant if kind == "rigid" else shared_plant)(mdl, scene.drive, scene.load)
+    if kind == "rigid" and survey is not None and survey.drive is scene.drive and survey.load is scene.load:
+        mdl, plant = survey.rigid, survey.plant
+    else:
+        mdl = make_model(kind, scene.params)
+        plant = (rigid_plant if kind == "rigid" else shared_plant)(mdl, scene.drive, scene.load)
     # a fixed-step method steps on the plant's shared stepper (the guards' windows too; it holds no verdict and a
     # run's outcome does not depend on the runs before it); an adaptive one (solver history) on its own
     stepper = (shared_stepper(plant, scene.method, scene.dt, scene.method_options) if method_class(scene.method).fixed_step
