@@ -99,3 +99,23 @@ def test_a_shared_rigid_plant_stays_one_whose_steppers_are_kept():
     again = rigid_plant(make_model("rigid", p.replace(c=p.c * 2.0)), scene.drive, scene.load)
     assert again is not plant and is_shared(again)
     assert rigid_plant(make_model("rigid", p), scene.drive, scene.load) is again
+
+
+@pytest.mark.parametrize("name", ["e_motor_start", "bsg_start"])
+def test_a_repeated_survey_stops_where_the_first_did(name):
+    scene = load_scene(name)
+    first = RigidSurvey.of_scene(scene)
+    speeds, states = first.speeds, dict(first.states)
+    plan = accuracy_probes._survey_plan(first.plant, scene.duration, scene.dt)
+    assert accuracy_probes._survey_plan(first.plant, scene.duration, scene.dt) is plan  # (kept: made once)
+    first.early[-1.0] = 0.0  # a survey's own copies: the plan does not change
+    first.plain.append(-1.0)
+    again = RigidSurvey.of_scene(scene)
+    assert again.speeds == speeds and again.states == states
+    assert again.early == {b: t for b, t in first.early.items() if b != -1.0} and -1.0 not in again.plain
+    accuracy_probes._SURVEY_PLANS.clear()  # made afresh: the same stops and floats
+    fresh = RigidSurvey.of_scene(scene)
+    assert fresh.speeds == speeds and fresh.states == states and fresh.early == again.early
+    assert fresh.plain == again.plain and fresh.t_probe.tobytes() == again.t_probe.tobytes()
+    other = accuracy_probes._survey_plan(first.plant, scene.duration, 0.5 * scene.dt)  # another step: its own plan
+    assert other is not plan
