@@ -119,3 +119,19 @@ def test_a_repeated_survey_stops_where_the_first_did(name):
     assert fresh.plain == again.plain and fresh.t_probe.tobytes() == again.t_probe.tobytes()
     other = accuracy_probes._survey_plan(first.plant, scene.duration, 0.5 * scene.dt)  # another step: its own plan
     assert other is not plan
+
+
+@pytest.mark.parametrize("kind", ["rigid", "flexible"])
+def test_outputs_without_the_torque_rows_of_d_are_the_full_affine_map(kind):
+    from belt_drive_ros.core.model import LINEAR_OUTPUTS, _affine, _plus_affine
+
+    scene = load_scene("e_motor_start")
+    run = simulate(scene, model=kind)
+    model = make_model(kind, scene.params)
+    full = _plus_affine(_affine(model.C, run.states), model.D, run.inputs)  # D's every row, as before
+    outputs = model.outputs(run.states, run.inputs)
+    for j, name in enumerate(LINEAR_OUTPUTS):
+        expected = run.inputs[:, ("drive_torque", "load_torque").index(name)] if name.endswith("_torque") and \
+            name != "belt_torque" else full[:, j]  # fmt: skip
+        assert np.asarray(outputs[name]).tobytes() == np.ascontiguousarray(expected).tobytes(), name
+    assert not model._D_of_outputs.flags.writeable and model.D[LINEAR_OUTPUTS.index("drive_torque"), 0] == 1.0
