@@ -21,7 +21,7 @@ from .identity_cache import built_once
 from .model import _BELT, LINEAR_OUTPUTS, RigidBeltModel, make_model
 from .stability import spectral_radii, spectral_radius
 from .step_plan import snap_tolerance
-from .stepper import shared_plant, shared_stepper
+from .stepper import is_shared, shared_plant, shared_stepper
 
 #: default relative tolerance of the guard (speed and belt torque, relative to peak)
 ACCURACY_TOLERANCE = 1e-4
@@ -98,6 +98,81 @@ def _survey_step(pieces, rdt: float) -> float:
     return h if all(on_grid(inner, h) for inner in pieces()) else rdt
 
 
+#: plants of rigid models by their matrices and the torques (:func:`rigid_plant`)
+_RIGID_PLANTS: dict = {}
+
+
+def rigid_plant(model, drive, load):
+    """The plant of the rigid model ``model`` with ``drive`` and ``load``: :func:`~belt_drive_ros.core.stepper.shared_plant`'s,
+    or the one already made for a rigid model of the same matrices (A, B, C, D to the bit) and the same torque objects.
+
+    A rigid model's numbers do not depend on the belt's damping (nor, but for the deflection rows, its stiffness), so
+    a scene edited there (a sweep's variant) steps its rigid survey and a rigid run on the plant, stepper and compiled
+    loop of the scene before it, not on new ones: everything a plant gives (inputs, breakpoints, the steppers' maps)
+    is made of those numbers and torques only. Frozen inputs, never a result. One that ``shared_plant`` no longer
+    keeps (whose steppers it would not keep either) is replaced by the plant it makes now."""
+    key = (model.A.tobytes(), model.B.tobytes(), model.C.tobytes(), model.D.tobytes())
+    plant = built_once(_RIGID_PLANTS, 8, (drive, load), lambda: shared_plant(model, drive, load), key)
+    if not is_shared(plant):
+        plant = shared_plant(model, drive, load)
+        _RIGID_PLANTS[(id(drive), id(load), *key)] = ((drive, load), plant)
+    return plant
+
+
+class _SurveyPlan:
+    """Where the rigid survey of a plant over ``[0, duration]`` stops, for the scene's step ``dt`` (numbers of the
+    scene only, no state): ``rdt`` its step (:func:`_survey_step`), ``t_probe`` the probe times, ``early`` the
+    window starts before the first breakpoints, ``plain`` the probe times before the end, ``stops`` all of them
+    sorted; :meth:`ends` the ends of its pieces."""
+
+    def __init__(self, plant, duration: float, dt: float):
+        self.duration = duration
+        # the stops: probe times, then a quarter window before breakpoints; np.linspace(0, duration, N_PROBES)'s
+        # floats (k step, the last the duration itself) without its overhead
+        step = duration / (N_PROBES - 1)
+        self.t_probe = np.array([k * step for k in range(N_PROBES - 1)] + [duration]) if duration > 0 else np.array([0.0])
+
+        def pieces():  # the breakpoints inside the run (page by page for a recording read in pages)
+            return plant.breakpoint_pieces(0.0, duration, SURVEY_CHUNK * dt)
+
+        self.rdt = rdt = _survey_step(pieces, operating_run_step(duration) if duration > 0 else 1e-3)
+        inner = []
+        for piece in pieces():
+            inner += piece[: MAX_BREAKPOINT_WINDOWS - len(inner)].tolist()
+            if len(inner) == MAX_BREAKPOINT_WINDOWS:
+                break
+        self.early = {b: max(0.0, dt * math.floor((b - 0.25 * WINDOW_STEPS * dt) / dt)) for b in inner}
+        self.plain = [float(t) for t in self.t_probe[1:] if t < duration - 2.0 * dt]
+        self.stops = sorted(set(self.plain) | set(self.early.values()) | {float(t) for t in self.t_probe})
+        self._ends = None
+
+    def ends(self, stepper) -> set:
+        """The survey's piece ends on ``stepper`` (method ``exact`` at :attr:`rdt`, origin 0; the same grid for every
+        such stepper): the stops off its grid, every :data:`SURVEY_CHUNK` steps (memory does not grow with the
+        duration) and the duration; a stop on the grid is read off the run's knots. Made at the first call."""
+        if self._ends is None:
+            rdt = self.rdt
+
+            def on_grid(t):
+                return abs(stepper.grid_time(round(t / rdt)) - t) <= snap_tolerance(t, rdt)
+
+            ends = {t for t in self.stops if t > 0.0 and not on_grid(t)} | {self.duration}
+            ends |= {stepper.grid_time(k) for k in range(SURVEY_CHUNK, math.ceil(self.duration / rdt), SURVEY_CHUNK)}
+            self._ends = frozenset(ends)
+        return self._ends
+
+
+#: survey plans by (plant, duration, step): :func:`_survey_plan`
+_SURVEY_PLANS: dict = {}
+
+
+def _survey_plan(plant, duration: float, dt: float) -> _SurveyPlan:
+    """The :class:`_SurveyPlan` of ``plant`` over ``duration`` [s] for the scene's step ``dt`` [s], made once for a plant
+    ``shared_plant`` keeps (a repeated call's survey stops where the last one did: numbers of the scene, not a run)."""
+    return built_once(_SURVEY_PLANS, 32, (plant,), lambda: _SurveyPlan(plant, float(duration), float(dt)),
+                      (float(duration), float(dt)), keep=lambda _: is_shared(plant))
+
+
 class RigidSurvey:
     """One cheap rigid run of a scene that the model choice and the accuracy guard both read.
 
@@ -132,6 +207,12 @@ class RigidSurvey:
         """The rigid model of the survey's parameters (made once; the probes and the start check read it too)."""
         return make_model("rigid", self.params)
 
+    @cached_property
+    def plant(self):
+        """The rigid model's plant with the survey's torques (:func:`rigid_plant`; the run of a scene on the rigid
+        model steps on it too)."""
+        return rigid_plant(self.rigid, self.drive, self.load)
+
     @property
     def start_torque(self) -> float:
         """The quasi-static belt torque [N m] the torques at t = 0 need from the initial motion (:func:`start_mismatch`)."""
@@ -141,39 +222,18 @@ class RigidSurvey:
 
     def _run(self) -> None:
         self._done = True
-        model = self.rigid
-        plant = shared_plant(model, self.drive, self.load)
+        model, plant = self.rigid, self.plant
         x0 = np.array(self.motion)
         self._start_torque = float(model.belt_torque(x0, plant.inputs(0.0, x0)))
-        duration, dt = self.duration, self.dt  # the stops: probe times, then a quarter window before breakpoints
-        # np.linspace(0, duration, N_PROBES)'s floats (k step, the last the duration itself) without its overhead
-        step = duration / (N_PROBES - 1)
-        self.t_probe = np.array([k * step for k in range(N_PROBES - 1)] + [duration]) if duration > 0 else np.array([0.0])
-        def pieces():  # the breakpoints inside the run (page by page for a recording read in pages)
-            return plant.breakpoint_pieces(0.0, duration, SURVEY_CHUNK * dt)
-
-        rdt = _survey_step(pieces, operating_run_step(self.duration) if self.duration > 0 else 1e-3)
-        inner = []
-        for piece in pieces():
-            inner += piece[: MAX_BREAKPOINT_WINDOWS - len(inner)].tolist()
-            if len(inner) == MAX_BREAKPOINT_WINDOWS:
-                break
-        self.early = {b: max(0.0, dt * math.floor((b - 0.25 * WINDOW_STEPS * dt) / dt)) for b in inner}
-        self.plain = [float(t) for t in self.t_probe[1:] if t < duration - 2.0 * dt]
-        stops = sorted(set(self.plain) | set(self.early.values()) | {float(t) for t in self.t_probe})
+        plan = _survey_plan(plant, self.duration, self.dt)
+        rdt, stops = plan.rdt, plan.stops
+        self.t_probe, self.early, self.plain = plan.t_probe.copy(), dict(plan.early), list(plan.plain)
         self.states = {0.0: self.motion}
         self.error, self._speeds = None, None
         w, peak = abs(self.motion[1]), 0.0
         try:
             stepper = shared_stepper(plant, "exact", rdt)
-
-            def on_grid(t):
-                return abs(stepper.grid_time(round(t / rdt)) - t) <= snap_tolerance(t, rdt)
-
-            # one run, in pieces that end at the stops off the grid and every SURVEY_CHUNK steps (memory does not
-            # grow with the duration); a stop on the grid is read off the run's knots
-            ends = {t for t in stops if t > 0.0 and not on_grid(t)} | {self.duration}
-            ends |= {stepper.grid_time(k) for k in range(SURVEY_CHUNK, math.ceil(self.duration / rdt), SURVEY_CHUNK)}
+            ends = plan.ends(stepper)
             x, t, pending = np.array(self.motion), 0.0, [s for s in stops if s > 0.0]
             held = []  # pieces whose speeds and belt torques are not read yet: one evaluation for up to a chunk's knots
 

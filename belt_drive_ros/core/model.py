@@ -81,6 +81,17 @@ class _LinearModel:
         return self.C, self.D
 
     @property
+    def _D_of_outputs(self) -> np.ndarray:
+        """D with the rows of the drive and load torques +0.0 (:meth:`outputs` reads those two from u; built once)."""
+        cached = self.__dict__.get("_d_outputs")
+        if cached is None:
+            cached = self.D.copy()
+            cached[[LINEAR_OUTPUTS.index("drive_torque"), LINEAR_OUTPUTS.index("load_torque")]] = 0.0
+            cached.flags.writeable = False
+            object.__setattr__(self, "_d_outputs", cached)
+        return cached
+
+    @property
     def wheel_map(self) -> np.ndarray:
         """(4, n) matrix W with ``[phi_M, omega_M, phi_3, omega_3] = W x`` (what the torques see; built once, read-only)."""
         cached = self.__dict__.get("_wheel_map")
@@ -110,9 +121,10 @@ class _LinearModel:
             out = dict(zip(LINEAR_OUTPUTS, values))
             out["drive_torque"], out["load_torque"] = float(u[0]), float(u[1])  # the inputs themselves
         else:
-            y = _plus_affine(_affine(self.C, x) if cx is None else cx, self.D, u)
+            # the D rows of the two torques left out: those outputs are the inputs themselves, bit for bit
+            y = _plus_affine(_affine(self.C, x) if cx is None else cx, self._D_of_outputs, u)
             out = {name: y[..., j] for j, name in enumerate(LINEAR_OUTPUTS)}
-            out["drive_torque"], out["load_torque"] = u[..., 0], u[..., 1]  # the inputs themselves, bit for bit
+            out["drive_torque"], out["load_torque"] = u[..., 0], u[..., 1]
         tight, slack_force, slack, slip = self.span_forces(out["belt_torque"])
         out.update(span_force_tight=tight, span_force_slack=slack_force, slack=slack, slip=slip)
         return {name: out[name] for name in OUTPUT_UNITS}
@@ -395,7 +407,8 @@ def _plus_affine(y: np.ndarray, M: np.ndarray, u: np.ndarray) -> np.ndarray:
         return y + _affine(M, u)
     rows = np.flatnonzero(M.any(axis=1))
     out = y + _affine(np.zeros((1, M.shape[1])), u)
-    out[..., rows] = y[..., rows] + _affine(M[rows], u)
+    if rows.size:
+        out[..., rows] = y[..., rows] + _affine(M[rows], u)
     return out
 
 

@@ -15,6 +15,7 @@ import numpy as np
 from .accuracy import (
     AccuracyReport, probe_scene, require_accurate, require_accurate_slipping, slip_run_error, with_slip_run_error,
 )  # fmt: skip
+from .accuracy_probes import rigid_plant
 from .errors import SceneError, SimulationDivergedError, UnstableStepError
 from .fidelity import ModelChoice, RigidSurvey, choose_model, limit_exceedance
 from .integrators import method_class
@@ -214,7 +215,8 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
     head = None if _may_slip(scene, survey) else _once(lambda: _flexible_phase(sim, y0, scene.duration, progress))
     accuracy = (
         checked or require_accurate(sim.plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance,
-                                    method_options=scene.method_options, probes=probes, head=head)
+                                    method_options=scene.method_options, probes=probes, head=head,
+                                    stepper=_WindowRuns(sim) if head is not None else None)
         if check_stability else None
     )  # fmt: skip
     flex = head() if head is not None else None
@@ -245,6 +247,28 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
     # the guard on both modes once the run has slipped (its stick part is the check made before the run)
     accuracy = _slipping_accuracy(scene, sim, accuracy, probes) if check_stability else None
     return _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy)
+
+
+class _WindowRuns:
+    """The accuracy guard's runs at the scene's step on the slipping engine ``sim``'s flexible stepper (its integrator,
+    plant, method and step; for a new scene no second stepper and compiled loop of them are built): each window's
+    knots as that stepper gives them, or, where its capstan check stopped the run, as the plant's unguarded stepper
+    gives them (:func:`~belt_drive_ros.core.stepper.shared_stepper`). A run the check does not stop is the same steps
+    of the same compiled loop, the check only reading the states (the flexible phase's own first knots are already
+    read as the first window's): the same floats as the unguarded stepper's. Used where the survey puts the scene
+    well within the limit (its windows' runs are not stopped, else each would be run twice)."""
+
+    def __init__(self, sim):
+        self._sim = sim
+        self.integrator = sim.stepper.integrator
+
+    def run(self, x0, t0: float, t1: float):
+        """(times, states) of the window from ``x0`` at ``t0`` to ``t1`` [s], unguarded (see the class)."""
+        sim = self._sim
+        out = sim.stepper.run(x0, t0, t1)
+        if sim.stepper.stopped is None:
+            return out
+        return shared_stepper(sim.plant, sim.method, sim.dt, sim.method_options).run(x0, t0, t1)
 
 
 def _once(run):
@@ -282,8 +306,11 @@ def _flexible_phase(sim, y0, duration: float, progress=None):
 def _simulate_linear(scene: Scene, kind: str, progress, check_stability: bool, survey=None,
                      checked=None) -> SimResult:  # fmt: skip
     """``scene`` on the rigid or flexible model ``kind``: states, outputs and energy terms."""
-    mdl = survey.rigid if kind == "rigid" and survey is not None else make_model(kind, scene.params)
-    plant = shared_plant(mdl, scene.drive, scene.load)
+    if kind == "rigid" and survey is not None and survey.drive is scene.drive and survey.load is scene.load:
+        mdl, plant = survey.rigid, survey.plant
+    else:
+        mdl = make_model(kind, scene.params)
+        plant = (rigid_plant if kind == "rigid" else shared_plant)(mdl, scene.drive, scene.load)
     # a fixed-step method steps on the plant's shared stepper (the guards' windows too; it holds no verdict and a
     # run's outcome does not depend on the runs before it); an adaptive one (solver history) on its own
     stepper = (shared_stepper(plant, scene.method, scene.dt, scene.method_options) if method_class(scene.method).fixed_step
