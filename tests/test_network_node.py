@@ -293,6 +293,52 @@ def test_a_split_network_recording_starts_every_file_with_the_urdf_and_resimulat
         assert again[topic] == (recorded[topic][0], recorded[topic][1]), topic
 
 
+def test_a_network_node_refuses_an_existing_record_path_and_a_bag_folder_another_run_writes(tmp_path, ros_domain_id):
+    """An existing ``record_path`` refuses the start in the house's one sentence (as the paper node's), the file
+    left as it was; a split recording holds its bag folder's lock (``.NAME.lock`` beside it, this pid in it, as the
+    paper node's and ``belt-drive sim --bag-folder``) until the node is destroyed: a second network node recording
+    into the folder, even with ``record_overwrite``, is refused naming the holder's pid and writes nothing."""
+    import os
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+
+    from belt_drive_ros.ros.network_node import NetworkNode
+    from belt_drive_ros.ros.parameter_schema import NodeConfigError
+
+    context = Context()
+    rclpy.init(context=context, domain_id=ros_domain_id)
+
+    def node(**params):
+        return NetworkNode(scene=SCENE, context=context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in params.items()])
+
+    try:
+        bag = tmp_path / "keep.mcap"
+        bag.write_bytes(b"precious")
+        with pytest.raises(NodeConfigError) as info:
+            node(record_path=str(bag))
+        assert str(info.value) == f"record_path: {bag} exists; set record_overwrite:=true to overwrite it"
+        assert bag.read_bytes() == b"precious"
+        folder, lock = tmp_path / "run", tmp_path / ".run.lock"
+        first = node(record_path=str(folder), max_bag_duration=0.01)
+        try:
+            assert lock.read_text() == f"{os.getpid()}\n"
+            files = sorted(os.listdir(folder))
+            with pytest.raises(NodeConfigError) as info:
+                node(record_path=str(folder), max_bag_duration=0.01, record_overwrite=True)
+            assert str(info.value).startswith(f"record_path: {folder}: another run (pid {os.getpid()}) is writing "
+                                              "this bag folder"), str(info.value)
+            assert sorted(os.listdir(folder)) == files and lock.read_text() == f"{os.getpid()}\n"
+        finally:
+            first.destroy_node()
+        assert (folder / "metadata.yaml").is_file() and not lock.exists()
+        node(record_path=str(folder), max_bag_duration=0.01, record_overwrite=True).destroy_node()  # let go: it writes
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
 def test_node_command_with_a_network_scene_refuses_what_it_cannot_do(capsys):
     from belt_drive_ros.cli import main
 

@@ -203,6 +203,11 @@ class NetworkBagWriter:
     (:meth:`msg_tools.block_writer.BlockMcapWriter.write_block`: no message object or writer call per
     message; a split folder, ``max_bag_duration`` / ``max_bag_size``, takes them sample by sample); inputs
     are written as they come. :meth:`flush` and :meth:`close` write what is kept.
+
+    A split folder is written under its lock (:func:`~belt_drive_ros.io.bag_folder.bag_folder_lock`, as the paper
+    node's :func:`~belt_drive_ros.ros.recorder.open_writer` and ``belt-drive sim --bag-folder`` take it), held until
+    :meth:`close`: a second writer into the folder is refused (:class:`~.recording.BagWriteError` "FOLDER: another
+    run (pid N) is writing this bag folder ...") before it looks at the folder.
     """
 
     def __init__(self, path, layout: NetworkLayout, record: Dict[str, str], *, force: bool = False,
@@ -214,8 +219,12 @@ class NetworkBagWriter:
             if max_bag_duration or max_bag_size:  # a rosbag2 folder split as the paper node's (every file self-describing)
                 from msg_tools.bagdir import Ros2BagWriter
 
+                from .bag_folder import bag_folder_lock
+
+                # one writer per folder, as the paper node's and sim --bag-folder (the node names record_path)
                 self.writer = Ros2BagWriter(path, force=force, compression=compression,
-                                            max_bag_duration=max_bag_duration or None, max_bag_size=max_bag_size or None)
+                                            max_bag_duration=max_bag_duration or None, max_bag_size=max_bag_size or None,
+                                            hold=bag_folder_lock(path, ""))
             else:
                 self.writer = BlockMcapWriter(path, force=force, compression=compression)
             self.writer.add_metadata(NETWORK_METADATA, record)

@@ -63,7 +63,7 @@ from std_msgs.msg import Float64, String  # noqa: E402
 from ..core.errors import BeltDriveError, SimulationDivergedError  # noqa: E402
 from ..io.network_bag import APPLIED, NetworkBagWriter, NetworkLayout, network_record, scene_text  # noqa: E402
 from .network_stepper import NetworkStepper  # noqa: E402
-from .parameter_schema import NodeConfigError  # noqa: E402
+from .parameter_schema import NodeConfigError, record_path_exists  # noqa: E402
 from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS, TF_QOS  # noqa: E402
 from .simulation import NodeSimulation  # noqa: E402
 from .timing import TickSource, TickStats  # noqa: E402
@@ -395,8 +395,7 @@ class NetworkNode(Node):
                                              namespace=self.get_namespace(), max_bag_duration=s.max_bag_duration,
                                              max_bag_size=s.max_bag_size)
         except BagExistsError:
-            raise NodeConfigError("record_path", f"{s.record_path} exists; set record_overwrite:=true "
-                                  "(belt-drive node --force) to replace it") from None
+            raise record_path_exists(s.record_path) from None
         except BagError as exc:
             raise NodeConfigError("record_path", str(exc)) from None
         self.get_logger().info(f"recording to {s.record_path}")

@@ -156,6 +156,7 @@ from .parameter_schema import (  # noqa: E402,F401 - NodeConfigError, unknown_pa
     OWN_PARAMETERS,
     NodeConfigError,
     NodeSettings,
+    record_path_exists,
     unknown_parameter_rule,
 )
 from .parameters import NodeParameters  # noqa: E402
@@ -338,8 +339,7 @@ class BeltDriveNode(Node):
             self.recorder = NodeRecorder(self, s.record_path, force=s.record_overwrite,
                                          max_bag_duration=s.max_bag_duration, max_bag_size=s.max_bag_size)
         except BagExistsError:
-            raise NodeConfigError("record_path", f"{s.record_path} exists; set record_overwrite:=true "
-                                  "(belt-drive node --force) to replace it") from None
+            raise record_path_exists(s.record_path) from None
         except BagError as exc:  # cannot be created (no such folder, permission, ...)
             raise NodeConfigError("record_path", str(exc)) from None
         except ValueError as exc:

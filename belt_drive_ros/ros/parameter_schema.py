@@ -48,6 +48,7 @@ __all__ = [
     "default_values",
     "describe_parameters",
     "model_range",
+    "record_path_exists",
     "scene_defaults",
     "scene_torque_bound",
 ]
@@ -59,6 +60,13 @@ TIMEOUT_BEHAVIORS = ("hold", "zero")
 
 class NodeConfigError(ParameterError):
     """A node parameter (or the combination) is invalid; ``field`` names the parameter."""
+
+
+def record_path_exists(path) -> NodeConfigError:
+    """The refusal of a ``record_path`` that exists while ``record_overwrite`` is false (either node's): the
+    house's one sentence for an output that exists (``belt-drive sim``'s "PATH exists; pass --force to overwrite
+    it"), naming the parameter to set."""
+    return NodeConfigError("record_path", f"{path} exists; set record_overwrite:=true to overwrite it")
 
 
 @dataclass(frozen=True)
