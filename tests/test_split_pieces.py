@@ -253,3 +253,17 @@ def test_a_block_that_diverges_stops_where_each_step_alone_stops():
             st.run(scene.initial_state.vector("flexible", scene.params.ratio), 0.0, 0.29)
         messages.append(str(err.value))
     assert "t=0.20" in messages[0] and messages[0] == messages[1]
+
+
+def test_blocks_add_no_compiled_specialisation():
+    """Blocks of rigid and flexible, explicit and implicit runs, a run from a read-only state: one signature of
+    ``piece_steps`` (the one ``kernel_loop.warm`` compiles; make install warms it)."""
+    from belt_drive_ros.core import kernel, kernel_loop
+
+    kernel_loop.warm()
+    for method, model in (("exact", "rigid"), ("trapezoidal", "flexible")):
+        st, x0 = _stepper(method, model)
+        x0 = np.array(x0)
+        x0.flags.writeable = False
+        st.run(x0, 0.0, 0.05)
+    assert len(kernel.piece_steps.signatures) == 1

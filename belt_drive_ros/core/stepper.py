@@ -487,8 +487,11 @@ class Stepper(StepPlanner):
         size = self.loop.reals.size - self.loop.tables.size
         rows = np.empty((len(lengths) + 1, size))
         rows[0] = self.loop.reals[:size]
-        for r, h in enumerate(lengths, 1):
-            rows[r] = cache[h]
+        if new and (new is lengths or new == lengths):  # (every length new: a jittered recording's) the rows as built
+            rows[1:] = got
+        else:
+            for r, h in enumerate(lengths, 1):
+                rows[r] = cache[h]
         return rows
 
     def _loop_of(self, integrator):
