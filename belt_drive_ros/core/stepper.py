@@ -46,7 +46,7 @@ from .identity_cache import built_once
 from .integrators import FixedStepIntegrator, make_integrator, prepare_integrators, stacked_scheme
 from .kernel_loop import DIVERGED, GUARDED, NOT_CONVERGED
 from .model import WHEEL_ROWS, _LinearModel
-from .step_plan import StepPlanner
+from .step_plan import StepPlanner, step_arrays
 
 #: Speeds beyond this [rad/s] (~955,000 rpm) mean the numerics, not the physics, blew up.
 SPEED_LIMIT = 1.0e5
@@ -423,9 +423,18 @@ class Stepper(StepPlanner):
             end = splits[j]
         times, sets, plo, phi, ends = [], [], [], [], []
         index: dict = {}  # a piece's length -> its row (0: the loop's own, whole steps)
-        left_of = self.plant.left_of
+        left_of, cuts_of = self.plant.left_of, plan["splits"]
+        if "bounds" not in plan:  # each step's clamps (kept with the plan: its blocks read them)
+            plan["bounds"] = tuple(b.tolist() for b in step_arrays(plan)[:2])
+        bounds_lo, bounds_hi = plan["bounds"]
+        grid = self._grid(c, end + 2).tolist()  # the steps' ends, as _step gives them
+        if c == first:
+            grid[0] = plan["start"]
+        if end == last:
+            grid[-1] = plan["end"]
         for cell in range(c, end + 1):
-            a, e, whole, lo, hi, cuts = self._step(plan, cell)
+            a, e, lo, hi = grid[cell - c], grid[cell - c + 1], bounds_lo[cell - first], bounds_hi[cell - first]
+            cuts = cuts_of.get(cell)
             if not cuts:
                 times.append(a), sets.append(0), plo.append(lo), phi.append(hi)
             else:
