@@ -423,7 +423,7 @@ class Stepper(StepPlanner):
             end = splits[j]
         times, sets, plo, phi, ends = [], [], [], [], []
         index: dict = {}  # a piece's length -> its row (0: the loop's own, whole steps)
-        left_of, cuts_of = self.plant.left_of, plan["splits"]
+        lefts, cuts_of = [], plan["splits"]  # lefts: the pieces that end at a cut (their hi its left limit)
         if "bounds" not in plan:  # each step's clamps (kept with the plan: its blocks read them)
             plan["bounds"] = tuple(b.tolist() for b in step_arrays(plan)[:2])
         bounds_lo, bounds_hi = plan["bounds"]
@@ -446,13 +446,17 @@ class Stepper(StepPlanner):
                     if row is None:
                         row = index[q - p] = len(index) + 1
                     times.append(p), sets.append(row), plo.append(lo if k == 0 else p)
-                    phi.append(hi if k == n - 1 else left_of(q))
+                    if k < n - 1:
+                        lefts.append(len(phi))
+                    phi.append(hi if k == n - 1 else q)
             ends.append(len(sets) - 1)
         times.append(e)
         rows = self._piece_rows(list(index))
         if rows is None:
             return None
         times, sets, plo, phi = np.array(times), np.array(sets, dtype=np.int64), np.array(plo), np.array(phi)
+        if lefts:  # plant.left_of of each cut, all at once (the same floats)
+            phi[lefts] = self.plant.left_of_array(phi[lefts])
         out = np.empty((len(sets), x.size))
         done, status, t = self.loop.pieces(times, np.ascontiguousarray(x, dtype=np.float64), out, sets, plo, phi, rows,
                                            SPEED_LIMIT)  # fmt: skip
