@@ -73,16 +73,22 @@ class Integrator:
     adaptive: ClassVar[bool] = False
     #: h*omega_n stability boundary for an undamped oscillator (None: no limit).
     imag_axis_limit: ClassVar[float | None] = None
+    #: ``dt`` may be a (K, 1, 1) stack of steps on ``A``, ``B`` stacked alike (K, ...): the matrices of K integrators
+    #: at once, slice k the floats of the integrator of step k (:func:`stacked_scheme`)
+    stacked_steps: ClassVar[bool] = False
 
     def __init__(self, A: np.ndarray, B: np.ndarray, dt: float, **options):
-        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+        stack = isinstance(dt, np.ndarray) and dt.ndim == 3 and dt.shape[1:] == (1, 1) and self.stacked_steps
+        ok = (bool(np.all(np.isfinite(dt)) and np.all(dt > 0)) if stack
+              else isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0)
+        if not ok:
             raise IntegratorError(f"dt: must be a finite step > 0 s, got {dt!r}")
         if options:
             raise IntegratorError(f"{self.name}: unknown option(s) {', '.join(sorted(options))}")
         self.A = np.asarray(A)
         self.A = self.A.astype(complex if np.iscomplexobj(self.A) else float)
         self.B = np.asarray(B, dtype=float)
-        self.dt = float(dt)
+        self.dt = np.asarray(dt, dtype=float) if stack else float(dt)
 
     def step(self, t: float, x: np.ndarray, inputs: Inputs) -> np.ndarray:
         raise NotImplementedError
@@ -213,7 +219,7 @@ class _PerSystem:
         self._ready: dict = {}
 
     def __call__(self, *args):
-        if args[0].ndim != 2:
+        if args[0].ndim != 2 or np.ndim(args[-1]):  # a stack of systems or of steps: computed, not cached
             return self.of(*args)
         keys = tuple(_key(a) for a in args[:-1])
         held = self._ready.pop((keys, args[-1]), None)  # (a dict's pop is atomic: threads may share a system)
@@ -249,6 +255,8 @@ class Exact(FixedStepIntegrator):
     varies within the step is sampled at its start: first order then.
     """
 
+    stacked_steps = True
+
     name = "exact"
     order = 1
     exact_linear = True
@@ -277,6 +285,8 @@ class ExponentialRK2(FixedStepIntegrator):
     over the step, so piecewise-linear inputs are exact and smooth
     state-dependent torques converge with order 2.
     """
+
+    stacked_steps = True
 
     name = "etd2"
     order = 2
@@ -338,6 +348,8 @@ class ExponentialRK4(FixedStepIntegrator):
     ``exact`` and ``etd2``); smooth time- and state-dependent torques converge
     with order 4, so non-stiff scenes can take steps of several ms.
     """
+
+    stacked_steps = True
 
     name = "etd4"
     order = 4
@@ -500,6 +512,8 @@ class ExplicitRungeKutta(FixedStepIntegrator):
     scheme.
     """
 
+    stacked_steps = True
+
     C: ClassVar[np.ndarray]
     A_tab: ClassVar[np.ndarray]
     B_tab: ClassVar[np.ndarray]
@@ -541,6 +555,8 @@ class SymplecticEuler(FixedStepIntegrator):
     undamped oscillator, whose energy it keeps bounded); stable for
     h omega_n < 2.
     """
+
+    stacked_steps = True
 
     name = "symplectic_euler"
     order = 1
@@ -588,6 +604,8 @@ class Trapezoidal(FixedStepIntegrator):
     is found by fixed-point iteration (contracting for h |du/dx| / I << 1),
     to ``tol`` relative, at most ``max_iter`` sweeps.
     """
+
+    stacked_steps = True
 
     name = "trapezoidal"
     order = 2
@@ -722,6 +740,20 @@ def prepare_integrators(name: str, A: np.ndarray, B: np.ndarray, steps, **option
     cls = method_class(name)
     if issubclass(cls, FixedStepIntegrator) and np.ndim(A) == 2 and not np.iscomplexobj(A):
         cls.prepare(np.asarray(A, dtype=float), np.asarray(B, dtype=float), steps, **options)
+
+
+def stacked_scheme(name: str, A: np.ndarray, B: np.ndarray, steps, **options) -> StageScheme | None:
+    """The :class:`StageScheme` of method ``name`` on ``(A, B)`` for every step of ``steps`` [s] at once: its matrices
+    carry a leading axis of ``len(steps)``, slice k the same floats as ``make_integrator(name, A, B, steps[k]).scheme``
+    (elementwise in the step; the exponentials by :func:`~belt_drive_ros.core.batch_expm.expm_stack`, matrix by matrix;
+    products and solves matrix by matrix). None for a method that is not built so (adaptive, Lawson) or a complex A."""
+    cls = method_class(name)
+    if not (issubclass(cls, FixedStepIntegrator) and cls.stacked_steps) or np.ndim(A) != 2 or np.iscomplexobj(A):
+        return None
+    hs = np.asarray(steps, dtype=float).reshape(-1, 1, 1)
+    A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
+    K = hs.shape[0]
+    return cls(np.broadcast_to(A, (K,) + A.shape), np.broadcast_to(B, (K,) + B.shape), hs, **options).scheme
 
 
 def make_integrator(name: str, A: np.ndarray, B: np.ndarray, dt: float, **options) -> Integrator:

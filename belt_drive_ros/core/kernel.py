@@ -434,6 +434,35 @@ def clamped_steps(times, x, out, c0, c1, base, cells, clo, chi, ends, half, limi
     return c1, OK, times[c1] if c1 <= N else 0.0
 
 
+@njit(**_JIT)
+def piece_steps(times, x, out, sets, plo, phi, rows, limit, reals, ints, dp, lp):
+    """Steps of various lengths (the pieces of steps split at off-grid breakpoints) in one compiled call: step ``k``
+    (``times[k] -> times[k+1]``, its state into ``out[k]``; ``x``: the state at ``times[0]``) with the method's
+    numbers of row ``sets[k]`` of ``rows`` (the head of ``reals`` of a loop of that step: its offsets, stage and
+    final maps, tolerance and guard, :meth:`~belt_drive_ros.core.kernel_loop.KernelLoop.piece_rows`) and its
+    torque times clamped into ``[plo[k], phi[k]]`` [s]; returns ``(steps done, status, t)`` as :func:`clamped_steps`.
+
+    Consecutive steps of one row and one clamp are one :func:`_steps` run (the stepping loop of every method; each
+    step's operations do not depend on the run it is in), so the same floats as one call per step."""
+    W, kinds, o0, S0, F0, final_base, t0, max_iter, ua, ub, dk, dx, dy, lk, lx, ly, extra, g0 = _unpacked(reals, ints, dp)
+    N = times.size - 1
+    k = 0
+    while k < N:
+        g, lo, hi = sets[k], plo[k], phi[k]
+        d = k
+        while d + 1 < N and sets[d + 1] == g and plo[d + 1] == lo and phi[d + 1] == hi:
+            d += 1
+        # the row's own sections (those after its head, the tables, come out empty: read from reals above)
+        W1, k1, offsets, S, F, b1, tol, m1, a1, a2, dk1, dx1, dy1, lk1, lx1, ly1, e1, guard = _unpacked(rows[g], ints, dp)
+        done, status, t = _steps(times[k : d + 2], x, out[k : d + 1], lo, hi, limit, W, kinds, offsets, S, F, final_base,
+                                 tol, max_iter, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)  # fmt: skip
+        if status != OK:
+            return k + done, status, t
+        x = out[d]
+        k = d + 1
+    return N, OK, times[N] if N >= 0 else 0.0
+
+
 @njit(**_JIT)  # out of line: the variant loop calls the same compiled body (its inlining doubled the build)
 def _steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
            ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):  # fmt: skip

@@ -55,13 +55,15 @@ def scheme_arrays(scheme, dt: float, W, m: int):
     ``m``: inputs per stage (P torques and the extras). ``S`` (V, s, max(2P, n), n + m s): stage i's map,
     zero-padded, as ``W @ map`` where only its wheel coordinates feed the torques (kind 1) or the map itself
     for the stage whose state starts the final map (kind 2; kind 0: the stage state is x);
-    ``F`` (V, n, n + m s) the final map.
+    ``F`` (V, n, n + m s) the final map. ``dt`` (K,) steps: a scheme of K steps at once
+    (:func:`~belt_drive_ros.core.integrators.stacked_scheme`, one plant's W), V = K and ``offsets`` (K, s).
     """
-    V, n = W.shape[0], W.shape[2]
+    n = W.shape[2]
     s = len(scheme.nodes)
     cols = n + m * s
     final = np.asarray(scheme.final, dtype=float)
     final = final if final.ndim == 3 else final[None]
+    V = max(W.shape[0], final.shape[0])
     if final.shape[1:] != (n, cols):
         raise ValueError(f"kernel loop: the scheme's final map is {final.shape[1:]}, expected {(n, cols)}")
     rows = max(W.shape[1], n)
@@ -78,7 +80,13 @@ def scheme_arrays(scheme, dt: float, W, m: int):
         else:  # only the wheel coordinates feed the torques: W @ the stage map (matrix by matrix)
             kinds[i], padded = 1, W @ padded
         S[:, i, : padded.shape[1]] = padded
-    offsets = np.array([float(c * dt) if c else 0.0 for c in scheme.nodes])
+    if np.ndim(dt):  # c h of each step (the same product as a step's own)
+        offsets = np.zeros((np.size(dt), s))
+        for i, c in enumerate(scheme.nodes):
+            if c:
+                offsets[:, i] = c * np.asarray(dt, dtype=float)
+    else:
+        offsets = np.array([float(c * dt) if c else 0.0 for c in scheme.nodes])
     final_base = -1 if scheme.final_base is None else int(scheme.final_base)
     tol, max_iter = (float(scheme.implicit[0]), int(scheme.implicit[1])) if scheme.implicit else (0.0, 0)
     return kinds, offsets, S, final, final_base, tol, max_iter
@@ -114,7 +122,7 @@ class KernelLoop:
     def __init__(self, scheme, dt: float, wheel_map, uses_angle, drive, load, extra=(), guard=None):
         from . import kernel
 
-        self._steps, self._clamped = kernel.linear_steps, kernel.clamped_steps
+        self._steps, self._clamped, self._pieces = kernel.linear_steps, kernel.clamped_steps, kernel.piece_steps
         W = np.asarray(wheel_map, dtype=float)
         stacked = W.ndim == 3
         W = W if stacked else W[None]  # (V, 4, n)
@@ -133,17 +141,21 @@ class KernelLoop:
             kinds, offsets, S, final, final_base, tol, max_iter = scheme_arrays(scheme, dt, W, 2 + len(extra))
             extra_rows = np.array([e.row for e in extra], dtype=np.float64).reshape(len(extra), 5)
             sections = (W, offsets, S, final, np.array([tol]), extra_rows, guard_row, *tables)
-            starts = np.cumsum([0] + [a[0].size if a.ndim >= 3 else a.size for a in sections])
-            # the plant's and method's numbers (per variant; one plant's in a row of its own); then the profiles'
-            # tables (shared)
+            # per row (a variant's, or a step's of a stacked scheme of steps): W, S, F, and the offsets of steps
+            rowwise = (True, offsets.ndim == 2, True, True, False, False, False)
+            starts = np.cumsum([0] + [a[0].size if r else a.size for a, r in zip(sections, rowwise + (False,) * 4)])
+            # the plant's and method's numbers (per variant, or step; one plant's in a row of its own); then the
+            # profiles' tables (shared)
+            R = max(V, S.shape[0])
             own = np.concatenate(
-                [a.reshape(V, -1) if a.ndim >= 3 else np.broadcast_to(np.ravel(a), (V, a.size)) for a in sections[:7]],
-                axis=1,
-            ).astype(np.float64) if stacked else np.concatenate([np.ravel(a) for a in sections[:7]]).astype(np.float64)
+                [np.broadcast_to(a.reshape(a.shape[0], -1) if r else np.ravel(a), (R, a[0].size if r else a.size))
+                 for a, r in zip(sections[:7], rowwise)], axis=1,
+            ).astype(np.float64) if stacked or R > 1 else np.concatenate([np.ravel(a) for a in sections[:7]]).astype(np.float64)
             header = [n, kinds.size, len(extra), S.shape[2], S.shape[3], final_base, max_iter, *uses]
             return own, np.concatenate([header, starts, kinds, d.kinds, l.kinds]).astype(np.int64)
 
         self._own_of = None  # (scheme, dt) -> the unguarded own numbers of one plant (None: stacked, other extras)
+        self._rows_of = None  # (a stacked scheme, its steps) -> those numbers as rows (:meth:`piece_rows`)
         self._piece = None  # the loop :meth:`piece` rewrites, made on first use
         if stacked or not all(isinstance(e, FrictionForce) for e in extra):
             own, self.ints = build()
@@ -163,6 +175,7 @@ class KernelLoop:
                                   (float(h), unguarded.tobytes(), *key))
 
             self._own_of, self._ints0 = own_of, ints
+            self._rows_of = lambda other, steps: build(other, steps, unguarded)
         self.reals = np.concatenate([own, self.tables])
         self.tables = self.reals[own.size :]  # a view: a recording's samples held once
 
@@ -187,6 +200,27 @@ class KernelLoop:
             loop.tables = loop.reals[size:]
         loop.reals[:size] = own
         return loop
+
+    def piece_rows(self, scheme, steps):
+        """The numbers of this plant's loop (unguarded) for ``scheme``, a stacked scheme of the method's ``steps`` [s]
+        (:func:`~belt_drive_ros.core.integrators.stacked_scheme`), as (K, R) rows: row k the head of ``reals`` of
+        :meth:`piece` ``(scheme_k, steps[k])`` (the same floats), for :meth:`pieces`; None where :meth:`piece`
+        would be None."""
+        if self._own_of is None or scheme is None or not KernelLoop.usable(scheme):
+            return None
+        rows, ints = self._rows_of(scheme, np.asarray(steps, dtype=float))
+        if rows.ndim != 2 or rows.shape[1] != self.reals.size - self.tables.size or not np.array_equal(ints, self._ints0):
+            return None
+        return rows
+
+    def pieces(self, times, x, out, sets, lo, hi, rows, limit: float = 1.0e5):
+        """Steps ``times[k] -> times[k+1]`` of other lengths (the pieces of split steps), states into ``out[k]``, in one
+        compiled call: step k with the method's numbers of row ``sets[k]`` of ``rows`` (:meth:`piece_rows`; row 0
+        may be this loop's own head) and torque times clamped into ``[lo[k], hi[k]]``:
+        :func:`~belt_drive_ros.core.kernel.piece_steps` (``(steps done, status, t)``)."""
+        if not x.flags.writeable:  # (one signature, as __call__)
+            x = x.copy()
+        return self._pieces(times, x, out, sets, lo, hi, rows, limit, self.reals, self.ints, self._dp, self._lp)
 
     def __call__(self, times, x, out, lo: float = -math.inf, hi: float = math.inf, limit: float = 1.0e5):
         # numba types a read-only array apart: a writable copy keeps the kernel's one signature
@@ -236,6 +270,8 @@ def warm() -> None:
     none = np.zeros(0, dtype=np.int64)
     loop.clamped(np.array([0.0, 1e-3]), np.zeros(2), np.empty((1, 2)), 0, 1, 0, none, np.zeros(0), np.zeros(0),
                  np.zeros(1, dtype=np.int64), 5e-4)  # fmt: skip
+    loop.pieces(np.array([0.0, 1e-3]), np.zeros(2), np.empty((1, 2)), np.zeros(1, dtype=np.int64), np.full(1, -math.inf),
+                np.full(1, math.inf), loop.reals[None, : loop.reals.size - loop.tables.size].copy())  # fmt: skip
 
 
 def warm_variants() -> None:

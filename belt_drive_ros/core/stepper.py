@@ -13,9 +13,12 @@ The plan
 The grid, partial steps and the clamps and splits at torque breakpoints are planned by
 :class:`~belt_drive_ros.core.step_plan.StepPlanner` (its module docstring has the rules), the base of
 :class:`Stepper`, which marches the plan: runs of whole steps, clamped ones included, are one compiled call
-(:func:`~belt_drive_ros.core.kernel.clamped_steps`, the plan's clamps as its arrays); each piece of a split or
-partial step is one kernel call; an adaptive method (scipy's references) steps through ``integrator.step``. A
-torque profile without a data form is refused.
+(:func:`~belt_drive_ros.core.kernel.clamped_steps`, the plan's clamps as its arrays); split steps (a recording's
+off-grid samples) in blocks, each block's pieces one compiled call (:meth:`Stepper._split_block`,
+:func:`~belt_drive_ros.core.kernel.piece_steps`: each piece with the numbers of its own length, a block's new lengths
+from one stacked scheme); each piece of a partial step (or of a split step of a guarded stepper, or of a method
+without a stacked scheme) is one kernel call; an adaptive method (scipy's references) steps through
+``integrator.step``. A torque profile without a data form is refused.
 
 Integrators of partial-step lengths are cached per stepper (at most :data:`PARTIAL_CACHE_SIZE`); their kernel loop
 is the stepper's loop with the piece's numbers written into one buffer
@@ -33,23 +36,30 @@ from __future__ import annotations
 
 import math
 import threading
+from bisect import bisect_left
 from typing import Callable
 
 import numpy as np
 
 from .errors import SceneError, SimulationDivergedError
 from .identity_cache import built_once
-from .integrators import FixedStepIntegrator, make_integrator, prepare_integrators
+from .integrators import FixedStepIntegrator, make_integrator, prepare_integrators, stacked_scheme
 from .kernel_loop import DIVERGED, GUARDED, NOT_CONVERGED
 from .model import WHEEL_ROWS, _LinearModel
-from .step_plan import StepPlanner
+from .step_plan import StepPlanner, step_arrays
 
 #: Speeds beyond this [rad/s] (~955,000 rpm) mean the numerics, not the physics, blew up.
 SPEED_LIMIT = 1.0e5
 #: partial-step integrators kept per stepper (one per distinct length)
 PARTIAL_CACHE_SIZE = 4096
-#: split steps whose pieces' integrators are readied together (:meth:`Stepper._prepare_pieces`)
+#: split steps whose pieces' integrators are readied together (:meth:`Stepper._prepare_pieces`), or whose pieces
+#: are stepped in one compiled call (:meth:`Stepper._split_block`)
 PREPARE_BLOCK = 512
+#: plain whole steps between two split steps that join their block (:meth:`Stepper._split_block`) when at most so
+#: many lie in a row (more: a compiled run of their own)
+BLOCK_GAP = 8
+#: split steps a plan needs for its blocks (fewer: each split step alone, its pieces' integrators kept by length)
+BLOCK_MIN = 2
 #: steps per call of the compiled loop between divergence checks and progress reports
 CHUNK = 4096
 #: steps of a paged drive's page beyond each end of a run (:meth:`Stepper._paged`)
@@ -290,6 +300,9 @@ class Stepper(StepPlanner):
         self.stopped: tuple | None = None
         self._partials: dict = {}
         self._loops: dict = {}  # kernel loops of the partial-step integrators, by step length
+        #: the loop's numbers of pieces of split steps (:meth:`Stepper._split_block`), by step length (None: the
+        #: pieces are not in the loop's layout, or the stepper is guarded: each split step alone)
+        self._rows: dict | None = {} if self.loop is not None and guard is None else None
         self._clean = False  # the last grouped march ran every step to the end without a failing status
 
     # ------------------------------------------------------------ public
@@ -353,12 +366,16 @@ class Stepper(StepPlanner):
         page = Stepper(self.plant.page(t0 - m, t1 + m), self.method, self.dt, self.method_options, self.origin,
                        self.integrator, self.guard)
         page._partials = self._partials  # (the partial steps' integrators depend on the model only)
+        if page._rows is not None and self._rows is not None:  # (so do the pieces' numbers)
+            page._rows = self._rows
         return page
 
     def reset(self) -> None:
         """Forget adaptive solver history and the partial-step integrators."""
         self.integrator.reset()
         self._partials.clear()
+        if self._rows is not None:
+            self._rows.clear()
 
     # ------------------------------------------------------------ stepping
     def _partial(self, h: float):
@@ -387,6 +404,108 @@ class Stepper(StepPlanner):
             model = self.plant.model
             prepare_integrators(self.method, model.A, model.B, sorted(new), **self.method_options)
         return end
+
+    def _split_block(self, x: np.ndarray, plan: dict, splits: list, c: int, states):
+        """Split steps from cell ``c`` on (up to :data:`PREPARE_BLOCK`, with the whole steps between them where at most
+        :data:`BLOCK_GAP` lie in a row; the trailing partial step not) stepped piece by piece in one compiled call
+        (:meth:`~belt_drive_ros.core.kernel_loop.KernelLoop.pieces`): each piece as :meth:`_special_step` steps it
+        (the numbers of the loop of its length, here all new lengths' from one stacked scheme,
+        :func:`~belt_drive_ros.core.integrators.stacked_scheme`, the same floats; its torque times clamped as
+        there), each whole step with its own clamps (as a compiled run steps it). The steps' states go to
+        ``states`` (None: not recorded). Returns ``(x, the cell after the last step done, healthy)``: stopped at the
+        first step whose state is non-finite or too fast (a failing piece's step ends its pieces first, as
+        :meth:`_special_step`); None where the pieces are not in the loop's layout."""
+        first, last = plan["first"], plan["last"]
+        i = bisect_left(splits, c)
+        end, j, top = c, i, last - 1 if plan["trail"] else last
+        while j + 1 < len(splits) and j + 1 - i < PREPARE_BLOCK and splits[j + 1] <= top and splits[j + 1] - end <= BLOCK_GAP + 1:
+            j += 1
+            end = splits[j]
+        times, sets, plo, phi, ends = [], [], [], [], []
+        index: dict = {}  # a piece's length -> its row (0: the loop's own, whole steps)
+        lefts, cuts_of = [], plan["splits"]  # lefts: the pieces that end at a cut (their hi its left limit)
+        if "bounds" not in plan:  # each step's clamps (kept with the plan: its blocks read them)
+            plan["bounds"] = tuple(b.tolist() for b in step_arrays(plan)[:2])
+        bounds_lo, bounds_hi = plan["bounds"]
+        grid = self._grid(c, end + 2).tolist()  # the steps' ends, as _step gives them
+        if c == first:
+            grid[0] = plan["start"]
+        if end == last:
+            grid[-1] = plan["end"]
+        for cell in range(c, end + 1):
+            a, e, lo, hi = grid[cell - c], grid[cell - c + 1], bounds_lo[cell - first], bounds_hi[cell - first]
+            cuts = cuts_of.get(cell)
+            if not cuts:
+                times.append(a), sets.append(0), plo.append(lo), phi.append(hi)
+            else:
+                edges = _edges(a, e, cuts)
+                n = len(edges) - 1
+                for k in range(n):
+                    p, q = edges[k], edges[k + 1]
+                    row = index.get(q - p)
+                    if row is None:
+                        row = index[q - p] = len(index) + 1
+                    times.append(p), sets.append(row), plo.append(lo if k == 0 else p)
+                    if k < n - 1:
+                        lefts.append(len(phi))
+                    phi.append(hi if k == n - 1 else q)
+            ends.append(len(sets) - 1)
+        times.append(e)
+        rows = self._piece_rows(list(index))
+        if rows is None:
+            return None
+        times, sets, plo, phi = np.array(times), np.array(sets, dtype=np.int64), np.array(plo), np.array(phi)
+        if lefts:  # plant.left_of of each cut, all at once (the same floats)
+            phi[lefts] = self.plant.left_of_array(phi[lefts])
+        out = np.empty((len(sets), x.size))
+        done, status, t = self.loop.pieces(times, np.ascontiguousarray(x, dtype=np.float64), out, sets, plo, phi, rows,
+                                           SPEED_LIMIT)  # fmt: skip
+        if status == NOT_CONVERGED:
+            self._not_converged(t)
+        ends = np.array(ends, dtype=np.int64)
+        if status == DIVERGED:  # the failing piece's step: its other pieces stepped on, as _special_step; then stop
+            p = done - 1
+            stop = int(ends[np.searchsorted(ends, p)])
+            while p < stop:
+                more, status, t = self.loop.pieces(times[p + 1 : stop + 2], out[p], out[p + 1 : stop + 1], sets[p + 1 : stop + 1],
+                                                   plo[p + 1 : stop + 1], phi[p + 1 : stop + 1], rows, SPEED_LIMIT)  # fmt: skip
+                if status == NOT_CONVERGED:
+                    self._not_converged(t)
+                p += more
+            ends = ends[: np.searchsorted(ends, stop) + 1]
+        steps = out[ends]
+        half = x.size // 2
+        # _healthy of each state (a finite state's sum is finite: its angles grow by at most SPEED_LIMIT dt a step)
+        bad = ~np.isfinite(steps).all(axis=1) | (np.abs(steps[:, half:]) > SPEED_LIMIT).any(axis=1)
+        count = int(np.argmax(bad)) + 1 if bad.any() else len(ends)
+        if states is not None:
+            states[c - first + 1 : c - first + 1 + count] = steps[:count]
+        return steps[count - 1].copy(), c + count, not bad[count - 1]
+
+    def _piece_rows(self, lengths: list):
+        """(len(lengths) + 1, R) rows of the loop's numbers: row 0 its own, row r that of a piece of ``lengths[r - 1]``
+        [s] (kept by length; new ones from one stacked scheme); None where those are not in the loop's layout."""
+        cache = self._rows
+        new = [h for h in lengths if h not in cache]
+        if new and len(cache) + len(new) > PARTIAL_CACHE_SIZE:  # (full: all this block's lengths built anew)
+            cache.clear()
+            new = lengths
+        if new:
+            model = self.plant.model
+            got = self.loop.piece_rows(stacked_scheme(self.method, model.A, model.B, new, **self.method_options), new)
+            if got is None:
+                self._rows = None
+                return None
+            cache.update(zip(new, got))
+        size = self.loop.reals.size - self.loop.tables.size
+        rows = np.empty((len(lengths) + 1, size))
+        rows[0] = self.loop.reals[:size]
+        if new and (new is lengths or new == lengths):  # (every length new: a jittered recording's) the rows as built
+            rows[1:] = got
+        else:
+            for r, h in enumerate(lengths, 1):
+                rows[r] = cache[h]
+        return rows
 
     def _loop_of(self, integrator):
         """The kernel loop of ``integrator`` (the stepper's own or a partial step's) for this plant, or None: a
@@ -469,10 +588,23 @@ class Stepper(StepPlanner):
         splits = sorted(plan["splits"]) if self.loop is not None else []
         ready = 0  # splits[:ready]: their pieces' integrators prepared
         groups = self._groups(plan) if self.loop is not None else None
+        blocks = self._rows is not None and len(splits) >= BLOCK_MIN  # split steps in blocks (_split_block)
         si = 0
         c = first
         with np.errstate(all="ignore"):
             while c <= last:
+                if blocks and c in plan["splits"] and not (c == first and plan["lead"]) and not (c == last and plan["trail"]):
+                    block = self._split_block(x, plan, splits, c, states)
+                    if block is not None:
+                        x, c, healthy = block
+                        if not healthy:
+                            if record:  # (the rows not reached: not left as they were allocated)
+                                states[c - first + 1 :] = np.nan
+                            break
+                        if progress:
+                            progress((c - first) / n_cells)
+                        continue
+                    blocks = False  # (not in the loop's layout: each split step alone)
                 if c in hard or self.loop is None:
                     if ready < len(splits) and c >= splits[ready]:
                         ready = self._prepare_pieces(plan, splits, ready)
