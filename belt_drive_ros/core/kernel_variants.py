@@ -179,6 +179,29 @@ def _lanes(times, states, j, lo, hi, limit, reals, at, n, s, rows, cols, kinds, 
     for r in range(n):
         plan[p, 0], plan[p, 1], plan[p, 2], plan[p, 3] = oY + r, at[3] - at[0] + r * cols, oX, n + 2 * s
         p += 1
+    # the dot products over the columns whose coefficient is not 0.0 in some lane, in runs of adjacent columns
+    # (out, first matrix row, first source row, columns, 1: add to the sum so far, 0: start it from 0.0); other
+    # entries as in plan. A 0.0 coefficient times a finite number adds +-0.0, which changes no sum begun from 0.0:
+    # the same floats wherever a step's numbers are finite (a step that overflows is a diverged lane either way)
+    runs = np.zeros((p * (cols + 1), 5), dtype=np.int64)
+    z = 0
+    for e in range(p):
+        out, m, src, count = plan[e, 0], plan[e, 1], plan[e, 2], plan[e, 3]
+        if out < 0:
+            runs[z, 0], runs[z, 1] = out, m
+            z += 1
+            continue
+        started = False
+        c = 0
+        while c <= count:
+            d = c
+            while d < count and _nonzero(w, m + d):
+                d += 1
+            if d > c or (d == count and not started):  # columns c .. d-1 (none at all: the sum is 0.0)
+                runs[z, 0], runs[z, 1], runs[z, 2], runs[z, 3], runs[z, 4] = out, m + c, src + c, d - c, started
+                z += 1
+                started = True
+            c = d + 1
     # a lane's knots are written times 1.0 while it runs (the same floats) and times NaN once it has diverged; its
     # check counts 1 for a bad state of a running lane (integer arithmetic over the lanes: vector operations)
     scale = np.ones(LANES)
@@ -189,11 +212,12 @@ def _lanes(times, states, j, lo, hi, limit, reals, at, n, s, rows, cols, kinds, 
     half = n // 2
     for k in range(times.size - 1):
         t = times[k]
-        for e in range(p):
-            out, m, src, count = plan[e, 0], plan[e, 1], plan[e, 2], plan[e, 3]
+        for e in range(z):
+            out, m, src, count = runs[e, 0], runs[e, 1], runs[e, 2], runs[e, 3]
             if out >= 0:  # sum_c w[m + c] w[src + c], from the left from 0.0, four columns a pass
-                for q in range(LANES):
-                    w[out, q] = 0.0
+                if runs[e, 4] == 0:
+                    for q in range(LANES):
+                        w[out, q] = 0.0
                 c = 0
                 while c + 4 <= count:
                     for q in range(LANES):
@@ -249,3 +273,12 @@ def _lanes(times, states, j, lo, hi, limit, reals, at, n, s, rows, cols, kinds, 
                 if not healthy:
                     status[a + q] = DIVERGED
                     scale[q], live[q] = np.nan, 0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _nonzero(w, row):
+    """Whether row ``row`` of the lanes' work array holds a number other than 0.0 in some lane."""
+    for q in range(w.shape[1]):
+        if w[row, q] != 0.0:
+            return True
+    return False
