@@ -173,7 +173,7 @@ def kernel_figures(count: int = 2000, repeats: int = 3) -> tuple[float, float]:
     loop = Ensemble(ModelStack("flexible", params), scene.drive, scene.load, scene.method, scene.dt)._loop(scene.dt)
     steps = 200
     times = np.arange(steps + 1) * scene.dt
-    states = np.zeros((count, steps + 1, 4))
+    states = np.zeros((steps + 1, 4, count))  # (knots, states, variants)
     best = math.inf
     for _ in range(repeats):
         status = np.zeros(count, dtype=np.int64)

@@ -27,6 +27,7 @@ from ..core.ensemble import Ensemble, EnsembleUnsupported, weighted_columns
 from ..core.errors import BeltDriveError
 from ..core.fidelity import choose_model, friction_use, operating_run_step
 from ..core.integrators import method_class
+from ..core.kernel_loop import OK
 from ..core.method_choice import good_step_error
 from ..core.model import LINEAR_OUTPUTS, OUTPUT_UNITS, ModelStack, span_forces
 from ..core.params import ParamColumns, friction_limit_array
@@ -366,8 +367,9 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
         capstan = Reductions({"use": "argmax"})
         reduced = Reductions(reduce[0]) if reduce is not None else None
         run = None
-        for times, states in ens.windows(x0, 0.0, T, size):
-            ens.first_bad(times, states, found)
+        for w, (times, states) in enumerate(ens.windows(x0, 0.0, T, size)):
+            if w == 0 or np.any(ens.status != OK):  # the first window (x0 too), and any after the loop found a bad knot
+                ens.first_bad(times, states, found)
             run = block.window(times, states, ens.inputs)  # the torques only if an output needs them
             with np.errstate(all="ignore"):  # diverged variants (dropped below) give NaN
                 if first.model == "auto":  # the capstan check of each variant's linear run (fidelity.limit_exceedance)

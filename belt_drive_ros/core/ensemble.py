@@ -49,6 +49,7 @@ class Ensemble:
         if None in self.plant.data:
             raise EnsembleUnsupported("ensemble: a torque profile without a data form (steps in Python)")
         self._loops: dict = {}
+        self.status = np.zeros(len(models), dtype=np.int64)  # the compiled loop's, per variant (windows)
         self._loop(self.dt)  # also validates the options; implicit methods are refused here
 
     def __len__(self) -> int:
@@ -78,52 +79,60 @@ class Ensemble:
 
     def windows(self, x0: np.ndarray, t0: float, t1: float, size: int | None = 256):
         """:meth:`run` in windows of at most ``size`` steps (None: one), ``(times (K+1,), states (K+1, n, V))`` each;
-        consecutive windows share their end knot (together :meth:`run`'s floats; memory holds one window)."""
+        consecutive windows share their end knot (together :meth:`run`'s floats; memory holds one window).
+
+        ``self.status`` (V,) int64 (:data:`~belt_drive_ros.core.kernel_loop.OK` for a variant still running) is the
+        compiled loop's, updated as the windows come: a variant whose knots went bad (non-finite, or a speed beyond
+        :data:`~belt_drive_ros.core.stepper.SPEED_LIMIT`: the checks of :meth:`first_bad`) has another status from
+        the window that holds its first bad knot on; the initial state ``x0`` is not checked."""
         from .kernel_variants import variant_steps
 
         x0 = np.asarray(x0, dtype=float)
         V = len(self.models)
         if x0.shape != (V, self.n):
             raise ValueError(f"ensemble: x0 must be ({V}, {self.n}), got {x0.shape}")
+        self.status = status = np.zeros(V, dtype=np.int64)
         stepper = Stepper(self.plant, self.method, self.dt, self.method_options, origin=t0, integrator=_NoIntegrator())
         times, steps = stepper.steps(float(t0), float(t1))
         if not steps:  # t0 and t1 on one grid time (two knots, nothing to integrate) or no step at all
             yield times, np.repeat(x0.T[None], len(times), axis=0)
             return
         size = len(steps) if size is None else max(int(size), 1)
-        knots = np.empty((V, min(size, len(steps)) + 1, self.n))  # the kernel's layout: variant-major
-        knots[:, 0] = x0
-        status = np.zeros(V, dtype=np.int64)
-        piece = np.empty((V, 2, self.n))
+        # the kernel's layout, the variants last: each window is yielded as it is (a fresh array per window)
+        knots = np.empty((min(size, len(steps)) + 1, self.n, V))
+        knots[0] = x0.T
+        piece = np.empty((2, self.n, V))
 
         def call(loop, t, j, lo, hi, where):
             variant_steps(t, where, j, lo, hi, SPEED_LIMIT, loop.reals, loop.tables, loop.ints, loop._dp, loop._lp, status)
 
-        first, j, k = 0, 0, 0  # knot index of knots[:, 0]; knots filled after it; next step
+        first, j, k = 0, 0, 0  # knot index of knots[0]; knots filled after it; next step
         while k < len(steps):
             a, e, whole, lo, hi, cuts = steps[k]
             if _plain(steps[k]):  # a run of whole steps: one call
                 r = k + 1
-                while r < len(steps) and r - k < knots.shape[1] - 1 - j and _plain(steps[r]):
+                while r < len(steps) and r - k < knots.shape[0] - 1 - j and _plain(steps[r]):
                     r += 1
                 call(self._loop(self.dt), np.array(times[first + j : first + j + r - k + 1], dtype=np.float64), j, lo, hi, knots)
                 j, k = j + r - k, r
             else:  # a partial or clamped step, or one split at breakpoints: one call per piece
                 edges = [a, *cuts, e]
-                piece[:, 0] = knots[:, j]
+                piece[0] = knots[j]
                 for q in range(len(edges) - 1):
                     p, r = edges[q], edges[q + 1]
                     lo_q = lo if q == 0 else p
                     hi_q = hi if q == len(edges) - 2 else self.plant.left_of(r)
                     h = self.dt if whole and not cuts else r - p
                     call(self._loop(h), np.array([p, r]), 0, lo_q, hi_q, piece)
-                    piece[:, 0] = piece[:, 1]
+                    piece[0] = piece[1]
                 j, k = j + 1, k + 1
-                knots[:, j] = piece[:, 0]
-            if k == len(steps) or j == knots.shape[1] - 1:
-                yield times[first : first + j + 1], np.ascontiguousarray(knots[:, : j + 1].transpose(1, 2, 0))
-                knots[:, 0] = knots[:, j]  # the next window starts at this window's last knot
-                first, j = first + j, 0
+                knots[j] = piece[0]
+            if k == len(steps) or j == knots.shape[0] - 1:
+                yield times[first : first + j + 1], knots[: j + 1]
+                if k < len(steps):  # the next window starts at this window's last knot
+                    last, knots = knots[j], np.empty_like(knots)
+                    knots[0] = last
+                    first, j = first + j, 0
 
     def first_bad(self, times: np.ndarray, states: np.ndarray, found: dict | None = None) -> dict:
         """``{variant: (time, state)}``: each variant's first bad sample (non-finite, or a speed beyond

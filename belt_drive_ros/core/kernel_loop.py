@@ -280,6 +280,6 @@ def warm_variants() -> None:
     from .kernel_variants import knot_torques, variant_steps
 
     data, ens = _warm_loop(True)
-    variant_steps(np.array([0.0, 1e-3]), np.zeros((1, 2, 2)), 0, -math.inf, math.inf, 1.0e5, ens.reals, ens.tables,
+    variant_steps(np.array([0.0, 1e-3]), np.zeros((2, 2, 1)), 0, -math.inf, math.inf, 1.0e5, ens.reals, ens.tables,
                   ens.ints, data.params, data.params, np.zeros(1, dtype=np.int64))  # fmt: skip
     knot_torques(data.kinds, data.params, data.tx, data.ty, np.zeros(1), np.zeros((1, 1)), np.zeros((1, 1)), np.empty((1, 1)))

@@ -33,11 +33,13 @@ warnings.filterwarnings("ignore", message=r"(?s).*'parallel=True' was specified"
 
 @njit(cache=True, nogil=True, parallel=_PIPELINE)
 def variant_steps(times, states, j, lo, hi, limit, reals, tables, ints, dp, lp, status):
-    """Steps ``times[k] -> times[k+1]`` of every variant from ``states[v, j]`` into ``states[v, j+1 : j+len(times)]``.
+    """Steps ``times[k] -> times[k+1]`` of every variant from ``states[j, :, v]`` into ``states[j+1 : j+len(times), :, v]``.
 
     Parameters
     ----------
-    times : (K+1,) step ends [s] (shared); states : (V, J, n) each variant's knots, J >= j + K + 1.
+    times : (K+1,) step ends [s] (shared); states : (J, n, V) the variants' knots, J >= j + K + 1, the variant axis
+        last (contiguous: the lanes' state rows are written as vector stores, and the ensemble's windows are this
+        array as it is, no transposed copy).
     lo, hi : torque times clamped into [lo, hi] [s]; limit : divergence speed [rad/s].
     reals : (V, R) per variant the numbers of :func:`~belt_drive_ros.core.kernel.linear_steps`'s
         ``reals`` before the profiles' tables; tables : the tables (shared); ints, dp, lp : as there.
@@ -60,29 +62,36 @@ def variant_steps(times, states, j, lo, hi, limit, reals, tables, ints, dp, lp, 
         harmonic = harmonic or dk[q] == ENGINE or dk[q] == COMPRESSOR
     for q in range(lk.size):
         harmonic = harmonic or lk[q] == ENGINE or lk[q] == COMPRESSOR
+    V = states.shape[2]
     if n <= 4 and ints[6] == 0 and E == 0 and count > 0 and not harmonic:  # explicit, rigid or flexible, no extra input
         guarded = False
-        for v in range(states.shape[0]):
+        for v in range(V):
             guarded = guarded or reals[v, at[6]] != 0.0
         if not guarded:
-            for a in range(0, states.shape[0], LANES):
+            for a in range(0, V, LANES):
                 _lanes(times, states, j, lo, hi, limit, reals, at, n, s, rows, cols, kinds, ints[5], ints[7] != 0, ints[8] != 0,
-                       dk, dp, dx, dy, lk, lp, lx, ly, status, a, min(a + LANES, states.shape[0]))  # fmt: skip
+                       dk, dp, dx, dy, lk, lp, lx, ly, status, a, min(a + LANES, V))  # fmt: skip
             return
-    for v in range(states.shape[0]):
-        out = states[v, j + 1 : j + 1 + count]
+    x = np.empty(n)  # a variant's state and knots in the single loop's layout, copied in and out
+    out = np.empty((count, n))
+    for v in range(V):
         if status[v] != OK:
-            out[:] = np.nan
+            states[j + 1 : j + 1 + count, :, v] = np.nan
             continue
+        for e in range(n):
+            x[e] = states[j, e, v]
         r = reals[v]
         done, st, _ = _steps(
-            times, states[v, j], out, lo, hi, limit, r[at[0] : at[1]].reshape((1, 4, n)), kinds, r[at[1] : at[2]],
+            times, x, out, lo, hi, limit, r[at[0] : at[1]].reshape((1, 4, n)), kinds, r[at[1] : at[2]],
             r[at[2] : at[3]].reshape((s, rows, cols)), r[at[3] : at[4]].reshape((1, n, cols)), ints[5], r[at[4]],
             ints[6], ints[7] != 0, ints[8] != 0, dk, dp, dx, dy, lk, lp, lx, ly, r[at[5] : at[6]].reshape((E, 5)), r[at[6] : at[7]],
         )  # fmt: skip
         if st != OK:
             status[v] = st
             out[done:] = np.nan
+        for k in range(count):
+            for e in range(n):
+                states[j + 1 + k, e, v] = out[k, e]
 
 
 @njit(cache=True, nogil=True)
@@ -145,7 +154,7 @@ def _lanes(times, states, j, lo, hi, limit, reals, at, n, s, rows, cols, kinds, 
         for e in range(R0):
             w[e, q] = reals[v, at[0] + e]
         for e in range(n):
-            w[oX + e, q] = states[v, j, e]
+            w[oX + e, q] = states[j, e, v]
     # the plan: (out, first matrix row, first source row, columns) for a dot product, (-1, stage) for its torques,
     # (-2, ..) for the final map's start B copied onto x (then followed by U as the final map reads it)
     plan = np.zeros((s * (n + 5) + n + 1, 4), dtype=np.int64)
@@ -170,19 +179,45 @@ def _lanes(times, states, j, lo, hi, limit, reals, at, n, s, rows, cols, kinds, 
     for r in range(n):
         plan[p, 0], plan[p, 1], plan[p, 2], plan[p, 3] = oY + r, at[3] - at[0] + r * cols, oX, n + 2 * s
         p += 1
-    alive = np.zeros(LANES, dtype=np.bool_)
+    # the dot products over the columns whose coefficient is not 0.0 in some lane, in runs of adjacent columns
+    # (out, first matrix row, first source row, columns, 1: add to the sum so far, 0: start it from 0.0); other
+    # entries as in plan. A 0.0 coefficient times a finite number adds +-0.0, which changes no sum begun from 0.0:
+    # the same floats wherever a step's numbers are finite (a step that overflows is a diverged lane either way)
+    runs = np.zeros((p * (cols + 1), 5), dtype=np.int64)
+    z = 0
+    for e in range(p):
+        out, m, src, count = plan[e, 0], plan[e, 1], plan[e, 2], plan[e, 3]
+        if out < 0:
+            runs[z, 0], runs[z, 1] = out, m
+            z += 1
+            continue
+        started = False
+        c = 0
+        while c <= count:
+            d = c
+            while d < count and _nonzero(w, m + d):
+                d += 1
+            if d > c or (d == count and not started):  # columns c .. d-1 (none at all: the sum is 0.0)
+                runs[z, 0], runs[z, 1], runs[z, 2], runs[z, 3], runs[z, 4] = out, m + c, src + c, d - c, started
+                z += 1
+                started = True
+            c = d + 1
+    # a lane's knots are written times 1.0 while it runs (the same floats) and times NaN once it has diverged; its
+    # check counts 1 for a bad state of a running lane (integer arithmetic over the lanes: vector operations)
+    scale = np.ones(LANES)
+    live = np.ones(LANES, dtype=np.int64)
     for q in range(L):
-        alive[q] = status[a + q] == OK
-        if not alive[q]:
-            states[a + q, j + 1 : j + times.size] = np.nan
+        if status[a + q] != OK:
+            scale[q], live[q] = np.nan, 0
     half = n // 2
     for k in range(times.size - 1):
         t = times[k]
-        for e in range(p):
-            out, m, src, count = plan[e, 0], plan[e, 1], plan[e, 2], plan[e, 3]
+        for e in range(z):
+            out, m, src, count = runs[e, 0], runs[e, 1], runs[e, 2], runs[e, 3]
             if out >= 0:  # sum_c w[m + c] w[src + c], from the left from 0.0, four columns a pass
-                for q in range(LANES):
-                    w[out, q] = 0.0
+                if runs[e, 4] == 0:
+                    for q in range(LANES):
+                        w[out, q] = 0.0
                 c = 0
                 while c + 4 <= count:
                     for q in range(LANES):
@@ -209,22 +244,41 @@ def _lanes(times, states, j, lo, hi, limit, reals, at, n, s, rows, cols, kinds, 
                 _lane_torques(dk, dp, dx, dy, tc, w, w, w, oC, oC + 1, oU + 2 * m, LANES)
                 _lane_torques(lk, lp, lx, ly, tc, w, w, w, oC + 2, oC + 3, oU + 2 * m + 1, LANES)
         o = j + 1 + k
-        for q in range(L):
-            if not alive[q]:
-                continue
-            healthy = True
-            for r in range(n):  # angles finite, speeds within the limit (the single loops' check)
-                y = w[oY + r, q]
-                states[a + q, o, r] = y
-                if r < half:
-                    if y - y != 0.0:
-                        healthy = False
-                elif not abs(y) <= limit:
-                    healthy = False
-            if not healthy:
-                status[a + q] = DIVERGED
-                alive[q] = False
-                states[a + q, o + 1 : j + times.size] = np.nan
+        flags = 0
         for r in range(n):
+            if r < half:  # angles finite
+                for q in range(L):
+                    y = w[oY + r, q]
+                    states[o, r, a + q] = y * scale[q]
+                    flags += (0 if y - y == 0.0 else 1) * live[q]
+            else:  # speeds within the limit (the single loops' check)
+                for q in range(L):
+                    y = w[oY + r, q]
+                    states[o, r, a + q] = y * scale[q]
+                    flags += (0 if abs(y) <= limit else 1) * live[q]
             for q in range(LANES):
                 w[oX + r, q] = w[oY + r, q]
+        if flags:  # a running lane went bad at this knot: its status, NaN knots after it
+            for q in range(L):
+                if live[q] == 0:
+                    continue
+                healthy = True
+                for r in range(n):
+                    y = states[o, r, a + q]
+                    if r < half:
+                        if y - y != 0.0:
+                            healthy = False
+                    elif not abs(y) <= limit:
+                        healthy = False
+                if not healthy:
+                    status[a + q] = DIVERGED
+                    scale[q], live[q] = np.nan, 0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _nonzero(w, row):
+    """Whether row ``row`` of the lanes' work array holds a number other than 0.0 in some lane."""
+    for q in range(w.shape[1]):
+        if w[row, q] != 0.0:
+            return True
+    return False
