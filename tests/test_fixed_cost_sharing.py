@@ -135,3 +135,36 @@ def test_outputs_without_the_torque_rows_of_d_are_the_full_affine_map(kind):
             name != "belt_torque" else full[:, j]  # fmt: skip
         assert np.asarray(outputs[name]).tobytes() == np.ascontiguousarray(expected).tobytes(), name
     assert not model._D_of_outputs.flags.writeable and model.D[LINEAR_OUTPUTS.index("drive_torque"), 0] == 1.0
+
+
+def test_a_bounded_cache_drops_the_entry_used_least_recently():
+    """``built_once`` keeps what was just used: a hit moves its entry to the end, so a plant a call has just found
+    is not the next one dropped (with the oldest-inserted dropped, a scene's plant found again was pushed out by the
+    next new plant, and what was built from it, its steppers, was then not kept either)."""
+    from belt_drive_ros.core.identity_cache import built_once
+
+    cache, objects = {}, [object() for _ in range(4)]
+    built = [built_once(cache, 3, (o,), object) for o in objects[:3]]
+    assert built_once(cache, 3, (objects[0],), object) is built[0]  # a hit: now the most recent
+    built_once(cache, 3, (objects[3],), object)  # a fourth: the least recently used (objects[1]'s) goes
+    assert built_once(cache, 3, (objects[0],), object) is built[0]
+    assert built_once(cache, 3, (objects[2],), object) is built[2]
+    assert built_once(cache, 3, (objects[1],), object) is not built[1]
+
+
+def test_a_plant_found_again_keeps_its_steppers_after_many_new_plants():
+    """A scene's plant found again stays shared (its steppers kept) while other scenes' plants come and go: after
+    more new plants than the cache holds, each followed by the scene's own plant found again, the scene's stepper is
+    the one made first."""
+    from belt_drive_ros.core import stepper as stepper_module
+
+    scene = load_scene("paper")
+    model = make_model("flexible", scene.params)
+    plant = stepper_module.shared_plant(model, scene.drive, scene.load)
+    first = stepper_module.shared_stepper(plant, "etd2", scene.dt)
+    for k in range(2 * stepper_module._PLANT_CACHE_SIZE):
+        other = make_model("flexible", scene.params.replace(c=scene.params.c * (1.0 + (k + 1) * 1e-6)))
+        stepper_module.shared_plant(other, scene.drive, scene.load)
+        assert stepper_module.shared_plant(model, scene.drive, scene.load) is plant
+    assert stepper_module.is_shared(plant)
+    assert stepper_module.shared_stepper(plant, "etd2", scene.dt) is first

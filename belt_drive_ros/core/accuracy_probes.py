@@ -116,6 +116,8 @@ def rigid_plant(model, drive, load):
     if not is_shared(plant):
         plant = shared_plant(model, drive, load)
         _RIGID_PLANTS[(id(drive), id(load), *key)] = ((drive, load), plant)
+    else:
+        shared_plant(plant.model, drive, load)  # (a hit: used now, so shared_plant drops it last)
     return plant
 
 
