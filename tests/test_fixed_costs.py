@@ -395,3 +395,47 @@ def test_profiles_never_periodic_at_a_steady_speed_get_no_harmonic_search(monkey
     assert calls == []
     simulate(load_scene("bsg_start").with_overrides(duration=0.1))
     assert calls
+
+
+@pytest.mark.parametrize("name", ["bsg_start", "truck_compressor"])
+def test_phase_drift_of_all_windows_at_once_equals_each_window_alone_bit_for_bit(name):
+    """The guard's angle-drift term is computed for all forcing windows in one pass (their rows one after the
+    other): each window's error is the same floats as the window computed alone (no row spans two windows, the
+    first-half and whole maxima are the window's own), and windows of one row carry none."""
+    from belt_drive_ros.core.accuracy import probe_scene
+    from belt_drive_ros.core.accuracy_windows import _phase_drifts
+    from belt_drive_ros.core.stepper import shared_stepper
+
+    scene = load_scene(name)
+    model = make_model("flexible", scene.params)
+    plant = stepper_module_shared_plant(model, scene)
+    assert any(plant.uses_angle)  # the scenes' torques follow the crank angle
+    x0 = scene.initial_state.vector("flexible", scene.params.ratio)
+    probes = probe_scene(plant, scene.duration, x0, scene.dt)
+    coarse, fine = shared_stepper(plant, "etd2", scene.dt), shared_stepper(plant, "etd2", scene.dt / 2.0)
+    rng = np.random.default_rng(3)
+    windows = []
+    for t0, x in probes.window_starts(plant, scene.dt):
+        t1 = min(t0 + probes.span(scene.dt), probes.duration)
+        tc, xc = coarse.run(x, t0, t1)
+        tf, xf = fine.run(x, t0, t1)
+        windows.append((xc, xf[::2], tf[::2], rng.standard_normal((tc.size, 2)) * (1.0 + tf[::2, None])))
+    windows.insert(1, tuple(w[:1] for w in windows[0]))  # a window of one row
+    assert len(windows) >= 3
+    joined = [np.concatenate([w[k] for w in windows]) for k in range(4)]
+    starts = np.cumsum([0] + [w[2].size for w in windows[:-1]])
+    together = _phase_drifts(plant, starts, *joined, 4.0 / 3.0, scene.duration)
+    assert 1 not in together and len(together) == len(windows) - 1
+    assert any(e.max() > 0.0 for e in together.values())
+    for j, w in enumerate(windows):
+        alone = _phase_drifts(plant, np.array([0]), *w, 4.0 / 3.0, scene.duration)
+        if j == 1:
+            assert alone == {}
+            continue
+        assert together[j].tobytes() == alone[0].tobytes()
+
+
+def stepper_module_shared_plant(model, scene):
+    from belt_drive_ros.core.stepper import shared_plant
+
+    return shared_plant(model, scene.drive, scene.load)

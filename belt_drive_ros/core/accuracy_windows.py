@@ -78,14 +78,11 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
     fine = y_all[half:]
     errs = factor * np.maximum.reduceat(np.abs(y_all[:half] - fine), starts, axis=0)
     peaks = np.maximum.reduceat(np.abs(fine), starts, axis=0)
-    drift = _drift_time(plant, probes) if any(plant.uses_angle) else 0.0
-    out = []
-    for j, (t0, tc, xc, tf, xf) in enumerate(runs):
-        err = errs[j]
-        if any(plant.uses_angle) and tf.size > 1:
-            err = np.maximum(err, _phase_drift(plant, xc, xf, tf, fine[starts[j] : starts[j] + tf.size], factor, drift))
-        out.append((t0, err, peaks[j]))
-    return out
+    drifts = (
+        _phase_drifts(plant, starts, x_all[:half], x_all[half:], t_all[half:], fine, factor, _drift_time(plant, probes))
+        if any(plant.uses_angle) else {}
+    )  # fmt: skip
+    return [(r[0], np.maximum(errs[j], drifts[j]) if j in drifts else errs[j], peaks[j]) for j, r in enumerate(runs)]
 
 
 def _drift_time(plant, probes) -> float:
@@ -107,7 +104,7 @@ def _drift_time(plant, probes) -> float:
     return min(probes.duration, longest) if longest > 0.0 else probes.duration
 
 
-def _phase_drift(plant, xc, xf, tf, yf, factor: float, duration: float) -> np.ndarray:
+def _phase_drifts(plant, starts, xc, xf, tf, yf, factor: float, duration: float) -> dict:
     """Error (2,) of the outputs from the angle error a window leaves, grown over the run (torques by crank angle).
 
     The angle has no restoring force: an error ``d phi`` can stay, and while the speed error that makes it persists
@@ -119,21 +116,38 @@ def _phase_drift(plant, xc, xf, tf, yf, factor: float, duration: float) -> np.nd
     [0, 1] (1: linear, 0: not growing), sets the growth over the time a speed error lasts (``duration``,
     :func:`_drift_time`), ``(duration / window)^g``; ``|dy/dt|`` is the fine run's largest rate. ``xc``, ``xf``: the
     window's states at dt and dt / 2 on the common times ``tf``.
+
+    All windows at once: ``xc``, ``xf``, ``tf``, ``yf`` are the windows' rows one after the other, window ``j``'s from
+    row ``starts[j]``; ``{j: error (2,)}`` of the windows of two rows or more (the same floats as window by window).
     """
     W = plant.wheel_map
-    span = float(tf[-1] - tf[0])
-    rate = (np.abs(np.diff(yf, axis=0)) / np.diff(tf)[:, None]).max(axis=0)
-    worst = np.zeros_like(rate)
-    half = max(1, tf.size // 2)
+    n = tf.size
+    sizes = np.diff(np.append(starts, n))
+    ends = np.asarray(starts) + sizes - 1  # each window's last row: its rate row would span two windows
+    dy, dt = np.empty_like(yf), np.empty(n)
+    dy[:-1], dt[:-1] = np.abs(np.diff(yf, axis=0)), np.diff(tf)
+    dy[ends], dt[ends] = 0.0, 1.0  # (|dy/dt| >= 0: a zero row changes no window's largest rate)
+    rate = np.maximum.reduceat(dy / dt[:, None], starts, axis=0)
+    long = [j for j in range(len(starts)) if sizes[j] > 1]
+    worst = {j: np.zeros_like(rate[j]) for j in long}
+    if not long:
+        return worst
+    firsts = [starts[j] + min(max(1, sizes[j] // 2) + 1, sizes[j]) for j in long]
+    # per window: its first half's rows, then the rest (a zero row after the last window: every bound indexes a row)
+    bounds = np.array([k for j, f in zip(long, firsts) for k in (starts[j], f, starts[j] + sizes[j])])
     gap = xc - xf
     for row_phi, row_w in ((W[0], W[1]), (W[2], W[3])):
-        w = float(np.abs(xf @ row_w).max())  # the window's top speed: a wheel rocking about rest barely turns
-        if not w > 1e-9:
-            continue
-        shift = factor * np.abs(gap @ row_phi) / w
-        first, whole = float(shift[: half + 1].max()), float(shift.max())
-        g = 1.0 if first <= 0.0 else min(1.0, max(0.0, math.log2(max(whole / first, 1.0))))
-        worst = np.maximum(worst, rate * whole * max(1.0, duration / span) ** g)
+        top = np.maximum.reduceat(np.abs(xf @ row_w), starts)  # each window's top speed
+        # max of (factor |d phi| / w) = factor max |d phi| / w (w > 0; rounding keeps the order): the same floats
+        dphi = np.maximum.reduceat(np.append(np.abs(gap @ row_phi), 0.0), bounds)
+        for k, j in enumerate(long):
+            w = float(top[j])
+            if not w > 1e-9:
+                continue
+            first = float(factor * dphi[3 * k] / w)
+            rest = dphi[3 * k + 1] if firsts[k] < starts[j] + sizes[j] else dphi[3 * k]
+            whole = float(factor * np.maximum(dphi[3 * k], rest) / w)
+            span = float(tf[starts[j] + sizes[j] - 1] - tf[starts[j]])
+            g = 1.0 if first <= 0.0 else min(1.0, max(0.0, math.log2(max(whole / first, 1.0))))
+            worst[j] = np.maximum(worst[j], rate[j] * whole * max(1.0, duration / span) ** g)
     return worst
-
-
