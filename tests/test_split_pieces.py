@@ -267,3 +267,23 @@ def test_blocks_add_no_compiled_specialisation():
         x0.flags.writeable = False
         st.run(x0, 0.0, 0.05)
     assert len(kernel.piece_steps.signatures) == 1
+
+
+@pytest.mark.parametrize("method", ["exact", "etd4"])
+def test_a_partial_step_after_blocks_readies_no_integrator_for_the_steps_they_took(method, monkeypatch):
+    """A run off the grid steps its split steps in blocks and its partial last step alone: that step readies the
+    integrators of its own pieces at most, not the pieces of the split steps the blocks already took (a stacked
+    exponential of every length of the run, held and never used); the same floats either way."""
+    from belt_drive_ros.core import stepper as stepper_module
+
+    readied = []
+    prepare = stepper_module.prepare_integrators
+    monkeypatch.setattr(stepper_module, "prepare_integrators",
+                        lambda name, A, B, steps, **o: readied.append(len(steps)) or prepare(name, A, B, steps, **o))
+    ref, x0 = _stepper(method, cls=_EachAlone)
+    a, b = 0.0123457, 0.3154321  # off the grid: partial steps at both ends
+    expected = ref.advance(x0, a, b)
+    readied.clear()
+    st, _ = _stepper(method)
+    np.testing.assert_array_equal(st.advance(x0, a, b), expected)
+    assert len(st.split_steps) > 200 and sum(readied) <= 8  # (the partial step's own pieces: a few)

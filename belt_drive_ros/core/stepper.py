@@ -606,8 +606,8 @@ class Stepper(StepPlanner):
                         continue
                     blocks = False  # (not in the loop's layout: each split step alone)
                 if c in hard or self.loop is None:
-                    if ready < len(splits) and c >= splits[ready]:
-                        ready = self._prepare_pieces(plan, splits, ready)
+                    if ready < len(splits) and c >= splits[ready]:  # (from this step on: those passed are done)
+                        ready = self._prepare_pieces(plan, splits, max(ready, bisect_left(splits, c)))
                     a, e, whole, lo, hi, cuts = self._step(plan, c)
                     x = self._special_step(x, a, e, whole, lo, hi, cuts)
                     if record:
