@@ -134,8 +134,9 @@ def test_method_auto_checks_its_choice_once_and_the_run_reports_that_check(monke
 def test_a_run_within_the_capstan_limit_never_packs_the_hybrid_loop(monkeypatch):
     # paper stays within the limit: the slipping engine's first phase is the flexible model's own guarded loop,
     # and the event arrays (kernel_slip.pack) are built only from the step the stick check stops in
-    from belt_drive_ros.core import kernel_slip
+    from belt_drive_ros.core import kernel_slip, slip_run
 
+    monkeypatch.setattr(slip_run, "_SHARED", {})  # (the phases an earlier test's truck run left: none, so it packs)
     packed = []
     pack = kernel_slip.pack
     monkeypatch.setattr(kernel_slip, "pack", lambda *a: (packed.append(a[1]), pack(*a))[1])

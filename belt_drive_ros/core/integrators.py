@@ -730,7 +730,7 @@ def method_class(name: str) -> type[Integrator]:
 
 
 #: fixed-step integrators by (method, step, options, A, B): read-only once built (their matrices and stage
-#: scheme), so every run of one model shares them; the oldest of more than 64 is dropped
+#: scheme), so every run of one model shares them; the least recently used of more than 64 is dropped
 _FIXED: dict = {}
 
 

@@ -452,7 +452,7 @@ def static_deflection(params: BeltDriveParams, load_torque: float) -> float:
 
 
 #: rigid and flexible models by (kind, parameter set): read-only once built (frozen, their matrices), so the model
-#: choice, the guards and the run of one scene share one; the oldest of more than 32 is dropped
+#: choice, the guards and the run of one scene share one; the least recently used of more than 32 is dropped
 _MODELS: dict = {}
 
 

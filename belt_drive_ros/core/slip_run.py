@@ -571,7 +571,7 @@ class SlippingSimulator:
 
 
 #: per (parameter set, drive, load) objects: the slipping model, its phases' plants, the packed event-step arrays
-#: per method and the lazy simulators' steppers (:func:`_shared_phases`); the oldest of more than :data:`_SHARED_SIZE` is dropped
+#: per method and the lazy simulators' steppers (:func:`_shared_phases`); the least recently used of more than :data:`_SHARED_SIZE` is dropped
 _SHARED: dict = {}
 _SHARED_SIZE = 8
 
