@@ -44,7 +44,6 @@ from dataclasses import dataclass
 from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
-from mcap.exceptions import McapError
 
 from msg_tools.errors import MsgToolsError, RecoveredBagWarning
 
@@ -713,6 +712,60 @@ def torque_topic(bag) -> Tuple[str, str]:
     return DEFAULT_TOPIC, ""
 
 
+def _damaged(file, why: str) -> BagReadError:
+    """The one-line refusal to re-simulate ``file``, a recording that is not whole, saying ``why``."""
+    return BagReadError(f"{file}: cannot re-simulate a damaged or incomplete recording ({why}); "
+                        f"'msg-tools info {file}' says what is missing")
+
+
+def _check_whole(file) -> None:
+    """Refuse ``file`` unless it is a whole MCAP file (its end written, no damage its summary section shows).
+
+    Re-simulation passes every recorded topic through to the new file, so it
+    needs all of them: a recording cut off mid-write (a killed writer, a
+    truncated copy) reads only up to the cut, which :func:`scene_from_bag`
+    tolerates (its scene and torque come first) but a pass-through must not.
+    A RECOVERED file (damaged before its end, every chunk read through the
+    summary's chunk index) is whole and passes.
+    """
+    from msg_tools import summary
+
+    info = summary(file, verify=False)
+    if not info.complete or info.damage:
+        raise _damaged(file, info.stop_reason or "; ".join(info.damage))
+
+
+def _messages_of_whole(file):
+    """``(schema, channel, message)`` of ``file`` in log-time order, via the mcap library's reader.
+
+    The reader trusts the file's summary section: bytes damaged inside a
+    file whose end is intact can surface as any error of its parsing (a
+    record length past the end, text that is not UTF-8, a seek before the
+    start, a chunk that does not decompress). Each is the one-line
+    :func:`_damaged` refusal naming the file; an error of the disk itself
+    (``EIO``, permissions) stays what it is.
+    """
+    import errno
+
+    from mcap.reader import make_reader
+
+    with open(file, "rb") as f:
+        records = make_reader(f, validate_crcs=True).iter_messages(log_time_order=True)
+        while True:
+            try:
+                item = next(records)
+            except StopIteration:
+                return
+            except OSError as exc:
+                if exc.errno != errno.EINVAL:
+                    raise
+                raise _damaged(file, f"a seek outside the file: {exc}") from None
+            except Exception as exc:  # noqa: BLE001 - only the reader's parsing of the file's bytes is in here
+                first = str(exc).splitlines()[0] if str(exc) else ""
+                raise _damaged(file, f"{type(exc).__name__}: {first}"[:200]) from None
+            yield item
+
+
 @dataclass
 class Resimulation:
     """What ``belt-drive sim RECORDING --out re.mcap`` needs to write a file comparable with the recording.
@@ -742,10 +795,16 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
     other topic of the recording is passed through. Types msg_tools has no
     definition of are left out. ``torque_bag``: as :func:`scene_from_bag`'s.
     """
-    from mcap.reader import make_reader
-
     from msg_tools import bag_files, schemas
 
+    with warnings.catch_warnings():  # a cut recording is refused first, before its scene is rebuilt
+        warnings.simplefilter("ignore", RecoveredBagWarning)
+        try:
+            files = bag_files(path)
+            for file in files:
+                _check_whole(file)
+        except MsgToolsError as exc:
+            raise bag_error(exc) from None
     scene = scene_from_bag(path, torque_bag=torque_bag)
     record, _ = _read_metadata(path)
     drive = scene.drive
@@ -758,30 +817,24 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
         drive_topic = APPLIED_TOPIC
     written = {name.strip("/") for name in computed} | {drive_topic}
     channels: Dict[str, list] = {}
-    file = path
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RecoveredBagWarning)
         try:
-            for file in bag_files(path):
-                with open(file, "rb") as f:
-                    for schema, channel, message in make_reader(f).iter_messages(log_time_order=True):
-                        relative = channel.topic[len(namespace):] if channel.topic.startswith(namespace) else channel.topic
-                        if relative.strip("/") in written or channel.topic.strip("/") in written:
-                            continue
-                        entry = channels.get(channel.topic)
-                        if entry is None:
-                            type_name = schema.name if schema is not None else ""
-                            if not schemas.type_hash(type_name):
-                                continue  # no definition here: cannot be written
-                            entry = channels[channel.topic] = [
-                                channel.topic, type_name, channel.metadata.get("offered_qos_profiles", ""),
-                                channel.metadata.get("topic_type_hash") or None, []]
-                        entry[4].append((int(message.log_time), bytes(message.data)))
-        except McapError as exc:  # the mcap library's reader needs a whole file (a summary, intact records)
-            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise BagReadError(f"{file}: cannot re-simulate a damaged or incomplete recording ({first}); "
-                               f"'msg-tools info {file}' says what is missing") from None
-        except (MsgToolsError, OSError, ValueError) as exc:
+            for file in files:
+                for schema, channel, message in _messages_of_whole(file):
+                    relative = channel.topic[len(namespace):] if channel.topic.startswith(namespace) else channel.topic
+                    if relative.strip("/") in written or channel.topic.strip("/") in written:
+                        continue
+                    entry = channels.get(channel.topic)
+                    if entry is None:
+                        type_name = schema.name if schema is not None else ""
+                        if not schemas.type_hash(type_name):
+                            continue  # no definition here: cannot be written
+                        entry = channels[channel.topic] = [
+                            channel.topic, type_name, channel.metadata.get("offered_qos_profiles", ""),
+                            channel.metadata.get("topic_type_hash") or None, []]
+                    entry[4].append((int(message.log_time), bytes(message.data)))
+        except (MsgToolsError, OSError) as exc:
             raise bag_error(exc) from None
     return Resimulation(scene, start, output_rate, namespace, drive_topic,
                         [tuple(entry) for entry in channels.values()])
