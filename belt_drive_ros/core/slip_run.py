@@ -191,8 +191,7 @@ class SlippingSimulator:
         compiled = self._compiled()
         if compiled is None:
             return
-        from . import kernel_slip as ks
-
+        ks = _kernel_slip()
         have, reals, ints, offsets, Yflex, Minv, arrays = compiled
         none, x = np.zeros(0), np.zeros(6)
         ks.hybrid_steps(np.zeros(1), np.zeros(1), none, none, np.zeros(0, dtype=np.int64), 0, 0, x, self.dt, SPEED_LIMIT,
@@ -362,8 +361,7 @@ class SlippingSimulator:
             lo, hi, special = step_arrays(plan)
         knots = grid.copy()
         knots[0], knots[-1] = t0, t1
-        from . import kernel_slip as ks
-
+        ks = _kernel_slip()
         out_y, out_native = np.empty((N, 5)), np.empty((N, 6))
         out_mode, out_sigma = np.empty(N, dtype=np.int64), np.empty(N)
         x = np.zeros(6)
@@ -449,8 +447,7 @@ class SlippingSimulator:
 
     def _pack(self, arrays):
         """:meth:`_compiled`'s arrays of the steppers built so far and the event step's ``arrays``, or None."""
-        from . import kernel_slip as ks
-
+        ks = _kernel_slip()
         packed = None
         loops = {key: st.loop for key, st in self._steppers.items()}
         base = loops.get("flexible")
@@ -596,10 +593,23 @@ def _scene_parts(params, plant) -> dict:
     return {"model": model, "maps": (np.linalg.inv(M), _mapped(stick, np.vstack([M, np.zeros((1, 4))])), stick)}
 
 
+def _kernel_slip():
+    """The compiled hybrid loop's module :mod:`~belt_drive_ros.core.kernel_slip` (imported at a run's first use, so
+    importing this module imports no compiler; then kept: a relative import costs ~7 us at every call)."""
+    global _KS
+    if _KS is None:
+        from . import kernel_slip
+
+        _KS = kernel_slip
+    return _KS
+
+
+_KS = None
+
+
 def _kind_code(state: SlipState) -> int:
     """The compiled loop's phase kind of a hybrid state."""
-    from . import kernel_slip as ks
-
+    ks = _kernel_slip()
     if state.kind in ("slip", "mass"):
         return ks.PHASE_KEYS.index((state.kind, 1.0 if state.sigma > 0.0 else -1.0))
     return ks.KIND_NAMES.index(state.kind)  # flexible, stick, hybrid: one kind each
