@@ -562,9 +562,10 @@ class SlippingSimulator:
         """u = [drive, load] per sample (the load at phi_3 with the slip part)."""
         phi_M, omega_M = states[:, 0], states[:, 2]
         t = np.asarray(time, dtype=float)
-        d = np.broadcast_to(self.plant.drive.torque(t, phi_M, omega_M), t.shape)
-        l = np.broadcast_to(self.plant.load.torque(t, self.model.phi_3(states), states[:, 3]), t.shape)
-        return np.stack([d, l], axis=-1).astype(float)
+        u = np.empty(t.shape + (2,))  # (each column written once: no stacked copy converted again)
+        u[..., 0] = self.plant.drive.torque(t, phi_M, omega_M)
+        u[..., 1] = self.plant.load.torque(t, self.model.phi_3(states), states[:, 3])
+        return u
 
 
 #: per (parameter set, drive, load) objects: the slipping model, its phases' plants, the packed event-step arrays
