@@ -53,7 +53,7 @@ from .forced_response import harmonic_error
 from .integrators import FixedStepIntegrator, make_integrator, method_class
 from .model import make_model
 from .slip import SlippingBeltModel
-from .slip_run import SlippingSimulator, _joined, _shared_phases
+from .slip_run import _joined, _shared_phases, rerun_simulator
 from .stability import check_step
 from .stepper import shared_plant
 
@@ -334,7 +334,7 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     n = int(run_t.searchsorted(t1))  # |t - t1| is least at the samples either side of t1 (run_t is sorted)
     at_t1 = bool(np.any(np.abs(run_t[max(n - 1, 0) : n + 1] - t1) <= 1e-9 * dt + 8.0 * np.spacing(abs(t1) + dt)))
     for h, factor in ((2.0 * dt, 1.0 / (2.0**order - 1.0)), (dt / 2.0, 2.0**order / (2.0**order - 1.0))):
-        sim = SlippingSimulator(params, drive, load, method, h, method_options, check_stability=False, lazy=True)
+        sim = rerun_simulator(params, drive, load, method, h, method_options)  # (kept per scene, step and thread)
         sim._hybrid = hybrid
         sim.slip_phases()  # (the stretch slips; the scene's steppers, shared)
         state = sim._native(np.asarray(states[i], dtype=float), int(modes[i]), float(sigmas[i]))

@@ -584,6 +584,27 @@ def _shared_phases(params, drive, load, plant) -> dict:
                       keep=lambda _: is_shared(plant))
 
 
+def rerun_simulator(params, drive, load, method: str, dt: float, method_options=None) -> SlippingSimulator:
+    """A lazy unguarded :class:`SlippingSimulator` of ``method`` at ``dt`` for the accuracy rerun
+    (:func:`~belt_drive_ros.core.accuracy.slip_run_error`), kept in the scene's :func:`_shared_phases` per method,
+    step, options and thread: what it holds (steppers, packed loops, work arrays) are numbers of the scene, never a
+    state or a result between advances. Each call gives its steppers origin 0 and the plant's breakpoints, as a new
+    one's constructor does (a simulator sharing them may have moved them); the caller sets its event step
+    (``_hybrid``). A scene whose plant is not kept gets a new one."""
+    plant = shared_plant(make_model("flexible", params), drive, load)
+    shared = _shared_phases(params, drive, load, plant)
+    key = ("rerun", method, float(dt), repr(sorted(dict(method_options or {}).items())), threading.get_ident())
+    sim = shared.get(key)
+    if sim is None:
+        sim = SlippingSimulator(params, drive, load, method, dt, method_options, check_stability=False, lazy=True)
+        if is_shared(plant):
+            shared[key] = sim
+    else:
+        for st in sim._steppers.values():
+            st.origin, st.breakpoints = 0.0, sim.plant.breakpoints
+    return sim
+
+
 def _scene_parts(params, plant) -> dict:
     """:func:`_shared_phases`' first entries: the model and ``"maps"``, ``(M^-1, the capstan check as a guard on the
     flexible state, the stick guard on y)`` with ``[phi_M, theta_e, omega_M, omega_3] = M x`` of a flexible state x."""
