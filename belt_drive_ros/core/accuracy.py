@@ -48,9 +48,14 @@ from .accuracy_probes import (
     _output_rows, linear_verdict, linear_verdicts, probe_scene,
 )  # fmt: skip
 from .accuracy_windows import forcing_error
-from .errors import IntegratorError, UnstableStepError
+from .errors import IntegratorError, SimulationDivergedError, UnstableStepError
 from .forced_response import harmonic_error
 from .integrators import FixedStepIntegrator, make_integrator, method_class
+from .model import make_model
+from .slip import SlippingBeltModel
+from .slip_run import _joined, _shared_phases, rerun_simulator
+from .stability import check_step
+from .stepper import shared_plant
 
 @dataclass(frozen=True)
 class AccuracyReport:
@@ -184,8 +189,6 @@ def _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, expo
     forcing check start where ``probes`` says (their length follows the candidate step). A candidate the
     stability guard (free belt) refuses is skipped: a step named is accepted by both guards.
     """
-    from .stability import check_step
-
     for j in exponents:
         h = dt / 2.0**j
         if not check_step(plant.model.A, plant.model.B, method, h).stable:  # the stability guard's view too
@@ -233,10 +236,6 @@ def check_slipping(
     ``stepper``: the flexible-model stepper of the run (its integrator is reused); ``stick``, ``probes``: the
     flexible model's report and :func:`probe_scene` at this step, when already made.
     """
-    from .model import make_model
-    from .slip import SlippingBeltModel
-    from .stepper import shared_plant
-
     cls = method_class(method)
     if not issubclass(cls, FixedStepIntegrator):
         return None
@@ -247,7 +246,7 @@ def check_slipping(
         stick = check_accuracy(plant, method, dt, duration, x0_flexible, tolerance, method_options, suggest=False,
                                probes=probes, stepper=stepper)  # fmt: skip
     stick = AccuracyReport(**{**stick.__dict__, "mode": "stick", "suggestion": None, "alternative": None})
-    model = SlippingBeltModel(params)
+    model = _shared_phases(params, drive, load, plant)["model"]  # the run's slipping model (read-only)
     A, B = model.A_slip, model.B_slip
     integrator = make_integrator(method, A, B, dt, **dict(method_options or {}))
     rows = np.zeros((2, 5))
@@ -255,13 +254,15 @@ def check_slipping(
     n_steps = max(1, math.ceil(duration / dt - 1e-9))
     worst = stick
     gains = []  # (slopes, K) of each probe and slip direction, their verdicts made together (linear_verdicts)
+    # the slope of Q_max at the top speed: the same for every probe (sigma its sign)
+    w = max(abs(float(plant.wheel_map[1] @ probes.x0)), *(abs(w_) for _, _, w_, _ in probes.windows), 1.0)
+    d = 1e-6 * w
+    rise = model.limit(w + d) - model.limit(w - d)
     for K2, slopes in probes.gains:
         for sigma in (1.0, -1.0):
             K = np.zeros((3, 5))
             K[0, 2], K[1, 3] = slopes
-            w = max(abs(float(plant.wheel_map[1] @ probes.x0)), *(abs(w_) for _, _, w_, _ in probes.windows), 1.0)
-            d = 1e-6 * w
-            K[2, 2] = sigma * (model.limit(w + d) - model.limit(w - d)) / (2.0 * d)
+            K[2, 2] = sigma * rise / (2.0 * d)
             gains.append((slopes, K))
     verdicts = linear_verdicts(integrator, A, B, rows, [K for _, K in gains], n_steps)
     for (slopes, _), (stable, error, growth, exact_growth, h_omega) in zip(gains, verdicts):
@@ -313,10 +314,6 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     both reruns diverge: inf. ``hybrid``: the run's
     :class:`~belt_drive_ros.core.slip.EventStep` (no step length: the reruns share it).
     """
-    from .errors import SimulationDivergedError
-    from .slip import SlippingBeltModel
-    from .slip_run import SlippingSimulator, _joined
-
     order = method_class(method).order
     if not len(event_times) or order is None:
         return 0.0
@@ -337,7 +334,7 @@ def slip_run_error(params, drive, load, method: str, dt: float, time, states, mo
     n = int(run_t.searchsorted(t1))  # |t - t1| is least at the samples either side of t1 (run_t is sorted)
     at_t1 = bool(np.any(np.abs(run_t[max(n - 1, 0) : n + 1] - t1) <= 1e-9 * dt + 8.0 * np.spacing(abs(t1) + dt)))
     for h, factor in ((2.0 * dt, 1.0 / (2.0**order - 1.0)), (dt / 2.0, 2.0**order / (2.0**order - 1.0))):
-        sim = SlippingSimulator(params, drive, load, method, h, method_options, check_stability=False, lazy=True)
+        sim = rerun_simulator(params, drive, load, method, h, method_options)  # (kept per scene, step and thread)
         sim._hybrid = hybrid
         sim.slip_phases()  # (the stretch slips; the scene's steppers, shared)
         state = sim._native(np.asarray(states[i], dtype=float), int(modes[i]), float(sigmas[i]))

@@ -268,7 +268,7 @@ def profile_harmonics(plant, probes) -> list[tuple[int, float, float]]:
     kept); at most :data:`MAX_HARMONICS` per input, largest amplitude first.
     """
     i = plant.model.params.ratio
-    out = []
+    sampled = []  # (input, candidates, their samples) of each input that names a frequency
     for channel, (profile, gear) in enumerate(((plant.drive, 1.0), (plant.load, i))):
         points = []  # (frequency, t, angle, speed) of every candidate: sampled all at once below
         for t, phi, omega in probes:
@@ -283,25 +283,35 @@ def profile_harmonics(plant, probes) -> list[tuple[int, float, float]]:
         f, t, angle, speed = (np.array(c, dtype=float)[:, None] for c in zip(*points))
         # two periods [s]: the floats of linspace(0, 2 / f, 2 AMPLITUDE_SAMPLES, endpoint=False, axis=1)
         offsets = np.arange(2 * AMPLITUDE_SAMPLES, dtype=float) * (2.0 / f / (2 * AMPLITUDE_SAMPLES))
-        found: list[tuple[float, float]] = []
         with np.errstate(all="ignore"):  # (every candidate's samples in one flat call, then a row each)
             values = np.asarray(profile.torque((t + offsets).ravel(), (angle + speed * offsets).ravel(),
                                                np.repeat(speed[:, 0], offsets.shape[1])), dtype=float).reshape(offsets.shape)
-            # every candidate's amplitude and repetition at once (the same operations per row)
-            first, second = values[:, :AMPLITUDE_SAMPLES], values[:, AMPLITUDE_SAMPLES:]
-            amps = 0.5 * (np.max(first, axis=1) - np.min(first, axis=1))
-            repeat = np.max(np.abs(second - first), axis=1)
-        # not periodic here (a ramp, a soft start, a table): the step response and windows see it
-        periodic = np.all(np.isfinite(values), axis=1) & (amps > 0.0) & ~(repeat > PERIODIC_TOLERANCE * 2.0 * amps)
-        for k in np.flatnonzero(periodic).tolist():
-            a = float(amps[k])
-            fk = points[k][0]
+        sampled.append((channel, points, values))
+    if not sampled:
+        return []
+    # every candidate's amplitude and repetition, both inputs' at once (the same operations per row)
+    values = sampled[0][2] if len(sampled) == 1 else np.concatenate([v for _, _, v in sampled])
+    with np.errstate(all="ignore"):
+        first, second = values[:, :AMPLITUDE_SAMPLES], values[:, AMPLITUDE_SAMPLES:]
+        amps = 0.5 * (np.max(first, axis=1) - np.min(first, axis=1))
+        repeat = np.max(np.abs(second - first), axis=1)
+    # not periodic here (a ramp, a soft start, a table): the step response and windows see it
+    periodic = (np.all(np.isfinite(values), axis=1) & (amps > 0.0) & ~(repeat > PERIODIC_TOLERANCE * 2.0 * amps)).tolist()
+    amps = amps.tolist()
+    out, row = [], 0
+    for channel, points, _ in sampled:
+        found: list[tuple[float, float]] = []
+        for k, point in enumerate(points):
+            if not periodic[row + k]:
+                continue
+            a, fk = amps[row + k], point[0]
             for j, (f_old, a_old) in enumerate(found):
                 if abs(fk - f_old) <= FREQUENCY_MERGE * max(fk, f_old):
                     found[j] = (f_old, max(a, a_old))
                     break
             else:
                 found.append((fk, a))
+        row += len(points)
         found.sort(key=lambda fa: -fa[1])
         out += [(channel, f_, a_) for f_, a_ in found[:MAX_HARMONICS]]
     return out

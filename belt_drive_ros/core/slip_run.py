@@ -191,8 +191,7 @@ class SlippingSimulator:
         compiled = self._compiled()
         if compiled is None:
             return
-        from . import kernel_slip as ks
-
+        ks = _kernel_slip()
         have, reals, ints, offsets, Yflex, Minv, arrays = compiled
         none, x = np.zeros(0), np.zeros(6)
         ks.hybrid_steps(np.zeros(1), np.zeros(1), none, none, np.zeros(0, dtype=np.int64), 0, 0, x, self.dt, SPEED_LIMIT,
@@ -362,8 +361,7 @@ class SlippingSimulator:
             lo, hi, special = step_arrays(plan)
         knots = grid.copy()
         knots[0], knots[-1] = t0, t1
-        from . import kernel_slip as ks
-
+        ks = _kernel_slip()
         out_y, out_native = np.empty((N, 5)), np.empty((N, 6))
         out_mode, out_sigma = np.empty(N, dtype=np.int64), np.empty(N)
         x = np.zeros(6)
@@ -449,8 +447,7 @@ class SlippingSimulator:
 
     def _pack(self, arrays):
         """:meth:`_compiled`'s arrays of the steppers built so far and the event step's ``arrays``, or None."""
-        from . import kernel_slip as ks
-
+        ks = _kernel_slip()
         packed = None
         loops = {key: st.loop for key, st in self._steppers.items()}
         base = loops.get("flexible")
@@ -565,9 +562,10 @@ class SlippingSimulator:
         """u = [drive, load] per sample (the load at phi_3 with the slip part)."""
         phi_M, omega_M = states[:, 0], states[:, 2]
         t = np.asarray(time, dtype=float)
-        d = np.broadcast_to(self.plant.drive.torque(t, phi_M, omega_M), t.shape)
-        l = np.broadcast_to(self.plant.load.torque(t, self.model.phi_3(states), states[:, 3]), t.shape)
-        return np.stack([d, l], axis=-1).astype(float)
+        u = np.empty(t.shape + (2,))  # (each column written once: no stacked copy converted again)
+        u[..., 0] = self.plant.drive.torque(t, phi_M, omega_M)
+        u[..., 1] = self.plant.load.torque(t, self.model.phi_3(states), states[:, 3])
+        return u
 
 
 #: per (parameter set, drive, load) objects: the slipping model, its phases' plants, the packed event-step arrays
@@ -586,6 +584,27 @@ def _shared_phases(params, drive, load, plant) -> dict:
                       keep=lambda _: is_shared(plant))
 
 
+def rerun_simulator(params, drive, load, method: str, dt: float, method_options=None) -> SlippingSimulator:
+    """A lazy unguarded :class:`SlippingSimulator` of ``method`` at ``dt`` for the accuracy rerun
+    (:func:`~belt_drive_ros.core.accuracy.slip_run_error`), kept in the scene's :func:`_shared_phases` per method,
+    step, options and thread: what it holds (steppers, packed loops, work arrays) are numbers of the scene, never a
+    state or a result between advances. Each call gives its steppers origin 0 and the plant's breakpoints, as a new
+    one's constructor does (a simulator sharing them may have moved them); the caller sets its event step
+    (``_hybrid``). A scene whose plant is not kept gets a new one."""
+    plant = shared_plant(make_model("flexible", params), drive, load)
+    shared = _shared_phases(params, drive, load, plant)
+    key = ("rerun", method, float(dt), repr(sorted(dict(method_options or {}).items())), threading.get_ident())
+    sim = shared.get(key)
+    if sim is None:
+        sim = SlippingSimulator(params, drive, load, method, dt, method_options, check_stability=False, lazy=True)
+        if is_shared(plant):
+            shared[key] = sim
+    else:
+        for st in sim._steppers.values():
+            st.origin, st.breakpoints = 0.0, sim.plant.breakpoints
+    return sim
+
+
 def _scene_parts(params, plant) -> dict:
     """:func:`_shared_phases`' first entries: the model and ``"maps"``, ``(M^-1, the capstan check as a guard on the
     flexible state, the stick guard on y)`` with ``[phi_M, theta_e, omega_M, omega_3] = M x`` of a flexible state x."""
@@ -596,10 +615,23 @@ def _scene_parts(params, plant) -> dict:
     return {"model": model, "maps": (np.linalg.inv(M), _mapped(stick, np.vstack([M, np.zeros((1, 4))])), stick)}
 
 
+def _kernel_slip():
+    """The compiled hybrid loop's module :mod:`~belt_drive_ros.core.kernel_slip` (imported at a run's first use, so
+    importing this module imports no compiler; then kept: a relative import costs ~7 us at every call)."""
+    global _KS
+    if _KS is None:
+        from . import kernel_slip
+
+        _KS = kernel_slip
+    return _KS
+
+
+_KS = None
+
+
 def _kind_code(state: SlipState) -> int:
     """The compiled loop's phase kind of a hybrid state."""
-    from . import kernel_slip as ks
-
+    ks = _kernel_slip()
     if state.kind in ("slip", "mass"):
         return ks.PHASE_KEYS.index((state.kind, 1.0 if state.sigma > 0.0 else -1.0))
     return ks.KIND_NAMES.index(state.kind)  # flexible, stick, hybrid: one kind each
