@@ -450,3 +450,54 @@ def test_a_clamp_left_for_the_next_plain_tick_never_reaches_a_restarted_run(valu
             rows[j].append(sim.values(now) + list(sim.x))
     a, b = np.array(rows[0]), np.array(rows[1])
     assert left == 6 and np.array_equal(a, b)
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("params", [(("drive_source", "topic"), ("input_timeout", 0.0)),
+                                    (("scene", "truck_compressor"), ("model", "slipping"), ("drive_source", "topic"),
+                                     ("input_timeout", 0.0))])
+def test_the_nodes_usual_tick_is_the_simulations_plain_tick(params):
+    # BeltDriveNode._tick takes a plain tick through NodeSimulation.plain_tick itself, not advance_to (the plain
+    # path is written once, in the simulation): a node whose joint_states alone is read publishes, tick by tick
+    # through torque changes every 7th tick, the bytes and values of a node on the general path (no tick kernel)
+    import time
+
+    from rclpy.parameter import Parameter
+
+    from belt_drive_ros.ros.executors import ros_session
+    from belt_drive_ros.ros.node import BeltDriveNode
+
+    with ros_session() as ctx:
+        over = [Parameter("tick_thread", value=False)] + [Parameter(k, value=v) for k, v in params]
+        nodes = [BeltDriveNode(context=ctx, parameter_overrides=over) for _ in range(2)]
+        try:
+            nodes[1].sim._tick_kernel = None  # the general path: the stepper (or the engine), model.outputs
+            for node in nodes:
+                node.refresh_subscriber_counts()
+                node._readers["joint_states"] = 1  # the usual tick: joint_states alone
+                node._count_listeners()
+            calls = {"advance_to": 0, "plain_tick": 0}
+            sim = nodes[0].sim
+            for name in calls:
+                def counted(now_ns, _f=getattr(sim, name), _name=name):
+                    calls[_name] += 1
+                    return _f(now_ns)
+
+                setattr(sim, name, counted)
+            tick_ns = sim.settings.tick_ns
+            t0 = time.time_ns() // tick_ns * tick_ns
+            for k in range(300):
+                now = t0 + k * tick_ns
+                sent = []
+                for node in nodes:
+                    if k % 7 == 3:
+                        node.drive.receive(5.0 + (k % 11), now - 1, node.sim.settings)
+                    with node.timing.lock:
+                        sent.append(node._tick(now, True))
+                assert [data for _, data in sent[0]] == [data for _, data in sent[1]]
+                assert list(nodes[0]._last[0]) == list(nodes[1]._last[0])
+            assert nodes[0].counters == nodes[1].counters
+            assert calls["plain_tick"] > 290 and calls["advance_to"] < 5
+        finally:
+            for node in nodes:
+                node.destroy_node()

@@ -105,7 +105,10 @@ def test_a_stall_beyond_the_catch_up_limit_integrates_in_one_go(ros_domain_id):
         assert missed >= hold // TICK_NS - 10 and abs(published - (ticks - missed)) <= 1, (ticks, published, missed)
         s = stamps(h)
         assert s.size and np.all((s - node.origin_ns) % TICK_NS == 0)
-        assert node.counters["late_ticks"] > late and node.counters["restarts"] == 1
+        # the late tick is counted when the tick that jumped is published, after its compute: a host that
+        # starves the thread right after the hold can leave the jump alone enough for _published_over's wait
+        h._spin_until(lambda: node.counters["late_ticks"] > late, "the late tick counted")
+        assert node.counters["restarts"] == 1
 
 
 def test_ticks_are_published_at_their_due_time_never_before(ros_domain_id):

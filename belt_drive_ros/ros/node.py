@@ -168,8 +168,6 @@ NODE_NAME = "belt_drive"
 JOINT_NAMES = ("wheel_M", "wheel_1", "wheel_2", "wheel_3")
 #: Float64 output topics, in publishing order (joint_states is published first).
 OUTPUT_TOPICS = ("shaft_speed", "load_torque", "belt_torque", "relative_deflection")
-#: NodeSimulation.advance_to's answer after a compiled tick of the slipping model, neither slack nor slip set
-_SLIPPING_ONLY = 1 + SLIPPING
 #: where the tick's values (NodeSimulation.values) hold each slipping-model Float64 output
 _N_TICK = len(TICK_OUTPUTS)
 _SLIP_FLOAT_INDEX = tuple((TICK_OUTPUTS + SLIP_TICK_OUTPUTS).index(signal) for _, signal in SLIP_FLOAT_OUTPUTS)
@@ -387,38 +385,47 @@ class BeltDriveNode(Node):
         ``defer`` (the tick thread, which publishes at the tick's due time):
         return the ``(publish, data)`` calls instead of making them, and leave
         a due diagnostics publish to :meth:`_after_tick`.
+
+        The usual tick (a plain one, :meth:`NodeSimulation.plain_tick`, which the tick kernel took, and nobody
+        but ``joint_states``' readers, no recording): ``joint_states`` alone (or nothing), the bytes the compiled
+        tick wrote; its values stay where it wrote them (a view: :attr:`last` reads them there, the next tick
+        writes them again and sets ``_last`` anew; a failed compiled tick writes nothing); its flags counted
+        without reading its outputs (:meth:`_count`'s counts). Every other tick: :meth:`_publish`.
         """
-        if self._resets_pending:
-            with self.drive.lock:  # (the inputs' hand-over lock: _on_reset counts under it)
-                calls, self._resets_pending = self._resets_pending, 0
-            self.sim.restart(f"~/reset, {calls} call(s) since the last tick")
         sim = self.sim
-        got = sim.advance_to(now_ns)
-        if not got:
-            sends = None
-        elif sim._fresh_ns == now_ns and (send := self._usual) is not False:
-            # the usual tick: joint_states alone (or nothing), the bytes the compiled tick wrote (sim.fresh); its
-            # values stay where it wrote them (a view: `last` reads them there, the next tick writes them again and
-            # sets _last anew; a failed compiled tick writes nothing)
-            fresh = sim._tick_kernel
-            sends = None
-            if send is not None:
-                data = fresh.message.tobytes()  # (the same bytes as bytes(), ~3 us sooner on cold caches)
+        if now_ns == sim._plain_ns and (send := self._usual) is not False and not self._resets_pending:
+            done = sim.plain_tick(now_ns)
+            if done <= 0:  # the tick kernel took it: minus its outputs' flags (and EVENT per mode switch)
+                fresh, c = sim._tick_kernel, self.counters
+                self._last = (fresh.values, now_ns, sim.origin_ns)  # floats: TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
+                c["published"] += 1
+                if done == -SLIPPING:  # (the slipping model's usual tick)
+                    c["published_slip"] += 1
+                elif done:
+                    flags = -done & 7
+                    if flags & SLIPPING:
+                        c["published_slip"] += 1
+                    if flags & SLACK:
+                        self.stats.window.slack += 1
+                        c["slack_ticks"] += 1
+                    if flags & SLIPS:
+                        self.stats.window.slip += 1
+                        c["slip_ticks"] += 1
                 if defer:
-                    sends = [(send, data)]
-                else:
-                    send(data)
-            elif defer:
-                sends = []
-            if got > 1:  # the compiled tick's flags (+ 1): counted without reading its outputs
-                if got == _SLIPPING_ONLY:  # (the slipping model's usual tick: no call)
-                    self.counters["published_slip"] += 1
-                else:
-                    self._flagged(got - 1)
-            self._last = (fresh.values, now_ns, sim.origin_ns)  # floats: TICK_OUTPUTS (+ SLIP_TICK_OUTPUTS)
-            self.counters["published"] += 1
+                    return [] if send is None else [(send, fresh.message.tobytes())]  # (tobytes: the same bytes
+                    # as bytes(), ~3 us sooner on cold caches)
+                if send is not None:
+                    send(fresh.message.tobytes())
+                self._after_tick()
+                return None
+            got = done  # (the general path took it)
         else:
-            sends = self._publish(now_ns, defer)
+            if self._resets_pending:
+                with self.drive.lock:  # (the inputs' hand-over lock: _on_reset counts under it)
+                    calls, self._resets_pending = self._resets_pending, 0
+                sim.restart(f"~/reset, {calls} call(s) since the last tick")
+            got = sim.advance_to(now_ns)
+        sends = self._publish(now_ns, defer) if got else None
         if not defer:
             self._after_tick()
         return sends
@@ -468,18 +475,6 @@ class BeltDriveNode(Node):
         if v[15]:  # slip
             self.stats.window.slip += 1
             self.counters["slip_ticks"] += 1
-
-    def _flagged(self, flags: int) -> None:
-        """:meth:`_count` of a compiled tick's outputs by their flags (``simulation.SLACK``, ``SLIPS``, ``SLIPPING``)."""
-        c = self.counters
-        if flags & SLIPPING:
-            c["published_slip"] += 1
-        if flags & SLACK:
-            self.stats.window.slack += 1
-            c["slack_ticks"] += 1
-        if flags & SLIPS:
-            self.stats.window.slip += 1
-            c["slip_ticks"] += 1
 
     def _sends(self, now_ns: int, v: list, recorder, listening) -> tuple[list, tuple | None]:
         """:meth:`_publish`'s ``(publish, data)`` calls of the tick's values ``v`` in order, every topic, and

@@ -35,7 +35,7 @@ import numpy as np
 from ..core.errors import SimulationDivergedError
 from ..core.model import OUTPUT_UNITS, FlexibleBeltModel
 from ..core.slip import SLIP_OUTPUT_UNITS
-from ..core.slip_run import SlippingSimulator, _events
+from ..core.slip_run import SlippingSimulator
 from ..core.sources import Schedule, TorqueProfile
 from ..core.kernel_loop import OK
 from ..core.step_plan import snap_tolerance
@@ -341,45 +341,59 @@ class NodeSimulation:
         holds the outputs: :meth:`fresh`) 1 + their flags (:data:`SLACK`, :data:`SLIPS`, :data:`SLIPPING`): the
         node counts them without reading the outputs.
 
-        A *plain* tick is the usual one at 1 kHz: the tick after one the tick kernel took, as many grid steps
-        on, no held-torque jump at either end, no plant breakpoint near: the kernel's buffers hold all it needs
-        (:meth:`~belt_drive_ros.core.tick.TickKernel.next`), so it is the drive's sample and one compiled call.
-        A plain tick at which the held torque jumps (a new sample at its end) is that call with the clamps the
-        general path gives it (:meth:`_jump_tick`); the tick after it is plain, its clamp at the jump (its start)
-        written into the kernel's buffer when the jump was taken.
+        A *plain* tick (at ``now_ns == _plain_ns``) is :meth:`plain_tick`'s, which the node's tick calls itself.
+        """
+        if now_ns == self._plain_ns:
+            done = self.plain_tick(now_ns)
+            return 1 + (-done & 7) if done <= 0 else done  # (7: SLACK | SLIPS | SLIPPING)
+        if self.drive._new:  # messages received since the last tick: handed over now, before the compute
+            self.drive.take()
+        return self._advance(now_ns)
+
+    def plain_tick(self, now_ns: int) -> int:
+        """:meth:`advance_to` of a *plain* tick: ``now_ns`` is ``_plain_ns`` (the node's usual tick at 1 kHz calls
+        this itself, with one check fewer on each side: :meth:`BeltDriveNode._tick`).
+
+        A plain tick is the tick after one the tick kernel took, as many grid steps on, no plant breakpoint near:
+        the kernel's buffers hold all it needs (:meth:`~belt_drive_ros.core.tick.TickKernel.next`), so it is the
+        drive's sample and one compiled call. A plain tick at which the held torque jumps (a new sample at its
+        end) is that call with the clamps the general path gives it (:meth:`_jump_tick`); the tick after it is
+        plain, its clamp at the jump (its start) written into the kernel's buffer when the jump was taken.
+
+        Returns the kernel's answer when it took the tick: ``<= 0``, minus its outputs' flags (:data:`SLACK`,
+        :data:`SLIPS`, :data:`SLIPPING`; ``-done & 7``) and :data:`_EVENT` per mode switch (located here);
+        else (the general path took it: the same steps, or the same failure) :meth:`advance_to`'s answer, ``>= 1``.
         """
         drive = self.drive
         if drive._new:  # messages received since the last tick: handed over now, before the compute (DriveInput.take)
             drive.take()
-        if now_ns == self._plain_ns:
-            value = None
-            if self._topic:  # the sample: the last one's while it cannot change (DriveInput.until), else anew
-                if now_ns <= drive.until:
-                    value = drive.value
-                else:
-                    value, warning = drive.sample(now_ns, self.origin_ns, self.settings)
-                    if warning:
-                        self.log.warn(warning)
-            if value is None or value == self._held:
-                fast = self._tick_kernel
-                done = self._entry(fast._address)  # (TickKernel.next, SlipTickKernel.next without their frames)
-                if done <= 0:  # (else the general path below takes the same steps and raises as it does; the
-                    # slipping belt's engine locates the events of a tick its kernel could not take)
-                    if done <= -_EVENT:  # mode switches located in the kernel (SlipTickKernel.next's answer)
-                        self._located(_events(fast._events[: -done // _EVENT]))
-                    self.t_ns = self._fresh_ns = now_ns
-                    self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
-                    return 1 + (-done & 7)  # (7: SLACK | SLIPS | SLIPPING)
-                return self._advance(now_ns, (value,))
-            return self._jump_tick(now_ns, value)
-        return self._advance(now_ns)
+        value = None
+        if self._topic:  # the sample: the last one's while it cannot change (DriveInput.until), else anew
+            if now_ns <= drive.until:
+                value = drive.value
+            else:
+                value, warning = drive.sample(now_ns, self.origin_ns, self.settings)
+                if warning:
+                    self.log.warn(warning)
+        if value is None or value == self._held:
+            fast = self._tick_kernel
+            done = self._entry(fast._address)  # (TickKernel.next, SlipTickKernel.next without their frames)
+            if done <= 0:  # (else the general path below takes the same steps and raises as it does; the
+                # slipping belt's engine locates the events of a tick its kernel could not take)
+                if done <= -_EVENT:  # mode switches located in the kernel (SlipTickKernel.next's answer)
+                    self._switched(-done // _EVENT)
+                self.t_ns = self._fresh_ns = now_ns
+                self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
+                return done
+            return self._advance(now_ns, (value,))
+        return self._jump_tick(now_ns, value)
 
-    def _jump_tick(self, now_ns: int, value: float) -> bool:
-        """A plain tick (:meth:`advance_to`) at whose end the held drive torque jumps to ``value`` (the sample at
-        ``now_ns``): the tick kernel's one call with the clamps :meth:`_advance` gives the same tick (``hi =
-        left_of(t1)``, the new value; ``lo``: -inf, or t0 when the tick before was a jump, written then), so the
-        same floats; the general path where the kernel fails or a linear model's tick has several steps (the
-        stepper's special step clamps only the step at the jump)."""
+    def _jump_tick(self, now_ns: int, value: float) -> int:
+        """A plain tick (:meth:`plain_tick`, whose answer this is) at whose end the held drive torque jumps to
+        ``value`` (the sample at ``now_ns``): the tick kernel's one call with the clamps :meth:`_advance` gives the
+        same tick (``hi = left_of(t1)``, the new value; ``lo``: -inf, or t0 when the tick before was a jump, written
+        then), so the same floats; the general path where the kernel fails or a linear model's tick has several
+        steps (the stepper's special step clamps only the step at the jump)."""
         fast = self._tick_kernel
         if self._plain_step == fast.step_ns or self._live:  # (the slipping tick clamps its first and last step alone)
             t1 = fast.origin + (now_ns - self.origin_ns) // fast.step_ns * fast.dt  # (_advance's t1)
@@ -391,13 +405,13 @@ class NodeSimulation:
             if done <= 0:
                 fast._drive[0] = value  # (the held torque's own data; the kernel wrote its copy)
                 if done <= -_EVENT:
-                    self._located(_events(fast._events[: -done // _EVENT]))
+                    self._switched(-done // _EVENT)
                 self.t_ns = self._fresh_ns = now_ns
                 self._held_jump, self._held = t1, value
                 self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None
                 if self._plain_ns is not None:
                     cells[0] = t1  # the next tick's: the held torque jumps at its start
-                return 1 + (-done & 7)
+                return done
         return self._advance(now_ns, (value,))
 
     def _advance(self, now_ns: int, sampled: tuple | None = None) -> bool:
@@ -504,9 +518,21 @@ class NodeSimulation:
                 self._tick_kernel.clamps[0] = jump
     def _located(self, events) -> None:
         """Note a tick's stick/slip events (:class:`~belt_drive_ros.core.slip.Event`): the latest 64 kept."""
-        self.slip_events.extend((e.kind, e.time, e.sigma) for e in events)
-        del self.slip_events[:-64]  # (diagnostics)
-        self.counters["slip_events"] += len(events)
+        self._note([(e.kind, e.time, e.sigma) for e in events])
+
+    def _switched(self, n: int) -> None:
+        """:meth:`_located` of the ``n`` mode switches the tick kernel located, read from its event rows (time, 1.0
+        at an onset, sigma, then the state: the columns :func:`~belt_drive_ros.core.slip_run._events` reads) without
+        an :class:`~belt_drive_ros.core.slip.Event` built for each (the same kind, time and sigma; one switch, on
+        cold caches: ~18 against ~46 us)."""
+        rows = self._tick_kernel._events[:n].tolist()
+        self._note([("onset" if onset else "restick", t, sigma) for t, onset, sigma, *_ in rows])
+
+    def _note(self, notes: list) -> None:
+        """Keep the latest 64 of the run's ``(kind, time, sigma)`` mode switches (diagnostics) and count them."""
+        self.slip_events.extend(notes)
+        del self.slip_events[:-64]
+        self.counters["slip_events"] += len(notes)
 
     def _free(self, t0: float, t1: float, k0: int, k1: int) -> bool:
         """Whether no plant breakpoint lies near the whole grid steps k0 .. k1 (the stepper's test, remembered
