@@ -352,13 +352,14 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
     drive, load, T = first.drive, first.load, first.duration
     size = window if reduce is not None else None
     columns = ParamColumns([s.params for _, s in members])  # every model stack of the group is built from these
+    ratios = dict(zip((i for i, _ in members), columns.ratio.tolist()))  # (BeltDriveParams.ratio on the columns)
     if first.model in ("rigid", "flexible"):
         kinds = {i: first.model for i, _ in members}
         linear: dict = {}
     else:  # auto: the rigid estimate of the operating speeds, for all variants at once
         rigid = ModelStack("rigid", [s.params for _, s in members], columns)
         ens = Ensemble(rigid, drive, load, "exact", operating_run_step(T))
-        x0 = np.stack([s.initial_state.vector("rigid", s.params.ratio) for _, s in members])
+        x0 = _initial_states(members, "rigid", ratios)
         block = GroupRun([i for i, _ in members], [s for _, s in members], rigid, "rigid", "exact", None, None, None)
         # as fidelity's rigid estimate: max |omega_M|, max |omega_3|, max |belt torque|; and the belt torque
         # the start needs: the rigid belt torque at t = 0 (fidelity.start_mismatch)
@@ -400,7 +401,7 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
             for i, s in chosen:
                 yield _single(i, s, check_stability, str(exc))
             continue
-        x0 = np.stack([s.initial_state.vector(kind, s.params.ratio) for _, s in chosen])
+        x0 = _initial_states(chosen, kind, ratios)
         block = GroupRun([i for i, _ in chosen], [s for _, s in chosen], models, kind, ens.method, None, None, None)
         found: dict = {}
         capstan = Reductions({"use": "argmax"})
@@ -441,6 +442,22 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
             continue
         run.choices = block.choices
         yield run if len(keep) == len(chosen) else _subset(run, keep)
+
+
+def _initial_states(members: list, kind: str, ratios: dict) -> np.ndarray:
+    """(V, n) the initial states of ``members`` ``[(i, scene)]`` on model ``kind``: each the scene's
+    ``initial_state.vector(kind, ratio)`` with ``ratios[i]`` its parameters' ratio i, made once per initial state and
+    ratio (a tolerance sweep's variants share both)."""
+    made: dict = {}
+    rows = []
+    for i, s in members:
+        ratio = ratios[i]
+        key = (id(s.initial_state), ratio)
+        row = made.get(key)
+        if row is None:
+            row = made[key] = s.initial_state.vector(kind, ratio)
+        rows.append(row)
+    return np.stack(rows)
 
 
 def _subset(run: GroupRun, keep: list) -> GroupRun:
