@@ -64,6 +64,7 @@ class GroupRun:
         self.choices = list(choices) if choices is not None else [None] * len(self.indices)
         self._outputs: dict = {}
         self._params: dict = {}
+        self._fixed: dict = {}  # numbers of the variants the windows share (:meth:`peaks`)
         self._C = np.ascontiguousarray(self.models.C.transpose(1, 2, 0))  # (O, n, V)
         self._D = np.ascontiguousarray(self.models.D.transpose(1, 2, 0))  # (O, m, V)
 
@@ -125,14 +126,19 @@ class GroupRun:
         self._outputs[name] = out
         return out
 
-    def friction_limit(self) -> np.ndarray:
-        """Q_max [N] at every knot of every variant (N+1, V) (:meth:`~belt_drive_ros.core.params.BeltDriveParams.friction_limit`)."""
+    def _belt_speed_ratio(self) -> np.ndarray:
+        """r_2 g [m] per variant (V,): the belt speed per drive speed."""
         ratio = self._params.get("r_2 g")
         if ratio is None:
             ratio = self._params["r_2 g"] = self.param("r_2") * self.param("gear_ratio")
+        return ratio
+
+    def friction_limit(self) -> np.ndarray:
+        """Q_max [N] at every knot of every variant (N+1, V) (:meth:`~belt_drive_ros.core.params.BeltDriveParams.friction_limit`)."""
         return friction_limit_array(
-            self.param("F_0"), ratio, self.param("belt_mass"), self.param("capstan_factor"), self.output("omega_M")
-        )
+            self.param("F_0"), self._belt_speed_ratio(), self.param("belt_mass"), self.param("capstan_factor"),
+            self.output("omega_M"),
+        )  # fmt: skip
 
     def friction_use(self) -> np.ndarray:
         """|Q| / Q_max at every knot of every variant (N+1, V) (:func:`~belt_drive_ros.core.fidelity.friction_use`),
@@ -140,6 +146,39 @@ class GroupRun:
         cached = self._outputs.get(" friction_use")
         if cached is None:
             cached = self._outputs[" friction_use"] = friction_use(self.output("belt_torque"), self.param("r_3"), self.friction_limit())
+        return cached
+
+    def peaks(self) -> dict:
+        """The reductions over this block's knots a campaign needs: ``belt`` max |belt torque| (V,), ``deflection``
+        max |relative deflection| (V,) and ``use`` (peak, its first time) of :meth:`friction_use`
+        (:func:`peak_over_time`). One compiled pass over the states
+        (:func:`~belt_drive_ros.core.kernel_variants.window_peaks`: the same floats as these reductions of the
+        outputs) where those outputs read no input (no row of D); else the outputs' numpy reductions."""
+        cached = self._outputs.get(" peaks")
+        if cached is not None:
+            return cached
+        fixed = self._fixed.get("peaks")
+        if fixed is None:
+            rows = [LINEAR_OUTPUTS.index(name) for name in ("belt_torque", "relative_deflection", "omega_M")]
+            fixed = self._fixed["peaks"] = False if any(np.any(self._D[j]) for j in rows) else (
+                np.ascontiguousarray(self._C[rows]),
+                np.array([[bool(np.any(w)) for w in self._C[j]] for j in rows], dtype=np.int64),
+                np.ascontiguousarray(np.stack([np.ones(len(self)), self.param("F_0"), self.param("belt_mass"),
+                                               self._belt_speed_ratio(), self.param("capstan_factor"),
+                                               self.param("r_3")], axis=1)),
+            )  # fmt: skip
+        if fixed is False:
+            with np.errstate(invalid="ignore"):
+                cached = {"belt": np.max(np.abs(self.output("belt_torque")), axis=0),
+                          "deflection": np.max(np.abs(self.output("relative_deflection")), axis=0),
+                          "use": peak_over_time(self.friction_use(), self.times)}  # fmt: skip
+        else:
+            from ..core.kernel_variants import window_peaks
+
+            out = np.empty((4, len(self)))
+            window_peaks(np.ascontiguousarray(self.times, dtype=np.float64), np.ascontiguousarray(self.states), *fixed, out)
+            cached = {"belt": out[0], "deflection": out[1], "use": (out[2], out[3])}
+        self._outputs[" peaks"] = cached
         return cached
 
     def result(self, v: int) -> SimResult:
@@ -313,13 +352,14 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
     drive, load, T = first.drive, first.load, first.duration
     size = window if reduce is not None else None
     columns = ParamColumns([s.params for _, s in members])  # every model stack of the group is built from these
+    ratios = dict(zip((i for i, _ in members), columns.ratio.tolist()))  # (BeltDriveParams.ratio on the columns)
     if first.model in ("rigid", "flexible"):
         kinds = {i: first.model for i, _ in members}
         linear: dict = {}
     else:  # auto: the rigid estimate of the operating speeds, for all variants at once
         rigid = ModelStack("rigid", [s.params for _, s in members], columns)
         ens = Ensemble(rigid, drive, load, "exact", operating_run_step(T))
-        x0 = np.stack([s.initial_state.vector("rigid", s.params.ratio) for _, s in members])
+        x0 = _initial_states(members, "rigid", ratios)
         block = GroupRun([i for i, _ in members], [s for _, s in members], rigid, "rigid", "exact", None, None, None)
         # as fidelity's rigid estimate: max |omega_M|, max |omega_3|, max |belt torque|; and the belt torque
         # the start needs: the rigid belt torque at t = 0 (fidelity.start_mismatch)
@@ -361,7 +401,7 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
             for i, s in chosen:
                 yield _single(i, s, check_stability, str(exc))
             continue
-        x0 = np.stack([s.initial_state.vector(kind, s.params.ratio) for _, s in chosen])
+        x0 = _initial_states(chosen, kind, ratios)
         block = GroupRun([i for i, _ in chosen], [s for _, s in chosen], models, kind, ens.method, None, None, None)
         found: dict = {}
         capstan = Reductions({"use": "argmax"})
@@ -373,7 +413,7 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
             run = block.window(times, states, ens.inputs)  # the torques only if an output needs them
             with np.errstate(all="ignore"):  # diverged variants (dropped below) give NaN
                 if first.model == "auto":  # the capstan check of each variant's linear run (fidelity.limit_exceedance)
-                    capstan.update({"use": peak_over_time(run.friction_use(), times)})
+                    capstan.update({"use": run.peaks()["use"]})
                 if reduced is not None:
                     reduced.update(reduce[1](run))
         diverged = ens.diverged_errors(found)
@@ -402,6 +442,22 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
             continue
         run.choices = block.choices
         yield run if len(keep) == len(chosen) else _subset(run, keep)
+
+
+def _initial_states(members: list, kind: str, ratios: dict) -> np.ndarray:
+    """(V, n) the initial states of ``members`` ``[(i, scene)]`` on model ``kind``: each the scene's
+    ``initial_state.vector(kind, ratio)`` with ``ratios[i]`` its parameters' ratio i, made once per initial state and
+    ratio (a tolerance sweep's variants share both)."""
+    made: dict = {}
+    rows = []
+    for i, s in members:
+        ratio = ratios[i]
+        key = (id(s.initial_state), ratio)
+        row = made.get(key)
+        if row is None:
+            row = made[key] = s.initial_state.vector(kind, ratio)
+        rows.append(row)
+    return np.stack(rows)
 
 
 def _subset(run: GroupRun, keep: list) -> GroupRun:

@@ -92,15 +92,20 @@ WINDOW_KINDS = {
 def _window(run) -> dict:
     """The linear-run metrics of one window of a :class:`~belt_drive_ros.campaign.ensemble_run.GroupRun` (before :func:`_finish`).
 
-    ``min_slack_force`` from the window's peak |T_b| alone: F_slack = F_0 - (0.5 |T_b|) / r_3
-    (:func:`~belt_drive_ros.core.model.span_forces`) does not increase with |T_b| in floating point too (each
-    rounded operation is monotone, r_3 > 0), so its minimum over the knots is its value at the largest |T_b|, the
-    same float (NaN as ``np.min`` gives it: a NaN torque is the peak); no slack force at every knot.
+    The peaks of |T_b|, |relative deflection| and the friction use from :meth:`GroupRun.peaks` (one compiled pass;
+    the friction use's peak is its value at :func:`~belt_drive_ros.campaign.ensemble_run.peak_over_time`'s first
+    peak, the float ``np.max`` gives: the same maximum, a NaN as the peak either way). ``min_slack_force`` from the
+    window's peak |T_b| alone: F_slack = F_0 - (0.5 |T_b|) / r_3 (:func:`~belt_drive_ros.core.model.span_forces`)
+    does not increase with |T_b| in floating point too (each rounded operation is monotone, r_3 > 0), so its minimum
+    over the knots is its value at the largest |T_b|, the same float (NaN as ``np.min`` gives it: a NaN torque is the
+    peak); no slack force at every knot.
     """
-    belt, omega = run.output("belt_torque"), run.output("omega_M")
-    values = _reduce(belt, omega, None, run.output("relative_deflection"), run.friction_use())
-    peak = values["peak_belt_torque"]
-    values["min_slack_force"] = span_forces(run.param("F_0"), run.param("r_3"), run.param("capstan_ratio"), peak)[1]
+    peaks, omega = run.peaks(), run.output("omega_M")
+    values = {
+        "peak_belt_torque": peaks["belt"], "peak_friction_use": peaks["use"][0], "peak_deflection": peaks["deflection"],
+        "final_speed": omega[-1], "min_speed": np.min(omega, axis=0),
+    }  # fmt: skip
+    values["min_slack_force"] = span_forces(run.param("F_0"), run.param("r_3"), run.param("capstan_ratio"), peaks["belt"])[1]
     return values
 
 
@@ -117,11 +122,10 @@ def summary_values(values: dict) -> dict[str, np.ndarray]:
 
 
 def _reduce(belt, omega, slack_force, deflection, use) -> dict:
-    """The metrics of a linear run (or a window of it), reduced over the time axis 0 (trailing axes: variants);
-    ``slack_force`` None: ``min_slack_force`` None (the caller's, :func:`_window`)."""
+    """The metrics of a linear run, reduced over the time axis 0 (trailing axes: variants)."""
     return {
         "peak_belt_torque": np.max(np.abs(belt), axis=0),
-        "min_slack_force": None if slack_force is None else np.min(slack_force, axis=0),
+        "min_slack_force": np.min(slack_force, axis=0),
         "peak_friction_use": np.max(use, axis=0),
         "peak_deflection": np.max(np.abs(deflection), axis=0),
         "final_speed": omega[-1],

@@ -13,7 +13,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,16 +28,51 @@ FREQUENCY_RATIO_THRESHOLD = 0.1
 START_MISMATCH_THRESHOLD = 0.01
 
 
+class _Deferred:
+    """Text formatted when first read: ``function(*arguments)`` (a module function and plain data, so it pickles),
+    formatted once for every copy of a choice holding it."""
+
+    __slots__ = ("function", "arguments", "text")
+
+    def __init__(self, function, *arguments):
+        self.function, self.arguments, self.text = function, arguments, None
+
+    def __call__(self) -> str:
+        if self.text is None:
+            self.text = self.function(*self.arguments)
+        return self.text
+
+
+class _Text:
+    """A frozen dataclass field whose text is given as it is or as a :class:`_Deferred`, formatted on its first read
+    and kept: a caller that never reads it (a campaign reads only the model) never formats it. The same text either
+    way; ``dataclasses.replace`` reads it, :func:`_replaced` does not."""
+
+    def __set_name__(self, owner, name):
+        self.slot = "_" + name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:  # (no default value for the dataclass field)
+            raise AttributeError(self.slot[1:])
+        text = obj.__dict__[self.slot]
+        if type(text) is _Deferred:
+            text = obj.__dict__[self.slot] = text()
+        return text
+
+    def __set__(self, obj, value):
+        obj.__dict__[self.slot] = value
+
+
 @dataclass(frozen=True)
 class ModelChoice:
     """Outcome of :func:`choose_model`: ``model`` (rigid, flexible or slipping) and ``reason`` (one sentence a person
-    can check); ``belt_frequency`` f_n [Hz]; ``excitations`` ((frequency [Hz], label), ...) at the estimated operating
-    speeds; ``max_ratio`` their largest / f_n [-] (inf: a step change); ``output_rate`` [Hz] outputs are consumed at;
-    ``linear`` the frequency rule's tier; ``limit_ratio`` peak |Q| / Q_max of that linear run [-] and ``limit_time``
-    its time [s] (nan: not checked)."""
+    can check; formatted when first read); ``belt_frequency`` f_n [Hz]; ``excitations`` ((frequency [Hz], label), ...)
+    at the estimated operating speeds; ``max_ratio`` their largest / f_n [-] (inf: a step change); ``output_rate``
+    [Hz] outputs are consumed at; ``linear`` the frequency rule's tier; ``limit_ratio`` peak |Q| / Q_max of that
+    linear run [-] and ``limit_time`` its time [s] (nan: not checked)."""
 
     model: str
-    reason: str
+    reason: str = _Text()  # type: ignore[assignment]  (the descriptor: a str, or a _Deferred formatted on first read)
     belt_frequency: float
     excitations: tuple
     max_ratio: float
@@ -45,6 +80,15 @@ class ModelChoice:
     linear: str = ""
     limit_ratio: float = math.nan
     limit_time: float = math.nan
+
+
+def _replaced(choice: ModelChoice, **changes) -> ModelChoice:
+    """``dataclasses.replace(choice, **changes)`` without reading ``reason`` (a deferred one stays deferred)."""
+    new = object.__new__(ModelChoice)
+    new.__dict__.update(choice.__dict__)
+    for name, value in changes.items():
+        object.__setattr__(new, name, value)  # (the fields' own setting: the reason's through its descriptor)
+    return new
 
 
 def start_mismatch(scene, needed: float | None = None) -> tuple[float, float]:
@@ -75,22 +119,28 @@ def choose_model(
     """
     choice = linear if linear is not None else _linear_choice(scene, speeds, start_torque, survey)
     if choice.linear != choice.model:  # (the frequency rule's own choice names its tier already)
-        choice = replace(choice, linear=choice.model)
+        choice = _replaced(choice, linear=choice.model)
     if not check_slip:
         return choice
     if limit is None:
         time, outputs = (linear_run or (lambda kind: _linear_outputs(scene, kind)))(choice.model)
         limit = limit_exceedance(scene.params, time, outputs)
     ratio, t_peak = limit
-    choice = replace(choice, limit_ratio=ratio, limit_time=t_peak)
+    choice = _replaced(choice, limit_ratio=ratio, limit_time=t_peak)
     if ratio <= 1.0:
         return choice
-    reason = (
+    reason = _Deferred(_slipping_reason, ratio, scene.params.friction_limit(0.0), t_peak, choice)
+    return _replaced(choice, model="slipping", reason=reason)
+
+
+def _slipping_reason(ratio: float, q_max: float, t_peak: float, linear: ModelChoice) -> str:
+    """:func:`choose_model`'s reason past the capstan limit: peak |Q| / Q_max ``ratio``, ``q_max`` Q_max at rest [N],
+    at ``t_peak`` [s] of the run on ``linear``'s model (its reason quoted)."""
+    return (
         f"slipping: peak transmitted force {ratio:.2f} x the capstan limit "
-        f"(Q_max = {scene.params.friction_limit(0.0):.0f} N at rest) at t = {t_peak:.3g} s "
-        f"in the {choice.model} run ({choice.reason})"
+        f"(Q_max = {q_max:.0f} N at rest) at t = {t_peak:.3g} s "
+        f"in the {linear.model} run ({linear.reason})"
     )
-    return replace(choice, model="slipping", reason=reason)
 
 
 def limit_exceedance(params, time, outputs) -> tuple[float, float]:
@@ -139,17 +189,26 @@ def _linear_choice(scene, speeds=None, start_torque=None, survey=None) -> ModelC
             f"the scene starts at its stated deflection, not the quasi-static one)"
         )))
     excitations = tuple(sorted(((float(f), label) for f, label in excitations), reverse=True))
-    f_max, label = excitations[0] if excitations else (0.0, "none")
+    f_max = excitations[0][0] if excitations else 0.0
     ratio = f_max / f_n
-    nyquist = 0.5 * scene.output_rate
-    if math.isinf(f_max):
+    if math.isinf(f_max) or ratio >= FREQUENCY_RATIO_THRESHOLD:
         model = "flexible"
+    else:
+        model = "rigid"
+    reason = _Deferred(_linear_reason, model, f_n, excitations, ratio, 0.5 * scene.output_rate)
+    return ModelChoice(model, reason, f_n, excitations, ratio, scene.output_rate, linear=model)
+
+
+def _linear_reason(model: str, f_n: float, excitations: tuple, ratio: float, nyquist: float) -> str:
+    """The frequency rule's reason for ``model``: belt mode ``f_n`` [Hz], ``excitations`` (highest first), their
+    largest over f_n ``ratio`` [-], the output Nyquist frequency ``nyquist`` [Hz] (:func:`_linear_choice`)."""
+    f_max, label = excitations[0] if excitations else (0.0, "none")
+    if model == "flexible" and math.isinf(f_max):
         reason = f"flexible: {label} excites the belt mode ({f_n:.1f} Hz) at every frequency"
         finite = [(f, lab) for f, lab in excitations if math.isfinite(f)]
         if finite:
             reason += f"; also {finite[0][1]} at {finite[0][0]:.1f} Hz ({finite[0][0] / f_n:.2f} of it)"
-    elif ratio >= FREQUENCY_RATIO_THRESHOLD:
-        model = "flexible"
+    elif model == "flexible":
         reason = (
             f"flexible: {label} at {f_max:.1f} Hz is {ratio:.2f} of the belt mode ({f_n:.1f} Hz), >= {FREQUENCY_RATIO_THRESHOLD:g}: "
             + (
@@ -159,7 +218,6 @@ def _linear_choice(scene, speeds=None, start_torque=None, survey=None) -> ModelC
             )
         )
     else:
-        model = "rigid"
         reason = (
             f"rigid: highest excitation {f_max:.3g} Hz ({label}) is {ratio:.3f} of the belt mode "
             f"({f_n:.1f} Hz), < {FREQUENCY_RATIO_THRESHOLD:g}: the belt stays quasi-static "
@@ -167,4 +225,4 @@ def _linear_choice(scene, speeds=None, start_torque=None, survey=None) -> ModelC
         )
         if f_n > nyquist:
             reason += f"; the belt mode is also above the output Nyquist frequency ({nyquist:.0f} Hz)"
-    return ModelChoice(model, reason, f_n, excitations, ratio, scene.output_rate, linear=model)
+    return reason

@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit
 from numba.core.errors import NumbaPerformanceWarning
 
-from .kernel import HEADER, SECTIONS, _steps
+from .kernel import HEADER, SECTIONS, _friction_force, _steps
 from .kernel_profiles import formula, is_formula, motor_line, polynomial, profile_torque
 from .profile_data import COMPRESSOR, DIVERGED, ENGINE, MOTOR_LINE, OK, POLYNOMIAL
 
@@ -92,6 +92,69 @@ def variant_steps(times, states, j, lo, hi, limit, reals, tables, ints, dp, lp, 
         for k in range(count):
             for e in range(n):
                 states[j + 1 + k, e, v] = out[k, e]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def window_peaks(times, states, weights, columns, limits, out):
+    """Per variant, over the knots ``states`` (K+1, n, V) at ``times`` (K+1,) [s] of a window: the peaks a campaign
+    reduces its linear runs to, in one pass, the same floats as numpy's reductions of the outputs
+    (``campaign.ensemble_run.GroupRun.peaks``).
+
+    ``weights`` (3, n, V): the rows of C of the belt torque T_b [N m], the relative deflection delta [rad] and the
+    speed omega_M [rad/s] per variant; ``columns`` (3, n) int64: 1 for the columns summed (those with a weight not
+    0.0 in some variant), each output the sum of its weighted columns from the left, begun from the first
+    (:func:`~belt_drive_ros.core.ensemble.weighted_columns`; no column: 0.0); ``limits`` (V, 6): per variant
+    ``[1.0, F_0, m', r_2 g, k_c, r_3]``, the row of the capstan limit ``Q_max = max((F_0 - m' v^2) k_c, 0)``,
+    ``v = r_2 g omega_M`` [N] (:func:`~belt_drive_ros.core.kernel._friction_force`), then r_3 [m].
+
+    ``out`` (4, V): max |T_b|, max |delta| (NaN if one is NaN, as ``np.max``), and the friction use ``|Q| / Q_max``,
+    ``Q = T_b / r_3`` (inf where Q_max <= 0: :func:`~belt_drive_ros.core.fidelity.friction_use`) at its first peak
+    (a NaN first, as ``np.argmax``) with that knot's time [s].
+    """
+    # (numpy's error model: a division by a Q_max <= 0 gives inf or NaN, as numpy's does, and is then replaced)
+    count, n, V = states.shape
+    y = np.empty((3, V))  # a knot's outputs, the variants as lanes (vector loops over the contiguous variant axis)
+    peak_b, peak_d, best, at = out[0], out[1], out[2], out[3]
+    nan_b, nan_d = np.zeros(V, dtype=np.bool_), np.zeros(V, dtype=np.bool_)
+    peak_b[:] = -1.0
+    peak_d[:] = -1.0
+    for k in range(count):
+        for o in range(3):
+            started = False
+            for c in range(n):
+                if columns[o, c]:
+                    if started:
+                        for v in range(V):
+                            y[o, v] = y[o, v] + weights[o, c, v] * states[k, c, v]
+                    else:
+                        for v in range(V):
+                            y[o, v] = weights[o, c, v] * states[k, c, v]
+                    started = True
+            if not started:
+                y[o, :] = 0.0
+        t = times[k]
+        for v in range(V):
+            b, d = abs(y[0, v]), abs(y[1, v])
+            nan_b[v] |= b != b
+            peak_b[v] = b if b > peak_b[v] else peak_b[v]
+            nan_d[v] |= d != d
+            peak_d[v] = d if d > peak_d[v] else peak_d[v]
+            q_max = _friction_force(limits[v], y[2, v])  # (1.0 times Q_max: Q_max itself)
+            use = b / limits[v, 5] / q_max
+            use = use if q_max > 0.0 else np.inf
+            was = best[v]
+            first = (k == 0) | ((was == was) & ((use != use) | (use > was)))
+            best[v] = use if first else was
+            at[v] = t if first else at[v]
+    for v in range(V):
+        peak_b[v] = np.nan if nan_b[v] else peak_b[v]
+        peak_d[v] = np.nan if nan_d[v] else peak_d[v]
+
+
+def warm_peaks() -> None:
+    """Compile (or load from the disk cache) :func:`window_peaks` with the one signature campaigns call it with."""
+    window_peaks(np.zeros(1), np.zeros((1, 2, 1)), np.zeros((3, 2, 1)), np.ones((3, 2), dtype=np.int64), np.ones((1, 6)),
+                 np.empty((4, 1)))  # fmt: skip
 
 
 @njit(cache=True, nogil=True)

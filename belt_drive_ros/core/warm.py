@@ -95,9 +95,9 @@ def warm_single(tell=None, told=None) -> None:
 
 def warm_second(wait: bool = False, tell_fd: int | None = None) -> None:
     """``_explicit`` (:func:`warm_explicit`; :data:`EXPLICIT` then written to the descriptor ``tell_fd``),
-    the network slipping tier, the network node's tick and the variant loop; with ``wait`` each of the
+    the network slipping tier, the network node's tick, the variant loop and its window peaks; with ``wait`` each of the
     last two only after its milestone line has been read from stdin (:func:`warm`)."""
-    from . import kernel_loop
+    from . import kernel_loop, kernel_variants
     from .network import slip as network_slip
     from .network import tick as network_tick
 
@@ -110,6 +110,7 @@ def warm_second(wait: bool = False, tell_fd: int | None = None) -> None:
     network_tick.warm()
     _wait(wait, LINEAR)
     kernel_loop.warm_variants()
+    kernel_variants.warm_peaks()
 
 
 def warm_explicit() -> None:

@@ -1,0 +1,77 @@
+"""The ``auto`` model choice's reason is formatted when first read, and is the same text either way.
+
+A campaign reads only each variant's model, so its choices never format a reason; ``simulate``'s report, the sim
+command's model line, the node and the stream read it and get the sentence the rule gives."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import pickle
+
+import pytest
+
+from belt_drive_ros.core import fidelity
+from belt_drive_ros.core.fidelity import choose_model
+from belt_drive_ros.io.scenes import load_scene
+
+
+@pytest.fixture
+def formatted(monkeypatch):
+    """The names of the reasons formatted (the frequency rule's ``_linear_reason``, the capstan limit's
+    ``_slipping_reason``), in order."""
+    calls, call = [], fidelity._Deferred.__call__
+
+    def counted(deferred):
+        if deferred.text is None:
+            calls.append(deferred.function.__name__)
+        return call(deferred)
+
+    monkeypatch.setattr(fidelity._Deferred, "__call__", counted)
+    return calls
+
+
+def test_a_campaign_formats_no_reason(formatted):
+    from belt_drive_ros.campaign.ensemble_run import simulate_many
+
+    base = dataclasses.replace(load_scene("paper"), model="auto", duration=0.5)
+    scenes = [dataclasses.replace(base, params=base.params.replace(k=base.params.k * (1 + 0.01 * i))) for i in range(10)]
+    outcomes = sorted(simulate_many(scenes), key=lambda o: o.index)
+    assert all(o.ensemble and o.result.choice.model == "flexible" for o in outcomes)
+    assert formatted == []
+    # read: the rule's sentence, the one a single run gives
+    assert outcomes[3].result.choice.reason == choose_model(scenes[3]).reason
+    assert outcomes[3].result.choice.reason.startswith("flexible: motor soft start (1/ramp time) at 50.0 Hz")
+    assert formatted == ["_linear_reason", "_linear_reason"]
+
+
+def test_the_reason_is_formatted_once_and_kept_by_copies(formatted):
+    scene = load_scene("e_motor_start")
+    choice = choose_model(scene)
+    twin, kept = copy.copy(choice), pickle.loads(pickle.dumps(choice))
+    assert formatted == []
+    text = choice.reason
+    assert text.startswith("rigid: highest excitation") and "quasi-static deflection reported" in text
+    assert choice.reason is text and twin.reason == text and formatted == ["_linear_reason"]
+    assert kept.reason == text  # (pickled before it was read: formatted from the pickled numbers)
+    assert formatted == ["_linear_reason", "_linear_reason"]
+    # dataclasses.replace reads it; a reason given as text is that text
+    assert dataclasses.replace(choice, limit_ratio=0.5).reason == text
+    said = dataclasses.replace(choice, model="slipping", reason="slipping: said so")
+    assert said.reason == "slipping: said so" and said.model == "slipping" and choice.reason == text
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        choice.reason = "another"  # type: ignore[misc]
+
+
+def test_the_slipping_reason_quotes_the_linear_one(formatted):
+    scene = load_scene("paper")
+    scene = dataclasses.replace(scene, params=scene.params.replace(F_0=scene.params.F_0 * 0.3))
+    linear = choose_model(scene, check_slip=False)
+    choice = choose_model(scene, linear=linear, limit=(1.5, 0.25))
+    assert (choice.model, choice.linear, choice.limit_ratio, choice.limit_time) == ("slipping", "flexible", 1.5, 0.25)
+    assert formatted == []
+    q_max = scene.params.friction_limit(0.0)
+    assert choice.reason == (f"slipping: peak transmitted force 1.50 x the capstan limit (Q_max = {q_max:.0f} N at rest) "
+                             f"at t = 0.25 s in the flexible run ({linear.reason})")  # fmt: skip
+    assert sorted(formatted) == ["_linear_reason", "_slipping_reason"]
+    assert choice == choose_model(scene, linear=linear, limit=(1.5, 0.25))  # equal choices: their texts compared
