@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 import scipy.linalg
@@ -204,16 +203,22 @@ class RigidSurvey:
         x0 = scene.initial_state.vector("rigid", scene.params.ratio)
         return cls(scene.params, scene.drive, scene.load, x0, scene.duration, scene.dt if dt is None else dt)
 
-    @cached_property
+    @property
     def rigid(self) -> RigidBeltModel:
         """The rigid model of the survey's parameters (made once; the probes and the start check read it too)."""
-        return make_model("rigid", self.params)
+        found = self.__dict__.get("_rigid")
+        if found is None:
+            found = self._rigid = make_model("rigid", self.params)
+        return found
 
-    @cached_property
+    @property
     def plant(self):
-        """The rigid model's plant with the survey's torques (:func:`rigid_plant`; the run of a scene on the rigid
-        model steps on it too)."""
-        return rigid_plant(self.rigid, self.drive, self.load)
+        """The rigid model's plant with the survey's torques (:func:`rigid_plant`, made once; the run of a scene on the
+        rigid model steps on it too)."""
+        found = self.__dict__.get("_plant")
+        if found is None:
+            found = self._plant = rigid_plant(self.rigid, self.drive, self.load)
+        return found
 
     @property
     def start_torque(self) -> float:

@@ -15,6 +15,19 @@ import numpy as np
 from .errors import SceneError, plain_number, real, short
 from . import profile_data as D
 
+#: :mod:`~belt_drive_ros.core.kernel_profiles` (numba) once a torque was evaluated (:func:`_kernel_profiles`)
+_KERNEL_PROFILES = None
+
+
+def _kernel_profiles():
+    """The compiled profiles' module, imported at the first torque evaluated (numba only where a run starts), then
+    kept here: a torque evaluation pays no import statement."""
+    global _KERNEL_PROFILES
+    from . import kernel_profiles
+
+    _KERNEL_PROFILES = kernel_profiles
+    return kernel_profiles
+
 _REGISTRY: dict[str, type["TorqueProfile"]] = {}
 
 # ----------------------------------------------------------- plausible ranges
@@ -73,8 +86,7 @@ class TorqueProfile:
     def torque(self, t, angle=0.0, speed=0.0):
         """Torque [N m] at time ``t`` [s], wheel angle [rad], wheel speed [rad/s] (scalars or arrays), evaluated by
         the compiled kernel from :meth:`data` (bitwise the values the time loop computes)."""
-        from . import kernel_profiles as kernel
-
+        kernel = _KERNEL_PROFILES or _kernel_profiles()
         data = self.data()
         if data is None:
             raise NotImplementedError(f"{type(self).__name__}: define encode() or torque()")
