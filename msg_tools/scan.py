@@ -18,6 +18,7 @@ import mmap
 import os
 import stat
 import struct
+import threading
 import warnings
 import zlib
 from array import array
@@ -422,6 +423,20 @@ class Scan:
 
 
 
+_LOCAL = threading.local()  # each thread's zstd decompressor (a one-shot call resets it: reused chunk after chunk)
+
+
+def _zstd_decompressor():
+    """This thread's ``zstandard.ZstdDecompressor`` (made once per thread: an instance is not shared between
+    threads; each ``decompress`` starts a new frame, so one that failed on a damaged chunk reads the next)."""
+    decompressor = getattr(_LOCAL, "zstd", None)
+    if decompressor is None:
+        import zstandard
+
+        decompressor = _LOCAL.zstd = zstandard.ZstdDecompressor()
+    return decompressor
+
+
 def chunk_records(body: Any, at: int, name: str) -> Tuple[Any, str]:
     """The records of the chunk record ``body`` (the bytes after its opcode and length) at byte ``at``,
     decompressed and CRC-checked, and its compression; :class:`_Stop` (or :class:`CorruptBagError`)
@@ -441,7 +456,7 @@ def chunk_records(body: Any, at: int, name: str) -> Tuple[Any, str]:
         import zstandard
 
         try:
-            records = zstandard.ZstdDecompressor().decompress(bytes(payload), max_output_size=uncompressed_size)
+            records = _zstd_decompressor().decompress(payload, max_output_size=uncompressed_size)
         except (zstandard.ZstdError, OverflowError, MemoryError, ValueError) as exc:
             raise _Stop(f"zstd chunk at byte {at} cannot be decompressed ({exc})") from None
     elif compression == "lz4":

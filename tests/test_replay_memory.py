@@ -139,6 +139,35 @@ def test_a_bag_cut_off_or_damaged_is_read_whole(tmp_path):
         scene_with_torque_bag(base, damaged)
 
 
+def test_a_chunk_damaged_where_the_opening_pass_decodes_ahead_is_read_whole(tmp_path):
+    """The pass that opens a bag has the next chunks decoded by a thread of its own: a damaged one there is what
+    one damaged in the pass's own group is (the whole read says what is wrong), the thread ends, the file is shut."""
+    import threading
+
+    bag = tmp_path / "torque.mcap"
+    make_torque_bag(bag, 0.25, chunk_size=16 << 10)
+    chunks, _ = topic_chunks(bag, "/drive_torque")
+    assert len(chunks) > 3 * PASS_CHUNKS
+    base = load_scene(str(SCENE))
+    for k in (PASS_CHUNKS + 1, 2 * PASS_CHUNKS + 3, len(chunks) - 1):  # each decoded ahead of the pass
+        at, length = chunks._offsets[k]
+        data = bytearray(bag.read_bytes())
+        data[at + length // 2 : at + length // 2 + 64] = bytes(64)
+        damaged = tmp_path / f"damaged{k}.mcap"
+        damaged.write_bytes(bytes(data))
+        assert paged_torque_bag(base, damaged) is None, k
+        with pytest.raises(BagReadError, match=damaged.name):
+            scene_with_torque_bag(base, damaged)
+    chunks.close()
+    assert not [t for t in threading.enumerate() if t.name.startswith("bag-pass")]
+    paged, whole = paged_torque_bag(base, bag), scene_with_torque_bag(base, bag)
+    assert paged.drive.samples == whole.drive.times.size and paged.drive.sha256 == whole.drive.sha256
+    assert paged.drive.read_cpu > 0.0  # every chunk's decoding counted, in whichever thread
+    page = paged.drive.page(3.0, 9.0)
+    keep = (whole.drive.times >= page.times[0]) & (whole.drive.times <= page.times[-1])
+    assert np.array_equal(page.times, whole.drive.times[keep]) and np.array_equal(page.values, whole.drive.values[keep])
+
+
 #: the long bag [min]: the peak of a run with its guard and writer threads beside it varies by ~+-0.7 MB from run
 #: to run (per extra sample -4 to 16 B over 45,000 samples with a 1-minute bag, the same code): 2 minutes put
 #: 105,000 samples under that noise, while the whole-read design's ~58 B a sample stays far above the bound

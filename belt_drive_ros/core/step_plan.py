@@ -53,7 +53,7 @@ def snap_tolerance(t: float, dt: float) -> float:
 
 def _reduced(keys: np.ndarray, values: np.ndarray, ufunc) -> tuple[np.ndarray, np.ndarray]:
     """(distinct ``keys`` (sorted), ``ufunc`` (np.maximum, np.minimum) of the ``values`` of each)."""
-    if keys.size == 0:
+    if keys.size == 0 or not np.any(keys[1:] <= keys[:-1]):  # (all distinct, ascending: each its own value)
         return keys, values
     if np.any(keys[1:] < keys[:-1]):
         order = np.argsort(keys, kind="stable")
@@ -237,24 +237,58 @@ class StepPlanner:
     def _classified(self, bps: np.ndarray, t0: float, t1: float, start: float, end: float, first: int, last: int) -> tuple:
         """:meth:`_clamps` of many breakpoints, all at once with numpy (a torque recorded at the step rate has one on
         every knot): the clamps as sorted sets when a few lie among many steps (memory of the breakpoints' size),
-        else through arrays by cell."""
+        else through arrays by cell.
+
+        ``bps`` is sorted, so the rules' tests run where they can hold: those within a tolerance of the start (and
+        ``t0``) on a few first breakpoints, of the end (and ``t1``) on a few last ones (each tolerance is at most
+        ``wide``: twice it bounds every candidate), the knots on those strictly between ``start`` and ``end``; and
+        the knots, ascending with the breakpoints, are cut into the steps' sides by two searches. The same floats
+        as each test made on every breakpoint."""
         dt, origin = self.dt, self.origin
-        tol_b = np.maximum(GRID_TOLERANCE * dt, 8.0 * np.spacing(np.abs(bps)))  # snap_tolerance of each
+        n = bps.size
         tol0, tol1 = snap_tolerance(start, dt), snap_tolerance(end, dt)
-        at_start = (np.abs(bps - start) <= np.maximum(tol0, tol_b)) | (np.abs(bps - t0) <= tol0)
-        at_end = ~at_start & ((np.abs(bps - end) <= np.maximum(tol1, tol_b)) | (np.abs(bps - t1) <= tol1))
-        inside = ~at_start & ~at_end & (bps > start) & (bps < end)
+        wide = max(GRID_TOLERANCE * dt, 8.0 * math.ulp(max(abs(float(bps[0])), abs(float(bps[-1])))))  # >= each tol_b
+
+        def near(a: float, b: float, tol: float) -> tuple[int, np.ndarray]:
+            """(index of the first, its breakpoints) of those that may lie within a tolerance of ``a`` or ``b``."""
+            w = 2.0 * max(tol, wide)
+            i, j = int(bps.searchsorted(min(a, b) - w, "left")), int(bps.searchsorted(max(a, b) + w, "right"))
+            return i, bps[i:j]
+
+        def tol_of(b: np.ndarray) -> np.ndarray:  # snap_tolerance of each
+            return np.maximum(GRID_TOLERANCE * dt, 8.0 * np.spacing(np.abs(b)))
+
+        i0, s = near(start, t0, tol0)
+        at_start = np.zeros(n, dtype=bool)
+        at_start[i0 : i0 + s.size] = (np.abs(s - start) <= np.maximum(tol0, tol_of(s))) | (np.abs(s - t0) <= tol0)
+        i1, e = near(end, t1, tol1)
+        at_end = np.zeros(n, dtype=bool)
+        at_end[i1 : i1 + e.size] = ~at_start[i1 : i1 + e.size] & (
+            (np.abs(e - end) <= np.maximum(tol1, tol_of(e))) | (np.abs(e - t1) <= tol1))
+        # strictly between start and end (sorted: one range), neither at the start nor at the end
+        a, b_ = int(bps.searchsorted(start, "right")), int(bps.searchsorted(end, "left"))
+        inside = np.zeros(n, dtype=bool)
+        inside[a:b_] = True
+        inside &= ~at_start
+        inside &= ~at_end
         kf = np.rint((bps - origin) / dt)  # _snap: round half to even
-        on = inside & (np.abs(origin + kf * dt - bps) <= tol_b)
+        miss = np.abs(origin + kf * dt - bps)
+        on = miss <= GRID_TOLERANCE * dt  # on the grid within every tolerance; the rest against their own
+        rest = np.flatnonzero(~on)
+        if rest.size:
+            on[rest] = miss[rest] <= tol_of(bps[rest])
+        on &= inside
         k, b = kf[on].astype(np.int64), bps[on]
-        lo_side, hi_side = k <= last, k - 1 >= first
+        # k ascends with the breakpoints: the steps from a knot (k <= last) a prefix, those up to one (k - 1 >= first)
+        # a suffix
+        n_lo, n_hi = int(k.searchsorted(last, "right")), int(k.searchsorted(first + 1, "left"))
         b_end = bps[at_end]
-        left = self.plant.left_of_array(np.concatenate([b[hi_side], b_end]))
+        left = self.plant.left_of_array(np.concatenate([b[n_hi:], b_end]))
         # the step starting at a knot (or the first step) samples from its latest breakpoint ...
-        kl, vl = _reduced(np.concatenate([np.full(int(np.count_nonzero(at_start)), first, dtype=np.int64), k[lo_side]]),
-                          np.concatenate([bps[at_start], b[lo_side]]), np.maximum)  # fmt: skip
+        kl, vl = _reduced(np.concatenate([np.full(int(np.count_nonzero(at_start)), first, dtype=np.int64), k[:n_lo]]),
+                          np.concatenate([bps[at_start], b[:n_lo]]), np.maximum)  # fmt: skip
         # ... the one ending there (or the last step) up to the first one's left limit
-        kh, vh = _reduced(np.concatenate([k[hi_side] - 1, np.full(b_end.size, last, dtype=np.int64)]), left, np.minimum)
+        kh, vh = _reduced(np.concatenate([k[n_hi:] - 1, np.full(b_end.size, last, dtype=np.int64)]), left, np.minimum)
         if kl.size + kh.size == 0:
             clamps = _NO_CLAMPS
         elif 4 * (kl.size + kh.size) < last - first + 1:  # a few among many steps: sorted sets

@@ -18,6 +18,16 @@ from .bag_layout import JOINT_NAMES, JOINT_STATE, STRING, TF_MESSAGE
 _F64_HEADER = b"\x00\x01\x00\x00"
 
 
+def stamp_words(stamp_ns: np.ndarray) -> np.ndarray:
+    """``builtin_interfaces/Time`` of each time ``stamp_ns`` [ns] as one little-endian ``uint64`` whose bytes are the
+    CDR of the stamp (``sec`` int32, then ``nanosec`` uint32): a message's stamp is then one 8-byte field to write,
+    not two (the same bytes as writing ``sec`` and ``nanosec`` apart)."""
+    sec, nanosec = np.divmod(np.asarray(stamp_ns, dtype=np.int64), 1_000_000_000)
+    words = np.empty(sec.size, dtype=[("sec", "<i4"), ("nanosec", "<u4")])
+    words["sec"], words["nanosec"] = sec, nanosec
+    return words.view("<u8")
+
+
 def float64_messages(values: np.ndarray):
     """CDR of ``std_msgs/Float64`` for each value (header ``00 01 00 00`` little endian, then the IEEE
     double) as :class:`msg_tools.block_writer.FixedMessages`."""
@@ -165,15 +175,15 @@ class TfEncoder:
         stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
         angles = np.asarray(angles, dtype=float).reshape(stamp_ns.size, len(self._stamps))
         fields, values = {}, {}
-        sec, nsec = np.divmod(stamp_ns, 1_000_000_000)
+        stamps = stamp_words(stamp_ns)  # (every transform carries the tick's stamp: one array for all)
         for k, (stamp, rotation, sign) in enumerate(zip(self._stamps, self._rotations, self._sign_list)):
             # (z, w) of wheel k as :meth:`quaternions` gives them (the same floats), one (n, 2) array per wheel
             q = np.empty((stamp_ns.size, 2))
             half = np.multiply(angles[:, k], 0.5, out=q[:, 1])
             np.multiply(np.sin(half), sign, out=q[:, 0])
             np.cos(half, out=q[:, 1])
-            fields.update({f"sec{k}": ("<i4", stamp), f"nsec{k}": ("<u4", stamp + 4), f"q{k}": (("<f8", 2), rotation)})
-            values.update({f"sec{k}": sec, f"nsec{k}": nsec, f"q{k}": q})
+            fields.update({f"stamp{k}": ("<u8", stamp), f"q{k}": (("<f8", 2), rotation)})
+            values.update({f"stamp{k}": stamps, f"q{k}": q})
         return FixedMessages(self._template, fields, values)
 
     def rows(self, stamp_ns: np.ndarray, angles: np.ndarray) -> np.ndarray:
@@ -247,10 +257,9 @@ def joint_state_messages(stamp_ns: np.ndarray, position: np.ndarray, velocity: n
     stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
     n, joints = len(stamp_ns), len(names)
     template, offsets = _joint_state_layout(names, frame_id)
-    sec, nanosec = np.divmod(stamp_ns, 1_000_000_000)
-    return FixedMessages(template, {"sec": ("<i4", 4), "nanosec": ("<u4", 8), "position": (("<f8", joints), offsets[0]),
+    return FixedMessages(template, {"stamp": ("<u8", 4), "position": (("<f8", joints), offsets[0]),
                                     "velocity": (("<f8", joints), offsets[1]), "effort": (("<f8", joints), offsets[2])},
-                         {"sec": sec, "nanosec": nanosec,
+                         {"stamp": stamp_words(stamp_ns),
                           **{name: np.asarray(values, dtype=float).reshape(n, joints)
                              for name, values in (("position", position), ("velocity", velocity), ("effort", effort))}})
 

@@ -382,15 +382,16 @@ class ResultMcapWriter:
         t_ns = np.round(np.asarray(result.time, dtype=float)[index] * 1e9).astype(np.int64) + self.start_time_ns
         o = {name: np.asarray(values)[index] for name, values in result.outputs.items()}
         payloads: list = []  # the messages of each topic (msg_tools.block_writer.FixedMessages)
+        phi = None  # the joint angles (n, 4) [rad]: joint_states' positions and /tf's rotations (read only)
         for topic, type_name, signal in self.payload_topics:
             if signal is None:
                 zeros = np.zeros(count)
-                position = np.column_stack([o["phi_M"], o["phi_1"], o["phi_2"], o["phi_3"]])
+                phi = np.column_stack([o["phi_M"], o["phi_1"], o["phi_2"], o["phi_3"]]) if phi is None else phi
                 velocity = np.column_stack([o["omega_M"], o["omega_1"], o["omega_2"], o["omega_3"]])
                 effort = np.column_stack([o["drive_torque"], zeros, zeros, -o["load_torque"]])
-                payloads.append(joint_state_messages(t_ns, position, velocity, effort))
+                payloads.append(joint_state_messages(t_ns, phi, velocity, effort))
             elif signal == TF_TOPIC:
-                phi = np.column_stack([o["phi_M"], o["phi_1"], o["phi_2"], o["phi_3"]])
+                phi = np.column_stack([o["phi_M"], o["phi_1"], o["phi_2"], o["phi_3"]]) if phi is None else phi
                 payloads.append(self._tf.messages(t_ns, phi))
             else:
                 payloads.append(float64_messages(np.asarray(o[signal], dtype=float)))

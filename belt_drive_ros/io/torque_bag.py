@@ -40,6 +40,7 @@ import os
 import threading
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Dict, List, Optional, Tuple
 
@@ -361,6 +362,7 @@ class PagedTorque(TorqueProfile):
         self._lock = threading.Lock()
         #: CPU time [s] spent decoding chunks, every thread's (the figure ``bench replay`` reports)
         self.read_cpu = 0.0
+        self._ahead: Optional[dict] = None  # the opening pass's chunks decoded beside it (:meth:`_chunk`)
 
     def _mine(self):
         """This thread's ``last`` page and chunk ``cache`` (made on first use)."""
@@ -401,19 +403,27 @@ class PagedTorque(TorqueProfile):
         return (np.concatenate([p[0] for p in parts]) - self.start_ns if len(parts) > 1 else parts[0][0] - self.start_ns,
                 np.concatenate([p[1] for p in parts]) if len(parts) > 1 else parts[0][1])
 
+    def _decoded(self, k: int) -> Tuple[np.ndarray, np.ndarray]:
+        """Log times [ns] and values of chunk ``k`` read from the file (its CPU time counted in :attr:`read_cpu`)."""
+        start = time.thread_time()
+        try:
+            return self._chunked.float64(k)
+        finally:
+            with self._lock:
+                self.read_cpu += time.thread_time() - start
+
     def _chunk(self, k: int) -> Tuple[np.ndarray, np.ndarray]:
         """Log times [ns] and values of chunk ``k``; the last :data:`CACHED_CHUNKS` are kept (consecutive
-        pages share the chunk at their seam)."""
+        pages share the chunk at their seam). The pass that opens the bag has the next chunks decoded beside it
+        (``_ahead``: {chunk index: future}; one not started yet is decoded here)."""
         cache = self._mine().cache
         got = cache.pop(k, None)
         if got is None:
-            start = time.thread_time()
+            ahead = self._ahead.pop(k, None) if self._ahead else None
             try:
-                got = self._chunked.float64(k)
+                got = ahead.result() if ahead is not None and not ahead.cancel() else self._decoded(k)
             except MsgToolsError as exc:  # (the pass that opened the bag read every chunk)
                 raise bag_error(exc) from None
-            with self._lock:
-                self.read_cpu += time.thread_time() - start
             if len(cache) >= CACHED_CHUNKS:
                 del cache[next(iter(cache))]
         cache[k] = got
@@ -515,36 +525,48 @@ def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Option
             raise LookupError
         drive = PagedTorque(chunked, int(np.min(first)), 0, False, math.inf, bag, os.path.basename(os.fspath(bag)),
                             chunked.topic, "")
-        # one pass: what the whole read checks (finite values) and knows (samples, last time, steps, spacing)
-        samples, changes, gap, last_t, last_v, silence = 0, False, math.inf, None, None, (0.0, 0.0)
-        for k in range(0, len(chunked), PASS_CHUNKS):
-            rel, raw = drive._decode(k, min(len(chunked), k + PASS_CHUNKS))
-            if not np.all(np.abs(raw) <= TORQUE_MAX):  # (non-finite too: the whole read names what is wrong)
-                raise LookupError
-            times, values = _zoh_table_relative(rel, raw)
-            if last_t is not None:  # a widened read repeats what the last one took
-                keep = times > last_t
-                times, values = times[keep], values[keep]
-            if not times.size:
-                continue
-            if last_t is not None:
-                gap = min(gap, float(times[0] - last_t))
-                changes = changes or bool(values[0] != last_v)
-                silence = max(silence, (float(times[0] - last_t), last_t), key=lambda g: g[0])
-            if times.size > 1:
-                spacing = np.diff(times)
-                gap = min(gap, float(np.min(spacing)))
-                j = int(np.argmax(spacing))
-                silence = max(silence, (float(spacing[j]), float(times[j])), key=lambda g: g[0])
-                changes = changes or bool(np.any(values[1:] != values[:-1]))
-            samples += times.size
-            last_t, last_v = float(times[-1]), float(values[-1])
+        # one pass: what the whole read checks (finite values) and knows (samples, last time, steps, spacing). A
+        # thread of its own hashes the file, then decodes the next chunks while this one takes the current ones (zstd,
+        # the CRC and the hash release the GIL): the same arrays, in the same order, on both cores
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="bag-pass")
+        digest = pool.submit(_sha256, bag)
+        drive._ahead = {}
+        try:
+            samples, changes, gap, last_t, last_v, silence = 0, False, math.inf, None, None, (0.0, 0.0)
+            for k in range(0, len(chunked), PASS_CHUNKS):
+                for a in range(k + PASS_CHUNKS, min(len(chunked), k + 2 * PASS_CHUNKS)):  # (at most two groups decoded)
+                    if a not in drive._ahead:
+                        drive._ahead[a] = pool.submit(drive._decoded, a)
+                rel, raw = drive._decode(k, min(len(chunked), k + PASS_CHUNKS))
+                if not np.all(np.abs(raw) <= TORQUE_MAX):  # (non-finite too: the whole read names what is wrong)
+                    raise LookupError
+                times, values = _zoh_table_relative(rel, raw)
+                if last_t is not None:  # a widened read repeats what the last one took
+                    keep = times > last_t
+                    times, values = times[keep], values[keep]
+                if not times.size:
+                    continue
+                if last_t is not None:
+                    gap = min(gap, float(times[0] - last_t))
+                    changes = changes or bool(values[0] != last_v)
+                    silence = max(silence, (float(times[0] - last_t), last_t), key=lambda g: g[0])
+                if times.size > 1:
+                    spacing = np.diff(times)
+                    gap = min(gap, float(np.min(spacing)))
+                    j = int(np.argmax(spacing))
+                    silence = max(silence, (float(spacing[j]), float(times[j])), key=lambda g: g[0])
+                    changes = changes or bool(np.any(values[1:] != values[:-1]))
+                samples += times.size
+                last_t, last_v = float(times[-1]), float(values[-1])
+            drive.sha256 = digest.result()
+        finally:  # (before the file can be closed below)
+            drive._ahead = None
+            pool.shutdown(wait=True, cancel_futures=True)
     except (LookupError, MsgToolsError, BeltDriveError):  # the whole read says what is wrong in its own words
         chunked.close()
         return None
     drive.samples, drive._changes, drive._min_gap = samples, changes, gap
     drive.longest_silence = silence
-    drive.sha256 = _sha256(bag)
     end_s = last_t
     if duration is None:
         duration = end_s if samples > 1 else scene.duration
