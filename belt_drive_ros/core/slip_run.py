@@ -233,9 +233,8 @@ class SlippingSimulator:
         if not self._share:
             return build()
         k = (key, self.method, self.dt, repr(sorted(self.method_options.items())), threading.get_ident())
-        if k not in self._shared:
-            self._shared[k] = build()
-        return self._shared[k]
+        value = self._shared.pop(k, None)  # (put back last: the most recently used, see _kept)
+        return _kept(self._shared, k, build() if value is None else value, value is None)
 
     def slip_phases(self) -> None:
         """Build every slip phase's stepper now, so the hybrid loop packs them at once (not one by one as the run
@@ -594,15 +593,30 @@ def rerun_simulator(params, drive, load, method: str, dt: float, method_options=
     plant = shared_plant(make_model("flexible", params), drive, load)
     shared = _shared_phases(params, drive, load, plant)
     key = ("rerun", method, float(dt), repr(sorted(dict(method_options or {}).items())), threading.get_ident())
-    sim = shared.get(key)
+    sim = shared.pop(key, None)  # (put back last: the most recently used, see _kept)
     if sim is None:
         sim = SlippingSimulator(params, drive, load, method, dt, method_options, check_stability=False, lazy=True)
-        if is_shared(plant):
-            shared[key] = sim
-    else:
-        for st in sim._steppers.values():
-            st.origin, st.breakpoints = 0.0, sim.plant.breakpoints
-    return sim
+        return _kept(shared, key, sim, True) if is_shared(plant) else sim
+    for st in sim._steppers.values():
+        st.origin, st.breakpoints = 0.0, sim.plant.breakpoints
+    return _kept(shared, key, sim, False)
+
+
+#: per-step entries (keys of 5 items: a lazy simulator's steppers and packed loops, the rerun's simulators) one
+#: scene's :func:`_shared_phases` keeps: the least recently used beyond these are dropped (a study of one scene over
+#: many steps adds ~4 a step, ~250 kB; a step used again builds its own anew: the same numbers)
+_STEP_ENTRIES = 96
+
+
+def _kept(shared: dict, key: tuple, value, new: bool):
+    """``value``, kept as ``shared[key]`` (a per-step entry, taken out by the caller: it goes back last); when
+    ``new``, the least recently used per-step entries beyond :data:`_STEP_ENTRIES` are dropped."""
+    shared[key] = value
+    if new:
+        steps = [k for k in list(shared) if type(k) is tuple and len(k) == 5]  # (in use order, oldest first)
+        for k in steps[: max(0, len(steps) - _STEP_ENTRIES)]:
+            shared.pop(k, None)  # (another thread may drop the same one meanwhile)
+    return value
 
 
 def _scene_parts(params, plant) -> dict:
