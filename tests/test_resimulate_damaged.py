@@ -19,6 +19,7 @@ single bytes the same way.
 
 from __future__ import annotations
 
+import errno
 import struct
 import warnings
 
@@ -133,3 +134,21 @@ def test_the_sim_command_refuses_a_damaged_recording_in_one_line(recording, tmp_
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(err) == 1 and str(path) in err[0] and "damaged or incomplete" in err[0], err
     assert not (tmp_path / "re.mcap").exists()
+
+
+def test_a_failed_disk_read_is_a_read_error_naming_the_file(recording, tmp_path, monkeypatch):
+    """An I/O error while the messages are read (the disk, not the file's bytes) was reported as a failed write
+    (``BagWriteError``, the message without the file's name): it is a read error naming the file."""
+    import belt_drive_ros.io.torque_bag as torque_bag
+
+    path = tmp_path / "rec.mcap"
+    path.write_bytes(recording)
+
+    def failing(file):
+        raise OSError(errno.EIO, "Input/output error")
+        yield  # (a generator, as the reader is)
+
+    monkeypatch.setattr(torque_bag, "_messages_of_whole", failing)
+    with pytest.raises(BagReadError) as info:
+        _resimulate(path)
+    assert "Input/output error" in _refusal(info.value, path)

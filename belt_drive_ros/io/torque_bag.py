@@ -839,6 +839,7 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
         drive_topic = APPLIED_TOPIC
     written = {name.strip("/") for name in computed} | {drive_topic}
     channels: Dict[str, list] = {}
+    file = path
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RecoveredBagWarning)
         try:
@@ -856,7 +857,9 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
                             channel.topic, type_name, channel.metadata.get("offered_qos_profiles", ""),
                             channel.metadata.get("topic_type_hash") or None, []]
                     entry[4].append((int(message.log_time), bytes(message.data)))
-        except (MsgToolsError, OSError) as exc:
+        except MsgToolsError as exc:
             raise bag_error(exc) from None
+        except OSError as exc:  # the disk failed a read (EIO, a file gone): the input, not a write
+            raise BagReadError(f"{file}: cannot read it ({exc.strerror or exc}); nothing written") from None
     return Resimulation(scene, start, output_rate, namespace, drive_topic,
                         [tuple(entry) for entry in channels.values()])
