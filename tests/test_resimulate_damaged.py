@@ -27,7 +27,7 @@ import pytest
 
 from belt_drive_ros.cli import main
 from belt_drive_ros.io.recording import BagReadError
-from belt_drive_ros.io.torque_bag import resimulation
+from belt_drive_ros.io.resimulate import resimulation
 
 MAGIC = 8  # bytes of the MCAP magic at either end
 FOOTER = 0x02
@@ -139,7 +139,7 @@ def test_the_sim_command_refuses_a_damaged_recording_in_one_line(recording, tmp_
 def test_a_failed_disk_read_is_a_read_error_naming_the_file(recording, tmp_path, monkeypatch):
     """An I/O error while the messages are read (the disk, not the file's bytes) was reported as a failed write
     (``BagWriteError``, the message without the file's name): it is a read error naming the file."""
-    import belt_drive_ros.io.torque_bag as torque_bag
+    import belt_drive_ros.io.resimulate as resimulate
 
     path = tmp_path / "rec.mcap"
     path.write_bytes(recording)
@@ -148,7 +148,7 @@ def test_a_failed_disk_read_is_a_read_error_naming_the_file(recording, tmp_path,
         raise OSError(errno.EIO, "Input/output error")
         yield  # (a generator, as the reader is)
 
-    monkeypatch.setattr(torque_bag, "_messages_of_whole", failing)
+    monkeypatch.setattr(resimulate, "_messages_of_whole", failing)
     with pytest.raises(BagReadError) as info:
         _resimulate(path)
     assert "Input/output error" in _refusal(info.value, path)

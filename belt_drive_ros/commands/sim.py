@@ -144,7 +144,8 @@ def run(args) -> int:
     if args.method_option:
         scene = scene.with_overrides(method_options=_options(args.method_option))
     if args.torque_bag is not None and not is_recording(args.scene):  # (a recording's: read by _resimulation)
-        from ..io.torque_bag import silence_note, torque_bag_scene, torque_topic  # offline replay of a recorded profile
+        from ..io.resimulate import torque_topic
+        from ..io.torque_bag import silence_note, torque_bag_scene  # offline replay of a recorded profile
 
         topic, note = torque_topic(args.torque_bag)  # a node recording: the torque it applied
         if note:
@@ -197,7 +198,7 @@ def _resimulation(args):
     """The scene of the recording ``args.scene``; ``args.writer_options`` make ``--out`` comparable with it
     (same start time, one sample per tick, the recorded inputs passed through)."""
     from ..io.recording import FLOAT_OUTPUTS, ROBOT_DESCRIPTION, SLIP_FLOAT_OUTPUTS, TF_TOPIC
-    from ..io.torque_bag import resimulation
+    from ..io.resimulate import resimulation
 
     computed = (ROBOT_DESCRIPTION, "joint_states", TF_TOPIC) + tuple(n for n, _ in FLOAT_OUTPUTS + SLIP_FLOAT_OUTPUTS)
     resim = resimulation(args.scene, computed=computed, torque_bag=args.torque_bag)

@@ -201,7 +201,7 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
     passthrough : sequence of tuple
         Recorded topics copied as they are, ``(topic, type, offered QoS YAML,
         type hash, [(log time [ns], CDR bytes)])``, written in time order
-        between the samples (:func:`~belt_drive_ros.io.torque_bag.resimulation`).
+        between the samples (:func:`~belt_drive_ros.io.resimulate.resimulation`).
 
     Returns
     -------

@@ -1,0 +1,176 @@
+"""Re-simulating a recording from the command line (``belt-drive sim RECORDING --out re.mcap``).
+
+:func:`resimulation` gathers what the command needs to write a file comparable with the recording: the
+recording's own scene (:func:`~belt_drive_ros.io.torque_bag.scene_from_bag`), the time of its first sample, a
+node recording's output rate, and every recorded topic the run does not compute, to be passed through as
+recorded. It needs the whole recording: a file cut off or damaged is refused in one line naming it, before
+its scene is rebuilt (:func:`_check_whole`), and the messages are read with every chunk's CRC checked
+(:func:`_messages_of_whole`). :func:`torque_topic` says which topic ``--torque-bag`` reads from a bag.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import Any, Dict, List, Optional, Tuple
+
+from msg_tools.errors import MsgToolsError, RecoveredBagWarning
+
+from .recording import APPLIED_TOPIC, BagReadError, bag_error
+from .torque_bag import DEFAULT_TOPIC, RecordedTorque, _read_metadata, scene_from_bag
+
+__all__ = ["Resimulation", "resimulation", "torque_topic"]
+
+
+def torque_topic(bag) -> Tuple[str, str]:
+    """The torque topic ``--torque-bag`` reads from ``bag``, and a line saying why.
+
+    A node recording holds ``drive_torque`` as received (a NaN the node
+    rejected included) and ``drive_torque_applied``, the torque the node
+    applied at each tick: the latter, when present, is what re-simulates
+    the run. Otherwise ``/drive_torque`` (any namespace).
+    """
+    from msg_tools import bag_files, summary
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RecoveredBagWarning)
+        try:
+            topics = [t.topic for t in summary(bag_files(bag)[-1], verify=False).topics]
+        except MsgToolsError as exc:
+            raise bag_error(exc) from None
+    applied = [t for t in topics if t.rsplit("/", 1)[-1] == APPLIED_TOPIC]
+    if len(applied) == 1:
+        return applied[0], (f"torque from {applied[0]} (the torque the node applied at each tick; "
+                            f"{DEFAULT_TOPIC} holds what it received)")
+    return DEFAULT_TOPIC, ""
+
+
+def _damaged(file, why: str) -> BagReadError:
+    """The one-line refusal to re-simulate ``file``, a recording that is not whole, saying ``why``."""
+    return BagReadError(f"{file}: cannot re-simulate a damaged or incomplete recording ({why}); "
+                        f"'msg-tools info {file}' says what is missing")
+
+
+def _check_whole(file) -> None:
+    """Refuse ``file`` unless it is a whole MCAP file (its end written, no damage its summary section shows).
+
+    Re-simulation passes every recorded topic through to the new file, so it
+    needs all of them: a recording cut off mid-write (a killed writer, a
+    truncated copy) reads only up to the cut, which :func:`scene_from_bag`
+    tolerates (its scene and torque come first) but a pass-through must not.
+    A RECOVERED file (damaged before its end, every chunk read through the
+    summary's chunk index) is whole and passes.
+    """
+    from msg_tools import summary
+
+    info = summary(file, verify=False)
+    if not info.complete or info.damage:
+        raise _damaged(file, info.stop_reason or "; ".join(info.damage))
+
+
+def _messages_of_whole(file):
+    """``(schema, channel, message)`` of ``file`` in log-time order, via the mcap library's reader.
+
+    The reader trusts the file's summary section: bytes damaged inside a
+    file whose end is intact can surface as any error of its parsing (a
+    record length past the end, text that is not UTF-8, a seek before the
+    start, a chunk that does not decompress). Each is the one-line
+    :func:`_damaged` refusal naming the file; an error of the disk itself
+    (``EIO``, permissions) stays what it is.
+    """
+    import errno
+
+    from mcap.reader import make_reader
+
+    with open(file, "rb") as f:
+        records = make_reader(f, validate_crcs=True).iter_messages(log_time_order=True)
+        while True:
+            try:
+                item = next(records)
+            except StopIteration:
+                return
+            except OSError as exc:
+                if exc.errno != errno.EINVAL:
+                    raise
+                raise _damaged(file, f"a seek outside the file: {exc}") from None
+            except Exception as exc:  # noqa: BLE001 - only the reader's parsing of the file's bytes is in here
+                first = str(exc).splitlines()[0] if str(exc) else ""
+                raise _damaged(file, f"{type(exc).__name__}: {first}"[:200]) from None
+            yield item
+
+
+@dataclass
+class Resimulation:
+    """What ``belt-drive sim RECORDING --out re.mcap`` needs to write a file comparable with the recording.
+
+    ``scene``: the recording's own (:func:`scene_from_bag`); ``start_time_ns``:
+    the time of its first sample (scene time 0); ``output_rate`` [Hz]: one
+    sample per tick of a node recording (None: the scene's); ``namespace``:
+    its topics'; ``drive_topic``: where the run's drive torque goes
+    (``drive_torque_applied`` for a node recording, whose ``drive_torque`` is
+    the raw input); ``passthrough``: the recorded topics the run does not
+    compute (the raw ``drive_torque``, ``/clock``, ``/diagnostics``), copied
+    as recorded: ``(topic, type, offered QoS YAML, type hash, [(log time, CDR)])``.
+    """
+
+    scene: Any
+    start_time_ns: Optional[int]
+    output_rate: Optional[float]
+    namespace: str
+    drive_topic: str
+    passthrough: List[tuple]
+
+
+def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
+    """The :class:`Resimulation` of the recording ``path`` (file or bag folder).
+
+    ``computed``: topic names (relative) the re-simulation writes itself; every
+    other topic of the recording is passed through. Types msg_tools has no
+    definition of are left out. ``torque_bag``: as :func:`scene_from_bag`'s.
+    """
+    from msg_tools import bag_files, schemas
+
+    with warnings.catch_warnings():  # a cut recording is refused first, before its scene is rebuilt
+        warnings.simplefilter("ignore", RecoveredBagWarning)
+        try:
+            files = bag_files(path)
+            for file in files:
+                _check_whole(file)
+        except MsgToolsError as exc:
+            raise bag_error(exc) from None
+    scene = scene_from_bag(path, torque_bag=torque_bag)
+    record, _ = _read_metadata(path)
+    drive = scene.drive
+    start = int(drive.start_ns) if isinstance(drive, RecordedTorque) and drive.start_ns is not None else None
+    tick_ns = record.get("tick_ns", "")
+    output_rate = 1e9 / float(tick_ns) if tick_ns.strip().isdigit() and int(tick_ns) > 0 else None
+    namespace, drive_topic = "/", "drive_torque"
+    if isinstance(drive, RecordedTorque) and drive.topic.rsplit("/", 1)[-1] == APPLIED_TOPIC:
+        namespace = drive.topic.rsplit("/", 1)[0] or "/"
+        drive_topic = APPLIED_TOPIC
+    written = {name.strip("/") for name in computed} | {drive_topic}
+    channels: Dict[str, list] = {}
+    file = path
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RecoveredBagWarning)
+        try:
+            for file in files:
+                for schema, channel, message in _messages_of_whole(file):
+                    relative = channel.topic[len(namespace):] if channel.topic.startswith(namespace) else channel.topic
+                    if relative.strip("/") in written or channel.topic.strip("/") in written:
+                        continue
+                    entry = channels.get(channel.topic)
+                    if entry is None:
+                        type_name = schema.name if schema is not None else ""
+                        if not schemas.type_hash(type_name):
+                            continue  # no definition here: cannot be written
+                        entry = channels[channel.topic] = [
+                            channel.topic, type_name, channel.metadata.get("offered_qos_profiles", ""),
+                            channel.metadata.get("topic_type_hash") or None, []]
+                    entry[4].append((int(message.log_time), bytes(message.data)))
+        except MsgToolsError as exc:
+            raise bag_error(exc) from None
+        except OSError as exc:  # the disk failed a read (EIO, a file gone): the input, not a write
+            raise BagReadError(f"{file}: cannot read it ({exc.strerror or exc}); nothing written") from None
+    return Resimulation(scene, start, output_rate, namespace, drive_topic,
+                        [tuple(entry) for entry in channels.values()])
