@@ -16,8 +16,8 @@ from typing import Any, Dict, List, Optional, Tuple
 
 from msg_tools.errors import MsgToolsError, RecoveredBagWarning
 
-from .recording import APPLIED_TOPIC, BagReadError, bag_error
-from .torque_bag import DEFAULT_TOPIC, RecordedTorque, _read_metadata, scene_from_bag
+from .recording import APPLIED_TOPIC, SCENE_METADATA, BagReadError, bag_error
+from .torque_bag import DEFAULT_TOPIC, RecordedTorque, scene_from_bag
 
 __all__ = ["Resimulation", "resimulation", "torque_topic"]
 
@@ -51,8 +51,9 @@ def _damaged(file, why: str) -> BagReadError:
                         f"'msg-tools info {file}' says what is missing")
 
 
-def _check_whole(file) -> None:
-    """Refuse ``file`` unless it is a whole MCAP file (its end written, no damage its summary section shows).
+def _check_whole(file):
+    """``file``'s msg_tools summary; refused unless it is a whole MCAP file (its end written, no damage its summary
+    section shows).
 
     Re-simulation passes every recorded topic through to the new file, so it
     needs all of them: a recording cut off mid-write (a killed writer, a
@@ -66,6 +67,7 @@ def _check_whole(file) -> None:
     info = summary(file, verify=False)
     if not info.complete or info.damage:
         raise _damaged(file, info.stop_reason or "; ".join(info.damage))
+    return info
 
 
 def _messages_of_whole(file):
@@ -134,12 +136,11 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
         warnings.simplefilter("ignore", RecoveredBagWarning)
         try:
             files = bag_files(path)
-            for file in files:
-                _check_whole(file)
+            last = [_check_whole(file) for file in files][-1]
         except MsgToolsError as exc:
             raise bag_error(exc) from None
     scene = scene_from_bag(path, torque_bag=torque_bag)
-    record, _ = _read_metadata(path)
+    record = last.metadata_dict(SCENE_METADATA)  # (the last file holds every metadata record written)
     drive = scene.drive
     start = int(drive.start_ns) if isinstance(drive, RecordedTorque) and drive.start_ns is not None else None
     tick_ns = record.get("tick_ns", "")
