@@ -95,9 +95,11 @@ def main(argv: list[str] | None = None) -> int:
         if not getattr(args, "func", None):
             parser.print_help()
             return 2
-        from .io.atomic import Terminated, terminate_raises
+        from .io.atomic import CLEANUP_LIMIT, Terminated, terminate_raises
 
-        on_term = terminate_raises() if args.command in OFFLINE_COMMANDS else contextlib.nullcontext()
+        # (a program: an interrupted run's cleanup is bounded; a caller's own process is never ended)
+        on_term = (terminate_raises(CLEANUP_LIMIT if argv is None else None) if args.command in OFFLINE_COMMANDS
+                   else contextlib.nullcontext())
     except KeyboardInterrupt:
         return _interrupted(signal.SIGINT, argv, "")
     try:

@@ -214,7 +214,11 @@ def test_a_run_killed_while_writing_leaves_no_partial_file_and_keeps_the_old_one
                 time.sleep(0.05)
             ended_first = child.poll() is not None  # then send_signal sends nothing
             child.send_signal(sig)
-            err = child.communicate(timeout=120)[1]
+            try:
+                err = child.communicate(timeout=120)[1]
+            except subprocess.TimeoutExpired:  # (the program's watchdog prints its threads' stacks first)
+                child.kill()
+                pytest.fail(f"still running 120 s after {sig!r}; its stderr: {child.communicate()[1]}")
         finally:
             if child.poll() is None:
                 child.kill()
@@ -236,6 +240,52 @@ def test_a_run_killed_while_writing_leaves_no_partial_file_and_keeps_the_old_one
         assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
     else:
         assert out.read_bytes() == b"old"
+
+
+STUCK_CLEANUP = """
+import sys, threading
+from belt_drive_ros.io import atomic, run_writers
+atomic.CLEANUP_LIMIT = 3.0
+def stuck_abort(self):
+    threading.Event().wait()  # a cleanup that never ends (a lock no one releases)
+run_writers.McapWindows.abort = stuck_abort
+sys.argv = ["belt-drive"] + sys.argv[1:]
+from belt_drive_ros.cli import main
+sys.exit(main())
+"""
+
+
+def test_an_interrupted_program_whose_cleanup_sticks_ends_with_its_threads_stacks(tmp_path):
+    """The bound on an interrupted program's cleanup (io.atomic.CLEANUP_LIMIT, 3 s here): a real ``belt-drive
+    sim --out x.mcap`` child whose window writer's abort never returns is SIGTERMed once its output holds
+    data; the watchdog armed by the signal ends it with exit 1, every thread's stack (the stuck abort's frame
+    among them) on stderr, instead of a process that hangs until killed."""
+    out = tmp_path / "run.mcap"
+    child = subprocess.Popen([sys.executable, "-c", STUCK_CLEANUP, "sim", "paper", "--duration", "100000", "--quiet",
+                              "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                             cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    try:
+        deadline = time.monotonic() + 300.0
+        while not any(p.stat().st_size > 0 for p in tmp_path.glob(".run.mcap.*.part")):
+            assert child.poll() is None, child.stderr.read()
+            assert time.monotonic() < deadline, "no output appeared"
+            time.sleep(0.05)
+        child.send_signal(signal.SIGTERM)
+        signalled = time.monotonic()
+        try:
+            err = child.communicate(timeout=120)[1]
+        except subprocess.TimeoutExpired:
+            child.kill()
+            pytest.fail(f"the watchdog did not end the stuck program; its stderr: {child.communicate()[1]}")
+        waited = time.monotonic() - signalled
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    assert child.returncode == 1, err
+    assert waited >= 3.0, waited
+    assert "Timeout (0:00:03)!" in err and "in stuck_abort" in err and 'File "<string>"' in err, err
+    assert "Thread 0x" in err and "most recent call first" in err, err
 
 
 def test_a_failed_bag_folder_write_removes_the_bag_and_an_existing_one_is_refused_untouched(tmp_path, capsys, monkeypatch):

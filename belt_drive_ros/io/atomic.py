@@ -20,11 +20,19 @@ makes SIGTERM (which would end the process without running any ``finally``)
 raise :class:`Terminated`, so the temporary file of an output in progress is
 removed before the process exits (``belt-drive sim`` then exits 128 + the
 signal number, as a shell reports a process ended by that signal).
+
+That removal is bounded in a program (``belt-drive``): the first SIGINT or
+SIGTERM arms :mod:`faulthandler`'s watchdog, a thread outside the interpreter
+that needs no lock of Python's. Should the removal not end within
+:data:`CLEANUP_LIMIT` seconds (a cleanup stuck on a lock), it prints every
+thread's stack to stderr and ends the process with exit 1: an interrupted run
+never hangs, and the stacks say where it stuck.
 """
 
 from __future__ import annotations
 
 import contextlib
+import faulthandler
 import os
 import signal
 import stat
@@ -51,12 +59,13 @@ class Terminated(KeyboardInterrupt):
         self.signum = int(signum)
 
 
-def _raise_terminated(signum, frame):
-    raise Terminated(signum)
+#: seconds a program interrupted by SIGINT or SIGTERM may spend removing its unfinished outputs (under a
+#: second here; tens of seconds on a machine at load 15) before :func:`terminate_raises`' watchdog ends it
+CLEANUP_LIMIT = 90.0
 
 
 @contextlib.contextmanager
-def terminate_raises() -> Iterator[None]:
+def terminate_raises(cleanup_limit: float | None = None) -> Iterator[None]:
     """While the block runs, SIGTERM raises :class:`Terminated` in the main thread.
 
     Without it SIGTERM ends the process on the spot and an
@@ -65,15 +74,35 @@ def terminate_raises() -> Iterator[None]:
     removed, the old file kept). The previous handler is restored on exit;
     outside the main thread (where Python cannot set handlers) nothing changes.
     For commands without a ROS context only (rclpy installs its own handlers).
+
+    ``cleanup_limit`` [s] (a program's own, never an in-process caller's: it
+    ends the process): the first SIGTERM, or SIGINT where it raises
+    :class:`KeyboardInterrupt`, arms :func:`faulthandler.dump_traceback_later`
+    with it. If the block has not been left that many seconds later, every
+    thread's stack goes to stderr and the process ends with exit 1; leaving
+    the block disarms it.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+
+    def on_signal(signum, frame):
+        if cleanup_limit is not None:
+            faulthandler.dump_traceback_later(cleanup_limit, exit=True)
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        raise Terminated(signum)
+
+    previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, on_signal)}
+    if cleanup_limit is not None and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, on_signal)  # (an ignored SIGINT stays ignored)
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if cleanup_limit is not None:
+            faulthandler.cancel_dump_traceback_later()
 
 
 def check_output(path: str | os.PathLike, force: bool = False, what: str = "output") -> Path:
