@@ -203,8 +203,11 @@ def test_a_run_killed_while_writing_leaves_no_partial_file_and_keeps_the_old_one
     for duration in ("10000", "100000"):
         cmd = [sys.executable, "-m", "belt_drive_ros.cli", "sim", "paper", "--duration", duration, "--quiet",
                "--force", "--out", str(out)] + (["--bag-folder"] if name == "bag" else [])
+        # (PYTHONFAULTHANDLER: a child still running long after the signal is sent SIGABRT, on which it prints
+        # every thread's stack from C, even with the interpreter's lock held or the signal never handled)
         child = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=tmp_path.parent,
-                                 env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+                                 env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]),
+                                      "PYTHONFAULTHANDLER": "1"},
                                  preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         try:
             deadline = time.monotonic() + 300.0
@@ -216,9 +219,14 @@ def test_a_run_killed_while_writing_leaves_no_partial_file_and_keeps_the_old_one
             child.send_signal(sig)
             try:
                 err = child.communicate(timeout=120)[1]
-            except subprocess.TimeoutExpired:  # (the program's watchdog prints its threads' stacks first)
-                child.kill()
-                pytest.fail(f"still running 120 s after {sig!r}; its stderr: {child.communicate()[1]}")
+            except subprocess.TimeoutExpired:
+                child.send_signal(signal.SIGABRT)
+                try:
+                    err = child.communicate(timeout=30)[1]
+                except subprocess.TimeoutExpired:
+                    child.kill()
+                    err = child.communicate()[1]
+                pytest.fail(f"still running 120 s after {sig!r}; its stderr (stacks at SIGABRT): {err}")
         finally:
             if child.poll() is None:
                 child.kill()
