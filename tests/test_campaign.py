@@ -316,15 +316,14 @@ def test_an_interrupt_swallowed_in_a_gc_callback_is_raised_after_the_batch(sig, 
             fired.append(1)
             signal.raise_signal(sig)
 
-    with terminate_raises(), _signals_noted(noted):
+    with pytest.raises(KeyboardInterrupt) as caught, terminate_raises(), _signals_noted(noted):  # (Terminated is one)
         gc.callbacks.append(callback)
         try:
             gc.collect()  # the handler's exception is printed by the collector, not raised here
         finally:
             gc.callbacks.remove(callback)
         assert fired and noted == [sig]
-        with pytest.raises(KeyboardInterrupt) as caught:  # Terminated is one too
-            _raise_noted(noted)
+        _raise_noted(noted)
     assert getattr(caught.value, "signum", signal.SIGINT) == sig
     assert "Exception ignored" not in capfd.readouterr().err
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handlers restored

@@ -522,6 +522,9 @@ def run_campaign(
         _raise_noted(noted)
         compute_end = time.perf_counter()
     except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM as io.atomic.Terminated
+        from ..io.atomic import interruption_handled
+
+        interruption_handled()  # (what follows keeps the parts and says so: not raised again at its writes)
         interrupted = True
         signum = int(getattr(exc, "signum", signal.SIGINT))
         notes.append("interrupted: run the same command again to resume")

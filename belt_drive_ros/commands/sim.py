@@ -286,7 +286,7 @@ def _run_streamed(scene, args, out_format, bar) -> int:
     import contextlib
 
     from ..core.stream import Restart, stream
-    from ..io.atomic import atomic_output
+    from ..io.atomic import atomic_output, raise_if_interrupted
     from ..io.bag_folder import bag_folder_kept
     from ..io.run_writers import CsvWindows, Decimator, McapWindows, RunSummary
 
@@ -312,6 +312,7 @@ def _run_streamed(scene, args, out_format, bar) -> int:
                 summary.add(window)
                 for sink in sinks + ([keep] if keep else []):
                     sink.add(window)
+                raise_if_interrupted()  # (a signal whose exception some code swallowed stops the run here)
             for sink in sinks:
                 sink.close()
         except BaseException:

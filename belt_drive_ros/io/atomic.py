@@ -44,7 +44,8 @@ from typing import IO, Iterator
 
 from ..core.errors import BeltDriveError, OutputError
 
-__all__ = ["OutputRefused", "Terminated", "atomic_output", "check_output", "terminate_raises", "write_output"]
+__all__ = ["OutputRefused", "Terminated", "atomic_output", "check_output", "interruption_handled", "raise_if_interrupted",
+           "terminate_raises", "write_output"]
 
 
 class OutputRefused(BeltDriveError, ValueError):
@@ -64,6 +65,39 @@ class Terminated(KeyboardInterrupt):
 CLEANUP_LIMIT = 90.0
 
 
+#: the SIGINT/SIGTERM numbers the running :func:`terminate_raises` block received, in order
+_received: list[int] = []
+
+
+def _interruption(signum: int) -> KeyboardInterrupt:
+    return KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
+
+
+def raise_if_interrupted() -> None:
+    """Raise again the first SIGINT/SIGTERM the running :func:`terminate_raises` block received, if any.
+
+    A signal's exception is raised in whatever the main thread runs when it
+    arrives, and code that catches broadly can swallow it: seen here in one
+    run of 120, the import of a C extension (``_elementtree`` loading
+    ``pyexpat``) turned it into the ``ImportError`` that ElementTree's own
+    ``try``/``except ImportError`` fallback takes, and the run went on to
+    commit its output and exit 0 as if never interrupted. Each commit point
+    calls this first: :func:`atomic_output` before its rename,
+    :func:`~belt_drive_ros.io.bag_folder.bag_folder_kept` before it keeps the
+    new bag, a streamed ``belt-drive sim`` after each window, and the block's
+    own end.
+    """
+    if _received:
+        raise _interruption(_received[0])
+
+
+def interruption_handled() -> None:
+    """Say that the running :func:`terminate_raises` block's interruption was caught and acted on (an
+    interrupted campaign keeps its parts and says how to resume): the commit points and the block's end no
+    longer raise it again. Code that catches :class:`KeyboardInterrupt` to go on calls this."""
+    _received.clear()
+
+
 @contextlib.contextmanager
 def terminate_raises(cleanup_limit: float | None = None) -> Iterator[None]:
     """While the block runs, SIGTERM raises :class:`Terminated` in the main thread.
@@ -71,38 +105,52 @@ def terminate_raises(cleanup_limit: float | None = None) -> Iterator[None]:
     Without it SIGTERM ends the process on the spot and an
     :func:`atomic_output` in progress leaves its ``.NAME.*.part`` file
     behind; with it the ``finally`` clauses run (the temporary file is
-    removed, the old file kept). The previous handler is restored on exit;
-    outside the main thread (where Python cannot set handlers) nothing changes.
-    For commands without a ROS context only (rclpy installs its own handlers).
+    removed, the old file kept). SIGINT, where it raises
+    :class:`KeyboardInterrupt` (Python's default), still does. Either is
+    also noted: a signal whose exception some code swallowed is raised again
+    at the next commit point (:func:`raise_if_interrupted`), and a block
+    that ends with another exception after one ends with the interruption
+    instead (the other as its cause). The previous handlers are restored on
+    exit; outside the main thread (where Python cannot set handlers) nothing
+    changes. For commands without a ROS context only (rclpy installs its own
+    handlers).
 
     ``cleanup_limit`` [s] (a program's own, never an in-process caller's: it
-    ends the process): the first SIGTERM, or SIGINT where it raises
-    :class:`KeyboardInterrupt`, arms :func:`faulthandler.dump_traceback_later`
-    with it. If the block has not been left that many seconds later, every
-    thread's stack goes to stderr and the process ends with exit 1; leaving
-    the block disarms it.
+    ends the process): the first signal arms
+    :func:`faulthandler.dump_traceback_later` with it. If the block has not
+    been left that many seconds later, every thread's stack goes to stderr
+    and the process ends with exit 1; leaving the block disarms it.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     def on_signal(signum, frame):
-        if cleanup_limit is not None:
+        _received.append(int(signum))
+        if cleanup_limit is not None and len(_received) == 1:
             faulthandler.dump_traceback_later(cleanup_limit, exit=True)
-        if signum == signal.SIGINT:
-            raise KeyboardInterrupt
-        raise Terminated(signum)
+        raise _interruption(signum)
 
+    _received.clear()
     previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, on_signal)}
-    if cleanup_limit is not None and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
-        previous[signal.SIGINT] = signal.signal(signal.SIGINT, on_signal)  # (an ignored SIGINT stays ignored)
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # (an ignored SIGINT stays ignored)
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, on_signal)
     try:
         yield
+        raise_if_interrupted()
+    except BaseException as exc:
+        if _received and not isinstance(exc, KeyboardInterrupt):  # what the swallowed interruption became
+            raise _interruption(_received[0]) from exc
+        raise
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
         if cleanup_limit is not None:
             faulthandler.cancel_dump_traceback_later()
+        try:  # (signal.signal raises a signal that arrived just before: the other handler is restored all the same)
+            signal.signal(signal.SIGTERM, previous.pop(signal.SIGTERM))
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+            _received.clear()
 
 
 def check_output(path: str | os.PathLike, force: bool = False, what: str = "output") -> Path:
@@ -188,6 +236,7 @@ def atomic_output(path: str | os.PathLike, force: bool = False, mode: str = "wb"
             yield handle
             handle.flush()
             os.fsync(handle.fileno())
+        raise_if_interrupted()  # (a signal whose exception was swallowed: the output is not committed)
         if not force and os.path.lexists(path):
             raise OutputRefused(f"{what} {path} appeared while writing; pass --force to overwrite it")
         os.replace(name, path)

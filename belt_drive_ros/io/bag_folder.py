@@ -29,6 +29,7 @@ import tempfile
 from pathlib import Path
 
 from ..core.errors import OutputError
+from .atomic import raise_if_interrupted
 from .inputs import still_at
 
 __all__ = ["BagFolderBusy", "bag_files_in", "bag_folder_kept", "bag_folder_lock", "remove_bag_folder", "set_aside",
@@ -110,6 +111,7 @@ def bag_folder_kept(folder, force: bool):
     if not files:
         try:
             yield
+            raise_if_interrupted()  # (a signal whose exception was swallowed: the new bag is not kept)
         except BaseException:
             if force:  # (nothing of ours to keep: what the new bag left goes)
                 remove_bag_folder(folder)
@@ -120,6 +122,7 @@ def bag_folder_kept(folder, force: bool):
         os.replace(f, backup / f.name)
     try:
         yield
+        raise_if_interrupted()
     except BaseException:
         remove_bag_folder(folder)  # (what the new bag left, if anything)
         _put_back(backup, folder)
