@@ -190,6 +190,12 @@ class Ros2BagWriter:
     max_bag_duration : float, optional
         Start a new file once the current one spans this much log time [s]
         (``--max-bag-duration``). 0/None: no limit.
+    blocks : bool
+        Write each file with :class:`~msg_tools.block_writer.BlockMcapWriter`
+        (the same records), so that :meth:`write_block` writes many steps of
+        several topics at once: a long offline run's files ~20x faster than
+        message by message. Default False (the records of the ``mcap``
+        library's writer, as a live recording's).
     hold : context manager, optional
         Held while the folder is written: entered before the folder is
         looked at, exited once :meth:`finish` has run (or the constructor
@@ -215,7 +221,8 @@ class Ros2BagWriter:
 
     def __init__(self, folder: Union[str, "os.PathLike[str]"], *, force: bool = False,
                  max_bag_size: Optional[int] = None, max_bag_duration: Optional[float] = None,
-                 hold: Optional[ContextManager[Any]] = None, **writer_options: Any):
+                 hold: Optional[ContextManager[Any]] = None, blocks: bool = False, **writer_options: Any):
+        self._blocks = bool(blocks)
         self._hold = contextlib.ExitStack()
         if hold is not None:
             self._hold.enter_context(hold)
@@ -275,7 +282,12 @@ class Ros2BagWriter:
 
     def _open(self, index: int) -> Ros2McapWriter:
         path = os.path.join(self.folder, f"{self.name}_{index}.mcap")
-        writer = Ros2McapWriter(path, force=self._force, **self._options)
+        if self._blocks:
+            from .block_writer import BlockMcapWriter
+
+            writer: Ros2McapWriter = BlockMcapWriter(path, force=self._force, **self._options)
+        else:
+            writer = Ros2McapWriter(path, force=self._force, **self._options)
         for type_name, text in self._types.items():
             writer.register_type(type_name, text)
         for name, data in self._metadata:
@@ -368,6 +380,53 @@ class Ros2BagWriter:
             self._topics.setdefault(topic, (type_name, qos, None))
             if topic in self._latched:
                 self._latched[topic] = (type_name, bytes(cdr_bytes))
+
+    def write_block(self, topics: List[Tuple[str, str]], log_time_ns: Any, payloads: List[Any]) -> None:
+        """``n`` steps of several topics at once, as
+        :meth:`msg_tools.block_writer.BlockMcapWriter.write_block` takes them
+        (a writer made with ``blocks=True``). The files split where writing
+        the same messages one by one with :meth:`write_raw` would split them:
+        by duration at the first step ``max_bag_duration`` or more after the
+        file's first message (every topic of a step in the same file); by
+        size once the file's chunks hold ``max_bag_size`` bytes, checked after
+        each chunk's worth of steps (written at once, where a run without a
+        size limit compresses chunks in other threads meanwhile). Each new
+        file starts with the latched topics' latest message.
+        """
+        import numpy as np
+
+        from .block_writer import FixedMessages
+
+        if not self._blocks:
+            raise TypeError("write_block needs a bag writer made with blocks=True")
+        t = np.asarray(log_time_ns, dtype=np.int64)
+        n = int(t.size)
+        if not n:
+            return
+        step_bytes = sum(p.size if isinstance(p, FixedMessages) else int(np.shape(p)[1]) for p in payloads)
+        chunk = int(self._options.get("chunk_size") or (1 << 20))
+        piece = max(1, chunk // (step_bytes + 31 * len(topics)))  # (31: a message record's header)
+        with self._lock:
+            a = 0
+            while a < n:
+                self._split_if_due(int(t[a]))
+                w = self._current
+                b = n
+                if self.max_bag_duration_ns:
+                    start = w.time_range_ns[0] if w.message_count else int(t[a])
+                    b = max(a + 1, int(np.searchsorted(t, start + self.max_bag_duration_ns, "left")))
+                if self.max_bag_size:
+                    b = min(b, a + piece)
+                w.write_block(topics, t[a:b], [p[a:b] for p in payloads])
+                if self.max_bag_size:
+                    w.flush()  # (its chunk written now, not compressed in flight: the file's size is known)
+                a = b
+            for (topic, type_name), p in zip(topics, payloads):
+                self._topics.setdefault(topic, (type_name, None, None))
+                if topic in self._latched:
+                    last = p[n - 1 : n]
+                    last = last.rows() if isinstance(last, FixedMessages) else np.asarray(last, dtype=np.uint8)
+                    self._latched[topic] = (type_name, last[0].tobytes())
 
     def write(self, topic: str, type_name: str, message: Any, log_time_ns: int,
               publish_time_ns: Optional[int] = None, qos: Any = None) -> None:

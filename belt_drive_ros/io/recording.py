@@ -304,7 +304,7 @@ class ResultMcapWriter:
 
                 self.writer: Any = Ros2BagWriter(path, force=force, compression=compression,
                                                  max_bag_size=max_bag_size, max_bag_duration=max_bag_duration,
-                                                 **chunking)
+                                                 blocks=True, **chunking)
             else:
                 self.writer = BlockMcapWriter(path, force=force, compression=compression, **chunking)
             w = self.writer
@@ -413,16 +413,9 @@ class ResultMcapWriter:
             raise bag_error(exc) from None
 
     def _write_block(self, topics: list, t_ns: np.ndarray, payloads: List[np.ndarray]) -> None:
-        """Samples ``t_ns`` [ns] of every topic: one block (:class:`msg_tools.block_writer.BlockMcapWriter`),
-        or message by message into a writer without blocks (a bag folder's)."""
-        if hasattr(self.writer, "write_block"):
-            self.writer.write_block(topics, t_ns, payloads)
-            return
-        write = self.writer.write_raw
-        rows = [[row.tobytes() for row in p.rows()] for p in payloads]
-        for k, t in enumerate(t_ns.tolist()):
-            for (topic, type_name), data in zip(topics, rows):
-                write(topic, type_name, data[k], t)
+        """Samples ``t_ns`` [ns] of every topic as one block (:class:`msg_tools.block_writer.BlockMcapWriter`, or a
+        bag folder's :class:`msg_tools.bagdir.Ros2BagWriter` made with ``blocks=True``, which splits it into files)."""
+        self.writer.write_block(topics, t_ns, payloads)
 
     def close(self) -> Dict[str, int]:
         """Finish the file (the scene record now, for a stream); returns messages per topic."""

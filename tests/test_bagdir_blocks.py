@@ -1,0 +1,94 @@
+"""A bag folder written in blocks (``Ros2BagWriter(blocks=True).write_block``) holds the messages that writing
+them one by one (``write_raw``) gives, split into the same files by duration, and by size at chunk granularity.
+Read back with the ``mcap`` library's reader (not ours)."""
+
+from __future__ import annotations
+
+import os
+import struct
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from msg_tools.bagdir import Ros2BagWriter, bag_files
+
+FLOAT64 = "std_msgs/msg/Float64"
+LATCHED = "/robot_description"
+TOPICS = [("/a", FLOAT64), ("/b", FLOAT64)]
+
+
+def _payload(values: np.ndarray) -> np.ndarray:
+    """(n, 12) CDR of std_msgs/Float64 messages: little-endian header, 4 bytes padding, the double."""
+    out = np.zeros((values.size, 12), dtype=np.uint8)
+    out[:, 0:4] = np.frombuffer(b"\x00\x01\x00\x00", dtype=np.uint8)
+    out[:, 4:12] = values.astype("<f8").view(np.uint8).reshape(-1, 8)
+    return out
+
+
+def _write(folder, blocks: bool, steps: int, **split):
+    """Three blocks of ``steps`` steps of both topics at 1 ms, a latched message between the first two."""
+    rng = np.random.default_rng(7)
+    with Ros2BagWriter(folder, force=True, blocks=blocks, chunk_size=4096, **split) as w:
+        w.add_topic(LATCHED, FLOAT64)
+        w.latch(LATCHED)
+        for k in range(3):
+            t = (np.arange(steps) + k * steps) * 1_000_000 + 5
+            payloads = [_payload(rng.normal(size=steps)) for _ in TOPICS]
+            if k == 1:
+                w.write_raw(LATCHED, FLOAT64, bytes(_payload(np.array([42.0]))[0]), int(t[0]))
+            if blocks:
+                w.write_block(TOPICS, t, payloads)
+            else:
+                for i, ti in enumerate(t.tolist()):
+                    for (topic, type_name), p in zip(TOPICS, payloads):
+                        w.write_raw(topic, type_name, p[i].tobytes(), ti)
+    return [_messages(f) for f in bag_files(folder)]
+
+
+def _messages(path) -> list:
+    with open(path, "rb") as f:
+        return [(c.topic, m.log_time, m.publish_time, m.sequence, bytes(m.data))
+                for _, c, m in make_reader(f).iter_messages(log_time_order=False)]
+
+
+def test_split_by_duration_gives_the_same_files_and_messages(tmp_path):
+    raw = _write(tmp_path / "raw", False, 700, max_bag_duration=0.25)
+    block = _write(tmp_path / "block", True, 700, max_bag_duration=0.25)
+    assert len(raw) == 9 and [len(f) for f in block] == [len(f) for f in raw]
+    for a, b in zip(raw, block):
+        assert sorted(a) == sorted(b)  # (within a file, one step's topics in either order)
+    assert (tmp_path / "raw" / "metadata.yaml").read_text().replace("raw", "block") == \
+           (tmp_path / "block" / "metadata.yaml").read_text()
+    latched = 700 * 1_000_000 + 5  # (written at the second block's first step)
+    for f in block:  # each file begun after it starts with it
+        first = min(m[1] for m in f)
+        if first > latched:
+            assert [m[1] for m in f if m[0] == LATCHED] == [first]
+
+
+def test_split_by_size_keeps_every_message_in_order_and_each_file_full(tmp_path):
+    limit = 20_000
+    raw = _write(tmp_path / "raw", False, 2000, max_bag_size=limit)
+    block = _write(tmp_path / "block", True, 2000, max_bag_size=limit)
+    assert len(block) >= 3 and abs(len(block) - len(raw)) <= 1
+    sizes = [os.path.getsize(p) for p in bag_files(tmp_path / "block")]
+    raw_sizes = [os.path.getsize(p) for p in bag_files(tmp_path / "raw")]
+    assert min(sizes[:-1]) >= limit and sizes[-1] > 0 and max(sizes) <= max(raw_sizes) + 2 * 4096
+    # (a message's sequence counts within its file: the files split at other steps)
+    payload = [m[:3] + m[4:] for f in block for m in f if m[0] != LATCHED]
+    expected = [m[:3] + m[4:] for f in raw for m in f if m[0] != LATCHED]
+    assert sorted(payload, key=lambda m: (m[1], m[0])) == sorted(expected, key=lambda m: (m[1], m[0]))
+    assert [m[1] for m in payload] == sorted(m[1] for m in payload)  # across files, in time order
+    value = struct.pack("<d", 42.0)
+    begun_after = [f for f in block if min(m[1] for m in f) > 2000 * 1_000_000 + 5]  # (the latched message's time)
+    assert len(begun_after) >= 2
+    for f in begun_after:  # each starts with the latched message
+        first = min(m[1] for m in f)
+        assert [(m[1], m[4][4:]) for m in f if m[0] == LATCHED] == [(first, value)]
+
+
+def test_write_block_needs_a_block_writer(tmp_path):
+    with Ros2BagWriter(tmp_path / "x", force=True) as w:
+        with pytest.raises(TypeError, match="blocks=True"):
+            w.write_block(TOPICS, np.array([1]), [_payload(np.ones(1))] * 2)
