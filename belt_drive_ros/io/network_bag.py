@@ -243,7 +243,7 @@ class NetworkBagWriter:
         self._inputs: set = set()
         # the samples kept for the next block: times, joint_states and /tf CDR (fixed sizes), Float64 values
         # (a split folder's writer takes messages one by one, each sample as it comes: its files split on time)
-        self._block = BLOCK_SAMPLES if hasattr(self.writer, "write_block") else 1
+        self._block = BLOCK_SAMPLES if isinstance(self.writer, BlockMcapWriter) else 1
         self._kept = 0
         self._times = np.empty(BLOCK_SAMPLES, dtype=np.int64)
         self._values = np.empty((BLOCK_SAMPLES, len(self._float_topics)))
