@@ -404,7 +404,7 @@ class Ros2BagWriter:
         if not n:
             return
         step_bytes = sum(p.size if isinstance(p, FixedMessages) else int(np.shape(p)[1]) for p in payloads)
-        chunk = int(self._options.get("chunk_size") or (1 << 20))
+        chunk = self._current._chunk_size  # (the files' chunk size: given, or Ros2McapWriter's default)
         piece = max(1, chunk // (step_bytes + 31 * len(topics)))  # (31: a message record's header)
         with self._lock:
             a = 0

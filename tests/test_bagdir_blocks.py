@@ -92,3 +92,16 @@ def test_write_block_needs_a_block_writer(tmp_path):
     with Ros2BagWriter(tmp_path / "x", force=True) as w:
         with pytest.raises(TypeError, match="blocks=True"):
             w.write_block(TOPICS, np.array([1]), [_payload(np.ones(1))] * 2)
+
+
+def test_split_by_size_with_the_default_chunk_size_checks_after_each_chunk(tmp_path):
+    """No ``chunk_size`` given (``write_result_mcap(..., max_bag_size=N)``): the files' chunks are the writer's
+    default 128 KiB, and the size is checked after each of them, not after 1 MiB's worth (files ~4x the limit)."""
+    limit, chunk = 200_000, 128 * 1024
+    rng = np.random.default_rng(3)
+    t = np.arange(20_000) * 1_000_000
+    with Ros2BagWriter(tmp_path / "bag", force=True, blocks=True, max_bag_size=limit) as w:
+        w.write_block(TOPICS, t, [_payload(rng.normal(size=t.size)) for _ in TOPICS])
+    sizes = [os.path.getsize(p) for p in bag_files(tmp_path / "bag")]
+    assert len(sizes) >= 3 and all(limit <= s <= limit + chunk + 4096 for s in sizes[:-1]), sizes
+    assert sum(len(_messages(f)) for f in bag_files(tmp_path / "bag")) == 2 * t.size
