@@ -105,3 +105,28 @@ def test_split_by_size_with_the_default_chunk_size_checks_after_each_chunk(tmp_p
     sizes = [os.path.getsize(p) for p in bag_files(tmp_path / "bag")]
     assert len(sizes) >= 3 and all(limit <= s <= limit + chunk + 4096 for s in sizes[:-1]), sizes
     assert sum(len(_messages(f)) for f in bag_files(tmp_path / "bag")) == 2 * t.size
+
+
+def test_one_step_blocks_between_passed_through_messages_split_as_message_by_message(tmp_path):
+    """A re-simulation into a bag folder: a recorded message at every step, the samples as one-step blocks
+    between them; the same files and messages as writing all one by one, and as few chunks."""
+    rng = np.random.default_rng(5)
+    t = np.arange(900) * 1_000_000 + 5
+    payloads = [_payload(rng.normal(size=t.size)) for _ in TOPICS]
+    files = {}
+    for blocks in (False, True):
+        folder = tmp_path / str(blocks)
+        with Ros2BagWriter(folder, force=True, blocks=blocks, chunk_size=4096, max_bag_duration=0.25) as w:
+            for k, tk in enumerate(t.tolist()):
+                w.write_raw("/raw", FLOAT64, bytes(_payload(np.array([float(k)]))[0]), tk - 1)
+                if blocks:
+                    w.write_block(TOPICS, t[k : k + 1], [p[k : k + 1] for p in payloads])
+                else:
+                    for (topic, type_name), p in zip(TOPICS, payloads):
+                        w.write_raw(topic, type_name, p[k].tobytes(), tk)
+        files[blocks] = bag_files(folder)
+    assert [sorted(_messages(f)) for f in files[True]] == [sorted(_messages(f)) for f in files[False]]
+    for a, b in zip(files[False], files[True]):
+        with open(a, "rb") as fa, open(b, "rb") as fb:
+            chunks = [make_reader(f).get_summary().statistics.chunk_count for f in (fa, fb)]
+        assert chunks[1] <= chunks[0] + 1, chunks
