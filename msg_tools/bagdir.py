@@ -420,13 +420,13 @@ class Ros2BagWriter:
                 w.write_block(topics, t[a:b], [p[a:b] for p in payloads])
                 if self.max_bag_size:
                     w.flush()  # (its chunk written now, not compressed in flight: the file's size is known)
+                for (topic, type_name), p in zip(topics, payloads):
+                    self._topics.setdefault(topic, (type_name, None, None))
+                    if topic in self._latched:  # (its message before the next file: the piece's last)
+                        last = p[b - 1 : b]
+                        last = last.rows() if isinstance(last, FixedMessages) else np.asarray(last, dtype=np.uint8)
+                        self._latched[topic] = (type_name, last[0].tobytes())
                 a = b
-            for (topic, type_name), p in zip(topics, payloads):
-                self._topics.setdefault(topic, (type_name, None, None))
-                if topic in self._latched:
-                    last = p[n - 1 : n]
-                    last = last.rows() if isinstance(last, FixedMessages) else np.asarray(last, dtype=np.uint8)
-                    self._latched[topic] = (type_name, last[0].tobytes())
 
     def write(self, topic: str, type_name: str, message: Any, log_time_ns: int,
               publish_time_ns: Optional[int] = None, qos: Any = None) -> None:

@@ -130,3 +130,25 @@ def test_one_step_blocks_between_passed_through_messages_split_as_message_by_mes
         with open(a, "rb") as fa, open(b, "rb") as fb:
             chunks = [make_reader(f).get_summary().statistics.chunk_count for f in (fa, fb)]
         assert chunks[1] <= chunks[0] + 1, chunks
+
+
+def test_a_latched_topic_written_in_blocks_starts_each_file_with_its_message_before_the_split(tmp_path):
+    """A block that spans several files: each new file repeats the latched topic's message of the step before it,
+    as writing one by one does (not the one before the block)."""
+    rng = np.random.default_rng(9)
+    t = np.arange(1000) * 1_000_000 + 5
+    payloads = [_payload(rng.normal(size=t.size)) for _ in TOPICS]
+    files = {}
+    for blocks in (False, True):
+        folder = tmp_path / str(blocks)
+        with Ros2BagWriter(folder, force=True, blocks=blocks, chunk_size=4096, max_bag_duration=0.3) as w:
+            w.latch("/a")
+            for a, b in ((0, 10), (10, t.size)):  # (a first block: the latched topic has a message before the next)
+                if blocks:
+                    w.write_block(TOPICS, t[a:b], [p[a:b] for p in payloads])
+                else:
+                    for k in range(a, b):
+                        for (topic, type_name), p in zip(TOPICS, payloads):
+                            w.write_raw(topic, type_name, p[k].tobytes(), int(t[k]))
+        files[blocks] = [sorted(_messages(f)) for f in bag_files(folder)]
+    assert len(files[False]) == 4 and files[True] == files[False]
