@@ -390,7 +390,9 @@ class Ros2BagWriter:
         file's first message (every topic of a step in the same file); by
         size once the file's chunks hold ``max_bag_size`` bytes, checked after
         each chunk's worth of steps (written at once, where a run without a
-        size limit compresses chunks in other threads meanwhile). Each new
+        size limit compresses chunks in other threads meanwhile; a short
+        block that joined the open chunk is counted once that chunk closes,
+        as single messages are). Each new
         file starts with the latched topics' latest message.
         """
         import numpy as np
@@ -417,9 +419,9 @@ class Ros2BagWriter:
                     b = max(a + 1, int(np.searchsorted(t, start + self.max_bag_duration_ns, "left")))
                 if self.max_bag_size:
                     b = min(b, a + piece)
-                w.write_block(topics, t[a:b], [p[a:b] for p in payloads])
-                if self.max_bag_size:
-                    w.flush()  # (its chunk written now, not compressed in flight: the file's size is known)
+                joined = w.write_block(topics, t[a:b], [p[a:b] for p in payloads])
+                if self.max_bag_size and not joined:
+                    w.flush()  # (its chunks written now, not compressed in flight: the file's size is known)
                 for (topic, type_name), p in zip(topics, payloads):
                     self._topics.setdefault(topic, (type_name, None, None))
                     if topic in self._latched:  # (its message before the next file: the piece's last)

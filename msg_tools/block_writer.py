@@ -604,14 +604,16 @@ class BlockMcapWriter(Ros2McapWriter):
         super().__init__(*args, **kwargs)
         self._mcap.chunk_size = self._chunk_size  # a block's chunks: cut by size here
 
-    def write_block(self, topics: Sequence[tuple], log_time_ns: np.ndarray, payloads: Sequence[np.ndarray]) -> None:
+    def write_block(self, topics: Sequence[tuple], log_time_ns: np.ndarray, payloads: Sequence[np.ndarray]) -> bool:
         """``topics`` ``[(topic, type_name), ...]`` (declared with :meth:`add_topic` or here with the
         default QoS), ``log_time_ns`` (n,) ascending [ns] (also the publish time), ``payloads[k]``
-        ``(n, size)`` uint8 (or :class:`FixedMessages`): the CDR of ``topics[k]``'s message at each time."""
+        ``(n, size)`` uint8 (or :class:`FixedMessages`): the CDR of ``topics[k]``'s message at each time.
+        True if the block joined the open chunk (short: see :meth:`BlockRecords.add_block`), False if it
+        went into chunks of its own."""
         log_time_ns = np.asarray(log_time_ns, dtype=np.int64)
         n = log_time_ns.size
         if not n:
-            return
+            return False
         if log_time_ns[0] < 0:
             raise ValueError(f"write_block: times must be >= 0 ns, got {int(log_time_ns[0])}")
         payloads = [p if isinstance(p, FixedMessages) else np.ascontiguousarray(p, dtype=np.uint8) for p in payloads]
@@ -640,3 +642,4 @@ class BlockMcapWriter(Ros2McapWriter):
                 self._after_message(last, joined - _MESSAGE_OVERHEAD)
             else:
                 self._pending_bytes, self._chunk_t0_ns = 0, None  # the block closed the open chunk
+        return bool(joined)

@@ -152,3 +152,30 @@ def test_a_latched_topic_written_in_blocks_starts_each_file_with_its_message_bef
                             w.write_raw(topic, type_name, p[k].tobytes(), int(t[k]))
         files[blocks] = [sorted(_messages(f)) for f in bag_files(folder)]
     assert len(files[False]) == 4 and files[True] == files[False]
+
+
+def test_one_step_blocks_split_by_size_stay_in_few_chunks_and_files(tmp_path):
+    """The same with max_bag_size: a one-step block that joined the open chunk is not flushed as a chunk of its
+    own to learn the file's size (a chunk per step: twice the files, each ~50x the chunks)."""
+    rng = np.random.default_rng(6)
+    t = np.arange(3000) * 1_000_000 + 5
+    payloads = [_payload(rng.normal(size=t.size)) for _ in TOPICS]
+    chunks, messages = {}, {}
+    for blocks in (False, True):
+        folder = tmp_path / str(blocks)
+        with Ros2BagWriter(folder, force=True, blocks=blocks, chunk_size=4096, max_bag_size=40_000) as w:
+            for k, tk in enumerate(t.tolist()):
+                w.write_raw("/raw", FLOAT64, bytes(_payload(np.array([float(k)]))[0]), tk - 1)
+                if blocks:
+                    w.write_block(TOPICS, t[k : k + 1], [p[k : k + 1] for p in payloads])
+                else:
+                    for (topic, type_name), p in zip(TOPICS, payloads):
+                        w.write_raw(topic, type_name, p[k].tobytes(), tk)
+        chunks[blocks] = []
+        for f in bag_files(folder):
+            with open(f, "rb") as fh:
+                chunks[blocks].append(make_reader(fh).get_summary().statistics.chunk_count)
+        messages[blocks] = sorted(m[:3] + m[4:] for f in bag_files(folder) for m in _messages(f))
+    assert messages[True] == messages[False]
+    assert len(chunks[False]) >= 3 and abs(len(chunks[True]) - len(chunks[False])) <= 1, chunks
+    assert sum(chunks[True]) <= sum(chunks[False]) + len(chunks[True]), chunks
