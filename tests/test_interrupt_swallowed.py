@@ -164,3 +164,19 @@ def test_a_sigterm_swallowed_as_the_plot_overlay_begins_stops_it_at_its_first_wi
     assert run.returncode == 143, run.stderr
     assert log.read_text().splitlines() == ["window"]  # (the window at which it stopped)
     assert not (tmp_path / "run.png").exists()
+
+
+def test_a_program_without_stderr_still_gets_the_interruption_at_the_first_signal(monkeypatch):
+    """A program started with its stderr closed has ``sys.stderr`` None, which faulthandler refuses: arming
+    the watchdog raised that RuntimeError in place of the interruption, so ``except KeyboardInterrupt``
+    (an interrupted campaign's keeping of its parts) missed it and ``except Exception`` took it (a sweep's
+    batch recorded as failed: "sys.stderr is None"). The stacks go to descriptor 2 then."""
+    monkeypatch.setattr(sys, "stderr", None)
+    caught = []
+    with pytest.raises(Terminated), terminate_raises(atomic.CLEANUP_LIMIT):
+        try:
+            signal.raise_signal(signal.SIGTERM)
+        except KeyboardInterrupt as exc:
+            caught.append(exc)
+            raise
+    assert [type(e) for e in caught] == [Terminated]
