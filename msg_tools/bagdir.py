@@ -390,7 +390,9 @@ class Ros2BagWriter:
         file's first message (every topic of a step in the same file); by
         size once the file's chunks hold ``max_bag_size`` bytes, checked after
         each chunk's worth of steps (written at once, where a run without a
-        size limit compresses chunks in other threads meanwhile). Each new
+        size limit compresses chunks in other threads meanwhile; a short
+        block that joined the open chunk is counted once that chunk closes,
+        as single messages are). Each new
         file starts with the latched topics' latest message.
         """
         import numpy as np
@@ -404,7 +406,7 @@ class Ros2BagWriter:
         if not n:
             return
         step_bytes = sum(p.size if isinstance(p, FixedMessages) else int(np.shape(p)[1]) for p in payloads)
-        chunk = int(self._options.get("chunk_size") or (1 << 20))
+        chunk = self._current._chunk_size  # (the files' chunk size: given, or Ros2McapWriter's default)
         piece = max(1, chunk // (step_bytes + 31 * len(topics)))  # (31: a message record's header)
         with self._lock:
             a = 0
@@ -417,16 +419,16 @@ class Ros2BagWriter:
                     b = max(a + 1, int(np.searchsorted(t, start + self.max_bag_duration_ns, "left")))
                 if self.max_bag_size:
                     b = min(b, a + piece)
-                w.write_block(topics, t[a:b], [p[a:b] for p in payloads])
-                if self.max_bag_size:
-                    w.flush()  # (its chunk written now, not compressed in flight: the file's size is known)
+                joined = w.write_block(topics, t[a:b], [p[a:b] for p in payloads])
+                if self.max_bag_size and not joined:
+                    w.flush()  # (its chunks written now, not compressed in flight: the file's size is known)
+                for (topic, type_name), p in zip(topics, payloads):
+                    self._topics.setdefault(topic, (type_name, None, None))
+                    if topic in self._latched:  # (its message before the next file: the piece's last)
+                        last = p[b - 1 : b]
+                        last = last.rows() if isinstance(last, FixedMessages) else np.asarray(last, dtype=np.uint8)
+                        self._latched[topic] = (type_name, last[0].tobytes())
                 a = b
-            for (topic, type_name), p in zip(topics, payloads):
-                self._topics.setdefault(topic, (type_name, None, None))
-                if topic in self._latched:
-                    last = p[n - 1 : n]
-                    last = last.rows() if isinstance(last, FixedMessages) else np.asarray(last, dtype=np.uint8)
-                    self._latched[topic] = (type_name, last[0].tobytes())
 
     def write(self, topic: str, type_name: str, message: Any, log_time_ns: int,
               publish_time_ns: Optional[int] = None, qos: Any = None) -> None:

@@ -92,3 +92,90 @@ def test_write_block_needs_a_block_writer(tmp_path):
     with Ros2BagWriter(tmp_path / "x", force=True) as w:
         with pytest.raises(TypeError, match="blocks=True"):
             w.write_block(TOPICS, np.array([1]), [_payload(np.ones(1))] * 2)
+
+
+def test_split_by_size_with_the_default_chunk_size_checks_after_each_chunk(tmp_path):
+    """No ``chunk_size`` given (``write_result_mcap(..., max_bag_size=N)``): the files' chunks are the writer's
+    default 128 KiB, and the size is checked after each of them, not after 1 MiB's worth (files ~4x the limit)."""
+    limit, chunk = 200_000, 128 * 1024
+    rng = np.random.default_rng(3)
+    t = np.arange(20_000) * 1_000_000
+    with Ros2BagWriter(tmp_path / "bag", force=True, blocks=True, max_bag_size=limit) as w:
+        w.write_block(TOPICS, t, [_payload(rng.normal(size=t.size)) for _ in TOPICS])
+    sizes = [os.path.getsize(p) for p in bag_files(tmp_path / "bag")]
+    assert len(sizes) >= 3 and all(limit <= s <= limit + chunk + 4096 for s in sizes[:-1]), sizes
+    assert sum(len(_messages(f)) for f in bag_files(tmp_path / "bag")) == 2 * t.size
+
+
+def test_one_step_blocks_between_passed_through_messages_split_as_message_by_message(tmp_path):
+    """A re-simulation into a bag folder: a recorded message at every step, the samples as one-step blocks
+    between them; the same files and messages as writing all one by one, and as few chunks."""
+    rng = np.random.default_rng(5)
+    t = np.arange(900) * 1_000_000 + 5
+    payloads = [_payload(rng.normal(size=t.size)) for _ in TOPICS]
+    files = {}
+    for blocks in (False, True):
+        folder = tmp_path / str(blocks)
+        with Ros2BagWriter(folder, force=True, blocks=blocks, chunk_size=4096, max_bag_duration=0.25) as w:
+            for k, tk in enumerate(t.tolist()):
+                w.write_raw("/raw", FLOAT64, bytes(_payload(np.array([float(k)]))[0]), tk - 1)
+                if blocks:
+                    w.write_block(TOPICS, t[k : k + 1], [p[k : k + 1] for p in payloads])
+                else:
+                    for (topic, type_name), p in zip(TOPICS, payloads):
+                        w.write_raw(topic, type_name, p[k].tobytes(), tk)
+        files[blocks] = bag_files(folder)
+    assert [sorted(_messages(f)) for f in files[True]] == [sorted(_messages(f)) for f in files[False]]
+    for a, b in zip(files[False], files[True]):
+        with open(a, "rb") as fa, open(b, "rb") as fb:
+            chunks = [make_reader(f).get_summary().statistics.chunk_count for f in (fa, fb)]
+        assert chunks[1] <= chunks[0] + 1, chunks
+
+
+def test_a_latched_topic_written_in_blocks_starts_each_file_with_its_message_before_the_split(tmp_path):
+    """A block that spans several files: each new file repeats the latched topic's message of the step before it,
+    as writing one by one does (not the one before the block)."""
+    rng = np.random.default_rng(9)
+    t = np.arange(1000) * 1_000_000 + 5
+    payloads = [_payload(rng.normal(size=t.size)) for _ in TOPICS]
+    files = {}
+    for blocks in (False, True):
+        folder = tmp_path / str(blocks)
+        with Ros2BagWriter(folder, force=True, blocks=blocks, chunk_size=4096, max_bag_duration=0.3) as w:
+            w.latch("/a")
+            for a, b in ((0, 10), (10, t.size)):  # (a first block: the latched topic has a message before the next)
+                if blocks:
+                    w.write_block(TOPICS, t[a:b], [p[a:b] for p in payloads])
+                else:
+                    for k in range(a, b):
+                        for (topic, type_name), p in zip(TOPICS, payloads):
+                            w.write_raw(topic, type_name, p[k].tobytes(), int(t[k]))
+        files[blocks] = [sorted(_messages(f)) for f in bag_files(folder)]
+    assert len(files[False]) == 4 and files[True] == files[False]
+
+
+def test_one_step_blocks_split_by_size_stay_in_few_chunks_and_files(tmp_path):
+    """The same with max_bag_size: a one-step block that joined the open chunk is not flushed as a chunk of its
+    own to learn the file's size (a chunk per step: twice the files, each ~50x the chunks)."""
+    rng = np.random.default_rng(6)
+    t = np.arange(3000) * 1_000_000 + 5
+    payloads = [_payload(rng.normal(size=t.size)) for _ in TOPICS]
+    chunks, messages = {}, {}
+    for blocks in (False, True):
+        folder = tmp_path / str(blocks)
+        with Ros2BagWriter(folder, force=True, blocks=blocks, chunk_size=4096, max_bag_size=40_000) as w:
+            for k, tk in enumerate(t.tolist()):
+                w.write_raw("/raw", FLOAT64, bytes(_payload(np.array([float(k)]))[0]), tk - 1)
+                if blocks:
+                    w.write_block(TOPICS, t[k : k + 1], [p[k : k + 1] for p in payloads])
+                else:
+                    for (topic, type_name), p in zip(TOPICS, payloads):
+                        w.write_raw(topic, type_name, p[k].tobytes(), tk)
+        chunks[blocks] = []
+        for f in bag_files(folder):
+            with open(f, "rb") as fh:
+                chunks[blocks].append(make_reader(fh).get_summary().statistics.chunk_count)
+        messages[blocks] = sorted(m[:3] + m[4:] for f in bag_files(folder) for m in _messages(f))
+    assert messages[True] == messages[False]
+    assert len(chunks[False]) >= 3 and abs(len(chunks[True]) - len(chunks[False])) <= 1, chunks
+    assert sum(chunks[True]) <= sum(chunks[False]) + len(chunks[True]), chunks

@@ -123,3 +123,60 @@ def test_a_program_whose_sigterm_was_swallowed_exits_143_with_its_outputs_remove
         assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
     elif name != "new-bag":
         assert out.read_bytes() == b"old"
+
+
+# the same, while a streamed run's --plot overlay (a second run of the other model, as long as the first) begins:
+# each of its windows after the signal is logged to the file named by the last argument
+SWALLOWING_IN_OVERLAY = """
+import signal, sys
+from belt_drive_ros.commands import sim
+from belt_drive_ros.io import run_writers
+log, swallowed = sys.argv.pop(), []
+overlay_method = sim._overlay_method
+def swallowing_overlay_method(*args):
+    try:
+        signal.raise_signal(signal.SIGTERM)
+    except KeyboardInterrupt:
+        swallowed.append(1)
+    return overlay_method(*args)
+sim._overlay_method = swallowing_overlay_method
+add = run_writers.Decimator.add
+def logged_add(self, window):
+    if swallowed:
+        with open(log, "a") as f:
+            f.write("window\\n")
+    return add(self, window)
+run_writers.Decimator.add = logged_add
+sys.argv = ["belt-drive"] + sys.argv[1:]
+from belt_drive_ros.cli import main
+sys.exit(main())
+"""
+
+
+def test_a_sigterm_swallowed_as_the_plot_overlay_begins_stops_it_at_its_first_window(tmp_path):
+    """The overlay ran to its end after the signal (a second run as long as the first: past the 90 s
+    watchdog for a long one, which then ends the process with exit 1 instead of 143)."""
+    log = tmp_path / "overlay.log"
+    cmd = [sys.executable, "-c", SWALLOWING_IN_OVERLAY, "sim", "paper", "--quiet", "--duration", "20000",
+           "--out", str(tmp_path / "run.mcap"), "--plot", str(tmp_path / "run.png"), "--plot-every", "1000", str(log)]
+    run = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, timeout=600,
+                         env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    assert run.returncode == 143, run.stderr
+    assert log.read_text().splitlines() == ["window"]  # (the window at which it stopped)
+    assert not (tmp_path / "run.png").exists()
+
+
+def test_a_program_without_stderr_still_gets_the_interruption_at_the_first_signal(monkeypatch):
+    """A program started with its stderr closed has ``sys.stderr`` None, which faulthandler refuses: arming
+    the watchdog raised that RuntimeError in place of the interruption, so ``except KeyboardInterrupt``
+    (an interrupted campaign's keeping of its parts) missed it and ``except Exception`` took it (a sweep's
+    batch recorded as failed: "sys.stderr is None"). The stacks go to descriptor 2 then."""
+    monkeypatch.setattr(sys, "stderr", None)
+    caught = []
+    with pytest.raises(Terminated), terminate_raises(atomic.CLEANUP_LIMIT):
+        try:
+            signal.raise_signal(signal.SIGTERM)
+        except KeyboardInterrupt as exc:
+            caught.append(exc)
+            raise
+    assert [type(e) for e in caught] == [Terminated]

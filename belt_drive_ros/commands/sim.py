@@ -328,6 +328,7 @@ def _run_streamed(scene, args, out_format, bar) -> int:
         comp = Decimator(args.plot_every)
         for window in stream(scene, model=other, method=method):
             comp.add(window)
+            raise_if_interrupted()  # (a second run as long as the first: stopped here too, not at the plot's write)
         _write_plot(scene, [keep.result(), comp.result()], args)
     return 0
 

@@ -36,6 +36,7 @@ import faulthandler
 import os
 import signal
 import stat
+import sys
 import threading
 import tempfile
 import warnings
@@ -128,7 +129,9 @@ def terminate_raises(cleanup_limit: float | None = None) -> Iterator[None]:
     def on_signal(signum, frame):
         _received.append(int(signum))
         if cleanup_limit is not None and len(_received) == 1:
-            faulthandler.dump_traceback_later(cleanup_limit, exit=True)
+            # (descriptor 2 where sys.stderr is None, a program started with it closed: faulthandler's refusal of
+            # None was raised here in place of the interruption)
+            faulthandler.dump_traceback_later(cleanup_limit, exit=True, file=2 if sys.stderr is None else sys.stderr)
         raise _interruption(signum)
 
     _received.clear()
