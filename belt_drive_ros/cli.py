@@ -97,8 +97,11 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         from .io.atomic import CLEANUP_LIMIT, Terminated, terminate_raises
 
-        # (a program: an interrupted run's cleanup is bounded; a caller's own process is never ended)
-        on_term = (terminate_raises(CLEANUP_LIMIT if argv is None else None) if args.command in OFFLINE_COMMANDS
+        # (a program: an interrupted run's cleanup is bounded; a caller's own process is never ended. Not a
+        # campaign's: it may act on a signal its gc callback swallowed only when the batch running ends, which
+        # can take minutes, and it closes its cluster itself; ended by a watchdog, its workers would be orphaned)
+        bounded = argv is None and args.command != "sweep"
+        on_term = (terminate_raises(CLEANUP_LIMIT if bounded else None) if args.command in OFFLINE_COMMANDS
                    else contextlib.nullcontext())
     except KeyboardInterrupt:
         return _interrupted(signal.SIGINT, argv, "")

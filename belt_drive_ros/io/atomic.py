@@ -26,7 +26,9 @@ SIGTERM arms :mod:`faulthandler`'s watchdog, a thread outside the interpreter
 that needs no lock of Python's. Should the removal not end within
 :data:`CLEANUP_LIMIT` seconds (a cleanup stuck on a lock), it prints every
 thread's stack to stderr and ends the process with exit 1: an interrupted run
-never hangs, and the stacks say where it stuck.
+never hangs, and the stacks say where it stuck. (Not ``belt-drive sweep``: a
+campaign acts on a signal at the end of the batch running and closes its
+cluster itself, and a process ended by the watchdog would orphan its workers.)
 """
 
 from __future__ import annotations
