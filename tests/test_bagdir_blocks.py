@@ -179,3 +179,33 @@ def test_one_step_blocks_split_by_size_stay_in_few_chunks_and_files(tmp_path):
     assert messages[True] == messages[False]
     assert len(chunks[False]) >= 3 and abs(len(chunks[True]) - len(chunks[False])) <= 1, chunks
     assert sum(chunks[True]) <= sum(chunks[False]) + len(chunks[True]), chunks
+
+
+@pytest.mark.parametrize("stride", [1, 3, 5])
+def test_a_run_between_passed_through_messages_gives_the_same_messages_message_by_message_or_in_blocks(
+        tmp_path, monkeypatch, stride):
+    """A re-simulation passes a recorded message through every few steps: runs of up to ``recording.SHORT_RUN``
+    steps between them are written message by message (cheaper there), longer ones as blocks. Both give the same
+    messages (times, sequence numbers, bytes) in a file and in a bag folder as writing every run in blocks."""
+    import dataclasses
+
+    from belt_drive_ros.core.simulate import simulate
+    from belt_drive_ros.io import recording
+    from belt_drive_ros.io.cdr_encoders import encode_float64
+    from belt_drive_ros.io.scenes import load_scene
+
+    run = simulate(dataclasses.replace(load_scene("paper"), duration=0.2, dt=0.001, method="exact"))
+    start = 1_000_000_000
+    t_ns = np.round(run.time[::stride] * 1e9).astype(np.int64) + start - 1
+    passthrough = [("/raw", FLOAT64, "", None, list(zip(t_ns.tolist(), encode_float64(np.arange(t_ns.size)))))]
+    read, usual = {}, recording.SHORT_RUN
+    for short in (usual, 0):
+        monkeypatch.setattr(recording, "SHORT_RUN", short)
+        for folder in (False, True):
+            out = tmp_path / f"{short}_{folder}" / ("bag" if folder else "run.mcap")
+            out.parent.mkdir()
+            recording.write_result_mcap(run, out, bag_folder=folder, passthrough=passthrough, start_time_ns=start)
+            files = bag_files(out) if folder else [out]
+            read[short, folder] = sorted(m for f in files for m in _messages(f))
+    assert usual >= 3 and len(read[0, False]) == 7 * run.time.size + t_ns.size + 1
+    assert read[usual, False] == read[0, False] == read[usual, True] == read[0, True]
