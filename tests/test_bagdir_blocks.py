@@ -107,6 +107,18 @@ def test_split_by_size_with_the_default_chunk_size_checks_after_each_chunk(tmp_p
     assert sum(len(_messages(f)) for f in bag_files(tmp_path / "bag")) == 2 * t.size
 
 
+def _one_step_runs(folder, blocks: bool, t, payloads, **split) -> None:
+    """A recorded message on /raw just before each step, each step's samples a one-step block (or its messages)."""
+    with Ros2BagWriter(folder, force=True, blocks=blocks, chunk_size=4096, **split) as w:
+        for k, tk in enumerate(t.tolist()):
+            w.write_raw("/raw", FLOAT64, bytes(_payload(np.array([float(k)]))[0]), tk - 1)
+            if blocks:
+                w.write_block(TOPICS, t[k : k + 1], [p[k : k + 1] for p in payloads])
+            else:
+                for (topic, type_name), p in zip(TOPICS, payloads):
+                    w.write_raw(topic, type_name, p[k].tobytes(), tk)
+
+
 def test_one_step_blocks_between_passed_through_messages_split_as_message_by_message(tmp_path):
     """A re-simulation into a bag folder: a recorded message at every step, the samples as one-step blocks
     between them; the same files and messages as writing all one by one, and as few chunks."""
@@ -116,14 +128,7 @@ def test_one_step_blocks_between_passed_through_messages_split_as_message_by_mes
     files = {}
     for blocks in (False, True):
         folder = tmp_path / str(blocks)
-        with Ros2BagWriter(folder, force=True, blocks=blocks, chunk_size=4096, max_bag_duration=0.25) as w:
-            for k, tk in enumerate(t.tolist()):
-                w.write_raw("/raw", FLOAT64, bytes(_payload(np.array([float(k)]))[0]), tk - 1)
-                if blocks:
-                    w.write_block(TOPICS, t[k : k + 1], [p[k : k + 1] for p in payloads])
-                else:
-                    for (topic, type_name), p in zip(TOPICS, payloads):
-                        w.write_raw(topic, type_name, p[k].tobytes(), tk)
+        _one_step_runs(folder, blocks, t, payloads, max_bag_duration=0.25)
         files[blocks] = bag_files(folder)
     assert [sorted(_messages(f)) for f in files[True]] == [sorted(_messages(f)) for f in files[False]]
     for a, b in zip(files[False], files[True]):
@@ -163,14 +168,7 @@ def test_one_step_blocks_split_by_size_stay_in_few_chunks_and_files(tmp_path):
     chunks, messages = {}, {}
     for blocks in (False, True):
         folder = tmp_path / str(blocks)
-        with Ros2BagWriter(folder, force=True, blocks=blocks, chunk_size=4096, max_bag_size=40_000) as w:
-            for k, tk in enumerate(t.tolist()):
-                w.write_raw("/raw", FLOAT64, bytes(_payload(np.array([float(k)]))[0]), tk - 1)
-                if blocks:
-                    w.write_block(TOPICS, t[k : k + 1], [p[k : k + 1] for p in payloads])
-                else:
-                    for (topic, type_name), p in zip(TOPICS, payloads):
-                        w.write_raw(topic, type_name, p[k].tobytes(), tk)
+        _one_step_runs(folder, blocks, t, payloads, max_bag_size=40_000)
         chunks[blocks] = []
         for f in bag_files(folder):
             with open(f, "rb") as fh:
