@@ -81,9 +81,10 @@ def raise_if_interrupted() -> None:
 
     A signal's exception is raised in whatever the main thread runs when it
     arrives, and code that catches broadly can swallow it: seen here in one
-    run of 120, the import of a C extension (``_elementtree`` loading
-    ``pyexpat``) turned it into the ``ImportError`` that ElementTree's own
-    ``try``/``except ImportError`` fallback takes, and the run went on to
+    run of ~120, a SIGTERM landing in ``import xml.etree.ElementTree``, whose
+    C accelerator's import of ``pyexpat`` lost it (the import falls back to
+    the pure-Python module and succeeds, as it does when an import hook
+    raises :class:`KeyboardInterrupt` at ``pyexpat``), and the run went on to
     commit its output and exit 0 as if never interrupted. Each commit point
     calls this first: :func:`atomic_output` before its rename,
     :func:`~belt_drive_ros.io.bag_folder.bag_folder_kept` before it keeps the
