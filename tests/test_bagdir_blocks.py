@@ -242,3 +242,17 @@ def test_a_block_whose_times_go_back_is_refused(tmp_path):
         with pytest.raises(ValueError, match="ascending"):
             w.write_block(TOPICS, t, [_payload(np.ones(3))] * 2)
         assert w.message_count == 0
+
+
+@pytest.mark.parametrize("rows", [3, 8])
+@pytest.mark.parametrize("split", [{}, {"max_bag_duration": 2e-9}])
+def test_a_block_whose_payload_rows_are_not_its_steps_is_refused_with_nothing_written(tmp_path, rows, split):
+    """A payload of more rows than the block's times was taken silently (its first rows written, the rest
+    dropped) where BlockMcapWriter.write_block refuses it; one of fewer rows, in a folder split by duration,
+    had the block's first pieces written before the refusal. Refused up front now, as a single file does."""
+    with Ros2BagWriter(tmp_path / "x", force=True, blocks=True, **split) as w:
+        with pytest.raises(ValueError, match=r"payload must be \(5, >= 4\) bytes"):
+            w.write_block(TOPICS, np.arange(5), [_payload(np.ones(5)), _payload(np.ones(rows))])
+        with pytest.raises(ValueError, match=r"payload must be \(5, >= 4\) bytes"):
+            w.write_block(TOPICS[:1], np.arange(5), [np.zeros(5, dtype=np.uint8)])  # (1-D: an IndexError before)
+        assert w.message_count == 0
