@@ -403,8 +403,14 @@ class Ros2BagWriter:
             raise TypeError("write_block needs a bag writer made with blocks=True")
         t = np.asarray(log_time_ns, dtype=np.int64)
         n = int(t.size)
-        if not n:
+        if not n or not topics:  # (no messages: none one by one either)
             return
+        if n > 1 and bool((t[1:] < t[:-1]).any()):  # (split by searching them)
+            raise ValueError("write_block: times must be ascending")
+        for (topic, _), p in zip(topics, payloads):  # (up front, as BlockMcapWriter: its pieces are sliced from them)
+            shape = (len(p), p.size) if isinstance(p, FixedMessages) else np.shape(p)
+            if len(shape) != 2 or shape[0] != n or shape[1] < 4:
+                raise ValueError(f"write_block: {topic}: payload must be ({n}, >= 4) bytes, got {shape}")
         step_bytes = sum(p.size if isinstance(p, FixedMessages) else int(np.shape(p)[1]) for p in payloads)
         chunk = self._current._chunk_size  # (the files' chunk size: given, or Ros2McapWriter's default)
         piece = max(1, chunk // (step_bytes + 31 * len(topics)))  # (31: a message record's header)

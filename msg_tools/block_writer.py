@@ -612,10 +612,12 @@ class BlockMcapWriter(Ros2McapWriter):
         went into chunks of its own."""
         log_time_ns = np.asarray(log_time_ns, dtype=np.int64)
         n = log_time_ns.size
-        if not n:
+        if not n or not topics:  # (no messages: none one by one either)
             return False
         if log_time_ns[0] < 0:
             raise ValueError(f"write_block: times must be >= 0 ns, got {int(log_time_ns[0])}")
+        if n > 1 and bool((log_time_ns[1:] < log_time_ns[:-1]).any()):  # (the file's and chunks' times: first, last)
+            raise ValueError("write_block: times must be ascending")
         payloads = [p if isinstance(p, FixedMessages) else np.ascontiguousarray(p, dtype=np.uint8) for p in payloads]
         for (topic, _), p in zip(topics, payloads):
             shape = (len(p), p.size) if isinstance(p, FixedMessages) else p.shape

@@ -207,3 +207,52 @@ def test_a_run_between_passed_through_messages_gives_the_same_messages_message_b
             read[short, folder] = sorted(m for f in files for m in _messages(f))
     assert usual >= 3 and len(read[0, False]) == 7 * run.time.size + t_ns.size + 1
     assert read[usual, False] == read[0, False] == read[usual, True] == read[0, True]
+
+
+def test_a_block_of_no_topics_writes_nothing_as_message_by_message_does(tmp_path):
+    """``write_block([], t, [])``: no messages, as writing them one by one (nothing) gives; it divided by zero
+    (the step's bytes), in a bag folder and (after noting the block's times as the file's) in a single file."""
+    from msg_tools.block_writer import BlockMcapWriter
+
+    with Ros2BagWriter(tmp_path / "x", force=True, blocks=True, max_bag_size=10_000) as w:
+        w.write_block([], np.array([1, 2, 3]), [])
+        w.write_raw("/a", FLOAT64, bytes(_payload(np.ones(1))[0]), 7)
+    with BlockMcapWriter(tmp_path / "y.mcap", force=True) as w:
+        w.write_block([], np.array([1, 2, 3]), [])
+        w.write_raw("/a", FLOAT64, bytes(_payload(np.ones(1))[0]), 7)
+    for path in bag_files(tmp_path / "x") + [tmp_path / "y.mcap"]:
+        assert [m[:2] for m in _messages(path)] == [("/a", 7)]
+        with open(path, "rb") as f:
+            stats = make_reader(f).get_summary().statistics
+        assert (stats.message_start_time, stats.message_end_time) == (7, 7)
+
+
+def test_a_block_whose_times_go_back_is_refused(tmp_path):
+    """A block's times must be ascending (files split by searching them; a file's statistics take their first
+    and last): out of order, the file said it began at its last time and ended at its first (start > end) and a
+    bag folder split at the wrong step. Refused now, with nothing written."""
+    from msg_tools.block_writer import BlockMcapWriter
+
+    t = np.array([5, 3, 1])
+    with Ros2BagWriter(tmp_path / "x", force=True, blocks=True, max_bag_duration=1e-9) as w:
+        with pytest.raises(ValueError, match="ascending"):
+            w.write_block(TOPICS, t, [_payload(np.ones(3))] * 2)
+        assert w.message_count == 0 and len(w.files) == 1
+    with BlockMcapWriter(tmp_path / "y.mcap", force=True) as w:
+        with pytest.raises(ValueError, match="ascending"):
+            w.write_block(TOPICS, t, [_payload(np.ones(3))] * 2)
+        assert w.message_count == 0
+
+
+@pytest.mark.parametrize("rows", [3, 8])
+@pytest.mark.parametrize("split", [{}, {"max_bag_duration": 2e-9}])
+def test_a_block_whose_payload_rows_are_not_its_steps_is_refused_with_nothing_written(tmp_path, rows, split):
+    """A payload of more rows than the block's times was taken silently (its first rows written, the rest
+    dropped) where BlockMcapWriter.write_block refuses it; one of fewer rows, in a folder split by duration,
+    had the block's first pieces written before the refusal. Refused up front now, as a single file does."""
+    with Ros2BagWriter(tmp_path / "x", force=True, blocks=True, **split) as w:
+        with pytest.raises(ValueError, match=r"payload must be \(5, >= 4\) bytes"):
+            w.write_block(TOPICS, np.arange(5), [_payload(np.ones(5)), _payload(np.ones(rows))])
+        with pytest.raises(ValueError, match=r"payload must be \(5, >= 4\) bytes"):
+            w.write_block(TOPICS[:1], np.arange(5), [np.zeros(5, dtype=np.uint8)])  # (1-D: an IndexError before)
+        assert w.message_count == 0

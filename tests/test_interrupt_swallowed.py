@@ -180,3 +180,32 @@ def test_a_program_without_stderr_still_gets_the_interruption_at_the_first_signa
             caught.append(exc)
             raise
     assert [type(e) for e in caught] == [Terminated]
+
+
+def test_a_signal_while_the_old_bag_is_set_aside_puts_every_file_of_it_back(tmp_path, monkeypatch):
+    """SIGTERM (as Terminated) landing between the moves of the old bag's files into the hidden folder: they
+    were moved before the block's try, so the files moved so far stayed in ``.bag.*.old`` and the folder kept a
+    bag without them (its metadata.yaml naming a file that was gone), though the run said it was interrupted.
+    Now every file is back in the folder and no hidden folder is left, as for a signal during the run."""
+    from belt_drive_ros.io import bag_folder
+
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    old = {"metadata.yaml": b"old", "bag_0.mcap": b"old0", "bag_1.mcap": b"old1", "notes.txt": b"mine"}
+    for name, data in old.items():
+        (bag / name).write_bytes(data)
+    replace, calls = os.replace, []
+
+    def interrupted_replace(src, dst):
+        calls.append(src)
+        if len(calls) == 2:  # (the second file of the old bag: one is in the hidden folder already)
+            raise Terminated(signal.SIGTERM)
+        return replace(src, dst)
+
+    monkeypatch.setattr(bag_folder.os, "replace", interrupted_replace)
+    with pytest.raises(Terminated):
+        with bag_folder_kept(bag, force=True):
+            pytest.fail("the block ran")
+    monkeypatch.setattr(bag_folder.os, "replace", replace)
+    assert {p.name: p.read_bytes() for p in bag.iterdir()} == old
+    assert [p.name for p in tmp_path.iterdir()] == ["bag"]

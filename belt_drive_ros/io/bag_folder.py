@@ -118,8 +118,12 @@ def bag_folder_kept(folder, force: bool):
             raise
         return
     backup = Path(tempfile.mkdtemp(dir=folder.absolute().parent, prefix=f".{folder.name}.", suffix=OLD))
-    for f in files:
-        os.replace(f, backup / f.name)
+    try:
+        for f in files:
+            os.replace(f, backup / f.name)
+    except BaseException:  # (a signal between the moves: the files moved so far go back)
+        _put_back(backup, folder)
+        raise
     try:
         yield
         raise_if_interrupted()
