@@ -397,7 +397,7 @@ class Ros2BagWriter:
         """
         import numpy as np
 
-        from .block_writer import FixedMessages
+        from .block_writer import FixedMessages, checked_block
 
         if not self._blocks:
             raise TypeError("write_block needs a bag writer made with blocks=True")
@@ -405,13 +405,9 @@ class Ros2BagWriter:
         n = int(t.size)
         if not n or not topics:  # (no messages: none one by one either)
             return
-        if n > 1 and bool((t[1:] < t[:-1]).any()):  # (split by searching them)
-            raise ValueError("write_block: times must be ascending")
-        for (topic, _), p in zip(topics, payloads):  # (up front, as BlockMcapWriter: its pieces are sliced from them)
-            shape = (len(p), p.size) if isinstance(p, FixedMessages) else np.shape(p)
-            if len(shape) != 2 or shape[0] != n or shape[1] < 4:
-                raise ValueError(f"write_block: {topic}: payload must be ({n}, >= 4) bytes, got {shape}")
-        step_bytes = sum(p.size if isinstance(p, FixedMessages) else int(np.shape(p)[1]) for p in payloads)
+        # (up front, as the file's writer checks each piece: the times are searched to split, the pieces sliced)
+        payloads = checked_block(topics, t, payloads)
+        step_bytes = sum(p.size if isinstance(p, FixedMessages) else p.shape[1] for p in payloads)
         chunk = self._current._chunk_size  # (the files' chunk size: given, or Ros2McapWriter's default)
         piece = max(1, chunk // (step_bytes + 31 * len(topics)))  # (31: a message record's header)
         with self._lock:
@@ -432,7 +428,7 @@ class Ros2BagWriter:
                     self._topics.setdefault(topic, (type_name, None, None))
                     if topic in self._latched:  # (its message before the next file: the piece's last)
                         last = p[b - 1 : b]
-                        last = last.rows() if isinstance(last, FixedMessages) else np.asarray(last, dtype=np.uint8)
+                        last = last.rows() if isinstance(last, FixedMessages) else last
                         self._latched[topic] = (type_name, last[0].tobytes())
                 a = b
 

@@ -589,6 +589,24 @@ class BlockRecords:
         self.stream.write(MCAP0_MAGIC)
 
 
+def checked_block(topics: Sequence[tuple], log_time_ns: np.ndarray, payloads: Sequence) -> list:
+    """The payloads of a block of ``log_time_ns.size`` (> 0) steps as :meth:`BlockMcapWriter.write_block` writes
+    them (uint8 arrays made contiguous, :class:`FixedMessages` as they are), after checking the block: times
+    ``>= 0`` [ns] and ascending (a file's and a chunk's times are their first and last), each payload ``(n, >= 4)``
+    bytes. A :class:`ValueError` names what is wrong."""
+    n = log_time_ns.size
+    if log_time_ns[0] < 0:
+        raise ValueError(f"write_block: times must be >= 0 ns, got {int(log_time_ns[0])}")
+    if n > 1 and bool((log_time_ns[1:] < log_time_ns[:-1]).any()):
+        raise ValueError("write_block: times must be ascending")
+    payloads = [p if isinstance(p, FixedMessages) else np.ascontiguousarray(p, dtype=np.uint8) for p in payloads]
+    for (topic, _), p in zip(topics, payloads):
+        shape = (len(p), p.size) if isinstance(p, FixedMessages) else p.shape
+        if len(shape) != 2 or shape[0] != n or shape[1] < 4:
+            raise ValueError(f"write_block: {topic}: payload must be ({n}, >= 4) bytes, got {shape}")
+    return payloads
+
+
 class BlockMcapWriter(Ros2McapWriter):
     """A :class:`~msg_tools.writer.Ros2McapWriter` that also writes blocks of fixed-size messages.
 
@@ -614,15 +632,7 @@ class BlockMcapWriter(Ros2McapWriter):
         n = log_time_ns.size
         if not n or not topics:  # (no messages: none one by one either)
             return False
-        if log_time_ns[0] < 0:
-            raise ValueError(f"write_block: times must be >= 0 ns, got {int(log_time_ns[0])}")
-        if n > 1 and bool((log_time_ns[1:] < log_time_ns[:-1]).any()):  # (the file's and chunks' times: first, last)
-            raise ValueError("write_block: times must be ascending")
-        payloads = [p if isinstance(p, FixedMessages) else np.ascontiguousarray(p, dtype=np.uint8) for p in payloads]
-        for (topic, _), p in zip(topics, payloads):
-            shape = (len(p), p.size) if isinstance(p, FixedMessages) else p.shape
-            if len(shape) != 2 or shape[0] != n or shape[1] < 4:
-                raise ValueError(f"write_block: {topic}: payload must be ({n}, >= 4) bytes, got {shape}")
+        payloads = checked_block(topics, log_time_ns, payloads)
         with self._lock:
             self._check_writable()
             channels = [self._channel(topic, type_name, None) for topic, type_name in topics]
