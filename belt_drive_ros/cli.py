@@ -120,8 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     except RecursionError:
         return _fail("input nested too deeply", 2)
     except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM as Terminated: outputs in progress were removed
-        return _interrupted(exc.signum if isinstance(exc, Terminated) else signal.SIGINT, argv,
-                            "; unfinished outputs removed")
+        return _interrupted(exc.signum if isinstance(exc, Terminated) else signal.SIGINT, argv, _after_interruption())
     except MemoryError:
         return _fail("out of memory (a shorter run, or --out to stream it, needs less)", 1)
     except OSError as exc:  # disk full, I/O error: the run failed, the input was fine
@@ -153,6 +152,15 @@ def _interrupted(signum: int, argv, detail: str) -> int:
         # "terminate called without an active exception" and SIGABRT after the outputs were already removed
         _exit_now(128 + int(signum))
     return 128 + int(signum)
+
+
+def _after_interruption() -> str:
+    """What an interrupted command left: the outputs it had committed are complete and kept (``--out`` written,
+    then interrupted while its ``--plot`` or summary was made); anything unfinished was removed."""
+    from .io.atomic import committed_outputs
+
+    kept = committed_outputs()
+    return (f"; kept, complete: {', '.join(kept)}; " if kept else "; ") + "unfinished outputs removed"
 
 
 def _exit_now(code: int) -> None:

@@ -70,6 +70,24 @@ CLEANUP_LIMIT = 90.0
 
 #: the SIGINT/SIGTERM numbers the running :func:`terminate_raises` block received, in order
 _received: list[int] = []
+#: the outputs the last :func:`terminate_raises` block committed (:func:`committed_outputs`); None outside a block
+_committed: list[str] | None = None
+#: the list the open block notes its commits in (None: no block open, nothing noted)
+_noting: list[str] | None = None
+
+
+def note_committed(path) -> None:
+    """Note that output ``path`` is complete and in place (a file renamed onto its name, a bag folder kept), so an
+    interruption after it says it is kept (:func:`committed_outputs`). Outside a :func:`terminate_raises` block:
+    nothing."""
+    if _noting is not None:
+        _noting.append(str(path))
+
+
+def committed_outputs() -> list[str]:
+    """The outputs the last :func:`terminate_raises` block committed before it was left (a run interrupted after
+    writing its ``--out`` while its ``--plot`` or summary was still being made keeps that output whole), in order."""
+    return list(_committed or ())
 
 
 def _interruption(signum: int) -> KeyboardInterrupt:
@@ -137,7 +155,9 @@ def terminate_raises(cleanup_limit: float | None = None) -> Iterator[None]:
             faulthandler.dump_traceback_later(cleanup_limit, exit=True, file=2 if sys.stderr is None else sys.stderr)
         raise _interruption(signum)
 
+    global _committed, _noting
     _received.clear()
+    _committed = _noting = []
     previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, on_signal)}
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # (an ignored SIGINT stays ignored)
         previous[signal.SIGINT] = signal.signal(signal.SIGINT, on_signal)
@@ -149,6 +169,7 @@ def terminate_raises(cleanup_limit: float | None = None) -> Iterator[None]:
             raise _interruption(_received[0]) from exc
         raise
     finally:
+        _noting = None  # (what it committed stays readable: committed_outputs)
         if cleanup_limit is not None:
             faulthandler.cancel_dump_traceback_later()
         try:  # (signal.signal raises a signal that arrived just before: the other handler is restored all the same)
@@ -247,6 +268,7 @@ def atomic_output(path: str | os.PathLike, force: bool = False, mode: str = "wb"
             raise OutputRefused(f"{what} {path} appeared while writing; pass --force to overwrite it")
         os.replace(name, path)
         done = True
+        note_committed(path)
     except OSError as exc:
         if isinstance(exc, OutputRefused):
             raise

@@ -29,7 +29,7 @@ import tempfile
 from pathlib import Path
 
 from ..core.errors import OutputError
-from .atomic import raise_if_interrupted
+from .atomic import note_committed, raise_if_interrupted
 from .inputs import still_at
 
 __all__ = ["BagFolderBusy", "bag_files_in", "bag_folder_kept", "bag_folder_lock", "remove_bag_folder", "set_aside",
@@ -116,6 +116,7 @@ def bag_folder_kept(folder, force: bool):
             if force:  # (nothing of ours to keep: what the new bag left goes)
                 remove_bag_folder(folder)
             raise
+        note_committed(folder)
         return
     backup = Path(tempfile.mkdtemp(dir=folder.absolute().parent, prefix=f".{folder.name}.", suffix=OLD))
     try:
@@ -131,6 +132,7 @@ def bag_folder_kept(folder, force: bool):
         remove_bag_folder(folder)  # (what the new bag left, if anything)
         _put_back(backup, folder)
         raise
+    note_committed(folder)
     shutil.rmtree(backup, ignore_errors=True)
 
 
