@@ -592,13 +592,15 @@ class BlockRecords:
 def checked_block(topics: Sequence[tuple], log_time_ns: np.ndarray, payloads: Sequence) -> list:
     """The payloads of a block of ``log_time_ns.size`` (> 0) steps as :meth:`BlockMcapWriter.write_block` writes
     them (uint8 arrays made contiguous, :class:`FixedMessages` as they are), after checking the block: times
-    ``>= 0`` [ns] and ascending (a file's and a chunk's times are their first and last), each payload ``(n, >= 4)``
-    bytes. A :class:`ValueError` names what is wrong."""
+    ``>= 0`` [ns] and ascending (a file's and a chunk's times are their first and last), one payload per topic, each
+    ``(n, >= 4)`` bytes. A :class:`ValueError` names what is wrong."""
     n = log_time_ns.size
     if log_time_ns[0] < 0:
         raise ValueError(f"write_block: times must be >= 0 ns, got {int(log_time_ns[0])}")
     if n > 1 and bool((log_time_ns[1:] < log_time_ns[:-1]).any()):
         raise ValueError("write_block: times must be ascending")
+    if len(payloads) != len(topics):
+        raise ValueError(f"write_block: {len(topics)} topics need as many payloads, got {len(payloads)}")
     payloads = [p if isinstance(p, FixedMessages) else np.ascontiguousarray(p, dtype=np.uint8) for p in payloads]
     for (topic, _), p in zip(topics, payloads):
         shape = (len(p), p.size) if isinstance(p, FixedMessages) else p.shape

@@ -256,3 +256,20 @@ def test_a_block_whose_payload_rows_are_not_its_steps_is_refused_with_nothing_wr
         with pytest.raises(ValueError, match=r"payload must be \(5, >= 4\) bytes"):
             w.write_block(TOPICS[:1], np.arange(5), [np.zeros(5, dtype=np.uint8)])  # (1-D: an IndexError before)
         assert w.message_count == 0
+
+
+@pytest.mark.parametrize("count", [1, 3])
+def test_a_block_with_a_payload_count_other_than_its_topics_is_refused_by_name(tmp_path, count):
+    """One payload per topic: fewer or more were refused by a message about the writer's internals ("no field
+    of name s1", "... t2"). Both writers refuse it now naming the counts, with nothing written."""
+    from msg_tools.block_writer import BlockMcapWriter
+
+    payloads = [_payload(np.ones(5))] * count
+    with Ros2BagWriter(tmp_path / "x", force=True, blocks=True) as w:
+        with pytest.raises(ValueError, match=f"2 topics need as many payloads, got {count}"):
+            w.write_block(TOPICS, np.arange(5), payloads)
+        assert w.message_count == 0
+    with BlockMcapWriter(tmp_path / "y.mcap", force=True) as w:
+        with pytest.raises(ValueError, match=f"2 topics need as many payloads, got {count}"):
+            w.write_block(TOPICS, np.arange(5), payloads)
+        assert w.message_count == 0
