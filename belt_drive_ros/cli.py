@@ -89,6 +89,8 @@ def main(argv: list[str] | None = None) -> int:
     import warnings
 
     warnings.showwarning = _one_line_warning  # e.g. a truncated bag: say so in one line
+    if argv is None and sys.stderr is None:  # (a program started with stderr closed, `2>&-`: print(file=None)
+        sys.stderr = open(os.devnull, "w")  # writes to stdout; its errors and warnings go nowhere, as any tool's)
     try:  # (~0.3 s of imports: a SIGINT here ends as one during the run does, never with a traceback)
         parser = _parser()
         args = parser.parse_args(argv)
