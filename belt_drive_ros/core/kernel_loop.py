@@ -185,11 +185,24 @@ class KernelLoop:
         plant's tables are not copied again: a recording's hold ~16 bytes a sample), so use it before the next call.
         The same arrays as ``KernelLoop(scheme, dt, ...)`` of the plant (the same floats); None where that is not
         one layout (stacked variants, another extra input, a scheme of other stage kinds)."""
-        if self._own_of is None or not KernelLoop.usable(scheme):
+        if self._own_of is None:
             return None
-        own, ints = self._own_of(scheme, dt)
         size = self.reals.size - self.tables.size
-        if own.size != size or not np.array_equal(ints, self._ints0):
+        # (scheme, its numbers or None) by the scheme's identity and step: the checks below made once per partial
+        # step's integrator (the survey's and the windows' partial steps repeat theirs at every run)
+        known = self.__dict__.setdefault("_piece_numbers", {})
+        found = known.get((id(scheme), dt))
+        if found is None or found[0] is not scheme:
+            own = None
+            if KernelLoop.usable(scheme):
+                own, ints = self._own_of(scheme, dt)
+                if own.size != size or not np.array_equal(ints, self._ints0):
+                    own = None
+            if len(known) >= OWN_CACHE_SIZE:
+                known.clear()
+            found = known[(id(scheme), dt)] = (scheme, own)
+        own = found[1]
+        if own is None:
             return None
         loop = self._piece
         if loop is None:
