@@ -270,11 +270,13 @@ def _warm_loop(stacked: bool):
 
 
 def warm() -> None:
-    """Compile (or load from the disk cache) the profile dispatcher and the linear loop with the one
-    signature runs use (:func:`belt_drive_ros.core.warm.warm` warms every kernel; the variant loop:
-    :func:`warm_variants`)."""
+    """Compile (or load from the disk cache) the profile dispatcher, the linear loop and the outputs' affine map
+    (:mod:`~belt_drive_ros.core.kernel_affine`) with the one signature runs use (:func:`belt_drive_ros.core.warm.warm`
+    warms every kernel; the variant loop: :func:`warm_variants`)."""
+    from . import kernel_affine
     from .kernel_profiles import profile_torque, profile_torque_array
 
+    kernel_affine.warm()  # (a long run's outputs: model._affine)
     data, loop = _warm_loop(False)
     profile_torque(data.kinds, data.params, data.tx, data.ty, 0.0, 0.0, 0.0)
     one = np.zeros(1)
