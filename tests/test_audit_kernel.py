@@ -33,6 +33,7 @@ PACKAGES = (ROOT / "belt_drive_ros", ROOT / "msg_tools")
 BIN = Path(sys.executable).parent
 #: the modules holding compiled functions (every module of the package importing numba)
 KERNEL_MODULES = ("belt_drive_ros.core.kernel", "belt_drive_ros.core.kernel_profiles", "belt_drive_ros.core.kernel_slip",
+                  "belt_drive_ros.core.kernel_affine",
                   "belt_drive_ros.core.kernel_variants", "belt_drive_ros.core.tick", "belt_drive_ros.core.network.tick",
                   "belt_drive_ros.core.network.slip_kernel")
 

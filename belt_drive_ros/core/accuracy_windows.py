@@ -122,32 +122,39 @@ def _phase_drifts(plant, starts, xc, xf, tf, yf, factor: float, duration: float)
     """
     W = plant.wheel_map
     n = tf.size
-    sizes = np.diff(np.append(starts, n))
-    ends = np.asarray(starts) + sizes - 1  # each window's last row: its rate row would span two windows
+    starts = [int(a) for a in starts]
+    sizes = [b - a for a, b in zip(starts, starts[1:] + [n])]
+    ends = [a + size - 1 for a, size in zip(starts, sizes)]  # each window's last row: its rate row would span two windows
     dy, dt = np.empty_like(yf), np.empty(n)
     dy[:-1], dt[:-1] = np.abs(np.diff(yf, axis=0)), np.diff(tf)
     dy[ends], dt[ends] = 0.0, 1.0  # (|dy/dt| >= 0: a zero row changes no window's largest rate)
-    rate = np.maximum.reduceat(dy / dt[:, None], starts, axis=0)
+    # (per window the few numbers of the loop below as Python floats: the same IEEE operations as numpy's on them)
+    rate = np.maximum.reduceat(dy / dt[:, None], starts, axis=0).tolist()
     long = [j for j in range(len(starts)) if sizes[j] > 1]
-    worst = {j: np.zeros_like(rate[j]) for j in long}
-    if not long:
-        return worst
-    firsts = [starts[j] + min(max(1, sizes[j] // 2) + 1, sizes[j]) for j in long]
-    # per window: its first half's rows, then the rest (a zero row after the last window: every bound indexes a row)
-    bounds = np.array([k for j, f in zip(long, firsts) for k in (starts[j], f, starts[j] + sizes[j])])
-    gap = xc - xf
-    for row_phi, row_w in ((W[0], W[1]), (W[2], W[3])):
-        top = np.maximum.reduceat(np.abs(xf @ row_w), starts)  # each window's top speed
-        # max of (factor |d phi| / w) = factor max |d phi| / w (w > 0; rounding keeps the order): the same floats
-        dphi = np.maximum.reduceat(np.append(np.abs(gap @ row_phi), 0.0), bounds)
-        for k, j in enumerate(long):
-            w = float(top[j])
-            if not w > 1e-9:
-                continue
-            first = float(factor * dphi[3 * k] / w)
-            rest = dphi[3 * k + 1] if firsts[k] < starts[j] + sizes[j] else dphi[3 * k]
-            whole = float(factor * np.maximum(dphi[3 * k], rest) / w)
-            span = float(tf[starts[j] + sizes[j] - 1] - tf[starts[j]])
-            g = 1.0 if first <= 0.0 else min(1.0, max(0.0, math.log2(max(whole / first, 1.0))))
-            worst[j] = np.maximum(worst[j], rate[j] * whole * max(1.0, duration / span) ** g)
-    return worst
+    worst = {j: [0.0] * len(rate[j]) for j in long}
+    if long:
+        firsts = [starts[j] + min(max(1, sizes[j] // 2) + 1, sizes[j]) for j in long]
+        # per window: its first half's rows, then the rest (a zero row after the last window: every bound indexes a row)
+        bounds = [k for j, f in zip(long, firsts) for k in (starts[j], f, starts[j] + sizes[j])]
+        gap = xc - xf
+        for row_phi, row_w in ((W[0], W[1]), (W[2], W[3])):
+            top = np.maximum.reduceat(np.abs(xf @ row_w), starts).tolist()  # each window's top speed
+            # max of (factor |d phi| / w) = factor max |d phi| / w (w > 0; rounding keeps the order): the same floats
+            dphi = np.maximum.reduceat(np.append(np.abs(gap @ row_phi), 0.0), bounds).tolist()
+            for k, j in enumerate(long):
+                w = top[j]
+                if not w > 1e-9:
+                    continue
+                first = factor * dphi[3 * k] / w
+                rest = dphi[3 * k + 1] if firsts[k] < starts[j] + sizes[j] else dphi[3 * k]
+                whole = factor * _maximum(dphi[3 * k], rest) / w
+                span = float(tf[starts[j] + sizes[j] - 1] - tf[starts[j]])
+                g = 1.0 if first <= 0.0 else min(1.0, max(0.0, math.log2(max(whole / first, 1.0))))
+                grown = max(1.0, duration / span) ** g
+                worst[j] = [_maximum(a, r * whole * grown) for a, r in zip(worst[j], rate[j])]
+    return {j: np.array(v) for j, v in worst.items()}
+
+
+def _maximum(a: float, b: float) -> float:
+    """``np.maximum`` of two floats (a NaN either side is the result: the first when both)."""
+    return a if a >= b or a != a else b

@@ -6,6 +6,7 @@ or a verdict.
 
 from __future__ import annotations
 
+from operator import is_
 from typing import Callable
 
 
@@ -14,7 +15,7 @@ def built_once(cache: dict, size: int, objects: tuple, build: Callable, extra: t
     entries, the least recently used dropped: a hit moves its entry to the end) unless ``keep(value)`` is false."""
     key = (*map(id, objects), *extra)
     hit = cache.get(key)
-    if hit is not None and all(a is b for a, b in zip(hit[0], objects)):
+    if hit is not None and all(map(is_, hit[0], objects)):  # (map of a C function: no frame per object)
         cache.pop(key, None)  # (the end: the entry just used is the last one dropped)
         cache[key] = hit
         return hit[1]

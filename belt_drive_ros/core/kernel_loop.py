@@ -185,11 +185,24 @@ class KernelLoop:
         plant's tables are not copied again: a recording's hold ~16 bytes a sample), so use it before the next call.
         The same arrays as ``KernelLoop(scheme, dt, ...)`` of the plant (the same floats); None where that is not
         one layout (stacked variants, another extra input, a scheme of other stage kinds)."""
-        if self._own_of is None or not KernelLoop.usable(scheme):
+        if self._own_of is None:
             return None
-        own, ints = self._own_of(scheme, dt)
         size = self.reals.size - self.tables.size
-        if own.size != size or not np.array_equal(ints, self._ints0):
+        # (scheme, its numbers or None) by the scheme's identity and step: the checks below made once per partial
+        # step's integrator (the survey's and the windows' partial steps repeat theirs at every run)
+        known = self.__dict__.setdefault("_piece_numbers", {})
+        found = known.get((id(scheme), dt))
+        if found is None or found[0] is not scheme:
+            own = None
+            if KernelLoop.usable(scheme):
+                own, ints = self._own_of(scheme, dt)
+                if own.size != size or not np.array_equal(ints, self._ints0):
+                    own = None
+            if len(known) >= OWN_CACHE_SIZE:
+                known.clear()
+            found = known[(id(scheme), dt)] = (scheme, own)
+        own = found[1]
+        if own is None:
             return None
         loop = self._piece
         if loop is None:
@@ -257,11 +270,13 @@ def _warm_loop(stacked: bool):
 
 
 def warm() -> None:
-    """Compile (or load from the disk cache) the profile dispatcher and the linear loop with the one
-    signature runs use (:func:`belt_drive_ros.core.warm.warm` warms every kernel; the variant loop:
-    :func:`warm_variants`)."""
+    """Compile (or load from the disk cache) the profile dispatcher, the linear loop and the outputs' affine map
+    (:mod:`~belt_drive_ros.core.kernel_affine`) with the one signature runs use (:func:`belt_drive_ros.core.warm.warm`
+    warms every kernel; the variant loop: :func:`warm_variants`)."""
+    from . import kernel_affine
     from .kernel_profiles import profile_torque, profile_torque_array
 
+    kernel_affine.warm()  # (a long run's outputs: model._affine)
     data, loop = _warm_loop(False)
     profile_torque(data.kinds, data.params, data.tx, data.ty, 0.0, 0.0, 0.0)
     one = np.zeros(1)

@@ -351,13 +351,16 @@ class SlippingSimulator:
             grid = st._grid(k0, k1 + 1)
             lo, hi, special = self._free_steps(N)
         else:
-            plan = st._plan(float(t0), float(t1))
+            plan = st._run_plan(float(t0), float(t1))  # (a repeated advance's plan kept: the run's reruns)
             if plan["empty"]:
                 return self._advance_steps(state, t0, t1, record, events)
             first, last = plan["first"], plan["last"]
             N = last - first + 1
-            grid = st._grid(first, last + 2)
-            lo, hi, special = step_arrays(plan)
+            if "grid" not in plan:  # (kept with the plan: read-only to the loop, which writes into knots only)
+                plan["grid"] = st._grid(first, last + 2)
+            if "arrays" not in plan:
+                plan["arrays"] = step_arrays(plan)
+            grid, (lo, hi, special) = plan["grid"], plan["arrays"]
         knots = grid.copy()
         knots[0], knots[-1] = t0, t1
         ks = _kernel_slip()

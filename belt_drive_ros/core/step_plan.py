@@ -38,8 +38,8 @@ GRID_TOLERANCE = 1e-9
 #: an advance over at least this many breakpoints classifies them with numpy (fewer: one at a time in Python, the
 #: same floats; numpy's fixed cost is ~40 times the loop's for one breakpoint, which a node's tick across one plans)
 VECTOR_MIN = 32
-#: plans of :meth:`StepPlanner._run_plan` kept per planner (the guards' windows and the run repeat theirs), of so
-#: many clamped or split steps at most
+#: plans of :meth:`StepPlanner._run_plan` kept per planner (the guards' windows, the run and the slipping run's
+#: reruns repeat theirs), of so many clamped or split steps at most
 PLAN_CACHE_SIZE, PLAN_SPECIAL = 8, 64
 _NO_CELLS = np.empty(0, dtype=np.int64)
 _NO_TIMES = np.empty(0, dtype=np.float64)
@@ -310,8 +310,9 @@ class StepPlanner:
         return clamps, splits
 
     def _run_plan(self, t0: float, t1: float) -> dict:
-        """:meth:`_plan` of a run; the last :data:`PLAN_CACHE_SIZE` kept by their ends,
-        origin and (immutable) breakpoints, those of at most :data:`PLAN_SPECIAL` clamped or split steps."""
+        """:meth:`_plan` of a run (or of a slipping run's advance); the last :data:`PLAN_CACHE_SIZE` kept by their ends,
+        origin and (immutable) breakpoints, those of at most :data:`PLAN_SPECIAL` clamped or split steps. What its
+        executors derive from it (``grid``, ``groups``, ``bounds``, ``arrays``) is kept in it, read-only to them."""
         key = (t0, t1, self.origin, id(self.breakpoints))
         hit = self._plans.get(key)
         if hit is not None and hit[0] is self.breakpoints:
