@@ -21,7 +21,10 @@ export MPLBACKEND := Agg
 help:
 	@sed -n '1,8p' Makefile
 
-$(STAMP): pyproject.toml constraints.txt tests/foxglove/package-lock.json
+# (and the compiled kernels' sources: a changed kernel is compiled again here, so a first run compiles nothing)
+KERNELS := $(wildcard belt_drive_ros/core/kernel*.py belt_drive_ros/core/tick.py belt_drive_ros/core/network/*.py)
+
+$(STAMP): pyproject.toml constraints.txt tests/foxglove/package-lock.json $(KERNELS)
 	@command -v node >/dev/null && command -v npm >/dev/null || { \
 	  echo "error: node and npm are needed (the tests decode recordings with Foxglove's parsers): install nodejs and npm" >&2; exit 1; }
 	npm ci --prefix tests/foxglove --no-audit --no-fund --loglevel=error
