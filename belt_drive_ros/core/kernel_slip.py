@@ -46,7 +46,7 @@ import numpy as np
 from numba import njit
 
 from .kernel import linear_steps
-from .kernel_profiles import profile_torque
+from .kernel_profiles import NO_ANCHOR, profile_scalars, profile_torque, scalar_at
 from .profile_data import COMPRESSOR, DIVERGED, ENGINE, GUARDED, NOT_CONVERGED
 
 _JIT = dict(cache=True, nogil=True)
@@ -69,6 +69,10 @@ MAX_SWITCHES = 64
 #: own input and end state, a flow's, a location's, :func:`_stick_keeps`' 13); allocated once per run, not per call
 FLOW_WORK, LOCATE_WORK = 36, 24
 EVENT_WORK = 8 + FLOW_WORK + LOCATE_WORK + 13
+#: a profile left to the dispatcher, typed as :func:`~.kernel_profiles.profile_scalars` answers one that does not fit:
+#: ``sd``, ``sl`` for a call of the kernels from Python that has no profile read into scalars (each torque through
+#: :func:`~.kernel_profiles.profile_torque`, the same floats)
+DISPATCHED = (False, 0, (0.0,) * 9, (0.0,) * 3, (0.0,) * 8, 0, (0.0,) * 9, (0.0,) * 3, (0.0,) * 8, (0.0,) * 4)
 
 
 @njit(**_INLINE)
@@ -123,13 +127,52 @@ def _limit(c, omega):
 
 
 @njit(**_INLINE)
-def _inputs(mode, sigma, t, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u):
-    """u = [drive, load(, sigma Q_max)] at ``t`` (clipped at ``hi``) and state ``y`` into ``u``."""
+def _reads(t, y, hi, c, uses):
+    """What the profiles read at ``t`` and state ``y``: (``t`` clipped at ``hi``, the drive's angle ``phi_M``, the
+    load's ``phi_3 = i phi_M - theta_e - s / r_3``) [s, rad], an angle 0.0 where its profile does not read it."""
     tc = t if t < hi else hi
-    u[0] = profile_torque(dk, dp, dx, dy, tc, y[0] if uses[0] else 0.0, y[2])
     phi3 = c[0] * y[0] - y[1] - y[4] / c[1]
-    u[1] = profile_torque(lk, lp, lx, ly, tc, phi3 if uses[1] else 0.0, y[3])
-    u[2] = sigma * _limit(c, y[2]) if mode == SLIP else 0.0
+    return tc, y[0] if uses[0] else 0.0, phi3 if uses[1] else 0.0
+
+
+@njit(**_INLINE)
+def _friction_input(c, mode, sigma, y):
+    """The slip mode's third input ``sigma Q_max(omega_M)`` [N] (none sticking: 0.0)."""
+    return sigma * _limit(c, y[2]) if mode == SLIP else 0.0
+
+
+@njit(**_JIT)
+def _scalar_torques(sd, sl, tc, drive_angle, drive_speed, load_angle, load_speed):
+    """(drive, load) torques [N m] at ``tc`` [s] of the profiles read into scalars ``sd``, ``sl``
+    (:func:`~.kernel_profiles.scalar_at`, no anchor: their harmonics' sines called). Called, not inlined: one compiled
+    copy for the event step's eight input sites (inlined at each, compiling the event step took over 15 minutes)."""
+    drive, _ = scalar_at(sd, tc, drive_angle, drive_speed, NO_ANCHOR)
+    load, _ = scalar_at(sl, tc, load_angle, load_speed, NO_ANCHOR)
+    return drive, load
+
+
+@njit(**_INLINE)
+def _inputs(mode, sigma, t, y, hi, c, uses, sd, sl, u):
+    """u = [drive, load(, sigma Q_max)] at ``t`` (clipped at ``hi``) and state ``y`` into ``u``, both profiles read
+    into scalars (``sd``, ``sl``: :func:`~.kernel_profiles.profile_scalars`, once per run; both fit): the same floats as
+    :func:`_inputs_any` (:func:`~.kernel_profiles.scalar_torque` without an anchor does the dispatcher's operations).
+
+    No array is passed here, so none has its references counted: the callers branch on ``fits`` at each call
+    (``if fits: _inputs(...) else: _inputs_any(...)``) where the arrays are their own arguments. An inlined function
+    taking the arrays counted them on every call, fitting or not: ~82 ns a call here against ~205 through the
+    dispatcher, ~130 with that branch inside."""
+    tc, drive_angle, load_angle = _reads(t, y, hi, c, uses)
+    u[0], u[1] = _scalar_torques(sd, sl, tc, drive_angle, y[2], load_angle, y[3])
+    u[2] = _friction_input(c, mode, sigma, y)
+
+
+@njit(**_INLINE)
+def _inputs_any(mode, sigma, t, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u):
+    """:func:`_inputs` of any profiles, each through the dispatcher (:func:`~.kernel_profiles.profile_torque`)."""
+    tc, drive_angle, load_angle = _reads(t, y, hi, c, uses)
+    u[0] = profile_torque(dk, dp, dx, dy, tc, drive_angle, y[2])
+    u[1] = profile_torque(lk, lp, lx, ly, tc, load_angle, y[3])
+    u[2] = _friction_input(c, mode, sigma, y)
 
 
 @njit(**_INLINE)
@@ -205,12 +248,13 @@ def _project(c, mode, sigma, y):
 
 
 @njit(**_JIT)
-def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, out, wf, wc):
+def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, out, wf, wc):
     """The method's step of length ``h`` [s] in ``mode`` from (t, y) with ``u0 = u(t, y)`` into ``out``; ``wf``
     (:data:`FLOW_WORK` floats), ``wc`` (:data:`FLOW_WORK` complex): the caller's work arrays (allocated once per run)."""
     M = mode
     m = 3 if mode == SLIP else 2
     method = c[16]
+    fits = sd[0] and sl[0]
     # ua, ub, uc, um, d1, d2 (3), a, b, cc (5); w, wa (3), the phis at h and at h / 2 (3 x 5)
     ua, ub, uc, um, d1, d2 = wf[0:3], wf[3:6], wf[6:9], wf[9:12], wf[12:15], wf[15:18]
     a, b, cc = wf[18:23], wf[23:28], wf[28:33]
@@ -220,7 +264,10 @@ def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, l
     if method != ETD4:
         _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, 0, h, ph, out)
         if method == ETD2:
-            _inputs(mode, sigma, t + h, out, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ua)
+            if fits:
+                _inputs(mode, sigma, t + h, out, hi, c, uses, sd, sl, ua)
+            else:
+                _inputs_any(mode, sigma, t + h, out, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ua)
             for q in range(m):
                 d1[q] = (ua[q] - u0[q]) / h
             _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, 1, h, ph, out)
@@ -230,14 +277,23 @@ def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, l
     half = 0.5 * h
     _phis(Z, R, M, half, ph_half)
     _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, 0, half, ph_half, a)
-    _inputs(mode, sigma, t + half, a, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ua)
+    if fits:
+        _inputs(mode, sigma, t + half, a, hi, c, uses, sd, sl, ua)
+    else:
+        _inputs_any(mode, sigma, t + half, a, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ua)
     _state(Z, R, M, m, y[0], y[4], w, ua, d1, d2, 0, half, ph_half, b)
-    _inputs(mode, sigma, t + half, b, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ub)
+    if fits:
+        _inputs(mode, sigma, t + half, b, hi, c, uses, sd, sl, ub)
+    else:
+        _inputs_any(mode, sigma, t + half, b, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ub)
     _modal(Z, M, a, wa)
     for q in range(m):
         um[q] = 2.0 * ub[q] - u0[q]
     _state(Z, R, M, m, a[0], a[4], wa, um, d1, d2, 0, half, ph_half, cc)
-    _inputs(mode, sigma, t + h, cc, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, uc)
+    if fits:
+        _inputs(mode, sigma, t + h, cc, hi, c, uses, sd, sl, uc)
+    else:
+        _inputs_any(mode, sigma, t + h, cc, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, uc)
     for q in range(m):
         d1[q] = (-3.0 * u0[q] + 2.0 * (ua[q] + ub[q]) - uc[q]) / h
         d2[q] = (2.0 * (u0[q] - ua[q] - ub[q] + uc[q])) / (h * h)
@@ -276,7 +332,7 @@ def _guard(tau, G, lam, nm, quad, absolute, bound):
 
 
 @njit(**_JIT)
-def _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly, wf, wc):
+def _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, wf, wc):
     """First tau in (0, h] where the switching function turns positive on the step's continuous extension.
 
     The extension is the exact flow with the input linear from ``u(t, y)``
@@ -289,11 +345,15 @@ def _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx,
     M = mode
     m = 3 if mode == SLIP else 2
     nm = int(R[M, 10])
+    fits = sd[0] and sl[0]
     du, u1 = wf[0:3], wf[3:6]  # du, u1; amplitudes (3 x 6), lambda, w
     amp, lam, w = wc[0:18].reshape((3, 6)), wc[18:21], wc[21:24]
     du[0], du[1], du[2] = 0.0, 0.0, 0.0  # (held for exact)
     if c[16] != EXACT:
-        _inputs(mode, sigma, t + h, y1, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u1)
+        if fits:
+            _inputs(mode, sigma, t + h, y1, hi, c, uses, sd, sl, u1)
+        else:
+            _inputs_any(mode, sigma, t + h, y1, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u1)
         for q in range(m):
             du[q] = (u1[q] - u0[q]) / h
     g = guards[0] if mode == STICK else guards[1] if sigma > 0.0 else guards[2]
@@ -357,12 +417,18 @@ def locate_event(mode, sigma, t, y, h, hi, y1, Z, R, c, guards, uses, dk, dp, dx
     wf = np.zeros(3 + LOCATE_WORK)
     wc = np.zeros(LOCATE_WORK, dtype=np.complex128)
     u0 = wf[:3]
-    _inputs(mode, sigma, t, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u0)
-    return _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly, wf[3:], wc)
+    sd, sl = profile_scalars(dk, dp, dx, dy), profile_scalars(lk, lp, lx, ly)
+    fits = sd[0] and sl[0]
+    if fits:
+        _inputs(mode, sigma, t, y, hi, c, uses, sd, sl, u0)
+    else:
+        _inputs_any(mode, sigma, t, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u0)
+    return _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly,
+                   wf[3:], wc)  # fmt: skip
 
 
 @njit(**_JIT)
-def _stick_keeps(t, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly, wf):
+def _stick_keeps(t, y, c, mats, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, wf):
     """True if the stick mode's |Q| does not at once grow past Q_max from (t, y).
 
     The sign of sigma dQ/dt - dQ_max/dt in stick mode; where that vanishes to
@@ -373,7 +439,11 @@ def _stick_keeps(t, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly, wf):
         return True
     sig = math.copysign(1.0, Q)
     u, dyv, scale_v = wf[0:3], wf[3:8], wf[8:13]
-    _inputs(np.int64(STICK), 0.0, t, y, math.inf, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u)  # int64, as every call
+    fits = sd[0] and sl[0]
+    if fits:
+        _inputs(np.int64(STICK), 0.0, t, y, math.inf, c, uses, sd, sl, u)  # int64, as every call
+    else:
+        _inputs_any(np.int64(STICK), 0.0, t, y, math.inf, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u)
     for r in range(5):
         total, mag = 0.0, 0.0
         for j in range(5):
@@ -403,12 +473,13 @@ def event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mat
     """:func:`_event_step` with its work arrays allocated here (a call from Python: :class:`~.slip.EventStep`)."""
     wf = np.zeros(EVENT_WORK)
     wc = np.zeros(FLOW_WORK + LOCATE_WORK, dtype=np.complex128)
-    return _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mats, guards, uses,
+    sd, sl = profile_scalars(dk, dp, dx, dy), profile_scalars(lk, lp, lx, ly)
+    return _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mats, guards, uses, sd, sl,
                        dk, dp, dx, dy, lk, lp, lx, ly, events, n0, wf, wc)  # fmt: skip
 
 
 @njit(**_JIT)
-def _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mats, guards, uses,
+def _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mats, guards, uses, sd, sl,
                 dk, dp, dx, dy, lk, lp, lx, ly, events, n0, wf, wc):  # fmt: skip
     """Integrate from ``t0`` to ``t1`` [s] in the hybrid model: sub-steps end at each cut, then at each located event.
 
@@ -426,6 +497,7 @@ def _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, ma
     """
     n_rec = 0
     n_switch = 0
+    fits = sd[0] and sl[0]
     u0, ye = wf[0:3], wf[3:8]
     e1 = 8 + FLOW_WORK
     e2 = e1 + LOCATE_WORK
@@ -437,22 +509,27 @@ def _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, ma
         hi = math.nextafter(b, -math.inf) if j < nc else hi_end
         while a < b:
             h = dt if (dt == dt and a == t0 and b == t1) else b - a  # a whole grid step: the grid's dt
-            _inputs(mode, sigma, a, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u0)
+            if fits:
+                _inputs(mode, sigma, a, y, hi, c, uses, sd, sl, u0)
+            else:
+                _inputs_any(mode, sigma, a, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u0)
             if given == 0 or nc > 0:
-                _flow(mode, sigma, a, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, y1, flow_f, flow_c)
+                _flow(mode, sigma, a, y, h, hi, u0, Z, R, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, y1,
+                      flow_f, flow_c)  # fmt: skip
             given = 0
             if switching(c, mode, sigma, y1) <= 0.0:
                 y[:] = y1
                 a = b
                 break
-            tau = _locate(mode, sigma, a, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
-                          loc_f, loc_c)  # fmt: skip
+            tau = _locate(mode, sigma, a, y, h, hi, u0, y1, Z, R, c, guards, uses, sd, sl, dk, dp, dx, dy, lk, lp,
+                          lx, ly, loc_f, loc_c)  # fmt: skip
             if tau != tau:
                 y[:] = y1
                 a = b
                 break
             if tau > 0.0:
-                _flow(mode, sigma, a, y, tau, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ye, flow_f, flow_c)
+                _flow(mode, sigma, a, y, tau, hi, u0, Z, R, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, ye,
+                      flow_f, flow_c)  # fmt: skip
                 y[:] = ye
             a = a + tau if tau < h else b
             old = mode
@@ -463,7 +540,7 @@ def _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, ma
                     te = sigma * _limit(c, y[2]) / c[13]
                     y[4] += c[1] * (y[1] - te)
                     y[1] = te
-            elif _stick_keeps(a, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly, keep_f):
+            elif _stick_keeps(a, y, c, mats, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, keep_f):
                 mode, sigma = STICK, 0.0
             if mode != old and n0 + n_rec < events.shape[0]:
                 row = n0 + n_rec
@@ -590,6 +667,7 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
     y1 = np.empty(5)
     shifted = lp.copy()  # the load's numbers with its angle shifted by the slip (stick after slip)
     no_cuts = np.zeros(0)
+    sd, sl = profile_scalars(dk, dp, dx, dy), profile_scalars(lk, lp, lx, ly)  # the profiles as scalars, once per call
     wf = np.zeros(EVENT_WORK)  # the event steps' work arrays, once per call
     wc = np.zeros(FLOW_WORK + LOCATE_WORK, dtype=np.complex128)
     xs6 = np.empty(6)  # a phase's start state for the linear loop
@@ -675,7 +753,7 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
                 _to_y(kind, x if kept == 0 else states[kept - 1], Yflex, y)
                 _to_y(kind, states[kept], Yflex, y1)
         mode, sigma, got, st = _event_step(knots[g], knots[g + 1], no_cuts, y, mode, sigma, dt, hi[g], y1, given,
-                                           Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
+                                           Z, R, c, mats, guards, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly,
                                            events, n_events, wf, wc)  # fmt: skip
         n_events += got
         if st:
