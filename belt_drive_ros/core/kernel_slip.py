@@ -132,21 +132,6 @@ def _limit(c, omega):
     return max((c[2] - c[3] * v * v) * c[5], 0.0)
 
 
-@njit(**_INLINE)
-def _reads(t, y, hi, c, uses):
-    """What the profiles read at ``t`` and state ``y``: (``t`` clipped at ``hi``, the drive's angle ``phi_M``, the
-    load's ``phi_3 = i phi_M - theta_e - s / r_3``) [s, rad], an angle 0.0 where its profile does not read it."""
-    tc = t if t < hi else hi
-    phi3 = c[0] * y[0] - y[1] - y[4] / c[1]
-    return tc, y[0] if uses[0] else 0.0, phi3 if uses[1] else 0.0
-
-
-@njit(**_INLINE)
-def _friction_input(c, mode, sigma, y):
-    """The slip mode's third input ``sigma Q_max(omega_M)`` [N] (none sticking: 0.0)."""
-    return sigma * _limit(c, y[2]) if mode == SLIP else 0.0
-
-
 @njit(**_JIT)
 def _scalar_torques(sd, sl, tc, drive_angle, drive_speed, load_angle, load_speed):
     """(drive, load) torques [N m] at ``tc`` [s] of the profiles read into scalars ``sd``, ``sl``
@@ -158,27 +143,21 @@ def _scalar_torques(sd, sl, tc, drive_angle, drive_speed, load_angle, load_speed
 
 
 @njit(**_INLINE)
-def _inputs(mode, sigma, t, y, hi, c, uses, sd, sl, u):
-    """u = [drive, load(, sigma Q_max)] at ``t`` (clipped at ``hi``) and state ``y`` into ``u``, both profiles read
-    into scalars (``sd``, ``sl``: :func:`~.kernel_profiles.profile_scalars`, once per run; both fit): the same floats as
-    :func:`_inputs_any` (:func:`~.kernel_profiles.scalar_torque` without an anchor does the dispatcher's operations).
-
-    No array is passed here, so none has its references counted: the callers branch on ``fits`` at each call
-    (``if fits: _inputs(...) else: _inputs_any(...)``) where the arrays are their own arguments. An inlined function
-    taking the arrays counted them on every call, fitting or not: ~82 ns a call here against ~205 through the
-    dispatcher, ~130 with that branch inside."""
-    tc, drive_angle, load_angle = _reads(t, y, hi, c, uses)
-    u[0], u[1] = _scalar_torques(sd, sl, tc, drive_angle, y[2], load_angle, y[3])
-    u[2] = _friction_input(c, mode, sigma, y)
-
-
-@njit(**_INLINE)
-def _inputs_any(mode, sigma, t, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u):
-    """:func:`_inputs` of any profiles, each through the dispatcher (:func:`~.kernel_profiles.profile_torque`)."""
-    tc, drive_angle, load_angle = _reads(t, y, hi, c, uses)
-    u[0] = profile_torque(dk, dp, dx, dy, tc, drive_angle, y[2])
-    u[1] = profile_torque(lk, lp, lx, ly, tc, load_angle, y[3])
-    u[2] = _friction_input(c, mode, sigma, y)
+def _inputs(mode, sigma, t, y, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, u):
+    """u = [drive, load(, sigma Q_max)] at ``t`` (clipped at ``hi``) and state ``y`` into ``u``: where both profiles
+    fit in scalars (``sd``, ``sl``: :func:`~.kernel_profiles.profile_scalars`, read once per run) from those
+    (:func:`_scalar_torques`: the dispatcher's operations, the same floats; ~80 ns against ~95), else each through
+    the dispatcher (:func:`~.kernel_profiles.profile_torque`)."""
+    tc = t if t < hi else hi
+    drive_angle = y[0] if uses[0] else 0.0
+    phi3 = c[0] * y[0] - y[1] - y[4] / c[1]
+    load_angle = phi3 if uses[1] else 0.0
+    if sd[0] and sl[0]:
+        u[0], u[1] = _scalar_torques(sd, sl, tc, drive_angle, y[2], load_angle, y[3])
+    else:
+        u[0] = profile_torque(dk, dp, dx, dy, tc, drive_angle, y[2])
+        u[1] = profile_torque(lk, lp, lx, ly, tc, load_angle, y[3])
+    u[2] = sigma * _limit(c, y[2]) if mode == SLIP else 0.0
 
 
 @njit(**_INLINE)
@@ -288,7 +267,6 @@ def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, sd, sl, dk, dp, dx, dy, l
     M = mode
     m = 3 if mode == SLIP else 2
     method = c[16]
-    fits = sd[0] and sl[0]
     # ua, ub, uc, um, d1, d2 (3), a, b, cc (5); w, wa (3), the phis at h and at h / 2 (3 x 5)
     ua, ub, uc, um, d1, d2 = wf[0:3], wf[3:6], wf[6:9], wf[9:12], wf[12:15], wf[15:18]
     a, b, cc = wf[18:23], wf[23:28], wf[28:33]
@@ -298,10 +276,7 @@ def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, sd, sl, dk, dp, dx, dy, l
     if method != ETD4:
         _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, 0, h, ph, out)
         if method == ETD2:
-            if fits:
-                _inputs(mode, sigma, t + h, out, hi, c, uses, sd, sl, ua)
-            else:
-                _inputs_any(mode, sigma, t + h, out, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ua)
+            _inputs(mode, sigma, t + h, out, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, ua)
             for q in range(m):
                 d1[q] = (ua[q] - u0[q]) / h
             _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, 1, h, ph, out)
@@ -311,23 +286,14 @@ def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, sd, sl, dk, dp, dx, dy, l
     half = 0.5 * h
     _phis(Z, R, M, half, ph_half)
     _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, 0, half, ph_half, a)
-    if fits:
-        _inputs(mode, sigma, t + half, a, hi, c, uses, sd, sl, ua)
-    else:
-        _inputs_any(mode, sigma, t + half, a, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ua)
+    _inputs(mode, sigma, t + half, a, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, ua)
     _state(Z, R, M, m, y[0], y[4], w, ua, d1, d2, 0, half, ph_half, b)
-    if fits:
-        _inputs(mode, sigma, t + half, b, hi, c, uses, sd, sl, ub)
-    else:
-        _inputs_any(mode, sigma, t + half, b, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ub)
+    _inputs(mode, sigma, t + half, b, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, ub)
     _modal(Z, M, a, wa)
     for q in range(m):
         um[q] = 2.0 * ub[q] - u0[q]
     _state(Z, R, M, m, a[0], a[4], wa, um, d1, d2, 0, half, ph_half, cc)
-    if fits:
-        _inputs(mode, sigma, t + h, cc, hi, c, uses, sd, sl, uc)
-    else:
-        _inputs_any(mode, sigma, t + h, cc, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, uc)
+    _inputs(mode, sigma, t + h, cc, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, uc)
     for q in range(m):
         d1[q] = (-3.0 * u0[q] + 2.0 * (ua[q] + ub[q]) - uc[q]) / h
         d2[q] = (2.0 * (u0[q] - ua[q] - ub[q] + uc[q])) / (h * h)
@@ -394,15 +360,11 @@ def _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, sd, sl, dk,
     M = mode
     m = 3 if mode == SLIP else 2
     nm = int(R[M, 10])
-    fits = sd[0] and sl[0]
     du, u1 = wf[0:3], wf[3:6]  # du, u1; amplitudes (3 x 6), lambda, w
     amp, lam, w = wc[0:18].reshape((3, 6)), wc[18:21], wc[21:24]
     du[0], du[1], du[2] = 0.0, 0.0, 0.0  # (held for exact)
     if c[16] != EXACT:
-        if fits:
-            _inputs(mode, sigma, t + h, y1, hi, c, uses, sd, sl, u1)
-        else:
-            _inputs_any(mode, sigma, t + h, y1, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u1)
+        _inputs(mode, sigma, t + h, y1, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, u1)
         for q in range(m):
             du[q] = (u1[q] - u0[q]) / h
     g = guards[0] if mode == STICK else guards[1] if sigma > 0.0 else guards[2]
@@ -467,11 +429,7 @@ def locate_event(mode, sigma, t, y, h, hi, y1, Z, R, c, guards, uses, dk, dp, dx
     wc = np.zeros(LOCATE_WORK, dtype=np.complex128)
     u0 = wf[:3]
     sd, sl = profile_scalars(dk, dp, dx, dy), profile_scalars(lk, lp, lx, ly)
-    fits = sd[0] and sl[0]
-    if fits:
-        _inputs(mode, sigma, t, y, hi, c, uses, sd, sl, u0)
-    else:
-        _inputs_any(mode, sigma, t, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u0)
+    _inputs(mode, sigma, t, y, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, u0)
     return _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly,
                    wf[3:], wc)  # fmt: skip
 
@@ -488,11 +446,8 @@ def _stick_keeps(t, y, c, mats, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, wf
         return True
     sig = math.copysign(1.0, Q)
     u, dyv, scale_v = wf[0:3], wf[3:8], wf[8:13]
-    fits = sd[0] and sl[0]
-    if fits:
-        _inputs(np.int64(STICK), 0.0, t, y, math.inf, c, uses, sd, sl, u)  # int64, as every call
-    else:
-        _inputs_any(np.int64(STICK), 0.0, t, y, math.inf, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u)
+    stick = np.int64(STICK)  # int64, as every call
+    _inputs(stick, 0.0, t, y, math.inf, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, u)
     for r in range(5):
         total, mag = 0.0, 0.0
         for j in range(5):
@@ -546,7 +501,6 @@ def _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, ma
     """
     n_rec = 0
     n_switch = 0
-    fits = sd[0] and sl[0]
     u0, ye = wf[0:3], wf[3:8]
     e1 = 8 + FLOW_WORK
     e2 = e1 + LOCATE_WORK
@@ -558,10 +512,7 @@ def _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, ma
         hi = math.nextafter(b, -math.inf) if j < nc else hi_end
         while a < b:
             h = dt if (dt == dt and a == t0 and b == t1) else b - a  # a whole grid step: the grid's dt
-            if fits:
-                _inputs(mode, sigma, a, y, hi, c, uses, sd, sl, u0)
-            else:
-                _inputs_any(mode, sigma, a, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u0)
+            _inputs(mode, sigma, a, y, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, u0)
             if given == 0 or nc > 0:
                 _flow(mode, sigma, a, y, h, hi, u0, Z, R, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, y1,
                       flow_f, flow_c)  # fmt: skip
