@@ -45,7 +45,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .kernel import linear_steps
+from .kernel import borrowed, linear_steps
 from .kernel_profiles import NO_ANCHOR, profile_scalars, profile_torque, scalar_at
 from .profile_data import COMPRESSOR, DIVERGED, ENGINE, GUARDED, NOT_CONVERGED
 
@@ -53,12 +53,14 @@ _JIT = dict(cache=True, nogil=True)
 #: the event step's small helpers (inputs, modal state, guard, switching, projection) are inlined into their callers:
 #: called out of line, each call counted the references of every array it was passed (a dozen per event step)
 _INLINE = dict(cache=True, nogil=True, inline="always")
-#: the event step's own compiled functions (no allocation: every array is the caller's) without numba's reference
-#: counting (NRT). Inlined, a helper's array arguments are new variables, each counted up and down on every call
-#: (an atomic pair each; the counting is pruned only within one basic block, and most helpers branch or loop): the
-#: modal state's eight arrays cost ~110 ns a call against ~8 for its arithmetic. The arrays live in the caller for
-#: the whole call, so nothing here needs to hold a reference
-_BORROWED = dict(cache=True, nogil=True, _nrt=False)
+# Inlined, a helper's array arguments are new variables, each counted up and down on every call (an atomic pair
+# each; numba prunes the pairs only within one basic block, and most helpers branch or loop): the modal state's eight
+# arrays cost ~110 ns a call against ~8 for its arithmetic. So :func:`_event_step` (and :func:`hybrid_steps`,
+# :func:`locate_event`) rebinds each array it is given to :func:`~.kernel.borrowed`, a view at the same address that
+# owns nothing (numba.carray: no meminfo), and everything below it (:func:`_flow`, :func:`_locate`,
+# :func:`_stick_keeps` and the inlined helpers) receives those views and their slices: each count is then a call of
+# numba's (not inlined) that finds no meminfo and returns, no atomic operation (about three quarters of what compiling
+# these functions without NRT saved). The arrays' owners (the callers' arguments) keep them alive for the call
 
 #: Taylor coefficients 1/(j+3)! and 1/(j+4)! (phi_3, phi_4 below |x| = 0.5, to below 1e-17 relative)
 _PHI3 = tuple(1.0 / math.factorial(j + 3) for j in range(15))
@@ -246,7 +248,8 @@ def _state(Z, R, M, m, y0, y4, w, u0, d1, d2, order, tau, ph, out):
 
 @njit(**_INLINE)
 def _copy(src, dst):
-    """``dst[:] = src`` element by element (a slice assignment may allocate a copy against overlap: not without NRT)."""
+    """``dst[:] = src`` element by element (a slice assignment checks the two for overlap and may copy through a
+    temporary)."""
     for r in range(src.size):
         dst[r] = src[r]
 
@@ -260,7 +263,7 @@ def _project(c, mode, sigma, y):
         y[1] = te
 
 
-@njit(**_BORROWED)
+@njit(**_JIT)
 def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, out, wf, wc):
     """The method's step of length ``h`` [s] in ``mode`` from (t, y) with ``u0 = u(t, y)`` into ``out``; ``wf``
     (:data:`FLOW_WORK` floats), ``wc`` (:data:`FLOW_WORK` complex): the caller's work arrays (allocated once per run)."""
@@ -346,7 +349,7 @@ def _guard(tau, G, lam, nm, quad, absolute, bound):
     return v - (bound - quad * wv * wv), dv + 2.0 * quad * wv * dwv
 
 
-@njit(**_BORROWED)
+@njit(**_JIT)
 def _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, wf, wc):
     """First tau in (0, h] where the switching function turns positive on the step's continuous extension.
 
@@ -427,6 +430,9 @@ def locate_event(mode, sigma, t, y, h, hi, y1, Z, R, c, guards, uses, dk, dp, dx
     partial steps are taken elsewhere (a method without a compiled event step: its own flow, in Python)."""
     wf = np.zeros(3 + LOCATE_WORK)
     wc = np.zeros(LOCATE_WORK, dtype=np.complex128)
+    y, y1, Z, R, c, guards = borrowed(y), borrowed(y1), borrowed(Z), borrowed(R), borrowed(c), borrowed(guards)
+    uses, dk, dp, dx, dy = borrowed(uses), borrowed(dk), borrowed(dp), borrowed(dx), borrowed(dy)
+    lk, lp, lx, ly = borrowed(lk), borrowed(lp), borrowed(lx), borrowed(ly)
     u0 = wf[:3]
     sd, sl = profile_scalars(dk, dp, dx, dy), profile_scalars(lk, lp, lx, ly)
     _inputs(mode, sigma, t, y, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, u0)
@@ -434,7 +440,7 @@ def locate_event(mode, sigma, t, y, h, hi, y1, Z, R, c, guards, uses, dk, dp, dx
                    wf[3:], wc)  # fmt: skip
 
 
-@njit(**_BORROWED)
+@njit(**_JIT)
 def _stick_keeps(t, y, c, mats, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, wf):
     """True if the stick mode's |Q| does not at once grow past Q_max from (t, y).
 
@@ -482,7 +488,7 @@ def event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mat
                        dk, dp, dx, dy, lk, lp, lx, ly, events, n0, wf, wc)  # fmt: skip
 
 
-@njit(**_BORROWED)
+@njit(**_JIT)
 def _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mats, guards, uses, sd, sl,
                 dk, dp, dx, dy, lk, lp, lx, ly, events, n0, wf, wc):  # fmt: skip
     """Integrate from ``t0`` to ``t1`` [s] in the hybrid model: sub-steps end at each cut, then at each located event.
@@ -498,7 +504,13 @@ def _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, ma
 
     Returns (mode, sigma, number of events recorded, status): status 0 done,
     1 more than :data:`MAX_SWITCHES` switches (chattering).
+
+    Every array is used as a :func:`~.kernel.borrowed` view (no atomic reference counts below: see the module's top).
     """
+    cuts, y, y1, Z, R, c, mats = borrowed(cuts), borrowed(y), borrowed(y1), borrowed(Z), borrowed(R), borrowed(c), borrowed(mats)
+    guards, uses, dk, dp, dx, dy = borrowed(guards), borrowed(uses), borrowed(dk), borrowed(dp), borrowed(dx), borrowed(dy)
+    lk, lp, lx, ly = borrowed(lk), borrowed(lp), borrowed(lx), borrowed(ly)
+    events, wf, wc = borrowed(events), borrowed(wf), borrowed(wc)
     n_rec = 0
     n_switch = 0
     u0, ye = wf[0:3], wf[3:8]
@@ -663,6 +675,10 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
     """
     N = grid.size - 1
     k = k0
+    # the arguments as views that own nothing (:func:`~.kernel.borrowed`): no atomic reference counts in the event steps
+    Z, R, c, mats, guards, uses = borrowed(Z), borrowed(R), borrowed(c), borrowed(mats), borrowed(guards), borrowed(uses)
+    dk, dp, dx, dy = borrowed(dk), borrowed(dp), borrowed(dx), borrowed(dy)
+    lk, lp, lx, ly, events = borrowed(lk), borrowed(lp), borrowed(lx), borrowed(ly), borrowed(events)
     y = np.empty(5)
     y1 = np.empty(5)
     shifted = lp.copy()  # the load's numbers with its angle shifted by the slip (stick after slip)
