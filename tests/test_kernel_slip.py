@@ -181,7 +181,8 @@ def _flow_phis(xs):
         z[0, :, 0] = 0.0
         z[0, :len(xs[k:k + 3]), 0] = xs[k:k + 3]
         kernel_slip._flow(kernel_slip.STICK, 0.0, 0.0, np.zeros(5), 1.0, f8(np.inf), np.zeros(3), z, r, c,
-                          np.zeros(2, dtype=i8), kinds, row, one, one, kinds, row, one, one, np.zeros(5), wf, wc)
+                          np.zeros(2, dtype=i8), *[kernel_slip.DISPATCHED] * 2, kinds, row, one, one, kinds, row, one, one,
+                          np.zeros(5), wf, wc)
         out.extend(tuple(v) for v in wc[6:21].reshape((3, 5)))
     return out[:len(xs)]
 
@@ -272,7 +273,9 @@ def test_the_event_steps_work_arrays_carry_nothing_from_call_to_call():
                 y, y1, rows = states[i].copy(), np.empty(5), np.zeros((kernel_slip.MAX_SWITCHES + 1, 8))
                 args = (time[i], time[i + 1], np.zeros(0), y, np.int64(modes[i]), float(sigmas[i]), scene.dt, math.inf,
                         y1, np.int64(0), *arrays, rows, np.int64(0))  # fmt: skip
-                ret = kernel_slip.event_step(*args) if fresh else kernel_slip._event_step(*args, wf, wc)
+                # (_event_step: the profiles through the dispatcher, event_step reads them into scalars: the same floats)
+                ret = (kernel_slip.event_step(*args) if fresh
+                       else kernel_slip._event_step(*args[:16], *[kernel_slip.DISPATCHED] * 2, *args[16:], wf, wc))
                 got.append((ret, y.tobytes(), rows.tobytes()))
                 kinds.update(rows[: ret[2], 1].tolist())
             assert got[0] == got[1], (method, i)

@@ -306,7 +306,8 @@ def test_compiled_modal_etd4_step_equals_the_matrix_etd4_step(scene, mode):
         u0[: B.shape[1]] = u(0.6, y)
         modal = np.empty(5)
         work = np.full(kernel_slip.FLOW_WORK, np.nan), np.full(kernel_slip.FLOW_WORK, complex(np.nan, np.nan))
-        kernel_slip._flow(mode, sigma, 0.6, y, h, math.inf, u0, Z, R, c, uses, *arrays[6:], modal, *work)
+        kernel_slip._flow(mode, sigma, 0.6, y, h, math.inf, u0, Z, R, c, uses, *[kernel_slip.DISPATCHED] * 2,
+                          *arrays[6:], modal, *work)
         matrix = make_integrator("etd4", A, B, h).step(0.6, y, u)
         np.testing.assert_allclose(modal, matrix, rtol=1e-13, atol=1e-13 * np.max(np.abs(matrix)))
 

@@ -349,6 +349,42 @@ def _doubles_view(words, offset, shape):
     return impl
 
 
+@intrinsic
+def _elements_at(typingctx, address, like):
+    """``address`` (int64) as a pointer to the element type of the array ``like`` (LLVM ``inttoptr``)."""
+    sig = types.CPointer(like.dtype)(types.int64, like)
+
+    def codegen(context, builder, signature, args):
+        return builder.inttoptr(args[0], context.get_value_type(signature.return_type))
+
+    return sig, codegen
+
+
+def borrowed(a: np.ndarray) -> np.ndarray:
+    """``a`` itself, compiled (a writable C-contiguous array) as a view at its address that owns nothing
+    (``numba.carray`` at :func:`_elements_at`: the same type, elements and address; ``a``'s owner must keep it alive
+    for as long as the view is used, e.g. an argument of the function making the view, for that call).
+
+    Why: numba counts the references of every array variable (an atomic increment and decrement, ~14 ns a pair) on
+    each assignment and each inlined call it is passed to, and prunes those pairs only within one basic block. For an
+    array without an owner (a carray's ``meminfo`` is NULL) each of those is a call that finds NULL and returns, no
+    atomic operation. Any other array (not C-contiguous, read-only), and interpreted (``NUMBA_DISABLE_JIT=1``): ``a``
+    itself."""
+    return a
+
+
+@overload(borrowed, jit_options=dict(nogil=True), inline="always")
+def _borrowed(a):
+    if isinstance(a, types.Array) and a.layout == "C" and a.mutable:
+        def impl(a):
+            return carray(_elements_at(np.int64(a.ctypes.data), a), a.shape)
+    else:
+        def impl(a):
+            return a
+
+    return impl
+
+
 @njit(**_INLINE)
 def _unpacked(reals, ints, dp):
     """The packed arrays of :func:`linear_steps` cut into :func:`_steps`' arguments after its first six (views, no

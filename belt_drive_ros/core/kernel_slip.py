@@ -45,14 +45,22 @@ import math
 import numpy as np
 from numba import njit
 
-from .kernel import linear_steps
-from .kernel_profiles import profile_torque
+from .kernel import borrowed, linear_steps
+from .kernel_profiles import NO_ANCHOR, profile_scalars, profile_torque, scalar_at
 from .profile_data import COMPRESSOR, DIVERGED, ENGINE, GUARDED, NOT_CONVERGED
 
 _JIT = dict(cache=True, nogil=True)
 #: the event step's small helpers (inputs, modal state, guard, switching, projection) are inlined into their callers:
 #: called out of line, each call counted the references of every array it was passed (a dozen per event step)
 _INLINE = dict(cache=True, nogil=True, inline="always")
+# Inlined, a helper's array arguments are new variables, each counted up and down on every call (an atomic pair
+# each; numba prunes the pairs only within one basic block, and most helpers branch or loop): the modal state's eight
+# arrays cost ~110 ns a call against ~8 for its arithmetic. So :func:`_event_step` (and :func:`hybrid_steps`,
+# :func:`locate_event`) rebinds each array it is given to :func:`~.kernel.borrowed`, a view at the same address that
+# owns nothing (numba.carray: no meminfo), and everything below it (:func:`_flow`, :func:`_locate`,
+# :func:`_stick_keeps` and the inlined helpers) receives those views and their slices: each count is then a call of
+# numba's (not inlined) that finds no meminfo and returns, no atomic operation (about three quarters of what compiling
+# these functions without NRT saved). The arrays' owners (the callers' arguments) keep them alive for the call
 
 #: Taylor coefficients 1/(j+3)! and 1/(j+4)! (phi_3, phi_4 below |x| = 0.5, to below 1e-17 relative)
 _PHI3 = tuple(1.0 / math.factorial(j + 3) for j in range(15))
@@ -69,6 +77,10 @@ MAX_SWITCHES = 64
 #: own input and end state, a flow's, a location's, :func:`_stick_keeps`' 13); allocated once per run, not per call
 FLOW_WORK, LOCATE_WORK = 36, 24
 EVENT_WORK = 8 + FLOW_WORK + LOCATE_WORK + 13
+#: a profile left to the dispatcher, typed as :func:`~.kernel_profiles.profile_scalars` answers one that does not fit:
+#: ``sd``, ``sl`` for a call of the kernels from Python that has no profile read into scalars (each torque through
+#: :func:`~.kernel_profiles.profile_torque`, the same floats)
+DISPATCHED = (False, 0, (0.0,) * 9, (0.0,) * 3, (0.0,) * 8, 0, (0.0,) * 9, (0.0,) * 3, (0.0,) * 8, (0.0,) * 4)
 
 
 @njit(**_INLINE)
@@ -122,13 +134,31 @@ def _limit(c, omega):
     return max((c[2] - c[3] * v * v) * c[5], 0.0)
 
 
+@njit(**_JIT)
+def _scalar_torques(sd, sl, tc, drive_angle, drive_speed, load_angle, load_speed):
+    """(drive, load) torques [N m] at ``tc`` [s] of the profiles read into scalars ``sd``, ``sl``
+    (:func:`~.kernel_profiles.scalar_at`, no anchor: their harmonics' sines called). Called, not inlined: one compiled
+    copy for the event step's eight input sites (inlined at each, compiling the event step took over 15 minutes)."""
+    drive, _ = scalar_at(sd, tc, drive_angle, drive_speed, NO_ANCHOR)
+    load, _ = scalar_at(sl, tc, load_angle, load_speed, NO_ANCHOR)
+    return drive, load
+
+
 @njit(**_INLINE)
-def _inputs(mode, sigma, t, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u):
-    """u = [drive, load(, sigma Q_max)] at ``t`` (clipped at ``hi``) and state ``y`` into ``u``."""
+def _inputs(mode, sigma, t, y, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, u):
+    """u = [drive, load(, sigma Q_max)] at ``t`` (clipped at ``hi``) and state ``y`` into ``u``: where both profiles
+    fit in scalars (``sd``, ``sl``: :func:`~.kernel_profiles.profile_scalars`, read once per run) from those
+    (:func:`_scalar_torques`: the dispatcher's operations, the same floats; ~80 ns against ~95), else each through
+    the dispatcher (:func:`~.kernel_profiles.profile_torque`)."""
     tc = t if t < hi else hi
-    u[0] = profile_torque(dk, dp, dx, dy, tc, y[0] if uses[0] else 0.0, y[2])
+    drive_angle = y[0] if uses[0] else 0.0
     phi3 = c[0] * y[0] - y[1] - y[4] / c[1]
-    u[1] = profile_torque(lk, lp, lx, ly, tc, phi3 if uses[1] else 0.0, y[3])
+    load_angle = phi3 if uses[1] else 0.0
+    if sd[0] and sl[0]:
+        u[0], u[1] = _scalar_torques(sd, sl, tc, drive_angle, y[2], load_angle, y[3])
+    else:
+        u[0] = profile_torque(dk, dp, dx, dy, tc, drive_angle, y[2])
+        u[1] = profile_torque(lk, lp, lx, ly, tc, load_angle, y[3])
     u[2] = sigma * _limit(c, y[2]) if mode == SLIP else 0.0
 
 
@@ -140,11 +170,11 @@ def _modal(Z, M, y, w):
 
 
 @njit(**_INLINE)
-def _pdot(Z, M, k, u, m):
-    """``P_k . u`` over the mode's ``m`` inputs."""
-    total = Z[M, k, 7] * u[0] + Z[M, k, 8] * u[1]
+def _pdot(p0, p1, p2, u, m):
+    """``P_k . u`` over the mode's ``m`` inputs, ``P_k = (p0, p1, p2)`` (complex, or their real parts)."""
+    total = p0 * u[0] + p1 * u[1]
     if m == 3:
-        total = total + Z[M, k, 9] * u[2]
+        total = total + p2 * u[2]
     return total
 
 
@@ -156,6 +186,33 @@ def _phis(Z, R, M, tau, ph):
 
 
 @njit(**_INLINE)
+def _carried(v1, v2, v3, c0, c4, p0, p1_, p2_, e, p1, p2, p3, p4, w, weight, m, u0, d1, d2, order, tau, t2, t3):
+    """One carried eigenvalue's share of :func:`_state`'s sums ``(z_0, z_1, z_2, phi_M, s)``: ``Re(V_j zeta)``,
+    ``Re(C_j int zeta)`` of its modal coordinate (``V`` column ``v1 .. v3``, ``C`` column ``c0, c4``, ``P`` row
+    ``p0, p1_, p2_``, the phis ``e .. p4`` at ``tau``, ``w``: its coordinate at 0, ``weight``: 2 for a pair).
+
+    Complex, or (a real eigenvalue) the real parts alone: the same floats. Its ``V`` and ``C`` columns and its phis
+    are real (LAPACK's eigenvector of a real eigenvalue, :func:`_phis4`'s real path), so in every complex product
+    an imaginary part meets an exact zero and each real part is the real product or sum (``a r - b 0 = a r``); the
+    imaginary parts ``V^-1`` and ``P`` carry from rounding never reach a real part. Each product in the same order.
+    ~2x fewer operations: the slip mode's eigenvalues are all real, one of the stick mode's."""
+    b0 = _pdot(p0, p1_, p2_, u0, m)
+    zeta = e * w + tau * p1 * b0
+    integral = tau * p1 * w + t2 * p2 * b0
+    if order > 0:
+        b1 = _pdot(p0, p1_, p2_, d1, m)
+        zeta = zeta + t2 * p2 * b1
+        integral = integral + t3 * p3 * b1
+        if order > 1:
+            b2 = _pdot(p0, p1_, p2_, d2, m)
+            zeta = zeta + 2.0 * t3 * p3 * b2
+            integral = integral + 2.0 * t2 * t2 * p4 * b2
+    zeta = weight * zeta
+    integral = weight * integral
+    return (v1 * zeta).real, (v2 * zeta).real, (v3 * zeta).real, (c0 * integral).real, (c4 * integral).real
+
+
+@njit(**_INLINE)
 def _state(Z, R, M, m, y0, y4, w, u0, d1, d2, order, tau, ph, out):
     """The state at ``tau`` [s] from (phi_M = ``y0``, modal ``w``, s = ``y4``) with input ``u0 + d1 s + d2 s^2`` into ``out``
     (``ph``: :func:`_phis` at ``tau``). ``order`` 0: ``d1 = d2 = 0`` (held), 1: ``d2 = 0``, 2: both: the zero terms
@@ -164,26 +221,20 @@ def _state(Z, R, M, m, y0, y4, w, u0, d1, d2, order, tau, ph, out):
     t3 = t2 * tau
     z0 = z1 = z2 = i0 = i4 = 0.0
     for k in range(int(R[M, 10])):
-        e, p1, p2 = ph[k, 0], ph[k, 1], ph[k, 2]
-        b0 = _pdot(Z, M, k, u0, m)
-        weight = R[M, k]
-        zeta = e * w[k] + tau * p1 * b0
-        integral = tau * p1 * w[k] + t2 * p2 * b0
-        if order > 0:
-            b1 = _pdot(Z, M, k, d1, m)
-            zeta = zeta + t2 * p2 * b1
-            integral = integral + t3 * ph[k, 3] * b1
-            if order > 1:
-                b2 = _pdot(Z, M, k, d2, m)
-                zeta = zeta + 2.0 * t3 * ph[k, 3] * b2
-                integral = integral + 2.0 * t2 * t2 * ph[k, 4] * b2
-        zeta = weight * zeta
-        integral = weight * integral
-        z0 += (Z[M, k, 1] * zeta).real
-        z1 += (Z[M, k, 2] * zeta).real
-        z2 += (Z[M, k, 3] * zeta).real
-        i0 += (Z[M, k, 10] * integral).real
-        i4 += (Z[M, k, 11] * integral).real
+        if Z[M, k, 0].imag == 0.0:  # a real eigenvalue: real arithmetic, the same floats (:func:`_carried`)
+            a0, a1, a2, a3, a4 = _carried(Z[M, k, 1].real, Z[M, k, 2].real, Z[M, k, 3].real, Z[M, k, 10].real,
+                                          Z[M, k, 11].real, Z[M, k, 7].real, Z[M, k, 8].real, Z[M, k, 9].real,
+                                          ph[k, 0].real, ph[k, 1].real, ph[k, 2].real, ph[k, 3].real, ph[k, 4].real,
+                                          w[k].real, R[M, k], m, u0, d1, d2, order, tau, t2, t3)  # fmt: skip
+        else:
+            a0, a1, a2, a3, a4 = _carried(Z[M, k, 1], Z[M, k, 2], Z[M, k, 3], Z[M, k, 10], Z[M, k, 11], Z[M, k, 7],
+                                          Z[M, k, 8], Z[M, k, 9], ph[k, 0], ph[k, 1], ph[k, 2], ph[k, 3], ph[k, 4],
+                                          w[k], R[M, k], m, u0, d1, d2, order, tau, t2, t3)  # fmt: skip
+        z0 += a0
+        z1 += a1
+        z2 += a2
+        i0 += a3
+        i4 += a4
     for q in range(m):
         ramp = tau * u0[q]
         if order > 0:
@@ -196,6 +247,14 @@ def _state(Z, R, M, m, y0, y4, w, u0, d1, d2, order, tau, ph, out):
 
 
 @njit(**_INLINE)
+def _copy(src, dst):
+    """``dst[:] = src`` element by element (a slice assignment checks the two for overlap and may copy through a
+    temporary)."""
+    for r in range(src.size):
+        dst[r] = src[r]
+
+
+@njit(**_INLINE)
 def _project(c, mode, sigma, y):
     """c = 0 slip with a belt mass: the stretch follows sigma Q_max(omega_M) (the total deflection kept)."""
     if mode == SLIP and c[15] != 0.0:
@@ -205,7 +264,7 @@ def _project(c, mode, sigma, y):
 
 
 @njit(**_JIT)
-def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, out, wf, wc):
+def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, out, wf, wc):
     """The method's step of length ``h`` [s] in ``mode`` from (t, y) with ``u0 = u(t, y)`` into ``out``; ``wf``
     (:data:`FLOW_WORK` floats), ``wc`` (:data:`FLOW_WORK` complex): the caller's work arrays (allocated once per run)."""
     M = mode
@@ -220,7 +279,7 @@ def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, l
     if method != ETD4:
         _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, 0, h, ph, out)
         if method == ETD2:
-            _inputs(mode, sigma, t + h, out, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ua)
+            _inputs(mode, sigma, t + h, out, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, ua)
             for q in range(m):
                 d1[q] = (ua[q] - u0[q]) / h
             _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, 1, h, ph, out)
@@ -230,14 +289,14 @@ def _flow(mode, sigma, t, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, l
     half = 0.5 * h
     _phis(Z, R, M, half, ph_half)
     _state(Z, R, M, m, y[0], y[4], w, u0, d1, d2, 0, half, ph_half, a)
-    _inputs(mode, sigma, t + half, a, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ua)
+    _inputs(mode, sigma, t + half, a, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, ua)
     _state(Z, R, M, m, y[0], y[4], w, ua, d1, d2, 0, half, ph_half, b)
-    _inputs(mode, sigma, t + half, b, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ub)
+    _inputs(mode, sigma, t + half, b, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, ub)
     _modal(Z, M, a, wa)
     for q in range(m):
         um[q] = 2.0 * ub[q] - u0[q]
     _state(Z, R, M, m, a[0], a[4], wa, um, d1, d2, 0, half, ph_half, cc)
-    _inputs(mode, sigma, t + h, cc, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, uc)
+    _inputs(mode, sigma, t + h, cc, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, uc)
     for q in range(m):
         d1[q] = (-3.0 * u0[q] + 2.0 * (ua[q] + ub[q]) - uc[q]) / h
         d2[q] = (2.0 * (u0[q] - ua[q] - ub[q] + uc[q])) / (h * h)
@@ -258,25 +317,40 @@ def switching(c, mode, sigma, y):
 
 
 @njit(**_INLINE)
+def _amplitude(g0, g1, g2, lam, e, tp1, t2p2):
+    """(value, d/dtau) at tau of one carried eigenvalue's term ``Re(g0 e^(l tau) + tau phi_1 g1 + tau^2 phi_2 g2)``
+    of a guard (``tp1 = tau phi_1``, ``t2p2 = tau^2 phi_2``; complex, or a real eigenvalue's real parts)."""
+    return (g0 * e + tp1 * g1 + t2p2 * g2).real, (g0 * lam * e + g1 * e + g2 * tp1).real
+
+
+@njit(**_INLINE)
 def _guard(tau, G, lam, nm, quad, absolute, bound):
     """(G, dG/dtau) of a guard on the modal flow: amplitudes ``G[k] = (row a0, a1, a2, speed s0, s1, s2)``."""
     t2 = tau * tau
     v = wv = dv = dwv = 0.0
     for k in range(nm):
         e, p1, p2, _, _ = _phis4(lam[k] * tau)
-        tp1 = tau * p1
-        v += (G[k, 0] * e + tp1 * G[k, 1] + t2 * p2 * G[k, 2]).real
-        dv += (G[k, 0] * lam[k] * e + G[k, 1] * e + G[k, 2] * tp1).real
-        if quad != 0.0:
-            wv += (G[k, 3] * e + tp1 * G[k, 4] + t2 * p2 * G[k, 5]).real
-            dwv += (G[k, 3] * lam[k] * e + G[k, 4] * e + G[k, 5] * tp1).real
+        tp1, t2p2 = tau * p1, t2 * p2
+        # a real eigenvalue in real arithmetic: the same floats (its phis are real, see :func:`_carried`)
+        real = lam[k].imag == 0.0
+        for j in range(2 if quad != 0.0 else 1):  # the row, then the speed
+            o = 3 * j
+            if real:
+                a, da = _amplitude(G[k, o].real, G[k, o + 1].real, G[k, o + 2].real, lam[k].real, e.real, tp1.real,
+                                   t2p2.real)  # fmt: skip
+            else:
+                a, da = _amplitude(G[k, o], G[k, o + 1], G[k, o + 2], lam[k], e, tp1, t2p2)
+            if j == 0:
+                v, dv = v + a, dv + da
+            else:
+                wv, dwv = wv + a, dwv + da
     if absolute and v < 0.0:
         v, dv = -v, -dv
     return v - (bound - quad * wv * wv), dv + 2.0 * quad * wv * dwv
 
 
 @njit(**_JIT)
-def _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly, wf, wc):
+def _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, wf, wc):
     """First tau in (0, h] where the switching function turns positive on the step's continuous extension.
 
     The extension is the exact flow with the input linear from ``u(t, y)``
@@ -293,7 +367,7 @@ def _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx,
     amp, lam, w = wc[0:18].reshape((3, 6)), wc[18:21], wc[21:24]
     du[0], du[1], du[2] = 0.0, 0.0, 0.0  # (held for exact)
     if c[16] != EXACT:
-        _inputs(mode, sigma, t + h, y1, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u1)
+        _inputs(mode, sigma, t + h, y1, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, u1)
         for q in range(m):
             du[q] = (u1[q] - u0[q]) / h
     g = guards[0] if mode == STICK else guards[1] if sigma > 0.0 else guards[2]
@@ -301,7 +375,7 @@ def _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx,
     _modal(Z, M, y, w)
     for k in range(nm):
         lam[k] = Z[M, k, 0]
-        b0, db = _pdot(Z, M, k, u0, m), _pdot(Z, M, k, du, m)
+        b0, db = _pdot(Z[M, k, 7], Z[M, k, 8], Z[M, k, 9], u0, m), _pdot(Z[M, k, 7], Z[M, k, 8], Z[M, k, 9], du, m)
         for j in range(2):
             o = 3 + 5 * j  # row, then speed
             r = R[M, k] * (g[o + 1] * Z[M, k, 1] + g[o + 2] * Z[M, k, 2] + g[o + 3] * Z[M, k, 3])
@@ -356,13 +430,18 @@ def locate_event(mode, sigma, t, y, h, hi, y1, Z, R, c, guards, uses, dk, dp, dx
     partial steps are taken elsewhere (a method without a compiled event step: its own flow, in Python)."""
     wf = np.zeros(3 + LOCATE_WORK)
     wc = np.zeros(LOCATE_WORK, dtype=np.complex128)
+    y, y1, Z, R, c, guards = borrowed(y), borrowed(y1), borrowed(Z), borrowed(R), borrowed(c), borrowed(guards)
+    uses, dk, dp, dx, dy = borrowed(uses), borrowed(dk), borrowed(dp), borrowed(dx), borrowed(dy)
+    lk, lp, lx, ly = borrowed(lk), borrowed(lp), borrowed(lx), borrowed(ly)
     u0 = wf[:3]
-    _inputs(mode, sigma, t, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u0)
-    return _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly, wf[3:], wc)
+    sd, sl = profile_scalars(dk, dp, dx, dy), profile_scalars(lk, lp, lx, ly)
+    _inputs(mode, sigma, t, y, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, u0)
+    return _locate(mode, sigma, t, y, h, hi, u0, y1, Z, R, c, guards, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly,
+                   wf[3:], wc)  # fmt: skip
 
 
 @njit(**_JIT)
-def _stick_keeps(t, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly, wf):
+def _stick_keeps(t, y, c, mats, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, wf):
     """True if the stick mode's |Q| does not at once grow past Q_max from (t, y).
 
     The sign of sigma dQ/dt - dQ_max/dt in stick mode; where that vanishes to
@@ -373,7 +452,8 @@ def _stick_keeps(t, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly, wf):
         return True
     sig = math.copysign(1.0, Q)
     u, dyv, scale_v = wf[0:3], wf[3:8], wf[8:13]
-    _inputs(np.int64(STICK), 0.0, t, y, math.inf, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u)  # int64, as every call
+    stick = np.int64(STICK)  # int64, as every call
+    _inputs(stick, 0.0, t, y, math.inf, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, u)
     for r in range(5):
         total, mag = 0.0, 0.0
         for j in range(5):
@@ -403,12 +483,13 @@ def event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mat
     """:func:`_event_step` with its work arrays allocated here (a call from Python: :class:`~.slip.EventStep`)."""
     wf = np.zeros(EVENT_WORK)
     wc = np.zeros(FLOW_WORK + LOCATE_WORK, dtype=np.complex128)
-    return _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mats, guards, uses,
+    sd, sl = profile_scalars(dk, dp, dx, dy), profile_scalars(lk, lp, lx, ly)
+    return _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mats, guards, uses, sd, sl,
                        dk, dp, dx, dy, lk, lp, lx, ly, events, n0, wf, wc)  # fmt: skip
 
 
 @njit(**_JIT)
-def _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mats, guards, uses,
+def _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, mats, guards, uses, sd, sl,
                 dk, dp, dx, dy, lk, lp, lx, ly, events, n0, wf, wc):  # fmt: skip
     """Integrate from ``t0`` to ``t1`` [s] in the hybrid model: sub-steps end at each cut, then at each located event.
 
@@ -423,7 +504,13 @@ def _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, ma
 
     Returns (mode, sigma, number of events recorded, status): status 0 done,
     1 more than :data:`MAX_SWITCHES` switches (chattering).
+
+    Every array is used as a :func:`~.kernel.borrowed` view (no atomic reference counts below: see the module's top).
     """
+    cuts, y, y1, Z, R, c, mats = borrowed(cuts), borrowed(y), borrowed(y1), borrowed(Z), borrowed(R), borrowed(c), borrowed(mats)
+    guards, uses, dk, dp, dx, dy = borrowed(guards), borrowed(uses), borrowed(dk), borrowed(dp), borrowed(dx), borrowed(dy)
+    lk, lp, lx, ly = borrowed(lk), borrowed(lp), borrowed(lx), borrowed(ly)
+    events, wf, wc = borrowed(events), borrowed(wf), borrowed(wc)
     n_rec = 0
     n_switch = 0
     u0, ye = wf[0:3], wf[3:8]
@@ -437,23 +524,25 @@ def _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, ma
         hi = math.nextafter(b, -math.inf) if j < nc else hi_end
         while a < b:
             h = dt if (dt == dt and a == t0 and b == t1) else b - a  # a whole grid step: the grid's dt
-            _inputs(mode, sigma, a, y, hi, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, u0)
+            _inputs(mode, sigma, a, y, hi, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, u0)
             if given == 0 or nc > 0:
-                _flow(mode, sigma, a, y, h, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, y1, flow_f, flow_c)
+                _flow(mode, sigma, a, y, h, hi, u0, Z, R, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, y1,
+                      flow_f, flow_c)  # fmt: skip
             given = 0
             if switching(c, mode, sigma, y1) <= 0.0:
-                y[:] = y1
+                _copy(y1, y)
                 a = b
                 break
-            tau = _locate(mode, sigma, a, y, h, hi, u0, y1, Z, R, c, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
-                          loc_f, loc_c)  # fmt: skip
+            tau = _locate(mode, sigma, a, y, h, hi, u0, y1, Z, R, c, guards, uses, sd, sl, dk, dp, dx, dy, lk, lp,
+                          lx, ly, loc_f, loc_c)  # fmt: skip
             if tau != tau:
-                y[:] = y1
+                _copy(y1, y)
                 a = b
                 break
             if tau > 0.0:
-                _flow(mode, sigma, a, y, tau, hi, u0, Z, R, c, uses, dk, dp, dx, dy, lk, lp, lx, ly, ye, flow_f, flow_c)
-                y[:] = ye
+                _flow(mode, sigma, a, y, tau, hi, u0, Z, R, c, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, ye,
+                      flow_f, flow_c)  # fmt: skip
+                _copy(ye, y)
             a = a + tau if tau < h else b
             old = mode
             if mode == STICK:
@@ -463,12 +552,12 @@ def _event_step(t0, t1, cuts, y, mode, sigma, dt, hi_end, y1, given, Z, R, c, ma
                     te = sigma * _limit(c, y[2]) / c[13]
                     y[4] += c[1] * (y[1] - te)
                     y[1] = te
-            elif _stick_keeps(a, y, c, mats, uses, dk, dp, dx, dy, lk, lp, lx, ly, keep_f):
+            elif _stick_keeps(a, y, c, mats, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly, keep_f):
                 mode, sigma = STICK, 0.0
             if mode != old and n0 + n_rec < events.shape[0]:
                 row = n0 + n_rec
                 events[row, 0], events[row, 1], events[row, 2] = a, 1.0 if mode == SLIP else 0.0, sigma
-                events[row, 3:] = y
+                _copy(y, events[row, 3:])
                 n_rec += 1
             n_switch += 1
             if n_switch > MAX_SWITCHES:
@@ -586,10 +675,15 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
     """
     N = grid.size - 1
     k = k0
+    # the arguments as views that own nothing (:func:`~.kernel.borrowed`): no atomic reference counts in the event steps
+    Z, R, c, mats, guards, uses = borrowed(Z), borrowed(R), borrowed(c), borrowed(mats), borrowed(guards), borrowed(uses)
+    dk, dp, dx, dy = borrowed(dk), borrowed(dp), borrowed(dx), borrowed(dy)
+    lk, lp, lx, ly, events = borrowed(lk), borrowed(lp), borrowed(lx), borrowed(ly), borrowed(events)
     y = np.empty(5)
     y1 = np.empty(5)
     shifted = lp.copy()  # the load's numbers with its angle shifted by the slip (stick after slip)
     no_cuts = np.zeros(0)
+    sd, sl = profile_scalars(dk, dp, dx, dy), profile_scalars(lk, lp, lx, ly)  # the profiles as scalars, once per call
     wf = np.zeros(EVENT_WORK)  # the event steps' work arrays, once per call
     wc = np.zeros(FLOW_WORK + LOCATE_WORK, dtype=np.complex128)
     xs6 = np.empty(6)  # a phase's start state for the linear loop
@@ -675,7 +769,7 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
                 _to_y(kind, x if kept == 0 else states[kept - 1], Yflex, y)
                 _to_y(kind, states[kept], Yflex, y1)
         mode, sigma, got, st = _event_step(knots[g], knots[g + 1], no_cuts, y, mode, sigma, dt, hi[g], y1, given,
-                                           Z, R, c, mats, guards, uses, dk, dp, dx, dy, lk, lp, lx, ly,
+                                           Z, R, c, mats, guards, uses, sd, sl, dk, dp, dx, dy, lk, lp, lx, ly,
                                            events, n_events, wf, wc)  # fmt: skip
         n_events += got
         if st:
@@ -721,6 +815,8 @@ def pack(model, method: str, drive_data, load_data, uses_angle):
             Z[M, k, 0] = lam[i]
             Z[M, k, 1:4], Z[M, k, 4:7] = V[:, i], Vinv[i]
             Z[M, k, 7 : 7 + B.shape[1]], Z[M, k, 10:12] = P[i], C[:, i]
+            if lam[i].imag == 0.0:  # (real already, LAPACK's: the kernel's real arithmetic reads their real parts)
+                Z[M, k, 1:4], Z[M, k, 10:12] = V[:, i].real, C[:, i].real
             R[M, k] = 1.0 if lam[i].imag == 0.0 else 2.0
             k += 1
         if pairs != 0:
