@@ -122,7 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     except RecursionError:
         return _fail("input nested too deeply", 2)
     except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM as Terminated: outputs in progress were removed
-        return _interrupted(exc.signum if isinstance(exc, Terminated) else signal.SIGINT, argv, _after_interruption())
+        return _interrupted(exc.signum if isinstance(exc, Terminated) else signal.SIGINT, argv,
+                            _after_interruption(args.command in OFFLINE_COMMANDS))
     except MemoryError:
         return _fail("out of memory (a shorter run, or --out to stream it, needs less)", 1)
     except OSError as exc:  # disk full, I/O error: the run failed, the input was fine
@@ -156,12 +157,17 @@ def _interrupted(signum: int, argv, detail: str) -> int:
     return 128 + int(signum)
 
 
-def _after_interruption() -> str:
+def _after_interruption(in_block: bool) -> str:
     """What an interrupted command left: the outputs it had committed are complete and kept (``--out`` written,
-    then interrupted while its ``--plot`` or summary was made); anything unfinished was removed."""
+    then interrupted while its ``--plot`` or summary was made); anything unfinished was removed.
+
+    ``in_block``: the command ran in a :func:`~belt_drive_ros.io.atomic.terminate_raises` block (an offline
+    command), whose commits :func:`~belt_drive_ros.io.atomic.committed_outputs` lists. Any other command notes none,
+    and that list is then the last block's: an earlier command's of the same process (``cli.main`` called again),
+    not this one's."""
     from .io.atomic import committed_outputs
 
-    kept = committed_outputs()
+    kept = committed_outputs() if in_block else []
     return (f"; kept, complete: {', '.join(kept)}; " if kept else "; ") + "unfinished outputs removed"
 
 

@@ -52,3 +52,26 @@ def test_an_interruption_before_any_commit_names_nothing_as_kept(tmp_path, monke
 def test_commits_outside_a_block_are_not_noted(tmp_path):
     note_committed(tmp_path / "x")  # (a library caller's output, no command running)
     assert str(tmp_path / "x") not in committed_outputs()
+
+
+def test_an_interrupted_command_without_a_block_names_no_earlier_command_s_output(tmp_path, monkeypatch, capsys):
+    """A caller running commands in one process (``cli.main(argv)``): an output an earlier command committed is not
+    this command's. A command that runs outside :func:`~belt_drive_ros.io.atomic.terminate_raises` (``bench``,
+    ``node``, ``record``, ...) and is interrupted used to say "kept, complete: <the earlier command's output>"."""
+    import argparse
+
+    target = tmp_path / "run.mcap"
+    assert cli.main(["sim", "paper", "--duration", "0.05", "--quiet", "--out", str(target)]) == 0
+    assert committed_outputs() == [str(target)]  # (the finished block's record stays readable)
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    class _Parsed:
+        def parse_args(self, argv):
+            return argparse.Namespace(command="bench", func=interrupted)
+
+    monkeypatch.setattr(cli, "_parser", lambda: _Parsed())
+    assert "bench" not in cli.OFFLINE_COMMANDS
+    assert cli.main(["bench"]) == 130
+    assert capsys.readouterr().err.strip().splitlines() == ["belt-drive: interrupted by SIGINT; unfinished outputs removed"]

@@ -389,7 +389,10 @@ def _affine(M: np.ndarray, x: np.ndarray) -> np.ndarray:
     than numpy's outer products on 1,000 samples of 12 outputs): the same products and sums, returned as the
     transpose of ``(rows, samples)``.
     """
-    if M.shape[0] > 1 and x.size > 512 and x.dtype == np.float64 and M.dtype == np.float64:
+    if (M.shape[0] > 1 and x.size > 512 and x.dtype == np.float64 and M.dtype == np.float64
+            and x.shape[-1] >= M.shape[1] >= 1):
+        # (the kernel has no bounds checks: samples of fewer states than M has columns would be read past each
+        # row and past the array's end; those take numpy's path below, which raises IndexError as a short run does)
         # (C-contiguous and writable: numba types a read-only array apart, the kernel keeps its one signature)
         M, samples = (a if a.flags.writeable and a.flags.c_contiguous else np.array(a, order="C")
                       for a in (M, x.reshape(-1, x.shape[-1])))
