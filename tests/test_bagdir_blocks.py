@@ -26,6 +26,13 @@ def _payload(values: np.ndarray) -> np.ndarray:
     return out
 
 
+def _steps(seed: int, n: int) -> tuple[np.ndarray, list]:
+    """``n`` steps at 1 ms from 5 ns: their times [ns] and a random Float64 payload per topic (seeded)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 1_000_000 + 5
+    return t, [_payload(rng.normal(size=t.size)) for _ in TOPICS]
+
+
 def _write(folder, blocks: bool, steps: int, **split):
     """Three blocks of ``steps`` steps of both topics at 1 ms, a latched message between the first two."""
     rng = np.random.default_rng(7)
@@ -122,9 +129,7 @@ def _one_step_runs(folder, blocks: bool, t, payloads, **split) -> None:
 def test_one_step_blocks_between_passed_through_messages_split_as_message_by_message(tmp_path):
     """A re-simulation into a bag folder: a recorded message at every step, the samples as one-step blocks
     between them; the same files and messages as writing all one by one, and as few chunks."""
-    rng = np.random.default_rng(5)
-    t = np.arange(900) * 1_000_000 + 5
-    payloads = [_payload(rng.normal(size=t.size)) for _ in TOPICS]
+    t, payloads = _steps(5, 900)
     files = {}
     for blocks in (False, True):
         folder = tmp_path / str(blocks)
@@ -140,9 +145,7 @@ def test_one_step_blocks_between_passed_through_messages_split_as_message_by_mes
 def test_a_latched_topic_written_in_blocks_starts_each_file_with_its_message_before_the_split(tmp_path):
     """A block that spans several files: each new file repeats the latched topic's message of the step before it,
     as writing one by one does (not the one before the block)."""
-    rng = np.random.default_rng(9)
-    t = np.arange(1000) * 1_000_000 + 5
-    payloads = [_payload(rng.normal(size=t.size)) for _ in TOPICS]
+    t, payloads = _steps(9, 1000)
     files = {}
     for blocks in (False, True):
         folder = tmp_path / str(blocks)
@@ -162,9 +165,7 @@ def test_a_latched_topic_written_in_blocks_starts_each_file_with_its_message_bef
 def test_one_step_blocks_split_by_size_stay_in_few_chunks_and_files(tmp_path):
     """The same with max_bag_size: a one-step block that joined the open chunk is not flushed as a chunk of its
     own to learn the file's size (a chunk per step: twice the files, each ~50x the chunks)."""
-    rng = np.random.default_rng(6)
-    t = np.arange(3000) * 1_000_000 + 5
-    payloads = [_payload(rng.normal(size=t.size)) for _ in TOPICS]
+    t, payloads = _steps(6, 3000)
     chunks, messages = {}, {}
     for blocks in (False, True):
         folder = tmp_path / str(blocks)
