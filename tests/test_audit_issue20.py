@@ -1,7 +1,7 @@
 """Issue 20's "nothing else advances time" and "the node tick computes without the GIL", checked by running.
 
 * **No stepping loop in Python.** A fixed-step run's Python work must not grow with its number of steps: the
-  steps are the compiled loops' (``kernel.linear_steps``/``wheel_steps``, ``kernel_slip.hybrid_steps``, the
+  steps are the compiled loops' (``kernel.linear_steps``/``wheel_steps``, ``kernel_hybrid.hybrid_steps``, the
   network loops). Each case runs at two durations with the same step, and the Python function calls of each
   run are counted (its second call; ``sys.setprofile``: every Python-level call, whatever module makes it); the count may
   grow by a few calls per output window or event, never by one or more per step. A loop over steps in Python

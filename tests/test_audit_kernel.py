@@ -33,7 +33,7 @@ PACKAGES = (ROOT / "belt_drive_ros", ROOT / "msg_tools")
 BIN = Path(sys.executable).parent
 #: the modules holding compiled functions (every module of the package importing numba)
 KERNEL_MODULES = ("belt_drive_ros.core.kernel", "belt_drive_ros.core.kernel_profiles", "belt_drive_ros.core.kernel_slip",
-                  "belt_drive_ros.core.kernel_affine",
+                  "belt_drive_ros.core.kernel_hybrid", "belt_drive_ros.core.kernel_affine",
                   "belt_drive_ros.core.kernel_variants", "belt_drive_ros.core.tick", "belt_drive_ros.core.network.tick",
                   "belt_drive_ros.core.network.slip_kernel")
 
@@ -294,7 +294,7 @@ def test_the_first_runs_after_install_compile_nothing(tmp_path):
     report = json.loads(done.stdout.strip().splitlines()[-1])
     used = {name: row for name, row in report.items() if row[0]}
     # the entry points these runs reach, each loaded from the cache (called from Python: a cache hit of its own)
-    for name in ("core.kernel.linear_steps", "core.kernel.wheel_steps", "core.kernel_slip.hybrid_steps",
+    for name in ("core.kernel.linear_steps", "core.kernel.wheel_steps", "core.kernel_hybrid.hybrid_steps",
                  "core.tick.linear_tick", "core.tick.slip_tick", "core.network.tick.network_tick",
                  "core.kernel_variants.variant_steps"):
         assert used.get(f"belt_drive_ros.{name}", [0, 0, 0])[2] >= 1, (name, used.get(f"belt_drive_ros.{name}"))

@@ -102,8 +102,8 @@ def test_entries_under_numba_cache_dir_are_handled(tmp_path, monkeypatch):
 
 
 #: the modules of compiled kernels (every @njit function of the package is in one of them)
-KERNEL_MODULES = ("kernel", "kernel_affine", "kernel_profiles", "kernel_slip", "kernel_variants", "tick", "network.slip_kernel",
-                  "network.tick")
+KERNEL_MODULES = ("kernel", "kernel_affine", "kernel_hybrid", "kernel_profiles", "kernel_slip", "kernel_variants",
+                  "tick", "network.slip_kernel", "network.tick")
 
 
 def _literal_arguments(module_name: str) -> list[str]:

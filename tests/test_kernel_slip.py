@@ -1,4 +1,4 @@
-"""The slipping belt's compiled hybrid loop (core/kernel_slip.py).
+"""The slipping belt's compiled hybrid loop (core/kernel_hybrid.py) and event step (core/kernel_slip.py).
 
 * the compiled loop (each phase in the linear loop, the event steps
   compiled) equals every grid step taken as a compiled event step, to
@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from belt_drive_ros.core import kernel_slip
+from belt_drive_ros.core import kernel_hybrid, kernel_slip
 from belt_drive_ros.io.scenes import load_scene
 from belt_drive_ros.core.slip_run import SlippingSimulator
 
@@ -121,7 +121,8 @@ def test_methods_without_a_modal_flow_slip_in_the_compiled_loop(method):
 
 def test_the_hybrid_kernels_compile_once_whatever_the_scene():
     def counts():
-        return {name: len(getattr(kernel_slip, name).signatures) for name in ("event_step", "hybrid_steps", "locate_event")}
+        kernels = ((kernel_slip, "event_step"), (kernel_hybrid, "hybrid_steps"), (kernel_slip, "locate_event"))
+        return {name: len(getattr(module, name).signatures) for module, name in kernels}
 
     from belt_drive_ros.core.warm import warm
 

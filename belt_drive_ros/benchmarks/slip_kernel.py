@@ -5,12 +5,12 @@ at etd4, 0.5 ms), in one run:
 
 1. **Whole warm simulate()** (guards, model choice, the slipping run, the
    accuracy check, outputs): x real time and CPU with the compiled loop
-   (:func:`~belt_drive_ros.core.kernel_slip.hybrid_steps`), minimum of repeats;
+   (:func:`~belt_drive_ros.core.kernel_hybrid.hybrid_steps`), minimum of repeats;
 2. **the slipping run alone** (:meth:`SlippingSimulator.run`) and **the
    accuracy check's rerun** (:func:`~belt_drive_ros.core.accuracy.slip_run_error`);
 3. **the node's tick**: :meth:`SlippingSimulator.advance` of one 1 ms tick
    over the whole scene (median, p99 and the worst tick, an event tick);
-4. **the compiled loop alone**: the :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps` calls of one warm
+4. **the compiled loop alone**: the :func:`~belt_drive_ros.core.kernel_hybrid.hybrid_steps` calls of one warm
    simulate() (the run's and the rerun's) replayed on copies of their arguments, thread CPU time: per grid step,
    and beside it the phases' linear loop over the same grid without its guard (no event: what the steps cost
    without the events and the hybrid loop's own work). The run's and the rerun's calls hold the same events over
@@ -63,23 +63,23 @@ def _ticks(scene) -> tuple[float, float, float]:
 
 
 def hybrid_calls(scene) -> list:
-    """Copies of the arguments of every :func:`~belt_drive_ros.core.kernel_slip.hybrid_steps` call of one
+    """Copies of the arguments of every :func:`~belt_drive_ros.core.kernel_hybrid.hybrid_steps` call of one
     ``simulate(scene)`` (before the call: the outputs and the state it writes are fresh)."""
     import numpy as np
 
-    from ..core import kernel_slip
+    from ..core import kernel_hybrid
 
-    calls, compiled = [], kernel_slip.hybrid_steps
+    calls, compiled = [], kernel_hybrid.hybrid_steps
 
     def spy(*args):
         calls.append(tuple(a.copy() if isinstance(a, np.ndarray) else a for a in args))
         return compiled(*args)
 
-    kernel_slip.hybrid_steps = spy
+    kernel_hybrid.hybrid_steps = spy
     try:
         simulate(scene)
     finally:
-        kernel_slip.hybrid_steps = compiled
+        kernel_hybrid.hybrid_steps = compiled
     return calls
 
 
@@ -88,7 +88,7 @@ def loop_alone(scene, repeats: int) -> dict:
     their steps and events, and the flexible phase's linear loop over the first call's grid unguarded, per step."""
     import numpy as np
 
-    from ..core import kernel_slip
+    from ..core import kernel_hybrid
     from ..core.kernel import HEADER, linear_steps
 
     calls = hybrid_calls(scene)
@@ -103,7 +103,7 @@ def loop_alone(scene, repeats: int) -> dict:
             for i in written:
                 args[i] = args[i].copy()
             start = time.thread_time_ns()
-            done = kernel_slip.hybrid_steps(*args)
+            done = kernel_hybrid.hybrid_steps(*args)
             spent = time.thread_time_ns() - start
             total += spent
             each[c] = min(each[c], spent)
@@ -117,7 +117,7 @@ def loop_alone(scene, repeats: int) -> dict:
         per_plain = (each[0] - each[1]) / (counts[0][0] - counts[1][0])
         per_event = (each[1] - per_plain * counts[1][0]) / counts[1][1]
     grid, reals, ints, offsets, dp, lp = (calls[0][i] for i in (0, 14, 15, 16, 27, 31))
-    r0, r1, i0, i1 = offsets[kernel_slip.FLEXIBLE]
+    r0, r1, i0, i1 = offsets[kernel_hybrid.FLEXIBLE]
     loop, codes = reals[r0:r1].copy(), ints[i0:i1]
     loop[codes[HEADER + 6]] = 0.0  # the guard's section: off
     x, states, linear = calls[0][7][:4].copy(), np.empty((grid.size - 1, 4)), math.inf

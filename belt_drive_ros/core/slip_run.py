@@ -3,7 +3,7 @@
 A stick or slip phase of the hybrid model is a linear plant with a guard
 (:class:`~belt_drive_ros.core.stage_scheme.Guard`): the mode's switching
 function, checked by the linear kernel's loop after every step. The
-compiled hybrid loop (:func:`~belt_drive_ros.core.kernel_slip.hybrid_steps`)
+compiled hybrid loop (:func:`~belt_drive_ros.core.kernel_hybrid.hybrid_steps`)
 runs each phase until the guard turns positive, redoes that step with the
 event located (:func:`~belt_drive_ros.core.kernel_slip.event_step`) and goes
 on in the new mode's phase, in one call. A step split at a breakpoint off
@@ -191,10 +191,10 @@ class SlippingSimulator:
         compiled = self._compiled()
         if compiled is None:
             return
-        ks = _kernel_slip()
+        kh = _kernel_hybrid()
         have, reals, ints, offsets, Yflex, Minv, arrays = compiled
         none, x = np.zeros(0), np.zeros(6)
-        ks.hybrid_steps(np.zeros(1), np.zeros(1), none, none, np.zeros(0, dtype=np.int64), 0, 0, x, self.dt, SPEED_LIMIT,
+        kh.hybrid_steps(np.zeros(1), np.zeros(1), none, none, np.zeros(0, dtype=np.int64), 0, 0, x, self.dt, SPEED_LIMIT,
                         np.empty((0, 5)), np.empty(0, dtype=np.int64), none, np.empty((0, 6)), reals, ints, offsets, have,
                         Yflex, Minv, *arrays, self._event_rows, 0)  # fmt: skip
         self.hybrid.advance(0.0, 0.0, np.zeros(5), STICK, 0.0)
@@ -329,7 +329,7 @@ class SlippingSimulator:
         piece (the knots after ``t0``; modes and sigmas a value or one per knot);
         ``events``: a list that receives the mode switches (:class:`~belt_drive_ros.core.slip.Event`).
         The whole grid steps run in the compiled hybrid loop
-        (:func:`~belt_drive_ros.core.kernel_slip.hybrid_steps`); a partial
+        (:func:`~belt_drive_ros.core.kernel_hybrid.hybrid_steps`); a partial
         step or one split at a breakpoint, and every step where the torques
         or the method are not the kernel's, by :meth:`_advance_steps`.
         Raises :class:`~belt_drive_ros.core.errors.SimulationDivergedError`.
@@ -363,7 +363,7 @@ class SlippingSimulator:
             grid, (lo, hi, special) = plan["grid"], plan["arrays"]
         knots = grid.copy()
         knots[0], knots[-1] = t0, t1
-        ks = _kernel_slip()
+        kh = _kernel_hybrid()
         out_y, out_native = np.empty((N, 5)), np.empty((N, 6))
         out_mode, out_sigma = np.empty(N, dtype=np.int64), np.empty(N)
         x = np.zeros(6)
@@ -375,7 +375,7 @@ class SlippingSimulator:
         ev = self._event_rows
         while True:
             have, reals, ints, offsets, Yflex, Minv, arrays = compiled
-            k1, status, kind, sigma, n_ev = ks.hybrid_steps(
+            k1, status, kind, sigma, n_ev = kh.hybrid_steps(
                 grid, knots, lo, hi, special, k, kind, x, self.dt, SPEED_LIMIT, out_y, out_mode, out_sigma, out_native,
                 reals, ints, offsets, have, Yflex, Minv, *arrays, ev, n_ev,
             )  # fmt: skip
@@ -385,23 +385,23 @@ class SlippingSimulator:
             if events is not None:
                 events.extend(_events(ev[:n_ev]))
             n_ev = 0
-            n = ks.PHASE_SIZE[kind]
+            n = kh.PHASE_SIZE[kind]
             if status == 0:
                 break
             if status == DIVERGED:
                 raise self.stepper.diverged_error(float(knots[k1]), out_native[k1 - 1, :n])
             if status == NOT_CONVERGED:
                 self.stepper._not_converged(float(knots[k1]))
-            if status == ks.CHATTER:
+            if status == kh.CHATTER:
                 raise SlipError(f"slip: more than 64 mode switches in one step at t={knots[k1]:.9g} s (chattering); reduce dt")
-            if status == ks.NO_PHASE:
-                self.phase_stepper(ks.PHASE_KEYS[kind])
+            if status == kh.NO_PHASE:
+                self.phase_stepper(kh.PHASE_KEYS[kind])
                 compiled = self._compiled()
                 if compiled is None:
-                    here = SlipState(STICK if kind <= ks.STICKING else SLIP, sigma, ks.KIND_NAMES[kind], x[:n].copy())
+                    here = SlipState(STICK if kind <= kh.STICKING else SLIP, sigma, kh.KIND_NAMES[kind], x[:n].copy())
                     return self._advance_steps(here, float(knots[k1]), t1, record, events)
-            elif status == ks.SPECIAL:
-                here = SlipState(STICK if kind <= ks.STICKING else SLIP, sigma, ks.KIND_NAMES[kind], x[:n].copy())
+            elif status == kh.SPECIAL:
+                here = SlipState(STICK if kind <= kh.STICKING else SLIP, sigma, kh.KIND_NAMES[kind], x[:n].copy())
                 here = self._advance_steps(here, float(knots[k1]), float(knots[k1 + 1]), record, events)
                 kind, sigma = _kind_code(here), here.sigma
                 x[:] = 0.0
@@ -412,8 +412,8 @@ class SlippingSimulator:
             k = k1
             if k >= N:
                 break
-        n = ks.PHASE_SIZE[kind]
-        return SlipState(STICK if kind <= ks.STICKING else SLIP, float(sigma), ks.KIND_NAMES[kind], x[:n].copy())
+        n = kh.PHASE_SIZE[kind]
+        return SlipState(STICK if kind <= kh.STICKING else SLIP, float(sigma), kh.KIND_NAMES[kind], x[:n].copy())
 
     def _flexible_until_guard(self, state: SlipState, t0: float, t1: float, record) -> tuple:
         """The flexible phase from ``t0`` by the flexible stepper (guarded by the stick check): ``(state, t)`` at
@@ -449,17 +449,17 @@ class SlippingSimulator:
 
     def _pack(self, arrays):
         """:meth:`_compiled`'s arrays of the steppers built so far and the event step's ``arrays``, or None."""
-        ks = _kernel_slip()
+        kh = _kernel_hybrid()
         packed = None
         loops = {key: st.loop for key, st in self._steppers.items()}
         base = loops.get("flexible")
         if arrays is not None and base is not None and all(
             lp is not None and lp._dp is arrays[7] and lp._lp is arrays[11] for lp in loops.values()
         ):
-            have = np.zeros(len(ks.PHASE_SIZE), dtype=np.int64)
-            offsets = np.zeros((len(ks.PHASE_SIZE), 4), dtype=np.int64)
+            have = np.zeros(len(kh.PHASE_SIZE), dtype=np.int64)
+            offsets = np.zeros((len(kh.PHASE_SIZE), 4), dtype=np.int64)
             reals, ints, r, i = [], [], 0, 0
-            for code, key in enumerate(ks.PHASE_KEYS):
+            for code, key in enumerate(kh.PHASE_KEYS):
                 if key == "stick":  # sticking after slip runs on the flexible loop (hybrid_steps)
                     have[code] = 2
                 elif key in loops:
@@ -471,7 +471,7 @@ class SlippingSimulator:
                     r, i = r + lp.reals.size, i + lp.ints.size
                 elif key in self._factories:
                     have[code] = 1
-            have[ks.STEPWISE] = 2
+            have[kh.STEPWISE] = 2
             Yflex = np.zeros((5, 4))
             W = self.plant.wheel_map
             Yflex[0], Yflex[1, 1], Yflex[2], Yflex[3] = W[0], 1.0, W[1], W[3]
@@ -632,26 +632,26 @@ def _scene_parts(params, plant) -> dict:
     return {"model": model, "maps": (np.linalg.inv(M), _mapped(stick, np.vstack([M, np.zeros((1, 4))])), stick)}
 
 
-def _kernel_slip():
-    """The compiled hybrid loop's module :mod:`~belt_drive_ros.core.kernel_slip` (imported at a run's first use, so
+def _kernel_hybrid():
+    """The compiled hybrid loop's module :mod:`~belt_drive_ros.core.kernel_hybrid` (imported at a run's first use, so
     importing this module imports no compiler; then kept: a relative import costs ~7 us at every call)."""
-    global _KS
-    if _KS is None:
-        from . import kernel_slip
+    global _KH
+    if _KH is None:
+        from . import kernel_hybrid
 
-        _KS = kernel_slip
-    return _KS
+        _KH = kernel_hybrid
+    return _KH
 
 
-_KS = None
+_KH = None
 
 
 def _kind_code(state: SlipState) -> int:
     """The compiled loop's phase kind of a hybrid state."""
-    ks = _kernel_slip()
+    kh = _kernel_hybrid()
     if state.kind in ("slip", "mass"):
-        return ks.PHASE_KEYS.index((state.kind, 1.0 if state.sigma > 0.0 else -1.0))
-    return ks.KIND_NAMES.index(state.kind)  # flexible, stick, hybrid: one kind each
+        return kh.PHASE_KEYS.index((state.kind, 1.0 if state.sigma > 0.0 else -1.0))
+    return kh.KIND_NAMES.index(state.kind)  # flexible, stick, hybrid: one kind each
 
 
 def _events(rows) -> list:
@@ -671,7 +671,7 @@ def _joined(pieces):
 
 
 def warm_hybrid() -> None:
-    """Compile (or load from the disk cache) :func:`~.kernel_slip.event_step`, :func:`~.kernel_slip.hybrid_steps` and
+    """Compile (or load from the disk cache) :func:`~.kernel_slip.event_step`, :func:`~.kernel_hybrid.hybrid_steps` and
     :func:`~.kernel_slip.locate_event` with the one signature runs use (a short run that slips at once, a drive torque
     far past the capstan limit, takes the entry points every run takes)."""
     from . import kernel_slip as ks

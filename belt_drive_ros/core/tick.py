@@ -40,9 +40,10 @@ from numba import carray, njit
 from numba.extending import overload
 
 from .kernel import HEADER, SECTIONS, _doubles_at, doubles_view, linear_steps
+from .kernel_hybrid import (FLEXIBLE, KIND_NAMES, MASS_DOWN, MASS_UP, PHASE_SIZE, SLIP_DOWN, SLIP_UP, STEPWISE,
+                            STICKING, _flexible, _shift_angle, _to_y, hybrid_steps)
 from .kernel_profiles import profile_torque
-from .kernel_slip import (FLEXIBLE, KIND_NAMES, MASS_DOWN, MASS_UP, MAX_SWITCHES, PHASE_SIZE, SLIP_DOWN, SLIP_UP,
-                          STEPWISE, STICKING, _flexible, _shift_angle, _to_y, hybrid_steps)
+from .kernel_slip import MAX_SWITCHES
 from .slip import SLIP, STICK
 from .slip_run import SlippingSimulator, SlipState, _events, _kind_code
 from .model import LINEAR_OUTPUTS, OUTPUT_UNITS
@@ -442,7 +443,7 @@ def slip_tick(address):
     call); else the hybrid loop's status (> 0): the buffers then hold the state the call started from.
 
     A tick whose steps cross no guard is the phase's linear loop alone (:func:`~.kernel.linear_steps`, stretch by
-    stretch of equal clamps as :func:`~.kernel_slip.hybrid_steps` takes them; sticking after slip the flexible loop
+    stretch of equal clamps as :func:`~.kernel_hybrid.hybrid_steps` takes them; sticking after slip the flexible loop
     from ``Minv y``, the load's angle shifted by ``-s / r_3``; the same floats); any other runs ``hybrid_steps``
     from the start.
 
