@@ -18,7 +18,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .kernel import borrowed, linear_steps
+from .kernel import borrowed, doubles_view, linear_steps
 from .kernel_profiles import profile_scalars
 from .kernel_slip import EVENT_WORK, FLOW_WORK, LOCATE_WORK, MAX_SWITCHES, SLIP, STICK, _event_step, _limit
 from .profile_data import COMPRESSOR, DIVERGED, ENGINE, GUARDED, NOT_CONVERGED
@@ -181,7 +181,7 @@ def hybrid_steps(grid, knots, lo, hi, special, k0, kind, x, dt, limit, out_y, ou
             loop = FLEXIBLE if kind == STICKING else kind
             m = PHASE_SIZE[loop]
             r0, r1, i0, i1 = offsets[loop, 0], offsets[loop, 1], offsets[loop, 2], offsets[loop, 3]
-            states = buf[: (j - k) * m].reshape((j - k, m))
+            states = doubles_view(buf, 0, (j - k, m))  # (not reshape: numba's calls a C helper, ~0.25 us per phase)
             load = lp
             if kind == STICKING:
                 xs = xs6[:4]
