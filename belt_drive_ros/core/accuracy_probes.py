@@ -603,18 +603,11 @@ def _radii(maps: list) -> list:
     return out
 
 
-def linear_verdict(integrator, A, B, rows, K, n_steps: int) -> tuple:
-    """(stable, error, growth, exact growth, h omega) of the method's closed-loop map ``A + B K`` (cached).
-
-    The key is every number the verdict depends on (matrices, method and its
-    options through the integrator's one-step map, step, gains, horizon), so a
-    hit is the same computation. :func:`linear_verdicts` for one gain.
-    """
-    return linear_verdicts(integrator, A, B, rows, (K,), n_steps)[0]
-
-
 def linear_verdicts(integrator, A, B, rows, Ks, n_steps: int) -> list:
-    """:func:`linear_verdict` of each gain of ``Ks`` on one integrator, the gains not cached yet made together:
+    """(stable, error, growth, exact growth, h omega) of the method's closed-loop map ``A + B K`` of each gain of ``Ks``
+    on one integrator (cached: the key is every number the verdict depends on, matrices, method and its options
+    through the integrator's one-step map, step, gains, horizon, so a hit is the same computation), the gains not
+    cached yet made together:
     their exact maps one stacked exponential (:func:`exact_maps`), their closed loops' eigenvalues one stacked call
     and their step responses one :func:`~belt_drive_ros.core.forced_response.orbit_error` call with the gains on a
     leading axis. Each is computed matrix by matrix with the same operations as alone (the same floats; a
