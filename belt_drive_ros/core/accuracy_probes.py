@@ -199,9 +199,9 @@ class RigidSurvey:
         self.probes: dict = {}
 
     @classmethod
-    def of_scene(cls, scene, dt: float | None = None) -> "RigidSurvey":
+    def of_scene(cls, scene) -> "RigidSurvey":
         x0 = scene.initial_state.vector("rigid", scene.params.ratio)
-        return cls(scene.params, scene.drive, scene.load, x0, scene.duration, scene.dt if dt is None else dt)
+        return cls(scene.params, scene.drive, scene.load, x0, scene.duration, scene.dt)
 
     @property
     def rigid(self) -> RigidBeltModel:

@@ -145,9 +145,9 @@ def advance(loop: NetworkLoop, x, out, k0: int, k1: int) -> None:
         start = out[e - k0 - 1].copy()
 
 
-def run_loop(loop: NetworkLoop, steps: int, x0=None) -> tuple[np.ndarray, np.ndarray]:
-    """``(times, states)`` of ``steps`` steps from ``x0`` (default the scene's start)."""
-    x = loop.initial() if x0 is None else np.array(x0, dtype=float)
+def run_loop(loop: NetworkLoop, steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(times, states)`` of ``steps`` steps from the scene's start."""
+    x = loop.initial()
     out = np.empty((steps + 1, x.size))
     out[0] = x
     advance(loop, x, out[1:], 0, steps)
