@@ -258,7 +258,7 @@ def check_slipping(
     w = max(abs(float(plant.wheel_map[1] @ probes.x0)), *(abs(w_) for _, _, w_, _ in probes.windows), 1.0)
     d = 1e-6 * w
     rise = model.limit(w + d) - model.limit(w - d)
-    for K2, slopes in probes.gains:
+    for _, slopes in probes.gains:
         for sigma in (1.0, -1.0):
             K = np.zeros((3, 5))
             K[0, 2], K[1, 3] = slopes

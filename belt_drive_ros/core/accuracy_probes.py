@@ -136,7 +136,7 @@ class _SurveyPlan:
         def pieces():  # the breakpoints inside the run (page by page for a recording read in pages)
             return plant.breakpoint_pieces(0.0, duration, SURVEY_CHUNK * dt)
 
-        self.rdt = rdt = _survey_step(pieces, operating_run_step(duration) if duration > 0 else 1e-3)
+        self.rdt = _survey_step(pieces, operating_run_step(duration) if duration > 0 else 1e-3)
         inner = []
         for piece in pieces():
             inner += piece[: MAX_BREAKPOINT_WINDOWS - len(inner)].tolist()
