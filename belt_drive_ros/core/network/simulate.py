@@ -264,13 +264,12 @@ def _linear(scene, net: NetworkModel, model: str, method: str, dt: float, steps:
     return tier, reason, run, why
 
 
-def auto_tier(scene, method: str | None = None, dt: float | None = None) -> tuple[str, str]:
-    """``(tier, reason)`` of ``model: auto`` for the scene's run (its duration, ``method``, ``dt``): the linear tier
+def auto_tier(scene, method: str, dt: float) -> tuple[str, str]:
+    """``(tier, reason)`` of ``model: auto`` for the scene's run (its duration, ``method``, ``dt`` [s]): the linear tier
     :func:`choose_tier` picks, or ``slipping`` when a pulley reaches its capstan limit in that tier's run (the
     node and the re-simulation of its recordings step the tier the offline run steps)."""
-    dt = scene.dt if dt is None else float(dt)
     steps = max(1, int(round(scene.duration / dt)))
-    tier, reason, _, why = _linear(scene, model_of(scene), "auto", method or scene.method, dt, steps)
+    tier, reason, _, why = _linear(scene, model_of(scene), "auto", method, dt, steps)
     return ("slipping", why) if why else (tier, reason)
 
 
