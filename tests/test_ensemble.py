@@ -269,7 +269,7 @@ def test_variants_stepped_as_lanes_are_their_single_runs_bit_for_bit(name):
         x0 = np.zeros((count, 2 if kind == "rigid" else 4))
         x0[:, 1] = 1.0
         times, states = ens.run(x0, 0.0, 0.1)
-        bad = ens.first_bad(times, states)
+        bad = ens.first_bad(times, states, {})
         assert (LANES - 3 in bad) if method == "euler" else not bad, method  # (euler: truck_compressor's all diverge)
         for v in range(count):
             if v in bad:  # NaN after the first bad knot (written as the single loop wrote it)
@@ -295,7 +295,7 @@ def test_a_diverging_variant_is_found_and_the_others_step_on():
     found: dict = {}
     for t, s in ens.windows(np.zeros((4, 4)), 0.0, scene.duration, 16):
         ens.first_bad(t, s, found)
-    assert list(found) == [2] and list(ens.diverged_errors(ens.first_bad(times, states))) == [2]
+    assert list(found) == [2] and list(ens.diverged_errors(ens.first_bad(times, states, {}))) == [2]
     # the compiled loop's own status says the same (campaigns look for bad knots only in windows after it did)
     assert [v for v in range(4) if ens.status[v] != OK] == [2]
     assert np.isnan(states[-1, :, 2]).all()

@@ -42,11 +42,11 @@ def test_gains_together_are_each_gain_alone(name, monkeypatch):
         for K, verdict in zip(Ks, together):
             probes._LINEAR_CACHE.clear()
             probes._EIGENVALUES.clear()
-            alone = probes.linear_verdict(integrator, A, B, rows, K, n_steps)
+            (alone,) = probes.linear_verdicts(integrator, A, B, rows, (K,), n_steps)
             assert repr(alone) == repr(verdict)  # every float to the bit (repr round-trips)
         # some cached, some not: the same verdicts in the gains' order
         probes._LINEAR_CACHE.clear()
-        probes.linear_verdict(integrator, A, B, rows, Ks[-1], n_steps)
+        probes.linear_verdicts(integrator, A, B, rows, Ks[-1:], n_steps)
         assert repr(probes.linear_verdicts(integrator, A, B, rows, Ks, n_steps)) == repr(together)
 
 

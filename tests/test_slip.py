@@ -201,8 +201,9 @@ def test_energy_balance_with_damping():
     assert len(run.events) >= 6
     u = np.column_stack([np.full(time.size, 30.0), [load(t, 0, 0) for t in time]])
     p_in = m.input_power(run.states, u)
-    p_d = m.damping_power(run.states, run.mode, run.sigma)
-    p_f = m.friction_power(run.states, run.mode, run.sigma)
+    parts = m.force_parts(run.states, run.mode, run.sigma)
+    p_d = m.damping_power(run.states, run.mode, run.sigma, parts)
+    p_f = m.friction_power(run.states, run.mode, run.sigma, parts)
     assert np.all(p_f >= -1e-9) and np.all(p_d >= 0.0)
     work = scipy.integrate.simpson(p_in, x=time)
     losses = scipy.integrate.simpson(p_d + p_f, x=time)

@@ -47,8 +47,9 @@ def test_the_slipping_runs_own_error_falls_at_the_methods_order(name, method, dt
     assert 0.7 * 2.0**order <= large / small <= 1.4 * 2.0**order, (small, large)
 
 
-def test_outputs_and_energy_terms_from_force_parts_equal_their_own():
-    """simulate makes (Q_max, Q, s') once for the outputs and energy terms: the same floats as each computing them."""
+def test_outputs_from_force_parts_equal_their_own():
+    """simulate makes (Q_max, Q, s') once for the outputs and energy terms: the outputs are the same floats as the
+    outputs computing them (the energy terms are only ever given them)."""
     result = simulate(load_scene("truck_compressor"), dt=1e-3)
     from belt_drive_ros.core.slip import SlippingBeltModel
 
@@ -57,9 +58,6 @@ def test_outputs_and_energy_terms_from_force_parts_equal_their_own():
     mode, sigma = result.outputs["slip"].astype(np.int8), np.sign(result.outputs["belt_torque"])
     assert mode.any() and not mode.all()
     parts = m.force_parts(y, mode, sigma)
-    for a, b in ((m.damping_power(y, mode, sigma), m.damping_power(y, mode, sigma, parts)),
-                 (m.friction_power(y, mode, sigma), m.friction_power(y, mode, sigma, parts))):  # fmt: skip
-        assert a.tobytes() == b.tobytes()
     own, shared = m.outputs(y, u, mode, sigma), m.outputs(y, u, mode, sigma, parts)
     assert all(np.asarray(own[k]).tobytes() == np.asarray(shared[k]).tobytes() for k in own)
     assert np.asarray(own["belt_torque"]).tobytes() == result.outputs["belt_torque"].tobytes()

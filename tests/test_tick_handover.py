@@ -78,7 +78,7 @@ def test_drive_torque_and_reset_are_served_while_a_long_tick_computes_and_act_fr
         assert node.drive_torque == 2.0
         t0 = node.integrated_ns
         target = t0 + 2_000_000_000  # 2,000 grid steps in one tick (/clock jumped 2 s)
-        gate = Gate(node.sim._tick_kernel, ("step", "next"))
+        gate = Gate(node.sim._tick_kernel, ("step",))
 
         def tick():
             with node.timing.lock:  # as the executor's timer and the tick thread hold it

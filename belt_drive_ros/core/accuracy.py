@@ -45,7 +45,7 @@ import numpy as np
 # the guard's terms live beside this module (probe_scene importable from here)
 from .accuracy_probes import (
     ACCURACY_TOLERANCE, ALTERNATIVE_HALVINGS, ALTERNATIVES, MAX_HALVINGS, SUGGEST_MARGIN, WINDOW_STEPS, Probes,
-    _output_rows, linear_verdict, linear_verdicts, probe_scene,
+    _output_rows, linear_verdicts, probe_scene,
 )  # fmt: skip
 from .accuracy_windows import forcing_error
 from .errors import IntegratorError, SimulationDivergedError, UnstableStepError
@@ -132,7 +132,7 @@ def check_accuracy(
 ) -> AccuracyReport | None:  # fmt: skip
     """Stability and accuracy of ``method`` at ``dt`` [s] on the plant's closed loop.
 
-    The estimated error is the larger of the linearized closed loop's step response error (:func:`linear_verdict`:
+    The estimated error is the larger of the linearized closed loop's step response error (:func:`linear_verdicts`:
     the belt mode and the torques' speed slopes over the whole duration) and the a-posteriori error on the real
     torques in short windows (:func:`forcing_error`: their variation in time and angle). Returns None for adaptive
     methods (they control their own error). ``suggest``: when the step fails, search halvings of it for one that is
@@ -230,7 +230,7 @@ def check_slipping(
     * **slip** (each direction sigma = +/-1): ``A_slip`` with the friction force an input
       ``Q = sigma Q_max(omega_M)`` (belt mass makes ``Q_max`` grow with speed: its slope is a feedback on omega_M
       beside the torques' slopes), ``A_cl = A_slip + B_slip K``; the method's map against the exact one
-      (:func:`linear_verdict`; unit steps of drive, load and Q; signals drive and wheel-3 speed). The slip mode
+      (:func:`linear_verdicts`; unit steps of drive, load and Q; signals drive and wheel-3 speed). The slip mode
       carries the elastic creep ``theta_e' = -(k / c) theta_e + ...``: a fast real mode explicit methods must resolve.
 
     ``stepper``: the flexible-model stepper of the run (its integrator is reused); ``stick``, ``probes``: the
@@ -258,7 +258,7 @@ def check_slipping(
     w = max(abs(float(plant.wheel_map[1] @ probes.x0)), *(abs(w_) for _, _, w_, _ in probes.windows), 1.0)
     d = 1e-6 * w
     rise = model.limit(w + d) - model.limit(w - d)
-    for K2, slopes in probes.gains:
+    for _, slopes in probes.gains:
         for sigma in (1.0, -1.0):
             K = np.zeros((3, 5))
             K[0, 2], K[1, 3] = slopes

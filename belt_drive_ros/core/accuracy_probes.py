@@ -136,7 +136,7 @@ class _SurveyPlan:
         def pieces():  # the breakpoints inside the run (page by page for a recording read in pages)
             return plant.breakpoint_pieces(0.0, duration, SURVEY_CHUNK * dt)
 
-        self.rdt = rdt = _survey_step(pieces, operating_run_step(duration) if duration > 0 else 1e-3)
+        self.rdt = _survey_step(pieces, operating_run_step(duration) if duration > 0 else 1e-3)
         inner = []
         for piece in pieces():
             inner += piece[: MAX_BREAKPOINT_WINDOWS - len(inner)].tolist()
@@ -199,9 +199,9 @@ class RigidSurvey:
         self.probes: dict = {}
 
     @classmethod
-    def of_scene(cls, scene, dt: float | None = None) -> "RigidSurvey":
+    def of_scene(cls, scene) -> "RigidSurvey":
         x0 = scene.initial_state.vector("rigid", scene.params.ratio)
-        return cls(scene.params, scene.drive, scene.load, x0, scene.duration, scene.dt if dt is None else dt)
+        return cls(scene.params, scene.drive, scene.load, x0, scene.duration, scene.dt)
 
     @property
     def rigid(self) -> RigidBeltModel:
@@ -603,18 +603,11 @@ def _radii(maps: list) -> list:
     return out
 
 
-def linear_verdict(integrator, A, B, rows, K, n_steps: int) -> tuple:
-    """(stable, error, growth, exact growth, h omega) of the method's closed-loop map ``A + B K`` (cached).
-
-    The key is every number the verdict depends on (matrices, method and its
-    options through the integrator's one-step map, step, gains, horizon), so a
-    hit is the same computation. :func:`linear_verdicts` for one gain.
-    """
-    return linear_verdicts(integrator, A, B, rows, (K,), n_steps)[0]
-
-
 def linear_verdicts(integrator, A, B, rows, Ks, n_steps: int) -> list:
-    """:func:`linear_verdict` of each gain of ``Ks`` on one integrator, the gains not cached yet made together:
+    """(stable, error, growth, exact growth, h omega) of the method's closed-loop map ``A + B K`` of each gain of ``Ks``
+    on one integrator (cached: the key is every number the verdict depends on, matrices, method and its options
+    through the integrator's one-step map, step, gains, horizon, so a hit is the same computation), the gains not
+    cached yet made together:
     their exact maps one stacked exponential (:func:`exact_maps`), their closed loops' eigenvalues one stacked call
     and their step responses one :func:`~belt_drive_ros.core.forced_response.orbit_error` call with the gains on a
     leading axis. Each is computed matrix by matrix with the same operations as alone (the same floats; a

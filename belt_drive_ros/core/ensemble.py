@@ -134,11 +134,10 @@ class Ensemble:
                     knots[0] = last
                     first, j = first + j, 0
 
-    def first_bad(self, times: np.ndarray, states: np.ndarray, found: dict | None = None) -> dict:
+    def first_bad(self, times: np.ndarray, states: np.ndarray, found: dict) -> dict:
         """``{variant: (time, state)}``: each variant's first bad sample (non-finite, or a speed beyond
         :data:`~belt_drive_ros.core.stepper.SPEED_LIMIT`); ``found``: what earlier windows of the run found
         (updated in place; a variant found there keeps its sample)."""
-        found = {} if found is None else found
         half = states.shape[1] // 2
         with np.errstate(invalid="ignore"):
             bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, half:]) > SPEED_LIMIT, axis=1)  # (N+1, V)

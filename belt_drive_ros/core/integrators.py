@@ -70,7 +70,6 @@ class Integrator:
     exact_linear: ClassVar[bool] = False
     summary: ClassVar[str] = ""
     explicit: ClassVar[bool] = True
-    adaptive: ClassVar[bool] = False
     #: h*omega_n stability boundary for an undamped oscillator (None: no limit).
     imag_axis_limit: ClassVar[float | None] = None
     #: ``dt`` may be a (K, 1, 1) stack of steps on ``A``, ``B`` stacked alike (K, ...): the matrices of K integrators
@@ -638,7 +637,6 @@ class ScipyAdaptive(Integrator):
     """
 
     explicit = True
-    adaptive = True
     #: name of the scipy.integrate.OdeSolver subclass (public API: scipy.integrate.RK45, ...)
     solver_name: ClassVar[str]
 

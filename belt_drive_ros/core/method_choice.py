@@ -46,7 +46,7 @@ def _rate(report) -> float:
 
 
 def choose_method(plant, duration: float, x0, dt: float, tolerance: float = ACCURACY_TOLERANCE, stated_inputs: bool = True,
-                  slipping: tuple | None = None, substeps=SUBSTEPS, survey=None) -> MethodChoice:  # fmt: skip
+                  slipping: tuple | None = None, survey=None) -> MethodChoice:  # fmt: skip
     """The cheapest candidate (and fewest substeps) the guard rates accurate on ``plant`` (module docstring).
 
     ``plant``: the model the run uses (rigid or flexible; for the slipping
@@ -70,7 +70,7 @@ def choose_method(plant, duration: float, x0, dt: float, tolerance: float = ACCU
         reports[method, h] = report if slipping is None else None
         return error
 
-    for n in substeps:
+    for n in SUBSTEPS:
         h = dt / n
         if n > 1 and duration / h > 1e9:  # a step count the scene itself would refuse
             break
@@ -87,7 +87,7 @@ def choose_method(plant, duration: float, x0, dt: float, tolerance: float = ACCU
     n = round(dt / h)
     reason = (
         f"{method} at dt={h:.3g} s ({n} substep(s) of {dt:.3g} s): no candidate ({', '.join(CANDIDATES)}) is rated within "
-        f"{bar:.2g} (a quarter of the tolerance {tolerance:.2g}) down to {dt / substeps[-1]:.3g} s; this is the most "
+        f"{bar:.2g} (a quarter of the tolerance {tolerance:.2g}) down to {dt / SUBSTEPS[-1]:.3g} s; this is the most "
         f"accurate found (estimated {error:.2g} of the peak)"
     )
     return MethodChoice(method, h, n, tolerance, error, error <= tolerance, reason, tuple(tried))

@@ -86,11 +86,10 @@ class SimResult:
         """(N, len(columns)) array of the named signals."""
         return np.column_stack([np.asarray(self[c], dtype=float) for c in columns])
 
-    def to_csv(self, path, columns=None) -> None:
-        """CSV with a header line of column names; SI units (rad, rad/s, N m, s, m, m/s). Default columns:
+    def to_csv(self, path) -> None:
+        """CSV with a header line of column names; SI units (rad, rad/s, N m, s, m, m/s). Columns:
         :data:`CSV_COLUMNS`, and for the slipping model also :data:`SLIP_CSV_COLUMNS`."""
-        if columns is None:
-            columns = CSV_COLUMNS + (SLIP_CSV_COLUMNS if self.model in SLIP_MODELS else ())
+        columns = CSV_COLUMNS + (SLIP_CSV_COLUMNS if self.model in SLIP_MODELS else ())
         np.savetxt(path, self.table(columns), delimiter=",", header=",".join(columns), comments="", fmt="%.12g")
 
 

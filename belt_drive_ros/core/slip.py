@@ -262,18 +262,18 @@ class SlippingBeltModel:
         """P_in = M_drive omega_M - M_load omega_3 [W]."""
         return u[..., 0] * y[..., 2] - u[..., 1] * y[..., 3]
 
-    def damping_power(self, y, mode, sigma, parts=None):
-        """Bearing and span damping losses b_f omega_M^2 + b_3 omega_3^2 + 2 c delta'^2 [W] (``parts``: see
-        :meth:`outputs`)."""
+    def damping_power(self, y, mode, sigma, parts):
+        """Bearing and span damping losses b_f omega_M^2 + b_3 omega_3^2 + 2 c delta'^2 [W] (``parts``:
+        :meth:`force_parts` of the same samples)."""
         p = self.params
-        _, Q, sdot = self.force_parts(y, mode, sigma) if parts is None else parts
+        _, Q, sdot = parts
         rel = y @ self.rel_row
         ddelta = np.where(np.asarray(mode) == SLIP, rel - sdot, rel)
         return p.bearing_damping_drive_side * y[..., 2] ** 2 + p.b_3 * y[..., 3] ** 2 + 2.0 * p.c * ddelta**2
 
-    def friction_power(self, y, mode, sigma, parts=None):
-        """Friction loss Q s' = Q_max |s'| while slipping [W] (``parts``: see :meth:`outputs`)."""
-        _, Q, sdot = self.force_parts(y, mode, sigma) if parts is None else parts
+    def friction_power(self, y, mode, sigma, parts):
+        """Friction loss Q s' = Q_max |s'| while slipping [W] (``parts``: :meth:`force_parts` of the same samples)."""
+        _, Q, sdot = parts
         return np.where(np.asarray(mode) == SLIP, Q * sdot, 0.0)
 
 

@@ -283,11 +283,11 @@ class SlippingSimulator:
         i, r3 = self.model.params.ratio, self.model.params.r_3
         return np.array([self.plant.scalar_drive(t, y[0], y[2]), self.plant.scalar_load(t, i * y[0] - y[1] - y[4] / r3, y[3])])
 
-    def from_flexible(self, xs, s=0.0):
-        """Slipping states of flexible states ``xs`` (N, 4) with accumulated slip ``s``."""
+    def from_flexible(self, xs):
+        """Slipping states of flexible states ``xs`` (N, 4) (no accumulated slip)."""
         phi_M, omega_M, phi_3, omega_3 = self.flexible.wheel_coordinates(np.asarray(xs, dtype=float))
         ys = np.empty((len(phi_M), 5))
-        ys[:, 0], ys[:, 2], ys[:, 3], ys[:, 4] = phi_M, omega_M, omega_3, s
+        ys[:, 0], ys[:, 2], ys[:, 3], ys[:, 4] = phi_M, omega_M, omega_3, 0.0
         ys[:, 1] = self.flexible.relative_deflection(np.asarray(xs, dtype=float))  # a state coordinate: no rounding
         return ys
 

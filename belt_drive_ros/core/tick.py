@@ -350,7 +350,7 @@ class TickKernel:
         views = arrays.views
         #: the outputs of the last :meth:`step` [SI units, OUTPUT_UNITS order; slack/slip as 0.0/1.0]
         self.y = views["y"]
-        #: their flags (:data:`SLACK`, :data:`SLIPS`) after the last OK :meth:`step` or :meth:`next`
+        #: their flags (:data:`SLACK`, :data:`SLIPS`) after the last OK :meth:`step`
         self.flags = 0
         #: :attr:`y` as a memoryview (its ``tolist()``: the same floats as numpy's, ~2 us sooner on cold caches)
         self.values = memoryview(self.y)
@@ -360,7 +360,7 @@ class TickKernel:
         self.message = memoryview(views["msg"].view(np.uint8))[where]
         self._clamp, self._io = _cells(views["clamp"]), _cells(views["io"])
         #: the next call's clamps ``lo, hi, drive`` (:func:`linear_tick`'s; the kernel sets them back when it reads
-        #: them): the node writes a plain tick's here (:meth:`next` reads them; :meth:`step` writes all three)
+        #: them): the node writes a plain tick's here (its :func:`linear_tick` call reads them; :meth:`step` writes all three)
         self.clamps = self._clamp
         self._drive, self._drive_copy = _cells(loop._dp), _cells(views["dp"])  # (the held torque's data, its copy)
         self._packed, self._address = arrays.reals, arrays.address  # (the kernel's argument: the buffer's address)
@@ -397,16 +397,6 @@ class TickKernel:
             return status
         if drive == drive:
             self._drive[0] = drive
-        self.flags = -status
-        return 0
-
-    def next(self) -> int:
-        """The tick after the last OK one (:meth:`step` or this): as many grid steps from where it ended, the
-        stamp as many grid steps on, the clamps in :attr:`clamps` (none: -inf, inf, NaN); the status (the buffer
-        holds all of it: nothing is written here)."""
-        status = linear_tick(self._address)
-        if status > 0:
-            return status
         self.flags = -status
         return 0
 
@@ -592,7 +582,7 @@ class SlipTickKernel:
         self.engine, self.dt, self.origin, self.limit = engine, engine.dt, engine.origin, limit
         self.step_ns = grid_step_ns(engine.dt, engine.origin)
         self.y = np.zeros(22)
-        #: the outputs' flags after the last done :meth:`advance` or :meth:`next` (:data:`SLIPPING` and
+        #: the outputs' flags after the last done :meth:`advance` (:data:`SLIPPING` and
         #: :data:`SLACK`, :data:`SLIPS`)
         self.flags = SLIPPING
         self.values = memoryview(self.y)  # (as TickKernel.values)
@@ -632,7 +622,7 @@ class SlipTickKernel:
         self._fs, self._js, self._events = views["fscalars"], views["iscalars"], views["events"]
         self._fcells, self._jcells = _cells(self._fs), _cells(self._js)
         #: the next call's clamps ``lo, hi, drive`` in its first three cells (:func:`slip_tick`'s ``fscalars``): the
-        #: node writes a plain tick's here (:meth:`next` reads them; :meth:`advance` writes all three)
+        #: node writes a plain tick's here (its :func:`slip_tick` call reads them; :meth:`advance` writes all three)
         self.clamps = self._fcells
         self._drive, self._drive_copy = _cells(dp), _cells(views["dp"])  # (the held torque's data, its copy)
         self.message = memoryview(views["msg"].view(np.uint8))[self._where]
@@ -671,16 +661,6 @@ class SlipTickKernel:
             return None
         if drive == drive:
             self._drive[0] = drive  # (the kernel wrote its copy)
-        self.flags, n = -done & (EVENT - 1), -done // EVENT
-        return _events(self._events[:n]) if n else ()
-
-    def next(self) -> tuple | None:
-        """The tick after the last done one (:meth:`advance` or this): N grid steps on from the buffers' state, the
-        stamp N grid steps on, the clamps in :attr:`clamps` (none: -inf, inf, NaN; the buffers hold all of it:
-        nothing is written here); :meth:`advance`'s answer."""
-        done = slip_tick(self._address)
-        if done > 0:
-            return None
         self.flags, n = -done & (EVENT - 1), -done // EVENT
         return _events(self._events[:n]) if n else ()
 

@@ -355,7 +355,8 @@ class NodeSimulation:
         this itself, with one check fewer on each side: :meth:`BeltDriveNode._tick`).
 
         A plain tick is the tick after one the tick kernel took, as many grid steps on, no plant breakpoint near:
-        the kernel's buffers hold all it needs (:meth:`~belt_drive_ros.core.tick.TickKernel.next`), so it is the
+        the kernel's buffers hold all it needs (:func:`~belt_drive_ros.core.tick.linear_tick` or
+        :func:`~belt_drive_ros.core.tick.slip_tick` on them alone: as many grid steps on), so it is the
         drive's sample and one compiled call. A plain tick at which the held torque jumps (a new sample at its
         end) is that call with the clamps the general path gives it (:meth:`_jump_tick`); the tick after it is
         plain, its clamp at the jump (its start) written into the kernel's buffer when the jump was taken.
@@ -377,10 +378,10 @@ class NodeSimulation:
                     self.log.warn(warning)
         if value is None or value == self._held:
             fast = self._tick_kernel
-            done = self._entry(fast._address)  # (TickKernel.next, SlipTickKernel.next without their frames)
+            done = self._entry(fast._address)  # (linear_tick or slip_tick on its buffer, no frame around)
             if done <= 0:  # (else the general path below takes the same steps and raises as it does; the
                 # slipping belt's engine locates the events of a tick its kernel could not take)
-                if done <= -_EVENT:  # mode switches located in the kernel (SlipTickKernel.next's answer)
+                if done <= -_EVENT:  # mode switches located in the kernel (slip_tick's answer)
                     self._switched(-done // _EVENT)
                 self.t_ns = self._fresh_ns = now_ns
                 self._plain_ns = now_ns + self._plain_step if now_ns <= self._plain_end else None

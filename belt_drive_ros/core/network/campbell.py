@@ -36,10 +36,10 @@ class Campbell:
     crossings: tuple
 
 
-def campbell(model: NetworkModel, points: int = 60, harmonics: int = 3) -> Campbell:
+def campbell(model: NetworkModel, points: int = 60) -> Campbell:
     """Frequencies over the scene's ``engine.speed_range`` (of the engine's pulley; each linearised at the
     driver's speed with the belt unstretched) and their crossings with the firing orders ``k * firing_order``
-    (per crank revolution), k = 1 .. ``harmonics``."""
+    (per crank revolution), k = 1, 2, 3."""
     scene = model.scene
     engine = scene.engine
     speeds = np.linspace(engine.speed_range[0], engine.speed_range[1], points)
@@ -49,7 +49,7 @@ def campbell(model: NetworkModel, points: int = 60, harmonics: int = 3) -> Campb
     F = np.full((points, count), np.nan)
     for i, p in enumerate(per):
         F[i, : len(p)] = p
-    orders = tuple(k * engine.firing_order for k in range(1, harmonics + 1))
+    orders = tuple(k * engine.firing_order for k in (1, 2, 3))
     found = []
     for order in orders:
         line = order * speeds / (2.0 * math.pi)

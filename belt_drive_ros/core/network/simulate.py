@@ -145,9 +145,9 @@ def advance(loop: NetworkLoop, x, out, k0: int, k1: int) -> None:
         start = out[e - k0 - 1].copy()
 
 
-def run_loop(loop: NetworkLoop, steps: int, x0=None) -> tuple[np.ndarray, np.ndarray]:
-    """``(times, states)`` of ``steps`` steps from ``x0`` (default the scene's start)."""
-    x = loop.initial() if x0 is None else np.array(x0, dtype=float)
+def run_loop(loop: NetworkLoop, steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(times, states)`` of ``steps`` steps from the scene's start."""
+    x = loop.initial()
     out = np.empty((steps + 1, x.size))
     out[0] = x
     advance(loop, x, out[1:], 0, steps)
@@ -264,13 +264,12 @@ def _linear(scene, net: NetworkModel, model: str, method: str, dt: float, steps:
     return tier, reason, run, why
 
 
-def auto_tier(scene, method: str | None = None, dt: float | None = None) -> tuple[str, str]:
-    """``(tier, reason)`` of ``model: auto`` for the scene's run (its duration, ``method``, ``dt``): the linear tier
+def auto_tier(scene, method: str, dt: float) -> tuple[str, str]:
+    """``(tier, reason)`` of ``model: auto`` for the scene's run (its duration, ``method``, ``dt`` [s]): the linear tier
     :func:`choose_tier` picks, or ``slipping`` when a pulley reaches its capstan limit in that tier's run (the
     node and the re-simulation of its recordings step the tier the offline run steps)."""
-    dt = scene.dt if dt is None else float(dt)
     steps = max(1, int(round(scene.duration / dt)))
-    tier, reason, _, why = _linear(scene, model_of(scene), "auto", method or scene.method, dt, steps)
+    tier, reason, _, why = _linear(scene, model_of(scene), "auto", method, dt, steps)
     return ("slipping", why) if why else (tier, reason)
 
 
