@@ -210,7 +210,7 @@ def test_the_kernel_compiles_once_whatever_the_scene():
     from belt_drive_ros.core.scene import shipped_scenes
 
     def counts():
-        loops = ("clamped_steps", "linear_steps", "_steps", "_explicit", "wheel_steps")
+        loops = ("clamped_steps", "linear_steps", "_steps", "_explicit", "_explicit_wide", "wheel_steps")
         profiles = ("profile_torque", "profile_torque_at", "profile_torque_array")
         return {name: len(getattr(module, name).signatures) for module, names in ((kernel, loops), (kernel_profiles, profiles))
                 for name in names}
@@ -228,6 +228,8 @@ def test_the_kernel_compiles_once_whatever_the_scene():
     for profile in PROFILES:
         profile.torque(0.3, 2.0, 5.0)
     assert max(counts().values()) == 1
+    # the state loop, one compiled copy per literal ``wide`` (2 or 4 states; 5 or 6, the slipping belt's phases)
+    assert len(kernel._state_loop.signatures) <= 2
 
 
 def test_the_kernel_interpreted_gives_the_same_floats(tmp_path):
@@ -332,6 +334,50 @@ def test_the_scalar_state_loops_equal_the_general_loop_bit_for_bit(method, case,
     assert done_fast[0] > 10
     if case == "friction+guard":
         assert done_fast[1] == 2, "the guard stops this run (else the test would not cover it)"
+    assert np.array_equal(fast, slow)
+
+
+SLIP_PHASES = [("truck_compressor", ("slip", 1.0)), ("truck_compressor", ("slip", -1.0)), ("bsg_start", ("mass", 1.0)),
+               ("bsg_start", ("mass", -1.0))]
+
+
+@pytest.mark.parametrize("guarded", [False, True], ids=["free", "guard"])
+@pytest.mark.parametrize("method", ["exact", "etd2", "etd4", "lawson5", "euler", "rk4"])
+@pytest.mark.parametrize("scene_name, phase", SLIP_PHASES, ids=["slip6+", "slip6-", "mass5+", "mass5-"])
+def test_the_slip_phases_scalar_state_loop_equals_the_general_loop_bit_for_bit(scene_name, phase, method, guarded):
+    """The slipping belt's phases: a massless belt's slip mode (6 states, the slip force a constant state) and a
+    belt with mass's (5 states, the slip force an input of the drive speed) step with their state in scalars too
+    (``kernel._explicit_wide``): the general loop's floats to the last bit, its divergence test and guard."""
+    from belt_drive_ros.core.slip_run import SlippingSimulator
+    from belt_drive_ros.core.stage_scheme import Guard
+
+    scene = load_scene(scene_name)
+    dt = 5e-5  # (stable for every method here: euler's and rk4's bounds are below the scenes' own steps)
+    st = SlippingSimulator(scene.params, scene.drive, scene.load, method, dt, check_stability=False).phase_stepper(phase)
+    n = st.plant.model.A.shape[0]
+    assert n == (6 if phase[0] == "slip" else 5) and st.loop is not None
+    steps = 200
+    times = dt * np.arange(steps + 1, dtype=float)
+    x0 = np.zeros(n)
+    x0[2:5] = (40.0, 38.0, 0.3) if n == 6 else (40.0, 38.0, 15.0)
+    if n == 6:
+        x0[5] = 0.8 * phase[1] * 2.0 * scene.params.F_0 * scene.params.r_3  # the slip force's torque (a state)
+    guard = None
+    if guarded:  # a bound the run's |x_0| + 1e-4 x_3^2 (x_0: the drive's angle, turning) first passes in its second half
+        free = np.zeros((steps, n))
+        st.plant.kernel_loop(st.integrator)(times, x0.copy(), free)
+        g = np.abs(free[:, 0]) + 1e-4 * free[:, 3] ** 2
+        row, speed = np.eye(n)[0], np.eye(n)[3]
+        guard = Guard(row=tuple(row), bound=float(np.max(g[: steps // 2])), absolute=True, speed=tuple(speed), quad=1e-4)
+    loop = st.plant.kernel_loop(st.integrator, guard)
+    fast, slow = np.zeros((steps, n)), np.zeros((steps, n))
+    done_fast = loop(times, x0.copy(), fast)
+    done_slow = _general_loop(loop, times, x0.copy(), slow)
+    assert done_fast == done_slow
+    assert done_fast[0] > 10
+    if guarded:
+        assert done_fast[1] == 2, "the guard stops this run (else the test would not cover it)"
+    assert np.ptp(slow[: done_slow[0]], axis=0).min() > 0.0 or n == 6  # every state moves (the 6th: Q' = 0)
     assert np.array_equal(fast, slow)
 
 

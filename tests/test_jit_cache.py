@@ -109,7 +109,8 @@ KERNEL_MODULES = ("kernel", "kernel_affine", "kernel_hybrid", "kernel_profiles",
 def _literal_arguments(module_name: str) -> list[str]:
     """Calls from one compiled function to another, not inlined one, that pass an int or bool constant
     (a literal, or a module constant such as ``STICK``): numba types such an argument as ``Literal[int](0)``
-    and compiles the callee once more for it, beside the signature Python's calls compile."""
+    and compiles the callee once more for it, beside the signature Python's calls compile. A parameter the callee
+    asks numba to make literal (``literally(name)``: one compiled copy per value, on purpose) is not counted."""
     import ast
     import importlib
     import inspect
@@ -141,8 +142,10 @@ def _literal_arguments(module_name: str) -> list[str]:
             callee = dispatcher(call.func.id)
             if callee is None or callee.targetoptions.get("inline", "never") == "always":
                 continue
+            params = list(inspect.signature(callee.py_func).parameters)
+            literal = {params[k] for k in range(len(params)) if f"literally({params[k]})" in inspect.getsource(callee.py_func)}
             for k, arg in enumerate(call.args):
-                if constant(arg, local):
+                if constant(arg, local) and not (k < len(params) and params[k] in literal):
                     found.append(f"{module_name}.py:{call.lineno} {fn.name} -> {call.func.id} argument {k}")
     return found
 

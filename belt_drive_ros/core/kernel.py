@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import carray, njit, types
+from numba import carray, literally, njit, types
 from numba.extending import intrinsic, overload
 
 from .kernel_profiles import (
@@ -151,7 +151,8 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
     ``x' = A x + B u(t, x)`` from ``x``, with P wheels each driven by a torque profile; states into ``out[k]``.
 
     The two-wheel drive (:func:`linear_steps`) and a belt network (one wheel per driven pulley) step here;
-    a 2- or 4-state two-wheel plant with an explicit method in :func:`_explicit` (the same floats).
+    a two-wheel plant of 2 or 4 states with an explicit method in :func:`_explicit`, of 5 or 6 (a slipping belt's
+    phases) in :func:`_explicit_wide` (the same floats).
 
     Parameters (all arrays float64/int64, C order)
     ----------
@@ -422,9 +423,10 @@ def clamped_steps(times, x, out, c0, c1, base, cells, clo, chi, ends, half, limi
     state at ``times[c0]``) whose torque samples are clamped at breakpoints on the knots: returns ``(c, status, t)``,
     ``c`` the steps done (the failing one included).
 
-    An explicit method on a 2- or 4-state plant (what :func:`_steps` gives :func:`_explicit`) is one :func:`_explicit`
-    run over all the steps, each step reading its own clamps from ``cells``, ``clo``, ``chi`` (one set-up per call,
-    not per clamped step). Any other method runs in groups of one :func:`_steps` run each:
+    An explicit method on a plant of 2, 4, 5 or 6 states (what :func:`_steps` gives :func:`_explicit` or
+    :func:`_explicit_wide`) is one run of that loop over all the steps, each step reading its own clamps from
+    ``cells``, ``clo``, ``chi`` (one set-up per call, not per clamped step). Any other method runs in groups of one
+    :func:`_steps` run each:
 
     ``cells`` (sorted, grid indices: step ``c`` is cell ``base + c``) and ``clo``, ``chi`` [s]: each clamped step's
     bounds (``-inf``/``inf`` where none). A group runs from a step to the next end of ``ends`` (sorted grid indices:
@@ -436,10 +438,15 @@ def clamped_steps(times, x, out, c0, c1, base, cells, clo, chi, ends, half, limi
     its other steps), so the same floats as one call per step."""
     W, kinds, offsets, S, F, final_base, tol, max_iter, ua, ub, dk, dx, dy, lk, lx, ly, extra, guard = _unpacked(reals, ints, dp)
     N = times.size - 1
-    if c1 > c0 and max_iter == 0 and extra.shape[0] <= 1 and (x.size == 4 or x.size == 2):  # (as _steps chooses)
-        done, status, t = _explicit(times[c0 : c1 + 1], x, out[c0:c1], -math.inf, math.inf, cells, clo, chi, base + c0,
-                                    limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard,
-                                    x.size)  # fmt: skip
+    if c1 > c0 and max_iter == 0 and extra.shape[0] <= 1 and 2 <= x.size <= 6 and x.size != 3:  # (as _steps chooses)
+        if x.size <= 4:
+            done, status, t = _explicit(times[c0 : c1 + 1], x, out[c0:c1], -math.inf, math.inf, cells, clo, chi, base + c0,
+                                        limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard,
+                                        x.size)  # fmt: skip
+        else:
+            done, status, t = _explicit_wide(times[c0 : c1 + 1], x, out[c0:c1], -math.inf, math.inf, cells, clo, chi,
+                                             base + c0, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx,
+                                             ly, extra, guard, x.size)  # fmt: skip
         return c0 + done, status, t
     j = np.searchsorted(cells, base + c0)
     e = np.searchsorted(ends, base + c0)
@@ -503,10 +510,14 @@ def piece_steps(times, x, out, sets, plo, phi, rows, limit, reals, ints, dp, lp)
 def _steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
            ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard):  # fmt: skip
     """The two-wheel loop on these unpacked arrays: :func:`_explicit` for an explicit method on a 2- or 4-state plant,
-    else :func:`wheel_steps` with P = 2 (the drive's data its first bank, the load's the second); the same floats."""
+    :func:`_explicit_wide` on a 5- or 6-state one (a slipping belt's phases), else :func:`wheel_steps` with P = 2
+    (the drive's data its first bank, the load's the second); the same floats."""
     if max_iter == 0 and extra.shape[0] <= 1 and (x.size == 4 or x.size == 2):
         return _explicit(times, x, out, lo, hi, dk[:0], times[:0], times[:0], np.int64(0), limit, W, kinds, offsets, S, F,
                          ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard, x.size)  # fmt: skip
+    if max_iter == 0 and extra.shape[0] <= 1 and (x.size == 5 or x.size == 6):
+        return _explicit_wide(times, x, out, lo, hi, dk[:0], times[:0], times[:0], np.int64(0), limit, W, kinds, offsets,
+                              S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard, x.size)  # fmt: skip
     uses = np.zeros(2, dtype=np.int64)
     uses[0], uses[1] = ua, ub
     return wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
@@ -514,17 +525,23 @@ def _steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, to
 
 
 @njit(**_INLINE)
-def _row(M, i, r, x0, x1, x2, x3, n):
-    """``sum_j M[i, r, j] x_j`` over the ``n`` (2 or 4) state columns, summed from the left from 0.0 (as :func:`_rows`)."""
+def _row(M, i, r, x0, x1, x2, x3, x4, x5, n, wide):
+    """``sum_j M[i, r, j] x_j`` over the ``n`` state columns (2 or 4; ``wide``: 5 or 6), summed from the left from 0.0
+    (as :func:`_rows`). ``wide`` is a constant of each compiled loop (:func:`_explicit`, :func:`_explicit_wide`): its
+    branches fold, and each loop tests ``n`` once (more tests of ``n`` kept LLVM from specialising the loop on it:
+    paper's ``exact`` step 12 -> 37 ns)."""
     y = 0.0 + M[i, r, 0] * x0 + M[i, r, 1] * x1
+    if wide:
+        y = y + M[i, r, 2] * x2 + M[i, r, 3] * x3 + M[i, r, 4] * x4
+        return y + M[i, r, 5] * x5 if n == 6 else y
     return y + M[i, r, 2] * x2 + M[i, r, 3] * x3 if n == 4 else y
 
 
 @njit(**_INLINE)
-def _stage_rows(M, i, ra, rb, x0, x1, x2, x3, n, U, count):
+def _stage_rows(M, i, ra, rb, x0, x1, x2, x3, x4, x5, n, wide, U, count):
     """Rows ``ra`` and ``rb`` of ``M[i] @ [x, U[:count]]``: the n state columns, then the earlier stages' torques,
     each row summed from the left (one pass over U for both: half the loop's overhead, the same floats)."""
-    ya, yb = _row(M, i, ra, x0, x1, x2, x3, n), _row(M, i, rb, x0, x1, x2, x3, n)
+    ya, yb = _row(M, i, ra, x0, x1, x2, x3, x4, x5, n, wide), _row(M, i, rb, x0, x1, x2, x3, x4, x5, n, wide)
     for j in range(count):
         u = U[j]
         ya = ya + M[i, ra, n + j] * u
@@ -533,36 +550,62 @@ def _stage_rows(M, i, ra, rb, x0, x1, x2, x3, n, U, count):
 
 
 @njit(**_INLINE)
-def _final(F, ra, rb, x0, x1, x2, x3, n, u0, u1, e0, E, U, last):
+def _final(F, ra, rb, x0, x1, x2, x3, x4, x5, n, wide, u0, u1, e0, E, U, last):
     """Rows ``ra``, ``rb`` of ``F @ [x, U[:last], u0, u1 (, e0)]`` (the last stage's torques as scalars), from the left."""
-    ya, yb = _stage_rows(F, 0, ra, rb, x0, x1, x2, x3, n, U, last)
+    ya, yb = _stage_rows(F, 0, ra, rb, x0, x1, x2, x3, x4, x5, n, wide, U, last)
     ya = ya + F[0, ra, n + last] * u0 + F[0, ra, n + 1 + last] * u1
     yb = yb + F[0, rb, n + last] * u0 + F[0, rb, n + 1 + last] * u1
     return (ya + F[0, ra, n + 2 + last] * e0, yb + F[0, rb, n + 2 + last] * e0) if E else (ya, yb)
 
 
 @njit(**_INLINE)
-def _past_guard(guard, x0, x1, x2, x3, n):
-    """Whether state ``x`` (n = 2 or 4 scalars) is past the guard (the general loop's test)."""
-    g = 0.0 + guard[5] * x0 + guard[6] * x1
-    if n == 4:
-        g = g + guard[7] * x2 + guard[8] * x3
+def _past_guard(guard, x0, x1, x2, x3, x4, x5, n, wide):
+    """Whether state ``x`` (n = 2 or 4 scalars; ``wide``: 5 or 6) is past the guard (the general loop's test, its sums)."""
+    g = _row_of(guard, 5, x0, x1, x2, x3, x4, x5, n, wide)
     if guard[1] != 0.0:
         g = abs(g)
     bound = guard[2]
     if guard[4] != 0.0 and guard[3] != 0.0:
-        w = 0.0 + guard[5 + n] * x0 + guard[6 + n] * x1
-        if n == 4:
-            w = w + guard[7 + n] * x2 + guard[8 + n] * x3
+        w = _row_of(guard, 5 + n, x0, x1, x2, x3, x4, x5, n, wide)
         bound = bound - guard[3] * w * w
     return g > bound
+
+
+@njit(**_INLINE)
+def _row_of(v, a, x0, x1, x2, x3, x4, x5, n, wide):
+    """``sum_j v[a + j] x_j`` over the n state columns, summed from the left from 0.0 (:func:`_row` of a 1-D array)."""
+    y = 0.0 + v[a] * x0 + v[a + 1] * x1
+    if wide:
+        y = y + v[a + 2] * x2 + v[a + 3] * x3 + v[a + 4] * x4
+        return y + v[a + 5] * x5 if n == 6 else y
+    return y + v[a + 2] * x2 + v[a + 3] * x3 if n == 4 else y
 
 
 @njit(**_JIT)
 def _explicit(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp,
               lx, ly, extra, guard, n):  # fmt: skip
-    """:func:`wheel_steps` for an explicit method on a plant of ``n`` = 2 (rigid) or 4 (flexible) states (stage
-    kinds as there): one compiled loop for both sizes (a constant ``n`` compiled it twice).
+    """:func:`wheel_steps` for an explicit method on a plant of ``n`` = 2 (rigid) or 4 (flexible) states:
+    :func:`_state_loop` (one compiled loop for both sizes: a constant ``n`` compiled it twice)."""
+    return _state_loop(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy,
+                       lk, lp, lx, ly, extra, guard, n, False)  # fmt: skip
+
+
+@njit(**_JIT)
+def _explicit_wide(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk,
+                   lp, lx, ly, extra, guard, n):  # fmt: skip
+    """:func:`wheel_steps` for an explicit method on a plant of ``n`` = 5 or 6 states (a slipping belt's phases:
+    :mod:`.kernel_hybrid`): :func:`_state_loop`, the same source compiled with its wide rows."""
+    return _state_loop(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy,
+                       lk, lp, lx, ly, extra, guard, n, True)  # fmt: skip
+
+
+@njit(**_JIT)
+def _state_loop(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp,
+                lx, ly, extra, guard, n, wide):  # fmt: skip
+    """:func:`wheel_steps` for an explicit method with the state in scalars (stage kinds as there): ``n`` = 2 (rigid)
+    or 4 (flexible) states, or with ``wide`` 5 or 6 (a slipping belt's phases). ``wide`` is a literal: one compiled
+    loop per value (:func:`_explicit`, :func:`_explicit_wide`), its branches folded, ``n`` tested once in each (more
+    tests of ``n`` in one loop kept LLVM from specialising it: paper's ``exact`` step 12 -> 37 ns).
 
     Step ``k`` (grid cell ``base + k``) clamps its torque times into ``[lo, hi]``, or where its cell is one of
     ``cells`` (sorted, distinct grid indices) into that one's ``[clo, chi]`` (:func:`clamped_steps`: a run with a
@@ -575,9 +618,12 @@ def _explicit(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, off
     compressors, motor curves and linear tables of a few points, schedules) is read once per call, so no array reaches inlined code and numba's reference counts
     drop out of the step (paper's ``exact`` 33 -> 14 ns); any other through the dispatcher inlined (:func:`torque`).
     """
+    literally(wide)
     x0, x1 = x[0], x[1]
-    x2 = x[2] if n == 4 else 0.0
-    x3 = x[3] if n == 4 else 0.0
+    x2 = x[2] if n == 4 or wide else 0.0
+    x3 = x[3] if n == 4 or wide else 0.0
+    x4 = x[4] if wide else 0.0
+    x5 = x[5] if wide and n == 6 else 0.0
     s = kinds.size
     E = extra.shape[0]
     m = 2 + E
@@ -602,25 +648,27 @@ def _explicit(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, off
             j += 1
         u0 = u1 = e0 = 0.0
         da = la = NO_ANCHOR  # each step's first stage anchors the harmonics of its later stages
-        b0, b1, b2, b3 = x0, x1, x2, x3  # the state the final map starts from: x, or the stage of kind 2
+        b0, b1, b2, b3, b4, b5 = x0, x1, x2, x3, x4, x5  # the state the final map starts from: x, or the stage of kind 2
         for i in range(s):
             time = t if offsets[i] == 0.0 else t + offsets[i]
             tc = lo_k if time < lo_k else hi_k if time > hi_k else time
             if kinds[i] == 2:  # the whole stage state (etd2's a), then its wheel coordinates from it
-                b0, b1 = _stage_rows(S, i, 0, 1, x0, x1, x2, x3, n, U, m * i)
-                if n == 4:
-                    b2, b3 = _stage_rows(S, i, 2, 3, x0, x1, x2, x3, n, U, m * i)
+                b0, b1 = _stage_rows(S, i, 0, 1, x0, x1, x2, x3, x4, x5, n, wide, U, m * i)
+                if n == 4 or wide:
+                    b2, b3 = _stage_rows(S, i, 2, 3, x0, x1, x2, x3, x4, x5, n, wide, U, m * i)
+                if wide:  # (n = 5: row 4 twice, no row 5 read)
+                    b4, b5 = _stage_rows(S, i, 4, n - 1, x0, x1, x2, x3, x4, x5, n, wide, U, m * i)
             if kinds[i] == 1:  # the wheel coordinates straight from [x, U]
-                c1, c3 = _stage_rows(S, i, 1, 3, x0, x1, x2, x3, n, U, m * i)
+                c1, c3 = _stage_rows(S, i, 1, 3, x0, x1, x2, x3, x4, x5, n, wide, U, m * i)
                 c0 = c2 = 0.0
                 if ua or ub:
-                    c0, c2 = _stage_rows(S, i, 0, 2, x0, x1, x2, x3, n, U, m * i)
+                    c0, c2 = _stage_rows(S, i, 0, 2, x0, x1, x2, x3, x4, x5, n, wide, U, m * i)
                     c0, c2 = (c0 if ua else 0.0), (c2 if ub else 0.0)
             else:  # W @ the stage state (x itself for kind 0)
-                a0, a1, a2, a3 = (x0, x1, x2, x3) if kinds[i] == 0 else (b0, b1, b2, b3)
-                c1, c3 = _row(W, 0, 1, a0, a1, a2, a3, n), _row(W, 0, 3, a0, a1, a2, a3, n)
-                c0 = _row(W, 0, 0, a0, a1, a2, a3, n) if ua else 0.0
-                c2 = _row(W, 0, 2, a0, a1, a2, a3, n) if ub else 0.0
+                a0, a1, a2, a3, a4, a5 = (x0, x1, x2, x3, x4, x5) if kinds[i] == 0 else (b0, b1, b2, b3, b4, b5)
+                c1, c3 = _row(W, 0, 1, a0, a1, a2, a3, a4, a5, n, wide), _row(W, 0, 3, a0, a1, a2, a3, a4, a5, n, wide)
+                c0 = _row(W, 0, 0, a0, a1, a2, a3, a4, a5, n, wide) if ua else 0.0
+                c2 = _row(W, 0, 2, a0, a1, a2, a3, a4, a5, n, wide) if ub else 0.0
             # written out here, not in a helper: an inlined helper receiving the arrays would count their
             # references on every step again
             if dform:
@@ -642,17 +690,28 @@ def _explicit(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, off
                 U[m * i], U[m * i + 1] = u0, u1
                 if E:
                     U[m * i + 2] = e0
-        y0, y1 = _final(F, 0, 1, b0, b1, b2, b3, n, u0, u1, e0, E, U, last)
+        y0, y1 = _final(F, 0, 1, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
         x0, x1 = y0, y1
         out[k, 0], out[k, 1] = y0, y1
-        if n == 4:
-            y2, y3 = _final(F, 2, 3, b0, b1, b2, b3, n, u0, u1, e0, E, U, last)
+        if wide:  # the general loop's test: the first n // 2 finite, the rest within the limit
+            y2, y3 = _final(F, 2, 3, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
+            y4, y5 = _final(F, 4, n - 1, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)  # (n = 5: row 4 twice, no row 5 read)
+            x2, x3, x4 = y2, y3, y4
+            out[k, 2], out[k, 3], out[k, 4] = y2, y3, y4
+            if n == 6:
+                x5 = y5
+                out[k, 5] = y5
+            if (x0 - x0 != 0.0 or x1 - x1 != 0.0 or not abs(x3) <= limit or not abs(x4) <= limit
+                    or not (x2 - x2 == 0.0 and abs(x5) <= limit if n == 6 else abs(x2) <= limit)):  # fmt: skip
+                return k + 1, DIVERGED, t
+        elif n == 4:
+            y2, y3 = _final(F, 2, 3, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
             x2, x3 = y2, y3
             out[k, 2], out[k, 3] = y2, y3
             if x0 - x0 != 0.0 or x1 - x1 != 0.0 or not abs(x2) <= limit or not abs(x3) <= limit:
                 return k + 1, DIVERGED, t
         elif x0 - x0 != 0.0 or not abs(x1) <= limit:
             return k + 1, DIVERGED, t
-        if guarded and _past_guard(guard, x0, x1, x2, x3, n):
+        if guarded and _past_guard(guard, x0, x1, x2, x3, x4, x5, n, wide):
             return k + 1, GUARDED, t
     return steps, OK, times[steps] if steps >= 0 else 0.0

@@ -5,7 +5,7 @@ argument types never change with the scene). Which kernel calls which (a
 caller's compilation needs its callees' machine code: from the cache, else
 it compiles them again)::
 
-    wheel_steps, _explicit <- _steps <- linear_steps <- hybrid loop <- node's slipping tick   (_steps <- clamped_steps)
+    wheel_steps, _explicit, _explicit_wide <- _steps <- linear_steps <- hybrid loop <- node's slipping tick   (_steps <- clamped_steps)
               |                     <- variant loop    <- node's linear tick
               <- network node tick (and the network's linear tiers, called from Python)
     profile dispatcher (kernel_profiles: profile_torque, profile_torque_at) <- every kernel but the variant lanes
@@ -94,7 +94,7 @@ def warm_single(tell=None, told=None) -> None:
 
 
 def warm_second(wait: bool = False, tell_fd: int | None = None) -> None:
-    """``_explicit`` (:func:`warm_explicit`; :data:`EXPLICIT` then written to the descriptor ``tell_fd``),
+    """``_explicit`` and ``_explicit_wide`` (:func:`warm_explicit`; :data:`EXPLICIT` then written to the descriptor ``tell_fd``),
     the network slipping tier, the network node's tick, the variant loop and its window peaks; with ``wait`` each of the
     last two only after its milestone line has been read from stdin (:func:`warm`)."""
     from . import kernel_loop, kernel_variants
@@ -114,11 +114,17 @@ def warm_second(wait: bool = False, tell_fd: int | None = None) -> None:
 
 
 def warm_explicit() -> None:
-    """Compile (or load from the disk cache) :func:`~belt_drive_ros.core.kernel._explicit` alone, so that compiling
-    the linear loop loads it instead of compiling it (about as long a build as ``wheel_steps``)."""
+    """Compile (or load from the disk cache) :func:`~belt_drive_ros.core.kernel._explicit` and ``_explicit_wide``
+    alone, so that compiling the linear loop loads them instead of compiling them (each about as long a build as
+    ``wheel_steps``). The wide loop is compiled for the same argument types, not run (a 2-state loop's arrays are
+    not a 5- or 6-state one's)."""
     from . import kernel
 
-    kernel._explicit(*_loop_arguments(wheel=False))
+    from .tick import load_compiled
+
+    args = _loop_arguments(wheel=False)
+    kernel._explicit(*args)
+    load_compiled(kernel._explicit_wide, args)
 
 
 def _loop_arguments(wheel: bool) -> tuple:
