@@ -8,8 +8,9 @@ version, cached on disk, run without the GIL; ``NUMBA_DISABLE_JIT=1`` runs them 
   a profile: torque times clamped into ``[lo, hi]``, the implicit stage by fixed point, a slipping belt's
   speed-dependent extra input, the divergence check and an optional guard after every step (the two-wheel drive
   and belt networks);
-* :func:`linear_steps` -- the two-wheel drive's entry (its arrays packed), with the 2- and 4-state fast path of
-  an explicit method (:func:`_explicit`);
+* :func:`linear_steps` -- the two-wheel drive's entry (its arrays packed), with the fast path of an explicit method,
+  the state in scalars (:func:`_state_loop`: :func:`_explicit` for 2 or 4 states, :func:`_explicit_wide` for the
+  slipping belt's 5- and 6-state phases);
 * :func:`clamped_steps` -- a run of whole steps with their own clamps at breakpoints on the knots (a torque recorded
   at the step rate: one per step) in one compiled call: an explicit method's :func:`_explicit` reads each step's own
   clamps as it goes (one loop for the whole run); another method's loop runs once per group of steps.
