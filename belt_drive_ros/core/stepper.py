@@ -658,7 +658,7 @@ class Stepper(StepPlanner):
         A step that ends on a breakpoint samples at most at its left limit (``hi``), the one that starts there
         at least at it (``lo``); every other sample of the steps before the first (after the second) lies
         below (above) that bound already, so each step is clamped to its own ``lo`` and ``hi`` (an explicit
-        method on 2 or 4 states: one compiled loop reading every step's bounds; otherwise a group of steps from one
+        method on 2, 4, 5 or 6 states: one compiled loop reading every step's bounds; otherwise a group of steps from one
         starting on a breakpoint to one ending on the next is one stepping call with that group's bounds).
         """
         first, last = plan["first"], plan["last"]

@@ -12,14 +12,14 @@ it compiles them again)::
 
 With ``jobs=2`` the two longest builds run side by side: this process compiles
 ``wheel_steps`` alone (called from Python with the types ``_steps`` gives it)
-while a second process compiles ``_explicit`` alone (likewise) and tells it so
+while a second process compiles ``_explicit`` and ``_explicit_wide`` (likewise) and tells it so
 on a pipe; this process waits for that line, then goes on with the linear loop,
-whose compilation loads both from the cache. The second process goes on with
+whose compilation loads them from the cache. The second process goes on with
 the network slipping tier, takes the network node tick once this process has
 cached the linear loop through a short network run (``wheel_steps``), the
 variant loop once it has cached ``linear_steps`` (told on its stdin): on two
 cores the longer chain's time, and nothing compiled twice (a second process
-that fails before ``_explicit``: this one compiles it, as with ``jobs=1``, and
+that fails before ``_explicit``: this one compiles them, as with ``jobs=1``, and
 raises once its own part is done; one that cannot be started at all: this
 process warms everything, as with ``jobs=1``, and says so on stderr).
 """
