@@ -106,6 +106,26 @@ KERNEL_MODULES = ("kernel", "kernel_affine", "kernel_hybrid", "kernel_profiles",
                   "tick", "network.slip_kernel", "network.tick")
 
 
+def _literal_parameters(fn) -> set[str]:
+    """The parameters ``fn``'s body passes to ``numba.literally`` (a call, not a mention in a comment or docstring)."""
+    import ast
+    import inspect
+    import textwrap
+
+    tree = ast.parse(textwrap.dedent(inspect.getsource(fn)))
+    return {c.args[0].id for c in ast.walk(tree) if isinstance(c, ast.Call) and isinstance(c.func, ast.Name)
+            and c.func.id == "literally" and len(c.args) == 1 and isinstance(c.args[0], ast.Name)}
+
+
+def test_the_literal_parameters_are_read_from_calls_only():
+    def f(a, b, c):
+        """literally(b) in a docstring"""
+        literally(a)  # noqa: F821 (read, not run)
+        return c  # literally(c) in a comment
+
+    assert _literal_parameters(f) == {"a"}
+
+
 def _literal_arguments(module_name: str) -> list[str]:
     """Calls from one compiled function to another, not inlined one, that pass an int or bool constant
     (a literal, or a module constant such as ``STICK``): numba types such an argument as ``Literal[int](0)``
@@ -143,7 +163,7 @@ def _literal_arguments(module_name: str) -> list[str]:
             if callee is None or callee.targetoptions.get("inline", "never") == "always":
                 continue
             params = list(inspect.signature(callee.py_func).parameters)
-            literal = {params[k] for k in range(len(params)) if f"literally({params[k]})" in inspect.getsource(callee.py_func)}
+            literal = _literal_parameters(callee.py_func)
             for k, arg in enumerate(call.args):
                 if constant(arg, local) and not (k < len(params) and params[k] in literal):
                     found.append(f"{module_name}.py:{call.lineno} {fn.name} -> {call.func.id} argument {k}")
