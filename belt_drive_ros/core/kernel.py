@@ -439,8 +439,9 @@ def clamped_steps(times, x, out, c0, c1, base, cells, clo, chi, ends, half, limi
     its other steps), so the same floats as one call per step."""
     W, kinds, offsets, S, F, final_base, tol, max_iter, ua, ub, dk, dx, dy, lk, lx, ly, extra, guard = _unpacked(reals, ints, dp)
     N = times.size - 1
-    if c1 > c0 and max_iter == 0 and extra.shape[0] <= 1 and 2 <= x.size <= 6 and x.size != 3:  # (as _steps chooses)
-        if x.size <= 4:
+    loop = _scalar_loop(max_iter, extra.shape[0], x.size)  # (as _steps chooses)
+    if c1 > c0 and loop != 0:
+        if loop == 1:
             done, status, t = _explicit(times[c0 : c1 + 1], x, out[c0:c1], -math.inf, math.inf, cells, clo, chi, base + c0,
                                         limit, W, kinds, offsets, S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard,
                                         x.size)  # fmt: skip
@@ -513,16 +514,27 @@ def _steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, to
     """The two-wheel loop on these unpacked arrays: :func:`_explicit` for an explicit method on a 2- or 4-state plant,
     :func:`_explicit_wide` on a 5- or 6-state one (a slipping belt's phases), else :func:`wheel_steps` with P = 2
     (the drive's data its first bank, the load's the second); the same floats."""
-    if max_iter == 0 and extra.shape[0] <= 1 and (x.size == 4 or x.size == 2):
+    loop = _scalar_loop(max_iter, extra.shape[0], x.size)
+    if loop == 1:
         return _explicit(times, x, out, lo, hi, dk[:0], times[:0], times[:0], np.int64(0), limit, W, kinds, offsets, S, F,
                          ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard, x.size)  # fmt: skip
-    if max_iter == 0 and extra.shape[0] <= 1 and (x.size == 5 or x.size == 6):
+    if loop == 2:
         return _explicit_wide(times, x, out, lo, hi, dk[:0], times[:0], times[:0], np.int64(0), limit, W, kinds, offsets,
                               S, F, ua, ub, dk, dp, dx, dy, lk, lp, lx, ly, extra, guard, x.size)  # fmt: skip
     uses = np.zeros(2, dtype=np.int64)
     uses[0], uses[1] = ua, ub
     return wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_base, tol, max_iter,
                        uses, np.zeros(2, dtype=np.int64), dk, dp, dx, dy, lk, lp, lx, ly, extra, guard)  # fmt: skip
+
+
+@njit(**_INLINE)
+def _scalar_loop(max_iter, E, n):
+    """Which loop with the state in scalars steps a run of ``n`` states, ``E`` extra inputs and a method whose implicit
+    stage iterates ``max_iter`` times: 1 :func:`_explicit` (explicit, at most one extra input, 2 or 4 states), 2
+    :func:`_explicit_wide` (5 or 6), 0 none (:func:`wheel_steps`)."""
+    if max_iter != 0 or E > 1:
+        return 0
+    return 1 if n == 2 or n == 4 else 2 if n == 5 or n == 6 else 0
 
 
 @njit(**_INLINE)
@@ -696,7 +708,8 @@ def _state_loop(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, o
         out[k, 0], out[k, 1] = y0, y1
         if wide:  # the general loop's test: the first n // 2 finite, the rest within the limit
             y2, y3 = _final(F, 2, 3, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
-            y4, y5 = _final(F, 4, n - 1, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)  # (n = 5: row 4 twice, no row 5 read)
+            # (n = 5: row 4 twice, no row 5 read)
+            y4, y5 = _final(F, 4, n - 1, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
             x2, x3, x4 = y2, y3, y4
             out[k, 2], out[k, 3], out[k, 4] = y2, y3, y4
             if n == 6:
