@@ -211,7 +211,7 @@ def test_the_kernel_compiles_once_whatever_the_scene():
 
     def counts():
         loops = ("clamped_steps", "linear_steps", "_steps", "_explicit", "_explicit_wide", "wheel_steps")
-        profiles = ("profile_torque", "profile_torque_at", "profile_torque_array")
+        profiles = ("profile_torque", "profile_torque_at", "profile_torque_array", "scalar_at_call")
         return {name: len(getattr(module, name).signatures) for module, names in ((kernel, loops), (kernel_profiles, profiles))
                 for name in names}
 

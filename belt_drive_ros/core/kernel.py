@@ -30,7 +30,7 @@ from numba import carray, literally, njit, types
 from numba.extending import intrinsic, overload
 
 from .kernel_profiles import (
-    NO_ANCHOR, formula, is_formula, profile_scalars, profile_torque_at, scalar_at, scalar_torque, torque,
+    NO_ANCHOR, formula, is_formula, profile_scalars, profile_torque, profile_torque_at, scalar_at_call, scalar_torque,
 )
 from .profile_data import DIVERGED, GUARDED, NOT_CONVERGED, OK
 
@@ -104,17 +104,18 @@ def _pair_inputs(buf, base, coords, tc, uses, sd, sl, ak, ap, ax, ay, bk, bp, bx
     """:func:`_inputs` of a two-wheel drive (P = 2, each profile its bank's from row 0) where the drive's or the load's
     profile fits in scalars (``sd``, ``sl``: :func:`profile_scalars`, read once per call): that one evaluated from its
     scalars (no array passed to a call, no reference counted; its harmonics from its anchor ``ad``, ``al``:
-    :func:`~belt_drive_ros.core.kernel_profiles.scalar_at`), the other through :func:`profile_torque_at`. Returns
+    :func:`~belt_drive_ros.core.kernel_profiles.scalar_at_call`, called: inlined at the four sites it took 2 minutes of
+    compilation), the other through :func:`profile_torque_at`. Returns
     the anchors."""
     row = np.int64(0)  # (not a literal 0: profile_torque_at keeps its one compiled signature)
     angle = coords[0] if uses[0] else 0.0
     if sd[0]:
-        buf[base], ad = scalar_at(sd, tc, angle, coords[1], ad)
+        buf[base], ad = scalar_at_call(sd, tc, angle, coords[1], ad)
     else:
         buf[base] = profile_torque_at(ak, ap, ax, ay, row, tc, angle, coords[1])
     angle = coords[2] if uses[1] else 0.0
     if sl[0]:
-        buf[base + 1], al = scalar_at(sl, tc, angle, coords[3], al)
+        buf[base + 1], al = scalar_at_call(sl, tc, angle, coords[3], al)
     else:
         buf[base + 1] = profile_torque_at(bk, bp, bx, by, row, tc, angle, coords[3])
     for e in range(extra.shape[0]):
@@ -629,7 +630,9 @@ def _state_loop(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, o
     store and reload on the critical path x -> omega_M -> torque -> x+. An angle no profile reads is not computed.
     A profile of one formula row (:func:`is_formula`) or that fits in scalars (:func:`profile_scalars`: engines,
     compressors, motor curves and linear tables of a few points, schedules) is read once per call, so no array reaches inlined code and numba's reference counts
-    drop out of the step (paper's ``exact`` 33 -> 14 ns); any other through the dispatcher inlined (:func:`torque`).
+    drop out of the step (paper's ``exact`` 33 -> 14 ns); any other through the dispatcher, called
+    (:func:`profile_torque`: a table's lookup is a call either way; inlined, the dispatcher's two copies took ~20 s of
+    each loop copy's compilation, for ~6 ns a torque on a 10-point table).
     """
     literally(wide)
     x0, x1 = x[0], x[1]
@@ -690,14 +693,14 @@ def _state_loop(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, o
                 kind, p, a, q = (dka, dpa, daa, dqa) if dper[0] <= tc < dper[1] or dper[2] <= tc < dper[3] else (dki, dpi, dai, dqi)
                 u0, da = scalar_torque(kind, p, a, q, tc, c0, c1, da)
             else:
-                u0 = torque(dk, dp, dx, dy, 0, tc, c0, c1)
+                u0 = profile_torque(dk, dp, dx, dy, tc, c0, c1)
             if lform:
                 u1 = formula(lkind, l0, l1, l2, l3, l4, tc, c3)
             elif lfits:
                 kind, p, a, q = (lka, lpa, laa, lqa) if lper[0] <= tc < lper[1] or lper[2] <= tc < lper[3] else (lki, lpi, lai, lqi)
                 u1, la = scalar_torque(kind, p, a, q, tc, c2, c3, la)
             else:
-                u1 = torque(lk, lp, lx, ly, 0, tc, c2, c3)
+                u1 = profile_torque(lk, lp, lx, ly, tc, c2, c3)
             e0 = _friction_force(extra[0], c1) if E else 0.0
             if i < s - 1:
                 U[m * i], U[m * i + 1] = u0, u1

@@ -5,11 +5,18 @@ whose loops call them): compiled once per installed version, cached on disk, run
 
 * :func:`torque` -- the dispatcher over a profile's rows (a kind code per row, :mod:`~belt_drive_ros.core.profile_data`):
   the formula kinds (:func:`formula`, scalars only), tables (:func:`_interp`, :func:`_held`), engines and compressors
-  (harmonics), motor curves, schedules; inlined into its callers;
+  (harmonics), motor curves, schedules; inlined into its entries;
 * :func:`profile_torque`, :func:`profile_torque_at`, :func:`profile_torque_array` -- its compiled entries (one
   profile, a profile of a stack, arrays of samples);
 * :func:`profile_scalars`, :func:`scalar_torque`, :func:`scalar_at` -- a profile that fits in a few numbers read once
-  per call and evaluated from scalars (the time loops' fast path: no array reaches an inlined step).
+  per call and evaluated from scalars (the time loops' fast path: no array reaches an inlined step);
+  :func:`scalar_at_call`, the same compiled once and called (the loops off the hot path).
+
+Compilation time: numba's inliner copies a callee's IR block by block, each block's copy taking every variable of
+the callee's scope with it, so an inlined copy costs about (blocks x variables) of the callee, nested inlining
+included. Inlined copies of the dispatcher and of :func:`scalar_at` made ``make install`` compile for 5.5 minutes
+on two cores; hot loops inline only :func:`formula` and :func:`scalar_torque`, everything read once per call or off
+the hot path is called (1.5 minutes).
 
 Only a run imports this module (``--help``, ``scenes``, ``msg-tools`` never do).
 """
@@ -315,12 +322,13 @@ def _row_scalars(kinds, params, tx, ty, row):
     return is_formula(kind) or harmonic or few, kind, p, amplitudes, points
 
 
-@njit(**_INLINE)
+@njit(**_JIT)
 def profile_scalars(kinds, params, tx, ty):
     """A profile as scalars for a loop that reads them once per call (:func:`scalar_torque`): (whether it fits,
     the active part's kind, numbers, amplitudes and points, the inactive part's, the periods ``(s0, e0, s1, e1)``).
     Fits: a row of :func:`_row_scalars`, or a schedule of at most two periods of two such rows (a profile that is
-    not a schedule is its own active part, always inside ``(-inf, inf)``)."""
+    not a schedule is its own active part, always inside ``(-inf, inf)``). Called, not inlined: each caller reads it
+    once, before its loop (inlined, its three row reads of conditional tuples cost ~10 s of compilation a site)."""
     fits, ka, pa, aa, qa = _row_scalars(kinds, params, tx, ty, 0)
     ki, pi, ai, qi = ka, pa, aa, qa
     periods = (-math.inf, math.inf, 0.0, 0.0)
@@ -409,3 +417,13 @@ def scalar_at(sc, tc, angle, speed, anchor):
     if per[0] <= tc < per[1] or per[2] <= tc < per[3]:
         return scalar_torque(ka, pa, aa, qa, tc, angle, speed, anchor)
     return scalar_torque(ki, pi, ai, qi, tc, angle, speed, anchor)
+
+
+@njit(**_JIT)
+def scalar_at_call(sc, tc, angle, speed, anchor):
+    """:func:`scalar_at`, compiled once and called, for the loops off the hot path (the general loop's two-wheel
+    inputs, the slip event step's). Why not inlined there: numba's inliner copies a callee's whole IR once per block,
+    each copy with every variable of the callee's scope, so an inlined :func:`scalar_at` (two :func:`scalar_torque`
+    with their harmonics, tables and fades) cost ~20 s of compilation per site; ``wheel_steps`` had four (169 s to
+    compile, 34 s calling this). The same operations, so the same floats."""
+    return scalar_at(sc, tc, angle, speed, anchor)

@@ -671,15 +671,26 @@ def _joined(pieces):
 
 
 def warm_hybrid() -> None:
-    """Compile (or load from the disk cache) :func:`~.kernel_slip.event_step`, :func:`~.kernel_hybrid.hybrid_steps` and
-    :func:`~.kernel_slip.locate_event` with the one signature runs use (a short run that slips at once, a drive torque
-    far past the capstan limit, takes the entry points every run takes)."""
+    """Compile (or load from the disk cache) :func:`~.kernel_slip.event_step`, :func:`~.kernel_slip.locate_event`
+    (:func:`warm_events`) and :func:`~.kernel_hybrid.hybrid_steps` with the one signature runs use (a short run that
+    slips at once, a drive torque far past the capstan limit, takes the entry points every run takes)."""
+    sim = warm_events()
+    sim._prime()
+    sim.run(5e-3, np.zeros(5))
+
+
+def warm_events() -> SlippingSimulator:
+    """Compile (or load) the event step (:func:`~.kernel_slip.event_step`, and with it the ``_event_step`` the hybrid
+    loop calls) and :func:`~.kernel_slip.locate_event`: they call no linear loop, so the warm compiles them while the
+    linear loops are still being compiled elsewhere (a lazy simulator: one built eagerly loads the hybrid loop, and
+    with it the linear loops). Returns the simulator of :func:`warm_hybrid`'s run."""
     from . import kernel_slip as ks
     from .params import BeltDriveParams
     from .sources import Constant
 
-    sim = SlippingSimulator(BeltDriveParams(), Constant(5000.0), Constant(0.0), "etd4", 1e-3, check_stability=False)
-    sim.run(5e-3, np.zeros(5))
+    sim = SlippingSimulator(BeltDriveParams(), Constant(5000.0), Constant(0.0), "etd4", 1e-3, check_stability=False,
+                            lazy=True)  # fmt: skip
     sim.hybrid.advance(0.0, 1e-3, np.zeros(5), STICK, 0.0)
     arrays = sim.hybrid._kernel
     ks.locate_event(STICK, 0.0, 0.0, np.zeros(5), 1e-3, math.inf, np.zeros(5), *arrays[:3], *arrays[4:])
+    return sim

@@ -10,8 +10,9 @@ it compiles them again)::
               <- network node tick (and the network's linear tiers, called from Python)
     profile dispatcher (kernel_profiles: profile_torque, profile_torque_at) <- every kernel but the variant lanes
 
-With ``jobs=2`` the two longest builds run side by side: this process compiles
-``wheel_steps`` alone (called from Python with the types ``_steps`` gives it)
+With ``jobs=2`` the longest builds run side by side: this process compiles
+``wheel_steps`` (called from Python with the types ``_steps`` gives it), then
+the slipping belt's event step (``slip_run.warm_events``: no linear loop in it),
 while a second process compiles ``_explicit`` and ``_explicit_wide`` (likewise) and tells it so
 on a pipe; this process waits for that line, then goes on with the linear loop,
 whose compilation loads them from the cache. The second process goes on with
@@ -82,8 +83,9 @@ def warm_single(tell=None, told=None) -> None:
     from . import kernel, kernel_loop, slip_run, tick
     from .network import simulate as network_simulate
 
-    if told is not None:
-        kernel.wheel_steps(*_loop_arguments(wheel=True))  # while the second process compiles _explicit
+    if told is not None:  # while the second process compiles _explicit: the general loop, then the event step
+        kernel.wheel_steps(*_loop_arguments(wheel=True))
+        slip_run.warm_events()
         told.readline()
     network_simulate.warm()  # calls wheel_steps from Python: its one signature, written to the cache
     _tell(tell, WHEEL)
