@@ -238,3 +238,36 @@ def test_bench_kernel_baseline_runs_the_baseline_trees_code(tmp_path, monkeypatc
     cpu, old, duration = rows["paper"]
     assert set(rows) == {"paper"} and duration == 5.0  # this tree's scene
     assert 0.0 < cpu < 0.05 <= old < 1.0  # the fake's 50 ms, not this tree's few ms
+
+
+def test_bench_compile_quick_times_each_build_from_an_empty_cache_beside_a_baseline(tmp_path, capsys):
+    """``bench compile --quick``: the torque dispatcher's entries built in a child process from an empty numba cache
+    (each build named with its time, the wall time; the tree's own cache untouched), and ``--baseline``'s code built
+    the same way in a child of that checkout: a fake checkout whose profile compiles one function of its own shows
+    that function in the baseline's rows only."""
+    from pathlib import Path
+
+    import belt_drive_ros
+
+    pycache = Path(belt_drive_ros.__file__).parent / "core" / "__pycache__"
+    before = {p.name: p.stat().st_mtime_ns for p in pycache.glob("*.nb*")}
+    fake = tmp_path / "old"
+    core = fake / "belt_drive_ros" / "core"
+    core.mkdir(parents=True)
+    (fake / "belt_drive_ros" / "__init__.py").write_text("")
+    (core / "__init__.py").write_text("")
+    (core / "warm.py").write_text("")
+    (core / "sources.py").write_text(
+        "import numba\n@numba.njit\ndef baseline_only(t):\n    return t + 1.0\n"
+        "class Engine:\n    def torque(self, t, angle, speed):\n        return baseline_only(0.5)\n")
+    assert main(["bench", "compile", "--quick", "--baseline", str(fake), "--out", str(tmp_path / "o")]) == 0
+    out = capsys.readouterr().out
+    rows = read_csv(tmp_path / "o" / "compile.csv")
+    mine = {r["what"]: float(r["seconds"]) for r in rows if r["tree"] == "this tree"}
+    theirs = {r["what"]: float(r["seconds"]) for r in rows if r["tree"] != "this tree"}
+    assert mine["kernel_profiles.profile_torque"] > 0.0 and mine["kernel_profiles.profile_torque_array"] > 0.0
+    assert mine["wall, one process"] >= mine["kernel_profiles.profile_torque_array"]
+    assert "sources.baseline_only" in theirs and "sources.baseline_only" not in mine
+    assert not any(name.startswith("kernel_profiles.") for name in theirs)
+    assert "kernel_profiles.profile_torque_array" in out and f"baseline {fake}" in out
+    assert {p.name: p.stat().st_mtime_ns for p in pycache.glob("*.nb*")} == before

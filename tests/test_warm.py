@@ -29,6 +29,7 @@ def calls(monkeypatch):
     monkeypatch.setattr(jit_cache, "refresh", record("refresh"))
     monkeypatch.setattr(warm, "_loop_arguments", lambda wheel: ())
     monkeypatch.setattr(kernel, "wheel_steps", record("wheel_steps alone"))
+    monkeypatch.setattr(slip_run, "warm_events", record("event step alone"))
     for module, name, label in ((network_simulate, "warm", SINGLE[0]), (kernel_loop, "warm", SINGLE[1]),
                                 (slip_run, "warm_hybrid", SINGLE[2]), (tick, "warm", SINGLE[3]),
                                 (warm, "warm_explicit", SECOND[0]), (network_slip, "warm", SECOND[1]),
@@ -50,7 +51,7 @@ def test_a_second_process_that_dies_at_once_leaves_this_ones_part_whole_then_rai
     before = _fds()
     with pytest.raises(RuntimeError, match=r"warming the network and variant kernels failed \(exit 3\)"):
         warm.warm(jobs=2)
-    assert calls == ["refresh", "wheel_steps alone"] + SINGLE
+    assert calls == ["refresh", "wheel_steps alone", "event step alone"] + SINGLE
     assert _fds() == before  # the pipe's ends and the child's stdin closed
 
 

@@ -42,6 +42,9 @@ studies:
                  a fleet of 100 recordings replayed and compared (needs the campaign extra; not in 'all')
   network_slip   a belt network's slipping tier: x real time on fead_i4 sticking and slipping, the paper's
                  drive slipping; the node's tick (advance, sample) slipping beside flexible (not in 'all')
+  compile        the numba kernels built from an empty cache (the tree's own cache untouched): each
+                 function's build, every kernel in one process, warm(jobs=2) as 'make install' runs it
+                 (a few minutes per tree; --quick: the torque dispatcher only; not in 'all')
   all            all of the above, then docs/bench/summary.md
 
 examples:
@@ -55,6 +58,7 @@ examples:
   belt-drive bench kernel --quick --baseline ../main  # ... whole simulate() beside another checkout
   belt-drive bench replay --minutes 60           # the 1-hour torque bag replayed to MCAP
   belt-drive bench replay --baseline ../old      # ... beside another checkout, in one run
+  belt-drive bench compile --baseline ../old --out /tmp/c  # build times of both trees' kernels
 
 Each study writes a CSV and a PNG into --out. CPU time is process time, the
 minimum of repeats; BLAS runs single-threaded (OPENBLAS_NUM_THREADS=1) so that
@@ -72,7 +76,7 @@ def register(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "kernel", "network", "network_slip",
-                                     "slip-kernel", "replay", "node-tick", "all"), help="which study to run")  # fmt: skip
+                                     "slip-kernel", "replay", "node-tick", "compile", "all"), help="which study to run")  # fmt: skip
     p.add_argument("--out", type=Path, help="output folder (default: docs/bench in the current folder; node, node-tick "
                    "and replay print their figures and write their tables only with --out)")
     p.add_argument("--quick", action="store_true", help="small sweeps and short runs (seconds; for tests)")
@@ -80,8 +84,8 @@ def register(sub) -> None:
     p.add_argument("--seconds", type=float, default=60.0, help="soak: measured seconds (default 60)")
     p.add_argument("--duration", type=float, default=30.0, help="node: measured seconds (default 30)")
     p.add_argument("--minutes", type=float, default=60.0, help="replay: minutes of 1 kHz torque bag (default 60)")
-    p.add_argument("--baseline", metavar="DIR", help="replay, kernel, node-tick: a checkout of another commit (its numba cache warm) "
-                   "measured beside this tree in the same run")
+    p.add_argument("--baseline", metavar="DIR", help="replay, kernel, node-tick, compile: a checkout of another commit (its numba "
+                   "cache warm; compile: its kernels built from an empty cache) measured beside this tree in the same run")
     p.add_argument("--samples", type=int, default=None,
                    help="campaign: variants of the Monte Carlo (default 100,000; --quick 2,000)")
     p.add_argument("--floor", action="store_true",
@@ -127,8 +131,9 @@ def _checked_baseline(study: str, baseline: str | None) -> Path | None:
         return None
     from ..core.errors import InputError
 
-    if study not in ("replay", "kernel", "node-tick"):
-        raise InputError(f"--baseline applies to 'bench replay', 'bench kernel' and 'bench node-tick', not 'bench {study}'")
+    if study not in ("replay", "kernel", "node-tick", "compile"):
+        raise InputError(f"--baseline applies to 'bench replay', 'bench kernel', 'bench node-tick' and 'bench compile', "
+                         f"not 'bench {study}'")
     root = Path(baseline)
     if not (root / "belt_drive_ros" / "__init__.py").is_file():
         raise InputError(f"--baseline {baseline}: not a checkout of belt_drive_ros (no belt_drive_ros/__init__.py in it)")
@@ -209,6 +214,12 @@ def run(args) -> int:
         from ..benchmarks import hostile
 
         return hostile.main(["--out", str(out)] + (["--quick"] if args.quick else []) + (["--only", *args.only] if args.only else []))
+    if args.study == "compile":
+        from ..benchmarks import compile_time
+
+        result = compile_time.run(out, quick=args.quick, baseline=args.baseline)
+        print(f"bench compile: {result['csv']}")
+        return 0
     if args.study == "kernel":
         from ..benchmarks import kernel
 
