@@ -220,19 +220,26 @@ def test_bench_baseline_must_be_a_checkout_and_a_study_that_uses_it(tmp_path, ca
     assert len(err) == 1 and "'bench workprecision'" in err[0]
 
 
+def _fake_checkout(root, core_files: dict) -> None:
+    """A checkout of ``belt_drive_ros`` at ``root`` whose ``core`` holds only ``core_files`` (name: source)."""
+    core = root / "belt_drive_ros" / "core"
+    core.mkdir(parents=True)
+    (root / "belt_drive_ros" / "__init__.py").write_text("")
+    (core / "__init__.py").write_text("")
+    for name, text in core_files.items():
+        (core / name).write_text(text)
+
+
 def test_bench_kernel_baseline_runs_the_baseline_trees_code(tmp_path, monkeypatch):
     """``_simulate_side_by_side`` times this tree and the baseline checkout each in its own process: a fake
     checkout whose simulate() burns 50 ms of CPU shows up in the baseline's column only."""
     from belt_drive_ros.benchmarks import kernel
 
-    core = tmp_path / "belt_drive_ros" / "core"
-    core.mkdir(parents=True)
-    (tmp_path / "belt_drive_ros" / "__init__.py").write_text("")
-    (core / "__init__.py").write_text("")
-    (core / "scene.py").write_text("import types\ndef load_scene(name):\n    return types.SimpleNamespace(duration=7.0)\n")
-    (core / "simulate.py").write_text(
-        "import time\ndef simulate(scene):\n    end = time.process_time() + 0.05\n"
-        "    while time.process_time() < end:\n        pass\n")
+    _fake_checkout(tmp_path, {
+        "scene.py": "import types\ndef load_scene(name):\n    return types.SimpleNamespace(duration=7.0)\n",
+        "simulate.py": "import time\ndef simulate(scene):\n    end = time.process_time() + 0.05\n"
+                       "    while time.process_time() < end:\n        pass\n",
+    })  # fmt: skip
     monkeypatch.setattr(kernel, "SCENES", ("paper",))
     rows = kernel._simulate_side_by_side(tmp_path, repeats=1, rounds=1)
     cpu, old, duration = rows["paper"]
@@ -252,14 +259,11 @@ def test_bench_compile_quick_times_each_build_from_an_empty_cache_beside_a_basel
     pycache = Path(belt_drive_ros.__file__).parent / "core" / "__pycache__"
     before = {p.name: p.stat().st_mtime_ns for p in pycache.glob("*.nb*")}
     fake = tmp_path / "old"
-    core = fake / "belt_drive_ros" / "core"
-    core.mkdir(parents=True)
-    (fake / "belt_drive_ros" / "__init__.py").write_text("")
-    (core / "__init__.py").write_text("")
-    (core / "warm.py").write_text("")
-    (core / "sources.py").write_text(
-        "import numba\n@numba.njit\ndef baseline_only(t):\n    return t + 1.0\n"
-        "class Engine:\n    def torque(self, t, angle, speed):\n        return baseline_only(0.5)\n")
+    _fake_checkout(fake, {
+        "warm.py": "",
+        "sources.py": "import numba\n@numba.njit\ndef baseline_only(t):\n    return t + 1.0\n"
+                      "class Engine:\n    def torque(self, t, angle, speed):\n        return baseline_only(0.5)\n",
+    })  # fmt: skip
     assert main(["bench", "compile", "--quick", "--baseline", str(fake), "--out", str(tmp_path / "o")]) == 0
     out = capsys.readouterr().out
     rows = read_csv(tmp_path / "o" / "compile.csv")
