@@ -674,9 +674,7 @@ def warm_hybrid() -> None:
     """Compile (or load from the disk cache) :func:`~.kernel_slip.event_step`, :func:`~.kernel_slip.locate_event`
     (:func:`warm_events`) and :func:`~.kernel_hybrid.hybrid_steps` with the one signature runs use (a short run that
     slips at once, a drive torque far past the capstan limit, takes the entry points every run takes)."""
-    sim = warm_events()
-    sim._prime()
-    sim.run(5e-3, np.zeros(5))
+    warm_events().run(5e-3, np.zeros(5))
 
 
 def warm_events() -> SlippingSimulator:
