@@ -149,6 +149,38 @@ def test_slack_and_slip_flags():
     assert out["slack"].tolist() == [False, False, False, False, True]
 
 
+def test_slip_flag_takes_the_centrifugal_tension_off_both_spans():
+    """A massive belt: the flag turns where ``|T_b| / r_3`` passes ``Q_max(omega_M) = 2 (F_0 - m' v^2) tanh(mu beta / 2)``,
+    the capstan law with the centrifugal tension off both spans (where the slipping model slips), not at the limit
+    at rest; the rigid model's flag and one sample's (the node's tick) agree."""
+    mass, omega = 0.5, 300.0
+    p = BeltDriveParams(**GEOMETRY, k=2.0e4, c=0.0, F_0=100.0, mu=0.5, wrap_angle=np.pi, belt_mass=mass, **NO_BEARINGS)
+    v = p.r_2 * (p.r_M / p.R_1) * (p.r_1 / p.R_2) * omega  # belt speed [m/s]
+    q_max = 2.0 * (p.F_0 - mass * v * v) * np.tanh(0.25 * np.pi)  # by hand
+    q_rest = 2.0 * p.F_0 * np.tanh(0.25 * np.pi)
+    assert 0.5 * q_rest < q_max < 0.95 * q_rest and q_max == pytest.approx(p.friction_limit(omega), rel=1e-14)
+    qs = np.array([0.9, 0.999, 1.001, 1.05]) * q_max
+    qs = np.append(qs, 0.5 * (q_max + q_rest))  # past the limit at this speed, within the one at rest
+    model = FlexibleBeltModel(p)
+    x = np.column_stack([np.zeros_like(qs), qs / (2.0 * p.k * p.r_3), np.full_like(qs, omega), np.zeros_like(qs)])
+    out = model.outputs(x, np.zeros((qs.size, 2)))
+    np.testing.assert_allclose(np.abs(out["belt_torque"]) / p.r_3, qs, rtol=1e-12)
+    expected = [False, False, True, True, True]
+    assert out["slip"].tolist() == expected and not out["slack"].any()
+    assert [model.outputs(x[j], np.zeros(2))["slip"] for j in range(qs.size)] == expected
+    at_rest = model.outputs(x * [1.0, 1.0, 0.0, 0.0], np.zeros((qs.size, 2)))
+    assert at_rest["slip"].tolist() == [False, False, False, False, False]  # the same forces at rest pass
+    # the rigid model at the same speed, load torques across the limit: its flag by the same rule on its belt torque
+    rigid = RigidBeltModel(p)
+    loads = np.linspace(0.0, 3.0, 61) * q_max * p.r_3
+    y = np.column_stack([np.zeros_like(loads), np.full_like(loads, omega)])
+    got = rigid.outputs(y, np.column_stack([np.zeros_like(loads), loads]))
+    q = np.abs(got["belt_torque"]) / p.r_3
+    clear = np.abs(q - q_max) > 1e-9 * q_max
+    assert q.min() < 0.9 * q_max and q.max() > 1.1 * q_rest
+    assert got["slip"][clear].tolist() == (q > q_max)[clear].tolist()
+
+
 def test_outputs_of_one_sample_are_the_run_rows_bit_for_bit():
     """The node's tick computes the outputs of one sample on plain floats: each value must be the
     double the whole-run (array) evaluation gives for that row, signed zeros included."""

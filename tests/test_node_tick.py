@@ -501,3 +501,12 @@ def test_the_nodes_usual_tick_is_the_simulations_plain_tick(params):
         finally:
             for node in nodes:
                 node.destroy_node()
+
+
+def test_the_linear_tick_flags_slip_with_the_belts_centrifugal_tension():
+    # bsg_start's belt has mass: the compiled tick's slip flag takes m' v^2 off both spans as the model's outputs do
+    fast, a, b, sims = _lockstep({"scene": "bsg_start", "model": "flexible", "drive_source": "scene"}, 400)
+    assert sims[0].settings.params.belt_mass > 0.0 and fast > 300
+    assert np.array_equal(a, b)
+    slip = a[:, 15]  # OUTPUT_UNITS' slip (0.0/1.0)
+    assert slip.max() == 1.0 and slip.min() == 0.0  # the breakaway flags slip, later ticks pass

@@ -30,7 +30,7 @@ from ..core.integrators import method_class
 from ..core.kernel_loop import OK
 from ..core.method_choice import good_step_error
 from ..core.model import LINEAR_OUTPUTS, OUTPUT_UNITS, ModelStack, span_forces
-from ..core.params import ParamColumns, friction_limit_array
+from ..core.params import ParamColumns, centrifugal_tension, friction_limit_array
 from ..core.scene import AUTO_METHOD, Scene
 from ..core.simulate import SimResult, simulate
 from ..core.stability import require_stable
@@ -117,7 +117,10 @@ class GroupRun:
             if out is None:
                 out = np.zeros(self.states[:, 0, :].shape)
         elif name in ("span_force_tight", "span_force_slack", "slack", "slip"):
-            forces = span_forces(self.param("F_0"), self.param("r_3"), self.param("capstan_ratio"), self.output("belt_torque"))
+            mass = self.param("belt_mass")
+            F_c = centrifugal_tension(self._belt_speed_ratio(), mass, self.output("omega_M")) if mass.any() else 0.0
+            forces = span_forces(self.param("F_0"), self.param("r_3"), self.param("capstan_ratio"), self.output("belt_torque"),
+                                 F_c)  # fmt: skip
             for key, value in zip(("span_force_tight", "span_force_slack", "slack", "slip"), forces):
                 self._outputs[key] = value
             return self._outputs[name]

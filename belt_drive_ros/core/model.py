@@ -26,7 +26,7 @@ from typing import ClassVar
 import numpy as np
 
 from .identity_cache import built_once
-from .params import BeltDriveParams
+from .params import BeltDriveParams, centrifugal_tension
 
 #: Names of the per-sample output signals, in CSV/plot order. SI units.
 OUTPUT_UNITS: dict[str, str] = {
@@ -125,7 +125,7 @@ class _LinearModel:
             y = _plus_affine(_affine(self.C, x) if cx is None else cx, self._D_of_outputs, u)
             out = {name: y[..., j] for j, name in enumerate(LINEAR_OUTPUTS)}
             out["drive_torque"], out["load_torque"] = u[..., 0], u[..., 1]
-        tight, slack_force, slack, slip = self.span_forces(out["belt_torque"])
+        tight, slack_force, slack, slip = self.span_forces(out["belt_torque"], out["omega_M"])
         out.update(span_force_tight=tight, span_force_slack=slack_force, slack=slack, slip=slip)
         return {name: out[name] for name in OUTPUT_UNITS}
 
@@ -134,10 +134,12 @@ class _LinearModel:
         """E = T + V [J] (the rigid belt's V = 0)."""
         return self.kinetic_energy(x) + self.potential_energy(x)
 
-    def span_forces(self, belt_torque: np.ndarray) -> tuple:
-        """Span forces and slack/slip flags from the belt torque at wheel 3 (:func:`span_forces`)."""
+    def span_forces(self, belt_torque: np.ndarray, omega_M) -> tuple:
+        """Span forces and slack/slip flags from the belt torque at wheel 3 [N m] and the drive speed [rad/s] (the
+        belt's centrifugal tension; none for a massless belt; :func:`span_forces`)."""
         p = self.params
-        return span_forces(p.F_0, p.r_3, p.capstan_ratio, belt_torque)
+        F_c = centrifugal_tension(p.r_2 * p.gear_ratio, p.belt_mass, omega_M) if p.belt_mass else 0.0
+        return span_forces(p.F_0, p.r_3, p.capstan_ratio, belt_torque, F_c)
 
 
 class FlexibleBeltModel(_LinearModel):
@@ -451,17 +453,19 @@ def _affine_sample(rows, x: list, u: list) -> list:
     return [x0 * c0 + x1 * c1 + (u0 * d0 + u1 * d1) for (c0, c1), (d0, d1) in rows]
 
 
-def span_forces(F_0, r_3, capstan_ratio, belt_torque) -> tuple:
+def span_forces(F_0, r_3, capstan_ratio, belt_torque, centrifugal=0.0) -> tuple:
     """(F_tight, F_slack [N], slack, slip flags) from the belt torque [N m]: ``Q = T_b / r_3`` splits about the
     pre-tension, ``F_tight, F_slack = F_0 +- |Q|/2``; slack where ``F_slack <= 0`` (a span cannot push), slip past the
-    capstan (Euler-Eytelwein) limit ``F_tight > F_slack e^(mu wrap)``: either flag, the linear model is outside its
-    validity. Arguments may be arrays that broadcast (an ensemble's variants on the last axis) or floats (one sample):
-    the same operations per element."""
+    capstan (Euler-Eytelwein) limit with the centrifugal tension ``F_c`` [N] (:func:`~belt_drive_ros.core.params.
+    centrifugal_tension`) taken off both spans, ``F_tight - F_c > (F_slack - F_c) e^(mu_eff wrap)``: the belt torque
+    past ``r_3 Q_max(omega_M)``, where the slipping model slips (a massless belt: ``F_c = 0``, ``F_tight > F_slack
+    e^(mu_eff wrap)``). Either flag, the linear model is outside its validity. Arguments may be arrays that broadcast
+    (an ensemble's variants on the last axis) or floats (one sample): the same operations per element."""
     half = 0.5 * abs(belt_torque) / r_3  # abs: np.abs on arrays, the float's own on one sample
     tight = F_0 + half
     slack_force = F_0 - half
     slack = slack_force <= 0.0
-    slip = slack | (tight > slack_force * capstan_ratio)
+    slip = slack | (tight - centrifugal > (slack_force - centrifugal) * capstan_ratio)
     return tight, slack_force, slack, slip
 
 

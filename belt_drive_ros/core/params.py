@@ -379,8 +379,14 @@ class ParamColumns:
         return ParamColumns(columns={name: getattr(self, name)[keep] for name in FIELD_DOCS})
 
 
+def centrifugal_tension(belt_speed_ratio, belt_mass, omega_M):
+    """F_c = m' v^2 [N] at belt speed v = (r_2 g) omega_M [m/s]: the tension a belt of m' [kg/m] needs to run round its
+    pulleys, which takes nothing from the pressure on them (floats or arrays that broadcast, per element)."""
+    v = belt_speed_ratio * omega_M
+    return belt_mass * v * v
+
+
 def friction_limit_array(F_0, belt_speed_ratio, belt_mass, capstan_factor, omega_M):
     """Q_max = max((F_0 - m' v^2) 2 tanh(mu_eff beta / 2), 0) [N] at belt speed v = (r_2 g) omega_M, on arrays
     (of speeds, and of parameters: an ensemble's variants on the last axis), per element as for one run."""
-    v = belt_speed_ratio * omega_M
-    return np.maximum((F_0 - belt_mass * v * v) * capstan_factor, 0.0)
+    return np.maximum((F_0 - centrifugal_tension(belt_speed_ratio, belt_mass, omega_M)) * capstan_factor, 0.0)

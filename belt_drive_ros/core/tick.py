@@ -18,8 +18,9 @@ Bit for bit the operations of the reference path (the stepper's
 * ``y_j = (x_0 C_j0 + ... + x_{n-1} C_j,n-1) + (u_0 D_j0 + u_1 D_j1)``
   (``model._affine_sample``), then ``drive_torque, load_torque = u``;
 * span forces and flags: ``half = 0.5 |T_b| / r_3``, ``F_tight = F_0 + half``,
-  ``F_slack = F_0 - half``, slack ``F_slack <= 0``, slip ``slack or F_tight >
-  F_slack capstan_ratio`` (:func:`~belt_drive_ros.core.model.span_forces`),
+  ``F_slack = F_0 - half``, slack ``F_slack <= 0``, slip ``slack or F_tight - F_c >
+  (F_slack - F_c) capstan_ratio`` with the centrifugal tension ``F_c = m' (r_2 g omega_M)^2``
+  (none for a massless belt; :func:`~belt_drive_ros.core.model.span_forces`),
   the flags as 0.0/1.0.
 
 A tick at which the held drive torque changes is compiled too when it is one
@@ -220,7 +221,7 @@ def linear_tick(address):
     ``stamp + steps step_ns`` [ns] are written into it: the usual tick writes nothing before the call. ``reals,
     ints, lp, dp`` (the drive profile's data, the held torque's copied in): the stepper's kernel loop
     (:class:`~belt_drive_ros.core.kernel_loop.KernelLoop`); ``rows`` packs ``[W (4 n), C (12 n), D (12 x 2), F_0,
-    r_3, capstan_ratio, origin, dt, speed limit, message layout (4)]``; ``x`` (n,) the state, replaced by the new
+    r_3, capstan_ratio, belt_mass, r_2 g, origin, dt, speed limit, message layout (4)]``; ``x`` (n,) the state, replaced by the new
     one; ``y`` the outputs. ``clamp``: ``lo, hi`` [s], the torque times clamped to them (``-inf, inf``: none; the
     stepper's special step at a held-torque jump: ``lo = t0`` after a jump at ``t0``, ``hi = left_of(t1)`` before
     one at ``t1``), and ``drive``: NaN, or the held drive torque's new value [N m], written into ``dp[0, 0]`` after
@@ -236,7 +237,7 @@ def linear_tick(address):
     clamp[0], clamp[1], clamp[2] = -math.inf, math.inf, math.nan
     n = x.size
     d0 = 16 * n
-    origin, dt, limit = rows[d0 + 27], rows[d0 + 28], rows[d0 + 29]
+    origin, dt, limit = rows[d0 + 29], rows[d0 + 30], rows[d0 + 31]
     if steps <= ROOM:  # (no allocation)
         times, out = _f1(packed, table, _TIMES)[: steps + 1], _f2(packed, table, _OUT)[:steps]
     else:
@@ -271,16 +272,21 @@ def linear_tick(address):
             a = a + xe[q] * rows[c0 + j * n + q]
         y[j] = a + (u0 * rows[d0 + 2 * j] + u1 * rows[d0 + 2 * j + 1])
     y[8], y[9] = u0, u1  # drive_torque, load_torque: the inputs themselves
-    F_0, r_3, capstan = rows[d0 + 24], rows[d0 + 25], rows[d0 + 26]
+    F_0, r_3, capstan, mass = rows[d0 + 24], rows[d0 + 25], rows[d0 + 26], rows[d0 + 27]
     half = 0.5 * abs(y[10]) / r_3  # belt_torque
     tight = F_0 + half
     slack_force = F_0 - half
     slack = slack_force <= 0.0
     y[12], y[13] = tight, slack_force
-    slip = slack or tight > slack_force * capstan
+    if mass != 0.0:  # the centrifugal tension m' v^2 at v = r_2 g omega_M (params.centrifugal_tension)
+        v = rows[d0 + 28] * y[1]
+        F_c = mass * v * v
+        slip = slack or tight - F_c > (slack_force - F_c) * capstan
+    else:
+        slip = slack or tight > slack_force * capstan
     y[14] = 1.0 if slack else 0.0
     y[15] = 1.0 if slip else 0.0
-    write_joints(y, _f1(packed, table, _MSG).view(np.uint8), rows[d0 + 30 :], stamp)
+    write_joints(y, _f1(packed, table, _MSG).view(np.uint8), rows[d0 + 32 :], stamp)
     return -((SLACK if slack else 0) + (SLIPS if slip else 0))
 
 
@@ -339,7 +345,8 @@ class TickKernel:
         p = model.params
         msg, where, at = joints_message(*message)
         rows = np.concatenate([np.ravel(plant.wheel_map), np.ravel(C), np.ravel(D),
-                               [p.F_0, p.r_3, p.capstan_ratio, stepper.origin, stepper.dt, limit], at]).astype(np.float64)
+                               [p.F_0, p.r_3, p.capstan_ratio, p.belt_mass, p.r_2 * p.gear_ratio, stepper.origin,
+                                stepper.dt, limit], at]).astype(np.float64)
         self.dt, self.origin = stepper.dt, stepper.origin
         self.step_ns = grid_step_ns(self.dt, stepper.origin)
         arrays = PackedArrays((LINEAR_FLOATS, LINEAR_INTS),
