@@ -159,3 +159,20 @@ def test_outputs_of_one_sample_equal_the_run_outputs_bit_for_bit(truck):
         one = m.outputs(truck.states[k], truck.inputs[k], modes[k], sigmas[k])
         for name, values in full.items():
             assert np.asarray(one[name]).tobytes() == np.asarray(values[k]).tobytes(), (name, k)
+
+
+@pytest.mark.parametrize("belt_mass", [0.0, 0.05])
+def test_a_slipping_run_past_the_speed_limit_is_refused_as_the_linear_models_are(belt_mass):
+    """A drive torque no belt can hold: the motor runs away while the belt slips. Past 1e5 rad/s the run is refused
+    with the divergence error the rigid and flexible models raise, whichever slip phase steps it (massless: the
+    state [y, Q] of 6 entries, omega_M its third; with belt mass: y alone)."""
+    from belt_drive_ros.core.errors import SimulationDivergedError
+    from belt_drive_ros.core.sources import Constant
+
+    paper = load_scene("paper")
+    scene = paper.with_overrides(model="slipping", duration=3.0, drive=Constant(1.0e4), load=Constant(0.0),
+                                 params=paper.params.replace(belt_mass=belt_mass))  # fmt: skip
+    with pytest.raises(SimulationDivergedError, match=r"model slipping.*beyond 100000 rad/s"):
+        simulate(scene)
+    short = simulate(scene.with_overrides(duration=0.1))  # before the limit: a run, its speeds within it
+    assert short.model == "slipping" and 1.0e3 < np.abs(short.states[:, 2]).max() <= 1.0e5

@@ -160,7 +160,8 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
     ----------
     times : (N+1,) step ends [s]; x : (n,) state at ``times[0]``; out : (N, n).
     lo, hi : torque times are clamped into [lo, hi] (-inf, inf: no clamp) [s].
-    limit : speed [rad/s] beyond which the state counts as diverged (second half of x holds speeds).
+    limit : speed [rad/s] beyond which the state counts as diverged (its speeds: the second half of x, or x[2:] of a
+        slipping belt's phase; stepper.speed_columns).
     W : (1, 2P, n) the wheel map: wheel p's angle and speed are rows 2p, 2p + 1 of ``W x``.
     kinds : (s,) per stage: 0 the stage state is x; 1 only its wheel coordinates
         (``S[i]`` holds ``W @ stages[i]``); 2 the whole stage state (``S[i]`` holds ``stages[i]``, then W).
@@ -189,7 +190,7 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
     s = kinds.size
     P = start.size
     m = P + extra.shape[0]
-    half = n // 2
+    fast = n // 2 if n <= 4 else 2  # the entries from here on held to the limit (stepper.speed_columns)
     cols = n + m * s
     rows = 2 * P
     # each its own allocation: numba could not prune the reference counts of two views of one array in a helper
@@ -279,7 +280,7 @@ def wheel_steps(times, x, out, lo, hi, limit, W, kinds, offsets, S, F, final_bas
         for r in range(n):
             xs[r] = state[r]
             out[k, r] = state[r]
-            if r < half:
+            if r < fast:
                 if xs[r] - xs[r] != 0.0:
                     healthy = False
             elif not abs(xs[r]) <= limit:
@@ -709,7 +710,7 @@ def _state_loop(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, o
         y0, y1 = _final(F, 0, 1, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
         x0, x1 = y0, y1
         out[k, 0], out[k, 1] = y0, y1
-        if wide:  # the general loop's test: the first n // 2 finite, the rest within the limit
+        if wide:  # the general loop's test: x0, x1 finite, the rest (omega_M on) within the limit
             y2, y3 = _final(F, 2, 3, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
             # (n = 5: row 4 twice, no row 5 read)
             y4, y5 = _final(F, 4, n - 1, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
@@ -718,8 +719,9 @@ def _state_loop(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, o
             if n == 6:
                 x5 = y5
                 out[k, 5] = y5
-            if (x0 - x0 != 0.0 or x1 - x1 != 0.0 or not abs(x3) <= limit or not abs(x4) <= limit
-                    or not (x2 - x2 == 0.0 and abs(x5) <= limit if n == 6 else abs(x2) <= limit)):  # fmt: skip
+            # (n = 5: x5 stays 0.0)
+            if (x0 - x0 != 0.0 or x1 - x1 != 0.0 or not abs(x2) <= limit or not abs(x3) <= limit or not abs(x4) <= limit
+                    or not abs(x5) <= limit):  # fmt: skip
                 return k + 1, DIVERGED, t
         elif n == 4:
             y2, y3 = _final(F, 2, 3, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)

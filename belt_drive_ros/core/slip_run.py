@@ -389,7 +389,7 @@ class SlippingSimulator:
             if status == 0:
                 break
             if status == DIVERGED:
-                raise self.stepper.diverged_error(float(knots[k1]), out_native[k1 - 1, :n])
+                raise self.stepper.diverged_error(float(knots[k1]), out_native[k1 - 1, :n], "slipping")
             if status == NOT_CONVERGED:
                 self.stepper._not_converged(float(knots[k1]))
             if status == kh.CHATTER:
@@ -515,7 +515,7 @@ class SlippingSimulator:
 
     def _check(self, t, y) -> None:
         if not (np.all(np.isfinite(y)) and max(abs(y[2]), abs(y[3])) <= SPEED_LIMIT):
-            raise self.stepper.diverged_error(t, y)
+            raise self.stepper.diverged_error(t, y, "slipping")
 
     def run(self, duration, y0, t0=0.0, progress=None):
         """Integrate ``duration`` [s] from the slipping state ``y0``; returns (time, states, mode, sigma) (the

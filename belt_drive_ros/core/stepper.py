@@ -5,8 +5,9 @@ compiled tick does not serve it) goes through :class:`Stepper`: it plans the ste
 or clamped at torque breakpoints) and hands them to the one compiled time loop
 (:func:`~belt_drive_ros.core.kernel.linear_steps`), which steps, clamps the torque times, checks divergence and the
 guard. :meth:`Stepper.advance` gives the state at ``t1``, :meth:`Stepper.run` every knot from ``t0`` to ``t1``.
-States are 1-D float arrays in the model's own ordering; the **second half of the state holds speeds** [rad/s] (the
-divergence check reads them). Torques [N m], times [s].
+States are 1-D float arrays in the model's own ordering; the **second half of the state holds speeds** [rad/s] (a
+slipping belt's phase state: its entries 2 and 3, then the slip and its force; :func:`speed_columns`, the entries the
+divergence check holds to the limit). Torques [N m], times [s].
 
 The plan
 --------
@@ -50,6 +51,15 @@ from .step_plan import StepPlanner, step_arrays
 
 #: Speeds beyond this [rad/s] (~955,000 rpm) mean the numerics, not the physics, blew up.
 SPEED_LIMIT = 1.0e5
+
+
+def speed_columns(n: int) -> slice:
+    """The entries of an ``n``-state vector held to :data:`SPEED_LIMIT` (the rest only finite): the speeds [rad/s],
+    the second half of a linear model's ``[angles, speeds]`` (n = 2, 4); of a slipping belt's phase state
+    ``[phi_M, theta_e, omega_M, omega_3, s]`` (n = 5; with the friction force ``Q`` [N], n = 6) everything from
+    ``omega_M`` on: the speeds, and a slip distance [m] or belt force [N] that no sound run brings near 1e5 either
+    (a phase whose step is unstable shows there first). The compiled loops test the same entries."""
+    return slice(n // 2, n) if n <= 4 else slice(2, n)
 #: partial-step integrators kept per stepper (one per distinct length)
 PARTIAL_CACHE_SIZE = 4096
 #: split steps whose pieces' integrators are readied together (:meth:`Stepper._prepare_pieces`), or whose pieces
@@ -255,10 +265,10 @@ def _edges(a: float, e: float, cuts) -> list:
 
 
 def _healthy(x) -> bool:
-    """Finite state with every speed (second half) within :data:`SPEED_LIMIT`."""
+    """Finite state with every speed (:func:`speed_columns`) within :data:`SPEED_LIMIT`."""
     values = x.tolist() if isinstance(x, np.ndarray) else list(x)
     # the sum is finite only when every entry is (a NaN or an inf propagates; a finite overflow is beyond the limit)
-    return math.isfinite(sum(values)) and max(map(abs, values[len(values) // 2 :])) <= SPEED_LIMIT
+    return math.isfinite(sum(values)) and max(map(abs, values[speed_columns(len(values))])) <= SPEED_LIMIT
 
 
 class Stepper(StepPlanner):
@@ -351,7 +361,8 @@ class Stepper(StepPlanner):
             times, states = times[: j + 2], states[: j + 2]
         clean, self._clean = self._clean, False  # the grouped march's kernel checked every step and none failed
         if not (clean and _healthy(states[-1])):
-            bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, states.shape[1] // 2 :]) > SPEED_LIMIT, axis=1)
+            bad = ~np.all(np.isfinite(states), axis=1) | np.any(np.abs(states[:, speed_columns(states.shape[1])]) > SPEED_LIMIT,
+                                                                axis=1)  # fmt: skip
             if np.any(bad):
                 k = int(np.argmax(bad))
                 raise self.diverged_error(float(times[k]), states[k])
@@ -474,9 +485,8 @@ class Stepper(StepPlanner):
                 p += more
             ends = ends[: np.searchsorted(ends, stop) + 1]
         steps = out[ends]
-        half = x.size // 2
         # _healthy of each state (a finite state's sum is finite: its angles grow by at most SPEED_LIMIT dt a step)
-        bad = ~np.isfinite(steps).all(axis=1) | (np.abs(steps[:, half:]) > SPEED_LIMIT).any(axis=1)
+        bad = ~np.isfinite(steps).all(axis=1) | (np.abs(steps[:, speed_columns(x.size)]) > SPEED_LIMIT).any(axis=1)
         count = int(np.argmax(bad)) + 1 if bad.any() else len(ends)
         if states is not None:
             states[c - first + 1 : c - first + 1 + count] = steps[:count]
@@ -694,15 +704,16 @@ class Stepper(StepPlanner):
             self._clean = True
         return states, grid
 
-    def diverged_error(self, t: float, x: np.ndarray) -> SimulationDivergedError:
-        """The error a run raises when state ``x`` at ``t`` [s] is non-finite or too fast (one message for every caller).
+    def diverged_error(self, t: float, x: np.ndarray, model: str | None = None) -> SimulationDivergedError:
+        """The error a run raises when state ``x`` at ``t`` [s] is non-finite or too fast (one message for every caller;
+        ``model``: the model named, else the plant's: the slipping engine names its own).
         Its advice: another method where the method's step can be the cause; with an exponential method (exact on the
         linear part at any step) the torques and parameters first."""
         exponential = self.method in ("exact", "etd2", "etd4", "lawson5")
         advice = "check the torques and parameters, or reduce dt" if exponential else \
             "reduce dt or use method 'exact' or 'etd2'"
         return SimulationDivergedError(
-            f"simulation diverged at t={t:.6g} s (model {self.plant.model.name}, method {self.method}, dt={self.dt:g} s): "
+            f"simulation diverged at t={t:.6g} s (model {model or self.plant.model.name}, method {self.method}, dt={self.dt:g} s): "
             f"state {np.array2string(np.asarray(x), precision=4)} is non-finite or beyond {SPEED_LIMIT:g} rad/s; "
             f"{advice}"
         )
