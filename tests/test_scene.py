@@ -291,6 +291,9 @@ def test_numpy_scalars_are_numbers_in_scenes_and_initial_states(value):
     ({"": 1.0}, "method_options.: not an option of RK45"),
     ({"max_step": -1.0}, "method_options.max_step: must be a number > 0, got float -1.0"),
     ({"rtol": math.nan}, "method_options.rtol: must be a number > 0, got float nan"),
+    # paper's 5 s at a max_step of 1e-7 s: 5e7 steps of scipy's Python solver, hours (before: a run that seemed to hang)
+    ({"max_step": 1e-7}, "method_options.max_step: 1e-07 s forces RK45 to at least 5e\\+07 steps over 5 s, more than "
+                         "1e\\+07 \\(its solver steps in Python"),
 ])
 def test_unknown_or_bad_scipy_options_are_one_scene_error(options, message):
     """Options a scipy method does not take, or takes only > 0: one SceneError naming the option when the
@@ -298,6 +301,12 @@ def test_unknown_or_bad_scipy_options_are_one_scene_error(options, message):
     or scipy's own ValueError for max_step, at the first run: an internal error, exit 1, on the command line)."""
     with pytest.raises(SceneError, match=message):
         load_scene("paper").with_overrides(method="RK45", method_options=options)
+
+
+def test_a_max_step_within_the_adaptive_limit_and_fixed_step_runs_are_not_refused():
+    scene = load_scene("paper").with_overrides(method="RK45", method_options={"max_step": 5.0 / 1e7})  # 1e7 steps
+    assert scene.method_options["max_step"] == 5e-7
+    assert load_scene("paper").with_overrides(dt=1e-7).dt == 1e-7  # a fixed step of 5e7 steps: the compiled loop's
 
 
 @pytest.mark.parametrize("scene, progress, message", [

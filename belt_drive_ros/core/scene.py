@@ -42,6 +42,9 @@ TOLERANCE_DEFAULT = 1e-4
 AUTO_METHOD = "auto"
 #: most steps one run may take (duration / dt): ~1e9 steps is hours of computation already
 MAX_STEPS = 1.0e9
+#: most steps a scipy (adaptive) method's ``max_step`` may force (duration / max_step): its steps run in Python,
+#: ~10-50 us each, so 1e7 is minutes to hours
+ADAPTIVE_MAX_STEPS = 1.0e7
 
 
 def _finite(v) -> float | None:
@@ -161,6 +164,13 @@ class Scene:
             raise SceneError(f"{exc} (or {AUTO_METHOD!r}: chosen by accuracy)") from None
         if self.dt > self.duration:
             raise SceneError(f"dt: must not exceed duration ({self.duration} s), got {self.dt}")
+        max_step = _finite(self.method_options.get("max_step")) if self.method != AUTO_METHOD else None
+        if max_step and not method_class(self.method).fixed_step and self.duration / max_step > ADAPTIVE_MAX_STEPS:
+            raise SceneError(
+                f"method_options.max_step: {max_step:g} s forces {self.method} to at least {self.duration / max_step:.3g} "
+                f"steps over {self.duration:g} s, more than {ADAPTIVE_MAX_STEPS:.0e} (its solver steps in Python, ~10-50 us "
+                "a step); raise max_step or use a fixed-step method"
+            )
 
     # ------------------------------------------------------------ mapping
     @classmethod
