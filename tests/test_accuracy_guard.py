@@ -228,3 +228,18 @@ def test_smooth_starts_are_rated_by_their_own_steps(name, kind):
     measured = _measured(scene, scene.method, scene.dt, kind)
     assert unit.linear_error > 5.0 * weighted.linear_error  # 4.5e-5 -> 2.3e-6, 1.3e-4 -> 1e-5
     assert weighted.accurate and weighted.error >= 0.5 * measured, (weighted.describe(), measured)
+
+
+def test_an_estimate_that_comes_out_nan_is_no_verdict_of_accurate(monkeypatch):
+    """The forcing windows' Richardson estimate NaN (an output that came out inf - inf): the error is unknown, so the
+    report says inf and not accurate (before: max(linear, nan, harmonic) dropped it and the run read accurate)."""
+    import math
+
+    from belt_drive_ros.core import accuracy
+
+    scene = _constant_torques()
+    ok = _report(scene, "etd2", 1e-3, suggest=False)
+    assert ok.ok and math.isfinite(ok.error)
+    monkeypatch.setattr(accuracy, "forcing_error", lambda *a, **k: math.nan)
+    report = _report(scene, "etd2", 1e-3, suggest=False)
+    assert report.stable and not report.ok and report.error == math.inf and math.isnan(report.forcing_error)

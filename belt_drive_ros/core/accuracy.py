@@ -164,7 +164,9 @@ def check_accuracy(
                                                     probes.peaks[: rows.shape[0]]))  # fmt: skip
     stable, linear, growth, exact_growth, h_omega, slopes = worst
     forcing = forcing_error(plant, method, dt, probes, method_options, stepper, head) if stable else math.nan
-    error = max(linear, forcing, harmonic) if stable else linear
+    # a NaN term (an estimate that failed to come out) is no verdict of accurate: the error is then unknown, inf
+    error = (math.inf if any(v != v for v in (linear, forcing, harmonic)) else max(linear, forcing, harmonic)) \
+        if stable else linear
     worst = AccuracyReport(cls.name, dt, stable, error <= tolerance, error, tolerance, growth, exact_growth, h_omega,
                            slopes, linear_error=linear, forcing_error=forcing,
                            harmonic_error=harmonic if stable else math.nan)  # fmt: skip
