@@ -49,7 +49,7 @@ def test_windows_put_together_are_the_whole_run(name, model):
         summary.add(w)
     assert summary.samples == len(whole.time)
     assert summary.final["omega_M"] == outputs["omega_M"][-1]
-    assert summary.peak_deflection == np.max(whole.outputs["relative_deflection"])
+    assert summary.peak_deflection == np.max(np.abs(whole.outputs["relative_deflection"]))
     assert summary.onsets == sum(1 for e in whole.events if e[0] == "onset")
 
 
@@ -245,3 +245,15 @@ def test_step_count_limit(capsys):
     code = main(["sim", "paper", "--duration", "1e6", "--dt", "1e-4", "--quiet"])
     err = capsys.readouterr().err
     assert code == 2 and "steps, more than" in err and err.count("\n") == 1
+
+
+def test_the_summarys_peak_deflection_is_the_largest_magnitude_for_a_reverse_driven_belt():
+    """A drive turning backwards deflects the belt negatively throughout: the summary's peak is the largest
+    |relative deflection| (before: the signed max, 0 at the start, printed as "peak 0 rad")."""
+    from belt_drive_ros.core.sources import Constant
+
+    whole = simulate(load_scene("paper").with_overrides(duration=0.5, drive=Constant(-5.0)))
+    deflection = whole.outputs["relative_deflection"]
+    assert deflection.max() <= 0.0 < -deflection.min()
+    summary = RunSummary().add(whole)
+    assert summary.peak_deflection == -deflection.min()

@@ -210,7 +210,7 @@ class RunSummary:
     """What the run's summary needs, accumulated window by window (or from one whole run).
 
     ``final`` holds each output's last value; ``peak_deflection`` the largest
-    relative deflection [rad]; ``slip_samples``/``samples`` the fraction of
+    |relative deflection| [rad] (a reverse-driven belt's too); ``slip_samples``/``samples`` the fraction of
     samples the belt slips (or slackens); ``onsets`` the slip phases;
     ``peak_slip_speed`` the largest |slip speed| [m/s].
     """
@@ -229,7 +229,7 @@ class RunSummary:
     samples: int = 0
     slip_samples: float = 0.0
     onsets: int = 0
-    peak_deflection: float = -math.inf
+    peak_deflection: float = 0.0
     peak_slip_speed: float = 0.0
     final: dict = field(default_factory=dict)
 
@@ -247,7 +247,7 @@ class RunSummary:
         self.samples += len(window.time)
         self.slip_samples += float(np.sum(o["slip"]))
         self.onsets += sum(1 for e in window.events if e[0] == "onset")
-        self.peak_deflection = max(self.peak_deflection, float(np.max(o["relative_deflection"])))
+        self.peak_deflection = max(self.peak_deflection, float(np.max(np.abs(o["relative_deflection"]))))
         if "slip_speed" in o:
             self.peak_slip_speed = max(self.peak_slip_speed, float(np.max(np.abs(o["slip_speed"]))))
         self.final = {name: float(np.asarray(values)[-1]) for name, values in o.items()}
