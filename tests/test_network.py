@@ -567,6 +567,17 @@ def test_the_accuracy_guard_estimates_the_error_and_names_a_step():
     assert 0.3 * true <= est <= 3.0 * true  # Richardson's estimate within a factor 3 of the true error
 
 
+@pytest.mark.parametrize("steps", [1, 2, 3])
+def test_a_run_of_fewer_than_four_steps_is_checked_too(steps):
+    """One to three steps (dt a large part of the duration): step doubling at 2 dt has nothing to compare, so the
+    guard compares with dt / 2; such a run is far off and says so (before: no verdict at all, the run unchecked)."""
+    scene = load_network("paper_network")
+    run = simulate(scene, duration=0.5, dt=0.5 / steps, method="etd2", model="flexible")
+    assert run.accuracy.startswith("INACCURATE") and "dt <= " in run.accuracy
+    fine = simulate(scene, duration=0.5, dt=1e-3, method="etd2", model="flexible")
+    assert fine.accuracy.startswith("accurate")
+
+
 def test_auto_names_the_pulley(monkeypatch):
     import belt_drive_ros.core.network.simulate as network
 

@@ -207,20 +207,28 @@ def _run(model, tier, method, dt, steps, tensions_only=False):
 
 
 def accuracy(model, tier, method, dt, steps, run) -> str:
-    """Step doubling: the run against the same run at 2 dt (at dt / 2 where 2 dt is unstable); Richardson's
-    estimate of the run's error on the span tensions, ``|T_h - T_2h| / (2^p - 1)`` (p the method's order)."""
+    """Step doubling: the run against the same run at 2 dt (at dt / 2 where 2 dt is unstable, or where the run has
+    fewer than 4 steps: a run of one or two steps at 2 dt says nothing); Richardson's estimate of the run's error on
+    the span tensions, ``|T_h - T_2h| / (2^p - 1)`` (p the method's order)."""
     from ..integrators import method_class
 
     order = method_class(method).order
-    if not order or steps < 4:
+    if not order or steps < 1:
         return ""
     T0 = model.scene.belt.installed_tension
-    try:
-        coarse = _run(model, tier, method, 2.0 * dt, steps // 2, tensions_only=True)
-        err = float(np.max(np.abs(run.tension[: 2 * (steps // 2) + 1 : 2] - coarse))) / (2**order - 1)
-    except UnstableStepError:
+
+    def halved() -> float:
         fine = _run(model, tier, method, 0.5 * dt, 2 * steps, tensions_only=True)
-        err = float(np.max(np.abs(run.tension - fine[::2]))) * 2**order / (2**order - 1)
+        return float(np.max(np.abs(run.tension - fine[::2]))) * 2**order / (2**order - 1)
+
+    if steps < 4:
+        err = halved()
+    else:
+        try:
+            coarse = _run(model, tier, method, 2.0 * dt, steps // 2, tensions_only=True)
+            err = float(np.max(np.abs(run.tension[: 2 * (steps // 2) + 1 : 2] - coarse))) / (2**order - 1)
+        except UnstableStepError:
+            err = halved()
     scale = max(float(np.max(np.abs(run.tension - T0))), 1e-9 * T0)
     verdict = "accurate" if err <= ACCURACY * scale else "INACCURATE"
     text = f"{verdict}: estimated span tension error {err:.3g} N ({err / scale:.2g} of the peak change, step doubling)"
