@@ -283,3 +283,21 @@ def test_harmonic_series_values(harmonics):
     np.testing.assert_allclose(comp.torque(0.0, angle, 40.0), c_ref, rtol=0.0, atol=1e-10)
     # the compiled scalar call gives the array call's floats
     assert engine.torque(0.0, float(angle[777]), 0.0) == engine.torque(0.0, angle, 0.0)[777]
+
+
+@pytest.mark.parametrize("kind", ["engine", "compressor"])
+@pytest.mark.parametrize("value, message", [
+    (300, r"\.harmonics: expected a list of amplitudes \[N m\], got int 300"),
+    ({"a": 1}, r"\.harmonics: expected a list of amplitudes \[N m\], got dict"),
+    ("300", r"\.harmonics: must be a number \(or numbers\), got '300'"),
+    ([[1.0, 2.0]], r"\.harmonics\[0\]: must be a number, got tuple \(1.0, 2.0\)"),
+    ([1.0, "x"], r"\.harmonics: must be a number \(or numbers\), got \[1.0, 'x'\]"),
+    ([1.0, True], r"\.harmonics\[1\]: must be a number, got bool"),
+    ([1.0, math.inf], r"\.harmonics: harmonic amplitudes must be finite"),
+])  # fmt: skip
+def test_harmonics_of_the_wrong_shape_are_named_in_one_line(kind, value, message):
+    """Not a list of numbers: the message names the key (and the entry), not Python's own words ("'int' object is
+    not iterable", "float() argument must be ... not 'tuple'")."""
+    with pytest.raises(SceneError, match=message):
+        make_profile({"type": kind, "harmonics": value})
+    assert make_profile({"type": kind, "harmonics": np.array([3.0, 1.0])}).harmonics == (3.0, 1.0)

@@ -358,10 +358,15 @@ class _Pulsating(TorqueProfile):
     faded in over ``ramp_time`` [s] (a breakpoint)."""
 
     def _check_harmonics(self) -> None:
-        values = tuple(float(v) for v in (self.harmonics or ()))
+        h = () if self.harmonics is None else self.harmonics
+        if not isinstance(h, (list, tuple, np.ndarray)) or getattr(h, "ndim", 1) != 1:
+            raise SceneError(f"{self.kind}.harmonics: expected a list of amplitudes [N m], got {type(h).__name__} {short(h)}")
+        values = []
+        for j, v in enumerate(h):
+            values.append(float(plain_number(v, lambda what, j=j: SceneError(f"{self.kind}.harmonics[{j}]: {what}"))))
         if not all(math.isfinite(v) for v in values):
             raise SceneError(f"{self.kind}.harmonics: harmonic amplitudes must be finite")
-        object.__setattr__(self, "harmonics", values)
+        object.__setattr__(self, "harmonics", tuple(values))
 
     def _harmonic_table(self, builder: D.ProfileBuilder) -> tuple[int, int]:
         """The amplitudes [N m] as a table (offset, count) for the kernel."""
@@ -386,7 +391,7 @@ class Engine(_Pulsating):
     ``theta = crank_ratio angle``, ``n_f = 2 cylinders / strokes`` firing pulses per crank revolution; ``harmonics``
     A_k the firing-order components of the gas + inertia torque. ``base`` is ``mean_torque``, or with
     ``speed_setpoint`` [rad/s of wheel M] the droop governor ``clip(mean_torque + governor_gain (speed_setpoint -
-    speed), 0, max_torque)`` [N m, N m s/rad]; ``ramp_time`` [s] fades pulsations and governor in from 0 (start-up)."""
+    speed), 0, max_torque)`` [N m, N m s/rad]; ``ramp_time`` [s] fades the whole torque (mean or governor, and pulsations) in from 0 (start-up)."""
 
     kind: ClassVar[str] = "engine"
     mean_torque: float = 20.0
