@@ -91,6 +91,26 @@ def test_a_long_stretch_without_torque_messages_is_named_by_both_reads(tmp_path,
     assert whole in capsys.readouterr().out
 
 
+def test_a_run_longer_than_the_torque_bag_says_so(tmp_path, capsys):
+    """--duration past the bag's last message: the drive holds the last torque to the end, and the run says so in
+    one line (both reads alike); a run that ends within the recording (its own length, the default) says nothing."""
+    from belt_drive_ros.cli import main
+    from belt_drive_ros.io.torque_bag import paged_torque_bag, tail_note
+
+    bag = _torque_bag(tmp_path / "short.mcap", np.arange(1001) * 1_000_000, 2.0 + np.arange(1001) % 5)  # 1 s at 1 kHz
+    scene = load_scene("paper")
+    whole = tail_note(scene_with_torque_bag(scene, bag).drive, 3.0)
+    paged = paged_torque_bag(scene, bag)
+    assert paged is not None and tail_note(paged.drive, 3.0) == whole
+    assert whole == ("note: short.mcap's last torque message is at 1 s and the run lasts 3 s: the drive holds that "
+                     "torque for the last 2 s")
+    assert tail_note(paged.drive, 1.0) == tail_note(paged.drive, 1.0005) == ""  # within one spacing of the end
+    assert main(["sim", "paper", "--torque-bag", str(bag), "--duration", "3", "--out", str(tmp_path / "long.csv")]) == 0
+    assert whole in capsys.readouterr().out
+    assert main(["sim", "paper", "--torque-bag", str(bag), "--out", str(tmp_path / "own.csv")]) == 0
+    assert "last torque message" not in capsys.readouterr().out
+
+
 def test_sim_torque_bag_is_deterministic_and_needs_no_ros(tmp_path):
     """`belt-drive sim SCENE --torque-bag BAG --out X.mcap` twice: identical files, rclpy never imported."""
     rng = np.random.default_rng(0)

@@ -157,6 +157,12 @@ def run(args) -> int:
             print(silence)
     scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration,
                                  tolerance=getattr(args, "tolerance", None))  # fmt: skip
+    if args.torque_bag is not None and not is_recording(args.scene):
+        from ..io.torque_bag import tail_note
+
+        tail = tail_note(scene.drive, scene.duration)
+        if tail:
+            print(tail)
     out_format = check_outputs(args, run_inputs(args, scene))
     if out_format != "mcap" or not args.bag_folder:
         return _run(scene, args, out_format)

@@ -352,6 +352,7 @@ class PagedTorque(TorqueProfile):
         self._chunked, self.start_ns, self.samples = chunked, int(start_ns), int(samples)
         self._changes, self._min_gap = bool(changes), float(min_gap)
         self.longest_silence = (0.0, 0.0)  # (length, start) [s] of the longest stretch without a message
+        self.last_time: Optional[float] = None  # [s] of the last message after the first (the opening pass's)
         self._bag, self.source, self.topic, self.sha256 = bag, source, topic, sha256
         # per thread (a run's guard reads pages beside its windows): ``last`` (t0, t1, page) of the last page
         # read, ``cache`` {chunk index: (log times, values)}, least recently used first
@@ -563,7 +564,7 @@ def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Option
         chunked.close()
         return None
     drive.samples, drive._changes, drive._min_gap = samples, changes, gap
-    drive.longest_silence = silence
+    drive.longest_silence, drive.last_time = silence, last_t
     end_s = last_t
     if duration is None:
         duration = end_s if samples > 1 else scene.duration
@@ -597,6 +598,24 @@ def silence_note(drive) -> str:
     if length > SILENCE_NOTE_S and length > SILENCE_NOTE_SPACINGS * spacing:
         return (f"note: {drive.source} has no torque message for {length:.6g} s (from {start:.6g} s after its first "
                 "message): the drive holds the last torque through it")
+    return ""
+
+
+def tail_note(drive, duration: float) -> str:
+    """A line when a run of ``duration`` [s] goes on past the last torque message of a recorded ``drive``
+    (:class:`RecordedTorque` or :class:`PagedTorque`) by more than the recording's shortest spacing: the drive
+    holds that last torque to the end, which a ``--duration`` longer than the bag makes easy to miss; '' otherwise."""
+    if isinstance(drive, PagedTorque) and drive.last_time is not None:
+        last, spacing = drive.last_time, drive._min_gap
+    elif isinstance(drive, RecordedTorque) and len(drive.times):
+        last = float(drive.times[-1])
+        spacing = float(np.min(np.diff(drive.times))) if len(drive.times) > 1 else math.inf
+    else:
+        return ""
+    tail = duration - last
+    if tail > 0.0 and tail > min(spacing, SILENCE_NOTE_S):
+        return (f"note: {drive.source}'s last torque message is at {last:.6g} s and the run lasts {duration:.6g} s: the "
+                f"drive holds that torque for the last {tail:.6g} s")
     return ""
 
 
