@@ -407,3 +407,16 @@ def test_every_profile_kind_steps_alike_in_the_scalar_state_loops_and_the_genera
         done_slow = _general_loop(loop, times, x0.copy(), slow)
         assert done_fast == done_slow and done_fast[0] > 10  # a polynomial drive runs away: both stop alike
         assert np.array_equal(fast, slow)
+
+
+def test_a_guard_on_a_trapezoidal_stage_that_cannot_converge_says_so_not_unstable():
+    """trapezoidal is A-stable: where its guard's maps fail (max_iter 2 sweeps cannot reach tol), the verdict is the
+    iteration's, with what to change (before: "UNSTABLE ... growth/step inf"). The same scene at the default 50 sweeps
+    then passes in the same process (the guard's verdict cache had no key for the options: it gave 50 the verdict of 2)."""
+    from belt_drive_ros.core.errors import UnstableStepError
+
+    scene = load_scene("paper").with_overrides(duration=0.5, method="trapezoidal", method_options={"max_iter": 2})
+    with pytest.raises(UnstableStepError, match=r"trapezoidal at dt=0\.005 s on the closed loop: NOT CONVERGED \(the "
+                       r"implicit stage's fixed-point iteration .* raise max_iter, loosen tol or reduce dt; estimated"):
+        simulate(scene)
+    assert simulate(scene.with_overrides(method_options={"max_iter": 50})).accuracy.stable

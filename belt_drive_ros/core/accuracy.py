@@ -102,9 +102,15 @@ class AccuracyReport:
     def describe(self) -> str:
         """One line for logs and errors."""
         state = "UNSTABLE" if not self.stable else ("accurate" if self.accurate else "INACCURATE")
+        if not self.stable and self.growth == math.inf and not getattr(method_class(self.method), "explicit", True):
+            # an implicit method's maps are inf only where its stage's iteration failed (_maps_of): not instability
+            state = ("NOT CONVERGED (the implicit stage's fixed-point iteration for the state-dependent torque does not "
+                     "converge at this step: raise max_iter, loosen tol or reduce dt; ")
+        else:
+            state += " ("
         where = f" ({self.mode} mode)" if self.mode else ""
         line = (
-            f"{self.method} at dt={self.dt:.4g} s on the closed loop{where}: {state} (estimated error {self.error:.2g} "
+            f"{self.method} at dt={self.dt:.4g} s on the closed loop{where}: {state}estimated error {self.error:.2g} "
             f"of the peak, tolerance {self.tolerance:.2g}; growth/step {self.growth:.6g} vs exact "
             f"{self.exact_growth:.6g}; belt mode and slopes {self.linear_error:.2g}, forcing {self.forcing_error:.2g}; "
             + (f"harmonics over the run {self.harmonic_error:.2g}; " if not math.isnan(self.harmonic_error) else "")

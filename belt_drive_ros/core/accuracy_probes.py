@@ -614,7 +614,9 @@ def linear_verdicts(integrator, A, B, rows, Ks, n_steps: int) -> list:
     non-finite orbit among them: each gain's alone, as :func:`step_response_error` does)."""
     dt = integrator.dt
     common = (integrator.name, dt, A.tobytes(), B.tobytes(), rows.tobytes())
-    options = repr(sorted(getattr(integrator, "options", {}).items()))
+    # a fixed-step method's options are its implicit stage's (tol, max_iter): they change the map where it converges
+    # and whether it does (a key without them gave a max_iter of 50 the verdict made at 2)
+    options = repr(integrator.scheme.implicit)
     keys = [(*common, K.tobytes(), n_steps, options) for K in Ks]
     found, todo = {}, {}  # key -> its verdict; key -> its first gain not cached
     for key, K in zip(keys, Ks):
