@@ -325,3 +325,28 @@ def test_no_traceback_from_the_console_scripts(bag, tmp_path):
         lines = proc.stderr.strip().splitlines()
         assert proc.returncode == 2, (cmd, proc.stderr)
         assert len(lines) == 1 and "Traceback" not in proc.stderr and "error:" in lines[0], proc.stderr
+
+
+@pytest.mark.parametrize("dt, rate, note", [
+    (0.005, 150.0, True),    # 200 Hz steps: 150 Hz is no whole number of steps -> every step, said
+    (0.005, 100.0, False),   # every second step
+    (0.005, 200.0, False),   # every step
+    (0.005, 1000.0, False),  # above the step rate: every step by design
+    (5e-4, 333.0, True),
+])  # fmt: skip
+def test_an_output_rate_that_is_no_whole_number_of_steps_is_said(dt, rate, note, tmp_path, capsys):
+    """The message rate falls back to every step where the step rate divided by a whole number is not it: `sim`
+    says so in one line when it writes an MCAP (before: the file's topics at 200 Hz, nothing said)."""
+    from belt_drive_ros.io.recording import output_rate_note
+
+    line = output_rate_note(dt, rate)
+    assert bool(line) == note
+    if note:
+        assert line == (f"note: output_rate {rate:g} Hz is not the step rate {1 / dt:g} Hz divided by a whole number: "
+                        f"the recording has a message at every step ({1 / dt:g} Hz)")
+        scene = tmp_path / "s.yaml"
+        data = load_scene("paper").to_dict()
+        data.update(duration=0.2, dt=dt, output_rate=rate)
+        scene.write_text(yaml.safe_dump(data))
+        assert belt_drive(["sim", str(scene), "--quiet", "--out", str(tmp_path / "s.mcap")]) == 0
+        assert line in capsys.readouterr().out

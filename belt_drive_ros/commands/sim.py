@@ -164,6 +164,12 @@ def run(args) -> int:
         if tail:
             print(tail)
     out_format = check_outputs(args, run_inputs(args, scene))
+    if out_format == "mcap":
+        from ..io.recording import output_rate_note
+
+        note = output_rate_note(scene.dt, scene.output_rate)
+        if note:
+            print(note)
     if out_format != "mcap" or not args.bag_folder:
         return _run(scene, args, out_format)
     from ..io import holds_bag

@@ -118,10 +118,25 @@ def _output_stride(result, output_rate: Optional[float]) -> int:
     rate = float(output_rate or result.scene.output_rate)
     if not rate > 0 or not math.isfinite(rate):
         raise ValueError(f"output_rate must be a finite number > 0 Hz, got {output_rate!r}")
-    stride = int(round(1.0 / (rate * result.dt)))
-    if stride < 1 or abs(stride * result.dt * rate - 1.0) > 1e-9:
+    return _stride(result.dt, rate)
+
+
+def _stride(dt: float, rate: float) -> int:
+    """Steps of ``dt`` [s] per message at ``rate`` [Hz]: a whole number, else 1 (a message at every step)."""
+    stride = int(round(1.0 / (rate * dt)))
+    if stride < 1 or abs(stride * dt * rate - 1.0) > 1e-9:
         return 1
     return stride
+
+
+def output_rate_note(dt: float, rate: float) -> str:
+    """A line when the message rate ``rate`` [Hz] is below the step rate ``1 / dt`` but not that rate divided by a
+    whole number: the recording then has a message at every step, not at ``rate``; '' otherwise (a rate at or above
+    the step rate is every step by design: one message per step at most)."""
+    if not (rate > 0 and math.isfinite(rate)) or rate * dt >= 1.0 - 1e-9 or _stride(dt, rate) > 1:
+        return ""
+    return (f"note: output_rate {rate:g} Hz is not the step rate {1.0 / dt:g} Hz divided by a whole number: the "
+            f"recording has a message at every step ({1.0 / dt:g} Hz)")
 
 
 def parse_start_time(text: str) -> Optional[int]:
