@@ -65,6 +65,30 @@ def test_bag_problems_are_one_line_errors(tmp_path):
         scene_with_torque_bag(load_scene("paper"), tmp_path / "nan.mcap")
 
 
+def test_a_torque_bag_cut_off_before_its_first_message_is_named_damaged(tmp_path):
+    """A file cut short before any torque message could be read: the error says the recording is damaged or
+    incomplete and where to look (before: "topic /drive_torque has no messages", as for an empty topic)."""
+    bag = _torque_bag(tmp_path / "whole.mcap", np.arange(3000) * 1_000_000, np.sin(np.arange(3000)))
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(bag.read_bytes()[:3000])  # inside the first chunk (its channel record with it)
+    with pytest.raises(BagReadError, match=r"cut\.mcap: damaged or incomplete recording \(.*\): no /drive_torque "
+                                           r"message could be read before the damage; 'msg-tools info .*cut\.mcap'"):
+        scene_with_torque_bag(load_scene("paper"), cut)
+    from belt_drive_ros.core.simulate import simulate
+    from belt_drive_ros.io.recording import write_result_mcap
+
+    run = tmp_path / "run.mcap"  # a run's recording: every channel up front, the cut before its first chunk ends
+    write_result_mcap(simulate(load_scene("paper").with_overrides(duration=1.0)), run)
+    cut.write_bytes(run.read_bytes()[:5000])
+    with pytest.raises(BagReadError, match=r"cut\.mcap: damaged or incomplete recording \(.*\): no /drive_torque "):
+        scene_with_torque_bag(load_scene("paper"), cut)
+    empty = tmp_path / "empty.mcap"
+    with Ros2McapWriter(empty, force=True) as w:  # a whole file whose topic has no message: as before
+        w.write("/other", "std_msgs/msg/Float64", {"data": 1.0}, 0)
+    with pytest.raises(BagReadError, match=r"no topic /drive_torque \(topics: /other\)"):
+        scene_with_torque_bag(load_scene("paper"), empty)
+
+
 def test_namespaced_drive_torque_is_found(tmp_path):
     bag = _torque_bag(tmp_path / "ns.mcap", [0, 10**6, 2 * 10**6], [1.0, 2.0, 3.0], topic="/truck/drive_torque")
     scene = scene_with_torque_bag(load_scene("paper"), bag)

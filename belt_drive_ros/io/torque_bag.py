@@ -171,6 +171,12 @@ class TorqueRecording:
         return int(np.median(np.diff(self.log_time_ns)))
 
 
+def _damaged(data_bag, name: str) -> BagReadError:
+    """The error of a recording cut off or damaged before any message of topic ``name`` could be read."""
+    return BagReadError(f"{data_bag.path}: damaged or incomplete recording ({data_bag.stop_reason}): no {name} message "
+                        f"could be read before the damage; 'msg-tools info {data_bag.path}' says what is missing")
+
+
 def load_torque_recording(bag, topic: str = DEFAULT_TOPIC, *, keep_payloads: bool = False,
                           warn=None) -> TorqueRecording:
     """Read the drive torque of ``bag``.
@@ -204,6 +210,8 @@ def load_torque_recording(bag, topic: str = DEFAULT_TOPIC, *, keep_payloads: boo
                 base = name.rsplit("/", 1)[-1]
                 candidates = [t for t in data_bag.available if t.endswith("/" + base)]
                 if len(candidates) != 1:
+                    if not data_bag.complete:  # cut off or damaged before the topic's channel: not a missing topic
+                        raise _damaged(data_bag, name)
                     listing = ", ".join(data_bag.available) or "none"
                     raise BagReadError(f"{data_bag.path}: no topic {name} (topics: {listing})")
                 name = candidates[0]
@@ -214,13 +222,13 @@ def load_torque_recording(bag, topic: str = DEFAULT_TOPIC, *, keep_payloads: boo
         except MsgToolsError as exc:
             raise bag_error(exc) from None
     path = data_bag.path
-    if name not in data_bag.topics:
+    if name not in data_bag.topics or len(data_bag.topics[name]) == 0:
+        if not data_bag.complete:  # cut off or damaged before any of its messages: not an empty topic
+            raise _damaged(data_bag, name)
         raise BagReadError(f"{path}: topic {name} has no messages")
     data = data_bag.topics[name]
     if data.type_name != FLOAT64:
         raise BagReadError(f"{path}: topic {name} has type {data.type_name}, expected {FLOAT64}")
-    if len(data) == 0:
-        raise BagReadError(f"{path}: topic {name} has no messages")
     values = np.asarray(data.data, dtype=float)
     if not np.all(np.isfinite(values)):
         bad = int(np.count_nonzero(~np.isfinite(values)))
