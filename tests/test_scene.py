@@ -337,6 +337,18 @@ def test_an_absurd_initial_speed_is_refused_by_name(name):
     assert getattr(InitialState(**{name: -SPEED_MAX}), name) == -SPEED_MAX
 
 
+@pytest.mark.parametrize("name", ["phi_M", "relative_deflection"])
+def test_an_initial_angle_no_double_resolves_is_refused_by_name(name):
+    """phi_M = 1e20 rad: the crank angle's harmonics read a double spaced 16 kilo-radians there, frozen (before: a
+    run with exit 0 whose firing pulsation was gone). One SceneError naming the field; the bound itself passes."""
+    from belt_drive_ros.core.scene import ANGLE_MAX
+
+    with pytest.raises(SceneError, match=f"initial_state.{name}: 1e\\+20 rad is outside the plausible range "
+                                         r"\[-1e\+09, 1e\+09\] rad \(beyond it a double cannot resolve"):
+        InitialState(**{name: 1e20})
+    assert getattr(InitialState(**{name: -ANGLE_MAX}), name) == -ANGLE_MAX
+
+
 def test_extends_is_read_by_io_and_the_core_builds_from_the_merged_mapping(tmp_path):
     """The core reads no file: ``extends: NAME`` is resolved by io.scenes (the shipped scene read there), the same
     scene whether it comes from a file or a mapping; the core's own from_mapping, given no reader, says so in one line

@@ -40,6 +40,9 @@ RANGES: dict[str, tuple[float, float, str]] = {
 TOLERANCE_DEFAULT = 1e-4
 #: the method name that lets the accuracy guard choose method and step (:mod:`belt_drive_ros.core.method_choice`)
 AUTO_METHOD = "auto"
+#: largest initial angle [rad]: a double resolves 1e9 rad to 1.2e-7 rad (1e20 rad to 16 kilo-radians: every
+#: harmonic of the crank angle frozen); a wheel at 1e4 rad/s needs a day to turn that far
+ANGLE_MAX = 1.0e9
 #: most steps one run may take (duration / dt): ~1e9 steps is hours of computation already
 MAX_STEPS = 1.0e9
 #: most steps a scipy (adaptive) method's ``max_step`` may force (duration / max_step): its steps run in Python,
@@ -90,6 +93,10 @@ class InitialState:
             if f.name in ("omega_M", "relative_speed") and abs(x) > SPEED_MAX:  # (beyond it every run diverges)
                 raise SceneError(f"initial_state.{f.name}: {x:g} rad/s is outside the plausible range "
                                  f"[-{SPEED_MAX:g}, {SPEED_MAX:g}] rad/s")
+            if f.name in ("phi_M", "relative_deflection") and abs(x) > ANGLE_MAX:
+                raise SceneError(f"initial_state.{f.name}: {x:g} rad is outside the plausible range "
+                                 f"[-{ANGLE_MAX:g}, {ANGLE_MAX:g}] rad (beyond it a double cannot resolve the angle a "
+                                 "torque's harmonics read)")
             object.__setattr__(self, f.name, x)
 
     def vector(self, model_name: str, ratio: float) -> np.ndarray:
