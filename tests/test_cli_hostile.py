@@ -67,7 +67,13 @@ def _cases(tmp):
                                                               "/proc/x.png"], "--plot /proc/x.png: cannot write into folder"),
         "sim --method-option =1": (["sim", "paper", "--quiet", "--duration", "0.01", "--method-option", "=1"],
                                    "--method-option expects KEY=VALUE, got '=1'"),
+        "sim --method-option max_iter=2.5": (["sim", "paper", "--quiet", "--duration", "0.01", "--method", "trapezoidal",
+                                              "--method-option", "max_iter=2.5"],
+                                             "--method-option 'max_iter': not a whole number: '2.5'"),
         "sim ''": (["sim", "", "--quiet"], "unknown scene ''"),
+        "sim nosuch": (["sim", "nosuch", "--quiet"], r"unknown scene 'nosuch': not a file and not a shipped scene "
+                       r"\(bsg_start, e_motor_start, paper, truck_compressor\); nor a shipped belt network "
+                       r"\(bsg_start_network, fead_i4, paper_network\)"),
         "scenes ''": (["scenes", ""], "unknown scene ''"),
         "modes ''": (["modes", ""], "unknown network scene ''"),
         "node --list-parameters ''": (["node", "--list-parameters", ""], "unknown scene ''"),
@@ -102,7 +108,8 @@ CASES = [
     "source --initial-speed 1e300", "network sim --method auto", "network sim --method ''", "record --out a folder",
     "record --out x.txt", "record --out in a missing folder", "record --out a folder named .mcap", "argparse: sim --dt x",
     "argparse: source without a kind", "argparse: unknown option", "sim --out in a folder nothing can be written to",
-    "sim --plot in a folder nothing can be written to", "sim --method-option =1", "sim ''", "scenes ''", "modes ''", "node --list-parameters ''",
+    "sim --plot in a folder nothing can be written to", "sim --method-option =1", "sim --method-option max_iter=2.5",
+    "sim ''", "sim nosuch", "scenes ''", "modes ''", "node --list-parameters ''",
     "node --name 'a b'", "source --name ''", "source --rate 0", "record --topics 'bad topic'", "demo --scene paper (a motor)",
     "record --ros-args --bogus", "source --ros-args -p", "bench node --scene nonexistent", "bench node -p garbage",
     "bench hostile --only nonexistent", "bench --out in /proc", "demo --out-dir in /proc", "replay --start-offset nan",

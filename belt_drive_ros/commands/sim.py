@@ -109,7 +109,8 @@ def _options(pairs):
         try:
             out[key] = float(value) if key not in ("max_iter",) else int(value)
         except ValueError:
-            raise IntegratorError(f"--method-option {short(key)}: not a number: {short(value)}") from None
+            what = "not a whole number" if key == "max_iter" else "not a number"
+            raise IntegratorError(f"--method-option {short(key)}: {what}: {short(value)}") from None
     return out
 
 
@@ -140,7 +141,15 @@ def run(args) -> int:
             from .network_sim import run_network
 
             return run_network(args)
-        scene = load_scene(args.scene)
+        from ..core.errors import SceneError
+        from ..io.scenes import shipped_networks
+
+        try:
+            scene = load_scene(args.scene)
+        except SceneError as exc:  # sim runs belt networks too: the names it takes, all of them
+            if str(exc).startswith("unknown scene"):
+                raise SceneError(f"{exc}; nor a shipped belt network ({', '.join(shipped_networks())})") from None
+            raise
     if args.method_option:
         scene = scene.with_overrides(method_options=_options(args.method_option))
     if args.torque_bag is not None and not is_recording(args.scene):  # (a recording's: read by _resimulation)
