@@ -373,7 +373,7 @@ def check_outputs(args, inputs=()) -> str | None:
     (:func:`belt_drive_ros.io.atomic.check_output`), and so is an output that would replace one of ``inputs``
     (:func:`belt_drive_ros.io.inputs.input_replaced`), --force or not.
     """
-    from ..io.atomic import OutputRefused, check_output
+    from ..io.atomic import OutputRefused, check_output, check_writable_folder
     from ..io.inputs import input_replaced
 
     for option, path in (("--out", args.out), ("--plot", args.plot)):
@@ -389,6 +389,8 @@ def check_outputs(args, inputs=()) -> str | None:
             parent = args.out.absolute().parent
             if not parent.is_dir():  # (as for a file: the bag's own folder is made, never its parents)
                 raise OutputRefused(f"--out {args.out}: folder {parent} does not exist")
+            if not args.out.is_dir():  # (the bag's own folder and its lock file are made there)
+                check_writable_folder(parent, f"--out {args.out}", args.out.name)
         else:
             check_output(args.out, args.force, "--out")
             out_format = OUT_FORMATS.get(args.out.suffix.lower())

@@ -202,14 +202,20 @@ def check_output(path: str | os.PathLike, force: bool = False, what: str = "outp
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise OutputRefused(f"{what} {path}: folder {parent} does not exist")
-    try:  # the temporary file the write will make (a folder of /proc, read-only or full of inodes: refused now)
-        fd, probe = tempfile.mkstemp(dir=parent, prefix=f".{path.name}.", suffix=".part")
+    check_writable_folder(parent, f"{what} {path}", path.name)
+    return path
+
+
+def check_writable_folder(folder: Path, named: str, stem: str) -> None:
+    """Refuse (:class:`OutputRefused`, naming ``named``) a folder nothing can be written into: a temporary file is
+    made there and removed (a folder of /proc, read-only or full of inodes: refused before anything runs)."""
+    try:
+        fd, probe = tempfile.mkstemp(dir=folder, prefix=f".{stem}.", suffix=".part")
     except OSError as exc:
-        raise OutputRefused(f"{what} {path}: cannot write into folder {parent}: {exc.strerror or exc}") from None
+        raise OutputRefused(f"{named}: cannot write into folder {folder}: {exc.strerror or exc}") from None
     os.close(fd)
     with contextlib.suppress(FileNotFoundError):  # (another run's settle_parts may have taken it: it is unlocked)
         os.unlink(probe)
-    return path
 
 
 def _temporary(path: Path, mode: str) -> tuple[IO, str]:
