@@ -85,6 +85,24 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
     print(f"belt-drive: warning: {message}", file=file or sys.stderr)
 
 
+def _stdout_gone() -> bool:
+    """Whether standard output's reader has gone (its pipe broken); if so, stdout points at /dev/null from now on
+    (the interpreter's flush at exit would meet the broken pipe again and print about it)."""
+    import select
+
+    try:
+        fd = sys.stdout.fileno()
+        poll = select.poll()
+        poll.register(fd, select.POLLOUT)
+        gone = any(event & select.POLLERR for _, event in poll.poll(0))  # (a pipe without a reader: POLLERR)
+    except (OSError, ValueError, AttributeError):
+        return False
+    if gone:
+        with contextlib.suppress(OSError, ValueError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), fd)
+    return gone
+
+
 def main(argv: list[str] | None = None) -> int:
     import warnings
 
@@ -126,6 +144,10 @@ def main(argv: list[str] | None = None) -> int:
                             _after_interruption(args.command in OFFLINE_COMMANDS))
     except MemoryError:
         return _fail("out of memory (a shorter run, or --out to stream it, needs less)", 1)
+    except BrokenPipeError as exc:
+        if not _stdout_gone():  # another pipe: a failed run
+            return _fail(exc, 1)
+        return 128 + signal.SIGPIPE  # stdout's reader left (`| head`): nothing more to say, the status a shell gives
     except OSError as exc:  # disk full, I/O error: the run failed, the input was fine
         return _fail(exc, 1)
     except Exception as exc:  # noqa: BLE001 - one line, never a traceback (BELT_DRIVE_DEBUG=1 shows it)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 
 import pytest
@@ -321,3 +322,18 @@ def test_source_csv_profile_is_checked_as_a_scene_table_naming_the_file(text, me
     assert main(["source", "profile", "--csv", str(csv), "--print"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"belt-drive: error: {csv}: ") and re.search(message, err[0]), err
+
+
+def test_a_reader_that_leaves_before_the_summary_ends_the_run_quietly():
+    """`belt-drive sim paper | head -1`: the reader has gone when the summary is printed. Like any filter the run
+    ends with the status a shell gives a process ended by SIGPIPE (141) and prints nothing about it (before: exit 1,
+    'belt-drive: error: [Errno 32] Broken pipe')."""
+    import subprocess
+    import sys
+
+    env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    proc = subprocess.Popen([sys.executable, "-m", "belt_drive_ros.cli", "sim", "paper", "--quiet", "--duration", "0.5"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)  # fmt: skip
+    proc.stdout.close()  # before the run writes a line
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 141 and err == "", err
