@@ -158,6 +158,11 @@ def main(argv: list[str] | None = None) -> int:
             return _fail(f"--ros-args: unknown ROS arguments {exc}", 2)
         if type(exc).__name__ == "RCLError" and "failed to initialize rcl" in str(exc):
             return _fail(f"--ros-args: refused by rcl: {str(exc).split(', at /')[0]}", 2)
+        if type(exc).__name__ in ("InvalidParameterTypeException", "InvalidParameterValueException"):
+            # a parameter rclpy itself declares (use_sim_time) or checks at the node's start (-p scene:=5)
+            name = getattr(exc, "parameter_name", None) or str(exc).rsplit(": ", 1)[-1]
+            return _fail(f"{name}: wrong {'type' if 'Type' in type(exc).__name__ else 'value'}: "
+                         f"{str(exc).removesuffix(f': {name}')}", 2)
         return _fail(f"internal error: {type(exc).__name__}: {exc} (BELT_DRIVE_DEBUG=1 shows the traceback)", 1)
 
 

@@ -267,8 +267,12 @@ def test_node_process_exits_cleanly_on_sigterm():
         (["node", "no_such_scene"], "unknown scene"),
         (["node", "paper", "--ros-args", "-p", "model:=stiff"], "model: must be one of"),
         (["node", "paper", "--ros-args", "-p", "k:=2e5", "-p", "iput_timeout:=0.5"], "iput_timeout: not a parameter"),
+        # rclpy's own parameter, and one it checks at the node's start (before: 'internal error', exit 1)
+        (["node", "paper", "--ros-args", "-p", "use_sim_time:=maybe"], "use_sim_time: wrong type: Trying to set"),
+        (["node", "--ros-args", "-p", "scene:=5"], "scene: wrong type: Trying to set parameter 'scene' to '5'"),
     ],
-    ids=["out-of-range", "unstable-method", "unknown-scene", "bad-choice", "misspelt-name"],
+    ids=["out-of-range", "unstable-method", "unknown-scene", "bad-choice", "misspelt-name", "use-sim-time-type",
+         "scene-type"],
 )
 def test_invalid_parameters_at_start_exit_with_message(args, message):
     domain = ros_env.process_domain_id(offset=45)
