@@ -510,3 +510,34 @@ def test_the_linear_tick_flags_slip_with_the_belts_centrifugal_tension():
     assert np.array_equal(a, b)
     slip = a[:, 15]  # OUTPUT_UNITS' slip (0.0/1.0)
     assert slip.max() == 1.0 and slip.min() == 0.0  # the breakaway flags slip, later ticks pass
+
+
+class _Warnings(_Log):
+    def __init__(self):
+        self.lines = []
+
+    def warn(self, line):
+        self.lines.append(line)
+
+
+def test_a_torque_received_before_the_first_clock_applies_from_scene_time_zero():
+    """Sim time: a drive_torque arrives while the node clock is still 0 (no /clock yet), then /clock starts at 50 s.
+    The run starts there and applies that torque from its first tick; input_timeout counts from the start, not from
+    node time 0 (before: 'drive_torque stale for 50 s', torque set to 0 at once). It still times out later."""
+    values = {"drive_source": "topic", "timeout_behavior": "zero", "input_timeout": 0.5}
+    scenes = SceneCache()
+    full = {**default_values(scenes.get("paper")), **values}
+    counters: dict = {}
+    log = _Warnings()
+    sim = NodeSimulation(build_settings(full, scenes), DriveInput(counters), counters, log)
+    sim.drive.receive(5.0, 0, sim.settings)  # node time 0: before the first /clock
+    start = 50 * 10**9
+    tick = sim.settings.tick_ns
+    for k in range(400):  # 0.4 s of ticks: within the timeout from the start
+        assert sim.advance_to(start + k * tick)
+        assert sim.drive.applied.value == 5.0, k
+    assert log.lines == [] and counters["timeouts"] == 0 and sim.x[2] > 0.0  # the motor turns
+    for k in range(400, 700):  # past 0.5 s without a message: stale, torque 0, said once
+        sim.advance_to(start + k * tick)
+    assert sim.drive.applied.value == 0.0 and counters["timeouts"] == 1
+    assert len(log.lines) == 1 and log.lines[0].startswith("drive_torque stale for 0.5")

@@ -122,6 +122,18 @@ class DriveInput:
         self.stale, self.until = False, -1
         return True
 
+    def rebase(self, now_ns: int) -> None:
+        """The run starts on a new time base at node time ``now_ns`` (its first tick, the first ``/clock``, a clock
+        switched): a message received before counts as received there. Its stamp is of the clock before (simulated
+        time 0 before the first ``/clock``, or the other clock), so its age on the new one means nothing: the run
+        applies it from scene time 0, and ``input_timeout`` counts from there."""
+        with self.lock:
+            if self.last_input_ns is not None:
+                self.last_input_ns = now_ns
+            if self.taken_ns is not None:
+                self.taken_ns = now_ns
+        self.stale, self.until = False, -1
+
     def sample(self, now_ns: int, origin_ns: int, settings) -> tuple[float, str | None]:
         """The drive torque sampled at tick time ``now_ns`` [N m] (the timeout rule applied there): the message
         the last :meth:`take` handed over.

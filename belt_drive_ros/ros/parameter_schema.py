@@ -88,7 +88,7 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("method", "str", None, "integrator: auto (the cheapest method and fewest substeps the accuracy guard rates within the scene's tolerance) or " + ", ".join(REGISTRY)),
     ParamSpec("step_rate_hz", "float", 1000.0, "tick rate on the node's clock [Hz]; outputs are published once per tick", range=(1.0, 20000.0)),
     ParamSpec("substeps", "int", None, "integrator steps per tick (dt = 1/(step_rate_hz*substeps), whole ns); default: the scene's dt at 1 kHz", range=(1, 1000)),
-    ParamSpec("input_timeout", "float", 1.0, "seconds (node clock) without drive_torque before timeout_behavior applies; 0 = never", range=(0.0, 3600.0)),
+    ParamSpec("input_timeout", "float", 1.0, "seconds (node clock) without drive_torque before timeout_behavior applies, counted from the run's start for one received before it; 0 = never", range=(0.0, 3600.0)),
     ParamSpec("timeout_behavior", "str", "hold", "after input_timeout: 'hold' the last torque or 'zero' it", choices=TIMEOUT_BEHAVIORS),
     ParamSpec("drive_source", "str", "topic", "'topic': drive_torque sampled at each tick and held (0 before the first message); 'scene': the scene's drive profile", choices=DRIVE_SOURCES),
     ParamSpec("torque_limit", "float", 0.0, "clamp |drive_torque| to this [N m]; 0 = off", range=(0.0, 1.0e7)),

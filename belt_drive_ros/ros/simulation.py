@@ -418,7 +418,8 @@ class NodeSimulation:
     def _advance(self, now_ns: int, sampled: tuple | None = None) -> bool:
         """:meth:`advance_to` but for a plain tick; ``sampled``: ``(value,)`` when the drive was sampled at ``now_ns``."""
         self._plain_ns = None
-        if self.t_ns is None:
+        if self.t_ns is None:  # a new time base: what was received before counts from its start (DriveInput.rebase)
+            self.drive.rebase(now_ns)
             self.start(now_ns)
             return True
         if now_ns < self.t_ns:
