@@ -7,6 +7,8 @@ rejected with a reason, and an existing file is never overwritten.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from mcap.reader import make_reader
@@ -343,3 +345,31 @@ def test_node_recording_resimulates_from_the_command_line(tmp_path, ros_domain_i
     said = capsys.readouterr().out
     assert "torque from /drive_torque_applied" in said
     np.testing.assert_array_equal(np.unique(read_topic(other, "/drive_torque").data), [-2.0, 0.0, 6.0, 9.0])
+
+
+@pytest.mark.parametrize("event", ["reset", "parameter", "clock back"])
+def test_a_recording_whose_run_restarted_or_changed_is_refused_by_name(tmp_path, ros_domain_id, capsys, event):
+    """`belt-drive sim REC.mcap` repeats one run from one start with one set of parameters. A recording with a
+    `~/reset`, a runtime change of a run parameter (k) or a /clock that jumped back (a restart) is refused in one
+    line naming the event and its time (before: exit 0 and a re-simulation that no longer matched the recording).
+    The same node without the event re-simulates as before."""
+    from belt_drive_ros.cli import main as belt_drive
+    from belt_drive_ros.ros.harness import BeltDriveHarness
+
+    rec = tmp_path / "rec.mcap"
+    with BeltDriveHarness(scene="paper", domain_id=ros_domain_id, record_path=str(rec), input_timeout=0.0) as h:
+        h.publish_torque(5.0)
+        h.advance(0.2)
+        if event == "reset":
+            h.reset()
+        elif event == "parameter":
+            assert h.set_parameters(k=1.0e4).successful
+        else:
+            h._step_clock(h._clock_ns - 100_000_000)  # /clock 0.1 s back: the node restarts there
+        h.advance(0.1)
+    capsys.readouterr()
+    assert belt_drive(["sim", str(rec), "--out", str(tmp_path / "re.mcap"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    expected = {"reset": r"the node restarted from the initial state \(~/reset", "parameter": "parameter k changed",
+                "clock back": r"the node restarted from the initial state \(clock jumped back\)"}[event]
+    assert len(err) == 1 and re.search(rf"cannot re-simulate: {expected}.* at t = 0\.\d+ s of the recording", err[0]), err

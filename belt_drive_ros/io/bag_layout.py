@@ -87,6 +87,8 @@ TOPIC_UNITS: Dict[str, str] = {
 #: Metadata record names.
 SCENE_METADATA = "scene"
 PARAMETERS_METADATA = "parameters"
+#: a node's run (re)started from the initial state: ``time_ns`` (node time), ``cause`` (``start`` for the first)
+RESTART_METADATA = "restart"
 #: ``type`` of the drive mapping that refers to a torque recorded in a bag.
 RECORDED_DRIVE = "recorded"
 

@@ -16,6 +16,8 @@ from typing import Any, Dict, List, Optional, Tuple
 
 from msg_tools.errors import MsgToolsError, RecoveredBagWarning
 
+from ..core.params import FIELD_DOCS
+from .bag_layout import PARAMETERS_METADATA, RESTART_METADATA
 from .recording import APPLIED_TOPIC, SCENE_METADATA, BagReadError, bag_error
 from .torque_bag import DEFAULT_TOPIC, RecordedTorque, scene_from_bag
 
@@ -101,6 +103,31 @@ def _messages_of_whole(file):
             yield item
 
 
+#: node parameters whose change during a recording changes its run (a re-simulation holds one set throughout)
+RUN_PARAMETERS = frozenset(FIELD_DOCS) | {"scene", "model", "method", "step_rate_hz", "substeps", "drive_source"}
+
+
+def _one_run(info, file, start_ns: Optional[int]) -> None:
+    """Refuse a node recording whose run a re-simulation cannot repeat: one that restarted from the initial state
+    (``~/reset``, a clock that jumped back, a divergence, a new time base: its ``restart`` records after the first
+    start) or had a run parameter changed at runtime (its ``parameters`` records after the first). The one line names
+    the first such event, at its scene time where the recording's start is known."""
+    events = []
+    params = [values for name, values in info.metadata if name == PARAMETERS_METADATA]
+    for values in params[1:]:
+        changed = sorted(k for k in values if k in RUN_PARAMETERS)
+        if changed and values.get("time_ns", "").lstrip("-").isdigit():
+            events.append((int(values["time_ns"]), f"parameter {', '.join(changed)} changed"))
+    for name, values in info.metadata:
+        if name == RESTART_METADATA and values.get("cause", "start") != "start" and values.get("time_ns", "").isdigit():
+            events.append((int(values["time_ns"]), f"the node restarted from the initial state ({values['cause']})"))
+    if events:
+        t, what = min(events)
+        when = f"t = {(t - start_ns) / 1e9:.6g} s" if start_ns is not None else f"node time {t / 1e9:.9g} s"
+        raise BagReadError(f"{file}: cannot re-simulate: {what} at {when} of the recording; 'belt-drive sim' repeats "
+                           "one run from one start with one set of parameters")
+
+
 @dataclass
 class Resimulation:
     """What ``belt-drive sim RECORDING --out re.mcap`` needs to write a file comparable with the recording.
@@ -143,6 +170,7 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
     record = last.metadata_dict(SCENE_METADATA)  # (the last file holds every metadata record written)
     drive = scene.drive
     start = int(drive.start_ns) if isinstance(drive, RecordedTorque) and drive.start_ns is not None else None
+    _one_run(last, path, start)
     tick_ns = record.get("tick_ns", "")
     output_rate = 1e9 / float(tick_ns) if tick_ns.strip().isdigit() and int(tick_ns) > 0 else None
     namespace, drive_topic = "/", "drive_torque"

@@ -136,6 +136,7 @@ from std_msgs.msg import Float64, String  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from ..core.errors import BeltDriveError  # noqa: E402
+from ..io.bag_layout import RESTART_METADATA  # noqa: E402
 from ..io.recording import (  # noqa: E402
     ROBOT_DESCRIPTION,
     SLIP_FLOAT_OUTPUTS,
@@ -238,6 +239,7 @@ class BeltDriveNode(Node):
             raise
         self.drive = DriveInput(self.counters)
         self.sim = NodeSimulation(settings, self.drive, self.counters, self.get_logger())
+        self.sim.on_start = self._record_start
         self.stats = TickStats(self.counters)
 
         # -- outputs: send only to topics somebody subscribes to ("matched" events keep the counts)
@@ -367,6 +369,12 @@ class BeltDriveNode(Node):
             self._tf_cdr = TfEncoder(self.sim.settings.params)  # the joint origins move with the radii
             self._pub_description.publish(String(data=description[0]))
             self._record_description()
+
+    def _record_start(self, now_ns: int, why: str) -> None:
+        """A start of the run from the initial state as a ``restart`` metadata record of the recording (a re-simulation
+        repeats one run from one start: it names a restart it cannot repeat)."""
+        if self.recorder is not None:
+            self.recorder.add_metadata(RESTART_METADATA, {"time_ns": str(now_ns), "cause": why})
 
     def _record_gap(self, gap) -> None:
         """A gap in the ticks (:mod:`.gaps`) as a ``tick_gap`` metadata record of the recording."""

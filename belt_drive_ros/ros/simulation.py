@@ -96,6 +96,8 @@ class NodeSimulation:
             counters.setdefault(key, 0)
         self.log = logger
         self.settings = settings
+        #: called ``(node time [ns], why)`` at every start of the run (the node records it: a restart is in the recording)
+        self.on_start = None
         self._hybrid = None  # the hybrid state (see hybrid), unless the tick kernel holds it (_live)
         self._live = False
         #: slipping model: mode switches of the run so far (kind, scene time [s], direction) and the count
@@ -255,8 +257,9 @@ class NodeSimulation:
             return now_ns - (now_ns - self.origin_ns) % tick
         return due if due - now_ns <= tick // 2 else self.t_ns
 
-    def start(self, now_ns: int) -> None:
-        """Start (or restart) the run at node time ``now_ns``: scene time 0, the initial state."""
+    def start(self, now_ns: int, why: str = "start") -> None:
+        """Start (or restart) the run at node time ``now_ns``: scene time 0, the initial state. :attr:`on_start`
+        is told ``(now_ns, why)`` (``why`` is ``start`` for the first start only)."""
         s = self.settings
         self.origin_ns = now_ns
         self.t_ns = now_ns
@@ -267,6 +270,8 @@ class NodeSimulation:
         self.slip_events = []
         self.counters["restarts"] += 1
         self._hold(self._sample(now_ns), 0.0, first=True)  # held since before 0: no jump at 0
+        if self.on_start is not None:
+            self.on_start(now_ns, "start" if self.counters["restarts"] == 1 else why)
 
     def stop(self) -> None:
         """Forget the time base: the next tick starts the run again (clock source changed)."""
@@ -287,7 +292,7 @@ class NodeSimulation:
             self.x = s.scene.initial_state.vector(s.model.name, s.params.ratio)
             self._init_hybrid()
             return False
-        self.start(self.t_ns if now_ns is None else now_ns)
+        self.start(self.t_ns if now_ns is None else now_ns, why)
         self.log.info(f"restarted from the initial state ({why})")
         return True
 
@@ -420,12 +425,12 @@ class NodeSimulation:
         self._plain_ns = None
         if self.t_ns is None:  # a new time base: what was received before counts from its start (DriveInput.rebase)
             self.drive.rebase(now_ns)
-            self.start(now_ns)
+            self.start(now_ns, "a new time base (clock source changed)")
             return True
         if now_ns < self.t_ns:
             self.counters["clock_jumps"] += 1
             self.log.warn(f"clock jumped back {(self.t_ns - now_ns) / 1e9:.6g} s: restarting from the initial state")
-            self.start(now_ns)
+            self.start(now_ns, "clock jumped back")
             return True
         if now_ns == self.t_ns:
             return False
@@ -558,7 +563,7 @@ class NodeSimulation:
         self.counters["divergences"] += 1
         self.last_divergence = (reason, now_ns)
         self.log.error(f"{reason}; restarting from the initial state (divergence {self.counters['divergences']})")
-        self.start(now_ns)
+        self.start(now_ns, "diverged")
 
     # -------------------------------------------------------------- outputs
     def outputs(self, now_ns: int) -> dict:
