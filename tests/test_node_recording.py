@@ -373,3 +373,31 @@ def test_a_recording_whose_run_restarted_or_changed_is_refused_by_name(tmp_path,
     expected = {"reset": r"the node restarted from the initial state \(~/reset", "parameter": "parameter k changed",
                 "clock back": r"the node restarted from the initial state \(clock jumped back\)"}[event]
     assert len(err) == 1 and re.search(rf"cannot re-simulate: {expected}.* at t = 0\.\d+ s of the recording", err[0]), err
+
+
+def test_a_recording_driven_by_the_scene_re_simulates_its_whole_span(tmp_path, ros_domain_id, capsys):
+    """drive_source scene and a node that runs past the scene's duration (it keeps ticking): the re-simulation
+    covers the recorded ticks, from the first to the last, on their time stamps, and compare passes (before: the
+    scene's duration, stamped with the wall time)."""
+    import yaml
+
+    from msg_tools.cli import main as msg_tools
+
+    from belt_drive_ros.cli import main as belt_drive
+    from belt_drive_ros.io.scenes import load_scene
+    from belt_drive_ros.ros.harness import BeltDriveHarness
+
+    short = tmp_path / "short.yaml"
+    data = load_scene("paper").to_dict()
+    data["duration"] = 0.1
+    short.write_text(yaml.safe_dump(data))
+    rec = tmp_path / "rec.mcap"
+    with BeltDriveHarness(scene=str(short), domain_id=ros_domain_id, record_path=str(rec), drive_source="scene") as h:
+        h.advance(0.3)
+    capsys.readouterr()
+    re_ = tmp_path / "re.mcap"
+    assert belt_drive(["sim", str(rec), "--out", str(re_), "--quiet"]) == 0
+    recorded, again = read_topic(rec, "/joint_states"), read_topic(re_, "/joint_states")
+    assert len(recorded) == len(again) > 250
+    np.testing.assert_array_equal(again.log_time_ns, recorded.log_time_ns)
+    assert msg_tools(["compare", str(rec), str(re_)]) == 0, capsys.readouterr().out

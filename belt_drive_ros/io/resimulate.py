@@ -163,19 +163,30 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
         warnings.simplefilter("ignore", RecoveredBagWarning)
         try:
             files = bag_files(path)
-            last = [_check_whole(file) for file in files][-1]
+            infos = [_check_whole(file) for file in files]
+            last = infos[-1]
         except MsgToolsError as exc:
             raise bag_error(exc) from None
     scene = scene_from_bag(path, torque_bag=torque_bag)
     record = last.metadata_dict(SCENE_METADATA)  # (the last file holds every metadata record written)
     drive = scene.drive
     start = int(drive.start_ns) if isinstance(drive, RecordedTorque) and drive.start_ns is not None else None
+    if start is None and record.get("source") == "node" and record.get("drive_source") == "scene":
+        # the node's own drive: the run is the recorded ticks, from the first to the last (not the scene's duration)
+        ticks = [t for info in infos for t in info.topics if t.topic.rsplit("/", 1)[-1] == "joint_states" and t.start_ns is not None]
+        if ticks:
+            start, end = min(t.start_ns for t in ticks), max(t.end_ns for t in ticks)
+            if end > start:
+                scene = scene.with_overrides(duration=(end - start) / 1e9)
     _one_run(last, path, start)
     tick_ns = record.get("tick_ns", "")
     output_rate = 1e9 / float(tick_ns) if tick_ns.strip().isdigit() and int(tick_ns) > 0 else None
     namespace, drive_topic = "/", "drive_torque"
     if isinstance(drive, RecordedTorque) and drive.topic.rsplit("/", 1)[-1] == APPLIED_TOPIC:
         namespace = drive.topic.rsplit("/", 1)[0] or "/"
+        drive_topic = APPLIED_TOPIC
+    elif record.get("source") == "node":  # the node's own drive (the scene's): recorded as applied, in its namespace
+        namespace = record.get("node", "/").rsplit("/", 1)[0] or "/"
         drive_topic = APPLIED_TOPIC
     written = {name.strip("/") for name in computed} | {drive_topic}
     channels: Dict[str, list] = {}
