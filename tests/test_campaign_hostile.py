@@ -148,3 +148,25 @@ def test_the_charts_and_inputs_are_checked_before_the_cluster_starts(tmp_path, c
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and want in err[0], err
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before  # nothing written or replaced
+
+
+def test_a_scene_file_without_a_yaml_suffix_is_found_next_to_the_campaign_file(tmp_path, monkeypatch):
+    """`scene: myscene.txt` is relative to the campaign file, as the docs say and as a .yaml name is (before: looked up
+    in the working directory, or 'unknown scene'); a shipped scene's name stays the shipped scene."""
+    from belt_drive_ros.io.scenes import load_scene
+
+    sub = tmp_path / "sub"
+    sub.mkdir()
+    for folder, duration in ((sub, 0.2), (tmp_path, 0.3)):
+        data = load_scene("paper").to_dict()
+        data["duration"] = duration
+        (folder / "myscene.txt").write_text(yaml.safe_dump(data))
+    (sub / "c.yaml").write_text(yaml.safe_dump({"name": "x", "scene": "myscene.txt", "grid": {"params.c": [1.0]}}))
+    monkeypatch.chdir(tmp_path)  # a file of the same name in the working directory: not the one meant
+    campaign = Campaign.load(sub / "c.yaml")
+    assert campaign.base.duration == 0.2
+    (sub / "paper").write_text("not a scene")  # a file named like a shipped scene: the name wins
+    (sub / "c.yaml").write_text(yaml.safe_dump({"name": "x", "scene": "paper", "grid": {"params.c": [1.0]}}))
+    assert Campaign.load(sub / "c.yaml").base.duration == load_scene("paper").duration
+
+

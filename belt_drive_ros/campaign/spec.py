@@ -249,7 +249,10 @@ class Campaign:
             base = scene_from_mapping(scene_ref)
         elif isinstance(scene_ref, str) and scene_ref:
             candidate = base_dir / scene_ref
-            by_path = candidate.suffix in (".yaml", ".yml") or os.sep in scene_ref
+            # a path: a YAML name, a folder in it, or a file next to this one that is no shipped scene's name (relative
+            # to this file, not to the working directory)
+            by_path = (candidate.suffix in (".yaml", ".yml") or os.sep in scene_ref
+                       or (scene_ref not in shipped_scenes() and os.path.lexists(candidate)))
             _refuse_network(candidate if by_path else scene_ref, scene_ref)
             base = load_scene(candidate if by_path else scene_ref)
             sources = (candidate,) if by_path else ()
@@ -265,6 +268,7 @@ class Campaign:
             grid[key] = column
             if back is not None:
                 decode[key] = back
+        # (an empty list: no profiles, the base scene's torques; what a campaign's own mapping holds without any)
         profiles = [] if data.get("profiles") is None else sequence(data["profiles"], "profiles", CampaignError)
         for j, entry in enumerate(profiles):
             if not isinstance(entry, Mapping) or not entry or set(entry) - {"drive", "load"}:

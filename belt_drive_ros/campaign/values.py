@@ -36,8 +36,8 @@ def number(
             if not value.is_integer():
                 raise _refuse(error, key, "a whole number", value)
             value = int(value)
-    elif abs(value) > MAX_INT:
-        raise _refuse(error, key, "a finite number", value)
+    elif isinstance(value, int) and abs(value) > MAX_INT:  # (no float holds it as written; a finite float passes)
+        raise error(f"{key}: must be a finite number, got an integer beyond 2^63")
     else:
         value = float(value)
     if (low is not None and value < low) or (high is not None and value > high):
