@@ -107,6 +107,25 @@ def test_interrupted_campaign_resumes_where_it_stopped(tmp_path, client):
                      client=client, progress=False)
 
 
+def test_force_leaves_nothing_of_the_run_before_beside_the_new_results(tmp_path, client):
+    """--force in a folder of another run: its results.csv and charts go with it, so no table or chart of the old
+    variants sits beside the new results (before: results.parquet had the new rows, results.csv the old ones)."""
+    from belt_drive_ros.campaign.report import HISTOGRAMS, SCATTER, plot
+
+    out = tmp_path / "run"
+    old = run_campaign(_campaign(tmp_path), out, client=client, progress=False, csv=True)
+    plot(old.table, _campaign(tmp_path), out)
+    assert (out / "results.csv").exists() and (out / HISTOGRAMS).exists() and (out / SCATTER).exists()
+    (tmp_path / "new").mkdir()
+    edited = _campaign(tmp_path / "new", dict(CAMPAIGN, name="another"))
+    with pytest.raises(CampaignError, match="another campaign"):
+        run_campaign(edited, out, client=client, progress=False)
+    assert (out / "results.csv").exists()  # refused: nothing touched
+    new = run_campaign(edited, out, client=client, progress=False, force=True)
+    assert not (out / "results.csv").exists() and not (out / HISTOGRAMS).exists() and not (out / SCATTER).exists()
+    pd.testing.assert_frame_equal(pd.read_parquet(out / "results.parquet"), new.table)
+
+
 def test_a_failing_variant_is_recorded_and_the_campaign_goes_on(tmp_path, client):
     data = {
         "scene": "truck_compressor", "set": {"model": "flexible", "method": "rk4", "dt": 2e-3, "duration": 0.1},

@@ -456,9 +456,14 @@ def run_campaign(
     try:
         quiet.enter_context(_signals_noted(noted))
         if manifest is None:
-            if force and out_dir.exists():
+            if force and out_dir.exists():  # afresh: nothing of the run before stays beside the new results
+                from .report import FLEET_WORST, HISTOGRAMS, SCATTER
+
                 for p in list(parts_dir.glob("part-*.parquet")) if parts_dir.exists() else []:
                     p.unlink()
+                for name in (*OUT_FILES, HISTOGRAMS, SCATTER, FLEET_WORST):  # (never an input: check_out_folder)
+                    with contextlib.suppress(FileNotFoundError):
+                        (out_dir / name).unlink()
             parts_dir.mkdir(parents=True, exist_ok=True)
             table.to_parquet(out_dir / "variants.parquet", index=False)
             manifest = {"digest": digest, "name": campaign.name, "variants": n, "bounds": None}
