@@ -383,3 +383,28 @@ def test_an_interrupt_during_the_sizing_batches_stops_the_campaign_after_the_par
     assert run.computed == execute.FIRST_BATCH  # the sizing batch whose part was written, nothing after it
     assert [p.name for p in (tmp_path / "out" / "parts").glob("part-*.parquet")] == ["part-00000.parquet"]
     assert "Exception ignored" not in capfd.readouterr().err
+
+
+def test_a_sizing_batch_that_breaks_as_a_whole_is_rows_with_the_reason(tmp_path, monkeypatch):
+    """The first batches size the rest; one that breaks as a whole (a worker lost, a task cancelled) is recorded as
+    its variants' rows with the reason, as any later batch is (before: an 'internal error' that ended the sweep)."""
+    from distributed import Client, LocalCluster
+
+    from belt_drive_ros.campaign import execute
+
+    real = execute.run_batch
+
+    def breaks_first(portable, rows, where):
+        if int(rows["variant"].iloc[0]) == 0:
+            raise RuntimeError("worker lost")
+        return real(portable, rows, where)
+
+    monkeypatch.setattr(execute, "run_batch", breaks_first)
+    monkeypatch.setattr(execute, "FIRST_BATCH", 4)
+    campaign = _campaign(tmp_path)  # 24 variants: two sizing batches of 4, then the rest
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address="127.0.0.1:0") as cluster:
+        with Client(cluster) as client:  # (threads: the patched run_batch is the one the workers call)
+            run = run_campaign(campaign, tmp_path / "out", client=client, progress=False)
+    failed = run.table[run.table["error"].str.startswith("batch failed: RuntimeError: worker lost")]
+    assert list(failed["variant"]) == [0, 1, 2, 3] and len(run.table) == campaign.size > 8
+    assert run.table[~run.table.index.isin(failed.index)]["error"].eq("").all()

@@ -170,3 +170,22 @@ def test_a_scene_file_without_a_yaml_suffix_is_found_next_to_the_campaign_file(t
     assert Campaign.load(sub / "c.yaml").base.duration == load_scene("paper").duration
 
 
+
+
+def test_a_campaign_whose_runs_cannot_fit_in_memory_is_refused_up_front(monkeypatch):
+    """`set: {duration: 1e6}` on paper: 2e8 steps a variant, each run's step plan (and a single run's trajectory) held
+    whole on its worker. Refused before anything runs with what it needs (before: the workers took the machine's
+    memory and the sweep ended in an internal error); a long but fitting run passes, and a grid's longest counts."""
+    from belt_drive_ros.campaign import limits
+
+    monkeypatch.setattr(limits, "available_memory", lambda: 8 * 2**30)
+    huge = Campaign.from_mapping({"scene": "paper", "set": {"duration": 1.0e6},
+                                  "monte_carlo": {"samples": 5, "vary": {"params.c": {"normal": 0.1}}}})
+    with pytest.raises(CampaignError, match=r"^campaign: a variant's run of 2e\+08 steps \(duration over dt\) needs "
+                                            r"~47\.7 GB on each of 1 worker .* more than half the 8 GB"):
+        limits.check(huge, 1)
+    assert limits.check(Campaign.from_mapping({"scene": "paper", "set": {"duration": 1.0e4},
+                                               "grid": {"params.c": [1.0]}}), 1) == 1  # 2e6 steps: ~0.5 GB
+    grid = Campaign.from_mapping({"scene": "paper", "grid": {"duration": [1.0, 1.0e6]}})
+    with pytest.raises(CampaignError, match="a variant's run of 2e\\+08 steps"):
+        limits.check(grid, 2)

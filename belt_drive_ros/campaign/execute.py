@@ -398,6 +398,17 @@ def check_out_folder(campaign: Campaign, out_dir: Path, *, csv: bool = False, pl
                                 f"runs would overwrite {what}; use another --out")
 
 
+def _rows_of(future, table, a: int, b: int):
+    """The result rows of the batch of variants ``a .. b - 1`` (a DataFrame), or, where the batch broke as a whole (a
+    worker lost, a task cancelled), a row per variant with the reason in ``error`` (a list of dicts): never raised."""
+    try:
+        return future.result()
+    except Exception as exc:  # noqa: BLE001 - recorded in the rows, the campaign goes on
+        return [dict(r, model="", ran="none", single_reason="", seconds=math.nan,
+                     error=f"batch failed: {type(exc).__name__}: {exc}", **{m: math.nan for m in METRICS})
+                for r in table.iloc[a:b].to_dict("records")]  # fmt: skip
+
+
 def run_campaign(
     campaign: Campaign, out_dir, *, scheduler: str | None = None, workers: int | None = None,
     client=None, csv: bool = False, progress: bool | None = None, force: bool = False,
@@ -485,8 +496,9 @@ def run_campaign(
                 futures.update((future, (k, k * first, (k + 1) * first)) for k, future in enumerate(batches))
                 per_variant = math.inf
                 for k, future in enumerate(batches):
-                    rows = future.result()
-                    per_variant = min(per_variant, (float(rows["seconds"].iloc[0]) if len(rows) else 0.0) / first)
+                    rows = _rows_of(future, table, k * first, (k + 1) * first)
+                    if isinstance(rows, pd.DataFrame):  # (a batch that broke as a whole sizes nothing)
+                        per_variant = min(per_variant, (float(rows["seconds"].iloc[0]) if len(rows) else 0.0) / first)
                     write_part(parts_dir / f"part-{k:05d}.parquet", rows)
                     computed += first
                     _raise_noted(noted)
@@ -514,12 +526,7 @@ def run_campaign(
         }  # fmt: skip
         for future in as_completed(futures):
             k, a, b = futures[future]
-            try:
-                rows = future.result()
-            except Exception as exc:  # a batch that broke as a whole: its variants are recorded with the reason
-                rows = [dict(r, model="", ran="none", single_reason="", seconds=math.nan,
-                             error=f"batch failed: {type(exc).__name__}: {exc}", **{m: math.nan for m in METRICS})
-                        for r in table.iloc[a:b].to_dict("records")]  # fmt: skip
+            rows = _rows_of(future, table, a, b)
             write_part(parts_dir / f"part-{k:05d}.parquet", rows)
             computed += b - a
             bar.update(b - a)

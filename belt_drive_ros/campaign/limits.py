@@ -34,6 +34,9 @@ WORKER_BYTES = 200 * 2**20
 WORKERS_PER_CPU = 2
 #: worker CPU per variant and step of an ensemble [s], and per variant [s] (scene, metrics, table row)
 STEP_SECONDS, VARIANT_SECONDS = 1.0e-6, 2.0e-4
+#: worker memory per step of one variant's run [bytes]: its step plan is held whole (grid times, clamps, flags), and a
+#: run that goes singly (slipping, adaptive, fleets) holds its whole trajectory (states, inputs, outputs)
+RUN_BYTES_PER_STEP = 256
 
 
 def available_memory() -> int:
@@ -74,6 +77,13 @@ def table_bytes(campaign: Campaign, n: int) -> int:
     strings = 4 + (4 if campaign.golden_folder is not None else 0) + (1 if campaign.fleet_folder else 0)
     per_row = ROW_BYTES * (2 * varied + len(campaign.metrics) + 2) + 60 * strings
     return 2 * n * per_row
+
+
+def longest_run_steps(campaign: Campaign) -> float:
+    """Steps of the campaign's longest variant run: the longest duration over the shortest step its grid gives."""
+    durations = [float(v) for v in campaign.grid.get("duration", [])] or [campaign.base.duration]
+    steps = [float(v) for v in campaign.grid.get("dt", [])] or [campaign.base.dt]
+    return max(durations) / min(steps)
 
 
 def seconds(campaign: Campaign, n: int, workers: int) -> float:
@@ -117,6 +127,14 @@ def check(campaign: Campaign, workers: int | None, local: bool = True) -> int:
         raise CampaignError(
             f"campaign: {estimate(campaign, workers)}; more than the {MAX_VARIANTS:,} variants one campaign may "
             "hold: split it into campaigns (each with its own --out) or draw fewer samples"
+        )
+    steps = longest_run_steps(campaign)
+    if campaign.fleet_folder is None and workers * steps * RUN_BYTES_PER_STEP > memory // 2:
+        raise CampaignError(
+            f"campaign: a variant's run of {steps:.3g} steps (duration over dt) needs ~{_size(steps * RUN_BYTES_PER_STEP)}"
+            f" on each of {workers} worker{'s' if workers != 1 else ''} (its step plan, and a run that goes singly its "
+            f"trajectory, held whole: ~{RUN_BYTES_PER_STEP} bytes a step); more than half the {_size(memory)} of memory "
+            "this machine has available: shorten the runs (set.duration), lengthen the step or use fewer workers"
         )
     if table_bytes(campaign, n) > memory // 2:
         raise CampaignError(
