@@ -342,7 +342,7 @@ def test_sim_runs_a_network_and_writes_its_csv_by_pulley_and_span(tmp_path, caps
     (lambda d: d["pulleys"][2].update(centre=["0", 1]), "pulleys.alt.centre[0]: must be a number"),
     (lambda d: d["pulleys"][2].update(radius=-0.03), "pulleys.alt.radius: must be > 0"),
     (lambda d: d["pulleys"][2].pop("torque"), "pulleys.alt.torque: missing"),
-    (lambda d: d["pulleys"][1].update(torque=1.0), "pulleys.tens.torque: an tensioner carries no torque"),
+    (lambda d: d["pulleys"][1].update(torque=1.0), "pulleys.tens.torque: a tensioner carries no torque"),
     (lambda d: d["pulleys"].append("x"), "pulleys.[4]: expected a mapping"),
     (lambda d: d.pop("tensioner"), "tensioner: missing (pulley tens has role tensioner)"),
     (lambda d: d["tensioner"].update(preload=5.0), "belt.installed_tension: give either it or tensioner.preload"),
@@ -800,3 +800,45 @@ def test_network_simulate_refuses_bad_run_arguments_in_one_line(kwargs, message)
         simulate(scene, **kwargs)
     with pytest.raises(SceneError, match="scene: expected a NetworkScene"):
         simulate(None, duration=0.01)
+
+
+def test_names_that_would_share_a_topic_are_refused():
+    """Span names join the pulley names with _: pulleys a, b_c, a_b, c would give two spans a_b_c (one CSV column and
+    topic, alternating between two tensions), and a pulley named tensioner_arm the arm's own joint and topic."""
+    square = [_pulley("a", (0.0, 0.0), 0.05, role="driver", torque=0.1), _pulley("b_c", (0.3, 0.0), 0.05, role="idler"),
+              _pulley("a_b", (0.3, 0.3), 0.05, role="idler"), _pulley("c", (0.0, 0.3), 0.05, role="accessory", torque=0.1)]
+    with pytest.raises(SceneError, match=r"^pulleys: the spans a -> b_c and a_b -> c would both be named a_b_c"):
+        _scene(square)
+    square[1]["name"] = "bc"
+    assert "a_bc" in _scene(square).span_names()
+    for name in ("tensioner_arm", "base_link"):
+        two = _two_pulleys()
+        two[1]["name"] = name
+        with pytest.raises(SceneError, match=f"^pulleys.{name}.name: '{name}' names the tensioner arm's own joint"):
+            _scene(two)
+
+
+def test_at_most_64_pulleys():
+    ring = [_pulley(f"p{k}", (math.cos(2 * math.pi * k / 65), math.sin(2 * math.pi * k / 65)), 0.01,
+                    role="driver" if k == 0 else "idler", **({"torque": 0.1} if k == 0 else {})) for k in range(65)]
+    with pytest.raises(SceneError, match=r"^pulleys: at most 64 pulleys .*got 65"):
+        _scene(ring)
+
+
+def test_the_onset_names_the_pulley_whose_use_crosses_first_at_the_crossing_time():
+    """Two pulleys past the limit in the same sample: the one whose friction use crossed 1 first (interpolated
+    between the samples), not the first in the list; its time the crossing's, not the sample's."""
+    from belt_drive_ros.core.network.model import NetworkRun
+
+    run = NetworkRun.__new__(NetworkRun)
+    object.__setattr__(run, "time", np.array([0.0, 1.0, 2.0]))
+    object.__setattr__(run, "friction_use", np.array([[0.1, 0.5], [0.5, 0.9], [1.3, 1.1]]))
+
+    class Scene:
+        pulleys = [type("P", (), {"name": "drv"})(), type("P", (), {"name": "acc"})()]
+
+    # drv crosses at 1 + 0.5 / 0.8 = 1.625 s, acc at 1 + 0.1 / 0.2 = 1.5 s: acc first, though drv's use is larger
+    name, t, use = run.capstan_onset(Scene)
+    assert (name, use) == ("acc", 1.1) and t == pytest.approx(1.5, rel=1e-15)
+    object.__setattr__(run, "friction_use", np.array([[1.2, 1.4], [1.5, 1.6], [2.0, 2.0]]))  # beyond from the start
+    assert run.capstan_onset(Scene) == ("acc", 0.0, 1.4)

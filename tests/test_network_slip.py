@@ -165,6 +165,7 @@ def test_paper_network_that_slips_matches_the_single_belt_slipping_model():
     got = [(e.time, e.kind, e.direction if e.kind == "onset" else 0) for e in run.events]
     assert len(ref) >= 2 and [r[1:] for r in ref] == [g[1:] for g in got]
     assert all(e.pulley == "pulley_3" for e in run.events)
+    assert run.first_slip() == run.events[0] and run.first_slip().kind == "onset"  # (docs/serpentine.md's call)
     unit = 1e-3 / 2**30
     assert np.max(np.abs(np.array([r[0] for r in ref]) - np.array([g[0] for g in got]))) <= 2 * unit
     grid = np.isclose(time / 1e-3, np.round(time / 1e-3), rtol=0.0, atol=1e-6)  # the single run adds event samples

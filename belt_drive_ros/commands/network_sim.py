@@ -100,7 +100,7 @@ def run_network(args) -> int:
     onset = run.capstan_onset(scene)
     if onset and run.tier != "slipping":
         print(f"capstan limit: {onset[0]} reaches it first at t = {onset[1]:.6g} s (friction use {onset[2]:.3g}); "
-              "the slipping tier is not built for networks: past that time this run is not valid")
+              f"past that time this {run.tier} run is not valid: model auto or slipping runs the slipping tier")
     if args.out is not None and args.out.suffix.lower() == ".mcap":
         _write_mcap(args, scene, run, run.method, dt)
     elif args.out is not None:

@@ -359,12 +359,23 @@ class NetworkRun:
     accuracy: str = ""
 
     def capstan_onset(self, scene):
-        """``(pulley name, time [s], friction use)`` of the first sample where a pulley's friction use reaches 1, or None."""
-        over = np.argwhere(self.friction_use >= 1.0)
+        """``(pulley name, time [s], friction use)`` where a pulley's friction use first reaches 1, or None: in the first
+        sample where any does, the pulley whose use crosses 1 first, at the crossing time interpolated linearly from the
+        sample before (the largest use where the run starts beyond the limit); its use in that sample."""
+        use = self.friction_use
+        over = np.flatnonzero((use >= 1.0).any(axis=1))
         if not over.size:
             return None
-        k, i = over[0]
-        return scene.pulleys[i].name, float(self.time[k]), float(self.friction_use[k, i])
+        k = int(over[0])
+        now = use[k]
+        if k == 0:
+            i = int(np.argmax(now))
+            return scene.pulleys[i].name, float(self.time[0]), float(now[i])
+        before, t0, t1 = use[k - 1], float(self.time[k - 1]), float(self.time[k])
+        crossing = [(t0 + (1.0 - before[i]) / (now[i] - before[i]) * (t1 - t0), -now[i], i)
+                    for i in np.flatnonzero(now >= 1.0)]  # (now > 1 > before there: the denominator is positive)
+        t, _, i = min(crossing)
+        return scene.pulleys[i].name, float(t), float(now[i])
 
 
 def check_step(name: str, A, B, dt: float) -> None:

@@ -18,6 +18,10 @@ from ..sources import TorqueProfile, make_profile
 from .geometry import Layout, layout
 
 SIDES = {"inner": 1.0, "backside": -1.0}
+#: most pulleys one belt network may have (an accessory drive has a dozen or so; the model's cost grows with the cube)
+MAX_PULLEYS = 64
+#: names a pulley may not take: the tensioner arm's joint and the URDF root (its topics, joint_states, /tf)
+RESERVED_NAMES = ("tensioner_arm", "base_link")
 ROLES = ("driver", "accessory", "idler", "tensioner")
 #: torque sign per role: a driver's profile drives the belt, an accessory's loads it
 ROLE_SIGN = {"driver": 1.0, "accessory": -1.0}
@@ -191,6 +195,8 @@ class NetworkScene:
         raw = data["pulleys"]
         if not isinstance(raw, list) or len(raw) < 2:
             raise SceneError(f"pulleys: expected a list of at least 2 pulleys, got {short(raw)}")
+        if len(raw) > MAX_PULLEYS:
+            raise SceneError(f"pulleys: at most {MAX_PULLEYS} pulleys (an accessory drive has a dozen or so), got {len(raw)}")
         pulleys, names = [], []
         keys = ("name", "centre", "radius", "inertia", "damping", "side", "role", "torque", "mu", "gears")
         for k, item in enumerate(raw):
@@ -203,6 +209,9 @@ class NetworkScene:
                 raise SceneError(f"{where}.name: letters, digits and _ only (at most 64), starting with a letter, got {short(pname)}")
             if pname in names:
                 raise SceneError(f"{where}: duplicate pulley name")
+            if pname in RESERVED_NAMES:
+                raise SceneError(f"{where}.name: {pname!r} names the tensioner arm's own joint and topics; call the pulley "
+                                 "something else")
             names.append(pname)
             role = item["role"]
             if not isinstance(role, str) or role not in ROLES:
@@ -212,7 +221,8 @@ class NetworkScene:
                 raise SceneError(f"{where}.side: must be inner or backside, got {short(side)}")
             torque = item.get("torque")
             if torque is not None and role not in ROLE_SIGN:
-                raise SceneError(f"{where}.torque: an {role} carries no torque profile (driver or accessory only)")
+                article = "an" if role[0] in "aeiou" else "a"
+                raise SceneError(f"{where}.torque: {article} {role} carries no torque profile (driver or accessory only)")
             if role in ROLE_SIGN and torque is None:
                 raise SceneError(f"{where}.torque: missing (a {role} states its {'drive' if role == 'driver' else 'load'} torque)")
             inertia = _number(f"{where}.inertia", item["inertia"], strict=True, top=1.0e3)
@@ -230,6 +240,13 @@ class NetworkScene:
                 torque=None if torque is None else make_profile(torque, f"{where}.torque"),
                 mu=_number(f"{where}.mu", item.get("mu", 0.5), strict=True, top=10.0),
             ))
+        spans: dict = {}  # a span is named by its pulleys joined with _ (its topics, columns): each name once
+        for j, p in enumerate(pulleys):
+            q = pulleys[(j + 1) % len(pulleys)]
+            other = spans.setdefault(f"{p.name}_{q.name}", (p.name, q.name))
+            if other != (p.name, q.name):
+                raise SceneError(f"pulleys: the spans {other[0]} -> {other[1]} and {p.name} -> {q.name} would both be "
+                                 f"named {p.name}_{q.name} (their topics and columns): rename a pulley")
         roles = [p.role for p in pulleys]
         if roles.count("driver") != 1:
             raise SceneError(f"pulleys: exactly one pulley has role driver, got {roles.count('driver')}")

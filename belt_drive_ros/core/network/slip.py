@@ -63,6 +63,10 @@ class SlipNetworkRun(NetworkRun):
         """Per sample and pulley 1 while it slides, else 0 (the node's ``P/slip`` topic)."""
         return (self.slip_state != 0).astype(float)
 
+    def first_slip(self):
+        """The first ``onset`` event (:class:`SlipEvent`: time [s], pulley, kind, direction), or None."""
+        return next((e for e in self.events if e.kind == "onset"), None)
+
 
 class SlipArrays:
     """The kernel's constant arrays of one network model (SI units)."""
