@@ -842,3 +842,23 @@ def test_the_onset_names_the_pulley_whose_use_crosses_first_at_the_crossing_time
     assert (name, use) == ("acc", 1.1) and t == pytest.approx(1.5, rel=1e-15)
     object.__setattr__(run, "friction_use", np.array([[1.2, 1.4], [1.5, 1.6], [2.0, 2.0]]))  # beyond from the start
     assert run.capstan_onset(Scene) == ("acc", 0.0, 1.4)
+
+
+def test_the_hub_load_takes_the_centrifugal_tension_off_both_spans():
+    """A belt of 0.1 kg/m at 30 m/s (w = 90 N) presses on a pulley with T - w: the hub load of a two-pulley drive
+    is |(T_1 - w) e_1 - (T_0 - w) e_0|, by hand, not |T_1 e_1 - T_0 e_0| (the same as without mass, before)."""
+    two = [_pulley("a", (0.0, 0.0), 0.1, role="driver", torque=5.0), _pulley("b", (0.4, 0.0), 0.05, role="accessory", torque=5.0)]
+    data = {"kind": "network", "pulleys": two, "duration": 0.02, "dt": 1e-4, "initial_speed": 300.0,
+            "belt": {"EA": 1.0e5, "damping": 0.0, "mass_per_length": 0.1, "installed_tension": 300.0}}
+    scene = NetworkScene.from_mapping(data)
+    run = simulate(scene, model="flexible")
+    e = np.asarray(scene.geometry.directions, dtype=float)
+    v = run.speed[:, 0] * 0.1
+    w = 0.1 * v * v
+    T = run.tension
+    for i, prev in ((0, 1), (1, 0)):
+        by_hand = np.hypot((T[:, i] - w) * e[i, 0] - (T[:, prev] - w) * e[prev, 0],
+                           (T[:, i] - w) * e[i, 1] - (T[:, prev] - w) * e[prev, 1])
+        np.testing.assert_allclose(run.hub_load[:, i], by_hand, rtol=1e-12)
+    massless = np.hypot(T[:, 0] * e[0, 0] - T[:, 1] * e[1, 0], T[:, 0] * e[0, 1] - T[:, 1] * e[1, 1])
+    assert np.min(w) > 70.0 and np.all(massless - run.hub_load[:, 0] > 1.8 * w)  # nearly parallel spans: ~2 w less

@@ -425,9 +425,11 @@ def outputs(model: NetworkModel, time, states, T) -> NetworkRun:
     q, qd = states[:, :m], states[:, m:]
     T_in = T[:, prev]  # span i-1 arrives at pulley i
     torque = r * (T - T_in)
-    hub = np.hypot(T * ex - T_in * ex_in, T * ey - T_in * ey_in)  # |T_i e_i - T_{i-1} e_{i-1}| (directions fixed)
     v = qd[:, d] * r[d]
-    slack = T < (mass * v * v)[:, None]
+    w = (mass * v * v)[:, None]  # the centrifugal tension m' v^2: the belt presses on a pulley with T - w
+    # |(T_i - w) e_i - (T_{i-1} - w) e_{i-1}| (directions fixed; a massless belt: the tensions themselves, bit for bit)
+    hub = np.hypot((T - w) * ex - (T_in - w) * ex_in, (T - w) * ey - (T_in - w) * ey_in)
+    slack = T < w
     angle = q[:, model.arm] + theta0 if model.arm >= 0 else None
     return NetworkRun(time, q[:, :n], qd[:, :n], torque, hub, T, slack, angle, states, _friction_use(T, T_in, v, mass, factor))
 
