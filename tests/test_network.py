@@ -862,3 +862,24 @@ def test_the_hub_load_takes_the_centrifugal_tension_off_both_spans():
         np.testing.assert_allclose(run.hub_load[:, i], by_hand, rtol=1e-12)
     massless = np.hypot(T[:, 0] * e[0, 0] - T[:, 1] * e[1, 0], T[:, 0] * e[0, 1] - T[:, 1] * e[1, 1])
     assert np.min(w) > 70.0 and np.all(massless - run.hub_load[:, 0] > 1.8 * w)  # nearly parallel spans: ~2 w less
+
+
+def test_the_printed_spring_preload_given_back_gives_the_same_installed_tension():
+    """`belt-drive scenes fead_i4` prints the spring preload; given back as tensioner.preload (instead of the
+    installed tension) it rebuilds the same belt (before: printed negative, which the scene file refuses)."""
+    import re as regex
+
+    from belt_drive_ros.io.network_plot import describe
+
+    text = describe(load_network("fead_i4"))
+    preload = float(regex.search(r"spring preload (\S+) N m", text).group(1))
+    assert preload > 0.0
+    from importlib import resources
+
+    from belt_drive_ros.io.inputs import parse_yaml
+
+    data = parse_yaml((resources.files("belt_drive_ros") / "scenes" / "networks" / "fead_i4.yaml").read_text(), "fead_i4")
+    T0 = data["belt"].pop("installed_tension")
+    data["tensioner"]["preload"] = preload
+    again = NetworkScene.from_mapping(data)
+    assert again.belt.installed_tension == pytest.approx(T0, rel=1e-3)  # (the printed preload has 4 digits)

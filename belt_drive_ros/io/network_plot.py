@@ -120,5 +120,5 @@ def describe(scene) -> str:
         _, _, arm, ang = arm_of(scene.pulleys, t)
         ang = math.degrees(ang)
         lines.append(f"tensioner arm {t.pulley}: pivot ({t.pivot[0]:.4f}, {t.pivot[1]:.4f}) m, length {arm:.4f} m, "
-                     f"installed at {ang:.2f} deg, spring preload {t.preload:.4g} N m ({t.spring_rate:.4g} N m/rad)")
+                     f"installed at {ang:.2f} deg, spring preload {abs(t.preload):.4g} N m ({t.spring_rate:.4g} N m/rad)")
     return "\n".join(lines) + "\n"
