@@ -295,7 +295,9 @@ class NetworkModel:
 # ---------------------------------------------------------------------- modes
 @dataclass(frozen=True)
 class Mode:
-    """One vibration mode: damped frequency [Hz], undamped natural frequency [Hz], damping ratio, shape.
+    """One vibration mode of eigenvalue ``s``: damped frequency ``Im(s) / 2 pi`` [Hz], ``natural`` = ``|s| / 2 pi``
+    [Hz] (a one-degree-of-freedom mode's undamped natural frequency; with non-proportional damping the undamped
+    eigenproblem's, :func:`undamped_frequencies`, differ a little), damping ratio ``-Re(s) / |s|``, shape.
 
     ``shape``: per coordinate the belt-direction amplitude (``r_i theta_i``, ``La theta_a``), largest = 1.
     """
