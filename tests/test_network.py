@@ -883,3 +883,26 @@ def test_the_printed_spring_preload_given_back_gives_the_same_installed_tension(
     data["tensioner"]["preload"] = preload
     again = NetworkScene.from_mapping(data)
     assert again.belt.installed_tension == pytest.approx(T0, rel=1e-3)  # (the printed preload has 4 digits)
+
+
+def test_modes_say_when_the_operating_point_has_a_slack_span_or_a_slipping_pulley(tmp_path, capsys):
+    """A load torque the belt cannot hold at its installed tension: the static tensions leave a pulley past its capstan
+    limit, so the linearised modes do not describe the drive; `modes` says so on stderr (before: nothing)."""
+    import yaml
+
+    from belt_drive_ros.cli import main
+    from belt_drive_ros.core.network.model import operating_limits
+
+    two = [_pulley("drv", (0.0, 0.0), 0.1, role="driver", torque=40.0), _pulley("acc", (0.4, 0.0), 0.05, role="accessory",
+                                                                                    torque=60.0)]
+    scene = _scene(two)
+    problems = operating_limits(NetworkModel.build(scene), 50.0)
+    assert problems and any("pulley acc beyond its capstan limit" in p or "slack" in p for p in problems)
+    path = tmp_path / "over.yaml"
+    path.write_text(yaml.safe_dump({"kind": "network", "pulleys": two, "duration": 0.1, "dt": 1e-4, "initial_speed": 50.0,
+                                    "belt": {"EA": 1.0e5, "damping": 0.0, "mass_per_length": 0.0,
+                                             "installed_tension": 300.0}}))  # fmt: skip
+    assert main(["modes", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("warning: at this operating point ") and "assume a belt that neither slackens nor slips" in err
+    assert operating_limits(NetworkModel.build(load_network("fead_i4")), load_network("fead_i4").operating_speed) == []

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 
 
 def register(sub) -> None:
@@ -53,6 +54,11 @@ def run(args) -> int:
     speed = scene.operating_speed if args.speed is None else args.speed
     names = [p.name for p in scene.pulleys] + (["tensioner_arm"] if scene.tensioner else [])
     print(f"# {scene.name}: modes at driver speed {speed:g} rad/s ({speed * 30 / math.pi:.0f} rpm)")
+    from ..core.network.model import operating_limits
+
+    for problem in operating_limits(model, speed):  # the linearisation holds only while the belt holds
+        print(f"warning: at this operating point {problem}: the modes below assume a belt that neither slackens nor "
+              "slips there", file=sys.stderr)
     print(f"{'mode':>4s} {'f [Hz]':>9s} {'f_n [Hz]':>9s} {'zeta':>7s}  moves (belt-direction amplitude, largest = 1)")
     for k, md in enumerate(modes(model, speed), start=1):
         movers = sorted(range(len(names)), key=lambda i: -abs(md.shape[i]))

@@ -405,6 +405,21 @@ def _friction_use(T, T_in, belt_speed, mass_per_length: float, factor) -> np.nda
         return np.where(limit > 0.0, diff / np.where(limit > 0.0, limit, 1.0), np.where(diff > 0.0, np.inf, 0.0))
 
 
+def operating_limits(model: NetworkModel, driver_speed: float) -> list[str]:
+    """What makes the linearisation at ``driver_speed`` [rad/s] (:meth:`NetworkModel.operating_point`) invalid, one
+    phrase each: a span whose static tension is below the centrifugal tension ``m' v^2`` (slack), a pulley whose static
+    friction use is beyond 1 (it slips: :func:`_friction_use`). Empty where the belt holds."""
+    r, prev, *_, factor, mass, d, _ = _output_terms(model)
+    _, _, T = model.operating_point(driver_speed)
+    v = driver_speed * r[d]
+    w = mass * v * v
+    spans, names = model.scene.span_names(), [p.name for p in model.scene.pulleys]
+    out = [f"span {spans[j]} slack (static tension {T[j]:.4g} N)" for j in np.flatnonzero(T < w)]
+    use = _friction_use(T[None, :], T[None, prev], np.array([v]), mass, factor)[0]
+    out += [f"pulley {names[i]} beyond its capstan limit (static friction use {use[i]:.3g})" for i in np.flatnonzero(use > 1.0)]
+    return out
+
+
 def _output_terms(model: NetworkModel) -> tuple:
     """What :func:`outputs` takes from the scene, found once per model: radii, each pulley's arriving span, the
     span directions' components (leaving, arriving), ``tanh(mu beta / 2)``, m', the driver, the arm's installed angle."""
