@@ -326,3 +326,30 @@ def test_the_slipping_tier_splits_a_step_at_a_breakpoint_inside_it():
             assert (a.pulley, a.kind) == (b.pulley, b.kind) and abs(a.time - b.time) <= 1e-9
         assert np.max(np.abs(coarse.tension - fine.tension[::2])) <= 1e-7 * np.max(np.abs(fine.tension))
         assert np.max(np.abs(coarse.speed - fine.speed[::2])) <= 1e-7 * np.max(np.abs(fine.speed))
+
+
+def test_the_slipping_tiers_csv_has_each_pulleys_slip_and_slip_speed(tmp_path):
+    """As the MCAP has P/slip and P/slip_speed, the CSV of a slipping-tier run has those columns (a linear tier's none)."""
+    from belt_drive_ros.cli import main
+    from belt_drive_ros.core.network.simulate import simulate
+
+    import yaml
+
+    data = parse_yaml((resources.files("belt_drive_ros") / "scenes" / "networks" / "paper_network.yaml").read_text(), "x")
+    data["belt"]["installed_tension"] = 100.0  # the paper drive at a low tension: it slips (as above)
+    for p in data["pulleys"]:
+        p["mu"] = 0.5
+    scene_file = tmp_path / "paper_slip.yaml"
+    scene_file.write_text(yaml.safe_dump(data))
+    out = tmp_path / "run.csv"
+    assert main(["sim", str(scene_file), "--quiet", "--model", "slipping", "--duration", "1.0", "--out", str(out)]) == 0
+    table = np.genfromtxt(out, delimiter=",", names=True, deletechars="")
+    scene = NetworkScene.from_mapping(data, "paper_slip")
+    run = simulate(scene, duration=1.0, model="slipping")
+    for i, p in enumerate(scene.pulleys):
+        np.testing.assert_array_equal(table[f"{p.name}/slip"], run.slip[:, i])
+        np.testing.assert_array_equal(table[f"{p.name}/slip_speed"], run.slip_speed[:, i])
+    assert run.slip.any() and np.abs(run.slip_speed).max() > 0.0
+    linear = tmp_path / "linear.csv"
+    assert main(["sim", str(scene_file), "--quiet", "--model", "flexible", "--duration", "0.2", "--out", str(linear)]) == 0
+    assert "slip_speed" not in linear.read_text().splitlines()[0]

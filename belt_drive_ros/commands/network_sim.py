@@ -23,13 +23,18 @@ def _refuse_unsupported(args) -> None:
 
 
 def columns(scene, run):
-    """``(names, table)``: time, per pulley angle/speed/belt torque/hub load, per span tension and slack, arm angle."""
+    """``(names, table)``: time, per pulley angle/speed/belt torque/hub load/friction use (and, on the slipping tier,
+    slip 0/1 and slip speed [m/s], as the MCAP's topics), per span tension and slack, arm angle."""
     import numpy as np
 
     names, cols = ["time"], [run.time]
+    slipping = getattr(run, "slip_state", None) is not None
     for i, p in enumerate(scene.pulleys):
-        for what, data in (("angle", run.angle), ("speed", run.speed), ("belt_torque", run.belt_torque),
-                           ("hub_load", run.hub_load), ("friction_use", run.friction_use)):
+        signals = [("angle", run.angle), ("speed", run.speed), ("belt_torque", run.belt_torque),
+                   ("hub_load", run.hub_load), ("friction_use", run.friction_use)]
+        if slipping:
+            signals += [("slip", run.slip), ("slip_speed", run.slip_speed)]
+        for what, data in signals:
             names.append(f"{p.name}/{what}")
             cols.append(data[:, i])
     for j, span in enumerate(scene.span_names()):
