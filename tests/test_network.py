@@ -919,21 +919,3 @@ def test_an_idle_run_is_not_called_inaccurate_for_its_rounding_noise():
     assert run.accuracy.startswith("accurate"), run.accuracy
     coarse = simulate(load_network("fead_i4"), duration=0.3, dt=4e-3, method="etd2", model="flexible")
     assert coarse.accuracy.startswith("INACCURATE")  # a real error still is one
-
-
-def test_the_rigid_tiers_arm_sits_where_its_tensions_hold_it():
-    """The rigid tier's span tensions are the belt's static stretch with the arm at its equilibrium; the arm angle it
-    reports is that equilibrium's too (before: the installed angle, where those tensions do not balance the spring).
-    Against the flexible tier's run settled under the same constant torques."""
-    data = _raw_tensioned()
-    data.update(duration=3.0, dt=1e-4, initial_speed=50.0)
-    data["belt"]["damping"] = 20.0
-    data["tensioner"]["damping"] = 0.5
-    scene = NetworkScene.from_mapping(data)
-    rigid = simulate(scene, model="rigid", method="etd2")
-    settled = simulate(scene, model="flexible", method="etd2")
-    assert np.ptp(rigid.arm_angle) < 1e-12  # constant torques: one equilibrium
-    installed = simulate(scene, duration=1e-3, model="flexible", method="etd2").arm_angle[0]
-    assert abs(rigid.arm_angle[-1] - installed) > 1e-4  # the arm has moved from where it was installed
-    assert rigid.arm_angle[-1] == pytest.approx(settled.arm_angle[-1], abs=1e-6)
-    np.testing.assert_allclose(rigid.tension[-1], settled.tension[-1], rtol=1e-4)

@@ -285,23 +285,11 @@ class NetworkModel:
     def rigid_tension_map(self) -> np.ndarray:
         """(n_spans, n) S: span tension changes ``T - T_0 = S Q`` [N] under balanced pulley torques Q [N m]
         (``sum_i rho_i Q_i = 0``): the belt's static stretch (K^+ Q), the arm at its equilibrium."""
-        return self._rigid_statics()[0]
-
-    def rigid_arm_map(self) -> np.ndarray | None:
-        """(n,) a: the arm's static swing ``a . Q`` [rad] under those torques (the equilibrium :meth:`rigid_tension_map`'s
-        tensions hold it at), or None without a tensioner."""
-        return self._rigid_statics()[1]
-
-    def _rigid_statics(self) -> tuple:
-        found = self.__dict__.get("_rigid_static_maps")
-        if found is None:
-            m, n = self.M.shape[0], len(self.scene.pulleys)
-            rhs = np.zeros((m, n))
-            rhs[:n] = np.eye(n)
-            q = np.linalg.lstsq(self.stiffness(), rhs, rcond=None)[0]
-            arm_row = q[self.arm].copy() if self.arm >= 0 else None
-            found = self.__dict__["_rigid_static_maps"] = (self.k[:, None] * (self.stretch @ q), arm_row)
-        return found
+        m, n = self.M.shape[0], len(self.scene.pulleys)
+        rhs = np.zeros((m, n))
+        rhs[:n] = np.eye(n)
+        q = np.linalg.lstsq(self.stiffness(), rhs, rcond=None)[0]
+        return self.k[:, None] * (self.stretch @ q)
 
 
 # ---------------------------------------------------------------------- modes

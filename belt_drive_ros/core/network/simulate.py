@@ -156,8 +156,7 @@ def run_loop(loop: NetworkLoop, steps: int) -> tuple[np.ndarray, np.ndarray]:
 
 def rigid_outputs(loop: NetworkLoop, times, states, u=None) -> NetworkRun:
     """Outputs of a rigid run: every pulley at its speed ratio, the span tensions quasi-static (the torques each
-    pulley's own equation needs, carried by the belt's static stretch), the arm at the equilibrium those tensions hold
-    it at (:meth:`~.model.NetworkModel.rigid_arm_map`).
+    pulley's own equation needs, carried by the belt's static stretch), the arm at its installed angle.
     ``u`` (N, n): the signed pulley torques applied [N m] (default: the profiles')."""
     model, scene = loop.model, loop.model.scene
     rho, n, m = model.ratios, len(scene.pulleys), model.M.shape[0]
@@ -177,8 +176,6 @@ def rigid_outputs(loop: NetworkLoop, times, states, u=None) -> NetworkRun:
     T = scene.belt.installed_tension + load @ S
     full = np.zeros((len(times), 2 * m))
     full[:, :n], full[:, m : m + n] = states[:, :1] * rho, states[:, 1:2] * rho
-    if model.arm >= 0:
-        full[:, model.arm] = load @ model.rigid_arm_map()
     return outputs(model, times, full, T)
 
 
