@@ -169,7 +169,7 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
                       start_time_ns: Optional[int] = None, bag_folder: bool = False,
                       max_bag_size: Optional[int] = None,
                       max_bag_duration: Optional[float] = None, drive_topic: str = "drive_torque",
-                      passthrough: Sequence[tuple] = ()) -> Dict[str, int]:
+                      passthrough: Sequence[tuple] = (), stamps: Optional[np.ndarray] = None) -> Dict[str, int]:
     """Write an offline run as a ROS 2 MCAP with the node's topics and layout.
 
     Parameters
@@ -217,6 +217,9 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
         Recorded topics copied as they are, ``(topic, type, offered QoS YAML,
         type hash, [(log time [ns], CDR bytes)])``, written in time order
         between the samples (:func:`~belt_drive_ros.io.resimulate.resimulation`).
+    stamps : array of int, optional
+        Write only the samples at these time stamps [ns] (a re-simulated node recording: its ticks, so a stretch
+        the node integrated in one go, a /clock jump or a stall, has no samples here either).
 
     Returns
     -------
@@ -239,11 +242,16 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
     BagWriteError
         If the file cannot be written.
     """
+    stride = _output_stride(result, output_rate)
+    count = len(range(0, len(result.time), stride))
+    if stamps is not None and start_time_ns is not None:  # (the samples kept: the scene record says how many)
+        times = np.round(np.asarray(result.time, dtype=float)[::stride] * 1e9).astype(np.int64) + int(start_time_ns)
+        count = int(np.isin(times, stamps).sum())
     writer = ResultMcapWriter(path, result, force=force, namespace=namespace, output_rate=output_rate,
                               topics=topics, compression=compression, extra_metadata=extra_metadata,
                               start_time_ns=start_time_ns, bag_folder=bag_folder, max_bag_size=max_bag_size,
                               max_bag_duration=max_bag_duration, drive_topic=drive_topic, passthrough=passthrough,
-                              samples=len(range(0, len(result.time), _output_stride(result, output_rate))))
+                              samples=count if stamps is None or start_time_ns is not None else None, stamps=stamps)
     try:
         writer.write(result)
     except BaseException:
@@ -284,7 +292,8 @@ class ResultMcapWriter:
                  start_time_ns: Optional[int] = None, bag_folder: bool = False,
                  max_bag_size: Optional[int] = None, max_bag_duration: Optional[float] = None,
                  samples: Optional[int] = None, chunk_size: Optional[int] = None,
-                 drive_topic: str = "drive_torque", passthrough: Sequence[tuple] = ()):
+                 drive_topic: str = "drive_torque", passthrough: Sequence[tuple] = (),
+                 stamps: Optional[np.ndarray] = None):
         self.float_outputs = FLOAT_OUTPUTS + tuple(o for o in SLIP_FLOAT_OUTPUTS if getattr(result, "model", "") in SLIP_MODELS)
         offline_topics = (ROBOT_DESCRIPTION, "drive_torque", "joint_states", TF_TOPIC.strip("/")) + tuple(
             name for name, _ in self.float_outputs)
@@ -293,6 +302,7 @@ class ResultMcapWriter:
         if unknown:
             raise ValueError(f"topics: unknown {', '.join(unknown)}; offline runs have {', '.join(offline_topics)}")
         self.stride = _output_stride(result, output_rate)
+        self.stamps = None if stamps is None else np.unique(np.asarray(stamps, dtype=np.int64))  # (sorted)
         if start_time_ns is None:
             start_time_ns = time.time_ns()
         self.start_time_ns = int(start_time_ns)
@@ -401,9 +411,15 @@ class ResultMcapWriter:
         self.seen += n
         if not count:
             return
-        self.samples += count
         t_ns = np.round(np.asarray(result.time, dtype=float)[index] * 1e9).astype(np.int64) + self.start_time_ns
         o = {name: np.asarray(values)[index] for name, values in result.outputs.items()}
+        if self.stamps is not None:  # only the recording's own ticks
+            keep = np.isin(t_ns, self.stamps)
+            if not keep.all():
+                t_ns, o, count = t_ns[keep], {name: v[keep] for name, v in o.items()}, int(keep.sum())
+                if not count:
+                    return
+        self.samples += count
         payloads: list = []  # the messages of each topic (msg_tools.block_writer.FixedMessages)
         phi = None  # the joint angles (n, 4) [rad]: joint_states' positions and /tf's rotations (read only)
         for topic, type_name, signal in self.payload_topics:

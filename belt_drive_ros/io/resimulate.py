@@ -139,7 +139,8 @@ class Resimulation:
     (``drive_torque_applied`` for a node recording, whose ``drive_torque`` is
     the raw input); ``passthrough``: the recorded topics the run does not
     compute (the raw ``drive_torque``, ``/clock``, ``/diagnostics``), copied
-    as recorded: ``(topic, type, offered QoS YAML, type hash, [(log time, CDR)])``.
+    as recorded: ``(topic, type, offered QoS YAML, type hash, [(log time, CDR)])``; ``stamps``: a node recording's
+    tick times [ns] (its ``joint_states`` log times), the samples ``--out`` holds (None: every sample).
     """
 
     scene: Any
@@ -148,6 +149,7 @@ class Resimulation:
     namespace: str
     drive_topic: str
     passthrough: List[tuple]
+    stamps: Optional[Any] = None
 
 
 def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
@@ -190,6 +192,7 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
         drive_topic = APPLIED_TOPIC
     written = {name.strip("/") for name in computed} | {drive_topic}
     channels: Dict[str, list] = {}
+    ticks: Optional[list] = [] if record.get("source") == "node" else None  # (a node's ticks: its joint_states)
     file = path
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RecoveredBagWarning)
@@ -197,6 +200,8 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
             for file in files:
                 for schema, channel, message in _messages_of_whole(file):
                     relative = channel.topic[len(namespace):] if channel.topic.startswith(namespace) else channel.topic
+                    if ticks is not None and relative.strip("/") == "joint_states":
+                        ticks.append(int(message.log_time))
                     if relative.strip("/") in written or channel.topic.strip("/") in written:
                         continue
                     entry = channels.get(channel.topic)
@@ -212,5 +217,8 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
             raise bag_error(exc) from None
         except OSError as exc:  # the disk failed a read (EIO, a file gone): the input, not a write
             raise BagReadError(f"{file}: cannot read it ({exc.strerror or exc}); nothing written") from None
+    import numpy as np
+
     return Resimulation(scene, start, output_rate, namespace, drive_topic,
-                        [tuple(entry) for entry in channels.values()])
+                        [tuple(entry) for entry in channels.values()],
+                        np.array(ticks, dtype=np.int64) if ticks else None)
