@@ -234,7 +234,9 @@ def _columns(data: TopicData, units: Dict[str, str]) -> List[Tuple[str, np.ndarr
         cols.append((short, data.fields["data"], unit_for(data.topic, "data", units)))
     elif data.type_name == JOINT_STATE:
         for fname in ("position", "velocity", "effort"):
-            values = data.fields[fname]
+            values = data.fields.get(fname)
+            if values is None:  # a channel without a message: nothing decoded, no column
+                continue
             unit = unit_for(data.topic, fname, units)
             for j, joint in enumerate(data.names):
                 if values.shape[0] and np.all(np.isnan(values[:, j])):
@@ -309,6 +311,8 @@ def cmd_export(args: argparse.Namespace, out: IO[str]) -> int:
     data = next(iter(bag.topics.values()))
     units = bag.metadata_dict(UNITS_METADATA)
     cols = _columns(data, units)
+    if not len(data):
+        raise MsgToolsError(f"topic {data.topic} ({data.type_name}) has no messages to export")
     if not cols:
         raise MsgToolsError(
             f"topic {data.topic} ({data.type_name}) has no numeric fields to export"

@@ -174,7 +174,8 @@ class CompareReport:
         where = (
             f" at t={worst.time_of_worst_s:.6g} s" if np.isfinite(worst.time_of_worst_s) else ""
         )
-        detail = worst.reason or f"abs err {_fmt(worst.worst_abs_error)}{where}"
+        # (the time is that of the sample farthest outside its tube, not of the largest absolute error)
+        detail = worst.reason or f"abs err {_fmt(worst.worst_abs_error)}; farthest outside its tube{where}"
         return f"FAIL: {bad} of {n} signals outside tolerance; worst: {worst.name} ({detail})"
 
 
@@ -209,6 +210,8 @@ def signals_of(data: TopicData) -> Dict[str, Tuple[np.ndarray, np.ndarray]]:
     if data.type_name == FLOAT64:
         out[f"{base}/data"] = (data.log_time_ns, data.fields.get("data", np.zeros(0)))
     elif data.type_name == JOINT_STATE:
+        if "stamp_ns" not in data.fields:  # a channel without a message: no signal (compare says "no samples")
+            return out
         t = data.fields["stamp_ns"]
         for fname in ("position", "velocity", "effort"):
             values = data.fields[fname]
@@ -233,7 +236,8 @@ def _errors(a: np.ndarray, b: np.ndarray, rtol: float, atol: float) -> Tuple[np.
     one_nan = np.isnan(a) ^ np.isnan(b)
     with np.errstate(invalid="ignore"):
         err = np.abs(a - b)
-    err = np.where(both_nan, 0.0, np.where(one_nan, np.inf, err))
+    # equal values agree, infinities of one sign included (inf - inf is NaN): as two NaNs do
+    err = np.where(both_nan | (a == b), 0.0, np.where(one_nan | np.isnan(err), np.inf, err))
     mag = np.abs(np.where(np.isnan(b), 0.0, b))
     rel = np.divide(err, mag, out=np.where(err > 0, np.inf, 0.0), where=mag > 0)
     tube = atol + rtol * mag
@@ -418,6 +422,9 @@ def compare(
     for topic in wanted:
         in_a, in_b = topic in data_a, topic in data_b
         short = _short(topic)
+        if not in_a and not in_b:  # asked for by --topics
+            report.signals.append(SignalResult(short, False, reason=f"topic {topic} in neither file"))
+            continue
         if not (in_a and in_b):
             missing = "A" if not in_a else "B"
             present = data_a[topic] if in_a else data_b[topic]
@@ -441,6 +448,9 @@ def compare(
             report.signals.append(
                 SignalResult(short, False, reason=f"type {da.type_name} in A but {db.type_name} in B")
             )
+            continue
+        if not len(da) or not len(db):
+            report.signals.append(SignalResult(short, False, reason=f"no samples in {'A' if not len(da) else 'B'}"))
             continue
         sig_a, sig_b = signals_of(da), signals_of(db)
         if not sig_a and not sig_b:

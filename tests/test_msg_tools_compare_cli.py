@@ -362,3 +362,37 @@ def test_compare_fails_a_cut_file_that_holds_every_sample_unless_allowed(capsys,
     status, out, err = _cli(capsys, "compare", SHIPPED_GOLDEN, cut, "--allow-incomplete")
     assert status == 0 and out.splitlines()[-1].startswith("PASS"), out
     assert _cli(capsys, "info", cut)[0] == 1  # info cannot know what the lost end held: INCOMPLETE
+
+
+def _floats(path, values, topic="/shaft_speed", t0_ns=10**9):
+    with Ros2McapWriter(path, force=True) as w:
+        for k, v in enumerate(values):
+            w.write(topic, "std_msgs/msg/Float64", {"data": float(v)}, t0_ns + k * 1_000_000)
+    return path
+
+
+def test_edges_of_compare_export_and_plot_are_their_own_answers(tmp_path, capsys):
+    """A joint_states channel without a message: compare says 'no samples in A' (exit 1), export 'has no messages to
+    export', plot draws the rest (before: KeyError 'stamp_ns' / 'position'); --topics naming a topic in neither file is
+    a failed signal, not KeyError '/nope'; equal infinities agree (inf - inf is NaN, which failed a file against
+    itself); the verdict's time is said to be where the signal is farthest outside its tube."""
+    empty = tmp_path / "empty_js.mcap"
+    with Ros2McapWriter(empty, force=True) as w:
+        w.add_topic("/joint_states", "sensor_msgs/msg/JointState")
+        for k in range(50):
+            w.write("/shaft_speed", "std_msgs/msg/Float64", {"data": float(k)}, 10**9 + k * 1_000_000)
+    full = _run(tmp_path / "full.mcap", n=50)
+    report = compare(empty, full, topics=["/joint_states"])
+    assert not report.passed and [s.reason for s in report.signals] == ["no samples in A"]
+    assert main(["export", str(empty), "-t", "/joint_states", "-o", str(tmp_path / "x.csv")]) == 2
+    assert "topic /joint_states (sensor_msgs/msg/JointState) has no messages to export" in capsys.readouterr().err
+    assert main(["plot", str(empty), "-o", str(tmp_path / "x.png")]) == 0
+    report = compare(full, full, topics=["/nope"])
+    assert [s.reason for s in report.signals] == ["topic /nope in neither file"]
+    inf = _floats(tmp_path / "inf.mcap", [1.0, float("inf"), -float("inf"), 2.0] * 5)
+    assert compare(inf, inf).passed
+    finite = _floats(tmp_path / "finite.mcap", [1.0, 5.0, -float("inf"), 2.0] * 5)
+    assert not compare(inf, finite).passed and compare(inf, finite).signals[0].worst_abs_error == float("inf")
+    a = _floats(tmp_path / "a.mcap", [1.0] * 10 + [1.001] + [100.0] * 9)
+    b = _floats(tmp_path / "b.mcap", [1.0] * 10 + [1.0] + [100.1] * 9)
+    assert "abs err 1.000e-01; farthest outside its tube at t=" in compare(a, b).verdict()
