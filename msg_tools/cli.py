@@ -258,8 +258,10 @@ def _check_out_dir(path: Optional[str], force: bool = False, suffix: str = "", b
     """Refuse ``--out`` up front: a missing folder, an existing path without ``--force``, anything
     but a regular file (a device such as /dev/full, a FIFO, a folder), or the ``bag`` it is made from (--force or
     not: the bag would be lost); ``suffix``: the extension it must have."""
-    if not path:
+    if path is None:
         return
+    if not path:
+        raise MsgToolsError("--out: an empty path; give a file name")
     if bag is not None and input_replaced(path, [bag]) is not None:
         raise MsgToolsError(f"cannot write {path}: it is the bag {bag} being read; write elsewhere")
     folder = os.path.dirname(os.path.abspath(path))
@@ -272,6 +274,13 @@ def _check_out_dir(path: Optional[str], force: bool = False, suffix: str = "", b
             raise MsgToolsError(f"cannot write {path}: not a regular file; outputs are written to regular files only")
         if not force:
             raise MsgToolsError(f"{path} exists; pass --force to overwrite it")
+    try:  # the temporary file the write will make: a folder of /proc, read-only or full is refused now
+        fd, probe = new_part(path)
+    except OSError as exc:
+        raise MsgToolsError(f"cannot write {path}: cannot write into folder {folder}: {exc.strerror or exc}") from None
+    os.close(fd)
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(probe)
 
 
 @contextlib.contextmanager
@@ -351,6 +360,8 @@ def cmd_export(args: argparse.Namespace, out: IO[str]) -> int:
 
 # ---------------------------------------------------------------------- plot
 def cmd_plot(args: argparse.Namespace, out: IO[str]) -> int:
+    if not 10 <= args.dpi <= 1000:  # (100,000 dpi asked for terabytes of pixels: bad_alloc)
+        raise MsgToolsError(f"--dpi: 10 to 1000, got {args.dpi}")
     try:
         import matplotlib
 
@@ -512,7 +523,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to plot (default: all)")
     p.add_argument("--out", "-o", required=True, help="PNG file to write (whole or not at all)")
     p.add_argument("--force", action="store_true", help="replace an existing --out file (never the bag read)")
-    p.add_argument("--dpi", type=int, default=110, help="resolution (default 110)")
+    p.add_argument("--dpi", type=int, default=110, help="resolution, 10 to 1000 (default 110)")
     p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser(

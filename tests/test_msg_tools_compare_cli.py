@@ -396,3 +396,19 @@ def test_edges_of_compare_export_and_plot_are_their_own_answers(tmp_path, capsys
     a = _floats(tmp_path / "a.mcap", [1.0] * 10 + [1.001] + [100.0] * 9)
     b = _floats(tmp_path / "b.mcap", [1.0] * 10 + [1.0] + [100.1] * 9)
     assert "abs err 1.000e-01; farthest outside its tube at t=" in compare(a, b).verdict()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["plot", "{bag}", "-o", "{tmp}/x.png", "--dpi", "100000"], "--dpi: 10 to 1000, got 100000"),
+    (["export", "{bag}", "-t", "/shaft_speed", "-o", "/proc/x.csv"], "cannot write /proc/x.csv: cannot write into folder /proc"),
+    (["plot", "{bag}", "-o", "/proc/x.png"], "cannot write /proc/x.png: cannot write into folder /proc"),
+    (["export", "{bag}", "-t", "/shaft_speed", "-o", ""], "--out: an empty path; give a file name"),
+])  # fmt: skip
+def test_outputs_msg_tools_cannot_write_are_refused_in_one_line_before_reading(tmp_path, capsys, argv, message):
+    """(before: bad_alloc as an internal error; '[Errno 2] ... /proc/.x.csv.u9xbn7ao.part', naming the hidden temporary
+    file; an empty -o wrote to standard output with exit 0)"""
+    bag = _floats(tmp_path / "b.mcap", [1.0, 2.0, 3.0])
+    argv = [a.format(bag=bag, tmp=tmp_path) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
