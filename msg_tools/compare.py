@@ -525,7 +525,7 @@ def recordings_in(folder: "str | os.PathLike[str]") -> Dict[str, str]:
                 keep.append(d)
         dirnames[:] = keep
         for f in sorted(filenames):
-            if f.endswith(".mcap"):
+            if f.lower().endswith(".mcap"):  # (any case: run.MCAP is MCAP, as everywhere else)
                 full = os.path.join(dirpath, f)
                 out[os.path.relpath(full, root)] = full
     return dict(sorted(out.items()))

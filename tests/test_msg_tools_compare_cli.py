@@ -412,3 +412,15 @@ def test_outputs_msg_tools_cannot_write_are_refused_in_one_line_before_reading(t
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0], err
+
+
+def test_folder_compare_takes_upper_case_mcap_files_too(tmp_path):
+    """fa/x.MCAP against fb/x.MCAP: compared as a recording (before: left out without a word)."""
+    from msg_tools.compare import compare_folders, recordings_in
+
+    for folder, last in (("fa", 3.0), ("fb", 4.0)):
+        (tmp_path / folder).mkdir()
+        _floats(tmp_path / folder / "x.MCAP", [1.0, 2.0, last])
+    assert list(recordings_in(tmp_path / "fa")) == ["x.MCAP"]
+    report = compare_folders(tmp_path / "fa", tmp_path / "fb")
+    assert not report.passed
