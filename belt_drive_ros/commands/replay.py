@@ -34,7 +34,7 @@ def register(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("bag", type=Path, help="MCAP file with std_msgs/Float64 drive torque messages")
-    p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
+    p.add_argument("--rate", type=float, default=1.0, help="playback speed factor, 0.001 to 1000 (default 1)")
     p.add_argument("--loop", action="store_true", help="repeat until interrupted")
     p.add_argument("--start-offset", type=float, default=0.0, metavar="S",
                    help="start this many seconds into the recording")
@@ -62,8 +62,8 @@ def run(args) -> int:
     from ..core.errors import ParameterError
 
     # (exit 2 like every bad input, before rclpy starts)
-    if not 0 < args.rate < float("inf"):
-        raise ParameterError("--rate", f"must be finite and > 0, got {args.rate!r}")
+    if not 1e-3 <= args.rate <= 1e3:  # (1e-300 slowed one second of bag to 1e292 years: a hang, not a replay)
+        raise ParameterError("--rate", f"must be 0.001 to 1000, got {args.rate!r}")
     if args.sync and not args.clock:
         raise ParameterError("--sync", "needs --clock")
     if not 0 <= args.delay < float("inf"):
