@@ -461,3 +461,17 @@ def test_a_command_line_parameter_the_node_lacks_is_refused_before_rclpy_starts(
              "-r", "dt:=x", "-p", "k:=2e5"]
     assert unknown_parameter_rule(rules, BeltDriveNode.PARAMETER_NAMES) is None
     assert unknown_parameter_rule(rules, NetworkNode.PARAMETER_NAMES) == "k"
+
+
+def test_record_of_a_topic_that_never_comes_says_so_and_fails(tmp_path):
+    """`record --topics /nope --duration 1`: nothing was published there; the run says which topic stayed silent and
+    exits 1, as a recording of nothing asked for is no success (before: 'wrote x.mcap: 0 messages', exit 0)."""
+    out = tmp_path / "empty.mcap"
+    proc = start(["record", "--topics", "/nope", "--duration", "1", "--out", str(out)], ros_env.process_domain_id(offset=49))
+    try:
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 1, err[-2000:]
+    assert "belt-drive: warning: no message on /nope during the recording" in err and "Traceback" not in err

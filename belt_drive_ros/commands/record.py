@@ -164,4 +164,11 @@ def run(args) -> int:
     counts = writer.topic_counts()
     why = f" (signal {signal.Signals(signum).name})" if signum else ""
     print(f"wrote {args.out}: {sum(counts.values())} messages on {len(counts)} topics{why}")
+    if args.topics:  # asked for by name: one that never came is said, and a recording of none of them failed
+        got = {t.strip("/").rsplit("/", 1)[-1] for t, n in counts.items() if n}
+        missing = [t for t in args.topics if t.strip("/").rsplit("/", 1)[-1] not in got]
+        if missing:
+            print(f"belt-drive: warning: no message on {', '.join(missing)} during the recording", file=sys.stderr)
+        if not any(counts.values()):
+            return 1
     return 0
