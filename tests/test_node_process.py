@@ -467,7 +467,7 @@ def test_record_of_a_topic_that_never_comes_says_so_and_fails(tmp_path):
     """`record --topics /nope --duration 1`: nothing was published there; the run says which topic stayed silent and
     exits 1, as a recording of nothing asked for is no success (before: 'wrote x.mcap: 0 messages', exit 0)."""
     out = tmp_path / "empty.mcap"
-    proc = start(["record", "--topics", "/nope", "--duration", "1", "--out", str(out)], ros_env.process_domain_id(offset=49))
+    proc = start(["record", "--topics", "/nope", "--duration", "1", "--out", str(out)], ros_env.process_domain_id(offset=74))
     try:
         _, err = proc.communicate(timeout=60)
     finally:
