@@ -89,6 +89,10 @@ def _cases(tmp):
                                         "--topics: 'bad topic' is not a topic name"),
         "demo --scene paper (a motor)": (["demo", "--scene", "paper", "--no-offline", "--no-network", "--out-dir", str(tmp)],
                                          "--scene paper: the live run drives the belt by the scene's engine; .* 'motor'"),
+        "demo --scene paper with outputs": (["demo", "--scene", "paper", "--out-dir", str(tmp / "made_by_demo")],
+                                            "--scene paper: the live run drives the belt by the scene's engine"),
+        "demo --no-live --no-offline --no-network": (["demo", "--no-live", "--no-offline", "--no-network"],
+                                                     "all three parts skipped: nothing to run"),
         "record --ros-args --bogus": (["record", "--out", str(tmp / "x.mcap"), "--duration", "1", "--ros-args", "--bogus"],
                                       r"--ros-args: unknown ROS arguments \['--bogus'\]"),
         "source --ros-args -p": (["source", "engine", "--ros-args", "-p"], "--ros-args: refused by rcl: .*-p"),
@@ -115,7 +119,7 @@ CASES = [
     "argparse: source without a kind", "argparse: unknown option", "sim --out in a folder nothing can be written to",
     "sim --plot in a folder nothing can be written to", "sim --method-option =1", "sim --method-option max_iter=2.5",
     "sim ''", "sim nosuch", "sim --bag-folder in a folder nothing can be written to", "scenes ''", "modes ''", "node --list-parameters ''",
-    "node --name 'a b'", "source --name ''", "source --rate 0", "record --topics 'bad topic'", "demo --scene paper (a motor)",
+    "node --name 'a b'", "source --name ''", "source --rate 0", "record --topics 'bad topic'", "demo --scene paper (a motor)", "demo --scene paper with outputs", "demo --no-live --no-offline --no-network",
     "record --ros-args --bogus", "source --ros-args -p", "bench node --scene nonexistent", "bench node -p garbage",
     "bench hostile --only nonexistent", "bench --out in /proc", "demo --out-dir in /proc", "replay --start-offset nan",
     "replay --wait-subscribers -1",
@@ -155,6 +159,7 @@ def test_bad_option_values_are_one_line_and_exit_2_before_anything_runs(case, tm
     assert len(err) == 1 and err[0].startswith("belt-drive: error: "), err
     assert re.search(message, err[0]), err
     assert not (tmp_path / "missing").exists() and not (tmp_path / "x.txt").exists() and not (tmp_path / "x.csv").exists() and not (tmp_path / "x.mcap").exists() and not (tmp_path / "a.png").exists()
+    assert not (tmp_path / "made_by_demo").exists()  # (a refused demo made its --out-dir before: now nothing)
 
 
 def test_campaign_from_python_takes_numpy_values_and_refuses_other_objects_naming_the_key():

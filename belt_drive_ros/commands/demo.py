@@ -46,23 +46,26 @@ def run(args) -> int:
     from ..core.errors import ParameterError
     from ..io.atomic import OutputRefused
 
+    if args.no_live and args.no_offline and args.no_network:
+        raise ParameterError("--no-live --no-offline --no-network", "all three parts skipped: nothing to run")
     if not args.no_live and not 0 < args.duration < float("inf"):  # refused before any node starts
         raise ParameterError("--duration", f"must be finite and > 0 s, got {args.duration!r}")
     if args.out_dir.exists() and not args.out_dir.is_dir():
         raise OutputRefused(f"--out-dir {args.out_dir}: exists and is not a folder")
+    if not args.no_live:
+        from ..core.errors import SceneError
+        from ..io.scenes import load_scene
+
+        drive = load_scene(args.scene).drive.kind  # (refused before any node starts, not after their start-up logs)
+        if drive != "engine":  # (and before the output folder is made: a refused run leaves nothing behind)
+            raise SceneError(f"--scene {args.scene[:80]}: the live run drives the belt by the scene's engine; its drive "
+                             f"is a {drive!r} profile (an engine scene: truck_compressor)")
     if not (args.no_offline and args.no_network):  # (made before the live run: a folder that cannot be is refused now)
         try:
             args.out_dir.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise OutputRefused(f"--out-dir {args.out_dir}: cannot make the folder: {exc.strerror or exc}") from None
     if not args.no_live:
-        from ..core.errors import SceneError
-        from ..io.scenes import load_scene
-
-        drive = load_scene(args.scene).drive.kind  # (refused before any node starts, not after their start-up logs)
-        if drive != "engine":
-            raise SceneError(f"--scene {args.scene[:80]}: the live run drives the belt by the scene's engine; its drive "
-                             f"is a {drive!r} profile (an engine scene: truck_compressor)")
         live_run(args.scene, args.duration, args.executor)
     code = 0
     if not args.no_offline:
