@@ -315,3 +315,22 @@ def _node_following_replay(bag, out, domain_id):
             node.destroy_node()  # closes the recorder
         rclpy.try_shutdown(context=ctx)
     return ticks, read_topic(out, "/joint_states"), settings
+
+
+@pytest.mark.ros
+def test_a_sync_replay_that_nothing_answers_fails_after_a_few_ticks(tmp_path):
+    """--clock --sync /joint_states with no node on the domain: after 3 /clock ticks unanswered (2 s each) the replay
+    stops with exit 1 and one line saying what was missing (before: 2 s per message, half an hour for a 1,001-message
+    bag, then exit 0)."""
+    import subprocess
+
+    from belt_drive_ros.ros import environment as ros_env
+
+    bag = _torque_bag(tmp_path / "t.mcap", np.arange(1001) * 1_000_000, np.ones(1001))
+    proc = subprocess.run([sys.executable, "-m", "belt_drive_ros.cli", "replay", str(bag), "--clock", "--sync",
+                           "/joint_states"], env=ros_env.child_environment(ros_env.process_domain_id(offset=75)),
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("belt-drive: error:")]
+    assert len(lines) == 1 and "--sync /joint_states: no sensor_msgs/JointState stamped at the /clock time in 3 tries" in lines[0]
+    assert "Traceback" not in proc.stderr

@@ -78,6 +78,8 @@ def run(args) -> int:
         if not args.quiet or text.startswith("warning"):
             print(("belt-drive: " if text.startswith("warning") else "") + text, file=sys.stderr, flush=True)
 
+    from ..ros.replay import SyncNeverAnswered
+
     with stop_on_signals() as stop:
         try:
             count = run_replay(
@@ -89,6 +91,9 @@ def run(args) -> int:
             if isinstance(exc, BagReadError):
                 raise
             raise BagReadError(f"{args.bag}: {exc}") from None
+        except SyncNeverAnswered as exc:  # the run failed (its input was fine): exit 1
+            print(f"belt-drive: error: {exc}", file=sys.stderr)
+            return 1
     if not args.quiet:
         print(f"published {count} messages", file=sys.stderr)
     return 0

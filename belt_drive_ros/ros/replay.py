@@ -110,6 +110,14 @@ def _rclpy_qos(offered_yaml: str):
     )
 
 
+#: /clock ticks a --sync replay waits for its first answer before it gives up (each up to sync_timeout)
+SYNC_TRIES = 3
+
+
+class SyncNeverAnswered(RuntimeError):
+    """A ``--sync`` replay whose sync topic never answered a /clock tick: the lockstep it asked for never held."""
+
+
 def run_replay(bag, *, rate: float = 1.0, loop: bool = False, start_offset: float = 0.0,
                clock: bool = False, topic: str = DEFAULT_TOPIC, out_topic: Optional[str] = None,
                wait_subscribers: int = 0, wait_timeout: float = 10.0, delay: float = 0.0,
@@ -258,6 +266,11 @@ def _publish(rec, schedule, context, *, rate, loop, clock, out_topic, wait_subsc
                         now = time.monotonic()
                         if now > deadline:
                             late += 1
+                            if synced["stamp"] < 0 and late >= SYNC_TRIES:  # nothing ever answered: no lockstep
+                                raise SyncNeverAnswered(
+                                    f"--sync {sync_topic}: no sensor_msgs/JointState stamped at the /clock time in "
+                                    f"{late} tries of {sync_timeout:g} s (is a node running on /clock, and is "
+                                    f"{sync_topic} its joint_states?); published {published} message(s)")
                             break
                         if now > resend:  # a node takes /clock best effort: resend a lost sample
                             clock_pub.publish(clock_msg)
