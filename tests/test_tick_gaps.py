@@ -187,7 +187,9 @@ def test_sigstop_of_a_recording_node_is_a_recorded_gap(tmp_path):
     assert child.returncode == 0, err[-2000:]
     assert "gap in the ticks" in err and "stopped" in err
     records = tick_gaps(summary(path).metadata)
-    spanning = [g for g in records if int(g["start_ns"]) <= stopped_ns + TICK_NS  # (a period's slack: grid stamps)
+    # slack: a period for the grid stamps, and up to 3/4 of one more for a tick computed ahead (tick_lead, which grows
+    # on a loaded machine) and published after SIGCONT: its stamp is its due time, after the stop
+    spanning = [g for g in records if int(g["start_ns"]) <= stopped_ns + 2 * TICK_NS
                 and int(g["end_ns"]) >= resumed_ns - TICK_NS]
     assert len(spanning) == 1, records
     assert "stopped" in spanning[0]["cause"] and int(spanning[0]["ticks_missed"]) >= 1000, records
