@@ -35,6 +35,16 @@ def start(args, domain):
     )
 
 
+def finish(proc, timeout=60.0):
+    """(exit code, stderr) of ``proc`` run to its end (killed if it runs past ``timeout`` s)."""
+    try:
+        _, err = proc.communicate(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    return proc.returncode, err
+
+
 def stop(proc, sig, timeout=10.0):
     """Send ``sig``; return (exit code, stderr). Kills the child if it does not exit."""
     if proc.poll() is None:
@@ -275,14 +285,8 @@ def test_node_process_exits_cleanly_on_sigterm():
          "scene-type"],
 )
 def test_invalid_parameters_at_start_exit_with_message(args, message):
-    domain = ros_env.process_domain_id(offset=45)
-    proc = start(args, domain)
-    try:
-        out, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 2, err[-3000:]
+    code, err = finish(start(args, ros_env.process_domain_id(offset=45)))
+    assert code == 2, err[-3000:]
     assert "belt-drive: error:" in err and message in err
     assert "Traceback" not in err
 
@@ -467,11 +471,7 @@ def test_record_of_a_topic_that_never_comes_says_so_and_fails(tmp_path):
     """`record --topics /nope --duration 1`: nothing was published there; the run says which topic stayed silent and
     exits 1, as a recording of nothing asked for is no success (before: 'wrote x.mcap: 0 messages', exit 0)."""
     out = tmp_path / "empty.mcap"
-    proc = start(["record", "--topics", "/nope", "--duration", "1", "--out", str(out)], ros_env.process_domain_id(offset=74))
-    try:
-        _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 1, err[-2000:]
+    code, err = finish(start(["record", "--topics", "/nope", "--duration", "1", "--out", str(out)],
+                             ros_env.process_domain_id(offset=74)))
+    assert code == 1, err[-2000:]
     assert "belt-drive: warning: no message on /nope during the recording" in err and "Traceback" not in err
