@@ -334,3 +334,27 @@ def test_a_sync_replay_that_nothing_answers_fails_after_a_few_ticks(tmp_path):
     lines = [line for line in proc.stderr.splitlines() if line.startswith("belt-drive: error:")]
     assert len(lines) == 1 and "--sync /joint_states: no sensor_msgs/JointState stamped at the /clock time in 3 tries" in lines[0]
     assert "Traceback" not in proc.stderr
+
+
+@pytest.mark.ros
+def test_an_interrupted_replay_ends_with_the_signals_status(tmp_path):
+    """SIGINT during a replay: it stops, says after how many messages, and exits 130 as every other command does
+    (before: exit 0, as if the whole bag had gone out)."""
+    import signal as signals
+
+    from belt_drive_ros.ros import environment as ros_env
+
+    bag = _torque_bag(tmp_path / "t.mcap", np.arange(1001) * 1_000_000, np.ones(1001))
+    proc = subprocess.Popen([sys.executable, "-m", "belt_drive_ros.cli", "replay", str(bag), "--rate", "0.01"],
+                            env=ros_env.child_environment(ros_env.process_domain_id(offset=76)), stderr=subprocess.PIPE,
+                            text=True)  # fmt: skip
+    lines = []
+    while not any(line.startswith("replaying ") for line in lines):
+        line = proc.stderr.readline()
+        assert line, "the replay ended before it started"
+        lines.append(line)
+    time.sleep(0.3)
+    proc.send_signal(signals.SIGINT)
+    err = "".join(lines) + proc.stderr.read()
+    assert proc.wait(timeout=30) == 130, err
+    assert "belt-drive: interrupted (SIGINT) after" in err and "Traceback" not in err

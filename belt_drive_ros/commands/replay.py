@@ -54,6 +54,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    import signal
     import sys
 
     from ..io.recording import BagReadError
@@ -96,4 +97,7 @@ def run(args) -> int:
             return 1
     if not args.quiet:
         print(f"published {count} messages", file=sys.stderr)
+    if stop.signum:  # interrupted (SIGINT, SIGTERM): the shell's status of a process ended by it, as other commands
+        print(f"belt-drive: interrupted ({signal.Signals(stop.signum).name}) after {count} message(s)", file=sys.stderr)
+        return 128 + stop.signum
     return 0
