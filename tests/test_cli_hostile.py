@@ -343,3 +343,12 @@ def test_a_reader_that_leaves_before_the_summary_ends_the_run_quietly():
     proc.stdout.close()  # before the run writes a line
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 141 and err == "", err
+
+
+def test_urdf_refuses_an_empty_out_and_lists_the_belt_networks_for_an_unknown_name(capsys):
+    """(before: `urdf --out ''` wrote the URDF to standard output with exit 0; an unknown name listed the drive scenes
+    only, though urdf takes the belt networks too)"""
+    assert main(["urdf", "paper", "--out", ""]) == 2
+    assert "--out: an empty path; give a file name" in capsys.readouterr().err
+    assert main(["urdf", "nosuch"]) == 2
+    assert "nor a shipped belt network (bsg_start_network, fead_i4, paper_network)" in capsys.readouterr().err

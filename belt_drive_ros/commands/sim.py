@@ -121,8 +121,6 @@ PLOT_SAMPLES = 250_000
 
 
 def run(args) -> int:
-    from ..io.scenes import load_scene
-
     from ..io import is_recording  # a path check: mcap and msg_tools load only for a recording
 
     args.writer_options = {}
@@ -141,15 +139,9 @@ def run(args) -> int:
             from .network_sim import run_network
 
             return run_network(args)
-        from ..core.errors import SceneError
-        from ..io.scenes import shipped_networks
+        from ..io.scenes import load_either_scene
 
-        try:
-            scene = load_scene(args.scene)
-        except SceneError as exc:  # sim runs belt networks too: the names it takes, all of them
-            if str(exc).startswith("unknown scene"):
-                raise SceneError(f"{exc}; nor a shipped belt network ({', '.join(shipped_networks())})") from None
-            raise
+        scene = load_either_scene(args.scene)  # (an unknown name: the belt networks listed too)
     if args.method_option:
         scene = scene.with_overrides(method_options=_options(args.method_option))
     if args.torque_bag is not None and not is_recording(args.scene):  # (a recording's: read by _resimulation)

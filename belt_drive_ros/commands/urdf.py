@@ -27,7 +27,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..io.scenes import load_scene
     from ..io.atomic import OutputRefused, atomic_output, check_output
     from ..io.inputs import input_replaced
     from ..io.urdf import render_urdf, urdf_from_params
@@ -40,9 +39,13 @@ def run(args) -> int:
         scene = load_network(args.scene)
         text = NetworkLayout(scene).urdf()
     else:
-        scene = load_scene(args.scene)
+        from ..io.scenes import load_either_scene
+
+        scene = load_either_scene(args.scene)  # (an unknown name: the belt networks listed too)
         text = urdf_from_params(scene.params, name=f"belt_drive_{scene.name}".replace("-", "_"))
     for option, path in (("--out", args.out), ("--png", args.png)):
+        if path is not None and not path:
+            raise OutputRefused(f"{option}: an empty path; give a file name (or leave --out out for standard output)")
         if path:
             if input_replaced(path, [args.scene]) is not None:
                 raise OutputRefused(f"{option} {path}: would replace the scene file {args.scene}, which this run reads; "

@@ -20,7 +20,7 @@ from ..core.network.scene import NetworkScene
 from ..core.scene import Scene, shipped_scenes
 from .inputs import parse_yaml, read_text
 
-__all__ = ["is_network", "load_network", "load_scene", "scene_from_mapping", "scene_yaml", "shipped_networks", "shipped_scenes"]
+__all__ = ["is_network", "load_either_scene", "load_network", "load_scene", "scene_from_mapping", "scene_yaml", "shipped_networks", "shipped_scenes"]
 
 
 #: the last scene file parsed, ``[(label, text), mapping]``: a command asks :func:`is_network` of a file, then loads
@@ -62,6 +62,17 @@ def load_scene(name_or_path: str | Path) -> Scene:
     if label not in names:  # compared by name: a name the OS refuses (too long, NUL) never reaches it
         raise SceneError(f"unknown scene {short(label)}: not a file and not a shipped scene ({', '.join(names)})")
     return scene_from_mapping(parse_yaml(_shipped_text(label), label), name=label)
+
+
+def load_either_scene(name_or_path: str | Path) -> Scene:
+    """:func:`load_scene` for a command that takes a belt network too (``sim``, ``urdf``; the network named is the
+    caller's to load first): an unknown name's message lists the shipped belt networks beside the drive scenes."""
+    try:
+        return load_scene(name_or_path)
+    except SceneError as exc:
+        if str(exc).startswith("unknown scene"):
+            raise SceneError(f"{exc}; nor a shipped belt network ({', '.join(shipped_networks())})") from None
+        raise
 
 
 def scene_yaml(scene: Scene) -> str:
