@@ -133,11 +133,10 @@ def _write_mcap(args, scene, run, method: str, dt: float) -> None:
 
     from ..io.atomic import atomic_output
     from ..io.network_bag import scene_text, write_network_mcap
+    from ..io.recording import output_stride
     from ..ros.network_stepper import NetworkStepper
 
-    stride = max(1, int(round(1.0 / (OUTPUT_RATE * dt))))
-    if abs(stride * dt * OUTPUT_RATE - 1.0) > 1e-9:
-        stride = 1
+    stride = output_stride(dt, OUTPUT_RATE)
     rows = range(0, len(run.time), stride)
     stepper = NetworkStepper(scene, method, dt, tier=run.tier)
     states = stepper.run(len(run.time) - 1)  # the loop's own states (the run's, bit for bit)

@@ -146,24 +146,21 @@ def run(args) -> int:
         scene = scene.with_overrides(method_options=_options(args.method_option))
     if args.torque_bag is not None and not is_recording(args.scene):  # (a recording's: read by _resimulation)
         from ..io.resimulate import torque_topic
-        from ..io.torque_bag import silence_note, torque_bag_scene  # offline replay of a recorded profile
+        from ..io.torque_bag import torque_bag_scene  # offline replay of a recorded profile
 
         topic, note = torque_topic(args.torque_bag)  # a node recording: the torque it applied
         if note:
             print(note)
         scene = torque_bag_scene(scene, args.torque_bag, topic=topic,
                                  streamed=lambda s: _samples(s.with_overrides(dt=args.dt, duration=args.duration)) > STREAM_ABOVE)
-        silence = silence_note(scene.drive)
-        if silence:
-            print(silence)
     scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration,
                                  tolerance=getattr(args, "tolerance", None))  # fmt: skip
-    if args.torque_bag is not None and not is_recording(args.scene):
-        from ..io.torque_bag import tail_note
+    if args.torque_bag is not None and not is_recording(args.scene):  # what the drive holds where the bag is silent
+        from ..io.torque_bag import silence_note, tail_note
 
-        tail = tail_note(scene.drive, scene.duration)
-        if tail:
-            print(tail)
+        for note in (silence_note(scene.drive), tail_note(scene.drive, scene.duration)):
+            if note:
+                print(note)
     out_format = check_outputs(args, run_inputs(args, scene))
     if out_format == "mcap":
         from ..io.recording import output_rate_note

@@ -108,6 +108,8 @@ __all__ = [
     "encode_float64",
     "encode_joint_states",
     "encode_robot_description",
+    "output_rate_note",
+    "output_stride",
     "scene_mapping",
     "write_result_mcap",
 ]
@@ -118,11 +120,12 @@ def _output_stride(result, output_rate: Optional[float]) -> int:
     rate = float(output_rate or result.scene.output_rate)
     if not rate > 0 or not math.isfinite(rate):
         raise ValueError(f"output_rate must be a finite number > 0 Hz, got {output_rate!r}")
-    return _stride(result.dt, rate)
+    return output_stride(result.dt, rate)
 
 
-def _stride(dt: float, rate: float) -> int:
-    """Steps of ``dt`` [s] per message at ``rate`` [Hz]: a whole number, else 1 (a message at every step)."""
+def output_stride(dt: float, rate: float) -> int:
+    """Steps of ``dt`` [s] per message at ``rate`` [Hz]: a whole number, else 1 (a message at every step; a single
+    belt's and a network's MCAP alike)."""
     stride = int(round(1.0 / (rate * dt)))
     if stride < 1 or abs(stride * dt * rate - 1.0) > 1e-9:
         return 1
@@ -133,7 +136,7 @@ def output_rate_note(dt: float, rate: float) -> str:
     """A line when the message rate ``rate`` [Hz] is below the step rate ``1 / dt`` but not that rate divided by a
     whole number: the recording then has a message at every step, not at ``rate``; '' otherwise (a rate at or above
     the step rate is every step by design: one message per step at most)."""
-    if not (rate > 0 and math.isfinite(rate)) or rate * dt >= 1.0 - 1e-9 or _stride(dt, rate) > 1:
+    if not (rate > 0 and math.isfinite(rate)) or rate * dt >= 1.0 - 1e-9 or output_stride(dt, rate) > 1:
         return ""
     return (f"note: output_rate {rate:g} Hz is not the step rate {1.0 / dt:g} Hz divided by a whole number: the "
             f"recording has a message at every step ({1.0 / dt:g} Hz)")

@@ -22,6 +22,11 @@ SIDES = {"inner": 1.0, "backside": -1.0}
 MAX_PULLEYS = 64
 #: names a pulley may not take: the tensioner arm's joint and the URDF root (its topics, joint_states, /tf)
 RESERVED_NAMES = ("tensioner_arm", "base_link")
+
+
+def span_name(leaving: str, arriving: str) -> str:
+    """The span from pulley ``leaving`` to pulley ``arriving`` as its topics and columns name it."""
+    return f"{leaving}_{arriving}"
 ROLES = ("driver", "accessory", "idler", "tensioner")
 #: torque sign per role: a driver's profile drives the belt, an accessory's loads it
 ROLE_SIGN = {"driver": 1.0, "accessory": -1.0}
@@ -180,7 +185,7 @@ class NetworkScene:
 
     def span_names(self) -> list[str]:
         n = len(self.pulleys)
-        return [f"{self.pulleys[j].name}_{self.pulleys[(j + 1) % n].name}" for j in range(n)]
+        return [span_name(self.pulleys[j].name, self.pulleys[(j + 1) % n].name) for j in range(n)]
 
     # ------------------------------------------------------------------ reading
     @classmethod
@@ -243,10 +248,10 @@ class NetworkScene:
         spans: dict = {}  # a span is named by its pulleys joined with _ (its topics, columns): each name once
         for j, p in enumerate(pulleys):
             q = pulleys[(j + 1) % len(pulleys)]
-            other = spans.setdefault(f"{p.name}_{q.name}", (p.name, q.name))
+            other = spans.setdefault(span_name(p.name, q.name), (p.name, q.name))
             if other != (p.name, q.name):
                 raise SceneError(f"pulleys: the spans {other[0]} -> {other[1]} and {p.name} -> {q.name} would both be "
-                                 f"named {p.name}_{q.name} (their topics and columns): rename a pulley")
+                                 f"named {span_name(p.name, q.name)} (their topics and columns): rename a pulley")
         roles = [p.role for p in pulleys]
         if roles.count("driver") != 1:
             raise SceneError(f"pulleys: exactly one pulley has role driver, got {roles.count('driver')}")
