@@ -14,7 +14,8 @@ from belt_drive_ros.core.network.model import NetworkModel
 from belt_drive_ros.core.network.scene import NetworkScene
 from belt_drive_ros.core.network.simulate import simulate
 from belt_drive_ros.io.scenes import load_network
-from test_network import _pulley, _scene, _two_pulleys
+from test_network import _pulley, _scene
+from test_network_runs import _two_pulleys
 
 
 
