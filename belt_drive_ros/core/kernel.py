@@ -565,12 +565,23 @@ def _stage_rows(M, i, ra, rb, x0, x1, x2, x3, x4, x5, n, wide, U, count):
 
 
 @njit(**_INLINE)
-def _final(F, ra, rb, x0, x1, x2, x3, x4, x5, n, wide, u0, u1, e0, E, U, last):
-    """Rows ``ra``, ``rb`` of ``F @ [x, U[:last], u0, u1 (, e0)]`` (the last stage's torques as scalars), from the left."""
-    ya, yb = _stage_rows(F, 0, ra, rb, x0, x1, x2, x3, x4, x5, n, wide, U, last)
-    ya = ya + F[0, ra, n + last] * u0 + F[0, ra, n + 1 + last] * u1
-    yb = yb + F[0, rb, n + last] * u0 + F[0, rb, n + 1 + last] * u1
-    return (ya + F[0, ra, n + 2 + last] * e0, yb + F[0, rb, n + 2 + last] * e0) if E else (ya, yb)
+def _final(F, i, ra, rb, x0, x1, x2, x3, x4, x5, n, wide, u0, u1, e0, E, U, last):
+    """Rows ``ra``, ``rb`` of ``F[i] @ [x, U[:last], u0, u1 (, e0)]`` (the latest stage's torques as scalars: they go
+    into the sums straight from the registers, not through ``U``), from the left."""
+    ya, yb = _stage_rows(F, i, ra, rb, x0, x1, x2, x3, x4, x5, n, wide, U, last)
+    ya = ya + F[i, ra, n + last] * u0 + F[i, ra, n + 1 + last] * u1
+    yb = yb + F[i, rb, n + last] * u0 + F[i, rb, n + 1 + last] * u1
+    return (ya + F[i, ra, n + 2 + last] * e0, yb + F[i, rb, n + 2 + last] * e0) if E else (ya, yb)
+
+
+@njit(**_INLINE)
+def _stage_pair(S, i, ra, rb, x0, x1, x2, x3, x4, x5, n, wide, U, m, u0, u1, e0, E):
+    """Rows ``ra``, ``rb`` of stage ``i``'s ``S[i] @ [x, U_0, ..., U_{i-1}]`` (``m`` torques a stage), ``U_{i-1}``
+    being the scalars ``u0, u1 (, e0)``: :func:`_final` of the stage (the same sums as :func:`_stage_rows` over
+    ``U``; the previous stage's torques are not stored and read back on the path from one torque to the next). At
+    stage 0 the scalars are 0.0 and its columns past x are zero padding (:func:`~.kernel_loop.scheme_arrays`): the
+    terms add exact zeros to sums that start from +0.0, which changes no float (and no branch here)."""
+    return _final(S, i, ra, rb, x0, x1, x2, x3, x4, x5, n, wide, u0, u1, e0, E, U, m * max(i - 1, 0))
 
 
 @njit(**_INLINE)
@@ -670,16 +681,16 @@ def _state_loop(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, o
             time = t if offsets[i] == 0.0 else t + offsets[i]
             tc = lo_k if time < lo_k else hi_k if time > hi_k else time
             if kinds[i] == 2:  # the whole stage state (etd2's a), then its wheel coordinates from it
-                b0, b1 = _stage_rows(S, i, 0, 1, x0, x1, x2, x3, x4, x5, n, wide, U, m * i)
+                b0, b1 = _stage_pair(S, i, 0, 1, x0, x1, x2, x3, x4, x5, n, wide, U, m, u0, u1, e0, E)
                 if n == 4 or wide:
-                    b2, b3 = _stage_rows(S, i, 2, 3, x0, x1, x2, x3, x4, x5, n, wide, U, m * i)
+                    b2, b3 = _stage_pair(S, i, 2, 3, x0, x1, x2, x3, x4, x5, n, wide, U, m, u0, u1, e0, E)
                 if wide:  # (n = 5: row 4 twice, no row 5 read)
-                    b4, b5 = _stage_rows(S, i, 4, n - 1, x0, x1, x2, x3, x4, x5, n, wide, U, m * i)
+                    b4, b5 = _stage_pair(S, i, 4, n - 1, x0, x1, x2, x3, x4, x5, n, wide, U, m, u0, u1, e0, E)
             if kinds[i] == 1:  # the wheel coordinates straight from [x, U]
-                c1, c3 = _stage_rows(S, i, 1, 3, x0, x1, x2, x3, x4, x5, n, wide, U, m * i)
+                c1, c3 = _stage_pair(S, i, 1, 3, x0, x1, x2, x3, x4, x5, n, wide, U, m, u0, u1, e0, E)
                 c0 = c2 = 0.0
                 if ua or ub:
-                    c0, c2 = _stage_rows(S, i, 0, 2, x0, x1, x2, x3, x4, x5, n, wide, U, m * i)
+                    c0, c2 = _stage_pair(S, i, 0, 2, x0, x1, x2, x3, x4, x5, n, wide, U, m, u0, u1, e0, E)
                     c0, c2 = (c0 if ua else 0.0), (c2 if ub else 0.0)
             else:  # W @ the stage state (x itself for kind 0)
                 a0, a1, a2, a3, a4, a5 = (x0, x1, x2, x3, x4, x5) if kinds[i] == 0 else (b0, b1, b2, b3, b4, b5)
@@ -707,13 +718,13 @@ def _state_loop(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, o
                 U[m * i], U[m * i + 1] = u0, u1
                 if E:
                     U[m * i + 2] = e0
-        y0, y1 = _final(F, 0, 1, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
+        y0, y1 = _final(F, 0, 0, 1, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
         x0, x1 = y0, y1
         out[k, 0], out[k, 1] = y0, y1
         if wide:  # the general loop's test: x0, x1 finite, the rest (omega_M on) within the limit
-            y2, y3 = _final(F, 2, 3, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
+            y2, y3 = _final(F, 0, 2, 3, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
             # (n = 5: row 4 twice, no row 5 read)
-            y4, y5 = _final(F, 4, n - 1, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
+            y4, y5 = _final(F, 0, 4, n - 1, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
             x2, x3, x4 = y2, y3, y4
             out[k, 2], out[k, 3], out[k, 4] = y2, y3, y4
             if n == 6:
@@ -724,7 +735,7 @@ def _state_loop(times, x, out, lo, hi, cells, clo, chi, base, limit, W, kinds, o
                     or not abs(x5) <= limit):  # fmt: skip
                 return k + 1, DIVERGED, t
         elif n == 4:
-            y2, y3 = _final(F, 2, 3, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
+            y2, y3 = _final(F, 0, 2, 3, b0, b1, b2, b3, b4, b5, n, wide, u0, u1, e0, E, U, last)
             x2, x3 = y2, y3
             out[k, 2], out[k, 3] = y2, y3
             if x0 - x0 != 0.0 or x1 - x1 != 0.0 or not abs(x2) <= limit or not abs(x3) <= limit:
