@@ -326,3 +326,39 @@ def test_network_simulate_refuses_bad_run_arguments_in_one_line(kwargs, message)
     with pytest.raises(SceneError, match="scene: expected a NetworkScene"):
         simulate(None, duration=0.01)
 
+
+
+def test_the_rigid_tiers_arm_sits_where_its_tensions_hold_it():
+    """The rigid tier's span tensions are the belt's static stretch with the arm at its equilibrium; the arm angle it
+    reports is that equilibrium's too (before: the installed angle, where those tensions do not balance the spring).
+    Against the flexible tier's run settled under the same constant torques."""
+    data = _raw_tensioned()
+    data.update(duration=3.0, dt=1e-4, initial_speed=50.0)
+    data["belt"]["damping"] = 20.0
+    data["tensioner"]["damping"] = 0.5
+    scene = NetworkScene.from_mapping(data)
+    rigid = simulate(scene, model="rigid", method="etd2")
+    settled = simulate(scene, model="flexible", method="etd2")
+    assert np.ptp(rigid.arm_angle) < 1e-12  # constant torques: one equilibrium
+    installed = simulate(scene, duration=1e-3, model="flexible", method="etd2").arm_angle[0]
+    assert abs(rigid.arm_angle[-1] - installed) > 1e-4  # the arm has moved from where it was installed
+    assert rigid.arm_angle[-1] == pytest.approx(settled.arm_angle[-1], abs=1e-6)
+    np.testing.assert_allclose(rigid.tension[-1], settled.tension[-1], rtol=1e-4)
+
+
+def test_the_rigid_tiers_arm_follows_a_changing_load():
+    """Under a load that changes (the crank's ramp), the rigid arm swings with the quasi-static tensions: at every
+    sample its swing is the statics' ``a . Q`` (``a``: the arm's row of the stiffness' pseudo-inverse) of the torques
+    the belt takes at the pulleys, read back from the tensions the run reports (not from the arm's own row)."""
+    from belt_drive_ros.core.network.simulate import model_of
+
+    scene = load_network("fead_i4")
+    run = simulate(scene, model="rigid", method="etd2", duration=0.3)
+    model = model_of(scene)
+    m, n = model.M.shape[0], len(scene.pulleys)
+    rhs = np.zeros((m, n))
+    rhs[:n] = np.eye(n)
+    a = np.linalg.lstsq(model.stiffness(), rhs, rcond=None)[0][model.arm]
+    swing = np.asarray(run.states)[:, model.arm]
+    assert np.ptp(swing) > 1e-3  # the arm moves
+    np.testing.assert_allclose(swing, -(run.belt_torque @ a), rtol=0, atol=1e-12)

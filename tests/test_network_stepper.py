@@ -87,6 +87,10 @@ def test_pulley_state_is_the_absolute_state_as_python_floats(tier):
         x = stepper.advance(x, k, k + 3)
         angle, speed, u = stepper.pulley_state(k + 3, x)
         full = stepper.absolute(x)[0]
+        if tier == "rigid":  # the arm at its quasi-static swing (torques needed): the run's own state, as sample gives it
+            assert full[stepper.n] == 0.0
+            full = stepper.sample(k + 3, x)[0].states[0]
+            assert full[stepper.n] != 0.0
         assert angle == full[: stepper.m].tolist() and speed == full[stepper.m :].tolist()
         assert u == stepper.inputs((k + 3) * stepper.dt, x).tolist()
         assert all(type(v) is float for v in angle + speed + u)

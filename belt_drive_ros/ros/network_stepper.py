@@ -32,7 +32,7 @@ import numpy as np
 
 from ..core.errors import SceneError
 from ..core.kernel import wheel_steps
-from ..core.network.model import grid_breakpoints
+from ..core.network.model import arm_swing, grid_breakpoints
 from ..core.network.scene import ROLE_SIGN
 from ..core.network.simulate import (LIMIT, NetworkLoop, advance, auto_tier, clamp, model_of, outputs,
                                      rigid_outputs)
@@ -110,15 +110,16 @@ class NetworkStepper:
     def _pack(self, scene) -> None:
         """The loop's arrays and the joint values' data as :class:`~belt_drive_ros.core.tick.PackedArrays`
         (the compiled tick's two buffers); the loop's ``pk, pp`` become their views (held torques written there)."""
-        from ..core.network.tick import FLOATS, INTS, LAG, RIGID, SAME, ZERO
+        from ..core.network.tick import FLOATS, INTS, LAG, RIGID, SAME, STATIC
         from ..core.tick import PackedArrays
 
         loop, n, m, d = self.loop, len(scene.pulleys), self.model.M.shape[0], scene.driver
         arm = m > n
         if self.tier == "flexible":
             jkind = [SAME if i == d or i >= n else LAG for i in range(m)]
-        else:
-            jkind = [RIGID] * n + [ZERO] * (m - n)
+        else:  # (the rigid tier's arm: at its quasi-static equilibrium)
+            jkind = [RIGID] * n + [STATIC] * (m - n)
+        armc = self.model.rigid_arm_row() if self.tier == "rigid" and arm else np.zeros(n + 2)
         rho = [float(r) for r in self.model.ratios] + [0.0] * (m - n)
         row = [-1] * n
         for r, i in zip(loop.start, loop.active):
@@ -130,7 +131,7 @@ class NetworkStepper:
             dict(W=W, offsets=offsets, S=S, F=F, pp=loop.pp, px=loop.px, py=loop.py, extra=extra, guard=guard, rho=rho,
                  value=np.zeros(n), tsign=[ROLE_SIGN.get(p.role, 0.0) for p in scene.pulleys],
                  gear=[float(p.gear) for p in scene.pulleys], qp=self._rows[1], y=np.zeros(3 * (n + int(arm))),
-                 fscalars=[self.dt, 0.0, LIMIT, tol]),
+                 armc=armc, fscalars=[self.dt, 0.0, LIMIT, tol]),
             dict(kinds=kinds, uses_angle=uses_angle, start=loop.start, pk=loop.pk, jkind=jkind, held=np.zeros(n),
                  uses=[int(p.torque is not None and p.torque.uses_angle) for p in scene.pulleys], row=row,
                  qk=self._rows[0], iscalars=[final_base, max_iter, d, int(arm), -1, -1, -1, -1]))
@@ -236,9 +237,13 @@ class NetworkStepper:
             for i, rho in self._lags:
                 angle[i] = rho * theta_d - xs[i]
             speed = xs[m : 2 * m]
-        elif self.tier == "rigid":
+        elif self.tier == "rigid":  # the arm where the quasi-static tensions hold it (rigid_outputs' arm_swing)
             angle = [xs[0] * rho for rho in self._rho] + ([0.0] if self._arm else [])
             speed = [xs[1] * rho for rho in self._rho] + ([0.0] if self._arm else [])
+            u = self.torques(k * self.dt, angle, speed)
+            if self._arm:
+                angle[-1] = float(arm_swing(self.model.rigid_arm_row().tolist(), xs[0], xs[1], u))
+            return angle, speed, u
         else:
             angle, speed = xs[:m], xs[m : 2 * m]
         return angle, speed, self.torques(k * self.dt, angle, speed)

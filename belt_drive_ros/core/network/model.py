@@ -266,7 +266,8 @@ class NetworkModel:
 
     def rigid_matrices(self):
         """``(A, B)`` of the rigid tier, ``x = [theta_d, omega_d]``: ``J_red omega_d' = sum_i rho_i (u_i - b_i rho_i omega_d)``,
-        ``J_red = sum_i J_i rho_i^2`` (the arm holds still: an inextensible belt keeps its length)."""
+        ``J_red = sum_i J_i rho_i^2`` (an inextensible belt keeps its length: the arm's quasi-static swing,
+        :meth:`rigid_arm_row`, has no inertia in it)."""
         rho = self.ratios
         n = len(rho)
         J, b = np.diag(self.M)[:n], self.bearing_damping
@@ -290,6 +291,42 @@ class NetworkModel:
         rhs[:n] = np.eye(n)
         q = np.linalg.lstsq(self.stiffness(), rhs, rcond=None)[0]
         return self.k[:, None] * (self.stretch @ q)
+
+    def rigid_arm_row(self) -> np.ndarray | None:
+        """(n + 2,) c: the rigid tier's arm swing from its installed angle [rad] as :func:`arm_swing` forms it from
+        ``x = [theta_d, omega_d]`` and the signed pulley torques u [N m], or None without a tensioner.
+
+        The arm sits at the equilibrium the quasi-static tensions of :meth:`rigid_tension_map` hold it at: its
+        swing is ``a . Q`` with ``a`` the arm's row of ``K^+`` and ``Q_i = u_i - J_i rho_i omega_d' - b_i rho_i^2
+        omega_d`` what the belt takes at pulley i (``omega_d' = A_1 x + B_1 u``, :meth:`rigid_matrices`), i.e.
+        ``c = [-(a.J rho) A_10, -(a.J rho) A_11 - a.(b rho^2), a_i - (a.J rho) B_1i]``."""
+        if self.arm < 0:
+            return None
+        found = self.__dict__.get("_rigid_arm_row")
+        if found is not None:
+            return found
+        m, n = self.M.shape[0], len(self.scene.pulleys)
+        rhs = np.zeros((m, n))
+        rhs[:n] = np.eye(n)
+        a = np.linalg.lstsq(self.stiffness(), rhs, rcond=None)[0][self.arm]
+        rho, J, b = self.ratios, np.diag(self.M)[:n], self.bearing_damping
+        A, B = self.rigid_matrices()
+        inertia = float(a @ (J * rho))
+        c = np.concatenate([[-inertia * A[1, 0], -inertia * A[1, 1] - float(a @ (b * rho * rho))], a - inertia * B[1]])
+        c.flags.writeable = False
+        self.__dict__["_rigid_arm_row"] = c
+        return c
+
+
+def arm_swing(c, theta, omega, u) -> np.ndarray | float:
+    """The rigid tier's arm swing [rad] ``c_0 theta + c_1 omega + sum_i c_{2+i} u_i`` (``c``:
+    :meth:`NetworkModel.rigid_arm_row`; ``u``: the pulley torques, a sequence of columns or floats), summed from the
+    left from 0.0: on arrays or floats the same operations (the node's compiled tick sums them in this order too)."""
+    s = 0.0 + c[0] * theta
+    s = s + c[1] * omega
+    for i, ui in enumerate(u):
+        s = s + c[2 + i] * ui
+    return s
 
 
 # ---------------------------------------------------------------------- modes

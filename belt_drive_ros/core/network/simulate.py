@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import IntegratorError, SceneError, SimulationDivergedError, UnstableStepError, short
 from ..identity_cache import built_once
 from ..profile_data import CONSTANT, DIVERGED, NOT_CONVERGED
-from .model import NetworkModel, NetworkRun, check_step, grid_breakpoints, outputs, piece_of, stack_profiles, step_runs
+from .model import NetworkModel, NetworkRun, arm_swing, check_step, grid_breakpoints, outputs, piece_of, stack_profiles, step_runs
 from .scene import run_steps, warm_scene
 
 TIERS = ("auto", "flexible", "rigid", "slipping")
@@ -156,7 +156,8 @@ def run_loop(loop: NetworkLoop, steps: int) -> tuple[np.ndarray, np.ndarray]:
 
 def rigid_outputs(loop: NetworkLoop, times, states, u=None) -> NetworkRun:
     """Outputs of a rigid run: every pulley at its speed ratio, the span tensions quasi-static (the torques each
-    pulley's own equation needs, carried by the belt's static stretch), the arm at its installed angle.
+    pulley's own equation needs, carried by the belt's static stretch), the arm at the equilibrium those tensions hold
+    it at (:func:`~.model.arm_swing`; its speed 0.0: quasi-static).
     ``u`` (N, n): the signed pulley torques applied [N m] (default: the profiles')."""
     model, scene = loop.model, loop.model.scene
     rho, n, m = model.ratios, len(scene.pulleys), model.M.shape[0]
@@ -176,6 +177,8 @@ def rigid_outputs(loop: NetworkLoop, times, states, u=None) -> NetworkRun:
     T = scene.belt.installed_tension + load @ S
     full = np.zeros((len(times), 2 * m))
     full[:, :n], full[:, m : m + n] = states[:, :1] * rho, states[:, 1:2] * rho
+    if model.arm >= 0:
+        full[:, model.arm] = arm_swing(model.rigid_arm_row(), states[:, 0], states[:, 1], u.T)
     return outputs(model, times, full, T)
 
 

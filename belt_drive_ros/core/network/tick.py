@@ -15,7 +15,9 @@ Bit for bit the operations of the reference path
 * torques at ``t = k1 dt``: a held value ``sign_i Q / g_i``, else the profile's
   ``sign Q(t, theta, omega)`` (gear 1) or ``sign Q(t, theta / g, omega / g) / g``
   (the angle 0.0 where the profile reads none);
-* the arm's position ``(theta_a + theta_0) - theta_0``, its velocity ``omega_a``, its effort 0.0.
+* the arm's position ``(theta_a + theta_0) - theta_0``, its velocity ``omega_a``, its effort 0.0; on the rigid
+  tier ``theta_a`` is its quasi-static swing (:func:`~.model.arm_swing` of the new state and the torques) and
+  ``omega_a`` 0.0.
 
 Only ticks of whole steps between the profiles' breakpoints come here; the rest
 go through the stepper's ``advance`` as before.
@@ -31,16 +33,17 @@ from ..kernel_profiles import profile_torque_at
 from ..profile_data import OK
 from ..tick import PackedArrays, _f1, _f2, _f3, _i1
 
-#: per state angle how its joint angle and speed are formed (``jkind``)
-SAME, LAG, RIGID, ZERO = 0, 1, 2, 3
+#: per state angle how its joint angle and speed are formed (``jkind``; STATIC: the rigid tier's arm, its swing
+#: from the state and torques by the ``armc`` row, :meth:`~.model.NetworkModel.rigid_arm_row`)
+SAME, LAG, RIGID, ZERO, STATIC = 0, 1, 2, 3, 4
 #: the float sections of the packed buffer ``reals``, in order (fscalars: dt, theta0, speed limit, tol)
 FLOATS = ("W", "offsets", "S", "F", "pp", "px", "py", "extra", "guard", "rho", "value", "tsign", "gear", "qp", "y",
-          "fscalars")
+          "armc", "fscalars")
 #: the int sections in ``ints`` (iscalars: final_base, max_iter, driver, arm, then the message's layout: the float64
 #: index of its positions, velocities, efforts and the uint32 index of its stamp; -1: no message)
 INTS = ("kinds", "uses_angle", "start", "pk", "jkind", "held", "uses", "row", "qk", "iscalars")
-_W, _OFFSETS, _S, _F, _PP, _PX, _PY, _EXTRA, _GUARD, _RHO, _VALUE, _TSIGN, _GEAR, _QP, _Y, _FSCALARS = range(16)
-_KINDS, _USES_ANGLE, _START, _PK, _JKIND, _HELD, _USES, _ROW, _QK, _ISCALARS = range(16, 26)
+_W, _OFFSETS, _S, _F, _PP, _PX, _PY, _EXTRA, _GUARD, _RHO, _VALUE, _TSIGN, _GEAR, _QP, _Y, _ARMC, _FSCALARS = range(17)
+_KINDS, _USES_ANGLE, _START, _PK, _JKIND, _HELD, _USES, _ROW, _QK, _ISCALARS = range(17, 27)
 
 
 @njit(cache=True, nogil=True)
@@ -52,7 +55,8 @@ def network_tick(k0, steps, x, out, lo, hi, reals, ints, msg, stamp):
     ``reals``, ``ints``: the packed buffer, its int64 view (:data:`FLOATS`, :data:`INTS`). ``W .. guard, kinds .. pk``:
     the network loop's arguments of :func:`~belt_drive_ros.core.kernel.wheel_steps` (both profile banks the same stack,
     :class:`~.simulate.NetworkLoop`). ``jkind, rho`` (m,): per state angle :data:`SAME`/:data:`LAG`/:data:`RIGID`/
-    :data:`ZERO` and its ratio; ``theta0`` the arm's installed angle, ``arm`` 1 with an arm. Per pulley (n,):
+    :data:`ZERO`/:data:`STATIC` and its ratio; ``theta0`` the arm's installed angle, ``arm`` 1 with an arm,
+    ``armc`` (n + 2) the rigid tier arm's row (:meth:`~.model.NetworkModel.rigid_arm_row`). Per pulley (n,):
     ``held`` 1 when its torque is held at ``value`` [N m], ``tsign`` its profile's sign (0: no profile), ``gear``,
     ``uses`` 1 when the profile reads its angle, ``row`` its first row in ``qk, qp`` (the scene's profiles,
     stacked as the loop's ``pk, pp`` before any hold) and ``px, py``. ``y`` (3 (n + arm)): positions, velocities,
@@ -109,6 +113,13 @@ def network_tick(k0, steps, x, out, lo, hi, reals, ints, msg, stamp):
         y[2 * j + i] = u
     if arm:
         y[2 * j + n] = 0.0
+        if jkind[m - 1] == STATIC:  # the rigid tier's arm: its swing from the state and the torques, from the left
+            c = _f1(reals, ints, _ARMC)
+            a = 0.0 + c[0] * xs[0]
+            a = a + c[1] * xs[1]
+            for i in range(n):
+                a = a + c[2 + i] * y[2 * j + i]
+            y[n] = (a + theta0) - theta0
     if js[7] >= 0:  # the joint_states message: its three arrays of j doubles and its stamp
         f, words = msg.view(np.float64), msg.view(np.uint32)
         for q in range(3):
@@ -133,7 +144,7 @@ def warm() -> None:
         (FLOATS, INTS),
         dict(W=W, offsets=offsets, S=S, F=F, pp=loop.pp, px=loop.px, py=loop.py, extra=extra, guard=guard,
              rho=np.ones(2), value=np.array([0.1, 0.0]), tsign=np.array([1.0, -1.0]), gear=np.ones(2), qp=loop.pp,
-             y=np.zeros(6), fscalars=np.array([1e-3, 0.0, LIMIT, tol])),
+             y=np.zeros(6), armc=np.zeros(4), fscalars=np.array([1e-3, 0.0, LIMIT, tol])),
         dict(kinds=kinds, uses_angle=uses_angle, start=loop.start, pk=loop.pk, jkind=np.array([SAME, LAG]),
              held=np.array([1, 0]), uses=np.zeros(2), row=loop.start, qk=loop.pk,
              iscalars=np.array([final_base, max_iter, 0, 0, -1, -1, -1, -1])))
