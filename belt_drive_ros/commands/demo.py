@@ -66,7 +66,14 @@ def run(args) -> int:
         except OSError as exc:
             raise OutputRefused(f"--out-dir {args.out_dir}: cannot make the folder: {exc.strerror or exc}") from None
     if not args.no_live:
-        live_run(args.scene, args.duration, args.executor)
+        signum = live_run(args.scene, args.duration, args.executor).get("interrupted", 0)
+        if signum:  # Ctrl-C or SIGTERM: the live summary is printed; the rest of the demo is not run
+            import signal
+            import sys
+
+            print(f"belt-drive: demo: interrupted by {signal.Signals(signum).name} during the live run; the offline "
+                  "parts were not run", file=sys.stderr)
+            return 128 + int(signum)
     code = 0
     if not args.no_offline:
         from .sim import run as run_sim
@@ -106,7 +113,8 @@ def belt_statement(summary: dict, tick_s: float) -> str:
 
 
 def live_run(scene_name: str = "truck_compressor", duration: float = 4.0, executor: str = "auto") -> dict:
-    """Engine source -> belt node for ``duration`` s of real time; print and return the summary figures."""
+    """Engine source -> belt node for ``duration`` s of real time; print and return the summary figures
+    (``interrupted``: the signal that ended the run early, 0 when it ran its ``duration``)."""
     import time
 
     from ..ros import environment as ros_env
@@ -129,9 +137,9 @@ def live_run(scene_name: str = "truck_compressor", duration: float = 4.0, execut
             )
             clock.update(wall=time.perf_counter(), cpu=time.process_time(), ticks=node.counters["ticks"])
 
-        def stopped(_signum) -> None:
+        def stopped(signum) -> None:
             clock.update(wall=time.perf_counter() - clock["wall"], cpu=time.process_time() - clock["cpu"])
-            clock["summary"] = _summary(node, nodes[2].seen, clock)
+            clock["summary"] = {**_summary(node, nodes[2].seen, clock), "interrupted": int(signum or 0)}
 
         spin_nodes(nodes, context, executor=executor, started=started, stopped=stopped, duration=duration)
     return clock["summary"]
