@@ -245,13 +245,13 @@ def _errors(a: np.ndarray, b: np.ndarray, rtol: float, atol: float) -> Tuple[np.
     return err, rel, ratio
 
 
-def _holes(t: np.ndarray, max_gap_periods: float, origin_ns: int) -> str:
-    """Why the time series ``t`` [ns] has holes ("" if none): duplicate stamps, or a gap
-    longer than ``max_gap_periods`` median periods (0 disables the gap check)."""
+def _holes(t: np.ndarray, max_gap_periods: float, origin_ns: int, duplicates: bool = True) -> str:
+    """Why the time series ``t`` [ns] has holes ("" if none): duplicate stamps (unless ``duplicates`` is False),
+    or a gap longer than ``max_gap_periods`` median periods (0 disables the gap check)."""
     if t.size < 2:
         return ""
     d = np.diff(t)
-    dup = np.flatnonzero(d == 0)
+    dup = np.flatnonzero(d == 0) if duplicates else np.empty(0, dtype=np.intp)
     if dup.size:
         return (f"{dup.size} duplicate time stamps (first at t={(int(t[dup[0]]) - origin_ns) * 1e-9:.6g} s)")
     if max_gap_periods > 0 and t.size >= 3:
@@ -281,9 +281,12 @@ def _compare_signal(
         return SignalResult(name, False, reason=f"no samples in {which}")
     identical = ta.shape == tb.shape and np.array_equal(ta, tb)
     for which, t in (("A", ta), ("B", tb)):
-        # a gap both series have at the same stamps is no sample missing from one of them (a /clock jump the
-        # recording and its re-simulation share): only a gap of one is a hole; duplicate stamps always are
-        hole = _holes(t, 0.0 if identical else max_gap_periods, int(ta[0]) if which == "A" else int(tb[0]))
+        # a gap or duplicate stamps both series have at the same stamps are no sample missing from one of them, nor
+        # an ambiguous pairing (a /clock jump the recording and its re-simulation share; a raw input two messages of
+        # which arrived within one /clock period, logged at one time, passed through): the samples pair in order.
+        # Only a gap or duplicates of one series are holes
+        hole = _holes(t, 0.0 if identical else max_gap_periods, int(ta[0]) if which == "A" else int(tb[0]),
+                      duplicates=not identical)
         if hole:
             return SignalResult(name, False, time_base="", reason=f"{hole} in {which}")
     if identical:
@@ -292,9 +295,10 @@ def _compare_signal(
         base = "relative"
     elif time_base == "absolute":
         base = "absolute"
-    else:
-        overlap = min(ta[-1], tb[-1]) >= max(ta[0], tb[0])
-        base = "absolute" if overlap else "relative"
+    else:  # absolute where the common time range holds enough of both series, else each from its start
+        lo, hi = max(ta[0], tb[0]), min(ta[-1], tb[-1])
+        enough = hi >= lo and min(((ta >= lo) & (ta <= hi)).mean(), ((tb >= lo) & (tb <= hi)).mean()) >= min_coverage
+        base = "absolute" if enough else "relative"
     if base == "relative":
         origin_ns = int(ta[0])
         ta = ta - ta[0]
@@ -376,7 +380,9 @@ def compare(
         How to align times: identical time stamps are always used directly;
         ``absolute`` interpolates B onto A's times on the common clock;
         ``relative`` first shifts each series to start at 0; ``auto`` uses
-        ``absolute`` if the series overlap in time, else ``relative``.
+        ``absolute`` if the series' common time range holds ``min_coverage`` of
+        each, else ``relative`` (two runs of a scene started seconds apart on
+        the wall clock overlap partly: they compare from their starts).
     min_coverage : float
         Fraction of each series' samples that must lie in the common time range.
     max_gap_periods : float

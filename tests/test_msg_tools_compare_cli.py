@@ -424,3 +424,19 @@ def test_folder_compare_takes_upper_case_mcap_files_too(tmp_path):
     assert list(recordings_in(tmp_path / "fa")) == ["x.MCAP"]
     report = compare_folders(tmp_path / "fa", tmp_path / "fb")
     assert not report.passed
+
+
+def test_auto_compares_runs_started_seconds_apart_from_their_starts(tmp_path, golden):
+    """Two runs of the same scene stamped with the wall time a few seconds apart overlap partly: auto took that
+    for a common clock and failed every signal ('common time range holds 78.3%'); it compares them from their starts
+    now, as it did for runs that do not overlap at all."""
+    later = _run(tmp_path / "later.mcap", t0_ns=10**9)
+    data = read_topic(later, "/drive_torque")
+    span = int(data.log_time_ns[-1] - data.log_time_ns[0])
+    shifted = tmp_path / "shifted.mcap"
+    with Ros2McapWriter(shifted) as w:
+        for t, v in zip(data.log_time_ns, data.data):
+            w.write("/drive_torque", "std_msgs/msg/Float64", {"data": v}, int(t) + span // 4)  # a quarter later
+    report = compare(shifted, golden, topics=["/drive_torque"])
+    assert report.passed and report.signals[0].time_base == "relative"
+    assert not compare(shifted, golden, topics=["/drive_torque"], time_base="absolute").passed

@@ -157,6 +157,9 @@ def test_compare_fails_on_a_hole_in_the_middle_and_on_duplicate_stamps(tmp_path)
     report = compare(doubled, golden)
     assert not report.passed and all("1 duplicate time stamps" in s.reason for s in report.signals)
     assert compare(golden, _write(tmp_path / "again.mcap")).passed
+    # duplicates both files have at the same stamps pair in order (a raw input passed through by a re-simulation)
+    assert compare(doubled, _write(tmp_path / "doubled_twin.mcap", duplicate={100})).passed
+    assert not compare(doubled, _write(tmp_path / "doubled_elsewhere.mcap", duplicate={200})).passed
 
 
 def test_compare_folders_pairwise_with_a_summary_table(tmp_path):
