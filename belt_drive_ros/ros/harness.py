@@ -14,7 +14,7 @@ Example::
 
     from belt_drive_ros.ros.harness import BeltDriveHarness
 
-    with BeltDriveHarness(scene="paper", model="flexible", method="exact") as h:
+    with BeltDriveHarness(scene="paper", model="flexible", method="etd4") as h:
         h.publish_torque(8.0)            # N m on wheel M, sampled at the next tick and held
         h.advance(0.5)                   # 500 ticks of 1 ms of simulated time
         h.publish_torque(0.0)
