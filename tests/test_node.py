@@ -627,3 +627,20 @@ def test_robot_description_is_latched_for_late_joiners(ros_domain_id):
         pulley = [float(c.get("radius")) for link in ET.fromstring(got[1]).iter("link")
                   if link.get("name") == "wheel_3_link" for c in link.iter("cylinder")]
         assert pulley == [pytest.approx(r_3 * 1.5, rel=1e-12)]
+
+
+def test_a_reset_is_the_next_ticks_restart_which_publishes_the_initial_state(ros_domain_id):
+    """~/reset between ticks: the next tick is scene time 0 and publishes the initial state (as a /clock that jumped
+    back does), and the ticks after it repeat the run from its start under the held torque (before: scene time 0 was
+    the previous tick, already published with the old state, and the first output after the reset was 1 ms on)."""
+    with BeltDriveHarness(scene="paper", domain_id=ros_domain_id, input_timeout=0.0) as h:
+        h.publish_torque(8.0)  # (after the harness' first tick at 0: held from the tick at 1 ms on)
+        h.advance(0.005)
+        h.reset()
+        h.advance(0.004)
+        out = h.outputs()
+    t = np.rint(out["time"] * 1e9).astype(np.int64)
+    np.testing.assert_array_equal(t, np.arange(10) * 1_000_000)
+    assert out["omega_M"][5] > 0.0 and out["omega_M"][6] == 0.0 and out["phi_M"][6] == 0.0  # reset at the 6 ms tick
+    for name in ("omega_M", "phi_M", "relative_deflection", "belt_torque", "drive_torque"):
+        np.testing.assert_array_equal(out[name][6:10], out[name][1:5], err_msg=name)  # the 8 N m run from its state 0

@@ -428,11 +428,12 @@ class BeltDriveNode(Node):
                 return None
             got = done  # (the general path took it)
         else:
-            if self._resets_pending:
+            got = False
+            if self._resets_pending:  # the restart is this tick's: scene time 0 here, the initial state published
                 with self.drive.lock:  # (the inputs' hand-over lock: _on_reset counts under it)
                     calls, self._resets_pending = self._resets_pending, 0
-                sim.restart(f"~/reset, {calls} call(s) since the last tick")
-            got = sim.advance_to(now_ns)
+                got = sim.restart(f"~/reset, {calls} call(s) since the last tick", now_ns)
+            got = got or sim.advance_to(now_ns)
         sends = self._publish(now_ns, defer) if got else None
         if not defer:
             self._after_tick()
@@ -627,10 +628,11 @@ class BeltDriveNode(Node):
 
         A burst of calls therefore costs each one only its answer: the ticks
         go on, and no call publishes an output set of its own. The answer
-        comes before the restart is published; the outputs of the next tick
-        start from the initial state. (Two nodes of the same name in a domain
+        comes before the restart is published; the next tick publishes the
+        initial state. (Two nodes of the same name in a domain
         both serve this one service name: a call reaches either or both, as
-        DDS delivers requests to every matching server.)
+        DDS delivers requests to every matching server.) The next tick is the restart: scene time 0 at its
+        time, its outputs the initial state (as a /clock that jumped back restarts where it landed).
         """
         with self.drive.lock:  # the inputs' hand-over lock, not the tick's: a tick computing now does not hold it
             self._resets_pending += 1
@@ -641,9 +643,10 @@ class BeltDriveNode(Node):
         return response
 
     def reset(self) -> None:
-        """Restart from the scene's initial state at the last tick (published by the next tick)."""
-        with self.timing.lock:
-            self.sim.restart("reset requested")
+        """Restart from the scene's initial state at the next tick (as ``~/reset``: scene time 0 there, the initial
+        state its outputs)."""
+        with self.drive.lock:
+            self._resets_pending += 1
 
     def destroy_node(self):
         timing = getattr(self, "timing", None)
