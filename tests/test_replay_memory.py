@@ -198,3 +198,30 @@ def test_replay_memory_does_not_grow_with_the_bag(tmp_path, monkeypatch):
     long = _peak_bytes(run("long"))
     per_sample = (long - short) / ((LONG_MINUTES - 0.25) * 60_000)
     assert per_sample < 16, (short, long, per_sample)
+
+
+def test_a_topic_whose_channels_carry_two_types_is_not_paged(tmp_path):
+    """/drive_torque in two channels, Float64 then String (whose 12-byte CDR is as long as a Float64's): the paged
+    read checked the first channel's type only and read the strings' bytes as torques (8.6e-307 N m, exit 0, on a
+    bag long enough to stream). Now it leaves such a topic to the whole read, which refuses it by name."""
+    import struct
+
+    from mcap.writer import Writer
+
+    bag = tmp_path / "mixed.mcap"
+    with open(bag, "wb") as f:
+        w = Writer(f)
+        w.start(profile="ros2", library="test")
+        s1 = w.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data\n")
+        s2 = w.register_schema("std_msgs/msg/String", "ros2msg", b"string data\n")
+        a, b = w.register_channel("/drive_torque", "cdr", s1), w.register_channel("/drive_torque", "cdr", s2)
+        for i in range(4000):
+            t = 10**18 + i * 10**6
+            data = (b"\x00\x01\x00\x00" + struct.pack("<I", 4) + b"abc\x00" if i >= 2000
+                    else b"\x00\x01\x00\x00" + struct.pack("<d", 5.0 + i * 1e-3))
+            w.add_message(b if i >= 2000 else a, log_time=t, publish_time=t, data=data, sequence=i)
+        w.finish()
+    base = load_scene(str(SCENE)).with_overrides(dt=1e-3)
+    assert paged_torque_bag(base, bag) is None  # the whole read decides
+    with pytest.raises(BagReadError, match="carry different message types"):
+        scene_with_torque_bag(base, bag)

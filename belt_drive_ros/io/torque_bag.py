@@ -523,9 +523,10 @@ def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Option
         return None
     drive = None
     try:
-        schema = chunked._summary.schemas.get(chunked._summary.channels[chunked._cids[0]].schema_id)
-        if schema is None or schema.name.replace("/msg/", "/") != FLOAT64.replace("/msg/", "/"):
-            raise LookupError
+        for cid in chunked._cids:  # every channel of the topic (the whole read refuses a topic of mixed types)
+            schema = chunked._summary.schemas.get(chunked._summary.channels[cid].schema_id)
+            if schema is None or schema.name.replace("/msg/", "/") != FLOAT64.replace("/msg/", "/"):
+                raise LookupError
         first = chunked.float64(0)[0]
         if not len(first):
             raise LookupError
