@@ -104,6 +104,13 @@ def _cases(tmp):
                                     "--out-dir /proc/d: cannot make the folder"),
         "bench hostile --only nonexistent": (["bench", "hostile", "--only", "nonexistent", "--out", str(tmp)],
                                              "--only: categories of 'bench hostile' .*got 'nonexistent'"),
+        # a ROS stamp's seconds are int32: 2100 wrapped to sec = -192522496 (exit 0), fead_i4 an internal error
+        "sim --start-time 2100": (["sim", "paper", "--start-time", "2100-01-01T00:00:00Z", "--out", str(tmp / "y.mcap")],
+                                  "--start-time .*must be between 1970 and 2038-01-19T03:14:07Z"),
+        "sim --start-time ending past 2038": (["sim", "paper", "--start-time", "2038-01-19T03:14:06Z", "--out",
+                                               str(tmp / "y.mcap")], "--start-time: the run's last sample .*past 2038"),
+        "network sim --start-time ending past 2038": (["sim", "fead_i4", "--start-time", "2038-01-19T03:14:07Z", "--out",
+                                                       str(tmp / "f.mcap")], "--start-time: the run's last sample .*past 2038"),
     }
 
 
@@ -122,7 +129,8 @@ CASES = [
     "node --name 'a b'", "source --name ''", "source --rate 0", "record --topics 'bad topic'", "demo --scene paper (a motor)", "demo --scene paper with outputs", "demo --no-live --no-offline --no-network",
     "record --ros-args --bogus", "source --ros-args -p", "bench node --scene nonexistent", "bench node -p garbage",
     "bench hostile --only nonexistent", "bench --out in /proc", "demo --out-dir in /proc", "replay --start-offset nan",
-    "replay --wait-subscribers -1",
+    "replay --wait-subscribers -1", "sim --start-time 2100", "sim --start-time ending past 2038",
+    "network sim --start-time ending past 2038",
 ]
 
 

@@ -160,9 +160,25 @@ def parse_start_time(text: str) -> Optional[int]:
         if when.tzinfo is None:
             when = when.replace(tzinfo=datetime.timezone.utc)
         seconds = when.timestamp()
-    if not (math.isfinite(seconds) and 0 <= seconds < 2**63 / 1e9):
-        raise ValueError(f"--start-time {text!r}: must be between 1970 and 2262")
+    if not (math.isfinite(seconds) and 0 <= seconds <= STAMP_MAX_S):
+        raise ValueError(f"--start-time {text!r}: must be between 1970 and 2038-01-19T03:14:07Z (a ROS time stamp's "
+                         "seconds are a 32-bit integer)")
     return int(round(seconds * 1e9))
+
+
+#: the last second a ROS time stamp holds (builtin_interfaces/Time: int32 sec): 2038-01-19T03:14:07Z
+STAMP_MAX_S = 2**31 - 1
+
+
+def check_stamp_span(start_ns: Optional[int], duration: float) -> None:
+    """Refuse (ValueError, one line) a run from ``start_ns`` [ns since the epoch] over ``duration`` [s] whose last
+    stamp a ROS time stamp cannot hold (its seconds wrapped to negative years); ``None``: the wall time, fine."""
+    if start_ns is None:
+        return
+    end = start_ns / 1e9 + float(duration)
+    if end >= STAMP_MAX_S + 1:
+        raise ValueError(f"--start-time: the run's last sample would be stamped {end:.0f} s after 1970, past "
+                         "2038-01-19T03:14:07Z, the last second a ROS time stamp holds (32-bit seconds)")
 
 
 def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/",
