@@ -13,7 +13,8 @@ from typing import Callable
 import numpy as np
 
 from .accuracy import (
-    AccuracyReport, probe_scene, require_accurate, require_accurate_slipping, slip_run_error, with_slip_run_error,
+    AccuracyReport, between_samples, probe_scene, require_accurate, require_accurate_slipping, slip_run_error,
+    with_between_samples, with_slip_run_error,
 )  # fmt: skip
 from .accuracy_probes import rigid_plant
 from .errors import SceneError, SimulationDivergedError, UnstableStepError
@@ -233,6 +234,11 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
     if flex is not None:  # the flexible model throughout: its run, bit for bit
         time, states = flex
         result = _linear_result(scene, sim.flexible, sim.plant, time, states, sim.stability, accuracy, wall)
+        if result.accuracy is not None:  # an excursion past the limit the step-end check did not see: not silent
+            y = np.column_stack([result.states, np.zeros(len(result.time))])
+            result.accuracy = with_between_samples(result.accuracy, *between_samples(
+                sim.model, result.time, y, np.zeros(len(result.time), dtype=np.int8), result.inputs),
+                sim.stability.omega_n if sim.stability is not None else math.nan)
         ratio, t_peak = limit_exceedance(scene.params, time, result.outputs)
         result.choice = replace(linear, limit_ratio=ratio, limit_time=t_peak)
         return result
@@ -420,6 +426,8 @@ def _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accu
             scene.params, scene.drive, scene.load, scene.method, scene.dt, time, states, modes, sigmas,
             [e.time for e in events], scene.method_options, sim._hybrid, (outputs["omega_M"], outputs["belt_torque"]),
         ))  # fmt: skip
+        accuracy = with_between_samples(accuracy, *between_samples(m, time, states, modes, u),
+                                        sim.stability.omega_n if sim.stability is not None else math.nan)
     energy = {"kinetic": m.kinetic_energy(states), "potential": m.potential_energy(states), **work}
     return SimResult(
         scene=scene, model="slipping", method=sim.integrator.name, dt=scene.dt, time=time, states=states,
