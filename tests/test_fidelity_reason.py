@@ -75,3 +75,37 @@ def test_the_slipping_reason_quotes_the_linear_one(formatted):
                              f"at t = 0.25 s in the flexible run ({linear.reason})")  # fmt: skip
     assert sorted(formatted) == ["_linear_reason", "_slipping_reason"]
     assert choice == choose_model(scene, linear=linear, limit=(1.5, 0.25))  # equal choices: their texts compared
+
+
+def _speed_limited(width: float):
+    """e_motor_start with its motor cut from 60 to 0 N m between 100 and 100 + ``width`` rad/s (a speed limiter),
+    its soft start 0.3 s over 2 s."""
+    from belt_drive_ros.core.scene import Scene
+    from belt_drive_ros.io.scenes import load_scene
+
+    data = load_scene("e_motor_start").to_dict()
+    data.update(name=f"speed_limited_{width:g}", duration=2.0, model="auto", method="etd4", dt=2e-4)
+    data["drive"] = {"type": "motor", "curve": [[0.0, 60.0], [100.0, 60.0], [100.0 + width, 0.0], [400.0, 0.0]],
+                     "soft_start_time": 0.3}
+    return Scene.from_mapping(data)
+
+
+def test_a_torque_that_cuts_off_with_the_speed_is_an_excitation_the_rule_sees():
+    """A motor curve that falls from 60 to 0 N m within 5 rad/s: as the speed passes it the belt torque drops in
+    milliseconds and rings (the flexible run differs from the rigid one by 7 % of the peak), but the profile's own
+    excitation is only its soft start (3.3 Hz against a 162 Hz belt): auto chose rigid, rated accurate. The rigid
+    run's fastest belt-torque change over its swing (72 Hz, 0.44 of the belt mode) now counts; the shipped
+    e_motor_start (1 Hz) stays rigid, and a cut spread over 20 rad/s (13.5 Hz) too."""
+    import numpy as np
+
+    from belt_drive_ros.core.simulate import simulate
+    from belt_drive_ros.io.scenes import load_scene
+
+    steep = _speed_limited(5.0)
+    result = simulate(steep)
+    assert result.model == "flexible" and "fastest belt-torque change" in result.choice.reason
+    rigid = simulate(steep, model="rigid")
+    peak = np.max(np.abs(result.outputs["belt_torque"]))
+    assert np.max(np.abs(result.outputs["belt_torque"] - rigid.outputs["belt_torque"])) > 0.03 * peak  # it mattered
+    assert simulate(load_scene("e_motor_start")).model == "rigid"
+    assert simulate(_speed_limited(20.0)).model == "rigid"

@@ -184,7 +184,10 @@ class RigidSurvey:
 
     * ``states``: ``{stop time [s]: (phi_M [rad], omega_M [rad/s])}``;
     * ``speeds``: (max |omega_M|, max |omega_3| [rad/s], max |belt torque| [N m])
-      over every knot, what the frequency rule reads the operating point from.
+      over every knot, what the frequency rule reads the operating point from;
+    * ``change_frequency``: the belt torque's fastest change over its swing, ``max |dT_b/dt| / (max T_b - min
+      T_b)`` [1/s] (a ramp of duration tau: 1/tau), which a torque that changes with the speed shows and its
+      profile's own excitation frequencies do not (a motor curve that cuts off within a few rad/s).
 
     Run on first use, in pieces of at most :data:`SURVEY_CHUNK` steps (bounded memory); a run that
     diverges sets ``error`` (the probes fall back to the start, ``speeds`` raises it).
@@ -244,12 +247,19 @@ class RigidSurvey:
             x, t, pending = np.array(self.motion), 0.0, [s for s in stops if s > 0.0]
             held = []  # pieces whose speeds and belt torques are not read yet: one evaluation for up to a chunk's knots
 
+            change = [0.0, math.inf, -math.inf]  # max |dT_b/dt| [N m/s], min and max T_b [N m]
+
             def read(held):  # the largest |omega_M| and |belt torque| so far (a max is exact: the same floats in one go)
                 time, states = (held[0] if len(held) == 1 else
                                 (np.concatenate([h[0] for h in held]), np.concatenate([h[1] for h in held])))  # fmt: skip
                 held.clear()
                 u = plant.input_array(time, states)
                 belt = _rigid_belt_torque(model, states[:, 0], states[:, 1], u[:, 0], u[:, 1])
+                if belt.size > 1:
+                    step = time[1:] - time[:-1]
+                    rate = np.abs(belt[1:] - belt[:-1])[step > 0.0] / step[step > 0.0]  # (pieces repeat their ends)
+                    change[0] = max(change[0], float(rate.max()) if rate.size else 0.0)
+                change[1], change[2] = min(change[1], float(belt.min())), max(change[2], float(belt.max()))
                 return max(w, float(np.abs(states[:, 1]).max())), max(peak, float(np.abs(belt).max()))
 
             for e in sorted(ends):
@@ -270,6 +280,8 @@ class RigidSurvey:
             if self.duration <= 0:
                 peak = abs(self._start_torque)
             self._speeds = (w, w * self.params.ratio, peak)
+            swing = change[2] - change[1]
+            self._change = change[0] / swing if swing > 0.0 and math.isfinite(swing) else 0.0
         except Exception as exc:  # noqa: BLE001 - a rigid estimate that diverges: the probes fall back to the start
             self.error = exc
 
@@ -281,6 +293,15 @@ class RigidSurvey:
         if self.error is not None:
             raise self.error
         return self._speeds
+
+    @property
+    def change_frequency(self) -> float:
+        """The rigid belt torque's fastest change over its swing [1/s] (see the class; 0.0: it never changed)."""
+        if not self._done:
+            self._run()
+        if self.error is not None:
+            raise self.error
+        return self._change
 
     def probe_states(self):
         """``(probe times, plain, early, states)`` for the guard's probes (start only when the run diverged)."""

@@ -172,6 +172,11 @@ def _linear_outputs(scene, kind: str):
     return time, model.outputs(states, stepper.plant.input_array(time, states))
 
 
+#: the rigid run's belt-torque change over its swing (:attr:`RigidSurvey.change_frequency`) counts as an excitation
+#: when it exceeds this many times the profiles' highest frequency (a sine at f changes at pi f over its swing)
+CHANGE_FACTOR = 4.0
+
+
 def _linear_choice(scene, speeds=None, start_torque=None, survey=None) -> ModelChoice:
     """Rigid or flexible for ``scene`` by the frequency rule, with the reason (``speeds``, ``start_torque``,
     ``survey``: see :func:`choose_model`; without speeds the survey, default one run here, gives them)."""
@@ -190,6 +195,19 @@ def _linear_choice(scene, speeds=None, start_torque=None, survey=None) -> ModelC
         )))
     excitations = tuple(sorted(((float(f), label) for f, label in excitations), reverse=True))
     f_max = excitations[0][0] if excitations else 0.0
+    if f_max < FREQUENCY_RATIO_THRESHOLD * f_n and survey is not None:
+        # what the profiles' own frequencies miss: a torque that changes with the state (a motor curve cut off within
+        # a few rad/s swings the belt torque in milliseconds as the speed passes it), from the rigid run
+        try:
+            f_change = survey.change_frequency
+        except Exception:  # noqa: BLE001 - a survey that diverged: the profiles' frequencies decide
+            f_change = 0.0
+        # (a harmonic of frequency f changes at pi f over its swing: only a change the profiles' frequencies cannot
+        # explain counts, past CHANGE_FACTOR times the highest of them)
+        if f_change >= FREQUENCY_RATIO_THRESHOLD * f_n and f_change > CHANGE_FACTOR * f_max:
+            excitations = ((f_change, "the rigid run's fastest belt-torque change (max |dT/dt| over its swing, a "
+                                      "torque that changes with the speed)"),) + excitations
+            f_max = f_change
     ratio = f_max / f_n
     if math.isinf(f_max) or ratio >= FREQUENCY_RATIO_THRESHOLD:
         model = "flexible"
