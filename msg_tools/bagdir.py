@@ -54,6 +54,9 @@ def bag_files(path: Union[str, "os.PathLike[str]"]) -> List[str]:
             relative = []
         if not isinstance(relative, list) or not all(isinstance(p, str) and p for p in relative):
             raise CorruptBagError(f"{meta}: relative_file_paths is not a list of file names")
+        for p in relative:  # the bag's own files: a path that leaves the folder is no part of it
+            if os.path.isabs(p) or ".." in p.replace("\\", "/").split("/"):
+                raise CorruptBagError(f"{meta}: relative_file_paths names {p!r}, outside the bag folder")
         files = [os.path.join(path, p) for p in relative]
         for file in files:
             _check_regular(file, f"{meta} lists")
@@ -154,6 +157,7 @@ def folder_damage(path: Union[str, "os.PathLike[str]"], *, summaries: Optional[D
     listed = {os.path.normpath(e["path"]): e for e in _listed_files(path)}
     damage: List[str] = []
     spans: Dict[Tuple[Any, Any, int], str] = {}
+    timed: List[Tuple[int, int, str]] = []  # (start, end [ns], name) of each file with messages, in the files' order
     for file in files:
         s = summaries[file] if summaries and file in summaries else summary(file, verify=False)
         name = os.path.basename(file)
@@ -162,6 +166,8 @@ def folder_damage(path: Union[str, "os.PathLike[str]"], *, summaries: Optional[D
         if s.message_count and span in spans:
             damage.append(f"{name} holds the same {s.message_count} messages as {spans[span]} (a file repeated)")
         spans.setdefault(span, name)
+        if s.message_count and s.start_ns is not None and s.end_ns is not None:
+            timed.append((s.start_ns, s.end_ns, name))
         entry = listed.get(os.path.normpath(file))
         if entry is None:
             continue
@@ -172,6 +178,14 @@ def folder_damage(path: Union[str, "os.PathLike[str]"], *, summaries: Optional[D
         elif entry["count"] and (start, duration) != (entry["start"], entry["duration"]):
             damage.append(f"{name} spans {start} ns + {duration} ns, {METADATA_FILE} says "
                           f"{entry['start']} ns + {entry['duration']} ns")
+    read = {os.path.normpath(f) for f in files}
+    damage.extend(f"{METADATA_FILE} describes {os.path.basename(p)} in files:, which is not among the files it lists"
+                  for p in listed if p not in read)
+    # split files follow each other in time (a file begins where the last ended or later; the latched messages a new
+    # file repeats are stamped with its first log time): two that overlap are no one recording's splits
+    for (_, end_a, a), (start_b, _, b) in zip(timed, timed[1:]):
+        if start_b < end_a:
+            damage.append(f"{b} starts {(end_a - start_b) / 1e9:.6g} s before {a} ends: split files do not overlap")
     return damage
 
 

@@ -46,6 +46,8 @@ from .reader import TopicData, read_bag
 __all__ = ["CompareReport", "FolderReport", "SignalResult", "compare", "compare_folders", "signals_of"]
 
 TIME_BASES = ("auto", "absolute", "relative")
+#: the type of /tf: skipped when only one file has it (see :func:`compare`)
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 
 
 @dataclass
@@ -438,6 +440,12 @@ def compare(
                 # e.g. /robot_description in a new recording, not in an older golden: nothing to compare
                 report.skipped.append((topic, f"{present.type_name} has no numeric signals (only in "
                                               f"{'A' if in_a else 'B'})"))
+                continue
+            if wanted_in is None and present.type_name == TF_MESSAGE:
+                # the transforms joint_states' angles give (compared where both files have them): a golden written
+                # without /tf is no sample missing
+                report.skipped.append((topic, f"{TF_MESSAGE} only in {'A' if in_a else 'B'} (the transforms "
+                                              "of joint_states, compared where both files have them)"))
                 continue
             path = a_name if not in_a else b_name
             report.signals.append(

@@ -314,7 +314,10 @@ def _numeric_leaves(obj: Any, prefix: str = "") -> Dict[str, Any]:
     """Return numeric leaf fields of a decoded message by dotted path.
 
     ``builtin_interfaces/Time`` fields (time stamps) and strings are skipped;
-    numeric arrays are kept as tuples; arrays of messages are skipped.
+    numeric arrays are kept as tuples; an array of messages gives each element's
+    leaves under ``path[label]``, the label its ``child_frame_id`` where it has
+    one (a ``tf2_msgs/TFMessage``'s transforms: ``transforms[wheel_M_link].
+    transform.rotation.w``), else its index.
     """
     out: Dict[str, Any] = {}
     for name in getattr(obj, "__slots__", ()):
@@ -331,6 +334,10 @@ def _numeric_leaves(obj: Any, prefix: str = "") -> Dict[str, Any]:
                 out[path] = tuple(float(v) for v in value)
         elif isinstance(value, (bytes, bytearray)):
             continue
+        elif isinstance(value, (list, tuple)) and value and all(hasattr(v, "__slots__") for v in value):
+            for k, item in enumerate(value):
+                label = getattr(item, "child_frame_id", None)
+                out.update(_numeric_leaves(item, f"{path}[{label if isinstance(label, str) and label else k}]."))
         elif hasattr(value, "__slots__") and not _is_time(value):
             out.update(_numeric_leaves(value, path + "."))
     return out

@@ -440,3 +440,25 @@ def test_auto_compares_runs_started_seconds_apart_from_their_starts(tmp_path, go
     report = compare(shifted, golden, topics=["/drive_torque"])
     assert report.passed and report.signals[0].time_base == "relative"
     assert not compare(shifted, golden, topics=["/drive_torque"], time_base="absolute").passed
+
+
+def test_tf_transforms_are_compared_by_child_frame(tmp_path):
+    """Every recording carries /tf; compare skipped it ('TFMessage has no numeric signals'), so a wrong wheel
+    transform passed. Each transform's translation and rotation are signals now, named by its child frame."""
+    def tf_bag(path, w_last):
+        def message(w):
+            return {"transforms": [
+                {"header": {"stamp": {"sec": 1, "nanosec": 0}, "frame_id": "base_link"}, "child_frame_id": child,
+                 "transform": {"translation": {"x": 0.1, "y": 0.0, "z": 0.0},
+                               "rotation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": w if child == "wheel_3_link" else 1.0}}}
+                for child in ("wheel_M_link", "wheel_3_link")]}
+        with Ros2McapWriter(path) as writer:
+            for i in range(20):
+                writer.write("/tf", "tf2_msgs/msg/TFMessage", message(w_last if i == 19 else 1.0), 10**9 + i * 10**6)
+        return path
+
+    a, b = tf_bag(tmp_path / "a.mcap", 1.0), tf_bag(tmp_path / "b.mcap", 0.123)
+    same = compare(a, tf_bag(tmp_path / "a2.mcap", 1.0))
+    assert same.passed and "tf/transforms[wheel_3_link].transform.rotation.w" in [s.name for s in same.signals]
+    report = compare(b, a)
+    assert not report.passed and report.worst.name == "tf/transforms[wheel_3_link].transform.rotation.w"

@@ -363,3 +363,39 @@ def test_a_damaged_chunk_after_the_stop_is_still_refused(original, tmp_path):
     assert status == 1 and "DAMAGED" in out and "RECOVERED" not in out, out + err
     status, out, err = _cli("export", str(path), "--topic", "/joint_states")
     assert status == 2 and _one_line_error(status, err) and out == "", err
+
+
+def test_a_bag_folder_reads_only_its_own_files_and_no_overlapping_splits(tmp_path):
+    """metadata.yaml naming a file outside its folder ('../../p.mcap', read and called complete) is refused; two
+    split files that overlap in time (merged by --torque-bag without a word) are damage; a files: entry that
+    matches none of the files listed is named."""
+    from msg_tools import Ros2BagWriter
+    from msg_tools.bagdir import folder_damage
+
+    def folder(name):
+        path = tmp_path / name
+        with Ros2BagWriter(path, max_bag_duration=0.1, chunk_size=4096, flush_interval_s=None) as w:
+            for i in range(300):
+                w.write("/drive_torque", "std_msgs/msg/Float64", {"data": float(i)}, 10**9 + i * 1_000_000)
+        return path
+
+    good = folder("good")
+    assert folder_damage(good) == []
+    escape = folder("escape")
+    meta = escape / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("- escape_0.mcap", "- ../good/good_0.mcap"))
+    status, out, err = _cli("info", str(escape))
+    assert status == 2 and "outside the bag folder" in err and _one_line_error(status, err), err
+    overlap = folder("overlap")
+    (overlap / "metadata.yaml").unlink()  # (its counts and spans would disagree first)
+    with Ros2BagWriter(tmp_path / "other", flush_interval_s=None) as w:  # 50 messages inside overlap_1's span
+        for i in range(50):
+            w.write("/drive_torque", "std_msgs/msg/Float64", {"data": -1.0}, 10**9 + (120 + i) * 1_000_000)
+    (overlap / "overlap_2.mcap").write_bytes((tmp_path / "other" / "other_0.mcap").read_bytes())
+    assert any("split files do not overlap" in d for d in folder_damage(overlap)), folder_damage(overlap)
+    status, out, err = _cli("info", str(overlap))
+    assert status == 1 and "DAMAGED" in out
+    stray = folder("stray")
+    meta = stray / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("    - stray_2.mcap\n", "", 1))  # listed no more, still described
+    assert any("stray_2.mcap in files:" in d for d in folder_damage(stray)), folder_damage(stray)
