@@ -108,3 +108,16 @@ def test_node_method_auto_chooses_and_says_why():
     assert coarse.substeps > 1 and coarse.accuracy.accurate, coarse.method_reason
     stated = build_settings({**values, "method": "etd2"})
     assert stated.method_reason == "etd2: set by parameter 'method'"
+
+
+def test_an_undeclared_parameter_set_over_the_service_is_named_in_the_reason(ros_domain_id):
+    """rclpy answers a SetParameters request for a name the node does not have with 'Invalid access to undeclared
+    parameter(s): []' (its generator is used up before the message is made): an external client learned nothing.
+    The node names it, and the request beside it in a non-atomic call is answered on its own."""
+    from belt_drive_ros.ros.harness import BeltDriveHarness
+
+    with BeltDriveHarness(scene="paper", domain_id=ros_domain_id, input_timeout=0.0) as h:
+        bogus, good = h.set_parameters_over_the_service(foo=1.0, k=2.5e4)
+        assert not bogus.successful and "foo: not a parameter of the node" in bogus.reason, bogus.reason
+        assert good.successful and h.node.get_parameter("k").value == 2.5e4
+        h.advance(0.01)  # the node ticks on

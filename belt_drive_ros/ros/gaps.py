@@ -15,8 +15,10 @@ either. Each such stretch is a :class:`TickGap`:
   [ns, the node's time base; across a clock switch the two are on different
   bases];
 * ``missed``: the ticks of the grid never published in between,
-  ``(end - start) / tick - 1`` on one grid; across a clock switch the ticks
-  the node would have made in the wall (monotonic) time that passed;
+  ``(end - start) / tick - 1`` on one grid; across a clock switch none (the
+  time between is no tick the node owed: ``/clock`` waits are the time
+  master's, and the run restarts on the new base; the cause says how much
+  wall time passed);
 * ``cause``: what is known: a clock switch (which), the system clock stepped
   forward (its step exceeds the monotonic time that passed), or the process
   not running (monotonic time passed as well: SIGSTOP, suspend, starvation).
@@ -130,7 +132,7 @@ class TickGaps:
                 self._switch = None
                 wall = mono - last_mono
                 chain = bases if bases[-1] == time_base else bases + [time_base]
-                self._add(TickGap(last, now_ns, max(0, wall // tick_ns - 1),
+                self._add(TickGap(last, now_ns, 0,
                                   f"clock switched ({' -> '.join(chain)}); the run restarted after "
                                   f"{wall / 1e9:.3f} s of wall time without ticks", f"{bases[0]} -> {time_base}"))
         elif time_base == "system" and now_ns - t_ns > tick_ns:
