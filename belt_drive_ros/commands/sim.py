@@ -161,14 +161,15 @@ def run(args) -> int:
         for note in (silence_note(scene.drive), tail_note(scene.drive, scene.duration)):
             if note:
                 print(note)
-    from ..io.recording import check_stamp_span
+    if args.start_time is not None:  # (mcap loads for an MCAP output only)
+        from ..io.recording import check_stamp_span
 
-    try:
-        check_stamp_span(args.start_time, scene.duration)
-    except ValueError as exc:
-        from ..core.errors import ParameterError
+        try:
+            check_stamp_span(args.start_time, scene.duration)
+        except ValueError as exc:
+            from ..core.errors import ParameterError
 
-        raise ParameterError("--start-time", str(exc).split(": ", 1)[1]) from None
+            raise ParameterError("--start-time", str(exc).split(": ", 1)[1]) from None
     out_format = check_outputs(args, run_inputs(args, scene))
     if out_format == "mcap":
         from ..io.recording import output_rate_note
