@@ -485,7 +485,7 @@ def _refuse_network(where, given: str) -> None:
         raise CampaignError(_NETWORK.format(given=short(given), what=what, names=", ".join(shipped_scenes())))
 
 
-_NETWORK = ("scene: {given} is {what} (belt-drive sim and network-sim run it); campaigns run drive scenes only: "
+_NETWORK = ("scene: {given} is {what} (belt-drive sim runs it); campaigns run drive scenes only: "
             "a shipped one ({names}) or a drive scene file")
 
 

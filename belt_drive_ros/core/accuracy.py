@@ -11,7 +11,7 @@ A load of ``10 omega_3`` on a light wheel 3 is a damping rate of ``10 / I_3`` [1
 torque over the step) amplifies instead of damping once ``h 10 / I_3`` passes 2. And methods exact for the free belt
 mode need not be exact for the forced response: Lawson methods integrate ``e^{hA}`` exactly but not the convolution
 with a held torque, so their settled deflection under constant torques drifts from the static value as ``h omega_n``
-grows (1.65 of it at 8).
+grows (1.67 of it at 8).
 
 This guard checks both, from the method's own stage scheme (no per-method formula): the one-step map of the method
 on the linearized closed loop, ``x+ = M x + G u_0``, is read off :func:`~belt_drive_ros.core.stage_scheme.step` with
@@ -325,7 +325,7 @@ def _creep_error(integrator, model: SlippingBeltModel, w: float) -> float:
     stepped exactly as the plant's affine term). A method that keeps equilibria (every Runge-Kutta, the ETD methods,
     ``exact``) holds ``theta_e`` at ``Q / (2 k r_3)`` under a held ``Q``; an integrating-factor (Lawson) one does
     not once ``h k / c`` is large: its fixed point ``G / (1 - Phi)`` of the creep's one-step map is off by
-    ``S(h lambda) / phi_1(h lambda) - 1`` (lawson5: 0.6 % at ``h k / c = 5``, 190 % at 25, where ``bsg_start`` at
+    ``S(h lambda) / phi_1(h lambda) - 1`` (lawson5: 0.5 % at ``h k / c = 5``, 190 % at 25, where ``bsg_start`` at
     1 ms slid on for the whole run). That equilibrium error at ``Q_max(w)``, as the slip speed's, is the term."""
     params = model.params
     if params.belt_mass <= 0.0 or params.c <= 0.0:
