@@ -102,3 +102,30 @@ def test_the_shipped_slipping_scenes_have_no_excursion_between_samples(name):
 
     result = simulate(load_scene(name))
     assert result.model == "slipping" and result.accuracy.accurate and math.isnan(result.accuracy.between)
+
+
+def test_auto_does_not_rerun_in_memory_past_its_bound(monkeypatch):
+    """method auto runs the scene again at the step the run's own estimate names, in memory: 64x the steps of a long
+    run held 6.4M samples (2.2 GB) where the CLI had decided not to stream. Past RERUN_MAX_STEPS the result is the
+    first run's, its reason naming the step and why it was not run."""
+    from belt_drive_ros.core import simulate as simulate_module
+
+    monkeypatch.setattr(simulate_module, "RERUN_MAX_STEPS", 50)  # (the step it names needs 115 steps)
+    result = simulate(_step_slip(method="auto", dt=0.035))
+    assert result.dt == 0.035 and not result.accuracy.accurate
+    assert "not run again here" in result.method_choice.reason and "0.00875 s" in result.method_choice.reason
+
+
+def test_a_streamed_slipping_run_finds_the_excursion_between_samples_too():
+    """A long run streams in windows; its guard had the modes only, so the verdict flipped at the streaming
+    threshold. The between-samples term is found window by window (each with its seam sample): the last window's
+    verdict is the whole run's."""
+    from belt_drive_ros.core.stream import stream
+
+    scene = _step_slip(method="exact", dt=0.035).with_overrides(model="slipping")
+    whole = simulate(scene)
+    windows = list(stream(scene, window_steps=7))
+    assert len(windows) > 3 and not whole.accuracy.accurate
+    last = windows[-1].accuracy
+    assert (last.between, last.between_time, last.accurate) == (whole.accuracy.between, whole.accuracy.between_time,
+                                                                False)

@@ -28,6 +28,9 @@ from .stability import StabilityReport, require_stable
 from .stepper import SPEED_LIMIT, Plant, Stepper, shared_plant, shared_stepper
 
 __all__ = ["CSV_COLUMNS", "SPEED_LIMIT", "Plant", "SimResult", "Simulator", "simulate"]
+#: ``method: auto`` runs the scene again at the step its run's own estimate names only up to this many steps (a run
+#: in memory holds each: ~256 B a step with its outputs, so ~1 GB); past it the result says so and names the step
+RERUN_MAX_STEPS = 4_000_000
 #: CSV columns required by the CLI, SI units.
 CSV_COLUMNS = (
     "time",
@@ -163,6 +166,15 @@ def simulate(
     if method_choice is None:
         return result
     report = result.accuracy
+    if (report is not None and not report.accurate and report.suggestion is not None and report.suggestion < scene.dt
+            and scene.duration / report.suggestion > RERUN_MAX_STEPS):  # fmt: skip
+        # (a run in memory holds every step: 64x the steps of a long run is gigabytes; the caller runs that step)
+        result.method_choice = replace(method_choice, reason=(
+            f"{method_choice.reason}; {method_choice.method} at dt={scene.dt:.3g} s rated {report.error:.2g} on the "
+            f"run itself, and the step that meets it, {report.suggestion:.3g} s, would hold "
+            f"{scene.duration / report.suggestion:.3g} steps in memory: not run again here (run that dt: "
+            "belt-drive sim streams a long run)"))
+        return result
     if report is not None and not report.accurate and report.suggestion is not None and report.suggestion < scene.dt:
         # the slipping run's own estimate (events, error across slip phases) is only known after it: once more
         # at the step it names, the chosen method kept
