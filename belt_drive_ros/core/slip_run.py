@@ -547,10 +547,13 @@ class SlippingSimulator:
         t = float(t0)
         while t < t1:  # progress between windows
             k = math.floor((t - self.origin) / self.dt) + steps
+            while self.stepper.grid_time(k) <= t:  # (t a rounding past its knot: a window of 1 step still advances)
+                k += 1
             t_next = self.stepper.grid_time(k) if self.stepper.grid_time(k) < t1 - snap_tolerance(t1, self.dt) else t1
             state = self.advance(state, t, t_next, pieces, events)
             t = t_next
-            yield _joined(pieces)
+            if pieces:  # (a window whose one step ended on the last one's last sample holds none)
+                yield _joined(pieces)
             pieces = []
             if progress:
                 progress((t - t0) / max(duration, 1e-300))
