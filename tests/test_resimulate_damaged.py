@@ -144,7 +144,7 @@ def test_a_failed_disk_read_is_a_read_error_naming_the_file(recording, tmp_path,
     path = tmp_path / "rec.mcap"
     path.write_bytes(recording)
 
-    def failing(file):
+    def failing(file, topics=None):
         raise OSError(errno.EIO, "Input/output error")
         yield  # (a generator, as the reader is)
 
