@@ -241,8 +241,14 @@ def check_plot_size(args, samples: float) -> None:
     raise OutputRefused(
         f"--plot: a plot holds every sample it draws in memory and this run has {samples:.3g} "
         f"(~{samples * 300 / 2**30:.2g} GiB with both models); pass --plot-every {every} (or more) to draw every "
-        f"{every}th sample, or plot a shorter --duration (--out streams at full rate)"
+        f"{_ordinal(every)} sample, or plot a shorter --duration (--out streams at full rate)"
     )
+
+
+def _ordinal(n: int) -> str:
+    """``n`` as an English ordinal: 2nd, 3rd, 11th, 21st."""
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
 
 
 def _write_plot(scene, runs, args) -> None:
@@ -250,9 +256,10 @@ def _write_plot(scene, runs, args) -> None:
     from ..io.plotting import plot_runs
 
     runs = sorted(runs, key=lambda r: r.model != "rigid")
+    models = " vs ".join(dict.fromkeys(r.model for r in runs))
     with atomic_output(args.plot, args.force, "wb", what="--plot") as f:
-        plot_runs(runs, f, title=f"scene '{scene.name}': rigid vs flexible belt"
-                  + (f" (every {args.plot_every}th sample)" if args.plot_every > 1 else ""))
+        plot_runs(runs, f, title=f"scene '{scene.name}': {models} belt"
+                  + (f" (every {_ordinal(args.plot_every)} sample)" if args.plot_every > 1 else ""))
     print(f"wrote {args.plot}")
 
 
