@@ -248,19 +248,23 @@ def test_fuzz_mutated_recordings_give_a_clean_error_or_a_correct_result(original
     assert tally["error"] > 50 and tally["correct"] + tally["recovered prefix"] > 10, tally
 
 
+def _split_folder(path, n: int):
+    """A rosbag2 folder at ``path`` of ``n`` Float64 messages at 1 kHz, split every 0.1 s (n / 100 files)."""
+    from msg_tools import Ros2BagWriter
+
+    with Ros2BagWriter(path, max_bag_duration=0.1, chunk_size=4096, flush_interval_s=None) as w:
+        for i in range(n):
+            w.write("/drive_torque", "std_msgs/msg/Float64", {"data": float(i)}, 10**9 + i * 1_000_000)
+    return path
+
+
 def test_damaged_split_bag_folders_give_a_clean_error_or_a_damage_report(tmp_path):
     """A rosbag2 bag folder (split recording) with a file missing, cut short or duplicated, or a
     garbage, huge or alias-bomb metadata.yaml: every verb errors in one line or reports damage."""
     import shutil
 
-    from msg_tools import Ros2BagWriter
-
     def folder(name):
-        path = tmp_path / name
-        with Ros2BagWriter(path, max_bag_duration=0.1, chunk_size=4096, flush_interval_s=None) as w:
-            for i in range(600):
-                w.write("/drive_torque", "std_msgs/msg/Float64", {"data": float(i)}, 10**9 + i * 1_000_000)
-        return path
+        return _split_folder(tmp_path / name, 600)
 
     good = folder("good")
     assert len(list(good.glob("*.mcap"))) == 6
@@ -373,11 +377,7 @@ def test_a_bag_folder_reads_only_its_own_files_and_no_overlapping_splits(tmp_pat
     from msg_tools.bagdir import folder_damage
 
     def folder(name):
-        path = tmp_path / name
-        with Ros2BagWriter(path, max_bag_duration=0.1, chunk_size=4096, flush_interval_s=None) as w:
-            for i in range(300):
-                w.write("/drive_torque", "std_msgs/msg/Float64", {"data": float(i)}, 10**9 + i * 1_000_000)
-        return path
+        return _split_folder(tmp_path / name, 300)
 
     good = folder("good")
     assert folder_damage(good) == []
