@@ -338,3 +338,19 @@ def test_the_variant_kernel_compiles_once_and_runs_interpreted_alike(tmp_path):
         states[jit] = np.load(path)
     assert states["0"].shape == (21, 6, 3)  # the states and the knots' torques
     assert np.array_equal(states["0"], states["1"])
+
+
+def test_auto_in_the_ensemble_sees_a_torque_that_changes_with_the_speed():
+    """A motor curve cut from 60 to 0 N m within 5 rad/s: simulate runs it flexible (the rigid run's fastest
+    belt-torque change, 72 Hz against a 162 Hz belt); the campaign's ensemble chose rigid for every variant (its
+    rigid estimate gave the rule no change frequency). The ensemble's estimate records it too: the same tier, and
+    the variants equal their single runs."""
+    from test_fidelity_reason import _speed_limited
+
+    scenes = _variants(_speed_limited(5.0).with_overrides(duration=0.6), 4, seed=3)
+    outcomes = sorted(simulate_many(scenes), key=lambda o: o.index)
+    for outcome, s in zip(outcomes, scenes):
+        single = simulate(s)
+        assert single.model == "flexible" and "fastest belt-torque change" in single.choice.reason
+        assert outcome.error is None and outcome.result.model == "flexible"
+        _assert_equal_to_single(outcome.result, single)

@@ -366,15 +366,25 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
         block = GroupRun([i for i, _ in members], [s for _, s in members], rigid, "rigid", "exact", None, None, None)
         # as fidelity's rigid estimate: max |omega_M|, max |omega_3|, max |belt torque|; and the belt torque
         # the start needs: the rigid belt torque at t = 0 (fidelity.start_mismatch)
-        estimate = Reductions({"w": "max", "peak": "max", "start": "first"})
+        # and, as the survey's change_frequency, its belt torque's fastest change and swing (windows share their end
+        # knots: every step is inside one)
+        estimate = Reductions({"w": "max", "peak": "max", "start": "first", "rate": "max", "lo": "min", "hi": "max"})
         for times, states in ens.windows(x0, 0.0, T, size):
             belt = block.window(times, states, ens.inputs(times, states)).output("belt_torque")
-            with np.errstate(invalid="ignore"):
+            step = np.diff(times)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                rate = (np.max(np.abs(np.diff(belt, axis=0))[step > 0.0] / step[step > 0.0, None], axis=0)
+                        if np.any(step > 0.0) else np.zeros(belt.shape[1]))  # fmt: skip
                 estimate.update(
-                    {"w": np.max(np.abs(states[:, 1, :]), axis=0), "peak": np.max(np.abs(belt), axis=0), "start": belt[0]}
+                    {"w": np.max(np.abs(states[:, 1, :]), axis=0), "peak": np.max(np.abs(belt), axis=0), "start": belt[0],
+                     "rate": rate, "lo": np.min(belt, axis=0), "hi": np.max(belt, axis=0)}
                 )
         w, peak = estimate.values["w"], estimate.values["peak"]
         start = estimate.values["start"].tolist()
+        swing = estimate.values["hi"] - estimate.values["lo"]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            change = np.where((swing > 0.0) & np.isfinite(swing), estimate.values["rate"] / np.where(swing > 0.0, swing, 1.0),
+                              0.0)  # fmt: skip
         kinds, linear = {}, {}
         for v, (i, s) in enumerate(members):
             if not math.isfinite(w[v]):  # the estimate diverged: simulate reports it
@@ -382,7 +392,8 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
                 continue
             speeds = (float(w[v]), float(w[v]) * s.params.ratio, float(peak[v]))
             try:
-                linear[i] = choose_model(s, check_slip=False, speeds=speeds, start_torque=start[v])
+                linear[i] = choose_model(s, check_slip=False, speeds=speeds, start_torque=start[v],
+                                         change_frequency=float(change[v]))
                 kinds[i] = linear[i].model
             except BeltDriveError as exc:
                 yield Outcome(i, None, _error_line(exc), True)

@@ -108,16 +108,17 @@ def start_mismatch(scene, needed: float | None = None) -> tuple[float, float]:
 def choose_model(
     scene, check_slip: bool = True, linear_run=None, speeds=None,
     linear: ModelChoice | None = None, start_torque: float | None = None, limit: tuple | None = None,
-    survey: RigidSurvey | None = None,
+    survey: RigidSurvey | None = None, change_frequency: float | None = None,
 ) -> ModelChoice:
     """Rigid, flexible or slipping for ``scene``, with the reason (module docstring). ``check_slip``: go on to
     ``slipping`` past the capstan limit (False: the linear tiers only). What the caller has already (else computed
     here): ``linear_run`` ``f(model_name) -> (time, outputs)`` (``simulate`` keeps it as its result); ``speeds``
     (max |omega_M|, max |omega_3| [rad/s], max |belt torque| [N m]) of the rigid estimate; ``linear`` the frequency
     rule's choice; ``start_torque`` (:func:`start_mismatch`); ``limit`` (:func:`limit_exceedance`); ``survey``
-    (the :class:`RigidSurvey` shared with the accuracy guard's probes).
+    (the :class:`RigidSurvey` shared with the accuracy guard's probes); ``change_frequency`` the rigid estimate's
+    :attr:`~RigidSurvey.change_frequency` [1/s] when the caller made its own estimate (a campaign's ensemble).
     """
-    choice = linear if linear is not None else _linear_choice(scene, speeds, start_torque, survey)
+    choice = linear if linear is not None else _linear_choice(scene, speeds, start_torque, survey, change_frequency)
     if choice.linear != choice.model:  # (the frequency rule's own choice names its tier already)
         choice = _replaced(choice, linear=choice.model)
     if not check_slip:
@@ -177,9 +178,10 @@ def _linear_outputs(scene, kind: str):
 CHANGE_FACTOR = 4.0
 
 
-def _linear_choice(scene, speeds=None, start_torque=None, survey=None) -> ModelChoice:
+def _linear_choice(scene, speeds=None, start_torque=None, survey=None, change_frequency=None) -> ModelChoice:
     """Rigid or flexible for ``scene`` by the frequency rule, with the reason (``speeds``, ``start_torque``,
-    ``survey``: see :func:`choose_model`; without speeds the survey, default one run here, gives them)."""
+    ``survey``, ``change_frequency``: see :func:`choose_model`; without speeds the survey, default one run here,
+    gives them)."""
     if speeds is None:
         survey = survey or RigidSurvey.of_scene(scene)
         speeds, start_torque = survey.speeds, survey.start_torque if start_torque is None else start_torque
@@ -195,11 +197,11 @@ def _linear_choice(scene, speeds=None, start_torque=None, survey=None) -> ModelC
         )))
     excitations = tuple(sorted(((float(f), label) for f, label in excitations), reverse=True))
     f_max = excitations[0][0] if excitations else 0.0
-    if f_max < FREQUENCY_RATIO_THRESHOLD * f_n and survey is not None:
+    if f_max < FREQUENCY_RATIO_THRESHOLD * f_n and (survey is not None or change_frequency is not None):
         # what the profiles' own frequencies miss: a torque that changes with the state (a motor curve cut off within
         # a few rad/s swings the belt torque in milliseconds as the speed passes it), from the rigid run
         try:
-            f_change = survey.change_frequency
+            f_change = change_frequency if change_frequency is not None else survey.change_frequency
         except Exception:  # noqa: BLE001 - a survey that diverged: the profiles' frequencies decide
             f_change = 0.0
         # (a harmonic of frequency f changes at pi f over its swing: only a change the profiles' frequencies cannot
