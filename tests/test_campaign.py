@@ -408,3 +408,20 @@ def test_a_sizing_batch_that_breaks_as_a_whole_is_rows_with_the_reason(tmp_path,
     failed = run.table[run.table["error"].str.startswith("batch failed: RuntimeError: worker lost")]
     assert list(failed["variant"]) == [0, 1, 2, 3] and len(run.table) == campaign.size > 8
     assert run.table[~run.table.index.isin(failed.index)]["error"].eq("").all()
+
+
+def test_the_summary_counts_an_infinite_metric_beyond_its_limit(tmp_path):
+    """A belt that lifts off (F_0 = 0) has friction use inf: the summary left such rows out of the range and of the
+    limit's count ('max 1.6e6, 3 beyond' where 6 were); a failed run's NaN stays out."""
+    from belt_drive_ros.campaign.report import summary
+
+    data = {"scene": "paper", "set": {"duration": 0.5, "model": "flexible"},
+            "limits": {"peak_friction_use": 1.0}, "grid": {"params.F_0": [400.0, 0.0]}}  # fmt: skip
+    campaign = _campaign(tmp_path, data)
+    table = pd.DataFrame({"variant": [0, 1, 2, 3], "ran": ["ensemble"] * 4, "error": ["", "", "", "boom"],
+                          "model": ["flexible"] * 4, "single_reason": [""] * 4})
+    for name in campaign.metrics:
+        table[name] = 0.5
+    table["peak_friction_use"] = [0.5, np.inf, 1.6e6, np.nan]
+    line = next(row for row in summary(table, campaign).splitlines() if row.strip().startswith("peak_friction_use"))
+    assert line.split()[-3:] == ["1:", "2", "beyond"] and "inf" in line, line

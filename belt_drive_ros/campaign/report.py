@@ -61,7 +61,7 @@ def summary(table, campaign, wall: float | None = None, workers: int | None = No
     lines.append(f"  {'metric':<20s}{'unit':>7s}{'min':>13s}{'median':>13s}{'max':>13s}  limit")
     for name in campaign.metrics:
         values = table[name].to_numpy(dtype=float)
-        finite = values[np.isfinite(values)]
+        finite = values[~np.isnan(values)]  # (a failed run's NaN left out; an infinite use, a lifted belt, counts)
         unit = METRICS[name][0]
         limit = campaign.limits.get(name)
         stats = (np.min(finite), np.median(finite), np.max(finite)) if finite.size else (math.nan,) * 3
