@@ -385,3 +385,67 @@ def test_joint_values_alone_equal_those_of_the_whole_outputs(tier):
         alone = layout.joint_values(*stepper.pulley_state(k + 3, x))
         assert alone == layout.values(run, u)[0]
     assert len(alone) == 3 * len(layout.joints) and np.ptp(alone[len(layout.joints): 2 * len(layout.joints)]) > 0.0
+
+
+def _clock(h: Lockstep, t_ns: int, expect_ns: int) -> None:
+    """Publish /clock = ``t_ns`` and wait until the node's tick time is ``expect_ns`` and its outputs are in."""
+    from rosgraph_msgs.msg import Clock
+
+    msg = Clock()
+    msg.clock.sec, msg.clock.nanosec = divmod(t_ns, 1_000_000_000)
+    h.clock.publish(msg)
+    h.until(lambda: h.node.sim.t_ns == expect_ns and all(len(v) >= h.node.counters["published"] for v in h.got.values()),
+            f"tick {expect_ns}")
+
+
+def test_a_clock_between_grid_points_publishes_the_last_grid_points_state_at_its_time(ros_domain_id):
+    """/clock at 4.5 and 7.6 ticks: the node steps whole steps, so it publishes the state of ticks 4 and 7 stamped at
+    their own times (it rounded: 7.6 published the state of 8 stamped 7.6, then again at 8), and a /clock with no
+    new grid point since the last tick publishes nothing. The samples are an on-grid run's, no stamp twice."""
+    h = Lockstep(ros_domain_id, joints=True)
+    try:
+        h.step(START_NS)
+        for k, t in ((1, 1.0), (2, 2.0), (3, 3.0), (4, 4.5), (4, 4.7), (5, 5.0), (6, 6.0), (7, 7.6), (8, 8.0)):
+            _clock(h, START_NS + int(t * TICK_NS), START_NS + k * TICK_NS)
+        published = h.node.counters["published"]
+        odd = list(h.got["joint_states"])
+    finally:
+        h.close()
+    assert published == 9 and len(odd) == 9  # start and ticks 1-8, each once (4.7 published nothing)
+    on_grid = _lockstep_run(Lockstep(ros_domain_id, joints=True), range(1, 9), {})
+    assert odd == on_grid["joint_states"]
+
+
+def test_a_network_recording_whose_node_restarted_is_refused(tmp_path, ros_domain_id, capsys):
+    """/clock back from tick 6 to tick 2: the node restarts there (scene time 0) and records the restart; the
+    re-simulation stepped the file as one run and exited 0 with a different run. It refuses it now, naming the
+    restart and its time."""
+    from belt_drive_ros.cli import main
+
+    rec = tmp_path / "node.mcap"
+    _lockstep_run(Lockstep(ros_domain_id, record_path=str(rec)), [1, 2, 3, 4, 5, 6, 2, 3, 4], {})
+    capsys.readouterr()
+    assert main(["sim", str(rec), "--out", str(tmp_path / "re.mcap")]) == 2
+    err = capsys.readouterr().err
+    assert "cannot re-simulate: the node restarted from the initial state (clock jumped back)" in err, err
+    assert not (tmp_path / "re.mcap").exists()
+
+
+def test_a_network_node_takes_an_integer_for_a_float_and_names_an_undeclared_parameter(ros_domain_id):
+    """`-p step_rate_hz:=500` (an integer) was refused at start ('wrong type INTEGER, expecting DOUBLE') where the
+    paper node stores it as a double; and a SetParameters request for a name the node does not have was answered
+    'undeclared parameter(s): []'. It names it now."""
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    h = Lockstep(ros_domain_id, step_rate_hz=500)
+    try:
+        assert h.node.get_parameter("step_rate_hz").value == 500.0 and h.node.sim.settings.tick_ns == 2_000_000
+        client = h.probe.create_client(SetParameters, f"{h.node.get_fully_qualified_name()}/set_parameters")
+        h.until(client.service_is_ready, "the set_parameters service")
+        future = client.call_async(SetParameters.Request(parameters=[Parameter("modle", value="rigid").to_parameter_msg()]))
+        h.until(future.done, "the answer")
+        (result,) = future.result().results
+        assert not result.successful and "modle: not a parameter of the node" in result.reason, result.reason
+    finally:
+        h.close()

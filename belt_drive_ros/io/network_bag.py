@@ -319,6 +319,13 @@ class NetworkBagWriter:
         except (MsgToolsError, OSError) as exc:
             raise bag_error(exc) from None
 
+    def add_metadata(self, name: str, data: Dict[str, str]) -> None:
+        """A metadata record (the node's ``restart`` records: a re-simulation refuses a restarted run)."""
+        try:
+            self.writer.add_metadata(name, data)
+        except (MsgToolsError, OSError) as exc:
+            raise bag_error(exc) from None
+
     def flush(self) -> None:
         """Write the samples kept and flush the file."""
         try:
@@ -452,14 +459,19 @@ def read_network_recording(path) -> NetworkRecording:
     complete sample."""
     from .bag_layout import BagReadError
 
+    from .bag_layout import RESTART_METADATA
+
     metadata: Dict[str, Dict[str, str]] = {}
     topics: Dict[int, str] = {}
     messages: List[Tuple[str, int, bytes]] = []
+    restarts: List[Tuple[int, str]] = []  # (node time [ns], cause) of each start after the first
     try:
         for record in _records(path):
             kind = type(record).__name__
             if kind == "Metadata":
                 metadata[record.name] = dict(record.metadata)
+                if record.name == RESTART_METADATA and record.metadata.get("cause", "start") != "start":
+                    restarts.append((int(record.metadata.get("time_ns", "0") or 0), record.metadata.get("cause", "")))
             elif kind == "Channel":
                 topics[record.id] = record.topic
             elif kind == "Message":
@@ -475,6 +487,15 @@ def read_network_recording(path) -> NetworkRecording:
         raise
     except Exception as exc:  # noqa: BLE001 - damaged or foreign file: one line
         raise BagReadError(f"{path}: not a readable network recording ({type(exc).__name__}: {exc})") from None
+    written = [t for topic, t, _ in messages if topic == joint_states]
+    back = next((k for k in range(1, len(written)) if written[k] <= written[k - 1]), None)
+    if back is not None and not restarts:  # (a recording made before the node recorded its restarts)
+        restarts.append((written[back], "clock jumped back"))
+    if restarts:  # one run from one start: a restart's second run cannot be stepped on from the first
+        t, cause = min(restarts)
+        first = min(written) if written else t
+        raise BagReadError(f"{path}: cannot re-simulate: the node restarted from the initial state ({cause}) at t = "
+                           f"{(t - first) / 1e9:.6g} s of the recording; 'belt-drive sim' repeats one run from one start")
     messages.sort(key=lambda m: m[1])  # log time order (stable: a tick's order kept)
     times = [t for topic, t, _ in messages if topic == joint_states]
     applied = [(t, pulley_of[topic], float(np.frombuffer(data[4:12], "<f8")[0]))

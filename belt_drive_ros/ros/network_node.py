@@ -168,6 +168,8 @@ class NetworkSimulation:
         self.t_ns: int | None = None
         self.origin_ns = 0
         self.last_divergence = None
+        #: told ``(now_ns, why)`` at every start (the node records it: a re-simulation refuses a restarted run)
+        self.on_start = None
         self.applied: list = []  # (input topic, value) applied at the last tick (recorded)
         #: the crank's index when its torque comes from drive_torque (0 N m until the first message), else -1
         self._driver = settings.scene.driver if settings.drive_source == "topic" else -1
@@ -231,13 +233,17 @@ class NetworkSimulation:
             self.applied.append((topic + APPLIED, value))
         self._held = pending
 
-    def start(self, now_ns: int) -> None:
+    def start(self, now_ns: int, why: str = "start") -> None:
+        """Start (or restart, ``why``) the run at ``now_ns``: scene time 0, the initial state; :attr:`on_start`
+        is told ``(now_ns, why)`` (``why`` is ``start`` for the first start only)."""
         self.origin_ns = self.t_ns = now_ns
         self.k = 0
         self.x = self.stepper.initial()
         self.stepper.reset()
         self.counters["restarts"] += 1
         self._sample()
+        if self.on_start is not None:
+            self.on_start(now_ns, "start" if self.counters["restarts"] == 1 else why)
 
     def advance_to(self, now_ns: int) -> bool:
         """Integrate to the tick ``now_ns`` with the inputs held since the last tick, then sample the inputs
@@ -249,9 +255,13 @@ class NetworkSimulation:
             self.counters["clock_jumps"] += 1
             self.log.warn(f"clock jumped back {(self.t_ns - now_ns) / 1e9:.6g} s: restarting from the initial state")
         if self.t_ns is None or now_ns < self.t_ns:
-            self.start(now_ns)
+            self.start(now_ns, "clock jumped back")
             return True
-        k1 = round((now_ns - self.origin_ns) / self._dt_ns)
+        # whole steps only: the last grid point at or before now (a /clock between grid points rounded to the nearest
+        # one published the state of 8 ms stamped 7.6 ms, then again at 8 ms); the tick's time is that point's
+        k1 = math.floor((now_ns - self.origin_ns) / self._dt_ns + 1e-9)
+        if k1 <= self.k:  # no new grid point since the last tick: nothing new to publish
+            return False
         stepper, pending = self.stepper, self._held
         if pending is None:  # a message came since the last tick: the inputs to hold from this tick on
             pending = self._pending()
@@ -263,10 +273,10 @@ class NetworkSimulation:
             self.counters["divergences"] += 1
             self.last_divergence = (str(exc), now_ns)
             self.log.error(f"{exc}; restarting from the initial state")
-            self.start(now_ns)
+            self.start(now_ns, "diverged")
             return True
         self.k = k1
-        self.t_ns = now_ns
+        self.t_ns = self.origin_ns + round(k1 * self._dt_ns)  # (now_ns itself on the grid)
         if pending is not self._held:  # (else held already: holding the same values again changes nothing)
             self._sample(pending)
         return True
@@ -309,16 +319,22 @@ class NetworkNode(Node):
         self._record_lock = threading.Lock()  # around the recorder's writes (the input callbacks and the tick)
         self.timing = None
         try:
-            values = {name: self.declare_parameter(name, default, ParameterDescriptor(description=text)).value
-                      for name, default, text in PARAMETERS}
+            # a float parameter takes an integer at start (`-p step_rate_hz:=500`, as the paper node): stored as a double
+            values = {name: self.declare_parameter(name, default, ParameterDescriptor(
+                description=text, dynamic_typing=isinstance(default, float))).value for name, default, text in PARAMETERS}
+            values = {name: (float(values[name]) if isinstance(default, float) and isinstance(values[name], int)
+                             and not isinstance(values[name], bool) else values[name])
+                      for name, default, _ in PARAMETERS}
             settings = NetworkSettings.from_values(values)
         except BaseException:
             self.destroy_node()
             raise
+        self.add_pre_set_parameters_callback(self._on_pre_set)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.counters: dict = {"published": 0}
         self.layout = NetworkLayout(settings.scene)
         self.sim = NetworkSimulation(settings, self.layout, self.counters, self.get_logger())
+        self.sim.on_start = self._record_start
         self.stats = TickStats(self.counters)
         self.last_run = None
         # -- outputs, only to topics with readers ("matched" events keep the counts)
@@ -378,12 +394,30 @@ class NetworkNode(Node):
     def settings(self) -> NetworkSettings:
         return self.sim.settings
 
+    def _on_pre_set(self, params):
+        """A name the node does not have raises rclpy's ParameterNotDeclaredException naming it (rclpy's own names
+        nothing: 'undeclared parameter(s): []'), which its parameter services answer with as the reason."""
+        unknown = [p.name for p in params if not self.has_parameter(p.name)]
+        if unknown:
+            from rclpy.exceptions import ParameterNotDeclaredException
+
+            raise ParameterNotDeclaredException(f"{', '.join(unknown)}: not a parameter of the node")
+        return params
+
     def _on_set_parameters(self, params):
         names = [p.name for p in params if p.name != "use_sim_time"]
         if names and self.timing is not None:
             return SetParametersResult(successful=False, reason=f"{', '.join(names)}: a network node takes its "
                                        "parameters at start; restart the node to change them")
         return SetParametersResult(successful=True)
+
+    def _record_start(self, now_ns: int, why: str) -> None:
+        """A start of the run as a ``restart`` metadata record of the recording, as the paper node writes it."""
+        if self.recorder is not None:
+            from ..io.bag_layout import RESTART_METADATA
+
+            with self._record_lock:
+                self.recorder.add_metadata(RESTART_METADATA, {"time_ns": str(now_ns), "cause": why})
 
     def _start_recording(self, s: NetworkSettings) -> None:
         from ..io.recording import BagError, BagExistsError
