@@ -425,3 +425,23 @@ def test_the_summary_counts_an_infinite_metric_beyond_its_limit(tmp_path):
     table["peak_friction_use"] = [0.5, np.inf, 1.6e6, np.nan]
     line = next(row for row in summary(table, campaign).splitlines() if row.strip().startswith("peak_friction_use"))
     assert line.split()[-3:] == ["1:", "2", "beyond"] and "inf" in line, line
+
+
+def test_a_relative_draw_on_a_profile_field_is_relative_to_each_profiles_value(tmp_path):
+    """Two motor profiles (8 and 16 N m stall) and drive.stall_torque: {normal: 0.01}: every draw scaled the base
+    scene's 12 N m and replaced the profile's value, so both profiles drew about 12. Each draws about its own now;
+    a profile without the field keeps the base scene's, and the factors (the rng stream) are the same."""
+    motor = {"type": "motor", "no_load_speed": 160.0, "soft_start_time": 0.02}
+    data = {"scene": "paper", "set": {"duration": 0.2},
+            "profiles": [{"drive": {**motor, "stall_torque": 8.0}}, {"drive": {**motor, "stall_torque": 16.0}}],
+            "monte_carlo": {"samples": 50, "seed": 1, "vary": {"drive.stall_torque": {"normal": 0.01}}}}  # fmt: skip
+    campaign = _campaign(tmp_path, data)
+    table = campaign.variants()
+    for j, own in ((0, 8.0), (1, 16.0)):
+        drawn = table.loc[table["profile"] == j, "drive.stall_torque"].to_numpy()
+        assert np.all(np.abs(drawn / own - 1.0) < 0.05) and np.std(drawn / own) > 1e-3
+        scene = campaign.scene_of(table[table["profile"] == j].iloc[0].to_dict())
+        assert scene.drive.stall_torque == drawn[0]
+    factors = table["drive.stall_torque"].to_numpy() / np.where(table["profile"] == 0, 8.0, 16.0)
+    base = _campaign(tmp_path, {**data, "profiles": [{"drive": dict(motor)}, {"drive": dict(motor)}]}).variants()
+    np.testing.assert_allclose(base["drive.stall_torque"].to_numpy() / 12.0, factors, rtol=1e-15)

@@ -390,8 +390,21 @@ class Campaign:
             columns["profile"] = combo % profiles
         rng = np.random.default_rng(self.seed)
         for key, dist in self.vary.items():
-            base = _lookup(self.base_mapping, tuple(key.split(".")))
-            columns[key] = dist.sample(rng, float(base or 0.0), n)
+            path = tuple(key.split("."))
+            base = _lookup(self.base_mapping, path)
+            if dist.absolute or not self.profiles or path[0] not in ("drive", "load"):
+                columns[key] = dist.sample(rng, float(base or 0.0), n)
+                continue
+            # a relative draw on a profile's field is relative to the row's profile's own value where it names one
+            # (it scaled the base scene's, and the draw replaced the profile's value: two profiles became one)
+            x = dist.sample(rng, 1.0, n)  # (the factors: base * x as before, the same floats)
+            column = float(base or 0.0) * x
+            for j, entry in enumerate(self.profiles):
+                own = _lookup(entry, path)
+                if isinstance(own, (int, float)) and not isinstance(own, bool):
+                    rows = columns["profile"] == j
+                    column[rows] = float(own) * x[rows]
+            columns[key] = column
         return pd.DataFrame(columns)
 
     def scene_of(self, row: Mapping, warn=None) -> Scene:
