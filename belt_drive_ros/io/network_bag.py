@@ -10,7 +10,7 @@ topic                                 content [unit]
 ``P/load_torque``                     input: torque accessory P takes from the belt [N m] (node: subscribed)
 ``P/angle``, ``P/speed``              rotation [rad], speed [rad/s], positive moving the belt forward
 ``P/belt_torque``                     torque of the belt on P, ``r (T_leave - T_arrive)`` [N m]
-``P/hub_load``                        magnitude of the two span tensions' sum on P's bearing [N]
+``P/hub_load``                        P's bearing load |(T_i - w) e_i - (T_{i-1} - w) e_{i-1}|, w = m' v^2 [N]
 ``P/friction_use``                    ``|dT| / capstan limit`` [-] (1: P would start to slip)
 ``P/slip``, ``P/slip_speed``          1 while P slides, else 0 [-]; belt ahead of P's surface [m/s]
 ``spans/S/tension``                   span tension [N]
