@@ -449,3 +449,36 @@ def test_a_network_node_takes_an_integer_for_a_float_and_names_an_undeclared_par
         assert not result.successful and "modle: not a parameter of the node" in result.reason, result.reason
     finally:
         h.close()
+
+
+def test_the_network_node_has_a_reset_whose_next_tick_is_the_initial_state(tmp_path, ros_domain_id, capsys):
+    """~/reset (std_srvs/Trigger), as the paper node's: answered at once; the next tick is scene time 0 and
+    publishes the initial state, the ticks after it repeat the run from its start; the recording names the restart
+    and its re-simulation refuses it (it had no reset: only a /clock jumped back restarted it)."""
+    from std_srvs.srv import Trigger
+
+    from belt_drive_ros.cli import main
+
+    rec = tmp_path / "node.mcap"
+    h = Lockstep(ros_domain_id, joints=True, record_path=str(rec))
+    try:
+        h.step(START_NS)
+        for k in range(1, 5):
+            h.step(START_NS + k * TICK_NS)
+        client = h.probe.create_client(Trigger, f"{h.node.get_fully_qualified_name()}/reset")
+        h.until(client.service_is_ready, "the reset service")
+        futures = [client.call_async(Trigger.Request()) for _ in range(3)]  # a burst: one restart
+        h.until(lambda: all(f.done() for f in futures), "the answers")
+        assert all(f.result().success for f in futures)
+        restarts = h.node.counters["restarts"]
+        for k in range(5, 9):
+            _clock(h, START_NS + k * TICK_NS, START_NS + k * TICK_NS)
+        assert h.node.counters["restarts"] == restarts + 1
+        rows = list(h.got["joint_states"])
+    finally:
+        h.close()
+    assert rows[5] == rows[0]  # the reset tick: the initial state
+    assert rows[6:9] == rows[1:4]  # then the run from its start again
+    capsys.readouterr()
+    assert main(["sim", str(rec), "--out", str(tmp_path / "re.mcap")]) == 2
+    assert "restarted from the initial state (~/reset, 3 call(s) since the last tick)" in capsys.readouterr().err

@@ -170,6 +170,8 @@ class NetworkSimulation:
         self.last_divergence = None
         #: told ``(now_ns, why)`` at every start (the node records it: a re-simulation refuses a restarted run)
         self.on_start = None
+        #: ``~/reset`` calls since the last tick (the next tick restarts once for all)
+        self.resets_pending = 0
         self.applied: list = []  # (input topic, value) applied at the last tick (recorded)
         #: the crank's index when its torque comes from drive_torque (0 N m until the first message), else -1
         self._driver = settings.scene.driver if settings.drive_source == "topic" else -1
@@ -200,6 +202,11 @@ class NetworkSimulation:
         with self.lock:
             self._inbox[pulley] = float(value)
         return True
+
+    def request_reset(self) -> None:
+        """``~/reset``: the next tick restarts the run (under the hand-over lock; a burst is one restart)."""
+        with self.lock:
+            self.resets_pending += 1
 
     def take(self) -> None:
         """The tick's hand-over (at its start, before its compute): the messages received since the last take
@@ -249,6 +256,13 @@ class NetworkSimulation:
         """Integrate to the tick ``now_ns`` with the inputs held since the last tick, then sample the inputs
         (those received before this call: :meth:`take`)."""
         self.take()
+        if self.resets_pending and self.t_ns is not None and now_ns >= self.t_ns:
+            # ~/reset: this tick is the restart, scene time 0 here, its outputs the initial state (the paper node's)
+            with self.lock:
+                calls, self.resets_pending = self.resets_pending, 0
+            self.log.info(f"restarted from the initial state (~/reset, {calls} call(s) since the last tick)")
+            self.start(now_ns, f"~/reset, {calls} call(s) since the last tick")
+            return True
         if self.t_ns is not None and now_ns == self.t_ns:
             return False
         if self.t_ns is not None and now_ns < self.t_ns:  # restart there, as the paper node does
@@ -374,6 +388,12 @@ class NetworkNode(Node):
         # -- inputs
         self._subs = [self.create_subscription(Float64, topic, self._input_callback(topic, i), INPUT_QOS)
                       for topic, i in self.layout.inputs]
+        # -- ~/reset (std_srvs/Trigger), as the paper node's: answered at once, the next tick restarts the run
+        from std_srvs.srv import Trigger
+
+        from .qos import RESET_QOS  # (the paper node's)
+
+        self._srv_reset = self.create_service(Trigger, "~/reset", self._on_reset, qos_profile=RESET_QOS)
         # -- diagnostics, ticks
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._diag_timer = self.create_timer(1.0, self._diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -393,6 +413,14 @@ class NetworkNode(Node):
     @property
     def settings(self) -> NetworkSettings:
         return self.sim.settings
+
+    def _on_reset(self, request, response):
+        """``~/reset``: the next tick is scene time 0 and publishes the initial state (a burst of calls, one restart)."""
+        self.sim.request_reset()
+        self.counters["reset_calls"] = self.counters.get("reset_calls", 0) + 1
+        response.success = True
+        response.message = f"belt network '{self.settings.scene.name}' restarts from its initial state at the next tick"
+        return response
 
     def _on_pre_set(self, params):
         """A name the node does not have raises rclpy's ParameterNotDeclaredException naming it (rclpy's own names

@@ -130,7 +130,6 @@ from rclpy.clock import Clock, ClockType  # noqa: E402
 from rclpy.event_handler import PublisherEventCallbacks  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64, String  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
@@ -161,7 +160,7 @@ from .parameter_schema import (  # noqa: E402,F401 - NodeConfigError, unknown_pa
     unknown_parameter_rule,
 )
 from .parameters import NodeParameters  # noqa: E402
-from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS, TF_QOS  # noqa: E402
+from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS, RESET_QOS, TF_QOS  # noqa: E402
 from .simulation import SLACK, SLIP_TICK_OUTPUTS, SLIPPING, SLIPS, TICK_OUTPUTS, NodeSimulation  # noqa: E402
 from .timing import TickSource, TickStats, stamp  # noqa: E402
 
@@ -174,8 +173,6 @@ _N_TICK = len(TICK_OUTPUTS)
 _SLIP_FLOAT_INDEX = tuple((TICK_OUTPUTS + SLIP_TICK_OUTPUTS).index(signal) for _, signal in SLIP_FLOAT_OUTPUTS)
 #: Float64 topics of the slipping model (published after OUTPUT_TOPICS while the model is slipping)
 SLIP_OUTPUT_TOPICS = tuple(name for name, _ in SLIP_FLOAT_OUTPUTS)
-#: ~/reset keeps every request of a burst (the default services QoS keeps 10)
-RESET_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def tf_message_type():

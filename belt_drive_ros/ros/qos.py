@@ -56,3 +56,5 @@ CLOCK_TICK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                     reliability=ReliabilityPolicy.RELIABLE,
                     durability=DurabilityPolicy.VOLATILE)
+#: ``~/reset`` keeps every request of a burst (the default services QoS keeps 10): both nodes' service
+RESET_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
