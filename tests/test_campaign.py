@@ -383,6 +383,12 @@ def test_an_interrupt_during_the_sizing_batches_stops_the_campaign_after_the_par
     assert run.computed == execute.FIRST_BATCH  # the sizing batch whose part was written, nothing after it
     assert [p.name for p in (tmp_path / "out" / "parts").glob("part-*.parquet")] == ["part-00000.parquet"]
     assert "Exception ignored" not in capfd.readouterr().err
+    # resumed with another batch size: the sizing run's part is made again with this run's batches (kept, its 64
+    # rows stood for a batch of 100 and the campaign never completed)
+    monkeypatch.setattr(execute, "write_part", real)
+    again = run_campaign(_campaign(tmp_path, data), tmp_path / "out", client=client, progress=False, batch_size=100)
+    assert not again.interrupted and len(again.table) == 200
+    assert again.table["variant"].tolist() == list(range(200))
 
 
 def test_a_sizing_batch_that_breaks_as_a_whole_is_rows_with_the_reason(tmp_path, monkeypatch):

@@ -487,6 +487,11 @@ def run_campaign(
         portable = client.scatter([portable], broadcast=True, hash=False)[0]
         bounds = manifest.get("bounds")
         if bounds is None:  # size the batches from first ones, one per worker at once (no worker idles meanwhile)
+            # (parts of a run interrupted while it sized: bounds never written, so their rows are not known to match
+            # this run's batches, another --batch-size or worker count making other ones; the few first batches are
+            # made again. Kept, part 0 of 64 rows was taken for batch 0 of 100 and the campaign never completed)
+            for p in parts_dir.glob("part-*.parquet"):
+                p.unlink()
             first = batch_size or min(FIRST_BATCH, n)
             sizing = min(n_workers, n // first) if batch_size is None else 0
             if sizing and n > sizing * first:
