@@ -196,6 +196,7 @@ def test_summary_and_pictures(tmp_path, client):
 
     text = summary(done.table, campaign)
     assert "12 runs" in text and "failed: 4" in text and "ParameterError" in text
+    assert "accuracy: no verdict per variant" in text  # (a row is no verdict on its step: said where it is read)
     slack = done.table["min_slack_force"].to_numpy(dtype=float)
     beyond = int(np.sum(slack[np.isfinite(slack)] < 0.0))
     assert f"0: {beyond} beyond" in text  # the slack-force limit line counts the runs below 0 N

@@ -37,6 +37,9 @@ def summary(table, campaign, wall: float | None = None, workers: int | None = No
     lines = [f"campaign {campaign.name}: {n} runs" + (f" in {wall:.2f} s on {workers} worker(s)" if wall is not None else "")]
     ran = table["ran"].value_counts().to_dict() if n else {}
     lines.append(f"  ensemble: {ran.get('ensemble', 0)}   single: {ran.get('single', 0)}   not built: {ran.get('none', 0)}")
+    if n and campaign.fleet_folder is None:  # (said where it is read: a row is no verdict on its step)
+        lines.append("  accuracy: no verdict per variant in the table (the ensemble runs no accuracy guard: "
+                     "docs/campaigns.md); `belt-drive sim` on a variant's scene rates its method and step")
     if ran.get("single", 0):
         reasons = table.loc[table["ran"] == "single", "single_reason"].value_counts()
         for reason, count in reasons.items():
