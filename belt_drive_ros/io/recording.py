@@ -171,14 +171,17 @@ STAMP_MAX_S = 2**31 - 1
 
 
 def check_stamp_span(start_ns: Optional[int], duration: float) -> None:
-    """Refuse (ValueError, one line) a run from ``start_ns`` [ns since the epoch] over ``duration`` [s] whose last
-    stamp a ROS time stamp cannot hold (its seconds wrapped to negative years); ``None``: the wall time, fine."""
+    """Refuse (:class:`~belt_drive_ros.core.errors.ParameterError` of ``--start-time``, one line) a run from
+    ``start_ns`` [ns since the epoch] over ``duration`` [s] whose last stamp a ROS time stamp cannot hold (its seconds
+    wrapped to negative years); ``None``: the wall time, fine."""
     if start_ns is None:
         return
     end = start_ns / 1e9 + float(duration)
     if end >= STAMP_MAX_S + 1:
-        raise ValueError(f"--start-time: the run's last sample would be stamped {end:.0f} s after 1970, past "
-                         "2038-01-19T03:14:07Z, the last second a ROS time stamp holds (32-bit seconds)")
+        from ..core.errors import ParameterError
+
+        raise ParameterError("--start-time", f"the run's last sample would be stamped {end:.0f} s after 1970, past "
+                             "2038-01-19T03:14:07Z, the last second a ROS time stamp holds (32-bit seconds)")
 
 
 def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/",
