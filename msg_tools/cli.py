@@ -559,7 +559,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-gap", type=float, default=5.0, metavar="PERIODS",
                    help="fail a signal with a gap longer than this many median sample periods "
                         "(default 5; 0: no gap check) unless both files have it at the same stamps; duplicate time "
-                        "stamps always fail")
+                        "stamps fail unless both files have them at the same stamps (they pair in order)")
     p.add_argument("--allow-incomplete", action="store_true",
                    help="compare a file that was cut off (recorder killed) as far as it was read; "
                         "by default it fails (exit 1) with the topics whose last samples are missing")

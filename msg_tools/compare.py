@@ -265,6 +265,14 @@ def _holes(t: np.ndarray, max_gap_periods: float, origin_ns: int, duplicates: bo
     return ""
 
 
+def _common(ta: np.ndarray, tb: np.ndarray) -> tuple:
+    """``(lo, hi, mask, cover_a, cover_b)``: the common time range of the series ``ta``, ``tb`` [ns], which of A's
+    samples lie in it, and the share of A's and of B's samples that do."""
+    lo, hi = max(ta[0], tb[0]), min(ta[-1], tb[-1])
+    mask = (ta >= lo) & (ta <= hi)
+    return lo, hi, mask, mask.mean(), ((tb >= lo) & (tb <= hi)).mean()
+
+
 def _compare_signal(
     name: str,
     ta: np.ndarray,
@@ -298,9 +306,8 @@ def _compare_signal(
     elif time_base == "absolute":
         base = "absolute"
     else:  # absolute where the common time range holds enough of both series, else each from its start
-        lo, hi = max(ta[0], tb[0]), min(ta[-1], tb[-1])
-        enough = hi >= lo and min(((ta >= lo) & (ta <= hi)).mean(), ((tb >= lo) & (tb <= hi)).mean()) >= min_coverage
-        base = "absolute" if enough else "relative"
+        common = _common(ta, tb)
+        base = "absolute" if common[1] >= common[0] and min(common[3], common[4]) >= min_coverage else "relative"
     if base == "relative":
         origin_ns = int(ta[0])
         ta = ta - ta[0]
@@ -312,15 +319,13 @@ def _compare_signal(
     if identical:
         b_on_a, mask = vb, np.ones(ta.shape, dtype=bool)
     else:
-        lo, hi = max(ta[0], tb[0]), min(ta[-1], tb[-1])
+        # (auto's choice of absolute measured it already, on these very series)
+        lo, hi, mask, cover_a, cover_b = common if time_base == "auto" and base == "absolute" else _common(ta, tb)
         if hi < lo:
             return SignalResult(
                 name, False, time_base=base,
                 reason="no common time range (try --time-base relative)",
             )
-        mask = (ta >= lo) & (ta <= hi)
-        cover_a = mask.mean()
-        cover_b = ((tb >= lo) & (tb <= hi)).mean()
         if cover_a < min_coverage or cover_b < min_coverage:
             return SignalResult(
                 name, False, n_compared=int(mask.sum()), time_base=base,
@@ -389,7 +394,8 @@ def compare(
         Fraction of each series' samples that must lie in the common time range.
     max_gap_periods : float
         A series fails when two samples are further apart than this many
-        median sample periods (0: no gap check); duplicate stamps always fail.
+        median sample periods (0: no gap check); duplicate stamps fail. A gap or duplicates both
+        series have at the same stamps are neither (their samples pair in order).
     allow_incomplete : bool
         Compare a file that was cut off (its last chunk lost) as far as it
         was read. Default: such a file fails the comparison, its missing
