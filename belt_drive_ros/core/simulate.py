@@ -424,11 +424,18 @@ def _slipping_accuracy(scene, sim, stick=None, probes=None):
 
 
 def _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy=None, events=None,
-                     totals=None) -> SimResult:  # fmt: skip
+                     totals=None, between=None) -> SimResult:  # fmt: skip
     """The result of a slipping-model run of ``sim``: outputs, energy terms (with friction) and events (``events``:
-    a streamed window's, else the run's; ``totals``: a streamed window's running energy, :func:`_energy`)."""
+    a streamed window's, else the run's; ``totals``: a streamed window's running energy, :func:`_energy`;
+    ``between``: a streamed run's largest excursion between samples so far, ``[excess, time]``, updated here from the
+    window's samples with its seam sample, so each window's verdict is the run's so far and the last the run's)."""
     m = sim.model
     u = sim.input_array(time, states)
+    found = between_samples(m, time, states, modes, u) if accuracy is not None else None  # (the seam sample kept)
+    if found is not None and between is not None:
+        if found[0] > between[0]:
+            between[:] = found
+        found = tuple(between)
     parts = m.force_parts(states, modes, sigmas)  # (Q_max, Q, s'): made once for the energy terms and outputs
     work, keep = _energy(totals, time, {"input_work": m.input_power(states, u),
                                         "dissipated": m.damping_power(states, modes, sigmas, parts),
@@ -442,8 +449,8 @@ def _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accu
             scene.params, scene.drive, scene.load, scene.method, scene.dt, time, states, modes, sigmas,
             [e.time for e in events], scene.method_options, sim._hybrid, (outputs["omega_M"], outputs["belt_torque"]),
         ))  # fmt: skip
-        accuracy = with_between_samples(accuracy, *between_samples(m, time, states, modes, u),
-                                        sim.stability.omega_n if sim.stability is not None else math.nan)
+    if found is not None:
+        accuracy = with_between_samples(accuracy, *found, sim.stability.omega_n if sim.stability is not None else math.nan)
     energy = {"kinetic": m.kinetic_energy(states), "potential": m.potential_energy(states), **work}
     return SimResult(
         scene=scene, model="slipping", method=sim.integrator.name, dt=scene.dt, time=time, states=states,

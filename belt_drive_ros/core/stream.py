@@ -18,7 +18,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from .accuracy import between_samples, require_accurate, with_between_samples
+from .accuracy import require_accurate
 from .method_choice import resolve as resolve_method
 from .fidelity import ModelChoice, _linear_choice, choose_model, limit_exceedance
 from .model import make_model
@@ -185,7 +185,7 @@ def _slipping(scene, choice, progress, check_stability, window_steps) -> Iterato
     totals: dict = {}
     last = None  # (time, state, mode, sigma) of the previous window's last sample: the quadrature's seam
     events: list = []
-    worst, omega_n = (0.0, math.nan), sim.stability.omega_n if sim.stability is not None else math.nan
+    between = [0.0, math.nan]  # the largest excursion between samples so far and its time (_slipping_result)
     start = _time.perf_counter()
     for time, states, modes, sigmas in sim.windows(scene.duration, y0, 0.0, progress, window_steps, events):
         wall = _time.perf_counter() - start
@@ -195,13 +195,7 @@ def _slipping(scene, choice, progress, check_stability, window_steps) -> Iterato
             modes = np.concatenate([[last[2]], modes]).astype(np.int8)
             sigmas = np.concatenate([[last[3]], sigmas])
         last = (float(time[-1]), states[-1].copy(), int(modes[-1]), float(sigmas[-1]))
-        result = _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy, events, totals)
-        if accuracy is not None:  # the excursions between samples, as the whole run's guard finds them, window by
-            # window (each with its seam sample); the verdict so far on every window, the whole run's on the last
-            excess, when = between_samples(sim.model, time, states, modes, sim.input_array(time, states))
-            if excess > worst[0]:
-                worst = (excess, when)
-            result.accuracy = with_between_samples(accuracy, *worst, omega_n)
-        yield result
+        # (the excursions between samples as the whole run's guard finds them, window by window: ``between``)
+        yield _slipping_result(scene, sim, time, states, modes, sigmas, wall, choice, accuracy, events, totals, between)
         events.clear()
         start = _time.perf_counter()
