@@ -286,11 +286,20 @@ class NetworkModel:
     def rigid_tension_map(self) -> np.ndarray:
         """(n_spans, n) S: span tension changes ``T - T_0 = S Q`` [N] under balanced pulley torques Q [N m]
         (``sum_i rho_i Q_i = 0``): the belt's static stretch (K^+ Q), the arm at its equilibrium."""
-        m, n = self.M.shape[0], len(self.scene.pulleys)
-        rhs = np.zeros((m, n))
-        rhs[:n] = np.eye(n)
-        q = np.linalg.lstsq(self.stiffness(), rhs, rcond=None)[0]
-        return self.k[:, None] * (self.stretch @ q)
+        return self.k[:, None] * (self.stretch @ self._static_compliance())
+
+    def _static_compliance(self) -> np.ndarray:
+        """(m, n) ``K^+`` on unit pulley torques: the static displacement of every coordinate under each (the arm's
+        row its swing), solved once per model (read-only) for :meth:`rigid_tension_map` and :meth:`rigid_arm_row`."""
+        found = self.__dict__.get("_compliance")
+        if found is None:
+            m, n = self.M.shape[0], len(self.scene.pulleys)
+            rhs = np.zeros((m, n))
+            rhs[:n] = np.eye(n)
+            found = np.linalg.lstsq(self.stiffness(), rhs, rcond=None)[0]
+            found.flags.writeable = False
+            self.__dict__["_compliance"] = found
+        return found
 
     def rigid_arm_row(self) -> np.ndarray | None:
         """(n + 2,) c: the rigid tier's arm swing from its installed angle [rad] as :func:`arm_swing` forms it from
@@ -305,10 +314,8 @@ class NetworkModel:
         found = self.__dict__.get("_rigid_arm_row")
         if found is not None:
             return found
-        m, n = self.M.shape[0], len(self.scene.pulleys)
-        rhs = np.zeros((m, n))
-        rhs[:n] = np.eye(n)
-        a = np.linalg.lstsq(self.stiffness(), rhs, rcond=None)[0][self.arm]
+        n = len(self.scene.pulleys)
+        a = self._static_compliance()[self.arm]
         rho, J, b = self.ratios, np.diag(self.M)[:n], self.bearing_damping
         A, B = self.rigid_matrices()
         inertia = float(a @ (J * rho))
