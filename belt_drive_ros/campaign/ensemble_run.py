@@ -23,6 +23,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
+from ..core.accuracy_probes import belt_change, change_frequency
 from ..core.ensemble import Ensemble, EnsembleUnsupported, weighted_columns
 from ..core.errors import BeltDriveError
 from ..core.fidelity import choose_model, friction_use, operating_run_step
@@ -371,20 +372,15 @@ def _run_group(members: list, check_stability: bool, reduce=None, window: int = 
         estimate = Reductions({"w": "max", "peak": "max", "start": "first", "rate": "max", "lo": "min", "hi": "max"})
         for times, states in ens.windows(x0, 0.0, T, size):
             belt = block.window(times, states, ens.inputs(times, states)).output("belt_torque")
-            step = np.diff(times)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                rate = (np.max(np.abs(np.diff(belt, axis=0))[step > 0.0] / step[step > 0.0, None], axis=0)
-                        if np.any(step > 0.0) else np.zeros(belt.shape[1]))  # fmt: skip
+            rate, lo, hi = belt_change(times, belt)
+            with np.errstate(invalid="ignore"):
                 estimate.update(
                     {"w": np.max(np.abs(states[:, 1, :]), axis=0), "peak": np.max(np.abs(belt), axis=0), "start": belt[0],
-                     "rate": rate, "lo": np.min(belt, axis=0), "hi": np.max(belt, axis=0)}
+                     "rate": rate, "lo": lo, "hi": hi}
                 )
         w, peak = estimate.values["w"], estimate.values["peak"]
         start = estimate.values["start"].tolist()
-        swing = estimate.values["hi"] - estimate.values["lo"]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            change = np.where((swing > 0.0) & np.isfinite(swing), estimate.values["rate"] / np.where(swing > 0.0, swing, 1.0),
-                              0.0)  # fmt: skip
+        change = change_frequency(estimate.values["rate"], estimate.values["lo"], estimate.values["hi"])
         kinds, linear = {}, {}
         for v, (i, s) in enumerate(members):
             if not math.isfinite(w[v]):  # the estimate diverged: simulate reports it

@@ -255,11 +255,8 @@ class RigidSurvey:
                 held.clear()
                 u = plant.input_array(time, states)
                 belt = _rigid_belt_torque(model, states[:, 0], states[:, 1], u[:, 0], u[:, 1])
-                if belt.size > 1:
-                    step = time[1:] - time[:-1]
-                    rate = np.abs(belt[1:] - belt[:-1])[step > 0.0] / step[step > 0.0]  # (pieces repeat their ends)
-                    change[0] = max(change[0], float(rate.max()) if rate.size else 0.0)
-                change[1], change[2] = min(change[1], float(belt.min())), max(change[2], float(belt.max()))
+                rate, lo, hi = belt_change(time, belt)
+                change[0], change[1], change[2] = max(change[0], float(rate)), min(change[1], float(lo)), max(change[2], float(hi))
                 return max(w, float(np.abs(states[:, 1]).max())), max(peak, float(np.abs(belt).max()))
 
             for e in sorted(ends):
@@ -280,8 +277,7 @@ class RigidSurvey:
             if self.duration <= 0:
                 peak = abs(self._start_torque)
             self._speeds = (w, w * self.params.ratio, peak)
-            swing = change[2] - change[1]
-            self._change = change[0] / swing if swing > 0.0 and math.isfinite(swing) else 0.0
+            self._change = float(change_frequency(*change))
         except Exception as exc:  # noqa: BLE001 - a rigid estimate that diverges: the probes fall back to the start
             self.error = exc
 
@@ -331,6 +327,25 @@ def _probe_torques(plant, rigid, times, speeds_M, points) -> tuple[list, list]:
             slopes.append(((both[:n] - both[n : 2 * n]) / (2.0 * d)).tolist())
             torques.append(both[2 * n :])
         return list(zip(*slopes)), _rigid_belt_torque(rigid, qphi, qw, *torques).tolist()
+
+
+def belt_change(time, belt) -> tuple:
+    """``(max |dT_b/dt| [N m/s], min T_b, max T_b)`` of belt torques ``belt`` [N m] at the samples ``time`` [s]: (N,),
+    or (N, V) for V variants (per column). Steps of zero length (pieces repeat their ends) are left out."""
+    step = np.diff(time)
+    moved = step > 0.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rate = (np.max(np.abs(np.diff(belt, axis=0))[moved] / (step[moved] if belt.ndim == 1 else step[moved, None]),
+                       axis=0) if np.any(moved) else np.zeros(belt.shape[1:]))  # fmt: skip
+    return rate, np.min(belt, axis=0), np.max(belt, axis=0)
+
+
+def change_frequency(rate, lo, hi):
+    """:attr:`RigidSurvey.change_frequency` from :func:`belt_change`'s figures: ``rate / (hi - lo)`` [1/s], 0.0 where
+    the swing is zero or not finite (scalars or per-variant arrays)."""
+    swing = np.asarray(hi) - np.asarray(lo)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where((swing > 0.0) & np.isfinite(swing), np.asarray(rate) / np.where(swing > 0.0, swing, 1.0), 0.0)
 
 
 def _rigid_belt_torque(rigid, phi, omega, drive, load) -> np.ndarray:
