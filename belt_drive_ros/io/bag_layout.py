@@ -89,6 +89,18 @@ SCENE_METADATA = "scene"
 PARAMETERS_METADATA = "parameters"
 #: a node's run (re)started from the initial state: ``time_ns`` (node time), ``cause`` (``start`` for the first)
 RESTART_METADATA = "restart"
+
+
+def restart_record(now_ns: int, why: str) -> Dict[str, str]:
+    """The :data:`RESTART_METADATA` record of a (re)start at node time ``now_ns`` [ns] for ``why`` (both nodes')."""
+    return {"time_ns": str(now_ns), "cause": why}
+
+
+def restarts_of(records) -> list:
+    """``(node time [ns] or None where the record's is no number, cause)`` of each restart after the first start among
+    the ``(name, values)`` metadata records ``records`` (a re-simulation refuses a run that restarted)."""
+    return [(int(v["time_ns"]) if str(v.get("time_ns", "")).isdigit() else None, v.get("cause", ""))
+            for name, v in records if name == RESTART_METADATA and v.get("cause", "start") != "start"]
 #: ``type`` of the drive mapping that refers to a torque recorded in a bag.
 RECORDED_DRIVE = "recorded"
 

@@ -457,21 +457,18 @@ def read_network_recording(path) -> NetworkRecording:
 
     Read as a stream, so a recording cut off mid-write (the node killed) re-simulates up to its last
     complete sample."""
-    from .bag_layout import BagReadError
-
-    from .bag_layout import RESTART_METADATA
+    from .bag_layout import BagReadError, restarts_of
 
     metadata: Dict[str, Dict[str, str]] = {}
     topics: Dict[int, str] = {}
     messages: List[Tuple[str, int, bytes]] = []
-    restarts: List[Tuple[int, str]] = []  # (node time [ns], cause) of each start after the first
+    records: List[Tuple[str, Dict[str, str]]] = []  # every metadata record in file order (the restarts among them)
     try:
         for record in _records(path):
             kind = type(record).__name__
             if kind == "Metadata":
                 metadata[record.name] = dict(record.metadata)
-                if record.name == RESTART_METADATA and record.metadata.get("cause", "start") != "start":
-                    restarts.append((int(record.metadata.get("time_ns", "0") or 0), record.metadata.get("cause", "")))
+                records.append((record.name, metadata[record.name]))
             elif kind == "Channel":
                 topics[record.id] = record.topic
             elif kind == "Message":
@@ -487,6 +484,7 @@ def read_network_recording(path) -> NetworkRecording:
         raise
     except Exception as exc:  # noqa: BLE001 - damaged or foreign file: one line
         raise BagReadError(f"{path}: not a readable network recording ({type(exc).__name__}: {exc})") from None
+    restarts = [(t or 0, cause) for t, cause in restarts_of(records)]  # (node time [ns], cause) after the first start
     written = [t for topic, t, _ in messages if topic == joint_states]
     back = next((k for k in range(1, len(written)) if written[k] <= written[k - 1]), None)
     if back is not None and not restarts:  # (a recording made before the node recorded its restarts)

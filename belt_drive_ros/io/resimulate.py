@@ -17,7 +17,7 @@ from typing import Any, Dict, List, Optional, Tuple
 from msg_tools.errors import MsgToolsError, RecoveredBagWarning
 
 from ..core.params import FIELD_DOCS
-from .bag_layout import PARAMETERS_METADATA, RESTART_METADATA
+from .bag_layout import PARAMETERS_METADATA, restarts_of
 from .recording import APPLIED_TOPIC, SCENE_METADATA, BagReadError, bag_error
 from .torque_bag import DEFAULT_TOPIC, RecordedTorque, scene_from_bag
 
@@ -119,9 +119,8 @@ def _one_run(info, file, start_ns: Optional[int]) -> None:
         changed = sorted(k for k in values if k in RUN_PARAMETERS)
         if changed and values.get("time_ns", "").lstrip("-").isdigit():
             events.append((int(values["time_ns"]), f"parameter {', '.join(changed)} changed"))
-    for name, values in info.metadata:
-        if name == RESTART_METADATA and values.get("cause", "start") != "start" and values.get("time_ns", "").isdigit():
-            events.append((int(values["time_ns"]), f"the node restarted from the initial state ({values['cause']})"))
+    events += [(t, f"the node restarted from the initial state ({cause})") for t, cause in restarts_of(info.metadata)
+               if t is not None]
     if events:
         t, what = min(events)
         when = f"t = {(t - start_ns) / 1e9:.6g} s" if start_ns is not None else f"node time {t / 1e9:.9g} s"

@@ -442,10 +442,10 @@ class NetworkNode(Node):
     def _record_start(self, now_ns: int, why: str) -> None:
         """A start of the run as a ``restart`` metadata record of the recording, as the paper node writes it."""
         if self.recorder is not None:
-            from ..io.bag_layout import RESTART_METADATA
+            from ..io.bag_layout import RESTART_METADATA, restart_record
 
             with self._record_lock:
-                self.recorder.add_metadata(RESTART_METADATA, {"time_ns": str(now_ns), "cause": why})
+                self.recorder.add_metadata(RESTART_METADATA, restart_record(now_ns, why))
 
     def _start_recording(self, s: NetworkSettings) -> None:
         from ..io.recording import BagError, BagExistsError

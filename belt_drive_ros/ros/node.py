@@ -135,7 +135,7 @@ from std_msgs.msg import Float64, String  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from ..core.errors import BeltDriveError  # noqa: E402
-from ..io.bag_layout import RESTART_METADATA  # noqa: E402
+from ..io.bag_layout import RESTART_METADATA, restart_record  # noqa: E402
 from ..io.recording import (  # noqa: E402
     ROBOT_DESCRIPTION,
     SLIP_FLOAT_OUTPUTS,
@@ -371,7 +371,7 @@ class BeltDriveNode(Node):
         """A start of the run from the initial state as a ``restart`` metadata record of the recording (a re-simulation
         repeats one run from one start: it names a restart it cannot repeat)."""
         if self.recorder is not None:
-            self.recorder.add_metadata(RESTART_METADATA, {"time_ns": str(now_ns), "cause": why})
+            self.recorder.add_metadata(RESTART_METADATA, restart_record(now_ns, why))
 
     def _record_gap(self, gap) -> None:
         """A gap in the ticks (:mod:`.gaps`) as a ``tick_gap`` metadata record of the recording."""
