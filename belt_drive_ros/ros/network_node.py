@@ -63,7 +63,7 @@ from std_msgs.msg import Float64, String  # noqa: E402
 from ..core.errors import BeltDriveError, SimulationDivergedError  # noqa: E402
 from ..io.network_bag import APPLIED, NetworkBagWriter, NetworkLayout, network_record, scene_text  # noqa: E402
 from .network_stepper import NetworkStepper  # noqa: E402
-from .parameter_schema import NodeConfigError, record_path_exists  # noqa: E402
+from .parameter_schema import NodeConfigError, record_path_exists, refuse_undeclared  # noqa: E402
 from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS, TF_QOS  # noqa: E402
 from .simulation import NodeSimulation  # noqa: E402
 from .timing import TickSource, TickStats  # noqa: E402
@@ -423,13 +423,8 @@ class NetworkNode(Node):
         return response
 
     def _on_pre_set(self, params):
-        """A name the node does not have raises rclpy's ParameterNotDeclaredException naming it (rclpy's own names
-        nothing: 'undeclared parameter(s): []'), which its parameter services answer with as the reason."""
-        unknown = [p.name for p in params if not self.has_parameter(p.name)]
-        if unknown:
-            from rclpy.exceptions import ParameterNotDeclaredException
-
-            raise ParameterNotDeclaredException(f"{', '.join(unknown)}: not a parameter of the node")
+        """A name the node does not have is refused by name (:func:`~.parameter_schema.refuse_undeclared`)."""
+        refuse_undeclared(self, params, "not a parameter of the node")
         return params
 
     def _on_set_parameters(self, params):

@@ -114,6 +114,17 @@ RCLPY_PARAMETERS = ("use_sim_time", "start_type_description_service")
 NOT_A_PARAMETER = "not a parameter of the node (belt-drive node --list-parameters)"
 
 
+def refuse_undeclared(node, parameters, why: str = NOT_A_PARAMETER) -> None:
+    """Raise rclpy's ParameterNotDeclaredException naming each of ``parameters`` the ``node`` does not have, as ``name:
+    why`` (rclpy raises it next anyway, its message naming nothing: 'undeclared parameter(s): []'; it is the one
+    exception rclpy's parameter services answer with its text as the reason). A pre-set callback of both nodes."""
+    unknown = [p.name for p in parameters if not node.has_parameter(p.name)]
+    if unknown:
+        from rclpy.exceptions import ParameterNotDeclaredException
+
+        raise ParameterNotDeclaredException(f"{', '.join(unknown)}: {why}")
+
+
 def unknown_parameter_rule(ros_args: list[str], names) -> str | None:
     """The first ``-p NAME:=VALUE`` (``--param``) of ``ros_args`` whose NAME is neither in ``names`` nor
     :data:`RCLPY_PARAMETERS`; None. A rule scoped to a node (``other_node:NAME:=VALUE``) is not checked."""

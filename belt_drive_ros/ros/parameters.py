@@ -25,9 +25,7 @@ from rcl_interfaces.msg import (
     ParameterType,
     SetParametersResult,
 )
-from rclpy.exceptions import (
-    InvalidParameterTypeException, InvalidParameterValueException, ParameterNotDeclaredException,
-)
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.parameter import Parameter
 
 from ..core.errors import BeltDriveError
@@ -37,7 +35,6 @@ from .parameter_schema import (
     DOUBLE_PARAMETERS,
     NODE_SPECS,
     OWN_PARAMETERS,
-    NOT_A_PARAMETER,
     NodeConfigError,
     NodeSettings,
     START_ONLY,
@@ -45,6 +42,7 @@ from .parameter_schema import (
     build_settings,
     default_values,
     model_range,
+    refuse_undeclared,
     scene_defaults,
 )
 
@@ -145,12 +143,8 @@ class NodeParameters:
 
     def _on_pre_set(self, parameters: list[Parameter]) -> list[Parameter]:
         """The request with a new scene's defaults added; as given on any failure (:meth:`_on_validate` then
-        refuses it with the reason). A name the node does not have raises rclpy's ParameterNotDeclaredException
-        naming it (which rclpy raises next anyway, its message naming nothing: 'undeclared parameter(s): []'),
-        the one exception rclpy's parameter services answer with its text as the reason."""
-        unknown = [p.name for p in parameters if not self.node.has_parameter(p.name)]
-        if unknown:
-            raise ParameterNotDeclaredException(f"{', '.join(unknown)}: {NOT_A_PARAMETER}")
+        refuses it with the reason). A name the node does not have is refused by name (:func:`refuse_undeclared`)."""
+        refuse_undeclared(self.node, parameters)
         try:
             return self._with_scene_defaults(parameters)
         except Exception:  # noqa: BLE001 - an exception here would end the node's executor
