@@ -333,12 +333,13 @@ class NetworkNode(Node):
         self._record_lock = threading.Lock()  # around the recorder's writes (the input callbacks and the tick)
         self.timing = None
         try:
-            # a float parameter takes an integer at start (`-p step_rate_hz:=500`, as the paper node): stored as a double
-            values = {name: self.declare_parameter(name, default, ParameterDescriptor(
-                description=text, dynamic_typing=isinstance(default, float))).value for name, default, text in PARAMETERS}
-            values = {name: (float(values[name]) if isinstance(default, float) and isinstance(values[name], int)
-                             and not isinstance(values[name], bool) else values[name])
-                      for name, default, _ in PARAMETERS}
+            values = {}
+            for name, default, text in PARAMETERS:
+                # a float parameter takes an integer at start (`-p step_rate_hz:=500`, as the paper node): a double
+                floating = isinstance(default, float)
+                value = self.declare_parameter(name, default, ParameterDescriptor(description=text,
+                                                                                  dynamic_typing=floating)).value
+                values[name] = float(value) if floating and type(value) is int else value
             settings = NetworkSettings.from_values(values)
         except BaseException:
             self.destroy_node()
