@@ -166,6 +166,21 @@ def test_network_node_records_and_resimulates_bit_for_bit(tmp_path, ros_domain_i
         connections = [c for c in reader.connections if c.topic == "/spans/alternator_water_pump/tension"]
         values = [reader.deserialize(raw, c.msgtype).data for c, _, raw in reader.messages(connections=connections)]
     assert values == recorded["/spans/alternator_water_pump/tension"][1]
+    # the outputs' channels say what the node's publishers offered (reliable, transient local, keep last 10), so a
+    # replay latches them as the node did; the re-simulation is an offline file: reliable, volatile
+    from mcap.reader import make_reader
+    from msg_tools.qos import parse_offered_qos_yaml
+
+    def offered(path):
+        with open(path, "rb") as f:
+            channels = make_reader(f).get_summary().channels.values()
+            return {c.topic: parse_offered_qos_yaml(c.metadata["offered_qos_profiles"])[0] for c in channels}
+
+    node_qos, offline_qos = offered(rec), offered(out)
+    for topic in ("/joint_states", "/spans/alternator_water_pump/tension"):
+        assert (node_qos[topic].durability, node_qos[topic].depth, node_qos[topic].reliability) == (
+            "transient_local", 10, "reliable"), topic
+        assert offline_qos[topic].durability == "volatile", topic
 
 
 def test_scene_driven_node_equals_offline_sim(tmp_path, ros_domain_id):

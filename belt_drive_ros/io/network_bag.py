@@ -202,7 +202,9 @@ class NetworkBagWriter:
     The outputs are kept for :data:`BLOCK_SAMPLES` samples and written as one block
     (:meth:`msg_tools.block_writer.BlockMcapWriter.write_block`: no message object or writer call per
     message; a split folder, ``max_bag_duration`` / ``max_bag_size``, takes them sample by sample); inputs
-    are written as they come. :meth:`flush` and :meth:`close` write what is kept.
+    are written as they come. :meth:`flush` and :meth:`close` write what is kept. ``output_qos``: the QoS the
+    outputs' publishers offer, written as their channels' ``offered_qos_profiles`` (the node's: reliable, transient
+    local, keep last 10; an offline run's default: reliable, volatile).
 
     A split folder is written under its lock (:func:`~belt_drive_ros.io.bag_folder.bag_folder_lock`, as the paper
     node's :func:`~belt_drive_ros.ros.recorder.open_writer` and ``belt-drive sim --bag-folder`` take it), held until
@@ -212,8 +214,9 @@ class NetworkBagWriter:
 
     def __init__(self, path, layout: NetworkLayout, record: Dict[str, str], *, force: bool = False,
                  namespace: str = "/", compression: str = "zstd", max_bag_duration: float = 0.0,
-                 max_bag_size: int = 0):
+                 max_bag_size: int = 0, output_qos="reliable"):
         self.layout = layout
+        self._output_qos = output_qos
         self.namespace = namespace
         try:
             if max_bag_duration or max_bag_size:  # a rosbag2 folder split as the paper node's (every file self-describing)
@@ -258,10 +261,10 @@ class NetworkBagWriter:
         import msg_tools
 
         w.write_raw(description, STRING, msg_tools.encode(STRING, {"data": self.layout.urdf()}), t_ns)
-        w.add_topic(self._joint_topic, JOINT_STATE, "reliable")
+        w.add_topic(self._joint_topic, JOINT_STATE, self._output_qos)
         w.add_topic(TF_TOPIC, TF_MESSAGE, TF_QOS)
         for topic in self._float_topics:
-            w.add_topic(topic, FLOAT64, "reliable")
+            w.add_topic(topic, FLOAT64, self._output_qos)
         self._started = True
 
     def write_sample(self, t_ns: int, joints: Sequence[float], floats: Sequence[float]) -> None:

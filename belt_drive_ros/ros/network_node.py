@@ -451,7 +451,7 @@ class NetworkNode(Node):
         try:
             self.recorder = NetworkBagWriter(s.record_path, self.layout, record, force=s.record_overwrite,
                                              namespace=self.get_namespace(), max_bag_duration=s.max_bag_duration,
-                                             max_bag_size=s.max_bag_size)
+                                             max_bag_size=s.max_bag_size, output_qos=OUTPUT_QOS)
         except BagExistsError:
             raise record_path_exists(s.record_path) from None
         except BagError as exc:
