@@ -125,3 +125,18 @@ def test_resimulating_a_cut_recording_is_a_one_line_error(tmp_path, capsys, cut)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "cut.mcap" in err[0] and "internal error" not in err[0], err
     assert not (tmp_path / "re.mcap").exists()
+
+
+def test_a_rigid_run_says_it_does_not_use_the_initial_deflection(tmp_path, capsys):
+    """The rigid model has no belt deflection state: an initial relative deflection or speed in the scene is not
+    used (wheel 3 starts at i phi_M). Not silently: sim warns, naming both values; without them, no warning."""
+    scene = tmp_path / "s.yaml"
+    scene.write_text("extends: paper\nduration: 0.05\ninitial_state: {relative_deflection: 0.01, relative_speed: 0.5}\n")
+    assert main(["sim", str(scene), "--model", "rigid", "--method", "etd2", "--dt", "1e-3"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the rigid model has no belt deflection: initial_state.relative_deflection 0.01 rad and " \
+           "relative_speed 0.5 rad/s are not used" in err
+    assert main(["sim", str(scene), "--model", "flexible", "--method", "etd2", "--dt", "1e-3"]) == 0
+    assert "no belt deflection" not in capsys.readouterr().err
+    assert main(["sim", "paper", "--model", "rigid", "--method", "etd2", "--duration", "0.05"]) == 0
+    assert "no belt deflection" not in capsys.readouterr().err

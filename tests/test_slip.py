@@ -340,3 +340,27 @@ def test_slip_phases_of_a_belt_with_mass_in_the_loop_equal_the_hybrid_stepper(me
     error = np.max(np.abs(states - ref.states) / scale, axis=0)  # per coordinate, relative to its range
     assert np.all(error < (1e-10 if method != "rk4" else 1e-8)), error
     np.testing.assert_array_equal(modes, ref.mode)
+
+
+def test_span_forces_name_the_stretched_span_tight_in_every_model_when_the_load_overruns():
+    """The tight span is the one the belt torque stretches, whichever way it acts: with the load driving the belt
+    (T_b < 0) the slipping model used to report F_0 + Q/2 with Q signed, so its 'tight' span was the slacker one
+    while the rigid and flexible models' was the tighter (F_0 +- |Q|/2). Every model: F_tight >= F_0 >= F_slack and
+    F_tight - F_slack = |T_b| / r_3; the slipping model that never slips equals the flexible one."""
+    from belt_drive_ros.core.simulate import simulate
+    from belt_drive_ros.io.scenes import scene_from_mapping
+
+    scene = scene_from_mapping({"extends": "paper", "duration": 1.0, "method": "etd4", "dt": 1e-3,
+                                "params": {"b_M": 0.05, "c": 5.0},
+                                "drive": {"type": "constant", "value": 0.0},
+                                "load": {"type": "constant", "value": -1.0}})  # fmt: skip
+    runs = {m: simulate(scene, model=m).outputs for m in ("rigid", "flexible", "slipping")}
+    F_0, r_3 = scene.params.F_0, scene.params.r_3
+    for model, out in runs.items():
+        tb = np.asarray(out["belt_torque"])
+        assert tb[-1] < -0.5, model  # the load overruns: the belt brakes it
+        assert np.all(out["span_force_tight"] >= F_0) and np.all(out["span_force_slack"] <= F_0), model
+        assert np.allclose(out["span_force_tight"] - out["span_force_slack"], np.abs(tb) / r_3, rtol=1e-12, atol=1e-9)
+    assert not np.any(runs["slipping"]["slip"])
+    for key in ("span_force_tight", "span_force_slack"):
+        assert np.allclose(runs["slipping"][key], runs["flexible"][key], rtol=0, atol=1e-9), key

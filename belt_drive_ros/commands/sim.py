@@ -443,6 +443,11 @@ def print_summary(summary) -> None:
         print(f"accuracy       {summary.accuracy.describe()}")
         if not summary.accuracy.accurate:
             print(f"warning: {summary.accuracy.describe()}", file=sys.stderr)
+    init = scene.initial_state
+    if summary.model == "rigid" and (init.relative_deflection or init.relative_speed):
+        print(f"warning: the rigid model has no belt deflection: initial_state.relative_deflection "
+              f"{init.relative_deflection:g} rad and relative_speed {init.relative_speed:g} rad/s are not used (wheel 3 "
+              "starts at i phi_M, i omega_M; --model flexible starts from them)", file=sys.stderr)
     print(f"belt mode      {p.belt_natural_frequency / (2 * math.pi):.1f} Hz, damping ratio {p.belt_damping_ratio:.4f}")
     print(f"simulated      {summary.t_end - summary.t_start:g} s in {summary.wall_time * 1e3:.1f} ms ({summary.realtime_factor:,.0f}x real time)")
     print(f"final speed    {o['omega_M']:.3f} rad/s ({o['omega_M'] * rpm:.1f} rpm) at wheel M")

@@ -77,7 +77,8 @@ def _check_options(method: str, cls: type, options: Mapping) -> None:
 @dataclass(frozen=True)
 class InitialState:
     """Initial condition: wheel M angle [rad] and speed [rad/s], belt deflection [rad] and its rate [rad/s]:
-    wheel 3 starts at ``phi_3 = i phi_M - relative_deflection``, ``omega_3 = i omega_M - relative_speed``."""
+    wheel 3 starts at ``phi_3 = i phi_M - relative_deflection``, ``omega_3 = i omega_M - relative_speed`` (the rigid
+    model has no deflection: its wheel 3 starts at ``i phi_M``, ``i omega_M``; ``belt-drive sim`` warns)."""
 
     phi_M: float = 0.0
     omega_M: float = 0.0

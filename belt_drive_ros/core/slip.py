@@ -219,8 +219,9 @@ class SlippingBeltModel:
         qmax, Q, sdot = self.force_parts(y, mode, sigma) if parts is None else parts
         speed = _where(mode == SLIP, sdot, 0.0)
         a1, g, r_3 = p.r_M / p.R_1, p.gear_ratio, p.r_3
-        slack_force = p.F_0 - 0.5 * Q
-        tight = p.F_0 + 0.5 * Q
+        half = 0.5 * abs(Q)  # the tight span is the one the belt torque stretches, either way (model.span_forces)
+        slack_force = p.F_0 - half
+        tight = p.F_0 + half
         slip_angle = s / r_3
         return {
             "phi_M": phi_M,

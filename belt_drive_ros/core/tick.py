@@ -556,8 +556,9 @@ def slip_tick(address):
     if slipping:
         rel = y2 * consts[8] + y3 * consts[9]
         speed = rel if consts[10] == 0.0 else rel - (Q - consts[11] * y1) / consts[12]
-    slack_force = F_0 - 0.5 * Q
-    tight = F_0 + 0.5 * Q
+    half = 0.5 * abs(Q)  # (SlippingBeltModel.outputs: the tight span is the stretched one, either way)
+    slack_force = F_0 - half
+    tight = F_0 + half
     slip_angle = y4 / r_3
     low = tight if tight < slack_force else slack_force  # Python's min(slack_force, tight)
     y[0], y[1], y[2], y[3], y[4], y[5] = y0, y2, a1 * y0, a1 * y2, g * y0, g * y2
