@@ -453,3 +453,30 @@ def test_a_recording_with_two_torques_in_one_clock_period_re_simulates_and_compa
     re_ = tmp_path / "re.mcap"
     assert belt_drive(["sim", str(rec), "--out", str(re_), "--quiet"]) == 0
     assert msg_tools(["compare", str(rec), str(re_)]) == 0, capsys.readouterr().out
+
+
+def test_a_publish_clock_recording_has_one_time_base(tmp_path, ros_domain_id):
+    """With ``publish_clock`` the node's outputs are logged at its simulated time (from 0); ``/clock`` and
+    ``/diagnostics`` reach its recorder through subscriptions and were logged at the node's clock, the system's: one
+    file 56 years long, every chunk spanning both times. Now every message is on the simulated time base: each
+    ``/clock`` logged at its arrival, just after the time it carries; the file as long as the run."""
+    from belt_drive_ros.ros.harness import BeltDriveHarness
+
+    bag = tmp_path / "run.mcap"
+    with BeltDriveHarness(scene="paper", domain_id=ros_domain_id, use_sim_time=False, publish_clock=True,
+                          real_time_factor=1.0, input_timeout=0.0, record_path=str(bag)) as h:  # fmt: skip
+        h._spin_until(lambda: h.node.timing.sim_ns >= 1_500_000_000, "1.5 s of simulated time")  # /diagnostics: 1 Hz wall
+        end_ns = h.node.timing.sim_ns
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(bag, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        stats = reader.get_summary().statistics
+        logged = {}
+        for _, channel, message, decoded in reader.iter_decoded_messages():
+            logged.setdefault(channel.topic, []).append((message.log_time, decoded))
+    assert {"/clock", "/diagnostics", "/shaft_speed"} <= set(logged)
+    assert 0 <= stats.message_start_time <= stats.message_end_time <= end_ns + 10**9  # the run's length, not decades
+    # each /clock logged when its subscription received it, on the time it carries (the node went on meanwhile)
+    lag = [log_time - (msg.clock.sec * 10**9 + msg.clock.nanosec) for log_time, msg in logged["/clock"]]
+    assert min(lag) >= 0 and max(lag) <= 200_000_000

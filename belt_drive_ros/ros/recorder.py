@@ -217,6 +217,8 @@ class TopicRecorder:
         self.error: Optional[BaseException] = None
         self.closed = False
         self._clock = node.get_clock()
+        #: log time [ns] of a message a subscription receives: the node's clock (a node recorder: its time base)
+        self.now_ns: Callable[[], int] = lambda: self._clock.now().nanoseconds
         self._subs: Dict[str, Any] = {}
         self._types: Dict[str, str] = {}
         self._declared: set = set()
@@ -316,10 +318,10 @@ class TopicRecorder:
         return resolved
 
     def _callback(self, topic: str, type_name: str) -> Callable[[bytes], None]:
-        now, write = self._clock.now, self.write
+        write = self.write
 
         def on_message(data: bytes) -> None:
-            write(topic, type_name, data, now().nanoseconds)
+            write(topic, type_name, data, self.now_ns())
 
         return on_message
 
@@ -543,6 +545,9 @@ class NodeRecorder(TopicRecorder):
         timing = getattr(node, "timing", None)
         # a lock of its own (not the tick's): a drive_torque callback records its message while a tick computes
         super().__init__(node, writer, flush_period=flush_interval_s)
+        if timing is not None:  # one time base in the file: with publish_clock the outputs' is the node's simulated
+            # time, so /clock and /diagnostics are logged on it too (the node's clock is the system's: 56 years apart)
+            self.now_ns = timing.now_ns
         if timing is not None:  # compressing a chunk takes ~1 ms: not while a tick waits for the lock
             self.defer_flush = timing.defer_after_tick
         self.record_history = False  # the node's outputs keep 10 messages for late joiners: not this run's
@@ -615,7 +620,7 @@ class NodeRecorder(TopicRecorder):
 
     def _on_parameters_set(self, parameters) -> None:
         changed = {p.name: _fmt(p.value) for p in parameters}
-        changed["time_ns"] = str(self._clock.now().nanoseconds)
+        changed["time_ns"] = str(self.now_ns())
         self.add_metadata(PARAMETERS_METADATA, changed)
         if getattr(getattr(self.node, "settings", None), "scene", None) is not None and (
             set(changed) & {"scene", "model", "method", "step_rate_hz", "substeps"}
