@@ -196,7 +196,7 @@ def _check(buf: Any, summary: Any) -> List[str]:
         problems.append("the summary section fails its CRC check")
     stats = summary.statistics
     indexes = summary.chunk_indexes
-    if stats.chunk_count != len(indexes):
+    if stats.chunk_count != len(indexes) and indexes:  # (no chunk index at all is allowed: rosbag2's noChunkIndex)
         problems.append(f"statistics count {stats.chunk_count} chunks, the chunk index {len(indexes)}")
     total = sum(stats.channel_message_counts.values())
     if total != stats.message_count:

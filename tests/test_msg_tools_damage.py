@@ -399,3 +399,35 @@ def test_a_bag_folder_reads_only_its_own_files_and_no_overlapping_splits(tmp_pat
     meta = stray / "metadata.yaml"
     meta.write_text(meta.read_text().replace("    - stray_2.mcap\n", "", 1))  # listed no more, still described
     assert any("stray_2.mcap in files:" in d for d in folder_damage(stray)), folder_damage(stray)
+
+
+def test_a_file_without_chunk_indexes_is_complete_and_read_whole(tmp_path, capsys):
+    """The chunk indexes are optional (MCAP spec; rosbag2's storage option ``noChunkIndex``, the mcap writer's
+    ``index_types`` without CHUNK): statistics counting chunks that no index lists are not damage. Such a file (written
+    by the independent ``mcap`` writer, 60 chunks) was DAMAGED to ``info`` and refused by ``export`` and
+    ``--torque-bag``; now every verb reads all of it. A chunk index that lists some chunks but not all still is."""
+    import struct
+
+    from mcap.writer import IndexType, Writer
+
+    from belt_drive_ros.cli import main as belt_drive
+    from msg_tools.reader import read_topic
+
+    path = tmp_path / "no_chunk_index.mcap"
+    values = 5.0 + 3.0 * np.sin(np.arange(3001) * 0.0126)
+    with open(path, "wb") as f:
+        w = Writer(f, index_types=IndexType.ALL & ~IndexType.CHUNK, chunk_size=1024)
+        w.start(profile="ros2", library="test")
+        schema = w.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data")
+        channel = w.register_channel("/drive_torque", "cdr", schema)
+        for k, v in enumerate(values):
+            t = 10**18 + k * 10**6
+            w.add_message(channel, log_time=t, publish_time=t, data=b"\x00\x01\x00\x00" + struct.pack("<d", v))
+        w.finish()
+    assert main(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "Status:            complete" in out and "Damage" not in out
+    np.testing.assert_array_equal(read_topic(path, "/drive_torque").data, values)
+    run = tmp_path / "run.mcap"
+    assert belt_drive(["sim", "e_motor_start", "--torque-bag", str(path), "--method", "etd4", "--out", str(run)]) == 0
+    np.testing.assert_array_equal(read_topic(run, "/drive_torque").data, values)  # held at the 1 ms grid: the same
