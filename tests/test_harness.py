@@ -117,3 +117,74 @@ def test_a_second_graph_on_the_same_domain_is_reported_not_mixed_in(ros_domain_i
                 h.spin(0.01)
                 h.outputs()
         assert other.node.counters["published"] > 1  # it did tick on h's /clock
+
+
+def test_two_harnesses_open_at_once_without_a_domain_each_have_their_own():
+    """A user's script that opens two harnesses without naming domains: each chose the process's one domain, so
+    each /clock and drive_torque reached the other's node and both runs were wrong with no error (the row counts
+    matched). Each open harness now has a domain of its own, and each run equals the same run made alone."""
+    def run(h, torque):
+        h.publish_torque(torque)
+        h.advance(0.05)
+        return h.outputs()["omega_M"]
+
+    with BeltDriveHarness(model="flexible", method="etd4", input_timeout=0.0) as a:
+        alone = run(a, 8.0)
+    with BeltDriveHarness(model="flexible", method="etd4", input_timeout=0.0) as a, \
+            BeltDriveHarness(model="flexible", method="etd4", input_timeout=0.0) as b:
+        assert a.domain_id != b.domain_id
+        first, second = run(a, 8.0), run(b, 2.0)
+    np.testing.assert_array_equal(first, alone)
+    assert second[-1] < first[-1]  # its own torque, not a's
+
+
+def test_a_closed_harness_starts_a_new_run_and_keeps_its_rows_readable(ros_domain_id):
+    """After close() the run's outputs stay readable; start() again begins a new run (it raised DomainShared,
+    blaming another publisher, with the old rows kept); misuse is a RuntimeError saying what to do."""
+    h = BeltDriveHarness(model="flexible", method="etd4", domain_id=ros_domain_id, input_timeout=0.0)
+    with pytest.raises(RuntimeError, match=r"harness.advance: the harness is not running \(call start\(\) first"):
+        h.advance(0.01)
+    with h:
+        h.publish_torque(8.0)
+        h.advance(0.02)
+        with pytest.raises(RuntimeError, match="already running"):
+            h.start()
+    first = h.outputs()  # after close
+    assert first["omega_M"].shape == (21,)
+    for call in (lambda: h.publish_torque(1.0), lambda: h.diagnostics(), lambda: h.reset(),
+                 lambda: h.set_parameters(k=2e4)):
+        with pytest.raises(RuntimeError, match="the harness is not running"):
+            call()
+    with h:
+        h.publish_torque(8.0)
+        h.advance(0.02)
+        np.testing.assert_array_equal(h.outputs()["omega_M"], first["omega_M"])
+
+
+def test_advance_keeps_the_clock_on_the_tick_grid_and_the_harness_its_time_base(ros_domain_id):
+    """advance() by a time that is no whole number of ticks reaches it by one shorter step, then goes back onto
+    the grid: three advance(0.0333) tick where advance(0.0999) does (every later tick used to be 0.3 ms off the
+    grid, the run 0.2 rad/s off). use_sim_time through set_parameters is refused (the harness then timed out)."""
+    def run(steps):
+        with BeltDriveHarness(model="flexible", method="etd4", domain_id=ros_domain_id, input_timeout=0.0) as h:
+            h.publish_torque(8.0)
+            for s in steps:
+                h.advance(s)
+            refused = h.set_parameters(use_sim_time=False)
+            assert not refused.successful and refused.reason.startswith("use_sim_time: the harness's time base")
+            h.advance(0.001)
+            return h.outputs()
+
+    whole, parts = run([0.0999, 0.0011]), run([0.0333, 0.0333, 0.0333, 0.0011])
+    np.testing.assert_array_equal(parts["time"], whole["time"])  # one row per grid tick: 0 .. 0.102 s
+    np.testing.assert_array_equal(np.rint(parts["time"] * 1e9).astype(np.int64), np.arange(103) * 1_000_000)
+    np.testing.assert_allclose(parts["omega_M"], whole["omega_M"], rtol=1e-12, atol=0)
+
+
+def test_bad_construction_values_are_one_line_errors():
+    for kwargs, match in (({"domain_id": 300}, r"domain_id: must be an integer in \[0, 232\]"),
+                          ({"domain_id": 1.5}, "domain_id: must be an integer"),
+                          ({"start_time": float("nan")}, r"start_time: .* got nan"),
+                          ({"start_time": 1e12}, r"start_time: .*\[0, 2147483647\]")):
+        with pytest.raises(ValueError, match=match):
+            BeltDriveHarness(**kwargs)

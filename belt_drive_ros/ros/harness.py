@@ -41,6 +41,13 @@ Lockstep needs the wait-set executor (``executor="single"``, the default):
 it sees the tick timer become due right after a ``/clock`` update. With
 ``use_sim_time=False`` the node runs on the system clock and ``advance``
 simply spins for that much wall time.
+
+Each harness open at a time has a ROS domain of its own (unless given
+``domain_id``), so two in one script never hear each other. Importing this
+module keeps this process's DDS discovery on the machine
+(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, set only when neither it nor
+``ROS_LOCALHOST_ONLY`` is set): your own nodes in the same process are then
+local too; set the variable before the import to choose another range.
 """
 
 from __future__ import annotations
@@ -76,6 +83,14 @@ from rcl_interfaces.msg import SetParametersResult  # noqa: E402
 _PROBE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 _PUB_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
 _LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
+#: the highest ROS domain id (Fast DDS's ports of a higher one overflow: the participant fails to start)
+DOMAIN_ID_MAX = 232
+#: the latest /clock a harness starts at [s] (builtin_interfaces/Time's int32 seconds)
+_CLOCK_MAX_S = 2**31 - 1
+#: slots of the harnesses open now that chose no domain (slot 0: process_domain_id(); slot n: its offset
+#: _SLOT_OFFSET + n), so two open at once have two domains
+_OPEN_DEFAULTS: set[int] = set()
+_SLOT_OFFSET = 1000
 
 
 class HarnessTimeout(TimeoutError):
@@ -91,14 +106,18 @@ class BeltDriveHarness:
 
     Parameters
     ----------
-    scene : str
-        Scene name or YAML path for the node.
+    scene : str, optional
+        Scene name or YAML path for the node; default its ``scene``
+        parameter (a ``--params-file`` in ``ros_args`` may set it), else
+        ``paper``.
     use_sim_time : bool
         True: the harness publishes ``/clock`` (lockstep). False: system time.
     start_time : float
         First ``/clock`` value [s] (>= 0): the node's scene time 0.
     domain_id : int, optional
-        ROS domain; default :func:`belt_drive_ros.ros.environment.process_domain_id`.
+        ROS domain (0 .. 232); default one of this process's own
+        (:func:`belt_drive_ros.ros.environment.process_domain_id`), another for
+        each harness open at the same time.
     executor : str
         ``single`` (default, needed for lockstep), ``events`` or ``auto``.
     source : TorqueProfile or "scene", optional
@@ -117,7 +136,7 @@ class BeltDriveHarness:
 
     def __init__(
         self,
-        scene: str = "paper",
+        scene: str | None = None,
         *,
         use_sim_time: bool = True,
         start_time: float = 1.0,
@@ -131,8 +150,13 @@ class BeltDriveHarness:
         ros_args: list[str] | None = None,
         **params: Any,
     ):
-        if use_sim_time and start_time < 0:
-            raise ValueError("start_time: simulated time must start >= 0 s")
+        number = real(start_time)
+        if use_sim_time and (number is None or not 0 <= number <= _CLOCK_MAX_S):
+            raise ValueError(f"start_time: simulated time must start at a number of seconds in [0, {_CLOCK_MAX_S}] "
+                             f"(a /clock's int32 seconds), got {start_time!r}")
+        if domain_id is not None and (real(domain_id) != int(domain_id) or not 0 <= int(domain_id) <= DOMAIN_ID_MAX):
+            raise ValueError(f"domain_id: must be an integer in [0, {DOMAIN_ID_MAX}] (the ROS 2 domains a DDS port "
+                             f"fits), got {domain_id!r}")
         if use_sim_time and executor != "single":
             raise ValueError(
                 f"executor={executor!r}: /clock lockstep needs the wait-set executor ('single'); the events "
@@ -141,7 +165,10 @@ class BeltDriveHarness:
         self.scene_name = scene
         self.use_sim_time = use_sim_time
         self.start_ns = int(round(start_time * 1e9))
-        self.domain_id = ros_env.process_domain_id() if domain_id is None else int(domain_id)
+        self._chosen_domain = domain_id is not None
+        #: the harness's ROS domain (its default is chosen at :meth:`start`: one of its own per open harness)
+        self.domain_id = int(domain_id) if domain_id is not None else None
+        self._default_slot: int | None = None
         self.executor_kind = executor
         self.source_spec = source
         self.source_rate_hz = source_rate_hz
@@ -155,11 +182,23 @@ class BeltDriveHarness:
         self.probe: Node | None = None
         self.source = None
         self.executor = None
+        self._forget()
+
+    def _forget(self) -> None:
+        """No rows, clock or diagnostics received yet (a new start begins a new run)."""
         self._clock_ns = 0
         self._rows: list[tuple] = []
         self._floats: dict[str, list[float]] = {name: [] for name in OUTPUT_TOPICS + SLIP_OUTPUT_TOPICS}
         self._diagnostics: list[DiagnosticArray] = []
         self._t0_wall: int | None = None
+        self._published_at_close: int | None = None  # the node's count of published ticks when it was closed
+
+    def _started(self, what: str) -> BeltDriveNode:
+        """The node, or a RuntimeError saying the harness is not running."""
+        if self.node is None or self.executor is None:
+            raise RuntimeError(f"harness.{what}: the harness is not running (call start() first, or use it in a "
+                               "'with' block; after close() start() begins a new run)")
+        return self.node
 
     # -------------------------------------------------------------- lifecycle
     def __enter__(self) -> "BeltDriveHarness":
@@ -175,8 +214,15 @@ class BeltDriveHarness:
         Also runs BLAS single-threaded in this process
         (:func:`~belt_drive_ros.ros.environment.limit_blas_threads`).
         """
+        if self.node is not None:
+            raise RuntimeError("harness.start: the harness is already running (close() it first)")
         ros_env.configure_environment(loopback=True)
         ros_env.limit_blas_threads()
+        if not self._chosen_domain:  # a domain of its own while open: two harnesses at once never hear each other
+            self._default_slot = min(set(range(len(_OPEN_DEFAULTS) + 1)) - _OPEN_DEFAULTS)
+            _OPEN_DEFAULTS.add(self._default_slot)
+            self.domain_id = ros_env.process_domain_id(0 if self._default_slot == 0 else _SLOT_OFFSET + self._default_slot)
+        self._forget()
         self.context = Context()
         rclpy.init(context=self.context, domain_id=self.domain_id)
         try:
@@ -269,6 +315,8 @@ class BeltDriveHarness:
             except Exception:  # noqa: BLE001
                 pass
             self.executor = None
+        if self.node is not None:
+            self._published_at_close = self.node.counters["published"]
         for attr in ("source", "probe", "node"):
             obj = getattr(self, attr)
             if obj is not None:
@@ -277,6 +325,9 @@ class BeltDriveHarness:
         if self.context is not None:
             rclpy.try_shutdown(context=self.context)
             self.context = None
+        if self._default_slot is not None:
+            _OPEN_DEFAULTS.discard(self._default_slot)
+            self._default_slot = None
 
     # ---------------------------------------------------------------- spinning
     def _spin_until(self, predicate, what: str, republish=None, timeout: float | None = None) -> None:
@@ -341,19 +392,25 @@ class BeltDriveHarness:
         outputs of that tick show it as ``drive_torque``): publish, then
         :meth:`advance`, applies the torque from the next tick on.
         """
-        received = self.node.counters["received"]
+        node = self._started("publish_torque")
+        received = node.counters["received"]
         self._pub_torque.publish(Float64(data=float(value)))
         if wait:
-            self._spin_until(lambda: self.node.counters["received"] > received, "the node to receive drive_torque")
+            self._spin_until(lambda: node.counters["received"] > received, "the node to receive drive_torque")
 
     def advance(self, seconds: float, step: float | None = None) -> None:
         """Advance time by ``seconds``.
 
-        Sim time: ``/clock`` goes up in increments of ``step`` [s] (default:
-        the node's tick period), exactly, in integer nanoseconds (a final
-        shorter increment lands on the target), each one processed before
-        the next. Real time: spin for ``seconds`` of wall time.
+        Sim time: ``/clock`` goes up to the points ``start_time + k step``
+        [s] (default step: the node's tick period, so the node's tick grid),
+        exactly, in integer nanoseconds, each one processed before the next;
+        a target between two of them is reached by a last shorter increment,
+        and the next ``advance`` goes on from there to the grid again (so
+        ``advance(0.0333)`` three times ticks at the same points as
+        ``advance(0.0999)`` once). Real time: spin for ``seconds`` of wall
+        time.
         """
+        node = self._started("advance")
         if not 0 <= seconds <= 1.0e7:  # (nan, inf, and more than 1e7 s: a sim's longest run)
             raise ValueError(f"advance: seconds must be >= 0 and at most 1e7, got {seconds!r}")
         if not self.use_sim_time:
@@ -361,15 +418,17 @@ class BeltDriveHarness:
             while time.monotonic() < end:
                 self.executor.spin_once(timeout_sec=min(0.01, max(end - time.monotonic(), 0.0)))
             return
-        step_ns = self.node.settings.tick_ns if step is None else int(round(step * 1e9))
+        step_ns = node.settings.tick_ns if step is None else int(round(step * 1e9))
         if step_ns <= 0:
             raise ValueError("advance: step must be > 0")
         target = self._clock_ns + int(round(seconds * 1e9))
         while self._clock_ns < target:
-            self._step_clock(min(self._clock_ns + step_ns, target))
+            k = (self._clock_ns - self.start_ns) // step_ns + 1  # the next grid point after the clock
+            self._step_clock(min(self.start_ns + k * step_ns, target))
 
     def spin(self, seconds: float) -> None:
         """Spin the executor for ``seconds`` of wall time (time itself does not move in sim time)."""
+        self._started("spin")
         end = time.monotonic() + seconds
         while time.monotonic() < end:
             self.executor.spin_once(timeout_sec=0.01)
@@ -380,9 +439,11 @@ class BeltDriveHarness:
         Raises :class:`DomainShared` when more ``joint_states`` arrived than
         the node published: another process publishes on this ROS domain (its
         rows would be mixed with the node's, and a slipping model's topics
-        would look incomplete).
+        would look incomplete). After :meth:`close` the run's rows stay readable.
         """
-        published = self.node.counters["published"]
+        published = self.node.counters["published"] if self.node is not None else self._published_at_close
+        if published is None:
+            self._started("outputs")
         if len(self._rows) > published:
             raise DomainShared(
                 f"harness: {len(self._rows)} joint_states received but the node published {published}: "
@@ -416,7 +477,7 @@ class BeltDriveHarness:
         Waits for the node's own array (its statuses are named ``<node>: ...``);
         arrays of other nodes on ``/diagnostics`` are passed over.
         """
-        prefix = self.node.get_name() + ": "
+        prefix = self._started("diagnostics").get_name() + ": "
 
         def own(m: DiagnosticArray) -> bool:
             return bool(m.status) and all(st.name.startswith(prefix) for st in m.status)
@@ -435,8 +496,14 @@ class BeltDriveHarness:
         }
 
     def set_parameters(self, **params: Any):
-        """Set node parameters atomically; returns the ``SetParametersResult`` (``.successful``, ``.reason``)."""
-        unknown = [name for name in params if not self.node.has_parameter(name)]
+        """Set node parameters atomically; returns the ``SetParametersResult`` (``.successful``, ``.reason``).
+        ``use_sim_time`` is the harness's own (its ``/clock`` lockstep or the system clock): refused here."""
+        node = self._started("set_parameters")
+        if "use_sim_time" in params:
+            return SetParametersResult(successful=False, reason=(
+                "use_sim_time: the harness's time base, set when it is made (BeltDriveHarness(use_sim_time=...)); "
+                "set_parameters_over_the_service() changes it as another process would"))
+        unknown = [name for name in params if not node.has_parameter(name)]
         if unknown:  # an answer with its reason, as for every other refusal (rclpy raised ParameterNotDeclaredException)
             return SetParametersResult(successful=False, reason=f"{unknown[0]}: not a parameter of the node")
         try:
@@ -451,6 +518,7 @@ class BeltDriveHarness:
         ``SetParametersResult`` of each, in order (:class:`HarnessTimeout` if the call is never answered)."""
         from rcl_interfaces.srv import SetParameters
 
+        self._started("set_parameters_over_the_service")
         client = self.probe.create_client(SetParameters, f"{self.node.get_fully_qualified_name()}/set_parameters")
         try:
             self._spin_until(client.service_is_ready, "the set_parameters service")
@@ -463,6 +531,7 @@ class BeltDriveHarness:
 
     def reset(self) -> str:
         """Call the node's ``~/reset`` service; returns its message."""
+        self._started("reset")
         future = self._reset_client.call_async(Trigger.Request())
         published = self.node.counters["published"]
         self._spin_until(future.done, "~/reset")
