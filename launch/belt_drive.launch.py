@@ -8,11 +8,12 @@ Needs the package built into a workspace (colcon build) and sourced. The node
 reads its parameters from config/belt_drive.yaml (installed to
 share/belt_drive_ros/config; params_file:=... for your own) and records its
 input and outputs to record_path (MCAP; an existing file stops the node from
-starting unless record_overwrite:=true). The source is the scene's own
-drive (``belt-drive source engine --scene SCENE``: truck_compressor's diesel,
-whose governor holds wheel M near its speed setpoint from the node's
-shaft_speed); without a torque source the node applies 0 N m and the drive
-coasts to a stop.
+starting unless record_overwrite:=true); config/belt_drive.yaml sets no
+model parameter, so every scene keeps its own belt. The source is the
+scene's own drive, whatever its type (``belt-drive source profile --scene
+SCENE``: truck_compressor's diesel, whose governor holds wheel M near its
+speed setpoint from the node's shaft_speed; paper's motor curve); without a
+torque source the node applies 0 N m and the drive coasts to a stop.
 
 A belt network scene (``kind: network``, e.g. the shipped fead_i4) starts the
 network node instead (``belt-drive node NETWORK``): its crank is driven by the
@@ -54,7 +55,7 @@ def _nodes(context):
         Node(package=PACKAGE, executable="node", name="belt_drive", output="screen",
              parameters=[params_file, {"scene": LaunchConfiguration("scene"), **record}]),
         Node(package=PACKAGE, executable="source", name="torque_source", output="screen",
-             arguments=["engine", "--scene", LaunchConfiguration("scene")]),
+             arguments=["profile", "--scene", LaunchConfiguration("scene")]),
     ]
 
 
@@ -68,7 +69,7 @@ def generate_launch_description():
         DeclareLaunchArgument("record_overwrite", default_value="false",
                               description="replace an existing record_path"),
         DeclareLaunchArgument("scene", default_value="truck_compressor",
-                              description="scene of the node and of the source's engine (a shipped name or a YAML "
+                              description="scene of the node and of the source's drive (a shipped name or a YAML "
                                           "path); a belt network scene (kind: network) starts the network node"),
         OpaqueFunction(function=_nodes),
     ])

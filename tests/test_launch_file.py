@@ -189,13 +189,38 @@ def test_launch_file_starts_the_packages_node_and_source_with_parameters_it_decl
 
     args = build_parser().parse_args(
         [executables[source.executable], *(str(_resolve(a, defaults)) for a in source.arguments)])
-    assert args.source_kind == "engine" and args.scene == values["scene"] == "truck_compressor"
+    assert args.source_kind == "profile" and args.scene == values["scene"] == "truck_compressor"
     assert node.name == "belt_drive" and source.name == "torque_source"
+
+
+@pytest.mark.parametrize("scene", ["paper", "e_motor_start", "bsg_start", "truck_compressor"])
+def test_the_launch_file_runs_any_scene_with_its_own_belt_and_its_own_drive(description, scene):
+    """Every shipped drive scene through the launch file: the node keeps the scene's belt (the parameters file
+    used to set truck_compressor's k, c and F_0 for every scene: paper ran at k = 3e5 instead of 2e4), and the
+    source publishes the scene's own drive (``source engine --scene paper`` exited 2: a motor, no engine)."""
+    from belt_drive_ros.commands.source import build_profile
+
+    defaults, actions = _launched(description, scene=scene)
+    (node,) = [n for n in actions if isinstance(n, Node) and n.executable == "node"]
+    (source,) = [n for n in actions if isinstance(n, Node) and n.executable == "source"]
+    values = {}
+    for entry in node.parameters:
+        entry = _resolve(entry, defaults)
+        values.update(_file_parameters(entry, node.name) if not isinstance(entry, dict) else {
+            k: yaml.safe_load(_resolve(v, defaults)) if isinstance(v, LaunchConfiguration) else v
+            for k, v in entry.items()})
+    assert values["scene"] == scene
+    assert not {"k", "c", "F_0"} & set(values)  # the scene's own belt
+    settings = build_settings({**default_values(load_scene(scene)), **values})
+    assert settings.scene.params == load_scene(scene).params
+    args = build_parser().parse_args(["source", *(str(_resolve(a, defaults)) for a in source.arguments)])
+    profile, _ = build_profile(args)  # (exits 2 for a profile it cannot publish)
+    assert profile == load_scene(scene).drive
 
 
 def test_parameters_example_is_accepted_by_the_node_schema():
     values = _file_parameters(str(PARAMS_FILE), "belt_drive")
-    assert values["scene"] == "truck_compressor" and values["k"] == 300000.0
+    assert values["scene"] == "truck_compressor" and "k" not in values  # (model parameters: the scene's)
     _check_node_parameters(values, str(PARAMS_FILE))
 
 
@@ -204,7 +229,7 @@ def test_the_check_refuses_a_parameter_the_node_does_not_have(tmp_path):
     bad.write_text(PARAMS_FILE.read_text(encoding="utf-8") + "    stiffness: 3.0\n", encoding="utf-8")
     with pytest.raises(AssertionError, match="stiffness"):
         _check_node_parameters(_file_parameters(str(bad), "belt_drive"), str(bad))
-    bad.write_text(PARAMS_FILE.read_text(encoding="utf-8").replace("k: 300000.0", "k: -5.0"), encoding="utf-8")
+    bad.write_text(PARAMS_FILE.read_text(encoding="utf-8").replace("# k: 300000.0", "k: -5.0"), encoding="utf-8")
     with pytest.raises(ValueError, match="k"):
         _check_node_parameters(_file_parameters(str(bad), "belt_drive"), str(bad))
 
