@@ -109,7 +109,8 @@ def test_package_xml_is_format_3_with_the_dependencies_the_code_imports():
     for path in (ROOT / PACKAGE).rglob("*.py"):
         for line in path.read_text(encoding="utf-8").splitlines():
             words = line.split()
-            if len(words) >= 2 and words[0] in ("from", "import") and words[1].split(".")[0].endswith(("_msgs", "_srvs")):
+            if len(words) >= 2 and words[0] in ("from", "import") and (
+                    words[1].split(".")[0].endswith(("_msgs", "_srvs", "_interfaces"))):  # (rcl_interfaces too)
                 imported.add(words[1].split(".")[0])
     assert imported and imported <= deps | {"tf2_msgs"}, imported - deps  # tf2_msgs: used only where importable
 

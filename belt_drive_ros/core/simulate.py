@@ -58,8 +58,10 @@ SLIP_CSV_COLUMNS = (
 class SimResult:
     """States, inputs and outputs of one run on the grid ``time`` [s].
 
-    ``outputs`` holds every signal of :data:`belt_drive_ros.core.model.OUTPUT_UNITS` as an (N,) array; ``states`` is
-    (N, n) in the model's state ordering.
+    ``outputs`` holds every signal of :data:`belt_drive_ros.core.model.OUTPUT_UNITS` as an (N,) array (SI units,
+    named there), a slipping run's also those of :data:`belt_drive_ros.core.slip.SLIP_OUTPUT_UNITS`; ``states`` is
+    (N, n) in the model's state ordering; ``inputs`` (N, 2) the drive and load torques [N m]; ``energy`` the energy
+    terms [J] by name.
     """
 
     scene: Scene
@@ -135,7 +137,7 @@ def simulate(
     progress: Callable[[float], None] | None = None,
     check_stability: bool = True,
 ) -> SimResult:
-    """Run ``scene`` (overrides for model, method, dt, duration) and compute all outputs.
+    """Run ``scene`` (overrides for model, method, dt [s], duration [s]) and compute all outputs.
 
     With ``model='auto'`` the choice and its reason are in ``result.choice``
     (:func:`~belt_drive_ros.core.fidelity.choose_model`: rigid or flexible by the frequency rule, slipping when that
