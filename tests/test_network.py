@@ -489,3 +489,19 @@ def test_sim_names_the_first_pulley_at_its_capstan_limit(tmp_path, capsys):
     assert main(["sim", str(path), "--duration", "0.5", "--model", "flexible"]) == 0
     out = capsys.readouterr().out
     assert "capstan limit: pulley_3 reaches it first at t = " in out and "not valid" in out
+
+
+def test_a_network_recording_names_each_joint_states_field_unit(tmp_path, capsys):
+    """The units record gives joint_states' position, velocity and effort a unit each (as a drive recording's):
+    one string "rad, rad/s, N*m" for the topic labelled every exported column with all three."""
+    from belt_drive_ros.cli import main
+    from msg_tools.cli import main as msg_tools
+
+    out = tmp_path / "fead.mcap"
+    assert main(["sim", "fead_i4", "--duration", "0.01", "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert msg_tools(["export", str(out), "-t", "/joint_states"]) == 0
+    header = capsys.readouterr().out.splitlines()[0].split(",")
+    assert "position[crank] [rad]" in header and "velocity[crank] [rad/s]" in header
+    assert "effort[crank] [N*m]" in header and "position[tensioner_arm] [rad]" in header
+    assert not any("rad, rad/s" in column for column in header)

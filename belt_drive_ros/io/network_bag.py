@@ -232,7 +232,8 @@ class NetworkBagWriter:
                 self.writer = BlockMcapWriter(path, force=force, compression=compression)
             self.writer.add_metadata(NETWORK_METADATA, record)
             units = {_absolute(t, namespace): u for t, u in layout.units.items()}
-            units[_absolute("joint_states", namespace)] = "rad, rad/s, N*m"
+            for field, unit in (("position", "rad"), ("velocity", "rad/s"), ("effort", "N*m")):  # (as the drive's)
+                units[_absolute(f"joint_states/{field}", namespace)] = unit
             self.writer.add_metadata(UNITS_METADATA, units)
         except (MsgToolsError, OSError) as exc:
             raise bag_error(exc) from None
