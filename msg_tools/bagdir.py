@@ -49,6 +49,12 @@ def bag_files(path: Union[str, "os.PathLike[str]"]) -> List[str]:
     meta = os.path.join(path, METADATA_FILE)
     info = _metadata(path)
     if info is not None:
+        mode = str(info.get("compression_mode") or "").strip()
+        if mode and mode.lower() != "none":  # rosbag2's own compression: whole files or each message's data
+            raise CorruptBagError(
+                f"{path}: compressed by rosbag2 (compression_mode {mode}, compression_format "
+                f"{info.get('compression_format') or '?'}): not read here; write an uncompressed copy first (e.g. "
+                "'ros2 bag convert'; an MCAP file's own chunk compression, rosbag2's default, is read)")
         relative = info.get("relative_file_paths")
         if relative is None:
             relative = []

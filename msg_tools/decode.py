@@ -95,6 +95,11 @@ def _kinds(headers: np.ndarray, topic: str, type_name: str) -> np.ndarray:
     bad = (headers[:, 0] != 0) | (headers[:, 1] > 1)
     if bad.any():
         i = int(np.argmax(bad))
+        if headers[i, 0] == 0x28 and headers[i, 1] == 0xB5:  # zstd's magic number 0xFD2FB528, little endian
+            raise DecodeError(
+                f"{topic} ({type_name}): message {i} is zstd-compressed data, not CDR (a bag recorded with "
+                "rosbag2's compression_mode message): not read here; write an uncompressed copy first (e.g. "
+                "'ros2 bag convert')")
         raise DecodeError(
             f"{topic} ({type_name}): message {i} has CDR encapsulation "
             f"0x{headers[i, 0]:02x}{headers[i, 1]:02x}; only plain CDR "

@@ -358,6 +358,9 @@ class Scan:
             if len(head) < 8 and MAGIC.startswith(head):
                 self.stop_reason = f"file ends after {size} bytes, inside the MCAP magic"
                 return self
+            if head.startswith(b"\x28\xb5\x2f\xfd"):  # zstd's magic number: a whole file compressed
+                raise CorruptBagError(f"{self.name}: a zstd-compressed file, not MCAP (rosbag2's compression_mode "
+                                      "file?): decompress it first ('zstd -d')")
             raise CorruptBagError(f"{self.name}: not an MCAP file (starts with {head!r})")
         pos = 8
         try:

@@ -431,3 +431,36 @@ def test_a_file_without_chunk_indexes_is_complete_and_read_whole(tmp_path, capsy
     run = tmp_path / "run.mcap"
     assert belt_drive(["sim", "e_motor_start", "--torque-bag", str(path), "--method", "etd4", "--out", str(run)]) == 0
     np.testing.assert_array_equal(read_topic(run, "/drive_torque").data, values)  # held at the 1 ms grid: the same
+
+
+@pytest.mark.parametrize("mode", ["file", "message"])
+def test_a_bag_rosbag2_compressed_is_refused_naming_its_compression(tmp_path, capsys, mode):
+    """A bag folder rosbag2 compressed itself (``ros2 bag record --compression-mode file|message``; written here by
+    rosbags' writer, the same layout) was "not an MCAP file" (file mode) or read as complete and then refused as
+    "CDR encapsulation 0x28b5" (message mode). Each verb now names the compression and what to do; the files alone
+    too (a whole .mcap.zstd, a message holding zstd data)."""
+    import struct
+
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+    from rosbags.typesys import Stores, get_typestore
+
+    from belt_drive_ros.cli import main as belt_drive
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    folder = tmp_path / "bag"
+    writer = Writer(folder, version=9, storage_plugin=StoragePlugin.MCAP)
+    writer.set_compression(CompressionMode.FILE if mode == "file" else CompressionMode.MESSAGE, CompressionFormat.ZSTD)
+    with writer:
+        connection = writer.add_connection("/drive_torque", "std_msgs/msg/Float64", typestore=store)
+        for k in range(100):
+            writer.write(connection, 10**18 + k * 10**6, b"\x00\x01\x00\x00" + struct.pack("<d", 5.0))
+    expected = f"{folder}: compressed by rosbag2 (compression_mode {mode}, compression_format zstd): not read here"
+    assert main(["info", str(folder)]) == 2
+    assert expected in capsys.readouterr().err
+    assert belt_drive(["sim", "e_motor_start", "--torque-bag", str(folder), "--out", str(tmp_path / "x.mcap")]) == 2
+    assert expected in capsys.readouterr().err
+    (file,) = [p for p in folder.iterdir() if p.name != "metadata.yaml"]
+    assert main(["export", str(file), "-t", "/drive_torque"]) == 2
+    err = capsys.readouterr().err
+    assert ("a zstd-compressed file, not MCAP" if mode == "file" else "message 0 is zstd-compressed data, not CDR") in err
