@@ -40,10 +40,11 @@ def test_model_range_reads_the_rule_table(monkeypatch):
     added to the table moves it (the old code kept the lower bound 0 whatever the table said)."""
     from belt_drive_ros.core import params as core_params
 
-    assert model_range("k") == (0.0, core_params.PLAUSIBLE_MAX["k"])  # k > 0: the open end 0 is given as 0
+    assert model_range("k") == (core_params.PLAUSIBLE_MIN["k"], core_params.PLAUSIBLE_MAX["k"])  # plausible: >= 1 N/m
+    assert model_range("mu") == (0.0, core_params.PLAUSIBLE_MAX["mu"])  # mu > 0: the open end 0 is given as 0
     assert model_range("c") == (0.0, core_params.PLAUSIBLE_MAX["c"])  # c >= 0
     assert model_range("wrap_angle")[1] == 2.0 * math.pi
-    stricter = (core_params.rule("k", 1.5e3, None, "[)", "must be >= 1500 N/m, got {value!r}"),
+    stricter = (core_params.rule("k", 1.5e3, None, "[)", "must be >= 1500 N/m, got {value!r}"),  # (above 1 N/m)
                 core_params.rule("c", 2.0, 50.0, "(]", "must be in (2, 50], got {value!r}"))
     monkeypatch.setattr(core_params, "RULES", core_params.RULES + stricter)
     assert model_range("k") == (1.5e3, core_params.PLAUSIBLE_MAX["k"])
@@ -53,15 +54,20 @@ def test_model_range_reads_the_rule_table(monkeypatch):
 @pytest.mark.parametrize("name", MODEL_PARAMETERS)
 def test_model_ranges_are_the_core_rules(name):
     """Inside the advertised range BeltDriveParams accepts; just outside it refuses (each end)."""
+    from belt_drive_ros.core.params import PLAUSIBLE_MIN
+
     lo, hi = model_range(name)
     base = BeltDriveParams().field_values()
-    assert lo == 0.0 and math.isfinite(hi) and hi >= base[name]  # groove_angle: the flat belt (pi) is both default and upper end
+    assert lo == PLAUSIBLE_MIN.get(name, 0.0) and math.isfinite(hi) and hi >= base[name]  # groove_angle: the flat belt (pi) is both default and upper end
     BeltDriveParams(**{**base, name: hi})  # the upper end itself is valid
     with pytest.raises(ParameterError, match=name):
         BeltDriveParams(**{**base, name: -1e-9})
     values = default_values(load_scene("paper"))
     with pytest.raises(NodeConfigError, match=name):
         build_settings({**values, name: hi * 1.0001})
+    if lo > 0.0:  # a plausible lower end: the node refuses below it (r_3 = 1e-300 m overflowed at its tick)
+        with pytest.raises(NodeConfigError, match=f"{name}: .* is outside the plausible range"):
+            build_settings({**values, name: lo * 0.5})
 
 
 def test_torque_bound_is_derived_from_the_scene_or_set():

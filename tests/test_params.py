@@ -195,3 +195,38 @@ def test_numpy_scalars_are_numbers_in_the_parameters(value):
     for bad in (np.bool_(True), np.array([2.0e4]), np.array(2.0e4)):
         with pytest.raises(ParameterError, match="^k: must be a number, got "):
             BeltDriveParams(k=bad)
+
+
+@pytest.mark.parametrize("field, value, detail", [
+    ("r_3", 1e-300, "r_3: 1e-300 m is outside the plausible range [0.0001, 10] m"),
+    ("R_1", 1e-300, "R_1: 1e-300 m is outside the plausible range [0.0001, 10] m"),
+    ("k", 5e-324, "k: 4.94066e-324 N/m is outside the plausible range [1, 1e+10] N/m"),
+    ("c", 5e-324, "c: 4.94066e-324 N s/m is outside the plausible range 0 (no span damping) or [1e-06, 1e+07] N s/m"),
+    ("groove_angle", 1e-20, "groove_angle: 1e-20 rad is outside the plausible range [0.2, 3.14159] rad"),
+])
+def test_values_below_the_plausible_range_are_refused_where_they_left_the_floats(field, value, detail, tmp_path, capsys):
+    """Tiny positive values passed (r_3 = 1e-300 m: OverflowError of the reduced inertia; k, c = 5e-324: division by
+    zero; a groove of 1e-20 rad: the capstan ratio's exp overflowed), an internal error of sim, a node that died at
+    its next tick, a campaign batch lost with its good variants. Now a one-line refusal naming the range, the same
+    by the scalar check and the campaigns' column check; no damping (c = 0) stays plausible."""
+    from belt_drive_ros.cli import main
+    from belt_drive_ros.core.params import valid_parameter_rows
+
+    with pytest.raises(ParameterError) as info:
+        BeltDriveParams().replace(**{field: value}).check_plausible()
+    assert f"{info.value.field}: {info.value.detail}" == detail
+    rows = valid_parameter_rows({field: np.array([value, getattr(BeltDriveParams(), field)])})
+    assert rows.tolist() == [False, True]
+    scene = tmp_path / "s.yaml"
+    scene.write_text(f"extends: paper\nduration: 0.05\nparams: {{{field}: {value!r}}}\n")
+    assert main(["sim", str(scene)]) == 2
+    assert capsys.readouterr().err.startswith(f"belt-drive: error: {detail}")
+    BeltDriveParams(c=0.0).check_plausible()
+
+
+def test_the_capstan_ratio_of_an_idealised_belt_does_not_overflow():
+    """The constructor admits idealised values (a groove of 0.01 rad, mu = 10): e^(mu_eff wrap) past a float is inf
+    (the belt never slips), not an OverflowError; the friction limit (tanh) is 2 F_0."""
+    p = BeltDriveParams(mu=10.0, wrap_angle=6.28, groove_angle=0.01)
+    assert p.capstan_ratio == math.inf and p.friction_limit(0.0) == 2.0 * p.F_0
+    assert math.isfinite(BeltDriveParams(mu=10.0, wrap_angle=6.28, groove_angle=0.2).capstan_ratio)

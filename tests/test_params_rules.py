@@ -104,7 +104,7 @@ def test_replace_rows_builds_only_what_the_rules_pass():
     got = base.replace_rows({"k": np.array([3.0e4, 0.0, 2e10]), "mu": np.array([0.3, 0.3, 0.3])}, plausible=True)
     assert got[0] == base.replace(k=3.0e4, mu=0.3) and all(type(v) is float for v in got[0].__dict__.values())
     assert str(got[1]) == "k: must be > 0 N/m, got 0.0"
-    assert str(got[2]) == "k: 2e+10 N/m is outside the plausible range (0, 1e+10] N/m"
+    assert str(got[2]) == "k: 2e+10 N/m is outside the plausible range [1, 1e+10] N/m"
     assert base.replace_rows({"k": np.array([2e10])})[0].k == 2e10  # (the constructor alone: no plausible range)
     implausible = BeltDriveParams(F_0=1e9)
     assert str(implausible.replace_rows({"k": np.array([3.0e4])}, plausible=True)[0]).startswith("F_0: 1e+09 N is outside")

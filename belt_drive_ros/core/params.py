@@ -51,8 +51,24 @@ PLAUSIBLE_MAX: dict[str, float] = {
     "F_0": 1.0e7, "mu": 10.0, "wrap_angle": 2.0 * math.pi, "groove_angle": math.pi, "belt_mass": 100.0,
 }
 
+#: smallest plausible value of the fields that have one (SI units): below these the derived quantities leave the
+#: floats (r_3 = 1e-300 m: a reduced inertia of 1e600; k = 5e-324 N/m: a belt mode of 0 Hz that divides; a groove of
+#: 1e-20 rad: a capstan ratio e^(1e20)); a V-belt's groove is 30-40 deg (0.52-0.70 rad), a pulley's radius centimetres
+PLAUSIBLE_MIN: dict[str, float] = {
+    "r_M": 1.0e-4, "R_1": 1.0e-4, "r_1": 1.0e-4, "R_2": 1.0e-4, "r_2": 1.0e-4, "r_3": 1.0e-4,
+    "k": 1.0, "groove_angle": 0.2,
+}
+#: span damping: none (0), or at least this [N s/m] (a tinier c makes the slip mode's creep k/c overflow)
+C_MIN = 1.0e-6
+
 _POSITIVE = ("I_M", "I_3", "r_M", "R_1", "r_1", "R_2", "r_2", "r_3", "k", "mu", "wrap_angle")
 _NON_NEGATIVE = ("I_1", "I_2", "c", "b_M", "b_1", "b_2", "b_3", "F_0", "belt_mass")
+
+
+def _unit(name: str) -> str:
+    """`` UNIT`` of field ``name`` for a message (nothing for a pure number, unit "1")."""
+    unit = FIELD_DOCS[name][0]
+    return "" if unit == "1" else f" {unit}"
 
 
 class Rule(NamedTuple):
@@ -90,17 +106,34 @@ def rule(field: str, low: float | None, high: float | None, ends: str, text: str
 #: turn, the groove angle in (0, pi]
 RULES: tuple[Rule, ...] = (
     *(rule(name, None, None, "()", "must be finite, got {value!r}") for name in FIELD_DOCS),
-    *(rule(name, 0.0, None, "()", f"must be > 0 {FIELD_DOCS[name][0]}, got {{value!r}}") for name in _POSITIVE),
-    *(rule(name, 0.0, None, "[)", f"must be >= 0 {FIELD_DOCS[name][0]}, got {{value!r}}") for name in _NON_NEGATIVE),
+    *(rule(name, 0.0, None, "()", f"must be > 0{_unit(name)}, got {{value!r}}") for name in _POSITIVE),
+    *(rule(name, 0.0, None, "[)", f"must be >= 0{_unit(name)}, got {{value!r}}") for name in _NON_NEGATIVE),
     rule("wrap_angle", None, 2.0 * math.pi, "(]", "must be <= 2*pi rad, got {value!r}"),
     rule("groove_angle", 0.0, math.pi, "(]", "must be in (0, pi] rad (pi: flat belt), got {value!r}"),
 )  # fmt: skip
-#: :meth:`BeltDriveParams.check_plausible`'s checks, one per field of :data:`PLAUSIBLE_MAX`, in its order
+def _plausible_text(name: str, top: float) -> str:
+    """The detail of a value outside ``name``'s plausible range (the ends :data:`RULES` and the plausible ones give)."""
+    low = PLAUSIBLE_MIN.get(name)
+    start = f"[{low:g}" if low is not None else "(0" if name in _POSITIVE else "[0"
+    if name == "c":
+        start = f"0 (no span damping) or [{C_MIN:g}"
+    return f"{{value:g}}{_unit(name)} is outside the plausible range {start}, {top:g}]{_unit(name)}"
+
+
+#: :meth:`BeltDriveParams.check_plausible`'s checks, one per field of :data:`PLAUSIBLE_MAX` (its upper end), then one
+#: per field of :data:`PLAUSIBLE_MIN` (its lower end), in their order; the span damping's gap (0, :data:`C_MIN`) is
+#: :func:`damping_gap`'s
 PLAUSIBLE_RULES: tuple[Rule, ...] = tuple(
-    rule(name, None, top, "(]", f"{{value:g}} {FIELD_DOCS[name][0]} is outside the plausible range "
-         f"{'(0' if name in _POSITIVE else '[0'}, {top:g}] {FIELD_DOCS[name][0]}")
-    for name, top in PLAUSIBLE_MAX.items()
+    rule(name, None, top, "(]", _plausible_text(name, top)) for name, top in PLAUSIBLE_MAX.items()
+) + tuple(
+    rule(name, low, None, "[)", _plausible_text(name, PLAUSIBLE_MAX[name])) for name, low in PLAUSIBLE_MIN.items()
 )  # fmt: skip
+
+
+def damping_gap(c):
+    """Whether span damping ``c`` [N s/m] (a float, or an array: per element) lies in the implausible gap between 0
+    and :data:`C_MIN` (no damping and real damping are both plausible)."""
+    return (0.0 < c) & (c < C_MIN)
 _BOUNDS: dict = {}
 
 
@@ -193,6 +226,8 @@ class BeltDriveParams:
         """``self`` if every field is within :data:`PLAUSIBLE_MAX`, else :class:`ParameterError` naming the range:
         for parameters from outside (the constructor alone admits idealised values such as ``F_0 = 1e9`` N)."""
         _check(self.__dict__, PLAUSIBLE_RULES)
+        if damping_gap(self.c):
+            raise ParameterError("c", _plausible_text("c", PLAUSIBLE_MAX["c"]).format(value=self.c))
         return self
 
     def field_values(self) -> dict[str, float]:
@@ -304,7 +339,8 @@ class BeltDriveParams:
     @property
     def capstan_ratio(self) -> float:
         """e^(mu_eff * wrap_angle): largest (F_tight - F_c)/(F_slack - F_c) before the belt slips [-]."""
-        return math.exp(self.mu_effective * self.wrap_angle)
+        exponent = self.mu_effective * self.wrap_angle  # (past ~709 no float holds it: the belt never slips)
+        return math.exp(exponent) if exponent < 709.0 else math.inf
 
     def friction_limit(self, omega_M=0.0):
         """Q_max = 2 (F_0 - F_c) tanh(mu_eff beta / 2) [N]: largest net force (tight - slack) friction transmits.
@@ -348,6 +384,8 @@ def valid_parameter_rows(columns: Mapping[str, np.ndarray], *, plausible: bool =
             values = columns.get(name)
             if values is not None:
                 ok &= (low < values) & (values < high)
+    if plausible and columns.get("c") is not None:
+        ok &= ~damping_gap(columns["c"])
     return ok
 
 

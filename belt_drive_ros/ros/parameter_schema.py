@@ -421,7 +421,7 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
         if isinstance(value, (int, float)) and not isinstance(value, bool) and value > upper:
             raise NodeConfigError(name, f"must be <= {upper:g} {FIELD_DOCS[name][0]}, got {value!r}")
     try:
-        params = BeltDriveParams(**model_values)
+        params = BeltDriveParams(**model_values).check_plausible()  # (the lower ends too: r_3 = 1e-300 m overflowed)
     except ParameterError as exc:
         raise NodeConfigError(exc.field, exc.detail) from None
     tick_ns = int(round(1e9 / step_rate))

@@ -239,7 +239,7 @@ class NetworkScene:
                 gear, inertia, damping = reduce_gears(f"{where}.gears", item["gears"], inertia, damping)
             pulleys.append(Pulley(
                 name=pname, centre=_point(f"{where}.centre", item["centre"]),
-                radius=_number(f"{where}.radius", item["radius"], strict=True, top=10.0),
+                radius=_number(f"{where}.radius", item["radius"], low=1.0e-4, top=10.0),  # (as the drive's r_3)
                 inertia=inertia, damping=damping, gear=gear,
                 side=SIDES[side], role=role,
                 torque=None if torque is None else make_profile(torque, f"{where}.torque"),
