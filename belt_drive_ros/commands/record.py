@@ -54,6 +54,15 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    """The command (see the module docstring); SIGINT/SIGTERM from the opening of the recording on finish it
+    (:func:`~belt_drive_ros.ros.executors.stop_on_signals`: in the start-up too, the spin then never begins)."""
+    from ..ros.executors import stop_on_signals
+
+    with stop_on_signals(starting=True) as stop:
+        return _record(args, stop)
+
+
+def _record(args, stop) -> int:
     import contextlib
     import os
     import signal
@@ -145,7 +154,7 @@ def run(args) -> int:
 
             say(f"recording to {args.out}; Ctrl-C to stop")
             # topics that appear later are picked up every `poll` seconds
-            signum = spin_nodes([node], context, freeze_gc=False, poll=0.5, every=discover,
+            signum = spin_nodes([node], context, freeze_gc=False, poll=0.5, every=discover, stop=stop,
                                 until=lambda: recorder.failed, duration=args.duration,
                                 stopped=lambda _signum: recorder.close())
     finally:

@@ -36,6 +36,7 @@ Measured pitfalls they encode (ROS 2 Jazzy wheels):
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import threading
 import time
@@ -112,12 +113,17 @@ class StopSignal:
     ``done()`` is True once a signal came; ``result()`` is its number (0
     before). The handler that sets it runs between two bytecodes of the main
     thread, whatever that thread holds, so it only assigns an attribute.
+    While ``starting`` (a program building its nodes and outputs, before its
+    spin), a second signal raises ``KeyboardInterrupt`` (the start-up is
+    taking too long for the user: end it now); the first only asks the spin
+    not to begin, so what the start-up opened (a recording) is closed whole.
     """
 
-    __slots__ = ("signum",)
+    __slots__ = ("signum", "starting")
 
     def __init__(self) -> None:
         self.signum = 0
+        self.starting = False
 
     def done(self) -> bool:
         return self.signum != 0
@@ -126,15 +132,20 @@ class StopSignal:
         return self.signum
 
     def handle(self, signum, frame=None) -> None:
-        """Signal handler: keeps the first signal number."""
+        """Signal handler: keeps the first signal number (a second one while starting: KeyboardInterrupt)."""
         if not self.signum:
             self.signum = int(signum)
+        elif self.starting:
+            raise KeyboardInterrupt
 
 
 @contextmanager
-def stop_on_signals() -> Iterator[StopSignal]:
-    """A :class:`StopSignal` that SIGINT/SIGTERM set (the previous handlers are restored on exit)."""
+def stop_on_signals(starting: bool = False) -> Iterator[StopSignal]:
+    """A :class:`StopSignal` that SIGINT/SIGTERM set (the previous handlers are restored on exit); ``starting``: its
+    flag (a program that installs it before building its nodes: a signal there is not lost, nor does it kill the
+    process with a recording half written; the program clears the flag once it spins)."""
     stop = StopSignal()
+    stop.starting = starting
     on_signal = stop.handle
 
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
@@ -203,6 +214,7 @@ def spin_until_signal(
     duration: float | None = None,
     until: Callable[[], bool] | None = None,
     every: Callable[[], None] | None = None,
+    stop: StopSignal | None = None,
 ) -> int:
     """Spin ``executor`` from the main thread until SIGINT/SIGTERM or context shutdown.
 
@@ -222,6 +234,10 @@ def spin_until_signal(
         Stop as soon as it returns True (checked every ``poll``).
     every : callable, optional
         Called every ``poll`` seconds between spins (e.g. topic discovery).
+    stop : StopSignal, optional
+        Installed by the caller (:func:`stop_on_signals`, before its start-up):
+        a signal that came already ends the spin before it begins. Default:
+        handlers installed here for the spin.
 
     Returns
     -------
@@ -231,7 +247,8 @@ def spin_until_signal(
     context = context or rclpy.get_default_context()
     end = None if duration is None else time.monotonic() + duration
     deadline = SpinDeadline()
-    with stop_on_signals() as stop:
+    with (contextlib.nullcontext(stop) if stop is not None else stop_on_signals()) as stop:
+        stop.starting = False  # (the spin: a second signal changes nothing)
         try:
             while not stop.done() and context.ok():
                 if until is not None and until():

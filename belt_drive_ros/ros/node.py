@@ -147,8 +147,7 @@ from ..io.recording import (  # noqa: E402
     encode_robot_description,
 )
 from .diagnostics import NodeDiagnostics  # noqa: E402
-from .environment import interruptible_start  # noqa: E402
-from .executors import executor_name, make_executor, ros_session, spin_nodes  # noqa: E402,F401 - make_executor re-exported
+from .executors import executor_name, make_executor, ros_session, spin_nodes, stop_on_signals  # noqa: E402,F401 - make_executor re-exported
 from .gaps import TICK_GAP_METADATA  # noqa: E402
 from .inputs import DriveInput, float64_value  # noqa: E402
 from .parameter_schema import (  # noqa: E402,F401 - NodeConfigError, unknown_parameter_rule re-exported
@@ -672,21 +671,26 @@ def run(
     values that win over them (the command's own options). Invalid
     parameters raise :class:`NodeConfigError` after rclpy is shut down again.
     """
-    interruptible_start()  # SIGINT ends the start-up too, also where the process inherited it ignored
     node_class = node_class or BeltDriveNode
     unknown = unknown_parameter_rule(ros_args or [], node_class.PARAMETER_NAMES)
     if unknown is not None:
         raise NodeConfigError(unknown, NOT_A_PARAMETER)
-    with ros_session(["belt-drive-node", *(ros_args or [])]) as context:
+    # SIGINT/SIGTERM from here on stop the node cleanly, also in its start-up (it opens its recording there): the first
+    # is kept and the spin never begins, so the node is destroyed and its recording closed whole (exit 0); a second
+    # one in the start-up ends it at once. (Python's KeyboardInterrupt could land in a finalizer of gc.collect(),
+    # which swallows it, or inside the recorder's opening; SIGTERM killed the process with the file unfinished.)
+    with stop_on_signals(starting=True) as stop, ros_session(["belt-drive-node", *(ros_args or [])]) as context:
         params = [Parameter(name, value=value) for name, value in (overrides or {}).items()]
         node = node_class(node_name, scene=scene, context=context, parameter_overrides=params)
         from . import memprobe
 
         memprobe.install(node)  # only with BELT_DRIVE_MEMPROBE set (a debugging switch)
         log = node.get_logger()
+        if stop.done():
+            log.info(f"signal {stop.result()} during the start-up: not spinning")
         spin_nodes(
-            [node], context, executor=executor,
-            started=lambda ex: log.info(f"spinning with the {executor_name(ex)} executor"),
+            [node], context, executor=executor, stop=stop,
+            started=lambda ex: stop.done() or log.info(f"spinning with the {executor_name(ex)} executor"),
             stopped=lambda signum: log.info(f"shutting down (signal {signum})" if signum else "shutting down"),
         )
     return 0
