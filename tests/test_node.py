@@ -345,7 +345,8 @@ def test_invalid_runtime_parameters_rejected_with_reason(ros_domain_id):
         before = {n: h.node.get_parameter(n).value for n in ("k", "r_3", "method", "model", "step_rate_hz", "scene")}
         cases = {
             "k": (-1.0, "range"),
-            "r_3": (0.0, "r_3: must be > 0"),
+            "r_3": (0.0, "out of range Min: 0.0001"),  # (its plausible lower end, in its descriptor)
+            "mu": (0.0, "mu: must be > 0, got"),  # (no unit after a pure number)
             "method": ("nope", "unknown integrator"),
             "model": ("stiff", "must be one of"),
             "step_rate_hz": (0.0, "range"),

@@ -127,3 +127,29 @@ def test_an_undeclared_parameter_set_over_the_service_is_named_in_the_reason(ros
         assert not bogus.successful and "foo: not a parameter of the node" in bogus.reason, bogus.reason
         assert good.successful and h.node.get_parameter("k").value == 2.5e4
         h.advance(0.01)  # the node ticks on
+
+
+def test_a_misspelt_name_in_a_params_file_is_refused_as_on_the_command_line(tmp_path, capsys):
+    """rclpy drops a parameter a node does not declare without a word: ``-p torque_limt:=5`` was refused (exit 2),
+    the same name in a --params-file section for the node ran with no torque limit. Now refused too, naming the
+    file as given; a section for another node or a wildcard one (other nodes' parameters) is not the node's."""
+    from belt_drive_ros.cli import main
+    from belt_drive_ros.ros.parameter_schema import unknown_parameter_rule
+
+    typo = tmp_path / "typo.yaml"
+    typo.write_text("belt_drive:\n  ros__parameters:\n    torque_limt: 5.0\n")
+    assert main(["node", "paper", "--ros-args", "--params-file", str(typo)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"belt-drive: error: torque_limt (params file {typo}): not a parameter of the node "
+        "(belt-drive node --list-parameters)")
+    renamed = tmp_path / "truck.yaml"
+    renamed.write_text("/fleet/truck1:\n  ros__parameters:\n    model: rigid\n    tick:\n      rate: 5.0\n")
+    assert main(["node", "truck_compressor", "--name", "truck1", "--ros-args", "--params-file", str(renamed)]) == 2
+    assert "tick.rate (params file" in capsys.readouterr().err  # (a nested name, as rcl reads it)
+    names = {"model", "torque_limit"}
+    others = tmp_path / "others.yaml"
+    others.write_text("/**:\n  ros__parameters:\n    rate: 5.0\nsource:\n  ros__parameters:\n    rate: 500.0\n"
+                      "belt_drive:\n  ros__parameters:\n    torque_limit: 5.0\n    use_sim_time: true\n")
+    assert unknown_parameter_rule(["--params-file", str(others)], names, "belt_drive") is None
+    assert unknown_parameter_rule(["--params-file", str(typo)], names, "belt_drive") == f"torque_limt (params file {typo})"
+    assert unknown_parameter_rule(["-r", "__node:=other", "--params-file", str(typo)], names, "belt_drive") is None

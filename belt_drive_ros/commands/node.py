@@ -116,11 +116,19 @@ def run(args) -> int:
     import shutil
     import tempfile
 
+    from ..core.errors import ParameterError
+
     ros_args = ["--ros-args", *args.ros_args] if args.ros_args else []
     copies = tempfile.mkdtemp(prefix="belt_drive_params_")
     try:
-        ros_args = check_params_files(ros_args, copies)
-        return _run(args, ros_args, run_node)
+        checked = check_params_files(ros_args, copies)
+        try:
+            return _run(args, checked, run_node)
+        except ParameterError as exc:  # a params file named by the user's path, not by its private copy's
+            for copy, given in zip(checked, ros_args):
+                if copy != given and copy in exc.field:
+                    raise type(exc)(exc.field.replace(copy, given), exc.detail) from None
+            raise
     finally:
         shutil.rmtree(copies, ignore_errors=True)
 

@@ -672,7 +672,7 @@ def run(
     parameters raise :class:`NodeConfigError` after rclpy is shut down again.
     """
     node_class = node_class or BeltDriveNode
-    unknown = unknown_parameter_rule(ros_args or [], node_class.PARAMETER_NAMES)
+    unknown = unknown_parameter_rule(ros_args or [], node_class.PARAMETER_NAMES, node_name)
     if unknown is not None:
         raise NodeConfigError(unknown, NOT_A_PARAMETER)
     # SIGINT/SIGTERM from here on stop the node cleanly, also in its start-up (it opens its recording there): the first

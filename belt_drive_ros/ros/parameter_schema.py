@@ -125,15 +125,45 @@ def refuse_undeclared(node, parameters, why: str = NOT_A_PARAMETER) -> None:
         raise ParameterNotDeclaredException(f"{', '.join(unknown)}: {why}")
 
 
-def unknown_parameter_rule(ros_args: list[str], names) -> str | None:
-    """The first ``-p NAME:=VALUE`` (``--param``) of ``ros_args`` whose NAME is neither in ``names`` nor
-    :data:`RCLPY_PARAMETERS`; None. A rule scoped to a node (``other_node:NAME:=VALUE``) is not checked."""
+def unknown_parameter_rule(ros_args: list[str], names, node_name: str | None = None) -> str | None:
+    """The first parameter ``ros_args`` set that is neither in ``names`` nor :data:`RCLPY_PARAMETERS` (rclpy drops
+    it without a word), or None: a ``-p NAME:=VALUE`` (``--param``; a rule scoped to a node, ``other:NAME:=VALUE``,
+    is not checked), then a name under ``ros__parameters`` of a ``--params-file`` section for the node
+    ``node_name`` (``belt_drive:``, ``/ns/belt_drive:``; a ``-r __node:=`` remap renames it), given as
+    ``NAME (params file FILE)``. A wildcard section (``/**:``) may hold other nodes' parameters: not checked."""
     for flag, rule in zip(ros_args, ros_args[1:]):
         if flag in ("-p", "--param"):
             name = rule.split(":=", 1)[0]
             if ":" not in name and name not in names and name not in RCLPY_PARAMETERS:
                 return name
+    for flag, rule in zip(ros_args, ros_args[1:]):
+        if flag in ("-r", "--remap") and rule.startswith("__node:="):
+            node_name = rule.split(":=", 1)[1]
+    if node_name is None:
+        return None
+    from ..io.inputs import parse_yaml, read_text
+
+    for flag, path in zip(ros_args, ros_args[1:]):
+        if flag != "--params-file":
+            continue
+        data = parse_yaml(read_text(path, what="params file"), label=f"params file {path}")
+        for section, body in (data.items() if isinstance(data, dict) else ()):
+            if "*" in str(section) or str(section).rstrip("/").rsplit("/", 1)[-1] != node_name:
+                continue
+            values = body.get("ros__parameters") if isinstance(body, dict) else None
+            for name in _flat_names(values if isinstance(values, dict) else {}):
+                if name not in names and name not in RCLPY_PARAMETERS:
+                    return f"{name} (params file {path})"
     return None
+
+
+def _flat_names(values: dict, prefix: str = "") -> list:
+    """The parameter names of a params file's ``ros__parameters`` mapping (nested mappings: ``a.b``, as rcl reads)."""
+    out = []
+    for key, value in values.items():
+        name = f"{prefix}{key}"
+        out += _flat_names(value, name + ".") if isinstance(value, dict) else [name]
+    return out
 
 
 #: parameters whose default comes from the scene and that a new scene resets
