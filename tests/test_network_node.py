@@ -497,3 +497,41 @@ def test_the_network_node_has_a_reset_whose_next_tick_is_the_initial_state(tmp_p
     capsys.readouterr()
     assert main(["sim", str(rec), "--out", str(tmp_path / "re.mcap")]) == 2
     assert "restarted from the initial state (~/reset, 3 call(s) since the last tick)" in capsys.readouterr().err
+
+
+def test_a_diverging_network_node_reports_error_on_diagnostics(ros_domain_id):
+    """The paper node's convention: a divergence in the window since the last /diagnostics is ERROR with its reason
+    (the network node restarted ~36 times a second at 1e6 N m and said OK or WARN); a window without one is not."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    h = Lockstep(ros_domain_id)
+    try:
+        got = []
+        h.probe.create_subscription(DiagnosticArray, "/diagnostics", got.append, 10)
+
+        def diagnostics():
+            n = len(got)
+            h.node._diagnostics()
+            h.until(lambda: len(got) > n, "/diagnostics")
+            return got[-1].status[0]
+
+        h.step(START_NS)
+        h.send(h.drive, 1.0e6)
+        t = START_NS
+        while h.node.counters["divergences"] == 0:
+            t += TICK_NS
+            assert t < START_NS + 2_000 * TICK_NS, "no divergence at 1e6 N m"
+            h.step(t)
+        status = diagnostics()
+        assert status.level == DiagnosticStatus.ERROR
+        assert status.message.startswith(f"{h.node.counters['divergences']} divergence(s), restarted from the initial state")
+        h.send(h.drive, 0.0)
+        h.step(t + TICK_NS)  # (the restart's tick; 0 N m from the next)
+        diverged = h.node.counters["divergences"]
+        for k in range(2, 6):
+            h.step(t + k * TICK_NS)
+        assert h.node.counters["divergences"] == diverged
+        diagnostics()  # (the window of the last divergence, if it came after the first report)
+        assert diagnostics().level != DiagnosticStatus.ERROR
+    finally:
+        h.close()

@@ -397,6 +397,7 @@ class NetworkNode(Node):
         self._srv_reset = self.create_service(Trigger, "~/reset", self._on_reset, qos_profile=RESET_QOS)
         # -- diagnostics, ticks
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._divergences_seen = 0  # the divergence count at the last /diagnostics (ERROR: more since)
         self._diag_timer = self.create_timer(1.0, self._diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
         if settings.record_path:
             try:
@@ -551,6 +552,11 @@ class NetworkNode(Node):
                 level, message = DiagnosticStatus.WARN, f"{s.scene.pulleys[worst].name} at its capstan limit"
         if self.sim.last_divergence is not None:
             values["last_divergence"] = self.sim.last_divergence[0]
+        diverged = self.counters["divergences"] - self._divergences_seen  # in the window since the last publish
+        self._divergences_seen = self.counters["divergences"]
+        if diverged:  # (as the paper node's: ERROR with the reason; a WARN of slack spans is the lesser news)
+            reason = self.sim.last_divergence[0] if self.sim.last_divergence else "diverged"
+            level, message = DiagnosticStatus.ERROR, f"{diverged} divergence(s), restarted from the initial state: {reason}"
         status.level, status.message = level, message
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
