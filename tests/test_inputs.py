@@ -6,6 +6,7 @@ a CLI promise, through ``belt_drive_ros.cli.main`` (exit 2, one line).
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
 import sys
@@ -327,3 +328,24 @@ def test_integers_of_any_length_in_yaml_are_one_input_error(digits, tmp_path, ca
     path.write_text(text)
     line = _cli_error(capsys, ["sim", str(path), "--quiet"])
     assert "line 3: integer" in line and "too large" in line
+
+
+def test_yaml_numbers_booleans_and_null_follow_the_yaml_1_2_core_schema(tmp_path, capsys):
+    """PyYAML's SafeLoader reads YAML 1.1: ``F_0: 0400`` loaded as 256 N (octal), ``duration: 1:30`` as 90 s
+    (sexagesimal), ``20_000`` as 20000 and ``yes`` as True, silently. The docs promise YAML 1.2: 0400 is the decimal
+    400, 0o/0x are octal and hexadecimal, ``1:30``, ``20_000`` and ``yes`` are strings (then named as not a number)."""
+    from belt_drive_ros.cli import main
+
+    data = parse_yaml("a: 0400\nb: 1:30\nc: 20_000\nd: 0o17\ne: 0x1F\nf: yes\ng: true\nh: ~\ni: .inf\nj: -.Inf\n"
+                      "k: .5\nl: +3\nm: 2026-01-01\nn: False\no:\n")
+    assert data == {"a": 400, "b": "1:30", "c": "20_000", "d": 15, "e": 31, "f": "yes", "g": True, "h": None,
+                    "i": math.inf, "j": -math.inf, "k": 0.5, "l": 3, "m": "2026-01-01", "n": False, "o": None}
+    assert math.isnan(parse_yaml("x: .nan")["x"]) and type(parse_yaml("x: 0400")["x"]) is int
+    scene = tmp_path / "s.yaml"
+    scene.write_text("extends: paper\nduration: 1:30\n")
+    assert main(["sim", str(scene)]) == 2
+    assert "duration" in capsys.readouterr().err
+    scene.write_text("extends: paper\nduration: 0.05\nparams: {F_0: 0400}\n")
+    from belt_drive_ros.io.scenes import load_scene
+
+    assert load_scene(scene).params.F_0 == 400.0

@@ -2,8 +2,8 @@
 
 Every user's file is read through :func:`read_text` (regular files only, never blocking on a FIFO, at most
 ``limit`` bytes, strict UTF-8), every YAML text through :func:`parse_yaml` (no aliases, anchors or merge keys,
-nesting at most :data:`MAX_DEPTH`, duplicate keys an error, YAML 1.2 numbers: ``1e1`` a float, ``'2e4'`` a
-string). Standard library and PyYAML only, so that :mod:`msg_tools` can use it. Errors are one-line
+nesting at most :data:`MAX_DEPTH`, duplicate keys an error, YAML 1.2's core schema: ``1e1`` a float, ``'2e4'`` a
+string, ``0400`` the decimal 400, ``1:30``, ``20_000`` and ``yes`` strings). Standard library and PyYAML only, so that :mod:`msg_tools` can use it. Errors are one-line
 :class:`~belt_drive_ros.core.errors.InputError`, naming the file, values quoted through
 :func:`~belt_drive_ros.core.errors.short`.
 """
@@ -140,8 +140,13 @@ def read_text(path: str | os.PathLike, what: str = "file", limit: int = SCENE_LI
 
 
 # ------------------------------------------------------------------ YAML
-#: YAML 1.2 floats that YAML 1.1 reads as strings: an exponent without a dot or without a sign
-_FLOAT_12 = re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$")
+#: the plain scalars YAML 1.2's core schema reads as numbers, booleans and null (PyYAML's SafeLoader reads YAML 1.1's:
+#: ``0400`` octal 256, ``1:30`` sexagesimal 90, ``20_000`` 20000, ``yes``/``off`` booleans, ``1e5`` a string); every
+#: other plain scalar is a string, which a number's check then names
+_INT_12 = re.compile(r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$")
+_FLOAT_12 = re.compile(r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$")
+_BOOL_12 = re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$")
+_NULL_12 = re.compile(r"^(?:~|null|Null|NULL|)$")
 
 
 class _BoundedLoader(yaml.SafeLoader):
@@ -184,17 +189,42 @@ class _BoundedLoader(yaml.SafeLoader):
 
 
 def _construct_int(loader, node):
+    """A YAML 1.2 integer: decimal (leading zeros too: ``0400`` is 400), ``0o`` octal, ``0x`` hexadecimal."""
+    text = str(loader.construct_scalar(node))
     try:
-        value = yaml.SafeLoader.construct_yaml_int(loader, node)
-    except ValueError:  # more than 4300 digits: Python refuses to convert the text at all
-        value = math.inf
+        value = int(text[2:], 8) if text.startswith("0o") else int(text, 16) if text.startswith("0x") else int(text, 10)
+    except ValueError:  # more than 4300 digits: Python refuses to convert the text at all (or an explicit !!int tag
+        value = math.inf  # on no integer)
     if abs(value) > MAX_INT:
         raise InputError(f"line {node.start_mark.line + 1}: integer {short(node.value, 40)} is too large (|n| > 2^63)")
     return value
 
 
+def _construct_float(loader, node):
+    """A YAML 1.2 float (``.inf``, ``-.inf``, ``.nan`` included)."""
+    text = str(loader.construct_scalar(node)).lower()
+    if text.lstrip("+-") == ".inf":
+        return -math.inf if text.startswith("-") else math.inf
+    if text == ".nan":
+        return math.nan
+    try:
+        return float(text)
+    except ValueError:
+        raise InputError(f"line {node.start_mark.line + 1}: {short(node.value, 40)} is not a number") from None
+
+
+#: YAML 1.2's core schema for plain scalars, in place of SafeLoader's YAML 1.1 resolvers of ints, floats, booleans and
+#: null (strings, timestamps are strings too: no resolver of a type the files do not use)
+_BoundedLoader.yaml_implicit_resolvers = {}
+for _tag, _pattern, _first in (
+    ("tag:yaml.org,2002:bool", _BOOL_12, list("tTfF")),
+    ("tag:yaml.org,2002:int", _INT_12, list("-+0123456789")),
+    ("tag:yaml.org,2002:float", _FLOAT_12, list("-+.0123456789")),
+    ("tag:yaml.org,2002:null", _NULL_12, ["~", "n", "N", ""]),
+):
+    _BoundedLoader.add_implicit_resolver(_tag, _pattern, _first)
 _BoundedLoader.add_constructor("tag:yaml.org,2002:int", _construct_int)
-_BoundedLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789"))
+_BoundedLoader.add_constructor("tag:yaml.org,2002:float", _construct_float)
 
 
 def parse_yaml(text: str, label: str = "YAML") -> Any:
