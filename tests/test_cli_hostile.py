@@ -338,6 +338,39 @@ def test_source_csv_profile_is_checked_as_a_scene_table_naming_the_file(text, me
     assert len(err) == 1 and err[0].startswith(f"belt-drive: error: {csv}: ") and re.search(message, err[0]), err
 
 
+@pytest.mark.parametrize("text, column, values", [
+    ("torque,time\n5,0\n7,1\n", None, [5.0, 7.0]),  # the torque: not the time column again
+    ("time,drive_torque,load_torque\n0,5,1\n1,7,2\n", None, [5.0, 7.0]),
+    ("time,a,b\n0,5,1\n1,7,2\n", "b", [1.0, 2.0]),
+])
+def test_source_csv_profile_takes_the_torque_column_beside_the_time(text, column, values, tmp_path):
+    """A header 'torque,time': the time column was found by name, the torque defaulted to column 2, the time again,
+    so the published torque was the time."""
+    from belt_drive_ros.commands.source import read_csv_profile
+
+    csv = tmp_path / "torque.csv"
+    csv.write_text(text)
+    table = read_csv_profile(csv, column)
+    assert list(table.times) == [0.0, 1.0] and list(table.values) == values
+
+
+@pytest.mark.parametrize("text, message", [("0,1.0.0\n1,2\n", "not a numeric CSV"),
+                                           ("0x10,1\n1,2\n", "not a numeric CSV"),
+                                           ("time,torque\n0,1\n", None)])
+def test_source_csv_a_first_row_with_a_typo_is_an_error_not_a_header(text, message, tmp_path, capsys):
+    """A first data row that failed to parse ('0,1.0.0') was taken as a header and dropped without a word (exit 0);
+    --column naming the time column is refused."""
+    csv = tmp_path / "torque.csv"
+    csv.write_text(text)
+    code = main(["source", "profile", "--csv", str(csv), "--print"])
+    err = capsys.readouterr().err
+    if message is None:
+        assert code == 0 and main(["source", "profile", "--csv", str(csv), "--column", "time", "--print"]) == 2
+        assert "--column 'time' is the time column" in capsys.readouterr().err
+    else:
+        assert code == 2 and message in err
+
+
 def test_a_reader_that_leaves_before_the_summary_ends_the_run_quietly():
     """`belt-drive sim paper | head -1`: the reader has gone when the summary is printed. Like any filter the run
     ends with the status a shell gives a process ended by SIGPIPE (141) and prints nothing about it (before: exit 1,

@@ -133,11 +133,18 @@ def read_csv_profile(path: Path, column: str | None = None, interpolation: str =
     if not lines:
         raise SceneError(f"{path}: empty CSV")
     first = [c.strip() for c in lines[0].split(",")]
-    try:
-        [float(c) for c in first]
-        header = None
-    except ValueError:
-        header = first
+
+    def number(text: str) -> bool:
+        try:
+            float(text)
+            return True
+        except ValueError:
+            return False
+
+    # a header names its columns: no field of it a number (a first data row with a typo, "0,1.0.0", is a row whose
+    # error is named below, not a header that drops it)
+    header = None if any(number(c) for c in first) else first
+    if header is not None:
         lines = lines[1:]
     try:
         data = np.array([[float(c) for c in ln.split(",")] for ln in lines], dtype=float)
@@ -154,6 +161,10 @@ def read_csv_profile(path: Path, column: str | None = None, interpolation: str =
             if wanted not in header:
                 raise SceneError(f"{path}: no column {short(wanted)}; columns: {short(', '.join(header), 200)}")
             v_col = header.index(wanted)
+        else:  # the first column that is not the time's ("torque,time": the torque, not the time again)
+            v_col = 1 if t_col == 0 else 0
+        if v_col == t_col:
+            raise SceneError(f"{path}: --column {short(wanted)} is the time column; name the torque's")
     elif column is not None:
         raise SceneError(f"{path}: --column needs a header line")
     try:  # (checked as a scene's table: a torque of 1e300 N m was published)
