@@ -113,3 +113,27 @@ def test_load_switch_on_the_grid_keeps_fourth_order():
     coarse, fine = error(base, 2.0**-9), error(base, 2.0**-10)
     assert np.log2(coarse / fine) >= 3.7, (coarse, fine)
     assert fine <= 1.5 * error(off, 2.0**-10), fine
+
+
+def test_a_table_of_a_few_points_nanoseconds_apart_does_not_set_the_surveys_step():
+    """A valid table profile with points 1 ns apart: the survey took the table's spacing as its step over the whole
+    run (5e9 steps: sim and the node hung at start, no message). A record's spacing sets the step only where the run
+    at it takes about as many steps as the record has samples; otherwise the run's own step, clamped at them."""
+    import numpy as np
+
+    from belt_drive_ros.core.accuracy_probes import _survey_step, operating_run_step
+    from belt_drive_ros.core.simulate import simulate
+    from belt_drive_ros.io.scenes import scene_from_mapping
+
+    rdt = operating_run_step(5.0)
+    few = [np.array([1e-9, 2e-9])]
+    assert _survey_step(lambda: few, rdt, 5.0) == rdt
+    recording = [np.arange(1, 5000) * 1e-3]  # a 1 kHz record over the run: its own steps
+    assert _survey_step(lambda: recording, rdt, 5.0) == 1e-3
+    scene = scene_from_mapping({"extends": "paper", "duration": 0.5, "method": "etd4", "dt": 1e-3,
+                                "drive": {"type": "table", "times": [0.0, 1e-9, 2e-9], "values": [1.0, 2.0, 3.0],
+                                          "interpolation": "previous"}})  # fmt: skip
+    held = scene_from_mapping({"extends": "paper", "duration": 0.5, "method": "etd4", "dt": 1e-3,
+                               "drive": {"type": "constant", "value": 3.0}})
+    a, b = simulate(scene, model="flexible"), simulate(held, model="flexible")
+    assert np.allclose(a.outputs["omega_M"][-1], b.outputs["omega_M"][-1], rtol=1e-6)

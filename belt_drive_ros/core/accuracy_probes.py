@@ -61,12 +61,13 @@ def operating_run_step(duration: float) -> float:
     return min(duration / 500.0, 5e-3)
 
 
-def _survey_step(pieces, rdt: float) -> float:
+def _survey_step(pieces, rdt: float, duration: float | None = None) -> float:
     """The survey's step [s]: ``rdt``, or the spacing ``h`` of a sampled torque whose breakpoints inside
     the run (``pieces()``: consecutive sorted arrays of them) are denser than ``rdt`` and all lie on the
     grid ``k h`` (a recording at a fixed rate): there the stepper runs the record's steps as whole steps, each
     clamped to its own sample (:func:`~belt_drive_ros.core.kernel.clamped_steps`); ``exact`` integrates held samples
-    exactly either way.
+    exactly either way. Not where the run of ``duration`` [s] at ``h`` would take far more steps than the record has
+    samples (a table of three points 1 ns apart: 5e9 steps, a hang): ``rdt``, whose steps are clamped at them.
     """
     def on_grid(inner, h) -> bool:
         d = np.abs(np.rint(inner / h) * h - inner)
@@ -91,6 +92,8 @@ def _survey_step(pieces, rdt: float) -> float:
         return rdt
     h = float(f"{gap:.9g}")
     if not 0.0 < h < rdt:
+        return rdt
+    if duration is not None and duration / h > 2.0 * n + duration / rdt:  # (a record covering the run: ~n steps)
         return rdt
     if checked == {h}:
         return h if ok else rdt
@@ -136,7 +139,7 @@ class _SurveyPlan:
         def pieces():  # the breakpoints inside the run (page by page for a recording read in pages)
             return plant.breakpoint_pieces(0.0, duration, SURVEY_CHUNK * dt)
 
-        self.rdt = _survey_step(pieces, operating_run_step(duration) if duration > 0 else 1e-3)
+        self.rdt = _survey_step(pieces, operating_run_step(duration) if duration > 0 else 1e-3, duration)
         inner = []
         for piece in pieces():
             inner += piece[: MAX_BREAKPOINT_WINDOWS - len(inner)].tolist()
