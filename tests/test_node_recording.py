@@ -480,3 +480,22 @@ def test_a_publish_clock_recording_has_one_time_base(tmp_path, ros_domain_id):
     # each /clock logged when its subscription received it, on the time it carries (the node went on meanwhile)
     lag = [log_time - (msg.clock.sec * 10**9 + msg.clock.nanosec) for log_time, msg in logged["/clock"]]
     assert min(lag) >= 0 and max(lag) <= 200_000_000
+
+
+def test_a_recording_whose_clock_stopped_between_ticks_is_refused_not_resimulated_short(tmp_path, ros_domain_id, capsys):
+    """A /clock every 1.5 ms (a time master at its own rate): the node integrates to each clock time and publishes
+    there; the re-simulation wrote only the samples on the 1 ms grid (half of them, the rest equal), and compare in
+    one order passed. Now it says so and writes nothing."""
+    from belt_drive_ros.cli import main
+    from belt_drive_ros.ros.harness import BeltDriveHarness
+
+    rec = tmp_path / "run.mcap"
+    with BeltDriveHarness(scene="paper", model="flexible", method="etd4", domain_id=ros_domain_id,
+                          input_timeout=0.0, record_path=str(rec)) as h:  # fmt: skip
+        h.publish_torque(6.0)
+        h.advance(0.03, step=0.0015)
+    out = tmp_path / "re.mcap"
+    assert main(["sim", str(rec), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "cannot re-simulate: 10 of 21 ticks lie off the node's 1 ms tick grid (the first at t = 0.0015 s" in err, err
+    assert not out.exists()

@@ -229,6 +229,17 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
             raise BagReadError(f"{file}: cannot read it ({exc.strerror or exc}); nothing written") from None
     import numpy as np
 
+    if ticks and start is not None and tick_ns.strip().isdigit() and int(tick_ns) > 0:
+        # a /clock that stopped between two ticks (a time master at 1.5 ms, a jump to an off-grid time): the node
+        # integrated to it and published there; the run offline has samples on the grid only (half the ticks of a
+        # 1.5 ms clock were left out, the rest equal): refused, not written short
+        off = (np.asarray(ticks, dtype=np.int64) - start) % int(tick_ns) != 0
+        if off.any():
+            first = ticks[int(np.argmax(off))]
+            raise BagReadError(
+                f"{path}: cannot re-simulate: {int(off.sum())} of {len(ticks)} ticks lie off the node's "
+                f"{int(tick_ns) / 1e6:g} ms tick grid (the first at t = {(first - start) / 1e9:.9g} s: its /clock stopped "
+                "between two ticks); 'belt-drive sim' repeats a run whose ticks are on its grid")
     return Resimulation(scene, start, output_rate, namespace, drive_topic,
                         [tuple(entry) for entry in channels.values()],
                         np.array(ticks, dtype=np.int64) if ticks else None)
