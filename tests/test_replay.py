@@ -358,3 +358,58 @@ def test_an_interrupted_replay_ends_with_the_signals_status(tmp_path):
     err = "".join(lines) + proc.stderr.read()
     assert proc.wait(timeout=30) == 130, err
     assert "belt-drive: interrupted (SIGINT) after" in err and "Traceback" not in err
+
+
+@pytest.mark.ros
+def test_replay_of_the_applied_torque_reaches_the_node_in_its_namespace_and_ends_when_it_does(tmp_path, ros_domain_id):
+    """``replay node_run.mcap --topic /drive_torque_applied`` published on /drive_torque_applied, which no node reads
+    (exit 0, "published 2001 messages"), and a ``-r __ns:=/truck1`` left the absolute bag topic where it was. It
+    publishes on drive_torque (--to), in its namespace. A --sync replay whose node ended waited 2 s for each message
+    left (--loop: for ever); it ends after a few ticks unanswered, exit 1, saying so."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+
+    n = 400
+    times = np.arange(n) * 1_000_000
+    bag = _torque_bag(tmp_path / "run.mcap", times, np.arange(n, dtype=float), topic="/drive_torque_applied")
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_domain_id)
+    got, proc = [], None
+    try:
+        node = rclpy.create_node("fake_node", namespace="/truck1", context=ctx)
+        qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        node.create_subscription(Float64, "drive_torque", lambda m: got.append(m.data), qos)
+        joints = node.create_publisher(JointState, "joint_states", qos)
+
+        def answer(m):  # the node's tick: joint_states stamped at the /clock time, for 20 ticks
+            if len(got) <= 20 and joints is not None:
+                msg = JointState()
+                msg.header.stamp = m.clock
+                joints.publish(msg)
+
+        node.create_subscription(Clock, "/clock", answer, qos)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        proc = _replay(bag, ros_domain_id, "--topic", "/drive_torque_applied", "--clock", "--sync",
+                       "/truck1/joint_states", "--wait-subscribers", "1", "--ros-args", "-r", "__ns:=/truck1")
+        deadline = time.monotonic() + 60
+        while proc.poll() is None and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.01)
+            if len(got) > 20 and joints is not None:  # the node ends
+                node.destroy_publisher(joints)
+                joints = None
+        assert proc.wait(timeout=5) == 1
+        err = proc.stderr.read()
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+        rclpy.try_shutdown(context=ctx)
+    assert got[:21] == list(np.arange(21, dtype=float))  # on /truck1/drive_torque, in order
+    assert "--sync /truck1/joint_states: no publisher any more (its node ended)" in err or \
+        "--sync /truck1/joint_states: no answer to 3 /clock times in a row" in err, err
+    assert len(got) < 30  # it stopped, not 2 s per message for the 379 left

@@ -11,16 +11,19 @@ examples:
   belt-drive replay run.mcap --rate 0.5 --loop --start-offset 1.0
   belt-drive replay run.mcap --clock            # node with use_sim_time:=true follows
   belt-drive replay run.mcap --clock --sync /joint_states --rate 100   # lockstep, fast, deterministic
-  belt-drive replay run.mcap --ros-args -r /drive_torque:=/truck/drive_torque
+  belt-drive replay run.mcap --ros-args -r __ns:=/truck      # into the node of namespace /truck
+  belt-drive replay node_run.mcap --topic /drive_torque_applied --clock --sync /joint_states
 
 Publishes the recorded std_msgs/Float64 messages of --topic (default
-/drive_torque) with their recorded spacing divided by --rate. With --clock it
+/drive_torque) on --to (default drive_torque, the node's input: in the
+replay's namespace) with their recorded spacing divided by --rate. With --clock it
 publishes /clock = the message's recorded time right after each message, so
 a belt-drive node with use_sim_time ticks to that time and samples the new
 torque there: the same zero-order hold as 'belt-drive sim SCENE --torque-bag BAG'.
 Without --sync the node must keep up (a loaded machine can make it take two
 /clock samples at once); --sync waits for the node's output at each time, so
-the run is deterministic. Looping shifts each pass by the span plus one
+the run is deterministic; if the node stops answering (it ended), the replay
+ends with an error (exit 1). Looping shifts each pass by the span plus one
 sample period (the clock keeps increasing). Offline and deterministic instead: belt-drive sim --torque-bag.
 """
 
@@ -40,6 +43,9 @@ def register(sub) -> None:
                    help="start this many seconds into the recording")
     p.add_argument("--clock", action="store_true", help="publish /clock = the message's time after each message")
     p.add_argument("--topic", default="/drive_torque", help="topic to read from the bag (default /drive_torque)")
+    p.add_argument("--to", default="drive_torque", metavar="TOPIC",
+                   help="topic to publish on (default drive_torque: the node's input, in the namespace of "
+                        "--ros-args -r __ns:=..., whatever the bag's topic is named, e.g. /drive_torque_applied)")
     p.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
                    help="wait (up to 10 s) for N matched subscribers (on the torque topic and /clock) before starting")
     p.add_argument("--sync", metavar="TOPIC",
@@ -85,7 +91,8 @@ def run(args) -> int:
         try:
             count = run_replay(
                 args.bag, rate=args.rate, loop=args.loop, start_offset=args.start_offset, clock=args.clock,
-                topic=args.topic, wait_subscribers=args.wait_subscribers, delay=args.delay, sync_topic=args.sync,
+                topic=args.topic, out_topic=args.to, wait_subscribers=args.wait_subscribers, delay=args.delay,
+                sync_topic=args.sync,
                 ros_args=args.ros_args, should_stop=stop.done, log=log,
             )
         except ValueError as exc:  # schedule: offset past the end, ...

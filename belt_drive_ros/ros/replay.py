@@ -137,7 +137,8 @@ def run_replay(bag, *, rate: float = 1.0, loop: bool = False, start_offset: floa
     topic : str
         Topic to read from the bag.
     out_topic : str, optional
-        Topic to publish on; default the recorded one (remap with ``--ros-args -r``).
+        Topic to publish on; default the recorded one (remap with ``--ros-args -r``). The command's ``--to``
+        defaults to ``drive_torque``: the node's input, in the replay node's namespace.
     wait_subscribers : int
         Wait (up to ``wait_timeout`` s) until this many subscribers match the
         torque topic (and ``/clock``) before the first message.
@@ -193,7 +194,7 @@ def _publish(rec, schedule, context, *, rate, loop, clock, out_topic, wait_subsc
     from std_msgs.msg import Float64
 
     stop = should_stop or (lambda: False)
-    published = late = 0
+    published = late = missed = 0  # (missed: sync timeouts in a row)
     node = None
     try:
         node = rclpy.create_node("torque_replay", context=context)
@@ -266,16 +267,26 @@ def _publish(rec, schedule, context, *, rate, loop, clock, out_topic, wait_subsc
                         now = time.monotonic()
                         if now > deadline:
                             late += 1
+                            missed += 1
                             if synced["stamp"] < 0 and late >= SYNC_TRIES:  # nothing ever answered: no lockstep
                                 raise SyncNeverAnswered(
                                     f"--sync {sync_topic}: no sensor_msgs/JointState stamped at the /clock time in "
                                     f"{late} tries of {sync_timeout:g} s (is a node running on /clock, and is "
                                     f"{sync_topic} its joint_states?); published {published} message(s)")
+                            if sync_sub.get_publisher_count() == 0 or missed >= SYNC_TRIES:  # it answered, and
+                                # stopped: its node ended (the rest would wait sync_timeout each, --loop for ever)
+                                gone = sync_sub.get_publisher_count() == 0
+                                raise SyncNeverAnswered(
+                                    f"--sync {sync_topic}: " + ("no publisher any more (its node ended)" if gone else
+                                                                 f"no answer to {missed} /clock times in a row")
+                                    + f" at {clock_ns / 1e9:.9g} s; published {published} message(s)")
                             break
                         if now > resend:  # a node takes /clock best effort: resend a lost sample
                             clock_pub.publish(clock_msg)
                             resend = now + 0.05
                         sync_executor.spin_once(timeout_sec=0.005)
+                    if synced["stamp"] >= clock_ns:
+                        missed = 0
         from rclpy.duration import Duration
 
         for publisher in (pub, clock_pub):  # the last samples reach every reader before this process ends
