@@ -273,7 +273,7 @@ def _publish(rec, schedule, context, *, rate, loop, clock, out_topic, wait_subsc
                                     f"--sync {sync_topic}: no sensor_msgs/JointState stamped at the /clock time in "
                                     f"{late} tries of {sync_timeout:g} s (is a node running on /clock, and is "
                                     f"{sync_topic} its joint_states?); published {published} message(s)")
-                            if sync_sub.get_publisher_count() == 0 or missed >= SYNC_TRIES:  # it answered, and
+                            if synced["stamp"] >= 0 and (sync_sub.get_publisher_count() == 0 or missed >= SYNC_TRIES):  # it answered, and
                                 # stopped: its node ended (the rest would wait sync_timeout each, --loop for ever)
                                 gone = sync_sub.get_publisher_count() == 0
                                 raise SyncNeverAnswered(
