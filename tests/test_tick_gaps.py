@@ -217,3 +217,19 @@ def test_short_gaps_are_each_counted_and_handed_on_together():
     gaps.tick(t + 2_000 * TICK_NS, t + 2_003 * TICK_NS, TICK_NS, "system", "executor timer")
     gaps.flush()  # the node's end
     assert found[-1].missed == 2 and len(found) == 3
+
+
+def test_a_tick_source_behind_its_ticks_is_not_a_clock_step():
+    """A tick thread that fell behind (ticks each slower than 1 ms: Radau, a starved CPU) makes its usual ticks late,
+    the last one just now: its gap's node time was read as 'the system clock stepped forward' (21 of 32 records)
+    since little monotonic time had passed since that tick. The clock moved by what monotonic time did: starved."""
+    import time
+
+    counters, found = {}, []
+    gaps = TickGaps(counters, lambda line: None)
+    gaps.on_gap = found.append
+    gaps.tick(None, 0, TICK_NS, "system", "tick thread")
+    # the thread's usual tick of node time 4 ms, made when the system clock read 100 ms (96 ms behind)
+    gaps.mono, gaps.real = time.monotonic_ns(), 100 * TICK_NS
+    gaps.tick(4 * TICK_NS, 104 * TICK_NS, TICK_NS, "system", "tick thread")  # it gives up: the latest tick
+    assert "starved of CPU" in found[-1].cause and "stepped" not in found[-1].cause

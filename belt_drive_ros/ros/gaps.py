@@ -110,6 +110,9 @@ class TickGaps:
         #: monotonic time of the last tick made [ns] (a tick source that knows :meth:`tick` finds no gap
         #: sets it instead of calling it: the tick thread's usual tick)
         self.mono: int | None = None
+        #: the node's time (the system clock) [ns] when that tick was made: a late tick's is later than its own time
+        #: (with :attr:`mono` it tells a clock that stepped from a tick source that fell behind its ticks)
+        self.real: int | None = None
         self._switch: tuple | None = None  # (last tick [ns], its monotonic time [ns], bases so far)
         self._logged_at: int | None = None
         self._unlogged = 0
@@ -138,16 +141,19 @@ class TickGaps:
         elif time_base == "system" and now_ns - t_ns > tick_ns:
             step = now_ns - t_ns
             wall = None if self.mono is None else mono - self.mono
+            # the system clock moved by more than monotonic time did since the last tick: it stepped (a tick source
+            # behind its ticks made the last one late, its node time far behind the clock: no step)
+            moved = None if self.real is None else now_ns - self.real
             if step < SHORT_GAP_NS:
                 cause = f"the {source} ran {step / 1e6:.3g} ms after the last tick and integrated to the latest tick"
-            elif wall is not None and step - wall > max(tick_ns, step // 2):
+            elif wall is not None and moved is not None and moved - wall > max(tick_ns, step // 2):
                 cause = (f"the system clock stepped forward ({step / 1e9:.3f} s of node time in "
                          f"{wall / 1e9:.3f} s of monotonic time); the {source} integrated to the latest tick")
             else:
                 cause = (f"no tick for {step / 1e9:.3f} s: the process was stopped (SIGSTOP, suspend) or starved "
                          f"of CPU; the {source} integrated to the latest tick")
             self._add(TickGap(t_ns, now_ns, step // tick_ns - 1, cause, time_base), short=step < SHORT_GAP_NS)
-        self.mono = mono
+        self.mono, self.real = mono, now_ns
 
     def switched(self, t_ns: int | None, old_base: str, new_base: str) -> None:
         """The node's clock switched from ``old_base`` to ``new_base``; the last tick was at ``t_ns``

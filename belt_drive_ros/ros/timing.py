@@ -284,7 +284,7 @@ class TickThread:
                             and due <= now <= due + catch_up and gaps.short is None:
                         # the usual tick: the next grid point, no gap (TickGaps.tick would find none)
                         target = due
-                        gaps.mono = start
+                        gaps.mono, gaps.real = start, now - lead  # (now: the system clock plus the lead)
                     else:
                         target = self._next(now)
                         if target is None:
