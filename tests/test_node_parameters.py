@@ -153,3 +153,18 @@ def test_a_misspelt_name_in_a_params_file_is_refused_as_on_the_command_line(tmp_
     assert unknown_parameter_rule(["--params-file", str(others)], names, "belt_drive") is None
     assert unknown_parameter_rule(["--params-file", str(typo)], names, "belt_drive") == f"torque_limt (params file {typo})"
     assert unknown_parameter_rule(["-r", "__node:=other", "--params-file", str(typo)], names, "belt_drive") is None
+
+
+def test_a_belt_network_as_the_paper_nodes_scene_is_named_for_what_it_is(tmp_path):
+    """scene:=fead_i4 on the paper node was "unknown scene 'fead_i4': not a file and not a shipped scene", though it
+    is shipped: a belt network, which runs on its own node. A network YAML file likewise."""
+    from belt_drive_ros.io.scenes import _shipped_text, load_scene
+
+    values = default_values(load_scene("paper"))
+    with pytest.raises(NodeConfigError, match=r"scene 'fead_i4': a belt network \(kind: network\), not a drive scene: "
+                                              r"it runs on its own node, started with it \(belt-drive node fead_i4\)"):
+        build_settings({**values, "scene": "fead_i4"})
+    network = tmp_path / "mine.yaml"
+    network.write_text(_shipped_text("fead_i4", "networks"))
+    with pytest.raises(Exception, match="a belt network"):
+        load_scene(network)

@@ -57,11 +57,22 @@ def load_scene(name_or_path: str | Path) -> Scene:
     label = str(name_or_path)
     path = Path(name_or_path)
     if label and (path.suffix in (".yaml", ".yml") or os.path.lexists(path) or os.sep in label):  # ('' is Path('.'))
-        return scene_from_mapping(_parse_file(path, f"scene file {short(label, 200)}"), name=path.stem)
+        data = _parse_file(path, f"scene file {short(label, 200)}")
+        if isinstance(data, Mapping) and data.get("kind") == "network":
+            raise _network_here(label)
+        return scene_from_mapping(data, name=path.stem)
     names = shipped_scenes()
+    if label in shipped_networks():
+        raise _network_here(label)
     if label not in names:  # compared by name: a name the OS refuses (too long, NUL) never reaches it
         raise SceneError(f"unknown scene {short(label)}: not a file and not a shipped scene ({', '.join(names)})")
     return scene_from_mapping(parse_yaml(_shipped_text(label), label), name=label)
+
+
+def _network_here(label: str) -> SceneError:
+    """The refusal of a belt network where a drive scene is read (the paper node's ``scene``, a campaign's base)."""
+    return SceneError(f"scene {short(label)}: a belt network (kind: network), not a drive scene: it runs on its own "
+                      f"node, started with it (belt-drive node {label[:200]}), and offline with belt-drive sim")
 
 
 def load_either_scene(name_or_path: str | Path) -> Scene:
