@@ -168,3 +168,24 @@ def test_a_belt_network_as_the_paper_nodes_scene_is_named_for_what_it_is(tmp_pat
     network.write_text(_shipped_text("fead_i4", "networks"))
     with pytest.raises(Exception, match="a belt network"):
         load_scene(network)
+
+
+def test_record_path_never_replaces_the_scene_and_is_named_as_mcap(tmp_path):
+    """``belt-drive node scene.yaml --record scene.yaml --force`` replaced the scene file with a 3 MB MCAP; ``--record
+    x.csv`` wrote an MCAP under a CSV's name. Both refused, by either node (their settings share the check)."""
+    from belt_drive_ros.io.scenes import _shipped_text
+    from belt_drive_ros.ros.network_node import NetworkSettings, PARAMETERS
+
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("extends: paper\n")
+    values = {**default_values(load_scene("paper")), "scene": str(scene), "record_overwrite": True}
+    for path, why in ((str(scene), "is the scene file the node reads"), (str(tmp_path / "x.csv"), "name it .mcap")):
+        with pytest.raises(NodeConfigError, match=f"record_path: .*{why}"):
+            build_settings({**values, "record_path": path})
+    build_settings({**values, "record_path": str(tmp_path / "run.mcap")})
+    build_settings({**values, "record_path": str(tmp_path / "run")})  # (no extension: the file as named)
+    network = tmp_path / "net.yaml"
+    network.write_text(_shipped_text("fead_i4", "networks"))
+    net = {name: default for name, default, _ in PARAMETERS}
+    with pytest.raises(NodeConfigError, match="record_path: .*is the scene file the node reads"):
+        NetworkSettings.from_values({**net, "scene": str(network), "record_path": str(network)})

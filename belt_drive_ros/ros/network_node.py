@@ -63,7 +63,7 @@ from std_msgs.msg import Float64, String  # noqa: E402
 from ..core.errors import BeltDriveError, SimulationDivergedError  # noqa: E402
 from ..io.network_bag import APPLIED, NetworkBagWriter, NetworkLayout, network_record, scene_text  # noqa: E402
 from .network_stepper import NetworkStepper  # noqa: E402
-from .parameter_schema import NodeConfigError, record_path_exists, refuse_undeclared  # noqa: E402
+from .parameter_schema import NodeConfigError, check_record_path, record_path_exists, refuse_undeclared  # noqa: E402
 from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS, TF_QOS  # noqa: E402
 from .simulation import NodeSimulation  # noqa: E402
 from .timing import TickSource, TickStats  # noqa: E402
@@ -140,9 +140,7 @@ class NetworkSettings:
             raise NodeConfigError("max_bag_duration", f"{split!r} s is outside [0, 1e7] s")
         if size < 0:
             raise NodeConfigError("max_bag_size", f"{size} bytes is below 0")
-        if (split or size) and str(v["record_path"]).lower().endswith(".mcap"):
-            raise NodeConfigError("record_path", f"{str(v['record_path'])!r}: a split recording (max_bag_duration/"
-                                  "max_bag_size) is a bag folder; give a folder name without .mcap")
+        check_record_path(str(v["record_path"]), bool(split or size), v.get("scene"))
         return cls(scene, scene_text(label), scene.method, scene.dt, tick_ns, tick_ns // dt_ns, rate,
                    v["drive_source"], bool(v["publish_clock"]), rtf, bool(v["tick_thread"]),
                    int(round(lead * 1e9)), str(v["record_path"]), bool(v["record_overwrite"]), split, size)

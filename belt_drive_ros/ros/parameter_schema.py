@@ -62,6 +62,28 @@ class NodeConfigError(ParameterError):
     """A node parameter (or the combination) is invalid; ``field`` names the parameter."""
 
 
+def check_record_path(record_path: str, split: bool, scene) -> None:
+    """Refuse (:class:`NodeConfigError` naming ``record_path``) a recording either node cannot write as asked: a
+    split one (``split``) named ``.mcap`` (it is a folder), one file named with another extension (``run.csv``: an
+    MCAP under a CSV's name), or the scene file the node reads (``--record scene.yaml --force`` replaced the scene
+    with the recording; an output never replaces an input of its own run)."""
+    if not record_path:
+        return
+    import os
+
+    from ..io.inputs import input_replaced
+
+    if isinstance(scene, str) and input_replaced(record_path, [scene]) is not None:
+        raise NodeConfigError("record_path", f"{record_path!r} is the scene file the node reads; record elsewhere")
+    suffix = os.path.splitext(record_path)[1].lower()
+    if split and suffix == ".mcap":
+        raise NodeConfigError(
+            "record_path", f"{record_path!r}: a split recording (max_bag_duration/max_bag_size) is a bag "
+            "folder NAME/NAME_0.mcap, ...; give a folder name without .mcap")
+    if not split and suffix and suffix != ".mcap":
+        raise NodeConfigError("record_path", f"{record_path!r}: a recording is an MCAP file; name it .mcap")
+
+
 def record_path_exists(path) -> NodeConfigError:
     """The refusal of a ``record_path`` that exists while ``record_overwrite`` is false (either node's): the
     house's one sentence for an output that exists (``belt-drive sim``'s "PATH exists; pass --force to overwrite
@@ -441,10 +463,7 @@ def build_settings(values: Mapping[str, Any], scenes: SceneCache | None = None) 
         raise NodeConfigError("record_overwrite", f"must be true or false, got {overwrite!r}")
     bag_duration = _spec_number("max_bag_duration", {"max_bag_duration": values.get("max_bag_duration", 0.0)})
     bag_size = _spec_number("max_bag_size", {"max_bag_size": values.get("max_bag_size", 0)})
-    if (bag_duration or bag_size) and record_path.lower().endswith(".mcap"):
-        raise NodeConfigError(
-            "record_path", f"{record_path!r}: a split recording (max_bag_duration/max_bag_size) is a bag "
-            "folder NAME/NAME_0.mcap, ...; give a folder name without .mcap")
+    check_record_path(record_path, bool(bag_duration or bag_size), values.get("scene"))
     model_values = {name: values[name] for name in MODEL_PARAMETERS}
     for name, value in model_values.items():  # BeltDriveParams checks the rest of its rules
         upper = model_range(name)[1]
