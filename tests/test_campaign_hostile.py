@@ -189,3 +189,14 @@ def test_a_campaign_whose_runs_cannot_fit_in_memory_is_refused_up_front(monkeypa
     grid = Campaign.from_mapping({"scene": "paper", "grid": {"duration": [1.0, 1.0e6]}})
     with pytest.raises(CampaignError, match="a variant's run of 2e\\+08 steps"):
         limits.check(grid, 2)
+
+
+def test_a_relative_tolerance_of_a_zero_base_value_is_refused():
+    """``params.b_M: {normal: 0.1}`` with b_M = 0 in the scene drew 0 every time: identical variants, exit 0. Refused;
+    an absolute one, or a relative one on a profile field the profiles give a value, is taken."""
+    with pytest.raises(CampaignError, match=r"^monte_carlo.vary.params.b_M: a relative tolerance of a base value 0 "
+                                            r"varies nothing; give an absolute one"):
+        Campaign.from_mapping({"scene": "paper", "monte_carlo": {"samples": 3, "vary": {"params.b_M": {"normal": 0.1}}}})
+    ok = Campaign.from_mapping({"scene": "paper", "monte_carlo": {"samples": 3, "vary": {
+        "params.b_M": {"normal": [0.01, 0.001], "absolute": True}}}})
+    assert ok.variants()["params.b_M"].nunique() == 3

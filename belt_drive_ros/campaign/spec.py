@@ -309,6 +309,14 @@ class Campaign:
                     f"monte_carlo.vary.{key}: a relative tolerance needs a numeric base value, got {short(base_value)}; "
                     "give absolute: true"
                 )
+            own = [_lookup(entry, tuple(key.split("."))) for entry in profiles] if key.split(".")[0] in (
+                "drive", "load") else []  # fmt: skip
+            if not dist.absolute and base_value == 0 and not any(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) and v != 0 for v in own):
+                raise CampaignError(  # (every variant drew 0 times a factor: identical variants, exit 0)
+                    f"monte_carlo.vary.{key}: a relative tolerance of a base value 0 varies nothing; give an absolute "
+                    "one (normal: [mean, std] or uniform: [low, high], absolute: true)"
+                )
         fleet = data.get("fleet")
         fleet_folder = golden = None
         if fleet is not None:
