@@ -397,7 +397,8 @@ class BeltDriveNode(Node):
         without reading its outputs (:meth:`_count`'s counts). Every other tick: :meth:`_publish`.
         """
         sim = self.sim
-        if now_ns == sim._plain_ns and (send := self._usual) is not False and not self._resets_pending:
+        if now_ns == sim._plain_ns and (send := self._usual) is not False and not self._resets_pending \
+                and sim.pending_restart is None:
             done = sim.plain_tick(now_ns)
             if done <= 0:  # the tick kernel took it: minus its outputs' flags (and EVENT per mode switch)
                 fresh, c = sim._tick_kernel, self.counters
@@ -425,10 +426,13 @@ class BeltDriveNode(Node):
             got = done  # (the general path took it)
         else:
             got = False
-            if self._resets_pending:  # the restart is this tick's: scene time 0 here, the initial state published
-                with self.drive.lock:  # (the inputs' hand-over lock: _on_reset counts under it)
-                    calls, self._resets_pending = self._resets_pending, 0
-                got = sim.restart(f"~/reset, {calls} call(s) since the last tick", now_ns)
+            if self._resets_pending or sim.pending_restart is not None:  # the restart is this tick's: scene time 0
+                with self.drive.lock:  # here, the initial state published (the inputs' hand-over lock: _on_reset
+                    calls, self._resets_pending = self._resets_pending, 0  # counts under it)
+                why = [sim.pending_restart] if sim.pending_restart is not None else []
+                sim.pending_restart = None
+                got = sim.restart("; ".join(why + ([f"~/reset, {calls} call(s) since the last tick"] if calls else [])),
+                                  now_ns)
             got = got or sim.advance_to(now_ns)
         sends = self._publish(now_ns, defer) if got else None
         if not defer:

@@ -110,6 +110,9 @@ class NodeSimulation:
         self._init_hybrid()
         #: integrated-to time [ns, node time base]; None before the run starts
         self.t_ns: int | None = None
+        #: why the run restarts at the next tick (a new scene: that tick is its scene time 0, publishing its initial
+        #: state, as ``~/reset``'s), or None
+        self.pending_restart: str | None = None
         #: node time [ns] of scene time 0
         self.origin_ns = 0
         #: (reason, node time [ns]) of the last divergence, or None
@@ -187,7 +190,10 @@ class NodeSimulation:
         self._fresh_ns = None
         self.stepper = self._make_stepper(new)
         if new.scene.name != old.scene.name or "scene" in changed:
-            self.restart("scene changed")
+            if self.t_ns is None:
+                self.restart("scene changed")
+            else:  # at the next tick (restarted at the last one, already published with the old scene, its first
+                self.pending_restart = "scene changed"  # sample was one step into the new one)
         elif new.model.name != old.model.name:
             self.x = np.array(self._map_state(self.x, old.model, new.model, load_torque), dtype=np.float64)
             self._init_hybrid()
