@@ -176,3 +176,41 @@ def test_cli_prints_the_profile_without_ros():
         capture_output=True, text=True, timeout=60,
     )
     assert bad.returncode == 2 and "not 'motor'" in bad.stderr
+
+
+def test_a_stopping_source_publishes_zero_once_so_a_holding_node_coasts(context):
+    """The source stopped before the node (the README's two terminals, stopped in that order): the node held the
+    last torque it got (a 326 N m firing pulse, timeout_behavior hold) and the drive ran away. A source that has
+    published publishes 0 N m once as it stops; one that never published says nothing."""
+    import time
+
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64
+
+    from belt_drive_ros.ros.source_node import TorqueSourceNode
+
+    table = Table(times=(0.0, 0.5), values=(326.0, 4.0), interpolation="previous")
+    probe = __import__("rclpy").create_node("probe", context=context)
+    got = []
+    probe.create_subscription(Float64, "drive_torque", lambda m: got.append(m.data),
+                              QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(probe)
+    silent = TorqueSourceNode(table, node_name="silent", context=context, autostart=False)
+    silent.stop_torque()
+    silent.destroy_node()
+    node = TorqueSourceNode(table, context=context, autostart=False)
+    try:
+        deadline = time.monotonic() + 10
+        while not node._pub.get_subscription_count() and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.01)
+        node.publish_at(10**9)
+        node.stop_torque()
+    finally:
+        node.destroy_node()
+    deadline = time.monotonic() + 10
+    while len(got) < 2 and time.monotonic() < deadline:
+        ex.spin_once(timeout_sec=0.01)
+    probe.destroy_node()
+    assert got == [326.0, 0.0]

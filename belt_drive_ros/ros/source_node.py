@@ -15,7 +15,10 @@ the belt node), evaluating any :class:`~belt_drive_ros.core.sources.TorqueProfil
 A speed-dependent profile (``Engine`` with a governor, ``MotorCurve``)
 therefore closes the loop through the belt node; an open-loop profile
 (``Table`` from a CSV, ``Step``, ``Sine`` ...) does not subscribe at all.
-Non-finite torques are never published (counted instead).
+Non-finite torques are never published (counted instead). As it stops
+(SIGINT, SIGTERM) the source publishes 0 N m once: the drive is off, and a
+node holding its last input (``timeout_behavior: hold``) coasts instead of
+holding the last torque (a firing pulse) for ever.
 
 Ticks. On the system clock a timer ticks at ``rate_hz``. On simulated time
 (``use_sim_time:=true``) the ``/clock`` messages tick the source directly:
@@ -203,6 +206,18 @@ class TorqueSourceNode(Node):
         self.last_torque = torque
         return torque
 
+    def stop_torque(self) -> None:
+        """Publish 0 N m once, as the source stops (the engine or motor is off): a node holding its last input
+        (``timeout_behavior: hold``) would otherwise hold a firing pulse's torque, and the drive ran away (78 to
+        885 rad/s in 4 s of the README's pairing, the source stopped first)."""
+        if self.counters["published"]:
+            from rclpy.duration import Duration
+
+            self._msg.data = 0.0
+            self._pub.publish(self._msg)
+            self.last_torque = 0.0
+            self._pub.wait_for_all_acked(Duration(seconds=0.5))  # (delivered before the node is destroyed)
+
 
 def run(
     profile: TorqueProfile,
@@ -223,7 +238,7 @@ def run(
             f"publishing drive_torque at {node.rate_hz:g} Hz from the {profile.kind} profile"
             + (" (closed loop on shaft_speed)" if profile.state_dependent else "")
         )
-        spin_nodes([node], context, executor=executor)
+        spin_nodes([node], context, executor=executor, stopped=lambda _signum: node.stop_torque())
     return 0
 
 
