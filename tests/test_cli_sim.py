@@ -140,3 +140,17 @@ def test_a_rigid_run_says_it_does_not_use_the_initial_deflection(tmp_path, capsy
     assert "no belt deflection" not in capsys.readouterr().err
     assert main(["sim", "paper", "--model", "rigid", "--method", "etd2", "--duration", "0.05"]) == 0
     assert "no belt deflection" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--bag-folder"], "--bag-folder: writes --out as a rosbag2 bag folder; give --out NAME"),
+    (["--plot-every", "5"], "--plot-every: thins what --plot draws; give --plot FILE.png"),
+    (["--start-time", "0", "--out", "x.csv"], "--start-time: stamps the messages of an MCAP output; --out is x.csv, not one"),
+    (["--start-time", "0"], "--start-time: stamps the messages of an MCAP output; --out is not given"),
+    (["--method-option", "rtol=1e-6", "--method-option", "rtol=1e-9"], "--method-option rtol: given twice"),
+])
+def test_an_option_that_would_change_nothing_is_refused_not_ignored(argv, message, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["sim", "paper", "--duration", "0.01", *argv]) == 2
+    assert capsys.readouterr().err.strip() == f"belt-drive: error: {message}"
+    assert not (tmp_path / "x.csv").exists()

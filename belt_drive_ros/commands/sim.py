@@ -98,6 +98,20 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _refuse_idle_options(args) -> None:
+    """An option that would change nothing of this command (its output not written) is a usage error, not ignored."""
+    from ..core.errors import ParameterError
+
+    mcap_out = args.out is not None and (args.bag_folder or args.out.suffix.lower() == ".mcap")
+    if args.bag_folder and args.out is None:
+        raise ParameterError("--bag-folder", "writes --out as a rosbag2 bag folder; give --out NAME")
+    if args.plot_every != 1 and args.plot is None:
+        raise ParameterError("--plot-every", "thins what --plot draws; give --plot FILE.png")
+    if args.start_time is not None and not mcap_out:
+        raise ParameterError("--start-time", "stamps the messages of an MCAP output; --out is "
+                             + ("not given" if args.out is None else f"{args.out.name}, not one"))
+
+
 def _options(pairs):
     from ..core.errors import IntegratorError, short
 
@@ -106,6 +120,8 @@ def _options(pairs):
         key, sep, value = pair.partition("=")
         if not sep or not key.strip():
             raise IntegratorError(f"--method-option expects KEY=VALUE, got {short(pair)}")
+        if key in out:
+            raise IntegratorError(f"--method-option {short(key)}: given twice")
         try:
             out[key] = float(value) if key not in ("max_iter",) else int(value)
         except ValueError:
@@ -123,6 +139,7 @@ PLOT_SAMPLES = 250_000
 def run(args) -> int:
     from ..io import is_recording  # a path check: mcap and msg_tools load only for a recording
 
+    _refuse_idle_options(args)
     args.writer_options = {}
     if is_recording(args.scene):  # a recording re-simulated from its own scene record
         from ..io.network_bag import is_network_recording
