@@ -121,7 +121,7 @@ def _options(pairs):
         if not sep or not key.strip():
             raise IntegratorError(f"--method-option expects KEY=VALUE, got {short(pair)}")
         if key in out:
-            raise IntegratorError(f"--method-option {short(key)}: given twice")
+            raise IntegratorError(f"--method-option {key[:80]}: given twice")
         try:
             out[key] = float(value) if key not in ("max_iter",) else int(value)
         except ValueError:
