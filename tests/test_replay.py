@@ -413,3 +413,16 @@ def test_replay_of_the_applied_torque_reaches_the_node_in_its_namespace_and_ends
     assert "--sync /truck1/joint_states: no publisher any more (its node ended)" in err or \
         "--sync /truck1/joint_states: no answer to 3 /clock times in a row" in err, err
     assert len(got) < 30  # it stopped, not 2 s per message for the 379 left
+
+
+def test_replay_loop_of_a_pass_under_a_millisecond_is_refused():
+    """Two messages 1 ns apart looped published 4.7 M messages in 15 s (a single message was refused, 1 ns not)."""
+    from belt_drive_ros.ros.replay import replay_schedule
+
+    with pytest.raises(ValueError, match="a loop floods the topic"):
+        replay_schedule(np.array([0, 1]), loop=True)
+    with pytest.raises(ValueError, match="a pass of 0.5 ms at rate 1000"):
+        replay_schedule(np.arange(6) * 100_000_000, loop=True, rate=1000.0)
+    schedule = replay_schedule(np.arange(6) * 100_000_000, loop=True, rate=100.0)  # 5 ms a pass
+    assert [next(schedule)[2] for _ in range(7)] == [0, 1, 2, 3, 4, 5, 0]
+    assert len(list(replay_schedule(np.array([0, 1])))) == 2  # (once: as recorded)

@@ -69,6 +69,11 @@ def replay_schedule(log_time_ns: np.ndarray, *, rate: float = 1.0, start_offset:
             f"cannot loop: the {count} message{'s' if count > 1 else ''} from offset {start_offset:g} s "
             f"{'share one time stamp' if count > 1 else 'is alone'}, so the replay spans no time (no loop period)"
         )
+    if loop and (times[-1] - times[first]) / rate < LOOP_MIN_NS:  # (two messages 1 ns apart: 4.7 M a second)
+        raise ValueError(
+            f"cannot loop: the messages from offset {start_offset:g} s span {(times[-1] - times[first]) / 1e9:g} s, "
+            f"a pass of {(times[-1] - times[first]) / rate / 1e6:.3g} ms at rate {rate:g}: under "
+            f"{LOOP_MIN_NS / 1e6:g} ms a loop floods the topic")
     return _schedule(times, first, rate, loop, max_loops)
 
 
@@ -110,6 +115,8 @@ def _rclpy_qos(offered_yaml: str):
     )
 
 
+#: the shortest pass of a --loop replay [ns of wall time]: a shorter one publishes faster than any node ticks
+LOOP_MIN_NS = 1_000_000
 #: /clock ticks a --sync replay waits for its first answer before it gives up (each up to sync_timeout)
 SYNC_TRIES = 3
 
