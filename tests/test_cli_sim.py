@@ -154,3 +154,10 @@ def test_an_option_that_would_change_nothing_is_refused_not_ignored(argv, messag
     assert main(["sim", "paper", "--duration", "0.01", *argv]) == 2
     assert capsys.readouterr().err.strip() == f"belt-drive: error: {message}"
     assert not (tmp_path / "x.csv").exists()
+
+
+def test_scenes_of_an_unknown_name_lists_the_belt_networks_it_also_takes(capsys):
+    assert main(["scenes", "nosuch"]) == 2
+    err = capsys.readouterr().err
+    assert "not a shipped scene (bsg_start, e_motor_start, paper, truck_compressor); nor a shipped belt network" in err
+    assert "fead_i4" in err

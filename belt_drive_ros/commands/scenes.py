@@ -11,7 +11,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..io.scenes import is_network, load_network, load_scene, scene_yaml, shipped_networks
+    from ..io.scenes import is_network, load_either_scene, load_network, load_scene, scene_yaml, shipped_networks
     from ..core.scene import shipped_scenes
     from ..io.network_plot import describe
 
@@ -19,7 +19,7 @@ def run(args) -> int:
         print(describe(load_network(args.name)), end="")
         return 0
     if args.name is not None:  # ('' is an unknown scene, not the list)
-        print(scene_yaml(load_scene(args.name)), end="")
+        print(scene_yaml(load_either_scene(args.name)), end="")
         return 0
     for name in shipped_scenes():
         print(f"{name:18s} {load_scene(name).description}")
