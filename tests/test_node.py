@@ -475,6 +475,8 @@ def test_publish_clock_time_master(ros_domain_id, factor):
         assert node.integrated_ns == node.timing.sim_ns == clocks[-1]  # the state is where /clock is
         # one run; outputs published at every /clock time the node published (a catch-up step is one)
         assert node.counters["restarts"] == 1 and node.origin_ns % tick == 0
+        if factor > 0:  # the run starts at simulated time 0 (it started at the wall time of the first timer call)
+            assert node.origin_ns == 0
         assert node.counters["published"] == node.counters["ticks"] >= len(clocks)
         stamps = np.array([row[0] for row in h._rows], dtype=np.int64)
         assert np.all(stamps % tick == 0) and stamps.max() <= clocks[-1]  # never ahead of /clock
@@ -483,7 +485,8 @@ def test_publish_clock_time_master(ros_domain_id, factor):
 
 def test_publish_clock_paces_simulated_time_by_the_factor(ros_domain_id, monkeypatch):
     """publish_clock at factor 2 on a wall clock the test moves: simulated time is the anchor plus the
-    whole ticks in 2 x the wall time elapsed; a late timer catches up in one step; a stall longer than
+    whole ticks in 2 x the wall time elapsed; a late timer catches up tick by tick, each published with its /clock
+    (one jump of several ticks published none of those between: a time master skipped ticks); a stall longer than
     MAX_CATCH_UP_NS of simulated time re-anchors with a single tick (counted late) instead of bursting."""
     import time
     import types
@@ -501,9 +504,11 @@ def test_publish_clock_paces_simulated_time_by_the_factor(ros_domain_id, monkeyp
         sim0, tick = src.sim_ns, h.node.settings.tick_ns
         src._on_pace()
         assert src.sim_ns == sim0  # no wall time elapsed: no tick
-        wall[0] += 10_000_000  # 10 ms late: 20 ms of simulated time at factor 2, in one step
+        wall[0] += 10_000_000  # 10 ms late: 20 ms of simulated time at factor 2, tick by tick
+        published = h.node.counters["published"]
         src._on_pace()
         assert src.sim_ns == sim0 + 20 * tick and h.node.integrated_ns == src.sim_ns
+        assert h.node.counters["published"] == published + 20
         wall[0] += 1_400_000  # 11.4 ms since the anchor: 22.8 ms simulated, 22 whole ticks
         src._on_pace()
         assert src.sim_ns == sim0 + 22 * tick

@@ -35,8 +35,10 @@ once per tick with the node time to integrate to:
   ``real_time_factor`` (0: as fast as the CPU allows, in 2 ms slices of
   back-to-back ticks between which inputs are served), and after each tick
   publishes the outputs and then ``/clock`` with the *same* time. A late
-  wall timer catches up by several whole ticks in one step (at most 1 s of
-  simulated time; beyond that the pacing re-anchors instead of bursting).
+  wall timer catches up tick by tick, each published with its ``/clock``
+  (at most 1 s of simulated time; beyond that the pacing re-anchors with one
+  tick instead of bursting: the time master slows, it never skips a tick). The run starts at simulated
+  time 0 (its first tick, whenever the first timer call comes).
 
 :class:`TickStats` keeps the wall-clock tick periods (a ring of 4096), late
 ticks and overruns for ``/diagnostics``.
@@ -64,8 +66,8 @@ SYSTEM_TIME_QUANTUM_NS = 1000
 #: time per callback of a wall timer of this period, then the executor serves inputs
 FREE_RUN_SLICE_S = 0.002
 FREE_RUN_PERIOD_S = 0.0005
-#: a publish_clock tick may catch up at most this much simulated time [ns]
-#: after the wall timer was late; beyond it the pacing re-anchors.
+#: a publish_clock timer call catches up at most this much simulated time [ns], tick by tick, after the wall timer
+#: was late; beyond it the pacing re-anchors with one tick (the time master slows; no tick is skipped).
 MAX_CATCH_UP_NS = 1_000_000_000
 #: the tick thread publishes each missed tick when it wakes up to this late [ns];
 #: later (the process was stopped, the clock stepped) it integrates to the latest tick in one go
@@ -586,16 +588,24 @@ class TickSource:
         """publish_clock with real_time_factor > 0: simulated time follows the wall clock x factor."""
         start = time.perf_counter()
         s = self.sim.settings
+        if not self.sim.started:  # the run starts at its time here (0), not at the wall time of this first call
+            self._anchor = (self.sim_ns, time.monotonic_ns())
+            self._master_tick(self.sim_ns, start, self.nominal_period())
+            return
         anchor_sim, anchor_wall = self._anchor
         elapsed = int((time.monotonic_ns() - anchor_wall) * s.real_time_factor)
         target = anchor_sim + (elapsed // s.tick_ns) * s.tick_ns
-        if target <= self.sim_ns and self.sim.started:
+        if target <= self.sim_ns:
             return
-        if target - self.sim_ns > MAX_CATCH_UP_NS:  # wall timer starved: re-anchor, do not burst
-            self.stats.counters["late_ticks"] += 1
-            target = self.sim_ns + s.tick_ns
-            self._anchor = (target, time.monotonic_ns())
-        self._master_tick(target, start, self.nominal_period())
+        due = (target - self.sim_ns) // s.tick_ns
+        if target - self.sim_ns > MAX_CATCH_UP_NS:  # wall timer starved: re-anchor with one tick, do not burst (the
+            self.stats.counters["late_ticks"] += 1  # master slows; no tick skipped)
+            due = 1
+            self._anchor = (self.sim_ns + s.tick_ns, time.monotonic_ns())
+        nominal = self.nominal_period()
+        for _ in range(due):  # each tick published with its /clock (one jump of several ticks skipped their outputs)
+            self._master_tick(self.sim_ns + s.tick_ns, start, nominal)
+            start = time.perf_counter()
 
     def _on_free_run(self) -> None:
         """publish_clock with real_time_factor = 0: whole ticks back to back for one slice of wall time.
