@@ -349,3 +349,10 @@ def test_yaml_numbers_booleans_and_null_follow_the_yaml_1_2_core_schema(tmp_path
     from belt_drive_ros.io.scenes import load_scene
 
     assert load_scene(scene).params.F_0 == 400.0
+
+
+def test_yaml_merge_keys_stay_refused_under_the_yaml_1_2_resolvers():
+    """The YAML 1.2 resolver table first dropped PyYAML's merge resolver: '<<' became a plain key, and a params file
+    with one passed the check (rcl then ignored it silently)."""
+    with pytest.raises(Exception, match=r"line 2: YAML merge keys \(<<\) are not allowed"):
+        parse_yaml("a:\n  <<: {k: 1}\n")

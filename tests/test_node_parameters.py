@@ -144,7 +144,8 @@ def test_a_misspelt_name_in_a_params_file_is_refused_as_on_the_command_line(tmp_
         "(belt-drive node --list-parameters)")
     renamed = tmp_path / "truck.yaml"
     renamed.write_text("/fleet/truck1:\n  ros__parameters:\n    model: rigid\n    tick:\n      rate: 5.0\n")
-    assert main(["node", "truck_compressor", "--name", "truck1", "--ros-args", "--params-file", str(renamed)]) == 2
+    assert main(["node", "truck_compressor", "--name", "truck1", "--ros-args", "-r", "__ns:=/fleet",
+                 "--params-file", str(renamed)]) == 2
     assert "tick.rate (params file" in capsys.readouterr().err  # (a nested name, as rcl reads it)
     names = {"model", "torque_limit"}
     others = tmp_path / "others.yaml"
@@ -189,3 +190,26 @@ def test_record_path_never_replaces_the_scene_and_is_named_as_mcap(tmp_path):
     net = {name: default for name, default, _ in PARAMETERS}
     with pytest.raises(NodeConfigError, match="record_path: .*is the scene file the node reads"):
         NetworkSettings.from_values({**net, "scene": str(network), "record_path": str(network)})
+
+
+def test_the_params_file_check_reads_only_the_section_rcl_applies_to_this_node(tmp_path):
+    """rcl applies a section named by the node's fully qualified name: a file shared by two nodes in two namespaces,
+    or one whose node was renamed (-r __name:=, -r belt_drive:__node:=), was refused for another node's section
+    (a regression of the check's first version, which read only the last part of the name)."""
+    from belt_drive_ros.ros.parameter_schema import unknown_parameter_rule
+
+    shared = tmp_path / "shared.yaml"
+    shared.write_text("/truck/belt_drive:\n  ros__parameters:\n    k: 3.0e4\n"
+                      "/fead/belt_drive:\n  ros__parameters:\n    step_rate_hz: 500.0\n")
+    network = {"step_rate_hz", "scene"}
+    assert unknown_parameter_rule(["-r", "__ns:=/fead", "--params-file", str(shared)], network, "belt_drive") is None
+    assert unknown_parameter_rule(["-r", "__ns:=/truck", "--params-file", str(shared)], network, "belt_drive") == \
+        f"k (params file {shared})"
+    assert unknown_parameter_rule(["--params-file", str(shared)], network, "belt_drive", "/fead") is None
+    renamed = tmp_path / "renamed.yaml"
+    renamed.write_text("belt_drive:\n  ros__parameters:\n    model: rigid\nfead:\n  ros__parameters:\n    kk: 1.0\n")
+    for remap in ("__name:=fead", "__node:=fead", "belt_drive:__node:=fead"):
+        assert unknown_parameter_rule(["-r", remap, "--params-file", str(renamed)], network, "belt_drive") == \
+            f"kk (params file {renamed})", remap
+    assert unknown_parameter_rule(["-r", "other:__node:=fead", "--params-file", str(renamed)], network, "belt_drive") \
+        == f"model (params file {renamed})"  # (a remap scoped to another node: this one keeps its name)

@@ -221,6 +221,7 @@ for _tag, _pattern, _first in (
     ("tag:yaml.org,2002:int", _INT_12, list("-+0123456789")),
     ("tag:yaml.org,2002:float", _FLOAT_12, list("-+.0123456789")),
     ("tag:yaml.org,2002:null", _NULL_12, ["~", "n", "N", ""]),
+    ("tag:yaml.org,2002:merge", re.compile(r"^(?:<<)$"), ["<"]),  # (found to be refused: construct_mapping)
 ):
     _BoundedLoader.add_implicit_resolver(_tag, _pattern, _first)
 _BoundedLoader.add_constructor("tag:yaml.org,2002:int", _construct_int)

@@ -235,7 +235,8 @@ class BeltDriveHarness:
         ctx, ns = self.context, self.namespace
         overrides = _parameters(self.params)
         overrides.append(Parameter("use_sim_time", value=bool(self.use_sim_time)))
-        rule = unknown_parameter_rule(self.ros_args, BeltDriveNode.PARAMETER_NAMES, self.node_name)  # (rclpy drops it)
+        rule = unknown_parameter_rule(self.ros_args, BeltDriveNode.PARAMETER_NAMES, self.node_name,
+                                      self.namespace or "/")  # (rclpy drops it)
         if rule is not None:
             raise NodeConfigError(rule, NOT_A_PARAMETER)
         self.node = BeltDriveNode(

@@ -147,22 +147,34 @@ def refuse_undeclared(node, parameters, why: str = NOT_A_PARAMETER) -> None:
         raise ParameterNotDeclaredException(f"{', '.join(unknown)}: {why}")
 
 
-def unknown_parameter_rule(ros_args: list[str], names, node_name: str | None = None) -> str | None:
+def unknown_parameter_rule(ros_args: list[str], names, node_name: str | None = None,
+                           namespace: str = "/") -> str | None:
     """The first parameter ``ros_args`` set that is neither in ``names`` nor :data:`RCLPY_PARAMETERS` (rclpy drops
     it without a word), or None: a ``-p NAME:=VALUE`` (``--param``; a rule scoped to a node, ``other:NAME:=VALUE``,
-    is not checked), then a name under ``ros__parameters`` of a ``--params-file`` section for the node
-    ``node_name`` (``belt_drive:``, ``/ns/belt_drive:``; a ``-r __node:=`` remap renames it), given as
-    ``NAME (params file FILE)``. A wildcard section (``/**:``) may hold other nodes' parameters: not checked."""
+    is not checked), then a name under ``ros__parameters`` of a ``--params-file`` section for this node: the
+    section named by its fully qualified name (``belt_drive:`` is ``/belt_drive``; ``node_name`` in ``namespace``,
+    as ``-r __ns:=``, ``-r __node:=`` / ``__name:=`` and their ``belt_drive:``-scoped forms remap them), given as
+    ``NAME (params file FILE)``. A section for another node, or a wildcard one (``/**:``, which may hold other
+    nodes' parameters), is not checked."""
     for flag, rule in zip(ros_args, ros_args[1:]):
         if flag in ("-p", "--param"):
             name = rule.split(":=", 1)[0]
             if ":" not in name and name not in names and name not in RCLPY_PARAMETERS:
                 return name
-    for flag, rule in zip(ros_args, ros_args[1:]):
-        if flag in ("-r", "--remap") and rule.startswith("__node:="):
-            node_name = rule.split(":=", 1)[1]
     if node_name is None:
         return None
+    given = node_name
+    for flag, rule in zip(ros_args, ros_args[1:]):
+        if flag in ("-r", "--remap") and ":=" in rule:
+            lhs, _, rhs = rule.partition(":=")
+            scope, _, what = lhs.rpartition(":")
+            if scope and scope != given:
+                continue
+            if what in ("__node", "__name"):
+                node_name = rhs
+            elif what == "__ns":
+                namespace = rhs
+    fqn = "/" + "/".join(part for part in (*str(namespace).split("/"), node_name) if part)
     from ..io.inputs import parse_yaml, read_text
 
     for flag, path in zip(ros_args, ros_args[1:]):
@@ -170,7 +182,7 @@ def unknown_parameter_rule(ros_args: list[str], names, node_name: str | None = N
             continue
         data = parse_yaml(read_text(path, what="params file"), label=f"params file {path}")
         for section, body in (data.items() if isinstance(data, dict) else ()):
-            if "*" in str(section) or str(section).rstrip("/").rsplit("/", 1)[-1] != node_name:
+            if "/" + str(section).strip("/") != fqn:  # (another node's section, or a wildcard one)
                 continue
             values = body.get("ros__parameters") if isinstance(body, dict) else None
             for name in _flat_names(values if isinstance(values, dict) else {}):
