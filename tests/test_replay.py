@@ -426,3 +426,15 @@ def test_replay_loop_of_a_pass_under_a_millisecond_is_refused():
     schedule = replay_schedule(np.arange(6) * 100_000_000, loop=True, rate=100.0)  # 5 ms a pass
     assert [next(schedule)[2] for _ in range(7)] == [0, 1, 2, 3, 4, 5, 0]
     assert len(list(replay_schedule(np.array([0, 1])))) == 2  # (once: as recorded)
+
+
+def test_a_torque_bag_spanning_under_a_microsecond_is_named_and_an_explicit_duration_runs_it(tmp_path, capsys):
+    """A bag whose two messages are 999 ns apart: the run's duration became its span, and the scene's check named
+    'duration: 9.99e-07 s is outside the plausible range', even with --duration 0.5 given. Now the bag is named,
+    and a --duration given runs."""
+    from belt_drive_ros.cli import main
+
+    bag = _torque_bag(tmp_path / "short.mcap", [10**18, 10**18 + 999], [5.0, 6.0])
+    assert main(["sim", "paper", "--torque-bag", str(bag), "--quiet"]) == 2
+    assert f"{bag}: its torque spans 9.99e-07 s, less than the shortest run (1e-06 s)" in capsys.readouterr().err
+    assert main(["sim", "paper", "--torque-bag", str(bag), "--duration", "0.05", "--method", "etd4", "--quiet"]) == 0

@@ -168,7 +168,7 @@ def run(args) -> int:
         topic, note = torque_topic(args.torque_bag)  # a node recording: the torque it applied
         if note:
             print(note)
-        scene = torque_bag_scene(scene, args.torque_bag, topic=topic,
+        scene = torque_bag_scene(scene, args.torque_bag, topic=topic, duration=args.duration,
                                  streamed=lambda s: _samples(s.with_overrides(dt=args.dt, duration=args.duration)) > STREAM_ABOVE)
     scene = scene.with_overrides(model=args.model, method=args.method, dt=args.dt, duration=args.duration,
                                  tolerance=getattr(args, "tolerance", None))  # fmt: skip

@@ -50,7 +50,7 @@ from msg_tools.errors import MsgToolsError, RecoveredBagWarning
 
 from ..core.errors import BeltDriveError, InputError
 from .inputs import check_path, parse_yaml
-from ..core.scene import Scene
+from ..core.scene import RANGES, Scene
 from .scenes import scene_from_mapping
 from .recording import RECORDED_DRIVE, SCENE_METADATA, BagReadError, _sha256, bag_error
 from ..core.profile_data import TABLE_HELD_NS
@@ -309,6 +309,7 @@ def scene_with_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: O
     times, values = _zoh_table(rec.log_time_ns, rec.values)
     if duration is None:
         duration = float(times[-1]) if times.size > 1 else scene.duration
+        _check_span(rec.path, duration)
     if not (duration > 0 and math.isfinite(duration)):
         raise BagReadError(f"{rec.path}: duration must be > 0 s, got {duration!r}")
     drive = RecordedTorque(
@@ -577,6 +578,9 @@ def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Option
     end_s = last_t
     if duration is None:
         duration = end_s if samples > 1 else scene.duration
+        if duration < RANGES["duration"][0]:
+            chunked.close()
+            _check_span(bag, duration)
     if not (duration > 0 and math.isfinite(duration)):
         chunked.close()
         raise BagReadError(f"{bag}: duration must be > 0 s, got {duration!r}")
@@ -628,17 +632,26 @@ def tail_note(drive, duration: float) -> str:
     return ""
 
 
-def torque_bag_scene(scene, bag, *, topic: str = DEFAULT_TOPIC, streamed=None):
+def torque_bag_scene(scene, bag, *, topic: str = DEFAULT_TOPIC, streamed=None, duration: Optional[float] = None):
     """``scene`` driven by the torque of ``bag``: :func:`paged_torque_bag` when ``streamed(scene)`` says the
     run streams in windows (:func:`~belt_drive_ros.core.stream.stream`) and the bag can be paged, else
-    :func:`scene_with_torque_bag` (every sample in memory)."""
+    :func:`scene_with_torque_bag` (every sample in memory). ``duration`` [s]: the run's (default: the bag's span)."""
     if streamed is not None:
-        paged = paged_torque_bag(scene, bag, topic=topic)
+        paged = paged_torque_bag(scene, bag, topic=topic, duration=duration)
         if paged is not None:
             if streamed(paged):
                 return paged
             paged.drive.close()
-    return scene_with_torque_bag(scene, bag, topic=topic)
+    return scene_with_torque_bag(scene, bag, topic=topic, duration=duration)
+
+
+def _check_span(path, span: float) -> None:
+    """Refuse a bag whose torque spans less than the shortest run, naming the bag (the scene's own check named the
+    duration the caller may have set: ``duration: 9.99e-07 s is outside ...`` with ``--duration 0.5`` given)."""
+    low = RANGES["duration"][0]
+    if 0.0 < span < low:
+        raise BagReadError(f"{path}: its torque spans {span:g} s, less than the shortest run ({low:g} s); give the "
+                           "run's duration (belt-drive sim --duration)")
 
 
 # --------------------------------------------------------- re-simulation
