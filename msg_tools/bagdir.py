@@ -64,6 +64,12 @@ def bag_files(path: Union[str, "os.PathLike[str]"]) -> List[str]:
             if os.path.isabs(p) or ".." in p.replace("\\", "/").split("/"):
                 raise CorruptBagError(f"{meta}: relative_file_paths names {p!r}, outside the bag folder")
         files = [os.path.join(path, p) for p in relative]
+        seen: set = set()
+        for p, file in zip(relative, files):
+            key = os.path.normpath(file)
+            if key in seen:  # (read twice, a recording doubles its messages; msg-tools info called it overlapping)
+                raise CorruptBagError(f"{meta}: relative_file_paths lists {p!r} twice")
+            seen.add(key)
         for file in files:
             _check_regular(file, f"{meta} lists")
         if files:

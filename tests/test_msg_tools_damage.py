@@ -464,3 +464,25 @@ def test_a_bag_rosbag2_compressed_is_refused_naming_its_compression(tmp_path, ca
     assert main(["export", str(file), "-t", "/drive_torque"]) == 2
     err = capsys.readouterr().err
     assert ("a zstd-compressed file, not MCAP" if mode == "file" else "message 0 is zstd-compressed data, not CDR") in err
+
+
+def test_a_bag_folder_listing_a_file_twice_is_refused_by_every_reader(tmp_path, capsys):
+    """metadata.yaml naming one file twice: info called it damaged and --torque-bag refused it, but re-simulating the
+    folder read the file twice and exited 0. The folder's file list refuses it for all of them."""
+    from belt_drive_ros.cli import main as belt_drive
+    from msg_tools.bagdir import bag_files
+
+    folder = tmp_path / "run"
+    assert belt_drive(["sim", "paper", "--duration", "0.05", "--method", "etd4", "--out", str(folder),
+                       "--bag-folder"]) == 0
+    meta = folder / "metadata.yaml"
+    text = meta.read_text()
+    assert text.count("  relative_file_paths:\n    - run_0.mcap\n") == 1
+    meta.write_text(text.replace("  relative_file_paths:\n    - run_0.mcap\n",
+                                 "  relative_file_paths:\n    - run_0.mcap\n    - run_0.mcap\n", 1))
+    capsys.readouterr()
+    with pytest.raises(Exception, match="relative_file_paths lists 'run_0.mcap' twice"):
+        bag_files(folder)
+    assert belt_drive(["sim", str(folder), "--out", str(tmp_path / "re.mcap")]) == 2
+    assert "lists 'run_0.mcap' twice" in capsys.readouterr().err
+    assert main(["info", str(folder)]) == 2
