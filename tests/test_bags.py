@@ -107,3 +107,18 @@ def test_bags_start_where_their_readme_says(name):
         with open(REFERENCE_BAGS[name].files(BAGS)[kind], "rb") as f:
             stats = make_reader(f).get_summary().statistics
         assert stats.message_start_time == BAGS_START_NS, kind
+
+
+def test_a_scene_record_of_another_format_is_refused_not_read(tmp_path, capsys, monkeypatch):
+    """A recording whose scene record says 'belt_drive_ros scene 99' (a later version's) was read as this one's."""
+    from belt_drive_ros.cli import main
+    from belt_drive_ros.io import bag_layout
+
+    rec = tmp_path / "run.mcap"
+    monkeypatch.setattr(bag_layout, "SCENE_FORMAT", "belt_drive_ros scene 99")
+    assert main(["sim", "paper", "--duration", "0.02", "--method", "etd4", "--out", str(rec)]) == 0
+    monkeypatch.undo()
+    capsys.readouterr()
+    assert main(["sim", str(rec), "--out", str(tmp_path / "re.mcap")]) == 2
+    assert "its 'scene' record is format 'belt_drive_ros scene 99'; this version reads 'belt_drive_ros scene 1'" \
+        in capsys.readouterr().err

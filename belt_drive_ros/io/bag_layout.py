@@ -84,6 +84,8 @@ TOPIC_UNITS: Dict[str, str] = {
     "elastic_deflection": "rad",
     "slip_angle": "rad",
 }
+#: the ``format`` of the ``scene`` record this version writes and reads
+SCENE_FORMAT = "belt_drive_ros scene 1"
 #: Metadata record names.
 SCENE_METADATA = "scene"
 PARAMETERS_METADATA = "parameters"
@@ -203,7 +205,7 @@ def _scene_record(mapping: Mapping[str, Any], *, source: str, drive_source: str,
     import yaml
 
     record = {
-        "format": "belt_drive_ros scene 1",
+        "format": SCENE_FORMAT,
         "source": source,
         "name": str(mapping.get("name", "")),
         "model": str(mapping.get("model", "")),

@@ -52,6 +52,7 @@ from ..core.errors import BeltDriveError, InputError
 from .inputs import check_path, parse_yaml
 from ..core.scene import RANGES, Scene
 from .scenes import scene_from_mapping
+from .bag_layout import SCENE_FORMAT
 from .recording import RECORDED_DRIVE, SCENE_METADATA, BagReadError, _sha256, bag_error
 from ..core.profile_data import TABLE_HELD_NS
 from ..core.sources import TORQUE_MAX, Table, TorqueProfile
@@ -705,6 +706,10 @@ def scene_from_bag(path, *, torque_bag=None):
     record, name = _read_metadata(path)
     if "yaml" not in record:
         raise BagReadError(f"{name}: no '{SCENE_METADATA}' metadata record; not written by belt_drive_ros")
+    fmt = str(record.get("format", SCENE_FORMAT))
+    if fmt != SCENE_FORMAT:  # (a later version's record may mean other things by the same keys)
+        raise BagReadError(f"{name}: its '{SCENE_METADATA}' record is format {fmt[:60]!r}; this version reads "
+                           f"{SCENE_FORMAT!r}")
     try:
         data = parse_yaml(record["yaml"], "scene metadata")
     except InputError as exc:
