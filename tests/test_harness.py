@@ -184,6 +184,7 @@ def test_advance_keeps_the_clock_on_the_tick_grid_and_the_harness_its_time_base(
 def test_bad_construction_values_are_one_line_errors():
     for kwargs, match in (({"domain_id": 300}, r"domain_id: must be an integer in \[0, 232\]"),
                           ({"domain_id": 1.5}, "domain_id: must be an integer"),
+                          ({"domain_id": "abc"}, "domain_id: must be an integer .* got 'abc'"),
                           ({"start_time": float("nan")}, r"start_time: .* got nan"),
                           ({"start_time": 1e12}, r"start_time: .*\[0, 2147483647\]")):
         with pytest.raises(ValueError, match=match):

@@ -154,7 +154,8 @@ class BeltDriveHarness:
         if use_sim_time and (number is None or not 0 <= number <= _CLOCK_MAX_S):
             raise ValueError(f"start_time: simulated time must start at a number of seconds in [0, {_CLOCK_MAX_S}] "
                              f"(a /clock's int32 seconds), got {start_time!r}")
-        if domain_id is not None and (real(domain_id) != int(domain_id) or not 0 <= int(domain_id) <= DOMAIN_ID_MAX):
+        given = real(domain_id) if domain_id is not None else 0
+        if given is None or given != int(given) or not 0 <= given <= DOMAIN_ID_MAX:
             raise ValueError(f"domain_id: must be an integer in [0, {DOMAIN_ID_MAX}] (the ROS 2 domains a DDS port "
                              f"fits), got {domain_id!r}")
         if use_sim_time and executor != "single":
