@@ -553,7 +553,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--atol", type=float, default=1e-9,
                    help="absolute tolerance in each signal's SI unit (default 1e-9)")
     p.add_argument("--time-base", choices=("auto", "absolute", "relative"), default="auto",
-                   help="align on the common clock, or each series from its start (default auto)")
+                   help="align on the common clock, or each file from its first stamp; auto (default): the "
+                        "common clock where the files' common time range covers --min-coverage of each, one base "
+                        "for all signals")
     p.add_argument("--min-coverage", type=float, default=0.99,
                    help="fraction of samples that must overlap in time (default 0.99)")
     p.add_argument("--max-gap", type=float, default=5.0, metavar="PERIODS",

@@ -71,7 +71,7 @@ class SignalResult:
         |a - b| / (atol + rtol |b|), i.e. the worst violation of the tube.
     time_base : str
         ``"identical"``, ``"absolute"`` (interpolated in common time) or
-        ``"relative"`` (each series from its own first sample).
+        ``"relative"`` (each file from its first stamp).
     reason : str
         Why it failed (or a note); "" when it passed plainly.
     """
@@ -111,6 +111,8 @@ class CompareReport:
     skipped: List[Tuple[str, str]] = field(default_factory=list)
     incomplete: List[str] = field(default_factory=list)
     allow_incomplete: bool = False
+    #: the time base of the comparison (one for the file pair): ``absolute`` or ``relative``
+    time_base: str = ""
 
     @property
     def passed(self) -> bool:
@@ -154,6 +156,8 @@ class CompareReport:
                 )
             )
         lines = _aligned(rows, right=True)
+        if self.time_base == "relative":
+            lines.append("(time base: relative, each file from its first stamp)")
         for topic, why in self.skipped:
             lines.append(f"(skipped {topic}: {why})")
         for note in self.incomplete:
@@ -273,6 +277,23 @@ def _common(ta: np.ndarray, tb: np.ndarray) -> tuple:
     return lo, hi, mask, mask.mean(), ((tb >= lo) & (tb <= hi)).mean()
 
 
+def _file_time_base(pending: list, time_base: str, min_coverage: float) -> Tuple[str, Tuple[int, int] | None]:
+    """``(time base, (A's start, B's start) [ns])`` for every signal of a file pair (``pending``: ``(name, ta, va, tb,
+    vb)``). ``auto``: absolute where the files' common time range (over all their signals) covers ``min_coverage`` of
+    each file's span, else relative, each file from its first stamp. One base for all: chosen signal by signal, a
+    topic logged 60 ms late in one file fell below the coverage alone and was compared from its own start (passed)."""
+    series = [(x[1], x[3]) for x in pending if x[1].size and x[3].size]
+    if not series:
+        return ("relative" if time_base == "relative" else "absolute"), None
+    a0, a1 = min(int(ta[0]) for ta, _ in series), max(int(ta[-1]) for ta, _ in series)
+    b0, b1 = min(int(tb[0]) for _, tb in series), max(int(tb[-1]) for _, tb in series)
+    if time_base != "auto":
+        return time_base, (a0, b0)
+    overlap = min(a1, b1) - max(a0, b0)
+    covers = overlap >= 0 and all(span == 0 or overlap >= min_coverage * span for span in (a1 - a0, b1 - b0))
+    return ("absolute" if covers else "relative"), (a0, b0)
+
+
 def _compare_signal(
     name: str,
     ta: np.ndarray,
@@ -285,7 +306,11 @@ def _compare_signal(
     min_coverage: float,
     origin_ns: int,
     max_gap_periods: float = 5.0,
+    starts: Tuple[int, int] | None = None,
 ) -> SignalResult:
+    """One signal of A against B's. ``time_base``: ``absolute`` or ``relative`` (:func:`compare` decides ``auto``
+    once per file pair); ``starts``: the files' first stamps [ns] a relative comparison counts from (default each
+    series' own first sample), so a topic logged late in one file is late from its file's start."""
     if va.size == 0 or vb.size == 0:
         which = "A" if va.size == 0 else "B"
         return SignalResult(name, False, reason=f"no samples in {which}")
@@ -309,9 +334,10 @@ def _compare_signal(
         common = _common(ta, tb)
         base = "absolute" if common[1] >= common[0] and min(common[3], common[4]) >= min_coverage else "relative"
     if base == "relative":
-        origin_ns = int(ta[0])
-        ta = ta - ta[0]
-        tb = tb - tb[0]
+        a0, b0 = starts if starts is not None else (int(ta[0]), int(tb[0]))
+        origin_ns = a0
+        ta = ta - a0
+        tb = tb - b0
         if ta.shape == tb.shape and np.array_equal(ta, tb):
             base = "relative"
             identical = True
@@ -384,12 +410,14 @@ def compare(
     atol : float
         Absolute tolerance, in each signal's SI unit.
     time_base : {"auto", "absolute", "relative"}
-        How to align times: identical time stamps are always used directly;
-        ``absolute`` interpolates B onto A's times on the common clock;
-        ``relative`` first shifts each series to start at 0; ``auto`` uses
-        ``absolute`` if the series' common time range holds ``min_coverage`` of
-        each, else ``relative`` (two runs of a scene started seconds apart on
-        the wall clock overlap partly: they compare from their starts).
+        How to align times, one base for the file pair: identical time stamps
+        are always used directly; ``absolute`` interpolates B onto A's times on
+        the common clock; ``relative`` first shifts each file to start at 0
+        (its first stamp over the signals compared: a topic logged late in one
+        file stays late); ``auto`` uses ``absolute`` if the files' common time
+        range covers ``min_coverage`` of each file's span, else ``relative``
+        (two runs of a scene started seconds apart on the wall clock overlap
+        partly: they compare from their starts).
     min_coverage : float
         Fraction of each series' samples that must lie in the common time range.
     max_gap_periods : float
@@ -481,13 +509,14 @@ def compare(
                 missing = "A" if name not in sig_a else "B"
                 report.signals.append(SignalResult(name, False, reason=f"signal missing in {missing}"))
                 continue
-            (ta, va), (tb, vb) = sig_a[name], sig_b[name]
-            report.signals.append(
-                _compare_signal(
-                    name, ta, va, tb, vb, rtol, atol, time_base, min_coverage, origin_ns,
-                    max_gap_periods,
-                )
-            )
+            report.signals.append((name, *sig_a[name], *sig_b[name]))  # (compared below, on the files' time base)
+    base, starts = _file_time_base([x for x in report.signals if isinstance(x, tuple)], time_base, min_coverage)
+    report.time_base = base
+    report.signals = [
+        _compare_signal(x[0], x[1], x[2], x[3], x[4], rtol, atol, base, min_coverage, origin_ns, max_gap_periods,
+                        starts) if isinstance(x, tuple) else x
+        for x in report.signals
+    ]
     if not report.signals and not report.skipped:
         raise MsgToolsError(f"nothing to compare: no topics in {a_name} or {b_name}")
     return report

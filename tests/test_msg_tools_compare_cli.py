@@ -462,3 +462,33 @@ def test_tf_transforms_are_compared_by_child_frame(tmp_path):
     assert same.passed and "tf/transforms[wheel_3_link].transform.rotation.w" in [s.name for s in same.signals]
     report = compare(b, a)
     assert not report.passed and report.worst.name == "tf/transforms[wheel_3_link].transform.rotation.w"
+
+
+def test_a_topic_logged_late_in_one_file_fails_whatever_its_lag(tmp_path):
+    """The time base was chosen signal by signal: a /shaft_speed logged 5 ms late failed, 60 ms late passed (its own
+    coverage fell under 99 %, so it alone was compared from its own start). One base for the file pair: both fail,
+    and two runs started seconds apart still compare from their starts."""
+    from belt_drive_ros.cli import main as belt_drive
+
+    a = tmp_path / "a.mcap"
+    assert belt_drive(["sim", "paper", "--start-time", "0", "--method", "etd4", "--out", str(a)]) == 0
+    for lag in (5_000_000, 60_000_000):
+        late = tmp_path / f"late{lag}.mcap"
+        with Ros2McapWriter(late) as w:
+            for topic in ("/shaft_speed", "/belt_torque"):
+                data = read_topic(a, topic)
+                shift = lag if topic == "/shaft_speed" else 0
+                for t, v in zip(data.log_time_ns, data.data):
+                    w.write(topic, "std_msgs/msg/Float64", {"data": float(v)}, int(t) + shift)
+        report = compare(late, a, topics=["/shaft_speed", "/belt_torque"])
+        result = {s.name: s.passed for s in report.signals}
+        assert result == {"shaft_speed/data": False, "belt_torque/data": True}, (lag, report.table())
+    # the whole file 100 s later: relative, passes (and says so)
+    shifted = tmp_path / "shifted.mcap"
+    with Ros2McapWriter(shifted) as w:
+        for topic in ("/shaft_speed", "/belt_torque"):
+            data = read_topic(a, topic)
+            for t, v in zip(data.log_time_ns, data.data):
+                w.write(topic, "std_msgs/msg/Float64", {"data": float(v)}, int(t) + 100 * 10**9)
+    report = compare(shifted, a, topics=["/shaft_speed", "/belt_torque"])
+    assert report.passed and report.time_base == "relative" and "time base: relative" in report.table()
