@@ -497,6 +497,9 @@ def compare(
                 SignalResult(short, False, reason=f"type {da.type_name} in A but {db.type_name} in B")
             )
             continue
+        if not len(da) and not len(db):  # (a channel declared in both, never written: nothing differs)
+            report.skipped.append((topic, "no messages in either file"))
+            continue
         if not len(da) or not len(db):
             report.signals.append(SignalResult(short, False, reason=f"no samples in {'A' if not len(da) else 'B'}"))
             continue

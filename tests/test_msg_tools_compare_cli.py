@@ -492,3 +492,28 @@ def test_a_topic_logged_late_in_one_file_fails_whatever_its_lag(tmp_path):
                 w.write(topic, "std_msgs/msg/Float64", {"data": float(v)}, int(t) + 100 * 10**9)
     report = compare(shifted, a, topics=["/shaft_speed", "/belt_torque"])
     assert report.passed and report.time_base == "relative" and "time base: relative" in report.table()
+
+
+def test_a_topic_without_messages_in_both_files_is_skipped_not_failed(tmp_path):
+    """A channel declared and never written (a recorder's, a re-simulation's passthrough) in both of two identical
+    files failed 'no samples in A'. Skipped, with the reason."""
+    import struct
+
+    from mcap.writer import Writer
+
+    def write(path):
+        with open(path, "wb") as f:
+            w = Writer(f)
+            w.start(profile="ros2", library="test")
+            schema = w.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data")
+            x = w.register_channel("/x", "cdr", schema)
+            w.register_channel("/empty", "cdr", schema)  # declared, never written
+            for k in range(10):
+                w.add_message(x, log_time=k * 10**6, publish_time=k * 10**6,
+                              data=b"\x00\x01\x00\x00" + struct.pack("<d", float(k)))
+            w.finish()
+        return path
+
+    report = compare(write(tmp_path / "a.mcap"), write(tmp_path / "b.mcap"))
+    assert report.passed and ("/empty", "no messages in either file") in report.skipped
+    assert [s.name for s in report.signals] == ["x/data"]
