@@ -55,9 +55,13 @@ class Lockstep:
             from sensor_msgs.msg import JointState
 
             self.got["joint_states"] = []
-            self.subs.append(self.probe.create_subscription(
-                JointState, "joint_states", lambda m: self.got["joint_states"].append(
-                    tuple(m.position) + tuple(m.velocity) + tuple(m.effort)), reliable))
+            self.joint_stamps = []  # (each message's header stamp [ns])
+
+            def on_joints(m):
+                self.joint_stamps.append(m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec)
+                self.got["joint_states"].append(tuple(m.position) + tuple(m.velocity) + tuple(m.effort))
+
+            self.subs.append(self.probe.create_subscription(JointState, "joint_states", on_joints, reliable))
         self.executor = make_executor(self.context, "single")
         self.executor.add_node(self.node)
         self.executor.add_node(self.probe)
@@ -424,9 +428,12 @@ def test_a_clock_between_grid_points_publishes_the_last_grid_points_state_at_its
             _clock(h, START_NS + int(t * TICK_NS), START_NS + k * TICK_NS)
         published = h.node.counters["published"]
         odd = list(h.got["joint_states"])
+        stamps = list(h.joint_stamps)
     finally:
         h.close()
     assert published == 9 and len(odd) == 9  # start and ticks 1-8, each once (4.7 published nothing)
+    # each stamped at its grid point, as /tf and the recording (joint_states said 7.6 ms for the state of 7 ms)
+    assert stamps == [START_NS + k * TICK_NS for k in range(9)]
     on_grid = _lockstep_run(Lockstep(ros_domain_id, joints=True), range(1, 9), {})
     assert odd == on_grid["joint_states"]
 

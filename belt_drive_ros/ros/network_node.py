@@ -279,8 +279,9 @@ class NetworkSimulation:
             pending = self._pending()
             for _, i, value in pending:  # the torques the tick's joint values show (held only after the steps)
                 stepper.stage(i, value)
-        try:
-            self.x = stepper.tick(self.x, self.k, k1, now_ns)
+        t1 = self.origin_ns + round(k1 * self._dt_ns)  # (now_ns itself on the grid)
+        try:  # joint_states stamped at the grid point whose state it carries, as /tf and the recording's log time
+            self.x = stepper.tick(self.x, self.k, k1, t1)
         except (SimulationDivergedError, ArithmeticError, ValueError) as exc:
             self.counters["divergences"] += 1
             self.last_divergence = (str(exc), now_ns)
@@ -288,7 +289,7 @@ class NetworkSimulation:
             self.start(now_ns, "diverged")
             return True
         self.k = k1
-        self.t_ns = self.origin_ns + round(k1 * self._dt_ns)  # (now_ns itself on the grid)
+        self.t_ns = t1
         if pending is not self._held:  # (else held already: holding the same values again changes nothing)
             self._sample(pending)
         return True
