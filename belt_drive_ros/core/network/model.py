@@ -105,7 +105,23 @@ class NetworkModel:
         K = a.T @ (kj[:, None] * a)
         if scene.tensioner:
             K[arm, arm] += scene.tensioner.spring_rate
-        return cls(scene, a, kj, cj, M, C, K, g, dg, arm)
+        model = cls(scene, a, kj, cj, M, C, K, g, dg, arm)
+        model._check_arm_stable()
+        return model
+
+    def _check_arm_stable(self) -> None:
+        """Refuse (:class:`SceneError`) a tensioner whose arm is unstable at its installed angle: the installed
+        stiffness ``K + k_geo e_a e_a^T`` has a negative eigenvalue (the belt's geometric stiffness pulls the arm
+        away faster than its spring and the belt hold it). Every tier ran it, and the step guard blamed the step."""
+        if self.arm < 0:
+            return
+        eig = np.linalg.eigvalsh(0.5 * (self.stiffness() + self.stiffness().T))
+        if eig[0] < -1e-9 * max(float(np.max(np.abs(eig))), 1e-300):
+            k_geo = self.geometric_stiffness(np.full(len(self.k), self.scene.belt.installed_tension))
+            raise SceneError(
+                f"tensioner.spring_rate: the arm is unstable at its installed angle (the belt's geometric stiffness "
+                f"{k_geo:.4g} N m/rad outweighs the spring's {self.scene.tensioner.spring_rate:g} N m/rad and the "
+                "belt's stretch); a stiffer spring, a stiffer belt (belt.EA) or another arm geometry holds it")
 
     # ------------------------------------------------------------------ pieces
     def geometric_stiffness(self, tensions) -> float:
