@@ -529,3 +529,36 @@ def test_a_tensioner_arm_unstable_at_its_installed_angle_is_refused_naming_the_s
     path.write_text(yaml.safe_dump(data))
     assert main(["modes", str(path)]) == 0
     load_network("fead_i4")  # (the shipped scenes: stable)
+
+
+def test_network_scene_edges_named_and_a_network_file_by_any_name(tmp_path, capsys):
+    """A network file named .YAML (or without .yaml) was taken for a drive scene and told to use the command just
+    run; a scene name that is a mapping printed as the name; a pulley centre at 1e8 m ran (a 2e8 m belt); a run-up of
+    6e7 steps allocated ~8 GB where sim refuses past 5e6 samples; the excitation of a 4-cylinder's 2nd firing
+    harmonic was 'firing order 2' (it is engine order 4)."""
+    import yaml
+
+    from belt_drive_ros.cli import main
+    from belt_drive_ros.io.scenes import _shipped_text, is_network
+
+    text = _shipped_text("fead_i4", "networks")
+    for name in ("net.YAML", "net"):
+        (tmp_path / name).write_text(text)
+        assert is_network(tmp_path / name)
+    assert main(["sim", str(tmp_path / "net.YAML"), "--duration", "0.01", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "engine order 4 reaches" in out
+    for change, message in ((lambda d: d.update(name={"a": 1}), "name: expected text, got dict"),
+                            (lambda d: d["pulleys"][2].update(centre=[1e8, 0.1]),
+                             "pulleys.alternator.centre[0]: 1e+08 is outside the plausible range (up to 1000)"),
+                            (lambda d: d.update(dt=1e-5), None)):
+        data = yaml.safe_load(text)
+        change(data)
+        path = tmp_path / "changed.yaml"
+        path.write_text(yaml.safe_dump(data))
+        if message is None:
+            assert main(["modes", str(path), "--runup", str(tmp_path / "r.png"), "--runup-time", "600"]) == 2
+            assert "a network run keeps at most 5,000,000 samples" in capsys.readouterr().err
+        else:
+            assert main(["sim", str(path), "--quiet"]) == 2
+            assert message in capsys.readouterr().err

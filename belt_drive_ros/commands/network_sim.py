@@ -18,8 +18,8 @@ def _refuse_unsupported(args) -> None:
                                       ("--bag-folder", args.bag_folder),
                                       ("--tolerance", getattr(args, "tolerance", None) is not None)) if value]
     if given:
-        raise SceneError(f"{given[0]}: not available for a belt network scene yet (its linear tier runs; "
-                         "see docs/serpentine.md)")
+        raise SceneError(f"{given[0]}: not available for a belt network scene yet (docs/serpentine.md says what "
+                         "a network run takes)")
 
 
 def columns(scene, run):

@@ -380,8 +380,10 @@ class _Pulsating(TorqueProfile):
         return (float(self.ramp_time),) if self.ramp_time > 0 else ()
 
     def _orders(self, per_revolution: float, f_rev: float, label: str) -> list[tuple[float, str]]:
-        """``k per_revolution f_rev`` [Hz] of each non-zero harmonic k, at ``f_rev`` revolutions per second."""
-        return [(k * per_revolution * f_rev, f"{label} {k}") for k, a in enumerate(self.harmonics, start=1) if a]
+        """``k per_revolution f_rev`` [Hz] of each non-zero harmonic k, at ``f_rev`` revolutions per second, labelled
+        by its order (per revolution of the shaft: a 4-cylinder four-stroke's 2nd firing harmonic is order 4)."""
+        return [(k * per_revolution * f_rev, f"{label} {k * per_revolution:g}")
+                for k, a in enumerate(self.harmonics, start=1) if a]
 
 
 @_register
@@ -446,7 +448,7 @@ class Engine(_Pulsating):
                            self.pulses_per_revolution, self.crank_ratio, self.phase, _fade_time(self.ramp_time), offset, n)
 
     def excitation_frequencies(self, speed):
-        return self._orders(self.pulses_per_revolution, abs(speed) * self.crank_ratio / (2.0 * math.pi), "engine firing order")
+        return self._orders(self.pulses_per_revolution, abs(speed) * self.crank_ratio / (2.0 * math.pi), "engine order")
 
 
 @_register

@@ -102,7 +102,7 @@ def is_network(name_or_path: str | Path) -> bool:
     if label in shipped_networks():
         return True
     path = Path(label)
-    if path.suffix not in (".yaml", ".yml"):
+    if path.suffix.lower() in (".mcap", ".csv", ".png"):  # (any other name of a regular file is a scene's: looked into)
         return False
     try:
         regular = stat.S_ISREG(os.stat(path).st_mode)

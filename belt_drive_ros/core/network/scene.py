@@ -46,7 +46,8 @@ def _number(where: str, value, low: float = 0.0, strict: bool = False, top: floa
 def _point(where: str, value) -> tuple[float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 2:
         raise SceneError(f"{where}: expected [x, y] in m, got {short(value)}")
-    return (_number(f"{where}[0]", value[0], low=-1.0e3), _number(f"{where}[1]", value[1], low=-1.0e3))
+    return (_number(f"{where}[0]", value[0], low=-1.0e3, top=1.0e3),  # (a drive within 1 km either way)
+            _number(f"{where}[1]", value[1], low=-1.0e3, top=1.0e3))
 
 
 def _keys(where: str, data, allowed: tuple, required: tuple) -> dict:
@@ -319,6 +320,9 @@ class NetworkScene:
         if duration / dt > 1.0e8:
             raise SceneError(f"dt: {dt:g} s over {duration:g} s is more than 1e8 steps")
         speed = _number("initial_speed", data["initial_speed"], low=-1.0e4, top=1.0e4)
+        for key in ("name", "description"):  # (a mapping or bytes printed as the scene's name)
+            if key in data and not isinstance(data[key], str):
+                raise SceneError(f"{key}: expected text, got {type(data[key]).__name__} {short(data[key])}")
         return cls(
             name=str(data.get("name", name)), description=str(data.get("description", "")).strip(),
             pulleys=tuple(pulleys), belt=Belt(EA, damping, mass, T0), tensioner=tensioner,
