@@ -227,12 +227,16 @@ def signals_of(data: TopicData) -> Dict[str, Tuple[np.ndarray, np.ndarray]]:
                     continue
                 out[f"{base}/{fname}[{joint}]"] = (t, column)
     else:
+        sparse = getattr(data, "sparse", set()) or set()
         for key, values in data.fields.items():
-            if values.ndim == 1:
-                out[f"{base}/{key}"] = (data.log_time_ns, values)
-            else:
-                for k in range(values.shape[1]):
-                    out[f"{base}/{key}[{k}]"] = (data.log_time_ns, values[:, k])
+            columns = [(f"{base}/{key}", values)] if values.ndim == 1 else [
+                (f"{base}/{key}[{k}]", values[:, k]) for k in range(values.shape[1])]
+            for name, column in columns:
+                if key in sparse:  # the messages that have it (a frame of an alternating /tf)
+                    keep = ~np.isnan(column)
+                    out[name] = (data.log_time_ns[keep], column[keep])
+                else:
+                    out[name] = (data.log_time_ns, column)
     return out
 
 

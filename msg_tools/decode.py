@@ -348,23 +348,36 @@ def _numeric_leaves(obj: Any, prefix: str = "") -> Dict[str, Any]:
     return out
 
 
-def _generic_fields(objs: Sequence[Any]) -> Dict[str, np.ndarray]:
+def _generic_fields(objs: Sequence[Any]) -> Tuple[Dict[str, np.ndarray], set]:
+    """``(fields, sparse)``: each numeric leaf of the messages as an array over them, in order of first appearance;
+    a leaf some messages lack is NaN there, an array leaf whose length varies NaN-padded, both named in ``sparse``
+    (only the leaves every message had were kept: a ``/tf`` of one transform per message, its frames alternating,
+    had none, and compare skipped it)."""
     if not objs:
-        return {}
+        return {}, set()
     leaves = [_numeric_leaves(m) for m in objs]
-    common = set(leaves[0])
-    for item in leaves[1:]:
-        common &= set(item)
+    keys: Dict[str, None] = {}
+    for item in leaves:
+        keys.update(dict.fromkeys(item))
     out: Dict[str, np.ndarray] = {}
-    for key in sorted(common, key=list(leaves[0]).index):
-        values = [item[key] for item in leaves]
-        if isinstance(values[0], tuple):
-            if len({len(v) for v in values}) != 1:
-                continue
-            out[key] = np.asarray(values, dtype=np.float64)
+    sparse: set = set()
+    for key in keys:
+        values = [item.get(key) for item in leaves]
+        lengths = {len(v) for v in values if isinstance(v, tuple)}
+        if lengths:  # an array leaf: (N, longest), NaN where shorter or absent
+            width = max(lengths)
+            column = np.full((len(values), width), np.nan)
+            for k, v in enumerate(values):
+                if isinstance(v, tuple):
+                    column[k, : len(v)] = v
+            if len(lengths) > 1 or any(not isinstance(v, tuple) for v in values):
+                sparse.add(key)
         else:
-            out[key] = np.asarray(values, dtype=np.float64)
-    return out
+            column = np.array([np.nan if v is None else v for v in values], dtype=np.float64)
+            if any(v is None for v in values):
+                sparse.add(key)
+        out[key] = column
+    return out, sparse
 
 
 
@@ -447,7 +460,8 @@ def _build(scan: Scan, channel_ids: List[int], topic: str) -> TopicData:
             raise DecodeError(f"{topic}: channel has no schema; cannot decode")
         objs = _decode_objects(datas, type_name, schema, topic)
         data.messages = objs
-        data.fields.update(_generic_fields(objs))
+        fields, data.sparse = _generic_fields(objs)
+        data.fields.update(fields)
         data.decoder = "mcap_ros2"
     return data
 

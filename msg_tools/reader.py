@@ -147,10 +147,28 @@ def _merge_topic(parts: List[TopicData]) -> TopicData:
     if failed:
         merged.decoder = "failed"
         return merged
-    if any(p.names != first.names or set(p.fields) != set(first.fields) for p in parts if len(p)):
+    generic = first.decoder == "mcap_ros2"  # (a type decoded message by message: its fields may differ by file)
+    if any(p.names != first.names or (set(p.fields) != set(first.fields) and not generic) for p in parts if len(p)):
         raise DecodeError(f"{first.topic}: the files of the split bag hold different joints or fields")
-    for key in first.fields:
-        merged.fields[key] = np.concatenate([p.fields[key] for p in parts if key in p.fields])
+    keys = dict.fromkeys(k for p in parts if len(p) for k in p.fields) if generic else dict.fromkeys(first.fields)
+    merged.sparse = set().union(*(p.sparse for p in parts))
+    for key in keys:
+        shapes = {p.fields[key].shape[1:] for p in parts if len(p) and key in p.fields}
+        width = max(shapes)
+        if not (len(shapes) > 1 or any(len(p) and key not in p.fields for p in parts)):
+            merged.fields[key] = np.concatenate([p.fields[key] for p in parts if key in p.fields])  # (its dtype kept)
+            continue
+        merged.sparse.add(key)  # a file without it, or narrower: NaN there
+        pieces = []
+        for p in parts:
+            if not len(p) and key not in p.fields:
+                continue
+            column = p.fields.get(key)
+            padded = np.full((len(p), *width), np.nan)
+            if column is not None:
+                padded[(slice(None), *(slice(0, n) for n in column.shape[1:]))] = column
+            pieces.append(padded)
+        merged.fields[key] = np.concatenate(pieces)
     if any(p.messages is not None for p in parts):
         merged.messages = [m for p in parts for m in (p.messages or [])]
     if merged.log_time_ns.size > 1 and np.any(np.diff(merged.log_time_ns) < 0):

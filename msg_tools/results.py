@@ -36,7 +36,8 @@ class TopicData:
         Decoded values. ``Float64``: ``data`` (N,). ``JointState``: ``stamp``
         (N,) [s], ``stamp_ns`` (N,) int64 [ns], ``position``/``velocity``/
         ``effort`` (N, J) (NaN where a message has no value). Other types: the
-        numeric fields found in every message, by dotted path.
+        numeric fields by dotted path; one that some messages lack (or an
+        array whose length varies) is NaN there and named in ``sparse``.
     names : list of str
         Joint names (columns of the JointState arrays); empty for other types.
     messages : list or None
@@ -63,6 +64,9 @@ class TopicData:
     complete: bool = True
     stop_reason: str = ""
     decode_error: str = ""
+    #: fields some messages lack (NaN there): a ``/tf`` of one transform per message, alternating frames; an
+    #: array whose length varies (padded with NaN). Their samples are the messages that have them.
+    sparse: set = field(default_factory=set)
 
     def __len__(self) -> int:
         return int(self.log_time_ns.shape[0])

@@ -517,3 +517,49 @@ def test_a_topic_without_messages_in_both_files_is_skipped_not_failed(tmp_path):
     report = compare(write(tmp_path / "a.mcap"), write(tmp_path / "b.mcap"))
     assert report.passed and ("/empty", "no messages in either file") in report.skipped
     assert [s.name for s in report.signals] == ["x/data"]
+
+
+def test_a_tf_of_one_transform_per_message_and_a_varying_array_are_compared(tmp_path):
+    """Only the leaves every message had were kept: a /tf whose messages carry one transform each, frames
+    alternating (several broadcasters), had none and was skipped, its translations 1000x off passing; a
+    Float64MultiArray whose length varies kept only layout.data_offset. Each leaf is now compared over the messages
+    that have it."""
+    from mcap_ros2.writer import Writer
+
+    from msg_tools.schemas import schema_text
+
+    tf_def = schema_text("tf2_msgs/msg/TFMessage")  # (with its dependencies, as a ros2msg schema holds them)
+    sep = "\n" + "=" * 80 + "\n"
+    array_def = ("std_msgs/MultiArrayLayout layout\nfloat64[] data" + sep + "MSG: std_msgs/MultiArrayLayout\n"
+                 "MultiArrayDimension[] dim\nuint32 data_offset" + sep + "MSG: std_msgs/MultiArrayDimension\n"
+                 "string label\nuint32 size\nuint32 stride\n")
+
+    def write(path, scale, lengths):
+        with open(path, "wb") as f:
+            w = Writer(f)
+            tf = w.register_msgdef("tf2_msgs/msg/TFMessage", tf_def)
+            arr = w.register_msgdef("std_msgs/msg/Float64MultiArray", array_def)
+            for k in range(40):
+                t = k * 10_000_000
+                frame = ("wheel_a", "wheel_b")[k % 2]
+                msg = {"transforms": [{"header": {"stamp": {"sec": 0, "nanosec": t}, "frame_id": "base"},
+                                       "child_frame_id": frame,
+                                       "transform": {"translation": {"x": scale * k, "y": 0.0, "z": 0.0},
+                                                     "rotation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}]}
+                w.write_message("/tf", tf, msg, log_time=t, publish_time=t)
+                n = lengths[k % len(lengths)]
+                w.write_message("/arr", arr, {"layout": {"dim": [], "data_offset": 0},
+                                              "data": [scale * (k + j) for j in range(n)]}, log_time=t, publish_time=t)
+            w.finish()
+        return path
+
+    ok = write(tmp_path / "ok.mcap", 1.0, (2, 3))
+    bad = write(tmp_path / "bad.mcap", 1000.0, (2, 3))
+    same = compare(write(tmp_path / "same.mcap", 1.0, (2, 3)), ok)
+    assert same.passed and {"tf/transforms[wheel_a].transform.translation.x",
+                            "tf/transforms[wheel_b].transform.translation.x", "arr/data[2]"} <= {
+        s.name for s in same.signals}
+    report = compare(bad, ok)
+    failed = {s.name for s in report.failures}
+    assert "tf/transforms[wheel_a].transform.translation.x" in failed and "arr/data[2]" in failed
+    assert not any(topic == "/tf" for topic, _ in report.skipped)
