@@ -32,6 +32,7 @@ __all__ = ["FLOAT64", "JOINT_STATE", "Payloads", "build_topic", "decode_float64"
 
 FLOAT64 = "std_msgs/msg/Float64"
 JOINT_STATE = "sensor_msgs/msg/JointState"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 
 
 class Payloads:
@@ -260,6 +261,81 @@ def _decode_joint_state_vectorized(datas: "Payloads") -> Optional[Dict[str, Any]
     return out
 
 
+class LazyMessages:
+    """Message objects decoded when read (``data.messages[k]``, iteration): the payloads are kept, not the objects
+    (for a topic the vectorized decoders read, whose objects would take ~55x the bytes)."""
+
+    def __init__(self, payloads: List[bytes], decoder: Callable[[bytes], Any]):
+        self._payloads, self._decoder = payloads, decoder
+
+    def __len__(self) -> int:
+        return len(self._payloads)
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return LazyMessages(self._payloads[k], self._decoder)
+        return self._decoder(self._payloads[k])
+
+    def __iter__(self):
+        return (self._decoder(p) for p in self._payloads)
+
+    def reordered(self, order) -> "LazyMessages":
+        return LazyMessages([self._payloads[int(i)] for i in order], self._decoder)
+
+    @staticmethod
+    def joined(parts: List["LazyMessages"]) -> "LazyMessages":
+        return LazyMessages([p for part in parts for p in part._payloads], parts[0]._decoder)
+
+
+#: the numeric leaves of a TransformStamped's transform, in the order the generic decoder names them
+_TF_LEAVES = tuple(f"transform.{part}.{axis}" for part, axes in (("translation", "xyz"), ("rotation", "xyzw"))
+                   for axis in axes)
+
+
+def _decode_tf_vectorized(datas: "Payloads") -> Optional[Dict[str, np.ndarray]]:
+    """The fields of ``tf2_msgs/TFMessage`` messages of one layout (the same frames in the same order, every message
+    the same length: a recorder's, a robot_state_publisher's) as arrays, by the generic decoder's names
+    (``transforms[CHILD].transform.translation.x`` ...), read straight from the bytes; None where the layout varies
+    (the generic decoder reads those). Decoding each message into objects took ~55x the file's size in memory."""
+    try:
+        first = datas[0]
+        if len(first) < 8 or first[0] != 0 or first[1] > 1:
+            return None
+        cur = _Cursor(first)
+        mask = np.zeros(len(first), dtype=bool)
+        mask[0:2] = True
+        mask[4:8] = True  # the sequence's length
+        count = cur.u32()
+        offsets: Dict[str, int] = {}
+        for _ in range(count):
+            cur.align(4)
+            cur.pos += 8  # header.stamp: sec, nanosec (not compared: the generic decoder leaves times out)
+            for _string in range(2):  # header.frame_id, child_frame_id
+                text, a, b = cur.string()
+                mask[a:b] = True
+            child = text
+            cur.align(8)
+            if not child or cur.pos + 56 > len(first) or f"transforms[{child}].{_TF_LEAVES[0]}" in offsets:
+                return None  # (no label, or a frame twice: the generic decoder's rules)
+            for k, leaf in enumerate(_TF_LEAVES):
+                offsets[f"transforms[{child}].{leaf}"] = cur.pos + 8 * k
+            cur.pos += 56
+    except (DecodeError, struct.error, UnicodeDecodeError, IndexError):
+        return None
+    length = len(first)
+    if datas.fixed_length() != length or cur.pos != length:
+        return None
+    raw = datas.matrix(length)
+    cols = np.flatnonzero(mask)
+    reference = raw[0, cols]
+    for block in range(0, len(datas), 65536):  # bounded temporary memory
+        if not (raw[block : block + 65536, cols] == reference).all():
+            return None
+    e = "<" if cur.little else ">"
+    return {key: np.ascontiguousarray(raw[:, at : at + 8]).view(e + "f8").ravel().astype(np.float64)
+            for key, at in offsets.items()}
+
+
 def _decode_joint_state_objects(objs: Sequence[Any]) -> Dict[str, Any]:
     """Build JointState arrays from decoded messages; joints = union of names."""
     names: List[str] = []
@@ -455,6 +531,10 @@ def _build(scan: Scan, channel_ids: List[int], topic: str) -> TopicData:
         data.fields["stamp"] = decoded["stamp_ns"].astype(np.float64) * 1e-9
         for fname in ("position", "velocity", "effort"):
             data.fields[fname] = decoded[fname]
+    elif type_name == TF_MESSAGE and (tf := _decode_tf_vectorized(datas)) is not None:
+        data.fields.update(tf)
+        data.messages = LazyMessages(list(datas), _decoder_for(type_name, schema))  # (objects when read)
+        data.decoder = "vectorized"
     else:
         if not type_name:
             raise DecodeError(f"{topic}: channel has no schema; cannot decode")

@@ -169,13 +169,20 @@ def _merge_topic(parts: List[TopicData]) -> TopicData:
                 padded[(slice(None), *(slice(0, n) for n in column.shape[1:]))] = column
             pieces.append(padded)
         merged.fields[key] = np.concatenate(pieces)
-    if any(p.messages is not None for p in parts):
+    from .decode import LazyMessages
+
+    kept = [p.messages for p in parts if p.messages is not None]
+    if kept and all(isinstance(m, LazyMessages) for m in kept):  # (still decoded when read)
+        merged.messages = LazyMessages.joined(kept)
+    elif kept:
         merged.messages = [m for p in parts for m in (p.messages or [])]
     if merged.log_time_ns.size > 1 and np.any(np.diff(merged.log_time_ns) < 0):
         order = np.argsort(merged.log_time_ns, kind="stable")
         merged.log_time_ns, merged.publish_time_ns = merged.log_time_ns[order], merged.publish_time_ns[order]
         merged.fields = {k: v[order] for k, v in merged.fields.items()}
-        if merged.messages is not None:
+        if isinstance(merged.messages, LazyMessages):
+            merged.messages = merged.messages.reordered(order)
+        elif merged.messages is not None:
             merged.messages = [merged.messages[i] for i in order]
     return merged
 

@@ -40,8 +40,9 @@ class TopicData:
         array whose length varies) is NaN there and named in ``sparse``.
     names : list of str
         Joint names (columns of the JointState arrays); empty for other types.
-    messages : list or None
-        Decoded message objects for types without a vectorized decoder.
+    messages : sequence or None
+        Decoded message objects for types without a vectorized decoder, and
+        for ``/tf`` (decoded when read there: ``messages[k]``, iteration).
     decoder : str
         ``"vectorized"``, ``"mcap_ros2"``, ``"none"`` (no messages) or
         ``"failed"`` (see ``decode_error``).
