@@ -144,7 +144,7 @@ def read_summary(buf: Any, *, path: Optional[str] = None,
             return None, ""
         if summary.statistics is None:
             return None, "summary section has no statistics record"
-        metadata = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
+        metadata, metadata_problems = _metadata_records(buf, summary)
         try:
             header, header_problem = reader.get_header(), ""
         except Exception as exc:  # noqa: BLE001 - a damaged header record: the summary stands on its own
@@ -156,9 +156,9 @@ def read_summary(buf: Any, *, path: Optional[str] = None,
             stream.close()
     out = IndexedSummary(summary, header.profile if header else "", header.library if header else "", metadata)
     if check:
-        out.problems = ([header_problem] if header_problem else []) + _check(buf, summary)
-    elif header_problem:
-        out.problems = [header_problem]
+        out.problems = ([header_problem] if header_problem else []) + metadata_problems + _check(buf, summary)
+    elif header_problem or metadata_problems:
+        out.problems = ([header_problem] if header_problem else []) + metadata_problems
     out.topic_times = _topic_times(buf, summary, trust_message_indexes=not out.problems)
     return out, ""
 
@@ -169,8 +169,30 @@ def _first_line(exc: BaseException) -> str:
 
 
 def chunks_readable(indexed: IndexedSummary) -> bool:
-    """The chunk index can be followed: every problem found is the header record's, not the indexes'."""
-    return all(p.startswith("the header record") for p in indexed.problems)
+    """The chunk index can be followed: every problem found is the header record's or a metadata record's, not the
+    indexes'."""
+    return all(p.startswith(("the header record", "metadata record")) for p in indexed.problems)
+
+
+def _metadata_records(buf: Any, summary: Any) -> Tuple[List[Tuple[str, Dict[str, str]]], List[str]]:
+    """``(records, problems)``: each metadata record the metadata indexes point at, read on its own (one flipped byte
+    in one made the whole summary unreadable: a finished file read as cut off, 0 messages), and what could not be."""
+    from .scan import _read_map, _read_str
+
+    records, problems = [], []
+    for idx in summary.metadata_indexes:
+        try:
+            at, length = int(idx.offset), int(idx.length)
+            if not (9 <= length and at + length <= len(buf)) or buf[at] != 0x0C:
+                raise ValueError("no metadata record there")
+            body = memoryview(buf)[at + 9 : at + length]
+            name, off = _read_str(body, 0)
+            values, _ = _read_map(body, off)
+            records.append((name, values))
+        except Exception as exc:  # noqa: BLE001 - a damaged record: said, the others kept
+            problems.append(f"metadata record {str(idx.name)[:60]!r} at byte {idx.offset} cannot be read "
+                            f"({_first_line(exc)})")
+    return records, problems
 
 
 def _summary_crc_ok(buf: Any) -> bool:
