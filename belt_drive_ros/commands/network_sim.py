@@ -193,7 +193,8 @@ def resimulate(args) -> int:
             stepper.hold(i, None)
         with atomic_output(args.out, args.force, what="output") as fh:
             counts = write_network_mcap(stepper, rec.text, states, [j * sub for j in rec.ticks], fh, force=True,
-                                        start_time_ns=rec.start_ns, held=changes, namespace=rec.namespace)
+                                        start_time_ns=rec.start_ns, held=changes, namespace=rec.namespace,
+                                        received=rec.received)
         print(f"wrote {args.out} ({sum(counts.values())} messages on {len(counts)} topics)")
     return 0
 

@@ -39,7 +39,7 @@ the run exactly (``belt-drive sim REC.mcap``).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
@@ -358,12 +358,14 @@ def network_record(scene, text: str, *, method: str, dt: float, tick_ns: int, so
 
 def write_network_mcap(stepper, text: str, states, steps: Sequence[int], path, *, force: bool = False,
                        start_time_ns: int = 0, held: Optional[Sequence[Tuple[int, int, float]]] = None,
-                       source: str = "offline", namespace: str = "/") -> Dict[str, int]:
+                       source: str = "offline", namespace: str = "/",
+                       received: Sequence[Tuple[str, int, float]] = ()) -> Dict[str, int]:
     """Write a run's states ``(N, 2m)`` at the grid steps ``steps`` (``k dt``) as the node would publish them.
 
     Each sample's outputs come from the stepper's one-sample evaluation (the node's), so a node run and its
     offline twin give equal bytes. ``held``: ``(step, pulley, value)`` where a held input took effect (a
     re-simulated recording); they are written as ``..._applied`` at each written sample while in force.
+    ``received``: a recording's inputs as received ``(relative topic, log time [ns], value)``, passed through.
     """
     scene = stepper.scene
     layout = NetworkLayout(scene)
@@ -388,6 +390,8 @@ def write_network_mcap(stepper, text: str, states, steps: Sequence[int], path, *
             writer.write_sample(t_ns, joints, floats)
             for i, value in now.items():
                 writer.write_input(topic_of[i] + APPLIED, value, t_ns)
+        for topic, t_ns, value in received:  # the inputs as the node received them, passed through
+            writer.write_input(topic, value, t_ns)
     except BaseException:
         try:
             writer.writer.__exit__(RuntimeError, RuntimeError("aborted"), None)
@@ -416,6 +420,8 @@ class NetworkRecording:
     ticks: List[int]
     #: the node's namespace (its topics' prefix)
     namespace: str = "/"
+    #: the inputs as received: (relative topic, log time [ns], value [N m]) (a re-simulation passes them through)
+    received: List[Tuple[str, int, float]] = field(default_factory=list)
 
 
 def is_network_recording(path) -> bool:
@@ -482,6 +488,7 @@ def read_network_recording(path) -> NetworkRecording:
         layout = NetworkLayout(scene)
         namespace = record.get("namespace", "/")
         pulley_of = {_absolute(topic + APPLIED, namespace): i for topic, i in layout.inputs}
+        received_of = {_absolute(topic, namespace): topic for topic, _ in layout.inputs}
         joint_states = _absolute("joint_states", namespace)
         dt, tick_ns = float(record["dt"]), int(record["tick_ns"])
     except BagReadError:
@@ -515,7 +522,10 @@ def read_network_recording(path) -> NetworkRecording:
             held.append((k, i, value))
             last[i] = value
     ticks = [int(round((t - start) / tick_ns)) for t in times]
-    return NetworkRecording(scene, record["yaml"], record["method"], dt, tick_ns, start, times[-1], held, ticks, namespace)
+    received = [(received_of[topic], t, float(np.frombuffer(data[4:12], "<f8")[0]))
+                for topic, t, data in messages if topic in received_of and len(data) >= 12]
+    return NetworkRecording(scene, record["yaml"], record["method"], dt, tick_ns, start, times[-1], held, ticks,
+                            namespace, received)
 
 
 __all__ += ["NetworkRecording", "is_network_recording", "network_record", "scene_from_text"]
