@@ -255,21 +255,36 @@ def _errors(a: np.ndarray, b: np.ndarray, rtol: float, atol: float) -> Tuple[np.
     return err, rel, ratio
 
 
-def _holes(t: np.ndarray, max_gap_periods: float, origin_ns: int, duplicates: bool = True) -> str:
+def _holes(t: np.ndarray, max_gap_periods: float, origin_ns: int, duplicates: bool = True,
+           other: np.ndarray | None = None) -> str:
     """Why the time series ``t`` [ns] has holes ("" if none): duplicate stamps (unless ``duplicates`` is False),
-    or a gap longer than ``max_gap_periods`` median periods (0 disables the gap check)."""
+    or a gap longer than ``max_gap_periods`` median periods (0 disables the gap check). With ``other`` (the other
+    file's series), a gap between two stamps the other has as neighbours too, or duplicates of a stamp the other
+    has as often, is both files' (a /clock jump a recording and its re-simulation share): not a hole."""
     if t.size < 2:
         return ""
     d = np.diff(t)
     dup = np.flatnonzero(d == 0) if duplicates else np.empty(0, dtype=np.intp)
+    if dup.size and other is not None:  # (duplicates the other has at the same stamps: pair in order)
+        stamps, counts = np.unique(t[dup], return_counts=True)
+        theirs = np.searchsorted(other, stamps, side="right") - np.searchsorted(other, stamps, side="left")
+        shared = np.isin(t[dup], stamps[theirs >= counts + 1])
+        dup = dup[~shared]
     if dup.size:
         return (f"{dup.size} duplicate time stamps (first at t={(int(t[dup[0]]) - origin_ns) * 1e-9:.6g} s)")
     if max_gap_periods > 0 and t.size >= 3:
         period = float(np.median(d))
-        worst = int(np.argmax(d))
-        if period > 0 and d[worst] > max_gap_periods * period:
-            return (f"a gap of {d[worst] * 1e-9:.6g} s ({d[worst] / period:.1f} periods) at "
-                    f"t={(int(t[worst]) - origin_ns) * 1e-9:.6g} s")
+        if period > 0:
+            gaps = np.flatnonzero(d > max_gap_periods * period)
+            if gaps.size and other is not None:  # a gap the other has between the same two stamps
+                i = np.searchsorted(other, t[gaps])
+                ok = (i + 1 < other.size) & (other[np.minimum(i, other.size - 1)] == t[gaps])
+                ok &= other[np.minimum(i + 1, other.size - 1)] == t[gaps + 1]
+                gaps = gaps[~ok]
+            if gaps.size:
+                worst = int(gaps[np.argmax(d[gaps])])
+                return (f"a gap of {d[worst] * 1e-9:.6g} s ({d[worst] / period:.1f} periods) at "
+                        f"t={(int(t[worst]) - origin_ns) * 1e-9:.6g} s")
     return ""
 
 
@@ -325,7 +340,7 @@ def _compare_signal(
         # which arrived within one /clock period, logged at one time, passed through): the samples pair in order.
         # Only a gap or duplicates of one series are holes
         hole = _holes(t, 0.0 if identical else max_gap_periods, int(ta[0]) if which == "A" else int(tb[0]),
-                      duplicates=not identical)
+                      duplicates=not identical, other=tb if which == "A" else ta)
         if hole:
             return SignalResult(name, False, time_base="", reason=f"{hole} in {which}")
     if identical:
@@ -369,6 +384,14 @@ def _compare_signal(
         xa = (ta[mask] - t0).astype(np.float64)
         order = np.argsort(xb, kind="stable")
         b_on_a = np.interp(xa, xb[order], vb[order])
+        # a stamp both files have pairs exactly, each occurrence with the other's in order (duplicates both files
+        # have: interpolation took one of B's values for all of A's)
+        sb, vs, sa = tb[order], vb[order], ta[mask]
+        if sa.size and bool(np.all(sa[1:] >= sa[:-1])):  # (A's stamps in order: their occurrences are counted)
+            left, right = np.searchsorted(sb, sa, "left"), np.searchsorted(sb, sa, "right")
+            occurrence = np.arange(sa.size) - np.searchsorted(sa, sa, "left")
+            exact = left + occurrence < right
+            b_on_a[exact] = vs[(left + occurrence)[exact]]
     a = va[mask]
     err, rel, ratio = _errors(a, b_on_a, rtol, atol)
     worst = int(np.argmax(ratio))

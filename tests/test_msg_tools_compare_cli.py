@@ -563,3 +563,30 @@ def test_a_tf_of_one_transform_per_message_and_a_varying_array_are_compared(tmp_
     failed = {s.name for s in report.failures}
     assert "tf/transforms[wheel_a].transform.translation.x" in failed and "arr/data[2]" in failed
     assert not any(topic == "/tf" for topic, _ in report.skipped)
+
+
+def test_a_gap_and_duplicates_both_files_share_are_no_holes_though_one_file_is_longer(tmp_path):
+    """A gap or duplicate stamps both files have were excused only when the two time arrays were equal: with A one
+    sample shorter, compare failed 'a gap ... in A' / '1 duplicate time stamps ... in A' for what B has too. And
+    a duplicated stamp both files have now pairs each occurrence with the other's (interpolation took one of B's)."""
+    def write(path, stamps, values):
+        with Ros2McapWriter(path) as w:
+            for t, v in zip(stamps, values):
+                w.write("/x", "std_msgs/msg/Float64", {"data": float(v)}, int(t))
+        return path
+
+    stamps = [k * 1_000_000 for k in range(100)] + [k * 1_000_000 for k in range(300, 400)]  # a 0.2 s gap
+    stamps = stamps[:150] + [stamps[150]] + stamps[150:]  # and one stamp twice
+    values = [float(k) for k in range(len(stamps))]
+    b = write(tmp_path / "b.mcap", stamps, values)
+    a = write(tmp_path / "a.mcap", stamps[:-1], values[:-1])
+    report = compare(a, b, max_gap_periods=5.0)
+    assert report.passed, report.table()
+    other = write(tmp_path / "other.mcap", stamps[:-1], values[:150] + [values[150] + 1.0] + values[151:-1])
+    assert not compare(other, b).passed  # (the first occurrence differs: found)
+    # duplicates and a gap only A has are holes (B sampled once at each ms throughout)
+    assert "duplicate time stamps" in compare(
+        a, write(tmp_path / "plain.mcap", range(0, 400_000_000, 1_000_000), range(400))).signals[0].reason
+    gap_only = write(tmp_path / "gap_only.mcap", sorted(set(stamps)), range(len(set(stamps))))
+    assert "a gap of" in compare(
+        gap_only, write(tmp_path / "plain2.mcap", range(0, 400_000_000, 1_000_000), range(400))).signals[0].reason
