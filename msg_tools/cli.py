@@ -557,7 +557,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "common clock where the files' common time range covers --min-coverage of each, one base "
                         "for all signals")
     p.add_argument("--min-coverage", type=float, default=0.99,
-                   help="fraction of samples that must overlap in time (default 0.99)")
+                   help="fraction of each file's samples that must lie in their common time range (default "
+                        "0.99: a run up to 1%% shorter than the other passes; 1 fails any shortfall)")
     p.add_argument("--max-gap", type=float, default=5.0, metavar="PERIODS",
                    help="fail a signal with a gap longer than this many median sample periods "
                         "(default 5; 0: no gap check) unless both files have it at the same stamps; duplicate time "
