@@ -579,7 +579,7 @@ def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Option
     end_s = last_t
     if duration is None:
         duration = end_s if samples > 1 else scene.duration
-        if duration < RANGES["duration"][0]:
+        if 0.0 < duration < RANGES["duration"][0]:  # (refused by _check_span: the file closed first)
             chunked.close()
             _check_span(bag, duration)
     if not (duration > 0 and math.isfinite(duration)):
