@@ -562,3 +562,23 @@ def test_network_scene_edges_named_and_a_network_file_by_any_name(tmp_path, caps
         else:
             assert main(["sim", str(path), "--quiet"]) == 2
             assert message in capsys.readouterr().err
+
+
+def test_a_belt_looped_round_two_pulleys_whose_errors_cancel_is_refused(tmp_path, capsys):
+    """The backside idler moved above the belt (-2 pi in the turn count) and an inner idler put inside the loop
+    (+2 pi): the count said one turn, and a belt looped round both (wraps of 309 and 264 deg) ran. The spans at the
+    idler cross (an alpha loop): refused, naming it; each error alone was refused already."""
+    import yaml
+
+    from belt_drive_ros.cli import main
+    from belt_drive_ros.io.scenes import _shipped_text
+
+    data = yaml.safe_load(_shipped_text("fead_i4", "networks"))
+    next(p for p in data["pulleys"] if p["name"] == "idler")["centre"] = [0.0, 0.40]
+    data["pulleys"].append({"name": "ghost", "role": "idler", "centre": [-0.09, 0.10], "radius": 0.02,
+                            "inertia": 1e-4})
+    path = tmp_path / "looped.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    assert main(["scenes", str(path)]) == 2
+    assert "pulleys.idler: the spans water_pump -> idler and idler -> power_steering cross: not a simple loop" \
+        in capsys.readouterr().err

@@ -106,8 +106,23 @@ def layout(names, centres, radii, sides) -> Layout:
             if _segments_cross(a, b, leave[m], arrive[m]):
                 raise SceneError(f"pulleys.{names[k]}: not a simple loop: the span {names[j]} -> {names[k]} crosses "
                                  f"the span {names[m]} -> {names[(m + 1) % n]}")
+    _adjacent_spans_clear(names, leave, arrive)
     length = float(np.sum(L) + np.sum(r * wraps))
     return Layout(e, L, leave, arrive, wraps, length)
+
+
+def _adjacent_spans_clear(names, leave, arrive) -> None:
+    """Refuse a belt whose two spans at a pulley cross (an alpha loop round it): the turn count adds the wraps, so a
+    pulley passed on the wrong side (-2 pi) and another wrong the other way (+2 pi) summed to one turn, and a belt
+    looped round both (wraps of 309 and 264 deg) ran. (Arcs need no check of their own: a span that crosses another
+    pulley's arc cuts its circle, and circles do not overlap, both refused above.)"""
+    n = len(names)
+    for i in range(n):
+        j = (i - 1) % n
+        if j != i and _segments_cross(leave[j], arrive[j], leave[i], arrive[i]):
+            raise SceneError(f"pulleys.{names[i]}: the spans {names[j]} -> {names[i]} and {names[i]} -> "
+                             f"{names[(i + 1) % n]} cross: not a simple loop (a pulley on the wrong side of the "
+                             "belt, or listed out of order)")
 
 
 def _segments_cross(a, b, p, q) -> bool:
