@@ -200,3 +200,17 @@ def test_a_relative_tolerance_of_a_zero_base_value_is_refused():
     ok = Campaign.from_mapping({"scene": "paper", "monte_carlo": {"samples": 3, "vary": {
         "params.b_M": {"normal": [0.01, 0.001], "absolute": True}}}})
     assert ok.variants()["params.b_M"].nunique() == 3
+
+
+@pytest.mark.parametrize("out, message", [
+    ("/proc/belt_drive_x", "--out /proc/belt_drive_x: cannot make the folder (No such file or directory)"),
+    ("{tmp}/no/such/x", "--out {tmp}/no/such/x: the folder it goes in, {tmp}/no/such, does not exist"),
+])
+def test_an_out_folder_that_cannot_be_made_is_named_as_the_option(tmp_path, capsys, out, message):
+    """sweep --out /proc/x said '[Errno 2] No such file or directory: '/proc/x'', naming no option."""
+    from pathlib import Path
+
+    campaign = Path(__file__).resolve().parents[1] / "examples" / "paper_grid.yaml"
+    out = out.format(tmp=tmp_path)
+    assert main(["sweep", str(campaign), "--out", out, "--quiet", "--workers", "1"]) == 2
+    assert capsys.readouterr().err.strip() == f"belt-drive: error: {message.format(tmp=tmp_path)}"

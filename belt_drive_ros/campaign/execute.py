@@ -378,6 +378,11 @@ def check_out_folder(campaign: Campaign, out_dir: Path, *, csv: bool = False, pl
 
     if out_dir.exists() and not out_dir.is_dir():
         raise CampaignError(f"{out_dir}: exists and is not a folder; --out names the folder the results go to")
+    if not out_dir.exists():  # (its parent must take a folder: /proc/x failed after the estimate, naming no option)
+        parent = out_dir.absolute().parent
+        if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+            why = "does not exist" if not parent.is_dir() else "is not writable"
+            raise CampaignError(f"--out {out_dir}: the folder it goes in, {parent}, {why}")
     outputs = {name: option for name, option in OUT_FILES.items() if csv or option != "--csv"}
     if plots:
         charts = (HISTOGRAMS, SCATTER) + ((FLEET_WORST,) if campaign.golden_folder is not None else ())
@@ -475,7 +480,10 @@ def run_campaign(
                 for name in (*OUT_FILES, HISTOGRAMS, SCATTER, FLEET_WORST):  # (never an input: check_out_folder)
                     with contextlib.suppress(FileNotFoundError):
                         (out_dir / name).unlink()
-            parts_dir.mkdir(parents=True, exist_ok=True)
+            try:
+                parts_dir.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:  # (/proc/x: named, not "[Errno 2] No such file or directory: '/proc/x'")
+                raise CampaignError(f"--out {out_dir}: cannot make the folder ({exc.strerror or exc})") from None
             table.to_parquet(out_dir / "variants.parquet", index=False)
             manifest = {"digest": digest, "name": campaign.name, "variants": n, "bounds": None}
             manifest_path.write_text(json.dumps(manifest))
