@@ -545,3 +545,27 @@ def test_a_diverging_network_node_reports_error_on_diagnostics(ros_domain_id):
         assert diagnostics().level != DiagnosticStatus.ERROR
     finally:
         h.close()
+
+
+def test_the_network_node_takes_a_model_and_its_recording_resimulates_on_that_tier(tmp_path, ros_domain_id, capsys):
+    """The network node had no model parameter: its tier came from the scene's own profiles, even with the crank
+    driven from a topic (a constant crank profile picks rigid for a pulsating topic torque). model:=rigid runs the
+    rigid tier; the recording says so and its re-simulation steps that tier, bit for bit; a bad name is refused."""
+    from belt_drive_ros.cli import main
+    from belt_drive_ros.ros.network_node import NetworkSettings, PARAMETERS
+    from belt_drive_ros.ros.parameter_schema import NodeConfigError
+
+    with pytest.raises(NodeConfigError, match="model: one of auto, flexible, rigid, slipping, got 'stiff'"):
+        NetworkSettings.from_values({**{n: d for n, d, _ in PARAMETERS}, "scene": SCENE, "model": "stiff"})
+    rec = tmp_path / "rigid.mcap"
+    h = Lockstep(ros_domain_id, record_path=str(rec), model="rigid")
+    assert h.node.sim.stepper.tier == "rigid"
+    rigid = _lockstep_run(h, range(1, 21), {3: ("drive", 14.0)})
+    flexible = _lockstep_run(Lockstep(ros_domain_id, model="flexible"), range(1, 21), {3: ("drive", 14.0)})
+    assert rigid["alternator/speed"] != flexible["alternator/speed"]
+    out = tmp_path / "re.mcap"
+    assert main(["sim", str(rec), "--out", str(out)]) == 0
+    from msg_tools.cli import main as msg_tools
+
+    capsys.readouterr()
+    assert msg_tools(["compare", str(out), str(rec), "--rtol", "0", "--atol", "0"]) == 0

@@ -168,7 +168,7 @@ def resimulate(args) -> int:
         if input_replaced(args.out, [args.scene]) is not None:
             raise OutputRefused(f"--out {args.out}: would replace {args.scene}, which this run reads; write elsewhere")
         check_output(args.out, args.force, "output")
-    stepper = NetworkStepper(rec.scene, rec.method, rec.dt)
+    stepper = NetworkStepper(rec.scene, rec.method, rec.dt, tier=rec.tier or None)  # (the tier the node stepped)
     sub = int(round(rec.tick_ns * 1e-9 / rec.dt))
     ticks = int(round((rec.end_ns - rec.start_ns) / rec.tick_ns))
     x = stepper.initial()

@@ -349,11 +349,11 @@ class NetworkBagWriter:
 
 
 def network_record(scene, text: str, *, method: str, dt: float, tick_ns: int, source: str,
-                   drive_source: str, namespace: str = "/") -> Dict[str, str]:
-    """The ``network_scene`` metadata record."""
+                   drive_source: str, namespace: str = "/", tier: str = "") -> Dict[str, str]:
+    """The ``network_scene`` metadata record (``tier``: the one the run stepped, which its re-simulation steps)."""
     return {"format": "belt_drive_ros network 1", "kind": "network", "name": scene.name, "yaml": text,
             "method": method, "dt": _fmt(float(dt)), "tick_ns": str(int(tick_ns)), "source": source,
-            "drive_source": drive_source, "namespace": namespace}
+            "drive_source": drive_source, "namespace": namespace, **({"tier": tier} if tier else {})}
 
 
 def write_network_mcap(stepper, text: str, states, steps: Sequence[int], path, *, force: bool = False,
@@ -369,7 +369,7 @@ def write_network_mcap(stepper, text: str, states, steps: Sequence[int], path, *
     """
     scene = stepper.scene
     layout = NetworkLayout(scene)
-    record = network_record(scene, text, method=stepper.method, dt=stepper.dt,
+    record = network_record(scene, text, method=stepper.method, dt=stepper.dt, tier=stepper.tier,
                             tick_ns=int(round((steps[1] - steps[0] if len(steps) > 1 else 1) * stepper.dt * 1e9)),
                             source=source, drive_source="recorded" if held else "scene", namespace=namespace)
     writer = NetworkBagWriter(path, layout, record, force=force, namespace=namespace)
@@ -422,6 +422,8 @@ class NetworkRecording:
     namespace: str = "/"
     #: the inputs as received: (relative topic, log time [ns], value [N m]) (a re-simulation passes them through)
     received: List[Tuple[str, int, float]] = field(default_factory=list)
+    #: the tier the run stepped ("" in a recording from before it was recorded: the scene's choice)
+    tier: str = ""
 
 
 def is_network_recording(path) -> bool:
@@ -525,7 +527,7 @@ def read_network_recording(path) -> NetworkRecording:
     received = [(received_of[topic], t, float(np.frombuffer(data[4:12], "<f8")[0]))
                 for topic, t, data in messages if topic in received_of and len(data) >= 12]
     return NetworkRecording(scene, record["yaml"], record["method"], dt, tick_ns, start, times[-1], held, ticks,
-                            namespace, received)
+                            namespace, received, record.get("tier", ""))
 
 
 __all__ += ["NetworkRecording", "is_network_recording", "network_record", "scene_from_text"]

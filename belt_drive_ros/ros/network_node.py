@@ -75,6 +75,8 @@ PARAMETERS = (
     ("scene", "fead_i4", "network scene: shipped name or YAML file with kind: network"),
     ("step_rate_hz", 1000.0, "tick rate on the node's clock [Hz]; the scene's dt must divide the tick"),
     ("drive_source", "topic", "topic: the crank's torque from drive_torque; scene: from the scene's profile"),
+    ("model", "auto", "belt tier: rigid, flexible, slipping, or auto (the scene's choice, from its own profiles: "
+                      "a topic that drives otherwise may need the tier set)"),
     ("publish_clock", False, "publish /clock from the node's own simulated time (time master)"),
     ("real_time_factor", 1.0, "with publish_clock: simulated seconds per wall second; 0 = as fast as possible"),
     ("tick_thread", True, "on the system clock: tick from a thread of the node's own"),
@@ -107,6 +109,8 @@ class NetworkSettings:
     record_overwrite: bool
     max_bag_duration: float = 0.0
     max_bag_size: int = 0
+    #: the belt tier asked for (``auto``: the scene's choice)
+    model: str = "auto"
 
     @classmethod
     def from_values(cls, v: dict) -> "NetworkSettings":
@@ -129,6 +133,11 @@ class NetworkSettings:
                                   f"steps of {scene.dt:g} s")
         if v["drive_source"] not in ("topic", "scene"):
             raise NodeConfigError("drive_source", f"topic or scene, got {v['drive_source']!r}")
+        from ..core.network.simulate import TIERS
+
+        model = v.get("model", "auto")
+        if model not in TIERS:
+            raise NodeConfigError("model", f"one of {', '.join(TIERS)}, got {model!r}")
         rtf = float(v["real_time_factor"])
         if not (math.isfinite(rtf) and 0.0 <= rtf <= 1e4):
             raise NodeConfigError("real_time_factor", f"{rtf!r} is outside [0, 10000]")
@@ -143,7 +152,7 @@ class NetworkSettings:
         check_record_path(str(v["record_path"]), bool(split or size), v.get("scene"))
         return cls(scene, scene_text(label), scene.method, scene.dt, tick_ns, tick_ns // dt_ns, rate,
                    v["drive_source"], bool(v["publish_clock"]), rtf, bool(v["tick_thread"]),
-                   int(round(lead * 1e9)), str(v["record_path"]), bool(v["record_overwrite"]), split, size)
+                   int(round(lead * 1e9)), str(v["record_path"]), bool(v["record_overwrite"]), split, size, model)
 
 
 class NetworkSimulation:
@@ -157,7 +166,8 @@ class NetworkSimulation:
                     "ignored"):
             counters.setdefault(key, 0)
         self.log = logger
-        self.stepper = NetworkStepper(settings.scene, settings.method, settings.dt)
+        self.stepper = NetworkStepper(settings.scene, settings.method, settings.dt,
+                                      tier=None if settings.model == "auto" else settings.model)
         self.stepper.use_joints(float(layout.arm[3]) if layout.arm else 0.0, layout.joint_encoder().layout)
         #: latest valid value per input pulley index (None: none received yet)
         self.latest: dict = {i: None for _, i in layout.inputs}
@@ -447,6 +457,7 @@ class NetworkNode(Node):
         from ..io.recording import BagError, BagExistsError
 
         record = network_record(s.scene, s.text, method=s.method, dt=s.dt, tick_ns=s.tick_ns, source="node",
+                                tier=self.sim.stepper.tier,
                                 drive_source=s.drive_source, namespace=self.get_namespace())
         try:
             self.recorder = NetworkBagWriter(s.record_path, self.layout, record, force=s.record_overwrite,
