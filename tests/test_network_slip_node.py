@@ -136,3 +136,8 @@ def test_slipping_node_records_publishes_slip_and_resimulates_bit_for_bit(tmp_pa
     outputs = [t for t in recorded if t != "/alternator/load_torque"]
     for topic in outputs:
         assert again[topic] == recorded[topic], topic  # time stamps and values, bit for bit
+    # the recording names what the tier stepped (it said the scene's etd2 where the slipping tier steps exact)
+    from belt_drive_ros.io.network_bag import read_network_recording
+
+    meta = read_network_recording(rec)
+    assert (meta.method, meta.tier) == ("exact", "slipping")

@@ -456,8 +456,8 @@ class NetworkNode(Node):
     def _start_recording(self, s: NetworkSettings) -> None:
         from ..io.recording import BagError, BagExistsError
 
-        record = network_record(s.scene, s.text, method=s.method, dt=s.dt, tick_ns=s.tick_ns, source="node",
-                                tier=self.sim.stepper.tier,
+        record = network_record(s.scene, s.text, method=self.sim.stepper.method, dt=s.dt, tick_ns=s.tick_ns,
+                                source="node", tier=self.sim.stepper.tier,  # (the slipping tier steps exact)
                                 drive_source=s.drive_source, namespace=self.get_namespace())
         try:
             self.recorder = NetworkBagWriter(s.record_path, self.layout, record, force=s.record_overwrite,
