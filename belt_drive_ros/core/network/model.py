@@ -115,7 +115,8 @@ class NetworkModel:
         away faster than its spring and the belt hold it). Every tier ran it, and the step guard blamed the step."""
         if self.arm < 0:
             return
-        eig = np.linalg.eigvalsh(0.5 * (self.stiffness() + self.stiffness().T))
+        K = self.stiffness()
+        eig = np.linalg.eigvalsh(0.5 * (K + K.T))
         if eig[0] < -1e-9 * max(float(np.max(np.abs(eig))), 1e-300):
             k_geo = self.geometric_stiffness(np.full(len(self.k), self.scene.belt.installed_tension))
             raise SceneError(
