@@ -224,6 +224,17 @@ def joint_layout(data: bytes) -> _JointLayout:
     return _JointLayout(len(data), cur.little, frame_id, names, arrays, mask)
 
 
+def _same_layout(raw: np.ndarray, meaningful: np.ndarray) -> bool:
+    """Whether every row of ``raw`` (N, length) has the first row's bytes where ``meaningful`` (the layout's counts
+    and strings: not the values, nor the padding rclpy leaves uninitialised) is True; checked in bounded blocks."""
+    cols = np.flatnonzero(meaningful)
+    reference = raw[0, cols]
+    for block in range(0, raw.shape[0], 65536):  # bounded temporary memory
+        if not (raw[block : block + 65536, cols] == reference).all():
+            return False
+    return True
+
+
 def _decode_joint_state_vectorized(datas: "Payloads") -> Optional[Dict[str, Any]]:
     """Return decoded JointState arrays, or None if the messages differ in layout."""
     n = len(datas)
@@ -235,11 +246,8 @@ def _decode_joint_state_vectorized(datas: "Payloads") -> Optional[Dict[str, Any]
     if datas.fixed_length() != length:
         return None
     raw = datas.matrix(length)
-    cols = np.flatnonzero(layout.meaningful)
-    reference = raw[0, cols]
-    for block in range(0, n, 65536):  # bounded temporary memory
-        if not (raw[block : block + 65536, cols] == reference).all():
-            return None
+    if not _same_layout(raw, layout.meaningful):
+        return None
     e = "<" if layout.little else ">"
     stamp_bytes = np.ascontiguousarray(raw[:, 4:12])
     sec = stamp_bytes[:, 0:4].copy().view(e + "i4").ravel().astype(np.int64)
@@ -326,11 +334,8 @@ def _decode_tf_vectorized(datas: "Payloads") -> Optional[Dict[str, np.ndarray]]:
     if datas.fixed_length() != length or cur.pos != length:
         return None
     raw = datas.matrix(length)
-    cols = np.flatnonzero(mask)
-    reference = raw[0, cols]
-    for block in range(0, len(datas), 65536):  # bounded temporary memory
-        if not (raw[block : block + 65536, cols] == reference).all():
-            return None
+    if not _same_layout(raw, mask):
+        return None
     e = "<" if cur.little else ">"
     return {key: np.ascontiguousarray(raw[:, at : at + 8]).view(e + "f8").ravel().astype(np.float64)
             for key, at in offsets.items()}
