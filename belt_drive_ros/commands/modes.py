@@ -50,11 +50,10 @@ def run(args) -> int:
         raise OutputRefused("--campbell and --runup name the same file")
     if args.runup and not (math.isfinite(args.runup_time) and 0.1 <= args.runup_time <= 600.0):
         raise SceneError(f"--runup-time: 0.1 .. 600 s, got {args.runup_time!r}")
-    from .network_sim import MAX_SAMPLES
+    if args.runup:
+        from .network_sim import check_samples
 
-    if args.runup and args.runup_time / scene.dt + 1 > MAX_SAMPLES:  # (as sim's: a run holds every sample in memory)
-        raise SceneError(f"--runup-time: {args.runup_time / scene.dt:.3g} steps of the scene's dt = {scene.dt:g} s; a "
-                         f"network run keeps at most {MAX_SAMPLES:,} samples in memory (a shorter run-up)")
+        check_samples("--runup-time", args.runup_time, scene.dt)  # (as sim's: a run holds every sample in memory)
     model = NetworkModel.build(scene)
     speed = scene.operating_speed if args.speed is None else args.speed
     names = [p.name for p in scene.pulleys] + (["tensioner_arm"] if scene.tensioner else [])

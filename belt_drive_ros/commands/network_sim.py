@@ -10,6 +10,16 @@ import time
 MAX_SAMPLES = 5_000_000
 
 
+def check_samples(option: str, duration: float, dt: float) -> None:
+    """Refuse (SceneError naming ``option``) a network run of ``duration`` [s] at ``dt`` [s] holding more than
+    :data:`MAX_SAMPLES` samples (a run keeps every sample in memory: ``sim``, ``modes --runup``)."""
+    from ..core.errors import SceneError
+
+    if duration / dt + 1 > MAX_SAMPLES:
+        raise SceneError(f"{option}: {duration / dt:.3g} steps of dt = {dt:g} s; a network run keeps at most "
+                         f"{MAX_SAMPLES:,} samples in memory (it does not stream yet)")
+
+
 def _refuse_unsupported(args) -> None:
     from ..core.errors import SceneError
 
@@ -67,9 +77,7 @@ def run_network(args) -> int:
         from ..io.recording import check_stamp_span
 
         check_stamp_span(args.start_time, duration)
-    if duration / dt + 1 > MAX_SAMPLES:
-        raise SceneError(f"--duration: {duration / dt:.3g} steps; a network run keeps at most {MAX_SAMPLES:,} "
-                         "samples in memory (it does not stream yet)")
+    check_samples("--duration", duration, dt)
     method = scene.method if args.method is None else args.method
     if method == "auto":
         raise SceneError("--method auto: not available for a belt network scene (its run steps the method named, "
