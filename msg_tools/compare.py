@@ -327,8 +327,8 @@ def _compare_signal(
     max_gap_periods: float = 5.0,
     starts: Tuple[int, int] | None = None,
 ) -> SignalResult:
-    """One signal of A against B's. ``time_base``: ``absolute`` or ``relative`` (:func:`compare` decides ``auto``
-    once per file pair); ``starts``: the files' first stamps [ns] a relative comparison counts from (default each
+    """One signal of A against B's. ``time_base``: ``absolute`` or ``relative`` (:func:`_file_time_base` decides
+    ``auto`` once per file pair); ``starts``: the files' first stamps [ns] a relative comparison counts from (default each
     series' own first sample), so a topic logged late in one file is late from its file's start."""
     if va.size == 0 or vb.size == 0:
         which = "A" if va.size == 0 else "B"
@@ -343,15 +343,7 @@ def _compare_signal(
                       duplicates=not identical, other=tb if which == "A" else ta)
         if hole:
             return SignalResult(name, False, time_base="", reason=f"{hole} in {which}")
-    if identical:
-        base = "identical"
-    elif time_base == "relative":
-        base = "relative"
-    elif time_base == "absolute":
-        base = "absolute"
-    else:  # absolute where the common time range holds enough of both series, else each from its start
-        common = _common(ta, tb)
-        base = "absolute" if common[1] >= common[0] and min(common[3], common[4]) >= min_coverage else "relative"
+    base = "identical" if identical else time_base  # (absolute or relative: :func:`_file_time_base` decided)
     if base == "relative":
         a0, b0 = starts if starts is not None else (int(ta[0]), int(tb[0]))
         origin_ns = a0
@@ -364,8 +356,7 @@ def _compare_signal(
     if identical:
         b_on_a, mask = vb, np.ones(ta.shape, dtype=bool)
     else:
-        # (auto's choice of absolute measured it already, on these very series)
-        lo, hi, mask, cover_a, cover_b = common if time_base == "auto" and base == "absolute" else _common(ta, tb)
+        lo, hi, mask, cover_a, cover_b = _common(ta, tb)
         if hi < lo:
             return SignalResult(
                 name, False, time_base=base,
