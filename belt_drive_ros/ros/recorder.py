@@ -545,11 +545,11 @@ class NodeRecorder(TopicRecorder):
         timing = getattr(node, "timing", None)
         # a lock of its own (not the tick's): a drive_torque callback records its message while a tick computes
         super().__init__(node, writer, flush_period=flush_interval_s)
-        if timing is not None:  # one time base in the file: with publish_clock the outputs' is the node's simulated
-            # time, so /clock and /diagnostics are logged on it too (the node's clock is the system's: 56 years apart)
+        if timing is not None:
+            # one time base in the file: with publish_clock the outputs' is the node's simulated time, so /clock and
+            # /diagnostics are logged on it too (the node's clock is the system's: 56 years apart)
             self.now_ns = timing.now_ns
-        if timing is not None:  # compressing a chunk takes ~1 ms: not while a tick waits for the lock
-            self.defer_flush = timing.defer_after_tick
+            self.defer_flush = timing.defer_after_tick  # compressing a chunk takes ~1 ms: not while a tick waits
         self.record_history = False  # the node's outputs keep 10 messages for late joiners: not this run's
         uses_clock = self._uses_sim_time() or self._publishes_clock()
         if topics is None:
