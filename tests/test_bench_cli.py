@@ -83,6 +83,16 @@ def test_bench_parser_lists_the_studies():
         parser.parse_args(["bench", "nonsense"])
 
 
+def test_bench_help_names_the_campaign_study_s_own_variant_count():
+    """The help's line for 'campaign' states the Monte Carlo it runs by default (it said 10,000, the 1-vs-2-worker
+    part's count, where the study runs 100,000 and --samples says so)."""
+    from belt_drive_ros.benchmarks import campaign
+    from belt_drive_ros.commands import bench
+
+    line = next(line for line in bench.EPILOG.splitlines() if line.startswith("  campaign "))
+    assert f"{campaign.SAMPLES:,}-variant Monte Carlo" in line
+
+
 def test_bench_command_does_not_import_rclpy_or_numpy_at_import():
     code = (
         "import sys; import belt_drive_ros.commands.bench, belt_drive_ros.benchmarks; "

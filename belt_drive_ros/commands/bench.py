@@ -8,9 +8,12 @@ import sys
 import time
 from pathlib import Path
 
+from ..benchmarks.campaign import SAMPLES as CAMPAIGN_SAMPLES
+from ..benchmarks.campaign import SCALING_SAMPLES as CAMPAIGN_SCALING_SAMPLES
+
 STUDIES = ("workprecision", "stability", "fidelity", "versus", "slip")
 
-EPILOG = """\
+EPILOG = f"""\
 studies:
   workprecision  error vs CPU time, every integrator on every scene (Pareto front, default marked),
                  truck_compressor on the slipping model among them (regularised friction beside)
@@ -38,8 +41,9 @@ studies:
                  split into reading, simulation and writing, CPU, peak memory (not in 'all')
   slip-kernel    the slipping belt's compiled hybrid loop: truck_compressor whole warm simulate() x real
                  time, its run, accuracy rerun, node tick (not in 'all')
-  campaign       10,000-variant Monte Carlo of paper on Dask vs a loop of single runs, 1 vs 2 workers,
-                 a fleet of 100 recordings replayed and compared (needs the campaign extra; not in 'all')
+  campaign       {CAMPAIGN_SAMPLES:,}-variant Monte Carlo of paper (--samples) on Dask vs a loop of single runs,
+                 1 vs 2 workers ({CAMPAIGN_SCALING_SAMPLES:,} variants), a fleet of 100 recordings replayed and
+                 compared (needs the campaign extra; not in 'all')
   network_slip   a belt network's slipping tier: x real time on fead_i4 sticking and slipping, the paper's
                  drive slipping; the node's tick (advance, sample) slipping beside flexible (not in 'all')
   compile        the numba kernels built from an empty cache (the tree's own cache untouched): each
