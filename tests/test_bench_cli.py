@@ -93,6 +93,23 @@ def test_bench_help_names_the_campaign_study_s_own_variant_count():
     assert f"{campaign.SAMPLES:,}-variant Monte Carlo" in line
 
 
+def test_bench_out_help_says_which_studies_write_nothing(tmp_path, monkeypatch, capsys):
+    """``--out``'s help said node-tick and replay write their tables with --out; they print their figures and write
+    nothing (their runs take no folder): the help says so, and such a run leaves --out untouched."""
+    from belt_drive_ros.benchmarks import node_tick, replay
+
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["bench", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "node-tick and replay print their figures and write nothing" in help_text
+    monkeypatch.setattr(replay, "main", lambda minutes, baseline=None: 0)
+    monkeypatch.setattr(node_tick, "main", lambda quick=False, baseline=None: 0)
+    for study in ("replay", "node-tick"):
+        out = tmp_path / study
+        assert main(["bench", study, "--out", str(out)]) == 0
+        assert not out.exists()
+
+
 def test_bench_command_does_not_import_rclpy_or_numpy_at_import():
     code = (
         "import sys; import belt_drive_ros.commands.bench, belt_drive_ros.benchmarks; "

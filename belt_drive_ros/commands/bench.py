@@ -81,8 +81,8 @@ def register(sub) -> None:
     )
     p.add_argument("study", choices=(*STUDIES, "node", "soak", "hostile", "campaign", "kernel", "network", "network_slip",
                                      "slip-kernel", "replay", "node-tick", "compile", "all"), help="which study to run")  # fmt: skip
-    p.add_argument("--out", type=Path, help="output folder (default: docs/bench in the current folder; node, node-tick "
-                   "and replay print their figures and write their tables only with --out)")
+    p.add_argument("--out", type=Path, help="output folder (default: docs/bench in the current folder; node prints its figures "
+                   "and writes its tables only with --out; node-tick and replay print their figures and write nothing)")
     p.add_argument("--quick", action="store_true", help="small sweeps and short runs (seconds; for tests)")
     p.add_argument("--quiet", action="store_true", help="no per-run log lines")
     p.add_argument("--seconds", type=float, default=60.0, help="soak: measured seconds (default 60)")
