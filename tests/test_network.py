@@ -409,6 +409,21 @@ def test_an_unstable_step_is_refused_before_the_run():
     assert np.all(np.isfinite(run.states)) and np.max(np.abs(run.speed)) < 300.0
 
 
+def test_serpentine_doc_quotes_the_unstable_step_refusal_as_it_reads():
+    """docs/serpentine.md quotes this refusal; its stable step said 0.00025 s where the guard names 0.000468 s."""
+    import re
+    from pathlib import Path
+
+    from belt_drive_ros.core.errors import UnstableStepError
+
+    doc = " ".join((Path(__file__).resolve().parents[1] / "docs" / "serpentine.md").read_text(encoding="utf-8").split())
+    head, _, tail = re.search(r"`(method rk4 at dt = 0\.001 s grows the [^`]*)`", doc).group(1).partition("...")
+    with pytest.raises(UnstableStepError) as refused:
+        simulate(load_network("fead_i4"), duration=0.01, dt=1e-3, method="rk4", model="flexible")
+    message = str(refused.value)
+    assert message.startswith(head.strip()) and message.endswith(tail.strip()), (message, head, tail)
+
+
 def test_the_tensioner_side_flips_when_the_bsg_drives():
     """Crank driving: the tensioner's spans are the slack ones; the BSG cranking the engine: the tight ones."""
     for name, tight in (("fead_i4", False), ("bsg_start_network", True)):
