@@ -1,4 +1,4 @@
-"""Every shell command in README.md, docs/*.md and bags/README.md runs as written.
+"""Every shell command in README.md, docs/**/*.md and bags/README.md runs as written.
 
 Convention (for whoever writes docs): a fenced ```sh block is preceded, on
 the line before its fence, by one marker comment:
@@ -50,7 +50,7 @@ import yaml
 from belt_drive_ros.ros import environment as ros_env
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "bags" / "README.md"]
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md")), ROOT / "bags" / "README.md"]
 COPIED = ("README.md", "docs", "examples", "bags", "config", "launch")
 MARKER = re.compile(r"^<!--\s*(runnable(?::\s*(?P<options>.*?))?|not run by tests:\s*(?P<reason>.+?))\s*-->\s*$")
 FENCE = re.compile(r"^```(?P<lang>\w*)\s*$")
