@@ -26,6 +26,10 @@ the line before its fence, by one marker comment:
 
 A block with neither marker fails the test, so a new block decides.
 
+A fenced ```python block takes the same two markers: ``<!-- runnable -->``
+runs it verbatim as one script (``python -c``) in the scratch copy, which
+must exit 0 (the README's API snippets: a renamed function or field fails).
+
 Shortened here (the commands stay as written; what they read is made small):
 the campaign files in the scratch copy of examples/ get at most 2 Monte
 Carlo samples and 0.5 s runs (``_shrink_campaigns``), as tests/test_examples.py
@@ -67,6 +71,12 @@ pytestmark = pytest.mark.slow
 
 def shell_blocks():
     """(doc, line number of the fence, marker line or '', command lines) of every shell block."""
+    return [(doc, line, marker, [x for x in body if x.strip() and not x.lstrip().startswith("#")])
+            for doc, line, marker, body in fenced_blocks(SHELLS)]
+
+
+def fenced_blocks(languages):
+    """(doc, line number of the fence, marker line or '', the block's lines) of every block in ``languages``."""
     out = []
     for doc in DOCS:
         lines = doc.read_text(encoding="utf-8").splitlines()
@@ -79,15 +89,16 @@ def shell_blocks():
             end = k + 1
             while end < len(lines) and not lines[end].startswith("```"):
                 end += 1
-            if m.group("lang") in SHELLS:
+            if m.group("lang") in languages:
                 marker = lines[k - 1].strip() if k > 0 and lines[k - 1].strip().startswith("<!--") else ""
-                commands = [line for line in lines[k + 1:end] if line.strip() and not line.lstrip().startswith("#")]
-                out.append((doc.relative_to(ROOT).as_posix(), k + 1, marker, commands))
+                out.append((doc.relative_to(ROOT).as_posix(), k + 1, marker, lines[k + 1:end]))
             k = end + 1
     return out
 
 
 BLOCKS = shell_blocks()
+#: the ```python blocks: marked as the shell blocks are; a runnable one runs verbatim as one script
+PYTHON_BLOCKS = fenced_blocks(("python",))
 
 
 def _options(marker: str) -> dict:
@@ -211,3 +222,21 @@ def test_documented_commands_run(scratch, doc, line, marker, commands):
         _run_together(commands, cwd, env, opts.get("stop_after", 10.0), opts.get("separately", False))
     else:
         _run_in_order(commands, cwd, env)
+
+
+def test_every_python_block_is_marked():
+    unmarked = [f"{doc}:{line}" for doc, line, marker, _ in PYTHON_BLOCKS if not MARKER.match(marker)]
+    assert not unmarked, f"python blocks without <!-- runnable --> or <!-- not run by tests: ... -->: {unmarked}"
+    assert any(MARKER.match(b[2]).group("reason") is None for b in PYTHON_BLOCKS)
+
+
+PYTHON_RUNNABLE = [b for b in PYTHON_BLOCKS if MARKER.match(b[2]) and MARKER.match(b[2]).group("reason") is None]
+
+
+@pytest.mark.parametrize("doc,line,marker,source", PYTHON_RUNNABLE, ids=[f"{b[0]}:{b[1]}" for b in PYTHON_RUNNABLE])
+def test_documented_python_runs(scratch, doc, line, marker, source):
+    """A runnable python block runs verbatim (the README's API snippets), in the scratch copy, exit 0."""
+    cwd, env = scratch
+    proc = subprocess.run([sys.executable, "-c", "\n".join(source)], cwd=cwd, env=env, capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, f"{doc}:{line}\nexit {proc.returncode}\n{proc.stdout[-1500:]}\n{proc.stderr[-1500:]}"
