@@ -14,7 +14,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 _NOTES = "sha" + "red"  # the developers' notes folder beside the clone
 _WORK = "/wo" + "rk"  # the developers' machine
-FORBIDDEN = re.compile(rf"\.\./{_NOTES}|{_WORK}/{_NOTES}|{_NOTES}/design|{_NOTES}/seed|{_WORK}/main|{_WORK}/wt")
+_MAIN = "ma" + "in"  # the developers' main checkout, beside their worktrees (a --baseline example named it)
+FORBIDDEN = re.compile(rf"\.\./{_NOTES}|{_WORK}/{_NOTES}|{_NOTES}/design|{_NOTES}/seed|{_WORK}/main|{_WORK}/wt|\.\./{_MAIN}(?![\w.])")
 
 
 def _tracked_text_files():
@@ -42,6 +43,8 @@ def test_the_checker_sees_a_reference():
     assert FORBIDDEN.search(f"see ../{_NOTES}/design/model.md")
     assert FORBIDDEN.search(f"python {_WORK}/main/x.py")
     assert not FORBIDDEN.search("shared memory segments of Fast DDS")
+    assert FORBIDDEN.search(f"belt-drive bench kernel --baseline ../{_MAIN}  # beside another checkout")
+    assert not FORBIDDEN.search(f"python ../{_MAIN}.py, ../{_MAIN}tenance")
 
 
 def test_docs_carry_the_derivation_and_errata():

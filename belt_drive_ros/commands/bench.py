@@ -59,7 +59,7 @@ examples:
   belt-drive bench hostile --out /tmp/hostile    # the hostile-input table (minutes)
   belt-drive bench hostile --only campaign bagdir --out /tmp/hostile
   belt-drive bench kernel --out /tmp/k           # the compiled kernel's figures (a minute)
-  belt-drive bench kernel --quick --baseline ../main  # ... whole simulate() beside another checkout
+  belt-drive bench kernel --quick --baseline ../old   # ... whole simulate() beside another checkout (git worktree add ../old REV)
   belt-drive bench replay --minutes 60           # the 1-hour torque bag replayed to MCAP
   belt-drive bench replay --baseline ../old      # ... beside another checkout, in one run
   belt-drive bench compile --baseline ../old --out /tmp/c  # build times of both trees' kernels
