@@ -243,3 +243,28 @@ def test_an_estimate_that_comes_out_nan_is_no_verdict_of_accurate(monkeypatch):
     monkeypatch.setattr(accuracy, "forcing_error", lambda *a, **k: math.nan)
     report = _report(scene, "etd2", 1e-3, suggest=False)
     assert report.stable and not report.ok and report.error == math.inf and math.isnan(report.forcing_error)
+
+
+def test_a_named_step_is_one_a_scene_accepts():
+    """The search for a stable and accurate step stops at the smallest step a scene accepts (``dt`` >= 1e-7 s):
+    euler on a stiff, lightly damped belt was refused naming ``dt = 2.44e-08 s``, which the scene itself then
+    refused ('dt: ... outside the plausible range'). The refusal names etd4 instead, and the search's floor."""
+    import re
+
+    from belt_drive_ros.core.scene import RANGES, Scene
+
+    smallest = RANGES["dt"][0]
+    bsg = load_scene("bsg_start").to_dict()
+    data = {**bsg, "model": "flexible", "method": "euler", "dt": 4e-4, "duration": 0.3, "tolerance": 1e-3,
+            "params": {**bsg["params"], "k": 5e6, "c": 1.0, "I_M": 0.004, "I_3": 0.15},
+            "load": {"type": "compressor", "mean_torque": 5.0, "cylinders": 2, "harmonics": [4.0, 1.0], "c1": 0.01}}
+    with pytest.raises(UnstableStepError) as refused:
+        simulate(Scene.from_mapping(data))
+    message = str(refused.value)
+    named = [float(v) for v in re.findall(r"dt = ([0-9.e+-]+) s", message)]
+    assert named, message
+    for h in named:
+        assert h >= smallest, message
+        Scene.from_mapping({**data, "dt": h})  # a step the scene accepts
+    down_to = [float(v) for v in re.findall(r"down to ([0-9.e+-]+) s", message)]
+    assert all(h >= smallest for h in down_to), message

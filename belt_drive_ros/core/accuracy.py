@@ -52,10 +52,14 @@ from .errors import IntegratorError, SimulationDivergedError, UnstableStepError
 from .forced_response import harmonic_error
 from .integrators import FixedStepIntegrator, make_integrator, method_class
 from .model import make_model
+from .scene import RANGES
 from .slip import STICK, SlippingBeltModel
 from .slip_run import _joined, _shared_phases, rerun_simulator
 from .stability import check_step
 from .stepper import shared_plant
+
+#: the smallest step [s] a scene accepts (``scene.RANGES``): a step the guard names is one a scene can state
+MIN_STEP = RANGES["dt"][0]
 
 @dataclass(frozen=True)
 class AccuracyReport:
@@ -200,7 +204,8 @@ def check_accuracy(
                     if h is not None and (found is None or h > found):
                         alternative = (other, h)
                         break
-        worst = AccuracyReport(**{**worst.__dict__, "suggestion": found, "alternative": alternative})
+        searched = min((dt / 2.0**j for j in range(MAX_HALVINGS + 1) if dt / 2.0**j >= MIN_STEP), default=dt)
+        worst = AccuracyReport(**{**worst.__dict__, "suggestion": found, "alternative": alternative, "searched": searched})
     return worst
 
 
@@ -209,10 +214,13 @@ def _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, expo
 
     Each candidate is checked with ``suggest=False``: the search never searches again. The windows of the
     forcing check start where ``probes`` says (their length follows the candidate step). A candidate the
-    stability guard (free belt) refuses is skipped: a step named is accepted by both guards.
+    stability guard (free belt) refuses is skipped: a step named is accepted by both guards. The search stops
+    below :data:`MIN_STEP` (a scene refuses such a step).
     """
     for j in exponents:
         h = dt / 2.0**j
+        if h < MIN_STEP:
+            break
         if not check_step(plant.model.A, plant.model.B, method, h).stable:  # the stability guard's view too
             continue
         report = check_accuracy(plant, method, h, duration, x0, tolerance, method_options, suggest=False, probes=probes)
@@ -482,7 +490,7 @@ def with_between_samples(report: AccuracyReport, excess: float, when: float, ome
               "between_time": when}
     if error > report.tolerance and omega_n > 0.0 and report.dt * omega_n > 1.0:
         h = report.dt / 2.0 ** math.ceil(math.log2(report.dt * omega_n))
-        if report.suggestion is None or h < report.suggestion:
+        if h >= MIN_STEP and (report.suggestion is None or h < report.suggestion):
             fields.update(suggestion=h, suggestion_checked=False)
     return AccuracyReport(**fields)
 
@@ -504,6 +512,6 @@ def with_slip_run_error(report: AccuracyReport, run_error: float) -> AccuracyRep
     if run_error > report.tolerance and math.isfinite(run_error):
         j = max(1, math.ceil(math.log2(run_error / (SUGGEST_MARGIN * report.tolerance))))
         h = report.dt / 2.0**j
-        if report.suggestion is None or report.suggestion > h:
+        if h >= MIN_STEP and (report.suggestion is None or report.suggestion > h):
             fields["suggestion"], fields["suggestion_checked"] = h, False
     return AccuracyReport(**fields)
