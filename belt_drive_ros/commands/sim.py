@@ -452,14 +452,18 @@ def print_summary(summary) -> None:
     print(f"scene          {scene.name}: {scene.description}".rstrip())
     print(f"model          {summary.model}" + (f"  ({summary.choice.reason})" if summary.choice else ""))
     print(f"integrator     {summary.method}, dt={summary.dt:g} s")
-    if getattr(summary, "method_choice", None) is not None:
-        print(f"method choice  {summary.method_choice.reason}")
+    choice = getattr(summary, "method_choice", None)
+    if choice is not None:
+        print(f"method choice  {choice.reason}")
     if summary.stability is not None:
         print(f"stability      {summary.stability.describe()}")
     if summary.accuracy is not None:
         print(f"accuracy       {summary.accuracy.describe()}")
         if not summary.accuracy.accurate:
             print(f"warning: {summary.accuracy.describe()}", file=sys.stderr)
+    if choice is not None and not choice.met and (summary.accuracy is None or summary.accuracy.accurate):
+        # method auto found no candidate within the tolerance: said even where the run's own check rates it accurate
+        print(f"warning: method auto: {choice.reason}", file=sys.stderr)
     init = scene.initial_state
     if summary.model == "rigid" and (init.relative_deflection or init.relative_speed):
         print(f"warning: the rigid model has no belt deflection: initial_state.relative_deflection "
