@@ -78,11 +78,41 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
     fine = y_all[half:]
     errs = factor * np.maximum.reduceat(np.abs(y_all[:half] - fine), starts, axis=0)
     peaks = np.maximum.reduceat(np.abs(fine), starts, axis=0)
+    if plant.model.name == "rigid":  # no belt mode: the window's error is the drive's, and it builds up over the run
+        errs = _grown(starts, factor * np.abs(y_all[:half] - fine), t_all[half:], errs, _drift_time(plant, probes))
     drifts = (
         _phase_drifts(plant, starts, x_all[:half], x_all[half:], t_all[half:], fine, factor, _drift_time(plant, probes))
         if any(plant.uses_angle) else {}
     )  # fmt: skip
     return [(r[0], np.maximum(errs[j], drifts[j]) if j in drifts else errs[j], peaks[j]) for j, r in enumerate(runs)]
+
+
+def _grown(starts, gap, t, errs, duration: float) -> np.ndarray:
+    """Each window's Richardson error ``errs`` (windows, signals) grown over the time ``duration`` [s] a speed error
+    lasts (:func:`_drift_time`), for a rigid run.
+
+    A window's two runs start from one state, so it sees the error its own steps make, not the error the run has
+    built up by then: where the torques keep changing (a ramp at ``exact``, which holds them over each step, is
+    first order) each window adds about as much again, and a barely damped drive keeps it (a 1 s ramp at 0.7 ms:
+    6.1e-5 in a window, 8.8e-4 at the end of the run). As :func:`_phase_drifts` grows the angle, the growth
+    ``g = log2(max over the window / max over its first half)`` in [0, 1] (1: linear, 0: not growing, e.g. a ripple
+    whose error is made within a period) sets ``errs (duration / window)^g``. ``gap`` (rows, signals): the error at
+    each of the windows' common times ``t``, window ``j``'s from row ``starts[j]``."""
+    n = t.size
+    sizes = [b - a for a, b in zip(starts, starts[1:] + [n])]
+    out = errs.copy()
+    for j, (a, size) in enumerate(zip(starts, sizes)):
+        span = float(t[a + size - 1] - t[a])
+        if size < 3 or not span > 0.0 or not duration > span:
+            continue
+        first = gap[a : a + size // 2 + 1].max(axis=0)
+        for k in range(errs.shape[1]):
+            whole = errs[j, k]
+            if not whole > 0.0:
+                continue
+            g = 1.0 if not first[k] > 0.0 else min(1.0, max(0.0, math.log2(max(whole / first[k], 1.0))))
+            out[j, k] = whole * (duration / span) ** g
+    return out
 
 
 def _drift_time(plant, probes) -> float:
