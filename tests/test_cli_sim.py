@@ -180,3 +180,20 @@ def test_method_auto_that_meets_no_tolerance_warns(tmp_path, capsys):
     captured = capsys.readouterr()
     assert "no candidate" in captured.out  # (the method choice's own finding)
     assert "warning:" in captured.err and "1e-06" in captured.err
+
+
+@pytest.mark.parametrize("method, options, rtol", [("BDF", [], "1e-06"), ("RK45", ["--method-option", "rtol=1e-9"], "1e-09")])
+def test_an_adaptive_method_s_run_says_it_is_not_rated(capsys, method, options, rtol):
+    """No guard rates an adaptive method against the tolerance (its rtol/atol bound each step's local error): the
+    summary said nothing about accuracy at all (BDF at its default rtol on a belt with c = 0 was 7.4e-4 off against
+    the tolerance 1e-4). It says the run is not rated, with the options in force."""
+    assert main(["sim", "paper", "--method", method, "--duration", "0.2", *options]) == 0
+    line = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("accuracy")]
+    assert len(line) == 1 and "not rated" in line[0] and f"{method} is adaptive (rtol {rtol}" in line[0], line
+
+
+def test_a_fixed_step_run_is_rated(capsys):
+    """The counterpart: a fixed-step run's accuracy line is the guard's verdict, not the adaptive note."""
+    assert main(["sim", "paper", "--duration", "0.2"]) == 0
+    line = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("accuracy")]
+    assert len(line) == 1 and "not rated" not in line[0] and "accurate" in line[0], line

@@ -445,6 +445,8 @@ def _overlay_method(scene, model: str, method: str, dt: float) -> tuple[str, str
 
 def print_summary(summary) -> None:
     """Short human summary of a run (:class:`~belt_drive_ros.io.run_writers.RunSummary`; rpm for people, SI otherwise)."""
+    from ..core.integrators import method_class
+
     rpm = 60.0 / (2.0 * math.pi)
     o = summary.final
     scene = summary.scene
@@ -461,6 +463,11 @@ def print_summary(summary) -> None:
         print(f"accuracy       {summary.accuracy.describe()}")
         if not summary.accuracy.accurate:
             print(f"warning: {summary.accuracy.describe()}", file=sys.stderr)
+    elif not (cls := method_class(summary.method)).fixed_step:  # no guard rates an adaptive method: said, not silent
+        opts = {"rtol": cls.RTOL, "atol": cls.ATOL, **(scene.method_options or {})}
+        print(f"accuracy       not rated: {summary.method} is adaptive (rtol {opts['rtol']:g}, atol {opts['atol']:g} "
+              f"bound each step's local error, not the run's; the tolerance {scene.tolerance:g} is checked for "
+              "fixed-step methods only)")
     if choice is not None and not choice.met and (summary.accuracy is None or summary.accuracy.accurate):
         # method auto found no candidate within the tolerance: said even where the run's own check rates it accurate
         print(f"warning: method auto: {choice.reason}", file=sys.stderr)

@@ -639,8 +639,11 @@ class ScipyAdaptive(Integrator):
     explicit = True
     #: name of the scipy.integrate.OdeSolver subclass (public API: scipy.integrate.RK45, ...)
     solver_name: ClassVar[str]
+    #: the options' defaults: relative and absolute tolerance of each step's local error
+    RTOL: ClassVar[float] = 1e-6
+    ATOL: ClassVar[float] = 1e-9
 
-    def __init__(self, A, B, dt, rtol: float = 1e-6, atol: float = 1e-9, max_step: float = np.inf):
+    def __init__(self, A, B, dt, rtol: float = RTOL, atol: float = ATOL, max_step: float = np.inf):
         import scipy.integrate  # here, not at import: the registry is read by --help texts
 
         super().__init__(A, B, dt)
