@@ -71,6 +71,7 @@ class PlainRequiresPython(Distribution):
 
 setup(
     distclass=PlainRequiresPython,
+    license="Apache-2.0",  # pyproject.toml's dynamic "license": every setuptools reads it alike (see pyproject.toml)
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
         ("share/" + PACKAGE, ["package.xml"]),

@@ -115,6 +115,21 @@ def test_package_xml_is_format_3_with_the_dependencies_the_code_imports():
     assert imported and imported <= deps | {"tf2_msgs"}, imported - deps  # tf2_msgs: used only where importable
 
 
+def test_the_build_takes_the_license_from_setup_py_as_a_system_ros_2s_setuptools_reads_it(workspace):
+    """colcon under a system ROS 2 Jazzy runs ``setup.py`` with the distro's setuptools (Ubuntu 24.04: 68.1.2),
+    whose pyproject.toml schema takes ``project.license`` only as a table: the SPDX string (setuptools >= 77)
+    stopped every build there ('`project.license` must be valid exactly by one definition'), and >= 77 deprecates
+    the table. The license is setup.py's (``dynamic``), installed as package.xml states it."""
+    import tomllib
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    assert "license" not in project and "license" in project.get("dynamic", []), project.get("license")
+    expected = ET.parse(ROOT / "package.xml").getroot().findtext("license")
+    ws, _, _ = workspace
+    (pkg_info,) = (ws / "install" / PACKAGE).rglob("belt_drive_ros-*.egg-info/PKG-INFO")
+    assert f"License: {expected}" in pkg_info.read_text(encoding="utf-8").splitlines()
+
+
 def test_installed_executables_run_from_the_workspace_environment(workspace):
     ws, env, _ = workspace
     for name, command in EXECUTABLES.items():
