@@ -128,10 +128,11 @@ def _file_parameters(path: str, node_name: str) -> dict:
     data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
     assert isinstance(data, dict), path
     for key in data:
-        assert key in (node_name, f"/{node_name}", "/**"), f"{path}: {key!r} matches no node of the launch file"
+        assert key in (node_name, f"/{node_name}", f"/**/{node_name}", "/**"), \
+            f"{path}: {key!r} matches no node of the launch file"
         assert list(data[key]) == ["ros__parameters"], data[key]
     out = {}
-    for key in ("/**", node_name, f"/{node_name}"):
+    for key in ("/**", f"/**/{node_name}", node_name, f"/{node_name}"):
         out.update((data.get(key) or {}).get("ros__parameters") or {})
     return out
 
@@ -222,6 +223,36 @@ def test_parameters_example_is_accepted_by_the_node_schema():
     values = _file_parameters(str(PARAMS_FILE), "belt_drive")
     assert values["scene"] == "truck_compressor" and "k" not in values  # (model parameters: the scene's)
     _check_node_parameters(values, str(PARAMS_FILE))
+
+
+def test_the_parameters_file_reaches_the_node_in_any_namespace_and_no_other_node(ros_domain_id):
+    """rcl reads a section ``belt_drive:`` as ``/belt_drive``: the node launched in a namespace (``-r __ns:=``,
+    an including launch file's PushROSNamespace) took nothing of config/belt_drive.yaml, silently. Its section
+    applies to the node named belt_drive in any namespace, root included, and to no other node (the source)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.node import Node as RclpyNode
+
+    file_values = yaml.safe_load(PARAMS_FILE.read_text(encoding="utf-8"))
+    (section,) = file_values.values()
+    names = set(section["ros__parameters"])
+    context = Context()
+    rclpy.init(context=context, domain_id=ros_domain_id)
+    try:
+        for name, namespace, applies in (("belt_drive", "/", True), ("belt_drive", "/truck1", True),
+                                         ("belt_drive", "/fleet/truck2", True), ("torque_source", "/truck1", False)):
+            node = RclpyNode(name, namespace=namespace, context=context,
+                             cli_args=["--ros-args", "--params-file", str(PARAMS_FILE)],
+                             automatically_declare_parameters_from_overrides=True)
+            try:
+                got = {n for n in names if node.has_parameter(n)}
+                assert got == (names if applies else set()), (name, namespace, names - got)
+                if applies:
+                    assert node.get_parameter("scene").value == section["ros__parameters"]["scene"]
+            finally:
+                node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
 
 
 def test_the_check_refuses_a_parameter_the_node_does_not_have(tmp_path):

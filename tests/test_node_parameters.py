@@ -156,6 +156,30 @@ def test_a_misspelt_name_in_a_params_file_is_refused_as_on_the_command_line(tmp_
     assert unknown_parameter_rule(["-r", "__node:=other", "--params-file", str(typo)], names, "belt_drive") is None
 
 
+def test_a_params_file_section_for_the_node_in_any_namespace_is_checked_as_rcl_applies_it(tmp_path):
+    """A section ``/**/belt_drive:`` (the shipped config/belt_drive.yaml's: the node in any namespace) was taken for
+    a wildcard one and never checked: a misspelt name in it ran the default without a word. Sections match as rcl
+    matches them (``*`` one token, ``**`` any number); one for any node (``/**``, ``/fleet/*``) is not checked."""
+    from belt_drive_ros.ros.parameter_schema import section_matches, unknown_parameter_rule
+
+    assert section_matches("belt_drive", "/belt_drive") and not section_matches("belt_drive", "/truck1/belt_drive")
+    for fqn in ("/belt_drive", "/truck1/belt_drive", "/a/b/belt_drive"):
+        assert section_matches("/**/belt_drive", fqn) and section_matches("/**", fqn)
+        assert not section_matches("/**/torque_source", fqn)
+    assert section_matches("/*/belt_drive", "/truck1/belt_drive")
+    assert not section_matches("/*/belt_drive", "/belt_drive") and not section_matches("/*/belt_drive", "/a/b/belt_drive")
+    typo = tmp_path / "typo.yaml"
+    typo.write_text("/**/belt_drive:\n  ros__parameters:\n    torque_limt: 5.0\n")
+    names = {"torque_limit"}
+    for namespace in ("/", "/truck1", "/fleet/truck2"):
+        assert unknown_parameter_rule(["--params-file", str(typo)], names, "belt_drive", namespace) == \
+            f"torque_limt (params file {typo})", namespace
+    assert unknown_parameter_rule(["--params-file", str(typo)], names, "torque_source", "/truck1") is None
+    anyone = tmp_path / "anyone.yaml"
+    anyone.write_text("/**:\n  ros__parameters:\n    rate: 5.0\n/fleet/*:\n  ros__parameters:\n    rate: 5.0\n")
+    assert unknown_parameter_rule(["--params-file", str(anyone)], names, "belt_drive", "/fleet") is None
+
+
 def test_a_belt_network_as_the_paper_nodes_scene_is_named_for_what_it_is(tmp_path):
     """scene:=fead_i4 on the paper node was "unknown scene 'fead_i4': not a file and not a shipped scene", though it
     is shipped: a belt network, which runs on its own node. A network YAML file likewise."""

@@ -51,6 +51,7 @@ __all__ = [
     "record_path_exists",
     "scene_defaults",
     "scene_torque_bound",
+    "section_matches",
 ]
 
 DEFAULT_SCENE = "paper"
@@ -151,11 +152,12 @@ def unknown_parameter_rule(ros_args: list[str], names, node_name: str | None = N
                            namespace: str = "/") -> str | None:
     """The first parameter ``ros_args`` set that is neither in ``names`` nor :data:`RCLPY_PARAMETERS` (rclpy drops
     it without a word), or None: a ``-p NAME:=VALUE`` (``--param``; a rule scoped to a node, ``other:NAME:=VALUE``,
-    is not checked), then a name under ``ros__parameters`` of a ``--params-file`` section for this node: the
-    section named by its fully qualified name (``belt_drive:`` is ``/belt_drive``; ``node_name`` in ``namespace``,
+    is not checked), then a name under ``ros__parameters`` of a ``--params-file`` section for this node: a
+    section whose name matches its fully qualified name as rcl matches it (``belt_drive:`` is ``/belt_drive``;
+    ``/**/belt_drive:`` is belt_drive in any namespace, :func:`section_matches`; ``node_name`` in ``namespace``,
     as ``-r __ns:=``, ``-r __node:=`` / ``__name:=`` and their ``belt_drive:``-scoped forms remap them), given as
-    ``NAME (params file FILE)``. A section for another node, or a wildcard one (``/**:``, which may hold other
-    nodes' parameters), is not checked."""
+    ``NAME (params file FILE)``. A section for another node, or one whose node name is a wildcard (``/**:``,
+    ``/fleet/*:``, which may hold other nodes' parameters), is not checked."""
     for flag, rule in zip(ros_args, ros_args[1:]):
         if flag in ("-p", "--param"):
             name = rule.split(":=", 1)[0]
@@ -182,13 +184,32 @@ def unknown_parameter_rule(ros_args: list[str], names, node_name: str | None = N
             continue
         data = parse_yaml(read_text(path, what="params file"), label=f"params file {path}")
         for section, body in (data.items() if isinstance(data, dict) else ()):
-            if "/" + str(section).strip("/") != fqn:  # (another node's section, or a wildcard one)
-                continue
+            if not section_matches(str(section), fqn) or str(section).rstrip("/").rsplit("/", 1)[-1] in ("*", "**"):
+                continue  # (another node's section, or one for any node)
             values = body.get("ros__parameters") if isinstance(body, dict) else None
             for name in _flat_names(values if isinstance(values, dict) else {}):
                 if name not in names and name not in RCLPY_PARAMETERS:
                     return f"{name} (params file {path})"
     return None
+
+
+def section_matches(section: str, fqn: str) -> bool:
+    """Whether rcl applies the params file section ``section`` to the node of fully qualified name ``fqn``.
+
+    A section is a node's fully qualified name (``belt_drive`` is ``/belt_drive``) in which a token ``*`` stands
+    for any one token and ``**`` for any number of them, none included: ``/**/belt_drive`` is belt_drive in
+    any namespace, ``/**`` every node (ROS 2 command line arguments design, "Wildcards")."""
+    want = [part for part in section.split("/") if part]
+    have = [part for part in fqn.split("/") if part]
+
+    def match(i: int, j: int) -> bool:
+        if i == len(want):
+            return j == len(have)
+        if want[i] == "**":
+            return any(match(i + 1, k) for k in range(j, len(have) + 1))
+        return j < len(have) and want[i] in ("*", have[j]) and match(i + 1, j + 1)
+
+    return match(0, 0)
 
 
 def _flat_names(values: dict, prefix: str = "") -> list:
