@@ -156,6 +156,33 @@ def test_a_misspelt_name_in_a_params_file_is_refused_as_on_the_command_line(tmp_
     assert unknown_parameter_rule(["-r", "__node:=other", "--params-file", str(typo)], names, "belt_drive") is None
 
 
+def test_the_recording_parameters_are_read_only_as_ros_tools_see_them(tmp_path, ros_domain_id):
+    """record_path, record_overwrite, max_bag_duration and max_bag_size take effect at start only, but their
+    descriptors said read_only false: rqt_reconfigure and ``ros2 param describe`` offered them for editing, and a
+    change came back refused only from the node's own check. Declared read-only, with the value given at start
+    (an integer for max_bag_duration a double, as for every double), every other parameter still writable."""
+    from rcl_interfaces.msg import ParameterType
+    from rclpy.parameter import Parameter
+
+    from belt_drive_ros.ros.parameter_schema import OWN_PARAMETERS, START_ONLY
+    from belt_drive_ros.testing import BeltDriveHarness
+
+    path = tmp_path / "run"
+    with BeltDriveHarness(scene="paper", domain_id=ros_domain_id, record_path=str(path), max_bag_duration=600,
+                          input_timeout=0.0) as h:
+        described = {d.name: d for d in h.node.describe_parameters(list(OWN_PARAMETERS))}  # (the service's answer)
+        assert {name for name, d in described.items() if d.read_only} == set(START_ONLY)
+        assert described["max_bag_duration"].type == ParameterType.PARAMETER_DOUBLE
+        assert h.node.get_parameter("max_bag_duration").value == 600.0
+        assert h.node.get_parameter("max_bag_duration").type_ == Parameter.Type.DOUBLE
+        assert h.node.get_parameter("record_path").value == str(path)
+        for name, value in (("record_path", str(tmp_path / "other.mcap")), ("max_bag_size", 10**6)):
+            (result,) = h.set_parameters_over_the_service(**{name: value})
+            assert not result.successful and result.reason == f"Trying to set a read-only parameter: {name}."
+        assert h.node.settings.record_path == str(path) and h.node.settings.max_bag_size == 0
+        assert h.set_parameters(torque_limit=5.0).successful
+
+
 def test_a_params_file_section_for_the_node_in_any_namespace_is_checked_as_rcl_applies_it(tmp_path):
     """A section ``/**/belt_drive:`` (the shipped config/belt_drive.yaml's: the node in any namespace) was taken for
     a wildcard one and never checked: a misspelt name in it ran the default without a word. Sections match as rcl

@@ -74,7 +74,7 @@ def test_existing_record_path_refuses_the_start_unless_overwrite_is_set(tmp_path
         h.advance(0.01)
         assert "recording" in h.diagnostics()["simulation"]["values"]["recording"]
         rejected = h.set_parameters(record_overwrite=False)
-        assert not rejected.successful and "set at start only" in rejected.reason
+        assert not rejected.successful and rejected.reason == "Trying to set a read-only parameter: record_overwrite."
     assert read_topic(bag, "/shaft_speed").data.size == 11
 
 

@@ -125,7 +125,7 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("max_bag_duration", "float", 0.0, "split the recording into a rosbag2 bag folder (NAME/NAME_0.mcap, NAME_1.mcap, ..., metadata.yaml), a new file every this many seconds of log time; 0 = no split by time; set at start only", range=(0.0, 1.0e7)),
     ParamSpec("max_bag_size", "int", 0, "split the recording into a bag folder, a new file once one holds this many bytes; 0 = no split by size; set at start only", range=(0, 2**50)),
 )
-#: parameters that take effect at start only (a runtime change is refused with a reason)
+#: parameters that take effect at start only: declared read-only (rclpy refuses a runtime change, naming it)
 START_ONLY: tuple[str, ...] = ("record_path", "record_overwrite", "max_bag_duration", "max_bag_size")
 NODE_SPECS: dict[str, ParamSpec] = {s.name: s for s in NODE_PARAMETERS}
 MODEL_PARAMETERS: tuple[str, ...] = tuple(FIELD_DOCS)

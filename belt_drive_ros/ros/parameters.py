@@ -50,7 +50,7 @@ __all__ = ["NodeParameters", "descriptor"]
 
 
 def descriptor(name: str) -> ParameterDescriptor:
-    """rclpy descriptor of node parameter ``name`` (type, description, range or choices)."""
+    """rclpy descriptor of node parameter ``name`` (type, description, range or choices; read-only: ``START_ONLY``)."""
     if name in FIELD_DOCS:
         unit, text = FIELD_DOCS[name]
         lo, hi = model_range(name)
@@ -63,7 +63,7 @@ def descriptor(name: str) -> ParameterDescriptor:
             dynamic_typing=True,  # so `-p k:=300000` (an integer) is accepted at start
         )
     spec = NODE_SPECS[name]
-    d = ParameterDescriptor(name=name, description=spec.description)
+    d = ParameterDescriptor(name=name, description=spec.description, read_only=name in START_ONLY)
     if spec.kind == "float":
         d.type = ParameterType.PARAMETER_DOUBLE
         d.floating_point_range = [FloatingPointRange(from_value=spec.range[0], to_value=spec.range[1], step=0.0)]
@@ -120,14 +120,23 @@ class NodeParameters:
             if name == "scene":
                 continue
             try:
-                node.declare_parameter(name, defaults[name], descriptor(name))
+                if name in START_ONLY:  # read-only: declared again with the value given (an integer for a double:
+                    # a double), which no set_parameters can change later, the node's own retyping below included
+                    given = descriptor(name)
+                    given.read_only = False
+                    value = node.declare_parameter(name, defaults[name], given).value
+                    node.undeclare_parameter(name)
+                    node.declare_parameter(name, _as_double(Parameter(name, value=value)).value, descriptor(name),
+                                           ignore_override=True)
+                else:
+                    node.declare_parameter(name, defaults[name], descriptor(name))
             except InvalidParameterValueException as exc:  # outside the descriptor's range
                 text = str(exc).removesuffix(f": {name}").split("Reason: ", 1)[-1]
                 raise NodeConfigError(name, text) from None
             except InvalidParameterTypeException as exc:
                 raise NodeConfigError(name, f"wrong type: {str(exc).removesuffix(f': {name}')}") from None
         # integers given at start (`-p k:=300000`, a params file) become doubles
-        retyped = [_as_double(p) for p in node.get_parameters(sorted(DOUBLE_PARAMETERS))
+        retyped = [_as_double(p) for p in node.get_parameters(sorted(DOUBLE_PARAMETERS - set(START_ONLY)))
                    if p.type_ == Parameter.Type.INTEGER]
         if retyped:
             node.set_parameters(retyped)
@@ -183,10 +192,6 @@ class NodeParameters:
                 continue  # not ours (use_sim_time, qos overrides, ...)
             if p.type_ == Parameter.Type.NOT_SET:
                 return SetParametersResult(successful=False, reason=f"{p.name}: cannot be undeclared")
-            if p.name in START_ONLY and p.value != values[p.name]:
-                return SetParametersResult(
-                    successful=False, reason=f"{p.name}: set at start only (restart the node to change the recording)"
-                )
             values[p.name] = p.value
             changed.add(p.name)
         if not changed:
