@@ -466,12 +466,39 @@ def test_a_network_node_takes_an_integer_for_a_float_and_names_an_undeclared_par
     h = Lockstep(ros_domain_id, step_rate_hz=500)
     try:
         assert h.node.get_parameter("step_rate_hz").value == 500.0 and h.node.sim.settings.tick_ns == 2_000_000
+        assert h.node.get_parameter("step_rate_hz").type_ == Parameter.Type.DOUBLE  # (it stayed an INTEGER)
         client = h.probe.create_client(SetParameters, f"{h.node.get_fully_qualified_name()}/set_parameters")
         h.until(client.service_is_ready, "the set_parameters service")
         future = client.call_async(SetParameters.Request(parameters=[Parameter("modle", value="rigid").to_parameter_msg()]))
         h.until(future.done, "the answer")
         (result,) = future.result().results
         assert not result.successful and "modle: not a parameter of the node" in result.reason, result.reason
+    finally:
+        h.close()
+
+
+def test_the_network_nodes_parameters_are_read_only_as_ros_tools_see_them(ros_domain_id):
+    """The network node takes every parameter at start and refused every change, but its descriptors said
+    read_only false (rqt_reconfigure and ``ros2 param describe`` offered them for editing). Declared read-only: a
+    change is refused by name over the parameter service; use_sim_time stays rclpy's, writable."""
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    from belt_drive_ros.ros.network_node import NetworkNode
+
+    h = Lockstep(ros_domain_id)
+    try:
+        described = h.node.describe_parameters([*NetworkNode.PARAMETER_NAMES, "use_sim_time"])
+        assert [d.name for d in described if not d.read_only] == ["use_sim_time"]
+        client = h.probe.create_client(SetParameters, f"{h.node.get_fully_qualified_name()}/set_parameters")
+        h.until(client.service_is_ready, "the set_parameters service")
+        future = client.call_async(SetParameters.Request(parameters=[
+            Parameter("step_rate_hz", value=500.0).to_parameter_msg(), Parameter("model", value="rigid").to_parameter_msg()]))
+        h.until(future.done, "the answer")
+        reasons = [(r.successful, r.reason) for r in future.result().results]
+        assert reasons == [(False, "Trying to set a read-only parameter: step_rate_hz."),
+                           (False, "Trying to set a read-only parameter: model.")], reasons
+        assert h.node.get_parameter("step_rate_hz").value == 1000.0 and h.node.settings.tick_ns == 1_000_000
     finally:
         h.close()
 

@@ -56,7 +56,7 @@ from rclpy.clock import Clock, ClockType  # noqa: E402
 from rclpy.event_handler import PublisherEventCallbacks  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult  # noqa: E402
+from rcl_interfaces.msg import ParameterDescriptor  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64, String  # noqa: E402
 
@@ -64,13 +64,15 @@ from ..core.errors import BeltDriveError, SimulationDivergedError  # noqa: E402
 from ..io.network_bag import APPLIED, NetworkBagWriter, NetworkLayout, network_record, scene_text  # noqa: E402
 from .network_stepper import NetworkStepper  # noqa: E402
 from .parameter_schema import NodeConfigError, check_record_path, record_path_exists, refuse_undeclared  # noqa: E402
+from .parameters import declare_read_only  # noqa: E402
 from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS, TF_QOS  # noqa: E402
 from .simulation import NodeSimulation  # noqa: E402
 from .timing import TickSource, TickStats  # noqa: E402
 
 __all__ = ["NetworkNode", "NetworkSettings", "run"]
 
-#: parameters of the network node: (name, default, description); read at start (changes are refused with a reason)
+#: parameters of the network node: (name, default, description); read at start, declared read-only (rclpy refuses a
+#: change, naming the parameter)
 PARAMETERS = (
     ("scene", "fead_i4", "network scene: shipped name or YAML file with kind: network"),
     ("step_rate_hz", 1000.0, "tick rate on the node's clock [Hz]; the scene's dt must divide the tick"),
@@ -344,17 +346,16 @@ class NetworkNode(Node):
         try:
             values = {}
             for name, default, text in PARAMETERS:
-                # a float parameter takes an integer at start (`-p step_rate_hz:=500`, as the paper node): a double
+                # read-only (taken at start); a float parameter takes an integer at start (`-p step_rate_hz:=500`,
+                # as the paper node): a double
                 floating = isinstance(default, float)
-                value = self.declare_parameter(name, default, ParameterDescriptor(description=text,
-                                                                                  dynamic_typing=floating)).value
-                values[name] = float(value) if floating and type(value) is int else value
+                values[name] = declare_read_only(self, name, default, ParameterDescriptor(
+                    description=text, dynamic_typing=floating), double=floating)
             settings = NetworkSettings.from_values(values)
         except BaseException:
             self.destroy_node()
             raise
         self.add_pre_set_parameters_callback(self._on_pre_set)
-        self.add_on_set_parameters_callback(self._on_set_parameters)
         self.counters: dict = {"published": 0}
         self.layout = NetworkLayout(settings.scene)
         self.sim = NetworkSimulation(settings, self.layout, self.counters, self.get_logger())
@@ -437,13 +438,6 @@ class NetworkNode(Node):
         """A name the node does not have is refused by name (:func:`~.parameter_schema.refuse_undeclared`)."""
         refuse_undeclared(self, params, "not a parameter of the node")
         return params
-
-    def _on_set_parameters(self, params):
-        names = [p.name for p in params if p.name != "use_sim_time"]
-        if names and self.timing is not None:
-            return SetParametersResult(successful=False, reason=f"{', '.join(names)}: a network node takes its "
-                                       "parameters at start; restart the node to change them")
-        return SetParametersResult(successful=True)
 
     def _record_start(self, now_ns: int, why: str) -> None:
         """A start of the run as a ``restart`` metadata record of the recording, as the paper node writes it."""

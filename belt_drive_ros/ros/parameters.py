@@ -46,7 +46,7 @@ from .parameter_schema import (
     scene_defaults,
 )
 
-__all__ = ["NodeParameters", "descriptor"]
+__all__ = ["NodeParameters", "declare_read_only", "descriptor"]
 
 
 def descriptor(name: str) -> ParameterDescriptor:
@@ -79,6 +79,22 @@ def descriptor(name: str) -> ParameterDescriptor:
         if spec.choices:
             d.additional_constraints = "one of " + ", ".join(spec.choices)
     return d
+
+
+def declare_read_only(node, name: str, default: Any, d: ParameterDescriptor, *, double: bool = False) -> Any:
+    """Declare ``name`` read-only (``d.read_only``) with the value given at start, or ``default``; its value.
+
+    An integer given for a ``double`` parameter (``-p max_bag_duration:=600``) is stored as a double, as
+    :func:`_as_double` does for the writable ones: declared once to read what was given, undeclared and
+    declared again, read-only, with that value (a read-only parameter cannot be set after its declaration).
+    """
+    d.read_only = False
+    value = node.declare_parameter(name, default, d).value
+    node.undeclare_parameter(name)
+    if double and type(value) is int:
+        value = float(value)
+    d.read_only = True
+    return node.declare_parameter(name, value, d, ignore_override=True).value
 
 
 def _as_double(p: Parameter) -> Parameter:
@@ -120,14 +136,8 @@ class NodeParameters:
             if name == "scene":
                 continue
             try:
-                if name in START_ONLY:  # read-only: declared again with the value given (an integer for a double:
-                    # a double), which no set_parameters can change later, the node's own retyping below included
-                    given = descriptor(name)
-                    given.read_only = False
-                    value = node.declare_parameter(name, defaults[name], given).value
-                    node.undeclare_parameter(name)
-                    node.declare_parameter(name, _as_double(Parameter(name, value=value)).value, descriptor(name),
-                                           ignore_override=True)
+                if name in START_ONLY:
+                    declare_read_only(node, name, defaults[name], descriptor(name), double=name in DOUBLE_PARAMETERS)
                 else:
                     node.declare_parameter(name, defaults[name], descriptor(name))
             except InvalidParameterValueException as exc:  # outside the descriptor's range
