@@ -96,6 +96,19 @@ def test_timeout_is_reported_when_the_node_cannot_progress(ros_domain_id):
             h.publish_torque(1.0)
 
 
+def test_the_statuses_of_a_node_in_a_namespace_name_its_namespace(ros_domain_id):
+    """Two drives in two namespaces (/truck1/belt_drive, /truck2/belt_drive) both named their statuses
+    'belt_drive: simulation', ...: on the one /diagnostics rqt_robot_monitor and the aggregator showed one entry
+    flipping between them. The statuses carry the fully qualified name (without its leading slash)."""
+    with BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0, namespace="/truck1") as h:
+        assert {s.name for s in h.node.diagnostic_status()} == {
+            "truck1/belt_drive: simulation", "truck1/belt_drive: input", "truck1/belt_drive: belt"}
+        assert set(h.diagnostics()) == {"simulation", "input", "belt"}
+    with BeltDriveHarness(domain_id=ros_domain_id, input_timeout=0.0) as h:  # the root namespace: as before
+        assert {s.name for s in h.node.diagnostic_status()} == {
+            "belt_drive: simulation", "belt_drive: input", "belt_drive: belt"}
+
+
 def test_a_second_graph_on_the_same_domain_is_reported_not_mixed_in(ros_domain_id):
     """Two harnesses on one domain (what a domain id shared by two test processes does): the second's
     /clock drives the first's node too, whose joint_states reach the second's probe; outputs() says so

@@ -208,7 +208,7 @@ def test_scene_driven_node_equals_offline_sim(tmp_path, ros_domain_id):
     finally:
         h.close()
     status = diagnostics[-1].status[0]
-    assert status.level == b"\x00" and status.name.endswith(": simulation") and status.hardware_id == "fead_i4"
+    assert status.level == b"\x00" and status.name == "car1/belt_drive: simulation" and status.hardware_id == "fead_i4"
     assert {kv.key for kv in status.values} >= {"published", "received", "friction_use_max", "tick_compute_us_p50",
                                                 "tick_compute_us_p99", "period_error_ms_p99"}
     off = tmp_path / "offline.mcap"

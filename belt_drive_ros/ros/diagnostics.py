@@ -1,8 +1,11 @@
 """``/diagnostics`` of the belt-drive node: simulation, input and belt statuses.
 
 :class:`NodeDiagnostics` publishes a ``diagnostic_msgs/DiagnosticArray``
-once a second of wall time (and on demand). Each status covers the window
-since the previous publish:
+once a second of wall time (and on demand). ``<node>`` in the status names
+is the node's fully qualified name without its leading slash
+(:func:`status_prefix`: ``belt_drive``, ``truck1/belt_drive`` in the
+namespace ``/truck1``). Each status covers the window since the previous
+publish:
 
 * ``<node>: simulation``: ERROR if the state diverged in the window (the
   reason; the run restarted from its initial state), WARN for a gap in the
@@ -30,9 +33,19 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from .timing import stamp
 
-__all__ = ["NodeDiagnostics"]
+__all__ = ["NodeDiagnostics", "status_prefix"]
 
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
+
+
+def status_prefix(node) -> str:
+    """What the names of ``node``'s statuses start with: its fully qualified name without the leading slash.
+
+    ``belt_drive`` in the root namespace, ``truck1/belt_drive`` in ``/truck1``: drives in two namespaces report
+    apart on the one ``/diagnostics`` (as diagnostic_updater's ``use_fqn``; with the bare node name, its default,
+    both were ``belt_drive: simulation``, one entry in rqt_robot_monitor and the aggregator flipping between them).
+    """
+    return node.get_fully_qualified_name().lstrip("/")
 
 
 def _kv(**items) -> list:
@@ -69,7 +82,7 @@ class NodeDiagnostics:
         deltas = {k: self._delta(k) for k in ("divergences", "rejected_nonfinite", "clamped", "rejected_bound",
                                               "tick_gaps")}
         self._seen = dict(c)
-        prefix = node.get_name()
+        prefix = status_prefix(node)
         last = node.last
         p50, p99, pmax = node.stats.period_error_ms(timing.nominal_period())
         compute = timing.compute_us()  # the tick thread's compute time per tick [us] (None without it)

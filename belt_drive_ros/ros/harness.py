@@ -72,6 +72,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
+from .diagnostics import status_prefix  # noqa: E402
 from .executors import make_executor  # noqa: E402
 from .node import NODE_NAME, OUTPUT_TOPICS, SLIP_OUTPUT_TOPICS, BeltDriveNode  # noqa: E402
 from ..core.errors import real  # noqa: E402
@@ -479,7 +480,7 @@ class BeltDriveHarness:
         Waits for the node's own array (its statuses are named ``<node>: ...``);
         arrays of other nodes on ``/diagnostics`` are passed over.
         """
-        prefix = self._started("diagnostics").get_name() + ": "
+        prefix = status_prefix(self._started("diagnostics")) + ": "
 
         def own(m: DiagnosticArray) -> bool:
             return bool(m.status) and all(st.name.startswith(prefix) for st in m.status)

@@ -64,6 +64,7 @@ from ..core.errors import BeltDriveError, SimulationDivergedError  # noqa: E402
 from ..io.network_bag import APPLIED, NetworkBagWriter, NetworkLayout, network_record, scene_text  # noqa: E402
 from .network_stepper import NetworkStepper  # noqa: E402
 from .parameter_schema import NodeConfigError, check_record_path, record_path_exists, refuse_undeclared  # noqa: E402
+from .diagnostics import status_prefix  # noqa: E402
 from .parameters import declare_read_only  # noqa: E402
 from .qos import DESCRIPTION_QOS, INPUT_QOS, OUTPUT_QOS, TF_QOS  # noqa: E402
 from .simulation import NodeSimulation  # noqa: E402
@@ -533,7 +534,7 @@ class NetworkNode(Node):
             run = self.last_run
             if run is None and self.sim.started:  # the ticks skipped the outputs (no reader): this tick's
                 run = self.sim.outputs()[2]
-        status = DiagnosticStatus(name=f"{self.get_name()}: simulation", hardware_id=s.scene.name)
+        status = DiagnosticStatus(name=f"{status_prefix(self)}: simulation", hardware_id=s.scene.name)
         level, message = DiagnosticStatus.OK, "running"
         values = {"scene": s.scene.name, "tier": self.sim.stepper.tier, "method": self.sim.stepper.method}
         values.update({k: str(v) for k, v in self.counters.items() if isinstance(v, int)})
