@@ -12,6 +12,13 @@ without this file. colcon builds ament_python packages by running
   Python that runs the build, as setuptools writes console scripts. They are
   written only into a ``lib/belt_drive_ros`` scripts folder, never into a
   wheel, so ``pip install`` puts no ``node`` (Node.js's name) on a PATH.
+
+``colcon build --symlink-install`` runs ``setup.py develop`` instead, from
+its build folder, where colcon links setup.py, setup.cfg and the packages
+but not pyproject.toml: the distribution then reads the pyproject.toml
+beside the real setup.py (without it setuptools refused the build:
+'Multiple top-level packages discovered'), and ``develop`` writes the same
+ROS executables.
 """
 
 from glob import glob
@@ -19,10 +26,13 @@ from pathlib import Path
 import sys
 
 from setuptools import setup
+from setuptools.command.develop import develop
 from setuptools.command.install_scripts import install_scripts
 from setuptools.dist import Distribution
 
 PACKAGE = "belt_drive_ros"
+#: the package's sources: where setup.py is, also when colcon runs it through a link from its build folder
+SOURCE = Path(__file__).resolve().parent
 #: executable in lib/belt_drive_ros -> belt-drive subcommand it runs
 ROS_EXECUTABLES = {"node": "node", "source": "source"}
 
@@ -38,20 +48,35 @@ if __name__ == "__main__":
 '''
 
 
+def write_ros_executables(target: Path, dry_run: bool) -> list:
+    """The ROS executables written into ``target`` when it is ``lib/belt_drive_ros``; their paths."""
+    if target.parts[-2:] != ("lib", PACKAGE):
+        return []  # a wheel or a plain prefix: only pyproject.toml's commands
+    paths = []
+    for name, command in ROS_EXECUTABLES.items():
+        path = target / name
+        if not dry_run:
+            path.write_text(WRAPPER.format(python=sys.executable, package=PACKAGE, name=name, command=command))
+            path.chmod(0o755)
+        paths.append(str(path))
+    return paths
+
+
 class InstallRosExecutables(install_scripts):
     """``install_scripts``, plus the ROS executables when the scripts go to ``lib/belt_drive_ros``."""
 
     def run(self):
         super().run()
-        target = Path(self.install_dir)
-        if target.parts[-2:] != ("lib", PACKAGE):
-            return  # a wheel or a plain prefix: only pyproject.toml's commands
-        for name, command in ROS_EXECUTABLES.items():
-            path = target / name
-            if not self.dry_run:
-                path.write_text(WRAPPER.format(python=sys.executable, package=PACKAGE, name=name, command=command))
-                path.chmod(0o755)
-            self.outfiles.append(str(path))
+        self.outfiles += write_ros_executables(Path(self.install_dir), self.dry_run)
+
+
+class DevelopRosExecutables(develop):
+    """``develop`` (``colcon build --symlink-install``), plus the ROS executables in its ``lib/belt_drive_ros``."""
+
+    def run(self):
+        super().run()
+        if getattr(self, "script_dir", None) and not getattr(self, "uninstall", False):
+            write_ros_executables(Path(self.script_dir), self.dry_run)
 
 
 class PlainRequiresPython(Distribution):
@@ -60,10 +85,14 @@ class PlainRequiresPython(Distribution):
     colcon reads a package's setup options by printing them and parsing them
     back as Python literals (colcon-python-setup-py); the specifier object
     setuptools makes from pyproject.toml does not parse back, the string does.
+    Run where no pyproject.toml is (colcon's build folder with
+    ``--symlink-install``), it reads the one of :data:`SOURCE`.
     """
 
-    def parse_config_files(self, *args, **kwargs):
-        super().parse_config_files(*args, **kwargs)
+    def parse_config_files(self, filenames=None, *args, **kwargs):
+        if filenames is None and not Path("pyproject.toml").exists() and (SOURCE / "pyproject.toml").is_file():
+            filenames = [*self.find_config_files(), str(SOURCE / "pyproject.toml")]
+        super().parse_config_files(filenames, *args, **kwargs)
         for holder in (self, self.metadata):
             if getattr(holder, "python_requires", None) is not None:
                 holder.python_requires = str(holder.python_requires)
@@ -78,5 +107,5 @@ setup(
         ("share/" + PACKAGE + "/launch", sorted(glob("launch/*.launch.py"))),
         ("share/" + PACKAGE + "/config", sorted(glob("config/*.yaml"))),
     ],
-    cmdclass={"install_scripts": InstallRosExecutables},
+    cmdclass={"install_scripts": InstallRosExecutables, "develop": DevelopRosExecutables},
 )

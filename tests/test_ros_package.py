@@ -52,21 +52,25 @@ def _clean_env(tmp: Path) -> dict:
     return env
 
 
-@pytest.fixture(scope="module")
-def workspace(tmp_path_factory):
-    """A colcon workspace with the package built (``colcon build``, no symlink install)."""
-    ws = tmp_path_factory.mktemp("ws")
+def _build(ws: Path, *options: str) -> tuple:
+    """``colcon build`` (with ``options``) of a copy of the sources in the workspace ``ws``."""
     _copy_sources(ws)
     env = _clean_env(ws)
     colcon = Path(sys.executable).parent / "colcon"
     proc = subprocess.run(
-        [str(colcon), "--log-base", str(ws / "log"), "build", "--base-paths", str(ws / "src"),
+        [str(colcon), "--log-base", str(ws / "log"), "build", *options, "--base-paths", str(ws / "src"),
          "--build-base", str(ws / "build"), "--install-base", str(ws / "install"),
          "--event-handlers", "console_direct-"],
         cwd=ws, env=env, capture_output=True, text=True, timeout=300,
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return ws, env, proc.stdout + proc.stderr
+
+
+@pytest.fixture(scope="module")
+def workspace(tmp_path_factory):
+    """A colcon workspace with the package built (``colcon build``, no symlink install)."""
+    return _build(tmp_path_factory.mktemp("ws"))
 
 
 def _in_workspace(ws: Path, env: dict, command: str) -> subprocess.CompletedProcess:
@@ -173,3 +177,23 @@ def test_a_wheel_carries_no_ros_executables(tmp_path):
     assert not [n for n in names if "/scripts/" in n or n.endswith(("/node", "/source"))], names
     scripts = {line.split("=")[0].strip() for line in entry_points.splitlines() if "=" in line}
     assert scripts == {"belt-drive", "msg-tools"}, entry_points
+
+
+def test_a_symlink_install_builds_and_runs_as_ros_developers_build(tmp_path):
+    """``colcon build --symlink-install`` (what most ROS 2 workspaces use) failed: colcon runs ``setup.py develop``
+    in its build folder, where it links no pyproject.toml, and setuptools refused 'Multiple top-level packages
+    discovered in a flat-layout'; ``develop`` wrote no ``node`` or ``source`` either. Built so, the executables
+    run, the launch and config files are installed and the package is imported from its sources."""
+    ws, env, log = _build(tmp_path, "--symlink-install")
+    assert "Finished <<< belt_drive_ros" in log
+    prefix = ws / "install" / PACKAGE
+    for path in ("launch/belt_drive.launch.py", "config/belt_drive.yaml", "package.xml"):
+        assert (prefix / "share" / PACKAGE / path).is_file(), path
+    assert (prefix / "share" / "ament_index" / "resource_index" / "packages" / PACKAGE).is_file()
+    for name, command in EXECUTABLES.items():
+        proc = _in_workspace(ws, env, f"{_lib(ws)}/{name} --help")
+        assert proc.returncode == 0, proc.stderr
+        assert proc.stdout.startswith(f"usage: {command}"), proc.stdout[:200]
+    proc = _in_workspace(ws, env, f"{sys.executable} -c 'import belt_drive_ros; print(belt_drive_ros.__file__)'")
+    imported = Path(proc.stdout.strip())
+    assert imported.resolve() == (ws / "src" / PACKAGE / PACKAGE / "__init__.py").resolve(), proc.stdout + proc.stderr
