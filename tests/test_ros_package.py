@@ -117,6 +117,11 @@ def test_package_xml_is_format_3_with_the_dependencies_the_code_imports():
                     words[1].split(".")[0].endswith(("_msgs", "_srvs", "_interfaces"))):  # (rcl_interfaces too)
                 imported.add(words[1].split(".")[0])
     assert imported and imported <= deps | {"tf2_msgs"}, imported - deps  # tf2_msgs: used only where importable
+    # the plots' and campaigns' libraries the package imports, and the suite's with a rosdep key
+    for dep in ("python3-matplotlib", "python3-pandas"):
+        assert dep in deps, dep
+    tests = {e.text for e in root.iter("test_depend")}
+    assert {"python3-pytest", "python3-pytest-xdist", "python3-sympy"} <= tests, tests
 
 
 def test_the_build_takes_the_license_from_setup_py_as_a_system_ros_2s_setuptools_reads_it(workspace):
