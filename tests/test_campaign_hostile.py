@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import yaml
 
@@ -189,6 +190,30 @@ def test_a_campaign_whose_runs_cannot_fit_in_memory_is_refused_up_front(monkeypa
     grid = Campaign.from_mapping({"scene": "paper", "grid": {"duration": [1.0, 1.0e6]}})
     with pytest.raises(CampaignError, match="a variant's run of 2e\\+08 steps"):
         limits.check(grid, 2)
+
+
+def test_the_run_memory_limit_reads_each_variants_own_duration_and_dt(monkeypatch):
+    """The longest run is each variant's duration over its dt. A duration drawn by the Monte Carlo (up to 9.5e4 s on
+    paper's 5 ms step: ~1.9e7 steps, ~4.9 GB a worker) passed unseen; a grid value the scene refuses anyway (text,
+    null: ``float()``'s internal error; 1e300 s, dt 0: the whole campaign refused) is that variant's row."""
+    from belt_drive_ros.campaign import limits
+
+    monkeypatch.setattr(limits, "available_memory", lambda: 8 * 2**30)
+    drawn = Campaign.from_mapping({"scene": "paper", "monte_carlo": {"samples": 4, "seed": 1, "vary": {
+        "duration": {"uniform": [1.0, 1.0e5], "absolute": True}}}})
+    longest = float(np.max(drawn.variants()["duration"])) / drawn.base.dt
+    assert limits.longest_run_steps(drawn) == pytest.approx(longest) and longest > 1.8e7
+    with pytest.raises(CampaignError, match=r"^campaign: a variant's run of 1\.9e\+07 steps"):
+        limits.check(drawn, 2)
+    step = Campaign.from_mapping({"scene": "paper", "set": {"duration": 100.0}, "monte_carlo": {
+        "samples": 3, "vary": {"dt": {"normal": [1.0e-5, 1.0e-6], "absolute": True}}}})
+    assert limits.longest_run_steps(step) == pytest.approx(float(np.max(100.0 / step.variants()["dt"])))
+    for values, longest in (([1.0, "x"], 200.0), ([None, 2.0, True], 400.0), ([1.0, 1.0e300], 200.0), ([-1.0, 0.5], 100.0)):
+        grid = Campaign.from_mapping({"scene": "paper", "grid": {"duration": values}})
+        assert limits.longest_run_steps(grid) == pytest.approx(longest)
+        assert limits.check(grid, 1) == 1
+    grid = Campaign.from_mapping({"scene": "paper", "grid": {"dt": [0.0, 1.0e-3], "duration": [2.0]}})
+    assert limits.longest_run_steps(grid) == pytest.approx(2000.0) and limits.check(grid, 1) == 1
 
 
 def test_a_relative_tolerance_of_a_zero_base_value_is_refused():

@@ -23,6 +23,7 @@ workers; a machine busy with other work is slower, and runs that go singly
 
 from __future__ import annotations
 
+import math
 import os
 
 from .spec import MAX_VARIANTS, Campaign, CampaignError  # noqa: F401 (MAX_VARIANTS: most variants one campaign may hold)
@@ -80,10 +81,37 @@ def table_bytes(campaign: Campaign, n: int) -> int:
 
 
 def longest_run_steps(campaign: Campaign) -> float:
-    """Steps of the campaign's longest variant run: the longest duration over the shortest step its grid gives."""
-    durations = [float(v) for v in campaign.grid.get("duration", [])] or [campaign.base.duration]
-    steps = [float(v) for v in campaign.grid.get("dt", [])] or [campaign.base.dt]
-    return max(durations) / min(steps)
+    """Steps of the campaign's longest variant run its scene accepts: max over the variants of duration / dt, each
+    variant's own (the grid's or drawn by the Monte Carlo, else the base scene's).
+
+    A variant whose duration or dt is no positive number (text, null, NaN, 0) or whose run exceeds the
+    :data:`~belt_drive_ros.core.scene.MAX_STEPS` one run may take is refused by its scene, in its own row: it
+    counts for nothing here (it aborted the campaign, or a text raised ``float()``'s error). The variant table is
+    built only when duration or dt vary."""
+    import numpy as np
+
+    from ..core.scene import MAX_STEPS
+
+    base = campaign.base.duration / campaign.base.dt
+    if campaign.fleet_folder is not None or not any(k in campaign.grid or k in campaign.vary for k in ("duration", "dt")):
+        return base
+    table = campaign.variants()
+
+    def column(key: str):
+        if key not in table:
+            return np.full(len(table), float(getattr(campaign.base, key)))
+        values = table[key]
+        if values.dtype.kind in "if":
+            return values.to_numpy(dtype=float)
+        back = campaign.decode.get(key, {})
+        return np.array([float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else math.nan
+                         for v in (back.get(x, x) for x in values)])  # fmt: skip
+
+    duration, dt = column("duration"), column("dt")
+    with np.errstate(all="ignore"):
+        steps = duration / dt
+    runs = (duration > 0) & (dt > 0) & (steps <= MAX_STEPS)  # (NaN: False)
+    return float(np.max(steps[runs])) if runs.any() else 0.0
 
 
 def seconds(campaign: Campaign, n: int, workers: int) -> float:
@@ -128,17 +156,17 @@ def check(campaign: Campaign, workers: int | None, local: bool = True) -> int:
             f"campaign: {estimate(campaign, workers)}; more than the {MAX_VARIANTS:,} variants one campaign may "
             "hold: split it into campaigns (each with its own --out) or draw fewer samples"
         )
-    steps = longest_run_steps(campaign)
+    if table_bytes(campaign, n) > memory // 2:
+        raise CampaignError(
+            f"campaign: {estimate(campaign, workers)}; more than half the {_size(memory)} of memory this machine "
+            "has available: split it into campaigns or vary fewer keys"
+        )
+    steps = longest_run_steps(campaign)  # (after the tables' check: it may build the variant table)
     if campaign.fleet_folder is None and workers * steps * RUN_BYTES_PER_STEP > memory // 2:
         raise CampaignError(
             f"campaign: a variant's run of {steps:.3g} steps (duration over dt) needs ~{_size(steps * RUN_BYTES_PER_STEP)}"
             f" on each of {workers} worker{'s' if workers != 1 else ''} (its step plan, and a run that goes singly its "
             f"trajectory, held whole: ~{RUN_BYTES_PER_STEP} bytes a step); more than half the {_size(memory)} of memory "
             "this machine has available: shorten the runs (set.duration), lengthen the step or use fewer workers"
-        )
-    if table_bytes(campaign, n) > memory // 2:
-        raise CampaignError(
-            f"campaign: {estimate(campaign, workers)}; more than half the {_size(memory)} of memory this machine "
-            "has available: split it into campaigns or vary fewer keys"
         )
     return workers
