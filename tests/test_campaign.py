@@ -107,6 +107,42 @@ def test_interrupted_campaign_resumes_where_it_stopped(tmp_path, client):
                      client=client, progress=False)
 
 
+def test_an_interrupt_while_a_file_is_written_leaves_no_half_file(tmp_path, client, monkeypatch):
+    """SIGINT in the middle of writing a part or results.parquet (a half file written, then KeyboardInterrupt):
+    before, the part's ``part-00001.tmp`` stayed in parts/ (``pandas.read_parquet(OUT/parts)``, the documented
+    reading of the parts, failed on it) and results.parquet stayed half written. Now neither is there, the parts
+    read as a dataset, and the same command completes the campaign."""
+    campaign = _campaign(tmp_path)
+    out = tmp_path / "run"
+    real = pd.DataFrame.to_parquet
+    breaks = {"name": "part-00001"}
+
+    def half(frame, target, *args, **kwargs):
+        name = os.readlink(f"/proc/self/fd/{target.fileno()}") if hasattr(target, "fileno") else str(target)
+        if breaks["name"] in name:
+            if hasattr(target, "write"):
+                target.write(b"PAR1 half a file")
+            else:
+                Path(target).write_bytes(b"PAR1 half a file")
+            raise KeyboardInterrupt
+        return real(frame, target, *args, **kwargs)
+
+    monkeypatch.setattr(pd.DataFrame, "to_parquet", half)
+    first = run_campaign(campaign, out, client=client, progress=False, batch_size=8)
+    assert first.interrupted
+    kept = sorted(p.name for p in (out / "parts").iterdir())  # (the batches finished before part 1, in any order)
+    assert set(kept) <= {"part-00000.parquet", "part-00002.parquet"}
+    if kept:
+        assert len(pd.read_parquet(out / "parts")) == 8 * len(kept)
+    breaks["name"] = "results.parquet"
+    with pytest.raises(KeyboardInterrupt):
+        run_campaign(campaign, out, client=client, progress=False, batch_size=8)
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "parts", "variants.parquet"]
+    monkeypatch.setattr(pd.DataFrame, "to_parquet", real)
+    done = run_campaign(campaign, out, client=client, progress=False, batch_size=8)
+    assert not done.interrupted and len(pd.read_parquet(out / "results.parquet")) == 24
+
+
 def test_force_leaves_nothing_of_the_run_before_beside_the_new_results(tmp_path, client):
     """--force in a folder of another run: its results.csv and charts go with it, so no table or chart of the old
     variants sits beside the new results (before: results.parquet had the new rows, results.csv the old ones)."""

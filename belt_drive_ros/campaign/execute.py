@@ -36,6 +36,7 @@ from pathlib import Path
 
 
 from ..core.errors import BeltDriveError, InputError, short
+from ..io.atomic import write_output
 from ..io.inputs import read_text
 from .metrics import GROUP_REDUCTION, METRICS, group_values, run_metrics, summary_values
 from .spec import Campaign, CampaignError
@@ -348,9 +349,21 @@ def write_part(path: Path, rows) -> None:
     """``rows`` (a DataFrame or row mappings) as the Parquet file ``path``, whole or not at all."""
     import pandas as pd
 
-    tmp = path.with_suffix(".tmp")
-    (rows if isinstance(rows, pd.DataFrame) else pd.DataFrame(rows)).to_parquet(tmp, index=False)
-    os.replace(tmp, path)  # a part is there whole or not at all
+    write_table(path, rows if isinstance(rows, pd.DataFrame) else pd.DataFrame(rows))
+
+
+def write_table(path: Path, table, csv: bool = False) -> None:
+    """``table`` (a DataFrame, without its index) as the Parquet (or with ``csv`` the CSV) file ``path``, through
+    :func:`~belt_drive_ros.io.atomic.atomic_output`: whole or not at all. An interrupt or a full disk while it is
+    written leaves the file as it was (or none) and no temporary file a Parquet dataset reader would take for a
+    part (a ``part-N.tmp`` of an interrupted write was left in ``parts/``; ``results.parquet`` was left half)."""
+    from ..io.atomic import atomic_output
+
+    with atomic_output(path, force=True, mode="w" if csv else "wb", what="campaign output") as f:
+        if csv:
+            table.to_csv(f, index=False)
+        else:
+            table.to_parquet(f, index=False)
 
 
 def _bounds(n: int, first: int, size: int) -> list:
@@ -484,9 +497,9 @@ def run_campaign(
                 parts_dir.mkdir(parents=True, exist_ok=True)
             except OSError as exc:  # (/proc/x: named, not "[Errno 2] No such file or directory: '/proc/x'")
                 raise CampaignError(f"--out {out_dir}: cannot make the folder ({exc.strerror or exc})") from None
-            table.to_parquet(out_dir / "variants.parquet", index=False)
+            write_table(out_dir / "variants.parquet", table)
             manifest = {"digest": digest, "name": campaign.name, "variants": n, "bounds": None}
-            manifest_path.write_text(json.dumps(manifest))
+            write_output(manifest_path, json.dumps(manifest), force=True, what="campaign output")
         if campaign.fleet_folder is not None:
             recordings_dir = out_dir / "recordings"
             recordings_dir.mkdir(parents=True, exist_ok=True)
@@ -525,7 +538,7 @@ def run_campaign(
                 size = batch_size or n
                 bounds = _bounds(n, first, size)
             manifest["bounds"] = bounds
-            manifest_path.write_text(json.dumps(manifest))
+            write_output(manifest_path, json.dumps(manifest), force=True, what="campaign output")
         pending = [(k, a, b) for k, (a, b) in enumerate(bounds) if not (parts_dir / f"part-{k:05d}.parquet").exists()]
         done_before = n - sum(b - a for _, a, b in pending)
         bar = _Progress(n, done_before, draw)
@@ -564,9 +577,9 @@ def run_campaign(
     result = pd.concat(frames, ignore_index=True).sort_values("variant", kind="stable").reset_index(drop=True) if frames else table.iloc[:0]
     complete = len(result) == n
     if complete:
-        result.to_parquet(out_dir / "results.parquet", index=False)
+        write_table(out_dir / "results.parquet", result)
         if csv:
-            result.to_csv(out_dir / "results.csv", index=False)
+            write_table(out_dir / "results.csv", result, csv=True)
     else:
         interrupted = True
     return CampaignRun(
@@ -685,5 +698,5 @@ def loop_of_single_runs(campaign: Campaign, rows, check_stability: bool = True) 
 
 __all__ = [
     "CampaignRun", "MAX_BATCH", "MIN_TASK_SECONDS", "local_cluster", "loop_of_single_runs", "portable_of", "run_batch",
-    "run_campaign", "write_part",
+    "run_campaign", "write_part", "write_table",
 ]  # fmt: skip

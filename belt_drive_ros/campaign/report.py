@@ -91,6 +91,14 @@ def worst_recordings(table, count: int = 10):
     return rows.sort_values(["_fail", "worst_rel_error"], ascending=[False, False]).head(count)
 
 
+def _save(fig, path: Path, dpi: int) -> None:
+    """``fig`` as the PNG ``path``, whole or not at all (:func:`~belt_drive_ros.io.atomic.atomic_output`)."""
+    from ..io.atomic import atomic_output
+
+    with atomic_output(path, force=True, what="campaign chart") as f:
+        fig.savefig(f, format="png", dpi=dpi)
+
+
 def plot(table, campaign, out_dir) -> list[Path]:
     """Write the pictures into ``out_dir`` (PNG); return their paths."""
     import matplotlib
@@ -120,7 +128,7 @@ def plot(table, campaign, out_dir) -> list[Path]:
         fig.suptitle(f"{campaign.name}: {len(table)} runs")
         fig.tight_layout()
         path = out_dir / HISTOGRAMS
-        fig.savefig(path, dpi=100)
+        _save(fig, path, dpi=100)
         plt.close(fig)
         written.append(path)
     varied = varied_columns(table)
@@ -139,7 +147,7 @@ def plot(table, campaign, out_dir) -> list[Path]:
                     ax.set_ylabel(f"{name}\n[{METRICS[name][0]}]", fontsize=8)
         fig.tight_layout()
         path = out_dir / SCATTER
-        fig.savefig(path, dpi=90)
+        _save(fig, path, dpi=90)
         plt.close(fig)
         written.append(path)
     if "compare_passed" in table and table["compare_passed"].notna().any():
@@ -154,7 +162,7 @@ def plot(table, campaign, out_dir) -> list[Path]:
         ax.set_xlabel("worst relative error against the golden (red: fails the tube)")
         fig.tight_layout()
         path = out_dir / FLEET_WORST
-        fig.savefig(path, dpi=100)
+        _save(fig, path, dpi=100)
         plt.close(fig)
         written.append(path)
     return written

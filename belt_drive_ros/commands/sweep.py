@@ -57,6 +57,7 @@ def run(args) -> int:
     from ..campaign.execute import check_out_folder, run_campaign
     from ..campaign.report import plot, summary
     from ..campaign.spec import Campaign, CampaignError
+    from ..io.atomic import write_output
 
     if args.batch_size is not None and args.batch_size < 1:
         raise CampaignError(f"--batch-size: must be >= 1, got {args.batch_size}")
@@ -80,7 +81,7 @@ def run(args) -> int:
               "run the same command again to resume", file=sys.stderr)
         return 128 + done.signum if done.signum else 1
     text = summary(done.table, campaign, done.wall, done.workers)
-    (Path(out) / "summary.txt").write_text(text + "\n")
+    write_output(Path(out) / "summary.txt", text + "\n", force=True, what="campaign output")
     print(text)
     print(f"wrote {Path(out) / 'results.parquet'}" + (f" and {Path(out) / 'results.csv'}" if args.csv else ""))
     if args.plots:
