@@ -143,6 +143,23 @@ def test_an_interrupt_while_a_file_is_written_leaves_no_half_file(tmp_path, clie
     assert not done.interrupted and len(pd.read_parquet(out / "results.parquet")) == 24
 
 
+def test_a_damaged_part_is_named_and_its_batch_runs_again_once_removed(tmp_path, client):
+    """A part file emptied or damaged since it was written (a disk, a hand): the resume ended in an internal error
+    naming Arrow's exception. It is named, one line, with what to do; removed, the same command runs its batch."""
+    campaign = _campaign(tmp_path)
+    out = tmp_path / "run"
+    run_campaign(campaign, out, client=client, progress=False, batch_size=8, stop_after=2)
+    damaged = sorted((out / "parts").glob("part-*.parquet"))[0]
+    damaged.write_bytes(b"")
+    with pytest.raises(CampaignError, match=rf"^{damaged}: cannot be read \(.*\); remove it and run the same command "
+                                            "again to run its batch again$"):
+        run_campaign(campaign, out, client=client, progress=False)
+    damaged.unlink()
+    done = run_campaign(campaign, out, client=client, progress=False)
+    assert not done.interrupted and list(done.table["variant"]) == list(range(24))
+    assert (done.table["error"] == "").all()
+
+
 def test_force_leaves_nothing_of_the_run_before_beside_the_new_results(tmp_path, client):
     """--force in a folder of another run: its results.csv and charts go with it, so no table or chart of the old
     variants sits beside the new results (before: results.parquet had the new rows, results.csv the old ones)."""

@@ -366,6 +366,19 @@ def write_table(path: Path, table, csv: bool = False) -> None:
             table.to_parquet(f, index=False)
 
 
+def _read_part(path: Path):
+    """The rows of the part file ``path``; one that cannot be read (damaged since, emptied) is a :class:`CampaignError`
+    naming it and how to run its batch again (it was an internal error naming Arrow's exception)."""
+    import pandas as pd
+
+    try:
+        return pd.read_parquet(path)
+    except (OSError, ValueError) as exc:
+        text = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise CampaignError(f"{path}: cannot be read ({text}); remove it and run the same command again to run its "
+                            "batch again") from None
+
+
 def _bounds(n: int, first: int, size: int) -> list:
     edges = [0, min(first, n)]
     while edges[-1] < n:
@@ -573,7 +586,7 @@ def run_campaign(
             _close(client, cluster)
         quiet.close()  # after the close: an interrupt printed from a callback meanwhile is dropped too
     parts = sorted(parts_dir.glob("part-*.parquet"))
-    frames = [pd.read_parquet(p) for p in parts]
+    frames = [_read_part(p) for p in parts]
     result = pd.concat(frames, ignore_index=True).sort_values("variant", kind="stable").reset_index(drop=True) if frames else table.iloc[:0]
     complete = len(result) == n
     if complete:
