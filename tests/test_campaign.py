@@ -487,6 +487,26 @@ def test_the_summary_counts_an_infinite_metric_beyond_its_limit(tmp_path):
     assert line.split()[-3:] == ["1:", "2", "beyond"] and "inf" in line, line
 
 
+def test_the_summary_counts_runs_without_a_value_apart_from_those_within_the_limit(tmp_path):
+    """A linear run past the capstan limit has slip_time NaN (slip not modelled); with a limit on slip_time the summary
+    said '0 beyond' and nothing of the runs it could not judge. They are counted apart; a failed run's NaN stays out."""
+    from belt_drive_ros.campaign.report import summary
+
+    data = {"scene": "paper", "set": {"duration": 0.5, "model": "flexible"}, "limits": {"slip_time": 0.01},
+            "grid": {"params.F_0": [400.0, 0.0]}}  # fmt: skip
+    campaign = _campaign(tmp_path, data)
+    table = pd.DataFrame({"variant": [0, 1, 2, 3], "ran": ["ensemble"] * 4, "error": ["", "", "", "boom"],
+                          "model": ["flexible"] * 4, "single_reason": [""] * 4})
+    for name in campaign.metrics:
+        table[name] = 0.0
+    table["slip_time"] = [0.0, np.nan, np.nan, np.nan]
+    line = next(row for row in summary(table, campaign).splitlines() if row.strip().startswith("slip_time"))
+    assert line.endswith("0.01: 0 beyond, 2 without a value (NaN)"), line
+    table["slip_time"] = [np.nan, np.nan, np.nan, np.nan]
+    line = next(row for row in summary(table, campaign).splitlines() if row.strip().startswith("slip_time"))
+    assert line.endswith("0.01: 0 beyond, 3 without a value (NaN)"), line
+
+
 def test_a_relative_draw_on_a_profile_field_is_relative_to_each_profiles_value(tmp_path):
     """Two motor profiles (8 and 16 N m stall) and drive.stall_torque: {normal: 0.01}: every draw scaled the base
     scene's 12 N m and replaced the profile's value, so both profiles drew about 12. Each draws about its own now;

@@ -69,9 +69,12 @@ def summary(table, campaign, wall: float | None = None, workers: int | None = No
         limit = campaign.limits.get(name)
         stats = (np.min(finite), np.median(finite), np.max(finite)) if finite.size else (math.nan,) * 3
         beyond = ""
-        if limit is not None and finite.size:
+        # a run that ran without a value (slip_time, accumulated_slip of a linear run past the capstan limit: slip not
+        # modelled) is no pass: counted apart (it was left out, '0 beyond' where every such run was unknown)
+        unknown = int(np.sum(np.isnan(values) & (table["error"] == "").to_numpy()))
+        if limit is not None and (finite.size or unknown):
             count = int(np.sum(finite < limit)) if name.startswith("min_") else int(np.sum(finite > limit))
-            beyond = f"{limit:g}: {count} beyond"
+            beyond = f"{limit:g}: {count} beyond" + (f", {unknown} without a value (NaN)" if unknown else "")
         lines.append(f"  {name:<20s}{unit:>7s}" + "".join(f"{v:13.5g}" for v in stats) + f"  {beyond}")
     if "compare_passed" in table:
         compared = table[table["compare_passed"].notna()]
