@@ -507,6 +507,30 @@ def test_the_summary_counts_runs_without_a_value_apart_from_those_within_the_lim
     assert line.endswith("0.01: 0 beyond, 3 without a value (NaN)"), line
 
 
+def test_the_fleet_chart_draws_a_bar_for_a_recording_equal_to_its_golden(tmp_path):
+    """Goldens made by this version (examples/make_fleet.sh) give a worst relative error of 0 for every recording: on
+    the log axis no bar was drawn (an empty chart scaled 1 to 10, and matplotlib's 'Data has no positive values'
+    warning on the terminal). Each recording now has its bar, green where it passes."""
+    import warnings
+
+    from matplotlib.image import imread
+
+    from belt_drive_ros.campaign.report import FLEET_WORST, plot
+
+    campaign = _campaign(tmp_path)
+    table = pd.DataFrame({"variant": [0, 1, 2], "recording": ["a.mcap", "b.mcap", "c.mcap"], "error": [""] * 3,
+                          "compare_passed": [True] * 3, "worst_signal": ["belt_torque/data"] * 3,
+                          "worst_rel_error": [0.0] * 3})  # fmt: skip
+    for name in campaign.metrics:
+        table[name] = 1.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plot(table, campaign, tmp_path / "charts")
+    pixels = imread(tmp_path / "charts" / FLEET_WORST)[..., :3]
+    green = (pixels[..., 1] > 0.5) & (pixels[..., 0] < 0.3) & (pixels[..., 2] < 0.3)  # tab:green
+    assert np.count_nonzero(np.any(green, axis=1)) > 30  # three bars, each ~15 rows of pixels high
+
+
 def test_a_relative_draw_on_a_profile_field_is_relative_to_each_profiles_value(tmp_path):
     """Two motor profiles (8 and 16 N m stall) and drive.stall_torque: {normal: 0.01}: every draw scaled the base
     scene's 12 N m and replaced the profile's value, so both profiles drew about 12. Each draws about its own now;

@@ -158,10 +158,20 @@ def plot(table, campaign, out_dir) -> list[Path]:
         fig, ax = plt.subplots(figsize=(8, 0.35 * len(worst) + 1.2))
         colors = ["tab:red" if not p else "tab:green" for p in worst["compare_passed"]]
         labels = [f"{r} ({s})" for r, s in zip(worst["recording"], worst["worst_signal"])]
-        ax.barh(range(len(worst)), worst["worst_rel_error"].to_numpy(dtype=float), color=colors)
+        # on the log axis an error 0 (a run equal to its golden, the usual verdict) or inf (no golden) has no bar:
+        # drawn at the axis' ends, each bar labelled with its value (all 0 drew an empty chart scaled 1 to 10)
+        errors = worst["worst_rel_error"].to_numpy(dtype=float)
+        seen = errors[np.isfinite(errors) & (errors > 0)]
+        low = min(float(np.min(seen)) / 10, 1e-17) if seen.size else 1e-17
+        high = max(float(np.max(seen)) * 10, 1.0) if seen.size else 1.0
+        shown = np.where(np.isinf(errors), high, np.where(errors > 0, errors, low))
+        ax.set_xscale("log")
+        ax.barh(range(len(worst)), shown - low / 2, left=low / 2, color=colors)
+        for y, (x, e) in enumerate(zip(shown, errors)):
+            ax.text(x, y, " 0" if e == 0 else f" {e:.3g}", va="center", fontsize=7)
+        ax.set_xlim(low / 2, high * 100)
         ax.set_yticks(range(len(worst)), labels, fontsize=7)
         ax.invert_yaxis()
-        ax.set_xscale("log")
         ax.set_xlabel("worst relative error against the golden (red: fails the tube)")
         fig.tight_layout()
         path = out_dir / FLEET_WORST
