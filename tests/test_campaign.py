@@ -531,6 +531,22 @@ def test_the_fleet_chart_draws_a_bar_for_a_recording_equal_to_its_golden(tmp_pat
     assert np.count_nonzero(np.any(green, axis=1)) > 30  # three bars, each ~15 rows of pixels high
 
 
+def test_the_fleet_verdict_counts_a_recording_whose_run_failed(tmp_path):
+    """A recording that cannot be read (not an MCAP file) fails before it is compared: the summary said 'fleet
+    compare: 2 of 2 recordings pass' for a fleet of three."""
+    from belt_drive_ros.campaign.report import summary
+
+    campaign = _campaign(tmp_path)
+    table = pd.DataFrame({"variant": [0, 1, 2], "recording": ["a.mcap", "b.mcap", "bad.mcap"],
+                          "ran": ["single", "single", "none"], "model": ["flexible", "flexible", ""],
+                          "single_reason": [""] * 3, "error": ["", "", "BagReadError: bad.mcap: not an MCAP file"],
+                          "compare_passed": [True, True, None], "worst_signal": ["x", "x", None],
+                          "worst_rel_error": [0.0, 0.0, np.nan]})  # fmt: skip
+    for name in campaign.metrics:
+        table[name] = [1.0, 1.0, np.nan]
+    assert "  fleet compare: 2 of 3 recordings pass (1 not compared: the run failed)" in summary(table, campaign)
+
+
 def test_a_relative_draw_on_a_profile_field_is_relative_to_each_profiles_value(tmp_path):
     """Two motor profiles (8 and 16 N m stall) and drive.stall_torque: {normal: 0.01}: every draw scaled the base
     scene's 12 N m and replaced the profile's value, so both profiles drew about 12. Each draws about its own now;

@@ -79,7 +79,9 @@ def summary(table, campaign, wall: float | None = None, workers: int | None = No
     if "compare_passed" in table:
         compared = table[table["compare_passed"].notna()]
         bad = compared[~compared["compare_passed"].astype(bool)]
-        lines.append(f"  fleet compare: {len(compared) - len(bad)} of {len(compared)} recordings pass")
+        missed = n - len(compared)  # (a recording whose run failed is never compared: it was left out of the count)
+        lines.append(f"  fleet compare: {len(compared) - len(bad)} of {n} recordings pass"
+                     + (f" ({missed} not compared: the run failed)" if missed else ""))
         lines += ["  worst recordings (worst signal, worst relative error):"]
         for _, row in worst_recordings(table, worst).iterrows():
             verdict = "pass" if row["compare_passed"] else "FAIL"
