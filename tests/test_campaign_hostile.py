@@ -4,6 +4,7 @@ is held to is that variant's error row, and the batch it shares with good varian
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -214,6 +215,19 @@ def test_the_run_memory_limit_reads_each_variants_own_duration_and_dt(monkeypatc
         assert limits.check(grid, 1) == 1
     grid = Campaign.from_mapping({"scene": "paper", "grid": {"dt": [0.0, 1.0e-3], "duration": [2.0]}})
     assert limits.longest_run_steps(grid) == pytest.approx(2000.0) and limits.check(grid, 1) == 1
+
+
+@pytest.mark.parametrize("scene, key, base", [("paper", "method", "'lawson5'"), ("paper", "model", "'flexible'"),
+                                              ("truck_compressor", "drive.harmonics", "[300.0, 90.0]")])
+def test_a_draw_of_a_key_the_scene_holds_as_text_or_a_list_is_refused(scene, key, base, capsys):
+    """``method: {normal: [1, 1], absolute: true}`` ended in an internal error (``float('lawson5')`` while the variant
+    table was drawn); relative, the message said to give absolute: true. Every draw would fail its variant: refused,
+    naming the key and its value."""
+    for spec in ({"normal": [1.0, 1.0], "absolute": True}, {"uniform": [0.9, 1.1]}):
+        with pytest.raises(CampaignError, match=rf"^monte_carlo\.vary\.{key}: draws numbers, and the scene's {key} is "
+                                                rf"{re.escape(base)}; vary it by the grid$"):
+            Campaign.from_mapping({"scene": scene, "set": {"model": "flexible"},
+                                   "monte_carlo": {"samples": 2, "vary": {key: spec}}})
 
 
 def test_a_relative_tolerance_of_a_zero_base_value_is_refused():

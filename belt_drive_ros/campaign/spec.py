@@ -304,13 +304,19 @@ class Campaign:
                     "draws, not both (a draw would replace the grid value)"
                 )
             base_value = _lookup(mapping, tuple(key.split(".")))
+            own = [_lookup(entry, tuple(key.split("."))) for entry in profiles] if key.split(".")[0] in (
+                "drive", "load") else []  # fmt: skip
+            numeric = [v for v in (base_value, *own) if isinstance(v, (int, float)) and not isinstance(v, bool)]
+            if base_value is not None and not numeric:  # (text, a boolean, a list of harmonics)
+                raise CampaignError(  # (absolute: true raised float()'s internal error on the text; every draw fails)
+                    f"monte_carlo.vary.{key}: draws numbers, and the scene's {key} is {short(base_value)}; vary it by "
+                    "the grid"
+                )
             if not dist.absolute and (isinstance(base_value, bool) or not isinstance(base_value, (int, float))):
                 raise CampaignError(
                     f"monte_carlo.vary.{key}: a relative tolerance needs a numeric base value, got {short(base_value)}; "
                     "give absolute: true"
                 )
-            own = [_lookup(entry, tuple(key.split("."))) for entry in profiles] if key.split(".")[0] in (
-                "drive", "load") else []  # fmt: skip
             if not dist.absolute and base_value == 0 and not any(
                     isinstance(v, (int, float)) and not isinstance(v, bool) and v != 0 for v in own):
                 raise CampaignError(  # (every variant drew 0 times a factor: identical variants, exit 0)
@@ -400,13 +406,14 @@ class Campaign:
         for key, dist in self.vary.items():
             path = tuple(key.split("."))
             base = _lookup(self.base_mapping, path)
+            base = float(base) if isinstance(base, (int, float)) and not isinstance(base, bool) else 0.0  # (text: absolute)
             if dist.absolute or not self.profiles or path[0] not in ("drive", "load"):
-                columns[key] = dist.sample(rng, float(base or 0.0), n)
+                columns[key] = dist.sample(rng, base, n)
                 continue
             # a relative draw on a profile's field is relative to the row's profile's own value where it names one
             # (it scaled the base scene's, and the draw replaced the profile's value: two profiles became one)
             x = dist.sample(rng, 1.0, n)  # (the factors: base * x as before, the same floats)
-            column = float(base or 0.0) * x
+            column = base * x
             for j, entry in enumerate(self.profiles):
                 own = _lookup(entry, path)
                 if isinstance(own, (int, float)) and not isinstance(own, bool):
