@@ -258,6 +258,18 @@ def test_summary_and_pictures(tmp_path, client):
     assert all(p.stat().st_size > 10_000 for p in written)
 
 
+def test_results_parquet_states_the_units_of_its_columns(tmp_path, client):
+    """results.parquet held the values without a unit anywhere (the metrics' units were only in summary.txt, the
+    parameters' nowhere): its columns' units now ride in the file (``pandas.read_parquet(...).attrs["units"]``)."""
+    data = {"scene": "paper", "set": {"duration": 0.2}, "grid": {"params.k": [1.5e4, 2.0e4], "dt": [0.005],
+            "initial_state.omega_M": [0.0], "drive.stall_torque": [12.0]}}  # fmt: skip
+    run_campaign(_campaign(tmp_path, data), tmp_path / "out", client=client, progress=False)
+    units = pd.read_parquet(tmp_path / "out" / "results.parquet").attrs["units"]
+    assert units == {"params.k": "N/m", "dt": "s", "initial_state.omega_M": "rad/s", "seconds": "s",
+                     **{name: unit for name, (unit, _) in METRICS.items()}}  # fmt: skip
+    assert units["peak_belt_torque"] == "N m" and units["min_slack_force"] == "N" and units["final_speed"] == "rad/s"
+
+
 def test_local_cluster_workers_keep_blas_single_threaded_and_glibc_malloc_adaptive(monkeypatch):
     """belt-drive sweep's LocalCluster: no MALLOC_TRIM_THRESHOLD_ in the workers (it turns every array over 128 kB
     into a fresh mmap), also when an earlier Dask nanny left it in this process's environment; OPENBLAS_NUM_THREADS=1

@@ -590,6 +590,9 @@ def run_campaign(
     result = pd.concat(frames, ignore_index=True).sort_values("variant", kind="stable").reset_index(drop=True) if frames else table.iloc[:0]
     complete = len(result) == n
     if complete:
+        from .report import column_units
+
+        result.attrs["units"] = column_units(result.columns)  # (kept in the Parquet file: .attrs["units"] on reading)
         write_table(out_dir / "results.parquet", result)
         if csv:
             write_table(out_dir / "results.csv", result, csv=True)

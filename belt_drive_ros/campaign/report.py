@@ -24,6 +24,34 @@ RESULT_COLUMNS = {
 }  # fmt: skip
 
 
+#: units of the columns of a result table that are neither metrics nor parameters (SI)
+COLUMN_UNITS = {
+    "initial_state.phi_M": "rad", "initial_state.omega_M": "rad/s", "initial_state.relative_deflection": "rad",
+    "initial_state.relative_speed": "rad/s", "seconds": "s", "worst_rel_error": "1",
+}  # fmt: skip
+
+
+def column_units(columns) -> dict[str, str]:
+    """Column -> unit of the columns of a result or variant table whose unit is known: the metrics, ``params.NAME``
+    (:data:`~belt_drive_ros.core.params.FIELD_DOCS`), ``dt``, ``duration``, ``output_rate``, the initial state and the
+    fleet's relative error. Stored with the table (``pandas.read_parquet(...).attrs["units"]``); a profile's fields
+    (``drive.FIELD``) have the unit its profile gives them (docs/model.md)."""
+    from ..core.params import FIELD_DOCS
+    from ..core.scene import RANGES
+
+    out = {}
+    for name in columns:
+        if name in METRICS:
+            out[name] = METRICS[name][0]
+        elif name.startswith("params.") and name[len("params."):] in FIELD_DOCS:
+            out[name] = FIELD_DOCS[name[len("params."):]][0]
+        elif name in ("dt", "duration", "output_rate"):
+            out[name] = RANGES[name][2]
+        elif name in COLUMN_UNITS:
+            out[name] = COLUMN_UNITS[name]
+    return out
+
+
 def varied_columns(table) -> list[str]:
     """The table's varied numeric inputs (key paths)."""
     from pandas.api.types import is_numeric_dtype
@@ -147,7 +175,8 @@ def plot(table, campaign, out_dir) -> list[Path]:
                 if limit is not None:
                     ax.axhline(limit, color="tab:red", lw=1)
                 if i == len(metrics) - 1:
-                    ax.set_xlabel(key)
+                    unit = column_units([key]).get(key)
+                    ax.set_xlabel(f"{key} [{unit}]" if unit else key)
                 if j == 0:
                     ax.set_ylabel(f"{name}\n[{METRICS[name][0]}]", fontsize=8)
         fig.tight_layout()
