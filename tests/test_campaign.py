@@ -270,6 +270,36 @@ def test_results_parquet_states_the_units_of_its_columns(tmp_path, client):
     assert units["peak_belt_torque"] == "N m" and units["min_slack_force"] == "N" and units["final_speed"] == "rad/s"
 
 
+def test_the_scatter_charts_parameter_ticks_do_not_run_into_one_another(tmp_path, monkeypatch):
+    """params.k from 1.5e4 to 2.5e4 on a 3.4-inch panel: five labels of '16000' ran into one another (read as
+    '1600018000200002200024000'). Every panel's x tick labels, drawn, keep apart."""
+    import matplotlib.pyplot as plt
+
+    from belt_drive_ros.campaign.report import SCATTER, plot
+
+    campaign = _campaign(tmp_path)
+    rng = np.random.default_rng(0)
+    table = pd.DataFrame({"variant": np.arange(40), "error": [""] * 40, "params.k": np.repeat([1.5e4, 2.5e4], 20),
+                          "params.F_0": rng.uniform(300.0, 500.0, 40), "params.I_3": rng.uniform(0.027, 0.033, 40),
+                          "params.mu": rng.uniform(0.05, 0.5, 40)})  # fmt: skip
+    for name in campaign.metrics:
+        table[name] = rng.uniform(0.0, 1.0, 40)
+    figures = []
+    close = plt.close
+    monkeypatch.setattr(plt, "close", lambda fig=None: figures.append(fig))
+    written = plot(table, campaign, tmp_path / "charts")
+    scatter = figures[[p.name for p in written].index(SCATTER)]
+    scatter.canvas.draw()
+    renderer = scatter.canvas.get_renderer()
+    for ax in scatter.axes:
+        boxes = sorted((t.get_window_extent(renderer) for t in ax.get_xticklabels() if t.get_text()), key=lambda b: b.x0)
+        # (a space of half a label's height between labels at least: before, 0.5 pixel)
+        labels = [t.get_text() for t in ax.get_xticklabels()]
+        assert all(b.x0 - a.x1 > 0.5 * a.height for a, b in zip(boxes, boxes[1:])), labels
+    for fig in figures:
+        close(fig)
+
+
 def test_local_cluster_workers_keep_blas_single_threaded_and_glibc_malloc_adaptive(monkeypatch):
     """belt-drive sweep's LocalCluster: no MALLOC_TRIM_THRESHOLD_ in the workers (it turns every array over 128 kB
     into a fresh mmap), also when an earlier Dask nanny left it in this process's environment; OPENBLAS_NUM_THREADS=1

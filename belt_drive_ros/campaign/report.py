@@ -138,6 +138,7 @@ def plot(table, campaign, out_dir) -> list[Path]:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -174,6 +175,7 @@ def plot(table, campaign, out_dir) -> list[Path]:
                 limit = campaign.limits.get(name)
                 if limit is not None:
                     ax.axhline(limit, color="tab:red", lw=1)
+                ax.xaxis.set_major_locator(MaxNLocator(4))  # (five ticks of 16000 ran into one another)
                 if i == len(metrics) - 1:
                     unit = column_units([key]).get(key)
                     ax.set_xlabel(f"{key} [{unit}]" if unit else key)
