@@ -589,6 +589,26 @@ def test_the_fleet_verdict_counts_a_recording_whose_run_failed(tmp_path):
     assert "  fleet compare: 2 of 3 recordings pass (1 not compared: the run failed)" in summary(table, campaign)
 
 
+def test_the_summary_counts_the_runs_that_slipped_at_the_friction_limit(tmp_path):
+    """model: auto sends a variant past the capstan limit to the slipping model, whose friction use stops at 1 while
+    the belt slides: with the default limit 1 the summary said '1: 0 beyond' for a campaign whose runs slipped. The
+    runs the slipping model held at the limit are counted beside it."""
+    from belt_drive_ros.campaign.report import summary
+
+    campaign = _campaign(tmp_path, {"scene": "paper", "set": {"duration": 0.5}, "grid": {"params.F_0": [30.0, 400.0]}})
+    table = pd.DataFrame({"variant": [0, 1, 2, 3], "ran": ["single", "single", "ensemble", "ensemble"],
+                          "error": [""] * 4, "model": ["slipping", "slipping", "flexible", "flexible"],
+                          "single_reason": [""] * 4})  # fmt: skip
+    for name in campaign.metrics:
+        table[name] = 0.5
+    table["peak_friction_use"] = [1.0, 0.9, 0.4, 1.2]
+    line = next(row for row in summary(table, campaign).splitlines() if row.strip().startswith("peak_friction_use"))
+    assert line.endswith("1: 1 beyond, 1 slipped (the slipping model's use stops at 1)"), line
+    table["peak_friction_use"] = [1.0, 1.0, 0.4, 0.5]
+    line = next(row for row in summary(table, campaign).splitlines() if row.strip().startswith("peak_friction_use"))
+    assert line.endswith("1: 0 beyond, 2 slipped (the slipping model's use stops at 1)"), line
+
+
 def test_a_relative_draw_on_a_profile_field_is_relative_to_each_profiles_value(tmp_path):
     """Two motor profiles (8 and 16 N m stall) and drive.stall_torque: {normal: 0.01}: every draw scaled the base
     scene's 12 N m and replaced the profile's value, so both profiles drew about 12. Each draws about its own now;

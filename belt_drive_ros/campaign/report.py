@@ -103,6 +103,11 @@ def summary(table, campaign, wall: float | None = None, workers: int | None = No
         if limit is not None and (finite.size or unknown):
             count = int(np.sum(finite < limit)) if name.startswith("min_") else int(np.sum(finite > limit))
             beyond = f"{limit:g}: {count} beyond" + (f", {unknown} without a value (NaN)" if unknown else "")
+            if name == "peak_friction_use" and limit >= 1.0 and "model" in table:
+                # a run on the slipping model that reached the capstan limit slipped, its use held at 1 (never beyond
+                # a limit of 1: '1: 0 beyond' for a campaign whose every run slipped)
+                held = int(np.sum((table["model"] == "slipping").to_numpy() & (values >= 1.0)))
+                beyond += f", {held} slipped (the slipping model's use stops at 1)" if held else ""
         lines.append(f"  {name:<20s}{unit:>7s}" + "".join(f"{v:13.5g}" for v in stats) + f"  {beyond}")
     if "compare_passed" in table:
         compared = table[table["compare_passed"].notna()]
