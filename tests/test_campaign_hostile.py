@@ -217,6 +217,23 @@ def test_the_run_memory_limit_reads_each_variants_own_duration_and_dt(monkeypatc
     assert limits.longest_run_steps(grid) == pytest.approx(2000.0) and limits.check(grid, 1) == 1
 
 
+def test_the_time_estimate_takes_each_variants_own_steps():
+    """The estimate took the base scene's duration over dt for every variant: a grid of dt 1e-5 s on paper (5 s:
+    5e5 steps a run) was estimated at 1,000 steps a run, 500x short. It sums each variant's own steps (a variant its
+    scene refuses, dt text, counts its fixed cost only)."""
+    from belt_drive_ros.campaign import limits
+
+    grid = Campaign.from_mapping({"scene": "paper", "grid": {"dt": [1.0e-5, "x"]}})
+    fixed, per_step = limits.VARIANT_SECONDS, limits.STEP_SECONDS
+    assert limits.seconds(grid, grid.size, 2) == pytest.approx((2 * fixed + 5.0e5 * per_step) / 2)
+    drawn = Campaign.from_mapping({"scene": "paper", "monte_carlo": {"samples": 5, "seed": 3, "vary": {
+        "duration": {"uniform": [1.0, 100.0], "absolute": True}}}})
+    steps = float(np.sum(drawn.variants()["duration"])) / drawn.base.dt
+    assert limits.seconds(drawn, 5, 1) == pytest.approx(5 * fixed + steps * per_step)
+    plain = Campaign.from_mapping({"scene": "paper", "grid": {"params.k": [1.0e4, 2.0e4]}})
+    assert limits.seconds(plain, 2, 1) == pytest.approx(2 * (fixed + 1000 * per_step))
+
+
 @pytest.mark.parametrize("scene, key, base", [("paper", "method", "'lawson5'"), ("paper", "model", "'flexible'"),
                                               ("truck_compressor", "drive.harmonics", "[300.0, 90.0]")])
 def test_a_draw_of_a_key_the_scene_holds_as_text_or_a_list_is_refused(scene, key, base, capsys):

@@ -80,21 +80,20 @@ def table_bytes(campaign: Campaign, n: int) -> int:
     return 2 * n * per_row
 
 
-def longest_run_steps(campaign: Campaign) -> float:
-    """Steps of the campaign's longest variant run its scene accepts: max over the variants of duration / dt, each
-    variant's own (the grid's or drawn by the Monte Carlo, else the base scene's).
-
-    A variant whose duration or dt is no positive number (text, null, NaN, 0) or whose run exceeds the
-    :data:`~belt_drive_ros.core.scene.MAX_STEPS` one run may take is refused by its scene, in its own row: it
-    counts for nothing here (it aborted the campaign, or a text raised ``float()``'s error). The variant table is
-    built only when duration or dt vary."""
+def run_steps(campaign: Campaign):
+    """Each variant's steps, duration / dt (its own: the grid's or drawn by the Monte Carlo, else the base scene's), NaN
+    where its scene refuses them (no positive number: text, null, NaN, 0; a run beyond the
+    :data:`~belt_drive_ros.core.scene.MAX_STEPS` one run may take): that variant's row says so, its run counts for
+    nothing. None where every run is the base scene's (neither varies, a fleet) or the variant table would not be
+    built (beyond :data:`MAX_VARIANTS` or the memory: the campaign is refused); else the table is built for it."""
     import numpy as np
 
     from ..core.scene import MAX_STEPS
 
-    base = campaign.base.duration / campaign.base.dt
     if campaign.fleet_folder is not None or not any(k in campaign.grid or k in campaign.vary for k in ("duration", "dt")):
-        return base
+        return None
+    if campaign.size > MAX_VARIANTS or table_bytes(campaign, campaign.size) > available_memory() // 2:
+        return None
     table = campaign.variants()
 
     def column(key: str):
@@ -110,14 +109,28 @@ def longest_run_steps(campaign: Campaign) -> float:
     duration, dt = column("duration"), column("dt")
     with np.errstate(all="ignore"):
         steps = duration / dt
-    runs = (duration > 0) & (dt > 0) & (steps <= MAX_STEPS)  # (NaN: False)
-    return float(np.max(steps[runs])) if runs.any() else 0.0
+    return np.where((duration > 0) & (dt > 0) & (steps <= MAX_STEPS), steps, math.nan)  # (NaN compares False)
+
+
+def longest_run_steps(campaign: Campaign) -> float:
+    """Steps of the campaign's longest variant run its scene accepts (the max of :func:`run_steps`; 0 where no
+    variant's run is accepted). A refused one aborted the campaign, or its text raised ``float()``'s error."""
+    import numpy as np
+
+    steps = run_steps(campaign)
+    if steps is None:
+        return campaign.base.duration / campaign.base.dt
+    return float(np.nanmax(steps)) if np.any(~np.isnan(steps)) else 0.0
 
 
 def seconds(campaign: Campaign, n: int, workers: int) -> float:
-    """Estimated wall time of ``n`` variants on ``workers`` workers [s] (a lower bound for runs that go singly)."""
-    steps = campaign.base.duration / campaign.base.dt
-    return n * (VARIANT_SECONDS + steps * STEP_SECONDS) / max(workers, 1)
+    """Estimated wall time of ``n`` variants on ``workers`` workers [s] (a lower bound for runs that go singly): each
+    run's own steps (:func:`run_steps`; a grid of dt 1e-5 s was estimated at the base scene's 5 ms, 500x short)."""
+    import numpy as np
+
+    steps = run_steps(campaign) if n == campaign.size else None
+    total = n * campaign.base.duration / campaign.base.dt if steps is None else float(np.nansum(steps))
+    return (n * VARIANT_SECONDS + total * STEP_SECONDS) / max(workers, 1)
 
 
 def estimate(campaign: Campaign, workers: int) -> str:
