@@ -9,6 +9,7 @@ of the input work (trapezoidal quadrature on the output grid).
 from __future__ import annotations
 
 import csv
+import dataclasses
 
 import numpy as np
 import pytest
@@ -176,3 +177,15 @@ def test_a_slipping_run_past_the_speed_limit_is_refused_as_the_linear_models_are
         simulate(scene)
     short = simulate(scene.with_overrides(duration=0.1))  # before the limit: a run, its speeds within it
     assert short.model == "slipping" and 1.0e3 < np.abs(short.states[:, 2]).max() <= 1.0e5
+
+
+def test_auto_names_t0_as_the_onset_of_a_run_that_starts_slipping():
+    # an initial deflection whose belt force is past the capstan limit: the run slips from its first sample and
+    # its first event is a restick; the reason named that restick's time as where the limit was reached
+    truck = load_scene("truck_compressor")
+    start = dataclasses.replace(truck.initial_state, relative_deflection=0.05)
+    scene = truck.with_overrides(duration=0.05, initial_state=start)
+    run = simulate(scene)
+    assert run.model == "slipping" and run.outputs["slip"][0]
+    assert run.events[0][0] == "restick"
+    assert run.choice.limit_time == 0.0 and "at t = 0 s" in run.choice.reason

@@ -260,7 +260,9 @@ def _simulate_auto_flexible(scene: Scene, linear: ModelChoice, progress, check_s
                 sim.model, result.time, y, np.zeros(len(result.time), dtype=np.int8), result.inputs), omega_n)
         result.choice = replace(linear, limit_ratio=ratio, limit_time=t_peak)
         return result
-    onset = sim.events[0].time if sim.events else float(time[0])
+    # a run that slips from its first sample (an initial deflection past the limit) has no onset event, and its
+    # first event is a restick: the onset is t = 0 then, else the first onset event
+    onset = float(time[0]) if modes[0] else next((e.time for e in sim.events if e.kind == "onset"), float(time[0]))
     reason = (
         f"slipping: transmitted force reaches the capstan limit "
         f"(Q_max = {scene.params.friction_limit(0.0):.0f} N at rest) at t = {onset:.3g} s "
