@@ -122,3 +122,16 @@ def test_a_scene_record_of_another_format_is_refused_not_read(tmp_path, capsys, 
     assert main(["sim", str(rec), "--out", str(tmp_path / "re.mcap")]) == 2
     assert "its 'scene' record is format 'belt_drive_ros scene 99'; this version reads 'belt_drive_ros scene 1'" \
         in capsys.readouterr().err
+
+
+def test_a_resimulated_scene_names_its_torque_bag_once(tmp_path):
+    # the golden's scene record already says where its torque was recorded: re-reading it said so once more, and
+    # each re-simulation of a re-simulation once again
+    files = REFERENCE_BAGS["engine_idle"].files(BAGS)
+    note = f"Drive torque recorded in {files['torque'].name}."
+    scene = scene_from_bag(files["golden"])
+    assert scene.description.count(note) == 1 and scene.description.endswith(note)
+    again = tmp_path / "again.mcap"
+    (tmp_path / files["torque"].name).write_bytes(files["torque"].read_bytes())
+    assert belt_drive(["sim", str(files["golden"]), "--out", str(again), "--quiet"]) == 0
+    assert scene_from_bag(again).description == scene.description

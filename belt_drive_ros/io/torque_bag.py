@@ -323,8 +323,15 @@ def scene_with_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: O
         start_ns=int(rec.log_time_ns[0]),
     )
     dt = min(scene.dt, duration)
-    description = f"{scene.description} Drive torque recorded in {os.path.basename(rec.path)}.".strip()
+    description = _described(scene.description, os.path.basename(rec.path))
     return dataclasses.replace(scene, drive=drive, duration=float(duration), dt=dt, description=description)
+
+
+def _described(description: str, source: str) -> str:
+    """``description`` of a scene driven by the torque bag named ``source``: it says so once (a recording's own
+    scene, re-simulated, already says it: each re-simulation said it once more)."""
+    note = f"Drive torque recorded in {source}."
+    return description if description.endswith(note) else f"{description} {note}".strip()
 
 
 #: chunks decoded at a time by the pass that opens a :class:`PagedTorque`
@@ -586,7 +593,7 @@ def paged_torque_bag(scene, bag, *, topic: str = DEFAULT_TOPIC, duration: Option
         chunked.close()
         raise BagReadError(f"{bag}: duration must be > 0 s, got {duration!r}")
     dt = min(scene.dt, duration)
-    description = f"{scene.description} Drive torque recorded in {drive.source}.".strip()
+    description = _described(scene.description, drive.source)
     return dataclasses.replace(scene, drive=drive, duration=float(duration), dt=dt, description=description)
 
 
