@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -197,3 +199,26 @@ def test_a_fixed_step_run_is_rated(capsys):
     assert main(["sim", "paper", "--duration", "0.2"]) == 0
     line = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("accuracy")]
     assert len(line) == 1 and "not rated" not in line[0] and "accurate" in line[0], line
+
+
+@pytest.mark.parametrize("torque_bag", [False, True])
+def test_an_offline_recording_resimulates_on_its_own_time_stamps(tmp_path, capsys, torque_bag):
+    # re.mcap of an offline run was stamped at the wall time of the re-simulation, or at the first stamp of the
+    # torque bag that drove it: a comparison on the common clock found no common time range
+    from msg_tools import summary
+    from msg_tools.cli import main as msg_tools
+
+    from belt_drive_ros.io.bags import REFERENCE_BAGS
+
+    rec, re_run = tmp_path / "rec.mcap", tmp_path / "re.mcap"
+    args = ["sim", "paper", "--duration", "0.2", "--start-time", "1700000000", "--out", str(rec), "--quiet"]
+    if torque_bag:
+        bag = REFERENCE_BAGS["e_motor_start"].files(Path(__file__).resolve().parent.parent / "bags")["torque"]
+        args = ["sim", "e_motor_start", "--torque-bag", str(bag), "--duration", "0.2", "--start-time", "1700000000",
+                "--out", str(rec), "--quiet"]
+        (tmp_path / bag.name).write_bytes(bag.read_bytes())
+    assert main(args) == 0
+    assert main(["sim", str(rec), "--out", str(re_run), "--quiet"]) == 0
+    assert summary(re_run).start_ns == summary(rec).start_ns == 1_700_000_000_000_000_000
+    capsys.readouterr()
+    assert msg_tools(["compare", str(re_run), str(rec), "--time-base", "absolute", "--rtol", "0", "--atol", "0"]) == 0

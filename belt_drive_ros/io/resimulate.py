@@ -173,6 +173,10 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
     record = last.metadata_dict(SCENE_METADATA)  # (the last file holds every metadata record written)
     drive = scene.drive
     start = int(drive.start_ns) if isinstance(drive, RecordedTorque) and drive.start_ns is not None else None
+    if record.get("source") == "offline":  # its first message is its scene time 0 (the --start-time it was written
+        # with): not the wall time of the re-simulation, nor the first stamp of the torque bag that drove it
+        firsts = [t.start_ns for info in infos for t in info.topics if t.start_ns is not None]
+        start = min(firsts) if firsts else start
     if start is None and record.get("source") == "node" and record.get("drive_source") == "scene":
         # the node's own drive: the run is the recorded ticks, from the first to the last (not the scene's duration)
         ticks = [t for info in infos for t in info.topics if t.topic.rsplit("/", 1)[-1] == "joint_states" and t.start_ns is not None]
