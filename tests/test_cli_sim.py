@@ -222,3 +222,13 @@ def test_an_offline_recording_resimulates_on_its_own_time_stamps(tmp_path, capsy
     assert summary(re_run).start_ns == summary(rec).start_ns == 1_700_000_000_000_000_000
     capsys.readouterr()
     assert msg_tools(["compare", str(re_run), str(rec), "--time-base", "absolute", "--rtol", "0", "--atol", "0"]) == 0
+
+
+@pytest.mark.parametrize("text, ns", [("1700000000.25", 1_700_000_000_250_000_000),
+                                      ("1700000000.123456789", 1_700_000_000_123_456_789),
+                                      ("2026-01-01T00:00:00.000001Z", 1_767_225_600_000_001_000)])
+def test_a_start_time_is_taken_to_the_nanosecond(text, ns):
+    # seconds times 1e9 in floats stamped 1700000000.25 as ...249999872 (the scene's time 0 128 ns early)
+    from belt_drive_ros.io.recording import parse_start_time
+
+    assert parse_start_time(text) == ns

@@ -147,12 +147,15 @@ def parse_start_time(text: str) -> Optional[int]:
     or an ISO 8601 date (UTC unless it names a zone); returns ns since the epoch."""
     import datetime
 
+    import decimal
+
     text = str(text).strip()
     if text.lower() == "now":
         return None
     try:
         seconds = float(text)
-    except ValueError:
+        exact = decimal.Decimal(text) if math.isfinite(seconds) else None  # (float(text) * 1e9 is off by up to 128 ns)
+    except (ValueError, decimal.InvalidOperation):
         try:
             when = datetime.datetime.fromisoformat(text.replace("Z", "+00:00"))
         except ValueError:
@@ -160,10 +163,12 @@ def parse_start_time(text: str) -> Optional[int]:
         if when.tzinfo is None:
             when = when.replace(tzinfo=datetime.timezone.utc)
         seconds = when.timestamp()
+        exact = decimal.Decimal((when - datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc))
+                                // datetime.timedelta(microseconds=1)) / 1_000_000
     if not (math.isfinite(seconds) and 0 <= seconds <= STAMP_MAX_S):
         raise ValueError(f"--start-time {text!r}: must be between 1970 and 2038-01-19T03:14:07Z (a ROS time stamp's "
                          "seconds are a 32-bit integer)")
-    return int(round(seconds * 1e9))
+    return int((exact * 1_000_000_000).to_integral_value(decimal.ROUND_HALF_EVEN))
 
 
 #: the last second a ROS time stamp holds (builtin_interfaces/Time: int32 sec): 2038-01-19T03:14:07Z
