@@ -10,6 +10,7 @@ its scene is rebuilt (:func:`_check_whole`), and the messages are read with ever
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass
 from typing import Any, Dict, List, Optional, Tuple
@@ -128,13 +129,22 @@ def _one_run(info, file, start_ns: Optional[int]) -> None:
                            "one run from one start with one set of parameters")
 
 
+def _rate(text: str) -> Optional[float]:
+    """A scene record's ``output_rate`` [Hz] as a number, None when it is none (a finite number > 0)."""
+    try:
+        rate = float(text)
+    except ValueError:
+        return None
+    return rate if math.isfinite(rate) and rate > 0 else None
+
+
 @dataclass
 class Resimulation:
     """What ``belt-drive sim RECORDING --out re.mcap`` needs to write a file comparable with the recording.
 
     ``scene``: the recording's own (:func:`scene_from_bag`); ``start_time_ns``:
     the time of its first sample (scene time 0); ``output_rate`` [Hz]: one
-    sample per tick of a node recording (None: the scene's); ``namespace``:
+    sample per tick of a node recording, an offline one's rate as written (None: the scene's); ``namespace``:
     its topics'; ``drive_topic``: where the run's drive torque goes
     (``drive_torque_applied`` for a node recording, whose ``drive_torque`` is
     the raw input); ``passthrough``: the recorded topics the run does not
@@ -187,6 +197,9 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
     _one_run(last, path, start)
     tick_ns = record.get("tick_ns", "")
     output_rate = 1e9 / float(tick_ns) if tick_ns.strip().isdigit() and int(tick_ns) > 0 else None
+    if output_rate is None and record.get("source") == "offline":  # the rate it was written at (write_result_mcap's
+        # output_rate, not always the scene's: at the scene's, 1 kHz, a 250 Hz recording had 4x the samples)
+        output_rate = _rate(record.get("output_rate", ""))
     namespace, drive_topic = "/", "drive_torque"
     if isinstance(drive, RecordedTorque) and drive.topic.rsplit("/", 1)[-1] == APPLIED_TOPIC:
         namespace = drive.topic.rsplit("/", 1)[0] or "/"
