@@ -251,3 +251,45 @@ def test_an_offline_recording_resimulates_at_the_rate_it_was_written(tmp_path, c
     assert counts[0]["/shaft_speed"] == 26 and counts[1] == counts[0]
     capsys.readouterr()
     assert msg_tools(["compare", str(re_run), str(rec), "--rtol", "0", "--atol", "0"]) == 0
+
+
+@pytest.mark.parametrize("options", [{"namespace": "/car1"}, {"topics": ["shaft_speed", "belt_torque"]}])
+def test_an_offline_recording_resimulates_its_own_topics(tmp_path, capsys, options):
+    # write_result_mcap(namespace="/car1"): the re-simulation wrote /shaft_speed ... and copied the recorded
+    # /car1/shaft_speed ... into --out as they were (a compare of those passed whatever the run gave); topics=[...]:
+    # it wrote every topic, and compare failed for those the recording has not
+    from msg_tools import summary
+    from msg_tools.cli import main as msg_tools
+
+    from belt_drive_ros.core.simulate import simulate
+    from belt_drive_ros.io.recording import write_result_mcap
+
+    rec, re_run = tmp_path / "rec.mcap", tmp_path / "re.mcap"
+    run = simulate(load_scene("truck_compressor"), model="flexible", duration=0.05)
+    write_result_mcap(run, rec, start_time_ns=0, **options)
+    assert main(["sim", str(rec), "--out", str(re_run), "--quiet"]) == 0
+    assert "0 more recorded topic(s) copied" in capsys.readouterr().out
+    topics = [{t.topic for t in summary(f).topics} for f in (rec, re_run)]
+    assert topics[1] == topics[0]
+    assert msg_tools(["compare", str(rec), str(re_run), "--rtol", "0", "--atol", "0"]) == 0
+
+
+@pytest.mark.parametrize("model, topics", [("flexible", None), ("flexible", ["shaft_speed", "slip_speed"]),
+                                           ("slipping", None)])
+def test_a_recording_resimulates_on_another_model_with_that_models_topics(tmp_path, model, topics):
+    # a slipping recording (its slip outputs among its topics) re-simulated --model flexible, and a flexible one
+    # --model slipping: the run's model's topics, of those the recording has where it has a subset
+    from msg_tools import summary
+
+    from belt_drive_ros.core.simulate import simulate
+    from belt_drive_ros.io.recording import write_result_mcap
+
+    rec, re_run = tmp_path / "rec.mcap", tmp_path / "re.mcap"
+    run = simulate(load_scene("truck_compressor"), model="slipping" if model == "flexible" else "flexible", duration=0.6)
+    write_result_mcap(run, rec, start_time_ns=0, topics=topics)
+    assert main(["sim", str(rec), "--model", model, "--out", str(re_run), "--quiet"]) == 0
+    written = {t.topic for t in summary(re_run).topics}
+    if topics:
+        assert written == {"/shaft_speed"}
+    else:
+        assert ("/slip_speed" in written) == (model == "slipping") and "/shaft_speed" in written

@@ -339,6 +339,11 @@ def test_node_recording_resimulates_from_the_command_line(tmp_path, ros_domain_i
         recorded = read_topic(rec, "/" + name.split("/")[0])
         peak = np.nanmax(np.abs(recorded.position if "position" in name else recorded.data))
         assert by_name[name].n_compared == 91 and by_name[name].worst_abs_error <= 1e-9 * peak, by_name[name]
+    # the re-simulation re-simulated (an offline recording of the node's topics): the same file's outputs exactly
+    re2 = tmp_path / "re2.mcap"
+    assert belt_drive(["sim", str(re), "--out", str(re2), "--quiet"]) == 0
+    capsys.readouterr()
+    assert msg_tools(["compare", str(re), str(re2), "--rtol", "0", "--atol", "0", "--time-base", "absolute"]) == 0
     # SCENE --torque-bag rec.mcap: the applied torque, not the raw one with its NaN
     other = tmp_path / "other.mcap"
     assert belt_drive(["sim", "truck_compressor", "--torque-bag", str(rec), "--out", str(other), "--quiet"]) == 0

@@ -234,7 +234,8 @@ def _resimulation(args):
     computed = (ROBOT_DESCRIPTION, "joint_states", TF_TOPIC) + tuple(n for n, _ in FLOAT_OUTPUTS + SLIP_FLOAT_OUTPUTS)
     resim = resimulation(args.scene, computed=computed, torque_bag=args.torque_bag)
     args.writer_options = {"namespace": resim.namespace, "drive_topic": resim.drive_topic,
-                           "passthrough": resim.passthrough, "output_rate": resim.output_rate, "stamps": resim.stamps}
+                           "passthrough": resim.passthrough, "output_rate": resim.output_rate, "stamps": resim.stamps,
+                           "topics": resim.topics}
     if args.start_time is None and resim.start_time_ns is not None:
         args.start_time = resim.start_time_ns  # the recording's time stamps, so the files line up
     drive = getattr(resim.scene.drive, "topic", "the scene's profile")

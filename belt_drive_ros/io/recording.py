@@ -216,7 +216,7 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
     topics : iterable of str, optional
         Subset of ``robot_description``, ``drive_torque``, ``joint_states``,
         ``shaft_speed``, ``load_torque``, ``belt_torque``,
-        ``relative_deflection`` (and the slipping model's outputs) (default all).
+        ``relative_deflection`` (and the slipping model's outputs: none written for a run of another model) (default all).
         ``robot_description`` is one ``std_msgs/String`` message at the start:
         the drive's URDF from the scene's radii (:mod:`belt_drive_ros.io.urdf`),
         offered transient local like ``robot_state_publisher``'s, for
@@ -325,7 +325,8 @@ class ResultMcapWriter:
         offline_topics = (ROBOT_DESCRIPTION, "drive_torque", "joint_states", TF_TOPIC.strip("/")) + tuple(
             name for name, _ in self.float_outputs)
         self.wanted = offline_topics if topics is None else tuple(t.strip("/") for t in topics)
-        unknown = sorted(set(self.wanted) - set(offline_topics))
+        # (the slipping model's outputs are known topics of any run: a run of another model has none to write)
+        unknown = sorted(set(self.wanted) - set(offline_topics) - {name for name, _ in SLIP_FLOAT_OUTPUTS})
         if unknown:
             raise ValueError(f"topics: unknown {', '.join(unknown)}; offline runs have {', '.join(offline_topics)}")
         self.stride = _output_stride(result, output_rate)

@@ -19,7 +19,9 @@ from msg_tools.errors import MsgToolsError, RecoveredBagWarning
 
 from ..core.params import FIELD_DOCS
 from .bag_layout import PARAMETERS_METADATA, restarts_of
-from .recording import APPLIED_TOPIC, SCENE_METADATA, BagReadError, bag_error
+from .recording import (
+    APPLIED_TOPIC, FLOAT_OUTPUTS, ROBOT_DESCRIPTION, SCENE_METADATA, SLIP_FLOAT_OUTPUTS, TF_TOPIC, BagReadError, bag_error,
+)  # fmt: skip
 from .torque_bag import DEFAULT_TOPIC, RecordedTorque, scene_from_bag
 
 __all__ = ["Resimulation", "resimulation", "torque_topic"]
@@ -150,7 +152,8 @@ class Resimulation:
     the raw input); ``passthrough``: the recorded topics the run does not
     compute (the raw ``drive_torque``, ``/clock``, ``/diagnostics``), copied
     as recorded: ``(topic, type, offered QoS YAML, type hash, [(log time, CDR)])``; ``stamps``: a node recording's
-    tick times [ns] (its ``joint_states`` log times), the samples ``--out`` holds (None: every sample).
+    tick times [ns] (its ``joint_states`` log times), the samples ``--out`` holds (None: every sample); ``topics``:
+    an offline recording's topics of the run (relative names; None: every one).
     """
 
     scene: Any
@@ -160,6 +163,7 @@ class Resimulation:
     drive_topic: str
     passthrough: List[tuple]
     stamps: Optional[Any] = None
+    topics: Optional[List[str]] = None
 
 
 def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
@@ -183,9 +187,27 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
     record = last.metadata_dict(SCENE_METADATA)  # (the last file holds every metadata record written)
     drive = scene.drive
     start = int(drive.start_ns) if isinstance(drive, RecordedTorque) and drive.start_ns is not None else None
-    if record.get("source") == "offline":  # its first message is its scene time 0 (the --start-time it was written
-        # with): not the wall time of the re-simulation, nor the first stamp of the torque bag that drove it
-        firsts = [t.start_ns for info in infos for t in info.topics if t.start_ns is not None]
+    namespace, drive_topic = "/", "drive_torque"
+    if isinstance(drive, RecordedTorque) and drive.topic.rsplit("/", 1)[-1] == APPLIED_TOPIC:
+        namespace = drive.topic.rsplit("/", 1)[0] or "/"
+        drive_topic = APPLIED_TOPIC
+    elif record.get("source") == "node":  # the node's own drive (the scene's): recorded as applied, in its namespace
+        namespace = record.get("node", "/").rsplit("/", 1)[0] or "/"
+        drive_topic = APPLIED_TOPIC
+    topics = None
+    if record.get("source") == "offline":  # written by write_result_mcap: the topics of the run it wrote
+        every = {ROBOT_DESCRIPTION, "joint_states", TF_TOPIC.strip("/"), "drive_torque"} | {n for n, _ in FLOAT_OUTPUTS}
+        ours = every | {drive_topic} | {name for name, _ in SLIP_FLOAT_OUTPUTS}  # (every model's, the slipping one's)
+        run = [t for info in infos for t in info.topics if t.topic.rsplit("/", 1)[-1] in ours]
+        bases = {"drive_torque" if b == drive_topic else b for b in (t.topic.rsplit("/", 1)[-1] for t in run)}
+        if not every <= bases:  # a subset (write_result_mcap's topics=, by which the drive torque is drive_torque);
+            topics = sorted(bases)  # else every topic of the run's model (a flexible recording run --model slipping)
+        parents = {t.topic.rsplit("/", 1)[0] or "/" for t in run if t.topic != TF_TOPIC}  # (/tf is absolute)
+        if drive_topic != APPLIED_TOPIC and len(parents) == 1:  # its namespace (/car1: the re-simulation wrote
+            namespace = parents.pop()  # /shaft_speed ... and copied the recorded /car1/shaft_speed ... as they were)
+        # its first sample is its scene time 0 (the --start-time it was written with): not the wall time of the
+        # re-simulation, nor the first stamp of the torque bag that drove it
+        firsts = [t.start_ns for t in run if t.start_ns is not None]
         start = min(firsts) if firsts else start
     if start is None and record.get("source") == "node" and record.get("drive_source") == "scene":
         # the node's own drive: the run is the recorded ticks, from the first to the last (not the scene's duration)
@@ -200,13 +222,6 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
     if output_rate is None and record.get("source") == "offline":  # the rate it was written at (write_result_mcap's
         # output_rate, not always the scene's: at the scene's, 1 kHz, a 250 Hz recording had 4x the samples)
         output_rate = _rate(record.get("output_rate", ""))
-    namespace, drive_topic = "/", "drive_torque"
-    if isinstance(drive, RecordedTorque) and drive.topic.rsplit("/", 1)[-1] == APPLIED_TOPIC:
-        namespace = drive.topic.rsplit("/", 1)[0] or "/"
-        drive_topic = APPLIED_TOPIC
-    elif record.get("source") == "node":  # the node's own drive (the scene's): recorded as applied, in its namespace
-        namespace = record.get("node", "/").rsplit("/", 1)[0] or "/"
-        drive_topic = APPLIED_TOPIC
     written = {name.strip("/") for name in computed} | {drive_topic}
 
     def relative(topic: str) -> str:
@@ -259,4 +274,4 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
                 "between two ticks); 'belt-drive sim' repeats a run whose ticks are on its grid")
     return Resimulation(scene, start, output_rate, namespace, drive_topic,
                         [tuple(entry) for entry in channels.values()],
-                        np.array(ticks, dtype=np.int64) if ticks else None)
+                        np.array(ticks, dtype=np.int64) if ticks else None, topics)
