@@ -293,3 +293,19 @@ def test_a_rigid_run_with_a_second_order_method_on_the_ramp_stays_accurate():
     report = simulate(scene).accuracy
     measured = _measured(scene, "etd2", 7e-4, kind="rigid")
     assert report.accurate and measured <= report.error <= 1e-6, (report.error, measured)
+
+
+def test_a_step_the_guards_name_for_euler_on_paper_is_one_a_scene_takes():
+    """euler on the lightly damped paper belt is accurate only far below the shortest step a scene takes (1e-7 s):
+    the refusal named dt = 1.53e-08 s, which --dt then refused as outside its plausible range."""
+    import re
+
+    from belt_drive_ros.core.scene import RANGES
+
+    with pytest.raises(UnstableStepError) as info:
+        simulate(load_scene("paper"), model="flexible", method="euler", dt=1e-3)
+    text = str(info.value)
+    steps = [float(v) for v in re.findall(r"dt = ([0-9.e+-]+) s", text)]
+    assert steps and all(h >= RANGES["dt"][0] for h in steps), text
+    floor = [float(v) for v in re.findall(r"no step of euler is accurate down to ([0-9.e+-]+) s", text)]
+    assert floor and floor[0] >= RANGES["dt"][0], text
