@@ -168,6 +168,32 @@ def test_streamed_mcap_has_the_whole_runs_messages(tmp_path, monkeypatch):
     assert scene_from_bag(tmp_path / "streamed.MCAP") == scene_from_bag(tmp_path / "memory.mcap")
 
 
+@pytest.mark.parametrize("duration", ["0.0123", "1.0023"])
+def test_an_mcap_ends_where_the_run_does(tmp_path, monkeypatch, duration):
+    """A duration that is no whole number of output periods (1 kHz): the file ended up to a period before the run
+    (0.012 s of a 0.0123 s run; the summary's final state was in no file). It ends at the duration, with the run's
+    last sample, in memory and streamed alike, and counts it in its scene record."""
+    from msg_tools import read_topic, summary as mcap_summary
+
+    from belt_drive_ros.core.simulate import simulate
+
+    argv = ["sim", "truck_compressor", "--model", "flexible", "--duration", duration, "--quiet", "--start-time", "0"]
+    assert main(argv + ["--out", str(tmp_path / "memory.mcap")]) == 0
+    monkeypatch.setattr(sim_command, "STREAM_ABOVE", 0)
+    monkeypatch.setattr(stream_module, "WINDOW_STEPS", 64)
+    assert main(argv + ["--out", str(tmp_path / "streamed.mcap")]) == 0
+    run = simulate(load_scene("truck_compressor"), model="flexible", duration=float(duration))
+    for name in ("memory.mcap", "streamed.mcap"):
+        path = tmp_path / name
+        speed = read_topic(path, "/shaft_speed")
+        times = speed.log_time_ns * 1e-9
+        assert times[-1] == pytest.approx(float(duration), abs=1e-9) and np.all(np.diff(times) > 0), name
+        assert times[-2] == pytest.approx(np.floor(float(duration) * 1000.0) / 1000.0, abs=1e-9), name
+        assert speed.fields["data"][-1] == run["omega_M"][-1], name
+        info = mcap_summary(path)
+        assert int(info.metadata_dict("scene")["samples"]) == len(times), name
+
+
 def _peak_bytes(argv) -> int:
     tracemalloc.start()
     try:

@@ -212,7 +212,9 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
     output_rate : float, optional
         Messages per second [Hz]; default the scene's ``output_rate`` (the
         node's publish rate). Samples are taken every ``round(1/(rate*dt))``
-        integrator steps; all steps if that does not divide evenly.
+        integrator steps; all steps if that does not divide evenly. The run's
+        last sample is written too where the duration is no whole number of
+        those periods: the file ends where the run does.
     topics : iterable of str, optional
         Subset of ``robot_description``, ``drive_torque``, ``joint_states``,
         ``shaft_speed``, ``load_torque``, ``belt_torque``,
@@ -270,7 +272,8 @@ def write_result_mcap(result, path, force: bool = False, *, namespace: str = "/"
         If the file cannot be written.
     """
     stride = _output_stride(result, output_rate)
-    count = len(range(0, len(result.time), stride))
+    n = len(result.time)
+    count = len(range(0, n, stride)) + (1 if n and (n - 1) % stride else 0)  # (the run's last sample, off the stride)
     if stamps is not None and start_time_ns is not None:  # (the samples kept: the scene record says how many)
         times = np.round(np.asarray(result.time, dtype=float)[::stride] * 1e9).astype(np.int64) + int(start_time_ns)
         count = int(np.isin(times, stamps).sum())
@@ -341,6 +344,7 @@ class ResultMcapWriter:
         self.namespace = namespace
         self.seen = 0  # samples of the run so far (all windows)
         self.samples = 0  # of them written
+        self._tail = None  # (the latest window, the index of its last sample)
         scene = result.scene
         mapping = scene_mapping(scene, model=result.model, method=result.method, dt=result.dt)
         drive_source = "torque_bag" if isinstance(mapping.get("drive"), dict) and mapping["drive"].get("type") == RECORDED_DRIVE else "scene"
@@ -434,9 +438,13 @@ class ResultMcapWriter:
         """Append the window ``result`` (the samples after the previous window's last)."""
         n = len(result.time)
         first = (-self.seen) % self.stride
-        index = slice(first, n, self.stride)  # (views of the window's arrays, no copies)
-        count = len(range(first, n, self.stride))
         self.seen += n
+        if n:  # the run's last sample so far: written at close when it is off the stride (the run ends there)
+            self._tail = (result, n - 1)
+        self._write_samples(result, slice(first, n, self.stride), len(range(first, n, self.stride)))
+
+    def _write_samples(self, result, index: slice, count: int) -> None:
+        """The samples ``index`` (``count`` of them) of the window ``result``."""
         if not count:
             return
         t_ns = np.round(np.asarray(result.time, dtype=float)[index] * 1e9).astype(np.int64) + self.start_time_ns
@@ -493,7 +501,13 @@ class ResultMcapWriter:
                 write(topic, type_name, r[k].tobytes(), t)
 
     def close(self) -> Dict[str, int]:
-        """Finish the file (the scene record now, for a stream); returns messages per topic."""
+        """Finish the file (the scene record now, for a stream); returns messages per topic. The run's last sample
+        is written when the stride passed it (a duration that is no whole number of output periods: the file ends
+        where the run does, not up to a period before; a recording's own stamps excepted)."""
+        if self._tail is not None and self.stamps is None and (self.seen - 1) % self.stride:
+            result, last = self._tail
+            self._write_samples(result, slice(last, last + 1), 1)
+        self._tail = None
         try:
             if not self._topics_added:
                 self._add_topics(None)
