@@ -293,3 +293,31 @@ def test_a_recording_resimulates_on_another_model_with_that_models_topics(tmp_pa
         assert written == {"/shaft_speed"}
     else:
         assert ("/slip_speed" in written) == (model == "slipping") and "/shaft_speed" in written
+
+
+def test_a_torque_bag_of_several_drives_is_read_on_the_topic_named(tmp_path, capsys):
+    """A bag holding /a/drive_torque and /b/drive_torque could not drive a run: the refusal listed both with no way
+    to pick one. --torque-topic names it; the run is driven by that topic's torque (5 N m on /a, 9 on /b)."""
+    from mcap_ros2.writer import Writer
+
+    bag = tmp_path / "two.mcap"
+    with open(bag, "wb") as f:
+        w = Writer(f)
+        schema = w.register_msgdef("std_msgs/msg/Float64", "float64 data")
+        for k in range(201):
+            for topic, value in (("/a/drive_torque", 5.0), ("/b/drive_torque", 9.0)):
+                w.write_message(topic, schema, {"data": value}, log_time=k * 10**6, publish_time=k * 10**6)
+        w.finish()
+    args = ["sim", "paper", "--torque-bag", str(bag), "--duration", "0.2", "--quiet"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "/a/drive_torque, /b/drive_torque" in err and "--torque-topic" in err and len(err.strip().splitlines()) == 1
+    for topic, value in (("/a/drive_torque", 5.0), ("b/drive_torque", 9.0)):
+        out = tmp_path / f"{value:g}.csv"
+        assert main(args + ["--torque-topic", topic, "--out", str(out)]) == 0
+        rows = np.loadtxt(out, delimiter=",", skiprows=1)
+        header = out.read_text().splitlines()[0].split(",")
+        assert np.all(rows[:, header.index("drive_torque")] == value)
+    capsys.readouterr()
+    assert main(["sim", "paper", "--torque-topic", "/a/drive_torque"]) == 2
+    assert "--torque-topic" in capsys.readouterr().err

@@ -81,6 +81,9 @@ def register(sub) -> None:
                    help="drive the model with the torque recorded in this MCAP: drive_torque_applied where the "
                         "file has it (a node recording: the torque the node applied), else drive_torque; with a "
                         "recording as the scene: the torque bag it was driven by, when that is not next to it")
+    p.add_argument("--torque-topic", metavar="TOPIC",
+                   help="the topic of --torque-bag to read (std_msgs/Float64), e.g. /truck2/drive_torque where the "
+                        "bag holds several drives (default: as --torque-bag says)")
     p.add_argument("--force", action="store_true",
                    help="overwrite existing outputs (--out and --plot; never a file the run reads); a bag folder's "
                         "old bag is kept in a hidden .OUT.*.old beside it until the new one is whole (a run killed "
@@ -107,6 +110,10 @@ def _refuse_idle_options(args) -> None:
         raise ParameterError("--bag-folder", "writes --out as a rosbag2 bag folder; give --out NAME")
     if args.plot_every != 1 and args.plot is None:
         raise ParameterError("--plot-every", "thins what --plot draws; give --plot FILE.png")
+    if args.torque_topic is not None and args.torque_bag is None:
+        raise ParameterError("--torque-topic", "names the topic of --torque-bag to read; give --torque-bag FILE")
+    if args.torque_topic is not None and not args.torque_topic.strip("/"):
+        raise ParameterError("--torque-topic", f"a topic name, got {args.torque_topic!r}")
     if args.start_time is not None and not mcap_out:
         raise ParameterError("--start-time", "stamps the messages of an MCAP output; --out is "
                              + ("not given" if args.out is None else f"{args.out.name}, not one"))
@@ -141,6 +148,10 @@ def run(args) -> int:
 
     _refuse_idle_options(args)
     args.writer_options = {}
+    if is_recording(args.scene) and args.torque_topic is not None:
+        from ..core.errors import ParameterError
+
+        raise ParameterError("--torque-topic", "a recording re-simulates from the torque topic its scene record names")
     if is_recording(args.scene):  # a recording re-simulated from its own scene record
         from ..io.network_bag import is_network_recording
 
@@ -165,7 +176,8 @@ def run(args) -> int:
         from ..io.resimulate import torque_topic
         from ..io.torque_bag import torque_bag_scene  # offline replay of a recorded profile
 
-        topic, note = torque_topic(args.torque_bag)  # a node recording: the torque it applied
+        # a node recording: the torque it applied, unless a topic is named
+        topic, note = (args.torque_topic, "") if args.torque_topic else torque_topic(args.torque_bag)
         if note:
             print(note)
         scene = torque_bag_scene(scene, args.torque_bag, topic=topic, duration=args.duration,

@@ -214,7 +214,8 @@ def load_torque_recording(bag, topic: str = DEFAULT_TOPIC, *, keep_payloads: boo
                     if not data_bag.complete:  # cut off or damaged before the topic's channel: not a missing topic
                         raise _damaged(data_bag, name)
                     listing = ", ".join(data_bag.available) or "none"
-                    raise BagReadError(f"{data_bag.path}: no topic {name} (topics: {listing})")
+                    pick = "; name one (belt-drive sim --torque-topic)" if len(candidates) > 1 else ""
+                    raise BagReadError(f"{data_bag.path}: no topic {name} (topics: {listing}){pick}")
                 name = candidates[0]
                 data_bag = read_bag(bag, [name], missing_ok=True)
             offered = ""
