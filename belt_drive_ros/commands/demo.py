@@ -76,14 +76,14 @@ def run(args) -> int:
             return 128 + int(signum)
     code = 0
     if not args.no_offline:
-        from .sim import run as run_sim
+        from .sim import register as register_sim, run as run_sim
 
         print("\n== offline: the paper scene, rigid and flexible ==")
-        ns = argparse.Namespace(
-            scene="paper", model=None, method=None, method_option=[], dt=None, duration=None,
-            out=args.out_dir / "paper.csv", plot=args.out_dir / "paper.png", torque_bag=None, force=True, quiet=False,
-            start_time=None, bag_folder=False, plot_every=1,
-        )
+        # sim's own parser: its every option at its default (a Namespace written here missed the ones added later)
+        parser = argparse.ArgumentParser(prog="belt-drive")
+        register_sim(parser.add_subparsers(dest="command"))
+        ns = parser.parse_args(["sim", "paper", "--out", str(args.out_dir / "paper.csv"),
+                                "--plot", str(args.out_dir / "paper.png"), "--force"])
         code = run_sim(ns)
     if not args.no_network and code == 0:
         from .network_sim import demo_network
