@@ -270,3 +270,16 @@ def test_an_out_folder_that_cannot_be_made_is_named_as_the_option(tmp_path, caps
     out = out.format(tmp=tmp_path)
     assert main(["sweep", str(campaign), "--out", out, "--quiet", "--workers", "1"]) == 2
     assert capsys.readouterr().err.strip() == f"belt-drive: error: {message.format(tmp=tmp_path)}"
+
+
+@pytest.mark.parametrize("grid, message", [
+    ({"k": [1.0e4, 2.0e4, 1.0e4]}, r"^grid\.k: 10000\.0 is given twice$"),
+    ({"params.c": [0.1, 0.1]}, r"^grid\.params\.c: 0\.1 is given twice$"),
+    ({"method": ["etd2", "rk4", "etd2"]}, r"^grid\.method: 'etd2' is given twice$"),
+])
+def test_a_grid_value_given_twice_is_refused(grid, message):
+    """``grid: {k: [1e4, 1e4]}`` ran every variant of that value twice, silently (twice the time, nothing new)."""
+    with pytest.raises(CampaignError, match=message):
+        Campaign.from_mapping({"scene": "paper", "grid": grid})
+    distinct = {key: sorted(set(values), key=values.index) for key, values in grid.items()}
+    assert Campaign.from_mapping({"scene": "paper", "grid": distinct}).size == len(next(iter(distinct.values())))

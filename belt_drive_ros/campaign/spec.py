@@ -265,6 +265,11 @@ class Campaign:
         grid, decode = {}, {}
         for key, given, values in _key_paths(_mapping(data, "grid"), "grid."):
             column, back = _column(key, sequence(values, f"grid.{given}", CampaignError, nonempty=True))
+            seen = set()
+            for value in column:  # a value twice: the same variants twice (nothing new, twice the time)
+                if value in seen or (value != value and any(v != v for v in seen)):
+                    raise CampaignError(f"grid.{given}: {short(back[value] if back else value)} is given twice")
+                seen.add(value)
             grid[key] = column
             if back is not None:
                 decode[key] = back
