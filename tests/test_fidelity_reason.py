@@ -109,3 +109,24 @@ def test_a_torque_that_cuts_off_with_the_speed_is_an_excitation_the_rule_sees():
     assert np.max(np.abs(result.outputs["belt_torque"] - rigid.outputs["belt_torque"])) > 0.03 * peak  # it mattered
     assert simulate(load_scene("e_motor_start")).model == "rigid"
     assert simulate(_speed_limited(20.0)).model == "rigid"
+
+
+def test_a_choice_read_off_an_inaccurate_run_says_so():
+    """model auto at rk4, 3 ms on the truck's belt (c = 2 N s/m, a load step at 0.2 s): the run is 0.42 off, and its
+    choice 'flexible' (no slip) was given as settled, where an accurate run passes the capstan limit at 0.21 s. The
+    reason now says it was read off a run rated inaccurate; an accurate run's reason does not."""
+    from belt_drive_ros.core.scene import Scene
+    from belt_drive_ros.core.simulate import simulate
+    from belt_drive_ros.io.scenes import load_scene
+
+    truck = load_scene("truck_compressor").to_dict()
+    data = {**truck, "model": "auto", "method": "rk4", "dt": 0.003, "duration": 0.5,
+            "params": {**truck["params"], "c": 2.0, "F_0": 431.66},
+            "drive": {**truck["drive"], "harmonics": [0.0]},
+            "load": {"type": "step", "initial": 2.0, "final": 20.0, "time": 0.2}}
+    result = simulate(Scene.from_mapping(data))
+    assert not result.accuracy.accurate
+    assert "read off a run rated INACCURATE" in result.choice.reason
+    accurate = simulate(Scene.from_mapping({**data, "method": "etd4", "dt": 0.0005}))
+    assert accurate.accuracy.accurate and "INACCURATE" not in accurate.choice.reason
+    assert accurate.model == "slipping"  # what the inaccurate run's choice missed
