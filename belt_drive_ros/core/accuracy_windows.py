@@ -98,21 +98,18 @@ def _grown(starts, gap, t, errs, duration: float) -> np.ndarray:
     ``g = log2(max over the window / max over its first half)`` in [0, 1] (1: linear, 0: not growing, e.g. a ripple
     whose error is made within a period) sets ``errs (duration / window)^g``. ``gap`` (rows, signals): the error at
     each of the windows' common times ``t``, window ``j``'s from row ``starts[j]``."""
-    n = t.size
-    sizes = [b - a for a, b in zip(starts, starts[1:] + [n])]
-    out = errs.copy()
-    for j, (a, size) in enumerate(zip(starts, sizes)):
-        span = float(t[a + size - 1] - t[a])
-        if size < 3 or not span > 0.0 or not duration > span:
-            continue
-        first = gap[a : a + size // 2 + 1].max(axis=0)
-        for k in range(errs.shape[1]):
-            whole = errs[j, k]
-            if not whole > 0.0:
-                continue
-            g = 1.0 if not first[k] > 0.0 else min(1.0, max(0.0, math.log2(max(whole / first[k], 1.0))))
-            out[j, k] = whole * (duration / span) ** g
-    return out
+    st = np.asarray(starts, dtype=np.intp)
+    ends = np.append(st[1:], t.size)  # (each window's rows: [st, ends))
+    span = t[ends - 1] - t[st]
+    ok = (ends - st >= 3) & (span > 0.0) & (duration > span)
+    if not ok.any():
+        return errs
+    mid = np.where(ok, st + (ends - st) // 2 + 1, st + 1)  # each first half's end (< its window's end where ok)
+    first = np.maximum.reduceat(gap, np.column_stack([st, np.minimum(mid, t.size - 1)]).ravel(), axis=0)[::2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g = np.where(first > 0.0, np.clip(np.log2(np.maximum(errs / first, 1.0)), 0.0, 1.0), 1.0)
+        factor = np.where(ok[:, None] & (errs > 0.0), (duration / np.where(ok, span, 1.0))[:, None] ** g, 1.0)
+    return errs * factor
 
 
 def _drift_time(plant, probes) -> float:
