@@ -98,18 +98,21 @@ def _grown(starts, gap, t, errs, duration: float) -> np.ndarray:
     ``g = log2(max over the window / max over its first half)`` in [0, 1] (1: linear, 0: not growing, e.g. a ripple
     whose error is made within a period) sets ``errs (duration / window)^g``. ``gap`` (rows, signals): the error at
     each of the windows' common times ``t``, window ``j``'s from row ``starts[j]``."""
-    st = np.asarray(starts, dtype=np.intp)
-    ends = np.append(st[1:], t.size)  # (each window's rows: [st, ends))
-    span = t[ends - 1] - t[st]
-    ok = (ends - st >= 3) & (span > 0.0) & (duration > span)
-    if not ok.any():
-        return errs
-    mid = np.where(ok, st + (ends - st) // 2 + 1, st + 1)  # each first half's end (< its window's end where ok)
-    first = np.maximum.reduceat(gap, np.column_stack([st, np.minimum(mid, t.size - 1)]).ravel(), axis=0)[::2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        g = np.where(first > 0.0, np.clip(np.log2(np.maximum(errs / first, 1.0)), 0.0, 1.0), 1.0)
-        factor = np.where(ok[:, None] & (errs > 0.0), (duration / np.where(ok, span, 1.0))[:, None] ** g, 1.0)
-    return errs * factor
+    n = t.size
+    ends = list(starts[1:]) + [n]  # (each window's rows: [start, end))
+    halves = [a + (e - a) // 2 + 1 if e - a >= 3 else a for a, e in zip(starts, ends)]  # each first half's end
+    first = np.maximum.reduceat(gap, [k for a, h in zip(starts, halves) for k in (a, min(h, n - 1))], axis=0)
+    first, spans, out = first[::2].tolist(), (t[np.array(ends) - 1] - t[starts]).tolist(), errs.copy()
+    for j, (a, e) in enumerate(zip(starts, ends)):  # (a few windows and signals: Python floats)
+        span = spans[j]
+        if e - a < 3 or not span > 0.0 or not duration > span:
+            continue
+        for k, whole in enumerate(errs[j].tolist()):
+            if whole > 0.0:
+                f = first[j][k]
+                g = 1.0 if not f > 0.0 else min(1.0, max(0.0, math.log2(max(whole / f, 1.0))))
+                out[j, k] = whole * (duration / span) ** g
+    return out
 
 
 def _drift_time(plant, probes) -> float:
@@ -121,8 +124,8 @@ def _drift_time(plant, probes) -> float:
     A, B = plant.model.A, plant.model.B
     longest = 0.0
     for K, _ in probes.gains:
-        lams = closed_loop_eigenvalues(A, B, K)
-        scale = float(np.max(np.abs(lams))) or 1.0
+        lams = closed_loop_eigenvalues(A, B, K).tolist()  # (a few Python numbers: no numpy call per value)
+        scale = max(abs(lam) for lam in lams) or 1.0
         decaying = [abs(lam.real) for lam in lams if abs(lam) > 1e-7 * scale and lam.real < 0.0]
         moving = [lam for lam in lams if abs(lam) > 1e-7 * scale]
         if len(decaying) < len(moving) or not decaying:
