@@ -330,3 +330,19 @@ def test_a_named_alternative_passes_the_check_its_own_run_makes():
     assert f"{method} at dt = {h:.3g} s is stable and accurate" in report.describe()
     again = simulate(Scene.from_mapping({**data, "method": method, "dt": float(f"{h:.3g}")})).accuracy
     assert again.accurate, again.describe()
+
+
+def test_the_slipping_guard_names_only_steps_a_scene_takes():
+    """The slipping model's search (halvings of dt, then another method) went below the shortest step a scene takes
+    (1e-7 s): euler at dt = 2e-7 s on truck_compressor said 'no step of euler down to 2.5e-08 s is stable and
+    accurate', steps --dt then refuses. It searches down to that floor and says so."""
+    import re
+
+    from belt_drive_ros.core.scene import RANGES
+
+    report = simulate(load_scene("truck_compressor"), model="slipping", method="euler", dt=2e-7, duration=0.002).accuracy
+    text = report.describe()
+    assert not report.accurate and report.mode == "stick", text
+    named = [float(v) for v in re.findall(r"(?:dt = |down to )([0-9.e+-]+) s", text)]
+    assert named and all(h >= RANGES["dt"][0] for h in named), text
+    assert "no step of euler down to 1e-07 s is stable and accurate" in text, text

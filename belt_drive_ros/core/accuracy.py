@@ -206,9 +206,15 @@ def check_accuracy(
                     if h is not None and (found is None or h > found):
                         alternative = (other, h)
                         break
-        searched = min((dt / 2.0**j for j in range(MAX_HALVINGS + 1) if dt / 2.0**j >= MIN_STEP), default=dt)
+        searched = min(_halvings(dt, range(MAX_HALVINGS + 1)), default=dt)
         worst = AccuracyReport(**{**worst.__dict__, "suggestion": found, "alternative": alternative, "searched": searched})
     return worst
+
+
+def _halvings(dt: float, exponents) -> list:
+    """The steps ``dt / 2^j`` [s] (``j`` in ``exponents``, increasing) a scene accepts (``>=`` :data:`MIN_STEP`): the
+    candidates every search of the guard tries."""
+    return [dt / 2.0**j for j in exponents if dt / 2.0**j >= MIN_STEP]
 
 
 def _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, exponents, probes,
@@ -223,10 +229,7 @@ def _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, expo
     the step named passes the check its run makes (etd4 at 0.2 ms, named on the 0.4 ms probes, was then rated
     6e-6 against 1e-6 by its own run); one that fails it is passed over.
     """
-    for j in exponents:
-        h = dt / 2.0**j
-        if h < MIN_STEP:
-            break
+    for h in _halvings(dt, exponents):
         if not check_step(plant.model.A, plant.model.B, method, h).stable:  # the stability guard's view too
             continue
         report = check_accuracy(plant, method, h, duration, x0, tolerance, method_options, suggest=False, probes=probes)
@@ -313,22 +316,21 @@ def check_slipping(
         if (not report.stable and worst.stable) or (report.stable == worst.stable and report.error > worst.error):
             worst = report
     if suggest and not worst.ok:  # a step of this method that passes in both modes, else another method's
-        for j in range(1, ALTERNATIVE_HALVINGS + 1):
-            h = dt / 2.0**j
+        steps = _halvings(dt, range(ALTERNATIVE_HALVINGS + 1))  # (a scene's steps only: down to MIN_STEP)
+        searched = min(steps, default=dt)
+        for h in steps[1:]:
             other = check_slipping(params, drive, load, method, h, duration, x0_flexible, tolerance * SUGGEST_MARGIN,
                                    method_options, suggest=False, stated_inputs=stated_inputs)  # fmt: skip
             if other.ok:
                 return AccuracyReport(**{**worst.__dict__, "suggestion": h})
-        for j in range(ALTERNATIVE_HALVINGS + 1):  # another method, at this step or a few halvings below
-            h = dt / 2.0**j
+        for h in steps:  # another method, at this step or a few halvings below
             for name in ALTERNATIVES:
                 if name != cls.name:
                     other = check_slipping(params, drive, load, name, h, duration, x0_flexible, tolerance * SUGGEST_MARGIN,
                                            suggest=False, stated_inputs=stated_inputs)  # fmt: skip
                     if other.ok:
-                        return AccuracyReport(**{**worst.__dict__, "alternative": (name, h),
-                                                 "searched": dt / 2.0**ALTERNATIVE_HALVINGS})
-        return AccuracyReport(**{**worst.__dict__, "searched": dt / 2.0**ALTERNATIVE_HALVINGS})
+                        return AccuracyReport(**{**worst.__dict__, "alternative": (name, h), "searched": searched})
+        return AccuracyReport(**{**worst.__dict__, "searched": searched})
     return worst
 
 
