@@ -12,6 +12,7 @@ after they are received, as documented; the file reads with ``mcap`` and
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -501,6 +502,10 @@ def test_the_network_nodes_parameters_are_read_only_as_ros_tools_see_them(ros_do
         assert h.node.get_parameter("step_rate_hz").value == 1000.0 and h.node.settings.tick_ns == 1_000_000
     finally:
         h.close()
+    # docs/serpentine.md quotes the refusal as the node answers it (it said 'refused with the reason: restart the
+    # node', the node's own check before the parameters were declared read-only)
+    doc = " ".join((Path(__file__).resolve().parents[1] / "docs" / "serpentine.md").read_text(encoding="utf-8").split())
+    assert f"`{reasons[1][1]}`" in doc and "refused with the reason: restart the node" not in doc
 
 
 def test_the_network_node_has_a_reset_whose_next_tick_is_the_initial_state(tmp_path, ros_domain_id, capsys):
