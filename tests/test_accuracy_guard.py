@@ -346,3 +346,20 @@ def test_the_slipping_guard_names_only_steps_a_scene_takes():
     named = [float(v) for v in re.findall(r"(?:dt = |down to )([0-9.e+-]+) s", text)]
     assert named and all(h >= RANGES["dt"][0] for h in named), text
     assert "no step of euler down to 1e-07 s is stable and accurate" in text, text
+
+
+def test_method_auto_tries_only_steps_a_scene_takes():
+    """``method: auto``'s substeps went to dt / 64 whatever the scene's step: at dt = 2e-7 s it rated steps down to
+    3.1e-9 s and said 'down to 3.12e-09 s', steps a scene refuses (and its choice could have been one), where the
+    accuracy guard's own search in the same summary stopped at 1e-7 s. Both stop at the steps a scene takes."""
+    import re
+
+    from belt_drive_ros.core.method_choice import choose_for_scene
+    from belt_drive_ros.core.scene import RANGES
+
+    scene = load_scene("paper").with_overrides(model="rigid", method="auto", dt=2e-7, duration=0.01, tolerance=1e-12)
+    choice = choose_for_scene(scene, "rigid")
+    steps = {h for _, h, _ in choice.tried}
+    assert min(steps) >= RANGES["dt"][0] and choice.dt >= RANGES["dt"][0], sorted(steps)
+    down_to = [float(v) for v in re.findall(r"down to ([0-9.e+-]+) s", choice.reason)]
+    assert down_to == [min(steps)], choice.reason

@@ -52,7 +52,7 @@ from .errors import IntegratorError, SimulationDivergedError, UnstableStepError
 from .forced_response import harmonic_error
 from .integrators import FixedStepIntegrator, make_integrator, method_class
 from .model import make_model
-from .scene import RANGES
+from .scene import MAX_STEPS, RANGES
 from .slip import STICK, SlippingBeltModel
 from .slip_run import _joined, _shared_phases, rerun_simulator
 from .stability import check_step
@@ -60,6 +60,14 @@ from .stepper import shared_plant
 
 #: the smallest step [s] a scene accepts (``scene.RANGES``): a step the guard names is one a scene can state
 MIN_STEP = RANGES["dt"][0]
+
+
+def scene_takes(h: float, duration: float) -> bool:
+    """Whether a scene takes the step ``h`` [s] for a run of ``duration`` [s]: ``h >=`` :data:`MIN_STEP` and at most
+    ``scene.MAX_STEPS`` steps (``duration / h``). The guards' searches (halvings, ``method: auto``'s substeps) try
+    and name no other step."""
+    return h >= MIN_STEP and duration / h <= MAX_STEPS
+
 
 @dataclass(frozen=True)
 class AccuracyReport:

@@ -3,8 +3,9 @@
 
 The cheapest of :data:`CANDIDATES` (exact for the belt mode; 1, 2, 4, 6 torque evaluations per step) the accuracy
 guard rates stable and within :data:`~.accuracy.SUGGEST_MARGIN` of the tolerance on this scene (the slipping model:
-both modes) at the scene's ``dt``, else at the fewest substeps ``n`` of :data:`SUBSTEPS` (step ``dt / n``); when none
-is, the smallest estimate found, its reason saying the tolerance is not met.
+both modes) at the scene's ``dt``, else at the fewest substeps ``n`` of :data:`SUBSTEPS` (step ``dt / n``, one a scene
+takes: :func:`~.accuracy.scene_takes`); when none is, the smallest estimate found, its reason saying the tolerance is not
+met.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .accuracy import ACCURACY_TOLERANCE, SUGGEST_MARGIN, check_accuracy, check_slipping, probe_scene
+from .accuracy import ACCURACY_TOLERANCE, SUGGEST_MARGIN, check_accuracy, check_slipping, probe_scene, scene_takes
 
 #: the method name that asks for this choice
 AUTO = "auto"
@@ -72,7 +73,7 @@ def choose_method(plant, duration: float, x0, dt: float, tolerance: float = ACCU
 
     for n in SUBSTEPS:
         h = dt / n
-        if n > 1 and duration / h > 1e9:  # a step count the scene itself would refuse
+        if n > 1 and not scene_takes(h, duration):  # a step (or step count) the scene itself would refuse
             break
         # the most accurate first: when neither passes, the cheaper ones are not checked at this step
         best = {m: rate(m, h) for m in ("etd4", "lawson5")}
@@ -87,7 +88,7 @@ def choose_method(plant, duration: float, x0, dt: float, tolerance: float = ACCU
     n = round(dt / h)
     reason = (
         f"{method} at dt={h:.3g} s ({n} substep(s) of {dt:.3g} s): no candidate ({', '.join(CANDIDATES)}) is rated within "
-        f"{bar:.2g} (a quarter of the tolerance {tolerance:.2g}) down to {dt / SUBSTEPS[-1]:.3g} s; this is the most "
+        f"{bar:.2g} (a quarter of the tolerance {tolerance:.2g}) down to {min(r[1] for r in tried):.3g} s; this is the most "
         f"accurate found (estimated {error:.2g} of the peak)"
     )
     return MethodChoice(method, h, n, tolerance, error, error <= tolerance, reason, tuple(tried))
