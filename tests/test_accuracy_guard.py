@@ -363,3 +363,20 @@ def test_method_auto_tries_only_steps_a_scene_takes():
     assert min(steps) >= RANGES["dt"][0] and choice.dt >= RANGES["dt"][0], sorted(steps)
     down_to = [float(v) for v in re.findall(r"down to ([0-9.e+-]+) s", choice.reason)]
     assert down_to == [min(steps)], choice.reason
+
+
+def test_the_guard_s_search_names_no_step_a_long_run_cannot_take():
+    """A scene takes at most 1e9 steps: on a 20,000 s run no step below 2e-5 s. exact at 1 ms (tolerance 1e-6) said
+    'no step of exact down to 1.2e-07 s is stable and accurate', having tried steps the scene then refuses for that
+    run. The search stops at the last step the run may take, and says so."""
+    import re
+
+    from belt_drive_ros.core.scene import MAX_STEPS
+
+    scene = load_scene("e_motor_start")
+    report = _report(scene.with_overrides(duration=2.0e4), "exact", 1e-3, kind="rigid", tolerance=1e-6)
+    text = report.describe()
+    assert not report.accurate and report.suggestion is None, text
+    down_to = [float(v) for v in re.findall(r"down to ([0-9.e+-]+) s", text)]
+    assert report.searched == 1e-3 / 2**5 and 2.0e4 / report.searched <= MAX_STEPS, text
+    assert down_to == [pytest.approx(report.searched, rel=0.02)], text

@@ -214,15 +214,15 @@ def check_accuracy(
                     if h is not None and (found is None or h > found):
                         alternative = (other, h)
                         break
-        searched = min(_halvings(dt, range(MAX_HALVINGS + 1)), default=dt)
+        searched = min(_halvings(dt, range(MAX_HALVINGS + 1), duration), default=dt)
         worst = AccuracyReport(**{**worst.__dict__, "suggestion": found, "alternative": alternative, "searched": searched})
     return worst
 
 
-def _halvings(dt: float, exponents) -> list:
-    """The steps ``dt / 2^j`` [s] (``j`` in ``exponents``, increasing) a scene accepts (``>=`` :data:`MIN_STEP`): the
-    candidates every search of the guard tries."""
-    return [dt / 2.0**j for j in exponents if dt / 2.0**j >= MIN_STEP]
+def _halvings(dt: float, exponents, duration: float) -> list:
+    """The steps ``dt / 2^j`` [s] (``j`` in ``exponents``, increasing) a scene takes for a run of ``duration`` [s]
+    (:func:`scene_takes`): the candidates every search of the guard tries."""
+    return [dt / 2.0**j for j in exponents if scene_takes(dt / 2.0**j, duration)]
 
 
 def _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, exponents, probes,
@@ -232,12 +232,13 @@ def _largest_ok(plant, method, dt, duration, x0, tolerance, method_options, expo
     Each candidate is checked with ``suggest=False``: the search never searches again. The windows of the
     forcing check start where ``probes`` says (their length follows the candidate step). A candidate the
     stability guard (free belt) refuses is skipped: a step named is accepted by both guards. The search stops
-    below :data:`MIN_STEP` (a scene refuses such a step). A candidate that passes is checked once more on the
-    probes a run at that step makes (the forcing windows placed for it: before breakpoints on its own grid), so
-    the step named passes the check its run makes (etd4 at 0.2 ms, named on the 0.4 ms probes, was then rated
-    6e-6 against 1e-6 by its own run); one that fails it is passed over.
+    where a scene stops taking the step (:func:`scene_takes`: below :data:`MIN_STEP`, or beyond ``scene.MAX_STEPS``
+    steps over ``duration``). A candidate that passes is checked once more on the probes a run at that step makes
+    (the forcing windows placed for it: before breakpoints on its own grid), so the step named passes the check its
+    run makes (etd4 at 0.2 ms, named on the 0.4 ms probes, was then rated 6e-6 against 1e-6 by its own run); one
+    that fails it is passed over.
     """
-    for h in _halvings(dt, exponents):
+    for h in _halvings(dt, exponents, duration):
         if not check_step(plant.model.A, plant.model.B, method, h).stable:  # the stability guard's view too
             continue
         report = check_accuracy(plant, method, h, duration, x0, tolerance, method_options, suggest=False, probes=probes)
@@ -324,7 +325,7 @@ def check_slipping(
         if (not report.stable and worst.stable) or (report.stable == worst.stable and report.error > worst.error):
             worst = report
     if suggest and not worst.ok:  # a step of this method that passes in both modes, else another method's
-        steps = _halvings(dt, range(ALTERNATIVE_HALVINGS + 1))  # (a scene's steps only: down to MIN_STEP)
+        steps = _halvings(dt, range(ALTERNATIVE_HALVINGS + 1), duration)  # (a scene's steps only)
         searched = min(steps, default=dt)
         for h in steps[1:]:
             other = check_slipping(params, drive, load, method, h, duration, x0_flexible, tolerance * SUGGEST_MARGIN,
