@@ -62,7 +62,8 @@ def _nodes(context):
 def generate_launch_description():
     return LaunchDescription([
         DeclareLaunchArgument("params_file", default_value="",
-                              description="ROS 2 parameters file of the node (key: belt_drive); '' = the package's "
+                              description="ROS 2 parameters file of the node (key: /**/belt_drive, the node in any "
+                                          "namespace; belt_drive alone is /belt_drive only); '' = the package's "
                                           "config/belt_drive.yaml for the paper's drive, none for a belt network"),
         DeclareLaunchArgument("record_path", default_value="belt_drive_run.mcap",
                               description="MCAP file the node records to; '' records nothing"),

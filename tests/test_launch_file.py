@@ -299,3 +299,12 @@ def test_a_network_scene_through_the_launch_file_starts_the_network_node_driven_
         assert settings.drive_source == "scene" and settings.record_path == "belt_drive_run.mcap"
         assert settings.record_overwrite is False
     assert settings.step_rate_hz == 500.0
+
+
+def test_the_params_file_argument_names_the_section_the_shipped_file_uses(description):
+    """params_file's description said '(key: belt_drive)': rcl reads that section as /belt_drive, so a file written
+    so took nothing in a namespace (an including launch file's PushROSNamespace), the case config/belt_drive.yaml's
+    '/**/belt_drive' was changed for. The description names the shipped file's key."""
+    (key,) = yaml.safe_load(PARAMS_FILE.read_text(encoding="utf-8"))
+    (argument,) = [a for a in description.entities if isinstance(a, DeclareLaunchArgument) and a.name == "params_file"]
+    assert f"key: {key}" in argument.description, argument.description
