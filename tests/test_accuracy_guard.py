@@ -380,3 +380,20 @@ def test_the_guard_s_search_names_no_step_a_long_run_cannot_take():
     down_to = [float(v) for v in re.findall(r"down to ([0-9.e+-]+) s", text)]
     assert report.searched == 1e-3 / 2**5 and 2.0e4 / report.searched <= MAX_STEPS, text
     assert down_to == [pytest.approx(report.searched, rel=0.02)], text
+
+
+def test_a_slipping_run_whose_own_error_needs_a_step_below_the_floor_names_the_floor():
+    """The slipping run's own error extrapolated to a step below the shortest a scene takes (1e-7 s) names no step
+    (since the floor of 01fa044), and the line then said 'no step of etd4 down to 1.5e-12 s is stable and accurate':
+    a search that was never made, to a step no scene takes. It says the floor; method auto's refusal reads the same."""
+    import re
+
+    from belt_drive_ros.core.accuracy import AccuracyReport, with_slip_run_error
+    from belt_drive_ros.core.scene import RANGES
+
+    stick = AccuracyReport("etd4", 1e-7, True, True, 1e-6, 1e-4, 1.0, 1.0, 0.1, (0.0, 0.0), mode="stick")
+    report = with_slip_run_error(stick, 1e-3)
+    text = report.describe()
+    assert not report.accurate and report.suggestion is None, text
+    down_to = [float(v) for v in re.findall(r"down to ([0-9.e+-]+) s", text)]
+    assert down_to == [RANGES["dt"][0]] and report.searched_to == RANGES["dt"][0], text

@@ -117,6 +117,12 @@ class AccuracyReport:
     def ok(self) -> bool:
         return self.stable and self.accurate
 
+    @property
+    def searched_to(self) -> float:
+        """The smallest step [s] of this method found not to work: :attr:`searched`, else ``dt / 2^16`` (the
+        search's depth), never below :data:`MIN_STEP` (a scene takes no shorter step)."""
+        return self.searched if self.searched is not None else max(self.dt / 2.0**MAX_HALVINGS, MIN_STEP)
+
     def describe(self) -> str:
         """One line for logs and errors."""
         state = "UNSTABLE" if not self.stable else ("accurate" if self.accurate else "INACCURATE")
@@ -149,8 +155,7 @@ class AccuracyReport:
         elif self.suggestion is not None:
             line += f"; dt = {self.suggestion:.3g} s is stable and accurate"
         elif not self.ok:
-            searched = self.searched if self.searched is not None else self.dt / 2.0**MAX_HALVINGS
-            line += f"; no step of {self.method} down to {searched:.2g} s is stable and accurate"
+            line += f"; no step of {self.method} down to {self.searched_to:.2g} s is stable and accurate"
         if self.alternative is not None:
             other = f"{self.alternative[0]} at dt = {self.alternative[1]:.3g} s"
             line += f"; so is {other}" if self.suggestion is not None else f"; {other} is stable and accurate"

@@ -167,8 +167,7 @@ def good_step_error(scene, kind: str, error):
         if rated.alternative is not None:
             fix += f"; so is {rated.alternative[0]} at dt = {rated.alternative[1]:.3g} s"
     else:
-        searched = rated.searched if rated.searched is not None else scene.dt / 2.0**16
-        fix = f"no step of {rated.method} is accurate down to {searched:.2g} s; {rated.alternative[0]} at dt = " \
+        fix = f"no step of {rated.method} is accurate down to {rated.searched_to:.2g} s; {rated.alternative[0]} at dt = " \
               f"{rated.alternative[1]:.3g} s is {where}"
     fresh = UnstableStepError(f"{report.describe()}; {fix}")
     fresh.stability = report
