@@ -83,13 +83,15 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
         starts.append(a)
         a += r[1].size
     fine = y_all[half:]
-    errs = factor * np.maximum.reduceat(np.abs(y_all[:half] - fine), starts, axis=0)
+    gap = factor * np.abs(y_all[:half] - fine)
+    errs = np.maximum.reduceat(gap, starts, axis=0)
     peaks = np.maximum.reduceat(np.abs(fine), starts, axis=0)
+    angle = any(plant.uses_angle)
+    lasting = _drift_time(plant, probes) if rigid or angle else None
     if rigid:  # no belt mode: the window's error is the drive's, and it builds up over the run
-        errs = _grown(starts, factor * np.abs(y_all[:half] - fine), t_all[half:], errs, _drift_time(plant, probes))
+        errs = _grown(starts, gap, t_all[half:], errs, lasting)
     drifts = (
-        _phase_drifts(plant, starts, x_all[:half], x_all[half:], t_all[half:], fine, factor, _drift_time(plant, probes))
-        if any(plant.uses_angle) else {}
+        _phase_drifts(plant, starts, x_all[:half], x_all[half:], t_all[half:], fine, factor, lasting) if angle else {}
     )  # fmt: skip
     return [(r[0], np.maximum(errs[j], drifts[j]) if j in drifts else errs[j], peaks[j]) for j, r in enumerate(runs)]
 
@@ -117,9 +119,14 @@ def _grown(starts, gap, t, errs, duration: float) -> np.ndarray:
         for k, whole in enumerate(errs[j].tolist()):
             if whole > 0.0:
                 f = first[j][k]
-                g = 1.0 if not f > 0.0 else min(1.0, max(0.0, math.log2(max(whole / f, 1.0))))
-                out[j, k] = whole * (duration / span) ** g
+                out[j, k] = whole * (duration / span) ** _growth(whole, f)
     return out
+
+
+def _growth(whole: float, first: float) -> float:
+    """How an error grows over a window, ``g = log2(whole / first)`` in [0, 1] (its largest over the window against
+    its largest over the first half: 1 linear, 0 not growing); 1 where the first half has none."""
+    return 1.0 if not first > 0.0 else min(1.0, max(0.0, math.log2(max(whole / first, 1.0))))
 
 
 def _drift_time(plant, probes) -> float:
@@ -186,7 +193,7 @@ def _phase_drifts(plant, starts, xc, xf, tf, yf, factor: float, duration: float)
                 rest = dphi[3 * k + 1] if firsts[k] < starts[j] + sizes[j] else dphi[3 * k]
                 whole = factor * _maximum(dphi[3 * k], rest) / w
                 span = float(tf[starts[j] + sizes[j] - 1] - tf[starts[j]])
-                g = 1.0 if first <= 0.0 else min(1.0, max(0.0, math.log2(max(whole / first, 1.0))))
+                g = _growth(whole, first)
                 grown = max(1.0, duration / span) ** g
                 worst[j] = [_maximum(a, r * whole * grown) for a, r in zip(worst[j], rate[j])]
     return {j: np.array(v) for j, v in worst.items()}
