@@ -22,7 +22,7 @@ export MPLBACKEND := Agg
 help:
 	@sed -n '1,8p' Makefile
 
-$(STAMP): pyproject.toml setup.py constraints.txt tests/foxglove/package-lock.json
+$(STAMP): pyproject.toml setup.py setup.cfg constraints.txt tests/foxglove/package-lock.json
 	@command -v node >/dev/null && command -v npm >/dev/null || { \
 	  echo "error: node and npm are needed (the tests decode recordings with Foxglove's parsers): install nodejs and npm" >&2; exit 1; }
 	npm ci --prefix tests/foxglove --no-audit --no-fund --loglevel=error
