@@ -321,3 +321,19 @@ def test_a_torque_bag_of_several_drives_is_read_on_the_topic_named(tmp_path, cap
     capsys.readouterr()
     assert main(["sim", "paper", "--torque-topic", "/a/drive_torque"]) == 2
     assert "--torque-topic" in capsys.readouterr().err
+
+
+def test_method_auto_s_substeps_that_split_the_output_rate_are_said(tmp_path, capsys):
+    """method auto at tolerance 1e-11 steps paper at 5 ms / 6: 1 kHz is then no whole number of steps and the file
+    has a message at every step (1200 Hz), but the note that says so was decided before the choice (at 5 ms, where
+    1 kHz is above the step rate) and was not printed."""
+    from msg_tools import summary
+
+    out = tmp_path / "x.mcap"
+    assert main(["sim", "paper", "--method", "auto", "--tolerance", "1e-11", "--duration", "0.5", "--out", str(out),
+                 "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "6 substeps" in text
+    assert "note: output_rate 1000 Hz is not the step rate 1200 Hz divided by a whole number" in text
+    speed = [t for t in summary(out).topics if t.topic == "/shaft_speed"][0]
+    assert speed.message_count == 601  # every step of 0.5 s at 1/1200 s, and t = 0

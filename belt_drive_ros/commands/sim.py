@@ -296,7 +296,12 @@ def _run_in_memory(scene, args, out_format, bar) -> int:
     result = simulate(scene, progress=bar)
     print_summary(RunSummary().add(result))
     if args.out is not None:
-        from ..io.recording import write_result_mcap
+        from ..io.recording import output_rate_note, write_result_mcap
+
+        if out_format == "mcap" and result.dt != scene.dt:  # method auto took substeps: said for the step it ran
+            note = output_rate_note(result.dt, float(args.writer_options.get("output_rate") or scene.output_rate))
+            if note:
+                print(note)
 
         if out_format == "mcap" and args.bag_folder:
             from ..io import holds_bag
