@@ -283,3 +283,13 @@ def test_a_grid_value_given_twice_is_refused(grid, message):
         Campaign.from_mapping({"scene": "paper", "grid": grid})
     distinct = {key: sorted(set(values), key=values.index) for key, values in grid.items()}
     assert Campaign.from_mapping({"scene": "paper", "grid": distinct}).size == len(next(iter(distinct.values())))
+
+
+def test_a_value_set_makes_invalid_is_named_as_set_s():
+    """``set: {k: -5}`` was refused as 'k: must be > 0 N/m, got -5.0 (in scene.params)': the scene file's own
+    error, by the look of it. It is named as what set gave; the scene's own errors are unchanged."""
+    with pytest.raises(CampaignError, match=r"^set: k: must be > 0 N/m, got -5\.0"):
+        Campaign.from_mapping({"scene": "paper", "set": {"k": -5}})
+    with pytest.raises(CampaignError, match=r"^set: "):
+        Campaign.from_mapping({"scene": "paper", "set": {"drive.soft_start_time": -1.0}})
+    assert Campaign.from_mapping({"scene": "paper", "set": {"k": 2.0e4}}).base.params.k == 2.0e4

@@ -259,9 +259,15 @@ class Campaign:
         else:
             raise CampaignError(f"scene: a shipped scene name or a scene file is required, got {short(scene_ref)}")
         mapping = base.to_dict()
-        for path, _, value in _key_paths(_mapping(data, "set"), "set."):
+        given = _key_paths(_mapping(data, "set"), "set.")
+        for path, _, value in given:
             _assign(mapping, tuple(path.split(".")), value)
-        base = scene_from_mapping(mapping)
+        try:
+            base = scene_from_mapping(mapping)
+        except BeltDriveError as exc:  # the scene itself read before: what set changed is named as set's
+            if not given:
+                raise
+            raise CampaignError(f"set: {exc}") from None
         grid, decode = {}, {}
         for key, given, values in _key_paths(_mapping(data, "grid"), "grid."):
             column, back = _column(key, sequence(values, f"grid.{given}", CampaignError, nonempty=True))
