@@ -368,14 +368,14 @@ def test_the_guard_reads_its_first_window_off_the_run(monkeypatch, name, overrid
         runs.append((self.dt, t0, t1)), run(self, x0, t0, t1, progress))[1])  # fmt: skip
     result = simulate(scene)
     monkeypatch.undo()
-    from belt_drive_ros.core.accuracy_windows import RIGID_WINDOW_STEPS
+    from belt_drive_ros.core.accuracy_windows import window_span
 
-    # (a rigid run's windows are longer: its steps are cheap, and a ripple's error is seen to stop growing)
-    window = (RIGID_WINDOW_STEPS if result.model == "rigid" else accuracy_probes.WINDOW_STEPS) * scene.dt
-    assert (scene.dt / 2.0, 0.0, window) in runs  # the window's half-step run
-    assert (scene.dt, 0.0, window) not in runs and (scene.dt, 0.0, scene.duration) in runs
     plant = shared_plant(make_model(result.model, scene.params), scene.drive, scene.load)
     x0 = scene.initial_state.vector(result.model, scene.params.ratio)
+    probes = probe_scene(plant, scene.duration, x0, scene.dt)
+    window = window_span(plant, probes, scene.dt)  # (a rigid run's are longer where a torque may repeat)
+    assert (scene.dt / 2.0, 0.0, window) in runs  # the window's half-step run
+    assert (scene.dt, 0.0, window) not in runs and (scene.dt, 0.0, scene.duration) in runs
     alone = check_accuracy(plant, scene.method, scene.dt, scene.duration, x0, scene.tolerance,
                            probes=probe_scene(plant, scene.duration, x0, scene.dt))  # fmt: skip
     assert repr(alone) == repr(result.accuracy)  # (etd2 at 5 ms: inaccurate, the same step named)

@@ -8,12 +8,13 @@ import math
 
 import numpy as np
 
-from .accuracy_probes import WINDOW_STEPS, Probes, _output_rows, closed_loop_eigenvalues
+from .accuracy_probes import APERIODIC_KINDS, WINDOW_STEPS, Probes, _output_rows, closed_loop_eigenvalues
 from .errors import IntegratorError, SimulationDivergedError
 from .integrators import method_class
 from .stepper import shared_stepper
 
-#: steps of a rigid run's forcing windows (its steps are cheap): a ripple's error is seen to stop growing (:func:`_grown`)
+#: steps of a rigid run's forcing windows where a torque may repeat (its steps are cheap): a ripple's error is seen to
+#: stop growing (:func:`_grown`)
 RIGID_WINDOW_STEPS = 4 * WINDOW_STEPS
 
 
@@ -47,8 +48,7 @@ def window_errors(plant, method: str, dt: float, probes: Probes, method_options=
     coarse = stepper or shared_stepper(plant, method, dt, method_options)
     fine = shared_stepper(plant, method, dt / 2.0, method_options)  # (make_integrator shares the half-step integrator)
     runs = []
-    # a rigid run's windows are long (its steps are cheap): a ripple's error is seen to stop growing (_grown)
-    span = RIGID_WINDOW_STEPS * dt if rigid else probes.span(dt)
+    span = window_span(plant, probes, dt)
     for t0, x in probes.window_starts(plant, dt):
         t1 = min(t0 + span, probes.duration)
         if t1 <= t0 + 0.5 * dt:
@@ -121,6 +121,14 @@ def _grown(starts, gap, t, errs, duration: float) -> np.ndarray:
                 f = first[j][k]
                 out[j, k] = whole * (duration / span) ** _growth(whole, f)
     return out
+
+
+def window_span(plant, probes: Probes, dt: float) -> float:
+    """Length [s] of the forcing windows at step ``dt`` [s]: ``probes.span(dt)``; a rigid run's where a torque may
+    repeat, :data:`RIGID_WINDOW_STEPS` steps (its steps are cheap: a ripple's bounded error is seen to stop growing,
+    :func:`_grown`; a torque that only rises, falls or holds has no ripple to take for a drift)."""
+    ripple = plant.model.name == "rigid" and not {plant.drive.kind, plant.load.kind} <= APERIODIC_KINDS
+    return RIGID_WINDOW_STEPS * dt if ripple else probes.span(dt)
 
 
 def _growth(whole: float, first: float) -> float:
