@@ -505,3 +505,23 @@ def test_a_recording_whose_clock_stopped_between_ticks_is_refused_not_resimulate
     err = capsys.readouterr().err
     assert "cannot re-simulate: 10 of 21 ticks lie off the node's 1 ms tick grid (the first at t = 0.0015 s" in err, err
     assert not out.exists()
+
+
+def test_a_recording_whose_substeps_split_no_tick_evenly_is_refused_not_resimulated_short(tmp_path, ros_domain_id,
+                                                                                           capsys):
+    """substeps=7 at 1 kHz: the node steps 7 x 142857 ns and 1 ns per tick; the re-simulation stepped dt evenly, off
+    the ticks, and wrote 2 of the 31 ticks (compare then failed on every signal). Now it says so and writes nothing."""
+    from belt_drive_ros.cli import main
+    from belt_drive_ros.ros.harness import BeltDriveHarness
+
+    rec = tmp_path / "run.mcap"
+    with BeltDriveHarness(scene="paper", model="flexible", method="exact", substeps=7, domain_id=ros_domain_id,
+                          input_timeout=0.0, record_path=str(rec)) as h:  # fmt: skip
+        assert h.node.settings.dt_ns == 142857
+        h.publish_torque(6.0)
+        h.advance(0.03)
+    out = tmp_path / "re.mcap"
+    assert main(["sim", str(rec), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "cannot re-simulate: the node split each 1 ms tick into steps of 142857 ns and a last one of 1 ns" in err, err
+    assert len(err.strip().splitlines()) == 1 and not out.exists()

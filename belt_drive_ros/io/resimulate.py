@@ -261,6 +261,15 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
             raise BagReadError(f"{file}: cannot read it ({exc.strerror or exc}); nothing written") from None
     import numpy as np
 
+    dt_ns = _rate(record.get("dt", ""))  # (a finite number > 0, or None)
+    if (record.get("source") == "node" and dt_ns is not None and tick_ns.strip().isdigit() and int(tick_ns) > 0
+            and int(tick_ns) % int(round(dt_ns * 1e9)) != 0):
+        # substeps that split no tick evenly (1 ms in 7): the node stepped whole-ns steps of dt and a last shorter
+        # one per tick; the run offline steps dt evenly, off the ticks (only 2 of 131 samples were written)
+        step = int(round(dt_ns * 1e9))
+        raise BagReadError(
+            f"{path}: cannot re-simulate: the node split each {int(tick_ns) / 1e6:g} ms tick into steps of {step} ns "
+            f"and a last one of {int(tick_ns) % step} ns; 'belt-drive sim' repeats a run whose dt divides its tick")
     if ticks and start is not None and tick_ns.strip().isdigit() and int(tick_ns) > 0:
         # a /clock that stopped between two ticks (a time master at 1.5 ms, a jump to an off-grid time): the node
         # integrated to it and published there; the run offline has samples on the grid only (half the ticks of a
