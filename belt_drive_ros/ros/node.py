@@ -284,7 +284,7 @@ class BeltDriveNode(Node):
         self.get_logger().info(
             f"scene '{s.scene.name}', model {s.model.name} ({s.model_reason}); {s.stability.describe()}; "
             + (f"{s.accuracy.describe()}; " if s.accuracy is not None else "")
-            + f"{s.step_rate_hz:g} Hz x {s.substeps} substep(s); drive torque bound {s.torque_bound:g} N m"
+            + f"{s.steps}; drive torque bound {s.torque_bound:g} N m"
             + (", publishing /clock" if s.publish_clock else "")
             + (", use_sim_time" if self.timing.use_sim_time() else "")
         )

@@ -294,6 +294,19 @@ class NodeSettings:
         """Integrator substep [s]."""
         return self.dt_ns / 1e9
 
+    @property
+    def steps(self) -> str:
+        """How the node steps, for its start line: rate and substeps, and where that is not the scene's ``dt``, the
+        step it takes and how ``belt-drive sim`` runs the same (the node steps ``tick / substeps``)."""
+        line = f"{self.step_rate_hz:g} Hz x {self.substeps} substep(s)"
+        if self.dt_ns == round(self.scene.dt * 1e9):
+            return line
+        if self.tick_ns % self.dt_ns == 0:
+            return (f"{line} of {self.dt_ns} ns (the scene's dt is {self.scene.dt:g} s; belt-drive sim --dt "
+                    f"{self.dt_ns / 1e9:g} steps as this node does)")
+        return (f"{line} of {self.dt_ns} ns (the scene's dt is {self.scene.dt:g} s; a tick of {self.tick_ns} ns is no "
+                "whole number of them: the steps are split at the ticks)")
+
 
 def _number(name: str, value: Any, lo: float, hi: float, integer: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
