@@ -206,9 +206,12 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
         if drive_topic != APPLIED_TOPIC and len(parents) == 1:  # its namespace (/car1: the re-simulation wrote
             namespace = parents.pop()  # /shaft_speed ... and copied the recorded /car1/shaft_speed ... as they were)
         # its first sample is its scene time 0 (the --start-time it was written with): not the wall time of the
-        # re-simulation, nor the first stamp of the torque bag that drove it
+        # re-simulation, nor the first stamp of the torque bag that drove it. A topic's first time comes from the
+        # message indexes, which no CRC covers: one earlier than the file's first message (its statistics, under
+        # the summary's CRC) is a damaged index, not the run's start
         firsts = [t.start_ns for t in run if t.start_ns is not None]
-        start = min(firsts) if firsts else start
+        known = [info.start_ns for info in infos if info.start_ns is not None]
+        start = max(min(firsts), min(known)) if firsts and known else min(firsts) if firsts else start
     if start is None and record.get("source") == "node" and record.get("drive_source") == "scene":
         # the node's own drive: the run is the recorded ticks, from the first to the last (not the scene's duration)
         ticks = [t for info in infos for t in info.topics if t.topic.rsplit("/", 1)[-1] == "joint_states" and t.start_ns is not None]
