@@ -74,6 +74,19 @@ def _refusal(exc: BagReadError, path) -> str:
     return message
 
 
+def _flipped(recording: bytes, offset: int, path):
+    """The re-simulation of ``recording`` with the byte at ``offset`` flipped, written to ``path``; None where it is
+    refused (in one line naming the file)."""
+    flipped = bytearray(recording)
+    flipped[offset] ^= 0xFF
+    path.write_bytes(bytes(flipped))
+    try:
+        return _resimulate(path)
+    except BagReadError as exc:
+        _refusal(exc, path)
+        return None
+
+
 def test_the_intact_recording_re_simulates(recording, tmp_path):
     path = tmp_path / "rec.mcap"
     path.write_bytes(recording)
@@ -102,13 +115,8 @@ def test_a_flipped_byte_is_refused_or_changes_nothing(recording, tmp_path):
     for offset in _offsets(recording, 157):
         if offset >= len(recording) - MAGIC:
             continue  # the closing magic: msg-tools' own tests cover a file that does not end as MCAP
-        flipped = bytearray(recording)
-        flipped[offset] ^= 0xFF
-        path.write_bytes(bytes(flipped))
-        try:
-            resim = _resimulate(path)
-        except BagReadError as exc:
-            _refusal(exc, path)
+        resim = _flipped(recording, offset, path)
+        if resim is None:
             refused += 1
             continue
         assert resim.passthrough == reference.passthrough, offset
@@ -169,13 +177,8 @@ def test_a_flipped_byte_in_a_message_index_leaves_the_start_time(recording, tmp_
     for a in indexes:
         length = struct.unpack_from("<Q", recording, a + 1)[0]
         for offset in range(a + 9, a + 9 + length):
-            flipped = bytearray(recording)
-            flipped[offset] ^= 0xFF
-            path.write_bytes(bytes(flipped))
-            try:
-                resim = _resimulate(path)
-            except BagReadError as exc:
-                _refusal(exc, path)
+            resim = _flipped(recording, offset, path)
+            if resim is None:
                 continue
             assert resim.start_time_ns == reference.start_time_ns, offset
             checked += 1
