@@ -220,8 +220,18 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
             if end > start:
                 scene = scene.with_overrides(duration=(end - start) / 1e9)
     _one_run(last, path, start)
-    tick_ns = record.get("tick_ns", "")
-    output_rate = 1e9 / float(tick_ns) if tick_ns.strip().isdigit() and int(tick_ns) > 0 else None
+    text = record.get("tick_ns", "")
+    tick_ns = int(text) if text.strip().isdigit() and int(text) > 0 else None  # (a node's tick [ns], else None)
+    dt = _rate(record.get("dt", ""))  # [s] (a finite number > 0, or None)
+    step = round(dt * 1e9) if dt is not None else 0  # [ns]
+    if record.get("source") == "node" and step > 0 and tick_ns is not None and tick_ns % step:
+        # substeps that split no tick evenly (1 ms in 7): the node stepped whole-ns steps of dt and a last shorter
+        # one per tick; the run offline steps dt evenly, off the ticks (only 2 of 131 samples were written).
+        # Refused before any message is read
+        raise BagReadError(
+            f"{path}: cannot re-simulate: the node split each {tick_ns / 1e6:g} ms tick into steps of {step} ns "
+            f"and a last one of {tick_ns % step} ns; 'belt-drive sim' repeats a run whose dt divides its tick")
+    output_rate = 1e9 / tick_ns if tick_ns is not None else None
     if output_rate is None and record.get("source") == "offline":  # the rate it was written at (write_result_mcap's
         # output_rate, not always the scene's: at the scene's, 1 kHz, a 250 Hz recording had 4x the samples)
         output_rate = _rate(record.get("output_rate", ""))
@@ -264,25 +274,16 @@ def resimulation(path, computed=(), torque_bag=None) -> Resimulation:
             raise BagReadError(f"{file}: cannot read it ({exc.strerror or exc}); nothing written") from None
     import numpy as np
 
-    dt_ns = _rate(record.get("dt", ""))  # (a finite number > 0, or None)
-    if (record.get("source") == "node" and dt_ns is not None and tick_ns.strip().isdigit() and int(tick_ns) > 0
-            and int(tick_ns) % int(round(dt_ns * 1e9)) != 0):
-        # substeps that split no tick evenly (1 ms in 7): the node stepped whole-ns steps of dt and a last shorter
-        # one per tick; the run offline steps dt evenly, off the ticks (only 2 of 131 samples were written)
-        step = int(round(dt_ns * 1e9))
-        raise BagReadError(
-            f"{path}: cannot re-simulate: the node split each {int(tick_ns) / 1e6:g} ms tick into steps of {step} ns "
-            f"and a last one of {int(tick_ns) % step} ns; 'belt-drive sim' repeats a run whose dt divides its tick")
-    if ticks and start is not None and tick_ns.strip().isdigit() and int(tick_ns) > 0:
+    if ticks and start is not None and tick_ns is not None:
         # a /clock that stopped between two ticks (a time master at 1.5 ms, a jump to an off-grid time): the node
         # integrated to it and published there; the run offline has samples on the grid only (half the ticks of a
         # 1.5 ms clock were left out, the rest equal): refused, not written short
-        off = (np.asarray(ticks, dtype=np.int64) - start) % int(tick_ns) != 0
+        off = (np.asarray(ticks, dtype=np.int64) - start) % tick_ns != 0
         if off.any():
             first = ticks[int(np.argmax(off))]
             raise BagReadError(
                 f"{path}: cannot re-simulate: {int(off.sum())} of {len(ticks)} ticks lie off the node's "
-                f"{int(tick_ns) / 1e6:g} ms tick grid (the first at t = {(first - start) / 1e9:.9g} s: its /clock stopped "
+                f"{tick_ns / 1e6:g} ms tick grid (the first at t = {(first - start) / 1e9:.9g} s: its /clock stopped "
                 "between two ticks); 'belt-drive sim' repeats a run whose ticks are on its grid")
     return Resimulation(scene, start, output_rate, namespace, drive_topic,
                         [tuple(entry) for entry in channels.values()],
